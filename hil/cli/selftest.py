@@ -1,0 +1,34 @@
+"""``hil selftest``: check this installation's protocol codec against the canonical test vectors."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hil.paths import FIXTURES
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "selftest",
+        help="check the protocol codec against fixtures/protocol_vectors.json",
+        description="Encode and decode every canonical frame of the protocol test vectors and report.",
+        epilog="example: hil selftest",
+    )
+    p.add_argument("--vectors", type=Path, default=FIXTURES / "protocol_vectors.json", help="vectors file")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from protocol.messages import CATALOGUE, SCHEMA_HASH
+    from protocol.vectors import check_vectors
+
+    results = check_vectors(args.vectors)
+    failed = [r for r in results if not r.ok]
+    for r in failed:
+        print(f"FAIL {r.name}: {r.detail}")
+    print(
+        f"protocol: {len(CATALOGUE)} messages, schema hash {SCHEMA_HASH:#010x}; "
+        f"{len(results) - len(failed)}/{len(results)} vectors pass ({args.vectors})"
+    )
+    return 1 if failed else 0

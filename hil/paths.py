@@ -1,0 +1,10 @@
+"""Where the project's own data lives (the checkout is installed in editable mode)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+FIXTURES = ROOT / "fixtures"
+SHARED_DATA = ROOT.parent / "shared" / "data"
+"""Real recorded sensor data (read-only, beside the checkout; see its README)."""

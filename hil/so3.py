@@ -1,0 +1,116 @@
+"""Rotation-group utilities (SO(3)) shared by the estimator, the plant and the controller. Pure math.
+
+Conventions: rotation matrices ``R`` of shape (3, 3) map body-frame vectors to the inertial frame
+(``v_inertial = R @ v_body``); angular velocities are body-frame, rad/s, shape (3,). Functions accept
+stacked inputs where noted (leading batch dimensions ``...``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from protocol.errors import NumericalError
+
+Array = NDArray[np.float64]
+
+_SMALL = 1e-4  # below this angle (rad) Taylor series replace the closed forms
+
+
+def hat(v: ArrayLike) -> Array:
+    """Skew-symmetric matrix ``v^×`` with ``hat(v) @ w == cross(v, w)``; shape (..., 3) → (..., 3, 3)."""
+    v = np.asarray(v, dtype=float)
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -v[..., 2]
+    out[..., 0, 2] = v[..., 1]
+    out[..., 1, 0] = v[..., 2]
+    out[..., 1, 2] = -v[..., 0]
+    out[..., 2, 0] = -v[..., 1]
+    out[..., 2, 1] = v[..., 0]
+    return out
+
+
+def vee(m: ArrayLike) -> Array:
+    """Inverse of :func:`hat` (``vex``), taking the skew part of ``m``; shape (..., 3, 3) → (..., 3)."""
+    m = np.asarray(m, dtype=float)
+    return 0.5 * np.stack(
+        [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], axis=-1
+    )
+
+
+def exp(phi: ArrayLike) -> Array:
+    """Rodrigues' formula ``exp(phi^×)``; accurate to machine precision at small angles. (..., 3) → (..., 3, 3)."""
+    phi = np.asarray(phi, dtype=float)
+    theta2 = np.einsum("...i,...i->...", phi, phi)
+    theta = np.sqrt(theta2)
+    small = theta < _SMALL
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta2 / 6.0 + theta2 * theta2 / 120.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, (1.0 - np.cos(safe)) / (safe * safe))
+    k = hat(phi)
+    k2 = k @ k
+    eye = np.broadcast_to(np.eye(3), k.shape)
+    return eye + a[..., None, None] * k + b[..., None, None] * k2
+
+
+def log(r: ArrayLike) -> Array:
+    """Rotation vector ``phi`` with ``exp(phi) == r`` and ``|phi| <= pi``; stable near 0 and near pi.
+
+    Near pi the axis is taken from the symmetric part ``(R + Rᵀ)/2 = I + (1 - cos θ) n nᵀ`` (its largest
+    diagonal entry's column), with the sign fixed by the skew part. Input shape (3, 3).
+    """
+    r = np.asarray(r, dtype=float)
+    cos_theta = np.clip((np.trace(r) - 1.0) * 0.5, -1.0, 1.0)
+    theta = float(np.arccos(cos_theta))
+    w = vee(r)  # = sin(theta) * n
+    if theta < _SMALL:
+        return w * (1.0 + theta * theta / 6.0)
+    if theta < np.pi - 1e-3:
+        return w * (theta / np.sin(theta))
+    sym = 0.5 * (r + r.T) - cos_theta * np.eye(3)  # = (1 - cos θ) n nᵀ
+    j = int(np.argmax(np.diag(sym)))
+    n = sym[:, j] / np.sqrt(max(sym[j, j], 1e-300))
+    n /= np.linalg.norm(n)
+    if float(np.dot(n, w)) < 0.0:
+        n = -n
+    # refine theta with atan2 for accuracy near pi
+    theta = float(np.arctan2(np.linalg.norm(w), cos_theta))
+    return n * theta
+
+
+def principal_angle(r: ArrayLike) -> float:
+    """The angle (rad, in [0, pi]) of the rotation ``r``: ``arccos((tr r - 1)/2)``, computed robustly."""
+    r = np.asarray(r, dtype=float)
+    cos_theta = (np.trace(r) - 1.0) * 0.5
+    sin_theta = np.linalg.norm(vee(r))
+    return float(np.arctan2(sin_theta, cos_theta))
+
+
+def orthonormality_error(r: ArrayLike) -> float:
+    """``‖rᵀ r − I‖_F``: zero for an exact rotation."""
+    r = np.asarray(r, dtype=float)
+    return float(np.linalg.norm(r.T @ r - np.eye(3)))
+
+
+def is_rotation(r: ArrayLike, tol: float = 1e-9) -> bool:
+    """True if ``r`` is orthonormal within ``tol`` and has determinant +1."""
+    r = np.asarray(r, dtype=float)
+    return r.shape == (3, 3) and orthonormality_error(r) <= tol and abs(np.linalg.det(r) - 1.0) <= tol
+
+
+def project(m: ArrayLike) -> Array:
+    """The nearest rotation to ``m`` in the Frobenius norm (polar decomposition via SVD).
+
+    Used to re-orthonormalise integrated attitudes; raises NumericalError for a degenerate ``m``.
+    """
+    m = np.asarray(m, dtype=float)
+    u, s, vt = np.linalg.svd(m)
+    if s[-1] <= 1e-12 * max(s[0], 1e-300):
+        raise NumericalError(f"cannot project a rank-deficient matrix onto SO(3) (singular values {s})")
+    d = np.sign(np.linalg.det(u @ vt))
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
+def angle_between(a: ArrayLike, b: ArrayLike) -> float:
+    """Angle (rad) between two rotations: the principal angle of ``a bᵀ``."""
+    return principal_angle(np.asarray(a) @ np.asarray(b).T)

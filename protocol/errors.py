@@ -1,0 +1,105 @@
+"""The project's one exception tree.
+
+It lives in the lowest layer (``protocol``) so that ``hil`` and ``firmware_sim``, which both import
+``protocol``, raise and catch the same classes.  Every class also inherits the built-in exception it
+resembles (``ValueError``, ``ConnectionError``, ``TimeoutError`` ...), so generic ``except`` clauses keep
+working.  Errors say *where*: a field of a frame, a key of a config file, a file/line/column of a log.
+"""
+
+from __future__ import annotations
+
+
+class HilError(Exception):
+    """Root of every error this project raises on purpose."""
+
+
+# --------------------------------------------------------------------------- protocol
+class ProtocolError(HilError, ValueError):
+    """A message or frame that cannot be encoded or decoded."""
+
+
+class FieldRangeError(ProtocolError):
+    """A message field outside its documented range (raised on encode)."""
+
+    def __init__(self, message: str, field: str, value: object) -> None:
+        super().__init__(f"{message}.{field} = {value!r} is out of range")
+        self.message_name = message
+        self.field = field
+        self.value = value
+
+
+class FrameError(ProtocolError):
+    """A frame that fails to decode; ``reason`` is one of :class:`protocol.frame.BadFrameReason`."""
+
+    def __init__(self, reason: object, detail: str = "") -> None:
+        super().__init__(f"{reason}: {detail}" if detail else str(reason))
+        self.reason = reason
+        self.detail = detail
+
+
+class CommandFailed(ProtocolError):
+    """A reliable command was NACKed or never acknowledged after all retries."""
+
+
+# --------------------------------------------------------------------------- configuration / data
+class ConfigError(HilError, ValueError):
+    """A bad configuration, scenario or parameter set; ``where`` names the file and key."""
+
+    def __init__(self, detail: str, where: str = "") -> None:
+        super().__init__(f"{where}: {detail}" if where else detail)
+        self.where = where
+        self.detail = detail
+
+
+class CalibrationError(ConfigError):
+    """A calibration table or bench CSV that is malformed, non-monotone or does not cover its range."""
+
+
+class InputFormatError(HilError, ValueError):
+    """A malformed input file (sensor log, CSV); says file, line and column."""
+
+    def __init__(self, detail: str, path: str = "", line: int | None = None, column: str | None = None):
+        where = path
+        if line is not None:
+            where += f":{line}"
+        if column is not None:
+            where += f" (column {column})"
+        super().__init__(f"{where}: {detail}" if where else detail)
+        self.path = path
+        self.line = line
+        self.column = column
+        self.detail = detail
+
+
+# --------------------------------------------------------------------------- numerics
+class NumericalError(HilError, ArithmeticError):
+    """A numerical method that failed (e.g. Newton-Raphson did not converge)."""
+
+
+class ConvergenceError(NumericalError):
+    """An iterative solver hit its iteration cap without meeting its tolerance."""
+
+
+# --------------------------------------------------------------------------- link / runtime
+class LinkError(HilError, ConnectionError):
+    """The transport to the board failed, vanished or could not be opened."""
+
+
+class LinkTimeout(LinkError, TimeoutError):
+    """No answer from the far side within the deadline."""
+
+
+class HandshakeError(LinkError):
+    """The board answered the handshake with an incompatible version or schema hash."""
+
+
+class BoardReset(LinkError):
+    """The board reset under us; ``cause`` is the reset cause it reported."""
+
+    def __init__(self, cause: object, detail: str = "") -> None:
+        super().__init__(f"board reset (cause: {cause}){': ' + detail if detail else ''}")
+        self.cause = cause
+
+
+class TransportError(LinkError):
+    """A transport URL that cannot be resolved or opened."""

@@ -1,0 +1,261 @@
+"""Frames: header + payload + CRC-16, COBS-encoded, delimited by 0x00. Sans-IO.
+
+Unencoded frame (all fields little-endian)::
+
+    offset  size  field
+    0       1     version      protocol version (PROTOCOL_VERSION)
+    1       1     msg_id       message id (protocol.messages.CATALOGUE)
+    2       1     seq          sequence number, per sender, +1 per new frame (mod 256)
+    3       1     flags        bit 0 ACK_REQUESTED, bit 1 RETRANSMIT, others 0
+    4       n     payload      0..250 bytes, the message's fields
+    4+n     2     crc          CRC-16/CCITT-FALSE over bytes 0..4+n-1
+
+On the wire: ``COBS(frame) + b"\\x00"``. At most 259 bytes including the delimiter.
+A receiver that sees corruption discards up to the next 0x00 and resynchronises there, so a bad frame
+costs that frame only.
+"""
+
+from __future__ import annotations
+
+import enum
+import struct
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from . import cobs
+from .crc import crc16_ccitt_false
+from .errors import FieldRangeError, FrameError, ProtocolError
+from .fields import PayloadLengthError
+from .messages import BY_ID, LAYOUTS, PROTOCOL_VERSION, Flags, encode_payload
+
+HEADER = struct.Struct("<BBBB")
+CRC = struct.Struct("<H")
+HEADER_SIZE = HEADER.size
+CRC_SIZE = CRC.size
+MAX_PAYLOAD = 250
+MIN_FRAME = HEADER_SIZE + CRC_SIZE
+MAX_FRAME = HEADER_SIZE + MAX_PAYLOAD + CRC_SIZE
+MAX_ENCODED = cobs.max_encoded_len(MAX_FRAME)
+"""Longest COBS-encoded frame (without delimiter); a longer run without 0x00 is garbage."""
+DELIMITER = b"\x00"
+
+
+class BadFrameReason(enum.Enum):
+    """Why a delimited chunk of bytes was not a valid frame."""
+
+    COBS = "cobs"  # invalid COBS encoding
+    TOO_SHORT = "too_short"  # fewer bytes than header + CRC
+    TOO_LONG = "too_long"  # more than MAX_ENCODED bytes before a delimiter
+    CRC = "crc"  # checksum mismatch
+    VERSION = "version"  # unsupported protocol version
+    UNKNOWN_ID = "unknown_id"  # message id not in the catalogue
+    LENGTH = "length"  # payload shorter or longer than the message's fields
+    FIELD_RANGE = "field_range"  # a field value outside its documented range
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """A decoded, valid frame."""
+
+    message: Any
+    seq: int
+    flags: Flags
+    version: int = PROTOCOL_VERSION
+
+    @property
+    def msg_id(self) -> int:
+        return int(self.message.MSG_ID)
+
+
+@dataclass(frozen=True, slots=True)
+class BadFrame:
+    """A chunk between delimiters that did not decode; ``size`` is its encoded length in bytes."""
+
+    reason: BadFrameReason
+    detail: str
+    size: int
+
+
+Event = Frame | BadFrame
+
+
+def encode_frame(message: Any, seq: int, flags: int = 0) -> bytes:
+    """The wire bytes (COBS + delimiter) of one frame. Raises FieldRangeError for bad fields."""
+    if not 0 <= seq <= 0xFF:
+        raise FieldRangeError("header", "seq", seq)
+    if not 0 <= flags <= 0xFF:
+        raise FieldRangeError("header", "flags", flags)
+    payload = encode_payload(message)
+    if len(payload) > MAX_PAYLOAD:
+        raise ProtocolError(f"{type(message).__name__} payload is {len(payload)} bytes > {MAX_PAYLOAD}")
+    body = HEADER.pack(PROTOCOL_VERSION, message.MSG_ID, seq, flags) + payload
+    body += CRC.pack(crc16_ccitt_false(body))
+    return cobs.encode(body) + DELIMITER
+
+
+def decode_frame(encoded: bytes) -> Frame:
+    """Decode one COBS chunk (without its delimiter). Raises FrameError with a BadFrameReason."""
+    if len(encoded) > MAX_ENCODED:
+        raise FrameError(BadFrameReason.TOO_LONG, f"{len(encoded)} bytes > {MAX_ENCODED}")
+    body = cobs.decode(encoded)
+    if len(body) < MIN_FRAME:
+        raise FrameError(BadFrameReason.TOO_SHORT, f"{len(body)} bytes < {MIN_FRAME}")
+    if len(body) > MAX_FRAME:
+        raise FrameError(BadFrameReason.TOO_LONG, f"{len(body)} bytes > {MAX_FRAME}")
+    (crc,) = CRC.unpack_from(body, len(body) - CRC_SIZE)
+    computed = crc16_ccitt_false(body[:-CRC_SIZE])
+    if crc != computed:
+        raise FrameError(BadFrameReason.CRC, f"received {crc:#06x}, computed {computed:#06x}")
+    version, msg_id, seq, flags = HEADER.unpack_from(body)
+    if version != PROTOCOL_VERSION:
+        raise FrameError(BadFrameReason.VERSION, f"version {version}, this end speaks {PROTOCOL_VERSION}")
+    layout = LAYOUTS.get(msg_id)
+    if layout is None:
+        raise FrameError(BadFrameReason.UNKNOWN_ID, f"message id {msg_id:#04x}")
+    payload = body[HEADER_SIZE:-CRC_SIZE]
+    try:
+        message, end = layout.decode_from(payload, 0, layout.name)
+    except PayloadLengthError as exc:
+        raise FrameError(BadFrameReason.LENGTH, str(exc)) from None
+    except FieldRangeError as exc:
+        raise FrameError(BadFrameReason.FIELD_RANGE, str(exc)) from None
+    if end != len(payload):
+        raise FrameError(BadFrameReason.LENGTH, f"{layout.name}: {len(payload) - end} trailing byte(s)")
+    return Frame(message, seq, Flags(flags), version)
+
+
+@dataclass
+class LinkCounters:
+    """What a Deframer has seen. ``bad`` counts bad frames by reason."""
+
+    bytes: int = 0
+    frames: int = 0
+    bad: dict[BadFrameReason, int] = field(default_factory=dict)
+    resyncs: int = 0
+    seq_gaps: int = 0
+    duplicates: int = 0
+
+    @property
+    def bad_total(self) -> int:
+        return sum(self.bad.values())
+
+
+class Deframer:
+    """Byte stream in, events out. Bounded memory: never holds more than one maximum frame.
+
+    ``feed(data)`` returns the events completed by ``data`` in order. A run of more than ``MAX_ENCODED``
+    bytes without a delimiter is discarded as one TOO_LONG bad frame (counted as a resync) and the
+    deframer skips to the next delimiter. Empty chunks (consecutive delimiters) are idle fill and ignored.
+    Sequence numbers: a jump of k > 1 adds k-1 to ``seq_gaps``; a repeat of the last number (a
+    retransmission) adds to ``duplicates``.
+    """
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self._skipping = False
+        self._last_seq: int | None = None
+        self.counters = LinkCounters()
+
+    def reset(self) -> None:
+        """Forget a partial frame and the sequence history (e.g. after a reconnect); keep counters."""
+        self._buf.clear()
+        self._skipping = False
+        self._last_seq = None
+
+    def feed(self, data: bytes) -> list[Event]:
+        counters = self.counters
+        counters.bytes += len(data)
+        events: list[Event] = []
+        if DELIMITER not in data:
+            self._append_partial(data, events)
+            return events
+        chunks = data.split(DELIMITER)
+        tail = chunks.pop()
+        first = True
+        for chunk in chunks:
+            if first:
+                first = False
+                if self._buf:
+                    self._buf += chunk
+                    chunk = bytes(self._buf)
+                    self._buf.clear()
+                if self._skipping:
+                    self._skipping = False
+                    continue
+            if not chunk:
+                continue
+            if len(chunk) > MAX_ENCODED:
+                self._bad(events, BadFrameReason.TOO_LONG, f"{len(chunk)} bytes without a delimiter", len(chunk))
+                counters.resyncs += 1
+                continue
+            try:
+                frame = decode_frame(chunk)
+            except FrameError as exc:
+                self._bad(events, exc.reason, exc.detail, len(chunk))  # type: ignore[arg-type]
+                continue
+            self._count_seq(frame)
+            counters.frames += 1
+            events.append(frame)
+        self._append_partial(tail, events)
+        return events
+
+    def _append_partial(self, data: bytes, events: list[Event]) -> None:
+        if self._skipping:
+            return
+        self._buf += data
+        if len(self._buf) > MAX_ENCODED:
+            self._bad(events, BadFrameReason.TOO_LONG, f"more than {MAX_ENCODED} bytes without a delimiter",
+                      len(self._buf))
+            self.counters.resyncs += 1
+            self._buf.clear()
+            self._skipping = True
+
+    def _bad(self, events: list[Event], reason: BadFrameReason, detail: str, size: int) -> None:
+        self.counters.bad[reason] = self.counters.bad.get(reason, 0) + 1
+        events.append(BadFrame(reason, detail, size))
+
+    def _count_seq(self, frame: Frame) -> None:
+        last = self._last_seq
+        self._last_seq = frame.seq
+        if last is None:
+            return
+        step = (frame.seq - last) & 0xFF
+        if step == 0:
+            self.counters.duplicates += 1
+        elif step > 1:
+            self.counters.seq_gaps += step - 1
+
+
+class Framer:
+    """Sender side: numbers frames. ``encode(msg)`` takes the next sequence number; a retry passes the
+    original ``seq`` and gets the RETRANSMIT flag."""
+
+    def __init__(self, first_seq: int = 0) -> None:
+        self._next = first_seq & 0xFF
+
+    @property
+    def next_seq(self) -> int:
+        return self._next
+
+    def encode(self, message: Any, flags: int = 0, seq: int | None = None) -> tuple[int, bytes]:
+        """Returns ``(seq, wire_bytes)``."""
+        if seq is None:
+            seq = self._next
+            self._next = (self._next + 1) & 0xFF
+        else:
+            flags |= Flags.RETRANSMIT
+        if getattr(message, "RELIABLE", False):
+            flags |= Flags.ACK_REQUESTED
+        return seq, encode_frame(message, seq, flags)
+
+
+def decode_stream(data: bytes | Iterable[bytes]) -> list[Event]:
+    """Convenience: run a fresh Deframer over ``data`` (bytes or an iterable of chunks)."""
+    deframer = Deframer()
+    if isinstance(data, (bytes, bytearray)):
+        return deframer.feed(bytes(data))
+    events: list[Event] = []
+    for chunk in data:
+        events.extend(deframer.feed(chunk))
+    return events
