@@ -1,0 +1,72 @@
+"""Transports are URLs resolved by one registry (after pyserial's ``serial_for_url``).
+
+==========================================  ===============================================
+URL                                         transport
+==========================================  ===============================================
+``/dev/pts/N``, ``/dev/ttyACM0``, ``COM3``  serial device (pty, USB CDC, UART adapter)
+``socket://``, ``loop://``, ``spy://``,     pyserial URL handlers
+``rfc2217://``
+==========================================  ===============================================
+
+Each scheme maps to ``"module:Class"``, imported on first use, so a missing optional backend only
+fails when it is asked for. ``open_transport(url)`` returns an opened transport.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from protocol.errors import TransportError
+
+from .base import Transport, UrlOptions
+
+# scheme -> "module:factory"; the factory takes the URL and returns an unopened Transport.
+_REGISTRY: dict[str, str] = {
+    "socket": "hil.transports.serial_port:SerialTransport",
+    "loop": "hil.transports.serial_port:SerialTransport",
+    "spy": "hil.transports.serial_port:SerialTransport",
+    "rfc2217": "hil.transports.serial_port:SerialTransport",
+    "hwgrep": "hil.transports.serial_port:SerialTransport",
+}
+
+
+def register(scheme: str, target: str) -> None:
+    """Add (or replace) the transport for ``scheme``; ``target`` is ``"module:factory"``."""
+    _REGISTRY[scheme] = target
+
+
+def schemes() -> list[str]:
+    return sorted(_REGISTRY)
+
+
+def _scheme_of(url: str) -> str:
+    if "://" not in url:
+        return "serial"  # a device path
+    return url.split("://", 1)[0].lower()
+
+
+def create_transport(url: str) -> Transport:
+    """The transport for ``url``, not yet opened."""
+    scheme = _scheme_of(url)
+    if scheme == "serial":
+        from .serial_port import SerialTransport
+
+        return SerialTransport(url)
+    target = _REGISTRY.get(scheme)
+    if target is None:
+        raise TransportError(f"{url}: unknown transport scheme {scheme!r} (known: {', '.join(schemes())})")
+    module_name, _, attr = target.partition(":")
+    try:
+        factory = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise TransportError(f"{url}: transport {target} is not available: {exc}") from exc
+    transport: Transport = factory(url)
+    return transport
+
+
+def open_transport(url: str) -> Transport:
+    """Resolve ``url`` and open it."""
+    return create_transport(url).open()
+
+
+__all__ = ["Transport", "UrlOptions", "create_transport", "open_transport", "register", "schemes"]

@@ -1,0 +1,147 @@
+"""The transport interface: a byte pipe to the board, opened from a URL.
+
+Template method (after python-can's ``BusABC``): the public ``read``/``write``/``close`` own the
+bookkeeping (open state, byte counters, error translation) once; each backend writes only
+``_open``, ``_read(timeout)``, ``_write(data)`` and ``_close``. Every backend error surfaces as a
+:class:`protocol.errors.LinkError` (``LinkTimeout`` for deadlines), never as a backend-specific one.
+"""
+
+from __future__ import annotations
+
+import abc
+import threading
+from types import TracebackType
+from urllib.parse import parse_qs, urlsplit
+
+from protocol.errors import LinkError, TransportError
+
+
+class Transport(abc.ABC):
+    """A byte stream to the board. ``close()`` is idempotent; use as a context manager."""
+
+    scheme: str = ""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self._open = False
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------------ public
+    @property
+    def is_open(self) -> bool:
+        return self._open
+
+    def open(self) -> Transport:
+        if not self._open:
+            try:
+                self._open_impl()
+            except LinkError:
+                raise
+            except (OSError, ValueError) as exc:
+                raise TransportError(f"{self.url}: cannot open: {exc}") from exc
+            self._open = True
+        return self
+
+    def read(self, timeout: float | None = 0.05) -> bytes:
+        """Bytes available now, waiting up to ``timeout`` s for the first one (``b""`` if none arrive).
+
+        Raises LinkError if the port vanished (far side closed, device unplugged)."""
+        if not self._open:
+            raise LinkError(f"{self.url}: read on a closed transport")
+        data = self._read(timeout)
+        self.bytes_in += len(data)
+        return data
+
+    def write(self, data: bytes) -> None:
+        if not self._open:
+            raise LinkError(f"{self.url}: write on a closed transport")
+        with self._lock:  # writers on several threads must not interleave frames
+            self._write(data)
+        self.bytes_out += len(data)
+
+    def close(self) -> None:
+        if self._open:
+            self._open = False
+            self._close()
+
+    def __enter__(self) -> Transport:
+        return self.open()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<{type(self).__name__} {self.url} {'open' if self._open else 'closed'}>"
+
+    # ------------------------------------------------------------------ backend
+    @abc.abstractmethod
+    def _open_impl(self) -> None: ...
+
+    @abc.abstractmethod
+    def _read(self, timeout: float | None) -> bytes: ...
+
+    @abc.abstractmethod
+    def _write(self, data: bytes) -> None: ...
+
+    @abc.abstractmethod
+    def _close(self) -> None: ...
+
+
+class UrlOptions:
+    """Query-string options of a transport URL; every option must be consumed, unknown ones raise
+    (like pyserial's URL handlers), so a typo never passes silently."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        parts = urlsplit(url)
+        self.scheme = parts.scheme
+        self.netloc = parts.netloc
+        self.path = parts.path
+        self._values: dict[str, str] = {}
+        for key, values in parse_qs(parts.query, keep_blank_values=True).items():
+            if len(values) != 1:
+                raise TransportError(f"{url}: option {key!r} given {len(values)} times")
+            self._values[key] = values[0]
+        self._used: set[str] = set()
+
+    def get(self, key: str, default: str | None = None) -> str | None:
+        self._used.add(key)
+        return self._values.get(key, default)
+
+    def get_float(self, key: str, default: float) -> float:
+        raw = self.get(key)
+        if raw is None:
+            return default
+        try:
+            return float(raw)
+        except ValueError:
+            raise TransportError(f"{self.url}: option {key}={raw!r} is not a number") from None
+
+    def get_int(self, key: str, default: int) -> int:
+        raw = self.get(key)
+        if raw is None:
+            return default
+        try:
+            return int(raw, 0)
+        except ValueError:
+            raise TransportError(f"{self.url}: option {key}={raw!r} is not an integer") from None
+
+    def get_bool(self, key: str, default: bool) -> bool:
+        raw = self.get(key)
+        if raw is None:
+            return default
+        if raw.lower() in ("1", "true", "yes", "on", ""):
+            return True
+        if raw.lower() in ("0", "false", "no", "off"):
+            return False
+        raise TransportError(f"{self.url}: option {key}={raw!r} is not a boolean")
+
+    def finish(self) -> None:
+        """Raise for options nobody asked for."""
+        unknown = sorted(set(self._values) - self._used)
+        if unknown:
+            raise TransportError(f"{self.url}: unknown option(s) {', '.join(unknown)}")

@@ -1,0 +1,72 @@
+"""Serial devices and pyserial URLs: ``/dev/pts/N``, ``/dev/ttyACM0``, ``socket://host:port``,
+``loop://``, ``spy://PORT?file=...`` (hexdump of all traffic), ``rfc2217://``.
+
+Pty pitfalls handled (see pyserial): reads always have a deadline; DTR/RTS are not touched on a pty;
+a far side that closes makes ``read()`` raise "device reports readiness to read but returned no
+data" or EIO — both become :class:`LinkError` so the board client can reconnect.
+"""
+
+from __future__ import annotations
+
+import serial
+
+from protocol.errors import LinkError, TransportError
+
+from .base import Transport
+
+DEFAULT_BAUDRATE = 115200
+
+
+class SerialTransport(Transport):
+    """A pyserial port. ``url`` is a device path or any pyserial URL; ``baudrate`` is ignored by ptys
+    and sockets but matters on a real board's USB-serial adapter."""
+
+    scheme = "serial"
+
+    def __init__(self, url: str, baudrate: int = DEFAULT_BAUDRATE) -> None:
+        super().__init__(url)
+        self.baudrate = baudrate
+        self._port: serial.SerialBase | None = None
+
+    def _open_impl(self) -> None:
+        try:
+            self._port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.05,
+                                               write_timeout=2.0)
+        except serial.SerialException as exc:
+            raise TransportError(f"{self.url}: {exc}") from exc
+        except (ValueError, KeyError) as exc:
+            # pyserial's URL handlers raise ValueError for bad options; loop:// raises KeyError
+            # (a format-string bug in its own error message), so both mean "bad URL options".
+            raise TransportError(f"{self.url}: bad URL or options ({exc!r})") from exc
+
+    def _read(self, timeout: float | None) -> bytes:
+        port = self._port
+        assert port is not None
+        try:
+            if port.timeout != timeout:
+                port.timeout = timeout
+            first = port.read(1)
+            if not first:
+                return b""
+            waiting = port.in_waiting
+            return first + port.read(waiting) if waiting else first
+        except (serial.SerialException, OSError) as exc:
+            raise LinkError(f"{self.url}: read failed (port vanished?): {exc}") from exc
+
+    def _write(self, data: bytes) -> None:
+        port = self._port
+        assert port is not None
+        try:
+            port.write(data)
+        except serial.SerialTimeoutException as exc:
+            raise LinkError(f"{self.url}: write timed out (far side not reading?)") from exc
+        except (serial.SerialException, OSError) as exc:
+            raise LinkError(f"{self.url}: write failed (port vanished?): {exc}") from exc
+
+    def _close(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                port.close()
+            except (serial.SerialException, OSError):
+                pass  # closing a vanished port: nothing left to release
