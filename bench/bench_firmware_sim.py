@@ -1,0 +1,279 @@
+"""firmware_sim through a real pty: frames/s the emulator sustains, and host setpoint → pulse-change-reported
+latency, each next to a raw pty peer measured in the same run (a byte sink and an echo process, in the same
+Python, on the same kind of pty). Plus the sans-IO board's lockstep speed (board seconds per wall second).
+
+The emulator and the peers run as separate processes (``python -m firmware_sim``), so the host side and
+the board do not share a GIL; the host is pyserial, as in ``hil``.
+"""
+
+from __future__ import annotations
+
+import statistics
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from typing import Any
+
+import serial
+
+from bench.common import Result
+from protocol.frame import Deframer, Frame, Framer
+from protocol.messages import (
+    SCHEMA_HASH,
+    Ack,
+    ActuatorSetpoint,
+    Arm,
+    Hello,
+    HelloReply,
+    Telemetry,
+    UnitSetpoint,
+)
+
+NAME = "firmware_sim"
+N_UNITS = 4
+
+# A raw pty peer: "sink" counts frames (0x00 delimiters) and reports the count; "echo" sends bytes back.
+_PEER = r"""
+import os, select, sys, tty
+mode = sys.argv[1]
+master, slave = os.openpty()
+tty.setraw(slave)
+print(os.ttyname(slave), flush=True)
+count = 0
+while True:
+    r, _, _ = select.select([master, sys.stdin], [], [])
+    if sys.stdin in r:
+        sys.stdin.readline()
+        print(count, flush=True)
+        continue
+    data = os.read(master, 65536)
+    if mode == "echo":
+        os.write(master, data)
+    else:
+        count += data.count(0)
+"""
+
+
+@contextmanager
+def _process(args: list[str]) -> Any:
+    proc = subprocess.Popen(
+        args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+    )
+    try:
+        assert proc.stdout is not None
+        path = proc.stdout.readline().strip()
+        if not path.startswith("/dev/"):
+            raise RuntimeError(f"{args[:3]} did not print a pty path: {path!r}")
+        yield proc, path
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _emulator(frame_rate: int, telemetry_rate: int) -> Any:
+    return _process(
+        [
+            sys.executable,
+            "-m",
+            "firmware_sim",
+            "--units",
+            str(N_UNITS),
+            "--frame-rate",
+            str(frame_rate),
+            "--telemetry-rate",
+            str(telemetry_rate),
+            "--link-timeout",
+            "2",
+        ]
+    )
+
+
+def _setpoint(speed: float) -> ActuatorSetpoint:
+    return ActuatorSetpoint(units=tuple(UnitSetpoint(0.1, speed) for _ in range(N_UNITS)))
+
+
+class _Host:
+    def __init__(self, path: str) -> None:
+        self.port = serial.Serial(path, timeout=0.001)
+        self.framer = Framer()
+        self.deframer = Deframer()
+
+    def send(self, msg: Any) -> None:
+        self.port.write(self.framer.encode(msg)[1])
+
+    def messages(self, timeout: float) -> list[Any]:
+        self.port.timeout = timeout
+        data = self.port.read(1)
+        if data and self.port.in_waiting:
+            data += self.port.read(self.port.in_waiting)
+        return [e.message for e in self.deframer.feed(data) if isinstance(e, Frame)]
+
+    def wait(self, cls: type, timeout: float = 2.0) -> Any:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for m in self.messages(0.01):
+                if isinstance(m, cls):
+                    return m
+        raise RuntimeError(f"no {cls.__name__} from the emulator")
+
+    def session(self) -> None:
+        for _ in range(20):
+            self.send(Hello(schema_hash=SCHEMA_HASH))
+            try:
+                self.wait(HelloReply, 0.2)
+                break
+            except RuntimeError:
+                continue
+        self.send(Arm())
+        self.wait(Ack)
+
+
+def _frames_per_second(seconds: float) -> tuple[float, float, str]:
+    """Setpoint frames the emulator decodes per board second while the host writes as fast as it can."""
+    with _emulator(50, 50) as (_, path):
+        host = _Host(path)
+        host.session()
+        frame = host.framer.encode(_setpoint(300.0))[1]
+        batch = frame * 64
+        first = last = None
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            host.port.write(batch)
+            for m in host.messages(0.0):
+                if isinstance(m, Telemetry):
+                    first = first or m
+                    last = m
+        assert first is not None and last is not None and last is not first
+        rate = (last.rx_frames - first.rx_frames) / ((last.time_ms - first.time_ms) / 1000)
+        lost = last.rx_bad - first.rx_bad
+        host.port.close()
+    with _process([sys.executable, "-c", _PEER, "sink"]) as (proc, path):
+        port = serial.Serial(path, timeout=0.01)
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            port.write(batch)
+        port.flush()
+        time.sleep(0.05)
+        elapsed = time.perf_counter() - t0
+        proc.stdin.write("\n")
+        proc.stdin.flush()
+        peer_rate = int(proc.stdout.readline()) / elapsed
+        port.close()
+    return rate, peer_rate, f"{len(frame)}-byte 4-unit setpoints; {lost} frames lost to the board's rx ring"
+
+
+def _latency(samples: int) -> tuple[list[float], list[float]]:
+    """Host setpoint → Telemetry showing the new rotor pulse (ms), and a raw pty echo of the same bytes."""
+    out: list[float] = []
+    with _emulator(490, 1000) as (_, path):
+        host = _Host(path)
+        host.session()
+        speeds = (200.0, 400.0)
+        host.send(_setpoint(speeds[0]))
+        time.sleep(0.05)
+        prev = None
+        while prev is None:
+            for m in host.messages(0.01):
+                if isinstance(m, Telemetry):
+                    prev = m.pulses_us[1]
+        for k in range(samples):
+            msg = _setpoint(speeds[(k + 1) % 2])
+            t0 = time.perf_counter()
+            host.send(msg)
+            done = False
+            while not done:
+                for m in host.messages(0.005):
+                    if isinstance(m, Telemetry) and m.pulses_us[1] != prev:
+                        out.append((time.perf_counter() - t0) * 1000)
+                        prev = m.pulses_us[1]
+                        done = True
+                        break
+        host.port.close()
+    echo: list[float] = []
+    with _process([sys.executable, "-c", _PEER, "echo"]) as (_, path):
+        port = serial.Serial(path, timeout=1.0)
+        data = Framer().encode(_setpoint(300.0))[1]
+        for _ in range(samples):
+            t0 = time.perf_counter()
+            port.write(data)
+            got = b""
+            while len(got) < len(data):
+                got += port.read(len(data) - len(got))
+            echo.append((time.perf_counter() - t0) * 1000)
+        port.close()
+    return out, echo
+
+
+def _lockstep_speed(seconds: float) -> float:
+    from firmware_sim.board import Board
+    from firmware_sim.config import BoardConfig
+    from hil.clock import LockstepClock
+
+    clock = LockstepClock()
+    board = Board(BoardConfig(n_units=N_UNITS, frame_rate_hz=490.0, telemetry_rate_hz=100.0), clock)
+    framer = Framer()
+    board.feed(framer.encode(Hello(schema_hash=SCHEMA_HASH))[1])
+    clock.advance(0.1)
+    board.feed(framer.encode(Arm())[1])
+    t0 = time.perf_counter()
+    steps = 0
+    while time.perf_counter() - t0 < seconds:
+        clock.advance(0.002)  # a 500 Hz control loop
+        board.feed(framer.encode(_setpoint(300.0 + steps % 100))[1])
+        board.step()
+        board.take_output()
+        steps += 1
+    return steps * 0.002 / (time.perf_counter() - t0)
+
+
+def _pct(xs: list[float], p: float) -> float:
+    xs = sorted(xs)
+    return xs[min(len(xs) - 1, round(p / 100 * (len(xs) - 1)))]
+
+
+def run(quick: bool) -> list[Result]:
+    seconds = 0.5 if quick else 3.0
+    samples = 30 if quick else 300
+    rate, peer_rate, note = _frames_per_second(seconds)
+    lat, echo = _latency(samples)
+    speed = _lockstep_speed(0.3 if quick else 2.0)
+    lat_note = "490 Hz pulse frames, 1 kHz telemetry, 1 ms main-loop tick: the change shows on the next frame"
+    return [
+        Result(
+            NAME, "setpoints decoded through the pty", rate, "frames/s", "raw pty sink", peer_rate, True, note
+        ),
+        Result(
+            NAME,
+            "setpoint -> pulse reported p50",
+            statistics.median(lat),
+            "ms",
+            "raw pty echo p50",
+            statistics.median(echo),
+            False,
+            lat_note,
+        ),
+        Result(
+            NAME,
+            "setpoint -> pulse reported p99",
+            _pct(lat, 99),
+            "ms",
+            "raw pty echo p99",
+            _pct(echo, 99),
+            False,
+        ),
+        Result(
+            NAME,
+            "lockstep board, 4 units, 490 Hz",
+            speed,
+            "x real time",
+            "real time",
+            1.0,
+            True,
+            "sans-IO Board driven by a 500 Hz host loop in-process",
+        ),
+    ]

@@ -1,0 +1,184 @@
+"""ESC/motor and gimbal-servo response of one VSCMG unit, driven by pulse widths.
+
+The rotor ESC turns its pulse into a steady no-load speed through the unit's calibration map
+(``UnitCalibration.rotor_speed(pulse_us, battery_v)``, so a sagging battery means a slower rotor) and the
+rotor follows it with a first-order lag (``time_constant_s`` spinning up, ``coast_time_constant_s`` spinning
+down: the ESC does not brake). The gimbal servo follows the rate or angle its pulse stands for
+(``gimbal_value(pulse_us, mode)``). Integration is exact for a constant input over a step, so lockstep
+callers may take steps of any length.
+
+In closed-loop emulation the world owns the dynamics: :meth:`UnitModel.override` replaces the internal
+model with measured states (the board then only computes currents from them).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from protocol.messages import GIMBAL_ANGLE_LIMIT, GIMBAL_RATE_LIMIT, ROTOR_SPEED_LIMIT, GimbalMode, UnitState
+
+from .config import GimbalParams, MotorParams
+
+
+class UnitModel:
+    """Rotor speed (rad/s), gimbal angle (rad) and rate (rad/s) of one unit, and the power it draws.
+
+    ``calibration`` is the unit's ``protocol.calibration.UnitCalibration``."""
+
+    def __init__(self, motor: MotorParams, gimbal: GimbalParams, calibration: Any) -> None:
+        self.motor = motor
+        self.gimbal = gimbal
+        self._calibration = calibration
+        self._cache: dict[tuple[str, float, Any], float] = {}
+        self.rotor_speed = 0.0
+        self.rotor_accel = 0.0
+        self.gimbal_angle = 0.0
+        self.gimbal_rate = 0.0
+        self.gimbal_mode = GimbalMode.RATE
+        self.rotor_dead = False
+        self.gimbal_dead = False
+        self.rotor_driven = False  # the ESC receives pulses and is alive
+        self.gimbal_driven = False
+        self._external: UnitState | None = None
+        self._external_t: float | None = None
+
+    @property
+    def calibration(self) -> Any:
+        return self._calibration
+
+    @calibration.setter
+    def calibration(self, cal: Any) -> None:
+        self._calibration = cal
+        self._cache.clear()
+
+    def rotor_speed_for(self, pulse_us: int, battery_v: float) -> float:
+        """Steady no-load speed (rad/s) of ``pulse_us`` at ``battery_v`` (cached per 10 mV)."""
+        v = round(battery_v, 2)
+        key = ("r", pulse_us, v)
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = float(self._calibration.rotor_speed(float(pulse_us), v).value)
+            self._remember(key, hit)
+        return hit
+
+    def gimbal_value_for(self, pulse_us: int, mode: GimbalMode) -> float:
+        """Gimbal rate (rad/s) or angle (rad) that ``pulse_us`` stands for in ``mode`` (cached)."""
+        key = ("g", pulse_us, mode)
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = float(self._calibration.gimbal_value(float(pulse_us), mode).value)
+            self._remember(key, hit)
+        return hit
+
+    def _remember(self, key: tuple[str, float, Any], value: float) -> None:
+        if len(self._cache) > 4096:
+            self._cache.clear()
+        self._cache[key] = value
+
+    # ------------------------------------------------------------------ closed-loop hook
+    def override(self, state: UnitState | None, t: float) -> None:
+        """Use measured ``state`` instead of the internal model (None: back to the model)."""
+        if state is None:
+            self._external = None
+            self._external_t = None
+            return
+        prev, prev_t = self._external, self._external_t
+        if prev is not None and prev_t is not None and t > prev_t:
+            self.rotor_accel = (state.rotor_speed - prev.rotor_speed) / (t - prev_t)
+        self._external, self._external_t = state, t
+        self.rotor_speed = state.rotor_speed
+        self.gimbal_angle = state.gimbal_angle
+        self.gimbal_rate = state.gimbal_rate
+
+    @property
+    def external(self) -> bool:
+        return self._external is not None
+
+    # ------------------------------------------------------------------ dynamics
+    def advance(self, dt: float, gimbal_us: int | None, rotor_us: int | None, battery_v: float) -> None:
+        """Integrate ``dt`` seconds with constant pulse inputs (None: no pulse on that channel)."""
+        self.rotor_driven = rotor_us is not None and not self.rotor_dead
+        self.gimbal_driven = gimbal_us is not None and not self.gimbal_dead
+        if dt <= 0.0 or self._external is not None:
+            return
+        self._advance_rotor(dt, rotor_us, battery_v)
+        self._advance_gimbal(dt, gimbal_us)
+
+    def steady_rotor_speed(self, rotor_us: int | None, battery_v: float) -> float:
+        """The no-load speed the ESC drives towards (0 without pulses or with a dead ESC)."""
+        if rotor_us is None or self.rotor_dead:
+            return 0.0
+        return self.rotor_speed_for(rotor_us, battery_v)
+
+    def _advance_rotor(self, dt: float, rotor_us: int | None, battery_v: float) -> None:
+        m = self.motor
+        target = self.steady_rotor_speed(rotor_us, battery_v)
+        w0 = self.rotor_speed
+        tau = m.time_constant_s if (target > w0 and self.rotor_driven) else m.coast_time_constant_s
+        decay = math.exp(-dt / tau)
+        w = target + (w0 - target) * decay
+        self.rotor_speed = w
+        self.rotor_accel = (target - w) / tau
+
+    def _advance_gimbal(self, dt: float, gimbal_us: int | None) -> None:
+        g = self.gimbal
+        tau = g.time_constant_s
+        if not self.gimbal_driven or gimbal_us is None:
+            target_rate = 0.0
+        elif self.gimbal_mode == GimbalMode.RATE:
+            target_rate = self.gimbal_value_for(gimbal_us, GimbalMode.RATE)
+            target_rate = max(min(target_rate, g.max_rate_rad_s), -g.max_rate_rad_s)
+        else:
+            self._advance_gimbal_angle(dt, self.gimbal_value_for(gimbal_us, GimbalMode.ANGLE))
+            return
+        r0 = self.gimbal_rate
+        decay = math.exp(-dt / tau)
+        self.gimbal_rate = target_rate + (r0 - target_rate) * decay
+        self.gimbal_angle += target_rate * dt + (r0 - target_rate) * tau * (1.0 - decay)
+
+    def _advance_gimbal_angle(self, dt: float, target: float) -> None:
+        """Position servo: rate = error / τ, limited to ±max rate, in sub-steps of at most τ/4."""
+        g = self.gimbal
+        n = max(1, math.ceil(dt / (g.time_constant_s / 4.0)))
+        h = dt / n
+        angle = self.gimbal_angle
+        rate = 0.0
+        for _ in range(n):
+            err = target - angle
+            rate = max(min(err / g.time_constant_s, g.max_rate_rad_s), -g.max_rate_rad_s)
+            step = rate * h
+            angle = target if abs(step) >= abs(err) else angle + step
+        self.gimbal_angle = angle
+        self.gimbal_rate = rate
+
+    # ------------------------------------------------------------------ loads
+    def rotor_power_w(self, battery_v: float) -> float:
+        """Electrical power the rotor's ESC draws from the battery (W)."""
+        if not self.rotor_driven:
+            return 0.0
+        m = self.motor
+        w = abs(self.rotor_speed)
+        drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
+        accel = max(m.inertia_kg_m2 * w * self.rotor_accel * math.copysign(1.0, self.rotor_speed or 1.0), 0.0)
+        return (drag + accel) / m.efficiency + m.idle_current_a * battery_v
+
+    def gimbal_current_a(self) -> float:
+        """Current the gimbal servo draws from the UBEC rail (A)."""
+        if not self.gimbal_driven:
+            return 0.0
+        return self.gimbal.idle_current_a + self.gimbal.current_per_rad_s_a * abs(self.gimbal_rate)
+
+    def state(self) -> UnitState:
+        """The unit's state clamped to the wire's ranges (for Telemetry)."""
+        return UnitState(
+            gimbal_angle=_clamp(self.gimbal_angle, GIMBAL_ANGLE_LIMIT),
+            gimbal_rate=_clamp(self.gimbal_rate, GIMBAL_RATE_LIMIT),
+            rotor_speed=_clamp(self.rotor_speed, ROTOR_SPEED_LIMIT),
+        )
+
+
+def _clamp(x: float, limit: float) -> float:
+    if not math.isfinite(x):
+        return 0.0
+    return max(min(x, limit), -limit)

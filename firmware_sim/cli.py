@@ -1,0 +1,245 @@
+"""``firmware-sim``: the emulated ADK board on a real pseudo-terminal, in real time, until interrupted.
+
+The first line on stdout is the pty's path and nothing else (scripts read it); everything else goes to
+stderr. SIGINT and SIGTERM end it cleanly (the symlink is removed, exit status 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import re
+import signal
+import sys
+from collections.abc import Sequence
+from types import FrameType
+
+from protocol.errors import ConfigError, HilError
+
+EPILOG = """\
+examples:
+  firmware-sim                                  serve 4 units on a new pty, print its path
+  firmware-sim --link /tmp/vscmg-board          ... and keep /tmp/vscmg-board pointing at it
+  hil run --port /tmp/vscmg-board               (in another terminal) drive it
+  firmware-sim --units 3 --frame-rate 400 --telemetry-rate 100
+  firmware-sim --link-timeout 0.5 --mcu-watchdog 1.0
+  firmware-sim --corrupt 0.01 --drop 0.001      damage 1%% / lose 0.1%% of the bytes, both ways
+  firmware-sim --stall 5:2                      the link carries nothing from t=5 s for 2 s
+  firmware-sim --hang-at 5                      main loop hangs at t=5 s: watchdog reset follows
+  firmware-sim --sag 6@10/5                     battery loses 6 V from t=10 s, ramped over 5 s:
+                                                warn -> limit -> shed -> brown-out reset
+  firmware-sim --brownout-at 8                  a short collapse of the pack at t=8 s
+  firmware-sim --dead-esc 1@3                   the ESC on channel 1 (rotor 0) dies at t=3 s
+  firmware-sim --duration 30 -v                 stop after 30 s, log state changes
+
+Times are seconds since start on the board's clock. Channels: gimbal 0, rotor 0, gimbal 1, rotor 1, ...
+"""
+
+_AT = r"(?:@(?P<at>[0-9.eE+-]+))?"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="firmware-sim",
+        description="Emulated ADK board (VSCMG actuators) behind a real pseudo-terminal.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("-v", "--verbose", action="count", default=0, help="log more (-vv: debug)")
+    p.add_argument("--link", metavar="PATH", help="keep a symlink at PATH pointing at the pty")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until ^C)")
+    p.add_argument(
+        "--no-hold",
+        action="store_true",
+        help="do not hold the pty's slave side open (the master then sees EIO while no host is on)",
+    )
+    b = p.add_argument_group("board")
+    b.add_argument("--units", type=int, default=4, metavar="N", help="VSCMG units, 1..8 (default 4)")
+    b.add_argument(
+        "--frame-rate", type=float, default=50.0, metavar="HZ", help="pulse frame rate, 50..490 Hz"
+    )
+    b.add_argument(
+        "--telemetry-rate", type=float, default=20.0, metavar="HZ", help="telemetry rate (default 20)"
+    )
+    b.add_argument("--heartbeat-rate", type=float, default=5.0, metavar="HZ", help="board heartbeat rate")
+    b.add_argument(
+        "--link-timeout", type=float, default=0.25, metavar="S", help="link watchdog (default 0.25)"
+    )
+    b.add_argument("--mcu-watchdog", type=float, default=0.5, metavar="S", help="MCU watchdog (default 0.5)")
+    b.add_argument(
+        "--rotor-safe-us",
+        type=int,
+        default=1000,
+        metavar="US",
+        help="rotor pulse when disarmed / failsafe (default 1000)",
+    )
+    b.add_argument("--ppm", action="store_true", help="also generate a PPM-sum train of the first 8 channels")
+    b.add_argument("--cells", type=int, default=3, metavar="N", help="battery cells in series (default 3)")
+    b.add_argument(
+        "--capacity", type=float, default=1000.0, metavar="MAH", help="battery capacity (default 1000)"
+    )
+    b.add_argument("--soc", type=float, default=1.0, metavar="F", help="initial state of charge 0..1")
+    b.add_argument("--seed", type=int, default=0, help="seed of the fault injector's random numbers")
+    f = p.add_argument_group("fault injection")
+    f.add_argument("--corrupt", type=float, default=0.0, metavar="P", help="per-byte corruption probability")
+    f.add_argument("--drop", type=float, default=0.0, metavar="P", help="per-byte loss probability")
+    f.add_argument(
+        "--fault-direction",
+        choices=("rx", "tx", "both"),
+        default="both",
+        help="which way --corrupt/--drop act (rx: host to board)",
+    )
+    f.add_argument(
+        "--stall", action="append", default=[], metavar="AT:DURATION", help="link stall (repeatable)"
+    )
+    f.add_argument(
+        "--hang-at", action="append", type=float, default=[], metavar="T", help="MCU hang (repeatable)"
+    )
+    f.add_argument(
+        "--sag", action="append", default=[], metavar="VOLTS[@AT[/RAMP]]", help="battery voltage sag"
+    )
+    f.add_argument(
+        "--sag-ohms",
+        action="append",
+        default=[],
+        metavar="OHMS[@AT[/RAMP]]",
+        help="extra battery internal resistance",
+    )
+    f.add_argument(
+        "--brownout-at",
+        action="append",
+        type=float,
+        default=[],
+        metavar="T",
+        help="collapse the battery for 0.3 s at T: brown-out reset",
+    )
+    f.add_argument("--dead-esc", action="append", default=[], metavar="CH[@AT]", help="dead ESC on a channel")
+    return p
+
+
+def parse_sag(spec: str, option: str = "--sag") -> tuple[float, float | None, float]:
+    """``VOLTS[@AT[/RAMP]]`` → (amount, at or None, ramp seconds)."""
+    m = re.fullmatch(r"(?P<v>[0-9.eE+-]+)(?:@(?P<at>[0-9.eE+-]+)(?:/(?P<ramp>[0-9.eE+-]+))?)?", spec.strip())
+    if not m:
+        raise ConfigError(f"{spec!r} is not AMOUNT[@AT[/RAMP]] (e.g. 6@10/5)", option)
+    try:
+        at = None if m["at"] is None else float(m["at"])
+        return float(m["v"]), at, 0.0 if m["ramp"] is None else float(m["ramp"])
+    except ValueError:
+        raise ConfigError(f"{spec!r}: not a number", option) from None
+
+
+def parse_stall(spec: str) -> tuple[float, float]:
+    m = re.fullmatch(r"(?P<at>[0-9.eE+-]+):(?P<d>[0-9.eE+-]+)", spec.strip())
+    if not m:
+        raise ConfigError(f"{spec!r} is not AT:DURATION (e.g. 5:2)", "--stall")
+    try:
+        return float(m["at"]), float(m["d"])
+    except ValueError:
+        raise ConfigError(f"{spec!r}: not a number", "--stall") from None
+
+
+def parse_dead_esc(spec: str) -> tuple[int, float | None]:
+    m = re.fullmatch(r"(?P<ch>[0-9]+)" + _AT, spec.strip())
+    if not m:
+        raise ConfigError(f"{spec!r} is not CHANNEL[@AT] (e.g. 1@3)", "--dead-esc")
+    try:
+        return int(m["ch"]), None if m["at"] is None else float(m["at"])
+    except ValueError:
+        raise ConfigError(f"{spec!r}: not a number", "--dead-esc") from None
+
+
+def make_board(args: argparse.Namespace, clock: object | None = None):  # type: ignore[no-untyped-def]
+    """The board the options describe, faults scheduled (times relative to the clock's start)."""
+    from dataclasses import replace
+
+    from hil.clock import WallClock
+
+    from .board import Board
+    from .config import BatteryParams, BoardConfig, PowerConfig
+
+    cfg = BoardConfig(
+        n_units=args.units,
+        frame_rate_hz=args.frame_rate,
+        telemetry_rate_hz=args.telemetry_rate,
+        heartbeat_rate_hz=args.heartbeat_rate,
+        link_timeout_s=args.link_timeout,
+        mcu_watchdog_s=args.mcu_watchdog,
+        rotor_safe_us=args.rotor_safe_us,
+        ppm=args.ppm,
+        seed=args.seed,
+        power=PowerConfig(
+            battery=replace(
+                BatteryParams(), cells=args.cells, capacity_mah=args.capacity, initial_soc=args.soc
+            )
+        ),
+    )
+    board = Board(cfg, clock if clock is not None else WallClock())  # type: ignore[arg-type]
+    faults = board.faults
+    faults.link(corrupt=args.corrupt, drop=args.drop, direction=args.fault_direction)
+    for spec in args.stall:
+        at, duration = parse_stall(spec)
+        faults.stall(duration, at=at)
+    for t in args.hang_at:
+        faults.hang(at=t)
+    for spec in args.sag:
+        volts, at, ramp = parse_sag(spec)
+        faults.sag(drop_v=volts, ramp_s=ramp, at=at)
+    for spec in args.sag_ohms:
+        ohms, at, ramp = parse_sag(spec, "--sag-ohms")
+        faults.sag(extra_resistance_ohm=ohms, ramp_s=ramp, at=at)
+    full = cfg.power.battery.cells * 4.2
+    for t in args.brownout_at:
+        faults.sag(drop_v=full, at=t, duration=0.3)
+    for spec in args.dead_esc:
+        ch, at = parse_dead_esc(spec)
+        if ch >= cfg.n_channels:
+            raise ConfigError(f"channel {ch} does not exist (the board has {cfg.n_channels})", "--dead-esc")
+        faults.dead_esc(ch, at=at)
+    return board
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose + 1, 2)
+    logging.basicConfig(
+        level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
+    )
+    from .pty_server import PtyServer
+
+    try:
+        board = make_board(args)
+        server = PtyServer(board, link=args.link, hold_slave=not args.no_hold)
+    except HilError as exc:
+        print(f"firmware-sim: error: {exc}", file=sys.stderr)
+        return 2
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        server.stop()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    print(server.path, flush=True)
+    where = f" (link {args.link})" if args.link else ""
+    print(
+        f"firmware-sim: {board.config.n_units} units on {server.path}{where}; ^C to stop",
+        file=sys.stderr,
+        flush=True,
+    )
+    try:
+        server.serve(duration=args.duration)
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+        server.close()
+    s = server.stats
+    print(
+        f"firmware-sim: stopped; {s.bytes_in} bytes in, {s.bytes_out} out, {s.dropped_out} dropped, "
+        f"{len(board.resets) - 1} reset(s)",
+        file=sys.stderr,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""The board's end of the serial link: the UART receive ring, the deframer, the framer with a bounded
+transmit buffer, and the duplicate filter for reliable commands.
+
+The UART interrupt keeps receiving while the main loop is busy (or hung): bytes land in a ring of
+``rx_capacity`` bytes and the overflow is dropped and counted, as on the MCU. Reliable commands are
+answered once per ``(msg_id, seq)``: a retransmission (RETRANSMIT flag, same id, seq and payload) of a
+command already executed gets the same ACK/NACK again without running the command twice.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+from protocol.frame import Deframer, Event, Frame, Framer
+from protocol.messages import Flags
+
+
+@dataclass
+class LinkStats:
+    rx_overflow: int = 0  # bytes lost because the receive ring was full
+    tx_dropped: int = 0  # frames not sent because the transmit buffer was full
+    duplicates: int = 0  # retransmitted reliable commands answered from the cache
+    ignored: int = 0  # valid frames the board does not act on (wrong state, wrong direction)
+
+
+class BoardLink:
+    def __init__(self, rx_capacity: int, tx_capacity: int, dedup_entries: int = 32) -> None:
+        self.rx_capacity = rx_capacity
+        self.tx_capacity = tx_capacity
+        self.deframer = Deframer()
+        self.framer = Framer()
+        self.stats = LinkStats()
+        self._rx = bytearray()
+        self._tx = bytearray()
+        self._answers: OrderedDict[tuple[int, int], tuple[Any, Any]] = OrderedDict()
+        self._dedup_entries = dedup_entries
+
+    def reset(self) -> None:
+        """MCU reset: the rings are cleared, sequence numbers restart, the duplicate cache is forgotten."""
+        self._rx.clear()
+        self._tx.clear()
+        self.deframer = Deframer()  # the MCU's counters restart with it
+        self.framer = Framer()
+        self._answers.clear()
+
+    # ------------------------------------------------------------------ receive
+    def receive(self, data: bytes) -> None:
+        """Bytes from the wire into the UART ring (the ISR's job)."""
+        room = self.rx_capacity - len(self._rx)
+        if len(data) > room:
+            self.stats.rx_overflow += len(data) - max(room, 0)
+            data = data[: max(room, 0)]
+        self._rx += data
+
+    @property
+    def rx_pending(self) -> bool:
+        return bool(self._rx)
+
+    def drain(self) -> list[Event]:
+        """The main loop's job: everything in the ring through the deframer."""
+        if not self._rx:
+            return []
+        data = bytes(self._rx)
+        self._rx.clear()
+        return self.deframer.feed(data)
+
+    # ------------------------------------------------------------------ transmit
+    def send(self, message: Any, flags: int = 0, seq: int | None = None) -> int | None:
+        """Queue one frame; returns its sequence number, or None if the transmit buffer was full."""
+        seq, data = self.framer.encode(message, flags, seq)
+        if len(self._tx) + len(data) > self.tx_capacity:
+            self.stats.tx_dropped += 1
+            return None
+        self._tx += data
+        return seq
+
+    def take(self) -> bytes:
+        data = bytes(self._tx)
+        self._tx.clear()
+        return data
+
+    @property
+    def tx_pending(self) -> int:
+        return len(self._tx)
+
+    # ------------------------------------------------------------------ reliable commands
+    def cached_answer(self, frame: Frame) -> Any | None:
+        """The answer already given to this retransmitted command, or None if it must be executed."""
+        if not frame.flags & Flags.RETRANSMIT:
+            return None
+        hit = self._answers.get((frame.msg_id, frame.seq))
+        if hit is None or hit[0] != frame.message:
+            return None
+        self.stats.duplicates += 1
+        return hit[1]
+
+    def remember_answer(self, frame: Frame, answer: Any) -> None:
+        key = (frame.msg_id, frame.seq)
+        self._answers[key] = (frame.message, answer)
+        self._answers.move_to_end(key)
+        while len(self._answers) > self._dedup_entries:
+            self._answers.popitem(last=False)
+
+    def forget_answers(self) -> None:
+        self._answers.clear()

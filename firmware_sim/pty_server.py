@@ -1,0 +1,244 @@
+"""The board behind a real pseudo-terminal: a small select() loop around the sans-IO :class:`Board`.
+
+The server owns the pty's master side; the host opens the slave path (``/dev/pts/N``) with pyserial like
+any serial port. Real time: the board's clock is a ``WallClock`` and the loop sleeps in ``select`` until
+the board's next absolute deadline or until bytes arrive, whichever comes first.
+
+The host may come and go. By default the server keeps its own descriptor of the slave open, so the pty
+never dies when the host closes it: the host simply reopens the path (pyserial flushes what the board
+sent meanwhile). With ``hold_slave=False`` the master reads EIO while no host has the slave open; the
+server then treats the host as absent — drops what the board sends, polls for its return — and never
+crashes. Output that the pty cannot take (the host not reading) is dropped and counted, as a UART would.
+
+Thread safety: :meth:`serve` runs the loop in the calling thread; :meth:`start` runs it in a daemon
+thread. Other threads must touch the board only inside ``with server.lock:`` (fault injection,
+reading the timeline).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import logging
+import os
+import select
+import termios
+import threading
+import time
+import tty
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+from protocol.errors import LinkError
+
+from .board import Board
+
+logger = logging.getLogger(__name__)
+
+_MAX_WAIT_S = 0.05  # the loop looks at its stop flag at least this often
+_ABSENT_POLL_S = 0.02  # with the host gone (EIO), look for its return this often
+_OUT_LIMIT = 4096  # bytes held back while the pty is full, like a UART ring (older ones are dropped)
+
+
+@dataclass
+class PtyStats:
+    bytes_in: int = 0
+    bytes_out: int = 0
+    dropped_out: int = 0  # bytes discarded because nobody read them
+    host_gone: int = 0  # times the master reported EIO (no host on the slave)
+    loops: int = 0
+
+
+class PtyServer:
+    """Serve ``board`` on a new pty. ``link`` (optional) is a symlink kept pointing at the slave path."""
+
+    def __init__(
+        self, board: Board, link: str | os.PathLike[str] | None = None, hold_slave: bool = True
+    ) -> None:
+        self.board = board
+        self.lock = threading.RLock()
+        self.stats = PtyStats()
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line discipline, even before the host sets its own modes
+        attrs = termios.tcgetattr(slave)
+        attrs[3] &= ~termios.ECHO
+        termios.tcsetattr(slave, termios.TCSANOW, attrs)
+        os.set_blocking(master, False)
+        self.path = os.ttyname(slave)
+        self._master: int | None = master
+        self._slave: int | None = slave
+        if not hold_slave:
+            os.close(slave)
+            self._slave = None
+        self._out = bytearray()
+        self._host_absent = False
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self.link: Path | None = None
+        if link is not None:
+            self.link = Path(link)
+            _replace_symlink(self.link, self.path)
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> PtyServer:
+        """Serve in a daemon thread; :meth:`close` stops it. An error in the thread is re-raised there."""
+        if self._thread is None:
+            self._thread = threading.Thread(
+                target=self._run_thread, name=f"pty-server {self.path}", daemon=True
+            )
+            self._thread.start()
+        return self
+
+    def _run_thread(self) -> None:
+        try:
+            self.serve()
+        except BaseException as exc:  # stored and raised by close()/check(): threads never die silently
+            self._error = exc
+            logger.exception("pty server thread failed")
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def check(self) -> None:
+        """Raise the serving thread's error, if it had one."""
+        if self._error is not None:
+            raise LinkError(f"pty server on {self.path} failed: {self._error!r}") from self._error
+
+    def close(self) -> None:
+        """Stop serving, close the pty, remove the symlink. Idempotent."""
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=5.0)
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = None
+        if self.link is not None:
+            with contextlib.suppress(OSError):
+                if self.link.is_symlink() and os.readlink(self.link) == self.path:
+                    self.link.unlink()
+        self.check()
+
+    def __enter__(self) -> PtyServer:
+        return self.start()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ the loop
+    def serve(self, duration: float | None = None) -> None:
+        """Run until :meth:`stop` (or for ``duration`` seconds of board time)."""
+        board = self.board
+        clock = board.clock
+        end = None if duration is None else clock.now() + duration
+        while not self._stop.is_set():
+            master = self._master
+            if master is None:
+                return
+            with self.lock:
+                now = clock.now()
+                if end is not None and now >= end:
+                    return
+                board.step(now)
+                self._queue(board.take_output())
+                wait = board.next_deadline() - clock.now()
+            wait = min(max(wait, 0.0), _MAX_WAIT_S)
+            if end is not None:
+                wait = min(wait, max(end - clock.now(), 0.0))
+            self.stats.loops += 1
+            if self._host_absent:
+                self._poll_absent_host(master, wait)
+                continue
+            try:
+                readable, writable, _ = select.select([master], [master] if self._out else [], [], wait)
+            except (OSError, ValueError):
+                return  # closed under us by close()
+            if readable:
+                self._read(master)
+            if writable and self._out:
+                self._write(master)
+
+    def _read(self, master: int) -> None:
+        try:
+            data = os.read(master, 65536)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                self._host_left()
+                return
+            raise
+        if not data:
+            self._host_left()
+            return
+        self.stats.bytes_in += len(data)
+        with self.lock:
+            self.board.feed(data)
+
+    def _write(self, master: int) -> None:
+        try:
+            n = os.write(master, self._out)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                self._host_left()
+                return
+            raise
+        self.stats.bytes_out += n
+        del self._out[:n]
+
+    def _queue(self, data: bytes) -> None:
+        if self._host_absent:
+            self.stats.dropped_out += len(data)
+            return
+        self._out += data
+        if len(self._out) > _OUT_LIMIT:
+            excess = len(self._out) - _OUT_LIMIT
+            self.stats.dropped_out += excess
+            del self._out[:excess]
+
+    def _host_left(self) -> None:
+        if not self._host_absent:
+            logger.info("host closed %s; waiting for it to come back", self.path)
+            self.stats.host_gone += 1
+        self._host_absent = True
+        self.stats.dropped_out += len(self._out)
+        self._out.clear()
+
+    def _poll_absent_host(self, master: int, wait: float) -> None:
+        """No host on the slave: master reads EIO until one opens it again. Sleep, then probe."""
+        time.sleep(min(wait, _ABSENT_POLL_S))
+        try:
+            data = os.read(master, 65536)
+        except BlockingIOError:
+            self._host_absent = False  # a host has the slave open and is quiet
+            logger.info("host is back on %s", self.path)
+            return
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                return
+            raise
+        if data:
+            self._host_absent = False
+            logger.info("host is back on %s", self.path)
+            self.stats.bytes_in += len(data)
+            with self.lock:
+                self.board.feed(data)
+
+
+def _replace_symlink(link: Path, target: str) -> None:
+    """Point ``link`` at ``target`` atomically (rename over an old link); refuse to replace a real file."""
+    if link.exists() and not link.is_symlink():
+        raise LinkError(f"{link} exists and is not a symlink; refusing to replace it")
+    tmp = link.with_name(f".{link.name}.{os.getpid()}.tmp")
+    with contextlib.suppress(FileNotFoundError):
+        tmp.unlink()
+    os.symlink(target, tmp)
+    os.replace(tmp, link)

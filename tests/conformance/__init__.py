@@ -1,0 +1,1 @@
+"""Board conformance tests: the same tests against every board target (see conftest.py)."""

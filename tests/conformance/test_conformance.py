@@ -1,0 +1,229 @@
+"""Board conformance through a real serial port (pyserial on a pty), for every target in TARGETS.
+
+Timing is asserted on the board's clock (``Telemetry.time_ms``, heartbeats, the target's pulse timeline
+and reset log), never on host wall time: a slow host changes when bytes arrive, not what the board did.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+from conformance.host import SerialHost, heartbeat
+from conformance.targets import uptime_origin
+from protocol.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Ack,
+    ActuatorSetpoint,
+    Arm,
+    BoardState,
+    ControlMode,
+    Disarm,
+    FaultFlag,
+    GimbalMode,
+    Heartbeat,
+    PowerState,
+    RawPulses,
+    ResetCause,
+    SetMode,
+    Telemetry,
+    UnitSetpoint,
+)
+
+
+def setpoint(spec, gimbal=0.3, speed=300.0):
+    return ActuatorSetpoint(
+        gimbal_mode=GimbalMode.RATE,
+        units=tuple(UnitSetpoint(gimbal * (-1) ** i, speed + 20.0 * i) for i in range(spec.n_units)),
+    )
+
+
+def armed_and_streaming(target, host, sp, seconds=0.4):
+    host.handshake()
+    host.keepalive = heartbeat
+    assert isinstance(host.request(Arm()), Ack)
+    host.keepalive = lambda: sp
+    host.poll(seconds)
+
+
+def telemetry(host, timeout=1.0, **where):
+    return host.wait_type(Telemetry, timeout, lambda m: all(getattr(m, k) == v for k, v in where.items()))
+
+
+def test_handshake(target, host):
+    reply = host.handshake()
+    spec = target.spec
+    assert (reply.protocol_version, reply.schema_hash) == (PROTOCOL_VERSION, SCHEMA_HASH)
+    assert reply.reset_cause == ResetCause.POWER_ON
+    assert reply.state == BoardState.DISARMED
+    assert (reply.n_units, reply.frame_rate_hz) == (spec.n_units, round(spec.frame_rate_hz))
+    assert reply.manufacturer and reply.model and reply.version and reply.serial
+    host.keepalive = heartbeat
+    tel = telemetry(host, state=BoardState.DISARMED)
+    assert tel.pulses_us[1::2] == (spec.rotor_safe_us,) * spec.n_units
+    assert len(tel.units) == spec.n_units
+
+
+def test_arm_and_setpoints_give_the_expected_pulse_widths(target, host):
+    spec = target.spec
+    tol = spec.pulse_tolerance_us
+    sp = setpoint(spec)
+    host.handshake()
+    host.keepalive = lambda: sp  # setpoints before arming move nothing
+    host.poll(0.2)
+    tel = telemetry(host)
+    assert tel.state == BoardState.DISARMED and tel.pulses_us[1::2] == (spec.rotor_safe_us,) * spec.n_units
+    host.keepalive = heartbeat
+    assert isinstance(host.request(Arm()), Ack)
+    host.keepalive = lambda: sp
+    host.poll(0.5)
+    tel = telemetry(host, state=BoardState.ARMED)
+    volts = tel.battery_mv / 1000
+    for i, u in enumerate(sp.units):
+        cal = target.calibration(i)
+        g = cal.gimbal_pulse_us(u.gimbal, GimbalMode.RATE).value
+        assert abs(tel.pulses_us[2 * i] - g) <= tol + 0.5
+        r = [cal.rotor_pulse_us(u.rotor_speed, volts + dv).value for dv in (-0.1, 0.1)]
+        assert min(r) - tol - 0.5 <= tel.pulses_us[2 * i + 1] <= max(r) + tol + 0.5
+    # The pulse hardware itself: the timeline's frames around that telemetry carry the same widths.
+    t_tel = uptime_origin(target.resets(), target.now()) + tel.time_ms / 1000
+    frames = [f for f in target.timeline() if t_tel - 0.05 <= f.t <= t_tel]
+    assert frames and all(
+        all(abs(w - p) <= tol for w, p in zip(f.widths, tel.pulses_us, strict=True)) for f in frames
+    )
+    host.keepalive = heartbeat
+    assert isinstance(host.request(Disarm()), Ack)
+    tel = telemetry(host, state=BoardState.DISARMED)
+    assert tel.pulses_us[1::2] == (spec.rotor_safe_us,) * spec.n_units
+
+
+def test_raw_pulses_are_output_exactly(target, host):
+    spec = target.spec
+    raw = tuple(1100 + 37 * ch for ch in range(2 * spec.n_units))
+    host.handshake()
+    host.keepalive = heartbeat
+    assert isinstance(host.request(SetMode(mode=ControlMode.RAW_PULSES)), Ack)
+    assert isinstance(host.request(Arm()), Ack)
+    host.keepalive = lambda: RawPulses(pulses_us=raw)
+    host.poll(0.3)
+    tel = telemetry(host, state=BoardState.ARMED, mode=ControlMode.RAW_PULSES)
+    assert tel.pulses_us == raw
+    last = target.timeline()[-1]
+    assert all(abs(w - p) <= spec.pulse_tolerance_us for w, p in zip(last.widths, raw, strict=True))
+
+
+def test_link_loss_failsafe_within_timeout_plus_one_frame(target, host):
+    spec = target.spec
+    armed_and_streaming(target, host, setpoint(spec, speed=400.0))
+    host.keepalive = None  # the host goes quiet
+    tel = telemetry(host, timeout=2.0, state=BoardState.FAILSAFE)
+    assert tel.watchdog == 1 and tel.faults & FaultFlag.LINK_LOST
+    origin = uptime_origin(target.resets(), target.now())
+    t_last = origin + (tel.time_ms - tel.link_age_ms) / 1000  # board time of the last frame it took
+    beat = [m for m in host.received if isinstance(m, Heartbeat) and m.state == BoardState.FAILSAFE][0]
+    t_failsafe = origin + beat.time_ms / 1000
+    ms = 0.0015  # the wire carries milliseconds
+    assert spec.link_timeout_s - ms <= t_failsafe - t_last <= spec.link_timeout_s + 0.002 + ms
+    rotor = [(f.t, f.widths[1]) for f in target.timeline() if f.t >= t_last - 0.1]
+    moving = [w for t, w in rotor if t < t_last]
+    assert moving and moving[-1] > spec.rotor_safe_us
+    t_safe = next(t for t, w in rotor if t >= t_last and w == spec.rotor_safe_us)
+    assert all(w == moving[-1] for t, w in rotor if t_last <= t < t_safe)
+    frame = 1.0 / spec.frame_rate_hz
+    assert spec.link_timeout_s - ms <= t_safe - t_last <= spec.link_timeout_s + frame + ms
+    # Setpoints alone never leave FAILSAFE; an Arm does.
+    host.keepalive = lambda: setpoint(spec, speed=400.0)
+    host.poll(0.3)
+    assert telemetry(host).state == BoardState.FAILSAFE
+    assert isinstance(host.request(Arm()), Ack)
+    assert telemetry(host, state=BoardState.ARMED).watchdog == 0
+
+
+def test_hang_gives_a_watchdog_reset_reported_on_reconnect(target, host):
+    spec = target.spec
+    armed_and_streaming(target, host, setpoint(spec))
+    t_hang = target.inject_hang()
+    host.wait_type(Heartbeat, spec.mcu_watchdog_s + 2.0, lambda m: m.state == BoardState.BOOT)
+    reset = target.resets()[-1]
+    assert reset.cause == ResetCause.WATCHDOG
+    assert spec.mcu_watchdog_s - 0.002 <= reset.t - t_hang <= spec.mcu_watchdog_s + 0.002
+    frames = target.timeline()
+    before = [f for f in frames if f.t <= t_hang][-1]
+    hung = [f for f in frames if t_hang < f.t < reset.t]
+    assert hung and all(f.widths == before.widths for f in hung)  # timers run on, frozen
+    after = [f for f in frames if f.t > reset.t]
+    assert after and after[0].widths[1::2] == (spec.rotor_safe_us,) * spec.n_units
+    host.keepalive = None
+    host.reopen()  # a host reconnecting after losing its board
+    reply = host.handshake()
+    assert reply.reset_cause == ResetCause.WATCHDOG and reply.state == BoardState.DISARMED
+    host.keepalive = heartbeat
+    assert telemetry(host).faults & FaultFlag.MCU_WATCHDOG_RESET
+
+
+def test_battery_sag_sheds_load_then_browns_out(target, host):
+    spec = target.spec
+    armed_and_streaming(target, host, setpoint(spec, gimbal=0.0, speed=450.0), seconds=1.0)
+    start = len(host.received)
+    target.inject_sag(drop_v=9.0, ramp_s=2.0, duration_s=2.6)
+    host.wait_type(Heartbeat, 5.0, lambda m: m.state == BoardState.BOOT)
+    got = host.received[start:]
+    tels = [m for m in got if isinstance(m, Telemetry)]
+    first: dict[PowerState, int] = {}
+    for m in tels:
+        first.setdefault(PowerState(m.power), m.time_ms)
+    assert first[PowerState.WARN] < first[PowerState.LIMIT] < first[PowerState.SHED]
+    shed = [m for m in tels if m.time_ms >= first[PowerState.SHED] + 30]
+    assert shed and all(m.pulses_us[1::2] == (spec.rotor_safe_us,) * spec.n_units for m in shed)
+    assert all(m.faults & FaultFlag.BATTERY_LOW for m in shed)
+    assert target.resets()[-1].cause == ResetCause.BROWN_OUT
+    host.keepalive = None
+    host.reopen()
+    reply = host.handshake(timeout=0.2)
+    assert reply.reset_cause == ResetCause.BROWN_OUT
+
+
+def test_a_link_with_one_percent_corrupted_bytes_still_carries_the_exchange(target, host):
+    spec = target.spec
+    target.inject_link_noise(corrupt=0.01)
+    sp = setpoint(spec)
+    host.handshake(tries=50)
+    host.keepalive = heartbeat
+    host.keepalive_period = 0.02
+    assert isinstance(host.request(Arm(), tries=50), Ack)
+    host.keepalive = lambda: sp
+    host.poll(1.0)
+    tel = telemetry(host, timeout=2.0, state=BoardState.ARMED)
+    cal = target.calibration(0)
+    g = cal.gimbal_pulse_us(sp.units[0].gimbal, GimbalMode.RATE).value
+    assert abs(tel.pulses_us[0] - g) <= spec.pulse_tolerance_us + 0.5
+    assert host.deframer.counters.bad_total > 0  # damage reached the host ...
+    later = telemetry(host, timeout=2.0)
+    # ... and the board, where 1 % per byte costs about a third of the 42-byte setpoint frames, no more.
+    assert later.rx_bad > 0 and later.rx_frames > later.rx_bad
+    assert later.state == BoardState.ARMED  # the link watchdog never tripped
+
+
+def test_a_vanished_host_never_crashes_the_board(target, host):
+    spec = target.spec
+    armed_and_streaming(target, host, setpoint(spec))
+    host.port.write(b"\x05\x01\x20")  # half a frame, then the host is gone
+    host.close()
+    time.sleep(0.4)
+    target.check()
+    for _ in range(3):  # hosts come and go, some mid-frame
+        h = SerialHost(target.port)
+        h.handshake()
+        h.port.write(b"\x07\x01")
+        h.close()
+        target.check()
+    again = SerialHost(target.port)
+    try:
+        reply = again.handshake()
+        assert reply.reset_cause == ResetCause.POWER_ON  # no reset happened along the way
+        again.keepalive = heartbeat
+        assert telemetry(again).state == BoardState.DISARMED
+    finally:
+        again.close()
+    assert math.isfinite(target.now())

@@ -1,0 +1,173 @@
+"""Link watchdog and MCU watchdog of the sans-IO board, timed exactly in lockstep (board) time."""
+
+from __future__ import annotations
+
+import pytest
+from conformance.host import heartbeat, lockstep
+
+from firmware_sim.board import McuPhase
+from firmware_sim.config import BoardConfig
+from protocol.messages import (
+    Ack,
+    ActuatorSetpoint,
+    Arm,
+    BoardState,
+    FaultFlag,
+    Heartbeat,
+    HelloReply,
+    Log,
+    ResetCause,
+    Telemetry,
+    UnitSetpoint,
+    WatchdogState,
+)
+
+CFG = BoardConfig(
+    n_units=2,
+    frame_rate_hz=50.0,
+    telemetry_rate_hz=50.0,
+    link_timeout_s=0.25,
+    mcu_watchdog_s=0.5,
+    boot_time_s=0.05,
+)
+SPIN = ActuatorSetpoint(units=(UnitSetpoint(0.3, 400.0), UnitSetpoint(-0.3, 400.0)))
+
+
+def armed(cfg=CFG):
+    board, clock, host = lockstep(cfg)
+    host.handshake()
+    assert isinstance(host.request(Arm()), Ack)
+    host.keepalive = lambda: SPIN
+    host.poll(0.3)
+    assert board.state is BoardState.ARMED
+    return board, clock, host
+
+
+@pytest.mark.parametrize("frame_rate", [50.0, 333.0, 490.0])
+@pytest.mark.parametrize("offset", [0.0, 0.0004, 0.0137])
+def test_link_loss_failsafe_within_timeout_plus_one_frame(frame_rate, offset):
+    cfg = CFG.replace(frame_rate_hz=frame_rate)
+    board, clock, host = armed(cfg)
+    clock.advance(offset)  # the last frame lands anywhere relative to the pulse frames
+    host.send(SPIN)
+    host.keepalive = None
+    host.poll(0.002)  # handled on the next main-loop tick
+    t_last = board.last_rx
+    assert clock.now() - 0.003 < t_last <= clock.now()
+    moving = board.timeline.last().widths[1]
+    assert moving > cfg.rotor_safe_us
+    host.poll(cfg.link_timeout_s + 0.1)
+    assert board.state is BoardState.FAILSAFE
+    edges = board.timeline.edges(channel=1, since=t_last)
+    first_safe = next(e for e in edges if e.width_us == cfg.rotor_safe_us)
+    # Not before the timeout, and within the timeout plus one pulse frame (board time, exact).
+    assert all(e.width_us == moving for e in edges if e.t < first_safe.t)
+    assert cfg.link_timeout_s <= first_safe.t - t_last <= cfg.link_timeout_s + 1.0 / frame_rate + 1e-9
+    # The board said so: a state heartbeat stamped at the timeout, a Log, and the telemetry flags.
+    hb = [m for m in host.received if isinstance(m, Heartbeat) and m.state == BoardState.FAILSAFE][0]
+    t_reset = board.resets[-1].t
+    assert hb.time_ms == int(round((t_last + cfg.link_timeout_s - t_reset) * 1000))
+    assert any(isinstance(m, Log) and "link lost" in m.text for m in host.received)
+    tel = [m for m in host.received if isinstance(m, Telemetry) and m.state == BoardState.FAILSAFE][0]
+    assert tel.watchdog == WatchdogState.LINK_LOST and tel.faults & FaultFlag.LINK_LOST
+    assert tel.time_ms - tel.link_age_ms == pytest.approx((t_last - t_reset) * 1000, abs=1)
+
+
+def test_heartbeats_alone_keep_the_link_and_failsafe_gimbals_hold():
+    board, clock, host = armed()
+    host.keepalive = heartbeat
+    host.poll(1.0)
+    assert board.state is BoardState.ARMED  # heartbeats every 50 ms feed the 250 ms watchdog
+    host.keepalive = None
+    host.poll(0.4)
+    assert board.state is BoardState.FAILSAFE
+    cal = board.calibrations[0]
+    hold = round(cal.gimbal_pulse_us(0.0, board._gimbal_mode).value)  # RATE mode: zero rate
+    assert board.outputs[0] == hold and board.outputs[2] == hold
+    assert board.outputs[1] == board.outputs[3] == CFG.rotor_safe_us
+
+
+def test_failsafe_is_left_by_arm_or_hello_never_by_a_setpoint():
+    board, clock, host = armed()
+    host.keepalive = None
+    host.poll(0.3)
+    assert board.state is BoardState.FAILSAFE
+    host.keepalive = lambda: SPIN
+    host.poll(0.5)  # the link is back (setpoints flow) ...
+    assert board.watchdog_state is WatchdogState.OK
+    assert board.state is BoardState.FAILSAFE  # ... but the setpoints do not re-arm
+    assert board.outputs[1] == CFG.rotor_safe_us
+    assert isinstance(host.request(Arm()), Ack)
+    host.poll(0.1)
+    assert board.state is BoardState.ARMED and board.outputs[1] > CFG.rotor_safe_us
+    host.keepalive = None
+    host.poll(0.3)
+    assert board.state is BoardState.FAILSAFE
+    assert host.handshake().state == BoardState.DISARMED
+    assert board.state is BoardState.DISARMED
+
+
+def test_link_loss_while_disarmed_is_flagged_not_a_state_change():
+    board, clock, host = lockstep(CFG)
+    host.handshake()
+    host.poll(0.4)
+    assert board.state is BoardState.DISARMED
+    assert board.watchdog_state is WatchdogState.LINK_LOST
+    host.send(heartbeat())
+    host.poll(0.01)
+    assert board.watchdog_state is WatchdogState.OK
+
+
+def test_no_link_watchdog_before_the_handshake():
+    board, clock, host = lockstep(CFG)
+    host.poll(2.0)
+    assert board.state is BoardState.BOOT and board.watchdog_state is WatchdogState.OK
+    beats = [m for m in host.received if isinstance(m, Heartbeat)]
+    assert len(beats) >= 9 and all(b.state == BoardState.BOOT for b in beats)
+    assert not any(isinstance(m, Telemetry) for m in host.received)  # telemetry needs a session
+
+
+def test_hang_resets_after_the_mcu_watchdog_and_reports_it():
+    board, clock, host = armed()
+    t_hang = clock.now() + 0.0123
+    board.faults.hang(at=t_hang)
+    host.poll(0.05)
+    assert board.phase is McuPhase.HUNG
+    frozen = board.timeline.last().widths
+    before = len(host.received)
+    host.poll(t_hang + CFG.mcu_watchdog_s - 0.005 - clock.now())
+    # Hung: the main loop says nothing (no telemetry, no ACK, no heartbeat) while the host keeps sending
+    # and the pulse timers keep their widths.
+    assert board.phase is McuPhase.HUNG and host.received[before:] == []
+    host.poll(0.1)
+    assert board.resets[-1].cause is ResetCause.WATCHDOG
+    t_reset = board.resets[-1].t
+    assert t_reset == pytest.approx(t_hang + CFG.mcu_watchdog_s, abs=1e-6)
+    during = [f for f in board.timeline.frames if t_hang < f.t < t_reset]
+    assert during and all(f.widths == frozen for f in during)
+    after = [f for f in board.timeline.frames if f.t >= t_reset]
+    # outputs off during the boot, then safe outputs in BOOT
+    assert after[0].t == pytest.approx(t_reset + CFG.boot_time_s, abs=1e-6)
+    assert after[0].widths[1] == CFG.rotor_safe_us
+    assert board.state is BoardState.BOOT
+    host.keepalive = None
+    reply = host.handshake()
+    assert reply.reset_cause == ResetCause.WATCHDOG
+    tel = host.wait_type(Telemetry, 0.2)
+    assert tel.faults & FaultFlag.MCU_WATCHDOG_RESET
+    assert tel.time_ms < 300  # uptime restarted at the reset
+
+
+def test_bytes_sent_to_a_hung_board_are_lost_and_overflow_is_counted():
+    cfg = CFG.replace(rx_buffer_bytes=256)
+    board, clock, host = armed(cfg)
+    host.keepalive = None
+    board.faults.hang()
+    for _ in range(40):
+        host.send(SPIN)
+    host.poll(0.1)
+    assert board.link.stats.rx_overflow > 0
+    host.poll(0.6)
+    assert board.phase is McuPhase.RUNNING and board.state is BoardState.BOOT
+    # a host frame sent during the boot is lost: the UART is off in reset
+    assert isinstance(host.handshake(), HelloReply)

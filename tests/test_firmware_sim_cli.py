@@ -1,0 +1,151 @@
+"""``firmware-sim``: the console command through a real subprocess and a real pty, and its option parsing."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from conformance.host import SerialHost, heartbeat
+
+from firmware_sim.cli import build_parser, main, make_board, parse_dead_esc, parse_sag, parse_stall
+from hil.clock import LockstepClock
+from protocol.errors import ConfigError
+from protocol.messages import BoardState, ResetCause, Telemetry
+
+
+def spawn(*args: str) -> tuple[subprocess.Popen[str], str]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None
+    path = proc.stdout.readline().strip()
+    assert path.startswith("/dev/"), (path, proc.stderr.read() if proc.poll() is not None else "")
+    return proc, path
+
+
+def test_help_teaches_by_example(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for example in (
+        "--link /tmp/vscmg-board",
+        "--corrupt 0.01",
+        "--hang-at 5",
+        "--sag 6@10/5",
+        "--dead-esc 1@3",
+    ):
+        assert example in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "where"),
+    [
+        (["--units", "9"], "BoardConfig.n_units"),
+        (["--frame-rate", "1000"], "BoardConfig.frame_rate_hz"),
+        (["--sag", "3x"], "--sag"),
+        (["--stall", "5"], "--stall"),
+        (["--dead-esc", "99"], "--dead-esc"),
+        (["--corrupt", "1.5"], "faults.link.corrupt"),
+        (["--soc", "2"], "initial_soc"),
+    ],
+)
+def test_bad_options_are_clear_errors(argv, where, capsys):
+    assert main(argv + ["--duration", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "firmware-sim: error:" in err and where in err
+
+
+def test_fault_specs_parse():
+    assert parse_sag("6@10/5") == (6.0, 10.0, 5.0)
+    assert parse_sag("2.5") == (2.5, None, 0.0)
+    assert parse_stall("5:2") == (5.0, 2.0)
+    assert parse_dead_esc("3@1.5") == (3, 1.5)
+    assert parse_dead_esc("0") == (0, None)
+    with pytest.raises(ConfigError, match="--sag-ohms"):
+        parse_sag("@3", "--sag-ohms")
+
+
+def test_options_schedule_faults_on_the_board():
+    args = build_parser().parse_args(
+        [
+            "--units",
+            "3",
+            "--corrupt",
+            "0.01",
+            "--drop",
+            "0.002",
+            "--stall",
+            "4:1",
+            "--hang-at",
+            "5",
+            "--sag",
+            "6@10/5",
+            "--sag-ohms",
+            "0.5@2",
+            "--brownout-at",
+            "8",
+            "--dead-esc",
+            "1@3",
+            "--seed",
+            "4",
+        ]
+    )
+    board = make_board(args, LockstepClock())
+    f = board.faults
+    assert board.config.n_units == 3 and board.config.seed == 4
+    assert (f.noise.corrupt, f.noise.drop) == (0.01, 0.002)
+    assert [(s.start, s.duration) for s in f.stalls] == [(4.0, 1.0)]
+    assert f.hangs == [5.0]
+    assert f.battery_sag(12.5) == (pytest.approx(6 * 0.5 + 0.0), pytest.approx(0.5))
+    assert f.battery_sag(8.1)[0] == pytest.approx(3 * 4.2)
+    assert not f.channel_dead(1, 2.9) and f.channel_dead(1, 3.0)
+
+
+def test_command_serves_a_pty_behind_a_symlink_and_stops_on_sigterm(tmp_path):
+    link = tmp_path / "vscmg-board"
+    proc, path = spawn("--link", str(link), "--units", "2", "--telemetry-rate", "50")
+    try:
+        assert os.path.realpath(link) == path
+        host = SerialHost(str(link))
+        reply = host.handshake()
+        assert reply.n_units == 2 and reply.state == BoardState.DISARMED
+        host.keepalive = heartbeat
+        assert host.wait_type(Telemetry, 1.0).state == BoardState.DISARMED
+        host.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=5) == 0
+        assert not link.exists() and not link.is_symlink()
+        assert "stopped" in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_command_injects_a_hang_from_the_command_line():
+    proc, path = spawn("--hang-at", "0.3", "--mcu-watchdog", "0.2", "--duration", "10")
+    try:
+        time.sleep(0.8)  # hang at 0.3 s, reset at 0.5 s, booted by 0.55 s
+        host = SerialHost(path)
+        assert host.handshake().reset_cause == ResetCause.WATCHDOG
+        host.close()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=5) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_duration_ends_the_command_by_itself():
+    proc, path = spawn("--duration", "0.3")
+    assert proc.wait(timeout=5) == 0
+    assert "stopped" in proc.stderr.read()
