@@ -1,7 +1,9 @@
 """``hil``: the host's command line. One entry point, one argparse subcommand per module in this package.
 
 Each subcommand module defines ``register(subparsers)``, which adds its parser and sets ``func`` to a
-handler ``(args) -> int``. Heavy imports happen inside handlers so ``hil --help`` stays fast.
+handler ``(args) -> int``, and an integer ``ORDER`` (where ``hil --help`` lists it; smaller first).
+Modules are discovered, so adding a command is adding a module. Heavy imports happen inside handlers so
+``hil --help`` stays fast.
 """
 
 from __future__ import annotations
@@ -9,13 +11,23 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import pkgutil
 import sys
 from collections.abc import Sequence
+from types import ModuleType
 
 from protocol.errors import HilError
 
-# Subcommand modules, in the order ``hil --help`` lists them.
-COMMANDS: tuple[str, ...] = ("selftest",)
+
+def command_modules() -> list[ModuleType]:
+    """The subcommand modules of this package, in ``ORDER`` (then name) order."""
+    modules = [
+        importlib.import_module(f"{__name__}.{info.name}")
+        for info in pkgutil.iter_modules(__path__)
+        if not info.name.startswith("_")
+    ]
+    modules = [m for m in modules if hasattr(m, "register")]
+    return sorted(modules, key=lambda m: (getattr(m, "ORDER", 100), m.__name__))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -26,8 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(f"{__name__}.{name}").register(sub)
+    for module in command_modules():
+        module.register(sub)
     return parser
 
 

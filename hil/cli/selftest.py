@@ -7,6 +7,8 @@ from pathlib import Path
 
 from hil.paths import FIXTURES
 
+ORDER = 90
+
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
