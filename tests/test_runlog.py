@@ -1,0 +1,102 @@
+"""Run directories: incremental, flushed logs that survive SIGKILL; torn lines are counted, not fatal."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from hil.runlog import (
+    CsvLog,
+    EventLog,
+    new_run_dir,
+    read_events,
+    read_telemetry,
+    write_summary,
+)
+from protocol.errors import InputFormatError
+
+WRITER = """
+import sys, time
+from hil.runlog import CsvLog, EventLog
+log = CsvLog(sys.argv[1] + "/telemetry.csv", ["t", "angle_deg"])
+ev = EventLog(sys.argv[1] + "/events.jsonl")
+i = 0
+while True:
+    log.write({"t": i * 0.01, "angle_deg": 90.0 - i})
+    if i % 10 == 0:
+        ev.write(i * 0.01, "tick", n=i)
+    if i == 50:
+        print("ready", flush=True)
+    i += 1
+    time.sleep(0.001)
+"""
+
+
+def test_a_sigkilled_writer_leaves_a_readable_log(tmp_path):
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
+        time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=10)
+    assert proc.returncode == -signal.SIGKILL
+    tel = read_telemetry(tmp_path / "telemetry.csv")
+    assert tel.rows >= 51 and tel.dropped_lines <= 1
+    n = tel.rows
+    assert list(tel["angle_deg"][:n]) == [90.0 - i for i in range(n)]
+    events, torn = read_events(tmp_path / "events.jsonl")
+    assert torn <= 1 and [e["n"] for e in events] == list(range(0, 10 * len(events), 10))
+
+
+def test_torn_and_malformed_lines_are_dropped_and_counted(tmp_path):
+    path = tmp_path / "telemetry.csv"
+    path.write_text("t,x\n0.0,1.0\n0.1,\n0.2,abc\n0.3,4.0\n0.4")
+    tel = read_telemetry(path)
+    assert tel.rows == 3 and tel.dropped_lines == 2
+    assert math.isnan(tel["x"][1]) and tel["x"][2] == 4.0
+
+
+def test_missing_or_empty_telemetry_names_the_file(tmp_path):
+    with pytest.raises(InputFormatError, match="nothing.csv"):
+        read_telemetry(tmp_path / "nothing.csv")
+    (tmp_path / "empty.csv").write_text("")
+    with pytest.raises(InputFormatError, match="empty.csv:1"):
+        read_telemetry(tmp_path / "empty.csv")
+
+
+def test_rows_with_unknown_columns_are_refused_and_none_is_empty(tmp_path):
+    with CsvLog(tmp_path / "t.csv", ["t", "a"]) as log:
+        log.write({"t": 1.0})
+        with pytest.raises(KeyError, match="typo"):
+            log.write({"t": 2.0, "typo": 3.0})
+    tel = read_telemetry(tmp_path / "t.csv")
+    assert tel.rows == 1 and math.isnan(tel["a"][0])
+    with pytest.raises(ValueError):
+        CsvLog(tmp_path / "u.csv", ["t", "t"])
+
+
+def test_summary_is_atomic_json_and_run_dirs_never_collide(tmp_path):
+    a = new_run_dir(tmp_path, "slew 90°")
+    b = new_run_dir(tmp_path, "slew 90°")
+    assert a != b and a.is_dir() and b.is_dir() and "/" not in a.name
+    import numpy as np
+
+    write_summary(a, {"settle_s": np.float64(12.5), "path": a, "arr": np.arange(3)})
+    data = json.loads((a / "summary.json").read_text())
+    assert data == {"settle_s": 12.5, "path": str(a), "arr": [0, 1, 2]}
+    assert not list(a.glob("*.tmp"))
+    ev = EventLog(a / "events.jsonl")
+    ev.write(0.5, "state", old="DISARMED", new="ARMED")
+    ev.close()
+    with pytest.raises(ValueError):
+        ev.write(1.0, "late")
+    events, torn = read_events(a / "events.jsonl")
+    assert events == [{"t": 0.5, "kind": "state", "old": "DISARMED", "new": "ARMED"}] and torn == 0
