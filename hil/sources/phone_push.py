@@ -1,0 +1,348 @@
+"""Live phone samples over HTTP: the Sensor Logger app's "HTTP Push" stream, received and sent.
+
+The app (Kelvin Choi's *Sensor Logger*, Android and iOS, www.tszheichoi.com/sensorlogger — the same app
+whose CSV export ``hil replay`` reads) POSTs, once per configurable batch period, one JSON object per
+batch to a URL the user enters in *Settings → Data Streaming → HTTP Push*::
+
+    {"messageId": 12, "sessionId": "…", "deviceId": "…",
+     "payload": [{"name": "gyroscope", "time": 1698501144401773000,
+                  "values": {"x": 0.01, "y": -0.02, "z": 0.003}}, …]}
+
+``time`` is UTC epoch nanoseconds of each reading (every sensor keeps its own timestamps, so the rate
+mismatch survives the batching). Names used here: ``totalacceleration`` (m/s², gravity included — what
+the estimator wants; Sensor Logger's ``accelerometer`` is the user acceleration *without* gravity, and is
+used only together with ``gravity`` from the same batch), ``gyroscope`` (rad/s), ``magnetometer`` (µT),
+all in the Android sensor frame (x screen right, y screen up, z out of the screen). Entries of other
+sensors are ignored (counted). Set the app's batch period as short as it allows: the batch period is
+added to the control loop's sensing latency.
+
+:class:`PhonePushServer` is the receiving end (the host); :class:`PhonePushSender` is the sending end
+(the emulator's simulated phone, which streams to the host exactly as the app would). Parsing is a pure
+function, :func:`decode_push`, so it is tested without sockets.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import http.client
+import json
+import logging
+import math
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+from urllib.parse import urlsplit
+
+from hil.sensors import SensorKind, SensorSample
+from protocol.errors import InputFormatError, LinkError
+
+logger = logging.getLogger(__name__)
+
+NAMES: dict[str, SensorKind] = {
+    "totalacceleration": SensorKind.ACC,
+    "gyroscope": SensorKind.GYR,
+    "magnetometer": SensorKind.MAG,
+}
+_NAME_OF = {kind: name for name, kind in NAMES.items()}
+MAX_BODY = 4 * 1024 * 1024  # bytes: a batch larger than this is refused (413), not buffered
+MAX_QUEUE = 200_000  # samples held for the consumer; beyond this the oldest are dropped and counted
+
+
+_Timed = tuple[float, tuple[float, float, float]]
+
+
+@dataclass
+class PushStats:
+    """What the receiver has seen; nothing it drops goes uncounted."""
+
+    messages: int = 0
+    samples: int = 0
+    bad_messages: int = 0  # not JSON, wrong shape (answered 400)
+    bad_entries: int = 0  # an entry without finite x, y, z or time
+    ignored_entries: int = 0  # other sensors (location, battery, …)
+    overflow: int = 0  # samples dropped because the consumer did not keep up
+    message_gaps: int = 0  # messageId jumps (batches lost in transit)
+    last_error: str = ""
+    per_kind: dict[str, int] = field(default_factory=dict)
+
+
+def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], int, int, int | None]:
+    """Parse one HTTP Push batch into samples (time-ordered per sensor, seconds since the epoch).
+
+    Returns ``(samples, bad_entries, ignored_entries, message_id)``. A body that is not a JSON object with
+    a ``payload`` list raises :class:`InputFormatError` naming ``source``.
+    """
+    try:
+        doc = json.loads(body)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFormatError(f"not JSON ({exc})", source) from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("payload"), list):
+        raise InputFormatError("expected a JSON object with a 'payload' list", source)
+    message_id = doc.get("messageId")
+    message_id = message_id if isinstance(message_id, int) and not isinstance(message_id, bool) else None
+    samples: list[SensorSample] = []
+    bad = ignored = 0
+    gravity: list[_Timed] = []
+    user_acc: list[_Timed] = []
+    have_total = False
+    for entry in doc["payload"]:
+        name = entry.get("name") if isinstance(entry, dict) else None
+        if not isinstance(name, str):
+            bad += 1
+            continue
+        name = name.lower()
+        if name not in NAMES and name not in ("accelerometer", "gravity"):
+            ignored += 1
+            continue
+        reading = _reading(entry)
+        if reading is None:
+            bad += 1
+            continue
+        t, xyz = reading
+        if name == "accelerometer":
+            user_acc.append((t, xyz))
+        elif name == "gravity":
+            gravity.append((t, xyz))
+        else:
+            have_total |= NAMES[name] is SensorKind.ACC
+            samples.append(SensorSample(t, NAMES[name], xyz))
+    if not have_total:
+        samples.extend(_total_from_parts(user_acc, gravity))
+    else:
+        ignored += len(user_acc) + len(gravity)
+    samples.sort(key=lambda s: (s.t_s, int(s.kind)))
+    return samples, bad, ignored, message_id
+
+
+def _reading(entry: dict[str, Any]) -> tuple[float, tuple[float, float, float]] | None:
+    values, t_ns = entry.get("values"), entry.get("time")
+    if not isinstance(values, dict) or isinstance(t_ns, bool) or not isinstance(t_ns, (int, float, str)):
+        return None
+    try:
+        t = float(t_ns) * 1e-9
+        xyz = (float(values["x"]), float(values["y"]), float(values["z"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+    if not all(math.isfinite(v) for v in (t, *xyz)):
+        return None
+    return t, xyz
+
+
+def _total_from_parts(user: list[_Timed], gravity: list[_Timed]) -> list[SensorSample]:
+    """Specific force = user acceleration + gravity, pairing each user sample with the nearest-in-time
+    gravity sample of the same batch (the app reports both from one fused source at one rate)."""
+    if not user or not gravity:
+        return []
+    gravity.sort()
+    out = []
+    j = 0
+    for t, (ux, uy, uz) in sorted(user):
+        while j + 1 < len(gravity) and abs(gravity[j + 1][0] - t) <= abs(gravity[j][0] - t):
+            j += 1
+        gx, gy, gz = gravity[j][1]
+        out.append(SensorSample(t, SensorKind.ACC, (ux + gx, uy + gy, uz + gz)))
+    return out
+
+
+def encode_push(samples: Iterable[SensorSample], message_id: int, session: str, device: str) -> bytes:
+    """One HTTP Push batch in the app's schema (the inverse of :func:`decode_push` for our three sensors)."""
+    payload = [
+        {
+            "name": _NAME_OF[s.kind],
+            "time": round(s.t_s * 1e9),
+            "values": {"x": s.xyz[0], "y": s.xyz[1], "z": s.xyz[2]},
+        }
+        for s in samples
+    ]
+    doc = {"messageId": message_id, "sessionId": session, "deviceId": device, "payload": payload}
+    return json.dumps(doc, separators=(",", ":")).encode()
+
+
+class PhonePushServer:
+    """Receives Sensor Logger pushes on ``host:port`` (port 0 picks a free one; see :attr:`url`).
+
+    A background thread serves HTTP; :meth:`drain` hands the samples received so far to the consumer (the
+    runtime's sensor task). ``GET`` answers 200 so the app's "Tap to Test Pushing" button succeeds.
+    Errors in the serving thread are stored and raised by :meth:`check` — threads never die silently.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 8000, path: str = "/") -> None:
+        self.stats = PushStats()
+        self.path = path
+        self._queue: deque[SensorSample] = deque()
+        self._lock = threading.Lock()
+        self._last_id: int | None = None
+        self._error: BaseException | None = None
+        self._connections: set[socket.socket] = set()
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def setup(self) -> None:
+                super().setup()
+                with server._lock:
+                    server._connections.add(self.connection)
+
+            def finish(self) -> None:
+                with server._lock:
+                    server._connections.discard(self.connection)
+                super().finish()
+
+            def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
+                length = int(self.headers.get("Content-Length") or 0)
+                if length > MAX_BODY:
+                    self._answer(413, "batch too large")
+                    self.close_connection = True
+                    return
+                body = self.rfile.read(length)
+                code, text = server._accept(body, self.client_address[0])
+                self._answer(code, text)
+
+            def do_GET(self) -> None:  # noqa: N802
+                self._answer(200, "vscmg-hil phone push receiver")
+
+            def _answer(self, code: int, text: str) -> None:
+                data = text.encode()
+                self.send_response(code)
+                self.send_header("Content-Type", "text/plain")
+                self.send_header("Content-Length", str(len(data)))
+                self.end_headers()
+                self.wfile.write(data)
+
+            def log_message(self, format: str, *args: Any) -> None:  # noqa: A002
+                logger.debug("push %s: " + format, self.client_address[0], *args)
+
+        try:
+            self._httpd = ThreadingHTTPServer((host, port), Handler)
+        except OSError as exc:
+            raise LinkError(f"cannot listen for phone pushes on {host}:{port}: {exc.strerror}") from exc
+        self._httpd.daemon_threads = True
+        self._thread = threading.Thread(target=self._serve, name="phone-push", daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        host, port = self._httpd.server_address[:2]
+        return f"http://{host}:{port}{self.path}"
+
+    def _serve(self) -> None:
+        try:
+            self._httpd.serve_forever(poll_interval=0.05)
+        except BaseException as exc:  # stored, raised by check()
+            self._error = exc
+
+    def _accept(self, body: bytes, peer: str) -> tuple[int, str]:
+        try:
+            samples, bad, ignored, message_id = decode_push(body, f"push from {peer}")
+        except InputFormatError as exc:
+            with self._lock:
+                self.stats.bad_messages += 1
+                self.stats.last_error = str(exc)
+            logger.warning("%s", exc)
+            return 400, str(exc)
+        with self._lock:
+            st = self.stats
+            st.messages += 1
+            st.bad_entries += bad
+            st.ignored_entries += ignored
+            if message_id is not None and self._last_id is not None and message_id > self._last_id + 1:
+                st.message_gaps += message_id - self._last_id - 1
+            if message_id is not None:
+                self._last_id = message_id
+            for s in samples:
+                st.per_kind[s.kind.label] = st.per_kind.get(s.kind.label, 0) + 1
+            st.samples += len(samples)
+            self._queue.extend(samples)
+            excess = len(self._queue) - MAX_QUEUE
+            for _ in range(max(excess, 0)):
+                self._queue.popleft()
+            st.overflow += max(excess, 0)
+        return 200, "ok"
+
+    def drain(self) -> list[SensorSample]:
+        """Every sample received since the last call, in arrival order."""
+        self.check()
+        with self._lock:
+            out = list(self._queue)
+            self._queue.clear()
+        return out
+
+    def check(self) -> None:
+        if self._error is not None:
+            raise LinkError(f"phone push receiver failed: {self._error!r}") from self._error
+
+    def close(self) -> None:
+        """Stop serving, drop open (keep-alive) connections and release the port. Idempotent."""
+        if self._thread.is_alive():
+            self._httpd.shutdown()
+            self._thread.join(timeout=5.0)
+        self._httpd.server_close()
+        with self._lock:
+            connections, self._connections = self._connections, set()
+        for conn in connections:
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)
+
+    def __enter__(self) -> PhonePushServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class PhonePushSender:
+    """Sends batches to a push URL as the app does (keep-alive HTTP/1.1 POSTs with JSON bodies).
+
+    A refused or failed POST is counted and the connection reopened on the next batch: a phone app
+    keeps streaming while the host restarts.
+    """
+
+    def __init__(self, url: str, session: str = "vscmg-hil-sim", device: str = "simulated-phone",
+                 timeout_s: float = 2.0) -> None:
+        parts = urlsplit(url)
+        if parts.scheme != "http" or not parts.hostname:
+            raise LinkError(f"{url}: a push URL must be http://HOST:PORT/PATH")
+        self.url = url
+        self._host, self._port = parts.hostname, parts.port or 80
+        self._path = parts.path or "/"
+        self._timeout = timeout_s
+        self._conn: http.client.HTTPConnection | None = None
+        self.session, self.device = session, device
+        self.message_id = 0
+        self.sent = 0
+        self.failed = 0
+
+    def send(self, samples: Sequence[SensorSample]) -> bool:
+        """POST one batch; True if the receiver answered 200."""
+        body = encode_push(samples, self.message_id, self.session, self.device)
+        self.message_id += 1
+        for attempt in (0, 1):  # one reconnect: a keep-alive connection may have been closed meanwhile
+            try:
+                if self._conn is None:
+                    self._conn = http.client.HTTPConnection(self._host, self._port, timeout=self._timeout)
+                self._conn.request("POST", self._path, body, {"Content-Type": "application/json"})
+                response = self._conn.getresponse()
+                response.read()
+                if response.status == 200:
+                    self.sent += 1
+                    return True
+                self.failed += 1
+                return False
+            except (OSError, http.client.HTTPException):
+                self.close()
+                if attempt:
+                    self.failed += 1
+                    return False
+                time.sleep(0.01)
+        return False
+
+    def close(self) -> None:
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None

@@ -1,0 +1,143 @@
+"""The live phone path: Sensor Logger HTTP Push batches, parsed purely and carried over real loopback HTTP."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import math
+import time
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hil.sensors import SensorKind, SensorSample
+from hil.sources.phone_push import PhonePushSender, PhonePushServer, decode_push, encode_push
+from protocol.errors import InputFormatError, LinkError
+
+finite = st.floats(-1e4, 1e4, allow_nan=False)
+samples = st.lists(
+    st.builds(
+        SensorSample,
+        st.integers(1_600_000_000_000_000_000, 1_900_000_000_000_000_000).map(lambda ns: ns * 1e-9),
+        st.sampled_from(list(SensorKind)),
+        st.tuples(finite, finite, finite),
+    ),
+    max_size=40,
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(samples)
+def test_encode_then_decode_returns_the_samples_in_time_order(batch):
+    got, bad, ignored, mid = decode_push(encode_push(batch, 7, "s", "d"))
+    assert (bad, ignored, mid) == (0, 0, 7)
+    want = sorted(batch, key=lambda s: (s.t_s, int(s.kind)))
+    assert [(s.kind, s.xyz) for s in got] == [(s.kind, s.xyz) for s in want]
+    assert all(abs(a.t_s - b.t_s) < 1e-6 for a, b in zip(got, want, strict=True))
+
+
+def test_the_apps_schema_with_other_sensors_and_bad_entries():
+    body = json.dumps(
+        {
+            "messageId": 3,
+            "sessionId": "x",
+            "deviceId": "y",
+            "payload": [
+                {"name": "gyroscope", "time": 2_000_000_000, "values": {"x": 0.1, "y": 0.2, "z": 0.3}},
+                {"name": "location", "time": 2_000_000_000, "values": {"latitude": 1.0}},
+                {"name": "magnetometer", "time": "2010000000", "values": {"x": 20, "y": -5, "z": -40}},
+                {"name": "gyroscope", "time": 2_020_000_000, "values": {"x": "NaN", "y": 0, "z": 0}},
+                {"name": "gyroscope", "values": {"x": 0, "y": 0, "z": 0}},
+                {"time": 1},
+            ],
+        }
+    ).encode()
+    got, bad, ignored, mid = decode_push(body)
+    assert [s.kind for s in got] == [SensorKind.GYR, SensorKind.MAG]
+    assert got[1].t_s == pytest.approx(2.01) and got[1].xyz == (20.0, -5.0, -40.0)
+    assert (bad, ignored, mid) == (3, 1, 3)
+
+
+def test_user_acceleration_plus_gravity_when_no_total_acceleration_is_pushed():
+    entry = lambda name, t, z: {"name": name, "time": t, "values": {"x": 0.0, "y": 0.5, "z": z}}  # noqa: E731
+    body = json.dumps(
+        {"payload": [entry("accelerometer", 10, 0.2), entry("gravity", 11, 9.8),
+                     entry("accelerometer", 20, -0.1)]}
+    ).encode()
+    got, bad, ignored, _ = decode_push(body)
+    assert [s.xyz for s in got] == [(0.0, 1.0, 10.0), (0.0, 1.0, 9.700000000000001)]
+    assert all(s.kind is SensorKind.ACC for s in got) and bad == ignored == 0
+
+
+@pytest.mark.parametrize("body", [b"", b"[1, 2]", b"{\"payload\": 3}", b"\xff\xfe", b"{not json"])
+def test_malformed_batches_are_input_format_errors_naming_the_source(body):
+    with pytest.raises(InputFormatError, match="phone-7"):
+        decode_push(body, "phone-7")
+
+
+def test_a_sender_streams_to_the_receiver_over_loopback_http():
+    with PhonePushServer(port=0) as server:
+        sender = PhonePushSender(server.url)
+        sent = []
+        for k in range(20):
+            batch = [SensorSample(100.0 + 0.005 * (2 * k + j), SensorKind.GYR, (k, j, 0.0)) for j in range(2)]
+            batch.append(SensorSample(100.0 + 0.01 * k, SensorKind.MAG, (30.0, 0.0, -20.0)))
+            assert sender.send(batch)
+            sent.extend(batch)
+        got = server.drain()
+        assert len(got) == len(sent) == server.stats.samples == 60
+        assert server.stats.per_kind == {"gyr": 40, "mag": 20} and server.stats.message_gaps == 0
+        assert server.drain() == []
+        sender.message_id += 5  # five batches "lost in the air"
+        assert sender.send(sent[:1])
+        server.drain()
+        assert server.stats.message_gaps == 5
+        sender.close()
+
+
+def test_garbage_is_answered_400_counted_and_the_receiver_keeps_serving():
+    with PhonePushServer(port=0) as server:
+        host, port = server.url.split("//")[1].split("/")[0].split(":")
+        conn = http.client.HTTPConnection(host, int(port), timeout=2)
+        conn.request("POST", "/", b"{broken", {"Content-Type": "application/json"})
+        resp = conn.getresponse()
+        assert resp.status == 400 and b"not JSON" in resp.read()
+        conn.request("GET", "/")
+        assert conn.getresponse().status == 200  # the app's "Tap to Test Pushing"
+        conn.close()
+        assert server.stats.bad_messages == 1 and "not JSON" in server.stats.last_error
+        assert PhonePushSender(server.url).send([SensorSample(1.0, SensorKind.ACC, (0.0, 0.0, 9.8))])
+        assert [s.xyz for s in server.drain()] == [(0.0, 0.0, 9.8)]
+
+
+def test_a_sender_survives_a_receiver_restart_and_counts_the_failure():
+    server = PhonePushServer(port=0)
+    url = server.url
+    port = int(url.rsplit(":", 1)[1].rstrip("/"))
+    sender = PhonePushSender(url, timeout_s=0.5)
+    assert sender.send([SensorSample(1.0, SensorKind.GYR, (0.0, 0.0, 0.0))])
+    server.close()
+    assert not sender.send([SensorSample(1.1, SensorKind.GYR, (0.0, 0.0, 0.0))])
+    assert sender.failed == 1
+    deadline = time.monotonic() + 5
+    while True:
+        try:
+            server = PhonePushServer(port=port)
+            break
+        except LinkError:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+    with server:
+        assert sender.send([SensorSample(1.2, SensorKind.GYR, (0.0, 0.0, 1.0))])
+        assert [s.xyz for s in server.drain()] == [(0.0, 0.0, 1.0)]
+
+
+def test_bad_urls_and_busy_ports_are_link_errors():
+    with pytest.raises(LinkError, match="http://"):
+        PhonePushSender("udp://127.0.0.1:9")
+    with PhonePushServer(port=0) as server:
+        port = int(server.url.rsplit(":", 1)[1].rstrip("/"))
+        with pytest.raises(LinkError, match=str(port)):
+            PhonePushServer(port=port)
+    assert math.isfinite(port)
