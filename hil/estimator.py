@@ -48,7 +48,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.sensors import MergedSteps, SensorKind, StepFlag, as_vec3
+from hil.prefilter import PAPER_CUTOFF_RAD_S, Prefilter, filter_batch
+from hil.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
 from hil.so3 import Mat9, Vec3, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f, solve3_f
 from protocol.errors import ConfigError, ConvergenceError
 
@@ -792,3 +793,115 @@ class VariationalEstimator:
 _NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 _SUBSTEPPED = int(StepFlag.SUBSTEPPED)
 _COUNTED = (StepFlag.NEWTON_FAILED, StepFlag.DEGENERATE, StepFlag.GYR_STALE)
+
+
+# --------------------------------------------------------------------------- pre-filter + estimator
+PAPER_PREFILTER: dict[SensorKind, float | None] = {k: PAPER_CUTOFF_RAD_S for k in KINDS}
+"""The paper's pre-filter: every measured quantity through the 1 rad/s first-order Butterworth."""
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """The estimator as it runs on a phone's merged steps.
+
+    ``prefilter_rad_s``: pre-filter cut-off per sensor (rad/s), None for no pre-filter on that sensor.
+    ``init``: the initial attitude estimate — ``"measured"`` (Wahba's solution from the first step with
+    both directions, the natural choice for a log), ``"identity"``, or a (3, 3) body → inertial matrix.
+    ``omega_err0`` (3,) rad/s: the initial rate-estimate error.
+    """
+
+    params: EstimatorParams = field(default_factory=EstimatorParams)
+    prefilter_rad_s: dict[SensorKind, float | None] = field(default_factory=lambda: dict(PAPER_PREFILTER))
+    init: Literal["measured", "identity"] | ArrayLike = "measured"
+    omega_err0: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class AttitudeFilter:
+    """Pre-filter then estimator over merged steps: :meth:`step` live (one :class:`MergedStep`),
+    :meth:`run` in batch (:class:`MergedSteps`); both give the same numbers.
+
+    With ``init="measured"`` the estimator (re)starts at the first step where both directions are usable,
+    from Wahba's solution for that step's (pre-filtered) measurement; steps before it run from identity.
+    """
+
+    def __init__(self, config: FilterConfig | None = None) -> None:
+        self.config = config or FilterConfig()
+        self._cutoffs = {k: self.config.prefilter_rad_s.get(k) for k in KINDS}
+        self._prefilters = {k: Prefilter(c) for k, c in self._cutoffs.items() if c is not None}
+        init = self.config.init
+        r0 = None if isinstance(init, str) else init
+        self._awaiting_measurement = isinstance(init, str) and init == "measured"
+        self.estimator = VariationalEstimator(self.config.params, r0, self.config.omega_err0)
+
+    def step(self, s: MergedStep) -> Estimate:
+        """One merged step (live path)."""
+        values = {}
+        for kind in KINDS:
+            v = s.value(kind)
+            pre = self._prefilters.get(kind)
+            if pre is not None:
+                out = pre.update(s.h, v if v is not None else _NAN3, v is not None)
+                v = None if v is None else (out[0], out[1], out[2])
+            values[kind] = v
+        acc, mag = values[SensorKind.ACC], values[SensorKind.MAG]
+        if self._awaiting_measurement and _both_usable(acc, mag, self.estimator.params):
+            self._awaiting_measurement = False
+            self.estimator.reset(wahba(self.config.params, acc, mag), self.config.omega_err0)  # type: ignore[arg-type]
+        out = self.estimator.update(s.h, values[SensorKind.GYR], acc, mag)
+        return Estimate(s.t, out.R, out.omega, out.omega_err, out.flags | s.flags, out.iterations)
+
+    def run(self, steps: MergedSteps) -> EstimateBatch:
+        """All merged steps (batch path)."""
+        h = steps.h
+        filtered = {}
+        for kind in KINDS:
+            v = np.where(steps.valid(kind)[:, None], steps.value(kind), np.nan)
+            cutoff = self._cutoffs[kind]
+            filtered[kind] = v if cutoff is None else filter_batch(h, v, cutoff)
+        filtered_steps = MergedSteps(
+            steps.t, filtered[SensorKind.GYR], filtered[SensorKind.ACC], filtered[SensorKind.MAG],
+            steps.age, steps.fresh, steps.flags,
+        )  # fmt: skip
+        if not self._awaiting_measurement:
+            return self.estimator.update_batch(filtered_steps)
+        both = _both_usable_rows(filtered[SensorKind.ACC], filtered[SensorKind.MAG], self.estimator.params)
+        if not both.any():
+            return self.estimator.update_batch(filtered_steps)
+        i0 = int(np.argmax(both))
+        self._awaiting_measurement = False
+        head = self.estimator.update_batch(_rows(filtered_steps, 0, i0))
+        r0 = wahba(self.config.params, filtered[SensorKind.ACC][i0], filtered[SensorKind.MAG][i0])
+        self.estimator.reset(r0, self.config.omega_err0)
+        tail = self.estimator.update_batch(_rows(filtered_steps, i0, len(steps)))
+        return _concat(head, tail)
+
+
+_NAN3 = (math.nan, math.nan, math.nan)
+
+
+def _both_usable(acc: Vec3 | None, mag: Vec3 | None, p: EstimatorParams) -> bool:
+    if acc is None or mag is None:
+        return False
+    return bool(_both_usable_rows(np.array([acc]), np.array([mag]), p)[0])
+
+
+def _both_usable_rows(acc: Array, mag: Array, p: EstimatorParams) -> NDArray[np.bool_]:
+    """Rows where both directions are finite, non-zero and not within the degeneracy angle."""
+    na, nm = np.linalg.norm(acc, axis=1), np.linalg.norm(mag, axis=1)
+    ok = np.isfinite(na) & np.isfinite(nm) & (na > 0) & (nm > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sin = np.linalg.norm(np.cross(acc, mag), axis=1) / (na * nm)
+    return ok & (sin >= math.sin(math.radians(p.min_direction_angle_deg)))
+
+
+def _rows(s: MergedSteps, i: int, j: int) -> MergedSteps:
+    return MergedSteps(s.t[i:j], s.gyr[i:j], s.acc[i:j], s.mag[i:j], s.age[i:j], s.fresh[i:j], s.flags[i:j])
+
+
+def _concat(a: EstimateBatch, b: EstimateBatch) -> EstimateBatch:
+    return EstimateBatch(
+        *(np.concatenate([x, y]) for x, y in zip(
+            (a.t, a.R, a.omega, a.omega_err, a.flags, a.iterations),
+            (b.t, b.R, b.omega, b.omega_err, b.flags, b.iterations), strict=True,
+        ))
+    )  # fmt: skip

@@ -1,0 +1,126 @@
+"""Attitude-estimation error metrics, as the BROAD benchmark (Laidig et al.) defines them, plus the paper's.
+
+For an estimate ``q̂`` and reference ``q`` (unit quaternions ``[w, x, y, z]``, body → ENU) the error is
+expressed in the earth frame, ``e = q̂ ⊗ q⁻¹`` (the rotation taking the true attitude to the estimated
+one, seen from the world). Then, in radians:
+
+- total error       ``2 acos |e_w|``           (the principal angle of ``Q = R̂ Rᵀ``, as in the paper)
+- heading error     ``2 atan |e_z / e_w|``     (the part about the vertical axis)
+- inclination error ``2 acos √(e_w² + e_z²)``  (the rest: tilt of the estimated vertical)
+
+and RMSE of each over the evaluated samples, in degrees. (The paper writes ``Q = R R̂ᵀ``; its principal
+angle is the same as that of ``R̂ Rᵀ``.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from hil import so3
+
+Array = NDArray[np.float64]
+
+
+def quat_multiply(a: ArrayLike, b: ArrayLike) -> Array:
+    """Hamilton product ``a ⊗ b`` of quaternions ``[w, x, y, z]``, row-wise; shapes (..., 4)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def error_quat_earth(q_est: ArrayLike, q_ref: ArrayLike) -> Array:
+    """``q̂ ⊗ q⁻¹``, normalised, (N, 4)."""
+    q_est = np.asarray(q_est, dtype=float)
+    q_ref = np.asarray(q_ref, dtype=float)
+    q_est = q_est / np.linalg.norm(q_est, axis=-1, keepdims=True)
+    q_ref = q_ref / np.linalg.norm(q_ref, axis=-1, keepdims=True)
+    e = quat_multiply(q_est, q_ref * np.array([1.0, -1.0, -1.0, -1.0]))
+    return e / np.linalg.norm(e, axis=-1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class AttitudeErrors:
+    """Per-sample errors in degrees, each (N,)."""
+
+    total: Array
+    heading: Array
+    inclination: Array
+
+    @classmethod
+    def from_quats(cls, q_est: ArrayLike, q_ref: ArrayLike) -> AttitudeErrors:
+        e = error_quat_earth(q_est, q_ref)
+        w, z = np.abs(e[:, 0]), np.abs(e[:, 3])
+        total = 2.0 * np.arccos(np.clip(w, 0.0, 1.0))
+        heading = 2.0 * np.arctan2(z, w)
+        incl = 2.0 * np.arccos(np.clip(np.sqrt(w * w + z * z), 0.0, 1.0))
+        return cls(np.degrees(total), np.degrees(heading), np.degrees(incl))
+
+    @classmethod
+    def from_matrices(cls, r_est: ArrayLike, r_ref: ArrayLike) -> AttitudeErrors:
+        """From rotation matrices (N, 3, 3), body → ENU."""
+        return cls.from_quats(so3.matrix_to_quat(r_est), so3.matrix_to_quat(r_ref))
+
+    def rmse(self, mask: ArrayLike | None = None) -> Rmse:
+        """RMSE over the samples in ``mask`` (default all), NaNs (no estimate or no truth) left out."""
+        sel = np.ones(self.total.shape, bool) if mask is None else np.asarray(mask, bool)
+        return Rmse(*(_rms(x[sel]) for x in (self.total, self.heading, self.inclination)), int(sel.sum()))
+
+
+@dataclass(frozen=True)
+class Rmse:
+    """Root-mean-square errors in degrees over ``n`` samples."""
+
+    total: float
+    heading: float
+    inclination: float
+    n: int
+
+    def __str__(self) -> str:
+        return f"{self.total:.2f} / {self.heading:.2f} / {self.inclination:.2f} deg (total / heading / incl.)"
+
+
+def _rms(x: Array) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
+
+
+def resample_quats(t: ArrayLike, q: ArrayLike, at: ArrayLike) -> Array:
+    """Quaternions ``q`` (N, 4) at times ``t`` (N,, increasing) interpolated to ``at`` (M,): normalised
+    linear interpolation along the shorter arc between the neighbours; NaN outside ``[t[0], t[-1]]``."""
+    t, q, at = np.asarray(t, float), np.asarray(q, float), np.asarray(at, float)
+    i = np.clip(np.searchsorted(t, at, side="right") - 1, 0, len(t) - 2)
+    f = ((at - t[i]) / (t[i + 1] - t[i]))[:, None]
+    a, b = q[i], q[i + 1]
+    b = np.where(np.sum(a * b, axis=1, keepdims=True) < 0, -b, b)
+    out = (1.0 - f) * a + f * b
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
+    out[(at < t[0]) | (at > t[-1])] = np.nan
+    return out
+
+
+def rate_error(omega_est: ArrayLike, omega_true: ArrayLike) -> Array:
+    """Norm of the angular-velocity estimation error (rad/s), (N,)."""
+    return np.linalg.norm(np.asarray(omega_est, float) - np.asarray(omega_true, float), axis=-1)
+
+
+def settling_time(t: ArrayLike, error: ArrayLike, bound: float) -> float:
+    """The first time after which ``error`` stays at or below ``bound`` (inf if it never settles)."""
+    t, error = np.asarray(t, float), np.asarray(error, float)
+    above = np.flatnonzero(~(error <= bound))
+    if above.size == 0:
+        return float(t[0])
+    if above[-1] == len(t) - 1:
+        return float("inf")
+    return float(t[above[-1] + 1])

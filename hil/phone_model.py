@@ -1,0 +1,168 @@
+"""A simulated phone: a true attitude/rate trajectory in, accelerometer, gyroscope and magnetometer samples
+out, each sensor at its own rate with its own timestamp jitter, white noise and constant bias.
+
+Default figures (:meth:`PhoneSpec.nexus5`), per axis, and where they come from:
+
+- rates 198.6 / 198.6 / 49.6 Hz (gyroscope / accelerometer / magnetometer): measured on the LG Nexus 5
+  logs of ``shared/data/tyrex-nexus5`` (the paper's rate-mismatch case); start offsets of a few ms.
+- gyroscope noise 1.7e-3 rad/s per sample: InvenSense MPU-6500-family (the Nexus 5's MPU-6515) noise
+  density 0.01 °/s/√Hz over its ~92 Hz bandwidth; residual bias 5e-3 rad/s (0.3 °/s) after Android's
+  gyroscope calibration (the uncalibrated zero-rate offset is ±5 °/s; the tyrex raw logs show the OS's
+  bias estimates of 0.005–0.07 rad/s).
+- accelerometer noise 0.03 m/s² per sample: 300 µg/√Hz over ~92 Hz (same part); bias 0.05 m/s².
+- magnetometer noise 0.4 µT, residual hard-iron bias 1 µT after calibration (AKM AK8963 class, 0.15 µT
+  resolution).
+- timestamp jitter 0.1 ms (gyroscope, accelerometer) and 0.2 ms (magnetometer), 1-σ.
+
+Frames: body = the Android sensor frame (x screen right, y screen up, z out of the screen); the world is
+ENU. The accelerometer measures the specific force ``Rᵀ (g·up + a_lin)`` (gravity included, like Android's
+TYPE_ACCELEROMETER); the magnetometer ``Rᵀ B``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from hil import so3
+from hil.estimator import PAPER_E
+from hil.sensors import SensorKind, SensorLog, SensorStream, Truth
+from protocol.errors import ConfigError
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """One sensor: ``rate_hz``; per-axis white ``noise`` and constant ``bias`` standard deviations (in the
+    sensor's unit); timestamp ``jitter_s`` (1-σ, s) and the first sample's ``offset_s``."""
+
+    rate_hz: float
+    noise: float
+    bias: float
+    jitter_s: float = 1e-4
+    offset_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (self.rate_hz > 0 and self.noise >= 0 and self.bias >= 0 and self.jitter_s >= 0):
+            raise ConfigError(f"invalid sensor figures {self!r}", "SensorSpec")
+        if self.jitter_s * 4 >= 1.0 / self.rate_hz:
+            raise ConfigError(
+                "timestamp jitter must stay well below the sample period", "SensorSpec.jitter_s"
+            )
+
+
+@dataclass(frozen=True)
+class PhoneSpec:
+    """A phone's three sensors and its environment: ``gravity`` (m/s²), ``field_enu_uT`` (3,) the
+    geomagnetic field in ENU (µT)."""
+
+    gyr: SensorSpec = field(default_factory=lambda: SensorSpec(198.6, 1.7e-3, 5e-3, 1e-4, 0.0))
+    acc: SensorSpec = field(default_factory=lambda: SensorSpec(198.6, 0.03, 0.05, 1e-4, 0.0021))
+    mag: SensorSpec = field(default_factory=lambda: SensorSpec(49.6, 0.4, 1.0, 2e-4, 0.0047))
+    gravity: float = 9.81
+    field_enu_uT: tuple[float, float, float] = tuple(47.0 * np.array(PAPER_E)[:, 1])  # type: ignore[assignment]
+
+    @classmethod
+    def nexus5(cls) -> PhoneSpec:
+        """The defaults: Nexus-5-like rates and noise, the paper's field direction at 47 µT."""
+        return cls()
+
+    @classmethod
+    def ideal(cls) -> PhoneSpec:
+        """Noise-, bias- and jitter-free sensors at the same rates (for checking the filter's arithmetic)."""
+        zero = {"noise": 0.0, "bias": 0.0, "jitter_s": 0.0}
+        base = cls()
+        return cls(
+            SensorSpec(base.gyr.rate_hz, offset_s=base.gyr.offset_s, **zero),
+            SensorSpec(base.acc.rate_hz, offset_s=base.acc.offset_s, **zero),
+            SensorSpec(base.mag.rate_hz, offset_s=base.mag.offset_s, **zero),
+        )
+
+    def spec(self, kind: SensorKind) -> SensorSpec:
+        return {SensorKind.GYR: self.gyr, SensorKind.ACC: self.acc, SensorKind.MAG: self.mag}[kind]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """The truth: ``t`` (N,) s, ``R`` (N, 3, 3) body → ENU, ``omega`` (N, 3) body rate rad/s, ``acc_enu``
+    (N, 3) linear acceleration in ENU (m/s², zero for a testbed that only rotates); ``increments`` (N−1, 3)
+    the rotation vectors with ``R[i+1] = R[i] exp(increments[i])``, used to interpolate exactly."""
+
+    t: Array
+    R: Array
+    omega: Array
+    acc_enu: Array
+    increments: Array
+
+    @classmethod
+    def from_rate(
+        cls,
+        rate: Callable[[float], ArrayLike],
+        duration_s: float,
+        R0: ArrayLike | None = None,
+        dt: float = 1e-3,
+        acc_enu: Callable[[float], ArrayLike] | None = None,
+    ) -> Trajectory:
+        """Integrate a body-rate function (rad/s) from ``R0`` with the midpoint rule on SO(3) at ``dt``."""
+        n = int(round(duration_s / dt)) + 1
+        t = np.arange(n) * dt
+        omega = np.array([rate(x) for x in t], dtype=float).reshape(n, 3)
+        inc = dt * np.array([rate(x + dt / 2) for x in t[:-1]], dtype=float).reshape(n - 1, 3)
+        steps = so3.exp(inc)
+        r = np.empty((n, 3, 3))
+        r[0] = np.eye(3) if R0 is None else np.asarray(R0, dtype=float)
+        for i in range(n - 1):
+            r[i + 1] = r[i] @ steps[i]
+        lin = np.zeros((n, 3)) if acc_enu is None else np.array([acc_enu(x) for x in t], float).reshape(n, 3)
+        return cls(t, r, omega, lin, inc)
+
+    def sample(self, times: Array) -> tuple[Array, Array, Array]:
+        """``(R, omega, acc_enu)`` at ``times`` (within the trajectory): attitude by geodesic interpolation
+        between grid points, rate and linear acceleration linearly."""
+        times = np.asarray(times, dtype=float)
+        i = np.clip(np.searchsorted(self.t, times, side="right") - 1, 0, len(self.t) - 2)
+        f = ((times - self.t[i]) / (self.t[i + 1] - self.t[i]))[:, None]
+        r = self.R[i] @ so3.exp(f * self.increments[i])
+        omega = self.omega[i] + f * (self.omega[i + 1] - self.omega[i])
+        acc = self.acc_enu[i] + f * (self.acc_enu[i + 1] - self.acc_enu[i])
+        return r, omega, acc
+
+    @property
+    def truth(self) -> Truth:
+        return Truth(self.t, self.R)
+
+
+def paper_testbed_rate(t: float) -> Array:
+    """A phone on the paper's spacecraft-simulator testbed: a smooth body rate of 0.1–0.3 rad/s."""
+    return np.array([0.1 * math.sin(0.3 * t) + 0.1, 0.2 * math.cos(0.2 * t), 0.15 * math.sin(0.1 * t + 1.0)])
+
+
+def simulate(traj: Trajectory, spec: PhoneSpec | None = None, seed: int | None = 0) -> SensorLog:
+    """Sample the three sensors along ``traj`` (see the module docstring for the model). Returns a
+    :class:`SensorLog` with the trajectory as its ground truth; the same seed gives the same log."""
+    spec = spec or PhoneSpec()
+    rng = np.random.default_rng(seed)
+    up_force = np.array([0.0, 0.0, spec.gravity])
+    b_enu = np.asarray(spec.field_enu_uT, dtype=float)
+    streams = {}
+    for kind in (SensorKind.GYR, SensorKind.ACC, SensorKind.MAG):
+        s = spec.spec(kind)
+        nominal = s.offset_s + np.arange(0.0, traj.t[-1] - s.offset_s - 4 * s.jitter_s, 1.0 / s.rate_hz)
+        times = nominal + rng.normal(0.0, s.jitter_s, nominal.shape) if s.jitter_s else nominal
+        times = times[(times >= traj.t[0]) & (times <= traj.t[-1])]
+        r, omega, lin = traj.sample(times)
+        if kind is SensorKind.GYR:
+            clean = omega
+        elif kind is SensorKind.ACC:
+            clean = np.einsum("nji,nj->ni", r, up_force + lin)
+        else:
+            clean = np.einsum("nji,j->ni", r, b_enu)
+        bias = rng.normal(0.0, s.bias, 3)
+        streams[kind] = SensorStream(kind, times, clean + bias + rng.normal(0.0, s.noise, clean.shape))
+    notes = (f"simulated phone: {spec!r}", f"seed {seed}")
+    return SensorLog(streams, "simulated phone", "simulated", traj.truth, notes)
