@@ -48,7 +48,9 @@ def exp(phi: ArrayLike) -> Array:
     small = theta < _SMALL
     safe = np.where(small, 1.0, theta)
     a = np.where(small, 1.0 - theta2 / 6.0 + theta2 * theta2 / 120.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, (1.0 - np.cos(safe)) / (safe * safe))
+    b = np.where(
+        small, 0.5 - theta2 / 24.0 + theta2 * theta2 / 720.0, 2.0 * np.sin(0.5 * safe) ** 2 / (safe * safe)
+    )
     k = hat(phi)
     k2 = k @ k
     eye = np.broadcast_to(np.eye(3), k.shape)
@@ -174,10 +176,15 @@ Vec3 = tuple[float, float, float]
 Mat9 = tuple[float, float, float, float, float, float, float, float, float]
 
 
-def rodrigues_coefficients(theta2: float) -> tuple[float, float, float]:
-    """``(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³)`` for ``θ² = theta2``, by Taylor series below 1e-4 rad.
+_C_SERIES = tuple(1.0 / math.factorial(2 * k + 3) for k in range(9))
 
-    ``exp(φ^×) = I + a φ^× + b (φ^×)²`` and the left Jacobian ``J_l(φ) = I + b φ^× + c (φ^×)²``.
+
+def rodrigues_coefficients(theta2: float) -> tuple[float, float, float]:
+    """``(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³)`` for ``θ² = theta2``, each to full precision.
+
+    ``exp(φ^×) = I + a φ^× + b (φ^×)²`` and the left Jacobian ``J_l(φ) = I + b φ^× + c (φ^×)²``. Taylor
+    series below 1e-4 rad; ``b`` by the half-angle form ``2 sin²(θ/2)/θ²`` and ``c`` by its series below
+    1 rad (their closed forms lose up to half the digits to cancellation at small θ).
     """
     if theta2 < _SMALL * _SMALL:
         return (
@@ -187,7 +194,14 @@ def rodrigues_coefficients(theta2: float) -> tuple[float, float, float]:
         )
     theta = math.sqrt(theta2)
     s = math.sin(theta)
-    return s / theta, (1.0 - math.cos(theta)) / theta2, (theta - s) / (theta2 * theta)
+    half = math.sin(0.5 * theta)
+    if theta2 < 1.0:  # Σ (−θ²)^k / (2k + 3)!, Horner, to θ¹⁶/19! < 1e-17
+        c = _C_SERIES[-1]
+        for coef in _C_SERIES[-2::-1]:
+            c = coef - theta2 * c
+    else:
+        c = (theta - s) / (theta2 * theta)
+    return s / theta, 2.0 * half * half / theta2, c
 
 
 def rotate_f(px: float, py: float, pz: float, vx: float, vy: float, vz: float) -> Vec3:
