@@ -1,0 +1,150 @@
+"""The project's own sensor-log CSV (specified in docs/formats.md): one long table, every sensor's samples
+in their own rows, so mismatched rates need no resampling; optional ground-truth rows.
+
+::
+
+    # vscmg-hil sensor log v1
+    # units: t_s s; gyr rad/s; acc m/s^2 (gravity included); mag uT; truth: quaternion body->ENU
+    t_s,sensor,x,y,z,w
+    0.000000,gyr,0.0100,-0.0200,0.0030,
+    0.002100,acc,0.1200,0.2000,9.7900,
+    0.004700,mag,1.2000,28.7000,-37.0000,
+    0.000000,truth,0.0,0.0,0.0,1.0
+
+``sensor`` is ``gyr``, ``acc``, ``mag`` or ``truth``. Sensor rows leave ``w`` empty; truth rows hold a unit
+quaternion with vector part ``x, y, z`` and scalar part ``w``. Axes are the body frame (x screen right,
+y screen up, z out of the screen); truth is body → ENU. Rows need not be sorted across sensors; each
+sensor's own rows keep their order (the merge drops and counts any that go backwards). ``nan`` values
+are allowed (NaN samples, counted and dropped by the merge); other unparseable cells are errors with file,
+line and column.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from hil import so3
+from hil.logs.table import Container
+from hil.sensors import KINDS, SensorLog, SensorStream, Truth
+from protocol.errors import InputFormatError
+
+NAME = "csv"
+MAGIC = "# vscmg-hil sensor log v1"
+HEADER = "t_s,sensor,x,y,z,w"
+_CODES = {k.label: float(int(k)) for k in KINDS} | {"truth": 3.0}
+_COLUMNS = HEADER.split(",")
+
+
+def detect(c: Container) -> bool:
+    names = c.names()
+    if len(names) != 1 or not names[0].lower().endswith(".csv"):
+        return False
+    head = c.raw(names[0])[:512].decode("utf-8", "replace")
+    return head.startswith(MAGIC) or HEADER in head.splitlines()[:5]
+
+
+def read(c: Container) -> SensorLog:
+    name = c.names()[0]
+    where = c.where(name)
+    text = c.text(name)
+    lines = text.splitlines()
+    header_at = next((i for i, line in enumerate(lines) if line.strip() and not line.startswith("#")), None)
+    if header_at is None or lines[header_at].replace(" ", "") != HEADER:
+        got = lines[header_at] if header_at is not None else "nothing"
+        raise InputFormatError(f"expected header {HEADER!r}, found {got!r}", where, (header_at or 0) + 1)
+    try:
+        data = np.loadtxt(
+            io.StringIO("\n".join(lines[header_at + 1 :])),
+            delimiter=",",
+            comments="#",
+            ndmin=2,
+            converters={1: lambda s: _CODES[s.strip()], 5: lambda s: float(s) if s.strip() else math.nan},
+            dtype=float,
+        )
+    except (ValueError, KeyError):
+        _locate(lines, header_at + 1, where)
+        raise
+    if data.size == 0:
+        data = np.zeros((0, 6))
+    streams = {}
+    for kind in KINDS:
+        rows = data[data[:, 1] == int(kind)]
+        streams[kind] = SensorStream(kind, rows[:, 0], rows[:, 2:5])
+    truth_rows = data[data[:, 1] == 3]
+    truth = None
+    if len(truth_rows):
+        quat = truth_rows[:, [5, 2, 3, 4]]
+        bad = ~(np.abs(np.linalg.norm(quat, axis=1) - 1.0) < 1e-3)
+        if bad.any():
+            line = _line_of_row(lines, header_at + 1, int(np.flatnonzero(data[:, 1] == 3)[np.argmax(bad)]))
+            raise InputFormatError("truth quaternion is not of unit norm", where, line, "w")
+        order = np.argsort(truth_rows[:, 0], kind="stable")
+        truth = Truth(truth_rows[order, 0], so3.quat_to_matrix(quat[order]))
+    return SensorLog(streams, where, NAME, truth, ("project CSV v1",))
+
+
+def _line_of_row(lines: list[str], first: int, row: int) -> int:
+    """1-based file line of data row ``row`` (comments and blank lines skipped)."""
+    seen = -1
+    for i in range(first, len(lines)):
+        if lines[i].strip() and not lines[i].lstrip().startswith("#"):
+            seen += 1
+            if seen == row:
+                return i + 1
+    return len(lines)
+
+
+def _locate(lines: list[str], first: int, where: str) -> None:
+    for i in range(first, len(lines)):
+        line = lines[i]
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        cells = line.split(",")
+        if len(cells) != len(_COLUMNS):
+            raise InputFormatError(f"{len(cells)} values, expected {len(_COLUMNS)}", where, i + 1)
+        sensor = cells[1].strip()
+        if sensor not in _CODES:
+            raise InputFormatError(
+                f"unknown sensor {sensor!r} (gyr, acc, mag or truth)", where, i + 1, "sensor"
+            )
+        for col, cell in zip(_COLUMNS, cells, strict=True):
+            if col == "sensor" or (col == "w" and sensor != "truth" and not cell.strip()):
+                continue
+            try:
+                float(cell)
+            except ValueError:
+                what = f"{cell.strip()!r} is not a number" if cell.strip() else "empty value"
+                raise InputFormatError(what, where, i + 1, col) from None
+
+
+def write(log: SensorLog, path: Path | str) -> Path:
+    """Write ``log`` (and its truth, if any) in this format, rows in time order (stable per sensor)."""
+    path = Path(path)
+    blocks = []
+    for kind in KINDS:
+        s = log.streams[kind]
+        blocks.append((s.t, np.full(len(s), int(kind)), s.xyz, np.full(len(s), np.nan)))
+    if log.truth is not None:
+        q = so3.matrix_to_quat(log.truth.R)
+        blocks.append((log.truth.t, np.full(len(log.truth), 3), q[:, 1:], q[:, 0]))
+    t = np.concatenate([b[0] for b in blocks])
+    code = np.concatenate([b[1] for b in blocks])
+    xyz = np.concatenate([b[2] for b in blocks])
+    w = np.concatenate([b[3] for b in blocks])
+    order = np.argsort(t, kind="stable")
+    names = {int(k): k.label for k in KINDS} | {3: "truth"}
+    with path.open("w", encoding="utf-8", newline="\n") as f:
+        f.write(f"{MAGIC}\n# source: {log.source} ({log.format})\n")
+        f.write(
+            "# units: t_s s; gyr rad/s; acc m/s^2 (gravity included); mag uT; truth: quaternion body->ENU\n"
+        )
+        f.write(HEADER + "\n")
+        for i in order.tolist():
+            wv = "" if math.isnan(w[i]) else repr(float(w[i]))
+            x, y, z = xyz[i].tolist()
+            f.write(f"{t[i]!r},{names[int(code[i])]},{x!r},{y!r},{z!r},{wv}\n")
+    return path

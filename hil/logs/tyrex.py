@@ -1,0 +1,98 @@
+"""The smartphone attitude benchmark of Michel et al. (Inria tyrex team, "benchmarks-attitude-smartphones"):
+one folder per trial with per-sensor text files and Qualisys motion-capture ground truth.
+
+Sensor files (gzip, space separated, column 0 time in s, then x y z in the Android sensor frame):
+``accelerometer.txt.gz`` (m/s², gravity included), ``gyroscope-calibrated.txt.gz`` (rad/s),
+``magnetometer-calibrated.txt.gz`` (µT). The raw ``gyroscope.txt.gz``/``magnetometer.txt.gz`` (whose extra
+columns are the OS's bias estimates) are a fallback, noted.
+
+Ground truth (optional): ``qualisys.mat``, a QTM export at ``FrameRate`` Hz whose ``RigidBodies.Rotations``
+is (9, N): each column reshaped to 3×3 row-major and transposed is the sensor → ENU rotation; frame k
+(0-based) is at motion-capture time k / FrameRate. ``timeAlignment.txt`` holds the seconds to *add* to
+phone time to get motion-capture time, so truth is placed on the phone clock at ``k / FrameRate − offset``.
+NaN frames are occlusions (kept, not evaluated). Evaluation follows the benchmark: motion-capture time
+0–120 s, minus the intervals its authors mark per trial (:data:`EXCLUDED`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.io
+
+from hil.logs.table import Container, parse_table
+from hil.sensors import SensorKind, SensorLog, SensorStream, Truth
+from protocol.errors import InputFormatError
+
+NAME = "tyrex"
+EVALUATED_S = (0.0, 120.0)
+EXCLUDED: dict[str, tuple[tuple[float, float], ...]] = {
+    "Dist_FrontPocket": ((21.2, 21.6),),
+    "Dist_Phoning": ((40.5, 40.8),),
+    "Dist_Swinging": ((59.7, 60.5), (73.1, 73.5)),
+    "NoDist_AR": ((64.0, 120.0),),
+}
+"""Motion-capture-time intervals (s) the benchmark's authors exclude, by trial-name suffix."""
+_FILES = {
+    SensorKind.ACC: ("accelerometer.txt.gz", "accelerometer.txt"),
+    SensorKind.GYR: ("gyroscope-calibrated.txt.gz", "gyroscope.txt.gz", "gyroscope.txt"),
+    SensorKind.MAG: ("magnetometer-calibrated.txt.gz", "magnetometer.txt.gz", "magnetometer.txt"),
+}
+
+
+def detect(c: Container) -> bool:
+    return c.has("accelerometer.txt.gz") or c.has("accelerometer.txt")
+
+
+def read(c: Container) -> SensorLog:
+    notes = ["tyrex smartphone benchmark trial"]
+    streams = {}
+    for kind, names in _FILES.items():
+        name = next((n for n in names if c.has(n)), None)
+        if name is None:
+            raise InputFormatError(f"missing {names[0]}", str(c.path))
+        if "calibrated" not in name and kind is not SensorKind.ACC:
+            notes.append(f"{name}: uncalibrated (the OS bias columns are ignored)")
+        table = parse_table(c.text(name), c.where(name), None, header=False, min_columns=4)
+        streams[kind] = SensorStream(kind, table.data[:, 0], table.data[:, 1:4])
+    truth = _truth(c, notes) if c.has("qualisys.mat") else None
+    return SensorLog(streams, str(c.path), NAME, truth, tuple(notes))
+
+
+def _truth(c: Container, notes: list[str]) -> Truth:
+    where = c.where("qualisys.mat")
+    offset = 0.0
+    if c.has("timeAlignment.txt"):
+        table = parse_table(c.text("timeAlignment.txt"), c.where("timeAlignment.txt"), None, header=False)
+        offset = float(table.data[0, 0])
+    else:
+        notes.append("no timeAlignment.txt: motion-capture and phone clocks taken as equal")
+    import io
+
+    try:
+        mat = scipy.io.loadmat(io.BytesIO(c.raw("qualisys.mat")), squeeze_me=True, struct_as_record=False)
+    except (ValueError, OSError) as exc:
+        raise InputFormatError(f"not a readable MATLAB file ({exc})", where) from None
+    keys = [k for k in mat if not k.startswith("__")]
+    try:
+        qtm = mat[keys[0]]
+        rate = float(qtm.FrameRate)
+        rot = np.asarray(qtm.RigidBodies.Rotations, dtype=float)
+    except (IndexError, AttributeError) as exc:
+        raise InputFormatError(f"not a QTM export with RigidBodies.Rotations ({exc})", where) from None
+    rot = rot.reshape(-1, 9, rot.shape[-1])[0] if rot.ndim == 3 else rot
+    if rot.shape[0] != 9:
+        raise InputFormatError(
+            f"RigidBodies.Rotations has shape {rot.shape}, expected (9, N)", where, None, "Rotations"
+        )
+    n = rot.shape[1]
+    r = np.transpose(rot.T.reshape(n, 3, 3), (0, 2, 1))
+    t_mocap = np.arange(n) / rate
+    evaluate = (t_mocap >= EVALUATED_S[0]) & (t_mocap <= EVALUATED_S[1]) & np.all(np.isfinite(rot), axis=0)
+    trial = c.path.name
+    for suffix, intervals in EXCLUDED.items():
+        if trial.endswith(suffix):
+            for a, b in intervals:
+                evaluate &= ~((t_mocap >= a) & (t_mocap <= b))
+            notes.append(f"truth: excluded motion-capture intervals {intervals} (benchmark authors)")
+    notes.append(f"truth: Qualisys at {rate:g} Hz, phone time = mocap time − ({offset:+g} s)")
+    return Truth(t_mocap - offset, r, evaluate)
