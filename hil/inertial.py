@@ -263,3 +263,35 @@ def find_still_window(
 def directions_from_still(window: StillWindow, declination_deg: float = 0.0) -> Array:
     """E from a still window: magnetic-north ENU unless a declination is given (see module docstring)."""
     return directions_from_dip(window.inclination_deg, declination_deg)
+
+
+def median_inclination_deg(log: SensorLog, window_s: float = 10.0) -> float:
+    """The field inclination from the first ``window_s`` of a log, moving or not: the angle between the
+    accelerometer and magnetometer readings does not depend on the attitude, so its median over the window
+    (acceleration and disturbances are outliers) estimates the dip. Samples are paired by nearest time."""
+    acc, mag = log.streams[SensorKind.ACC], log.streams[SensorKind.MAG]
+    sel = (mag.t >= log.start) & (mag.t <= log.start + window_s) & np.all(np.isfinite(mag.xyz), axis=1)
+    if sel.sum() < 5 or len(acc) < 2:
+        raise InputFormatError(f"too few magnetometer samples in the first {window_s:g} s", log.source)
+    idx = np.clip(np.searchsorted(acc.t, mag.t[sel]), 0, len(acc) - 1)
+    a, m = acc.xyz[idx], mag.xyz[sel]
+    dots = np.sum(a * m, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(m, axis=1))
+    dots = dots[np.isfinite(dots)]
+    if dots.size < 5:
+        raise InputFormatError(
+            f"no finite accelerometer/magnetometer pairs in the first {window_s:g} s", log.source
+        )
+    return math.degrees(math.asin(float(np.clip(-np.median(dots), -1.0, 1.0))))
+
+
+def directions_from_log(log: SensorLog, window_s: float = 10.0) -> tuple[Array, str]:
+    """E in magnetic-north ENU measured from the log itself: from its initial still window if it has one,
+    else from the median inclination over its first ``window_s``. Returns ``(E, how)``."""
+    try:
+        still = find_still_window(log, search_s=window_s)
+    except InputFormatError:
+        dip = median_inclination_deg(log, window_s)
+        return directions_from_dip(dip), f"inclination {dip:.1f} deg (median over the first {window_s:g} s)"
+    return directions_from_still(still), (
+        f"inclination {still.inclination_deg:.1f} deg (still window {still.t0:.2f}-{still.t1:.2f} s)"
+    )
