@@ -1,0 +1,254 @@
+"""Monotone piecewise-cubic Hermite tables: the one curve primitive every calibration map is built from.
+
+A table is ``n`` knots (2 ≤ n ≤ 16) ``x[k]`` strictly increasing, values ``y[k]`` and slopes ``m[k]``
+(dy/dx at the knots). Between knots it is the cubic Hermite interpolant, so evaluating it needs only the
+stored numbers: no fitting code on the board. Slopes are chosen at fit time by PCHIP (Fritsch–Carlson with
+Brodlie's weighted harmonic mean, the same as ``scipy.interpolate.PchipInterpolator``), which keeps the
+curve monotone between monotone data. The stored slopes satisfy ``|m[k]| ≤ 3·|δ|`` for both intervals
+they touch (``δ`` the interval's secant), and ``m = 0`` at a flat interval: that box inside the
+Fritsch–Carlson region guarantees a monotone cubic on every interval, which makes the inverse well posed.
+
+The algorithms here are the reference for ``docs/calibration.md`` ("Evaluating a table"): written in
+Horner form, with a fixed iteration cap, so a float32 C port follows them line by line.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from ..errors import CalibrationError
+from .checks import f32, finite32
+from .conversion import Clamp, Conversion
+
+MAX_KNOTS = 16
+SOLVE_MAX_ITER = 20
+"""Safeguarded-Newton iterations for the inverse (3–5 are typical; the cap bounds a C port's time)."""
+SOLVE_TOL_T = 1e-6
+"""Stop when a Newton step moves the interval parameter t (0..1) by at most this."""
+SLOPE_TOLERANCE = 1e-5
+"""Relative slack on the ``|m| ≤ 3|δ|`` check when *validating* stored slopes (float32 rounding)."""
+
+_U32 = struct.Struct("<I")
+
+
+@dataclass(frozen=True, slots=True)
+class MonotoneCubic:
+    """A monotone cubic Hermite table. ``x``, ``y``, ``slopes``: tuples of n float32-exact floats.
+
+    Build one with :meth:`pchip` from knots; the constructor validates (raising :class:`CalibrationError`
+    whose ``where`` names the knot) and rounds every number to float32 so that the binary format round-trips
+    exactly. The table's direction is that of ``y[-1] - y[0]`` (never zero).
+    """
+
+    x: tuple[float, ...]
+    y: tuple[float, ...]
+    slopes: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        x = tuple(finite32(v, f"x[{k}]") for k, v in enumerate(self.x))
+        y = tuple(finite32(v, f"y[{k}]") for k, v in enumerate(self.y))
+        m = tuple(finite32(v, f"slope[{k}]") for k, v in enumerate(self.slopes))
+        n = len(x)
+        if not 2 <= n <= MAX_KNOTS:
+            raise CalibrationError(f"{n} knots; a table has 2 to {MAX_KNOTS}", "knots")
+        if len(y) != n or len(m) != n:
+            raise CalibrationError(f"{n} x, {len(y)} y and {len(m)} slopes; need equal counts", "knots")
+        for k in range(n - 1):
+            if not x[k] < x[k + 1]:
+                raise CalibrationError(f"x must increase strictly ({x[k]!r} then {x[k + 1]!r})", f"x[{k + 1}]")
+        rising = y[-1] > y[0]
+        if y[-1] == y[0]:
+            raise CalibrationError("first and last values are equal: the table is flat", "y")
+        for k in range(n - 1):
+            _check_interval(k, x, y, m, rising)
+        object.__setattr__(self, "x", x)
+        object.__setattr__(self, "y", y)
+        object.__setattr__(self, "slopes", m)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def pchip(cls, x: Sequence[float], y: Sequence[float]) -> MonotoneCubic:
+        """The PCHIP table through knots (``x`` strictly increasing, ``y`` monotone), float32-rounded."""
+        xs = tuple(finite32(v, f"x[{k}]") for k, v in enumerate(x))
+        ys = tuple(finite32(v, f"y[{k}]") for k, v in enumerate(y))
+        if len(xs) != len(ys) or len(xs) < 2:
+            raise CalibrationError(f"{len(xs)} x and {len(ys)} y; need equal counts of at least 2", "knots")
+        if any(not a < b for a, b in zip(xs, xs[1:], strict=False)):
+            raise CalibrationError("x must increase strictly", "x")
+        slopes = pchip_slopes(xs, ys)
+        limited = tuple(_limit_slope(k, xs, ys, s) for k, s in enumerate(slopes))
+        return cls(xs, ys, limited)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def rising(self) -> bool:
+        """True if ``y`` increases with ``x``."""
+        return self.y[-1] > self.y[0]
+
+    @property
+    def x_range(self) -> tuple[float, float]:
+        return self.x[0], self.x[-1]
+
+    @property
+    def y_range(self) -> tuple[float, float]:
+        """(lowest, highest) value of the table, whichever its direction."""
+        return (self.y[0], self.y[-1]) if self.rising else (self.y[-1], self.y[0])
+
+    @property
+    def flat_intervals(self) -> tuple[int, ...]:
+        """Indices k of the intervals where ``y[k] == y[k + 1]`` (the table is constant there)."""
+        return tuple(k for k in range(len(self.y) - 1) if self.y[k] == self.y[k + 1])
+
+    # ------------------------------------------------------------------ evaluation
+    def evaluate(self, x: float) -> Conversion:
+        """y(x); ``x`` outside ``[x[0], x[-1]]`` is clamped to the nearest end and flagged."""
+        xs = self.x
+        if x < xs[0]:
+            return Conversion(self.y[0], Clamp.LOW)
+        if x > xs[-1]:
+            return Conversion(self.y[-1], Clamp.HIGH)
+        k = 0
+        last = len(xs) - 2
+        while k < last and x >= xs[k + 1]:
+            k += 1
+        h = xs[k + 1] - xs[k]
+        t = (x - xs[k]) / h
+        y0, a1, a2, a3 = self._coefficients(k, h)
+        return Conversion(y0 + t * (a1 + t * (a2 + t * a3)))
+
+    def solve(self, y: float) -> Conversion:
+        """The x with y(x) = ``y`` (the inverse), on the first interval (in x order) whose values reach
+        ``y`` (its midpoint if that interval is flat). ``y`` outside the table's value range is clamped to
+        the end of ``x`` holding the nearest value and flagged LOW/HIGH by ``y``'s side."""
+        ys = self.y
+        lo, hi = self.y_range
+        if y < lo:
+            return Conversion(self.x[0] if self.rising else self.x[-1], Clamp.LOW)
+        if y > hi:
+            return Conversion(self.x[-1] if self.rising else self.x[0], Clamp.HIGH)
+        s = 1.0 if self.rising else -1.0
+        k = 0
+        last = len(ys) - 2
+        while k < last and s * (y - ys[k + 1]) > 0.0:
+            k += 1
+        x0 = self.x[k]
+        h = self.x[k + 1] - x0
+        d = ys[k + 1] - ys[k]
+        if d == 0.0:
+            return Conversion(x0 + 0.5 * h)
+        y0, a1, a2, a3 = self._coefficients(k, h)
+        t = _solve_interval(y - y0, s, a1, a2, a3, (y - y0) / d)
+        return Conversion(x0 + t * h)
+
+    def _coefficients(self, k: int, h: float) -> tuple[float, float, float, float]:
+        """(y0, a1, a2, a3) of y = y0 + t·(a1 + t·(a2 + t·a3)) on interval k, t = (x - x[k]) / h."""
+        y0 = self.y[k]
+        d = self.y[k + 1] - y0
+        hm0 = h * self.slopes[k]
+        hm1 = h * self.slopes[k + 1]
+        return y0, hm0, 3.0 * d - 2.0 * hm0 - hm1, hm0 + hm1 - 2.0 * d
+
+
+def _solve_interval(target: float, s: float, a1: float, a2: float, a3: float, t: float) -> float:
+    """t in [0, 1] with t·(a1 + t·(a2 + t·a3)) = ``target`` on a monotone cubic of direction ``s``:
+    Newton from the secant guess ``t``, kept inside a shrinking bracket (bisection when a step leaves it
+    or the derivative is not positive)."""
+    lo, hi = 0.0, 1.0
+    for _ in range(SOLVE_MAX_ITER):
+        e = s * (t * (a1 + t * (a2 + t * a3)) - target)
+        if e == 0.0:
+            break
+        if e > 0.0:
+            hi = t
+        else:
+            lo = t
+        g = s * (a1 + t * (2.0 * a2 + 3.0 * t * a3))
+        tn = t - e / g if g > 0.0 else 0.5 * (lo + hi)
+        if not lo < tn < hi:
+            tn = 0.5 * (lo + hi)
+        done = abs(tn - t) <= SOLVE_TOL_T
+        t = tn
+        if done:
+            break
+    return t
+
+
+def pchip_slopes(x: Sequence[float], y: Sequence[float]) -> tuple[float, ...]:
+    """PCHIP knot slopes, exactly as ``scipy.interpolate.PchipInterpolator`` computes them.
+
+    Interior knots: 0 where the neighbouring secants differ in sign or either is 0, else Brodlie's weighted
+    harmonic mean ``(w1 + w2) / (w1/δ[k-1] + w2/δ[k])``, ``w1 = 2h[k] + h[k-1]``, ``w2 = h[k] + 2h[k-1]``.
+    End knots: the one-sided three-point formula, set to 0 if its sign differs from the end secant's and
+    limited to 3× that secant where the two end secants differ in sign. Two knots: the secant.
+    """
+    n = len(x)
+    h = [x[k + 1] - x[k] for k in range(n - 1)]
+    d = [(y[k + 1] - y[k]) / h[k] for k in range(n - 1)]
+    if n == 2:
+        return (d[0], d[0])
+    m = [0.0] * n
+    for k in range(1, n - 1):
+        if d[k - 1] == 0.0 or d[k] == 0.0 or (d[k - 1] > 0.0) != (d[k] > 0.0):
+            continue
+        w1 = 2.0 * h[k] + h[k - 1]
+        w2 = h[k] + 2.0 * h[k - 1]
+        m[k] = (w1 + w2) / (w1 / d[k - 1] + w2 / d[k])
+    m[0] = _edge_slope(h[0], h[1], d[0], d[1])
+    m[-1] = _edge_slope(h[-1], h[-2], d[-1], d[-2])
+    return tuple(m)
+
+
+def _edge_slope(h0: float, h1: float, d0: float, d1: float) -> float:
+    s = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1)
+    if _sign(s) != _sign(d0):
+        return 0.0
+    if _sign(d0) != _sign(d1) and abs(s) > 3.0 * abs(d0):
+        return 3.0 * d0
+    return s
+
+
+def _sign(v: float) -> int:
+    return (v > 0.0) - (v < 0.0)
+
+
+def _check_interval(k: int, x: tuple[float, ...], y: tuple[float, ...], m: tuple[float, ...], rising: bool):
+    """Monotone in the table's direction, and slopes inside the box that keeps the cubic monotone."""
+    d = y[k + 1] - y[k]
+    if (d < 0.0) if rising else (d > 0.0):
+        raise CalibrationError(
+            f"y goes {'down' if rising else 'up'} ({y[k]!r} to {y[k + 1]!r}) in a {'rising' if rising else 'falling'}"
+            " table: not monotone",
+            f"y[{k + 1}]",
+        )
+    secant = d / (x[k + 1] - x[k])
+    for j in (k, k + 1):
+        if d == 0.0:
+            if m[j] != 0.0:
+                raise CalibrationError(f"slope {m[j]!r} next to a flat interval must be 0", f"slope[{j}]")
+        elif m[j] * secant < 0.0 or abs(m[j]) > 3.0 * abs(secant) * (1.0 + SLOPE_TOLERANCE):
+            raise CalibrationError(
+                f"slope {m[j]!r} is outside 0..3x the secant {secant!r} of interval {k}: the cubic would not"
+                " be monotone",
+                f"slope[{j}]",
+            )
+
+
+def _limit_slope(k: int, x: tuple[float, ...], y: tuple[float, ...], slope: float) -> float:
+    """``slope`` rounded to float32 and, if rounding pushed it past 3× a neighbouring secant, stepped back."""
+    limit = math.inf
+    for j in (k - 1, k):
+        if 0 <= j < len(x) - 1:
+            limit = min(limit, 3.0 * abs((y[j + 1] - y[j]) / (x[j + 1] - x[j])))
+    m = f32(slope)
+    while abs(m) > limit:
+        m = _f32_toward_zero(m)
+    return m
+
+
+def _f32_toward_zero(v: float) -> float:
+    """The float32 next to ``v`` (float32-exact, non-zero) in the direction of zero."""
+    bits = _U32.unpack(struct.pack("<f", v))[0]
+    return float(struct.unpack("<f", _U32.pack(bits - 1))[0])

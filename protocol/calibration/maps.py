@@ -1,0 +1,202 @@
+"""The calibration maps of one VSCMG unit, each with its inverse. Every map clamps an input outside its
+range to the range's nearest end and says so (:class:`Conversion`).
+
+Rotor (ESC + BLDC motor), two maps in series::
+
+    pulse µs ──EscThrottleMap──► throttle τ ∈ [0, 1] ──RotorSpeedMap──► no-load speed ω = KV·V·f(τ) rad/s
+
+* ``EscThrottleMap``: the ESC after its high/low endpoint calibration. ``low_us`` is the calibrated low
+  endpoint, the minimum-throttle pulse the ESC arms on; pulses up to ``low_us + deadband_us`` still mean
+  throttle 0 (motor off); throttle then rises linearly to 1 at ``high_us``, the calibrated high endpoint.
+* ``RotorSpeedMap``: ``f`` is a monotone table over τ with f(0) = 0 and f(1) = 1, so ``KV·V`` is the
+  full-throttle no-load speed at battery voltage ``V`` (rad/s per volt: KV in rpm/V × π/30).
+
+Gimbal (servo or stepper driver on the same channel), one map per ``GimbalMode``:
+
+* ``GimbalRateMap`` (RATE): a monotone table pulse µs → rate rad/s whose range spans 0, usually with a
+  centre deadband (a flat run of zeros); ``hold_us`` is the pulse that holds the gimbal still.
+* ``GimbalAngleMap`` (ANGLE): a strictly monotone table pulse µs → angle rad.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import CalibrationError
+from ..messages import PULSE_MAX_US, PULSE_MIN_US
+from .checks import finite32, require_finite
+from .conversion import Clamp, Conversion
+from .cubic import MonotoneCubic
+
+MIN_SUPPLY_V = 1.0
+"""Below this battery voltage there is no usable supply: speed 0, and any positive speed command gets the
+minimum-throttle pulse (flagged HIGH: the speed is out of reach)."""
+HOLD_TOLERANCE = 1e-4
+"""|rate(hold_us)| may be at most this fraction of the table's largest |rate| (float32 rounding)."""
+MAX_KV_RAD_S_PER_V = 1.0e4
+
+
+@dataclass(frozen=True, slots=True)
+class EscThrottleMap:
+    """Pulse width (µs) ↔ normalised throttle of an ESC calibrated to ``low_us``/``high_us``."""
+
+    low_us: float = 1000.0
+    high_us: float = 2000.0
+    deadband_us: float = 0.0
+
+    def __post_init__(self) -> None:
+        low = finite32(self.low_us, "low_us")
+        high = finite32(self.high_us, "high_us")
+        dead = finite32(self.deadband_us, "deadband_us")
+        if not PULSE_MIN_US <= low < high <= PULSE_MAX_US:
+            raise CalibrationError(
+                f"need {PULSE_MIN_US} <= low_us < high_us <= {PULSE_MAX_US} µs (got {low:g}, {high:g})", "low_us"
+            )
+        if not 0.0 <= dead < 0.5 * (high - low):
+            raise CalibrationError(
+                f"{dead:g} µs; need 0 <= deadband_us < half the endpoint span ({0.5 * (high - low):g} µs)",
+                "deadband_us",
+            )
+        object.__setattr__(self, "low_us", low)
+        object.__setattr__(self, "high_us", high)
+        object.__setattr__(self, "deadband_us", dead)
+
+    @property
+    def start_us(self) -> float:
+        """The pulse at which throttle starts to rise above 0 (end of the deadband)."""
+        return self.low_us + self.deadband_us
+
+    def throttle(self, pulse_us: float) -> Conversion:
+        """Throttle 0..1 of ``pulse_us``; below ``low_us`` or above ``high_us`` it is clamped and flagged."""
+        p = require_finite(pulse_us, "EscThrottleMap.throttle", "pulse_us")
+        if p < self.low_us:
+            return Conversion(0.0, Clamp.LOW)
+        if p > self.high_us:
+            return Conversion(1.0, Clamp.HIGH)
+        start = self.start_us
+        if p <= start:
+            return Conversion(0.0)
+        return Conversion((p - start) / (self.high_us - start))
+
+    def pulse(self, throttle: float) -> Conversion:
+        """The pulse for ``throttle``: 0 is ``low_us`` (minimum throttle, the arming pulse), a throttle just
+        above 0 starts at the deadband's end; outside 0..1 it is clamped and flagged."""
+        tau = require_finite(throttle, "EscThrottleMap.pulse", "throttle")
+        if tau <= 0.0:
+            return Conversion(self.low_us, Clamp.LOW if tau < 0.0 else Clamp.NONE)
+        if tau >= 1.0:
+            return Conversion(self.high_us, Clamp.HIGH if tau > 1.0 else Clamp.NONE)
+        start = self.start_us
+        return Conversion(start + tau * (self.high_us - start))
+
+
+@dataclass(frozen=True, slots=True)
+class RotorSpeedMap:
+    """Pulse (µs) and battery voltage (V) ↔ steady no-load rotor speed (rad/s): ω = KV·V·f(τ(pulse))."""
+
+    esc: EscThrottleMap
+    kv_rad_s_per_v: float
+    curve: MonotoneCubic  # τ → f(τ): x from 0 to 1, y from 0 to 1, strictly increasing
+
+    def __post_init__(self) -> None:
+        kv = finite32(self.kv_rad_s_per_v, "kv_rad_s_per_v")
+        if not 0.0 < kv <= MAX_KV_RAD_S_PER_V:
+            raise CalibrationError(f"{kv:g} rad/s/V; need 0 < KV <= {MAX_KV_RAD_S_PER_V:g}", "kv_rad_s_per_v")
+        object.__setattr__(self, "kv_rad_s_per_v", kv)
+        c = self.curve
+        if c.x_range != (0.0, 1.0) or (c.y[0], c.y[-1]) != (0.0, 1.0):
+            raise CalibrationError(
+                f"throttle curve must run from (0, 0) to (1, 1), got ({c.x[0]:g}, {c.y[0]:g}) to "
+                f"({c.x[-1]:g}, {c.y[-1]:g})",
+                "curve",
+            )
+        if c.flat_intervals:
+            raise CalibrationError("throttle curve must increase strictly (more throttle, more speed)", "curve")
+
+    def full_speed(self, battery_v: float) -> float:
+        """No-load speed at full throttle (rad/s) at ``battery_v``."""
+        return self.kv_rad_s_per_v * battery_v if battery_v >= MIN_SUPPLY_V else 0.0
+
+    def speed(self, pulse_us: float, battery_v: float) -> Conversion:
+        """Steady no-load speed (rad/s) of ``pulse_us`` at ``battery_v``."""
+        v = require_finite(battery_v, "RotorSpeedMap.speed", "battery_v")
+        tau = self.esc.throttle(pulse_us)
+        if v < MIN_SUPPLY_V:
+            return Conversion(0.0, Clamp.LOW)
+        frac = self.curve.evaluate(tau.value).value
+        return Conversion(self.kv_rad_s_per_v * v * frac, tau.clamp)
+
+    def pulse(self, speed_rad_s: float, battery_v: float) -> Conversion:
+        """The pulse (µs) whose steady no-load speed at ``battery_v`` is ``speed_rad_s``. Speed 0 is the
+        minimum-throttle pulse; a negative speed (the ESC cannot reverse) or one above full speed is
+        clamped and flagged."""
+        w = require_finite(speed_rad_s, "RotorSpeedMap.pulse", "speed_rad_s")
+        v = require_finite(battery_v, "RotorSpeedMap.pulse", "battery_v")
+        esc = self.esc
+        if w <= 0.0:
+            return Conversion(esc.low_us, Clamp.LOW if w < 0.0 else Clamp.NONE)
+        if v < MIN_SUPPLY_V:
+            return Conversion(esc.low_us, Clamp.HIGH)
+        phi = w / (self.kv_rad_s_per_v * v)
+        if phi >= 1.0:
+            return Conversion(esc.high_us, Clamp.HIGH if phi > 1.0 else Clamp.NONE)
+        tau = self.curve.solve(phi).value
+        return Conversion(esc.pulse(tau).value)
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalRateMap:
+    """Pulse (µs) ↔ gimbal rate (rad/s) of a continuous-rotation servo or stepper driver."""
+
+    hold_us: float
+    curve: MonotoneCubic  # pulse µs → rate rad/s; values span 0; flat only at 0 (the deadband)
+
+    def __post_init__(self) -> None:
+        hold = finite32(self.hold_us, "hold_us")
+        object.__setattr__(self, "hold_us", hold)
+        c = self.curve
+        lo, hi = c.y_range
+        if not lo < 0.0 < hi:
+            raise CalibrationError(f"rates {lo:g}..{hi:g} rad/s must span 0 (both directions)", "curve")
+        flats = c.flat_intervals
+        if any(c.y[k] != 0.0 for k in flats):
+            raise CalibrationError("the table may only be flat at rate 0 (the deadband)", "curve")
+        if flats and flats[-1] - flats[0] + 1 != len(flats):
+            raise CalibrationError("more than one deadband (flat run)", "curve")
+        x0, x1 = c.x_range
+        if not x0 <= hold <= x1:
+            raise CalibrationError(f"{hold:g} µs is outside the table's pulses {x0:g}..{x1:g}", "hold_us")
+        if abs(c.evaluate(hold).value) > HOLD_TOLERANCE * max(abs(lo), hi):
+            raise CalibrationError(
+                f"the rate at {hold:g} µs is {c.evaluate(hold).value:g} rad/s, not 0: not a hold pulse", "hold_us"
+            )
+
+    def rate(self, pulse_us: float) -> Conversion:
+        """Gimbal rate (rad/s) of ``pulse_us``."""
+        return self.curve.evaluate(require_finite(pulse_us, "GimbalRateMap.rate", "pulse_us"))
+
+    def pulse(self, rate_rad_s: float) -> Conversion:
+        """The pulse (µs) for ``rate_rad_s``; rate 0 is ``hold_us``."""
+        r = require_finite(rate_rad_s, "GimbalRateMap.pulse", "rate_rad_s")
+        if r == 0.0:
+            return Conversion(self.hold_us)
+        return self.curve.solve(r)
+
+
+@dataclass(frozen=True, slots=True)
+class GimbalAngleMap:
+    """Pulse (µs) ↔ gimbal angle (rad) of a positional servo."""
+
+    curve: MonotoneCubic  # pulse µs → angle rad, strictly monotone
+
+    def __post_init__(self) -> None:
+        if self.curve.flat_intervals:
+            raise CalibrationError("an angle table must be strictly monotone", "curve")
+
+    def angle(self, pulse_us: float) -> Conversion:
+        """Gimbal angle (rad) of ``pulse_us``."""
+        return self.curve.evaluate(require_finite(pulse_us, "GimbalAngleMap.angle", "pulse_us"))
+
+    def pulse(self, angle_rad: float) -> Conversion:
+        """The pulse (µs) for ``angle_rad``."""
+        return self.curve.solve(require_finite(angle_rad, "GimbalAngleMap.pulse", "angle_rad"))
