@@ -80,17 +80,24 @@ def decode_maps(data: bytes, source: str = "") -> tuple[RotorSpeedMap, GimbalRat
         raise CalibrationError(f"truncated: {len(data)} bytes, a set has at least {MIN_SIZE}", where)
     magic, version, flags, low, high, dead, kv, hold, nr, ng, na, reserved = HEADER.unpack_from(data)
     if magic != MAGIC:
-        raise CalibrationError(f"magic {magic!r} is not {MAGIC!r}: not a calibration set", f"{where}: bytes 0-1")
+        raise CalibrationError(
+            f"magic {magic!r} is not {MAGIC!r}: not a calibration set", f"{where}: bytes 0-1"
+        )
     if version != FORMAT_VERSION:
         raise CalibrationError(
-            f"format version {version} is not supported (this reader knows {FORMAT_VERSION})", f"{where}: byte 2"
+            f"format version {version} is not supported (this reader knows {FORMAT_VERSION})",
+            f"{where}: byte 2",
         )
     if flags or reserved:
-        raise CalibrationError(f"reserved bytes must be 0 (flags {flags}, byte 27 {reserved})", f"{where}: byte 3")
+        raise CalibrationError(
+            f"reserved bytes must be 0 (flags {flags}, byte 27 {reserved})", f"{where}: byte 3"
+        )
     counts = (nr, ng, na)
     for i, (name, n) in enumerate(zip(_TABLES, counts, strict=True)):
         if not 2 <= n <= MAX_KNOTS:
-            raise CalibrationError(f"{n} knots in {name}; a table has 2 to {MAX_KNOTS}", f"{where}: byte {24 + i}")
+            raise CalibrationError(
+                f"{n} knots in {name}; a table has 2 to {MAX_KNOTS}", f"{where}: byte {24 + i}"
+            )
     size = HEADER.size + KNOT.size * sum(counts) + CRC.size
     if len(data) != size:
         raise CalibrationError(
@@ -99,7 +106,9 @@ def decode_maps(data: bytes, source: str = "") -> tuple[RotorSpeedMap, GimbalRat
     (crc,) = CRC.unpack_from(data, size - CRC.size)
     want = crc16_ccitt_false(data[: size - CRC.size])
     if crc != want:
-        raise CalibrationError(f"CRC {crc:#06x} != {want:#06x} computed: damaged", f"{where}: bytes {size - 2}-{size - 1}")
+        raise CalibrationError(
+            f"CRC {crc:#06x} != {want:#06x} computed: damaged", f"{where}: bytes {size - 2}-{size - 1}"
+        )
     tables = []
     offset = HEADER.size
     for name, n in zip(_TABLES, counts, strict=True):

@@ -58,7 +58,9 @@ class MonotoneCubic:
             raise CalibrationError(f"{n} x, {len(y)} y and {len(m)} slopes; need equal counts", "knots")
         for k in range(n - 1):
             if not x[k] < x[k + 1]:
-                raise CalibrationError(f"x must increase strictly ({x[k]!r} then {x[k + 1]!r})", f"x[{k + 1}]")
+                raise CalibrationError(
+                    f"x must increase strictly ({x[k]!r} then {x[k + 1]!r})", f"x[{k + 1}]"
+                )
         rising = y[-1] > y[0]
         if y[-1] == y[0]:
             raise CalibrationError("first and last values are equal: the table is flat", "y")
@@ -219,8 +221,8 @@ def _check_interval(k: int, x: tuple[float, ...], y: tuple[float, ...], m: tuple
     d = y[k + 1] - y[k]
     if (d < 0.0) if rising else (d > 0.0):
         raise CalibrationError(
-            f"y goes {'down' if rising else 'up'} ({y[k]!r} to {y[k + 1]!r}) in a {'rising' if rising else 'falling'}"
-            " table: not monotone",
+            f"y goes {'down' if rising else 'up'} ({y[k]!r} to {y[k + 1]!r}) in a"
+            f" {'rising' if rising else 'falling'} table: not monotone",
             f"y[{k + 1}]",
         )
     secant = d / (x[k + 1] - x[k])

@@ -50,7 +50,8 @@ class EscThrottleMap:
         dead = finite32(self.deadband_us, "deadband_us")
         if not PULSE_MIN_US <= low < high <= PULSE_MAX_US:
             raise CalibrationError(
-                f"need {PULSE_MIN_US} <= low_us < high_us <= {PULSE_MAX_US} µs (got {low:g}, {high:g})", "low_us"
+                f"need {PULSE_MIN_US} <= low_us < high_us <= {PULSE_MAX_US} µs (got {low:g}, {high:g})",
+                "low_us",
             )
         if not 0.0 <= dead < 0.5 * (high - low):
             raise CalibrationError(
@@ -111,7 +112,9 @@ class RotorSpeedMap:
                 "curve",
             )
         if c.flat_intervals:
-            raise CalibrationError("throttle curve must increase strictly (more throttle, more speed)", "curve")
+            raise CalibrationError(
+                "throttle curve must increase strictly (more throttle, more speed)", "curve"
+            )
 
     def full_speed(self, battery_v: float) -> float:
         """No-load speed at full throttle (rad/s) at ``battery_v``."""
@@ -168,7 +171,8 @@ class GimbalRateMap:
             raise CalibrationError(f"{hold:g} µs is outside the table's pulses {x0:g}..{x1:g}", "hold_us")
         if abs(c.evaluate(hold).value) > HOLD_TOLERANCE * max(abs(lo), hi):
             raise CalibrationError(
-                f"the rate at {hold:g} µs is {c.evaluate(hold).value:g} rad/s, not 0: not a hold pulse", "hold_us"
+                f"the rate at {hold:g} µs is {c.evaluate(hold).value:g} rad/s, not 0: not a hold pulse",
+                "hold_us",
             )
 
     def rate(self, pulse_us: float) -> Conversion:

@@ -55,7 +55,9 @@ class EscMotorModel:
         """The model sampled at ``knots`` evenly spaced throttles."""
         taus = [k / (knots - 1) for k in range(knots)]
         curve = MonotoneCubic.pchip(taus, [self.fraction(t) for t in taus])
-        return RotorSpeedMap(EscThrottleMap(self.low_us, self.high_us, self.deadband_us), self.kv_rad_s_per_v, curve)
+        return RotorSpeedMap(
+            EscThrottleMap(self.low_us, self.high_us, self.deadband_us), self.kv_rad_s_per_v, curve
+        )
 
 
 @dataclass(frozen=True)

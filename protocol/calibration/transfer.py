@@ -114,8 +114,8 @@ class Reassembler:
         elif header != current:
             self._fail()
             raise CalibrationError(
-                f"header (count {msg.count}, total_len {msg.total_len}, set_crc {msg.set_crc:#06x}) contradicts"
-                f" the transfer's (count {current.count}, total_len {current.total_len}, set_crc"
+                f"header (count {msg.count}, total_len {msg.total_len}, set_crc {msg.set_crc:#06x})"
+                f" contradicts the transfer's (count {current.count}, total_len {current.total_len}, set_crc"
                 f" {current.set_crc:#06x})",
                 where,
             )
@@ -133,10 +133,14 @@ class Reassembler:
 
     def _check_fragment(self, msg: CalibrationData, where: str) -> None:
         if msg.total_len > self.max_len:
-            raise CalibrationError(f"total_len {msg.total_len} exceeds this receiver's {self.max_len} bytes", where)
+            raise CalibrationError(
+                f"total_len {msg.total_len} exceeds this receiver's {self.max_len} bytes", where
+            )
         want_count = max(1, -(-msg.total_len // MAX_CALIBRATION_CHUNK))
         if msg.count != want_count:
-            raise CalibrationError(f"count {msg.count} does not fit total_len {msg.total_len} (needs {want_count})", where)
+            raise CalibrationError(
+                f"count {msg.count} does not fit total_len {msg.total_len} (needs {want_count})", where
+            )
         if not msg.index < msg.count:
             raise CalibrationError(f"index {msg.index} is not below count {msg.count}", where)
         last = msg.total_len - MAX_CALIBRATION_CHUNK * (msg.count - 1)
@@ -151,8 +155,8 @@ class Reassembler:
         if len(data) != header.total_len or crc != header.set_crc:
             self.counters.failed += 1
             raise CalibrationError(
-                f"set of {len(data)} bytes with CRC {crc:#06x}; the transfer announced {header.total_len} bytes"
-                f" with CRC {header.set_crc:#06x}",
+                f"set of {len(data)} bytes with CRC {crc:#06x}; the transfer announced"
+                f" {header.total_len} bytes with CRC {header.set_crc:#06x}",
                 where,
             )
         self._done = header
