@@ -1,0 +1,360 @@
+"""Reliable commands, sans-IO: send, match the answer, retry with the same sequence number, give up.
+
+Sender side (:class:`ReliableSender`)::
+
+    sender = ReliableSender(framer)                 # shares the framer (sequence numbers) with setpoints
+    cmd, data = sender.send(Arm(), now)             # write `data`; cmd.state is PENDING
+    for event in deframer.feed(received):           # whenever bytes arrive
+        if isinstance(event, Frame):
+            sender.on_frame(event, now)             # an Ack/Nack (or HelloReply) settles its command
+    transport.write(sender.poll(now))               # retransmissions that are due (may be b"")
+    cmd.state                                       # PENDING → ACKED | NACKED (cmd.reason) | FAILED
+
+No clock inside: every call takes ``now`` (seconds on any monotonic time base the caller uses — wall
+or lockstep), and :meth:`ReliableSender.next_deadline` says when :meth:`~ReliableSender.poll` next has
+work, so an event loop can sleep exactly that long.
+
+Rules (docs/protocol.md, "Reliable commands"):
+
+* A reliable message (``RELIABLE = True``) goes out with ``ACK_REQUESTED`` and the next sequence
+  number; the far side answers ``Ack``/``Nack`` carrying the command's ``(msg_id, seq)``, which is how
+  answers are matched (several commands may be in flight at once).
+* No answer within the try's timeout: the *same bytes but for the flags* are sent again — same sequence
+  number, ``RETRANSMIT`` added — so a receiver that already executed the command answers from its cache
+  instead of executing it twice. After ``max_tries`` sends and one more timeout the command FAILS.
+* ``Hello`` is not acknowledged but answered by ``HelloReply`` (which carries no sequence number): the
+  first ``HelloReply`` settles the oldest pending ``Hello``.
+* An answer for a command already settled (a late answer to an earlier try) is counted, not an error.
+
+Receiver side (:class:`AnswerCache`, :func:`answer_for`): answer each ``(msg_id, seq)`` once and repeat
+that answer to retransmissions.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import OrderedDict, deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import CommandFailed, ConfigError, ProtocolError
+from .frame import Frame, Framer
+from .messages import Ack, Flags, Hello, HelloReply, Nack, NackReason
+
+
+class CommandState(enum.Enum):
+    """Where a reliable command is. Every state but PENDING is final."""
+
+    PENDING = "pending"  # sent, waiting for its answer (and retried while it waits)
+    ACKED = "acked"  # answered with Ack (or HelloReply for Hello)
+    NACKED = "nacked"  # answered with Nack: ``Command.reason`` says why
+    FAILED = "failed"  # no answer after every try, or abandoned (``Command.failure`` says why)
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """When to retry and when to give up.
+
+    Try k (k = 1 … ``max_tries``) waits ``min(timeout_s · backoff^(k-1), max_timeout_s)`` seconds for
+    its answer. The defaults suit a 115200-baud serial link to a board whose main loop answers within a
+    few milliseconds: 5 tries over half a second, well inside the board's 250 ms link watchdog per try.
+    """
+
+    timeout_s: float = 0.1
+    max_tries: int = 5
+    backoff: float = 1.0
+    max_timeout_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("timeout_s", "backoff", "max_timeout_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"{value!r} is not a finite number", f"RetryPolicy.{name}")
+        if self.timeout_s <= 0 or self.max_timeout_s < self.timeout_s:
+            got = f"got {self.timeout_s}, {self.max_timeout_s}"
+            raise ConfigError(f"need 0 < timeout_s <= max_timeout_s ({got})", "RetryPolicy")
+        if self.backoff < 1.0:
+            raise ConfigError(f"{self.backoff!r} must be >= 1", "RetryPolicy.backoff")
+        if isinstance(self.max_tries, bool) or not isinstance(self.max_tries, int) or self.max_tries < 1:
+            raise ConfigError(f"{self.max_tries!r} must be an integer >= 1", "RetryPolicy.max_tries")
+
+    def timeout(self, tries: int) -> float:
+        """Seconds to wait for an answer after the ``tries``-th send."""
+        return min(self.timeout_s * self.backoff ** (tries - 1), self.max_timeout_s)
+
+
+@dataclass(eq=False)
+class Command:
+    """The handle of one reliable command: poll its ``state``, or be told through ``on_settled``.
+
+    Times are on the caller's time base (seconds)."""
+
+    message: Any
+    seq: int
+    sent_at: float  # first send
+    deadline: float  # when the current try times out
+    tries: int = 1
+    last_sent_at: float = 0.0
+    state: CommandState = CommandState.PENDING
+    reply: Any = None  # the Ack, Nack or HelloReply that settled it
+    reason: NackReason | None = None  # for NACKED
+    failure: str = ""  # for FAILED
+    settled_at: float | None = None
+
+    @property
+    def msg_id(self) -> int:
+        return int(self.message.MSG_ID)
+
+    @property
+    def key(self) -> tuple[int, int]:
+        """``(msg_id, seq)``: what an Ack/Nack names."""
+        return (self.msg_id, self.seq)
+
+    @property
+    def done(self) -> bool:
+        return self.state is not CommandState.PENDING
+
+    @property
+    def ok(self) -> bool:
+        return self.state is CommandState.ACKED
+
+    @property
+    def latency(self) -> float | None:
+        """Seconds from the first send to the answer (None unless answered)."""
+        if self.settled_at is None or self.state is CommandState.FAILED:
+            return None
+        return self.settled_at - self.sent_at
+
+    def result(self) -> Any:
+        """The answering message if ACKED; raises :class:`CommandFailed` if NACKED or FAILED and
+        :class:`ProtocolError` while still PENDING."""
+        name = type(self.message).__name__
+        if self.state is CommandState.ACKED:
+            return self.reply
+        if self.state is CommandState.NACKED:
+            assert self.reason is not None
+            raise CommandFailed(f"{name} (seq {self.seq}) refused: {self.reason.name}")
+        if self.state is CommandState.FAILED:
+            raise CommandFailed(f"{name} (seq {self.seq}) failed: {self.failure}")
+        raise ProtocolError(f"{name} (seq {self.seq}) is still pending")
+
+    def __repr__(self) -> str:
+        extra = self.reason.name if self.reason is not None else self.failure
+        return (
+            f"Command({type(self.message).__name__}, seq={self.seq}, {self.state.value}, tries={self.tries}"
+            f"{', ' + extra if extra else ''})"
+        )
+
+
+@dataclass
+class SenderStats:
+    """What a :class:`ReliableSender` has done (all counts since construction)."""
+
+    sent: int = 0  # commands sent (first tries)
+    retransmits: int = 0  # retries sent
+    acked: int = 0
+    nacked: int = 0
+    failed: int = 0
+    late_answers: int = 0  # answers for commands already settled (e.g. the answer to an earlier try)
+    unmatched_answers: int = 0  # answers naming no command this sender knows
+
+
+_RECENT = 256  # settled commands remembered to tell a late answer from an unmatched one
+
+
+class ReliableSender:
+    """Tracks reliable commands through their answers and retries; see the module docstring.
+
+    ``framer`` numbers frames; share it with everything else this end sends (setpoints, heartbeats) so
+    the receiver sees one sequence. ``on_settled`` (optional) is called once per command when it
+    leaves PENDING, from inside :meth:`on_frame`, :meth:`poll` or :meth:`abandon`.
+    """
+
+    def __init__(
+        self,
+        framer: Framer | None = None,
+        policy: RetryPolicy | None = None,
+        on_settled: Callable[[Command], None] | None = None,
+    ) -> None:
+        self.framer = framer if framer is not None else Framer()
+        self.policy = policy if policy is not None else RetryPolicy()
+        self.on_settled = on_settled
+        self.stats = SenderStats()
+        self._pending: OrderedDict[tuple[int, int], Command] = OrderedDict()
+        self._recent: deque[tuple[int, int]] = deque(maxlen=_RECENT)
+
+    # ------------------------------------------------------------------ sending
+    def send(self, message: Any, now: float) -> tuple[Command, bytes]:
+        """Frame ``message`` with the next sequence number; returns its handle and the bytes to write.
+
+        Raises :class:`ProtocolError` for a message that is never answered (send those with
+        ``framer.encode``) and :class:`FieldRangeError` for an out-of-range field."""
+        if not expects_answer(message):
+            raise ProtocolError(
+                f"{type(message).__name__} is not acknowledged; send it with Framer.encode (no retries)"
+            )
+        seq, data = self.framer.encode(message)
+        cmd = Command(message, seq, sent_at=now, deadline=now + self.policy.timeout(1), last_sent_at=now)
+        stale = self._pending.pop(cmd.key, None)
+        if stale is not None:  # 256 frames went out while it waited: its answers are now ambiguous
+            self._settle(stale, CommandState.FAILED, now, failure="sequence number reused by a newer command")
+        self._pending[cmd.key] = cmd
+        self.stats.sent += 1
+        return cmd, data
+
+    def poll(self, now: float) -> bytes:
+        """Retransmissions due at ``now`` (concatenated wire bytes, possibly empty); commands whose last
+        try has timed out become FAILED."""
+        out = bytearray()
+        for cmd in [c for c in self._pending.values() if c.deadline <= now]:
+            if cmd.tries >= self.policy.max_tries:
+                del self._pending[cmd.key]
+                self._settle(cmd, CommandState.FAILED, now, failure=f"no answer after {cmd.tries} tries")
+                continue
+            _, data = self.framer.encode(cmd.message, seq=cmd.seq)
+            cmd.tries += 1
+            cmd.last_sent_at = now
+            cmd.deadline = now + self.policy.timeout(cmd.tries)
+            self.stats.retransmits += 1
+            out += data
+        return bytes(out)
+
+    def next_deadline(self) -> float | None:
+        """The earliest time :meth:`poll` has work (None when nothing is pending)."""
+        return min((c.deadline for c in self._pending.values()), default=None)
+
+    # ------------------------------------------------------------------ receiving
+    def on_frame(self, frame: Frame, now: float) -> Command | None:
+        """Offer a received frame; returns the command it settled, if any. Frames that are not answers
+        are ignored (returns None), so every received frame may be passed here."""
+        msg = frame.message
+        if isinstance(msg, (Ack, Nack)):
+            key = (msg.msg_id, msg.seq)
+            cmd = self._pending.pop(key, None)
+            if cmd is None:
+                self._count_stray(key)
+                return None
+            if isinstance(msg, Ack):
+                return self._settle(cmd, CommandState.ACKED, now, reply=msg)
+            return self._settle(cmd, CommandState.NACKED, now, reply=msg, reason=msg.reason)
+        if isinstance(msg, HelloReply):
+            cmd = next((c for c in self._pending.values() if isinstance(c.message, Hello)), None)
+            if cmd is None:
+                self._count_stray((HelloReply.MSG_ID, -1))
+                return None
+            del self._pending[cmd.key]
+            return self._settle(cmd, CommandState.ACKED, now, reply=msg)
+        return None
+
+    def abandon(self, now: float, why: str = "abandoned") -> list[Command]:
+        """Fail every pending command (e.g. the link was lost or the board reset); returns them."""
+        cmds = list(self._pending.values())
+        self._pending.clear()
+        for cmd in cmds:
+            self._settle(cmd, CommandState.FAILED, now, failure=why)
+        return cmds
+
+    # ------------------------------------------------------------------ inspection
+    @property
+    def pending(self) -> list[Command]:
+        """Commands still waiting for an answer, oldest first."""
+        return list(self._pending.values())
+
+    def __iter__(self) -> Iterator[Command]:
+        return iter(self.pending)
+
+    def __len__(self) -> int:
+        return len(self._pending)
+
+    # ------------------------------------------------------------------ internals
+    def _settle(
+        self,
+        cmd: Command,
+        state: CommandState,
+        now: float,
+        *,
+        reply: Any = None,
+        reason: NackReason | None = None,
+        failure: str = "",
+    ) -> Command:
+        cmd.state, cmd.reply, cmd.reason, cmd.failure, cmd.settled_at = state, reply, reason, failure, now
+        if state is CommandState.ACKED:
+            self.stats.acked += 1
+        elif state is CommandState.NACKED:
+            self.stats.nacked += 1
+        else:
+            self.stats.failed += 1
+        self._recent.append(cmd.key if not isinstance(cmd.message, Hello) else (HelloReply.MSG_ID, -1))
+        if self.on_settled is not None:
+            self.on_settled(cmd)
+        return cmd
+
+    def _count_stray(self, key: tuple[int, int]) -> None:
+        if key in self._recent:
+            self.stats.late_answers += 1
+        else:
+            self.stats.unmatched_answers += 1
+
+
+def expects_answer(message: Any) -> bool:
+    """True for messages the far side answers: the reliable ones (Ack/Nack) and Hello (HelloReply)."""
+    return bool(getattr(message, "RELIABLE", False)) or isinstance(message, Hello)
+
+
+# =========================================================================== receiver side
+def answer_for(frame: Frame, refused: NackReason | None) -> Ack | Nack:
+    """The answer to a reliable ``frame``: Ack if ``refused`` is None, else Nack with that reason."""
+    if refused is None:
+        return Ack(msg_id=frame.msg_id, seq=frame.seq)
+    return Nack(msg_id=frame.msg_id, seq=frame.seq, reason=refused)
+
+
+@dataclass
+class AnswerCache:
+    """Receiver side: remembers the answer given to the last ``entries`` reliable commands so a
+    retransmission (``RETRANSMIT`` flag, same ``(msg_id, seq)`` *and* same content) is answered again
+    without executing the command twice. A different command reusing the key is executed anew."""
+
+    entries: int = 32
+    duplicates: int = 0  # retransmissions answered from the cache
+    _answers: OrderedDict[tuple[int, int], tuple[Any, Any]] = field(default_factory=OrderedDict, repr=False)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.entries, bool) or not isinstance(self.entries, int) or self.entries < 1:
+            raise ConfigError(f"{self.entries!r} must be an integer >= 1", "AnswerCache.entries")
+
+    def lookup(self, frame: Frame) -> Ack | Nack | None:
+        """The answer already given to this retransmitted command, or None: execute it."""
+        if not frame.flags & Flags.RETRANSMIT:
+            return None
+        hit = self._answers.get((frame.msg_id, frame.seq))
+        if hit is None or hit[0] != frame.message:
+            return None
+        self.duplicates += 1
+        answer: Ack | Nack = hit[1]
+        return answer
+
+    def remember(self, frame: Frame, answer: Ack | Nack) -> None:
+        key = (frame.msg_id, frame.seq)
+        self._answers[key] = (frame.message, answer)
+        self._answers.move_to_end(key)
+        while len(self._answers) > self.entries:
+            self._answers.popitem(last=False)
+
+    def clear(self) -> None:
+        """Forget every answer (a new session: sequence numbers restart)."""
+        self._answers.clear()
+
+
+__all__ = [
+    "AnswerCache",
+    "Command",
+    "CommandState",
+    "ReliableSender",
+    "RetryPolicy",
+    "SenderStats",
+    "answer_for",
+    "expects_answer",
+]
