@@ -1,0 +1,333 @@
+"""Pulse outputs, sans-IO: per-channel servo pulses and PPM-sum trains (times in µs, no clocks here).
+
+Servo pulses: each channel carries one pulse per frame, ``min_us``..``max_us`` wide (default 1000–2000),
+at 50–490 Hz; the frame period must exceed the longest pulse. All channels rise together at the start of a
+frame; frame ``k`` starts at ``floor(k · 10⁶ / rate)`` µs, an integer schedule that never drifts.
+
+PPM-sum (one wire, several channels)::
+
+      ┌─┐        ┌─┐           ┌─┐      ┌─┐                       ┌─┐
+    ──┘ └────────┘ └───────────┘ └──────┘ └───────────────────────┘ └──   (marks ~300 µs high)
+      |<- ch 0 ->|<-- ch 1 --->|<-ch 2->|<-------- sync ---------->|
+      0          w0            w0+w1    w0+w1+w2                  22500
+
+A channel's value is the time between consecutive rising edges (mark + space, 700–2300 µs accepted); a
+frame of ``frame_us`` (22.5 ms) ends with a sync gap of at least ``min_sync_us`` (2.7 ms). ``encode_ppm``
+gives one frame's rising-edge offsets; ``decode_ppm`` reads one frame back strictly (bad trains raise
+:class:`ProtocolError` saying which interval); :class:`PpmDecoder` reads an endless stream of edge times the
+way flight controllers do, tolerant of jitter, dropping bad frames with a counted reason.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+from .errors import ConfigError, FieldRangeError, ProtocolError
+from .messages import PULSE_MAX_US, PULSE_MIN_US
+
+SERVO_MIN_RATE_HZ = 50.0
+SERVO_MAX_RATE_HZ = 490.0
+
+
+# =========================================================================== servo pulses
+@dataclass(frozen=True)
+class ServoParams:
+    """Per-channel servo output: pulse limits (µs) and frame rate (Hz). Validated on construction
+    (:class:`ConfigError` naming the field)."""
+
+    min_us: int = 1000
+    max_us: int = 2000
+    frame_rate_hz: float = 50.0
+
+    def __post_init__(self) -> None:
+        w = "ServoParams"
+        for name in ("min_us", "max_us"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not PULSE_MIN_US <= v <= PULSE_MAX_US:
+                raise ConfigError(
+                    f"{v!r} is not an integer in {PULSE_MIN_US}..{PULSE_MAX_US} µs", f"{w}.{name}"
+                )
+        if not self.min_us < self.max_us:
+            raise ConfigError(f"min_us {self.min_us} must be below max_us {self.max_us}", f"{w}.min_us")
+        r = self.frame_rate_hz
+        if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r):
+            raise ConfigError(f"{r!r} is not a finite number", f"{w}.frame_rate_hz")
+        if not SERVO_MIN_RATE_HZ <= r <= SERVO_MAX_RATE_HZ:
+            raise ConfigError(
+                f"{r:g} Hz is outside {SERVO_MIN_RATE_HZ:g}..{SERVO_MAX_RATE_HZ:g} Hz", f"{w}.frame_rate_hz"
+            )
+        if not self.min_period_us > self.max_us:
+            raise ConfigError(
+                f"the frame period {self.min_period_us} µs at {r:g} Hz does not exceed the longest pulse"
+                f" ({self.max_us} µs)",
+                f"{w}.frame_rate_hz",
+            )
+
+    @property
+    def min_period_us(self) -> int:
+        """The shortest frame period of the integer schedule (µs)."""
+        return math.floor(1e6 / self.frame_rate_hz)
+
+    def frame_start_us(self, k: int) -> int:
+        """Start of frame ``k`` (µs from frame 0): ``floor(k · 10⁶ / rate)``."""
+        return math.floor(k * 1e6 / self.frame_rate_hz)
+
+    def check(self, widths_us: Sequence[float], what: str = "servo") -> tuple[int, ...]:
+        """``widths_us`` rounded to whole µs; :class:`FieldRangeError` naming the channel if one is outside
+        ``min_us..max_us`` or not finite."""
+        out = []
+        for ch, w in enumerate(widths_us):
+            if not (math.isfinite(w) and self.min_us <= round(w) <= self.max_us):
+                raise FieldRangeError(what, f"channel[{ch}]", w)
+            out.append(round(w))
+        return tuple(out)
+
+    def frame(self, k: int, widths_us: Sequence[float]) -> tuple[ServoPulse, ...]:
+        """The pulses of frame ``k``: every channel rises at the frame start."""
+        t0 = self.frame_start_us(k)
+        return tuple(ServoPulse(ch, t0, t0 + w) for ch, w in enumerate(self.check(widths_us)))
+
+
+@dataclass(frozen=True, slots=True)
+class ServoPulse:
+    """One pulse on ``channel``: high from ``rise_us`` to ``fall_us``."""
+
+    channel: int
+    rise_us: float
+    fall_us: float
+
+    @property
+    def width_us(self) -> float:
+        return self.fall_us - self.rise_us
+
+
+@dataclass(frozen=True, slots=True)
+class ServoCapture:
+    """What a captured servo channel carried: whole-µs widths, one per frame, and the mean frame rate."""
+
+    widths_us: tuple[int, ...]
+    frame_rate_hz: float
+
+
+def measure_servo(pulses: Sequence[tuple[float, float]], params: ServoParams, tolerance_us: float = 5.0):
+    """Read one channel's captured ``(rise_us, fall_us)`` pulses (e.g. a logic analyser on a real board)
+    back into widths. Raises :class:`ProtocolError` naming the pulse if a width is outside the limits by
+    more than ``tolerance_us`` or a rising edge comes less than a frame period (minus the tolerance)
+    after the previous one."""
+    if len(pulses) < 2:
+        raise ProtocolError(f"servo capture: {len(pulses)} pulses; need at least 2 to measure a frame rate")
+    widths = []
+    period = 1e6 / params.frame_rate_hz
+    for i, (rise, fall) in enumerate(pulses):
+        w = fall - rise
+        if not (math.isfinite(w) and params.min_us - tolerance_us <= w <= params.max_us + tolerance_us):
+            raise ProtocolError(
+                f"servo capture: pulse {i} at {rise:.1f} µs is {w:.1f} µs wide, outside"
+                f" {params.min_us}..{params.max_us} µs"
+            )
+        if i and rise - pulses[i - 1][0] < period - tolerance_us:
+            raise ProtocolError(
+                f"servo capture: pulse {i} at {rise:.1f} µs comes {rise - pulses[i - 1][0]:.1f} µs after the"
+                f" previous one, less than the {period:.1f} µs frame period"
+            )
+        widths.append(min(max(round(w), params.min_us), params.max_us))
+    span = pulses[-1][0] - pulses[0][0]
+    return ServoCapture(tuple(widths), (len(pulses) - 1) * 1e6 / span)
+
+
+# =========================================================================== PPM-sum
+@dataclass(frozen=True)
+class PpmParams:
+    """PPM-sum timing (µs). Encoding accepts 1..``max_channels`` channels of ``channel_min_us`` ..
+    ``channel_max_us``; decoding accepts ``min_channels`` .. ``max_channels`` of them per frame."""
+
+    frame_us: float = 22500.0
+    separator_us: float = 300.0
+    min_sync_us: float = 2700.0
+    channel_min_us: float = 700.0
+    channel_max_us: float = 2300.0
+    max_channels: int = 8
+    min_channels: int = 4
+
+    def __post_init__(self) -> None:
+        w = "PpmParams"
+        for name in ("frame_us", "separator_us", "min_sync_us", "channel_min_us", "channel_max_us"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{v!r} is not a positive number", f"{w}.{name}")
+        if not self.separator_us < self.channel_min_us < self.channel_max_us < self.min_sync_us:
+            raise ConfigError(
+                "need separator_us < channel_min_us < channel_max_us < min_sync_us", f"{w}.channel_min_us"
+            )
+        if not 1 <= self.min_channels <= self.max_channels <= 32:
+            raise ConfigError("need 1 <= min_channels <= max_channels <= 32", f"{w}.max_channels")
+        if self.max_channels * self.channel_max_us + self.min_sync_us > self.frame_us:
+            raise ConfigError(
+                f"{self.max_channels} channels of {self.channel_max_us:g} µs and a {self.min_sync_us:g} µs"
+                f" sync do not fit a {self.frame_us:g} µs frame",
+                f"{w}.frame_us",
+            )
+
+
+DEFAULT_PPM = PpmParams()
+
+
+def encode_ppm(widths_us: Sequence[float], params: PpmParams = DEFAULT_PPM) -> tuple[float, ...]:
+    """Rising-edge offsets (µs) of one PPM frame carrying ``widths_us``: ``0, w0, w0+w1, …, Σw`` (one
+    more edge than channels: the last one closes the last channel; the sync gap follows until
+    ``frame_us``). Raises :class:`FieldRangeError` naming the channel for a width outside
+    ``channel_min_us..channel_max_us`` (a PPM output clamps its inputs first) or for too many channels."""
+    n = len(widths_us)
+    if not 1 <= n <= params.max_channels:
+        raise FieldRangeError("PPM", "channels", n)
+    edges = [0.0]
+    for ch, w in enumerate(widths_us):
+        if not (math.isfinite(w) and params.channel_min_us <= w <= params.channel_max_us):
+            raise FieldRangeError("PPM", f"channel[{ch}]", w)
+        edges.append(edges[-1] + float(w))
+    return tuple(edges)
+
+
+def clamp_ppm_width(width_us: float, params: PpmParams = DEFAULT_PPM) -> float:
+    """``width_us`` limited to the PPM channel range (what a PPM output stage does to its inputs)."""
+    return min(max(width_us, params.channel_min_us), params.channel_max_us)
+
+
+class PpmInterval(enum.Enum):
+    """What the time between two rising edges is."""
+
+    CHANNEL = "channel"  # channel_min_us .. channel_max_us
+    SYNC = "sync"  # at least min_sync_us: the gap that ends a frame
+    SHORT = "short"  # shorter than a channel: a glitch
+    GAP = "gap"  # between the longest channel and the shortest sync: neither
+    ORDER = "order"  # not after the previous edge (non-increasing or non-finite time)
+
+
+def classify_interval(dt_us: float, params: PpmParams = DEFAULT_PPM) -> PpmInterval:
+    if not (math.isfinite(dt_us) and dt_us > 0.0):
+        return PpmInterval.ORDER
+    if dt_us < params.channel_min_us:
+        return PpmInterval.SHORT
+    if dt_us <= params.channel_max_us:
+        return PpmInterval.CHANNEL
+    if dt_us < params.min_sync_us:
+        return PpmInterval.GAP
+    return PpmInterval.SYNC
+
+
+def decode_ppm(edges_us: Sequence[float], params: PpmParams = DEFAULT_PPM) -> tuple[int, ...]:
+    """The channel widths (whole µs) of one frame's rising-edge offsets, as :func:`encode_ppm` makes them
+    (measured edges may carry jitter). Raises :class:`ProtocolError` saying which interval is bad, or that
+    the channel count or the sync gap left before ``frame_us`` is wrong."""
+    n = len(edges_us) - 1
+    if not params.min_channels <= n <= params.max_channels:
+        raise ProtocolError(
+            f"PPM frame: {len(edges_us)} edges = {n} channels;"
+            f" need {params.min_channels}..{params.max_channels}"
+        )
+    widths = []
+    for i in range(n):
+        a, b = edges_us[i], edges_us[i + 1]
+        kind = classify_interval(b - a, params)
+        if kind is not PpmInterval.CHANNEL:
+            raise ProtocolError(
+                f"PPM frame: channel {i} (edges {a:.1f} -> {b:.1f} µs) is {b - a:.1f} µs, not a channel"
+                f" ({params.channel_min_us:g}..{params.channel_max_us:g} µs): {kind.value}"
+            )
+        widths.append(round(b - a))
+    sync = params.frame_us - (edges_us[-1] - edges_us[0])
+    if sync < params.min_sync_us:
+        raise ProtocolError(
+            f"PPM frame: the sync gap after the last edge ({edges_us[-1]:.1f} µs) is {sync:.1f} µs,"
+            f" shorter than {params.min_sync_us:g} µs"
+        )
+    return tuple(widths)
+
+
+@dataclass(frozen=True, slots=True)
+class PpmFrame:
+    """A decoded frame: its first rising edge at ``t_us`` and the channel widths (whole µs)."""
+
+    t_us: float
+    channels: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class BadPpm:
+    """A frame (or the start of one) that was dropped, and why; ``t_us`` is the edge that revealed it."""
+
+    t_us: float
+    reason: PpmInterval | str
+    detail: str
+
+
+@dataclass
+class PpmCounters:
+    edges: int = 0
+    frames: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)  # reason → count
+
+
+class PpmDecoder:
+    """Stream decoder: feed rising-edge times (µs, any origin, increasing); get :class:`PpmFrame` and
+    :class:`BadPpm` events. Like a flight controller's PPM input it waits for a sync gap, collects channel
+    intervals until the next sync, and drops the frame on a glitch, an out-of-range interval or a wrong
+    channel count, then resynchronises at the next sync. Memory is bounded (one frame)."""
+
+    def __init__(self, params: PpmParams = DEFAULT_PPM) -> None:
+        self.params = params
+        self.counters = PpmCounters()
+        self._last: float | None = None
+        self._synced = False
+        self._start = 0.0
+        self._channels: list[int] = []
+
+    def feed(self, edges_us: Iterable[float]) -> list[PpmFrame | BadPpm]:
+        events: list[PpmFrame | BadPpm] = []
+        for t in edges_us:
+            self._edge(float(t), events)
+        return events
+
+    def _edge(self, t: float, events: list[PpmFrame | BadPpm]) -> None:
+        self.counters.edges += 1
+        last, self._last = self._last, t
+        if last is None:
+            return
+        dt = t - last
+        kind = classify_interval(dt, self.params)
+        if kind is PpmInterval.ORDER:
+            self._last = last  # keep the good edge; drop this one
+            self._drop(events, t, kind, f"edge at {t!r} µs does not come after {last!r} µs")
+        elif kind is PpmInterval.SYNC:
+            if self._synced and self._channels:
+                self._end_frame(events, t)
+            self._synced, self._start, self._channels = True, t, []
+        elif kind is PpmInterval.CHANNEL:
+            if not self._synced:
+                return
+            self._channels.append(round(dt))
+            if len(self._channels) > self.params.max_channels:
+                self._drop(
+                    events, t, "too_many", f"more than {self.params.max_channels} channels before a sync"
+                )
+        elif self._synced:
+            self._drop(events, t, kind, f"{dt:.1f} µs between edges at {last:.1f} and {t:.1f} µs")
+
+    def _end_frame(self, events: list[PpmFrame | BadPpm], t: float) -> None:
+        n = len(self._channels)
+        if n < self.params.min_channels:
+            self._drop(events, t, "too_few", f"{n} channels before the sync at {t:.1f} µs")
+            return
+        self.counters.frames += 1
+        events.append(PpmFrame(self._start, tuple(self._channels)))
+
+    def _drop(
+        self, events: list[PpmFrame | BadPpm], t: float, reason: PpmInterval | str, detail: str
+    ) -> None:
+        key = reason.value if isinstance(reason, PpmInterval) else reason
+        self.counters.dropped[key] = self.counters.dropped.get(key, 0) + 1
+        events.append(BadPpm(t, reason, detail))
+        self._synced, self._channels = False, []
