@@ -1,0 +1,365 @@
+"""The protocol's frames on a CAN bus (classic CAN and CAN FD), sans-IO.
+
+What travels is exactly the serial wire form of a frame — ``COBS(header + payload + CRC) + 0x00`` as
+:class:`protocol.frame.Framer` produces it — cut into segments. Concatenating a frame's segment
+payloads gives back the serial bytes, so the receiver hands them to the ordinary
+:class:`protocol.frame.Deframer` (same events, same counters, same CRC check end to end) and a
+serial ↔ CAN gateway is a byte copy. The COBS delimiter marks the last segment, which also makes
+CAN FD's padding (a frame's data is 0..8, 12, 16, 20, 24, 32, 48 or 64 bytes) unambiguous.
+
+Arbitration id (11-bit base format, the same on classic CAN and CAN FD)::
+
+    bit  10 9 8 | 7         | 6 5 4 3 2 1 0
+         priority | direction | node id (0..127)
+
+* ``priority`` (0 = wins arbitration) from the message id: 0 COMMAND (Arm, Disarm, SetMode, Ack, Nack),
+  1 CONTROL (ActuatorSetpoint, RawPulses), 2 LINK (Hello, HelloReply, Heartbeat), 3 STATUS
+  (Telemetry), 4 BULK (CalibrationData, CalibrationRequest), 5 LOG (Log), 6 any other id; 7 unused.
+* ``direction``: 0 host → board, 1 board → host, so host and board never send the same id.
+* ``node id``: the board's address; one host talks to up to 128 boards on one bus.
+
+Segment (the CAN frame's data)::
+
+    byte 0      bits 7..6 transfer id (per arbitration id, +1 mod 4 per frame)
+                bits 5..0 segment index (0, 1, 2, ...)
+    bytes 1..   the next 7 (classic) or 63 (FD) bytes of the wire frame; every segment but the last is
+                full, the last one ends at the 0x00 delimiter (FD: then 0x00 padding to a valid length)
+
+A frame takes at most 37 classic or 5 FD segments. Receivers reassemble per arbitration id, place
+segments by index (so reordering within a frame is harmless), and emit the frame once every index up
+to the delimiter's has arrived. A frame that cannot complete — a segment lost, a conflicting duplicate,
+the sender moved on — is discarded and counted (``incomplete``), never delivered half-built; memory is
+bounded by ``window`` partial frames per arbitration id and ``max_streams`` arbitration ids.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+from .errors import ConfigError, ProtocolError
+from .frame import DELIMITER, MAX_ENCODED
+from .messages import (
+    Ack,
+    ActuatorSetpoint,
+    Arm,
+    CalibrationData,
+    CalibrationRequest,
+    Disarm,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Log,
+    Nack,
+    RawPulses,
+    SetMode,
+    Telemetry,
+)
+
+MAX_WIRE = MAX_ENCODED + 1
+"""Longest wire frame including its delimiter."""
+CLASSIC_DATA = 8
+FD_DATA = 64
+FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+"""The data lengths a CAN FD frame can have (DLC 0..15)."""
+NODE_MAX = 0x7F
+_TID_SHIFT = 6
+_INDEX_MASK = 0x3F
+
+
+class Priority(enum.IntEnum):
+    """The arbitration id's top three bits: lower wins the bus."""
+
+    COMMAND = 0
+    CONTROL = 1
+    LINK = 2
+    STATUS = 3
+    BULK = 4
+    LOG = 5
+    OTHER = 6
+
+
+class Direction(enum.IntEnum):
+    TO_BOARD = 0
+    TO_HOST = 1
+
+
+PRIORITY: dict[int, Priority] = {
+    **{cls.MSG_ID: Priority.COMMAND for cls in (Arm, Disarm, SetMode, Ack, Nack)},
+    **{cls.MSG_ID: Priority.CONTROL for cls in (ActuatorSetpoint, RawPulses)},
+    **{cls.MSG_ID: Priority.LINK for cls in (Hello, HelloReply, Heartbeat)},
+    Telemetry.MSG_ID: Priority.STATUS,
+    **{cls.MSG_ID: Priority.BULK for cls in (CalibrationData, CalibrationRequest)},
+    Log.MSG_ID: Priority.LOG,
+}
+"""Priority class of each message id; ids not listed travel as ``Priority.OTHER``."""
+
+
+@dataclass(frozen=True, slots=True)
+class CanId:
+    """The fields of an arbitration id."""
+
+    priority: Priority
+    direction: Direction
+    node: int
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.node <= NODE_MAX:
+            raise ProtocolError(f"CAN node id {self.node} is outside 0..{NODE_MAX}")
+
+    @property
+    def value(self) -> int:
+        """The 11-bit arbitration id."""
+        return (int(self.priority) << 8) | (int(self.direction) << 7) | self.node
+
+    @classmethod
+    def parse(cls, arbitration_id: int) -> CanId:
+        """Split an 11-bit id; raises :class:`ProtocolError` for an id outside this scheme."""
+        if not 0 <= arbitration_id <= 0x7FF or arbitration_id >> 8 > Priority.OTHER:
+            raise ProtocolError(f"arbitration id {arbitration_id:#x} is not in the vscmg-hil scheme")
+        return cls(
+            Priority(arbitration_id >> 8), Direction((arbitration_id >> 7) & 1), arbitration_id & NODE_MAX
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class CanFrame:
+    """One CAN frame to send: ``can.Message(arbitration_id=f.arbitration_id, data=f.data,
+    is_fd=f.is_fd, is_extended_id=False)`` in python-can."""
+
+    arbitration_id: int
+    data: bytes
+    is_fd: bool = False
+
+
+def segment_payload(fd: bool) -> int:
+    """Bytes of wire frame per segment (the data minus the 1-byte segment header)."""
+    return (FD_DATA if fd else CLASSIC_DATA) - 1
+
+
+def max_segments(fd: bool) -> int:
+    """Most segments a frame can take."""
+    per = segment_payload(fd)
+    return -(-MAX_WIRE // per)
+
+
+def _fd_length(n: int) -> int:
+    return next(length for length in FD_LENGTHS if length >= n)
+
+
+def _check_config(node: int, window: int | None = None, max_streams: int | None = None) -> None:
+    if isinstance(node, bool) or not isinstance(node, int) or not 0 <= node <= NODE_MAX:
+        raise ConfigError(f"{node!r} is outside 0..{NODE_MAX}", "CAN node id")
+    for name, value in (("window", window), ("max_streams", max_streams)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ConfigError(f"{value!r} must be an integer >= 1", f"CanReassembler.{name}")
+
+
+# =========================================================================== sending
+class CanSegmenter:
+    """Sender side: wire frames in, CAN frames out. One per sending node (it keeps the transfer ids).
+
+    ``direction`` is this sender's: a host uses ``Direction.TO_BOARD`` with the board's ``node`` id.
+    """
+
+    def __init__(self, node: int, direction: Direction, fd: bool = False) -> None:
+        _check_config(node)
+        self.node = node
+        self.direction = Direction(direction)
+        self.fd = fd
+        self._tid: dict[int, int] = {}
+
+    def arbitration_id(self, msg_id: int) -> int:
+        return CanId(PRIORITY.get(msg_id, Priority.OTHER), self.direction, self.node).value
+
+    def segment(self, wire: bytes) -> list[CanFrame]:
+        """The CAN frames carrying one wire frame (``COBS(...) + 0x00``, as ``Framer.encode`` returns).
+
+        Raises :class:`ProtocolError` for bytes that are not exactly one wire frame."""
+        wire = bytes(wire)
+        if len(wire) < 2 or wire[-1] != 0 or 0 in wire[:-1] or len(wire) > MAX_WIRE:
+            raise ProtocolError(
+                f"not one wire frame ({len(wire)} bytes; it must end with its only 0x00 and be at most "
+                f"{MAX_WIRE} bytes)"
+            )
+        # Version and message id are never 0, so COBS leaves them in place: wire[0] is the first code
+        # byte (>= 3) and wire[2] the message id.
+        msg_id = wire[2] if wire[0] >= 3 else -1
+        arb = self.arbitration_id(msg_id)
+        tid = self._tid.get(arb, 0)
+        self._tid[arb] = (tid + 1) & 0x3
+        per = segment_payload(self.fd)
+        frames = []
+        for index, start in enumerate(range(0, len(wire), per)):
+            data = bytes([(tid << _TID_SHIFT) | index]) + wire[start : start + per]
+            if self.fd and len(data) not in FD_LENGTHS:
+                data += bytes(_fd_length(len(data)) - len(data))
+            frames.append(CanFrame(arb, data, self.fd))
+        return frames
+
+
+# =========================================================================== receiving
+@dataclass
+class CanStats:
+    """What a :class:`CanReassembler` has seen."""
+
+    segments: int = 0  # CAN frames accepted as segments
+    frames: int = 0  # wire frames completed and delivered
+    incomplete: int = 0  # partial frames discarded (a segment lost, conflicting, or the sender moved on)
+    malformed: int = 0  # CAN frames that cannot be a segment (too short or long, bad index, short middle)
+    duplicates: int = 0  # segments received twice with the same content
+    ignored: int = 0  # CAN frames outside the scheme, for another node or the other direction
+
+
+@dataclass
+class _Partial:
+    segments: dict[int, bytes] = field(default_factory=dict)
+    last: int | None = None  # index of the segment holding the delimiter
+
+
+class CanReassembler:
+    """Receiver side: CAN frames in, complete wire frames out (feed them to a ``Deframer``).
+
+    ``node``/``direction`` filter what this end accepts (a host: ``direction=Direction.TO_HOST`` and
+    its board's node; None accepts any). Each arbitration id is one stream with up to ``window`` partial
+    frames in flight; at most ``max_streams`` streams are tracked (the least recently heard is dropped).
+    """
+
+    def __init__(
+        self,
+        node: int | None = None,
+        direction: Direction | None = None,
+        window: int = 2,
+        max_streams: int = 32,
+    ) -> None:
+        _check_config(0 if node is None else node, window, max_streams)
+        self.node = node
+        self.direction = None if direction is None else Direction(direction)
+        self.window = window
+        self.max_streams = max_streams
+        self.stats = CanStats()
+        self._streams: OrderedDict[int, OrderedDict[int, _Partial]] = OrderedDict()
+
+    def reset(self) -> None:
+        """Drop every partial frame (counted as incomplete), e.g. after a reconnect."""
+        for stream in self._streams.values():
+            self.stats.incomplete += len(stream)
+        self._streams.clear()
+
+    def feed(
+        self, arbitration_id: int, data: bytes, is_fd: bool = False, is_extended_id: bool = False
+    ) -> bytes:
+        """One received CAN frame; returns the wire frames it completed (possibly b"")."""
+        if is_extended_id or not self._accepts(arbitration_id):
+            self.stats.ignored += 1
+            return b""
+        data = bytes(data)
+        limit = FD_DATA if is_fd else CLASSIC_DATA
+        per = segment_payload(is_fd)
+        if len(data) < 2 or len(data) > limit:
+            self.stats.malformed += 1
+            return b""
+        tid, index = data[0] >> _TID_SHIFT, data[0] & _INDEX_MASK
+        chunk = data[1:]
+        end = chunk.find(DELIMITER)
+        if end >= 0:
+            chunk = chunk[: end + 1]  # the rest is CAN FD padding
+        if index >= max_segments(is_fd) or (end < 0 and len(chunk) != per):
+            self.stats.malformed += 1
+            return b""
+        self.stats.segments += 1
+        stream = self._stream(arbitration_id)
+        partial = stream.get(tid)
+        if partial is None:
+            partial = self._open(stream, tid)
+        elif self._conflicts(partial, index, chunk, end >= 0):
+            del stream[tid]
+            self.stats.incomplete += 1
+            partial = self._open(stream, tid)
+        elif partial.segments.get(index) == chunk:
+            self.stats.duplicates += 1
+            return b""
+        partial.segments[index] = chunk
+        if end >= 0:
+            partial.last = index
+        if partial.last is None or len(partial.segments) != partial.last + 1:
+            return b""
+        # Complete: deliver it, and give up on frames of this stream that started before it.
+        for older in list(stream):
+            del stream[older]
+            if older == tid:
+                break
+            self.stats.incomplete += 1
+        wire = b"".join(partial.segments[i] for i in range(partial.last + 1))
+        if len(wire) > MAX_WIRE:
+            self.stats.malformed += 1
+            return b""
+        self.stats.frames += 1
+        return wire
+
+    def feed_message(self, message: object) -> bytes:
+        """Convenience for a python-can ``Message`` (duck-typed: no python-can import here)."""
+        return self.feed(
+            message.arbitration_id,  # type: ignore[attr-defined]
+            message.data,  # type: ignore[attr-defined]
+            bool(getattr(message, "is_fd", False)),
+            bool(getattr(message, "is_extended_id", False)),
+        )
+
+    @property
+    def partial_frames(self) -> int:
+        """Partial frames held now (bounded by ``window × max_streams``)."""
+        return sum(len(s) for s in self._streams.values())
+
+    # ------------------------------------------------------------------ internals
+    def _accepts(self, arbitration_id: int) -> bool:
+        try:
+            cid = CanId.parse(arbitration_id)
+        except ProtocolError:
+            return False
+        if self.node is not None and cid.node != self.node:
+            return False
+        return self.direction is None or cid.direction is self.direction
+
+    def _stream(self, arbitration_id: int) -> OrderedDict[int, _Partial]:
+        stream = self._streams.get(arbitration_id)
+        if stream is None:
+            if len(self._streams) >= self.max_streams:
+                _, dropped = self._streams.popitem(last=False)
+                self.stats.incomplete += len(dropped)
+            stream = self._streams[arbitration_id] = OrderedDict()
+        else:
+            self._streams.move_to_end(arbitration_id)
+        return stream
+
+    def _open(self, stream: OrderedDict[int, _Partial], tid: int) -> _Partial:
+        while len(stream) >= self.window:
+            stream.popitem(last=False)
+            self.stats.incomplete += 1
+        partial = stream[tid] = _Partial()
+        return partial
+
+    @staticmethod
+    def _conflicts(partial: _Partial, index: int, chunk: bytes, is_last: bool) -> bool:
+        """A segment that cannot belong to the frame being assembled under its transfer id."""
+        held = partial.segments.get(index)
+        if held is not None and held != chunk:
+            return True
+        if partial.last is not None and (index > partial.last or (is_last and index != partial.last)):
+            return True
+        return is_last and any(i > index for i in partial.segments)
+
+
+__all__ = [
+    "CanFrame",
+    "CanId",
+    "CanReassembler",
+    "CanSegmenter",
+    "CanStats",
+    "Direction",
+    "PRIORITY",
+    "Priority",
+    "max_segments",
+    "segment_payload",
+]
