@@ -27,9 +27,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from protocol.calibration import Reassembler, default_unit_calibration, fragment
-
 from hil.clock import Clock
+from protocol.calibration import Reassembler, default_unit_calibration, fragment
 from protocol.errors import ConfigError, HilError
 from protocol.frame import BadFrame, Frame
 from protocol.messages import (
@@ -760,9 +759,11 @@ class Board:
         self.timeline.record(t / 1e6, self.outputs)
 
     def _ppm_frame(self, t: int) -> None:
-        from protocol.pulses import encode_ppm  # optional output: imported on first use
+        from protocol.pulses import clamp_ppm_width, encode_ppm  # optional output: imported on first use
 
-        widths = [w if w is not None else self.config.rotor_safe_us for w in self.outputs[:8]]
+        # Like a PPM output stage, limit each width to the PPM channel range (raw pulses may reach 500-2500).
+        safe = self.config.rotor_safe_us
+        widths = [clamp_ppm_width(w if w is not None else safe) for w in self.outputs[:8]]
         train = encode_ppm(widths)
         self.timeline.ppm.append(PpmTrain(t / 1e6, tuple(float(e) for e in train)))
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import pytest
 from conformance.host import heartbeat, lockstep
-from protocol.calibration import Reassembler, default_unit_calibration, fragment
 
 from firmware_sim.board import Board
 from firmware_sim.config import BoardConfig
 from hil.clock import LockstepClock
+from protocol.calibration import Reassembler, default_unit_calibration, fragment
 from protocol.frame import encode_frame
 from protocol.messages import (
     SCHEMA_HASH,
