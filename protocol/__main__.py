@@ -54,9 +54,8 @@ def render_tables() -> str:
         lo, hi = payload_size_range(cls)
         wire = _wire_len(hi)
         reliable = "yes" if cls.RELIABLE else "no"
-        out.append(
-            f"| 0x{cls.MSG_ID:02x} | {cls.__name__} | {reliable} | {_span(lo, hi)} | {wire} | {_summary(cls)} |"
-        )
+        cells = (f"0x{cls.MSG_ID:02x}", cls.__name__, reliable, _span(lo, hi), str(wire), _summary(cls))
+        out.append("| " + " | ".join(cells) + " |")
     out += ["", f"Schema hash of this catalogue: `0x{SCHEMA_HASH:08x}`.", ""]
     records: list[type] = []
     enums: list[type[enum.IntEnum]] = []
