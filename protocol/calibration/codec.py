@@ -2,23 +2,24 @@
 
 Version 1, little-endian, IEEE-754 binary32 floats (``docs/calibration.md`` is the byte-level spec)::
 
-    offset        size   type     field
-    0             2      u8[2]    magic "VC" (0x56 0x43)
-    2             1      u8       format version (1)
-    3             1      u8       flags, reserved: 0
-    4             4      f32      esc.low_us           calibrated low endpoint = minimum throttle (µs)
-    8             4      f32      esc.high_us          calibrated high endpoint = full throttle (µs)
-    12            4      f32      esc.deadband_us      throttle stays 0 up to low_us + deadband_us (µs)
-    16            4      f32      rotor.kv_rad_s_per_v no-load speed at full throttle per battery volt
-    20            4      f32      gimbal_rate.hold_us  the pulse that holds the gimbal still (µs)
-    24            1      u8       nr  knots of the rotor throttle curve (2..16)
-    25            1      u8       ng  knots of the gimbal rate table (2..16)
-    26            1      u8       na  knots of the gimbal angle table (2..16)
-    27            1      u8       reserved: 0
-    28            12·nr  knot[nr] rotor curve: x = throttle 0..1, y = fraction of KV·V, m = dy/dx
-    28+12nr       12·ng  knot[ng] gimbal rate: x = pulse µs, y = rad/s, m = (rad/s)/µs
-    28+12(nr+ng)  12·na  knot[na] gimbal angle: x = pulse µs, y = rad, m = rad/µs
-    28+12n        2      u16      CRC-16/CCITT-FALSE of bytes 0 .. 27+12n        (n = nr + ng + na)
+    offset  size   type      field
+    0       2      u8[2]     magic "VC" (0x56 0x43)
+    2       1      u8        format version (1)
+    3       1      u8        flags, reserved: 0
+    4       4      f32       esc.low_us            calibrated low endpoint = minimum throttle (µs)
+    8       4      f32       esc.high_us           calibrated high endpoint = full throttle (µs)
+    12      4      f32       esc.deadband_us       throttle stays 0 up to low_us + deadband_us (µs)
+    16      4      f32       rotor.kv_rad_s_per_v  no-load speed at full throttle per battery volt
+    20      4      f32       gimbal_rate.hold_us   the pulse that holds the gimbal still (µs)
+    24      1      u8        n0  knots of table 0, the rotor throttle curve  (2..16 each)
+    25      1      u8        n1  knots of table 1, gimbal rate below the dead zone
+    26      1      u8        n2  knots of table 2, gimbal rate above the dead zone
+    27      1      u8        n3  knots of table 3, gimbal angle
+    28      12·n0  knot[n0]  table 0: x = throttle 0..1, y = fraction of KV·V, m = dy/dx
+    ...     12·n1  knot[n1]  table 1: x = pulse µs, y = rad/s, m = (rad/s)/µs; ends at y = 0
+    ...     12·n2  knot[n2]  table 2: x = pulse µs, y = rad/s, m = (rad/s)/µs; starts at y = 0
+    ...     12·n3  knot[n3]  table 3: x = pulse µs, y = rad, m = rad/µs
+    28+12n  2      u16       CRC-16/CCITT-FALSE of bytes 0 .. 27+12n             (n = n0 + n1 + n2 + n3)
 
     knot = { f32 x; f32 y; f32 m; }   (12 bytes)
 
@@ -41,14 +42,14 @@ FORMAT_VERSION = 1
 HEADER = struct.Struct("<2sBBfffffBBBB")
 KNOT = struct.Struct("<fff")
 CRC = struct.Struct("<H")
-MIN_SIZE = HEADER.size + 3 * 2 * KNOT.size + CRC.size
-MAX_SIZE = HEADER.size + 3 * MAX_KNOTS * KNOT.size + CRC.size
-_TABLES = ("rotor_curve", "gimbal_rate", "gimbal_angle")
+TABLES = ("rotor_curve", "gimbal_rate_lower", "gimbal_rate_upper", "gimbal_angle")
+MIN_SIZE = HEADER.size + len(TABLES) * 2 * KNOT.size + CRC.size
+MAX_SIZE = HEADER.size + len(TABLES) * MAX_KNOTS * KNOT.size + CRC.size
 
 
 def encode_maps(rotor: RotorSpeedMap, rate: GimbalRateMap, angle: GimbalAngleMap) -> bytes:
     """The version-1 bytes of one unit's maps."""
-    tables = (rotor.curve, rate.curve, angle.curve)
+    tables = (rotor.curve, rate.lower, rate.upper, angle.curve)
     esc = rotor.esc
     out = bytearray(
         HEADER.pack(
@@ -61,7 +62,6 @@ def encode_maps(rotor: RotorSpeedMap, rate: GimbalRateMap, angle: GimbalAngleMap
             rotor.kv_rad_s_per_v,
             rate.hold_us,
             *(len(t.x) for t in tables),
-            0,
         )
     )
     for t in tables:
@@ -78,22 +78,17 @@ def decode_maps(data: bytes, source: str = "") -> tuple[RotorSpeedMap, GimbalRat
     data = bytes(data)
     if len(data) < HEADER.size + CRC.size:
         raise CalibrationError(f"truncated: {len(data)} bytes, a set has at least {MIN_SIZE}", where)
-    magic, version, flags, low, high, dead, kv, hold, nr, ng, na, reserved = HEADER.unpack_from(data)
+    magic, version, flags, low, high, dead, kv, hold, *counts = HEADER.unpack_from(data)
     if magic != MAGIC:
-        raise CalibrationError(
-            f"magic {magic!r} is not {MAGIC!r}: not a calibration set", f"{where}: bytes 0-1"
-        )
+        raise CalibrationError(f"magic {magic!r} is not {MAGIC!r}: not a calibration set", f"{where}: byte 0")
     if version != FORMAT_VERSION:
         raise CalibrationError(
             f"format version {version} is not supported (this reader knows {FORMAT_VERSION})",
             f"{where}: byte 2",
         )
-    if flags or reserved:
-        raise CalibrationError(
-            f"reserved bytes must be 0 (flags {flags}, byte 27 {reserved})", f"{where}: byte 3"
-        )
-    counts = (nr, ng, na)
-    for i, (name, n) in enumerate(zip(_TABLES, counts, strict=True)):
+    if flags:
+        raise CalibrationError(f"reserved flags {flags:#04x} must be 0", f"{where}: byte 3")
+    for i, (name, n) in enumerate(zip(TABLES, counts, strict=True)):
         if not 2 <= n <= MAX_KNOTS:
             raise CalibrationError(
                 f"{n} knots in {name}; a table has 2 to {MAX_KNOTS}", f"{where}: byte {24 + i}"
@@ -101,17 +96,18 @@ def decode_maps(data: bytes, source: str = "") -> tuple[RotorSpeedMap, GimbalRat
     size = HEADER.size + KNOT.size * sum(counts) + CRC.size
     if len(data) != size:
         raise CalibrationError(
-            f"{len(data)} bytes, but its knot counts {counts} make a {size}-byte set", f"{where}: length"
+            f"{len(data)} bytes, but its knot counts {tuple(counts)} make a {size}-byte set",
+            f"{where}: length",
         )
     (crc,) = CRC.unpack_from(data, size - CRC.size)
     want = crc16_ccitt_false(data[: size - CRC.size])
     if crc != want:
         raise CalibrationError(
-            f"CRC {crc:#06x} != {want:#06x} computed: damaged", f"{where}: bytes {size - 2}-{size - 1}"
+            f"CRC {crc:#06x} != {want:#06x} computed: damaged", f"{where}: byte {size - CRC.size}"
         )
     tables = []
     offset = HEADER.size
-    for name, n in zip(_TABLES, counts, strict=True):
+    for name, n in zip(TABLES, counts, strict=True):
         knots = [KNOT.unpack_from(data, offset + KNOT.size * k) for k in range(n)]
         with within(f"{where}: {name} (bytes {offset}-{offset + KNOT.size * n - 1})"):
             tables.append(MonotoneCubic(*_columns(knots)))
@@ -121,9 +117,9 @@ def decode_maps(data: bytes, source: str = "") -> tuple[RotorSpeedMap, GimbalRat
     with within(f"{where}: rotor"):
         rotor = RotorSpeedMap(esc, kv, tables[0])
     with within(f"{where}: gimbal_rate"):
-        rate = GimbalRateMap(hold, tables[1])
+        rate = GimbalRateMap(hold, tables[1], tables[2])
     with within(f"{where}: gimbal_angle"):
-        angle = GimbalAngleMap(tables[2])
+        angle = GimbalAngleMap(tables[3])
     return rotor, rate, angle
 
 

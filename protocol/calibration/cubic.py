@@ -4,9 +4,10 @@ A table is ``n`` knots (2 ≤ n ≤ 16) ``x[k]`` strictly increasing, values ``y
 (dy/dx at the knots). Between knots it is the cubic Hermite interpolant, so evaluating it needs only the
 stored numbers: no fitting code on the board. Slopes are chosen at fit time by PCHIP (Fritsch–Carlson with
 Brodlie's weighted harmonic mean, the same as ``scipy.interpolate.PchipInterpolator``), which keeps the
-curve monotone between monotone data. The stored slopes satisfy ``|m[k]| ≤ 3·|δ|`` for both intervals
-they touch (``δ`` the interval's secant), and ``m = 0`` at a flat interval: that box inside the
-Fritsch–Carlson region guarantees a monotone cubic on every interval, which makes the inverse well posed.
+curve monotone between monotone data. Tables are strictly monotone (no two equal values) and the stored
+slopes have the sign of the table and satisfy ``|m[k]| ≤ 3·|δ|`` for both intervals they touch (``δ`` the
+interval's secant): that box inside the Fritsch–Carlson region guarantees a monotone cubic on every
+interval, which makes the inverse well posed.
 
 The algorithms here are the reference for ``docs/calibration.md`` ("Evaluating a table"): written in
 Horner form, with a fixed iteration cap, so a float32 C port follows them line by line.
@@ -36,11 +37,11 @@ _U32 = struct.Struct("<I")
 
 @dataclass(frozen=True, slots=True)
 class MonotoneCubic:
-    """A monotone cubic Hermite table. ``x``, ``y``, ``slopes``: tuples of n float32-exact floats.
+    """A strictly monotone cubic Hermite table. ``x``, ``y``, ``slopes``: tuples of n float32-exact floats.
 
     Build one with :meth:`pchip` from knots; the constructor validates (raising :class:`CalibrationError`
     whose ``where`` names the knot) and rounds every number to float32 so that the binary format round-trips
-    exactly. The table's direction is that of ``y[-1] - y[0]`` (never zero).
+    exactly. The table rises (``y[0] < y[1] < …``) or falls (``y[0] > y[1] > …``).
     """
 
     x: tuple[float, ...]
@@ -73,7 +74,8 @@ class MonotoneCubic:
     # ------------------------------------------------------------------ construction
     @classmethod
     def pchip(cls, x: Sequence[float], y: Sequence[float]) -> MonotoneCubic:
-        """The PCHIP table through knots (``x`` strictly increasing, ``y`` monotone), float32-rounded."""
+        """The PCHIP table through knots (``x`` strictly increasing, ``y`` strictly monotone), rounded to
+        float32."""
         xs = tuple(finite32(v, f"x[{k}]") for k, v in enumerate(x))
         ys = tuple(finite32(v, f"y[{k}]") for k, v in enumerate(y))
         if len(xs) != len(ys) or len(xs) < 2:
@@ -99,11 +101,6 @@ class MonotoneCubic:
         """(lowest, highest) value of the table, whichever its direction."""
         return (self.y[0], self.y[-1]) if self.rising else (self.y[-1], self.y[0])
 
-    @property
-    def flat_intervals(self) -> tuple[int, ...]:
-        """Indices k of the intervals where ``y[k] == y[k + 1]`` (the table is constant there)."""
-        return tuple(k for k in range(len(self.y) - 1) if self.y[k] == self.y[k + 1])
-
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, x: float) -> Conversion:
         """y(x); ``x`` outside ``[x[0], x[-1]]`` is clamped to the nearest end and flagged."""
@@ -122,9 +119,8 @@ class MonotoneCubic:
         return Conversion(y0 + t * (a1 + t * (a2 + t * a3)))
 
     def solve(self, y: float) -> Conversion:
-        """The x with y(x) = ``y`` (the inverse), on the first interval (in x order) whose values reach
-        ``y`` (its midpoint if that interval is flat). ``y`` outside the table's value range is clamped to
-        the end of ``x`` holding the nearest value and flagged LOW/HIGH by ``y``'s side."""
+        """The x with y(x) = ``y`` (the inverse). ``y`` outside the table's value range is clamped to the
+        end of ``x`` holding the nearest value and flagged LOW/HIGH by ``y``'s side."""
         ys = self.y
         lo, hi = self.y_range
         if y < lo:
@@ -138,11 +134,8 @@ class MonotoneCubic:
             k += 1
         x0 = self.x[k]
         h = self.x[k + 1] - x0
-        d = ys[k + 1] - ys[k]
-        if d == 0.0:
-            return Conversion(x0 + 0.5 * h)
         y0, a1, a2, a3 = self._coefficients(k, h)
-        t = _solve_interval(y - y0, s, a1, a2, a3, (y - y0) / d)
+        t = _solve_interval(y - y0, s, a1, a2, a3, (y - y0) / (ys[k + 1] - y0))
         return Conversion(x0 + t * h)
 
     def _coefficients(self, k: int, h: float) -> tuple[float, float, float, float]:
@@ -217,20 +210,17 @@ def _sign(v: float) -> int:
 
 
 def _check_interval(k: int, x: tuple[float, ...], y: tuple[float, ...], m: tuple[float, ...], rising: bool):
-    """Monotone in the table's direction, and slopes inside the box that keeps the cubic monotone."""
+    """Strictly monotone in the table's direction, and slopes inside the box that keeps the cubic monotone."""
     d = y[k + 1] - y[k]
-    if (d < 0.0) if rising else (d > 0.0):
+    if (d <= 0.0) if rising else (d >= 0.0):
         raise CalibrationError(
-            f"y goes {'down' if rising else 'up'} ({y[k]!r} to {y[k + 1]!r}) in a"
-            f" {'rising' if rising else 'falling'} table: not monotone",
+            f"y goes {'down' if rising else 'up'} or stays ({y[k]!r} to {y[k + 1]!r}) in a"
+            f" {'rising' if rising else 'falling'} table: not strictly monotone",
             f"y[{k + 1}]",
         )
     secant = d / (x[k + 1] - x[k])
     for j in (k, k + 1):
-        if d == 0.0:
-            if m[j] != 0.0:
-                raise CalibrationError(f"slope {m[j]!r} next to a flat interval must be 0", f"slope[{j}]")
-        elif m[j] * secant < 0.0 or abs(m[j]) > 3.0 * abs(secant) * (1.0 + SLOPE_TOLERANCE):
+        if m[j] * secant < 0.0 or abs(m[j]) > 3.0 * abs(secant) * (1.0 + SLOPE_TOLERANCE):
             raise CalibrationError(
                 f"slope {m[j]!r} is outside 0..3x the secant {secant!r} of interval {k}: the cubic would not"
                 " be monotone",

@@ -13,8 +13,10 @@ Rotor (ESC + BLDC motor), two maps in series::
 
 Gimbal (servo or stepper driver on the same channel), one map per ``GimbalMode``:
 
-* ``GimbalRateMap`` (RATE): a monotone table pulse µs → rate rad/s whose range spans 0, usually with a
-  centre deadband (a flat run of zeros); ``hold_us`` is the pulse that holds the gimbal still.
+* ``GimbalRateMap`` (RATE): rate 0 in the servo's dead zone between the ``lower`` table's last pulse and
+  the ``upper`` table's first pulse, each table a strictly monotone pulse µs → rate rad/s curve that is 0
+  at its dead-zone end (so the curve may leave the dead zone with a kink, as a servo does);
+  ``hold_us`` (inside the dead zone) is the pulse that holds the gimbal still.
 * ``GimbalAngleMap`` (ANGLE): a strictly monotone table pulse µs → angle rad.
 """
 
@@ -31,8 +33,6 @@ from .cubic import MonotoneCubic
 MIN_SUPPLY_V = 1.0
 """Below this battery voltage there is no usable supply: speed 0, and any positive speed command gets the
 minimum-throttle pulse (flagged HIGH: the speed is out of reach)."""
-HOLD_TOLERANCE = 1e-4
-"""|rate(hold_us)| may be at most this fraction of the table's largest |rate| (float32 rounding)."""
 MAX_KV_RAD_S_PER_V = 1.0e4
 
 
@@ -111,10 +111,6 @@ class RotorSpeedMap:
                 f"({c.x[-1]:g}, {c.y[-1]:g})",
                 "curve",
             )
-        if c.flat_intervals:
-            raise CalibrationError(
-                "throttle curve must increase strictly (more throttle, more speed)", "curve"
-            )
 
     def full_speed(self, battery_v: float) -> float:
         """No-load speed at full throttle (rad/s) at ``battery_v``."""
@@ -149,53 +145,61 @@ class RotorSpeedMap:
 
 @dataclass(frozen=True, slots=True)
 class GimbalRateMap:
-    """Pulse (µs) ↔ gimbal rate (rad/s) of a continuous-rotation servo or stepper driver."""
+    """Pulse (µs) ↔ gimbal rate (rad/s) of a continuous-rotation servo or stepper driver: a dead zone
+    ``[lower.x[-1], upper.x[0]]`` of rate 0 between two tables of the same direction."""
 
     hold_us: float
-    curve: MonotoneCubic  # pulse µs → rate rad/s; values span 0; flat only at 0 (the deadband)
+    lower: MonotoneCubic  # pulses below the dead zone → rate, 0 at its last knot
+    upper: MonotoneCubic  # pulses above the dead zone → rate, 0 at its first knot
 
     def __post_init__(self) -> None:
         hold = finite32(self.hold_us, "hold_us")
         object.__setattr__(self, "hold_us", hold)
-        c = self.curve
-        lo, hi = c.y_range
-        if not lo < 0.0 < hi:
-            raise CalibrationError(f"rates {lo:g}..{hi:g} rad/s must span 0 (both directions)", "curve")
-        flats = c.flat_intervals
-        if any(c.y[k] != 0.0 for k in flats):
-            raise CalibrationError("the table may only be flat at rate 0 (the deadband)", "curve")
-        if flats and flats[-1] - flats[0] + 1 != len(flats):
-            raise CalibrationError("more than one deadband (flat run)", "curve")
-        x0, x1 = c.x_range
-        if not x0 <= hold <= x1:
-            raise CalibrationError(f"{hold:g} µs is outside the table's pulses {x0:g}..{x1:g}", "hold_us")
-        if abs(c.evaluate(hold).value) > HOLD_TOLERANCE * max(abs(lo), hi):
+        lo, up = self.lower, self.upper
+        if lo.y[-1] != 0.0:
+            raise CalibrationError(f"the lower table must end at rate 0, not {lo.y[-1]:g}", "lower.y")
+        if up.y[0] != 0.0:
+            raise CalibrationError(f"the upper table must start at rate 0, not {up.y[0]:g}", "upper.y")
+        if lo.rising != up.rising:
+            raise CalibrationError("the lower and upper tables turn opposite ways", "upper")
+        if not lo.x[-1] <= hold <= up.x[0]:
             raise CalibrationError(
-                f"the rate at {hold:g} µs is {c.evaluate(hold).value:g} rad/s, not 0: not a hold pulse",
-                "hold_us",
+                f"{hold:g} µs is outside the dead zone {lo.x[-1]:g}..{up.x[0]:g} µs", "hold_us"
             )
+
+    @property
+    def dead_zone_us(self) -> tuple[float, float]:
+        """(first, last) pulse of rate 0."""
+        return self.lower.x[-1], self.upper.x[0]
+
+    @property
+    def rate_range(self) -> tuple[float, float]:
+        """(lowest, highest) rate (rad/s) the driver reaches."""
+        return min(self.lower.y[0], self.upper.y[-1]), max(self.lower.y[0], self.upper.y[-1])
 
     def rate(self, pulse_us: float) -> Conversion:
         """Gimbal rate (rad/s) of ``pulse_us``."""
-        return self.curve.evaluate(require_finite(pulse_us, "GimbalRateMap.rate", "pulse_us"))
+        p = require_finite(pulse_us, "GimbalRateMap.rate", "pulse_us")
+        if p < self.lower.x[-1]:
+            return self.lower.evaluate(p)
+        if p > self.upper.x[0]:
+            return self.upper.evaluate(p)
+        return Conversion(0.0)
 
     def pulse(self, rate_rad_s: float) -> Conversion:
         """The pulse (µs) for ``rate_rad_s``; rate 0 is ``hold_us``."""
         r = require_finite(rate_rad_s, "GimbalRateMap.pulse", "rate_rad_s")
         if r == 0.0:
             return Conversion(self.hold_us)
-        return self.curve.solve(r)
+        side = self.upper if (r > 0.0) == (self.upper.y[-1] > 0.0) else self.lower
+        return side.solve(r)
 
 
 @dataclass(frozen=True, slots=True)
 class GimbalAngleMap:
     """Pulse (µs) ↔ gimbal angle (rad) of a positional servo."""
 
-    curve: MonotoneCubic  # pulse µs → angle rad, strictly monotone
-
-    def __post_init__(self) -> None:
-        if self.curve.flat_intervals:
-            raise CalibrationError("an angle table must be strictly monotone", "curve")
+    curve: MonotoneCubic  # pulse µs → angle rad
 
     def angle(self, pulse_us: float) -> Conversion:
         """Gimbal angle (rad) of ``pulse_us``."""

@@ -13,7 +13,8 @@ full 3S pack, 12.6 V), a = 0.3.
 Gimbal: a continuous-rotation servo centred at ``center_us`` with a ±``deadband_us`` dead zone; beyond it
 ``rate = ±max_rate · g(u)``, ``u`` the distance past the dead zone as a fraction of the rest of the
 half-span, ``g(u) = (1 + b)·u / (1 + b·u)``. In ANGLE mode the same channel drives a positional servo:
-``angle = range · (s + c·(s³ − s))``, ``s = (p − center) / half_span``. Defaults: centre 1500 µs, ±10 µs
+``angle = range · (s + c·(s³ − s))``, ``s = (p − center) / half_span`` (both negated for a servo mounted
+mirrored, ``direction = -1``). Defaults: centre 1500 µs, ±10 µs
 dead zone, ±500 µs half-span, ±2 rad/s (the board's gimbal limit), b = 0.6; ±π/2 rad, c = 0.05.
 """
 
@@ -71,6 +72,7 @@ class GimbalServoModel:
     rate_shape: float = 0.6
     angle_range_rad: float = math.pi / 2
     angle_cubic: float = 0.05
+    direction: int = 1  # -1: a servo mounted mirrored (more pulse turns the gimbal the negative way)
 
     def rate(self, pulse_us: float) -> float:
         """Gimbal rate (rad/s); pulses beyond the span are clamped to it."""
@@ -80,20 +82,24 @@ class GimbalServoModel:
             return 0.0
         u = past / (self.half_span_us - self.deadband_us)
         b = self.rate_shape
-        return math.copysign(self.max_rate_rad_s * (1.0 + b) * u / (1.0 + b * u), off)
+        return math.copysign(self.max_rate_rad_s * (1.0 + b) * u / (1.0 + b * u), off * self.direction)
 
     def angle(self, pulse_us: float) -> float:
         """Gimbal angle (rad); pulses beyond the span are clamped to it."""
         s = min(max((pulse_us - self.center_us) / self.half_span_us, -1.0), 1.0)
-        return self.angle_range_rad * (s + self.angle_cubic * (s**3 - s))
+        return self.direction * self.angle_range_rad * (s + self.angle_cubic * (s**3 - s))
 
     def rate_map(self, knots_per_side: int = 6) -> GimbalRateMap:
-        """The rate model sampled at ``knots_per_side`` pulses each side (dead-zone edges included)."""
+        """The rate model sampled at ``knots_per_side`` pulses each side of the dead zone (its edges
+        included)."""
         c, d, w = self.center_us, self.deadband_us, self.half_span_us
         upper = [c + d + (w - d) * k / (knots_per_side - 1) for k in range(knots_per_side)]
         lower = [2.0 * c - p for p in reversed(upper)]
-        pulses = lower + upper
-        return GimbalRateMap(c, MonotoneCubic.pchip(pulses, [self.rate(p) for p in pulses]))
+        return GimbalRateMap(
+            c,
+            MonotoneCubic.pchip(lower, [self.rate(p) for p in lower]),
+            MonotoneCubic.pchip(upper, [self.rate(p) for p in upper]),
+        )
 
     def angle_map(self, knots: int = 9) -> GimbalAngleMap:
         """The angle model sampled at ``knots`` evenly spaced pulses."""

@@ -1,0 +1,180 @@
+"""Bench data: measured (pulse, battery voltage, rotor speed or gimbal rate/angle) rows in CSV files.
+
+A bench CSV is UTF-8 text; lines starting with ``#`` are comments, blank lines are skipped; the first
+other line is the header. Columns (any order; extra columns are ignored):
+
+* ``pulse_us`` — the commanded pulse width (µs, 500–2500), required;
+* ``battery_v`` — battery voltage during the sample (V, 0–60), required for rotor data;
+* exactly one measurement: ``rpm`` or ``rotor_speed_rad_s`` (rotor no-load speed, ≥ 0),
+  ``gimbal_rate_rad_s`` or ``gimbal_rate_deg_s``, ``gimbal_angle_rad`` or ``gimbal_angle_deg``.
+
+Every malformed row raises :class:`InputFormatError` naming file, line and column.
+"""
+
+from __future__ import annotations
+
+import csv
+import enum
+import io
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from protocol.errors import InputFormatError
+from protocol.messages import PULSE_MAX_US, PULSE_MIN_US
+
+MAX_BATTERY_V = 60.0
+
+
+class BenchKind(enum.Enum):
+    """Which map a bench CSV calibrates."""
+
+    ROTOR = "rotor"
+    GIMBAL_RATE = "gimbal_rate"
+    GIMBAL_ANGLE = "gimbal_angle"
+
+
+MEASUREMENTS: dict[str, tuple[BenchKind, float]] = {
+    "rpm": (BenchKind.ROTOR, math.pi / 30.0),
+    "rotor_speed_rad_s": (BenchKind.ROTOR, 1.0),
+    "gimbal_rate_rad_s": (BenchKind.GIMBAL_RATE, 1.0),
+    "gimbal_rate_deg_s": (BenchKind.GIMBAL_RATE, math.pi / 180.0),
+    "gimbal_angle_rad": (BenchKind.GIMBAL_ANGLE, 1.0),
+    "gimbal_angle_deg": (BenchKind.GIMBAL_ANGLE, math.pi / 180.0),
+}
+"""Measurement column → (kind, factor to SI: rad/s or rad)."""
+
+
+@dataclass(frozen=True)
+class BenchData:
+    """One bench CSV, in SI units. Arrays of shape (n,): ``pulse_us`` µs, ``battery_v`` V (NaN where the
+    file has no battery column), ``value`` rad/s (rotor speed, gimbal rate) or rad (gimbal angle);
+    ``lines`` the 1-based line of each row in the file, so errors can name it."""
+
+    kind: BenchKind
+    path: str
+    column: str
+    pulse_us: np.ndarray
+    battery_v: np.ndarray
+    value: np.ndarray
+    lines: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pulse_us)
+
+    def where(self, i: int) -> str:
+        """``path:line`` of row ``i``."""
+        return f"{self.path}:{int(self.lines[i])}"
+
+    def rows(self, indices: np.ndarray | list[int]) -> str:
+        """The file lines of ``indices`` for a message, e.g. ``lines 12, 13, 40``."""
+        lines = sorted(int(self.lines[i]) for i in indices)
+        shown = ", ".join(str(n) for n in lines[:8])
+        return f"line{'s' if len(lines) > 1 else ''} {shown}{', ...' if len(lines) > 8 else ''}"
+
+
+def read_bench_csv(path: str | os.PathLike[str]) -> BenchData:
+    """Read and check a bench CSV (see the module docstring)."""
+    p = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise InputFormatError("no such file", p) from exc
+    except UnicodeDecodeError as exc:
+        raise InputFormatError(f"not UTF-8 text ({exc.reason} at byte {exc.start})", p) from exc
+    except OSError as exc:
+        raise InputFormatError(f"cannot read: {exc.strerror or exc}", p) from exc
+    return parse_bench_csv(text, p)
+
+
+def parse_bench_csv(text: str, path: str = "<bench csv>") -> BenchData:
+    """Parse bench CSV ``text``; ``path`` is used in error messages."""
+    header: list[str] | None = None
+    header_line = 0
+    rows: list[tuple[int, list[str]]] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        try:
+            cells = [c.strip() for c in next(csv.reader(io.StringIO(stripped)))]
+        except csv.Error as exc:
+            raise InputFormatError(f"not CSV: {exc}", path, lineno) from exc
+        if header is None:
+            header, header_line = cells, lineno
+        else:
+            rows.append((lineno, cells))
+    if header is None:
+        raise InputFormatError("no header line (an empty file?)", path)
+    column, kind, factor = _measurement_column(header, path, header_line)
+    if len(set(header)) != len(header):
+        dupes = sorted({h for h in header if header.count(h) > 1})
+        raise InputFormatError(f"duplicate column names {dupes}", path, header_line)
+    if "pulse_us" not in header:
+        raise InputFormatError(f"no 'pulse_us' column in the header {header}", path, header_line)
+    has_battery = "battery_v" in header
+    if kind is BenchKind.ROTOR and not has_battery:
+        raise InputFormatError(
+            "rotor data needs a 'battery_v' column (speed depends on it)", path, header_line
+        )
+    if not rows:
+        raise InputFormatError("no data rows after the header", path, header_line)
+    i_pulse, i_value = header.index("pulse_us"), header.index(column)
+    i_battery = header.index("battery_v") if has_battery else None
+    n = len(rows)
+    pulse, battery, value, lines = np.empty(n), np.full(n, np.nan), np.empty(n), np.empty(n, dtype=np.int64)
+    for r, (lineno, cells) in enumerate(rows):
+        if len(cells) != len(header):
+            raise InputFormatError(f"{len(cells)} fields, the header has {len(header)}", path, lineno)
+        lines[r] = lineno
+        pulse[r] = _number(cells[i_pulse], path, lineno, "pulse_us", PULSE_MIN_US, PULSE_MAX_US)
+        if i_battery is not None:
+            battery[r] = _number(
+                cells[i_battery], path, lineno, "battery_v", 0.0, MAX_BATTERY_V, open_low=True
+            )
+        low = 0.0 if kind is BenchKind.ROTOR else -math.inf
+        value[r] = factor * _number(cells[i_value], path, lineno, column, low, math.inf)
+    return BenchData(kind, path, column, pulse, battery, value, lines)
+
+
+def _measurement_column(header: list[str], path: str, line: int) -> tuple[str, BenchKind, float]:
+    found = [h for h in header if h in MEASUREMENTS]
+    if len(found) != 1:
+        raise InputFormatError(
+            f"need exactly one measurement column of {sorted(MEASUREMENTS)}, found {found or 'none'}",
+            path,
+            line,
+        )
+    kind, factor = MEASUREMENTS[found[0]]
+    return found[0], kind, factor
+
+
+def _number(
+    cell: str, path: str, line: int, column: str, lo: float, hi: float, open_low: bool = False
+) -> float:
+    try:
+        x = float(cell)
+    except ValueError:
+        raise InputFormatError(f"{cell!r} is not a number", path, line, column) from None
+    if not math.isfinite(x):
+        raise InputFormatError(f"{cell!r} is not a finite number", path, line, column)
+    if x < lo or (open_low and x == lo) or x > hi:
+        rng = f"{'above' if open_low else 'at least'} {lo:g}" if math.isinf(hi) else f"{lo:g}..{hi:g}"
+        raise InputFormatError(f"{cell} is out of range (must be {rng})", path, line, column)
+    return x
+
+
+def write_bench_csv(
+    path: str | os.PathLike[str], columns: list[str], rows: list[tuple[str, ...]], comments: list[str]
+) -> Path:
+    """Write a bench CSV: ``# comment`` lines, the header, then the already formatted rows."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    lines = [f"# {c}" for c in comments] + [",".join(columns)] + [",".join(r) for r in rows]
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    os.replace(tmp, out)
+    return out

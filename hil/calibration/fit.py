@@ -1,0 +1,364 @@
+"""Fitting calibration maps to bench data: monotone cubic tables by least squares, then validation.
+
+Each map is parametrised so that it is monotone by construction: knot values are a start value plus
+non-negative increments (at least ``1e-4`` of the measured range each), so the table through them is
+strictly monotone and PCHIP keeps it so between knots. ``scipy.optimize.least_squares`` fits the
+parameters to every sample, evaluating the table with ``scipy.interpolate.PchipInterpolator`` (the same
+interpolant the stored slopes describe). The rotor fit also finds where the ESC's deadband ends, the
+gimbal-rate fit the edges of the servo's dead zone.
+
+Validation, each failure a :class:`CalibrationError` naming the file (and lines where rows are at fault):
+enough points; the pulse range covers the map (the ESC endpoints, both gimbal directions); endpoints sane
+(the rotor is stopped at the ESC's low endpoint, the deadband is less than 30 % of the span); every
+interval between knots has data; and the data follows a monotone curve: no row lies further from the
+fit than ``max(8 σ, 3 % of the range)``, σ the robust (MAD) noise estimate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+from scipy.optimize import least_squares
+
+from protocol.calibration import EscThrottleMap, GimbalAngleMap, GimbalRateMap, MonotoneCubic, RotorSpeedMap
+from protocol.calibration.checks import within
+from protocol.errors import CalibrationError, ConvergenceError
+
+from .bench import BenchData, BenchKind
+
+MIN_POINTS = 20
+MIN_INCREMENT = 1e-4  # of the measured range, per knot interval
+OUTLIER_SIGMAS = 8.0
+OUTLIER_FRACTION_OF_RANGE = 0.03
+STOPPED_FRACTION = 0.03  # a rotor below 3 % of its top speed (or gimbal below 3 % of its top rate) is still
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Fitting choices. ESC endpoints are those the ESC was calibrated to (its high/low procedure)."""
+
+    esc_low_us: float = 1000.0
+    esc_high_us: float = 2000.0
+    rotor_knots: int = 9
+    gimbal_rate_knots_per_side: int = 6
+    gimbal_angle_knots: int = 9
+
+    def __post_init__(self) -> None:
+        if not 3 <= self.rotor_knots <= 16:
+            raise CalibrationError(f"{self.rotor_knots}; need 3..16", "FitOptions.rotor_knots")
+        if not 3 <= self.gimbal_rate_knots_per_side <= 8:
+            raise CalibrationError(
+                f"{self.gimbal_rate_knots_per_side}; need 3..8", "FitOptions.gimbal_rate_knots_per_side"
+            )
+        if not 3 <= self.gimbal_angle_knots <= 16:
+            raise CalibrationError(f"{self.gimbal_angle_knots}; need 3..16", "FitOptions.gimbal_angle_knots")
+        with within("FitOptions"):
+            EscThrottleMap(self.esc_low_us, self.esc_high_us, 0.0)
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """How well a map fits its data. ``residuals`` (n,) = measured − fitted, in ``unit`` (rad/s or rad)."""
+
+    kind: BenchKind
+    source: str
+    unit: str
+    residuals: np.ndarray
+    lines: np.ndarray
+    knots: int
+    battery_v: tuple[float, float] | None = None
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def points(self) -> int:
+        return len(self.residuals)
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.residuals**2)))
+
+    @property
+    def max_abs(self) -> float:
+        return float(np.max(np.abs(self.residuals)))
+
+    @property
+    def worst_line(self) -> int:
+        return int(self.lines[int(np.argmax(np.abs(self.residuals)))])
+
+    def summary(self) -> str:
+        v = f", battery {self.battery_v[0]:.2f}-{self.battery_v[1]:.2f} V" if self.battery_v else ""
+        return (
+            f"{self.kind.value:<12} {self.points:4d} points, {self.knots:2d} knots: residual rms"
+            f" {self.rms:.4g} {self.unit}, max {self.max_abs:.4g} {self.unit} (line {self.worst_line}){v}"
+        )
+
+
+@dataclass(frozen=True)
+class Fit:
+    """A fitted map (``RotorSpeedMap``, ``GimbalRateMap`` or ``GimbalAngleMap``) and its report."""
+
+    map: RotorSpeedMap | GimbalRateMap | GimbalAngleMap
+    report: FitReport
+
+
+def fit_bench(data: BenchData, options: FitOptions | None = None) -> Fit:
+    """Fit the map ``data`` measures (by its kind)."""
+    opts = options or FitOptions()
+    if data.kind is BenchKind.ROTOR:
+        return fit_rotor(data, opts)
+    if data.kind is BenchKind.GIMBAL_RATE:
+        return fit_gimbal_rate(data, opts)
+    return fit_gimbal_angle(data, opts)
+
+
+# =========================================================================== rotor
+def fit_rotor(data: BenchData, opts: FitOptions) -> Fit:
+    """ESC deadband, KV and the throttle curve f from (pulse, battery V, speed) samples."""
+    p, v, w = data.pulse_us, data.battery_v, data.value
+    n_knots = opts.rotor_knots
+    low, high = opts.esc_low_us, opts.esc_high_us
+    span = high - low
+    _require_points(data, max(MIN_POINTS, 3 * n_knots))
+    if p.min() > low + 0.02 * span or p.max() < high - 0.02 * span:
+        raise CalibrationError(
+            f"pulses {p.min():g}-{p.max():g} µs do not cover the ESC endpoints {low:g}-{high:g} µs"
+            " (sweep from the low to the high endpoint)",
+            data.path,
+        )
+    z = w / v  # rad/s per volt
+    z_top = float(z.max())
+    if z_top <= 0.0:
+        raise CalibrationError("the rotor never turned (all speeds are 0)", data.path)
+    stopped = z <= STOPPED_FRACTION * z_top
+    turning_at_low = np.nonzero((p <= low) & ~stopped)[0]
+    if turning_at_low.size:
+        raise CalibrationError(
+            f"the rotor turns at or below the low endpoint {low:g} µs ({data.rows(turning_at_low)}):"
+            " the ESC is not calibrated to that endpoint (recalibrate it, or give its real low endpoint)",
+            data.path,
+        )
+    p_run = float(p[~stopped].min())
+    below = p[stopped & (p < p_run)]
+    start0 = 0.5 * (float(below.max()) + p_run) if below.size else p_run
+    start_max = low + 0.3 * span
+    if start0 > start_max:
+        raise CalibrationError(
+            f"the rotor only starts at {p_run:g} µs: a deadband over 30 % of the endpoint span is not an ESC"
+            " calibrated to these endpoints",
+            data.path,
+        )
+    taus = np.linspace(0.0, 1.0, n_knots)
+    eps = MIN_INCREMENT * z_top
+
+    def knots(theta: np.ndarray) -> tuple[float, np.ndarray]:
+        return float(theta[0]), np.concatenate(([0.0], np.cumsum(theta[1:])))
+
+    def throttle(start: float) -> np.ndarray:
+        return np.clip((p - start) / (high - start), 0.0, 1.0)
+
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        start, g = knots(theta)
+        return v * PchipInterpolator(taus, g)(throttle(start)) - w
+
+    g0 = _monotone_guess(throttle(start0), z, taus, eps, first=0.0)
+    theta0 = np.concatenate(([start0], np.diff(g0)))
+    lb = np.concatenate(([low], np.full(n_knots - 1, eps)))
+    ub = np.concatenate(([start_max], np.full(n_knots - 1, np.inf)))
+    theta = _least_squares(residuals, theta0, lb, ub, data.path)
+    start, g = knots(theta)
+    _require_coverage(data, throttle(start), taus, ~stopped | (p > start), "throttle")
+    kv = float(g[-1])
+    with within(data.path):
+        rotor = RotorSpeedMap(EscThrottleMap(low, high, start - low), kv, MonotoneCubic.pchip(taus, g / kv))
+    fitted = np.array([rotor.speed(pi, vi).value for pi, vi in zip(p, v, strict=True)])
+    report = _report(data, fitted, "rad/s", kv * float(v.max()), n_knots)
+    return Fit(rotor, report)
+
+
+# =========================================================================== gimbal rate
+def fit_gimbal_rate(data: BenchData, opts: FitOptions) -> Fit:
+    """Dead zone edges and the rate table each side of it from (pulse, rate) samples."""
+    p = data.pulse_us
+    n = opts.gimbal_rate_knots_per_side
+    _require_points(data, max(MIN_POINTS, 4 * n))
+    p_min, p_max = float(p.min()), float(p.max())
+    reach = p_max - p_min
+    if reach < 200.0:
+        raise CalibrationError(f"pulses only span {reach:g} µs; sweep the servo's whole range", data.path)
+    s = _direction(p, data.value)
+    r = s * data.value  # rising in pulse
+    r_top = float(np.abs(r).max())
+    moving = np.abs(r) > STOPPED_FRACTION * r_top
+    neg, pos = moving & (r < 0), moving & (r > 0)
+    if neg.sum() < 3 or pos.sum() < 3:
+        raise CalibrationError(
+            f"{int(neg.sum())} samples turning one way and {int(pos.sum())} the other: need 3+ each way",
+            data.path,
+        )
+    still = ~moving
+    center = float(np.median(p[still])) if still.any() else 0.5 * (float(p[neg].max()) + float(p[pos].min()))
+    last_neg = float(p[neg & (p < center)].max(initial=p_min))
+    first_pos = float(p[pos & (p > center)].min(initial=p_max))
+    still_band = p[still & (p > last_neg) & (p < first_pos)]
+    if still_band.size:
+        e_lo0 = 0.5 * (last_neg + float(still_band.min()))
+        e_hi0 = 0.5 * (float(still_band.max()) + first_pos)
+    else:
+        e_lo0 = e_hi0 = 0.5 * (last_neg + first_pos)
+    margin = 0.05 * reach
+    lo_bounds = (p_min + margin, p_min + 0.6 * reach)
+    w_bounds = (0.5, 0.3 * reach)
+    e_lo0 = float(np.clip(e_lo0, *lo_bounds))
+    width0 = float(np.clip(e_hi0 - e_lo0, w_bounds[0] * 1.01, w_bounds[1] * 0.99))
+    eps = MIN_INCREMENT * r_top
+
+    def sides(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Knots (x, y) below and above the dead zone [theta[0], theta[0] + theta[1]]."""
+        e_lo, e_hi = float(theta[0]), float(theta[0] + theta[1])
+        lower_y = np.concatenate((-np.cumsum(theta[2 : n + 1][::-1])[::-1], [0.0]))
+        upper_y = np.concatenate(([0.0], np.cumsum(theta[n + 1 :])))
+        return np.linspace(p_min, e_lo, n), lower_y, np.linspace(e_hi, p_max, n), upper_y
+
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        lx, ly, ux, uy = sides(theta)
+        out = np.zeros_like(p)
+        below, above = p < lx[-1], p > ux[0]
+        out[below] = PchipInterpolator(lx, ly)(p[below])
+        out[above] = PchipInterpolator(ux, uy)(p[above])
+        return out - r
+
+    lower0 = _monotone_guess(p, r, np.linspace(p_min, e_lo0, n), eps, last=0.0)
+    upper0 = _monotone_guess(p, r, np.linspace(e_lo0 + width0, p_max, n), eps, first=0.0)
+    theta0 = np.concatenate(([e_lo0, width0], np.diff(lower0), np.diff(upper0)))
+    lb = np.concatenate(([lo_bounds[0], w_bounds[0]], np.full(2 * (n - 1), eps)))
+    ub = np.concatenate(([lo_bounds[1], w_bounds[1]], np.full(2 * (n - 1), np.inf)))
+    theta = _least_squares(residuals, theta0, lb, ub, data.path)
+    lx, ly, ux, uy = sides(theta)
+    _require_coverage(data, p, lx, p <= lx[-1], "pulse")
+    _require_coverage(data, p, ux, p >= ux[0], "pulse")
+    with within(data.path):
+        rate = GimbalRateMap(
+            0.5 * (lx[-1] + ux[0]), MonotoneCubic.pchip(lx, s * ly), MonotoneCubic.pchip(ux, s * uy)
+        )
+    fitted = np.array([rate.rate(pi).value for pi in p])
+    return Fit(rate, _report(data, fitted, "rad/s", r_top, 2 * n))
+
+
+# =========================================================================== gimbal angle
+def fit_gimbal_angle(data: BenchData, opts: FitOptions) -> Fit:
+    """The angle table from (pulse, angle) samples."""
+    p = data.pulse_us
+    n = opts.gimbal_angle_knots
+    _require_points(data, max(MIN_POINTS, 2 * n))
+    p_min, p_max = float(p.min()), float(p.max())
+    if p_max - p_min < 200.0:
+        raise CalibrationError(f"pulses only span {p_max - p_min:g} µs; sweep the servo's range", data.path)
+    s = _direction(p, data.value)
+    a = s * data.value
+    a_span = float(a.max() - a.min())
+    if a_span <= 0.0:
+        raise CalibrationError("the angle never changes", data.path)
+    xs = np.linspace(p_min, p_max, n)
+    eps = MIN_INCREMENT * a_span
+
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        return PchipInterpolator(xs, theta[0] + np.concatenate(([0.0], np.cumsum(theta[1:]))))(p) - a
+
+    y0 = _monotone_guess(p, a, xs, eps)
+    theta0 = np.concatenate(([y0[0]], np.diff(y0)))
+    lb = np.concatenate(([-np.inf], np.full(n - 1, eps)))
+    theta = _least_squares(residuals, theta0, lb, np.full(n, np.inf), data.path)
+    ys = theta[0] + np.concatenate(([0.0], np.cumsum(theta[1:])))
+    _require_coverage(data, p, xs, np.ones(len(p), dtype=bool), "pulse")
+    with within(data.path):
+        angle = GimbalAngleMap(MonotoneCubic.pchip(xs, s * ys))
+    fitted = np.array([angle.angle(pi).value for pi in p])
+    return Fit(angle, _report(data, fitted, "rad", a_span, n))
+
+
+# =========================================================================== shared steps
+def _require_points(data: BenchData, need: int) -> None:
+    if len(data) < need:
+        raise CalibrationError(f"{len(data)} data rows; this fit needs at least {need}", data.path)
+
+
+def _direction(p: np.ndarray, y: np.ndarray) -> float:
+    """+1 if ``y`` grows with pulse (compare the top and bottom thirds of the pulses), else -1."""
+    order = np.argsort(p, kind="stable")
+    third = max(1, len(p) // 3)
+    return 1.0 if y[order[-third:]].mean() >= y[order[:third]].mean() else -1.0
+
+
+def _monotone_guess(
+    x: np.ndarray,
+    y: np.ndarray,
+    knots_x: np.ndarray,
+    eps: float,
+    first: float | None = None,
+    last: float | None = None,
+) -> np.ndarray:
+    """Increasing start values at ``knots_x``: the median of ``y`` near each knot, made monotone with at
+    least ``eps`` per step, with the first (or last) value pinned if given."""
+    half = 0.5 * float(np.min(np.diff(knots_x)))
+    order = np.argsort(x)
+    values = np.empty(len(knots_x))
+    for j, k in enumerate(knots_x):
+        near = np.abs(x - k) <= half
+        values[j] = np.median(y[near]) if near.any() else np.interp(k, x[order], y[order])
+    if last is not None:
+        values[-1] = last
+        for j in range(len(values) - 2, -1, -1):
+            values[j] = min(values[j], values[j + 1] - eps)
+        return values
+    if first is not None:
+        values[0] = first
+    for j in range(1, len(values)):
+        values[j] = max(values[j], values[j - 1] + eps)
+    return values
+
+
+def _least_squares(fun: Callable[[np.ndarray], np.ndarray], theta0, lb, ub, path: str) -> np.ndarray:
+    theta0 = np.clip(theta0, lb, ub)
+    result = least_squares(fun, theta0, bounds=(lb, ub), x_scale="jac", max_nfev=2000)
+    if result.status <= 0:
+        raise ConvergenceError(f"{path}: the fit did not converge ({result.message})")
+    return np.asarray(result.x)
+
+
+def _require_coverage(
+    data: BenchData, x: np.ndarray, knots_x: np.ndarray, mask: np.ndarray, axis: str
+) -> None:
+    """Every interval between consecutive knots must hold at least one (masked) sample."""
+    xm = x[mask]
+    for a, b in zip(knots_x[:-1], knots_x[1:], strict=True):
+        if not np.any((xm >= a) & (xm <= b)):
+            raise CalibrationError(
+                f"no samples between {axis} {a:.4g} and {b:.4g}: the sweep has a gap (or use fewer knots)",
+                data.path,
+            )
+
+
+def _report(data: BenchData, fitted: np.ndarray, unit: str, scale: float, knots: int) -> FitReport:
+    """The fit's residuals; :class:`CalibrationError` naming the rows if the data is not a monotone curve."""
+    resid = data.value - fitted
+    sigma = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+    limit = max(OUTLIER_SIGMAS * sigma, OUTLIER_FRACTION_OF_RANGE * scale)
+    off = np.nonzero(np.abs(resid) > limit)[0]
+    if off.size:
+        off = off[np.argsort(-np.abs(resid[off]))]
+        raise CalibrationError(
+            f"{data.rows(off)} lie up to {float(np.abs(resid[off]).max()):.4g} {unit} off the best"
+            f" monotone fit (noise ~{sigma:.3g} {unit}, limit {limit:.3g}): the data is not monotone in"
+            " pulse, or has outliers",
+            data.path,
+        )
+    battery = data.battery_v[np.isfinite(data.battery_v)]
+    vrange = (
+        (float(battery.min()), float(battery.max()))
+        if battery.size and data.kind is BenchKind.ROTOR
+        else None
+    )
+    return FitReport(data.kind, data.path, unit, resid, data.lines, knots, vrange)
