@@ -48,7 +48,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.prefilter import PAPER_CUTOFF_RAD_S, Prefilter, filter_batch
+from hil.prefilter import PAPER_CUTOFF_RAD_S, SignalPrefilter
 from hil.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
 from hil.so3 import Mat9, Vec3, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f, solve3_f
 from protocol.errors import ConfigError, ConvergenceError
@@ -802,23 +802,81 @@ PAPER_PREFILTER: dict[SensorKind, float | None] = {k: PAPER_CUTOFF_RAD_S for k i
 
 @dataclass(frozen=True)
 class FilterConfig:
-    """The estimator as it runs on a phone's merged steps.
+    """The estimator as it runs on a phone's merged steps: what happens to the measurements first.
 
-    ``prefilter_rad_s``: pre-filter cut-off per sensor (rad/s), None for no pre-filter on that sensor.
-    ``init``: the initial attitude estimate — ``"measured"`` (Wahba's solution from the first step with
-    both directions, the natural choice for a log), ``"identity"``, or a (3, 3) body → inertial matrix.
-    ``omega_err0`` (3,) rad/s: the initial rate-estimate error.
+    ``prefilter_rad_s``: pre-filter cut-off per sensor (rad/s), None for none; ``prefilter_frame``
+    ``"body"`` (the paper) or ``"strapdown"`` (see :class:`hil.prefilter.SignalPrefilter`).
+    ``gyro_bias`` (3,) rad/s: subtracted from every gyro sample first (e.g. measured over a still window).
+    ``magnetometer``: ``"full"`` uses the field direction as measured (the paper; E's e2 is the full field
+    direction); ``"horizontal"`` uses its component perpendicular to the measured gravity direction, so that
+    the magnetometer informs heading only (E's e2 must then be horizontal, e.g. magnetic north).
+    ``init``: initial attitude — ``"measured"`` (Wahba's solution from the first step with both directions),
+    ``"identity"``, or a (3, 3) body → inertial matrix; ``omega_err0`` (3,) rad/s the initial ω.
     """
 
     params: EstimatorParams = field(default_factory=EstimatorParams)
     prefilter_rad_s: dict[SensorKind, float | None] = field(default_factory=lambda: dict(PAPER_PREFILTER))
+    prefilter_frame: Literal["body", "strapdown"] = "body"
+    gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    magnetometer: Literal["full", "horizontal"] = "full"
     init: Literal["measured", "identity"] | ArrayLike = "measured"
     omega_err0: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
+    def __post_init__(self) -> None:
+        if self.magnetometer not in ("full", "horizontal"):
+            raise ConfigError(
+                f"must be 'full' or 'horizontal', got {self.magnetometer!r}", "FilterConfig.magnetometer"
+            )
+        if self.magnetometer == "horizontal" and abs(float(self.params.E[2, 1])) > 1e-9:
+            raise ConfigError(
+                "a horizontal magnetometer needs a horizontal e2 (E[2, 1] = 0)", "FilterConfig.params.E"
+            )
+        if as_vec3(self.gyro_bias) is None:
+            raise ConfigError(f"must be a finite 3-vector, got {self.gyro_bias!r}", "FilterConfig.gyro_bias")
+        if isinstance(self.init, str) and self.init not in ("measured", "identity"):
+            raise ConfigError(f"must be 'measured', 'identity' or a 3x3 matrix, got {self.init!r}", "init")
+
+    @classmethod
+    def paper(cls, E: ArrayLike | None = None, **overrides: object) -> FilterConfig:
+        """Exactly the paper: its W, m, D, Φ(x) = x, the 1 rad/s body-frame pre-filter on all three
+        signals, the full field direction; ``E`` defaults to the paper's (its site's field)."""
+        params = EstimatorParams() if E is None else EstimatorParams(E=np.asarray(E, dtype=float))
+        return cls(params=params, **overrides)  # type: ignore[arg-type]
+
+    @classmethod
+    def tuned(cls, declination_deg: float = 0.0, **overrides: object) -> FilterConfig:
+        """The paper's estimator with the gains and measurement handling tuned on real phone/IMU logs
+        (see docs/estimator.md, "Tuning"): :data:`TUNED`; E is magnetic north (or true north given the
+        declination) with a horizontal magnetometer, so only the field's direction in the horizontal
+        plane matters and no inclination is needed."""
+        from hil.inertial import directions_from_dip
+
+        params = EstimatorParams(E=directions_from_dip(0.0, declination_deg), W=np.diag(TUNED["W_diag"]),
+                                 m=TUNED["m"], D=np.diag(TUNED["D_diag"]))  # fmt: skip
+        cut = {SensorKind.ACC: TUNED["acc_cutoff"], SensorKind.MAG: TUNED["mag_cutoff"], SensorKind.GYR: None}
+        base = {
+            "params": params,
+            "prefilter_rad_s": cut,
+            "prefilter_frame": "strapdown",
+            "magnetometer": "horizontal",
+        }
+        return cls(**{**base, **overrides})  # type: ignore[arg-type]
+
+
+TUNED: dict = {
+    "W_diag": (3.0, 1.0, 0.5),
+    "m": 0.5,
+    "D_diag": (12.0, 13.0, 14.0),
+    "acc_cutoff": 0.3,
+    "mag_cutoff": None,
+}
+"""Tuned settings (placeholder values until the grid search in bench/tune_estimator.py sets them)."""
+
 
 class AttitudeFilter:
-    """Pre-filter then estimator over merged steps: :meth:`step` live (one :class:`MergedStep`),
-    :meth:`run` in batch (:class:`MergedSteps`); both give the same numbers.
+    """Gyro bias removal, pre-filter, magnetometer handling, then the estimator, over merged steps:
+    :meth:`step` live (one :class:`MergedStep`), :meth:`run` in batch (:class:`MergedSteps`); both give
+    the same numbers (to rounding).
 
     With ``init="measured"`` the estimator (re)starts at the first step where both directions are usable,
     from Wahba's solution for that step's (pre-filtered) measurement; steps before it run from identity.
@@ -826,57 +884,71 @@ class AttitudeFilter:
 
     def __init__(self, config: FilterConfig | None = None) -> None:
         self.config = config or FilterConfig()
-        self._cutoffs = {k: self.config.prefilter_rad_s.get(k) for k in KINDS}
-        self._prefilters = {k: Prefilter(c) for k, c in self._cutoffs.items() if c is not None}
+        self.prefilter = SignalPrefilter(self.config.prefilter_rad_s, self.config.prefilter_frame)
         init = self.config.init
         r0 = None if isinstance(init, str) else init
         self._awaiting_measurement = isinstance(init, str) and init == "measured"
         self.estimator = VariationalEstimator(self.config.params, r0, self.config.omega_err0)
+        self._bias = self.config.gyro_bias
 
     def step(self, s: MergedStep) -> Estimate:
         """One merged step (live path)."""
-        values = {}
-        for kind in KINDS:
-            v = s.value(kind)
-            pre = self._prefilters.get(kind)
-            if pre is not None:
-                out = pre.update(s.h, v if v is not None else _NAN3, v is not None)
-                v = None if v is None else (out[0], out[1], out[2])
-            values[kind] = v
-        acc, mag = values[SensorKind.ACC], values[SensorKind.MAG]
+        g = s.gyr
+        if g is not None:
+            b = self._bias
+            g = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
+        g, acc, mag = self.prefilter.step(s.h, g, s.acc, s.mag)
+        if self.config.magnetometer == "horizontal":
+            mag = _horizontal_f(acc, mag)
         if self._awaiting_measurement and _both_usable(acc, mag, self.estimator.params):
             self._awaiting_measurement = False
             self.estimator.reset(wahba(self.config.params, acc, mag), self.config.omega_err0)  # type: ignore[arg-type]
-        out = self.estimator.update(s.h, values[SensorKind.GYR], acc, mag)
+        out = self.estimator.update(s.h, g, acc, mag)
         return Estimate(s.t, out.R, out.omega, out.omega_err, out.flags | s.flags, out.iterations)
 
-    def run(self, steps: MergedSteps) -> EstimateBatch:
-        """All merged steps (batch path)."""
-        h = steps.h
-        filtered = {}
-        for kind in KINDS:
-            v = np.where(steps.valid(kind)[:, None], steps.value(kind), np.nan)
-            cutoff = self._cutoffs[kind]
-            filtered[kind] = v if cutoff is None else filter_batch(h, v, cutoff)
-        filtered_steps = MergedSteps(
-            steps.t, filtered[SensorKind.GYR], filtered[SensorKind.ACC], filtered[SensorKind.MAG],
-            steps.age, steps.fresh, steps.flags,
-        )  # fmt: skip
-        if not self._awaiting_measurement:
-            return self.estimator.update_batch(filtered_steps)
-        both = _both_usable_rows(filtered[SensorKind.ACC], filtered[SensorKind.MAG], self.estimator.params)
-        if not both.any():
-            return self.estimator.update_batch(filtered_steps)
-        i0 = int(np.argmax(both))
-        self._awaiting_measurement = False
-        head = self.estimator.update_batch(_rows(filtered_steps, 0, i0))
-        r0 = wahba(self.config.params, filtered[SensorKind.ACC][i0], filtered[SensorKind.MAG][i0])
-        self.estimator.reset(r0, self.config.omega_err0)
-        tail = self.estimator.update_batch(_rows(filtered_steps, i0, len(steps)))
-        return _concat(head, tail)
+    def run(
+        self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None, chunk: int = 50_000
+    ) -> EstimateBatch:
+        """All merged steps (batch path). ``progress(done, total)`` is called every ``chunk`` steps."""
+        biased = MergedSteps(steps.t, steps.gyr - np.asarray(self._bias), steps.acc, steps.mag,
+                             steps.age, steps.fresh, steps.flags)  # fmt: skip
+        f = self.prefilter.run(biased)
+        mag = _horizontal_rows(f.acc, f.mag) if self.config.magnetometer == "horizontal" else f.mag
+        filtered = MergedSteps(f.t, f.gyr, f.acc, mag, f.age, f.fresh, f.flags)
+        start = 0
+        if self._awaiting_measurement:
+            both = _both_usable_rows(filtered.acc, filtered.mag, self.estimator.params)
+            start = int(np.argmax(both)) if both.any() else len(steps)
+        parts = []
+        bounds = sorted({0, start, len(steps), *range(chunk, len(steps), chunk)})
+        for i, j in zip(bounds[:-1], bounds[1:], strict=True):
+            if i == start and self._awaiting_measurement:
+                self._awaiting_measurement = False
+                r0 = wahba(self.config.params, filtered.acc[i], filtered.mag[i])
+                self.estimator.reset(r0, self.config.omega_err0)
+            parts.append(self.estimator.update_batch(_rows(filtered, i, j)))
+            if progress is not None:
+                progress(j, len(steps))
+        if not parts:
+            return self.estimator.update_batch(filtered)
+        return _concat(parts)
 
 
-_NAN3 = (math.nan, math.nan, math.nan)
+def _horizontal_f(acc: Vec3 | None, mag: Vec3 | None) -> Vec3 | None:
+    """The part of ``mag`` perpendicular to ``acc`` (None if either is missing)."""
+    if acc is None or mag is None:
+        return None
+    n2 = acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]
+    if not n2 > 0.0:
+        return None
+    k = (mag[0] * acc[0] + mag[1] * acc[1] + mag[2] * acc[2]) / n2
+    return (mag[0] - k * acc[0], mag[1] - k * acc[1], mag[2] - k * acc[2])
+
+
+def _horizontal_rows(acc: Array, mag: Array) -> Array:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.sum(mag * acc, axis=1) / np.sum(acc * acc, axis=1)
+    return mag - k[:, None] * acc
 
 
 def _both_usable(acc: Vec3 | None, mag: Vec3 | None, p: EstimatorParams) -> bool:
@@ -898,10 +970,6 @@ def _rows(s: MergedSteps, i: int, j: int) -> MergedSteps:
     return MergedSteps(s.t[i:j], s.gyr[i:j], s.acc[i:j], s.mag[i:j], s.age[i:j], s.fresh[i:j], s.flags[i:j])
 
 
-def _concat(a: EstimateBatch, b: EstimateBatch) -> EstimateBatch:
-    return EstimateBatch(
-        *(np.concatenate([x, y]) for x, y in zip(
-            (a.t, a.R, a.omega, a.omega_err, a.flags, a.iterations),
-            (b.t, b.R, b.omega, b.omega_err, b.flags, b.iterations), strict=True,
-        ))
-    )  # fmt: skip
+def _concat(parts: list[EstimateBatch]) -> EstimateBatch:
+    fields = ("t", "R", "omega", "omega_err", "flags", "iterations")
+    return EstimateBatch(*(np.concatenate([getattr(p, f) for p in parts]) for f in fields))

@@ -124,3 +124,58 @@ def settling_time(t: ArrayLike, error: ArrayLike, bound: float) -> float:
     if above[-1] == len(t) - 1:
         return float("inf")
     return float(t[above[-1] + 1])
+
+
+def truth_rates(t: ArrayLike, r: ArrayLike) -> tuple[Array, Array]:
+    """Body rates (rad/s) implied by a truth attitude series (N, 3, 3), at the N−1 midpoints:
+    ``log(R_kᵀ R_{k+1}) / Δt``; pairs with a NaN frame (occlusion) give NaN."""
+    t, r = np.asarray(t, float), np.asarray(r, float)
+    mid = 0.5 * (t[1:] + t[:-1])
+    rel = np.einsum("nji,njk->nik", r[:-1], r[1:])
+    omega = np.full((len(mid), 3), np.nan)
+    for i in np.flatnonzero(np.all(np.isfinite(rel.reshape(len(mid), 9)), axis=1)):
+        omega[i] = so3.log(rel[i]) / (t[i + 1] - t[i])
+    return mid, omega
+
+
+@dataclass(frozen=True)
+class TruthComparison:
+    """Estimates against ground truth, at the truth's timestamps ``t``: attitude ``errors`` (deg), the
+    benchmark's ``mask`` (evaluated, finite), their ``rmse``; and the rate error ``Ω − Ω̂`` (rad/s) at the
+    truth's midpoints ``rate_t`` with its RMS norm ``rate_rmse`` (rad/s)."""
+
+    t: Array
+    errors: AttitudeErrors
+    mask: NDArray[np.bool_]
+    rmse: Rmse
+    rate_t: Array
+    rate_error: Array
+    rate_rmse: float
+
+
+def compare_to_truth(
+    truth_t: ArrayLike,
+    truth_r: ArrayLike,
+    evaluate: ArrayLike,
+    t_est: ArrayLike,
+    q_est: ArrayLike,
+    omega_est: ArrayLike | None = None,
+) -> TruthComparison:
+    """Interpolate estimates (quaternions (N, 4) body → ENU, optional rates (N, 3)) at times ``t_est`` to
+    the truth (times (M,), rotations (M, 3, 3), NaN frames allowed) and score them."""
+    truth_t, truth_r = np.asarray(truth_t, float), np.asarray(truth_r, float)
+    t_est = np.asarray(t_est, float)
+    finite = np.all(np.isfinite(truth_r.reshape(len(truth_t), 9)), axis=1)
+    q_ref = np.full((len(truth_t), 4), np.nan)
+    q_ref[finite] = so3.matrix_to_quat(truth_r[finite])
+    q_at = resample_quats(t_est, q_est, truth_t)
+    errors = AttitudeErrors.from_quats(q_at, q_ref)
+    mask = np.asarray(evaluate, bool) & finite & np.all(np.isfinite(q_at), axis=1)
+    mid, w_true = truth_rates(truth_t, truth_r)
+    rate_error = np.full_like(w_true, np.nan)
+    if omega_est is not None:
+        w = np.asarray(omega_est, float)
+        w_at = np.column_stack([np.interp(mid, t_est, w[:, i], left=np.nan, right=np.nan) for i in range(3)])
+        rate_error = w_true - w_at
+    norm = np.linalg.norm(rate_error, axis=1)
+    return TruthComparison(truth_t, errors, mask, errors.rmse(mask), mid, rate_error, _rms(norm))

@@ -239,6 +239,20 @@ def matmul_f(p: Mat9, q: Mat9) -> Mat9:
     )  # fmt: skip
 
 
+def apply_f(m: Mat9, v: Vec3) -> Vec3:
+    """``m @ v`` for a row-major 9-tuple and a 3-tuple."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+    x, y, z = v
+    return (m0 * x + m1 * y + m2 * z, m3 * x + m4 * y + m5 * z, m6 * x + m7 * y + m8 * z)
+
+
+def apply_transpose_f(m: Mat9, v: Vec3) -> Vec3:
+    """``m.T @ v`` for a row-major 9-tuple and a 3-tuple."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+    x, y, z = v
+    return (m0 * x + m3 * y + m6 * z, m1 * x + m4 * y + m7 * z, m2 * x + m5 * y + m8 * z)
+
+
 def reorthonormalize_f(r: Mat9) -> Mat9:
     """One step of the polar (Newton–Schulz) iteration ``R ← R (3I − RᵀR)/2``.
 

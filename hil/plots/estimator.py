@@ -1,0 +1,108 @@
+"""The estimator's figures. With ground truth, the paper's two: the principal angle of the attitude
+estimation error ``Q = R R̂ᵀ`` and the angular-velocity estimation error, against time (plus the heading /
+inclination split). Without, the estimate itself: roll/pitch/yaw (ENU, z-y-x) and the body rates."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from hil.metrics import AttitudeErrors
+
+if TYPE_CHECKING:
+    from hil.logs.replay import ReplayResult
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    FigureCanvasAgg(fig)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def plot_attitude_error(t: np.ndarray, errors: AttitudeErrors, path: Path, title: str = "") -> Path:
+    """Principal angle of the attitude estimation error (deg) against time, heading/inclination beside."""
+    fig = Figure(figsize=(8, 4))
+    ax = fig.add_subplot()
+    ax.plot(t, errors.total, lw=1.0, label="principal angle of Q = R R̂ᵀ")
+    ax.plot(t, errors.heading, lw=0.6, alpha=0.7, label="heading part")
+    ax.plot(t, errors.inclination, lw=0.6, alpha=0.7, label="inclination part")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("attitude estimation error (deg)")
+    ax.set_title(title or "Attitude estimation error")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right")
+    return _save(fig, path)
+
+
+def plot_rate_error(t: np.ndarray, error: np.ndarray, path: Path, title: str = "") -> Path:
+    """Angular-velocity estimation error Ω − Ω̂ (rad/s), components and norm, against time."""
+    fig = Figure(figsize=(8, 4))
+    ax = fig.add_subplot()
+    for i, axis in enumerate("xyz"):
+        ax.plot(t, error[:, i], lw=0.6, label=f"{axis}")
+    ax.plot(t, np.linalg.norm(error, axis=1), "k", lw=0.8, label="norm")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("angular velocity estimation error (rad/s)")
+    ax.set_title(title or "Angular velocity estimation error")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right")
+    return _save(fig, path)
+
+
+def euler_zyx_deg(r: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw (deg) of body → ENU rotations (N, 3, 3), z-y-x convention."""
+    roll = np.arctan2(r[:, 2, 1], r[:, 2, 2])
+    pitch = -np.arcsin(np.clip(r[:, 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(r[:, 1, 0], r[:, 0, 0])
+    return np.degrees(np.column_stack([roll, pitch, yaw]))
+
+
+def plot_attitude(t: np.ndarray, r: np.ndarray, path: Path, title: str = "") -> Path:
+    fig = Figure(figsize=(8, 4))
+    ax = fig.add_subplot()
+    for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", "yaw"), strict=True):
+        ax.plot(t, series, lw=0.8, label=label)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("attitude estimate (deg, ENU, z-y-x)")
+    ax.set_title(title or "Attitude estimate")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right")
+    return _save(fig, path)
+
+
+def plot_rates(t: np.ndarray, omega: np.ndarray, path: Path, title: str = "") -> Path:
+    fig = Figure(figsize=(8, 4))
+    ax = fig.add_subplot()
+    for i, axis in enumerate("xyz"):
+        ax.plot(t, omega[:, i], lw=0.6, label=f"Ω̂{axis}")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("body rate estimate (rad/s)")
+    ax.set_title(title or "Angular velocity estimate")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right")
+    return _save(fig, path)
+
+
+def plot_replay(result: ReplayResult, out_dir: Path) -> dict[str, Path]:
+    """The figures for one replay; returns ``{name: path}``."""
+    est = result.estimates
+    name = Path(result.log.source).name
+    files = {
+        "attitude": plot_attitude(est.t, est.R, out_dir / "attitude.png", f"Attitude estimate — {name}"),
+        "rates": plot_rates(est.t, est.omega, out_dir / "rates.png", f"Angular velocity estimate — {name}"),
+    }
+    c = result.comparison
+    if c is None:
+        return files
+    files["attitude_error"] = plot_attitude_error(
+        c.t, c.errors, out_dir / "attitude_error.png", f"Attitude estimation error — {name}"
+    )
+    files["rate_error"] = plot_rate_error(
+        c.rate_t, c.rate_error, out_dir / "rate_error.png", f"Angular velocity estimation error — {name}"
+    )
+    return files
