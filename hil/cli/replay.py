@@ -46,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     field.add_argument(
         "--inclination", type=float, metavar="DEG", help="field inclination (default: measured)"
     )
+    p.add_argument(
+        "--declination", type=float, default=0.0, metavar="DEG", help="east of true north (default 0)"
+    )
     field.add_argument("--lat", type=float, help="latitude (deg) for WMM2025 (with --lon and --date)")
     p.add_argument("--lon", type=float, help="longitude (deg) for WMM2025")
     p.add_argument("--date", help="recording date YYYY-MM-DD for WMM2025")
@@ -100,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         format=args.format,
         preset=args.preset,
         inclination_deg=args.inclination,
+        declination_deg=args.declination,
         field_model=field_model,
         gyro_bias=args.gyro_bias,
         window_s=tuple(args.window) if args.window else None,

@@ -122,7 +122,8 @@ def _locate(lines: list[str], first: int, where: str) -> None:
 
 
 def write(log: SensorLog, path: Path | str) -> Path:
-    """Write ``log`` (and its truth, if any) in this format, rows in time order (stable per sensor)."""
+    """Write ``log`` (and its truth, if any) in this format, rows in time order (stable per sensor);
+    times to the nanosecond, values to 10 significant digits."""
     path = Path(path)
     blocks = []
     for kind in KINDS:
@@ -143,8 +144,9 @@ def write(log: SensorLog, path: Path | str) -> Path:
             "# units: t_s s; gyr rad/s; acc m/s^2 (gravity included); mag uT; truth: quaternion body->ENU\n"
         )
         f.write(HEADER + "\n")
-        for i in order.tolist():
-            wv = "" if math.isnan(w[i]) else repr(float(w[i]))
-            x, y, z = xyz[i].tolist()
-            f.write(f"{t[i]!r},{names[int(code[i])]},{x!r},{y!r},{z!r},{wv}\n")
+        cols = (t[order].tolist(), code[order].tolist(), xyz[order].tolist(), w[order].tolist())
+        rows = zip(*cols, strict=True)
+        for ti, ci, (x, y, z), wi in rows:
+            wv = "" if math.isnan(wi) else f"{wi:.10g}"
+            f.write(f"{ti:.9f},{names[int(ci)]},{x:.10g},{y:.10g},{z:.10g},{wv}\n")
     return path

@@ -54,7 +54,8 @@ class FieldModel:
 class ReplayOptions:
     """How to replay. ``preset``: ``"tuned"`` (default) or ``"paper"`` (exactly the paper, incl. its
     1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions: measured
-    from the log (magnetic north; the default), ``inclination_deg`` given, or a ``field_model``.
+    from the log (the default), or ``inclination_deg`` given, both with ``declination_deg`` (default 0:
+    magnetic north); or a ``field_model`` (true north).
     ``gyro_bias``: ``"still"`` (default) subtracts the mean gyro over the log's initial still window, if it
     has one; ``"none"`` does not. ``window_s``: replay only ``[t0, t1]`` s of the log."""
 
@@ -64,6 +65,7 @@ class ReplayOptions:
     config: FilterConfig | None = None
     policy: MergePolicy = field(default_factory=MergePolicy)
     inclination_deg: float | None = None
+    declination_deg: float = 0.0
     field_model: FieldModel | None = None
     gyro_bias: str = "still"
     window_s: tuple[float, float] | None = None
@@ -106,7 +108,7 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, lis
             setup.append(f"gyro bias {np.round(bias, 5).tolist()} rad/s from the {where}")
         except InputFormatError:
             setup.append("no still window: gyro bias not corrected")
-    declination = 0.0
+    declination = options.declination_deg
     if options.field_model is not None:
         fm = options.field_model
         model = wmm2025(fm.lat_deg, fm.lon_deg, fm.year, fm.height_km)
@@ -119,7 +121,9 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, lis
     else:
         e, how = directions_from_log(log)
         dip = math.degrees(math.asin(float(np.clip(-e[2, 1], -1.0, 1.0))))
-        setup.append(f"inertial directions from the log: {how}; magnetic north")
+        setup.append(f"inertial directions from the log: {how}")
+    if options.field_model is None:
+        setup.append(f"declination {declination:g} deg" + (" (magnetic north)" if declination == 0 else ""))
     if options.preset == "paper":
         config = FilterConfig.paper(E=directions_from_dip(dip, declination), gyro_bias=bias)
         setup.append("preset paper: W, m, D, Φ and the 1 rad/s body-frame pre-filter of the paper")
