@@ -14,6 +14,8 @@ Calibrated gyroscope/magnetometer are preferred; the ``…Uncalibrated.csv`` fil
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 
 from hil.logs.table import Container, Table, parse_table
@@ -31,11 +33,18 @@ def detect(c: Container) -> bool:
     return False
 
 
-def _table(c: Container, name: str) -> Table:
-    table = parse_table(c.text(name), c.where(name), ",", header=True, min_columns=5)
+def _table(c: Container, name: str) -> tuple[Table, np.ndarray]:
+    """The file's table and its ``time`` column as exact int64 ns (a float64 would round to 256 ns)."""
+    text = c.text(name)
+    table = parse_table(text, c.where(name), ",", header=True, min_columns=5)
     for col in ("time", "x", "y", "z"):
         table.column(col)  # raises naming the file if missing
-    return table
+    try:
+        ns = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, usecols=table.columns.index("time"),
+                        dtype=np.int64, ndmin=1, comments="#")  # fmt: skip
+    except ValueError:  # not integers (a re-saved file): the float column, to its precision
+        ns = table.column("time").astype(np.int64)
+    return table, ns
 
 
 def _first(c: Container, *names: str) -> str | None:
@@ -44,7 +53,7 @@ def _first(c: Container, *names: str) -> str | None:
 
 def read(c: Container) -> SensorLog:
     notes: list[str] = ["Sensor Logger export: columns read by name (files are ordered z, y, x)"]
-    tables: dict[SensorKind, Table] = {}
+    tables: dict[SensorKind, tuple[Table, np.ndarray]] = {}
     gyr = _first(c, "Gyroscope.csv", "GyroscopeUncalibrated.csv")
     mag = _first(c, "Magnetometer.csv", "MagnetometerUncalibrated.csv")
     if gyr is None or mag is None:
@@ -58,11 +67,12 @@ def read(c: Container) -> SensorLog:
         tables[SensorKind.ACC] = _table(c, "TotalAcceleration.csv")
         notes.append("accelerometer: TotalAcceleration.csv (gravity included)")
     elif c.has("Accelerometer.csv") and c.has("Gravity.csv"):
-        user, grav = _table(c, "Accelerometer.csv"), _table(c, "Gravity.csv")
-        tables[SensorKind.ACC] = user
-        acc_xyz = _xyz(user) + np.column_stack(
-            [np.interp(user.column("time"), grav.column("time"), grav.column(a)) for a in "xyz"]
-        )
+        user, user_ns = _table(c, "Accelerometer.csv")
+        grav, grav_ns = _table(c, "Gravity.csv")
+        tables[SensorKind.ACC] = (user, user_ns)
+        base = int(grav_ns[0]) if len(grav_ns) else 0
+        tu, tg = (user_ns - base).astype(float), (grav_ns - base).astype(float)
+        acc_xyz = _xyz(user) + np.column_stack([np.interp(tu, tg, grav.column(a)) for a in "xyz"])
         notes.append("accelerometer: Accelerometer.csv (user acceleration) + Gravity.csv (interpolated)")
     elif c.has("Accelerometer.csv"):
         raise InputFormatError(
@@ -74,16 +84,12 @@ def read(c: Container) -> SensorLog:
         raise InputFormatError("no accelerometer file (TotalAcceleration.csv)", str(c.path))
     if c.has("Metadata.csv") and "ios" in c.text("Metadata.csv").lower():
         notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
-    t0 = min(float(np.min(t.column("time"))) for t in tables.values() if len(t.data))
-    streams = {
-        kind: SensorStream(
-            kind,
-            (t.column("time") - t0) * 1e-9,
-            acc_xyz if kind is SensorKind.ACC and acc_xyz is not None else _xyz(t),
-        )
-        for kind, t in tables.items()
-    }
-    notes.append(f"time: ns since epoch, origin {t0:.0f} ns")
+    t0 = min(int(ns.min()) for _, ns in tables.values() if len(ns))
+    streams = {}
+    for kind, (table, ns) in tables.items():
+        xyz = acc_xyz if kind is SensorKind.ACC and acc_xyz is not None else _xyz(table)
+        streams[kind] = SensorStream(kind, (ns - t0).astype(float) * 1e-9, xyz)
+    notes.append(f"time: ns since epoch, origin {t0} ns")
     return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
 
 
