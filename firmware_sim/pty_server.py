@@ -143,10 +143,10 @@ class PtyServer:
                 return
             with self.lock:
                 now = clock.now()
-                if end is not None and now >= end:
-                    return
                 board.step(now)
                 self._queue(board.take_output())
+                if end is not None and now >= end:
+                    return  # the board has run to the end of the duration
                 wait = board.next_deadline() - clock.now()
             wait = min(max(wait, 0.0), _MAX_WAIT_S)
             if end is not None:
