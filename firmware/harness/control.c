@@ -1,0 +1,113 @@
+/*
+ * control.c - commands on stdin (--control), one a line, each answered by one line on stdout:
+ *
+ *   now                       -> ok <cycles>          harness time
+ *   noise <corrupt> <drop>    -> ok                   per-byte damage / loss probabilities, both ways
+ *   hang                      -> ok <cycles>          pull the watchdog self-test pin low (main loop stops)
+ *   sag <volts> <ramp> <dur>  -> ok <cycles>          battery sag starting now (seconds)
+ *   battery <volts>           -> ok                   open-circuit battery voltage from now on
+ *   reset                     -> ok <cycles>          press the reset button (EXTRF)
+ *   clear                     -> ok                   no noise, no sags, self-test pin released
+ *   flush                     -> ok <cycles>          the record file is complete up to <cycles>
+ *   stats                     -> ok <bytes_in> <bytes_out> <dropped_out> <corrupted> <dropped>
+ *   quit                      -> ok                   stop (EEPROM saved, pty closed)
+ * Anything else -> "error <why>". Commands act between simulation slices (every simulated ms).
+ */
+#include <errno.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+
+#include "harness.h"
+
+static char line[512];
+static size_t line_len;
+
+static int execute(harness_t *h, char *cmd, FILE *out)
+{
+    char *argv[8];
+    int argc = 0;
+    for (char *tok = strtok(cmd, " \t\r"); tok && argc < 8; tok = strtok(NULL, " \t\r"))
+        argv[argc++] = tok;
+    if (argc == 0)
+        return 0;
+    unsigned long long now = (unsigned long long)harness_now(h);
+    const char *c = argv[0];
+    if (!strcmp(c, "now") && argc == 1) {
+        fprintf(out, "ok %llu\n", now);
+    } else if (!strcmp(c, "noise") && argc == 3) {
+        double corrupt = strtod(argv[1], NULL), drop = strtod(argv[2], NULL);
+        if (!(corrupt >= 0 && corrupt <= 1 && drop >= 0 && drop <= 1)) {
+            fprintf(out, "error noise: probabilities must lie in 0..1\n");
+        } else {
+            h->corrupt = corrupt;
+            h->drop = drop;
+            fprintf(out, "ok\n");
+        }
+    } else if (!strcmp(c, "hang") && argc == 1) {
+        harness_set_selftest(h, 1);
+        fprintf(out, "ok %llu\n", now);
+    } else if (!strcmp(c, "sag") && argc == 4) {
+        if (power_add_sag(h, strtod(argv[1], NULL), strtod(argv[2], NULL), strtod(argv[3], NULL),
+                          harness_seconds(h)) < 0)
+            fprintf(out, "error sag: need volts >= 0, ramp >= 0, duration > 0 (at most %d sags)\n", MAX_SAGS);
+        else
+            fprintf(out, "ok %llu\n", now);
+    } else if (!strcmp(c, "battery") && argc == 2) {
+        double v = strtod(argv[1], NULL);
+        if (!(v >= 0 && v <= 60)) {
+            fprintf(out, "error battery: volts must lie in 0..60\n");
+        } else {
+            h->battery_ocv_v = v;
+            fprintf(out, "ok\n");
+        }
+    } else if (!strcmp(c, "reset") && argc == 1) {
+        harness_reset(h, CAUSE_EXTERNAL);
+        fprintf(out, "ok %llu\n", now);
+    } else if (!strcmp(c, "clear") && argc == 1) {
+        h->corrupt = h->drop = 0;
+        h->n_sags = 0;
+        h->n_hangs = 0;
+        harness_set_selftest(h, 0);
+        fprintf(out, "ok\n");
+    } else if (!strcmp(c, "flush") && argc == 1) {
+        record_flush(h);
+        fprintf(out, "ok %llu\n", now);
+    } else if (!strcmp(c, "stats") && argc == 1) {
+        fprintf(out, "ok %llu %llu %llu %llu %llu\n", (unsigned long long)h->bytes_in,
+                (unsigned long long)h->bytes_out, (unsigned long long)h->dropped_out,
+                (unsigned long long)h->corrupted, (unsigned long long)h->dropped);
+    } else if (!strcmp(c, "quit")) {
+        fprintf(out, "ok\n");
+        fflush(out);
+        return 1;
+    } else {
+        fprintf(out, "error unknown command or wrong arguments: %s\n", c);
+    }
+    fflush(out);
+    return 0;
+}
+
+int control_service(harness_t *h, FILE *out)
+{
+    for (;;) {
+        char buf[256];
+        ssize_t n = read(STDIN_FILENO, buf, sizeof buf);
+        if (n == 0)
+            return 1; /* stdin closed: the controlling process is gone */
+        if (n < 0)
+            return (errno == EAGAIN || errno == EINTR) ? 0 : 1;
+        for (ssize_t i = 0; i < n; i++) {
+            if (buf[i] != '\n') {
+                if (line_len < sizeof line - 1)
+                    line[line_len++] = buf[i];
+                continue;
+            }
+            line[line_len] = 0;
+            line_len = 0;
+            if (execute(h, line, out))
+                return 1;
+        }
+    }
+}

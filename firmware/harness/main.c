@@ -1,0 +1,365 @@
+/*
+ * main.c - avr-harness: run an AVR firmware ELF on simavr behind a pseudo-terminal.
+ *
+ * The first line on stdout is the pty's path (like firmware-sim); with --control, stdout then carries
+ * the answers to the commands read on stdin (control.c). Everything else, simavr's own chatter
+ * included, goes to stderr. SIGINT/SIGTERM stop it cleanly (EEPROM saved, symlink removed, status 0);
+ * a firmware that crashes the simulated core ends it with status 3.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <getopt.h>
+#include <math.h>
+#include <poll.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <avr_eeprom.h>
+#include <avr_ioport.h>
+#include <sim_avr.h>
+#include <sim_elf.h>
+#include <sim_io.h>
+#include <sim_irq.h>
+
+#include "../include/board_pins.h"
+#include "harness.h"
+
+#define MCUSR_ADDR 0x54 /* MCUSR of the ATmega2560 in data space (I/O 0x34) */
+#define MCUSR_PORF 0x01
+#define MCUSR_EXTRF 0x02
+#define MCUSR_BORF 0x04
+#define SLICE_S 0.001
+#define FLUSH_S 0.1
+
+static const char USAGE[] =
+    "usage: avr-harness [options] FIRMWARE.elf\n"
+    "Run an ATmega2560 firmware on simavr with UART0 on a new pseudo-terminal (its path: first stdout line).\n"
+    "\n"
+    "  --freq HZ            CPU clock (default 16000000)\n"
+    "  --unpaced            run as fast as the host allows (default: paced to wall time)\n"
+    "  --duration S         stop after S seconds of simulated time\n"
+    "  --link PATH          keep a symlink at PATH pointing at the pty\n"
+    "  --record FILE        write pulse edges, resets, brown-outs to FILE (see record.c)\n"
+    "  --eeprom FILE        EEPROM image loaded at start and saved back at exit\n"
+    "  --battery V          battery open-circuit voltage (default 12.6: a full 3S LiPo)\n"
+    "  --battery-ohm R      battery internal resistance (default 0.08)\n"
+    "  --rotor-amps A       current of one rotor ESC at full throttle (default 4)\n"
+    "  --sag V@T/RAMP[:DUR] battery loses V volts from T s, ramped over RAMP s, for DUR s (repeatable)\n"
+    "  --hang-at T          pull the watchdog self-test pin low at T s (repeatable)\n"
+    "  --corrupt P --drop P per-byte link damage / loss probabilities, both ways\n"
+    "  --seed N             seed of the link noise\n"
+    "  --control            read commands on stdin, answer on stdout (see control.c)\n"
+    "\n"
+    "examples:\n"
+    "  avr-harness build/vscmg-adk.elf                       serve the board on a pty, real time\n"
+    "  avr-harness --link /tmp/vscmg-board build/vscmg-adk.elf\n"
+    "  avr-harness --sag 6@10/5 --hang-at 30 build/vscmg-adk.elf\n"
+    "  avr-harness --unpaced --duration 5 --record edges.txt build/vscmg-adk.elf\n";
+
+static volatile sig_atomic_t stop_requested;
+static harness_t H;
+static void (*core_reset)(avr_t *);
+static avr_irq_t *selftest_irq;
+
+static void on_signal(int sig)
+{
+    (void)sig;
+    stop_requested = 1;
+}
+
+/* simavr's own sleep would usleep() while the MCU sleeps; pacing is done by the loop instead. */
+static void no_sleep(avr_t *avr, avr_cycle_count_t cycles)
+{
+    (void)avr;
+    (void)cycles;
+}
+
+static void quiet_logger(avr_t *avr, const int level, const char *format, va_list ap)
+{
+    (void)avr;
+    if (level <= LOG_WARNING)
+        vfprintf(stderr, format, ap);
+}
+
+/* Every reset of the core passes here (the watchdog's included): outputs off, the reset recorded. */
+static void on_core_reset(avr_t *avr)
+{
+    if (core_reset)
+        core_reset(avr);
+    int cause = H.pending_cause == -2 ? CAUSE_WATCHDOG : H.pending_cause;
+    record_reset(&H, cause);
+    if (selftest_irq)
+        avr_raise_irq(selftest_irq, 1); /* a momentary self-test press ends with the reset */
+    H.selftest_low = 0;
+}
+
+void harness_reset(harness_t *h, int cause)
+{
+    h->pending_cause = cause;
+    avr_reset(h->avr);
+    h->pending_cause = -2;
+    if (cause == CAUSE_BROWN_OUT)
+        h->avr->data[MCUSR_ADDR] |= MCUSR_BORF;
+    else if (cause == CAUSE_EXTERNAL)
+        h->avr->data[MCUSR_ADDR] |= MCUSR_EXTRF;
+}
+
+void harness_set_selftest(harness_t *h, int low)
+{
+    if (low == h->selftest_low)
+        return;
+    h->selftest_low = low;
+    record_line(h, "H %llu %d\n", (unsigned long long)harness_now(h), low);
+    avr_raise_irq(selftest_irq, low ? 0 : 1);
+}
+
+static int eeprom_io(harness_t *h, const char *path, int save)
+{
+    static uint8_t image[4096];
+    avr_eeprom_desc_t d = {.ee = image, .offset = 0, .size = h->avr->e2end + 1};
+    if (d.size > sizeof image)
+        d.size = sizeof image;
+    if (save) {
+        if (avr_ioctl(h->avr, AVR_IOCTL_EEPROM_GET, &d) < 0)
+            return -1;
+        if (d.ee != image)
+            memcpy(image, d.ee, d.size);
+        FILE *f = fopen(path, "wb");
+        if (!f || fwrite(image, 1, d.size, f) != d.size) {
+            fprintf(stderr, "avr-harness: cannot save EEPROM to %s: %s\n", path, strerror(errno));
+            if (f)
+                fclose(f);
+            return -1;
+        }
+        return fclose(f);
+    }
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return errno == ENOENT ? 0 : -1; /* a fresh board: erased EEPROM */
+    memset(image, 0xFF, sizeof image);
+    size_t n = fread(image, 1, d.size, f);
+    fclose(f);
+    if (n == 0)
+        return 0;
+    d.size = (uint32_t)n;
+    return avr_ioctl(h->avr, AVR_IOCTL_EEPROM_SET, &d);
+}
+
+static int parse_sag(harness_t *h, const char *spec)
+{
+    double v, at = 0, ramp = 0, dur = INFINITY;
+    char *end;
+    v = strtod(spec, &end);
+    if (*end == '@') {
+        at = strtod(end + 1, &end);
+        if (*end == '/')
+            ramp = strtod(end + 1, &end);
+        if (*end == ':')
+            dur = strtod(end + 1, &end);
+    }
+    if (*end || power_add_sag(h, v, ramp, dur, at) < 0) {
+        fprintf(stderr, "avr-harness: --sag %s: expected VOLTS[@AT[/RAMP][:DURATION]], e.g. 6@10/5\n", spec);
+        return -1;
+    }
+    return 0;
+}
+
+static double number(const char *opt, const char *s, double lo, double hi)
+{
+    char *end;
+    double v = strtod(s, &end);
+    if (*end || !(v >= lo && v <= hi)) {
+        fprintf(stderr, "avr-harness: %s %s: expected a number in %g..%g\n", opt, s, lo, hi);
+        exit(2);
+    }
+    return v;
+}
+
+static double wall_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+/* Paced mode: wait until wall time reaches `sim_s` (relative to the start), waking early for input. */
+static void pace(harness_t *h, double wall0, double sim_s, int control)
+{
+    double ahead = sim_s - (wall_seconds() - wall0);
+    if (ahead <= 0)
+        return;
+    struct pollfd fds[2] = {{.fd = h->master, .events = POLLIN}, {.fd = STDIN_FILENO, .events = POLLIN}};
+    struct timespec ts = {.tv_sec = (time_t)ahead, .tv_nsec = (long)((ahead - floor(ahead)) * 1e9)};
+    ppoll(fds, control ? 2 : 1, &ts, NULL);
+}
+
+int main(int argc, char **argv)
+{
+    static const struct option opts[] = {
+        {"freq", required_argument, 0, 'f'},    {"unpaced", no_argument, 0, 'u'},
+        {"duration", required_argument, 0, 'd'}, {"link", required_argument, 0, 'l'},
+        {"record", required_argument, 0, 'r'},  {"eeprom", required_argument, 0, 'e'},
+        {"battery", required_argument, 0, 'b'}, {"battery-ohm", required_argument, 0, 'o'},
+        {"rotor-amps", required_argument, 0, 'a'}, {"sag", required_argument, 0, 's'},
+        {"hang-at", required_argument, 0, 'H'}, {"corrupt", required_argument, 0, 'c'},
+        {"drop", required_argument, 0, 'p'},    {"seed", required_argument, 0, 'S'},
+        {"control", no_argument, 0, 'C'},       {"help", no_argument, 0, 'h'},
+        {0, 0, 0, 0},
+    };
+    harness_t *h = &H;
+    memset(h, 0, sizeof *h);
+    h->freq = 16000000;
+    h->pending_cause = -2;
+    h->battery_ocv_v = 12.6;
+    h->battery_ohm = 0.08;
+    h->rotor_full_a = 4.0;
+    h->ubec_set_v = 5.0;
+    h->ubec_dropout_v = 0.5;
+    h->bod_v = 4.3;
+    h->bod_release_v = 4.5;
+    h->electronics_a = 0.15;
+    h->rng = 0x9E3779B97F4A7C15ULL;
+    int paced = 1, control = 0;
+    double duration = INFINITY;
+    const char *link = NULL, *record = NULL, *eeprom = NULL;
+
+    /* Our stdout is the pty path and command answers only: keep a private copy of it and send the
+     * library's prints (fd 1) to stderr. */
+    h->out_fd = dup(STDOUT_FILENO);
+    dup2(STDERR_FILENO, STDOUT_FILENO);
+    FILE *out = fdopen(h->out_fd, "w");
+
+    for (int c; (c = getopt_long(argc, argv, "h", opts, NULL)) != -1;) {
+        switch (c) {
+        case 'f': h->freq = (uint32_t)number("--freq", optarg, 1e5, 1e8); break;
+        case 'u': paced = 0; break;
+        case 'd': duration = number("--duration", optarg, 0, 1e9); break;
+        case 'l': link = optarg; break;
+        case 'r': record = optarg; break;
+        case 'e': eeprom = optarg; break;
+        case 'b': h->battery_ocv_v = number("--battery", optarg, 0, 60); break;
+        case 'o': h->battery_ohm = number("--battery-ohm", optarg, 0, 10); break;
+        case 'a': h->rotor_full_a = number("--rotor-amps", optarg, 0, 100); break;
+        case 's': if (parse_sag(h, optarg) < 0) return 2; break;
+        case 'H':
+            if (h->n_hangs == MAX_HANGS) { fprintf(stderr, "avr-harness: too many --hang-at\n"); return 2; }
+            h->hangs[h->n_hangs++] = number("--hang-at", optarg, 0, 1e9);
+            break;
+        case 'c': h->corrupt = number("--corrupt", optarg, 0, 1); break;
+        case 'p': h->drop = number("--drop", optarg, 0, 1); break;
+        case 'S': h->rng ^= (uint64_t)number("--seed", optarg, 0, 1e18) * 0x2545F4914F6CDD1DULL; break;
+        case 'C': control = 1; break;
+        case 'h': fputs(USAGE, stderr); return 0;
+        default: fputs(USAGE, stderr); return 2;
+        }
+    }
+    if (optind != argc - 1) {
+        fputs(USAGE, stderr);
+        return 2;
+    }
+    if (!h->rng)
+        h->rng = 1;
+
+    avr_global_logger_set(quiet_logger);
+    elf_firmware_t fw;
+    memset(&fw, 0, sizeof fw);
+    if (access(argv[optind], R_OK) < 0 || elf_read_firmware(argv[optind], &fw) < 0) {
+        fprintf(stderr, "avr-harness: cannot load %s: %s\n", argv[optind], strerror(errno));
+        return 2;
+    }
+    h->avr = avr_make_mcu_by_name("atmega2560");
+    if (!h->avr || avr_init(h->avr) < 0) {
+        fprintf(stderr, "avr-harness: simavr has no ATmega2560 core\n");
+        return 2;
+    }
+    avr_load_firmware(h->avr, &fw);
+    h->avr->frequency = h->freq;
+    h->avr->sleep = no_sleep; /* the harness paces time itself */
+    core_reset = h->avr->reset;
+    h->avr->reset = on_core_reset;
+
+    if (record) {
+        h->record = fopen(record, "w");
+        if (!h->record) {
+            fprintf(stderr, "avr-harness: cannot write %s: %s\n", record, strerror(errno));
+            return 2;
+        }
+    }
+    if (eeprom && eeprom_io(h, eeprom, 0) < 0) {
+        fprintf(stderr, "avr-harness: cannot load EEPROM from %s\n", eeprom);
+        return 2;
+    }
+    record_attach(h);
+    selftest_irq = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(SELFTEST_PIN_PORT), SELFTEST_PIN_BIT);
+    avr_raise_irq(selftest_irq, 1); /* the pin's pull-up: released */
+    bridge_attach(h);
+    power_init(h);
+    h->avr->data[MCUSR_ADDR] = MCUSR_PORF;
+    record_line(h, "R 0 %d\n", CAUSE_POWER_ON);
+    if (bridge_open(h, link) < 0)
+        return 2;
+    if (control)
+        fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
+
+    struct sigaction sa = {.sa_handler = on_signal};
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
+
+    const uint64_t slice = (uint64_t)(h->freq * SLICE_S);
+    const uint64_t flush_every = (uint64_t)(h->freq * FLUSH_S);
+    const double wall0 = wall_seconds();
+    int status = 0;
+    while (!stop_requested) {
+        double t = harness_seconds(h);
+        if (t >= duration)
+            break;
+        bridge_service(h);
+        if (h->held) {
+            h->held_cycles += slice;
+        } else {
+            uint64_t target = h->avr->cycle + slice;
+            while (h->avr->cycle < target) {
+                int state = avr_run(h->avr);
+                if (state == cpu_Done || state == cpu_Crashed) {
+                    fprintf(stderr, "avr-harness: the firmware %s at %.6f s (pc 0x%x)\n",
+                            state == cpu_Done ? "stopped (sleep with interrupts off)" : "crashed",
+                            harness_seconds(h), (unsigned)h->avr->pc);
+                    status = 3;
+                    goto done;
+                }
+            }
+        }
+        bridge_service(h);
+        power_update(h);
+        t = harness_seconds(h);
+        for (int i = 0; i < h->n_hangs; i++) {
+            if (h->hangs[i] <= t) {
+                harness_set_selftest(h, 1);
+                h->hangs[i--] = h->hangs[--h->n_hangs];
+            }
+        }
+        if (harness_now(h) - h->last_flush >= flush_every)
+            record_flush(h);
+        if (control && control_service(h, out))
+            break;
+        if (paced)
+            pace(h, wall0, harness_seconds(h), control);
+    }
+done:
+    record_flush(h);
+    if (h->record)
+        fclose(h->record);
+    if (eeprom && eeprom_io(h, eeprom, 1) < 0)
+        status = status ? status : 1;
+    bridge_close(h, link);
+    fprintf(stderr, "avr-harness: stopped at %.3f s; %llu bytes in, %llu out, %llu dropped\n", harness_seconds(h),
+            (unsigned long long)h->bytes_in, (unsigned long long)h->bytes_out,
+            (unsigned long long)h->dropped_out);
+    return status;
+}

@@ -1,0 +1,56 @@
+/*
+ * board_pins.h - how the Arduino Mega ADK (ATmega2560) is wired to the VSCMG hardware.
+ *
+ * Shared by the firmware and the simavr harness (plain macros, no AVR headers), so the emulated wiring is
+ * the wiring on the bench. Arduino pin names in brackets.
+ *
+ * Pulse outputs: channel order gimbal 0, rotor 0, gimbal 1, rotor 1, ... (as RawPulses and Telemetry).
+ * Each channel is a hardware output-compare pin of a 16-bit timer in fast-PWM mode 14 (TOP = ICRn,
+ * prescaler 8: 0.5 us ticks), so pulse widths are exact to the tick and keep running if the CPU hangs.
+ * All four timers share one frame period and start together, so every channel rises at the same instant.
+ *   ch 0 OC1A PB5 [D11]   ch 1 OC1B PB6 [D12]   ch 2 OC1C PB7 [D13]
+ *   ch 3 OC3A PE3 [D5]    ch 4 OC3B PE4 [D2]    ch 5 OC3C PE5 [D3]
+ *   ch 6 OC4A PH3 [D6]    ch 7 OC4B PH4 [D7]    ch 8 OC4C PH5 [D8]
+ *   ch 9 OC5A PL3 [D46]   ch10 OC5B PL4 [D45]   ch11 OC5C PL5 [D44]
+ * Twelve hardware channels: up to 6 VSCMG units. With 4 units or fewer, Timer5 is free and drives the
+ * optional PPM-sum train on OC5A PL3 [D46] instead.
+ *
+ * Analog inputs (internal 2.56 V reference, 10 bits):
+ *   ADC0 PF0 [A0] battery voltage through a 70k/10k divider (x8: 20.48 V full scale)
+ *   ADC1 PF1 [A1] battery current, shunt amplifier 100 mV/A (25.6 A full scale)
+ *   ADC2 PF2 [A2] UBEC rail voltage through a 15k/10k divider (x2.5: 6.4 V full scale)
+ *   ADC3 PF3 [A3] UBEC current, shunt amplifier 400 mV/A (6.4 A full scale)
+ *
+ * Watchdog self-test input: PK7 [A15], internal pull-up. Pulling it low (a jumper or button to GND)
+ * after boot stops the main loop, so the bench can prove the watchdog resets the board and that the
+ * host sees WATCHDOG as the reset cause. Only a high-to-low change seen after boot counts, so a jumper
+ * left in place cannot hold the board in a reset loop.
+ */
+#ifndef BOARD_PINS_H
+#define BOARD_PINS_H
+
+#define PULSE_CHANNELS_HW 12u /* output-compare channels wired */
+
+/* Port letter and bit of each pulse channel, for the harness (the firmware uses the timer registers). */
+#define PULSE_PIN_PORTS "BBBEEEHHHLLL"
+#define PULSE_PIN_BITS {5, 6, 7, 3, 4, 5, 3, 4, 5, 3, 4, 5}
+#define PPM_PIN_PORT 'L'
+#define PPM_PIN_BIT 3
+
+#define ADC_REF_MV 2560u
+#define ADC_FULL_SCALE 1024u
+#define ADC_CH_BATTERY_V 0u
+#define ADC_CH_BATTERY_I 1u
+#define ADC_CH_UBEC_V 2u
+#define ADC_CH_UBEC_I 3u
+#define BATTERY_DIVIDER_NUM 8u /* pin voltage = battery / 8 */
+#define BATTERY_DIVIDER_DEN 1u
+#define UBEC_DIVIDER_NUM 5u /* pin voltage = rail * 2 / 5 */
+#define UBEC_DIVIDER_DEN 2u
+#define BATTERY_I_MV_PER_A 100u
+#define UBEC_I_MV_PER_A 400u
+
+#define SELFTEST_PIN_PORT 'K'
+#define SELFTEST_PIN_BIT 7
+
+#endif /* BOARD_PINS_H */

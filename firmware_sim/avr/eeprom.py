@@ -1,0 +1,207 @@
+"""The firmware's EEPROM: the board configuration block and the per-unit calibration slots.
+
+The board reads its configuration at boot from the block at address 0; without a valid block (erased,
+damaged, wrong version) it runs on the defaults of :class:`firmware_sim.config.BoardConfig`, which the
+code generator compiles into the firmware, and says so in a ``Log``. A lab writes a block to a real
+board with avrdude (``python -m firmware_sim.avr.eeprom --out board.eep`` then
+``avrdude ... -U eeprom:w:board.eep:r``); the simavr harness loads the same image.
+
+Block layout (little-endian; :data:`CONFIG_FIELDS` is the single definition, the C offsets are generated
+from it)::
+
+    u16 magic 0x4342 ("BC")  u8 version  u8 n_units  f32 frame_rate_hz ... char[24] serial  u16 crc
+
+``crc`` is CRC-16/CCITT-FALSE of every byte before it. Calibration sets (``UnitCalibration.to_bytes()``)
+live from :data:`CAL_BASE` in one slot per unit of :func:`cal_slot_size` bytes (the rest of the EEPROM
+shared by the configured units, at most a set's maximum size); an erased slot (first byte 0xFF) means
+"the default calibration", a damaged one "no calibration" (ARM is refused).
+"""
+
+from __future__ import annotations
+
+import argparse
+import struct
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+from protocol.calibration import MAX_SIZE as CAL_MAX_SIZE
+from protocol.crc import crc16_ccitt_false
+from protocol.errors import ConfigError
+
+from ..config import BoardConfig
+
+EEPROM_SIZE = 4096
+CONFIG_MAGIC = 0x4342
+CONFIG_VERSION = 1
+MAX_HW_UNITS = 6
+"""Twelve hardware output-compare channels (Timers 1, 3, 4, 5) drive at most six units."""
+SERIAL_LEN = 24
+
+# (name, struct code, where the value comes from in BoardConfig: a dotted path or a constant)
+CONFIG_FIELDS: tuple[tuple[str, str, str], ...] = (
+    ("magic", "H", "=magic"),
+    ("version", "B", "=version"),
+    ("n_units", "B", "n_units"),
+    ("frame_rate_hz", "f", "frame_rate_hz"),
+    ("telemetry_rate_hz", "f", "telemetry_rate_hz"),
+    ("heartbeat_rate_hz", "f", "heartbeat_rate_hz"),
+    ("link_timeout_s", "f", "link_timeout_s"),
+    ("mcu_watchdog_s", "f", "mcu_watchdog_s"),
+    ("rotor_safe_us", "H", "rotor_safe_us"),
+    ("ppm", "B", "ppm"),
+    ("cells", "B", "power.battery.cells"),
+    ("battery_resistance_ohm", "f", "power.battery.internal_resistance_ohm"),
+    ("warn_v_cell", "f", "power.thresholds.warn_v_cell"),
+    ("limit_v_cell", "f", "power.thresholds.limit_v_cell"),
+    ("shed_v_cell", "f", "power.thresholds.shed_v_cell"),
+    ("hysteresis_v_cell", "f", "power.thresholds.hysteresis_v_cell"),
+    ("limit_throttle", "f", "power.thresholds.limit_throttle"),
+    ("brownout_release_v", "f", "power.thresholds.brownout_release_v"),
+    ("filter_time_constant_s", "f", "power.thresholds.filter_time_constant_s"),
+    ("power_update_period_s", "f", "power.update_period_s"),
+    ("ubec_current_limit_a", "f", "power.ubec.current_limit_a"),
+    ("serial", f"{SERIAL_LEN}s", "identity.serial"),
+)
+CONFIG_STRUCT = struct.Struct("<" + "".join(code for _, code, _ in CONFIG_FIELDS) + "H")
+CONFIG_SIZE = CONFIG_STRUCT.size
+CAL_BASE = 128
+assert CONFIG_SIZE <= CAL_BASE
+
+
+def cal_slot_size(n_units: int) -> int:
+    """Bytes of EEPROM per unit's calibration slot on a board with ``n_units`` units."""
+    return min(CAL_MAX_SIZE, (EEPROM_SIZE - CAL_BASE) // n_units)
+
+
+def field_offsets() -> dict[str, int]:
+    """Byte offset of every field in the block (the codegen turns these into C macros)."""
+    offsets, at = {}, 0
+    for name, code, _ in CONFIG_FIELDS:
+        offsets[name] = at
+        at += struct.calcsize("<" + code)
+    offsets["crc"] = at
+    return offsets
+
+
+def _value(cfg: BoardConfig, source: str) -> object:
+    if source == "=magic":
+        return CONFIG_MAGIC
+    if source == "=version":
+        return CONFIG_VERSION
+    value: object = cfg
+    for part in source.split("."):
+        value = getattr(value, part)
+    return value
+
+
+def check_hardware(cfg: BoardConfig) -> None:
+    """Raise :class:`ConfigError` for what the BoardConfig allows but the ADK firmware cannot do."""
+    cfg.validate()
+    if cfg.n_units > MAX_HW_UNITS:
+        raise ConfigError(
+            f"{cfg.n_units} units; the ADK has {2 * MAX_HW_UNITS} hardware pulse channels", "BoardConfig.n_units"
+        )
+    if cfg.ppm and cfg.n_units > 4:
+        raise ConfigError("PPM-sum needs Timer5, free only with 4 units or fewer", "BoardConfig.ppm")
+    if not cfg.identity.serial.isascii():
+        raise ConfigError("the board serial must be ASCII", "BoardConfig.identity.serial")
+
+
+def config_block(cfg: BoardConfig) -> bytes:
+    """The EEPROM bytes of ``cfg`` (validated for this hardware)."""
+    check_hardware(cfg)
+    values = []
+    for _, code, source in CONFIG_FIELDS:
+        v = _value(cfg, source)
+        if code.endswith("s"):
+            raw = str(v).encode("ascii")
+            v = raw.ljust(SERIAL_LEN, b"\0")
+        elif code == "f":
+            v = float(v)  # type: ignore[arg-type]
+        else:
+            v = int(v)  # type: ignore[call-overload]
+        values.append(v)
+    body = CONFIG_STRUCT.pack(*values, 0)[:-2]
+    return body + struct.pack("<H", crc16_ccitt_false(body))
+
+
+@dataclass(frozen=True)
+class EepromImage:
+    """A whole EEPROM: the configuration block and, per unit, a calibration set or None (erased slot)."""
+
+    config: BoardConfig
+    calibrations: tuple[bytes | None, ...] = ()
+
+    def to_bytes(self) -> bytes:
+        image = bytearray(b"\xff" * EEPROM_SIZE)
+        block = config_block(self.config)
+        image[: len(block)] = block
+        if len(self.calibrations) > self.config.n_units:
+            raise ConfigError(
+                f"{len(self.calibrations)} calibration sets for {self.config.n_units} units", "EepromImage"
+            )
+        slot = cal_slot_size(self.config.n_units)
+        for unit, data in enumerate(self.calibrations):
+            if data is None:
+                continue
+            if len(data) > slot:
+                raise ConfigError(f"{len(data)} bytes > slot of {slot}", f"EepromImage.calibrations[{unit}]")
+            start = CAL_BASE + unit * slot
+            image[start : start + len(data)] = data
+        return bytes(image)
+
+
+def read_calibration(image: bytes, n_units: int, unit: int) -> bytes | None:
+    """The calibration set stored for ``unit`` in the EEPROM image of an ``n_units`` board (None: erased)."""
+    size = cal_slot_size(n_units)
+    start = CAL_BASE + unit * size
+    slot = image[start : start + size]
+    if not slot or slot[0] == 0xFF:
+        return None
+    counts = slot[24:28]
+    return bytes(slot[: 28 + 12 * sum(counts) + 2])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m firmware_sim.avr.eeprom",
+        description="Write an EEPROM image (board configuration) for the ADK firmware.",
+        epilog="examples:\n"
+        "  python -m firmware_sim.avr.eeprom --out board.eep --units 3 --frame-rate 100 --serial LAB-07\n"
+        "  avrdude -p m2560 -c wiring -P /dev/ttyACM0 -b 115200 -U eeprom:w:board.eep:r\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--out", required=True, help="file to write (raw binary, 4096 bytes)")
+    p.add_argument("--units", type=int, default=4, help="VSCMG units (1..6)")
+    p.add_argument("--frame-rate", type=float, default=50.0, help="pulse frame rate, 50..490 Hz")
+    p.add_argument("--telemetry-rate", type=float, default=20.0, help="telemetry rate, Hz")
+    p.add_argument("--link-timeout", type=float, default=0.25, help="link watchdog, s")
+    p.add_argument("--mcu-watchdog", type=float, default=0.5, help="MCU watchdog, s")
+    p.add_argument("--cells", type=int, default=3, help="battery cells in series")
+    p.add_argument("--ppm", action="store_true", help="also output a PPM-sum train (4 units or fewer)")
+    p.add_argument("--serial", default="ADK0001", help="board serial number (ASCII, <= 24 bytes)")
+    args = p.parse_args(argv)
+    base = BoardConfig()
+    try:
+        cfg = base.replace(
+            n_units=args.units,
+            frame_rate_hz=args.frame_rate,
+            telemetry_rate_hz=args.telemetry_rate,
+            link_timeout_s=args.link_timeout,
+            mcu_watchdog_s=args.mcu_watchdog,
+            ppm=args.ppm,
+            identity=replace(base.identity, serial=args.serial),
+            power=replace(base.power, battery=replace(base.power.battery, cells=args.cells)),
+        )
+        data = EepromImage(cfg).to_bytes()
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    with open(args.out, "wb") as f:
+        f.write(data)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

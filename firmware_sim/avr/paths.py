@@ -1,0 +1,14 @@
+"""Where the firmware's sources and build outputs live (the checkout is installed in editable mode)."""
+
+from __future__ import annotations
+
+from hil.paths import ROOT
+
+FIRMWARE_DIR = ROOT / "firmware"
+BUILD_DIR = FIRMWARE_DIR / "build"
+FIRMWARE_ELF = BUILD_DIR / "vscmg-adk.elf"
+"""The board firmware: the very binary that is flashed (its .hex beside it)."""
+CODEC_CHECK_ELF = BUILD_DIR / "codec-check.elf"
+"""The firmware's codec alone, echoing decoded frames (for the protocol test vectors)."""
+HARNESS = BUILD_DIR / "avr-harness"
+"""The host program that runs an ELF on simavr behind a pseudo-terminal."""
