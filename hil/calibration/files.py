@@ -1,0 +1,365 @@
+"""Calibration files: one unit's or a whole array's calibration set as TOML (read with ``tomllib``).
+
+Format ``vscmg-hil calibration``, version 1 (``docs/calibration.md`` has the full description)::
+
+    format = "vscmg-hil calibration"
+    version = 1
+
+    [[unit]]                      # one per VSCMG unit
+    index = 0                     # the board's unit number, 0..7, unique
+    name = "pyramid-a"            # optional label
+
+    [unit.esc]                    # ESC endpoints (µs) and deadband above the low endpoint (µs)
+    low_us = 1000.0
+    high_us = 2000.0
+    deadband_us = 41.2
+
+    [unit.rotor]                  # no-load speed = kv · V · f(throttle)
+    kv_rad_s_per_v = 50.1
+    throttle = [0.0, 0.125, ...]  # knots of f: throttle 0..1 ...
+    fraction = [0.0, 0.16, ...]   # ... and f there, 0..1, strictly increasing
+
+    [unit.gimbal_rate]            # rate 0 between lower_pulse_us[-1] and upper_pulse_us[0]
+    hold_us = 1500.0
+    lower_pulse_us = [...]
+    lower_rate_rad_s = [...]      # ends at 0
+    upper_pulse_us = [...]
+    upper_rate_rad_s = [...]      # starts at 0
+
+    [unit.gimbal_angle]
+    pulse_us = [...]
+    angle_rad = [...]
+
+Each map may carry a ``fit`` table (provenance: source CSV, points, residuals). Files store knots; the
+slopes of the binary form are computed from them by PCHIP, so editing a knot by hand is safe. Numbers are
+written as the shortest decimal that reads back as the same float32. Every error names the file and key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tomllib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from protocol.calibration import (
+    EscThrottleMap,
+    GimbalAngleMap,
+    GimbalRateMap,
+    MonotoneCubic,
+    RotorSpeedMap,
+    UnitCalibration,
+)
+from protocol.calibration.checks import within
+from protocol.errors import CalibrationError
+from protocol.messages import MAX_UNITS
+
+FORMAT = "vscmg-hil calibration"
+VERSION = 1
+MAPS = ("rotor", "gimbal_rate", "gimbal_angle")
+
+
+@dataclass(frozen=True)
+class FitInfo:
+    """Where a map came from and how well it fitted (residual = measured − fitted, in ``residual_unit``)."""
+
+    source: str
+    points: int
+    rms_residual: float
+    max_residual: float
+    residual_unit: str
+    battery_v: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class UnitEntry:
+    """One unit of a calibration file: its board index, a label, its maps and their provenance."""
+
+    index: int
+    name: str
+    calibration: UnitCalibration
+    fits: Mapping[str, FitInfo] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CalibrationSet:
+    """The units of one calibration file, in index order."""
+
+    units: tuple[UnitEntry, ...]
+
+    def unit(self, index: int) -> UnitEntry | None:
+        return next((u for u in self.units if u.index == index), None)
+
+    def with_unit(self, entry: UnitEntry) -> CalibrationSet:
+        """A copy with ``entry`` added, or replacing the unit of the same index."""
+        rest = [u for u in self.units if u.index != entry.index]
+        return CalibrationSet(tuple(sorted([*rest, entry], key=lambda u: u.index)))
+
+    def for_board(self, n_units: int) -> list[UnitCalibration | None]:
+        """Calibrations for units 0..n_units-1 (None where the file has none), e.g. for ``Board``."""
+        return [u.calibration if (u := self.unit(i)) is not None else None for i in range(n_units)]
+
+
+# =========================================================================== reading
+def load_calibration(path: str | os.PathLike[str]) -> CalibrationSet:
+    """Read a calibration file; :class:`CalibrationError` naming the file and key for anything wrong."""
+    p = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError as exc:
+        raise CalibrationError("no such file", p) from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"cannot read: {exc}", p) from exc
+    return parse_calibration(text, p)
+
+
+def parse_calibration(text: str, source: str = "<calibration>") -> CalibrationSet:
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CalibrationError(f"not valid TOML: {exc}", source) from exc
+    _keys(doc, {"format", "version", "unit"}, {"format", "version", "unit"}, source)
+    if doc["format"] != FORMAT:
+        raise CalibrationError(f"{doc['format']!r} is not {FORMAT!r}", f"{source}: format")
+    if doc["version"] != VERSION:
+        raise CalibrationError(
+            f"version {doc['version']!r} is not supported (this reader knows {VERSION})", f"{source}: version"
+        )
+    units = doc["unit"]
+    if not isinstance(units, list) or not units or not all(isinstance(u, dict) for u in units):
+        raise CalibrationError("must be one or more [[unit]] tables", f"{source}: unit")
+    entries = [_unit(u, f"{source}: unit[{i}]") for i, u in enumerate(units)]
+    seen: set[int] = set()
+    for i, e in enumerate(entries):
+        if e.index in seen:
+            raise CalibrationError(f"unit index {e.index} appears twice", f"{source}: unit[{i}].index")
+        seen.add(e.index)
+    return CalibrationSet(tuple(sorted(entries, key=lambda e: e.index)))
+
+
+def _unit(doc: dict[str, Any], where: str) -> UnitEntry:
+    _keys(doc, {"index", "name", *MAPS, "esc"}, {"index", "esc", *MAPS}, where)
+    index = doc["index"]
+    if isinstance(index, bool) or not isinstance(index, int) or not 0 <= index < MAX_UNITS:
+        raise CalibrationError(f"{index!r} is not a unit number 0..{MAX_UNITS - 1}", f"{where}.index")
+    name = doc.get("name", f"unit{index}")
+    if not isinstance(name, str):
+        raise CalibrationError(f"{name!r} is not a string", f"{where}.name")
+    esc_doc = _table(doc, "esc", where)
+    _keys(esc_doc, {"low_us", "high_us", "deadband_us"}, {"low_us", "high_us", "deadband_us"}, f"{where}.esc")
+    with within(f"{where}.esc"):
+        esc = EscThrottleMap(
+            _num(esc_doc, "low_us", f"{where}.esc"),
+            _num(esc_doc, "high_us", f"{where}.esc"),
+            _num(esc_doc, "deadband_us", f"{where}.esc"),
+        )
+    fits: dict[str, FitInfo] = {}
+    rotor_doc = _map_table(doc, "rotor", where, ("kv_rad_s_per_v", "throttle", "fraction"), fits)
+    w = f"{where}.rotor"
+    with within(w):
+        rotor = RotorSpeedMap(
+            esc, _num(rotor_doc, "kv_rad_s_per_v", w), _cubic(rotor_doc, "throttle", "fraction", w)
+        )
+    keys = ("hold_us", "lower_pulse_us", "lower_rate_rad_s", "upper_pulse_us", "upper_rate_rad_s")
+    rate_doc = _map_table(doc, "gimbal_rate", where, keys, fits)
+    w = f"{where}.gimbal_rate"
+    with within(w):
+        rate = GimbalRateMap(
+            _num(rate_doc, "hold_us", w),
+            _cubic(rate_doc, "lower_pulse_us", "lower_rate_rad_s", w),
+            _cubic(rate_doc, "upper_pulse_us", "upper_rate_rad_s", w),
+        )
+    angle_doc = _map_table(doc, "gimbal_angle", where, ("pulse_us", "angle_rad"), fits)
+    w = f"{where}.gimbal_angle"
+    with within(w):
+        angle = GimbalAngleMap(_cubic(angle_doc, "pulse_us", "angle_rad", w))
+    return UnitEntry(index, name, UnitCalibration(rotor, rate, angle), fits)
+
+
+def _map_table(
+    doc: dict[str, Any], name: str, where: str, keys: tuple[str, ...], fits: dict[str, FitInfo]
+) -> dict[str, Any]:
+    table = _table(doc, name, where)
+    w = f"{where}.{name}"
+    _keys(table, {*keys, "fit"}, set(keys), w)
+    if "fit" in table:
+        fits[name] = _fit_info(_table(table, "fit", w), f"{w}.fit")
+    return table
+
+
+def _fit_info(doc: dict[str, Any], where: str) -> FitInfo:
+    required = {"source", "points", "rms_residual", "max_residual", "residual_unit"}
+    _keys(doc, {*required, "battery_v"}, required, where)
+    for key in ("source", "residual_unit"):
+        if not isinstance(doc[key], str):
+            raise CalibrationError(f"{doc[key]!r} is not a string", f"{where}.{key}")
+    points = doc["points"]
+    if isinstance(points, bool) or not isinstance(points, int) or points < 0:
+        raise CalibrationError(f"{points!r} is not a count", f"{where}.points")
+    battery = None
+    if "battery_v" in doc:
+        lo, hi = _numbers(doc, "battery_v", where, length=2)
+        battery = (lo, hi)
+    return FitInfo(
+        doc["source"],
+        points,
+        _num(doc, "rms_residual", where),
+        _num(doc, "max_residual", where),
+        doc["residual_unit"],
+        battery,
+    )
+
+
+def _cubic(doc: dict[str, Any], x_key: str, y_key: str, where: str) -> MonotoneCubic:
+    xs = _numbers(doc, x_key, where)
+    ys = _numbers(doc, y_key, where)
+    if len(xs) != len(ys):
+        raise CalibrationError(f"{len(xs)} {x_key} but {len(ys)} {y_key}", f"{where}.{y_key}")
+    try:
+        return MonotoneCubic.pchip(xs, ys)
+    except CalibrationError as exc:  # name the file's keys rather than the table's x/y
+        key = exc.where.replace("x[", f"{x_key}[").replace("y[", f"{y_key}[").replace("knots", x_key)
+        raise CalibrationError(exc.detail, key if key not in ("x", "y") else f"{x_key}/{y_key}") from exc
+
+
+def _table(doc: dict[str, Any], key: str, where: str) -> dict[str, Any]:
+    value = doc[key]
+    if not isinstance(value, dict):
+        raise CalibrationError(f"must be a table, not {type(value).__name__}", f"{where}.{key}")
+    return value
+
+
+def _num(doc: dict[str, Any], key: str, where: str) -> float:
+    value = doc[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CalibrationError(f"{value!r} is not a finite number", f"{where}.{key}")
+    return float(value)
+
+
+def _numbers(doc: dict[str, Any], key: str, where: str, length: int | None = None) -> list[float]:
+    value = doc[key]
+    if not isinstance(value, list) or (length is not None and len(value) != length):
+        shape = f"an array of {length} numbers" if length else "an array of numbers"
+        raise CalibrationError(f"must be {shape}", f"{where}.{key}")
+    out = []
+    for i, v in enumerate(value):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise CalibrationError(f"{v!r} is not a finite number", f"{where}.{key}[{i}]")
+        out.append(float(v))
+    return out
+
+
+def _keys(doc: Mapping[str, Any], allowed: set[str], required: set[str], where: str) -> None:
+    unknown = sorted(set(doc) - allowed)
+    if unknown:
+        raise CalibrationError(
+            f"unknown key (allowed: {', '.join(sorted(allowed))})", f"{where}.{unknown[0]}"
+        )
+    missing = sorted(required - set(doc))
+    if missing:
+        raise CalibrationError("missing", f"{where}.{missing[0]}")
+
+
+# =========================================================================== writing
+def dump_calibration(cset: CalibrationSet) -> str:
+    """The TOML text of ``cset`` (reads back equal with :func:`parse_calibration`)."""
+    out = [
+        '# vscmg-hil calibration set: see docs/calibration.md ("Calibration files")',
+        f"format = {_str(FORMAT)}",
+        f"version = {VERSION}",
+    ]
+    for u in cset.units:
+        c = u.calibration
+        esc, rotor, rate, angle = c.rotor.esc, c.rotor, c.gimbal_rate, c.gimbal_angle
+        out += ["", "[[unit]]", f"index = {u.index}", f"name = {_str(u.name)}"]
+        out += _section(
+            "unit.esc", [("low_us", esc.low_us), ("high_us", esc.high_us), ("deadband_us", esc.deadband_us)]
+        )
+        out += _section(
+            "unit.rotor",
+            [
+                ("kv_rad_s_per_v", rotor.kv_rad_s_per_v),
+                ("throttle", rotor.curve.x),
+                ("fraction", rotor.curve.y),
+            ],
+        )
+        out += _fit_section("unit.rotor", u.fits.get("rotor"))
+        out += _section(
+            "unit.gimbal_rate",
+            [
+                ("hold_us", rate.hold_us),
+                ("lower_pulse_us", rate.lower.x),
+                ("lower_rate_rad_s", rate.lower.y),
+                ("upper_pulse_us", rate.upper.x),
+                ("upper_rate_rad_s", rate.upper.y),
+            ],
+        )
+        out += _fit_section("unit.gimbal_rate", u.fits.get("gimbal_rate"))
+        out += _section("unit.gimbal_angle", [("pulse_us", angle.curve.x), ("angle_rad", angle.curve.y)])
+        out += _fit_section("unit.gimbal_angle", u.fits.get("gimbal_angle"))
+    return "\n".join(out) + "\n"
+
+
+def save_calibration(cset: CalibrationSet, path: str | os.PathLike[str]) -> Path:
+    """Write ``cset`` to ``path`` atomically (a temporary file renamed over it)."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(dump_calibration(cset), encoding="utf-8")
+    os.replace(tmp, out)
+    return out
+
+
+def _section(name: str, items: Iterable[tuple[str, Any]]) -> list[str]:
+    return ["", f"[{name}]"] + [f"{k} = {_value(v)}" for k, v in items]
+
+
+def _fit_section(name: str, fit: FitInfo | None) -> list[str]:
+    if fit is None:
+        return []
+    items: list[tuple[str, Any]] = [
+        ("source", fit.source),
+        ("points", fit.points),
+        ("rms_residual", fit.rms_residual),
+        ("max_residual", fit.max_residual),
+        ("residual_unit", fit.residual_unit),
+    ]
+    if fit.battery_v is not None:
+        items.append(("battery_v", fit.battery_v))
+    return _section(f"{name}.fit", items)
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, str):
+        return _str(v)
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, (tuple, list)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    return _float(v)
+
+
+def _float(x: float) -> str:
+    """The shortest decimal that reads back as the same float32 (always with a '.' or an exponent)."""
+    text = str(np.float32(x))
+    return text if any(c in text for c in ".e") else text + ".0"
+
+
+def _str(s: str) -> str:
+    return json.dumps(s, ensure_ascii=False)
+
+
+def with_fit(entry: UnitEntry, name: str, fit: FitInfo | None) -> UnitEntry:
+    """``entry`` with map ``name``'s provenance set (None: removed)."""
+    fits = dict(entry.fits)
+    if fit is None:
+        fits.pop(name, None)
+    else:
+        fits[name] = fit
+    return replace(entry, fits=fits)

@@ -1,0 +1,228 @@
+"""``hil calibrate``: fit bench CSVs into calibration files, make bench data and test vectors, inspect."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+from pathlib import Path
+
+ORDER = 40
+
+_FIT_EXAMPLES = """examples:
+  # fit all three maps of unit 0 into a new file (and save cal/pyramid-unit0.png)
+  hil calibrate fit bench/unit0_rotor.csv bench/unit0_gimbal_rate.csv bench/unit0_gimbal_angle.csv \\
+      -o cal/pyramid.toml --unit 0 --name pyramid-a
+  # refit only the rotor of unit 2 in an existing file (its gimbal maps are kept)
+  hil calibrate fit today_rotor.csv -o cal/pyramid.toml --unit 2
+  # an ESC calibrated to 1100..1940 µs, a coarser throttle table, a plot elsewhere
+  hil calibrate fit rotor.csv -o unit.toml --base default --esc-low 1100 --esc-high 1940 \\
+      --rotor-knots 7 --plot /tmp/rotor_fit.svg
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "calibrate",
+        help="fit ESC/gimbal calibration maps to bench data; bench data, test vectors, inspection",
+        description="Calibration maps: fit bench CSVs into a calibration file, generate bench data from the "
+        "stated motor models, write test vectors for other implementations, show a file.",
+        epilog="Run 'hil calibrate ACTION --help' for each action's options and examples.",
+    )
+    actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+
+    f = actions.add_parser(
+        "fit",
+        help="fit bench CSVs, write the calibration file, save a plot, print residuals",
+        description="Fit each bench CSV (its measurement column says which map: rpm or rotor_speed_rad_s, "
+        "gimbal_rate_*, gimbal_angle_*) and store the maps as unit N of the output file. Maps without a CSV "
+        "are kept from the unit already in the output file, or taken from --base.",
+        epilog=_FIT_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    f.add_argument("csv", nargs="+", type=Path, help="bench CSV files (at most one per map)")
+    f.add_argument("-o", "--out", type=Path, required=True, help="calibration file to write or update (TOML)")
+    f.add_argument("--unit", type=int, default=0, help="unit index in the file, 0..7 (default 0)")
+    f.add_argument("--name", help="unit label (default: kept, or unitN)")
+    f.add_argument("--base", help="where maps without a CSV come from: a calibration file, or 'default'")
+    f.add_argument("--plot", type=Path, help="image of data against fit (default: OUT's stem + -unitN.png)")
+    f.add_argument("--esc-low", type=float, default=1000.0, help="ESC's calibrated low endpoint, µs (1000)")
+    f.add_argument("--esc-high", type=float, default=2000.0, help="ESC's calibrated high endpoint, µs (2000)")
+    f.add_argument("--rotor-knots", type=int, default=9, help="knots of the throttle curve, 3..16 (9)")
+    f.add_argument("--gimbal-rate-knots", type=int, default=6, help="knots each side of the dead zone (6)")
+    f.add_argument("--gimbal-angle-knots", type=int, default=9, help="knots of the angle table (9)")
+    f.set_defaults(func=run_fit)
+
+    b = actions.add_parser(
+        "bench",
+        help="write seeded bench CSVs generated from the stated motor and servo models",
+        description="Synthetic bench data (unit-to-unit spread and measurement noise on the stated models, "
+        "docs/calibration.md): unit<i>_rotor.csv, unit<i>_gimbal_rate.csv, unit<i>_gimbal_angle.csv.",
+        epilog="examples:\n  hil calibrate bench --out-dir fixtures/calibration/bench --units 4 --seed 1\n"
+        "  hil calibrate bench --out-dir /tmp/bench --units 3 --seed 7 --mirrored 0 2",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    b.add_argument("--out-dir", type=Path, required=True, help="directory for the CSV files")
+    b.add_argument("--units", type=int, default=4, help="number of units (4)")
+    b.add_argument("--seed", type=int, default=1, help="random seed (1)")
+    b.add_argument("--mirrored", type=int, nargs="*", default=[3], help="units with mirrored gimbals (3)")
+    b.set_defaults(func=run_bench)
+
+    s = actions.add_parser(
+        "show",
+        help="check a calibration file and print each unit's maps and binary size",
+        description="Load and validate a calibration file; print each unit's maps, fit residuals and the "
+        "size and CRC of its binary set (what a CALIBRATION transfer carries).",
+        epilog="examples:\n  hil calibrate show fixtures/calibration/pyramid4.toml\n"
+        "  hil calibrate show unit.toml --hex",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    s.add_argument("file", type=Path, help="calibration file (TOML)")
+    s.add_argument("--hex", action="store_true", help="also print each unit's binary set in hex")
+    s.set_defaults(func=run_show)
+
+    v = actions.add_parser(
+        "vectors",
+        help="write test vectors of the binary format and the maps (for the C firmware's tests)",
+        description="Binary sets, conversions with their expected results and malformed sets with the "
+        "field they break, as JSON, from the default unit and the units of a calibration file.",
+        epilog="example:\n  hil calibrate vectors fixtures/calibration/pyramid4.toml "
+        "-o fixtures/calibration/vectors.json",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    v.add_argument("file", type=Path, help="calibration file whose units to include")
+    v.add_argument("-o", "--out", type=Path, required=True, help="JSON file to write")
+    v.set_defaults(func=run_vectors)
+
+
+# --------------------------------------------------------------------------- fit
+def run_fit(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from hil.calibration.bench import read_bench_csv
+    from hil.calibration.files import CalibrationSet, FitInfo, UnitEntry, load_calibration, save_calibration
+    from hil.calibration.fit import FitOptions, fit_bench
+    from hil.calibration.plot import plot_fits
+    from protocol.calibration import UnitCalibration, default_unit_calibration
+    from protocol.errors import CalibrationError
+
+    options = FitOptions(
+        esc_low_us=args.esc_low,
+        esc_high_us=args.esc_high,
+        rotor_knots=args.rotor_knots,
+        gimbal_rate_knots_per_side=args.gimbal_rate_knots,
+        gimbal_angle_knots=args.gimbal_angle_knots,
+    )
+    datasets = [read_bench_csv(path) for path in args.csv]
+    kinds = [d.kind.value for d in datasets]
+    for d in datasets:
+        if kinds.count(d.kind.value) > 1:
+            raise CalibrationError(
+                f"one of {kinds.count(d.kind.value)} {d.kind.value} CSVs; give one per map", d.path
+            )
+    out_dir = args.out.resolve().parent
+    existing = load_calibration(args.out) if args.out.exists() else CalibrationSet(())
+    base, base_dir, base_label = existing.unit(args.unit), out_dir, str(args.out)
+    if args.base == "default":
+        base, base_label = (
+            UnitEntry(args.unit, f"unit{args.unit}", default_unit_calibration()),
+            "the default unit",
+        )
+    elif args.base:
+        base, base_dir, base_label = (
+            load_calibration(args.base).unit(args.unit),
+            Path(args.base).resolve().parent,
+            args.base,
+        )
+        if base is None:
+            raise CalibrationError(f"has no unit {args.unit}", args.base)
+    fits = [(d, fit_bench(d, options)) for d in datasets]
+    maps = {d.kind.value: fit.map for d, fit in fits}
+    kept = [k for k in ("rotor", "gimbal_rate", "gimbal_angle") if k not in maps]
+    if kept and base is None:
+        raise CalibrationError(
+            f"no data for {', '.join(kept)}: give their CSVs, or --base FILE|default to take them from",
+            str(args.out),
+        )
+    if base is not None:
+        maps = {
+            k: maps.get(k, getattr(base.calibration, k)) for k in ("rotor", "gimbal_rate", "gimbal_angle")
+        }
+    cal = UnitCalibration(maps["rotor"], maps["gimbal_rate"], maps["gimbal_angle"])  # type: ignore[arg-type]
+    provenance = {}
+    for k in kept:
+        info = base.fits.get(k) if base is not None else None
+        if info is not None:
+            provenance[k] = replace(info, source=os.path.relpath(base_dir / info.source, out_dir))
+    for d, fit in fits:
+        r = fit.report
+        source = os.path.relpath(Path(d.path).resolve(), out_dir)
+        provenance[d.kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
+    name = args.name or (base.name if base is not None and args.base != "default" else f"unit{args.unit}")
+    written = save_calibration(existing.with_unit(UnitEntry(args.unit, name, cal, provenance)), args.out)
+    plot_path = args.plot or args.out.with_name(f"{args.out.stem}-unit{args.unit}.png")
+    plot_fits(fits, plot_path, title=f"{written.name}: unit {args.unit} ({name})")
+    for _, fit in fits:
+        print(fit.report.summary())
+    if kept:
+        print(f"kept from {base_label}: {', '.join(kept)}")
+    print(f"wrote {written} (unit {args.unit}, {len(cal.to_bytes())}-byte binary set), plot {plot_path}")
+    return 0
+
+
+# --------------------------------------------------------------------------- bench
+def run_bench(args: argparse.Namespace) -> int:
+    from hil.calibration.generate import generate_bench
+    from protocol.errors import ConfigError
+
+    if not 1 <= args.units <= 8:
+        raise ConfigError(f"{args.units} is outside 1..8", "--units")
+    paths = generate_bench(args.out_dir, args.units, args.seed, tuple(args.mirrored))
+    print(f"wrote {len(paths)} bench CSVs to {args.out_dir} (seed {args.seed})")
+    return 0
+
+
+# --------------------------------------------------------------------------- show
+def run_show(args: argparse.Namespace) -> int:
+    from hil.calibration.files import load_calibration
+    from protocol.crc import crc16_ccitt_false
+
+    cset = load_calibration(args.file)
+    for u in cset.units:
+        c = u.calibration
+        esc, rate = c.rotor.esc, c.gimbal_rate
+        data = c.to_bytes()
+        lo, hi = rate.rate_range
+        print(f"unit {u.index} ({u.name}): binary set {len(data)} bytes, CRC {crc16_ccitt_false(data):#06x}")
+        print(
+            f"  rotor: ESC {esc.low_us:g}-{esc.high_us:g} µs, deadband {esc.deadband_us:.1f} µs, "
+            f"KV {c.rotor.kv_rad_s_per_v:.3f} rad/s/V ({c.rotor.kv_rad_s_per_v * 30 / math.pi:.0f} rpm/V), "
+            f"{len(c.rotor.curve.x)} knots"
+        )
+        print(
+            f"  gimbal rate: {lo:.3f}..{hi:.3f} rad/s, dead zone {rate.dead_zone_us[0]:.1f}-"
+            f"{rate.dead_zone_us[1]:.1f} µs, hold {rate.hold_us:.1f} µs"
+        )
+        a = c.gimbal_angle.curve
+        print(f"  gimbal angle: {min(a.y):.3f}..{max(a.y):.3f} rad over {a.x[0]:g}-{a.x[-1]:g} µs")
+        for name, fit in u.fits.items():
+            print(
+                f"  fit {name}: {fit.source}, {fit.points} points, rms {fit.rms_residual:.4g} "
+                f"{fit.residual_unit}, max {fit.max_residual:.4g}"
+            )
+        if args.hex:
+            print("  " + data.hex())
+    return 0
+
+
+# --------------------------------------------------------------------------- vectors
+def run_vectors(args: argparse.Namespace) -> int:
+    from hil.calibration.files import load_calibration
+    from hil.calibration.vectors import write_vectors
+
+    cset = load_calibration(args.file)
+    out = write_vectors(
+        cset, args.out, source=os.path.relpath(args.file.resolve(), args.out.resolve().parent)
+    )
+    print(f"wrote {out}")
+    return 0
