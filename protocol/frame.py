@@ -27,7 +27,7 @@ from . import cobs
 from .crc import crc16_ccitt_false
 from .errors import FieldRangeError, FrameError, ProtocolError
 from .fields import PayloadLengthError
-from .messages import BY_ID, LAYOUTS, PROTOCOL_VERSION, Flags, encode_payload
+from .messages import LAYOUTS, PROTOCOL_VERSION, Flags, encode_payload
 
 HEADER = struct.Struct("<BBBB")
 CRC = struct.Struct("<H")
@@ -186,7 +186,8 @@ class Deframer:
             if not chunk:
                 continue
             if len(chunk) > MAX_ENCODED:
-                self._bad(events, BadFrameReason.TOO_LONG, f"{len(chunk)} bytes without a delimiter", len(chunk))
+                detail = f"{len(chunk)} bytes without a delimiter"
+                self._bad(events, BadFrameReason.TOO_LONG, detail, len(chunk))
                 counters.resyncs += 1
                 continue
             try:
@@ -239,15 +240,19 @@ class Framer:
         return self._next
 
     def encode(self, message: Any, flags: int = 0, seq: int | None = None) -> tuple[int, bytes]:
-        """Returns ``(seq, wire_bytes)``."""
+        """Returns ``(seq, wire_bytes)``. A message that fails to encode (``FieldRangeError``) uses up no
+        sequence number, so the receiver sees no gap for a frame that was never sent."""
+        new = seq is None
         if seq is None:
             seq = self._next
-            self._next = (self._next + 1) & 0xFF
         else:
             flags |= Flags.RETRANSMIT
         if getattr(message, "RELIABLE", False):
             flags |= Flags.ACK_REQUESTED
-        return seq, encode_frame(message, seq, flags)
+        wire = encode_frame(message, seq, flags)
+        if new:
+            self._next = (seq + 1) & 0xFF
+        return seq, wire
 
 
 def decode_stream(data: bytes | Iterable[bytes]) -> list[Event]:
