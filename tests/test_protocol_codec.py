@@ -259,3 +259,15 @@ def test_array_records_are_records():
         for _, codec in layout_of(cls).fields:
             if isinstance(codec, Array) and not isinstance(codec.item, Scalar):
                 assert layout_of(codec.item).fixed_size > 0
+
+
+def test_a_frame_that_fails_to_encode_uses_no_sequence_number():
+    """Regression: the Framer took the number before encoding, so a refused message left a gap that the
+    receiver counted as a lost frame."""
+    framer = Framer(10)
+    with pytest.raises(FieldRangeError):
+        framer.encode(Heartbeat(time_ms=-1))
+    assert framer.next_seq == 10
+    deframer = Deframer()
+    deframer.feed(framer.encode(Heartbeat(time_ms=1))[1] + framer.encode(Heartbeat(time_ms=2))[1])
+    assert deframer.counters.frames == 2 and deframer.counters.seq_gaps == 0
