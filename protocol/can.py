@@ -28,8 +28,11 @@ Segment (the CAN frame's data)::
 A frame takes at most 37 classic or 5 FD segments. Receivers reassemble per arbitration id, place
 segments by index (so reordering within a frame is harmless), and emit the frame once every index up
 to the delimiter's has arrived. A frame that cannot complete — a segment lost, a conflicting duplicate,
-the sender moved on — is discarded and counted (``incomplete``), never delivered half-built; memory is
-bounded by ``window`` partial frames per arbitration id and ``max_streams`` arbitration ids.
+the sender moved on — is discarded and counted (``incomplete``), never delivered half-built. A repeat of a
+segment already delivered (CAN's "double reception" after an error frame) is recognised until the
+sender reuses that transfer id, and counted as a duplicate. Memory is bounded: per arbitration id
+``window`` partial frames and the last frame of each of the 4 transfer ids, for at most
+``max_streams`` arbitration ids.
 """
 
 from __future__ import annotations
@@ -218,6 +221,15 @@ class _Partial:
     last: int | None = None  # index of the segment holding the delimiter
 
 
+@dataclass
+class _Stream:
+    """One arbitration id: frames being assembled, and the frames completed under each transfer id not
+    reused since (so a late duplicate of a delivered segment is recognised, not delivered again)."""
+
+    partials: OrderedDict[int, _Partial] = field(default_factory=OrderedDict)
+    done: dict[int, dict[int, bytes]] = field(default_factory=dict)
+
+
 class CanReassembler:
     """Receiver side: CAN frames in, complete wire frames out (feed them to a ``Deframer``).
 
@@ -239,12 +251,12 @@ class CanReassembler:
         self.window = window
         self.max_streams = max_streams
         self.stats = CanStats()
-        self._streams: OrderedDict[int, OrderedDict[int, _Partial]] = OrderedDict()
+        self._streams: OrderedDict[int, _Stream] = OrderedDict()
 
     def reset(self) -> None:
         """Drop every partial frame (counted as incomplete), e.g. after a reconnect."""
         for stream in self._streams.values():
-            self.stats.incomplete += len(stream)
+            self.stats.incomplete += len(stream.partials)
         self._streams.clear()
 
     def feed(
@@ -270,13 +282,20 @@ class CanReassembler:
             return b""
         self.stats.segments += 1
         stream = self._stream(arbitration_id)
-        partial = stream.get(tid)
+        done = stream.done.get(tid)
+        if done is not None:
+            if done.get(index) == chunk:
+                self.stats.duplicates += 1  # a repeat of a frame already delivered (CAN double reception)
+                return b""
+            del stream.done[tid]  # the sender has come round to this transfer id again
+        partials = stream.partials
+        partial = partials.get(tid)
         if partial is None:
-            partial = self._open(stream, tid)
+            partial = self._open(partials, tid)
         elif self._conflicts(partial, index, chunk, end >= 0):
-            del stream[tid]
+            del partials[tid]
             self.stats.incomplete += 1
-            partial = self._open(stream, tid)
+            partial = self._open(partials, tid)
         elif partial.segments.get(index) == chunk:
             self.stats.duplicates += 1
             return b""
@@ -286,11 +305,12 @@ class CanReassembler:
         if partial.last is None or len(partial.segments) != partial.last + 1:
             return b""
         # Complete: deliver it, and give up on frames of this stream that started before it.
-        for older in list(stream):
-            del stream[older]
+        for older in list(partials):
+            del partials[older]
             if older == tid:
                 break
             self.stats.incomplete += 1
+        stream.done[tid] = partial.segments
         wire = b"".join(partial.segments[i] for i in range(partial.last + 1))
         if len(wire) > MAX_WIRE:
             self.stats.malformed += 1
@@ -310,7 +330,7 @@ class CanReassembler:
     @property
     def partial_frames(self) -> int:
         """Partial frames held now (bounded by ``window × max_streams``)."""
-        return sum(len(s) for s in self._streams.values())
+        return sum(len(s.partials) for s in self._streams.values())
 
     # ------------------------------------------------------------------ internals
     def _accepts(self, arbitration_id: int) -> bool:
@@ -322,22 +342,22 @@ class CanReassembler:
             return False
         return self.direction is None or cid.direction is self.direction
 
-    def _stream(self, arbitration_id: int) -> OrderedDict[int, _Partial]:
+    def _stream(self, arbitration_id: int) -> _Stream:
         stream = self._streams.get(arbitration_id)
         if stream is None:
             if len(self._streams) >= self.max_streams:
                 _, dropped = self._streams.popitem(last=False)
-                self.stats.incomplete += len(dropped)
-            stream = self._streams[arbitration_id] = OrderedDict()
+                self.stats.incomplete += len(dropped.partials)
+            stream = self._streams[arbitration_id] = _Stream()
         else:
             self._streams.move_to_end(arbitration_id)
         return stream
 
-    def _open(self, stream: OrderedDict[int, _Partial], tid: int) -> _Partial:
-        while len(stream) >= self.window:
-            stream.popitem(last=False)
+    def _open(self, partials: OrderedDict[int, _Partial], tid: int) -> _Partial:
+        while len(partials) >= self.window:
+            partials.popitem(last=False)
             self.stats.incomplete += 1
-        partial = stream[tid] = _Partial()
+        partial = partials[tid] = _Partial()
         return partial
 
     @staticmethod
