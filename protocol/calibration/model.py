@@ -97,8 +97,8 @@ class GimbalServoModel:
         lower = [2.0 * c - p for p in reversed(upper)]
         return GimbalRateMap(
             c,
-            MonotoneCubic.pchip(lower, [self.rate(p) for p in lower]),
-            MonotoneCubic.pchip(upper, [self.rate(p) for p in upper]),
+            MonotoneCubic.pchip(lower, [self.rate(p) for p in lower[:-1]] + [0.0]),
+            MonotoneCubic.pchip(upper, [0.0] + [self.rate(p) for p in upper[1:]]),
         )
 
     def angle_map(self, knots: int = 9) -> GimbalAngleMap:
