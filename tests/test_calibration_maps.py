@@ -7,10 +7,10 @@ import math
 
 import numpy as np
 import pytest
-from calibration_strategies import FINITE, unit_calibrations
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.interpolate import PchipInterpolator
+from test_calibration_strategies import FINITE, unit_calibrations
 
 from protocol.calibration import (
     Clamp,

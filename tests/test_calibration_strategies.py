@@ -1,4 +1,4 @@
-"""Hypothesis strategies for calibration tests: random but physically sensible unit calibrations."""
+"""Hypothesis strategies for the calibration tests (no tests here): random, physically sensible units."""
 
 from __future__ import annotations
 
