@@ -4,7 +4,9 @@ Both ends of the link (the host in ``hil``, the emulated board in ``firmware_sim
 speak it; ``docs/protocol.md`` is its byte-level specification.
 """
 
-from .errors import FieldRangeError, FrameError, HilError, ProtocolError
+from .aoa import AccessoryIdentity, ControlTransfer, accessory_interfaces, is_accessory_mode, start_sequence
+from .can import CanFrame, CanReassembler, CanSegmenter
+from .errors import CommandFailed, FieldRangeError, FrameError, HilError, ProtocolError
 from .frame import BadFrame, BadFrameReason, Deframer, Frame, Framer, LinkCounters, decode_frame, encode_frame
 from .messages import (
     BY_ID,
@@ -38,5 +40,63 @@ from .messages import (
     UnitState,
     WatchdogState,
 )
+from .reliable import AnswerCache, Command, CommandState, ReliableSender, RetryPolicy
 
-__all__ = [name for name in dir() if not name.startswith("_")]
+__all__ = [
+    "accessory_interfaces",
+    "AccessoryIdentity",
+    "Ack",
+    "ActuatorSetpoint",
+    "AnswerCache",
+    "Arm",
+    "BadFrame",
+    "BadFrameReason",
+    "BoardState",
+    "BY_ID",
+    "CalibrationData",
+    "CalibrationRequest",
+    "CanFrame",
+    "CanReassembler",
+    "CanSegmenter",
+    "CATALOGUE",
+    "Command",
+    "CommandFailed",
+    "CommandState",
+    "ControlMode",
+    "ControlTransfer",
+    "decode_frame",
+    "Deframer",
+    "Disarm",
+    "encode_frame",
+    "FaultFlag",
+    "FieldRangeError",
+    "Flags",
+    "Frame",
+    "FrameError",
+    "Framer",
+    "GimbalMode",
+    "Heartbeat",
+    "Hello",
+    "HelloReply",
+    "HilError",
+    "is_accessory_mode",
+    "LinkCounters",
+    "Log",
+    "Nack",
+    "NackReason",
+    "PowerState",
+    "PROTOCOL_VERSION",
+    "ProtocolError",
+    "RawPulses",
+    "ReliableSender",
+    "ResetCause",
+    "RetryPolicy",
+    "SCHEMA_HASH",
+    "SetMode",
+    "Severity",
+    "start_sequence",
+    "Telemetry",
+    "UnitSetpoint",
+    "UnitState",
+    "WatchdogState",
+]
