@@ -168,10 +168,7 @@ def _with(part: CalibrationData, **changes) -> CalibrationData:
         (lambda p: [_with(p[0], count=2)], "does not fit total_len"),
         (lambda p: [_with(p[2], index=3)], "not below count"),
         (lambda p: [_with(p[0], chunk=p[0].chunk[:-1])], "chunk of 199 bytes"),
-        (
-            (lambda p: [p[0], _with(p[2], total_len=449, chunk=p[2].chunk[:-1])], "contradicts"),
-            "contradicts",
-        ),
+        (lambda p: [p[0], _with(p[2], total_len=449, chunk=p[2].chunk[:-1])], "contradicts"),
     ],
 )
 def test_inconsistent_fragments_are_refused_naming_the_fragment(damage, phrase):
