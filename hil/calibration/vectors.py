@@ -29,9 +29,9 @@ FORMAT = "vscmg-hil calibration vectors"
 VERSION = 1
 TOLERANCE = {
     "pulse_us": 0.01,
-    "rotor_speed_relative": 2e-6,
-    "gimbal_rate_rad_s": 2e-6,
-    "gimbal_angle_rad": 2e-6,
+    "rotor_speed_relative": 1e-5,
+    "gimbal_rate_rad_s": 1e-5,
+    "gimbal_angle_rad": 1e-5,
 }
 VOLTAGES = (0.5, 10.0, 11.1, 12.6)
 
