@@ -162,7 +162,8 @@ def _number(
     if not math.isfinite(x):
         raise InputFormatError(f"{cell!r} is not a finite number", path, line, column)
     if x < lo or (open_low and x == lo) or x > hi:
-        rng = f"{'above' if open_low else 'at least'} {lo:g}" if math.isinf(hi) else f"{lo:g}..{hi:g}"
+        low_text = f"above {lo:g}" if open_low else f"at least {lo:g}"
+        rng = low_text if math.isinf(hi) else f"{low_text} and at most {hi:g}"
         raise InputFormatError(f"{cell} is out of range (must be {rng})", path, line, column)
     return x
 

@@ -124,16 +124,17 @@ def parse_calibration(text: str, source: str = "<calibration>") -> CalibrationSe
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CalibrationError(f"not valid TOML: {exc}", source) from exc
-    _keys(doc, {"format", "version", "unit"}, {"format", "version", "unit"}, source)
+    top = f"{source}: "
+    _keys(doc, {"format", "version", "unit"}, {"format", "version", "unit"}, top)
     if doc["format"] != FORMAT:
-        raise CalibrationError(f"{doc['format']!r} is not {FORMAT!r}", f"{source}: format")
+        raise CalibrationError(f"{doc['format']!r} is not {FORMAT!r}", f"{top}format")
     if doc["version"] != VERSION:
         raise CalibrationError(
-            f"version {doc['version']!r} is not supported (this reader knows {VERSION})", f"{source}: version"
+            f"version {doc['version']!r} is not supported (this reader knows {VERSION})", f"{top}version"
         )
     units = doc["unit"]
     if not isinstance(units, list) or not units or not all(isinstance(u, dict) for u in units):
-        raise CalibrationError("must be one or more [[unit]] tables", f"{source}: unit")
+        raise CalibrationError("must be one or more [[unit]] tables", f"{top}unit")
     entries = [_unit(u, f"{source}: unit[{i}]") for i, u in enumerate(units)]
     seen: set[int] = set()
     for i, e in enumerate(entries):
@@ -152,33 +153,27 @@ def _unit(doc: dict[str, Any], where: str) -> UnitEntry:
     if not isinstance(name, str):
         raise CalibrationError(f"{name!r} is not a string", f"{where}.name")
     esc_doc = _table(doc, "esc", where)
-    _keys(esc_doc, {"low_us", "high_us", "deadband_us"}, {"low_us", "high_us", "deadband_us"}, f"{where}.esc")
-    with within(f"{where}.esc"):
-        esc = EscThrottleMap(
-            _num(esc_doc, "low_us", f"{where}.esc"),
-            _num(esc_doc, "high_us", f"{where}.esc"),
-            _num(esc_doc, "deadband_us", f"{where}.esc"),
-        )
+    w = f"{where}.esc"
+    _keys(esc_doc, {"low_us", "high_us", "deadband_us"}, {"low_us", "high_us", "deadband_us"}, w)
+    low, high, dead = (_num(esc_doc, k, w) for k in ("low_us", "high_us", "deadband_us"))
+    with within(w):
+        esc = EscThrottleMap(low, high, dead)
     fits: dict[str, FitInfo] = {}
     rotor_doc = _map_table(doc, "rotor", where, ("kv_rad_s_per_v", "throttle", "fraction"), fits)
     w = f"{where}.rotor"
+    kv, curve = _num(rotor_doc, "kv_rad_s_per_v", w), _cubic(rotor_doc, "throttle", "fraction", w)
     with within(w):
-        rotor = RotorSpeedMap(
-            esc, _num(rotor_doc, "kv_rad_s_per_v", w), _cubic(rotor_doc, "throttle", "fraction", w)
-        )
+        rotor = RotorSpeedMap(esc, kv, curve)
     keys = ("hold_us", "lower_pulse_us", "lower_rate_rad_s", "upper_pulse_us", "upper_rate_rad_s")
     rate_doc = _map_table(doc, "gimbal_rate", where, keys, fits)
     w = f"{where}.gimbal_rate"
+    hold = _num(rate_doc, "hold_us", w)
+    lower = _cubic(rate_doc, "lower_pulse_us", "lower_rate_rad_s", w)
+    upper = _cubic(rate_doc, "upper_pulse_us", "upper_rate_rad_s", w)
     with within(w):
-        rate = GimbalRateMap(
-            _num(rate_doc, "hold_us", w),
-            _cubic(rate_doc, "lower_pulse_us", "lower_rate_rad_s", w),
-            _cubic(rate_doc, "upper_pulse_us", "upper_rate_rad_s", w),
-        )
+        rate = GimbalRateMap(hold, lower, upper)
     angle_doc = _map_table(doc, "gimbal_angle", where, ("pulse_us", "angle_rad"), fits)
-    w = f"{where}.gimbal_angle"
-    with within(w):
-        angle = GimbalAngleMap(_cubic(angle_doc, "pulse_us", "angle_rad", w))
+    angle = GimbalAngleMap(_cubic(angle_doc, "pulse_us", "angle_rad", f"{where}.gimbal_angle"))
     return UnitEntry(index, name, UnitCalibration(rotor, rate, angle), fits)
 
 
@@ -217,15 +212,17 @@ def _fit_info(doc: dict[str, Any], where: str) -> FitInfo:
 
 
 def _cubic(doc: dict[str, Any], x_key: str, y_key: str, where: str) -> MonotoneCubic:
+    """The PCHIP table of knots ``doc[x_key]``, ``doc[y_key]``; errors name those keys (and the knot)."""
     xs = _numbers(doc, x_key, where)
     ys = _numbers(doc, y_key, where)
     if len(xs) != len(ys):
         raise CalibrationError(f"{len(xs)} {x_key} but {len(ys)} {y_key}", f"{where}.{y_key}")
     try:
         return MonotoneCubic.pchip(xs, ys)
-    except CalibrationError as exc:  # name the file's keys rather than the table's x/y
-        key = exc.where.replace("x[", f"{x_key}[").replace("y[", f"{y_key}[").replace("knots", x_key)
-        raise CalibrationError(exc.detail, key if key not in ("x", "y") else f"{x_key}/{y_key}") from exc
+    except CalibrationError as exc:
+        axis, _, knot = exc.where.partition("[")
+        key = {"x": x_key, "y": y_key}.get(axis, f"{x_key}/{y_key}")
+        raise CalibrationError(exc.detail, f"{where}.{key}{'[' + knot if knot else ''}") from exc
 
 
 def _table(doc: dict[str, Any], key: str, where: str) -> dict[str, Any]:
@@ -316,8 +313,9 @@ def save_calibration(cset: CalibrationSet, path: str | os.PathLike[str]) -> Path
     return out
 
 
-def _section(name: str, items: Iterable[tuple[str, Any]]) -> list[str]:
-    return ["", f"[{name}]"] + [f"{k} = {_value(v)}" for k, v in items]
+def _section(name: str, items: Iterable[tuple[str, Any]], exact: bool = False) -> list[str]:
+    """A TOML table; floats as shortest float32 decimals (map numbers), or with ``exact`` as float64."""
+    return ["", f"[{name}]"] + [f"{k} = {_value(v, exact)}" for k, v in items]
 
 
 def _fit_section(name: str, fit: FitInfo | None) -> list[str]:
@@ -332,17 +330,17 @@ def _fit_section(name: str, fit: FitInfo | None) -> list[str]:
     ]
     if fit.battery_v is not None:
         items.append(("battery_v", fit.battery_v))
-    return _section(f"{name}.fit", items)
+    return _section(f"{name}.fit", items, exact=True)
 
 
-def _value(v: Any) -> str:
+def _value(v: Any, exact: bool = False) -> str:
     if isinstance(v, str):
         return _str(v)
     if isinstance(v, int):
         return str(v)
     if isinstance(v, (tuple, list)):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    return _float(v)
+        return "[" + ", ".join(_value(x, exact) for x in v) + "]"
+    return repr(float(v)) if exact else _float(v)
 
 
 def _float(x: float) -> str:
@@ -352,7 +350,8 @@ def _float(x: float) -> str:
 
 
 def _str(s: str) -> str:
-    return json.dumps(s, ensure_ascii=False)
+    """A TOML basic string: JSON's escapes, plus DEL, which TOML (unlike JSON) forbids raw."""
+    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
 
 
 def with_fit(entry: UnitEntry, name: str, fit: FitInfo | None) -> UnitEntry:
