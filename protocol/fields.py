@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
+import operator
 import struct
 from collections.abc import Sequence, Sized
 from typing import Any
@@ -245,9 +246,25 @@ class PayloadLengthError(ProtocolError):
 
 @dataclasses.dataclass
 class _StructRun:
+    """Consecutive scalar fields packed by one ``struct.Struct``, with their checks precomputed.
+
+    Hot path of every encode and decode: a value of exactly the wire type inside ``bounds`` passes
+    with one comparison (NaN fails every comparison and ±inf lies outside every float range); anything
+    else goes through the codec's full ``check``. Enum fields are always checked for membership."""
+
     names: tuple[str, ...]
     codecs: tuple[Scalar, ...]
     packer: struct.Struct
+
+    def __post_init__(self) -> None:
+        self.bounds = tuple((c.lo, c.hi) for c in self.codecs)
+        # The exact Python type that may take the fast path (None: enums, always fully checked).
+        self.fast_types = tuple(
+            None if isinstance(c, Enum8) else (float if c.fmt == "f" else int) for c in self.codecs
+        )
+        self.enums = tuple((i, c) for i, c in enumerate(self.codecs) if isinstance(c, Enum8))
+        getter = operator.attrgetter(*self.names)
+        self.values_of = getter if len(self.names) > 1 else (lambda obj: (getter(obj),))
 
 
 class Layout:
@@ -291,13 +308,15 @@ class Layout:
     def encode_into(self, obj: Any, out: bytearray, where: str) -> None:
         for step in self._steps:
             if isinstance(step, _StructRun):
-                values = []
-                for name, codec in zip(step.names, step.codecs, strict=True):
-                    v = getattr(obj, name)
+                values = step.values_of(obj)
+                for v, (lo, hi), fast, codec, name in zip(
+                    values, step.bounds, step.fast_types, step.codecs, step.names, strict=True
+                ):
+                    if type(v) is fast and lo <= v <= hi:
+                        continue
                     if not codec.check(v):
                         raise FieldRangeError(where, name, v)
-                    values.append(codec.to_wire(v))
-                out += step.packer.pack(*values)
+                out += step.packer.pack(*values)  # struct takes int subclasses (IntEnum) as they are
                 continue
             name, codec = step
             v = getattr(obj, name)
@@ -337,10 +356,17 @@ class Layout:
                     raise PayloadLengthError(f"{where}: payload ends inside {step.names[0]}")
                 values = step.packer.unpack_from(buf, offset)
                 offset = end
-                for name, codec, v in zip(step.names, step.codecs, values, strict=True):
-                    if not codec.check(v):
+                # Unpacked values are exactly int or float: the bounds are the whole check.
+                for v, (lo, hi), name in zip(values, step.bounds, step.names, strict=True):
+                    if not lo <= v <= hi:
                         raise FieldRangeError(where, name, v)
-                    kwargs[name] = codec.from_wire(v)
+                if step.enums:
+                    values = list(values)
+                    for i, codec in step.enums:
+                        if not codec.check(values[i]):
+                            raise FieldRangeError(where, step.names[i], values[i])
+                        values[i] = codec.from_wire(values[i])
+                kwargs.update(zip(step.names, values, strict=True))
                 continue
             name, codec = step
             try:
