@@ -10,7 +10,8 @@ is known. Per unit, the nominal models get unit-to-unit spread; each sweep then 
 * gimbal angle: 1000–2000 µs in 25 µs steps, 0.003 rad angle noise (encoder).
 
 Spread (uniform): KV ±4 %, ESC deadband 30–55 µs, throttle curvature 0.2–0.4; servo centre ±8 µs,
-dead zone 6–14 µs, max rate ±10 %, rate shape 0.4–0.8, angle range ±5 %, angle cubic 0.02–0.08. Units
+dead zone 6–14 µs, half-span 515–540 µs (so the sweep stays inside the servo's travel), max rate ±10 %
+(at the end of the half-span), rate shape 0.4–0.8, angle range ±5 %, angle cubic 0.02–0.08. Units
 listed in ``mirrored`` have their gimbal servo mounted mirrored (direction −1).
 """
 
@@ -56,6 +57,7 @@ def spread_unit(index: int, rng: np.random.Generator, mirrored: bool = False) ->
         g,
         center_us=g.center_us + u(-8.0, 8.0),
         deadband_us=u(6.0, 14.0),
+        half_span_us=u(515.0, 540.0),  # the servo's travel reaches past the 1000-2000 µs sweep
         max_rate_rad_s=g.max_rate_rad_s * u(0.9, 1.1),
         rate_shape=u(0.4, 0.8),
         angle_range_rad=g.angle_range_rad * u(0.95, 1.05),
