@@ -271,3 +271,29 @@ def test_a_frame_that_fails_to_encode_uses_no_sequence_number():
     deframer = Deframer()
     deframer.feed(framer.encode(Heartbeat(time_ms=1))[1] + framer.encode(Heartbeat(time_ms=2))[1])
     assert deframer.counters.frames == 2 and deframer.counters.seq_gaps == 0
+
+
+@given(st.binary(max_size=600).map(lambda b: b.replace(b"\x00", b"\x01")))
+def test_cobs_fast_decoder_agrees_with_the_general_one(data):
+    """The in-place decoder (taken when no 0xFF byte can start a full block) against the general one."""
+
+    def outcome(fn):
+        try:
+            return fn(data)
+        except FrameError as exc:
+            return exc.detail
+
+    assert outcome(cobs.decode) == outcome(cobs._decode_with_full_blocks)
+
+
+def test_scalars_of_a_neighbouring_type_take_the_full_check():
+    """The encoder's fast path accepts exact int/float; anything else goes through the field's check."""
+    frame = decode_frame(
+        encode_frame(ActuatorSetpoint(units=(UnitSetpoint(gimbal=1, rotor_speed=-2),)), 0)[:-1]
+    )
+    assert frame.message.units[0] == UnitSetpoint(gimbal=1.0, rotor_speed=-2.0)
+    for bad in (True, "1.0", None, float("nan"), float("inf")):
+        with pytest.raises(FieldRangeError):
+            encode_frame(ActuatorSetpoint(units=(UnitSetpoint(gimbal=bad),)), 0)
+    with pytest.raises(FieldRangeError):
+        encode_frame(Heartbeat(time_ms=1.0), 0)  # a float in an integer field
