@@ -11,7 +11,7 @@ import can
 import hypothesis.strategies as st
 import pytest
 from hypothesis import given, settings
-from test_protocol_strategies import messages, numbered_stream, wire_frames
+from test_protocol_strategies import extreme_message, messages, numbered_stream, wire_frames
 
 from protocol.can import (
     FD_LENGTHS,
@@ -87,7 +87,7 @@ def test_frames_cross_a_virtual_bus_both_ways(bus_pair, fd):
     to_host = [
         Ack(msg_id=Arm.MSG_ID, seq=0),
         Telemetry(time_ms=5, pulses_us=(1500,) * 8, units=(UnitState(0.125, -0.5, 300.0),) * 4),
-        HelloReply(manufacturer="M" * 24, description="d" * 48, uri="u" * 64),  # the longest frame
+        extreme_message(HelloReply, largest=True),  # the longest frame
         Log(text="state DISARMED -> ARMED"),
     ]
     for msg in to_board:
@@ -137,18 +137,8 @@ def test_host_and_board_never_share_an_identifier():
 
 @pytest.mark.parametrize("fd", [False, True])
 def test_segment_layout(fd):
-    longest = encode_frame(
-        HelloReply(
-            manufacturer="M" * 24,
-            model="m" * 24,
-            description="d" * 48,
-            version="v" * 16,
-            uri="u" * 64,
-            serial="s" * 24,
-            firmware_build="b" * 24,
-        ),
-        0,
-    )
+    longest = encode_frame(extreme_message(HelloReply, largest=True), 0)
+    assert len(longest) == 249  # the longest frame of the catalogue
     frames = CanSegmenter(NODE, Direction.TO_HOST, fd=fd).segment(longest)
     limit = 64 if fd else 8
     assert all(len(f.data) <= limit and f.is_fd == fd for f in frames)

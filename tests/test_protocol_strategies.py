@@ -15,18 +15,18 @@ import hypothesis.strategies as st
 import pytest
 from hypothesis import given
 
-from protocol.fields import Array, Blob, Enum8, Scalar, Text, layout_of
+from protocol.fields import (  # the wire types' own bounds
+    _INT_BOUNDS,
+    Array,
+    Blob,
+    Enum8,
+    Scalar,
+    Text,
+    layout_of,
+)
 from protocol.frame import MAX_PAYLOAD, Framer, encode_frame
 from protocol.messages import CATALOGUE, Flags, encode_payload
 from protocol.vectors import payload_size_range
-
-_TYPE_BOUNDS = {
-    "B": (0, 0xFF),
-    "H": (0, 0xFFFF),
-    "I": (0, 0xFFFFFFFF),
-    "b": (-0x80, 0x7F),
-    "h": (-0x8000, 0x7FFF),
-}
 
 
 # =========================================================================== valid values
@@ -93,7 +93,7 @@ def bad_value_strategy(codec: Any) -> st.SearchStrategy[Any] | None:
         if codec.fmt == "f":
             outside = st.floats(width=32, allow_nan=False).filter(lambda x: not codec.lo <= x <= codec.hi)
             return st.one_of(st.just(math.nan), st.just(math.inf), st.just(-math.inf), outside)
-        tlo, thi = _TYPE_BOUNDS[codec.fmt]
+        tlo, thi = _INT_BOUNDS[codec.fmt]
         parts = []
         if codec.lo > tlo:
             parts.append(st.integers(tlo, int(codec.lo) - 1))
@@ -150,12 +150,13 @@ def test_payload_size_range_is_reached_by_extreme_messages(cls):
     """The catalogue's size ranges (used by the doc and the vectors) match the smallest and largest
     message the codecs allow."""
     lo, hi = payload_size_range(cls)
-    assert len(encode_payload(_extreme(cls, largest=False))) == lo
-    assert len(encode_payload(_extreme(cls, largest=True))) == hi
+    assert len(encode_payload(extreme_message(cls, largest=False))) == lo
+    assert len(encode_payload(extreme_message(cls, largest=True))) == hi
     assert hi <= MAX_PAYLOAD
 
 
-def _extreme(cls: type, largest: bool) -> Any:
+def extreme_message(cls: type, largest: bool) -> Any:
+    """The smallest or largest instance of ``cls`` on the wire (every text, blob and array at its limit)."""
     kwargs = {}
     for name, codec in layout_of(cls).fields:
         if isinstance(codec, Enum8):
@@ -172,7 +173,7 @@ def _extreme(cls: type, largest: bool) -> Any:
             one = (
                 (int(item.lo) if item.fmt != "f" else item.lo)
                 if isinstance(item, Scalar)
-                else _extreme(item, largest)
+                else extreme_message(item, largest)
             )
             kwargs[name] = (one,) * n
     return cls(**kwargs)
