@@ -112,7 +112,9 @@ class ServoCapture:
     frame_rate_hz: float
 
 
-def measure_servo(pulses: Sequence[tuple[float, float]], params: ServoParams, tolerance_us: float = 5.0):
+def measure_servo(
+    pulses: Sequence[tuple[float, float]], params: ServoParams, tolerance_us: float = 5.0
+) -> ServoCapture:
     """Read one channel's captured ``(rise_us, fall_us)`` pulses (e.g. a logic analyser on a real board)
     back into widths. Raises :class:`ProtocolError` naming the pulse if a width is outside the limits by
     more than ``tolerance_us`` or a rising edge comes less than a frame period (minus the tolerance)
@@ -220,8 +222,9 @@ def classify_interval(dt_us: float, params: PpmParams = DEFAULT_PPM) -> PpmInter
 
 def decode_ppm(edges_us: Sequence[float], params: PpmParams = DEFAULT_PPM) -> tuple[int, ...]:
     """The channel widths (whole µs) of one frame's rising-edge offsets, as :func:`encode_ppm` makes them
-    (measured edges may carry jitter). Raises :class:`ProtocolError` saying which interval is bad, or that
-    the channel count or the sync gap left before ``frame_us`` is wrong."""
+    (measured edges may carry jitter). Raises :class:`ProtocolError` saying which interval is bad or that
+    the channel count is wrong. (The sync gap needs no check here: ``PpmParams`` guarantees that
+    ``max_channels`` channels of the longest width leave at least ``min_sync_us`` of the frame.)"""
     n = len(edges_us) - 1
     if not params.min_channels <= n <= params.max_channels:
         raise ProtocolError(
@@ -238,12 +241,6 @@ def decode_ppm(edges_us: Sequence[float], params: PpmParams = DEFAULT_PPM) -> tu
                 f" ({params.channel_min_us:g}..{params.channel_max_us:g} µs): {kind.value}"
             )
         widths.append(round(b - a))
-    sync = params.frame_us - (edges_us[-1] - edges_us[0])
-    if sync < params.min_sync_us:
-        raise ProtocolError(
-            f"PPM frame: the sync gap after the last edge ({edges_us[-1]:.1f} µs) is {sync:.1f} µs,"
-            f" shorter than {params.min_sync_us:g} µs"
-        )
     return tuple(widths)
 
 
