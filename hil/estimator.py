@@ -41,14 +41,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import astuple, dataclass, field
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.prefilter import PAPER_CUTOFF_RAD_S, SignalPrefilter
+from hil.prefilter import PAPER_CUTOFF_RAD_S, GateSettings, MagneticGate, SignalPrefilter
 from hil.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
 from hil.so3 import Mat9, Vec3, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f, solve3_f
 from protocol.errors import ConfigError, ConvergenceError
@@ -812,6 +812,7 @@ class FilterConfig:
     the magnetometer informs heading only (E's e2 must then be horizontal, e.g. magnetic north).
     ``init``: initial attitude — ``"measured"`` (Wahba's solution from the first step with both directions),
     ``"identity"``, or a (3, 3) body → inertial matrix; ``omega_err0`` (3,) rad/s the initial ω.
+    ``mag_gate``: reject disturbed magnetometer samples (:class:`hil.prefilter.MagneticGate`), or None.
     """
 
     params: EstimatorParams = field(default_factory=EstimatorParams)
@@ -821,6 +822,7 @@ class FilterConfig:
     magnetometer: Literal["full", "horizontal"] = "full"
     init: Literal["measured", "identity"] | ArrayLike = "measured"
     omega_err0: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    mag_gate: GateSettings | None = None
 
     def __post_init__(self) -> None:
         if self.magnetometer not in ("full", "horizontal"):
@@ -859,18 +861,22 @@ class FilterConfig:
             "prefilter_rad_s": cut,
             "prefilter_frame": "strapdown",
             "magnetometer": "horizontal",
+            "mag_gate": TUNED["mag_gate"],
         }
         return cls(**{**base, **overrides})  # type: ignore[arg-type]
 
 
 TUNED: dict = {
-    "W_diag": (3.0, 1.0, 0.5),
-    "m": 0.5,
-    "D_diag": (12.0, 13.0, 14.0),
-    "acc_cutoff": 0.3,
+    "W_diag": (6.0, 1.0, 0.25),
+    "m": 0.1,
+    "D_diag": (6.0, 6.5, 7.0),
+    "acc_cutoff": 0.15,
     "mag_cutoff": None,
+    "mag_gate": GateSettings(norm_tol=0.2, dip_tol_deg=15.0),
 }
-"""Tuned settings (placeholder values until the grid search in bench/tune_estimator.py sets them)."""
+"""Tuned settings: a two-stage grid search (``python -m bench.bench_estimator --tune``) minimising the
+mean total RMSE over six real trials (three tyrex smartphone, three BROAD), then the magnetometer gate's
+tolerances chosen on the same six; see docs/estimator.md."""
 
 
 class AttitudeFilter:
@@ -890,6 +896,8 @@ class AttitudeFilter:
         self._awaiting_measurement = isinstance(init, str) and init == "measured"
         self.estimator = VariationalEstimator(self.config.params, r0, self.config.omega_err0)
         self._bias = self.config.gyro_bias
+        gate = self.config.mag_gate
+        self.gate = None if gate is None else MagneticGate(*astuple(gate))
 
     def step(self, s: MergedStep) -> Estimate:
         """One merged step (live path)."""
@@ -898,13 +906,17 @@ class AttitudeFilter:
             b = self._bias
             g = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
         g, acc, mag = self.prefilter.step(s.h, g, s.acc, s.mag)
+        gated = StepFlag.NONE
+        if self.gate is not None and mag is not None:
+            mag = self.gate.step(s.h, acc, mag)
+            gated = StepFlag.MAG_DISTURBED if mag is None else gated
         if self.config.magnetometer == "horizontal":
             mag = _horizontal_f(acc, mag)
         if self._awaiting_measurement and _both_usable(acc, mag, self.estimator.params):
             self._awaiting_measurement = False
             self.estimator.reset(wahba(self.config.params, acc, mag), self.config.omega_err0)  # type: ignore[arg-type]
         out = self.estimator.update(s.h, g, acc, mag)
-        return Estimate(s.t, out.R, out.omega, out.omega_err, out.flags | s.flags, out.iterations)
+        return Estimate(s.t, out.R, out.omega, out.omega_err, out.flags | s.flags | gated, out.iterations)
 
     def run(
         self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None, chunk: int = 50_000
@@ -913,8 +925,14 @@ class AttitudeFilter:
         biased = MergedSteps(steps.t, steps.gyr - np.asarray(self._bias), steps.acc, steps.mag,
                              steps.age, steps.fresh, steps.flags)  # fmt: skip
         f = self.prefilter.run(biased)
-        mag = _horizontal_rows(f.acc, f.mag) if self.config.magnetometer == "horizontal" else f.mag
-        filtered = MergedSteps(f.t, f.gyr, f.acc, mag, f.age, f.fresh, f.flags)
+        mag, flags = f.mag, f.flags
+        if self.gate is not None:
+            mag = self.gate.run(steps.h, f.acc, f.mag)
+            flags = flags | np.where(
+                np.isnan(mag[:, 0]) & ~np.isnan(f.mag[:, 0]), int(StepFlag.MAG_DISTURBED), 0
+            )
+        mag = _horizontal_rows(f.acc, mag) if self.config.magnetometer == "horizontal" else mag
+        filtered = MergedSteps(f.t, f.gyr, f.acc, mag, f.age, f.fresh, flags)
         start = 0
         if self._awaiting_measurement:
             both = _both_usable_rows(filtered.acc, filtered.mag, self.estimator.params)

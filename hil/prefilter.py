@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -261,3 +262,92 @@ class SignalPrefilter:
             r = reorthonormalize_f(matmul_f(r, step))  # type: ignore[arg-type]
             frames.append(r)
         return np.asarray(frames, dtype=float).reshape(len(h), 3, 3)
+
+
+# --------------------------------------------------------------------------- magnetic disturbances
+@dataclass(frozen=True)
+class GateSettings:
+    """:class:`MagneticGate` settings: norm tolerance (fraction), dip tolerance (deg), reference time
+    constant (s), rejection timeout (s)."""
+
+    norm_tol: float = 0.1
+    dip_tol_deg: float = 8.0
+    tau_s: float = 20.0
+    timeout_s: float = 10.0
+
+
+class MagneticGate:
+    """Rejects magnetometer samples that a local disturbance (steel, magnets, electronics) has bent.
+
+    The geomagnetic field has a fixed strength and a fixed angle to gravity (the dip); a disturbance
+    changes one or both. A sample is rejected when its norm is more than ``norm_tol`` (fraction) from the
+    reference norm, or its dip — the angle to the gravity direction given (e.g. the pre-filtered
+    accelerometer) — more than ``dip_tol_deg`` from the reference dip. References start at the first
+    sample and follow accepted samples with time constant ``tau_s``; after ``timeout_s`` of continuous
+    rejection the gate accepts again and re-learns (a changed environment, not a passing disturbance).
+    Rejected samples come out None (flagged :attr:`StepFlag.MAG_DISTURBED` by the caller).
+    """
+
+    def __init__(
+        self, norm_tol: float = 0.1, dip_tol_deg: float = 8.0, tau_s: float = 20.0, timeout_s: float = 10.0
+    ):
+        for name, v in (
+            ("norm_tol", norm_tol),
+            ("dip_tol_deg", dip_tol_deg),
+            ("tau_s", tau_s),
+            ("timeout_s", timeout_s),
+        ):
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"must be a positive number, got {v!r}", f"MagneticGate.{name}")
+        self.norm_tol, self.sin_tol, self.tau_s, self.timeout_s = (
+            norm_tol,
+            math.sin(math.radians(dip_tol_deg)),
+            tau_s,
+            timeout_s,
+        )
+        self._norm: float | None = None
+        self._dip: float | None = None  # sin of the dip: −(ĝ·m̂), ĝ = gravity reading direction (up)
+        self._rejected_for = 0.0
+
+    def step(self, h: float, up: Vec3 | None, mag: Vec3 | None) -> Vec3 | None:
+        if mag is None:
+            return None
+        n = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
+        if not n > 0.0:
+            return None
+        dip = None
+        if up is not None:
+            nu = math.sqrt(up[0] * up[0] + up[1] * up[1] + up[2] * up[2])
+            if nu > 0.0:
+                dip = -(up[0] * mag[0] + up[1] * mag[1] + up[2] * mag[2]) / (nu * n)
+        if self._norm is None:
+            self._norm, self._dip = n, dip
+            return mag
+        ok = abs(n / self._norm - 1.0) <= self.norm_tol
+        if dip is not None and self._dip is not None:
+            ok = ok and abs(dip - self._dip) <= self.sin_tol
+        if not ok:
+            self._rejected_for += h
+            if self._rejected_for < self.timeout_s:
+                return None
+            self._norm, self._dip = n, dip  # the environment changed: start over from here
+        self._rejected_for = 0.0
+        k = min(1.0, h / self.tau_s)
+        self._norm += k * (n - self._norm)
+        if dip is not None:
+            self._dip = dip if self._dip is None else self._dip + k * (dip - self._dip)
+        return mag
+
+    def run(self, h: Array, up: Array, mag: Array) -> Array:
+        """Gate every step (the same numbers as :meth:`step` one by one); rejected rows come out NaN."""
+        out = mag.copy()
+        for i, (hi, u, m) in enumerate(zip(h.tolist(), up.tolist(), mag.tolist(), strict=True)):
+            kept = self.step(hi, _finite3(u), _finite3(m))
+            if kept is None:
+                out[i] = np.nan
+        return out
+
+
+def _finite3(v: list[float]) -> Vec3 | None:
+    x, y, z = v
+    return (x, y, z) if math.isfinite(x + y + z) else None

@@ -59,6 +59,7 @@ class StepFlag(enum.IntFlag):
     DEGENERATE = 1 << 5  # gravity and magnetic field directions (nearly) parallel: only one used
     NEWTON_FAILED = 1 << 6  # the implicit step did not meet its tolerance within the iteration cap
     SUBSTEPPED = 1 << 7  # a long step was split into sub-steps (estimator stability limit)
+    MAG_DISTURBED = 1 << 8  # magnetometer rejected: field norm or dip off its reference (disturbance)
 
     @staticmethod
     def stale(kind: SensorKind) -> StepFlag:

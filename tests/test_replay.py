@@ -101,16 +101,16 @@ def test_field_model_gives_true_north_directions(tmp_path):
 @pytest.mark.parametrize(
     ("log", "window", "bound_total", "bound_incl"),
     [
-        (SHARED_DATA / "broad" / "01_undisturbed_slow_rotation_A.mat", (30.0, 70.0), 3.0, 1.5),
-        (SHARED_DATA / "tyrex-nexus5" / "Guillaume_Nexus5_NoDist_Phoning", (0.0, 40.0), 6.0, 3.0),
+        (SHARED_DATA / "broad" / "01_undisturbed_slow_rotation_A.mat", (30.0, 70.0), 5.0, 0.6),
+        (SHARED_DATA / "tyrex-nexus5" / "Guillaume_Nexus5_NoDist_Phoning", (0.0, 40.0), 7.0, 2.7),
     ],
 )
 def test_short_windows_of_real_trials_stay_within_stated_bounds(
     tmp_path, log, window, bound_total, bound_incl
 ):
-    """The tuned estimator on 40 s of real data with ground truth (BROAD optical, tyrex Qualisys): RMSE
-    total and inclination (deg) below bounds set at ~1.3× what it measures (VQF on the same windows:
-    see bench/bench_estimator.py)."""
+    """The tuned estimator on 40 s of real data with ground truth (BROAD optical, tyrex Qualisys), the
+    start-up included: RMSE total / inclination (deg) below bounds ~1.25–1.5× what it measures (4.07 / 0.40
+    and 5.56 / 2.03; VQF on the same windows: 3.08 / 0.30 and 4.14 / 2.11)."""
     result = replay(log, ReplayOptions(tmp_path, plots=False, window_s=window))
     assert result.comparison is not None
     rmse = result.comparison.rmse

@@ -1,0 +1,464 @@
+"""The paper's estimator against VQF, ahrs Madgwick and imufusion, in one run: accuracy on real data with
+ground truth (the tyrex Nexus 5 smartphone trials and the BROAD trials), speed per step, and replay speed
+on a 720k-sample log.
+
+Accuracy: every algorithm sees the same merged steps (the gyroscope drives; accelerometer and
+magnetometer held at gyro times, as the data README's figures were measured); estimates are interpolated to
+the truth's timestamps and scored with BROAD's metric (RMSE of total / heading / inclination error, earth
+frame) over each benchmark's evaluated samples (tyrex: motion-capture time 0–120 s minus the authors'
+exclusions; BROAD: ``movement``). Our variants:
+
+- ``ours-paper``: exactly the paper — its W, m, D, Φ(x) = x and the 1 rad/s body-frame pre-filter on all
+  three signals; E from the log (measured field inclination, magnetic north).
+- ``ours-paper-nopf``: the paper's gains without the pre-filter.
+- ``ours-tuned``: the paper's estimator with :data:`hil.estimator.TUNED` (gains, strapdown-frame
+  pre-filter, horizontal magnetometer) and the gyro bias measured over the log's initial still window,
+  found by :func:`tune` — a grid search on :data:`TUNING_TRIALS`; the other trials are held out.
+
+Peers with their default (or documented example) settings: VQF (C++, ``quat9D``; estimates its own gyro
+bias), ahrs Madgwick (MARG, default gain; output NWU, converted to ENU), imufusion (the library's example
+settings: gain 0.5, ±2000 °/s, rejection 10°, timeout 5 s; ENU).
+
+``python -m bench.bench_estimator --tune`` re-runs the grid search (about half an hour).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import math
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bench.common import Result
+from hil import so3
+from hil.estimator import PAPER_D, AttitudeFilter, EstimatorParams, FilterConfig
+from hil.inertial import directions_from_dip, directions_from_log, find_still_window
+from hil.logs import read_log
+from hil.metrics import AttitudeErrors, Rmse, resample_quats
+from hil.multirate import MergePolicy, merge
+from hil.paths import SHARED_DATA
+from hil.sensors import MergedSteps, SensorKind, SensorLog
+from protocol.errors import InputFormatError
+
+NAME = "estimator"
+TYREX = SHARED_DATA / "tyrex-nexus5"
+BROAD = SHARED_DATA / "broad"
+TUNING_TRIALS = (
+    "Guillaume_Nexus5_NoDist_Texting",
+    "Guillaume_Nexus5_NoDist_RunningHand",
+    "Guillaume_Nexus5_Dist_Phoning",
+    "01_undisturbed_slow_rotation_A",
+    "06_undisturbed_fast_rotation_A",
+    "24_disturbed_tapping_A",
+)
+"""The trials the tuned parameters were chosen on; all others are held out."""
+
+
+@dataclass
+class Trial:
+    name: str
+    group: str
+    log: SensorLog
+    steps: MergedSteps
+    inclination_deg: float
+    gyro_bias: tuple[float, float, float]
+
+    @property
+    def held_out(self) -> bool:
+        return self.name not in TUNING_TRIALS
+
+
+def _trial(path: Path, group: str, window_s: float | None) -> Trial:
+    log = read_log(path)
+    if window_s is not None:
+        log = log.window(log.start, log.start + window_s)
+    steps, _ = merge(log.streams, MergePolicy(driver=SensorKind.GYR))
+    first = int(np.argmax(np.all([steps.valid(k) for k in SensorKind], axis=0)))  # every sensor has spoken
+    steps = MergedSteps(*(getattr(steps, f)[first:] for f in ("t", "gyr", "acc", "mag", "age", "fresh", "flags")))
+    e, _ = directions_from_log(log)
+    dip = math.degrees(math.asin(-float(e[2, 1])))
+    try:
+        still = find_still_window(log)
+        gyr = log.streams[SensorKind.GYR]
+        sel = (gyr.t >= still.t0) & (gyr.t <= still.t1)
+        bias = tuple(float(x) for x in gyr.xyz[sel].mean(axis=0))
+    except InputFormatError:
+        bias = (0.0, 0.0, 0.0)
+    return Trial(path.name.removesuffix(".mat"), group, log, steps, dip, bias)  # type: ignore[arg-type]
+
+
+def load_trials(quick: bool = False, names: tuple[str, ...] | None = None) -> list[Trial]:
+    """All tyrex and BROAD trials (``quick``: two trials, 30 s each)."""
+    paths: list[tuple[Path, str]] = []
+    for p in sorted(TYREX.iterdir()) if TYREX.is_dir() else []:
+        if p.is_dir():
+            paths.append((p, "tyrex-dist" if "_Dist_" in p.name else "tyrex-nodist"))
+    for p in sorted(BROAD.glob("*.mat")) if BROAD.is_dir() else []:
+        paths.append(
+            (
+                p,
+                "broad-disturbed"
+                if "disturbed_" in p.name and "undisturbed" not in p.name
+                else "broad-undisturbed",
+            )
+        )
+    if names is not None:
+        paths = [(p, g) for p, g in paths if p.name.removesuffix(".mat") in names]
+    if quick:
+        paths = [p for p in paths if p[0].name.startswith(("Guillaume_Nexus5_NoDist_Texting", "01_"))]
+    return [_trial(p, g, 30.0 if quick else None) for p, g in paths]
+
+
+# --------------------------------------------------------------------------- algorithms
+def _ours(config: Callable[[Trial], FilterConfig]) -> Callable[[Trial], np.ndarray]:
+    def run(trial: Trial) -> np.ndarray:
+        return AttitudeFilter(config(trial)).run(trial.steps).quat
+
+    return run
+
+
+def _paper(trial: Trial) -> FilterConfig:
+    return FilterConfig.paper(E=directions_from_dip(trial.inclination_deg))
+
+
+def _paper_nopf(trial: Trial) -> FilterConfig:
+    return FilterConfig.paper(E=directions_from_dip(trial.inclination_deg), prefilter_rad_s={})
+
+
+def _tuned(trial: Trial) -> FilterConfig:
+    return FilterConfig.tuned(gyro_bias=trial.gyro_bias)
+
+
+def _arrays(steps: MergedSteps) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    fill = lambda a: np.ascontiguousarray(np.nan_to_num(a))  # noqa: E731  (peers cannot take NaN)
+    return fill(steps.gyr), fill(steps.acc), fill(steps.mag), float(np.median(np.diff(steps.t)))
+
+
+def vqf_quats(trial: Trial) -> np.ndarray:
+    from vqf import VQF
+
+    gyr, acc, mag, dt = _arrays(trial.steps)
+    return VQF(dt).updateBatch(gyr, acc, mag)["quat9D"]
+
+
+_NWU_TO_ENU = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def madgwick_quats(trial: Trial) -> np.ndarray:
+    from ahrs.filters import Madgwick
+
+    gyr, acc, mag, dt = _arrays(trial.steps)
+    q = Madgwick(gyr=gyr, acc=acc, mag=mag, frequency=1.0 / dt).Q  # sensor → NWU
+    return so3.matrix_to_quat(_NWU_TO_ENU @ so3.quat_to_matrix(q))
+
+
+def imufusion_ahrs(rate_hz: float):  # type: ignore[no-untyped-def]
+    import imufusion
+
+    ahrs = imufusion.Ahrs()
+    settings = imufusion.AhrsSettings()
+    settings.convention = imufusion.CONVENTION_ENU
+    settings.gain = 0.5
+    settings.gyroscope_range = 2000.0
+    settings.acceleration_rejection = 10.0
+    settings.magnetic_rejection = 10.0
+    settings.rejection_timeout = 5.0
+    settings.sample_rate = rate_hz
+    ahrs.set_settings(settings)
+    return ahrs
+
+
+def imufusion_quats(trial: Trial) -> np.ndarray:
+    gyr, acc, mag, dt = _arrays(trial.steps)
+    ahrs = imufusion_ahrs(1.0 / dt)
+    gyr_deg, acc_g = np.degrees(gyr), acc / 9.80665
+    out = np.empty((len(gyr), 4))
+    for i in range(len(gyr)):
+        ahrs.update(gyr_deg[i], acc_g[i], mag[i])
+        out[i] = ahrs.get_quaternion()
+    return out
+
+
+ALGORITHMS: dict[str, Callable[[Trial], np.ndarray]] = {
+    "ours-paper": _ours(_paper),
+    "ours-paper-nopf": _ours(_paper_nopf),
+    "ours-tuned": _ours(_tuned),
+    "VQF": vqf_quats,
+    "Madgwick": madgwick_quats,
+    "imufusion": imufusion_quats,
+}
+
+
+def score(trial: Trial, quats: np.ndarray) -> Rmse:
+    truth = trial.log.truth
+    assert truth is not None
+    q_est = resample_quats(trial.steps.t, quats, truth.t)
+    finite = np.all(np.isfinite(truth.R.reshape(len(truth), 9)), axis=1)
+    q_ref = np.full((len(truth), 4), np.nan)
+    q_ref[finite] = so3.matrix_to_quat(truth.R[finite])
+    mask = np.asarray(truth.evaluate) & finite & np.all(np.isfinite(q_est), axis=1)
+    return AttitudeErrors.from_quats(q_est, q_ref).rmse(mask)
+
+
+def accuracy(trials: list[Trial], algorithms: dict[str, Callable[[Trial], np.ndarray]]) -> dict:
+    """``{algorithm: {trial name: Rmse}}``."""
+    return {name: {t.name: score(t, fn(t)) for t in trials} for name, fn in algorithms.items()}
+
+
+def _mean(rmses: list[Rmse]) -> tuple[float, float, float]:
+    return tuple(float(np.mean([getattr(r, f) for r in rmses])) for f in ("total", "heading", "inclination"))  # type: ignore[return-value]
+
+
+# --------------------------------------------------------------------------- tuning
+def tune(trials: list[Trial]) -> list[tuple[float, dict]]:
+    """Grid search of the tuned settings on ``trials``: minimises the mean total RMSE (BROAD's "TAGP"
+    idea: one parameter set for all trials). Returns (score, settings) sorted best first."""
+    grid = {  # stage 2; stage 1 (w_acc 1.5–12, w_mag 0.5–2, w_cross 0.25/1, d_scale 0.5–2, acc cut-off
+        # 0.15–0.6, mag cut-off none/0.5) favoured low damping, no magnetometer pre-filter, small w_cross
+        "w_acc": (1.5, 3.0, 6.0),
+        "w_mag": (0.5, 1.0, 2.0),
+        "w_cross": (0.25,),
+        "d_scale": (0.25, 0.5),
+        "acc_cutoff": (0.15, 0.3),
+        "mag_cutoff": (None,),
+        "m": (0.1, 0.5),
+    }
+    results = []
+    for values in itertools.product(*grid.values()):
+        s = dict(zip(grid, values, strict=True))
+        diag = (s["w_acc"], s["w_mag"], s["w_cross"])
+        if len(set(diag)) < 3:
+            continue
+        cfg_of = _tuned_config(diag, s["d_scale"], s["acc_cutoff"], s["mag_cutoff"], s["m"])
+        rmses = [score(t, AttitudeFilter(cfg_of(t)).run(t.steps).quat) for t in trials]
+        results.append((_mean(rmses)[0], s))
+        print(f"{results[-1][0]:7.3f}  {s}", file=sys.stderr, flush=True)
+    return sorted(results, key=lambda r: r[0])
+
+
+def _tuned_config(w_diag, d_scale, acc_cutoff, mag_cutoff, m):  # type: ignore[no-untyped-def]
+    def config(trial: Trial) -> FilterConfig:
+        base = FilterConfig.tuned(gyro_bias=trial.gyro_bias)
+        params = EstimatorParams(
+            E=base.params.E, W=np.diag(w_diag), m=m, D=np.diag(np.diag(PAPER_D)) * d_scale
+        )
+        cut = {SensorKind.ACC: acc_cutoff, SensorKind.MAG: mag_cutoff, SensorKind.GYR: None}
+        return FilterConfig.tuned(gyro_bias=trial.gyro_bias, params=params, prefilter_rad_s=cut)
+
+    return config
+
+
+# --------------------------------------------------------------------------- speed
+def _us_per_call(fn: Callable[[int], None], n: int) -> float:
+    fn(min(n, 100))  # warm up
+    best = math.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        fn(n)
+        best = min(best, time.perf_counter() - t0)
+    return best / n * 1e6
+
+
+def step_speed(trial: Trial, n: int) -> dict[str, float]:
+    """µs per sample through each algorithm's per-sample API, on the first n merged steps of a trial."""
+    from ahrs.filters import Madgwick
+    from vqf import VQF, PyVQF
+
+    from hil.estimator import VariationalEstimator
+
+    gyr, acc, mag, dt = _arrays(trial.steps)
+    g, a, m = gyr.tolist(), acc.tolist(), mag.tolist()
+
+    def ours(k: int) -> None:
+        est = VariationalEstimator(EstimatorParams(E=directions_from_dip(trial.inclination_deg)))
+        for i in range(k):
+            est.update(dt, g[i], a[i], m[i])
+
+    def vqf_cpp(k: int) -> None:
+        v = VQF(dt)
+        for i in range(k):
+            v.update(gyr[i], acc[i], mag[i])
+            v.getQuat9D()
+
+    def vqf_py(k: int) -> None:
+        v = PyVQF(dt)
+        for i in range(k):
+            v.update(gyr[i], acc[i], mag[i])
+            v.getQuat9D()
+
+    def madgwick(k: int) -> None:
+        f = Madgwick(frequency=1.0 / dt)
+        q = np.array([1.0, 0.0, 0.0, 0.0])
+        for i in range(k):
+            q = f.updateMARG(q, gyr[i], acc[i], mag[i])
+
+    def fusion(k: int) -> None:
+        ahrs = imufusion_ahrs(1.0 / dt)
+        gd, ag = np.degrees(gyr), acc / 9.80665
+        for i in range(k):
+            ahrs.update(gd[i], ag[i], mag[i])
+            ahrs.get_quaternion()
+
+    return {
+        "ours": _us_per_call(ours, n),
+        "VQF": _us_per_call(vqf_cpp, n),
+        "PyVQF": _us_per_call(vqf_py, max(n // 20, 50)),
+        "Madgwick": _us_per_call(madgwick, max(n // 5, 50)),
+        "imufusion": _us_per_call(fusion, n),
+    }
+
+
+def long_log(samples: int, directory: Path) -> Path:
+    """A ``samples``-sample phone log in the project CSV: tyrex trials end to end (times shifted)."""
+    from hil.logs import project_csv
+    from hil.sensors import SensorStream
+
+    parts: dict[SensorKind, list[SensorStream]] = {k: [] for k in SensorKind}
+    total, offset = 0, 0.0
+    trials = sorted(p for p in TYREX.iterdir() if p.is_dir())
+    for path in itertools.cycle(trials):
+        log = read_log(path)
+        for k, s in log.streams.items():
+            parts[k].append(s.shifted(offset - log.start))
+        total += log.n_samples
+        offset += log.end - log.start + 1.0
+        if total >= samples:
+            break
+    streams = {
+        k: SensorStream(k, np.concatenate([s.t for s in v]), np.concatenate([s.xyz for s in v]))
+        for k, v in parts.items()
+    }
+    joined = SensorLog(streams, "tyrex trials concatenated", "csv")
+    return project_csv.write(joined, directory / "long.csv")
+
+
+def replay_speed(samples: int) -> tuple[float, float, dict[str, float], int]:
+    """Samples/s of the replay core (read + merge + pre-filter + estimator + estimates CSV) on a long
+    log, and of the peers' batch APIs over the same merged steps (estimation only)."""
+    from hil.logs.replay import ReplayOptions, replay
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = long_log(samples, Path(tmp))
+        n = read_log(path).n_samples
+        t0 = time.perf_counter()
+        replay(path, ReplayOptions(out_dir=Path(tmp) / "out", plots=False))
+        full = n / (time.perf_counter() - t0)
+        log = read_log(path)
+        t0 = time.perf_counter()
+        steps, _ = merge(log.streams)
+        AttitudeFilter(FilterConfig.tuned()).run(steps)
+        core = n / (time.perf_counter() - t0)
+        trial = Trial("long", "long", log, steps, 60.0, (0.0, 0.0, 0.0))
+        peers = {}
+        for name, fn in (("VQF", vqf_quats), ("Madgwick", madgwick_quats), ("imufusion", imufusion_quats)):
+            t0 = time.perf_counter()
+            fn(trial)
+            peers[name] = n / (time.perf_counter() - t0)
+    return full, core, peers, n
+
+
+# --------------------------------------------------------------------------- the benchmark
+def run(quick: bool) -> list[Result]:
+    results: list[Result] = []
+    trials = load_trials(quick)
+    if not trials:
+        return [Result(NAME, "no shared data", 0.0, "", note=f"{SHARED_DATA} not found")]
+    acc = accuracy(trials, ALGORITHMS)
+    groups = sorted({t.group for t in trials})
+    for group in groups + ["held-out"]:
+        members = [t for t in trials if (t.group == group if group != "held-out" else t.held_out)]
+        if not members:
+            continue
+        means = {a: _mean([acc[a][t.name] for t in members]) for a in ALGORITHMS}
+        detail = "; ".join(f"{a} {m[0]:.2f}/{m[1]:.2f}/{m[2]:.2f}" for a, m in means.items())
+        for variant in ("ours-tuned", "ours-paper-nopf", "ours-paper"):
+            results.append(
+                Result(
+                    NAME,
+                    f"{group} ({len(members)}) RMSE total, {variant}",
+                    means[variant][0],
+                    "deg",
+                    "VQF",
+                    means["VQF"][0],
+                    False,
+                    detail if variant == "ours-tuned" else "",
+                )  # fmt: skip
+            )
+        for peer in ("Madgwick", "imufusion"):
+            results.append(
+                Result(
+                    NAME,
+                    f"{group} ({len(members)}) RMSE total, {peer}",
+                    means[peer][0],
+                    "deg",
+                    "VQF",
+                    means["VQF"][0],
+                    False,
+                )  # fmt: skip
+            )
+    speed = step_speed(trials[0], 2000 if quick else 20000)
+    for peer in ("VQF", "PyVQF", "Madgwick", "imufusion"):
+        results.append(
+            Result(
+                NAME,
+                "per-sample update",
+                speed["ours"],
+                "us/step",
+                peer,
+                speed[peer],
+                False,
+                "ours: VariationalEstimator.update (no pre-filter); peers: their per-sample APIs",
+            )  # fmt: skip
+        )
+    full, core, peers, n = replay_speed(20_000 if quick else 720_000)
+    for peer, value in peers.items():
+        results.append(
+            Result(
+                NAME,
+                f"replay {n} samples (estimation)",
+                core,
+                "samples/s",
+                f"{peer} batch",
+                value,
+                True,
+                "ours: merge + tuned pre-filter + estimator; peers: their batch APIs on the merged steps",
+            )  # fmt: skip
+        )
+    results.append(
+        Result(
+            NAME,
+            f"replay {n} samples end to end",
+            full,
+            "samples/s",
+            note="read CSV, merge, filter, write estimates",
+        )
+    )
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.bench_estimator")
+    parser.add_argument("--tune", action="store_true", help="grid-search the tuned settings on TUNING_TRIALS")
+    args = parser.parse_args(argv)
+    if args.tune:
+        os.nice(5)
+        best = tune(load_trials(names=TUNING_TRIALS))
+        for value, settings in best[:10]:
+            print(f"{value:.3f}  {settings}")
+        return 0
+    from bench.__main__ import format_table
+
+    print(format_table(run(quick=False)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
