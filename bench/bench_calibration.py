@@ -1,0 +1,106 @@
+"""Calibration conversions per second: our scalar maps (what the board calls per setpoint) next to scipy
+doing the same job on the same table in the same run — ``PchipInterpolator`` called per sample for the
+forward map, and ``scipy.optimize.brentq`` on it for the inverse (the generic way to invert a monotone
+interpolant). Plus fitting time for a bench CSV (no peer) and the binary codec's round trips per second.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+
+from scipy.interpolate import PchipInterpolator
+from scipy.optimize import brentq
+
+from bench.common import Result, rate
+from hil.calibration.bench import read_bench_csv
+from hil.calibration.fit import fit_bench
+from hil.paths import FIXTURES
+from protocol.calibration import UnitCalibration, default_unit_calibration
+from protocol.messages import GimbalMode
+
+NAME = "calibration"
+
+
+def run(quick: bool) -> list[Result]:
+    min_time = 0.1 if quick else 0.5
+    cal = default_unit_calibration()
+    rng = random.Random(1)
+    pulses = [rng.uniform(1000.0, 2000.0) for _ in range(256)]
+    rates = [rng.uniform(-1.9, 1.9) for _ in range(256)]
+    it = iter(range(1 << 62))
+
+    upper = cal.gimbal_rate.upper
+    peer = PchipInterpolator(upper.x, upper.y)
+    x0, x1 = upper.x[0], upper.x[-1]
+    up_rates = [r for r in (abs(v) for v in rates) if 0.01 < r < upper.y[-1]]
+
+    xs = [x0 + (p - 1000.0) * (x1 - x0) / 1000.0 for p in pulses]  # inside the upper table
+
+    def ours_forward() -> None:
+        upper.evaluate(xs[next(it) & 255])
+
+    def peer_forward() -> None:
+        float(peer(xs[next(it) & 255]))
+
+    def gimbal_setpoint() -> None:
+        cal.gimbal_pulse_us(rates[next(it) & 255], GimbalMode.RATE)
+
+    def ours_inverse() -> None:
+        upper.solve(up_rates[next(it) % len(up_rates)])
+
+    def peer_inverse() -> None:
+        r = up_rates[next(it) % len(up_rates)]
+        brentq(lambda x: float(peer(x)) - r, x0, x1, xtol=1e-4)
+
+    def rotor_setpoint() -> None:
+        cal.rotor_pulse_us(rates[next(it) & 255] * 150.0 + 300.0, 11.1)
+
+    data = cal.to_bytes()
+
+    def codec() -> None:
+        UnitCalibration.from_bytes(data)
+
+    csv = read_bench_csv(FIXTURES / "calibration" / "bench" / "unit0_rotor.csv")
+    t0 = time.perf_counter()
+    fits = 1 if quick else 3
+    for _ in range(fits):
+        fit_bench(csv)
+    fit_s = (time.perf_counter() - t0) / fits
+
+    return [
+        Result(
+            NAME,
+            "table evaluate (pulse → rate)",
+            rate(ours_forward, min_time),
+            "conv/s",
+            "scipy Pchip call",
+            rate(peer_forward, min_time),
+        ),
+        Result(
+            NAME,
+            "table inverse (rate → pulse)",
+            rate(ours_inverse, min_time),
+            "conv/s",
+            "scipy brentq on Pchip",
+            rate(peer_inverse, min_time),
+        ),
+        Result(
+            NAME,
+            "rotor setpoint → pulse",
+            rate(rotor_setpoint, min_time),
+            "conv/s",
+            note="speed and battery V → pulse, incl. the throttle map",
+        ),
+        Result(
+            NAME, "binary set parse + validate", rate(codec, min_time), "sets/s", note=f"{len(data)} bytes"
+        ),
+        Result(
+            NAME,
+            "fit a rotor bench CSV",
+            fit_s * 1e3,
+            "ms",
+            higher_is_better=False,
+            note=f"{len(csv)} rows, 9 knots, least squares",
+        ),
+    ]
