@@ -87,6 +87,13 @@ def run(quick: bool) -> list[Result]:
         ),
         Result(
             NAME,
+            "gimbal rate setpoint → pulse",
+            rate(gimbal_setpoint, min_time),
+            "conv/s",
+            note="either side of the dead zone, incl. the hold pulse",
+        ),
+        Result(
+            NAME,
             "rotor setpoint → pulse",
             rate(rotor_setpoint, min_time),
             "conv/s",
