@@ -82,7 +82,7 @@ def _trial(path: Path, group: str, window_s: float | None) -> Trial:
         log = log.window(log.start, log.start + window_s)
     steps, _ = merge(log.streams, MergePolicy(driver=SensorKind.GYR))
     first = int(np.argmax(np.all([steps.valid(k) for k in SensorKind], axis=0)))  # every sensor has spoken
-    steps = MergedSteps(*(getattr(steps, f)[first:] for f in ("t", "gyr", "acc", "mag", "age", "fresh", "flags")))
+    steps = steps.rows(first)
     e, _ = directions_from_log(log)
     dip = math.degrees(math.asin(-float(e[2, 1])))
     try:

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import astuple, dataclass, field
+from dataclasses import astuple, dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -922,8 +922,7 @@ class AttitudeFilter:
         self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None, chunk: int = 50_000
     ) -> EstimateBatch:
         """All merged steps (batch path). ``progress(done, total)`` is called every ``chunk`` steps."""
-        biased = MergedSteps(steps.t, steps.gyr - np.asarray(self._bias), steps.acc, steps.mag,
-                             steps.age, steps.fresh, steps.flags)  # fmt: skip
+        biased = replace(steps, gyr=steps.gyr - np.asarray(self._bias))
         f = self.prefilter.run(biased)
         mag, flags = f.mag, f.flags
         if self.gate is not None:
@@ -932,7 +931,7 @@ class AttitudeFilter:
                 np.isnan(mag[:, 0]) & ~np.isnan(f.mag[:, 0]), int(StepFlag.MAG_DISTURBED), 0
             )
         mag = _horizontal_rows(f.acc, mag) if self.config.magnetometer == "horizontal" else mag
-        filtered = MergedSteps(f.t, f.gyr, f.acc, mag, f.age, f.fresh, flags)
+        filtered = replace(f, mag=mag, flags=flags)
         start = 0
         if self._awaiting_measurement:
             both = _both_usable_rows(filtered.acc, filtered.mag, self.estimator.params)
@@ -944,7 +943,7 @@ class AttitudeFilter:
                 self._awaiting_measurement = False
                 r0 = wahba(self.config.params, filtered.acc[i], filtered.mag[i])
                 self.estimator.reset(r0, self.config.omega_err0)
-            parts.append(self.estimator.update_batch(_rows(filtered, i, j)))
+            parts.append(self.estimator.update_batch(filtered.rows(i, j)))
             if progress is not None:
                 progress(j, len(steps))
         if not parts:
@@ -982,10 +981,6 @@ def _both_usable_rows(acc: Array, mag: Array, p: EstimatorParams) -> NDArray[np.
     with np.errstate(invalid="ignore", divide="ignore"):
         sin = np.linalg.norm(np.cross(acc, mag), axis=1) / (na * nm)
     return ok & (sin >= math.sin(math.radians(p.min_direction_angle_deg)))
-
-
-def _rows(s: MergedSteps, i: int, j: int) -> MergedSteps:
-    return MergedSteps(s.t[i:j], s.gyr[i:j], s.acc[i:j], s.mag[i:j], s.age[i:j], s.fresh[i:j], s.flags[i:j])
 
 
 def _concat(parts: list[EstimateBatch]) -> EstimateBatch:

@@ -251,6 +251,13 @@ def merge(
     return steps, stats
 
 
+def first_full_step(steps: MergedSteps) -> int:
+    """Index of the first step at which every sensor has delivered a sample (0 if none ever does): where
+    a replay starts, since sensors of a recording start a few samples apart."""
+    spoken = np.all(np.isfinite(steps.age), axis=1)
+    return int(np.argmax(spoken)) if spoken.any() else 0
+
+
 # --------------------------------------------------------------------------- live
 class Merger:
     """The same merge, one sample at a time: ``push(sample)`` returns the steps that sample completes.

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -247,8 +247,7 @@ class SignalPrefilter:
             else:
                 y = filter_batch(h, np.einsum("nij,nj->ni", frames, v), cut)
                 out[kind] = np.einsum("nji,nj->ni", frames, y)
-        return MergedSteps(steps.t, out[SensorKind.GYR], out[SensorKind.ACC], out[SensorKind.MAG],
-                           steps.age, steps.fresh, steps.flags)  # fmt: skip
+        return replace(steps, gyr=out[SensorKind.GYR], acc=out[SensorKind.ACC], mag=out[SensorKind.MAG])
 
     @staticmethod
     def _strapdown_frames(h: Array, gyr: Array) -> Array:

@@ -267,6 +267,13 @@ class MergedSteps:
     def __iter__(self) -> Iterator[MergedStep]:
         return (self[i] for i in range(len(self)))
 
+    def rows(self, start: int, stop: int | None = None) -> MergedSteps:
+        """Steps ``start:stop`` (views, not copies)."""
+        s = slice(start, stop)
+        return MergedSteps(
+            self.t[s], self.gyr[s], self.acc[s], self.mag[s], self.age[s], self.fresh[s], self.flags[s]
+        )
+
     @classmethod
     def from_steps(cls, steps: list[MergedStep]) -> MergedSteps:
         def col(kind: SensorKind) -> Array:

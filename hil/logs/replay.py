@@ -143,7 +143,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     first = _first_complete(steps)
     if first:
         setup.append(f"first {first} steps dropped: not every sensor had spoken yet")
-        steps = _slice(steps, first, len(steps))
+        steps = steps.rows(first)
     if options.paced or options.on_step is not None:
         estimates = _run_live(log, steps, stats, config, options)
     else:
@@ -163,10 +163,6 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
 def _first_complete(steps: MergedSteps) -> int:
     spoken = np.all([np.isfinite(steps.age[:, k]) for k in KINDS], axis=0)
     return int(np.argmax(spoken)) if spoken.any() else 0
-
-
-def _slice(s: MergedSteps, i: int, j: int) -> MergedSteps:
-    return MergedSteps(s.t[i:j], s.gyr[i:j], s.acc[i:j], s.mag[i:j], s.age[i:j], s.fresh[i:j], s.flags[i:j])
 
 
 def _run_live(
