@@ -172,7 +172,9 @@ def fit_rotor(data: BenchData, opts: FitOptions) -> Fit:
     _require_coverage(data, throttle(start), taus, ~stopped | (p > start), "throttle")
     kv = float(g[-1])
     with within(data.path):
-        rotor = RotorSpeedMap(EscThrottleMap(low, high, start - low), kv, MonotoneCubic.pchip(taus, g / kv))
+        rotor = RotorSpeedMap(
+            EscThrottleMap(low, high, start - low), kv, MonotoneCubic.pchip(taus.tolist(), (g / kv).tolist())
+        )
     fitted = np.array([rotor.speed(pi, vi).value for pi, vi in zip(p, v, strict=True)])
     report = _report(data, fitted, "rad/s", kv * float(v.max()), n_knots)
     return Fit(rotor, report)
@@ -241,7 +243,9 @@ def fit_gimbal_rate(data: BenchData, opts: FitOptions) -> Fit:
     _require_coverage(data, p, ux, p >= ux[0], "pulse")
     with within(data.path):
         rate = GimbalRateMap(
-            0.5 * (lx[-1] + ux[0]), MonotoneCubic.pchip(lx, s * ly), MonotoneCubic.pchip(ux, s * uy)
+            0.5 * (lx[-1] + ux[0]),
+            MonotoneCubic.pchip(lx.tolist(), (s * ly).tolist()),
+            MonotoneCubic.pchip(ux.tolist(), (s * uy).tolist()),
         )
     fitted = np.array([rate.rate(pi).value for pi in p])
     return Fit(rate, _report(data, fitted, "rad/s", r_top, 2 * n))
@@ -274,7 +278,7 @@ def fit_gimbal_angle(data: BenchData, opts: FitOptions) -> Fit:
     ys = theta[0] + np.concatenate(([0.0], np.cumsum(theta[1:])))
     _require_coverage(data, p, xs, np.ones(len(p), dtype=bool), "pulse")
     with within(data.path):
-        angle = GimbalAngleMap(MonotoneCubic.pchip(xs, s * ys))
+        angle = GimbalAngleMap(MonotoneCubic.pchip(xs.tolist(), (s * ys).tolist()))
     fitted = np.array([angle.angle(pi).value for pi in p])
     return Fit(angle, _report(data, fitted, "rad", a_span, n))
 

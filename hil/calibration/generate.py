@@ -68,7 +68,7 @@ def spread_unit(index: int, rng: np.random.Generator, mirrored: bool = False) ->
 
 
 def rotor_rows(unit: BenchUnit, rng: np.random.Generator) -> list[tuple[str, ...]]:
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for v_oc in PACK_VOLTAGES:
         for p in range(1000, 2001, 20):
             frac = unit.motor.fraction(unit.motor.throttle(p))
