@@ -43,7 +43,7 @@ from hil.estimator import PAPER_D, AttitudeFilter, EstimatorParams, FilterConfig
 from hil.inertial import directions_from_dip, directions_from_log, find_still_window
 from hil.logs import read_log
 from hil.metrics import AttitudeErrors, Rmse, resample_quats
-from hil.multirate import MergePolicy, merge
+from hil.multirate import MergePolicy, first_full_step, merge
 from hil.paths import SHARED_DATA
 from hil.sensors import MergedSteps, SensorKind, SensorLog
 from protocol.errors import InputFormatError
@@ -76,13 +76,12 @@ class Trial:
         return self.name not in TUNING_TRIALS
 
 
-def _trial(path: Path, group: str, window_s: float | None) -> Trial:
+def _trial(path: Path, group: str, window_s: tuple[float, float] | None) -> Trial:
     log = read_log(path)
     if window_s is not None:
-        log = log.window(log.start, log.start + window_s)
+        log = log.window(log.start + window_s[0], log.start + window_s[1])
     steps, _ = merge(log.streams, MergePolicy(driver=SensorKind.GYR))
-    first = int(np.argmax(np.all([steps.valid(k) for k in SensorKind], axis=0)))  # every sensor has spoken
-    steps = steps.rows(first)
+    steps = steps.rows(first_full_step(steps))  # from when every sensor has spoken
     e, _ = directions_from_log(log)
     dip = math.degrees(math.asin(-float(e[2, 1])))
     try:
@@ -96,7 +95,7 @@ def _trial(path: Path, group: str, window_s: float | None) -> Trial:
 
 
 def load_trials(quick: bool = False, names: tuple[str, ...] | None = None) -> list[Trial]:
-    """All tyrex and BROAD trials (``quick``: two trials, 30 s each)."""
+    """All tyrex and BROAD trials (``quick``: one of each, 30 s of motion)."""
     paths: list[tuple[Path, str]] = []
     for p in sorted(TYREX.iterdir()) if TYREX.is_dir() else []:
         if p.is_dir():
@@ -114,7 +113,11 @@ def load_trials(quick: bool = False, names: tuple[str, ...] | None = None) -> li
         paths = [(p, g) for p, g in paths if p.name.removesuffix(".mat") in names]
     if quick:
         paths = [p for p in paths if p[0].name.startswith(("Guillaume_Nexus5_NoDist_Texting", "01_"))]
-    return [_trial(p, g, 30.0 if quick else None) for p, g in paths]
+    # quick: 30 s of motion (BROAD trials start with ~34 s at rest, not evaluated)
+    return [
+        _trial(p, g, ((30.0, 60.0) if g.startswith("broad") else (0.0, 30.0)) if quick else None)
+        for p, g in paths
+    ]
 
 
 # --------------------------------------------------------------------------- algorithms
@@ -354,6 +357,7 @@ def replay_speed(samples: int) -> tuple[float, float, dict[str, float], int]:
         log = read_log(path)
         t0 = time.perf_counter()
         steps, _ = merge(log.streams)
+        steps = steps.rows(first_full_step(steps))
         AttitudeFilter(FilterConfig.tuned()).run(steps)
         core = n / (time.perf_counter() - t0)
         trial = Trial("long", "long", log, steps, 60.0, (0.0, 0.0, 0.0))
