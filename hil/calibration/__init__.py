@@ -4,5 +4,5 @@ The maps themselves (and their binary form) live in the sans-IO ``protocol.calib
 reads and writes files and does the numerics that need numpy/scipy. Modules: ``bench`` (bench CSVs),
 ``generate`` (seeded synthetic bench data), ``fit`` (least-squares monotone fits and validation),
 ``files`` (the TOML calibration file format), ``plot`` (data against fit), ``vectors`` (test vectors
-for other implementations of the binary format).
+for other implementations of the binary format), ``textfiles`` (typed-error reads, atomic writes).
 """

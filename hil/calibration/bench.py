@@ -26,6 +26,8 @@ import numpy as np
 from protocol.errors import InputFormatError
 from protocol.messages import PULSE_MAX_US, PULSE_MIN_US
 
+from .textfiles import read_text, write_atomic
+
 MAX_BATTERY_V = 60.0
 
 
@@ -78,16 +80,7 @@ class BenchData:
 
 def read_bench_csv(path: str | os.PathLike[str]) -> BenchData:
     """Read and check a bench CSV (see the module docstring)."""
-    p = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise InputFormatError("no such file", p) from exc
-    except UnicodeDecodeError as exc:
-        raise InputFormatError(f"not UTF-8 text ({exc.reason} at byte {exc.start})", p) from exc
-    except OSError as exc:
-        raise InputFormatError(f"cannot read: {exc.strerror or exc}", p) from exc
-    return parse_bench_csv(text, p)
+    return parse_bench_csv(read_text(path, InputFormatError), str(path))
 
 
 def parse_bench_csv(text: str, path: str = "<bench csv>") -> BenchData:
@@ -172,10 +165,5 @@ def write_bench_csv(
     path: str | os.PathLike[str], columns: list[str], rows: list[tuple[str, ...]], comments: list[str]
 ) -> Path:
     """Write a bench CSV: ``# comment`` lines, the header, then the already formatted rows."""
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
     lines = [f"# {c}" for c in comments] + [",".join(columns)] + [",".join(r) for r in rows]
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    os.replace(tmp, out)
-    return out
+    return write_atomic(path, "\n".join(lines) + "\n")

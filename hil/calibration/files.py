@@ -60,6 +60,8 @@ from protocol.calibration.checks import within
 from protocol.errors import CalibrationError
 from protocol.messages import MAX_UNITS
 
+from .textfiles import read_text, write_atomic
+
 FORMAT = "vscmg-hil calibration"
 VERSION = 1
 MAPS = ("rotor", "gimbal_rate", "gimbal_angle")
@@ -109,14 +111,7 @@ class CalibrationSet:
 # =========================================================================== reading
 def load_calibration(path: str | os.PathLike[str]) -> CalibrationSet:
     """Read a calibration file; :class:`CalibrationError` naming the file and key for anything wrong."""
-    p = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise CalibrationError("no such file", p) from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CalibrationError(f"cannot read: {exc}", p) from exc
-    return parse_calibration(text, p)
+    return parse_calibration(read_text(path, CalibrationError), str(path))
 
 
 def parse_calibration(text: str, source: str = "<calibration>") -> CalibrationSet:
@@ -305,12 +300,7 @@ def dump_calibration(cset: CalibrationSet) -> str:
 
 def save_calibration(cset: CalibrationSet, path: str | os.PathLike[str]) -> Path:
     """Write ``cset`` to ``path`` atomically (a temporary file renamed over it)."""
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(dump_calibration(cset), encoding="utf-8")
-    os.replace(tmp, out)
-    return out
+    return write_atomic(path, dump_calibration(cset))
 
 
 def _section(name: str, items: Iterable[tuple[str, Any]], exact: bool = False) -> list[str]:

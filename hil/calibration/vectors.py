@@ -24,6 +24,7 @@ from protocol.errors import CalibrationError
 from protocol.messages import GimbalMode
 
 from .files import CalibrationSet
+from .textfiles import write_atomic
 
 FORMAT = "vscmg-hil calibration vectors"
 VERSION = 1
@@ -174,9 +175,4 @@ def dumps_vectors(doc: dict[str, Any]) -> str:
 
 
 def write_vectors(cset: CalibrationSet, path: str | os.PathLike[str], source: str = "") -> Path:
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(dumps_vectors(build_vectors(cset, source)), encoding="utf-8")
-    os.replace(tmp, out)
-    return out
+    return write_atomic(path, dumps_vectors(build_vectors(cset, source)))
