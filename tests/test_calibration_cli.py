@@ -116,6 +116,36 @@ def test_show_and_vectors(bench, tmp_path, capsys):
         (["fit", "{bench}/unit0_rotor.csv", "-o", "{tmp}/x.toml", "--rotor-knots", "40"], "rotor_knots"),
         (["show", "{tmp}/bad.toml"], "bad.toml: version"),
         (["bench", "--out-dir", "{tmp}/b", "--units", "9"], "--units"),
+        (
+            [
+                "fit",
+                "{bench}/unit0_rotor.csv",
+                "{bench}/unit0_gimbal_rate.csv",
+                "{bench}/unit0_gimbal_angle.csv",
+                "-o",
+                "{tmp}/x.toml",
+                "--unit",
+                "8",
+            ],
+            "unit index: 8 is not a unit number 0..7",
+        ),
+        (
+            ["fit", "{bench}/unit0_rotor.csv", "--base", "default", "-o", "{tmp}/bad.csv/x.toml"],
+            "cannot write",
+        ),
+        (
+            [
+                "fit",
+                "{bench}/unit0_rotor.csv",
+                "--base",
+                "default",
+                "-o",
+                "{tmp}/x.toml",
+                "--plot",
+                "{tmp}/p.nope",
+            ],
+            "cannot save the plot",
+        ),
     ],
 )
 def test_bad_input_is_a_clear_error_and_exit_code_2(bench, tmp_path, capsys, args, phrase):

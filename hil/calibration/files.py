@@ -88,6 +88,10 @@ class UnitEntry:
     calibration: UnitCalibration
     fits: Mapping[str, FitInfo] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        if isinstance(self.index, bool) or not isinstance(self.index, int) or not 0 <= self.index < MAX_UNITS:
+            raise CalibrationError(f"{self.index!r} is not a unit number 0..{MAX_UNITS - 1}", "unit index")
+
 
 @dataclass(frozen=True)
 class CalibrationSet:

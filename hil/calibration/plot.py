@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from protocol.calibration import GimbalAngleMap, GimbalRateMap, RotorSpeedMap
+from protocol.errors import ConfigError
 
 from .bench import BenchData
 from .fit import Fit
@@ -62,6 +63,9 @@ def plot_fits(fits: Sequence[tuple[BenchData, Fit]], path: str | os.PathLike[str
     if title:
         fig.suptitle(title)
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(out, dpi=110)
+    except (OSError, ValueError) as exc:  # ValueError: a suffix matplotlib has no writer for
+        raise ConfigError(f"cannot save the plot: {exc}", str(path)) from exc
     return out

@@ -7,7 +7,7 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from protocol.errors import HilError
+from protocol.errors import ConfigError, HilError
 
 
 def read_text(path: str | os.PathLike[str], error: Callable[[str, str], HilError]) -> str:
@@ -24,10 +24,14 @@ def read_text(path: str | os.PathLike[str], error: Callable[[str, str], HilError
 
 
 def write_atomic(path: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file renamed over it; creates the directory."""
+    """Write ``text`` to ``path`` through a temporary file renamed over it; creates the directory.
+    :class:`ConfigError` naming the file if it cannot be written."""
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, out)
+    except OSError as exc:
+        raise ConfigError(f"cannot write: {exc.strerror or exc}", str(path)) from exc
     return out
