@@ -383,31 +383,10 @@ def run(quick: bool) -> list[Result]:
             continue
         means = {a: _mean([acc[a][t.name] for t in members]) for a in ALGORITHMS}
         detail = "; ".join(f"{a} {m[0]:.2f}/{m[1]:.2f}/{m[2]:.2f}" for a, m in means.items())
-        for variant in ("ours-tuned", "ours-paper-nopf", "ours-paper"):
-            results.append(
-                Result(
-                    NAME,
-                    f"{group} ({len(members)}) RMSE total, {variant}",
-                    means[variant][0],
-                    "deg",
-                    "VQF",
-                    means["VQF"][0],
-                    False,
-                    detail if variant == "ours-tuned" else "",
-                )  # fmt: skip
-            )
-        for peer in ("Madgwick", "imufusion"):
-            results.append(
-                Result(
-                    NAME,
-                    f"{group} ({len(members)}) RMSE total, {peer}",
-                    means[peer][0],
-                    "deg",
-                    "VQF",
-                    means["VQF"][0],
-                    False,
-                )  # fmt: skip
-            )
+        for name in ("ours-tuned", "ours-paper-nopf", "ours-paper", "Madgwick", "imufusion"):
+            note = detail if name == "ours-tuned" else ""
+            label = f"{group} ({len(members)}) RMSE total, {name}"
+            results.append(Result(NAME, label, means[name][0], "deg", "VQF", means["VQF"][0], False, note))
     speed = step_speed(trials[0], 2000 if quick else 20000)
     for peer in ("VQF", "PyVQF", "Madgwick", "imufusion"):
         results.append(

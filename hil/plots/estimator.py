@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -17,7 +18,18 @@ if TYPE_CHECKING:
     from hil.logs.replay import ReplayResult
 
 
-def _save(fig: Figure, path: Path) -> Path:
+def _figure(title: str, ylabel: str) -> tuple[Figure, Axes]:
+    fig = Figure(figsize=(8, 4))
+    ax = fig.add_subplot()
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    return fig, ax
+
+
+def _save(fig: Figure, ax: Axes, path: Path) -> Path:
+    ax.legend(loc="upper right")
     FigureCanvasAgg(fig)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -26,32 +38,22 @@ def _save(fig: Figure, path: Path) -> Path:
 
 def plot_attitude_error(t: np.ndarray, errors: AttitudeErrors, path: Path, title: str = "") -> Path:
     """Principal angle of the attitude estimation error (deg) against time, heading/inclination beside."""
-    fig = Figure(figsize=(8, 4))
-    ax = fig.add_subplot()
+    fig, ax = _figure(title or "Attitude estimation error", "attitude estimation error (deg)")
     ax.plot(t, errors.total, lw=1.0, label="principal angle of Q = R R̂ᵀ")
     ax.plot(t, errors.heading, lw=0.6, alpha=0.7, label="heading part")
     ax.plot(t, errors.inclination, lw=0.6, alpha=0.7, label="inclination part")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("attitude estimation error (deg)")
-    ax.set_title(title or "Attitude estimation error")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
-    return _save(fig, path)
+    return _save(fig, ax, path)
 
 
 def plot_rate_error(t: np.ndarray, error: np.ndarray, path: Path, title: str = "") -> Path:
     """Angular-velocity estimation error Ω − Ω̂ (rad/s), components and norm, against time."""
-    fig = Figure(figsize=(8, 4))
-    ax = fig.add_subplot()
+    fig, ax = _figure(
+        title or "Angular velocity estimation error", "angular velocity estimation error (rad/s)"
+    )
     for i, axis in enumerate("xyz"):
-        ax.plot(t, error[:, i], lw=0.6, label=f"{axis}")
+        ax.plot(t, error[:, i], lw=0.6, label=axis)
     ax.plot(t, np.linalg.norm(error, axis=1), "k", lw=0.8, label="norm")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("angular velocity estimation error (rad/s)")
-    ax.set_title(title or "Angular velocity estimation error")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
-    return _save(fig, path)
+    return _save(fig, ax, path)
 
 
 def euler_zyx_deg(r: np.ndarray) -> np.ndarray:
@@ -63,29 +65,19 @@ def euler_zyx_deg(r: np.ndarray) -> np.ndarray:
 
 
 def plot_attitude(t: np.ndarray, r: np.ndarray, path: Path, title: str = "") -> Path:
-    fig = Figure(figsize=(8, 4))
-    ax = fig.add_subplot()
+    """The attitude estimate as roll, pitch, yaw (deg, ENU, z-y-x) against time."""
+    fig, ax = _figure(title or "Attitude estimate", "attitude estimate (deg, ENU, z-y-x)")
     for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", "yaw"), strict=True):
         ax.plot(t, series, lw=0.8, label=label)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("attitude estimate (deg, ENU, z-y-x)")
-    ax.set_title(title or "Attitude estimate")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
-    return _save(fig, path)
+    return _save(fig, ax, path)
 
 
 def plot_rates(t: np.ndarray, omega: np.ndarray, path: Path, title: str = "") -> Path:
-    fig = Figure(figsize=(8, 4))
-    ax = fig.add_subplot()
+    """The body rate estimate Ω̂ (rad/s) against time."""
+    fig, ax = _figure(title or "Angular velocity estimate", "body rate estimate (rad/s)")
     for i, axis in enumerate("xyz"):
         ax.plot(t, omega[:, i], lw=0.6, label=f"Ω̂{axis}")
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("body rate estimate (rad/s)")
-    ax.set_title(title or "Angular velocity estimate")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
-    return _save(fig, path)
+    return _save(fig, ax, path)
 
 
 def plot_replay(result: ReplayResult, out_dir: Path) -> dict[str, Path]:
