@@ -75,7 +75,9 @@ class AttitudeErrors:
     def rmse(self, mask: ArrayLike | None = None) -> Rmse:
         """RMSE over the samples in ``mask`` (default all), NaNs (no estimate or no truth) left out."""
         sel = np.ones(self.total.shape, bool) if mask is None else np.asarray(mask, bool)
-        return Rmse(*(_rms(x[sel]) for x in (self.total, self.heading, self.inclination)), int(sel.sum()))
+        return Rmse(
+            _rms(self.total[sel]), _rms(self.heading[sel]), _rms(self.inclination[sel]), int(sel.sum())
+        )
 
 
 @dataclass(frozen=True)
@@ -156,7 +158,7 @@ class TruthComparison:
 def compare_to_truth(
     truth_t: ArrayLike,
     truth_r: ArrayLike,
-    evaluate: ArrayLike,
+    evaluate: ArrayLike | None,
     t_est: ArrayLike,
     q_est: ArrayLike,
     omega_est: ArrayLike | None = None,
@@ -170,7 +172,8 @@ def compare_to_truth(
     q_ref[finite] = so3.matrix_to_quat(truth_r[finite])
     q_at = resample_quats(t_est, q_est, truth_t)
     errors = AttitudeErrors.from_quats(q_at, q_ref)
-    mask = np.asarray(evaluate, bool) & finite & np.all(np.isfinite(q_at), axis=1)
+    evaluated = np.ones(len(truth_t), bool) if evaluate is None else np.asarray(evaluate, bool)
+    mask = evaluated & finite & np.all(np.isfinite(q_at), axis=1)
     mid, w_true = truth_rates(truth_t, truth_r)
     rate_error = np.full_like(w_true, np.nan)
     if omega_est is not None:

@@ -87,6 +87,9 @@ class MergePolicy:
             )
 
 
+_LABELS = tuple(k.label for k in KINDS)
+
+
 @dataclass
 class MergeStats:
     """Counters of one merge: per sensor (keyed by ``SensorKind.label``) accepted samples and drops by
@@ -126,7 +129,6 @@ class MergeStats:
             self.stale_steps[kind.label] += int(np.count_nonzero(flags & int(StepFlag.stale(kind))))
 
 
-_LABELS = tuple(k.label for k in KINDS)
 _REASONS = ("nan", "duplicate", "out_of_order")
 
 

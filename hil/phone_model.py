@@ -110,7 +110,7 @@ class Trajectory:
     ) -> Trajectory:
         """Integrate a body-rate function (rad/s) from ``R0`` with the midpoint rule on SO(3) at ``dt``."""
         n = int(round(duration_s / dt)) + 1
-        t = np.arange(n) * dt
+        t = np.arange(n, dtype=float) * dt
         omega = np.array([rate(x) for x in t], dtype=float).reshape(n, 3)
         inc = dt * np.array([rate(x + dt / 2) for x in t[:-1]], dtype=float).reshape(n - 1, 3)
         steps = so3.exp(inc)

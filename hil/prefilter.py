@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -42,8 +43,9 @@ def _check_cutoff(cutoff_rad_s: float) -> float:
     return float(cutoff_rad_s)
 
 
-def coefficients(cutoff_rad_s: float, h: float) -> tuple[float, float]:
-    """``(α, β)`` with ``x̄[k+1] = α x̄[k] + β (x[k] + x[k+1])`` for a step of ``h`` seconds."""
+def coefficients(cutoff_rad_s: float, h: Any) -> tuple[Any, Any]:
+    """``(α, β)`` with ``x̄[k+1] = α x̄[k] + β (x[k] + x[k+1])`` for a step of ``h`` seconds (a float, or
+    an array of steps giving arrays)."""
     wh = cutoff_rad_s * h
     return (2.0 - wh) / (2.0 + wh), wh / (2.0 + wh)
 
@@ -171,7 +173,10 @@ class SignalPrefilter:
                 f"pre-filter frame must be 'body' or 'strapdown', got {frame!r}", "prefilter frame"
             )
         self.frame = frame
-        self._cut = {k: (None if cutoffs.get(k) is None else _check_cutoff(float(cutoffs[k]))) for k in KINDS}
+        self._cut: dict[SensorKind, float | None] = {}
+        for k in KINDS:
+            c = cutoffs.get(k)
+            self._cut[k] = None if c is None else _check_cutoff(float(c))
         self._x: dict[SensorKind, Vec3 | None] = dict.fromkeys(KINDS)
         self._y: dict[SensorKind, Vec3 | None] = dict.fromkeys(KINDS)
         self._r: Mat9 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
@@ -193,8 +198,8 @@ class SignalPrefilter:
         self._g = g
         self._n += 1
         out_g = self._filter(SensorKind.GYR, h, gyr, None)
-        r = self._r if strap else None
-        return out_g, self._filter(SensorKind.ACC, h, acc, r), self._filter(SensorKind.MAG, h, mag, r)
+        frame = self._r if strap else None
+        return out_g, self._filter(SensorKind.ACC, h, acc, frame), self._filter(SensorKind.MAG, h, mag, frame)
 
     def _filter(self, kind: SensorKind, h: float, v: Vec3 | None, r: Mat9 | None) -> Vec3 | None:
         cut = self._cut[kind]
