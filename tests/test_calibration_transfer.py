@@ -12,6 +12,7 @@ import pytest
 from conformance.host import lockstep
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from hypothesis.stateful import Bundle, RuleBasedStateMachine, invariant, rule
 from test_calibration_strategies import unit_calibrations
 
 from hil.calibration.files import load_calibration
@@ -260,3 +261,61 @@ def test_a_fitted_set_uploaded_to_the_board_drives_its_outputs_and_downloads_unc
                 host.send(Ack(msg_id=CalibrationData.MSG_ID, seq=ev.seq))
                 got = r.feed(ev.message) or got
     assert got == (0, mirrored.to_bytes())
+
+
+# ------------------------------------------------------------------------- the Reassembler against a model
+class ReassemblerModel(RuleBasedStateMachine):
+    """Fragments of several transfers (some sharing a key with different contents) fed in any order, with
+    repeats; the real Reassembler and a plain model must agree on every answer."""
+
+    transfers = Bundle("transfers")
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.r = Reassembler(max_len=1000)
+        self.key: tuple[int, int] | None = None  # model of the transfer in progress
+        self.header: tuple | None = None
+        self.chunks: dict[int, bytes] = {}
+        self.done: tuple | None = None
+
+    @rule(target=transfers, unit=st.integers(0, 2), tid=st.integers(0, 2), size=st.integers(0, 650))
+    def new_transfer(self, unit, tid, size):
+        data = bytes(random.Random(size * 7 + unit).getrandbits(8) for _ in range(size))
+        return fragment(unit, tid, data)
+
+    @rule(parts=transfers, pick=st.integers(0, 3))
+    def feed(self, parts, pick):
+        msg = parts[pick % len(parts)]
+        header = (msg.unit, msg.transfer_id, msg.count, msg.total_len, msg.set_crc)
+        expected, error = self._model(msg, header)
+        if error:
+            with pytest.raises(CalibrationError):
+                self.r.feed(msg)
+        else:
+            assert self.r.feed(msg) == expected
+
+    def _model(self, msg, header):
+        if header == self.done:
+            return None, False
+        if self.key != (msg.unit, msg.transfer_id):
+            self.key, self.header, self.chunks, self.done = (msg.unit, msg.transfer_id), header, {}, None
+        elif header != self.header:
+            self.key, self.header, self.chunks = None, None, {}
+            return None, True
+        if msg.index in self.chunks:
+            return None, False
+        self.chunks[msg.index] = msg.chunk
+        if len(self.chunks) < msg.count:
+            return None, False
+        data = b"".join(self.chunks[i] for i in range(msg.count))
+        self.key, self.header, self.chunks, self.done = None, None, {}, header
+        return (msg.unit, data), False
+
+    @invariant()
+    def same_progress(self):
+        assert self.r.in_progress == self.key
+        assert sum(len(c) for c in self.r._chunks.values()) <= self.r.max_len  # bounded memory
+
+
+ReassemblerModel.TestCase.settings = settings(max_examples=60, stateful_step_count=30, deadline=None)
+TestReassemblerModel = ReassemblerModel.TestCase
