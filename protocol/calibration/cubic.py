@@ -9,8 +9,8 @@ slopes have the sign of the table and satisfy ``|m[k]| ≤ 3·|δ|`` for both in
 interval's secant): that box inside the Fritsch–Carlson region guarantees a monotone cubic on every
 interval, which makes the inverse well posed.
 
-The algorithms here are the reference for ``docs/calibration.md`` ("Evaluating a table"): written in
-Horner form, with a fixed iteration cap, so a float32 C port follows them line by line.
+The algorithms here are the reference for ``docs/calibration.md`` §2: written in Horner form, with a
+fixed iteration cap, so a float32 C port follows them line by line.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from .conversion import Clamp, Conversion
 
 MAX_KNOTS = 16
 SOLVE_MAX_ITER = 20
-"""Safeguarded-Newton iterations for the inverse (3–5 are typical; the cap bounds a C port's time)."""
+"""Safeguarded-Newton passes for the inverse (2–3 are typical; the cap bounds a C port's time)."""
 SOLVE_TOL_T = 1e-6
 """Stop when a Newton step moves the interval parameter t (0..1) by at most this."""
 SLOPE_TOLERANCE = 1e-5
@@ -209,7 +209,9 @@ def _sign(v: float) -> int:
     return (v > 0.0) - (v < 0.0)
 
 
-def _check_interval(k: int, x: tuple[float, ...], y: tuple[float, ...], m: tuple[float, ...], rising: bool):
+def _check_interval(
+    k: int, x: tuple[float, ...], y: tuple[float, ...], m: tuple[float, ...], rising: bool
+) -> None:
     """Strictly monotone in the table's direction, and slopes inside the box that keeps the cubic monotone."""
     d = y[k + 1] - y[k]
     if (d <= 0.0) if rising else (d >= 0.0):
