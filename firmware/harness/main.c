@@ -20,6 +20,7 @@
 #include <unistd.h>
 
 #include <avr_eeprom.h>
+#include <avr_extint.h>
 #include <avr_ioport.h>
 #include <sim_avr.h>
 #include <sim_elf.h>
@@ -82,7 +83,7 @@ static void no_sleep(avr_t *avr, avr_cycle_count_t cycles)
 static void quiet_logger(avr_t *avr, const int level, const char *format, va_list ap)
 {
     (void)avr;
-    if (level <= LOG_WARNING)
+    if (level <= LOG_ERROR)
         vfprintf(stderr, format, ap);
 }
 
@@ -118,19 +119,25 @@ void harness_set_selftest(harness_t *h, int low)
     avr_raise_irq(selftest_irq, low ? 0 : 1);
 }
 
+/* The EEPROM's backing store inside simavr. (Its SET ioctl cannot write the last byte and reports
+ * failure even when it succeeds; GET with no buffer hands out the store itself.) */
+static uint8_t *eeprom_store(harness_t *h, uint32_t *size)
+{
+    avr_eeprom_desc_t d = {.ee = NULL, .offset = 0, .size = 0};
+    avr_ioctl(h->avr, AVR_IOCTL_EEPROM_GET, &d);
+    *size = h->avr->e2end + 1u;
+    return d.ee;
+}
+
 static int eeprom_io(harness_t *h, const char *path, int save)
 {
-    static uint8_t image[4096];
-    avr_eeprom_desc_t d = {.ee = image, .offset = 0, .size = h->avr->e2end + 1};
-    if (d.size > sizeof image)
-        d.size = sizeof image;
+    uint32_t size;
+    uint8_t *store = eeprom_store(h, &size);
+    if (!store)
+        return -1;
     if (save) {
-        if (avr_ioctl(h->avr, AVR_IOCTL_EEPROM_GET, &d) < 0)
-            return -1;
-        if (d.ee != image)
-            memcpy(image, d.ee, d.size);
         FILE *f = fopen(path, "wb");
-        if (!f || fwrite(image, 1, d.size, f) != d.size) {
+        if (!f || fwrite(store, 1, size, f) != size) {
             fprintf(stderr, "avr-harness: cannot save EEPROM to %s: %s\n", path, strerror(errno));
             if (f)
                 fclose(f);
@@ -141,13 +148,9 @@ static int eeprom_io(harness_t *h, const char *path, int save)
     FILE *f = fopen(path, "rb");
     if (!f)
         return errno == ENOENT ? 0 : -1; /* a fresh board: erased EEPROM */
-    memset(image, 0xFF, sizeof image);
-    size_t n = fread(image, 1, d.size, f);
+    size_t n = fread(store, 1, size, f);
     fclose(f);
-    if (n == 0)
-        return 0;
-    d.size = (uint32_t)n;
-    return avr_ioctl(h->avr, AVR_IOCTL_EEPROM_SET, &d);
+    return n == size || n == 0 ? 0 : -1;
 }
 
 static int parse_sag(harness_t *h, const char *spec)
@@ -178,6 +181,17 @@ static double number(const char *opt, const char *s, double lo, double hi)
         exit(2);
     }
     return v;
+}
+
+/* simavr polls a low INTn pin every cycle while INTn is in level-triggered mode (the reset default),
+ * to re-raise the interrupt. The firmware enables no external interrupt, but INT4/INT5 share PE4/PE5
+ * with pulse channels 4 and 5, which are low most of the time: that polling would make the simulation
+ * several times slower than real time. Edge semantics for a disabled interrupt change nothing the
+ * firmware can see. The core's reset turns the polling back on, so this runs after every slice. */
+static void no_level_polling(harness_t *h)
+{
+    for (uint8_t i = 0; i < 8; i++)
+        avr_extint_set_strict_lvl_trig(h->avr, i, 0);
 }
 
 static double wall_seconds(void)
@@ -299,6 +313,7 @@ int main(int argc, char **argv)
     avr_raise_irq(selftest_irq, 1); /* the pin's pull-up: released */
     bridge_attach(h);
     power_init(h);
+    no_level_polling(h);
     h->avr->data[MCUSR_ADDR] = MCUSR_PORF;
     record_line(h, "R 0 %d\n", CAUSE_POWER_ON);
     if (bridge_open(h, link) < 0)
@@ -335,6 +350,7 @@ int main(int argc, char **argv)
                 }
             }
         }
+        no_level_polling(h);
         bridge_service(h);
         power_update(h);
         t = harness_seconds(h);

@@ -13,7 +13,7 @@
  *   ch 6 OC4A PH3 [D6]    ch 7 OC4B PH4 [D7]    ch 8 OC4C PH5 [D8]
  *   ch 9 OC5A PL3 [D46]   ch10 OC5B PL4 [D45]   ch11 OC5C PL5 [D44]
  * Twelve hardware channels: up to 6 VSCMG units. With 4 units or fewer, Timer5 is free and drives the
- * optional PPM-sum train on OC5A PL3 [D46] instead.
+ * optional PPM-sum train (8 channels, 22.5 ms frame, 300 us marks) on OC5B PL4 [D45] instead.
  *
  * Analog inputs (internal 2.56 V reference, 10 bits):
  *   ADC0 PF0 [A0] battery voltage through a 70k/10k divider (x8: 20.48 V full scale)
@@ -34,8 +34,7 @@
 /* Port letter and bit of each pulse channel, for the harness (the firmware uses the timer registers). */
 #define PULSE_PIN_PORTS "BBBEEEHHHLLL"
 #define PULSE_PIN_BITS {5, 6, 7, 3, 4, 5, 3, 4, 5, 3, 4, 5}
-#define PPM_PIN_PORT 'L'
-#define PPM_PIN_BIT 3
+#define PPM_PIN_INDEX 10u /* the PPM train shares the recorder's pin 10 (OC5B PL4) */
 
 #define ADC_REF_MV 2560u
 #define ADC_FULL_SCALE 1024u

@@ -32,6 +32,7 @@ enum {
     BOARD_STATE_ARMED = 2,
     BOARD_STATE_FAILSAFE = 3,
 };
+#define BOARD_STATE_NAMES "BOOT\0DISARMED\0ARMED\0FAILSAFE\0" /* indexed by value, for logs */
 
 /* ResetCause: Why the board last reset (from the MCU's reset-cause register). */
 enum {
@@ -41,6 +42,7 @@ enum {
     RESET_CAUSE_EXTERNAL = 3,
     RESET_CAUSE_SOFTWARE = 4,
 };
+#define RESET_CAUSE_NAMES "POWER_ON\0WATCHDOG\0BROWN_OUT\0EXTERNAL\0SOFTWARE\0" /* indexed by value, for logs */
 
 /* ControlMode: What the board does with setpoints (``SetMode``). */
 enum {
@@ -48,12 +50,14 @@ enum {
     CONTROL_MODE_RAW_PULSES = 1,
     CONTROL_MODE_ESC_CALIBRATION = 2,
 };
+#define CONTROL_MODE_NAMES "SETPOINT\0RAW_PULSES\0ESC_CALIBRATION\0" /* indexed by value, for logs */
 
 /* GimbalMode: How ``UnitSetpoint.gimbal`` is interpreted. */
 enum {
     GIMBAL_MODE_RATE = 0,
     GIMBAL_MODE_ANGLE = 1,
 };
+#define GIMBAL_MODE_NAMES "RATE\0ANGLE\0" /* indexed by value, for logs */
 
 /* NackReason */
 enum {
@@ -64,6 +68,7 @@ enum {
     NACK_REASON_BAD_CALIBRATION = 5,
     NACK_REASON_POWER = 6,
 };
+#define NACK_REASON_NAMES "?\0BAD_STATE\0OUT_OF_RANGE\0UNSUPPORTED\0BUSY\0BAD_CALIBRATION\0POWER\0" /* indexed by value, for logs */
 
 /* PowerState: Staged power thresholds: warn → limit → shed (rotors stopped) → brown-out (reset). */
 enum {
@@ -73,12 +78,14 @@ enum {
     POWER_STATE_SHED = 3,
     POWER_STATE_BROWN_OUT = 4,
 };
+#define POWER_STATE_NAMES "NORMAL\0WARN\0LIMIT\0SHED\0BROWN_OUT\0" /* indexed by value, for logs */
 
 /* WatchdogState */
 enum {
     WATCHDOG_STATE_OK = 0,
     WATCHDOG_STATE_LINK_LOST = 1,
 };
+#define WATCHDOG_STATE_NAMES "OK\0LINK_LOST\0" /* indexed by value, for logs */
 
 /* Severity */
 enum {
@@ -88,6 +95,7 @@ enum {
     SEVERITY_ERROR = 3,
     SEVERITY_CRITICAL = 4,
 };
+#define SEVERITY_NAMES "DEBUG\0INFO\0WARNING\0ERROR\0CRITICAL\0" /* indexed by value, for logs */
 
 /* FaultFlag: Bits of ``Telemetry.faults``. */
 enum {
@@ -134,6 +142,7 @@ enum {
     LOG_CODE_CALIBRATION = 10,
     LOG_CODE_RX_OVERFLOW = 11,
 };
+#define LOG_CODE_NAMES "?\0BOOT\0STATE\0LINK_LOST\0LINK_RESTORED\0POWER\0DEAD_ESC\0UBEC_OVERCURRENT\0HANDSHAKE\0BAD_COMMAND\0CALIBRATION\0RX_OVERFLOW\0" /* indexed by value, for logs */
 
 /* UnitSetpoint: record */
 typedef struct {
@@ -494,6 +503,8 @@ extern const wire_layout_t WIRE_LAYOUT_LOG;
 
 /* The layout of message `msg_id`, or NULL for an id outside the catalogue. */
 const wire_layout_t *wire_layout_for(uint8_t msg_id);
+/* 1 if message `msg_id` is reliable (answered with Ack/Nack), else 0. */
+uint8_t msg_is_reliable(uint8_t msg_id);
 
 /* Serialised default calibration set (protocol.calibration.default_unit_calibration()). */
 #define DEFAULT_CALIBRATION_LEN 414u

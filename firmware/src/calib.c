@@ -30,7 +30,7 @@ typedef struct {
 static float f32_at(const uint8_t *p)
 {
     float v;
-    memcpy(&v, p, 4); /* both ends are little-endian IEEE-754 */
+    __builtin_memcpy(&v, p, 4); /* both ends are little-endian IEEE-754; inlined */
     return v;
 }
 
@@ -83,19 +83,28 @@ static cal_conv_t table_evaluate(const table_t *t, float x)
     return conv(ky(t, k) + u * (a1 + u * (a2 + u * a3)), CAL_CLAMP_NONE);
 }
 
-/* Safeguarded Newton on one monotone interval (cubic.py: _solve_interval). */
+/* Safeguarded Newton on one monotone interval (cubic.py: _solve_interval). The direction s = +-1 is
+ * folded into the coefficients and the target (an exact sign flip), so e and g below are s times the
+ * reference's polynomial and derivative, with the same values and the same steps. */
 static float solve_interval(float target, float s, float a1, float a2, float a3, float u)
 {
+    if (s < 0.0f) {
+        a1 = -a1;
+        a2 = -a2;
+        a3 = -a3;
+        target = -target;
+    }
+    const float b2 = 2.0f * a2, b3 = 3.0f * a3;
     float lo = 0.0f, hi = 1.0f;
     for (uint8_t i = 0; i < SOLVE_MAX_ITER; i++) {
-        float e = s * (u * (a1 + u * (a2 + u * a3)) - target);
+        float e = u * (a1 + u * (a2 + u * a3)) - target;
         if (e == 0.0f)
             break;
         if (e > 0.0f)
             hi = u;
         else
             lo = u;
-        float g = s * (a1 + u * (2.0f * a2 + 3.0f * u * a3));
+        float g = a1 + u * (b2 + u * b3);
         float un = g > 0.0f ? u - e / g : 0.5f * (lo + hi);
         if (!(lo < un && un < hi))
             un = 0.5f * (lo + hi);

@@ -1,0 +1,18 @@
+"""The board's real firmware (``firmware/``, C for the ATmega2560) run on simavr behind a pseudo-terminal.
+
+* :class:`AvrBoard` — the firmware ELF on an emulated ATmega2560 (the ``avr-harness`` process), with the
+  conformance ``Target`` operations: harness time, pulse timeline, resets, fault injection.
+* :func:`ensure_built` — ``make -C firmware`` (firmware, codec check, harness, host library).
+* :mod:`.codegen` — generates the firmware's protocol and board headers from the Python sources.
+* :mod:`.eeprom` — the EEPROM image (board configuration block, calibration slots).
+* :mod:`.records` — the harness's record of pulse edges and resets as frames.
+* :mod:`.hostlib` — the firmware's portable C modules on the host through ctypes (tests).
+
+``firmware-sim --avr`` serves the firmware on a pty like ``firmware-sim`` serves the Python emulator.
+"""
+
+from .build import ensure_built
+from .harness import AvrBoard, HarnessOptions
+from .paths import CODEC_CHECK_ELF, FIRMWARE_DIR, FIRMWARE_ELF
+
+__all__ = ["CODEC_CHECK_ELF", "FIRMWARE_DIR", "FIRMWARE_ELF", "AvrBoard", "HarnessOptions", "ensure_built"]

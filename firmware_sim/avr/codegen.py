@@ -94,6 +94,10 @@ def _enum_block(cls: type[enum.Enum], prefix: str) -> str:
         lines.append(f"    {prefix}_{m.name} = {int(m):#x}," if issubclass(cls, enum.IntFlag) else
                      f"    {prefix}_{m.name} = {int(m)},")
     lines.append("};")
+    if not issubclass(cls, enum.IntFlag):
+        by_value = {int(m): m.name for m in cls}
+        names = "".join(f"{by_value.get(v, '?')}\\0" for v in range(max(by_value) + 1))
+        lines.append(f'#define {prefix}_NAMES "{names}" /* indexed by value, for logs */')
     return "\n".join(lines)
 
 
@@ -299,7 +303,9 @@ def generate() -> tuple[str, str]:
           "extern const wire_layout_t wire_records[];"]
     h += [f"extern const wire_layout_t WIRE_LAYOUT_{m.c_name.upper()};" for m in messages]
     h += ["", "/* The layout of message `msg_id`, or NULL for an id outside the catalogue. */",
-          "const wire_layout_t *wire_layout_for(uint8_t msg_id);", "",
+          "const wire_layout_t *wire_layout_for(uint8_t msg_id);",
+          "/* 1 if message `msg_id` is reliable (answered with Ack/Nack), else 0. */",
+          "uint8_t msg_is_reliable(uint8_t msg_id);", "",
           "/* Serialised default calibration set (protocol.calibration.default_unit_calibration()). */",
           f"#define DEFAULT_CALIBRATION_LEN {len(cal)}u",
           "extern const uint8_t DEFAULT_CALIBRATION[DEFAULT_CALIBRATION_LEN];", "",
@@ -318,6 +324,10 @@ def generate() -> tuple[str, str]:
     for m in messages:
         c += [f"    case MSG_{m.c_name.upper()}:", f"        return &WIRE_LAYOUT_{m.c_name.upper()};"]
     c += ["    default:", "        return NULL;", "    }", "}", ""]
+    c += ["uint8_t msg_is_reliable(uint8_t msg_id)", "{", "    switch (msg_id) {"]
+    c += [f"    case MSG_{m.c_name.upper()}:" for m, cls in zip(messages, sorted(catalogue.CATALOGUE,
+          key=lambda c: c.MSG_ID), strict=True) if cls.RELIABLE]
+    c += ["        return 1;", "    default:", "        return 0;", "    }", "}", ""]
     c += ["const uint8_t DEFAULT_CALIBRATION[DEFAULT_CALIBRATION_LEN] FLASH = {", _bytes_init(cal), "};", ""]
     return "\n".join(h), "\n".join(c)
 
@@ -362,6 +372,7 @@ def generate_board() -> str:
         "FILTER_TIME_CONSTANT_S": _c_float(_f32(t.filter_time_constant_s)),
         "POWER_UPDATE_PERIOD_S": _c_float(_f32(cfg.power.update_period_s)),
         "UBEC_CURRENT_LIMIT_A": _c_float(cfg.power.ubec.current_limit_a),
+        "BAUD": f"{eeprom.DEFAULT_BAUD}UL",
         "MOTOR_TIME_CONSTANT_S": _c_float(_f32(cfg.motor.time_constant_s)),
         "MOTOR_COAST_TIME_CONSTANT_S": _c_float(cfg.motor.coast_time_constant_s),
         "GIMBAL_TIME_CONSTANT_S": _c_float(_f32(cfg.gimbal.time_constant_s)),

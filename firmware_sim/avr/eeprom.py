@@ -61,8 +61,11 @@ CONFIG_FIELDS: tuple[tuple[str, str, str], ...] = (
     ("filter_time_constant_s", "f", "power.thresholds.filter_time_constant_s"),
     ("power_update_period_s", "f", "power.update_period_s"),
     ("ubec_current_limit_a", "f", "power.ubec.current_limit_a"),
+    ("baud", "I", "=baud"),
     ("serial", f"{SERIAL_LEN}s", "identity.serial"),
 )
+DEFAULT_BAUD = 115200
+"""UART0 speed; 16 MHz with double speed also gives 250000, 500000 and 1000000 baud exactly."""
 CONFIG_STRUCT = struct.Struct("<" + "".join(code for _, code, _ in CONFIG_FIELDS) + "H")
 CONFIG_SIZE = CONFIG_STRUCT.size
 CAL_BASE = 128
@@ -84,11 +87,13 @@ def field_offsets() -> dict[str, int]:
     return offsets
 
 
-def _value(cfg: BoardConfig, source: str) -> object:
+def _value(cfg: BoardConfig, source: str, baud: int) -> object:
     if source == "=magic":
         return CONFIG_MAGIC
     if source == "=version":
         return CONFIG_VERSION
+    if source == "=baud":
+        return baud
     value: object = cfg
     for part in source.split("."):
         value = getattr(value, part)
@@ -108,12 +113,14 @@ def check_hardware(cfg: BoardConfig) -> None:
         raise ConfigError("the board serial must be ASCII", "BoardConfig.identity.serial")
 
 
-def config_block(cfg: BoardConfig) -> bytes:
-    """The EEPROM bytes of ``cfg`` (validated for this hardware)."""
+def config_block(cfg: BoardConfig, baud: int = DEFAULT_BAUD) -> bytes:
+    """The EEPROM bytes of ``cfg`` (validated for this hardware) with the UART at ``baud``."""
     check_hardware(cfg)
+    if not 9600 <= baud <= 1_000_000:
+        raise ConfigError(f"{baud} baud is outside 9600..1000000", "baud")
     values = []
     for _, code, source in CONFIG_FIELDS:
-        v = _value(cfg, source)
+        v = _value(cfg, source, baud)
         if code.endswith("s"):
             raw = str(v).encode("ascii")
             v = raw.ljust(SERIAL_LEN, b"\0")
@@ -132,10 +139,11 @@ class EepromImage:
 
     config: BoardConfig
     calibrations: tuple[bytes | None, ...] = ()
+    baud: int = DEFAULT_BAUD
 
     def to_bytes(self) -> bytes:
         image = bytearray(b"\xff" * EEPROM_SIZE)
-        block = config_block(self.config)
+        block = config_block(self.config, self.baud)
         image[: len(block)] = block
         if len(self.calibrations) > self.config.n_units:
             raise ConfigError(

@@ -57,6 +57,21 @@ def uptime_origin(resets: Sequence[ResetEvent], t: float) -> float:
     return [r.t for r in resets if r.t <= t][-1]
 
 
+def board_config(spec: TargetSpec) -> Any:
+    """The ``firmware_sim.config.BoardConfig`` a target runs for ``spec``."""
+    from firmware_sim.config import BoardConfig
+
+    return BoardConfig(
+        n_units=spec.n_units,
+        frame_rate_hz=spec.frame_rate_hz,
+        telemetry_rate_hz=spec.telemetry_rate_hz,
+        link_timeout_s=spec.link_timeout_s,
+        mcu_watchdog_s=spec.mcu_watchdog_s,
+        rotor_safe_us=spec.rotor_safe_us,
+        timeline_frames=20_000,
+    )
+
+
 class FirmwareSimTarget:
     """The Python emulator (``firmware_sim``) on a real pty, real time, in this process."""
 
@@ -64,21 +79,11 @@ class FirmwareSimTarget:
 
     def __init__(self, spec: TargetSpec) -> None:
         from firmware_sim.board import Board
-        from firmware_sim.config import BoardConfig
         from firmware_sim.pty_server import PtyServer
         from hil.clock import WallClock
 
         self.spec = spec
-        cfg = BoardConfig(
-            n_units=spec.n_units,
-            frame_rate_hz=spec.frame_rate_hz,
-            telemetry_rate_hz=spec.telemetry_rate_hz,
-            link_timeout_s=spec.link_timeout_s,
-            mcu_watchdog_s=spec.mcu_watchdog_s,
-            rotor_safe_us=spec.rotor_safe_us,
-            timeline_frames=20_000,
-        )
-        self.board = Board(cfg, WallClock())
+        self.board = Board(board_config(spec), WallClock())
         self.server = PtyServer(self.board)
         self.port = self.server.path
 
@@ -129,10 +134,59 @@ class FirmwareSimTarget:
             raise AssertionError("the firmware_sim pty server thread is not running")
 
 
+class SimavrTarget:
+    """The C firmware (``firmware/``) on simavr's ATmega2560 behind a real pty, paced to real time. Its
+    configuration reaches it through its EEPROM, its times are CPU cycles / 16 MHz, its pulses are
+    measured on the output pins, its hang is the watchdog self-test pin (``firmware_sim.avr``)."""
+
+    name = "simavr"
+
+    def __init__(self, spec: TargetSpec) -> None:
+        from firmware_sim.avr import AvrBoard
+
+        self.spec = spec
+        self.board = AvrBoard(board_config(spec))
+        self.port = self.board.port
+
+    def __enter__(self) -> SimavrTarget:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.board.close()
+
+    def now(self) -> float:
+        return self.board.now()
+
+    def timeline(self) -> list[PulseFrame]:
+        return self.board.timeline()
+
+    def resets(self) -> list[ResetEvent]:
+        return self.board.resets()
+
+    def calibration(self, unit: int) -> Any:
+        return self.board.calibration(unit)
+
+    def inject_link_noise(self, corrupt: float, drop: float = 0.0) -> None:
+        self.board.inject_link_noise(corrupt, drop)
+
+    def inject_hang(self) -> float:
+        return self.board.inject_hang()
+
+    def inject_sag(self, drop_v: float, ramp_s: float, duration_s: float) -> None:
+        self.board.inject_sag(drop_v, ramp_s, duration_s)
+
+    def clear_faults(self) -> None:
+        self.board.clear_faults()
+
+    def check(self) -> None:
+        self.board.check()
+
+
 # name -> target class, or "module:Class" imported on first use (so a target needing extra tools only
 # costs something when selected). Add a board here and the whole suite runs against it.
 TARGETS: dict[str, Any] = {
     "firmware_sim": FirmwareSimTarget,
+    "simavr": SimavrTarget,
 }
 
 

@@ -1,0 +1,23 @@
+/*
+ * clock.h - the board's time: a 1 kHz tick from Timer0 counting milliseconds since reset (uptime, as in
+ * Telemetry.time_ms), started so that it counts from the reset itself, not from the end of start-up.
+ *
+ * clock_early() runs in .init3 (before the C runtime clears RAM): it starts Timer5 free-running as a
+ * stopwatch. clock_init() reads how long start-up took from it and starts the 1 kHz tick at that
+ * uptime, so the board's clock agrees with the reset instant to within Timer5's 64 us resolution.
+ */
+#ifndef CLOCK_H
+#define CLOCK_H
+
+#include <stdint.h>
+
+void clock_early(void);
+void clock_init(void);
+/* Milliseconds since reset (wraps after 49.7 days). */
+uint32_t clock_ms(void);
+/* Ticks seen by the main loop: 1 if at least one tick happened since the last call. */
+uint8_t clock_ticked(void);
+/* Called from the tick interrupt with the new uptime (main.c: the watchdog window, ADC sampling). */
+void tick_hook(uint32_t now_ms);
+
+#endif /* CLOCK_H */

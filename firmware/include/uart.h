@@ -1,0 +1,29 @@
+/*
+ * uart.h - UART0 to the host: interrupt-driven receive and transmit rings.
+ *
+ * The receive interrupt keeps taking bytes while the main loop is busy (or hung): they wait in a ring of
+ * UART_RX_SIZE bytes; bytes that find it full are dropped and counted (rx_overflow), as are bytes the
+ * hardware flags with a framing error or an overrun. Frames for the host are queued whole or not at
+ * all: uart_send refuses a frame that does not fit the transmit ring (counted by the caller).
+ */
+#ifndef UART_H
+#define UART_H
+
+#include <stdint.h>
+
+#define UART_RX_SIZE 384u
+#define UART_TX_SIZE 1024u
+
+typedef struct {
+    uint32_t rx_overflow; /* bytes lost to a full receive ring */
+    uint32_t line_errors; /* bytes with a framing error or data overrun */
+} uart_stats_t;
+
+void uart_init(uint32_t baud);
+/* Next received byte into *b: 1, or 0 if none waiting. */
+uint8_t uart_read(uint8_t *b);
+/* Queue n bytes for sending: 1, or 0 (nothing queued) if the ring has no room for all of them. */
+uint8_t uart_send(const uint8_t *data, uint16_t n);
+void uart_stats(uart_stats_t *out);
+
+#endif /* UART_H */

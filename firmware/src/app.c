@@ -1,0 +1,662 @@
+/*
+ * app.c - what the board does with what arrives, and the outputs it decides (see app.h).
+ *
+ * Follows firmware_sim/board.py rule for rule (docs/protocol.md: board states, link watchdog, reliable
+ * commands, calibration transfers); differences are only where real hardware differs: no sensors on
+ * the units (their telemetry states are estimates from the outputs, and a dead ESC cannot be
+ * detected), and power is measured on the ADC instead of modelled.
+ */
+#include "app.h"
+
+#include <avr/pgmspace.h>
+#include <math.h>
+#include <string.h>
+
+#include "calib.h"
+#include "clock.h"
+#include "pulses.h"
+#include "state.h"
+#include "storage.h"
+#include "uart.h"
+
+board_t board;
+
+#define VOLT_QUANTUM 0.01f /* rotor conversions use the battery voltage in 10 mV steps */
+
+/* ------------------------------------------------------------------------------------------ schedules */
+void periodic_start(periodic_t *p, float rate_hz, uint32_t origin, uint8_t first_offset)
+{
+    p->period_ms = 1000.0f / rate_hz;
+    p->origin = origin;
+    p->k = first_offset ? 1u : 0u;
+    p->next = origin + (uint32_t)lrintf((float)p->k * p->period_ms);
+    p->enabled = 1;
+}
+
+/* Due at `now`? Then move past it (deadlines missed in one jump are skipped, not replayed). */
+uint8_t periodic_due(periodic_t *p, uint32_t now)
+{
+    if (!p->enabled || (int32_t)(now - p->next) < 0)
+        return 0;
+    while ((int32_t)(now - p->next) >= 0) {
+        p->k++;
+        p->next = p->origin + (uint32_t)lrintf((float)p->k * p->period_ms);
+    }
+    return 1;
+}
+
+/* ------------------------------------------------------------------------------------------ outputs */
+/*
+ * A calibration map costs 0.3-0.9 ms of float arithmetic on the ATmega, so conversions are cached
+ * (recomputed only when their inputs change) and computed one per main-loop pass (convert_step), which
+ * keeps every pass short: the watchdog check-in, the link watchdog and received bytes never wait behind
+ * a burst of conversions. Outputs that need no map (safe rotor pulse, raw pulses, gimbal hold in RATE
+ * mode) take effect at once.
+ */
+typedef struct {
+    float input, arg; /* the command and its second input (battery volts or gimbal mode) */
+    uint16_t us;
+    uint8_t clamp, valid;
+} conv_cache_t;
+
+typedef struct {
+    uint16_t pulse_us;
+    float arg;    /* battery volts or gimbal mode the value was computed for */
+    float value;  /* rotor: steady speed rad/s; gimbal: rate rad/s or angle rad the pulse stands for */
+    uint8_t valid;
+} value_cache_t;
+
+static conv_cache_t gimbal_conv[MAX_HW_UNITS], rotor_conv[MAX_HW_UNITS];
+static value_cache_t rotor_target[MAX_HW_UNITS], gimbal_target[MAX_HW_UNITS];
+static float rotor_decay_up, rotor_decay_down, gimbal_decay; /* per frame, from the time constants */
+
+static uint16_t to_us(float value)
+{
+    long w = lrintf(value); /* round half to even, as Python's round() */
+    return (uint16_t)(w < 0 ? 0 : (w > 0xFFFF ? 0xFFFF : w));
+}
+
+static uint8_t calibrations_complete(void)
+{
+    for (uint8_t u = 0; u < board.cfg.n_units; u++)
+        if (!storage_cal(u, 0))
+            return 0;
+    return 1;
+}
+
+static void forget_conversions(uint8_t unit)
+{
+    gimbal_conv[unit].valid = rotor_conv[unit].valid = 0;
+    rotor_target[unit].valid = gimbal_target[unit].valid = 0;
+}
+
+static uint8_t armed_converting(void)
+{
+    return motors_enabled(board.state) && !board.shed_latched && board.power_state < POWER_STATE_SHED &&
+           !(board.mode == CONTROL_MODE_RAW_PULSES && board.have_raw);
+}
+
+/* Bring one stale conversion up to date: 1 if one was computed (more may be stale), else 0. */
+static uint8_t convert_step(void)
+{
+    uint8_t raw = motors_enabled(board.state) && board.mode == CONTROL_MODE_RAW_PULSES && board.have_raw;
+    for (uint8_t u = 0; u < board.cfg.n_units; u++) {
+        const uint8_t *cal = storage_cal(u, 0);
+        if (!cal)
+            continue;
+        conv_cache_t *g = &gimbal_conv[u];
+        float mode = (float)board.gimbal_mode;
+        if (!raw && (!g->valid || g->input != board.gimbal_cmd[u] || g->arg != mode)) {
+            cal_conv_t c = cal_gimbal_pulse_us(cal, board.gimbal_cmd[u], board.gimbal_mode);
+            *g = (conv_cache_t){board.gimbal_cmd[u], mode, to_us(c.value), c.clamp, 1};
+            return 1;
+        }
+        conv_cache_t *r = &rotor_conv[u];
+        if (armed_converting() && (!r->valid || r->input != board.rotor_cmd[u] || r->arg != board.conversion_v)) {
+            cal_conv_t c = cal_rotor_pulse_us(cal, board.rotor_cmd[u], board.conversion_v);
+            *r = (conv_cache_t){board.rotor_cmd[u], board.conversion_v, to_us(c.value), c.clamp, 1};
+            return 1;
+        }
+    }
+    for (uint8_t u = 0; u < board.cfg.n_units; u++) {
+        const uint8_t *cal = storage_cal(u, 0);
+        uint16_t rotor_us = board.outputs[2 * u + 1], gimbal_us = board.outputs[2 * u];
+        value_cache_t *r = &rotor_target[u], *g = &gimbal_target[u];
+        if (cal && rotor_us && (!r->valid || r->pulse_us != rotor_us || r->arg != board.conversion_v)) {
+            *r = (value_cache_t){rotor_us, board.conversion_v, cal_rotor_speed(cal, rotor_us, board.conversion_v).value, 1};
+            return 1;
+        }
+        float mode = (float)board.gimbal_mode;
+        if (cal && gimbal_us && (!g->valid || g->pulse_us != gimbal_us || g->arg != mode)) {
+            *g = (value_cache_t){gimbal_us, mode, cal_gimbal_value(cal, gimbal_us, board.gimbal_mode).value, 1};
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* The pulse widths for the present state, command and power stage (board.py: _compute_outputs), from
+ * the cached conversions. */
+static void compute_outputs(uint16_t *out)
+{
+    const board_config_t *c = &board.cfg;
+    uint8_t clamped = 0;
+    uint8_t armed = motors_enabled(board.state);
+    uint8_t shed = board.shed_latched || board.power_state >= POWER_STATE_SHED;
+    uint8_t raw = armed && board.mode == CONTROL_MODE_RAW_PULSES && board.have_raw;
+    for (uint8_t u = 0; u < c->n_units; u++) {
+        const uint8_t *cal = storage_cal(u, 0);
+        const conv_cache_t *gc = &gimbal_conv[u], *rc = &rotor_conv[u];
+        uint16_t g, r;
+        if (raw) {
+            g = board.raw_cmd[2 * u];
+        } else if (!cal) {
+            g = 0;
+        } else if (board.gimbal_mode == GIMBAL_MODE_RATE && board.gimbal_cmd[u] == 0.0f) {
+            g = to_us(cal_gimbal_pulse_us(cal, 0.0f, GIMBAL_MODE_RATE).value); /* the hold pulse: no solving */
+        } else {
+            clamped |= gc->valid && gc->clamp != CAL_CLAMP_NONE && armed;
+            g = gc->valid ? gc->us : board.outputs[2 * u];
+        }
+        if (!armed || shed) {
+            r = c->rotor_safe_us;
+        } else if (raw) {
+            r = board.raw_cmd[2 * u + 1];
+        } else if (!cal) {
+            r = c->rotor_safe_us;
+        } else {
+            clamped |= rc->valid && rc->clamp != CAL_CLAMP_NONE;
+            r = rc->valid ? rc->us : c->rotor_safe_us;
+        }
+        if (armed && !shed && board.power_state == POWER_STATE_LIMIT && cal) {
+            float lo = cal_esc_low_us(cal), hi = cal_esc_high_us(cal);
+            uint16_t cap = to_us(lo + c->limit_throttle * (hi - lo));
+            if (r > cap) {
+                r = cap;
+                clamped = 1;
+            }
+        }
+        out[2 * u] = g;
+        out[2 * u + 1] = r;
+    }
+    board.clamped = clamped;
+}
+
+static void apply_outputs(void)
+{
+    uint16_t out[MAX_HW_CHANNELS];
+    compute_outputs(out);
+    for (uint8_t ch = 0; ch < board.n_channels; ch++) {
+        if (out[ch] != board.outputs[ch]) {
+            board.outputs[ch] = out[ch];
+            pulses_set(ch, out[ch]);
+        }
+    }
+    board.outputs_dirty = 0;
+}
+
+static float clampf(float x, float limit) { return x > limit ? limit : (x < -limit ? -limit : x); }
+
+/* Advance the units' estimated states by one pulse frame of dt seconds: actuators.py's first-order
+ * responses towards what the outputs command (the board has no sensors on the units). */
+static void estimate_units(float dt)
+{
+    for (uint8_t u = 0; u < board.cfg.n_units; u++) {
+        unit_state_t *s = &board.units[u];
+        const value_cache_t *rt = &rotor_target[u], *gt = &gimbal_target[u];
+        float target = board.outputs[2 * u + 1] && rt->valid ? rt->value : 0.0f;
+        float decay = target > s->rotor_speed ? rotor_decay_up : rotor_decay_down;
+        s->rotor_speed = clampf(target + (s->rotor_speed - target) * decay, ROTOR_SPEED_LIMIT);
+        float rate = 0.0f;
+        if (board.outputs[2 * u] && gt->valid) {
+            if (board.gimbal_mode == GIMBAL_MODE_RATE) {
+                float want = clampf(gt->value, CFG_DEFAULT_GIMBAL_MAX_RATE_RAD_S);
+                rate = want + (s->gimbal_rate - want) * gimbal_decay;
+            } else {
+                float err = gt->value - s->gimbal_angle;
+                rate = clampf(err / CFG_DEFAULT_GIMBAL_TIME_CONSTANT_S, CFG_DEFAULT_GIMBAL_MAX_RATE_RAD_S);
+                if (fabsf(rate * dt) > fabsf(err))
+                    rate = err / dt;
+            }
+        }
+        s->gimbal_rate = clampf(rate, GIMBAL_RATE_LIMIT);
+        s->gimbal_angle = clampf(s->gimbal_angle + rate * dt, GIMBAL_ANGLE_LIMIT);
+    }
+}
+
+/* ------------------------------------------------------------------------------------------ state */
+static uint8_t power_ok(void) { return board.power_state < POWER_STATE_SHED; }
+
+/* Gimbals hold: zero rate in RATE mode, the present (estimated) angle in ANGLE mode. */
+static void hold_gimbals(void)
+{
+    for (uint8_t u = 0; u < board.cfg.n_units; u++)
+        board.gimbal_cmd[u] = board.gimbal_mode == GIMBAL_MODE_RATE ? 0.0f : board.units[u].gimbal_angle;
+}
+
+static void set_state(uint8_t next)
+{
+    uint8_t old = board.state;
+    if (next == old)
+        return;
+    board.state = next;
+    if (!motors_enabled(next)) {
+        hold_gimbals();
+        memset(board.rotor_cmd, 0, sizeof board.rotor_cmd);
+        board.have_raw = 0;
+    }
+    board.outputs_dirty = 1;
+    char a[12], b[12];
+    report_name(PSTR(BOARD_STATE_NAMES), old, a, sizeof a);
+    report_name(PSTR(BOARD_STATE_NAMES), next, b, sizeof b);
+    report_log(next == BOARD_STATE_FAILSAFE ? SEVERITY_WARNING : SEVERITY_INFO, LOG_CODE_STATE,
+               PSTR("state %s -> %s"), a, b);
+    report_heartbeat(clock_ms());
+}
+
+static uint8_t apply(uint8_t event)
+{
+    transition_t t = state_transition(board.state, event, power_ok());
+    if (!t.refused)
+        set_state(t.state);
+    return t.refused;
+}
+
+static void on_link_lost(void)
+{
+    board.link_lost = 1;
+    report_log(SEVERITY_WARNING, LOG_CODE_LINK_LOST, PSTR("link lost: nothing valid for %u ms"),
+               board.cfg.link_timeout_ms);
+    apply(EVENT_LINK_LOST);
+}
+
+static void on_valid_rx(uint32_t now)
+{
+    board.last_rx_ms = now;
+    board.have_rx = 1;
+    if (board.link_lost) {
+        board.link_lost = 0;
+        report_log(SEVERITY_INFO, LOG_CODE_LINK_RESTORED, PSTR("link restored"));
+    }
+}
+
+/* ------------------------------------------------------------------------------------------ commands */
+static void on_hello(const hello_t *m, uint32_t now)
+{
+    if (m->protocol_version == PROTOCOL_VERSION && m->schema_hash == SCHEMA_HASH) {
+        board.mode = CONTROL_MODE_SETPOINT;
+        answers_forget(&board.answers);
+        apply(EVENT_HELLO);
+        if (!board.session) {
+            board.session = 1;
+            periodic_start(&board.telemetry, board.cfg.telemetry_rate_hz, now, 1);
+        }
+    } else {
+        report_log(SEVERITY_ERROR, LOG_CODE_HANDSHAKE,
+                   PSTR("incompatible host: protocol %u schema 0x%08lx (board: %u, 0x%08lx)"),
+                   m->protocol_version, (unsigned long)m->schema_hash, PROTOCOL_VERSION,
+                   (unsigned long)SCHEMA_HASH);
+    }
+    report_hello_reply();
+}
+
+static uint8_t on_arm(void)
+{
+    if (board.state != BOARD_STATE_BOOT && !calibrations_complete())
+        return NACK_REASON_BAD_CALIBRATION;
+    uint8_t was = board.state;
+    uint8_t refused = apply(EVENT_ARM);
+    if (!refused) {
+        board.shed_latched = 0;
+        if (was != BOARD_STATE_ARMED) {
+            memset(board.rotor_cmd, 0, sizeof board.rotor_cmd);
+            board.have_raw = 0;
+        }
+        board.outputs_dirty = 1;
+    }
+    return refused;
+}
+
+static uint8_t on_set_mode(const set_mode_t *m)
+{
+    uint8_t refused = state_transition(board.state, EVENT_SET_MODE, power_ok()).refused;
+    if (refused)
+        return refused;
+    if (m->mode != CONTROL_MODE_SETPOINT && m->mode != CONTROL_MODE_RAW_PULSES)
+        return NACK_REASON_UNSUPPORTED;
+    if (m->mode != board.mode) {
+        board.mode = m->mode;
+        char name[16];
+        report_name(PSTR(CONTROL_MODE_NAMES), m->mode, name, sizeof name);
+        report_log(SEVERITY_INFO, LOG_CODE_STATE, PSTR("mode %s"), name);
+    }
+    return 0;
+}
+
+static void on_setpoint(const actuator_setpoint_t *m)
+{
+    if (!motors_enabled(board.state) || board.mode != CONTROL_MODE_SETPOINT) {
+        board.ignored_setpoints++;
+        return;
+    }
+    if (m->units.count != board.cfg.n_units) {
+        board.bad_setpoints++;
+        report_log(SEVERITY_WARNING, LOG_CODE_BAD_COMMAND, PSTR("setpoint for %u units, board has %u"),
+                   m->units.count, board.cfg.n_units);
+        return;
+    }
+    board.setpoints++;
+    board.gimbal_mode = m->gimbal_mode;
+    for (uint8_t u = 0; u < board.cfg.n_units; u++) {
+        board.gimbal_cmd[u] = m->units.items[u].gimbal;
+        board.rotor_cmd[u] = m->units.items[u].rotor_speed;
+    }
+    board.outputs_dirty = 1;
+}
+
+static void on_raw_pulses(const raw_pulses_t *m)
+{
+    if (!motors_enabled(board.state) || board.mode != CONTROL_MODE_RAW_PULSES) {
+        board.ignored_setpoints++;
+        return;
+    }
+    if (m->pulses_us.count != board.n_channels) {
+        board.bad_setpoints++;
+        report_log(SEVERITY_WARNING, LOG_CODE_BAD_COMMAND, PSTR("raw pulses for %u channels, board has %u"),
+                   m->pulses_us.count, board.n_channels);
+        return;
+    }
+    board.setpoints++;
+    memcpy(board.raw_cmd, m->pulses_us.items, board.n_channels * sizeof board.raw_cmd[0]);
+    board.have_raw = 1;
+    board.outputs_dirty = 1;
+}
+
+static uint8_t cal_refused(uint8_t unit, const char *why_flash, const char *detail)
+{
+    char why[48];
+    strncpy_P(why, why_flash, sizeof why - 1);
+    why[sizeof why - 1] = 0;
+    report_log(SEVERITY_ERROR, LOG_CODE_CALIBRATION, PSTR("calibration upload for unit %u refused: %s%s"), unit,
+               why, detail);
+    return NACK_REASON_BAD_CALIBRATION;
+}
+
+static uint8_t on_calibration_data(const calibration_data_t *m)
+{
+    if (board.state != BOARD_STATE_DISARMED)
+        return NACK_REASON_BAD_STATE;
+    if (m->unit >= board.cfg.n_units)
+        return NACK_REASON_OUT_OF_RANGE;
+    board.reasm.max_len = storage_cal_room(m->unit);
+    reasm_status_t st = reasm_feed(&board.reasm, m);
+    static const char REASONS[] PROGMEM = "\0total_len larger than this board holds\0count does not fit total_len\0"
+                                          "index not below count\0chunk of the wrong size\0"
+                                          "fragment contradicts its transfer\0set CRC mismatch";
+    if (st == REASM_PENDING)
+        return 0;
+    if (st != REASM_DONE) {
+        const char *p = REASONS;
+        for (uint8_t i = 0; i < (uint8_t)st - 1u; i++)
+            while (pgm_read_byte(p++))
+                ;
+        return cal_refused(m->unit, p, "");
+    }
+    uint16_t len = board.reasm.done.total_len;
+    uint8_t table, knot;
+    cal_status_t cs = cal_validate(board.reasm.buf, len, &table, &knot);
+    if (cs != CAL_OK) {
+        char detail[64];
+        cal_status_text(cs, detail, sizeof detail);
+        return cal_refused(m->unit, PSTR("invalid set: "), detail);
+    }
+    if (!storage_store_cal(m->unit, board.reasm.buf, len))
+        return cal_refused(m->unit, PSTR("no room for the set in RAM"), "");
+    forget_conversions(m->unit);
+    board.outputs_dirty = 1;
+    report_log(SEVERITY_INFO, LOG_CODE_CALIBRATION, PSTR("calibration for unit %u stored (%u bytes)"), m->unit, len);
+    return 0;
+}
+
+static uint8_t on_calibration_request(const calibration_request_t *m, uint32_t now)
+{
+    if (board.state == BOARD_STATE_BOOT)
+        return NACK_REASON_BAD_STATE;
+    if (m->unit >= board.cfg.n_units)
+        return NACK_REASON_OUT_OF_RANGE;
+    uint16_t len;
+    if (!storage_cal(m->unit, &len))
+        return NACK_REASON_BAD_CALIBRATION;
+    if (board.download.active)
+        return NACK_REASON_BUSY;
+    download_t *d = &board.download;
+    d->active = 1;
+    d->unit = m->unit;
+    d->transfer_id = m->transfer_id;
+    d->count = (uint8_t)((len + MAX_CALIBRATION_CHUNK - 1u) / MAX_CALIBRATION_CHUNK);
+    for (uint8_t i = 0; i < d->count; i++) {
+        d->tries[i] = 1;
+        d->acked[i] = 0;
+        d->retry_ms[i] = now + CAL_DOWNLOAD_RETRY_MS;
+        report_cal_fragment(i, 0);
+    }
+    return 0;
+}
+
+static void on_answer(const frame_t *f)
+{
+    /* Ack and Nack share their first two fields (msg_id, seq). */
+    const ack_t *a = &f->msg.ack;
+    download_t *d = &board.download;
+    uint8_t i = 0;
+    while (d->active && i < d->count && !(d->seq[i] == a->seq && !d->acked[i]))
+        i++;
+    if (a->msg_id != MSG_CALIBRATION_DATA || !d->active || i == d->count) {
+        board.ignored++;
+        return;
+    }
+    if (f->msg_id == MSG_NACK) {
+        d->active = 0;
+        char name[20];
+        report_name(PSTR(NACK_REASON_NAMES), f->msg.nack.reason, name, sizeof name);
+        report_log(SEVERITY_WARNING, LOG_CODE_CALIBRATION, PSTR("host refused calibration fragment: %s"), name);
+        return;
+    }
+    d->acked[i] = 1;
+    uint8_t all = 1;
+    for (uint8_t k = 0; k < d->count; k++)
+        all &= d->acked[k];
+    if (all)
+        d->active = 0;
+}
+
+static void retry_download(uint32_t now)
+{
+    download_t *d = &board.download;
+    for (uint8_t i = 0; d->active && i < d->count; i++) {
+        if (d->acked[i] || (int32_t)(now - d->retry_ms[i]) < 0)
+            continue;
+        if (d->tries[i] >= CAL_DOWNLOAD_TRIES) {
+            d->active = 0;
+            report_log(SEVERITY_ERROR, LOG_CODE_CALIBRATION,
+                       PSTR("calibration download abandoned: no ACK after %u tries"), CAL_DOWNLOAD_TRIES);
+            return;
+        }
+        d->tries[i]++;
+        d->retry_ms[i] = now + CAL_DOWNLOAD_RETRY_MS;
+        report_cal_fragment(i, 1);
+    }
+}
+
+/* Run one command; 0 (accepted) or the NACK reason. */
+static uint8_t execute(const frame_t *f, uint32_t now)
+{
+    switch (f->msg_id) {
+    case MSG_ACTUATOR_SETPOINT:
+        on_setpoint(&f->msg.actuator_setpoint);
+        return 0;
+    case MSG_RAW_PULSES:
+        on_raw_pulses(&f->msg.raw_pulses);
+        return 0;
+    case MSG_HELLO:
+        on_hello(&f->msg.hello, now);
+        return 0;
+    case MSG_ARM:
+        return on_arm();
+    case MSG_DISARM:
+        return apply(EVENT_DISARM);
+    case MSG_SET_MODE:
+        return on_set_mode(&f->msg.set_mode);
+    case MSG_CALIBRATION_DATA:
+        return on_calibration_data(&f->msg.calibration_data);
+    case MSG_CALIBRATION_REQUEST:
+        return on_calibration_request(&f->msg.calibration_request, now);
+    case MSG_ACK:
+    case MSG_NACK:
+        on_answer(f);
+        return 0;
+    default: /* Heartbeat: feeding the link watchdog is all it does */
+        return 0;
+    }
+}
+
+static void handle_frame(const frame_t *f, uint32_t now)
+{
+    if (f->msg_id == MSG_HELLO_REPLY || f->msg_id == MSG_TELEMETRY || f->msg_id == MSG_LOG) {
+        board.ignored++; /* board-to-host messages echoed back: not ours */
+        return;
+    }
+    on_valid_rx(now);
+    uint8_t reliable = (f->flags & FLAGS_ACK_REQUESTED) || msg_is_reliable(f->msg_id);
+    uint8_t answer;
+    if (reliable && answers_lookup(&board.answers, f, &answer)) {
+        report_answer(f, answer);
+        return;
+    }
+    answer = execute(f, now);
+    if (reliable) {
+        answers_remember(&board.answers, f, answer);
+        report_answer(f, answer);
+    }
+}
+
+static void process_rx(uint32_t now)
+{
+    uint8_t b;
+    while (uart_read(&b)) {
+        if (deframer_feed(&board.deframer, b, &board.frame) == DEFRAME_FRAME)
+            handle_frame(&board.frame, now);
+    }
+    uart_stats_t st;
+    uart_stats(&st);
+    if (st.rx_overflow != board.rx_overflow_logged) {
+        board.rx_overflow_logged = st.rx_overflow;
+        report_log(SEVERITY_WARNING, LOG_CODE_RX_OVERFLOW, PSTR("receive buffer overflow (%lu bytes lost)"),
+                   (unsigned long)st.rx_overflow);
+    }
+}
+
+/* ------------------------------------------------------------------------------------------ power */
+static void power_step(void)
+{
+    uint8_t old = board.power_state;
+    float battery_v = board.power.battery_mv * 0.001f;
+    uint8_t next = power_update(&board.pm, &board.power_params, battery_v);
+    float filtered_v = board.pm.filtered_v_cell * (float)board.cfg.cells;
+    board.conversion_v = (float)lrintf(filtered_v / VOLT_QUANTUM) * VOLT_QUANTUM;
+    if (board.power.ubec_mv * 0.001f < board.cfg.brownout_release_v)
+        next = POWER_STATE_BROWN_OUT; /* the rail is in the MCU's brown-out zone: reset imminent */
+    board.power_state = next;
+    if (next == POWER_STATE_SHED && !board.shed_latched && motors_enabled(board.state))
+        board.shed_latched = 1;
+    if (next != old) {
+        board.outputs_dirty = 1;
+        char a[12], b[12];
+        report_name(PSTR(POWER_STATE_NAMES), old, a, sizeof a);
+        report_name(PSTR(POWER_STATE_NAMES), next, b, sizeof b);
+        uint16_t mv_cell = (uint16_t)lrintf(board.pm.filtered_v_cell * 1000.0f);
+        report_log(next < old ? SEVERITY_INFO : (next >= POWER_STATE_SHED ? SEVERITY_ERROR : SEVERITY_WARNING),
+                   LOG_CODE_POWER, PSTR("power %s -> %s (battery %u mV, %u mV/cell, rail %u mV)"), a, b,
+                   board.power.battery_mv, mv_cell, board.power.ubec_mv);
+    }
+    uint8_t over = board.power.ubec_ma * 0.001f > board.cfg.ubec_current_limit_a;
+    if (over && !board.ubec_over)
+        report_log(SEVERITY_WARNING, LOG_CODE_UBEC_OVERCURRENT, PSTR("UBEC over current: %u mA > %u mA"),
+                   board.power.ubec_ma, (uint16_t)lrintf(board.cfg.ubec_current_limit_a * 1000.0f));
+    board.ubec_over = over;
+}
+
+/* ------------------------------------------------------------------------------------------ boot, loop */
+void app_boot(uint8_t reset_cause, config_status_t config, uint8_t config_problem)
+{
+    board_config_t *c = &board.cfg;
+    uint32_t now = clock_ms();
+    board.reset_cause = reset_cause;
+    board.state = BOARD_STATE_BOOT;
+    board.mode = CONTROL_MODE_SETPOINT;
+    board.gimbal_mode = GIMBAL_MODE_RATE;
+    board.n_channels = (uint8_t)(2u * c->n_units);
+    deframer_init(&board.deframer);
+    answers_forget(&board.answers);
+    reasm_init(&board.reasm, CAL_MAX_SIZE);
+    board.power_params.warn_v_cell = c->warn_v_cell;
+    board.power_params.limit_v_cell = c->limit_v_cell;
+    board.power_params.shed_v_cell = c->shed_v_cell;
+    board.power_params.hysteresis_v_cell = c->hysteresis_v_cell;
+    board.power_params.cells = c->cells;
+    board.power_params.alpha =
+        c->filter_time_constant_s > 0.0f ? 1.0f - expf(-c->power_update_period_s / c->filter_time_constant_s) : 1.0f;
+    float frame_s = pulses_period_s();
+    rotor_decay_up = expf(-frame_s / CFG_DEFAULT_MOTOR_TIME_CONSTANT_S);
+    rotor_decay_down = expf(-frame_s / CFG_DEFAULT_MOTOR_COAST_TIME_CONSTANT_S);
+    gimbal_decay = expf(-frame_s / CFG_DEFAULT_GIMBAL_TIME_CONSTANT_S);
+    power_reset(&board.pm);
+    power_step();
+    periodic_start(&board.heartbeat, c->heartbeat_rate_hz, now, 0);
+    board.next_power_ms = now + (uint32_t)lrintf(c->power_update_period_s * 1000.0f);
+    while (convert_step())
+        ;
+    apply_outputs();
+
+    char cause[12];
+    report_name(PSTR(RESET_CAUSE_NAMES), reset_cause, cause, sizeof cause);
+    report_log(SEVERITY_INFO, LOG_CODE_BOOT, PSTR("boot: reset cause %s"), cause);
+    if (config != CONFIG_LOADED) {
+        char what[32];
+        config_problem_text(config_problem, what, sizeof what);
+        report_log(config == CONFIG_ERASED ? SEVERITY_INFO : SEVERITY_ERROR, LOG_CODE_BOOT,
+                   config == CONFIG_ERASED ? PSTR("no configuration in EEPROM: defaults in use")
+                                           : PSTR("EEPROM configuration refused (%s): defaults in use"),
+                   what);
+    }
+    for (uint8_t u = 0; u < c->n_units; u++)
+        if (storage_cal_source(u) == CAL_SOURCE_MISSING)
+            report_log(SEVERITY_ERROR, LOG_CODE_CALIBRATION,
+                       PSTR("calibration of unit %u in EEPROM is damaged: upload one before arming"), u);
+}
+
+uint8_t app_poll(uint32_t now)
+{
+    process_rx(now);
+    if (board.session && !board.link_lost && board.have_rx &&
+        now - board.last_rx_ms >= board.cfg.link_timeout_ms)
+        on_link_lost();
+    if ((int32_t)(now - board.next_power_ms) >= 0) {
+        board.next_power_ms += (uint32_t)lrintf(board.cfg.power_update_period_s * 1000.0f);
+        if (adc_take(&board.power))
+            power_step();
+    }
+    uint8_t busy = convert_step();
+    uint8_t frame = pulses_frame_started();
+    if (frame || busy || board.outputs_dirty)
+        apply_outputs();
+    if (frame)
+        estimate_units(pulses_period_s());
+    if (periodic_due(&board.telemetry, now))
+        report_telemetry(now);
+    if (periodic_due(&board.heartbeat, now))
+        report_heartbeat(now);
+    retry_download(now);
+    busy |= storage_service();
+    return busy;
+}

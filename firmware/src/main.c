@@ -1,0 +1,77 @@
+/*
+ * main.c - start-up and the main loop of the ADK board firmware (ATmega2560 @ 16 MHz).
+ *
+ * .init3 (before the C runtime clears RAM): read MCUSR for the reset cause, clear it and turn the
+ * watchdog off (a watchdog reset leaves it running at its shortest timeout), start the start-up
+ * stopwatch. main(): configuration and calibrations from EEPROM, clock, UART, ADC, pulse outputs,
+ * watchdog; then the loop: check in with the watchdog, do what is due, sleep until the next interrupt.
+ */
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <avr/sleep.h>
+
+#include "adc.h"
+#include "app.h"
+#include "clock.h"
+#include "pulses.h"
+#include "storage.h"
+#include "uart.h"
+#include "watchdog.h"
+
+static uint8_t mcusr_at_reset __attribute__((section(".noinit")));
+
+void early_init(void) __attribute__((naked, used, section(".init3")));
+void early_init(void)
+{
+    mcusr_at_reset = watchdog_early();
+    clock_early();
+}
+
+static uint8_t reset_cause(uint8_t mcusr)
+{
+    if (mcusr & _BV(WDRF))
+        return RESET_CAUSE_WATCHDOG;
+    if (mcusr & _BV(BORF))
+        return RESET_CAUSE_BROWN_OUT;
+    if (mcusr & _BV(EXTRF))
+        return RESET_CAUSE_EXTERNAL;
+    if (mcusr & _BV(PORF))
+        return RESET_CAUSE_POWER_ON;
+    return RESET_CAUSE_SOFTWARE; /* no flag: a jump to the reset vector */
+}
+
+void tick_hook(uint32_t now_ms)
+{
+    watchdog_on_tick(now_ms);
+    adc_start_round();
+}
+
+int main(void)
+{
+    uint8_t problem;
+    config_status_t config = storage_load_config(&board.cfg, &problem);
+    storage_load_calibrations(board.cfg.n_units);
+    clock_init();
+    uart_init(board.cfg.baud);
+    adc_init(&board.power);
+    pulses_init(board.cfg.frame_rate_hz, (uint8_t)(2u * board.cfg.n_units), board.cfg.ppm);
+    sei();
+    app_boot(reset_cause(mcusr_at_reset), config, problem);
+    watchdog_start(board.cfg.mcu_watchdog_ms);
+    set_sleep_mode(SLEEP_MODE_IDLE);
+    for (;;) {
+        watchdog_checkin();
+        if (watchdog_selftest_pressed())
+            for (;;) /* watchdog self-test: the main loop stops here; interrupts and timers run on */
+                ;
+        uint8_t busy = app_poll(clock_ms());
+        cli();
+        if (!busy && !clock_ticked()) {
+            sleep_enable();
+            sei();
+            sleep_cpu(); /* any interrupt wakes the loop: a received byte, the tick, a frame */
+            sleep_disable();
+        }
+        sei();
+    }
+}

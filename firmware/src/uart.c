@@ -1,0 +1,90 @@
+/* uart.c - UART0 rings (see uart.h). */
+#include "uart.h"
+
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <util/atomic.h>
+
+static volatile uint8_t rx_buf[UART_RX_SIZE];
+static volatile uint16_t rx_head, rx_tail; /* head: next write (ISR), tail: next read (main loop) */
+static volatile uint8_t tx_buf[UART_TX_SIZE];
+static volatile uint16_t tx_head, tx_tail;
+static volatile uart_stats_t stats;
+
+void uart_init(uint32_t baud)
+{
+    /* Double speed: UBRR = F_CPU / (8 baud) - 1, rounded (115200 -> 16, -2.1 %; 250000/500000/1M exact). */
+    uint16_t ubrr = (uint16_t)((F_CPU + 4UL * baud) / (8UL * baud) - 1UL);
+    UCSR0A = _BV(U2X0);
+    UBRR0 = ubrr;
+    UCSR0C = _BV(UCSZ01) | _BV(UCSZ00); /* 8N1 */
+    UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
+}
+
+ISR(USART0_RX_vect)
+{
+    uint8_t status = UCSR0A;
+    uint8_t b = UDR0;
+    if (status & (_BV(FE0) | _BV(DOR0))) {
+        stats.line_errors++;
+        return;
+    }
+    uint16_t next = (uint16_t)((rx_head + 1u) % UART_RX_SIZE);
+    if (next == rx_tail) {
+        stats.rx_overflow++;
+        return;
+    }
+    rx_buf[rx_head] = b;
+    rx_head = next;
+}
+
+ISR(USART0_UDRE_vect)
+{
+    if (tx_tail == tx_head) {
+        UCSR0B &= (uint8_t)~_BV(UDRIE0);
+        return;
+    }
+    UDR0 = tx_buf[tx_tail];
+    tx_tail = (uint16_t)((tx_tail + 1u) % UART_TX_SIZE);
+}
+
+uint8_t uart_read(uint8_t *b)
+{
+    uint16_t head;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { head = rx_head; }
+    if (rx_tail == head)
+        return 0;
+    *b = rx_buf[rx_tail];
+    uint16_t next = (uint16_t)((rx_tail + 1u) % UART_RX_SIZE);
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { rx_tail = next; }
+    return 1;
+}
+
+uint8_t uart_send(const uint8_t *data, uint16_t n)
+{
+    uint16_t tail;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { tail = tx_tail; }
+    uint16_t used = (uint16_t)((tx_head + UART_TX_SIZE - tail) % UART_TX_SIZE);
+    if ((uint32_t)used + n >= UART_TX_SIZE)
+        return 0;
+    uint16_t head = tx_head;
+    for (uint16_t i = 0; i < n; i++) {
+        tx_buf[head] = data[i];
+        head = (uint16_t)((head + 1u) % UART_TX_SIZE);
+    }
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        tx_head = head;
+        UCSR0B |= _BV(UDRIE0);
+    }
+    return 1;
+}
+
+void uart_stats(uart_stats_t *out)
+{
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        out->rx_overflow = stats.rx_overflow;
+        out->line_errors = stats.line_errors;
+    }
+}

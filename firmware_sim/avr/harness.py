@@ -1,0 +1,292 @@
+"""The firmware on an emulated ATmega2560: a running ``avr-harness`` process behind a pseudo-terminal.
+
+:class:`AvrBoard` builds what is missing (``make -C firmware``), writes the board configuration into an
+EEPROM image, starts the harness (``firmware/harness``) on the firmware ELF and talks to it over its
+control pipe: harness time, fault injection (link noise, the watchdog self-test pin, battery sags, the
+reset button) and the record of pulse edges and resets. The host talks to the board itself through
+:attr:`AvrBoard.port`, a pty path, exactly as to a real board or to ``firmware-sim``.
+
+Times are the harness's: CPU cycles / 16 MHz since power-on, running on through resets (seconds).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import subprocess
+import tempfile
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
+
+from protocol.calibration import UnitCalibration, default_unit_calibration
+from protocol.errors import ConfigError, LinkError, LinkTimeout
+
+from ..config import BoardConfig
+from ..timeline import PpmTrain, PulseFrame, ResetEvent
+from . import eeprom
+from .build import ensure_built
+from .paths import FIRMWARE_ELF, HARNESS
+from .records import RecordReader
+
+F_CPU = 16_000_000
+PPM_PIN = 10  # board_pins.h: PPM_PIN_INDEX (OC5B)
+_START_TIMEOUT_S = 10.0
+_ANSWER_TIMEOUT_S = 10.0
+
+
+@dataclass(frozen=True)
+class HarnessOptions:
+    """How the harness runs the board (everything except the board configuration itself)."""
+
+    elf: Path = FIRMWARE_ELF
+    paced: bool = True  # simulated time follows wall time; False: as fast as the host allows
+    link: str | None = None  # keep a symlink here pointing at the pty
+    eeprom_file: Path | None = None  # persist the EEPROM here (None: a temporary image)
+    battery_v: float = 12.6
+    corrupt: float = 0.0
+    drop: float = 0.0
+    seed: int = 0
+    hang_at: tuple[float, ...] = ()
+    sags: tuple[tuple[float, float, float, float], ...] = ()  # (volts, at, ramp, duration)
+    duration_s: float | None = None
+    extra_args: tuple[str, ...] = ()
+
+    def arguments(self, eeprom_path: Path, record_path: Path | None, control: bool) -> list[str]:
+        args = [str(HARNESS), "--eeprom", str(eeprom_path), "--battery", repr(self.battery_v)]
+        if record_path is not None:
+            args += ["--record", str(record_path)]
+        if control:
+            args.append("--control")
+        if not self.paced:
+            args.append("--unpaced")
+        if self.link:
+            args += ["--link", self.link]
+        if self.corrupt or self.drop:
+            args += ["--corrupt", repr(self.corrupt), "--drop", repr(self.drop)]
+        args += ["--seed", str(self.seed)]
+        for t in self.hang_at:
+            args += ["--hang-at", repr(t)]
+        for volts, at, ramp, duration in self.sags:
+            args += ["--sag", f"{volts!r}@{at!r}/{ramp!r}" + ("" if duration == float("inf") else f":{duration!r}")]
+        if self.duration_s is not None:
+            args += ["--duration", repr(self.duration_s)]
+        return [*args, *self.extra_args, str(self.elf)]
+
+
+class AvrBoard:
+    """One emulated board. Use as a context manager; :meth:`close` is idempotent.
+
+    ``config`` is written into the board's EEPROM configuration block (so ``n_units``, rates, timeouts,
+    power thresholds reach the firmware the way they reach a real board); ``calibrations`` (one
+    ``UnitCalibration`` or None per unit) into its calibration slots (None: erased slot, the default set).
+    """
+
+    def __init__(
+        self,
+        config: BoardConfig | None = None,
+        options: HarnessOptions | None = None,
+        calibrations: Sequence[UnitCalibration | None] = (),
+    ) -> None:
+        self.config = config if config is not None else BoardConfig()
+        self.options = options if options is not None else HarnessOptions()
+        eeprom.check_hardware(self.config)
+        ensure_built()
+        if not self.options.elf.exists():
+            raise ConfigError(f"no firmware ELF at {self.options.elf}", "HarnessOptions.elf")
+        self._dir = tempfile.TemporaryDirectory(prefix="avr-board-")
+        work = Path(self._dir.name)
+        self._eeprom_path = self.options.eeprom_file or work / "eeprom.bin"
+        if self.options.eeprom_file is None or not self._eeprom_path.exists():
+            sets = tuple(None if c is None else c.to_bytes() for c in calibrations)
+            self._eeprom_path.write_bytes(eeprom.EepromImage(self.config, sets).to_bytes())
+        self._record_path = work / "record.txt"
+        self._record_path.touch()
+        self._lock = threading.Lock()
+        self._proc: subprocess.Popen[str] | None = subprocess.Popen(
+            self.options.arguments(self._eeprom_path, self._record_path, control=True),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self._stderr: list[str] = []
+        self._stderr_thread = threading.Thread(target=self._drain_stderr, daemon=True)
+        self._stderr_thread.start()
+        self.port = self._read_line(_START_TIMEOUT_S, "its pty path")
+        if not self.port.startswith("/dev/"):
+            self.close()
+            raise LinkError(f"avr-harness did not print a pty path: {self.port!r}")
+        n_channels = 2 * self.config.n_units
+        self._records = RecordReader(
+            self._record_path, F_CPU, n_channels, PPM_PIN if self.config.ppm else None,
+            capacity=self.config.timeline_frames,
+        )
+
+    # ------------------------------------------------------------------ process plumbing
+    def _drain_stderr(self) -> None:
+        proc = self._proc
+        if proc is None or proc.stderr is None:
+            return
+        for line in proc.stderr:
+            self._stderr.append(line.rstrip())
+            del self._stderr[:-50]
+
+    def _read_line(self, timeout: float, what: str) -> str:
+        proc = self._proc
+        assert proc is not None and proc.stdout is not None
+        out: list[str] = []
+        reader = threading.Thread(target=lambda: out.append(proc.stdout.readline()), daemon=True)  # type: ignore[union-attr]
+        reader.start()
+        reader.join(timeout)
+        if not out or not out[0]:
+            self._died(f"no answer ({what}) within {timeout} s")
+        return out[0].strip()
+
+    def _died(self, why: str) -> None:
+        proc = self._proc
+        code = None if proc is None else proc.poll()
+        tail = "\n".join(self._stderr[-10:])
+        status = "still running" if code is None else f"exit status {code}"
+        error = LinkTimeout if code is None else LinkError
+        raise error(f"avr-harness: {why} ({status}){': ' + tail if tail else ''}")
+
+    def command(self, line: str) -> list[str]:
+        """Send one control command; its answer's words after "ok" (LinkError on "error ..." or death)."""
+        with self._lock:
+            proc = self._proc
+            if proc is None or proc.stdin is None:
+                raise LinkError("avr-harness is closed")
+            try:
+                proc.stdin.write(line + "\n")
+                proc.stdin.flush()
+            except (BrokenPipeError, OSError):
+                self._died(f"control pipe broken on {line!r}")
+            answer = self._read_line(_ANSWER_TIMEOUT_S, line)
+        words = answer.split()
+        if not words or words[0] != "ok":
+            raise LinkError(f"avr-harness refused {line!r}: {answer}")
+        return words[1:]
+
+    def check(self) -> None:
+        """Raise :class:`LinkError` if the harness has died (a crashed firmware, a crashed simulator)."""
+        proc = self._proc
+        if proc is None:
+            raise LinkError("avr-harness is closed")
+        if proc.poll() is not None:
+            self._died("exited")
+
+    def close(self) -> None:
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            with contextlib.suppress(OSError, ValueError):
+                assert proc.stdin is not None
+                proc.stdin.write("quit\n")
+                proc.stdin.flush()
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            for stream in (proc.stdin, proc.stdout, proc.stderr):
+                if stream is not None:
+                    with contextlib.suppress(OSError):
+                        stream.close()
+        self._dir.cleanup()
+
+    def __enter__(self) -> AvrBoard:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ time and records
+    def now(self) -> float:
+        """Harness time (s)."""
+        return int(self.command("now")[0]) / F_CPU
+
+    def _records_now(self) -> RecordReader:
+        self.command("flush")
+        self._records.update()
+        return self._records
+
+    def timeline(self) -> list[PulseFrame]:
+        """Pulse frames measured on the output pins (complete frames only)."""
+        return self._records_now().complete_frames()
+
+    def ppm_trains(self) -> list[PpmTrain]:
+        return list(self._records_now().ppm)
+
+    def resets(self) -> list[ResetEvent]:
+        """Every time the MCU left reset (power-on first), with its cause."""
+        return list(self._records_now().resets)
+
+    @property
+    def records(self) -> RecordReader:
+        return self._records_now()
+
+    def calibration(self, unit: int) -> UnitCalibration:
+        """The calibration set the board's EEPROM holds for ``unit`` (the default set if erased)."""
+        if not 0 <= unit < self.config.n_units:
+            raise ConfigError(f"unit {unit} does not exist", "AvrBoard.calibration")
+        image = self._eeprom_path.read_bytes()
+        data = eeprom.read_calibration(image, self.config.n_units, unit)
+        if data is None:
+            return default_unit_calibration()
+        return UnitCalibration.from_bytes(data, source=f"EEPROM slot {unit}")
+
+    # ------------------------------------------------------------------ faults
+    def inject_link_noise(self, corrupt: float, drop: float = 0.0) -> None:
+        self.command(f"noise {corrupt!r} {drop!r}")
+
+    def inject_hang(self) -> float:
+        """Pull the watchdog self-test pin low: the main loop stops. Returns the harness time (s)."""
+        return int(self.command("hang")[0]) / F_CPU
+
+    def inject_sag(self, drop_v: float, ramp_s: float, duration_s: float) -> None:
+        self.command(f"sag {drop_v!r} {ramp_s!r} {duration_s!r}")
+
+    def press_reset(self) -> float:
+        return int(self.command("reset")[0]) / F_CPU
+
+    def clear_faults(self) -> None:
+        self.command("clear")
+
+    def link_stats(self) -> dict[str, int]:
+        names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped")
+        return dict(zip(names, (int(w) for w in self.command("stats")), strict=True))
+
+
+def spawn_interactive(options: HarnessOptions, config: BoardConfig, out: IO[str] | Any) -> int:
+    """Run the harness in the foreground for ``firmware-sim --avr``: print its pty path on ``out``, serve
+    until it stops (or SIGINT/SIGTERM), return its exit status."""
+    import signal
+
+    eeprom.check_hardware(config)
+    ensure_built()
+    with tempfile.TemporaryDirectory(prefix="avr-board-") as work:
+        path = options.eeprom_file or Path(work) / "eeprom.bin"
+        if options.eeprom_file is None or not path.exists():
+            path.write_bytes(eeprom.EepromImage(config).to_bytes())
+        proc = subprocess.Popen(options.arguments(path, None, control=False), stdout=subprocess.PIPE, text=True)
+        assert proc.stdout is not None
+
+        def forward(signum: int, frame: object) -> None:
+            proc.terminate()
+
+        old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            first = proc.stdout.readline()
+            if first:
+                print(first.strip(), file=out, flush=True)
+            return proc.wait()
+        finally:
+            for s, handler in old.items():
+                signal.signal(s, handler)
+            if proc.poll() is None:
+                proc.terminate()
+                proc.wait()
