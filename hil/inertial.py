@@ -144,9 +144,8 @@ def wmm2025(
     if not (WMM_EPOCH <= year < WMM_VALID_UNTIL):
         raise ConfigError(f"WMM2025 is valid for 2025.0 <= year < 2030.0, got {year:.3f}", "field model date")
     if not (-90.0 <= lat_deg <= 90.0 and math.isfinite(lon_deg) and math.isfinite(height_km)):
-        raise ConfigError(
-            f"latitude {lat_deg!r} / longitude {lon_deg!r} / height {height_km!r}", "field model"
-        )
+        place = f"latitude {lat_deg!r}, longitude {lon_deg!r}, height {height_km!r} km"
+        raise ConfigError(f"not a place on Earth: {place}", "field model")
     dt = year - WMM_EPOCH
     g, h = _G + dt * _GD, _H + dt * _HD
     # geodetic → geocentric spherical

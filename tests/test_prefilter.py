@@ -91,3 +91,84 @@ def test_bad_parameters_and_inputs():
         f.update(0.01, [1, 2])
     with pytest.raises(ValueError, match="step 2"):
         filter_batch(np.array([0.0, 0.01, -0.01]), np.ones((3, 3)))
+
+
+# --------------------------------------------------------------------------- a phone's three signals
+def turning_phone(rate: float = 0.5, seconds: float = 20.0, h: float = 0.005):
+    """Gravity seen by a phone spinning about a horizontal body axis at ``rate`` rad/s."""
+    t = np.arange(0.0, seconds, h)
+    gyr = np.tile([rate, 0.0, 0.0], (len(t), 1))
+    angle = rate * t
+    acc = 9.81 * np.column_stack([np.zeros_like(t), np.sin(angle), np.cos(angle)])  # Rᵀ up, R = exp(x·angle)
+    return t, gyr, acc
+
+
+def steps_of(t, gyr, acc, mag=None):
+    from hil.sensors import MergedSteps
+
+    n = len(t)
+    mag = np.tile([0.0, 20.0, -40.0], (n, 1)) if mag is None else mag
+    return MergedSteps(t, gyr, acc, mag, np.zeros((n, 3)), np.ones((n, 3), bool), np.zeros(n, np.int64))
+
+
+def test_strapdown_frame_prefilter_has_no_rotation_lag_where_the_body_frame_one_does():
+    from hil.prefilter import SignalPrefilter
+    from hil.sensors import SensorKind
+
+    t, gyr, acc = turning_phone()
+    cut = {SensorKind.ACC: 1.0}
+    body = SignalPrefilter(cut, "body").run(steps_of(t, gyr, acc)).acc
+    strap = SignalPrefilter(cut, "strapdown").run(steps_of(t, gyr, acc)).acc
+
+    def angle_deg(a, b):
+        c = np.sum(a * b, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+        return np.degrees(np.arccos(np.clip(c, -1, 1)))
+
+    late = t > 10
+    assert angle_deg(body[late], acc[late]).mean() == pytest.approx(np.degrees(np.arctan(0.5)), abs=1.0)
+    assert angle_deg(strap[late], acc[late]).max() < 1e-4  # arccos resolution near 0
+
+
+def test_signal_prefilter_batch_equals_steps_with_gaps_in_a_signal():
+    from hil.prefilter import SignalPrefilter
+    from hil.sensors import SensorKind
+
+    rng = np.random.default_rng(2)
+    t, gyr, acc = turning_phone(seconds=2.0)
+    t = t + rng.uniform(0, 1e-4, len(t))
+    acc = acc + 0.1 * rng.normal(size=acc.shape)
+    acc[100:120] = np.nan  # not usable for a while: filter restarts
+    cut = {SensorKind.ACC: 0.5, SensorKind.MAG: 2.0, SensorKind.GYR: 5.0}
+    steps = steps_of(t, gyr, acc)
+    batch = SignalPrefilter(cut, "strapdown").run(steps)
+    live = SignalPrefilter(cut, "strapdown")
+    rows = [live.step(s.h, s.gyr, s.acc, s.mag) for s in steps]
+    nan3 = (np.nan,) * 3
+    for k, name in enumerate(("gyr", "acc", "mag")):
+        got = np.array([r[k] if r[k] is not None else nan3 for r in rows])
+        np.testing.assert_allclose(getattr(batch, name), got, atol=1e-9, equal_nan=True)
+
+
+def test_magnetic_gate_rejects_a_disturbance_and_relearns_after_the_timeout():
+    from dataclasses import astuple
+
+    from hil.prefilter import GateSettings, MagneticGate
+
+    h = 0.02
+    n = 2100  # 42 s
+    up = np.tile([0.0, 0.0, 9.81], (n, 1))
+    mag = np.tile([0.0, 20.0, -40.0], (n, 1))
+    mag[500:700] *= 1.4  # a magnet for 4 s: norm off by 40 %
+    mag[1000:1100] = [30.0, 20.0, -25.0]  # bent direction for 2 s, norm about the same: dip off
+    mag[1500:] *= 1.3  # a new environment for good
+    gate = MagneticGate(*astuple(GateSettings(norm_tol=0.2, dip_tol_deg=15.0, timeout_s=10.0)))
+    out = gate.run(np.full(n, h), up, mag)
+    rejected = np.isnan(out[:, 0])
+    assert rejected[500:700].all() and rejected[1000:1100].all()
+    assert not rejected[:500].any() and not rejected[700:1000].any() and not rejected[1100:1500].any()
+    assert rejected[1500:1999].all() and not rejected[2001:].any()  # after 10 s the new field is learnt
+    again = MagneticGate(0.2, 15.0, 20.0, 10.0)
+    singles = [again.step(h, tuple(u), tuple(m)) is None for u, m in zip(up, mag, strict=True)]
+    np.testing.assert_array_equal(singles, rejected)
+    with pytest.raises(ConfigError):
+        MagneticGate(norm_tol=0.0)
