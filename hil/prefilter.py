@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
 from hil.sensors import KINDS, MergedSteps, SensorKind
-from hil.so3 import Mat9, Vec3, exp_f, matmul_f, reorthonormalize_f
+from hil.so3 import Mat9, Vec3, apply_f, apply_transpose_f, exp_f, matmul_f, reorthonormalize_f
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -77,7 +77,7 @@ class Prefilter:
 
     def update(self, h: float, x: Sequence[float] | ArrayLike, valid: bool = True) -> tuple[float, ...]:
         """Filter one sample; an invalid or non-finite one returns NaNs and resets the filter."""
-        xs = tuple(float(v) for v in np.asarray(x, dtype=float).reshape(-1))
+        xs = x if type(x) is tuple else tuple(float(v) for v in np.asarray(x, dtype=float).reshape(-1))
         if len(xs) != self.dim:
             raise ValueError(f"pre-filter input has {len(xs)} components, expected {self.dim}")
         if not valid or not all(math.isfinite(v) for v in xs):
@@ -173,12 +173,8 @@ class SignalPrefilter:
                 f"pre-filter frame must be 'body' or 'strapdown', got {frame!r}", "prefilter frame"
             )
         self.frame = frame
-        self._cut: dict[SensorKind, float | None] = {}
-        for k in KINDS:
-            c = cutoffs.get(k)
-            self._cut[k] = None if c is None else _check_cutoff(float(c))
-        self._x: dict[SensorKind, Vec3 | None] = dict.fromkeys(KINDS)
-        self._y: dict[SensorKind, Vec3 | None] = dict.fromkeys(KINDS)
+        self._cut = {k: cutoffs.get(k) for k in KINDS}
+        self._filters = {k: Prefilter(float(c)) for k, c in self._cut.items() if c is not None}
         self._r: Mat9 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
         self._g: Vec3 = (0.0, 0.0, 0.0)
         self._n = 0
@@ -202,39 +198,14 @@ class SignalPrefilter:
         return out_g, self._filter(SensorKind.ACC, h, acc, frame), self._filter(SensorKind.MAG, h, mag, frame)
 
     def _filter(self, kind: SensorKind, h: float, v: Vec3 | None, r: Mat9 | None) -> Vec3 | None:
-        cut = self._cut[kind]
-        if cut is None or v is None:
-            if v is None:
-                self._x[kind] = self._y[kind] = None
+        f = self._filters.get(kind)
+        if f is None:
             return v
-        if r is not None:  # into the strapdown frame: x = R_g v
-            r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
-            x = (
-                r0 * v[0] + r1 * v[1] + r2 * v[2],
-                r3 * v[0] + r4 * v[1] + r5 * v[2],
-                r6 * v[0] + r7 * v[1] + r8 * v[2],
-            )
-        else:
-            x = v
-        xp, yp = self._x[kind], self._y[kind]
-        if xp is None or yp is None:
-            y = x
-        else:
-            a, b = coefficients(cut, h)
-            y = (
-                a * yp[0] + b * (xp[0] + x[0]),
-                a * yp[1] + b * (xp[1] + x[1]),
-                a * yp[2] + b * (xp[2] + x[2]),
-            )
-        self._x[kind], self._y[kind] = x, y
-        if r is None:
-            return y
-        r0, r1, r2, r3, r4, r5, r6, r7, r8 = r  # back to the body: R_gᵀ y
-        return (
-            r0 * y[0] + r3 * y[1] + r6 * y[2],
-            r1 * y[0] + r4 * y[1] + r7 * y[2],
-            r2 * y[0] + r5 * y[1] + r8 * y[2],
-        )
+        if v is None:
+            f.reset()
+            return None
+        y = f.update(h, v if r is None else apply_f(r, v))  # in the strapdown frame: R_g v
+        return y if r is None else apply_transpose_f(r, y)  # type: ignore[return-value,arg-type]
 
     def run(self, steps: MergedSteps) -> MergedSteps:
         """Filter every step at once (same numbers, to rounding, as :meth:`step` one by one); the filter
