@@ -31,6 +31,8 @@ examples:
   firmware-sim --brownout-at 8                  a short collapse of the pack at t=8 s
   firmware-sim --dead-esc 1@3                   the ESC on channel 1 (rotor 0) dies at t=3 s
   firmware-sim --duration 30 -v                 stop after 30 s, log state changes
+  firmware-sim --avr                            the real firmware (firmware/) on simavr's ATmega2560
+  firmware-sim --avr --eeprom board.eep         ... keeping its EEPROM (uploaded calibrations) in a file
 
 Times are seconds since start on the board's clock. Channels: gimbal 0, rotor 0, gimbal 1, rotor 1, ...
 """
@@ -48,6 +50,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="count", default=0, help="log more (-vv: debug)")
     p.add_argument("--link", metavar="PATH", help="keep a symlink at PATH pointing at the pty")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until ^C)")
+    p.add_argument(
+        "--avr",
+        nargs="?",
+        const="",
+        metavar="ELF",
+        help="run the board firmware (default firmware/build/vscmg-adk.elf) on simavr instead of the emulator",
+    )
+    p.add_argument("--eeprom", metavar="FILE", help="with --avr: the board's EEPROM, loaded and saved back")
     p.add_argument(
         "--no-hold",
         action="store_true",
@@ -149,16 +159,13 @@ def parse_dead_esc(spec: str) -> tuple[int, float | None]:
         raise ConfigError(f"{spec!r}: not a number", "--dead-esc") from None
 
 
-def make_board(args: argparse.Namespace, clock: object | None = None):  # type: ignore[no-untyped-def]
-    """The board the options describe, faults scheduled (times relative to the clock's start)."""
+def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    """The board configuration the options describe."""
     from dataclasses import replace
 
-    from hil.clock import WallClock
-
-    from .board import Board
     from .config import BatteryParams, BoardConfig, PowerConfig
 
-    cfg = BoardConfig(
+    return BoardConfig(
         n_units=args.units,
         frame_rate_hz=args.frame_rate,
         telemetry_rate_hz=args.telemetry_rate,
@@ -174,6 +181,15 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
             )
         ),
     )
+
+
+def make_board(args: argparse.Namespace, clock: object | None = None):  # type: ignore[no-untyped-def]
+    """The board the options describe, faults scheduled (times relative to the clock's start)."""
+    from hil.clock import WallClock
+
+    from .board import Board
+
+    cfg = board_config(args)
     board = Board(cfg, clock if clock is not None else WallClock())  # type: ignore[arg-type]
     faults = board.faults
     faults.link(corrupt=args.corrupt, drop=args.drop, direction=args.fault_direction)
@@ -206,6 +222,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
+    if args.avr is not None:
+        from .avr.serve import run
+
+        try:
+            return run(args, board_config(args))
+        except HilError as exc:
+            print(f"firmware-sim: error: {exc}", file=sys.stderr)
+            return 2
     from .pty_server import PtyServer
 
     try:

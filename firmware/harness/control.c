@@ -10,6 +10,8 @@
  *   clear                     -> ok                   no noise, no sags, self-test pin released
  *   flush                     -> ok <cycles>          the record file is complete up to <cycles>
  *   stats                     -> ok <bytes_in> <bytes_out> <dropped_out> <corrupted> <dropped>
+ *   eeprom                    -> ok                   write the EEPROM to its file now (--eeprom)
+ *   mem <addr> <len>          -> ok <hex>             read data memory (RAM), at most 256 bytes
  *   quit                      -> ok                   stop (EEPROM saved, pty closed)
  * Anything else -> "error <why>". Commands act between simulation slices (every simulated ms).
  */
@@ -78,6 +80,21 @@ static int execute(harness_t *h, char *cmd, FILE *out)
         fprintf(out, "ok %llu %llu %llu %llu %llu\n", (unsigned long long)h->bytes_in,
                 (unsigned long long)h->bytes_out, (unsigned long long)h->dropped_out,
                 (unsigned long long)h->corrupted, (unsigned long long)h->dropped);
+    } else if (!strcmp(c, "eeprom") && argc == 1) {
+        if (harness_save_eeprom(h) < 0)
+            fprintf(out, "error eeprom: no --eeprom file, or it cannot be written\n");
+        else
+            fprintf(out, "ok\n");
+    } else if (!strcmp(c, "mem") && argc == 3) {
+        unsigned long addr = strtoul(argv[1], NULL, 0), len = strtoul(argv[2], NULL, 0);
+        if (len > 256 || addr + len > (unsigned long)h->avr->ramend + 1u) {
+            fprintf(out, "error mem: at most 256 bytes inside 0..0x%x\n", (unsigned)h->avr->ramend);
+        } else {
+            fprintf(out, "ok ");
+            for (unsigned long i = 0; i < len; i++)
+                fprintf(out, "%02x", h->avr->data[addr + i]);
+            fprintf(out, "\n");
+        }
     } else if (!strcmp(c, "quit")) {
         fprintf(out, "ok\n");
         fflush(out);

@@ -61,6 +61,8 @@ typedef struct {
     int n_hangs;
     int selftest_low;
 
+    const char *eeprom_path;
+
     /* record */
     FILE *record;
     uint64_t last_flush;
@@ -89,6 +91,7 @@ void record_flush(harness_t *h);
 /* selftest / resets (main.c) */
 void harness_reset(harness_t *h, int cause);
 void harness_set_selftest(harness_t *h, int low);
+int harness_save_eeprom(harness_t *h);
 
 /* control.c: returns 0 to go on, 1 when asked to quit */
 int control_service(harness_t *h, FILE *out);

@@ -153,6 +153,8 @@ static int eeprom_io(harness_t *h, const char *path, int save)
     return n == size || n == 0 ? 0 : -1;
 }
 
+int harness_save_eeprom(harness_t *h) { return h->eeprom_path ? eeprom_io(h, h->eeprom_path, 1) : -1; }
+
 static int parse_sag(harness_t *h, const char *spec)
 {
     double v, at = 0, ramp = 0, dur = INFINITY;
@@ -304,6 +306,7 @@ int main(int argc, char **argv)
             return 2;
         }
     }
+    h->eeprom_path = eeprom;
     if (eeprom && eeprom_io(h, eeprom, 0) < 0) {
         fprintf(stderr, "avr-harness: cannot load EEPROM from %s\n", eeprom);
         return 2;

@@ -18,7 +18,27 @@
 #include "uart.h"
 #include "watchdog.h"
 
+#define STACK_PAINT 0xC5
+
 static uint8_t mcusr_at_reset __attribute__((section(".noinit")));
+
+/* .init1: paint the free RAM between the end of the variables and the top of the stack with
+ * STACK_PAINT, so the stack's deepest reach can be read later (a test reads it in the simulator; on a
+ * bench, read it with a debugger). */
+void stack_paint(void) __attribute__((naked, used, section(".init1")));
+void stack_paint(void)
+{
+    __asm__ volatile("    ldi r30, lo8(_end)\n"
+                     "    ldi r31, hi8(_end)\n"
+                     "    ldi r24, %0\n"
+                     "    ldi r25, hi8(__stack)\n"
+                     "    rjmp 2f\n"
+                     "1:  st Z+, r24\n"
+                     "2:  cpi r30, lo8(__stack)\n"
+                     "    cpc r31, r25\n"
+                     "    brlo 1b\n"
+                     "    breq 1b\n" ::"M"(STACK_PAINT));
+}
 
 void early_init(void) __attribute__((naked, used, section(".init3")));
 void early_init(void)

@@ -33,6 +33,7 @@ from .records import RecordReader
 
 F_CPU = 16_000_000
 PPM_PIN = 10  # board_pins.h: PPM_PIN_INDEX (OC5B)
+STACK_PAINT = 0xC5  # main.c
 _START_TIMEOUT_S = 10.0
 _ANSWER_TIMEOUT_S = 10.0
 
@@ -127,12 +128,14 @@ class AvrBoard:
 
     # ------------------------------------------------------------------ process plumbing
     def _drain_stderr(self) -> None:
+        """Keep the harness's last stderr lines (for error messages); ends when the harness exits."""
         proc = self._proc
         if proc is None or proc.stderr is None:
             return
-        for line in proc.stderr:
-            self._stderr.append(line.rstrip())
-            del self._stderr[:-50]
+        with proc.stderr:
+            for line in proc.stderr:
+                self._stderr.append(line.rstrip())
+                del self._stderr[:-50]
 
     def _read_line(self, timeout: float, what: str) -> str:
         proc = self._proc
@@ -190,7 +193,8 @@ class AvrBoard:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-            for stream in (proc.stdin, proc.stdout, proc.stderr):
+            self._stderr_thread.join(timeout=5)
+            for stream in (proc.stdin, proc.stdout):
                 if stream is not None:
                     with contextlib.suppress(OSError):
                         stream.close()
@@ -229,11 +233,16 @@ class AvrBoard:
     def records(self) -> RecordReader:
         return self._records_now()
 
+    def eeprom(self) -> bytes:
+        """The board's EEPROM as it is now."""
+        self.command("eeprom")
+        return self._eeprom_path.read_bytes()
+
     def calibration(self, unit: int) -> UnitCalibration:
         """The calibration set the board's EEPROM holds for ``unit`` (the default set if erased)."""
         if not 0 <= unit < self.config.n_units:
             raise ConfigError(f"unit {unit} does not exist", "AvrBoard.calibration")
-        image = self._eeprom_path.read_bytes()
+        image = self.eeprom()
         data = eeprom.read_calibration(image, self.config.n_units, unit)
         if data is None:
             return default_unit_calibration()
@@ -256,9 +265,37 @@ class AvrBoard:
     def clear_faults(self) -> None:
         self.command("clear")
 
+    def memory(self, address: int, length: int) -> bytes:
+        """``length`` bytes of the MCU's data memory (RAM) from ``address``."""
+        out = bytearray()
+        while length > 0:
+            n = min(length, 256)
+            out += bytes.fromhex(self.command(f"mem {address} {n}")[0])
+            address, length = address + n, length - n
+        return bytes(out)
+
+    def stack_headroom(self) -> int:
+        """Bytes of RAM the stack has never reached since reset: the firmware paints the free RAM at
+        start-up (main.c) and the paint that is still there is headroom."""
+        symbols = _symbols(self.options.elf)
+        end, top = symbols["_end"] & 0xFFFF, symbols["__stack"]
+        free = self.memory(end, top - end + 1)
+        return len(free) - len(free.lstrip(bytes([STACK_PAINT])))
+
     def link_stats(self) -> dict[str, int]:
         names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped")
         return dict(zip(names, (int(w) for w in self.command("stats")), strict=True))
+
+
+def _symbols(elf: Path) -> dict[str, int]:
+    """Addresses of the ELF's symbols (avr-nm)."""
+    out = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    symbols = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) == 3:
+            symbols[parts[2]] = int(parts[0], 16)
+    return symbols
 
 
 def spawn_interactive(options: HarnessOptions, config: BoardConfig, out: IO[str] | Any) -> int:
