@@ -184,6 +184,8 @@ cal_conv_t cal_rotor_pulse_us(const uint8_t *set, float speed_rad_s, float batte
     if (battery_v < CAL_MIN_SUPPLY_V)
         return conv(low, CAL_CLAMP_HIGH);
     float phi = speed_rad_s / (f32_at(set + OFF_KV) * battery_v);
+    if (phi <= 0.0f) /* a positive speed so small its fraction underflows float32: the smallest throttle */
+        return conv(esc_pulse(set, 1e-30f), CAL_CLAMP_NONE);
     if (phi >= 1.0f)
         return conv(cal_esc_high_us(set), phi > 1.0f ? CAL_CLAMP_HIGH : CAL_CLAMP_NONE);
     table_t curve = table_of(set, CAL_TABLE_ROTOR);
