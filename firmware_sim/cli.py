@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="?",
         const="",
         metavar="ELF",
-        help="run the board firmware (default firmware/build/vscmg-adk.elf) on simavr instead of the emulator",
+        help="run the board firmware on simavr instead of the emulator (default: firmware/build/*.elf)",
     )
     p.add_argument("--eeprom", metavar="FILE", help="with --avr: the board's EEPROM, loaded and saved back")
     p.add_argument(

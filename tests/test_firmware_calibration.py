@@ -35,19 +35,36 @@ def check_maps(cal: UnitCalibration, speeds, volts, rates, angles, pulses) -> No
     data = cal.to_bytes()
     for v in volts:
         for w in speeds:
-            _close(cal_call("rotor_pulse_us", data, w, v), cal.rotor_pulse_us(w, v), PULSE_TOL_US, f"rotor {w} @ {v}")
+            _close(
+                cal_call("rotor_pulse_us", data, w, v),
+                cal.rotor_pulse_us(w, v),
+                PULSE_TOL_US,
+                f"rotor {w} @ {v}",
+            )
         for p in pulses:
             scale = max(1.0, cal.rotor.full_speed(v))
-            _close(cal_call("rotor_speed", data, p, v), cal.rotor_speed(p, v), 1e-5 * scale, f"speed {p} @ {v}")
+            _close(
+                cal_call("rotor_speed", data, p, v), cal.rotor_speed(p, v), 1e-5 * scale, f"speed {p} @ {v}"
+            )
     for r in rates:
-        _close(cal_call("gimbal_pulse_us", data, r, RATE), cal.gimbal_pulse_us(r, GimbalMode.RATE), PULSE_TOL_US,
-               f"rate {r}")
+        _close(
+            cal_call("gimbal_pulse_us", data, r, RATE),
+            cal.gimbal_pulse_us(r, GimbalMode.RATE),
+            PULSE_TOL_US,
+            f"rate {r}",
+        )
     for a in angles:
-        _close(cal_call("gimbal_pulse_us", data, a, ANGLE), cal.gimbal_pulse_us(a, GimbalMode.ANGLE),
-               PULSE_TOL_US, f"angle {a}")
+        _close(
+            cal_call("gimbal_pulse_us", data, a, ANGLE),
+            cal.gimbal_pulse_us(a, GimbalMode.ANGLE),
+            PULSE_TOL_US,
+            f"angle {a}",
+        )
     for p in pulses:
         for mode, m in ((RATE, GimbalMode.RATE), (ANGLE, GimbalMode.ANGLE)):
-            _close(cal_call("gimbal_value", data, p, mode), cal.gimbal_value(p, m), 1e-5, f"value {p} mode {m}")
+            _close(
+                cal_call("gimbal_value", data, p, mode), cal.gimbal_value(p, m), 1e-5, f"value {p} mode {m}"
+            )
 
 
 def test_default_set_is_valid_and_converts_like_python():

@@ -21,7 +21,7 @@ from firmware_sim.avr import CODEC_CHECK_ELF, AvrBoard, HarnessOptions
 from firmware_sim.avr.hostlib import CDeframer, CFrame, cobs_decode, cobs_encode, crc16
 from hil.paths import FIXTURES
 from protocol import cobs
-from protocol.frame import BadFrame, BadFrameReason, Deframer, Frame, encode_frame
+from protocol.frame import BadFrameReason, Deframer, Frame, encode_frame
 
 VECTORS = json.loads((FIXTURES / "protocol_vectors.json").read_text())
 FRAMES = {v["name"]: v for v in VECTORS["frames"]}
@@ -106,7 +106,9 @@ def test_cobs_and_crc_vectors_on_the_host_build():
 
 
 def _python_events(events) -> list[bytes | BadFrameReason]:
-    return [encode_frame(e.message, e.seq, int(e.flags)) if isinstance(e, Frame) else e.reason for e in events]
+    return [
+        encode_frame(e.message, e.seq, int(e.flags)) if isinstance(e, Frame) else e.reason for e in events
+    ]
 
 
 def _c_events(events) -> list[bytes | BadFrameReason]:
@@ -125,8 +127,14 @@ def test_random_frames_decode_and_reencode_identically(frame):
 
 def _compare_counters(c: CDeframer, py: Deframer) -> None:
     got, want = c.counters(), py.counters
-    assert (got["frames"], got["bad_total"], got["resyncs"], got["seq_gaps"], got["duplicates"], got["bytes"]) == (
-        want.frames, want.bad_total, want.resyncs, want.seq_gaps, want.duplicates, want.bytes)
+    assert (
+        got["frames"],
+        got["bad_total"],
+        got["resyncs"],
+        got["seq_gaps"],
+        got["duplicates"],
+        got["bytes"],
+    ) == (want.frames, want.bad_total, want.resyncs, want.seq_gaps, want.duplicates, want.bytes)
     assert got["bad"] == {r: n for r, n in want.bad.items() if n}
 
 

@@ -26,11 +26,16 @@ def test_the_check_fails_on_a_drifted_header(tmp_path, monkeypatch):
 
 
 def test_check_command_line():
-    result = subprocess.run([sys.executable, "-m", "firmware_sim.avr.codegen", "--check"], capture_output=True,
-                            text=True)
+    result = subprocess.run(
+        [sys.executable, "-m", "firmware_sim.avr.codegen", "--check"], capture_output=True, text=True
+    )
     assert result.returncode == 0, result.stderr
-    assert "--check" in subprocess.run([sys.executable, "-m", "firmware_sim.avr.codegen", "--help"],
-                                       capture_output=True, text=True).stdout
+    assert (
+        "--check"
+        in subprocess.run(
+            [sys.executable, "-m", "firmware_sim.avr.codegen", "--help"], capture_output=True, text=True
+        ).stdout
+    )
 
 
 def test_every_message_has_an_id_a_struct_and_a_layout():
@@ -46,7 +51,9 @@ def test_every_message_has_an_id_a_struct_and_a_layout():
 
 def _size_report() -> dict[str, int]:
     ensure_built()
-    out = subprocess.run(["avr-size", "-A", str(FIRMWARE_ELF)], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        ["avr-size", "-A", str(FIRMWARE_ELF)], capture_output=True, text=True, check=True
+    ).stdout
     sizes = {m[2]: int(m[3]) for m in re.finditer(r"^(\.(\w+))\s+(\d+)", out, re.M)}
     return {k: sizes.get(k, 0) for k in ("text", "data", "bss", "noinit")}
 
@@ -69,8 +76,18 @@ def test_a_warning_breaks_the_avr_build(tmp_path, broken):
     src = tmp_path / "warn.c"
     src.write_text(broken + "\n")
     result = subprocess.run(
-        ["make", "-s", "-C", str(FIRMWARE_DIR), "-f", "Makefile", "--eval",
-         f"probe: ; $(AVRCC) $(AVRFLAGS) -Wmissing-prototypes -c {src} -o {tmp_path / 'warn.o'}", "probe"],
-        capture_output=True, text=True,
+        [
+            "make",
+            "-s",
+            "-C",
+            str(FIRMWARE_DIR),
+            "-f",
+            "Makefile",
+            "--eval",
+            f"probe: ; $(AVRCC) $(AVRFLAGS) -Wmissing-prototypes -c {src} -o {tmp_path / 'warn.o'}",
+            "probe",
+        ],
+        capture_output=True,
+        text=True,
     )
     assert result.returncode != 0 and "error" in result.stderr

@@ -23,7 +23,14 @@ from protocol.errors import CalibrationError, ConfigError
 from protocol.messages import BoardState, Flags, NackReason
 
 # C event codes (state.h) in the order of the enum there
-C_EVENTS = {Event.RESET: 0, Event.HELLO: 1, Event.ARM: 2, Event.DISARM: 3, Event.SET_MODE: 4, Event.LINK_LOST: 5}
+C_EVENTS = {
+    Event.RESET: 0,
+    Event.HELLO: 1,
+    Event.ARM: 2,
+    Event.DISARM: 3,
+    Event.SET_MODE: 4,
+    Event.LINK_LOST: 5,
+}
 
 
 @pytest.mark.parametrize("state", list(BoardState))
@@ -133,8 +140,13 @@ def test_a_retransmitted_command_gets_the_remembered_answer_without_running_agai
 def test_a_configuration_block_reaches_the_firmware_field_by_field():
     base = BoardConfig()
     cfg = base.replace(
-        n_units=3, frame_rate_hz=200.0, telemetry_rate_hz=40.0, link_timeout_s=0.4, mcu_watchdog_s=1.5,
-        rotor_safe_us=1100, identity=dataclasses.replace(base.identity, serial="LAB-07"),
+        n_units=3,
+        frame_rate_hz=200.0,
+        telemetry_rate_hz=40.0,
+        link_timeout_s=0.4,
+        mcu_watchdog_s=1.5,
+        rotor_safe_us=1100,
+        identity=dataclasses.replace(base.identity, serial="LAB-07"),
     )
     status, got, _ = config_parse(eeprom.config_block(cfg, baud=250000))
     assert status == 0

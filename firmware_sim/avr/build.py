@@ -24,8 +24,11 @@ TOOLS = {
     "cc": "gcc",
     "pkg-config": "pkg-config",
 }
-HEADERS = {"/usr/include/simavr/sim_avr.h": "libsimavr-dev", "/usr/include/libelf.h": "libelf-dev",
-           "/usr/lib/avr/include/avr/io.h": "avr-libc"}
+HEADERS = {
+    "/usr/include/simavr/sim_avr.h": "libsimavr-dev",
+    "/usr/include/libelf.h": "libelf-dev",
+    "/usr/lib/avr/include/avr/io.h": "avr-libc",
+}
 
 _lock = threading.Lock()
 _built = False

@@ -105,7 +105,8 @@ def check_hardware(cfg: BoardConfig) -> None:
     cfg.validate()
     if cfg.n_units > MAX_HW_UNITS:
         raise ConfigError(
-            f"{cfg.n_units} units; the ADK has {2 * MAX_HW_UNITS} hardware pulse channels", "BoardConfig.n_units"
+            f"{cfg.n_units} units; the ADK has {2 * MAX_HW_UNITS} hardware pulse channels",
+            "BoardConfig.n_units",
         )
     if cfg.ppm and cfg.n_units > 4:
         raise ConfigError("PPM-sum needs Timer5, free only with 4 units or fewer", "BoardConfig.ppm")
@@ -204,7 +205,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         data = EepromImage(cfg).to_bytes()
     except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        sys.stderr.write(f"error: {exc}\n")
         return 2
     with open(args.out, "wb") as f:
         f.write(data)

@@ -71,7 +71,10 @@ class HarnessOptions:
         for t in self.hang_at:
             args += ["--hang-at", repr(t)]
         for volts, at, ramp, duration in self.sags:
-            args += ["--sag", f"{volts!r}@{at!r}/{ramp!r}" + ("" if duration == float("inf") else f":{duration!r}")]
+            args += [
+                "--sag",
+                f"{volts!r}@{at!r}/{ramp!r}" + ("" if duration == float("inf") else f":{duration!r}"),
+            ]
         if self.duration_s is not None:
             args += ["--duration", repr(self.duration_s)]
         return [*args, *self.extra_args, str(self.elf)]
@@ -83,6 +86,7 @@ class AvrBoard:
     ``config`` is written into the board's EEPROM configuration block (so ``n_units``, rates, timeouts,
     power thresholds reach the firmware the way they reach a real board); ``calibrations`` (one
     ``UnitCalibration`` or None per unit) into its calibration slots (None: erased slot, the default set).
+    ``eeprom_image`` (4096 bytes) replaces all of that with raw EEPROM contents (e.g. a damaged block).
     """
 
     def __init__(
@@ -90,6 +94,7 @@ class AvrBoard:
         config: BoardConfig | None = None,
         options: HarnessOptions | None = None,
         calibrations: Sequence[UnitCalibration | None] = (),
+        eeprom_image: bytes | None = None,
     ) -> None:
         self.config = config if config is not None else BoardConfig()
         self.options = options if options is not None else HarnessOptions()
@@ -100,7 +105,13 @@ class AvrBoard:
         self._dir = tempfile.TemporaryDirectory(prefix="avr-board-")
         work = Path(self._dir.name)
         self._eeprom_path = self.options.eeprom_file or work / "eeprom.bin"
-        if self.options.eeprom_file is None or not self._eeprom_path.exists():
+        if eeprom_image is not None:
+            if len(eeprom_image) != eeprom.EEPROM_SIZE:
+                raise ConfigError(
+                    f"{len(eeprom_image)} bytes, not {eeprom.EEPROM_SIZE}", "AvrBoard.eeprom_image"
+                )
+            self._eeprom_path.write_bytes(eeprom_image)
+        elif self.options.eeprom_file is None or not self._eeprom_path.exists():
             sets = tuple(None if c is None else c.to_bytes() for c in calibrations)
             self._eeprom_path.write_bytes(eeprom.EepromImage(self.config, sets).to_bytes())
         self._record_path = work / "record.txt"
@@ -122,7 +133,10 @@ class AvrBoard:
             raise LinkError(f"avr-harness did not print a pty path: {self.port!r}")
         n_channels = 2 * self.config.n_units
         self._records = RecordReader(
-            self._record_path, F_CPU, n_channels, PPM_PIN if self.config.ppm else None,
+            self._record_path,
+            F_CPU,
+            n_channels,
+            PPM_PIN if self.config.ppm else None,
             capacity=self.config.timeline_frames,
         )
 
@@ -309,7 +323,9 @@ def spawn_interactive(options: HarnessOptions, config: BoardConfig, out: IO[str]
         path = options.eeprom_file or Path(work) / "eeprom.bin"
         if options.eeprom_file is None or not path.exists():
             path.write_bytes(eeprom.EepromImage(config).to_bytes())
-        proc = subprocess.Popen(options.arguments(path, None, control=False), stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            options.arguments(path, None, control=False), stdout=subprocess.PIPE, text=True
+        )
         assert proc.stdout is not None
 
         def forward(signum: int, frame: object) -> None:

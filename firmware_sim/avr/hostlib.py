@@ -57,16 +57,33 @@ def library() -> ctypes.CDLL:
         "host_deframer_new": (ctypes.c_void_p, []),
         "host_deframer_free": (None, [ctypes.c_void_p]),
         "host_deframer_reset": (None, [ctypes.c_void_p]),
-        "host_deframer_feed": (ctypes.c_long, [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_uint32, _U8P, ctypes.c_uint32]),
+        "host_deframer_feed": (
+            ctypes.c_long,
+            [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_uint32, _U8P, ctypes.c_uint32],
+        ),
         "host_deframer_counters": (None, [ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint32)]),
         "host_reasm_new": (ctypes.c_void_p, [ctypes.c_uint16]),
-        "host_reasm_feed": (ctypes.c_int, [ctypes.c_void_p] + [ctypes.c_uint8] * 4 + [ctypes.c_uint16] * 2
-                            + [ctypes.c_char_p, ctypes.c_uint8]),
+        "host_reasm_feed": (
+            ctypes.c_int,
+            [ctypes.c_void_p]
+            + [ctypes.c_uint8] * 4
+            + [ctypes.c_uint16] * 2
+            + [ctypes.c_char_p, ctypes.c_uint8],
+        ),
         "host_reasm_buf": (_U8P, [ctypes.c_void_p]),
         "host_answers_new": (ctypes.c_void_p, []),
-        "host_answers_lookup": (ctypes.c_int, [ctypes.c_void_p] + [ctypes.c_uint8] * 3 + [ctypes.c_char_p, ctypes.c_uint8]),
-        "host_answers_remember": (None, [ctypes.c_void_p] + [ctypes.c_uint8] * 2 + [ctypes.c_char_p] + [ctypes.c_uint8] * 2),
-        "host_config_parse": (ctypes.c_int, [ctypes.c_char_p, ctypes.POINTER(ctypes.c_float), ctypes.c_char_p, _U8P]),
+        "host_answers_lookup": (
+            ctypes.c_int,
+            [ctypes.c_void_p] + [ctypes.c_uint8] * 3 + [ctypes.c_char_p, ctypes.c_uint8],
+        ),
+        "host_answers_remember": (
+            None,
+            [ctypes.c_void_p] + [ctypes.c_uint8] * 2 + [ctypes.c_char_p] + [ctypes.c_uint8] * 2,
+        ),
+        "host_config_parse": (
+            ctypes.c_int,
+            [ctypes.c_char_p, ctypes.POINTER(ctypes.c_float), ctypes.c_char_p, _U8P],
+        ),
         "cal_validate": (ctypes.c_int, [ctypes.c_char_p, ctypes.c_uint16, _U8P, _U8P]),
         "cal_rotor_pulse_us": (CalConversion, [ctypes.c_char_p, ctypes.c_float, ctypes.c_float]),
         "cal_rotor_speed": (CalConversion, [ctypes.c_char_p, ctypes.c_float, ctypes.c_float]),
@@ -74,7 +91,10 @@ def library() -> ctypes.CDLL:
         "cal_gimbal_value": (CalConversion, [ctypes.c_char_p, ctypes.c_float, ctypes.c_uint8]),
         "cal_status_text": (None, [ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]),
         "power_reset": (None, [ctypes.POINTER(PowerManagerState)]),
-        "power_update": (ctypes.c_uint8, [ctypes.POINTER(PowerManagerState), ctypes.POINTER(PowerParams), ctypes.c_float]),
+        "power_update": (
+            ctypes.c_uint8,
+            [ctypes.POINTER(PowerManagerState), ctypes.POINTER(PowerParams), ctypes.c_float],
+        ),
         "power_soc": (ctypes.c_float, [ctypes.c_float]),
         "state_transition": (Transition, [ctypes.c_uint8] * 3),
         "crc16_update": (ctypes.c_uint16, [ctypes.c_uint16, ctypes.c_char_p, ctypes.c_uint16]),
@@ -188,7 +208,9 @@ def cal_call(name: str, data: bytes, x: float, arg: float | int) -> tuple[float,
 
 # --------------------------------------------------------------------------- small state machines
 class CPowerManager:
-    def __init__(self, warn: float, limit: float, shed: float, hysteresis: float, alpha: float, cells: int) -> None:
+    def __init__(
+        self, warn: float, limit: float, shed: float, hysteresis: float, alpha: float, cells: int
+    ) -> None:
         self.params = PowerParams(warn, limit, shed, hysteresis, alpha, cells)
         self.state = PowerManagerState()
         library().power_reset(ctypes.byref(self.state))
@@ -207,10 +229,14 @@ class CReassembler:
         self._lib = library()
         self._h = self._lib.host_reasm_new(max_len)
 
-    def feed(self, unit: int, transfer_id: int, index: int, count: int, total_len: int, set_crc: int,
-             chunk: bytes) -> int:
-        return int(self._lib.host_reasm_feed(self._h, unit, transfer_id, index, count, total_len, set_crc,
-                                             bytes(chunk), len(chunk)))
+    def feed(
+        self, unit: int, transfer_id: int, index: int, count: int, total_len: int, set_crc: int, chunk: bytes
+    ) -> int:
+        return int(
+            self._lib.host_reasm_feed(
+                self._h, unit, transfer_id, index, count, total_len, set_crc, bytes(chunk), len(chunk)
+            )
+        )
 
     def data(self, n: int) -> bytes:
         return ctypes.string_at(self._lib.host_reasm_buf(self._h), n)
@@ -229,9 +255,21 @@ class CAnswerCache:
         self._lib.host_answers_remember(self._h, msg_id, seq, bytes(payload), len(payload), answer)
 
 
-CONFIG_NUMBERS = ("n_units", "frame_rate_hz", "telemetry_rate_hz", "heartbeat_rate_hz", "link_timeout_ms",
-                  "mcu_watchdog_ms", "rotor_safe_us", "ppm", "cells", "warn_v_cell", "limit_v_cell",
-                  "shed_v_cell", "baud")
+CONFIG_NUMBERS = (
+    "n_units",
+    "frame_rate_hz",
+    "telemetry_rate_hz",
+    "heartbeat_rate_hz",
+    "link_timeout_ms",
+    "mcu_watchdog_ms",
+    "rotor_safe_us",
+    "ppm",
+    "cells",
+    "warn_v_cell",
+    "limit_v_cell",
+    "shed_v_cell",
+    "baud",
+)
 
 
 def config_parse(block: bytes) -> tuple[int, dict[str, float | str], int]:

@@ -7,9 +7,9 @@ shapes firmware_sim's timeline has (:class:`~firmware_sim.timeline.PulseFrame`,
 tests read both targets alike.
 
 A pulse is a rising edge and the falling edge after it on one pin. Its width is measured to the cycle
-and reported to the pulse timer's tick (:data:`TICK_CYCLES`, 0.5 µs): the output-compare hardware can
-only make whole ticks, and simavr delivers timer events at instruction boundaries, a cycle or two
-late, so the raw cycle count jitters by that much while the pin's true width does not. Every channel
+(1/16 µs) and reported in whole µs, the unit the firmware sets widths in: simavr delivers timer events
+at instruction boundaries, a cycle or two late, so the raw cycle count jitters by that much while the
+pin's true width (a whole number of 0.5 µs timer ticks) does not. Every channel
 rises at the start of a frame, so the pulses whose rising edges lie within
 :data:`FRAME_SKEW_US` of the first one form one frame; a channel without a pulse in it is ``None``.
 Pulses that a reset cut short are not pulses an ESC would accept: their frame is dropped and counted
@@ -28,8 +28,6 @@ from protocol.pulses import DEFAULT_PPM
 
 from ..timeline import PpmTrain, PulseFrame, ResetEvent
 
-TICK_CYCLES = 8
-"""CPU cycles per tick of the pulse timers (prescaler 8): widths are whole ticks."""
 FRAME_SKEW_US = 50.0
 """Rising edges this close to a frame's first one belong to the same frame (timers start together)."""
 
@@ -38,7 +36,7 @@ FRAME_SKEW_US = 50.0
 class _Pending:
     t0: int  # cycle of the frame's first rising edge
     rises: dict[int, int] = field(default_factory=dict)  # pin -> rising cycle
-    widths: dict[int, float] = field(default_factory=dict)  # pin -> width µs (completed pulses)
+    widths: dict[int, int] = field(default_factory=dict)  # pin -> width µs (completed pulses)
 
 
 class RecordReader:
@@ -53,6 +51,7 @@ class RecordReader:
         self.n_channels = n_channels
         self.ppm_pin = ppm_pin
         self.frames: deque[PulseFrame] = deque(maxlen=capacity)
+        self._cycles_per_us = freq_hz / 1e6
         self.ppm: deque[PpmTrain] = deque(maxlen=capacity)
         self.resets: list[ResetEvent] = []
         self.brownouts: list[tuple[float, bool]] = []  # (t, held) from 'B' lines
@@ -121,7 +120,7 @@ class RecordReader:
                 p = self._pending = _Pending(cycle)
             p.rises[pin] = cycle
         elif p is not None and pin in p.rises:
-            p.widths[pin] = _width(cycle - p.rises[pin], self.freq)
+            p.widths[pin] = round((cycle - p.rises[pin]) / self._cycles_per_us)
 
     def _close_frame(self) -> None:
         p, self._pending = self._pending, None
@@ -148,7 +147,9 @@ class RecordReader:
         frames = list(self.frames)
         p = self._pending
         if p is not None and p.rises and len(p.widths) == len(p.rises):
-            frames.append(PulseFrame(self._seconds(p.t0), tuple(p.widths.get(ch) for ch in range(self.n_channels))))
+            frames.append(
+                PulseFrame(self._seconds(p.t0), tuple(p.widths.get(ch) for ch in range(self.n_channels)))
+            )
         return frames
 
     # ------------------------------------------------------------------ PPM
@@ -159,14 +160,6 @@ class RecordReader:
             edges = self._ppm_edges
             if len(edges) >= 2:
                 t0 = edges[0]
-                self.ppm.append(
-                    PpmTrain(self._seconds(t0), tuple((e - t0) * 1e6 / self.freq for e in edges))
-                )
+                self.ppm.append(PpmTrain(self._seconds(t0), tuple((e - t0) * 1e6 / self.freq for e in edges)))
             self._ppm_edges = []
         self._ppm_edges.append(cycle)
-
-
-def _width(cycles: int, freq: int) -> float | int:
-    """A pulse of ``cycles`` CPU cycles in µs, to the nearest timer tick; an int when whole."""
-    us = round(cycles / TICK_CYCLES) * TICK_CYCLES * 1e6 / freq
-    return int(us) if us == int(us) else us

@@ -23,7 +23,11 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
     """The harness options for firmware-sim's command line (times relative to the harness's start)."""
     from ..cli import parse_sag
 
-    for flag, value in (("--stall", args.stall), ("--sag-ohms", args.sag_ohms), ("--dead-esc", args.dead_esc)):
+    for flag, value in (
+        ("--stall", args.stall),
+        ("--sag-ohms", args.sag_ohms),
+        ("--dead-esc", args.dead_esc),
+    ):
         if value:
             raise ConfigError("not available with --avr (the harness cannot inject it)", flag)
     sags = []

@@ -1,0 +1,206 @@
+"""The board firmware on simavr, through its pty, beyond the conformance suite: calibration upload and
+download with EEPROM persistence, the EEPROM configuration, PPM-sum, reliable-command rules, boot
+reports after a reset, stack headroom, and ``firmware-sim --avr``."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+
+import pytest
+from conformance.host import SerialHost, heartbeat
+
+from firmware_sim.avr import AvrBoard, eeprom
+from firmware_sim.config import BoardConfig
+from protocol.calibration import EscMotorModel, GimbalServoModel, fragment, model_unit_calibration, reassemble
+from protocol.frame import Frame
+from protocol.messages import (
+    SCHEMA_HASH,
+    Ack,
+    ActuatorSetpoint,
+    Arm,
+    BoardState,
+    CalibrationData,
+    CalibrationRequest,
+    Disarm,
+    GimbalMode,
+    HelloReply,
+    Log,
+    Nack,
+    NackReason,
+    ResetCause,
+    SetMode,
+    Telemetry,
+    UnitSetpoint,
+)
+from protocol.pulses import decode_ppm
+
+UPLOADED = model_unit_calibration(
+    EscMotorModel(low_us=1050.0, high_us=1950.0, deadband_us=20.0, kv_rad_s_per_v=60.0),
+    GimbalServoModel(center_us=1520.0, max_rate_rad_s=1.5, direction=-1),
+)
+
+
+@pytest.fixture
+def board():
+    with AvrBoard(BoardConfig(telemetry_rate_hz=50.0)) as b:
+        yield b
+        b.check()
+
+
+@pytest.fixture
+def host(board):
+    h = SerialHost(board.port)
+    h.handshake()
+    h.keepalive = heartbeat
+    yield h
+    h.close()
+
+
+def upload(host, unit: int, data: bytes, transfer_id: int = 1) -> list:
+    return [host.request(part) for part in fragment(unit, transfer_id, data)]
+
+
+def logged(host, code: int, words: str, timeout: float = 1.0) -> Log:
+    """A Log with ``code`` whose text contains ``words``, already received or arriving within ``timeout``."""
+
+    def match(m):
+        return isinstance(m, Log) and m.code == code and words in m.text
+
+    for m in host.received:
+        if match(m):
+            return m
+    return host.wait_for(match, timeout, f"Log {code} '{words}'")
+
+
+def test_an_uploaded_calibration_drives_the_outputs_and_survives_a_reset(board, host):
+    assert all(isinstance(a, Ack) for a in upload(host, 1, UPLOADED.to_bytes()))
+    logged(host, 10, "stored")  # LogCode.CALIBRATION
+    assert isinstance(host.request(Arm()), Ack)
+    sp = ActuatorSetpoint(
+        gimbal_mode=GimbalMode.RATE, units=tuple(UnitSetpoint(0.4, 350.0) for _ in range(4))
+    )
+    host.keepalive = lambda: sp
+    host.poll(0.3)
+    tel = host.wait_type(Telemetry, 1.0, lambda m: m.state == BoardState.ARMED)
+    volts = tel.battery_mv / 1000
+    assert abs(tel.pulses_us[2] - UPLOADED.gimbal_pulse_us(0.4, GimbalMode.RATE).value) <= 1.0
+    rotor = [UPLOADED.rotor_pulse_us(350.0, volts + dv).value for dv in (-0.1, 0.1)]
+    assert min(rotor) - 1 <= tel.pulses_us[3] <= max(rotor) + 1
+    assert tel.pulses_us[2] != tel.pulses_us[0]  # unit 0 still on the default set
+    host.keepalive = heartbeat
+    assert isinstance(host.request(Disarm()), Ack)
+    host.poll(0.3)  # the EEPROM is written in the background
+    assert board.calibration(1) == UPLOADED
+    board.press_reset()
+    host.keepalive = None
+    reply = host.handshake()
+    assert reply.reset_cause == ResetCause.EXTERNAL and board.calibration(1) == UPLOADED
+    # and the board hands it back on request, fragment by fragment, each acknowledged
+    host.send(CalibrationRequest(unit=1, transfer_id=9))
+    parts, end = [], time.monotonic() + 3.0
+    while len(parts) < 3 and time.monotonic() < end:
+        for event in host.deframer.feed(host._read(0.05)):
+            if isinstance(event, Frame) and isinstance(event.message, CalibrationData):
+                parts.append(event.message)
+                host.send(Ack(msg_id=CalibrationData.MSG_ID, seq=event.seq))
+    assert reassemble(parts) == (1, UPLOADED.to_bytes())
+
+
+def test_bad_uploads_are_refused_and_the_old_set_stays(board, host):
+    data = bytearray(UPLOADED.to_bytes())
+    data[40] ^= 0x10  # a damaged knot: the set's own CRC no longer checks
+    parts = fragment(0, 2, bytes(data))
+    answers = [host.request(p) for p in parts]
+    assert isinstance(answers[-1], Nack) and answers[-1].reason == NackReason.BAD_CALIBRATION
+    logged(host, 10, "refused")
+    assert host.request(replace(parts[0], unit=5)).reason == NackReason.OUT_OF_RANGE
+    assert isinstance(host.request(Arm()), Ack)
+    assert host.request(fragment(0, 3, UPLOADED.to_bytes())[0]).reason == NackReason.BAD_STATE
+    assert board.calibration(0) != UPLOADED
+
+
+def test_reliable_command_rules_and_an_incompatible_host(board, host):
+    assert host.request(SetMode(mode=1)).__class__ is Ack  # RAW_PULSES, disarmed
+    seq = host.send(Arm())
+    assert host.wait_type(Ack, 1.0, lambda m: m.seq == seq)
+    assert host.request(SetMode(mode=0)).reason == NackReason.BAD_STATE  # modes change disarmed
+    assert isinstance(host.request(Disarm()), Ack)
+    host.send(Arm(), seq=seq)  # a retry of the old Arm: answered from the cache, not executed again
+    assert host.wait_type(Ack, 1.0, lambda m: m.seq == seq)
+    assert host.wait_type(Telemetry, 1.0).state == BoardState.DISARMED
+    assert host.request(SetMode(mode=2)).reason == NackReason.UNSUPPORTED
+    reply = host.handshake(schema_hash=SCHEMA_HASH ^ 1)
+    assert reply.schema_hash == SCHEMA_HASH
+    logged(host, 8, "incompatible")  # LogCode.HANDSHAKE
+    assert board.stack_headroom() >= 256  # bytes of RAM the stack never reached
+
+
+def test_the_eeprom_configuration_shapes_the_board_and_ppm_follows_the_channels():
+    cfg = BoardConfig(
+        n_units=3,
+        frame_rate_hz=200.0,
+        telemetry_rate_hz=25.0,
+        ppm=True,
+        identity=replace(BoardConfig().identity, serial="BENCH-3"),
+    )
+    with AvrBoard(cfg) as b:
+        h = SerialHost(b.port)
+        reply = h.handshake()
+        assert (reply.n_units, reply.frame_rate_hz, reply.serial) == (3, 200, "BENCH-3")
+        h.keepalive = heartbeat
+        tel = h.wait_type(Telemetry, 1.0)
+        assert len(tel.pulses_us) == 6 and len(tel.units) == 3
+        h.poll(0.2)
+        frames = b.timeline()[-10:]
+        periods = {round((f2.t - f1.t) * 1e6) for f1, f2 in zip(frames, frames[1:], strict=False)}
+        assert periods == {5000} and all(len(f.widths) == 6 for f in frames)
+        trains = b.ppm_trains()
+        assert trains and decode_ppm(trains[-1].edges_us) == tuple(round(w) for w in frames[-1].widths)
+        h.close()
+
+
+def test_a_damaged_configuration_block_means_defaults_and_says_so():
+    image = bytearray(eeprom.EepromImage(BoardConfig(n_units=2)).to_bytes())
+    image[eeprom.field_offsets()["crc"]] ^= 0xFF
+    with AvrBoard(BoardConfig(), eeprom_image=bytes(image)) as b:
+        h = SerialHost(b.port)
+        assert h.handshake().n_units == BoardConfig().n_units
+        b.press_reset()  # boot reports go out at boot: reset the board with the host listening
+        assert "defaults" in logged(h, 1, "configuration refused", 2.0).text  # LogCode.BOOT
+        assert h.handshake().reset_cause == ResetCause.EXTERNAL
+        h.close()
+
+
+def test_firmware_sim_avr_serves_the_firmware_on_a_pty_until_stopped():
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "--avr", "--units", "2", "--frame-rate", "100"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/pts/")
+        h = SerialHost(path)
+        reply: HelloReply = h.handshake()
+        assert (reply.n_units, reply.frame_rate_hz) == (2, 100)
+        h.close()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 0
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+def test_firmware_sim_avr_refuses_faults_it_cannot_inject():
+    result = subprocess.run(
+        [sys.executable, "-m", "firmware_sim", "--avr", "--dead-esc", "1@3"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert result.returncode == 2 and "--dead-esc" in result.stderr
