@@ -16,6 +16,7 @@
 #include "frame.h"
 #include "link.h"
 #include "power.h"
+#include "uart.h"
 
 #define MAX_HW_CHANNELS (2u * MAX_HW_UNITS)
 #define CAL_DOWNLOAD_RETRY_MS 100u
@@ -53,7 +54,8 @@ typedef struct {
     periodic_t telemetry, heartbeat;
     uint32_t next_power_ms;
     uint8_t tx_seq;
-    uint32_t setpoints, bad_setpoints, ignored_setpoints, ignored, tx_dropped, rx_overflow_logged;
+    uint32_t setpoints, bad_setpoints, ignored_setpoints, ignored, tx_dropped;
+    uart_stats_t rx_lost; /* receive losses already reported in a Log */
     deframer_t deframer;
     frame_t frame;
     answer_cache_t answers;

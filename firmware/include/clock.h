@@ -9,9 +9,18 @@
 #ifndef CLOCK_H
 #define CLOCK_H
 
+#include <avr/io.h>
 #include <stdint.h>
 
-void clock_early(void);
+/* .init3: start Timer5 free-running at F_CPU/1024 (64 us ticks, 4.2 s to wrap) as the start-up
+ * stopwatch. Inline: it runs in a naked .init function, before the C runtime. */
+static inline __attribute__((always_inline)) void clock_early(void)
+{
+    TCCR5A = 0;
+    TCNT5 = 0;
+    TCCR5B = _BV(CS52) | _BV(CS50);
+}
+
 void clock_init(void);
 /* Milliseconds since reset (wraps after 49.7 days). */
 uint32_t clock_ms(void);

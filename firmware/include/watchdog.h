@@ -14,12 +14,22 @@
 #ifndef WATCHDOG_H
 #define WATCHDOG_H
 
+#include <avr/io.h>
+#include <avr/wdt.h>
 #include <stdint.h>
 
 #define WATCHDOG_HW_MS 16u
 
-/* .init3: read and clear MCUSR, turn the watchdog off (a watchdog reset leaves it running at 16 ms). */
-uint8_t watchdog_early(void);
+/* .init3: read and clear MCUSR, turn the watchdog off (a watchdog reset leaves it running at 16 ms, and
+ * WDRF set keeps it on until cleared). Inline: it runs in a naked .init function, before the C runtime. */
+static inline __attribute__((always_inline)) uint8_t watchdog_early(void)
+{
+    uint8_t cause = MCUSR;
+    MCUSR = 0;
+    wdt_disable();
+    return cause;
+}
+
 void watchdog_start(uint16_t timeout_ms);
 /* From the tick interrupt: restart the hardware watchdog if the main loop checked in recently. */
 void watchdog_on_tick(uint32_t now_ms);

@@ -549,10 +549,11 @@ static void process_rx(uint32_t now)
     }
     uart_stats_t st;
     uart_stats(&st);
-    if (st.rx_overflow != board.rx_overflow_logged) {
-        board.rx_overflow_logged = st.rx_overflow;
-        report_log(SEVERITY_WARNING, LOG_CODE_RX_OVERFLOW, PSTR("receive buffer overflow (%lu bytes lost)"),
-                   (unsigned long)st.rx_overflow);
+    if (st.rx_overflow != board.rx_lost.rx_overflow || st.line_errors != board.rx_lost.line_errors) {
+        board.rx_lost = st;
+        report_log(SEVERITY_WARNING, LOG_CODE_RX_OVERFLOW,
+                   PSTR("receive: %lu bytes lost to a full buffer, %lu to line errors since boot"),
+                   (unsigned long)st.rx_overflow, (unsigned long)st.line_errors);
     }
 }
 
@@ -657,6 +658,6 @@ uint8_t app_poll(uint32_t now)
     if (periodic_due(&board.heartbeat, now))
         report_heartbeat(now);
     retry_download(now);
-    busy |= storage_service();
+    storage_service(); /* one EEPROM byte when the EEPROM is ready (~3.3 ms a byte): no need to spin */
     return busy;
 }

@@ -11,13 +11,6 @@
 static volatile uint32_t ms;
 static volatile uint8_t ticked;
 
-void clock_early(void)
-{
-    TCCR5A = 0;
-    TCNT5 = 0;
-    TCCR5B = _BV(CS52) | _BV(CS50); /* /1024, normal mode: wraps after 4.2 s, start-up takes ms */
-}
-
 void clock_init(void)
 {
     uint32_t us = (uint32_t)TCNT5 * STOPWATCH_US_PER_TICK;

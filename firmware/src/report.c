@@ -47,8 +47,6 @@ void report_send(uint8_t msg_id, const void *msg, uint8_t flags, int16_t seq)
 
 void report_log(uint8_t severity, uint16_t code, const char *fmt_flash, ...)
 {
-    if (board.state == BOARD_STATE_BOOT && severity < SEVERITY_INFO)
-        return;
     log_t *m = &out.log;
     memset(m, 0, sizeof *m);
     m->severity = severity;

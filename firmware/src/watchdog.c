@@ -13,14 +13,6 @@ static volatile uint16_t window_ms; /* restart the hardware only while the loop 
 static volatile uint8_t running, direct;
 static uint8_t selftest_was_high;
 
-uint8_t watchdog_early(void)
-{
-    uint8_t cause = MCUSR;
-    MCUSR = 0;
-    wdt_disable();
-    return cause;
-}
-
 void watchdog_start(uint16_t timeout_ms)
 {
     DDRK &= (uint8_t)~_BV(SELFTEST_PIN_BIT); /* self-test input with pull-up */
