@@ -38,27 +38,19 @@
 #define CFG_OFF_SERIAL 72u
 #define CFG_OFF_CRC 96u
 
-/* BoardConfig() defaults: what the firmware runs on without a valid configuration block. */
-#define CFG_DEFAULT_N_UNITS 4u
-#define CFG_DEFAULT_FRAME_RATE_HZ 50.0f
-#define CFG_DEFAULT_TELEMETRY_RATE_HZ 20.0f
-#define CFG_DEFAULT_HEARTBEAT_RATE_HZ 5.0f
-#define CFG_DEFAULT_LINK_TIMEOUT_S 0.25f
-#define CFG_DEFAULT_MCU_WATCHDOG_S 0.5f
-#define CFG_DEFAULT_ROTOR_SAFE_US 1000u
-#define CFG_DEFAULT_PPM 0u
-#define CFG_DEFAULT_CELLS 3u
-#define CFG_DEFAULT_BATTERY_RESISTANCE_OHM 0.07999999821186066f
-#define CFG_DEFAULT_WARN_V_CELL 3.5f
-#define CFG_DEFAULT_LIMIT_V_CELL 3.4000000953674316f
-#define CFG_DEFAULT_SHED_V_CELL 3.299999952316284f
-#define CFG_DEFAULT_HYSTERESIS_V_CELL 0.10000000149011612f
-#define CFG_DEFAULT_LIMIT_THROTTLE 0.5f
-#define CFG_DEFAULT_BROWNOUT_RELEASE_V 4.5f
-#define CFG_DEFAULT_FILTER_TIME_CONSTANT_S 0.05000000074505806f
-#define CFG_DEFAULT_POWER_UPDATE_PERIOD_S 0.004999999888241291f
-#define CFG_DEFAULT_UBEC_CURRENT_LIMIT_A 3.0f
-#define CFG_DEFAULT_BAUD 115200UL
+/* BoardConfig() defaults as a configuration block: what the firmware runs on without one */
+#define DEFAULT_CONFIG_BLOCK \
+    { \
+    0x42, 0x43, 0x01, 0x04, 0x00, 0x00, 0x48, 0x42, 0x00, 0x00, 0xa0, 0x41, 0x00, 0x00, 0xa0, 0x40, \
+    0x00, 0x00, 0x80, 0x3e, 0x00, 0x00, 0x00, 0x3f, 0xe8, 0x03, 0x00, 0x03, 0x0a, 0xd7, 0xa3, 0x3d, \
+    0x00, 0x00, 0x60, 0x40, 0x9a, 0x99, 0x59, 0x40, 0x33, 0x33, 0x53, 0x40, 0xcd, 0xcc, 0xcc, 0x3d, \
+    0x00, 0x00, 0x00, 0x3f, 0x00, 0x00, 0x90, 0x40, 0xcd, 0xcc, 0x4c, 0x3d, 0x0a, 0xd7, 0xa3, 0x3b, \
+    0x00, 0x00, 0x40, 0x40, 0x00, 0xc2, 0x01, 0x00, 0x41, 0x44, 0x4b, 0x30, 0x30, 0x30, 0x31, 0x00, \
+    0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, \
+    0xbf, 0xa2, \
+    }
+
+/* BoardConfig() actuator time constants, for the units' estimated states */
 #define CFG_DEFAULT_MOTOR_TIME_CONSTANT_S 0.15000000596046448f
 #define CFG_DEFAULT_MOTOR_COAST_TIME_CONSTANT_S 1.5f
 #define CFG_DEFAULT_GIMBAL_TIME_CONSTANT_S 0.05000000074505806f

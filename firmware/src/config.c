@@ -9,33 +9,29 @@
 #include "protocol_gen.h"
 #include "wire.h"
 
-void config_defaults(board_config_t *cfg)
-{
-    memset(cfg, 0, sizeof *cfg);
-    cfg->n_units = CFG_DEFAULT_N_UNITS;
-    cfg->ppm = CFG_DEFAULT_PPM;
-    cfg->cells = CFG_DEFAULT_CELLS;
-    cfg->frame_rate_hz = CFG_DEFAULT_FRAME_RATE_HZ;
-    cfg->telemetry_rate_hz = CFG_DEFAULT_TELEMETRY_RATE_HZ;
-    cfg->heartbeat_rate_hz = CFG_DEFAULT_HEARTBEAT_RATE_HZ;
-    cfg->link_timeout_ms = (uint16_t)lrintf(CFG_DEFAULT_LINK_TIMEOUT_S * 1000.0f);
-    cfg->mcu_watchdog_ms = (uint16_t)lrintf(CFG_DEFAULT_MCU_WATCHDOG_S * 1000.0f);
-    cfg->rotor_safe_us = CFG_DEFAULT_ROTOR_SAFE_US;
-    cfg->battery_resistance_ohm = CFG_DEFAULT_BATTERY_RESISTANCE_OHM;
-    cfg->warn_v_cell = CFG_DEFAULT_WARN_V_CELL;
-    cfg->limit_v_cell = CFG_DEFAULT_LIMIT_V_CELL;
-    cfg->shed_v_cell = CFG_DEFAULT_SHED_V_CELL;
-    cfg->hysteresis_v_cell = CFG_DEFAULT_HYSTERESIS_V_CELL;
-    cfg->limit_throttle = CFG_DEFAULT_LIMIT_THROTTLE;
-    cfg->brownout_release_v = CFG_DEFAULT_BROWNOUT_RELEASE_V;
-    cfg->filter_time_constant_s = CFG_DEFAULT_FILTER_TIME_CONSTANT_S;
-    cfg->power_update_period_s = CFG_DEFAULT_POWER_UPDATE_PERIOD_S;
-    cfg->ubec_current_limit_a = CFG_DEFAULT_UBEC_CURRENT_LIMIT_A;
-    cfg->baud = CFG_DEFAULT_BAUD;
-    strcpy(cfg->serial, IDENTITY_SERIAL);
-}
+enum {
+    BAD_BLOCK = 1, /* magic, version or CRC */
+    BAD_N_UNITS,
+    BAD_FRAME_RATE_HZ,
+    BAD_TELEMETRY_RATE_HZ,
+    BAD_HEARTBEAT_RATE_HZ,
+    BAD_LINK_TIMEOUT_S,
+    BAD_MCU_WATCHDOG_S,
+    BAD_ROTOR_SAFE_US,
+    BAD_PPM,
+    BAD_CELLS,
+    BAD_BATTERY_RESISTANCE_OHM,
+    BAD_WARN_V_CELL,
+    BAD_HYSTERESIS_V_CELL,
+    BAD_LIMIT_THROTTLE,
+    BAD_BROWNOUT_RELEASE_V,
+    BAD_FILTER_TIME_CONSTANT_S,
+    BAD_POWER_UPDATE_PERIOD_S,
+    BAD_UBEC_CURRENT_LIMIT_A,
+    BAD_BAUD,
+};
 
-/* Names of what config_parse found wrong (index = *problem). */
+/* Names of what config_parse found wrong, in the order above (index = *problem). */
 static const char PROBLEMS[] FLASH = "none\0"
                                       "magic, version or CRC\0"
                                       "n_units\0"
@@ -69,21 +65,38 @@ static float f32(const uint8_t *p)
 /* lo <= v <= hi, false for NaN. */
 static int within(float v, float lo, float hi) { return v >= lo && v <= hi; }
 
+static const uint8_t DEFAULTS[EEPROM_CONFIG_SIZE] FLASH = DEFAULT_CONFIG_BLOCK;
+
+/* Read and check a block: CONFIG_OK_FIELD and *cfg filled, or the problem (a BAD_* value). */
+static uint8_t parse(const uint8_t *b, board_config_t *cfg);
+
+/* BoardConfig's defaults: the generated default block, through the same parser. */
+void config_defaults(board_config_t *cfg)
+{
+    uint8_t block[EEPROM_CONFIG_SIZE];
+    flash_read(block, DEFAULTS, sizeof block);
+    parse(block, cfg);
+}
+
 config_status_t config_parse(const uint8_t *b, board_config_t *cfg, uint8_t *problem)
 {
-    config_defaults(cfg);
-    *problem = CONFIG_OK_FIELD;
     uint8_t erased = 1;
     for (uint8_t i = 0; i < EEPROM_CONFIG_SIZE; i++)
         erased &= b[i] == 0xFF;
-    if (erased)
-        return CONFIG_ERASED;
+    *problem = erased ? CONFIG_OK_FIELD : parse(b, cfg);
+    if (!erased && *problem == CONFIG_OK_FIELD)
+        return CONFIG_LOADED;
+    config_defaults(cfg);
+    return erased ? CONFIG_ERASED : (*problem == BAD_BLOCK ? CONFIG_DAMAGED : CONFIG_INVALID);
+}
+
+static uint8_t parse(const uint8_t *b, board_config_t *cfg)
+{
     if (wire_get_u16(b + CFG_OFF_MAGIC) != EEPROM_CONFIG_MAGIC || b[CFG_OFF_VERSION] != EEPROM_CONFIG_VERSION ||
-        crc16_update(CRC16_INIT, b, CFG_OFF_CRC) != wire_get_u16(b + CFG_OFF_CRC)) {
-        *problem = 1;
-        return CONFIG_DAMAGED;
-    }
-    board_config_t c = *cfg;
+        crc16_update(CRC16_INIT, b, CFG_OFF_CRC) != wire_get_u16(b + CFG_OFF_CRC))
+        return BAD_BLOCK;
+    board_config_t c;
+    uint8_t problem = CONFIG_OK_FIELD;
     c.n_units = b[CFG_OFF_N_UNITS];
     c.ppm = b[CFG_OFF_PPM];
     c.cells = b[CFG_OFF_CELLS];
@@ -110,45 +123,45 @@ config_status_t config_parse(const uint8_t *b, board_config_t *cfg, uint8_t *pro
     c.serial[n] = 0;
     /* the same limits as BoardConfig.validate() (and the hardware's) */
     if (c.n_units < 1 || c.n_units > MAX_HW_UNITS)
-        *problem = 2;
+        problem = BAD_N_UNITS;
     else if (!within(c.frame_rate_hz, 50.0f, 490.0f))
-        *problem = 3;
+        problem = BAD_FRAME_RATE_HZ;
     else if (!within(c.telemetry_rate_hz, 0.1f, 1000.0f))
-        *problem = 4;
+        problem = BAD_TELEMETRY_RATE_HZ;
     else if (!within(c.heartbeat_rate_hz, 0.1f, 1000.0f))
-        *problem = 5;
+        problem = BAD_HEARTBEAT_RATE_HZ;
     else if (!within(link, 0.01f, 60.0f))
-        *problem = 6;
+        problem = BAD_LINK_TIMEOUT_S;
     else if (!within(wdt, 0.015f, 8.0f))
-        *problem = 7;
+        problem = BAD_MCU_WATCHDOG_S;
     else if (c.rotor_safe_us < PULSE_MIN_US || c.rotor_safe_us > PULSE_MAX_US)
-        *problem = 8;
+        problem = BAD_ROTOR_SAFE_US;
     else if (c.ppm > 1 || (c.ppm && c.n_units > 4))
-        *problem = 9;
+        problem = BAD_PPM;
     else if (c.cells < 1 || c.cells > 12)
-        *problem = 10;
+        problem = BAD_CELLS;
     else if (!within(c.battery_resistance_ohm, 0.0f, 10.0f))
-        *problem = 11;
+        problem = BAD_BATTERY_RESISTANCE_OHM;
     else if (!(c.warn_v_cell > c.limit_v_cell && c.limit_v_cell > c.shed_v_cell && c.shed_v_cell > 0.0f))
-        *problem = 12;
+        problem = BAD_WARN_V_CELL;
     else if (!within(c.hysteresis_v_cell, 0.0f, 1.0f))
-        *problem = 13;
+        problem = BAD_HYSTERESIS_V_CELL;
     else if (!within(c.limit_throttle, 0.0f, 1.0f))
-        *problem = 14;
+        problem = BAD_LIMIT_THROTTLE;
     else if (!within(c.brownout_release_v, 0.0f, 24.0f))
-        *problem = 15;
+        problem = BAD_BROWNOUT_RELEASE_V;
     else if (!within(c.filter_time_constant_s, 0.0f, 10.0f))
-        *problem = 16;
+        problem = BAD_FILTER_TIME_CONSTANT_S;
     else if (!within(c.power_update_period_s, 0.001f, 0.1f))
-        *problem = 17;
+        problem = BAD_POWER_UPDATE_PERIOD_S;
     else if (!within(c.ubec_current_limit_a, 0.01f, 100.0f))
-        *problem = 18;
+        problem = BAD_UBEC_CURRENT_LIMIT_A;
     else if (c.baud < 9600 || c.baud > 1000000)
-        *problem = 19;
-    if (*problem)
-        return CONFIG_INVALID;
+        problem = BAD_BAUD;
+    if (problem)
+        return problem;
     c.link_timeout_ms = (uint16_t)lrintf(link * 1000.0f);
     c.mcu_watchdog_ms = (uint16_t)lrintf(wdt * 1000.0f);
     *cfg = c;
-    return CONFIG_LOADED;
+    return CONFIG_OK_FIELD;
 }
