@@ -22,10 +22,11 @@
 #define CAL_DOWNLOAD_RETRY_MS 100u
 #define CAL_DOWNLOAD_TRIES 5u
 
-/* A schedule of deadlines origin + round(k * period) ms (like firmware_sim/periodic.py). */
+/* A schedule of deadlines origin + k * period (like firmware_sim/periodic.py), in ms of uptime. */
 typedef struct {
-    float period_ms;
-    uint32_t origin, next, k;
+    uint64_t at;     /* the next deadline in 1/256 us */
+    uint32_t period; /* in 1/256 us */
+    uint32_t next;   /* the next deadline in ms */
     uint8_t enabled;
 } periodic_t;
 

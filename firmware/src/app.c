@@ -24,12 +24,13 @@ board_t board;
 #define VOLT_QUANTUM 0.01f /* rotor conversions use the battery voltage in 10 mV steps */
 
 /* ------------------------------------------------------------------------------------------ schedules */
+#define PERIODIC_UNITS_PER_MS 256000ULL /* deadlines are kept in 1/256 us: no drift over days */
+
 void periodic_start(periodic_t *p, float rate_hz, uint32_t origin, uint8_t first_offset)
 {
-    p->period_ms = 1000.0f / rate_hz;
-    p->origin = origin;
-    p->k = first_offset ? 1u : 0u;
-    p->next = origin + (uint32_t)lrintf((float)p->k * p->period_ms);
+    p->period = (uint32_t)lrintf(1e6f * 256.0f / rate_hz);
+    p->at = (uint64_t)origin * PERIODIC_UNITS_PER_MS + (first_offset ? p->period : 0u);
+    p->next = (uint32_t)(p->at / PERIODIC_UNITS_PER_MS);
     p->enabled = 1;
 }
 
@@ -39,8 +40,8 @@ uint8_t periodic_due(periodic_t *p, uint32_t now)
     if (!p->enabled || (int32_t)(now - p->next) < 0)
         return 0;
     while ((int32_t)(now - p->next) >= 0) {
-        p->k++;
-        p->next = p->origin + (uint32_t)lrintf((float)p->k * p->period_ms);
+        p->at += p->period;
+        p->next = (uint32_t)(p->at / PERIODIC_UNITS_PER_MS);
     }
     return 1;
 }
