@@ -63,7 +63,8 @@ int main(void)
             break;
         }
         case DEFRAME_BAD: {
-            uint8_t raw[4] = {0xBA, deframer.last_bad, deframer.last_where.field, deframer.last_where.element};
+            uint8_t raw[4] = {0xBA, deframer.last_bad, deframer.last_where.field,
+                              deframer.last_where.element};
             send_cobs(raw, 4);
             break;
         }

@@ -87,8 +87,8 @@ void host_deframer_counters(void *p, uint32_t *out)
 
 /* ------------------------------------------------------------------ reassembler */
 void *host_reasm_new(uint16_t max_len);
-int host_reasm_feed(void *r, uint8_t unit, uint8_t transfer_id, uint8_t index, uint8_t count, uint16_t total_len,
-                    uint16_t set_crc, const uint8_t *chunk, uint8_t chunk_len);
+int host_reasm_feed(void *r, uint8_t unit, uint8_t transfer_id, uint8_t index, uint8_t count,
+                    uint16_t total_len, uint16_t set_crc, const uint8_t *chunk, uint8_t chunk_len);
 const uint8_t *host_reasm_buf(void *r);
 
 void *host_reasm_new(uint16_t max_len)
@@ -99,8 +99,8 @@ void *host_reasm_new(uint16_t max_len)
     return r;
 }
 
-int host_reasm_feed(void *r, uint8_t unit, uint8_t transfer_id, uint8_t index, uint8_t count, uint16_t total_len,
-                    uint16_t set_crc, const uint8_t *chunk, uint8_t chunk_len)
+int host_reasm_feed(void *r, uint8_t unit, uint8_t transfer_id, uint8_t index, uint8_t count,
+                    uint16_t total_len, uint16_t set_crc, const uint8_t *chunk, uint8_t chunk_len)
 {
     calibration_data_t m;
     memset(&m, 0, sizeof m);
@@ -119,7 +119,8 @@ const uint8_t *host_reasm_buf(void *r) { return ((reassembler_t *)r)->buf; }
 
 /* ------------------------------------------------------------------ answer cache */
 void *host_answers_new(void);
-int host_answers_lookup(void *c, uint8_t msg_id, uint8_t seq, uint8_t flags, const uint8_t *payload, uint8_t len);
+int host_answers_lookup(void *c, uint8_t msg_id, uint8_t seq, uint8_t flags, const uint8_t *payload,
+                        uint8_t len);
 void host_answers_remember(void *c, uint8_t msg_id, uint8_t seq, const uint8_t *payload, uint8_t len,
                            uint8_t answer);
 
@@ -138,7 +139,8 @@ static frame_t frame_of(uint8_t msg_id, uint8_t seq, uint8_t flags, const uint8_
 }
 
 /* -1: execute it; else the remembered answer */
-int host_answers_lookup(void *c, uint8_t msg_id, uint8_t seq, uint8_t flags, const uint8_t *payload, uint8_t len)
+int host_answers_lookup(void *c, uint8_t msg_id, uint8_t seq, uint8_t flags, const uint8_t *payload,
+                        uint8_t len)
 {
     frame_t f = frame_of(msg_id, seq, flags, payload, len);
     uint8_t answer;
@@ -161,9 +163,10 @@ int host_config_parse(const uint8_t *block, float *numbers, char *serial, uint8_
 {
     board_config_t c;
     config_status_t st = config_parse(block, &c, problem);
-    float v[] = {c.n_units, c.frame_rate_hz, c.telemetry_rate_hz, c.heartbeat_rate_hz, c.link_timeout_ms,
-                 c.mcu_watchdog_ms, c.rotor_safe_us, c.ppm, c.cells, c.warn_v_cell, c.limit_v_cell,
-                 c.shed_v_cell, (float)c.baud};
+    float v[] = {c.n_units,         c.frame_rate_hz,   c.telemetry_rate_hz, c.heartbeat_rate_hz,
+                 c.link_timeout_ms, c.mcu_watchdog_ms, c.rotor_safe_us,     c.ppm,
+                 c.cells,           c.warn_v_cell,     c.limit_v_cell,      c.shed_v_cell,
+                 (float)c.baud};
     memcpy(numbers, v, sizeof v);
     strcpy(serial, c.serial);
     return st;

@@ -43,7 +43,7 @@ typedef struct {
     uint32_t rxq_head, rxq_tail;
     uint8_t txq[4096];
     uint32_t txq_len;
-    uint64_t bytes_in, bytes_out, dropped_out, corrupted, dropped;
+    uint64_t bytes_in, bytes_out, dropped_out, corrupted, dropped, lag_resets;
 
     /* power */
     double battery_ocv_v, battery_ohm, ubec_set_v, ubec_dropout_v, bod_v, bod_release_v;

@@ -39,7 +39,8 @@
 
 static const char USAGE[] =
     "usage: avr-harness [options] FIRMWARE.elf\n"
-    "Run an ATmega2560 firmware on simavr with UART0 on a new pseudo-terminal (its path: first stdout line).\n"
+    "Run an ATmega2560 firmware on simavr with UART0 on a new pseudo-terminal (its path: first stdout "
+    "line).\n"
     "\n"
     "  --freq HZ            CPU clock (default 16000000)\n"
     "  --unpaced            run as fast as the host allows (default: paced to wall time)\n"
@@ -203,10 +204,18 @@ static double wall_seconds(void)
     return (double)ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
-/* Paced mode: wait until wall time reaches `sim_s` (relative to the start), waking early for input. */
-static void pace(harness_t *h, double wall0, double sim_s, int control)
+/* Paced mode: wait until wall time reaches `sim_s` (relative to *wall0), waking early for input. When the
+ * host could not run us for a while (behind by more than MAX_LAG_S), simulated time does not race to
+ * catch up: that would squeeze seconds of board time into milliseconds of wall time in which no host
+ * byte can arrive, and trip the link watchdog for nothing. Instead the board's clock falls behind. */
+#define MAX_LAG_S 0.02
+static void pace(harness_t *h, double *wall0, double sim_s, int control)
 {
-    double ahead = sim_s - (wall_seconds() - wall0);
+    double ahead = sim_s - (wall_seconds() - *wall0);
+    if (ahead < -MAX_LAG_S) {
+        *wall0 += ahead;
+        h->lag_resets++;
+    }
     if (ahead <= 0)
         return;
     struct pollfd fds[2] = {{.fd = h->master, .events = POLLIN}, {.fd = STDIN_FILENO, .events = POLLIN}};
@@ -217,14 +226,22 @@ static void pace(harness_t *h, double wall0, double sim_s, int control)
 int main(int argc, char **argv)
 {
     static const struct option opts[] = {
-        {"freq", required_argument, 0, 'f'},    {"unpaced", no_argument, 0, 'u'},
-        {"duration", required_argument, 0, 'd'}, {"link", required_argument, 0, 'l'},
-        {"record", required_argument, 0, 'r'},  {"eeprom", required_argument, 0, 'e'},
-        {"battery", required_argument, 0, 'b'}, {"battery-ohm", required_argument, 0, 'o'},
-        {"rotor-amps", required_argument, 0, 'a'}, {"sag", required_argument, 0, 's'},
-        {"hang-at", required_argument, 0, 'H'}, {"corrupt", required_argument, 0, 'c'},
-        {"drop", required_argument, 0, 'p'},    {"seed", required_argument, 0, 'S'},
-        {"control", no_argument, 0, 'C'},       {"help", no_argument, 0, 'h'},
+        {"freq", required_argument, 0, 'f'},
+        {"unpaced", no_argument, 0, 'u'},
+        {"duration", required_argument, 0, 'd'},
+        {"link", required_argument, 0, 'l'},
+        {"record", required_argument, 0, 'r'},
+        {"eeprom", required_argument, 0, 'e'},
+        {"battery", required_argument, 0, 'b'},
+        {"battery-ohm", required_argument, 0, 'o'},
+        {"rotor-amps", required_argument, 0, 'a'},
+        {"sag", required_argument, 0, 's'},
+        {"hang-at", required_argument, 0, 'H'},
+        {"corrupt", required_argument, 0, 'c'},
+        {"drop", required_argument, 0, 'p'},
+        {"seed", required_argument, 0, 'S'},
+        {"control", no_argument, 0, 'C'},
+        {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
     harness_t *h = &H;
@@ -252,26 +269,62 @@ int main(int argc, char **argv)
 
     for (int c; (c = getopt_long(argc, argv, "h", opts, NULL)) != -1;) {
         switch (c) {
-        case 'f': h->freq = (uint32_t)number("--freq", optarg, 1e5, 1e8); break;
-        case 'u': paced = 0; break;
-        case 'd': duration = number("--duration", optarg, 0, 1e9); break;
-        case 'l': link = optarg; break;
-        case 'r': record = optarg; break;
-        case 'e': eeprom = optarg; break;
-        case 'b': h->battery_ocv_v = number("--battery", optarg, 0, 60); break;
-        case 'o': h->battery_ohm = number("--battery-ohm", optarg, 0, 10); break;
-        case 'a': h->rotor_full_a = number("--rotor-amps", optarg, 0, 100); break;
-        case 's': if (parse_sag(h, optarg) < 0) return 2; break;
+        case 'f':
+            h->freq = (uint32_t)number("--freq", optarg, 1e5, 1e8);
+            break;
+        case 'u':
+            paced = 0;
+            break;
+        case 'd':
+            duration = number("--duration", optarg, 0, 1e9);
+            break;
+        case 'l':
+            link = optarg;
+            break;
+        case 'r':
+            record = optarg;
+            break;
+        case 'e':
+            eeprom = optarg;
+            break;
+        case 'b':
+            h->battery_ocv_v = number("--battery", optarg, 0, 60);
+            break;
+        case 'o':
+            h->battery_ohm = number("--battery-ohm", optarg, 0, 10);
+            break;
+        case 'a':
+            h->rotor_full_a = number("--rotor-amps", optarg, 0, 100);
+            break;
+        case 's':
+            if (parse_sag(h, optarg) < 0)
+                return 2;
+            break;
         case 'H':
-            if (h->n_hangs == MAX_HANGS) { fprintf(stderr, "avr-harness: too many --hang-at\n"); return 2; }
+            if (h->n_hangs == MAX_HANGS) {
+                fprintf(stderr, "avr-harness: too many --hang-at\n");
+                return 2;
+            }
             h->hangs[h->n_hangs++] = number("--hang-at", optarg, 0, 1e9);
             break;
-        case 'c': h->corrupt = number("--corrupt", optarg, 0, 1); break;
-        case 'p': h->drop = number("--drop", optarg, 0, 1); break;
-        case 'S': h->rng ^= (uint64_t)number("--seed", optarg, 0, 1e18) * 0x2545F4914F6CDD1DULL; break;
-        case 'C': control = 1; break;
-        case 'h': fputs(USAGE, stderr); return 0;
-        default: fputs(USAGE, stderr); return 2;
+        case 'c':
+            h->corrupt = number("--corrupt", optarg, 0, 1);
+            break;
+        case 'p':
+            h->drop = number("--drop", optarg, 0, 1);
+            break;
+        case 'S':
+            h->rng ^= (uint64_t)number("--seed", optarg, 0, 1e18) * 0x2545F4914F6CDD1DULL;
+            break;
+        case 'C':
+            control = 1;
+            break;
+        case 'h':
+            fputs(USAGE, stderr);
+            return 0;
+        default:
+            fputs(USAGE, stderr);
+            return 2;
         }
     }
     if (optind != argc - 1) {
@@ -331,7 +384,7 @@ int main(int argc, char **argv)
 
     const uint64_t slice = (uint64_t)(h->freq * SLICE_S);
     const uint64_t flush_every = (uint64_t)(h->freq * FLUSH_S);
-    const double wall0 = wall_seconds();
+    double wall0 = wall_seconds();
     int status = 0;
     while (!stop_requested) {
         double t = harness_seconds(h);
@@ -368,7 +421,7 @@ int main(int argc, char **argv)
         if (control && control_service(h, out))
             break;
         if (paced)
-            pace(h, wall0, harness_seconds(h), control);
+            pace(h, &wall0, harness_seconds(h), control);
     }
 done:
     record_flush(h);
@@ -377,8 +430,9 @@ done:
     if (eeprom && eeprom_io(h, eeprom, 1) < 0)
         status = status ? status : 1;
     bridge_close(h, link);
-    fprintf(stderr, "avr-harness: stopped at %.3f s; %llu bytes in, %llu out, %llu dropped\n", harness_seconds(h),
-            (unsigned long long)h->bytes_in, (unsigned long long)h->bytes_out,
-            (unsigned long long)h->dropped_out);
+    fprintf(stderr,
+            "avr-harness: stopped at %.3f s; %llu bytes in, %llu out, %llu dropped; %llu lag resets\n",
+            harness_seconds(h), (unsigned long long)h->bytes_in, (unsigned long long)h->bytes_out,
+            (unsigned long long)h->dropped_out, (unsigned long long)h->lag_resets);
     return status;
 }

@@ -47,7 +47,7 @@ typedef struct {
     uint16_t raw_cmd[MAX_HW_CHANNELS];
     uint8_t have_raw;
     uint16_t outputs[MAX_HW_CHANNELS]; /* widths on the pins (us; 0: no pulse) */
-    unit_state_t units[MAX_HW_UNITS]; /* open-loop estimates from the outputs (no sensors on the units) */
+    unit_state_t units[MAX_HW_UNITS];  /* open-loop estimates from the outputs (no sensors on the units) */
     power_reading_t power;
     power_manager_t pm;
     power_params_t power_params;

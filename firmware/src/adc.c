@@ -12,7 +12,7 @@
 
 static volatile uint32_t sums[CHANNELS]; /* of completed rounds only */
 static volatile uint16_t samples;
-static uint16_t round_counts[CHANNELS];   /* the round being converted (ISR only) */
+static uint16_t round_counts[CHANNELS]; /* the round being converted (ISR only) */
 static volatile uint8_t channel, busy;
 
 static void select(uint8_t ch)
@@ -30,7 +30,10 @@ static uint16_t blocking(uint8_t ch)
     return ADC;
 }
 
-static uint32_t pin_mv(uint32_t counts_sum, uint16_t n) { return counts_sum * ADC_REF_MV / ADC_FULL_SCALE / n; }
+static uint32_t pin_mv(uint32_t counts_sum, uint16_t n)
+{
+    return counts_sum * ADC_REF_MV / ADC_FULL_SCALE / n;
+}
 
 static void scale(const uint32_t *s, uint16_t n, power_reading_t *out)
 {
@@ -47,7 +50,7 @@ static void scale(const uint32_t *s, uint16_t n, power_reading_t *out)
 
 void adc_init(power_reading_t *first)
 {
-    DIDR0 = 0x0F; /* digital input buffers off on ADC0..3 */
+    DIDR0 = 0x0F;                                              /* digital input buffers off on ADC0..3 */
     ADCSRA = _BV(ADEN) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0); /* 125 kHz ADC clock */
     uint32_t s[CHANNELS];
     blocking(0); /* the first conversion after enabling is the long one: discard it */

@@ -62,8 +62,8 @@ typedef struct {
 
 typedef struct {
     uint16_t pulse_us;
-    float arg;    /* battery volts or gimbal mode the value was computed for */
-    float value;  /* rotor: steady speed rad/s; gimbal: rate rad/s or angle rad the pulse stands for */
+    float arg;   /* battery volts or gimbal mode the value was computed for */
+    float value; /* rotor: steady speed rad/s; gimbal: rate rad/s or angle rad the pulse stands for */
     uint8_t valid;
 } value_cache_t;
 
@@ -113,7 +113,8 @@ static uint8_t convert_step(void)
             return 1;
         }
         conv_cache_t *r = &rotor_conv[u];
-        if (armed_converting() && (!r->valid || r->input != board.rotor_cmd[u] || r->arg != board.conversion_v)) {
+        if (armed_converting() &&
+            (!r->valid || r->input != board.rotor_cmd[u] || r->arg != board.conversion_v)) {
             cal_conv_t c = cal_rotor_pulse_us(cal, board.rotor_cmd[u], board.conversion_v);
             *r = (conv_cache_t){board.rotor_cmd[u], board.conversion_v, to_us(c.value), c.clamp, 1};
             return 1;
@@ -124,12 +125,14 @@ static uint8_t convert_step(void)
         uint16_t rotor_us = board.outputs[2 * u + 1], gimbal_us = board.outputs[2 * u];
         value_cache_t *r = &rotor_target[u], *g = &gimbal_target[u];
         if (cal && rotor_us && (!r->valid || r->pulse_us != rotor_us || r->arg != board.conversion_v)) {
-            *r = (value_cache_t){rotor_us, board.conversion_v, cal_rotor_speed(cal, rotor_us, board.conversion_v).value, 1};
+            *r = (value_cache_t){rotor_us, board.conversion_v,
+                                 cal_rotor_speed(cal, rotor_us, board.conversion_v).value, 1};
             return 1;
         }
         float mode = (float)board.gimbal_mode;
         if (cal && gimbal_us && (!g->valid || g->pulse_us != gimbal_us || g->arg != mode)) {
-            *g = (value_cache_t){gimbal_us, mode, cal_gimbal_value(cal, gimbal_us, board.gimbal_mode).value, 1};
+            *g = (value_cache_t){gimbal_us, mode, cal_gimbal_value(cal, gimbal_us, board.gimbal_mode).value,
+                                 1};
             return 1;
         }
     }
@@ -154,7 +157,8 @@ static void compute_outputs(uint16_t *out)
         } else if (!cal) {
             g = 0;
         } else if (board.gimbal_mode == GIMBAL_MODE_RATE && board.gimbal_cmd[u] == 0.0f) {
-            g = to_us(cal_gimbal_pulse_us(cal, 0.0f, GIMBAL_MODE_RATE).value); /* the hold pulse: no solving */
+            g = to_us(
+                cal_gimbal_pulse_us(cal, 0.0f, GIMBAL_MODE_RATE).value); /* the hold pulse: no solving */
         } else {
             clamped |= gc->valid && gc->clamp != CAL_CLAMP_NONE && armed;
             g = gc->valid ? gc->us : board.outputs[2 * u];
@@ -378,8 +382,8 @@ static uint8_t cal_refused(uint8_t unit, const char *why_flash, const char *deta
     char why[48];
     strncpy_P(why, why_flash, sizeof why - 1);
     why[sizeof why - 1] = 0;
-    report_log(SEVERITY_ERROR, LOG_CODE_CALIBRATION, PSTR("calibration upload for unit %u refused: %s%s"), unit,
-               why, detail);
+    report_log(SEVERITY_ERROR, LOG_CODE_CALIBRATION, PSTR("calibration upload for unit %u refused: %s%s"),
+               unit, why, detail);
     return NACK_REASON_BAD_CALIBRATION;
 }
 
@@ -391,9 +395,10 @@ static uint8_t on_calibration_data(const calibration_data_t *m)
         return NACK_REASON_OUT_OF_RANGE;
     board.reasm.max_len = storage_cal_room(m->unit);
     reasm_status_t st = reasm_feed(&board.reasm, m);
-    static const char REASONS[] PROGMEM = "\0total_len larger than this board holds\0count does not fit total_len\0"
-                                          "index not below count\0chunk of the wrong size\0"
-                                          "fragment contradicts its transfer\0set CRC mismatch";
+    static const char REASONS[] PROGMEM =
+        "\0total_len larger than this board holds\0count does not fit total_len\0"
+        "index not below count\0chunk of the wrong size\0"
+        "fragment contradicts its transfer\0set CRC mismatch";
     if (st == REASM_PENDING)
         return 0;
     if (st != REASM_DONE) {
@@ -415,7 +420,8 @@ static uint8_t on_calibration_data(const calibration_data_t *m)
         return cal_refused(m->unit, PSTR("no room for the set in RAM"), "");
     forget_conversions(m->unit);
     board.outputs_dirty = 1;
-    report_log(SEVERITY_INFO, LOG_CODE_CALIBRATION, PSTR("calibration for unit %u stored (%u bytes)"), m->unit, len);
+    report_log(SEVERITY_INFO, LOG_CODE_CALIBRATION, PSTR("calibration for unit %u stored (%u bytes)"),
+               m->unit, len);
     return 0;
 }
 
@@ -460,7 +466,8 @@ static void on_answer(const frame_t *f)
         d->active = 0;
         char name[20];
         report_name(PSTR(NACK_REASON_NAMES), f->msg.nack.reason, name, sizeof name);
-        report_log(SEVERITY_WARNING, LOG_CODE_CALIBRATION, PSTR("host refused calibration fragment: %s"), name);
+        report_log(SEVERITY_WARNING, LOG_CODE_CALIBRATION, PSTR("host refused calibration fragment: %s"),
+                   name);
         return;
     }
     d->acked[i] = 1;
@@ -577,7 +584,8 @@ static void power_step(void)
         report_name(PSTR(POWER_STATE_NAMES), old, a, sizeof a);
         report_name(PSTR(POWER_STATE_NAMES), next, b, sizeof b);
         uint16_t mv_cell = (uint16_t)lrintf(board.pm.filtered_v_cell * 1000.0f);
-        report_log(next < old ? SEVERITY_INFO : (next >= POWER_STATE_SHED ? SEVERITY_ERROR : SEVERITY_WARNING),
+        report_log(next < old ? SEVERITY_INFO
+                              : (next >= POWER_STATE_SHED ? SEVERITY_ERROR : SEVERITY_WARNING),
                    LOG_CODE_POWER, PSTR("power %s -> %s (battery %u mV, %u mV/cell, rail %u mV)"), a, b,
                    board.power.battery_mv, mv_cell, board.power.ubec_mv);
     }
@@ -606,8 +614,9 @@ void app_boot(uint8_t reset_cause, config_status_t config, uint8_t config_proble
     board.power_params.shed_v_cell = c->shed_v_cell;
     board.power_params.hysteresis_v_cell = c->hysteresis_v_cell;
     board.power_params.cells = c->cells;
-    board.power_params.alpha =
-        c->filter_time_constant_s > 0.0f ? 1.0f - expf(-c->power_update_period_s / c->filter_time_constant_s) : 1.0f;
+    board.power_params.alpha = c->filter_time_constant_s > 0.0f
+                                   ? 1.0f - expf(-c->power_update_period_s / c->filter_time_constant_s)
+                                   : 1.0f;
     float frame_s = pulses_period_s();
     rotor_decay_up = expf(-frame_s / CFG_DEFAULT_MOTOR_TIME_CONSTANT_S);
     rotor_decay_down = expf(-frame_s / CFG_DEFAULT_MOTOR_COAST_TIME_CONSTANT_S);

@@ -5,7 +5,7 @@
 #include <avr/io.h>
 #include <util/atomic.h>
 
-#define TICKS_PER_MS (F_CPU / 64UL / 1000UL) /* Timer0 at F_CPU/64: 250 per ms */
+#define TICKS_PER_MS (F_CPU / 64UL / 1000UL)               /* Timer0 at F_CPU/64: 250 per ms */
 #define STOPWATCH_US_PER_TICK (1024UL * 1000000UL / F_CPU) /* Timer5 at F_CPU/1024: 64 us */
 
 static volatile uint32_t ms;

@@ -33,25 +33,25 @@ enum {
 
 /* Names of what config_parse found wrong, in the order above (index = *problem). */
 static const char PROBLEMS[] FLASH = "none\0"
-                                      "magic, version or CRC\0"
-                                      "n_units\0"
-                                      "frame_rate_hz\0"
-                                      "telemetry_rate_hz\0"
-                                      "heartbeat_rate_hz\0"
-                                      "link_timeout_s\0"
-                                      "mcu_watchdog_s\0"
-                                      "rotor_safe_us\0"
-                                      "ppm\0"
-                                      "cells\0"
-                                      "battery_resistance_ohm\0"
-                                      "warn/limit/shed_v_cell\0"
-                                      "hysteresis_v_cell\0"
-                                      "limit_throttle\0"
-                                      "brownout_release_v\0"
-                                      "filter_time_constant_s\0"
-                                      "power_update_period_s\0"
-                                      "ubec_current_limit_a\0"
-                                      "baud\0";
+                                     "magic, version or CRC\0"
+                                     "n_units\0"
+                                     "frame_rate_hz\0"
+                                     "telemetry_rate_hz\0"
+                                     "heartbeat_rate_hz\0"
+                                     "link_timeout_s\0"
+                                     "mcu_watchdog_s\0"
+                                     "rotor_safe_us\0"
+                                     "ppm\0"
+                                     "cells\0"
+                                     "battery_resistance_ohm\0"
+                                     "warn/limit/shed_v_cell\0"
+                                     "hysteresis_v_cell\0"
+                                     "limit_throttle\0"
+                                     "brownout_release_v\0"
+                                     "filter_time_constant_s\0"
+                                     "power_update_period_s\0"
+                                     "ubec_current_limit_a\0"
+                                     "baud\0";
 
 void config_problem_text(uint8_t problem, char *out, unsigned n) { flash_pick(PROBLEMS, problem, out, n); }
 
@@ -92,7 +92,8 @@ config_status_t config_parse(const uint8_t *b, board_config_t *cfg, uint8_t *pro
 
 static uint8_t parse(const uint8_t *b, board_config_t *cfg)
 {
-    if (wire_get_u16(b + CFG_OFF_MAGIC) != EEPROM_CONFIG_MAGIC || b[CFG_OFF_VERSION] != EEPROM_CONFIG_VERSION ||
+    if (wire_get_u16(b + CFG_OFF_MAGIC) != EEPROM_CONFIG_MAGIC ||
+        b[CFG_OFF_VERSION] != EEPROM_CONFIG_VERSION ||
         crc16_update(CRC16_INIT, b, CFG_OFF_CRC) != wire_get_u16(b + CFG_OFF_CRC))
         return BAD_BLOCK;
     board_config_t c;

@@ -81,8 +81,8 @@ reasm_status_t reasm_feed(reassembler_t *r, const calibration_data_t *m)
         return REASM_PENDING; /* a repeat of the set just completed */
     if (m->total_len > r->max_len)
         return fail(r, REASM_TOO_LONG);
-    uint16_t want_count = m->total_len ? (uint16_t)((m->total_len + MAX_CALIBRATION_CHUNK - 1u) / MAX_CALIBRATION_CHUNK)
-                                       : 1u;
+    uint16_t want_count =
+        m->total_len ? (uint16_t)((m->total_len + MAX_CALIBRATION_CHUNK - 1u) / MAX_CALIBRATION_CHUNK) : 1u;
     if (m->count != want_count)
         return fail(r, REASM_BAD_COUNT);
     if (m->index >= m->count)

@@ -26,7 +26,10 @@
 static msg_any_t out;
 static uint8_t wire[FRAME_MAX_WIRE];
 
-void report_name(const char *names_flash, uint8_t value, char *dst, unsigned n) { flash_pick(names_flash, value, dst, n); }
+void report_name(const char *names_flash, uint8_t value, char *dst, unsigned n)
+{
+    flash_pick(names_flash, value, dst, n);
+}
 
 /* seq < 0: the next sequence number; else a retransmission of that one. */
 void report_send(uint8_t msg_id, const void *msg, uint8_t flags, int16_t seq)
@@ -83,12 +86,15 @@ void report_hello_reply(void)
     m->state = board.state;
     m->n_units = board.cfg.n_units;
     m->frame_rate_hz = (uint16_t)lrintf(board.cfg.frame_rate_hz);
-    text_flash(&m->manufacturer.len, m->manufacturer.s, PSTR(IDENTITY_MANUFACTURER), HELLO_REPLY_MANUFACTURER_MAX_LEN);
+    text_flash(&m->manufacturer.len, m->manufacturer.s, PSTR(IDENTITY_MANUFACTURER),
+               HELLO_REPLY_MANUFACTURER_MAX_LEN);
     text_flash(&m->model.len, m->model.s, PSTR(IDENTITY_MODEL), HELLO_REPLY_MODEL_MAX_LEN);
-    text_flash(&m->description.len, m->description.s, PSTR(IDENTITY_DESCRIPTION), HELLO_REPLY_DESCRIPTION_MAX_LEN);
+    text_flash(&m->description.len, m->description.s, PSTR(IDENTITY_DESCRIPTION),
+               HELLO_REPLY_DESCRIPTION_MAX_LEN);
     text_flash(&m->version.len, m->version.s, PSTR(IDENTITY_VERSION), HELLO_REPLY_VERSION_MAX_LEN);
     text_flash(&m->uri.len, m->uri.s, PSTR(IDENTITY_URI), HELLO_REPLY_URI_MAX_LEN);
-    text_flash(&m->firmware_build.len, m->firmware_build.s, PSTR(FIRMWARE_BUILD), HELLO_REPLY_FIRMWARE_BUILD_MAX_LEN);
+    text_flash(&m->firmware_build.len, m->firmware_build.s, PSTR(FIRMWARE_BUILD),
+               HELLO_REPLY_FIRMWARE_BUILD_MAX_LEN);
     m->serial.len = (uint8_t)strnlen(board.cfg.serial, HELLO_REPLY_SERIAL_MAX_LEN);
     memcpy(m->serial.s, board.cfg.serial, m->serial.len);
     report_send(MSG_HELLO_REPLY, m, 0, -1);
@@ -168,7 +174,8 @@ void report_telemetry(uint32_t now)
     m->battery_mv = board.power.battery_mv;
     m->battery_ma = board.power.battery_ma;
     /* state of charge from the rest voltage: the loaded voltage plus the pack's I*R sag */
-    float rest_v_cell = board.pm.filtered_v_cell + board.power.battery_ma * 0.001f * board.cfg.battery_resistance_ohm /
+    float rest_v_cell = board.pm.filtered_v_cell + board.power.battery_ma * 0.001f *
+                                                       board.cfg.battery_resistance_ohm /
                                                        (float)board.cfg.cells;
     long soc = lrintf(power_soc(rest_v_cell) * 100.0f);
     m->battery_soc = (uint8_t)(soc < 0 ? 0 : (soc > 100 ? 100 : soc));

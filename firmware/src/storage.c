@@ -13,8 +13,8 @@ static uint16_t offsets[MAX_HW_UNITS], lengths[MAX_HW_UNITS];
 static uint8_t sources[MAX_HW_UNITS];
 static uint8_t units;
 static uint16_t slot_size;
-static uint8_t dirty;      /* units whose set must be written to EEPROM */
-static uint8_t writing;    /* unit being written (valid while write_step is set) */
+static uint8_t dirty;       /* units whose set must be written to EEPROM */
+static uint8_t writing;     /* unit being written (valid while write_step is set) */
 static uint16_t write_step; /* 0: idle; else 1 + the step of the write sequence */
 
 config_status_t storage_load_config(board_config_t *cfg, uint8_t *problem)
@@ -24,7 +24,10 @@ config_status_t storage_load_config(board_config_t *cfg, uint8_t *problem)
     return config_parse(block, cfg, problem);
 }
 
-static uint16_t slot_address(uint8_t unit) { return (uint16_t)(EEPROM_CAL_BASE + (uint16_t)unit * slot_size); }
+static uint16_t slot_address(uint8_t unit)
+{
+    return (uint16_t)(EEPROM_CAL_BASE + (uint16_t)unit * slot_size);
+}
 
 static uint16_t pool_used(void)
 {
@@ -91,7 +94,10 @@ void storage_load_calibrations(uint8_t n_units)
     }
 }
 
-cal_source_t storage_cal_source(uint8_t unit) { return unit < units ? (cal_source_t)sources[unit] : CAL_SOURCE_MISSING; }
+cal_source_t storage_cal_source(uint8_t unit)
+{
+    return unit < units ? (cal_source_t)sources[unit] : CAL_SOURCE_MISSING;
+}
 
 const uint8_t *storage_cal(uint8_t unit, uint16_t *len)
 {
@@ -133,7 +139,7 @@ uint8_t storage_service(void)
             return 0;
         for (writing = 0; !(dirty & (1u << writing)); writing++)
             ;
-        dirty &= (uint8_t)~(1u << writing);
+        dirty &= (uint8_t) ~(1u << writing);
         write_step = 1;
     }
     if (!eeprom_is_ready())

@@ -297,7 +297,7 @@ class AvrBoard:
         return len(free) - len(free.lstrip(bytes([STACK_PAINT])))
 
     def link_stats(self) -> dict[str, int]:
-        names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped")
+        names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped", "lag_resets")
         return dict(zip(names, (int(w) for w in self.command("stats")), strict=True))
 
 
