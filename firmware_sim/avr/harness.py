@@ -12,6 +12,7 @@ Times are the harness's: CPU cycles / 16 MHz since power-on, running on through 
 from __future__ import annotations
 
 import contextlib
+import queue
 import subprocess
 import tempfile
 import threading
@@ -125,12 +126,20 @@ class AvrBoard:
             text=True,
         )
         self._stderr: list[str] = []
-        self._stderr_thread = threading.Thread(target=self._drain_stderr, daemon=True)
-        self._stderr_thread.start()
-        self.port = self._read_line(_START_TIMEOUT_S, "its pty path")
-        if not self.port.startswith("/dev/"):
+        self._lines: queue.Queue[str] = queue.Queue()
+        self._threads = [
+            threading.Thread(target=self._drain_stderr, daemon=True),
+            threading.Thread(target=self._read_stdout, daemon=True),
+        ]
+        for t in self._threads:
+            t.start()
+        try:
+            self.port = self._read_line(_START_TIMEOUT_S, "its pty path")
+            if not self.port.startswith("/dev/"):
+                raise LinkError(f"avr-harness did not print a pty path: {self.port!r}")
+        except BaseException:
             self.close()
-            raise LinkError(f"avr-harness did not print a pty path: {self.port!r}")
+            raise
         n_channels = 2 * self.config.n_units
         self._records = RecordReader(
             self._record_path,
@@ -151,16 +160,24 @@ class AvrBoard:
                 self._stderr.append(line.rstrip())
                 del self._stderr[:-50]
 
-    def _read_line(self, timeout: float, what: str) -> str:
+    def _read_stdout(self) -> None:
+        """The harness's stdout, line by line, into a queue (an empty line: it closed its stdout)."""
         proc = self._proc
-        assert proc is not None and proc.stdout is not None
-        out: list[str] = []
-        reader = threading.Thread(target=lambda: out.append(proc.stdout.readline()), daemon=True)  # type: ignore[union-attr]
-        reader.start()
-        reader.join(timeout)
-        if not out or not out[0]:
+        if proc is None or proc.stdout is None:
+            return
+        with proc.stdout:
+            for line in proc.stdout:
+                self._lines.put(line.strip())
+        self._lines.put("")
+
+    def _read_line(self, timeout: float, what: str) -> str:
+        try:
+            line = self._lines.get(timeout=timeout)
+        except queue.Empty:
+            line = ""
+        if not line:
             self._died(f"no answer ({what}) within {timeout} s")
-        return out[0].strip()
+        return line
 
     def _died(self, why: str) -> None:
         proc = self._proc
@@ -207,11 +224,11 @@ class AvrBoard:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-            self._stderr_thread.join(timeout=5)
-            for stream in (proc.stdin, proc.stdout):
-                if stream is not None:
-                    with contextlib.suppress(OSError):
-                        stream.close()
+            for t in self._threads:
+                t.join(timeout=5)
+            if proc.stdin is not None:
+                with contextlib.suppress(OSError):
+                    proc.stdin.close()
         self._dir.cleanup()
 
     def __enter__(self) -> AvrBoard:

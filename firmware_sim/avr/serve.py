@@ -1,9 +1,9 @@
 """``firmware-sim --avr``: serve the board firmware on simavr behind a pty, from firmware-sim's options.
 
 The board options (units, rates, timeouts, battery) become the firmware's EEPROM configuration block;
-the fault options the harness can reproduce become harness options. Faults a real board cannot have
-injected from outside (a link stall is the host's business; a dead ESC needs an ESC model) are
-refused with a clear error rather than silently ignored.
+the fault options the harness can reproduce become harness options. What the harness does not model
+(a link stall, extra pack resistance, a dead ESC, battery capacity) is refused with a clear error
+rather than silently ignored.
 """
 
 from __future__ import annotations
