@@ -23,13 +23,16 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
     """The harness options for firmware-sim's command line (times relative to the harness's start)."""
     from ..cli import parse_sag
 
-    for flag, value in (
+    unsupported = (
         ("--stall", args.stall),
         ("--sag-ohms", args.sag_ohms),
         ("--dead-esc", args.dead_esc),
-    ):
-        if value:
-            raise ConfigError("not available with --avr (the harness cannot inject it)", flag)
+        ("--capacity", args.capacity != 1000.0),  # the harness's battery has a voltage, not a charge
+        ("--no-hold", args.no_hold),  # the harness always holds the pty open for a host that comes back
+    )
+    for flag, given in unsupported:
+        if given:
+            raise ConfigError("not available with --avr (the harness does not model it)", flag)
     sags = []
     for spec in args.sag:
         volts, at, ramp = parse_sag(spec)
