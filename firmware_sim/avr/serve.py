@@ -21,13 +21,13 @@ from .paths import FIRMWARE_ELF
 
 def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessOptions:
     """The harness options for firmware-sim's command line (times relative to the harness's start)."""
-    from ..cli import parse_sag
+    from ..cli import build_parser, parse_sag
 
     unsupported = (
         ("--stall", args.stall),
         ("--sag-ohms", args.sag_ohms),
         ("--dead-esc", args.dead_esc),
-        ("--capacity", args.capacity != 1000.0),  # the harness's battery has a voltage, not a charge
+        ("--capacity", args.capacity != build_parser().get_default("capacity")),  # no charge modelled
         ("--no-hold", args.no_hold),  # the harness always holds the pty open for a host that comes back
     )
     for flag, given in unsupported:
