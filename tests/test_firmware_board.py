@@ -91,6 +91,17 @@ def test_an_uploaded_calibration_drives_the_outputs_and_survives_a_reset(board, 
     rotor = [UPLOADED.rotor_pulse_us(350.0, volts + dv).value for dv in (-0.1, 0.1)]
     assert min(rotor) - 1 <= tel.pulses_us[3] <= max(rotor) + 1
     assert tel.pulses_us[2] != tel.pulses_us[0]  # unit 0 still on the default set
+    assert all(u.rotor_speed > 100.0 for u in tel.units)  # the estimates follow the outputs
+    angle = ActuatorSetpoint(
+        gimbal_mode=GimbalMode.ANGLE, units=tuple(UnitSetpoint(0.5, 0.0) for _ in range(4))
+    )
+    host.keepalive = lambda: angle
+    host.poll(0.6)
+    tel = host.wait_type(Telemetry, 1.0)
+    assert abs(tel.pulses_us[2] - UPLOADED.gimbal_pulse_us(0.5, GimbalMode.ANGLE).value) <= 1.0
+    assert abs(tel.units[1].gimbal_angle - 0.5) < 0.02 and tel.pulses_us[3] == round(
+        UPLOADED.rotor.esc.low_us
+    )
     host.keepalive = heartbeat
     assert isinstance(host.request(Disarm()), Ack)
     host.poll(0.3)  # the EEPROM is written in the background
