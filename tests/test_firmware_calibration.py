@@ -7,6 +7,7 @@ every set Python accepts and refuse the malformed ones Python refuses.
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 
@@ -16,6 +17,7 @@ from hypothesis import given, settings
 from test_calibration_strategies import unit_calibrations
 
 from firmware_sim.avr.hostlib import cal_call, cal_status_text, cal_validate
+from hil.paths import FIXTURES
 from protocol.calibration import UnitCalibration, default_unit_calibration
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import CalibrationError
@@ -65,6 +67,33 @@ def check_maps(cal: UnitCalibration, speeds, volts, rates, angles, pulses) -> No
             _close(
                 cal_call("gimbal_value", data, p, mode), cal.gimbal_value(p, m), 1e-5, f"value {p} mode {m}"
             )
+
+
+CAL_VECTORS = json.loads((FIXTURES / "calibration" / "vectors.json").read_text())
+CLAMPS = {"NONE": 0, "LOW": 1, "HIGH": 2}
+
+
+@pytest.mark.parametrize("vector_set", CAL_VECTORS["sets"], ids=lambda v: v["name"])
+def test_the_calibration_vectors_pass_in_c(vector_set):
+    """docs/calibration.md §6: every clamp matches, every value within the stated tolerance."""
+    tol = CAL_VECTORS["tolerance"]
+    data = bytes.fromhex(vector_set["hex"])
+    assert len(data) == vector_set["size"] and cal_validate(data)[0] == 0
+    for case in vector_set["cases"]:
+        value, clamp = cal_call(case["fn"], data, *case["in"])
+        assert clamp == CLAMPS[case["clamp"]], case
+        want = case["out"]
+        if case["fn"] == "rotor_speed":
+            assert math.isclose(value, want, rel_tol=tol["rotor_speed_relative"], abs_tol=1e-9), case
+        elif case["fn"] == "gimbal_value":
+            assert abs(value - want) <= tol["gimbal_rate_rad_s"], case
+        else:
+            assert abs(value - want) <= tol["pulse_us"], case
+
+
+@pytest.mark.parametrize("bad", CAL_VECTORS["malformed"], ids=lambda v: v["what"])
+def test_the_malformed_calibration_vectors_are_refused_in_c(bad):
+    assert cal_validate(bytes.fromhex(bad["hex"]))[0] != 0
 
 
 def test_default_set_is_valid_and_converts_like_python():
