@@ -309,13 +309,13 @@ class Layout:
         for step in self._steps:
             if isinstance(step, _StructRun):
                 values = step.values_of(obj)
-                for v, (lo, hi), fast, codec, name in zip(
+                for v, (lo, hi), fast, scalar, field_name in zip(
                     values, step.bounds, step.fast_types, step.codecs, step.names, strict=True
                 ):
                     if type(v) is fast and lo <= v <= hi:
                         continue
-                    if not codec.check(v):
-                        raise FieldRangeError(where, name, v)
+                    if not scalar.check(v):
+                        raise FieldRangeError(where, field_name, v)
                 out += step.packer.pack(*values)  # struct takes int subclasses (IntEnum) as they are
                 continue
             name, codec = step
@@ -323,6 +323,7 @@ class Layout:
             if isinstance(codec, Array):
                 self._encode_array(codec, v, out, where, name)
             else:
+                assert isinstance(codec, (Text, Blob))  # scalars are always in a struct run
                 if not codec.check(v):
                     raise FieldRangeError(where, name, v)
                 codec.encode(v, out)
@@ -354,25 +355,25 @@ class Layout:
                 end = offset + step.packer.size
                 if end > len(buf):
                     raise PayloadLengthError(f"{where}: payload ends inside {step.names[0]}")
-                values = step.packer.unpack_from(buf, offset)
+                unpacked = step.packer.unpack_from(buf, offset)
                 offset = end
                 # Unpacked values are exactly int or float: the bounds are the whole check.
-                for v, (lo, hi), name in zip(values, step.bounds, step.names, strict=True):
+                for v, (lo, hi), field_name in zip(unpacked, step.bounds, step.names, strict=True):
                     if not lo <= v <= hi:
-                        raise FieldRangeError(where, name, v)
-                if step.enums:
-                    values = list(values)
-                    for i, codec in step.enums:
-                        if not codec.check(values[i]):
-                            raise FieldRangeError(where, step.names[i], values[i])
-                        values[i] = codec.from_wire(values[i])
-                kwargs.update(zip(step.names, values, strict=True))
+                        raise FieldRangeError(where, field_name, v)
+                kwargs.update(zip(step.names, unpacked, strict=True))
+                for i, enum_codec in step.enums:
+                    field_name, v = step.names[i], unpacked[i]
+                    if not enum_codec.check(v):
+                        raise FieldRangeError(where, field_name, v)
+                    kwargs[field_name] = enum_codec.from_wire(v)
                 continue
             name, codec = step
             try:
                 if isinstance(codec, Array):
                     kwargs[name], offset = self._decode_array(codec, buf, offset, where, name)
                 else:
+                    assert isinstance(codec, (Text, Blob))  # scalars are always in a struct run
                     kwargs[name], offset = codec.decode(buf, offset)
             except _Short:
                 raise PayloadLengthError(f"{where}: payload ends inside {name}") from None
