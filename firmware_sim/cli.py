@@ -33,6 +33,9 @@ examples:
   firmware-sim --duration 30 -v                 stop after 30 s, log state changes
   firmware-sim --avr                            the real firmware (firmware/) on simavr's ATmega2560
   firmware-sim --avr --eeprom board.eep         ... keeping its EEPROM (uploaded calibrations) in a file
+  firmware-sim --can udp_multicast/239.74.163.2?port=43113
+                                                serve on a CAN bus instead (prints the host's URL)
+  hil run --port can://udp_multicast/239.74.163.2?port=43113   (in another terminal) drive it
 
 Times are seconds since start on the board's clock. Channels: gimbal 0, rotor 0, gimbal 1, rotor 1, ...
 """
@@ -58,6 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the board firmware on simavr instead of the emulator (default: firmware/build/*.elf)",
     )
     p.add_argument("--eeprom", metavar="FILE", help="with --avr: the board's EEPROM, loaded and saved back")
+    p.add_argument(
+        "--can",
+        metavar="INTERFACE/CHANNEL[?OPTIONS]",
+        help="serve on a python-can bus instead of a pty (options as in can:// URLs: node, fd, port, ...)",
+    )
     p.add_argument(
         "--no-hold",
         action="store_true",
@@ -218,6 +226,8 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.can is not None and (args.link or args.no_hold or args.avr is not None):
+        parser.error("--can serves a CAN bus: it cannot be combined with --link, --no-hold or --avr")
     level = logging.WARNING - 10 * min(args.verbose + 1, 2)
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
@@ -230,11 +240,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         except HilError as exc:
             print(f"firmware-sim: error: {exc}", file=sys.stderr)
             return 2
+    from .can_server import CanServer
     from .pty_server import PtyServer
 
     try:
         board = make_board(args)
-        server = PtyServer(board, link=args.link, hold_slave=not args.no_hold)
+        server: PtyServer | CanServer
+        if args.can is not None:
+            server = CanServer(board, args.can)
+        else:
+            server = PtyServer(board, link=args.link, hold_slave=not args.no_hold)
     except HilError as exc:
         print(f"firmware-sim: error: {exc}", file=sys.stderr)
         return 2

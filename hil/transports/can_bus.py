@@ -1,0 +1,205 @@
+"""A CAN bus through python-can, presented as the byte stream every other transport is.
+
+URL: ``can://<interface>/<channel>[?options]``, the interface being any python-can backend by name::
+
+    can://virtual/vscmg                       in-process bus (tests, the lockstep world)
+    can://udp_multicast/239.74.163.2?port=43113   across processes on one machine (IPv4 group)
+    can://socketcan/can0?fd=1                 a Linux CAN interface, CAN FD
+    can://pcan/PCAN_USBBUS1?bitrate=500000    a PEAK adapter at 500 kbit/s
+    can://slcan//dev/ttyACM0?bitrate=1000000  a serial-line adapter (the channel is a device path)
+
+=================  ========================================================================
+option             meaning
+=================  ========================================================================
+``node``           the board's node id 0..127 (default 0); host and board use the same one
+``fd``             1: CAN FD frames (64 data bytes), 0: classic CAN (default)
+``bitrate``        nominal bit rate in bit/s, for hardware interfaces
+``data_bitrate``   CAN FD data-phase bit rate in bit/s
+``port``           UDP port of ``udp_multicast`` (python-can's default otherwise)
+``send_timeout``   seconds a send may wait for room in the interface's queue (default 0.1)
+=================  ========================================================================
+
+Other interface settings (a Vector app name, a Kvaser serial number, ...) come from python-can's own
+configuration file or environment, which ``can.Bus`` reads for the interface named here; an option this
+transport does not know is an error, so a typo never passes silently.
+
+What travels: the protocol's wire bytes, cut by :mod:`protocol.can` (one 11-bit arbitration id per
+priority class, direction and node; segments of 7 or 63 bytes). :meth:`write` takes any bytes, splits
+them at the 0x00 delimiters and sends each complete frame as its segments (a partial frame waits for the
+rest of its bytes); :meth:`read` hands up the wire frames the reassembler completed, so the deframer
+above sees exactly what a serial link would give it. Lost and incomplete frames, duplicates and foreign
+traffic are counted in :meth:`counters`, never delivered. A host sends towards the board
+(``Direction.TO_BOARD``) and accepts the board's direction only; the board's side
+(:mod:`firmware_sim.can_server`) is the same class with ``sends=Direction.TO_HOST``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass
+
+import can
+
+from protocol.can import MAX_WIRE, NODE_MAX, CanReassembler, CanSegmenter, Direction
+from protocol.errors import LinkError, ProtocolError, TransportError
+
+from .base import Transport, UrlOptions
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_SEND_TIMEOUT_S = 0.1
+_DRAIN = 512  # CAN messages taken per read after the first complete frame (bounded work per call)
+
+
+@dataclass
+class CanTxStats:
+    """What this end has sent. ``frames_dropped``: a send timed out (the interface queue stayed full),
+    so the rest of that frame was not sent; ``not_frames``: written bytes that were not a wire frame."""
+
+    frames_sent: int = 0
+    segments_sent: int = 0
+    frames_dropped: int = 0
+    not_frames: int = 0
+
+
+class CanTransport(Transport):
+    """The protocol's byte stream over one python-can bus; see the module docstring.
+
+    ``sends`` is this end's direction: a host (the default) sends ``TO_BOARD`` and receives ``TO_HOST``."""
+
+    scheme = "can"
+
+    def __init__(self, url: str, sends: Direction = Direction.TO_BOARD) -> None:
+        super().__init__(url)
+        opts = UrlOptions(url)
+        self.interface = opts.netloc
+        self.channel = opts.path[1:]  # the one "/" after the interface separates it from the channel
+        if not self.interface or not self.channel:
+            raise TransportError(f"{url}: expected can://<interface>/<channel>, e.g. can://virtual/vscmg")
+        self.node = opts.get_int("node", 0)
+        if not 0 <= self.node <= NODE_MAX:
+            raise TransportError(f"{url}: node={self.node} is outside 0..{NODE_MAX}")
+        self.fd = opts.get_bool("fd", False)
+        self.send_timeout = opts.get_float("send_timeout", DEFAULT_SEND_TIMEOUT_S)
+        if not self.send_timeout >= 0:
+            raise TransportError(f"{url}: send_timeout={self.send_timeout} must be >= 0 s")
+        self._bus_options: dict[str, object] = {}
+        for key in ("bitrate", "data_bitrate", "port"):
+            if opts.get(key) is not None:
+                self._bus_options[key] = opts.get_int(key, 0)
+        opts.finish()
+        self.sends = Direction(sends)
+        receives = Direction.TO_HOST if self.sends is Direction.TO_BOARD else Direction.TO_BOARD
+        self._segmenter = CanSegmenter(self.node, self.sends, self.fd)
+        self._reassembler = CanReassembler(self.node, receives)
+        self._out = bytearray()
+        self.tx = CanTxStats()
+        self.error_frames = 0  # CAN error and remote frames seen (never data for us)
+        self._bus: can.BusABC | None = None
+
+    # ------------------------------------------------------------------ backend
+    def _open_impl(self) -> None:
+        try:
+            self._bus = can.Bus(
+                interface=self.interface, channel=self.channel, fd=self.fd, **self._bus_options
+            )
+        except (can.CanError, ImportError, NotImplementedError) as exc:
+            raise TransportError(
+                f"{self.url}: cannot open the {self.interface!r} CAN interface: {exc}"
+            ) from exc
+
+    def _read(self, timeout: float | None) -> bytes:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        out = bytearray()
+        taken = 0
+        while not out:  # wait for the first complete frame (or the deadline)
+            wait = None if deadline is None else max(deadline - time.monotonic(), 0.0)
+            msg = self._recv(wait)
+            if msg is None:
+                return b""
+            out += self._accept(msg)
+            taken += 1
+            if wait == 0.0 and taken >= _DRAIN:
+                break
+        for _ in range(_DRAIN):  # then whatever else is already queued
+            msg = self._recv(0.0)
+            if msg is None:
+                break
+            out += self._accept(msg)
+        return bytes(out)
+
+    def _write(self, data: bytes) -> None:
+        buf = self._out
+        buf += data
+        while (end := buf.find(0)) >= 0:
+            wire = bytes(buf[: end + 1])
+            del buf[: end + 1]
+            if len(wire) > 1:  # a lone 0x00 is idle fill
+                self._send_frame(wire)
+        if len(buf) > MAX_WIRE:  # no delimiter within a frame's length: not protocol bytes
+            self._not_a_frame(len(buf), "without a delimiter")
+            buf.clear()
+
+    def _close(self) -> None:
+        bus, self._bus = self._bus, None
+        self._out.clear()
+        self._reassembler.reset()  # partial frames die with the connection (counted as incomplete)
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except (can.CanError, OSError) as exc:  # shutting down a vanished interface
+                logger.debug("%s: shutdown: %s", self.url, exc)
+
+    # ------------------------------------------------------------------ inspection
+    def counters(self) -> dict[str, int]:
+        """Reassembly (``rx_*``) and transmit (``tx_*``) counters, for link statistics."""
+        rx = {f"rx_{k}": v for k, v in asdict(self._reassembler.stats).items()}
+        tx = {f"tx_{k}": v for k, v in asdict(self.tx).items()}
+        return {**rx, "rx_error_frames": self.error_frames, **tx}
+
+    # ------------------------------------------------------------------ internals
+    def _recv(self, timeout: float | None) -> can.Message | None:
+        bus = self._bus
+        assert bus is not None
+        try:
+            return bus.recv(timeout)
+        except (can.CanError, OSError) as exc:
+            raise LinkError(f"{self.url}: receive failed (interface gone?): {exc}") from exc
+
+    def _accept(self, msg: can.Message) -> bytes:
+        if msg.is_error_frame or msg.is_remote_frame:
+            self.error_frames += 1
+            return b""
+        return self._reassembler.feed(msg.arbitration_id, msg.data, msg.is_fd, msg.is_extended_id)
+
+    def _send_frame(self, wire: bytes) -> None:
+        bus = self._bus
+        assert bus is not None
+        try:
+            segments = self._segmenter.segment(wire)
+        except ProtocolError as exc:
+            self._not_a_frame(len(wire), str(exc))
+            return
+        for seg in segments:
+            msg = can.Message(
+                arbitration_id=seg.arbitration_id,
+                data=seg.data,
+                is_fd=seg.is_fd,
+                bitrate_switch=seg.is_fd and "data_bitrate" in self._bus_options,
+                is_extended_id=False,
+            )
+            try:
+                bus.send(msg, timeout=self.send_timeout)
+            except can.CanTimeoutError:
+                self.tx.frames_dropped += 1  # the receiver discards the partial frame and counts it
+                logger.warning("%s: CAN send timed out; frame dropped", self.url)
+                return
+            except (can.CanError, OSError) as exc:
+                raise LinkError(f"{self.url}: send failed (interface gone?): {exc}") from exc
+            self.tx.segments_sent += 1
+        self.tx.frames_sent += 1
+
+    def _not_a_frame(self, size: int, why: str) -> None:
+        self.tx.not_frames += 1
+        logger.warning("%s: %d written bytes are not a wire frame (%s); not sent", self.url, size, why)
