@@ -1,0 +1,236 @@
+"""The VSCMG spacecraft's mass matrix, momenta, energy and internal generalised forces (docs/dynamics.md).
+
+Everything here is vectorised over a leading batch axis B: gimbal and rotor angles and rates are (B, n),
+body rates and momenta (B, 3). Per unit, quantities are worked in gimbal-frame components ``(s, t, g)``
+(index 0, 1, 2), where the gimbal structure's inertia is constant and the rotor's depends only on its own
+angle φ.
+
+With ``ν = (Ω, γ̇, φ̇)`` the kinetic energy is ``T = ½ νᵀ M(γ, φ) ν`` and its momenta are::
+
+    Π   = J(γ, φ) Ω + Σᵢ (b_γᵢ γ̇ᵢ + b_φᵢ φ̇ᵢ)        body angular momentum about the system's centre of mass
+    p_γᵢ = b_γᵢ·Ω + D_i[0,0] γ̇ᵢ + D_i[0,1] φ̇ᵢ            (= gᵢ·(h_Gᵢ + h_Wᵢ))
+    p_φᵢ = b_φᵢ·Ω + D_i[1,0] γ̇ᵢ + D_i[1,1] φ̇ᵢ            (= sᵢ·h_Wᵢ)
+
+``J = J₀ + Σ C K̄ Cᵀ`` (the paper's J_T + I_T(t)), ``b_γ = C K̄ e_g``, ``b_φ = C Ī_W^G e_s`` (the columns of
+the paper's B(t)), ``D`` the 2×2 gimbal/rotor block (the paper's J_gr). :func:`momenta` computes them body by
+body (``Σ I_k ω_k``); :func:`velocities` inverts them through the mass matrix (Schur complement on the
+3×3 body block), so the two are independent codes for the same map.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.errors import NumericalError
+
+from .params import SpacecraftParams, inertia_tensor
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ArrayModel:
+    """A :class:`SpacecraftParams` compiled to arrays: ``g, s0, t0`` (n, 3) unit axes (body), ``IG`` (n, 3, 3)
+    gimbal-structure inertias in ``(s, t, g)``, ``IW`` (n, 3, 3) rotor inertias in ``(s, w₂, w₃)``, ``J0``
+    (3, 3) the constant part of the locked inertia about the system's centre of mass (bus inertia plus every
+    body's parallel-axis term, σ included), ``axisymmetric`` True when every rotor is (then Ī_W^G does not
+    depend on φ and is precomputed)."""
+
+    params: SpacecraftParams
+    g: Array
+    s0: Array
+    t0: Array
+    IG: Array
+    IW: Array
+    J0: Array
+    axisymmetric: bool
+
+    @classmethod
+    def build(cls, params: SpacecraftParams) -> ArrayModel:
+        units = params.units
+        g = np.array([u.gimbal_axis for u in units], dtype=float)
+        s0 = np.array([u.spin_axis for u in units], dtype=float)
+        g /= np.linalg.norm(g, axis=1, keepdims=True)
+        s0 -= np.sum(s0 * g, axis=1, keepdims=True) * g
+        s0 /= np.linalg.norm(s0, axis=1, keepdims=True)
+        ig = np.array(
+            [inertia_tensor(u.gimbal_inertia, f"units[{i}].gimbal_inertia") for i, u in enumerate(units)]
+        )
+        iw = np.array(
+            [inertia_tensor(u.rotor_inertia, f"units[{i}].rotor_inertia") for i, u in enumerate(units)]
+        )
+        masses, positions = params.point_masses()
+        rho = positions - params.center_of_mass_m
+        parallel = np.einsum(
+            "k,kij->ij",
+            masses,
+            np.einsum("ki,ki->k", rho, rho)[:, None, None] * np.eye(3) - rho[:, :, None] * rho[:, None, :],
+        )
+        j0 = inertia_tensor(params.bus_inertia, "bus_inertia") + parallel
+        axisym = all(u.axisymmetric_rotor for u in units)
+        return cls(params, g, s0, np.cross(g, s0), ig, iw, j0, axisym)
+
+    @property
+    def n(self) -> int:
+        return len(self.g)
+
+
+@dataclass(frozen=True)
+class Configuration:
+    """Geometry at one set of gimbal and rotor angles (batch B): ``C`` (B, n, 3, 3) gimbal frames as columns
+    ``(s, t, g)`` in body coordinates, ``IWG`` (B, n, 3, 3) rotor inertias in gimbal-frame components,
+    ``J`` (B, 3, 3) the locked inertia J(γ, φ), ``bg, bp`` (B, n, 3) the mass matrix's body–gimbal and
+    body–rotor columns ``b_γ = C K̄ e_g``, ``b_φ = C Ī_W^G e_s`` (K̄ = Ī_G + Ī_W^G), and ``dinv`` (B, n, 3)
+    the entries (11, 12, 22) of each unit's inverted 2×2 gimbal/rotor block D⁻¹."""
+
+    C: Array
+    IWG: Array
+    J: Array
+    bg: Array
+    bp: Array
+    dinv: Array
+
+
+def configuration(m: ArrayModel, gamma: Array, phi: Array) -> Configuration:
+    """Frames and inertias at gimbal angles ``gamma`` and rotor angles ``phi`` (B, n) rad."""
+    cg, sg = np.cos(gamma)[..., None], np.sin(gamma)[..., None]
+    s = cg * m.s0 + sg * m.t0
+    t = cg * m.t0 - sg * m.s0
+    g = np.broadcast_to(m.g, s.shape)
+    C = np.stack([s, t, g], axis=-1)
+    if m.axisymmetric:
+        K = m.IG + m.IW
+        IWG = np.broadcast_to(m.IW, C.shape)
+        dinv = np.broadcast_to(_block_inverse(K, m.IW), s.shape)
+    else:
+        IWG = _rotor_inertia_in_gimbal_frame(m.IW, phi)
+        K = m.IG + IWG
+        dinv = _block_inverse(K, IWG)
+    J = m.J0 + np.sum(C @ K @ np.swapaxes(C, -1, -2), axis=1)
+    kg, ws = K[..., :, 2], IWG[..., :, 0]
+    bg = s * kg[..., 0:1] + t * kg[..., 1:2] + g * kg[..., 2:3]
+    bp = s * ws[..., 0:1] + t * ws[..., 1:2] + g * ws[..., 2:3]
+    return Configuration(C, IWG, J, bg, bp, dinv)
+
+
+def _block_inverse(K: Array, IWG: Array) -> Array:
+    """Entries (11, 12, 22) (..., 3) of ``D⁻¹``, ``D = [[g·K̄g, g·Ī_W s], [s·Ī_W g, s·Ī_W s]]``."""
+    d11, d12, d22 = K[..., 2, 2], IWG[..., 2, 0], IWG[..., 0, 0]
+    det = d11 * d22 - d12 * d12
+    return np.stack([d22 / det, -d12 / det, d11 / det], axis=-1)
+
+
+def _rotor_inertia_in_gimbal_frame(iw: Array, phi: Array) -> Array:
+    """``Rx(φ) Ī_W Rx(φ)ᵀ``, Rx the turn by φ about the spin axis (first component); (B, n, 3, 3)."""
+    c, s = np.cos(phi), np.sin(phi)
+    a, b, cc = iw[:, 0, 0], iw[:, 0, 1], iw[:, 0, 2]
+    d, e, f = iw[:, 1, 1], iw[:, 1, 2], iw[:, 2, 2]
+    out = np.empty(phi.shape + (3, 3))
+    out[..., 0, 0] = a
+    out[..., 0, 1] = out[..., 1, 0] = b * c - cc * s
+    out[..., 0, 2] = out[..., 2, 0] = b * s + cc * c
+    out[..., 1, 1] = c * c * d - 2.0 * c * s * e + s * s * f
+    out[..., 1, 2] = out[..., 2, 1] = c * s * (d - f) + (c * c - s * s) * e
+    out[..., 2, 2] = s * s * d + 2.0 * c * s * e + c * c * f
+    return out
+
+
+def velocities(
+    m: ArrayModel, cfg: Configuration, H: Array, p_gamma: Array, p_phi: Array
+) -> tuple[Array, Array, Array]:
+    """Solve ``M ν = (Π, p_γ, p_φ)`` for ``(Ω (B, 3), γ̇ (B, n), φ̇ (B, n))``.
+
+    Each unit's 2×2 block is eliminated in closed form, leaving the 3×3 Schur complement
+    ``J − Σ Bᵢ Dᵢ⁻¹ Bᵢᵀ`` (the inertia the body feels with every gimbal and rotor free), solved directly."""
+    bg, bp = cfg.bg, cfg.bp
+    i11, i12, i22 = cfg.dinv[..., 0], cfg.dinv[..., 1], cfg.dinv[..., 2]
+    ug = i11[..., None] * bg + i12[..., None] * bp  # rows of B D⁻¹
+    up = i12[..., None] * bg + i22[..., None] * bp
+    schur = cfg.J - np.einsum("bni,bnj->bij", ug, bg) - np.einsum("bni,bnj->bij", up, bp)
+    rhs = H - np.einsum("bni,bn->bi", ug, p_gamma) - np.einsum("bni,bn->bi", up, p_phi)
+    omega = solve3(schur, rhs)
+    rg = p_gamma - np.einsum("bni,bi->bn", bg, omega)
+    rp = p_phi - np.einsum("bni,bi->bn", bp, omega)
+    return omega, i11 * rg + i12 * rp, i12 * rg + i22 * rp
+
+
+def solve3(a: Array, b: Array) -> Array:
+    """``a⁻¹ b`` for (B, 3, 3) and (B, 3) by cofactors (far cheaper than LAPACK at this size); raises
+    NumericalError for a singular or non-finite ``a``."""
+    a0, a1, a2 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2]
+    a3, a4, a5 = a[:, 1, 0], a[:, 1, 1], a[:, 1, 2]
+    a6, a7, a8 = a[:, 2, 0], a[:, 2, 1], a[:, 2, 2]
+    c0, c1, c2 = a4 * a8 - a5 * a7, a5 * a6 - a3 * a8, a3 * a7 - a4 * a6
+    det = a0 * c0 + a1 * c1 + a2 * c2
+    if not np.all(np.isfinite(det)) or np.any(det == 0.0):
+        raise NumericalError(f"singular or non-finite VSCMG mass matrix (det {det})")
+    x, y, z = b[:, 0] / det, b[:, 1] / det, b[:, 2] / det
+    out = np.empty_like(b)
+    out[:, 0] = c0 * x + (a2 * a7 - a1 * a8) * y + (a1 * a5 - a2 * a4) * z
+    out[:, 1] = c1 * x + (a0 * a8 - a2 * a6) * y + (a2 * a3 - a0 * a5) * z
+    out[:, 2] = c2 * x + (a1 * a6 - a0 * a7) * y + (a0 * a4 - a1 * a3) * z
+    return out
+
+
+@dataclass(frozen=True)
+class BodyRates:
+    """Per-unit angular velocities and momenta in gimbal-frame components (B, n, 3): gimbal structure
+    ``wG, hG`` and rotor ``wW, hW`` (rad/s, N m s)."""
+
+    wG: Array
+    wW: Array
+    hG: Array
+    hW: Array
+
+
+def body_rates(
+    m: ArrayModel, cfg: Configuration, omega: Array, gamma_dot: Array, phi_dot: Array
+) -> BodyRates:
+    """Angular velocities and momenta of every gimbal and rotor: ``ω_G = Cᵀ Ω + γ̇ e_g``,
+    ``ω_W = ω_G + φ̇ e_s``, ``h = Ī ω``."""
+    wG = np.einsum("bnij,bi->bnj", cfg.C, omega)
+    wG[..., 2] += gamma_dot
+    wW = wG.copy()
+    wW[..., 0] += phi_dot
+    hG = np.einsum("nij,bnj->bni", m.IG, wG)
+    hW = np.einsum("bnij,bnj->bni", cfg.IWG, wW)
+    return BodyRates(wG, wW, hG, hW)
+
+
+def momenta(m: ArrayModel, cfg: Configuration, omega: Array, rates: BodyRates) -> tuple[Array, Array, Array]:
+    """``(Π (B, 3), p_γ (B, n), p_φ (B, n))`` summed body by body: ``Π = J₀ Ω + Σ C (h_G + h_W)``,
+    ``p_γ = g·(h_G + h_W)``, ``p_φ = s·h_W``."""
+    h = rates.hG + rates.hW
+    H = omega @ m.J0.T + np.sum((cfg.C @ h[..., None])[..., 0], axis=1)
+    return H, h[..., 2], rates.hW[..., 0]
+
+
+def internal_forces(rates: BodyRates, phi_dot: Array) -> tuple[Array, Array]:
+    """``(∂T/∂γ, ∂T/∂φ)`` (B, n) N m at fixed ν — the gyroscopic generalised forces of the gimbal and rotor
+    equations ``ṗ = u + ∂T/∂q``::
+
+        ∂T/∂γ = −g·(ω_G × h_G) − g·(ω_W × h_W) + φ̇ t·h_W        ∂T/∂φ = −s·(ω_W × h_W)
+    """
+    wG, wW, hG, hW = rates.wG, rates.wW, rates.hG, rates.hW
+    f_gamma = (
+        -(wG[..., 0] * hG[..., 1] - wG[..., 1] * hG[..., 0])
+        - (wW[..., 0] * hW[..., 1] - wW[..., 1] * hW[..., 0])
+        + phi_dot * hW[..., 1]
+    )
+    f_phi = -(wW[..., 1] * hW[..., 2] - wW[..., 2] * hW[..., 1])
+    return f_gamma, f_phi
+
+
+def kinetic_energy(m: ArrayModel, omega: Array, rates: BodyRates) -> Array:
+    """Rotational kinetic energy (B,) J: ``½ Ωᵀ J₀ Ω + ½ Σ (ω_G·h_G + ω_W·h_W)``."""
+    own = 0.5 * np.einsum("bi,ij,bj->b", omega, m.J0, omega)
+    return own + 0.5 * np.sum(rates.wG * rates.hG + rates.wW * rates.hW, axis=(1, 2))
+
+
+def array_momentum(cfg: Configuration, gamma_dot: Array, phi_dot: Array) -> Array:
+    """``Σᵢ (b_γᵢ γ̇ᵢ + b_φᵢ φ̇ᵢ) = Π − J Ω`` (B, 3), body frame (N m s): the momentum the gimbals and rotors
+    carry relative to a locked body (the paper's B(t) γ̇ term), which steering manages."""
+    return np.einsum("bni,bn->bi", cfg.bg, gamma_dot) + np.einsum("bni,bn->bi", cfg.bp, phi_dot)
