@@ -271,9 +271,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         for s, handler in old.items():
             signal.signal(s, handler)
         server.close()
-    s = server.stats
+    stats = server.stats
     print(
-        f"firmware-sim: stopped; {s.bytes_in} bytes in, {s.bytes_out} out, {s.dropped_out} dropped, "
+        f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, "
+        f"{stats.dropped_out} dropped, "
         f"{len(board.resets) - 1} reset(s)",
         file=sys.stderr,
     )
