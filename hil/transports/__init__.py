@@ -6,6 +6,12 @@ URL                                         transport
 ``/dev/pts/N``, ``/dev/ttyACM0``, ``COM3``  serial device (pty, USB CDC, UART adapter)
 ``socket://``, ``loop://``, ``spy://``,     pyserial URL handlers
 ``rfc2217://``
+``can://<interface>/<channel>?node=N``      a python-can bus (``virtual``, ``udp_multicast``,
+                                            ``socketcan``, ...): :mod:`.can_bus`
+``emu://?units=4&...``                      the emulated board in-process, on the host's clock
+                                            (lockstep or real time): :mod:`.emulator`
+``spawn://firmware-sim?units=4&...``        ``firmware-sim`` started on a pty for the
+                                            connection, stopped on close: :mod:`.emulator`
 ==========================================  ===============================================
 
 Each scheme maps to ``"module:Class"``, imported on first use, so a missing optional backend only
@@ -27,6 +33,9 @@ _REGISTRY: dict[str, str] = {
     "spy": "hil.transports.serial_port:SerialTransport",
     "rfc2217": "hil.transports.serial_port:SerialTransport",
     "hwgrep": "hil.transports.serial_port:SerialTransport",
+    "can": "hil.transports.can_bus:CanTransport",
+    "emu": "hil.transports.emulator:EmulatorTransport",
+    "spawn": "hil.transports.emulator:SpawnTransport",
 }
 
 

@@ -1,0 +1,53 @@
+"""The host's link to the board: handshake, commands, setpoints, telemetry, reconnection.
+
+::
+
+    from hil.board import BoardClient
+    with BoardClient("spawn://firmware-sim?units=4") as board:    # connect() on entry
+        board.start()                                               # real time: a reader thread
+        board.arm()
+        board.send_setpoint(ActuatorSetpoint(units=...))            # at the control rate
+        for event in board.drain_events(): ...                      # telemetry, logs, state changes
+        board.disarm()
+
+Modules: :mod:`.session` (the sans-IO core and ``ClientConfig``), :mod:`.client` (transport, clock,
+reader thread, reconnection), :mod:`.events` (what is reported), :mod:`.stats` (link statistics).
+``docs/runtime-link.md`` is the guide.
+"""
+
+from .client import BoardClient
+from .events import (
+    BoardInfo,
+    BoardResetEvent,
+    CommandEvent,
+    ConnectedEvent,
+    Event,
+    LinkLostEvent,
+    LogEvent,
+    SilenceEvent,
+    StateEvent,
+    TelemetryEvent,
+)
+from .session import ClientConfig, Download, HostIdentity, Phase, Session
+from .stats import LinkStats, RoundTrips
+
+__all__ = [
+    "BoardClient",
+    "BoardInfo",
+    "BoardResetEvent",
+    "ClientConfig",
+    "CommandEvent",
+    "ConnectedEvent",
+    "Download",
+    "Event",
+    "HostIdentity",
+    "LinkLostEvent",
+    "LinkStats",
+    "LogEvent",
+    "Phase",
+    "RoundTrips",
+    "Session",
+    "SilenceEvent",
+    "StateEvent",
+    "TelemetryEvent",
+]

@@ -1,0 +1,458 @@
+"""The board client: a :class:`~hil.board.session.Session` on a transport and a clock.
+
+Two ways to drive the one core:
+
+* **Caller's loop** (lockstep, or a real-time loop that owns its timing): call :meth:`BoardClient.service`
+  every step. It reads what has arrived (never waiting), feeds the session, writes what is due
+  (retries, heartbeats, held setpoints) and returns the new events. No threads: a lockstep run through the
+  in-process emulator is deterministic.
+* **Real time with a reader thread** (:meth:`BoardClient.start`): the thread waits on the transport,
+  feeds the session and writes what is due; the caller sends setpoints and commands from its own thread
+  and takes events with :meth:`BoardClient.drain_events` (or the ``on_event`` callback, called from the
+  reader thread). An error in the reader thread is stored and raised by the caller's next call — never
+  swallowed.
+
+Blocking calls (:meth:`connect`, :meth:`arm`, :meth:`disarm`, :meth:`set_mode`, :meth:`wait`, the
+calibration transfers) work in both: with a reader thread they wait for it; without one they drive the
+session themselves, waiting in the transport's read on a real clock, and on a ``LockstepClock``
+*advancing the clock* to the next thing due (the emulated board's next wake-up, a retry, a heartbeat), so
+time passes during ``arm()`` as it would on a bench. A lockstep loop that must step its world while a
+command is in flight uses :meth:`command` (a handle) and keeps calling :meth:`service` instead.
+
+Link trouble is handled, not raised: a transport error (port vanished, bus down) or a board that stops
+answering the handshake closes the transport and reopens it after a bounded, doubling back-off, then
+handshakes again and reports :class:`ConnectedEvent` (it re-arms only if ``rearm_on_reconnect`` asks).
+What is raised: :class:`HandshakeError` (an incompatible board — at connect or on a reconnect),
+:class:`LinkTimeout` (no board answered the first handshake), :class:`LinkError` (reconnection given up,
+or the client is closed), :class:`CommandFailed` (a command NACKed or never answered),
+:class:`BoardReset` (a setpoint after the armed board reset; see :mod:`hil.board.session`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+from collections import deque
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any
+
+from hil.clock import Clock, LockstepClock, WallClock
+from hil.transports import Transport, create_transport
+from hil.transports.emulator import EmulatorTransport
+from protocol.calibration import UnitCalibration
+from protocol.errors import ConfigError, HandshakeError, HilError, LinkError, LinkTimeout
+from protocol.messages import (
+    ActuatorSetpoint,
+    Arm,
+    BoardState,
+    ControlMode,
+    Disarm,
+    RawPulses,
+    SetMode,
+    Telemetry,
+)
+from protocol.reliable import Command
+
+from .events import BoardInfo, Event
+from .session import ClientConfig, Phase, Session
+from .stats import LinkStats
+
+_MIN_STEP_S = 1e-6  # a lockstep wait always moves the clock at least this far
+
+
+class BoardClient:
+    """Talk to one board over ``port`` (a transport URL or an unopened :class:`Transport`).
+
+    ``clock``: the time base of everything timed (default: the emulator's if ``port`` is an
+    ``EmulatorTransport`` built with one, else a WallClock). A ``LockstepClock`` needs the in-process
+    emulator (``emu://``): any other board runs in real time. ``on_event`` is called with every
+    :mod:`event <hil.board.events>` as well as queuing it.
+    """
+
+    def __init__(
+        self,
+        port: str | Transport,
+        clock: Clock | None = None,
+        config: ClientConfig | None = None,
+        on_event: Callable[[Event], None] | None = None,
+    ) -> None:
+        transport = create_transport(port) if isinstance(port, str) else port
+        if isinstance(transport, EmulatorTransport):
+            clock = clock if clock is not None else transport.clock
+            clock = clock if clock is not None else WallClock()
+            transport.bind_clock(clock)
+        self.clock: Clock = clock if clock is not None else WallClock()
+        self.lockstep = isinstance(self.clock, LockstepClock)
+        if self.lockstep and not isinstance(transport, EmulatorTransport):
+            raise ConfigError(
+                f"{transport.url} runs in real time; a LockstepClock needs the in-process emulator (emu://)",
+                "BoardClient.clock",
+            )
+        self.transport = transport
+        self.config = config if config is not None else ClientConfig()
+        self.session = Session(self.config)
+        self.on_event = on_event
+        self._events: deque[Event] = deque(maxlen=self.config.event_queue)
+        self._cond = threading.Condition(threading.RLock())
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+        self._closed = False
+        self._connected = False  # a session was established once: from then on, losses are reconnected
+        self._reconnect_at: float | None = None
+        self._attempts = 0
+        self._lost_at: float | None = None
+        self._last_error = ""
+
+    # ================================================================== session
+    def connect(self, timeout: float | None = None) -> BoardInfo:
+        """Open the transport and handshake. Raises :class:`TransportError` (cannot open),
+        :class:`LinkTimeout` (no answer within the handshake's tries or ``timeout`` s) or
+        :class:`HandshakeError` (incompatible board, naming both sides' version and schema hash)."""
+        with self._cond:
+            self._check()
+            if not self.transport.is_open:
+                self.transport.open()
+            now = self.clock.now()
+            self._write(self.session.link_up(now), now)
+        if not self._wait_until(lambda: self.session.phase is not Phase.HANDSHAKING, timeout):
+            raise LinkTimeout(f"{self.transport.url}: no handshake within {timeout} s")
+        with self._cond:
+            self._check()
+            info = self.session.info
+            if self.session.phase is not Phase.READY or info is None:
+                raise self.session.failure or LinkTimeout(f"{self.transport.url}: the board did not answer")
+            self._connected = True
+            return info
+
+    def start(self) -> BoardClient:
+        """Real-time mode: a reader thread feeds the session from now on (until :meth:`stop`)."""
+        if self.lockstep:
+            raise ConfigError("a lockstep client is driven by service(), not a reader thread", "start()")
+        with self._cond:
+            self._check()
+            if self._thread is None:
+                self._stop.clear()
+                self._thread = threading.Thread(
+                    target=self._reader, name=f"board-client {self.transport.url}", daemon=True
+                )
+                self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the reader thread (the caller drives the session again with :meth:`service`)."""
+        self._stop.set()
+        thread, self._thread = self._thread, None
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=5.0)
+
+    def close(self) -> None:
+        """Stop the reader thread and close the transport. Idempotent. The board is *not* disarmed
+        here (call :meth:`disarm` first); its link watchdog makes it safe within its timeout."""
+        self.stop()
+        with self._cond:
+            self._closed = True
+            self.transport.close()
+            self.session.link_down(self.clock.now(), "closed by the host", lost=False)
+            self._dispatch()
+
+    def __enter__(self) -> BoardClient:
+        self.connect()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # ================================================================== driving
+    def service(self, now: float | None = None) -> list[Event]:
+        """One step of the caller's loop: take what arrived, send what is due; returns the new events.
+        ``now`` defaults to the clock's time (in lockstep pass the clock's time or nothing). With the
+        reader thread running it only raises the thread's error and returns the queued events."""
+        if self._thread is None:
+            self._pump(0.0, now)
+        else:
+            with self._cond:
+                self._check()
+        return self.drain_events()
+
+    def drain_events(self) -> list[Event]:
+        """Every event queued since the last drain, oldest first."""
+        with self._cond:
+            events = list(self._events)
+            self._events.clear()
+            return events
+
+    def wait_for(self, predicate: Callable[[], bool], timeout: float | None = None) -> bool:
+        """Block until ``predicate()`` holds (True) or ``timeout`` s pass on the client's clock (False)."""
+        return self._wait_until(predicate, timeout)
+
+    # ================================================================== commands and setpoints
+    def send_setpoint(self, setpoint: ActuatorSetpoint | RawPulses) -> None:
+        """Send a setpoint (never acknowledged; newest wins; rate-limited to the board's frame rate ×2).
+
+        Raises :class:`BoardReset` if the armed board reset (until :meth:`arm` or :meth:`disarm`),
+        :class:`ProtocolError`/:class:`FieldRangeError` for one that does not fit the board. While the
+        link is down it is dropped and counted (``stats().counters.setpoints_dropped``)."""
+        with self._cond:
+            self._check()
+            now = self.clock.now()
+            self._write(self.session.setpoint(setpoint, now), now)
+            self._dispatch()
+
+    def command(self, message: Any) -> Command:
+        """Send a reliable command without waiting; the handle settles as answers arrive (during
+        :meth:`service` or in the reader thread). Raises :class:`LinkError` without a session."""
+        with self._cond:
+            self._check()
+            now = self.clock.now()
+            cmd, data = self.session.command(message, now)
+            self._write(data, now)
+            self._dispatch()
+            return cmd
+
+    def wait(self, cmd: Command, timeout: float | None = None) -> Any:
+        """Block until ``cmd`` settles; its answer, or :class:`CommandFailed` (NACKed, no answer after
+        every retry, link lost). ``timeout`` (s): :class:`LinkTimeout` if it is still pending then."""
+        if not self._wait_until(lambda: cmd.done, timeout):
+            raise LinkTimeout(f"{type(cmd.message).__name__} still unanswered after {timeout} s")
+        return cmd.result()
+
+    def arm(self, timeout: float | None = None) -> None:
+        """Arm (from DISARMED or FAILSAFE): setpoints drive the outputs from now on."""
+        self.wait(self.command(Arm()), timeout)
+
+    def disarm(self, timeout: float | None = None) -> None:
+        """Disarm: rotors to the safe pulse, gimbals hold."""
+        self.wait(self.command(Disarm()), timeout)
+
+    def set_mode(self, mode: ControlMode, timeout: float | None = None) -> None:
+        """How the board turns setpoints into pulses (only while DISARMED)."""
+        self.wait(self.command(SetMode(mode=ControlMode(mode))), timeout)
+
+    def upload_calibration(
+        self, unit: int, calibration: UnitCalibration, timeout: float | None = None
+    ) -> None:
+        """Store ``calibration`` on the board for ``unit`` (DISARMED; every fragment acknowledged)."""
+        with self._cond:
+            fragments = self.session.upload_fragments(unit, calibration)
+        for cmd in [self.command(f) for f in fragments]:
+            self.wait(cmd, timeout)
+
+    def download_calibration(self, unit: int, timeout: float | None = None) -> UnitCalibration:
+        """The calibration the board holds for ``unit``. Raises :class:`CommandFailed` (refused: no
+        calibration, busy), :class:`CalibrationError` (a set that does not reassemble or parse),
+        :class:`LinkTimeout` (incomplete after ``timeout`` s)."""
+        with self._cond:
+            self._check()
+            now = self.clock.now()
+            download, data = self.session.start_download(unit, now)
+            self._write(data, now)
+            self._dispatch()
+        if not self._wait_until(lambda: download.done, timeout):
+            raise LinkTimeout(f"calibration download of unit {unit} incomplete after {timeout} s")
+        return download.result()
+
+    # ================================================================== state
+    @property
+    def info(self) -> BoardInfo | None:
+        """The board's HelloReply (identity, units, frame rate), once connected."""
+        return self.session.info
+
+    @property
+    def state(self) -> BoardState | None:
+        """The board's latest known state."""
+        return self.session.state
+
+    @property
+    def telemetry(self) -> Telemetry | None:
+        """The latest Telemetry (its host receive time: :attr:`telemetry_time`)."""
+        return self.session.telemetry
+
+    @property
+    def telemetry_time(self) -> float | None:
+        return self.session.telemetry_time
+
+    @property
+    def connected(self) -> bool:
+        """A session is up right now (not handshaking, not reconnecting)."""
+        return self.session.phase is Phase.READY
+
+    def stats(self) -> LinkStats:
+        """A snapshot of the link statistics."""
+        with self._cond:
+            s = self.session
+            d = s.deframer.counters
+            cmd, hello = s.commands.stats, s.hellos.stats
+            tel = s.telemetry
+            counters = getattr(self.transport, "counters", None)
+            return LinkStats(
+                bytes_in=self.transport.bytes_in,
+                bytes_out=self.transport.bytes_out,
+                frames_in=d.frames,
+                bad_frames={reason.value: n for reason, n in d.bad.items()},
+                resyncs=d.resyncs,
+                seq_gaps=d.seq_gaps,
+                duplicates=d.duplicates,
+                commands_sent=cmd.sent + hello.sent,
+                retries=cmd.retransmits + hello.retransmits,
+                acked=cmd.acked + hello.acked,
+                nacked=cmd.nacked,
+                failed=cmd.failed + hello.failed,
+                late_answers=cmd.late_answers + hello.late_answers,
+                unmatched_answers=cmd.unmatched_answers + hello.unmatched_answers,
+                rtt=s.rtt.summary(),
+                counters=dataclasses.replace(s.counters),
+                board_rx_frames=None if tel is None else tel.rx_frames,
+                board_rx_bad=None if tel is None else tel.rx_bad,
+                board_seq_gaps=None if tel is None else tel.seq_gaps,
+                transport=dict(counters()) if callable(counters) else {},
+            )
+
+    # ================================================================== internals
+    def _check(self) -> None:
+        """Raise the stored error (from the reader thread or an earlier pump); refuse a closed client."""
+        error = self._error
+        if error is not None:
+            if isinstance(error, HilError):
+                raise error
+            raise LinkError(f"{self.transport.url}: the reader thread failed: {error!r}") from error
+        if self._closed:
+            raise LinkError(f"{self.transport.url}: the board client is closed")
+
+    def _reader(self) -> None:
+        try:
+            while not self._stop.is_set():
+                now = self.clock.now()
+                self._pump(max(min(self._next_wake(now), now + self.config.max_block_s) - now, 0.0))
+        except BaseException as exc:  # stored and raised in the caller's loop: never swallowed
+            with self._cond:
+                self._error = exc
+                self._cond.notify_all()
+
+    def _wait_until(self, predicate: Callable[[], bool], timeout: float | None) -> bool:
+        clock = self.clock
+        end = math.inf if timeout is None else clock.now() + timeout
+        if self._thread is not None:
+            if threading.current_thread() is self._thread:
+                raise RuntimeError("a blocking BoardClient call from its own reader thread (an on_event "
+                                   "callback) would wait for itself; use command() there")
+            with self._cond:
+                while True:
+                    self._check()
+                    if predicate():
+                        return True
+                    remaining = end - clock.now()
+                    if remaining <= 0:
+                        return False
+                    self._cond.wait(min(remaining, self.config.max_block_s))
+        read_wait = 0.0
+        while True:
+            self._pump(read_wait)
+            if predicate():
+                return True
+            now = clock.now()
+            if now >= end:
+                return False
+            wake = min(end, self._next_wake(now))
+            if self.lockstep:
+                clock.sleep_until(max(wake, now + _MIN_STEP_S))
+            else:
+                read_wait = max(min(wake, now + self.config.max_block_s) - now, 0.0)
+
+    def _next_wake(self, now: float) -> float:
+        """When the session, a reconnection or the emulated board next has something to do."""
+        wake = self.session.next_deadline()
+        if self._reconnect_at is not None:
+            wake = min(wake, self._reconnect_at)
+        if isinstance(self.transport, EmulatorTransport) and self.transport.is_open:
+            wake = min(wake, self.transport.next_wake())
+        return wake
+
+    def _pump(self, read_timeout: float, now: float | None = None) -> None:
+        """Read (waiting up to ``read_timeout`` s on a real clock), feed, write what is due, reconnect."""
+        with self._cond:
+            self._check()
+        data = b""
+        if self.transport.is_open:
+            try:
+                data = self.transport.read(read_timeout)
+            except LinkError as exc:
+                with self._cond:
+                    self._lose_link(self.clock.now(), exc)
+        elif read_timeout > 0:
+            self.clock.sleep_until(self.clock.now() + read_timeout)  # link down: nothing to wait on
+        with self._cond:
+            try:
+                now = self.clock.now() if now is None else now
+                out = self.session.feed(data, now) if data else b""
+                self._write(out + self.session.poll(now), now)
+                self._keep_link(now)
+            except HilError as exc:  # fatal for the session (incompatible board, reconnection given up)
+                if self._connected:
+                    self._error = exc  # raised again by every later call (before: connect() may be retried)
+                raise
+            finally:
+                self._dispatch()
+                self._cond.notify_all()
+
+    def _write(self, data: bytes, now: float) -> None:
+        if data and self.transport.is_open:
+            try:
+                self.transport.write(data)
+            except LinkError as exc:
+                self._lose_link(now, exc)
+
+    def _lose_link(self, now: float, exc: BaseException) -> None:
+        """The transport failed: before the first session that is the caller's error; after it, close,
+        tell the session and schedule a reconnection."""
+        if not self._connected:
+            raise exc
+        self._last_error = str(exc)
+        self.transport.close()
+        self.session.link_down(now, str(exc))
+        if self._lost_at is None:
+            self._lost_at, self._attempts = now, 0
+        self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
+
+    def _keep_link(self, now: float) -> None:
+        s = self.session
+        if s.phase is Phase.INCOMPATIBLE:
+            assert isinstance(s.failure, HandshakeError)
+            raise s.failure
+        if s.phase is Phase.DOWN and s.failure is not None and not self._connected:
+            raise s.failure  # the first handshake went unanswered
+        if s.phase is Phase.READY:
+            self._lost_at, self._attempts = None, 0
+            return
+        if s.phase is Phase.DOWN and self.transport.is_open and self._connected:
+            self._lose_link(now, s.failure or LinkError("session lost"))  # the board stopped answering
+        if self._reconnect_at is None or now < self._reconnect_at or self.transport.is_open:
+            return
+        assert self._lost_at is not None
+        give_up = self.config.reconnect_give_up_s
+        if give_up is not None and now - self._lost_at >= give_up:
+            raise LinkError(
+                f"{self.transport.url}: gave up reconnecting after {self._attempts} attempts over "
+                f"{now - self._lost_at:.1f} s (last error: {self._last_error})"
+            )
+        self._attempts += 1
+        try:
+            self.transport.open()
+        except LinkError as exc:
+            self._last_error = str(exc)
+            self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
+            return
+        self._reconnect_at = None
+        self._write(s.link_up(now), now)
+
+    def _dispatch(self) -> None:
+        for event in self.session.take_events():
+            if len(self._events) == self._events.maxlen:
+                self.session.counters.events_dropped += 1
+            self._events.append(event)
+            if self.on_event is not None:
+                self.on_event(event)

@@ -1,0 +1,132 @@
+"""What the board client reports, as it happens: one frozen dataclass per kind of event.
+
+Every event carries ``t``, the host's receive time on the client's clock (seconds; lockstep or wall), so a
+run log can put telemetry, logs and link trouble on one time axis. Events reach the caller through
+``BoardClient.service()`` / ``drain_events()`` (a bounded queue; overflow is counted) and, if given, the
+``on_event`` callback (called from the thread that processed the bytes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from protocol.messages import BoardState, Log, ResetCause, Telemetry
+
+
+@dataclass(frozen=True, slots=True)
+class BoardInfo:
+    """Who answered the handshake (``HelloReply``): identity, outputs, protocol, last reset cause."""
+
+    protocol_version: int
+    schema_hash: int
+    reset_cause: ResetCause
+    state: BoardState
+    n_units: int
+    frame_rate_hz: int
+    manufacturer: str
+    model: str
+    description: str
+    version: str
+    uri: str
+    serial: str
+    firmware_build: str
+
+    @property
+    def n_channels(self) -> int:
+        """Pulse outputs: gimbal 0, rotor 0, gimbal 1, rotor 1, ..."""
+        return 2 * self.n_units
+
+    def describe(self) -> str:
+        return (
+            f"{self.manufacturer} {self.model} {self.version} (serial {self.serial or '-'}, build "
+            f"{self.firmware_build or '-'}): {self.n_units} units, {self.frame_rate_hz} Hz frames"
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryEvent:
+    """A ``Telemetry`` frame from the board."""
+
+    t: float
+    telemetry: Telemetry
+
+
+@dataclass(frozen=True, slots=True)
+class LogEvent:
+    """A ``Log`` frame from the board (state changes, faults, refused commands)."""
+
+    t: float
+    log: Log
+
+
+@dataclass(frozen=True, slots=True)
+class StateEvent:
+    """The board's state changed (seen in a HelloReply, Heartbeat or Telemetry). ``old`` is None for the
+    first state seen. ``new is BoardState.FAILSAFE``: the board's link watchdog fired; ``arm()`` recovers."""
+
+    t: float
+    old: BoardState | None
+    new: BoardState
+
+
+@dataclass(frozen=True, slots=True)
+class BoardResetEvent:
+    """The board reset: ``cause`` from its HelloReply, ``evidence`` how the host noticed (its uptime went
+    backwards, it reported BOOT mid-session, or — ``during_session`` False — it reported a non-power-on
+    reset cause when the host first connected)."""
+
+    t: float
+    cause: ResetCause
+    evidence: str
+    during_session: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class ConnectedEvent:
+    """A session is (re-)established: the handshake succeeded. ``reconnects`` counts link losses
+    recovered so far (0 on the first connection)."""
+
+    t: float
+    info: BoardInfo
+    reconnects: int
+
+
+@dataclass(frozen=True, slots=True)
+class LinkLostEvent:
+    """The transport failed (port vanished, bus error) or the board stopped answering the handshake;
+    the client reconnects with back-off."""
+
+    t: float
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class SilenceEvent:
+    """No valid frame from the board since ``since`` (``ended`` False), or frames again (``ended`` True).
+    A board that heartbeats at 5 Hz is silent only if it hung, lost power or the link is cut."""
+
+    t: float
+    since: float
+    ended: bool
+
+
+@dataclass(frozen=True, slots=True)
+class CommandEvent:
+    """A command the client sent on its own (a re-arm the caller asked for on reconnect) settled."""
+
+    t: float
+    command: str
+    ok: bool
+    detail: str = ""
+
+
+Event = (
+    TelemetryEvent
+    | LogEvent
+    | StateEvent
+    | BoardResetEvent
+    | ConnectedEvent
+    | LinkLostEvent
+    | SilenceEvent
+    | CommandEvent
+)

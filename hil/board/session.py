@@ -1,0 +1,626 @@
+"""The board client's core, sans-IO: bytes in, bytes out, events; every call takes ``now``.
+
+:class:`Session` is the host's end of one board session — handshake, reliable commands, setpoints,
+heartbeats, telemetry, reset detection, calibration transfers — with no transport, thread or clock inside
+(like :mod:`protocol.reliable`, which it builds on). ``BoardClient`` drives it from a reader thread or from
+the caller's loop; a test can drive it directly. Every method that may send returns the wire bytes to
+write, in order; :meth:`Session.take_events` hands over what happened.
+
+Phases::
+
+    DOWN ──link_up()──► HANDSHAKING ──HelloReply (compatible)──► READY
+      ▲                     │  │                                   │
+      └── link_down() ◄─────┘  └─ HelloReply (incompatible) ──► INCOMPATIBLE (failure = HandshakeError)
+          or no HelloReply after every try (failure = LinkTimeout)
+
+**Reset detection.** The board's uptime (``Heartbeat.time_ms``, ``Telemetry.time_ms``) only grows while
+it runs. It going backwards, or the board reporting BOOT in the middle of a session, means it reset. The
+cause is in the next ``HelloReply``: if one arrived since the last uptime sample (a reconnect handshake),
+it is used; otherwise the session handshakes again (Hello → the board is DISARMED with a new session)
+and reports :class:`BoardResetEvent` with the cause it answers. A reset while the host had the board
+armed also makes :meth:`Session.setpoint` raise :class:`BoardReset` until the caller arms (or disarms)
+again: setpoints need an armed board, and the host never re-arms on its own. A non-power-on reset cause
+seen at the first handshake is reported too (``during_session=False``).
+
+**Setpoints** are never acknowledged: newest wins. At most one is sent per ``1 / max_setpoint_rate_hz``
+(default: twice the board's pulse frame rate, so a loop at the frame rate is never held back by jitter);
+one that comes sooner waits for its slot and is replaced by any newer one (counted as coalesced).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from protocol.calibration import Reassembler, UnitCalibration, fragment
+from protocol.errors import (
+    BoardReset,
+    CalibrationError,
+    ConfigError,
+    HandshakeError,
+    HilError,
+    LinkError,
+    LinkTimeout,
+    ProtocolError,
+)
+from protocol.frame import Deframer, Frame, Framer
+from protocol.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    ActuatorSetpoint,
+    Arm,
+    BoardState,
+    CalibrationData,
+    CalibrationRequest,
+    Disarm,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Log,
+    NackReason,
+    RawPulses,
+    ResetCause,
+    Severity,
+    Telemetry,
+    encode_payload,
+)
+from protocol.reliable import AnswerCache, Command, CommandState, ReliableSender, RetryPolicy, answer_for
+
+from .events import (
+    BoardInfo,
+    BoardResetEvent,
+    CommandEvent,
+    ConnectedEvent,
+    Event,
+    LinkLostEvent,
+    LogEvent,
+    SilenceEvent,
+    StateEvent,
+    TelemetryEvent,
+)
+from .stats import RttRing, SessionCounters
+
+logger = logging.getLogger(__name__)
+
+_U32 = 1 << 32
+_LOG_LEVELS = {
+    Severity.DEBUG: logging.DEBUG,
+    Severity.INFO: logging.INFO,
+    Severity.WARNING: logging.WARNING,
+    Severity.ERROR: logging.ERROR,
+    Severity.CRITICAL: logging.CRITICAL,
+}
+
+
+class Phase(enum.Enum):
+    DOWN = "down"  # no link: not connected yet, or lost
+    HANDSHAKING = "handshaking"  # Hello sent, waiting for HelloReply
+    READY = "ready"  # a session is up: commands and setpoints go out
+    INCOMPATIBLE = "incompatible"  # the board speaks another protocol version or schema: stop
+
+
+@dataclass(frozen=True)
+class HostIdentity:
+    """The AOA identity strings this host announces in ``Hello`` (the board may log them)."""
+
+    manufacturer: str = "vscmg-hil"
+    model: str = "hil host"
+    description: str = "vscmg-hil host runtime"
+    version: str = "0.1.0"
+    uri: str = ""
+    serial: str = ""
+
+
+@dataclass(frozen=True)
+class ClientConfig:
+    """Everything that shapes the board client; times in seconds.
+
+    ``commands`` is the retry policy of Arm/Disarm/SetMode/calibration fragments (default: 5 tries,
+    100 ms apart). ``handshake`` is Hello's: more tries (a booting board drops bytes while in reset, and
+    the handshake's ~200 bytes are the likeliest to be hit on a noisy link). ``schema_hash`` is what this
+    host announces: the catalogue it was built with; a test changes it to play a host built against
+    another catalogue. Reconnection: the first retry ``reconnect_first_s`` after the loss, each next one
+    twice as late up to ``reconnect_max_s``; after ``reconnect_give_up_s`` (None: never) the client
+    raises :class:`LinkError`. ``rearm_on_reconnect``: after a reconnect, arm again if the host had armed
+    the board (off by default — the host never re-arms unless asked). ``event_queue``: events held for
+    :meth:`BoardClient.drain_events` (older ones are dropped and counted when nobody drains them).
+    """
+
+    identity: HostIdentity = field(default_factory=HostIdentity)
+    schema_hash: int = SCHEMA_HASH
+    commands: RetryPolicy = field(default_factory=RetryPolicy)
+    handshake: RetryPolicy = field(default_factory=lambda: RetryPolicy(timeout_s=0.1, max_tries=50))
+    heartbeat_period_s: float = 0.05
+    max_setpoint_rate_hz: float | None = None
+    silence_after_s: float = 1.0
+    rtt_samples: int = 1024
+    reconnect_first_s: float = 0.05
+    reconnect_max_s: float = 2.0
+    reconnect_give_up_s: float | None = 60.0
+    rearm_on_reconnect: bool = False
+    event_queue: int = 10_000
+    max_block_s: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name in _POSITIVE + _POSITIVE_OR_NONE:
+            value = getattr(self, name)
+            if value is not None or name in _POSITIVE:
+                _check_positive(value, f"ClientConfig.{name}")
+        if self.reconnect_max_s < self.reconnect_first_s:
+            raise ConfigError("must be >= reconnect_first_s", "ClientConfig.reconnect_max_s")
+        for name in ("rtt_samples", "event_queue"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ConfigError(f"{value!r} must be an integer >= 1", f"ClientConfig.{name}")
+        if not 0 <= self.schema_hash < _U32:
+            raise ConfigError(f"{self.schema_hash!r} is not a u32", "ClientConfig.schema_hash")
+
+    def reconnect_delay(self, attempt: int) -> float:
+        """Seconds before reconnection attempt ``attempt`` (0, 1, 2, ...): doubling, bounded."""
+        return min(self.reconnect_first_s * 2.0 ** min(attempt, 60), self.reconnect_max_s)
+
+
+_POSITIVE = ("heartbeat_period_s", "silence_after_s", "reconnect_first_s", "reconnect_max_s", "max_block_s")
+_POSITIVE_OR_NONE = ("max_setpoint_rate_hz", "reconnect_give_up_s")
+
+
+def _check_positive(value: object, where: str) -> None:
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    if not (number and math.isfinite(value) and value > 0):  # type: ignore[arg-type,operator]
+        raise ConfigError(f"{value!r} must be a finite number > 0", where)
+
+
+@dataclass
+class PendingReset:
+    """A reset seen while the host had the board armed; setpoints raise :class:`BoardReset` until the
+    caller arms or disarms. ``cause`` is None until the board's HelloReply tells it."""
+
+    t: float
+    evidence: str
+    cause: ResetCause | None = None
+
+    def error(self) -> BoardReset:
+        cause = self.cause.name if self.cause is not None else "not known yet (handshaking again)"
+        return BoardReset(cause, f"{self.evidence}; arm() again to continue")
+
+
+@dataclass(eq=False)
+class Download:
+    """A calibration download in progress (``Session.start_download``); ``done`` once it completed or
+    failed, then :meth:`result` gives the unit's calibration or raises why not."""
+
+    unit: int
+    transfer_id: int
+    request: Command
+    data: bytes | None = None
+    error: HilError | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.data is not None or self.error is not None
+
+    def result(self) -> UnitCalibration:
+        if self.error is not None:
+            raise self.error
+        if self.data is None:
+            raise ProtocolError(f"calibration download of unit {self.unit} is still running")
+        return UnitCalibration.from_bytes(self.data, source=f"board unit {self.unit}")
+
+
+class Session:
+    """The host's end of a board session; see the module docstring. Not thread-safe: one driver."""
+
+    def __init__(self, config: ClientConfig | None = None) -> None:
+        self.config = config if config is not None else ClientConfig()
+        self.framer = Framer()
+        self.deframer = Deframer()
+        self.commands = ReliableSender(self.framer, self.config.commands, on_settled=self._on_settled)
+        self.hellos = ReliableSender(self.framer, self.config.handshake, on_settled=self._on_hello_settled)
+        self.counters = SessionCounters()
+        self.rtt = RttRing(self.config.rtt_samples)
+        self.phase = Phase.DOWN
+        self.info: BoardInfo | None = None
+        self.state: BoardState | None = None
+        self.telemetry: Telemetry | None = None
+        self.telemetry_time: float | None = None
+        self.failure: HilError | None = None  # why the last handshake failed (HandshakeError, LinkTimeout)
+        self.pending_reset: PendingReset | None = None
+        self.armed = False  # the host armed the board (acknowledged) and has not disarmed it since
+        self.last_heard: float | None = None  # host time of the last valid frame from the board
+        self._events: list[Event] = []
+        self._out = bytearray()
+        self._now = 0.0
+        self._last_tx = -math.inf
+        self._silent = False
+        self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
+        self._last_uptime: int | None = None
+        self._reply_since_sample: HelloReply | None = None
+        self._reset_evidence: str | None = None
+        self._setpoint_slot = -math.inf
+        self._pending_setpoint: ActuatorSetpoint | RawPulses | None = None
+        self._answers = AnswerCache()
+        self._reassembler = Reassembler()
+        self._downloads: dict[tuple[int, int], Download] = {}
+        self._transfer_id = 0
+        self._auto: dict[int, str] = {}  # id(Command) -> why the session sent it on its own
+
+    # ================================================================== link lifecycle
+    def link_up(self, now: float) -> bytes:
+        """The transport is (re)opened: start a handshake."""
+        self._now = now
+        self.phase = Phase.HANDSHAKING
+        self.failure = None
+        self.deframer.reset()
+        self.last_heard = now
+        self._silent = False
+        self._hello(now)
+        return self._take()
+
+    def link_down(self, now: float, reason: str, lost: bool = True) -> None:
+        """The transport failed (``lost``) or was closed on purpose: pending commands fail, partial input
+        is forgotten."""
+        self._now = now
+        if self.phase is Phase.DOWN:
+            return
+        was_up = lost and self.info is not None
+        self.phase = Phase.DOWN
+        self._lost = self._lost or was_up
+        self.counters.link_losses += was_up
+        self.deframer.reset()
+        self._pending_setpoint = None
+        why = f"link lost: {reason}"
+        self.hellos.abandon(now, why)
+        self.commands.abandon(now, why)
+        for download in self._downloads.values():
+            if not download.done:
+                download.error = LinkError(f"calibration download of unit {download.unit}: {why}")
+        self._downloads.clear()
+        self._reassembler.reset()
+        if lost:
+            self._emit(LinkLostEvent(now, reason))
+            logger.warning("board link lost: %s", reason)
+
+    # ================================================================== sending
+    def command(self, message: Any, now: float) -> tuple[Command, bytes]:
+        """Send a reliable command (Arm, Disarm, SetMode, CalibrationData, CalibrationRequest); returns its
+        handle (settled later by the board's answer or by giving up) and the bytes to write."""
+        self._require_session()
+        self._now = now
+        if isinstance(message, Disarm):
+            self.armed = False  # the caller no longer wants the board armed, whatever the answer
+            self.pending_reset = None
+        cmd, data = self.commands.send(message, now)
+        self._put(data, now)
+        return cmd, self._take()
+
+    def setpoint(self, message: ActuatorSetpoint | RawPulses, now: float) -> bytes:
+        """Send a setpoint now, or at its slot if the last one left less than a slot ago (newest wins).
+
+        Raises :class:`BoardReset` after a reset of an armed board (until ``arm()``/``disarm()``),
+        :class:`ProtocolError` for a setpoint that does not fit the board (unit/channel count),
+        :class:`FieldRangeError` for an out-of-range or NaN value. Without a session (link down,
+        handshaking) it is dropped and counted."""
+        self._now = now
+        if self.pending_reset is not None:
+            raise self.pending_reset.error()
+        self._check_setpoint(message)
+        if self.phase is not Phase.READY:
+            self.counters.setpoints_dropped += 1
+            return b""
+        if now >= self._setpoint_slot:
+            self._send_setpoint(message, now)
+        else:
+            if self._pending_setpoint is not None:
+                self.counters.setpoints_coalesced += 1
+            self._pending_setpoint = message
+        return self._take()
+
+    def upload_fragments(self, unit: int, calibration: UnitCalibration) -> list[CalibrationData]:
+        """The CalibrationData fragments that upload ``calibration`` to ``unit`` (send each with
+        :meth:`command`; the board must be DISARMED)."""
+        self._check_unit(unit)
+        return fragment(unit, self._next_transfer_id(), calibration.to_bytes())
+
+    def start_download(self, unit: int, now: float) -> tuple[Download, bytes]:
+        """Ask the board for ``unit``'s stored calibration; the returned :class:`Download` completes as
+        its fragments arrive (each acknowledged here)."""
+        self._check_unit(unit)
+        tid = self._next_transfer_id()
+        cmd, data = self.command(CalibrationRequest(unit=unit, transfer_id=tid), now)
+        download = Download(unit, tid, cmd)
+        self._downloads[(unit, tid)] = download
+        self._reassembler.reset()
+        return download, data
+
+    def poll(self, now: float) -> bytes:
+        """Whatever is due at ``now``: retries, a held setpoint, a heartbeat; silence detection."""
+        self._now = now
+        self._put(self.hellos.poll(now), now)
+        self._put(self.commands.poll(now), now)
+        if self.phase is Phase.READY:
+            if self._pending_setpoint is not None and now >= self._setpoint_slot:
+                message, self._pending_setpoint = self._pending_setpoint, None
+                self._send_setpoint(message, now)
+            if now - self._last_tx >= self.config.heartbeat_period_s:
+                self._send(Heartbeat(time_ms=round(now * 1000.0) % _U32, state=0), now)
+                self.counters.heartbeats_sent += 1
+            heard = self.last_heard
+            if not self._silent and heard is not None and now - heard >= self.config.silence_after_s:
+                self._silent = True
+                self.counters.silences += 1
+                self._emit(SilenceEvent(now, heard, ended=False))
+                logger.warning("board silent for %.2f s", now - heard)
+        return self._take()
+
+    def next_deadline(self) -> float:
+        """The earliest host time at which :meth:`poll` has work (inf: none)."""
+        due = [self.hellos.next_deadline(), self.commands.next_deadline()]
+        if self.phase is Phase.READY:
+            due.append(self._last_tx + self.config.heartbeat_period_s)
+            if self._pending_setpoint is not None:
+                due.append(self._setpoint_slot)
+            if not self._silent and self.last_heard is not None:
+                due.append(self.last_heard + self.config.silence_after_s)
+        return min((d for d in due if d is not None), default=math.inf)
+
+    # ================================================================== receiving
+    def feed(self, data: bytes, now: float) -> bytes:
+        """Bytes from the board; returns the answers to write (Acks of calibration fragments, a Hello
+        after a reset)."""
+        self._now = now
+        for event in self.deframer.feed(data):
+            if isinstance(event, Frame):
+                self._on_frame(event, now)
+        return self._take()
+
+    def take_events(self) -> list[Event]:
+        events, self._events = self._events, []
+        return events
+
+    def _on_frame(self, frame: Frame, now: float) -> None:
+        if self.phase is Phase.DOWN:
+            return  # bytes still in flight from a link that is gone
+        self.last_heard = now
+        if self._silent:
+            self._silent = False
+            self._emit(SilenceEvent(now, now, ended=True))
+        msg = frame.message
+        if isinstance(msg, HelloReply):
+            self.hellos.on_frame(frame, now)
+        elif isinstance(msg, Telemetry):
+            self.telemetry, self.telemetry_time = msg, now
+            self._board_clock(msg.time_ms, msg.state, now)
+            self._emit(TelemetryEvent(now, msg))
+        elif isinstance(msg, Heartbeat):
+            try:
+                state: BoardState | None = BoardState(msg.state)
+            except ValueError:
+                self.counters.unknown_board_states += 1
+                state = None
+            self._board_clock(msg.time_ms, state, now)
+        elif isinstance(msg, Log):
+            logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s", msg.text)
+            self._emit(LogEvent(now, msg))
+        elif isinstance(msg, CalibrationData):
+            self._on_calibration_data(frame, now)
+        else:
+            self.commands.on_frame(frame, now)  # Ack / Nack (anything else is ignored there)
+
+    def _board_clock(self, uptime_ms: int, state: BoardState | None, now: float) -> None:
+        """An uptime sample (and state) from the board: the reset detector."""
+        if state is not None:
+            self._set_state(state, now)
+        last, self._last_uptime = self._last_uptime, uptime_ms
+        reply, self._reply_since_sample = self._reply_since_sample, None
+        evidence = None
+        if last is not None and uptime_ms < last and last - uptime_ms < _U32 // 2:
+            evidence = f"its uptime went back from {last} ms to {uptime_ms} ms"
+        elif state is BoardState.BOOT and self.phase is Phase.READY:
+            evidence = "it reports BOOT in the middle of a session"
+        if evidence is None:
+            return
+        if self.armed and self.state is not BoardState.ARMED:
+            self.armed = False
+            self.pending_reset = PendingReset(now, evidence)
+        if reply is not None:  # the handshake that just happened already told why
+            self._report_reset(now, reply.reset_cause, evidence)
+            return
+        self._reset_evidence = evidence
+        if self.phase is Phase.READY:
+            self.phase = Phase.HANDSHAKING
+            self._hello(now)
+
+    def _set_state(self, state: BoardState, now: float) -> None:
+        old = self.state
+        if state is old:
+            return
+        self.state = state
+        self._emit(StateEvent(now, old, state))
+        if state is BoardState.FAILSAFE:
+            logger.warning("board in FAILSAFE (its link watchdog fired); arm() to recover")
+
+    def _report_reset(self, now: float, cause: ResetCause, evidence: str, in_session: bool = True) -> None:
+        self.counters.resets += 1
+        if self.pending_reset is not None:
+            self.pending_reset.cause = cause
+        self._emit(BoardResetEvent(now, cause, evidence, in_session))
+        logger.warning("board reset (cause %s): %s", cause.name, evidence)
+
+    # ------------------------------------------------------------------ handshake
+    def _hello(self, now: float) -> None:
+        if len(self.hellos):
+            return  # one is already on its way
+        ident = self.config.identity
+        hello = Hello(
+            protocol_version=PROTOCOL_VERSION,
+            schema_hash=self.config.schema_hash,
+            manufacturer=ident.manufacturer,
+            model=ident.model,
+            description=ident.description,
+            version=ident.version,
+            uri=ident.uri,
+            serial=ident.serial,
+        )
+        _, data = self.hellos.send(hello, now)
+        self._put(data, now)
+
+    def _on_hello_settled(self, cmd: Command) -> None:
+        now = self._now
+        if cmd.state is CommandState.ACKED:
+            self._on_hello_reply(cmd.reply, now)
+        elif self.phase is Phase.HANDSHAKING:  # not abandoned by link_down: the board never answered
+            self.failure = LinkTimeout(f"the board did not answer the handshake ({cmd.failure})")
+            self.link_down(now, str(self.failure))
+
+    def _on_hello_reply(self, reply: HelloReply, now: float) -> None:
+        info = BoardInfo(
+            protocol_version=reply.protocol_version,
+            schema_hash=reply.schema_hash,
+            reset_cause=reply.reset_cause,
+            state=reply.state,
+            n_units=reply.n_units,
+            frame_rate_hz=reply.frame_rate_hz,
+            manufacturer=reply.manufacturer,
+            model=reply.model,
+            description=reply.description,
+            version=reply.version,
+            uri=reply.uri,
+            serial=reply.serial,
+            firmware_build=reply.firmware_build,
+        )
+        ours = (PROTOCOL_VERSION, self.config.schema_hash)
+        if (reply.protocol_version, reply.schema_hash) != ours:
+            self.phase = Phase.INCOMPATIBLE
+            self.failure = HandshakeError(
+                f"incompatible board {info.describe()}: it speaks protocol {reply.protocol_version} "
+                f"with schema hash {reply.schema_hash:#010x}; this host speaks protocol {ours[0]} with "
+                f"schema hash {ours[1]:#010x}"
+            )
+            return
+        first = self.info is None
+        self.info = info
+        self.phase = Phase.READY
+        self.counters.handshakes += 1
+        self._reply_since_sample = reply
+        self._setpoint_slot = -math.inf
+        self._set_state(reply.state, now)
+        if self._reset_evidence is not None:
+            self._report_reset(now, reply.reset_cause, self._reset_evidence)
+            self._reset_evidence = None
+        elif first and reply.reset_cause is not ResetCause.POWER_ON:
+            self._report_reset(now, reply.reset_cause, "reported at connect (before this session)", False)
+        reconnect = self._lost
+        self.counters.reconnects += reconnect
+        self._lost = False
+        self._emit(ConnectedEvent(now, info, self.counters.reconnects))
+        if reconnect and self.armed and self.config.rearm_on_reconnect:
+            cmd, data = self.commands.send(Arm(), now)
+            self._auto[id(cmd)] = "re-arm after reconnect"
+            self._put(data, now)
+
+    # ------------------------------------------------------------------ commands
+    def _on_settled(self, cmd: Command) -> None:
+        now = self._now
+        if cmd.latency is not None:
+            self.rtt.add(cmd.latency)
+        if isinstance(cmd.message, Arm) and cmd.ok:
+            self.armed = True
+            self.pending_reset = None
+        why = self._auto.pop(id(cmd), None)
+        if why is not None:
+            detail = "" if cmd.ok else (cmd.reason.name if cmd.reason is not None else cmd.failure)
+            self._emit(CommandEvent(now, why, cmd.ok, detail))
+        if isinstance(cmd.message, CalibrationRequest) and not cmd.ok:
+            download = self._downloads.pop((cmd.message.unit, cmd.message.transfer_id), None)
+            if download is not None and not download.done:
+                try:
+                    cmd.result()
+                except HilError as exc:
+                    download.error = exc
+
+    def _on_calibration_data(self, frame: Frame, now: float) -> None:
+        """A fragment of a download (B→H, reliable): acknowledge it, once, and reassemble."""
+        answer = self._answers.lookup(frame)
+        if answer is None:
+            msg: CalibrationData = frame.message
+            download = self._downloads.get((msg.unit, msg.transfer_id))
+            refused: NackReason | None = None
+            if download is None or download.done:
+                refused = NackReason.BAD_STATE  # nothing asked for this transfer
+            else:
+                try:
+                    done = self._reassembler.feed(msg)
+                except CalibrationError as exc:
+                    download.error = exc
+                    refused = NackReason.BAD_CALIBRATION
+                else:
+                    if done is not None:
+                        download.data = done[1]
+                        del self._downloads[(msg.unit, msg.transfer_id)]
+            answer = answer_for(frame, refused)
+            self._answers.remember(frame, answer)
+        self.counters.calibration_answers += 1
+        self._send(answer, now)
+
+    # ================================================================== internals
+    def _require_session(self) -> None:
+        if self.phase is not Phase.READY:
+            raise LinkError(f"no session with the board (link {self.phase.value})")
+
+    def _check_setpoint(self, message: ActuatorSetpoint | RawPulses) -> None:
+        if not isinstance(message, (ActuatorSetpoint, RawPulses)):
+            raise ProtocolError(f"{type(message).__name__} is not a setpoint (ActuatorSetpoint or RawPulses)")
+        encode_payload(message)  # FieldRangeError for NaN / out-of-range values, before anything is held
+        info = self.info
+        if info is None:
+            return
+        if isinstance(message, ActuatorSetpoint) and len(message.units) != info.n_units:
+            raise ProtocolError(
+                f"ActuatorSetpoint for {len(message.units)} units; the board has {info.n_units}"
+            )
+        if isinstance(message, RawPulses) and len(message.pulses_us) != info.n_channels:
+            raise ProtocolError(
+                f"RawPulses for {len(message.pulses_us)} channels; the board has {info.n_channels}"
+            )
+
+    def _check_unit(self, unit: int) -> None:
+        self._require_session()
+        assert self.info is not None
+        if isinstance(unit, bool) or not isinstance(unit, int) or not 0 <= unit < self.info.n_units:
+            raise ProtocolError(f"unit {unit!r} does not exist (the board has {self.info.n_units})")
+
+    def _send_setpoint(self, message: ActuatorSetpoint | RawPulses, now: float) -> None:
+        self._send(message, now)
+        self.counters.setpoints_sent += 1
+        self._setpoint_slot = now + 1.0 / self._setpoint_rate()
+
+    def _setpoint_rate(self) -> float:
+        if self.config.max_setpoint_rate_hz is not None:
+            return self.config.max_setpoint_rate_hz
+        frame_rate = self.info.frame_rate_hz if self.info is not None else 0
+        return 2.0 * frame_rate if frame_rate > 0 else math.inf
+
+    def _next_transfer_id(self) -> int:
+        self._transfer_id = (self._transfer_id + 1) & 0xFF
+        return self._transfer_id
+
+    def _send(self, message: Any, now: float) -> None:
+        _, data = self.framer.encode(message)
+        self._put(data, now)
+
+    def _put(self, data: bytes, now: float) -> None:
+        if data:
+            self._out += data
+            self._last_tx = now
+            self.counters.frames_out += data.count(0)  # every frame ends with its only 0x00
+
+    def _take(self) -> bytes:
+        out = bytes(self._out)
+        self._out.clear()
+        return out
+
+    def _emit(self, event: Event) -> None:
+        self._events.append(event)
