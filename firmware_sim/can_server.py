@@ -50,7 +50,8 @@ class CanServer:
         self.board = board
         self.lock = threading.RLock()
         self.stats = CanServerStats()
-        self.transport = CanTransport(url, sends=Direction.TO_HOST).open()
+        self.transport = CanTransport(url, sends=Direction.TO_HOST)
+        self.transport.open()
         self.path = url  # what the host opens (the pty server's ``path`` counterpart)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None

@@ -338,8 +338,10 @@ class BoardClient:
         end = math.inf if timeout is None else clock.now() + timeout
         if self._thread is not None:
             if threading.current_thread() is self._thread:
-                raise RuntimeError("a blocking BoardClient call from its own reader thread (an on_event "
-                                   "callback) would wait for itself; use command() there")
+                raise RuntimeError(
+                    "a blocking BoardClient call from its own reader thread (an on_event "
+                    "callback) would wait for itself; use command() there"
+                )
             with self._cond:
                 while True:
                     self._check()

@@ -38,6 +38,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import can
 
@@ -84,7 +85,7 @@ class CanTransport(Transport):
         self.send_timeout = opts.get_float("send_timeout", DEFAULT_SEND_TIMEOUT_S)
         if not self.send_timeout >= 0:
             raise TransportError(f"{url}: send_timeout={self.send_timeout} must be >= 0 s")
-        self._bus_options: dict[str, object] = {}
+        self._bus_options: dict[str, Any] = {}
         for key in ("bitrate", "data_bitrate", "port"):
             if opts.get(key) is not None:
                 self._bus_options[key] = opts.get_int(key, 0)
@@ -171,7 +172,7 @@ class CanTransport(Transport):
         if msg.is_error_frame or msg.is_remote_frame:
             self.error_frames += 1
             return b""
-        return self._reassembler.feed(msg.arbitration_id, msg.data, msg.is_fd, msg.is_extended_id)
+        return self._reassembler.feed(msg.arbitration_id, bytes(msg.data), msg.is_fd, msg.is_extended_id)
 
     def _send_frame(self, wire: bytes) -> None:
         bus = self._bus

@@ -296,16 +296,20 @@ class SpawnTransport(Transport):
         while b"\n" not in line:
             remaining = end - time.monotonic()
             if remaining <= 0:
-                raise TransportError(f"{self.url}: firmware-sim printed no pty path within "
-                                     f"{self.start_timeout:g} s{self._stderr_tail()}")
+                raise TransportError(
+                    f"{self.url}: firmware-sim printed no pty path within "
+                    f"{self.start_timeout:g} s{self._stderr_tail()}"
+                )
             ready, _, _ = select.select([fd], [], [], remaining)
             if not ready:
                 continue
             chunk = os.read(fd, 4096)
             if not chunk:
                 process.wait(timeout=_TERMINATE_GRACE_S)
-                raise TransportError(f"{self.url}: firmware-sim exited with status {process.returncode} "
-                                     f"before it was ready{self._stderr_tail()}")
+                raise TransportError(
+                    f"{self.url}: firmware-sim exited with status {process.returncode} "
+                    f"before it was ready{self._stderr_tail()}"
+                )
             line += chunk
         path = line.split(b"\n", 1)[0].decode("utf-8", "replace").strip()
         if not path.startswith("/"):
