@@ -99,6 +99,7 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str], url: str) -> argpar
         raise TransportError(f"{url}: {message}")
 
     parser.error = refuse  # type: ignore[method-assign]  # a typed error instead of printing and exiting
+    parser.allow_abbrev = False  # "frame_rat" is a typo here, not --frame-rate
     return parser.parse_args(argv)
 
 
