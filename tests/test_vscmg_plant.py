@@ -38,7 +38,7 @@ def _servo_law(plant: Plant):
     """Motor torques that keep working: gimbal rate servos tracking a sinusoid, rotors pushed around."""
     lim = plant.params.limits
 
-    def law(t, gimbal_angle, gimbal_rate, rotor_rate):
+    def law(t, gimbal_angle, gimbal_rate, rotor_rate, gimbal_load, rotor_load):
         target = 0.8 * np.sin(0.7 * t + np.arange(plant.n))
         ug = np.clip(2e-4 * (target - gimbal_rate), -lim.max_gimbal_torque, lim.max_gimbal_torque)
         us = 2e-4 * np.cos(0.5 * t + np.arange(plant.n)) + 1e-6 * (400.0 - rotor_rate)
@@ -93,7 +93,7 @@ def test_work_of_the_motors_equals_the_change_of_energy():
     h, work = 1e-3, 0.0
 
     def power(state):
-        ug, us = law(state.t, state.gimbal_angle, state.gimbal_rate, state.rotor_rate)
+        ug, us = law(state.t, state.gimbal_angle, state.gimbal_rate, state.rotor_rate, None, None)
         return float(np.sum(ug * state.gimbal_rate + us * state.rotor_rate))
 
     p_prev = power(s)

@@ -37,9 +37,11 @@ from .params import SpacecraftParams
 
 Array = NDArray[np.float64]
 
-TorqueLaw = Callable[[float, Array, Array, Array], tuple[Array, Array]]
-"""``law(t, gimbal_angle, gimbal_rate, rotor_rate) -> (gimbal_torque, rotor_torque)``, all (B, n): motor
-drivers evaluated at every integrator stage (continuous-time servos)."""
+TorqueLaw = Callable[[float, Array, Array, Array, Array, Array], tuple[Array, Array]]
+"""``law(t, gimbal_angle, gimbal_rate, rotor_rate, gimbal_load, rotor_load) -> (gimbal_torque, rotor_torque)``,
+all (B, n): motor drivers evaluated at every integrator stage (continuous-time servos). The loads (N m) are
+the gyroscopic generalised forces ∂T/∂γ and ∂T/∂φ acting on each gimbal and rotor, what a servo's
+disturbance rejection works against."""
 
 Torques = TorqueLaw | tuple[ArrayLike, ArrayLike] | None
 """Motor torques (N m) for one step: a :data:`TorqueLaw`, a ``(gimbal, rotor)`` pair held over the step
@@ -267,7 +269,7 @@ class Plant:
             omega, gr, wr = known
         fg, fp = mdl.internal_forces(mdl.body_rates(m, cfg, omega, gr, wr), wr)
         if torques is not None:
-            ug, us = torques(t, ga, gr, wr) if callable(torques) else torques
+            ug, us = torques(t, ga, gr, wr, fg, fp) if callable(torques) else torques
             ug, us = np.asarray(ug, float), np.asarray(us, float)
             if not (np.all(np.isfinite(ug)) and np.all(np.isfinite(us))):
                 raise NumericalError(f"non-finite motor torque at t = {t:.6g} s: gimbal {ug}, rotor {us}")

@@ -1,0 +1,329 @@
+"""A closed-loop attitude simulation in lockstep time, built from the pieces the host and the emulator's
+world use: the plant (:mod:`hil.vscmg`) at its own step (≤ 1 ms) with the motor servos
+(:class:`hil.motor_loops.ServoModel`), and at the control rate an attitude source → controller → steering
+→ setpoint generator. Pure math: no clock, no I/O; one call runs a whole scenario as fast as the CPU allows.
+
+Attitude sources (what the controller is told):
+
+- :class:`TruthWithNoise`: the plant's attitude and rate with phone-grade noise (attitude white noise
+  of an estimator's size; the gyroscope's white noise and residual bias from :class:`hil.phone_model.PhoneSpec`);
+- :class:`EstimatorInTheLoop`: a simulated phone on the spacecraft (accelerometer, gyroscope and
+  magnetometer at their own rates, jitter, noise and bias, sampled from the plant's true motion), merged
+  with hold-last-sample (:class:`hil.multirate.Merger`) and run through the paper's estimator
+  (:class:`hil.estimator.AttitudeFilter`) — the host's path.
+
+Telemetry (gimbal angles, rotor speeds) is read from the plant, as the board would report it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from hil import so3
+from hil.control import AttitudeController, ControllerGains, EigenaxisSlew
+from hil.motor_loops import ServoModel, ServoParams, SetpointGenerator
+from hil.steering import SteeringParams, VscmgSteering
+from hil.vscmg import Plant, PlantState, SpacecraftParams
+from protocol.errors import ConfigError
+
+Array = NDArray[np.float64]
+
+
+# --------------------------------------------------------------------------- attitude sources
+@dataclass(frozen=True)
+class Measurement:
+    """What the controller sees: attitude ``R`` (3, 3) body → inertial and body rate ``omega`` (3,) rad/s."""
+
+    R: Array
+    omega: Array
+
+
+class AttitudeSource(Protocol):
+    """Sees the true plant after every plant step (``observe``) and answers at control ticks (``measure``)."""
+
+    def start(self, state: PlantState) -> None: ...
+
+    def observe(self, state: PlantState) -> None: ...
+
+    def measure(self) -> Measurement: ...
+
+
+class TruthWithNoise:
+    """The true attitude turned by white noise of ``attitude_noise_rad`` per axis (1σ), and the true rate
+    plus the gyroscope's white noise (``rate_noise`` rad/s, 1σ) and a constant bias drawn once
+    (``rate_bias`` rad/s, 1σ per axis). Defaults: 0.1° attitude noise, the Nexus-5 gyroscope figures."""
+
+    def __init__(
+        self,
+        attitude_noise_rad: float = math.radians(0.1),
+        rate_noise: float | None = None,
+        rate_bias: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        from hil.phone_model import PhoneSpec
+
+        gyr = PhoneSpec.nexus5().gyr
+        self.attitude_noise = attitude_noise_rad
+        self.rate_noise = gyr.noise if rate_noise is None else rate_noise
+        self.rng = np.random.default_rng(seed)
+        self.bias = self.rng.normal(0.0, gyr.bias if rate_bias is None else rate_bias, 3)
+        self._state: PlantState | None = None
+
+    def start(self, state: PlantState) -> None:
+        self._state = state
+
+    def observe(self, state: PlantState) -> None:
+        self._state = state
+
+    def measure(self) -> Measurement:
+        assert self._state is not None, "start() first"
+        s = self._state
+        R = s.R[0] @ so3.exp(self.rng.normal(0.0, self.attitude_noise, 3))
+        return Measurement(R, s.omega[0] + self.bias + self.rng.normal(0.0, self.rate_noise, 3))
+
+
+class EstimatorInTheLoop:
+    """A simulated phone fixed to the body (its frame = the body frame), read by the paper's estimator.
+
+    Each sensor samples at its own rate with timestamp jitter, white noise and a constant bias
+    (``spec``, default :meth:`PhoneSpec.nexus5`); the truth between plant steps is interpolated (geodesic
+    for the attitude, linear for the rate). The inertial frame is ENU (a testbed on the ground: the
+    accelerometer reads gravity, the magnetometer the local field). ``config`` is the estimator's
+    :class:`hil.estimator.FilterConfig` (default: the paper's)."""
+
+    def __init__(self, spec: object | None = None, config: object | None = None, seed: int = 0) -> None:
+        from hil.estimator import AttitudeFilter, FilterConfig
+        from hil.multirate import Merger
+        from hil.phone_model import PhoneSpec
+        from hil.sensors import KINDS
+
+        self.spec = spec if spec is not None else PhoneSpec.nexus5()
+        self.filter = AttitudeFilter(config if config is not None else FilterConfig.paper())  # type: ignore[arg-type]
+        self.merger = Merger()
+        self.rng = np.random.default_rng(seed)
+        self.kinds = KINDS
+        self.bias = {k: self.rng.normal(0.0, self.spec.spec(k).bias, 3) for k in KINDS}  # type: ignore[attr-defined]
+        self.next_t = {k: self.spec.spec(k).offset_s for k in KINDS}  # type: ignore[attr-defined]
+        self.estimate: object | None = None
+        self._prev: PlantState | None = None
+        self.steps = 0
+
+    def start(self, state: PlantState) -> None:
+        self._prev = state
+        for k in self.kinds:
+            self.next_t[k] += state.t
+
+    def observe(self, state: PlantState) -> None:
+        from hil.sensors import SensorKind, SensorSample
+
+        prev = self._prev
+        assert prev is not None, "start() first"
+        self._prev = state
+        samples = []
+        for k in self.kinds:
+            sensor = self.spec.spec(k)  # type: ignore[attr-defined]
+            while self.next_t[k] <= state.t:
+                t = self.next_t[k]
+                self.next_t[k] += 1.0 / sensor.rate_hz
+                f = (t - prev.t) / (state.t - prev.t)
+                R = prev.R[0] @ so3.exp(f * so3.log(prev.R[0].T @ state.R[0]))
+                if k is SensorKind.GYR:
+                    clean = prev.omega[0] + f * (state.omega[0] - prev.omega[0])
+                elif k is SensorKind.ACC:
+                    clean = R.T @ np.array([0.0, 0.0, self.spec.gravity])  # type: ignore[attr-defined]
+                else:
+                    clean = R.T @ np.asarray(self.spec.field_enu_uT, dtype=float)  # type: ignore[attr-defined]
+                noisy = clean + self.bias[k] + self.rng.normal(0.0, sensor.noise, 3)
+                stamp = t + (self.rng.normal(0.0, sensor.jitter_s) if sensor.jitter_s else 0.0)
+                samples.append(SensorSample(stamp, k, (float(noisy[0]), float(noisy[1]), float(noisy[2]))))
+        for sample in sorted(samples, key=lambda x: x.t_s):
+            for step in self.merger.push(sample):
+                self.estimate = self.filter.step(step)
+                self.steps += 1
+
+    def measure(self) -> Measurement:
+        if self.estimate is None:
+            raise ConfigError(
+                "the estimator has no estimate yet (no sensor step before the first tick)", "source"
+            )
+        est = self.estimate
+        return Measurement(np.asarray(est.R), np.asarray(est.omega))  # type: ignore[attr-defined]
+
+
+# --------------------------------------------------------------------------- the loop
+@dataclass(frozen=True)
+class LoopConfig:
+    """Rates and the pieces' parameters: ``plant_step_s`` (≤ 1 ms), ``control_rate_hz`` (≤ the board's
+    ``frame_rate_hz``), controller ``gains``, ``steering`` and ``servo`` parameters."""
+
+    plant_step_s: float = 1e-3
+    control_rate_hz: float = 50.0
+    frame_rate_hz: float = 50.0
+    gains: ControllerGains = field(default_factory=lambda: ControllerGains(0.5, 0.9, integral_time_s=8.0))
+    steering: SteeringParams = field(default_factory=lambda: SteeringParams(null_gain=0.5))
+    servo: ServoParams = field(default_factory=ServoParams)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.plant_step_s <= 1e-3:
+            raise ConfigError(f"must be in (0, 1 ms], got {self.plant_step_s}", "LoopConfig.plant_step_s")
+        steps = 1.0 / (self.control_rate_hz * self.plant_step_s)
+        if abs(steps - round(steps)) > 1e-6:
+            raise ConfigError("the control period must be a whole number of plant steps", "LoopConfig")
+
+
+@dataclass(frozen=True)
+class SlewScenario:
+    """A rest-to-rest slew: from ``R0`` to ``R_target`` (3, 3) within ``max_rate`` rad/s and ``max_accel``
+    rad/s², from gimbal angles ``gimbal_angle0`` (n,) rad and rotor speeds ``rotor_speed0`` (None: nominal),
+    simulated for ``duration_s``."""
+
+    name: str
+    R0: Array
+    R_target: Array
+    duration_s: float = 40.0
+    max_rate: float = 0.15
+    max_accel: float = 0.025
+    gimbal_angle0: ArrayLike = 0.0
+    rotor_speed0: ArrayLike | None = None
+
+
+@dataclass(frozen=True)
+class ClosedLoopLog:
+    """One run, sampled at the control rate (K ticks): ``t`` (K,) s; ``error_deg`` (K,) true attitude error
+    to the target; ``tracking_deg`` (K,) true error to the moving reference; ``estimate_error_deg`` (K,) of
+    the source's attitude; ``gimbal_rate`` (K, n) true rad/s; ``rotor_speed`` (K, n) rad/s; ``delta`` (K,);
+    ``saturation`` (K,) :class:`hil.steering.Saturation` bits; ``torque_shortfall`` (K,) N m, required minus
+    delivered torque; ``slew_end_s`` when the reference arrives; ``limits``: the gimbal-rate limit."""
+
+    t: Array
+    error_deg: Array
+    tracking_deg: Array
+    estimate_error_deg: Array
+    gimbal_rate: Array
+    rotor_speed: Array
+    delta: Array
+    saturation: Array
+    torque_shortfall: Array
+    slew_end_s: float
+    max_gimbal_rate: float
+
+    def settle_time(self, tolerance_deg: float = 0.5) -> float:
+        """The first time after which the error to the target stays within ``tolerance_deg`` (inf: never)."""
+        outside = np.nonzero(self.error_deg > tolerance_deg)[0]
+        if len(outside) == 0:
+            return float(self.t[0])
+        if outside[-1] == len(self.t) - 1:
+            return math.inf
+        return float(self.t[outside[-1] + 1])
+
+    def summary(self, tolerance_deg: float = 0.5) -> dict[str, float]:
+        """Settle time (s), final error (deg, mean of the last second), peak |gimbal rate| (rad/s), minimum δ."""
+        last = self.t >= self.t[-1] - 1.0
+        return {
+            "settle_time_s": self.settle_time(tolerance_deg),
+            "final_error_deg": float(np.mean(self.error_deg[last])),
+            "peak_gimbal_rate": float(np.max(np.abs(self.gimbal_rate))),
+            "min_delta": float(np.min(self.delta)),
+        }
+
+
+class ClosedLoop:
+    """Plant + servos at ``config.plant_step_s``; source → controller → steering → setpoints at the control
+    rate. :meth:`run` plays one :class:`SlewScenario` and returns its :class:`ClosedLoopLog`."""
+
+    def __init__(self, params: SpacecraftParams, config: LoopConfig | None = None) -> None:
+        self.params = params
+        self.config = config or LoopConfig()
+        self.plant = Plant(params)
+        self.steering = VscmgSteering(params, self.config.steering)
+
+    def run(self, scenario: SlewScenario, source: AttitudeSource) -> ClosedLoopLog:
+        cfg, plant = self.config, self.plant
+        rotor0 = self.params.nominal_rotor_speed if scenario.rotor_speed0 is None else scenario.rotor_speed0
+        state = plant.state(R=scenario.R0, gimbal_angle=scenario.gimbal_angle0, rotor_rate=rotor0)
+        controller = AttitudeController(plant.locked_inertia(state)[0], cfg.gains)
+        setpoints = SetpointGenerator(self.params, cfg.control_rate_hz, cfg.frame_rate_hz)
+        setpoints.reset(state.rotor_rate)
+        servo = ServoModel(self.params, cfg.servo)
+        servo.hold(
+            setpoints.update(
+                self.steering.solve(np.zeros(3), state.gimbal_angle, state.rotor_rate, 0.0), state.rotor_rate
+            )
+        )
+        slew = EigenaxisSlew.within_limits(
+            scenario.R0, scenario.R_target, scenario.max_rate, scenario.max_accel
+        )
+        source.start(state)
+        per_tick = int(round(1.0 / (cfg.control_rate_hz * cfg.plant_step_s)))
+        ticks = int(math.ceil(scenario.duration_s * cfg.control_rate_hz))
+        rows: list[tuple] = []
+        for k in range(ticks):
+            t = state.t
+            meas = source.measure()
+            ref = slew.at(t)
+            h = self.steering.momentum(state.gimbal_angle, state.rotor_rate)[0]
+            out = controller.update(meas.R, meas.omega, ref, 1.0 / cfg.control_rate_hz, h)
+            cmd = self.steering.solve(
+                out.torque, state.gimbal_angle, state.rotor_rate, 1.0 / cfg.control_rate_hz
+            )
+            servo.hold(setpoints.update(cmd, state.rotor_rate))
+            rows.append(
+                (
+                    t,
+                    so3.angle_between(state.R[0], scenario.R_target),
+                    so3.angle_between(state.R[0], ref.R),
+                    so3.angle_between(state.R[0], meas.R),
+                    state.gimbal_rate[0].copy(),
+                    state.rotor_rate[0].copy(),
+                    float(cmd.delta[0]),
+                    int(cmd.saturation[0]),
+                    float(np.linalg.norm(out.torque - cmd.torque[0])),
+                )
+            )
+            for _ in range(per_tick):
+                state = plant.step(state, cfg.plant_step_s, servo)
+                source.observe(state)
+            del k
+        cols = list(zip(*rows, strict=True))
+        return ClosedLoopLog(
+            t=np.array(cols[0]),
+            error_deg=np.degrees(cols[1]),
+            tracking_deg=np.degrees(cols[2]),
+            estimate_error_deg=np.degrees(cols[3]),
+            gimbal_rate=np.array(cols[4]),
+            rotor_speed=np.array(cols[5]),
+            delta=np.array(cols[6]),
+            saturation=np.array(cols[7]),
+            torque_shortfall=np.array(cols[8]),
+            slew_end_s=slew.start_s + slew.duration_s,
+            max_gimbal_rate=self.params.limits.max_gimbal_rate,
+        )
+
+
+# --------------------------------------------------------------------------- the acceptance scenarios
+SINGULAR_GIMBALS = np.radians([90.0, -90.0, 90.0, -90.0])
+"""A zero-momentum CMG singularity of the 4-unit pyramid (spin axes as in :func:`hil.vscmg.pyramid`):
+the transverse axes span no torque about body z."""
+
+
+def slew_90deg(duration_s: float = 40.0) -> SlewScenario:
+    """90° rest-to-rest about a skewed axis, from the zero-momentum gimbal set (all zero)."""
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    return SlewScenario("90deg", np.eye(3), so3.exp(math.pi / 2 * axis), duration_s)
+
+
+def slew_through_singularity(duration_s: float = 40.0) -> SlewScenario:
+    """60° about body z starting 2° off the singular gimbal set :data:`SINGULAR_GIMBALS`, whose
+    singular direction is z: a pure CMG pseudo-inverse would ask for unbounded gimbal rates."""
+    return SlewScenario(
+        "singular",
+        np.eye(3),
+        so3.exp([0.0, 0.0, math.radians(60.0)]),
+        duration_s,
+        gimbal_angle0=SINGULAR_GIMBALS + np.radians([2.0, -2.0, 2.0, -2.0]),
+    )

@@ -1,0 +1,169 @@
+"""Geometric attitude control on SO(3) (Lee, Leok & McClamroch 2010; Sanyal's S_L form): the torque the
+VSCMG array must exert on the body to track a reference attitude, or to slew to one and stop. Pure math.
+
+Attitude error (no quaternions, so no sign ambiguity and no unwinding)::
+
+    e_R = ½ vex(K R_dᵀ R − Rᵀ R_d K)          e_Ω = Ω − Rᵀ R_d Ω_d
+
+``K = diag(k₁, k₂, k₃)`` weights the error potential ``½ tr(K (I − R_dᵀ R))`` (the Sanyal form's
+``S_L(R)`` with ``L = R_d K``); distinct weights make the identity the only stable equilibrium of an almost
+globally attractive set, equal weights give Lee's ``e_R``. Control law, with J the locked inertia and
+``h`` the array's momentum relative to the locked body (so that ``J Ω̇ = τ_fb`` when the array delivers it)::
+
+    τ_fb = −K_R e_R − K_Ω e_Ω − K_I ∫e_R + J (Rᵀ R_d Ω̇_d − Ω^× Rᵀ R_d Ω_d)
+    L_r  = τ_fb + Ω × (J Ω + h)                  the torque the array must exert on the body
+
+Gains come from a natural frequency ω_n and damping ζ at the spacecraft's inertia: ``K_R = ω_n² J``,
+``K_Ω = 2 ζ ω_n J``, so that small errors obey ``δθ̈ + 2ζω_n δθ̇ + ω_n² δθ = 0`` about every axis.
+The optional integral term (time constant ``integral_time_s``, clamped) removes steady offsets from
+constant disturbances (gravity gradient, a residual gyro bias).
+
+Rest-to-rest slews: :class:`EigenaxisSlew` is a smooth (minimum-jerk) rotation about the fixed axis from
+``R0`` to ``R_f``, within a rate and an acceleration limit, which the controller tracks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from hil import so3
+from protocol.errors import ConfigError
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Reference:
+    """Desired attitude ``R`` (3, 3) body → inertial, body rate ``omega`` (3,) rad/s and its derivative
+    ``omega_dot`` (3,) rad/s², both in the desired body frame."""
+
+    R: Array
+    omega: Array = field(default_factory=lambda: np.zeros(3))
+    omega_dot: Array = field(default_factory=lambda: np.zeros(3))
+
+
+@dataclass(frozen=True)
+class ControllerGains:
+    """``natural_frequency`` ω_n (rad/s), ``damping`` ζ, ``weights`` (3,) the error-potential weights K,
+    ``integral_time_s`` (None: no integral term) and ``integral_limit`` (rad s) clamping ∫e_R."""
+
+    natural_frequency: float = 0.5
+    damping: float = 0.9
+    weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    integral_time_s: float | None = None
+    integral_limit: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("natural_frequency", "damping", "integral_limit"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"must be positive, got {v!r}", f"ControllerGains.{name}")
+        if self.integral_time_s is not None and not self.integral_time_s > 0:
+            raise ConfigError("must be positive or None", "ControllerGains.integral_time_s")
+        if len(self.weights) != 3 or not all(w > 0 for w in self.weights):
+            raise ConfigError(
+                f"must be three positive weights, got {self.weights!r}", "ControllerGains.weights"
+            )
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """``torque`` (3,) N m the array must exert on the body (L_r), ``feedback`` (3,) N m the τ_fb part,
+    ``e_R`` (3,) and ``e_omega`` (3,) rad/s the errors, ``angle`` rad the principal angle of ``R_dᵀ R``."""
+
+    torque: Array
+    feedback: Array
+    e_R: Array
+    e_omega: Array
+    angle: float
+
+
+class AttitudeController:
+    """The geometric controller above, for a spacecraft of locked inertia ``inertia`` (3, 3) kg m².
+
+    ``update(R, omega, reference, dt, array_momentum)`` once per control period; ``dt`` (s) advances the
+    integral term (0 leaves it)."""
+
+    def __init__(self, inertia: ArrayLike, gains: ControllerGains | None = None) -> None:
+        J = np.asarray(inertia, dtype=float)
+        if J.shape != (3, 3) or not np.all(np.isfinite(J)) or np.linalg.eigvalsh(0.5 * (J + J.T))[0] <= 0:
+            raise ConfigError("must be a positive definite 3x3 inertia", "AttitudeController.inertia")
+        self.J = J
+        self.gains = gains or ControllerGains()
+        wn, zeta = self.gains.natural_frequency, self.gains.damping
+        self.K_R = wn * wn * J
+        self.K_Omega = 2.0 * zeta * wn * J
+        self.K = np.diag(self.gains.weights)
+        self.integral = np.zeros(3)
+
+    def reset(self) -> None:
+        self.integral = np.zeros(3)
+
+    def errors(self, R: ArrayLike, omega: ArrayLike, ref: Reference) -> tuple[Array, Array, Array]:
+        """``(e_R, e_Ω, Rᵀ R_d)`` for attitude ``R`` (3, 3) and body rate ``omega`` (3,)."""
+        R = np.asarray(R, dtype=float)
+        rt_rd = R.T @ ref.R
+        e_R = 0.5 * so3.vee(self.K @ rt_rd.T - rt_rd @ self.K)
+        return e_R, np.asarray(omega, dtype=float) - rt_rd @ ref.omega, rt_rd
+
+    def update(
+        self,
+        R: ArrayLike,
+        omega: ArrayLike,
+        ref: Reference,
+        dt: float = 0.0,
+        array_momentum: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> ControlOutput:
+        w = np.asarray(omega, dtype=float)
+        e_R, e_w, rt_rd = self.errors(R, w, ref)
+        fb = -self.K_R @ e_R - self.K_Omega @ e_w
+        if self.gains.integral_time_s is not None:
+            lim = self.gains.integral_limit
+            self.integral = np.clip(self.integral + dt * e_R, -lim, lim)
+            fb -= self.K_R @ self.integral / self.gains.integral_time_s
+        w_d = rt_rd @ ref.omega
+        fb += self.J @ (rt_rd @ ref.omega_dot - np.cross(w, w_d))
+        torque = fb + np.cross(w, self.J @ w + np.asarray(array_momentum, dtype=float))
+        angle = so3.principal_angle(rt_rd)
+        return ControlOutput(torque, fb, e_R, e_w, angle)
+
+
+@dataclass(frozen=True)
+class EigenaxisSlew:
+    """A rest-to-rest rotation from ``R0`` to ``R_f`` about their fixed eigenaxis in ``duration_s``, with the
+    minimum-jerk profile ``θ(τ) = Θ (10τ³ − 15τ⁴ + 6τ⁵)``, τ = (t − start)/duration (peak rate
+    1.875 Θ/T, peak acceleration 5.774 Θ/T²)."""
+
+    R0: Array
+    R_f: Array
+    duration_s: float
+    start_s: float = 0.0
+
+    @classmethod
+    def within_limits(
+        cls, R0: ArrayLike, R_f: ArrayLike, max_rate: float, max_accel: float, start_s: float = 0.0
+    ) -> EigenaxisSlew:
+        """The quickest such slew whose peak rate (rad/s) and acceleration (rad/s²) stay within limits."""
+        if not (max_rate > 0 and max_accel > 0):
+            raise ConfigError("rate and acceleration limits must be positive", "EigenaxisSlew.within_limits")
+        R0, R_f = np.asarray(R0, float), np.asarray(R_f, float)
+        theta = so3.principal_angle(R0.T @ R_f)
+        T = max(1.875 * theta / max_rate, math.sqrt(5.7735 * theta / max_accel), 1e-9)
+        return cls(R0, R_f, T, start_s)
+
+    @property
+    def axis_angle(self) -> Array:
+        """The body-frame rotation vector (3,) from R0 to R_f."""
+        return so3.log(np.asarray(self.R0).T @ np.asarray(self.R_f))
+
+    def at(self, t: float) -> Reference:
+        tau = min(max((t - self.start_s) / self.duration_s, 0.0), 1.0)
+        phi = self.axis_angle
+        s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+        ds = 30.0 * tau * tau * (1.0 - tau) ** 2 / self.duration_s
+        dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / self.duration_s**2
+        return Reference(np.asarray(self.R0) @ so3.exp(s * phi), ds * phi, dds * phi)
