@@ -37,7 +37,7 @@ class ArrayModel:
     gimbal-structure inertias in ``(s, t, g)``, ``IW`` (n, 3, 3) rotor inertias in ``(s, w₂, w₃)``, ``J0``
     (3, 3) the constant part of the locked inertia about the system's centre of mass (bus inertia plus every
     body's parallel-axis term, σ included), ``axisymmetric`` True when every rotor is (then Ī_W^G does not
-    depend on φ and is precomputed)."""
+    depend on φ, and ``K = Ī_G + Ī_W`` (n, 3, 3) and ``dinv`` (n, 3), the entries of D⁻¹, are constants)."""
 
     params: SpacecraftParams
     g: Array
@@ -47,6 +47,8 @@ class ArrayModel:
     IW: Array
     J0: Array
     axisymmetric: bool
+    K: Array
+    dinv: Array
 
     @classmethod
     def build(cls, params: SpacecraftParams) -> ArrayModel:
@@ -71,7 +73,7 @@ class ArrayModel:
         )
         j0 = inertia_tensor(params.bus_inertia, "bus_inertia") + parallel
         axisym = all(u.axisymmetric_rotor for u in units)
-        return cls(params, g, s0, np.cross(g, s0), ig, iw, j0, axisym)
+        return cls(params, g, s0, np.cross(g, s0), ig, iw, j0, axisym, ig + iw, _block_inverse(ig + iw, iw))
 
     @property
     def n(self) -> int:
@@ -81,7 +83,7 @@ class ArrayModel:
 @dataclass(frozen=True)
 class Configuration:
     """Geometry at one set of gimbal and rotor angles (batch B): ``C`` (B, n, 3, 3) gimbal frames as columns
-    ``(s, t, g)`` in body coordinates, ``IWG`` (B, n, 3, 3) rotor inertias in gimbal-frame components,
+    ``(s, t, g)`` in body coordinates, ``IWG`` (B, n, 3, 3) rotor inertias in gimbal-frame components ((n, 3, 3) when constant),
     ``J`` (B, 3, 3) the locked inertia J(γ, φ), ``bg, bp`` (B, n, 3) the mass matrix's body–gimbal and
     body–rotor columns ``b_γ = C K̄ e_g``, ``b_φ = C Ī_W^G e_s`` (K̄ = Ī_G + Ī_W^G), and ``dinv`` (B, n, 3)
     the entries (11, 12, 22) of each unit's inverted 2×2 gimbal/rotor block D⁻¹."""
@@ -97,22 +99,19 @@ class Configuration:
 def configuration(m: ArrayModel, gamma: Array, phi: Array) -> Configuration:
     """Frames and inertias at gimbal angles ``gamma`` and rotor angles ``phi`` (B, n) rad."""
     cg, sg = np.cos(gamma)[..., None], np.sin(gamma)[..., None]
-    s = cg * m.s0 + sg * m.t0
-    t = cg * m.t0 - sg * m.s0
-    g = np.broadcast_to(m.g, s.shape)
-    C = np.stack([s, t, g], axis=-1)
+    C = np.empty(gamma.shape + (3, 3))
+    C[..., 0] = cg * m.s0 + sg * m.t0
+    C[..., 1] = cg * m.t0 - sg * m.s0
+    C[..., 2] = m.g
     if m.axisymmetric:
-        K = m.IG + m.IW
-        IWG = np.broadcast_to(m.IW, C.shape)
-        dinv = np.broadcast_to(_block_inverse(K, m.IW), s.shape)
+        IWG, K, dinv = m.IW, m.K, m.dinv
     else:
         IWG = _rotor_inertia_in_gimbal_frame(m.IW, phi)
         K = m.IG + IWG
         dinv = _block_inverse(K, IWG)
     J = m.J0 + np.sum(C @ K @ np.swapaxes(C, -1, -2), axis=1)
-    kg, ws = K[..., :, 2], IWG[..., :, 0]
-    bg = s * kg[..., 0:1] + t * kg[..., 1:2] + g * kg[..., 2:3]
-    bp = s * ws[..., 0:1] + t * ws[..., 1:2] + g * ws[..., 2:3]
+    bg = (C @ K[..., :, 2:3])[..., 0]
+    bp = (C @ IWG[..., :, 0:1])[..., 0]
     return Configuration(C, IWG, J, bg, bp, dinv)
 
 
@@ -151,28 +150,13 @@ def velocities(
     up = i12[..., None] * bg + i22[..., None] * bp
     schur = cfg.J - np.einsum("bni,bnj->bij", ug, bg) - np.einsum("bni,bnj->bij", up, bp)
     rhs = H - np.einsum("bni,bn->bi", ug, p_gamma) - np.einsum("bni,bn->bi", up, p_phi)
-    omega = solve3(schur, rhs)
+    try:
+        omega = np.linalg.solve(schur, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError as e:
+        raise NumericalError(f"singular VSCMG mass matrix: {e}") from e
     rg = p_gamma - np.einsum("bni,bi->bn", bg, omega)
     rp = p_phi - np.einsum("bni,bi->bn", bp, omega)
     return omega, i11 * rg + i12 * rp, i12 * rg + i22 * rp
-
-
-def solve3(a: Array, b: Array) -> Array:
-    """``a⁻¹ b`` for (B, 3, 3) and (B, 3) by cofactors (far cheaper than LAPACK at this size); raises
-    NumericalError for a singular or non-finite ``a``."""
-    a0, a1, a2 = a[:, 0, 0], a[:, 0, 1], a[:, 0, 2]
-    a3, a4, a5 = a[:, 1, 0], a[:, 1, 1], a[:, 1, 2]
-    a6, a7, a8 = a[:, 2, 0], a[:, 2, 1], a[:, 2, 2]
-    c0, c1, c2 = a4 * a8 - a5 * a7, a5 * a6 - a3 * a8, a3 * a7 - a4 * a6
-    det = a0 * c0 + a1 * c1 + a2 * c2
-    if not np.all(np.isfinite(det)) or np.any(det == 0.0):
-        raise NumericalError(f"singular or non-finite VSCMG mass matrix (det {det})")
-    x, y, z = b[:, 0] / det, b[:, 1] / det, b[:, 2] / det
-    out = np.empty_like(b)
-    out[:, 0] = c0 * x + (a2 * a7 - a1 * a8) * y + (a1 * a5 - a2 * a4) * z
-    out[:, 1] = c1 * x + (a0 * a8 - a2 * a6) * y + (a2 * a3 - a0 * a5) * z
-    out[:, 2] = c2 * x + (a1 * a6 - a0 * a7) * y + (a0 * a4 - a1 * a3) * z
-    return out
 
 
 @dataclass(frozen=True)
@@ -195,8 +179,8 @@ def body_rates(
     wG[..., 2] += gamma_dot
     wW = wG.copy()
     wW[..., 0] += phi_dot
-    hG = np.einsum("nij,bnj->bni", m.IG, wG)
-    hW = np.einsum("bnij,bnj->bni", cfg.IWG, wW)
+    hG = (m.IG @ wG[..., None])[..., 0]
+    hW = (cfg.IWG @ wW[..., None])[..., 0]
     return BodyRates(wG, wW, hG, hW)
 
 

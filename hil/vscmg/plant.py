@@ -309,27 +309,23 @@ def _cross(a: Array, b: Array) -> Array:
 
 
 def _exp(phi: Array) -> Array:
-    """Rodrigues, ``exp(φ^×) = cos θ I + (sin θ/θ) φ^× + ((1 − cos θ)/θ²) φφᵀ``, (B, 3) → (B, 3, 3); series
-    below θ = 1e-4 rad."""
+    """Rodrigues, ``exp(φ^×) = I + a φ^× + b (φ^×)²``, a = sin θ/θ, b = (1 − cos θ)/θ², for (B, 3) →
+    (B, 3, 3); series below θ = 1e-4 rad (integrator increments are small)."""
     th2 = np.einsum("bi,bi->b", phi, phi)
-    small = th2 < 1e-8
-    safe2 = np.where(small, 1.0, th2)
-    th = np.sqrt(safe2)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(th) / th)
-    b = np.where(small, 0.5 - th2 / 24.0, 2.0 * np.sin(0.5 * th) ** 2 / safe2)
-    out = (b[:, None, None] * phi[:, :, None]) * phi[:, None, :]
-    diag = 1.0 - b * th2
-    ax, ay, az = a * phi[:, 0], a * phi[:, 1], a * phi[:, 2]
-    out[:, 0, 0] += diag
-    out[:, 1, 1] += diag
-    out[:, 2, 2] += diag
-    out[:, 0, 1] -= az
-    out[:, 1, 0] += az
-    out[:, 0, 2] += ay
-    out[:, 2, 0] -= ay
-    out[:, 1, 2] -= ax
-    out[:, 2, 1] += ax
-    return out
+    if np.all(th2 < 1e-8):
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = np.sqrt(th2)
+        safe = np.where(th2 < 1e-8, 1.0, th)
+        a = np.where(th2 < 1e-8, 1.0 - th2 / 6.0, np.sin(safe) / safe)
+        b = np.where(th2 < 1e-8, 0.5 - th2 / 24.0, 2.0 * (np.sin(0.5 * safe) / safe) ** 2)
+    k = np.zeros(phi.shape + (3,))
+    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -phi[:, 2], phi[:, 1], -phi[:, 0]
+    k[:, 1, 0], k[:, 2, 0], k[:, 2, 1] = phi[:, 2], -phi[:, 1], phi[:, 0]
+    return _EYE + a[:, None, None] * k + b[:, None, None] * (k @ k)
+
+
+_EYE = np.eye(3)
 
 
 def _dexpinv(theta: Array, w: Array) -> Array:
