@@ -105,6 +105,7 @@ class BoardClient:
         self._attempts = 0
         self._lost_at: float | None = None
         self._last_error = ""
+        self._write_failure: LinkError | None = None  # a write failed in the caller's thread
 
     # ================================================================== session
     def connect(self, timeout: float | None = None) -> BoardInfo:
@@ -390,6 +391,9 @@ class BoardClient:
         with self._cond:
             try:
                 now = self.clock.now() if now is None else now
+                if self._write_failure is not None:
+                    failure, self._write_failure = self._write_failure, None
+                    self._lose_link(now, failure)
                 out = self.session.feed(data, now) if data else b""
                 self._write(out + self.session.poll(now), now)
                 self._keep_link(now)
@@ -402,11 +406,15 @@ class BoardClient:
                 self._cond.notify_all()
 
     def _write(self, data: bytes, now: float) -> None:
-        if data and self.transport.is_open:
+        if data and self.transport.is_open and self._write_failure is None:
             try:
                 self.transport.write(data)
             except LinkError as exc:
-                self._lose_link(now, exc)
+                reader = self._thread
+                if reader is not None and reader is not threading.current_thread():
+                    self._write_failure = exc  # the reader thread, maybe inside read(), closes the port
+                else:
+                    self._lose_link(now, exc)
 
     def _lose_link(self, now: float, exc: BaseException) -> None:
         """The transport failed: before the first session that is the caller's error; after it, close,

@@ -236,6 +236,7 @@ class Session:
         self._last_tx = -math.inf
         self._silent = False
         self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
+        self._armed_at_loss = False  # the host had the board armed when the link was lost
         self._last_uptime: int | None = None
         self._reply_since_sample: HelloReply | None = None
         self._reset_evidence: str | None = None
@@ -268,6 +269,7 @@ class Session:
         was_up = lost and self.info is not None
         self.phase = Phase.DOWN
         self._lost = self._lost or was_up
+        self._armed_at_loss = self._armed_at_loss or (was_up and self.armed)
         self.counters.link_losses += was_up
         self.deframer.reset()
         self._pending_setpoint = None
@@ -512,11 +514,11 @@ class Session:
             self._reset_evidence = None
         elif first and reply.reset_cause is not ResetCause.POWER_ON:
             self._report_reset(now, reply.reset_cause, "reported at connect (before this session)", False)
-        reconnect = self._lost
+        reconnect, rearm = self._lost, self._armed_at_loss and self.config.rearm_on_reconnect
         self.counters.reconnects += reconnect
-        self._lost = False
+        self._lost = self._armed_at_loss = False
         self._emit(ConnectedEvent(now, info, self.counters.reconnects))
-        if reconnect and self.armed and self.config.rearm_on_reconnect:
+        if reconnect and rearm:
             cmd, data = self.commands.send(Arm(), now)
             self._auto[id(cmd)] = "re-arm after reconnect"
             self._put(data, now)
@@ -526,6 +528,8 @@ class Session:
         now = self._now
         if cmd.latency is not None:
             self.rtt.add(cmd.latency)
+        if isinstance(cmd.message, (Arm, Disarm)) and cmd.ok:  # accepted means executed: the state is known
+            self._set_state(BoardState.ARMED if isinstance(cmd.message, Arm) else BoardState.DISARMED, now)
         if isinstance(cmd.message, Arm) and cmd.ok:
             self.armed = True
             self.pending_reset = None

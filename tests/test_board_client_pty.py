@@ -1,0 +1,239 @@
+"""The board client end to end in real time: a real pty, pyserial, and ``firmware-sim`` in its own process
+(spawned by the client's spawn:// transport or, where the test must kill and restart it, by the test).
+Faults come from firmware-sim's own options (--corrupt, --stall, --hang-at)."""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from hil.board import (
+    BoardClient,
+    BoardResetEvent,
+    ClientConfig,
+    CommandEvent,
+    ConnectedEvent,
+    LinkLostEvent,
+    LogEvent,
+    StateEvent,
+)
+from hil.clock import WallClock
+from hil.transports.emulator import EmulatorTransport
+from protocol.errors import BoardReset, HandshakeError, LinkError
+from protocol.messages import SCHEMA_HASH, ActuatorSetpoint, BoardState, ResetCause, UnitSetpoint
+
+ROTOR = 1  # pulse channel of unit 0's rotor
+
+
+def setpoint(speed: float, units: int = 4) -> ActuatorSetpoint:
+    return ActuatorSetpoint(units=tuple(UnitSetpoint(0.0, speed) for _ in range(units)))
+
+
+def drive(
+    client: BoardClient,
+    sp: ActuatorSetpoint | None,
+    until: Callable[[], bool],
+    timeout: float,
+    events: list | None = None,
+) -> list:
+    """A 50 Hz caller's loop: setpoints, ``service()`` (it only collects events while a reader thread
+    runs), until ``until()``. Events are appended to ``events`` as they come (``until`` may look at it)."""
+    events = [] if events is None else events
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if sp is not None:
+            client.send_setpoint(sp)
+        events += client.service()
+        if until():
+            return events
+        time.sleep(0.02)
+    raise AssertionError(f"condition not met within {timeout} s; events: {events[-10:]}")
+
+
+@contextlib.contextmanager
+def firmware_sim(*args: str) -> Iterator[subprocess.Popen[str]]:
+    """firmware-sim as its own process (the test kills it); its pty path is the first stdout line."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("/dev/")
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_handshake_arm_setpoints_move_the_pulses_and_disarm():
+    with BoardClient("spawn://firmware-sim?units=4&telemetry_rate=50") as client:
+        info = client.info
+        assert info is not None and info.n_units == 4 and info.schema_hash == SCHEMA_HASH
+        assert info.reset_cause is ResetCause.POWER_ON and info.model == "ADK-VSCMG"
+        client.start()  # real time with a reader thread from here on
+        client.arm()
+        assert client.state is BoardState.ARMED
+        telemetry = []
+        for speed in (150.0, 450.0):
+            sp = setpoint(speed)
+            drive(client, sp, lambda: client.telemetry is not None, 1.0)
+            time.sleep(0.1)
+            start = client.telemetry_time
+            drive(client, sp, lambda s=start: client.telemetry_time != s, 1.0)
+            telemetry.append(client.telemetry)
+        slow, fast = (t.pulses_us[ROTOR] for t in telemetry)
+        assert 1000 < slow < fast <= 2000
+        client.disarm()
+        assert client.state is BoardState.DISARMED
+        drive(client, None, lambda: client.telemetry.pulses_us[ROTOR] == 1000, 1.0)  # from the next frame on
+        assert client.telemetry.state is BoardState.DISARMED
+        stats = client.stats()
+        assert stats.rtt.count >= 2 and 0 < stats.rtt.p50_ms < 50
+        assert stats.frames_in > 10 and stats.bad_frames_total == 0 and stats.failed == 0
+        assert stats.board_rx_bad == 0
+
+
+def test_an_incompatible_host_is_refused_with_both_hashes():
+    client = BoardClient("spawn://firmware-sim?units=2", config=ClientConfig(schema_hash=SCHEMA_HASH ^ 1))
+    try:
+        with pytest.raises(HandshakeError, match=f"{SCHEMA_HASH:#010x}.*{SCHEMA_HASH ^ 1:#010x}"):
+            client.connect()
+        logs = [e.log.text for e in client.drain_events() if isinstance(e, LogEvent)]
+        assert any("incompatible host" in text for text in logs)  # the board said so too
+    finally:
+        client.close()
+
+
+def test_arming_under_one_percent_byte_corruption_succeeds_by_retries():
+    with BoardClient("spawn://firmware-sim?units=2&corrupt=0.01&seed=7") as client:
+        client.start()
+        cycles = 0
+        while client.stats().retries < 3 and cycles < 100:
+            client.arm()
+            assert client.state is BoardState.ARMED
+            client.disarm()
+            cycles += 1
+        stats = client.stats()
+        assert stats.retries >= 3 and stats.failed == 0  # every command got through, some on a retry
+        time.sleep(0.5)
+        stats = client.stats()
+        assert stats.bad_frames_total > 0  # damaged telemetry was dropped, by reason
+        assert set(stats.bad_frames) <= {
+            "cobs",
+            "crc",
+            "too_short",
+            "too_long",
+            "version",
+            "unknown_id",
+            "length",
+            "field_range",
+        }
+
+
+def test_a_link_stall_shows_failsafe_and_the_host_recovers_by_arming():
+    with BoardClient("spawn://firmware-sim?units=4&telemetry_rate=50&stall=1.0:0.5") as client:
+        client.arm()  # driven by service() in this loop: no reader thread
+        sp = setpoint(400.0)
+        events = drive(client, sp, lambda: client.state is BoardState.FAILSAFE, 3.0)
+        assert any(isinstance(e, StateEvent) and e.new is BoardState.FAILSAFE for e in events)
+        client.arm()
+        drive(client, sp, lambda: client.telemetry.state is BoardState.ARMED, 1.0)
+        drive(client, sp, lambda: client.telemetry.pulses_us[ROTOR] > 1400, 1.0)
+
+
+def test_an_mcu_hang_is_detected_as_a_watchdog_reset_and_reported():
+    with BoardClient("spawn://firmware-sim?units=2&hang_at=1.0&mcu_watchdog=0.3") as client:
+        client.start()
+        client.arm()
+
+        def setpoint_refused() -> bool:
+            try:
+                client.send_setpoint(setpoint(300.0, 2))
+            except BoardReset:
+                return True  # its cause may not be known yet: the board is answering the handshake
+            return False
+
+        events = drive(client, None, setpoint_refused, 4.0)
+        drive(client, None, lambda: any(isinstance(e, BoardResetEvent) for e in events), 1.0, events)
+        with pytest.raises(BoardReset, match="WATCHDOG"):
+            client.send_setpoint(setpoint(300.0, 2))
+        resets = [e for e in events if isinstance(e, BoardResetEvent)]
+        assert len(resets) == 1 and resets[0].cause is ResetCause.WATCHDOG and resets[0].during_session
+        assert client.state is BoardState.DISARMED
+        client.arm()
+        drive(client, setpoint(300.0, 2), lambda: client.telemetry.state is BoardState.ARMED, 1.0)
+
+
+@pytest.mark.parametrize("rearm", [False, True])
+def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_path: Path, rearm: bool):
+    link = tmp_path / "board"
+    config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.2, rearm_on_reconnect=rearm)
+    with firmware_sim("--units", "2", "--link", str(link)) as first:
+        client = BoardClient(str(link), config=config)
+        client.connect()
+        client.start()
+        client.arm()
+        time.sleep(1.0)  # the first board's uptime is well past the second's when it is back
+        first.send_signal(signal.SIGKILL)
+        events = drive(client, None, lambda: not client.connected, 2.0)
+    try:
+        with firmware_sim("--units", "2", "--link", str(link)):  # a new board on the same symlink
+            drive(client, None, lambda: client.connected, 5.0, events)
+            drive(client, None, lambda: any(isinstance(e, BoardResetEvent) for e in events), 2.0, events)
+            lost = [e for e in events if isinstance(e, LinkLostEvent)]
+            connected = [e for e in events if isinstance(e, ConnectedEvent)]
+            assert lost and connected and connected[-1].reconnects == 1
+            [reset] = [e for e in events if isinstance(e, BoardResetEvent)]
+            assert reset.cause is ResetCause.POWER_ON and "uptime went back" in reset.evidence
+            if rearm:
+                drive(client, None, lambda: any(isinstance(e, CommandEvent) for e in events), 1.0, events)
+                assert [e.ok for e in events if isinstance(e, CommandEvent)] == [True]
+                assert client.state is BoardState.ARMED
+                client.send_setpoint(setpoint(300.0, 2))  # armed again, as the caller asked
+            else:
+                assert client.state is BoardState.DISARMED  # never re-armed silently
+                with pytest.raises(BoardReset, match="POWER_ON"):
+                    client.send_setpoint(setpoint(300.0, 2))
+                client.arm()
+            assert client.stats().counters.reconnects == 1
+    finally:
+        client.close()
+
+
+def test_the_reader_threads_errors_reach_the_callers_loop(tmp_path: Path):
+    link = tmp_path / "board"
+    config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1, reconnect_give_up_s=0.5)
+    with firmware_sim("--units", "1", "--link", str(link)) as board:
+        client = BoardClient(str(link), config=config)
+        client.connect()
+        client.start()
+        board.send_signal(signal.SIGKILL)  # and it never comes back
+        with pytest.raises(LinkError, match="gave up reconnecting after"):
+            drive(client, setpoint(100.0, 1), lambda: False, 3.0)
+        with pytest.raises(LinkError, match="gave up"):  # every later call too
+            client.send_setpoint(setpoint(100.0, 1))
+        client.close()
+
+    def broken_callback(event: object) -> None:
+        raise ZeroDivisionError("a bug in the caller's event handler")
+
+    client = BoardClient(EmulatorTransport("emu://?units=1", WallClock()), on_event=broken_callback)
+    with pytest.raises(ZeroDivisionError):
+        client.connect()  # no thread yet: the caller's own call raises it
+    client = BoardClient(EmulatorTransport("emu://?units=1", WallClock()))
+    client.connect()
+    client.on_event = broken_callback
+    client.start()
+    with pytest.raises(LinkError, match="reader thread failed: ZeroDivisionError") as err:
+        drive(client, None, lambda: False, 2.0)
+    assert isinstance(err.value.__cause__, ZeroDivisionError)
+    client.close()
