@@ -6,7 +6,8 @@ world use: the plant (:mod:`hil.vscmg`) at its own step (≤ 1 ms) with the moto
 Attitude sources (what the controller is told):
 
 - :class:`TruthWithNoise`: the plant's attitude and rate with phone-grade noise (attitude white noise
-  of an estimator's size; the gyroscope's white noise and residual bias from :class:`hil.phone_model.PhoneSpec`);
+  of an estimator's size; the gyroscope's white noise and residual bias from
+  :class:`hil.phone_model.PhoneSpec`);
 - :class:`EstimatorInTheLoop`: a simulated phone on the spacecraft (accelerometer, gyroscope and
   magnetometer at their own rates, jitter, noise and bias, sampled from the plant's true motion), merged
   with hold-last-sample (:class:`hil.multirate.Merger`) and run through the paper's estimator
@@ -159,7 +160,8 @@ class EstimatorInTheLoop:
 @dataclass(frozen=True)
 class LoopConfig:
     """Rates and the pieces' parameters: ``plant_step_s`` (≤ 1 ms), ``control_rate_hz`` (≤ the board's
-    ``frame_rate_hz``), controller ``gains``, ``steering`` and ``servo`` parameters."""
+    ``frame_rate_hz``), controller ``gains``, ``steering`` and ``servo`` parameters; ``warmup_s`` of
+    holding still before the slew (the attitude source converges; the host waits for it the same way)."""
 
     plant_step_s: float = 1e-3
     control_rate_hz: float = 50.0
@@ -167,6 +169,7 @@ class LoopConfig:
     gains: ControllerGains = field(default_factory=lambda: ControllerGains(0.5, 0.9, integral_time_s=8.0))
     steering: SteeringParams = field(default_factory=lambda: SteeringParams(null_gain=0.5))
     servo: ServoParams = field(default_factory=ServoParams)
+    warmup_s: float = 2.0
 
     def __post_init__(self) -> None:
         if not 0 < self.plant_step_s <= 1e-3:
@@ -194,11 +197,12 @@ class SlewScenario:
 
 @dataclass(frozen=True)
 class ClosedLoopLog:
-    """One run, sampled at the control rate (K ticks): ``t`` (K,) s; ``error_deg`` (K,) true attitude error
-    to the target; ``tracking_deg`` (K,) true error to the moving reference; ``estimate_error_deg`` (K,) of
-    the source's attitude; ``gimbal_rate`` (K, n) true rad/s; ``rotor_speed`` (K, n) rad/s; ``delta`` (K,);
-    ``saturation`` (K,) :class:`hil.steering.Saturation` bits; ``torque_shortfall`` (K,) N m, required minus
-    delivered torque; ``slew_end_s`` when the reference arrives; ``limits``: the gimbal-rate limit."""
+    """One run, sampled at the control rate (K ticks): ``t`` (K,) s from the slew's start; ``error_deg``
+    (K,) true attitude error to the target; ``tracking_deg`` (K,) true error to the moving reference;
+    ``estimate_error_deg`` (K,) of the source's attitude; ``gimbal_rate`` (K, n) true rad/s; ``rotor_speed``
+    (K, n) rad/s; ``delta`` (K,); ``saturation`` (K,) :class:`hil.steering.Saturation` bits;
+    ``torque_shortfall`` (K,) N m, required minus delivered torque; ``slew_end_s`` when the reference
+    arrives; ``max_gimbal_rate`` the gimbal-rate limit (rad/s)."""
 
     t: Array
     error_deg: Array
@@ -222,7 +226,8 @@ class ClosedLoopLog:
         return float(self.t[outside[-1] + 1])
 
     def summary(self, tolerance_deg: float = 0.5) -> dict[str, float]:
-        """Settle time (s), final error (deg, mean of the last second), peak |gimbal rate| (rad/s), minimum δ."""
+        """Settle time (s), final error (deg, mean of the last second), peak |gimbal rate| (rad/s) and
+        minimum δ."""
         last = self.t >= self.t[-1] - 1.0
         return {
             "settle_time_s": self.settle_time(tolerance_deg),
@@ -255,14 +260,18 @@ class ClosedLoop:
                 self.steering.solve(np.zeros(3), state.gimbal_angle, state.rotor_rate, 0.0), state.rotor_rate
             )
         )
-        slew = EigenaxisSlew.within_limits(
-            scenario.R0, scenario.R_target, scenario.max_rate, scenario.max_accel
-        )
         source.start(state)
+        for _ in range(int(round(cfg.warmup_s / cfg.plant_step_s))):
+            state = plant.step(state, cfg.plant_step_s, servo)
+            source.observe(state)
+        t0 = state.t
+        slew = EigenaxisSlew.within_limits(
+            scenario.R0, scenario.R_target, scenario.max_rate, scenario.max_accel, start_s=t0
+        )
         per_tick = int(round(1.0 / (cfg.control_rate_hz * cfg.plant_step_s)))
         ticks = int(math.ceil(scenario.duration_s * cfg.control_rate_hz))
         rows: list[tuple] = []
-        for k in range(ticks):
+        for _ in range(ticks):
             t = state.t
             meas = source.measure()
             ref = slew.at(t)
@@ -274,7 +283,7 @@ class ClosedLoop:
             servo.hold(setpoints.update(cmd, state.rotor_rate))
             rows.append(
                 (
-                    t,
+                    t - t0,
                     so3.angle_between(state.R[0], scenario.R_target),
                     so3.angle_between(state.R[0], ref.R),
                     so3.angle_between(state.R[0], meas.R),
@@ -288,7 +297,6 @@ class ClosedLoop:
             for _ in range(per_tick):
                 state = plant.step(state, cfg.plant_step_s, servo)
                 source.observe(state)
-            del k
         cols = list(zip(*rows, strict=True))
         return ClosedLoopLog(
             t=np.array(cols[0]),
@@ -300,7 +308,7 @@ class ClosedLoop:
             delta=np.array(cols[6]),
             saturation=np.array(cols[7]),
             torque_shortfall=np.array(cols[8]),
-            slew_end_s=slew.start_s + slew.duration_s,
+            slew_end_s=slew.duration_s,
             max_gimbal_rate=self.params.limits.max_gimbal_rate,
         )
 

@@ -60,7 +60,8 @@ class Saturation(enum.IntFlag):
 
 @dataclass(frozen=True)
 class SteeringParams:
-    """``wheel_weight`` W_s0 (dimensionless, see the module docstring) and ``mu`` μ of the wheel weights, ``gimbal_weight`` W_g, ``null_gain`` k
+    """``wheel_weight`` W_s0 (dimensionless, see the module docstring) and ``mu`` μ of the wheel weights,
+    ``gimbal_weight`` W_g, ``null_gain`` k
     (1/s; 0 = no null motion), ``speed_gain`` k_Ω weighting the rotor-speed return in the null motion."""
 
     wheel_weight: float = 2.0

@@ -83,7 +83,8 @@ class ArrayModel:
 @dataclass(frozen=True)
 class Configuration:
     """Geometry at one set of gimbal and rotor angles (batch B): ``C`` (B, n, 3, 3) gimbal frames as columns
-    ``(s, t, g)`` in body coordinates, ``IWG`` (B, n, 3, 3) rotor inertias in gimbal-frame components ((n, 3, 3) when constant),
+    ``(s, t, g)`` in body coordinates, ``IWG`` (B, n, 3, 3) rotor inertias in gimbal-frame components
+    ((n, 3, 3) when constant),
     ``J`` (B, 3, 3) the locked inertia J(γ, φ), ``bg, bp`` (B, n, 3) the mass matrix's body–gimbal and
     body–rotor columns ``b_γ = C K̄ e_g``, ``b_φ = C Ī_W^G e_s`` (K̄ = Ī_G + Ī_W^G), and ``dinv`` (B, n, 3)
     the entries (11, 12, 22) of each unit's inverted 2×2 gimbal/rotor block D⁻¹."""

@@ -38,7 +38,8 @@ from .params import SpacecraftParams
 Array = NDArray[np.float64]
 
 TorqueLaw = Callable[[float, Array, Array, Array, Array, Array], tuple[Array, Array]]
-"""``law(t, gimbal_angle, gimbal_rate, rotor_rate, gimbal_load, rotor_load) -> (gimbal_torque, rotor_torque)``,
+"""``law(t, gimbal_angle, gimbal_rate, rotor_rate, gimbal_load, rotor_load) ->
+(gimbal_torque, rotor_torque)``,
 all (B, n): motor drivers evaluated at every integrator stage (continuous-time servos). The loads (N m) are
 the gyroscopic generalised forces ∂T/∂γ and ∂T/∂φ acting on each gimbal and rotor, what a servo's
 disturbance rejection works against."""

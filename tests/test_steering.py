@@ -1,0 +1,120 @@
+"""Schaub–Junkins VSCMG steering: torque delivered, CMG/wheel blending by δ, null motion, limits."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hil.closed_loop import SINGULAR_GIMBALS
+from hil.steering import Saturation, SteeringParams, VscmgSteering
+from hil.vscmg import cubesat_1u
+from protocol.errors import ConfigError
+
+PARAMS = cubesat_1u()
+W0 = np.full(4, 400.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    gimbals=st.lists(st.floats(-3.0, 3.0), min_size=4, max_size=4),
+    torque=st.lists(st.floats(-2e-4, 2e-4), min_size=3, max_size=3),
+)
+def test_unsaturated_commands_deliver_the_required_torque(gimbals, torque):
+    steer = VscmgSteering(PARAMS)
+    out = steer.solve(torque, gimbals, W0, 0.02)
+    if out.scale[0] == 1.0 and out.saturation[0] == 0:
+        np.testing.assert_allclose(out.torque[0], torque, atol=1e-12 + 1e-9 * np.linalg.norm(torque))
+    # always: the command is finite and within every limit
+    assert np.all(np.abs(out.gimbal_rate) <= PARAMS.limits.max_gimbal_rate * (1 + 1e-12))
+    assert np.all(np.abs(out.rotor_accel) <= PARAMS.limits.max_rotor_accel * (1 + 1e-12))
+
+
+def test_delta_matches_its_definition_and_its_gradient():
+    steer = VscmgSteering(PARAMS)
+    g = np.array([0.3, -0.2, 0.5, 0.1])
+    _, D1 = steer.jacobians(g[None], W0[None])
+    h = PARAMS.nominal_wheel_momentum
+    assert steer.delta(g, W0)[0] == pytest.approx(np.linalg.det(D1[0] @ D1[0].T / h**2), rel=1e-12)
+    num = [(steer.delta(g + e * 1e-6, W0) - steer.delta(g - e * 1e-6, W0))[0] / 2e-6 for e in np.eye(4)]
+    np.testing.assert_allclose(steer.delta_gradient(g, W0)[0], num, rtol=1e-6)
+    assert steer.delta(SINGULAR_GIMBALS, W0)[0] < 1e-20
+    assert steer.delta(np.zeros(4), W0)[0] == pytest.approx(32 / 27, rel=1e-9)
+
+
+def test_cmg_mode_away_from_singularities_wheel_mode_at_one():
+    steer = VscmgSteering(PARAMS)
+    torque = np.array([0.0, 0.0, 1e-4])  # about z: the singular direction of SINGULAR_GIMBALS
+    far = steer.solve(torque, np.zeros(4), W0, 0.02)
+    near = steer.solve(torque, SINGULAR_GIMBALS, W0, 0.02)
+    # away: gimbals do the work, the rotors hardly change speed
+    assert np.max(np.abs(far.rotor_accel)) * 1e-5 < 1e-3 * np.linalg.norm(torque)
+    # at the singularity the gimbals cannot help about z: the rotors deliver it, with bounded commands
+    np.testing.assert_allclose(near.torque[0], torque, rtol=1e-9, atol=1e-15)
+    assert near.wheel_weight[0, 0] > 1e3 * far.wheel_weight[0, 0]
+    assert np.max(np.abs(near.gimbal_rate)) < 1e-6
+    assert np.max(np.abs(near.rotor_accel)) > 1.0
+    # a pure CMG pseudo-inverse near the singularity would need far larger gimbal rates than VSCMG steering
+    slightly_off = SINGULAR_GIMBALS + np.radians([0.5, -0.5, 0.5, -0.5])
+    cmg = VscmgSteering(PARAMS, SteeringParams(wheel_weight=0.0))
+    vscmg = steer.solve(torque, slightly_off, W0, 0.02)
+    pure = cmg.solve(torque, slightly_off, W0, 0.02)
+    assert pure.saturation[0] & Saturation.GIMBAL_RATE or np.max(np.abs(pure.gimbal_rate)) > 0.5
+    assert np.max(np.abs(vscmg.gimbal_rate)) < 0.1 * np.max(np.abs(pure.gimbal_rate))
+
+
+def test_null_motion_is_torque_free_and_raises_delta():
+    steer = VscmgSteering(PARAMS, SteeringParams(null_gain=1.0))
+    plain = VscmgSteering(PARAMS)
+    g = SINGULAR_GIMBALS + np.radians([5.0, -4.0, 3.0, -6.0])
+    torque = np.array([2e-5, -1e-5, 3e-5])
+    a, b = steer.solve(torque, g, W0, 0.02), plain.solve(torque, g, W0, 0.02)
+    np.testing.assert_allclose(a.torque, b.torque, atol=1e-15)
+    assert np.any(np.abs(a.gimbal_rate - b.gimbal_rate) > 1e-4)
+    # following the null motion alone increases δ
+    null = steer.solve(np.zeros(3), g, W0, 0.02)
+    d0 = steer.delta(g, W0)[0]
+    assert steer.delta(g + 0.01 * null.gimbal_rate[0], W0)[0] > d0
+
+
+def test_limits_scale_the_command_and_keep_its_direction():
+    steer = VscmgSteering(PARAMS)
+    big = np.array([9e-3, -3e-3, 6e-3])
+    out = steer.solve(big, [0.2, 0.1, -0.3, 0.4], W0, 0.02)
+    assert out.saturation[0] & Saturation.GIMBAL_RATE
+    assert out.scale[0] < 1.0
+    assert np.max(np.abs(out.gimbal_rate)) == pytest.approx(PARAMS.limits.max_gimbal_rate)
+    np.testing.assert_allclose(
+        out.torque[0] / np.linalg.norm(out.torque[0]), big / np.linalg.norm(big), atol=1e-9
+    )
+
+
+def test_a_rotor_at_its_speed_limit_leaves_wheel_mode():
+    steer = VscmgSteering(PARAMS)
+    w = W0.copy()
+    w[0] = PARAMS.limits.max_rotor_speed - 0.01
+    torque = np.array([0.0, 0.0, 1e-4])
+    free = steer.solve(torque, SINGULAR_GIMBALS, W0, 0.02)
+    unit0_push = free.rotor_accel[0, 0]
+    w_sign = PARAMS.limits.max_rotor_speed - 0.01 if unit0_push > 0 else PARAMS.limits.min_rotor_speed + 0.01
+    w[0] = w_sign
+    out = steer.solve(torque, SINGULAR_GIMBALS, w, 0.02)
+    assert out.saturation[0] & Saturation.ROTOR_SPEED
+    assert out.rotor_accel[0, 0] == 0.0
+    assert np.all(np.isfinite(out.gimbal_rate))
+
+
+def test_batch_rows_are_independent_and_bad_params_refused():
+    steer = VscmgSteering(PARAMS)
+    g = np.array([[0.1, 0.2, 0.3, 0.4], [-0.3, 0.0, 0.9, 0.2]])
+    L = np.array([[1e-5, 0, 0], [0, 2e-5, -1e-5]])
+    both = steer.solve(L, g, np.stack([W0, W0]), 0.02)
+    one = steer.solve(L[1], g[1], W0, 0.02)
+    np.testing.assert_allclose(both.gimbal_rate[1], one.gimbal_rate[0], rtol=1e-12)
+    with pytest.raises(ConfigError, match="mu"):
+        SteeringParams(mu=-1.0)
+    with pytest.raises(ConfigError):
+        replace(SteeringParams(), gimbal_weight=0.0)
