@@ -109,7 +109,7 @@ class CanServer:
         board, transport = self.board, self.transport
         clock = board.clock
         end = None if duration is None else clock.now() + duration
-        while not self._stop.is_set() and transport.is_open:
+        while not self._stop.is_set():  # a bus closed under the loop raises LinkError: never a silent end
             with self.lock:
                 now = clock.now()
                 board.step(now)

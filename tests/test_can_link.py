@@ -1,0 +1,112 @@
+"""The whole link over CAN: the board client on a can:// transport against the emulated board served on a
+python-can bus — in-process on the ``virtual`` interface, and in another process (``firmware-sim --can``)
+over ``udp_multicast``."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import random
+import subprocess
+import sys
+import time
+
+import pytest
+
+from firmware_sim.board import Board
+from firmware_sim.can_server import CanServer
+from firmware_sim.config import BoardConfig
+from hil.board import BoardClient
+from hil.clock import WallClock
+from protocol.errors import LinkError
+from protocol.messages import ActuatorSetpoint, BoardState, UnitSetpoint
+
+ROTOR = 1
+_channels = itertools.count()
+
+
+def exchange(url: str, units: int) -> BoardClient:
+    """Handshake, arm, setpoints until the rotor pulse follows them, disarm; returns the closed client."""
+    client = BoardClient(url)
+    with client:
+        assert client.info is not None and client.info.n_units == units
+        client.start()
+        client.arm()
+        widths = []
+        for speed in (150.0, 450.0):
+            sp = ActuatorSetpoint(units=tuple(UnitSetpoint(0.0, speed) for _ in range(units)))
+            end = time.monotonic() + 2.0
+            while True:
+                client.send_setpoint(sp)
+                time.sleep(0.02)
+                client.service()
+                tel = client.telemetry
+                if tel is not None and tel.pulses_us[ROTOR] != (widths[-1] if widths else 1000):
+                    widths.append(tel.pulses_us[ROTOR])
+                    break
+                assert time.monotonic() < end, "the rotor pulse did not follow the setpoint"
+        assert 1000 < widths[0] < widths[1] <= 2000
+        client.disarm()
+        assert client.state is BoardState.DISARMED
+        client.stop()  # every frame the reader took from the bus has been fed to the session now
+        stats = client.stats()
+        assert stats.bad_frames_total == 0 and stats.failed == 0
+        assert stats.transport["rx_frames"] == stats.frames_in and stats.transport["rx_incomplete"] == 0
+    return client
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_the_exchange_over_a_virtual_bus(fd):
+    channel = f"can-link-{os.getpid()}-{next(_channels)}"
+    url = f"can://virtual/{channel}?node=9&fd={int(fd)}"
+    board = Board(BoardConfig(n_units=4, telemetry_rate_hz=50.0), WallClock())
+    with CanServer(board, url) as server:
+        client = exchange(url, 4)
+        server.check()
+        assert server.counters()["rx_frames"] >= client.stats().counters.frames_out - 1
+        assert server.counters()["tx_frames_dropped"] == 0
+
+
+def test_the_exchange_with_the_board_in_another_process_over_udp_multicast():
+    port = random.randint(40_000, 60_000)
+    node = random.randint(1, 126)
+    spec = f"udp_multicast/239.74.163.{random.randint(1, 254)}?port={port}&node={node}"
+    board = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "--units", "2", "--telemetry-rate", "50", "--can", spec],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert board.stdout is not None
+        url = board.stdout.readline().strip()
+        assert url == f"can://{spec}", board.stderr.read() if board.stderr else ""
+        client = exchange(url, 2)
+        assert client.stats().transport["rx_ignored"] > 0  # udp_multicast loops our own frames back
+    finally:
+        board.terminate()
+        board.wait(5)
+    assert board.returncode == 0
+
+
+def test_an_error_in_the_serving_thread_is_raised_not_swallowed():
+    server = CanServer(Board(BoardConfig(n_units=1), WallClock()), f"virtual/can-err-{os.getpid()}").start()
+    time.sleep(0.1)
+    server.transport.close()  # the bus goes away under the running loop
+    deadline = time.monotonic() + 2.0
+    while server._error is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    with pytest.raises(LinkError, match="CAN server .* failed"):
+        server.check()
+    with pytest.raises(LinkError):
+        server.close()
+
+
+def test_firmware_sim_refuses_can_with_pty_options():
+    done = subprocess.run(
+        [sys.executable, "-m", "firmware_sim", "--can", "virtual/x", "--link", "/tmp/never"],
+        capture_output=True,
+        text=True,
+        timeout=10,
+    )
+    assert done.returncode == 2 and "--can serves a CAN bus" in done.stderr
