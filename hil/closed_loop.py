@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
 from hil.control import AttitudeController, ControllerGains, EigenaxisSlew
-from hil.motor_loops import ServoModel, ServoParams, SetpointGenerator
+from hil.motor_loops import ServoModel, ServoParams, SetpointGenerator, Setpoints
 from hil.steering import SteeringParams, VscmgSteering
 from hil.vscmg import Plant, PlantState, SpacecraftParams
 from protocol.errors import ConfigError
@@ -161,15 +161,18 @@ class EstimatorInTheLoop:
 class LoopConfig:
     """Rates and the pieces' parameters: ``plant_step_s`` (≤ 1 ms), ``control_rate_hz`` (≤ the board's
     ``frame_rate_hz``), controller ``gains``, ``steering`` and ``servo`` parameters; ``warmup_s`` of
-    holding still before the slew (the attitude source converges; the host waits for it the same way)."""
+    holding still before the slew (the attitude source converges; the host waits for it the same way);
+    ``calibrate_rate_bias``: average the measured rate over the still second half of the warm-up and
+    subtract it from then on (the host's still-window gyro bias calibration)."""
 
     plant_step_s: float = 1e-3
     control_rate_hz: float = 50.0
     frame_rate_hz: float = 50.0
-    gains: ControllerGains = field(default_factory=lambda: ControllerGains(0.5, 0.9, integral_time_s=8.0))
+    gains: ControllerGains = field(default_factory=lambda: ControllerGains(0.7, 0.9))
     steering: SteeringParams = field(default_factory=lambda: SteeringParams(null_gain=0.5))
     servo: ServoParams = field(default_factory=ServoParams)
     warmup_s: float = 2.0
+    calibrate_rate_bias: bool = True
 
     def __post_init__(self) -> None:
         if not 0 < self.plant_step_s <= 1e-3:
@@ -255,20 +258,20 @@ class ClosedLoop:
         setpoints = SetpointGenerator(self.params, cfg.control_rate_hz, cfg.frame_rate_hz)
         setpoints.reset(state.rotor_rate)
         servo = ServoModel(self.params, cfg.servo)
-        servo.hold(
-            setpoints.update(
-                self.steering.solve(np.zeros(3), state.gimbal_angle, state.rotor_rate, 0.0), state.rotor_rate
-            )
-        )
+        servo.hold(Setpoints(np.zeros_like(state.gimbal_rate), state.rotor_rate.copy(), np.zeros(1, bool)))
         source.start(state)
-        for _ in range(int(round(cfg.warmup_s / cfg.plant_step_s))):
+        per_tick = int(round(1.0 / (cfg.control_rate_hz * cfg.plant_step_s)))
+        still_rates = []
+        for i in range(int(round(cfg.warmup_s / cfg.plant_step_s))):
             state = plant.step(state, cfg.plant_step_s, servo)
             source.observe(state)
+            if cfg.calibrate_rate_bias and (i + 1) % per_tick == 0 and state.t >= 0.5 * cfg.warmup_s:
+                still_rates.append(source.measure().omega)
+        rate_bias = np.mean(still_rates, axis=0) if still_rates else np.zeros(3)
         t0 = state.t
         slew = EigenaxisSlew.within_limits(
             scenario.R0, scenario.R_target, scenario.max_rate, scenario.max_accel, start_s=t0
         )
-        per_tick = int(round(1.0 / (cfg.control_rate_hz * cfg.plant_step_s)))
         ticks = int(math.ceil(scenario.duration_s * cfg.control_rate_hz))
         rows: list[tuple] = []
         for _ in range(ticks):
@@ -276,7 +279,7 @@ class ClosedLoop:
             meas = source.measure()
             ref = slew.at(t)
             h = self.steering.momentum(state.gimbal_angle, state.rotor_rate)[0]
-            out = controller.update(meas.R, meas.omega, ref, 1.0 / cfg.control_rate_hz, h)
+            out = controller.update(meas.R, meas.omega - rate_bias, ref, 1.0 / cfg.control_rate_hz, h)
             cmd = self.steering.solve(
                 out.torque, state.gimbal_angle, state.rotor_rate, 1.0 / cfg.control_rate_hz
             )
