@@ -28,6 +28,7 @@ from protocol.errors import (
     ConfigError,
     FieldRangeError,
     HandshakeError,
+    LinkTimeout,
     ProtocolError,
 )
 from protocol.messages import (
@@ -39,6 +40,7 @@ from protocol.messages import (
     ResetCause,
     UnitSetpoint,
 )
+from protocol.reliable import RetryPolicy
 
 ROTOR = 1  # pulse channel of unit 0's rotor
 
@@ -295,3 +297,17 @@ def test_a_url_string_gets_the_clients_clock():
     client.connect()
     assert client.transport.board.clock is clock and clock.now() > 0.05
     assert isinstance(create_transport("emu://?units=2"), EmulatorTransport)
+
+
+def test_a_failed_connect_leaves_the_link_closed_and_can_be_retried():
+    clock = LockstepClock()
+    transport = EmulatorTransport("emu://?units=2", clock)
+    transport.board.faults.stall(1.0)  # nothing crosses the link for the first second
+    client = BoardClient(transport, config=ClientConfig(handshake=RetryPolicy(timeout_s=0.1, max_tries=3)))
+    with pytest.raises(LinkTimeout, match="did not answer the handshake"):
+        client.connect()
+    assert not transport.is_open and not client.connected
+    assert 0.3 <= clock.now() < 0.5  # three tries, 100 ms apart, then one more timeout
+    clock.advance(1.0)
+    assert client.connect().n_units == 2
+    assert client.stats().counters.link_losses == 0  # never had a session to lose

@@ -78,7 +78,7 @@ def test_handshake_arm_setpoints_move_the_pulses_and_disarm():
     with BoardClient("spawn://firmware-sim?units=4&telemetry_rate=50") as client:
         info = client.info
         assert info is not None and info.n_units == 4 and info.schema_hash == SCHEMA_HASH
-        assert info.reset_cause is ResetCause.POWER_ON and info.model == "ADK-VSCMG"
+        assert info.reset_cause is ResetCause.POWER_ON and info.identity.model == "ADK-VSCMG"
         client.start()  # real time with a reader thread from here on
         client.arm()
         assert client.state is BoardState.ARMED

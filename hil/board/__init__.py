@@ -28,10 +28,11 @@ from .events import (
     StateEvent,
     TelemetryEvent,
 )
-from .session import ClientConfig, Download, HostIdentity, Phase, Session
+from .session import HOST_IDENTITY, ClientConfig, Download, Phase, Session
 from .stats import LinkStats, RoundTrips
 
 __all__ = [
+    "HOST_IDENTITY",
     "BoardClient",
     "BoardInfo",
     "BoardResetEvent",
@@ -40,7 +41,6 @@ __all__ = [
     "ConnectedEvent",
     "Download",
     "Event",
-    "HostIdentity",
     "LinkLostEvent",
     "LinkStats",
     "LogEvent",

@@ -109,24 +109,39 @@ class BoardClient:
 
     # ================================================================== session
     def connect(self, timeout: float | None = None) -> BoardInfo:
-        """Open the transport and handshake. Raises :class:`TransportError` (cannot open),
-        :class:`LinkTimeout` (no answer within the handshake's tries or ``timeout`` s) or
-        :class:`HandshakeError` (incompatible board, naming both sides' version and schema hash)."""
-        with self._cond:
-            self._check()
-            if not self.transport.is_open:
-                self.transport.open()
-            now = self.clock.now()
-            self._write(self.session.link_up(now), now)
-        if not self._wait_until(lambda: self.session.phase is not Phase.HANDSHAKING, timeout):
-            raise LinkTimeout(f"{self.transport.url}: no handshake within {timeout} s")
-        with self._cond:
-            self._check()
-            info = self.session.info
-            if self.session.phase is not Phase.READY or info is None:
-                raise self.session.failure or LinkTimeout(f"{self.transport.url}: the board did not answer")
-            self._connected = True
-            return info
+        """Open the transport and handshake (a no-op while a session is up). Raises
+        :class:`TransportError` (cannot open), :class:`LinkTimeout` (no answer within the handshake's
+        tries or ``timeout`` s) or :class:`HandshakeError` (incompatible board, naming both sides'
+        version and schema hash); a failed first connect stops the reader thread and leaves the transport
+        closed, ready to retry."""
+        try:
+            with self._cond:
+                self._check()
+                if self.session.phase is Phase.READY and self.session.info is not None:
+                    return self.session.info
+                if not self.transport.is_open:
+                    self.transport.open()
+                now = self.clock.now()
+                self._write(self.session.link_up(now), now)
+            if not self._wait_until(lambda: self.session.phase is not Phase.HANDSHAKING, timeout):
+                raise LinkTimeout(f"{self.transport.url}: no handshake within {timeout} s")
+            with self._cond:
+                self._check()
+                info = self.session.info
+                if self.session.phase is not Phase.READY or info is None:
+                    raise self.session.failure or LinkTimeout(
+                        f"{self.transport.url}: the board did not answer"
+                    )
+                self._connected = True
+                return info
+        except HilError:
+            if not self._connected:  # leave nothing half-open: stop the reader, close, and allow a retry
+                self.stop()
+                with self._cond:
+                    self._error = None  # it is being raised to the caller right now
+                    self.transport.close()
+                    self.session.link_down(self.clock.now(), "connect failed", lost=False)
+            raise
 
     def start(self) -> BoardClient:
         """Real-time mode: a reader thread feeds the session from now on (until :meth:`stop`)."""

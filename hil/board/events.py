@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from protocol.messages import BoardState, Log, ResetCause, Telemetry
+from protocol.aoa import AccessoryIdentity
+from protocol.messages import BoardState, HelloReply, Log, ResetCause, Telemetry
 
 
 @dataclass(frozen=True, slots=True)
@@ -23,13 +24,21 @@ class BoardInfo:
     state: BoardState
     n_units: int
     frame_rate_hz: int
-    manufacturer: str
-    model: str
-    description: str
-    version: str
-    uri: str
-    serial: str
+    identity: AccessoryIdentity
     firmware_build: str
+
+    @classmethod
+    def from_reply(cls, reply: HelloReply) -> BoardInfo:
+        return cls(
+            protocol_version=reply.protocol_version,
+            schema_hash=reply.schema_hash,
+            reset_cause=reply.reset_cause,
+            state=reply.state,
+            n_units=reply.n_units,
+            frame_rate_hz=reply.frame_rate_hz,
+            identity=AccessoryIdentity.from_message(reply),
+            firmware_build=reply.firmware_build,
+        )
 
     @property
     def n_channels(self) -> int:
@@ -37,8 +46,9 @@ class BoardInfo:
         return 2 * self.n_units
 
     def describe(self) -> str:
+        ident = self.identity
         return (
-            f"{self.manufacturer} {self.model} {self.version} (serial {self.serial or '-'}, build "
+            f"{ident.manufacturer} {ident.model} {ident.version} (serial {ident.serial or '-'}, build "
             f"{self.firmware_build or '-'}): {self.n_units} units, {self.frame_rate_hz} Hz frames"
         )
 

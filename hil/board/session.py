@@ -32,9 +32,10 @@ from __future__ import annotations
 import enum
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from protocol.aoa import AccessoryIdentity
 from protocol.calibration import Reassembler, UnitCalibration, fragment
 from protocol.errors import (
     BoardReset,
@@ -102,16 +103,8 @@ class Phase(enum.Enum):
     INCOMPATIBLE = "incompatible"  # the board speaks another protocol version or schema: stop
 
 
-@dataclass(frozen=True)
-class HostIdentity:
-    """The AOA identity strings this host announces in ``Hello`` (the board may log them)."""
-
-    manufacturer: str = "vscmg-hil"
-    model: str = "hil host"
-    description: str = "vscmg-hil host runtime"
-    version: str = "0.1.0"
-    uri: str = ""
-    serial: str = ""
+HOST_IDENTITY = AccessoryIdentity("vscmg-hil", "hil host", "vscmg-hil host runtime", "0.1.0")
+"""The AOA identity strings this host announces in ``Hello`` by default (the board may log them)."""
 
 
 @dataclass(frozen=True)
@@ -129,7 +122,7 @@ class ClientConfig:
     :meth:`BoardClient.drain_events` (older ones are dropped and counted when nobody drains them).
     """
 
-    identity: HostIdentity = field(default_factory=HostIdentity)
+    identity: AccessoryIdentity = HOST_IDENTITY
     schema_hash: int = SCHEMA_HASH
     commands: RetryPolicy = field(default_factory=RetryPolicy)
     handshake: RetryPolicy = field(default_factory=lambda: RetryPolicy(timeout_s=0.1, max_tries=50))
@@ -455,16 +448,10 @@ class Session:
     def _hello(self, now: float) -> None:
         if len(self.hellos):
             return  # one is already on its way
-        ident = self.config.identity
         hello = Hello(
             protocol_version=PROTOCOL_VERSION,
             schema_hash=self.config.schema_hash,
-            manufacturer=ident.manufacturer,
-            model=ident.model,
-            description=ident.description,
-            version=ident.version,
-            uri=ident.uri,
-            serial=ident.serial,
+            **asdict(self.config.identity),
         )
         _, data = self.hellos.send(hello, now)
         self._put(data, now)
@@ -478,21 +465,7 @@ class Session:
             self.link_down(now, str(self.failure))
 
     def _on_hello_reply(self, reply: HelloReply, now: float) -> None:
-        info = BoardInfo(
-            protocol_version=reply.protocol_version,
-            schema_hash=reply.schema_hash,
-            reset_cause=reply.reset_cause,
-            state=reply.state,
-            n_units=reply.n_units,
-            frame_rate_hz=reply.frame_rate_hz,
-            manufacturer=reply.manufacturer,
-            model=reply.model,
-            description=reply.description,
-            version=reply.version,
-            uri=reply.uri,
-            serial=reply.serial,
-            firmware_build=reply.firmware_build,
-        )
+        info = BoardInfo.from_reply(reply)
         ours = (PROTOCOL_VERSION, self.config.schema_hash)
         if (reply.protocol_version, reply.schema_hash) != ours:
             self.phase = Phase.INCOMPATIBLE
