@@ -15,6 +15,7 @@ same run:
 
 from __future__ import annotations
 
+import functools
 import statistics
 import sys
 import time
@@ -24,7 +25,7 @@ import serial
 
 from bench.bench_firmware_sim import _PEER, _pct, _process
 from bench.common import Result
-from hil.board import BoardClient, ClientConfig, TelemetryEvent
+from hil.board import BoardClient, ClientConfig, Event, TelemetryEvent
 from hil.clock import LockstepClock
 from hil.transports.emulator import EmulatorTransport
 from protocol.frame import Deframer, Frame, Framer
@@ -45,11 +46,13 @@ def _setpoint(speed: float) -> ActuatorSetpoint:
 def _pty_latency(samples: int) -> tuple[list[float], list[float], list[float]]:
     """(host setpoint → telemetry showing it, ms), (board share from link_age_ms, ms), (raw echo, ms)."""
     reports: list[TelemetryEvent] = []
+
+    def keep(event: Event) -> None:  # called in the reader thread, as the telemetry is decoded
+        if isinstance(event, TelemetryEvent):
+            reports.append(event)
+
     url = "spawn://firmware-sim?units=4&frame_rate=490&telemetry_rate=1000&link_timeout=2"
-    config = ClientConfig(max_setpoint_rate_hz=1000.0)
-    with BoardClient(
-        url, config=config, on_event=lambda e: isinstance(e, TelemetryEvent) and reports.append(e)
-    ) as c:
+    with BoardClient(url, config=ClientConfig(max_setpoint_rate_hz=1000.0), on_event=keep) as c:
         c.start()
         c.arm()
         latency, board_share = [], []
@@ -61,15 +64,19 @@ def _pty_latency(samples: int) -> tuple[list[float], list[float], list[float]]:
             reports.clear()
             sent = c.clock.now()
             c.send_setpoint(_setpoint(SPEEDS[(k + 1) % 2]))
-            if not c.wait_for(
-                lambda p=previous: any(e.telemetry.pulses_us[ROTOR] != p for e in reports), 1.0
-            ):
+            if not c.wait_for(functools.partial(_changed, reports, previous), 1.0):
                 raise RuntimeError("the pulse never changed")
-            first = next(e for e in reports if e.telemetry.pulses_us[ROTOR] != previous)
+            first = _changed(reports, previous)
+            assert first is not None
             latency.append((first.t - sent) * 1e3)
             board_share.append(float(first.telemetry.link_age_ms))
         c.disarm()
     return latency, board_share, _echo(samples)
+
+
+def _changed(reports: list[TelemetryEvent], previous: int) -> TelemetryEvent | None:
+    """The first report whose rotor pulse differs from ``previous`` (None: no change reported yet)."""
+    return next((e for e in reports if e.telemetry.pulses_us[ROTOR] != previous), None)
 
 
 def _echo(samples: int) -> list[float]:

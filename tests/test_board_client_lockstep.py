@@ -205,6 +205,8 @@ def test_refused_commands_raise_with_the_boards_reason():
     with pytest.raises(CommandFailed, match="BAD_STATE"):
         client.set_mode(ControlMode.RAW_PULSES)  # modes change only while disarmed
     client.disarm()
+    with pytest.raises(FieldRangeError, match="SetMode.mode = 99"):
+        client.set_mode(99)  # type: ignore[arg-type]
     client.set_mode(ControlMode.RAW_PULSES)
     client.arm()
     client.send_setpoint(RawPulses(pulses_us=(1500, 1700) * 4))

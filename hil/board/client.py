@@ -202,8 +202,9 @@ class BoardClient:
             self._events.clear()
             return events
 
-    def wait_for(self, predicate: Callable[[], bool], timeout: float | None = None) -> bool:
-        """Block until ``predicate()`` holds (True) or ``timeout`` s pass on the client's clock (False)."""
+    def wait_for(self, predicate: Callable[[], object], timeout: float | None = None) -> bool:
+        """Block until ``predicate()`` is truthy (True) or ``timeout`` s pass on the client's clock (False);
+        the session is driven meanwhile (lockstep: the clock advances)."""
         return self._wait_until(predicate, timeout)
 
     # ================================================================== commands and setpoints
@@ -247,7 +248,7 @@ class BoardClient:
 
     def set_mode(self, mode: ControlMode, timeout: float | None = None) -> None:
         """How the board turns setpoints into pulses (only while DISARMED)."""
-        self.wait(self.command(SetMode(mode=ControlMode(mode))), timeout)
+        self.wait(self.command(SetMode(mode=mode)), timeout)  # FieldRangeError for a mode not in ControlMode
 
     def upload_calibration(
         self, unit: int, calibration: UnitCalibration, timeout: float | None = None
@@ -349,7 +350,7 @@ class BoardClient:
                 self._error = exc
                 self._cond.notify_all()
 
-    def _wait_until(self, predicate: Callable[[], bool], timeout: float | None) -> bool:
+    def _wait_until(self, predicate: Callable[[], object], timeout: float | None) -> bool:
         clock = self.clock
         end = math.inf if timeout is None else clock.now() + timeout
         if self._thread is not None:
