@@ -14,7 +14,9 @@ Phases::
           or no HelloReply after every try (failure = LinkTimeout)
 
 **Reset detection.** The board's uptime (``Heartbeat.time_ms``, ``Telemetry.time_ms``) only grows while
-it runs. It going backwards, or the board reporting BOOT in the middle of a session, means it reset. The
+it runs. It going backwards, or the board reporting BOOT in the middle of a session or after a lost link
+came back, means it reset (a board that restarted while the link was down and has already run longer
+than before is not caught: nothing it sends tells it from the board that was there). The
 cause is in the next ``HelloReply``: if one arrived since the last uptime sample (a reconnect handshake),
 it is used; otherwise the session handshakes again (Hello → the board is DISARMED with a new session)
 and reports :class:`BoardResetEvent` with the cause it answers. A reset while the host had the board
@@ -415,6 +417,8 @@ class Session:
             evidence = f"its uptime went back from {last} ms to {uptime_ms} ms"
         elif state is BoardState.BOOT and self.phase is Phase.READY:
             evidence = "it reports BOOT in the middle of a session"
+        elif state is BoardState.BOOT and self._lost:
+            evidence = "it reports BOOT after the link came back (it lost the session)"
         if evidence is None:
             return
         if self.armed and self.state is not BoardState.ARMED:
