@@ -274,8 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     stats = server.stats
     print(
         f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, "
-        f"{stats.dropped_out} dropped, "
-        f"{len(board.resets) - 1} reset(s)",
+        f"{stats.dropped_out} dropped, {len(board.resets) - 1} reset(s)",
         file=sys.stderr,
     )
     return 0
