@@ -32,8 +32,8 @@ OMEGA0 = np.array([0.02, -0.03, 0.015])
 GIMBAL0 = np.array([0.2, -0.1, 0.3, -0.25])
 GIMBAL_RATE0 = np.array([0.1, -0.05, 0.08, 0.02])
 ROTOR0 = np.array([400.0, 380.0, 420.0, 410.0])
-GIMBAL_TORQUE = np.array([2e-5, -1e-5, 1.5e-5, -2e-5])
-ROTOR_TORQUE = np.array([1e-4, -5e-5, 8e-5, -1e-4])
+GIMBAL_TORQUE = np.array([2e-7, -1e-7, 1.5e-7, -2e-7])  # N m: gimbals reach ~0.3-0.5 rad/s in 20 s
+ROTOR_TORQUE = np.array([5e-5, -2.5e-5, 4e-5, -5e-5])  # N m: rotors change by up to 100 rad/s
 
 
 def balanced_params():
