@@ -184,6 +184,7 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
         client.arm()
         time.sleep(1.0)  # the first board's uptime is well past the second's when it is back
         first.send_signal(signal.SIGKILL)
+        link.unlink()  # its dangling symlink could meet a pty number reused by another process
         events = drive(client, None, lambda: not client.connected, 2.0)
     try:
         with firmware_sim("--units", "2", "--link", str(link)):  # a new board on the same symlink
@@ -209,6 +210,21 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
         client.close()
 
 
+def test_another_board_on_the_reconnected_port_is_refused(tmp_path: Path):
+    link = tmp_path / "board"
+    with firmware_sim("--units", "1", "--link", str(link)) as first:
+        client = BoardClient(str(link), config=ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1))
+        client.connect()
+        first.send_signal(signal.SIGKILL)
+        link.unlink()
+    try:
+        with firmware_sim("--units", "2", "--link", str(link)):
+            with pytest.raises(HandshakeError, match="another board answered.*2 units.*1 units"):
+                drive(client, None, lambda: False, 5.0)
+    finally:
+        client.close()
+
+
 def test_the_reader_threads_errors_reach_the_callers_loop(tmp_path: Path):
     link = tmp_path / "board"
     config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1, reconnect_give_up_s=0.5)
@@ -217,6 +233,7 @@ def test_the_reader_threads_errors_reach_the_callers_loop(tmp_path: Path):
         client.connect()
         client.start()
         board.send_signal(signal.SIGKILL)  # and it never comes back
+        link.unlink()
         with pytest.raises(LinkError, match="gave up reconnecting after"):
             drive(client, setpoint(100.0, 1), lambda: False, 3.0)
         with pytest.raises(LinkError, match="gave up"):  # every later call too

@@ -479,7 +479,15 @@ class Session:
                 f"schema hash {ours[1]:#010x}"
             )
             return
-        first = self.info is None
+        previous = self.info
+        if previous is not None and (previous.identity, previous.n_units) != (info.identity, info.n_units):
+            self.phase = Phase.INCOMPATIBLE  # never command another board as if it were the one we had
+            self.failure = HandshakeError(
+                f"another board answered the new handshake: {info.describe()}; the session was with "
+                f"{previous.describe()}"
+            )
+            return
+        first = previous is None
         self.info = info
         self.phase = Phase.READY
         self.counters.handshakes += 1
