@@ -94,11 +94,11 @@ def closed_exchange() -> tuple[str, float, BoardClient]:
 
 
 def test_ten_seconds_of_board_time_in_well_under_a_second_and_deterministic():
-    start = time.perf_counter()
+    start = time.process_time()  # CPU time: what the run costs, whatever else the machine is doing
     first, t_end, client = closed_exchange()
-    wall = time.perf_counter() - start
+    cpu = time.process_time() - start
     assert t_end > 10.0
-    assert wall < 1.0, f"10 s of lockstep board time took {wall:.2f} s of wall time"
+    assert cpu < 1.0, f"10 s of lockstep board time took {cpu:.2f} s of CPU time"
     stats = client.stats()
     assert stats.counters.setpoints_sent == 1000 and stats.bad_frames_total == 0 and stats.failed == 0
     assert stats.board_rx_frames is not None and stats.board_rx_frames >= 1000
