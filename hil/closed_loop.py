@@ -242,7 +242,8 @@ class ClosedLoopLog:
 
 class ClosedLoop:
     """Plant + servos at ``config.plant_step_s``; source → controller → steering → setpoints at the control
-    rate. :meth:`run` plays one :class:`SlewScenario` and returns its :class:`ClosedLoopLog`."""
+    rate. :meth:`run` plays one :class:`SlewScenario` and returns its :class:`ClosedLoopLog`;
+    :meth:`run_batch` plays several at once on the plant's batch axis (one controller and source each)."""
 
     def __init__(self, params: SpacecraftParams, config: LoopConfig | None = None) -> None:
         self.params = params
@@ -251,56 +252,87 @@ class ClosedLoop:
         self.steering = VscmgSteering(params, self.config.steering)
 
     def run(self, scenario: SlewScenario, source: AttitudeSource) -> ClosedLoopLog:
-        cfg, plant = self.config, self.plant
-        rotor0 = self.params.nominal_rotor_speed if scenario.rotor_speed0 is None else scenario.rotor_speed0
-        state = plant.state(R=scenario.R0, gimbal_angle=scenario.gimbal_angle0, rotor_rate=rotor0)
-        controller = AttitudeController(plant.locked_inertia(state)[0], cfg.gains)
+        return self.run_batch([scenario], [source])[0]
+
+    def run_batch(self, scenarios: list[SlewScenario], sources: list[AttitudeSource]) -> list[ClosedLoopLog]:
+        """Every scenario for the longest one's duration (each log is cut to its own)."""
+        if len(scenarios) != len(sources) or not scenarios:
+            raise ConfigError("need one attitude source per scenario", "ClosedLoop.run_batch")
+        cfg, plant, b = self.config, self.plant, len(scenarios)
+        nominal = self.params.nominal_rotor_speed
+        state = plant.state(
+            R=np.stack([np.asarray(sc.R0, float) for sc in scenarios]),
+            gimbal_angle=np.stack([np.broadcast_to(sc.gimbal_angle0, (plant.n,)) for sc in scenarios]),
+            rotor_rate=np.stack(
+                [
+                    np.broadcast_to(nominal if sc.rotor_speed0 is None else sc.rotor_speed0, (plant.n,))
+                    for sc in scenarios
+                ]
+            ),
+        )
+        inertia = plant.locked_inertia(state)
+        controllers = [AttitudeController(inertia[i], cfg.gains) for i in range(b)]
         setpoints = SetpointGenerator(self.params, cfg.control_rate_hz, cfg.frame_rate_hz)
         setpoints.reset(state.rotor_rate)
         servo = ServoModel(self.params, cfg.servo)
-        servo.hold(Setpoints(np.zeros_like(state.gimbal_rate), state.rotor_rate.copy(), np.zeros(1, bool)))
-        source.start(state)
+        servo.hold(Setpoints(np.zeros_like(state.gimbal_rate), state.rotor_rate.copy(), np.zeros(b, bool)))
+        runs = range(b)
+        for i in runs:
+            sources[i].start(plant.select(state, i))
+
+        def advance(state: PlantState, steps: int, calibrate: list[list[Array]] | None = None) -> PlantState:
+            for k in range(steps):
+                state = plant.step(state, cfg.plant_step_s, servo)
+                for i in runs:
+                    sources[i].observe(plant.select(state, i))
+                    if calibrate is not None and (k + 1) % per_tick == 0 and k >= steps // 2:
+                        calibrate[i].append(sources[i].measure().omega)
+            return state
+
         per_tick = int(round(1.0 / (cfg.control_rate_hz * cfg.plant_step_s)))
-        still_rates = []
-        for i in range(int(round(cfg.warmup_s / cfg.plant_step_s))):
-            state = plant.step(state, cfg.plant_step_s, servo)
-            source.observe(state)
-            if cfg.calibrate_rate_bias and (i + 1) % per_tick == 0 and state.t >= 0.5 * cfg.warmup_s:
-                still_rates.append(source.measure().omega)
-        rate_bias = np.mean(still_rates, axis=0) if still_rates else np.zeros(3)
-        t0 = state.t
-        slew = EigenaxisSlew.within_limits(
-            scenario.R0, scenario.R_target, scenario.max_rate, scenario.max_accel, start_s=t0
+        still: list[list[Array]] = [[] for _ in runs]
+        state = advance(
+            state, int(round(cfg.warmup_s / cfg.plant_step_s)), still if cfg.calibrate_rate_bias else None
         )
-        ticks = int(math.ceil(scenario.duration_s * cfg.control_rate_hz))
-        rows: list[tuple] = []
-        for _ in range(ticks):
+        bias = [np.mean(r, axis=0) if r else np.zeros(3) for r in still]
+        t0 = state.t
+        slews = [
+            EigenaxisSlew.within_limits(sc.R0, sc.R_target, sc.max_rate, sc.max_accel, t0) for sc in scenarios
+        ]
+        rows: list[list[tuple]] = [[] for _ in runs]
+        dt = 1.0 / cfg.control_rate_hz
+        for _ in range(int(math.ceil(max(sc.duration_s for sc in scenarios) * cfg.control_rate_hz))):
             t = state.t
-            meas = source.measure()
-            ref = slew.at(t)
-            h = self.steering.momentum(state.gimbal_angle, state.rotor_rate)[0]
-            out = controller.update(meas.R, meas.omega - rate_bias, ref, 1.0 / cfg.control_rate_hz, h)
+            h = self.steering.momentum(state.gimbal_angle, state.rotor_rate)
+            meas = [sources[i].measure() for i in runs]
+            refs = [slews[i].at(t) for i in runs]
+            outs = [
+                controllers[i].update(meas[i].R, meas[i].omega - bias[i], refs[i], dt, h[i]) for i in runs
+            ]
             cmd = self.steering.solve(
-                out.torque, state.gimbal_angle, state.rotor_rate, 1.0 / cfg.control_rate_hz
+                np.stack([o.torque for o in outs]), state.gimbal_angle, state.rotor_rate, dt
             )
             servo.hold(setpoints.update(cmd, state.rotor_rate))
-            rows.append(
-                (
-                    t - t0,
-                    so3.angle_between(state.R[0], scenario.R_target),
-                    so3.angle_between(state.R[0], ref.R),
-                    so3.angle_between(state.R[0], meas.R),
-                    state.gimbal_rate[0].copy(),
-                    state.rotor_rate[0].copy(),
-                    float(cmd.delta[0]),
-                    int(cmd.saturation[0]),
-                    float(np.linalg.norm(out.torque - cmd.torque[0])),
+            for i in runs:
+                R = state.R[i]
+                rows[i].append(
+                    (
+                        t - t0,
+                        so3.angle_between(R, scenarios[i].R_target),
+                        so3.angle_between(R, refs[i].R),
+                        so3.angle_between(R, meas[i].R),
+                        state.gimbal_rate[i].copy(),
+                        state.rotor_rate[i].copy(),
+                        float(cmd.delta[i]),
+                        int(cmd.saturation[i]),
+                        float(np.linalg.norm(outs[i].torque - cmd.torque[i])),
+                    )
                 )
-            )
-            for _ in range(per_tick):
-                state = plant.step(state, cfg.plant_step_s, servo)
-                source.observe(state)
-        cols = list(zip(*rows, strict=True))
+            state = advance(state, per_tick)
+        return [self._log(rows[i], scenarios[i].duration_s, slews[i].duration_s) for i in runs]
+
+    def _log(self, rows: list[tuple], duration_s: float, slew_s: float) -> ClosedLoopLog:
+        cols = list(zip(*rows[: int(math.ceil(duration_s * self.config.control_rate_hz))], strict=True))
         return ClosedLoopLog(
             t=np.array(cols[0]),
             error_deg=np.degrees(cols[1]),
@@ -311,7 +343,7 @@ class ClosedLoop:
             delta=np.array(cols[6]),
             saturation=np.array(cols[7]),
             torque_shortfall=np.array(cols[8]),
-            slew_end_s=slew.duration_s,
+            slew_end_s=slew_s,
             max_gimbal_rate=self.params.limits.max_gimbal_rate,
         )
 

@@ -51,20 +51,29 @@ def _check_acceptance(log, s):
     assert np.all(np.isfinite(log.gimbal_rate)) and np.all(np.isfinite(log.rotor_speed))
 
 
-def test_90_degree_slew_settles_with_truth_and_phone_grade_noise():
-    log = ClosedLoop(PARAMS).run(_quick(slew_90deg(), 18.0), TruthWithNoise(seed=3))
+@pytest.fixture(scope="module")
+def truth_runs():
+    """Both truth + noise scenarios, stepped together on the plant's batch axis (one run's cost)."""
+    scenarios = [_quick(slew_90deg(), 18.0), _quick(slew_through_singularity(), 14.0)]
+    return ClosedLoop(PARAMS).run_batch(scenarios, [TruthWithNoise(seed=3), TruthWithNoise(seed=4)])
+
+
+def test_90_degree_slew_settles_with_truth_and_phone_grade_noise(truth_runs):
+    log = truth_runs[0]
     s = _report("90 deg, truth + noise", log)
     _check_acceptance(log, s)
+    assert log.t[-1] == pytest.approx(18.0 - 0.02)
     assert log.error_deg[0] == pytest.approx(90.0, abs=0.01)
     assert np.max(log.tracking_deg) < 2.0  # it followed the reference, not just ended near the target
     assert s["min_delta"] > 0.5  # a healthy CMG path: no wheel mode needed
     assert np.max(np.abs(log.torque_shortfall)) < 1e-12  # steering always delivered the requested torque
 
 
-def test_slew_through_a_cmg_singularity_completes_without_blow_up():
-    log = ClosedLoop(PARAMS).run(_quick(slew_through_singularity(), 14.0), TruthWithNoise(seed=4))
+def test_slew_through_a_cmg_singularity_completes_without_blow_up(truth_runs):
+    log = truth_runs[1]
     s = _report("60 deg about the singular direction, truth + noise", log)
     _check_acceptance(log, s)
+    assert log.t[-1] == pytest.approx(14.0 - 0.02)
     assert s["min_delta"] < 0.05  # it did start next to the singularity (δ ≈ 1.19 far from it)
     assert log.delta[-1] > 10 * s["min_delta"]  # null motion and the manoeuvre moved the gimbals away
     speeds = log.rotor_speed
@@ -93,6 +102,8 @@ def test_harness_refuses_bad_rates():
         LoopConfig(plant_step_s=2e-3)
     with pytest.raises(ConfigError, match="whole number"):
         LoopConfig(control_rate_hz=30.0, plant_step_s=7e-4)
+    with pytest.raises(ConfigError, match="one attitude source per scenario"):
+        ClosedLoop(PARAMS).run_batch([slew_90deg()], [])
     with pytest.raises(ConfigError, match="pulse frame rate"):
         ClosedLoop(PARAMS, LoopConfig(control_rate_hz=100.0, frame_rate_hz=50.0)).run(
             SlewScenario("x", np.eye(3), so3.exp([0, 0, math.radians(5)]), 0.1), TruthWithNoise()
