@@ -100,49 +100,29 @@ class EstimatorInTheLoop:
     def __init__(self, spec: object | None = None, config: object | None = None, seed: int = 0) -> None:
         from hil.estimator import AttitudeFilter, FilterConfig
         from hil.multirate import Merger
-        from hil.phone_model import PhoneSpec
-        from hil.sensors import KINDS
+        from hil.phone_model import BodyPhone, PhoneSpec
 
         self.spec = spec if spec is not None else PhoneSpec.nexus5()
         self.filter = AttitudeFilter(config if config is not None else FilterConfig.paper())  # type: ignore[arg-type]
         self.merger = Merger()
-        self.rng = np.random.default_rng(seed)
-        self.kinds = KINDS
-        self.bias = {k: self.rng.normal(0.0, self.spec.spec(k).bias, 3) for k in KINDS}  # type: ignore[attr-defined]
-        self.next_t = {k: self.spec.spec(k).offset_s for k in KINDS}  # type: ignore[attr-defined]
+        self.seed = seed
+        self.phone: BodyPhone | None = None
         self.estimate: object | None = None
         self._prev: PlantState | None = None
         self.steps = 0
 
     def start(self, state: PlantState) -> None:
+        from hil.phone_model import BodyPhone
+
         self._prev = state
-        for k in self.kinds:
-            self.next_t[k] += state.t
+        self.phone = BodyPhone(self.spec, self.seed, t0=state.t)  # type: ignore[arg-type]
 
     def observe(self, state: PlantState) -> None:
-        from hil.sensors import SensorKind, SensorSample
-
         prev = self._prev
-        assert prev is not None, "start() first"
+        assert prev is not None and self.phone is not None, "start() first"
         self._prev = state
-        samples = []
-        for k in self.kinds:
-            sensor = self.spec.spec(k)  # type: ignore[attr-defined]
-            while self.next_t[k] <= state.t:
-                t = self.next_t[k]
-                self.next_t[k] += 1.0 / sensor.rate_hz
-                f = (t - prev.t) / (state.t - prev.t)
-                R = prev.R[0] @ so3.exp(f * so3.log(prev.R[0].T @ state.R[0]))
-                if k is SensorKind.GYR:
-                    clean = prev.omega[0] + f * (state.omega[0] - prev.omega[0])
-                elif k is SensorKind.ACC:
-                    clean = R.T @ np.array([0.0, 0.0, self.spec.gravity])  # type: ignore[attr-defined]
-                else:
-                    clean = R.T @ np.asarray(self.spec.field_enu_uT, dtype=float)  # type: ignore[attr-defined]
-                noisy = clean + self.bias[k] + self.rng.normal(0.0, sensor.noise, 3)
-                stamp = t + (self.rng.normal(0.0, sensor.jitter_s) if sensor.jitter_s else 0.0)
-                samples.append(SensorSample(stamp, k, (float(noisy[0]), float(noisy[1]), float(noisy[2]))))
-        for sample in sorted(samples, key=lambda x: x.t_s):
+        samples = self.phone.sample(prev.t, prev.R[0], prev.omega[0], state.t, state.R[0], state.omega[0])
+        for sample in samples:
             for step in self.merger.push(sample):
                 self.estimate = self.filter.step(step)
                 self.steps += 1

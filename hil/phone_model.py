@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
 from hil.estimator import PAPER_E
-from hil.sensors import SensorKind, SensorLog, SensorStream, Truth
+from hil.sensors import SensorKind, SensorLog, SensorSample, SensorStream, Truth
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -166,3 +166,49 @@ def simulate(traj: Trajectory, spec: PhoneSpec | None = None, seed: int | None =
         streams[kind] = SensorStream(kind, times, clean + bias + rng.normal(0.0, s.noise, clean.shape))
     notes = (f"simulated phone: {spec!r}", f"seed {seed}")
     return SensorLog(streams, "simulated phone", "simulated", traj.truth, notes)
+
+
+class BodyPhone:
+    """A phone fixed to a simulated body (its frame = the body frame), sampled step by step from the
+    body's true motion as a simulation produces it: the emulator's world and the lockstep closed loop.
+
+    Each sensor samples at its own rate (``spec``) from ``t0`` on, with timestamp jitter, white noise and
+    a constant bias drawn once from ``seed``. Between two true states the attitude is interpolated along
+    the geodesic and the rate linearly. The world is ENU on the ground: the accelerometer reads
+    ``Rᵀ g·up``, the magnetometer ``Rᵀ B``."""
+
+    def __init__(self, spec: PhoneSpec | None = None, seed: int = 0, t0: float = 0.0) -> None:
+        from hil.sensors import KINDS
+
+        self.spec = spec if spec is not None else PhoneSpec.nexus5()
+        self.rng = np.random.default_rng(seed)
+        self.kinds = KINDS
+        self.bias = {k: self.rng.normal(0.0, self.spec.spec(k).bias, 3) for k in KINDS}
+        self.next_t = {k: t0 + self.spec.spec(k).offset_s for k in KINDS}
+        self._gravity = np.array([0.0, 0.0, self.spec.gravity])
+        self._field = np.asarray(self.spec.field_enu_uT, dtype=float)
+
+    def sample(
+        self, t0: float, R0: Array, omega0: Array, t1: float, R1: Array, omega1: Array
+    ) -> list[SensorSample]:
+        """The samples every sensor takes in (t0, t1], sorted by timestamp, from the true attitudes
+        ``R0``, ``R1`` (3, 3) body → ENU and body rates ``omega0``, ``omega1`` (3,) rad/s at t0 and t1."""
+        out: list[SensorSample] = []
+        span = t1 - t0
+        turn = so3.log(R0.T @ R1) if span > 0 else np.zeros(3)
+        for k in self.kinds:
+            sensor = self.spec.spec(k)
+            while self.next_t[k] <= t1:
+                t = self.next_t[k]
+                self.next_t[k] += 1.0 / sensor.rate_hz
+                f = (t - t0) / span if span > 0 else 1.0
+                if k is SensorKind.GYR:
+                    clean = omega0 + f * (omega1 - omega0)
+                else:
+                    R = R0 @ so3.exp(f * turn)
+                    clean = R.T @ (self._gravity if k is SensorKind.ACC else self._field)
+                noisy = clean + self.bias[k] + self.rng.normal(0.0, sensor.noise, 3)
+                stamp = t + (self.rng.normal(0.0, sensor.jitter_s) if sensor.jitter_s else 0.0)
+                out.append(SensorSample(stamp, k, (float(noisy[0]), float(noisy[1]), float(noisy[2]))))
+        out.sort(key=lambda s: s.t_s)
+        return out
