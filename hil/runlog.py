@@ -88,10 +88,13 @@ class CsvLog:
 
 
 def _cell(value: Any) -> str:
+    """A CSV cell: floats (Python or numpy) at full precision, NaN and None empty."""
     if value is None:
         return ""
-    if isinstance(value, float):
-        return "" if math.isnan(value) else repr(value)
+    if isinstance(value, float | np.floating):
+        return "" if math.isnan(value) else repr(float(value))
+    if isinstance(value, np.integer | np.bool_):
+        return str(int(value))
     return str(value)
 
 

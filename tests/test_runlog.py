@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from hil.runlog import (
@@ -100,3 +101,12 @@ def test_summary_is_atomic_json_and_run_dirs_never_collide(tmp_path):
         ev.write(1.0, "late")
     events, torn = read_events(a / "events.jsonl")
     assert events == [{"t": 0.5, "kind": "state", "old": "DISARMED", "new": "ARMED"}] and torn == 0
+
+
+def test_numpy_scalars_are_written_as_plain_numbers(tmp_path):
+    path = tmp_path / "t.csv"
+    with CsvLog(path, ["a", "b", "c", "d"]) as log:
+        log.write({"a": np.float64(0.125), "b": np.int64(7), "c": np.float32(np.nan), "d": np.bool_(True)})
+    assert path.read_text().splitlines()[1] == "0.125,7,,1"
+    tel = read_telemetry(path)
+    assert tel.rows == 1 and tel.dropped_lines == 0 and tel["b"][0] == 7.0
