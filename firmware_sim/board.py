@@ -258,6 +258,11 @@ class Board:
         finally:
             self._clamped = clamped
 
+    @property
+    def gimbal_mode(self) -> GimbalMode:
+        """How the gimbal pulses are meant now: a rate or an angle (the last setpoint's mode)."""
+        return self._gimbal_mode
+
     def unit_states(self) -> tuple[UnitState, ...]:
         return tuple(u.state() for u in self.units)
 

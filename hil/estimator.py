@@ -899,6 +899,14 @@ class AttitudeFilter:
         gate = self.config.mag_gate
         self.gate = None if gate is None else MagneticGate(*astuple(gate))
 
+    def set_gyro_bias(self, bias: ArrayLike) -> None:
+        """Subtract ``bias`` (3,) rad/s from every later gyro sample: a bias measured while running (the
+        host's still window) — the estimator's attitude would otherwise carry a steady offset from it."""
+        b = as_vec3(tuple(np.asarray(bias, dtype=float).tolist()))
+        if b is None:
+            raise ConfigError(f"must be a finite 3-vector, got {bias!r}", "AttitudeFilter.set_gyro_bias")
+        self._bias = b
+
     def step(self, s: MergedStep) -> Estimate:
         """One merged step (live path)."""
         g = s.gyr

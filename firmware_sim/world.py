@@ -1,0 +1,211 @@
+"""The world on the far side of the board, for closed-loop emulation: the board's pulses drive the ESCs
+and gimbal servos of a spacecraft with VSCMGs, and a phone on the spacecraft senses its motion.
+
+Each plant step (the scenario's ``plant_step_s``, ≤ 1 ms) the world reads the widths the board's timers
+put out (``Board.outputs``), turns each into what the motor driver makes of it through the unit's
+calibration map — the rotor ESC's steady speed at the present battery voltage, the gimbal servo's rate
+(or angle) — and lets :class:`hil.motor_loops.ServoModel` drive the plant (:mod:`hil.vscmg`) towards it.
+The measured unit states go back to the board (``Board.set_unit_states``: its telemetry, power draw and
+dead-ESC detection then follow the physics), and the phone (:class:`hil.phone_model.BodyPhone`) samples the
+true motion. A channel without pulses (board booting, outputs off) leaves its drive where it was: the
+gimbal holds, the rotor holds its speed over such short gaps.
+
+The world keeps the board's time: it is advanced to the board clock's present by :meth:`World.advance_to`
+(the lockstep runtime calls it from its plant task; ``firmware-sim --world`` from its serving loop) and
+returns the phone samples taken meanwhile. The truth (attitude, rate) is there for logs and metrics.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hil.motor_loops import ServoModel, Setpoints
+from hil.phone_model import BodyPhone
+from hil.sensors import SensorSample
+from hil.vscmg import Plant, PlantState
+from protocol.messages import GimbalMode, UnitState
+
+from .board import Board
+
+Array = NDArray[np.float64]
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The true attitude ``R`` (3, 3) body → ENU and body rate ``omega`` (3,) rad/s at ``t`` (board s)."""
+
+    t: float
+    R: Array
+    omega: Array
+    gimbal_angle: Array
+    gimbal_rate: Array
+    rotor_speed: Array
+
+
+class World:
+    """``scenario`` (:class:`hil.scenario.Scenario`): spacecraft, servos, phone, start attitude and
+    gimbal angles; the rotors start at rest (the host spins them up). ``board``: the emulated board whose
+    pulses drive it (its unit count must match the spacecraft's)."""
+
+    def __init__(self, scenario: object, board: Board, seed: int | None = None) -> None:
+        from hil.scenario import Scenario
+
+        assert isinstance(scenario, Scenario)
+        if board.config.n_units != scenario.n_units:
+            from protocol.errors import ConfigError
+
+            raise ConfigError(
+                f"the board has {board.config.n_units} units, the scenario's spacecraft {scenario.n_units}",
+                "World",
+            )
+        self.scenario = scenario
+        self.board = board
+        self.params = scenario.spacecraft
+        self.plant = Plant(self.params)
+        self.servo = ServoModel(self.params, scenario.loop.servo)
+        self.step_s = scenario.loop.plant_step_s
+        n = self.params.n_units
+        self.t0 = board.now
+        self.state: PlantState = self.plant.state(
+            R=scenario.slew.R0, gimbal_angle=scenario.slew.gimbal_angle0, rotor_rate=np.zeros(n), t=0.0
+        )
+        self.phone = BodyPhone(scenario.phone, scenario.seed if seed is None else seed, t0=self.t0)
+        self._gimbal_sp = np.zeros((1, n))
+        self._rotor_sp = np.zeros((1, n))
+        self.steps = 0
+        board.set_unit_states(self.unit_states())
+
+    @property
+    def now(self) -> float:
+        """World time on the board's clock (s)."""
+        return self.t0 + self.state.t
+
+    def truth(self) -> Truth:
+        s = self.state
+        return Truth(
+            self.now, s.R[0].copy(), s.omega[0].copy(), s.gimbal_angle[0].copy(), s.gimbal_rate[0].copy(),
+            s.rotor_rate[0].copy(),
+        )  # fmt: skip
+
+    def unit_states(self) -> list[UnitState]:
+        s = self.state
+        return [
+            UnitState(float(_wrap(a)), float(g), float(w))
+            for a, g, w in zip(s.gimbal_angle[0], s.gimbal_rate[0], s.rotor_rate[0], strict=True)
+        ]
+
+    def advance_to(self, t: float) -> list[SensorSample]:
+        """Step the plant up to board time ``t`` (whole steps) and return the phone's samples meanwhile."""
+        samples: list[SensorSample] = []
+        h = self.step_s
+        while self.now + h <= t + 1e-9:
+            self.board.step(self.now)  # the pulse frames due by now, at their own times
+            self._drive()
+            prev = self.state
+            self.state = self.plant.step(prev, h, self.servo)
+            self.steps += 1
+            samples += self.phone.sample(
+                self.t0 + prev.t, prev.R[0], prev.omega[0], self.now, self.state.R[0], self.state.omega[0]
+            )
+        self.board.set_unit_states(self.unit_states())
+        return samples
+
+    def _drive(self) -> None:
+        """The drives' targets from the widths on the board's outputs now."""
+        board = self.board
+        outputs = board.outputs
+        volts = board.power.battery_v
+        mode = board.gimbal_mode
+        state = self.state
+        for i, unit in enumerate(board.units):
+            g_us, r_us = outputs[2 * i], outputs[2 * i + 1]
+            if r_us is not None and not unit.rotor_dead:
+                self._rotor_sp[0, i] = unit.rotor_speed_for(r_us, volts)
+            else:  # no pulses or a dead ESC: no drive; the rotor keeps its speed (coasting is slow)
+                self._rotor_sp[0, i] = state.rotor_rate[0, i]
+            if g_us is None or unit.gimbal_dead:
+                self._gimbal_sp[0, i] = 0.0
+            elif mode is GimbalMode.RATE:
+                self._gimbal_sp[0, i] = unit.gimbal_value_for(g_us, mode)
+            else:  # ANGLE: the servo's own position loop, a proportional rate toward the target
+                target = unit.gimbal_value_for(g_us, mode)
+                err = math.remainder(target - float(state.gimbal_angle[0, i]), 2 * math.pi)
+                limit = self.params.limits.max_gimbal_rate
+                self._gimbal_sp[0, i] = max(-limit, min(limit, err / 0.1))
+        self.servo.hold(Setpoints(self._gimbal_sp, self._rotor_sp, np.zeros(1, bool)))
+
+
+def _wrap(angle: float) -> float:
+    """An angle in (−π, π] (the telemetry's range)."""
+    return math.remainder(angle, 2 * math.pi)
+
+
+class WorldStreamer:
+    """Runs a world in real time next to a board that is served elsewhere (a pty server's loop, a host's
+    in-process emulator) and streams its phone the way the Sensor Logger app does: a thread advances the
+    world to the board's clock every ``step_s`` (under ``lock``, the lock the board's server holds while it
+    touches the board) and POSTs the samples in batches of ``batch_s`` to ``push_url``
+    (:class:`hil.sources.phone_push.PhonePushSender`). A push nobody receives is counted, never fatal: a
+    phone keeps streaming while the host restarts. An error in the thread is stored and raised by
+    :meth:`check` / :meth:`close`."""
+
+    def __init__(
+        self, world: World, lock: threading.RLock | threading.Condition, push_url: str,
+        step_s: float = 0.005, batch_s: float = 0.02,
+    ) -> None:  # fmt: skip
+        from hil.sources.phone_push import PhonePushSender
+
+        self.world = world
+        self.lock = lock
+        self.sender = PhonePushSender(push_url)
+        self.step_s = step_s
+        self.batch_s = batch_s
+        self.batches = 0
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="world", daemon=True)
+
+    def start(self) -> WorldStreamer:
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        clock = self.world.board.clock
+        try:
+            pending: list[SensorSample] = []
+            next_step = next_push = clock.now()
+            while not self._stop.is_set():
+                next_step += self.step_s
+                clock.sleep_until(next_step)
+                with self.lock:
+                    pending += self.world.advance_to(clock.now())
+                if clock.now() >= next_push + self.batch_s and pending:
+                    next_push = clock.now()
+                    self.sender.send(pending)
+                    self.batches += 1
+                    pending = []
+                if next_step < clock.now() - 10 * self.step_s:  # fell behind (a loaded machine): catch up
+                    next_step = clock.now()
+        except BaseException as exc:  # stored, raised by check(): threads never die silently
+            self._error = exc
+            logger.exception("world thread failed")
+
+    def check(self) -> None:
+        if self._error is not None:
+            from protocol.errors import LinkError
+
+            raise LinkError(f"the world thread failed: {self._error!r}") from self._error
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
+        self.sender.close()
+        self.check()

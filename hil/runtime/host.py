@@ -1,0 +1,376 @@
+"""The host's closed loop for one run: phone samples → merge → estimator, and at the control rate
+estimate → controller → steering → setpoints for the board, with the run's phases, its telemetry rows and
+its summary. No clock or thread of its own: :mod:`hil.runtime.loop` calls :meth:`Host.feed` from the
+estimator task and :meth:`Host.tick` from the control task, in real time or in lockstep.
+
+Phases (``telemetry.csv`` column ``phase``):
+
+0. **warm-up** — the board is armed, the rotors spin up to their nominal speed with the gimbals still;
+   once every rotor is within 5 % of it the still window of ``warmup_s`` starts: the estimator converges
+   and the raw gyroscope samples of the window's second half are averaged into the gyro bias, which the
+   estimator subtracts from then on (the phone gyro's residual bias would otherwise leave a steady
+   attitude error and a rate offset in the control loop);
+1. **slew** — an eigenaxis rest-to-rest slew from the estimated attitude to the scenario's target within
+   its rate and acceleration limits, tracked by the geometric controller;
+2. **hold** — the reference stays at the target.
+
+The run ends ``duration_s`` after the slew started. A board in FAILSAFE (link watchdog) or reset is
+re-armed as soon as the link answers again; each such episode is counted and logged.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hil import so3
+from hil.board import BoardClient
+from hil.board.events import (
+    BoardResetEvent,
+    ConnectedEvent,
+    LinkLostEvent,
+    LogEvent,
+    SilenceEvent,
+    StateEvent,
+)
+from hil.control import AttitudeController, EigenaxisSlew, Reference
+from hil.motor_loops import SetpointGenerator
+from hil.runlog import CsvLog, EventLog
+from hil.scenario import Scenario
+from hil.sensors import SensorKind, SensorSample
+from hil.steering import VscmgSteering
+from protocol.errors import BoardReset, CommandFailed, LinkError
+from protocol.messages import ActuatorSetpoint, Arm, BoardState, GimbalMode, UnitSetpoint
+
+logger = logging.getLogger(__name__)
+
+Array = NDArray[np.float64]
+
+SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may start
+MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear error
+
+
+class Phase(enum.IntEnum):
+    WARMUP = 0
+    SLEW = 1
+    HOLD = 2
+
+
+@dataclass(frozen=True)
+class TruthSample:
+    """What a simulation knows and a real board does not: attitude ``R`` (3, 3), body rate (3,) rad/s."""
+
+    R: Array
+    omega: Array
+
+
+def telemetry_columns(n_units: int) -> list[str]:
+    """The telemetry.csv columns for ``n_units`` units (docs/architecture.md, "Run directory")."""
+    cols = ["t", "phase", "est_err_deg", "rate_err", "point_err_deg", "track_err_deg"]
+    cols += [f"{who}_{q}{axis}" for q in ("r", "w") for who in ("est", "true") for axis in "xyz"]
+    cols += [f"tau_{a}" for a in "xyz"] + ["delta"]
+    for name in ("gimbal_angle", "gimbal_rate", "rotor_speed", "cmd_gimbal_rate", "cmd_rotor_speed"):
+        cols += [f"{name}_{i}" for i in range(n_units)]
+    cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
+    cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
+    return cols
+
+
+@dataclass
+class HostCounters:
+    estimator_steps: int = 0
+    samples: int = 0
+    control_ticks: int = 0
+    failsafe_events: int = 0
+    resets: int = 0
+    link_lost: int = 0
+    rearms: int = 0
+    setpoint_errors: int = 0
+
+
+@dataclass
+class Host:
+    """One run's host side. ``truth`` (optional) returns the simulation's truth now (None on hardware)."""
+
+    scenario: Scenario
+    client: BoardClient
+    telemetry: CsvLog
+    events: EventLog
+    truth: Callable[[], TruthSample | None] = lambda: None
+    duration_s: float | None = None
+    counters: HostCounters = field(default_factory=HostCounters)
+
+    def __post_init__(self) -> None:
+        from hil.estimator import AttitudeFilter
+        from hil.multirate import Merger
+        from hil.vscmg import Plant
+
+        sc = self.scenario
+        loop = sc.loop
+        self.params = sc.spacecraft
+        plant = Plant(self.params)
+        state0 = plant.state(gimbal_angle=sc.slew.gimbal_angle0)
+        self.filter = AttitudeFilter(sc.filter_config())
+        self.merger = Merger()
+        self.controller = AttitudeController(plant.locked_inertia(state0)[0], loop.gains)
+        self.steering = VscmgSteering(self.params, loop.steering)
+        self.setpoints = SetpointGenerator(self.params, loop.control_rate_hz, loop.frame_rate_hz)
+        self.dt = 1.0 / loop.control_rate_hz
+        self.phase = Phase.WARMUP
+        self.estimate: Any = None
+        self.still_since: float | None = None
+        self.spinup_since: float | None = None
+        self.bias_samples: list[Array] = []  # raw gyro samples over the still window's second half
+        self._collecting_bias = False
+        self.gyro_bias = np.zeros(3)  # measured over the still window, removed by the filter from then on
+        self.slew: EigenaxisSlew | None = None
+        self.slew_start: float | None = None
+        self.finished = False
+        self.n = self.params.n_units
+        self._rearm: Any = None
+        self._errors_sq: list[float] = []
+        self.trace: dict[str, list[float]] = {"t": [], "point_err_deg": [], "delta": [], "gimbal_rate": []}
+        self.columns = telemetry_columns(self.n)
+
+    # ------------------------------------------------------------------ estimator task
+    def feed(self, samples: Sequence[SensorSample]) -> None:
+        """Phone samples (any order within a batch) through hold-last-sample merging into the estimator."""
+        collecting = self._collecting_bias
+        for sample in sorted(samples, key=lambda s: s.t_s):
+            self.counters.samples += 1
+            if collecting and sample.kind is SensorKind.GYR:
+                self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
+            for step in self.merger.push(sample):
+                self.estimate = self.filter.step(step)
+                self.counters.estimator_steps += 1
+
+    # ------------------------------------------------------------------ control task
+    def tick(self, t: float, events: Sequence[Any]) -> None:
+        """One control period at host time ``t`` (s), after the board client's new ``events``."""
+        self.counters.control_ticks += 1
+        for event in events:
+            self._on_event(event)
+        self._rearm_if_needed(t)
+        tel = self.client.telemetry
+        if tel is None or len(tel.units) != self.n:
+            return
+        gimbal = np.array([u.gimbal_angle for u in tel.units])
+        rotor = np.array([u.rotor_speed for u in tel.units])
+        armed = tel.state is BoardState.ARMED
+        command, cmd_out, ref = self._control(t, gimbal, rotor, armed)
+        if armed and self._rearm is None:
+            try:
+                self.client.send_setpoint(command)
+            except BoardReset:  # the reset event arrives with the next service(); re-armed then
+                self.counters.setpoint_errors += 1
+        self._log_row(t, tel, gimbal, rotor, command, cmd_out, ref)
+        if self.slew_start is not None and t - self.slew_start >= self._duration - 1e-9:
+            self.finished = True
+
+    @property
+    def _duration(self) -> float:
+        return self.scenario.slew.duration_s if self.duration_s is None else self.duration_s
+
+    def _control(
+        self, t: float, gimbal: Array, rotor: Array, armed: bool
+    ) -> tuple[ActuatorSetpoint, Any, Reference | None]:
+        nominal = self.params.nominal_rotor_speed
+        loop = self.scenario.loop
+        if self.phase is Phase.WARMUP:
+            self._warm_up(t, rotor, nominal, armed, loop.warmup_s)
+            hold = ActuatorSetpoint(
+                gimbal_mode=GimbalMode.RATE, units=tuple(UnitSetpoint(0.0, nominal) for _ in range(self.n))
+            )
+            return hold, None, None
+        assert self.slew is not None and self.estimate is not None
+        if self.phase is Phase.SLEW and t >= self.slew.start_s + self.slew.duration_s:
+            self.phase = Phase.HOLD
+            self.events.write(t, "slew_end")
+        ref = self.slew.at(t)
+        R_hat, w_hat = np.asarray(self.estimate.R), np.asarray(self.estimate.omega)
+        h = self.steering.momentum(gimbal, rotor)[0]
+        out = self.controller.update(R_hat, w_hat, ref, self.dt, h)
+        cmd = self.steering.solve(out.torque, gimbal, rotor, self.dt)
+        sp = self.setpoints.update(cmd, rotor)
+        return sp.message(), (out, cmd), ref
+
+    def _warm_up(self, t: float, rotor: Array, nominal: float, armed: bool, warmup_s: float) -> None:
+        if not armed:
+            return
+        if self.spinup_since is None:
+            self.spinup_since = t
+            self.events.write(t, "spin_up", nominal_rad_s=nominal)
+        if self.still_since is None:
+            if np.all(np.abs(rotor - nominal) <= SPUN_UP * nominal):
+                self.still_since = t
+                self.events.write(t, "still_window", rotor_rad_s=rotor.round(1).tolist())
+            elif t - self.spinup_since > MAX_SPINUP_S:
+                raise LinkError(
+                    f"the rotors did not reach {nominal:.0f} rad/s within {MAX_SPINUP_S:.0f} s "
+                    f"(telemetry: {rotor.round(1).tolist()} rad/s)"
+                )
+            return
+        if self.estimate is None:
+            return
+        self._collecting_bias = t - self.still_since >= 0.5 * warmup_s
+        if t - self.still_since >= warmup_s:
+            self._collecting_bias = False
+            if self.scenario.loop.calibrate_rate_bias and self.bias_samples:
+                self.gyro_bias = np.mean(self.bias_samples, axis=0)
+                self.filter.set_gyro_bias(self.gyro_bias)
+            R_hat = np.asarray(self.estimate.R)
+            sl = self.scenario.slew
+            self.slew = EigenaxisSlew.within_limits(R_hat, sl.R_target, sl.max_rate, sl.max_accel, start_s=t)
+            self.slew_start = t
+            self.setpoints.reset(rotor)
+            self.controller.reset()
+            self.phase = Phase.SLEW
+            self.events.write(
+                t, "slew_start", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ sl.R_target)),
+                slew_s=self.slew.duration_s, gyro_bias=self.gyro_bias.tolist(),
+            )  # fmt: skip
+
+    # ------------------------------------------------------------------ board events
+    def _on_event(self, event: Any) -> None:
+        t = event.t
+        if isinstance(event, StateEvent):
+            old = None if event.old is None else event.old.name
+            self.events.write(t, "board_state", old=old, new=event.new.name)
+            if event.new is BoardState.FAILSAFE:
+                self.counters.failsafe_events += 1
+                logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): re-arming", t)
+                self._want_rearm()
+        elif isinstance(event, BoardResetEvent):
+            self.counters.resets += 1
+            self.events.write(t, "board_reset", cause=event.cause.name, evidence=event.evidence)
+            self._want_rearm()
+        elif isinstance(event, LinkLostEvent):
+            self.counters.link_lost += 1
+            self.events.write(t, "link_lost", reason=event.reason)
+        elif isinstance(event, ConnectedEvent):
+            self.events.write(t, "connected", reconnects=event.reconnects)
+            if event.reconnects:
+                self._want_rearm()
+        elif isinstance(event, SilenceEvent):
+            self.events.write(t, "silence", since=event.since, ended=event.ended)
+        elif isinstance(event, LogEvent):
+            self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text)
+
+    def _want_rearm(self) -> None:
+        if self._rearm is None:
+            self._rearm = "pending"
+
+    def _rearm_if_needed(self, t: float) -> None:
+        """Re-arm without blocking the loop: send Arm, then look at the answer on later ticks."""
+        if self._rearm is None or not self.client.connected:
+            return
+        if self._rearm == "pending":
+            self._rearm = self.client.command(Arm())
+            return
+        if not self._rearm.done:
+            return
+        try:
+            self._rearm.result()
+            self.counters.rearms += 1
+            self.events.write(t, "rearmed")
+            self._rearm = None
+        except CommandFailed as exc:  # e.g. still in reset: try again next tick
+            self.events.write(t, "rearm_failed", detail=str(exc))
+            self._rearm = "pending"
+
+    # ------------------------------------------------------------------ telemetry rows
+    def _log_row(
+        self, t: float, tel: Any, gimbal: Array, rotor: Array, command: ActuatorSetpoint, cmd_out: Any,
+        ref: Reference | None,
+    ) -> None:  # fmt: skip
+        truth = self.truth()
+        est = self.estimate
+        target = self.scenario.slew.R_target
+        row: dict[str, Any] = {"t": t, "phase": int(self.phase)}
+        R_att = truth.R if truth is not None else (None if est is None else np.asarray(est.R))
+        if est is not None:
+            R_hat = np.asarray(est.R)
+            w_hat = np.asarray(est.omega)
+            row.update(zip(("est_rx", "est_ry", "est_rz"), so3.log(R_hat), strict=True))
+            row.update(zip(("est_wx", "est_wy", "est_wz"), w_hat, strict=True))
+            if truth is not None:
+                err = math.degrees(so3.principal_angle(truth.R @ R_hat.T))
+                row["est_err_deg"] = err
+                row["rate_err"] = float(np.linalg.norm(w_hat - truth.omega))
+                if self.phase is not Phase.WARMUP:
+                    self._errors_sq.append(err * err)
+        if truth is not None:
+            row.update(zip(("true_rx", "true_ry", "true_rz"), so3.log(truth.R), strict=True))
+            row.update(zip(("true_wx", "true_wy", "true_wz"), truth.omega, strict=True))
+        if R_att is not None:
+            row["point_err_deg"] = math.degrees(so3.principal_angle(R_att.T @ target))
+            if ref is not None:
+                row["track_err_deg"] = math.degrees(so3.principal_angle(R_att.T @ ref.R))
+        delta = float(self.steering.delta(gimbal, rotor)[0])
+        row["delta"] = delta
+        if cmd_out is not None:
+            row.update(zip(("tau_x", "tau_y", "tau_z"), cmd_out[0].torque, strict=True))
+        rates = [u.gimbal_rate for u in tel.units]
+        for i in range(self.n):
+            row[f"gimbal_angle_{i}"] = gimbal[i]
+            row[f"gimbal_rate_{i}"] = rates[i]
+            row[f"rotor_speed_{i}"] = rotor[i]
+            row[f"cmd_gimbal_rate_{i}"] = command.units[i].gimbal
+            row[f"cmd_rotor_speed_{i}"] = command.units[i].rotor_speed
+        for ch, width in enumerate(tel.pulses_us[: 2 * self.n]):
+            row[f"pulse_{'gimbal' if ch % 2 == 0 else 'rotor'}_{ch // 2}"] = width
+        row.update(
+            battery_v=tel.battery_mv / 1000.0, board_state=int(tel.state), link_rx_frames=tel.rx_frames,
+            link_bad_frames=tel.rx_bad, link_age_ms=tel.link_age_ms,
+        )  # fmt: skip
+        self.telemetry.write(row)
+        if self.slew_start is not None:
+            self.trace["t"].append(t - self.slew_start)
+            self.trace["point_err_deg"].append(row.get("point_err_deg", math.nan))
+            self.trace["delta"].append(delta)
+            self.trace["gimbal_rate"].append(float(np.max(np.abs(rates))))
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> dict[str, Any]:
+        """The run's figures: settle time (first time after which the pointing error stays ≤ settle_deg,
+        from the slew's start), final and peak pointing error, peak gimbal rate, minimum δ, the
+        estimator's RMSE over slew + hold (simulated runs), failsafe events; None where not reached."""
+        tr = {k: np.asarray(v, dtype=float) for k, v in self.trace.items()}
+        sc = self.scenario
+        out: dict[str, Any] = {
+            "scenario": sc.name,
+            "settle_requirement_deg": sc.settle_deg,
+            "slew_started": self.slew_start is not None,
+            "failsafe_events": self.counters.failsafe_events,
+            "board_resets": self.counters.resets,
+            "link_lost": self.counters.link_lost,
+            "rearms": self.counters.rearms,
+            "estimator_steps": self.counters.estimator_steps,
+            "phone_samples": self.counters.samples,
+            "control_ticks": self.counters.control_ticks,
+            "max_gimbal_rate_limit": self.params.limits.max_gimbal_rate,
+        }
+        if len(tr["t"]):
+            err = tr["point_err_deg"]
+            above = np.nonzero(~(err <= sc.settle_deg))[0]
+            settled = len(above) == 0 or above[-1] + 1 < len(err)
+            out.update(
+                settle_s=(float(tr["t"][above[-1] + 1]) if len(above) else 0.0) if settled else None,
+                final_error_deg=float(err[-1]),
+                peak_error_deg=float(np.nanmax(err)),
+                peak_gimbal_rate=float(np.max(tr["gimbal_rate"])),
+                min_delta=float(np.min(tr["delta"])),
+                slew_s=None if self.slew is None else self.slew.duration_s,
+            )
+            out["settled"] = bool(settled and out["settle_s"] is not None)
+            limit = self.params.limits.max_gimbal_rate
+            out["gimbal_rate_within_limit"] = bool(out["peak_gimbal_rate"] <= limit)
+        out["estimator_rmse_deg"] = float(np.sqrt(np.mean(self._errors_sq))) if self._errors_sq else None
+        return out
