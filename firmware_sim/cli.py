@@ -33,6 +33,9 @@ examples:
   firmware-sim --duration 30 -v                 stop after 30 s, log state changes
   firmware-sim --avr                            the real firmware (firmware/) on simavr's ATmega2560
   firmware-sim --avr --eeprom board.eep         ... keeping its EEPROM (uploaded calibrations) in a file
+  firmware-sim --world cubesat-1u --link /tmp/vscmg
+                                                the board drives a simulated spacecraft (a hil scenario);
+                                                its phone streams to http://127.0.0.1:8123/ (hil run --port)
   firmware-sim --can udp_multicast/239.74.163.2?port=43113
                                                 serve on a CAN bus instead (prints the host's URL)
   hil run --port can://udp_multicast/239.74.163.2?port=43113   (in another terminal) drive it
@@ -65,6 +68,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--can",
         metavar="INTERFACE/CHANNEL[?OPTIONS]",
         help="serve on a python-can bus instead of a pty (options as in can:// URLs: node, fd, port, ...)",
+    )
+    p.add_argument(
+        "--world",
+        metavar="SCENARIO",
+        help="close the loop: the pulses drive this hil scenario's spacecraft (name or .toml; sets --units)",
+    )
+    p.add_argument(
+        "--phone-push",
+        default="http://127.0.0.1:8123/",
+        metavar="URL",
+        help="with --world: where the simulated phone streams (Sensor Logger HTTP Push; default %(default)s)",
     )
     p.add_argument(
         "--no-hold",
@@ -244,6 +258,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     from .pty_server import PtyServer
 
     try:
+        scenario = None
+        if args.world is not None:
+            from hil.scenario import load_scenario
+
+            scenario = load_scenario(args.world)
+            args.units = scenario.n_units
         board = make_board(args)
         server: PtyServer | CanServer
         if args.can is not None:
@@ -257,6 +277,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     def on_signal(signum: int, frame: FrameType | None) -> None:
         server.stop()
 
+    streamer = None
+    if scenario is not None:
+        from .world import World, WorldStreamer
+
+        with server.lock:
+            world = World(scenario, board)
+        streamer = WorldStreamer(world, server.lock, args.phone_push).start()
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     print(server.path, flush=True)
     where = f" (link {args.link})" if args.link else ""
@@ -271,6 +298,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for s, handler in old.items():
             signal.signal(s, handler)
         server.close()
+        if streamer is not None:
+            streamer.close()
     stats = server.stats
     print(
         f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, "

@@ -175,7 +175,14 @@ def _build(
                 return TruthSample(world.state.R[0].copy(), world.state.omega[0].copy())
 
     if mode == "realtime":
+        import sys
+
         from firmware_sim.world import WorldStreamer
+
+        # The world thread shares this interpreter: hand the GIL over every 0.5 ms (default 5 ms), so a
+        # control deadline waits at most that long for it.
+        stack.callback(sys.setswitchinterval, sys.getswitchinterval())
+        sys.setswitchinterval(5e-4)
 
         assert world is not None
         streamer = WorldStreamer(world, link.lock, server.url).start()

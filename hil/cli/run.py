@@ -1,0 +1,123 @@
+"""``hil run``: one closed-loop run of a scenario against the built-in emulator, firmware-sim or a board."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+ORDER = 10
+
+EPILOG = """\
+examples:
+  hil run                                          # built-in emulator, default scenario, lockstep
+  hil run --scenario paper-testbed --duration 20   # the paper's air-bearing testbed, 20 s after the slew
+  hil run --realtime                               # built-in emulator on the wall clock, phone over HTTP
+  hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
+
+  # two terminals: the emulated board with its world on a pty, then the host against it
+  firmware-sim --world cubesat-1u --link /tmp/vscmg
+  hil run --port /tmp/vscmg                         # listens for the world's phone on 127.0.0.1:8123
+
+  hil run --port "spawn://firmware-sim?world=cubesat-1u&phone_push=http://127.0.0.1:8123/"
+  hil run --port /dev/ttyACM0 --phone 0.0.0.0:8123  # a real board; a phone's Sensor Logger pushes here
+
+writes RUN_DIR/telemetry.csv (one row per control tick), events.jsonl, summary.json, scenario.toml and
+plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/scenarios/.
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "run",
+        help="closed-loop run: estimator + controller driving a board (built-in emulator by default)",
+        description="Arm the board, spin the rotors up, let the estimator converge, slew to the scenario's "
+        "target and hold, logging everything into a run directory.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--port", metavar="URL", help="board transport (default: the built-in emulator)")
+    p.add_argument("--scenario", default="cubesat-1u", metavar="NAME|FILE", help="default cubesat-1u")
+    p.add_argument("--duration", type=float, metavar="S", help="run this long after the slew starts")
+    timing = p.add_mutually_exclusive_group()
+    timing.add_argument("--realtime", action="store_true", help="wall clock (default with --port)")
+    timing.add_argument("--lockstep", action="store_true", help="simulated time (default without --port)")
+    p.add_argument("--phone", default="127.0.0.1:8123", metavar="HOST:PORT", help="phone stream listen at")
+    p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
+    p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
+    p.set_defaults(func=run)
+
+
+class LiveProgress:
+    """One status line on stderr, refreshed every half simulated second."""
+
+    def __init__(self, stream=sys.stderr) -> None:  # type: ignore[no-untyped-def]
+        self.stream = stream
+        self.next_t = 0.0
+
+    def __call__(self, host, t: float) -> None:  # type: ignore[no-untyped-def]
+        if t < self.next_t:
+            return
+        self.next_t = t + 0.5
+        trace = host.trace["point_err_deg"]
+        err = f"{trace[-1]:7.3f}°" if trace else "    -   "
+        est = host.estimate
+        self.stream.write(
+            f"\r t {t:6.1f} s  {host.phase.name:<6}  pointing error {err}  "
+            f"estimator steps {host.counters.estimator_steps:6d}  failsafes {host.counters.failsafe_events}"
+            f"{'' if est is not None else '  (waiting for the phone)'}   "
+        )
+        self.stream.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    from hil.runtime import RunOptions
+    from hil.runtime import run as run_scenario
+    from hil.scenario import load_scenario
+    from protocol.errors import HilError
+
+    try:
+        scenario = load_scenario(args.scenario)
+        lockstep = True if args.lockstep else (False if args.realtime else None)
+        opts = RunOptions(
+            port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
+            phone=args.phone, plots=not args.no_plots, progress=LiveProgress(),
+        )  # fmt: skip
+        print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
+        result = run_scenario(scenario, opts)
+    except HilError as exc:
+        print(f"\nhil run: {exc}", file=sys.stderr)
+        return 2
+    print(file=sys.stderr)
+    print(format_summary(result.summary))
+    print(f"run directory: {result.run_dir}")
+    return 0 if result.summary.get("exit") == "completed" else 1
+
+
+def format_summary(s: dict) -> str:  # type: ignore[type-arg]
+    """The figures a user looks at first, one per line."""
+
+    def num(key: str, fmt: str, unit: str = "") -> str:
+        v = s.get(key)
+        return "-" if v is None else f"{v:{fmt}}{unit}"
+
+    lines = [
+        f"exit              {s.get('exit')}  ({s.get('mode')}, {num('sim_s', '.1f', ' s')} simulated in "
+        f"{num('wall_s', '.1f', ' s')}, x{num('realtime_factor', '.2f')})",
+        f"settle time       {num('settle_s', '.1f', ' s')} to <= {s.get('settle_requirement_deg')} deg "
+        f"({'met' if s.get('settled') else 'NOT met'})",
+        f"final error       {num('final_error_deg', '.3f', ' deg')}",
+        f"peak gimbal rate  {num('peak_gimbal_rate', '.3f', ' rad/s')} "
+        f"(limit {s.get('max_gimbal_rate_limit')})",
+        f"minimum delta     {num('min_delta', '.3f')}",
+        f"estimator RMSE    {num('estimator_rmse_deg', '.2f', ' deg')} (slew + hold)",
+        f"failsafe events   {s.get('failsafe_events', 0)}  resets {s.get('board_resets', 0)}  "
+        f"re-arms {s.get('rearms', 0)}",
+    ]
+    control = s.get("tasks", {}).get("control")
+    if control and s.get("mode") != "lockstep":
+        lines.append(
+            f"control jitter    p50 {control['lateness_p50_us']:.0f} us  "
+            f"p99 {control['lateness_p99_us']:.0f} us  max {control['lateness_max_us']:.0f} us"
+        )
+    return "\n".join(lines)
