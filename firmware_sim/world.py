@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -69,7 +69,18 @@ class World:
         self.board = board
         self.params = scenario.spacecraft
         self.plant = Plant(self.params)
-        self.servo = ServoModel(self.params, scenario.loop.servo)
+        motor = board.config.motor
+        # The drives respond as the board's own actuator model says; an ESC cannot brake, so a rotor whose
+        # throttle drops (failsafe, disarm) coasts down.
+        self.servo = ServoModel(
+            self.params,
+            replace(
+                scenario.loop.servo,
+                gimbal_time_constant_s=board.config.gimbal.time_constant_s,
+                rotor_time_constant_s=motor.time_constant_s,
+                coast_time_constant_s=motor.coast_time_constant_s,
+            ),
+        )
         self.step_s = scenario.loop.plant_step_s
         n = self.params.n_units
         self.t0 = board.now

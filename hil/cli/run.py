@@ -43,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     timing.add_argument("--realtime", action="store_true", help="wall clock (default with --port)")
     timing.add_argument("--lockstep", action="store_true", help="simulated time (default without --port)")
     p.add_argument("--phone", default="127.0.0.1:8123", metavar="HOST:PORT", help="phone stream listen at")
+    p.add_argument(
+        "--phone-wait", type=float, default=10.0, metavar="S", help="with --port: wait S s for the phone"
+    )
     p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
     p.set_defaults(func=run)
@@ -81,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         lockstep = True if args.lockstep else (False if args.realtime else None)
         opts = RunOptions(
             port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
-            phone=args.phone, plots=not args.no_plots, progress=LiveProgress(),
+            phone=args.phone, phone_wait_s=args.phone_wait, plots=not args.no_plots, progress=LiveProgress(),
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
         result = run_scenario(scenario, opts)
