@@ -105,20 +105,42 @@ _KEYS: dict[str, frozenset[str]] = {
     "estimator": frozenset({"preset"}),
     "controller": frozenset(
         {
-            "control_rate_hz", "plant_step_s", "natural_frequency", "damping", "null_gain",
-            "wheel_weight", "mu", "warmup_s",
+            "control_rate_hz",
+            "plant_step_s",
+            "natural_frequency",
+            "damping",
+            "null_gain",
+            "wheel_weight",
+            "mu",
+            "warmup_s",
         }
     ),  # fmt: skip
     "board": frozenset(
         {"frame_rate", "telemetry_rate", "heartbeat_rate", "link_timeout", "mcu_watchdog", "cells", "soc"}
     ),
     "faults": frozenset(
-        {"corrupt", "drop", "fault_direction", "stall", "hang_at", "sag", "sag_ohms", "brownout_at", "dead_esc"}
+        {
+            "corrupt",
+            "drop",
+            "fault_direction",
+            "stall",
+            "hang_at",
+            "sag",
+            "sag_ohms",
+            "brownout_at",
+            "dead_esc",
+        }
     ),
     "manoeuvre": frozenset(
         {
-            "axis", "angle_deg", "max_rate", "max_accel", "initial_axis", "initial_angle_deg",
-            "gimbal_angles_deg", "settle_deg",
+            "axis",
+            "angle_deg",
+            "max_rate",
+            "max_accel",
+            "initial_axis",
+            "initial_angle_deg",
+            "gimbal_angles_deg",
+            "settle_deg",
         }
     ),  # fmt: skip
 }
@@ -202,7 +224,9 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
         return p
     shipped = SCENARIO_DIR / f"{name_or_path}.toml"
     if not shipped.is_file():
-        raise ConfigError(f"no scenario {str(name_or_path)!r}; shipped: {', '.join(scenario_names())}", "scenario")
+        raise ConfigError(
+            f"no scenario {str(name_or_path)!r}; shipped: {', '.join(scenario_names())}", "scenario"
+        )
     return shipped
 
 
@@ -259,7 +283,9 @@ class _Reader:
     def error(self, key: str, detail: str) -> ConfigError:
         return ConfigError(detail, f"{self.where}: {key}")
 
-    def number(self, tbl: dict[str, Any], table: str, key: str, default: float, positive: bool = True) -> float:
+    def number(
+        self, tbl: dict[str, Any], table: str, key: str, default: float, positive: bool = True
+    ) -> float:
         value = tbl.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
             raise self.error(f"{table}.{key}", f"must be a number, got {value!r}")
@@ -320,15 +346,20 @@ class _Reader:
         sc = self.table("spacecraft")
         preset = self.choice(sc, "spacecraft", "preset", _SPACECRAFT_PRESETS)
         builder = geometry.cubesat_1u if preset == "cubesat_1u" else geometry.air_bearing_testbed
-        params = builder(rotor_offset_m=self.number(sc, "spacecraft", "rotor_offset_m", 0.0, positive=False)) \
-            if "rotor_offset_m" in sc else builder()  # fmt: skip
+        if "rotor_offset_m" in sc:
+            offset = self.number(sc, "spacecraft", "rotor_offset_m", 0.0, positive=False)
+            params = builder(rotor_offset_m=offset)
+        else:
+            params = builder()
         changes: dict[str, Any] = {}
         if "nominal_rotor_speed" in sc:
             changes["nominal_rotor_speed"] = self.number(sc, "spacecraft", "nominal_rotor_speed", 0.0)
         if "bus_inertia" in sc:
             raw = np.asarray(sc["bus_inertia"], dtype=float) if _numeric(sc["bus_inertia"]) else None
             if raw is None or raw.shape not in ((3,), (3, 3)):
-                raise self.error("spacecraft.bus_inertia", "must be 3 diagonal values or a 3x3 matrix (kg m²)")
+                raise self.error(
+                    "spacecraft.bus_inertia", "must be 3 diagonal values or a 3x3 matrix (kg m²)"
+                )
             try:
                 changes["bus_inertia"] = tuple(map(tuple, inertia_tensor(raw, "bus_inertia")))
             except ConfigError as exc:
@@ -354,7 +385,9 @@ class _Reader:
                 n = arr.get("units", 4)
                 if not isinstance(n, int) or isinstance(n, bool) or not 2 <= n <= 8:
                     raise self.error("array.units", f"must be an integer 2..8, got {n!r}")
-                skew = math.radians(self.number(arr, "array", "skew_deg", math.degrees(geometry.PYRAMID_BETA)))
+                skew = math.radians(
+                    self.number(arr, "array", "skew_deg", math.degrees(geometry.PYRAMID_BETA))
+                )
                 return geometry.pyramid(n, skew, radius_m=0.025, height_m=-0.02, template=template)
             if kind == "tetrahedron":
                 return geometry.tetrahedron(radius_m=0.12, height_m=0.05, template=template)
@@ -462,7 +495,9 @@ class _Reader:
             if not values or not all(
                 isinstance(v, int | float | str) and not isinstance(v, bool) for v in values
             ):
-                raise self.error(f"{name}.{key}", f"must be a number, a string or a list of them; got {value!r}")
+                raise self.error(
+                    f"{name}.{key}", f"must be a number, a string or a list of them; got {value!r}"
+                )
         return dict(tbl)
 
 
