@@ -223,3 +223,14 @@ def test_the_same_run_over_a_python_can_virtual_bus(tmp_path):
     assert s["link"]["transport"]["rx_frames"] > 50  # telemetry came back as reassembled CAN segments
     tel = read_telemetry(result.run_dir / "telemetry.csv")
     assert np.allclose(tel["rotor_speed_0"][-5:], sc.spacecraft.nominal_rotor_speed, rtol=0.05)
+
+
+def test_run_plots_include_the_papers_estimator_figures(lockstep_run):
+    from hil.plots.run import plot_run
+
+    _, result = lockstep_run
+    paths = plot_run(result.run_dir)
+    for name in ("attitude_error", "rate_error", "pointing_error", "gimbal_rates", "rotor_speeds",
+                 "pulse_widths", "battery", "delta"):  # fmt: skip
+        data = paths[name].read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000

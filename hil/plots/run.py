@@ -1,0 +1,73 @@
+"""A run directory's figures (``hil run`` draws them at the end, ``hil report`` again): the paper's two
+estimator figures (simulated runs, where the truth is known), pointing and tracking error, gimbal angles and
+rates, rotor speeds, pulse widths, battery voltage and the singularity measure δ — each from
+``telemetry.csv``; a column a run lacks is skipped and named in the result's ``skipped`` list."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from matplotlib.axes import Axes
+
+from hil.plots.estimator import _figure, _save
+from hil.runlog import read_telemetry
+from protocol.errors import InputFormatError
+
+
+def _units(columns: dict[str, np.ndarray], prefix: str) -> list[str]:
+    found = [c for c in columns if c.startswith(prefix) and c[len(prefix) :].isdigit()]
+    return sorted(found, key=lambda c: int(c[len(prefix) :]))
+
+
+def _lines(ax: Axes, t: np.ndarray, columns: dict[str, np.ndarray], names: list[str], label: str) -> None:
+    for name in names:
+        suffix = name.rsplit("_", 1)[-1]
+        ax.plot(t, columns[name], lw=0.8, label=f"{label} {suffix}" if suffix.isdigit() else name)
+
+
+def plot_run(run_dir: str | Path) -> dict[str, Path]:
+    """Draw every figure the run's telemetry allows into ``run_dir/plots``; returns name → path.
+    A missing or empty telemetry.csv is an :class:`InputFormatError` naming it."""
+    run_dir = Path(run_dir)
+    tel = read_telemetry(run_dir / "telemetry.csv")
+    if tel.rows == 0:
+        raise InputFormatError("no telemetry rows to plot", str(run_dir / "telemetry.csv"))
+    c = tel.columns
+    t = c["t"]
+    limit = None
+    summary_path = run_dir / "summary.json"
+    if summary_path.is_file():
+        limit = json.loads(summary_path.read_text()).get("max_gimbal_rate_limit")
+    out_dir = run_dir / "plots"
+    out_dir.mkdir(exist_ok=True)
+    out: dict[str, Path] = {}
+
+    def figure(name: str, title: str, ylabel: str, columns: list[str], label: str, log: bool = False) -> None:
+        present = [n for n in columns if n in c and np.any(np.isfinite(c[n]))]
+        if not present:
+            return
+        fig, ax = _figure(title, ylabel)
+        _lines(ax, t, c, present, label)
+        if log:
+            ax.set_yscale("log")
+        if name == "gimbal_rates" and limit is not None:
+            for sign in (1, -1):
+                ax.axhline(sign * limit, color="r", ls="--", lw=0.8, label="limit" if sign > 0 else None)
+        out[name] = _save(fig, ax, out_dir / f"{name}.png")
+
+    figure("attitude_error", "Attitude estimation error (principal angle of Q = R R̂ᵀ)",
+           "attitude estimation error (deg)", ["est_err_deg"], "est err")  # fmt: skip
+    figure("rate_error", "Angular velocity estimation error", "|Ω − Ω̂| (rad/s)", ["rate_err"], "rate err")
+    figure("pointing_error", "Pointing error (to the target) and tracking error (to the reference)",
+           "error (deg)", ["point_err_deg", "track_err_deg"], "", log=True)  # fmt: skip
+    figure("gimbal_angles", "Gimbal angles", "angle (rad)", _units(c, "gimbal_angle_"), "gimbal")
+    figure("gimbal_rates", "Gimbal rates", "rate (rad/s)", _units(c, "gimbal_rate_"), "gimbal")
+    figure("rotor_speeds", "Rotor speeds", "speed (rad/s)", _units(c, "rotor_speed_"), "rotor")
+    figure("pulse_widths", "Pulse widths on the board's outputs", "width (µs)",
+           _units(c, "pulse_gimbal_") + _units(c, "pulse_rotor_"), "pulse")  # fmt: skip
+    figure("battery", "Battery voltage", "voltage (V)", ["battery_v"], "battery")
+    figure("delta", "Singularity measure δ", "δ", ["delta"], "δ")
+    return out
+
