@@ -138,6 +138,58 @@ def test_batch_equals_single_runs():
         np.testing.assert_allclose(single.R[0], out.R[i], rtol=0, atol=1e-13)
 
 
+def test_per_run_parameters_on_the_batch_axis_equal_each_run_alone():
+    """A batch whose runs carry their own spacecraft (dispersed bus inertia, a non-axisymmetric rotor with
+    a larger offset σ, a misaligned unit) steps exactly as each run does on its own plant, and each run
+    conserves its own momentum."""
+    base = cubesat_1u()
+    units = list(base.units)
+    tilt = so3.exp([0.01, -0.02, 0.0])
+    units[1] = replace(
+        units[1], gimbal_axis=tuple(tilt @ units[1].gimbal_axis), spin_axis=tuple(tilt @ units[1].spin_axis)
+    )
+    runs = [
+        base,
+        replace(base, bus_inertia=(2.3e-3, 1.9e-3, 2.4e-3)),
+        replace(base, units=tuple(units)),
+        cubesat_1u(rotor_offset_m=2e-3),
+    ]
+    runs[3] = replace(
+        runs[3], units=(replace(runs[3].units[0], rotor_inertia=(1e-5, 5.0e-6, 6.0e-6)),) + runs[3].units[1:]
+    )
+    plant = Plant(runs)
+    assert plant.model.batch == 4 and not plant.model.axisymmetric
+    batch = _spinning(Plant(base), batch=4)
+    batch = plant.state(
+        R=batch.R, omega=batch.omega, gimbal_angle=batch.gimbal_angle, gimbal_rate=batch.gimbal_rate,
+        rotor_rate=batch.rotor_rate,
+    )  # fmt: skip
+    pi0 = plant.angular_momentum(batch)
+    law = _servo_law(plant)
+    out = plant.run(batch, 2e-4, 100, law)
+    np.testing.assert_allclose(plant.angular_momentum(out), pi0, rtol=1e-11, atol=1e-16)
+    for i, params in enumerate(runs):
+        alone = Plant(params)
+        start = alone.state(
+            R=batch.R[i], omega=batch.omega[i], gimbal_angle=batch.gimbal_angle[i],
+            gimbal_rate=batch.gimbal_rate[i], rotor_rate=batch.rotor_rate[i],
+        )  # fmt: skip
+        single = alone.run(start, 2e-4, 100, law)
+        np.testing.assert_allclose(single.omega[0], out.omega[i], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(single.gimbal_rate[0], out.gimbal_rate[i], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(single.R[0], out.R[i], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(
+            alone.kinetic_energy(single), plant.kinetic_energy(out)[i : i + 1], rtol=1e-12
+        )
+    assert not np.allclose(out.omega[0], out.omega[1])  # the dispersed runs really moved differently
+    with pytest.raises(ConfigError, match="4 runs, not 2"):
+        plant.state(gimbal_angle=np.zeros((2, 4)))
+    with pytest.raises(ConfigError, match="4 runs, not 1"):
+        plant.step(plant.select(out, 0), 1e-3)
+    with pytest.raises(ConfigError, match="same number of units"):
+        Plant([base, air_bearing_testbed()])
+
+
 def test_single_axis_rotor_spin_up_matches_the_analytic_solution():
     """One rotor along the body's principal z axis, gimbal axis x held by symmetry, body at rest: a
     constant rotor torque u spins the body the other way, Ω = −I_s φ̇ / J_zz with

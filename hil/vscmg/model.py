@@ -19,12 +19,13 @@ body (``Σ I_k ω_k``); :func:`velocities` inverts them through the mass matrix 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from protocol.errors import NumericalError
+from protocol.errors import ConfigError, NumericalError
 
 from .params import SpacecraftParams, inertia_tensor
 
@@ -37,7 +38,12 @@ class ArrayModel:
     gimbal-structure inertias in ``(s, t, g)``, ``IW`` (n, 3, 3) rotor inertias in ``(s, w₂, w₃)``, ``J0``
     (3, 3) the constant part of the locked inertia about the system's centre of mass (bus inertia plus every
     body's parallel-axis term, σ included), ``axisymmetric`` True when every rotor is (then Ī_W^G does not
-    depend on φ, and ``K = Ī_G + Ī_W`` (n, 3, 3) and ``dinv`` (n, 3), the entries of D⁻¹, are constants)."""
+    depend on φ, and ``K = Ī_G + Ī_W`` (n, 3, 3) and ``dinv`` (n, 3), the entries of D⁻¹, are constants).
+
+    Per-run parameters (:meth:`build_batch`, e.g. a Monte Carlo batch whose runs have dispersed inertias,
+    misaligned gimbals or rotor offsets): every array gains a leading batch axis B — ``g, s0, t0`` (B, n, 3),
+    ``IG, IW, K`` (B, n, 3, 3), ``J0`` (B, 3, 3), ``dinv`` (B, n, 3) — and broadcasts against the states'
+    batch axis in every function below; ``params`` is then the first run's."""
 
     params: SpacecraftParams
     g: Array
@@ -75,9 +81,30 @@ class ArrayModel:
         axisym = all(u.axisymmetric_rotor for u in units)
         return cls(params, g, s0, np.cross(g, s0), ig, iw, j0, axisym, ig + iw, _block_inverse(ig + iw, iw))
 
+    @classmethod
+    def build_batch(cls, runs: Sequence[SpacecraftParams]) -> ArrayModel:
+        """One model whose arrays carry each run's own parameters on a leading batch axis (B = len(runs)).
+        The runs must have the same number of units (ConfigError otherwise)."""
+        models = [cls.build(p) for p in runs]
+        if not models:
+            raise ConfigError("needs at least one run's parameters", "ArrayModel.build_batch")
+        if len({m.n for m in models}) != 1:
+            raise ConfigError(
+                f"every run needs the same number of units, got {[m.n for m in models]}",
+                "ArrayModel.build_batch",
+            )
+        fields = ("g", "s0", "t0", "IG", "IW", "J0", "K", "dinv")
+        stacked = {f: np.stack([getattr(m, f) for m in models]) for f in fields}
+        return cls(runs[0], axisymmetric=all(m.axisymmetric for m in models), **stacked)
+
     @property
     def n(self) -> int:
-        return len(self.g)
+        return int(self.g.shape[-2])
+
+    @property
+    def batch(self) -> int | None:
+        """B for per-run parameters (:meth:`build_batch`), None for one set shared by every run."""
+        return int(self.J0.shape[0]) if self.J0.ndim == 3 else None
 
 
 @dataclass(frozen=True)
@@ -124,10 +151,11 @@ def _block_inverse(K: Array, IWG: Array) -> Array:
 
 
 def _rotor_inertia_in_gimbal_frame(iw: Array, phi: Array) -> Array:
-    """``Rx(φ) Ī_W Rx(φ)ᵀ``, Rx the turn by φ about the spin axis (first component); (B, n, 3, 3)."""
+    """``Rx(φ) Ī_W Rx(φ)ᵀ``, Rx the turn by φ about the spin axis (first component); (B, n, 3, 3).
+    ``iw`` is (n, 3, 3) or per run (B, n, 3, 3)."""
     c, s = np.cos(phi), np.sin(phi)
-    a, b, cc = iw[:, 0, 0], iw[:, 0, 1], iw[:, 0, 2]
-    d, e, f = iw[:, 1, 1], iw[:, 1, 2], iw[:, 2, 2]
+    a, b, cc = iw[..., 0, 0], iw[..., 0, 1], iw[..., 0, 2]
+    d, e, f = iw[..., 1, 1], iw[..., 1, 2], iw[..., 2, 2]
     out = np.empty(phi.shape + (3, 3))
     out[..., 0, 0] = a
     out[..., 0, 1] = out[..., 1, 0] = b * c - cc * s
@@ -189,7 +217,7 @@ def momenta(m: ArrayModel, cfg: Configuration, omega: Array, rates: BodyRates) -
     """``(Π (B, 3), p_γ (B, n), p_φ (B, n))`` summed body by body: ``Π = J₀ Ω + Σ C (h_G + h_W)``,
     ``p_γ = g·(h_G + h_W)``, ``p_φ = s·h_W``."""
     h = rates.hG + rates.hW
-    H = omega @ m.J0.T + np.sum((cfg.C @ h[..., None])[..., 0], axis=1)
+    H = _apply(m.J0, omega) + np.sum((cfg.C @ h[..., None])[..., 0], axis=1)
     return H, h[..., 2], rates.hW[..., 0]
 
 
@@ -211,7 +239,7 @@ def internal_forces(rates: BodyRates, phi_dot: Array) -> tuple[Array, Array]:
 
 def kinetic_energy(m: ArrayModel, omega: Array, rates: BodyRates) -> Array:
     """Rotational kinetic energy (B,) J: ``½ Ωᵀ J₀ Ω + ½ Σ (ω_G·h_G + ω_W·h_W)``."""
-    own = 0.5 * np.einsum("bi,ij,bj->b", omega, m.J0, omega)
+    own = 0.5 * np.sum(omega * _apply(m.J0, omega), axis=-1)
     return own + 0.5 * np.sum(rates.wG * rates.hG + rates.wW * rates.hW, axis=(1, 2))
 
 
@@ -219,3 +247,8 @@ def array_momentum(cfg: Configuration, gamma_dot: Array, phi_dot: Array) -> Arra
     """``Σᵢ (b_γᵢ γ̇ᵢ + b_φᵢ φ̇ᵢ) = Π − J Ω`` (B, 3), body frame (N m s): the momentum the gimbals and rotors
     carry relative to a locked body (the paper's B(t) γ̇ term), which steering manages."""
     return np.einsum("bni,bn->bi", cfg.bg, gamma_dot) + np.einsum("bni,bn->bi", cfg.bp, phi_dot)
+
+
+def _apply(J: Array, v: Array) -> Array:
+    """``J v`` for vectors ``v`` (B, 3) and one matrix (3, 3) or one per run (B, 3, 3)."""
+    return (J @ v[..., None])[..., 0]

@@ -23,7 +23,7 @@ single run is B = 1.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,11 +116,28 @@ class PlantState:
 class Plant:
     """The spacecraft with its VSCMG array: build states, step them, and read their invariants.
 
-    ``gravity``: an optional :class:`GravityGradient` (the only external moment modelled)."""
+    ``params``: one spacecraft shared by every run of a batch, or a sequence of B spacecraft, one per run
+    (each run's true parameters, e.g. a Monte Carlo batch with dispersed inertia, misaligned gimbal axes or
+    rotor offsets; states must then have batch B). Per-run spacecraft must share their unit count, actuator
+    limits and nominal rotor speed (what states and steps read from ``self.params``). ``gravity``: an
+    optional :class:`GravityGradient` (the only external moment modelled)."""
 
-    def __init__(self, params: SpacecraftParams, gravity: GravityGradient | None = None) -> None:
-        self.params = params
-        self.model = mdl.ArrayModel.build(params)
+    def __init__(
+        self, params: SpacecraftParams | Sequence[SpacecraftParams], gravity: GravityGradient | None = None
+    ) -> None:
+        if isinstance(params, SpacecraftParams):
+            self.params = params
+            self.model = mdl.ArrayModel.build(params)
+        else:
+            runs = tuple(params)
+            self.model = mdl.ArrayModel.build_batch(runs)
+            self.params = runs[0]
+            for i, p in enumerate(runs):
+                if (p.limits, p.nominal_rotor_speed) != (self.params.limits, self.params.nominal_rotor_speed):
+                    raise ConfigError(
+                        "per-run spacecraft must share actuator limits and nominal rotor speed",
+                        f"Plant.params[{i}]",
+                    )
         self.gravity = gravity
         self.n = self.model.n
 
@@ -137,9 +154,16 @@ class Plant:
         batch: int | None = None,
     ) -> PlantState:
         """A state from velocities. Arguments broadcast to (B, 3, 3), (B, 3) and (B, n); unbatched values
-        give B = 1 (or ``batch``). ``rotor_rate`` defaults to the nominal rotor speed."""
+        give B = 1 (or ``batch``; or the plant's B with per-run parameters). ``rotor_rate`` defaults to the
+        nominal rotor speed."""
         given = ((R, 3), (omega, 2), (gimbal_angle, 2), (gimbal_rate, 2), (rotor_rate, 2), (rotor_angle, 2))
         b = max([batch or 1] + [np.shape(v)[0] for v, full in given if v is not None and np.ndim(v) == full])
+        if self.model.batch is not None:
+            if b not in (1, self.model.batch):
+                raise ConfigError(
+                    f"the plant has parameters for {self.model.batch} runs, not {b}", "PlantState"
+                )
+            b = self.model.batch
         n = self.n
         R = np.broadcast_to(np.eye(3) if R is None else np.asarray(R, float), (b, 3, 3)).copy()
         if not all(so3.is_rotation(r, 1e-6) for r in R):
@@ -211,6 +235,10 @@ class Plant:
         stops being finite (a diverging run) or the inputs are not finite."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ConfigError(f"must be a positive step, got {dt!r}", "Plant.step.dt")
+        if self.model.batch not in (None, s.batch):
+            raise ConfigError(
+                f"the plant has parameters for {self.model.batch} runs, not {s.batch}", "Plant.step"
+            )
         n, t0, h = self.n, s.t, dt
         x0 = np.concatenate(
             [s.momentum, s.gimbal_angle, s.rotor_angle, s.gimbal_momentum, s.rotor_momentum], 1
