@@ -14,12 +14,23 @@ Attitude sources (what the controller is told):
   (:class:`hil.estimator.AttitudeFilter`) — the host's path.
 
 Telemetry (gimbal angles, rotor speeds) is read from the plant, as the board would report it.
+
+Per run, :meth:`ClosedLoop.run_batch` also takes the run's *true* spacecraft (the controller and steering
+keep the nominal one: a dispersed plant under a nominally tuned loop, as in a Monte Carlo campaign) and
+link outages, each ``(start_s, duration_s)`` from the slew's start. During an outage the host's setpoints
+and the board's telemetry are lost: the servos hold the last setpoint and the host computes from the last
+telemetry it had. Once nothing has reached the board for ``LoopConfig.link_timeout_s`` its watchdog acts
+as firmware_sim's board does: FAILSAFE, gimbals held (zero rate), rotor ESCs at the safe pulse (zero
+throttle: the rotors coast down with the ESC's ``esc_coast_time_constant_s``). When the link is back the
+host sees FAILSAFE at its next tick and re-arms (the board, armed, still drives zero commands), and its
+setpoints reach the servos from the tick after; each episode is one failsafe event in the log.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -121,6 +132,8 @@ class EstimatorInTheLoop:
         prev = self._prev
         assert prev is not None and self.phone is not None, "start() first"
         self._prev = state
+        if min(self.phone.next_t.values()) > state.t:  # no sensor samples in (prev.t, state.t]
+            return
         samples = self.phone.sample(prev.t, prev.R[0], prev.omega[0], state.t, state.R[0], state.omega[0])
         for sample in samples:
             for step in self.merger.push(sample):
@@ -143,7 +156,10 @@ class LoopConfig:
     ``frame_rate_hz``), controller ``gains``, ``steering`` and ``servo`` parameters; ``warmup_s`` of
     holding still before the slew (the attitude source converges; the host waits for it the same way);
     ``calibrate_rate_bias``: average the measured rate over the still second half of the warm-up and
-    subtract it from then on (the host's still-window gyro bias calibration)."""
+    subtract it from then on (the host's still-window gyro bias calibration); ``link_timeout_s`` the
+    board's link watchdog (firmware-sim's ``--link-timeout``, longer than a control period) and
+    ``esc_coast_time_constant_s`` how a rotor slows once the failsafe cuts its throttle (the ESC does not
+    brake; firmware_sim's motor default), both used only with link outages."""
 
     plant_step_s: float = 1e-3
     control_rate_hz: float = 50.0
@@ -153,10 +169,19 @@ class LoopConfig:
     servo: ServoParams = field(default_factory=ServoParams)
     warmup_s: float = 2.0
     calibrate_rate_bias: bool = True
+    link_timeout_s: float = 0.25
+    esc_coast_time_constant_s: float = 1.5
 
     def __post_init__(self) -> None:
         if not 0 < self.plant_step_s <= 1e-3:
             raise ConfigError(f"must be in (0, 1 ms], got {self.plant_step_s}", "LoopConfig.plant_step_s")
+        if not (math.isfinite(self.link_timeout_s) and self.link_timeout_s > 1.0 / self.control_rate_hz):
+            raise ConfigError(
+                f"must be longer than a control period, got {self.link_timeout_s!r}",
+                "LoopConfig.link_timeout_s",
+            )
+        if not (math.isfinite(self.esc_coast_time_constant_s) and self.esc_coast_time_constant_s > 0):
+            raise ConfigError("must be positive", "LoopConfig.esc_coast_time_constant_s")
         steps = 1.0 / (self.control_rate_hz * self.plant_step_s)
         if abs(steps - round(steps)) > 1e-6:
             raise ConfigError("the control period must be a whole number of plant steps", "LoopConfig")
@@ -185,7 +210,10 @@ class ClosedLoopLog:
     ``estimate_error_deg`` (K,) of the source's attitude; ``gimbal_rate`` (K, n) true rad/s; ``rotor_speed``
     (K, n) rad/s; ``delta`` (K,); ``saturation`` (K,) :class:`hil.steering.Saturation` bits;
     ``torque_shortfall`` (K,) N m, required minus delivered torque; ``slew_end_s`` when the reference
-    arrives; ``max_gimbal_rate`` the gimbal-rate limit (rad/s)."""
+    arrives; ``max_gimbal_rate`` the gimbal-rate limit (rad/s); ``link_up`` (K,) whether the tick's setpoint
+    could reach the board, ``failsafe`` (K,) whether the board was not driving the host's setpoints
+    (FAILSAFE, or re-armed and waiting for the next one), ``failsafe_events`` how many times its watchdog
+    fired."""
 
     t: Array
     error_deg: Array
@@ -198,6 +226,9 @@ class ClosedLoopLog:
     torque_shortfall: Array
     slew_end_s: float
     max_gimbal_rate: float
+    link_up: Array
+    failsafe: Array
+    failsafe_events: int
 
     def settle_time(self, tolerance_deg: float = 0.5) -> float:
         """The first time after which the error to the target stays within ``tolerance_deg`` (inf: never)."""
@@ -220,10 +251,108 @@ class ClosedLoopLog:
         }
 
 
+Outage = tuple[float, float]
+"""A link outage ``(start_s, duration_s)``, seconds from the slew's start."""
+
+
+class _Link:
+    """The host–board link of B runs with scheduled outages, and each board's link watchdog and failsafe
+    (see the module docstring). Times are seconds from the slew's start."""
+
+    ARMED, FAILSAFE, REARMED = 0, 1, 2
+
+    def __init__(self, outages: Sequence[Sequence[Outage]], timeout_s: float) -> None:
+        self.outages = [self._checked(i, o) for i, o in enumerate(outages)]
+        self.timeout_s = timeout_s
+        b = len(outages)
+        self.any = any(self.outages)
+        self.state = np.zeros(b, np.int64)
+        self.last_rx = np.zeros(b)
+        self.events = np.zeros(b, np.int64)
+
+    @staticmethod
+    def _checked(run: int, outages: Sequence[Outage]) -> list[Outage]:
+        out = []
+        for k, item in enumerate(outages):
+            try:
+                start, duration = (float(x) for x in item)
+            except (TypeError, ValueError):
+                raise ConfigError(
+                    f"must be (start_s, duration_s), got {item!r}", f"link_outages[{run}][{k}]"
+                ) from None
+            if not (math.isfinite(start) and start >= 0 and math.isfinite(duration) and duration > 0):
+                raise ConfigError(
+                    f"needs start_s >= 0 and duration_s > 0, got {item!r}", f"link_outages[{run}][{k}]"
+                )
+            out.append((start, duration))
+        return out
+
+    def up(self, t: float) -> NDArray[np.bool_]:
+        """(B,) whether frames get through at ``t``."""
+        return np.array([not any(a <= t < a + d for a, d in o) for o in self.outages], dtype=bool)
+
+    def tick(self, t: float, up: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """The host's frame at tick ``t`` where the link is ``up``: re-arm a board in FAILSAFE, else the
+        setpoint gets through. Returns (B,) where the board now takes the host's setpoints."""
+        delivered = up & (self.state != self.FAILSAFE)
+        self.state = np.where(up & (self.state == self.FAILSAFE), self.REARMED, self.state)
+        self.state = np.where(delivered, self.ARMED, self.state)
+        self.last_rx = np.where(up, t, self.last_rx)
+        return delivered
+
+    def watchdog(self, t: float) -> None:
+        """Each board's link watchdog at ``t``: nothing received for longer than the timeout → FAILSAFE."""
+        fired = (self.state != self.FAILSAFE) & (t - self.last_rx > self.timeout_s)
+        if fired.any():
+            self.state = np.where(fired, self.FAILSAFE, self.state)
+            self.events += fired
+
+    @property
+    def failsafe(self) -> NDArray[np.bool_]:
+        """(B,) boards not driving the host's setpoints (FAILSAFE, or re-armed without a setpoint yet)."""
+        return self.state != self.ARMED
+
+
+class _Drives:
+    """The motor drives of B runs as the board commands them (a :data:`hil.vscmg.TorqueLaw`): each run's
+    servos follow its last delivered setpoints; runs whose board is in failsafe hold their gimbals (zero
+    rate) and let their rotors coast towards zero throttle."""
+
+    def __init__(self, params: SpacecraftParams, config: LoopConfig, b: int, n: int) -> None:
+        self.servo = ServoModel(params, config.servo)
+        self.coasting = ServoModel(
+            params, replace(config.servo, coast_time_constant_s=config.esc_coast_time_constant_s)
+        )
+        self.coasting.hold(Setpoints(np.zeros((1, n)), np.zeros((1, n)), np.zeros(1, bool)))
+        self.gimbal_rate = np.zeros((b, n))
+        self.rotor_speed = np.zeros((b, n))
+        self.failsafe = np.zeros(b, bool)
+
+    def hold(self, setpoints: Setpoints, runs: NDArray[np.bool_] | None = None) -> None:
+        """Take ``setpoints`` (B, n) for the ``runs`` (B,) mask (None: every run)."""
+        take = np.ones(len(self.failsafe), bool) if runs is None else runs
+        self.gimbal_rate = np.where(take[:, None], setpoints.gimbal_rate, self.gimbal_rate)
+        self.rotor_speed = np.where(take[:, None], setpoints.rotor_speed, self.rotor_speed)
+        self.servo.hold(Setpoints(self.gimbal_rate, self.rotor_speed, setpoints.clamped))
+
+    def __call__(
+        self, t: float, gimbal_angle: Array, gimbal_rate: Array, rotor_rate: Array, gimbal_load: Array,
+        rotor_load: Array,
+    ) -> tuple[Array, Array]:  # fmt: skip
+        args = (t, gimbal_angle, gimbal_rate, rotor_rate, gimbal_load, rotor_load)
+        ug, us = self.servo(*args)
+        if self.failsafe.any():
+            cg, cs = self.coasting(*args)
+            off = self.failsafe[:, None]
+            ug, us = np.where(off, cg, ug), np.where(off, cs, us)
+        return ug, us
+
+
 class ClosedLoop:
     """Plant + servos at ``config.plant_step_s``; source → controller → steering → setpoints at the control
     rate. :meth:`run` plays one :class:`SlewScenario` and returns its :class:`ClosedLoopLog`;
-    :meth:`run_batch` plays several at once on the plant's batch axis (one controller and source each)."""
+    :meth:`run_batch` plays several at once on the plant's batch axis (one controller and source each).
+    ``params`` is the spacecraft the controller and steering are built for (the nominal one)."""
 
     def __init__(self, params: SpacecraftParams, config: LoopConfig | None = None) -> None:
         self.params = params
@@ -231,16 +360,40 @@ class ClosedLoop:
         self.plant = Plant(params)
         self.steering = VscmgSteering(params, self.config.steering)
 
-    def run(self, scenario: SlewScenario, source: AttitudeSource) -> ClosedLoopLog:
-        return self.run_batch([scenario], [source])[0]
+    def run(
+        self,
+        scenario: SlewScenario,
+        source: AttitudeSource,
+        spacecraft: SpacecraftParams | None = None,
+        link_outages: Sequence[Outage] = (),
+    ) -> ClosedLoopLog:
+        return self.run_batch(
+            [scenario], [source], None if spacecraft is None else [spacecraft], [link_outages]
+        )[0]
 
-    def run_batch(self, scenarios: list[SlewScenario], sources: list[AttitudeSource]) -> list[ClosedLoopLog]:
-        """Every scenario for the longest one's duration (each log is cut to its own)."""
-        if len(scenarios) != len(sources) or not scenarios:
+    def run_batch(
+        self,
+        scenarios: Sequence[SlewScenario],
+        sources: Sequence[AttitudeSource],
+        spacecraft: Sequence[SpacecraftParams] | None = None,
+        link_outages: Sequence[Sequence[Outage]] | None = None,
+    ) -> list[ClosedLoopLog]:
+        """Every scenario for the longest one's duration (each log is cut to its own). ``spacecraft``: each
+        run's true spacecraft (None: the nominal ``params``; same unit count, limits and nominal rotor
+        speed); ``link_outages``: each run's outages ``(start_s, duration_s)`` from the slew's start."""
+        b = len(scenarios)
+        if len(sources) != b or not scenarios:
             raise ConfigError("need one attitude source per scenario", "ClosedLoop.run_batch")
-        cfg, plant, b = self.config, self.plant, len(scenarios)
+        for name, given in (("spacecraft", spacecraft), ("link_outages", link_outages)):
+            if given is not None and len(given) != b:
+                raise ConfigError(
+                    f"need one entry per scenario, got {len(given)}", f"ClosedLoop.run_batch.{name}"
+                )
+        cfg = self.config
+        link = _Link([()] * b if link_outages is None else link_outages, cfg.link_timeout_s)
+        plant = self.plant if spacecraft is None else Plant(spacecraft)
         nominal = self.params.nominal_rotor_speed
-        state = plant.state(
+        start = dict(
             R=np.stack([np.asarray(sc.R0, float) for sc in scenarios]),
             gimbal_angle=np.stack([np.broadcast_to(sc.gimbal_angle0, (plant.n,)) for sc in scenarios]),
             rotor_rate=np.stack(
@@ -250,27 +403,32 @@ class ClosedLoop:
                 ]
             ),
         )
-        inertia = plant.locked_inertia(state)
+        state = plant.state(**start)
+        inertia = self.plant.locked_inertia(self.plant.state(**start))  # what the controller is told
         controllers = [AttitudeController(inertia[i], cfg.gains) for i in range(b)]
         setpoints = SetpointGenerator(self.params, cfg.control_rate_hz, cfg.frame_rate_hz)
         setpoints.reset(state.rotor_rate)
-        servo = ServoModel(self.params, cfg.servo)
-        servo.hold(Setpoints(np.zeros_like(state.gimbal_rate), state.rotor_rate.copy(), np.zeros(b, bool)))
+        drives = _Drives(self.params, cfg, b, plant.n)
+        drives.hold(Setpoints(np.zeros_like(state.gimbal_rate), state.rotor_rate.copy(), np.zeros(b, bool)))
         runs = range(b)
         for i in runs:
             sources[i].start(plant.select(state, i))
 
         def advance(state: PlantState, steps: int, calibrate: list[list[Array]] | None = None) -> PlantState:
             for k in range(steps):
-                state = plant.step(state, cfg.plant_step_s, servo)
+                state = plant.step(state, cfg.plant_step_s, drives)
                 for i in runs:
                     sources[i].observe(plant.select(state, i))
                     if calibrate is not None and (k + 1) % per_tick == 0 and k >= steps // 2:
                         calibrate[i].append(sources[i].measure().omega)
+                if link.any:
+                    link.watchdog(state.t - t0)
+                    drives.failsafe = link.failsafe
             return state
 
         per_tick = int(round(1.0 / (cfg.control_rate_hz * cfg.plant_step_s)))
         still: list[list[Array]] = [[] for _ in runs]
+        t0 = math.inf  # the watchdog starts with the slew (outages start at or after it)
         state = advance(
             state, int(round(cfg.warmup_s / cfg.plant_step_s)), still if cfg.calibrate_rate_bias else None
         )
@@ -281,18 +439,25 @@ class ClosedLoop:
         ]
         rows: list[list[tuple]] = [[] for _ in runs]
         dt = 1.0 / cfg.control_rate_hz
-        for _ in range(int(math.ceil(max(sc.duration_s for sc in scenarios) * cfg.control_rate_hz))):
-            t = state.t
-            h = self.steering.momentum(state.gimbal_angle, state.rotor_rate)
+        seen_gimbal, seen_rotor = state.gimbal_angle, state.rotor_rate  # the host's last telemetry
+        for k in range(int(math.ceil(max(sc.duration_s for sc in scenarios) * cfg.control_rate_hz))):
+            t, tick_s = state.t, k * dt  # tick_s: the tick's time from the slew's start, without drift
+            up = link.up(tick_s)
+            seen_gimbal = np.where(up[:, None], state.gimbal_angle, seen_gimbal)
+            seen_rotor = np.where(up[:, None], state.rotor_rate, seen_rotor)
+            h = self.steering.momentum(seen_gimbal, seen_rotor)
             meas = [sources[i].measure() for i in runs]
             refs = [slews[i].at(t) for i in runs]
             outs = [
                 controllers[i].update(meas[i].R, meas[i].omega - bias[i], refs[i], dt, h[i]) for i in runs
             ]
-            cmd = self.steering.solve(
-                np.stack([o.torque for o in outs]), state.gimbal_angle, state.rotor_rate, dt
-            )
-            servo.hold(setpoints.update(cmd, state.rotor_rate))
+            cmd = self.steering.solve(np.stack([o.torque for o in outs]), seen_gimbal, seen_rotor, dt)
+            sp = setpoints.update(cmd, seen_rotor)
+            if link.any:
+                drives.hold(sp, link.tick(tick_s, up))
+                drives.failsafe = link.failsafe
+            else:
+                drives.hold(sp)
             for i in runs:
                 R = state.R[i]
                 rows[i].append(
@@ -306,12 +471,19 @@ class ClosedLoop:
                         float(cmd.delta[i]),
                         int(cmd.saturation[i]),
                         float(np.linalg.norm(outs[i].torque - cmd.torque[i])),
+                        bool(up[i]),
+                        bool(drives.failsafe[i]),
                     )
                 )
             state = advance(state, per_tick)
-        return [self._log(rows[i], scenarios[i].duration_s, slews[i].duration_s) for i in runs]
+        return [
+            self._log(rows[i], scenarios[i].duration_s, slews[i].duration_s, int(link.events[i]))
+            for i in runs
+        ]
 
-    def _log(self, rows: list[tuple], duration_s: float, slew_s: float) -> ClosedLoopLog:
+    def _log(
+        self, rows: list[tuple], duration_s: float, slew_s: float, failsafe_events: int
+    ) -> ClosedLoopLog:
         cols = list(zip(*rows[: int(math.ceil(duration_s * self.config.control_rate_hz))], strict=True))
         return ClosedLoopLog(
             t=np.array(cols[0]),
@@ -325,6 +497,9 @@ class ClosedLoop:
             torque_shortfall=np.array(cols[8]),
             slew_end_s=slew_s,
             max_gimbal_rate=self.params.limits.max_gimbal_rate,
+            link_up=np.array(cols[9], dtype=bool),
+            failsafe=np.array(cols[10], dtype=bool),
+            failsafe_events=failsafe_events,
         )
 
 

@@ -108,3 +108,74 @@ def test_harness_refuses_bad_rates():
         ClosedLoop(PARAMS, LoopConfig(control_rate_hz=100.0, frame_rate_hz=50.0)).run(
             SlewScenario("x", np.eye(3), so3.exp([0, 0, math.radians(5)]), 0.1), TruthWithNoise()
         )
+
+
+# --------------------------------------------------------------------------- dispersed plant, link faults
+@pytest.fixture(scope="module")
+def fault_runs():
+    """One batch: nominal; a 0.1 s outage (shorter than the 0.25 s link timeout); a 1 s outage (failsafe);
+    a spacecraft 15 % heavier in inertia than the controller believes. 20° slews of 9 s, truth + noise."""
+    slew = SlewScenario("20deg", np.eye(3), so3.exp([0.0, 0.0, math.radians(20.0)]), 9.0, 0.2, 0.04)
+    heavy = dataclasses.replace(PARAMS, bus_inertia=tuple(map(tuple, 1.15 * np.asarray(PARAMS.bus_inertia))))
+    logs = ClosedLoop(PARAMS).run_batch(
+        [slew] * 4,
+        [TruthWithNoise(seed=7) for _ in range(4)],
+        spacecraft=[PARAMS, PARAMS, PARAMS, heavy],
+        link_outages=[(), [(1.0, 0.1)], [(1.0, 1.0)], ()],
+    )
+    return dict(zip(("nominal", "blip", "outage", "heavy"), logs, strict=True))
+
+
+def test_a_link_blip_shorter_than_the_timeout_holds_the_last_setpoints(fault_runs):
+    nominal, blip = fault_runs["nominal"], fault_runs["blip"]
+    assert blip.failsafe_events == 0 and not blip.failsafe.any()
+    lost = ~blip.link_up
+    assert lost.sum() == 5 and blip.t[lost][0] == pytest.approx(1.0)  # five 20 ms ticks
+    before = nominal.t < 1.0
+    np.testing.assert_array_equal(blip.error_deg[before], nominal.error_deg[before])  # same run until then
+    assert not np.array_equal(blip.error_deg, nominal.error_deg)  # the held setpoints did change the motion
+    assert blip.settle_time(0.5) <= 7.0
+
+
+def test_a_long_outage_trips_the_board_failsafe_gimbals_hold_and_rotors_coast(fault_runs):
+    log, cfg = fault_runs["outage"], LoopConfig()
+    assert log.failsafe_events == 1 and fault_runs["nominal"].failsafe_events == 0
+    on = np.nonzero(log.failsafe)[0]
+    # the watchdog fires 0.25 s after the last frame (the 0.98 s tick), seen at the next tick
+    assert log.t[on[0]] == pytest.approx(0.98 + cfg.link_timeout_s, abs=0.021)
+    # link back at 2.0 s: re-armed at that tick, setpoints again from the next
+    assert log.t[on[-1]] == pytest.approx(2.0)
+    assert np.all(log.failsafe[on[0] : on[-1] + 1])
+    settled = on[5:]  # after the servo time constants
+    assert np.max(np.abs(log.gimbal_rate[settled])) < 1e-3  # gimbals held
+    w = log.rotor_speed[settled]
+    span = log.t[settled[-1]] - log.t[settled[0]]
+    np.testing.assert_allclose(w[-1] / w[0], math.exp(-span / cfg.esc_coast_time_constant_s), rtol=0.02)
+    assert np.all(np.diff(w, axis=0) < 0)  # coasting down all the way, no throttle
+    # the outage cost tracking; after re-arming the loop wins it back
+    assert np.max(log.tracking_deg) > 1.0 > np.max(fault_runs["nominal"].tracking_deg)
+    assert log.tracking_deg[-1] < 0.2 * np.max(log.tracking_deg) and log.error_deg[-1] < 1.0
+
+
+def test_a_dispersed_plant_under_the_nominal_controller(fault_runs):
+    nominal, heavy = fault_runs["nominal"], fault_runs["heavy"]
+    assert not np.allclose(heavy.error_deg, nominal.error_deg)  # a different plant, same commands law
+    assert heavy.settle_time(0.5) <= 7.0 and nominal.settle_time(0.5) <= 7.0
+    # a per-run spacecraft equal to the nominal one is exactly the nominal run
+    alone = ClosedLoop(PARAMS).run(
+        dataclasses.replace(slew_90deg(), duration_s=0.5), TruthWithNoise(seed=7), spacecraft=PARAMS
+    )
+    shared = ClosedLoop(PARAMS).run(dataclasses.replace(slew_90deg(), duration_s=0.5), TruthWithNoise(seed=7))
+    np.testing.assert_array_equal(alone.error_deg, shared.error_deg)
+
+
+def test_bad_link_outages_and_per_run_lists_are_refused():
+    loop, slew = ClosedLoop(PARAMS), dataclasses.replace(slew_90deg(), duration_s=0.1)
+    with pytest.raises(ConfigError, match=r"link_outages\[0\]\[0\]"):
+        loop.run(slew, TruthWithNoise(), link_outages=[(-1.0, 0.5)])
+    with pytest.raises(ConfigError, match=r"link_outages\[0\]\[1\]"):
+        loop.run(slew, TruthWithNoise(), link_outages=[(1.0, 0.5), (2.0,)])
+    with pytest.raises(ConfigError, match="spacecraft"):
+        loop.run_batch([slew], [TruthWithNoise()], spacecraft=[PARAMS, PARAMS])
+    with pytest.raises(ConfigError, match="link_timeout_s"):
+        LoopConfig(link_timeout_s=0.01)
