@@ -1,0 +1,140 @@
+"""``hil montecarlo``: a Monte Carlo campaign of dispersed lockstep closed-loop runs, on Dask."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+ORDER = 20
+
+EPILOG = """\
+examples:
+  hil montecarlo cubesat-1u --runs 200                     # all cores, default dispersions, seed = scenario's
+  hil montecarlo cubesat-1u --runs 200 --out mc/c1         # Ctrl-C, then the same command finishes the rest
+  hil montecarlo cubesat-1u --runs 1000 --out mc/c1        # ... or asks for 800 more runs of that campaign
+  hil montecarlo paper-testbed --runs 50 --seed 7 --dispersions my-dispersions.toml
+  hil montecarlo cubesat-1u --runs 20 --duration 10 --workers 1 --batch 4   # a quick look
+  hil montecarlo cubesat-1u --runs 5000 --scheduler tcp://10.0.0.5:8786     # a running Dask cluster
+
+  # a cluster of your own: `dask scheduler` on one machine, `dask worker tcp://HOST:8786 --nthreads 1`
+  # on each (same Python environment with vscmg-hil installed), then --scheduler tcp://HOST:8786
+
+writes OUT/runs.csv (one row per run: index, status, error, dispersed parameters, metrics; flushed as
+each run finishes), traces.bin (decimated error traces), campaign.json, summary.json and plots/.
+Dispersion files: fixtures/dispersions/ (default.toml documents the format).
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "montecarlo",
+        help="Monte Carlo campaign: dispersed lockstep closed-loop runs on Dask",
+        description="Run N lockstep closed-loop runs of a scenario with dispersed parameters (each run's "
+        "parameters from the seed and its index) on a Dask LocalCluster or a running Dask scheduler; "
+        "results are written run by run, so an interrupted campaign resumes where it stopped.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("scenario", metavar="SCENARIO", help="a shipped scenario name or a scenario TOML file")
+    p.add_argument("--runs", type=int, required=True, metavar="N", help="number of runs (indices 0..N-1)")
+    p.add_argument("--seed", type=int, metavar="S", help="campaign seed (default: the scenario's seed)")
+    p.add_argument(
+        "--dispersions", metavar="FILE", help="dispersion TOML file or shipped name (default: default)"
+    )
+    p.add_argument(
+        "--scheduler", metavar="ADDRESS", help="a running Dask scheduler (default: a LocalCluster)"
+    )
+    p.add_argument(
+        "--workers", type=int, metavar="W", help="LocalCluster worker processes (default: all cores)"
+    )
+    p.add_argument("--batch", type=int, default=8, metavar="B", help="runs stepped together per task (8)")
+    p.add_argument(
+        "--out", type=Path, metavar="DIR", help="output directory (default: runs/<stamp>-mc-<name>)"
+    )
+    p.add_argument("--duration", type=float, metavar="S", help="each run this long after the slew starts")
+    p.add_argument("--trace-hz", type=float, default=5.0, metavar="HZ", help="stored error traces' rate (5)")
+    p.add_argument("--no-plots", action="store_true", help="skip the plots")
+    p.set_defaults(func=run)
+
+
+class ProgressBar:
+    """One line on stderr: a bar, runs done of total, failures, runs per minute and the time left."""
+
+    def __init__(self, stream: TextIO = sys.stderr, width: int = 30) -> None:
+        self.stream = stream
+        self.width = width
+        self.start = time.monotonic()
+        self.first: int | None = None
+        self.failed = 0
+
+    def __call__(self, result: Any, done: int, total: int) -> None:
+        if self.first is None:
+            self.first = done - 1
+        self.failed += not result.ok
+        fill = int(self.width * done / total)
+        elapsed = time.monotonic() - self.start
+        rate = (done - self.first) / elapsed * 60.0 if elapsed > 0 else math.nan
+        left = (total - done) / rate * 60.0 if rate > 0 else math.nan
+        eta = "-" if not math.isfinite(left) else f"{int(left // 60)}m{int(left % 60):02d}s"
+        self.stream.write(
+            f"\r[{'#' * fill}{'.' * (self.width - fill)}] {done}/{total} runs  {self.failed} failed  "
+            f"{rate:6.1f} runs/min  ETA {eta}   "
+        )
+        self.stream.flush()
+
+    def close(self) -> None:
+        self.stream.write("\n")
+        self.stream.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    import distributed  # noqa: F401 — configures its loggers on import; quieten them after
+
+    from hil.montecarlo import Campaign, load_dispersions, open_client, run_campaign
+    from hil.montecarlo.summary import format_table
+    from hil.runlog import new_run_dir
+    from hil.scenario import load_scenario
+    from protocol.errors import ConfigError
+
+    if not args.verbose:  # Dask's scheduler logs every worker's comings and goings at INFO
+        logging.getLogger("distributed").setLevel(logging.WARNING)
+    scenario = load_scenario(args.scenario)
+    if args.duration is not None:
+        if not (math.isfinite(args.duration) and args.duration > 0):
+            raise ConfigError(f"must be positive, got {args.duration}", "--duration")
+        scenario = scenario.with_changes(slew=replace(scenario.slew, duration_s=args.duration))
+    dispersions = load_dispersions(args.dispersions, scenario)
+    campaign = Campaign(
+        scenario, dispersions, args.runs, scenario.seed if args.seed is None else args.seed, args.batch,
+        args.trace_hz,
+    )  # fmt: skip
+    out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
+    where = f"scheduler {args.scheduler}" if args.scheduler else "a local cluster"
+    print(
+        f"hil montecarlo: {campaign.runs} runs of {scenario.name} ({scenario.slew.duration_s:g} s each, "
+        f"dispersions {dispersions.where}, seed {campaign.seed}) on {where} -> {out}",
+        file=sys.stderr,
+    )
+    bar = ProgressBar()
+    try:
+        with open_client(args.scheduler, args.workers) as client:
+            report = run_campaign(campaign, out, client, on_result=bar, plots=not args.no_plots)
+    finally:
+        bar.close()
+    if report.skipped:
+        print(
+            f"{report.skipped} runs were already in {out}; ran the other {report.completed}", file=sys.stderr
+        )
+    print(format_table(report.summary))
+    print(
+        f"\n{report.completed} runs in {report.wall_s:.1f} s on {report.workers} workers "
+        f"({report.runs_per_minute:.1f} runs/min); results in {out}"
+    )
+    return 0

@@ -1,0 +1,30 @@
+"""Monte Carlo campaigns: dispersed lockstep closed-loop runs of a scenario, scaled out on Dask
+(docs/montecarlo.md). ``dispersions`` (TOML dispersion files, per-run draws), ``runner`` (a worker's chunk
+of runs on the closed loop's batch axis), ``metrics``, ``store`` (the output directory, written run by
+run), ``campaign`` (the Dask driver), ``summary`` and ``plots``."""
+
+from .campaign import Campaign, CampaignReport, open_client, run_campaign, summarise_dir
+from .dispersions import Dispersions, RunParams, draw, load_dispersions, parse_dispersions
+from .metrics import METRICS, TRACES
+from .runner import RunResult, run_chunk
+from .store import Results, read_runs, read_traces
+
+__all__ = [
+    "METRICS",
+    "TRACES",
+    "Campaign",
+    "CampaignReport",
+    "Dispersions",
+    "Results",
+    "RunParams",
+    "RunResult",
+    "draw",
+    "load_dispersions",
+    "open_client",
+    "parse_dispersions",
+    "read_runs",
+    "read_traces",
+    "run_campaign",
+    "run_chunk",
+    "summarise_dir",
+]

@@ -1,0 +1,411 @@
+"""Dispersions: which parameters of a scenario vary across a Monte Carlo campaign, and how.
+
+A dispersion file is TOML; every table and key is optional, and an unknown table, parameter or
+distribution key is a :class:`ConfigError` naming the file and the dotted key (a typo must never become
+"not dispersed"). Each parameter is either a number (a fixed value replacing the scenario's) or an inline
+table with a distribution::
+
+    { dist = "normal", sigma = 0.05 }                  # mean: the scenario's value unless given
+    { dist = "normal", mean = 1.0, sigma = 0.05 }
+    { dist = "normal", relative_sigma = 0.2, low = 0 } # σ = 0.2 × |mean|; optional low/high clip the draw
+    { dist = "uniform", low = 0.0, high = 1e-3 }
+    { dist = "choice", values = [100, 200, 400], weights = [1, 2, 1] }
+
+Parameters (``[table] key``; "per unit" and "per axis" draw each element independently):
+
+============================================  =====================================================
+``spacecraft.inertia_scale``     (per axis)   factor on each diagonal element of the bus inertia
+``spacecraft.inertia_offdiag``   (xy, xz, yz) products of inertia added, fraction of the mean moment
+``spacecraft.gimbal_misalignment_rad`` (unit) gimbal axis (and its spin axis) tilted by this angle
+                                              about a random direction perpendicular to it
+``spacecraft.rotor_offset_m``    (per unit)   rotor offset σ along the gimbal axis (m)
+``sensors.{gyr,acc,mag}.{noise,bias,rate_hz,jitter_s}``  the phone's sensor (σ of noise and of the
+                                              per-run bias, rate, timestamp jitter), as in scenarios
+``initial.angle_deg``                         start attitude turned by this angle about a random axis
+``manoeuvre.angle_deg``                       slew angle (mean: the scenario's)
+``manoeuvre.axis_tilt_deg``                   slew axis tilted by this angle in a random direction
+``link.outages_per_minute``                   rate of link outages (Poisson) over the run
+``link.outage_duration_s``                    each outage's duration (required with a rate)
+============================================  =====================================================
+
+A run's parameters are a pure function of the campaign seed and the run index: every parameter draws
+from its own stream ``numpy.random.default_rng([seed, index, crc32(key)])``, so run 17 of seed 3 is the
+same run on any machine and in any order, and adding a dispersion to a file leaves the draws of the others
+unchanged (common random numbers between campaign variants).
+
+Values are not checked at draw time: a drawn value the model refuses (a negative noise, an inertia that is
+not positive definite) makes that run fail with an error naming the parameter, recorded with the run.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+import zlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hil import so3
+from hil.paths import FIXTURES
+from hil.scenario import Scenario
+from protocol.errors import ConfigError
+
+Array = NDArray[np.float64]
+
+DISPERSION_DIR = FIXTURES / "dispersions"
+DEFAULT_DISPERSIONS = DISPERSION_DIR / "default.toml"
+
+
+# --------------------------------------------------------------------------- distributions
+@dataclass(frozen=True)
+class Fixed:
+    """A value replacing the scenario's in every run (not a column of the results)."""
+
+    value: float
+
+    def sample(self, rng: np.random.Generator, nominal: Array) -> Array:
+        return np.full(nominal.shape, self.value)
+
+
+@dataclass(frozen=True)
+class Normal:
+    """Normal about ``mean`` (None: the scenario's value) with ``sigma``, or ``relative_sigma`` × |mean|;
+    draws outside ``[low, high]`` (when given) are clipped to it."""
+
+    sigma: float | None = None
+    relative_sigma: float | None = None
+    mean: float | None = None
+    low: float | None = None
+    high: float | None = None
+
+    def sample(self, rng: np.random.Generator, nominal: Array) -> Array:
+        mean = nominal if self.mean is None else np.full(nominal.shape, self.mean)
+        sigma = self.sigma if self.sigma is not None else float(self.relative_sigma or 0.0) * np.abs(mean)
+        x = mean + sigma * rng.standard_normal(nominal.shape)
+        lo = -np.inf if self.low is None else self.low
+        hi = np.inf if self.high is None else self.high
+        return np.clip(x, lo, hi)
+
+
+@dataclass(frozen=True)
+class Uniform:
+    low: float
+    high: float
+
+    def sample(self, rng: np.random.Generator, nominal: Array) -> Array:
+        return rng.uniform(self.low, self.high, nominal.shape)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """One of ``values`` (with ``weights``, normalised; None: equally likely)."""
+
+    values: tuple[float, ...]
+    weights: tuple[float, ...] | None = None
+
+    def sample(self, rng: np.random.Generator, nominal: Array) -> Array:
+        p = None if self.weights is None else np.asarray(self.weights) / sum(self.weights)
+        return rng.choice(np.asarray(self.values, dtype=float), size=nominal.shape, p=p)
+
+
+Distribution = Fixed | Normal | Uniform | Choice
+
+_DIST_KEYS: dict[str, tuple[frozenset[str], frozenset[str]]] = {  # required, optional
+    "normal": (frozenset(), frozenset({"mean", "sigma", "relative_sigma", "low", "high"})),
+    "uniform": (frozenset({"low", "high"}), frozenset()),
+    "choice": (frozenset({"values"}), frozenset({"weights"})),
+}
+
+
+# --------------------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class Parameter:
+    """A dispersible parameter: its dotted ``key``, the labels of its elements (column suffixes; () for a
+    scalar) and its nominal values (shape (len(labels),) or (1,)) for a scenario."""
+
+    key: str
+    labels: Callable[[Scenario], tuple[str, ...]]
+    nominal: Callable[[Scenario], Array]
+
+    def columns(self, scenario: Scenario) -> list[str]:
+        labels = self.labels(scenario)
+        return [f"{self.key}.{label}" for label in labels] if labels else [self.key]
+
+
+def _units(sc: Scenario) -> tuple[str, ...]:
+    return tuple(str(i) for i in range(sc.n_units))
+
+
+def _scalar(value: Callable[[Scenario], float]) -> Callable[[Scenario], Array]:
+    return lambda sc: np.array([float(value(sc))])
+
+
+def slew_angle_deg(sc: Scenario) -> float:
+    """The scenario's slew angle (deg), from its start and target attitudes."""
+    return math.degrees(so3.principal_angle(np.asarray(sc.slew.R0).T @ np.asarray(sc.slew.R_target)))
+
+
+SENSOR_KINDS = ("gyr", "acc", "mag")
+SENSOR_FIELDS = ("noise", "bias", "rate_hz", "jitter_s")
+
+
+def _sensor(kind: str, name: str) -> Parameter:
+    return Parameter(
+        f"sensors.{kind}.{name}", lambda sc: (), _scalar(lambda sc: getattr(getattr(sc.phone, kind), name))
+    )
+
+
+PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("spacecraft.inertia_scale", lambda sc: ("x", "y", "z"), lambda sc: np.ones(3)),
+    Parameter("spacecraft.inertia_offdiag", lambda sc: ("xy", "xz", "yz"), lambda sc: np.zeros(3)),
+    Parameter("spacecraft.gimbal_misalignment_rad", _units, lambda sc: np.zeros(sc.n_units)),
+    Parameter(
+        "spacecraft.rotor_offset_m",
+        _units,
+        lambda sc: np.array([u.rotor_offset_m for u in sc.spacecraft.units]),
+    ),
+    *(_sensor(kind, name) for kind in SENSOR_KINDS for name in SENSOR_FIELDS),
+    Parameter("initial.angle_deg", lambda sc: (), lambda sc: np.zeros(1)),
+    Parameter("manoeuvre.angle_deg", lambda sc: (), _scalar(slew_angle_deg)),
+    Parameter("manoeuvre.axis_tilt_deg", lambda sc: (), lambda sc: np.zeros(1)),
+    Parameter("link.outages_per_minute", lambda sc: (), lambda sc: np.zeros(1)),
+    Parameter("link.outage_duration_s", lambda sc: (), lambda sc: np.zeros(1)),
+)
+"""Every dispersible parameter, in the canonical order of the results' columns."""
+
+_BY_KEY = {p.key: p for p in PARAMETERS}
+LINK_COLUMNS = ("link.outages", "link.outage_s", "link.outage_list")
+"""Columns describing a run's drawn outages (with link dispersions): count, total seconds, and the list
+``start:duration;...`` (seconds from the slew's start)."""
+
+
+# --------------------------------------------------------------------------- a campaign's dispersions
+@dataclass(frozen=True)
+class Dispersions:
+    """A dispersion file bound to the scenario it disperses (nominal values, unit count, run duration).
+    ``entries``: (parameter, distribution) in canonical order; ``text`` the file as read; ``where`` its
+    name for messages."""
+
+    scenario: Scenario
+    entries: tuple[tuple[Parameter, Distribution], ...]
+    text: str = ""
+    where: str = "<dispersions>"
+
+    def get(self, key: str) -> Distribution | None:
+        return next((d for p, d in self.entries if p.key == key), None)
+
+    @property
+    def has_link(self) -> bool:
+        return self.get("link.outages_per_minute") is not None
+
+    def columns(self) -> list[str]:
+        """The results' parameter columns: every element of every drawn (not fixed) parameter, then the
+        link outages' summary when outages are dispersed."""
+        cols: list[str] = []
+        for param, dist in self.entries:
+            if not isinstance(dist, Fixed) and param.key != "link.outage_duration_s":
+                cols += param.columns(self.scenario)
+        return cols + (list(LINK_COLUMNS) if self.has_link else [])
+
+
+@dataclass(frozen=True)
+class RunParams:
+    """One run's draws. ``values``: parameter key → drawn values (shape as the parameter's nominal);
+    ``directions``: the random directions some parameters turn about (``initial.angle_deg``: a unit axis
+    (3,); ``manoeuvre.axis_tilt_deg`` and ``spacecraft.gimbal_misalignment_rad``: azimuths (rad) of the
+    tilt about the tilted axis, (1,) or per unit); ``outages``: ``(start_s, duration_s)`` from the slew's
+    start; ``phone_seed``: the run's sensor-noise stream; ``columns``: the values flattened for the
+    results (column name → value)."""
+
+    index: int
+    seed: int
+    phone_seed: int
+    values: Mapping[str, Array]
+    directions: Mapping[str, Array]
+    outages: tuple[tuple[float, float], ...]
+    columns: Mapping[str, float | int | str]
+
+
+def _stream(seed: int, index: int, key: str) -> np.random.Generator:
+    return np.random.default_rng([seed, index, zlib.crc32(key.encode())])
+
+
+def draw(dispersions: Dispersions, seed: int, run_index: int) -> RunParams:
+    """Run ``run_index``'s parameters: a pure function of ``(seed, run_index)`` (see the module docstring)."""
+    if run_index < 0 or seed < 0:
+        raise ConfigError(f"seed and run index must be non-negative, got {seed}, {run_index}", "draw")
+    sc = dispersions.scenario
+    values: dict[str, Array] = {}
+    directions: dict[str, Array] = {}
+    columns: dict[str, float | int | str] = {}
+    outages: tuple[tuple[float, float], ...] = ()
+    for param, dist in dispersions.entries:
+        rng = _stream(seed, run_index, param.key)
+        if param.key == "link.outage_duration_s":
+            continue
+        drawn = dist.sample(rng, param.nominal(sc))
+        values[param.key] = drawn
+        if param.key == "initial.angle_deg":
+            directions[param.key] = _isotropic(rng)
+        elif param.key in ("manoeuvre.axis_tilt_deg", "spacecraft.gimbal_misalignment_rad"):
+            directions[param.key] = rng.uniform(0.0, 2.0 * math.pi, drawn.shape)
+        elif param.key == "link.outages_per_minute":
+            duration = dispersions.get("link.outage_duration_s")
+            assert duration is not None, "checked when the file was read"
+            outages = _outages(rng, float(drawn[0]), duration, sc.slew.duration_s)
+        if not isinstance(dist, Fixed):
+            columns.update(zip(param.columns(sc), (float(v) for v in drawn), strict=True))
+    if dispersions.has_link:
+        columns["link.outages"] = len(outages)
+        columns["link.outage_s"] = float(sum(d for _, d in outages))
+        columns["link.outage_list"] = ";".join(f"{a:.3f}:{d:.3f}" for a, d in outages)
+    phone_seed = int(_stream(seed, run_index, "phone").integers(2**31))
+    return RunParams(run_index, seed, phone_seed, values, directions, outages, columns)
+
+
+def _isotropic(rng: np.random.Generator) -> Array:
+    v = rng.standard_normal(3)
+    return v / np.linalg.norm(v)
+
+
+def _outages(
+    rng: np.random.Generator, per_minute: float, duration: Distribution, run_s: float
+) -> tuple[tuple[float, float], ...]:
+    """A Poisson process of ``per_minute`` outages over ``run_s`` seconds, each lasting a draw of
+    ``duration`` (a negative rate counts as none)."""
+    count = int(rng.poisson(max(per_minute, 0.0) * run_s / 60.0))
+    starts = np.sort(rng.uniform(0.0, run_s, count))
+    lengths = duration.sample(rng, np.zeros(count))
+    return tuple((float(a), float(d)) for a, d in zip(starts, lengths, strict=True))
+
+
+# --------------------------------------------------------------------------- reading files
+def resolve_dispersions_path(name_or_path: str | Path | None) -> Path:
+    """A path as given, ``default`` (or None) for the shipped default, or a shipped file by name."""
+    if name_or_path is None:
+        return DEFAULT_DISPERSIONS
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise ConfigError("no such dispersion file", str(p))
+        return p
+    shipped = DISPERSION_DIR / f"{name_or_path}.toml"
+    if not shipped.is_file():
+        names = ", ".join(sorted(q.stem for q in DISPERSION_DIR.glob("*.toml")))
+        raise ConfigError(f"no dispersion file {str(name_or_path)!r}; shipped: {names}", "dispersions")
+    return shipped
+
+
+def load_dispersions(name_or_path: str | Path | None, scenario: Scenario) -> Dispersions:
+    """Read a dispersion file (see :func:`resolve_dispersions_path`) for ``scenario``; errors are
+    :class:`ConfigError` naming the file and the dotted key."""
+    path = resolve_dispersions_path(name_or_path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read: {exc.strerror}", str(path)) from exc
+    return parse_dispersions(text, scenario, path.name)
+
+
+def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>") -> Dispersions:
+    """:func:`load_dispersions` on TOML text (``where`` names the source in errors)."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", where) from None
+    found: dict[str, Distribution] = {}
+    for key, value in _leaves(doc, where):
+        if key not in _BY_KEY:
+            known = ", ".join(p.key for p in PARAMETERS)
+            raise ConfigError(f"unknown parameter; known: {known}", f"{where}: {key}")
+        found[key] = _distribution(value, f"{where}: {key}")
+    rate, duration = found.get("link.outages_per_minute"), found.get("link.outage_duration_s")
+    if (rate is None) != (duration is None):
+        missing = "link.outage_duration_s" if duration is None else "link.outages_per_minute"
+        raise ConfigError("link outages need both a rate and a duration", f"{where}: {missing}")
+    entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
+    return Dispersions(scenario, entries, text, where)
+
+
+def _leaves(node: Mapping[str, Any], where: str, prefix: str = "") -> list[tuple[str, Any]]:
+    """(dotted key, value) of every parameter: a number or an inline table with ``dist``."""
+    out: list[tuple[str, Any]] = []
+    for key, value in node.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, dict) and "dist" not in value and dotted not in _BY_KEY:
+            if not value and dotted not in _TABLES:
+                raise ConfigError("unknown table", f"{where}: {dotted}")
+            out += _leaves(value, where, dotted + ".")
+        else:
+            out.append((dotted, value))
+    return out
+
+
+_TABLES = frozenset(
+    {"spacecraft", "sensors", "initial", "manoeuvre", "link"} | {f"sensors.{k}" for k in SENSOR_KINDS}
+)
+
+
+def _distribution(value: Any, where: str) -> Distribution:
+    if _is_number(value):
+        return Fixed(float(value))
+    if not isinstance(value, dict):
+        raise ConfigError(f"must be a number or a distribution table, got {value!r}", where)
+    kind = value.get("dist")
+    if kind not in _DIST_KEYS:
+        raise ConfigError(f"dist must be one of {', '.join(_DIST_KEYS)}; got {kind!r}", f"{where}.dist")
+    required, optional = _DIST_KEYS[kind]
+    for key in value:
+        if key != "dist" and key not in required | optional:
+            raise ConfigError(
+                f"unknown key for a {kind} distribution; known: {', '.join(sorted(required | optional))}",
+                f"{where}.{key}",
+            )
+    for key in sorted(required - set(value)):
+        raise ConfigError(f"required for a {kind} distribution", f"{where}.{key}")
+    if kind == "choice":
+        return _choice(value, where)
+    numbers = {}
+    for key in set(value) - {"dist"}:
+        if not _is_number(value[key]):
+            raise ConfigError(f"must be a finite number, got {value[key]!r}", f"{where}.{key}")
+        numbers[key] = float(value[key])
+    low, high = numbers.get("low"), numbers.get("high")
+    if low is not None and high is not None and not low < high:
+        raise ConfigError(f"low ({low}) must be below high ({high})", f"{where}.high")
+    if kind == "uniform":
+        return Uniform(numbers["low"], numbers["high"])
+    if ("sigma" in numbers) == ("relative_sigma" in numbers):
+        raise ConfigError("give exactly one of sigma and relative_sigma", f"{where}.sigma")
+    for key in ("sigma", "relative_sigma"):
+        if numbers.get(key, 0.0) < 0:
+            raise ConfigError("must not be negative", f"{where}.{key}")
+    return Normal(**numbers)
+
+
+def _choice(value: dict[str, Any], where: str) -> Choice:
+    values = value["values"]
+    if not isinstance(values, list) or not values or not all(_is_number(v) for v in values):
+        raise ConfigError(f"must be a non-empty list of numbers, got {values!r}", f"{where}.values")
+    weights = value.get("weights")
+    if weights is not None and (
+        not isinstance(weights, list)
+        or len(weights) != len(values)
+        or not all(_is_number(w) and w >= 0 for w in weights)
+        or sum(weights) <= 0
+    ):
+        raise ConfigError(
+            f"must be {len(values)} non-negative numbers, not all zero; got {weights!r}", f"{where}.weights"
+        )
+    return Choice(
+        tuple(float(v) for v in values), None if weights is None else tuple(float(w) for w in weights)
+    )
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)

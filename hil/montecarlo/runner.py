@@ -1,0 +1,225 @@
+"""The worker's side of a campaign: turn drawn parameters into a run's inputs and simulate a chunk of runs
+on the closed loop's batch axis (:meth:`hil.closed_loop.ClosedLoop.run_batch`: one vectorised plant step
+for every run of the chunk, each run with its own true spacecraft, phone and estimator, link outages).
+
+Nothing here raises for a bad run: a run whose parameters the model refuses, or whose simulation raises,
+comes back as a failed :class:`RunResult` with the error text. A failure inside a batched simulation
+(one diverging run stops the shared plant step) re-runs the chunk's runs one by one, so only the runs
+that really fail are recorded as failed.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import traceback
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from hil import so3
+from hil.closed_loop import ClosedLoop, EstimatorInTheLoop, LoopConfig, SlewScenario
+from hil.phone_model import PhoneSpec
+from hil.scenario import Scenario
+from hil.vscmg import SpacecraftParams
+from hil.vscmg.params import inertia_tensor
+from protocol.errors import ConfigError, HilError
+
+from .dispersions import SENSOR_KINDS, RunParams
+from .metrics import decimated_trace, run_metrics, trace_length
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What one run simulates: its true ``spacecraft``, its ``phone``, its ``slew`` and link ``outages``
+    (``(start_s, duration_s)`` from the slew's start), and the phone's noise seed."""
+
+    spacecraft: SpacecraftParams
+    phone: PhoneSpec
+    slew: SlewScenario
+    outages: tuple[tuple[float, float], ...]
+    phone_seed: int
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One finished run: ``ok`` with its ``metrics`` (:data:`~.metrics.METRICS`) and ``trace`` (see
+    :func:`~.metrics.decimated_trace`), or failed with ``error`` ("ExceptionType: message"). ``columns``
+    are its drawn parameters (always, so a failed run can be reproduced and looked into); ``wall_s`` its
+    share of the chunk's compute time."""
+
+    index: int
+    ok: bool
+    columns: Mapping[str, float | int | str]
+    metrics: Mapping[str, float]
+    trace: NDArray[np.float32] | None
+    error: str = ""
+    wall_s: float = 0.0
+
+    @classmethod
+    def failed(cls, run: RunParams, error: BaseException | str, wall_s: float = 0.0) -> RunResult:
+        text = error if isinstance(error, str) else describe(error)
+        return cls(run.index, False, run.columns, {}, None, text, wall_s)
+
+
+def describe(exc: BaseException) -> str:
+    """An error as one line: type and message, and for an unexpected error (not one of the project's, which
+    say where themselves) the file:line it was raised at."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    at = ""
+    if frames and not isinstance(exc, HilError):
+        at = f" (at {frames[-1].filename.rsplit('/', 1)[-1]}:{frames[-1].lineno})"
+    return f"{type(exc).__name__}: {exc}{at}".replace("\n", " | ")
+
+
+# --------------------------------------------------------------------------- a run's inputs
+def realise(scenario: Scenario, run: RunParams) -> RunInputs:
+    """The scenario with run ``run``'s draws applied; a value the model refuses is a ConfigError naming the
+    run and the parameter."""
+    v = run.values
+    return RunInputs(
+        spacecraft=_checked(run, "spacecraft", lambda: _spacecraft(scenario.spacecraft, run)),
+        phone=_checked(run, "sensors", lambda: _phone(scenario.phone, v)),
+        slew=_checked(run, "initial/manoeuvre", lambda: _slew(scenario.slew, run)),
+        outages=run.outages,
+        phone_seed=run.phone_seed,
+    )
+
+
+def _checked(run: RunParams, group: str, build: Callable[[], T]) -> T:
+    keys = [k for k in run.values if k.startswith(tuple(group.split("/")))]
+    try:
+        return build()
+    except ConfigError as exc:
+        raise ConfigError(exc.detail, f"run {run.index}: {', '.join(keys) or group}: {exc.where}") from exc
+
+
+def _spacecraft(params: SpacecraftParams, run: RunParams) -> SpacecraftParams:
+    v, directions = run.values, run.directions
+    changes: dict[str, object] = {}
+    if "spacecraft.inertia_scale" in v or "spacecraft.inertia_offdiag" in v:
+        J = inertia_tensor(params.bus_inertia, "bus_inertia").copy()
+        mean_moment = float(np.trace(J)) / 3.0
+        J[np.diag_indices(3)] *= v.get("spacecraft.inertia_scale", np.ones(3))
+        for (i, j), d in zip(
+            ((0, 1), (0, 2), (1, 2)), v.get("spacecraft.inertia_offdiag", np.zeros(3)), strict=True
+        ):
+            J[i, j] += d * mean_moment
+            J[j, i] = J[i, j]
+        changes["bus_inertia"] = tuple(map(tuple, J))
+    tilt, offset = v.get("spacecraft.gimbal_misalignment_rad"), v.get("spacecraft.rotor_offset_m")
+    if tilt is not None or offset is not None:
+        units = []
+        for i, u in enumerate(params.units):
+            g, s = np.asarray(u.gimbal_axis, float), np.asarray(u.spin_axis, float)
+            if tilt is not None:  # about a direction perpendicular to g: both axes turn, stay perpendicular
+                az = directions["spacecraft.gimbal_misalignment_rad"][i]
+                turn = so3.exp(tilt[i] * (math.cos(az) * s + math.sin(az) * np.cross(g, s)))
+                g, s = turn @ g, turn @ s
+            sigma = u.rotor_offset_m if offset is None else float(offset[i])
+            units.append(replace(u, gimbal_axis=tuple(g), spin_axis=tuple(s), rotor_offset_m=sigma))
+        changes["units"] = tuple(units)
+    return replace(params, **changes) if changes else params  # type: ignore[arg-type]
+
+
+def _phone(phone: PhoneSpec, v: Mapping[str, np.ndarray]) -> PhoneSpec:
+    changes = {}
+    for kind in SENSOR_KINDS:
+        prefix = f"sensors.{kind}."
+        fields = {k[len(prefix) :]: float(x[0]) for k, x in v.items() if k.startswith(prefix)}
+        if fields:
+            changes[kind] = replace(getattr(phone, kind), **fields)
+    return replace(phone, **changes) if changes else phone
+
+
+def _slew(slew: SlewScenario, run: RunParams) -> SlewScenario:
+    """Start attitude turned by ``initial.angle_deg`` about a random axis; the commanded target (relative
+    to the nominal start) from the dispersed slew angle and the tilted slew axis."""
+    v, directions = run.values, run.directions
+    R0 = np.asarray(slew.R0, float)
+    turn = so3.log(R0.T @ np.asarray(slew.R_target, float))
+    angle = float(np.linalg.norm(turn))
+    axis = turn / angle if angle > 1e-12 else np.array([0.0, 0.0, 1.0])
+    if "manoeuvre.axis_tilt_deg" in v:
+        perp = _perpendicular(axis, float(directions["manoeuvre.axis_tilt_deg"][0]))
+        axis = so3.exp(math.radians(float(v["manoeuvre.axis_tilt_deg"][0])) * perp) @ axis
+    if "manoeuvre.angle_deg" in v:
+        angle = math.radians(float(v["manoeuvre.angle_deg"][0]))
+    start = R0
+    if "initial.angle_deg" in v:
+        start = R0 @ so3.exp(math.radians(float(v["initial.angle_deg"][0])) * directions["initial.angle_deg"])
+    if not math.isfinite(angle):
+        raise ConfigError(f"must be finite, got {angle!r}", "manoeuvre.angle_deg")
+    return replace(slew, R0=start, R_target=R0 @ so3.exp(angle * axis))
+
+
+def _perpendicular(axis: np.ndarray, azimuth: float) -> np.ndarray:
+    """The unit vector perpendicular to ``axis`` at ``azimuth`` (rad) about it."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    return math.cos(azimuth) * e1 + math.sin(azimuth) * np.cross(axis, e1)
+
+
+# --------------------------------------------------------------------------- simulating a chunk
+def loop_config(scenario: Scenario) -> LoopConfig:
+    """The scenario's loop with its board's link timeout (``[board] link_timeout``, firmware-sim's)."""
+    timeout = float(scenario.board_options.get("link_timeout", scenario.loop.link_timeout_s))
+    try:
+        return replace(scenario.loop, link_timeout_s=timeout)
+    except ConfigError as exc:
+        raise ConfigError(exc.detail, f"{scenario.name}: board.link_timeout") from exc
+
+
+def run_chunk(scenario: Scenario, runs: Sequence[RunParams], trace_hz: float) -> list[RunResult]:
+    """Simulate ``runs`` of ``scenario`` together on the batch axis and return one result per run, in
+    order. Runs whose parameters are refused fail alone; if the batched simulation raises, each run is
+    retried on its own (see the module docstring)."""
+    start = time.perf_counter()
+    results: dict[int, RunResult] = {}
+    ready: list[tuple[RunParams, RunInputs]] = []
+    for run in runs:
+        try:
+            ready.append((run, realise(scenario, run)))
+        except Exception as exc:  # any error: recorded with the run, never lost
+            results[run.index] = RunResult.failed(run, exc)
+    if ready:
+        try:
+            done = _simulate(scenario, ready, trace_hz)
+        except Exception as exc:  # a failure of the batch: find the runs that fail
+            if len(ready) == 1:
+                done = [RunResult.failed(ready[0][0], exc)]
+            else:
+                done = [r for run, _ in ready for r in run_chunk(scenario, [run], trace_hz)]
+        results.update((r.index, r) for r in done)
+    share = (time.perf_counter() - start) / max(len(runs), 1)
+    return [replace(results[run.index], wall_s=results[run.index].wall_s or share) for run in runs]
+
+
+def _simulate(
+    scenario: Scenario, ready: Sequence[tuple[RunParams, RunInputs]], trace_hz: float
+) -> list[RunResult]:
+    loop = ClosedLoop(scenario.spacecraft, loop_config(scenario))
+    config = scenario.filter_config()
+    logs = loop.run_batch(
+        [inputs.slew for _, inputs in ready],
+        [EstimatorInTheLoop(inputs.phone, config, inputs.phone_seed) for _, inputs in ready],
+        spacecraft=[inputs.spacecraft for _, inputs in ready],
+        link_outages=[inputs.outages for _, inputs in ready],
+    )
+    samples = trace_length(scenario.slew.duration_s, trace_hz)
+    return [
+        RunResult(
+            run.index,
+            True,
+            run.columns,
+            run_metrics(log, scenario.settle_deg),
+            decimated_trace(log, trace_hz, samples),
+        )
+        for (run, _), log in zip(ready, logs, strict=True)
+    ]

@@ -1,0 +1,251 @@
+"""A campaign's output directory, written run by run so that a crash or Ctrl-C loses no finished run and a
+re-run with the same directory carries on where it stopped.
+
+Layout of ``OUT``::
+
+    campaign.json   what the campaign is (scenario and dispersion texts, seed, duration, trace rate,
+                    columns): written first; a re-run must match it (more runs may be asked for)
+    runs.csv        one row per finished run, ok or failed, flushed as it finishes: index, status, error,
+                    the drawn parameters, the metrics. A row is the run's commit record.
+    traces.bin      each ok run's decimated traces (:data:`~.metrics.TRACES`), fixed-size little-endian
+                    records (index int32, then float32 samples), written just before its row
+    summary.json    percentiles and pass rates (rewritten at the end of every session)
+    plots/          histograms, error envelopes, parameter-vs-metric scatter
+
+A SIGKILL can leave a torn last line or record; opening the directory again cuts it off (and a trace
+whose row never made it is ignored, then written again with the run).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from protocol.errors import ConfigError, InputFormatError
+
+from .metrics import METRICS, TRACES
+from .runner import RunResult
+
+MANIFEST = "campaign.json"
+RUNS = "runs.csv"
+TRACE_FILE = "traces.bin"
+FIXED_COLUMNS = ("index", "status", "error")
+_SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_hz", "columns")
+
+
+def manifest(
+    scenario_name: str, scenario_text: str, dispersions_text: str, seed: int, duration_s: float,
+    trace_hz: float, samples: int, parameter_columns: Sequence[str],
+) -> dict[str, Any]:  # fmt: skip
+    """What identifies a campaign's results (a re-run into the same directory must match, except for the
+    number of runs)."""
+    return {
+        "scenario": scenario_name,
+        "scenario_sha256": _sha(scenario_text),
+        "dispersions_sha256": _sha(dispersions_text),
+        "seed": seed,
+        "duration_s": duration_s,
+        "trace_hz": trace_hz,
+        "trace_samples": samples,
+        "traces": list(TRACES),
+        "columns": [*FIXED_COLUMNS, *parameter_columns, *METRICS],
+        "scenario_toml": scenario_text,
+        "dispersions_toml": dispersions_text,
+    }
+
+
+def _sha(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def trace_dtype(samples: int) -> np.dtype:
+    """One traces.bin record: the run index, then each trace's ``samples`` float32 values."""
+    return np.dtype([("index", "<i4"), ("trace", "<f4", (len(TRACES), samples))])
+
+
+class ResultStore:
+    """Appends finished runs to an output directory (see the module docstring). ``open`` creates it, or
+    checks an existing one against ``manifest`` and repairs a torn tail; ``finished`` are the run
+    indices already there."""
+
+    def __init__(self, out_dir: str | os.PathLike[str], manifest: Mapping[str, Any]) -> None:
+        self.dir = Path(out_dir)
+        self.manifest = dict(manifest)
+        self.columns: list[str] = list(manifest["columns"])
+        self.dtype = trace_dtype(int(manifest["trace_samples"]))
+        self.dir.mkdir(parents=True, exist_ok=True)
+        path = self.dir / MANIFEST
+        if path.exists():
+            self._check_manifest(path)
+        else:
+            tmp = path.with_suffix(".json.tmp")
+            tmp.write_text(json.dumps(self.manifest, indent=2) + "\n")
+            os.replace(tmp, path)
+        runs = self.dir / RUNS
+        if runs.exists():
+            _cut_torn_tail(runs, lambda size, data: data.rfind(b"\n") + 1)
+        record = self.dtype.itemsize
+        traces = self.dir / TRACE_FILE
+        if traces.exists():
+            _cut_torn_tail(traces, lambda size, data: size - size % record)
+        self.finished: set[int] = set(read_runs(self.dir).index.tolist()) if runs.exists() else set()
+        new = not runs.exists() or runs.stat().st_size == 0
+        self._rows = open(runs, "a", newline="")  # noqa: SIM115 — closed by close()
+        self._csv = csv.writer(self._rows, lineterminator="\n")
+        if new:
+            self._csv.writerow(self.columns)
+            self._rows.flush()
+        self._traces = open(traces, "ab")  # noqa: SIM115
+
+    def _check_manifest(self, path: Path) -> None:
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise ConfigError(f"unreadable campaign manifest: {exc}", str(path)) from exc
+        for key in _SAME:
+            if old.get(key) == self.manifest[key]:
+                continue
+            if key in ("seed", "duration_s", "trace_hz"):
+                detail = f"{key} {old.get(key)!r}, not {self.manifest[key]!r}"
+            else:
+                detail = f"another {key.removesuffix('_sha256')}"
+            raise ConfigError(
+                f"this directory holds another campaign ({detail}); give another --out or the same options",
+                str(path),
+            )
+
+    def append(self, result: RunResult) -> None:
+        """Write one finished run: its trace record (ok runs), then its row, each flushed to the OS."""
+        if result.ok and result.trace is not None:
+            rec = np.zeros((), dtype=self.dtype)
+            rec["index"] = result.index
+            rec["trace"] = result.trace
+            self._traces.write(rec.tobytes())
+            self._traces.flush()
+        row = {"index": result.index, "status": "ok" if result.ok else "failed", "error": result.error}
+        row.update(result.columns)
+        row.update(result.metrics)
+        self._csv.writerow([_cell(row.get(c)) for c in self.columns])
+        self._rows.flush()
+        self.finished.add(result.index)
+
+    def sync(self) -> None:
+        """Push the written rows to the disk (survives a machine crash, not just a process crash)."""
+        for f in (self._rows, self._traces):
+            f.flush()
+            os.fsync(f.fileno())
+
+    def close(self) -> None:
+        for f in (self._rows, self._traces):
+            if not f.closed:
+                f.close()
+
+    def __enter__(self) -> ResultStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _cut_torn_tail(path: Path, keep: Any) -> None:
+    data = path.read_bytes()
+    size = keep(len(data), data)
+    if size < len(data):
+        with open(path, "r+b") as f:
+            f.truncate(size)
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float | np.floating):
+        return "" if math.isnan(value) else repr(float(value))
+    return str(value).replace("\n", " | ")
+
+
+# --------------------------------------------------------------------------- reading results back
+@dataclass(frozen=True)
+class Results:
+    """A campaign's runs.csv read back, one entry per run in index order (the last row of an index wins):
+    ``index`` (N,), ``ok`` (N,) bool, ``errors`` index → error text of the failed runs, ``values`` column
+    → float array (N,) (NaN where empty: a failed run's metrics), ``text`` column → str array for
+    columns that are not numbers (e.g. ``link.outage_list``); ``dropped`` malformed lines."""
+
+    index: NDArray[np.int64]
+    ok: NDArray[np.bool_]
+    errors: dict[int, str]
+    values: dict[str, NDArray[np.float64]]
+    text: dict[str, NDArray[np.str_]]
+    columns: list[str]
+    dropped: int
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def parameter_columns(self) -> list[str]:
+        """The drawn parameters that are numbers, in file order."""
+        return [c for c in self.columns if c not in FIXED_COLUMNS and c not in METRICS and c in self.values]
+
+
+def read_runs(out_dir: str | os.PathLike[str]) -> Results:
+    """Read ``OUT/runs.csv``; a line with the wrong number of cells is dropped and counted."""
+    path = Path(out_dir) / RUNS
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise InputFormatError(f"cannot read results: {exc.strerror}", str(path)) from exc
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if not header or list(header[:3]) != list(FIXED_COLUMNS):
+        raise InputFormatError(f"not a campaign's runs.csv (header {header!r})", str(path), 1)
+    rows: dict[int, list[str]] = {}
+    dropped = 0
+    for cells in reader:
+        if len(cells) != len(header) or not cells[0].isdigit():
+            dropped += 1
+            continue
+        rows[int(cells[0])] = cells
+    order = sorted(rows)
+    table = [rows[i] for i in order]
+    values: dict[str, NDArray[np.float64]] = {}
+    text_cols: dict[str, NDArray[np.str_]] = {}
+    for j, name in enumerate(header[3:], start=3):
+        cells = [r[j] for r in table]
+        try:
+            values[name] = np.array([float(c) if c != "" else math.nan for c in cells], dtype=float)
+        except ValueError:
+            text_cols[name] = np.array(cells, dtype=str)
+    ok = np.array([r[1] == "ok" for r in table], dtype=bool)
+    errors = {int(r[0]): r[2] for r in table if r[1] != "ok"}
+    return Results(np.array(order, dtype=np.int64), ok, errors, values, text_cols, list(header), dropped)
+
+
+def read_traces(
+    out_dir: str | os.PathLike[str], keep: Sequence[int] | None = None
+) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+    """The traces of ``OUT``: run indices (M,) and traces (M, len(TRACES), samples), one per index (the
+    last record wins), only for ``keep`` indices when given (e.g. the runs.csv rows)."""
+    out = Path(out_dir)
+    info = json.loads((out / MANIFEST).read_text())
+    dtype = trace_dtype(int(info["trace_samples"]))
+    path = out / TRACE_FILE
+    raw = path.read_bytes() if path.exists() else b""
+    records = np.frombuffer(raw[: len(raw) - len(raw) % dtype.itemsize], dtype=dtype)
+    last: dict[int, int] = {int(i): k for k, i in enumerate(records["index"])}
+    if keep is not None:
+        wanted = set(int(i) for i in keep)
+        last = {i: k for i, k in last.items() if i in wanted}
+    order = sorted(last)
+    picked = records[[last[i] for i in order]] if order else records[:0]
+    return np.array(order, dtype=np.int64), np.asarray(picked["trace"], dtype=np.float32)

@@ -1,0 +1,137 @@
+"""A campaign's summary: percentiles of every metric over the runs that finished, and pass rates against
+the scenario's requirements.
+
+Requirements (each a pass/fail per run; a failed run passes none):
+
+- ``settle``: the run settled within its duration (``settle_s`` ≤ the run's duration);
+- ``final_error``: ``final_error_deg`` ≤ the scenario's ``settle_deg``;
+- ``gimbal_rate``: ``peak_gimbal_rate`` ≤ the array's gimbal-rate limit;
+- ``all``: all three.
+
+Pass rates are over every finished run, failed ones included (as not passing), with a 95 % Wilson score
+interval: with 100 runs an observed 99 % means somewhere between ~94.5 and ~99.8 %.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from .metrics import METRICS
+from .store import Results
+
+PERCENTILES = (50, 95, 99)
+
+
+def requirements(
+    duration_s: float, settle_deg: float, max_gimbal_rate: float
+) -> dict[str, tuple[str, float]]:
+    """Requirement name → (metric, upper limit)."""
+    return {
+        "settle": ("settle_s", duration_s),
+        "final_error": ("final_error_deg", settle_deg),
+        "gimbal_rate": ("peak_gimbal_rate", max_gimbal_rate),
+    }
+
+
+def summarise(
+    results: Results, scenario: str, duration_s: float, settle_deg: float, max_gimbal_rate: float
+) -> dict[str, Any]:
+    """The summary (JSON-ready) of ``results`` (see the module docstring)."""
+    n = len(results)
+    ok = results.ok
+    metrics: dict[str, dict[str, float | None]] = {}
+    for name in METRICS:
+        values = results.values.get(name, np.full(n, math.nan))[ok]
+        values = values[~np.isnan(values)]
+        if len(values) == 0:
+            metrics[name] = {f"p{p}": None for p in PERCENTILES} | {"max": None, "mean": None}
+            continue
+        # empirical quantiles (no interpolation: "never settled" runs are inf, and inf - inf is NaN)
+        stats = {f"p{p}": float(np.percentile(values, p, method="inverted_cdf")) for p in PERCENTILES}
+        stats["max"] = float(np.max(values))
+        finite = values[np.isfinite(values)]
+        stats["mean"] = float(np.mean(finite)) if len(finite) else None
+        metrics[name] = stats
+    passes: dict[str, dict[str, Any]] = {}
+    every = ok.copy()
+    for req, (metric, limit) in requirements(duration_s, settle_deg, max_gimbal_rate).items():
+        values = results.values.get(metric, np.full(n, math.nan))
+        passed = ok & (values <= limit)  # NaN (failed run) compares False
+        every &= passed
+        passes[req] = _rate(int(passed.sum()), n) | {"metric": metric, "limit": limit}
+    passes["all"] = _rate(int(every.sum()), n)
+    worst = _worst(results)
+    return {
+        "scenario": scenario,
+        "runs": n,
+        "ok": int(ok.sum()),
+        "failed": int(n - ok.sum()),
+        "duration_s": duration_s,
+        "metrics": metrics,
+        "requirements": passes,
+        "worst_final_error": worst,
+        "failures": [{"index": i, "error": e} for i, e in sorted(results.errors.items())],
+        "dropped_lines": results.dropped,
+    }
+
+
+def _rate(passed: int, n: int) -> dict[str, Any]:
+    lo, hi = wilson_interval(passed, n)
+    return {"passed": passed, "rate": passed / n if n else None, "ci95": [lo, hi]}
+
+
+def wilson_interval(passed: int, n: int, z: float = 1.96) -> tuple[float | None, float | None]:
+    """The Wilson score interval of a pass rate ``passed / n`` (None, None when n = 0)."""
+    if n == 0:
+        return None, None
+    p = passed / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _worst(results: Results, count: int = 5) -> list[dict[str, float]]:
+    """The ``count`` ok runs with the largest final error: index and value."""
+    final = results.values.get("final_error_deg")
+    if final is None:
+        return []
+    idx = np.nonzero(results.ok & ~np.isnan(final))[0]
+    order = idx[np.argsort(final[idx])[::-1][:count]]
+    return [{"index": int(results.index[k]), "final_error_deg": float(final[k])} for k in order]
+
+
+def format_table(summary: dict[str, Any]) -> str:
+    """The summary as a text table (the CLI prints it)."""
+    lines = [
+        f"{summary['scenario']}: {summary['runs']} runs, {summary['ok']} ok, {summary['failed']} failed "
+        f"({summary['duration_s']:g} s each)",
+        "",
+        f"{'metric':<20}" + "".join(f"{h:>12}" for h in ("p50", "p95", "p99", "max")),
+    ]
+    for name, stats in summary["metrics"].items():
+        cells = "".join(f"{_num(stats[k]):>12}" for k in ("p50", "p95", "p99", "max"))
+        lines.append(f"{name:<20}{cells}")
+    lines += ["", f"{'requirement':<14}{'condition':<30}{'pass rate':>10}{'95% interval':>16}"]
+    for name, req in summary["requirements"].items():
+        condition = f"{req['metric']} <= {_num(req['limit'])}" if "metric" in req else "all of the above"
+        rate = "-" if req["rate"] is None else f"{100 * req['rate']:.1f}%"
+        lo, hi = req["ci95"]
+        ci = "-" if lo is None else f"{100 * lo:.1f}-{100 * hi:.1f}%"
+        lines.append(f"{name:<14}{condition:<30}{rate:>10}{ci:>16}")
+    if summary["failures"]:
+        lines += ["", f"failed runs ({len(summary['failures'])}):"]
+        lines += [f"  run {f['index']}: {f['error']}" for f in summary["failures"][:10]]
+        if len(summary["failures"]) > 10:
+            lines.append(f"  ... {len(summary['failures']) - 10} more in summary.json")
+    return "\n".join(lines)
+
+
+def _num(x: float | None) -> str:
+    if x is None:
+        return "-"
+    if math.isinf(x):
+        return "inf"
+    return f"{x:.4g}"
