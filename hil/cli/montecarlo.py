@@ -65,8 +65,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 class ProgressBar:
     """One line on stderr: a bar, runs done of total, failures, runs per minute and the time left."""
 
-    def __init__(self, stream: TextIO = sys.stderr, width: int = 30) -> None:
-        self.stream = stream
+    def __init__(self, stream: TextIO | None = None, width: int = 30) -> None:
+        self.stream = sys.stderr if stream is None else stream
         self.width = width
         self.start = time.monotonic()
         self.first: int | None = None
@@ -115,19 +115,19 @@ def run(args: argparse.Namespace) -> int:
         scenario, dispersions, args.runs, scenario.seed if args.seed is None else args.seed, args.batch,
         args.trace_hz,
     )  # fmt: skip
-    out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
-    where = f"scheduler {args.scheduler}" if args.scheduler else "a local cluster"
-    print(
-        f"hil montecarlo: {campaign.runs} runs of {scenario.name} ({scenario.slew.duration_s:g} s each, "
-        f"dispersions {dispersions.where}, seed {campaign.seed}) on {where} -> {out}",
-        file=sys.stderr,
-    )
     bar = ProgressBar()
-    try:
-        with open_client(args.scheduler, args.workers) as client:
+    with open_client(args.scheduler, args.workers) as client:
+        out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
+        where = f"scheduler {args.scheduler}" if args.scheduler else "a local cluster"
+        print(
+            f"hil montecarlo: {campaign.runs} runs of {scenario.name} ({scenario.slew.duration_s:g} s each, "
+            f"dispersions {dispersions.where}, seed {campaign.seed}) on {where} -> {out}",
+            file=sys.stderr,
+        )
+        try:
             report = run_campaign(campaign, out, client, on_result=bar, plots=not args.no_plots)
-    finally:
-        bar.close()
+        finally:
+            bar.close()
     if report.skipped:
         print(
             f"{report.skipped} runs were already in {out}; ran the other {report.completed}", file=sys.stderr
