@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from hil import so3
 from hil.control import AttitudeController, ControllerGains, EigenaxisSlew
 from hil.motor_loops import ServoModel, ServoParams, SetpointGenerator, Setpoints
+from hil.sensors import SensorKind
 from hil.steering import SteeringParams, VscmgSteering
 from hil.vscmg import Plant, PlantState, SpacecraftParams
 from protocol.errors import ConfigError
@@ -63,6 +64,17 @@ class AttitudeSource(Protocol):
     def observe(self, state: PlantState) -> None: ...
 
     def measure(self) -> Measurement: ...
+
+
+@runtime_checkable
+class GyroCalibrated(Protocol):
+    """A source that measures its raw gyroscope's bias over a still window and removes it itself, as the
+    host does (``hil.runtime.host``: raw gyro samples of the still window's second half averaged and handed
+    to the estimator): ``begin_gyro_bias()`` starts collecting, ``end_gyro_bias()`` applies and returns it."""
+
+    def begin_gyro_bias(self) -> None: ...
+
+    def end_gyro_bias(self) -> Array: ...
 
 
 class TruthWithNoise:
@@ -121,6 +133,8 @@ class EstimatorInTheLoop:
         self.estimate: object | None = None
         self._prev: PlantState | None = None
         self.steps = 0
+        self._gyro: list[tuple[float, float, float]] | None = None  # raw samples while calibrating
+        self.gyro_bias: Array | None = None  # what the still window measured (None: not calibrated)
 
     def start(self, state: PlantState) -> None:
         from hil.phone_model import BodyPhone
@@ -136,9 +150,24 @@ class EstimatorInTheLoop:
             return
         samples = self.phone.sample(prev.t, prev.R[0], prev.omega[0], state.t, state.R[0], state.omega[0])
         for sample in samples:
+            if self._gyro is not None and sample.kind is SensorKind.GYR:
+                self._gyro.append(sample.xyz)
             for step in self.merger.push(sample):
                 self.estimate = self.filter.step(step)
                 self.steps += 1
+
+    def begin_gyro_bias(self) -> None:
+        """Start collecting raw gyroscope samples (the body is held still)."""
+        self._gyro = []
+
+    def end_gyro_bias(self) -> Array:
+        """The mean raw gyro sample since :meth:`begin_gyro_bias` (3,) rad/s, subtracted by the estimator
+        from every later sample (zero if none was collected)."""
+        bias = np.mean(self._gyro, axis=0) if self._gyro else np.zeros(3)
+        self._gyro = None
+        self.filter.set_gyro_bias(bias)
+        self.gyro_bias = bias
+        return bias
 
     def measure(self) -> Measurement:
         if self.estimate is None:
@@ -155,8 +184,10 @@ class LoopConfig:
     """Rates and the pieces' parameters: ``plant_step_s`` (≤ 1 ms), ``control_rate_hz`` (≤ the board's
     ``frame_rate_hz``), controller ``gains``, ``steering`` and ``servo`` parameters; ``warmup_s`` of
     holding still before the slew (the attitude source converges; the host waits for it the same way);
-    ``calibrate_rate_bias``: average the measured rate over the still second half of the warm-up and
-    subtract it from then on (the host's still-window gyro bias calibration); ``link_timeout_s`` the
+    ``calibrate_rate_bias``: the host's still-window gyro bias calibration over the warm-up's second half
+    (a :class:`GyroCalibrated` source averages its raw gyro samples and removes the bias itself, as the
+    host's estimator does; for others the measured rate is averaged at the ticks and subtracted from the
+    rate the controller is given); ``link_timeout_s`` the
     board's link watchdog (firmware-sim's ``--link-timeout``, longer than a control period) and
     ``esc_coast_time_constant_s`` how a rotor slows once the failsafe cuts its throttle (the ESC does not
     brake; firmware_sim's motor default), both used only with link outages."""
@@ -419,19 +450,28 @@ class ClosedLoop:
                 state = plant.step(state, cfg.plant_step_s, drives)
                 for i in runs:
                     sources[i].observe(plant.select(state, i))
-                    if calibrate is not None and (k + 1) % per_tick == 0 and k >= steps // 2:
+                    if calibrate is not None and (k + 1) % per_tick == 0 and not self_calibrated[i]:
                         calibrate[i].append(sources[i].measure().omega)
                 if link.any:
                     link.watchdog(state.t - t0)
                     drives.failsafe = link.failsafe
             return state
 
+        # Warm-up, held still: the sources converge; over its second half the rate bias is measured (from
+        # the raw gyro by sources that calibrate themselves, else from the measured rate at the ticks)
         per_tick = int(round(1.0 / (cfg.control_rate_hz * cfg.plant_step_s)))
+        self_calibrated = [cfg.calibrate_rate_bias and isinstance(src, GyroCalibrated) for src in sources]
         still: list[list[Array]] = [[] for _ in runs]
         t0 = math.inf  # the watchdog starts with the slew (outages start at or after it)
-        state = advance(
-            state, int(round(cfg.warmup_s / cfg.plant_step_s)), still if cfg.calibrate_rate_bias else None
-        )
+        warmup = int(round(cfg.warmup_s / cfg.plant_step_s))
+        state = advance(state, warmup // 2)
+        for i in runs:
+            if self_calibrated[i]:
+                sources[i].begin_gyro_bias()  # type: ignore[attr-defined]
+        state = advance(state, warmup - warmup // 2, still if cfg.calibrate_rate_bias else None)
+        for i in runs:
+            if self_calibrated[i]:
+                sources[i].end_gyro_bias()  # type: ignore[attr-defined]
         bias = [np.mean(r, axis=0) if r else np.zeros(3) for r in still]
         t0 = state.t
         slews = [

@@ -97,6 +97,33 @@ def test_estimator_in_the_loop_90_degree_slew():
     assert np.max(log.estimate_error_deg) > 0.5  # the loop ran on the estimate, not on the truth
 
 
+def test_the_estimator_gets_the_still_window_gyro_bias_as_on_the_host():
+    """As the host does, the raw gyro samples of the warm-up's still second half are averaged and handed
+    to the estimator, which removes the phone gyro's bias (here ~5·10⁻³ rad/s, 0.3°/s) from then on. The
+    same estimator behind a source that cannot calibrate itself (the rate bias is then only taken off the
+    controller's rate) keeps a drifting attitude. A 5 s hold, both in one batch."""
+    from hil.sensors import SensorKind
+
+    class Uncalibrated:  # the same estimator, without begin/end_gyro_bias
+        def __init__(self, inner):
+            self.inner = inner
+            self.start, self.observe, self.measure = inner.start, inner.observe, inner.measure
+
+    base = PhoneSpec.nexus5()
+    spec = dataclasses.replace(
+        base, acc=dataclasses.replace(base.acc, bias=0.0), mag=dataclasses.replace(base.mag, bias=0.0)
+    )
+    calibrated, raw = EstimatorInTheLoop(spec=spec, seed=9), EstimatorInTheLoop(spec=spec, seed=9)
+    hold = SlewScenario("hold", np.eye(3), np.eye(3), 5.0)
+    logs = ClosedLoop(PARAMS).run_batch([hold, hold], [calibrated, Uncalibrated(raw)])
+    true_bias = calibrated.phone.bias[SensorKind.GYR]
+    assert np.linalg.norm(true_bias) > 3e-3 and raw.gyro_bias is None
+    n = 0.5 * LoopConfig().warmup_s * spec.gyr.rate_hz  # samples in the window
+    np.testing.assert_allclose(calibrated.gyro_bias, true_bias, atol=4 * spec.gyr.noise / math.sqrt(n))
+    assert logs[0].estimate_error_deg[-1] < 0.3 and logs[0].error_deg[-1] < 0.3
+    assert logs[1].estimate_error_deg[-1] > 1.0
+
+
 def test_harness_refuses_bad_rates():
     with pytest.raises(ConfigError, match="plant_step_s"):
         LoopConfig(plant_step_s=2e-3)
