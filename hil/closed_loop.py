@@ -424,18 +424,17 @@ class ClosedLoop:
         link = _Link([()] * b if link_outages is None else link_outages, cfg.link_timeout_s)
         plant = self.plant if spacecraft is None else Plant(spacecraft)
         nominal = self.params.nominal_rotor_speed
-        start = dict(
-            R=np.stack([np.asarray(sc.R0, float) for sc in scenarios]),
-            gimbal_angle=np.stack([np.broadcast_to(sc.gimbal_angle0, (plant.n,)) for sc in scenarios]),
-            rotor_rate=np.stack(
-                [
-                    np.broadcast_to(nominal if sc.rotor_speed0 is None else sc.rotor_speed0, (plant.n,))
-                    for sc in scenarios
-                ]
-            ),
+        R0 = np.stack([np.asarray(sc.R0, float) for sc in scenarios])
+        gimbal0 = np.stack([np.broadcast_to(sc.gimbal_angle0, (plant.n,)) for sc in scenarios])
+        rotor0 = np.stack(
+            [
+                np.broadcast_to(nominal if sc.rotor_speed0 is None else sc.rotor_speed0, (plant.n,))
+                for sc in scenarios
+            ]
         )
-        state = plant.state(**start)
-        inertia = self.plant.locked_inertia(self.plant.state(**start))  # what the controller is told
+        state = plant.state(R=R0, gimbal_angle=gimbal0, rotor_rate=rotor0)
+        # what the controller is told: the nominal spacecraft's inertia
+        inertia = self.plant.locked_inertia(self.plant.state(R=R0, gimbal_angle=gimbal0, rotor_rate=rotor0))
         controllers = [AttitudeController(inertia[i], cfg.gains) for i in range(b)]
         setpoints = SetpointGenerator(self.params, cfg.control_rate_hz, cfg.frame_rate_hz)
         setpoints.reset(state.rotor_rate)

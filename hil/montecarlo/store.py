@@ -24,7 +24,7 @@ import io
 import json
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -133,7 +133,9 @@ class ResultStore:
             rec["trace"] = result.trace
             self._traces.write(rec.tobytes())
             self._traces.flush()
-        row = {"index": result.index, "status": "ok" if result.ok else "failed", "error": result.error}
+        row: dict[str, float | int | str] = {
+            "index": result.index, "status": "ok" if result.ok else "failed", "error": result.error,
+        }  # fmt: skip
         row.update(result.columns)
         row.update(result.metrics)
         self._csv.writerow([_cell(row.get(c)) for c in self.columns])
@@ -232,7 +234,7 @@ def read_runs(out_dir: str | os.PathLike[str]) -> Results:
 
 
 def read_traces(
-    out_dir: str | os.PathLike[str], keep: Sequence[int] | None = None
+    out_dir: str | os.PathLike[str], keep: Iterable[int] | None = None
 ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
     """The traces of ``OUT``: run indices (M,) and traces (M, len(TRACES), samples), one per index (the
     last record wins), only for ``keep`` indices when given (e.g. the runs.csv rows)."""

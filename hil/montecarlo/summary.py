@@ -47,10 +47,12 @@ def summarise(
         values = results.values.get(name, np.full(n, math.nan))[ok]
         values = values[~np.isnan(values)]
         if len(values) == 0:
-            metrics[name] = {f"p{p}": None for p in PERCENTILES} | {"max": None, "mean": None}
+            metrics[name] = dict.fromkeys([*(f"p{p}" for p in PERCENTILES), "max", "mean"])
             continue
         # empirical quantiles (no interpolation: "never settled" runs are inf, and inf - inf is NaN)
-        stats = {f"p{p}": float(np.percentile(values, p, method="inverted_cdf")) for p in PERCENTILES}
+        stats: dict[str, float | None] = {
+            f"p{p}": float(np.percentile(values, p, method="inverted_cdf")) for p in PERCENTILES
+        }
         stats["max"] = float(np.max(values))
         finite = values[np.isfinite(values)]
         stats["mean"] = float(np.mean(finite)) if len(finite) else None
