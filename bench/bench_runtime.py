@@ -1,0 +1,399 @@
+"""The host's runtime (:func:`hil.runtime.run`) end to end, each figure next to a peer measured in the same
+run:
+
+* **real-time control period jitter** p50 / p99 / max at 100 Hz and 200 Hz: the real runtime (board
+  client, phone receiver, estimator and control tasks on :class:`hil.scheduler.Scheduler`) in ``--port``
+  mode against ``spawn://firmware-sim`` on a real pty with its world (``cubesat-1u``), the world's
+  simulated phone streaming to the host over loopback as Sensor Logger's HTTP Push (firmware-sim's
+  ``--phone http://…``, formerly ``--phone-push``) to a free port the host listens on
+  (``RunOptions.phone``): the stream the runtime has always taken. The board's pulse frame rate is twice
+  the control rate (200 / 400 Hz). The figure is the scheduler's own lateness of each control activation
+  after its absolute deadline (``summary["tasks"]["control"]``), over the whole run (warm-up, spin-up,
+  slew), plus the control task's overrun count: an activation skipped because the one before ran past
+  it leaves no lateness sample, so the percentiles alone would hide it.
+
+  The world costs CPU: its 1 ms plant step (plant, drives, phone model, board step) is measured first
+  (CPU s per simulated s, in the note). Where it needs more than ``WORLD_BUDGET`` — a slow or shared
+  machine — ``firmware-sim --world`` cannot keep real time: its world thread falls behind, keeps the
+  board's lock and the GIL, and the board stops answering (Arm unanswered, link watchdog FAILSAFE,
+  rotors never spun up), so there is no run to time. Then (and if a world run fails to start) the same
+  runtime runs against ``spawn://firmware-sim`` *without* the world — the board's internal actuator
+  model answers the pulses — with a stand-in phone in its own process (the scenario's phone model at
+  rest, streamed in real time to the same URL); the rows then say ``no world``. The host does the same
+  work per tick either way (its estimator, controller, steering and setpoint do not know what moves).
+
+  Two peers, each run right after the runtime at the same rate for a few seconds:
+
+  - a bare loop doing no work on the same :class:`~hil.scheduler.Scheduler` and
+    :class:`~hil.clock.WallClock`, with the same lateness statistics: the floor this machine, its load
+    and its timer give a Python loop — what the runtime adds on top of it is the runtime's own doing
+    (the board link, serviced in the control task, the estimator task, the phone receiver's thread,
+    the GIL they share);
+  - a naive ``time.sleep(period)`` loop's period error ``|actual period - nominal|``: what a loop
+    without absolute deadlines gets. Its errors also *accumulate*; the drift over the loop is in the
+    note (the Scheduler's deadlines do not drift at all: ``origin + k * period``).
+
+* **host setpoint -> pulse change reported** p50 / p99 over the pty: measured by
+  :func:`bench.bench_link._pty_latency` (the full client against ``spawn://firmware-sim``, 490 Hz frames,
+  1 kHz telemetry) and emitted here too, next to the same raw pty echo peer — not re-implemented.
+
+* **lockstep real-time factor of the closed loop** (``cubesat-1u``: 4 units, 1 ms plant step) through the
+  full protocol: ``hil.runtime.run`` in lockstep (the in-process board on a ``LockstepClock``, the world
+  stepping the plant every 1 ms, every setpoint and telemetry frame encoded, framed and decoded), as
+  simulated seconds per CPU second of this process (``time.process_time``: wall time depends on the
+  machine's load; the wall-time factor ``summary["realtime_factor"]`` is reported as well). Peer: the
+  same scenario's closed loop at setpoint level (:class:`hil.closed_loop.ClosedLoop` with the same phone
+  model and estimator, :func:`hil.montecarlo.runner.loop_config`) for the same simulated time — the same
+  plant, sensors, estimator and controller without the protocol, the board emulation and the runtime,
+  so the ratio is what those cost.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+from urllib.parse import urlencode, urlsplit
+
+import numpy as np
+
+from bench.bench_firmware_sim import _pct
+from bench.bench_link import _pty_latency
+from bench.common import Result
+from hil.clock import WallClock
+from hil.scenario import Scenario, load_scenario
+from hil.scheduler import PeriodicTask, Scheduler
+from protocol.errors import HilError
+
+NAME = "runtime"
+SCENARIO = "cubesat-1u"
+RATES = (100.0, 200.0)  # control rates (Hz); the board's pulse frame rate is twice that
+FRAME_RATE_FACTOR = 2.0
+WORLD_BUDGET = 0.7  # CPU s per simulated s above which firmware-sim --world cannot run in real time
+
+
+# =========================================================================== real time, pty
+@dataclass
+class _Jitter:
+    """One loop's lateness (or period error) statistics, µs."""
+
+    p50: float
+    p99: float
+    max: float
+    runs: int
+    overruns: int = 0
+
+    @classmethod
+    def of(cls, samples_us: np.ndarray, overruns: int = 0) -> _Jitter:
+        return cls(
+            float(np.percentile(samples_us, 50)),
+            float(np.percentile(samples_us, 99)),
+            float(samples_us.max()),
+            int(samples_us.size),
+            overruns,
+        )
+
+
+def _free_port(kind: socket.SocketKind) -> int:
+    """A port the kernel says is free now (bound to port 0, read, closed) for a TCP or UDP listener."""
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _phone_addresses() -> tuple[str, str, str]:
+    """(firmware-sim's phone option, where the phone streams, RunOptions.phone): HTTP Push on a free port.
+
+    firmware-sim's ``--phone-push URL`` (the host listening on HOST:PORT) is becoming ``--phone URL``
+    (udp:// or http://; the host listening on the same URL): whichever this tree has is used."""
+    from firmware_sim.cli import build_parser
+
+    dests = {a.dest for a in build_parser()._actions}
+    port = _free_port(socket.SOCK_STREAM)
+    url = f"http://127.0.0.1:{port}/"
+    if "phone" in dests:
+        return "phone", url, url
+    if "phone_push" in dests:
+        return "phone_push", url, f"127.0.0.1:{port}"
+    raise RuntimeError("firmware-sim has neither --phone nor --phone-push: update bench_runtime")
+
+
+def _at_rate(scenario: Scenario, rate_hz: float) -> Scenario:
+    """``scenario`` with its control loop at ``rate_hz`` and the board's pulse frames faster still."""
+    frame = FRAME_RATE_FACTOR * rate_hz
+    return scenario.with_changes(
+        loop=replace(scenario.loop, control_rate_hz=rate_hz, frame_rate_hz=frame),
+        board_options={**scenario.board_options, "frame_rate": frame},
+    )
+
+
+def _world_cost() -> float:
+    """CPU seconds the emulator's world (plant, drives, phone, board) needs per simulated second here: above
+    ~0.7, ``firmware-sim --world`` cannot keep real time next to its board and pty server."""
+    from firmware_sim.cli import build_parser, make_board
+    from firmware_sim.world import World
+    from hil.clock import LockstepClock
+
+    scenario = load_scenario(SCENARIO)
+    clock = LockstepClock()
+    world = World(scenario, make_board(build_parser().parse_args(["--units", "4"]), clock))
+    steps = 200
+    cpu = time.process_time()
+    for _ in range(steps):
+        clock.advance(scenario.loop.plant_step_s)
+        world.advance_to(clock.now())
+    return (time.process_time() - cpu) / (steps * scenario.loop.plant_step_s)
+
+
+# A stand-in for the world's phone: the scenario's phone model at rest at the start attitude, sampled in
+# real time in its own process (as firmware-sim's world would be) and streamed to argv[2].
+_STILL_PHONE = r"""
+import signal, sys, time
+import numpy as np
+from hil.phone_model import BodyPhone
+from hil.scenario import load_scenario
+try:
+    from hil.sources import open_sender
+except ImportError:  # before hil.sources took udp:// too
+    from hil.sources.phone_push import PhonePushSender as open_sender
+scenario = load_scenario(sys.argv[1])
+sender = open_sender(sys.argv[2])
+phone = BodyPhone(scenario.phone, scenario.seed)
+R, w = np.asarray(scenario.slew.R0, float), np.zeros(3)
+step = max(getattr(sender, "batch_s", 0.02), 0.005)
+stop = []
+signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+print("streaming", flush=True)
+start, t, k = time.monotonic(), 0.0, 0
+while not stop:
+    k += 1
+    time.sleep(max(start + k * step - time.monotonic(), 0.0))
+    now = time.monotonic() - start
+    samples = phone.sample(t, R, w, now, R, w)
+    t = now
+    if samples:
+        sender.send(samples)
+sender.close()  # a clean end of the connection, as an app that stops streaming
+"""
+
+
+@contextmanager
+def _still_phone(url: str) -> Iterator[None]:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _STILL_PHONE, SCENARIO, url],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    try:
+        # Streaming before the host connects: the runtime arms, then waits for the phone without
+        # servicing the board link, so a late phone lets the board's 250 ms link watchdog fire.
+        assert proc.stdout is not None
+        if proc.stdout.readline().strip() != "streaming":
+            raise RuntimeError("the stand-in phone did not start")
+        yield
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def _runtime_realtime(rate_hz: float, duration_s: float, world: bool) -> tuple[_Jitter, str]:
+    """The runtime against firmware-sim on a pty — with its world (``world``) or, when the world cannot
+    keep real time here, on the board's internal actuator model with a still phone stand-in: (control
+    lateness, note)."""
+    from hil.runtime import RunOptions, run
+
+    scenario = _at_rate(load_scenario(SCENARIO), rate_hz)
+    option, phone, listen = _phone_addresses()
+    query = scenario.firmware_sim_options()
+    if world:
+        query += [("world", SCENARIO), (option, phone)]
+    url = "spawn://firmware-sim?" + urlencode(query)
+    with tempfile.TemporaryDirectory(prefix="bench-runtime-") as tmp, contextlib.ExitStack() as stack:
+        if not world:
+            stack.enter_context(_still_phone(phone))
+        options = RunOptions(
+            port=url, phone=listen, duration_s=duration_s, plots=False, out_root=Path(tmp),
+            label=f"bench-{rate_hz:.0f}hz",
+        )  # fmt: skip
+        note = ""
+        try:  # the run stops the spawned firmware-sim itself (its transport's close), even on error
+            summary = run(scenario, options).summary
+        except Exception as exc:
+            # The summary is written before the error is raised: its schedule statistics still count.
+            written = sorted(Path(tmp).glob("*/summary.json"))
+            summary = json.loads(written[0].read_text()) if written else {}
+            if "control" not in summary.get("tasks", {}):
+                raise
+            note = f"run failed: {exc}; "
+    control = summary["tasks"]["control"]
+    jitter = _Jitter(
+        control["lateness_p50_us"],
+        control["lateness_p99_us"],
+        control["lateness_max_us"],
+        int(control["runs"]),
+        int(control["overruns"]),
+    )
+    note += (
+        f"{jitter.runs} control runs over {summary.get('wall_s', 0.0):.1f} s, exit {summary.get('exit')!r}, "
+        f"{summary.get('failsafe_events')} failsafe events, {summary.get('phone_samples')} phone samples "
+        f"({urlsplit(phone).scheme}), board frames {FRAME_RATE_FACTOR * rate_hz:.0f} Hz"
+    )
+    return jitter, note
+
+
+def _scheduler_floor(rate_hz: float, seconds: float) -> _Jitter:
+    """A task doing nothing on the runtime's Scheduler and WallClock: its lateness (µs)."""
+    task = PeriodicTask("bare", 1.0 / rate_hz, lambda _due: None)
+    scheduler = Scheduler(WallClock(), [task])
+    scheduler.run(until=scheduler.origin + seconds)
+    return _Jitter.of(task.stats.lateness * 1e6, task.stats.overruns)
+
+
+def _sleep_loop(rate_hz: float, seconds: float) -> tuple[_Jitter, float]:
+    """A ``time.sleep(period)`` loop: its period error |actual - nominal| (µs) and its drift (ms) at the end
+    (how far the last wake-up is from ``start + n * period``)."""
+    period = 1.0 / rate_hz
+    n = max(int(seconds * rate_hz), 2)
+    stamps = np.empty(n + 1)
+    stamps[0] = time.monotonic()
+    for k in range(1, n + 1):
+        time.sleep(period)
+        stamps[k] = time.monotonic()
+    error_us = np.abs(np.diff(stamps) - period) * 1e6
+    return _Jitter.of(error_us), (stamps[-1] - stamps[0] - n * period) * 1e3
+
+
+def _jitter_results(rate_hz: float, duration_s: float, peer_s: float, world_note: str) -> list[Result]:
+    """``world_note`` empty: the runtime against firmware-sim with its world; else why not (a stand-in)."""
+    try:
+        ours, note = _runtime_realtime(rate_hz, duration_s, world=not world_note)
+    except HilError as exc:
+        if world_note:
+            raise
+        world_note = f"firmware-sim --world failed ({exc}); "
+        ours, note = _runtime_realtime(rate_hz, duration_s, world=False)
+    if world_note:
+        note = f"{world_note}no world: the board's internal actuator model, a still stand-in phone; {note}"
+    floor = _scheduler_floor(rate_hz, peer_s)
+    naive, drift_ms = _sleep_loop(rate_hz, peer_s)
+    at = f"{rate_hz:.0f} Hz"
+    where = "pty" if not world_note else "pty, no world"
+    floor_note = (
+        f"bare Scheduler loop: {floor.runs} runs, {floor.overruns} overruns; sleep(period) loop: "
+        f"{naive.runs} periods, drifted {drift_ms:+.1f} ms (absolute deadlines: none)"
+    )
+    rows: list[Result] = []
+    for stat in ("p50", "p99", "max"):
+        figure = f"control jitter {stat} @{at} (runtime, {where})"
+        rows += [
+            Result(NAME, figure, getattr(ours, stat), "us", f"bare Scheduler loop {stat}",
+                   getattr(floor, stat), False, note if stat == "p50" else ""),
+            Result(NAME, figure, getattr(ours, stat), "us", f"sleep(period) period error {stat}",
+                   getattr(naive, stat), False, floor_note if stat == "p50" else ""),
+        ]  # fmt: skip
+    rows.append(
+        Result(NAME, f"control overruns @{at} (runtime, {where})", ours.overruns, "skipped",
+               "bare Scheduler loop overruns", floor.overruns, False,
+               f"of {ours.runs + ours.overruns} activations")
+    )  # fmt: skip
+    return rows
+
+
+def _latency_results(samples: int) -> list[Result]:
+    latency, board_share, echo = _pty_latency(samples)
+    note = (
+        f"measured by bench_link._pty_latency ({samples} samples, 490 Hz frames, 1 kHz telemetry); "
+        f"board share (telemetry link_age) p50 {statistics.median(board_share):.1f} ms"
+    )
+    return [
+        Result(NAME, "setpoint -> pulse reported p50 (client, pty)", statistics.median(latency), "ms",
+               "raw pty echo p50", statistics.median(echo), False, note),
+        Result(NAME, "setpoint -> pulse reported p99 (client, pty)", _pct(latency, 99), "ms",
+               "raw pty echo p99", _pct(echo, 99), False),
+    ]  # fmt: skip
+
+
+# =========================================================================== lockstep
+def _lockstep_runtime(duration_s: float) -> tuple[float, float, float]:
+    """The runtime in lockstep: (simulated s, CPU s, summary's wall-time real-time factor)."""
+    from hil.runtime import RunOptions, run
+
+    scenario = load_scenario(SCENARIO)
+    assert scenario.n_units == 4, scenario.n_units
+    assert scenario.loop.plant_step_s == 0.001, scenario.loop.plant_step_s
+    with tempfile.TemporaryDirectory(prefix="bench-runtime-") as tmp:
+        options = RunOptions(plots=False, duration_s=duration_s, out_root=Path(tmp), label="bench-lockstep")
+        cpu = time.process_time()
+        summary = run(scenario, options).summary
+        cpu = time.process_time() - cpu
+    if summary["mode"] != "lockstep" or summary["exit"] != "completed":
+        raise RuntimeError(f"the lockstep run did not complete: {summary['mode']}, {summary['exit']}")
+    return float(summary["sim_s"]), cpu, float(summary["realtime_factor"])
+
+
+def _closed_loop(sim_s: float) -> tuple[float, float, float]:
+    """The scenario's closed loop without protocol or board for ``sim_s`` simulated seconds (warm-up
+    included): (simulated s, CPU s, wall s)."""
+    from hil.closed_loop import ClosedLoop, EstimatorInTheLoop
+    from hil.montecarlo.runner import loop_config
+
+    scenario = load_scenario(SCENARIO)
+    loop = ClosedLoop(scenario.spacecraft, loop_config(scenario))
+    slew = replace(scenario.slew, duration_s=max(sim_s - scenario.loop.warmup_s, 0.1))
+    source = EstimatorInTheLoop(scenario.phone, scenario.filter_config(), scenario.seed)
+    cpu, wall = time.process_time(), time.perf_counter()
+    log = loop.run(slew, source)
+    cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+    simulated = scenario.loop.warmup_s + len(log.t) / scenario.loop.control_rate_hz
+    return simulated, cpu, wall
+
+
+def _lockstep_results(duration_s: float) -> list[Result]:
+    sim_s, cpu_s, wall_factor = _lockstep_runtime(duration_s)
+    peer_sim, peer_cpu, peer_wall = _closed_loop(sim_s)
+    note = (
+        f"{sim_s:.1f} s simulated in {cpu_s:.1f} CPU s (peer: {peer_sim:.1f} s in {peer_cpu:.1f} CPU s), "
+        "50 Hz control, 50 Hz frames and telemetry"
+    )
+    return [
+        Result(NAME, "lockstep closed loop, 4 units, 1 ms step (runtime)", sim_s / cpu_s, "sim s/CPU s",
+               "closed loop, no protocol/board", peer_sim / peer_cpu, True, note),
+        Result(NAME, "lockstep closed loop, 4 units, 1 ms step (runtime)", wall_factor, "x real time",
+               "closed loop, no protocol/board", peer_sim / peer_wall, True),
+    ]  # fmt: skip
+
+
+def run(quick: bool) -> list[Result]:
+    duration_s = 3.0 if quick else 10.0  # real-time runs, from the slew's start
+    peer_s = 2.0 if quick else 10.0  # each peer loop, per rate
+    load = os.getloadavg()[0]
+    results: list[Result] = []
+    cost = _world_cost()
+    world_note = "" if cost < WORLD_BUDGET else (
+        f"firmware-sim --world needs {cost:.2f} CPU s per simulated s here (> {WORLD_BUDGET}): it cannot "
+        "keep real time; "
+    )  # fmt: skip
+    for rate in RATES:
+        results += _jitter_results(rate, duration_s, peer_s, world_note)
+    results += _latency_results(30 if quick else 300)
+    results += _lockstep_results(0.5 if quick else 5.0)
+    first = results[0]
+    results[0] = replace(
+        first,
+        note=f"{first.note}; world {cost:.2f} CPU s per simulated s; load average {load:.2f} on "
+        f"{os.cpu_count()} CPUs",
+    )
+    return results
