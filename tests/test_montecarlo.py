@@ -278,6 +278,18 @@ def test_same_seed_gives_the_same_table_on_a_local_cluster(reference):
     assert not reports[1].plots
 
 
+def test_hil_report_redraws_a_campaign_and_prints_its_pass_rates(reference, capsys):
+    from hil.cli import main
+
+    _, dirs, _ = reference
+    assert not (dirs[1] / "plots").exists()  # the second campaign was run without plots
+    assert main(["report", str(dirs[1])]) == 0
+    out = capsys.readouterr().out
+    assert f"campaign {dirs[1]}: scenario cubesat-1u, seed 11" in out and "gimbal_rate" in out
+    for name in ("histograms", "envelopes", "scatter"):
+        assert (dirs[1] / "plots" / f"{name}.png").stat().st_size > 10_000 and f"{name}:" in out
+
+
 def scenario_limit(campaign: Campaign) -> float:
     return campaign.scenario.spacecraft.limits.max_gimbal_rate
 

@@ -1,0 +1,116 @@
+"""``hil report``: (re)draw the plots of a run directory or a Monte Carlo campaign and print its summary."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+ORDER = 15
+
+EPILOG = """\
+examples:
+  hil report runs/20261124-101500-cubesat-1u        # a `hil run` directory: its plots/ again, its summary
+  hil report runs/*-cubesat-1u                      # several at once
+  hil report mc/c1                                  # a `hil montecarlo` campaign: histograms, envelopes,
+                                                    # scatter of the dispersed parameters, pass rates
+
+A run directory is recognised by telemetry.csv, a campaign by campaign.json. Plots go to DIR/plots/ (the
+files a run or campaign wrote are replaced); a run that was killed is reported up to its last flushed row.
+"""
+
+
+def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "report",
+        help="redraw a run's (or a Monte Carlo campaign's) plots and print its summary",
+        description="Redraw the figures of a `hil run` directory or a `hil montecarlo` campaign from the "
+        "files it wrote, and print its summary.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("dirs", nargs="+", type=Path, metavar="DIR", help="run directory or campaign directory")
+    p.add_argument("--no-plots", action="store_true", help="print the summary only")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    for i, path in enumerate(args.dirs):
+        if i:
+            print()
+        report(path, plots=not args.no_plots)
+    return 0
+
+
+def report(path: Path, plots: bool = True) -> dict[str, Path]:
+    """Print ``path``'s summary and redraw its plots; returns name → plot path. A directory that is neither
+    a run nor a campaign is an :class:`~protocol.errors.InputFormatError` naming it."""
+    from hil.montecarlo.store import MANIFEST
+    from protocol.errors import InputFormatError
+
+    if (path / "telemetry.csv").is_file():
+        drawn = _run_dir(path, plots)
+    elif (path / MANIFEST).is_file():
+        drawn = _campaign(path, plots)
+    elif path.is_dir():
+        raise InputFormatError(
+            "neither a run directory (telemetry.csv) nor a Monte Carlo campaign (campaign.json)", str(path)
+        )
+    else:
+        raise InputFormatError("no such directory", str(path))
+    for name, file in drawn.items():
+        print(f"  {name}: {file}")
+    return drawn
+
+
+def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
+    from hil.cli.run import format_summary
+    from hil.plots.run import plot_run
+    from hil.runlog import read_events, read_telemetry
+
+    tel = read_telemetry(path / "telemetry.csv")
+    events, bad_events = read_events(path / "events.jsonl") if (path / "events.jsonl").is_file() else ([], 0)
+    print(f"run {path}: {tel.rows} telemetry rows, {len(events)} events")
+    if tel.dropped_lines or bad_events:
+        print(f"  unreadable: {tel.dropped_lines} telemetry lines, {bad_events} event lines (a torn tail)")
+    summary = _json(path / "summary.json")
+    if summary is not None:
+        print(format_summary(summary))
+    else:
+        print("  no summary.json (the run was killed): plots from the telemetry alone")
+    return plot_run(path) if plots else {}
+
+
+def _campaign(path: Path, plots: bool) -> dict[str, Path]:
+    from hil.montecarlo.campaign import summarise_dir
+    from hil.montecarlo.plots import plot_campaign
+    from hil.montecarlo.store import MANIFEST
+    from hil.montecarlo.summary import format_table
+    from hil.scenario import parse_scenario
+    from protocol.errors import InputFormatError
+
+    info = _json(path / MANIFEST)
+    if info is None or not isinstance(info.get("scenario_toml"), str):
+        raise InputFormatError("campaign.json holds no scenario", str(path / MANIFEST))
+    scenario = parse_scenario(info["scenario_toml"], path / MANIFEST)
+    summary = summarise_dir(path, scenario)
+    print(f"campaign {path}: scenario {scenario.name}, seed {info.get('seed')}")
+    print(format_table(summary))
+    if not plots:
+        return {}
+    return plot_campaign(path, scenario.settle_deg, scenario.spacecraft.limits.max_gimbal_rate)
+
+
+def _json(path: Path) -> dict | None:  # type: ignore[type-arg]
+    """A JSON object from ``path``; None if the file is missing; an unreadable one names itself."""
+    from protocol.errors import InputFormatError
+
+    if not path.is_file():
+        return None
+    try:
+        doc = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFormatError(f"not JSON ({exc})", str(path)) from None
+    if not isinstance(doc, dict):
+        raise InputFormatError("expected a JSON object", str(path))
+    return doc
