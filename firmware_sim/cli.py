@@ -35,7 +35,7 @@ examples:
   firmware-sim --avr --eeprom board.eep         ... keeping its EEPROM (uploaded calibrations) in a file
   firmware-sim --world cubesat-1u --link /tmp/vscmg
                                                 the board drives a simulated spacecraft (a hil scenario);
-                                                its phone streams to http://127.0.0.1:8123/ (hil run --port)
+                                                its phone streams to udp://127.0.0.1:8123 (hil run --port)
   firmware-sim --can udp_multicast/239.74.163.2?port=43113
                                                 serve on a CAN bus instead (prints the host's URL)
   hil run --port can://udp_multicast/239.74.163.2?port=43113   (in another terminal) drive it
@@ -75,10 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="close the loop: the pulses drive this hil scenario's spacecraft (name or .toml; sets --units)",
     )
     p.add_argument(
-        "--phone-push",
-        default="http://127.0.0.1:8123/",
+        "--phone",
+        default="udp://127.0.0.1:8123",
         metavar="URL",
-        help="with --world: where the simulated phone streams (Sensor Logger HTTP Push; default %(default)s)",
+        help="with --world: where the simulated phone streams: udp://HOST:PORT as SensaGram does (default "
+        "%(default)s), http://HOST:PORT/ as Sensor Logger's HTTP Push",
     )
     p.add_argument(
         "--no-hold",
@@ -261,9 +262,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         scenario = None
         if args.world is not None:
             from hil.scenario import load_scenario
+            from hil.sources import phone_url
 
             scenario = load_scenario(args.world)
             args.units = scenario.n_units
+            args.phone = phone_url(args.phone)
         board = make_board(args)
         server: PtyServer | CanServer
         if args.can is not None:
@@ -283,7 +286,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         with server.lock:
             world = World(scenario, board)
-        streamer = WorldStreamer(world, server.lock, args.phone_push).start()
+        streamer = WorldStreamer(world, server.lock, args.phone).start()
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     print(server.path, flush=True)
     where = f" (link {args.link})" if args.link else ""
@@ -301,9 +304,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         if streamer is not None:
             streamer.close()
     stats = server.stats
+    world_line = ""
+    if streamer is not None:
+        world_line = (
+            f"; world: {streamer.world.steps} plant steps, {streamer.sender.sent} phone messages "
+            f"({streamer.sender.failed} failed), lagged the clock by up to {streamer.max_lag_s * 1e3:.0f} ms"
+        )
     print(
         f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, "
-        f"{stats.dropped_out} dropped, {len(board.resets) - 1} reset(s)",
+        f"{stats.dropped_out} dropped, {len(board.resets) - 1} reset(s){world_line}",
         file=sys.stderr,
     )
     return 0

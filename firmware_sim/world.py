@@ -20,6 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -34,6 +35,7 @@ from protocol.messages import GimbalMode, UnitState
 from .board import Board
 
 Array = NDArray[np.float64]
+YIELD_S = 2e-4  # s: the pause a lagging world thread takes between chunks, so the board's server runs
 logger = logging.getLogger(__name__)
 
 
@@ -160,25 +162,26 @@ def _wrap(angle: float) -> float:
 
 class WorldStreamer:
     """Runs a world in real time next to a board that is served elsewhere (a pty server's loop, a host's
-    in-process emulator) and streams its phone the way the Sensor Logger app does: a thread advances the
-    world to the board's clock every ``step_s`` (under ``lock``, the lock the board's server holds while it
-    touches the board) and POSTs the samples in batches of ``batch_s`` to ``push_url``
-    (:class:`hil.sources.phone_push.PhonePushSender`). A push nobody receives is counted, never fatal: a
-    phone keeps streaming while the host restarts. An error in the thread is stored and raised by
-    :meth:`check` / :meth:`close`."""
+    in-process emulator) and streams its phone the way a phone app does: a thread advances the world to
+    the board's clock every ``step_s`` (under ``lock``, the lock the board's server holds while it touches
+    the board) and sends the samples to ``phone_url`` (:func:`hil.sources.open_sender`: SensaGram's UDP
+    datagrams, or Sensor Logger's HTTP Push batches). The sender's ``batch_s`` sets how often: each step
+    for UDP, as an app batches for HTTP. A send nobody receives is counted, never fatal: a phone keeps
+    streaming while the host restarts. An error in the thread is stored and raised by :meth:`check` /
+    :meth:`close`."""
 
     def __init__(
-        self, world: World, lock: threading.RLock | threading.Condition, push_url: str,
-        step_s: float = 0.005, batch_s: float = 0.02,
-    ) -> None:  # fmt: skip
-        from hil.sources.phone_push import PhonePushSender
+        self, world: World, lock: threading.RLock | threading.Condition, phone_url: str, step_s: float = 0.005
+    ) -> None:
+        from hil.sources import open_sender
 
         self.world = world
         self.lock = lock
-        self.sender = PhonePushSender(push_url)
+        self.sender = open_sender(phone_url)
         self.step_s = step_s
-        self.batch_s = batch_s
+        self.batch_s = self.sender.batch_s
         self.batches = 0
+        self.max_lag_s = 0.0  # the furthest the world fell behind the board's clock (s)
         self._stop = threading.Event()
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="world", daemon=True)
@@ -188,22 +191,29 @@ class WorldStreamer:
         return self
 
     def _run(self) -> None:
-        clock = self.world.board.clock
+        clock, world = self.world.board.clock, self.world
         try:
             pending: list[SensorSample] = []
-            next_step = next_push = clock.now()
+            origin = next_push = clock.now()
+            k = 0
             while not self._stop.is_set():
-                next_step += self.step_s
-                clock.sleep_until(next_step)
-                with self.lock:
-                    pending += self.world.advance_to(clock.now())
-                if clock.now() >= next_push + self.batch_s and pending:
+                k += 1
+                clock.sleep_until(origin + k * self.step_s)
+                target = clock.now()
+                self.max_lag_s = max(self.max_lag_s, target - world.now)
+                # At most step_s of world per hold of the board's lock, then let its server in: a world
+                # that runs behind (a loaded machine) must slow the phone, never starve the board's link.
+                while world.now + world.step_s <= target + 1e-9 and not self._stop.is_set():
+                    with self.lock:
+                        pending += world.advance_to(min(target, world.now + self.step_s))
+                    if world.now + world.step_s <= target + 1e-9:
+                        time.sleep(YIELD_S)  # a real pause: a released lock is re-taken at once otherwise
+                if pending and clock.now() >= next_push + self.batch_s:
                     next_push = clock.now()
                     self.sender.send(pending)
                     self.batches += 1
                     pending = []
-                if next_step < clock.now() - 10 * self.step_s:  # fell behind (a loaded machine): catch up
-                    next_step = clock.now()
+                k = max(k, int((clock.now() - origin) / self.step_s))  # missed steps skipped, never burst
         except BaseException as exc:  # stored, raised by check(): threads never die silently
             self._error = exc
             logger.exception("world thread failed")

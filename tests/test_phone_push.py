@@ -77,7 +77,7 @@ def test_malformed_batches_are_input_format_errors_naming_the_source(body):
 
 
 def test_a_sender_streams_to_the_receiver_over_loopback_http():
-    with PhonePushServer(port=0) as server:
+    with PhonePushServer("http://127.0.0.1:0/") as server:
         sender = PhonePushSender(server.url)
         sent = []
         for k in range(20):
@@ -97,7 +97,7 @@ def test_a_sender_streams_to_the_receiver_over_loopback_http():
 
 
 def test_garbage_is_answered_400_counted_and_the_receiver_keeps_serving():
-    with PhonePushServer(port=0) as server:
+    with PhonePushServer("http://127.0.0.1:0/") as server:
         host, port = server.url.split("//")[1].split("/")[0].split(":")
         conn = http.client.HTTPConnection(host, int(port), timeout=2)
         conn.request("POST", "/", b"{broken", {"Content-Type": "application/json"})
@@ -112,7 +112,7 @@ def test_garbage_is_answered_400_counted_and_the_receiver_keeps_serving():
 
 
 def test_a_sender_survives_a_receiver_restart_and_counts_the_failure():
-    server = PhonePushServer(port=0)
+    server = PhonePushServer("http://127.0.0.1:0/")
     url = server.url
     port = int(url.rsplit(":", 1)[1].rstrip("/"))
     sender = PhonePushSender(url, timeout_s=0.5)
@@ -123,7 +123,7 @@ def test_a_sender_survives_a_receiver_restart_and_counts_the_failure():
     deadline = time.monotonic() + 5
     while True:
         try:
-            server = PhonePushServer(port=port)
+            server = PhonePushServer(f"http://127.0.0.1:{port}/")
             break
         except LinkError:
             assert time.monotonic() < deadline
@@ -136,8 +136,8 @@ def test_a_sender_survives_a_receiver_restart_and_counts_the_failure():
 def test_bad_urls_and_busy_ports_are_link_errors():
     with pytest.raises(LinkError, match="http://"):
         PhonePushSender("udp://127.0.0.1:9")
-    with PhonePushServer(port=0) as server:
+    with PhonePushServer("http://127.0.0.1:0/") as server:
         port = int(server.url.rsplit(":", 1)[1].rstrip("/"))
         with pytest.raises(LinkError, match=str(port)):
-            PhonePushServer(port=port)
+            PhonePushServer(f"http://127.0.0.1:{port}/")
     assert math.isfinite(port)

@@ -1,4 +1,5 @@
-"""``hil replay``: run a recorded phone log through the merge, pre-filter and the paper's estimator."""
+"""``hil replay``: run a recorded phone log through the merge, pre-filter and the paper's estimator, and
+optionally drive a board with the controller's output (``--port``)."""
 
 from __future__ import annotations
 
@@ -18,9 +19,17 @@ examples:
   hil replay phyphox.zip --lat 52.52 --lon 13.40 --date 2025-06-01   # true north from WMM2025
   hil replay log.csv --paced                                   # in real time, on the log's clock
 
+  # drive a board: the controller holds the attitude estimated after the warm-up against the log's
+  # motion, its commands go to the board in real time; a run directory as `hil run` writes
+  hil replay ../shared/data/sensorlogger-android --port /tmp/vscmg          # firmware-sim on a pty
+  hil replay trial.mat --port /dev/ttyACM0 --scenario paper-testbed        # a real board, 3 units
+  hil replay log.csv --port "emu://?units=4"                               # in-process board, lockstep
+
 writes OUT/estimates.csv (t_s, quaternion body->ENU, rate estimate, flags), OUT/summary.json and figures:
 attitude_error.png and rate_error.png (the paper's two) when the log has ground truth, attitude.png and
 rates.png always. formats: csv, sensorlogger, phyphox, tyrex, broad (detected when not given).
+with --port: a run directory under --out (default runs/): telemetry.csv, events.jsonl, summary.json,
+plots/ (`hil report` redraws them); --paced, --progress and the estimates CSV do not apply.
 """
 
 
@@ -58,6 +67,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--paced", action="store_true", help="release steps at the log's pace (wall clock)")
     p.add_argument("--no-plots", action="store_true", help="write the CSV and summary only")
     p.add_argument("--progress", action="store_true", help="progress bar even when stderr is not a terminal")
+    board = p.add_argument_group("driving a board")
+    board.add_argument("--port", metavar="URL", help="drive the board at URL (a hil run transport URL)")
+    board.add_argument(
+        "--scenario", default="cubesat-1u", metavar="NAME|FILE",
+        help="with --port: the spacecraft, array and controller (default cubesat-1u)",
+    )  # fmt: skip
+    board.add_argument(
+        "--lockstep", action="store_true", help="with --port emu://...: simulated time (the default there)"
+    )
     p.set_defaults(func=run)
 
 
@@ -96,7 +114,10 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"not a YYYY-MM-DD date: {args.date!r}", "hil replay --date") from None
         field_model = FieldModel(args.lat, args.lon, decimal_year(when))
-    out = args.out or Path(f"replay-{args.log.resolve().name.removesuffix('.zip')}")
+    name = args.log.resolve().name.removesuffix(".zip")
+    if args.port is not None:
+        return _drive(args, name, field_model)
+    out = args.out or Path(f"replay-{name}")
     show = args.progress or sys.stderr.isatty()
     options = ReplayOptions(
         out_dir=out,
@@ -129,3 +150,44 @@ def run(args: argparse.Namespace) -> int:
     for name, path in result.files.items():
         print(f"  {name}: {path}")
     return 0
+
+
+def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
+    """``--port``: the log as the phone of a run that drives the board (hil.runtime)."""
+    from hil.cli.run import LiveProgress, format_summary
+    from hil.logs import read_log
+    from hil.logs.replay import ReplayOptions, configure
+    from hil.runtime import ReplayInput, RunOptions
+    from hil.runtime import run as run_scenario
+    from hil.scenario import load_scenario
+    from protocol.errors import ConfigError
+
+    if args.paced:
+        raise ConfigError("a board is always driven on the clock: leave out --paced", "hil replay --port")
+    scenario = load_scenario(args.scenario)
+    log = read_log(args.log, args.format)
+    if args.window:
+        log = log.window(*args.window)
+    options = ReplayOptions(
+        out_dir=Path("."), preset=args.preset, inclination_deg=args.inclination,
+        declination_deg=args.declination, field_model=field_model, gyro_bias=args.gyro_bias,  # type: ignore[arg-type]
+    )  # fmt: skip
+    config, setup = configure(log, options)
+    print(
+        f"{log.source} ({log.format}): {log.n_samples} samples over {log.end - log.start:.1f} s",
+        file=sys.stderr,
+    )
+    for line in setup:
+        print(f"  {line}", file=sys.stderr)
+    result = run_scenario(
+        scenario,
+        RunOptions(
+            port=args.port, lockstep=True if args.lockstep else None, out_root=args.out or Path("runs"),
+            plots=not args.no_plots, progress=LiveProgress(), label=f"replay-{name}",
+            replay=ReplayInput(log, config, tuple(setup)),
+        ),
+    )  # fmt: skip
+    print(file=sys.stderr)
+    print(format_summary(result.summary))
+    print(f"run directory: {result.run_dir}")
+    return 0 if result.summary.get("exit") == "completed" else 1

@@ -17,10 +17,11 @@ examples:
 
   # two terminals: the emulated board with its world on a pty, then the host against it
   firmware-sim --world cubesat-1u --link /tmp/vscmg
-  hil run --port /tmp/vscmg                         # listens for the world's phone on 127.0.0.1:8123
+  hil run --port /tmp/vscmg                         # listens for the world's phone on udp://127.0.0.1:8123
 
-  hil run --port "spawn://firmware-sim?world=cubesat-1u&phone_push=http://127.0.0.1:8123/"
-  hil run --port /dev/ttyACM0 --phone 0.0.0.0:8123  # a real board; a phone's Sensor Logger pushes here
+  hil run --port "spawn://firmware-sim?world=cubesat-1u&phone=udp://127.0.0.1:8123"
+  hil run --port /dev/ttyACM0 --phone udp://0.0.0.0:8123         # a real board; SensaGram streams here
+  hil run --port /dev/ttyACM0 --phone http://0.0.0.0:8123/       # ... or Sensor Logger's HTTP Push
 
 writes RUN_DIR/telemetry.csv (one row per control tick), events.jsonl, summary.json, scenario.toml and
 plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/scenarios/.
@@ -42,7 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     timing = p.add_mutually_exclusive_group()
     timing.add_argument("--realtime", action="store_true", help="wall clock (default with --port)")
     timing.add_argument("--lockstep", action="store_true", help="simulated time (default without --port)")
-    p.add_argument("--phone", default="127.0.0.1:8123", metavar="HOST:PORT", help="phone stream listen at")
+    p.add_argument(
+        "--phone", default="udp://127.0.0.1:8123", metavar="URL",
+        help="with --port: listen for the phone here (udp://HOST:PORT: SensaGram, the default "
+        "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md)",
+    )  # fmt: skip
     p.add_argument(
         "--phone-wait", type=float, default=10.0, metavar="S", help="with --port: wait S s for the phone"
     )
@@ -52,23 +57,27 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 class LiveProgress:
-    """One status line on stderr, refreshed every half simulated second."""
+    """One status line on stderr, refreshed every half simulated second on a terminal; elsewhere (a log
+    file, CI) a line every 5 simulated seconds."""
 
-    def __init__(self, stream=sys.stderr) -> None:  # type: ignore[no-untyped-def]
-        self.stream = stream
+    def __init__(self, stream=None) -> None:  # type: ignore[no-untyped-def]
+        self.stream = sys.stderr if stream is None else stream  # looked up now: tests swap sys.stderr
+        self.tty = self.stream.isatty()
+        self.every = 0.5 if self.tty else 5.0
         self.next_t = 0.0
 
     def __call__(self, host, t: float) -> None:  # type: ignore[no-untyped-def]
         if t < self.next_t:
             return
-        self.next_t = t + 0.5
+        self.next_t = t + self.every
         trace = host.trace["point_err_deg"]
         err = f"{trace[-1]:7.3f}°" if trace else "    -   "
-        est = host.estimate
+        waiting = "" if host.estimate is not None else "  (waiting for the phone)"
+        start, end = ("\r", "   ") if self.tty else ("", "\n")
         self.stream.write(
-            f"\r t {t:6.1f} s  {host.phase.name:<6}  pointing error {err}  "
+            f"{start} t {t:6.1f} s  {host.phase.name:<6}  pointing error {err}  "
             f"estimator steps {host.counters.estimator_steps:6d}  failsafes {host.counters.failsafe_events}"
-            f"{'' if est is not None else '  (waiting for the phone)'}   "
+            f"{waiting}{end}"
         )
         self.stream.flush()
 

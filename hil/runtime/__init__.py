@@ -2,6 +2,15 @@
 estimator and controller (:mod:`hil.runtime.host`)."""
 
 from hil.runtime.host import Host, Phase, TruthSample, telemetry_columns
-from hil.runtime.loop import RunOptions, RunResult, run
+from hil.runtime.loop import ReplayInput, RunOptions, RunResult, run
 
-__all__ = ["Host", "Phase", "RunOptions", "RunResult", "TruthSample", "run", "telemetry_columns"]
+__all__ = [
+    "Host",
+    "Phase",
+    "ReplayInput",
+    "RunOptions",
+    "RunResult",
+    "TruthSample",
+    "run",
+    "telemetry_columns",
+]

@@ -14,6 +14,10 @@ Phases (``telemetry.csv`` column ``phase``):
    its rate and acceleration limits, tracked by the geometric controller;
 2. **hold** — the reference stays at the target.
 
+With ``hold=True`` (``hil replay --port``: a recorded phone's motion, which the actuators cannot change)
+the target is the attitude estimated at the end of the warm-up: the controller then commands what it
+takes to hold that attitude against the recorded motion.
+
 The run ends ``duration_s`` after the slew started. A board in FAILSAFE (link watchdog) or reset is
 re-armed as soon as the link answers again; each such episode is counted and logged.
 """
@@ -105,6 +109,8 @@ class Host:
     events: EventLog
     truth: Callable[[], TruthSample | None] = lambda: None
     duration_s: float | None = None
+    filter_config: Any = None  # the estimator's FilterConfig (default: the scenario's phone)
+    hold: bool = False  # target the attitude estimated at the end of the warm-up, not the scenario's
     counters: HostCounters = field(default_factory=HostCounters)
 
     def __post_init__(self) -> None:
@@ -117,7 +123,7 @@ class Host:
         self.params = sc.spacecraft
         plant = Plant(self.params)
         state0 = plant.state(gimbal_angle=sc.slew.gimbal_angle0)
-        self.filter = AttitudeFilter(sc.filter_config())
+        self.filter = AttitudeFilter(self.filter_config or sc.filter_config())
         self.merger = Merger()
         self.controller = AttitudeController(plant.locked_inertia(state0)[0], loop.gains)
         self.steering = VscmgSteering(self.params, loop.steering)
@@ -130,6 +136,7 @@ class Host:
         self.bias_samples: list[Array] = []  # raw gyro samples over the still window's second half
         self._collecting_bias = False
         self.gyro_bias = np.zeros(3)  # measured over the still window, removed by the filter from then on
+        self.target: Array | None = None if self.hold else sc.slew.R_target
         self.slew: EigenaxisSlew | None = None
         self.slew_start: float | None = None
         self.finished = False
@@ -227,13 +234,14 @@ class Host:
                 self.filter.set_gyro_bias(self.gyro_bias)
             R_hat = np.asarray(self.estimate.R)
             sl = self.scenario.slew
-            self.slew = EigenaxisSlew.within_limits(R_hat, sl.R_target, sl.max_rate, sl.max_accel, start_s=t)
+            self.target = R_hat.copy() if self.hold else sl.R_target
+            self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
             self.slew_start = t
             self.setpoints.reset(rotor)
             self.controller.reset()
             self.phase = Phase.SLEW
             self.events.write(
-                t, "slew_start", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ sl.R_target)),
+                t, "slew_start", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ self.target)),
                 slew_s=self.slew.duration_s, gyro_bias=self.gyro_bias.tolist(),
             )  # fmt: skip
 
@@ -292,7 +300,7 @@ class Host:
     ) -> None:  # fmt: skip
         truth = self.truth()
         est = self.estimate
-        target = self.scenario.slew.R_target
+        target = self.target
         row: dict[str, Any] = {"t": t, "phase": int(self.phase)}
         R_att = truth.R if truth is not None else (None if est is None else np.asarray(est.R))
         if est is not None:
@@ -309,7 +317,7 @@ class Host:
         if truth is not None:
             row.update(zip(("true_rx", "true_ry", "true_rz"), so3.log(truth.R), strict=True))
             row.update(zip(("true_wx", "true_wy", "true_wz"), truth.omega, strict=True))
-        if R_att is not None:
+        if R_att is not None and target is not None:
             row["point_err_deg"] = math.degrees(so3.principal_angle(R_att.T @ target))
             if ref is not None:
                 row["track_err_deg"] = math.degrees(so3.principal_angle(R_att.T @ ref.R))

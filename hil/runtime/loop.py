@@ -1,18 +1,23 @@
 """One closed-loop run, end to end: board link, phone stream, estimator and control tasks on one
 :class:`hil.scheduler.Scheduler`, the run directory.
 
-Three ways to run, one host (:class:`hil.runtime.host.Host`):
+Four ways to run, one host (:class:`hil.runtime.host.Host`):
 
 - **lockstep** (the built-in emulator, ``hil run``'s default): the board (``emu://``) and the world
   (:class:`firmware_sim.world.World`) live in this process on a :class:`LockstepClock`; a world task steps
   the plant every ``plant_step_s`` and hands the phone's samples over in-process. As fast as the CPU allows,
   and deterministic.
 - **real time, built-in emulator** (``--realtime``): the same board on the wall clock; the world runs in its
-  own thread and streams the phone over HTTP on loopback, the way the Sensor Logger app streams
-  (:mod:`hil.sources.phone_push`) — the live-phone path exercised for real.
+  own thread and streams the phone over UDP on loopback, the way the SensaGram app streams
+  (:mod:`hil.sources`) — the live-phone path exercised for real.
 - **real time, a port** (``--port URL``: ``firmware-sim --world`` on a pty, a real board, CAN, ...): the host
-  listens for the phone stream on ``--phone HOST:PORT`` (from ``firmware-sim --world`` or a real phone).
+  listens for the phone stream on ``--phone URL`` (``udp://HOST:PORT`` for SensaGram or
+  ``firmware-sim --world``, ``http://HOST:PORT/`` for Sensor Logger's HTTP Push).
   There is no truth: the estimate stands in for it in the pointing error.
+- **a recording drives a board** (``hil replay LOG --port URL``): the phone is a recorded log played on the
+  run's clock (:class:`hil.sources.recorded.RecordedSource`), the controller holds the attitude estimated
+  at the end of the warm-up against the recorded motion, and the board (a port in real time, or ``emu://``
+  in lockstep) carries out the commands; the log's ground truth, if it has one, is the truth.
 
 Tasks: ``estimator`` at the fastest sensor's rate (drains the samples that arrived; the merger holds the
 last sample of the slower sensors), ``control`` at the control rate (board events, control, setpoint,
@@ -26,16 +31,19 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from hil.clock import Clock, LockstepClock, WallClock
+from hil.estimator import FilterConfig
 from hil.runlog import CsvLog, EventLog, new_run_dir, write_summary
 from hil.runtime.host import Host, TruthSample, telemetry_columns
 from hil.scenario import Scenario
 from hil.scheduler import PeriodicTask, Scheduler
-from hil.sensors import SensorSample
+from hil.sensors import SensorLog, SensorSample
+from hil.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
+from hil.sources.recorded import RecordedSource
 from protocol.errors import ConfigError, HilError, LinkTimeout
 
 logger = logging.getLogger(__name__)
@@ -46,23 +54,37 @@ Progress = Callable[[Host, float], None]
 SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by Host.MAX_SPINUP_S)
 
 
+@dataclass(frozen=True)
+class ReplayInput:
+    """A recorded phone log as the run's phone (``hil replay LOG --port URL``): the log and the estimator
+    configured for it (:func:`hil.logs.replay.configure`: inertial directions and gyro bias from the log);
+    ``setup`` says what was configured."""
+
+    log: SensorLog
+    filter_config: FilterConfig
+    setup: tuple[str, ...] = ()
+
+
 @dataclass
 class RunOptions:
-    """``port``: a transport URL, None for the built-in emulator; ``lockstep``: None picks lockstep for the
-    built-in emulator and real time for a port (a port cannot run in lockstep); ``duration_s`` overrides the
-    scenario's (from the slew's start); ``phone``: HOST:PORT the host listens on for the phone stream in real
-    time (port 0: any free port, for the built-in emulator); ``phone_wait_s``: how long to wait for the first
-    phone samples on a port before giving up."""
+    """``port``: a transport URL, None for the built-in emulator and its world; ``lockstep``: None picks
+    lockstep for the built-in emulator (and for a replay against ``emu://``), real time otherwise (a real
+    port cannot run in lockstep); ``duration_s`` overrides the scenario's (from the slew's start);
+    ``phone``: where the host listens for the phone stream with a port (:func:`hil.sources.phone_url`:
+    ``udp://HOST:PORT`` or ``http://HOST:PORT/``); ``phone_wait_s``: how long to wait for the first phone
+    samples on a port before giving up; ``replay``: take the phone from a recorded log instead (needs a
+    port), the controller holding the attitude estimated at the end of the warm-up."""
 
     port: str | None = None
     lockstep: bool | None = None
     duration_s: float | None = None
     out_root: Path = Path("runs")
-    phone: str = "127.0.0.1:8123"
+    phone: str = DEFAULT_PHONE_URL
     phone_wait_s: float = 10.0
     plots: bool = True
     progress: Progress | None = None
     label: str | None = None
+    replay: ReplayInput | None = None
 
 
 @dataclass
@@ -71,29 +93,59 @@ class RunResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class _Plan:
+    """Where the phone comes from (``world``: the built-in emulator's; ``phone``: a live stream on a port;
+    ``log``: a recording) and on which clock."""
+
+    source: str
+    lockstep: bool
+
+    @property
+    def mode(self) -> str:
+        return "lockstep" if self.lockstep else ("realtime" if self.source == "world" else "port")
+
+
+def _plan(opts: RunOptions) -> _Plan:
+    if opts.replay is not None:
+        if opts.port is None:
+            raise ConfigError(
+                "a replay drives a board: give its port (emu://... for the in-process one)", "run"
+            )
+        in_process = opts.port.startswith("emu://")
+        lockstep = in_process if opts.lockstep is None else opts.lockstep
+        if lockstep and not in_process:
+            raise ConfigError("a replay runs in lockstep only against the in-process board (emu://)", "run")
+        return _Plan("log", lockstep)
+    if opts.port is None:
+        return _Plan("world", True if opts.lockstep is None else opts.lockstep)
+    if opts.lockstep:
+        raise ConfigError("lockstep needs the built-in emulator (leave out --port, or use --realtime)", "run")
+    return _Plan("phone", False)
+
+
 def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     """Play ``scenario`` once and write its run directory; see the module docstring. Errors (a port that
     cannot be opened, a board that does not answer, no phone stream) are raised after the summary with
     the exit reason is written; a Ctrl-C ends the run early with a complete summary."""
     opts = options or RunOptions()
-    lockstep = opts.port is None if opts.lockstep is None else opts.lockstep
-    if lockstep and opts.port is not None:
-        raise ConfigError("lockstep needs the built-in emulator (leave out --port, or use --realtime)", "run")
+    plan = _plan(opts)
     run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
     (run_dir / "scenario.toml").write_text(scenario.source)
     telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units))
     events = EventLog(run_dir / "events.jsonl")
-    mode = "lockstep" if lockstep else ("realtime" if opts.port is None else "port")
-    summary: dict[str, Any] = {"mode": mode, "port": opts.port}
+    summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
+    if opts.replay is not None:
+        summary["replay"] = {"log": opts.replay.log.source, "format": opts.replay.log.format,
+                             "setup": list(opts.replay.setup)}  # fmt: skip
     started = time.monotonic()
-    host: Host | None = None
-    scheduler: Scheduler | None = None
+    built: _Built | None = None
     error: BaseException | None = None
     try:
         with contextlib.ExitStack() as stack:
-            host, scheduler = _build(scenario, opts, mode, telemetry, events, stack)
-            scheduler.run(until=_time_limit(scenario, opts, scheduler.origin))
-            summary["exit"] = "completed" if host.finished else "time limit (the slew never started)"
+            built = _build(scenario, opts, plan, telemetry, events, stack)
+            built.scheduler.run(until=built.until)
+            summary["exit"] = "completed" if built.host.finished else "time limit (the slew never started)"
     except KeyboardInterrupt:
         summary["exit"] = "interrupted"
     except BaseException as exc:
@@ -101,10 +153,14 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         error = exc
     finally:
         summary["wall_s"] = time.monotonic() - started
-        if host is not None:
-            summary.update(host.summary())
-            summary["link"] = _link_stats(host)
-        if scheduler is not None:
+        if built is not None:
+            summary.update(built.host.summary())
+            summary["link"] = _link_stats(built.host)
+            if built.phone is not None:
+                summary["phone"] = {"url": built.phone.url, **asdict(built.phone.stats)}
+            if built.recorded is not None:
+                summary["replay"]["samples_released"] = built.recorded.released
+            scheduler = built.scheduler
             summary["tasks"] = scheduler.summary()
             summary["sim_s"] = scheduler.clock.now() - scheduler.origin
             if summary["wall_s"] > 0:
@@ -121,29 +177,32 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     return RunResult(run_dir, summary)
 
 
-def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:
-    duration = scenario.slew.duration_s if opts.duration_s is None else opts.duration_s
-    return origin + scenario.loop.warmup_s + duration + SPINUP_ALLOWANCE_S
+@dataclass
+class _Built:
+    host: Host
+    scheduler: Scheduler
+    until: float  # clock time (s) at which the run ends whatever happened
+    phone: PhoneReceiver | None = None
+    recorded: RecordedSource | None = None
 
 
 def _build(
-    scenario: Scenario, opts: RunOptions, mode: str, telemetry: CsvLog, events: EventLog,
+    scenario: Scenario, opts: RunOptions, plan: _Plan, telemetry: CsvLog, events: EventLog,
     stack: contextlib.ExitStack,
-) -> tuple[Host, Scheduler]:  # fmt: skip
-    """Board client, world or phone stream, host and scheduler for ``mode``; everything opened is closed
-    by ``stack``."""
+) -> _Built:  # fmt: skip
+    """Board client, phone source (world, live stream or recording), host and scheduler for ``plan``;
+    everything opened is closed by ``stack``."""
     from hil.board import BoardClient
     from hil.transports.emulator import EmulatorTransport
 
-    clock: Clock = LockstepClock() if mode == "lockstep" else WallClock()
+    clock: Clock = LockstepClock() if plan.lockstep else WallClock()
     truth: Callable[[], TruthSample | None] = lambda: None  # noqa: E731
-    world = None
-    if mode == "port":
-        assert opts.port is not None
-        client = BoardClient(opts.port, clock=clock)
-    else:
+    if plan.source == "world":
         link = EmulatorTransport(scenario.emulator_url(), clock)
         client = BoardClient(link, clock=clock)
+    else:
+        assert opts.port is not None
+        client = BoardClient(opts.port, clock=clock)
     stack.callback(client.close)
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
     info = client.connect()
@@ -152,55 +211,86 @@ def _build(
         raise ConfigError(
             f"the board has {info.n_units} units, the scenario's spacecraft {scenario.n_units}", "run --port"
         )
-    pending: list[SensorSample] = []
+    phone: PhoneReceiver | None = None
+    recorded: RecordedSource | None = None
+    world: Any = None
     drain: Callable[[], list[SensorSample]]
-    if mode != "lockstep":
-        from hil.sources.phone_push import PhonePushServer
-
-        host_name, port = _split_address(opts.phone if mode == "port" else "127.0.0.1:0")
-        server = PhonePushServer(host_name, port)
-        stack.callback(server.close)
-        drain = server.drain
-        events.write(clock.now(), "phone_listening", url=server.url)
-    if mode != "port":
+    if plan.source == "phone" or (plan.source == "world" and not plan.lockstep):
+        phone = open_receiver(opts.phone if plan.source == "phone" else "udp://127.0.0.1:0")
+        stack.callback(phone.close)
+        drain = phone.drain
+        events.write(clock.now(), "phone_listening", url=phone.url)
+    if plan.source == "world":
         from firmware_sim.world import World
 
-        link_board = link.board
         with link.lock:
-            world = World(scenario, link_board)
+            world = World(scenario, link.board)
         lock = link.lock
 
         def truth() -> TruthSample:
             with lock:
                 return TruthSample(world.state.R[0].copy(), world.state.omega[0].copy())
 
-    if mode == "realtime":
+    if plan.source == "world" and not plan.lockstep:
         import sys
 
         from firmware_sim.world import WorldStreamer
 
+        assert phone is not None
+        receiver = phone
         # The world thread shares this interpreter: hand the GIL over every 0.5 ms (default 5 ms), so a
         # control deadline waits at most that long for it.
         stack.callback(sys.setswitchinterval, sys.getswitchinterval())
         sys.setswitchinterval(5e-4)
-
-        assert world is not None
-        streamer = WorldStreamer(world, link.lock, server.url).start()
+        streamer = WorldStreamer(world, link.lock, phone.url).start()
         stack.callback(streamer.close)
-    host = Host(scenario, client, telemetry, events, truth, opts.duration_s)
+        stack.callback(lambda: events.write(clock.now(), "world_end", max_lag_ms=streamer.max_lag_s * 1e3))
+
+        def drain() -> list[SensorSample]:
+            streamer.check()  # the world thread's error, raised here
+            return receiver.drain()
+
+    replay = opts.replay
+    duration = opts.duration_s
+    if replay is not None:  # the recording's own still window gave the gyro bias: no calibration here
+        scenario = scenario.with_changes(loop=replace(scenario.loop, calibrate_rate_bias=False))
+        duration = replay.log.end - replay.log.start  # the recording sets the end, not the host
+        recorded = source = RecordedSource(replay.log)
+
+        def drain() -> list[SensorSample]:
+            return source.drain(clock.now())
+
+        def truth() -> TruthSample | None:
+            found = source.truth(clock.now())
+            return None if found is None else TruthSample(*found)
+
+    host = Host(
+        scenario, client, telemetry, events, truth, duration,
+        filter_config=None if replay is None else replay.filter_config, hold=replay is not None,
+    )  # fmt: skip
+    if plan.source == "phone":  # before arming: the board's link watchdog is not fed while we wait
+        assert phone is not None
+        _wait_for_phone(phone, opts.phone_wait_s)
     client.arm()
     events.write(clock.now(), "armed")
-    if mode == "port":
-        _wait_for_phone(server, opts.phone_wait_s, pending)
-    if mode == "lockstep":
-        assert world is not None
+    origin = clock.now()
+    until = _time_limit(scenario, opts, origin)
+    estimator_hz = estimator_rate_hz(scenario)
+    pending: list[SensorSample] = []
+    if plan.source == "world" and plan.lockstep:
 
         def drain() -> list[SensorSample]:
             out = pending.copy()
             pending.clear()
             return out
 
-    origin = clock.now()
+    if recorded is not None:
+        assert replay is not None
+        recorded.start(origin)
+        until = recorded.end + 2.0 / scenario.loop.control_rate_hz  # the tick after the last sample ends it
+        estimator_hz = 1.0 / min(s.median_period() for s in replay.log.streams.values())
+        events.write(origin, "replay_start", log=replay.log.source, until=until)
+
     scheduler_ref: list[Scheduler] = []
 
     def estimator_task(_due: float) -> None:
@@ -210,15 +300,16 @@ def _build(
         host.tick(clock.now(), client.service())
         if opts.progress is not None:
             opts.progress(host, clock.now() - origin)
+        if recorded is not None and recorded.exhausted:
+            host.finished = True  # the whole recording was played
         if host.finished:
             scheduler_ref[0].stop()
 
     tasks = [
-        PeriodicTask("estimator", 1.0 / estimator_rate_hz(scenario), estimator_task),
+        PeriodicTask("estimator", 1.0 / estimator_hz, estimator_task),
         PeriodicTask("control", 1.0 / scenario.loop.control_rate_hz, control_task),
     ]
-    if mode == "lockstep":
-        assert world is not None
+    if plan.source == "world" and plan.lockstep:
         w = world
 
         def world_task(_due: float) -> None:
@@ -227,28 +318,28 @@ def _build(
         tasks.insert(0, PeriodicTask("world", scenario.loop.plant_step_s, world_task))
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
-    return host, scheduler
+    return _Built(host, scheduler, until, phone, recorded)
 
 
-def _wait_for_phone(server: Any, wait_s: float, pending: list[SensorSample]) -> None:
+def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:
+    duration = scenario.slew.duration_s if opts.duration_s is None else opts.duration_s
+    return origin + scenario.loop.warmup_s + duration + SPINUP_ALLOWANCE_S
+
+
+def _wait_for_phone(server: PhoneReceiver, wait_s: float) -> None:
     """The first phone samples within ``wait_s`` (wall clock), or a clear error saying where to send them."""
     end = time.monotonic() + wait_s
     while time.monotonic() < end:
+        server.check()
         if server.stats.samples:
             return
         time.sleep(0.05)
+    st = server.stats
+    bad = f" ({st.bad_messages} unreadable, the last: {st.last_error})" if st.bad_messages else ""
     raise LinkTimeout(
-        f"no phone samples on {server.url} within {wait_s:.0f} s: start `firmware-sim --world SCENARIO` "
-        "(it pushes its simulated phone there) or point a phone's Sensor Logger HTTP Push at it"
+        f"no phone samples on {server.url} within {wait_s:.0f} s{bad}: start `firmware-sim --world SCENARIO "
+        f"--phone {server.url}` (it streams its simulated phone there) or point {server.app} on a phone at it"
     )
-
-
-def _split_address(address: str) -> tuple[str, int]:
-    host, _, port = address.rpartition(":")
-    try:
-        return host or "127.0.0.1", int(port)
-    except ValueError:
-        raise ConfigError(f"{address!r} is not HOST:PORT", "--phone") from None
 
 
 def _link_stats(host: Host) -> dict[str, Any]:
@@ -256,8 +347,6 @@ def _link_stats(host: Host) -> dict[str, Any]:
         stats = host.client.stats()
     except HilError:
         return {}
-    from dataclasses import asdict
-
     return asdict(stats)
 
 

@@ -31,14 +31,13 @@ import math
 import socket
 import threading
 import time
-from collections import deque
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 from urllib.parse import urlsplit
 
 from hil.sensors import SensorKind, SensorSample
+from hil.sources.stream import MAX_QUEUE, PhoneReceiver
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)
@@ -50,25 +49,20 @@ NAMES: dict[str, SensorKind] = {
 }
 _NAME_OF = {kind: name for name, kind in NAMES.items()}
 MAX_BODY = 4 * 1024 * 1024  # bytes: a batch larger than this is refused (413), not buffered
-MAX_QUEUE = 200_000  # samples held for the consumer; beyond this the oldest are dropped and counted
 
 
 _Timed = tuple[float, tuple[float, float, float]]
 
 
-@dataclass
-class PushStats:
-    """What the receiver has seen; nothing it drops goes uncounted."""
-
-    messages: int = 0
-    samples: int = 0
-    bad_messages: int = 0  # not JSON, wrong shape (answered 400)
-    bad_entries: int = 0  # an entry without finite x, y, z or time
-    ignored_entries: int = 0  # other sensors (location, battery, …)
-    overflow: int = 0  # samples dropped because the consumer did not keep up
-    message_gaps: int = 0  # messageId jumps (batches lost in transit)
-    last_error: str = ""
-    per_kind: dict[str, int] = field(default_factory=dict)
+def _address(url: str) -> tuple[str, int, str]:
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme != "http" or not parts.hostname:
+        raise LinkError(f"{url}: a push URL must be http://HOST:PORT/PATH")
+    return parts.hostname, 80 if port is None else port, parts.path or "/"
 
 
 def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], int, int, int | None]:
@@ -124,7 +118,9 @@ def _reading(entry: dict[str, Any]) -> tuple[float, tuple[float, float, float]] 
     if not isinstance(values, dict) or isinstance(t_ns, bool) or not isinstance(t_ns, (int, float, str)):
         return None
     try:
-        t = float(t_ns) * 1e-9
+        # int / int is correctly rounded: t_s survives a round trip through integer nanoseconds
+        whole = isinstance(t_ns, int) or (isinstance(t_ns, str) and t_ns.isdigit())
+        t = (int(t_ns) if whole else float(t_ns)) / 1_000_000_000
         xyz = (float(values["x"]), float(values["y"]), float(values["z"]))
     except (KeyError, TypeError, ValueError):
         return None
@@ -163,21 +159,22 @@ def encode_push(samples: Iterable[SensorSample], message_id: int, session: str, 
     return json.dumps(doc, separators=(",", ":")).encode()
 
 
-class PhonePushServer:
-    """Receives Sensor Logger pushes on ``host:port`` (port 0 picks a free one; see :attr:`url`).
+class PhonePushServer(PhoneReceiver):
+    """Receives Sensor Logger pushes at ``http://HOST:PORT/PATH`` (port 0 picks a free one; see :attr:`url`).
 
     A background thread serves HTTP; :meth:`drain` hands the samples received so far to the consumer (the
-    runtime's sensor task). ``GET`` answers 200 so the app's "Tap to Test Pushing" button succeeds.
-    Errors in the serving thread are stored and raised by :meth:`check` — threads never die silently.
+    runtime's estimator task). ``GET`` answers 200 so the app's "Tap to Test Pushing" button succeeds; a
+    batch that cannot be read is answered 400 and counted. Errors in the serving thread are stored and
+    raised by :meth:`check` — threads never die silently.
     """
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 8000, path: str = "/") -> None:
-        self.stats = PushStats()
-        self.path = path
-        self._queue: deque[SensorSample] = deque()
-        self._lock = threading.Lock()
+    scheme = "http"
+    app = "Sensor Logger (HTTP Push)"
+
+    def __init__(self, url: str = "http://127.0.0.1:8123/", max_queue: int = MAX_QUEUE) -> None:
+        super().__init__(max_queue)
+        host, port, self.path = _address(url)
         self._last_id: int | None = None
-        self._error: BaseException | None = None
         self._connections: set[socket.socket] = set()
         server = self
 
@@ -197,6 +194,7 @@ class PhonePushServer:
             def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
                 length = int(self.headers.get("Content-Length") or 0)
                 if length > MAX_BODY:
+                    server._reject(f"a batch of {length} bytes is larger than {MAX_BODY}")
                     self._answer(413, "batch too large")
                     self.close_connection = True
                     return
@@ -228,8 +226,9 @@ class PhonePushServer:
 
     @property
     def url(self) -> str:
-        host, port = self._httpd.server_address[:2]
-        return f"http://{host}:{port}{self.path}"
+        host = self._httpd.server_address[0]
+        host = host.decode() if isinstance(host, bytes) else host
+        return f"http://{host}:{self._httpd.server_port}{self.path}"
 
     def _serve(self) -> None:
         try:
@@ -241,41 +240,15 @@ class PhonePushServer:
         try:
             samples, bad, ignored, message_id = decode_push(body, f"push from {peer}")
         except InputFormatError as exc:
-            with self._lock:
-                self.stats.bad_messages += 1
-                self.stats.last_error = str(exc)
+            self._reject(str(exc))
             logger.warning("%s", exc)
             return 400, str(exc)
         with self._lock:
-            st = self.stats
-            st.messages += 1
-            st.bad_entries += bad
-            st.ignored_entries += ignored
-            if message_id is not None and self._last_id is not None and message_id > self._last_id + 1:
-                st.message_gaps += message_id - self._last_id - 1
-            if message_id is not None:
-                self._last_id = message_id
-            for s in samples:
-                st.per_kind[s.kind.label] = st.per_kind.get(s.kind.label, 0) + 1
-            st.samples += len(samples)
-            self._queue.extend(samples)
-            excess = len(self._queue) - MAX_QUEUE
-            for _ in range(max(excess, 0)):
-                self._queue.popleft()
-            st.overflow += max(excess, 0)
+            last, self._last_id = self._last_id, message_id if message_id is not None else self._last_id
+            if message_id is not None and last is not None and message_id > last + 1:
+                self.stats.message_gaps += message_id - last - 1
+        self._deliver(samples, bad, ignored)
         return 200, "ok"
-
-    def drain(self) -> list[SensorSample]:
-        """Every sample received since the last call, in arrival order."""
-        self.check()
-        with self._lock:
-            out = list(self._queue)
-            self._queue.clear()
-        return out
-
-    def check(self) -> None:
-        if self._error is not None:
-            raise LinkError(f"phone push receiver failed: {self._error!r}") from self._error
 
     def close(self) -> None:
         """Stop serving, drop open (keep-alive) connections and release the port. Idempotent."""
@@ -289,12 +262,6 @@ class PhonePushServer:
             with contextlib.suppress(OSError):
                 conn.shutdown(socket.SHUT_RDWR)
 
-    def __enter__(self) -> PhonePushServer:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
 
 class PhonePushSender:
     """Sends batches to a push URL as the app does (keep-alive HTTP/1.1 POSTs with JSON bodies).
@@ -303,14 +270,17 @@ class PhonePushSender:
     keeps streaming while the host restarts.
     """
 
-    def __init__(self, url: str, session: str = "vscmg-hil-sim", device: str = "simulated-phone",
-                 timeout_s: float = 2.0) -> None:
-        parts = urlsplit(url)
-        if parts.scheme != "http" or not parts.hostname:
-            raise LinkError(f"{url}: a push URL must be http://HOST:PORT/PATH")
+    batch_s = 0.02  # s: the app's shortest batch period worth using
+
+    def __init__(
+        self,
+        url: str,
+        session: str = "vscmg-hil-sim",
+        device: str = "simulated-phone",
+        timeout_s: float = 2.0,
+    ) -> None:
         self.url = url
-        self._host, self._port = parts.hostname, parts.port or 80
-        self._path = parts.path or "/"
+        self._host, self._port, self._path = _address(url)
         self._timeout = timeout_s
         self._conn: http.client.HTTPConnection | None = None
         self.session, self.device = session, device

@@ -56,7 +56,7 @@ if TYPE_CHECKING:
 DEFAULT_START_TIMEOUT_S = 10.0
 _TERMINATE_GRACE_S = 3.0
 
-_PROCESS_ONLY = frozenset({"link", "duration", "avr", "eeprom", "no_hold", "verbose", "world", "phone_push"})
+_PROCESS_ONLY = frozenset({"link", "duration", "avr", "eeprom", "no_hold", "verbose", "world", "phone"})
 """firmware-sim options that only make sense for a separate process (a pty, a wall-clock run)."""
 _NEVER = frozenset({"can", "help"})
 """Options neither form takes: the spawned board is reached through its pty, not a CAN bus."""

@@ -1,0 +1,189 @@
+"""Live phone samples over UDP: the SensaGram app's stream, received and sent.
+
+*SensaGram* (Umer Farooq, Android 5+, GPL-3.0, on F-Droid and github.com/UmerCodez/SensaGram) sends one UDP
+datagram per Android ``SensorEvent`` to the address and port set in its settings: a JSON object ::
+
+    {"timestamp": 3925657519043709, "values": [0.31, -0.97, 10.04], "type": "android.sensor.accelerometer"}
+
+``timestamp`` is the event's ``SensorEvent.timestamp`` in nanoseconds (the phone's boot clock, not the
+epoch: every sensor shares it, so the rate mismatch survives), ``values`` the event's values, ``type`` the
+sensor's Android string type. Used here: ``android.sensor.accelerometer`` (m/s², gravity included),
+``android.sensor.gyroscope`` (rad/s) and ``android.sensor.magnetic_field`` (µT), all in the Android sensor
+frame (x screen right, y screen up, z out of the screen) — exactly what the estimator takes. Other types
+(``android.gps``, light, rotation vector, …) are ignored and counted. There is no batching, so the
+sensing latency is the network's; there is no sequence number, so a lost datagram is not noticed (the
+merger's gap and stale flags are what shows it).
+
+:class:`PhoneUdpReceiver` is the receiving end (the host); :class:`PhoneUdpSender` is the sending end (the
+emulator's simulated phone streams to the host exactly as the app would). Parsing is a pure function,
+:func:`decode_datagram`, tested without sockets.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import socket
+import threading
+from collections.abc import Sequence
+from urllib.parse import urlsplit
+
+from hil.sensors import SensorKind, SensorSample
+from hil.sources.stream import MAX_QUEUE, PhoneReceiver
+from protocol.errors import InputFormatError, LinkError
+
+logger = logging.getLogger(__name__)
+
+TYPES: dict[str, SensorKind] = {
+    "android.sensor.accelerometer": SensorKind.ACC,
+    "android.sensor.gyroscope": SensorKind.GYR,
+    "android.sensor.magnetic_field": SensorKind.MAG,
+}
+_TYPE_OF = {kind: name for name, kind in TYPES.items()}
+MAX_DATAGRAM = 65_507  # bytes: the largest UDP payload over IPv4
+
+
+def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
+    """One SensaGram datagram → its sample (seconds on the phone's clock), or None for another sensor.
+
+    A datagram that is not a JSON object with a string ``type``, or one of our sensors without an integer
+    or numeric ``timestamp`` and three finite ``values``, raises :class:`InputFormatError` naming ``source``.
+    """
+    try:
+        doc = json.loads(data)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputFormatError(f"not JSON ({exc})", source) from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("type"), str):
+        raise InputFormatError("expected a JSON object with a string 'type'", source)
+    kind = TYPES.get(doc["type"])
+    if kind is None:
+        return None
+    t_ns, values = doc.get("timestamp"), doc.get("values")
+    if isinstance(t_ns, bool) or not isinstance(t_ns, (int, float)):
+        raise InputFormatError(f"{doc['type']}: 'timestamp' must be a number of nanoseconds", source)
+    if not isinstance(values, list) or len(values) < 3:
+        raise InputFormatError(f"{doc['type']}: 'values' must be a list of 3 numbers", source)
+    try:
+        xyz = (float(values[0]), float(values[1]), float(values[2]))
+    except (TypeError, ValueError):
+        raise InputFormatError(f"{doc['type']}: 'values' must be numbers", source) from None
+    t = t_ns / 1_000_000_000  # int / int: correctly rounded, so t_s survives a round trip through ns
+    if not all(math.isfinite(v) for v in (t, *xyz)):
+        raise InputFormatError(f"{doc['type']}: time and values must be finite", source)
+    return SensorSample(t, kind, xyz)
+
+
+def encode_datagram(sample: SensorSample) -> bytes:
+    """The datagram SensaGram sends for ``sample`` (the inverse of :func:`decode_datagram`)."""
+    doc = {"timestamp": round(sample.t_s * 1e9), "values": list(sample.xyz), "type": _TYPE_OF[sample.kind]}
+    return json.dumps(doc, separators=(",", ":")).encode()
+
+
+def _address(url: str) -> tuple[str, int]:
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = None
+    if parts.scheme != "udp" or not parts.hostname or port is None:
+        raise LinkError(f"{url}: a phone UDP address must be udp://HOST:PORT")
+    return parts.hostname, port
+
+
+class PhoneUdpReceiver(PhoneReceiver):
+    """Receives SensaGram datagrams on ``udp://HOST:PORT`` (port 0 picks a free one; see :attr:`url`).
+
+    A background thread reads the socket; bad datagrams are counted (``stats.bad_messages``) and logged,
+    never fatal. :meth:`drain` hands over what arrived; :meth:`check` raises the thread's error.
+    """
+
+    scheme = "udp"
+    app = "SensaGram (UDP)"
+
+    def __init__(self, url: str, max_queue: int = MAX_QUEUE) -> None:
+        super().__init__(max_queue)
+        host, port = _address(url)
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            # A phone streams hundreds of datagrams a second; a deep receive buffer rides out a slow tick.
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
+            self._sock.bind((host, port))
+        except OSError as exc:
+            self._sock.close()
+            raise LinkError(f"cannot listen for the phone on udp://{host}:{port}: {exc.strerror}") from exc
+        self._sock.settimeout(0.05)
+        bound_host, bound_port = self._sock.getsockname()[:2]
+        self._url = f"udp://{bound_host}:{bound_port}"  # kept: still answers after close()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, name="phone-udp", daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        return self._url
+
+    def _serve(self) -> None:
+        try:
+            while not self._stop.is_set():
+                try:
+                    data, peer = self._sock.recvfrom(MAX_DATAGRAM)
+                except TimeoutError:
+                    continue
+                self._accept(data, peer[0])
+        except OSError as exc:
+            if not self._stop.is_set():  # a socket closed by close() is the normal end
+                self._error = exc
+        except BaseException as exc:  # stored, raised by check()
+            self._error = exc
+
+    def _accept(self, data: bytes, peer: str) -> None:
+        try:
+            sample = decode_datagram(data, f"udp from {peer}")
+        except InputFormatError as exc:
+            self._reject(str(exc))
+            logger.warning("%s", exc)
+            return
+        if sample is None:
+            self._deliver((), ignored=1)
+        else:
+            self._deliver((sample,))
+
+    def close(self) -> None:
+        """Stop the thread and release the port. Idempotent."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
+        self._sock.close()
+
+
+class PhoneUdpSender:
+    """Sends samples to ``udp://HOST:PORT`` as SensaGram does: one datagram each, fire and forget (nobody
+    listening is not an error for UDP; a datagram the socket refuses — no route, full buffer — is counted
+    in ``failed``). A phone keeps streaming while the host restarts."""
+
+    batch_s = 0.0  # every event as it happens
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self._address = _address(url)
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sent = 0
+        self.failed = 0
+
+    def send(self, samples: Sequence[SensorSample]) -> bool:
+        """One datagram per sample; True if every one left."""
+        ok = True
+        for sample in samples:
+            try:
+                self._sock.sendto(encode_datagram(sample), self._address)
+                self.sent += 1
+            except OSError:  # no route, a full buffer
+                self.failed += 1
+                ok = False
+        return ok
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self._sock.close()

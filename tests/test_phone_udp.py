@@ -1,0 +1,160 @@
+"""The live phone path over UDP: SensaGram datagrams, parsed purely and carried over real loopback UDP;
+the phone-stream URL registry."""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hil.sensors import SensorKind, SensorSample
+from hil.sources import open_receiver, open_sender, phone_url
+from hil.sources.phone_push import PhonePushSender, PhonePushServer
+from hil.sources.phone_udp import PhoneUdpReceiver, PhoneUdpSender, decode_datagram, encode_datagram
+from protocol.errors import ConfigError, InputFormatError, LinkError
+
+finite = st.floats(-1e4, 1e4, allow_nan=False)
+a_sample = st.builds(
+    SensorSample,
+    st.integers(0, 10**16).map(lambda ns: ns * 1e-9),  # boot-clock nanoseconds (months of uptime)
+    st.sampled_from(list(SensorKind)),
+    st.tuples(finite, finite, finite),
+)
+
+
+@settings(max_examples=100, deadline=None)
+@given(a_sample)
+def test_encode_then_decode_returns_the_sample(sample):
+    got = decode_datagram(encode_datagram(sample))
+    assert got is not None and got.kind is sample.kind and got.xyz == sample.xyz
+    assert got.t_s == pytest.approx(sample.t_s, abs=1e-9)
+
+
+def test_the_apps_datagrams():
+    """As SensaGram's SensorStreamer writes them: timestamp (ns, boot clock), values, Android type."""
+    acc = b'{"timestamp":3925657519043709,"values":[0.31892395,-0.97802734,10.049896],' \
+          b'"type":"android.sensor.accelerometer"}'  # fmt: skip
+    got = decode_datagram(acc)
+    assert got == SensorSample(3925657.519043709, SensorKind.ACC, (0.31892395, -0.97802734, 10.049896))
+    mag = {"values": [21.5, -3.0, -40.25], "type": "android.sensor.magnetic_field", "timestamp": 10**9}
+    want = SensorSample(1.0, SensorKind.MAG, (21.5, -3.0, -40.25))
+    assert decode_datagram(json.dumps(mag).encode()) == want
+    # a sensor with more values (e.g. 6 for an uncalibrated one) is another type; others are ignored
+    uncalibrated = {"type": "android.sensor.gyroscope_uncalibrated", "timestamp": 1, "values": [0] * 6}
+    for other in ({"type": "android.gps", "latitude": 1.0, "longitude": 2.0}, uncalibrated):
+        assert decode_datagram(json.dumps(other).encode()) is None
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        (b"", "not JSON"),
+        (b"\xff\xfe", "not JSON"),
+        (b"[1, 2, 3]", "string 'type'"),
+        (b'{"values": [1, 2, 3]}', "string 'type'"),
+        (b'{"type": "android.sensor.gyroscope", "values": [1, 2, 3]}', "timestamp"),
+        (b'{"type": "android.sensor.gyroscope", "timestamp": true, "values": [1, 2, 3]}', "timestamp"),
+        (b'{"type": "android.sensor.gyroscope", "timestamp": 5, "values": [1, 2]}', "3 numbers"),
+        (b'{"type": "android.sensor.gyroscope", "timestamp": 5, "values": [1, "x", 2]}', "numbers"),
+        (b'{"type": "android.sensor.gyroscope", "timestamp": 5, "values": [1, NaN, 2]}', "finite"),
+    ],
+)
+def test_malformed_datagrams_are_input_format_errors_naming_the_source(data, reason):
+    with pytest.raises(InputFormatError, match=reason) as info:
+        decode_datagram(data, "udp from 10.0.0.7")
+    assert info.value.path == "udp from 10.0.0.7"
+
+
+def test_a_sender_streams_to_the_receiver_over_loopback_udp():
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        sender = PhoneUdpSender(receiver.url)
+        sent = [SensorSample(5.0 + 0.005 * k, SensorKind.GYR, (k, 0.0, -k)) for k in range(200)]
+        sent += [SensorSample(5.0 + 0.02 * k, SensorKind.MAG, (30.0, k, -20.0)) for k in range(50)]
+        assert sender.send(sent) and sender.sent == 250
+        got = _receive(receiver, 250)
+        # loopback keeps the order; values survive the JSON, times to the format's nanosecond
+        assert [(s.kind, s.xyz) for s in got] == [(s.kind, s.xyz) for s in sent]
+        assert max(abs(a.t_s - b.t_s) for a, b in zip(got, sent, strict=True)) <= 1e-9
+        assert receiver.stats.per_kind == {"gyr": 200, "mag": 50} and receiver.stats.messages == 250
+        sender.close()
+
+
+def test_garbage_and_other_sensors_are_counted_and_the_receiver_keeps_listening():
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        host, port = receiver.url.removeprefix("udp://").split(":")
+        raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        for data in (b"{broken", b'{"type":"android.gps","latitude":1}', b"\x00" * 2000):
+            raw.sendto(data, (host, int(port)))
+        raw.close()
+        PhoneUdpSender(receiver.url).send([SensorSample(1.0, SensorKind.ACC, (0.0, 0.0, 9.8))])
+        got = _receive(receiver, 1)
+        assert [s.xyz for s in got] == [(0.0, 0.0, 9.8)]
+        st = receiver.stats
+        assert (st.bad_messages, st.ignored_entries, st.samples) == (2, 1, 1)
+        assert "not JSON" in st.last_error
+
+
+def test_a_full_queue_drops_the_oldest_and_counts_them():
+    with PhoneUdpReceiver("udp://127.0.0.1:0", max_queue=10) as receiver:
+        sent = [SensorSample(float(k), SensorKind.GYR, (0.0, 0.0, float(k))) for k in range(25)]
+        PhoneUdpSender(receiver.url).send(sent)
+        deadline = time.monotonic() + 5
+        while receiver.stats.samples < 25 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert receiver.drain() == sent[-10:] and receiver.stats.overflow == 15
+
+
+def test_a_sender_keeps_streaming_while_nobody_listens_and_the_host_comes_back():
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        url = receiver.url
+    sender = PhoneUdpSender(url)
+    sample = SensorSample(1.0, SensorKind.GYR, (0.0, 0.0, 0.0))
+    for _ in range(5):  # fire and forget: the datagrams are lost, the sender carries on
+        assert sender.send([sample])
+    assert (sender.sent, sender.failed) == (5, 0)
+    with PhoneUdpReceiver(url) as receiver:  # the host comes back on the same port
+        later = SensorSample(2.0, SensorKind.GYR, (0.0, 0.0, 1.0))
+        assert sender.send([later])
+        assert _receive(receiver, 1) == [later]
+
+
+def test_busy_ports_and_bad_urls_are_clear_errors():
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        port = receiver.url.rsplit(":", 1)[1]
+        with pytest.raises(LinkError, match=port):
+            PhoneUdpReceiver(f"udp://127.0.0.1:{port}")
+    for bad in ("udp://127.0.0.1", "udp://:80", "udp://host:port"):
+        with pytest.raises(LinkError, match="udp://HOST:PORT"):
+            PhoneUdpSender(bad)
+    with pytest.raises(ConfigError, match="udp://HOST:PORT or http://") as info:
+        phone_url("tcp://127.0.0.1:1")
+    assert info.value.where == "--phone"
+
+
+def test_the_registry_picks_the_app_by_url():
+    assert phone_url("0.0.0.0:8123") == "udp://0.0.0.0:8123"
+    assert phone_url("http://0.0.0.0:8123/push") == "http://0.0.0.0:8123/push"
+    with open_receiver("127.0.0.1:0") as udp, open_receiver("http://127.0.0.1:0/") as http:
+        assert isinstance(udp, PhoneUdpReceiver) and udp.url.startswith("udp://127.0.0.1:")
+        assert isinstance(http, PhonePushServer) and http.url.startswith("http://127.0.0.1:")
+        to_udp, to_http = open_sender(udp.url), open_sender(http.url)
+        assert isinstance(to_udp, PhoneUdpSender) and isinstance(to_http, PhonePushSender)
+        sample = SensorSample(2.0, SensorKind.MAG, (1.0, 2.0, 3.0))
+        assert to_udp.send([sample]) and to_http.send([sample])
+        assert _receive(udp, 1) == [sample] and _receive(http, 1) == [sample]
+        to_http.close()
+        to_udp.close()
+
+
+def _receive(receiver, n: int, timeout_s: float = 5.0) -> list[SensorSample]:
+    """What ``receiver`` drains until ``n`` samples have arrived (the network thread delivers them)."""
+    got: list[SensorSample] = []
+    deadline = time.monotonic() + timeout_s
+    while len(got) < n and time.monotonic() < deadline:
+        got += receiver.drain()
+        time.sleep(0.005)
+    return got
