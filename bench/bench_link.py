@@ -74,9 +74,13 @@ def _pty_latency(samples: int) -> tuple[list[float], list[float], list[float]]:
     return latency, board_share, _echo(samples)
 
 
+MOVED_US = 10  # a change of setpoint moves the rotor pulse by ~100 µs; the battery's sag by 1-2 µs
+
+
 def _changed(reports: list[TelemetryEvent], previous: int) -> TelemetryEvent | None:
-    """The first report whose rotor pulse differs from ``previous`` (None: no change reported yet)."""
-    return next((e for e in reports if e.telemetry.pulses_us[ROTOR] != previous), None)
+    """The first report whose rotor pulse moved away from ``previous`` by more than the battery's own
+    drift (None: no change reported yet)."""
+    return next((e for e in reports if abs(e.telemetry.pulses_us[ROTOR] - previous) > MOVED_US), None)
 
 
 def _echo(samples: int) -> list[float]:

@@ -130,7 +130,7 @@ class Board:
         if len(calibrations) != n:
             raise ConfigError(f"{len(calibrations)} calibrations for {n} units", "Board.calibrations")
         self.calibrations: list[Any | None] = list(calibrations)
-        self.faults = FaultInjector(clock, cfg.seed)
+        self.faults = FaultInjector(clock, cfg.seed, cfg.n_channels)
         self.link = BoardLink(cfg.rx_buffer_bytes, cfg.tx_buffer_bytes)
         self.timeline = PulseTimeline(cfg.timeline_frames)
         self.resets: list[ResetEvent] = []
@@ -315,7 +315,7 @@ class Board:
             self._telemetry.next_us,
             self._heartbeat.next_us,
             self._ppm.next_us,
-            self._us(self.faults.next_hang()) if self.faults.hangs else _NEVER,
+            max(self._us(self.faults.next_hang()), self._t_us) if self.faults.hangs else _NEVER,  # late: now
         )
         if self._session and not self._link_lost and self._last_rx_us is not None:
             due = min(due, self._last_rx_us + self._timeout_us)
@@ -335,12 +335,11 @@ class Board:
         if self._power_period.is_due(t):
             self._power_period.advance(t)
             self._power_hardware(t)
-        if self.faults.hangs and self._us(self.faults.next_hang()) <= t:
-            self.faults.pop_hang()
-            if self.phase is McuPhase.RUNNING:
-                self.phase = McuPhase.HUNG
-                self._wdt_us = t + self._wdt_timeout_us
-                logger.info("MCU hung at %.6f s; watchdog fires at %.6f s", t / 1e6, self._wdt_us / 1e6)
+        if self.phase is McuPhase.RUNNING and self.faults.hangs and self._us(self.faults.next_hang()) <= t:
+            self.faults.pop_hang()  # one due in reset or boot waits for the main loop to run
+            self.phase = McuPhase.HUNG
+            self._wdt_us = t + self._wdt_timeout_us
+            logger.info("MCU hung at %.6f s; watchdog fires at %.6f s", t / 1e6, self._wdt_us / 1e6)
         if self.phase is McuPhase.RESET:
             if t >= self._release_us and self.power_manager.released(self.power.ubec_v):
                 self._boot(t)

@@ -232,7 +232,7 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
         faults.sag(drop_v=full, at=t, duration=0.3)
     for spec in args.dead_esc:
         ch, at = parse_dead_esc(spec)
-        if ch >= cfg.n_channels:
+        if ch >= cfg.n_channels:  # the API checks too; here the error names the option
             raise ConfigError(f"channel {ch} does not exist (the board has {cfg.n_channels})", "--dead-esc")
         faults.dead_esc(ch, at=at)
     return board

@@ -71,10 +71,12 @@ class LinkStats:
 
 
 class FaultInjector:
-    """Holds the active and scheduled faults of one board. ``clock`` gives "now" for ``at=None``."""
+    """Holds the active and scheduled faults of one board. ``clock`` gives "now" for ``at=None``;
+    ``n_channels`` bounds the channels a dead ESC may be on (None: not checked)."""
 
-    def __init__(self, clock: Clock, seed: int = 0) -> None:
+    def __init__(self, clock: Clock, seed: int = 0, n_channels: int | None = None) -> None:
         self._clock = clock
+        self.n_channels = n_channels
         self._rng = random.Random(seed)
         self.noise = LinkNoise()
         self.stalls: list[Stall] = []
@@ -100,6 +102,8 @@ class FaultInjector:
         return s
 
     def hang(self, at: float | None = None) -> float:
+        """Hang the main loop at ``at`` (s; None: now). A hang due while the MCU is in reset or booting
+        waits: it takes the main loop the first time that runs."""
         t = self._at(at)
         self.hangs.append(t)
         self.hangs.sort()
@@ -125,6 +129,10 @@ class FaultInjector:
     def dead_esc(self, channel: int, at: float | None = None) -> None:
         if isinstance(channel, bool) or not isinstance(channel, int) or channel < 0:
             raise ConfigError(f"{channel!r} is not an output channel number", "faults.dead_esc.channel")
+        if self.n_channels is not None and channel >= self.n_channels:
+            raise ConfigError(
+                f"channel {channel} does not exist (the board has {self.n_channels})", "faults.dead_esc.channel"
+            )
         self.dead_escs[channel] = self._at(at)
 
     def clear(self) -> None:

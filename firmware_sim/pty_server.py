@@ -78,8 +78,12 @@ class PtyServer:
         self._error: BaseException | None = None
         self.link: Path | None = None
         if link is not None:
+            try:
+                _replace_symlink(Path(link), self.path)
+            except BaseException:
+                self.close()  # the pty's descriptors are not leaked by a bad --link
+                raise
             self.link = Path(link)
-            _replace_symlink(self.link, self.path)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> PtyServer:
@@ -238,7 +242,10 @@ def _replace_symlink(link: Path, target: str) -> None:
     if link.exists() and not link.is_symlink():
         raise LinkError(f"{link} exists and is not a symlink; refusing to replace it")
     tmp = link.with_name(f".{link.name}.{os.getpid()}.tmp")
-    with contextlib.suppress(FileNotFoundError):
-        tmp.unlink()
-    os.symlink(target, tmp)
-    os.replace(tmp, link)
+    try:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        os.symlink(target, tmp)
+        os.replace(tmp, link)
+    except OSError as exc:
+        raise LinkError(f"cannot make the link {link} -> {target}: {exc.strerror}") from exc

@@ -138,6 +138,25 @@ def test_gimbal_angle_mode_converges_slew_limited():
     assert want0 == pytest.approx(1.0, abs=0.01)  # the map's round trip
 
 
+def test_failsafe_in_angle_mode_holds_the_gimbals_where_they_are():
+    sp = ActuatorSetpoint(
+        gimbal_mode=GimbalMode.ANGLE, units=(UnitSetpoint(3.0, 0.0), UnitSetpoint(-3.0, 0.0))
+    )
+    board, clock, host = armed(setpoint=sp)
+    host.poll(0.4)  # slewing towards ±3 rad at the servo's 2 rad/s at most
+    host.keepalive = None
+    host.poll(CFG.link_timeout_s + 0.05)
+    assert board.state is BoardState.FAILSAFE
+    held = [u.gimbal_angle for u in board.units]
+    assert 0.3 < held[0] < 2.5 and -2.5 < held[1] < -0.3  # caught mid-slew
+    host.poll(1.0)
+    for i, unit in enumerate(board.units):
+        assert unit.gimbal_angle == pytest.approx(held[i], abs=0.02)  # held, not carried on to the target
+        want = board.calibrations[i].gimbal_pulse_us(held[i], GimbalMode.ANGLE).value
+        assert board.outputs[2 * i] == pytest.approx(want, abs=1.0)  # the pulse that stands for it
+        assert board.outputs[2 * i + 1] == CFG.rotor_safe_us
+
+
 def test_raw_pulses_mode_passes_widths_through():
     board, clock, host = lockstep(CFG)
     host.handshake()

@@ -170,6 +170,20 @@ class BoardModel(RuleBasedStateMachine):
     def wait(self, dt):
         self._let_time_pass(dt)
 
+    @rule(speed=st.sampled_from([0.0, 400.0]))
+    def handshake_arm_and_command(self, speed):
+        """The host's usual opening, as one step: the states the faults act on are reached often."""
+        self.hello()
+        self.arm()
+        self.setpoint(speed)
+
+    @precondition(lambda self: self.state is A)
+    @rule(extra=st.sampled_from([0.0, 0.5]))
+    def lose_the_link(self, extra):
+        """Silence for the link timeout plus a pulse frame (and more): the board must be in FAILSAFE."""
+        self._let_time_pass(CFG.link_timeout_s + 1.0 / CFG.frame_rate_hz + extra * CFG.link_timeout_s)
+        assert self.state is F
+
     @precondition(lambda self: self.board.phase is McuPhase.RUNNING)
     @rule()
     def hang(self):
@@ -212,5 +226,5 @@ class BoardModel(RuleBasedStateMachine):
             assert all(s > 0 for s in speeds), (rotors, speeds)
 
 
-BoardModel.TestCase.settings = settings(max_examples=40, stateful_step_count=25, deadline=None)
+BoardModel.TestCase.settings = settings(max_examples=150, stateful_step_count=30, deadline=None)
 TestBoardStateMachine = BoardModel.TestCase

@@ -95,6 +95,8 @@ def test_failsafe_is_left_by_arm_or_hello_never_by_a_setpoint():
     host.keepalive = lambda: SPIN
     host.poll(0.5)  # the link is back (setpoints flow) ...
     assert board.watchdog_state is WatchdogState.OK
+    texts = [m.text for m in host.received if isinstance(m, Log)]
+    assert "state ARMED -> FAILSAFE" in texts and "link restored" in texts  # each change is logged
     assert board.state is BoardState.FAILSAFE  # ... but the setpoints do not re-arm
     assert board.outputs[1] == CFG.rotor_safe_us
     assert isinstance(host.request(Arm()), Ack)
@@ -153,6 +155,7 @@ def test_hang_resets_after_the_mcu_watchdog_and_reports_it():
     host.keepalive = None
     reply = host.handshake()
     assert reply.reset_cause == ResetCause.WATCHDOG
+    assert "boot: reset cause WATCHDOG" in [m.text for m in host.received if isinstance(m, Log)]
     tel = host.wait_type(Telemetry, 0.2)
     assert tel.faults & FaultFlag.MCU_WATCHDOG_RESET
     assert tel.time_ms < 300  # uptime restarted at the reset
@@ -171,3 +174,32 @@ def test_bytes_sent_to_a_hung_board_are_lost_and_overflow_is_counted():
     assert board.phase is McuPhase.RUNNING and board.state is BoardState.BOOT
     # a host frame sent during the boot is lost: the UART is off in reset
     assert isinstance(host.handshake(), HelloReply)
+
+
+def test_a_hang_due_during_boot_takes_the_main_loop_once_it_runs():
+    from conformance.host import LockstepHost
+
+    from firmware_sim.board import Board
+    from hil.clock import LockstepClock
+
+    clock = LockstepClock()
+    board = Board(CFG, clock)
+    host = LockstepHost(board, clock)
+    board.faults.hang(at=0.02)  # the board is still booting (50 ms)
+    host.poll(0.04)
+    assert board.phase is McuPhase.RESET and board.faults.hangs == [0.02]  # pending, not lost
+    host.poll(0.02)
+    assert board.phase is McuPhase.HUNG and not board.faults.hangs
+    host.poll(CFG.mcu_watchdog_s)
+    assert [r.cause for r in board.resets] == [ResetCause.POWER_ON, ResetCause.WATCHDOG]
+    assert board.resets[-1].t == pytest.approx(CFG.boot_time_s + CFG.mcu_watchdog_s, abs=2e-3)
+
+
+def test_a_dead_esc_on_a_channel_the_board_lacks_is_refused_by_the_api():
+    from protocol.errors import ConfigError
+
+    board, clock, host = lockstep(CFG)
+    with pytest.raises(ConfigError, match="channel 4 does not exist") as info:
+        board.faults.dead_esc(2 * CFG.n_units)
+    assert info.value.where == "faults.dead_esc.channel"
+    board.faults.dead_esc(2 * CFG.n_units - 1)  # the last rotor channel is fine

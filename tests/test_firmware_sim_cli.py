@@ -145,7 +145,18 @@ def test_command_injects_a_hang_from_the_command_line():
             proc.wait()
 
 
-def test_duration_ends_the_command_by_itself():
+def test_duration_ends_the_command_by_itself_on_the_wall_clock():
+    started = time.monotonic()
     proc, path = spawn("--duration", "0.3")
     assert proc.wait(timeout=5) == 0
+    assert time.monotonic() - started >= 0.3  # real time by default: never faster than the wall clock
     assert "stopped" in proc.stderr.read()
+
+
+def test_a_link_that_cannot_be_made_is_a_clear_error(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "firmware_sim", "--link", str(tmp_path / "no-such-dir" / "board")],
+        capture_output=True, text=True, timeout=30,
+    )  # fmt: skip
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.startswith("firmware-sim: error: cannot make the link") and "Traceback" not in done.stderr
