@@ -34,10 +34,9 @@ import time
 from collections.abc import Iterable, Sequence
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
-from urllib.parse import urlsplit
 
 from hil.sensors import SensorKind, SensorSample
-from hil.sources.stream import MAX_QUEUE, PhoneReceiver
+from hil.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)
@@ -55,14 +54,7 @@ _Timed = tuple[float, tuple[float, float, float]]
 
 
 def _address(url: str) -> tuple[str, int, str]:
-    parts = urlsplit(url)
-    try:
-        port = parts.port
-    except ValueError:
-        port = None
-    if parts.scheme != "http" or not parts.hostname:
-        raise LinkError(f"{url}: a push URL must be http://HOST:PORT/PATH")
-    return parts.hostname, 80 if port is None else port, parts.path or "/"
+    return split_url(url, "http", "http://HOST:PORT/PATH", default_port=80)
 
 
 def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], int, int, int | None]:

@@ -28,10 +28,9 @@ import math
 import socket
 import threading
 from collections.abc import Sequence
-from urllib.parse import urlsplit
 
 from hil.sensors import SensorKind, SensorSample
-from hil.sources.stream import MAX_QUEUE, PhoneReceiver
+from hil.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)
@@ -82,14 +81,8 @@ def encode_datagram(sample: SensorSample) -> bytes:
 
 
 def _address(url: str) -> tuple[str, int]:
-    parts = urlsplit(url)
-    try:
-        port = parts.port
-    except ValueError:
-        port = None
-    if parts.scheme != "udp" or not parts.hostname or port is None:
-        raise LinkError(f"{url}: a phone UDP address must be udp://HOST:PORT")
-    return parts.hostname, port
+    host, port, _ = split_url(url, "udp", "udp://HOST:PORT")
+    return host, port
 
 
 class PhoneUdpReceiver(PhoneReceiver):

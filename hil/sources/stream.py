@@ -14,11 +14,26 @@ from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
+from urllib.parse import urlsplit
 
 from hil.sensors import SensorSample
 from protocol.errors import LinkError
 
 MAX_QUEUE = 200_000  # samples held for the consumer; beyond this the oldest are dropped and counted
+
+
+def split_url(url: str, scheme: str, form: str, default_port: int | None = None) -> tuple[str, int, str]:
+    """``(host, port, path)`` of a phone-stream URL of ``scheme``; anything else is a :class:`LinkError`
+    saying the expected ``form`` (e.g. ``udp://HOST:PORT``)."""
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:  # not a number, out of range
+        port = None
+    port = default_port if port is None else port
+    if parts.scheme != scheme or not parts.hostname or port is None:
+        raise LinkError(f"{url}: a phone stream address must be {form}")
+    return parts.hostname, port, parts.path or "/"
 
 
 @dataclass
