@@ -444,12 +444,13 @@ class Board:
             if cached is not None:
                 self._send(cached)
                 return
-        answer = self._execute(msg, frame, t)
+        refused = self._execute(msg, frame, t)
         if wants_answer:
-            if answer is None:
+            answer: Ack | Nack
+            if refused is None:
                 answer = Ack(msg_id=frame.msg_id, seq=frame.seq)
-            elif isinstance(answer, NackReason):
-                answer = Nack(msg_id=frame.msg_id, seq=frame.seq, reason=answer)
+            else:
+                answer = Nack(msg_id=frame.msg_id, seq=frame.seq, reason=refused)
             self.link.remember_answer(frame, answer)
             self._send(answer)
 

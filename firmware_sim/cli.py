@@ -222,19 +222,19 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
     for t in args.hang_at:
         faults.hang(at=t)
     for spec in args.sag:
-        volts, at, ramp = parse_sag(spec)
-        faults.sag(drop_v=volts, ramp_s=ramp, at=at)
+        volts, sag_at, ramp = parse_sag(spec)
+        faults.sag(drop_v=volts, ramp_s=ramp, at=sag_at)
     for spec in args.sag_ohms:
-        ohms, at, ramp = parse_sag(spec, "--sag-ohms")
-        faults.sag(extra_resistance_ohm=ohms, ramp_s=ramp, at=at)
+        ohms, sag_at, ramp = parse_sag(spec, "--sag-ohms")
+        faults.sag(extra_resistance_ohm=ohms, ramp_s=ramp, at=sag_at)
     full = cfg.power.battery.cells * 4.2
     for t in args.brownout_at:
         faults.sag(drop_v=full, at=t, duration=0.3)
     for spec in args.dead_esc:
-        ch, at = parse_dead_esc(spec)
+        ch, esc_at = parse_dead_esc(spec)
         if ch >= cfg.n_channels:  # the API checks too; here the error names the option
             raise ConfigError(f"channel {ch} does not exist (the board has {cfg.n_channels})", "--dead-esc")
-        faults.dead_esc(ch, at=at)
+        faults.dead_esc(ch, at=esc_at)
     return board
 
 

@@ -92,7 +92,7 @@ class SteeringOutput:
     delta: Array
     wheel_weight: Array
     scale: Array
-    saturation: Array
+    saturation: NDArray[np.int64]
 
 
 class VscmgSteering:

@@ -36,7 +36,8 @@ class RecordedSource:
         self._truth_R = None if truth is None else np.asarray(truth.R, dtype=float)
         # valid where the rotation is finite (motion-capture occlusions are NaN); a trial's *evaluate* mask
         # says where to score a filter, not where the truth holds
-        self._truth_ok = None if truth is None else np.all(np.isfinite(self._truth_R), axis=(1, 2))
+        R = self._truth_R
+        self._truth_ok = None if R is None else np.all(np.isfinite(R), axis=(1, 2))
 
     def start(self, origin: float) -> None:
         """Play the log from run time ``origin`` (s)."""
