@@ -307,8 +307,8 @@ class Board:
             if self._release_us > self._phys_us:
                 due = min(due, self._release_us)
             return due
-        if phase is McuPhase.HUNG:
-            return min(due, self._wdt_us)
+        if phase is McuPhase.HUNG:  # the timers (pulse frames, PPM train) keep running: hardware
+            return min(due, self._wdt_us, self._ppm.next_us)
         due = min(
             due,
             self._rx_due_us,

@@ -23,11 +23,12 @@ examples:
   hil run --port /tmp/vscmg-board               (in another terminal) drive it
   firmware-sim --units 3 --frame-rate 400 --telemetry-rate 100
   firmware-sim --link-timeout 0.5 --mcu-watchdog 1.0
-  firmware-sim --corrupt 0.01 --drop 0.001      damage 1%% / lose 0.1%% of the bytes, both ways
+  firmware-sim --corrupt 0.01 --drop 0.001      damage 1% / lose 0.1% of the bytes, both ways
   firmware-sim --stall 5:2                      the link carries nothing from t=5 s for 2 s
   firmware-sim --hang-at 5                      main loop hangs at t=5 s: watchdog reset follows
   firmware-sim --sag 6@10/5                     battery loses 6 V from t=10 s, ramped over 5 s:
-                                                warn -> limit -> shed -> brown-out reset
+                                                warn -> limit -> shed (load shedding holds the rail)
+  firmware-sim --sag 9@10/5                     ... 9 V: the UBEC drops out, brown-out reset
   firmware-sim --brownout-at 8                  a short collapse of the pack at t=8 s
   firmware-sim --dead-esc 1@3                   the ESC on channel 1 (rotor 0) dies at t=3 s
   firmware-sim --duration 30 -v                 stop after 30 s, log state changes
@@ -53,7 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("-v", "--verbose", action="count", default=0, help="log more (-vv: debug)")
+    p.add_argument(
+        "-v", "--verbose", action="count", default=0, help="debug log (default: state changes, faults)"
+    )
     p.add_argument("--link", metavar="PATH", help="keep a symlink at PATH pointing at the pty")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until ^C)")
     p.add_argument(
@@ -63,7 +66,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="ELF",
         help="run the board firmware on simavr instead of the emulator (default: firmware/build/*.elf)",
     )
-    p.add_argument("--eeprom", metavar="FILE", help="with --avr: the board's EEPROM, loaded and saved back")
+    p.add_argument(
+        "--eeprom", metavar="FILE",
+        help="with --avr: the board's EEPROM, loaded and saved back (a stored configuration wins over the "
+        "board options)",
+    )  # fmt: skip
     p.add_argument(
         "--can",
         metavar="INTERFACE/CHANNEL[?OPTIONS]",

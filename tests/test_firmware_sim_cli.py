@@ -55,6 +55,7 @@ def test_help_teaches_by_example(capsys):
         (["--dead-esc", "99"], "--dead-esc"),
         (["--corrupt", "1.5"], "faults.link.corrupt"),
         (["--soc", "2"], "initial_soc"),
+        (["--avr", "--world", "cubesat-1u"], "--world: not available with --avr"),
     ],
 )
 def test_bad_options_are_clear_errors(argv, where, capsys):

@@ -275,3 +275,16 @@ def test_the_boards_ppm_output_carries_its_servo_widths_and_clamps_raw_extremes(
     host.poll(0.2)
     assert board.outputs[:2] == (2500, 500)  # the servo outputs pass raw widths through ...
     assert decode_ppm(board.timeline.ppm[-1].edges_us)[:2] == (2300, 700)  # ... the PPM stage clamps them
+
+
+def test_the_ppm_train_keeps_its_22_5_ms_schedule_while_the_mcu_hangs():
+    """Like the per-channel frames, the PPM train is a hardware timer: a hung main loop does not stop it."""
+    board, clock, host = lockstep(BoardConfig(n_units=4, ppm=True, frame_rate_hz=50.0, mcu_watchdog_s=0.5))
+    host.handshake()
+    assert isinstance(host.request(Arm()), Ack)
+    t_hang = clock.now() + 0.01
+    board.faults.hang(at=t_hang)
+    host.poll(0.4)
+    during = [train.t for train in board.timeline.ppm if train.t > t_hang + 0.001]
+    assert len(during) >= 15
+    assert max(abs(b - a - 0.0225) for a, b in zip(during, during[1:])) < 1e-6

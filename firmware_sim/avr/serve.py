@@ -29,6 +29,8 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
         ("--dead-esc", args.dead_esc),
         ("--capacity", args.capacity != build_parser().get_default("capacity")),  # no charge modelled
         ("--no-hold", args.no_hold),  # the harness always holds the pty open for a host that comes back
+        ("--world", args.world is not None),  # the world steps the Python board's outputs
+        ("--phone", args.phone != build_parser().get_default("phone")),  # only with --world
     )
     for flag, given in unsupported:
         if given:

@@ -36,7 +36,7 @@ plots/ (`hil report` redraws them); --paced, --progress and the estimates CSV do
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "replay",
-        help="replay a recorded phone log through the estimator",
+        help="replay a recorded phone log through the estimator (--port: and drive a board with it)",
         description="Merge a phone log's sensors at the fastest rate, pre-filter, run the paper's "
         "variational attitude estimator, and write the estimates, a summary and figures.",
         epilog=EPILOG,
