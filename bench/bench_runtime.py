@@ -1,16 +1,15 @@
 """The host's runtime (:func:`hil.runtime.run`) end to end, each figure next to a peer measured in the same
 run:
 
-* **real-time control period jitter** p50 / p99 / max at 100 Hz and 200 Hz: the real runtime (board
-  client, phone receiver, estimator and control tasks on :class:`hil.scheduler.Scheduler`) in ``--port``
-  mode against ``spawn://firmware-sim`` on a real pty with its world (``cubesat-1u``), the world's
-  simulated phone streaming to the host over loopback as Sensor Logger's HTTP Push (firmware-sim's
-  ``--phone http://…``, formerly ``--phone-push``) to a free port the host listens on
-  (``RunOptions.phone``): the stream the runtime has always taken. The board's pulse frame rate is twice
-  the control rate (200 / 400 Hz). The figure is the scheduler's own lateness of each control activation
-  after its absolute deadline (``summary["tasks"]["control"]``), over the whole run (warm-up, spin-up,
-  slew), plus the control task's overrun count: an activation skipped because the one before ran past
-  it leaves no lateness sample, so the percentiles alone would hide it.
+* **real-time control period jitter** p50 / p99 / max at 100 Hz and 200 Hz: the real runtime (board client,
+  phone receiver, estimator and control tasks on :class:`hil.scheduler.Scheduler`) in ``--port`` mode
+  against ``spawn://firmware-sim`` on a real pty with its world (``cubesat-1u``), the world's simulated
+  phone streaming to the host over loopback UDP as SensaGram does (firmware-sim's ``--phone udp://…``) to a
+  free port the host listens on (``RunOptions.phone``). The board's pulse frame rate is twice the control
+  rate (200 / 400 Hz). The figure is the scheduler's own lateness of each control activation after its
+  absolute deadline (``summary["tasks"]["control"]``), over the whole run (warm-up, spin-up, slew), plus the
+  control task's overrun count: an activation skipped because the one before ran past it leaves no lateness
+  sample, so the percentiles alone would hide it.
 
   The world costs CPU: its 1 ms plant step (plant, drives, phone model, board step) is measured first
   (CPU s per simulated s, in the note). Where it needs more than ``WORLD_BUDGET`` — a slow or shared
@@ -111,21 +110,9 @@ def _free_port(kind: socket.SocketKind) -> int:
         return int(s.getsockname()[1])
 
 
-def _phone_addresses() -> tuple[str, str, str]:
-    """(firmware-sim's phone option, where the phone streams, RunOptions.phone): HTTP Push on a free port.
-
-    firmware-sim's ``--phone-push URL`` (the host listening on HOST:PORT) is becoming ``--phone URL``
-    (udp:// or http://; the host listening on the same URL): whichever this tree has is used."""
-    from firmware_sim.cli import build_parser
-
-    dests = {a.dest for a in build_parser()._actions}
-    port = _free_port(socket.SOCK_STREAM)
-    url = f"http://127.0.0.1:{port}/"
-    if "phone" in dests:
-        return "phone", url, url
-    if "phone_push" in dests:
-        return "phone_push", url, f"127.0.0.1:{port}"
-    raise RuntimeError("firmware-sim has neither --phone nor --phone-push: update bench_runtime")
+def _phone_url() -> str:
+    """Where the phone streams and the host listens: SensaGram's UDP on a free loopback port."""
+    return f"udp://127.0.0.1:{_free_port(socket.SOCK_DGRAM)}"
 
 
 def _at_rate(scenario: Scenario, rate_hz: float) -> Scenario:
@@ -162,15 +149,12 @@ import signal, sys, time
 import numpy as np
 from hil.phone_model import BodyPhone
 from hil.scenario import load_scenario
-try:
-    from hil.sources import open_sender
-except ImportError:  # before hil.sources took udp:// too
-    from hil.sources.phone_push import PhonePushSender as open_sender
+from hil.sources import open_sender
 scenario = load_scenario(sys.argv[1])
 sender = open_sender(sys.argv[2])
 phone = BodyPhone(scenario.phone, scenario.seed)
 R, w = np.asarray(scenario.slew.R0, float), np.zeros(3)
-step = max(getattr(sender, "batch_s", 0.02), 0.005)
+step = max(sender.batch_s, 0.005)
 stop = []
 signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
 print("streaming", flush=True)
@@ -216,16 +200,16 @@ def _runtime_realtime(rate_hz: float, duration_s: float, world: bool) -> tuple[_
     from hil.runtime import RunOptions, run
 
     scenario = _at_rate(load_scenario(SCENARIO), rate_hz)
-    option, phone, listen = _phone_addresses()
+    phone = _phone_url()
     query = scenario.firmware_sim_options()
     if world:
-        query += [("world", SCENARIO), (option, phone)]
+        query += [("world", SCENARIO), ("phone", phone)]
     url = "spawn://firmware-sim?" + urlencode(query)
     with tempfile.TemporaryDirectory(prefix="bench-runtime-") as tmp, contextlib.ExitStack() as stack:
         if not world:
             stack.enter_context(_still_phone(phone))
         options = RunOptions(
-            port=url, phone=listen, duration_s=duration_s, plots=False, out_root=Path(tmp),
+            port=url, phone=phone, duration_s=duration_s, plots=False, out_root=Path(tmp),
             label=f"bench-{rate_hz:.0f}hz",
         )  # fmt: skip
         note = ""
