@@ -5,6 +5,11 @@ closely the two trajectories agree (Basilisk's ``speedOutMsg`` carries the gimba
 the step it is stamped with, so its gimbal angles are compared with ours one step earlier). Also the
 closed-loop acceptance figures (lockstep, 1U).
 
+The single-run float plant (:class:`hil.vscmg.fast.SingleRunPlant`, what the emulator's world steps) runs the
+same scenarios in the same process next to the numpy :class:`Plant` at B = 1: its steps per second, and how
+far its final state lies from the numpy plant's (rounding only). Also the emulator's whole world (plant,
+drives, phone, board; ``firmware_sim.world.World``) in CPU seconds per simulated second, on either plant.
+
 The shared scenario is what Basilisk's balanced model describes: a 1U bus with the 54.74° pyramid of four
 units, each with diagonal gimbal and axisymmetric rotor inertias and no rotor offset or unit mass (the
 balanced model ignores both); rotors at 380–420 rad/s, gimbals moving. "Free": no motor torques (energy
@@ -19,12 +24,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import Any
 
 import numpy as np
 
 from bench.common import Result
 from hil import so3
 from hil.vscmg import Plant, UnitParams, cubesat_1u, pyramid
+from hil.vscmg.fast import SingleRunPlant
 
 NAME = "dynamics"
 STEP = 1e-3
@@ -73,7 +80,53 @@ def _ours(duration: float, driven: bool) -> dict:
         "momentum_drift": float(np.linalg.norm(plant.angular_momentum(s)[0] - pi0) / np.linalg.norm(pi0)),
         "energy_drift": float(abs(plant.kinetic_energy(s)[0] - e0) / e0),
         "samples": samples,
+        "final": s,
     }
+
+
+def _ours_fast(duration: float, driven: bool) -> dict:
+    """The same run on the single-run float plant."""
+    params = balanced_params()
+    plant = Plant(params)
+    fast = SingleRunPlant(plant)
+    f = fast.from_state(
+        plant.state(omega=OMEGA0, gimbal_angle=GIMBAL0, gimbal_rate=GIMBAL_RATE0, rotor_rate=ROTOR0)
+    )
+    torques = (GIMBAL_TORQUE, ROTOR_TORQUE) if driven else None
+    n = int(round(duration / STEP))
+    start = time.perf_counter()
+    for _ in range(n):
+        f = fast.step(f, STEP, torques)
+    wall = time.perf_counter() - start
+    return {"steps_per_s": n / wall, "final": fast.to_state(f)}
+
+
+def _difference(a, b) -> float:
+    """Largest relative difference between two plant states, field by field."""
+    fields = ("R", "momentum", "gimbal_angle", "rotor_angle", "gimbal_momentum", "rotor_momentum", "omega",
+              "gimbal_rate", "rotor_rate")  # fmt: skip
+    return max(
+        float(np.max(np.abs(getattr(a, f) - getattr(b, f))) / np.max(np.abs(getattr(b, f)))) for f in fields
+    )
+
+
+def _world_cost(duration: float, fast: bool) -> float:
+    """CPU seconds per simulated second of the emulator's world (plant, drives, phone, board) next to an
+    idle board in lockstep, on the float plant or the numpy one."""
+    from firmware_sim.cli import build_parser, make_board
+    from firmware_sim.world import World
+    from hil.clock import LockstepClock
+    from hil.scenario import load_scenario
+
+    scenario = load_scenario("cubesat-1u")
+    clock = LockstepClock()
+    world = World(scenario, make_board(build_parser().parse_args(["--units", "4"]), clock), fast=fast)
+    period = 0.005
+    cpu = time.process_time()
+    for _ in range(int(round(duration / period))):
+        clock.advance(period)
+        world.advance_to(clock.now())
+    return (time.process_time() - cpu) / duration
 
 
 def _ours_batch(duration: float, batch: int) -> float:
@@ -178,7 +231,7 @@ def _closed_loop(quick: bool) -> list[Result]:
     )
 
     params = cubesat_1u()
-    runs = [("90deg truth+noise", slew_90deg(30.0), TruthWithNoise(seed=3))]
+    runs: list[tuple[str, Any, Any]] = [("90deg truth+noise", slew_90deg(30.0), TruthWithNoise(seed=3))]
     if not quick:
         runs += [
             ("singular truth+noise", slew_through_singularity(30.0), TruthWithNoise(seed=4)),
@@ -250,6 +303,18 @@ def run(quick: bool) -> list[Result]:
                     higher_is_better=False,
                 )
             )
+        fast = _ours_fast(duration, driven)
+        results.append(
+            Result(
+                NAME,
+                f"{tag}: fast single-run plant steps/s (4 units, 1 ms)",
+                fast["steps_per_s"],
+                "steps/s",
+                "numpy Plant, B = 1",
+                ours["steps_per_s"],
+                note=f"final state vs the numpy plant's: {_difference(fast['final'], ours['final']):.1e} rel",
+            )
+        )
         if peer is not None:
             att, rate, gim = _agreement(ours["samples"], peer["samples"])
             results.append(
@@ -267,6 +332,19 @@ def run(quick: bool) -> list[Result]:
             "batch of 64 runs: aggregate plant steps/s",
             _ours_batch(0.2 if quick else 1.0, 64),
             "steps/s",
+        )
+    )
+    world = 1.0 if quick else 5.0
+    results.append(
+        Result(
+            NAME,
+            "world (plant, drives, phone, board): CPU s per simulated s",
+            _world_cost(world, fast=True),
+            "CPU s/s",
+            "world on the numpy Plant",
+            _world_cost(world, fast=False),
+            higher_is_better=False,
+            note="cubesat-1u scenario, idle board in lockstep, 1 ms plant step",
         )
     )
     results += _closed_loop(quick)

@@ -30,6 +30,7 @@ from hil.motor_loops import ServoModel, Setpoints
 from hil.phone_model import BodyPhone
 from hil.sensors import SensorSample
 from hil.vscmg import Plant, PlantState
+from hil.vscmg.fast import FastState, SingleRunPlant
 from protocol.messages import GimbalMode, UnitState
 
 from .board import Board
@@ -54,9 +55,12 @@ class Truth:
 class World:
     """``scenario`` (:class:`hil.scenario.Scenario`): spacecraft, servos, phone, start attitude and
     gimbal angles; the rotors start at rest (the host spins them up). ``board``: the emulated board whose
-    pulses drive it (its unit count must match the spacecraft's)."""
+    pulses drive it (its unit count must match the spacecraft's). ``fast``: step the plant with
+    :class:`hil.vscmg.fast.SingleRunPlant` (plain floats, the same physics to rounding; default) rather
+    than the numpy :class:`hil.vscmg.Plant` (the reference; ~5x the world's CPU at one run). ``state`` is the
+    plant's :class:`PlantState` either way (built on demand on the fast path)."""
 
-    def __init__(self, scenario: object, board: Board, seed: int | None = None) -> None:
+    def __init__(self, scenario: object, board: Board, seed: int | None = None, fast: bool = True) -> None:
         from hil.scenario import Scenario
 
         assert isinstance(scenario, Scenario)
@@ -86,7 +90,10 @@ class World:
         self.step_s = scenario.loop.plant_step_s
         n = self.params.n_units
         self.t0 = board.now
-        self.state: PlantState = self.plant.state(
+        self.fast: SingleRunPlant | None = SingleRunPlant(self.plant) if fast else None
+        self._state: PlantState | None = None
+        self._fs: FastState | None = None
+        self.state = self.plant.state(
             R=scenario.slew.R0, gimbal_angle=scenario.slew.gimbal_angle0, rotor_rate=np.zeros(n), t=0.0
         )
         self.phone = BodyPhone(scenario.phone, scenario.seed if seed is None else seed, t0=self.t0)
@@ -96,9 +103,23 @@ class World:
         board.set_unit_states(self.unit_states())
 
     @property
+    def state(self) -> PlantState:
+        """The plant's state (batch 1)."""
+        if self._state is None:
+            assert self.fast is not None and self._fs is not None
+            self._state = self.fast.to_state(self._fs)
+        return self._state
+
+    @state.setter
+    def state(self, s: PlantState) -> None:
+        self._state = s
+        if self.fast is not None:
+            self._fs = self.fast.from_state(s)
+
+    @property
     def now(self) -> float:
         """World time on the board's clock (s)."""
-        return self.t0 + self.state.t
+        return self.t0 + (self._fs.t if self._fs is not None else self.state.t)
 
     def truth(self) -> Truth:
         s = self.state
@@ -108,14 +129,20 @@ class World:
         )  # fmt: skip
 
     def unit_states(self) -> list[UnitState]:
-        s = self.state
+        if self._fs is not None:
+            f = self._fs
+            angle, rate, speed = f.gimbal_angle, f.gimbal_rate, f.rotor_rate
+        else:
+            s = self.state
+            angle, rate, speed = s.gimbal_angle[0], s.gimbal_rate[0], s.rotor_rate[0]
         return [
-            UnitState(float(_wrap(a)), float(g), float(w))
-            for a, g, w in zip(s.gimbal_angle[0], s.gimbal_rate[0], s.rotor_rate[0], strict=True)
+            UnitState(float(_wrap(a)), float(g), float(w)) for a, g, w in zip(angle, rate, speed, strict=True)
         ]
 
     def advance_to(self, t: float) -> list[SensorSample]:
         """Step the plant up to board time ``t`` (whole steps) and return the phone's samples meanwhile."""
+        if self.fast is not None:
+            return self._advance_fast(t)
         samples: list[SensorSample] = []
         h = self.step_s
         while self.now + h <= t + 1e-9:
@@ -130,26 +157,49 @@ class World:
         self.board.set_unit_states(self.unit_states())
         return samples
 
+    def _advance_fast(self, t: float) -> list[SensorSample]:
+        """:meth:`advance_to` on the float plant: arrays only for the phone (the attitude and rate)."""
+        assert self.fast is not None and self._fs is not None
+        samples: list[SensorSample] = []
+        h, t0, fast = self.step_s, self.t0, self.fast
+        f = self._fs
+        R_prev, omega_prev = f.R_matrix(), f.omega_array()
+        while t0 + f.t + h <= t + 1e-9:
+            self.board.step(t0 + f.t)  # the pulse frames due by now, at their own times
+            self._drive()
+            prev_t = f.t
+            f = self._fs = fast.step(f, h, self.servo)
+            self._state = None
+            self.steps += 1
+            R, omega = f.R_matrix(), f.omega_array()
+            samples += self.phone.sample(t0 + prev_t, R_prev, omega_prev, t0 + f.t, R, omega)
+            R_prev, omega_prev = R, omega
+        self.board.set_unit_states(self.unit_states())
+        return samples
+
     def _drive(self) -> None:
         """The drives' targets from the widths on the board's outputs now."""
         board = self.board
         outputs = board.outputs
         volts = board.power.battery_v
         mode = board.gimbal_mode
-        state = self.state
+        if self._fs is not None:
+            rotor_rate, gimbal_angle = self._fs.rotor_rate, self._fs.gimbal_angle
+        else:
+            rotor_rate, gimbal_angle = self.state.rotor_rate[0], self.state.gimbal_angle[0]
         for i, unit in enumerate(board.units):
             g_us, r_us = outputs[2 * i], outputs[2 * i + 1]
             if r_us is not None and not unit.rotor_dead:
                 self._rotor_sp[0, i] = unit.rotor_speed_for(r_us, volts)
             else:  # no pulses or a dead ESC: no drive; the rotor keeps its speed (coasting is slow)
-                self._rotor_sp[0, i] = state.rotor_rate[0, i]
+                self._rotor_sp[0, i] = rotor_rate[i]
             if g_us is None or unit.gimbal_dead:
                 self._gimbal_sp[0, i] = 0.0
             elif mode is GimbalMode.RATE:
                 self._gimbal_sp[0, i] = unit.gimbal_value_for(g_us, mode)
             else:  # ANGLE: the servo's own position loop, a proportional rate toward the target
                 target = unit.gimbal_value_for(g_us, mode)
-                err = math.remainder(target - float(state.gimbal_angle[0, i]), 2 * math.pi)
+                err = math.remainder(target - float(gimbal_angle[i]), 2 * math.pi)
                 limit = self.params.limits.max_gimbal_rate
                 self._gimbal_sp[0, i] = max(-limit, min(limit, err / 0.1))
         self.servo.hold(Setpoints(self._gimbal_sp, self._rotor_sp, np.zeros(1, bool)))

@@ -27,6 +27,7 @@ below the speed.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,6 +144,8 @@ class ServoModel:
         self.spin_inertia = np.array([u.rotor_spin_inertia for u in units])
         self.gimbal_rate_sp = np.zeros((1, len(units)))
         self.rotor_speed_sp = np.full((1, len(units)), params.nominal_rotor_speed)
+        self._scalar_src: tuple[Array, Array] | None = None
+        self._scalar_inertia: list[tuple[float, float]] = []
 
     def hold(self, setpoints: Setpoints) -> None:
         """Take new setpoints (held until the next call)."""
@@ -170,3 +173,58 @@ class ServoModel:
             np.clip(ug - rho * gimbal_load, -lim.max_gimbal_torque, lim.max_gimbal_torque),
             np.clip(us - rho * rotor_load, -lim.max_rotor_torque, lim.max_rotor_torque),
         )
+
+    # ------------------------------------------------------------------ one run in floats
+    def scalar_setpoints(self) -> tuple[list[float], list[float]]:
+        """The held setpoints of a single run as floats ``(gimbal rates, rotor speeds)``, for
+        :meth:`torques_scalar` (:class:`hil.vscmg.fast.SingleRunPlant` reads them once per step)."""
+        n = len(self.spin_inertia)
+        out = []
+        for sp in (self.gimbal_rate_sp, self.rotor_speed_sp):
+            if not (isinstance(sp, np.ndarray) and sp.shape == (1, n)):  # the usual shape, else broadcast
+                try:
+                    sp = np.broadcast_to(np.asarray(sp, dtype=float), (1, n))
+                except ValueError as e:
+                    raise ConfigError(
+                        f"the held setpoints are not one run's: {e}", "ServoModel.scalar_setpoints"
+                    ) from e
+            out.append(sp[0].tolist())
+        return out[0], out[1]
+
+    def torques_scalar(
+        self,
+        gimbal_rate: Sequence[float],
+        rotor_rate: Sequence[float],
+        gimbal_load: Sequence[float],
+        rotor_load: Sequence[float],
+        setpoints: tuple[Sequence[float], Sequence[float]] | None = None,
+    ) -> tuple[list[float], list[float]]:
+        """What :meth:`__call__` gives for one run, on sequences of n floats: ``(gimbal torques, rotor
+        torques)``. ``setpoints``: :meth:`scalar_setpoints` read beforehand (default: read now)."""
+        gsp, wsp = self.scalar_setpoints() if setpoints is None else setpoints
+        src = self._scalar_src
+        if src is None or src[0] is not self.gimbal_inertia or src[1] is not self.spin_inertia:
+            self._scalar_src = (self.gimbal_inertia, self.spin_inertia)
+            self._scalar_inertia = list(
+                zip(self.gimbal_inertia.tolist(), self.spin_inertia.tolist(), strict=True)
+            )
+        lim, sv = self.params.limits, self.servo
+        rho, tg, tr, tc = (
+            sv.load_rejection,
+            sv.gimbal_time_constant_s,
+            sv.rotor_time_constant_s,
+            sv.coast_time_constant_s,
+        )
+        gmax, rmax = lim.max_gimbal_torque, lim.max_rotor_torque
+        ug: list[float] = []
+        us: list[float] = []
+        for (jg, js), gs, ws, gr, wr, fg, fp in zip(
+            self._scalar_inertia, gsp, wsp, gimbal_rate, rotor_rate, gimbal_load, rotor_load, strict=True
+        ):
+            u = jg * (gs - gr) / tg - rho * fg
+            # np.clip(u, lo, hi) = min(max(u, lo), hi), NaN passing through
+            ug.append(-gmax if u < -gmax else gmax if u > gmax else u)
+            err = ws - wr
+            u = js * err / (tc if tc is not None and err < 0.0 else tr) - rho * fp
+            us.append(-rmax if u < -rmax else rmax if u > rmax else u)
+        return ug, us

@@ -1,7 +1,8 @@
 """The spacecraft with its array of variable-speed control moment gyroscopes: parameters, geometries, the
-model (mass matrix, momenta, energy) and the plant integrator. Pure math, no I/O; docs/dynamics.md derives
-the equations."""
+model (mass matrix, momenta, energy) and the plant integrator (numpy, batched; and :mod:`.fast`, the same
+step for one run in plain floats). Pure math, no I/O; docs/dynamics.md derives the equations."""
 
+from .fast import FastState, SingleRunPlant
 from .geometry import (
     PYRAMID_BETA,
     TETRAHEDRON_BETA,
@@ -20,9 +21,11 @@ __all__ = [
     "RPM",
     "TETRAHEDRON_BETA",
     "ActuatorLimits",
+    "FastState",
     "GravityGradient",
     "Plant",
     "PlantState",
+    "SingleRunPlant",
     "SpacecraftParams",
     "TorqueLaw",
     "Torques",
