@@ -124,13 +124,16 @@ def test_link_loss_failsafe_within_timeout_plus_one_frame(target, host):
     beat = [m for m in host.received if isinstance(m, Heartbeat) and m.state == BoardState.FAILSAFE][0]
     t_failsafe = origin + beat.time_ms / 1000
     ms = 0.0015  # the wire carries milliseconds
-    assert spec.link_timeout_s - ms <= t_failsafe - t_last <= spec.link_timeout_s + 0.002 + ms
+    frame = 1.0 / spec.frame_rate_hz
+    # The board notices on its next main-loop pass: the emulator's 1 ms tick; the ATmega's passes reach a
+    # few ms when telemetry, the power model and a calibration conversion fall together (measured under
+    # simavr: 251 ms typically, 255 ms at worst in ~20 runs). The requirement is timeout + one frame.
+    assert spec.link_timeout_s - ms <= t_failsafe - t_last <= spec.link_timeout_s + frame + ms
     rotor = [(f.t, f.widths[1]) for f in target.timeline() if f.t >= t_last - 0.1]
     moving = [w for t, w in rotor if t < t_last]
     assert moving and moving[-1] > spec.rotor_safe_us
     t_safe = next(t for t, w in rotor if t >= t_last and w == spec.rotor_safe_us)
     assert all(w == moving[-1] for t, w in rotor if t_last <= t < t_safe)
-    frame = 1.0 / spec.frame_rate_hz
     assert spec.link_timeout_s - ms <= t_safe - t_last <= spec.link_timeout_s + frame + ms
     # Setpoints alone never leave FAILSAFE; an Arm does.
     host.keepalive = lambda: setpoint(spec, speed=400.0)
