@@ -41,8 +41,10 @@ import enum
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
-from .errors import ConfigError, ProtocolError
-from .frame import DELIMITER, MAX_ENCODED
+from . import cobs
+from .crc import crc16_ccitt_false
+from .errors import ConfigError, FrameError, ProtocolError
+from .frame import CRC, CRC_SIZE, DELIMITER, MAX_ENCODED, MIN_FRAME
 from .messages import (
     Ack,
     ActuatorSetpoint,
@@ -210,6 +212,7 @@ class CanStats:
     segments: int = 0  # CAN frames accepted as segments
     frames: int = 0  # wire frames completed and delivered
     incomplete: int = 0  # partial frames discarded (a segment lost, conflicting, or the sender moved on)
+    spliced: int = 0  # "complete" frames that failed their CRC: segments of different frames joined
     malformed: int = 0  # CAN frames that cannot be a segment (too short or long, bad index, short middle)
     duplicates: int = 0  # segments received twice with the same content
     ignored: int = 0  # CAN frames outside the scheme, for another node or the other direction
@@ -228,6 +231,18 @@ class _Stream:
 
     partials: OrderedDict[int, _Partial] = field(default_factory=OrderedDict)
     done: dict[int, dict[int, bytes]] = field(default_factory=dict)
+
+
+def _intact(wire: bytes) -> bool:
+    """``wire`` (COBS + 0x00) decodes and its CRC holds: one whole frame, not pieces of two."""
+    try:
+        body = cobs.decode(wire[:-1])
+    except FrameError:
+        return False
+    if len(body) < MIN_FRAME:
+        return False
+    (crc,) = CRC.unpack_from(body, len(body) - CRC_SIZE)
+    return bool(crc == crc16_ccitt_false(body[:-CRC_SIZE]))
 
 
 class CanReassembler:
@@ -314,6 +329,12 @@ class CanReassembler:
         wire = b"".join(partial.segments[i] for i in range(partial.last + 1))
         if len(wire) > MAX_WIRE:
             self.stats.malformed += 1
+            return b""
+        if not _intact(wire):
+            # The 2-bit transfer id wrapped: a frame that lost segments met the same id four frames on,
+            # the frames between lost whole; their segments joined. Never delivered half-built.
+            del stream.done[tid]
+            self.stats.spliced += 1
             return b""
         self.stats.frames += 1
         return wire
