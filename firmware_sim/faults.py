@@ -127,12 +127,11 @@ class FaultInjector:
         return s
 
     def dead_esc(self, channel: int, at: float | None = None) -> None:
+        where = "faults.dead_esc.channel"
         if isinstance(channel, bool) or not isinstance(channel, int) or channel < 0:
-            raise ConfigError(f"{channel!r} is not an output channel number", "faults.dead_esc.channel")
+            raise ConfigError(f"{channel!r} is not an output channel number", where)
         if self.n_channels is not None and channel >= self.n_channels:
-            raise ConfigError(
-                f"channel {channel} does not exist (the board has {self.n_channels})", "faults.dead_esc.channel"
-            )
+            raise ConfigError(f"channel {channel} does not exist (the board has {self.n_channels})", where)
         self.dead_escs[channel] = self._at(at)
 
     def clear(self) -> None:

@@ -226,8 +226,10 @@ class _Partial:
 
 @dataclass
 class _Stream:
-    """One arbitration id: frames being assembled, and the frames completed under each transfer id not
-    reused since (so a late duplicate of a delivered segment is recognised, not delivered again)."""
+    """One arbitration id: frames being assembled, and the frame last completed (by transfer id) until
+    another transfer id is heard: a double reception follows its original at once, so a late duplicate
+    of a delivered segment is recognised, not delivered again — and a new frame four transfer ids on is
+    not mistaken for one."""
 
     partials: OrderedDict[int, _Partial] = field(default_factory=OrderedDict)
     done: dict[int, dict[int, bytes]] = field(default_factory=dict)
@@ -298,11 +300,10 @@ class CanReassembler:
         self.stats.segments += 1
         stream = self._stream(arbitration_id)
         done = stream.done.get(tid)
-        if done is not None:
-            if done.get(index) == chunk:
-                self.stats.duplicates += 1  # a repeat of a frame already delivered (CAN double reception)
-                return b""
-            del stream.done[tid]  # the sender has come round to this transfer id again
+        if done is not None and done.get(index) == chunk:
+            self.stats.duplicates += 1  # a repeat of a frame already delivered (CAN double reception)
+            return b""
+        stream.done.clear()  # the sender has moved on: no more repeats of what it finished
         partials = stream.partials
         partial = partials.get(tid)
         if partial is None:

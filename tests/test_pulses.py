@@ -287,4 +287,4 @@ def test_the_ppm_train_keeps_its_22_5_ms_schedule_while_the_mcu_hangs():
     host.poll(0.4)
     during = [train.t for train in board.timeline.ppm if train.t > t_hang + 0.001]
     assert len(during) >= 15
-    assert max(abs(b - a - 0.0225) for a, b in zip(during, during[1:])) < 1e-6
+    assert max(abs(b - a - 0.0225) for a, b in zip(during, during[1:], strict=False)) < 1e-6
