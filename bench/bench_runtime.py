@@ -13,9 +13,9 @@ run:
 
   The world costs CPU: its 1 ms plant step (plant, drives, phone model, board step) is measured first
   (CPU s per simulated s, in the note). Where it needs more than ``WORLD_BUDGET`` — a slow or shared
-  machine — ``firmware-sim --world`` cannot keep real time: its world thread falls behind, keeps the
-  board's lock and the GIL, and the board stops answering (Arm unanswered, link watchdog FAILSAFE,
-  rotors never spun up), so there is no run to time. Then (and if a world run fails to start) the same
+  machine — ``firmware-sim --world`` cannot keep real time: its world falls further and further behind
+  the board's clock (the board keeps answering; the phone's samples come late and slow), which is not
+  the run this figure describes. Then (and if a world run fails to start) the same
   runtime runs against ``spawn://firmware-sim`` *without* the world — the board's internal actuator
   model answers the pulses — with a stand-in phone in its own process (the scenario's phone model at
   rest, streamed in real time to the same URL); the rows then say ``no world``. The host does the same
@@ -43,8 +43,11 @@ run:
   machine's load; the wall-time factor ``summary["realtime_factor"]`` is reported as well). Peer: the
   same scenario's closed loop at setpoint level (:class:`hil.closed_loop.ClosedLoop` with the same phone
   model and estimator, :func:`hil.montecarlo.runner.loop_config`) for the same simulated time — the same
-  plant, sensors, estimator and controller without the protocol, the board emulation and the runtime,
-  so the ratio is what those cost.
+  physics, sensors, estimator and controller without the protocol, the board emulation and the runtime.
+  The two step the plant differently: the runtime's world uses the single-run float plant
+  (:class:`hil.vscmg.fast.SingleRunPlant`), the closed loop the numpy batch plant it shares with Monte Carlo
+  batches (~5x slower at one run). So the ratio is not the protocol's cost alone: it says that one run
+  through the full protocol is faster than one run of the setpoint-level engine.
 """
 
 from __future__ import annotations
@@ -350,7 +353,8 @@ def _lockstep_results(duration_s: float) -> list[Result]:
     peer_sim, peer_cpu, peer_wall = _closed_loop(sim_s)
     note = (
         f"{sim_s:.1f} s simulated in {cpu_s:.1f} CPU s (peer: {peer_sim:.1f} s in {peer_cpu:.1f} CPU s), "
-        "50 Hz control, 50 Hz frames and telemetry"
+        "50 Hz control, 50 Hz frames and telemetry; the runtime's world steps the single-run float plant, "
+        "the peer the numpy batch plant"
     )
     return [
         Result(NAME, "lockstep closed loop, 4 units, 1 ms step (runtime)", sim_s / cpu_s, "sim s/CPU s",
