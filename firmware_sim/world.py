@@ -37,6 +37,7 @@ from .board import Board
 
 Array = NDArray[np.float64]
 YIELD_S = 2e-4  # s: the pause a lagging world thread takes between chunks, so the board's server runs
+LAG_WARNING_S = 0.1  # s: a world this far behind the board's clock is reported (once)
 logger = logging.getLogger(__name__)
 
 
@@ -250,7 +251,14 @@ class WorldStreamer:
                 k += 1
                 clock.sleep_until(origin + k * self.step_s)
                 target = clock.now()
-                self.max_lag_s = max(self.max_lag_s, target - world.now)
+                lag = target - world.now
+                if lag > LAG_WARNING_S >= self.max_lag_s:
+                    logger.warning(
+                        "the world runs %.0f ms behind the board's clock: this machine cannot step the plant "
+                        "in real time (the phone comes late and slow); lockstep runs are unaffected",
+                        lag * 1e3,
+                    )
+                self.max_lag_s = max(self.max_lag_s, lag)
                 # At most step_s of world per hold of the board's lock, then let its server in: a world
                 # that runs behind (a loaded machine) must slow the phone, never starve the board's link.
                 while world.now + world.step_s <= target + 1e-9 and not self._stop.is_set():
