@@ -117,6 +117,22 @@ class FastState:
         return np.array(self.omega, dtype=float)
 
 
+def _unit_forces(
+    v0: float, v1: float, v2: float, w_rate: float, inertia: Sequence[float]
+) -> tuple[float, float]:
+    """One unit's ``(∂T/∂γ, ∂T/∂φ)`` (:func:`model.internal_forces`) from its gimbal's angular velocity
+    ``ω_G = (v0, v1, v2)`` (gimbal frame, γ̇ included) and rotor rate φ̇: ``ω_W = ω_G + φ̇ e_s``, ``h = Ī ω``.
+    ``inertia``: the gimbal's first two rows (6) then the rotor's 3×3 (9), gimbal-frame components."""
+    g00, g01, g02, g10, g11, g12, w00, w01, w02, w10, w11, w12, w20, w21, w22 = inertia
+    q0 = v0 + w_rate
+    hg0 = g00 * v0 + g01 * v1 + g02 * v2
+    hg1 = g10 * v0 + g11 * v1 + g12 * v2
+    hw0 = w00 * q0 + w01 * v1 + w02 * v2
+    hw1 = w10 * q0 + w11 * v1 + w12 * v2
+    hw2 = w20 * q0 + w21 * v1 + w22 * v2
+    return -(v0 * hg1 - v1 * hg0) - (q0 * hw1 - v1 * hw0) + w_rate * hw1, -(v1 * hw2 - v2 * hw1)
+
+
 class SingleRunPlant:
     """:class:`Plant`'s step for one run in Python floats. Built from a plant (its :class:`ArrayModel` and
     gravity): ``plant.model`` must describe one spacecraft (shared parameters, or per-run parameters of a
@@ -489,16 +505,9 @@ class SingleRunPlant:
         """``(∂T/∂γ, ∂T/∂φ)`` from each unit's ``Cᵀ Ω`` and its rates (:func:`model.internal_forces`)."""
         fg, fp = [], []
         for F, (v0, v1, v2), g_rate, w_rate in zip(self._ax_F, vs, gr, wr, strict=True):
-            g00, g01, g02, g10, g11, g12, w00, w01, w02, w10, w11, w12, w20, w21, w22 = F
-            v2 += g_rate
-            q0 = v0 + w_rate
-            hg0 = g00 * v0 + g01 * v1 + g02 * v2
-            hg1 = g10 * v0 + g11 * v1 + g12 * v2
-            hw0 = w00 * q0 + w01 * v1 + w02 * v2
-            hw1 = w10 * q0 + w11 * v1 + w12 * v2
-            hw2 = w20 * q0 + w21 * v1 + w22 * v2
-            fg.append(-(v0 * hg1 - v1 * hg0) - (q0 * hw1 - v1 * hw0) + w_rate * hw1)
-            fp.append(-(v1 * hw2 - v2 * hw1))
+            f_gamma, f_phi = _unit_forces(v0, v1, v2 + g_rate, w_rate, F)
+            fg.append(f_gamma)
+            fp.append(f_phi)
         return fg, fp
 
     def _locked_inertia_axisymmetric(self, trig: list[tuple[float, float]]) -> Mat3:
@@ -646,20 +655,14 @@ class SingleRunPlant:
         o0, o1, o2 = omega
         fg, fp = [], []
         for u, ig, g_rate, w_rate in zip(geo, self._ig, gr, wr, strict=True):
-            a0, a1, a2, b0, b1, b2, gx, gy, gz, w00, w01, w02, w10, w11, w12, w20, w21, w22 = u[:18]
-            g00, g01, g02, g10, g11, g12 = ig[:6]
-            # ω_G = Cᵀ Ω + γ̇ e_g, ω_W = ω_G + φ̇ e_s, h = Ī ω (gimbal-frame components)
+            a0, a1, a2, b0, b1, b2, gx, gy, gz = u[:9]
+            # ω_G = Cᵀ Ω + γ̇ e_g (gimbal-frame components)
             v0 = a0 * o0 + a1 * o1 + a2 * o2
             v1 = b0 * o0 + b1 * o1 + b2 * o2
             v2 = gx * o0 + gy * o1 + gz * o2 + g_rate
-            q0 = v0 + w_rate
-            hg0 = g00 * v0 + g01 * v1 + g02 * v2
-            hg1 = g10 * v0 + g11 * v1 + g12 * v2
-            hw0 = w00 * q0 + w01 * v1 + w02 * v2
-            hw1 = w10 * q0 + w11 * v1 + w12 * v2
-            hw2 = w20 * q0 + w21 * v1 + w22 * v2
-            fg.append(-(v0 * hg1 - v1 * hg0) - (q0 * hw1 - v1 * hw0) + w_rate * hw1)
-            fp.append(-(v1 * hw2 - v2 * hw1))
+            f_gamma, f_phi = _unit_forces(v0, v1, v2, w_rate, (*ig[:6], *u[9:18]))
+            fg.append(f_gamma)
+            fp.append(f_phi)
         return fg, fp
 
 
