@@ -12,6 +12,7 @@ import statistics
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -56,16 +57,18 @@ while True:
 
 
 @contextmanager
-def _process(args: list[str]) -> Any:
+def _process(args: list[str], ready: str = "/dev/") -> Iterator[tuple[subprocess.Popen[str], str]]:
+    """Start ``args``; wait for its first stdout line, which must start with ``ready`` (by default a pty
+    path); yield the process and that line; terminate it (kill if it lingers) on the way out."""
     proc = subprocess.Popen(
         args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
     )
     try:
         assert proc.stdout is not None
-        path = proc.stdout.readline().strip()
-        if not path.startswith("/dev/"):
-            raise RuntimeError(f"{args[:3]} did not print a pty path: {path!r}")
-        yield proc, path
+        line = proc.stdout.readline().strip()
+        if not line.startswith(ready):
+            raise RuntimeError(f"{args[:3]} did not print {ready!r}...: {line!r}")
+        yield proc, line
     finally:
         proc.terminate()
         try:
@@ -186,6 +189,7 @@ def _frames_per_second(seconds: float) -> tuple[float, float, str]:
         port.flush()
         time.sleep(0.05)
         elapsed = time.perf_counter() - t0
+        assert proc.stdin is not None and proc.stdout is not None
         proc.stdin.write("\n")
         proc.stdin.flush()
         peer_rate = int(proc.stdout.readline()) / elapsed

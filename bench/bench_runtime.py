@@ -57,7 +57,6 @@ import json
 import os
 import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -69,7 +68,7 @@ from urllib.parse import urlencode, urlsplit
 
 import numpy as np
 
-from bench.bench_firmware_sim import _pct
+from bench.bench_firmware_sim import _pct, _process
 from bench.bench_link import _pty_latency
 from bench.common import Result
 from hil.clock import WallClock
@@ -176,24 +175,9 @@ sender.close()  # a clean end of the connection, as an app that stops streaming
 
 @contextmanager
 def _still_phone(url: str) -> Iterator[None]:
-    proc = subprocess.Popen(
-        [sys.executable, "-c", _STILL_PHONE, SCENARIO, url],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-    )  # fmt: skip
-    try:
-        # Streaming before the host connects: the runtime arms, then waits for the phone without
-        # servicing the board link, so a late phone lets the board's 250 ms link watchdog fire.
-        assert proc.stdout is not None
-        if proc.stdout.readline().strip() != "streaming":
-            raise RuntimeError("the stand-in phone did not start")
+    """The stand-in phone, streaming to ``url`` before the run starts."""
+    with _process([sys.executable, "-c", _STILL_PHONE, SCENARIO, url], ready="streaming"):
         yield
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def _runtime_realtime(rate_hz: float, duration_s: float, world: bool) -> tuple[_Jitter, str]:

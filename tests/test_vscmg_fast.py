@@ -6,7 +6,7 @@ samples and truth on either plant."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import astuple, replace
+from dataclasses import astuple, fields, replace
 
 import numpy as np
 import pytest
@@ -18,17 +18,7 @@ from hil.vscmg.fast import FastState, SingleRunPlant
 from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError, NumericalError
 
-FIELDS = (
-    "R",
-    "momentum",
-    "gimbal_angle",
-    "rotor_angle",
-    "gimbal_momentum",
-    "rotor_momentum",
-    "omega",
-    "gimbal_rate",
-    "rotor_rate",
-)
+FIELDS = tuple(f.name for f in fields(PlantState) if f.name != "t")  # every array of the state
 PRESETS: dict[str, Callable[[], SpacecraftParams]] = {
     "cubesat_1u": cubesat_1u,
     "air_bearing_testbed": air_bearing_testbed,

@@ -29,14 +29,12 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.so3 import Mat9, Vec3, exp_f, matmul_f, reorthonormalize_f
 from protocol.errors import ConfigError, NumericalError
 
 from .plant import Plant, PlantState, Torques
 
 Array = NDArray[np.float64]
-Vec3 = tuple[float, float, float]
-Mat3 = tuple[float, float, float, float, float, float, float, float, float]
-"""A 3×3 matrix, row-major."""
 
 _TWO_PI = 2.0 * math.pi
 _cos, _sin, _sqrt, _isfinite = math.cos, math.sin, math.sqrt, math.isfinite
@@ -72,7 +70,7 @@ class FastState:
     def __init__(
         self,
         t: float,
-        R: Sequence[float],
+        R: Mat9,
         x: Sequence[float],
         omega: Sequence[float],
         gimbal_rate: Sequence[float],
@@ -161,7 +159,7 @@ class SingleRunPlant:
         g, s0, t0 = one(m.g), one(m.s0), one(m.t0)
         IG, IW, K, dinv = one(m.IG), one(m.IW), one(m.K), one(m.dinv)
         J0 = one(m.J0)
-        self._J0: Mat3 = _t9(J0)
+        self._J0: Mat9 = _t9(J0)
         # general road, per unit: s₀, t₀, g (9 floats); rotor inertias (a, b, c, d, e, f) upper triangle
         self._axes = [tuple(s0[i].tolist() + t0[i].tolist() + g[i].tolist()) for i in range(n)]
         self._ig = [_t9(IG[i]) for i in range(n)]
@@ -290,17 +288,17 @@ class SingleRunPlant:
         w1, f1 = deriv(t0, R0, x0, mode, arg, (s.omega, s.gimbal_rate, s.rotor_rate), s.cache)
         th2 = (hh * w1[0], hh * w1[1], hh * w1[2])
         w2, f2 = deriv(
-            t0 + hh, _matmul(R0, _exp(th2)), [a + hh * b for a, b in zip(x0, f1, strict=True)], mode, arg
+            t0 + hh, matmul_f(R0, exp_f(*th2)), [a + hh * b for a, b in zip(x0, f1, strict=True)], mode, arg
         )
         d2 = _dexpinv(th2, w2)
         th3 = (hh * d2[0], hh * d2[1], hh * d2[2])
         w3, f3 = deriv(
-            t0 + hh, _matmul(R0, _exp(th3)), [a + hh * b for a, b in zip(x0, f2, strict=True)], mode, arg
+            t0 + hh, matmul_f(R0, exp_f(*th3)), [a + hh * b for a, b in zip(x0, f2, strict=True)], mode, arg
         )
         d3 = _dexpinv(th3, w3)
         th4 = (h * d3[0], h * d3[1], h * d3[2])
         w4, f4 = deriv(
-            t0 + h, _matmul(R0, _exp(th4)), [a + h * b for a, b in zip(x0, f3, strict=True)], mode, arg
+            t0 + h, matmul_f(R0, exp_f(*th4)), [a + h * b for a, b in zip(x0, f3, strict=True)], mode, arg
         )
         d4 = _dexpinv(th4, w4)
         h6 = h / 6.0
@@ -309,7 +307,7 @@ class SingleRunPlant:
             h6 * (w1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1]),
             h6 * (w1[2] + 2.0 * d2[2] + 2.0 * d3[2] + d4[2]),
         )
-        R = _reorthonormalize(_matmul(R0, _exp(th)))
+        R = reorthonormalize_f(matmul_f(R0, exp_f(*th)))
         x = [a + h6 * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(x0, f1, f2, f3, f4, strict=True)]
         if not _isfinite(sum(x)) and not all(map(_isfinite, x)):
             raise NumericalError(f"the plant state diverged at t = {t0 + h:.6g} s (step {h:g} s too long?)")
@@ -349,7 +347,7 @@ class SingleRunPlant:
     def _derivative(
         self,
         t: float,
-        R: Sequence[float],
+        R: Mat9,
         x: Sequence[float],
         mode: int,
         arg: Any,
@@ -510,7 +508,7 @@ class SingleRunPlant:
             fp.append(f_phi)
         return fg, fp
 
-    def _locked_inertia_axisymmetric(self, trig: list[tuple[float, float]]) -> Mat3:
+    def _locked_inertia_axisymmetric(self, trig: list[tuple[float, float]]) -> Mat9:
         """J(γ) (row-major) from each unit's ``(cos γ, sin γ)``."""
         j00, j01, j02, j11, j12, j22 = self._JK0
         for (P2, P1), (c, s) in zip(self._ax_J, trig, strict=True):
@@ -535,7 +533,7 @@ class SingleRunPlant:
     # ---------------------------------------------------------- any rotor (the reference's road)
     def _configuration(
         self, ga: Sequence[float], ra: Sequence[float], want_j: bool
-    ) -> tuple[list[tuple[float, ...]], Mat3 | None]:
+    ) -> tuple[list[tuple[float, ...]], Mat9 | None]:
         """Per unit ``(s (3), t (3), g (3), Ī_W^G (9), b_γ (3), b_φ (3), D⁻¹ (3))`` at gimbal angles
         ``ga`` and rotor angles ``ra``, and the locked inertia J (when ``want_j``)."""
         geo: list[tuple[float, ...]] = []
@@ -595,7 +593,7 @@ class SingleRunPlant:
         if not want_j:
             return geo, None
         J0 = self._J0
-        J: Mat3 = (
+        J: Mat9 = (
             J0[0] + j00, J0[1] + j01, J0[2] + j02,
             J0[3] + j10, J0[4] + j11, J0[5] + j12,
             J0[6] + j20, J0[7] + j21, J0[8] + j22,
@@ -605,7 +603,7 @@ class SingleRunPlant:
     @staticmethod
     def _velocities(
         geo: list[tuple[float, ...]],
-        J: Mat3,
+        J: Mat9,
         H: Vec3,
         pg: Sequence[float],
         pp: Sequence[float],
@@ -675,7 +673,7 @@ def _turn_terms(P: list[Array]) -> tuple[tuple[float, ...], tuple[float, ...] | 
     return _sym6(P[1]) + _sym6(P[2]), (odd if any(odd) else None)
 
 
-def _t9(a: Array) -> Mat3:
+def _t9(a: Array) -> Mat9:
     """A (3, 3) array as a row-major 9-tuple of floats."""
     return tuple(np.asarray(a, float).ravel().tolist())  # type: ignore[return-value]
 
@@ -727,36 +725,6 @@ def _gravity_gradient(
     return (r0 * t0 + r1 * t1 + r2 * t2, r3 * t0 + r4 * t1 + r5 * t2, r6 * t0 + r7 * t1 + r8 * t2)
 
 
-def _exp(p: Sequence[float]) -> Mat3:
-    """Rodrigues (:func:`hil.vscmg.plant._exp`): ``I + a φ^× + b (φ^×)²``, series below θ² = 1e-8."""
-    p0, p1, p2 = p
-    th2 = p0 * p0 + p1 * p1 + p2 * p2
-    if th2 < 1e-8:
-        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
-    else:
-        th = _sqrt(th2)
-        a = _sin(th) / th
-        b = 2.0 * (_sin(0.5 * th) / th) ** 2
-    # (φ^×)² = φ φᵀ − θ² I
-    k00, k11, k22 = -(p2 * p2 + p1 * p1), -(p2 * p2 + p0 * p0), -(p1 * p1 + p0 * p0)
-    k01, k02, k12 = p1 * p0, p2 * p0, p2 * p1
-    return (
-        1.0 + b * k00, -a * p2 + b * k01, a * p1 + b * k02,
-        a * p2 + b * k01, 1.0 + b * k11, -a * p0 + b * k12,
-        -a * p1 + b * k02, a * p0 + b * k12, 1.0 + b * k22,
-    )  # fmt: skip
-
-
-def _matmul(A: Sequence[float], B: Sequence[float]) -> Mat3:
-    a0, a1, a2, a3, a4, a5, a6, a7, a8 = A
-    b0, b1, b2, b3, b4, b5, b6, b7, b8 = B
-    return (
-        a0 * b0 + a1 * b3 + a2 * b6, a0 * b1 + a1 * b4 + a2 * b7, a0 * b2 + a1 * b5 + a2 * b8,
-        a3 * b0 + a4 * b3 + a5 * b6, a3 * b1 + a4 * b4 + a5 * b7, a3 * b2 + a4 * b5 + a5 * b8,
-        a6 * b0 + a7 * b3 + a8 * b6, a6 * b1 + a7 * b4 + a8 * b7, a6 * b2 + a7 * b5 + a8 * b8,
-    )  # fmt: skip
-
-
 def _dexpinv(th: Sequence[float], w: Sequence[float]) -> Vec3:
     """``w − ½ Θ×w + (1/12) Θ×(Θ×w)``."""
     t0, t1, t2 = th
@@ -766,26 +734,4 @@ def _dexpinv(th: Sequence[float], w: Sequence[float]) -> Vec3:
         w0 - 0.5 * c0 + (t1 * c2 - t2 * c1) / 12.0,
         w1 - 0.5 * c1 + (t2 * c0 - t0 * c2) / 12.0,
         w2 - 0.5 * c2 + (t0 * c1 - t1 * c0) / 12.0,
-    )
-
-
-def _reorthonormalize(R: Mat3) -> Mat3:
-    """One Newton–Schulz step ``R (3I − RᵀR)/2``, written ``1.5 R − 0.5 R (RᵀR)`` as the reference."""
-    r0, r1, r2, r3, r4, r5, r6, r7, r8 = R
-    q00 = r0 * r0 + r3 * r3 + r6 * r6
-    q01 = r0 * r1 + r3 * r4 + r6 * r7
-    q02 = r0 * r2 + r3 * r5 + r6 * r8
-    q11 = r1 * r1 + r4 * r4 + r7 * r7
-    q12 = r1 * r2 + r4 * r5 + r7 * r8
-    q22 = r2 * r2 + r5 * r5 + r8 * r8
-    return (
-        1.5 * r0 - 0.5 * (r0 * q00 + r1 * q01 + r2 * q02),
-        1.5 * r1 - 0.5 * (r0 * q01 + r1 * q11 + r2 * q12),
-        1.5 * r2 - 0.5 * (r0 * q02 + r1 * q12 + r2 * q22),
-        1.5 * r3 - 0.5 * (r3 * q00 + r4 * q01 + r5 * q02),
-        1.5 * r4 - 0.5 * (r3 * q01 + r4 * q11 + r5 * q12),
-        1.5 * r5 - 0.5 * (r3 * q02 + r4 * q12 + r5 * q22),
-        1.5 * r6 - 0.5 * (r6 * q00 + r7 * q01 + r8 * q02),
-        1.5 * r7 - 0.5 * (r6 * q01 + r7 * q11 + r8 * q12),
-        1.5 * r8 - 0.5 * (r6 * q02 + r7 * q12 + r8 * q22),
     )
