@@ -15,7 +15,7 @@ from scipy.optimize import brentq
 from bench.common import Result, rate
 from hil.calibration.bench import read_bench_csv
 from hil.calibration.fit import fit_bench
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 from protocol.calibration import UnitCalibration, default_unit_calibration
 from protocol.messages import GimbalMode
 

@@ -115,8 +115,8 @@ def _world_cost(duration: float, fast: bool) -> float:
     idle board in lockstep, on the float plant or the numpy one."""
     from firmware_sim.cli import build_parser, make_board
     from firmware_sim.world import World
-    from hil.clock import LockstepClock
     from hil.scenario import load_scenario
+    from hil.timing.clock import LockstepClock
 
     scenario = load_scenario("cubesat-1u")
     clock = LockstepClock()
@@ -222,7 +222,7 @@ def _agreement(a: list, b: list) -> tuple[float, float, float]:
 
 
 def _closed_loop(quick: bool) -> list[Result]:
-    from hil.closed_loop import (
+    from hil.simulation.closed_loop import (
         ClosedLoop,
         EstimatorInTheLoop,
         TruthWithNoise,

@@ -11,7 +11,7 @@ exclusions; BROAD: ``movement``). Our variants:
 - ``ours-paper``: exactly the paper — its W, m, D, Φ(x) = x and the 1 rad/s body-frame pre-filter on all
   three signals; E from the log (measured field inclination, magnetic north).
 - ``ours-paper-nopf``: the paper's gains without the pre-filter.
-- ``ours-tuned``: the paper's estimator with :data:`hil.estimator.TUNED` (gains, strapdown-frame
+- ``ours-tuned``: the paper's estimator with :data:`hil.estimation.estimator.TUNED` (gains, strapdown-frame
   pre-filter, horizontal magnetometer) and the gyro bias measured over the log's initial still window,
   found by :func:`tune` — a grid search on :data:`TUNING_TRIALS`; the other trials are held out.
 
@@ -39,13 +39,13 @@ import numpy as np
 
 from bench.common import Result
 from hil import so3
-from hil.estimator import PAPER_D, AttitudeFilter, EstimatorParams, FilterConfig
-from hil.inertial import directions_from_dip, directions_from_log, find_still_window
+from hil.estimation.estimator import PAPER_D, AttitudeFilter, EstimatorParams, FilterConfig
+from hil.estimation.inertial import directions_from_dip, directions_from_log, find_still_window
+from hil.estimation.metrics import AttitudeErrors, Rmse, resample_quats
+from hil.estimation.multirate import MergePolicy, first_full_step, merge
+from hil.estimation.sensors import MergedSteps, SensorKind, SensorLog
 from hil.logs import read_log
-from hil.metrics import AttitudeErrors, Rmse, resample_quats
-from hil.multirate import MergePolicy, first_full_step, merge
-from hil.paths import SHARED_DATA
-from hil.sensors import MergedSteps, SensorKind, SensorLog
+from hil.scenario.paths import SHARED_DATA
 from protocol.errors import InputFormatError
 
 NAME = "estimator"
@@ -275,7 +275,7 @@ def step_speed(trial: Trial, n: int) -> dict[str, float]:
     from ahrs.filters import Madgwick
     from vqf import VQF, PyVQF
 
-    from hil.estimator import VariationalEstimator
+    from hil.estimation.estimator import VariationalEstimator
 
     gyr, acc, mag, dt = _arrays(trial.steps)
     g, a, m = gyr.tolist(), acc.tolist(), mag.tolist()
@@ -321,8 +321,8 @@ def step_speed(trial: Trial, n: int) -> dict[str, float]:
 
 def long_log(samples: int, directory: Path) -> Path:
     """A ``samples``-sample phone log in the project CSV: tyrex trials end to end (times shifted)."""
+    from hil.estimation.sensors import SensorStream
     from hil.logs import project_csv
-    from hil.sensors import SensorStream
 
     parts: dict[SensorKind, list[SensorStream]] = {k: [] for k in SensorKind}
     total, offset = 0, 0.0

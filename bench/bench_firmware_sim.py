@@ -247,7 +247,7 @@ def _latency(samples: int) -> tuple[list[float], list[float], int]:
 def _lockstep_speed(seconds: float) -> float:
     from firmware_sim.board import Board
     from firmware_sim.config import BoardConfig
-    from hil.clock import LockstepClock
+    from hil.timing.clock import LockstepClock
 
     clock = LockstepClock()
     board = Board(BoardConfig(n_units=N_UNITS, frame_rate_hz=490.0, telemetry_rate_hz=100.0), clock)

@@ -1,4 +1,5 @@
-"""The host's link layer (hil.board.BoardClient over hil.transports), each figure next to a peer in the
+"""The host's link layer (hil.link.board.BoardClient over hil.link.transports), each figure next to a peer
+in the
 same run:
 
 * host setpoint → pulse change reported, p50/p99, through the full client (reader thread, pyserial, a
@@ -25,9 +26,9 @@ import serial
 
 from bench.bench_firmware_sim import _PEER, _pct, _process
 from bench.common import Result
-from hil.board import BoardClient, ClientConfig, Event, TelemetryEvent
-from hil.clock import LockstepClock
-from hil.transports.emulator import EmulatorTransport
+from firmware_sim.transports import EmulatorTransport
+from hil.link.board import BoardClient, ClientConfig, Event, TelemetryEvent
+from hil.timing.clock import LockstepClock
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import SCHEMA_HASH, ActuatorSetpoint, Arm, Hello, Telemetry, UnitSetpoint
 

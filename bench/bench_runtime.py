@@ -2,7 +2,7 @@
 run:
 
 * **real-time control period jitter** p50 / p99 / max at 100 Hz and 200 Hz: the real runtime (board client,
-  phone receiver, estimator and control tasks on :class:`hil.scheduler.Scheduler`) in ``--port`` mode
+  phone receiver, estimator and control tasks on :class:`hil.timing.scheduler.Scheduler`) in ``--port`` mode
   against ``spawn://firmware-sim`` on a real pty with its world (``cubesat-1u``), the world's simulated
   phone streaming to the host over loopback UDP as SensaGram does (firmware-sim's ``--phone udp://…``) to a
   free port the host listens on (``RunOptions.phone``). The board's pulse frame rate is twice the control
@@ -23,8 +23,8 @@ run:
 
   Two peers, each run right after the runtime at the same rate for a few seconds:
 
-  - a bare loop doing no work on the same :class:`~hil.scheduler.Scheduler` and
-    :class:`~hil.clock.WallClock`, with the same lateness statistics: the floor this machine, its load
+  - a bare loop doing no work on the same :class:`~hil.timing.scheduler.Scheduler` and
+    :class:`~hil.timing.clock.WallClock`, with the same lateness statistics: the floor this machine, its load
     and its timer give a Python loop — what the runtime adds on top of it is the runtime's own doing
     (the board link, serviced in the control task, the estimator task, the phone receiver's thread,
     the GIL they share);
@@ -41,7 +41,8 @@ run:
   stepping the plant every 1 ms, every setpoint and telemetry frame encoded, framed and decoded), as
   simulated seconds per CPU second of this process (``time.process_time``: wall time depends on the
   machine's load; the wall-time factor ``summary["realtime_factor"]`` is reported as well). Peer: the
-  same scenario's closed loop at setpoint level (:class:`hil.closed_loop.ClosedLoop` with the same phone
+  same scenario's closed loop at setpoint level (:class:`hil.simulation.closed_loop.ClosedLoop` with the
+  same phone
   model and estimator, :func:`hil.montecarlo.runner.loop_config`) for the same simulated time — the same
   physics, sensors, estimator and controller without the protocol, the board emulation and the runtime.
   The two step the plant differently: the runtime's world uses the single-run float plant
@@ -71,9 +72,9 @@ import numpy as np
 from bench.bench_firmware_sim import _pct, _process
 from bench.bench_link import _pty_latency
 from bench.common import Result
-from hil.clock import WallClock
 from hil.scenario import Scenario, load_scenario
-from hil.scheduler import PeriodicTask, Scheduler
+from hil.timing.clock import WallClock
+from hil.timing.scheduler import PeriodicTask, Scheduler
 from protocol.errors import HilError
 
 NAME = "runtime"
@@ -131,7 +132,7 @@ def _world_cost() -> float:
     ~0.7, ``firmware-sim --world`` cannot keep real time next to its board and pty server."""
     from firmware_sim.cli import build_parser, make_board
     from firmware_sim.world import World
-    from hil.clock import LockstepClock
+    from hil.timing.clock import LockstepClock
 
     scenario = load_scenario(SCENARIO)
     clock = LockstepClock()
@@ -149,9 +150,9 @@ def _world_cost() -> float:
 _STILL_PHONE = r"""
 import signal, sys, time
 import numpy as np
-from hil.phone_model import BodyPhone
+from hil.simulation.phone import BodyPhone
 from hil.scenario import load_scenario
-from hil.sources import open_sender
+from hil.link.sources import open_sender
 scenario = load_scenario(sys.argv[1])
 sender = open_sender(sys.argv[2])
 phone = BodyPhone(scenario.phone, scenario.seed)
@@ -318,8 +319,8 @@ def _lockstep_runtime(duration_s: float) -> tuple[float, float, float]:
 def _closed_loop(sim_s: float) -> tuple[float, float, float]:
     """The scenario's closed loop without protocol or board for ``sim_s`` simulated seconds (warm-up
     included): (simulated s, CPU s, wall s)."""
-    from hil.closed_loop import ClosedLoop, EstimatorInTheLoop
     from hil.montecarlo.runner import loop_config
+    from hil.simulation.closed_loop import ClosedLoop, EstimatorInTheLoop
 
     scenario = load_scenario(SCENARIO)
     loop = ClosedLoop(scenario.spacecraft, loop_config(scenario))

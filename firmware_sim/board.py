@@ -27,7 +27,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from hil.clock import Clock
+from hil.timing.clock import Clock
 from protocol.calibration import Reassembler, default_unit_calibration, fragment
 from protocol.errors import ConfigError, HilError
 from protocol.frame import BadFrame, Frame
@@ -120,7 +120,7 @@ class Board:
         cfg.validate()
         self.config = cfg
         if clock is None:
-            from hil.clock import LockstepClock
+            from hil.timing.clock import LockstepClock
 
             clock = LockstepClock()
         self.clock = clock

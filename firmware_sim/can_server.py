@@ -1,6 +1,6 @@
 """The board on a CAN bus: a small loop around the sans-IO :class:`Board`, like :mod:`.pty_server`.
 
-The server is the board's end of :class:`hil.transports.can_bus.CanTransport` (it sends
+The server is the board's end of :class:`hil.link.transports.can_bus.CanTransport` (it sends
 ``Direction.TO_HOST`` and accepts ``TO_BOARD`` segments for its node), so the host's transport and the
 board's share one implementation of the segmentation. Real time: the board's clock is a ``WallClock``;
 the loop waits in the bus's ``recv`` until the board's next absolute deadline or until a CAN frame
@@ -43,7 +43,7 @@ class CanServer:
     """Serve ``board`` on the CAN bus named by ``url`` (``can://…``, or ``interface/channel?…``)."""
 
     def __init__(self, board: Board, url: str) -> None:
-        from hil.transports.can_bus import CanTransport
+        from hil.link.transports.can_bus import CanTransport
 
         if "://" not in url:
             url = f"can://{url}"

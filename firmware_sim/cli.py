@@ -215,7 +215,7 @@ def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 def make_board(args: argparse.Namespace, clock: object | None = None):  # type: ignore[no-untyped-def]
     """The board the options describe, faults scheduled (times relative to the clock's start)."""
-    from hil.clock import WallClock
+    from hil.timing.clock import WallClock
 
     from .board import Board
 
@@ -268,8 +268,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         scenario = None
         if args.world is not None:
+            from hil.link.sources import phone_url
             from hil.scenario import load_scenario
-            from hil.sources import phone_url
 
             scenario = load_scenario(args.world)
             args.units = scenario.n_units

@@ -24,7 +24,7 @@ import math
 import random
 from dataclasses import dataclass
 
-from hil.clock import Clock
+from hil.timing.clock import Clock
 from protocol.errors import ConfigError
 
 DIRECTIONS = ("rx", "tx", "both")

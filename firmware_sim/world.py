@@ -4,9 +4,12 @@ and gimbal servos of a spacecraft with VSCMGs, and a phone on the spacecraft sen
 Each plant step (the scenario's ``plant_step_s``, ≤ 1 ms) the world reads the widths the board's timers
 put out (``Board.outputs``), turns each into what the motor driver makes of it through the unit's
 calibration map — the rotor ESC's steady speed at the present battery voltage, the gimbal servo's rate
-(or angle) — and lets :class:`hil.motor_loops.ServoModel` drive the plant (:mod:`hil.vscmg`) towards it.
-The measured unit states go back to the board (``Board.set_unit_states``: its telemetry, power draw and
-dead-ESC detection then follow the physics), and the phone (:class:`hil.phone_model.BodyPhone`) samples the
+(or angle) — and lets :class:`hil.control.motor_loops.ServoModel` drive the plant (:mod:`hil.vscmg`)
+towards it.
+The measured unit states go back to the board (``Board.set_unit_states``: its telemetry, power draw
+and
+dead-ESC detection then follow the physics), and the phone (:class:`hil.simulation.phone.BodyPhone`)
+samples the
 true motion. A channel without pulses (board booting, outputs off) leaves its drive where it was: the
 gimbal holds, the rotor holds its speed over such short gaps.
 
@@ -26,9 +29,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.motor_loops import ServoModel, Setpoints
-from hil.phone_model import BodyPhone
-from hil.sensors import SensorSample
+from hil.control.motor_loops import ServoModel, Setpoints
+from hil.estimation.sensors import SensorSample
+from hil.simulation.phone import BodyPhone
 from hil.vscmg import Plant, PlantState
 from hil.vscmg.fast import FastState, SingleRunPlant
 from protocol.messages import GimbalMode, UnitState
@@ -215,7 +218,7 @@ class WorldStreamer:
     """Runs a world in real time next to a board that is served elsewhere (a pty server's loop, a host's
     in-process emulator) and streams its phone the way a phone app does: a thread advances the world to
     the board's clock every ``step_s`` (under ``lock``, the lock the board's server holds while it touches
-    the board) and sends the samples to ``phone_url`` (:func:`hil.sources.open_sender`: SensaGram's UDP
+    the board) and sends the samples to ``phone_url`` (:func:`hil.link.sources.open_sender`: SensaGram's UDP
     datagrams, or Sensor Logger's HTTP Push batches). The sender's ``batch_s`` sets how often: each step
     for UDP, as an app batches for HTTP. A send nobody receives is counted, never fatal: a phone keeps
     streaming while the host restarts. An error in the thread is stored and raised by :meth:`check` /
@@ -224,7 +227,7 @@ class WorldStreamer:
     def __init__(
         self, world: World, lock: threading.RLock | threading.Condition, phone_url: str, step_s: float = 0.005
     ) -> None:
-        from hil.sources import open_sender
+        from hil.link.sources import open_sender
 
         self.world = world
         self.lock = lock

@@ -1,5 +1,8 @@
 """The host side of vscmg-hil.
 
-Pure math (no I/O): :mod:`hil.so3` and the estimator, dynamics, control and steering modules.
-Around it the runtime: sensor sources, loops, transports, the board client, logs, reports and the CLI.
+Pure math (no I/O): :mod:`hil.so3`, :mod:`hil.estimation`, :mod:`hil.vscmg`, :mod:`hil.control`,
+:mod:`hil.simulation`. Around it: :mod:`hil.scenario` (what a run simulates), :mod:`hil.timing` (clocks,
+scheduler), :mod:`hil.link` (board client, transports, phone sources), :mod:`hil.runtime` (the host's loop
+and its run directory), and the tools: :mod:`hil.logs`, :mod:`hil.calibration`, :mod:`hil.montecarlo`,
+:mod:`hil.plots`, :mod:`hil.cli`. docs/architecture.md draws the layers.
 """

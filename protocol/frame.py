@@ -206,8 +206,12 @@ class Deframer:
             return
         self._buf += data
         if len(self._buf) > MAX_ENCODED:
-            self._bad(events, BadFrameReason.TOO_LONG, f"more than {MAX_ENCODED} bytes without a delimiter",
-                      len(self._buf))
+            self._bad(
+                events,
+                BadFrameReason.TOO_LONG,
+                f"more than {MAX_ENCODED} bytes without a delimiter",
+                len(self._buf),
+            )
             self.counters.resyncs += 1
             self._buf.clear()
             self._skipping = True

@@ -9,7 +9,8 @@ import time
 
 import pytest
 
-from hil.board import (
+from firmware_sim.transports import EmulatorTransport
+from hil.link.board import (
     BoardClient,
     BoardResetEvent,
     ClientConfig,
@@ -18,9 +19,8 @@ from hil.board import (
     StateEvent,
     TelemetryEvent,
 )
-from hil.clock import LockstepClock, WallClock
-from hil.transports import create_transport
-from hil.transports.emulator import EmulatorTransport
+from hil.link.transports import create_transport
+from hil.timing.clock import LockstepClock, WallClock
 from protocol.calibration import default_unit_calibration
 from protocol.errors import (
     BoardReset,

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.board import (
+from firmware_sim.transports import EmulatorTransport
+from hil.link.board import (
     BoardClient,
     BoardResetEvent,
     ClientConfig,
@@ -24,8 +25,7 @@ from hil.board import (
     LogEvent,
     StateEvent,
 )
-from hil.clock import WallClock
-from hil.transports.emulator import EmulatorTransport
+from hil.timing.clock import WallClock
 from protocol.errors import BoardReset, HandshakeError, LinkError
 from protocol.messages import SCHEMA_HASH, ActuatorSetpoint, BoardState, ResetCause, UnitSetpoint
 

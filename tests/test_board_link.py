@@ -8,7 +8,7 @@ from conformance.host import heartbeat, lockstep
 
 from firmware_sim.board import Board
 from firmware_sim.config import BoardConfig
-from hil.clock import LockstepClock
+from hil.timing.clock import LockstepClock
 from protocol.calibration import Reassembler, default_unit_calibration, fragment
 from protocol.frame import encode_frame
 from protocol.messages import (

@@ -12,7 +12,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, pr
 from firmware_sim.board import Board, McuPhase
 from firmware_sim.config import BoardConfig
 from firmware_sim.state import Event, motors_enabled, transition
-from hil.clock import LockstepClock
+from hil.timing.clock import LockstepClock
 from protocol.messages import (
     Ack,
     ActuatorSetpoint,

@@ -180,7 +180,7 @@ def test_a_hang_due_during_boot_takes_the_main_loop_once_it_runs():
     from conformance.host import LockstepHost
 
     from firmware_sim.board import Board
-    from hil.clock import LockstepClock
+    from hil.timing.clock import LockstepClock
 
     clock = LockstepClock()
     board = Board(CFG, clock)

@@ -11,7 +11,7 @@ import pytest
 from hil.calibration.files import load_calibration
 from hil.calibration.generate import generate_bench
 from hil.cli import main
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 from protocol.calibration import default_unit_calibration
 
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -17,7 +17,7 @@ from hil.calibration.files import (
     load_calibration,
     save_calibration,
 )
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 from protocol.calibration import default_unit_calibration
 from protocol.errors import CalibrationError, InputFormatError
 

@@ -12,7 +12,7 @@ import pytest
 
 from hil.calibration.files import load_calibration
 from hil.calibration.vectors import TOLERANCE, build_vectors
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 
 F = np.float32
 VECTORS_PATH = FIXTURES / "calibration" / "vectors.json"

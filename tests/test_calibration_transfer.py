@@ -16,7 +16,7 @@ from hypothesis.stateful import Bundle, RuleBasedStateMachine, invariant, rule
 from test_calibration_strategies import unit_calibrations
 
 from hil.calibration.files import load_calibration
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 from protocol.calibration import (
     MAX_TRANSFER_BYTES,
     Reassembler,

@@ -16,8 +16,8 @@ import pytest
 from firmware_sim.board import Board
 from firmware_sim.can_server import CanServer
 from firmware_sim.config import BoardConfig
-from hil.board import BoardClient
-from hil.clock import WallClock
+from hil.link.board import BoardClient
+from hil.timing.clock import WallClock
 from protocol.errors import LinkError
 from protocol.messages import ActuatorSetpoint, BoardState, UnitSetpoint
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.closed_loop import (
+from hil.simulation.closed_loop import (
     ClosedLoop,
     EstimatorInTheLoop,
     LoopConfig,
@@ -21,7 +21,7 @@ from hil.closed_loop import (
     slew_90deg,
     slew_through_singularity,
 )
-from hil.phone_model import PhoneSpec
+from hil.simulation.phone import PhoneSpec
 from hil.vscmg import cubesat_1u
 from protocol.errors import ConfigError
 
@@ -81,7 +81,8 @@ def test_slew_through_a_cmg_singularity_completes_without_blow_up(truth_runs):
 
 
 def test_estimator_in_the_loop_90_degree_slew():
-    """The paper's estimator (hil.estimator, its parameters and 1 rad/s pre-filter) on a simulated Nexus-5
+    """The paper's estimator (hil.estimation.estimator, its parameters and 1 rad/s pre-filter) on a
+    simulated Nexus-5
     fixed to the body: gyroscope, accelerometer and magnetometer at their own rates with jitter and white
     noise (sensor biases are left out here: the residual magnetometer and accelerometer biases of
     PhoneSpec.nexus5 alone shift the estimate by ~1°, see docs/dynamics.md)."""
@@ -102,7 +103,7 @@ def test_the_estimator_gets_the_still_window_gyro_bias_as_on_the_host():
     to the estimator, which removes the phone gyro's bias (here ~5·10⁻³ rad/s, 0.3°/s) from then on. The
     same estimator behind a source that cannot calibrate itself (the rate bias is then only taken off the
     controller's rate) keeps a drifting attitude. A 5 s hold, both in one batch."""
-    from hil.sensors import SensorKind
+    from hil.estimation.sensors import SensorKind
 
     class Uncalibrated:  # the same estimator, without begin/end_gyro_bias
         def __init__(self, inner):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.control import AttitudeController, ControllerGains, EigenaxisSlew, Reference
+from hil.control.attitude import AttitudeController, ControllerGains, EigenaxisSlew, Reference
 from protocol.errors import ConfigError
 
 J = np.diag([2.1e-3, 2.3e-3, 2.5e-3])

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.optimize import fsolve
 
-from hil import estimator as est_mod
 from hil import so3
-from hil.estimator import (
+from hil.estimation import estimator as est_mod
+from hil.estimation.estimator import (
     PAPER_OMEGA0,
     EstimatorParams,
     VariationalEstimator,
@@ -17,7 +17,7 @@ from hil.estimator import (
     phi_log,
     wahba,
 )
-from hil.sensors import MergedSteps, StepFlag
+from hil.estimation.sensors import MergedSteps, StepFlag
 from protocol.errors import ConfigError, ConvergenceError
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.estimator import EstimatorParams
-from hil.inertial import (
+from hil.estimation.estimator import EstimatorParams
+from hil.estimation.inertial import (
     decimal_year,
     directions_from_dip,
     directions_from_log,
@@ -19,7 +19,7 @@ from hil.inertial import (
     median_inclination_deg,
     wmm2025,
 )
-from hil.phone_model import PhoneSpec, SensorSpec, Trajectory, simulate
+from hil.simulation.phone import PhoneSpec, SensorSpec, Trajectory, simulate
 from protocol.errors import ConfigError, InputFormatError
 
 # NOAA WMM2025 test values: year, height km, lat, lon, X (north) nT, Y (east) nT, Z (down) nT, D deg

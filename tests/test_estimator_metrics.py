@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.metrics import AttitudeErrors, compare_to_truth, resample_quats, settling_time, truth_rates
+from hil.estimation.metrics import (
+    AttitudeErrors,
+    compare_to_truth,
+    resample_quats,
+    settling_time,
+    truth_rates,
+)
 
 
 def test_pure_heading_and_pure_tilt_errors_split_exactly():

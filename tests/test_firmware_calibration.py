@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from test_calibration_strategies import unit_calibrations
 
 from firmware_sim.avr.hostlib import cal_call, cal_status_text, cal_validate
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 from protocol.calibration import UnitCalibration, default_unit_calibration
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import CalibrationError

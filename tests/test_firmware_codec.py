@@ -19,7 +19,7 @@ from test_protocol_strategies import numbered_stream, wire_frames
 
 from firmware_sim.avr import CODEC_CHECK_ELF, AvrBoard, HarnessOptions
 from firmware_sim.avr.hostlib import CDeframer, CFrame, cobs_decode, cobs_encode, crc16
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 from protocol import cobs
 from protocol.frame import BadFrameReason, Deframer, Frame, encode_frame
 

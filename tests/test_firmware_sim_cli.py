@@ -12,7 +12,7 @@ import pytest
 from conformance.host import SerialHost, heartbeat
 
 from firmware_sim.cli import build_parser, main, make_board, parse_dead_esc, parse_sag, parse_stall
-from hil.clock import LockstepClock
+from hil.timing.clock import LockstepClock
 from protocol.errors import ConfigError
 from protocol.messages import BoardState, ResetCause, Telemetry
 

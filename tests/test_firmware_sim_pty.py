@@ -11,7 +11,7 @@ from conformance.host import SerialHost, heartbeat
 from firmware_sim.board import Board
 from firmware_sim.config import BoardConfig
 from firmware_sim.pty_server import PtyServer
-from hil.clock import WallClock
+from hil.timing.clock import WallClock
 from protocol.errors import LinkError
 from protocol.messages import BoardState, Telemetry
 

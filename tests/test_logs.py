@@ -13,11 +13,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hil import so3
+from hil.estimation.multirate import merge
+from hil.estimation.sensors import SensorKind, SensorLog, Truth
 from hil.logs import detect_format, project_csv, read_log
-from hil.multirate import merge
-from hil.paths import FIXTURES, SHARED_DATA
-from hil.phone_model import PhoneSpec, Trajectory, paper_testbed_rate, simulate
-from hil.sensors import SensorKind, SensorLog, Truth
+from hil.scenario.paths import FIXTURES, SHARED_DATA
+from hil.simulation.phone import PhoneSpec, Trajectory, paper_testbed_rate, simulate
 from protocol.errors import InputFormatError
 
 GYR, ACC, MAG = SensorKind.GYR, SensorKind.ACC, SensorKind.MAG
@@ -231,7 +231,7 @@ def test_tyrex_trial_rates_and_truth_on_the_phone_clock():
     offset = float((trial / "timeAlignment.txt").read_text())
     assert log.truth.t[0] == pytest.approx(-offset)
     # the truth's rotation rate and the gyroscope agree best with no extra lag: the alignment is right
-    from hil.metrics import truth_rates
+    from hil.estimation.metrics import truth_rates
 
     mid, w_true = truth_rates(log.truth.t, log.truth.R)
     gyr = log.streams[GYR]

@@ -23,7 +23,6 @@ import pytest
 
 from hil import so3
 from hil.cli import main as hil_main
-from hil.closed_loop import EstimatorInTheLoop
 from hil.montecarlo import (
     METRICS,
     TRACES,
@@ -40,8 +39,9 @@ from hil.montecarlo import (
 from hil.montecarlo.runner import realise
 from hil.montecarlo.store import RUNS, TRACE_FILE
 from hil.montecarlo.summary import wilson_interval
-from hil.paths import ROOT
 from hil.scenario import SCENARIO_DIR, load_scenario
+from hil.scenario.paths import ROOT
+from hil.simulation.closed_loop import EstimatorInTheLoop
 from protocol.errors import ConfigError, NumericalError
 
 DISPERSIONS = """

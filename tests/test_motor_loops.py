@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil.motor_loops import ServoModel, ServoParams, SetpointGenerator
-from hil.steering import SteeringOutput
+from hil.control.motor_loops import ServoModel, ServoParams, SetpointGenerator
+from hil.control.steering import SteeringOutput
 from hil.vscmg import Plant, cubesat_1u
 from protocol.errors import ConfigError
 from protocol.frame import decode_frame, encode_frame

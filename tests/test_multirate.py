@@ -10,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.estimator import EstimatorParams, VariationalEstimator
-from hil.multirate import MergePolicy, Merger, merge
-from hil.sensors import KINDS, MergedSteps, SensorKind, SensorSample, SensorStream, StepFlag
+from hil.estimation.estimator import EstimatorParams, VariationalEstimator
+from hil.estimation.multirate import MergePolicy, Merger, merge
+from hil.estimation.sensors import KINDS, MergedSteps, SensorKind, SensorSample, SensorStream, StepFlag
 from protocol.errors import ConfigError
 
 GYR, ACC, MAG = SensorKind.GYR, SensorKind.ACC, SensorKind.MAG
@@ -122,7 +122,7 @@ def test_nan_samples_are_dropped_counted_logged_and_the_sensor_goes_stale(caplog
     mag = stream(MAG, t[::2])
     mag.xyz[10:] = np.nan  # the magnetometer sends NaN from 0.2 s on
     streams = {GYR: stream(GYR, t), ACC: stream(ACC, t), MAG: mag}
-    with caplog.at_level(logging.WARNING, logger="hil.multirate"):
+    with caplog.at_level(logging.WARNING, logger="hil.estimation.multirate"):
         steps, stats = merge(streams, MergePolicy(stale_after_s=0.105))
     assert stats.nan["mag"] == 40
     assert "nan samples of mag" in caplog.text

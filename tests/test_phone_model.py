@@ -6,13 +6,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil import estimator as est_mod
 from hil import so3
-from hil.estimator import PAPER_OMEGA0, PAPER_PREFILTER, AttitudeFilter, FilterConfig, paper_initial_attitude
-from hil.metrics import AttitudeErrors, rate_error, settling_time
-from hil.multirate import MergePolicy, Merger, merge
-from hil.phone_model import PhoneSpec, SensorSpec, Trajectory, paper_testbed_rate, simulate
-from hil.sensors import MergedSteps, SensorKind
+from hil.estimation import estimator as est_mod
+from hil.estimation.estimator import (
+    PAPER_OMEGA0,
+    PAPER_PREFILTER,
+    AttitudeFilter,
+    FilterConfig,
+    paper_initial_attitude,
+)
+from hil.estimation.metrics import AttitudeErrors, rate_error, settling_time
+from hil.estimation.multirate import MergePolicy, Merger, merge
+from hil.estimation.sensors import MergedSteps, SensorKind
+from hil.simulation.phone import PhoneSpec, SensorSpec, Trajectory, paper_testbed_rate, simulate
 from protocol.errors import ConfigError
 
 R0 = so3.exp([0.3, -0.2, 0.5])
@@ -122,7 +128,7 @@ def test_tuned_chain_live_and_batch_agree_through_a_magnetic_disturbance():
     and in batch, and the disturbance is flagged, not followed."""
     from dataclasses import replace as dc_replace
 
-    from hil.sensors import StepFlag
+    from hil.estimation.sensors import StepFlag
 
     traj = Trajectory.from_rate(paper_testbed_rate, 6.0, R0=R0, dt=2e-3)
     log = simulate(traj, PhoneSpec.nexus5(), seed=5)

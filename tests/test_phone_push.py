@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.sensors import SensorKind, SensorSample
-from hil.sources.phone_push import PhonePushSender, PhonePushServer, decode_push, encode_push
+from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.sources.phone_push import PhonePushSender, PhonePushServer, decode_push, encode_push
 from protocol.errors import InputFormatError, LinkError
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
@@ -62,15 +62,20 @@ def test_the_apps_schema_with_other_sensors_and_bad_entries():
 def test_user_acceleration_plus_gravity_when_no_total_acceleration_is_pushed():
     entry = lambda name, t, z: {"name": name, "time": t, "values": {"x": 0.0, "y": 0.5, "z": z}}  # noqa: E731
     body = json.dumps(
-        {"payload": [entry("accelerometer", 10, 0.2), entry("gravity", 11, 9.8),
-                     entry("accelerometer", 20, -0.1)]}
+        {
+            "payload": [
+                entry("accelerometer", 10, 0.2),
+                entry("gravity", 11, 9.8),
+                entry("accelerometer", 20, -0.1),
+            ]
+        }
     ).encode()
     got, bad, ignored, _ = decode_push(body)
     assert [s.xyz for s in got] == [(0.0, 1.0, 10.0), (0.0, 1.0, 9.700000000000001)]
     assert all(s.kind is SensorKind.ACC for s in got) and bad == ignored == 0
 
 
-@pytest.mark.parametrize("body", [b"", b"[1, 2]", b"{\"payload\": 3}", b"\xff\xfe", b"{not json"])
+@pytest.mark.parametrize("body", [b"", b"[1, 2]", b'{"payload": 3}', b"\xff\xfe", b"{not json"])
 def test_malformed_batches_are_input_format_errors_naming_the_source(body):
     with pytest.raises(InputFormatError, match="phone-7"):
         decode_push(body, "phone-7")

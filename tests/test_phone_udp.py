@@ -11,10 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.sensors import SensorKind, SensorSample
-from hil.sources import open_receiver, open_sender, phone_url
-from hil.sources.phone_push import PhonePushSender, PhonePushServer
-from hil.sources.phone_udp import PhoneUdpReceiver, PhoneUdpSender, decode_datagram, encode_datagram
+from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.sources import open_receiver, open_sender, phone_url
+from hil.link.sources.phone_push import PhonePushSender, PhonePushServer
+from hil.link.sources.phone_udp import PhoneUdpReceiver, PhoneUdpSender, decode_datagram, encode_datagram
 from protocol.errors import ConfigError, InputFormatError, LinkError
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.prefilter import Prefilter, coefficients, filter_batch
+from hil.estimation.prefilter import Prefilter, coefficients, filter_batch
 from protocol.errors import ConfigError
 
 
@@ -104,7 +104,7 @@ def turning_phone(rate: float = 0.5, seconds: float = 20.0, h: float = 0.005):
 
 
 def steps_of(t, gyr, acc, mag=None):
-    from hil.sensors import MergedSteps
+    from hil.estimation.sensors import MergedSteps
 
     n = len(t)
     mag = np.tile([0.0, 20.0, -40.0], (n, 1)) if mag is None else mag
@@ -112,8 +112,8 @@ def steps_of(t, gyr, acc, mag=None):
 
 
 def test_strapdown_frame_prefilter_has_no_rotation_lag_where_the_body_frame_one_does():
-    from hil.prefilter import SignalPrefilter
-    from hil.sensors import SensorKind
+    from hil.estimation.prefilter import SignalPrefilter
+    from hil.estimation.sensors import SensorKind
 
     t, gyr, acc = turning_phone()
     cut = {SensorKind.ACC: 1.0}
@@ -130,8 +130,8 @@ def test_strapdown_frame_prefilter_has_no_rotation_lag_where_the_body_frame_one_
 
 
 def test_signal_prefilter_batch_equals_steps_with_gaps_in_a_signal():
-    from hil.prefilter import SignalPrefilter
-    from hil.sensors import SensorKind
+    from hil.estimation.prefilter import SignalPrefilter
+    from hil.estimation.sensors import SensorKind
 
     rng = np.random.default_rng(2)
     t, gyr, acc = turning_phone(seconds=2.0)
@@ -152,7 +152,7 @@ def test_signal_prefilter_batch_equals_steps_with_gaps_in_a_signal():
 def test_magnetic_gate_rejects_a_disturbance_and_relearns_after_the_timeout():
     from dataclasses import astuple
 
-    from hil.prefilter import GateSettings, MagneticGate
+    from hil.estimation.prefilter import GateSettings, MagneticGate
 
     h = 0.02
     n = 2100  # 42 s

@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from hil.paths import ROOT
+from hil.scenario.paths import ROOT
 from protocol import aoa, can
 from protocol.__main__ import BEGIN, END, main, render_tables, replace_generated
 from protocol.errors import InputFormatError

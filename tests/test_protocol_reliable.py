@@ -10,7 +10,7 @@ from hypothesis import given, settings
 
 from firmware_sim.board import Board
 from firmware_sim.config import BoardConfig
-from hil.clock import LockstepClock
+from hil.timing.clock import LockstepClock
 from protocol.errors import CommandFailed, ConfigError, FieldRangeError, ProtocolError
 from protocol.frame import Deframer, Frame, decode_stream, encode_frame
 from protocol.messages import (

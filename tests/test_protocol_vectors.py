@@ -9,7 +9,7 @@ import json
 import pytest
 
 from hil.cli import main as hil_main
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 from protocol import cobs
 from protocol.__main__ import main as protocol_main
 from protocol.frame import BadFrame, BadFrameReason, Deframer, Frame, encode_frame

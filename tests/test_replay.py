@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from hil.cli import main
-from hil.clock import LockstepClock
 from hil.logs.replay import ESTIMATES_HEADER, ReplayOptions, replay
-from hil.paths import FIXTURES, SHARED_DATA
+from hil.scenario.paths import FIXTURES, SHARED_DATA
+from hil.timing.clock import LockstepClock
 
 SIMULATED = FIXTURES / "logs" / "simulated_testbed_4s.csv"
 PNG = b"\x89PNG\r\n\x1a\n"

@@ -11,8 +11,8 @@ import pytest
 
 from hil.cli import main
 from hil.logs import read_log
-from hil.paths import SHARED_DATA
-from hil.runlog import read_events, read_telemetry
+from hil.runtime.runlog import read_events, read_telemetry
+from hil.scenario.paths import SHARED_DATA
 from protocol.messages import BoardState
 
 BROAD_SLOW = SHARED_DATA / "broad" / "01_undisturbed_slow_rotation_A.mat"

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from hil.runlog import (
+from hil.runtime.runlog import (
     CsvLog,
     EventLog,
     new_run_dir,
@@ -25,7 +25,7 @@ from protocol.errors import InputFormatError
 
 WRITER = """
 import sys, time
-from hil.runlog import CsvLog, EventLog
+from hil.runtime.runlog import CsvLog, EventLog
 log = CsvLog(sys.argv[1] + "/telemetry.csv", ["t", "angle_deg"])
 ev = EventLog(sys.argv[1] + "/events.jsonl")
 i = 0

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil.runlog import read_events, read_telemetry
 from hil.runtime import RunOptions, run, telemetry_columns
+from hil.runtime.runlog import read_events, read_telemetry
 from hil.scenario import load_scenario, parse_scenario, scenario_names
 from protocol.errors import ConfigError
 

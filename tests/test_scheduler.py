@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from hil.clock import LockstepClock
-from hil.scheduler import PeriodicTask, Scheduler
+from hil.timing.clock import LockstepClock
+from hil.timing.scheduler import PeriodicTask, Scheduler
 from protocol.errors import ConfigError
 
 

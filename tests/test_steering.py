@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.closed_loop import SINGULAR_GIMBALS
-from hil.steering import Saturation, SteeringParams, VscmgSteering
+from hil.control.steering import Saturation, SteeringParams, VscmgSteering
+from hil.simulation.closed_loop import SINGULAR_GIMBALS
 from hil.vscmg import cubesat_1u
 from protocol.errors import ConfigError
 

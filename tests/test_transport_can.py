@@ -9,8 +9,8 @@ import os
 import can
 import pytest
 
-from hil.transports import create_transport, open_transport
-from hil.transports.can_bus import CanTransport
+from hil.link.transports import create_transport, open_transport
+from hil.link.transports.can_bus import CanTransport
 from protocol.can import CanSegmenter, Direction
 from protocol.errors import TransportError
 from protocol.frame import Framer, decode_stream

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from hil.clock import LockstepClock, WallClock
-from hil.transports import create_transport, open_transport
-from hil.transports.emulator import EmulatorTransport, SpawnTransport
+from firmware_sim.transports import EmulatorTransport, SpawnTransport
+from hil.link.transports import create_transport, open_transport
+from hil.timing.clock import LockstepClock, WallClock
 from protocol.errors import LinkError, TransportError
 from protocol.frame import Frame, Framer, decode_stream
 from protocol.messages import SCHEMA_HASH, Heartbeat, Hello, HelloReply, Log
@@ -145,7 +145,7 @@ def test_a_spawned_board_dies_with_its_host_even_after_sigkill():
             sys.executable,
             "-c",
             "import sys, time\n"
-            "from hil.transports import open_transport\n"
+            "from hil.link.transports import open_transport\n"
             "t = open_transport('spawn://firmware-sim?units=1')\n"
             "print(t.pid, flush=True)\n"
             "time.sleep(60)\n",

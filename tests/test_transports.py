@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from hil.transports import UrlOptions, create_transport, open_transport
+from hil.link.transports import UrlOptions, create_transport, open_transport
 from protocol.errors import LinkError, TransportError
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.motor_loops import ServoModel, ServoParams, Setpoints
+from hil.control.motor_loops import ServoModel, ServoParams, Setpoints
 from hil.vscmg import GravityGradient, Plant, PlantState, SpacecraftParams, air_bearing_testbed, cubesat_1u
 from hil.vscmg.fast import FastState, SingleRunPlant
 from hil.vscmg.params import inertia_tensor
@@ -228,11 +228,11 @@ def test_servo_torques_scalar_is_what_the_servo_computes(coast):
 def _lockstep_world(fast: bool, seconds: float):
     """A World next to its board in lockstep, the board driven through the protocol by a host: rotors spun
     up, gimbals turned both ways. Returns the phone samples, truths and the world."""
+    from firmware_sim.transports import EmulatorTransport
     from firmware_sim.world import World
-    from hil.board import BoardClient
-    from hil.clock import LockstepClock
+    from hil.link.board import BoardClient
     from hil.scenario import load_scenario
-    from hil.transports.emulator import EmulatorTransport
+    from hil.timing.clock import LockstepClock
     from protocol.messages import ActuatorSetpoint, UnitSetpoint
 
     scenario = load_scenario("cubesat-1u")

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from hil.paths import ROOT
+from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = ROOT / "firmware"
 BUILD_DIR = FIRMWARE_DIR / "build"
 FIRMWARE_ELF = BUILD_DIR / "vscmg-adk.elf"

@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
 
     from hil.montecarlo import Campaign, load_dispersions, open_client, run_campaign
     from hil.montecarlo.summary import format_table
-    from hil.runlog import new_run_dir
+    from hil.runtime.runlog import new_run_dir
     from hil.scenario import load_scenario
     from protocol.errors import ConfigError
 

@@ -100,9 +100,9 @@ class ProgressBar:
 def run(args: argparse.Namespace) -> int:
     from datetime import date
 
-    from hil.clock import WallClock
-    from hil.inertial import decimal_year
+    from hil.estimation.inertial import decimal_year
     from hil.logs.replay import FieldModel, ReplayOptions, replay
+    from hil.timing.clock import WallClock
     from protocol.errors import ConfigError
 
     field_model = None

@@ -66,7 +66,7 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
 def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
     from hil.cli.run import format_summary
     from hil.plots.run import plot_run
-    from hil.runlog import read_events, read_telemetry
+    from hil.runtime.runlog import read_events, read_telemetry
 
     tel = read_telemetry(path / "telemetry.csv")
     events, bad_events = read_events(path / "events.jsonl") if (path / "events.jsonl").is_file() else ([], 0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hil.paths import FIXTURES
+from hil.scenario.paths import FIXTURES
 
 ORDER = 90
 

@@ -1,4 +1,5 @@
-"""Recorded phone logs in, :class:`~hil.sensors.SensorLog` out: units SI, axes the body frame of the paper
+"""Recorded phone logs in, :class:`~hil.estimation.sensors.SensorLog` out: units SI, axes the body frame of
+the paper
 (= Android's sensor frame: x screen right, y screen up, z out of the screen), times in seconds.
 
 Formats (``docs/formats.md``), detected from the files themselves: the project's own CSV (``csv``), a
@@ -13,9 +14,9 @@ from __future__ import annotations
 from pathlib import Path
 from types import ModuleType
 
+from hil.estimation.sensors import SensorLog
 from hil.logs import broad, phyphox, project_csv, sensorlogger, tyrex
 from hil.logs.table import Container
-from hil.sensors import SensorLog
 from protocol.errors import InputFormatError
 
 READERS: dict[str, ModuleType] = {m.NAME: m for m in (project_csv, sensorlogger, phyphox, tyrex, broad)}

@@ -14,8 +14,8 @@ import numpy as np
 import scipy.io
 
 from hil import so3
+from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
 from hil.logs.table import Container
-from hil.sensors import SensorKind, SensorLog, SensorStream, Truth
 from protocol.errors import InputFormatError
 
 NAME = "broad"

@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 
 from hil import so3
+from hil.estimation.sensors import KINDS, SensorLog, SensorStream, Truth
 from hil.logs.table import Container
-from hil.sensors import KINDS, SensorLog, SensorStream, Truth
 from protocol.errors import InputFormatError
 
 NAME = "csv"

@@ -24,20 +24,18 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.clock import Clock
-from hil.estimator import AttitudeFilter, Estimate, EstimateBatch, FilterConfig
-from hil.inertial import directions_from_dip, directions_from_log, find_still_window, wmm2025
+from hil.estimation.estimator import AttitudeFilter, Estimate, EstimateBatch, FilterConfig
+from hil.estimation.inertial import directions_from_dip, directions_from_log, find_still_window, wmm2025
+from hil.estimation.metrics import TruthComparison, compare_to_truth
+from hil.estimation.multirate import MergePolicy, Merger, MergeStats, merge
+from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, SensorLog, StepFlag
 from hil.logs import read_log
-from hil.metrics import TruthComparison, compare_to_truth
-from hil.multirate import MergePolicy, Merger, MergeStats, merge
-from hil.sensors import KINDS, MergedStep, MergedSteps, SensorKind, SensorLog, StepFlag
+from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
 
 Array = NDArray[np.float64]
 ESTIMATES_HEADER = "t_s,qw,qx,qy,qz,wx,wy,wz,flags,newton_updates"
-ESTIMATES_COMMENT = (
-    "# vscmg-hil estimates v1: q body->ENU [w,x,y,z]; w rad/s body; flags: hil.sensors.StepFlag bits"
-)
+ESTIMATES_COMMENT = "# vscmg-hil estimates v1: q body->ENU [w,x,y,z]; w rad/s body; flags: hil.estimation.sensors.StepFlag bits"
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,8 @@ import io
 
 import numpy as np
 
+from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.table import Container, Table, parse_table
-from hil.sensors import SensorKind, SensorLog, SensorStream
 from protocol.errors import InputFormatError
 
 NAME = "sensorlogger"

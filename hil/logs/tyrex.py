@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.io
 
+from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
 from hil.logs.table import Container, parse_table
-from hil.sensors import SensorKind, SensorLog, SensorStream, Truth
 from protocol.errors import InputFormatError
 
 NAME = "tyrex"

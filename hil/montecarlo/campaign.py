@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hil.runlog import write_summary
+from hil.runtime.runlog import write_summary
 from hil.scenario import Scenario
 from protocol.errors import ConfigError, LinkError
 

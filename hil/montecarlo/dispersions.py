@@ -51,8 +51,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
-from hil.paths import FIXTURES
 from hil.scenario import Scenario
+from hil.scenario.paths import FIXTURES
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]

@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.closed_loop import ClosedLoopLog
+from hil.simulation.closed_loop import ClosedLoopLog
 
 METRICS: tuple[str, ...] = (
     "settle_s",

@@ -1,5 +1,6 @@
 """The worker's side of a campaign: turn drawn parameters into a run's inputs and simulate a chunk of runs
-on the closed loop's batch axis (:meth:`hil.closed_loop.ClosedLoop.run_batch`: one vectorised plant step
+on the closed loop's batch axis (:meth:`hil.simulation.closed_loop.ClosedLoop.run_batch`: one vectorised
+plant step
 for every run of the chunk, each run with its own true spacecraft, phone and estimator, link outages).
 
 Nothing here raises for a bad run: a run whose parameters the model refuses, or whose simulation raises,
@@ -21,9 +22,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
-from hil.closed_loop import ClosedLoop, EstimatorInTheLoop, LoopConfig, SlewScenario
-from hil.phone_model import PhoneSpec
 from hil.scenario import Scenario
+from hil.simulation.closed_loop import ClosedLoop, EstimatorInTheLoop, LoopConfig, SlewScenario
+from hil.simulation.phone import PhoneSpec
 from hil.vscmg import SpacecraftParams
 from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError, HilError

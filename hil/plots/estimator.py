@@ -12,7 +12,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from hil.metrics import AttitudeErrors
+from hil.estimation.metrics import AttitudeErrors
 
 if TYPE_CHECKING:
     from hil.logs.replay import ReplayResult

@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.axes import Axes
 
 from hil.plots.estimator import _figure, _save
-from hil.runlog import read_telemetry
+from hil.runtime.runlog import read_telemetry
 from protocol.errors import InputFormatError
 
 
@@ -70,4 +70,3 @@ def plot_run(run_dir: str | Path) -> dict[str, Path]:
     figure("battery", "Battery voltage", "voltage (V)", ["battery_v"], "battery")
     figure("delta", "Singularity measure δ", "δ", ["delta"], "δ")
     return out
-

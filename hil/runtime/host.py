@@ -35,8 +35,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
-from hil.board import BoardClient
-from hil.board.events import (
+from hil.control.attitude import AttitudeController, EigenaxisSlew, Reference
+from hil.control.motor_loops import SetpointGenerator
+from hil.control.steering import VscmgSteering
+from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.board import BoardClient
+from hil.link.board.events import (
     BoardResetEvent,
     ConnectedEvent,
     LinkLostEvent,
@@ -44,12 +48,8 @@ from hil.board.events import (
     SilenceEvent,
     StateEvent,
 )
-from hil.control import AttitudeController, EigenaxisSlew, Reference
-from hil.motor_loops import SetpointGenerator
-from hil.runlog import CsvLog, EventLog
+from hil.runtime.runlog import CsvLog, EventLog
 from hil.scenario import Scenario
-from hil.sensors import SensorKind, SensorSample
-from hil.steering import VscmgSteering
 from protocol.errors import BoardReset, CommandFailed, LinkError
 from protocol.messages import ActuatorSetpoint, Arm, BoardState, GimbalMode, UnitSetpoint
 
@@ -114,8 +114,8 @@ class Host:
     counters: HostCounters = field(default_factory=HostCounters)
 
     def __post_init__(self) -> None:
-        from hil.estimator import AttitudeFilter
-        from hil.multirate import Merger
+        from hil.estimation.estimator import AttitudeFilter
+        from hil.estimation.multirate import Merger
         from hil.vscmg import Plant
 
         sc = self.scenario

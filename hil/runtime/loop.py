@@ -1,5 +1,5 @@
 """One closed-loop run, end to end: board link, phone stream, estimator and control tasks on one
-:class:`hil.scheduler.Scheduler`, the run directory.
+:class:`hil.timing.scheduler.Scheduler`, the run directory.
 
 Four ways to run, one host (:class:`hil.runtime.host.Host`):
 
@@ -9,13 +9,13 @@ Four ways to run, one host (:class:`hil.runtime.host.Host`):
   and deterministic.
 - **real time, built-in emulator** (``--realtime``): the same board on the wall clock; the world runs in its
   own thread and streams the phone over UDP on loopback, the way the SensaGram app streams
-  (:mod:`hil.sources`) — the live-phone path exercised for real.
+  (:mod:`hil.link.sources`) — the live-phone path exercised for real.
 - **real time, a port** (``--port URL``: ``firmware-sim --world`` on a pty, a real board, CAN, ...): the host
   listens for the phone stream on ``--phone URL`` (``udp://HOST:PORT`` for SensaGram or
   ``firmware-sim --world``, ``http://HOST:PORT/`` for Sensor Logger's HTTP Push).
   There is no truth: the estimate stands in for it in the pointing error.
 - **a recording drives a board** (``hil replay LOG --port URL``): the phone is a recorded log played on the
-  run's clock (:class:`hil.sources.recorded.RecordedSource`), the controller holds the attitude estimated
+  run's clock (:class:`hil.link.sources.recorded.RecordedSource`), the controller holds the attitude estimated
   at the end of the warm-up against the recorded motion, and the board (a port in real time, or ``emu://``
   in lockstep) carries out the commands; the log's ground truth, if it has one, is the truth.
 
@@ -35,15 +35,16 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hil.clock import Clock, LockstepClock, WallClock
-from hil.estimator import FilterConfig
-from hil.runlog import CsvLog, EventLog, new_run_dir, write_summary
+from hil.estimation.estimator import FilterConfig
+from hil.estimation.sensors import SensorLog, SensorSample
+from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
+from hil.link.sources.recorded import RecordedSource
+from hil.link.transports import InProcessBoard, create_transport
 from hil.runtime.host import Host, TruthSample, telemetry_columns
+from hil.runtime.runlog import CsvLog, EventLog, new_run_dir, write_summary
 from hil.scenario import Scenario
-from hil.scheduler import PeriodicTask, Scheduler
-from hil.sensors import SensorLog, SensorSample
-from hil.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
-from hil.sources.recorded import RecordedSource
+from hil.timing.clock import Clock, LockstepClock, WallClock
+from hil.timing.scheduler import PeriodicTask, Scheduler
 from protocol.errors import ConfigError, HilError, LinkTimeout
 
 logger = logging.getLogger(__name__)
@@ -70,7 +71,7 @@ class RunOptions:
     """``port``: a transport URL, None for the built-in emulator and its world; ``lockstep``: None picks
     lockstep for the built-in emulator (and for a replay against ``emu://``), real time otherwise (a real
     port cannot run in lockstep); ``duration_s`` overrides the scenario's (from the slew's start);
-    ``phone``: where the host listens for the phone stream with a port (:func:`hil.sources.phone_url`:
+    ``phone``: where the host listens for the phone stream with a port (:func:`hil.link.sources.phone_url`:
     ``udp://HOST:PORT`` or ``http://HOST:PORT/``); ``phone_wait_s``: how long to wait for the first phone
     samples on a port before giving up; ``replay``: take the phone from a recorded log instead (needs a
     port), the controller holding the attitude estimated at the end of the warm-up."""
@@ -192,13 +193,12 @@ def _build(
 ) -> _Built:  # fmt: skip
     """Board client, phone source (world, live stream or recording), host and scheduler for ``plan``;
     everything opened is closed by ``stack``."""
-    from hil.board import BoardClient
-    from hil.transports.emulator import EmulatorTransport
+    from hil.link.board import BoardClient
 
     clock: Clock = LockstepClock() if plan.lockstep else WallClock()
     truth: Callable[[], TruthSample | None] = lambda: None  # noqa: E731
     if plan.source == "world":
-        link = EmulatorTransport(scenario.emulator_url(), clock)
+        link = _in_process_board(scenario.emulator_url())
         client = BoardClient(link, clock=clock)
     else:
         assert opts.port is not None
@@ -221,20 +221,16 @@ def _build(
         drain = phone.drain
         events.write(clock.now(), "phone_listening", url=phone.url)
     if plan.source == "world":
-        from firmware_sim.world import World
-
-        with link.lock:
-            world = World(scenario, link.board)
+        world = link.open_world(scenario)
         lock = link.lock
 
         def truth() -> TruthSample:
             with lock:
-                return TruthSample(world.state.R[0].copy(), world.state.omega[0].copy())
+                now = world.truth()
+            return TruthSample(now.R, now.omega)
 
     if plan.source == "world" and not plan.lockstep:
         import sys
-
-        from firmware_sim.world import WorldStreamer
 
         assert phone is not None
         receiver = phone
@@ -242,7 +238,7 @@ def _build(
         # control deadline waits at most that long for it.
         stack.callback(sys.setswitchinterval, sys.getswitchinterval())
         sys.setswitchinterval(5e-4)
-        streamer = WorldStreamer(world, link.lock, phone.url).start()
+        streamer = link.stream_world(world, phone.url)
         stack.callback(streamer.close)
         stack.callback(lambda: events.write(clock.now(), "world_end", max_lag_ms=streamer.max_lag_s * 1e3))
 
@@ -319,6 +315,14 @@ def _build(
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
     return _Built(host, scheduler, until, phone, recorded)
+
+
+def _in_process_board(url: str) -> InProcessBoard:
+    """The built-in emulator at ``url`` (``emu://``), which ``firmware_sim`` registers as a transport."""
+    link = create_transport(url)
+    if not isinstance(link, InProcessBoard):
+        raise ConfigError(f"{url} is not an in-process board with a world", "run")
+    return link
 
 
 def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:

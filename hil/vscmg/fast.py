@@ -16,7 +16,7 @@ caller that only needs the attitude and rates each step does not pay for arrays 
 
 Torques: None, a constant ``(gimbal, rotor)`` pair, a law with a scalar form (``scalar_setpoints()`` and
 ``torques_scalar(gimbal_rate, rotor_rate, gimbal_load, rotor_load, setpoints)`` on sequences of floats, as
-:class:`hil.motor_loops.ServoModel` has), or any other :data:`TorqueLaw`, called with (1, n) arrays.
+:class:`hil.control.motor_loops.ServoModel` has), or any other :data:`TorqueLaw`, called with (1, n) arrays.
 """
 
 from __future__ import annotations
@@ -43,7 +43,8 @@ _add = operator.add
 
 @runtime_checkable
 class ScalarTorqueLaw(Protocol):
-    """A torque law with a float form for a single run (what :class:`hil.motor_loops.ServoModel` offers):
+    """A torque law with a float form for a single run (what :class:`hil.control.motor_loops.ServoModel`
+    offers):
     ``scalar_setpoints()`` the held inputs, read once per step; ``torques_scalar(...)`` the torques
     ``(gimbal, rotor)`` (n floats each) at one stage, exactly what calling the law with arrays gives."""
 

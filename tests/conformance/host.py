@@ -184,7 +184,7 @@ def lockstep(
 ) -> tuple[Any, Any, LockstepHost]:
     """A fresh sans-IO board on a LockstepClock with a host wired to it, run past its boot."""
     from firmware_sim.board import Board
-    from hil.clock import LockstepClock
+    from hil.timing.clock import LockstepClock
 
     clock = LockstepClock(start)
     board = Board(config, clock, calibrations=calibrations)

@@ -80,7 +80,7 @@ class FirmwareSimTarget:
     def __init__(self, spec: TargetSpec) -> None:
         from firmware_sim.board import Board
         from firmware_sim.pty_server import PtyServer
-        from hil.clock import WallClock
+        from hil.timing.clock import WallClock
 
         self.spec = spec
         self.board = Board(board_config(spec), WallClock())

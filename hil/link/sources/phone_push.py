@@ -35,8 +35,8 @@ from collections.abc import Iterable, Sequence
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from hil.sensors import SensorKind, SensorSample
-from hil.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
+from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)

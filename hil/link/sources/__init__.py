@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-from hil.sources.stream import PhoneReceiver, PhoneSender, StreamStats
+from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
 from protocol.errors import ConfigError
 
 DEFAULT_PHONE_URL = "udp://127.0.0.1:8123"
@@ -39,10 +39,10 @@ def open_receiver(address: str) -> PhoneReceiver:
     :class:`~protocol.errors.LinkError`."""
     url = phone_url(address)
     if url.startswith("http://"):
-        from hil.sources.phone_push import PhonePushServer
+        from hil.link.sources.phone_push import PhonePushServer
 
         return PhonePushServer(url)
-    from hil.sources.phone_udp import PhoneUdpReceiver
+    from hil.link.sources.phone_udp import PhoneUdpReceiver
 
     return PhoneUdpReceiver(url)
 
@@ -51,9 +51,9 @@ def open_sender(address: str) -> PhoneSender:
     """Stream a (simulated) phone to ``address`` the way its app does."""
     url = phone_url(address)
     if url.startswith("http://"):
-        from hil.sources.phone_push import PhonePushSender
+        from hil.link.sources.phone_push import PhonePushSender
 
         return PhonePushSender(url)
-    from hil.sources.phone_udp import PhoneUdpSender
+    from hil.link.sources.phone_udp import PhoneUdpSender
 
     return PhoneUdpSender(url)

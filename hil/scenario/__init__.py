@@ -79,11 +79,11 @@ from typing import Any
 import numpy as np
 
 from hil import so3
-from hil.closed_loop import LoopConfig, SlewScenario
-from hil.control import ControllerGains
-from hil.paths import FIXTURES
-from hil.phone_model import PhoneSpec, SensorSpec
-from hil.steering import SteeringParams
+from hil.control.attitude import ControllerGains
+from hil.control.steering import SteeringParams
+from hil.scenario.paths import FIXTURES
+from hil.simulation.closed_loop import LoopConfig, SlewScenario
+from hil.simulation.phone import PhoneSpec, SensorSpec
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError, HilError
 
@@ -196,9 +196,9 @@ class Scenario:
         return f"emu://?{query}" if scheme == "emu" else f"spawn://firmware-sim?{query}"
 
     def filter_config(self) -> Any:
-        """The estimator's :class:`hil.estimator.FilterConfig` for this scenario's phone."""
-        from hil.estimator import FilterConfig
-        from hil.inertial import directions_from_field
+        """The estimator's :class:`hil.estimation.estimator.FilterConfig` for this scenario's phone."""
+        from hil.estimation.estimator import FilterConfig
+        from hil.estimation.inertial import directions_from_field
 
         f = np.asarray(self.phone.field_enu_uT, dtype=float)
         if self.estimator == "tuned":  # horizontal magnetometer: only the declination matters

@@ -6,7 +6,8 @@ With unit i's spin and transverse axes ``sᵢ, tᵢ`` (body frame, at the curren
 
     ḣ = Σ I_Wsᵢ Ω̇ᵢ sᵢ + Σ I_Wsᵢ Ωᵢ γ̇ᵢ tᵢ = [D₀ D₁] (Ω̇, γ̇) = Q η̇
 
-and the body receives ``−ḣ``; to deliver the required torque L_r (:class:`hil.control.AttitudeController`)
+and the body receives ``−ḣ``; to deliver the required torque L_r
+(:class:`hil.control.attitude.AttitudeController`)
 we need ``Q η̇ = −L_r``, solved by the weighted minimum-norm (pseudo-inverse) solution::
 
     η̇ = W Qᵀ (Q W Qᵀ)⁻¹ (−L_r),     W = diag(W_s₁ … W_sₙ, W_g₁ … W_gₙ)

@@ -29,8 +29,8 @@ import socket
 import threading
 from collections.abc import Sequence
 
-from hil.sensors import SensorKind, SensorSample
-from hil.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
+from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)

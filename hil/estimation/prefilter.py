@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.sensors import KINDS, MergedSteps, SensorKind
+from hil.estimation.sensors import KINDS, MergedSteps, SensorKind
 from hil.so3 import Mat9, Vec3, apply_f, apply_transpose_f, exp_f, matmul_f, reorthonormalize_f
 from protocol.errors import ConfigError
 

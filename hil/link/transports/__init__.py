@@ -9,34 +9,57 @@ URL                                         transport
 ``can://<interface>/<channel>?node=N``      a python-can bus (``virtual``, ``udp_multicast``,
                                             ``socketcan``, ...): :mod:`.can_bus`
 ``emu://?units=4&...``                      the emulated board in-process, on the host's clock
-                                            (lockstep or real time): :mod:`.emulator`
+                                            (lockstep or real time): ``firmware_sim.transports``
 ``spawn://firmware-sim?units=4&...``        ``firmware-sim`` started on a pty for the
-                                            connection, stopped on close: :mod:`.emulator`
+                                            connection, stopped on close: ``firmware_sim.transports``
 ==========================================  ===============================================
 
 Each scheme maps to ``"module:Class"``, imported on first use, so a missing optional backend only
 fails when it is asked for. ``open_transport(url)`` returns an opened transport.
+
+Other packages add schemes the way python-can finds its interfaces: an entry point in the group
+``vscmg_hil.transports`` whose name is the scheme and whose value is ``"module:factory"`` (the factory
+takes the URL and returns an unopened :class:`Transport`). ``firmware_sim`` registers ``emu`` and
+``spawn`` so; ``hil`` never imports it. In a ``pyproject.toml``::
+
+    [project.entry-points."vscmg_hil.transports"]
+    mybus = "mypackage.transport:MyBusTransport"
+
+:func:`register` adds one at run time.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 
 from protocol.errors import TransportError
 
 from .base import Transport, UrlOptions
+from .in_process import InProcessBoard, SimulatedWorld, WorldStream, WorldTruth
+
+ENTRY_POINT_GROUP = "vscmg_hil.transports"
 
 # scheme -> "module:factory"; the factory takes the URL and returns an unopened Transport.
 _REGISTRY: dict[str, str] = {
-    "socket": "hil.transports.serial_port:SerialTransport",
-    "loop": "hil.transports.serial_port:SerialTransport",
-    "spy": "hil.transports.serial_port:SerialTransport",
-    "rfc2217": "hil.transports.serial_port:SerialTransport",
-    "hwgrep": "hil.transports.serial_port:SerialTransport",
-    "can": "hil.transports.can_bus:CanTransport",
-    "emu": "hil.transports.emulator:EmulatorTransport",
-    "spawn": "hil.transports.emulator:SpawnTransport",
+    "socket": "hil.link.transports.serial_port:SerialTransport",
+    "loop": "hil.link.transports.serial_port:SerialTransport",
+    "spy": "hil.link.transports.serial_port:SerialTransport",
+    "rfc2217": "hil.link.transports.serial_port:SerialTransport",
+    "hwgrep": "hil.link.transports.serial_port:SerialTransport",
+    "can": "hil.link.transports.can_bus:CanTransport",
 }
+_discovered = False
+
+
+def _discover() -> None:
+    """Add the schemes installed packages register as entry points (once; :func:`register` wins)."""
+    global _discovered
+    if _discovered:
+        return
+    _discovered = True
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        _REGISTRY.setdefault(entry.name.lower(), entry.value)
 
 
 def register(scheme: str, target: str) -> None:
@@ -45,6 +68,7 @@ def register(scheme: str, target: str) -> None:
 
 
 def schemes() -> list[str]:
+    _discover()
     return sorted(_REGISTRY)
 
 
@@ -61,6 +85,7 @@ def create_transport(url: str) -> Transport:
         from .serial_port import SerialTransport
 
         return SerialTransport(url)
+    _discover()
     target = _REGISTRY.get(scheme)
     if target is None:
         raise TransportError(f"{url}: unknown transport scheme {scheme!r} (known: {', '.join(schemes())})")
@@ -78,4 +103,16 @@ def open_transport(url: str) -> Transport:
     return create_transport(url).open()
 
 
-__all__ = ["Transport", "UrlOptions", "create_transport", "open_transport", "register", "schemes"]
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "InProcessBoard",
+    "SimulatedWorld",
+    "Transport",
+    "UrlOptions",
+    "WorldStream",
+    "WorldTruth",
+    "create_transport",
+    "open_transport",
+    "register",
+    "schemes",
+]

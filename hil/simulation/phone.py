@@ -29,8 +29,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.estimator import PAPER_E
-from hil.sensors import SensorKind, SensorLog, SensorSample, SensorStream, Truth
+from hil.estimation.estimator import PAPER_E
+from hil.estimation.sensors import SensorKind, SensorLog, SensorSample, SensorStream, Truth
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -178,7 +178,7 @@ class BodyPhone:
     ``Rᵀ g·up``, the magnetometer ``Rᵀ B``."""
 
     def __init__(self, spec: PhoneSpec | None = None, seed: int = 0, t0: float = 0.0) -> None:
-        from hil.sensors import KINDS
+        from hil.estimation.sensors import KINDS
 
         self.spec = spec if spec is not None else PhoneSpec.nexus5()
         self.rng = np.random.default_rng(seed)

@@ -1,4 +1,4 @@
-"""The board client: a :class:`~hil.board.session.Session` on a transport and a clock.
+"""The board client: a :class:`~hil.link.board.session.Session` on a transport and a clock.
 
 Two ways to drive the one core:
 
@@ -25,7 +25,7 @@ handshakes again and reports :class:`ConnectedEvent` (it re-arms only if ``rearm
 What is raised: :class:`HandshakeError` (an incompatible board — at connect or on a reconnect),
 :class:`LinkTimeout` (no board answered the first handshake), :class:`LinkError` (reconnection given up,
 or the client is closed), :class:`CommandFailed` (a command NACKed or never answered),
-:class:`BoardReset` (a setpoint after the armed board reset; see :mod:`hil.board.session`).
+:class:`BoardReset` (a setpoint after the armed board reset; see :mod:`hil.link.board.session`).
 """
 
 from __future__ import annotations
@@ -38,9 +38,8 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
-from hil.clock import Clock, LockstepClock, WallClock
-from hil.transports import Transport, create_transport
-from hil.transports.emulator import EmulatorTransport
+from hil.link.transports import InProcessBoard, Transport, create_transport
+from hil.timing.clock import Clock, LockstepClock, WallClock
 from protocol.calibration import UnitCalibration
 from protocol.errors import ConfigError, HandshakeError, HilError, LinkError, LinkTimeout
 from protocol.messages import (
@@ -66,9 +65,10 @@ class BoardClient:
     """Talk to one board over ``port`` (a transport URL or an unopened :class:`Transport`).
 
     ``clock``: the time base of everything timed (default: the emulator's if ``port`` is an
-    ``EmulatorTransport`` built with one, else a WallClock). A ``LockstepClock`` needs the in-process
-    emulator (``emu://``): any other board runs in real time. ``on_event`` is called with every
-    :mod:`event <hil.board.events>` as well as queuing it.
+    in-process board (:class:`~hil.link.transports.InProcessBoard`) built with one, else a WallClock). A
+    ``LockstepClock`` needs an in-process board (``emu://``): any other board runs in real time.
+    ``on_event`` is called with every
+    :mod:`event <hil.link.board.events>` as well as queuing it.
     """
 
     def __init__(
@@ -79,13 +79,13 @@ class BoardClient:
         on_event: Callable[[Event], None] | None = None,
     ) -> None:
         transport = create_transport(port) if isinstance(port, str) else port
-        if isinstance(transport, EmulatorTransport):
+        if isinstance(transport, InProcessBoard):
             clock = clock if clock is not None else transport.clock
             clock = clock if clock is not None else WallClock()
             transport.bind_clock(clock)
         self.clock: Clock = clock if clock is not None else WallClock()
         self.lockstep = isinstance(self.clock, LockstepClock)
-        if self.lockstep and not isinstance(transport, EmulatorTransport):
+        if self.lockstep and not isinstance(transport, InProcessBoard):
             raise ConfigError(
                 f"{transport.url} runs in real time; a LockstepClock needs the in-process emulator (emu://)",
                 "BoardClient.clock",
@@ -387,7 +387,7 @@ class BoardClient:
         wake = self.session.next_deadline()
         if self._reconnect_at is not None:
             wake = min(wake, self._reconnect_at)
-        if isinstance(self.transport, EmulatorTransport) and self.transport.is_open:
+        if isinstance(self.transport, InProcessBoard) and self.transport.is_open:
             wake = min(wake, self.transport.next_wake())
         return wake
 

@@ -10,7 +10,8 @@ repeated: ``stall=5:2&stall=9:1``)::
     spawn://firmware-sim?corrupt=0.01&link=/tmp/board&start_timeout=20
 
 **In-process** (:class:`EmulatorTransport`). The :class:`firmware_sim.board.Board` runs on the clock it is
-given (``clock=`` or :meth:`EmulatorTransport.bind_clock`, which :class:`hil.board.BoardClient` calls with
+given (``clock=`` or :meth:`EmulatorTransport.bind_clock`, which :class:`hil.link.board.BoardClient` calls
+with
 its own clock; a plain WallClock otherwise). With a ``LockstepClock`` every write feeds the board at the
 clock's time and every read steps it to the clock's time and returns what it sent — a read never waits,
 since simulated time moves only when its owner advances it — so a closed loop through the full protocol
@@ -44,11 +45,11 @@ import time
 from typing import IO, TYPE_CHECKING, Any, NoReturn
 from urllib.parse import parse_qsl, urlsplit
 
-from hil.clock import Clock, LockstepClock, WallClock
+from hil.link.transports.base import Transport
+from hil.link.transports.in_process import InProcessBoard, SimulatedWorld, WorldStream
+from hil.link.transports.serial_port import SerialTransport
+from hil.timing.clock import Clock, LockstepClock, WallClock
 from protocol.errors import TransportError
-
-from .base import Transport
-from .serial_port import SerialTransport
 
 if TYPE_CHECKING:
     from firmware_sim.board import Board
@@ -104,7 +105,7 @@ def _parse(parser: argparse.ArgumentParser, argv: list[str], url: str) -> argpar
 
 
 # =========================================================================== in-process
-class EmulatorTransport(Transport):
+class EmulatorTransport(InProcessBoard):
     """An in-process emulated board; see the module docstring. ``clock`` None: bound later by
     :meth:`bind_clock` (the board client does), else a WallClock at first use."""
 
@@ -153,6 +154,21 @@ class EmulatorTransport(Transport):
         """Clock time (s) at which the board next does something (a lockstep driver advances to it)."""
         with self.lock:
             return self.board.next_deadline()
+
+    def open_world(self, scenario: Any, seed: int | None = None) -> SimulatedWorld:
+        """The scenario's world (:class:`firmware_sim.world.World`) on this board."""
+        from firmware_sim.world import World
+
+        with self.lock:
+            return World(scenario, self.board, seed=seed)
+
+    def stream_world(self, world: SimulatedWorld, phone_url: str) -> WorldStream:
+        """The world stepped in real time by its own thread (:class:`firmware_sim.world.WorldStreamer`),
+        streaming its phone to ``phone_url``."""
+        from firmware_sim.world import World, WorldStreamer
+
+        assert isinstance(world, World)
+        return WorldStreamer(world, self.lock, phone_url).start()
 
     # ------------------------------------------------------------------ backend
     def _open_impl(self) -> None:

@@ -3,8 +3,9 @@
 ``hil replay LOG --port URL`` drives a board with the controller's output while the estimator runs over a
 recording; the runtime then takes its phone samples from here instead of a phone or the world. Times are
 moved onto the run's clock (the log's first sample at ``origin``), so the estimator, the controller, the
-telemetry and the log's ground truth share one time axis; on a :class:`~hil.clock.WallClock` the log plays
-in real time, on a :class:`~hil.clock.LockstepClock` as fast as the CPU allows.
+telemetry and the log's ground truth share one time axis; on a :class:`~hil.timing.clock.WallClock` the log
+plays
+in real time, on a :class:`~hil.timing.clock.LockstepClock` as fast as the CPU allows.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
-from hil.sensors import SensorLog, SensorSample
+from hil.estimation.sensors import SensorLog, SensorSample
 
 Array = NDArray[np.float64]
 

@@ -4,7 +4,7 @@ error stored and raised in the consumer (threads never die silently).
 
 A receiver (:class:`PhoneReceiver`) listens on one address; its :attr:`~PhoneReceiver.url` says where a
 phone must stream to. Senders (the emulator's simulated phone) implement :class:`PhoneSender`.
-:mod:`hil.sources` picks both by URL scheme.
+:mod:`hil.link.sources` picks both by URL scheme.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 from urllib.parse import urlsplit
 
-from hil.sensors import SensorSample
+from hil.estimation.sensors import SensorSample
 from protocol.errors import LinkError
 
 MAX_QUEUE = 200_000  # samples held for the consumer; beyond this the oldest are dropped and counted

@@ -45,7 +45,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.sensors import KINDS, MergedStep, MergedSteps, SensorKind, SensorSample, SensorStream, StepFlag
+from hil.estimation.sensors import (
+    KINDS,
+    MergedStep,
+    MergedSteps,
+    SensorKind,
+    SensorSample,
+    SensorStream,
+    StepFlag,
+)
 from protocol.errors import ConfigError
 
 logger = logging.getLogger(__name__)

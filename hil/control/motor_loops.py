@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil.steering import SteeringOutput
+from hil.control.steering import SteeringOutput
 from hil.vscmg import SpacecraftParams
 from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError

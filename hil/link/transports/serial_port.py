@@ -30,8 +30,9 @@ class SerialTransport(Transport):
 
     def _open_impl(self) -> None:
         try:
-            self._port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0.05,
-                                               write_timeout=2.0)
+            self._port = serial.serial_for_url(
+                self.url, baudrate=self.baudrate, timeout=0.05, write_timeout=2.0
+            )
         except serial.SerialException as exc:
             raise TransportError(f"{self.url}: {exc}") from exc
         except (ValueError, KeyError) as exc:

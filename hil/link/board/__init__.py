@@ -2,7 +2,7 @@
 
 ::
 
-    from hil.board import BoardClient
+    from hil.link.board import BoardClient
     with BoardClient("spawn://firmware-sim?units=4") as board:    # connect() on entry
         board.start()                                               # real time: a reader thread
         board.arm()

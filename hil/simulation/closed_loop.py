@@ -1,17 +1,18 @@
 """A closed-loop attitude simulation in lockstep time, built from the pieces the host and the emulator's
 world use: the plant (:mod:`hil.vscmg`) at its own step (≤ 1 ms) with the motor servos
-(:class:`hil.motor_loops.ServoModel`), and at the control rate an attitude source → controller → steering
+(:class:`hil.control.motor_loops.ServoModel`), and at the control rate an attitude source → controller →
+steering
 → setpoint generator. Pure math: no clock, no I/O; one call runs a whole scenario as fast as the CPU allows.
 
 Attitude sources (what the controller is told):
 
 - :class:`TruthWithNoise`: the plant's attitude and rate with phone-grade noise (attitude white noise
   of an estimator's size; the gyroscope's white noise and residual bias from
-  :class:`hil.phone_model.PhoneSpec`);
+  :class:`hil.simulation.phone.PhoneSpec`);
 - :class:`EstimatorInTheLoop`: a simulated phone on the spacecraft (accelerometer, gyroscope and
   magnetometer at their own rates, jitter, noise and bias, sampled from the plant's true motion), merged
-  with hold-last-sample (:class:`hil.multirate.Merger`) and run through the paper's estimator
-  (:class:`hil.estimator.AttitudeFilter`) — the host's path.
+  with hold-last-sample (:class:`hil.estimation.multirate.Merger`) and run through the paper's estimator
+  (:class:`hil.estimation.estimator.AttitudeFilter`) — the host's path.
 
 Telemetry (gimbal angles, rotor speeds) is read from the plant, as the board would report it.
 
@@ -37,10 +38,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.control import AttitudeController, ControllerGains, EigenaxisSlew
-from hil.motor_loops import ServoModel, ServoParams, SetpointGenerator, Setpoints
-from hil.sensors import SensorKind
-from hil.steering import SteeringParams, VscmgSteering
+from hil.control.attitude import AttitudeController, ControllerGains, EigenaxisSlew
+from hil.control.motor_loops import ServoModel, ServoParams, SetpointGenerator, Setpoints
+from hil.control.steering import SteeringParams, VscmgSteering
+from hil.estimation.sensors import SensorKind
 from hil.vscmg import Plant, PlantState, SpacecraftParams
 from protocol.errors import ConfigError
 
@@ -89,7 +90,7 @@ class TruthWithNoise:
         rate_bias: float | None = None,
         seed: int = 0,
     ) -> None:
-        from hil.phone_model import PhoneSpec
+        from hil.simulation.phone import PhoneSpec
 
         gyr = PhoneSpec.nexus5().gyr
         self.attitude_noise = attitude_noise_rad
@@ -118,12 +119,12 @@ class EstimatorInTheLoop:
     (``spec``, default :meth:`PhoneSpec.nexus5`); the truth between plant steps is interpolated (geodesic
     for the attitude, linear for the rate). The inertial frame is ENU (a testbed on the ground: the
     accelerometer reads gravity, the magnetometer the local field). ``config`` is the estimator's
-    :class:`hil.estimator.FilterConfig` (default: the paper's)."""
+    :class:`hil.estimation.estimator.FilterConfig` (default: the paper's)."""
 
     def __init__(self, spec: object | None = None, config: object | None = None, seed: int = 0) -> None:
-        from hil.estimator import AttitudeFilter, FilterConfig
-        from hil.multirate import Merger
-        from hil.phone_model import BodyPhone, PhoneSpec
+        from hil.estimation.estimator import AttitudeFilter, FilterConfig
+        from hil.estimation.multirate import Merger
+        from hil.simulation.phone import BodyPhone, PhoneSpec
 
         self.spec = spec if spec is not None else PhoneSpec.nexus5()
         self.filter = AttitudeFilter(config if config is not None else FilterConfig.paper())  # type: ignore[arg-type]
@@ -137,7 +138,7 @@ class EstimatorInTheLoop:
         self.gyro_bias: Array | None = None  # what the still window measured (None: not calibrated)
 
     def start(self, state: PlantState) -> None:
-        from hil.phone_model import BodyPhone
+        from hil.simulation.phone import BodyPhone
 
         self._prev = state
         self.phone = BodyPhone(self.spec, self.seed, t0=state.t)  # type: ignore[arg-type]
@@ -239,7 +240,7 @@ class ClosedLoopLog:
     """One run, sampled at the control rate (K ticks): ``t`` (K,) s from the slew's start; ``error_deg``
     (K,) true attitude error to the target; ``tracking_deg`` (K,) true error to the moving reference;
     ``estimate_error_deg`` (K,) of the source's attitude; ``gimbal_rate`` (K, n) true rad/s; ``rotor_speed``
-    (K, n) rad/s; ``delta`` (K,); ``saturation`` (K,) :class:`hil.steering.Saturation` bits;
+    (K, n) rad/s; ``delta`` (K,); ``saturation`` (K,) :class:`hil.control.steering.Saturation` bits;
     ``torque_shortfall`` (K,) N m, required minus delivered torque; ``slew_end_s`` when the reference
     arrives; ``max_gimbal_rate`` the gimbal-rate limit (rad/s); ``link_up`` (K,) whether the tick's setpoint
     could reach the board, ``failsafe`` (K,) whether the board was not driving the host's setpoints

@@ -48,8 +48,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.prefilter import PAPER_CUTOFF_RAD_S, GateSettings, MagneticGate, SignalPrefilter
-from hil.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
+from hil.estimation.prefilter import PAPER_CUTOFF_RAD_S, GateSettings, MagneticGate, SignalPrefilter
+from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
 from hil.so3 import Mat9, Vec3, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f, solve3_f
 from protocol.errors import ConfigError, ConvergenceError
 
@@ -805,14 +805,15 @@ class FilterConfig:
     """The estimator as it runs on a phone's merged steps: what happens to the measurements first.
 
     ``prefilter_rad_s``: pre-filter cut-off per sensor (rad/s), None for none; ``prefilter_frame``
-    ``"body"`` (the paper) or ``"strapdown"`` (see :class:`hil.prefilter.SignalPrefilter`).
+    ``"body"`` (the paper) or ``"strapdown"`` (see :class:`hil.estimation.prefilter.SignalPrefilter`).
     ``gyro_bias`` (3,) rad/s: subtracted from every gyro sample first (e.g. measured over a still window).
     ``magnetometer``: ``"full"`` uses the field direction as measured (the paper; E's e2 is the full field
     direction); ``"horizontal"`` uses its component perpendicular to the measured gravity direction, so that
     the magnetometer informs heading only (E's e2 must then be horizontal, e.g. magnetic north).
     ``init``: initial attitude — ``"measured"`` (Wahba's solution from the first step with both directions),
     ``"identity"``, or a (3, 3) body → inertial matrix; ``omega_err0`` (3,) rad/s the initial ω.
-    ``mag_gate``: reject disturbed magnetometer samples (:class:`hil.prefilter.MagneticGate`), or None.
+    ``mag_gate``: reject disturbed magnetometer samples (:class:`hil.estimation.prefilter.MagneticGate`),
+    or None.
     """
 
     params: EstimatorParams = field(default_factory=EstimatorParams)
@@ -851,7 +852,7 @@ class FilterConfig:
         (see docs/estimator.md, "Tuning"): :data:`TUNED`; E is magnetic north (or true north given the
         declination) with a horizontal magnetometer, so only the field's direction in the horizontal
         plane matters and no inclination is needed."""
-        from hil.inertial import directions_from_dip
+        from hil.estimation.inertial import directions_from_dip
 
         params = EstimatorParams(E=directions_from_dip(0.0, declination_deg), W=np.diag(TUNED["W_diag"]),
                                  m=TUNED["m"], D=np.diag(TUNED["D_diag"]))  # fmt: skip

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.clock import Clock
+from hil.timing.clock import Clock
 from protocol.errors import ConfigError
 
 _RING = 65_536  # lateness samples kept per task (the newest)
@@ -76,8 +76,9 @@ class PeriodicTask:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.period_s) and self.period_s > 0.0):
-            raise ConfigError(f"period must be a positive number of seconds, not {self.period_s!r}",
-                              f"task {self.name!r}")
+            raise ConfigError(
+                f"period must be a positive number of seconds, not {self.period_s!r}", f"task {self.name!r}"
+            )
         if not (math.isfinite(self.offset_s) and self.offset_s >= 0.0):
             raise ConfigError(f"offset must be ≥ 0 s, not {self.offset_s!r}", f"task {self.name!r}")
 

@@ -1,0 +1,79 @@
+"""The interface of a board that runs inside the host's process (the built-in emulator, ``emu://``).
+
+``hil`` does not import the emulator: ``firmware_sim`` registers it as the ``emu`` (and ``spawn``)
+transport through the ``vscmg_hil.transports`` entry point, and what the host needs of an in-process
+board beyond a byte pipe is spelled here, so the layers run one way (``protocol`` ← ``hil`` ←
+``firmware_sim``). Such a board runs on the host's clock (a :class:`~hil.timing.clock.LockstepClock` makes
+a whole closed loop run faster than real time and replay exactly), tells when it next has something to
+do, and may carry a simulated world (spacecraft, VSCMG plant, phone) that its pulses drive.
+"""
+
+from __future__ import annotations
+
+import abc
+import threading
+from typing import TYPE_CHECKING, Any, Protocol
+
+from .base import Transport
+
+if TYPE_CHECKING:
+    from hil.estimation.sensors import SensorSample
+    from hil.timing.clock import Clock
+
+
+class WorldTruth(Protocol):
+    """What the simulated world really does: attitude ``R`` (3, 3) body → ENU, body rate ``omega`` (3,)
+    rad/s, at board time ``t`` (s)."""
+
+    t: float
+    R: Any
+    omega: Any
+
+
+class SimulatedWorld(Protocol):
+    """A world the board's pulses drive: stepped to the board clock's present, it returns the phone
+    samples taken meanwhile."""
+
+    def advance_to(self, t: float) -> list[SensorSample]: ...
+
+    def truth(self) -> WorldTruth: ...
+
+
+class WorldStream(Protocol):
+    """A world stepped in real time by its own thread, streaming its phone to a URL; ``check`` raises the
+    thread's error, ``max_lag_s`` is the furthest it fell behind the board's clock (s)."""
+
+    max_lag_s: float
+
+    def check(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class InProcessBoard(Transport):
+    """A transport whose board lives in this process. ``lock`` guards the board: hold it to touch the
+    board (or its world) from another thread."""
+
+    lock: threading.Condition
+
+    @property
+    @abc.abstractmethod
+    def clock(self) -> Clock | None:
+        """The clock the board runs on (None until bound)."""
+
+    @abc.abstractmethod
+    def bind_clock(self, clock: Clock) -> None:
+        """Run the board on ``clock`` (the board client calls it with its own clock)."""
+
+    @abc.abstractmethod
+    def next_wake(self) -> float:
+        """Clock time (s) at which the board next does something (a lockstep driver advances to it)."""
+
+    @abc.abstractmethod
+    def open_world(self, scenario: Any, seed: int | None = None) -> SimulatedWorld:
+        """The scenario's simulated world (:class:`hil.scenario.Scenario`), driven by this board's
+        pulses; ``seed`` overrides the scenario's (the phone's noise)."""
+
+    @abc.abstractmethod
+    def stream_world(self, world: SimulatedWorld, phone_url: str) -> WorldStream:
+        """Step ``world`` in real time in a thread and stream its phone to ``phone_url``."""
