@@ -35,7 +35,10 @@ from protocol.errors import ConfigError, InputFormatError
 
 Array = NDArray[np.float64]
 ESTIMATES_HEADER = "t_s,qw,qx,qy,qz,wx,wy,wz,flags,newton_updates"
-ESTIMATES_COMMENT = "# vscmg-hil estimates v1: q body->ENU [w,x,y,z]; w rad/s body; flags: hil.estimation.sensors.StepFlag bits"
+ESTIMATES_COMMENT = (
+    "# vscmg-hil estimates v1: q body->ENU [w,x,y,z]; w rad/s body; "
+    "flags: hil.estimation.sensors.StepFlag bits"
+)
 
 
 @dataclass(frozen=True)
