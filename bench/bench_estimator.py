@@ -11,7 +11,7 @@ exclusions; BROAD: ``movement``). Our variants:
 - ``ours-paper``: exactly the paper — its W, m, D, Φ(x) = x and the 1 rad/s body-frame pre-filter on all
   three signals; E from the log (measured field inclination, magnetic north).
 - ``ours-paper-nopf``: the paper's gains without the pre-filter.
-- ``ours-tuned``: the paper's estimator with :data:`hil.estimation.estimator.TUNED` (gains, strapdown-frame
+- ``ours-tuned``: the paper's estimator with :data:`hil.estimation.filter.TUNED` (gains, strapdown-frame
   pre-filter, horizontal magnetometer) and the gyro bias measured over the log's initial still window,
   found by :func:`tune` — a grid search on :data:`TUNING_TRIALS`; the other trials are held out.
 
@@ -39,10 +39,11 @@ import numpy as np
 
 from bench.common import Result
 from hil import so3
-from hil.estimation.estimator import PAPER_D, AttitudeFilter, EstimatorParams, FilterConfig
+from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.inertial import directions_from_dip, directions_from_log, find_still_window
 from hil.estimation.metrics import AttitudeErrors, Rmse, resample_quats
 from hil.estimation.multirate import MergePolicy, first_full_step, merge
+from hil.estimation.params import PAPER_D, EstimatorParams
 from hil.estimation.sensors import MergedSteps, SensorKind, SensorLog
 from hil.logs import read_log
 from hil.scenario.paths import SHARED_DATA
@@ -352,7 +353,7 @@ def replay_speed(samples: int) -> tuple[float, float, dict[str, float], int]:
         path = long_log(samples, Path(tmp))
         n = read_log(path).n_samples
         t0 = time.perf_counter()
-        replay(path, ReplayOptions(out_dir=Path(tmp) / "out", plots=False))
+        replay(path, ReplayOptions(out_dir=Path(tmp) / "out"))
         full = n / (time.perf_counter() - t0)
         log = read_log(path)
         t0 = time.perf_counter()

@@ -197,7 +197,7 @@ def _runtime_realtime(rate_hz: float, duration_s: float, world: bool) -> tuple[_
         if not world:
             stack.enter_context(_still_phone(phone))
         options = RunOptions(
-            port=url, phone=phone, duration_s=duration_s, plots=False, out_root=Path(tmp),
+            port=url, phone=phone, duration_s=duration_s, out_root=Path(tmp),
             label=f"bench-{rate_hz:.0f}hz",
         )  # fmt: skip
         note = ""
@@ -307,7 +307,7 @@ def _lockstep_runtime(duration_s: float) -> tuple[float, float, float]:
     assert scenario.n_units == 4, scenario.n_units
     assert scenario.loop.plant_step_s == 0.001, scenario.loop.plant_step_s
     with tempfile.TemporaryDirectory(prefix="bench-runtime-") as tmp:
-        options = RunOptions(plots=False, duration_s=duration_s, out_root=Path(tmp), label="bench-lockstep")
+        options = RunOptions(duration_s=duration_s, out_root=Path(tmp), label="bench-lockstep")
         cpu = time.process_time()
         summary = run(scenario, options).summary
         cpu = time.process_time() - cpu

@@ -77,7 +77,7 @@ class World:
             )
         self.scenario = scenario
         self.board = board
-        self.params = scenario.spacecraft
+        self.params = scenario.world_spacecraft
         self.plant = Plant(self.params)
         motor = board.config.motor
         # The drives respond as the board's own actuator model says; an ESC cannot brake, so a rotor whose

@@ -242,7 +242,7 @@ def test_setpoints_faster_than_the_limit_are_coalesced_newest_wins():
     stats = client.stats().counters
     assert stats.setpoints_coalesced == 1
     assert board.counters["setpoints"] - before == 2  # the first, then the newest at its slot
-    assert board._rotor_cmd[0] == 500.0
+    assert board.command.rotor[0] == 500.0
 
 
 def test_calibration_upload_and_download_round_trip():

@@ -82,7 +82,7 @@ def test_heartbeats_alone_keep_the_link_and_failsafe_gimbals_hold():
     host.poll(0.4)
     assert board.state is BoardState.FAILSAFE
     cal = board.calibrations[0]
-    hold = round(cal.gimbal_pulse_us(0.0, board._gimbal_mode).value)  # RATE mode: zero rate
+    hold = round(cal.gimbal_pulse_us(0.0, board.command.gimbal_mode).value)  # RATE mode: zero rate
     assert board.outputs[0] == hold and board.outputs[2] == hold
     assert board.outputs[1] == board.outputs[3] == CFG.rotor_safe_us
 

@@ -8,15 +8,9 @@ import pytest
 from scipy.optimize import fsolve
 
 from hil import so3
-from hil.estimation import estimator as est_mod
-from hil.estimation.estimator import (
-    PAPER_OMEGA0,
-    EstimatorParams,
-    VariationalEstimator,
-    paper_initial_attitude,
-    phi_log,
-    wahba,
-)
+from hil.estimation import variational as est_mod
+from hil.estimation.estimator import VariationalEstimator
+from hil.estimation.params import PAPER_OMEGA0, EstimatorParams, paper_initial_attitude, phi_log, wahba
 from hil.estimation.sensors import MergedSteps, StepFlag
 from protocol.errors import ConfigError, ConvergenceError
 

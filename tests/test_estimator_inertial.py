@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.estimation.estimator import EstimatorParams
 from hil.estimation.inertial import (
     decimal_year,
     directions_from_dip,
@@ -19,6 +18,7 @@ from hil.estimation.inertial import (
     median_inclination_deg,
     wmm2025,
 )
+from hil.estimation.params import EstimatorParams
 from hil.simulation.phone import PhoneSpec, SensorSpec, Trajectory, simulate
 from protocol.errors import ConfigError, InputFormatError
 

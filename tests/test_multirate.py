@@ -10,8 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.estimation.estimator import EstimatorParams, VariationalEstimator
+from hil.estimation.estimator import VariationalEstimator
 from hil.estimation.multirate import MergePolicy, Merger, merge
+from hil.estimation.params import EstimatorParams
 from hil.estimation.sensors import KINDS, MergedSteps, SensorKind, SensorSample, SensorStream, StepFlag
 from protocol.errors import ConfigError
 

@@ -7,16 +7,11 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.estimation import estimator as est_mod
-from hil.estimation.estimator import (
-    PAPER_OMEGA0,
-    PAPER_PREFILTER,
-    AttitudeFilter,
-    FilterConfig,
-    paper_initial_attitude,
-)
+from hil.estimation import variational as est_mod
+from hil.estimation.filter import PAPER_PREFILTER, AttitudeFilter, FilterConfig
 from hil.estimation.metrics import AttitudeErrors, rate_error, settling_time
 from hil.estimation.multirate import MergePolicy, Merger, merge
+from hil.estimation.params import PAPER_OMEGA0, paper_initial_attitude
 from hil.estimation.sensors import MergedSteps, SensorKind
 from hil.simulation.phone import PhoneSpec, SensorSpec, Trajectory, paper_testbed_rate, simulate
 from protocol.errors import ConfigError

@@ -59,11 +59,9 @@ def test_paced_replay_on_a_lockstep_clock_matches_the_batch_and_calls_on_step(tm
     seen = []
     paced = replay(
         SIMULATED,
-        ReplayOptions(
-            tmp_path / "paced", plots=False, paced=True, clock=clock, on_step=lambda s, e: seen.append(s.t)
-        ),
+        ReplayOptions(tmp_path / "paced", paced=True, clock=clock, on_step=lambda s, e: seen.append(s.t)),
     )
-    batch = replay(SIMULATED, ReplayOptions(tmp_path / "batch", plots=False))
+    batch = replay(SIMULATED, ReplayOptions(tmp_path / "batch"))
     assert len(seen) == len(batch.estimates) == len(paced.estimates)
     np.testing.assert_allclose(paced.estimates.R, batch.estimates.R, atol=1e-9)
     np.testing.assert_allclose(paced.estimates.t, batch.estimates.t)
@@ -72,7 +70,7 @@ def test_paced_replay_on_a_lockstep_clock_matches_the_batch_and_calls_on_step(tm
 
 def test_progress_is_reported_up_to_the_total(tmp_path):
     calls = []
-    replay(SIMULATED, ReplayOptions(tmp_path, plots=False, progress=lambda d, t: calls.append((d, t))))
+    replay(SIMULATED, ReplayOptions(tmp_path, progress=lambda d, t: calls.append((d, t))))
     done = [d for d, _ in calls]
     assert done == sorted(done) and calls[-1][0] == calls[-1][1] > 0
 
@@ -111,7 +109,7 @@ def test_short_windows_of_real_trials_stay_within_stated_bounds(
     """The tuned estimator on 40 s of real data with ground truth (BROAD optical, tyrex Qualisys), the
     start-up included: RMSE total / inclination (deg) below bounds ~1.25–1.5× what it measures (4.07 / 0.40
     and 5.56 / 2.03; VQF on the same windows: 3.08 / 0.30 and 4.14 / 2.11)."""
-    result = replay(log, ReplayOptions(tmp_path, plots=False, window_s=window))
+    result = replay(log, ReplayOptions(tmp_path, window_s=window))
     assert result.comparison is not None
     rmse = result.comparison.rmse
     assert rmse.n > 1000

@@ -75,7 +75,7 @@ def test_unknown_scenario_lists_the_shipped_ones():
 def lockstep_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")
     sc = _quick()
-    return sc, run(sc, RunOptions(out_root=out, plots=False, duration_s=16.0))
+    return sc, run(sc, RunOptions(out_root=out, duration_s=16.0))
 
 
 def test_lockstep_slew_through_the_protocol_reaches_its_target(lockstep_run):
@@ -117,7 +117,7 @@ def test_run_directory_holds_telemetry_events_summary_and_scenario(lockstep_run)
 def test_a_link_stall_puts_the_board_in_failsafe_and_the_host_rearms(tmp_path):
     sc = _quick()
     sc = sc.with_changes(fault_options={"stall": ["6.0:0.6"]})  # board time: during the slew
-    result = run(sc, RunOptions(out_root=tmp_path, plots=False, duration_s=16.0))
+    result = run(sc, RunOptions(out_root=tmp_path, duration_s=16.0))
     s = result.summary
     assert s["exit"] == "completed"
     assert s["failsafe_events"] == 1 and s["rearms"] == 1
@@ -221,7 +221,7 @@ def test_the_same_run_over_a_python_can_virtual_bus(tmp_path):
         result = run(
             sc,
             RunOptions(port="can://virtual/runtime-test", phone="http://127.0.0.1:18125/", duration_s=1.0,
-                       out_root=tmp_path, plots=False),
+                       out_root=tmp_path),
         )  # fmt: skip
     finally:
         streamer.close()
@@ -241,7 +241,7 @@ def test_hil_report_redraws_a_run_and_prints_its_summary(lockstep_run, tmp_path,
     _, result = lockstep_run
     d = tmp_path / "copy"
     shutil.copytree(result.run_dir, d)
-    assert not (d / "plots").exists()  # the run was made with plots=False
+    assert not (d / "plots").exists()  # run() draws no plots (the CLI does)
     assert main(["report", str(d)]) == 0
     out = capsys.readouterr().out
     assert f"run {d}: " in out and "exit              completed  (lockstep" in out

@@ -3,7 +3,8 @@
 * :class:`AvrBoard` — the firmware ELF on an emulated ATmega2560 (the ``avr-harness`` process), with the
   conformance ``Target`` operations: harness time, pulse timeline, resets, fault injection.
 * :func:`ensure_built` — ``make -C firmware`` (firmware, codec check, harness, host library).
-* :mod:`.codegen` — generates the firmware's protocol and board headers from the Python sources.
+* :mod:`.codegen` — generates the firmware's protocol and board headers from the Python sources
+  (the board header in :mod:`.codegen_board`, C literals in :mod:`.c_literals`).
 * :mod:`.eeprom` — the EEPROM image (board configuration block, calibration slots).
 * :mod:`.records` — the harness's record of pulse edges and resets as frames.
 * :mod:`.hostlib` — the firmware's portable C modules on the host through ctypes (tests).

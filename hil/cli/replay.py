@@ -102,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
     from hil.estimation.inertial import decimal_year
     from hil.logs.replay import FieldModel, ReplayOptions, replay
+    from hil.plots.estimator import plot_replay
     from hil.timing.clock import WallClock
     from protocol.errors import ConfigError
 
@@ -128,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         field_model=field_model,
         gyro_bias=args.gyro_bias,
         window_s=tuple(args.window) if args.window else None,
-        plots=not args.no_plots,
+        plotter=None if args.no_plots else plot_replay,
         paced=args.paced,
         clock=WallClock() if args.paced else None,
         progress=ProgressBar() if show else None,
@@ -154,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     """``--port``: the log as the phone of a run that drives the board (hil.runtime)."""
-    from hil.cli.run import LiveProgress, format_summary
+    from hil.cli.run import LiveProgress, draw_plots, format_summary
     from hil.logs import read_log
     from hil.logs.replay import ReplayOptions, configure
     from hil.runtime import ReplayInput, RunOptions
@@ -183,10 +184,12 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         scenario,
         RunOptions(
             port=args.port, lockstep=True if args.lockstep else None, out_root=args.out or Path("runs"),
-            plots=not args.no_plots, progress=LiveProgress(), label=f"replay-{name}",
+            progress=LiveProgress(), label=f"replay-{name}",
             replay=ReplayInput(log, config, tuple(setup)),
         ),
     )  # fmt: skip
+    if not args.no_plots:
+        draw_plots(result.run_dir)
     print(file=sys.stderr)
     print(format_summary(result.summary))
     print(f"run directory: {result.run_dir}")

@@ -93,10 +93,12 @@ def run(args: argparse.Namespace) -> int:
         lockstep = True if args.lockstep else (False if args.realtime else None)
         opts = RunOptions(
             port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
-            phone=args.phone, phone_wait_s=args.phone_wait, plots=not args.no_plots, progress=LiveProgress(),
+            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(),
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
         result = run_scenario(scenario, opts)
+        if not args.no_plots:
+            draw_plots(result.run_dir)
     except HilError as exc:
         print(f"\nhil run: {exc}", file=sys.stderr)
         return 2
@@ -104,6 +106,13 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(result.summary))
     print(f"run directory: {result.run_dir}")
     return 0 if result.summary.get("exit") == "completed" else 1
+
+
+def draw_plots(run_dir: Path) -> None:
+    """The run directory's plots (``plots/``), as ``hil report`` redraws them."""
+    from hil.plots.run import plot_run
+
+    plot_run(run_dir)
 
 
 def format_summary(s: dict) -> str:  # type: ignore[type-arg]

@@ -1,7 +1,7 @@
 """Inertial reference directions ``E = [e1 e2 e1×e2]`` for the estimator, in the paper's ENU frame
 (x east, y north, z up). Three sources:
 
-1. **Given** — e.g. the paper's E (``hil.estimation.estimator.PAPER_E``), or any field vector through
+1. **Given** — e.g. the paper's E (``hil.estimation.params.PAPER_E``), or any field vector through
    :func:`directions_from_field`.
 2. **A local field model** — :func:`wmm2025`: the World Magnetic Model 2025 (NOAA/BGS, degree and order
    12, epoch 2025.0, valid 2025.0–2030.0, coefficients from NOAA's ``WMM.COF`` of 2024-11-13, public
@@ -25,7 +25,7 @@ from datetime import date, datetime
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil.estimation.estimator import directions_matrix
+from hil.estimation.params import directions_matrix
 from hil.estimation.sensors import SensorKind, SensorLog
 from protocol.errors import ConfigError, InputFormatError
 

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.estimation.estimator import AttitudeFilter, Estimate, EstimateBatch, FilterConfig
+from hil.estimation.estimator import Estimate, EstimateBatch
+from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.inertial import directions_from_dip, directions_from_log, find_still_window, wmm2025
 from hil.estimation.metrics import TruthComparison, compare_to_truth
 from hil.estimation.multirate import MergePolicy, Merger, MergeStats, merge
@@ -51,14 +52,20 @@ class FieldModel:
     height_km: float = 0.0
 
 
+Plotter = Callable[["ReplayResult", Path], dict[str, Path]]
+"""Draws a replay's figures into a directory and returns their files by name (the CLI passes
+:func:`hil.plots.estimator.plot_replay`; a library caller passes none or its own)."""
+
+
 @dataclass(frozen=True)
 class ReplayOptions:
     """How to replay. ``preset``: ``"tuned"`` (default) or ``"paper"`` (exactly the paper, incl. its
-    1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions: measured
-    from the log (the default), or ``inclination_deg`` given, both with ``declination_deg`` (default 0:
-    magnetic north); or a ``field_model`` (true north).
-    ``gyro_bias``: ``"still"`` (default) subtracts the mean gyro over the log's initial still window, if it
-    has one; ``"none"`` does not. ``window_s``: replay only ``[t0, t1]`` s of the log."""
+        1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions: measured
+        from the log (the default), or ``inclination_deg`` given, both with ``declination_deg`` (default 0:
+        magnetic north); or a ``field_model`` (true north).
+        ``gyro_bias``: ``"still"`` (default) subtracts the mean gyro over the log's initial still window, if it
+        has one; ``"none"`` does not. ``window_s``: replay only ``[t0, t1]`` s of the log. ``plotter``: draws the
+    figures (none by default)."""
 
     out_dir: Path
     format: str | None = None
@@ -70,7 +77,7 @@ class ReplayOptions:
     field_model: FieldModel | None = None
     gyro_bias: str = "still"
     window_s: tuple[float, float] | None = None
-    plots: bool = True
+    plotter: Plotter | None = None
     paced: bool = False
     clock: Clock | None = None
     progress: Callable[[int, int], None] | None = None
@@ -153,10 +160,8 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     _score(result)
     options.out_dir.mkdir(parents=True, exist_ok=True)
     result.files["estimates"] = write_estimates(estimates, options.out_dir / "estimates.csv")
-    if options.plots:
-        from hil.plots.estimator import plot_replay
-
-        result.files.update(plot_replay(result, options.out_dir))
+    if options.plotter is not None:
+        result.files.update(options.plotter(result, options.out_dir))
     result.files["summary"] = _write_summary(result, options.out_dir / "summary.json")
     return result
 

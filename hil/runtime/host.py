@@ -114,7 +114,7 @@ class Host:
     counters: HostCounters = field(default_factory=HostCounters)
 
     def __post_init__(self) -> None:
-        from hil.estimation.estimator import AttitudeFilter
+        from hil.estimation.filter import AttitudeFilter
         from hil.estimation.multirate import Merger
         from hil.vscmg import Plant
 

@@ -35,7 +35,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from hil.estimation.estimator import FilterConfig
+from hil.estimation.filter import FilterConfig
 from hil.estimation.sensors import SensorLog, SensorSample
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
 from hil.link.sources.recorded import RecordedSource
@@ -82,7 +82,6 @@ class RunOptions:
     out_root: Path = Path("runs")
     phone: str = DEFAULT_PHONE_URL
     phone_wait_s: float = 10.0
-    plots: bool = True
     progress: Progress | None = None
     label: str | None = None
     replay: ReplayInput | None = None
@@ -171,10 +170,6 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         write_summary(run_dir, summary)
     if error is not None:
         raise error
-    if opts.plots:
-        from hil.plots.run import plot_run
-
-        plot_run(run_dir)
     return RunResult(run_dir, summary)
 
 

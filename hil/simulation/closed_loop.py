@@ -12,7 +12,7 @@ Attitude sources (what the controller is told):
 - :class:`EstimatorInTheLoop`: a simulated phone on the spacecraft (accelerometer, gyroscope and
   magnetometer at their own rates, jitter, noise and bias, sampled from the plant's true motion), merged
   with hold-last-sample (:class:`hil.estimation.multirate.Merger`) and run through the paper's estimator
-  (:class:`hil.estimation.estimator.AttitudeFilter`) — the host's path.
+  (:class:`hil.estimation.filter.AttitudeFilter`) — the host's path.
 
 Telemetry (gimbal angles, rotor speeds) is read from the plant, as the board would report it.
 
@@ -119,10 +119,10 @@ class EstimatorInTheLoop:
     (``spec``, default :meth:`PhoneSpec.nexus5`); the truth between plant steps is interpolated (geodesic
     for the attitude, linear for the rate). The inertial frame is ENU (a testbed on the ground: the
     accelerometer reads gravity, the magnetometer the local field). ``config`` is the estimator's
-    :class:`hil.estimation.estimator.FilterConfig` (default: the paper's)."""
+    :class:`hil.estimation.filter.FilterConfig` (default: the paper's)."""
 
     def __init__(self, spec: object | None = None, config: object | None = None, seed: int = 0) -> None:
-        from hil.estimation.estimator import AttitudeFilter, FilterConfig
+        from hil.estimation.filter import AttitudeFilter, FilterConfig
         from hil.estimation.multirate import Merger
         from hil.simulation.phone import BodyPhone, PhoneSpec
 

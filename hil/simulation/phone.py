@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.estimation.estimator import PAPER_E
+from hil.estimation.params import PAPER_E
 from hil.estimation.sensors import SensorKind, SensorLog, SensorSample, SensorStream, Truth
 from protocol.errors import ConfigError
 

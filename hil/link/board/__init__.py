@@ -10,12 +10,14 @@
         for event in board.drain_events(): ...                      # telemetry, logs, state changes
         board.disarm()
 
-Modules: :mod:`.session` (the sans-IO core and ``ClientConfig``), :mod:`.client` (transport, clock,
-reader thread, reconnection), :mod:`.events` (what is reported), :mod:`.stats` (link statistics).
+Modules: :mod:`.session` (the sans-IO core), :mod:`.config` (``ClientConfig``), :mod:`.transfers`
+(calibration uploads and downloads of a session), :mod:`.client` (transport, clock, reader thread,
+reconnection), :mod:`.events` (what is reported), :mod:`.stats` (link statistics).
 ``docs/runtime-link.md`` is the guide.
 """
 
 from .client import BoardClient
+from .config import HOST_IDENTITY, ClientConfig
 from .events import (
     BoardInfo,
     BoardResetEvent,
@@ -28,8 +30,9 @@ from .events import (
     StateEvent,
     TelemetryEvent,
 )
-from .session import HOST_IDENTITY, ClientConfig, Download, Phase, Session
+from .session import Phase, Session
 from .stats import LinkStats, RoundTrips
+from .transfers import Download
 
 __all__ = [
     "HOST_IDENTITY",

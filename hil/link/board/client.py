@@ -54,8 +54,9 @@ from protocol.messages import (
 )
 from protocol.reliable import Command
 
+from .config import ClientConfig
 from .events import BoardInfo, Event
-from .session import ClientConfig, Phase, Session
+from .session import Phase, Session
 from .stats import LinkStats
 
 _MIN_STEP_S = 1e-6  # a lockstep wait always moves the clock at least this far

@@ -27,6 +27,9 @@ seen at the first handshake is reported too (``during_session=False``).
 **Setpoints** are never acknowledged: newest wins. At most one is sent per ``1 / max_setpoint_rate_hz``
 (default: twice the board's pulse frame rate, so a loop at the frame rate is never held back by jitter);
 one that comes sooner waits for its slot and is replaced by any newer one (counted as coalesced).
+
+Its configuration, :class:`ClientConfig`, is in :mod:`.config`; the calibration transfers' state
+(:class:`Download`, fragments, reassembly) in :mod:`.transfers`. Both are re-exported here.
 """
 
 from __future__ import annotations
@@ -34,15 +37,12 @@ from __future__ import annotations
 import enum
 import logging
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any
 
-from protocol.aoa import AccessoryIdentity
-from protocol.calibration import Reassembler, UnitCalibration, fragment
+from protocol.calibration import UnitCalibration
 from protocol.errors import (
     BoardReset,
-    CalibrationError,
-    ConfigError,
     HandshakeError,
     HilError,
     LinkError,
@@ -52,7 +52,6 @@ from protocol.errors import (
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import (
     PROTOCOL_VERSION,
-    SCHEMA_HASH,
     ActuatorSetpoint,
     Arm,
     BoardState,
@@ -63,15 +62,15 @@ from protocol.messages import (
     Hello,
     HelloReply,
     Log,
-    NackReason,
     RawPulses,
     ResetCause,
     Severity,
     Telemetry,
     encode_payload,
 )
-from protocol.reliable import AnswerCache, Command, CommandState, ReliableSender, RetryPolicy, answer_for
+from protocol.reliable import Command, CommandState, ReliableSender
 
+from .config import HOST_IDENTITY, ClientConfig
 from .events import (
     BoardInfo,
     BoardResetEvent,
@@ -85,6 +84,9 @@ from .events import (
     TelemetryEvent,
 )
 from .stats import RttRing, SessionCounters
+from .transfers import CalibrationTransfers, Download
+
+__all__ = ["HOST_IDENTITY", "ClientConfig", "Download", "PendingReset", "Phase", "Session"]
 
 logger = logging.getLogger(__name__)
 
@@ -105,69 +107,6 @@ class Phase(enum.Enum):
     INCOMPATIBLE = "incompatible"  # the board speaks another protocol version or schema: stop
 
 
-HOST_IDENTITY = AccessoryIdentity("vscmg-hil", "hil host", "vscmg-hil host runtime", "0.1.0")
-"""The AOA identity strings this host announces in ``Hello`` by default (the board may log them)."""
-
-
-@dataclass(frozen=True)
-class ClientConfig:
-    """Everything that shapes the board client; times in seconds.
-
-    ``commands`` is the retry policy of Arm/Disarm/SetMode/calibration fragments (default: 5 tries,
-    100 ms apart). ``handshake`` is Hello's: more tries (a booting board drops bytes while in reset, and
-    the handshake's ~200 bytes are the likeliest to be hit on a noisy link). ``schema_hash`` is what this
-    host announces: the catalogue it was built with; a test changes it to play a host built against
-    another catalogue. Reconnection: the first retry ``reconnect_first_s`` after the loss, each next one
-    twice as late up to ``reconnect_max_s``; after ``reconnect_give_up_s`` (None: never) the client
-    raises :class:`LinkError`. ``rearm_on_reconnect``: after a reconnect, arm again if the host had armed
-    the board (off by default — the host never re-arms unless asked). ``event_queue``: events held for
-    :meth:`BoardClient.drain_events` (older ones are dropped and counted when nobody drains them).
-    """
-
-    identity: AccessoryIdentity = HOST_IDENTITY
-    schema_hash: int = SCHEMA_HASH
-    commands: RetryPolicy = field(default_factory=RetryPolicy)
-    handshake: RetryPolicy = field(default_factory=lambda: RetryPolicy(timeout_s=0.1, max_tries=50))
-    heartbeat_period_s: float = 0.05
-    max_setpoint_rate_hz: float | None = None
-    silence_after_s: float = 1.0
-    rtt_samples: int = 1024
-    reconnect_first_s: float = 0.05
-    reconnect_max_s: float = 2.0
-    reconnect_give_up_s: float | None = 60.0
-    rearm_on_reconnect: bool = False
-    event_queue: int = 10_000
-    max_block_s: float = 0.05
-
-    def __post_init__(self) -> None:
-        for name in _POSITIVE + _POSITIVE_OR_NONE:
-            value = getattr(self, name)
-            if value is not None or name in _POSITIVE:
-                _check_positive(value, f"ClientConfig.{name}")
-        if self.reconnect_max_s < self.reconnect_first_s:
-            raise ConfigError("must be >= reconnect_first_s", "ClientConfig.reconnect_max_s")
-        for name in ("rtt_samples", "event_queue"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ConfigError(f"{value!r} must be an integer >= 1", f"ClientConfig.{name}")
-        if not 0 <= self.schema_hash < _U32:
-            raise ConfigError(f"{self.schema_hash!r} is not a u32", "ClientConfig.schema_hash")
-
-    def reconnect_delay(self, attempt: int) -> float:
-        """Seconds before reconnection attempt ``attempt`` (0, 1, 2, ...): doubling, bounded."""
-        return min(self.reconnect_first_s * 2.0 ** min(attempt, 60), self.reconnect_max_s)
-
-
-_POSITIVE = ("heartbeat_period_s", "silence_after_s", "reconnect_first_s", "reconnect_max_s", "max_block_s")
-_POSITIVE_OR_NONE = ("max_setpoint_rate_hz", "reconnect_give_up_s")
-
-
-def _check_positive(value: object, where: str) -> None:
-    number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    if not (number and math.isfinite(value) and value > 0):  # type: ignore[arg-type,operator]
-        raise ConfigError(f"{value!r} must be a finite number > 0", where)
-
-
 @dataclass
 class PendingReset:
     """A reset seen while the host had the board armed; setpoints raise :class:`BoardReset` until the
@@ -180,29 +119,6 @@ class PendingReset:
     def error(self) -> BoardReset:
         cause = self.cause.name if self.cause is not None else "not known yet (handshaking again)"
         return BoardReset(cause, f"{self.evidence}; arm() again to continue")
-
-
-@dataclass(eq=False)
-class Download:
-    """A calibration download in progress (``Session.start_download``); ``done`` once it completed or
-    failed, then :meth:`result` gives the unit's calibration or raises why not."""
-
-    unit: int
-    transfer_id: int
-    request: Command
-    data: bytes | None = None
-    error: HilError | None = None
-
-    @property
-    def done(self) -> bool:
-        return self.data is not None or self.error is not None
-
-    def result(self) -> UnitCalibration:
-        if self.error is not None:
-            raise self.error
-        if self.data is None:
-            raise ProtocolError(f"calibration download of unit {self.unit} is still running")
-        return UnitCalibration.from_bytes(self.data, source=f"board unit {self.unit}")
 
 
 class Session:
@@ -237,10 +153,7 @@ class Session:
         self._reset_evidence: str | None = None
         self._setpoint_slot = -math.inf
         self._pending_setpoint: ActuatorSetpoint | RawPulses | None = None
-        self._answers = AnswerCache()
-        self._reassembler = Reassembler()
-        self._downloads: dict[tuple[int, int], Download] = {}
-        self._transfer_id = 0
+        self._transfers = CalibrationTransfers()
         self._auto: dict[int, str] = {}  # id(Command) -> why the session sent it on its own
 
     # ================================================================== link lifecycle
@@ -271,11 +184,7 @@ class Session:
         why = f"link lost: {reason}"
         self.hellos.abandon(now, why)
         self.commands.abandon(now, why)
-        for download in self._downloads.values():
-            if not download.done:
-                download.error = LinkError(f"calibration download of unit {download.unit}: {why}")
-        self._downloads.clear()
-        self._reassembler.reset()
+        self._transfers.abandon(why)
         if lost:
             self._emit(LinkLostEvent(now, reason))
             logger.warning("board link lost: %s", reason)
@@ -319,18 +228,15 @@ class Session:
         """The CalibrationData fragments that upload ``calibration`` to ``unit`` (send each with
         :meth:`command`; the board must be DISARMED)."""
         self._check_unit(unit)
-        return fragment(unit, self._next_transfer_id(), calibration.to_bytes())
+        return self._transfers.upload_fragments(unit, calibration)
 
     def start_download(self, unit: int, now: float) -> tuple[Download, bytes]:
         """Ask the board for ``unit``'s stored calibration; the returned :class:`Download` completes as
         its fragments arrive (each acknowledged here)."""
         self._check_unit(unit)
-        tid = self._next_transfer_id()
+        tid = self._transfers.next_transfer_id()
         cmd, data = self.command(CalibrationRequest(unit=unit, transfer_id=tid), now)
-        download = Download(unit, tid, cmd)
-        self._downloads[(unit, tid)] = download
-        self._reassembler.reset()
-        return download, data
+        return self._transfers.track(unit, tid, cmd), data
 
     def poll(self, now: float) -> bytes:
         """Whatever is due at ``now``: retries, a held setpoint, a heartbeat; silence detection."""
@@ -523,34 +429,11 @@ class Session:
             detail = "" if cmd.ok else (cmd.reason.name if cmd.reason is not None else cmd.failure)
             self._emit(CommandEvent(now, why, cmd.ok, detail))
         if isinstance(cmd.message, CalibrationRequest) and not cmd.ok:
-            download = self._downloads.pop((cmd.message.unit, cmd.message.transfer_id), None)
-            if download is not None and not download.done:
-                try:
-                    cmd.result()
-                except HilError as exc:
-                    download.error = exc
+            self._transfers.request_failed(cmd)
 
     def _on_calibration_data(self, frame: Frame, now: float) -> None:
         """A fragment of a download (B→H, reliable): acknowledge it, once, and reassemble."""
-        answer = self._answers.lookup(frame)
-        if answer is None:
-            msg: CalibrationData = frame.message
-            download = self._downloads.get((msg.unit, msg.transfer_id))
-            refused: NackReason | None = None
-            if download is None or download.done:
-                refused = NackReason.BAD_STATE  # nothing asked for this transfer
-            else:
-                try:
-                    done = self._reassembler.feed(msg)
-                except CalibrationError as exc:
-                    download.error = exc
-                    refused = NackReason.BAD_CALIBRATION
-                else:
-                    if done is not None:
-                        download.data = done[1]
-                        del self._downloads[(msg.unit, msg.transfer_id)]
-            answer = answer_for(frame, refused)
-            self._answers.remember(frame, answer)
+        answer = self._transfers.answer(frame)
         self.counters.calibration_answers += 1
         self._send(answer, now)
 
@@ -591,10 +474,6 @@ class Session:
             return self.config.max_setpoint_rate_hz
         frame_rate = self.info.frame_rate_hz if self.info is not None else 0
         return 2.0 * frame_rate if frame_rate > 0 else math.inf
-
-    def _next_transfer_id(self) -> int:
-        self._transfer_id = (self._transfer_id + 1) & 0xFF
-        return self._transfer_id
 
     def _send(self, message: Any, now: float) -> None:
         _, data = self.framer.encode(message)

@@ -25,9 +25,14 @@ class WorldTruth(Protocol):
     """What the simulated world really does: attitude ``R`` (3, 3) body → ENU, body rate ``omega`` (3,)
     rad/s, at board time ``t`` (s)."""
 
-    t: float
-    R: Any
-    omega: Any
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def R(self) -> Any: ...
+
+    @property
+    def omega(self) -> Any: ...
 
 
 class SimulatedWorld(Protocol):

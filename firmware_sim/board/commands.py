@@ -1,0 +1,332 @@
+"""The board's protocol state machine as the main loop runs it: frames from the host are answered
+(ACK/NACK, retransmissions from the answer cache) and executed — the handshake (``Hello``), arming and
+disarming, the control mode, setpoints and raw pulses, calibration transfers — and the link watchdog
+puts an armed board into FAILSAFE when nothing valid arrives for ``link_timeout_s``.
+
+The transitions themselves are the pure function :func:`firmware_sim.state.transition`; this module
+adds what a state change does (stop the rotors, hold the gimbals, log, send a ``Heartbeat``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from protocol.frame import BadFrame, Frame
+from protocol.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Ack,
+    ActuatorSetpoint,
+    Arm,
+    BoardState,
+    CalibrationData,
+    CalibrationRequest,
+    ControlMode,
+    Disarm,
+    Flags,
+    GimbalMode,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Log,
+    Nack,
+    NackReason,
+    RawPulses,
+    SetMode,
+    Severity,
+    Telemetry,
+    WatchdogState,
+)
+
+from ..actuators import UnitModel
+from ..config import BoardConfig
+from ..link import BoardLink
+from ..periodic import Periodic
+from ..state import Event, motors_enabled, transition
+from ..timeline import ResetEvent
+from .calibration import CalibrationTransfers
+from .codes import LogCode
+from .power import PowerSupervisor
+from .telemetry import Outbox, hello_reply, uptime_ms
+
+_NEVER = math.inf
+
+
+@dataclass
+class Command:
+    """The host's last command as the firmware holds it, per unit: the gimbal rate (rad/s) or angle (rad)
+    (``gimbal_mode``) and the rotor speed (rad/s); in RAW_PULSES mode the widths (µs) per channel."""
+
+    n_units: int
+    gimbal_mode: GimbalMode = field(init=False)
+    gimbal: list[float] = field(init=False)
+    rotor: list[float] = field(init=False)
+    raw: tuple[int, ...] | None = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        """After an MCU reset: RATE mode, zero rates, rotors stopped."""
+        self.gimbal_mode = GimbalMode.RATE
+        self.gimbal = [0.0] * self.n_units
+        self.stop_rotors()
+
+    def stop_rotors(self) -> None:
+        self.rotor = [0.0] * self.n_units
+        self.raw = None
+
+
+class CommandHandler:
+    """The protocol side of the main loop. ``state`` and ``mode`` are the board's; ``counters`` counts
+    setpoints (accepted, malformed, ignored because disarmed or in the other mode).
+
+    Parts of the board it works with: ``calibrations`` (one per unit, ``None``: missing; ``Arm`` needs
+    all), ``units`` (gimbal mode, held angles), ``power`` (``Arm`` is refused while shedding load, and
+    clears the SHED latch), ``transfers`` (calibration upload/download), ``telemetry`` (the schedule a
+    session starts), ``resets`` (the MCU's reset record: uptime and reset cause). ``catch_up(t)`` brings
+    the hardware models to ``t`` (µs) before the gimbals' present angles are held."""
+
+    def __init__(
+        self,
+        config: BoardConfig,
+        link: BoardLink,
+        outbox: Outbox,
+        *,
+        calibrations: Sequence[Any | None],
+        units: Sequence[UnitModel],
+        power: PowerSupervisor,
+        transfers: CalibrationTransfers,
+        telemetry: Periodic,
+        resets: Sequence[ResetEvent],
+        catch_up: Callable[[int], None],
+    ) -> None:
+        self.config = config
+        self.link = link
+        self.calibrations = calibrations
+        self.units = units
+        self.power = power
+        self.transfers = transfers
+        self.telemetry = telemetry
+        self.resets = resets
+        self.counters = {"setpoints": 0, "bad_setpoints": 0, "ignored_setpoints": 0}
+        self.command = Command(config.n_units)
+        self.state = BoardState.BOOT
+        self.mode = ControlMode.SETPOINT
+        self.session = False  # a compatible Hello since reset (telemetry runs)
+        self.link_lost = False
+        self.last_rx_us: int | None = None
+        self._timeout_us = round(config.link_timeout_s * 1e6)
+        self._out = outbox
+        self._catch_up = catch_up
+
+    def reset(self) -> None:
+        """MCU reset: BOOT, SETPOINT mode, no session, the command forgotten."""
+        self.state = transition(self.state, Event.RESET).state
+        self.mode = ControlMode.SETPOINT
+        self.last_rx_us = None
+        self.link_lost = False
+        self.session = False
+        self.command.reset()
+
+    @property
+    def watchdog_state(self) -> WatchdogState:
+        return WatchdogState.LINK_LOST if self.link_lost else WatchdogState.OK
+
+    # ------------------------------------------------------------------ link watchdog
+    @property
+    def link_deadline_us(self) -> float:
+        """Board time (µs) the link watchdog expires (inf: not watching: no session, or already lost)."""
+        if self.session and not self.link_lost and self.last_rx_us is not None:
+            return self.last_rx_us + self._timeout_us
+        return _NEVER
+
+    def check_link(self, t: int) -> None:
+        """The link watchdog at ``t`` (µs): nothing valid for ``link_timeout_s`` → link lost."""
+        if t >= self.link_deadline_us:
+            self._on_link_lost(t)
+
+    def _on_valid_rx(self, t: int) -> None:
+        self.last_rx_us = t
+        if self.link_lost:
+            self.link_lost = False
+            self._out.log(Severity.INFO, LogCode.LINK_RESTORED, "link restored")
+
+    def _on_link_lost(self, t: int) -> None:
+        self.link_lost = True
+        self._out.log(
+            Severity.WARNING,
+            LogCode.LINK_LOST,
+            f"link lost: nothing valid for {self.config.link_timeout_s * 1000:.0f} ms",
+        )
+        self._apply(Event.LINK_LOST, t)
+
+    # ------------------------------------------------------------------ frames in
+    def receive(self, t: int) -> None:
+        """Everything in the UART ring at ``t`` (µs): deframe, answer and execute each valid frame."""
+        before = self.link.stats.rx_overflow
+        for event in self.link.drain():
+            if isinstance(event, BadFrame):
+                continue
+            self._handle_frame(event, t)
+        if self.link.stats.rx_overflow != before:
+            self._out.log(
+                Severity.WARNING,
+                LogCode.RX_OVERFLOW,
+                f"receive buffer overflow ({self.link.stats.rx_overflow} bytes lost)",
+            )
+
+    def _handle_frame(self, frame: Frame, t: int) -> None:
+        msg = frame.message
+        wants_answer = bool(frame.flags & Flags.ACK_REQUESTED) or type(msg).RELIABLE
+        if isinstance(msg, (HelloReply, Telemetry, Log)):
+            self.link.stats.ignored += 1  # board-to-host messages echoed back: not ours
+            return
+        self._on_valid_rx(t)
+        if wants_answer:
+            cached = self.link.cached_answer(frame)
+            if cached is not None:
+                self._out.send(cached)
+                return
+        refused = self._execute(msg, t)
+        if wants_answer:
+            answer: Ack | Nack
+            if refused is None:
+                answer = Ack(msg_id=frame.msg_id, seq=frame.seq)
+            else:
+                answer = Nack(msg_id=frame.msg_id, seq=frame.seq, reason=refused)
+            self.link.remember_answer(frame, answer)
+            self._out.send(answer)
+
+    def _execute(self, msg: Any, t: int) -> NackReason | None:
+        """Run one command; returns None (accepted) or the NACK reason."""
+        if isinstance(msg, ActuatorSetpoint):
+            self._on_setpoint(msg)
+        elif isinstance(msg, RawPulses):
+            self._on_raw_pulses(msg)
+        elif isinstance(msg, Heartbeat):
+            pass
+        elif isinstance(msg, Hello):
+            self._on_hello(msg, t)
+        elif isinstance(msg, Arm):
+            return self._on_arm(t)
+        elif isinstance(msg, Disarm):
+            return self._apply(Event.DISARM, t)
+        elif isinstance(msg, SetMode):
+            return self._on_set_mode(msg)
+        elif isinstance(msg, CalibrationData):
+            return self.transfers.upload(msg, self.state)
+        elif isinstance(msg, CalibrationRequest):
+            return self.transfers.download(msg, self.state, t)
+        elif isinstance(msg, (Ack, Nack)):
+            self.transfers.on_answer(msg)
+        return None
+
+    # ------------------------------------------------------------------ state changes
+    def _apply(self, event: Event, t: int) -> NackReason | None:
+        tr = transition(self.state, event, power_ok=self.power.power_ok)
+        if tr.accepted:
+            self._set_state(tr.state, t)
+        return tr.refused
+
+    def _set_state(self, new: BoardState, t: int) -> None:
+        old = self.state
+        if new is old:
+            return
+        self.state = new
+        if not motors_enabled(new):
+            self._hold_gimbals(t)
+            self.command.stop_rotors()
+        self._out.log(
+            Severity.WARNING if new is BoardState.FAILSAFE else Severity.INFO,
+            LogCode.STATE,
+            f"state {old.name} -> {new.name}",
+        )
+        self._out.send(Heartbeat(time_ms=uptime_ms(t, self.resets[-1]), state=int(new)))
+
+    def _hold_gimbals(self, t: int) -> None:
+        """Gimbals hold: zero rate in RATE mode, the present angle in ANGLE mode."""
+        if self.command.gimbal_mode is GimbalMode.RATE:
+            self.command.gimbal = [0.0] * self.config.n_units
+        else:
+            self._catch_up(t)
+            self.command.gimbal = [u.gimbal_angle for u in self.units]
+
+    # ------------------------------------------------------------------ commands
+    def _on_hello(self, msg: Hello, t: int) -> None:
+        compatible = msg.protocol_version == PROTOCOL_VERSION and msg.schema_hash == SCHEMA_HASH
+        if compatible:
+            self.mode = ControlMode.SETPOINT
+            self.link.forget_answers()
+            self._apply(Event.HELLO, t)
+            if not self.session:
+                self.session = True
+                self.telemetry.start(t, first_offset=True)
+        else:
+            self._out.log(
+                Severity.ERROR,
+                LogCode.HANDSHAKE,
+                f"incompatible host: protocol {msg.protocol_version} schema {msg.schema_hash:#010x} "
+                f"(board: {PROTOCOL_VERSION}, {SCHEMA_HASH:#010x})",
+            )
+        self._out.send(hello_reply(self.config, self.resets[-1].cause, self.state))
+
+    def _on_arm(self, t: int) -> NackReason | None:
+        if self.state is not BoardState.BOOT and any(c is None for c in self.calibrations):
+            return NackReason.BAD_CALIBRATION
+        was = self.state
+        refused = self._apply(Event.ARM, t)
+        if refused is None:
+            self.power.shed_latched = False
+            if was is not BoardState.ARMED:
+                self.command.stop_rotors()
+        return refused
+
+    def _on_set_mode(self, msg: SetMode) -> NackReason | None:
+        refused = transition(self.state, Event.SET_MODE).refused
+        if refused is not None:
+            return refused
+        if msg.mode not in (ControlMode.SETPOINT, ControlMode.RAW_PULSES):
+            return NackReason.UNSUPPORTED
+        if msg.mode is not self.mode:
+            self.mode = msg.mode
+            self._out.log(Severity.INFO, LogCode.STATE, f"mode {msg.mode.name}")
+        return None
+
+    def _on_setpoint(self, msg: ActuatorSetpoint) -> None:
+        if not motors_enabled(self.state) or self.mode is not ControlMode.SETPOINT:
+            self.counters["ignored_setpoints"] += 1
+            return
+        n = self.config.n_units
+        if len(msg.units) != n:
+            self.counters["bad_setpoints"] += 1
+            self._out.log(
+                Severity.WARNING, LogCode.BAD_COMMAND, f"setpoint for {len(msg.units)} units, board has {n}"
+            )
+            return
+        self.counters["setpoints"] += 1
+        cmd = self.command
+        if msg.gimbal_mode is not cmd.gimbal_mode:
+            cmd.gimbal_mode = msg.gimbal_mode
+            for u in self.units:
+                u.gimbal_mode = msg.gimbal_mode
+        cmd.gimbal = [u.gimbal for u in msg.units]
+        cmd.rotor = [u.rotor_speed for u in msg.units]
+
+    def _on_raw_pulses(self, msg: RawPulses) -> None:
+        if not motors_enabled(self.state) or self.mode is not ControlMode.RAW_PULSES:
+            self.counters["ignored_setpoints"] += 1
+            return
+        if len(msg.pulses_us) != self.config.n_channels:
+            self.counters["bad_setpoints"] += 1
+            self._out.log(
+                Severity.WARNING,
+                LogCode.BAD_COMMAND,
+                f"raw pulses for {len(msg.pulses_us)} channels, board has {self.config.n_channels}",
+            )
+            return
+        self.counters["setpoints"] += 1
+        self.command.raw = tuple(msg.pulses_us)

@@ -1,0 +1,429 @@
+"""The :class:`Board`: the MCU around the parts — when things run (scheduling on board time), its
+phases (reset, boot, running, hung with the MCU watchdog) and the hardware that runs regardless (pulse
+timers, motors, battery and UBEC, the brown-out detector).
+
+The main loop's protocol work is :mod:`.commands`; pulse widths :mod:`.outputs`; the power manager
+:mod:`.power`; dead-ESC detection :mod:`.dead_esc`; calibration transfers :mod:`.calibration`; the
+messages it sends :mod:`.telemetry`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from typing import Any
+
+from hil.timing.clock import Clock
+from protocol.calibration import default_unit_calibration
+from protocol.errors import ConfigError
+from protocol.messages import (
+    BoardState,
+    ControlMode,
+    FaultFlag,
+    GimbalMode,
+    Heartbeat,
+    PowerState,
+    ResetCause,
+    Severity,
+    UnitState,
+    WatchdogState,
+)
+
+from ..actuators import UnitModel
+from ..config import BoardConfig
+from ..faults import FaultInjector
+from ..link import BoardLink
+from ..periodic import Periodic
+from ..power import Battery, PowerReading
+from ..state import motors_enabled
+from ..timeline import PulseTimeline, ResetEvent
+from .calibration import CalibrationTransfers, calibration_or_default
+from .codes import LogCode, McuPhase
+from .commands import CommandHandler
+from .dead_esc import DeadEscDetector
+from .outputs import PulseShaper, conversion_voltage, ppm_train
+from .power import PowerSupervisor, solve_supply
+from .telemetry import Outbox, fault_flags, telemetry, uptime_ms
+
+logger = logging.getLogger("firmware_sim.board")  # the whole board logs under one name
+
+_NEVER = math.inf
+
+
+class Board:
+    """One emulated board. ``clock`` supplies "now" for ``feed``/``step()`` without arguments and for
+    faults scheduled at ``at=None``; lockstep callers pass a ``LockstepClock`` and advance it.
+
+    ``calibrations`` (one ``protocol.calibration.UnitCalibration`` per unit, ``None`` = not calibrated)
+    defaults to ``default_unit_calibration()`` for every unit; it survives resets (EEPROM)."""
+
+    def __init__(
+        self,
+        config: BoardConfig | None = None,
+        clock: Clock | None = None,
+        calibrations: Sequence[Any | None] | None = None,
+    ) -> None:
+        cfg = config if config is not None else BoardConfig()
+        cfg.validate()
+        self.config = cfg
+        if clock is None:
+            from hil.timing.clock import LockstepClock
+
+            clock = LockstepClock()
+        self.clock = clock
+        n = cfg.n_units
+        if calibrations is None:
+            calibrations = [default_unit_calibration() for _ in range(n)]
+        if len(calibrations) != n:
+            raise ConfigError(f"{len(calibrations)} calibrations for {n} units", "Board.calibrations")
+        self.calibrations: list[Any | None] = list(calibrations)
+        self.faults = FaultInjector(clock, cfg.seed, cfg.n_channels)
+        self.link = BoardLink(cfg.rx_buffer_bytes, cfg.tx_buffer_bytes)
+        self.timeline = PulseTimeline(cfg.timeline_frames)
+        self.resets: list[ResetEvent] = []
+        self.battery = Battery(cfg.power.battery)
+        self.units = [
+            UnitModel(cfg.motor, cfg.gimbal, calibration_or_default(self.calibrations, i)) for i in range(n)
+        ]
+        self.power = PowerReading(soc=self.battery.soc)
+        self.power.battery_v = self.battery.ocv()
+        self.rx_lost_in_reset = 0
+        self._wdt_timeout_us = round(cfg.mcu_watchdog_s * 1e6)
+
+        self._tick_us = max(1, round(cfg.tick_s * 1e6))
+        self._frames = Periodic(cfg.frame_rate_hz)
+        self._telemetry = Periodic(cfg.telemetry_rate_hz)
+        self._heartbeat = Periodic(cfg.heartbeat_rate_hz)
+        self._power_period = Periodic(1.0 / cfg.power.update_period_s)
+        self._ppm = Periodic(1e6 / 22_500.0)
+        t0 = self._us(clock.now())
+        self._t_us = t0
+        self._phys_us = t0
+        self._power_period.start(t0, first_offset=True)
+
+        # The parts, each holding its own state (``_reset`` restarts those an MCU reset clears)
+        self.phase = McuPhase.RESET
+        self.outbox = Outbox(self.link, lambda: self.phase is McuPhase.RESET)
+        self.power_supervisor = PowerSupervisor(cfg.power, self.outbox)
+        self.power_manager = self.power_supervisor.manager
+        self.pulses = PulseShaper(cfg)
+        self.dead_esc_detector = DeadEscDetector(cfg, self.outbox)
+        self.transfers = CalibrationTransfers(
+            self.calibrations, self.link, self.outbox, self._store_calibration
+        )
+        self.commands = CommandHandler(
+            cfg,
+            self.link,
+            self.outbox,
+            calibrations=self.calibrations,
+            units=self.units,
+            power=self.power_supervisor,
+            transfers=self.transfers,
+            telemetry=self._telemetry,
+            resets=self.resets,
+            catch_up=self._physics,
+        )
+        self.counters = self.commands.counters
+        self.command = self.commands.command
+
+        # MCU state (reset by _reset)
+        self.outputs: tuple[int | None, ...] = (None,) * cfg.n_channels
+        self._clamped = False
+        self._release_us = t0
+        self._wdt_us = _NEVER
+        self._rx_due_us: float = _NEVER
+        self._reset(ResetCause.POWER_ON, t0)
+
+    # ================================================================== public API
+    def feed(self, data: bytes) -> None:
+        """Bytes from the host arriving now (the board first catches up to now)."""
+        self.step()
+        data = self.faults.filter(data, self._t_us / 1e6, "rx")
+        if not data:
+            return
+        if self.phase is McuPhase.RESET:
+            self.rx_lost_in_reset += len(data)  # the UART is off while the MCU is in reset
+            return
+        self.link.receive(data)
+        if self.phase is McuPhase.RUNNING and self._rx_due_us is _NEVER:
+            self._rx_due_us = -(-self._t_us // self._tick_us) * self._tick_us
+
+    def step(self, now: float | None = None) -> None:
+        """Run everything due up to ``now`` seconds (default: the clock's now), each at its own time."""
+        target = self._us(self.clock.now() if now is None else now)
+        if target < self._t_us:
+            return
+        while True:
+            t = self._next_due_us()
+            if t > target:
+                break
+            self._wake(int(t))
+        self._physics(target)
+        self._t_us = target
+
+    def tick(self) -> None:
+        """``step()`` at the clock's current time."""
+        self.step()
+
+    def take_output(self) -> bytes:
+        """Bytes for the host produced so far (link faults applied)."""
+        data = self.link.take()
+        if not data:
+            return data
+        return self.faults.filter(data, self._t_us / 1e6, "tx")
+
+    def next_deadline(self) -> float:
+        """Board-clock time (s) of the next wake-up; an I/O loop should call ``step`` then."""
+        return self._next_due_us() / 1e6
+
+    @property
+    def now(self) -> float:
+        """The board's time (s): how far ``step`` has run."""
+        return self._t_us / 1e6
+
+    @property
+    def state(self) -> BoardState:
+        """The protocol state (BOOT, DISARMED, ARMED, FAILSAFE)."""
+        return self.commands.state
+
+    @property
+    def mode(self) -> ControlMode:
+        return self.commands.mode
+
+    @property
+    def reset_cause(self) -> ResetCause:
+        """Why the MCU last reset."""
+        return self.resets[-1].cause
+
+    @property
+    def power_state(self) -> PowerState:
+        """The power manager's stage."""
+        return self.power_supervisor.state
+
+    @property
+    def last_rx(self) -> float | None:
+        """Board time (s) the main loop last handled a valid frame from the host (None: not since reset)."""
+        last = self.commands.last_rx_us
+        return None if last is None else last / 1e6
+
+    def uptime_ms(self) -> int:
+        return uptime_ms(self._t_us, self.resets[-1])
+
+    def set_unit_states(self, states: Sequence[UnitState] | None) -> None:
+        """Closed-loop hook: the world's measured unit states (one per unit) replace the internal motor
+        model from now on (for telemetry, power draw, dead-ESC detection, gimbal hold); ``None`` hands
+        the units back to the internal model."""
+        self.step()
+        if states is not None and len(states) != self.config.n_units:
+            raise ConfigError(
+                f"{len(states)} states for {self.config.n_units} units", "Board.set_unit_states"
+            )
+        for i, unit in enumerate(self.units):
+            unit.override(None if states is None else states[i], self._t_us / 1e6)
+
+    def commanded_outputs(self) -> tuple[int | None, ...]:
+        """The widths (µs) the firmware would put on the next pulse frame for its present state, command
+        and power stage (``outputs`` is what the last frame carried)."""
+        return self._compute_outputs()[0]
+
+    @property
+    def gimbal_mode(self) -> GimbalMode:
+        """How the gimbal pulses are meant now: a rate or an angle (the last setpoint's mode)."""
+        return self.command.gimbal_mode
+
+    def unit_states(self) -> tuple[UnitState, ...]:
+        return tuple(u.state() for u in self.units)
+
+    def reset(self, cause: ResetCause = ResetCause.EXTERNAL) -> None:
+        """Press the reset button (or power-cycle with ``ResetCause.POWER_ON``)."""
+        self.step()
+        self._reset(cause, self._t_us)
+
+    @property
+    def watchdog_state(self) -> WatchdogState:
+        return self.commands.watchdog_state
+
+    def fault_flags(self) -> FaultFlag:
+        return fault_flags(
+            link_lost=self.commands.link_lost,
+            dead_esc=bool(self.dead_esc_detector.found),
+            power_state=self.power_state,
+            ubec_overcurrent=self.power_supervisor.ubec_over,
+            calibration_missing=any(c is None for c in self.calibrations),
+            reset_cause=self.reset_cause,
+            clamped=self._clamped,
+        )
+
+    # ================================================================== scheduling
+    @staticmethod
+    def _us(t: float) -> int:
+        return round(t * 1_000_000)
+
+    def _next_due_us(self) -> float:
+        due = min(self._power_period.next_us, self._frames.next_us)
+        phase = self.phase
+        if phase is McuPhase.RESET:
+            if self._release_us > self._phys_us:
+                due = min(due, self._release_us)
+            return due
+        if phase is McuPhase.HUNG:  # the timers (pulse frames, PPM train) keep running: hardware
+            return min(due, self._wdt_us, self._ppm.next_us)
+        due = min(
+            due,
+            self._rx_due_us,
+            self._telemetry.next_us,
+            self._heartbeat.next_us,
+            self._ppm.next_us,
+            max(self._us(self.faults.next_hang()), self._t_us) if self.faults.hangs else _NEVER,  # late: now
+        )
+        return min(due, self.commands.link_deadline_us, self.transfers.next_retry_us)
+
+    def _wake(self, t: int) -> None:
+        self._t_us = t
+        if (
+            t >= self._power_period.due_us
+            or self._frames.is_due(t)
+            or self.phase is not McuPhase.RUNNING
+            or self._telemetry.is_due(t)
+        ):
+            self._physics(t)  # a wake that only handles received bytes needs no physics
+        if self._power_period.is_due(t):
+            self._power_period.advance(t)
+            self._power_hardware(t)
+        if self.phase is McuPhase.RUNNING and self.faults.hangs and self._us(self.faults.next_hang()) <= t:
+            self.faults.pop_hang()  # one due in reset or boot waits for the main loop to run
+            self.phase = McuPhase.HUNG
+            self._wdt_us = t + self._wdt_timeout_us
+            logger.info("MCU hung at %.6f s; watchdog fires at %.6f s", t / 1e6, self._wdt_us / 1e6)
+        if self.phase is McuPhase.RESET:
+            if t >= self._release_us and self.power_supervisor.released(self.power):
+                self._boot(t)
+        elif self.phase is McuPhase.HUNG:
+            if t >= self._wdt_us:
+                self._reset(ResetCause.WATCHDOG, t)
+        if self.phase is McuPhase.RUNNING:
+            self._main_loop(t)
+        if self._frames.is_due(t):
+            self._frames.advance(t)
+            self._pulse_frame(t)
+        if self._ppm.is_due(t):
+            self._ppm.advance(t)
+            self.timeline.ppm.append(ppm_train(t, self.outputs, self.config.rotor_safe_us))
+
+    # ================================================================== reset, boot, main loop
+    def _reset(self, cause: ResetCause, t: int) -> None:
+        if self.resets:
+            logger.info("board reset at %.6f s: %s", t / 1e6, cause.name)
+        self.resets.append(ResetEvent(t / 1e6, cause))
+        self.phase = McuPhase.RESET
+        self._release_us = t + self._us(self.config.boot_time_s)
+        self._wdt_us = _NEVER
+        self._rx_due_us = _NEVER
+        self._clamped = False
+        self.commands.reset()
+        self.dead_esc_detector.reset()
+        self.transfers.reset()
+        self.link.reset()
+        self.power_supervisor.reset()
+        self.outputs = (None,) * self.config.n_channels
+        for s in (self._frames, self._telemetry, self._heartbeat, self._ppm):
+            s.stop()
+
+    def _boot(self, t: int) -> None:
+        self.phase = McuPhase.RUNNING
+        self._frames.start(t)
+        self._heartbeat.start(t)
+        if self.config.ppm:
+            self._ppm.start(t)
+        self.power_supervisor.update(self.power, 0.0, motors_enabled(self.state))
+        self.outputs, self._clamped = self._compute_outputs()
+        self.outbox.log(Severity.INFO, LogCode.BOOT, f"boot: reset cause {self.reset_cause.name}")
+
+    def _main_loop(self, t: int) -> None:
+        if self._rx_due_us <= t:
+            self._rx_due_us = _NEVER
+            self.commands.receive(t)
+        self.commands.check_link(t)
+        if self._telemetry.is_due(t):
+            self._telemetry.advance(t)
+            self._send_telemetry(t)
+        if self._heartbeat.is_due(t):
+            self._heartbeat.advance(t)
+            self.outbox.send(Heartbeat(time_ms=uptime_ms(t, self.resets[-1]), state=int(self.state)))
+        self.transfers.retry_due(t)
+
+    # ================================================================== outputs
+    def _compute_outputs(self) -> tuple[tuple[int | None, ...], bool]:
+        """(widths, clamped): the firmware's pulse widths for the present state, command and power stage."""
+        pm = self.power_manager
+        return self.pulses.widths(
+            self.calibrations,
+            self.command,
+            armed=motors_enabled(self.state),
+            raw_mode=self.mode is ControlMode.RAW_PULSES,
+            shed=self.power_supervisor.shedding,
+            limit=self.power_state is PowerState.LIMIT,
+            battery_v=conversion_voltage(pm.filtered_v_cell, pm.cells, self.power.battery_v),
+        )
+
+    def _pulse_frame(self, t: int) -> None:
+        if self.phase is McuPhase.RUNNING:
+            self.outputs, self._clamped = self._compute_outputs()
+        # HUNG: the timers keep generating the last widths.
+        self.timeline.record(t / 1e6, self.outputs)
+
+    def _store_calibration(self, unit: int, cal: Any) -> None:
+        """An uploaded calibration into EEPROM: the unit's model and the pulse conversions use it now."""
+        self.calibrations[unit] = cal
+        self.units[unit].calibration = cal
+        self.pulses.clear_cache()
+
+    # ================================================================== hardware
+    def _physics(self, t: int) -> None:
+        """Advance motors, battery and UBEC from the last physics time to ``t`` (hardware: always runs)."""
+        dt = (t - self._phys_us) / 1e6
+        if dt <= 0.0:
+            return
+        self._phys_us = t
+        now = t / 1e6
+        outputs = self.outputs
+        v = self.power.battery_v
+        dead = self.faults.dead_escs
+        for i, unit in enumerate(self.units):
+            if dead:
+                unit.rotor_dead = self.faults.channel_dead(2 * i + 1, now)
+                unit.gimbal_dead = self.faults.channel_dead(2 * i, now)
+            unit.advance(dt, outputs[2 * i], outputs[2 * i + 1], v)
+        self.battery.discharge(self.power.battery_a, dt)
+        solve_supply(self.power, self.battery, self.config.power.ubec, self.units, self.faults, now)
+
+    def _power_hardware(self, t: int) -> None:
+        """Brown-out detector (hardware) and, when the main loop runs, the firmware's power manager."""
+        if self.phase is not McuPhase.RESET and self.power_supervisor.browned_out(self.power):
+            self._reset(ResetCause.BROWN_OUT, t)
+            return
+        if self.phase is McuPhase.RUNNING:
+            self.power_supervisor.update(
+                self.power, self.config.power.update_period_s, motors_enabled(self.state)
+            )
+            self.dead_esc_detector.check(t, self.outputs, self.units, self.power.battery_v, self.gimbal_mode)
+
+    # ================================================================== messages out
+    def _send_telemetry(self, t: int) -> None:
+        last_rx = self.commands.last_rx_us
+        self.outbox.send(
+            telemetry(
+                time_ms=uptime_ms(t, self.resets[-1]),
+                state=self.state,
+                mode=self.mode,
+                watchdog=self.watchdog_state,
+                power_state=self.power_state,
+                faults=self.fault_flags(),
+                link_age_us=None if last_rx is None else t - last_rx,
+                power=self.power,
+                counters=self.link.deframer.counters,
+                outputs=self.outputs,
+                units=self.unit_states(),
+            )
+        )

@@ -1,0 +1,107 @@
+"""Calibration transfers of one board session, sans-IO: transfer ids, uploads cut into fragments, and
+downloads (:class:`Download`) reassembled from the board's fragments, each answered once.
+
+:class:`~hil.link.board.session.Session` owns one :class:`CalibrationTransfers`; it sends the commands
+and answers, this keeps the transfers' state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from protocol.calibration import Reassembler, UnitCalibration, fragment
+from protocol.errors import CalibrationError, HilError, LinkError, ProtocolError
+from protocol.frame import Frame
+from protocol.messages import Ack, CalibrationData, CalibrationRequest, Nack, NackReason
+from protocol.reliable import AnswerCache, Command, answer_for
+
+
+@dataclass(eq=False)
+class Download:
+    """A calibration download in progress (``Session.start_download``); ``done`` once it completed or
+    failed, then :meth:`result` gives the unit's calibration or raises why not."""
+
+    unit: int
+    transfer_id: int
+    request: Command
+    data: bytes | None = None
+    error: HilError | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.data is not None or self.error is not None
+
+    def result(self) -> UnitCalibration:
+        if self.error is not None:
+            raise self.error
+        if self.data is None:
+            raise ProtocolError(f"calibration download of unit {self.unit} is still running")
+        return UnitCalibration.from_bytes(self.data, source=f"board unit {self.unit}")
+
+
+class CalibrationTransfers:
+    """The transfers of one session: the next transfer id, the downloads waiting for fragments (by unit
+    and transfer id), their reassembly, and the answers already given (a retransmitted fragment is
+    answered again, not fed twice)."""
+
+    def __init__(self) -> None:
+        self._answers = AnswerCache()
+        self._reassembler = Reassembler()
+        self._downloads: dict[tuple[int, int], Download] = {}
+        self._transfer_id = 0
+
+    def next_transfer_id(self) -> int:
+        self._transfer_id = (self._transfer_id + 1) & 0xFF
+        return self._transfer_id
+
+    def upload_fragments(self, unit: int, calibration: UnitCalibration) -> list[CalibrationData]:
+        """The CalibrationData fragments that upload ``calibration`` to ``unit``, with a new transfer id."""
+        return fragment(unit, self.next_transfer_id(), calibration.to_bytes())
+
+    def track(self, unit: int, transfer_id: int, request: Command) -> Download:
+        """A download just requested (``request`` is its CalibrationRequest): wait for its fragments."""
+        download = Download(unit, transfer_id, request)
+        self._downloads[(unit, transfer_id)] = download
+        self._reassembler.reset()
+        return download
+
+    def abandon(self, why: str) -> None:
+        """The link is gone: every running download fails with :class:`LinkError`; partial data is dropped."""
+        for download in self._downloads.values():
+            if not download.done:
+                download.error = LinkError(f"calibration download of unit {download.unit}: {why}")
+        self._downloads.clear()
+        self._reassembler.reset()
+
+    def request_failed(self, cmd: Command) -> None:
+        """A CalibrationRequest was refused or never answered: its download fails with the reason."""
+        message: CalibrationRequest = cmd.message
+        download = self._downloads.pop((message.unit, message.transfer_id), None)
+        if download is not None and not download.done:
+            try:
+                cmd.result()
+            except HilError as exc:
+                download.error = exc
+
+    def answer(self, frame: Frame) -> Ack | Nack:
+        """The answer to a fragment of a download (B→H, reliable), feeding it to the reassembler once."""
+        answer = self._answers.lookup(frame)
+        if answer is None:
+            msg: CalibrationData = frame.message
+            download = self._downloads.get((msg.unit, msg.transfer_id))
+            refused: NackReason | None = None
+            if download is None or download.done:
+                refused = NackReason.BAD_STATE  # nothing asked for this transfer
+            else:
+                try:
+                    done = self._reassembler.feed(msg)
+                except CalibrationError as exc:
+                    download.error = exc
+                    refused = NackReason.BAD_CALIBRATION
+                else:
+                    if done is not None:
+                        download.data = done[1]
+                        del self._downloads[(msg.unit, msg.transfer_id)]
+            answer = answer_for(frame, refused)
+            self._answers.remember(frame, answer)
+        return answer

@@ -1,0 +1,87 @@
+"""The loaded scenario: everything a closed-loop run needs, as the parts' own parameter types."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil.simulation.closed_loop import LoopConfig, SlewScenario
+from hil.simulation.phone import PhoneSpec
+from hil.vscmg import SpacecraftParams
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A loaded scenario. ``board_options`` and ``fault_options`` are firmware-sim's command-line options
+    (name without dashes → value; a list for a repeatable option), so the same scenario drives the
+    in-process emulator, a spawned firmware-sim and ``firmware-sim --world``. ``source`` is the TOML text
+    as read (copied into every run directory). ``true_spacecraft``: the spacecraft the world flies when it
+    differs from the nominal one the host's controller is designed for (None: the same)."""
+
+    name: str
+    description: str
+    spacecraft: SpacecraftParams
+    phone: PhoneSpec
+    estimator: str
+    loop: LoopConfig
+    slew: SlewScenario
+    settle_deg: float = 0.5
+    seed: int = 0
+    board_options: Mapping[str, Any] = field(default_factory=dict)
+    fault_options: Mapping[str, Any] = field(default_factory=dict)
+    source: str = ""
+    path: Path | None = None
+    true_spacecraft: SpacecraftParams | None = None
+
+    @property
+    def world_spacecraft(self) -> SpacecraftParams:
+        """The spacecraft the simulated world flies: ``true_spacecraft`` when a run disperses it (a Monte
+        Carlo draw: the controller keeps the nominal ``spacecraft``), else the nominal one."""
+        return self.spacecraft if self.true_spacecraft is None else self.true_spacecraft
+
+    @property
+    def n_units(self) -> int:
+        return self.spacecraft.n_units
+
+    def firmware_sim_options(self) -> list[tuple[str, str]]:
+        """The board and fault options as (name, value) pairs in firmware-sim's spelling (a repeatable
+        option once per value), plus the unit count: an emu:// or spawn:// query, or a command line."""
+        pairs: list[tuple[str, str]] = [("units", str(self.n_units))]
+        for options in (self.board_options, self.fault_options):
+            for key, value in options.items():
+                for v in value if isinstance(value, list) else [value]:
+                    pairs.append((key, str(v)))
+        return pairs
+
+    def firmware_sim_argv(self) -> list[str]:
+        """:meth:`firmware_sim_options` as command-line arguments."""
+        argv: list[str] = []
+        for key, value in self.firmware_sim_options():
+            argv += ["--" + key.replace("_", "-"), value]
+        return argv
+
+    def emulator_url(self, scheme: str = "emu") -> str:
+        """``emu://?units=4&frame_rate=50&...`` (or ``spawn://firmware-sim?...``) for this scenario."""
+        from urllib.parse import urlencode
+
+        query = urlencode(self.firmware_sim_options())
+        return f"emu://?{query}" if scheme == "emu" else f"spawn://firmware-sim?{query}"
+
+    def filter_config(self) -> Any:
+        """The estimator's :class:`hil.estimation.filter.FilterConfig` for this scenario's phone."""
+        from hil.estimation.filter import FilterConfig
+        from hil.estimation.inertial import directions_from_field
+
+        f = np.asarray(self.phone.field_enu_uT, dtype=float)
+        if self.estimator == "tuned":  # horizontal magnetometer: only the declination matters
+            return FilterConfig.tuned(declination_deg=math.degrees(math.atan2(f[0], f[1])))
+        return FilterConfig.paper(E=directions_from_field(f))
+
+    def with_changes(self, **changes: Any) -> Scenario:
+        """A copy with fields replaced (Monte Carlo dispersions, ``--duration``)."""
+        return replace(self, **changes)

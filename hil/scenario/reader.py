@@ -1,0 +1,328 @@
+"""The TOML reader behind :func:`hil.scenario.parse_scenario`: walks the document table by table, checks
+every key and value, and builds the parts; every error names ``file: table.key``."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil import so3
+from hil.control.attitude import ControllerGains
+from hil.control.steering import SteeringParams
+from hil.simulation.closed_loop import LoopConfig, SlewScenario
+from hil.simulation.phone import PhoneSpec, SensorSpec
+from hil.vscmg import SpacecraftParams
+from protocol.errors import ConfigError
+
+from .model import Scenario
+
+_SPACECRAFT_PRESETS = ("cubesat_1u", "air_bearing_testbed")
+_GEOMETRIES = ("pyramid", "tetrahedron", "custom")
+_SENSOR_PRESETS = ("nexus5", "ideal")
+_ESTIMATOR_PRESETS = ("paper", "tuned")
+
+# Every key each table accepts (anything else is a typo and an error naming it).
+_KEYS: dict[str, frozenset[str]] = {
+    "scenario": frozenset({"name", "description", "duration_s", "seed"}),
+    "spacecraft": frozenset({"preset", "rotor_offset_m", "nominal_rotor_speed", "bus_inertia"}),
+    "array": frozenset({"geometry", "units", "skew_deg", "gimbal_axes", "spin_axes"}),
+    "sensors": frozenset({"preset", "gravity", "field_enu_uT", "gyr", "acc", "mag"}),
+    "sensors.*": frozenset({"rate_hz", "noise", "bias", "jitter_s", "offset_s"}),
+    "estimator": frozenset({"preset"}),
+    "controller": frozenset(
+        {
+            "control_rate_hz",
+            "plant_step_s",
+            "natural_frequency",
+            "damping",
+            "null_gain",
+            "wheel_weight",
+            "mu",
+            "warmup_s",
+        }
+    ),  # fmt: skip
+    "board": frozenset(
+        {"frame_rate", "telemetry_rate", "heartbeat_rate", "link_timeout", "mcu_watchdog", "cells", "soc"}
+    ),
+    "faults": frozenset(
+        {
+            "corrupt",
+            "drop",
+            "fault_direction",
+            "stall",
+            "hang_at",
+            "sag",
+            "sag_ohms",
+            "brownout_at",
+            "dead_esc",
+        }
+    ),
+    "manoeuvre": frozenset(
+        {
+            "axis",
+            "angle_deg",
+            "max_rate",
+            "max_accel",
+            "initial_axis",
+            "initial_angle_deg",
+            "gimbal_angles_deg",
+            "settle_deg",
+        }
+    ),  # fmt: skip
+}
+
+
+class _Reader:
+    """Walks the TOML document table by table; every error names ``file: table.key``."""
+
+    def __init__(self, doc: dict[str, Any], where: str) -> None:
+        self.doc = doc
+        self.where = where
+        unknown = set(doc) - {k for k in _KEYS if "." not in k}
+        if unknown:
+            raise ConfigError(f"unknown table(s) {sorted(unknown)}; known: {sorted(_KEYS)}", where)
+
+    def table(self, name: str, keys: str | None = None) -> dict[str, Any]:
+        parts = name.split(".")
+        node: Any = self.doc
+        for part in parts:
+            node = node.get(part, {}) if isinstance(node, dict) else None
+        if not isinstance(node, dict):
+            raise self.error(name, "must be a table")
+        allowed = _KEYS[keys or name]
+        for key in node:
+            if key not in allowed:
+                raise self.error(f"{name}.{key}", f"unknown key; known: {', '.join(sorted(allowed))}")
+        return node
+
+    def error(self, key: str, detail: str) -> ConfigError:
+        return ConfigError(detail, f"{self.where}: {key}")
+
+    def number(
+        self, tbl: dict[str, Any], table: str, key: str, default: float, positive: bool = True
+    ) -> float:
+        value = tbl.get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise self.error(f"{table}.{key}", f"must be a number, got {value!r}")
+        if positive and value <= 0:
+            raise self.error(f"{table}.{key}", f"must be positive, got {value!r}")
+        return float(value)
+
+    def vector(self, tbl: dict[str, Any], table: str, key: str, shape: tuple[int, ...]) -> np.ndarray:
+        try:
+            arr = np.asarray(tbl[key], dtype=float)
+        except (TypeError, ValueError):
+            raise self.error(f"{table}.{key}", f"must be numbers, got {tbl[key]!r}") from None
+        if arr.shape != shape or not np.all(np.isfinite(arr)):
+            raise self.error(f"{table}.{key}", f"must be finite numbers of shape {shape}, got {tbl[key]!r}")
+        return arr
+
+    def choice(self, tbl: dict[str, Any], table: str, key: str, options: tuple[str, ...]) -> str:
+        value = tbl.get(key, options[0])
+        if value not in options:
+            raise self.error(f"{table}.{key}", f"must be one of {', '.join(options)}; got {value!r}")
+        return str(value)
+
+    # ------------------------------------------------------------------ the tables
+    def scenario(self, text: str, path: Path | None) -> Scenario:
+        head = self.table("scenario")
+        name = head.get("name")
+        if not isinstance(name, str) or not name:
+            raise self.error("scenario.name", "required: a non-empty string")
+        seed = head.get("seed", 0)
+        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+            raise self.error("scenario.seed", f"must be a non-negative integer, got {seed!r}")
+        spacecraft = self.spacecraft()
+        loop = self.controller()
+        slew, settle = self.manoeuvre(spacecraft, self.number(head, "scenario", "duration_s", 40.0))
+        board = self.options("board")
+        if "frame_rate" in board and float(board["frame_rate"]) < loop.control_rate_hz:
+            raise self.error("board.frame_rate", "must be at least controller.control_rate_hz")
+        return Scenario(
+            name=name,
+            description=str(head.get("description", "")),
+            spacecraft=spacecraft,
+            phone=self.sensors(),
+            estimator=self.choice(self.table("estimator"), "estimator", "preset", _ESTIMATOR_PRESETS),
+            loop=replace(loop, frame_rate_hz=float(board.get("frame_rate", 50.0))),
+            slew=slew,
+            settle_deg=settle,
+            seed=seed,
+            board_options=board,
+            fault_options=self.options("faults"),
+            source=text,
+            path=path,
+        )
+
+    def spacecraft(self) -> SpacecraftParams:
+        from hil.vscmg import geometry
+        from hil.vscmg.params import inertia_tensor
+
+        sc = self.table("spacecraft")
+        preset = self.choice(sc, "spacecraft", "preset", _SPACECRAFT_PRESETS)
+        builder = geometry.cubesat_1u if preset == "cubesat_1u" else geometry.air_bearing_testbed
+        if "rotor_offset_m" in sc:
+            offset = self.number(sc, "spacecraft", "rotor_offset_m", 0.0, positive=False)
+            params = builder(rotor_offset_m=offset)
+        else:
+            params = builder()
+        changes: dict[str, Any] = {}
+        if "nominal_rotor_speed" in sc:
+            changes["nominal_rotor_speed"] = self.number(sc, "spacecraft", "nominal_rotor_speed", 0.0)
+        if "bus_inertia" in sc:
+            raw = np.asarray(sc["bus_inertia"], dtype=float) if _numeric(sc["bus_inertia"]) else None
+            if raw is None or raw.shape not in ((3,), (3, 3)):
+                raise self.error(
+                    "spacecraft.bus_inertia", "must be 3 diagonal values or a 3x3 matrix (kg m²)"
+                )
+            try:
+                changes["bus_inertia"] = tuple(map(tuple, inertia_tensor(raw, "bus_inertia")))
+            except ConfigError as exc:
+                raise self.error("spacecraft.bus_inertia", exc.detail) from None
+        units = self.array(params)
+        if units is not None:
+            changes["units"] = units
+        try:
+            return replace(params, **changes) if changes else params
+        except ConfigError as exc:
+            raise self.error("spacecraft", str(exc)) from None
+
+    def array(self, params: SpacecraftParams) -> tuple[Any, ...] | None:
+        from hil.vscmg import geometry
+
+        arr = self.table("array")
+        if not arr:
+            return None
+        kind = self.choice(arr, "array", "geometry", _GEOMETRIES)
+        template = params.units[0]
+        try:
+            if kind == "pyramid":
+                n = arr.get("units", 4)
+                if not isinstance(n, int) or isinstance(n, bool) or not 2 <= n <= 8:
+                    raise self.error("array.units", f"must be an integer 2..8, got {n!r}")
+                skew = math.radians(
+                    self.number(arr, "array", "skew_deg", math.degrees(geometry.PYRAMID_BETA))
+                )
+                return geometry.pyramid(n, skew, radius_m=0.025, height_m=-0.02, template=template)
+            if kind == "tetrahedron":
+                return geometry.tetrahedron(radius_m=0.12, height_m=0.05, template=template)
+            for key in ("gimbal_axes", "spin_axes"):
+                if key not in arr:
+                    raise self.error(f"array.{key}", "required for a custom geometry")
+            g = np.asarray(arr["gimbal_axes"], dtype=float)
+            if g.ndim != 2 or g.shape[1] != 3 or not 1 <= len(g) <= 8:
+                raise self.error("array.gimbal_axes", "must be 1..8 vectors of 3 numbers")
+            s = self.vector(arr, "array", "spin_axes", g.shape)
+            return geometry.custom_array(g, s, template=template)
+        except (ConfigError, ValueError) as exc:
+            if isinstance(exc, ConfigError) and exc.where.startswith(self.where):
+                raise
+            raise self.error(f"array.{kind}", str(exc)) from None
+
+    def sensors(self) -> PhoneSpec:
+        sen = self.table("sensors")
+        preset = self.choice(sen, "sensors", "preset", _SENSOR_PRESETS)
+        phone = PhoneSpec.nexus5() if preset == "nexus5" else PhoneSpec.ideal()
+        changes: dict[str, Any] = {}
+        if "gravity" in sen:
+            changes["gravity"] = self.number(sen, "sensors", "gravity", 9.81)
+        if "field_enu_uT" in sen:
+            f = self.vector(sen, "sensors", "field_enu_uT", (3,))
+            if np.linalg.norm(f) < 1.0:
+                raise self.error("sensors.field_enu_uT", "a field below 1 µT gives no heading")
+            changes["field_enu_uT"] = tuple(float(x) for x in f)
+        for kind in ("gyr", "acc", "mag"):
+            if kind not in sen:
+                continue
+            sub = self.table(f"sensors.{kind}", "sensors.*")
+            base: SensorSpec = getattr(phone, kind)
+            values = {}
+            for key in sub:
+                values[key] = self.number(sub, f"sensors.{kind}", key, 0.0, positive=key == "rate_hz")
+                if values[key] < 0:
+                    raise self.error(f"sensors.{kind}.{key}", "must not be negative")
+            try:
+                changes[kind] = replace(base, **values)
+            except ConfigError as exc:
+                raise self.error(f"sensors.{kind}", exc.detail) from None
+        return replace(phone, **changes) if changes else phone
+
+    def controller(self) -> LoopConfig:
+        c = self.table("controller")
+        base = LoopConfig()
+        gains = ControllerGains(
+            natural_frequency=self.number(c, "controller", "natural_frequency", base.gains.natural_frequency),
+            damping=self.number(c, "controller", "damping", base.gains.damping),
+        )
+        steering = SteeringParams(
+            wheel_weight=self.number(c, "controller", "wheel_weight", base.steering.wheel_weight, False),
+            mu=self.number(c, "controller", "mu", base.steering.mu, False),
+            null_gain=self.number(c, "controller", "null_gain", base.steering.null_gain, False),
+        )
+        rate = self.number(c, "controller", "control_rate_hz", base.control_rate_hz)
+        try:
+            return LoopConfig(
+                plant_step_s=self.number(c, "controller", "plant_step_s", base.plant_step_s),
+                control_rate_hz=rate,
+                frame_rate_hz=max(rate, base.frame_rate_hz),
+                gains=gains,
+                steering=steering,
+                warmup_s=self.number(c, "controller", "warmup_s", base.warmup_s, positive=False),
+            )
+        except ConfigError as exc:
+            raise self.error("controller", str(exc)) from None
+
+    def manoeuvre(self, spacecraft: SpacecraftParams, duration_s: float) -> tuple[SlewScenario, float]:
+        m = self.table("manoeuvre")
+
+        def rotation(axis_key: str, angle_key: str, default_angle: float) -> np.ndarray:
+            angle = math.radians(self.number(m, "manoeuvre", angle_key, default_angle, positive=False))
+            if angle == 0.0:
+                return np.eye(3)
+            axis = self.vector(m, "manoeuvre", axis_key, (3,)) if axis_key in m else np.array([0.0, 0.0, 1.0])
+            norm = float(np.linalg.norm(axis))
+            if norm < 1e-9:
+                raise self.error(f"manoeuvre.{axis_key}", "must not be the zero vector")
+            return so3.exp(axis / norm * angle)
+
+        R0 = rotation("initial_axis", "initial_angle_deg", 0.0)
+        R_turn = rotation("axis", "angle_deg", 90.0)
+        n = spacecraft.n_units
+        gimbals = np.zeros(n)
+        if "gimbal_angles_deg" in m:
+            gimbals = np.radians(self.vector(m, "manoeuvre", "gimbal_angles_deg", (n,)))
+        slew = SlewScenario(
+            name="slew",
+            R0=R0,
+            R_target=R0 @ R_turn,  # the axis is in the body frame at the start
+            duration_s=duration_s,
+            max_rate=self.number(m, "manoeuvre", "max_rate", 0.15),
+            max_accel=self.number(m, "manoeuvre", "max_accel", 0.025),
+            gimbal_angle0=gimbals,
+        )
+        return slew, self.number(m, "manoeuvre", "settle_deg", 0.5)
+
+    def options(self, name: str) -> dict[str, Any]:
+        """A table of firmware-sim options: numbers, strings or lists of them."""
+        tbl = self.table(name)
+        for key, value in tbl.items():
+            values = value if isinstance(value, list) else [value]
+            if not values or not all(
+                isinstance(v, int | float | str) and not isinstance(v, bool) for v in values
+            ):
+                raise self.error(
+                    f"{name}.{key}", f"must be a number, a string or a list of them; got {value!r}"
+                )
+        return dict(tbl)
+
+
+def _numeric(value: Any) -> bool:
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return True
