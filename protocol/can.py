@@ -12,9 +12,10 @@ Arbitration id (11-bit base format, the same on classic CAN and CAN FD)::
     bit  10 9 8 | 7         | 6 5 4 3 2 1 0
          priority | direction | node id (0..127)
 
-* ``priority`` (0 = wins arbitration) from the message id: 0 COMMAND (Arm, Disarm, SetMode, Ack, Nack),
-  1 CONTROL (ActuatorSetpoint, RawPulses), 2 LINK (Hello, HelloReply, Heartbeat), 3 STATUS
-  (Telemetry), 4 BULK (CalibrationData, CalibrationRequest), 5 LOG (Log), 6 any other id; 7 unused.
+* ``priority`` (0 = wins arbitration) from the message id: 0 COMMAND (Arm, Disarm, SetMode, EscCalibrate,
+  Ack, Nack), 1 CONTROL (ActuatorSetpoint, RawPulses), 2 LINK (Hello, HelloReply, Heartbeat), 3 STATUS
+  (Telemetry, EscCalibrationStatus), 4 BULK (CalibrationData, CalibrationRequest), 5 LOG (Log), 6 any
+  other id; 7 unused.
 * ``direction``: 0 host → board, 1 board → host, so host and board never send the same id.
 * ``node id``: the board's address; one host talks to up to 128 boards on one bus.
 
@@ -52,6 +53,8 @@ from .messages import (
     CalibrationData,
     CalibrationRequest,
     Disarm,
+    EscCalibrate,
+    EscCalibrationStatus,
     Heartbeat,
     Hello,
     HelloReply,
@@ -91,10 +94,10 @@ class Direction(enum.IntEnum):
 
 
 PRIORITY: dict[int, Priority] = {
-    **{cls.MSG_ID: Priority.COMMAND for cls in (Arm, Disarm, SetMode, Ack, Nack)},
+    **{cls.MSG_ID: Priority.COMMAND for cls in (Arm, Disarm, SetMode, Ack, Nack, EscCalibrate)},
     **{cls.MSG_ID: Priority.CONTROL for cls in (ActuatorSetpoint, RawPulses)},
     **{cls.MSG_ID: Priority.LINK for cls in (Hello, HelloReply, Heartbeat)},
-    Telemetry.MSG_ID: Priority.STATUS,
+    **{cls.MSG_ID: Priority.STATUS for cls in (Telemetry, EscCalibrationStatus)},
     **{cls.MSG_ID: Priority.BULK for cls in (CalibrationData, CalibrationRequest)},
     Log.MSG_ID: Priority.LOG,
 }

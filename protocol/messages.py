@@ -54,7 +54,7 @@ class ControlMode(enum.IntEnum):
 
     SETPOINT = 0  # ActuatorSetpoint through the calibration maps
     RAW_PULSES = 1  # RawPulses passed through as pulse widths
-    ESC_CALIBRATION = 2  # the ESC high/low endpoint calibration procedure
+    ESC_CALIBRATION = 2  # the ESC high/low endpoint procedure runs (entered only by EscCalibrate)
 
 
 class GimbalMode(enum.IntEnum):
@@ -71,6 +71,42 @@ class NackReason(enum.IntEnum):
     BUSY = 4  # a transfer is already in progress
     BAD_CALIBRATION = 5  # calibration data failed its CRC or validation
     POWER = 6  # refused because of the power state (load shed)
+    UNCONFIRMED = 7  # a guarded command without its explicit confirmation (EscCalibrate.confirm)
+
+
+class EscCalStep(enum.IntEnum):
+    """What an ``EscCalibrate`` command asks for."""
+
+    START = 0  # start the procedure on ``unit``'s rotor channel
+    SUPPLY_APPLIED = 1  # the operator has connected the ESC's supply (boards without a supply switch)
+
+
+class EscCalPhase(enum.IntEnum):
+    """Where the board's ESC endpoint procedure is (``EscCalibrationStatus.phase``)."""
+
+    IDLE = 0  # no procedure
+    SUPPLY_OFF = 1  # the board has cut the ESCs' supply; the channel is set to the high endpoint
+    WAIT_SUPPLY = 2  # high endpoint on the channel; waiting for the operator to connect the ESC supply
+    HIGH = 3  # the ESC is powered and sees the high endpoint: its acknowledgement interval
+    LOW = 4  # the channel is at the low endpoint: the ESC stores both
+    DONE = 5  # finished: the channel is back at the safe pulse
+    ABORTED = 6  # stopped early (``abort`` says why): the channel is at the safe (minimum) pulse
+
+
+class EscCalAbort(enum.IntEnum):
+    """Why an ESC endpoint procedure stopped early."""
+
+    NONE = 0
+    DISARM = 1  # a Disarm
+    LINK_LOST = 2  # the link watchdog expired
+    HELLO = 3  # a new session (Hello)
+    POWER = 4  # the power manager shed load
+    SUPPLY_TIMEOUT = 5  # nobody confirmed the ESC's supply in time
+
+
+ESC_CALIBRATION_CONFIRM = 0x444C4E55
+"""``EscCalibrate.confirm`` must be this (the bytes of ASCII "UNLD" on the wire): the operator states the
+rotor is off or unloaded, because the ESC sees its full-throttle pulse during the procedure."""
 
 
 class PowerState(enum.IntEnum):
@@ -217,6 +253,23 @@ class SetMode(Message):
 
 
 @dataclass(frozen=True, slots=True)
+class EscCalibrate(Message):
+    """H→B, reliable, DISARMED only: teach unit ``unit``'s rotor ESC its endpoints (docs/protocol.md,
+    "ESC endpoint programming"); ``confirm`` must be ESC_CALIBRATION_CONFIRM. The board times the steps."""
+
+    MSG_ID: ClassVar[int] = 0x15
+    RELIABLE: ClassVar[bool] = True
+    unit: int = wire(U8(0, MAX_UNITS - 1), 0)
+    step: EscCalStep = wire(Enum8(EscCalStep), EscCalStep.START)
+    confirm: int = wire(U32(), 0)
+    low_us: int = wire(U16(PULSE_MIN_US, PULSE_MAX_US, "us"), 1000)
+    high_us: int = wire(U16(PULSE_MIN_US, PULSE_MAX_US, "us"), 2000)
+    supply_off_ms: int = wire(U16(0, 10_000, "ms"), 1500)
+    high_ms: int = wire(U16(100, 20_000, "ms"), 3000)
+    low_ms: int = wire(U16(100, 20_000, "ms"), 2000)
+
+
+@dataclass(frozen=True, slots=True)
 class Ack(Message):
     """Either way: the reliable frame (``msg_id``, ``seq``) was accepted."""
 
@@ -306,6 +359,19 @@ class Telemetry(Message):
 
 
 @dataclass(frozen=True, slots=True)
+class EscCalibrationStatus(Message):
+    """B→H: the ESC endpoint procedure, on every phase change and at the telemetry rate while it runs."""
+
+    MSG_ID: ClassVar[int] = 0x41
+    unit: int = wire(U8(0, MAX_UNITS - 1), 0)
+    phase: EscCalPhase = wire(Enum8(EscCalPhase), EscCalPhase.IDLE)
+    abort: EscCalAbort = wire(Enum8(EscCalAbort), EscCalAbort.NONE)
+    pulse_us: int = wire(U16(0, PULSE_MAX_US, "us"), 0)
+    supply_on: int = wire(U8(0, 1), 1)
+    phase_ms: int = wire(U32(unit="ms"), 0)
+
+
+@dataclass(frozen=True, slots=True)
 class Log(Message):
     """B→H: a state change or fault, as text."""
 
@@ -324,11 +390,13 @@ CATALOGUE: tuple[type[Message], ...] = (
     SetMode,
     Ack,
     Nack,
+    EscCalibrate,
     ActuatorSetpoint,
     RawPulses,
     CalibrationData,
     CalibrationRequest,
     Telemetry,
+    EscCalibrationStatus,
     Log,
 )
 BY_ID: dict[int, type[Message]] = {cls.MSG_ID: cls for cls in CATALOGUE}
