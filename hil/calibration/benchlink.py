@@ -109,12 +109,13 @@ class BenchLink:
     def clear_telemetry(self) -> None:
         self.telemetry.clear()
 
-    def latest(self, timeout: float = 2.0) -> Telemetry:
-        """The next Telemetry to arrive (LinkError if none comes within ``timeout`` s)."""
+    def latest(self, where: Callable[[Telemetry], bool] = lambda t: True, timeout: float = 2.0) -> Telemetry:
+        """The next Telemetry to arrive for which ``where`` holds (telemetry sent before a command took
+        effect may still be on its way); LinkError if none comes within ``timeout`` s."""
         self.clear_telemetry()
-        if not self.wait(timeout, lambda: bool(self.telemetry)):
-            raise LinkError(f"no telemetry from the board within {timeout} s")
-        return self.telemetry[-1]
+        if not self.wait(timeout, lambda: any(where(t) for t in self.telemetry)):
+            raise LinkError(f"no such telemetry from the board within {timeout} s")
+        return [t for t in self.telemetry if where(t)][-1]
 
     def take_statuses(self) -> list[EscCalibrationStatus]:
         out, self._statuses = self._statuses, []
@@ -130,7 +131,7 @@ class BenchLink:
         client = self.client
         client.disarm()
         client.set_mode(ControlMode.SETPOINT)
-        tel = self.latest()
+        tel = self.latest(lambda t: t.state is BoardState.DISARMED)
         angle = gimbal_mode is GimbalMode.ANGLE
         hold = tuple(UnitSetpoint(u.gimbal_angle if angle else 0.0, 0.0) for u in tel.units)
         client.arm()
@@ -139,9 +140,9 @@ class BenchLink:
         client.disarm()
         if mode is not ControlMode.SETPOINT:
             client.set_mode(mode)
-        tel = self.latest()
-        if tel.state is not BoardState.DISARMED or 0 in tel.pulses_us[1::2]:
-            raise ProtocolError(f"the board is {tel.state.name} with outputs {tel.pulses_us}: not ready")
+        tel = self.latest(lambda t: t.state is BoardState.DISARMED and t.mode is mode)
+        if 0 in tel.pulses_us[1::2]:
+            raise ProtocolError(f"the board has rotor channels without pulses {tel.pulses_us}: not ready")
         self.base_widths = tuple(tel.pulses_us)
         return tel
 

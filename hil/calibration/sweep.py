@@ -143,7 +143,7 @@ class SweepResult:
             "settled",
             "board_time_s",
         ]
-        rows = [
+        rows: list[tuple[str, ...]] = [
             (
                 str(r.pulse_us),
                 f"{r.battery_v:.3f}",

@@ -95,6 +95,9 @@ def register_actions(actions: Any) -> None:
     u.add_argument("--rotor-step", type=int, default=40, metavar="US", help="rotor sweep step (40)")
     u.add_argument("--rate-step", type=int, default=20, metavar="US", help="gimbal rate sweep step (20)")
     u.add_argument("--angle-step", type=int, default=25, metavar="US", help="gimbal angle sweep step (25)")
+    u.add_argument("--rotor-knots", type=int, default=9, help="knots of the throttle curve, 3..16 (9)")
+    u.add_argument("--gimbal-rate-knots", type=int, default=6, help="knots each side of the dead zone (6)")
+    u.add_argument("--gimbal-angle-knots", type=int, default=9, help="knots of the angle table (9)")
     u.add_argument("--no-verify", action="store_true", help="skip the verification sweep")
     u.add_argument("--rotor-tolerance", type=float, default=0.02, help="verification: of full speed (0.02)")
     u.add_argument("--rate-tolerance", type=float, default=0.05, help="verification: rad/s (0.05)")
@@ -129,7 +132,7 @@ def _esc_options(p: argparse.ArgumentParser) -> None:
 
 
 def _sweep_options(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("sweep")
+    g = p.add_argument_group("sweep (and verification) steps")
     g.add_argument("--directions", choices=("up", "down", "both"), default="both", help="(both)")
     g.add_argument("--settle", type=float, default=0.3, metavar="S", help="minimum settle time (0.3)")
     g.add_argument("--settle-window", type=float, default=0.5, metavar="S", help="steadiness window (0.5)")
@@ -275,6 +278,7 @@ def run_unit(args: argparse.Namespace) -> int:
     verify = None
     if not args.no_verify:
         verify = VerifyPlan(
+            settling=settling,
             rotor_tolerance=args.rotor_tolerance,
             gimbal_rate_tolerance_rad_s=args.rate_tolerance,
             gimbal_angle_tolerance_rad=args.angle_tolerance,
@@ -284,7 +288,13 @@ def run_unit(args: argparse.Namespace) -> int:
         out=args.out,
         bench_dir=args.bench_dir,
         plans=plans,
-        fit=FitOptions(esc_low_us=args.esc_low, esc_high_us=args.esc_high),
+        fit=FitOptions(
+            esc_low_us=args.esc_low,
+            esc_high_us=args.esc_high,
+            rotor_knots=args.rotor_knots,
+            gimbal_rate_knots_per_side=args.gimbal_rate_knots,
+            gimbal_angle_knots=args.gimbal_angle_knots,
+        ),
         esc=_program(args) if args.program_esc else None,
         verify=verify,
     )
