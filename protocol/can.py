@@ -28,12 +28,16 @@ Segment (the CAN frame's data)::
 
 A frame takes at most 37 classic or 5 FD segments. Receivers reassemble per arbitration id, place
 segments by index (so reordering within a frame is harmless), and emit the frame once every index up
-to the delimiter's has arrived. A frame that cannot complete — a segment lost, a conflicting duplicate,
-the sender moved on — is discarded and counted (``incomplete``), never delivered half-built. A repeat of a
-segment already delivered (CAN's "double reception" after an error frame) is recognised until the
-sender reuses that transfer id, and counted as a duplicate. Memory is bounded: per arbitration id
-``window`` partial frames and the last frame of each of the 4 transfer ids, for at most
-``max_streams`` arbitration ids.
+to the delimiter's has arrived. A sender sends one frame after another on an arbitration id, so a segment
+under another transfer id ends the frames being assembled under the others. A frame that cannot complete
+— a segment lost, a conflicting duplicate, the sender moved on — is discarded and counted
+(``incomplete``), never delivered half-built; one that assembles but fails its CRC (segments of two frames
+joined after the 2-bit transfer id wrapped) is counted (``spliced``), and assembly restarts from the
+newest segment. A repeat of
+the segment that completed a frame, arriving next on its arbitration id (CAN's "double reception": the
+transmitter saw an error frame and sends the same CAN frame again at once), is counted as a duplicate;
+a repeat within a frame still being assembled is too. Memory is bounded: per arbitration id ``window``
+partial frames and one segment, for at most ``max_streams`` arbitration ids.
 """
 
 from __future__ import annotations
@@ -229,13 +233,17 @@ class _Partial:
 
 @dataclass
 class _Stream:
-    """One arbitration id: frames being assembled, and the frame last completed (by transfer id) until
-    another transfer id is heard: a double reception follows its original at once, so a late duplicate
-    of a delivered segment is recognised, not delivered again — and a new frame four transfer ids on is
-    not mistaken for one."""
+    """One arbitration id: frames being assembled; the segment that completed the last delivered frame
+    (transfer id, index, bytes) while it is the last segment heard (a double reception follows its
+    original at once: that repeat is dropped at once); and the last frame delivered under each transfer
+    id, so that a repeat arriving later, whose segments assemble into a frame byte for byte equal to one
+    already delivered under its transfer id, is recognised as a duplicate too. Single segments are never
+    judged against delivered frames: a later frame four transfer ids on (the frames between lost whole)
+    may share a segment with one — a last segment holding only the delimiter, say."""
 
     partials: OrderedDict[int, _Partial] = field(default_factory=OrderedDict)
-    done: dict[int, dict[int, bytes]] = field(default_factory=dict)
+    completed_by: tuple[int, int, bytes] | None = None
+    delivered: dict[int, bytes] = field(default_factory=dict)  # transfer id -> the last wire frame delivered
 
 
 def _intact(wire: bytes) -> bool:
@@ -302,12 +310,19 @@ class CanReassembler:
             return b""
         self.stats.segments += 1
         stream = self._stream(arbitration_id)
-        done = stream.done.get(tid)
-        if done is not None and done.get(index) == chunk:
-            self.stats.duplicates += 1  # a repeat of a frame already delivered (CAN double reception)
+        if stream.completed_by == (tid, index, chunk):
+            self.stats.duplicates += 1  # the completing segment again, at once: CAN double reception
             return b""
-        stream.done.clear()  # the sender has moved on: no more repeats of what it finished
+        stream.completed_by = None  # anything else: the sender has moved on
         partials = stream.partials
+        # A sender sends one frame after another on an arbitration id (its segments may swap places
+        # within the frame, never with another frame's): a segment under another transfer id means the
+        # frames being assembled under the others are over, their missing segments lost. Give them up, so
+        # that none completes later, out of order, from a segment of a newer frame that happens to be
+        # byte-identical to the one it lost (a last segment holding only the delimiter, say).
+        for over in [k for k in partials if k != tid]:
+            del partials[over]
+            self.stats.incomplete += 1
         partial = partials.get(tid)
         if partial is None:
             partial = self._open(partials, tid)
@@ -323,23 +338,24 @@ class CanReassembler:
             partial.last = index
         if partial.last is None or len(partial.segments) != partial.last + 1:
             return b""
-        # Complete: deliver it, and give up on frames of this stream that started before it.
-        for older in list(partials):
-            del partials[older]
-            if older == tid:
-                break
-            self.stats.incomplete += 1
-        stream.done[tid] = partial.segments
         wire = b"".join(partial.segments[i] for i in range(partial.last + 1))
         if len(wire) > MAX_WIRE:
+            del partials[tid]
             self.stats.malformed += 1
             return b""
         if not _intact(wire):
             # The 2-bit transfer id wrapped: a frame that lost segments met the same id four frames on,
-            # the frames between lost whole; their segments joined. Never delivered half-built.
-            del stream.done[tid]
+            # the frames between lost whole; their segments joined. Never delivered half-built: the
+            # segment just heard is the newest frame's, so assembly starts again from it alone.
             self.stats.spliced += 1
+            partials[tid] = _Partial({index: chunk}, index if end >= 0 else None)
             return b""
+        del partials[tid]
+        stream.completed_by = (tid, index, chunk)
+        if stream.delivered.get(tid) == wire:
+            self.stats.duplicates += len(partial.segments)  # a late repeat of a delivered frame
+            return b""
+        stream.delivered[tid] = wire
         self.stats.frames += 1
         return wire
 
