@@ -28,7 +28,6 @@ slotted and have no ``__post_init__``; :func:`compile_message` checks that).
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import operator
 import struct
 from collections.abc import Callable
@@ -154,16 +153,6 @@ def _enum_table(codec: Enum8) -> tuple[Any, ...]:
     return tuple(members.get(v) for v in range(256))
 
 
-def _column_check(src: _Source, scalar: Scalar, col: str, ind: int) -> None:
-    """Reject (return None) unless every value in the tuple ``col`` is in the field's range."""
-    if isinstance(scalar, Enum8) or not _narrow(scalar):
-        return
-    lo, hi = _literal(scalar, scalar.lo), _literal(scalar, scalar.hi)
-    nan = f"(s := sum({col})) != s or " if scalar.fmt == "f" else ""  # a NaN makes the sum NaN
-    src.line(ind, f"if {col} and ({nan}min({col}) < {lo} or max({col}) > {hi}):")
-    src.line(ind + 1, "return None")
-
-
 # =========================================================================== decode
 def _gen_decode(src: _Source, cls: type, parts: list[_Part]) -> None:
     src.line(0, "def decode(b):")
@@ -246,31 +235,66 @@ def _gen_decode_values(src: _Source, parts: list[_Part], counts: list[str]) -> l
             continue
         k = len(part.items)
         start = _plus(index, 1)
-        t = f"t{n}"
-        src.line(1, f"{t} = v[{start}:{start} + {c}" + (f" * {k}]" if k > 1 else "]"))
-        columns = []
-        for j, (_, scalar) in enumerate(part.items):
-            col = t if k == 1 else f"{t}_{j}"
-            if k > 1:
-                src.line(1, f"{col} = {t}[{j}::{k}]")
-            if isinstance(scalar, Enum8):
-                src.line(1, f"{col} = tuple(map({src.const(_enum_table(scalar), 'E')}.__getitem__, {col}))")
-                src.line(1, f"if None in {col}:")
-                src.line(2, "return None")
-            _column_check(src, scalar, col, 1)
-            columns.append(col)
-        if part.kind == "records":
-            assert isinstance(part.codec, Array) and isinstance(part.codec.item, type)
-            make = src.const(fast_constructor(part.codec.item), "make")
-            src.line(1, f"{x} = tuple(map({make}, {', '.join(columns)}))")
+        end = f"{start} + {c}" + (f" * {k}" if k > 1 else "")
+        if part.kind == "array":
+            _gen_decode_column(src, part.items[0][1], f"v[{start}:{end}]", x)
         else:
-            x = columns[0]
+            assert isinstance(part.codec, Array) and isinstance(part.codec.item, type)
+            _gen_decode_records(src, part.codec.item, part.items, f"v[{start}:{end}]", x)
         values.append(x)
         if n + 1 < len(parts):
-            src.line(1, f"i{var} = {start} + {c}" + (f" * {k}" if k > 1 else ""))
+            src.line(1, f"i{var} = {end}")
             index = f"i{var}"
     _reject_if(src, bad)
     return values
+
+
+def _gen_decode_column(src: _Source, scalar: Scalar, values: str, x: str) -> None:
+    """``x`` = the tuple ``values`` of an array of scalars, checked."""
+    src.line(1, f"{x} = {values}")
+    if isinstance(scalar, Enum8):
+        src.line(1, f"{x} = tuple(map({src.const(_enum_table(scalar), 'E')}.__getitem__, {x}))")
+        src.line(1, f"if None in {x}:")
+        src.line(2, "return None")
+    elif scalar.fmt == "f":  # a loop: min and max cannot see a NaN
+        src.line(1, f"for a in {x}:")
+        src.line(2, f"if not {_literal(scalar, scalar.lo)} <= a <= {_literal(scalar, scalar.hi)}:")
+        src.line(3, "return None")
+    elif _narrow(scalar):
+        lo, hi = _literal(scalar, scalar.lo), _literal(scalar, scalar.hi)
+        src.line(1, f"if {x} and (min({x}) < {lo} or max({x}) > {hi}):")
+        src.line(2, "return None")
+
+
+def _gen_decode_records(
+    src: _Source, cls: type, items: tuple[tuple[str, Scalar], ...], values: str, x: str
+) -> None:
+    """``x`` = the tuple of records ``cls`` made of the flat tuple ``values``, checked."""
+    names = [f"a{j}" for j in range(len(items))]
+    src.line(1, "out = []")
+    src.line(1, f"it = iter({values})")
+    src.line(
+        1,
+        f"for {', '.join(names)} in zip({', '.join(['it'] * len(items))}):"
+        if len(items) > 1
+        else "for a0 in it:",
+    )
+    bad = []
+    for a, (_, scalar) in zip(names, items, strict=True):
+        if isinstance(scalar, Enum8):
+            src.line(2, f"{a} = {src.const(_enum_table(scalar), 'E')}[{a}]")
+            bad.append(f"{a} is None")
+        elif _narrow(scalar):
+            bad.append(f"not {_literal(scalar, scalar.lo)} <= {a} <= {_literal(scalar, scalar.hi)}")
+    if bad:
+        src.line(2, f"if {' or '.join(bad)}:")
+        src.line(3, "return None")
+    _, setters = _fast_new(cls)
+    src.line(2, f"r = new({src.const(cls, 'C')})")
+    for setter, a in zip(setters, names, strict=True):
+        src.line(2, f"{src.const(setter, 'set')}(r, {a})")
+    src.line(2, "out.append(r)")
+    src.line(1, f"{x} = tuple(out)")
 
 
 def _reject_if(src: _Source, conditions: list[str]) -> None:
@@ -349,35 +373,16 @@ def _gen_encode(src: _Source, cls: type, msg_id: int, version: int, parts: list[
         if part.kind in ("text", "blob"):
             args += [c, x]
             continue
-        flat = x
-        if part.kind == "records":
+        if part.kind == "array":
+            scalar = part.items[0][1]
+            src.line(1, f"for a in {x}:")
+            src.line(2, f"if not ({_scalar_ok(src, scalar, 'a')}):")
+            src.line(3, "return None")
+            args += [c, f"*{x}"]
+        else:
             assert isinstance(part.codec, Array) and isinstance(part.codec.item, type)
-            src.line(1, f"if {c} and {{*map(type, {x})}} != {{{src.const(part.codec.item, 'R')}}}:")
-            src.line(2, "return None")
-            getter = src.const(operator.attrgetter(*[n for n, _ in part.items]), "get")
-            flat = f"f{x}"
-            if len(part.items) > 1:
-                src.names["chain"] = itertools.chain.from_iterable
-                src.line(1, f"{flat} = tuple(chain(map({getter}, {x})))")
-            else:
-                src.line(1, f"{flat} = tuple(map({getter}, {x}))")
-        k = len(part.items)
-        kinds = {_wire_type(s) for _, s in part.items}
-        if len(kinds) == 1:  # every column wants the same Python type: one check over all of them
-            want = src.const(next(iter(kinds)), "T")
-            src.line(1, f"if {c} and {{*map(type, {flat})}} != {{{want}}}:")
-            src.line(2, "return None")
-        for j, (_, scalar) in enumerate(part.items):
-            col = flat if k == 1 else f"{flat}_{j}"
-            if k > 1 and (len(kinds) > 1 or _narrow(scalar)):
-                src.line(1, f"{col} = {flat}[{j}::{k}]")
-            if len(kinds) > 1:
-                want = src.const(_wire_type(scalar), "T")
-                src.line(1, f"if {c} and {{*map(type, {col})}} != {{{want}}}:")
-                src.line(2, "return None")
-            _column_check(src, scalar, col, 1)
-            struct_error |= not isinstance(scalar, Enum8) and not _narrow(scalar)
-        args += [c, f"*{flat}"]
+            args += [c, f"*{_gen_encode_records(src, part.codec.item, part.items, x)}"]
+        struct_error |= any(not isinstance(s, Enum8) and not _narrow(s) for _, s in part.items)
     if good:
         src.line(1, f"if not ({' and '.join(good)}):")
         src.line(2, "return None")
@@ -394,6 +399,23 @@ def _gen_encode(src: _Source, cls: type, msg_id: int, version: int, parts: list[
         src.line(2, "return None")
     else:
         src.line(1, f"return {pack}")
+
+
+def _gen_encode_records(src: _Source, cls: type, items: tuple[tuple[str, Scalar], ...], x: str) -> str:
+    """Check the records in the tuple ``x`` and gather their values; returns the list's name."""
+    flat = f"f{x}"
+    names = [f"a{j}" for j in range(len(items))]
+    src.line(1, f"{flat} = []")
+    src.line(1, f"for r in {x}:")
+    src.line(2, f"if type(r) is not {src.const(cls, 'R')}:")
+    src.line(3, "return None")
+    for a, (name, _) in zip(names, items, strict=True):
+        src.line(2, f"{a} = r.{name}")
+    good = [_scalar_ok(src, scalar, a) for a, (_, scalar) in zip(names, items, strict=True)]
+    src.line(2, f"if not ({' and '.join(good)}):")
+    src.line(3, "return None")
+    src.line(2, f"{flat} += ({', '.join(names)},)")
+    return flat
 
 
 def _wire_type(scalar: Scalar) -> type:

@@ -94,7 +94,9 @@ Event = Frame | BadFrame
 _FLAGS = tuple(Flags(v) for v in range(256))
 """The header's flags byte as Flags, by value (every byte decodes: unknown bits are kept)."""
 _new_frame = fast_constructor(Frame)
+_ENCODERS = {msg_id: codec.encode for msg_id, codec in CODECS.items()}
 _DECODERS = {msg_id: codec.decode for msg_id, codec in CODECS.items()}
+_MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
 
 
 def encode_frame(message: Any, seq: int, flags: int = 0) -> bytes:
@@ -103,11 +105,11 @@ def encode_frame(message: Any, seq: int, flags: int = 0) -> bytes:
         raise FieldRangeError("header", "seq", seq)
     if not 0 <= flags <= 0xFF:
         raise FieldRangeError("header", "flags", flags)
-    body = CODECS[message.MSG_ID].encode(message, seq, flags)
+    body = _ENCODERS[message.MSG_ID](message, seq, flags)
     if body is None:  # not certainly valid: the reference encodes it or raises the exact error
         payload = encode_payload(message)
         body = HEADER.pack(PROTOCOL_VERSION, message.MSG_ID, seq, flags) + payload
-    if len(body) > HEADER_SIZE + MAX_PAYLOAD:
+    if len(body) > _MAX_BODY:
         size = len(body) - HEADER_SIZE
         raise ProtocolError(f"{type(message).__name__} payload is {size} bytes > {MAX_PAYLOAD}")
     return seal(body)
