@@ -34,16 +34,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from .fields import Array, Blob, Codec, Enum8, Layout, Scalar, Text, layout_of
+from .fields import _INT_BOUNDS, Array, Blob, Codec, Enum8, Layout, Scalar, Text, layout_of
 
 HEADER_FORMAT = "<BBBB"
 """The frame header (version, msg_id, seq, flags) leads every message's struct; the decoder skips its values
 (the caller has read them)."""
 STRUCT_CACHE = 1024
 """Most structs kept per message (one per combination of variable-field counts seen)."""
-
-_FULL_RANGE = {"B": (0, 0xFF), "H": (0, 0xFFFF), "I": (0, 0xFFFFFFFF), "b": (-0x80, 0x7F)}
-_FULL_RANGE.update({"h": (-0x8000, 0x7FFF), "i": (-0x80000000, 0x7FFFFFFF)})
 
 
 @dataclass(frozen=True)
@@ -144,7 +141,7 @@ def _literal(scalar: Scalar, value: float) -> str:
 
 def _narrow(scalar: Scalar) -> bool:
     """True if the field's range is narrower than its wire type's (so a decoded value needs a check)."""
-    return scalar.fmt == "f" or (scalar.lo, scalar.hi) != _FULL_RANGE[scalar.fmt]
+    return scalar.fmt == "f" or (scalar.lo, scalar.hi) != _INT_BOUNDS[scalar.fmt]
 
 
 def _enum_table(codec: Enum8) -> tuple[Any, ...]:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import enum
 import re
 import struct
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -236,8 +236,8 @@ class Deframer:
                 continue
             chunk = data[start:stop]
             frame = _decode_fast(chunk)
-            if frame is None:
-                self._chunk(chunk, events)
+            if frame is None:  # not certainly valid: the reference decodes it or says why not
+                self._chunk(chunk, events, _decode_reference)
                 continue
             seq = frame.seq  # _count_seq and the frame count, inline on the hot path
             last = self._last_seq
@@ -248,10 +248,12 @@ class Deframer:
             events.append(frame)
         return events
 
-    def _chunk(self, chunk: bytes, events: list[Event]) -> None:
+    def _chunk(
+        self, chunk: bytes, events: list[Event], decode: Callable[[bytes], Frame] = decode_frame
+    ) -> None:
         """One complete chunk of at most MAX_ENCODED bytes: a frame or a bad frame."""
         try:
-            frame = decode_frame(chunk)
+            frame = decode(chunk)
         except FrameError as exc:
             self._bad(events, exc.reason, exc.detail, len(chunk))  # type: ignore[arg-type]
             return

@@ -22,7 +22,7 @@ from collections.abc import Callable
 from types import ModuleType
 
 from . import cobs
-from .crc import CRC_INIT, crc16_ccitt_false
+from .crc import crc16_ccitt_false
 from .errors import FrameError
 
 PURE_ENV = "PROTOCOL_PURE"
@@ -77,7 +77,6 @@ seal: Callable[[bytes], bytes] = _native.seal if _native else seal_reference
 unseal: Callable[[bytes, int, int], bytes | None] = _native.unseal if _native else unseal_reference
 
 __all__ = [
-    "CRC_INIT",
     "NATIVE",
     "PURE_ENV",
     "cobs_decode",
