@@ -11,18 +11,20 @@ as source text and compiled in memory (``compile``/``exec``) when ``protocol`` i
   by one ``struct.Struct.unpack`` call.
 
 A message's byte layout is fixed once the counts of its variable fields (arrays, text, blobs) are known:
-e.g. a 4-unit ``ActuatorSetpoint`` is ``"<xxxxBB" + "ff" * 4``. The decoder reads those count bytes
-first, the encoder takes them from the values, and the ``struct.Struct`` for each combination of counts is
-built on first use and cached (at most :data:`STRUCT_CACHE` per message, so hostile input cannot grow it).
+e.g. a 4-unit ``ActuatorSetpoint`` is ``"<BBBB" + "BB" + "ff" * 4`` (header, mode, count, units). The
+decoder reads those count bytes first, the encoder takes them from the values, and the ``struct.Struct``
+for each combination of counts is built on first use and cached (at most :data:`STRUCT_CACHE` per
+message, so hostile input cannot grow it).
 
 Checks are cheap and total: enums by a 256-entry lookup table, ranges by comparisons against constants
-(NaN fails every comparison; a NaN in an array shows in its sum), exact Python types on encode
-(``type(x) is float``; an enum field wants its enum class). Neither function builds error text: ``None``
-says "not certainly valid" and sends the caller to the reference, which raises the exact error — or, for
-the values the fast path does not take (an int in a float field, a list for a tuple, a plain int for an
-enum member), encodes or decodes them as it always did. Every message is decoded without calling its
-dataclass ``__init__``: the object is allocated and its slots set directly (the classes are frozen,
-slotted and have no ``__post_init__``; :func:`compile_message` checks that).
+(NaN fails every comparison), exact Python types on encode (``type(x) is float``; an enum field wants its
+enum class); array items in a plain loop (measured faster on 1-16 items than ``min``/``max``/``map``).
+Neither function builds error text: ``None`` says "not certainly valid" and sends the caller to the
+reference, which raises the exact error — or, for the values the fast path does not take (an int in a
+float field, a list for a tuple, a plain int for an enum member), encodes or decodes them as it always
+did. Every message is decoded without calling its dataclass ``__init__``: the object is allocated and its
+slots set directly (the classes are frozen, slotted and have no ``__post_init__``;
+:func:`fast_constructor` checks that).
 """
 
 from __future__ import annotations
