@@ -46,10 +46,8 @@ import enum
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
-from . import cobs
-from .crc import crc16_ccitt_false
-from .errors import ConfigError, FrameError, ProtocolError
-from .frame import CRC, CRC_SIZE, DELIMITER, MAX_ENCODED, MIN_FRAME
+from .errors import ConfigError, ProtocolError
+from .frame import DELIMITER, MAX_ENCODED, MIN_FRAME
 from .messages import (
     Ack,
     ActuatorSetpoint,
@@ -68,6 +66,7 @@ from .messages import (
     SetMode,
     Telemetry,
 )
+from .speedups import unseal
 
 MAX_WIRE = MAX_ENCODED + 1
 """Longest wire frame including its delimiter."""
@@ -248,14 +247,7 @@ class _Stream:
 
 def _intact(wire: bytes) -> bool:
     """``wire`` (COBS + 0x00) decodes and its CRC holds: one whole frame, not pieces of two."""
-    try:
-        body = cobs.decode(wire[:-1])
-    except FrameError:
-        return False
-    if len(body) < MIN_FRAME:
-        return False
-    (crc,) = CRC.unpack_from(body, len(body) - CRC_SIZE)
-    return bool(crc == crc16_ccitt_false(body[:-CRC_SIZE]))
+    return unseal(wire[:-1], MIN_FRAME, len(wire)) is not None  # decoded is never longer than encoded
 
 
 class CanReassembler:

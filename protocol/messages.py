@@ -14,6 +14,7 @@ import struct
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from .compiled import MessageCodec, compile_message
 from .fields import F32, U8, U16, U32, Array, Blob, Enum8, Layout, Text, layout_of, wire
 
 PROTOCOL_VERSION = 1
@@ -402,6 +403,11 @@ CATALOGUE: tuple[type[Message], ...] = (
 BY_ID: dict[int, type[Message]] = {cls.MSG_ID: cls for cls in CATALOGUE}
 LAYOUTS: dict[int, Layout] = {cls.MSG_ID: layout_of(cls) for cls in CATALOGUE}
 assert len(BY_ID) == len(CATALOGUE), "duplicate message id"
+CODECS: dict[int, MessageCodec] = {
+    cls.MSG_ID: compile_message(cls, cls.MSG_ID, PROTOCOL_VERSION) for cls in CATALOGUE
+}
+"""The generated encoder and decoder of each message (:mod:`protocol.compiled`); ``LAYOUTS`` is their
+reference, and what words every error."""
 
 
 def schema_text() -> str:
@@ -424,6 +430,9 @@ SCHEMA_HASH: int = _schema_hash()
 
 def encode_payload(msg: Any) -> bytes:
     """The payload bytes of ``msg``. Raises :class:`FieldRangeError` for an out-of-range field."""
+    body = CODECS[msg.MSG_ID].encode(msg, 0, 0)
+    if body is not None:
+        return body[4:]  # after the header the generated encoder puts in front
     out = bytearray()
     LAYOUTS[msg.MSG_ID].encode_into(msg, out, type(msg).__name__)
     return bytes(out)
