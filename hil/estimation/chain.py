@@ -1,5 +1,5 @@
-"""The attitude filter's chain as compiled kernels: one call per merged step (:func:`update`) or per batch
-of steps (:func:`run`), both through the same :func:`step`. Pure math, no I/O.
+"""The attitude filter's chain as compiled kernels: one call per merged step (:func:`step`) or per batch
+of steps (:func:`run`), the same code. Pure math, no I/O.
 
 A step: the gyro bias is removed; the three signals go through the pre-filter
 (:func:`hil.estimation.prefilter.signal_step`); the magnetometer through the disturbance gate
@@ -9,7 +9,7 @@ measured initial attitude restarts from Wahba's solution (:func:`wahba`) at the 
 directions are usable; then the estimator steps (:func:`hil.estimation.variational.step`).
 :class:`hil.estimation.filter.AttitudeFilter` holds the arrays and makes the calls.
 
-Arrays (float64; slots are the constants below) — besides the estimator's own (``ep``, ``es``, ``ec``,
+Arrays (float64; slots are the constants below) — besides the estimator's own (``ep``, ``es``,
 :mod:`hil.estimation.variational`):
 
 - chain parameters ``cp`` (:data:`CP_SIZE`): horizontal-magnetometer flag, gate flag, ω0 for a measured
@@ -33,7 +33,6 @@ from hil.estimation import prefilter as pf
 from hil.estimation import variational as v
 from hil.estimation.prefilter import gate_step, signal_step
 from hil.estimation.sensors import StepFlag
-from hil.estimation.variational import write_estimate
 from hil.jit import kernel
 
 Array = NDArray[np.float64]
@@ -131,7 +130,7 @@ def both_usable(ep, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def step(cp, cs, ep, es, ec, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
     """One merged step at time ``t`` (s), ``h`` s after the previous one (ignored on the first): raw
     gyr (rad/s), acc, mag (NaN: not usable). Returns the estimator step's flags, with
     :attr:`StepFlag.MAG_DISTURBED` when the gate rejected the magnetometer, ``| newton_updates <<
@@ -163,12 +162,11 @@ def step(cp, cs, ep, es, ec, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type:
         cs[CS_AWAITING] = 0.0  # restart the estimator from the measured attitude, counters from zero
         r = wahba(ep, ax, ay, az, mx, my, mz)
         es[:] = 0.0
-        ec[:] = 0
         for i in range(9):
             es[v.S_R + i] = r[i]
         for i in range(3):
             es[v.S_OMEGA + i] = cp[CP_OMEGA0 + i]
-    code = v.step(ep, es, ec, h, io[0], io[1], io[2], ax, ay, az, mx, my, mz)
+    code = v.step(ep, es, h, io[0], io[1], io[2], ax, ay, az, mx, my, mz)
     if code < 0:  # an estimator stepped outside this chain: its h is not this one's
         return code
     es[v.S_T] = t
@@ -177,16 +175,7 @@ def step(cp, cs, ep, es, ec, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type:
 
 
 @kernel
-def update(cp, cs, ep, es, ec, out, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
-    """:func:`step` for one live merged step, the estimate into ``out`` (5, 3) (R̂ rows, Ω̂, ω)."""
-    code = step(cp, cs, ep, es, ec, t, h, gx, gy, gz, ax, ay, az, mx, my, mz)
-    if code >= 0:
-        write_estimate(es, out)
-    return code
-
-
-@kernel
-def run(cp, cs, ep, es, ec, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_flags, out_iters):  # type: ignore[no-untyped-def]
+def run(cp, cs, ep, es, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_flags, out_iters):  # type: ignore[no-untyped-def]
     """:func:`step` over N merged steps at times ``t`` (N,) s, strictly increasing and after the chain's
     last step (the caller checks); ``gyr``, ``acc``, ``mag`` (N, 3), a sensor flagged stale in
     ``flags_in`` (N,) being not usable. Writes R̂ (N, 3, 3), Ω̂ and ω (N, 3), flags (``flags_in`` | the
@@ -201,14 +190,10 @@ def run(cp, cs, ep, es, ec, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w,
         ax, ay, az = (nan, nan, nan) if fi & _ACC_STALE else (acc[i, 0], acc[i, 1], acc[i, 2])
         mx, my, mz = (nan, nan, nan) if fi & _MAG_STALE else (mag[i, 0], mag[i, 1], mag[i, 2])
         h = t[i] - cs[CS_T] if cs[CS_SIGNAL + pf.SS_N] > 0.0 else 0.0
-        code = step(cp, cs, ep, es, ec, t[i], h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        code = step(cp, cs, ep, es, t[i], h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
             return i
-        for a in range(3):
-            for b in range(3):
-                out_r[i, a, b] = es[v.S_R + 3 * a + b]
-            out_omega[i, a] = es[v.S_GYR + a] - es[v.S_OMEGA + a]
-            out_w[i, a] = es[v.S_OMEGA + a]
+        v.write_row(es, i, out_r, out_omega, out_w)
         out_flags[i] = fi | (code & v.FLAG_BITS)
         out_iters[i] = code >> v.ITER_SHIFT
         if stop and code & _NEWTON_FAILED:

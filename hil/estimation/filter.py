@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil.estimation import chain
-from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, flag
+from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, estimate
 from hil.estimation.inertial import directions_from_dip
 from hil.estimation.params import EstimatorParams
 from hil.estimation.prefilter import (
@@ -26,7 +26,7 @@ from hil.estimation.prefilter import (
     pack_signal_params,
 )
 from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
-from hil.estimation.variational import FLAG_BITS, ITER_SHIFT, S_OMEGA
+from hil.estimation.variational import S_OMEGA
 from protocol.errors import ConfigError, ConvergenceError
 
 Array = NDArray[np.float64]
@@ -136,7 +136,6 @@ class AttitudeFilter:
         gate = None if cfg.mag_gate is None else pack_gate_params(cfg.mag_gate)
         self._cp = chain.pack_params(signal, gate, cfg.magnetometer == "horizontal", cfg.omega_err0)
         self._cs = chain.new_state(cfg.gyro_bias, isinstance(init, str) and init == "measured")
-        self._out = np.empty((5, 3))
         self._raise = cfg.params.on_newton_failure == "raise"
 
     def set_gyro_bias(self, bias: ArrayLike) -> None:
@@ -152,16 +151,14 @@ class AttitudeFilter:
         gx, gy, gz = _NAN3 if s.gyr is None else s.gyr
         ax, ay, az = _NAN3 if s.acc is None else s.acc
         mx, my, mz = _NAN3 if s.mag is None else s.mag
-        cp, cs, out = self._cp, self._cs, self._out
-        ep, es, ec = self.estimator.arrays
+        ep, es = self.estimator.arrays
         snapshot = self._snapshot() if self._raise else None
-        code = chain.update(cp, cs, ep, es, ec, out, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        code = chain.step(self._cp, self._cs, ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
             raise ValueError(f"filter step must be positive, got h = {s.h!r} s (t = {s.t!r} s)")
         if snapshot is not None and code & _NEWTON_FAILED:
             self._fail(snapshot, s.t, s.h)
-        o = out.copy()
-        return Estimate(s.t, o[:3], o[3], o[4], flag((code & FLAG_BITS) | int(s.flags)), code >> ITER_SHIFT)
+        return estimate(s.t, es, code, int(s.flags))
 
     def run(
         self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None, chunk: int = 50_000
@@ -184,12 +181,12 @@ class AttitudeFilter:
         )  # fmt: skip
         flags = np.ascontiguousarray(steps.flags, dtype=np.int64)
         gyr, acc, mag = (np.ascontiguousarray(a, dtype=float) for a in (steps.gyr, steps.acc, steps.mag))
-        ep, es, ec = self.estimator.arrays
+        ep, es = self.estimator.arrays
         snapshot = self._snapshot() if self._raise else None
         for i in range(0, n, chunk):
             j = min(i + chunk, n)
             done = chain.run(
-                self._cp, cs, ep, es, ec, t[i:j], flags[i:j], gyr[i:j], acc[i:j], mag[i:j],
+                self._cp, cs, ep, es, t[i:j], flags[i:j], gyr[i:j], acc[i:j], mag[i:j],
                 out.R[i:j], out.omega[i:j], out.omega_err[i:j], out.flags[i:j], out.iterations[i:j],
             )  # fmt: skip
             if snapshot is not None and done and out.flags[i + done - 1] & _NEWTON_FAILED:
@@ -199,15 +196,14 @@ class AttitudeFilter:
                 progress(j, n)
         return out
 
-    def _snapshot(self) -> tuple[Array, ...]:
-        ep, es, ec = self.estimator.arrays
-        return self._cs.copy(), es.copy(), ec.copy()
+    def _snapshot(self) -> tuple[Array, Array]:
+        return self._cs.copy(), self.estimator.arrays[1].copy()
 
-    def _fail(self, snapshot: tuple[Array, ...], t: float, h: float) -> None:
+    def _fail(self, snapshot: tuple[Array, Array], t: float, h: float) -> None:
         """Undo the call (the filter is as it was before it) and raise the Newton failure."""
-        ep, es, ec = self.estimator.arrays
+        es = self.estimator.arrays[1]
         w = es[S_OMEGA : S_OMEGA + 3].tolist()
-        self._cs[:], es[:], ec[:] = snapshot
+        self._cs[:], es[:] = snapshot
         p = self.config.params
         raise ConvergenceError(
             f"estimator step at t = {t:g} s (h = {h:g} s): Newton–Raphson did not reach "

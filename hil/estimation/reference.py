@@ -277,7 +277,7 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
     r0 = np.eye(3) if isinstance(config.init, str) else np.asarray(config.init, dtype=float)
     start = 0
     if measured:
-        usable = [measurement(p, a, m).used.all() for a, m in zip(acc, mag, strict=True)]
+        usable = [bool(measurement(p, a, m).used.all()) for a, m in zip(acc, mag, strict=True)]
         start = usable.index(True) if any(usable) else len(steps)
     parts = []
     if start:
@@ -287,8 +287,8 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
             r0 = wahba(p, acc[start], mag[start])
         s = slice(start, None)
         parts.append(run(p, r0, config.omega_err0, steps.t[s], gyr[s], acc[s], mag[s]))
-    out = RunResult(*(np.concatenate([getattr(x, f) for x in parts]) for f in
-                      ("R", "omega", "omega_err", "flags", "iterations")))  # fmt: skip
+    fields = ("R", "omega", "omega_err", "flags", "iterations")
+    out = RunResult(*(np.concatenate([getattr(x, f) for x in parts]) for f in fields))  # type: ignore[arg-type]
     out.flags |= flags
     out.counters = parts[-1].counters
     return out

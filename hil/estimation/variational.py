@@ -47,8 +47,13 @@ matrices row-major; a later slot is only ever appended, so a new state — e.g. 
   failure policy, ``max_step_s``, sin of ``min_direction_angle_deg``, Φ' (kind and argument), D (with a
   diagonal flag), E, W, and per usable-direction mask (bits acc 1, mag 2, acc×mag 4) ``M = E W_S`` (so
   ``L = M Uᵀ``) and ``tr(E_SᵀE_S W_SS)``;
-- state ``es`` (:data:`S_SIZE`): R̂, ω, Ω^m[i], the cached ``Φ'(U⁰[i]) S_L[i]``, the time ``t`` (s), started;
-- counters ``ec`` (int64, :data:`C_SIZE`): the :class:`~hil.estimation.estimator.EstimatorStats` fields.
+- state ``es`` (:data:`S_SIZE`): R̂, Ω̂ (an output: ``Ω^m − ω`` after the step), ω, Ω^m[i], the cached
+  ``Φ'(U⁰[i]) S_L[i]``, the time ``t`` (s), started, then the counters (:data:`C_SIZE` whole numbers
+  at ``S_COUNTS + C_*``: the :class:`~hil.estimation.estimator.EstimatorStats` fields). R̂, Ω̂ and ω come
+  first and contiguous, so the estimate is one copy of ``es[:15]``.
+
+Two arrays per call, not more: numba's dispatcher costs ~0.1 µs per array argument, and a live step's
+whole budget is a few µs.
 
 A step's result is one int: its :class:`StepFlag` bits ``| newton_updates << ITER_SHIFT``.
 """
@@ -88,12 +93,13 @@ PHI_CONSTANT = 0  # Φ' constant (Φ linear: the paper's Φ(x) = x)
 PHI_LOG = 1  # Φ(x) = s ln(1 + x/s): Φ' = 1 / (1 + x/s)
 
 S_R = 0  # R̂ (9), body → inertial
-S_OMEGA = 9  # ω (3) rad/s, the rate-estimate error
-S_GYR = 12  # Ω^m[i] (3) rad/s, the last rate measurement used (0 when the gyro was not usable)
-S_TORQUE = 15  # Φ'(U⁰[i]) S_L[i] (3)
-S_T = 18  # time (s)
-S_STARTED = 19  # 1 once the first sample is taken
-S_SIZE = 20
+S_RATE = 9  # Ω̂ = Ω^m − ω (3) rad/s, the rate estimate (an output)
+S_OMEGA = 12  # ω (3) rad/s, the rate-estimate error
+S_GYR = 15  # Ω^m[i] (3) rad/s, the last rate measurement used (0 when the gyro was not usable)
+S_TORQUE = 18  # Φ'(U⁰[i]) S_L[i] (3)
+S_T = 21  # time (s)
+S_STARTED = 22  # 1 once the first sample is taken
+S_COUNTS = 23  # the counters (C_SIZE), at S_COUNTS + C_*
 
 C_STEPS = 0
 C_NEWTON_FAILURES = 1
@@ -104,6 +110,7 @@ C_DEGENERATE = 5
 C_NO_DIRECTION = 6
 C_GYRO_MISSING = 7
 C_SIZE = 8
+S_SIZE = S_COUNTS + C_SIZE
 
 ITER_SHIFT = 16
 FLAG_BITS = (1 << ITER_SHIFT) - 1
@@ -332,12 +339,12 @@ def advance(ep, r, w, g0, tau0, h, g1, big_l, mask, k):  # type: ignore[no-untyp
 
 
 @kernel
-def step(ep, es, ec, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
     """Take one sample into the state ``es``: rates ``g`` (rad/s), accelerometer ``a`` and magnetometer
     ``m`` (any units), NaN meaning not usable, ``h`` s since the previous sample. The first sample (``es``
     not started) only initialises: it sets Ω^m[0] and the cached torque at R̂0, and ignores ``h``.
     A step longer than ``max_step_s`` is split into sub-steps (gyro interpolated linearly, measurement
-    held). Counts into ``ec``; does not touch the time slot (the callers keep it).
+    held). Counts into the state's counters; leaves the time slot to the callers.
 
     Returns the step's flags ``| newton_updates << ITER_SHIFT``, or :data:`BAD_STEP` (nothing changed)
     for a started estimator and an ``h`` that is not a positive number."""
@@ -376,51 +383,52 @@ def step(ep, es, ec, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-
                 total += iters
                 if not ok:
                     flags |= _NEWTON_FAILED
-            ec[C_SUBSTEPS] += n_sub - 1
+            es[S_COUNTS + C_SUBSTEPS] += n_sub - 1
         for i in range(9):
             es[S_R + i] = r[i]
         es[S_OMEGA], es[S_OMEGA + 1], es[S_OMEGA + 2] = w
     es[S_GYR], es[S_GYR + 1], es[S_GYR + 2] = g1
     es[S_TORQUE], es[S_TORQUE + 1], es[S_TORQUE + 2] = tau
-    ec[C_STEPS] += 1
-    ec[C_NEWTON_UPDATES] += total
-    ec[C_MAX_NEWTON_UPDATES] = max(ec[C_MAX_NEWTON_UPDATES], total)
+    for i in range(3):
+        es[S_RATE + i] = es[S_GYR + i] - es[S_OMEGA + i]
+    c = S_COUNTS
+    es[c + C_STEPS] += 1.0
+    es[c + C_NEWTON_UPDATES] += total
+    es[c + C_MAX_NEWTON_UPDATES] = max(es[c + C_MAX_NEWTON_UPDATES], total)
     if flags & _NEWTON_FAILED:
-        ec[C_NEWTON_FAILURES] += 1
+        es[c + C_NEWTON_FAILURES] += 1.0
     if flags & _DEGENERATE:
-        ec[C_DEGENERATE] += 1
+        es[c + C_DEGENERATE] += 1.0
     if flags & _GYR_STALE:
-        ec[C_GYRO_MISSING] += 1
+        es[c + C_GYRO_MISSING] += 1.0
     if mask == 0:
-        ec[C_NO_DIRECTION] += 1
+        es[c + C_NO_DIRECTION] += 1.0
     return flags | (total << ITER_SHIFT)
 
 
 @kernel
-def write_estimate(es, out):  # type: ignore[no-untyped-def]
-    """The estimate in ``es`` into ``out`` (5, 3): rows 0–2 R̂, row 3 Ω̂ = Ω^m − ω, row 4 ω."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = es[S_R + 3 * i + j]
-        out[3, i] = es[S_GYR + i] - es[S_OMEGA + i]
-        out[4, i] = es[S_OMEGA + i]
-
-
-@kernel
-def update(ep, es, ec, out, dt, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
-    """:func:`step` for one live sample, ``dt`` s after the previous one (added to the time slot); the
-    estimate goes to ``out`` (5, 3) (see :func:`write_estimate`). Returns what :func:`step` returns."""
+def update(ep, es, dt, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+    """:func:`step` for one live sample, ``dt`` s after the previous one (added to the time slot).
+    Returns what :func:`step` returns."""
     started = es[S_STARTED] != 0.0
-    code = step(ep, es, ec, dt, gx, gy, gz, ax, ay, az, mx, my, mz)
-    if code >= 0:
-        if started:
-            es[S_T] += dt
-        write_estimate(es, out)
+    code = step(ep, es, dt, gx, gy, gz, ax, ay, az, mx, my, mz)
+    if code >= 0 and started:
+        es[S_T] += dt
     return code
 
 
 @kernel
-def run(ep, es, ec, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_flags, out_iters):  # type: ignore[no-untyped-def]
+def write_row(es, i, out_r, out_omega, out_w):  # type: ignore[no-untyped-def]
+    """The estimate in ``es`` into row ``i`` of R̂ (N, 3, 3), Ω̂ and ω (N, 3)."""
+    for a in range(3):
+        for b in range(3):
+            out_r[i, a, b] = es[S_R + 3 * a + b]
+        out_omega[i, a] = es[S_RATE + a]
+        out_w[i, a] = es[S_OMEGA + a]
+
+
+@kernel
+def run(ep, es, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_flags, out_iters):  # type: ignore[no-untyped-def]
     """:func:`step` over N merged steps at times ``t`` (N,) s, strictly increasing and after the state's
     time (the caller checks): ``gyr``, ``acc``, ``mag`` (N, 3), a sensor flagged stale in ``flags_in``
     (N,) being not usable. A state not started adopts ``t[0]`` as its time. Writes R̂ (N, 3, 3), Ω̂ and ω
@@ -435,15 +443,11 @@ def run(ep, es, ec, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_fla
         ax, ay, az = (nan, nan, nan) if fi & _ACC_STALE else (acc[i, 0], acc[i, 1], acc[i, 2])
         mx, my, mz = (nan, nan, nan) if fi & _MAG_STALE else (mag[i, 0], mag[i, 1], mag[i, 2])
         h = t[i] - es[S_T] if es[S_STARTED] != 0.0 else 0.0
-        es[S_T] = t[i]
-        code = step(ep, es, ec, h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        code = step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:  # a time not after the previous one: the caller checks, this is the backstop
             return i
-        for a in range(3):
-            for b in range(3):
-                out_r[i, a, b] = es[S_R + 3 * a + b]
-            out_omega[i, a] = es[S_GYR + a] - es[S_OMEGA + a]
-            out_w[i, a] = es[S_OMEGA + a]
+        es[S_T] = t[i]
+        write_row(es, i, out_r, out_omega, out_w)
         out_flags[i] = fi | (code & FLAG_BITS)
         out_iters[i] = code >> ITER_SHIFT
         if stop and code & _NEWTON_FAILED:

@@ -9,7 +9,9 @@ kernel on its first call and caches the machine code on disk (``__pycache__`` be
 numba invalidates a cached kernel when *its own* source file changes, not when a function it calls from
 another file does (numba issue #1833): a kernel in one module calling one in another would then run the
 callee's old machine code. The cache of every :func:`kernel` is therefore stamped with a hash of all the
-sources of the packages kernels live in (:data:`STAMPED`): editing any of them recompiles them all.
+sources of the packages kernels live in (:data:`STAMPED`): editing any of them recompiles them all. Reading
+those sources (through :mod:`importlib.resources`, once per process) is this package's only I/O besides
+numba's own cache files.
 
 ``NUMBA_DISABLE_JIT=1`` (numba's own switch) turns every kernel back into the plain Python it is written
 in: slower, but steppable in a debugger, with Python's tracebacks. :data:`COMPILED` says which is in force.
@@ -19,8 +21,9 @@ from __future__ import annotations
 
 import functools
 import hashlib
-from collections.abc import Callable
-from pathlib import Path
+from collections.abc import Callable, Iterator
+from importlib import resources
+from importlib.abc import Traversable
 from typing import Any, TypeVar, cast
 
 import numba
@@ -44,20 +47,28 @@ def kernel(fn: F) -> F:
     if cache is None:  # a numba without the locator API this relies on: numba's own per-file stamp
         dispatcher.enable_caching()
     else:
-        dispatcher._cache = cache(dispatcher.py_func)
+        dispatcher._cache = cache(dispatcher.py_func)  # type: ignore[attr-defined]  # as enable_caching()
     return cast(F, dispatcher)
 
 
 @functools.cache
 def tree_stamp() -> str:
-    """SHA-256 of the sources of :data:`STAMPED` (paths and contents), computed once per process."""
-    root = Path(__file__).resolve().parent.parent
+    """SHA-256 of the sources of :data:`STAMPED` (names and contents), computed once per process."""
     digest = hashlib.sha256()
     for package in STAMPED:
-        for path in sorted((root / package).rglob("*.py")):
-            digest.update(str(path.relative_to(root)).encode())
-            digest.update(path.read_bytes())
+        for name, source in _sources(resources.files("hil") / package, f"hil/{package}"):
+            digest.update(name.encode())
+            digest.update(source)
     return digest.hexdigest()
+
+
+def _sources(folder: Traversable, name: str) -> Iterator[tuple[str, bytes]]:
+    """``(name, bytes)`` of every ``.py`` file under ``folder``, sorted by name."""
+    for entry in sorted(folder.iterdir(), key=lambda e: e.name):
+        if entry.is_dir():
+            yield from _sources(entry, f"{name}/{entry.name}")
+        elif entry.name.endswith(".py"):
+            yield f"{name}/{entry.name}", entry.read_bytes()
 
 
 @functools.cache
@@ -71,7 +82,7 @@ def _cache_class() -> type | None:
     except (ImportError, AttributeError):
         return None
 
-    def stamped(base: type) -> type:
+    def stamped(base: Any) -> type:
         def get_source_stamp(self: Any) -> object:
             return (base.get_source_stamp(self), tree_stamp())
 
