@@ -15,7 +15,7 @@ import pytest
 from hil import so3
 from hil.estimation import chain, reference
 from hil.estimation import variational as k
-from hil.estimation.estimator import VariationalEstimator
+from hil.estimation.estimator import Estimate, VariationalEstimator
 from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.multirate import MergePolicy, first_full_step, merge
 from hil.estimation.params import EstimatorParams, phi_log, wahba
@@ -238,3 +238,17 @@ def test_smoke_subset_passes_with_compilation_switched_off():
         env=env, cwd=ROOT, capture_output=True, text=True, timeout=900,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+
+
+def test_estimates_are_immutable_and_do_not_share_memory():
+    est = VariationalEstimator()
+    a = est.update(0.01, [0.0, 0.0, 0.5], [0, 0, 9.8], [0, 20, -40])
+    b = est.update(0.01, (0.0, 0.0, 0.5), np.array([0, 0, 9.8]), [0, 20, -40])
+    assert not np.shares_memory(a.R, b.R) and not np.array_equal(a.R, b.R)
+    np.testing.assert_array_equal(b.omega, est.omega)
+    with pytest.raises(AttributeError, match="immutable"):
+        a.t = 1.0  # type: ignore[misc]
+    e = Estimate(0.5, np.eye(3), [1, 2, 3], [4, 5, 6], StepFlag.NONE, 2)
+    np.testing.assert_array_equal(e.R, np.eye(3))
+    np.testing.assert_array_equal(e.omega - e.omega_err, [-3, -3, -3])
+    assert repr(e).startswith("Estimate(t=0.5, R=[[1.0, 0.0, 0.0]") and e.iterations == 2
