@@ -132,6 +132,7 @@ class AttitudeFilter:
         init = cfg.init
         r0 = None if isinstance(init, str) else init
         self.estimator = VariationalEstimator(cfg.params, r0, cfg.omega_err0)
+        self._ep, self._es = self.estimator.arrays
         signal = pack_signal_params(cfg.prefilter_rad_s, cfg.prefilter_frame)
         gate = None if cfg.mag_gate is None else pack_gate_params(cfg.mag_gate)
         self._cp = chain.pack_params(signal, gate, cfg.magnetometer == "horizontal", cfg.omega_err0)
@@ -151,9 +152,9 @@ class AttitudeFilter:
         gx, gy, gz = _NAN3 if s.gyr is None else s.gyr
         ax, ay, az = _NAN3 if s.acc is None else s.acc
         mx, my, mz = _NAN3 if s.mag is None else s.mag
-        ep, es = self.estimator.arrays
+        es = self._es
         snapshot = self._snapshot() if self._raise else None
-        code = chain.step(self._cp, self._cs, ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        code = chain.step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
             raise ValueError(f"filter step must be positive, got h = {s.h!r} s (t = {s.t!r} s)")
         if snapshot is not None and code & _NEWTON_FAILED:
