@@ -4,6 +4,8 @@ makes it (one row per control tick), and per row in a batch of 64, with and with
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 
 from bench.common import Result, rate
@@ -25,10 +27,8 @@ def run(quick: bool) -> list[Result]:
             gam = rng.uniform(-np.pi, np.pi, (rows, params.n_units))
             w = np.full((rows, params.n_units), params.nominal_rotor_speed)
             torque = rng.normal(size=(rows, 3)) * 1e-4
-            ours = rate(lambda s=steer, L=torque, g=gam, ww=w: s.solve(L, g, ww, 0.02), min_time)
-            ref = rate(
-                lambda s=steer, L=torque, g=gam, ww=w: steering_reference.solve(s, L, g, ww, 0.02), min_time
-            )
+            ours = rate(partial(steer.solve, torque, gam, w, 0.02), min_time)
+            ref = rate(partial(steering_reference.solve, steer, torque, gam, w, 0.02), min_time)
             label = f"solve, {rows} row{'s' if rows > 1 else ''}{', null motion' if null_gain else ''}"
             us, ref_us = 1e6 / ours / rows, 1e6 / ref / rows
             note = "compiled kernel vs the numpy law it replaced"
