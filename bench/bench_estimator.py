@@ -298,10 +298,10 @@ def speed_results(trial: Trial, quick: bool) -> list[Result]:
             results.append(Result(NAME, f"per-sample {ours}", step[ours], "us/step", peer, step[peer], False,
                                   note))  # fmt: skip
     walls, steps, n = speed.replay_speed(20_000 if quick else 720_000)
-    batch = speed.batch_speed(steps)
+    batch = speed.batch_speed(steps, imufusion_ahrs, 2000 if quick else 30000)
     notes = {"ours": "VariationalEstimator.update_batch", "ours chain": "AttitudeFilter.run, tuned"}
     for ours, note in notes.items():
-        for peer in ("VQF", "offlineVQF"):
+        for peer in ("VQF", "offlineVQF", "Madgwick", "imufusion"):
             label = f"batch {ours}, {len(steps)} steps"
             results.append(
                 Result(NAME, label, batch[ours], "us/step", f"{peer} batch", batch[peer], False, note)

@@ -5,7 +5,8 @@
   one Python call per sample each, against VQF's C++ core (``VQF.update`` + ``getQuat9D``), PyVQF,
   ahrs Madgwick (``updateMARG``) and imufusion (``update`` + ``get_quaternion``);
 - **batch** (µs per merged step, over a long log): ``VariationalEstimator.update_batch`` and
-  ``AttitudeFilter.run`` against VQF's ``updateBatch`` and ``offlineVQF``;
+  ``AttitudeFilter.run`` against VQF's ``updateBatch`` and ``offlineVQF``, ahrs Madgwick's batch and
+  imufusion's per-sample loop (it has no batch API);
 - **replay of a 720k-sample log** (wall s): tyrex trials end to end in the project CSV; read, merge, the
   tuned filter, and ``hil.logs.replay`` end to end (read, merge, filter, write the estimates CSV);
 - **compile cost** (s): the estimator's and steering's kernels compiled into an empty numba cache in a
@@ -108,8 +109,11 @@ def step_speed(steps: MergedSteps, E: np.ndarray, n: int, imufusion_ahrs: Callab
     }
 
 
-def batch_speed(steps: MergedSteps) -> dict[str, float]:
-    """µs per merged step of each batch API over all of ``steps`` (best of three)."""
+def batch_speed(steps: MergedSteps, imufusion_ahrs: Callable, slow_steps: int) -> dict[str, float]:  # type: ignore[type-arg]
+    """µs per merged step of each batch API over all of ``steps`` (best of three); ahrs Madgwick (its
+    batch constructor) and imufusion (no batch API: its per-sample loop) once, on the first
+    ``slow_steps``."""
+    from ahrs.filters import Madgwick
     from vqf import VQF, offlineVQF
 
     gyr, acc, mag, dt = _peer_arrays(steps)
@@ -128,6 +132,22 @@ def batch_speed(steps: MergedSteps) -> dict[str, float]:
             fn()
             best = min(best, time.perf_counter() - t0)
         out[name] = best / len(steps) * 1e6
+    g, a, m = gyr[:slow_steps], acc[:slow_steps], mag[:slow_steps]
+
+    def fusion() -> None:
+        ahrs = imufusion_ahrs(1.0 / dt)
+        gd, ag = np.degrees(g), a / 9.80665
+        for i in range(len(g)):
+            ahrs.update(gd[i], ag[i], m[i])
+            ahrs.get_quaternion()
+
+    for name, fn in (
+        ("Madgwick", lambda: Madgwick(gyr=g, acc=a, mag=m, frequency=1.0 / dt)),
+        ("imufusion", fusion),
+    ):
+        t0 = time.perf_counter()
+        fn()
+        out[name] = (time.perf_counter() - t0) / len(g) * 1e6
     return out
 
 
