@@ -314,7 +314,8 @@ def speed_results(trial: Trial, quick: bool) -> list[Result]:
     cost = speed.compile_cost()
     for label in ("cold", "warm"):
         what = "compiled into an empty cache" if label == "cold" else "loaded from the cache"
-        note = f"fresh process, {what}; import {cost[f'{label} import']:.2f} s"
+        imports, cpu = cost[f"{label} import"], cost[f"{label} cpu"]
+        note = f"fresh process, {what}; import {imports:.2f} s; process CPU {cpu:.1f} s"
         results.append(Result(NAME, f"kernels ready, {label}", cost[f"{label} kernels"], "s", note=note))
     return results
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -230,13 +231,18 @@ print(t1 - t0, time.perf_counter() - t1)
 
 def compile_cost() -> dict[str, float]:
     """Seconds to import the estimator and steering, and to get every kernel they call ready: with an
-    empty numba cache (compiled), then from that cache (loaded). Each in a fresh process."""
+    empty numba cache (compiled), then from that cache (loaded). Each in a fresh process, whose CPU
+    seconds (user + system, the whole process) are given too: on a loaded machine they, not the wall
+    time, say what the compiler costs."""
     out: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as cache:
         env = {**os.environ, "NUMBA_CACHE_DIR": cache}
         for label in ("cold", "warm"):
             argv = [sys.executable, "-c", _COMPILE_PROBE]
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
             proc = subprocess.run(argv, env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
             imports, ready = (float(x) for x in proc.stdout.split())
             out[f"{label} import"], out[f"{label} kernels"] = imports, ready
+            out[f"{label} cpu"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return out
