@@ -60,11 +60,11 @@ Plotter = Callable[["ReplayResult", Path], dict[str, Path]]
 @dataclass(frozen=True)
 class ReplayOptions:
     """How to replay. ``preset``: ``"tuned"`` (default) or ``"paper"`` (exactly the paper, incl. its
-        1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions: measured
-        from the log (the default), or ``inclination_deg`` given, both with ``declination_deg`` (default 0:
-        magnetic north); or a ``field_model`` (true north).
-        ``gyro_bias``: ``"still"`` (default) subtracts the mean gyro over the log's initial still window, if it
-        has one; ``"none"`` does not. ``window_s``: replay only ``[t0, t1]`` s of the log. ``plotter``: draws the
+    1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions: measured
+    from the log (the default), or ``inclination_deg`` given, both with ``declination_deg`` (default 0:
+    magnetic north); or a ``field_model`` (true north).
+    ``gyro_bias``: ``"still"`` (default) subtracts the mean gyro over the log's initial still window, if it
+    has one; ``"none"`` does not. ``window_s``: replay only ``[t0, t1]`` s of the log. ``plotter``: draws the
     figures (none by default)."""
 
     out_dir: Path
