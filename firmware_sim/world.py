@@ -117,6 +117,8 @@ class World:
         self._undriven = np.zeros((1, n), bool)
         self._unclamped = np.zeros(1, bool)
         self._pushed_at: float | None = None
+        self._read_at = -math.inf  # board time at which the drives last read the board's outputs
+        self._held: tuple | None = None
         self.steps = 0
         self.batches = 0
         board.set_unit_states(self.unit_states())
@@ -181,14 +183,19 @@ class World:
         h, board = self.step_s, self.board
         while self.now + h <= t + _EPS:
             now = self.now
-            self._push(now)
-            board.step(now)  # the events due by now (pulse frames, power samples, commands), at their times
-            self._drive()
-            steps = self._steps_before(board.next_deadline(), t)
-            samples += self._run(steps)
+            due = board.next_deadline()
+            if round(now * 1e6) >= due * 1e6 or board.now > self._read_at:
+                # an event is due (pulse frame, power sample, command...), or the board moved on since the
+                # drives last read it (a host's I/O steps it to the clock's now): hand it the unit states,
+                # let it run what is due, and read its outputs
+                self._push(now)
+                board.step(now)
+                self._drive()
+                self._read_at = board.now
+                due = board.next_deadline()
+            samples += self._run(self._steps_before(due, t))
             self.batches += 1
-        self._push(self.now)
-        board.step(self.now)
+        self._push(self.now)  # for whatever steps the board before the world's next call
         return samples
 
     def _push(self, at: float) -> None:
@@ -234,7 +241,7 @@ class World:
         return out
 
     def _drive(self) -> None:
-        """The drives' targets from the widths on the board's outputs now."""
+        """The drives' targets from the widths on the board's outputs now (held anew only if they changed)."""
         board = self.board
         outputs = board.outputs
         volts = board.power.battery_v
@@ -245,14 +252,13 @@ class World:
             self._angle[0],
             self._undriven[0],
         )
-        speed = self._units()[2]
         for i, unit in enumerate(board.units):
             g_us, r_us = outputs[2 * i], outputs[2 * i + 1]
             if r_us is not None and not unit.rotor_dead:
                 rotor[i] = unit.rotor_speed_for(r_us, volts)
                 undriven[i] = False
             else:  # no pulses or a dead ESC: no drive; the rotor keeps its speed (coasting is slow)
-                rotor[i] = speed[i]
+                rotor[i] = 0.0
                 undriven[i] = True
             angle[i] = math.nan
             if g_us is None or unit.gimbal_dead:
@@ -262,11 +268,15 @@ class World:
             else:  # ANGLE: the servo's own position loop turns the gimbal to the target
                 gimbal[i] = 0.0
                 angle[i] = unit.gimbal_value_for(g_us, mode)
-        self.servo.hold(
-            Setpoints(self._gimbal_sp, self._rotor_sp, self._unclamped),
-            angle_target=self._angle,
-            rotor_undriven=self._undriven,
-        )
+        targets = [None if math.isnan(a) else a for a in angle.tolist()]
+        held = (gimbal.tolist(), rotor.tolist(), targets, undriven.tolist())
+        if held != self._held:
+            self._held = held
+            self.servo.hold(
+                Setpoints(self._gimbal_sp.copy(), self._rotor_sp.copy(), self._unclamped),
+                angle_target=self._angle.copy(),
+                rotor_undriven=self._undriven.copy(),
+            )
 
 
 def _wrap(angle: float) -> float:

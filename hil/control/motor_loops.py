@@ -161,6 +161,7 @@ class ServoModel:
         self.rotor_speed_sp = np.full((1, n), params.nominal_rotor_speed)
         self.angle_target: Array | None = None
         self.rotor_undriven: Array | None = None
+        self._drive: Drive | None = None  # drive() of the setpoints held now, built on demand
         sv, lim = self.servo, params.limits
         self._header = (
             sv.load_rejection,
@@ -186,6 +187,7 @@ class ServoModel:
         self.rotor_speed_sp = setpoints.rotor_speed
         self.angle_target = None if angle_target is None else np.asarray(angle_target, dtype=float)
         self.rotor_undriven = None if rotor_undriven is None else np.asarray(rotor_undriven, dtype=bool)
+        self._drive = None
 
     def __call__(
         self,
@@ -221,7 +223,13 @@ class ServoModel:
     # ------------------------------------------------------------------ for the compiled plant
     def drive(self) -> Drive:
         """The held setpoints of a single run with this servo's parameters, as the compiled plant's
-        :class:`hil.vscmg.drives.Drive` (ConfigError if the setpoints are not one run's)."""
+        :class:`hil.vscmg.drives.Drive` (ConfigError if the setpoints are not one run's). Built once per
+        :meth:`hold`."""
+        if self._drive is None:
+            self._drive = self._pack()
+        return self._drive
+
+    def _pack(self) -> Drive:
         n = len(self.spin_inertia)
         try:
             gimbal = np.broadcast_to(np.asarray(self.gimbal_rate_sp, dtype=float), (1, n))[0]

@@ -189,7 +189,7 @@ class BodyPhone:
         self.rng = np.random.default_rng(seed)
         self.kinds = KINDS
         self.bias = {k: self.rng.normal(0.0, self.spec.spec(k).bias, 3) for k in KINDS}
-        self.next_t = {k: t0 + self.spec.spec(k).offset_s for k in KINDS}
+        self._next = np.array([t0 + self.spec.spec(k).offset_s for k in KINDS])  # next nominal times
         self._gravity = np.array([0.0, 0.0, self.spec.gravity])
         self._field = np.asarray(self.spec.field_enu_uT, dtype=float)
         sensors = [self.spec.spec(k) for k in KINDS]
@@ -199,6 +199,12 @@ class BodyPhone:
         self._vectors = np.array([np.zeros(3), self._gravity, self._field])
         self._normals = np.zeros(0)
         self._used = 0
+        self._out = np.empty((0, 6))
+
+    @property
+    def next_t(self) -> dict[SensorKind, float]:
+        """Each sensor's next nominal sample time (s)."""
+        return {k: float(t) for k, t in zip(KINDS, self._next, strict=True)}
 
     def _draws(self, count: int) -> None:
         """At least ``count`` unused standard normals in the buffer (new ones appended, in order)."""
@@ -221,11 +227,11 @@ class BodyPhone:
         out: list[SensorSample] = []
         span = t1 - t0
         turn = so3.log(R0.T @ R1) if span > 0 else np.zeros(3)
-        for k in self.kinds:
+        for i, k in enumerate(self.kinds):
             sensor = self.spec.spec(k)
-            while self.next_t[k] <= t1:
-                t = self.next_t[k]
-                self.next_t[k] += 1.0 / sensor.rate_hz
+            while self._next[i] <= t1:
+                t = float(self._next[i])
+                self._next[i] += 1.0 / sensor.rate_hz
                 f = (t - t0) / span if span > 0 else 1.0
                 if k is SensorKind.GYR:
                     clean = omega0 + f * (omega1 - omega0)
@@ -247,29 +253,33 @@ class BodyPhone:
             raise ConfigError(f"needs a path of (m + 1, 13), got {path.shape}", "BodyPhone.sample_path")
         if path.shape[0] < 2:
             return []
-        next_t = np.array([self.next_t[k] for k in KINDS])
-        ahead = np.floor(np.maximum(float(path[-1, 0]) - next_t, -1.0) * self._table[:, 0]) + 2.0
-        cap = int(np.maximum(ahead, 0.0).sum())  # samples due by the path's end, and a margin
+        times = path[:, 0]
+        if not np.all(times[1:] >= times[:-1]):
+            raise ConfigError("a path whose times run backwards", "BodyPhone.sample_path")
+        end = float(path[-1, 0])
+        cap = 0  # samples due by the path's end, and a margin
+        for t, rate in zip(self._next.tolist(), self._table[:, 0].tolist(), strict=True):
+            if t <= end:
+                cap += int((end - t) * rate) + 2
+        if cap == 0:  # no sensor is due: nothing to draw or sample
+            return []
         self._draws(4 * cap)
-        out = np.empty((cap, 6))
+        if self._out.shape[0] < cap:
+            self._out = np.empty((2 * cap, 6))
+        out = self._out
         count, used = _sample_path(
-            path, self._table, self._bias, self._vectors, next_t, self._normals, self._used, out
+            path, self._table, self._bias, self._vectors, self._next, self._normals, self._used, out
         )
         if count < 0:
-            raise ConfigError(
-                "a path whose times run backwards" if count == -1 else "more samples than its rates allow",
-                "BodyPhone.sample_path",
-            )
+            raise ConfigError(f"the sampler refused the path (status {count})", "BodyPhone.sample_path")
         self._used = used
-        for i, k in enumerate(KINDS):
-            self.next_t[k] = float(next_t[i])
+        if count == 0:
+            return []
         rows = out[:count]
-        order = np.lexsort((rows[:, 1], rows[:, 0]))  # by interval, then stamp: stable, as sample() sorts
+        if count > 1:
+            rows = rows[np.lexsort((rows[:, 1], rows[:, 0]))]  # by interval, then stamp, as sample() sorts
         kinds = self.kinds
-        return [
-            SensorSample(float(r[1]), kinds[int(r[2])], (float(r[3]), float(r[4]), float(r[5])))
-            for r in rows[order]
-        ]
+        return [SensorSample(t, kinds[int(k)], (x, y, z)) for _, t, k, x, y, z in rows.tolist()]
 
 
 _BLOCK = 4096

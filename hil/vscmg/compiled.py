@@ -173,7 +173,13 @@ class CompiledPlant:
             path = _NO_PATH
         elif path.shape != (steps + 1, k.PATH_WIDTH):
             raise ConfigError(f"needs a path of ({steps + 1}, {k.PATH_WIDTH})", "CompiledPlant.advance.path")
-        status, done = k.advance(self.model, state, float(dt), int(steps), d.mode, d.data, path, self._work)
+        try:
+            status, _ = k.advance(self.model, state, float(dt), int(steps), d.mode, d.data, path, self._work)
+        except (ValueError, OverflowError, ZeroDivisionError) as e:
+            # the kernels run as plain Python (NUMBA_DISABLE_JIT=1): math raises where compiled code makes
+            # inf or NaN, and the state is then the last good one as well
+            t = float(state[0])
+            raise NumericalError(f"the plant state diverged after t = {t:.6g} s (step {dt:g} s)") from e
         if status != k.OK:
             self._raise(status, dt)
 
