@@ -136,10 +136,11 @@ class CompiledPlant:
         """``torques`` as the compiled plant's :class:`Drive` (ConfigError for a Python torque law)."""
         if torques is None:
             return Drive.none()
+        packed = getattr(torques, "drive", None)  # ServoModel.drive
         if isinstance(torques, Drive):
             d = torques
-        elif callable(getattr(torques, "drive", None)):
-            d = torques.drive()
+        elif callable(packed):
+            d = packed()
         elif callable(torques):
             raise ConfigError(
                 "the compiled plant evaluates its drive law, not a Python torque law: step it on Plant",
