@@ -267,12 +267,13 @@ class BodyPhone:
         if self._out.shape[0] < cap:
             self._out = np.empty((2 * cap, 6))
         out = self._out
+        next_t = self._next.copy()  # taken over only if the sampler succeeds
         count, used = _sample_path(
-            path, self._table, self._bias, self._vectors, self._next, self._normals, self._used, out
+            path, self._table, self._bias, self._vectors, next_t, self._normals, self._used, out
         )
         if count < 0:
             raise ConfigError(f"the sampler refused the path (status {count})", "BodyPhone.sample_path")
-        self._used = used
+        self._next, self._used = next_t, used
         if count == 0:
             return []
         rows = out[:count]
