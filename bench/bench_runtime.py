@@ -45,9 +45,9 @@ run:
   same phone
   model and estimator, :func:`hil.montecarlo.runner.loop_config`) for the same simulated time — the same
   physics, sensors, estimator and controller without the protocol, the board emulation and the runtime.
-  The two step the plant differently: the runtime's world uses the single-run float plant
-  (:class:`hil.vscmg.fast.SingleRunPlant`), the closed loop the numpy batch plant it shares with Monte Carlo
-  batches (~5x slower at one run). So the ratio is not the protocol's cost alone: it says that one run
+  The two step the plant differently: the runtime's world uses the compiled plant
+  (:class:`hil.vscmg.CompiledPlant`), the closed loop the numpy batch plant it shares with Monte Carlo
+  batches (~100x slower at one run). So the ratio is not the protocol's cost alone: it says that one run
   through the full protocol is faster than one run of the setpoint-level engine.
 """
 
@@ -338,7 +338,7 @@ def _lockstep_results(duration_s: float) -> list[Result]:
     peer_sim, peer_cpu, peer_wall = _closed_loop(sim_s)
     note = (
         f"{sim_s:.1f} s simulated in {cpu_s:.1f} CPU s (peer: {peer_sim:.1f} s in {peer_cpu:.1f} CPU s), "
-        "50 Hz control, 50 Hz frames and telemetry; the runtime's world steps the single-run float plant, "
+        "50 Hz control, 50 Hz frames and telemetry; the runtime's world steps the compiled plant, "
         "the peer the numpy batch plant"
     )
     return [

@@ -217,17 +217,21 @@ class Board:
     def uptime_ms(self) -> int:
         return uptime_ms(self._t_us, self.resets[-1])
 
-    def set_unit_states(self, states: Sequence[UnitState] | None) -> None:
+    def set_unit_states(self, states: Sequence[UnitState] | None, at: float | None = None) -> None:
         """Closed-loop hook: the world's measured unit states (one per unit) replace the internal motor
         model from now on (for telemetry, power draw, dead-ESC detection, gimbal hold); ``None`` hands
-        the units back to the internal model."""
-        self.step()
+        the units back to the internal model. ``at``: the board time (s) the states were measured at, for
+        a world that steps in batches up to the board's next event and hands them over without moving
+        the board (its next ``step`` uses them); default: the board first catches up to its clock's now."""
+        if at is None:
+            self.step()
         if states is not None and len(states) != self.config.n_units:
             raise ConfigError(
                 f"{len(states)} states for {self.config.n_units} units", "Board.set_unit_states"
             )
+        stamp = self._t_us / 1e6 if at is None else at
         for i, unit in enumerate(self.units):
-            unit.override(None if states is None else states[i], self._t_us / 1e6)
+            unit.override(None if states is None else states[i], stamp)
 
     def commanded_outputs(self) -> tuple[int | None, ...]:
         """The widths (µs) the firmware would put on the next pulse frame for its present state, command
