@@ -70,7 +70,7 @@ class LiveProgress:
         if t < self.next_t:
             return
         self.next_t = t + self.every
-        trace = host.trace["point_err_deg"]
+        trace = host.trace.point_err_deg
         err = f"{trace[-1]:7.3f}°" if trace else "    -   "
         waiting = "" if host.estimate is not None else "  (waiting for the phone)"
         start, end = ("\r", "   ") if self.tty else ("", "\n")
