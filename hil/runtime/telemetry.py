@@ -10,7 +10,6 @@ run's :class:`hil.runtime.runlog.CsvLog`, whose writer thread formats and writes
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -110,8 +109,3 @@ class RunTrace:
     def arrays(self) -> dict[str, Array]:
         """Every field as a float array (K,)."""
         return {name: np.asarray(getattr(self, name), dtype=float) for name in self.FIELDS}
-
-
-def nan_if_none(values: Sequence[float | None]) -> list[float]:
-    """``values`` with None as NaN."""
-    return [math.nan if v is None else float(v) for v in values]
