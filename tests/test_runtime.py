@@ -166,6 +166,16 @@ def test_realtime_over_a_pty_against_firmware_sim_with_its_world(tmp_path):
     assert "run directory:" in done.stdout
 
 
+def test_hil_run_prints_its_summary_and_leaves_its_plots(tmp_path):
+    """The command as a user runs it: the plots are drawn by a process started before the run and are all
+    there when the command returns."""
+    done = _hil("run", "--duration", "0.5", "--out", str(tmp_path), timeout=120)
+    assert done.returncode in (0, 1), done.stderr  # 1: a 0.5 s run cannot settle
+    assert "exit              completed  (lockstep" in done.stdout and "run directory:" in done.stdout
+    plots = sorted(p.name for p in next(tmp_path.iterdir()).glob("plots/*.png"))
+    assert {"attitude_error.png", "pointing_error.png", "rotor_speeds.png", "delta.png"} <= set(plots)
+
+
 def test_port_without_a_phone_stream_is_a_clear_error(tmp_path):
     done = _hil(
         "run", "--port", "spawn://firmware-sim?units=4", "--phone", "127.0.0.1:18124", "--no-plots",

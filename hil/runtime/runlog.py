@@ -59,14 +59,21 @@ class CsvLog:
     """Rows of numbers under a fixed header. Missing values (None, NaN) are written empty (read as NaN).
 
     Written off the caller's thread: :meth:`write_values` puts the row on a bounded queue (a list of
-    numbers in column order: no formatting on the control tick) and a writer thread formats whatever has
-    queued, writes it and flushes it to the operating system — so a killed run keeps every row the writer
-    had reached, at most a torn last line. A full queue (``max_pending`` rows: a disk that stalls for
+    numbers in column order: no formatting on the control tick) and a writer thread, woken by a row, lets
+    rows gather for ``batch_s`` (wall time: one write and one flush per batch, not per row), then formats
+    whatever has queued, writes it and flushes it to the operating system — so a killed run keeps every row
+    older than about ``batch_s``, at most a torn last line. A full queue (``max_pending`` rows: a disk that stalls for
     that long) makes the caller wait: rows are never dropped. An error of the writer thread (a full
     disk) is raised by the next :meth:`write_values`, :meth:`flush` or :meth:`close`.
     """
 
-    def __init__(self, path: str | os.PathLike[str], columns: Sequence[str], max_pending: int = 4096) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        columns: Sequence[str],
+        max_pending: int = 4096,
+        batch_s: float = 0.05,
+    ) -> None:
         if len(set(columns)) != len(columns):
             raise ValueError(f"duplicate CSV columns: {list(columns)}")
         self.path = Path(path)
@@ -77,6 +84,8 @@ class CsvLog:
         self._file.flush()
         self.rows = 0
         self._queue: queue.Queue[Sequence[Any] | None] = queue.Queue(max_pending)
+        self._batch_s = batch_s
+        self._closing = threading.Event()
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name=f"csv:{self.path.name}", daemon=True)
         self._thread.start()
@@ -100,7 +109,8 @@ class CsvLog:
         self.rows += 1
 
     def flush(self) -> None:
-        """Wait until every row written so far is in the file (flushed to the operating system)."""
+        """Wait until every row written so far is in the file (flushed to the operating system; up to
+        ``batch_s`` later)."""
         if self._file is not None:
             self._queue.join()
         self._check()
@@ -108,6 +118,7 @@ class CsvLog:
     def close(self) -> None:
         if self._file is None:
             return
+        self._closing.set()
         self._queue.put(None)
         self._thread.join()
         self._file.close()
@@ -126,6 +137,7 @@ class CsvLog:
         q = self._queue
         while True:
             batch = [q.get()]
+            self._closing.wait(self._batch_s)  # let rows gather (not when closing)
             while True:
                 try:
                     batch.append(q.get_nowait())
