@@ -120,14 +120,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 class Plotter:
-    """``python -m hil.plots`` started now, so its imports (matplotlib) overlap the run on another core;
-    :meth:`draw` hands it the run directory, :meth:`wait` its error text ("" when the figures are drawn)."""
+    """``python -m hil.cli._plotter`` started now, so its imports (matplotlib) overlap the run on another
+    core; :meth:`draw` hands it the run directory, :meth:`wait` its error text ("" when the figures are
+    drawn)."""
 
     def __init__(self) -> None:
         import subprocess
 
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "hil.plots"],
+            [sys.executable, "-m", "hil.cli._plotter"],
             stdin=subprocess.PIPE,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,

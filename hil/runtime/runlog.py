@@ -62,9 +62,9 @@ class CsvLog:
     numbers in column order: no formatting on the control tick) and a writer thread, woken by a row, lets
     rows gather for ``batch_s`` (wall time: one write and one flush per batch, not per row), then formats
     whatever has queued, writes it and flushes it to the operating system — so a killed run keeps every row
-    older than about ``batch_s``, at most a torn last line. A full queue (``max_pending`` rows: a disk that stalls for
-    that long) makes the caller wait: rows are never dropped. An error of the writer thread (a full
-    disk) is raised by the next :meth:`write_values`, :meth:`flush` or :meth:`close`.
+    older than about ``batch_s``, at most a torn last line. A full queue (``max_pending`` rows: a disk that
+    stalls for that long) makes the caller wait: rows are never dropped. An error of the writer thread (a
+    full disk) is raised by the next :meth:`write_values`, :meth:`flush` or :meth:`close`.
     """
 
     def __init__(

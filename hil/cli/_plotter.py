@@ -1,6 +1,6 @@
-"""``python -m hil.plots``: draw a run directory's figures in a process of its own. ``hil run`` starts it
-before the run, so matplotlib is imported on another core while the run runs; it then reads the run
-directory's path from stdin (an empty line or end of input: nothing to draw), draws ``plots/`` and prints
+"""``python -m hil.cli._plotter``: draw a run directory's figures in a process of its own. ``hil run``
+starts it before the run, so matplotlib is imported on another core while the run runs; it then reads the
+run directory's path from stdin (an empty line or end of input: nothing to draw), draws ``plots/`` and prints
 ``name: path`` per figure. A drawing error is printed to stderr with exit status 2."""
 
 from __future__ import annotations
