@@ -37,7 +37,7 @@ from .summary import summarise
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_BATCH = 8
+DEFAULT_BATCH = 4  # runs per Dask task: spreads Dask's per-task cost, keeps the workers balanced
 DEFAULT_TRACE_HZ = 5.0
 
 
