@@ -94,6 +94,23 @@ def test_lockstep_slew_through_the_protocol_reaches_its_target(lockstep_run):
     assert tasks["world"]["runs"] == pytest.approx(s["sim_s"] * 1000, abs=2)
 
 
+def test_a_world_that_keeps_the_board_current_is_advanced_less_often(monkeypatch):
+    """A world declaring ``advance_period_s`` is advanced that often (many plant steps per call), and the
+    estimator and control tasks still see the world of their instant: the phone's samples reach the host
+    at the same rate, and the run completes."""
+    from firmware_sim.world import World
+
+    sc = _quick()
+    every_step = run(sc, RunOptions(out_root=None, duration_s=0.3)).summary
+    monkeypatch.setattr(World, "advance_period_s", 0.005, raising=False)
+    chunked = run(sc, RunOptions(out_root=None, duration_s=0.3)).summary
+    assert chunked["exit"] == every_step["exit"] == "completed"
+    assert every_step["tasks"]["world"]["runs"] == pytest.approx(every_step["sim_s"] * 1000, abs=2)
+    assert chunked["tasks"]["world"]["runs"] == pytest.approx(chunked["sim_s"] * 200, abs=2)
+    rates = [s["phone_samples"] / s["sim_s"] for s in (every_step, chunked)]
+    assert rates[1] == pytest.approx(rates[0], rel=0.01)
+
+
 def test_run_directory_holds_telemetry_events_summary_and_scenario(lockstep_run):
     sc, result = lockstep_run
     d = result.run_dir

@@ -341,9 +341,11 @@ def _build(
     if catch_up is not None:
         # Every plant step, so the board's telemetry and power draw see the units of the present step
         # (World.advance_to hands the board their states once per call: called every 5 ms instead, the
-        # reported rotor speeds lag by up to that and the pulse-quantised hold loses about half a degree).
+        # reported rotor speeds lag by up to that and the pulse-quantised hold loses about half a degree),
+        # unless the world says it keeps the board current over a longer span (SimulatedWorld).
         step = catch_up
-        tasks.insert(0, PeriodicTask("world", scenario.loop.plant_step_s, lambda _due: step()))
+        period = float(getattr(world, "advance_period_s", None) or scenario.loop.plant_step_s)
+        tasks.insert(0, PeriodicTask("world", period, lambda _due: step()))
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
     return _Built(host, scheduler, until, phone, recorded)
