@@ -94,6 +94,27 @@ def test_lockstep_slew_through_the_protocol_reaches_its_target(lockstep_run):
     assert tasks["world"]["runs"] == pytest.approx(s["sim_s"] * 1000, abs=2)
 
 
+def test_one_process_serves_many_runs_without_state_between_them():
+    """What a Monte Carlo worker does: run after run in one process. A run, another (other phone seed, a
+    link stall), and the first again: the first's trajectory comes back bit for bit, and no run leaves a
+    thread behind."""
+    import threading
+
+    sc = _quick()
+    options = RunOptions(out_root=None, duration_s=0.5)
+    threads = threading.active_count()
+    first = run(sc, options)
+    other = run(sc.with_changes(seed=7, fault_options={"stall": ["1.0:0.4"]}), options)
+    again = run(sc, options)
+    assert other.summary["failsafe_events"] == 1 and first.summary["failsafe_events"] == 0
+    assert not np.array_equal(other.trace.est_err_deg, first.trace.est_err_deg)
+    for name in ("t", "point_err_deg", "est_err_deg", "gimbal_rate", "delta"):
+        np.testing.assert_array_equal(getattr(again.trace, name), getattr(first.trace, name))
+    assert again.summary["phone_samples"] == first.summary["phone_samples"]
+    assert threading.active_count() == threads
+    assert first.run_dir is None and first.events[0]["kind"] == "connecting"  # events kept in memory
+
+
 def test_a_world_that_keeps_the_board_current_is_advanced_less_often(monkeypatch):
     """A world declaring ``advance_period_s`` is advanced that often (many plant steps per call), and the
     estimator and control tasks still see the world of their instant: the phone's samples reach the host
