@@ -17,10 +17,12 @@ comes back as a failed :class:`RunResult` with the error text; the chunk's other
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import time
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TypeVar
 
@@ -181,7 +183,8 @@ def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
     start = time.perf_counter()
     try:
         realised = realise(scenario, run)
-        result = run_scenario(realised, RunOptions(out_root=None))
+        with _quiet(_RUN_LOGGERS):  # a campaign counts failsafes and resets in its metrics
+            result = run_scenario(realised, RunOptions(out_root=None))
         if result.summary.get("exit") != "completed":
             raise HilError(f"the run did not complete: {result.summary.get('exit')}")
         trace = result.trace.arrays()
@@ -192,3 +195,22 @@ def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
     except Exception as exc:  # any error: recorded with the run, never lost
         return RunResult.failed(run, exc, time.perf_counter() - start)
     return RunResult(run.index, True, run.columns, metrics, decimated, wall_s=time.perf_counter() - start)
+
+
+_RUN_LOGGERS = ("hil.runtime.host", "hil.link.board.session")
+"""What warns about a run's failsafes and resets on the console (``hil run`` wants that, a campaign of
+hundreds of runs does not: its metrics count them)."""
+
+
+@contextlib.contextmanager
+def _quiet(names: Sequence[str]) -> Iterator[None]:
+    """Those loggers' warnings off for the block (errors still show)."""
+    loggers = [logging.getLogger(name) for name in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
