@@ -71,6 +71,11 @@ class World:
     (default) rather than the numpy references. ``state`` is the plant's :class:`PlantState` either way
     (built on demand); :meth:`truth` reads the flat state without building one."""
 
+    advance_period_s = 0.05
+    """How long one :meth:`advance_to` may span (s): the world hands the board its unit states at every
+    board event within a call, so a lockstep runtime need not call it every plant step (it still brings
+    the world to the present before each estimator and control activation)."""
+
     def __init__(
         self, scenario: object, board: Board, seed: int | None = None, compiled: bool = True
     ) -> None:

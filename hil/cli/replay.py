@@ -189,6 +189,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         ),
     )  # fmt: skip
     if not args.no_plots:
+        assert result.run_dir is not None  # out_root is given
         draw_plots(result.run_dir)
     print(file=sys.stderr)
     print(format_summary(result.summary))

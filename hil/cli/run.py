@@ -70,7 +70,7 @@ class LiveProgress:
         if t < self.next_t:
             return
         self.next_t = t + self.every
-        trace = host.trace["point_err_deg"]
+        trace = host.trace.point_err_deg
         err = f"{trace[-1]:7.3f}°" if trace else "    -   "
         waiting = "" if host.estimate is not None else "  (waiting for the phone)"
         start, end = ("\r", "   ") if self.tty else ("", "\n")
@@ -88,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
     from hil.scenario import load_scenario
     from protocol.errors import HilError
 
+    plotter = None if args.no_plots else Plotter()
     try:
         scenario = load_scenario(args.scenario)
         lockstep = True if args.lockstep else (False if args.realtime else None)
@@ -97,19 +98,73 @@ def run(args: argparse.Namespace) -> int:
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
         result = run_scenario(scenario, opts)
-        if not args.no_plots:
-            draw_plots(result.run_dir)
-    except HilError as exc:
+    except BaseException as exc:
+        if plotter is not None:
+            plotter.cancel()
+        if not isinstance(exc, HilError):
+            raise
         print(f"\nhil run: {exc}", file=sys.stderr)
         return 2
+    if plotter is not None:
+        assert result.run_dir is not None
+        plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
     print(file=sys.stderr)
     print(format_summary(result.summary))
     print(f"run directory: {result.run_dir}")
+    if plotter is not None:
+        error = plotter.wait()
+        if error:
+            print(f"hil run: {error}", file=sys.stderr)
+            return 2
     return 0 if result.summary.get("exit") == "completed" else 1
 
 
+class Plotter:
+    """``python -m hil.cli._plotter`` started now, so its imports (matplotlib) overlap the run on another
+    core; :meth:`draw` hands it the run directory, :meth:`wait` its error text ("" when the figures are
+    drawn)."""
+
+    def __init__(self) -> None:
+        import subprocess
+
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "hil.cli._plotter"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )  # fmt: skip — its own session: a Ctrl-C ends the run (whose plots are still drawn), not it
+
+    def draw(self, run_dir: Path) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write(f"{run_dir}\n")
+        self.process.stdin.close()
+
+    def wait(self) -> str:
+        assert self.process.stderr is not None
+        err = self.process.stderr.read()  # to its end: the process has exited then
+        self.process.stderr.close()
+        self.process.wait()
+        if self.process.returncode == 0:
+            return ""
+        return (
+            err.strip().splitlines()[-1] if err.strip() else f"plots: exit status {self.process.returncode}"
+        )
+
+    def cancel(self) -> None:
+        """Nothing to draw (the run failed or was interrupted): the process ends without drawing."""
+        if self.process.poll() is None:
+            self.process.kill()
+        self.process.wait()
+        if self.process.stdin is not None:
+            self.process.stdin.close()
+        if self.process.stderr is not None:
+            self.process.stderr.close()
+
+
 def draw_plots(run_dir: Path) -> None:
-    """The run directory's plots (``plots/``), as ``hil report`` redraws them."""
+    """The run directory's plots (``plots/``), as ``hil report`` redraws them, in this process."""
     from hil.plots.run import plot_run
 
     plot_run(run_dir)

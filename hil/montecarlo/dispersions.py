@@ -24,7 +24,8 @@ Parameters (``[table] key``; "per unit" and "per axis" draw each element indepen
 ``initial.angle_deg``                         start attitude turned by this angle about a random axis
 ``manoeuvre.angle_deg``                       slew angle (mean: the scenario's)
 ``manoeuvre.axis_tilt_deg``                   slew axis tilted by this angle in a random direction
-``link.outages_per_minute``                   rate of link outages (Poisson) over the run
+``link.outages_per_minute``                   rate of link outages (Poisson) over the run: the
+                                              board's first warm-up + duration seconds (its clock)
 ``link.outage_duration_s``                    each outage's duration (required with a rate)
 ============================================  =====================================================
 
@@ -181,7 +182,7 @@ PARAMETERS: tuple[Parameter, ...] = (
 _BY_KEY = {p.key: p for p in PARAMETERS}
 LINK_COLUMNS = ("link.outages", "link.outage_s", "link.outage_list")
 """Columns describing a run's drawn outages (with link dispersions): count, total seconds, and the list
-``start:duration;...`` (seconds from the slew's start)."""
+``start:duration;...`` (seconds on the board's clock, from its start: firmware-sim's ``--stall``)."""
 
 
 # --------------------------------------------------------------------------- a campaign's dispersions
@@ -218,9 +219,9 @@ class RunParams:
     """One run's draws. ``values``: parameter key → drawn values (shape as the parameter's nominal);
     ``directions``: the random directions some parameters turn about (``initial.angle_deg``: a unit axis
     (3,); ``manoeuvre.axis_tilt_deg`` and ``spacecraft.gimbal_misalignment_rad``: azimuths (rad) of the
-    tilt about the tilted axis, (1,) or per unit); ``outages``: ``(start_s, duration_s)`` from the slew's
-    start; ``phone_seed``: the run's sensor-noise stream; ``columns``: the values flattened for the
-    results (column name → value)."""
+    tilt about the tilted axis, (1,) or per unit); ``outages``: ``(start_s, duration_s)`` on the board's
+    clock (from its start, as firmware-sim's ``--stall AT:DURATION``); ``phone_seed``: the run's
+    sensor-noise stream; ``columns``: the values flattened for the results (column name → value)."""
 
     index: int
     seed: int
@@ -257,7 +258,7 @@ def draw(dispersions: Dispersions, seed: int, run_index: int) -> RunParams:
         elif param.key == "link.outages_per_minute":
             duration = dispersions.get("link.outage_duration_s")
             assert duration is not None, "checked when the file was read"
-            outages = _outages(rng, float(drawn[0]), duration, sc.slew.duration_s)
+            outages = _outages(rng, float(drawn[0]), duration, outage_window_s(sc))
         if not isinstance(dist, Fixed):
             columns.update(zip(param.columns(sc), (float(v) for v in drawn), strict=True))
     if dispersions.has_link:
@@ -266,6 +267,13 @@ def draw(dispersions: Dispersions, seed: int, run_index: int) -> RunParams:
         columns["link.outage_list"] = ";".join(f"{a:.3f}:{d:.3f}" for a, d in outages)
     phone_seed = int(_stream(seed, run_index, "phone").integers(2**31))
     return RunParams(run_index, seed, phone_seed, values, directions, outages, columns)
+
+
+def outage_window_s(scenario: Scenario) -> float:
+    """The span (s of board time from its start) link outages are drawn over: the warm-up and the run's
+    duration (the board's clock also covers the connection and the rotors' spin-up, ~0.7 s at 1U scale,
+    so the window ends a little before the run does)."""
+    return scenario.loop.warmup_s + scenario.slew.duration_s
 
 
 def _isotropic(rng: np.random.Generator) -> Array:

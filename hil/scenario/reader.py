@@ -13,11 +13,11 @@ import numpy as np
 from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
-from hil.simulation.closed_loop import LoopConfig, SlewScenario
 from hil.simulation.phone import PhoneSpec, SensorSpec
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
+from .config import LoopConfig, SlewScenario
 from .model import Scenario
 
 _SPACECRAFT_PRESETS = ("cubesat_1u", "air_bearing_testbed")
@@ -140,15 +140,18 @@ class _Reader:
         loop = self.controller()
         slew, settle = self.manoeuvre(spacecraft, self.number(head, "scenario", "duration_s", 40.0))
         board = self.options("board")
-        if "frame_rate" in board and float(board["frame_rate"]) < loop.control_rate_hz:
-            raise self.error("board.frame_rate", "must be at least controller.control_rate_hz")
+        frame_rate = float(board.get("frame_rate", 50.0))  # firmware-sim's default
+        if frame_rate < loop.control_rate_hz:
+            raise self.error(
+                "board.frame_rate", "must be at least controller.control_rate_hz (firmware-sim's default: 50)"
+            )
         return Scenario(
             name=name,
             description=str(head.get("description", "")),
             spacecraft=spacecraft,
             phone=self.sensors(),
             estimator=self.choice(self.table("estimator"), "estimator", "preset", _ESTIMATOR_PRESETS),
-            loop=replace(loop, frame_rate_hz=float(board.get("frame_rate", 50.0))),
+            loop=replace(loop, frame_rate_hz=frame_rate),
             slew=slew,
             settle_deg=settle,
             seed=seed,
