@@ -77,7 +77,7 @@ def _dialect(head: list[str]) -> tuple[str, bool]:
 
 def _classify(c: Container, name: str) -> _File | None:
     """The file's sensor from its header, or None if it is not a phyphox sensor table."""
-    head = c.head(name, 2)
+    head = [line for line in c.head(name, 8) if line.strip() and not line.lstrip().startswith("#")][:2]
     if not head:
         return None
     delimiter, decimal_comma = _dialect(head)
