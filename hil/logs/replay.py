@@ -211,10 +211,11 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
                 f"(> {options.max_gap_s:g} s): the filter restarts there, it does not integrate across"
             )
         segments.append(segment)
-        part = log.window(t0, t1) if len(parts) > 1 else log
-        if any(k not in part.streams or len(part.streams[k]) == 0 for k in log.kinds):
+        speaking = [bool(((s.t >= t0) & (s.t <= t1)).any()) for s in log.streams.values()]
+        if not all(speaking):
             segment["skipped"] = "not every sensor speaks in it"
             continue
+        part = log.window(t0, t1) if len(parts) > 1 else log
         steps, seg_stats = merge(part.streams, options.policy)
         first = _first_complete(steps, log)
         if first:
