@@ -46,6 +46,7 @@ def _table(c: Container, name: str) -> tuple[Table, np.ndarray, list[tuple[str, 
     table = read_table(c, name, ",", header=True, min_columns=4, exact_columns=("time",))
     kind = _KIND[name]
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=_TIME)
+    times: np.ndarray
     if "time" in table.exact:
         times = table.exact["time"]
     elif "seconds_elapsed" in table.columns:

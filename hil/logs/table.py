@@ -16,7 +16,7 @@ import zipfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -228,8 +228,9 @@ class _Chunks:
     def parse(self, pending: list[tuple[int, str]]) -> None:
         text = [line.replace(",", ".") if self.decimal_comma else line for _, line in pending]
         try:
+            converters: Any = self.converters
             data = np.loadtxt(text, delimiter=self.delimiter, ndmin=2, dtype=float, comments=None,
-                              converters=self.converters, quotechar='"')  # type: ignore[arg-type]  # fmt: skip
+                              converters=converters, quotechar='"')  # fmt: skip
             if data.shape[1] != len(self.columns):
                 raise ValueError("column count")
         except (ValueError, KeyError):
