@@ -106,7 +106,7 @@ def test_a_bad_line_in_a_large_file_fails_at_once_in_bounded_memory(tmp_path):
 
 def test_reading_a_large_file_holds_the_samples_not_the_text(tmp_path):
     rows = 600_000
-    size = _big_csv(tmp_path / "big.csv", rows)
+    _big_csv(tmp_path / "big.csv", rows)
     tracemalloc.start()
     try:
         log = read_log(tmp_path / "big.csv")
