@@ -174,8 +174,9 @@ def run(args: argparse.Namespace) -> int:
 def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     """``--port``: the log as the phone of a run that drives the board (hil.runtime)."""
     from hil.cli.run import LiveProgress, draw_plots, format_summary
+    from hil.estimation.inertial import field_warnings
     from hil.logs import read_log
-    from hil.logs.replay import ReplayOptions, configure, split_at_gaps
+    from hil.logs.replay import ReplayOptions, configure, field_model_of, split_at_gaps
     from hil.runtime import ReplayInput, RunOptions
     from hil.runtime import run as run_scenario
     from hil.scenario import load_scenario
@@ -207,6 +208,9 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     )
     for line in setup:
         print(f"  {line}", file=sys.stderr)
+    for warning in field_warnings(log, field_model_of(options)):
+        print(f"  warning: {warning}", file=sys.stderr)
+        setup.append(f"warning: {warning}")
     result = run_scenario(
         scenario,
         RunOptions(
