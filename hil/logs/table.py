@@ -1,6 +1,6 @@
 """Numeric text tables (CSV and friends) read as a stream, with errors that say file, line and column.
 
-A table is read in chunks of :data:`CHUNK_LINES` lines: each chunk goes to ``numpy.loadtxt`` and only the
+A table is read in chunks of :data:`CHUNK_BYTES` of lines: each chunk goes to ``numpy.loadtxt`` and only the
 parsed floats are kept, so memory is bounded by the samples kept (not by the file's size), and a bad line
 fails as soon as its chunk is parsed — the rest of the file is never read. When a chunk fails, its lines
 are walked to raise :class:`InputFormatError` naming the first bad cell. ``nan``/``NaN`` cells are numbers
@@ -13,7 +13,7 @@ import csv
 import gzip
 import io
 import zipfile
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -24,8 +24,9 @@ from numpy.typing import NDArray
 from protocol.errors import InputFormatError
 
 Array = NDArray[np.float64]
-CHUNK_LINES = 20_000
-"""Lines parsed at once: the most a reader holds as text, and how far past a bad line it can have read."""
+CHUNK_BYTES = 1 << 20
+"""Text parsed at once (about 20 000 lines): the most a reader holds as text, and how far past a bad line
+it can have read."""
 HEAD_BYTES = 4096
 
 
@@ -166,45 +167,52 @@ def read_table(
     ``locate`` let a reader parse non-numeric cells and explain their errors."""
     source = container.where(name)
     with container.open_text(name) as f:
-        lines = _numbered(f, source)
-        first = next(lines, None)
-        if first is None:
-            raise InputFormatError("empty file: no header and no data", source)
-        header_line, head = first
-        if header:
-            columns = tuple(split_header(head, delimiter))
-            pending: list[tuple[int, str]] = []
-        else:
-            columns = tuple(f"col{i}" for i in range(len(_split(head, delimiter))))
-            pending, header_line = [first], 0
-        if len(columns) < min_columns:
-            raise InputFormatError(
-                f"expected at least {min_columns} columns, found {len(columns)}: is this the right file?",
-                source,
-                header_line or 1,
-            )
-        exact_idx = tuple((c, columns.index(c)) for c in exact_columns if c in columns)
-        parser = _Chunks(columns, source, delimiter, decimal_comma, converters, locate, exact_idx)
-        for line_no, line in lines:
-            pending.append((line_no, line))
-            if len(pending) >= CHUNK_LINES:
-                parser.parse(pending)
-                pending = []
-        if pending:
-            parser.parse(pending)
+        try:
+            line_no, head = _first_line(f)
+            if not head:
+                raise InputFormatError("empty file: no header and no data", source)
+            if header:
+                columns, header_line = tuple(split_header(head, delimiter)), line_no
+            else:
+                columns, header_line = tuple(f"col{i}" for i in range(len(_split(head, delimiter)))), 0
+            if len(columns) < min_columns:
+                raise InputFormatError(
+                    f"expected at least {min_columns} columns, found {len(columns)}: is this the right file?",
+                    source,
+                    header_line or 1,
+                )
+            exact_idx = tuple((c, columns.index(c)) for c in exact_columns if c in columns)
+            parser = _Chunks(columns, source, delimiter, decimal_comma, converters, locate, exact_idx)
+            if not header:
+                parser.parse([head + "\n"], line_no)
+            while chunk := f.readlines(CHUNK_BYTES):
+                parser.parse(chunk, line_no + 1)
+                line_no += len(chunk)
+        except UnicodeDecodeError as exc:
+            bad = _undecodable_line(container, name)
+            raise InputFormatError(f"not UTF-8 text ({exc.reason})", source, bad) from None
     return parser.table(header_line)
 
 
-def _numbered(f: io.TextIOWrapper, source: str) -> Iterator[tuple[int, str]]:
-    """Non-blank, non-comment lines with their 1-based numbers; undecodable bytes name their line."""
+def _first_line(f: io.TextIOWrapper) -> tuple[int, str]:
+    """The first line that is neither blank nor a comment, and its 1-based number ("" at the end)."""
     line_no = 0
-    try:
-        for line_no, line in enumerate(f, 1):  # noqa: B007 (line_no is read after a decoding error)
-            stripped = line.strip()
-            if stripped and not stripped.startswith("#"):
-                yield line_no, line.rstrip("\r\n")
-    except UnicodeDecodeError as exc:
-        raise InputFormatError(f"not UTF-8 text ({exc.reason})", source, line_no + 1) from None
+    for line_no, line in enumerate(iter(f.readline, ""), 1):  # noqa: B007
+        stripped = line.strip()
+        if stripped and not stripped.startswith("#"):
+            return line_no, line.rstrip("\r\n")
+    return line_no, ""
+
+
+def _undecodable_line(container: Container, name: str) -> int:
+    """The 1-based number of the first line that is not UTF-8 (the error path only)."""
+    with container._open(name) as raw:
+        for line_no, line in enumerate(raw, 1):
+            try:
+                line.decode("utf-8-sig" if line_no == 1 else "utf-8")
+            except UnicodeDecodeError:
+                return line_no
+    return 0
 
 
 def _split(line: str, delimiter: str | None) -> list[str]:
@@ -225,15 +233,22 @@ class _Chunks:
     chunks: list[Array] = field(default_factory=list)
     exact: dict[str, list[NDArray[np.int64]]] = field(default_factory=dict)
 
-    def parse(self, pending: list[tuple[int, str]]) -> None:
-        text = [line.replace(",", ".") if self.decimal_comma else line for _, line in pending]
+    def parse(self, lines: list[str], first_line: int) -> None:
+        """Parse ``lines`` (raw, with their newlines), the first of which is line ``first_line``."""
+        text = "".join(lines)
+        if self.decimal_comma:
+            text = text.replace(",", ".")
         try:
             converters: Any = self.converters
-            data = np.loadtxt(text, delimiter=self.delimiter, ndmin=2, dtype=float, comments=None,
-                              converters=converters, quotechar='"')  # fmt: skip
+            data = np.loadtxt(io.StringIO(text), delimiter=self.delimiter, ndmin=2, dtype=float,
+                              comments="#", converters=converters, quotechar='"')  # fmt: skip
+            if data.size == 0:
+                return  # only blank lines and comments
             if data.shape[1] != len(self.columns):
                 raise ValueError("column count")
         except (ValueError, KeyError):
+            pending = [(first_line + i, line.rstrip("\r\n")) for i, line in enumerate(lines)
+                       if line.strip() and not line.lstrip().startswith("#")]  # fmt: skip
             if self.locate is not None:
                 self.locate(pending, self.columns, self.source)
             locate_numeric(pending, self.columns, self.source, self.delimiter, self.decimal_comma)
@@ -241,8 +256,8 @@ class _Chunks:
         self.chunks.append(data)
         for col, idx in self.exact_idx:
             try:
-                ints = np.loadtxt(text, delimiter=self.delimiter, usecols=idx, dtype=np.int64, ndmin=1,
-                                  comments=None, quotechar='"')  # fmt: skip
+                ints = np.loadtxt(io.StringIO(text), delimiter=self.delimiter, usecols=idx, dtype=np.int64,
+                                  ndmin=1, comments="#", quotechar='"')  # fmt: skip
             except ValueError:  # not integers (a re-saved file): the float column, to its precision
                 ints = data[:, idx].astype(np.int64)
             self.exact.setdefault(col, []).append(ints)
