@@ -174,8 +174,9 @@ def test_the_command_says_when_a_host_connects_and_arms_and_explains_what_it_dro
         host.handshake()
         host.keepalive = heartbeat
         assert isinstance(host.request(Arm()), Ack)
-        host.wait_type(Telemetry, 1.0)
-        time.sleep(0.3)  # the status thread looks every 0.1 s
+        armed_until = time.monotonic() + 0.6  # heartbeats keep it ARMED; the status thread looks every 0.1 s
+        while time.monotonic() < armed_until:
+            host.wait_type(Telemetry, 1.0)
         host.close()
         time.sleep(0.3)
         proc.send_signal(signal.SIGTERM)
