@@ -183,7 +183,7 @@ def test_the_command_says_when_a_host_connects_and_arms_and_explains_what_it_dro
         assert proc.wait(timeout=5) == 0
         err = proc.stderr.read()
         assert "waiting for a host" in err and "host connected" in err
-        assert "DISARMED -> ARMED" in err
+        assert "-> ARMED" in err, err  # from DISARMED, or BOOT if handshake and Arm fall between two looks
         assert "bytes of the board's output were dropped" in err and "no host" in err
     finally:
         if proc.poll() is None:
