@@ -1,7 +1,9 @@
 """Calibration conversions per second: our scalar maps (what the board calls per setpoint) next to scipy
 doing the same job on the same table in the same run — ``PchipInterpolator`` called per sample for the
 forward map, and ``scipy.optimize.brentq`` on it for the inverse (the generic way to invert a monotone
-interpolant). Plus fitting time for a bench CSV (no peer) and the binary codec's round trips per second.
+interpolant). Plus fitting time for a bench CSV (no peer), the binary codec's round trips per second, and
+how fast a bench sweep runs against the emulator in simulated time (``emu://``, four bench units' rotors
+swept together through the full protocol) next to the real time the same sweep takes on a bench.
 """
 
 from __future__ import annotations
@@ -68,6 +70,8 @@ def run(quick: bool) -> list[Result]:
         fit_bench(csv)
     fit_s = (time.perf_counter() - t0) / fits
 
+    sim_s, wall_s, steps = _lockstep_sweep(quick)
+
     return [
         Result(
             NAME,
@@ -110,4 +114,29 @@ def run(quick: bool) -> list[Result]:
             higher_is_better=False,
             note=f"{len(csv)} rows, 9 knots, least squares",
         ),
+        Result(
+            NAME,
+            "rotor sweep of 4 bench units, emu:// lockstep",
+            sim_s / wall_s,
+            "x real time",
+            "the same sweep on a bench (real time)",
+            1.0,
+            note=f"{steps} steps up and down, {sim_s:.0f} s of board time in {wall_s:.1f} s",
+        ),
     ]
+
+
+def _lockstep_sweep(quick: bool) -> tuple[float, float, int]:
+    """(board seconds, wall seconds, steps) of a rotor sweep of 4 bench units through emu:// in lockstep."""
+    from hil.calibration.bench import BenchKind
+    from hil.calibration.benchlink import BenchLink
+    from hil.calibration.sweep import SweepPlan, run_sweep
+    from hil.link.board import BoardClient
+    from hil.timing.clock import LockstepClock
+
+    plan = SweepPlan(BenchKind.ROTOR, step_us=200 if quick else 40)
+    clock = LockstepClock()
+    with BoardClient("emu://?units=4&unit_spread=3", clock=clock) as client:
+        t0, w0 = clock.now(), time.perf_counter()
+        results = run_sweep(BenchLink(client), [0, 1, 2, 3], plan)
+        return clock.now() - t0, time.perf_counter() - w0, len(results[0].rows)

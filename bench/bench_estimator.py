@@ -15,6 +15,9 @@ exclusions; BROAD: ``movement``). Our variants:
   pre-filter, horizontal magnetometer) and the gyro bias measured over the log's initial still window,
   found by :func:`tune` — a grid search on :data:`TUNING_TRIALS`; the other trials are held out.
 
+Speed (per sample, batch, a 720k-sample replay, compile cost): :mod:`bench.estimator_speed`.
+``python -m bench.bench_estimator --per-trial`` prints every trial's RMSE.
+
 Peers with their default (or documented example) settings: VQF (C++, ``quat9D``; estimates its own gyro
 bias), ahrs Madgwick (MARG, default gain; output NWU, converted to ENU), imufusion (the library's example
 settings: gain 0.5, ±2000 °/s, rejection 10°, timeout 5 s; ENU).
@@ -29,14 +32,13 @@ import itertools
 import math
 import os
 import sys
-import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from bench import estimator_speed as speed
 from bench.common import Result
 from hil import so3
 from hil.estimation.filter import AttitudeFilter, FilterConfig
@@ -260,116 +262,6 @@ def _tuned_config(w_diag, d_scale, acc_cutoff, mag_cutoff, m):  # type: ignore[n
     return config
 
 
-# --------------------------------------------------------------------------- speed
-def _us_per_call(fn: Callable[[int], None], n: int) -> float:
-    fn(min(n, 100))  # warm up
-    best = math.inf
-    for _ in range(3):
-        t0 = time.perf_counter()
-        fn(n)
-        best = min(best, time.perf_counter() - t0)
-    return best / n * 1e6
-
-
-def step_speed(trial: Trial, n: int) -> dict[str, float]:
-    """µs per sample through each algorithm's per-sample API, on the first n merged steps of a trial."""
-    from ahrs.filters import Madgwick
-    from vqf import VQF, PyVQF
-
-    from hil.estimation.estimator import VariationalEstimator
-
-    gyr, acc, mag, dt = _arrays(trial.steps)
-    g, a, m = gyr.tolist(), acc.tolist(), mag.tolist()
-
-    def ours(k: int) -> None:
-        est = VariationalEstimator(EstimatorParams(E=directions_from_dip(trial.inclination_deg)))
-        for i in range(k):
-            est.update(dt, g[i], a[i], m[i])
-
-    def vqf_cpp(k: int) -> None:
-        v = VQF(dt)
-        for i in range(k):
-            v.update(gyr[i], acc[i], mag[i])
-            v.getQuat9D()
-
-    def vqf_py(k: int) -> None:
-        v = PyVQF(dt)
-        for i in range(k):
-            v.update(gyr[i], acc[i], mag[i])
-            v.getQuat9D()
-
-    def madgwick(k: int) -> None:
-        f = Madgwick(frequency=1.0 / dt)
-        q = np.array([1.0, 0.0, 0.0, 0.0])
-        for i in range(k):
-            q = f.updateMARG(q, gyr[i], acc[i], mag[i])
-
-    def fusion(k: int) -> None:
-        ahrs = imufusion_ahrs(1.0 / dt)
-        gd, ag = np.degrees(gyr), acc / 9.80665
-        for i in range(k):
-            ahrs.update(gd[i], ag[i], mag[i])
-            ahrs.get_quaternion()
-
-    return {
-        "ours": _us_per_call(ours, n),
-        "VQF": _us_per_call(vqf_cpp, n),
-        "PyVQF": _us_per_call(vqf_py, max(n // 20, 50)),
-        "Madgwick": _us_per_call(madgwick, max(n // 5, 50)),
-        "imufusion": _us_per_call(fusion, n),
-    }
-
-
-def long_log(samples: int, directory: Path) -> Path:
-    """A ``samples``-sample phone log in the project CSV: tyrex trials end to end (times shifted)."""
-    from hil.estimation.sensors import SensorStream
-    from hil.logs import project_csv
-
-    parts: dict[SensorKind, list[SensorStream]] = {k: [] for k in SensorKind}
-    total, offset = 0, 0.0
-    trials = sorted(p for p in TYREX.iterdir() if p.is_dir())
-    for path in itertools.cycle(trials):
-        log = read_log(path)
-        for k, s in log.streams.items():
-            parts[k].append(s.shifted(offset - log.start))
-        total += log.n_samples
-        offset += log.end - log.start + 1.0
-        if total >= samples:
-            break
-    streams = {
-        k: SensorStream(k, np.concatenate([s.t for s in v]), np.concatenate([s.xyz for s in v]))
-        for k, v in parts.items()
-    }
-    joined = SensorLog(streams, "tyrex trials concatenated", "csv")
-    return project_csv.write(joined, directory / "long.csv")
-
-
-def replay_speed(samples: int) -> tuple[float, float, dict[str, float], int]:
-    """Samples/s of the replay core (read + merge + pre-filter + estimator + estimates CSV) on a long
-    log, and of the peers' batch APIs over the same merged steps (estimation only)."""
-    from hil.logs.replay import ReplayOptions, replay
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = long_log(samples, Path(tmp))
-        n = read_log(path).n_samples
-        t0 = time.perf_counter()
-        replay(path, ReplayOptions(out_dir=Path(tmp) / "out"))
-        full = n / (time.perf_counter() - t0)
-        log = read_log(path)
-        t0 = time.perf_counter()
-        steps, _ = merge(log.streams)
-        steps = steps.rows(first_full_step(steps))
-        AttitudeFilter(FilterConfig.tuned()).run(steps)
-        core = n / (time.perf_counter() - t0)
-        trial = Trial("long", "long", log, steps, 60.0, (0.0, 0.0, 0.0))
-        peers = {}
-        for name, fn in (("VQF", vqf_quats), ("Madgwick", madgwick_quats), ("imufusion", imufusion_quats)):
-            t0 = time.perf_counter()
-            fn(trial)
-            peers[name] = n / (time.perf_counter() - t0)
-    return full, core, peers, n
-
-
 # --------------------------------------------------------------------------- the benchmark
 def run(quick: bool) -> list[Result]:
     results: list[Result] = []
@@ -388,50 +280,67 @@ def run(quick: bool) -> list[Result]:
             note = detail if name == "ours-tuned" else ""
             label = f"{group} ({len(members)}) RMSE total, {name}"
             results.append(Result(NAME, label, means[name][0], "deg", "VQF", means["VQF"][0], False, note))
-    speed = step_speed(trials[0], 2000 if quick else 20000)
-    for peer in ("VQF", "PyVQF", "Madgwick", "imufusion"):
-        results.append(
-            Result(
-                NAME,
-                "per-sample update",
-                speed["ours"],
-                "us/step",
-                peer,
-                speed[peer],
-                False,
-                "ours: VariationalEstimator.update (no pre-filter); peers: their per-sample APIs",
-            )  # fmt: skip
-        )
-    full, core, peers, n = replay_speed(20_000 if quick else 720_000)
-    for peer, value in peers.items():
-        results.append(
-            Result(
-                NAME,
-                f"replay {n} samples (estimation)",
-                core,
-                "samples/s",
-                f"{peer} batch",
-                value,
-                True,
-                "ours: merge + tuned pre-filter + estimator; peers: their batch APIs on the merged steps",
-            )  # fmt: skip
-        )
-    results.append(
-        Result(
-            NAME,
-            f"replay {n} samples end to end",
-            full,
-            "samples/s",
-            note="read CSV, merge, filter, write estimates",
-        )
-    )
+    results += speed_results(trials[0], quick)
     return results
+
+
+def speed_results(trial: Trial, quick: bool) -> list[Result]:
+    """Per-sample, batch, replay and compile figures (:mod:`bench.estimator_speed`), in this run."""
+    results: list[Result] = []
+    e = directions_from_dip(trial.inclination_deg)
+    step = speed.step_speed(trial.steps, e, 2000 if quick else 20000, imufusion_ahrs)
+    notes = {
+        "ours": "VariationalEstimator.update: the estimator alone, one compiled call",
+        "ours chain": "AttitudeFilter.step (tuned): bias, strapdown pre-filter, gate, horizontal mag",
+    }
+    for ours, note in notes.items():
+        for peer in ("VQF", "PyVQF", "Madgwick", "imufusion"):
+            results.append(Result(NAME, f"per-sample {ours}", step[ours], "us/step", peer, step[peer], False,
+                                  note))  # fmt: skip
+    walls, steps, n = speed.replay_speed(20_000 if quick else 720_000)
+    batch = speed.batch_speed(steps, imufusion_ahrs, 2000 if quick else 30000)
+    notes = {"ours": "VariationalEstimator.update_batch", "ours chain": "AttitudeFilter.run, tuned"}
+    for ours, note in notes.items():
+        for peer in ("VQF", "offlineVQF", "Madgwick", "imufusion"):
+            label = f"batch {ours}, {len(steps)} steps"
+            results.append(
+                Result(NAME, label, batch[ours], "us/step", f"{peer} batch", batch[peer], False, note)
+            )
+    for stage in ("read", "merge", "filter", "merge + filter", "end to end"):
+        note = "target <= 1.5 s" if stage == "merge + filter" else ""
+        if stage == "end to end":
+            note = "hil.logs.replay: read CSV, merge, tuned filter, write estimates CSV"
+        results.append(Result(NAME, f"replay {n} samples: {stage}", walls[stage], "s", note=note))
+    cost = speed.compile_cost()
+    for label in ("cold", "warm"):
+        what = "compiled into an empty cache" if label == "cold" else "loaded from the cache"
+        imports, cpu = cost[f"{label} import"], cost[f"{label} cpu"]
+        note = f"fresh process, {what}; import {imports:.2f} s; process CPU {cpu:.1f} s"
+        results.append(Result(NAME, f"kernels ready, {label}", cost[f"{label} kernels"], "s", note=note))
+    return results
+
+
+def per_trial_table(trials: list[Trial]) -> str:
+    """Every trial's RMSE total / heading / inclination (deg) for every algorithm."""
+    acc = accuracy(trials, ALGORITHMS)
+    lines = ["trial  " + "  ".join(ALGORITHMS)]
+    for t in trials:
+        cells = [f"{acc[a][t.name].total:.4f}/{acc[a][t.name].heading:.4f}/{acc[a][t.name].inclination:.4f}"
+                 for a in ALGORITHMS]  # fmt: skip
+        lines.append(f"{t.name}  " + "  ".join(cells))
+    return "\n".join(lines)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.bench_estimator")
     parser.add_argument("--tune", action="store_true", help="grid-search the tuned settings on TUNING_TRIALS")
+    parser.add_argument(
+        "--per-trial", action="store_true", help="print every trial's RMSE, not the benchmark"
+    )
     args = parser.parse_args(argv)
+    if args.per_trial:
+        print(per_trial_table(load_trials()))
+        return 0
     if args.tune:
         os.nice(5)
         best = tune(load_trials(names=TUNING_TRIALS))

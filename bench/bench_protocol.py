@@ -5,13 +5,17 @@
   ``CONTROL_SYSTEM_STATE`` (100 bytes, the nearest common message). Encode = message object → wire bytes
   (ours ``Framer.encode``, theirs ``msg.pack``); decode = a buffer of 100 frames → message objects
   (ours ``Deframer.feed``, theirs ``MAVLink.parse_buffer``), per frame;
+* the same decode rates with the C extension switched off (``protocol.speedups``' pure-Python COBS and
+  CRC, as ``PROTOCOL_PURE=1`` gives), against the same peer: what a machine without a C compiler gets;
+* COBS in C (``protocol._speedups``) against the pure-Python reference (``protocol.cobs``) on a frame;
 * wire bytes per frame;
 * DESIGN.md's claim: at 1 % byte errors, frames lost *beyond* the damaged ones — ours (COBS + CRC) vs
   MAVLink v2 (length-prefixed), on the same random corruption of a long mixed stream;
 * the atheris fuzz harness's inputs/s (``bench/fuzz_deframer.py`` in a subprocess: libFuzzer needs its
   own process).
 
-pymavlink runs its pure-Python parser (its default; ``use_native=False``), as our codec is pure Python.
+pymavlink runs its pure-Python parser (its default; ``use_native=False``), with its CRC in native code
+(``fastcrc``, when installed, as here); ours is Python with COBS and CRC in C (``protocol._speedups``).
 """
 
 from __future__ import annotations
@@ -22,13 +26,16 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+import protocol.frame
 from bench.common import Result, rate
+from protocol import cobs, speedups
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import (
     ActuatorSetpoint,
@@ -112,6 +119,53 @@ def _codec_results(label: str, ours_msg: Any, theirs_msg: Any, min_time: float) 
                BATCH * rate(theirs_decode, min_time), note=note),
         Result(NAME, f"wire bytes {label}", len(ours_wire), "B", peer, len(theirs_wire),
                higher_is_better=False),
+    ]  # fmt: skip
+
+
+@contextmanager
+def _pure_python() -> Iterator[None]:
+    """The frame codec on the pure-Python COBS and CRC, as with ``PROTOCOL_PURE=1`` (without a subprocess:
+    the two names :mod:`protocol.frame` takes from :mod:`protocol.speedups`, swapped for the run)."""
+    saved = protocol.frame.seal, protocol.frame.unseal
+    protocol.frame.seal, protocol.frame.unseal = speedups.seal_reference, speedups.unseal_reference
+    try:
+        yield
+    finally:
+        protocol.frame.seal, protocol.frame.unseal = saved
+
+
+def _pure_decode_results(label: str, ours_msg: Any, theirs_msg: Any, min_time: float) -> list[Result]:
+    """The decode row again, ours without the C extension."""
+    mav = _mav()
+    ours_batch = b"".join(Framer().encode(ours_msg)[1] for _ in range(BATCH))
+    theirs_batch = b"".join(theirs_msg.pack(mav) for _ in range(BATCH))
+
+    def ours_decode() -> None:
+        assert len(Deframer().feed(ours_batch)) == BATCH
+
+    with _pure_python():
+        ours = BATCH * rate(ours_decode, min_time)
+    theirs = BATCH * rate(lambda: _mav().parse_buffer(theirs_batch), min_time)
+    return [
+        Result(NAME, f"decode {label}, pure-Python COBS/CRC", ours, "frames/s",
+               f"{PEER} {theirs_msg.get_type()}", theirs, note="as PROTOCOL_PURE=1 or no C compiler gives"),
+    ]  # fmt: skip
+
+
+def _cobs_results(msg: Any, min_time: float) -> list[Result]:
+    """COBS alone on one frame (header + payload + CRC) of ``msg``: C against the Python reference."""
+    wire = Framer().encode(msg)[1]
+    frame = cobs.decode(wire[:-1])
+    encoded = wire[:-1]
+    assert speedups.NATIVE, "protocol._speedups is not built (or PROTOCOL_PURE is set)"
+    peer = "protocol.cobs (pure Python)"
+    note = f"{type(msg).__name__}: {len(frame)}-byte frame, {len(encoded)} bytes encoded"
+    c_encode, c_decode = speedups.cobs_encode, speedups.cobs_decode
+    return [
+        Result(NAME, "COBS encode (C)", rate(lambda: c_encode(frame), min_time), "frames/s", peer,
+               rate(lambda: cobs.encode(frame), min_time), note=note),
+        Result(NAME, "COBS decode (C)", rate(lambda: c_decode(encoded), min_time), "frames/s", peer,
+               rate(lambda: cobs.decode(encoded), min_time), note=note),
     ]  # fmt: skip
 
 
@@ -233,6 +287,9 @@ def run(quick: bool) -> list[Result]:
     min_time = 0.1 if quick else 1.0
     results = _codec_results("ActuatorSetpoint x4", setpoint(), optical_flow(), min_time)
     results += _codec_results("Telemetry x4/8ch", telemetry(), control_system_state(), min_time)
+    results += _pure_decode_results("ActuatorSetpoint x4", setpoint(), optical_flow(), min_time)
+    results += _pure_decode_results("Telemetry x4/8ch", telemetry(), control_system_state(), min_time)
+    results += _cobs_results(telemetry(), min_time)
     results += _loss_results(2_000 if quick else 40_000)
     results += _fuzz_results(3_000 if quick else 100_000)
     return results

@@ -1,11 +1,22 @@
 """ESC/motor and gimbal-servo response of one VSCMG unit, driven by pulse widths.
 
-The rotor ESC turns its pulse into a steady no-load speed through the unit's calibration map
-(``UnitCalibration.rotor_speed(pulse_us, battery_v)``, so a sagging battery means a slower rotor) and the
-rotor follows it with a first-order lag (``time_constant_s`` spinning up, ``coast_time_constant_s`` spinning
-down: the ESC does not brake). The gimbal servo follows the rate or angle its pulse stands for
-(``gimbal_value(pulse_us, mode)``). Integration is exact for a constant input over a step, so lockstep
-callers may take steps of any length.
+The rotor's ESC (:class:`firmware_sim.esc.EmulatedEsc`: factory endpoints, endpoint programming, arming
+at minimum) drives the motor only while it is powered and armed. Its steady no-load speed comes from one
+of two sources:
+
+* **ideal unit** (``truth`` None, the default): the unit's calibration map
+  (``UnitCalibration.rotor_speed(pulse_us, battery_v)``, so a sagging battery means a slower rotor): the
+  unit is exactly what the board's calibration says (its ESC's endpoints are not consulted);
+* **bench unit** (``truth`` an :class:`ActuatorTruth`): its own motor and servo models
+  (``protocol.calibration.EscMotorModel``/``GimbalServoModel``, drawn per unit around the stated models),
+  the motor's throttle taken between the endpoints the ESC has *learned*, so an ESC still at its factory
+  endpoints behaves differently from one programmed to the board's, and a fit of bench sweeps has
+  something real to recover.
+
+The rotor follows its steady speed with a first-order lag (``time_constant_s`` spinning up,
+``coast_time_constant_s`` spinning down: the ESC does not brake). The gimbal servo follows the rate or
+angle its pulse stands for (the calibration's ``gimbal_value(pulse_us, mode)`` or the true servo's).
+Integration is exact for a constant input over a step, so lockstep callers may take steps of any length.
 
 In closed-loop emulation the world owns the dynamics: :meth:`UnitModel.override` replaces the internal
 model with measured states (the board then only computes currents from them).
@@ -13,24 +24,50 @@ model with measured states (the board then only computes currents from them).
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass
 from typing import Any
 
+from protocol.calibration import EscMotorModel, GimbalServoModel
 from protocol.messages import GIMBAL_ANGLE_LIMIT, GIMBAL_RATE_LIMIT, ROTOR_SPEED_LIMIT, GimbalMode, UnitState
 
 from .config import GimbalParams, MotorParams
+from .esc import EmulatedEsc, EscParams
+
+
+@dataclass(frozen=True)
+class ActuatorTruth:
+    """A bench unit's true actuators: ``motor`` (its ``low_us``/``high_us`` are replaced by the endpoints
+    its ESC has learned) and the gimbal ``servo``."""
+
+    motor: EscMotorModel
+    servo: GimbalServoModel
 
 
 class UnitModel:
     """Rotor speed (rad/s), gimbal angle (rad) and rate (rad/s) of one unit, and the power it draws.
 
-    ``calibration`` is the unit's ``protocol.calibration.UnitCalibration``."""
+    ``calibration`` is the unit's ``protocol.calibration.UnitCalibration``; ``truth`` its true actuators
+    (None: an ideal unit, see the module docstring); ``esc`` its rotor ESC's programming behaviour.
+    ``esc_connected`` is the operator's side of the ESC's supply (the board's switch is the other)."""
 
-    def __init__(self, motor: MotorParams, gimbal: GimbalParams, calibration: Any) -> None:
+    def __init__(
+        self,
+        motor: MotorParams,
+        gimbal: GimbalParams,
+        calibration: Any,
+        truth: ActuatorTruth | None = None,
+        esc: EscParams | None = None,
+    ) -> None:
         self.motor = motor
         self.gimbal = gimbal
+        self.truth = truth
+        self.esc = EmulatedEsc(esc if esc is not None else EscParams())
+        self.esc_connected = True
         self._calibration = calibration
         self._cache: dict[tuple[str, float, Any], float] = {}
+        self._true_motor: EscMotorModel | None = None
         self.rotor_speed = 0.0
         self.rotor_accel = 0.0
         self.gimbal_angle = 0.0
@@ -71,6 +108,31 @@ class UnitModel:
             self._remember(key, hit)
         return hit
 
+    def true_rotor_speed_for(self, pulse_us: int, battery_v: float) -> float:
+        """Steady no-load speed (rad/s) the motor really reaches on ``pulse_us`` through its ESC (which
+        must be armed): the calibration map for an ideal unit, else the true motor between the ESC's
+        learned endpoints."""
+        if self.truth is None:
+            return self.rotor_speed_for(pulse_us, battery_v)
+        motor = self._true_motor
+        if motor is None or (motor.low_us, motor.high_us) != (self.esc.low_us, self.esc.high_us):
+            motor = self._true_motor = dataclasses.replace(
+                self.truth.motor, low_us=self.esc.low_us, high_us=self.esc.high_us
+            )
+        return motor.speed(float(pulse_us), battery_v)
+
+    def true_gimbal_value_for(self, pulse_us: int, mode: GimbalMode) -> float:
+        """The rate (rad/s) or angle (rad) the servo really goes to on ``pulse_us``."""
+        if self.truth is None:
+            return self.gimbal_value_for(pulse_us, mode)
+        servo = self.truth.servo
+        return servo.rate(float(pulse_us)) if mode == GimbalMode.RATE else servo.angle(float(pulse_us))
+
+    def update_esc(self, t: float, rotor_us: int | None, supply_on: bool) -> None:
+        """The ESC sees ``rotor_us`` (None: no pulse) at ``t`` (s), powered if the board's switch
+        (``supply_on``) and the operator (:attr:`esc_connected`) both let it."""
+        self.esc.update(t, None if self.rotor_dead else rotor_us, supply_on and self.esc_connected)
+
     def _remember(self, key: tuple[str, float, Any], value: float) -> None:
         if len(self._cache) > 4096:
             self._cache.clear()
@@ -98,7 +160,7 @@ class UnitModel:
     # ------------------------------------------------------------------ dynamics
     def advance(self, dt: float, gimbal_us: int | None, rotor_us: int | None, battery_v: float) -> None:
         """Integrate ``dt`` seconds with constant pulse inputs (None: no pulse on that channel)."""
-        self.rotor_driven = rotor_us is not None and not self.rotor_dead
+        self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.powered
         self.gimbal_driven = gimbal_us is not None and not self.gimbal_dead
         if dt <= 0.0 or self._external is not None:
             return
@@ -106,10 +168,12 @@ class UnitModel:
         self._advance_gimbal(dt, gimbal_us)
 
     def steady_rotor_speed(self, rotor_us: int | None, battery_v: float) -> float:
-        """The no-load speed the ESC drives towards (0 without pulses or with a dead ESC)."""
-        if rotor_us is None or self.rotor_dead:
+        """The no-load speed the ESC drives towards (0 without pulses, with a dead ESC, or an ESC that is
+        unpowered, unarmed or being programmed)."""
+        pulse = self.esc.throttle_pulse(rotor_us)
+        if pulse is None or self.rotor_dead:
             return 0.0
-        return self.rotor_speed_for(rotor_us, battery_v)
+        return self.true_rotor_speed_for(int(pulse), battery_v)
 
     def _advance_rotor(self, dt: float, rotor_us: int | None, battery_v: float) -> None:
         m = self.motor
@@ -127,10 +191,11 @@ class UnitModel:
         if not self.gimbal_driven or gimbal_us is None:
             target_rate = 0.0
         elif self.gimbal_mode == GimbalMode.RATE:
-            target_rate = self.gimbal_value_for(gimbal_us, GimbalMode.RATE)
-            target_rate = max(min(target_rate, g.max_rate_rad_s), -g.max_rate_rad_s)
+            target_rate = self.true_gimbal_value_for(gimbal_us, GimbalMode.RATE)
+            if self.truth is None:  # a bench servo's top rate is its own
+                target_rate = max(min(target_rate, g.max_rate_rad_s), -g.max_rate_rad_s)
         else:
-            self._advance_gimbal_angle(dt, self.gimbal_value_for(gimbal_us, GimbalMode.ANGLE))
+            self._advance_gimbal_angle(dt, self.true_gimbal_value_for(gimbal_us, GimbalMode.ANGLE))
             return
         r0 = self.gimbal_rate
         decay = math.exp(-dt / tau)

@@ -31,6 +31,9 @@ examples:
   firmware-sim --sag 9@10/5                     ... 9 V: the UBEC drops out, brown-out reset
   firmware-sim --brownout-at 8                  a short collapse of the pack at t=8 s
   firmware-sim --dead-esc 1@3                   the ESC on channel 1 (rotor 0) dies at t=3 s
+  firmware-sim --unit-spread 7 --esc-supply-switch
+                                                a bench to calibrate: units unlike their calibration,
+                                                ESCs at factory endpoints (hil calibrate unit --port)
   firmware-sim --duration 30 -v                 stop after 30 s, log state changes
   firmware-sim --avr                            the real firmware (firmware/) on simavr's ATmega2560
   firmware-sim --avr --eeprom board.eep         ... keeping its EEPROM (uploaded calibrations) in a file
@@ -120,6 +123,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--soc", type=float, default=1.0, metavar="F", help="initial state of charge 0..1")
     b.add_argument("--seed", type=int, default=0, help="seed of the fault injector's random numbers")
+    b.add_argument(
+        "--esc-supply-switch",
+        action="store_true",
+        help="the board can cut the ESCs' supply (ESC endpoint programming power-cycles the ESC itself; "
+        "without it the board asks the operator)",
+    )
+    b.add_argument(
+        "--unit-spread",
+        type=int,
+        metavar="SEED",
+        help="bench units: each unit's motor and servo drawn around the stated models with this seed, its "
+        "ESC at factory endpoints until programmed (default: ideal units, exactly their calibration)",
+    )
     f = p.add_argument_group("fault injection")
     f.add_argument("--corrupt", type=float, default=0.0, metavar="P", help="per-byte corruption probability")
     f.add_argument("--drop", type=float, default=0.0, metavar="P", help="per-byte loss probability")
@@ -205,6 +221,8 @@ def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
         rotor_safe_us=args.rotor_safe_us,
         ppm=args.ppm,
         seed=args.seed,
+        esc_supply_switch=args.esc_supply_switch,
+        unit_spread_seed=args.unit_spread,
         power=PowerConfig(
             battery=replace(
                 BatteryParams(), cells=args.cells, capacity_mah=args.capacity, initial_soc=args.soc

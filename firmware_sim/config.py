@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from protocol.errors import ConfigError
 from protocol.messages import MAX_UNITS, PULSE_MAX_US, PULSE_MIN_US
 
+from .esc import EscParams
+
 # LiPo open-circuit voltage per cell against state of charge (0..1), a typical discharge curve.
 LIPO_OCV_CURVE: tuple[tuple[float, float], ...] = (
     (0.00, 3.00),
@@ -126,6 +128,13 @@ class BoardConfig:
 
     Pulse channels are ordered gimbal 0, rotor 0, gimbal 1, rotor 1, … (as in ``RawPulses``).
     ``tick_s`` is the main-loop period: received bytes are handled on tick boundaries.
+
+    ``esc_supply_switch``: the board has a switch that cuts the rotor ESCs' supply (the C firmware's
+    ESC_SUPPLY_CUT pin), so the ESC endpoint procedure power-cycles the ESC itself; without one it asks
+    the operator to connect the supply. ``unit_spread_seed``: None makes every unit ideal (its motor and
+    servo are exactly its calibration maps); a seed draws each unit's true motor and servo around the
+    stated models (``hil.calibration.generate.bench_units``), its ESC at ``esc``'s factory endpoints
+    until programmed: a bench to calibrate.
     """
 
     n_units: int = 4
@@ -142,10 +151,13 @@ class BoardConfig:
     rx_buffer_bytes: int = 4096  # UART receive ring; bytes beyond it are dropped and counted
     tx_buffer_bytes: int = 65536  # frames that do not fit are dropped and counted
     dead_esc_detect_s: float = 0.5  # commanded output without response for this long → DEAD_ESC
+    esc_supply_switch: bool = False  # the board can cut the ESCs' supply (ESC endpoint programming)
+    unit_spread_seed: int | None = None  # None: ideal units (= their calibration); else bench units
     identity: Identity = field(default_factory=Identity)
     power: PowerConfig = field(default_factory=PowerConfig)
     motor: MotorParams = field(default_factory=MotorParams)
     gimbal: GimbalParams = field(default_factory=GimbalParams)
+    esc: EscParams = field(default_factory=EscParams)
     seed: int = 0  # seeds the fault injector's random numbers
 
     @property
@@ -225,6 +237,17 @@ class BoardConfig:
         _num_in(g.max_rate_rad_s, 0.01, 20.0, f"{w}.gimbal.max_rate_rad_s")
         _num_in(g.idle_current_a, 0.0, 10.0, f"{w}.gimbal.idle_current_a")
         _num_in(g.current_per_rad_s_a, 0.0, 10.0, f"{w}.gimbal.current_per_rad_s_a")
+        if self.unit_spread_seed is not None:
+            _int_in(self.unit_spread_seed, 0, 2**63 - 1, f"{w}.unit_spread_seed")
+        e = self.esc
+        _num_in(e.factory_low_us, PULSE_MIN_US, PULSE_MAX_US, f"{w}.esc.factory_low_us")
+        _num_in(e.factory_high_us, e.factory_low_us + e.min_span_us, PULSE_MAX_US, f"{w}.esc.factory_high_us")
+        _num_in(e.arm_fraction, 0.0, 0.5, f"{w}.esc.arm_fraction")
+        _num_in(e.program_fraction, 0.5, 1.0, f"{w}.esc.program_fraction")
+        _num_in(e.high_ack_s, 0.01, 60.0, f"{w}.esc.high_ack_s")
+        _num_in(e.low_ack_s, 0.01, 60.0, f"{w}.esc.low_ack_s")
+        _num_in(e.stable_us, 0.0, 100.0, f"{w}.esc.stable_us")
+        _num_in(e.min_span_us, 100.0, 1500.0, f"{w}.esc.min_span_us")
         for name, limit in _IDENTITY_LIMITS.items():
             n = len(getattr(self.identity, name).encode("utf-8"))
             if n > limit:

@@ -12,9 +12,10 @@ Arbitration id (11-bit base format, the same on classic CAN and CAN FD)::
     bit  10 9 8 | 7         | 6 5 4 3 2 1 0
          priority | direction | node id (0..127)
 
-* ``priority`` (0 = wins arbitration) from the message id: 0 COMMAND (Arm, Disarm, SetMode, Ack, Nack),
-  1 CONTROL (ActuatorSetpoint, RawPulses), 2 LINK (Hello, HelloReply, Heartbeat), 3 STATUS
-  (Telemetry), 4 BULK (CalibrationData, CalibrationRequest), 5 LOG (Log), 6 any other id; 7 unused.
+* ``priority`` (0 = wins arbitration) from the message id: 0 COMMAND (Arm, Disarm, SetMode, EscCalibrate,
+  Ack, Nack), 1 CONTROL (ActuatorSetpoint, RawPulses), 2 LINK (Hello, HelloReply, Heartbeat), 3 STATUS
+  (Telemetry, EscCalibrationStatus), 4 BULK (CalibrationData, CalibrationRequest), 5 LOG (Log), 6 any
+  other id; 7 unused.
 * ``direction``: 0 host → board, 1 board → host, so host and board never send the same id.
 * ``node id``: the board's address; one host talks to up to 128 boards on one bus.
 
@@ -27,12 +28,16 @@ Segment (the CAN frame's data)::
 
 A frame takes at most 37 classic or 5 FD segments. Receivers reassemble per arbitration id, place
 segments by index (so reordering within a frame is harmless), and emit the frame once every index up
-to the delimiter's has arrived. A frame that cannot complete — a segment lost, a conflicting duplicate,
-the sender moved on — is discarded and counted (``incomplete``), never delivered half-built. A repeat of a
-segment already delivered (CAN's "double reception" after an error frame) is recognised until the
-sender reuses that transfer id, and counted as a duplicate. Memory is bounded: per arbitration id
-``window`` partial frames and the last frame of each of the 4 transfer ids, for at most
-``max_streams`` arbitration ids.
+to the delimiter's has arrived. A sender sends one frame after another on an arbitration id, so a segment
+under another transfer id ends the frames being assembled under the others. A frame that cannot complete
+— a segment lost, a conflicting duplicate, the sender moved on — is discarded and counted
+(``incomplete``), never delivered half-built; one that assembles but fails its CRC (segments of two frames
+joined after the 2-bit transfer id wrapped) is counted (``spliced``), and assembly restarts from the
+newest segment. A repeat of
+the segment that completed a frame, arriving next on its arbitration id (CAN's "double reception": the
+transmitter saw an error frame and sends the same CAN frame again at once), is counted as a duplicate;
+a repeat within a frame still being assembled is too. Memory is bounded: per arbitration id ``window``
+partial frames and one segment, for at most ``max_streams`` arbitration ids.
 """
 
 from __future__ import annotations
@@ -41,10 +46,8 @@ import enum
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
-from . import cobs
-from .crc import crc16_ccitt_false
-from .errors import ConfigError, FrameError, ProtocolError
-from .frame import CRC, CRC_SIZE, DELIMITER, MAX_ENCODED, MIN_FRAME
+from .errors import ConfigError, ProtocolError
+from .frame import DELIMITER, MAX_ENCODED, MIN_FRAME
 from .messages import (
     Ack,
     ActuatorSetpoint,
@@ -52,6 +55,8 @@ from .messages import (
     CalibrationData,
     CalibrationRequest,
     Disarm,
+    EscCalibrate,
+    EscCalibrationStatus,
     Heartbeat,
     Hello,
     HelloReply,
@@ -61,6 +66,7 @@ from .messages import (
     SetMode,
     Telemetry,
 )
+from .speedups import unseal
 
 MAX_WIRE = MAX_ENCODED + 1
 """Longest wire frame including its delimiter."""
@@ -91,10 +97,10 @@ class Direction(enum.IntEnum):
 
 
 PRIORITY: dict[int, Priority] = {
-    **{cls.MSG_ID: Priority.COMMAND for cls in (Arm, Disarm, SetMode, Ack, Nack)},
+    **{cls.MSG_ID: Priority.COMMAND for cls in (Arm, Disarm, SetMode, Ack, Nack, EscCalibrate)},
     **{cls.MSG_ID: Priority.CONTROL for cls in (ActuatorSetpoint, RawPulses)},
     **{cls.MSG_ID: Priority.LINK for cls in (Hello, HelloReply, Heartbeat)},
-    Telemetry.MSG_ID: Priority.STATUS,
+    **{cls.MSG_ID: Priority.STATUS for cls in (Telemetry, EscCalibrationStatus)},
     **{cls.MSG_ID: Priority.BULK for cls in (CalibrationData, CalibrationRequest)},
     Log.MSG_ID: Priority.LOG,
 }
@@ -226,25 +232,22 @@ class _Partial:
 
 @dataclass
 class _Stream:
-    """One arbitration id: frames being assembled, and the frame last completed (by transfer id) until
-    another transfer id is heard: a double reception follows its original at once, so a late duplicate
-    of a delivered segment is recognised, not delivered again — and a new frame four transfer ids on is
-    not mistaken for one."""
+    """One arbitration id: frames being assembled; the segment that completed the last delivered frame
+    (transfer id, index, bytes) while it is the last segment heard (a double reception follows its
+    original at once: that repeat is dropped at once); and the last frame delivered under each transfer
+    id, so that a repeat arriving later, whose segments assemble into a frame byte for byte equal to one
+    already delivered under its transfer id, is recognised as a duplicate too. Single segments are never
+    judged against delivered frames: a later frame four transfer ids on (the frames between lost whole)
+    may share a segment with one — a last segment holding only the delimiter, say."""
 
     partials: OrderedDict[int, _Partial] = field(default_factory=OrderedDict)
-    done: dict[int, dict[int, bytes]] = field(default_factory=dict)
+    completed_by: tuple[int, int, bytes] | None = None
+    delivered: dict[int, bytes] = field(default_factory=dict)  # transfer id -> the last wire frame delivered
 
 
 def _intact(wire: bytes) -> bool:
     """``wire`` (COBS + 0x00) decodes and its CRC holds: one whole frame, not pieces of two."""
-    try:
-        body = cobs.decode(wire[:-1])
-    except FrameError:
-        return False
-    if len(body) < MIN_FRAME:
-        return False
-    (crc,) = CRC.unpack_from(body, len(body) - CRC_SIZE)
-    return bool(crc == crc16_ccitt_false(body[:-CRC_SIZE]))
+    return unseal(wire[:-1], MIN_FRAME, len(wire)) is not None  # decoded is never longer than encoded
 
 
 class CanReassembler:
@@ -299,12 +302,19 @@ class CanReassembler:
             return b""
         self.stats.segments += 1
         stream = self._stream(arbitration_id)
-        done = stream.done.get(tid)
-        if done is not None and done.get(index) == chunk:
-            self.stats.duplicates += 1  # a repeat of a frame already delivered (CAN double reception)
+        if stream.completed_by == (tid, index, chunk):
+            self.stats.duplicates += 1  # the completing segment again, at once: CAN double reception
             return b""
-        stream.done.clear()  # the sender has moved on: no more repeats of what it finished
+        stream.completed_by = None  # anything else: the sender has moved on
         partials = stream.partials
+        # A sender sends one frame after another on an arbitration id (its segments may swap places
+        # within the frame, never with another frame's): a segment under another transfer id means the
+        # frames being assembled under the others are over, their missing segments lost. Give them up, so
+        # that none completes later, out of order, from a segment of a newer frame that happens to be
+        # byte-identical to the one it lost (a last segment holding only the delimiter, say).
+        for over in [k for k in partials if k != tid]:
+            del partials[over]
+            self.stats.incomplete += 1
         partial = partials.get(tid)
         if partial is None:
             partial = self._open(partials, tid)
@@ -320,23 +330,24 @@ class CanReassembler:
             partial.last = index
         if partial.last is None or len(partial.segments) != partial.last + 1:
             return b""
-        # Complete: deliver it, and give up on frames of this stream that started before it.
-        for older in list(partials):
-            del partials[older]
-            if older == tid:
-                break
-            self.stats.incomplete += 1
-        stream.done[tid] = partial.segments
         wire = b"".join(partial.segments[i] for i in range(partial.last + 1))
         if len(wire) > MAX_WIRE:
+            del partials[tid]
             self.stats.malformed += 1
             return b""
         if not _intact(wire):
             # The 2-bit transfer id wrapped: a frame that lost segments met the same id four frames on,
-            # the frames between lost whole; their segments joined. Never delivered half-built.
-            del stream.done[tid]
+            # the frames between lost whole; their segments joined. Never delivered half-built: the
+            # segment just heard is the newest frame's, so assembly starts again from it alone.
             self.stats.spliced += 1
+            partials[tid] = _Partial({index: chunk}, index if end >= 0 else None)
             return b""
+        del partials[tid]
+        stream.completed_by = (tid, index, chunk)
+        if stream.delivered.get(tid) == wire:
+            self.stats.duplicates += len(partial.segments)  # a late repeat of a delivered frame
+            return b""
+        stream.delivered[tid] = wire
         self.stats.frames += 1
         return wire
 

@@ -13,21 +13,30 @@ Unencoded frame (all fields little-endian)::
 On the wire: ``COBS(frame) + b"\\x00"``. At most 259 bytes including the delimiter.
 A receiver that sees corruption discards up to the next 0x00 and resynchronises there, so a bad frame
 costs that frame only.
+
+Speed: a frame is encoded by its message's generated encoder (one ``struct`` call for header and payload,
+:mod:`protocol.compiled`) and sealed (CRC + COBS + delimiter) by one call to :mod:`protocol.speedups` (C
+when built); a chunk is unsealed by one call and decoded by the generated decoder. Anything those fast
+paths do not take certainly valid goes through the reference path below (``cobs``, ``crc``, the layout
+interpreter), which is also the one that words every error.
 """
 
 from __future__ import annotations
 
 import enum
+import re
 import struct
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 from . import cobs
+from .compiled import fast_constructor
 from .crc import crc16_ccitt_false
 from .errors import FieldRangeError, FrameError, ProtocolError
 from .fields import PayloadLengthError
-from .messages import LAYOUTS, PROTOCOL_VERSION, Flags, encode_payload
+from .messages import CODECS, LAYOUTS, PROTOCOL_VERSION, Flags, encode_payload
+from .speedups import seal, unseal
 
 HEADER = struct.Struct("<BBBB")
 CRC = struct.Struct("<H")
@@ -39,6 +48,8 @@ MAX_FRAME = HEADER_SIZE + MAX_PAYLOAD + CRC_SIZE
 MAX_ENCODED = cobs.max_encoded_len(MAX_FRAME)
 """Longest COBS-encoded frame (without delimiter); a longer run without 0x00 is garbage."""
 DELIMITER = b"\x00"
+_CHUNK = re.compile(rb"[^\x00]+")
+"""A chunk between delimiters (runs of delimiters are idle fill)."""
 
 
 class BadFrameReason(enum.Enum):
@@ -80,22 +91,51 @@ class BadFrame:
 Event = Frame | BadFrame
 
 
+_FLAGS = tuple(Flags(v) for v in range(256))
+"""The header's flags byte as Flags, by value (every byte decodes: unknown bits are kept)."""
+_new_frame = fast_constructor(Frame)
+_ENCODERS = {msg_id: codec.encode for msg_id, codec in CODECS.items()}
+_DECODERS = {msg_id: codec.decode for msg_id, codec in CODECS.items()}
+_MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
+
+
 def encode_frame(message: Any, seq: int, flags: int = 0) -> bytes:
     """The wire bytes (COBS + delimiter) of one frame. Raises FieldRangeError for bad fields."""
     if not 0 <= seq <= 0xFF:
         raise FieldRangeError("header", "seq", seq)
     if not 0 <= flags <= 0xFF:
         raise FieldRangeError("header", "flags", flags)
-    payload = encode_payload(message)
-    if len(payload) > MAX_PAYLOAD:
-        raise ProtocolError(f"{type(message).__name__} payload is {len(payload)} bytes > {MAX_PAYLOAD}")
-    body = HEADER.pack(PROTOCOL_VERSION, message.MSG_ID, seq, flags) + payload
-    body += CRC.pack(crc16_ccitt_false(body))
-    return cobs.encode(body) + DELIMITER
+    body = _ENCODERS[message.MSG_ID](message, seq, flags)
+    if body is None:  # not certainly valid: the reference encodes it or raises the exact error
+        payload = encode_payload(message)
+        body = HEADER.pack(PROTOCOL_VERSION, message.MSG_ID, seq, flags) + payload
+    if len(body) > _MAX_BODY:
+        size = len(body) - HEADER_SIZE
+        raise ProtocolError(f"{type(message).__name__} payload is {size} bytes > {MAX_PAYLOAD}")
+    return seal(body)
+
+
+def _decode_fast(encoded: bytes) -> Frame | None:
+    """The frame in a chunk of at most MAX_ENCODED bytes if it is certainly valid, else None."""
+    body = unseal(encoded, MIN_FRAME, MAX_FRAME)
+    if body is None or body[0] != PROTOCOL_VERSION:
+        return None
+    decode = _DECODERS.get(body[1])
+    message = None if decode is None else decode(body)
+    return None if message is None else _new_frame(message, body[2], _FLAGS[body[3]], PROTOCOL_VERSION)
 
 
 def decode_frame(encoded: bytes) -> Frame:
     """Decode one COBS chunk (without its delimiter). Raises FrameError with a BadFrameReason."""
+    if len(encoded) <= MAX_ENCODED:
+        frame = _decode_fast(encoded)
+        if frame is not None:
+            return frame
+    return _decode_reference(encoded)
+
+
+def _decode_reference(encoded: bytes) -> Frame:
+    """:func:`decode_frame` step by step in pure Python: what says why a chunk is not a frame."""
     if len(encoded) > MAX_ENCODED:
         raise FrameError(BadFrameReason.TOO_LONG, f"{len(encoded)} bytes > {MAX_ENCODED}")
     body = cobs.decode(encoded)
@@ -164,57 +204,82 @@ class Deframer:
         self._last_seq = None
 
     def feed(self, data: bytes) -> list[Event]:
+        """The events completed by ``data``. Memory stays within one maximum frame whatever is fed: the
+        chunks between delimiters are found one at a time (runs of delimiters skipped in C), and an overlong
+        one is measured, never copied."""
         counters = self.counters
         counters.bytes += len(data)
         events: list[Event] = []
-        if DELIMITER not in data:
-            self._append_partial(data, events)
+        first = data.find(0)
+        if first < 0:
+            self._append_partial(data, 0, events)
             return events
-        chunks = data.split(DELIMITER)
-        tail = chunks.pop()
-        first = True
-        for chunk in chunks:
-            if first:
-                first = False
-                if self._buf:
-                    self._buf += chunk
-                    chunk = bytes(self._buf)
-                    self._buf.clear()
-                if self._skipping:
-                    self._skipping = False
-                    continue
-            if not chunk:
+        # The chunk a previous feed left open ends at the first delimiter.
+        if self._skipping:
+            self._skipping = False
+        elif self._buf or first:
+            size = len(self._buf) + first
+            if size > MAX_ENCODED:
+                self._too_long(events, size)
+            else:
+                self._buf += data[:first]
+                self._chunk(bytes(self._buf), events)
+            self._buf.clear()
+        end = len(data)
+        for match in _CHUNK.finditer(data, first + 1):
+            start, stop = match.span()
+            if stop == end:  # no delimiter after it: the start of a frame still arriving
+                self._append_partial(data, start, events)
+                break
+            if stop - start > MAX_ENCODED:
+                self._too_long(events, stop - start)
                 continue
-            if len(chunk) > MAX_ENCODED:
-                detail = f"{len(chunk)} bytes without a delimiter"
-                self._bad(events, BadFrameReason.TOO_LONG, detail, len(chunk))
-                counters.resyncs += 1
+            chunk = data[start:stop]
+            frame = _decode_fast(chunk)
+            if frame is None:  # not certainly valid: the reference decodes it or says why not
+                self._chunk(chunk, events, _decode_reference)
                 continue
-            try:
-                frame = decode_frame(chunk)
-            except FrameError as exc:
-                self._bad(events, exc.reason, exc.detail, len(chunk))  # type: ignore[arg-type]
-                continue
-            self._count_seq(frame)
+            seq = frame.seq  # _count_seq and the frame count, inline on the hot path
+            last = self._last_seq
+            self._last_seq = seq
+            if last is not None and (seq - last) & 0xFF != 1:
+                self._count_step((seq - last) & 0xFF)
             counters.frames += 1
             events.append(frame)
-        self._append_partial(tail, events)
         return events
 
-    def _append_partial(self, data: bytes, events: list[Event]) -> None:
+    def _chunk(
+        self, chunk: bytes, events: list[Event], decode: Callable[[bytes], Frame] = decode_frame
+    ) -> None:
+        """One complete chunk of at most MAX_ENCODED bytes: a frame or a bad frame."""
+        try:
+            frame = decode(chunk)
+        except FrameError as exc:
+            self._bad(events, exc.reason, exc.detail, len(chunk))  # type: ignore[arg-type]
+            return
+        self._count_seq(frame)
+        self.counters.frames += 1
+        events.append(frame)
+
+    def _too_long(self, events: list[Event], size: int) -> None:
+        self._bad(events, BadFrameReason.TOO_LONG, f"{size} bytes without a delimiter", size)
+        self.counters.resyncs += 1
+
+    def _append_partial(self, data: bytes, start: int, events: list[Event]) -> None:
+        """Keep ``data[start:]``, the start of a frame still arriving; past MAX_ENCODED, report it and skip
+        to the next delimiter (without copying what is skipped)."""
         if self._skipping:
             return
-        self._buf += data
-        if len(self._buf) > MAX_ENCODED:
+        size = len(self._buf) + len(data) - start
+        if size > MAX_ENCODED:
             self._bad(
-                events,
-                BadFrameReason.TOO_LONG,
-                f"more than {MAX_ENCODED} bytes without a delimiter",
-                len(self._buf),
+                events, BadFrameReason.TOO_LONG, f"more than {MAX_ENCODED} bytes without a delimiter", size
             )
             self.counters.resyncs += 1
             self._buf.clear()
             self._skipping = True
+            return
+        self._buf += data[start:] if start else data
 
     def _bad(self, events: list[Event], reason: BadFrameReason, detail: str, size: int) -> None:
         self.counters.bad[reason] = self.counters.bad.get(reason, 0) + 1
@@ -223,9 +288,11 @@ class Deframer:
     def _count_seq(self, frame: Frame) -> None:
         last = self._last_seq
         self._last_seq = frame.seq
-        if last is None:
-            return
-        step = (frame.seq - last) & 0xFF
+        if last is not None:
+            self._count_step((frame.seq - last) & 0xFF)
+
+    def _count_step(self, step: int) -> None:
+        """Sequence step from one frame to the next (mod 256): 0 a duplicate, k > 1 a gap of k - 1."""
         if step == 0:
             self.counters.duplicates += 1
         elif step > 1:

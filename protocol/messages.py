@@ -14,6 +14,7 @@ import struct
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from .compiled import MessageCodec, compile_message
 from .fields import F32, U8, U16, U32, Array, Blob, Enum8, Layout, Text, layout_of, wire
 
 PROTOCOL_VERSION = 1
@@ -54,7 +55,7 @@ class ControlMode(enum.IntEnum):
 
     SETPOINT = 0  # ActuatorSetpoint through the calibration maps
     RAW_PULSES = 1  # RawPulses passed through as pulse widths
-    ESC_CALIBRATION = 2  # the ESC high/low endpoint calibration procedure
+    ESC_CALIBRATION = 2  # the ESC high/low endpoint procedure runs (entered only by EscCalibrate)
 
 
 class GimbalMode(enum.IntEnum):
@@ -71,6 +72,42 @@ class NackReason(enum.IntEnum):
     BUSY = 4  # a transfer is already in progress
     BAD_CALIBRATION = 5  # calibration data failed its CRC or validation
     POWER = 6  # refused because of the power state (load shed)
+    UNCONFIRMED = 7  # a guarded command without its explicit confirmation (EscCalibrate.confirm)
+
+
+class EscCalStep(enum.IntEnum):
+    """What an ``EscCalibrate`` command asks for."""
+
+    START = 0  # start the procedure on ``unit``'s rotor channel
+    SUPPLY_APPLIED = 1  # the operator has connected the ESC's supply (boards without a supply switch)
+
+
+class EscCalPhase(enum.IntEnum):
+    """Where the board's ESC endpoint procedure is (``EscCalibrationStatus.phase``)."""
+
+    IDLE = 0  # no procedure
+    SUPPLY_OFF = 1  # the board has cut the ESCs' supply; the channel is set to the high endpoint
+    WAIT_SUPPLY = 2  # high endpoint on the channel; waiting for the operator to connect the ESC supply
+    HIGH = 3  # the ESC is powered and sees the high endpoint: its acknowledgement interval
+    LOW = 4  # the channel is at the low endpoint: the ESC stores both
+    DONE = 5  # finished: the channel is back at the safe pulse
+    ABORTED = 6  # stopped early (``abort`` says why): the channel is at the safe (minimum) pulse
+
+
+class EscCalAbort(enum.IntEnum):
+    """Why an ESC endpoint procedure stopped early."""
+
+    NONE = 0
+    DISARM = 1  # a Disarm
+    LINK_LOST = 2  # the link watchdog expired
+    HELLO = 3  # a new session (Hello)
+    POWER = 4  # the power manager shed load
+    SUPPLY_TIMEOUT = 5  # nobody confirmed the ESC's supply in time
+
+
+ESC_CALIBRATION_CONFIRM = 0x444C4E55
+"""``EscCalibrate.confirm`` must be this (the bytes of ASCII "UNLD" on the wire): the operator states the
+rotor is off or unloaded, because the ESC sees its full-throttle pulse during the procedure."""
 
 
 class PowerState(enum.IntEnum):
@@ -217,6 +254,23 @@ class SetMode(Message):
 
 
 @dataclass(frozen=True, slots=True)
+class EscCalibrate(Message):
+    """H→B, reliable, DISARMED only: teach unit ``unit``'s rotor ESC its endpoints (docs/protocol.md,
+    "ESC endpoint programming"); ``confirm`` must be ESC_CALIBRATION_CONFIRM. The board times the steps."""
+
+    MSG_ID: ClassVar[int] = 0x15
+    RELIABLE: ClassVar[bool] = True
+    unit: int = wire(U8(0, MAX_UNITS - 1), 0)
+    step: EscCalStep = wire(Enum8(EscCalStep), EscCalStep.START)
+    confirm: int = wire(U32(), 0)
+    low_us: int = wire(U16(PULSE_MIN_US, PULSE_MAX_US, "us"), 1000)
+    high_us: int = wire(U16(PULSE_MIN_US, PULSE_MAX_US, "us"), 2000)
+    supply_off_ms: int = wire(U16(0, 10_000, "ms"), 1500)
+    high_ms: int = wire(U16(100, 20_000, "ms"), 3000)
+    low_ms: int = wire(U16(100, 20_000, "ms"), 2000)
+
+
+@dataclass(frozen=True, slots=True)
 class Ack(Message):
     """Either way: the reliable frame (``msg_id``, ``seq``) was accepted."""
 
@@ -306,6 +360,19 @@ class Telemetry(Message):
 
 
 @dataclass(frozen=True, slots=True)
+class EscCalibrationStatus(Message):
+    """B→H: the ESC endpoint procedure, on every phase change and at the telemetry rate while it runs."""
+
+    MSG_ID: ClassVar[int] = 0x41
+    unit: int = wire(U8(0, MAX_UNITS - 1), 0)
+    phase: EscCalPhase = wire(Enum8(EscCalPhase), EscCalPhase.IDLE)
+    abort: EscCalAbort = wire(Enum8(EscCalAbort), EscCalAbort.NONE)
+    pulse_us: int = wire(U16(0, PULSE_MAX_US, "us"), 0)
+    supply_on: int = wire(U8(0, 1), 1)
+    phase_ms: int = wire(U32(unit="ms"), 0)
+
+
+@dataclass(frozen=True, slots=True)
 class Log(Message):
     """B→H: a state change or fault, as text."""
 
@@ -324,16 +391,23 @@ CATALOGUE: tuple[type[Message], ...] = (
     SetMode,
     Ack,
     Nack,
+    EscCalibrate,
     ActuatorSetpoint,
     RawPulses,
     CalibrationData,
     CalibrationRequest,
     Telemetry,
+    EscCalibrationStatus,
     Log,
 )
 BY_ID: dict[int, type[Message]] = {cls.MSG_ID: cls for cls in CATALOGUE}
 LAYOUTS: dict[int, Layout] = {cls.MSG_ID: layout_of(cls) for cls in CATALOGUE}
 assert len(BY_ID) == len(CATALOGUE), "duplicate message id"
+CODECS: dict[int, MessageCodec] = {
+    cls.MSG_ID: compile_message(cls, cls.MSG_ID, PROTOCOL_VERSION) for cls in CATALOGUE
+}
+"""The generated encoder and decoder of each message (:mod:`protocol.compiled`); ``LAYOUTS`` is their
+reference, and what words every error."""
 
 
 def schema_text() -> str:
@@ -356,6 +430,9 @@ SCHEMA_HASH: int = _schema_hash()
 
 def encode_payload(msg: Any) -> bytes:
     """The payload bytes of ``msg``. Raises :class:`FieldRangeError` for an out-of-range field."""
+    body = CODECS[msg.MSG_ID].encode(msg, 0, 0)
+    if body is not None:
+        return body[4:]  # after the header the generated encoder puts in front
     out = bytearray()
     LAYOUTS[msg.MSG_ID].encode_into(msg, out, type(msg).__name__)
     return bytes(out)

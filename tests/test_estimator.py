@@ -64,10 +64,22 @@ def test_paper_check_figure_127_to_15_to_1_5_degrees():
 
 def test_flipped_sign_of_S_L_diverges(monkeypatch):
     """The same case with the potential's torque negated goes to 180° (so the check above can fail)."""
-    original = est_mod._torque
-    monkeypatch.setattr(est_mod, "_torque", lambda *a: tuple(-x for x in original(*a)))
+    flip_sign_of_S_L(monkeypatch)
     _, angles = run_paper_case()
     assert angles[-1] > 170.0
+
+
+def flip_sign_of_S_L(monkeypatch):
+    """Negate the compiled kernel's tables of L = E W Uᵀ: S_L(R̂) = vex(LᵀR̂ − R̂ᵀL) is linear in L, so the
+    potential's torque Φ'(U⁰) S_L flips sign (Φ' is constant for the paper's Φ(x) = x)."""
+    original = est_mod.pack_params
+
+    def flipped(p):
+        ep = original(p)
+        ep[est_mod.P_MTAB : est_mod.P_MTAB + 8 * 9] *= -1.0
+        return ep
+
+    monkeypatch.setattr(est_mod, "pack_params", flipped)
 
 
 # --------------------------------------------------------------------------- a direct transcription

@@ -213,11 +213,12 @@ def test_firmware_sim_avr_serves_the_firmware_on_a_pty_until_stopped():
         proc.stderr.close()
 
 
-def test_firmware_sim_avr_refuses_faults_it_cannot_inject():
+@pytest.mark.parametrize("option", [["--dead-esc", "1@3"], ["--unit-spread", "7"]])
+def test_firmware_sim_avr_refuses_faults_it_cannot_inject(option):
     result = subprocess.run(
-        [sys.executable, "-m", "firmware_sim", "--avr", "--dead-esc", "1@3"],
+        [sys.executable, "-m", "firmware_sim", "--avr", *option],
         capture_output=True,
         text=True,
         timeout=30,
     )
-    assert result.returncode == 2 and "--dead-esc" in result.stderr
+    assert result.returncode == 2 and option[0] in result.stderr

@@ -152,6 +152,7 @@ def test_a_configuration_block_reaches_the_firmware_field_by_field():
         link_timeout_s=0.4,
         mcu_watchdog_s=1.5,
         rotor_safe_us=1100,
+        esc_supply_switch=True,
         identity=dataclasses.replace(base.identity, serial="LAB-07"),
     )
     status, got, _ = config_parse(eeprom.config_block(cfg, baud=250000))
@@ -159,6 +160,7 @@ def test_a_configuration_block_reaches_the_firmware_field_by_field():
     assert (got["n_units"], got["frame_rate_hz"], got["telemetry_rate_hz"]) == (3, 200.0, 40.0)
     assert (got["link_timeout_ms"], got["mcu_watchdog_ms"], got["rotor_safe_us"]) == (400, 1500, 1100)
     assert (got["serial"], got["baud"], got["cells"]) == ("LAB-07", 250000, 3)
+    assert got["esc_supply_switch"] == 1
 
 
 @pytest.mark.firmware

@@ -124,6 +124,46 @@ def test_megabytes_without_a_delimiter_keep_memory_bounded():
     assert [e.message for e in after] == [frame]
 
 
+def _peak_while_feeding(deframer: Deframer, data: bytes) -> tuple[list, int]:
+    """The events of one ``feed(data)`` and the most memory allocated during it (bytes, tracemalloc)."""
+    tracemalloc.start()
+    try:
+        base, _ = tracemalloc.get_traced_memory()
+        events = deframer.feed(data)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    return events, peak - base
+
+
+def test_ten_megabytes_in_one_feed_keep_memory_within_the_frame_limit():
+    """Regression: 10 MB of zero bytes made the deframer allocate 89 MB transiently (a list of ten million
+    empty chunks), and a 10 MB run with a delimiter 30 MB (copies of the run). Whatever one feed holds,
+    the deframer keeps at most one frame; what it allocates beyond its events stays a few frames."""
+    bound = 16 * MAX_ENCODED
+    frame = Heartbeat(time_ms=7)
+    cases = {
+        "zeros": (bytes(10_000_000), []),
+        "run, then a delimiter": (b"\x55" * 10_000_000 + b"\x00", [BadFrameReason.TOO_LONG]),
+        "a delimiter, then a run": (b"\x00" + b"\x55" * 10_000_000, [BadFrameReason.TOO_LONG]),
+        "zeros around a frame": (bytes(5_000_000) + encode_frame(frame, 0) + bytes(5_000_000), [frame]),
+    }
+    for name, (data, expected) in cases.items():
+        deframer = Deframer()
+        deframer.feed(b"\x00")
+        events, peak = _peak_while_feeding(deframer, data)
+        assert peak < bound, f"{name}: {peak} bytes allocated"
+        got = [e.message if isinstance(e, Frame) else e.reason for e in events]
+        assert got == expected, name
+        assert len(deframer._buf) <= MAX_ENCODED  # white-box: the partial frame it holds
+    # A partial frame left by an earlier feed, then megabytes of its continuation without a delimiter.
+    deframer = Deframer()
+    deframer.feed(b"\x00" + encode_frame(frame, 1)[:5])
+    events, peak = _peak_while_feeding(deframer, b"\x55" * 10_000_000)
+    assert peak < bound and [e.reason for e in events] == [BadFrameReason.TOO_LONG]
+    assert [e.message for e in deframer.feed(b"\x00" + encode_frame(frame, 2))] == [frame]
+
+
 def test_random_bytes_in_random_chunks_never_raise():
     rng = random.Random(11)
     deframer = Deframer()

@@ -55,6 +55,7 @@ typedef struct {
     uint16_t pulse_us[16]; /* last complete pulse width on each pin (for the load model) */
     uint64_t rise[16];
     int level[16];
+    int esc_supply_cut; /* the firmware's ESC supply cut pin is high: the rotor ESCs draw nothing */
 
     /* self-test pin and scheduled hangs */
     double hangs[MAX_HANGS];

@@ -4,7 +4,7 @@
  * Battery: an open-circuit voltage (--battery, default a full 3S LiPo) minus scheduled sags (ramped,
  * like firmware_sim's faults.sag) minus its internal resistance times the load current. Load: each
  * rotor ESC draws idle + full * throttle^3 from the pack, throttle read from the pulses the firmware
- * actually puts out (1000..2000 us); the UBEC feeds the electronics and the gimbal servos from the pack
+ * actually puts out (1000..2000 us), nothing while the firmware cuts the ESCs' supply; the UBEC feeds the electronics and the gimbal servos from the pack
  * at 85 % efficiency. The UBEC rail follows its set voltage until the pack drops within its dropout.
  * These four quantities reach the firmware through ADC0..3 scaled as on the board (board_pins.h).
  *
@@ -76,6 +76,8 @@ void power_update(harness_t *h)
         if (h->held || h->pulse_us[pin] == 0 || (double)(now - h->rise[pin]) / h->freq > PULSE_STALE_S)
             continue;
         if (pin % 2) {
+            if (h->esc_supply_cut)
+                continue; /* the ESCs' supply is cut */
             double thr = fmin(fmax((h->pulse_us[pin] - 1000.0) / 1000.0, 0.0), 1.0);
             rotor_a += ESC_IDLE_A + h->rotor_full_a * thr * thr * thr;
         } else {

@@ -6,6 +6,7 @@
  *                             2 brown-out, 3 external); its uptime counts from here
  *   B <cycle> <1|0>           the brown-out detector began / stopped holding the MCU in reset
  *   H <cycle> <1|0>           the watchdog self-test pin was pulled low / released
+ *   S <cycle> <1|0>           the ESC supply cut pin went high (supply cut) / low (supply on)
  *   T <cycle>                 a time mark written on every flush (the file is complete up to here)
  * Pulses still high when a reset begins are cut short: a reader must drop them (see firmware_sim/avr).
  */
@@ -20,6 +21,18 @@
 
 static harness_t *recorder;
 static avr_irq_t *pin_irq[PULSE_CHANNELS_HW];
+
+static void on_supply_pin(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)param;
+    harness_t *h = recorder;
+    int cut = value != 0;
+    if (cut == h->esc_supply_cut)
+        return;
+    h->esc_supply_cut = cut;
+    record_line(h, "S %llu %d\n", (unsigned long long)harness_now(h), cut);
+}
 
 void record_line(harness_t *h, const char *fmt, ...)
 {
@@ -66,6 +79,8 @@ void record_attach(harness_t *h)
         pin_irq[pin] = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(ports[pin]), bits[pin]);
         avr_irq_register_notify(pin_irq[pin], on_pin, (void *)(uintptr_t)pin);
     }
+    avr_irq_t *supply = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(ESC_SUPPLY_PIN_PORT), ESC_SUPPLY_PIN_BIT);
+    avr_irq_register_notify(supply, on_supply_pin, NULL);
 }
 
 void record_reset(harness_t *h, int cause)
@@ -76,6 +91,10 @@ void record_reset(harness_t *h, int cause)
         h->pulse_us[pin] = 0;
         h->rise[pin] = 0;
         avr_raise_irq(pin_irq[pin], 0);
+    }
+    if (h->esc_supply_cut) { /* the pin is an input again: the pull-down switches the supply back on */
+        h->esc_supply_cut = 0;
+        record_line(h, "S %llu 0\n", (unsigned long long)harness_now(h));
     }
     if (cause >= 0)
         record_line(h, "R %llu %d\n", (unsigned long long)harness_now(h), cause);

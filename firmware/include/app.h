@@ -13,6 +13,7 @@
 
 #include "adc.h"
 #include "config.h"
+#include "esc_cal.h"
 #include "frame.h"
 #include "link.h"
 #include "power.h"
@@ -62,6 +63,7 @@ typedef struct {
     answer_cache_t answers;
     reassembler_t reasm;
     download_t download;
+    esc_cal_t esc; /* the ESC endpoint procedure (esc_cal.c) */
 } board_t;
 
 extern board_t board;

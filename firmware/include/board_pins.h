@@ -21,6 +21,12 @@
  *   ADC2 PF2 [A2] UBEC rail voltage through a 15k/10k divider (x2.5: 6.4 V full scale)
  *   ADC3 PF3 [A3] UBEC current, shunt amplifier 400 mV/A (6.4 A full scale)
  *
+ * ESC supply cut output: PA0 [D22], active high, low at reset (the MCU's pins are inputs until set, so a
+ * pull-down keeps the gate off). Wired to a relay or MOSFET in the rotor ESCs' battery lead that opens
+ * while the pin is high; the ESC endpoint procedure holds it high for EscCalibrate.supply_off_ms to
+ * power-cycle the ESCs (only if the EEPROM says it is wired: esc_supply_switch; otherwise the board asks
+ * the operator to connect the supply). A reset never cuts the ESCs' supply.
+ *
  * Watchdog self-test input: PK7 [A15], internal pull-up. Pulling it low (a jumper or button to GND)
  * after boot stops the main loop, so the bench can prove the watchdog resets the board and that the
  * host sees WATCHDOG as the reset cause. Only a high-to-low change seen after boot counts, so a jumper
@@ -51,5 +57,8 @@
 
 #define SELFTEST_PIN_PORT 'K'
 #define SELFTEST_PIN_BIT 7
+
+#define ESC_SUPPLY_PIN_PORT 'A'
+#define ESC_SUPPLY_PIN_BIT 0
 
 #endif /* BOARD_PINS_H */

@@ -11,7 +11,7 @@
 #include "board_gen.h"
 
 typedef struct {
-    uint8_t n_units, ppm, cells;
+    uint8_t n_units, ppm, cells, esc_supply_switch;
     float frame_rate_hz, telemetry_rate_hz, heartbeat_rate_hz;
     uint16_t link_timeout_ms, mcu_watchdog_ms, rotor_safe_us;
     float battery_resistance_ohm;

@@ -10,7 +10,7 @@
 #include "wire.h"
 
 #define PROTOCOL_VERSION 1u
-#define SCHEMA_HASH 0x2058837eUL /* SHA-256 of the catalogue's schema text */
+#define SCHEMA_HASH 0x3a8769e9UL /* SHA-256 of the catalogue's schema text */
 #define FRAME_HEADER_SIZE 4u
 #define FRAME_CRC_SIZE 2u
 #define FRAME_MAX_PAYLOAD 250u
@@ -24,6 +24,7 @@
 #define ROTOR_SPEED_LIMIT 2500.0f
 #define PULSE_MIN_US 500u
 #define PULSE_MAX_US 2500u
+#define ESC_CALIBRATION_CONFIRM 0x444c4e55UL /* EscCalibrate */
 
 /* BoardState: The board's state machine (see docs/protocol.md, "Board states"). */
 enum {
@@ -67,8 +68,39 @@ enum {
     NACK_REASON_BUSY = 4,
     NACK_REASON_BAD_CALIBRATION = 5,
     NACK_REASON_POWER = 6,
+    NACK_REASON_UNCONFIRMED = 7,
 };
-#define NACK_REASON_NAMES "?\0BAD_STATE\0OUT_OF_RANGE\0UNSUPPORTED\0BUSY\0BAD_CALIBRATION\0POWER\0" /* indexed by value, for logs */
+#define NACK_REASON_NAMES "?\0BAD_STATE\0OUT_OF_RANGE\0UNSUPPORTED\0BUSY\0BAD_CALIBRATION\0POWER\0UNCONFIRMED\0" /* indexed by value, for logs */
+
+/* EscCalStep: What an ``EscCalibrate`` command asks for. */
+enum {
+    ESC_CAL_STEP_START = 0,
+    ESC_CAL_STEP_SUPPLY_APPLIED = 1,
+};
+#define ESC_CAL_STEP_NAMES "START\0SUPPLY_APPLIED\0" /* indexed by value, for logs */
+
+/* EscCalPhase: Where the board's ESC endpoint procedure is (``EscCalibrationStatus.phase``). */
+enum {
+    ESC_CAL_PHASE_IDLE = 0,
+    ESC_CAL_PHASE_SUPPLY_OFF = 1,
+    ESC_CAL_PHASE_WAIT_SUPPLY = 2,
+    ESC_CAL_PHASE_HIGH = 3,
+    ESC_CAL_PHASE_LOW = 4,
+    ESC_CAL_PHASE_DONE = 5,
+    ESC_CAL_PHASE_ABORTED = 6,
+};
+#define ESC_CAL_PHASE_NAMES "IDLE\0SUPPLY_OFF\0WAIT_SUPPLY\0HIGH\0LOW\0DONE\0ABORTED\0" /* indexed by value, for logs */
+
+/* EscCalAbort: Why an ESC endpoint procedure stopped early. */
+enum {
+    ESC_CAL_ABORT_NONE = 0,
+    ESC_CAL_ABORT_DISARM = 1,
+    ESC_CAL_ABORT_LINK_LOST = 2,
+    ESC_CAL_ABORT_HELLO = 3,
+    ESC_CAL_ABORT_POWER = 4,
+    ESC_CAL_ABORT_SUPPLY_TIMEOUT = 5,
+};
+#define ESC_CAL_ABORT_NAMES "NONE\0DISARM\0LINK_LOST\0HELLO\0POWER\0SUPPLY_TIMEOUT\0" /* indexed by value, for logs */
 
 /* PowerState: Staged power thresholds: warn → limit → shed (rotors stopped) → brown-out (reset). */
 enum {
@@ -141,8 +173,9 @@ enum {
     LOG_CODE_BAD_COMMAND = 9,
     LOG_CODE_CALIBRATION = 10,
     LOG_CODE_RX_OVERFLOW = 11,
+    LOG_CODE_ESC_CALIBRATION = 12,
 };
-#define LOG_CODE_NAMES "?\0BOOT\0STATE\0LINK_LOST\0LINK_RESTORED\0POWER\0DEAD_ESC\0UBEC_OVERCURRENT\0HANDSHAKE\0BAD_COMMAND\0CALIBRATION\0RX_OVERFLOW\0" /* indexed by value, for logs */
+#define LOG_CODE_NAMES "?\0BOOT\0STATE\0LINK_LOST\0LINK_RESTORED\0POWER\0DEAD_ESC\0UBEC_OVERCURRENT\0HANDSHAKE\0BAD_COMMAND\0CALIBRATION\0RX_OVERFLOW\0ESC_CALIBRATION\0" /* indexed by value, for logs */
 
 /* UnitSetpoint: record */
 typedef struct {
@@ -315,6 +348,34 @@ typedef struct {
     uint8_t reason; /* enum8 NackReason */
 } nack_t;
 
+#define MSG_ESC_CALIBRATE 0x15u
+#define MSG_ESC_CALIBRATE_RELIABLE 1
+#define ESC_CALIBRATE_UNIT_MIN 0u
+#define ESC_CALIBRATE_UNIT_MAX 7u
+#define ESC_CALIBRATE_CONFIRM_MIN 0u
+#define ESC_CALIBRATE_CONFIRM_MAX 4294967295UL
+#define ESC_CALIBRATE_LOW_US_MIN 500u
+#define ESC_CALIBRATE_LOW_US_MAX 2500u
+#define ESC_CALIBRATE_HIGH_US_MIN 500u
+#define ESC_CALIBRATE_HIGH_US_MAX 2500u
+#define ESC_CALIBRATE_SUPPLY_OFF_MS_MIN 0u
+#define ESC_CALIBRATE_SUPPLY_OFF_MS_MAX 10000u
+#define ESC_CALIBRATE_HIGH_MS_MIN 100u
+#define ESC_CALIBRATE_HIGH_MS_MAX 20000u
+#define ESC_CALIBRATE_LOW_MS_MIN 100u
+#define ESC_CALIBRATE_LOW_MS_MAX 20000u
+/* EscCalibrate: H→B, reliable, DISARMED only: teach unit ``unit``'s rotor ESC its endpoints (docs/protocol.md, */
+typedef struct {
+    uint8_t unit; /* u8 [0, 7] */
+    uint8_t step; /* enum8 EscCalStep */
+    uint32_t confirm; /* u32 [0, 4.29497e+09] */
+    uint16_t low_us; /* u16 [500, 2500] us */
+    uint16_t high_us; /* u16 [500, 2500] us */
+    uint16_t supply_off_ms; /* u16 [0, 10000] ms */
+    uint16_t high_ms; /* u16 [100, 20000] ms */
+    uint16_t low_ms; /* u16 [100, 20000] ms */
+} esc_calibrate_t;
+
 #define MSG_ACTUATOR_SETPOINT 0x20u
 #define MSG_ACTUATOR_SETPOINT_RELIABLE 0
 #define ACTUATOR_SETPOINT_UNITS_MIN_COUNT 1u
@@ -440,6 +501,26 @@ typedef struct {
     } units;
 } telemetry_t;
 
+#define MSG_ESC_CALIBRATION_STATUS 0x41u
+#define MSG_ESC_CALIBRATION_STATUS_RELIABLE 0
+#define ESC_CALIBRATION_STATUS_UNIT_MIN 0u
+#define ESC_CALIBRATION_STATUS_UNIT_MAX 7u
+#define ESC_CALIBRATION_STATUS_PULSE_US_MIN 0u
+#define ESC_CALIBRATION_STATUS_PULSE_US_MAX 2500u
+#define ESC_CALIBRATION_STATUS_SUPPLY_ON_MIN 0u
+#define ESC_CALIBRATION_STATUS_SUPPLY_ON_MAX 1u
+#define ESC_CALIBRATION_STATUS_PHASE_MS_MIN 0u
+#define ESC_CALIBRATION_STATUS_PHASE_MS_MAX 4294967295UL
+/* EscCalibrationStatus: B→H: the ESC endpoint procedure, on every phase change and at the telemetry rate while it runs. */
+typedef struct {
+    uint8_t unit; /* u8 [0, 7] */
+    uint8_t phase; /* enum8 EscCalPhase */
+    uint8_t abort; /* enum8 EscCalAbort */
+    uint16_t pulse_us; /* u16 [0, 2500] us */
+    uint8_t supply_on; /* u8 [0, 1] */
+    uint32_t phase_ms; /* u32 [0, 4.29497e+09] ms */
+} esc_calibration_status_t;
+
 #define MSG_LOG 0x50u
 #define MSG_LOG_RELIABLE 0
 #define LOG_CODE_MIN 0u
@@ -476,11 +557,13 @@ typedef union {
     set_mode_t set_mode;
     ack_t ack;
     nack_t nack;
+    esc_calibrate_t esc_calibrate;
     actuator_setpoint_t actuator_setpoint;
     raw_pulses_t raw_pulses;
     calibration_data_t calibration_data;
     calibration_request_t calibration_request;
     telemetry_t telemetry;
+    esc_calibration_status_t esc_calibration_status;
     log_t log;
 } msg_any_t;
 
@@ -494,11 +577,13 @@ extern const wire_layout_t WIRE_LAYOUT_DISARM;
 extern const wire_layout_t WIRE_LAYOUT_SET_MODE;
 extern const wire_layout_t WIRE_LAYOUT_ACK;
 extern const wire_layout_t WIRE_LAYOUT_NACK;
+extern const wire_layout_t WIRE_LAYOUT_ESC_CALIBRATE;
 extern const wire_layout_t WIRE_LAYOUT_ACTUATOR_SETPOINT;
 extern const wire_layout_t WIRE_LAYOUT_RAW_PULSES;
 extern const wire_layout_t WIRE_LAYOUT_CALIBRATION_DATA;
 extern const wire_layout_t WIRE_LAYOUT_CALIBRATION_REQUEST;
 extern const wire_layout_t WIRE_LAYOUT_TELEMETRY;
+extern const wire_layout_t WIRE_LAYOUT_ESC_CALIBRATION_STATUS;
 extern const wire_layout_t WIRE_LAYOUT_LOG;
 
 /* The layout of message `msg_id`, or NULL for an id outside the catalogue. */

@@ -14,6 +14,7 @@
 
 #include "calib.h"
 #include "clock.h"
+#include "esc_cal.h"
 #include "pulses.h"
 #include "state.h"
 #include "storage.h"
@@ -173,6 +174,9 @@ static void compute_outputs(uint16_t *out)
             clamped |= rc->valid && rc->clamp != CAL_CLAMP_NONE;
             r = rc->valid ? rc->us : c->rotor_safe_us;
         }
+        uint16_t esc = esc_cal_width(u); /* the ESC endpoint procedure drives this rotor channel */
+        if (esc)
+            r = esc;
         if (armed && !shed && board.power_state == POWER_STATE_LIMIT && cal) {
             float lo = cal_esc_low_us(cal), hi = cal_esc_high_us(cal);
             uint16_t cap = to_us(lo + c->limit_throttle * (hi - lo));
@@ -209,7 +213,8 @@ static void estimate_units(float dt)
     for (uint8_t u = 0; u < board.cfg.n_units; u++) {
         unit_state_t *s = &board.units[u];
         const value_cache_t *rt = &rotor_target[u], *gt = &gimbal_target[u];
-        float target = board.outputs[2 * u + 1] && rt->valid ? rt->value : 0.0f;
+        /* an ESC being programmed does not run its motor */
+        float target = board.outputs[2 * u + 1] && rt->valid && !esc_cal_width(u) ? rt->value : 0.0f;
         float decay = target > s->rotor_speed ? rotor_decay_up : rotor_decay_down;
         s->rotor_speed = clampf(target + (s->rotor_speed - target) * decay, ROTOR_SPEED_LIMIT);
         float rate = 0.0f;
@@ -267,11 +272,12 @@ static uint8_t apply(uint8_t event)
     return t.refused;
 }
 
-static void on_link_lost(void)
+static void on_link_lost(uint32_t now)
 {
     board.link_lost = 1;
     report_log(SEVERITY_WARNING, LOG_CODE_LINK_LOST, PSTR("link lost: nothing valid for %u ms"),
                board.cfg.link_timeout_ms);
+    esc_cal_abort(ESC_CAL_ABORT_LINK_LOST, now);
     apply(EVENT_LINK_LOST);
 }
 
@@ -289,6 +295,7 @@ static void on_valid_rx(uint32_t now)
 static void on_hello(const hello_t *m, uint32_t now)
 {
     if (m->protocol_version == PROTOCOL_VERSION && m->schema_hash == SCHEMA_HASH) {
+        esc_cal_abort(ESC_CAL_ABORT_HELLO, now);
         board.mode = CONTROL_MODE_SETPOINT;
         answers_forget(&board.answers);
         apply(EVENT_HELLO);
@@ -309,6 +316,8 @@ static uint8_t on_arm(void)
 {
     if (board.state != BOARD_STATE_BOOT && !calibrations_complete())
         return NACK_REASON_BAD_CALIBRATION;
+    if (esc_cal_active())
+        return NACK_REASON_BUSY;
     uint8_t was = board.state;
     uint8_t refused = apply(EVENT_ARM);
     if (!refused) {
@@ -328,7 +337,9 @@ static uint8_t on_set_mode(const set_mode_t *m)
     if (refused)
         return refused;
     if (m->mode != CONTROL_MODE_SETPOINT && m->mode != CONTROL_MODE_RAW_PULSES)
-        return NACK_REASON_UNSUPPORTED;
+        return NACK_REASON_UNSUPPORTED; /* ESC_CALIBRATION is entered only by EscCalibrate */
+    if (esc_cal_active())
+        return NACK_REASON_BUSY;
     if (m->mode != board.mode) {
         board.mode = m->mode;
         char name[16];
@@ -512,7 +523,10 @@ static uint8_t execute(const frame_t *f, uint32_t now)
     case MSG_ARM:
         return on_arm();
     case MSG_DISARM:
+        esc_cal_abort(ESC_CAL_ABORT_DISARM, now);
         return apply(EVENT_DISARM);
+    case MSG_ESC_CALIBRATE:
+        return esc_cal_command(&f->msg.esc_calibrate, now);
     case MSG_SET_MODE:
         return on_set_mode(&f->msg.set_mode);
     case MSG_CALIBRATION_DATA:
@@ -578,6 +592,8 @@ static void power_step(void)
     board.power_state = next;
     if (next == POWER_STATE_SHED && !board.shed_latched && motors_enabled(board.state))
         board.shed_latched = 1;
+    if (next >= POWER_STATE_SHED)
+        esc_cal_abort(ESC_CAL_ABORT_POWER, clock_ms());
     if (next != old) {
         board.outputs_dirty = 1;
         char a[12], b[12];
@@ -621,6 +637,7 @@ void app_boot(uint8_t reset_cause, config_status_t config, uint8_t config_proble
     rotor_decay_up = expf(-frame_s / CFG_DEFAULT_MOTOR_TIME_CONSTANT_S);
     rotor_decay_down = expf(-frame_s / CFG_DEFAULT_MOTOR_COAST_TIME_CONSTANT_S);
     gimbal_decay = expf(-frame_s / CFG_DEFAULT_GIMBAL_TIME_CONSTANT_S);
+    esc_cal_init();
     power_reset(&board.pm);
     power_step();
     periodic_start(&board.heartbeat, c->heartbeat_rate_hz, now, 0);
@@ -651,7 +668,8 @@ uint8_t app_poll(uint32_t now)
     process_rx(now);
     if (board.session && !board.link_lost && board.have_rx &&
         now - board.last_rx_ms >= board.cfg.link_timeout_ms)
-        on_link_lost();
+        on_link_lost(now);
+    esc_cal_poll(now);
     if ((int32_t)(now - board.next_power_ms) >= 0) {
         board.next_power_ms += (uint32_t)lrintf(board.cfg.power_update_period_s * 1000.0f);
         if (adc_take(&board.power))
@@ -663,8 +681,10 @@ uint8_t app_poll(uint32_t now)
         apply_outputs();
     if (frame)
         estimate_units(pulses_period_s());
-    if (periodic_due(&board.telemetry, now))
+    if (periodic_due(&board.telemetry, now)) {
         report_telemetry(now);
+        esc_cal_report(now);
+    }
     if (periodic_due(&board.heartbeat, now))
         report_heartbeat(now);
     retry_download(now);

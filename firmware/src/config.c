@@ -28,6 +28,7 @@ enum {
     BAD_FILTER_TIME_CONSTANT_S,
     BAD_POWER_UPDATE_PERIOD_S,
     BAD_UBEC_CURRENT_LIMIT_A,
+    BAD_ESC_SUPPLY_SWITCH,
     BAD_BAUD,
 };
 
@@ -51,6 +52,7 @@ static const char PROBLEMS[] FLASH = "none\0"
                                      "filter_time_constant_s\0"
                                      "power_update_period_s\0"
                                      "ubec_current_limit_a\0"
+                                     "esc_supply_switch\0"
                                      "baud\0";
 
 void config_problem_text(uint8_t problem, char *out, unsigned n) { flash_pick(PROBLEMS, problem, out, n); }
@@ -101,6 +103,7 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
     c.n_units = b[CFG_OFF_N_UNITS];
     c.ppm = b[CFG_OFF_PPM];
     c.cells = b[CFG_OFF_CELLS];
+    c.esc_supply_switch = b[CFG_OFF_ESC_SUPPLY_SWITCH];
     c.frame_rate_hz = f32(b + CFG_OFF_FRAME_RATE_HZ);
     c.telemetry_rate_hz = f32(b + CFG_OFF_TELEMETRY_RATE_HZ);
     c.heartbeat_rate_hz = f32(b + CFG_OFF_HEARTBEAT_RATE_HZ);
@@ -157,6 +160,8 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_POWER_UPDATE_PERIOD_S;
     else if (!within(c.ubec_current_limit_a, 0.01f, 100.0f))
         problem = BAD_UBEC_CURRENT_LIMIT_A;
+    else if (c.esc_supply_switch > 1)
+        problem = BAD_ESC_SUPPLY_SWITCH;
     else if (c.baud < 9600 || c.baud > 1000000)
         problem = BAD_BAUD;
     if (problem)

@@ -62,7 +62,18 @@ static const wire_field_t ack_fields[] FLASH = {
 static const wire_field_t nack_fields[] FLASH = {
     {.kind = WIRE_U8, .run_len = 3, .offset = offsetof(nack_t, msg_id), .range = {.u = {0u, 255u}}},
     {.kind = WIRE_U8, .run_len = 0, .offset = offsetof(nack_t, seq), .range = {.u = {0u, 255u}}},
-    {.kind = WIRE_ENUM8, .run_len = 0, .offset = offsetof(nack_t, reason), .range = {.mask = 0x7eUL}},
+    {.kind = WIRE_ENUM8, .run_len = 0, .offset = offsetof(nack_t, reason), .range = {.mask = 0xfeUL}},
+};
+
+static const wire_field_t esc_calibrate_fields[] FLASH = {
+    {.kind = WIRE_U8, .run_len = 16, .offset = offsetof(esc_calibrate_t, unit), .range = {.u = {0u, 7u}}},
+    {.kind = WIRE_ENUM8, .run_len = 0, .offset = offsetof(esc_calibrate_t, step), .range = {.mask = 0x3UL}},
+    {.kind = WIRE_U32, .run_len = 0, .offset = offsetof(esc_calibrate_t, confirm), .range = {.u = {0u, 4294967295UL}}},
+    {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(esc_calibrate_t, low_us), .range = {.u = {500u, 2500u}}},
+    {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(esc_calibrate_t, high_us), .range = {.u = {500u, 2500u}}},
+    {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(esc_calibrate_t, supply_off_ms), .range = {.u = {0u, 10000u}}},
+    {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(esc_calibrate_t, high_ms), .range = {.u = {100u, 20000u}}},
+    {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(esc_calibrate_t, low_ms), .range = {.u = {100u, 20000u}}},
 };
 
 static const wire_field_t actuator_setpoint_fields[] FLASH = {
@@ -109,6 +120,15 @@ static const wire_field_t telemetry_fields[] FLASH = {
     {.kind = WIRE_ARRAY, .elem = WIRE_RECORD, .record = 1, .offset = offsetof(telemetry_t, units.count), .data_offset = offsetof(telemetry_t, units.items), .elem_size = sizeof(((telemetry_t *)0)->units.items[0]), .min_count = 0, .max_count = 8},
 };
 
+static const wire_field_t esc_calibration_status_fields[] FLASH = {
+    {.kind = WIRE_U8, .run_len = 10, .offset = offsetof(esc_calibration_status_t, unit), .range = {.u = {0u, 7u}}},
+    {.kind = WIRE_ENUM8, .run_len = 0, .offset = offsetof(esc_calibration_status_t, phase), .range = {.mask = 0x7fUL}},
+    {.kind = WIRE_ENUM8, .run_len = 0, .offset = offsetof(esc_calibration_status_t, abort), .range = {.mask = 0x3fUL}},
+    {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(esc_calibration_status_t, pulse_us), .range = {.u = {0u, 2500u}}},
+    {.kind = WIRE_U8, .run_len = 0, .offset = offsetof(esc_calibration_status_t, supply_on), .range = {.u = {0u, 1u}}},
+    {.kind = WIRE_U32, .run_len = 0, .offset = offsetof(esc_calibration_status_t, phase_ms), .range = {.u = {0u, 4294967295UL}}},
+};
+
 static const wire_field_t log_fields[] FLASH = {
     {.kind = WIRE_ENUM8, .run_len = 3, .offset = offsetof(log_t, severity), .range = {.mask = 0x1fUL}},
     {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(log_t, code), .range = {.u = {0u, 65535u}}},
@@ -128,11 +148,13 @@ const wire_layout_t WIRE_LAYOUT_DISARM FLASH = {disarm_fields, 0, sizeof(disarm_
 const wire_layout_t WIRE_LAYOUT_SET_MODE FLASH = {set_mode_fields, 1, sizeof(set_mode_t)};
 const wire_layout_t WIRE_LAYOUT_ACK FLASH = {ack_fields, 2, sizeof(ack_t)};
 const wire_layout_t WIRE_LAYOUT_NACK FLASH = {nack_fields, 3, sizeof(nack_t)};
+const wire_layout_t WIRE_LAYOUT_ESC_CALIBRATE FLASH = {esc_calibrate_fields, 8, sizeof(esc_calibrate_t)};
 const wire_layout_t WIRE_LAYOUT_ACTUATOR_SETPOINT FLASH = {actuator_setpoint_fields, 2, sizeof(actuator_setpoint_t)};
 const wire_layout_t WIRE_LAYOUT_RAW_PULSES FLASH = {raw_pulses_fields, 1, sizeof(raw_pulses_t)};
 const wire_layout_t WIRE_LAYOUT_CALIBRATION_DATA FLASH = {calibration_data_fields, 7, sizeof(calibration_data_t)};
 const wire_layout_t WIRE_LAYOUT_CALIBRATION_REQUEST FLASH = {calibration_request_fields, 2, sizeof(calibration_request_t)};
 const wire_layout_t WIRE_LAYOUT_TELEMETRY FLASH = {telemetry_fields, 17, sizeof(telemetry_t)};
+const wire_layout_t WIRE_LAYOUT_ESC_CALIBRATION_STATUS FLASH = {esc_calibration_status_fields, 6, sizeof(esc_calibration_status_t)};
 const wire_layout_t WIRE_LAYOUT_LOG FLASH = {log_fields, 3, sizeof(log_t)};
 
 const wire_layout_t *wire_layout_for(uint8_t msg_id)
@@ -154,6 +176,8 @@ const wire_layout_t *wire_layout_for(uint8_t msg_id)
         return &WIRE_LAYOUT_ACK;
     case MSG_NACK:
         return &WIRE_LAYOUT_NACK;
+    case MSG_ESC_CALIBRATE:
+        return &WIRE_LAYOUT_ESC_CALIBRATE;
     case MSG_ACTUATOR_SETPOINT:
         return &WIRE_LAYOUT_ACTUATOR_SETPOINT;
     case MSG_RAW_PULSES:
@@ -164,6 +188,8 @@ const wire_layout_t *wire_layout_for(uint8_t msg_id)
         return &WIRE_LAYOUT_CALIBRATION_REQUEST;
     case MSG_TELEMETRY:
         return &WIRE_LAYOUT_TELEMETRY;
+    case MSG_ESC_CALIBRATION_STATUS:
+        return &WIRE_LAYOUT_ESC_CALIBRATION_STATUS;
     case MSG_LOG:
         return &WIRE_LAYOUT_LOG;
     default:
@@ -177,6 +203,7 @@ uint8_t msg_is_reliable(uint8_t msg_id)
     case MSG_ARM:
     case MSG_DISARM:
     case MSG_SET_MODE:
+    case MSG_ESC_CALIBRATE:
     case MSG_CALIBRATION_DATA:
     case MSG_CALIBRATION_REQUEST:
         return 1;

@@ -166,7 +166,7 @@ void report_telemetry(uint32_t now)
     memset(m, 0, sizeof *m);
     m->time_ms = now;
     m->state = board.state;
-    m->mode = board.mode;
+    m->mode = esc_cal_active() ? CONTROL_MODE_ESC_CALIBRATION : board.mode;
     m->watchdog = board.link_lost ? WATCHDOG_STATE_LINK_LOST : WATCHDOG_STATE_OK;
     m->power = board.power_state;
     m->faults = fault_flags();

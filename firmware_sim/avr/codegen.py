@@ -300,6 +300,7 @@ def generate() -> tuple[str, str]:
         f"#define ROTOR_SPEED_LIMIT {c_float(catalogue.ROTOR_SPEED_LIMIT)}",
         f"#define PULSE_MIN_US {catalogue.PULSE_MIN_US}u",
         f"#define PULSE_MAX_US {catalogue.PULSE_MAX_US}u",
+        f"#define ESC_CALIBRATION_CONFIRM {catalogue.ESC_CALIBRATION_CONFIRM:#010x}UL /* EscCalibrate */",
         "",
     ]
     for cls in _enums():

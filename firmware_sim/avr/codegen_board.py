@@ -16,6 +16,7 @@ BOARD_SERIAL = "ADK0001"
 
 def generate_board() -> str:
     """The text of board_gen.h: EEPROM layout, BoardConfig defaults, identity, LiPo curve."""
+    from firmware_sim.board import esc_calibration
     from firmware_sim.config import BoardConfig
 
     from . import eeprom
@@ -55,6 +56,13 @@ def generate_board() -> str:
     h += [line + " \\" for line in bytes_init(block).splitlines()]
     h += ["    }", "", "/* BoardConfig() actuator time constants, for the units' estimated states */"]
     h += [f"#define CFG_DEFAULT_{k} {v}" for k, v in defaults.items()]
+    h += [
+        "",
+        "/* The ESC endpoint procedure's rules (firmware_sim/board/esc_calibration.py) */",
+        f"#define ESC_MIN_SPAN_US {esc_calibration.ESC_MIN_SPAN_US}u",
+        f"#define ESC_MIN_SUPPLY_OFF_MS {esc_calibration.ESC_MIN_SUPPLY_OFF_MS}u",
+        f"#define ESC_SUPPLY_WAIT_MS {esc_calibration.SUPPLY_WAIT_MS}UL",
+    ]
     h += ["", "/* Identity (AOA accessory strings, firmware_sim.config.Identity) of the real board. */"]
     for name, value in (
         ("MANUFACTURER", ident.manufacturer),

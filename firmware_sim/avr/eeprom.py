@@ -33,7 +33,7 @@ from ..config import BoardConfig
 
 EEPROM_SIZE = 4096
 CONFIG_MAGIC = 0x4342
-CONFIG_VERSION = 1
+CONFIG_VERSION = 2
 MAX_HW_UNITS = 6
 """Twelve hardware output-compare channels (Timers 1, 3, 4, 5) drive at most six units."""
 SERIAL_LEN = 24
@@ -61,6 +61,7 @@ CONFIG_FIELDS: tuple[tuple[str, str, str], ...] = (
     ("filter_time_constant_s", "f", "power.thresholds.filter_time_constant_s"),
     ("power_update_period_s", "f", "power.update_period_s"),
     ("ubec_current_limit_a", "f", "power.ubec.current_limit_a"),
+    ("esc_supply_switch", "B", "esc_supply_switch"),
     ("baud", "I", "=baud"),
     ("serial", f"{SERIAL_LEN}s", "identity.serial"),
 )
@@ -189,6 +190,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--mcu-watchdog", type=float, default=0.5, help="MCU watchdog, s")
     p.add_argument("--cells", type=int, default=3, help="battery cells in series")
     p.add_argument("--ppm", action="store_true", help="also output a PPM-sum train (4 units or fewer)")
+    p.add_argument(
+        "--esc-supply-switch",
+        action="store_true",
+        help="the ESC supply cut switch is wired (pin D22): ESC endpoint programming power-cycles the ESC",
+    )
     p.add_argument("--serial", default="ADK0001", help="board serial number (ASCII, <= 24 bytes)")
     args = p.parse_args(argv)
     base = BoardConfig()
@@ -200,6 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             link_timeout_s=args.link_timeout,
             mcu_watchdog_s=args.mcu_watchdog,
             ppm=args.ppm,
+            esc_supply_switch=args.esc_supply_switch,
             identity=replace(base.identity, serial=args.serial),
             power=replace(base.power, battery=replace(base.power.battery, cells=args.cells)),
         )

@@ -26,6 +26,7 @@ from protocol.calibration import UnitCalibration, default_unit_calibration
 from protocol.errors import ConfigError, LinkError, LinkTimeout
 
 from ..config import BoardConfig
+from ..esc import EmulatedEsc, EscParams, replay_esc
 from ..timeline import PpmTrain, PulseFrame, ResetEvent
 from . import eeprom
 from .build import ensure_built
@@ -263,6 +264,17 @@ class AvrBoard:
     @property
     def records(self) -> RecordReader:
         return self._records_now()
+
+    def esc(self, unit: int, params: EscParams | None = None) -> EmulatedEsc:
+        """An emulated ESC on ``unit``'s rotor channel that has seen every pulse the firmware put on that
+        pin, powered through the firmware's ESC supply cut pin (:func:`firmware_sim.esc.replay_esc`)."""
+        if not 0 <= unit < self.config.n_units:
+            raise ConfigError(f"unit {unit} does not exist", "AvrBoard.esc")
+        records = self._records_now()
+        frames = records.complete_frames()
+        return replay_esc(
+            frames, 2 * unit + 1, records.esc_supply, params, gap_s=3.0 / self.config.frame_rate_hz
+        )
 
     def eeprom(self) -> bytes:
         """The board's EEPROM as it is now."""

@@ -269,6 +269,7 @@ CONFIG_NUMBERS = (
     "limit_v_cell",
     "shed_v_cell",
     "baud",
+    "esc_supply_switch",
 )
 
 

@@ -56,6 +56,7 @@ class RecordReader:
         self.resets: list[ResetEvent] = []
         self.brownouts: list[tuple[float, bool]] = []  # (t, held) from 'B' lines
         self.selftest: list[tuple[float, bool]] = []  # (t, pulled low) from 'H' lines
+        self.esc_supply: list[tuple[float, bool]] = []  # (t, supply cut) from 'S' lines
         self.truncated = 0
         self.marked_cycle = 0  # the file is complete up to this cycle ('T' line)
         self._offset = 0
@@ -97,6 +98,8 @@ class RecordReader:
             self.brownouts.append((self._seconds(cycle), bool(args[0])))
         elif kind == "H" and len(args) == 1:
             self.selftest.append((self._seconds(cycle), bool(args[0])))
+        elif kind == "S" and len(args) == 1:
+            self.esc_supply.append((self._seconds(cycle), bool(args[0])))
         elif kind == "T":
             self.marked_cycle = cycle
         else:

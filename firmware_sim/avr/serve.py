@@ -31,6 +31,7 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
         ("--no-hold", args.no_hold),  # the harness always holds the pty open for a host that comes back
         ("--world", args.world is not None),  # the world steps the Python board's outputs
         ("--phone", args.phone != build_parser().get_default("phone")),  # only with --world
+        ("--unit-spread", args.unit_spread is not None),  # the firmware's units are open-loop estimates
     )
     for flag, given in unsupported:
         if given:

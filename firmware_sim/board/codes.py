@@ -31,3 +31,4 @@ class LogCode(enum.IntEnum):
     BAD_COMMAND = 9
     CALIBRATION = 10
     RX_OVERFLOW = 11
+    ESC_CALIBRATION = 12

@@ -26,6 +26,8 @@ from protocol.messages import (
     CalibrationRequest,
     ControlMode,
     Disarm,
+    EscCalAbort,
+    EscCalibrate,
     Flags,
     GimbalMode,
     Heartbeat,
@@ -49,6 +51,7 @@ from ..state import Event, motors_enabled, transition
 from ..timeline import ResetEvent
 from .calibration import CalibrationTransfers
 from .codes import LogCode
+from .esc_calibration import EscCalibration
 from .power import PowerSupervisor
 from .telemetry import Outbox, hello_reply, uptime_ms
 
@@ -100,6 +103,7 @@ class CommandHandler:
         units: Sequence[UnitModel],
         power: PowerSupervisor,
         transfers: CalibrationTransfers,
+        esc_calibration: EscCalibration,
         telemetry: Periodic,
         resets: Sequence[ResetEvent],
         catch_up: Callable[[int], None],
@@ -110,6 +114,7 @@ class CommandHandler:
         self.units = units
         self.power = power
         self.transfers = transfers
+        self.esc_calibration = esc_calibration
         self.telemetry = telemetry
         self.resets = resets
         self.counters = {"setpoints": 0, "bad_setpoints": 0, "ignored_setpoints": 0}
@@ -131,6 +136,11 @@ class CommandHandler:
         self.link_lost = False
         self.session = False
         self.command.reset()
+
+    @property
+    def reported_mode(self) -> ControlMode:
+        """The mode telemetry carries: ESC_CALIBRATION while that procedure runs, else ``mode``."""
+        return ControlMode.ESC_CALIBRATION if self.esc_calibration.active else self.mode
 
     @property
     def watchdog_state(self) -> WatchdogState:
@@ -162,6 +172,7 @@ class CommandHandler:
             LogCode.LINK_LOST,
             f"link lost: nothing valid for {self.config.link_timeout_s * 1000:.0f} ms",
         )
+        self.esc_calibration.abort(EscCalAbort.LINK_LOST, t)
         self._apply(Event.LINK_LOST, t)
 
     # ------------------------------------------------------------------ frames in
@@ -214,7 +225,10 @@ class CommandHandler:
         elif isinstance(msg, Arm):
             return self._on_arm(t)
         elif isinstance(msg, Disarm):
+            self.esc_calibration.abort(EscCalAbort.DISARM, t)
             return self._apply(Event.DISARM, t)
+        elif isinstance(msg, EscCalibrate):
+            return self.esc_calibration.command(msg, self.state, self.power.power_ok, t)
         elif isinstance(msg, SetMode):
             return self._on_set_mode(msg)
         elif isinstance(msg, CalibrationData):
@@ -259,6 +273,7 @@ class CommandHandler:
     def _on_hello(self, msg: Hello, t: int) -> None:
         compatible = msg.protocol_version == PROTOCOL_VERSION and msg.schema_hash == SCHEMA_HASH
         if compatible:
+            self.esc_calibration.abort(EscCalAbort.HELLO, t)
             self.mode = ControlMode.SETPOINT
             self.link.forget_answers()
             self._apply(Event.HELLO, t)
@@ -277,6 +292,8 @@ class CommandHandler:
     def _on_arm(self, t: int) -> NackReason | None:
         if self.state is not BoardState.BOOT and any(c is None for c in self.calibrations):
             return NackReason.BAD_CALIBRATION
+        if self.esc_calibration.active:
+            return NackReason.BUSY
         was = self.state
         refused = self._apply(Event.ARM, t)
         if refused is None:
@@ -290,7 +307,9 @@ class CommandHandler:
         if refused is not None:
             return refused
         if msg.mode not in (ControlMode.SETPOINT, ControlMode.RAW_PULSES):
-            return NackReason.UNSUPPORTED
+            return NackReason.UNSUPPORTED  # ESC_CALIBRATION is entered only by EscCalibrate
+        if self.esc_calibration.active:
+            return NackReason.BUSY
         if msg.mode is not self.mode:
             self.mode = msg.mode
             self._out.log(Severity.INFO, LogCode.STATE, f"mode {msg.mode.name}")

@@ -3,8 +3,8 @@ phases (reset, boot, running, hung with the MCU watchdog) and the hardware that 
 timers, motors, battery and UBEC, the brown-out detector).
 
 The main loop's protocol work is :mod:`.commands`; pulse widths :mod:`.outputs`; the power manager
-:mod:`.power`; dead-ESC detection :mod:`.dead_esc`; calibration transfers :mod:`.calibration`; the
-messages it sends :mod:`.telemetry`.
+:mod:`.power`; dead-ESC detection :mod:`.dead_esc`; calibration transfers :mod:`.calibration`; ESC
+endpoint programming :mod:`.esc_calibration`; the messages it sends :mod:`.telemetry`.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from protocol.errors import ConfigError
 from protocol.messages import (
     BoardState,
     ControlMode,
+    EscCalAbort,
     FaultFlag,
     GimbalMode,
     Heartbeat,
@@ -30,7 +31,7 @@ from protocol.messages import (
     WatchdogState,
 )
 
-from ..actuators import UnitModel
+from ..actuators import ActuatorTruth, UnitModel
 from ..config import BoardConfig
 from ..faults import FaultInjector
 from ..link import BoardLink
@@ -42,6 +43,7 @@ from .calibration import CalibrationTransfers, calibration_or_default
 from .codes import LogCode, McuPhase
 from .commands import CommandHandler
 from .dead_esc import DeadEscDetector
+from .esc_calibration import EscCalibration
 from .outputs import PulseShaper, conversion_voltage, ppm_train
 from .power import PowerSupervisor, solve_supply
 from .telemetry import Outbox, fault_flags, telemetry, uptime_ms
@@ -83,8 +85,10 @@ class Board:
         self.timeline = PulseTimeline(cfg.timeline_frames)
         self.resets: list[ResetEvent] = []
         self.battery = Battery(cfg.power.battery)
+        truths = _bench_truths(cfg)
         self.units = [
-            UnitModel(cfg.motor, cfg.gimbal, calibration_or_default(self.calibrations, i)) for i in range(n)
+            UnitModel(cfg.motor, cfg.gimbal, calibration_or_default(self.calibrations, i), truths[i], cfg.esc)
+            for i in range(n)
         ]
         self.power = PowerReading(soc=self.battery.soc)
         self.power.battery_v = self.battery.ocv()
@@ -112,6 +116,7 @@ class Board:
         self.transfers = CalibrationTransfers(
             self.calibrations, self.link, self.outbox, self._store_calibration
         )
+        self.esc_calibration = EscCalibration(cfg, self.outbox, self.units)
         self.commands = CommandHandler(
             cfg,
             self.link,
@@ -120,6 +125,7 @@ class Board:
             units=self.units,
             power=self.power_supervisor,
             transfers=self.transfers,
+            esc_calibration=self.esc_calibration,
             telemetry=self._telemetry,
             resets=self.resets,
             catch_up=self._physics,
@@ -189,7 +195,8 @@ class Board:
 
     @property
     def mode(self) -> ControlMode:
-        return self.commands.mode
+        """The control mode (ESC_CALIBRATION while the ESC endpoint procedure runs)."""
+        return self.commands.reported_mode
 
     @property
     def reset_cause(self) -> ResetCause:
@@ -277,7 +284,12 @@ class Board:
             self._ppm.next_us,
             max(self._us(self.faults.next_hang()), self._t_us) if self.faults.hangs else _NEVER,  # late: now
         )
-        return min(due, self.commands.link_deadline_us, self.transfers.next_retry_us)
+        return min(
+            due,
+            self.commands.link_deadline_us,
+            self.transfers.next_retry_us,
+            self.esc_calibration.next_due_us,
+        )
 
     def _wake(self, t: int) -> None:
         self._t_us = t
@@ -324,6 +336,7 @@ class Board:
         self.commands.reset()
         self.dead_esc_detector.reset()
         self.transfers.reset()
+        self.esc_calibration.reset()
         self.link.reset()
         self.power_supervisor.reset()
         self.outputs = (None,) * self.config.n_channels
@@ -345,9 +358,11 @@ class Board:
             self._rx_due_us = _NEVER
             self.commands.receive(t)
         self.commands.check_link(t)
+        self.esc_calibration.poll(t)
         if self._telemetry.is_due(t):
             self._telemetry.advance(t)
             self._send_telemetry(t)
+            self.esc_calibration.report(t)
         if self._heartbeat.is_due(t):
             self._heartbeat.advance(t)
             self.outbox.send(Heartbeat(time_ms=uptime_ms(t, self.resets[-1]), state=int(self.state)))
@@ -357,15 +372,20 @@ class Board:
     def _compute_outputs(self) -> tuple[tuple[int | None, ...], bool]:
         """(widths, clamped): the firmware's pulse widths for the present state, command and power stage."""
         pm = self.power_manager
-        return self.pulses.widths(
+        widths, clamped = self.pulses.widths(
             self.calibrations,
             self.command,
             armed=motors_enabled(self.state),
-            raw_mode=self.mode is ControlMode.RAW_PULSES,
+            raw_mode=self.commands.mode is ControlMode.RAW_PULSES,
             shed=self.power_supervisor.shedding,
             limit=self.power_state is PowerState.LIMIT,
             battery_v=conversion_voltage(pm.filtered_v_cell, pm.cells, self.power.battery_v),
         )
+        esc = self.esc_calibration.rotor_width()
+        if esc is not None:
+            channel, width = esc
+            widths = widths[:channel] + (width,) + widths[channel + 1 :]
+        return widths, clamped
 
     def _pulse_frame(self, t: int) -> None:
         if self.phase is McuPhase.RUNNING:
@@ -390,10 +410,12 @@ class Board:
         outputs = self.outputs
         v = self.power.battery_v
         dead = self.faults.dead_escs
+        supply_on = not self.esc_calibration.supply_cut
         for i, unit in enumerate(self.units):
             if dead:
                 unit.rotor_dead = self.faults.channel_dead(2 * i + 1, now)
                 unit.gimbal_dead = self.faults.channel_dead(2 * i, now)
+            unit.update_esc(now, outputs[2 * i + 1], supply_on)
             unit.advance(dt, outputs[2 * i], outputs[2 * i + 1], v)
         self.battery.discharge(self.power.battery_a, dt)
         solve_supply(self.power, self.battery, self.config.power.ubec, self.units, self.faults, now)
@@ -407,10 +429,13 @@ class Board:
             self.power_supervisor.update(
                 self.power, self.config.power.update_period_s, motors_enabled(self.state)
             )
+            if not self.power_supervisor.power_ok:
+                self.esc_calibration.abort(EscCalAbort.POWER, t)
             self.dead_esc_detector.check(t, self.outputs, self.units, self.power.battery_v, self.gimbal_mode)
 
     # ================================================================== messages out
     def _send_telemetry(self, t: int) -> None:
+        """``Telemetry`` now (``mode`` is ESC_CALIBRATION while that procedure runs)."""
         last_rx = self.commands.last_rx_us
         self.outbox.send(
             telemetry(
@@ -427,3 +452,12 @@ class Board:
                 units=self.unit_states(),
             )
         )
+
+
+def _bench_truths(cfg: BoardConfig) -> list[ActuatorTruth | None]:
+    """Each unit's true actuators: None (ideal units) or drawn from ``cfg.unit_spread_seed``."""
+    if cfg.unit_spread_seed is None:
+        return [None] * cfg.n_units
+    from hil.calibration.generate import bench_units  # the stated models' spread, only when asked for
+
+    return [ActuatorTruth(u.motor, u.gimbal) for u in bench_units(cfg.n_units, cfg.unit_spread_seed)]

@@ -9,7 +9,8 @@ gimbal-rate fit the edges of the servo's dead zone.
 
 Validation, each failure a :class:`CalibrationError` naming the file (and lines where rows are at fault):
 enough points; the pulse range covers the map (the ESC endpoints, both gimbal directions); endpoints sane
-(the rotor is stopped at the ESC's low endpoint, the deadband is less than 30 % of the span); every
+(the rotor is stopped at the ESC's low endpoint, the deadband is less than 30 % of the span, the speed
+still rises at the high endpoint: an ESC taught other endpoints saturates early); every
 interval between knots has data; and the data follows a monotone curve: no row lies further from the
 fit than ``max(8 σ, 3 % of the range)``, σ the robust (MAD) noise estimate.
 """
@@ -34,6 +35,8 @@ MIN_INCREMENT = 1e-4  # of the measured range, per knot interval
 OUTLIER_SIGMAS = 8.0
 OUTLIER_FRACTION_OF_RANGE = 0.03
 STOPPED_FRACTION = 0.03  # a rotor below 3 % of its top speed (or gimbal below 3 % of its top rate) is still
+TOP_FRACTION = 0.03  # the top rows of a rotor sweep: the last 3 % of the endpoint span ...
+TOP_RISE = 0.01  # ... must be at least 1 % of full speed faster than the rows 6-12 % below the top
 
 
 @dataclass(frozen=True)
@@ -150,6 +153,7 @@ def fit_rotor(data: BenchData, opts: FitOptions) -> Fit:
             " calibrated to these endpoints",
             data.path,
         )
+    _require_rising_top(data, p, z, low, high, z_top)
     taus = np.linspace(0.0, 1.0, n_knots)
     eps = MIN_INCREMENT * z_top
 
@@ -178,6 +182,29 @@ def fit_rotor(data: BenchData, opts: FitOptions) -> Fit:
     fitted = np.array([rotor.speed(pi, vi).value for pi, vi in zip(p, v, strict=True)])
     report = _report(data, fitted, "rad/s", kv * float(v.max()), n_knots)
     return Fit(rotor, report)
+
+
+def _require_rising_top(
+    data: BenchData, p: np.ndarray, z: np.ndarray, low: float, high: float, z_top: float
+) -> None:
+    """The speed (per volt) must still rise over the last tenth of the span: an ESC whose own high
+    endpoint lies below ``high`` reaches full throttle early and stays there (a flat top the table would
+    absorb as a slow last interval)."""
+    span = high - low
+    top = p >= high - TOP_FRACTION * span
+    below = (p >= high - 4 * TOP_FRACTION * span) & (p < high - 2 * TOP_FRACTION * span)
+    if not (top.any() and below.any()):
+        return
+    rise = float(z[top].mean() - z[below].mean())
+    if rise < TOP_RISE * z_top:
+        flat = np.nonzero(p >= high - 2 * TOP_FRACTION * span)[0]
+        raise CalibrationError(
+            f"the rotor speed stops rising before the high endpoint {high:g} µs ({data.rows(flat)} gain "
+            f"{100 * rise / z_top:.2g} % of full speed over the last {4 * TOP_FRACTION * span:g} µs): the ESC"
+            " is not calibrated to these endpoints (teach it them: hil calibrate esc; or give its real high"
+            " endpoint)",
+            data.path,
+        )
 
 
 # =========================================================================== gimbal rate

@@ -1,4 +1,6 @@
-"""``hil calibrate``: fit bench CSVs into calibration files, make bench data and test vectors, inspect."""
+"""``hil calibrate``: fit bench CSVs into calibration files, make bench data and test vectors, inspect;
+through a board (``esc``, ``sweep``, ``unit``: :mod:`hil.cli._calibrate_board`): teach ESCs their
+endpoints, sweep channels into bench CSVs, calibrate units in one go."""
 
 from __future__ import annotations
 
@@ -24,9 +26,11 @@ _FIT_EXAMPLES = """examples:
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "calibrate",
-        help="fit ESC/gimbal calibration maps to bench data; bench data, test vectors, inspection",
-        description="Calibration maps: fit bench CSVs into a calibration file, generate bench data from the "
-        "stated motor models, write test vectors for other implementations, show a file.",
+        help="calibrate a bench through its board (ESC endpoints, sweeps, fit, upload, verify); fit CSVs",
+        description="Calibration maps: through a board, teach ESCs their endpoints, sweep channels into "
+        "bench CSVs, or calibrate units in one go (sweep, fit, upload, read back, verify, save); offline, "
+        "fit bench CSVs into a calibration file, generate bench data from the stated motor models, write "
+        "test vectors for other implementations, show a file.",
         epilog="Run 'hil calibrate ACTION --help' for each action's options and examples.",
     )
     actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
@@ -93,6 +97,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     v.add_argument("file", type=Path, help="calibration file whose units to include")
     v.add_argument("-o", "--out", type=Path, required=True, help="JSON file to write")
     v.set_defaults(func=run_vectors)
+
+    from ._calibrate_board import register_actions
+
+    register_actions(actions)
 
 
 # --------------------------------------------------------------------------- fit

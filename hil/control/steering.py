@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from hil.jit import kernel
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
@@ -97,7 +98,9 @@ class SteeringOutput:
 
 
 class VscmgSteering:
-    """The weighted pseudo-inverse steering law for the array of ``params``."""
+    """The weighted pseudo-inverse steering law for the array of ``params``: :meth:`solve` and
+    :meth:`delta_gradient` run compiled kernels (:func:`solve_rows`), one call per batch;
+    :mod:`hil.control.steering_reference` is their numpy reference."""
 
     def __init__(self, params: SpacecraftParams, steering: SteeringParams | None = None) -> None:
         self.params = params
@@ -107,6 +110,7 @@ class VscmgSteering:
         self.t0 = np.cross(self.g, self.s0)
         self.I_ws = np.array([u.rotor_spin_inertia for u in params.units])
         self.h_bar = params.nominal_wheel_momentum
+        self._kp, self._geom = pack(self)
 
     def axes(self, gimbal_angle: ArrayLike) -> tuple[Array, Array]:
         """Spin and transverse axes ``s, t`` (B, n, 3), body frame, at ``gimbal_angle`` (B, n)."""
@@ -137,13 +141,11 @@ class VscmgSteering:
     def delta_gradient(self, gimbal_angle: ArrayLike, rotor_speed: ArrayLike) -> Array:
         """``∂δ/∂γ`` (B, n): ``2 (∂d₁ᵢ)ᵀ adj(A) d₁ᵢ / h̄⁶`` with ``A = D₁D₁ᵀ`` and ``∂d₁ᵢ/∂γᵢ = −I_Ws Ω sᵢ``
         (the adjugate keeps it finite at a singularity)."""
-        s, t = self.axes(np.atleast_2d(gimbal_angle))
-        w = np.atleast_2d(np.asarray(rotor_speed, dtype=float))
-        d1 = (self.I_ws * w)[..., None] * t
-        dd1 = -(self.I_ws * w)[..., None] * s
-        A = np.einsum("bni,bnj->bij", d1, d1)
-        adj = _adjugate(A)
-        return 2.0 * np.einsum("bni,bij,bnj->bn", dd1, adj, d1) / self.h_bar**6
+        gam, w = self._rows(gimbal_angle), self._rows(rotor_speed)
+        out = np.empty_like(gam)
+        for b in range(gam.shape[0]):
+            delta_gradient_row(self._kp, self._geom, gam[b], w[b], out[b])
+        return out
 
     def solve(
         self, torque: ArrayLike, gimbal_angle: ArrayLike, rotor_speed: ArrayLike, dt: float
@@ -151,63 +153,225 @@ class VscmgSteering:
         """Commands that deliver ``torque`` (B, 3) N m (the required array torque L_r, body frame) at the
         current ``gimbal_angle`` and ``rotor_speed`` (B, n); ``dt`` (s) is the control period over which a
         rotor must not leave its speed range. Unbatched inputs are taken as B = 1."""
-        L = np.atleast_2d(np.asarray(torque, dtype=float))
-        gam = np.atleast_2d(np.asarray(gimbal_angle, dtype=float))
-        w = np.atleast_2d(np.asarray(rotor_speed, dtype=float))
-        lim, p = self.params.limits, self.p
-        n = self.g.shape[0]
-        D0, D1 = self.jacobians(gam, w)
-        Q = np.concatenate([D0, D1], axis=-1)
-        delta = np.linalg.det(D1 @ np.swapaxes(D1, -1, -2)) / self.h_bar**6
-        scale2 = self.params.nominal_rotor_speed**2
-        ws = np.repeat((p.wheel_weight * scale2 * np.exp(-p.mu * delta))[:, None], n, axis=1)
-        sat = np.zeros(L.shape[0], dtype=np.int64)
-        eta = self._weighted(Q, ws, -L)
-        # rotors about to leave their speed range lose wheel mode (one re-solve)
-        ahead = w + eta[:, :n] * dt
-        out = ((ahead > lim.max_rotor_speed) & (eta[:, :n] > 0)) | (
-            (ahead < lim.min_rotor_speed) & (eta[:, :n] < 0)
-        )
-        if out.any():
-            ws = np.where(out, 0.0, ws)
-            eta = self._weighted(Q, ws, -L)
-            sat |= np.where(out.any(axis=1), int(Saturation.ROTOR_SPEED), 0)
-        if p.null_gain > 0:
-            eta += self._null_motion(Q, ws, gam, w)
-        # one scale factor for every limit
-        g_ratio = np.max(np.abs(eta[:, n:]), axis=1) / lim.max_gimbal_rate
-        a_ratio = np.max(np.abs(eta[:, :n]), axis=1) / lim.max_rotor_accel
-        scale = 1.0 / np.maximum(1.0, np.maximum(g_ratio, a_ratio))
-        sat |= np.where(g_ratio > 1.0, int(Saturation.GIMBAL_RATE), 0)
-        sat |= np.where(a_ratio > 1.0, int(Saturation.ROTOR_ACCEL), 0)
-        eta *= scale[:, None]
-        delivered = -np.einsum("bij,bj->bi", Q, eta)
-        return SteeringOutput(eta[:, n:], eta[:, :n], delivered, delta, ws, scale, sat)
+        L = np.ascontiguousarray(np.atleast_2d(np.asarray(torque, dtype=float)))
+        gam, w = self._rows(gimbal_angle), self._rows(rotor_speed)
+        b, n = gam.shape
+        out = SteeringOutput(
+            np.empty((b, n)), np.empty((b, n)), np.empty((b, 3)), np.empty(b), np.empty((b, n)), np.empty(b),
+            np.empty(b, np.int64),
+        )  # fmt: skip
+        solve_rows(self._kp, self._geom, L, gam, w, float(dt), out.gimbal_rate, out.rotor_accel, out.torque,
+                   out.delta, out.wheel_weight, out.scale, out.saturation)  # fmt: skip
+        return out
 
-    def _weighted(self, Q: Array, ws: Array, rhs: Array) -> Array:
-        """``W Qᵀ (Q W Qᵀ)⁻¹ rhs`` (B, 2n)."""
-        W = np.concatenate([ws, np.full_like(ws, self.p.gimbal_weight)], axis=1)
-        QW = Q * W[:, None, :]
-        lam = np.linalg.solve(QW @ np.swapaxes(Q, -1, -2), rhs[..., None])
-        return (np.swapaxes(QW, -1, -2) @ lam)[..., 0]
-
-    def _null_motion(self, Q: Array, ws: Array, gam: Array, w: Array) -> Array:
-        """``k (W − W Qᵀ(QWQᵀ)⁻¹ Q W) d``: moves toward higher δ and nominal rotor speed, torque-free."""
-        p = self.p
-        nominal = self.params.nominal_rotor_speed
-        d = np.concatenate([-p.speed_gain * (w - nominal) / nominal, self.delta_gradient(gam, w)], axis=1)
-        W = np.concatenate([ws, np.full_like(ws, p.gimbal_weight)], axis=1)
-        wd = W * d
-        return p.null_gain * (wd - self._weighted(Q, ws, np.einsum("bij,bj->bi", Q, wd)))
+    def _rows(self, a: ArrayLike) -> Array:
+        return np.ascontiguousarray(np.atleast_2d(np.asarray(a, dtype=float)))
 
 
-def _adjugate(A: Array) -> Array:
-    """Adjugate of (B, 3, 3) matrices (= det(A) A⁻¹ where A is invertible)."""
-    c = np.empty_like(A)
+# --------------------------------------------------------------------------- kernels
+K_WHEEL = 0  # W_s0 Ω̄²: the wheel weight before exp(−μ δ)
+K_MU = 1  # μ
+K_GIMBAL = 2  # W_g
+K_NULL = 3  # k (1/s), 0: no null motion
+K_SPEED = 4  # k_Ω
+K_NOMINAL = 5  # Ω̄ (rad/s)
+K_HBAR6 = 6  # h̄⁶
+K_MAX_SPEED = 7  # rad/s
+K_MIN_SPEED = 8  # rad/s
+K_MAX_GIMBAL_RATE = 9  # rad/s
+K_MAX_ROTOR_ACCEL = 10  # rad/s²
+K_SIZE = 11
+"""The kernels' parameter array (float64); the geometry array is (n, 7): ``s0`` (3), ``t0`` (3), I_Ws."""
+
+_ROTOR_SPEED = int(Saturation.ROTOR_SPEED)
+_GIMBAL_RATE = int(Saturation.GIMBAL_RATE)
+_ROTOR_ACCEL = int(Saturation.ROTOR_ACCEL)
+
+
+def pack(steer: VscmgSteering) -> tuple[Array, Array]:
+    """The kernels' parameter array (:data:`K_SIZE`) and geometry array (n, 7) for ``steer``."""
+    p, lim = steer.p, steer.params.limits
+    kp = np.zeros(K_SIZE)
+    kp[K_WHEEL] = p.wheel_weight * steer.params.nominal_rotor_speed**2
+    kp[K_MU], kp[K_GIMBAL], kp[K_NULL], kp[K_SPEED] = p.mu, p.gimbal_weight, p.null_gain, p.speed_gain
+    kp[K_NOMINAL] = steer.params.nominal_rotor_speed
+    kp[K_HBAR6] = steer.h_bar**6
+    kp[K_MAX_SPEED], kp[K_MIN_SPEED] = lim.max_rotor_speed, lim.min_rotor_speed
+    kp[K_MAX_GIMBAL_RATE], kp[K_MAX_ROTOR_ACCEL] = lim.max_gimbal_rate, lim.max_rotor_accel
+    geom = np.ascontiguousarray(np.column_stack([steer.s0, steer.t0, steer.I_ws]))
+    return kp, geom
+
+
+@kernel
+def adjugate3(a0, a1, a2, a3, a4, a5, a6, a7, a8):  # type: ignore[no-untyped-def]
+    """Adjugate of a row-major 3×3 matrix (= det(A) A⁻¹ where A is invertible), a row-major 9-tuple."""
+    return (
+        a4 * a8 - a5 * a7, a2 * a7 - a1 * a8, a1 * a5 - a2 * a4,
+        a5 * a6 - a3 * a8, a0 * a8 - a2 * a6, a2 * a3 - a0 * a5,
+        a3 * a7 - a4 * a6, a1 * a6 - a0 * a7, a0 * a4 - a1 * a3,
+    )  # fmt: skip
+
+
+@kernel
+def _axes(geom, gam, s, t):  # type: ignore[no-untyped-def]
+    """Spin and transverse axes (n, 3) at gimbal angles ``gam`` (n,)."""
+    for i in range(gam.shape[0]):
+        c, sn = math.cos(gam[i]), math.sin(gam[i])
+        for j in range(3):
+            s[i, j] = c * geom[i, j] + sn * geom[i, 3 + j]
+            t[i, j] = c * geom[i, 3 + j] - sn * geom[i, j]
+
+
+@kernel
+def _d1_gram(geom, w, t):  # type: ignore[no-untyped-def]
+    """``A = D₁ D₁ᵀ`` (row-major 9-tuple), ``D₁``'s columns being ``I_Ws Ωᵢ tᵢ``."""
+    a = np.zeros(9)
+    for i in range(w.shape[0]):
+        k = geom[i, 6] * w[i]
+        for r in range(3):
+            for c in range(3):
+                a[3 * r + c] += (k * t[i, r]) * (k * t[i, c])
+    return a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8]
+
+
+@kernel
+def delta_gradient_row(kp, geom, gam, w, out):  # type: ignore[no-untyped-def]
+    """``∂δ/∂γ`` (n,) for one row into ``out`` (see :meth:`VscmgSteering.delta_gradient`)."""
+    n = gam.shape[0]
+    s, t = np.empty((n, 3)), np.empty((n, 3))
+    _axes(geom, gam, s, t)
+    _delta_gradient(kp, geom, w, s, t, out)
+
+
+@kernel
+def _delta_gradient(kp, geom, w, s, t, out):  # type: ignore[no-untyped-def]
+    adj = adjugate3(*_d1_gram(geom, w, t))
+    for i in range(w.shape[0]):
+        k = geom[i, 6] * w[i]
+        acc = 0.0
+        for r in range(3):
+            row = adj[3 * r] * (k * t[i, 0]) + adj[3 * r + 1] * (k * t[i, 1]) + adj[3 * r + 2] * (k * t[i, 2])
+            acc += -(k * s[i, r]) * row
+        out[i] = 2.0 * acc / kp[K_HBAR6]
+
+
+@kernel
+def _solve3(m, rhs, x):  # type: ignore[no-untyped-def]
+    """``x = m⁻¹ rhs`` for a 3×3 ``m`` by Gaussian elimination with partial pivoting (as LAPACK's gesv);
+    ``m`` and ``rhs`` are overwritten."""
+    for c in range(3):
+        p = c
+        for r in range(c + 1, 3):
+            if abs(m[r, c]) > abs(m[p, c]):
+                p = r
+        if p != c:
+            for j in range(3):
+                m[c, j], m[p, j] = m[p, j], m[c, j]
+            rhs[c], rhs[p] = rhs[p], rhs[c]
+        for r in range(c + 1, 3):
+            f = m[r, c] / m[c, c]
+            for j in range(c, 3):
+                m[r, j] -= f * m[c, j]
+            rhs[r] -= f * rhs[c]
+    for r in range(2, -1, -1):
+        acc = rhs[r]
+        for j in range(r + 1, 3):
+            acc -= m[r, j] * x[j]
+        x[r] = acc / m[r, r]
+
+
+@kernel
+def _weighted(q, wt, rhs, out, m, lam):  # type: ignore[no-untyped-def]
+    """``out = W Qᵀ (Q W Qᵀ)⁻¹ rhs`` (2n,) for ``q`` (3, 2n), weights ``wt`` (2n,); ``m`` (3, 3) and
+    ``lam`` (3,) are scratch; ``rhs`` (3,) is overwritten."""
+    cols = q.shape[1]
     for i in range(3):
         for j in range(3):
-            r = [k for k in range(3) if k != j]
-            s = [k for k in range(3) if k != i]
-            minor = A[:, r][:, :, s]
-            c[:, i, j] = (-1) ** (i + j) * (minor[:, 0, 0] * minor[:, 1, 1] - minor[:, 0, 1] * minor[:, 1, 0])
-    return c
+            acc = 0.0
+            for c in range(cols):
+                acc += (q[i, c] * wt[c]) * q[j, c]
+            m[i, j] = acc
+    _solve3(m, rhs, lam)
+    for c in range(cols):
+        out[c] = (q[0, c] * wt[c]) * lam[0] + (q[1, c] * wt[c]) * lam[1] + (q[2, c] * wt[c]) * lam[2]
+
+
+@kernel
+def solve_rows(
+    kp, geom, torque, gam, w, dt, gimbal_rate, rotor_accel, delivered, delta, wheel_weight, scale, sat
+):  # type: ignore[no-untyped-def]
+    """:meth:`VscmgSteering.solve` for B rows: ``torque`` (B, 3), ``gam`` and ``w`` (B, n) in; the
+    outputs (``SteeringOutput``'s fields, same shapes) written in place."""
+    b_rows, n = gam.shape
+    s, t = np.empty((n, 3)), np.empty((n, 3))
+    q = np.empty((3, 2 * n))
+    wt, eta, extra, d = np.empty(2 * n), np.empty(2 * n), np.empty(2 * n), np.empty(2 * n)
+    m, lam, rhs = np.empty((3, 3)), np.empty(3), np.empty(3)
+    for b in range(b_rows):
+        _axes(geom, gam[b], s, t)
+        for i in range(n):
+            for r in range(3):
+                q[r, i] = geom[i, 6] * s[i, r]
+                q[r, n + i] = (geom[i, 6] * w[b, i]) * t[i, r]
+        a = _d1_gram(geom, w[b], t)
+        det = (
+            a[0] * (a[4] * a[8] - a[5] * a[7])
+            - a[1] * (a[3] * a[8] - a[5] * a[6])
+            + a[2] * (a[3] * a[7] - a[4] * a[6])
+        )
+        delta[b] = det / kp[K_HBAR6]
+        ws = kp[K_WHEEL] * math.exp(-kp[K_MU] * delta[b])
+        for i in range(n):
+            wt[i] = ws
+            wt[n + i] = kp[K_GIMBAL]
+        for r in range(3):
+            rhs[r] = -torque[b, r]
+        _weighted(q, wt, rhs, eta, m, lam)
+        flags = 0
+        out_any = False  # rotors about to leave their speed range lose wheel mode (one re-solve)
+        for i in range(n):
+            ahead = w[b, i] + eta[i] * dt
+            if (ahead > kp[K_MAX_SPEED] and eta[i] > 0) or (ahead < kp[K_MIN_SPEED] and eta[i] < 0):
+                wt[i] = 0.0
+                out_any = True
+        if out_any:
+            for r in range(3):
+                rhs[r] = -torque[b, r]
+            _weighted(q, wt, rhs, eta, m, lam)
+            flags |= _ROTOR_SPEED
+        if kp[K_NULL] > 0:  # k (W d − W Qᵀ(QWQᵀ)⁻¹ Q W d): toward higher δ and nominal rotor speed
+            nominal = kp[K_NOMINAL]
+            for i in range(n):
+                d[i] = -kp[K_SPEED] * (w[b, i] - nominal) / nominal
+            _delta_gradient(kp, geom, w[b], s, t, d[n:])
+            for c in range(2 * n):
+                d[c] *= wt[c]
+            for r in range(3):
+                acc = 0.0
+                for c in range(2 * n):
+                    acc += q[r, c] * d[c]
+                rhs[r] = acc
+            _weighted(q, wt, rhs, extra, m, lam)
+            for c in range(2 * n):
+                eta[c] += kp[K_NULL] * (d[c] - extra[c])
+        g_max = a_max = 0.0  # one scale factor for every limit
+        for i in range(n):
+            a_max = max(a_max, abs(eta[i]))
+            g_max = max(g_max, abs(eta[n + i]))
+        g_ratio, a_ratio = g_max / kp[K_MAX_GIMBAL_RATE], a_max / kp[K_MAX_ROTOR_ACCEL]
+        k = 1.0 / max(1.0, max(g_ratio, a_ratio))
+        if g_ratio > 1.0:
+            flags |= _GIMBAL_RATE
+        if a_ratio > 1.0:
+            flags |= _ROTOR_ACCEL
+        for i in range(n):
+            rotor_accel[b, i] = eta[i] * k
+            gimbal_rate[b, i] = eta[n + i] * k
+            wheel_weight[b, i] = wt[i]
+        for r in range(3):
+            acc = 0.0
+            for c in range(2 * n):
+                acc += q[r, c] * (eta[c] * k)
+            delivered[b, r] = -acc
+        scale[b] = k
+        sat[b] = flags

@@ -1,27 +1,38 @@
 """The attitude filter as it runs on a phone's merged steps: gyro bias removal, the pre-filter, the
 magnetic gate, the magnetometer's handling (full field or horizontal part) and the measured initial
 attitude around :class:`hil.estimation.estimator.VariationalEstimator` (:class:`AttitudeFilter`), set up
-by :class:`FilterConfig` with the paper's or the tuned (:data:`TUNED`) settings. Pure math, no I/O."""
+by :class:`FilterConfig` with the paper's or the tuned (:data:`TUNED`) settings. The steps themselves
+are the compiled kernels of :mod:`hil.estimation.chain`. Pure math, no I/O."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import astuple, dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, _concat
+from hil.estimation import chain
+from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, estimate
 from hil.estimation.inertial import directions_from_dip
-from hil.estimation.params import EstimatorParams, wahba
-from hil.estimation.prefilter import PAPER_CUTOFF_RAD_S, GateSettings, MagneticGate, SignalPrefilter
+from hil.estimation.params import EstimatorParams
+from hil.estimation.prefilter import (
+    PAPER_CUTOFF_RAD_S,
+    SS_N,
+    GateSettings,
+    pack_gate_params,
+    pack_signal_params,
+)
 from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
-from hil.so3 import Vec3
-from protocol.errors import ConfigError
+from hil.estimation.variational import S_OMEGA
+from protocol.errors import ConfigError, ConvergenceError
 
 Array = NDArray[np.float64]
+
+_NAN3 = (math.nan, math.nan, math.nan)
+_NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 
 
 PAPER_PREFILTER: dict[SensorKind, float | None] = {k: PAPER_CUTOFF_RAD_S for k in KINDS}
@@ -108,23 +119,25 @@ tolerances chosen on the same six; see docs/estimator.md."""
 
 class AttitudeFilter:
     """Gyro bias removal, pre-filter, magnetometer handling, then the estimator, over merged steps:
-    :meth:`step` live (one :class:`MergedStep`), :meth:`run` in batch (:class:`MergedSteps`); both give
-    the same numbers (to rounding).
+    :meth:`step` live (one :class:`MergedStep`, one compiled call), :meth:`run` in batch
+    (:class:`MergedSteps`, one compiled call per ``chunk`` steps); both run the same kernel
+    (:mod:`hil.estimation.chain`) and give the same numbers.
 
     With ``init="measured"`` the estimator (re)starts at the first step where both directions are usable,
     from Wahba's solution for that step's (pre-filtered) measurement; steps before it run from identity.
     """
 
     def __init__(self, config: FilterConfig | None = None) -> None:
-        self.config = config or FilterConfig()
-        self.prefilter = SignalPrefilter(self.config.prefilter_rad_s, self.config.prefilter_frame)
-        init = self.config.init
+        self.config = cfg = config or FilterConfig()
+        init = cfg.init
         r0 = None if isinstance(init, str) else init
-        self._awaiting_measurement = isinstance(init, str) and init == "measured"
-        self.estimator = VariationalEstimator(self.config.params, r0, self.config.omega_err0)
-        self._bias = self.config.gyro_bias
-        gate = self.config.mag_gate
-        self.gate = None if gate is None else MagneticGate(*astuple(gate))
+        self.estimator = VariationalEstimator(cfg.params, r0, cfg.omega_err0)
+        self._ep, self._es = self.estimator.arrays
+        signal = pack_signal_params(cfg.prefilter_rad_s, cfg.prefilter_frame)
+        gate = None if cfg.mag_gate is None else pack_gate_params(cfg.mag_gate)
+        self._cp = chain.pack_params(signal, gate, cfg.magnetometer == "horizontal", cfg.omega_err0)
+        self._cs = chain.new_state(cfg.gyro_bias, isinstance(init, str) and init == "measured")
+        self._raise = cfg.params.on_newton_failure == "raise"
 
     def set_gyro_bias(self, bias: ArrayLike) -> None:
         """Subtract ``bias`` (3,) rad/s from every later gyro sample: a bias measured while running (the
@@ -132,87 +145,68 @@ class AttitudeFilter:
         b = as_vec3(tuple(np.asarray(bias, dtype=float).tolist()))
         if b is None:
             raise ConfigError(f"must be a finite 3-vector, got {bias!r}", "AttitudeFilter.set_gyro_bias")
-        self._bias = b
+        self._cs[chain.CS_BIAS : chain.CS_BIAS + 3] = b
 
     def step(self, s: MergedStep) -> Estimate:
         """One merged step (live path)."""
-        g = s.gyr
-        if g is not None:
-            b = self._bias
-            g = (g[0] - b[0], g[1] - b[1], g[2] - b[2])
-        g, acc, mag = self.prefilter.step(s.h, g, s.acc, s.mag)
-        gated = StepFlag.NONE
-        if self.gate is not None and mag is not None:
-            mag = self.gate.step(s.h, acc, mag)
-            gated = StepFlag.MAG_DISTURBED if mag is None else gated
-        if self.config.magnetometer == "horizontal":
-            mag = _horizontal_f(acc, mag)
-        if self._awaiting_measurement and _both_usable(acc, mag, self.estimator.params):
-            self._awaiting_measurement = False
-            self.estimator.reset(wahba(self.config.params, acc, mag), self.config.omega_err0)  # type: ignore[arg-type]
-        out = self.estimator.update(s.h, g, acc, mag)
-        return Estimate(s.t, out.R, out.omega, out.omega_err, out.flags | s.flags | gated, out.iterations)
+        gx, gy, gz = _NAN3 if s.gyr is None else s.gyr
+        ax, ay, az = _NAN3 if s.acc is None else s.acc
+        mx, my, mz = _NAN3 if s.mag is None else s.mag
+        es = self._es
+        snapshot = self._snapshot() if self._raise else None
+        code = chain.step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        if code < 0:
+            raise ValueError(f"filter step must be positive, got h = {s.h!r} s (t = {s.t!r} s)")
+        if snapshot is not None and code & _NEWTON_FAILED:
+            self._fail(snapshot, s.t, s.h)
+        return estimate(s.t, es, code, int(s.flags))
 
     def run(
         self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None, chunk: int = 50_000
     ) -> EstimateBatch:
-        """All merged steps (batch path). ``progress(done, total)`` is called every ``chunk`` steps."""
-        biased = replace(steps, gyr=steps.gyr - np.asarray(self._bias))
-        f = self.prefilter.run(biased)
-        mag, flags = f.mag, f.flags
-        if self.gate is not None:
-            mag = self.gate.run(steps.h, f.acc, f.mag)
-            flags = flags | np.where(
-                np.isnan(mag[:, 0]) & ~np.isnan(f.mag[:, 0]), int(StepFlag.MAG_DISTURBED), 0
+        """All merged steps (batch path), continuing from the current state: one compiled call per
+        ``chunk`` steps, after which ``progress(done, total)`` is called."""
+        n = len(steps)
+        t = np.ascontiguousarray(steps.t, dtype=float)
+        cs = self._cs
+        if n and not np.all(np.diff(t) > 0):
+            i = int(np.flatnonzero(~(np.diff(t) > 0))[0])
+            raise ValueError(f"filter run: step times must increase strictly (step {i + 1}: {t[i + 1]!r})")
+        if n and cs[chain.CS_SIGNAL + SS_N] and not t[0] > cs[chain.CS_T]:
+            raise ValueError(
+                f"filter run: first step time {t[0]!r} is not after the last one, {cs[chain.CS_T]!r}"
             )
-        mag = _horizontal_rows(f.acc, mag) if self.config.magnetometer == "horizontal" else mag
-        filtered = replace(f, mag=mag, flags=flags)
-        start = 0
-        if self._awaiting_measurement:
-            both = _both_usable_rows(filtered.acc, filtered.mag, self.estimator.params)
-            start = int(np.argmax(both)) if both.any() else len(steps)
-        parts = []
-        bounds = sorted({0, start, len(steps), *range(chunk, len(steps), chunk)})
-        for i, j in zip(bounds[:-1], bounds[1:], strict=True):
-            if i == start and self._awaiting_measurement:
-                self._awaiting_measurement = False
-                r0 = wahba(self.config.params, filtered.acc[i], filtered.mag[i])
-                self.estimator.reset(r0, self.config.omega_err0)
-            parts.append(self.estimator.update_batch(filtered.rows(i, j)))
+        out = EstimateBatch(
+            t.copy(), np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int64),
+            np.empty(n, np.int64),
+        )  # fmt: skip
+        flags = np.ascontiguousarray(steps.flags, dtype=np.int64)
+        gyr, acc, mag = (np.ascontiguousarray(a, dtype=float) for a in (steps.gyr, steps.acc, steps.mag))
+        ep, es = self.estimator.arrays
+        snapshot = self._snapshot() if self._raise else None
+        for i in range(0, n, chunk):
+            j = min(i + chunk, n)
+            done = chain.run(
+                self._cp, cs, ep, es, t[i:j], flags[i:j], gyr[i:j], acc[i:j], mag[i:j],
+                out.R[i:j], out.omega[i:j], out.omega_err[i:j], out.flags[i:j], out.iterations[i:j],
+            )  # fmt: skip
+            if snapshot is not None and done and out.flags[i + done - 1] & _NEWTON_FAILED:
+                k = i + done - 1
+                self._fail(snapshot, float(t[k]), float(t[k] - t[k - 1]) if k else 0.0)
             if progress is not None:
-                progress(j, len(steps))
-        if not parts:
-            return self.estimator.update_batch(filtered)
-        return _concat(parts)
+                progress(j, n)
+        return out
 
+    def _snapshot(self) -> tuple[Array, Array]:
+        return self._cs.copy(), self.estimator.arrays[1].copy()
 
-def _horizontal_f(acc: Vec3 | None, mag: Vec3 | None) -> Vec3 | None:
-    """The part of ``mag`` perpendicular to ``acc`` (None if either is missing)."""
-    if acc is None or mag is None:
-        return None
-    n2 = acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]
-    if not n2 > 0.0:
-        return None
-    k = (mag[0] * acc[0] + mag[1] * acc[1] + mag[2] * acc[2]) / n2
-    return (mag[0] - k * acc[0], mag[1] - k * acc[1], mag[2] - k * acc[2])
-
-
-def _horizontal_rows(acc: Array, mag: Array) -> Array:
-    with np.errstate(invalid="ignore", divide="ignore"):
-        k = np.sum(mag * acc, axis=1) / np.sum(acc * acc, axis=1)
-    return mag - k[:, None] * acc
-
-
-def _both_usable(acc: Vec3 | None, mag: Vec3 | None, p: EstimatorParams) -> bool:
-    if acc is None or mag is None:
-        return False
-    return bool(_both_usable_rows(np.array([acc]), np.array([mag]), p)[0])
-
-
-def _both_usable_rows(acc: Array, mag: Array, p: EstimatorParams) -> NDArray[np.bool_]:
-    """Rows where both directions are finite, non-zero and not within the degeneracy angle."""
-    na, nm = np.linalg.norm(acc, axis=1), np.linalg.norm(mag, axis=1)
-    ok = np.isfinite(na) & np.isfinite(nm) & (na > 0) & (nm > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sin = np.linalg.norm(np.cross(acc, mag), axis=1) / (na * nm)
-    return ok & (sin >= math.sin(math.radians(p.min_direction_angle_deg)))
+    def _fail(self, snapshot: tuple[Array, Array], t: float, h: float) -> None:
+        """Undo the call (the filter is as it was before it) and raise the Newton failure."""
+        es = self.estimator.arrays[1]
+        w = es[S_OMEGA : S_OMEGA + 3].tolist()
+        self._cs[:], es[:] = snapshot
+        p = self.config.params
+        raise ConvergenceError(
+            f"estimator step at t = {t:g} s (h = {h:g} s): Newton–Raphson did not reach "
+            f"{p.newton_tol:g} rad/s in {p.newton_max_iter} updates (ω = {w})"
+        )

@@ -24,13 +24,17 @@ Array = NDArray[np.float64]
 class Potential:
     """The shaping function Φ of the potential (C², Φ(0) = 0, Φ' > 0): the filter uses ``Φ'(U⁰)``.
 
-    ``constant_derivative`` is set when Φ' does not depend on U⁰ (Φ linear), which spares computing U⁰.
+    ``constant_derivative`` is set when Φ' does not depend on U⁰ (Φ linear), which spares computing U⁰;
+    ``log_scale`` when Φ is :func:`phi_log`'s. The compiled estimator knows these two forms of Φ' only
+    (:class:`EstimatorParams` refuses a potential with neither): ``value`` and ``derivative`` are what
+    Python code (the numpy reference, plots) evaluates.
     """
 
     name: str
     value: Callable[[float], float]
     derivative: Callable[[float], float]
     constant_derivative: float | None = None
+    log_scale: float | None = None
 
 
 PHI_IDENTITY = Potential("identity", lambda x: x, lambda x: 1.0, 1.0)
@@ -43,7 +47,10 @@ def phi_log(scale: float) -> Potential:
     if not scale > 0:
         raise ConfigError(f"log potential scale must be positive, got {scale!r}", "phi_log")
     return Potential(
-        f"log({scale:g})", lambda x: scale * math.log1p(x / scale), lambda x: 1.0 / (1.0 + x / scale)
+        f"log({scale:g})",
+        lambda x: scale * math.log1p(x / scale),
+        lambda x: 1.0 / (1.0 + x / scale),
+        log_scale=float(scale),
     )
 
 
@@ -142,6 +149,12 @@ class EstimatorParams:
         ):
             if not ok:
                 raise ConfigError(f"invalid value {getattr(self, name)!r}", f"EstimatorParams.{name}")
+        if self.phi.constant_derivative is None and self.phi.log_scale is None:
+            raise ConfigError(
+                f"potential {self.phi.name!r} has no compiled form: use PHI_IDENTITY, phi_log(s) or a "
+                "Potential with a constant_derivative",
+                "EstimatorParams.phi",
+            )
         object.__setattr__(self, "E", e_full)
         object.__setattr__(self, "W", w)
         object.__setattr__(self, "D", d)

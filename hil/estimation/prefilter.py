@@ -1,4 +1,5 @@
-"""The paper's first-order Butterworth low-pass pre-filter, discretised by the bilinear (Tustin) transform.
+"""The paper's first-order Butterworth low-pass pre-filter, discretised by the bilinear (Tustin) transform,
+and the magnetometer's disturbance gate — compiled kernels and the objects around them.
 
 Continuous filter with cut-off ``ω_c`` (rad/s): ``H(s) = ω_c / (s + ω_c)``, i.e. ``dx̄/dt = ω_c (x − x̄)``.
 Substituting ``s = (2/h)(z − 1)/(z + 1)`` over a step of ``h`` seconds and multiplying by ``h (z + 1)``:
@@ -14,27 +15,71 @@ Initial condition: the filter starts at its first valid input (``x̄[0] = x[0]``
 constant input), so a 9.81 m/s² gravity reading does not ramp up from zero. An invalid input (``valid``
 false, or any non-finite component) yields NaN and resets the filter, which restarts at the next valid
 sample: after a sensor drop-out the output follows the fresh data instead of sliding over from the old.
+
+Compiled (:func:`hil.jit.kernel`): :func:`lowpass` (one sample of a filter of any dimension),
+:func:`signal_step` (a phone's three signals, body or strapdown frame), :func:`gate_step` (the magnetic
+gate); the attitude filter's chain (:mod:`hil.estimation.chain`) runs them inside its own kernel. Their
+arrays (float64; slots are the constants below):
+
+- a low-pass state (``1 + 2 d`` for dimension d): running flag, previous input (d), previous output (d);
+- signal parameters ``sp`` (:data:`SP_SIZE`): the cut-offs of gyr, acc, mag (rad/s; 0 = not filtered),
+  strapdown flag; signal state ``ss`` (:data:`SS_SIZE`): the strapdown frame ``R_g`` (9), the last gyro
+  (3), steps taken, then the three low-pass states (gyr, acc, mag);
+- gate parameters ``gp`` (:data:`GP_SIZE`): norm tolerance, sin of the dip tolerance, reference time
+  constant (s), rejection timeout (s); gate state ``gs`` (:data:`GS_SIZE`): reference norm (and whether
+  set), reference sin-dip (and whether set), seconds rejected so far.
+
+:func:`filter_batch` is the filter in closed form on numpy arrays (the numpy reference the tests compare
+:func:`lowpass` with); :mod:`hil.estimation.reference` has the others.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil import so3
 from hil.estimation.sensors import KINDS, MergedSteps, SensorKind
-from hil.so3 import Mat9, Vec3, apply_f, apply_transpose_f, exp_f, matmul_f, reorthonormalize_f
+from hil.jit import kernel
+from hil.so3.floats import apply_f, apply_transpose_f, exp_f, matmul_f, reorthonormalize_f
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
 
 PAPER_CUTOFF_RAD_S = 1.0
 """The paper's cut-off frequency (rad/s)."""
+
+BAD_STEP = -1
+"""What :func:`lowpass` and :func:`signal_step` return for a step ``h`` that is not a positive number."""
+
+SP_CUTOFF = 0  # cut-offs (3) rad/s in KINDS order, 0 = not filtered
+SP_STRAPDOWN = 3  # 1: acc and mag filtered in the gyro-only frame
+SP_SIZE = 4
+
+SS_RG = 0  # R_g (9), the gyro integrated alone
+SS_GYR = 9  # the last gyro (3), non-finite read as 0
+SS_N = 12  # steps taken
+SS_LP = 13  # three low-pass states of LP_SIZE (gyr, acc, mag)
+LP_SIZE = 7  # a 3-vector's low-pass state: running, previous input (3), previous output (3)
+SS_SIZE = SS_LP + 3 * LP_SIZE
+
+GP_NORM_TOL = 0  # fraction
+GP_SIN_TOL = 1  # sin of the dip tolerance
+GP_TAU = 2  # s
+GP_TIMEOUT = 3  # s
+GP_SIZE = 4
+
+GS_HAS_NORM = 0
+GS_NORM = 1
+GS_HAS_DIP = 2
+GS_DIP = 3  # sin of the dip: −(ĝ·m̂), ĝ the gravity reading's direction (up)
+GS_REJECTED_FOR = 4  # s
+GS_SIZE = 5
+
+_IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
 
 def _check_cutoff(cutoff_rad_s: float) -> float:
@@ -50,6 +95,131 @@ def coefficients(cutoff_rad_s: float, h: Any) -> tuple[Any, Any]:
     return (2.0 - wh) / (2.0 + wh), wh / (2.0 + wh)
 
 
+# --------------------------------------------------------------------------- kernels
+@kernel
+def lowpass(st, cutoff, h, x, y):  # type: ignore[no-untyped-def]
+    """One sample ``x`` (d,) through the low-pass whose state is ``st`` (1 + 2d), output into ``y`` (d,)
+    (``y`` may be ``x`` itself). Returns 1 for a filtered value, 0 for an invalid input (``y`` NaN, the
+    filter reset), :data:`BAD_STEP` (nothing changed) for a running filter and an ``h`` that is not a
+    positive number. The first valid sample (or the first after a reset) ignores ``h``."""
+    d = x.shape[0]
+    for i in range(d):
+        if not math.isfinite(x[i]):
+            st[0] = 0.0
+            y[:] = math.nan
+            return 0
+    if st[0] == 0.0:
+        st[0] = 1.0
+        for i in range(d):
+            st[1 + i] = x[i]
+            st[1 + d + i] = x[i]
+            y[i] = x[i]
+        return 1
+    if not (h > 0.0 and math.isfinite(h)):
+        return BAD_STEP
+    wh = cutoff * h
+    a, b = (2.0 - wh) / (2.0 + wh), wh / (2.0 + wh)
+    for i in range(d):
+        xi = x[i]
+        yi = a * st[1 + d + i] + b * (st[1 + i] + xi)
+        st[1 + i] = xi
+        st[1 + d + i] = yi
+        y[i] = yi
+    return 1
+
+
+@kernel
+def signal_step(sp, ss, h, io):  # type: ignore[no-untyped-def]
+    """One merged step of ``h`` s (ignored on the first) through a phone's three signals: ``io`` (9,)
+    holds gyr, acc, mag (NaN: not usable) and receives them filtered (NaN where not usable; a signal that
+    is not filtered passes through). In the strapdown frame, acc and mag are filtered as ``R_g v`` and
+    rotated back (see :class:`SignalPrefilter`). Returns 0, or :data:`BAD_STEP` (nothing changed) for a
+    step after the first whose ``h`` is not a positive number."""
+    if ss[SS_N] > 0.0 and not (h > 0.0 and math.isfinite(h)):
+        return BAD_STEP
+    gx, gy, gz = io[0], io[1], io[2]
+    if not math.isfinite(gx + gy + gz):
+        gx = gy = gz = 0.0
+    strap = sp[SP_STRAPDOWN] != 0.0
+    r = (ss[0], ss[1], ss[2], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8])
+    if strap and ss[SS_N] > 0.0:
+        ax, ay, az = ss[SS_GYR], ss[SS_GYR + 1], ss[SS_GYR + 2]
+        r = reorthonormalize_f(
+            matmul_f(r, exp_f(0.5 * h * (ax + gx), 0.5 * h * (ay + gy), 0.5 * h * (az + gz)))
+        )
+        for i in range(9):
+            ss[SS_RG + i] = r[i]
+    ss[SS_GYR], ss[SS_GYR + 1], ss[SS_GYR + 2] = gx, gy, gz
+    ss[SS_N] += 1.0
+    for s in range(3):
+        cut = sp[SP_CUTOFF + s]
+        if cut == 0.0:
+            continue
+        v = io[3 * s : 3 * s + 3]
+        st = ss[SS_LP + LP_SIZE * s : SS_LP + LP_SIZE * (s + 1)]
+        if strap and s > 0 and math.isfinite(v[0] + v[1] + v[2]):  # filter R_g v, rotate back
+            v[0], v[1], v[2] = apply_f(r, (v[0], v[1], v[2]))
+            lowpass(st, cut, h, v, v)
+            v[0], v[1], v[2] = apply_transpose_f(r, (v[0], v[1], v[2]))
+        else:
+            lowpass(st, cut, h, v, v)
+    return 0
+
+
+@kernel
+def gate_step(gp, gs, h, ux, uy, uz, mx, my, mz):  # type: ignore[no-untyped-def]
+    """Whether the magnetometer sample ``m`` passes the gate (see :class:`MagneticGate`), given the
+    gravity reading ``u`` (up; NaN if not usable) and the step ``h`` s; updates the references in ``gs``.
+    A non-finite or zero ``m`` does not pass and changes nothing."""
+    n = math.sqrt(mx * mx + my * my + mz * mz)
+    if not (n > 0.0 and math.isfinite(n)):
+        return False
+    dip, has_dip = 0.0, False
+    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if nu > 0.0 and math.isfinite(nu):
+        dip, has_dip = -(ux * mx + uy * my + uz * mz) / (nu * n), True
+    if gs[GS_HAS_NORM] == 0.0:
+        gs[GS_HAS_NORM], gs[GS_NORM] = 1.0, n
+        gs[GS_HAS_DIP], gs[GS_DIP] = (1.0 if has_dip else 0.0), dip
+        return True
+    ok = abs(n / gs[GS_NORM] - 1.0) <= gp[GP_NORM_TOL]
+    if has_dip and gs[GS_HAS_DIP] != 0.0:
+        ok = ok and abs(dip - gs[GS_DIP]) <= gp[GP_SIN_TOL]
+    if not ok:
+        gs[GS_REJECTED_FOR] += h
+        if gs[GS_REJECTED_FOR] < gp[GP_TIMEOUT]:
+            return False
+        gs[GS_NORM] = n  # the environment changed: start over from here
+        gs[GS_HAS_DIP], gs[GS_DIP] = (1.0 if has_dip else 0.0), dip
+    gs[GS_REJECTED_FOR] = 0.0
+    k = min(1.0, h / gp[GP_TAU])
+    gs[GS_NORM] += k * (n - gs[GS_NORM])
+    if has_dip:
+        if gs[GS_HAS_DIP] == 0.0:
+            gs[GS_HAS_DIP], gs[GS_DIP] = 1.0, dip
+        else:
+            gs[GS_DIP] += k * (dip - gs[GS_DIP])
+    return True
+
+
+@kernel
+def _signal_run(sp, ss, h, io):  # type: ignore[no-untyped-def]
+    """:func:`signal_step` over N steps: ``h`` (N,), ``io`` (N, 9) in place. Returns the index of a bad
+    step, or N."""
+    for i in range(h.shape[0]):
+        if signal_step(sp, ss, h[i], io[i]) < 0:
+            return i
+    return h.shape[0]
+
+
+@kernel
+def _gate_run(gp, gs, h, up, mag, passed):  # type: ignore[no-untyped-def]
+    """:func:`gate_step` over N steps: ``h`` (N,), ``up`` and ``mag`` (N, 3), into ``passed`` (N,)."""
+    for i in range(h.shape[0]):
+        passed[i] = gate_step(gp, gs, h[i], up[i, 0], up[i, 1], up[i, 2], mag[i, 0], mag[i, 1], mag[i, 2])
+
+
+# --------------------------------------------------------------------------- one signal
 class Prefilter:
     """Per-sample first-order Butterworth low-pass of a ``dim``-vector (e.g. an accelerometer triad).
 
@@ -58,47 +228,42 @@ class Prefilter:
     a reset) ignores ``h`` and returns ``x`` itself.
     """
 
-    __slots__ = ("cutoff_rad_s", "dim", "_x", "_y")
+    __slots__ = ("cutoff_rad_s", "dim", "_st", "_y")
 
     def __init__(self, cutoff_rad_s: float = PAPER_CUTOFF_RAD_S, dim: int = 3) -> None:
         self.cutoff_rad_s = _check_cutoff(cutoff_rad_s)
         self.dim = dim
-        self._x: tuple[float, ...] | None = None  # previous input
-        self._y: tuple[float, ...] | None = None  # previous output
+        self._st = np.zeros(1 + 2 * dim)
+        self._y = np.empty(dim)
 
     def reset(self) -> None:
         """Forget the past; the next valid sample restarts the filter."""
-        self._x = self._y = None
+        self._st[0] = 0.0
 
     @property
     def output(self) -> tuple[float, ...] | None:
         """The latest filtered value, or None before the first valid sample (or after a reset)."""
-        return self._y
+        return tuple(self._st[1 + self.dim :].tolist()) if self._st[0] else None
 
-    def update(self, h: float, x: Sequence[float] | ArrayLike, valid: bool = True) -> tuple[float, ...]:
+    def update(self, h: float, x: ArrayLike, valid: bool = True) -> tuple[float, ...]:
         """Filter one sample; an invalid or non-finite one returns NaNs and resets the filter."""
-        xs = x if type(x) is tuple else tuple(float(v) for v in np.asarray(x, dtype=float).reshape(-1))
-        if len(xs) != self.dim:
-            raise ValueError(f"pre-filter input has {len(xs)} components, expected {self.dim}")
-        if not valid or not all(math.isfinite(v) for v in xs):
+        xs = np.asarray(x, dtype=float).reshape(-1)
+        if xs.shape[0] != self.dim:
+            raise ValueError(f"pre-filter input has {xs.shape[0]} components, expected {self.dim}")
+        if not valid:
             self.reset()
             return (math.nan,) * self.dim
-        if self._y is None or self._x is None:
-            self._x = self._y = xs
-            return xs
-        if not h > 0.0:
+        if lowpass(self._st, self.cutoff_rad_s, float(h), xs, self._y) < 0:
             raise ValueError(f"pre-filter step must be positive, got h = {h!r} s")
-        a, b = coefficients(self.cutoff_rad_s, h)
-        y = tuple(a * yp + b * (xp + xn) for yp, xp, xn in zip(self._y, self._x, xs, strict=True))
-        self._x, self._y = xs, y
-        return y
+        return tuple(self._y.tolist())
 
 
 def filter_batch(h: ArrayLike, x: ArrayLike, cutoff_rad_s: float = PAPER_CUTOFF_RAD_S) -> Array:
-    """Filter a whole signal: ``x`` (N, dim) sampled with steps ``h`` (N,) — ``h[k]`` is the step that
-    ends at sample ``k`` (``h[0]`` is ignored). Rows with a non-finite value are invalid: they come out
-    NaN and reset the filter (see the module docstring). Returns (N, dim); the same numbers (to rounding)
-    as :class:`Prefilter` fed sample by sample, at numpy speed for any steps.
+    """Filter a whole signal in closed form (the numpy reference for :func:`lowpass`): ``x`` (N, dim)
+    sampled with steps ``h`` (N,) — ``h[k]`` is the step that ends at sample ``k`` (``h[0]`` is ignored).
+    Rows with a non-finite value are invalid: they come out NaN and reset the filter (see the module
+    docstring). Returns (N, dim); the same numbers (to rounding) as :class:`Prefilter` fed sample by
+    sample.
 
     The recursion ``y[k] = α_k y[k−1] + u_k`` (``u_k = β_k (x[k−1] + x[k])``) is solved in closed form,
     ``y[k] = Q_k (y[s] + Σ_{j≤k} u_j / Q_j)`` with ``Q_k = Π α`` since the block start ``s``; blocks are cut
@@ -150,6 +315,28 @@ def _filter_run(h: Array, x: Array, cutoff: float) -> Array:
 
 
 # --------------------------------------------------------------------------- a phone's three signals
+def pack_signal_params(cutoffs: dict[SensorKind, float | None], frame: str) -> Array:
+    """The signal parameters ``sp`` (:data:`SP_SIZE`) for per-sensor ``cutoffs`` (None: not filtered)."""
+    if frame not in ("body", "strapdown"):
+        raise ConfigError(f"pre-filter frame must be 'body' or 'strapdown', got {frame!r}", "prefilter frame")
+    sp = np.zeros(SP_SIZE)
+    for kind in KINDS:
+        cut = cutoffs.get(kind)
+        sp[SP_CUTOFF + int(kind)] = 0.0 if cut is None else _check_cutoff(float(cut))
+    sp[SP_STRAPDOWN] = 1.0 if frame == "strapdown" else 0.0
+    return sp
+
+
+def new_signal_state() -> Array:
+    """A signal state ``ss`` (:data:`SS_SIZE`) before the first step: ``R_g`` = I, filters not running."""
+    ss = np.zeros(SS_SIZE)
+    ss[SS_RG : SS_RG + 9] = _IDENTITY
+    return ss
+
+
+Vec = tuple[float, float, float]
+
+
 class SignalPrefilter:
     """The pre-filter for a phone's three measured quantities, stepped together over merged steps.
 
@@ -165,78 +352,43 @@ class SignalPrefilter:
       filter). The gyroscope itself, if given a cut-off, is filtered in the body frame.
 
     A signal that is None (not usable) comes out None and its filter restarts at its next usable sample.
+    :meth:`step` and :meth:`run` run the same kernel and continue from the same state.
     """
 
     def __init__(self, cutoffs: dict[SensorKind, float | None], frame: str = "body") -> None:
-        if frame not in ("body", "strapdown"):
-            raise ConfigError(
-                f"pre-filter frame must be 'body' or 'strapdown', got {frame!r}", "prefilter frame"
-            )
         self.frame = frame
-        self._cut = {k: cutoffs.get(k) for k in KINDS}
-        self._filters = {k: Prefilter(float(c)) for k, c in self._cut.items() if c is not None}
-        self._r: Mat9 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-        self._g: Vec3 = (0.0, 0.0, 0.0)
-        self._n = 0
+        self._sp = pack_signal_params(cutoffs, frame)
+        self._ss = new_signal_state()
+        self._io = np.empty(9)
 
     def step(
-        self, h: float, gyr: Vec3 | None, acc: Vec3 | None, mag: Vec3 | None
-    ) -> tuple[Vec3 | None, Vec3 | None, Vec3 | None]:
+        self, h: float, gyr: Vec | None, acc: Vec | None, mag: Vec | None
+    ) -> tuple[Vec | None, Vec | None, Vec | None]:
         """One merged step of ``h`` s (ignored on the first); returns the filtered (gyr, acc, mag)."""
-        g = gyr if gyr is not None else (0.0, 0.0, 0.0)
-        strap = self.frame == "strapdown"
-        if strap and self._n:
-            a = self._g
-            r = matmul_f(
-                self._r, exp_f(0.5 * h * (a[0] + g[0]), 0.5 * h * (a[1] + g[1]), 0.5 * h * (a[2] + g[2]))
-            )
-            self._r = reorthonormalize_f(r)
-        self._g = g
-        self._n += 1
-        out_g = self._filter(SensorKind.GYR, h, gyr, None)
-        frame = self._r if strap else None
-        return out_g, self._filter(SensorKind.ACC, h, acc, frame), self._filter(SensorKind.MAG, h, mag, frame)
-
-    def _filter(self, kind: SensorKind, h: float, v: Vec3 | None, r: Mat9 | None) -> Vec3 | None:
-        f = self._filters.get(kind)
-        if f is None:
-            return v
-        if v is None:
-            f.reset()
-            return None
-        y = f.update(h, v if r is None else apply_f(r, v))  # in the strapdown frame: R_g v
-        return y if r is None else apply_transpose_f(r, y)  # type: ignore[return-value,arg-type]
+        io = self._io
+        for s, v in enumerate((gyr, acc, mag)):
+            io[3 * s : 3 * s + 3] = math.nan if v is None else v
+        if signal_step(self._sp, self._ss, float(h), io) < 0:
+            raise ValueError(f"pre-filter step must be positive, got h = {h!r} s")
+        out = io.tolist()
+        g, a, m = (_vec(out[3 * s : 3 * s + 3]) for s in range(3))
+        return g, a, m
 
     def run(self, steps: MergedSteps) -> MergedSteps:
-        """Filter every step at once (same numbers, to rounding, as :meth:`step` one by one); the filter
-        state is not carried into or out of a batch. Stale sensors stay NaN."""
-        h = steps.h
-        values = {k: np.where(steps.valid(k)[:, None], steps.value(k), np.nan) for k in KINDS}
-        frames = self._strapdown_frames(h, values[SensorKind.GYR]) if self.frame == "strapdown" else None
-        out = {}
-        for kind in KINDS:
-            cut, v = self._cut[kind], values[kind]
-            if cut is None:
-                out[kind] = v
-            elif frames is None or kind is SensorKind.GYR:
-                out[kind] = filter_batch(h, v, cut)
-            else:
-                y = filter_batch(h, np.einsum("nij,nj->ni", frames, v), cut)
-                out[kind] = np.einsum("nji,nj->ni", frames, y)
-        return replace(steps, gyr=out[SensorKind.GYR], acc=out[SensorKind.ACC], mag=out[SensorKind.MAG])
+        """Filter every step in one compiled call (the same numbers as :meth:`step` one by one). Stale
+        sensors come out NaN."""
+        values = [np.where(steps.valid(k)[:, None], steps.value(k), np.nan) for k in KINDS]
+        io = np.ascontiguousarray(np.concatenate(values, axis=1))
+        h = np.ascontiguousarray(steps.h, dtype=float)
+        done = _signal_run(self._sp, self._ss, h, io)
+        if done < len(h):
+            raise ValueError(f"pre-filter steps must be positive: step {done} is {h[done]!r} s")
+        return replace(steps, gyr=io[:, 0:3], acc=io[:, 3:6], mag=io[:, 6:9])
 
-    @staticmethod
-    def _strapdown_frames(h: Array, gyr: Array) -> Array:
-        """``R_g`` (N, 3, 3) at each step: the gyro (NaN read as 0) integrated by the midpoint rule."""
-        g = np.where(np.isfinite(gyr), gyr, 0.0)
-        mid = 0.5 * h[1:, None] * (g[:-1] + g[1:])
-        steps = so3.exp(mid).reshape(-1, 9).tolist()
-        r: Mat9 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
-        frames = [r]
-        for step in steps:
-            r = reorthonormalize_f(matmul_f(r, step))  # type: ignore[arg-type]
-            frames.append(r)
-        return np.asarray(frames, dtype=float).reshape(len(h), 3, 3)
+
+def _vec(v: list[float]) -> Vec | None:
+    x, y, z = v
+    return (x, y, z) if math.isfinite(x + y + z) else None
 
 
 # --------------------------------------------------------------------------- magnetic disturbances
@@ -249,6 +401,19 @@ class GateSettings:
     dip_tol_deg: float = 8.0
     tau_s: float = 20.0
     timeout_s: float = 10.0
+
+
+def pack_gate_params(settings: GateSettings) -> Array:
+    """The gate parameters ``gp`` (:data:`GP_SIZE`); ConfigError for a setting that is not positive."""
+    for name, v in vars(settings).items():
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"must be a positive number, got {v!r}", f"MagneticGate.{name}")
+    gp = np.zeros(GP_SIZE)
+    gp[GP_NORM_TOL] = settings.norm_tol
+    gp[GP_SIN_TOL] = math.sin(math.radians(settings.dip_tol_deg))
+    gp[GP_TAU] = settings.tau_s
+    gp[GP_TIMEOUT] = settings.timeout_s
+    return gp
 
 
 class MagneticGate:
@@ -266,63 +431,25 @@ class MagneticGate:
     def __init__(
         self, norm_tol: float = 0.1, dip_tol_deg: float = 8.0, tau_s: float = 20.0, timeout_s: float = 10.0
     ):
-        for name, v in (
-            ("norm_tol", norm_tol),
-            ("dip_tol_deg", dip_tol_deg),
-            ("tau_s", tau_s),
-            ("timeout_s", timeout_s),
-        ):
-            if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"must be a positive number, got {v!r}", f"MagneticGate.{name}")
-        self.norm_tol, self.sin_tol, self.tau_s, self.timeout_s = (
-            norm_tol,
-            math.sin(math.radians(dip_tol_deg)),
-            tau_s,
-            timeout_s,
-        )
-        self._norm: float | None = None
-        self._dip: float | None = None  # sin of the dip: −(ĝ·m̂), ĝ = gravity reading direction (up)
-        self._rejected_for = 0.0
+        self._gp = pack_gate_params(GateSettings(norm_tol, dip_tol_deg, tau_s, timeout_s))
+        self._gs = np.zeros(GS_SIZE)
 
-    def step(self, h: float, up: Vec3 | None, mag: Vec3 | None) -> Vec3 | None:
+    def step(self, h: float, up: Vec | None, mag: Vec | None) -> Vec | None:
         if mag is None:
             return None
-        n = math.sqrt(mag[0] * mag[0] + mag[1] * mag[1] + mag[2] * mag[2])
-        if not n > 0.0:
-            return None
-        dip = None
-        if up is not None:
-            nu = math.sqrt(up[0] * up[0] + up[1] * up[1] + up[2] * up[2])
-            if nu > 0.0:
-                dip = -(up[0] * mag[0] + up[1] * mag[1] + up[2] * mag[2]) / (nu * n)
-        if self._norm is None:
-            self._norm, self._dip = n, dip
-            return mag
-        ok = abs(n / self._norm - 1.0) <= self.norm_tol
-        if dip is not None and self._dip is not None:
-            ok = ok and abs(dip - self._dip) <= self.sin_tol
-        if not ok:
-            self._rejected_for += h
-            if self._rejected_for < self.timeout_s:
-                return None
-            self._norm, self._dip = n, dip  # the environment changed: start over from here
-        self._rejected_for = 0.0
-        k = min(1.0, h / self.tau_s)
-        self._norm += k * (n - self._norm)
-        if dip is not None:
-            self._dip = dip if self._dip is None else self._dip + k * (dip - self._dip)
-        return mag
+        ux, uy, uz = (math.nan, math.nan, math.nan) if up is None else up
+        mx, my, mz = mag
+        gp, gs = self._gp, self._gs
+        passed = gate_step(gp, gs, float(h), float(ux), float(uy), float(uz), float(mx), float(my), float(mz))
+        return mag if passed else None
 
     def run(self, h: Array, up: Array, mag: Array) -> Array:
-        """Gate every step (the same numbers as :meth:`step` one by one); rejected rows come out NaN."""
-        out = mag.copy()
-        for i, (hi, u, m) in enumerate(zip(h.tolist(), up.tolist(), mag.tolist(), strict=True)):
-            kept = self.step(hi, _finite3(u), _finite3(m))
-            if kept is None:
-                out[i] = np.nan
-        return out
+        """Gate every step in one compiled call (the same numbers as :meth:`step` one by one); rejected
+        rows come out NaN."""
+        passed = np.empty(len(h), dtype=np.bool_)
+        _gate_run(self._gp, self._gs, _c(h), _c(up), _c(mag), passed)
+        return np.where(passed[:, None], mag, np.nan)
 
 
-def _finite3(v: list[float]) -> Vec3 | None:
-    x, y, z = v
-    return (x, y, z) if math.isfinite(x + y + z) else None
+def _c(a: ArrayLike) -> Array:
+    return np.ascontiguousarray(a, dtype=float)

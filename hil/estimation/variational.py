@@ -1,7 +1,9 @@
 """The step of the paper's second-order discrete variational attitude estimator (Viswanathan, Sanyal &
-Izadi, arXiv 1509.03677, Proposition 1; Izadi & Sanyal, Automatica 2014): the measurement terms, the
-potential's torque, the implicit step's Newton solve and the float kernels that
-:class:`hil.estimation.estimator.VariationalEstimator` runs. Pure math, no I/O.
+Izadi, arXiv 1509.03677, Proposition 1; Izadi & Sanyal, Automatica 2014) as compiled kernels: the
+measurement terms, the potential's torque, the implicit step's Newton solve, one step with its sub-steps,
+and the loops :class:`hil.estimation.estimator.VariationalEstimator` calls (one compiled call per sample,
+or one per batch). Pure math, no I/O; :mod:`hil.estimation.reference` is the numpy reference the tests
+compare every kernel with.
 
 Notation (docs/estimator.md derives each line): ``Ω^m`` measured body rate (rad/s), ``ω`` the rate-estimate
 error, ``Ω̂ = Ω^m − ω`` the rate estimate, ``R̂`` the attitude estimate (body → inertial ENU), ``h`` the step::
@@ -21,10 +23,10 @@ with the analytic Jacobian ``∂f/∂ω = m I + h/2 y^× J_l(φ)``, ``y = exp(φ
 Jacobian of SO(3), from one fixed-point pass ``ω = exp(φ(c/m)^×) c / m``. Iteration stops when the
 residual satisfies ``‖f‖ / m ≤ newton_tol · √(1 + ‖ω‖²)`` (default 1e-12 rad/s; ``‖f‖/m`` is the size of
 the next Newton update to O(h)); after ``newton_max_iter`` updates (default 10) the step is a failure:
-flagged :attr:`StepFlag.NEWTON_FAILED` and counted, or raised as :class:`ConvergenceError`
+flagged :attr:`StepFlag.NEWTON_FAILED` and counted, or raised as :class:`ConvergenceError` by the caller
 (``on_newton_failure``). At phone rates one update suffices (quadratic convergence from an O(h²) start).
 
-Missing measurements: a direction that is not usable (None/NaN input, a stale sensor) is left out of the
+Missing measurements: a direction that is not usable (NaN input, a stale sensor) is left out of the
 potential: ``L = E_S W_SS U_Sᵀ`` over the usable set S ⊆ {acc, mag, acc×mag} (the cross-product column
 needs both, and is dropped when they are within ``min_direction_angle_deg`` of parallel). With no usable
 direction the potential term vanishes and the filter propagates the gyro. A gyroscope that is not usable
@@ -37,6 +39,23 @@ split into equal sub-steps with the gyro interpolated linearly and the new measu
 
 R̂ stays a rotation: each step multiplies by an exact rotation (Rodrigues) and applies one Newton–Schulz
 polar correction, which keeps ``‖R̂ᵀR̂ − I‖`` at rounding level however many steps are taken.
+
+Arrays the kernels take (float64 unless said; slots are the ``P_*``, ``S_*``, ``C_*`` constants below;
+matrices row-major; a later slot is only ever appended, so a new state — e.g. a gyro bias — extends these):
+
+- parameters ``ep`` (:data:`P_SIZE`), built once by :func:`pack_params`: m, Newton tolerance and cap, the
+  failure policy, ``max_step_s``, sin of ``min_direction_angle_deg``, Φ' (kind and argument), D (with a
+  diagonal flag), E, W, and per usable-direction mask (bits acc 1, mag 2, acc×mag 4) ``M = E W_S`` (so
+  ``L = M Uᵀ``) and ``tr(E_SᵀE_S W_SS)``;
+- state ``es`` (:data:`S_SIZE`): R̂, Ω̂ (an output: ``Ω^m − ω`` after the step), ω, Ω^m[i], the cached
+  ``Φ'(U⁰[i]) S_L[i]``, the time ``t`` (s), started, then the counters (:data:`C_SIZE` whole numbers
+  at ``S_COUNTS + C_*``: the :class:`~hil.estimation.estimator.EstimatorStats` fields). R̂, Ω̂ and ω come
+  first and contiguous, so the estimate is one copy of ``es[:15]``.
+
+Two arrays per call, not more: numba's dispatcher costs ~0.1 µs per array argument, and a live step's
+whole budget is a few µs.
+
+A step's result is one int: its :class:`StepFlag` bits ``| newton_updates << ITER_SHIFT``.
 """
 
 from __future__ import annotations
@@ -46,159 +65,171 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from hil import so3
 from hil.estimation.params import EstimatorParams
 from hil.estimation.sensors import StepFlag
-from hil.so3 import Mat9, Vec3, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f, solve3_f
-from protocol.errors import ConvergenceError
+from hil.jit import kernel
+from hil.so3.floats import exp_f, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f
 
 Array = NDArray[np.float64]
 
-_ACC, _MAG, _CROSS = 1, 2, 4  # bits of the usable-direction mask (index into per-mask tables)
+# --------------------------------------------------------------------------- layouts
+P_M = 0  # m, the estimator's 'inertia'
+P_TOL = 1  # newton_tol (rad/s)
+P_MAX_ITER = 2  # newton_max_iter
+P_RAISE = 3  # 1: a failed Newton solve stops a batch (on_newton_failure = "raise")
+P_MAX_STEP = 4  # max_step_s (s)
+P_MIN_SIN = 5  # sin(min_direction_angle_deg)
+P_PHI_KIND = 6  # PHI_CONSTANT or PHI_LOG
+P_PHI_ARG = 7  # the constant Φ', or the log potential's scale s
+P_D_DIAG = 8  # 1: D is diagonal
+P_D = 9  # D (9)
+P_E = 18  # E (9)
+P_W = 27  # W (9)
+P_MTAB = 36  # M = E W_S per mask (8 × 9)
+P_TRACE = 108  # tr(E_Sᵀ E_S W_SS) per mask (8)
+P_SIZE = 116
+
+PHI_CONSTANT = 0  # Φ' constant (Φ linear: the paper's Φ(x) = x)
+PHI_LOG = 1  # Φ(x) = s ln(1 + x/s): Φ' = 1 / (1 + x/s)
+
+S_R = 0  # R̂ (9), body → inertial
+S_RATE = 9  # Ω̂ = Ω^m − ω (3) rad/s, the rate estimate (an output)
+S_OMEGA = 12  # ω (3) rad/s, the rate-estimate error
+S_GYR = 15  # Ω^m[i] (3) rad/s, the last rate measurement used (0 when the gyro was not usable)
+S_TORQUE = 18  # Φ'(U⁰[i]) S_L[i] (3)
+S_T = 21  # time (s)
+S_STARTED = 22  # 1 once the first sample is taken
+S_COUNTS = 23  # the counters (C_SIZE), at S_COUNTS + C_*
+
+C_STEPS = 0
+C_NEWTON_FAILURES = 1
+C_NEWTON_UPDATES = 2
+C_MAX_NEWTON_UPDATES = 3
+C_SUBSTEPS = 4
+C_DEGENERATE = 5
+C_NO_DIRECTION = 6
+C_GYRO_MISSING = 7
+C_SIZE = 8
+S_SIZE = S_COUNTS + C_SIZE
+
+ITER_SHIFT = 16
+FLAG_BITS = (1 << ITER_SHIFT) - 1
+BAD_STEP = -1
+"""What :func:`update` returns, having changed nothing, for a step ``dt`` that is not a positive number."""
+
+_ACC, _MAG, _CROSS = 1, 2, 4  # bits of the usable-direction mask
+_GYR_STALE = int(StepFlag.GYR_STALE)
+_ACC_STALE = int(StepFlag.ACC_STALE)
+_MAG_STALE = int(StepFlag.MAG_STALE)
+_DEGENERATE = int(StepFlag.DEGENERATE)
 _NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 _SUBSTEPPED = int(StepFlag.SUBSTEPPED)
+_ZERO9 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def pack_params(p: EstimatorParams) -> Array:
+    """The parameter array ``ep`` (:data:`P_SIZE`) of ``p`` (see the module docstring for its layout)."""
+    ep = np.zeros(P_SIZE)
+    ep[P_M] = p.m
+    ep[P_TOL] = p.newton_tol
+    ep[P_MAX_ITER] = p.newton_max_iter
+    ep[P_RAISE] = 1.0 if p.on_newton_failure == "raise" else 0.0
+    ep[P_MAX_STEP] = p.max_step_s
+    ep[P_MIN_SIN] = math.sin(math.radians(p.min_direction_angle_deg))
+    if p.phi.constant_derivative is not None:
+        ep[P_PHI_KIND], ep[P_PHI_ARG] = PHI_CONSTANT, p.phi.constant_derivative
+    else:  # EstimatorParams checked that Φ has a compiled form
+        ep[P_PHI_KIND], ep[P_PHI_ARG] = PHI_LOG, p.phi.log_scale
+    ep[P_D_DIAG] = 0.0 if np.any(p.D - np.diag(np.diag(p.D))) else 1.0
+    ep[P_D : P_D + 9] = p.D.reshape(-1)
+    ep[P_E : P_E + 9] = p.E.reshape(-1)
+    ep[P_W : P_W + 9] = p.W.reshape(-1)
+    for mask in range(8):
+        sel = np.array([bool(mask & b) for b in (_ACC, _MAG, _CROSS)], dtype=float)
+        w_sel = p.W * np.outer(sel, sel)
+        ep[P_MTAB + 9 * mask : P_MTAB + 9 * mask + 9] = (p.E @ w_sel).reshape(-1)
+        ep[P_TRACE + mask] = float(np.trace(p.E.T @ p.E @ w_sel))
+    return ep
 
 
 # --------------------------------------------------------------------------- measurement terms
-class _Tables:
-    """Constants of one parameter set in the shapes the per-step kernel wants (Python floats)."""
-
-    def __init__(self, p: EstimatorParams) -> None:
-        self.m = p.m
-        self.D: Mat9 = tuple(p.D.reshape(-1).tolist())  # type: ignore[assignment]
-        diagonal = not np.any(p.D - np.diag(np.diag(p.D)))
-        self.D_diag: Vec3 | None = tuple(np.diag(p.D).tolist()) if diagonal else None  # type: ignore[assignment]
-        self.tol = p.newton_tol
-        self.max_iter = p.newton_max_iter
-        self.raise_on_failure = p.on_newton_failure == "raise"
-        self.max_step = p.max_step_s
-        self.phi_prime = p.phi.derivative
-        self.phi_const = p.phi.constant_derivative
-        self.min_sin = math.sin(math.radians(p.min_direction_angle_deg))
-        # per usable-direction mask: M = E W_S (so L = M Uᵀ) and tr(E_Sᵀ E_S W_SS)
-        self.W_sel = np.zeros((8, 3, 3))
-        self.M = np.zeros((8, 3, 3))
-        self.trace_e = np.zeros(8)
-        for mask in range(8):
-            sel = np.array([bool(mask & b) for b in (_ACC, _MAG, _CROSS)], dtype=float)
-            self.W_sel[mask] = p.W * np.outer(sel, sel)
-            self.M[mask] = p.E @ self.W_sel[mask]
-            self.trace_e[mask] = float(np.trace(p.E.T @ p.E @ self.W_sel[mask]))
-        self.M_f: list[Mat9] = [tuple(x.reshape(-1).tolist()) for x in self.M]  # type: ignore[misc]
-
-
-def _mask_of(acc_ok: bool, mag_ok: bool, cross_ok: bool) -> int:
-    return (_ACC if acc_ok else 0) | (_MAG if mag_ok else 0) | (_CROSS if cross_ok else 0)
-
-
-def _measurement_f(tb: _Tables, acc: Vec3 | None, mag: Vec3 | None) -> tuple[Mat9 | None, float, StepFlag]:
-    """``(L, ½ tr(E_SᵀE_S W) + ½ tr(U_SᵀU_S W), flags)`` for one step; L None when no direction is usable.
-
-    With ``L`` and that constant ``k``, ``U⁰ = k − ⟨R̂, L⟩`` (R̂ orthonormal), so U⁰ costs 9 products.
-    """
-    u1 = _normalised(acc)
-    u2 = _normalised(mag)
-    flags = StepFlag.NONE
-    u3 = None
-    if u1 is not None and u2 is not None:
-        cx = u1[1] * u2[2] - u1[2] * u2[1]
-        cy = u1[2] * u2[0] - u1[0] * u2[2]
-        cz = u1[0] * u2[1] - u1[1] * u2[0]
+@kernel
+def measurement(ep, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+    """``(mask, L, k, flags)`` for one step's accelerometer and magnetometer readings (any units; NaN or
+    zero means not usable): the usable-direction mask (0: none), ``L = E W_S U_Sᵀ`` (9, row-major),
+    ``k = ½ tr(E_SᵀE_S W) + ½ tr(U_SᵀU_S W)`` (the second term only for a non-constant Φ') and the
+    :attr:`StepFlag.DEGENERATE` bit. With ``L`` and ``k``, ``U⁰ = k − ⟨R̂, L⟩`` (R̂ orthonormal)."""
+    flags = 0
+    na = math.sqrt(ax * ax + ay * ay + az * az)
+    nm = math.sqrt(mx * mx + my * my + mz * mz)
+    acc_ok = na > 0.0 and math.isfinite(na)
+    mag_ok = nm > 0.0 and math.isfinite(nm)
+    a0 = a1 = a2 = b0 = b1 = b2 = c0 = c1 = c2 = 0.0
+    if acc_ok:
+        a0, a1, a2 = ax / na, ay / na, az / na
+    if mag_ok:
+        b0, b1, b2 = mx / nm, my / nm, mz / nm
+    cross_ok = False
+    if acc_ok and mag_ok:
+        cx = a1 * b2 - a2 * b1
+        cy = a2 * b0 - a0 * b2
+        cz = a0 * b1 - a1 * b0
         n = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if n >= tb.min_sin:
-            u3 = (cx / n, cy / n, cz / n)
+        if n >= ep[P_MIN_SIN]:
+            c0, c1, c2 = cx / n, cy / n, cz / n
+            cross_ok = True
         else:  # (nearly) parallel: the magnetometer adds nothing trustworthy
-            flags |= StepFlag.DEGENERATE
-            u2 = None
-    mask = _mask_of(u1 is not None, u2 is not None, u3 is not None)
+            flags |= _DEGENERATE
+            mag_ok = False
+            b0 = b1 = b2 = 0.0
+    mask = (_ACC if acc_ok else 0) | (_MAG if mag_ok else 0) | (_CROSS if cross_ok else 0)
     if mask == 0:
-        return None, 0.0, flags
-    zero = (0.0, 0.0, 0.0)
-    a = u1 or zero
-    b = u2 or zero
-    c = u3 or zero
-    m0, m1, m2, m3, m4, m5, m6, m7, m8 = tb.M_f[mask]
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    c0, c1, c2 = c
+        return 0, _ZERO9, 0.0, flags
+    o = P_MTAB + 9 * mask
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = (
+        ep[o], ep[o + 1], ep[o + 2], ep[o + 3], ep[o + 4], ep[o + 5], ep[o + 6], ep[o + 7], ep[o + 8]
+    )  # fmt: skip
     # L = M Uᵀ: L[i][j] = Σ_k M[i][k] U[j][k], U's columns being a, b, c
-    big_l: Mat9 = (
+    big_l = (
         m0 * a0 + m1 * b0 + m2 * c0, m0 * a1 + m1 * b1 + m2 * c1, m0 * a2 + m1 * b2 + m2 * c2,
         m3 * a0 + m4 * b0 + m5 * c0, m3 * a1 + m4 * b1 + m5 * c1, m3 * a2 + m4 * b2 + m5 * c2,
         m6 * a0 + m7 * b0 + m8 * c0, m6 * a1 + m7 * b1 + m8 * c1, m6 * a2 + m7 * b2 + m8 * c2,
     )  # fmt: skip
-    k = 0.5 * tb.trace_e[mask]
-    if tb.phi_const is None:
-        u = np.array([a, b, c])  # rows are U's columns; zero rows for unused ones
-        k += 0.5 * float(np.sum((u @ u.T) * tb.W_sel[mask]))
-    return big_l, k, flags
-
-
-def _normalised(v: Vec3 | None) -> Vec3 | None:
-    if v is None:
-        return None
-    x, y, z = v
-    n = math.sqrt(x * x + y * y + z * z)
-    if not (n > 0.0 and math.isfinite(n)):
-        return None
-    return (x / n, y / n, z / n)
-
-
-def _measurement_batch(
-    tb: _Tables, acc: Array, mag: Array
-) -> tuple[list[list[float] | None], list[float], NDArray[np.int64]]:
-    """:func:`_measurement_f` for N steps at once (vectorised); rows of ``acc``/``mag`` with a NaN are
-    not usable. Returns per step ``L`` (9 floats, row-major, or None), the constant ``k``, and flags."""
-    n = acc.shape[0]
-
-    def unit(v: Array) -> tuple[Array, NDArray[np.bool_]]:
-        norm = np.linalg.norm(v, axis=1)
-        ok = np.isfinite(norm) & (norm > 0.0)
-        return np.where(ok[:, None], v / np.where(ok, norm, 1.0)[:, None], 0.0), ok
-
-    u1, ok1 = unit(acc)
-    u2, ok2 = unit(mag)
-    cross = np.cross(u1, u2)
-    cn = np.linalg.norm(cross, axis=1)
-    both = ok1 & ok2
-    degenerate = both & (cn < tb.min_sin)
-    ok2 &= ~degenerate
-    u2[degenerate] = 0.0
-    ok3 = both & ~degenerate
-    u3 = np.where(ok3[:, None], cross / np.where(ok3, cn, 1.0)[:, None], 0.0)
-    mask = ok1 * _ACC + ok2 * _MAG + ok3 * _CROSS
-    cols = np.stack([u1, u2, u3], axis=2)  # cols[n, j, k] = U[n][j][k], columns a, b, c
-    big_l = np.einsum("nik,njk->nij", tb.M[mask], cols).reshape(n, 9)
-    k = 0.5 * tb.trace_e[mask]
-    if tb.phi_const is None:
-        gram = np.einsum("nji,njk->nik", cols, cols)
-        k = k + 0.5 * np.einsum("nik,nik->n", gram, tb.W_sel[mask])
-    rows: list[list[float] | None] = big_l.tolist()
-    for i in np.flatnonzero(mask == 0).tolist():
-        rows[i] = None
-    flags = np.where(degenerate, int(StepFlag.DEGENERATE), 0).astype(np.int64)
-    return rows, k.tolist(), flags
+    k = 0.5 * ep[P_TRACE + mask]
+    if ep[P_PHI_KIND] != PHI_CONSTANT:  # + ½ Σ_ij (u_i·u_j) W_ij, unused columns being zero
+        w = P_W
+        aa, bb, cc = a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2, c0 * c0 + c1 * c1 + c2 * c2
+        ab, ac, bc = a0 * b0 + a1 * b1 + a2 * b2, a0 * c0 + a1 * c1 + a2 * c2, b0 * c0 + b1 * c1 + b2 * c2
+        k += 0.5 * (
+            aa * ep[w] + bb * ep[w + 4] + cc * ep[w + 8]
+            + ab * (ep[w + 1] + ep[w + 3]) + ac * (ep[w + 2] + ep[w + 6]) + bc * (ep[w + 5] + ep[w + 7])
+        )  # fmt: skip
+    return mask, big_l, k, flags
 
 
 # --------------------------------------------------------------------------- the step
-def _torque(tb: _Tables, r: Mat9, big_l: Mat9 | list[float] | None, k: float) -> Vec3:
-    """``Φ'(U⁰(R̂, U)) S_L(R̂)`` with ``S_L = vex(Lᵀ R̂ − R̂ᵀ L)`` and ``U⁰ = k − ⟨R̂, L⟩``."""
-    if big_l is None:
-        return (0.0, 0.0, 0.0)
+@kernel
+def torque(ep, r, big_l, mask, k):  # type: ignore[no-untyped-def]
+    """``Φ'(U⁰(R̂, U)) S_L(R̂)`` with ``S_L = vex(Lᵀ R̂ − R̂ᵀ L)`` and ``U⁰ = k − ⟨R̂, L⟩``; zero for no
+    usable direction (``mask`` 0). ``r`` and ``big_l`` are row-major 9-tuples."""
+    if mask == 0:
+        return 0.0, 0.0, 0.0
     r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
     l0, l1, l2, l3, l4, l5, l6, l7, l8 = big_l
     # A = Lᵀ R̂ (only the off-diagonal entries are needed): A_ij = Σ_k L_ki R̂_kj; S_L = vex(A − Aᵀ)
     sx = (l2 * r1 + l5 * r4 + l8 * r7) - (l1 * r2 + l4 * r5 + l7 * r8)
     sy = (l0 * r2 + l3 * r5 + l6 * r8) - (l2 * r0 + l5 * r3 + l8 * r6)
     sz = (l1 * r0 + l4 * r3 + l7 * r6) - (l0 * r1 + l3 * r4 + l6 * r7)
-    g = tb.phi_const
-    if g is None:
+    if ep[P_PHI_KIND] == PHI_CONSTANT:
+        g = ep[P_PHI_ARG]
+    else:
         inner = r0 * l0 + r1 * l1 + r2 * l2 + r3 * l3 + r4 * l4 + r5 * l5 + r6 * l6 + r7 * l7 + r8 * l8
-        g = tb.phi_prime(k - inner)
-    return (g * sx, g * sy, g * sz)
+        g = 1.0 / (1.0 + (k - inner) / ep[P_PHI_ARG])
+    return g * sx, g * sy, g * sz
 
 
-def _newton(tb: _Tables, hh: float, g1: Vec3, c: Vec3) -> tuple[Vec3, int, bool]:
+@kernel
+def newton(ep, hh, g1, c):  # type: ignore[no-untyped-def]
     """Solve ``m ω = exp(φ(ω)^×) c``, ``φ = hh (ω − g1)``, for ω by Newton–Raphson (see module doc).
 
     Start: one fixed-point pass ``ω = exp(φ(c/m)^×) c / m`` (error O(h²|Ω̂|²|ω|)). Each iteration evaluates
@@ -206,12 +237,13 @@ def _newton(tb: _Tables, hh: float, g1: Vec3, c: Vec3) -> tuple[Vec3, int, bool]
     size of the next Newton update, since ``∂f/∂ω = m I + O(h)``), else takes the update ``J⁻¹ f``.
     Returns ``(ω, Newton updates taken, converged)``.
     """
-    m = tb.m
-    tol2 = (m * tb.tol) ** 2
+    m = ep[P_M]
+    max_iter = int(ep[P_MAX_ITER])
+    tol2 = (m * ep[P_TOL]) ** 2
     cx, cy, cz = c
     gx, gy, gz = g1
     wx, wy, wz = rotate_f(hh * (cx / m - gx), hh * (cy / m - gy), hh * (cz / m - gz), cx / m, cy / m, cz / m)
-    for it in range(tb.max_iter + 1):
+    for it in range(max_iter + 1):
         px, py, pz = hh * (wx - gx), hh * (wy - gy), hh * (wz - gz)
         t2 = px * px + py * py + pz * pz
         a, b, cc = rodrigues_coefficients(t2)
@@ -223,7 +255,7 @@ def _newton(tb: _Tables, hh: float, g1: Vec3, c: Vec3) -> tuple[Vec3, int, bool]
         fx, fy, fz = m * wx - yx, m * wy - yy, m * wz - yz
         if fx * fx + fy * fy + fz * fz <= tol2 * (1.0 + wx * wx + wy * wy + wz * wz):
             return (wx, wy, wz), it, True
-        if it == tb.max_iter or not math.isfinite(fx + fy + fz):
+        if it == max_iter or not math.isfinite(fx + fy + fz):
             break
         # J = m I + hh [(1 − cc θ²) y^× + b (φ yᵀ − (y·φ) I) + cc (y×φ) φᵀ]
         e = hh * (1.0 - cc * t2)
@@ -252,26 +284,17 @@ def _newton(tb: _Tables, hh: float, g1: Vec3, c: Vec3) -> tuple[Vec3, int, bool]
         wx -= (c0 * fx + (j2 * j7 - j1 * j8) * fy + (j1 * j5 - j2 * j4) * fz) * inv
         wy -= (c1 * fx + (j0 * j8 - j2 * j6) * fy + (j2 * j3 - j0 * j5) * fz) * inv
         wz -= (c2 * fx + (j1 * j6 - j0 * j7) * fy + (j0 * j4 - j1 * j3) * fz) * inv
-    return (wx, wy, wz), tb.max_iter, False
+    return (wx, wy, wz), max_iter, False
 
 
-def _advance(
-    tb: _Tables,
-    r: Mat9,
-    w: Vec3,
-    g0: Vec3,
-    tau0: Vec3,
-    h: float,
-    g1: Vec3,
-    big_l: Mat9 | list[float] | None,
-    k1: float,
-) -> tuple[Mat9, Vec3, Vec3, int, bool]:
+@kernel
+def advance(ep, r, w, g0, tau0, h, g1, big_l, mask, k):  # type: ignore[no-untyped-def]
     """One step of Proposition 1 from ``(R̂[i], ω[i])`` with ``Ω^m[i] = g0`` and the cached
-    ``Φ'(U⁰[i]) S_L[i] = tau0`` to step i+1 with ``Ω^m[i+1] = g1`` and measurement ``(L, k)``.
+    ``Φ'(U⁰[i]) S_L[i] = tau0`` to step i+1 with ``Ω^m[i+1] = g1`` and measurement ``(mask, L, k)``.
 
     Returns ``(R̂[i+1], ω[i+1], Φ'(U⁰[i+1]) S_L[i+1], Newton updates, converged)``.
     """
-    m = tb.m
+    m = ep[P_M]
     hh = 0.5 * h
     wx, wy, wz = w
     g0x, g0y, g0z = g0
@@ -279,84 +302,154 @@ def _advance(
     # ω[i+½] = (m I + h/2 D)⁻¹ { exp(−h/2 Ω̂[i]^×) m ω[i] + h/2 τ[i] }
     vx, vy, vz = rotate_f(hh * (wx - g0x), hh * (wy - g0y), hh * (wz - g0z), m * wx, m * wy, m * wz)
     bx, by, bz = vx + hh * t0x, vy + hh * t0y, vz + hh * t0z
-    if tb.D_diag is not None:
-        dx, dy, dz = tb.D_diag
-        hx, hy, hz = bx / (m + hh * dx), by / (m + hh * dy), bz / (m + hh * dz)
-    else:
-        d0, d1, d2, d3, d4, d5, d6, d7, d8 = tb.D
-        mx = (m + hh * d0, hh * d1, hh * d2, hh * d3, m + hh * d4, hh * d5, hh * d6, hh * d7, m + hh * d8)
-        hx, hy, hz = solve3_f(mx, (bx, by, bz))
+    d = P_D
+    diagonal = ep[P_D_DIAG] != 0.0
+    if diagonal:
+        hx, hy, hz = bx / (m + hh * ep[d]), by / (m + hh * ep[d + 4]), bz / (m + hh * ep[d + 8])
+    else:  # Cramer's rule on m I + h/2 D (symmetric positive definite: never singular)
+        m0, m1, m2 = m + hh * ep[d], hh * ep[d + 1], hh * ep[d + 2]
+        m3, m4, m5 = hh * ep[d + 3], m + hh * ep[d + 4], hh * ep[d + 5]
+        m6, m7, m8 = hh * ep[d + 6], hh * ep[d + 7], m + hh * ep[d + 8]
+        c0, c1, c2 = m4 * m8 - m5 * m7, m5 * m6 - m3 * m8, m3 * m7 - m4 * m6
+        inv = 1.0 / (m0 * c0 + m1 * c1 + m2 * c2)
+        hx = (c0 * bx + (m2 * m7 - m1 * m8) * by + (m1 * m5 - m2 * m4) * bz) * inv
+        hy = (c1 * bx + (m0 * m8 - m2 * m6) * by + (m2 * m3 - m0 * m5) * bz) * inv
+        hz = (c2 * bx + (m1 * m6 - m0 * m7) * by + (m0 * m4 - m1 * m3) * bz) * inv
     # R̂[i+1] = R̂[i] exp(h (Ω^m[i+½] − ω[i+½])^×)
     g1x, g1y, g1z = g1
-    step = so3.exp_f(h * (0.5 * (g0x + g1x) - hx), h * (0.5 * (g0y + g1y) - hy), h * (0.5 * (g0z + g1z) - hz))
+    step = exp_f(h * (0.5 * (g0x + g1x) - hx), h * (0.5 * (g0y + g1y) - hy), h * (0.5 * (g0z + g1z) - hz))
     r1 = reorthonormalize_f(matmul_f(r, step))
-    t1x, t1y, t1z = tau1 = _torque(tb, r1, big_l, k1)
+    tau1 = torque(ep, r1, big_l, mask, k)
+    t1x, t1y, t1z = tau1
     # m ω[i+1] = exp(−h/2 Ω̂[i+1]^×) { (m I − h/2 D) ω[i+½] + h/2 τ[i+1] }
-    if tb.D_diag is not None:
-        c = ((m - hh * dx) * hx + hh * t1x, (m - hh * dy) * hy + hh * t1y, (m - hh * dz) * hz + hh * t1z)
+    if diagonal:
+        c = (
+            (m - hh * ep[d]) * hx + hh * t1x,
+            (m - hh * ep[d + 4]) * hy + hh * t1y,
+            (m - hh * ep[d + 8]) * hz + hh * t1z,
+        )
     else:
         c = (
-            m * hx - hh * (d0 * hx + d1 * hy + d2 * hz) + hh * t1x,
-            m * hy - hh * (d3 * hx + d4 * hy + d5 * hz) + hh * t1y,
-            m * hz - hh * (d6 * hx + d7 * hy + d8 * hz) + hh * t1z,
+            m * hx - hh * (ep[d] * hx + ep[d + 1] * hy + ep[d + 2] * hz) + hh * t1x,
+            m * hy - hh * (ep[d + 3] * hx + ep[d + 4] * hy + ep[d + 5] * hz) + hh * t1y,
+            m * hz - hh * (ep[d + 6] * hx + ep[d + 7] * hy + ep[d + 8] * hz) + hh * t1z,
         )
-    w1, iters, ok = _newton(tb, hh, g1, c)
+    w1, iters, ok = newton(ep, hh, g1, c)
     return r1, w1, tau1, iters, ok
 
 
-def _run(
-    tb: _Tables,
-    state: tuple[Mat9, Vec3, Vec3, Vec3],
-    hs: list[float],
-    gyrs: list[list[float]],
-    big_ls: list[list[float] | None],
-    ks: list[float],
-    out_r: list[Mat9],
-    out_w: list[Vec3],
-    out_flags: list[int],
-    out_iters: list[int],
-) -> tuple[tuple[Mat9, Vec3, Vec3, Vec3], int, int, int]:
-    """Step through samples ``i`` (steps ``hs[i]`` s, rates ``gyrs[i]``, measurements ``(big_ls[i], ks[i])``)
-    from ``state = (R̂, ω, Ω^m, τ)``, appending each step's R̂, ω, flag bits and Newton updates to the
-    ``out_*`` lists. Returns the final state, the sub-steps taken, the Newton updates taken and the most
-    in one step.
+@kernel
+def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+    """Take one sample into the state ``es``: rates ``g`` (rad/s), accelerometer ``a`` and magnetometer
+    ``m`` (any units), NaN meaning not usable, ``h`` s since the previous sample. The first sample (``es``
+    not started) only initialises: it sets Ω^m[0] and the cached torque at R̂0, and ignores ``h``.
+    A step longer than ``max_step_s`` is split into sub-steps (gyro interpolated linearly, measurement
+    held). Counts into the state's counters; leaves the time slot to the callers.
 
-    The one loop both :meth:`VariationalEstimator.update` and ``update_batch`` run (locals only: at
-    ~10 µs a step, attribute and call overhead would otherwise be a third of the cost).
-    """
-    r, w, g0, tau = state
-    max_step = tb.max_step
-    substeps = most = updates = 0
-    for h, g, big_l, k in zip(hs, gyrs, big_ls, ks, strict=True):
-        g1: Vec3 = (g[0], g[1], g[2])
+    Returns the step's flags ``| newton_updates << ITER_SHIFT``, or :data:`BAD_STEP` (nothing changed)
+    for a started estimator and an ``h`` that is not a positive number."""
+    flags = 0
+    if not math.isfinite(gx + gy + gz):
+        gx = gy = gz = 0.0
+        flags |= _GYR_STALE
+    mask, big_l, k, mflags = measurement(ep, ax, ay, az, mx, my, mz)
+    flags |= mflags
+    r = (es[0], es[1], es[2], es[3], es[4], es[5], es[6], es[7], es[8])
+    g1 = (gx, gy, gz)
+    total = 0
+    if es[S_STARTED] == 0.0:
+        es[S_STARTED] = 1.0
+        tau = torque(ep, r, big_l, mask, k)
+    else:
+        if not (h > 0.0 and math.isfinite(h)):
+            return BAD_STEP
+        w = (es[S_OMEGA], es[S_OMEGA + 1], es[S_OMEGA + 2])
+        g0 = (es[S_GYR], es[S_GYR + 1], es[S_GYR + 2])
+        tau = (es[S_TORQUE], es[S_TORQUE + 1], es[S_TORQUE + 2])
+        max_step = ep[P_MAX_STEP]
         if h <= max_step:
-            r, w, tau, total, ok = _advance(tb, r, w, g0, tau, h, g1, big_l, k)
-            flags = 0 if ok else _NEWTON_FAILED
+            r, w, tau, total, ok = advance(ep, r, w, g0, tau, h, g1, big_l, mask, k)
+            if not ok:
+                flags |= _NEWTON_FAILED
         else:  # sub-steps: gyro interpolated linearly, measurement held
-            n_sub = math.ceil(h / max_step)
+            n_sub = int(math.ceil(h / max_step))
             a0, a1, a2 = g0
-            flags, total = _SUBSTEPPED, 0
+            flags |= _SUBSTEPPED
             for j in range(1, n_sub + 1):
                 f = j / n_sub
-                ga = (
-                    (a0 + f * (g1[0] - a0), a1 + f * (g1[1] - a1), a2 + f * (g1[2] - a2)) if j < n_sub else g1
-                )
-                r, w, tau, iters, ok = _advance(tb, r, w, g0, tau, h / n_sub, ga, big_l, k)
+                ga = (a0 + f * (gx - a0), a1 + f * (gy - a1), a2 + f * (gz - a2)) if j < n_sub else g1
+                r, w, tau, iters, ok = advance(ep, r, w, g0, tau, h / n_sub, ga, big_l, mask, k)
                 g0 = ga
                 total += iters
-                flags |= 0 if ok else _NEWTON_FAILED
-            substeps += n_sub - 1
-        if flags and tb.raise_on_failure and flags & _NEWTON_FAILED:
-            raise ConvergenceError(
-                f"estimator step {len(out_r)} (h = {h:g} s): Newton–Raphson did not reach "
-                f"{tb.tol:g} rad/s in {tb.max_iter} updates (ω = {w})"
-            )
-        g0 = g1
-        out_r.append(r)
-        out_w.append(w)
-        out_flags.append(flags)
-        out_iters.append(total)
-        updates += total
-        if total > most:
-            most = total
-    return (r, w, g0, tau), substeps, updates, most
+                if not ok:
+                    flags |= _NEWTON_FAILED
+            es[S_COUNTS + C_SUBSTEPS] += n_sub - 1
+        for i in range(9):
+            es[S_R + i] = r[i]
+        es[S_OMEGA], es[S_OMEGA + 1], es[S_OMEGA + 2] = w
+    es[S_GYR], es[S_GYR + 1], es[S_GYR + 2] = g1
+    es[S_TORQUE], es[S_TORQUE + 1], es[S_TORQUE + 2] = tau
+    for i in range(3):
+        es[S_RATE + i] = es[S_GYR + i] - es[S_OMEGA + i]
+    c = S_COUNTS
+    es[c + C_STEPS] += 1.0
+    es[c + C_NEWTON_UPDATES] += total
+    es[c + C_MAX_NEWTON_UPDATES] = max(es[c + C_MAX_NEWTON_UPDATES], total)
+    if flags & _NEWTON_FAILED:
+        es[c + C_NEWTON_FAILURES] += 1.0
+    if flags & _DEGENERATE:
+        es[c + C_DEGENERATE] += 1.0
+    if flags & _GYR_STALE:
+        es[c + C_GYRO_MISSING] += 1.0
+    if mask == 0:
+        es[c + C_NO_DIRECTION] += 1.0
+    return flags | (total << ITER_SHIFT)
+
+
+@kernel
+def update(ep, es, dt, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+    """:func:`step` for one live sample, ``dt`` s after the previous one (added to the time slot).
+    Returns what :func:`step` returns."""
+    started = es[S_STARTED] != 0.0
+    code = step(ep, es, dt, gx, gy, gz, ax, ay, az, mx, my, mz)
+    if code >= 0 and started:
+        es[S_T] += dt
+    return code
+
+
+@kernel
+def write_row(es, i, out_r, out_omega, out_w):  # type: ignore[no-untyped-def]
+    """The estimate in ``es`` into row ``i`` of R̂ (N, 3, 3), Ω̂ and ω (N, 3)."""
+    for a in range(3):
+        for b in range(3):
+            out_r[i, a, b] = es[S_R + 3 * a + b]
+        out_omega[i, a] = es[S_RATE + a]
+        out_w[i, a] = es[S_OMEGA + a]
+
+
+@kernel
+def run(ep, es, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_flags, out_iters):  # type: ignore[no-untyped-def]
+    """:func:`step` over N merged steps at times ``t`` (N,) s, strictly increasing and after the state's
+    time (the caller checks): ``gyr``, ``acc``, ``mag`` (N, 3), a sensor flagged stale in ``flags_in``
+    (N,) being not usable. A state not started adopts ``t[0]`` as its time. Writes R̂ (N, 3, 3), Ω̂ and ω
+    (N, 3), flags (``flags_in`` | the step's) and Newton updates (N,). With the "raise" failure policy it
+    stops after the first step whose Newton solve failed; returns the number of steps taken."""
+    n = t.shape[0]
+    stop = ep[P_RAISE] != 0.0
+    nan = math.nan
+    for i in range(n):
+        fi = flags_in[i]
+        gx, gy, gz = (nan, nan, nan) if fi & _GYR_STALE else (gyr[i, 0], gyr[i, 1], gyr[i, 2])
+        ax, ay, az = (nan, nan, nan) if fi & _ACC_STALE else (acc[i, 0], acc[i, 1], acc[i, 2])
+        mx, my, mz = (nan, nan, nan) if fi & _MAG_STALE else (mag[i, 0], mag[i, 1], mag[i, 2])
+        h = t[i] - es[S_T] if es[S_STARTED] != 0.0 else 0.0
+        code = step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        if code < 0:  # a time not after the previous one: the caller checks, this is the backstop
+            return i
+        es[S_T] = t[i]
+        write_row(es, i, out_r, out_omega, out_w)
+        out_flags[i] = fi | (code & FLAG_BITS)
+        out_iters[i] = code >> ITER_SHIFT
+        if stop and code & _NEWTON_FAILED:
+            return i + 1
+    return n

@@ -3,8 +3,15 @@
 Each hot kernel (the plant step, the drive models, the simulated phone, the estimator's inner loop,
 steering's pseudo-inverse) is written once, in the subset of Python that numba compiles, and decorated
 with :func:`kernel`; its numpy reference lives beside it and the tests compare the two. numba compiles a
-kernel on its first call and caches the machine code on disk (``cache=True``: ``__pycache__`` beside the
-source, or ``NUMBA_CACHE_DIR``), so only a fresh install's first run pays for compiling.
+kernel on its first call and caches the machine code on disk (``__pycache__`` beside the source, or
+``NUMBA_CACHE_DIR``), so only a fresh install's first run pays for compiling.
+
+numba invalidates a cached kernel when *its own* source file changes, not when a function it calls from
+another file does (numba issue #1833): a kernel in one module calling one in another would then run the
+callee's old machine code. The cache of every :func:`kernel` is therefore stamped with a hash of all the
+sources of the packages kernels live in (:data:`STAMPED`): editing any of them recompiles them all. Reading
+those sources (through :mod:`importlib.resources`, once per process) is this package's only I/O besides
+numba's own cache files.
 
 ``NUMBA_DISABLE_JIT=1`` (numba's own switch) turns every kernel back into the plain Python it is written
 in: slower, but steppable in a debugger, with Python's tracebacks. :data:`COMPILED` says which is in force.
@@ -12,7 +19,11 @@ in: slower, but steppable in a debugger, with Python's tracebacks. :data:`COMPIL
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import functools
+import hashlib
+from collections.abc import Callable, Iterator
+from importlib import resources
+from importlib.abc import Traversable
 from typing import Any, TypeVar, cast
 
 import numba
@@ -22,11 +33,64 @@ F = TypeVar("F", bound=Callable[..., Any])
 COMPILED: bool = not getattr(numba.config, "DISABLE_JIT", False)
 """False when ``NUMBA_DISABLE_JIT=1``: every kernel runs as plain Python."""
 
+STAMPED = ("so3", "estimation", "vscmg", "control", "simulation", "jit")
+"""The packages of ``hil`` whose sources stamp every kernel's cache: where kernels and their callees live."""
+
 
 def kernel(fn: F) -> F:
     """Compile ``fn`` in nopython mode, cached on disk, releasing the GIL while it runs (so a world thread
     and the host's control loop can run side by side in real time)."""
-    return cast(F, numba.njit(cache=True, nogil=True)(fn))
+    if not COMPILED:
+        return fn
+    dispatcher = numba.njit(nogil=True)(fn)
+    cache = _cache_class()
+    if cache is None:  # a numba without the locator API this relies on: numba's own per-file stamp
+        dispatcher.enable_caching()
+    else:
+        dispatcher._cache = cache(dispatcher.py_func)  # type: ignore[attr-defined]  # as enable_caching()
+    return cast(F, dispatcher)
 
 
-__all__ = ["COMPILED", "kernel"]
+@functools.cache
+def tree_stamp() -> str:
+    """SHA-256 of the sources of :data:`STAMPED` (names and contents), computed once per process."""
+    digest = hashlib.sha256()
+    for package in STAMPED:
+        for name, source in _sources(resources.files("hil") / package, f"hil/{package}"):
+            digest.update(name.encode())
+            digest.update(source)
+    return digest.hexdigest()
+
+
+def _sources(folder: Traversable, name: str) -> Iterator[tuple[str, bytes]]:
+    """``(name, bytes)`` of every ``.py`` file under ``folder``, sorted by name."""
+    for entry in sorted(folder.iterdir(), key=lambda e: e.name):
+        if entry.is_dir():
+            yield from _sources(entry, f"{name}/{entry.name}")
+        elif entry.name.endswith(".py"):
+            yield f"{name}/{entry.name}", entry.read_bytes()
+
+
+@functools.cache
+def _cache_class() -> type | None:
+    """numba's function cache with its two source-file locators stamped by :func:`tree_stamp` too."""
+    try:
+        from numba.core import caching
+
+        in_tree, user_dir = caching.InTreeCacheLocator, caching.UserProvidedCacheLocator
+        impl, function_cache = caching.CompileResultCacheImpl, caching.FunctionCache
+    except (ImportError, AttributeError):
+        return None
+
+    def stamped(base: Any) -> type:
+        def get_source_stamp(self: Any) -> object:
+            return (base.get_source_stamp(self), tree_stamp())
+
+        return type(f"Stamped{base.__name__}", (base,), {"get_source_stamp": get_source_stamp})
+
+    locators = [stamped(user_dir), stamped(in_tree), *impl._locator_classes]
+    stamped_impl = type("StampedCacheImpl", (impl,), {"_locator_classes": locators})
+    return type("StampedFunctionCache", (function_cache,), {"_impl_class": stamped_impl})
+
+
+__all__ = ["COMPILED", "STAMPED", "kernel", "tree_stamp"]

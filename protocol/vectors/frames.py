@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..messages import (
+    ESC_CALIBRATION_CONFIRM,
     GIMBAL_ANGLE_LIMIT,
     GIMBAL_RATE_LIMIT,
     MAX_CALIBRATION_CHUNK,
@@ -29,6 +30,11 @@ from ..messages import (
     CalibrationRequest,
     ControlMode,
     Disarm,
+    EscCalAbort,
+    EscCalibrate,
+    EscCalibrationStatus,
+    EscCalPhase,
+    EscCalStep,
     FaultFlag,
     Flags,
     GimbalMode,
@@ -182,6 +188,38 @@ def good_cases() -> list[GoodCase]:
             seq=6,
             flags=int(Flags.ACK_REQUESTED),
         ),
+        GoodCase(
+            "EscCalibrate/start",
+            EscCalibrate(
+                unit=2,
+                step=EscCalStep.START,
+                confirm=ESC_CALIBRATION_CONFIRM,
+                low_us=1000,
+                high_us=2000,
+                supply_off_ms=1500,
+                high_ms=3000,
+                low_ms=2000,
+            ),
+            seq=7,
+            flags=int(Flags.ACK_REQUESTED),
+            note="teach unit 2's ESC 1000..2000 us, confirmed (the confirm field is ASCII 'UNLD')",
+        ),
+        GoodCase(
+            "EscCalibrate/supply_applied",
+            EscCalibrate(unit=2, step=EscCalStep.SUPPLY_APPLIED, confirm=ESC_CALIBRATION_CONFIRM),
+            seq=8,
+            flags=int(Flags.ACK_REQUESTED),
+            note="the operator connected the ESC's supply (boards without a supply switch)",
+        ),
+        GoodCase(
+            "EscCalibrate/unconfirmed",
+            EscCalibrate(
+                unit=0, confirm=0, low_us=PULSE_MIN_US, high_us=PULSE_MAX_US, high_ms=100, low_ms=100
+            ),
+            seq=12,
+            flags=int(Flags.ACK_REQUESTED),
+            note="well formed, but a board NACKs it UNCONFIRMED",
+        ),
         GoodCase("Ack/typical", Ack(msg_id=Arm.MSG_ID, seq=3), seq=9, note="answers Arm/typical"),
         GoodCase("Ack/zero_fields", Ack(msg_id=0, seq=0), seq=0, note="payload of zeros: COBS at work"),
         GoodCase("Nack/power", Nack(msg_id=Arm.MSG_ID, seq=3, reason=NackReason.POWER), seq=10),
@@ -322,6 +360,32 @@ def good_cases() -> list[GoodCase]:
             ),
             seq=255,
             note="every field at its maximum (negative limits for the floats)",
+        ),
+        GoodCase(
+            "EscCalibrationStatus/high",
+            EscCalibrationStatus(
+                unit=2,
+                phase=EscCalPhase.HIGH,
+                abort=EscCalAbort.NONE,
+                pulse_us=2000,
+                supply_on=1,
+                phase_ms=1250,
+            ),
+            seq=78,
+            note="unit 2's ESC powered at its high endpoint for 1.25 s",
+        ),
+        GoodCase(
+            "EscCalibrationStatus/aborted",
+            EscCalibrationStatus(
+                unit=7,
+                phase=EscCalPhase.ABORTED,
+                abort=EscCalAbort.LINK_LOST,
+                pulse_us=1000,
+                supply_on=1,
+                phase_ms=0xFFFFFFFF,
+            ),
+            seq=79,
+            note="aborted by the link watchdog: the channel at the safe pulse",
         ),
         GoodCase("Log/info", Log(severity=Severity.INFO, code=2, text="state DISARMED -> ARMED"), seq=50),
         GoodCase(

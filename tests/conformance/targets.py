@@ -15,6 +15,7 @@ converts between the two. Timing assertions use only these board-side times, nev
 
 from __future__ import annotations
 
+import copy
 import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -33,6 +34,7 @@ class TargetSpec:
     link_timeout_s: float = 0.25
     mcu_watchdog_s: float = 0.5
     rotor_safe_us: int = 1000
+    esc_supply_switch: bool = True  # the ESC supply cut switch is wired (ESC endpoint programming)
     pulse_tolerance_us: int = 1  # one timer tick of the target's pulse hardware
 
 
@@ -45,6 +47,7 @@ class Target(Protocol):
     def timeline(self) -> Sequence[PulseFrame]: ...
     def resets(self) -> Sequence[ResetEvent]: ...
     def calibration(self, unit: int) -> Any: ...  # protocol.calibration.UnitCalibration in use
+    def esc(self, unit: int) -> Any: ...  # firmware_sim.esc.EmulatedEsc on the unit's rotor channel
     def inject_link_noise(self, corrupt: float, drop: float = 0.0) -> None: ...
     def inject_hang(self) -> float: ...  # returns the target time the main loop stopped
     def inject_sag(self, drop_v: float, ramp_s: float, duration_s: float) -> None: ...
@@ -68,6 +71,7 @@ def board_config(spec: TargetSpec) -> Any:
         link_timeout_s=spec.link_timeout_s,
         mcu_watchdog_s=spec.mcu_watchdog_s,
         rotor_safe_us=spec.rotor_safe_us,
+        esc_supply_switch=spec.esc_supply_switch,
         timeline_frames=20_000,
     )
 
@@ -108,6 +112,12 @@ class FirmwareSimTarget:
 
     def calibration(self, unit: int) -> Any:
         return self.board.calibrations[unit]
+
+    def esc(self, unit: int) -> Any:
+        """The board's own emulated ESC (it sees the pulses and the supply switch as they happen)."""
+        with self.server.lock:
+            self.board.step()
+            return copy.deepcopy(self.board.units[unit].esc)
 
     def inject_link_noise(self, corrupt: float, drop: float = 0.0) -> None:
         with self.server.lock:
@@ -166,6 +176,10 @@ class SimavrTarget:
 
     def calibration(self, unit: int) -> Any:
         return self.board.calibration(unit)
+
+    def esc(self, unit: int) -> Any:
+        """An emulated ESC replaying the pulses and the supply cut pin the firmware drove."""
+        return self.board.esc(unit)
 
     def inject_link_noise(self, corrupt: float, drop: float = 0.0) -> None:
         self.board.inject_link_noise(corrupt, drop)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from protocol.aoa import AccessoryIdentity
-from protocol.messages import BoardState, HelloReply, Log, ResetCause, Telemetry
+from protocol.messages import BoardState, EscCalibrationStatus, HelloReply, Log, ResetCause, Telemetry
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,6 +67,14 @@ class LogEvent:
 
     t: float
     log: Log
+
+
+@dataclass(frozen=True, slots=True)
+class EscCalibrationEvent:
+    """An ``EscCalibrationStatus`` from the board: where its ESC endpoint procedure is."""
+
+    t: float
+    status: EscCalibrationStatus
 
 
 @dataclass(frozen=True, slots=True)
@@ -133,6 +141,7 @@ class CommandEvent:
 Event = (
     TelemetryEvent
     | LogEvent
+    | EscCalibrationEvent
     | StateEvent
     | BoardResetEvent
     | ConnectedEvent

@@ -58,6 +58,7 @@ from protocol.messages import (
     CalibrationData,
     CalibrationRequest,
     Disarm,
+    EscCalibrationStatus,
     Heartbeat,
     Hello,
     HelloReply,
@@ -76,6 +77,7 @@ from .events import (
     BoardResetEvent,
     CommandEvent,
     ConnectedEvent,
+    EscCalibrationEvent,
     Event,
     LinkLostEvent,
     LogEvent,
@@ -309,6 +311,8 @@ class Session:
             self._emit(LogEvent(now, msg))
         elif isinstance(msg, CalibrationData):
             self._on_calibration_data(frame, now)
+        elif isinstance(msg, EscCalibrationStatus):
+            self._emit(EscCalibrationEvent(now, msg))
         else:
             self.commands.on_frame(frame, now)  # Ack / Nack (anything else is ignored there)
 

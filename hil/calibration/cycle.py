@@ -1,0 +1,164 @@
+"""One go at a board: (teach the ESCs,) sweep, fit, upload, read back, verify, save — ``hil calibrate unit``.
+
+:func:`calibrate_units` does, for the units given (swept together):
+
+1. read each unit's present set back from the board (the base for maps not swept, and what is put back
+   if verification fails);
+2. optionally teach each rotor ESC its endpoints (:func:`~hil.calibration.esc.program_esc`);
+3. sweep each map asked for (:func:`~hil.calibration.sweep.run_sweep`) and write its bench CSV
+   (``<bench_dir>/unit<N>_<map>.csv``); a sweep stopped by a guard ends the run here;
+4. fit every CSV (:func:`~hil.calibration.fit.fit_bench`, with the ESC endpoints taught); **a fit that
+   fails validation ends the run before anything is uploaded**;
+5. upload each unit's new set (``CALIBRATION`` transfer), download it again and require the same bytes;
+6. run the verification sweep (:func:`~hil.calibration.verify.run_verify`) through the uploaded maps; if
+   any point misses its tolerance the previous sets are uploaded back and the run fails;
+7. save the units into the array's calibration file (created or updated; other units kept), with each
+   fitted map's provenance (CSV, points, residuals).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from protocol.calibration import UnitCalibration
+from protocol.errors import CalibrationError
+
+from .bench import BenchKind, read_bench_csv
+from .benchlink import BenchLink, GuardTripped
+from .esc import EscOutcome, EscProgram, program_esc
+from .files import CalibrationSet, FitInfo, UnitEntry, load_calibration, save_calibration
+from .fit import Fit, FitOptions, fit_bench
+from .sweep import SweepPlan, SweepResult, run_sweep
+from .verify import VerifyPlan, VerifyReport, run_verify
+
+
+@dataclass(frozen=True)
+class CycleOptions:
+    """What :func:`calibrate_units` does. ``plans``: one sweep per map to calibrate (the others are kept
+    from the file, else from the board); ``esc``: teach the ESCs first (None: they already know
+    ``fit.esc_low_us``..``fit.esc_high_us``); ``verify`` None skips verification."""
+
+    out: Path
+    bench_dir: Path
+    plans: tuple[SweepPlan, ...] = field(default_factory=lambda: tuple(SweepPlan(k) for k in BenchKind))
+    fit: FitOptions = field(default_factory=FitOptions)
+    esc: EscProgram | None = None
+    verify: VerifyPlan | None = field(default_factory=VerifyPlan)
+
+
+@dataclass(frozen=True)
+class CycleResult:
+    """What a successful run did: per unit its fits, the sweeps, the ESC outcomes, the verification."""
+
+    calibrations: dict[int, UnitCalibration]
+    fits: dict[int, dict[BenchKind, Fit]]
+    sweeps: dict[int, dict[BenchKind, SweepResult]]
+    csvs: dict[int, dict[BenchKind, Path]]
+    esc: dict[int, EscOutcome]
+    verify: VerifyReport | None
+    saved: Path
+
+
+def calibrate_units(
+    link: BenchLink,
+    units: list[int],
+    options: CycleOptions,
+    *,
+    confirm_unloaded: bool = False,
+    ask_supply: Callable[[str], None] | None = None,
+    report: Callable[[str], None] = lambda line: None,
+) -> CycleResult:
+    """See the module docstring. ``report`` gets one line per step (the CLI prints them)."""
+    for unit in units:
+        link.check_unit(unit)
+    kinds = [p.kind for p in options.plans]
+    if len(set(kinds)) != len(kinds):
+        raise CalibrationError(f"one sweep per map, got {[k.value for k in kinds]}", "--maps")
+    client = link.client
+    previous = {u: client.download_calibration(u) for u in units}
+    existing = load_calibration(options.out) if options.out.exists() else CalibrationSet(())
+    fit_options = options.fit
+    esc: dict[int, EscOutcome] = {}
+    if options.esc is not None:
+        fit_options = FitOptions(
+            esc_low_us=options.esc.low_us,
+            esc_high_us=options.esc.high_us,
+            rotor_knots=options.fit.rotor_knots,
+            gimbal_rate_knots_per_side=options.fit.gimbal_rate_knots_per_side,
+            gimbal_angle_knots=options.fit.gimbal_angle_knots,
+        )
+        for unit in units:
+            esc[unit] = program_esc(
+                link, unit, options.esc, confirm_unloaded=confirm_unloaded, ask_supply=ask_supply
+            )
+            report(f"unit {unit}: ESC taught {options.esc.low_us}-{options.esc.high_us} us")
+    sweeps: dict[int, dict[BenchKind, SweepResult]] = {u: {} for u in units}
+    csvs: dict[int, dict[BenchKind, Path]] = {u: {} for u in units}
+    for plan in options.plans:
+        results = run_sweep(link, units, plan)
+        for unit, result in results.items():
+            path = result.write_csv(options.bench_dir / f"unit{unit}_{plan.kind.value}.csv")
+            sweeps[unit][plan.kind], csvs[unit][plan.kind] = result, path
+            report(f"unit {unit}: {plan.kind.value} sweep, {len(result.rows)} steps -> {path}")
+        stopped = next((r.stopped for r in results.values() if r.stopped), None)
+        if stopped:
+            raise GuardTripped(f"the {plan.kind.value} sweep stopped early ({stopped}); nothing was uploaded")
+    fits = {u: {k: fit_bench(read_bench_csv(p), fit_options) for k, p in csvs[u].items()} for u in units}
+    for unit in units:
+        for fit in fits[unit].values():
+            report(f"unit {unit}: {fit.report.summary()}")
+    calibrations = {u: _assemble(fits[u], existing.unit(u), previous[u]) for u in units}
+    for unit, cal in calibrations.items():
+        client.upload_calibration(unit, cal)
+        back = client.download_calibration(unit)
+        if back.to_bytes() != cal.to_bytes():
+            raise CalibrationError(f"unit {unit}: the set read back differs from the one uploaded", "board")
+        report(f"unit {unit}: uploaded and read back ({len(cal.to_bytes())} bytes)")
+    verified = None
+    if options.verify is not None:
+        verified = run_verify(link, calibrations, options.verify, tuple(kinds))
+        report(verified.table())
+        if not verified.ok:
+            for unit, cal in previous.items():
+                client.upload_calibration(unit, cal)
+            bad = [p for p in verified.points if not p.ok]
+            raise CalibrationError(
+                f"{len(bad)} verification point(s) outside tolerance (e.g. {bad[0].line()}); the previous "
+                "sets were put back on the board and the file was not written",
+                str(options.out),
+            )
+    saved = _save(existing, options.out, calibrations, fits, csvs)
+    report(f"saved units {units} in {saved}")
+    return CycleResult(calibrations, fits, sweeps, csvs, esc, verified, saved)
+
+
+def _assemble(fits: dict[BenchKind, Fit], entry: UnitEntry | None, board: UnitCalibration) -> UnitCalibration:
+    """The fitted maps, the others from the file's unit if it has one, else from the board's set."""
+    base = entry.calibration if entry is not None else board
+    maps = {k.value: getattr(base, k.value) for k in BenchKind}
+    maps.update({k.value: f.map for k, f in fits.items()})
+    return UnitCalibration(maps["rotor"], maps["gimbal_rate"], maps["gimbal_angle"])  # type: ignore[arg-type]
+
+
+def _save(
+    existing: CalibrationSet,
+    out: Path,
+    calibrations: dict[int, UnitCalibration],
+    fits: dict[int, dict[BenchKind, Fit]],
+    csvs: dict[int, dict[BenchKind, Path]],
+) -> Path:
+    out_dir = out.resolve().parent
+    cset = existing
+    for unit, cal in calibrations.items():
+        old = existing.unit(unit)
+        provenance = dict(old.fits) if old is not None else {}
+        for kind, fit in fits[unit].items():
+            r = fit.report
+            source = os.path.relpath(csvs[unit][kind].resolve(), out_dir)
+            provenance[kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
+        name = old.name if old is not None else f"unit{unit}"
+        cset = cset.with_unit(UnitEntry(unit, name, cal, provenance))
+    return save_calibration(cset, out)

@@ -1,0 +1,197 @@
+"""Verification sweeps: command setpoints through the maps a board holds and measure how well the units
+track them.
+
+:func:`run_verify` arms the board in SETPOINT mode and holds, for every verified unit at once, a few
+setpoints of each map (:class:`VerifyPlan`): rotor speeds at fractions of the full-throttle speed at the
+present battery voltage (``KV·V``), gimbal rates at fractions of the map's top rate each way, gimbal
+angles at fractions of the angle range (in ANGLE mode). Each point waits for the response to settle,
+averages the dwell, and reports the tracking error (measured − commanded) against its tolerance:
+``rotor_tolerance`` of the full speed, ``gimbal_rate_tolerance_rad_s``, ``gimbal_angle_tolerance_rad``.
+The guard of the sweeps applies.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from protocol.calibration import UnitCalibration
+from protocol.errors import ProtocolError
+from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry, UnitSetpoint
+
+from .bench import BenchKind
+from .benchlink import BenchLink, Guard, GuardTripped, Settling, hold
+
+
+@dataclass(frozen=True)
+class VerifyPlan:
+    """The points (fractions, see the module docstring), their settling and the tolerances."""
+
+    rotor_fractions: tuple[float, ...] = (0.2, 0.4, 0.6, 0.8)
+    gimbal_rate_fractions: tuple[float, ...] = (-0.6, -0.3, 0.3, 0.6)
+    gimbal_angle_fractions: tuple[float, ...] = (-0.5, 0.0, 0.5)
+    settling: Settling = field(default_factory=lambda: Settling(settle_s=0.5))
+    rotor_tolerance: float = 0.02  # of KV·V
+    gimbal_rate_tolerance_rad_s: float = 0.05
+    gimbal_angle_tolerance_rad: float = 0.03
+    guard: Guard = field(default_factory=Guard)
+
+
+@dataclass(frozen=True)
+class VerifyPoint:
+    """One unit at one setpoint: commanded and measured (rad/s or rad), the error and its tolerance."""
+
+    unit: int
+    kind: BenchKind
+    commanded: float
+    measured: float
+    tolerance: float
+    settled: bool
+
+    @property
+    def error(self) -> float:
+        return self.measured - self.commanded
+
+    @property
+    def ok(self) -> bool:
+        return abs(self.error) <= self.tolerance
+
+    def line(self) -> str:
+        unit = "rad" if self.kind is BenchKind.GIMBAL_ANGLE else "rad/s"
+        flag = "ok" if self.ok else "FAIL"
+        settle = "" if self.settled else " (unsettled)"
+        return (
+            f"unit {self.unit} {self.kind.value:<12} commanded {self.commanded:9.4f} {unit:<5} measured "
+            f"{self.measured:9.4f}  error {self.error:+8.4f} (tolerance {self.tolerance:.4f}) {flag}{settle}"
+        )
+
+
+@dataclass(frozen=True)
+class VerifyReport:
+    points: tuple[VerifyPoint, ...]
+
+    @property
+    def ok(self) -> bool:
+        return all(p.ok for p in self.points)
+
+    def for_unit(self, unit: int) -> list[VerifyPoint]:
+        return [p for p in self.points if p.unit == unit]
+
+    def table(self) -> str:
+        return "\n".join(p.line() for p in self.points)
+
+
+def run_verify(
+    link: BenchLink,
+    calibrations: Mapping[int, UnitCalibration],
+    plan: VerifyPlan,
+    kinds: tuple[BenchKind, ...] = tuple(BenchKind),
+) -> VerifyReport:
+    """Verify the units of ``calibrations`` (the sets the board holds for them) on the maps ``kinds``.
+    The outputs are put back to rest afterwards (Disarm); a tripped guard raises :class:`GuardTripped`."""
+    for unit in calibrations:
+        link.check_unit(unit)
+    points: list[VerifyPoint] = []
+    first = link.prepare(ControlMode.SETPOINT, GimbalMode.RATE)
+    try:
+        link.client.arm()
+        if BenchKind.ROTOR in kinds:
+            volts = first.battery_mv / 1000.0
+            for f in plan.rotor_fractions:
+                full = {u: c.rotor.kv_rad_s_per_v * volts for u, c in calibrations.items()}
+                targets = {u: f * full[u] for u in calibrations}
+                tol = {u: plan.rotor_tolerance * full[u] for u in calibrations}
+                points += _point(link, plan, BenchKind.ROTOR, targets, tol)
+        if BenchKind.GIMBAL_RATE in kinds:
+            tol = dict.fromkeys(calibrations, plan.gimbal_rate_tolerance_rad_s)
+            for f in (*plan.gimbal_rate_fractions, 0.0):  # 0: the hold pulse must hold
+                targets = {u: _rate_target(c, f) for u, c in calibrations.items()}
+                points += _point(link, plan, BenchKind.GIMBAL_RATE, targets, tol)
+        if BenchKind.GIMBAL_ANGLE in kinds:
+            for f in plan.gimbal_angle_fractions:
+                targets = {u: _angle_target(c, f) for u, c in calibrations.items()}
+                tol = dict.fromkeys(calibrations, plan.gimbal_angle_tolerance_rad)
+                points += _point(link, plan, BenchKind.GIMBAL_ANGLE, targets, tol)
+    finally:
+        link.safe()
+    return VerifyReport(tuple(points))
+
+
+def _rate_target(cal: UnitCalibration, fraction: float) -> float:
+    lo, hi = cal.gimbal_rate.rate_range
+    return fraction * (hi if fraction > 0 else -lo)
+
+
+def _angle_target(cal: UnitCalibration, fraction: float) -> float:
+    ys = cal.gimbal_angle.curve.y
+    lo, hi = min(ys), max(ys)
+    return 0.5 * (lo + hi) + fraction * 0.5 * (hi - lo)
+
+
+_FIELD = {
+    BenchKind.ROTOR: "rotor_speed",
+    BenchKind.GIMBAL_RATE: "gimbal_rate",
+    BenchKind.GIMBAL_ANGLE: "gimbal_angle",
+}
+
+
+def _point(
+    link: BenchLink,
+    plan: VerifyPlan,
+    kind: BenchKind,
+    targets: Mapping[int, float],
+    tolerances: Mapping[int, float],
+) -> list[VerifyPoint]:
+    """Hold ``targets`` (unit → value) on every verified unit; the others stay at rest."""
+    n = link.info.n_units
+    mode = GimbalMode.ANGLE if kind is BenchKind.GIMBAL_ANGLE else GimbalMode.RATE
+    rest = link.latest() if mode is GimbalMode.ANGLE else None
+    units: list[UnitSetpoint] = []
+    for u in range(n):
+        gimbal = rest.units[u].gimbal_angle if rest is not None else 0.0
+        rotor = 0.0
+        if u in targets and kind is BenchKind.ROTOR:
+            rotor = targets[u]
+        elif u in targets:
+            gimbal = targets[u]
+        units.append(UnitSetpoint(gimbal, rotor))
+    attr = _FIELD[kind]
+    order = list(targets)
+
+    def check() -> None:
+        for tel in link.telemetry:
+            why = plan.guard.check(tel)
+            if why is not None:
+                raise GuardTripped(f"{why} during verification")
+            if tel.state is not BoardState.ARMED:
+                raise ProtocolError(f"the board left ARMED ({tel.state.name}) during verification")
+
+    def watched(tel: Telemetry) -> list[float]:
+        return [getattr(tel.units[u], attr) for u in order]
+
+    tol_settle = {
+        BenchKind.ROTOR: 0.3,
+        BenchKind.GIMBAL_RATE: 0.004,
+        BenchKind.GIMBAL_ANGLE: 0.002,
+    }[kind]
+    dwell, settled = hold(
+        link,
+        send=lambda: link.setpoint(mode, units),
+        ready=lambda tel: tel.state is BoardState.ARMED,
+        watched=watched,
+        tolerance=lambda i, value: tol_settle + 0.0005 * abs(value),
+        settling=plan.settling,
+        check=check,
+    )
+    m = len(dwell)
+    return [
+        VerifyPoint(
+            unit=u,
+            kind=kind,
+            commanded=targets[u],
+            measured=sum(getattr(t.units[u], attr) for t in dwell) / m,
+            tolerance=tolerances[u],
+            settled=settled,
+        )
+        for u in order
+    ]

@@ -1,0 +1,313 @@
+"""``hil calibrate esc | sweep | unit``: calibrating a bench through its board (a port URL).
+
+The same commands work against a real board on a serial port, ``spawn://firmware-sim`` (the emulator on
+a pty), ``firmware-sim --avr`` (the C firmware under simavr) and ``emu://`` (the emulator in this
+process, in simulated time unless ``--realtime``). Registered by :mod:`hil.cli.calibrate`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+_MAPS = ("rotor", "gimbal_rate", "gimbal_angle")
+
+_ESC_EXAMPLES = """examples:
+  # teach unit 2's ESC 1000..2000 us: the board cuts the ESC supply (or asks for it), times every step
+  hil calibrate esc --port /dev/ttyACM0 --unit 2 --confirm-unloaded
+  # an ESC whose acknowledgement beeps take longer
+  hil calibrate esc --port /dev/ttyACM0 --unit 0 --confirm-unloaded --high-ms 5000
+"""
+
+_SWEEP_EXAMPLES = """examples:
+  # rotor of unit 0, 1000..2000 us in 40 us steps up and down: bench/unit0_rotor.csv
+  hil calibrate sweep --port /dev/ttyACM0 --unit 0 --out-dir bench
+  # the gimbal rate of units 0-3 together, stop above 6 A or under 10.5 V
+  hil calibrate sweep --port /dev/ttyACM0 --unit 0 --unit 1 --unit 2 --unit 3 --map gimbal_rate \\
+      --out-dir bench --max-current 6 --min-battery 10.5
+  # against the emulator (a bench of dispersed units), in simulated time
+  hil calibrate sweep --port "emu://?unit_spread=7&esc_supply_switch=1" --unit 1 --out-dir /tmp/bench
+"""
+
+_UNIT_EXAMPLES = """examples:
+  # everything for units 0-3: teach the ESCs, sweep the three maps, fit, upload, read back, verify, save
+  hil calibrate unit --port /dev/ttyACM0 --unit 0 --unit 1 --unit 2 --unit 3 --program-esc \\
+      --confirm-unloaded -o cal/array.toml --bench-dir bench
+  # refit only the rotor of unit 2 (its gimbal maps are kept from cal/array.toml)
+  hil calibrate unit --port /dev/ttyACM0 --unit 2 --maps rotor -o cal/array.toml --bench-dir bench
+  # a whole emulated bench in simulated time
+  hil calibrate unit --port "emu://?unit_spread=7&esc_supply_switch=1" --unit 0 --unit 1 --program-esc \\
+      --confirm-unloaded -o /tmp/cal.toml --bench-dir /tmp/bench
+"""
+
+
+def register_actions(actions: Any) -> None:
+    """Add ``esc``, ``sweep`` and ``unit`` to ``hil calibrate``'s actions."""
+    e = actions.add_parser(
+        "esc",
+        help="teach a rotor ESC its endpoints through the board (the board times the procedure)",
+        description="Run the ESC endpoint procedure on a unit's rotor channel: the board powers the ESC up "
+        "at the high endpoint (cutting its supply, or asking for it), waits for the acknowledgement, then "
+        "gives the low endpoint and goes back to the safe pulse. The board must be disarmed.",
+        epilog=_ESC_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _board_options(e)
+    _esc_options(e)
+    e.set_defaults(func=run_esc)
+
+    s = actions.add_parser(
+        "sweep",
+        help="step a rotor or gimbal channel over its range and write the bench CSV fit reads",
+        description="Sweep the pulse width of the chosen map's channel of each unit (up and down, settle "
+        "and dwell, rate-limited, with a battery current/voltage guard) and record the response the "
+        "board's telemetry reports: <out-dir>/unit<N>_<map>.csv with the board, unit, date and battery.",
+        epilog=_SWEEP_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _board_options(s)
+    s.add_argument("--map", choices=_MAPS, default="rotor", help="which channel and response (rotor)")
+    s.add_argument("--out-dir", type=Path, required=True, help="directory for the bench CSV")
+    s.add_argument("--range", default="1000:2000", metavar="LOW:HIGH", help="pulse range, us (1000:2000)")
+    s.add_argument("--step", type=int, metavar="US", help="step, us (rotor 40, gimbal rate 20, angle 25)")
+    s.add_argument("--tolerance", type=float, help="settled when the response varies less (rad/s or rad)")
+    _sweep_options(s)
+    s.set_defaults(func=run_sweep_cmd)
+
+    u = actions.add_parser(
+        "unit",
+        help="sweep, fit, upload, read back and verify units; save them in the array's calibration file",
+        description="Calibrate units in one go: optionally teach their ESCs, sweep each map, fit (refusing "
+        "a fit that fails validation), upload through the CALIBRATION transfer, read back, verify with "
+        "setpoints through the uploaded maps (tracking error per point; on failure the previous sets are "
+        "put back), and save the units in the calibration file.",
+        epilog=_UNIT_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _board_options(u)
+    u.add_argument("-o", "--out", type=Path, required=True, help="the array's calibration file (TOML)")
+    u.add_argument("--bench-dir", type=Path, required=True, help="where the sweeps' bench CSVs go")
+    u.add_argument("--maps", default=",".join(_MAPS), help="maps to calibrate, comma-separated (all three)")
+    u.add_argument("--program-esc", action="store_true", help="teach the ESCs their endpoints first")
+    _esc_options(u)
+    u.add_argument("--rotor-step", type=int, default=40, metavar="US", help="rotor sweep step (40)")
+    u.add_argument("--rate-step", type=int, default=20, metavar="US", help="gimbal rate sweep step (20)")
+    u.add_argument("--angle-step", type=int, default=25, metavar="US", help="gimbal angle sweep step (25)")
+    u.add_argument("--rotor-knots", type=int, default=9, help="knots of the throttle curve, 3..16 (9)")
+    u.add_argument("--gimbal-rate-knots", type=int, default=6, help="knots each side of the dead zone (6)")
+    u.add_argument("--gimbal-angle-knots", type=int, default=9, help="knots of the angle table (9)")
+    u.add_argument("--no-verify", action="store_true", help="skip the verification sweep")
+    u.add_argument("--rotor-tolerance", type=float, default=0.02, help="verification: of full speed (0.02)")
+    u.add_argument("--rate-tolerance", type=float, default=0.05, help="verification: rad/s (0.05)")
+    u.add_argument("--angle-tolerance", type=float, default=0.03, help="verification: rad (0.03)")
+    _sweep_options(u)
+    u.set_defaults(func=run_unit)
+
+
+def _board_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("board")
+    g.add_argument("--port", required=True, metavar="URL", help="the board: a serial port or transport URL")
+    g.add_argument(
+        "--unit", type=int, action="append", required=True, metavar="N", help="unit number (repeatable)"
+    )
+    g.add_argument(
+        "--realtime", action="store_true", help="with --port emu://...: wall-clock time (default: simulated)"
+    )
+
+
+def _esc_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("ESC endpoint programming")
+    g.add_argument(
+        "--confirm-unloaded",
+        action="store_true",
+        help="I confirm the rotor is off or unloaded (the ESC sees full throttle); required to program",
+    )
+    g.add_argument("--esc-low", type=int, default=1000, metavar="US", help="low endpoint to teach (1000)")
+    g.add_argument("--esc-high", type=int, default=2000, metavar="US", help="high endpoint to teach (2000)")
+    g.add_argument("--supply-off-ms", type=int, default=1500, help="ESC supply off before power-up (1500)")
+    g.add_argument("--high-ms", type=int, default=3000, help="high endpoint held after power-up (3000)")
+    g.add_argument("--low-ms", type=int, default=2000, help="low endpoint held (2000)")
+
+
+def _sweep_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("sweep (and verification) steps")
+    g.add_argument("--directions", choices=("up", "down", "both"), default="both", help="(both)")
+    g.add_argument("--settle", type=float, default=0.3, metavar="S", help="minimum settle time (0.3)")
+    g.add_argument("--settle-window", type=float, default=0.5, metavar="S", help="steadiness window (0.5)")
+    g.add_argument("--settle-max", type=float, default=10.0, metavar="S", help="give up settling after (10)")
+    g.add_argument("--dwell", type=float, default=0.25, metavar="S", help="averaging time per step (0.25)")
+    g.add_argument("--rate-limit", type=float, default=2000.0, metavar="US/S", help="pulse slew (2000)")
+    g.add_argument("--max-current", type=float, default=8.0, metavar="A", help="battery current guard (8)")
+    g.add_argument("--min-battery", type=float, metavar="V", help="battery voltage floor (none)")
+
+
+# --------------------------------------------------------------------------- shared
+def _client(args: argparse.Namespace) -> Any:
+    from hil.link.board import BoardClient
+    from hil.timing.clock import LockstepClock
+
+    lockstep = args.port.startswith("emu:") and not args.realtime
+    client = BoardClient(args.port, clock=LockstepClock() if lockstep else None)
+    client.connect()
+    return client
+
+
+def _settling(args: argparse.Namespace) -> Any:
+    from hil.calibration.benchlink import Settling
+
+    return Settling(args.settle, args.settle_window, args.settle_max, args.dwell)
+
+
+def _guard(args: argparse.Namespace) -> Any:
+    from hil.calibration.benchlink import Guard
+
+    return Guard(args.max_current, args.min_battery)
+
+
+def _program(args: argparse.Namespace) -> Any:
+    from hil.calibration.esc import EscProgram
+
+    return EscProgram(args.esc_low, args.esc_high, args.supply_off_ms, args.high_ms, args.low_ms)
+
+
+def _ask(prompt: str) -> None:
+    print(prompt, flush=True)
+    if not sys.stdin.isatty():
+        from protocol.errors import ConfigError
+
+        raise ConfigError("the board asks for the ESC supply: run on a terminal to confirm it", "stdin")
+    input("Press Enter once it is connected: ")
+
+
+# --------------------------------------------------------------------------- esc
+def run_esc(args: argparse.Namespace) -> int:
+    from hil.calibration.benchlink import BenchLink
+    from hil.calibration.esc import program_esc
+
+    program = _program(args)
+    client = _client(args)
+    try:
+        link = BenchLink(client)
+        for unit in args.unit:
+            outcome = program_esc(
+                link, unit, program, confirm_unloaded=args.confirm_unloaded, ask_supply=_ask
+            )
+            phases = " -> ".join(p.name for p in outcome.phases)
+            print(f"unit {unit}: ESC taught {outcome.low_us}-{outcome.high_us} us ({phases})")
+    finally:
+        client.close()
+    return 0
+
+
+# --------------------------------------------------------------------------- sweep
+def _range(text: str) -> tuple[int, int]:
+    from protocol.errors import ConfigError
+
+    low, sep, high = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return int(low), int(high)
+    except ValueError:
+        raise ConfigError(f"{text!r} is not LOW:HIGH in us (e.g. 1000:2000)", "--range") from None
+
+
+def run_sweep_cmd(args: argparse.Namespace) -> int:
+    from hil.calibration.bench import BenchKind
+    from hil.calibration.benchlink import BenchLink
+    from hil.calibration.sweep import SweepPlan, run_sweep
+
+    low, high = _range(args.range)
+    plan = SweepPlan(
+        BenchKind(args.map),
+        start_us=low,
+        stop_us=high,
+        step_us=args.step,
+        directions=args.directions,
+        settling=_settling(args),
+        rate_limit_us_s=args.rate_limit,
+        tolerance=args.tolerance,
+        guard=_guard(args),
+    )
+    client = _client(args)
+    try:
+        results = run_sweep(BenchLink(client), args.unit, plan)
+    finally:
+        client.close()
+    status = 0
+    for unit, result in results.items():
+        path = result.write_csv(args.out_dir / f"unit{unit}_{args.map}.csv")
+        unsettled = sum(not r.settled for r in result.rows)
+        note = f", {unsettled} unsettled" if unsettled else ""
+        print(f"unit {unit}: {len(result.rows)} steps{note} -> {path}")
+        if result.stopped:
+            print(f"hil calibrate sweep: stopped early: {result.stopped}", file=sys.stderr)
+            status = 1
+    return status
+
+
+# --------------------------------------------------------------------------- unit
+def run_unit(args: argparse.Namespace) -> int:
+    from hil.calibration.bench import BenchKind
+    from hil.calibration.benchlink import BenchLink
+    from hil.calibration.cycle import CycleOptions, calibrate_units
+    from hil.calibration.fit import FitOptions
+    from hil.calibration.sweep import SweepPlan
+    from hil.calibration.verify import VerifyPlan
+    from protocol.errors import ConfigError
+
+    names = [m.strip() for m in args.maps.split(",") if m.strip()]
+    unknown = [m for m in names if m not in _MAPS]
+    if unknown or not names:
+        raise ConfigError(f"{args.maps!r}: choose from {', '.join(_MAPS)}", "--maps")
+    steps = {"rotor": args.rotor_step, "gimbal_rate": args.rate_step, "gimbal_angle": args.angle_step}
+    settling, guard = _settling(args), _guard(args)
+    plans = tuple(
+        SweepPlan(
+            BenchKind(m),
+            step_us=steps[m],
+            directions=args.directions,
+            settling=settling,
+            rate_limit_us_s=args.rate_limit,
+            guard=guard,
+        )
+        for m in names
+    )
+    verify = None
+    if not args.no_verify:
+        verify = VerifyPlan(
+            settling=settling,
+            rotor_tolerance=args.rotor_tolerance,
+            gimbal_rate_tolerance_rad_s=args.rate_tolerance,
+            gimbal_angle_tolerance_rad=args.angle_tolerance,
+            guard=guard,
+        )
+    options = CycleOptions(
+        out=args.out,
+        bench_dir=args.bench_dir,
+        plans=plans,
+        fit=FitOptions(
+            esc_low_us=args.esc_low,
+            esc_high_us=args.esc_high,
+            rotor_knots=args.rotor_knots,
+            gimbal_rate_knots_per_side=args.gimbal_rate_knots,
+            gimbal_angle_knots=args.gimbal_angle_knots,
+        ),
+        esc=_program(args) if args.program_esc else None,
+        verify=verify,
+    )
+    client = _client(args)
+    try:
+        calibrate_units(
+            BenchLink(client),
+            args.unit,
+            options,
+            confirm_unloaded=args.confirm_unloaded,
+            ask_supply=_ask,
+            report=print,
+        )
+    finally:
+        client.close()
+    return 0
