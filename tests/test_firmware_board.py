@@ -76,6 +76,7 @@ def logged(host, code: int, words: str, timeout: float = 1.0) -> Log:
     return host.wait_for(match, timeout, f"Log {code} '{words}'")
 
 
+@pytest.mark.firmware
 def test_an_uploaded_calibration_drives_the_outputs_and_survives_a_reset(board, host):
     assert all(isinstance(a, Ack) for a in upload(host, 1, UPLOADED.to_bytes()))
     logged(host, 10, "stored")  # LogCode.CALIBRATION
@@ -121,6 +122,7 @@ def test_an_uploaded_calibration_drives_the_outputs_and_survives_a_reset(board, 
     assert reassemble(parts) == (1, UPLOADED.to_bytes())
 
 
+@pytest.mark.firmware
 def test_bad_uploads_are_refused_and_the_old_set_stays(board, host):
     data = bytearray(UPLOADED.to_bytes())
     data[40] ^= 0x10  # a damaged knot: the set's own CRC no longer checks
@@ -134,6 +136,7 @@ def test_bad_uploads_are_refused_and_the_old_set_stays(board, host):
     assert board.calibration(0) != UPLOADED
 
 
+@pytest.mark.firmware
 def test_reliable_command_rules_and_an_incompatible_host(board, host):
     assert host.request(SetMode(mode=1)).__class__ is Ack  # RAW_PULSES, disarmed
     seq = host.send(Arm())
@@ -150,6 +153,7 @@ def test_reliable_command_rules_and_an_incompatible_host(board, host):
     assert board.stack_headroom() >= 256  # bytes of RAM the stack never reached
 
 
+@pytest.mark.firmware
 def test_the_eeprom_configuration_shapes_the_board_and_ppm_follows_the_channels():
     cfg = BoardConfig(
         n_units=3,
@@ -174,6 +178,7 @@ def test_the_eeprom_configuration_shapes_the_board_and_ppm_follows_the_channels(
         h.close()
 
 
+@pytest.mark.firmware
 def test_a_damaged_configuration_block_means_defaults_and_says_so():
     image = bytearray(eeprom.EepromImage(BoardConfig(n_units=2)).to_bytes())
     image[eeprom.field_offsets()["crc"]] ^= 0xFF
@@ -186,6 +191,7 @@ def test_a_damaged_configuration_block_means_defaults_and_says_so():
         h.close()
 
 
+@pytest.mark.firmware
 def test_firmware_sim_avr_serves_the_firmware_on_a_pty_until_stopped():
     proc = subprocess.Popen(
         [sys.executable, "-m", "firmware_sim", "--avr", "--units", "2", "--frame-rate", "100"],

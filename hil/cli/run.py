@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -12,7 +13,7 @@ EPILOG = """\
 examples:
   hil run                                          # built-in emulator, default scenario, lockstep
   hil run --scenario paper-testbed --duration 20   # the paper's air-bearing testbed, 20 s after the slew
-  hil run --realtime                               # built-in emulator on the wall clock, phone over HTTP
+  hil run --realtime                               # built-in emulator on the wall clock, phone over UDP
   hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
 
   # two terminals: the emulated board with its world on a pty, then the host against it
@@ -28,6 +29,17 @@ plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/
 """
 
 
+def seconds(text: str) -> float:
+    """An argparse type: a finite, positive number of seconds (``nan``, ``inf``, 0 and below refused)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text!r}")
+    return value
+
+
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "run",
@@ -39,7 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--port", metavar="URL", help="board transport (default: the built-in emulator)")
     p.add_argument("--scenario", default="cubesat-1u", metavar="NAME|FILE", help="default cubesat-1u")
-    p.add_argument("--duration", type=float, metavar="S", help="run this long after the slew starts")
+    p.add_argument(
+        "--duration", type=seconds, metavar="S",
+        help="run this long after the slew starts (default: the scenario's duration_s)",
+    )  # fmt: skip
     timing = p.add_mutually_exclusive_group()
     timing.add_argument("--realtime", action="store_true", help="wall clock (default with --port)")
     timing.add_argument("--lockstep", action="store_true", help="simulated time (default without --port)")
@@ -49,8 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md)",
     )  # fmt: skip
     p.add_argument(
-        "--phone-wait", type=float, default=10.0, metavar="S", help="with --port: wait S s for the phone"
-    )
+        "--phone-wait", type=seconds, default=10.0, metavar="S",
+        help="with --port: wait S s for the phone's first samples (default %(default)g s)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
     p.set_defaults(func=run)

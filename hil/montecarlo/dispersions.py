@@ -53,13 +53,16 @@ from numpy.typing import NDArray
 
 from hil import so3
 from hil.scenario import Scenario
-from hil.scenario.paths import FIXTURES
+from hil.scenario.paths import FIXTURES, read_text
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
 
 DISPERSION_DIR = FIXTURES / "dispersions"
 DEFAULT_DISPERSIONS = DISPERSION_DIR / "default.toml"
+LINK_RANGES = {"link.outages_per_minute": (0.0, 600.0), "link.outage_duration_s": (0.0, 60.0)}
+"""What link outages a file may ask for: up to ten a second, each up to a minute (a rate's draws are
+clipped into it, so a run's outage list stays bounded: at most ~10 per second of run)."""
 
 
 # --------------------------------------------------------------------------- distributions
@@ -285,8 +288,9 @@ def _outages(
     rng: np.random.Generator, per_minute: float, duration: Distribution, run_s: float
 ) -> tuple[tuple[float, float], ...]:
     """A Poisson process of ``per_minute`` outages over ``run_s`` seconds, each lasting a draw of
-    ``duration`` (a negative rate counts as none)."""
-    count = int(rng.poisson(max(per_minute, 0.0) * run_s / 60.0))
+    ``duration``; the rate is clipped into :data:`LINK_RANGES` (a normal's tail), so the count is bounded."""
+    lo, hi = LINK_RANGES["link.outages_per_minute"]
+    count = int(rng.poisson(min(max(per_minute, lo), hi) * run_s / 60.0))
     starts = np.sort(rng.uniform(0.0, run_s, count))
     lengths = duration.sample(rng, np.zeros(count))
     return tuple((float(a), float(d)) for a, d in zip(starts, lengths, strict=True))
@@ -313,11 +317,7 @@ def load_dispersions(name_or_path: str | Path | None, scenario: Scenario) -> Dis
     """Read a dispersion file (see :func:`resolve_dispersions_path`) for ``scenario``; errors are
     :class:`ConfigError` naming the file and the dotted key."""
     path = resolve_dispersions_path(name_or_path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"cannot read: {exc.strerror}", str(path)) from exc
-    return parse_dispersions(text, scenario, path.name)
+    return parse_dispersions(read_text(path), scenario, path.name)
 
 
 def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>") -> Dispersions:
@@ -336,8 +336,26 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
     if (rate is None) != (duration is None):
         missing = "link.outage_duration_s" if duration is None else "link.outages_per_minute"
         raise ConfigError("link outages need both a rate and a duration", f"{where}: {missing}")
+    for key, (lo, hi) in LINK_RANGES.items():
+        if key in found:
+            _check_support(found[key], lo, hi, f"{where}: {key}")
     entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
     return Dispersions(scenario, entries, text, where)
+
+
+def _check_support(dist: Distribution, lo: float, hi: float, where: str) -> None:
+    """Refuse a distribution that can draw outside ``[lo, hi]`` (a normal's mean and its clip bounds)."""
+    if isinstance(dist, Fixed):
+        values: tuple[float | None, ...] = (dist.value,)
+    elif isinstance(dist, Uniform):
+        values = (dist.low, dist.high)
+    elif isinstance(dist, Choice):
+        values = dist.values
+    else:
+        values = (dist.mean, dist.low, dist.high)
+    bad = [v for v in values if v is not None and not lo <= v <= hi]
+    if bad:
+        raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
 
 
 def _leaves(node: Mapping[str, Any], where: str, prefix: str = "") -> list[tuple[str, Any]]:

@@ -66,10 +66,10 @@ def euler_zyx_deg(r: np.ndarray) -> np.ndarray:
     return np.degrees(np.column_stack([roll, pitch, yaw]))
 
 
-def plot_attitude(t: np.ndarray, r: np.ndarray, path: Path, title: str = "") -> Path:
+def plot_attitude(t: np.ndarray, r: np.ndarray, path: Path, title: str = "", yaw_label: str = "yaw") -> Path:
     """The attitude estimate as roll, pitch, yaw (deg, ENU, z-y-x) against time."""
     fig, ax = _figure(title or "Attitude estimate", "attitude estimate (deg, ENU, z-y-x)")
-    for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", "yaw"), strict=True):
+    for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", yaw_label), strict=True):
         ax.plot(t, series, lw=0.8, label=label)
     return _save(fig, ax, path)
 
@@ -86,8 +86,11 @@ def plot_replay(result: ReplayResult, out_dir: Path) -> dict[str, Path]:
     """The figures for one replay; returns ``{name: path}``."""
     est = result.estimates
     name = Path(result.log.source).name
+    six = result.log.six_axis  # no magnetometer: the yaw is the gyroscope's integral, drifting
+    title = f"Attitude estimate — {name}" + (" (6-axis: heading unobserved)" if six else "")
+    yaw = "yaw (unobserved: gyroscope only, drifts)" if six else "yaw"
     files = {
-        "attitude": plot_attitude(est.t, est.R, out_dir / "attitude.png", f"Attitude estimate — {name}"),
+        "attitude": plot_attitude(est.t, est.R, out_dir / "attitude.png", title, yaw),
         "rates": plot_rates(est.t, est.omega, out_dir / "rates.png", f"Angular velocity estimate — {name}"),
     }
     c = result.comparison

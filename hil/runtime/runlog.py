@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from hil.scenario.paths import read_text
 from protocol.errors import InputFormatError
 
 TELEMETRY = "telemetry.csv"
@@ -251,10 +252,7 @@ def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
     """Read a run's telemetry CSV. A line with the wrong number of cells or a non-number is dropped and
     counted (a run killed mid-write leaves one); a missing or header-less file is an InputFormatError."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputFormatError(f"cannot read telemetry: {exc.strerror}", str(path)) from exc
+    text = read_text(path, InputFormatError, "telemetry")
     reader = csv.reader(io.StringIO(text))
     try:
         header = next(reader)
