@@ -113,6 +113,12 @@ def run(args: argparse.Namespace) -> int:
             phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(),
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
+        if args.port is None:
+            from hil.runtime import warmup
+
+            if warmup.needed():
+                print("compiling the simulation kernels (once after an install or an edit of them)",
+                      file=sys.stderr)  # fmt: skip
         result = run_scenario(scenario, opts)
     except BaseException as exc:
         if plotter is not None:

@@ -144,6 +144,12 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     the exit reason is written; a Ctrl-C ends the run early with a complete summary."""
     opts = options or RunOptions()
     plan = _plan(opts)
+    if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
+        from hil.runtime.warmup import warm
+
+        compiled_s = warm(scenario)
+        if compiled_s is not None:
+            logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
     run_dir: Path | None = None
     telemetry: CsvLog | None = None
     if opts.out_root is not None:
