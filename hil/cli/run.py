@@ -14,6 +14,8 @@ examples:
   hil run --scenario paper-testbed --duration 20   # the paper's air-bearing testbed, 20 s after the slew
   hil run --realtime                               # built-in emulator on the wall clock, phone over HTTP
   hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
+  hil run --gcs                                    # ... watched and commanded from a browser (docs/gcs.md)
+  hil run --gcs --pace 5 --duration 60             # lockstep at 5x the wall clock, 60 s after the slew
 
   # two terminals: the emulated board with its world on a pty, then the host against it
   firmware-sim --world cubesat-1u --link /tmp/vscmg
@@ -53,6 +55,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
+    p.add_argument(
+        "--gcs", nargs="?", const="", default=None, metavar="HOST:PORT",
+        help="serve a ground-station page for the run (default 127.0.0.1:8470; its URL, with an access "
+        "token, is printed at start; docs/gcs.md)",
+    )  # fmt: skip
+    p.add_argument(
+        "--pace", type=float, metavar="X",
+        help="lockstep at most X times as fast as the wall clock (1: real time; default with --gcs: 1, "
+        "0: as fast as it goes)",
+    )  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -88,24 +100,51 @@ def run(args: argparse.Namespace) -> int:
     from hil.scenario import load_scenario
     from protocol.errors import HilError
 
+    station = None
     try:
         scenario = load_scenario(args.scenario)
         lockstep = True if args.lockstep else (False if args.realtime else None)
+        lockstep_run = lockstep if lockstep is not None else args.port is None
+        pace = args.pace if args.pace is not None else (1.0 if args.gcs is not None and lockstep_run else None)
         opts = RunOptions(
             port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
-            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(),
+            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(), pace=pace or None,
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
+        if args.gcs is not None:
+            station = start_station(args.gcs)
+            opts.observer = station.observer
         result = run_scenario(scenario, opts)
+        if station is not None:
+            station.close()
+            station.check()
         if not args.no_plots:
             draw_plots(result.run_dir)
     except HilError as exc:
         print(f"\nhil run: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if station is not None:
+            station.close()
     print(file=sys.stderr)
     print(format_summary(result.summary))
     print(f"run directory: {result.run_dir}")
     return 0 if result.summary.get("exit") == "completed" else 1
+
+
+def start_station(bind: str):  # type: ignore[no-untyped-def]
+    """A live ground station on ``bind`` (``--gcs``), its URL printed to stderr."""
+    from hil.gcs import GroundStation
+
+    station = GroundStation.live(bind=bind or None)
+    print(f"ground station: {station.url}", file=sys.stderr)
+    if not station.loopback:
+        print(
+            f"ground station: listening on {station.host}, not only this machine: anyone who reaches it "
+            "with the token can command the board", file=sys.stderr,
+        )  # fmt: skip
+    sys.stderr.flush()
+    return station
 
 
 def draw_plots(run_dir: Path) -> None:

@@ -23,12 +23,17 @@ Tasks: ``estimator`` at the fastest sensor's rate (drains the samples that arriv
 last sample of the slower sensors), ``control`` at the control rate (board events, control, setpoint,
 telemetry row), and in lockstep ``world`` at the plant step. The scheduler's absolute deadlines and its
 lateness statistics (p50/p99/max per task) go into the summary.
+
+A run may be watched and commanded while it happens (``RunOptions.observer``, :mod:`hil.runtime.observer`:
+the ground station, :mod:`hil.gcs`), and a lockstep run may be paced to the wall clock (``RunOptions.pace``)
+so that a person can follow it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -41,6 +46,7 @@ from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
 from hil.link.sources.recorded import RecordedSource
 from hil.link.transports import InProcessBoard, create_transport
 from hil.runtime.host import Host, TruthSample, telemetry_columns
+from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, new_run_dir, write_summary
 from hil.scenario import Scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
@@ -53,6 +59,7 @@ Progress = Callable[[Host, float], None]
 """Called after every control tick with the host and the time since the run started (s)."""
 
 SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by Host.MAX_SPINUP_S)
+PACE_PERIOD_S = 0.01  # a paced lockstep run waits for the wall clock every this much simulated time
 
 
 @dataclass(frozen=True)
@@ -74,7 +81,9 @@ class RunOptions:
     ``phone``: where the host listens for the phone stream with a port (:func:`hil.link.sources.phone_url`:
     ``udp://HOST:PORT`` or ``http://HOST:PORT/``); ``phone_wait_s``: how long to wait for the first phone
     samples on a port before giving up; ``replay``: take the phone from a recorded log instead (needs a
-    port), the controller holding the attitude estimated at the end of the warm-up."""
+    port), the controller holding the attitude estimated at the end of the warm-up; ``observer``: sees
+    every row and event and may command the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run
+    goes at most this many times as fast as the wall clock (1.0: real time), None: as fast as it can."""
 
     port: str | None = None
     lockstep: bool | None = None
@@ -85,6 +94,8 @@ class RunOptions:
     progress: Progress | None = None
     label: str | None = None
     replay: ReplayInput | None = None
+    observer: RunObserver | None = None
+    pace: float | None = None
 
 
 @dataclass
@@ -118,7 +129,12 @@ def _plan(opts: RunOptions) -> _Plan:
             raise ConfigError("a replay runs in lockstep only against the in-process board (emu://)", "run")
         return _Plan("log", lockstep)
     if opts.port is None:
-        return _Plan("world", True if opts.lockstep is None else opts.lockstep)
+        plan = _Plan("world", True if opts.lockstep is None else opts.lockstep)
+        if opts.pace is not None and not plan.lockstep:
+            raise ConfigError("pacing is for lockstep runs (a real-time run keeps the wall clock)", "run --pace")
+        return plan
+    if opts.pace is not None:
+        raise ConfigError("pacing is for lockstep runs (a real-time run keeps the wall clock)", "run --pace")
     if opts.lockstep:
         raise ConfigError("lockstep needs the built-in emulator (leave out --port, or use --realtime)", "run")
     return _Plan("phone", False)
@@ -130,10 +146,14 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     the exit reason is written; a Ctrl-C ends the run early with a complete summary."""
     opts = options or RunOptions()
     plan = _plan(opts)
+    if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
+        raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
+    observer = opts.observer
     run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
     (run_dir / "scenario.toml").write_text(scenario.source)
-    telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units))
-    events = EventLog(run_dir / "events.jsonl")
+    telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units),
+                       tap=None if observer is None else observer.row)  # fmt: skip
+    events = EventLog(run_dir / "events.jsonl", tap=None if observer is None else observer.event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
     if opts.replay is not None:
         summary["replay"] = {"log": opts.replay.log.source, "format": opts.replay.log.format,
@@ -144,10 +164,14 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     try:
         with contextlib.ExitStack() as stack:
             built = _build(scenario, opts, plan, telemetry, events, stack)
+            if observer is not None:
+                observer.started(RunStart(built.host, built.scheduler, run_dir, plan.mode))
             built.scheduler.run(until=built.until)
             summary["exit"] = "completed" if built.host.finished else "time limit (the slew never started)"
     except KeyboardInterrupt:
         summary["exit"] = "interrupted"
+    except RunAborted as exc:
+        summary["exit"] = f"aborted: {exc}"
     except BaseException as exc:
         summary["exit"] = f"error: {exc}"
         error = exc
@@ -168,6 +192,8 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         telemetry.close()
         events.close()
         write_summary(run_dir, summary)
+        if observer is not None:
+            observer.finished(summary)
     if error is not None:
         raise error
     return RunResult(run_dir, summary)
@@ -287,7 +313,11 @@ def _build(
     def estimator_task(_due: float) -> None:
         host.feed(drain())
 
+    observer = opts.observer
+
     def control_task(_due: float) -> None:
+        if observer is not None:
+            observer.tick(clock.now())  # commands from outside act here, in the control thread
         host.tick(clock.now(), client.service())
         if opts.progress is not None:
             opts.progress(host, clock.now() - origin)
@@ -307,6 +337,8 @@ def _build(
             pending.extend(w.advance_to(clock.now()))
 
         tasks.insert(0, PeriodicTask("world", scenario.loop.plant_step_s, world_task))
+    if opts.pace is not None:
+        tasks.append(_pacer(opts.pace, origin))
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
     return _Built(host, scheduler, until, phone, recorded)
@@ -318,6 +350,22 @@ def _in_process_board(url: str) -> InProcessBoard:
     if not isinstance(link, InProcessBoard):
         raise ConfigError(f"{url} is not an in-process board with a world", "run")
     return link
+
+
+def _pacer(pace: float, origin: float) -> PeriodicTask:
+    """A lockstep task that waits, every :data:`PACE_PERIOD_S` of simulated time, until the wall clock has
+    caught up with ``pace`` × the simulated time since ``origin`` (a run slower than that is not held)."""
+    wall_origin: list[float] = []
+
+    def pace_task(due: float) -> None:
+        now = time.monotonic()
+        if not wall_origin:
+            wall_origin.append(now - (due - origin) / pace)
+        ahead = wall_origin[0] + (due - origin) / pace - now
+        if ahead > 0.0:
+            time.sleep(ahead)
+
+    return PeriodicTask("pace", PACE_PERIOD_S, pace_task)
 
 
 def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:

@@ -22,7 +22,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,10 +51,15 @@ def new_run_dir(root: str | os.PathLike[str], label: str) -> Path:
             path = base.with_name(f"{base.name}-{n}")
 
 
-class CsvLog:
-    """Rows of numbers under a fixed header, line-flushed. Missing values are written empty (read as NaN)."""
+Tap = Callable[[Mapping[str, Any]], None]
+"""Called with each row or event record right after it is written (a run's observer, :mod:`hil.gcs`)."""
 
-    def __init__(self, path: str | os.PathLike[str], columns: Sequence[str]) -> None:
+
+class CsvLog:
+    """Rows of numbers under a fixed header, line-flushed. Missing values are written empty (read as NaN).
+    ``tap`` (optional) sees each row after it is written."""
+
+    def __init__(self, path: str | os.PathLike[str], columns: Sequence[str], tap: Tap | None = None) -> None:
         if len(set(columns)) != len(columns):
             raise ValueError(f"duplicate CSV columns: {list(columns)}")
         self.path = Path(path)
@@ -63,6 +68,7 @@ class CsvLog:
         self._writer = csv.writer(self._file)
         self._writer.writerow(self.columns)
         self.rows = 0
+        self.tap = tap
 
     def write(self, row: Mapping[str, Any]) -> None:
         """Write one row (unknown keys raise KeyError: a typo must not silently drop a column)."""
@@ -74,6 +80,8 @@ class CsvLog:
         self._writer.writerow([_cell(row.get(c)) for c in self.columns])
         self._file.flush()
         self.rows += 1
+        if self.tap is not None:
+            self.tap(row)
 
     def close(self) -> None:
         if self._file is not None:
@@ -99,19 +107,24 @@ def _cell(value: Any) -> str:
 
 
 class EventLog:
-    """JSON lines, each flushed: ``{"t": seconds, "kind": ..., ...}``."""
+    """JSON lines, each flushed: ``{"t": seconds, "kind": ..., ...}``. ``tap`` (optional) sees each record
+    after it is written."""
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(self, path: str | os.PathLike[str], tap: Tap | None = None) -> None:
         self.path = Path(path)
         self._file: io.TextIOWrapper | None = open(self.path, "a", buffering=1)  # noqa: SIM115
         self.count = 0
+        self.tap = tap
 
     def write(self, t: float, kind: str, **fields: Any) -> None:
         if self._file is None:
             raise ValueError(f"{self.path}: log is closed")
-        self._file.write(json.dumps({"t": t, "kind": kind, **fields}, default=str) + "\n")
+        record = {"t": t, "kind": kind, **fields}
+        self._file.write(json.dumps(record, default=str) + "\n")
         self._file.flush()
         self.count += 1
+        if self.tap is not None:
+            self.tap(record)
 
     def close(self) -> None:
         if self._file is not None:
