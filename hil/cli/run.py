@@ -105,7 +105,9 @@ def run(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
         lockstep = True if args.lockstep else (False if args.realtime else None)
         lockstep_run = lockstep if lockstep is not None else args.port is None
-        pace = args.pace if args.pace is not None else (1.0 if args.gcs is not None and lockstep_run else None)
+        pace = (
+            args.pace if args.pace is not None else (1.0 if args.gcs is not None and lockstep_run else None)
+        )
         opts = RunOptions(
             port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
             phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(), pace=pace or None,

@@ -91,9 +91,11 @@ class Hub:
         if nothing came, None when the hub is closed and the reader has everything."""
         with self._cond:
             end_wait = self._cond.wait_for(
-                lambda: self.closed
-                or (self._info is not None and reader.info_version != self._info_version)
-                or (reader.info_version and reader.cursor < self._first + len(self._chunks)),
+                lambda: (
+                    self.closed
+                    or (self._info is not None and reader.info_version != self._info_version)
+                    or (reader.info_version and reader.cursor < self._first + len(self._chunks))
+                ),
                 timeout,
             )
             if not end_wait:

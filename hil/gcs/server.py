@@ -10,9 +10,10 @@ Routes (every ``/api/`` route needs the token; :mod:`hil.gcs.access` has the che
 ``GET  /api/stats?token=T``     the server's counters (streams, bytes sent, rejections, the feed's drops)
 ``POST /api/command``           a command (``Authorization: token T``, ``Content-Type: application/json``)
 
-Answers: 401 without the right token, 403 for a foreign ``Origin`` or (loopback server) a non-loopback
-``Host``, 400 for a malformed command (saying what is wrong), 409 when there is no uplink (a replay), 503
-when the command inbox or the stream limit is full, 202 with the command's id when it is queued.
+Answers: 403 for a foreign ``Origin`` (checked first; a CORS preflight is always refused) or, on a
+loopback server, a non-loopback ``Host``; 401 without the right token; 400 for a malformed command (saying
+what is wrong); 409 when there is no uplink (a replay); 503 when the command inbox or the stream limit is
+full; 202 with the command's id when it is queued.
 """
 
 from __future__ import annotations
@@ -51,8 +52,10 @@ class GcsHttpServer(ThreadingHTTPServer):
     allow_reuse_address = True
     block_on_close = False
 
-    def __init__(self, host: str, port: int, access_token: str, hub: Hub, uplink: Uplink | None,
-                 info: Callable[[], dict[str, Any] | None], stats: Callable[[], dict[str, Any]]) -> None:  # fmt: skip
+    def __init__(
+        self, host: str, port: int, access_token: str, hub: Hub, uplink: Uplink | None,
+        info: Callable[[], dict[str, Any] | None], stats: Callable[[], dict[str, Any]],
+    ) -> None:  # fmt: skip
         self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
         super().__init__((host, port), _Handler)
         self.access = Access(access_token, host, self.server_address[1])
@@ -101,7 +104,9 @@ class _Handler(BaseHTTPRequestHandler):
         self._count()
         url = urlsplit(self.path)
         if not self.server.access.host_ok(self.headers.get("Host")):
-            return self._refuse(HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name")
+            return self._refuse(
+                HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name"
+            )
         if url.path in ("/", "/index.html"):
             return self._static("index.html")
         if url.path == "/favicon.ico":
@@ -130,7 +135,9 @@ class _Handler(BaseHTTPRequestHandler):
         if not self.server.access.host_ok(self.headers.get("Host")):
             if uplink is not None:
                 uplink.reject("host", remote, str(self.headers.get("Host")))
-            return self._refuse(HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name")
+            return self._refuse(
+                HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name"
+            )
         if not self._api_allowed(self._header_token(), uplink):
             return None
         length = self._length()
@@ -149,7 +156,18 @@ class _Handler(BaseHTTPRequestHandler):
             return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
         if command is None:
             return self._refuse(HTTPStatus.SERVICE_UNAVAILABLE, "busy", "too many commands waiting")
-        return self._json(HTTPStatus.ACCEPTED, {"id": command.id, "command": command.name, "status": "queued"})
+        return self._json(
+            HTTPStatus.ACCEPTED, {"id": command.id, "command": command.name, "status": "queued"}
+        )
+
+    def do_OPTIONS(self) -> None:  # noqa: N802
+        """A CORS preflight: only a foreign page sends one, and none is allowed (no CORS headers)."""
+        self._count()
+        if self.server.uplink is not None and urlsplit(self.path).path == "/api/command":
+            self.server.uplink.reject(
+                "origin", self.address_string(), f"preflight from {self.headers.get('Origin')}"
+            )
+        self._refuse(HTTPStatus.FORBIDDEN, "origin", "cross-origin requests are not accepted")
 
     # ------------------------------------------------------------------ checks
     def _header_token(self) -> str | None:
@@ -158,18 +176,21 @@ class _Handler(BaseHTTPRequestHandler):
         return value.strip() if scheme.lower() == "token" and value.strip() else None
 
     def _api_allowed(self, token: str | None, uplink: Uplink | None = None) -> bool:
+        """The Origin first (a foreign page is refused whatever it sends), then the token."""
         access = self.server.access
         remote = self.address_string()
-        if not access.token_ok(token):
-            if uplink is not None:
-                uplink.reject("token", remote, "missing" if token is None else "wrong")
-            self._refuse(HTTPStatus.UNAUTHORIZED, "token", "missing or wrong token (use the URL printed at start)")
-            return False
         origin = self.headers.get("Origin")
         if not access.origin_ok(origin, self.headers.get("Host")):
             if uplink is not None:
                 uplink.reject("origin", remote, str(origin))
             self._refuse(HTTPStatus.FORBIDDEN, "origin", f"requests from {origin} are not accepted")
+            return False
+        if not access.token_ok(token):
+            if uplink is not None:
+                uplink.reject("token", remote, "missing" if token is None else "wrong")
+            self._refuse(
+                HTTPStatus.UNAUTHORIZED, "token", "missing or wrong token (see the URL printed at start)"
+            )
             return False
         return True
 

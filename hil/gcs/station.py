@@ -73,7 +73,9 @@ class GroundStation:
         self._pump_thread.start()
 
     @classmethod
-    def live(cls, *, bind: str | None = None, token: str | None = None, commands: bool = True) -> GroundStation:
+    def live(
+        cls, *, bind: str | None = None, token: str | None = None, commands: bool = True
+    ) -> GroundStation:
         """A station for a run that is about to start: pass :attr:`observer` as ``RunOptions.observer``."""
         uplink = Uplink() if commands else None
         return cls(LiveFeed(uplink), bind=bind, token=token, uplink=uplink)

@@ -4,8 +4,9 @@ Commands (``POST /api/command``, a JSON object; docs/gcs.md, "Uplink"):
 
 ``{"command": "arm"}``       Arm through the board protocol (acknowledged by the board)
 ``{"command": "disarm"}``    Disarm (acknowledged): rotors to the safe pulse, gimbals hold; the run goes on
-``{"command": "abort"}``     Disarm, then end the run; when the link cannot carry the Disarm the host lets
-                             go of the board and its link watchdog fails it safe within its timeout
+``{"command": "abort"}``     Disarm, then end the run once the board's telemetry shows it disarmed; when the
+                             link cannot carry the Disarm the host lets go of the board and its link
+                             watchdog fails it safe within its timeout
 ``{"command": "hold"}``      hold the attitude estimated now (the host's reference stops there)
 ``{"command": "slew", "roll_deg": r, "pitch_deg": p, "yaw_deg": y}``
                              slew to the attitude R = Rz(yaw) Ry(pitch) Rx(roll), body → inertial, within
@@ -34,7 +35,7 @@ import numpy as np
 from hil import so3
 from hil.runtime.observer import RunAborted
 from protocol.errors import HilError, InputFormatError
-from protocol.messages import Arm, Disarm
+from protocol.messages import Arm, BoardState, Disarm
 from protocol.reliable import CommandState
 
 if TYPE_CHECKING:
@@ -45,6 +46,7 @@ COMMANDS = ("arm", "disarm", "abort", "hold", "slew")
 MAX_BODY = 4096  # bytes of a command request
 INBOX = 16  # commands waiting for the next control tick; more answer 503
 REJECTED_LOG = 64  # turned-away requests waiting to be logged; more are counted only
+ABORT_CONFIRM_S = 0.5  # an abort waits this long after the Disarm's ack for telemetry that shows it
 ANGLE_RANGE = {"roll_deg": 180.0, "pitch_deg": 90.0, "yaw_deg": 180.0}
 
 
@@ -174,10 +176,26 @@ class Uplink:
         self._pending = still
         abort = self._abort
         if abort is not None and abort.handle.done:
-            raise RunAborted(f"from the ground station (command {abort.command.id}: board disarmed)"
-                             if abort.handle.ok else
-                             f"from the ground station (command {abort.command.id}: the Disarm failed; "
-                             "the board's link watchdog fails it safe)")  # fmt: skip
+            self._end_abort(host, t, abort)
+
+    def _end_abort(self, host: Host, t: float, abort: _Pending) -> None:
+        """End the run once the board says it is no longer armed (its telemetry after the Disarm's ack),
+        or at once if the Disarm failed (the board's link watchdog then fails it safe when the host lets
+        go); at most :data:`ABORT_CONFIRM_S` after the ack."""
+        n = abort.command.id
+        if not abort.handle.ok:
+            raise RunAborted(f"from the ground station (command {n}: the Disarm failed; the board's link "
+                             "watchdog fails it safe)")  # fmt: skip
+        tel = host.client.telemetry
+        settled = abort.handle.settled_at
+        if (
+            tel is not None
+            and tel.state is BoardState.ARMED
+            and (settled is None or t - settled < ABORT_CONFIRM_S)
+        ):
+            return  # acknowledged; wait for the telemetry that shows it
+        state = "no telemetry" if tel is None else tel.state.name
+        raise RunAborted(f"from the ground station (command {n}: board disarmed, telemetry says {state})")
 
     def _log(self, host: Host, t: float, command: Command, status: str, **fields: Any) -> None:
         host.events.write(t, "command", origin="gcs", id=command.id, command=command.name, status=status,

@@ -129,12 +129,7 @@ def _plan(opts: RunOptions) -> _Plan:
             raise ConfigError("a replay runs in lockstep only against the in-process board (emu://)", "run")
         return _Plan("log", lockstep)
     if opts.port is None:
-        plan = _Plan("world", True if opts.lockstep is None else opts.lockstep)
-        if opts.pace is not None and not plan.lockstep:
-            raise ConfigError("pacing is for lockstep runs (a real-time run keeps the wall clock)", "run --pace")
-        return plan
-    if opts.pace is not None:
-        raise ConfigError("pacing is for lockstep runs (a real-time run keeps the wall clock)", "run --pace")
+        return _Plan("world", True if opts.lockstep is None else opts.lockstep)
     if opts.lockstep:
         raise ConfigError("lockstep needs the built-in emulator (leave out --port, or use --realtime)", "run")
     return _Plan("phone", False)
@@ -146,6 +141,8 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     the exit reason is written; a Ctrl-C ends the run early with a complete summary."""
     opts = options or RunOptions()
     plan = _plan(opts)
+    if opts.pace is not None and not plan.lockstep:
+        raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
     if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
         raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
     observer = opts.observer
