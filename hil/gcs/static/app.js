@@ -53,7 +53,7 @@ function onInfo(info) {
   state.info = info;
   if (state.plots) state.plots.destroy();
   state.store = new Store(info.columns);
-  state.plots = new Plots($("plots"), info, state.store);
+  state.plots = new Plots($("plots"), info, state.store, () => { state.dirty = true; });
   state.follow = true;
   $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
   $("mode").textContent = info.mode === "live" ? `live (${info.clock || "run"})` : "replay";
@@ -110,7 +110,8 @@ function frame(now) {
   requestAnimationFrame(frame);
   const feed = feedState();
   const feedEl = $("feed");
-  feedEl.textContent = feed.text; feedEl.className = `badge ${feed.cls}`;
+  if (feedEl.textContent !== feed.text) feedEl.textContent = feed.text;  // unchanged: no relayout
+  if (feedEl.className !== `badge ${feed.cls}`) feedEl.className = `badge ${feed.cls}`;
   document.body.classList.toggle("feed-stale", feed.cls === "stale");
   if (state.playing && state.store) {
     const speed = Number($("speed").value);
@@ -119,7 +120,7 @@ function frame(now) {
     if (state.cursor >= state.store.tLast) { state.cursor = state.store.tLast; state.playing = false; }
     state.dirty = true;
   }
-  if (feed.cls === "stale") state.dirty = true;  // ages grow
+  if (feed.cls === "stale" && now - lastFrame > 250) state.dirty = true;  // the ages shown grow
   if (!state.dirty || now - lastFrame < MIN_FRAME_MS || !state.store) return;
   lastFrame = now;
   state.dirty = false;
@@ -131,11 +132,11 @@ function render(feed) {
   const { store, info } = state;
   const hasRows = store.n > 0;
   if (state.follow && hasRows) state.cursor = store.tLast;
-  timeline.min = hasRows ? store.tFirst : 0;
-  timeline.max = hasRows ? store.tLast : 0;
-  timeline.value = Number.isFinite(state.cursor) ? state.cursor : 0;
-  $("play").textContent = state.playing ? "❚❚" : "▶";
-  $("follow").disabled = state.follow;
+  setProp(timeline, "min", String(hasRows ? store.tFirst : 0));
+  setProp(timeline, "max", String(hasRows ? store.tLast : 0));
+  setProp(timeline, "value", String(Number.isFinite(state.cursor) ? state.cursor : 0));
+  setProp($("play"), "textContent", state.playing ? "❚❚" : "▶");
+  setProp($("follow"), "disabled", state.follow);
   setCell($("cursor-time"), hasRows ? `${fmt(state.cursor, 2)} s of ${fmt(store.tLast, 1)} s` : "no rows yet");
   const i = hasRows ? Math.max(store.indexAt(state.cursor), 0) : -1;
   if (hasRows) {
@@ -156,7 +157,12 @@ function render(feed) {
   while (stats.renderTimes.length && stats.renderTimes[0] < now - 2000) stats.renderTimes.shift();
   stats.updateHz = stats.renderTimes.length / 2;
   stats.renderMs = performance.now() - t0;
-  $("stats").textContent = `${stats.updateHz.toFixed(0)} updates/s · ${store.n} rows${store.keepEvery > 1 ? ` (1 in ${store.keepEvery})` : ""} · ${(stats.bytes / 1e6).toFixed(1)} MB`;
+  setProp($("stats"), "textContent", `${stats.updateHz.toFixed(0)} updates/s · ${store.n} rows${store.keepEvery > 1 ? ` (1 in ${store.keepEvery})` : ""} · ${(stats.bytes / 1e6).toFixed(1)} MB`);
+}
+
+// Assign only what changed: an unchanged assignment still costs the page a relayout or a repaint.
+function setProp(el, name, value) {
+  if (el[name] !== value) el[name] = value;
 }
 
 function targetAt(tc) {

@@ -11,13 +11,13 @@ function ageText(seconds) {
   return seconds >= 10 ? `${seconds.toFixed(0)} s old` : seconds >= 1 ? `${seconds.toFixed(1)} s old` : `${(seconds * 1e3).toFixed(0)} ms old`;
 }
 
-// Set a cell's text; stale (an age in s, or false) greys it and says how old it is.
+// Set a cell's text; stale (an age in s, a few words saying why, or false) greys it and says so.
 export function setCell(el, text, staleAge = false) {
   if (!el) return;
   if (el.textContent !== text) el.textContent = text;
   const stale = staleAge !== false && staleAge !== null;
   el.classList.toggle("stale", stale);
-  if (stale) el.dataset.age = Number.isFinite(staleAge) ? ageText(staleAge) : "stale";
+  if (stale) el.dataset.age = Number.isFinite(staleAge) ? ageText(staleAge) : String(staleAge);
   else delete el.dataset.age;
 }
 
@@ -137,15 +137,17 @@ const LINK_ROWS = [
 function drawLink(ctx) {
   const { store, t } = ctx;
   const table = $("link");
-  const s = store.linkAt(t);
-  if (!s) { table.innerHTML = "<tr><td class='muted'>no link statistics yet</td></tr>"; return; }
+  // A replay has the run's final figures only (summary.json): shown, marked as from the end of the run.
+  const atEnd = !store.linkAt(t) && store.link.length ? store.link[store.link.length - 1] : null;
+  const s = store.linkAt(t) || atEnd;
+  if (!s) { table.innerHTML = "<tr><td class='muted'>no link statistics yet</td></tr>"; table.dataset.built = ""; return; }
   if (!table.dataset.built) {
     table.innerHTML = LINK_ROWS.map(([k, label]) => `<tr><th>${label}</th><td id="link-${k.replace(/\./g, "-")}"></td></tr>`).join("")
       + `<tr><th>bad frames by reason</th><td id="link-reasons"></td></tr>`;
     table.dataset.built = "1";
   }
   const age = Number.isFinite(s.t) && Number.isFinite(t) ? Math.max(t - s.t, 0) + (ctx.feedAge || 0) : 0;
-  const stale = age > 1.0 ? age : false;
+  const stale = atEnd ? "at the end of the run" : age > 1.0 ? age : false;
   const n = (k) => (s[k] === null || s[k] === undefined ? "—" : String(s[k]));
   const vals = {
     "frames_in": n("frames_in"), "bad_frames_total": n("bad_frames_total"), "resyncs": n("resyncs"),
@@ -168,9 +170,16 @@ const EVENT_CLASS = (e) => {
   return "";
 };
 
+// Numbers to 4 significant digits (an event's rotation vectors and times are for reading, not for copying).
+function short(x) {
+  if (typeof x === "number") return Number.isInteger(x) ? String(x) : String(Number(x.toPrecision(4)));
+  if (Array.isArray(x)) return `[${x.map(short).join(", ")}]`;
+  if (x !== null && typeof x === "object") return JSON.stringify(x);
+  return String(x);
+}
+
 function describe(e) {
-  const rest = Object.entries(e).filter(([k]) => k !== "t" && k !== "kind")
-    .map(([k, x]) => `${k}=${typeof x === "object" && x !== null ? JSON.stringify(x) : x}`);
+  const rest = Object.entries(e).filter(([k]) => k !== "t" && k !== "kind").map(([k, x]) => `${k}=${short(x)}`);
   return `${e.kind} ${rest.join(" ")}`;
 }
 

@@ -40,10 +40,18 @@ export function plotSpecs(info) {
 }
 
 export class Plots {
-  constructor(container, info, store) {
+  // onShown: called when a plot scrolls into view (it was not redrawn while hidden).
+  constructor(container, info, store, onShown = () => {}) {
     this.container = container;
     this.store = store;
     this.charts = [];
+    this.visibility = new IntersectionObserver((entries) => {
+      for (const entry of entries) {
+        const c = this.charts.find((x) => x.box === entry.target);
+        if (c) c.visible = entry.isIntersecting;
+      }
+      onShown();
+    });
     container.innerHTML = "";
     for (const spec of plotSpecs(info)) {
       const series = spec.series.filter((s) => store.has(s.col));
@@ -64,7 +72,8 @@ export class Plots {
           ...limits.map((l) => ({ ...LIMIT, label: l.label }))],
       };
       const chart = new uPlot(opts, [[], ...series.map(() => []), ...limits.map(() => [])], box);
-      this.charts.push({ spec, series, limits, chart, box });
+      this.charts.push({ spec, series, limits, chart, box, visible: true });
+      this.visibility.observe(box);
     }
     this.resize = () => { for (const c of this.charts) c.chart.setSize({ width: Math.max(c.box.clientWidth - 8, 200), height: 150 }); };
     window.addEventListener("resize", this.resize);
@@ -72,11 +81,13 @@ export class Plots {
 
   destroy() {
     window.removeEventListener("resize", this.resize);
+    this.visibility.disconnect();
     for (const c of this.charts) c.chart.destroy();
     this.charts = [];
   }
 
-  // Show rows i0..i1 (inclusive) of the store.
+  // Show rows i0..i1 (inclusive) of the store in the plots in view (the page's redraws are its main cost
+  // to the machine the run shares it with).
   update(i0, i1) {
     const store = this.store, count = i1 - i0 + 1;
     if (count <= 0) return;
@@ -88,6 +99,7 @@ export class Plots {
     };
     const x = take(store.col("t"));
     for (const c of this.charts) {
+      if (!c.visible) continue;
       const data = [x, ...c.series.map((s) => take(store.col(s.col))), ...c.limits.map((l) => x.map(() => l.value))];
       c.chart.setData(data);
       const last = data[1][data[1].length - 1];

@@ -11,6 +11,7 @@ export class Uplink {
     this.token = token;
     this.enabled = false;
     this.items = new Map();  // id -> <li>
+    this.latest = new Map();  // id -> the newest "command" event (it may come before the POST's answer)
     for (const button of document.querySelectorAll("#uplink button[data-command]")) {
       button.addEventListener("click", () => this.click(button));
     }
@@ -65,6 +66,8 @@ export class Uplink {
       li.dataset.id = String(reply.id);
       this.items.set(reply.id, li);
       this.setStatus(li, "queued", `#${reply.id} ${describe(body)}`);
+      const known = this.latest.get(reply.id);
+      if (known) this.onEvent(known);
     } catch (err) {
       this.setStatus(li, "error", `${describe(body)}: ${err}`);
     }
@@ -78,6 +81,7 @@ export class Uplink {
   // A "command" event of the run: update that command's line.
   onEvent(e) {
     if (e.kind !== "command" || e.id === null || e.id === undefined) return;
+    this.latest.set(e.id, e);
     const li = this.items.get(e.id);
     if (!li) return;
     const detail = e.reason ? ` (${e.reason})` : e.after_ms !== undefined ? ` after ${Number(e.after_ms).toFixed(0)} ms` : "";
