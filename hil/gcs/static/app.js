@@ -1,6 +1,7 @@
 // The ground station page: the downlink (Server-Sent Events) into the store, a timeline cursor (following
-// the newest data, or scrubbed / played back), and a redraw of plots, 3D view and panels whenever there is
-// something new — at most every MIN_FRAME_MS. Counters for tests and benchmarks are in window.gcs.stats.
+// the newest data, or scrubbed / played back), and a redraw of plots, 3D view and panels in the next
+// animation frame whenever something changed — and only then: an idle page draws nothing (its drawing is
+// what it costs the machine a run shares with it). Counters for tests and benchmarks: window.gcs.stats.
 
 import { Store } from "./store.js";
 import { Plots } from "./plots.js";
@@ -8,7 +9,7 @@ import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
 import { $, fmt, setCell, drawPanels, drawEvents } from "./panels.js";
 import { Uplink } from "./uplink.js";
 
-const MIN_FRAME_MS = 15;
+const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
 const FEED_STALE_S = 1.0;  // no message for this long: the live feed is stale
 
 const token = new URLSearchParams(location.search).get("token") || "";
@@ -37,13 +38,13 @@ function connect() {
   es.onopen = () => { state.connected = true; };
   es.onerror = () => { state.connected = false; if (state.ended) es.close(); };
   on("info", onInfo);
-  on("rows", (d) => { if (state.store) { state.store.pushRows(d.rows); stats.rows += d.rows.length; state.dirty = true; } });
-  on("events", (list) => { if (state.store) { state.store.pushEvents(list); list.forEach((e) => uplink.onEvent(e)); state.dirty = true; } });
-  on("link", (list) => { if (state.store) { state.store.pushLink(list); state.dirty = true; } });
+  on("rows", (d) => { if (state.store) { state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
+  on("events", (list) => { if (state.store) { state.store.pushEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
+  on("link", (list) => { if (state.store) { state.store.pushLink(list); invalidate(); } });
   on("status", (s) => {
     state.status = { ...state.status, ...s };
     if (["ended", "finished", "read", "error"].includes(s.state)) uplink.enable(false);
-    state.dirty = true;
+    invalidate();
     showStatus();
   });
   es.addEventListener("bye", () => { state.ended = true; es.close(); uplink.enable(false); showStatus(); });
@@ -53,7 +54,7 @@ function onInfo(info) {
   state.info = info;
   if (state.plots) state.plots.destroy();
   state.store = new Store(info.columns);
-  state.plots = new Plots($("plots"), info, state.store, () => { state.dirty = true; });
+  state.plots = new Plots($("plots"), info, state.store, () => { invalidate(); });
   state.follow = true;
   $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
   $("mode").textContent = info.mode === "live" ? `live (${info.clock || "run"})` : "replay";
@@ -62,7 +63,7 @@ function onInfo(info) {
   $("link").dataset.built = "";
   uplink.enable(Boolean(info.uplink));
   document.title = `GCS · ${info.run}`;
-  state.dirty = true;
+  invalidate();
 }
 
 function showStatus() {
@@ -78,10 +79,9 @@ function showStatus() {
 
 // ---------------------------------------------------------------- the timeline
 const timeline = $("timeline");
-timeline.addEventListener("input", () => { state.follow = false; state.playing = false; state.cursor = Number(timeline.value); state.dirty = true; });
-$("follow").addEventListener("click", () => { state.follow = true; state.playing = false; state.dirty = true; });
-$("window").addEventListener("change", () => { state.dirty = true; });
-let playClock = 0;
+timeline.addEventListener("input", () => { state.follow = false; state.playing = false; state.cursor = Number(timeline.value); invalidate(); });
+$("follow").addEventListener("click", () => { state.follow = true; state.playing = false; invalidate(); });
+$("window").addEventListener("change", () => { invalidate(); });
 $("play").addEventListener("click", () => {
   const store = state.store;
   if (!store || !store.n) return;
@@ -91,7 +91,7 @@ $("play").addEventListener("click", () => {
     if (!(state.cursor < store.tLast)) state.cursor = store.tFirst;
     playClock = performance.now();
   }
-  state.dirty = true;
+  invalidate();
 });
 
 function feedState() {
@@ -105,27 +105,39 @@ function feedState() {
 }
 
 // ---------------------------------------------------------------- drawing
-let lastFrame = 0, lastRows = 0;
-function frame(now) {
-  requestAnimationFrame(frame);
+let lastRows = 0, frameRequested = false;
+
+function invalidate() {
+  state.dirty = true;
+  if (!frameRequested) { frameRequested = true; requestAnimationFrame(frame); }
+}
+
+function showFeed() {
   const feed = feedState();
   const feedEl = $("feed");
   if (feedEl.textContent !== feed.text) feedEl.textContent = feed.text;  // unchanged: no relayout
   if (feedEl.className !== `badge ${feed.cls}`) feedEl.className = `badge ${feed.cls}`;
   document.body.classList.toggle("feed-stale", feed.cls === "stale");
+  return feed;
+}
+
+let playClock = 0;
+function frame(now) {
+  frameRequested = false;
   if (state.playing && state.store) {
     const speed = Number($("speed").value);
     state.cursor += (now - playClock) / 1e3 * speed;
     playClock = now;
     if (state.cursor >= state.store.tLast) { state.cursor = state.store.tLast; state.playing = false; }
-    state.dirty = true;
+    else invalidate();  // the next frame moves on
   }
-  if (feed.cls === "stale" && now - lastFrame > 250) state.dirty = true;  // the ages shown grow
-  if (!state.dirty || now - lastFrame < MIN_FRAME_MS || !state.store) return;
-  lastFrame = now;
+  const feed = showFeed();
+  if (!state.dirty || !state.store) return;
   state.dirty = false;
   render(feed);
 }
+
+setInterval(() => { if (showFeed().cls === "stale") invalidate(); }, CLOCK_MS);  // the ages shown grow
 
 function render(feed) {
   const t0 = performance.now();
@@ -202,4 +214,3 @@ function drawAttitude(i, feedAge, rowGap) {
 }
 
 connect();
-requestAnimationFrame(frame);
