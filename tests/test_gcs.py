@@ -420,3 +420,12 @@ def test_hil_gcs_serves_a_run_directory_at_the_url_it_prints(tmp_path):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_hil_run_gcs_prints_the_url_and_serves_the_run(tmp_path):
+    done = _hil("run", "--gcs", "127.0.0.1:0", "--pace", "0", "--duration", "0.5", "--out", str(tmp_path),
+                "--no-plots", timeout=300)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    line = next(x for x in done.stderr.splitlines() if x.startswith("ground station: "))
+    assert line.startswith("ground station: http://127.0.0.1:") and "/?token=" in line
+    assert "exit              completed" in done.stdout
