@@ -150,7 +150,10 @@ function drawLink(ctx) {
   const stale = atEnd ? "at the end of the run" : age > 1.0 ? age : false;
   const n = (k) => (s[k] === null || s[k] === undefined ? "—" : String(s[k]));
   const vals = {
-    "frames_in": n("frames_in"), "bad_frames_total": n("bad_frames_total"), "resyncs": n("resyncs"),
+    "frames_in": n("frames_in"), "resyncs": n("resyncs"),
+    // a live snapshot has the total; a run's summary.json only the counts by reason
+    "bad_frames_total": String(s.bad_frames_total ?? Object.entries(s).filter(([k]) => k.startsWith("bad_frames."))
+      .reduce((sum, [, x]) => sum + (Number(x) || 0), 0)),
     "seq_gaps": n("seq_gaps"), "counters.frames_out": n("counters.frames_out"), "retries": n("retries"),
     "acked": `${n("acked")} / ${n("nacked")} / ${n("failed")}`,
     "rtt.p99_ms": `${fmt(s["rtt.p50_ms"], 1)} / ${fmt(s["rtt.p99_ms"], 1)} ms`,
