@@ -15,6 +15,8 @@ examples:
   hil run --scenario paper-testbed --duration 20   # the paper's air-bearing testbed, 20 s after the slew
   hil run --realtime                               # built-in emulator on the wall clock, phone over UDP
   hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
+  hil run --gcs                                    # ... watched and commanded from a browser (docs/gcs.md)
+  hil run --gcs --pace 5 --duration 60             # lockstep at 5x the wall clock, 60 s after the slew
 
   # two terminals: the emulated board with its world on a pty, then the host against it
   firmware-sim --world cubesat-1u --link /tmp/vscmg
@@ -69,6 +71,16 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
+    p.add_argument(
+        "--gcs", nargs="?", const="", default=None, metavar="HOST:PORT",
+        help="serve a ground-station page for the run (default 127.0.0.1:8470; its URL, with an access "
+        "token, is printed at start; docs/gcs.md)",
+    )  # fmt: skip
+    p.add_argument(
+        "--pace", type=float, metavar="X",
+        help="lockstep at most X times as fast as the wall clock (1: real time; default with --gcs: 1, "
+        "0: as fast as it goes)",
+    )  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -105,12 +117,17 @@ def run(args: argparse.Namespace) -> int:
     from protocol.errors import HilError
 
     plotter = None if args.no_plots else Plotter()
+    station = None
     try:
         scenario = load_scenario(args.scenario)
         lockstep = True if args.lockstep else (False if args.realtime else None)
+        lockstep_run = lockstep if lockstep is not None else args.port is None
+        pace = (
+            args.pace if args.pace is not None else (1.0 if args.gcs is not None and lockstep_run else None)
+        )
         opts = RunOptions(
             port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
-            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(),
+            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(), pace=pace or None,
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
         if args.port is None:
@@ -119,6 +136,9 @@ def run(args: argparse.Namespace) -> int:
             if warmup.needed():
                 print("compiling the simulation kernels (once after an install or an edit of them)",
                       file=sys.stderr)  # fmt: skip
+        if args.gcs is not None:
+            station = start_station(args.gcs)
+            opts.observer = station.observer
         result = run_scenario(scenario, opts)
     except BaseException as exc:
         if plotter is not None:
@@ -127,6 +147,11 @@ def run(args: argparse.Namespace) -> int:
             raise
         print(f"\nhil run: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if station is not None:
+            station.close()
+    if station is not None and station.error is not None:  # the page stopped updating; the run did not
+        print(f"ground station: its pump failed: {station.error!r}", file=sys.stderr)
     if plotter is not None:
         assert result.run_dir is not None
         plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
@@ -183,6 +208,21 @@ class Plotter:
             self.process.stdin.close()
         if self.process.stderr is not None:
             self.process.stderr.close()
+
+
+def start_station(bind: str):  # type: ignore[no-untyped-def]
+    """A live ground station on ``bind`` (``--gcs``), its URL printed to stderr."""
+    from hil.gcs import GroundStation
+
+    station = GroundStation.live(bind=bind or None)
+    print(f"ground station: {station.url}", file=sys.stderr)
+    if not station.loopback:
+        print(
+            f"ground station: listening on {station.host}, not only this machine: anyone who reaches it "
+            "with the token can command the board", file=sys.stderr,
+        )  # fmt: skip
+    sys.stderr.flush()
+    return station
 
 
 def draw_plots(run_dir: Path) -> None:

@@ -238,6 +238,21 @@ class Host:
                 slew_s=self.slew.duration_s, gyro_bias=self.gyro_bias.tolist(),
             )  # fmt: skip
 
+    def retarget(self, t: float, R_target: Array | None = None) -> str | None:
+        """A new target from outside the loop (the ground station's slew or hold): an eigenaxis slew from the
+        attitude estimated now to ``R_target`` (3, 3), body → inertial (None: hold the attitude estimated
+        now), within the scenario's rate and acceleration limits, from ``t`` (s). The run still ends
+        ``duration_s`` after the scenario's slew started. Returns why it was refused, or None: during the
+        warm-up there is no estimate to start from and the scenario's own slew is still to come."""
+        if self.phase is Phase.WARMUP or self.estimate is None:
+            return "the warm-up is not over (the scenario's slew has not started)"
+        R_hat = np.asarray(self.estimate.R)
+        self.target = R_hat.copy() if R_target is None else np.asarray(R_target, dtype=float)
+        sl = self.scenario.slew
+        self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
+        self.phase = Phase.SLEW
+        return None
+
     # ------------------------------------------------------------------ board events
     def _on_event(self, event: Any) -> None:
         t = event.t

@@ -30,12 +30,17 @@ One process serves many runs (a Monte Carlo worker runs one after another): a ru
 runs — its clock, board, world, host and logs are its own. With ``RunOptions.out_root=None`` a run writes
 no run directory at all: no telemetry rows are formatted, its events stay in memory, and its figures come
 back in :class:`RunResult` (``summary`` and the per-tick ``trace`` from the slew's start).
+
+A run may be watched and commanded while it happens (``RunOptions.observer``, :mod:`hil.runtime.observer`:
+the ground station, :mod:`hil.gcs`), and a lockstep run may be paced to the wall clock (``RunOptions.pace``)
+so that a person can follow it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -48,6 +53,7 @@ from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
 from hil.link.sources.recorded import RecordedSource
 from hil.link.transports import InProcessBoard, create_transport
 from hil.runtime.host import Host, TruthSample
+from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, new_run_dir, write_summary
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
@@ -61,6 +67,7 @@ Progress = Callable[[Host, float], None]
 """Called after every control tick with the host and the time since the run started (s)."""
 
 SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by Host.MAX_SPINUP_S)
+PACE_PERIOD_S = 0.01  # a paced lockstep run waits for the wall clock every this much simulated time
 
 
 @dataclass(frozen=True)
@@ -83,7 +90,9 @@ class RunOptions:
     ``udp://HOST:PORT`` or ``http://HOST:PORT/``); ``phone_wait_s``: how long to wait for the first phone
     samples on a port before giving up; ``replay``: take the phone from a recorded log instead (needs a
     port), the controller holding the attitude estimated at the end of the warm-up; ``out_root`` None:
-    no run directory (see the module docstring)."""
+    no run directory (see the module docstring); ``observer``: sees every row and event and may command
+    the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run goes at most this many times as fast as
+    the wall clock (1.0: real time), None: as fast as it can."""
 
     port: str | None = None
     lockstep: bool | None = None
@@ -94,6 +103,8 @@ class RunOptions:
     progress: Progress | None = None
     label: str | None = None
     replay: ReplayInput | None = None
+    observer: RunObserver | None = None
+    pace: float | None = None
 
 
 @dataclass
@@ -144,19 +155,26 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     the exit reason is written; a Ctrl-C ends the run early with a complete summary."""
     opts = options or RunOptions()
     plan = _plan(opts)
+    if opts.pace is not None and not plan.lockstep:
+        raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
+    if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
+        raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
     if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
         from hil.runtime.warmup import warm
 
         compiled_s = warm(scenario)
         if compiled_s is not None:
             logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
+    observer = opts.observer
+    tap_row = None if observer is None else observer.row
+    tap_event = None if observer is None else observer.event
     run_dir: Path | None = None
     telemetry: CsvLog | None = None
     if opts.out_root is not None:
         run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
         (run_dir / "scenario.toml").write_text(scenario.source)
-        telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units))
-    events = EventLog(None if run_dir is None else run_dir / "events.jsonl")
+        telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units), tap=tap_row)
+    events = EventLog(None if run_dir is None else run_dir / "events.jsonl", tap=tap_event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
     if opts.replay is not None:
         summary["replay"] = {"log": opts.replay.log.source, "format": opts.replay.log.format,
@@ -167,6 +185,8 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     try:
         with contextlib.ExitStack() as stack:
             built = _build(scenario, opts, plan, telemetry, events, stack)
+            if observer is not None:
+                observer.started(RunStart(built.host, built.scheduler, run_dir, plan.mode))
             loop_started = time.monotonic()
             try:
                 built.scheduler.run(until=built.until)
@@ -175,6 +195,8 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
             summary["exit"] = "completed" if built.host.finished else "time limit (the slew never started)"
     except KeyboardInterrupt:
         summary["exit"] = "interrupted"
+    except RunAborted as exc:
+        summary["exit"] = f"aborted: {exc}"
     except BaseException as exc:
         summary["exit"] = f"error: {exc}"
         error = exc
@@ -203,6 +225,8 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         events.close()
         if run_dir is not None:
             write_summary(run_dir, summary)
+        if observer is not None:
+            observer.finished(summary)
     if error is not None:
         raise error
     trace = built.host.trace if built is not None else RunTrace()
@@ -329,7 +353,11 @@ def _build(
     def estimator_task(_due: float) -> None:
         host.feed(drain())
 
+    observer = opts.observer
+
     def control_task(_due: float) -> None:
+        if observer is not None:
+            observer.tick(clock.now())  # commands from outside act here, in the control thread
         if catch_up is not None:
             catch_up()
         host.tick(clock.now(), client.service())
@@ -352,6 +380,8 @@ def _build(
         step = catch_up
         period = float(getattr(world, "advance_period_s", None) or scenario.loop.plant_step_s)
         tasks.insert(0, PeriodicTask("world", period, lambda _due: step()))
+    if opts.pace is not None:
+        tasks.append(_pacer(opts.pace, origin))
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
     return _Built(host, scheduler, until, phone, recorded)
@@ -363,6 +393,22 @@ def _in_process_board(url: str) -> InProcessBoard:
     if not isinstance(link, InProcessBoard):
         raise ConfigError(f"{url} is not an in-process board with a world", "run")
     return link
+
+
+def _pacer(pace: float, origin: float) -> PeriodicTask:
+    """A lockstep task that waits, every :data:`PACE_PERIOD_S` of simulated time, until the wall clock has
+    caught up with ``pace`` × the simulated time since ``origin`` (a run slower than that is not held)."""
+    wall_origin: list[float] = []
+
+    def pace_task(due: float) -> None:
+        now = time.monotonic()
+        if not wall_origin:
+            wall_origin.append(now - (due - origin) / pace)
+        ahead = wall_origin[0] + (due - origin) / pace - now
+        if ahead > 0.0:
+            time.sleep(ahead)
+
+    return PeriodicTask("pace", PACE_PERIOD_S, pace_task)
 
 
 def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:

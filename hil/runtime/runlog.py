@@ -26,7 +26,7 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -56,6 +56,10 @@ def new_run_dir(root: str | os.PathLike[str], label: str) -> Path:
             path = base.with_name(f"{base.name}-{n}")
 
 
+Tap = Callable[[Mapping[str, Any]], None]
+"""Called with each row or event record as it is written (a run's observer, :mod:`hil.gcs`)."""
+
+
 class CsvLog:
     """Rows of numbers under a fixed header. Missing values (None, NaN) are written empty (read as NaN).
 
@@ -65,7 +69,8 @@ class CsvLog:
     whatever has queued, writes it and flushes it to the operating system — so a killed run keeps every row
     older than about ``batch_s``, at most a torn last line. A full queue (``max_pending`` rows: a disk that
     stalls for that long) makes the caller wait: rows are never dropped. An error of the writer thread (a
-    full disk) is raised by the next :meth:`write_values`, :meth:`flush` or :meth:`close`.
+    full disk) is raised by the next :meth:`write_values`, :meth:`flush` or :meth:`close`. ``tap``
+    (optional: a run's observer, :mod:`hil.gcs`) sees each row, by column name, as it is written.
     """
 
     def __init__(
@@ -74,6 +79,7 @@ class CsvLog:
         columns: Sequence[str],
         max_pending: int = 4096,
         batch_s: float = 0.05,
+        tap: Tap | None = None,
     ) -> None:
         if len(set(columns)) != len(columns):
             raise ValueError(f"duplicate CSV columns: {list(columns)}")
@@ -90,6 +96,7 @@ class CsvLog:
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name=f"csv:{self.path.name}", daemon=True)
         self._thread.start()
+        self.tap = tap
 
     def write(self, row: Mapping[str, Any]) -> None:
         """Write one row given by column name (unknown keys raise KeyError: a typo must not silently drop a
@@ -108,6 +115,8 @@ class CsvLog:
             raise ValueError(f"{self.path.name}: {len(values)} values for {len(self.columns)} columns")
         self._queue.put(values)
         self.rows += 1
+        if self.tap is not None:
+            self.tap(dict(zip(self.columns, values, strict=True)))
 
     def flush(self) -> None:
         """Wait until every row written so far is in the file (flushed to the operating system; up to
@@ -183,9 +192,12 @@ def _cell(value: Any) -> str:
 class EventLog:
     """JSON lines, each flushed: ``{"t": seconds, "kind": ..., ...}``. ``path`` None keeps the events in
     memory instead (``events``; a run without a run directory, e.g. a Monte Carlo run), the newest
-    ``keep`` of them: older ones are counted in ``dropped``, never an unbounded list."""
+    ``keep`` of them: older ones are counted in ``dropped``, never an unbounded list. ``tap`` (optional)
+    sees each record as it is written."""
 
-    def __init__(self, path: str | os.PathLike[str] | None, keep: int = 10_000) -> None:
+    def __init__(
+        self, path: str | os.PathLike[str] | None, keep: int = 10_000, tap: Tap | None = None
+    ) -> None:
         self.path = None if path is None else Path(path)
         self._file: io.TextIOWrapper | None = None
         if self.path is not None:
@@ -194,11 +206,12 @@ class EventLog:
         self._closed = False
         self.count = 0
         self.dropped = 0
+        self.tap = tap
 
     def write(self, t: float, kind: str, **fields: Any) -> None:
         if self._closed:
             raise ValueError(f"{self.path or 'event log'}: log is closed")
-        event = {"t": t, "kind": kind, **fields}
+        record = event = {"t": t, "kind": kind, **fields}
         if self._file is not None:
             self._file.write(json.dumps(event, default=str) + "\n")
             self._file.flush()
@@ -206,6 +219,8 @@ class EventLog:
             self.dropped += len(self.events) == self.events.maxlen
             self.events.append(event)
         self.count += 1
+        if self.tap is not None:
+            self.tap(record)
 
     def close(self) -> None:
         self._closed = True

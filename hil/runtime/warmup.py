@@ -102,8 +102,11 @@ def warm_host(scenario: Scenario) -> None:
     estimator = AttitudeFilter(scenario.filter_config())
     merger = Merger()
     field = np.asarray(scenario.phone.field_enu_uT, dtype=float)
-    readings = {SensorKind.GYR: (0.01, -0.02, 0.03), SensorKind.ACC: (0.1, 0.2, 9.8),
-                SensorKind.MAG: tuple(float(v) for v in field)}  # fmt: skip
+    readings: dict[SensorKind, tuple[float, float, float]] = {
+        SensorKind.GYR: (0.01, -0.02, 0.03),
+        SensorKind.ACC: (0.1, 0.2, 9.8),
+        SensorKind.MAG: (float(field[0]), float(field[1]), float(field[2])),
+    }
     for k in range(40):
         for kind, xyz in readings.items():
             sample = SensorSample(0.005 * k, kind, xyz)
