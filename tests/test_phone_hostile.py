@@ -21,7 +21,7 @@ from hil.link.sources.phone_udp import PhoneUdpReceiver, PhoneUdpSender, encode_
 GOOD = SensorSample(1.0, SensorKind.GYR, (0.1, 0.2, 0.3))
 HOSTILE_DATAGRAMS = [
     b"[" * 60000,  # finding 4: RecursionError in json.loads (and larger than any SensaGram datagram)
-    b"[" * 3000,  # small enough to be parsed: the parser's RecursionError itself
+    b"[" * 3000,  # under the size cap: refused before the parser (which would raise RecursionError)
     b"1" * 4400,  # past Python's integer digit limit
     b'{"type":"android.sensor.gyroscope","timestamp":1,"values":[' + b"9" * 400 + b",0,0]}",  # OverflowError
     b'{"type":"android.sensor.gyroscope","timestamp":' + b"9" * 400 + b',"values":[0,0,0]}',

@@ -99,9 +99,9 @@ def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], 
         else:
             have_total |= NAMES[name] is SensorKind.ACC
             samples.append(SensorSample(t, NAMES[name], xyz))
-    if not have_total:
+    if not have_total and user_acc and gravity:
         samples.extend(_total_from_parts(user_acc, gravity))
-    else:
+    else:  # the parts are not needed (or one of them is missing): counted, not silently lost
         ignored += len(user_acc) + len(gravity)
     samples.sort(key=lambda s: (s.t_s, int(s.kind)))
     return samples, bad, ignored, message_id
@@ -239,6 +239,9 @@ def _handler(server: PhonePushServer, max_body: int, timeout_s: float) -> type[B
 
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
+        # The answer goes out as two writes (headers, body): with Nagle's algorithm the second waits for
+        # the peer's delayed ACK of the first, 40 ms a batch on Linux, and the app waits for the answer.
+        disable_nagle_algorithm = True
 
         def setup(self) -> None:
             super().setup()
