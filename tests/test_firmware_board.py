@@ -4,6 +4,7 @@ reports after a reset, stack headroom, and ``firmware-sim --avr``."""
 
 from __future__ import annotations
 
+import itertools
 import signal
 import subprocess
 import sys
@@ -25,12 +26,14 @@ from protocol.messages import (
     BoardState,
     CalibrationData,
     CalibrationRequest,
+    ControlMode,
     Disarm,
     GimbalMode,
     HelloReply,
     Log,
     Nack,
     NackReason,
+    RawPulses,
     ResetCause,
     SetMode,
     Telemetry,
@@ -148,6 +151,31 @@ def test_reliable_command_rules_and_an_incompatible_host(board, host):
     assert reply.schema_hash == SCHEMA_HASH
     logged(host, 8, "incompatible")  # LogCode.HANDSHAKE
     assert board.stack_headroom() >= 256  # bytes of RAM the stack never reached
+
+
+def test_a_width_changes_at_a_frame_start_never_in_the_middle_of_a_pulse(board, host):
+    """A width written while its pulse is high takes effect at the next frame: the ATmega's compare
+    registers are double-buffered in fast-PWM mode, so no pulse is stretched into the next frame (a
+    lowered width whose match already passed) or cut short. simavr applies a write at once; the harness
+    models the buffer (``firmware/harness/ocr.c``). Writes here land at every phase of the frame."""
+    n = 2 * board.config.n_units
+    wide, narrow = RawPulses(pulses_us=(1900,) * n), RawPulses(pulses_us=(1100,) * n)
+    assert isinstance(host.request(SetMode(mode=ControlMode.RAW_PULSES)), Ack)
+    assert isinstance(host.request(Arm()), Ack)
+    sent = itertools.cycle((wide, narrow))
+    host.keepalive_period = 0.007  # out of step with the frames (50 Hz here)
+    host.keepalive = lambda: next(sent)
+    t0 = board.now() + 0.05
+    frames: list = []
+    while len(frames) < 100:  # frames of board time: a loaded machine slows the simulation down
+        host.poll(0.5)
+        frames = [f for f in board.timeline() if f.t > t0]
+    widths = [w for f in frames for w in f.widths]
+    assert all(w is not None and min(abs(w - 1900), abs(w - 1100)) <= 1 for w in widths)
+    assert (
+        sum(w < 1500 for w in widths) > len(widths) // 4 and sum(w > 1500 for w in widths) > len(widths) // 4
+    )
+    assert board.records.truncated == 0
 
 
 def test_the_eeprom_configuration_shapes_the_board_and_ppm_follows_the_channels():
