@@ -5,6 +5,7 @@ reports after a reset, stack headroom, and ``firmware-sim --avr``."""
 from __future__ import annotations
 
 import itertools
+import os
 import signal
 import subprocess
 import sys
@@ -176,6 +177,23 @@ def test_a_width_changes_at_a_frame_start_never_in_the_middle_of_a_pulse(board, 
         sum(w < 1500 for w in widths) > len(widths) // 4 and sum(w > 1500 for w in widths) > len(widths) // 4
     )
     assert board.records.truncated == 0
+
+
+def test_after_a_stall_the_harness_keeps_pace_with_wall_time_instead_of_racing(board):
+    """A harness the machine did not run for a while lets the board's clock fall behind rather than race
+    to catch up (board seconds squeezed into wall milliseconds, in which no host byte can arrive, would
+    trip the link watchdog for nothing). Its lag correction had the wrong sign: after one 0.3 s stall the
+    board ran ~11x wall time from then on, ~12 000 "lag resets" a second."""
+    time.sleep(0.2)
+    os.kill(board._proc.pid, signal.SIGSTOP)
+    time.sleep(0.3)
+    os.kill(board._proc.pid, signal.SIGCONT)
+    time.sleep(0.1)
+    board_0, wall_0 = board.now(), time.monotonic()
+    time.sleep(1.0)
+    board_1, wall_1 = board.now(), time.monotonic()
+    assert (board_1 - board_0) / (wall_1 - wall_0) < 1.1  # never ahead of wall time (behind if loaded)
+    assert board.link_stats()["lag_resets"] < 50
 
 
 def test_the_eeprom_configuration_shapes_the_board_and_ppm_follows_the_channels():

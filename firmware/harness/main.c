@@ -214,8 +214,9 @@ static void pace(harness_t *h, double *wall0, double sim_s, int control)
 {
     double ahead = sim_s - (wall_seconds() - *wall0);
     if (ahead < -MAX_LAG_S) {
-        *wall0 += ahead;
+        *wall0 -= ahead; /* wall time of sim 0 moves later by the lag: from here on, in step again */
         h->lag_resets++;
+        ahead = 0.0;
     }
     if (ahead <= 0)
         return;
