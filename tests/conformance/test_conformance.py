@@ -114,42 +114,47 @@ def test_raw_pulses_are_output_exactly(target, host):
     assert all(abs(w - p) <= spec.pulse_tolerance_us for w, p in zip(last.widths, raw, strict=True))
 
 
-def settled(host, steady_s=0.3, timeout=5.0):
-    """Stream on until the board's pulse widths have not changed for ``steady_s`` of board time. Rotor
-    widths follow the battery voltage while the rotors spin up (the calibration's voltage compensation);
-    how much board time a stream of a given wall time gives depends on the machine's load."""
+def steady_and_armed(host, steady_s=0.3, timeout=5.0):
+    """Stream on until the board has been ARMED with the link up and the same pulse widths for
+    ``steady_s`` of board time; that last Telemetry, or None if it never was within ``timeout`` s.
+
+    Rotor widths follow the battery voltage while the rotors spin up (the calibration's voltage
+    compensation), and how much board time a stream of a given wall time gives depends on the machine's
+    load. On a loaded machine the host process itself can also be descheduled past the link timeout
+    while it streams: the board then fails safe (rightly) and the next setpoint restores the link."""
     end = time.monotonic() + timeout
     widths, since = None, 0
     while time.monotonic() < end:
         tel = telemetry(host)
+        if tel.state != BoardState.ARMED or tel.watchdog != WatchdogState.OK:
+            return None
         if tel.pulses_us != widths:
             widths, since = tel.pulses_us, tel.time_ms
         elif tel.time_ms - since >= steady_s * 1000:
-            return
-    raise AssertionError(f"the pulse widths did not settle within {timeout} s")
+            return tel
+    return None
 
 
 def silence_after_a_steady_stream(target, host, sp, tries=5):
-    """Arm, stream ``sp`` until the outputs settle, go quiet; the Telemetry reporting the link loss and
-    the FAILSAFE state-change Heartbeat that followed that silence.
-
-    The test is about the board's answer to the host's silence, so the host must have kept the link up
-    until it went quiet. On a loaded machine the host process itself can be descheduled past the link
-    timeout while it streams: the board then fails safe early (rightly) and a late setpoint restores the
-    link, so the silence that follows finds the board already in FAILSAFE. Such an attempt tests nothing;
-    it shows on the board's clock (its FAILSAFE began before the last frame it took) and is made again."""
+    """Arm, stream ``sp`` until the board is steady, go quiet; the Telemetry reporting the link loss and
+    the FAILSAFE state-change Heartbeat that followed that silence. The test is about the board's answer
+    to the host's silence, so the host must have kept the link up until it went quiet: an attempt in
+    which it did not (see :func:`steady_and_armed`) is made again, from arming."""
     for _ in range(tries):
         start = len(host.received)
         armed_and_streaming(target, host, sp)
-        settled(host)
+        steady = steady_and_armed(host)
         host.keepalive = None  # the host goes quiet
+        if steady is None:
+            continue
         tel = telemetry(host, timeout=2.0, state=BoardState.FAILSAFE, watchdog=WatchdogState.LINK_LOST)
         beat = next(
-            m for m in host.received[start:] if isinstance(m, Heartbeat) and m.state == BoardState.FAILSAFE
+            m
+            for m in host.received[start:]
+            if isinstance(m, Heartbeat) and m.state == BoardState.FAILSAFE and m.time_ms >= steady.time_ms
         )
-        if beat.time_ms >= tel.time_ms - tel.link_age_ms:
-            return tel, beat
-    raise AssertionError(f"the host stalled past the link timeout in all {tries} attempts to stream")
+        return tel, beat
+    raise AssertionError(f"the host could not keep the link up while streaming in {tries} attempts")
 
 
 def test_link_loss_failsafe_within_timeout_plus_one_frame(target, host):
