@@ -201,9 +201,9 @@ class PhonePushServer(PhoneReceiver):
             self._error = exc
 
     def _accept(self, body: bytes, peer: str) -> tuple[int, str]:
-        ok, batch = self._decode(decode_push, body, f"push from {peer}")
-        if not ok or batch is None:
-            return 400, self.stats.last_error
+        batch, refused = self._decode(decode_push, body, f"push from {peer}")
+        if batch is None:
+            return 400, refused
         samples, bad, ignored, message_id = batch
         with self._lock:
             last, self._last_id = self._last_id, message_id if message_id is not None else self._last_id

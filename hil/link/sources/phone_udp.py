@@ -134,8 +134,8 @@ class PhoneUdpReceiver(PhoneReceiver):
             self._error = exc
 
     def _accept(self, data: bytes, peer: str) -> None:
-        ok, sample = self._decode(decode_datagram, data, f"udp from {peer}")
-        if not ok:
+        sample, refused = self._decode(decode_datagram, data, f"udp from {peer}")
+        if refused:
             return
         if sample is None:
             self._deliver((), ignored=1)

@@ -117,17 +117,17 @@ class PhoneReceiver:
                 self._queue.popleft()
             st.overflow += max(excess, 0)
 
-    def _decode(self, decode: Callable[[bytes, str], T], data: bytes, source: str) -> tuple[bool, T | None]:
-        """``(True, decode(data, source))``, or ``(False, None)`` once the message is counted and logged
-        as unreadable: whatever ``decode`` raises costs this one message, never the receiver."""
+    def _decode(self, decode: Callable[[bytes, str], T], data: bytes, source: str) -> tuple[T | None, str]:
+        """``(decode(data, source), "")``, or ``(None, reason)`` once the message is counted and logged as
+        unreadable: whatever ``decode`` raises costs this one message, never the receiver."""
         try:
-            return True, decode(data, source)
+            return decode(data, source), ""
         except InputFormatError as exc:
             reason = str(exc)
         except Exception as exc:  # hostile input can make any parser raise (RecursionError, …)
             reason = f"{source}: unreadable ({type(exc).__name__}: {str(exc)[:120]})"
         self._reject(reason)
-        return False, None
+        return None, reason
 
     def _reject(self, reason: str) -> None:
         """A message that could not be read at all: counted, remembered, logged (at most once a second,
