@@ -15,16 +15,12 @@ from __future__ import annotations
 
 import http.client
 import json
-import re
-import subprocess
-import sys
-import tempfile
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from bench.common import Result, rate
+from bench.common import Result, fuzz_rate, rate
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.phone_push import PhonePushServer, decode_push, encode_push
 from hil.link.sources.phone_udp import decode_datagram, encode_datagram
@@ -110,31 +106,11 @@ def _push_results(seconds: float) -> list[Result]:
     ]  # fmt: skip
 
 
-def _fuzz(runs: int, work: str) -> tuple[float, int]:
-    start = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, str(FUZZ), f"-runs={runs}", "-print_final_stats=1"],
-        cwd=work, capture_output=True, text=True, timeout=900, check=False,
-    )  # fmt: skip
-    elapsed = time.perf_counter() - start
-    out = proc.stdout + proc.stderr
-    if proc.returncode != 0:
-        raise RuntimeError(f"fuzz harness failed (exit {proc.returncode}):\n{out[-3000:]}")
-    executed = re.search(r"stat::number_of_executed_units:\s*(\d+)", out)
-    if not executed:
-        raise RuntimeError(f"no libFuzzer final stats in the harness output:\n{out[-2000:]}")
-    return elapsed, int(executed.group(1))
-
-
 def _fuzz_results(runs: int) -> list[Result]:
-    """inputs/s from two runs of different length, so process start-up and seed loading cancel out."""
-    with tempfile.TemporaryDirectory(prefix="vscmg-fuzz-phone-") as work:
-        t_short, n_short = _fuzz(runs // 10, work)
-        t_long, n_long = _fuzz(runs, work)
-    per_sec = (n_long - n_short) / max(t_long - t_short, 1e-9)
+    per_sec, inputs = fuzz_rate(FUZZ, runs, "vscmg-fuzz-phone-")
     return [
         Result(NAME, "fuzz datagram+push+body (atheris)", per_sec, "inputs/s",
-               note=f"{n_long} inputs without an unhandled exception in this run; "
+               note=f"{inputs} inputs without an unhandled exception in this run; "
                     "python bench/fuzz_phone.py -runs=1000000 for the full run"),
     ]  # fmt: skip
 
