@@ -34,30 +34,38 @@ static const channel_t CHANNELS[PULSE_CHANNELS_HW] PROGMEM = {
     {&OCR5B, &TCCR5A, _BV(COM5B1), &DDRL, 4}, {&OCR5C, &TCCR5A, _BV(COM5C1), &DDRL, 5},
 };
 
-static uint16_t widths[PULSE_CHANNELS_HW];
+/* Each channel's fine width (1/512 us: whole ticks << 8 | 256ths of a tick) and the fraction of a tick
+ * carried to the next frame. The frame-start interrupt owns the OCR registers: it writes each channel's
+ * whole ticks for the frame that just began (the hardware double-buffers OCRnx until BOTTOM anyway;
+ * simavr applies a write at once, so writing only at a frame's start keeps the two alike). */
+static volatile uint32_t fine[PULSE_CHANNELS_HW];
+static uint8_t residue[PULSE_CHANNELS_HW];
 static uint16_t top;
 static uint8_t channels, ppm_on;
 static volatile uint8_t frame_flag;
 static volatile uint16_t ppm_ticks[PPM_CHANNELS + 1]; /* periods of the next PPM frame: channels, sync */
 static volatile uint8_t ppm_slot, ppm_count;
 
-void pulses_set(uint8_t ch, uint16_t width_us)
+void pulses_set(uint8_t ch, uint32_t width_fine)
 {
     if (ch >= channels)
         return;
     channel_t cc;
     memcpy_P(&cc, &CHANNELS[ch], sizeof cc);
     const channel_t *c = &cc;
-    widths[ch] = width_us;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
-        if (width_us) {
-            *c->ocr = (uint16_t)(width_us * TICKS_PER_US - 1u);
-            *c->tccra |= c->com;
-        } else {
+        if (!width_fine) {
             *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
+        } else if (!fine[ch]) {
+            /* A channel coming on (boot, a calibration stored): its pin is not driven yet, so its OCR may
+             * be written now; the frame-start interrupt takes over from the next frame. */
+            *c->ocr = (uint16_t)((width_fine >> PULSE_FRACTION_BITS) - 1u);
+            *c->tccra |= c->com;
         }
+        fine[ch] = width_fine;
     }
+    uint16_t width_us = pulses_reported_us(width_fine);
     if (ppm_on && ch < PPM_CHANNELS) {
         /* the PPM stage clamps to its channel range; a channel without pulses sends its minimum */
         uint16_t w = width_us < PPM_MIN_US ? PPM_MIN_US : (width_us > PPM_MAX_US ? PPM_MAX_US : width_us);
@@ -72,7 +80,15 @@ void pulses_set(uint8_t ch, uint16_t width_us)
     }
 }
 
-uint16_t pulses_get(uint8_t ch) { return ch < channels ? widths[ch] : 0; }
+uint32_t pulses_get(uint8_t ch)
+{
+    uint32_t w = 0;
+    if (ch < channels)
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { w = fine[ch]; }
+    return w;
+}
+
+uint16_t pulses_reported_us(uint32_t width_fine) { return (uint16_t)((width_fine + 256u) >> 9); }
 
 float pulses_period_s(void) { return (float)(top + 1u) / (TICKS_PER_US * 1e6f); }
 
@@ -87,7 +103,23 @@ uint8_t pulses_frame_started(void)
     return f;
 }
 
-ISR(TIMER1_OVF_vect) { frame_flag = 1; }
+/* Frame start (every timer is at BOTTOM within a few cycles of Timer1): each channel's whole ticks for
+ * this frame, its fraction of a tick carried to the next (first-order sigma-delta), so the widths of n
+ * frames add up to n fine widths within one tick. Runs on when the main loop hangs. */
+ISR(TIMER1_OVF_vect)
+{
+    frame_flag = 1;
+    for (uint8_t ch = 0; ch < channels; ch++) {
+        uint32_t w = fine[ch];
+        if (!w)
+            continue;
+        uint16_t sum = (uint16_t)(residue[ch] + (uint8_t)w);
+        residue[ch] = (uint8_t)sum;
+        uint16_t ticks = (uint16_t)(w >> PULSE_FRACTION_BITS) + (sum >> 8);
+        volatile uint16_t *ocr = (volatile uint16_t *)pgm_read_ptr(&CHANNELS[ch].ocr);
+        *ocr = (uint16_t)(ticks - 1u);
+    }
+}
 
 ISR(TIMER5_OVF_vect)
 {
