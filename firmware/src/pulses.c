@@ -38,7 +38,8 @@ static const channel_t CHANNELS[PULSE_CHANNELS_HW] PROGMEM = {
  * carried to the next frame. The frame-start interrupt owns the OCR registers: it writes each channel's
  * whole ticks for the frame that just began (the hardware double-buffers OCRnx until BOTTOM anyway;
  * simavr applies a write at once, so writing only at a frame's start keeps the two alike). */
-static volatile uint32_t fine[PULSE_CHANNELS_HW];
+static volatile uint16_t ticks[PULSE_CHANNELS_HW]; /* fine >> 8: whole ticks (0: no pulse) */
+static volatile uint8_t fraction[PULSE_CHANNELS_HW]; /* fine & 0xFF: 256ths of a tick */
 static uint8_t residue[PULSE_CHANNELS_HW];
 static uint16_t top;
 static uint8_t channels, ppm_on;
@@ -55,15 +56,17 @@ void pulses_set(uint8_t ch, uint32_t width_fine)
     const channel_t *c = &cc;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
-        if (!width_fine) {
+        uint16_t whole = (uint16_t)(width_fine >> PULSE_FRACTION_BITS);
+        if (!whole) {
             *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
-        } else if (!fine[ch]) {
+        } else if (!ticks[ch]) {
             /* A channel coming on (boot, a calibration stored): its pin is not driven yet, so its OCR may
              * be written now; the frame-start interrupt takes over from the next frame. */
-            *c->ocr = (uint16_t)((width_fine >> PULSE_FRACTION_BITS) - 1u);
+            *c->ocr = (uint16_t)(whole - 1u);
             *c->tccra |= c->com;
         }
-        fine[ch] = width_fine;
+        ticks[ch] = whole;
+        fraction[ch] = (uint8_t)width_fine;
     }
     uint16_t width_us = pulses_reported_us(width_fine);
     if (ppm_on && ch < PPM_CHANNELS) {
@@ -84,7 +87,7 @@ uint32_t pulses_get(uint8_t ch)
 {
     uint32_t w = 0;
     if (ch < channels)
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { w = fine[ch]; }
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { w = ((uint32_t)ticks[ch] << PULSE_FRACTION_BITS) | fraction[ch]; }
     return w;
 }
 
@@ -105,19 +108,21 @@ uint8_t pulses_frame_started(void)
 
 /* Frame start (every timer is at BOTTOM within a few cycles of Timer1): each channel's whole ticks for
  * this frame, its fraction of a tick carried to the next (first-order sigma-delta), so the widths of n
- * frames add up to n fine widths within one tick. Runs on when the main loop hangs. */
-ISR(TIMER1_OVF_vect)
+ * frames add up to n fine widths within one tick. Runs on when the main loop hangs. ~45 cycles a channel,
+ * ~35 us for twelve: interrupts stay enabled (ISR_NOBLOCK) so that a byte arriving at 1 Mbaud (one every
+ * 10 us, the UART holds three) is never lost behind it. Nothing else touches these arrays or timers
+ * 1/3/4's registers from an interrupt (Timer5's PPM interrupt only runs when Timer5 drives no channel). */
+ISR(TIMER1_OVF_vect, ISR_NOBLOCK)
 {
     frame_flag = 1;
     for (uint8_t ch = 0; ch < channels; ch++) {
-        uint32_t w = fine[ch];
-        if (!w)
+        uint16_t whole = ticks[ch];
+        if (!whole)
             continue;
-        uint16_t sum = (uint16_t)(residue[ch] + (uint8_t)w);
+        uint16_t sum = (uint16_t)(residue[ch] + fraction[ch]);
         residue[ch] = (uint8_t)sum;
-        uint16_t ticks = (uint16_t)(w >> PULSE_FRACTION_BITS) + (sum >> 8);
         volatile uint16_t *ocr = (volatile uint16_t *)pgm_read_ptr(&CHANNELS[ch].ocr);
-        *ocr = (uint16_t)(ticks - 1u);
+        *ocr = (uint16_t)(whole + (sum >> 8) - 1u);
     }
 }
 
