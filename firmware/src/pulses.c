@@ -35,9 +35,9 @@ static const channel_t CHANNELS[PULSE_CHANNELS_HW] PROGMEM = {
 };
 
 /* Each channel's fine width (1/512 us: whole ticks << 8 | 256ths of a tick) and the fraction of a tick
- * carried to the next frame. The frame-start interrupt owns the OCR registers: it writes each channel's
- * whole ticks for the frame that just began (the hardware double-buffers OCRnx until BOTTOM anyway;
- * simavr applies a write at once, so writing only at a frame's start keeps the two alike). */
+ * carried to the next frame. The frame-start interrupt writes each channel's dithered ticks for the next
+ * frame; a new width is also written at once (output), so it takes effect at the next frame's start (the
+ * hardware double-buffers OCRnx until BOTTOM; the simavr harness models that, firmware/harness/ocr.c). */
 static volatile uint16_t ticks[PULSE_CHANNELS_HW]; /* fine >> 8: whole ticks (0: no pulse) */
 static volatile uint8_t fraction[PULSE_CHANNELS_HW]; /* fine & 0xFF: 256ths of a tick */
 static uint8_t residue[PULSE_CHANNELS_HW];
@@ -59,11 +59,13 @@ static void output(uint8_t ch, uint32_t width_fine)
     uint16_t whole = (uint16_t)(width_fine >> PULSE_FRACTION_BITS);
     if (!whole) {
         *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
-    } else if (!ticks[ch]) {
-        /* A channel coming on (boot, a calibration stored): its pin is not driven yet, so its OCR may be
-         * written now; the frame-start interrupt takes over from the next frame. */
+    } else {
+        /* OCRnx is double-buffered in fast-PWM mode: written now, it takes effect at the next frame's
+         * start (an undithered width for that one frame); the frame-start interrupt then writes each
+         * following frame's, dithered. Left to the interrupt alone, a change would wait a frame longer. */
         *c->ocr = (uint16_t)(whole - 1u);
-        *c->tccra |= c->com;
+        if (!ticks[ch])
+            *c->tccra |= c->com; /* a channel coming on (boot, a calibration stored) */
     }
     ticks[ch] = whole;
     fraction[ch] = (uint8_t)width_fine;
@@ -130,8 +132,8 @@ uint8_t pulses_frame_started(void)
 }
 
 /* Frame start (every timer is at BOTTOM within a few cycles of Timer1): each channel's whole ticks for
- * this frame, its fraction of a tick carried to the next (first-order sigma-delta), so the widths of n
- * frames add up to n fine widths within one tick. Runs on when the main loop hangs. ~45 cycles a channel,
+ * the next frame (OCRnx is double-buffered until BOTTOM), its fraction of a tick carried on (first-order
+ * sigma-delta), so the widths of n frames add up to n fine widths within one tick. Runs on when the main loop hangs. ~45 cycles a channel,
  * ~35 us for twelve: interrupts stay enabled (ISR_NOBLOCK) so that a byte arriving at 1 Mbaud (one every
  * 10 us, the UART holds three) is never lost behind it. Nothing else touches these arrays or timers
  * 1/3/4's registers from an interrupt (Timer5's PPM interrupt only runs when Timer5 drives no channel). */
