@@ -46,7 +46,7 @@ def solve(
     if out.any():
         ws = np.where(out, 0.0, ws)
         again, damped_again = _weighted(steer, Q, ws, -L)
-        redo = out.any(axis=1)
+        redo: Array = np.asarray(out.any(axis=1))
         eta = np.where(redo[:, None], again, eta)
         damped = np.where(redo, damped_again, damped)
         sat |= np.where(redo, int(Saturation.ROTOR_SPEED), 0)
