@@ -52,6 +52,7 @@ from hil.estimation.sensors import SensorLog, SensorSample
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
 from hil.link.sources.recorded import RecordedSource
 from hil.link.transports import InProcessBoard, create_transport
+from hil.runtime.faults import RECOVER_WITHIN_S
 from hil.runtime.host import Host, TruthSample
 from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, new_run_dir, write_summary
@@ -92,7 +93,8 @@ class RunOptions:
     port), the controller holding the attitude estimated at the end of the warm-up; ``out_root`` None:
     no run directory (see the module docstring); ``observer``: sees every row and event and may command
     the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run goes at most this many times as fast as
-    the wall clock (1.0: real time), None: as fast as it can."""
+    the wall clock (1.0: real time), None: as fast as it can; ``recover_within_s``: an outage of the board
+    (or a phone gap) longer than this ends the run as lost (:mod:`hil.runtime.faults`)."""
 
     port: str | None = None
     lockstep: bool | None = None
@@ -105,6 +107,7 @@ class RunOptions:
     replay: ReplayInput | None = None
     observer: RunObserver | None = None
     pace: float | None = None
+    recover_within_s: float = RECOVER_WITHIN_S
 
 
 @dataclass
@@ -159,6 +162,9 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
     if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
         raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
+    if not (math.isfinite(opts.recover_within_s) and opts.recover_within_s > 0):
+        raise ConfigError(f"must be a positive number of seconds, got {opts.recover_within_s!r}",
+                          "run --recover-within")  # fmt: skip
     if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
         from hil.runtime.warmup import warm
 
@@ -192,7 +198,7 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
                 built.scheduler.run(until=built.until)
             finally:
                 summary["loop_wall_s"] = time.monotonic() - loop_started
-            summary["exit"] = "completed" if built.host.finished else "time limit (the slew never started)"
+            summary["exit"] = _outcome(built.host)
     except KeyboardInterrupt:
         summary["exit"] = "interrupted"
     except RunAborted as exc:
@@ -318,6 +324,7 @@ def _build(
     host = Host(
         scenario, client, telemetry, events, truth, duration,
         filter_config=None if replay is None else replay.filter_config, hold=replay is not None,
+        recover_within_s=opts.recover_within_s,
     )  # fmt: skip
     if plan.source == "phone":  # before arming: the board's link watchdog is not fed while we wait
         assert phone is not None
@@ -325,7 +332,7 @@ def _build(
     client.arm()
     events.write(clock.now(), "armed")
     origin = clock.now()
-    until = _time_limit(scenario, opts, origin)
+    until = _time_limit(scenario, opts, origin) + opts.recover_within_s
     estimator_hz = estimator_rate_hz(scenario)
     catch_up: Callable[[], None] | None = None
     if plan.source == "world" and plan.lockstep:
@@ -385,6 +392,16 @@ def _build(
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
     return _Built(host, scheduler, until, phone, recorded)
+
+
+def _outcome(host: Host) -> str:
+    """The run's exit reason when its loop ended on its own: ``lost: ...`` if an outage of the board (or a
+    phone gap) outlasted its bound or was still on at the end, ``completed`` once the run's time after the
+    slew's start is up, else the time limit."""
+    lost = host.lost or host.journal.open_at_end(host.client.clock.now())
+    if lost is not None:
+        return f"lost: {lost}"
+    return "completed" if host.finished else "time limit (the slew never started)"
 
 
 def _in_process_board(url: str) -> InProcessBoard:
