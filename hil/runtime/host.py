@@ -162,13 +162,14 @@ class Host:
         self._none3 = (None, None, None)
 
     # ------------------------------------------------------------------ estimator task
-    def feed(self, samples: Sequence[SensorSample]) -> None:
-        """Phone samples (any order within a batch) through hold-last-sample merging into the estimator."""
+    def feed(self, samples: Sequence[SensorSample], now: float | None = None) -> None:
+        """Phone samples (any order within a batch) through hold-last-sample merging into the estimator;
+        ``now``: the host's time (s), for the record of a phone that restarted its clock."""
         collecting = self._collecting_bias
         for sample in sorted(samples, key=lambda s: s.t_s):
             self.counters.samples += 1
             if sample.t_s < self._phone_newest - PHONE_RESTART_S:
-                self._phone_restarted(sample.t_s)
+                self._phone_restarted(sample.t_s, now)
             self._phone_newest = max(self._phone_newest, sample.t_s)
             if collecting and sample.kind is SensorKind.GYR:
                 self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
@@ -176,7 +177,7 @@ class Host:
                 self.estimate = self.filter.step(step)
                 self.counters.estimator_steps += 1
 
-    def _phone_restarted(self, t_s: float) -> None:
+    def _phone_restarted(self, t_s: float, now: float | None) -> None:
         """A sample stamped well before the newest one: the phone stream started again with a new clock
         (an app restarted, firmware-sim's world started over). Its samples would all be dropped as out of
         order; the merger and the estimator start afresh instead (the gyro bias is kept), and the warm-up's
@@ -192,7 +193,7 @@ class Host:
         self.estimate = None
         self._phone_newest = -math.inf
         self._phone_count = 0
-        t = self._phone_heard if self._phone_heard is not None else 0.0
+        t = now if now is not None else (self._phone_heard or 0.0)
         self.journal.fault(t, "phone_restart", **detail)
         self.events.write(t, "phone_restart", **detail)
         self._restart_warmup(t, "phone_restart", still=True)
@@ -478,7 +479,7 @@ class Host:
             assert w_true is not None and w_hat is not None
             est_err = math.degrees(angle_between9(R_true, R_hat))
             rate_err = math.dist(w_hat, w_true)
-            if self.phase is not Phase.WARMUP:
+            if self.slew_start is not None:  # from the slew's start, as the trace
                 self._errors_sq.append(est_err * est_err)
         R_att = R_true if R_true is not None else R_hat
         point = track = None
