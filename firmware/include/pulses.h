@@ -16,8 +16,13 @@
 #include <stdint.h>
 
 void pulses_init(float frame_rate_hz, uint8_t n_channels, uint8_t ppm);
-/* Width of channel `ch` from the next frame on (us, 500..2500), or 0 for no pulse at all. */
+/* Width of channel `ch` from the next frame on (us, 500..2500), or 0 for no pulse at all; a channel
+ * held by pulses_hold keeps its held width. */
 void pulses_set(uint8_t ch, uint16_t width_us);
+/* The channels in `mask` (bit ch) to `width_us` at once, then held there (pulses_set leaves them alone)
+ * until pulses_release: the link watchdog's stop, from the tick interrupt. */
+void pulses_hold(uint16_t mask, uint16_t width_us);
+void pulses_release(uint16_t mask);
 uint16_t pulses_get(uint8_t ch);
 /* 1 once per frame start since the last call (the main loop's frame clock). */
 uint8_t pulses_frame_started(void);

@@ -11,6 +11,7 @@
 #include <avr/pgmspace.h>
 #include <math.h>
 #include <string.h>
+#include <util/atomic.h>
 
 #include "calib.h"
 #include "clock.h"
@@ -244,18 +245,29 @@ static void hold_gimbals(void)
         board.gimbal_cmd[u] = board.gimbal_mode == GIMBAL_MODE_RATE ? 0.0f : board.units[u].gimbal_angle;
 }
 
-static void set_state(uint8_t next)
+/* The new state's outputs take effect before anything is reported: formatting a Log and a Heartbeat
+ * takes ~1 ms of CPU each, and a stop (FAILSAFE, DISARMED, BOOT) must reach the timers first so that it
+ * is in the next pulse frame (the link-loss failsafe: within its timeout plus one frame). */
+static uint8_t enter_state(uint8_t next)
 {
     uint8_t old = board.state;
     if (next == old)
-        return;
+        return old;
     board.state = next;
     if (!motors_enabled(next)) {
         hold_gimbals();
         memset(board.rotor_cmd, 0, sizeof board.rotor_cmd);
         board.have_raw = 0;
+        apply_outputs();
     }
     board.outputs_dirty = 1;
+    return old;
+}
+
+static void report_state(uint8_t old, uint8_t next)
+{
+    if (next == old)
+        return;
     char a[12], b[12];
     report_name(PSTR(BOARD_STATE_NAMES), old, a, sizeof a);
     report_name(PSTR(BOARD_STATE_NAMES), next, b, sizeof b);
@@ -268,22 +280,55 @@ static uint8_t apply(uint8_t event)
 {
     transition_t t = state_transition(board.state, event, power_ok());
     if (!t.refused)
-        set_state(t.state);
+        report_state(enter_state(t.state), t.state);
     return t.refused;
+}
+
+/*
+ * The link watchdog decides in the main loop (on_link_lost: state, gimbal hold, reports), but a pass can
+ * take a few ms when a Log, telemetry and a calibration conversion fall together, and the rotors must be
+ * safe within the timeout plus one pulse frame. So the 1 kHz tick interrupt stops them itself, in the
+ * tick the link times out: the rotor channels go to the safe pulse and are held there (pulses_hold)
+ * until the main loop's next pass has made the change. It stands back while received bytes wait in the
+ * UART ring: those are for the main loop to judge first.
+ */
+static volatile uint8_t link_stopped;
+
+static uint16_t rotor_channels(void)
+{
+    uint16_t mask = 0;
+    for (uint8_t u = 0; u < board.cfg.n_units; u++)
+        mask |= (uint16_t)(1u << (2u * u + 1u));
+    return mask;
+}
+
+void app_tick(uint32_t now_ms)
+{
+    if (link_stopped || !board.session || board.link_lost || !board.have_rx || !motors_enabled(board.state))
+        return;
+    if (now_ms - board.last_rx_ms < board.cfg.link_timeout_ms || uart_rx_pending())
+        return;
+    link_stopped = 1;
+    pulses_hold(rotor_channels(), board.cfg.rotor_safe_us);
 }
 
 static void on_link_lost(uint32_t now)
 {
     board.link_lost = 1;
+    transition_t t = state_transition(board.state, EVENT_LINK_LOST, power_ok());
+    uint8_t old = t.refused ? board.state : enter_state(t.state); /* outputs first, then the reports */
+    pulses_release(rotor_channels()); /* the outputs are the main loop's again: safe, in FAILSAFE */
+    link_stopped = 0;
+    esc_cal_abort(ESC_CAL_ABORT_LINK_LOST, now); /* an ESC being taught: to minimum, before any report */
     report_log(SEVERITY_WARNING, LOG_CODE_LINK_LOST, PSTR("link lost: nothing valid for %u ms"),
                board.cfg.link_timeout_ms);
-    esc_cal_abort(ESC_CAL_ABORT_LINK_LOST, now);
-    apply(EVENT_LINK_LOST);
+    if (!t.refused)
+        report_state(old, t.state);
 }
 
 static void on_valid_rx(uint32_t now)
 {
-    board.last_rx_ms = now;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { board.last_rx_ms = now; } /* app_tick reads it */
     board.have_rx = 1;
     if (board.link_lost) {
         board.link_lost = 0;
@@ -667,7 +712,7 @@ uint8_t app_poll(uint32_t now)
 {
     process_rx(now);
     if (board.session && !board.link_lost && board.have_rx &&
-        now - board.last_rx_ms >= board.cfg.link_timeout_ms)
+        (link_stopped || now - board.last_rx_ms >= board.cfg.link_timeout_ms))
         on_link_lost(now);
     esc_cal_poll(now);
     if ((int32_t)(now - board.next_power_ms) >= 0) {

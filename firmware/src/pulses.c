@@ -41,35 +41,57 @@ static volatile uint8_t frame_flag;
 static volatile uint16_t ppm_ticks[PPM_CHANNELS + 1]; /* periods of the next PPM frame: channels, sync */
 static volatile uint8_t ppm_slot, ppm_count;
 
-void pulses_set(uint8_t ch, uint16_t width_us)
+static volatile uint16_t held; /* channels pulses_set leaves alone (pulses_hold) */
+
+/* Channel `ch`'s registers to `width_us`; with interrupts off. */
+static void output(uint8_t ch, uint16_t width_us)
 {
-    if (ch >= channels)
-        return;
     channel_t cc;
     memcpy_P(&cc, &CHANNELS[ch], sizeof cc);
     const channel_t *c = &cc;
     widths[ch] = width_us;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
-    {
-        if (width_us) {
-            *c->ocr = (uint16_t)(width_us * TICKS_PER_US - 1u);
-            *c->tccra |= c->com;
-        } else {
-            *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
-        }
+    if (width_us) {
+        *c->ocr = (uint16_t)(width_us * TICKS_PER_US - 1u);
+        *c->tccra |= c->com;
+    } else {
+        *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
     }
     if (ppm_on && ch < PPM_CHANNELS) {
         /* the PPM stage clamps to its channel range; a channel without pulses sends its minimum */
         uint16_t w = width_us < PPM_MIN_US ? PPM_MIN_US : (width_us > PPM_MAX_US ? PPM_MAX_US : width_us);
         uint16_t sum = 0;
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
-        {
-            ppm_ticks[ch] = (uint16_t)(w * TICKS_PER_US);
-            for (uint8_t i = 0; i < ppm_count; i++)
-                sum = (uint16_t)(sum + ppm_ticks[i] / TICKS_PER_US);
-            ppm_ticks[ppm_count] = (uint16_t)((PPM_FRAME_US - sum) * TICKS_PER_US);
-        }
+        ppm_ticks[ch] = (uint16_t)(w * TICKS_PER_US);
+        for (uint8_t i = 0; i < ppm_count; i++)
+            sum = (uint16_t)(sum + ppm_ticks[i] / TICKS_PER_US);
+        ppm_ticks[ppm_count] = (uint16_t)((PPM_FRAME_US - sum) * TICKS_PER_US);
     }
+}
+
+void pulses_set(uint8_t ch, uint16_t width_us)
+{
+    if (ch >= channels)
+        return;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        if (!(held & (1u << ch)))
+            output(ch, width_us);
+    }
+}
+
+void pulses_hold(uint16_t mask, uint16_t width_us)
+{
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        for (uint8_t ch = 0; ch < channels; ch++)
+            if (mask & (1u << ch))
+                output(ch, width_us);
+        held |= mask;
+    }
+}
+
+void pulses_release(uint16_t mask)
+{
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { held &= (uint16_t)~mask; }
 }
 
 uint16_t pulses_get(uint8_t ch) { return ch < channels ? widths[ch] : 0; }
