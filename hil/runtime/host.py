@@ -303,17 +303,18 @@ class Host:
             self.spinup_since = t
             self.events.write(t, "spin_up", nominal_rad_s=nominal)
         if self.still_since is None:
-            if np.all(np.abs(rotor - nominal) <= SPUN_UP * nominal):
-                self.still_since = t
-                if self.need_still:
-                    self.events.write(t, "still_window", rotor_rad_s=rotor.round(1).tolist())
-            elif t - self.spinup_since > MAX_SPINUP_S:
-                raise LinkError(
-                    f"the rotors did not reach {nominal:.0f} rad/s within {MAX_SPINUP_S:.0f} s "
-                    f"(telemetry: {rotor.round(1).tolist()} rad/s)"
-                )
-            else:
+            if not np.all(np.abs(rotor - nominal) <= SPUN_UP * nominal):
+                if t - self.spinup_since > MAX_SPINUP_S:
+                    raise LinkError(
+                        f"the rotors did not reach {nominal:.0f} rad/s within {MAX_SPINUP_S:.0f} s "
+                        f"(telemetry: {rotor.round(1).tolist()} rad/s)"
+                    )
                 return
+            if self.need_still and not phone_fresh:
+                return  # the still window is the estimator's: it starts when the phone streams again
+            self.still_since = t
+            if self.need_still:
+                self.events.write(t, "still_window", rotor_rad_s=rotor.round(1).tolist())
         if self.estimate is None or not phone_fresh:
             return
         if not self.need_still:

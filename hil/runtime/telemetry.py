@@ -35,6 +35,15 @@ def telemetry_columns(n_units: int) -> list[str]:
     return cols
 
 
+def board_columns(n_units: int) -> list[str]:
+    """The columns whose values come from the board's telemetry: empty in every row whose ``board_link``
+    is not live (:class:`hil.runtime.faults.BoardLink`), never the last values repeated."""
+    cols = [f"{name}_{i}" for name in ("gimbal_angle", "gimbal_rate", "rotor_speed") for i in range(n_units)]
+    cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
+    cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
+    return cols + list(BOARD_EXTRA_COLUMNS)
+
+
 BOARD_EXTRA_COLUMNS = (
     "battery_a", "battery_soc", "ubec_v", "ubec_a", "power_state", "watchdog", "faults", "board_mode",
 )  # fmt: skip

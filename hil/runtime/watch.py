@@ -9,8 +9,10 @@ never re-armed on the host's own account: the Disarm cancels a re-arm already pe
 overtaken by the Disarm, which the board carries out after it), and the host waits for the operator's Arm.
 
 What the rest of the host is told (:meth:`BoardWatch.take_upsets`): that the board has left the state the
-host commanded (``failsafe``, ``reset``, ``reconnect``, ``disarm``) — the host re-enters its warm-up before
-it steers again (:mod:`hil.runtime.host`).
+host commanded, or may have (``failsafe``, ``reset``, ``link_lost``, ``reconnect``, ``disarm``) — the host
+re-enters its warm-up before it steers again (:mod:`hil.runtime.host`). Telemetry that merely goes stale
+is not one: the host holds while it cannot see the board and carries on if the board comes back armed in
+the same session.
 """
 
 from __future__ import annotations
@@ -96,6 +98,7 @@ class BoardWatch:
             self._fresh_after = t
             self.events.write(t, "link_lost", reason=event.reason)
             self.journal.fault(t, "link_lost", reason=event.reason)
+            self._upset("link_lost")
         elif isinstance(event, ConnectedEvent):
             self.events.write(t, "connected", reconnects=event.reconnects)
             if event.reconnects:
