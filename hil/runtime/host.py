@@ -53,12 +53,13 @@ from hil.control.steering import VscmgSteering
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
+from hil.runtime.rows import TickRecorder
 from hil.runtime.runlog import CsvLog, EventLog
-from hil.runtime.telemetry import RunTrace, angle_between9, log9, mat9, telemetry_columns
-from hil.runtime.watch import BoardWatch, View
+from hil.runtime.telemetry import RunTrace, mat9, telemetry_columns
+from hil.runtime.watch import BoardWatch
 from hil.scenario import Scenario
 from protocol.errors import BoardReset, LinkError
-from protocol.messages import ActuatorSetpoint, BoardState, GimbalMode, Telemetry, UnitSetpoint
+from protocol.messages import ActuatorSetpoint, BoardState, GimbalMode, UnitSetpoint
 from protocol.reliable import Command
 
 logger = logging.getLogger(__name__)
@@ -67,7 +68,8 @@ Array = NDArray[np.float64]
 
 SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may start
 MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear error
-PHONE_RESTART_S = 1.0  # a phone sample this much older than the newest: the stream restarted its clock
+PHONE_RESTART_S = 1.0  # phone samples this much older than the newest: the stream restarted its clock ...
+PHONE_RESTART_SAMPLES = 10  # ... when this many come in a row (one stray datagram is dropped, not obeyed)
 
 
 class Phase(enum.IntEnum):
@@ -153,13 +155,13 @@ class Host:
         self._hold_sent = False  # the hold setpoint went out since the board was last seen
         self._hold_tick = -1  # the control tick it went out in
         self._phone_newest = -math.inf  # newest phone sample time (the phone's clock)
-        self._phone_count = 0  # accepted samples seen at the last tick
-        self._phone_heard: float | None = None  # host time the count last moved
-        self._errors_sq: list[float] = []
+        self._phone_old = 0  # samples in a row well before the newest
+        self.phone_count = 0  # accepted samples seen at the last tick
+        self.phone_heard: float | None = None  # host time the count last moved
         self.trace = RunTrace()
         self.columns = telemetry_columns(self.n)
-        self._target9: tuple[float, ...] | None = None if self.target is None else mat9(self.target)
-        self._none3 = (None, None, None)
+        self.target9: tuple[float, ...] | None = None if self.target is None else mat9(self.target)
+        self.rows = TickRecorder(self)
 
     # ------------------------------------------------------------------ estimator task
     def feed(self, samples: Sequence[SensorSample], now: float | None = None) -> None:
@@ -169,7 +171,11 @@ class Host:
         for sample in sorted(samples, key=lambda s: s.t_s):
             self.counters.samples += 1
             if sample.t_s < self._phone_newest - PHONE_RESTART_S:
-                self._phone_restarted(sample.t_s, now)
+                self._phone_old += 1
+                if self._phone_old >= PHONE_RESTART_SAMPLES:
+                    self._phone_restarted(sample.t_s, now)
+            else:
+                self._phone_old = 0
             self._phone_newest = max(self._phone_newest, sample.t_s)
             if collecting and sample.kind is SensorKind.GYR:
                 self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
@@ -178,10 +184,12 @@ class Host:
                 self.counters.estimator_steps += 1
 
     def _phone_restarted(self, t_s: float, now: float | None) -> None:
-        """A sample stamped well before the newest one: the phone stream started again with a new clock
-        (an app restarted, firmware-sim's world started over). Its samples would all be dropped as out of
-        order; the merger and the estimator start afresh instead (the gyro bias is kept), and the warm-up's
-        still window lets the estimate converge before the host steers again."""
+        """:data:`PHONE_RESTART_SAMPLES` samples in a row stamped well before the newest one: the phone
+        stream started again with a new clock (an app restarted, firmware-sim's world started over). Its
+        samples would all be dropped as out of order; the merger and the estimator start afresh instead
+        (the gyro bias is kept; the samples of the new stream before this one were dropped), and the
+        warm-up's still window lets the estimate converge before the host steers again. A lone stray
+        datagram stamped in the past is only dropped (the merger counts it out of order)."""
         from hil.estimation.filter import AttitudeFilter
         from hil.estimation.multirate import Merger
 
@@ -192,8 +200,9 @@ class Host:
         self.filter.set_gyro_bias(self.gyro_bias)
         self.estimate = None
         self._phone_newest = -math.inf
-        self._phone_count = 0
-        t = now if now is not None else (self._phone_heard or 0.0)
+        self._phone_old = 0
+        self.phone_count = 0
+        t = now if now is not None else (self.phone_heard or 0.0)
         self.journal.fault(t, "phone_restart", **detail)
         self.events.write(t, "phone_restart", **detail)
         self._restart_warmup(t, "phone_restart", still=True)
@@ -219,7 +228,8 @@ class Host:
         tel = view.telemetry
         if tel is None or len(tel.units) != self.n:
             self._hold_if_blind()
-            self._record_blind(t, view)
+            hold = self._hold if self._hold_tick == self.counters.control_ticks else None
+            self.rows.blind(t, view, hold)
             return
         self._hold_sent = False
         gimbal = np.array([u.gimbal_angle for u in tel.units])
@@ -228,7 +238,7 @@ class Host:
         command, cmd_out, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
         if armed and not watch.rearm_pending:
             self._send(command)
-        self._record(t, tel, view, gimbal, rotor, command, cmd_out, ref)
+        self.rows.live(t, tel, view, gimbal, rotor, command, cmd_out, ref)
         if self.slew_start is not None and t - self.slew_start >= self._duration - 1e-9:
             self.finished = True
 
@@ -253,14 +263,14 @@ class Host:
         ``stale_after_s``, or none has come yet); a gap is a fault, and the warm-up (with its still window)
         follows it."""
         count = sum(self.merger.stats.accepted.values())
-        if count != self._phone_count:
-            self._phone_count = count
-            self._phone_heard = t
+        if count != self.phone_count:
+            self.phone_count = count
+            self.phone_heard = t
             back = self.journal.phone_back(t)
             if back is not None:
                 self.events.write(t, "phone_back", since=back.start, gap_s=t - back.start)
             return True
-        heard = self._phone_heard
+        heard = self.phone_heard
         if heard is None or t - heard <= self.stale_after_s:
             return True
         if self.journal.phone_out is None:
@@ -336,7 +346,7 @@ class Host:
         R_hat = np.asarray(self.estimate.R)
         sl = self.scenario.slew
         self.target = R_hat.copy() if self.hold else sl.R_target
-        self._target9 = mat9(self.target)
+        self.target9 = mat9(self.target)
         self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
         self.slew_start = t
         self.setpoints.reset(rotor)
@@ -373,7 +383,7 @@ class Host:
             return "the warm-up is not over (the scenario's slew has not started)"
         R_hat = np.asarray(self.estimate.R)
         self.target = R_hat.copy() if R_target is None else np.asarray(R_target, dtype=float)
-        self._target9 = mat9(self.target)
+        self.target9 = mat9(self.target)
         sl = self.scenario.slew
         self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
         if self.phase is not Phase.WARMUP:
@@ -404,104 +414,6 @@ class Host:
             self.bias_samples.clear()
         self._collecting_bias = False
         self.events.write(t, "warmup_restart" if first else "recovery_start", reason=why)
-
-    # ------------------------------------------------------------------ telemetry rows
-    def _record(
-        self, t: float, tel: Telemetry, view: View, gimbal: Array, rotor: Array, command: ActuatorSetpoint,
-        cmd_out: Any, ref: Reference | None,
-    ) -> None:  # fmt: skip
-        """The tick's errors into the trace (from the slew's start) and its row into the telemetry log:
-        plain floats in column order (:mod:`hil.runtime.telemetry`), formatted by the log's writer thread."""
-        if cmd_out is not None:  # steering computed δ from this telemetry already
-            delta = float(cmd_out[1].delta[0])
-        else:
-            delta = float(self.steering.delta(gimbal, rotor)[0])
-        rates = [u.gimbal_rate for u in tel.units]
-        row = self._estimates(t, ref, max(abs(r) for r in rates), delta)
-        if row is None:
-            return
-        n = self.n
-        none3 = self._none3
-        row += none3 if cmd_out is None else cmd_out[0].torque.tolist()
-        row.append(delta)
-        row += gimbal.tolist()
-        row += rates
-        row += rotor.tolist()
-        row += [u.gimbal for u in command.units]
-        row += [u.rotor_speed for u in command.units]
-        pulses = list(tel.pulses_us[: 2 * n])
-        row += pulses + [None] * (2 * n - len(pulses))
-        row += [tel.battery_mv / 1000.0, int(tel.state), tel.rx_frames, tel.rx_bad, tel.link_age_ms]
-        row += [tel.battery_ma / 1000.0, tel.battery_soc, tel.ubec_mv / 1000.0, tel.ubec_ma / 1000.0,
-                int(tel.power), int(tel.watchdog), tel.faults, int(tel.mode)]  # fmt: skip
-        row += self._view_cells(t, view)
-        self.telemetry.write_values(row)  # type: ignore[union-attr]  # None: _estimates returned None
-
-    def _record_blind(self, t: float, view: View) -> None:
-        """A tick without a live view of the board: the estimates as ever, every board value empty, and
-        why (``board_link``) and since when (``tel_age_ms``); the hold setpoint, in the tick it went out."""
-        row = self._estimates(t, None, math.nan, math.nan)
-        if row is None:
-            return
-        n = self.n
-        row += self._none3 + (None,)  # torque demand, δ
-        row += [None] * (3 * n)  # gimbal angles, rates, rotor speeds
-        if self._hold_sent and self._hold_tick == self.counters.control_ticks:
-            row += [u.gimbal for u in self._hold.units] + [u.rotor_speed for u in self._hold.units]
-        else:
-            row += [None] * (2 * n)
-        row += [None] * (2 * n + 5 + 8)  # pulses, battery .. link age, the board's extras
-        row += self._view_cells(t, view)
-        self.telemetry.write_values(row)  # type: ignore[union-attr]
-
-    def _view_cells(self, t: float, view: View) -> list[Any]:
-        heard = self._phone_heard
-        return [
-            None if view.age_s is None else view.age_s * 1e3,
-            int(view.link),
-            None if heard is None or self._phone_count == 0 else (t - heard) * 1e3,
-        ]
-
-    def _estimates(
-        self, t: float, ref: Reference | None, gimbal_rate: float, delta: float
-    ) -> list[Any] | None:
-        """The trace's tick (from the slew's start) and the row's first cells (time .. rates); None when
-        the run keeps no telemetry rows."""
-        truth = self.truth()
-        est = self.estimate
-        none3 = self._none3
-        R_true = w_true = R_hat = w_hat = None
-        if truth is not None:
-            R_true, w_true = mat9(truth.R), tuple(np.asarray(truth.omega, dtype=float).tolist())
-        if est is not None:
-            R_hat, w_hat = mat9(est.R), tuple(np.asarray(est.omega, dtype=float).tolist())
-        est_err = rate_err = None
-        if R_true is not None and R_hat is not None:
-            assert w_true is not None and w_hat is not None
-            est_err = math.degrees(angle_between9(R_true, R_hat))
-            rate_err = math.dist(w_hat, w_true)
-            if self.slew_start is not None:  # from the slew's start, as the trace
-                self._errors_sq.append(est_err * est_err)
-        R_att = R_true if R_true is not None else R_hat
-        point = track = None
-        if R_att is not None and self._target9 is not None:
-            point = math.degrees(angle_between9(R_att, self._target9))
-            if ref is not None:
-                track = math.degrees(angle_between9(R_att, mat9(ref.R)))
-        if self.slew_start is not None:
-            nan = math.nan
-            self.trace.append(
-                t - self.slew_start, nan if point is None else point, nan if track is None else track,
-                nan if est_err is None else est_err, gimbal_rate, delta,
-            )  # fmt: skip
-        if self.telemetry is None:
-            return None
-        row: list[Any] = [t, int(self.phase), est_err, rate_err, point, track]
-        row += none3 if R_hat is None else log9(R_hat)
-        row += none3 if R_true is None else log9(R_true)
-        row += none3 if w_hat is None else w_hat
-        row += none3 if w_true is None else w_true
-        return row
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:
@@ -548,7 +460,7 @@ class Host:
             limit = self.params.limits.max_gimbal_rate
             peak = out["peak_gimbal_rate"]
             out["gimbal_rate_within_limit"] = None if peak is None else bool(peak <= limit)
-        out["estimator_rmse_deg"] = float(np.sqrt(np.mean(self._errors_sq))) if self._errors_sq else None
+        out["estimator_rmse_deg"] = self.rows.estimator_rmse()
         journal = self.journal.summary(now)
         out["phone_gap_list"] = journal.pop("phone_gaps")
         out.update(journal)
