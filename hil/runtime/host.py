@@ -69,7 +69,8 @@ Array = NDArray[np.float64]
 SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may start
 MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear error
 PHONE_RESTART_S = 1.0  # phone samples this much older than the newest: the stream restarted its clock ...
-PHONE_RESTART_SAMPLES = 10  # ... when this many come in a row (one stray datagram is dropped, not obeyed)
+PHONE_RESTART_SAMPLES = 10  # ... when this many come in a row ...
+PHONE_RESTART_SPAN_S = 0.05  # ... spanning this much of their own clock: a stream, not a burst of strays
 
 
 class Phase(enum.IntEnum):
@@ -155,7 +156,8 @@ class Host:
         self._hold_sent = False  # the hold setpoint went out since the board was last seen
         self._hold_tick = -1  # the control tick it went out in
         self._phone_newest = -math.inf  # newest phone sample time (the phone's clock)
-        self._phone_old = 0  # samples in a row well before the newest
+        self._phone_old = 0  # samples in a row well before the newest ...
+        self._phone_old_t = (0.0, 0.0)  # ... their first and last times (phone clock)
         self.phone_count = 0  # accepted samples seen at the last tick
         self.phone_heard: float | None = None  # host time the count last moved
         self.trace = RunTrace()
@@ -171,8 +173,12 @@ class Host:
         for sample in sorted(samples, key=lambda s: s.t_s):
             self.counters.samples += 1
             if sample.t_s < self._phone_newest - PHONE_RESTART_S:
+                if self._phone_old == 0 or sample.t_s < self._phone_old_t[1]:
+                    self._phone_old, self._phone_old_t = 0, (sample.t_s, sample.t_s)  # (re)start the run
                 self._phone_old += 1
-                if self._phone_old >= PHONE_RESTART_SAMPLES:
+                self._phone_old_t = (self._phone_old_t[0], sample.t_s)
+                first, last = self._phone_old_t
+                if self._phone_old >= PHONE_RESTART_SAMPLES and last - first >= PHONE_RESTART_SPAN_S:
                     self._phone_restarted(sample.t_s, now)
             else:
                 self._phone_old = 0
@@ -184,12 +190,13 @@ class Host:
                 self.counters.estimator_steps += 1
 
     def _phone_restarted(self, t_s: float, now: float | None) -> None:
-        """:data:`PHONE_RESTART_SAMPLES` samples in a row stamped well before the newest one: the phone
-        stream started again with a new clock (an app restarted, firmware-sim's world started over). Its
-        samples would all be dropped as out of order; the merger and the estimator start afresh instead
-        (the gyro bias is kept; the samples of the new stream before this one were dropped), and the
-        warm-up's still window lets the estimate converge before the host steers again. A lone stray
-        datagram stamped in the past is only dropped (the merger counts it out of order)."""
+        """:data:`PHONE_RESTART_SAMPLES` samples in a row stamped well before the newest one, their times
+        going forward over :data:`PHONE_RESTART_SPAN_S`: the phone stream started again with a new clock (an
+        app restarted, firmware-sim's world started over). Its samples would all be dropped as out of
+        order; the merger and the estimator start afresh instead (the gyro bias is kept; the samples of the
+        new stream before this one were dropped), and the warm-up's still window lets the estimate converge
+        before the host steers again. Stray datagrams stamped in the past — one, or a burst of them — are
+        only dropped (the merger counts them out of order)."""
         from hil.estimation.filter import AttitudeFilter
         from hil.estimation.multirate import Merger
 
