@@ -134,7 +134,6 @@ def pty_soak(plan: list[str], out_root: Path) -> list[Cycle]:
 def _check_hostile(c: Cycle, rec: Recorder) -> None:
     """Nothing happened: no fault, no phone gap or restart, the host in control all along."""
     c.cause = "counted"
-    c.back_s = 0.0
     upsets = ("phone_gap", "phone_restart", "link_lost", "board_reset", "lost", "recovery_start")
     faults = [e for e in rec.events if e["t"] >= c.t_fault and e["kind"] in upsets]
     if faults:
