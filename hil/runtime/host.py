@@ -407,8 +407,8 @@ class Host:
         return self.watch.operator_disarm(t)
 
     def _restart_warmup(self, t: float, why: str, still: bool) -> None:
-        """The board left the state the host commanded (failsafe, reset, reconnect, disarm) or the phone
-        went away: back to the warm-up — spin-up and checks; the still window too if ``still`` (the phone),
+        """The board left the state the host commanded (failsafe, reset, link loss, reconnect, disarm) or
+        the phone went away: back to the warm-up — spin-up and checks; the still window too if ``still`` (the phone),
         or if the first warm-up was not over (its bias window then starts again)."""
         started = self.spinup_since is not None or self.still_since is not None
         if self.phase is Phase.WARMUP and not started and not (still and not self.need_still):
