@@ -318,3 +318,24 @@ def test_run_plots_include_the_papers_estimator_figures(lockstep_run):
                  "pulse_widths", "battery", "delta"):  # fmt: skip
         data = paths[name].read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+def test_gimbal_rates_far_below_their_limit_are_drawn_on_their_own_scale(lockstep_run, monkeypatch):
+    """A slew that uses 1 % of the gimbal-rate limit: the axis fits the rates (with the limit named in the
+    title), not ±limit, on which they would be a flat line; rates near the limit show it as lines."""
+    import hil.plots.run as plots
+
+    _, result = lockstep_run
+    seen = {}
+    real_save = plots._save
+
+    def save(fig, ax, path):
+        seen[path.stem] = (ax.get_ylim(), ax.get_title(), len(ax.lines))
+        return real_save(fig, ax, path)
+
+    monkeypatch.setattr(plots, "_save", save)
+    plots.plot_run(result.run_dir)
+    (low, high), title, lines = seen["gimbal_rates"]
+    peak, limit = result.summary["peak_gimbal_rate"], result.summary["max_gimbal_rate_limit"]
+    assert peak < 0.25 * limit and high < 2 * peak and low > -2 * peak
+    assert "off the scale" in title and f"{limit:g}" in title and lines == 4  # the four units, no limit lines

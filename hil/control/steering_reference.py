@@ -53,7 +53,9 @@ def solve(
     sat |= np.where(damped > 0.0, int(Saturation.DAMPED), 0)
     if p.null_gain > 0:
         nominal = steer.params.nominal_rotor_speed
-        d = np.concatenate([-p.speed_gain * (w - nominal) / nominal, delta_gradient(steer, gam, w)], axis=1)
+        d = np.concatenate(
+            [-p.speed_gain * (w - nominal) / nominal**2, delta_gradient(steer, gam, w)], axis=1
+        )
         wd = np.concatenate([ws, np.full_like(ws, p.gimbal_weight)], axis=1) * d
         eta += p.null_gain * (wd - _weighted(steer, Q, ws, np.einsum("bij,bj->bi", Q, wd))[0])
     # one scale factor for every limit

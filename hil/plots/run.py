@@ -78,8 +78,12 @@ def plot_run(run_dir: str | Path) -> dict[str, Path]:
         if log:
             ax.set_yscale("log")
         if name == "gimbal_rates" and limit is not None:
-            for sign in (1, -1):
-                ax.axhline(sign * limit, color="r", ls="--", lw=0.8, label="limit" if sign > 0 else None)
+            peak = max(float(np.nanmax(np.abs(c[n]))) for n in present)
+            if peak >= 0.25 * limit:  # the limit in view when the rates come near it
+                for sign in (1, -1):
+                    ax.axhline(sign * limit, color="r", ls="--", lw=0.8, label="limit" if sign > 0 else None)
+            else:  # rates far below the limit: scaled to the data (a ±limit axis would flatten them)
+                ax.set_title(f"{title} (peak {peak:.3g} rad/s, limit ±{limit:g} rad/s: off the scale)")
         out[name] = _save(fig, ax, out_dir / f"{name}.png")
 
     figure("attitude_error", "Attitude estimation error (principal angle of Q = R R̂ᵀ)",
