@@ -277,8 +277,10 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
         f"final error       {num('final_error_deg', '.3f', ' deg')}",
         f"peak gimbal rate  {num('peak_gimbal_rate', '.3f', ' rad/s')} "
         f"(limit {s.get('max_gimbal_rate_limit')})",
-        f"minimum delta     {num('min_delta', '.3f')}",
-        f"estimator RMSE    {num('estimator_rmse_deg', '.2f', ' deg')} (slew + hold)",
+        f"minimum delta     {num('min_delta', '.3f')} (singularity measure det(D1 D1ᵀ)/h̄⁶ of the "
+        "gimbal array: 0 is singular, the paper's δ)",
+        f"estimator RMSE    {num('estimator_rmse_deg', '.2f', ' deg')} "
+        + ("(slew + hold)" if s.get("estimator_rmse_deg") is not None else "(no ground truth in this run)"),
         f"failsafe events   {s.get('failsafe_events', 0)}  resets {s.get('board_resets', 0)}  "
         f"re-arms {s.get('rearms', 0)}",
         f"link              lost {s.get('link_lost', 0)}  reconnects {s.get('reconnects', 0)}  "

@@ -277,7 +277,12 @@ def _build(
     stack.callback(client.close)
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
     info = client.connect()
-    events.write(clock.now(), "connected", board=info.describe(), units=info.n_units)
+    # What the board said during the handshake is older than the records below: the host's watch writes
+    # it first, once it exists, and these records wait for it (events.jsonl stays in time order).
+    handshake = client.drain_events()
+    held: list[tuple[float, str, dict[str, Any]]] = [
+        (clock.now(), "connected", {"board": info.describe(), "units": info.n_units})
+    ]
     if info.n_units != scenario.n_units:
         raise ConfigError(
             f"the board has {info.n_units} units, the scenario's spacecraft {scenario.n_units}", "run --port"
@@ -290,7 +295,7 @@ def _build(
         phone = open_receiver(opts.phone if plan.source == "phone" else "udp://127.0.0.1:0")
         stack.callback(phone.close)
         drain = phone.drain
-        events.write(clock.now(), "phone_listening", url=phone.url)
+        held.append((clock.now(), "phone_listening", {"url": phone.url}))
     if plan.source == "world":
         world = link.open_world(scenario)
         lock = link.lock
@@ -336,10 +341,14 @@ def _build(
         filter_config=None if replay is None else replay.filter_config, hold=replay is not None,
         recover_within_s=opts.recover_within_s,
     )  # fmt: skip
+    host.watch.on_events(handshake)
+    for t, kind, fields in held:
+        events.write(t, kind, **fields)
     if plan.source == "phone":  # before arming: the board's link watchdog is not fed while we wait
         assert phone is not None
-        _wait_for_phone(phone, opts.phone_wait_s, client)
+        _wait_for_phone(phone, opts.phone_wait_s, client, host.watch.on_events)
     client.arm()
+    host.watch.on_events(client.drain_events())  # what the board said while arming goes before "armed"
     events.write(clock.now(), "armed")
     origin = clock.now()
     until = _time_limit(scenario, opts, origin) + opts.recover_within_s
@@ -459,13 +468,16 @@ def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:
     return origin + scenario.loop.warmup_s + duration + SPINUP_ALLOWANCE_S
 
 
-def _wait_for_phone(server: PhoneReceiver, wait_s: float, client: BoardClient) -> None:
+def _wait_for_phone(
+    server: PhoneReceiver, wait_s: float, client: BoardClient, on_events: Callable[[list[Any]], None]
+) -> None:
     """The first phone samples within ``wait_s`` (wall clock), or a clear error saying where to send them.
-    The board client is serviced meanwhile (its heartbeats keep the board's link watchdog fed)."""
+    The board client is serviced meanwhile (its heartbeats keep the board's link watchdog fed; what the
+    board says goes to ``on_events``)."""
     end = time.monotonic() + wait_s
     while time.monotonic() < end:
         server.check()
-        client.service()
+        on_events(client.service())
         if server.stats.samples:
             return
         time.sleep(0.02)
