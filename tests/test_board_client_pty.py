@@ -210,16 +210,46 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
         client.close()
 
 
-def test_another_board_on_the_reconnected_port_is_refused(tmp_path: Path):
+def test_another_board_on_the_reconnected_port_is_refused_and_ours_taken_back(tmp_path: Path):
+    """After a kill the port's name can reach another board (a pty name reused by another process, a board
+    swapped): it is never commanded, the refusal is reported, and the client goes on looking for its own
+    board, which it takes back when it answers again."""
     link = tmp_path / "board"
+    config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1)
     with firmware_sim("--units", "1", "--link", str(link)) as first:
-        client = BoardClient(str(link), config=ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1))
+        client = BoardClient(str(link), config=config)
+        client.connect()
+        first.send_signal(signal.SIGKILL)
+        link.unlink()
+    events: list = []
+    try:
+        with firmware_sim("--units", "2", "--link", str(link)) as foreign:
+            refused = lambda: client.stats().counters.boards_refused >= 1  # noqa: E731
+            drive(client, setpoint(100.0, 1), refused, 5.0, events)
+            assert not client.connected
+            foreign.send_signal(signal.SIGKILL)
+            link.unlink()
+        refusals = [e for e in events if isinstance(e, LinkLostEvent) and "another board" in e.reason]
+        assert refusals and "2 units" in refusals[0].reason and "1 units" in refusals[0].reason
+        with firmware_sim("--units", "1", "--link", str(link)):
+            drive(client, None, lambda: client.connected, 5.0, events)
+        assert client.info is not None and client.info.n_units == 1
+        assert client.stats().counters.reconnects == 1
+    finally:
+        client.close()
+
+
+def test_a_port_that_only_reaches_another_board_ends_in_a_link_error_that_says_so(tmp_path: Path):
+    link = tmp_path / "board"
+    config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1, reconnect_give_up_s=1.0)
+    with firmware_sim("--units", "1", "--link", str(link)) as first:
+        client = BoardClient(str(link), config=config)
         client.connect()
         first.send_signal(signal.SIGKILL)
         link.unlink()
     try:
         with firmware_sim("--units", "2", "--link", str(link)):
-            with pytest.raises(HandshakeError, match="another board answered.*2 units.*1 units"):
+            with pytest.raises(LinkError, match="gave up reconnecting.*another board answered.*2 units"):
                 drive(client, None, lambda: False, 5.0)
     finally:
         client.close()

@@ -22,10 +22,14 @@ command is in flight uses :meth:`command` (a handle) and keeps calling :meth:`se
 Link trouble is handled, not raised: a transport error (port vanished, bus down) or a board that stops
 answering the handshake closes the transport and reopens it after a bounded, doubling back-off, then
 handshakes again and reports :class:`ConnectedEvent` (it re-arms only if ``rearm_on_reconnect`` asks).
-What is raised: :class:`HandshakeError` (an incompatible board — at connect or on a reconnect),
-:class:`LinkTimeout` (no board answered the first handshake), :class:`LinkError` (reconnection given up,
-or the client is closed), :class:`CommandFailed` (a command NACKed or never answered),
-:class:`BoardReset` (a setpoint after the armed board reset; see :mod:`hil.link.board.session`).
+A reconnect that reaches another board (another identity or unit count: a pty name reused by another
+process after the board's was killed, a board swapped on the port) or an incompatible one is refused —
+never commanded — and counted (``boards_refused``); the client closes the port and keeps looking for its
+own board within the give-up bound. What is raised: :class:`HandshakeError` (an incompatible board at
+connect), :class:`LinkTimeout` (no board answered the first handshake), :class:`LinkError` (reconnection
+given up — its message carries the last refusal — or the client is closed), :class:`CommandFailed` (a
+command NACKed or never answered), :class:`BoardReset` (a setpoint after the armed board reset; see
+:mod:`hil.link.board.session`).
 """
 
 from __future__ import annotations
@@ -449,7 +453,11 @@ class BoardClient:
         s = self.session
         if s.phase is Phase.INCOMPATIBLE:
             assert isinstance(s.failure, HandshakeError)
-            raise s.failure
+            if not self._connected:
+                raise s.failure  # the first board is the caller's to fix
+            s.counters.boards_refused += 1  # not ours: never commanded; ours may come back on the port
+            self._lose_link(now, s.failure)
+            return
         if s.phase is Phase.DOWN and s.failure is not None and not self._connected:
             raise s.failure  # the first handshake went unanswered
         if s.phase is Phase.READY:
