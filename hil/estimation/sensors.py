@@ -60,6 +60,7 @@ class StepFlag(enum.IntFlag):
     NEWTON_FAILED = 1 << 6  # the implicit step did not meet its tolerance within the iteration cap
     SUBSTEPPED = 1 << 7  # a long step was split into sub-steps (estimator stability limit)
     MAG_DISTURBED = 1 << 8  # magnetometer rejected: field norm or dip off its reference (disturbance)
+    REST = 1 << 9  # the phone is at rest (gyro and accelerometer steady): the gyro bias is measured
 
     @staticmethod
     def stale(kind: SensorKind) -> StepFlag:
