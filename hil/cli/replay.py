@@ -144,6 +144,14 @@ def run(args: argparse.Namespace) -> int:
     drops += f", out of order {sum(stats.out_of_order.values())}"
     print(f"  merge: driver {driver}, {stats.dropped} samples dropped ({drops}), {stats.gaps} gaps, "
           f"{stats.failover_steps} failover steps")  # fmt: skip
+    rejected = result.mag_rejections
+    if rejected:
+        total = sum(b - a for a, b in rejected)
+        longest = max(rejected, key=lambda ab: ab[1] - ab[0])
+        print(f"  magnetometer left out as disturbed: {len(rejected)} intervals, {total:.1f} s in all "
+              f"(longest {longest[0]:.1f}-{longest[1]:.1f} s); every interval in summary.json")  # fmt: skip
+    if result.gyro_bias is not None:
+        print(f"  gyro bias estimate at the end: {[round(x, 5) for x in result.gyro_bias]} rad/s")
     if result.comparison is not None:
         c = result.comparison
         print(f"  vs ground truth: RMSE {c.rmse} over {c.rmse.n} samples")

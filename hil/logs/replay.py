@@ -8,9 +8,11 @@ Two ways to run: as fast as possible (the batch path: vectorised merge and pre-f
 loop), or *paced* — each step released at its log time on an injected clock (``WallClock`` for real time,
 ``LockstepClock`` in tests), through the live path that a real phone stream takes.
 
-Outputs in ``out_dir``: ``estimates.csv`` (docs/formats.md), ``summary.json`` (settings, counters, RMSE),
-and figures: with ground truth the paper's two — the principal angle of the attitude estimation error and
-the angular-velocity estimation error — else the estimated attitude (roll/pitch/yaw) and rates.
+Outputs in ``out_dir``: ``estimates.csv`` (docs/formats.md), ``summary.json`` (settings, counters, RMSE,
+every interval in which the magnetometer was left out as disturbed, time at rest, the final gyro bias
+estimate), and figures: with ground truth the paper's two — the principal angle of the attitude
+estimation error and the angular-velocity estimation error — else the estimated attitude (roll/pitch/yaw)
+and rates; the magnetometer's rejection intervals shaded on the attitude figures.
 """
 
 from __future__ import annotations
@@ -29,7 +31,15 @@ from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.inertial import directions_from_dip, directions_from_log, find_still_window, wmm2025
 from hil.estimation.metrics import TruthComparison, compare_to_truth
 from hil.estimation.multirate import MergePolicy, Merger, MergeStats, merge
-from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, SensorLog, StepFlag
+from hil.estimation.sensors import (
+    KINDS,
+    MergedStep,
+    MergedSteps,
+    SensorKind,
+    SensorLog,
+    StepFlag,
+    flagged_intervals,
+)
 from hil.logs import read_log
 from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
@@ -94,6 +104,12 @@ class ReplayResult:
     setup: list[str]
     comparison: TruthComparison | None = None
     files: dict[str, Path] = field(default_factory=dict)
+    gyro_bias: tuple[float, float, float] | None = None  # the estimate at the end (batch path), rad/s
+
+    @property
+    def mag_rejections(self) -> list[tuple[float, float]]:
+        """Every interval (s, log time) in which the magnetometer was left out as disturbed."""
+        return flagged_intervals(self.estimates.t, self.estimates.flags, StepFlag.MAG_DISTURBED)
 
 
 def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, list[str]]:
@@ -113,9 +129,9 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, lis
             sel = (gyr.t >= still.t0) & (gyr.t <= still.t1)
             bias = tuple(float(x) for x in gyr.xyz[sel].mean(axis=0))  # type: ignore[assignment]
             where = f"still window {still.t0:.2f}-{still.t1:.2f} s"
-            setup.append(f"gyro bias {np.round(bias, 5).tolist()} rad/s from the {where}")
+            setup.append(f"gyro bias estimate starts at {np.round(bias, 5).tolist()} rad/s from the {where}")
         except InputFormatError:
-            setup.append("no still window: gyro bias not corrected")
+            setup.append("no still window: the gyro bias is estimated online from zero")
     declination = options.declination_deg
     if options.field_model is not None:
         fm = options.field_model
@@ -152,11 +168,14 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     if first:
         setup.append(f"first {first} steps dropped: not every sensor had spoken yet")
         steps = steps.rows(first)
+    bias = None
     if options.paced or options.on_step is not None:
         estimates = _run_live(log, steps, stats, config, options)
     else:
-        estimates = AttitudeFilter(config).run(steps, options.progress)
-    result = ReplayResult(log, steps, estimates, stats, config, setup)
+        chain = AttitudeFilter(config)
+        estimates = chain.run(steps, options.progress)
+        bias = tuple(float(x) for x in chain.gyro_bias)
+    result = ReplayResult(log, steps, estimates, stats, config, setup, gyro_bias=bias)  # type: ignore[arg-type]
     _score(result)
     options.out_dir.mkdir(parents=True, exist_ok=True)
     result.files["estimates"] = write_estimates(estimates, options.out_dir / "estimates.csv")
@@ -232,6 +251,14 @@ def write_estimates(est: EstimateBatch, path: Path) -> Path:
     return path
 
 
+def _flagged_time(est: EstimateBatch, flag: StepFlag) -> float:
+    """Seconds spent in steps carrying ``flag`` (each step counts its own length)."""
+    if len(est) < 2:
+        return 0.0
+    h = np.diff(est.t, prepend=est.t[0])
+    return float(h[(est.flags & int(flag)) != 0].sum())
+
+
 def _write_summary(result: ReplayResult, path: Path) -> Path:
     stats = result.merge_stats
     flags = result.estimates.flags
@@ -255,6 +282,12 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
         "flagged_steps": {
             f.name: int(np.count_nonzero(flags & int(f))) for f in StepFlag if f.name and f != StepFlag.NONE
         },
+        "magnetometer_rejected": {
+            "intervals_s": [[round(a, 4), round(b, 4)] for a, b in result.mag_rejections],
+            "total_s": round(_flagged_time(result.estimates, StepFlag.MAG_DISTURBED), 4),
+        },
+        "rest_s": round(_flagged_time(result.estimates, StepFlag.REST), 4),
+        "gyro_bias_final_rad_s": None if result.gyro_bias is None else list(result.gyro_bias),
         "rmse_deg": None if result.comparison is None else asdict(result.comparison.rmse),
         "rate_rmse_rad_s": None if result.comparison is None else result.comparison.rate_rmse,
         "files": {k: str(v) for k, v in result.files.items()},

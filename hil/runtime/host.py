@@ -7,9 +7,10 @@ Phases (``telemetry.csv`` column ``phase``):
 
 0. **warm-up** — the board is armed, the rotors spin up to their nominal speed with the gimbals still;
    once every rotor is within 5 % of it the still window of ``warmup_s`` starts: the estimator converges
-   and the raw gyroscope samples of the window's second half are averaged into the gyro bias, which the
-   estimator subtracts from then on (the phone gyro's residual bias would otherwise leave a steady
-   attitude error and a rate offset in the control loop);
+   and the raw gyroscope samples of the window's second half are averaged into the gyro bias, which
+   becomes the estimator's bias estimate — the tuned estimator keeps refining it online, at rest and in
+   motion (the phone gyro's residual bias would otherwise leave a steady attitude error and a rate offset
+   in the control loop);
 1. **slew** — an eigenaxis rest-to-rest slew from the estimated attitude to the scenario's target within
    its rate and acceleration limits, tracked by the geometric controller;
 2. **hold** — the reference stays at the target.
@@ -135,7 +136,7 @@ class Host:
         self.spinup_since: float | None = None
         self.bias_samples: list[Array] = []  # raw gyro samples over the still window's second half
         self._collecting_bias = False
-        self.gyro_bias = np.zeros(3)  # measured over the still window, removed by the filter from then on
+        self.gyro_bias = np.zeros(3)  # measured over the still window: the estimator's bias from then on
         self.target: Array | None = None if self.hold else sc.slew.R_target
         self.slew: EigenaxisSlew | None = None
         self.slew_start: float | None = None
@@ -229,6 +230,7 @@ class Host:
         self._collecting_bias = t - self.still_since >= 0.5 * warmup_s
         if t - self.still_since >= warmup_s:
             self._collecting_bias = False
+            online = self.filter.gyro_bias  # what the estimator had found by itself
             if self.scenario.loop.calibrate_rate_bias and self.bias_samples:
                 self.gyro_bias = np.mean(self.bias_samples, axis=0)
                 self.filter.set_gyro_bias(self.gyro_bias)
@@ -243,6 +245,7 @@ class Host:
             self.events.write(
                 t, "slew_start", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ self.target)),
                 slew_s=self.slew.duration_s, gyro_bias=self.gyro_bias.tolist(),
+                gyro_bias_online=online.tolist(),
             )  # fmt: skip
 
     # ------------------------------------------------------------------ board events
