@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.estimation import reference
+from hil.estimation import reference_chain
 from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.magnetic import MagneticGate, MagneticSettings, pack_mag_params
 from hil.estimation.sensors import StepFlag
@@ -37,7 +37,7 @@ def weights(settings: MagneticSettings, field: np.ndarray, up: np.ndarray, rate:
     h, rates = np.full(n, H), np.full(n, rate)
     gate = MagneticGate(settings)
     got = gate.run(h, rates, up, field)
-    np.testing.assert_array_equal(got, reference.mag_run(settings, h, rates, up, field))
+    np.testing.assert_array_equal(got, reference_chain.mag_run(settings, h, rates, up, field))
     return got, gate
 
 

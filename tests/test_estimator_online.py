@@ -10,7 +10,7 @@ import pytest
 
 from hil import so3
 from hil.estimation import motion as mo
-from hil.estimation import reference
+from hil.estimation import reference, reference_chain
 from hil.estimation.estimator import VariationalEstimator
 from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.metrics import AttitudeErrors
@@ -163,7 +163,7 @@ def test_the_accelerometer_is_trusted_when_calm_and_not_when_shaken():
     strapdown frame) keeps the cut-off scale at ``calm``; shaking drives it to ``dynamic``."""
     s = MotionSettings(calm=2.0, dynamic=0.25, acc_scale=1.0)
     mp, ms = pack_motion_params(s), mo.new_motion_state()
-    ref = reference.Motion(s)
+    ref = reference_chain.Motion(s)
     rng = np.random.default_rng(7)
     h = 0.005
     scales = []
