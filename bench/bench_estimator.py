@@ -89,7 +89,7 @@ def _trial(path: Path, group: str, window_s: tuple[float, float] | None) -> Tria
 def from_first_motion(trial: Trial) -> Trial:
     """The trial from its first evaluated (moving) sample on: no still window left."""
     truth = trial.log.truth
-    assert truth is not None
+    assert truth is not None and truth.evaluate is not None
     t0 = float(truth.t[np.argmax(truth.evaluate)])
     log = trial.log.window(t0, trial.log.end)
     return _trial_of(log, trial.path, f"{trial.name} (from first motion)", trial.group)

@@ -2,20 +2,21 @@
 shared trial, never per trial, by a stated procedure (docs/estimator.md, "The tuned preset").
 
 1. **Grid.** Every point of :data:`GRID_A` (the gains, the accelerometer's cut-off, the bias law, the gyro
-   delay, the magnetic tolerances), then every point of :data:`GRID_B` (the accelerometer's trust, the
-   accelerometer's weight, the late weight) around stage A's best, is run on every shared trial
+   delay, the magnetic tolerances), then every point of :data:`GRID_B` (the accelerometer's trust and
+   weight, the late weight, the rest gain, the field's start-up boost) around stage A's best, is run on
+   every shared trial
    (tyrex smartphone and BROAD) online only — no still window: the hard case — as
    ``python -m bench.bench_estimator`` runs them; each trial's RMSE (total / heading / inclination) is
    kept (``bench/estimator_tuning.json``).
-2. **Objective.** ``J(θ) = ½ Σ_groups mean_g RMSE_total(θ) / mean_g RMSE_total(VQF)``, groups smartphone
-   and BROAD: each group weighs the same whatever its number of trials, both measured against VQF in
-   the same run.
+2. **Objective.** ``J(θ) = max_groups mean_g RMSE_total(θ) / mean_g RMSE_total(VQF)``, groups
+   smartphone and BROAD: the goal is to be no worse than VQF on the mean of *each* group, so the worse
+   group decides, whatever its number of trials; VQF measured in the same run.
 3. **Preset** = argmin J over all trials. **Generalisation**, leave-one-trial-out: for each trial, the
    point minimising J over the other 21 is chosen and scored on the left-out trial; the means of these
    held-out scores per group are what the preset can be expected to do on trials it has not seen (the
    candidate points themselves came from the whole-set search, so this is mildly optimistic).
 
-``python -m bench.bench_estimator --tune`` runs it (about half an hour on the 2-core machine).
+``python -m bench.bench_estimator --tune`` runs it (909 points, 2–3 s each on the 2-core machine).
 """
 
 from __future__ import annotations
@@ -31,8 +32,6 @@ from typing import Any
 import numpy as np
 
 from hil.estimation.filter import TUNED, AttitudeFilter, FilterConfig
-from hil.estimation.magnetic import MagneticSettings
-from hil.estimation.motion import MotionSettings
 from hil.estimation.params import EstimatorParams
 from hil.estimation.sensors import SensorKind
 
@@ -51,6 +50,7 @@ GRID_B: dict[str, tuple[Any, ...]] = {
     "w_acc": (4.0, 6.0, 10.0),
     "late_weight": (0.5, 0.75),
     "rest_gain": (0.5, 2.0),
+    "boost": (1.0, 3.0, 6.0),
 }
 
 
@@ -62,7 +62,7 @@ def preset_point() -> dict[str, Any]:
         "bias_gain": TUNED["bias_gain"], "bias_vertical": TUNED["bias_vertical"],
         "gyro_delay_s": TUNED["gyro_delay_s"], "mag_tol": (gate.norm_tol, gate.dip_tol_deg),
         "late_weight": gate.late_weight, "trust": (motion.calm, motion.dynamic, motion.acc_scale),
-        "rest_gain": motion.rest_gain,
+        "rest_gain": motion.rest_gain, "boost": gate.boost,
     }  # fmt: skip
 
 
@@ -75,10 +75,16 @@ def config(point: dict[str, Any], gyro_bias: tuple[float, float, float] = (0.0, 
         gyro_delay_s=point["gyro_delay_s"],
     )  # fmt: skip
     norm_tol, dip_tol = point["mag_tol"]
-    gate: MagneticSettings = replace(base.mag_gate, norm_tol=norm_tol, dip_tol_deg=dip_tol,  # type: ignore[type-var]
-                                     late_weight=point["late_weight"])  # fmt: skip
+    assert base.mag_gate is not None and base.motion is not None
+    gate = replace(
+        base.mag_gate,
+        norm_tol=norm_tol,
+        dip_tol_deg=dip_tol,
+        late_weight=point["late_weight"],
+        boost=point["boost"],
+    )
     calm, dynamic, acc_scale = point["trust"]
-    motion: MotionSettings = replace(  # type: ignore[type-var]
+    motion = replace(
         base.motion, calm=calm, dynamic=dynamic, acc_scale=acc_scale, rest_gain=point["rest_gain"]
     )
     cut = {**base.prefilter_rad_s, SensorKind.ACC: point["acc_cutoff"]}
@@ -114,12 +120,12 @@ def evaluate(
 def objective(
     total: np.ndarray, vqf: np.ndarray, groups: np.ndarray, keep: np.ndarray | None = None
 ) -> float:
-    """``J``: the mean over groups of (our mean total RMSE / VQF's) over the trials in ``keep``."""
+    """``J``: the larger over groups of (our mean total RMSE / VQF's) over the trials in ``keep``."""
     keep = np.ones(len(total), bool) if keep is None else keep
     ratios = [
         total[keep & (groups == g)].mean() / vqf[keep & (groups == g)].mean() for g in np.unique(groups)
     ]
-    return float(np.mean(ratios))
+    return float(np.max(ratios))
 
 
 def leave_one_trial_out(

@@ -130,3 +130,30 @@ def test_the_filter_carries_the_heading_on_the_gyro_through_a_disturbance_and_re
     assert np.max(np.abs(e_n.heading[bad])) > 20.0
     flagged = (handled.flags & StepFlag.MAG_DISTURBED) != 0
     assert flagged[bad & (t > 50.1)].all() and not flagged[t > 91.0].any()
+
+
+def test_a_disturbed_first_sample_is_replaced_and_never_comes_back():
+    """A recording that starts next to a magnet: its first sample is the (tentative) reference, the real
+    field is what then holds while the phone turns — it replaces the first sample after ``first_steady_s``
+    of turning, and the magnet's field, met again later, is left out (an unconfirmed reference is not
+    remembered)."""
+    n = int(90 / H)
+    field, up = turning(n)
+    t = np.arange(n) * H
+    near = (t < 3.0) | ((t >= 60.0) & (t < 70.0))
+    field[near] *= 1.6
+    w, gate = weights(MagneticSettings(), field, up)
+    adopted_at = t[(t > 3.0) & (w >= 1.0)][0]
+    assert 8.0 <= adopted_at < 9.0 and gate.adopted == 1
+    assert gate.reference[0] == pytest.approx(np.linalg.norm(FIELD_ENU), rel=0.01)
+    assert np.all(w[(t > 60.2) & (t < 70.0)] == 0.0) and np.all(w[t > 70.6] >= 1.0)
+
+
+def test_the_field_weighs_more_at_the_start_and_after_an_adoption():
+    """``boost``: the accepted field's weight starts at ``boost`` and falls back to 1 with ``boost_s``
+    (faster heading convergence from a start, or from a new reference), and never below 1 when accepted."""
+    n = int(40 / H)
+    field, up = turning(n)
+    t = np.arange(n) * H
+    w, _ = weights(MagneticSettings(boost=4.0, boost_s=5.0), field, up)
+    np.testing.assert_allclose(w, 1.0 + 3.0 * np.exp(-t / 5.0), rtol=0, atol=1e-12)

@@ -266,7 +266,7 @@ def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ign
         gp = cp[CP_GATE_PARAMS : CP_GATE_PARAMS + mg.GP_SIZE]
         rate = math.sqrt(io[0] * io[0] + io[1] * io[1] + io[2] * io[2])
         weight = mag_step(gp, cs[CS_GATE : CS_GATE + mg.GS_SIZE], h, rate, ux, uy, uz, mx, my, mz)
-        if weight < 1.0:
+        if weight < 1.0:  # left out, or at the late weight: disturbed
             flags |= _MAG_DISTURBED
         if weight == 0.0:
             mx = my = mz = math.nan

@@ -12,7 +12,9 @@ compared with a *reference*:
   ``min_undisturbed_s``. While it is disturbed the filter carries the heading on the bias-corrected
   gyroscope (weight 0).
 - **The reference** starts at the first sample and follows undisturbed samples only (time constant
-  ``tau_s``): a disturbance never drags it.
+  ``tau_s``): a disturbance never drags it. The first sample may itself be disturbed (a recording that
+  starts next to a magnet): until the field has agreed with it for ``first_steady_s`` of turning, a
+  candidate needs only that long to replace it.
 - **Time-outs that cannot lock in a disturbed field.** A disturbance that lasts may be a new environment.
   The field is tracked as a *candidate* reference, which restarts whenever a sample leaves it. While
   disturbed, the candidate replaces the reference only if it has held steady for ``steady_s`` of turning
@@ -55,7 +57,10 @@ GP_FIELD_MAX = 8
 GP_MAX_REJECTION = 9  # s
 GP_RECOVERY = 10  # budget refill rate / spend rate
 GP_LATE_WEIGHT = 11  # weight after the rejection budget is spent
-GP_SIZE = 12
+GP_FIRST_STEADY = 12  # s of turning that confirm the first reference (or let a candidate replace it)
+GP_BOOST = 13  # the field's weight at the start and after an adoption, falling back to 1
+GP_BOOST_S = 14  # s, its time constant
+GP_SIZE = 15
 
 GS_STARTED = 0
 GS_NORM = 1  # the low-passed norm
@@ -73,7 +78,10 @@ GS_CAND_NORM = 12
 GS_CAND_DIP = 13
 GS_CAND_FOR = 14  # s of turning the candidate has held
 GS_ADOPTED = 15  # how many candidates became the reference
-GS_SIZE = 16
+GS_CONFIRMED = 16  # 1 once the reference has held for first_steady_s of turning (or was adopted)
+GS_CONFIRM_FOR = 17  # s of turning the (first) reference has held
+GS_SINCE = 18  # s since the first sample or the last adoption
+GS_SIZE = 19
 
 
 @dataclass(frozen=True)
@@ -94,6 +102,9 @@ class MagneticSettings:
     max_rejection_s: float = 60.0
     recovery: float = 2.0
     late_weight: float = 0.5
+    first_steady_s: float = 5.0
+    boost: float = 1.0
+    boost_s: float = 5.0
 
 
 def pack_mag_params(s: MagneticSettings) -> Array:
@@ -113,7 +124,15 @@ def pack_mag_params(s: MagneticSettings) -> Array:
     gp[GP_STEADY], gp[GP_MIN_RATE] = s.steady_s, s.min_rate
     gp[GP_FIELD_MIN], gp[GP_FIELD_MAX] = s.field_min, s.field_max
     gp[GP_MAX_REJECTION], gp[GP_RECOVERY], gp[GP_LATE_WEIGHT] = s.max_rejection_s, s.recovery, s.late_weight
+    gp[GP_FIRST_STEADY] = s.first_steady_s
+    gp[GP_BOOST], gp[GP_BOOST_S] = s.boost, s.boost_s
     return gp
+
+
+@kernel
+def _full(gp, gs):  # type: ignore[no-untyped-def]
+    """An accepted field's weight: ``boost`` falling back to 1 after the start or an adoption."""
+    return 1.0 + (gp[GP_BOOST] - 1.0) * math.exp(-gs[GS_SINCE] / gp[GP_BOOST_S])
 
 
 @kernel
@@ -139,7 +158,8 @@ def mag_step(gp, gs, h, rate, ux, uy, uz, mx, my, mz):  # type: ignore[no-untype
         gs[GS_STARTED], gs[GS_NORM], gs[GS_DIP], gs[GS_HAS_DIP] = 1.0, n, dip, 1.0 if has_dip else 0.0
         gs[GS_REF_NORM], gs[GS_REF_DIP], gs[GS_CAND_NORM], gs[GS_CAND_DIP] = n, dip, n, dip
         gs[GS_REJECTED_FOR] = gp[GP_MAX_REJECTION]
-        return 1.0
+        return _full(gp, gs)
+    gs[GS_SINCE] += h
     k = min(1.0, h / gp[GP_CURRENT_TAU])
     gs[GS_NORM] += k * (n - gs[GS_NORM])
     if has_dip:
@@ -148,6 +168,10 @@ def mag_step(gp, gs, h, rate, ux, uy, uz, mx, my, mz):  # type: ignore[no-untype
         gs[GS_DIP] += k * (dip - gs[GS_DIP])
     if _within(gp, gs, GS_REF_NORM, GS_REF_DIP):
         gs[GS_UNDISTURBED_FOR] += h
+        if rate >= gp[GP_MIN_RATE]:
+            gs[GS_CONFIRM_FOR] += h
+            if gs[GS_CONFIRM_FOR] >= gp[GP_FIRST_STEADY]:
+                gs[GS_CONFIRMED] = 1.0
     elif gs[GS_HAS_PREV] != 0.0 and _within(gp, gs, GS_PREV_NORM, GS_PREV_DIP):
         # the field the last adopted candidate replaced is back: it is the reference again
         gs[GS_REF_NORM], gs[GS_PREV_NORM] = gs[GS_PREV_NORM], gs[GS_REF_NORM]
@@ -171,14 +195,18 @@ def mag_step(gp, gs, h, rate, ux, uy, uz, mx, my, mz):  # type: ignore[no-untype
         gs[GS_REF_NORM] += kr * (gs[GS_NORM] - gs[GS_REF_NORM])
         gs[GS_REF_DIP] += kr * (gs[GS_DIP] - gs[GS_REF_DIP])
         gs[GS_REJECTED_FOR] = max(0.0, gs[GS_REJECTED_FOR] - gp[GP_RECOVERY] * h)
-        return 1.0
+        return _full(gp, gs)
     geomagnetic = gp[GP_FIELD_MIN] <= gs[GS_NORM] <= gp[GP_FIELD_MAX]
-    if gs[GS_CAND_FOR] >= gp[GP_STEADY] and gp[GP_FIELD_MIN] <= gs[GS_CAND_NORM] <= gp[GP_FIELD_MAX]:
-        gs[GS_HAS_PREV], gs[GS_PREV_NORM], gs[GS_PREV_DIP] = 1.0, gs[GS_REF_NORM], gs[GS_REF_DIP]
+    steady = gp[GP_STEADY] if gs[GS_CONFIRMED] != 0.0 else gp[GP_FIRST_STEADY]
+    if gs[GS_CAND_FOR] >= steady and gp[GP_FIELD_MIN] <= gs[GS_CAND_NORM] <= gp[GP_FIELD_MAX]:
+        # the replaced reference is remembered only if it had been confirmed (not a disturbed first sample)
+        gs[GS_HAS_PREV], gs[GS_PREV_NORM], gs[GS_PREV_DIP] = gs[GS_CONFIRMED], gs[GS_REF_NORM], gs[GS_REF_DIP]
+        gs[GS_CONFIRMED] = 1.0
         gs[GS_REF_NORM], gs[GS_REF_DIP] = gs[GS_CAND_NORM], gs[GS_CAND_DIP]
         gs[GS_DISTURBED], gs[GS_UNDISTURBED_FOR] = 0.0, gp[GP_MIN_UNDISTURBED]
         gs[GS_ADOPTED] += 1.0
-        return 1.0
+        gs[GS_SINCE] = 0.0
+        return _full(gp, gs)
     if gs[GS_REJECTED_FOR] < gp[GP_MAX_REJECTION]:
         gs[GS_REJECTED_FOR] += h
         return 0.0

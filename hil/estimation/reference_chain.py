@@ -75,8 +75,13 @@ class Magnetic:
         self.has_dip = self.disturbed = self.has_prev = False
         self.norm = self.dip = 0.0
         self.ref = self.prev = self.cand = (0.0, 0.0)
-        self.undisturbed_for = self.rejected_for = self.cand_for = 0.0
+        self.undisturbed_for = self.rejected_for = self.cand_for = self.confirm_for = 0.0
         self.adopted = 0
+        self.confirmed = False
+        self.since = 0.0
+
+    def _full(self) -> float:
+        return 1.0 + (self.s.boost - 1.0) * math.exp(-self.since / self.s.boost_s)
 
     def _within(self, ref: tuple[float, float]) -> bool:
         if abs(self.norm / ref[0] - 1.0) > self.s.norm_tol:
@@ -95,7 +100,8 @@ class Magnetic:
             self.started, self.norm, self.dip, self.has_dip = True, n, dip, has_dip
             self.ref = self.cand = (n, dip)
             self.rejected_for = s.max_rejection_s
-            return 1.0
+            return self._full()
+        self.since += h
         k = min(1.0, h / s.current_tau_s)
         self.norm += k * (n - self.norm)
         if has_dip:
@@ -105,6 +111,9 @@ class Magnetic:
             self.dip += k * (dip - self.dip)
         if self._within(self.ref):
             self.undisturbed_for += h
+            if rate >= s.min_rate:
+                self.confirm_for += h
+                self.confirmed = self.confirmed or self.confirm_for >= s.first_steady_s
         elif self.has_prev and self._within(self.prev):
             self.ref, self.prev = self.prev, self.ref
             self.undisturbed_for += h
@@ -128,12 +137,14 @@ class Magnetic:
                 self.ref[1] + kr * (self.dip - self.ref[1]),
             )
             self.rejected_for = max(0.0, self.rejected_for - s.recovery * h)
-            return 1.0
-        if self.cand_for >= s.steady_s and s.field_min <= self.cand[0] <= s.field_max:
-            self.has_prev, self.prev, self.ref = True, self.ref, self.cand
+            return self._full()
+        steady = s.steady_s if self.confirmed else s.first_steady_s
+        if self.cand_for >= steady and s.field_min <= self.cand[0] <= s.field_max:
+            self.has_prev, self.prev, self.ref, self.confirmed = self.confirmed, self.ref, self.cand, True
             self.disturbed, self.undisturbed_for = False, s.min_undisturbed_s
             self.adopted += 1
-            return 1.0
+            self.since = 0.0
+            return self._full()
         if self.rejected_for < s.max_rejection_s:
             self.rejected_for += h
             return 0.0
