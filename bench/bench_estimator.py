@@ -341,7 +341,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.tune:
         os.nice(5)
         trials = load_trials(cropped=False)
-        vqf = np.array([score(t, vqf_quats(t)).total for t in trials])
+        vqf = np.array([[(r := score(t, vqf_quats(t))).total, r.heading, r.inclination] for t in trials])
         result = tuning.tune(trials, vqf, score)
         print(json.dumps({"preset": result["preset"], "summary": result["summary"]}, indent=1))
         return 0

@@ -62,7 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--lon", type=float, help="longitude (deg) for WMM2025")
     p.add_argument("--date", help="recording date YYYY-MM-DD for WMM2025")
     p.add_argument(
-        "--gyro-bias", choices=("still", "none"), default="still", help="from the still window or not"
+        "--gyro-bias",
+        choices=("still", "none"),
+        default="still",
+        help="the online bias estimate starts from the still window's mean gyro (still) or zero (none)",
     )
     p.add_argument("--paced", action="store_true", help="release steps at the log's pace (wall clock)")
     p.add_argument("--no-plots", action="store_true", help="write the CSV and summary only")
