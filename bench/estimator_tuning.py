@@ -2,10 +2,10 @@
 shared trial, never per trial, by a stated procedure (docs/estimator.md, "The tuned preset").
 
 1. **Grid.** Every point of :data:`GRID_A` (the gains, the accelerometer's cut-off, the bias law, the gyro
-   delay, the magnetic tolerances; the rest as in :data:`START`), then every point of :data:`GRID_B` (the accelerometer's trust and
-   weight, the late weight, the rest gain, the field's start-up boost) around stage A's best, then every
-   point of :data:`GRID_C` (the gyro delay, the accelerometer's cut-off and the field's weight again)
-   around stage B's best, is run on every shared trial
+   delay, the magnetic tolerances; the rest as in :data:`START`), then every point of :data:`GRID_B`
+   (the accelerometer's trust and weight, the late weight, the rest gain, the field's start-up boost)
+   around stage A's best, then every point of :data:`GRID_C` (the gyro delay, the accelerometer's
+   cut-off and the field's weight again) around stage B's best, is run on every shared trial
    (tyrex smartphone and BROAD) online only — no still window: the hard case — as
    ``python -m bench.bench_estimator`` runs them; each trial's RMSE (total / heading / inclination) is
    kept (``bench/estimator_tuning.json``).
