@@ -2,13 +2,16 @@
 same scenario in one run: plant steps per second and simulated seconds per wall second (4 units, 1 ms
 step, single run), our batch path's aggregate rate, the momentum and energy drift of both, and how
 closely the two trajectories agree (Basilisk's ``speedOutMsg`` carries the gimbal angles at the start of
-the step it is stamped with, so its gimbal angles are compared with ours one step earlier). Also the
-closed-loop acceptance figures (lockstep, 1U).
+the step it is stamped with, so its gimbal angles are compared with ours one step earlier). (The closed
+loop's figures are bench_runtime's: every closed-loop run goes through the runtime.)
 
-The single-run float plant (:class:`hil.vscmg.fast.SingleRunPlant`, what the emulator's world steps) runs the
-same scenarios in the same process next to the numpy :class:`Plant` at B = 1: its steps per second, and how
-far its final state lies from the numpy plant's (rounding only). Also the emulator's whole world (plant,
-drives, phone, board; ``firmware_sim.world.World``) in CPU seconds per simulated second, on either plant.
+The compiled plant (:class:`hil.vscmg.CompiledPlant`, what the emulator's world steps) runs the same
+scenarios in the same process: its steps per second inside one compiled call (the world's batches) and with
+one Python call per step, against Basilisk and against the numpy :class:`Plant` at B = 1, and how far its
+final state lies from the numpy plant's (rounding only). Also the emulator's whole world (plant, drives,
+phone, board; ``firmware_sim.world.World``) in CPU seconds per simulated second on the compiled plant and on
+the numpy references, and what compiling costs: a first run on an empty numba cache (a fresh install)
+against one on a warm cache, each in a fresh process.
 
 The shared scenario is what Basilisk's balanced model describes: a 1U bus with the 54.74° pyramid of four
 units, each with diagonal gimbal and axisymmetric rotor inertias and no rotor offset or unit mass (the
@@ -23,15 +26,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import subprocess
+import sys
+import tempfile
 import time
-from typing import Any
 
 import numpy as np
 
 from bench.common import Result
 from hil import so3
-from hil.vscmg import Plant, UnitParams, cubesat_1u, pyramid
-from hil.vscmg.fast import SingleRunPlant
+from hil.vscmg import CompiledPlant, Plant, UnitParams, cubesat_1u, pyramid
 
 NAME = "dynamics"
 STEP = 1e-3
@@ -84,21 +89,25 @@ def _ours(duration: float, driven: bool) -> dict:
     }
 
 
-def _ours_fast(duration: float, driven: bool) -> dict:
-    """The same run on the single-run float plant."""
-    params = balanced_params()
-    plant = Plant(params)
-    fast = SingleRunPlant(plant)
-    f = fast.from_state(
+def _ours_compiled(duration: float, driven: bool, per_call: bool) -> dict:
+    """The same run on the compiled plant: one call for every step (``per_call``: one Python call each, the
+    torques converted to the plant's :class:`~hil.vscmg.Drive` once, as the world holds its drives)."""
+    plant = Plant(balanced_params())
+    c = CompiledPlant(plant)
+    state = c.pack(
         plant.state(omega=OMEGA0, gimbal_angle=GIMBAL0, gimbal_rate=GIMBAL_RATE0, rotor_rate=ROTOR0)
     )
-    torques = (GIMBAL_TORQUE, ROTOR_TORQUE) if driven else None
+    torques = c.drive((GIMBAL_TORQUE, ROTOR_TORQUE) if driven else None)
+    c.advance(state.copy(), STEP, 1, torques)  # compiled (or loaded from the cache) before the clock runs
     n = int(round(duration / STEP))
     start = time.perf_counter()
-    for _ in range(n):
-        f = fast.step(f, STEP, torques)
+    if per_call:
+        for _ in range(n):
+            c.advance(state, STEP, 1, torques)
+    else:
+        c.advance(state, STEP, n, torques)
     wall = time.perf_counter() - start
-    return {"steps_per_s": n / wall, "final": fast.to_state(f)}
+    return {"steps_per_s": n / wall, "final": c.unpack(state)}
 
 
 def _difference(a, b) -> float:
@@ -110,9 +119,10 @@ def _difference(a, b) -> float:
     )
 
 
-def _world_cost(duration: float, fast: bool) -> float:
+def _world_cost(duration: float, compiled: bool, chunk: float = 0.005) -> tuple[float, int]:
     """CPU seconds per simulated second of the emulator's world (plant, drives, phone, board) next to an
-    idle board in lockstep, on the float plant or the numpy one."""
+    idle board in lockstep, advanced every ``chunk`` s, on the compiled plant or the numpy references; and
+    the batches it took."""
     from firmware_sim.cli import build_parser, make_board
     from firmware_sim.world import World
     from hil.scenario import load_scenario
@@ -120,13 +130,64 @@ def _world_cost(duration: float, fast: bool) -> float:
 
     scenario = load_scenario("cubesat-1u")
     clock = LockstepClock()
-    world = World(scenario, make_board(build_parser().parse_args(["--units", "4"]), clock), fast=fast)
-    period = 0.005
+    world = World(scenario, make_board(build_parser().parse_args(["--units", "4"]), clock), compiled=compiled)
+    clock.advance(chunk)
+    world.advance_to(clock.now())  # compiled before the clock runs
     cpu = time.process_time()
-    for _ in range(int(round(duration / period))):
-        clock.advance(period)
+    batches = world.batches
+    for _ in range(int(round(duration / chunk))):
+        clock.advance(chunk)
         world.advance_to(clock.now())
-    return (time.process_time() - cpu) / duration
+    return (time.process_time() - cpu) / duration, world.batches - batches
+
+
+_FIRST_RUN = """
+import time
+t0 = time.perf_counter()
+import numpy as np
+from hil.vscmg import CompiledPlant, Plant, cubesat_1u
+from hil.control.motor_loops import ServoModel
+from hil.simulation.phone import BodyPhone
+t1 = time.perf_counter()
+plant = Plant(cubesat_1u())
+c = CompiledPlant(plant)
+s = c.pack(plant.state())
+path = np.zeros((3, 13))
+c.advance(s, 1e-3, 2, ServoModel(plant.params), path)
+BodyPhone().sample_path(path)
+t2 = time.perf_counter()
+print(t1 - t0, t2 - t1)
+"""
+
+
+def _first_run(cache_dir: str) -> tuple[float, float]:
+    """(import s, first plant step and phone sample s) in a fresh process with numba's cache in
+    ``cache_dir``."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache_dir)
+    out = subprocess.run(
+        [sys.executable, "-c", _FIRST_RUN], env=env, capture_output=True, text=True, check=True, timeout=600
+    )
+    imp, first = (float(x) for x in out.stdout.split())
+    return imp, first
+
+
+def _compile_cost() -> list[Result]:
+    """A first run on an empty numba cache (what a fresh install pays once) against a warm one."""
+    with tempfile.TemporaryDirectory() as cache:
+        cold_import, cold = _first_run(cache)
+        warm_import, warm = _first_run(cache)
+    return [
+        Result(
+            NAME,
+            "compile on first use, empty cache (plant + drives + phone kernels)",
+            cold,
+            "s",
+            "warm cache (loaded from disk)",
+            warm,
+            higher_is_better=False,
+            note=f"imports (numpy, numba, hil...): {cold_import:.2f} s cold, {warm_import:.2f} s warm",
+        )
+    ]
 
 
 def _ours_batch(duration: float, batch: int) -> float:
@@ -221,37 +282,6 @@ def _agreement(a: list, b: list) -> tuple[float, float, float]:
     return att, rate, gim
 
 
-def _closed_loop(quick: bool) -> list[Result]:
-    from hil.simulation.closed_loop import (
-        ClosedLoop,
-        EstimatorInTheLoop,
-        TruthWithNoise,
-        slew_90deg,
-        slew_through_singularity,
-    )
-
-    params = cubesat_1u()
-    runs: list[tuple[str, Any, Any]] = [("90deg truth+noise", slew_90deg(30.0), TruthWithNoise(seed=3))]
-    if not quick:
-        runs += [
-            ("singular truth+noise", slew_through_singularity(30.0), TruthWithNoise(seed=4)),
-            ("90deg estimator (phone with biases)", slew_90deg(35.0), EstimatorInTheLoop(seed=5)),
-        ]
-    out = []
-    for label, scenario, source in runs:
-        start = time.perf_counter()
-        s = ClosedLoop(params).run(scenario, source).summary()
-        wall = time.perf_counter() - start
-        note = (
-            f"settle {s['settle_time_s']:.2f} s, final {s['final_error_deg']:.3f} deg, peak gimbal rate "
-            f"{s['peak_gimbal_rate']:.3f} rad/s, min delta {s['min_delta']:.4f}"
-        )
-        out.append(
-            Result(NAME, f"closed loop {label}: sim s per wall s", scenario.duration_s / wall, "x", note=note)
-        )
-    return out
-
-
 def run(quick: bool) -> list[Result]:
     duration = 2.0 if quick else 20.0
     results: list[Result] = []
@@ -268,6 +298,7 @@ def run(quick: bool) -> list[Result]:
                 "steps/s",
                 "Basilisk VSCMG",
                 pv,
+                note="" if peer is not None else "Basilisk not installed: pip install -e '.[basilisk]'",
             )
         )
         results.append(
@@ -303,16 +334,29 @@ def run(quick: bool) -> list[Result]:
                     higher_is_better=False,
                 )
             )
-        fast = _ours_fast(duration, driven)
+        compiled = _ours_compiled(duration, driven, per_call=False)
+        per_call = _ours_compiled(duration, driven, per_call=True)
+        diff = f"final state vs the numpy plant's: {_difference(compiled['final'], ours['final']):.1e} rel"
+        for label, r in (("in one compiled call", compiled), ("one Python call per step", per_call)):
+            results.append(
+                Result(
+                    NAME,
+                    f"{tag}: compiled plant steps/s, {label}",
+                    r["steps_per_s"],
+                    "steps/s",
+                    "Basilisk VSCMG",
+                    pv,
+                    note=diff,
+                )
+            )
         results.append(
             Result(
                 NAME,
-                f"{tag}: fast single-run plant steps/s (4 units, 1 ms)",
-                fast["steps_per_s"],
+                f"{tag}: compiled plant steps/s vs the numpy Plant (B = 1)",
+                compiled["steps_per_s"],
                 "steps/s",
                 "numpy Plant, B = 1",
                 ours["steps_per_s"],
-                note=f"final state vs the numpy plant's: {_difference(fast['final'], ours['final']):.1e} rel",
             )
         )
         if peer is not None:
@@ -335,19 +379,22 @@ def run(quick: bool) -> list[Result]:
         )
     )
     world = 1.0 if quick else 5.0
-    results.append(
-        Result(
-            NAME,
-            "world (plant, drives, phone, board): CPU s per simulated s",
-            _world_cost(world, fast=True),
-            "CPU s/s",
-            "world on the numpy Plant",
-            _world_cost(world, fast=False),
-            higher_is_better=False,
-            note="cubesat-1u scenario, idle board in lockstep, 1 ms plant step",
+    ref_cost, _ = _world_cost(world / 5.0, compiled=False)
+    for chunk in (0.001, 0.005):
+        cost, batches = _world_cost(world, compiled=True, chunk=chunk)
+        results.append(
+            Result(
+                NAME,
+                f"world (plant, drives, phone, board): CPU s/simulated s, advanced every {chunk * 1e3:g} ms",
+                cost,
+                "CPU s/s",
+                "world on the numpy references",
+                ref_cost,
+                higher_is_better=False,
+                note=f"cubesat-1u, idle board in lockstep, 1 ms plant step, {batches / world:.0f} batches/s",
+            )
         )
-    )
-    results += _closed_loop(quick)
+    results += _compile_cost()
     return results
 
 

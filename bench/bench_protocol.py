@@ -21,11 +21,6 @@ pymavlink runs its pure-Python parser (its default; ``use_native=False``), with 
 from __future__ import annotations
 
 import random
-import re
-import subprocess
-import sys
-import tempfile
-import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -34,7 +29,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink2
 
 import protocol.frame
-from bench.common import Result, rate
+from bench.common import Result, fuzz_rate, rate
 from protocol import cobs, speedups
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import (
@@ -253,32 +248,11 @@ def _loss_results(n: int) -> list[Result]:
 
 
 # =========================================================================== fuzzing speed
-def _fuzz(runs: int, work: str) -> tuple[float, int]:
-    """Wall time of one harness process doing ``runs`` inputs, and the inputs libFuzzer reports."""
-    start = time.perf_counter()
-    proc = subprocess.run(
-        [sys.executable, str(FUZZ), f"-runs={runs}", "-print_final_stats=1"],
-        cwd=work, capture_output=True, text=True, timeout=900, check=False,
-    )  # fmt: skip
-    elapsed = time.perf_counter() - start
-    out = proc.stdout + proc.stderr
-    if proc.returncode != 0:
-        raise RuntimeError(f"fuzz harness failed (exit {proc.returncode}):\n{out[-3000:]}")
-    executed = re.search(r"stat::number_of_executed_units:\s*(\d+)", out)
-    if not executed:
-        raise RuntimeError(f"no libFuzzer final stats in the harness output:\n{out[-2000:]}")
-    return elapsed, int(executed.group(1))
-
-
 def _fuzz_results(runs: int) -> list[Result]:
-    """inputs/s from two runs of different length, so process start-up and seed loading cancel out."""
-    with tempfile.TemporaryDirectory(prefix="vscmg-fuzz-") as work:
-        t_short, n_short = _fuzz(runs // 10, work)
-        t_long, n_long = _fuzz(runs, work)
-    per_sec = (n_long - n_short) / max(t_long - t_short, 1e-9)
+    per_sec, inputs = fuzz_rate(FUZZ, runs, "vscmg-fuzz-")
     return [
         Result(NAME, "fuzz deframer+decode+CAN (atheris)", per_sec, "inputs/s",
-               note=f"{n_long} inputs without an unhandled exception in this run; "
+               note=f"{inputs} inputs without an unhandled exception in this run; "
                     "python bench/fuzz_deframer.py -runs=1000000 for the full run"),
     ]  # fmt: skip
 

@@ -89,7 +89,7 @@ class UnitModel:
         self._calibration = cal
         self._cache.clear()
 
-    def rotor_speed_for(self, pulse_us: int, battery_v: float) -> float:
+    def rotor_speed_for(self, pulse_us: float, battery_v: float) -> float:
         """Steady no-load speed (rad/s) of ``pulse_us`` at ``battery_v`` (cached per 10 mV)."""
         v = round(battery_v, 2)
         key = ("r", pulse_us, v)
@@ -99,7 +99,7 @@ class UnitModel:
             self._remember(key, hit)
         return hit
 
-    def gimbal_value_for(self, pulse_us: int, mode: GimbalMode) -> float:
+    def gimbal_value_for(self, pulse_us: float, mode: GimbalMode) -> float:
         """Gimbal rate (rad/s) or angle (rad) that ``pulse_us`` stands for in ``mode`` (cached)."""
         key = ("g", pulse_us, mode)
         hit = self._cache.get(key)
@@ -108,7 +108,7 @@ class UnitModel:
             self._remember(key, hit)
         return hit
 
-    def true_rotor_speed_for(self, pulse_us: int, battery_v: float) -> float:
+    def true_rotor_speed_for(self, pulse_us: float, battery_v: float) -> float:
         """Steady no-load speed (rad/s) the motor really reaches on ``pulse_us`` through its ESC (which
         must be armed): the calibration map for an ideal unit, else the true motor between the ESC's
         learned endpoints."""
@@ -121,14 +121,14 @@ class UnitModel:
             )
         return motor.speed(float(pulse_us), battery_v)
 
-    def true_gimbal_value_for(self, pulse_us: int, mode: GimbalMode) -> float:
+    def true_gimbal_value_for(self, pulse_us: float, mode: GimbalMode) -> float:
         """The rate (rad/s) or angle (rad) the servo really goes to on ``pulse_us``."""
         if self.truth is None:
             return self.gimbal_value_for(pulse_us, mode)
         servo = self.truth.servo
         return servo.rate(float(pulse_us)) if mode == GimbalMode.RATE else servo.angle(float(pulse_us))
 
-    def update_esc(self, t: float, rotor_us: int | None, supply_on: bool) -> None:
+    def update_esc(self, t: float, rotor_us: float | None, supply_on: bool) -> None:
         """The ESC sees ``rotor_us`` (None: no pulse) at ``t`` (s), powered if the board's switch
         (``supply_on``) and the operator (:attr:`esc_connected`) both let it."""
         self.esc.update(t, None if self.rotor_dead else rotor_us, supply_on and self.esc_connected)
@@ -158,7 +158,7 @@ class UnitModel:
         return self._external is not None
 
     # ------------------------------------------------------------------ dynamics
-    def advance(self, dt: float, gimbal_us: int | None, rotor_us: int | None, battery_v: float) -> None:
+    def advance(self, dt: float, gimbal_us: float | None, rotor_us: float | None, battery_v: float) -> None:
         """Integrate ``dt`` seconds with constant pulse inputs (None: no pulse on that channel)."""
         self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.powered
         self.gimbal_driven = gimbal_us is not None and not self.gimbal_dead
@@ -167,15 +167,15 @@ class UnitModel:
         self._advance_rotor(dt, rotor_us, battery_v)
         self._advance_gimbal(dt, gimbal_us)
 
-    def steady_rotor_speed(self, rotor_us: int | None, battery_v: float) -> float:
+    def steady_rotor_speed(self, rotor_us: float | None, battery_v: float) -> float:
         """The no-load speed the ESC drives towards (0 without pulses, with a dead ESC, or an ESC that is
         unpowered, unarmed or being programmed)."""
         pulse = self.esc.throttle_pulse(rotor_us)
         if pulse is None or self.rotor_dead:
             return 0.0
-        return self.true_rotor_speed_for(int(pulse), battery_v)
+        return self.true_rotor_speed_for(pulse, battery_v)
 
-    def _advance_rotor(self, dt: float, rotor_us: int | None, battery_v: float) -> None:
+    def _advance_rotor(self, dt: float, rotor_us: float | None, battery_v: float) -> None:
         m = self.motor
         target = self.steady_rotor_speed(rotor_us, battery_v)
         w0 = self.rotor_speed
@@ -185,7 +185,7 @@ class UnitModel:
         self.rotor_speed = w
         self.rotor_accel = (target - w) / tau
 
-    def _advance_gimbal(self, dt: float, gimbal_us: int | None) -> None:
+    def _advance_gimbal(self, dt: float, gimbal_us: float | None) -> None:
         g = self.gimbal
         tau = g.time_constant_s
         if not self.gimbal_driven or gimbal_us is None:

@@ -316,13 +316,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(server.path, flush=True)
     where = f" (link {args.link})" if args.link else ""
     print(
-        f"firmware-sim: {board.config.n_units} units on {server.path}{where}; ^C to stop",
+        f"firmware-sim: {board.config.n_units} units on {server.path}{where}; waiting for a host; ^C to stop",
         file=sys.stderr,
         flush=True,
     )
+    status = StatusLines(server, board)
+    status.start()
     try:
         server.serve(duration=args.duration)
     finally:
+        status.stop()
         for s, handler in old.items():
             signal.signal(s, handler)
         server.close()
@@ -337,10 +340,55 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     print(
         f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, "
-        f"{stats.dropped_out} dropped, {len(board.resets) - 1} reset(s){world_line}",
+        f"{len(board.resets) - 1} reset(s){world_line}",
         file=sys.stderr,
     )
+    if stats.dropped_out:
+        print(
+            f"firmware-sim: {stats.dropped_out} bytes of the board's output were dropped: written while no "
+            "host had the port open (before it connected, after it left) or faster than it read (the "
+            "board keeps at most 4 KiB, like a UART buffer)",
+            file=sys.stderr,
+        )
     return 0
+
+
+class StatusLines:
+    """A thread that says on stderr what the board goes through: a host connecting (its first bytes),
+    leaving, and every state change (DISARMED after the handshake, ARMED, FAILSAFE), with the board time."""
+
+    def __init__(self, server: object, board: object, period_s: float = 0.1) -> None:
+        import threading
+
+        self.server, self.board, self.period_s = server, board, period_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="firmware-sim-status", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        server, board = self.server, self.board
+        state, connected, gone = None, False, 0
+        while not self._stop.wait(self.period_s):
+            with server.lock:  # type: ignore[attr-defined]
+                now, new_state = board.now, board.state  # type: ignore[attr-defined]
+            stats = server.stats  # type: ignore[attr-defined]
+            if not connected and stats.bytes_in:
+                connected = True
+                print(f"firmware-sim: {now:8.2f} s  host connected", file=sys.stderr, flush=True)
+            if stats.host_gone > gone:
+                gone, connected = stats.host_gone, False
+                print(f"firmware-sim: {now:8.2f} s  host left; waiting for it", file=sys.stderr, flush=True)
+            if new_state != state:
+                if state is not None:
+                    line = f"firmware-sim: {now:8.2f} s  board {state.name} -> {new_state.name}"
+                    print(line, file=sys.stderr, flush=True)
+                state = new_state
 
 
 if __name__ == "__main__":

@@ -149,7 +149,7 @@ class EmulatedEsc:
 
 
 def replay_esc(
-    frames: Iterable[tuple[float, Sequence[int | None]]],
+    frames: Iterable[tuple[float, Sequence[float | None]]],
     channel: int,
     supply_cut: Sequence[tuple[float, bool]] = (),
     params: EscParams | None = None,

@@ -1,7 +1,8 @@
 """The inspectable record of what the board's outputs did: pulse frames and resets, in board-clock time.
 
 Each pulse frame is one row ``(t, widths)``: at time ``t`` (s, the board's clock) every channel starts a
-pulse of ``widths[ch]`` µs (``None``: no pulse on that channel, e.g. during reset). :meth:`edges`
+pulse of ``widths[ch]`` µs, a whole number of the timers' 0.5 µs ticks (``None``: no pulse on that
+channel, e.g. during reset). :meth:`edges`
 flattens the rows into ``(t, channel, width_us)`` rising edges. The record is a ring of the last
 ``capacity`` frames, so memory stays bounded in long runs.
 """
@@ -20,12 +21,12 @@ class PulseEdge(NamedTuple):
 
     t: float
     channel: int
-    width_us: int
+    width_us: float
 
 
 class PulseFrame(NamedTuple):
     t: float
-    widths: tuple[int | None, ...]
+    widths: tuple[float | None, ...]
 
 
 class ResetEvent(NamedTuple):
@@ -50,7 +51,7 @@ class PulseTimeline:
         self.ppm: deque[PpmTrain] = deque(maxlen=capacity)
         self.total_frames = 0
 
-    def record(self, t: float, widths: tuple[int | None, ...]) -> None:
+    def record(self, t: float, widths: tuple[float | None, ...]) -> None:
         self.frames.append(PulseFrame(t, widths))
         self.total_frames += 1
 

@@ -1,17 +1,23 @@
 """The world on the far side of the board, for closed-loop emulation: the board's pulses drive the ESCs
 and gimbal servos of a spacecraft with VSCMGs, and a phone on the spacecraft senses its motion.
 
-Each plant step (the scenario's ``plant_step_s``, ≤ 1 ms) the world reads the widths the board's timers
-put out (``Board.outputs``), turns each into what the motor driver makes of it through the unit's
-calibration map — the rotor ESC's steady speed at the present battery voltage, the gimbal servo's rate
-(or angle) — and lets :class:`hil.control.motor_loops.ServoModel` drive the plant (:mod:`hil.vscmg`)
-towards it.
-The measured unit states go back to the board (``Board.set_unit_states``: its telemetry, power draw
-and
-dead-ESC detection then follow the physics), and the phone (:class:`hil.simulation.phone.BodyPhone`)
-samples the
-true motion. A channel without pulses (board booting, outputs off) leaves its drive where it was: the
-gimbal holds, the rotor holds its speed over such short gaps.
+The world reads the widths the board's timers put out (``Board.outputs``) and turns each into what the
+motor driver makes of it through the unit's calibration map — the rotor ESC's steady speed at the present
+battery voltage, the gimbal servo's rate (or angle) — and lets the drives of
+:class:`hil.control.motor_loops.ServoModel` drive the plant (:mod:`hil.vscmg`) towards it. A channel
+without pulses (board booting, outputs off, a dead ESC) leaves its drive where it was: the gimbal holds,
+the rotor keeps its speed.
+
+**Batches.** Those widths change only at the board's events (pulse frames, commands; the power manager's
+samples change the battery voltage the ESC map reads), so the world steps the plant in compiled batches
+from one board event to the next (``Board.next_deadline()``; the scenario's ``plant_step_s`` ≤ 1 ms per
+step, several per call): :class:`hil.vscmg.CompiledPlant` with the drive law inside its integrator stages,
+then :meth:`hil.simulation.phone.BodyPhone.sample_path` along the states it passed. At each event the unit
+states go back to the board (``Board.set_unit_states``: its telemetry, power draw and dead-ESC detection
+follow the physics at the board's own rates), the board runs what is due, and the drives take the new
+widths — what a step-by-step loop would do, with the board's events at the same plant steps.
+``World(..., compiled=False)`` runs the same schedule on the numpy :class:`hil.vscmg.Plant` and
+:meth:`BodyPhone.sample`, one step at a time (the reference; the same samples and truth to rounding).
 
 The world keeps the board's time: it is advanced to the board clock's present by :meth:`World.advance_to`
 (the lockstep runtime calls it from its plant task; ``firmware-sim --world`` from its serving loop) and
@@ -32,8 +38,7 @@ from numpy.typing import NDArray
 from hil.control.motor_loops import ServoModel, Setpoints
 from hil.estimation.sensors import SensorSample
 from hil.simulation.phone import BodyPhone
-from hil.vscmg import Plant, PlantState
-from hil.vscmg.fast import FastState, SingleRunPlant
+from hil.vscmg import CompiledPlant, Plant, PlantState
 from protocol.messages import GimbalMode, UnitState
 
 from .board import Board
@@ -41,12 +46,14 @@ from .board import Board
 Array = NDArray[np.float64]
 YIELD_S = 2e-4  # s: the pause a lagging world thread takes between chunks, so the board's server runs
 LAG_WARNING_S = 0.1  # s: a world this far behind the board's clock is reported (once)
+_EPS = 1e-9  # s: slack on "a whole step fits before t"
 logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class Truth:
-    """The true attitude ``R`` (3, 3) body → ENU and body rate ``omega`` (3,) rad/s at ``t`` (board s)."""
+    """The true attitude ``R`` (3, 3) body → ENU and body rate ``omega`` (3,) rad/s at ``t`` (board s), and
+    the units' gimbal angles, gimbal rates and rotor speeds (n,)."""
 
     t: float
     R: Array
@@ -57,14 +64,21 @@ class Truth:
 
 
 class World:
-    """``scenario`` (:class:`hil.scenario.Scenario`): spacecraft, servos, phone, start attitude and
-    gimbal angles; the rotors start at rest (the host spins them up). ``board``: the emulated board whose
-    pulses drive it (its unit count must match the spacecraft's). ``fast``: step the plant with
-    :class:`hil.vscmg.fast.SingleRunPlant` (plain floats, the same physics to rounding; default) rather
-    than the numpy :class:`hil.vscmg.Plant` (the reference; ~5x the world's CPU at one run). ``state`` is the
-    plant's :class:`PlantState` either way (built on demand on the fast path)."""
+    """``scenario`` (:class:`hil.scenario.Scenario`): spacecraft (``world_spacecraft``: the true one when a
+    run disperses it), servos, phone, start attitude and gimbal angles; the rotors start at rest (the host
+    spins them up). ``board``: the emulated board whose pulses drive it (its unit count must match the
+    spacecraft's). ``compiled``: step :class:`hil.vscmg.CompiledPlant` and the phone's compiled sampler
+    (default) rather than the numpy references. ``state`` is the plant's :class:`PlantState` either way
+    (built on demand); :meth:`truth` reads the flat state without building one."""
 
-    def __init__(self, scenario: object, board: Board, seed: int | None = None, fast: bool = True) -> None:
+    advance_period_s = 0.05
+    """How long one :meth:`advance_to` may span (s): the world hands the board its unit states at every
+    board event within a call, so a lockstep runtime need not call it every plant step (it still brings
+    the world to the present before each estimator and control activation)."""
+
+    def __init__(
+        self, scenario: object, board: Board, seed: int | None = None, compiled: bool = True
+    ) -> None:
         from hil.scenario import Scenario
 
         assert isinstance(scenario, Scenario)
@@ -92,121 +106,182 @@ class World:
             ),
         )
         self.step_s = scenario.loop.plant_step_s
-        n = self.params.n_units
+        n = self.n = self.params.n_units
         self.t0 = board.now
-        self.fast: SingleRunPlant | None = SingleRunPlant(self.plant) if fast else None
-        self._state: PlantState | None = None
-        self._fs: FastState | None = None
+        self.compiled: CompiledPlant | None = CompiledPlant(self.plant) if compiled else None
+        self._flat = np.zeros(0)
+        self._ref: PlantState | None = None
+        self._path = np.zeros((64, 13))
         self.state = self.plant.state(
             R=scenario.slew.R0, gimbal_angle=scenario.slew.gimbal_angle0, rotor_rate=np.zeros(n), t=0.0
         )
         self.phone = BodyPhone(scenario.phone, scenario.seed if seed is None else seed, t0=self.t0)
         self._gimbal_sp = np.zeros((1, n))
         self._rotor_sp = np.zeros((1, n))
+        self._angle = np.full((1, n), np.nan)
+        self._undriven = np.zeros((1, n), bool)
+        self._unclamped = np.zeros(1, bool)
+        self._pushed_at: float | None = None
+        self._read_at = -math.inf  # board time at which the drives last read the board's outputs
+        self._held: tuple | None = None
         self.steps = 0
+        self.batches = 0
         board.set_unit_states(self.unit_states())
 
+    # ------------------------------------------------------------------ state
     @property
     def state(self) -> PlantState:
-        """The plant's state (batch 1)."""
-        if self._state is None:
-            assert self.fast is not None and self._fs is not None
-            self._state = self.fast.to_state(self._fs)
-        return self._state
+        """The plant's state (batch 1; on the compiled plant built from the flat state on each read)."""
+        if self.compiled is not None:
+            return self.compiled.unpack(self._flat)
+        assert self._ref is not None
+        return self._ref
 
     @state.setter
     def state(self, s: PlantState) -> None:
-        self._state = s
-        if self.fast is not None:
-            self._fs = self.fast.from_state(s)
+        if self.compiled is not None:
+            self._flat = self.compiled.pack(s)
+        else:
+            self._ref = s
+
+    def _plant_t(self) -> float:
+        return float(self._flat[0]) if self.compiled is not None else self._ref.t  # type: ignore[union-attr]
 
     @property
     def now(self) -> float:
         """World time on the board's clock (s)."""
-        return self.t0 + (self._fs.t if self._fs is not None else self.state.t)
+        return self.t0 + self._plant_t()
+
+    def _units(self) -> tuple[Array, Array, Array]:
+        """Gimbal angles, gimbal rates and rotor speeds (n,), views of the state."""
+        c = self.compiled
+        if c is not None:
+            f = self._flat
+            return c.gimbal_angle_of(f), c.gimbal_rate_of(f), c.rotor_rate_of(f)
+        s = self._ref
+        assert s is not None
+        return s.gimbal_angle[0], s.gimbal_rate[0], s.rotor_rate[0]
 
     def truth(self) -> Truth:
-        s = self.state
-        return Truth(
-            self.now, s.R[0].copy(), s.omega[0].copy(), s.gimbal_angle[0].copy(), s.gimbal_rate[0].copy(),
-            s.rotor_rate[0].copy(),
-        )  # fmt: skip
+        """The true motion now (copies; nothing else is built)."""
+        c = self.compiled
+        if c is not None:
+            R, omega = c.R_of(self._flat), c.omega_of(self._flat)
+        else:
+            assert self._ref is not None
+            R, omega = self._ref.R[0], self._ref.omega[0]
+        angle, rate, speed = self._units()
+        return Truth(self.now, R.copy(), omega.copy(), angle.copy(), rate.copy(), speed.copy())
 
     def unit_states(self) -> list[UnitState]:
-        if self._fs is not None:
-            f = self._fs
-            angle, rate, speed = f.gimbal_angle, f.gimbal_rate, f.rotor_rate
-        else:
-            s = self.state
-            angle, rate, speed = s.gimbal_angle[0], s.gimbal_rate[0], s.rotor_rate[0]
+        angle, rate, speed = self._units()
         return [
-            UnitState(float(_wrap(a)), float(g), float(w)) for a, g, w in zip(angle, rate, speed, strict=True)
+            UnitState(_wrap(a), g, w)
+            for a, g, w in zip(angle.tolist(), rate.tolist(), speed.tolist(), strict=True)
         ]
 
+    # ------------------------------------------------------------------ stepping
     def advance_to(self, t: float) -> list[SensorSample]:
-        """Step the plant up to board time ``t`` (whole steps) and return the phone's samples meanwhile."""
-        if self.fast is not None:
-            return self._advance_fast(t)
+        """Step the plant up to board time ``t`` (whole steps) and return the phone's samples meanwhile: in
+        batches from one board event to the next, the board's events run at the plant step they fall in."""
         samples: list[SensorSample] = []
-        h = self.step_s
-        while self.now + h <= t + 1e-9:
-            self.board.step(self.now)  # the pulse frames due by now, at their own times
-            self._drive()
-            prev = self.state
-            self.state = self.plant.step(prev, h, self.servo)
-            self.steps += 1
-            samples += self.phone.sample(
-                self.t0 + prev.t, prev.R[0], prev.omega[0], self.now, self.state.R[0], self.state.omega[0]
-            )
-        self.board.set_unit_states(self.unit_states())
+        h, board = self.step_s, self.board
+        while self.now + h <= t + _EPS:
+            now = self.now
+            due = board.next_deadline()
+            if round(now * 1e6) >= due * 1e6 or board.now > self._read_at:
+                # an event is due (pulse frame, power sample, command...), or the board moved on since the
+                # drives last read it (a host's I/O steps it to the clock's now): hand it the unit states,
+                # let it run what is due, and read its outputs
+                self._push(now)
+                board.step(now)
+                self._drive()
+                self._read_at = board.now
+                due = board.next_deadline()
+            samples += self._run(self._steps_before(due, t))
+            self.batches += 1
+        self._push(self.now)  # for whatever steps the board before the world's next call
         return samples
 
-    def _advance_fast(self, t: float) -> list[SensorSample]:
-        """:meth:`advance_to` on the float plant: arrays only for the phone (the attitude and rate)."""
-        assert self.fast is not None and self._fs is not None
-        samples: list[SensorSample] = []
-        h, t0, fast = self.step_s, self.t0, self.fast
-        f = self._fs
-        R_prev, omega_prev = f.R_matrix(), f.omega_array()
-        while t0 + f.t + h <= t + 1e-9:
-            self.board.step(t0 + f.t)  # the pulse frames due by now, at their own times
-            self._drive()
-            prev_t = f.t
-            f = self._fs = fast.step(f, h, self.servo)
-            self._state = None
-            self.steps += 1
-            R, omega = f.R_matrix(), f.omega_array()
-            samples += self.phone.sample(t0 + prev_t, R_prev, omega_prev, t0 + f.t, R, omega)
-            R_prev, omega_prev = R, omega
-        self.board.set_unit_states(self.unit_states())
-        return samples
+    def _push(self, at: float) -> None:
+        """The unit states at board time ``at`` to the board (once per time)."""
+        if self._pushed_at != at:
+            self.board.set_unit_states(self.unit_states(), at=at)
+            self._pushed_at = at
+
+    def _steps_before(self, deadline: float, t: float) -> int:
+        """Plant steps from now (at least one) up to the first step that starts at or after the board's
+        ``deadline`` (s, whole µs), without passing ``t``: the times the step-by-step loop would reach."""
+        due_us = deadline * 1e6
+        h, t0 = self.step_s, self.t0
+        pt = self._plant_t()
+        steps = 0
+        while True:
+            pt += h
+            steps += 1
+            now = t0 + pt
+            if now + h > t + _EPS or round(now * 1e6) >= due_us:
+                return steps
+
+    def _run(self, steps: int) -> list[SensorSample]:
+        """``steps`` plant steps under the held drives, and the phone's samples along them."""
+        h = self.step_s
+        self.steps += steps
+        c = self.compiled
+        if c is not None:
+            if self._path.shape[0] < steps + 1:
+                self._path = np.zeros((2 * steps + 1, 13))
+            path = self._path[: steps + 1]
+            c.advance(self._flat, h, steps, self.servo, path)
+            path[:, 0] += self.t0
+            return self.phone.sample_path(path)
+        out: list[SensorSample] = []
+        for _ in range(steps):
+            prev = self._ref
+            assert prev is not None
+            s = self._ref = self.plant.step(prev, h, self.servo)
+            out += self.phone.sample(
+                self.t0 + prev.t, prev.R[0], prev.omega[0], self.t0 + s.t, s.R[0], s.omega[0]
+            )
+        return out
 
     def _drive(self) -> None:
-        """The drives' targets from the widths on the board's outputs now."""
+        """The drives' targets from the widths on the board's outputs now (held anew only if they changed)."""
         board = self.board
         outputs = board.outputs
         volts = board.power.battery_v
         mode = board.gimbal_mode
-        if self._fs is not None:
-            rotor_rate, gimbal_angle = self._fs.rotor_rate, self._fs.gimbal_angle
-        else:
-            rotor_rate, gimbal_angle = self.state.rotor_rate[0], self.state.gimbal_angle[0]
+        gimbal, rotor, angle, undriven = (
+            self._gimbal_sp[0],
+            self._rotor_sp[0],
+            self._angle[0],
+            self._undriven[0],
+        )
         for i, unit in enumerate(board.units):
             g_us, r_us = outputs[2 * i], outputs[2 * i + 1]
             if r_us is not None and not unit.rotor_dead:
-                self._rotor_sp[0, i] = unit.rotor_speed_for(r_us, volts)
+                rotor[i] = unit.rotor_speed_for(r_us, volts)
+                undriven[i] = False
             else:  # no pulses or a dead ESC: no drive; the rotor keeps its speed (coasting is slow)
-                self._rotor_sp[0, i] = rotor_rate[i]
+                rotor[i] = 0.0
+                undriven[i] = True
+            angle[i] = math.nan
             if g_us is None or unit.gimbal_dead:
-                self._gimbal_sp[0, i] = 0.0
+                gimbal[i] = 0.0
             elif mode is GimbalMode.RATE:
-                self._gimbal_sp[0, i] = unit.gimbal_value_for(g_us, mode)
-            else:  # ANGLE: the servo's own position loop, a proportional rate toward the target
-                target = unit.gimbal_value_for(g_us, mode)
-                err = math.remainder(target - float(gimbal_angle[i]), 2 * math.pi)
-                limit = self.params.limits.max_gimbal_rate
-                self._gimbal_sp[0, i] = max(-limit, min(limit, err / 0.1))
-        self.servo.hold(Setpoints(self._gimbal_sp, self._rotor_sp, np.zeros(1, bool)))
+                gimbal[i] = unit.gimbal_value_for(g_us, mode)
+            else:  # ANGLE: the servo's own position loop turns the gimbal to the target
+                gimbal[i] = 0.0
+                angle[i] = unit.gimbal_value_for(g_us, mode)
+        targets = [None if math.isnan(a) else a for a in angle.tolist()]
+        held = (gimbal.tolist(), rotor.tolist(), targets, undriven.tolist())
+        if held != self._held:
+            self._held = held
+            self.servo.hold(
+                Setpoints(self._gimbal_sp.copy(), self._rotor_sp.copy(), self._unclamped),
+                angle_target=self._angle.copy(),
+                rotor_undriven=self._undriven.copy(),
+            )
 
 
 def _wrap(angle: float) -> float:

@@ -139,7 +139,7 @@ def test_the_board_refuses_what_it_cannot_run_safely():
 
 def _steady_speed(board, clock, host, unit, width, seconds=1.5):
     """Raw ``width`` on ``unit``'s rotor for ``seconds``; the speed telemetry reports at the end."""
-    raw = [board.outputs[ch] for ch in range(board.config.n_channels)]
+    raw = list(board.reported_outputs())
     raw[2 * unit + 1] = width
     host.keepalive = lambda: RawPulses(pulses_us=tuple(raw))
     host.poll(seconds)

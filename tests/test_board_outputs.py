@@ -24,6 +24,7 @@ from protocol.messages import (
     UnitSetpoint,
     UnitState,
 )
+from protocol.pulse_widths import FINE_PER_US, fine_width, reported_us
 
 CFG = BoardConfig(n_units=2, frame_rate_hz=100.0, telemetry_rate_hz=50.0, heartbeat_rate_hz=5.0)
 
@@ -54,15 +55,21 @@ def test_setpoints_become_pulses_through_the_calibration_map():
     volts = tel.battery_mv / 1000
     for i, u in enumerate(sp.units):
         cal = board.calibrations[i]
-        assert tel.pulses_us[2 * i] == round(cal.gimbal_pulse_us(u.gimbal, GimbalMode.RATE).value)
+        gimbal = cal.gimbal_pulse_us(u.gimbal, GimbalMode.RATE).value
+        assert board.targets[2 * i] == fine_width(gimbal)  # to 1/512 µs, not to the µs
+        assert tel.pulses_us[2 * i] == reported_us(fine_width(gimbal))
         lo, hi = pulse_bounds(cal, u.rotor_speed, volts)
         assert lo <= tel.pulses_us[2 * i + 1] <= hi
-    # the timeline carries exactly what telemetry reports: the last frame at or before the telemetry
+    # the timeline carries the target dithered in whole 0.5 µs ticks: the frames around the telemetry are
+    # within a tick of what telemetry reports, and the last 10 frames' mean is the fine width
     t_tel = board.resets[-1].t + tel.time_ms / 1000
     frame = [f for f in board.timeline.frames if f.t <= t_tel + 1e-9][-1]
-    assert frame.widths == tuple(tel.pulses_us)
+    assert all(abs(w - p) <= 0.5 for w, p in zip(frame.widths, tel.pulses_us, strict=True))
     edges = board.timeline.edges(channel=0, since=clock.now() - 0.1)
-    assert len(edges) == 10 and {e.width_us for e in edges} == {tel.pulses_us[0]}
+    widths = [e.width_us for e in edges]
+    target = board.targets[0] / FINE_PER_US
+    assert len(edges) == 10 and set(widths) == {math.floor(2 * target) / 2, math.floor(2 * target) / 2 + 0.5}
+    assert sum(widths) / 10 == pytest.approx(target, abs=0.5 / 10)
 
 
 def test_frames_keep_exact_period_at_490_hz():
@@ -114,12 +121,17 @@ def test_gimbal_rate_integrates_to_the_analytic_angle():
     host.poll(0.011)
     t_change = next(f.t for f in board.timeline.frames if f.widths[0] != board.timeline.frames[0].widths[0])
     cal = board.calibrations[0]
-    rate = cal.gimbal_value(board.outputs[0], GimbalMode.RATE).value
+    target = board.targets[0] / FINE_PER_US  # the mean width; the frames dither it in 0.5 µs ticks
+    rate = cal.gimbal_value(target, GimbalMode.RATE).value
+    # one tick's worth of rate: what one frame of the dither may be off by
+    tick_rate = cal.gimbal_value(target + 0.5, GimbalMode.RATE).value - rate
+    frame_s = 1.0 / board.config.frame_rate_hz
     host.poll(1.0)
     T = clock.now() - t_change
     tau = board.config.gimbal.time_constant_s
-    assert board.units[0].gimbal_angle == pytest.approx(rate * (T - tau * (1 - math.exp(-T / tau))), rel=1e-6)
-    assert board.units[0].gimbal_rate == pytest.approx(rate, rel=1e-6)
+    angle = rate * (T - tau * (1 - math.exp(-T / tau)))
+    assert board.units[0].gimbal_angle == pytest.approx(angle, abs=tick_rate * frame_s)
+    assert board.units[0].gimbal_rate == pytest.approx(rate, abs=tick_rate)
 
 
 def test_gimbal_angle_mode_converges_slew_limited():

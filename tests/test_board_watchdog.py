@@ -21,6 +21,7 @@ from protocol.messages import (
     UnitSetpoint,
     WatchdogState,
 )
+from protocol.pulse_widths import FINE_PER_US
 
 CFG = BoardConfig(
     n_units=2,
@@ -54,14 +55,15 @@ def test_link_loss_failsafe_within_timeout_plus_one_frame(frame_rate, offset):
     host.poll(0.002)  # handled on the next main-loop tick
     t_last = board.last_rx
     assert clock.now() - 0.003 < t_last <= clock.now()
-    moving = board.timeline.last().widths[1]
-    assert moving > cfg.rotor_safe_us
+    moving = board.targets[1]  # the fine width the rotor is driven at, dithered in whole 0.5 µs ticks
+    assert moving / FINE_PER_US > cfg.rotor_safe_us
+    ticks = {(moving >> 8) / 2, (moving >> 8) / 2 + 0.5}
     host.poll(cfg.link_timeout_s + 0.1)
     assert board.state is BoardState.FAILSAFE
     edges = board.timeline.edges(channel=1, since=t_last)
     first_safe = next(e for e in edges if e.width_us == cfg.rotor_safe_us)
     # Not before the timeout, and within the timeout plus one pulse frame (board time, exact).
-    assert all(e.width_us == moving for e in edges if e.t < first_safe.t)
+    assert all(e.width_us in ticks for e in edges if e.t < first_safe.t)
     assert cfg.link_timeout_s <= first_safe.t - t_last <= cfg.link_timeout_s + 1.0 / frame_rate + 1e-9
     # The board said so: a state heartbeat stamped at the timeout, a Log, and the telemetry flags.
     hb = [m for m in host.received if isinstance(m, Heartbeat) and m.state == BoardState.FAILSAFE][0]
@@ -82,7 +84,7 @@ def test_heartbeats_alone_keep_the_link_and_failsafe_gimbals_hold():
     host.poll(0.4)
     assert board.state is BoardState.FAILSAFE
     cal = board.calibrations[0]
-    hold = round(cal.gimbal_pulse_us(0.0, board.command.gimbal_mode).value)  # RATE mode: zero rate
+    hold = cal.gimbal_pulse_us(0.0, board.command.gimbal_mode).value  # RATE mode: zero rate (1500 µs)
     assert board.outputs[0] == hold and board.outputs[2] == hold
     assert board.outputs[1] == board.outputs[3] == CFG.rotor_safe_us
 
@@ -135,18 +137,24 @@ def test_hang_resets_after_the_mcu_watchdog_and_reports_it():
     board.faults.hang(at=t_hang)
     host.poll(0.05)
     assert board.phase is McuPhase.HUNG
-    frozen = board.timeline.last().widths
+    frozen = board.targets  # the main loop's last fine widths
     before = len(host.received)
     host.poll(t_hang + CFG.mcu_watchdog_s - 0.005 - clock.now())
     # Hung: the main loop says nothing (no telemetry, no ACK, no heartbeat) while the host keeps sending
-    # and the pulse timers keep their widths.
+    # and the pulse timers keep their widths: the frame interrupt dithers the last targets on.
     assert board.phase is McuPhase.HUNG and host.received[before:] == []
+    assert board.targets == frozen
     host.poll(0.1)
     assert board.resets[-1].cause is ResetCause.WATCHDOG
     t_reset = board.resets[-1].t
     assert t_reset == pytest.approx(t_hang + CFG.mcu_watchdog_s, abs=1e-6)
     during = [f for f in board.timeline.frames if t_hang < f.t < t_reset]
-    assert during and all(f.widths == frozen for f in during)
+    assert during and all(
+        w in ((q >> 8) / 2, (q >> 8) / 2 + 0.5) for f in during for w, q in zip(f.widths, frozen, strict=True)
+    )
+    for ch, q in enumerate(frozen):  # their mean is the fine width, to the dither's one tick over the run
+        mean = sum(f.widths[ch] for f in during) / len(during)
+        assert mean == pytest.approx(q / FINE_PER_US, abs=0.5 / len(during))
     after = [f for f in board.timeline.frames if f.t >= t_reset]
     # outputs off during the boot, then safe outputs in BOOT
     assert after[0].t == pytest.approx(t_reset + CFG.boot_time_s, abs=1e-6)

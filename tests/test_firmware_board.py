@@ -4,6 +4,8 @@ reports after a reset, stack headroom, and ``firmware-sim --avr``."""
 
 from __future__ import annotations
 
+import os
+import random
 import signal
 import subprocess
 import sys
@@ -25,12 +27,14 @@ from protocol.messages import (
     BoardState,
     CalibrationData,
     CalibrationRequest,
+    ControlMode,
     Disarm,
     GimbalMode,
     HelloReply,
     Log,
     Nack,
     NackReason,
+    RawPulses,
     ResetCause,
     SetMode,
     Telemetry,
@@ -76,6 +80,7 @@ def logged(host, code: int, words: str, timeout: float = 1.0) -> Log:
     return host.wait_for(match, timeout, f"Log {code} '{words}'")
 
 
+@pytest.mark.firmware
 def test_an_uploaded_calibration_drives_the_outputs_and_survives_a_reset(board, host):
     assert all(isinstance(a, Ack) for a in upload(host, 1, UPLOADED.to_bytes()))
     logged(host, 10, "stored")  # LogCode.CALIBRATION
@@ -121,6 +126,7 @@ def test_an_uploaded_calibration_drives_the_outputs_and_survives_a_reset(board, 
     assert reassemble(parts) == (1, UPLOADED.to_bytes())
 
 
+@pytest.mark.firmware
 def test_bad_uploads_are_refused_and_the_old_set_stays(board, host):
     data = bytearray(UPLOADED.to_bytes())
     data[40] ^= 0x10  # a damaged knot: the set's own CRC no longer checks
@@ -134,6 +140,7 @@ def test_bad_uploads_are_refused_and_the_old_set_stays(board, host):
     assert board.calibration(0) != UPLOADED
 
 
+@pytest.mark.firmware
 def test_reliable_command_rules_and_an_incompatible_host(board, host):
     assert host.request(SetMode(mode=1)).__class__ is Ack  # RAW_PULSES, disarmed
     seq = host.send(Arm())
@@ -150,6 +157,53 @@ def test_reliable_command_rules_and_an_incompatible_host(board, host):
     assert board.stack_headroom() >= 256  # bytes of RAM the stack never reached
 
 
+@pytest.mark.firmware
+def test_a_width_changes_at_a_frame_start_never_in_the_middle_of_a_pulse(board, host):
+    """A width written while its pulse is high takes effect at the next frame: the ATmega's compare
+    registers are double-buffered in fast-PWM mode, so no pulse is stretched into the next frame (a
+    lowered width whose match already passed) or cut short. simavr applies a write at once; the harness
+    models the buffer (``firmware/harness/ocr.c``). Writes here land at every phase of the frame."""
+    n = 2 * board.config.n_units
+    wide, narrow = RawPulses(pulses_us=(1900,) * n), RawPulses(pulses_us=(1100,) * n)
+    assert isinstance(host.request(SetMode(mode=ControlMode.RAW_PULSES)), Ack)
+    assert isinstance(host.request(Arm()), Ack)
+    # Sent at random intervals (a host that reads between sends falls into step with the board's
+    # telemetry, and so with its frames): the changes land at every phase of a frame, each decrease with
+    # a ~4 % chance of coming while the wider pulse is past the narrower one's end.
+    t0 = board.now() + 0.05
+    pace = random.Random(7)
+    for k in range(400):
+        host.send(wide if k % 2 else narrow)
+        time.sleep(pace.uniform(0.002, 0.012))
+        host.poll(0.0)
+    frames = [f for f in board.timeline() if f.t > t0]
+    assert len(frames) > 50
+    widths = [w for f in frames for w in f.widths]
+    assert all(w is not None and min(abs(w - 1900), abs(w - 1100)) <= 1 for w in widths)
+    narrow_share = sum(w < 1500 for w in widths) / len(widths)
+    assert 0.1 < narrow_share < 0.9
+    assert board.records.truncated == 0
+
+
+@pytest.mark.firmware
+def test_after_a_stall_the_harness_keeps_pace_with_wall_time_instead_of_racing(board):
+    """A harness the machine did not run for a while lets the board's clock fall behind rather than race
+    to catch up (board seconds squeezed into wall milliseconds, in which no host byte can arrive, would
+    trip the link watchdog for nothing). Its lag correction had the wrong sign: after one 0.3 s stall the
+    board ran ~11x wall time from then on, ~12 000 "lag resets" a second."""
+    time.sleep(0.2)
+    os.kill(board._proc.pid, signal.SIGSTOP)
+    time.sleep(0.3)
+    os.kill(board._proc.pid, signal.SIGCONT)
+    time.sleep(0.1)
+    board_0, wall_0 = board.now(), time.monotonic()
+    time.sleep(1.0)
+    board_1, wall_1 = board.now(), time.monotonic()
+    assert (board_1 - board_0) / (wall_1 - wall_0) < 1.1  # never ahead of wall time (behind if loaded)
+    assert board.link_stats()["lag_resets"] < 50
+
+
+@pytest.mark.firmware
 def test_the_eeprom_configuration_shapes_the_board_and_ppm_follows_the_channels():
     cfg = BoardConfig(
         n_units=3,
@@ -174,6 +228,7 @@ def test_the_eeprom_configuration_shapes_the_board_and_ppm_follows_the_channels(
         h.close()
 
 
+@pytest.mark.firmware
 def test_a_damaged_configuration_block_means_defaults_and_says_so():
     image = bytearray(eeprom.EepromImage(BoardConfig(n_units=2)).to_bytes())
     image[eeprom.field_offsets()["crc"]] ^= 0xFF
@@ -186,6 +241,7 @@ def test_a_damaged_configuration_block_means_defaults_and_says_so():
         h.close()
 
 
+@pytest.mark.firmware
 def test_firmware_sim_avr_serves_the_firmware_on_a_pty_until_stopped():
     proc = subprocess.Popen(
         [sys.executable, "-m", "firmware_sim", "--avr", "--units", "2", "--frame-rate", "100"],

@@ -73,6 +73,7 @@ CAL_VECTORS = json.loads((FIXTURES / "calibration" / "vectors.json").read_text()
 CLAMPS = {"NONE": 0, "LOW": 1, "HIGH": 2}
 
 
+@pytest.mark.firmware
 @pytest.mark.parametrize("vector_set", CAL_VECTORS["sets"], ids=lambda v: v["name"])
 def test_the_calibration_vectors_pass_in_c(vector_set):
     """docs/calibration.md §6: every clamp matches, every value within the stated tolerance."""
@@ -91,11 +92,13 @@ def test_the_calibration_vectors_pass_in_c(vector_set):
             assert abs(value - want) <= tol["pulse_us"], case
 
 
+@pytest.mark.firmware
 @pytest.mark.parametrize("bad", CAL_VECTORS["malformed"], ids=lambda v: v["what"])
 def test_the_malformed_calibration_vectors_are_refused_in_c(bad):
     assert cal_validate(bytes.fromhex(bad["hex"]))[0] != 0
 
 
+@pytest.mark.firmware
 def test_default_set_is_valid_and_converts_like_python():
     cal = default_unit_calibration()
     assert cal_validate(cal.to_bytes()) == (0, 0xFF, 0)
@@ -109,6 +112,7 @@ def test_default_set_is_valid_and_converts_like_python():
     )
 
 
+@pytest.mark.firmware
 @settings(max_examples=60, deadline=None)
 @given(cal=unit_calibrations(), data=st.data())
 def test_random_units_convert_like_python(cal, data):
@@ -165,6 +169,7 @@ def _mutations(data: bytes) -> dict[str, bytes]:
     }
 
 
+@pytest.mark.firmware
 @pytest.mark.parametrize("kind", list(_mutations(default_unit_calibration().to_bytes())))
 def test_malformed_sets_are_refused_like_python(kind):
     bad = _mutations(default_unit_calibration().to_bytes())[kind]

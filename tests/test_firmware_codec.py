@@ -23,6 +23,8 @@ from hil.scenario.paths import FIXTURES
 from protocol import cobs
 from protocol.frame import BadFrameReason, Deframer, Frame, encode_frame
 
+pytestmark = pytest.mark.firmware  # the C firmware built by make -C firmware (tests/conftest.py)
+
 VECTORS = json.loads((FIXTURES / "protocol_vectors.json").read_text())
 FRAMES = {v["name"]: v for v in VECTORS["frames"]}
 REASONS = tuple(BadFrameReason)

@@ -58,6 +58,7 @@ def _size_report() -> dict[str, int]:
     return {k: sizes.get(k, 0) for k in ("text", "data", "bss", "noinit")}
 
 
+@pytest.mark.firmware
 def test_the_firmware_fits_the_atmega2560_with_room_for_its_stack():
     s = _size_report()
     assert s["text"] + s["data"] < 256 * 1024 - 8 * 1024  # flash, leaving the bootloader's 8 KB
@@ -65,12 +66,14 @@ def test_the_firmware_fits_the_atmega2560_with_room_for_its_stack():
     assert ram <= 8192 - 1024, f"{ram} bytes of RAM in variables leave under 1 KB for the stack"
 
 
+@pytest.mark.firmware
 def test_warnings_are_errors_in_every_build():
     makefile = (FIRMWARE_DIR / "Makefile").read_text()
     assert makefile.count("-Werror") >= 2  # the AVR flags and the host flags
     assert (BUILD_DIR / "vscmg-adk.hex").exists() and (BUILD_DIR / "codec-check.elf").exists()
 
 
+@pytest.mark.firmware
 @pytest.mark.parametrize("broken", ["int unused_but_set(void) { int x = 1; x++; return 0; }"])
 def test_a_warning_breaks_the_avr_build(tmp_path, broken):
     src = tmp_path / "warn.c"

@@ -33,6 +33,7 @@ C_EVENTS = {
 }
 
 
+@pytest.mark.firmware
 @pytest.mark.parametrize("state", list(BoardState))
 @pytest.mark.parametrize("event", list(Event))
 @pytest.mark.parametrize("power_ok", [True, False])
@@ -53,6 +54,7 @@ def _ambiguous(v_cell: float) -> bool:
     return any(abs(v_cell - e) < 1e-4 for e in EDGES)
 
 
+@pytest.mark.firmware
 @settings(max_examples=200, deadline=None)
 @given(
     volts=st.lists(st.floats(8.0, 13.0), min_size=1, max_size=60),
@@ -81,6 +83,7 @@ def _c_feed(c: CReassembler, m) -> int:
     return c.feed(m.unit, m.transfer_id, m.index, m.count, m.total_len, m.set_crc, m.chunk)
 
 
+@pytest.mark.firmware
 @settings(max_examples=150, deadline=None)
 @given(
     data=st.binary(min_size=1, max_size=700),
@@ -114,6 +117,7 @@ def test_reassembly_matches_the_python_reassembler(data, order, repeats, corrupt
             assert c.data(len(data)) == data == done[1]
 
 
+@pytest.mark.firmware
 def test_reassembly_refuses_a_set_larger_than_the_board_holds():
     (m,) = fragment(0, 1, bytes(150))
     assert _c_feed(CReassembler(100), m) not in (C_PENDING, C_DONE)
@@ -121,6 +125,7 @@ def test_reassembly_refuses_a_set_larger_than_the_board_holds():
 
 
 # --------------------------------------------------------------------------- answer cache
+@pytest.mark.firmware
 def test_a_retransmitted_command_gets_the_remembered_answer_without_running_again():
     c = CAnswerCache()
     arm, payload = 0x10, b""
@@ -137,6 +142,7 @@ def test_a_retransmitted_command_gets_the_remembered_answer_without_running_agai
 
 
 # --------------------------------------------------------------------------- EEPROM configuration block
+@pytest.mark.firmware
 def test_a_configuration_block_reaches_the_firmware_field_by_field():
     base = BoardConfig()
     cfg = base.replace(
@@ -157,6 +163,7 @@ def test_a_configuration_block_reaches_the_firmware_field_by_field():
     assert got["esc_supply_switch"] == 1
 
 
+@pytest.mark.firmware
 def test_without_a_valid_block_the_firmware_runs_on_boardconfig_defaults():
     defaults = BoardConfig()
     block = eeprom.config_block(defaults)
@@ -168,6 +175,7 @@ def test_without_a_valid_block_the_firmware_runs_on_boardconfig_defaults():
         assert math.isclose(got["warn_v_cell"], defaults.power.thresholds.warn_v_cell, rel_tol=1e-6)
 
 
+@pytest.mark.firmware
 def test_a_block_with_a_value_out_of_range_is_refused_and_names_it():
     body = bytearray(eeprom.config_block(BoardConfig())[:-2])
     body[eeprom.field_offsets()["n_units"]] = 7  # more units than the hardware has channels for

@@ -162,3 +162,30 @@ def test_a_link_that_cannot_be_made_is_a_clear_error(tmp_path):
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr.startswith("firmware-sim: error: cannot make the link")
     assert "Traceback" not in done.stderr
+
+
+def test_the_command_says_when_a_host_connects_and_arms_and_explains_what_it_dropped():
+    from protocol.messages import Ack, Arm
+
+    proc, path = spawn("--units", "2", "--telemetry-rate", "1000")
+    try:
+        time.sleep(2.0)  # ~100 KB of telemetry with nobody reading: more than the pty holds, dropped
+        host = SerialHost(path)
+        host.handshake()
+        host.keepalive = heartbeat
+        assert isinstance(host.request(Arm()), Ack)
+        armed_until = time.monotonic() + 0.6  # heartbeats keep it ARMED; the status thread looks every 0.1 s
+        while time.monotonic() < armed_until:
+            host.wait_type(Telemetry, 1.0)
+        host.close()
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=5) == 0
+        err = proc.stderr.read()
+        assert "waiting for a host" in err and "host connected" in err
+        assert "-> ARMED" in err, err  # from DISARMED, or BOOT if handshake and Arm fall between two looks
+        assert "bytes of the board's output were dropped" in err and "no host" in err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()

@@ -13,7 +13,7 @@ from hil.estimation.metrics import AttitudeErrors, rate_error, settling_time
 from hil.estimation.multirate import MergePolicy, Merger, merge
 from hil.estimation.params import PAPER_OMEGA0, paper_initial_attitude
 from hil.estimation.sensors import MergedSteps, SensorKind
-from hil.simulation.phone import PhoneSpec, SensorSpec, Trajectory, paper_testbed_rate, simulate
+from hil.simulation.phone import BodyPhone, PhoneSpec, SensorSpec, Trajectory, paper_testbed_rate, simulate
 from protocol.errors import ConfigError
 
 R0 = so3.exp([0.3, -0.2, 0.5])
@@ -156,3 +156,78 @@ def test_tuned_chain_live_and_batch_agree_through_a_magnetic_disturbance():
     r_true = traj.sample(steps.t)[0]
     err = AttitudeErrors.from_matrices(batch.R, r_true).total
     assert err[(steps.t > 3.0) & (steps.t < 4.5)].max() < err[(steps.t > 2.0) & (steps.t < 3.0)].max() + 1.0
+
+
+# --------------------------------------------------------------------------- the phone on a body
+def _body_path(seconds: float, h: float = 1e-3, seed: int = 2) -> np.ndarray:
+    """Rows ``[t, R (9), Ω (3)]`` of a body turning at a wandering rate, every ``h`` s."""
+    rng = np.random.default_rng(seed)
+    R, w, rows = R0.copy(), np.array([0.3, -0.2, 0.5]), []
+    for k in range(round(seconds / h) + 1):
+        rows.append(np.concatenate([[0.25 + k * h], R.ravel(), w]))
+        R = R @ so3.exp(w * h)
+        w = w + rng.normal(0.0, 0.02, 3)
+    return np.array(rows)
+
+
+def _reference(phone: BodyPhone, path: np.ndarray) -> list:
+    out = []
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        out += phone.sample(a[0], a[1:10].reshape(3, 3), a[10:], b[0], b[1:10].reshape(3, 3), b[10:])
+    return out
+
+
+@pytest.mark.parametrize("spec", [PhoneSpec.nexus5(), PhoneSpec.ideal()], ids=["nexus5", "ideal"])
+def test_the_compiled_body_phone_gives_the_reference_samples(spec):
+    """:meth:`BodyPhone.sample_path` (one compiled call along many states, in chunks of any length) gives
+    what :meth:`BodyPhone.sample` gives between each pair of states: the same timestamps, the same order
+    (sorted within each interval) and the same readings to rounding; the two may alternate."""
+    path = _body_path(3.0)
+    ref = _reference(BodyPhone(spec, seed=5, t0=0.25), path)
+    phone = BodyPhone(spec, seed=5, t0=0.25)
+    got = phone.sample_path(path[:1])  # a single state: nothing to sample
+    got += phone.sample_path(path[:701]) + phone.sample_path(path[700:702])
+    got += _reference(phone, path[701:1500]) + phone.sample_path(path[1499:])
+    assert len(got) == len(ref) > 1300
+    for a, b in zip(got, ref, strict=True):
+        assert a.kind is b.kind and a.t_s == b.t_s
+        np.testing.assert_allclose(a.xyz, b.xyz, rtol=0, atol=1e-13 * max(1.0, np.max(np.abs(b.xyz))))
+    assert any(s.t_s < r.t_s for s, r in zip(got[1:], got[:-1], strict=False)) == (spec.gyr.jitter_s > 0)
+
+
+def test_body_phone_noise_is_the_seeded_generators_normal_draws_bit_for_bit():
+    """Per sample, ``rng.normal(0, σ, 3)`` then ``rng.normal(0, σ_t)`` from the seeded generator, as the
+    phone always drew them (blocks of standard normals give the same numbers)."""
+    spec = PhoneSpec(mag=SensorSpec(49.6, 0.4, 1.0, 0.0, 0.0047))  # a magnetometer without jitter
+    phone = BodyPhone(spec, seed=9)
+    rng = np.random.default_rng(9)
+    bias = {
+        k: rng.normal(0.0, spec.spec(k).bias, 3) for k in (SensorKind.GYR, SensorKind.ACC, SensorKind.MAG)
+    }
+    for k, b in bias.items():
+        np.testing.assert_array_equal(phone.bias[k], b)
+    w = np.array([0.1, 0.2, -0.3])
+    samples = phone.sample_path(np.array([np.concatenate([[t], np.eye(3).ravel(), w]) for t in (0.0, 0.03)]))
+    expected = []
+    for kind in (SensorKind.GYR, SensorKind.ACC, SensorKind.MAG):
+        s = spec.spec(kind)
+        clean = {SensorKind.GYR: w, SensorKind.ACC: [0, 0, 9.81], SensorKind.MAG: spec.field_enu_uT}[kind]
+        t = s.offset_s
+        while t <= 0.03:
+            xyz = clean + bias[kind] + rng.normal(0.0, s.noise, 3)
+            stamp = t + (rng.normal(0.0, s.jitter_s) if s.jitter_s else 0.0)
+            expected.append((stamp, kind, xyz))
+            t += 1.0 / s.rate_hz
+    expected.sort(key=lambda e: e[0])
+    assert [(s.t_s, s.kind) for s in samples] == [(e[0], e[1]) for e in expected]
+    for s, e in zip(samples, expected, strict=True):
+        np.testing.assert_allclose(s.xyz, e[2], rtol=1e-15, atol=1e-15)
+
+
+def test_body_phone_refuses_a_bad_path():
+    phone = BodyPhone(seed=1)
+    with pytest.raises(ConfigError, match="path"):
+        phone.sample_path(np.zeros((4, 12)))
+    path = _body_path(0.01)
+    with pytest.raises(ConfigError, match="backwards"):
+        phone.sample_path(path[::-1])

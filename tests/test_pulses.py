@@ -266,7 +266,7 @@ def test_the_boards_ppm_output_carries_its_servo_widths_and_clamps_raw_extremes(
     host.poll(0.3)
     train = board.timeline.ppm[-1]
     assert train.t == pytest.approx(clock.now(), abs=0.0226)
-    assert decode_ppm(train.edges_us) == board.outputs[:8]
+    assert decode_ppm(train.edges_us) == board.reported_outputs()[:8]  # whole µs: a PPM receiver's resolution
     host.keepalive = None
     assert isinstance(host.request(Disarm()), Ack)  # the mode changes only while disarmed
     assert isinstance(host.request(SetMode(mode=ControlMode.RAW_PULSES)), Ack)

@@ -86,13 +86,14 @@ def test_cli_errors_are_reported_with_where_and_exit_2(tmp_path, capsys):
     assert "--lat, --lon and --date" in capsys.readouterr().err
 
 
-def test_field_model_gives_true_north_directions(tmp_path):
-    out = tmp_path / "wmm"
+@pytest.mark.parametrize("day", ["2025-06-01", "1987-03-15"])  # any date 1900-2030 (IGRF-14)
+def test_field_model_gives_true_north_directions(tmp_path, day):
+    out = tmp_path / "igrf"
     code = main(["replay", str(SIMULATED), "--out", str(out), "--no-plots",
-                 "--lat", "32.28", "--lon", "-106.75", "--date", "2025-06-01"])  # fmt: skip
+                 "--lat", "32.28", "--lon", "-106.75", "--date", day])  # fmt: skip
     assert code == 0
     setup = json.loads((out / "summary.json").read_text())["setup"]
-    assert any("WMM2025" in s and "declination" in s for s in setup)
+    assert any("IGRF-14" in s and "declination" in s for s in setup)
 
 
 # --------------------------------------------------------------------------- real data, stated bounds

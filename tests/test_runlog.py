@@ -110,3 +110,47 @@ def test_numpy_scalars_are_written_as_plain_numbers(tmp_path):
     assert path.read_text().splitlines()[1] == "0.125,7,,1"
     tel = read_telemetry(path)
     assert tel.rows == 1 and tel.dropped_lines == 0 and tel["b"][0] == 7.0
+
+
+def test_a_small_queue_slows_the_writer_down_but_loses_no_row(tmp_path):
+    path = tmp_path / "t.csv"
+    with CsvLog(path, ["i", "x"], max_pending=4, batch_s=0.001) as log:
+        for i in range(2000):
+            log.write_values([i, i * 0.5])
+        log.flush()
+        assert read_telemetry(path).rows == 2000  # flush(): every row written so far is in the file
+        with pytest.raises(ValueError, match="3 values for 2 columns"):
+            log.write_values([1, 2, 3])
+    tel = read_telemetry(path)
+    assert tel.rows == 2000 and tel.dropped_lines == 0
+    assert list(tel["i"]) == list(range(2000)) and tel["x"][1999] == 999.5
+
+
+FULL_DISK = """
+import resource, signal, sys
+from hil.runtime.runlog import CsvLog
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead
+resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+log = CsvLog(sys.argv[1], ["t", "a", "b"], batch_s=0.001)
+try:
+    for i in range(10_000):
+        log.write_values([i * 0.01, 1.0 / 3.0, 2.0 / 3.0])
+    log.close()
+except OSError as exc:
+    print("raised", exc.errno, flush=True)
+    sys.exit(0)
+print("not raised")
+"""
+
+
+def test_a_write_error_in_the_writer_thread_reaches_the_caller(tmp_path):
+    """The disk refuses the rows (a file-size limit stands in for a full disk): the writer thread's error
+    is raised on the caller's thread, never swallowed."""
+    import errno
+
+    done = subprocess.run(
+        [sys.executable, "-c", FULL_DISK, str(tmp_path / "t.csv")], capture_output=True, text=True, timeout=60
+    )
+    assert done.stdout.strip() == f"raised {errno.EFBIG}", done.stdout + done.stderr
+    tel = read_telemetry(tmp_path / "t.csv")  # what fitted is readable
+    assert 50 < tel.rows < 200 and tel.dropped_lines <= 1

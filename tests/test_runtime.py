@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from firmware_sim.world import World
 from hil.runtime import RunOptions, run, telemetry_columns
 from hil.runtime.runlog import read_events, read_telemetry
 from hil.scenario import load_scenario, parse_scenario, scenario_names
@@ -91,7 +92,51 @@ def test_lockstep_slew_through_the_protocol_reaches_its_target(lockstep_run):
     assert s["estimator_steps"] > 150 * s["sim_s"]  # the estimator stepped at the fastest sensor's rate
     tasks = s["tasks"]
     assert tasks["control"]["runs"] == pytest.approx(s["sim_s"] * 50, abs=2)
-    assert tasks["world"]["runs"] == pytest.approx(s["sim_s"] * 1000, abs=2)
+    assert tasks["world"]["runs"] == pytest.approx(s["sim_s"] / World.advance_period_s, abs=2)
+
+
+def test_one_process_serves_many_runs_without_state_between_them():
+    """What a Monte Carlo worker does: run after run in one process. A run, another (other phone seed, a
+    link stall), and the first again: the first's trajectory comes back bit for bit, and no run leaves a
+    thread behind."""
+    import threading
+
+    sc = _quick()
+    options = RunOptions(out_root=None, duration_s=0.5)
+    threads = threading.active_count()
+    first = run(sc, options)
+    other = run(sc.with_changes(seed=7, fault_options={"stall": ["1.0:0.4"]}), options)
+    again = run(sc, options)
+    assert other.summary["failsafe_events"] == 1 and first.summary["failsafe_events"] == 0
+    assert not np.array_equal(other.trace.est_err_deg, first.trace.est_err_deg)
+    for name in ("t", "point_err_deg", "est_err_deg", "gimbal_rate", "delta"):
+        np.testing.assert_array_equal(getattr(again.trace, name), getattr(first.trace, name))
+    assert again.summary["phone_samples"] == first.summary["phone_samples"]
+    assert threading.active_count() == threads
+    assert first.run_dir is None and first.events[0]["kind"] == "connecting"  # events kept in memory
+
+
+def test_a_world_that_keeps_the_board_current_is_advanced_less_often(monkeypatch):
+    """A world declaring ``advance_period_s`` is advanced that often (many plant steps per call), and the
+    estimator and control tasks still see the world of their instant: the phone's samples reach the host
+    at the same rate, and the run completes."""
+
+    sc = _quick()
+    chunked = run(sc, RunOptions(out_root=None, duration_s=0.3))
+    monkeypatch.setattr(World, "advance_period_s", None)  # a world that must be advanced every plant step
+    every = run(sc, RunOptions(out_root=None, duration_s=0.3))
+    every_step, chunk_summary = every.summary, chunked.summary
+    assert chunk_summary["exit"] == every_step["exit"] == "completed"
+    assert every_step["tasks"]["world"]["runs"] == pytest.approx(every_step["sim_s"] * 1000, abs=2)
+    assert chunk_summary["tasks"]["world"]["runs"] == pytest.approx(chunk_summary["sim_s"] * 20, abs=2)
+    rates = [s["phone_samples"] / s["sim_s"] for s in (every_step, chunk_summary)]
+    assert rates[1] == pytest.approx(rates[0], rel=0.01)
+    # the world hands the board its units at the board's own events, so chunking changes nothing but the
+    # rounding (the plant's time sums and the phone's interpolation run over other spans)
+    for name in ("t", "point_err_deg", "est_err_deg", "gimbal_rate", "delta"):
+        np.testing.assert_allclose(
+            getattr(chunked.trace, name), getattr(every.trace, name), rtol=1e-9, atol=1e-12
+        )
 
 
 def test_run_directory_holds_telemetry_events_summary_and_scenario(lockstep_run):
@@ -176,6 +221,16 @@ def test_realtime_over_a_pty_against_firmware_sim_with_its_world(tmp_path):
     assert summary["tasks"]["control"]["lateness_p50_us"] < 5000
     assert summary["estimator_rmse_deg"] is None  # no truth across the process boundary
     assert "run directory:" in done.stdout
+
+
+def test_hil_run_prints_its_summary_and_leaves_its_plots(tmp_path):
+    """The command as a user runs it: the plots are drawn by a process started before the run and are all
+    there when the command returns."""
+    done = _hil("run", "--duration", "0.5", "--out", str(tmp_path), timeout=120)
+    assert done.returncode in (0, 1), done.stderr  # 1: a 0.5 s run cannot settle
+    assert "exit              completed  (lockstep" in done.stdout and "run directory:" in done.stdout
+    plots = sorted(p.name for p in next(tmp_path.iterdir()).glob("plots/*.png"))
+    assert {"attitude_error.png", "pointing_error.png", "rotor_speeds.png", "delta.png"} <= set(plots)
 
 
 def test_port_without_a_phone_stream_is_a_clear_error(tmp_path):
@@ -275,3 +330,24 @@ def test_run_plots_include_the_papers_estimator_figures(lockstep_run):
                  "pulse_widths", "battery", "delta"):  # fmt: skip
         data = paths[name].read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+def test_gimbal_rates_far_below_their_limit_are_drawn_on_their_own_scale(lockstep_run, monkeypatch):
+    """A slew that uses 1 % of the gimbal-rate limit: the axis fits the rates (with the limit named in the
+    title), not ±limit, on which they would be a flat line; rates near the limit show it as lines."""
+    import hil.plots.run as plots
+
+    _, result = lockstep_run
+    seen = {}
+    real_save = plots._save
+
+    def save(fig, ax, path):
+        seen[path.stem] = (ax.get_ylim(), ax.get_title(), len(ax.lines))
+        return real_save(fig, ax, path)
+
+    monkeypatch.setattr(plots, "_save", save)
+    plots.plot_run(result.run_dir)
+    (low, high), title, lines = seen["gimbal_rates"]
+    peak, limit = result.summary["peak_gimbal_rate"], result.summary["max_gimbal_rate_limit"]
+    assert peak < 0.25 * limit and high < 2 * peak and low > -2 * peak
+    assert "off the scale" in title and f"{limit:g}" in title and lines == 4  # the four units, no limit lines

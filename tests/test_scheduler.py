@@ -24,6 +24,22 @@ def test_tasks_run_at_their_rates_in_deadline_then_declaration_order():
     assert fast.stats.overruns == 0 and fast.stats.percentile(99) == 0.0
 
 
+def test_tasks_due_together_run_in_declaration_order_despite_rounding():
+    """A 1 ms world task and a 30 ms control task meet every 30 ms; their float deadlines differ in the
+    last bits (11 × 30 × 0.001 > 11 × 0.03), which must not let the control task run before the world
+    it reads."""
+    assert 330 * 0.001 > 11 * 0.03  # the rounding this test is about
+    clock = LockstepClock(start=0.101)
+    order: list[str] = []
+    world = PeriodicTask("world", 0.001, lambda t: order.append("world"))
+    control = PeriodicTask("control", 0.03, lambda t: order.append("control"))
+    Scheduler(clock, [world, control]).run(until=0.101 + 3.0)
+    assert control.stats.runs == 101 and world.stats.runs == 3001
+    # the world of the same instant ran just before each control activation: 30 world runs apart
+    starts = [k for k, name in enumerate(order) if name == "control"]
+    assert [order[:k].count("world") for k in starts] == [1 + 30 * j for j in range(101)]
+
+
 def test_deadlines_do_not_accumulate_rounding_error():
     clock = LockstepClock(start=12.5)
     seen: list[float] = []

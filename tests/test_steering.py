@@ -10,11 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hil.control.steering import Saturation, SteeringParams, VscmgSteering
-from hil.simulation.closed_loop import SINGULAR_GIMBALS
-from hil.vscmg import cubesat_1u
+from hil.vscmg import air_bearing_testbed, cubesat_1u
 from protocol.errors import ConfigError
 
 PARAMS = cubesat_1u()
+SINGULAR_GIMBALS = np.radians([90.0, -90.0, 90.0, -90.0])  # a zero-momentum singularity of the pyramid
 W0 = np.full(4, 400.0)
 
 
@@ -78,6 +78,25 @@ def test_null_motion_is_torque_free_and_raises_delta():
     null = steer.solve(np.zeros(3), g, W0, 0.02)
     d0 = steer.delta(g, W0)[0]
     assert steer.delta(g + 0.01 * null.gimbal_rate[0], W0)[0] > d0
+
+
+def test_null_motion_returns_rotor_speeds_slower_than_the_drives_answer():
+    """On the testbed's tetrahedron (δ ≈ 0.07 at rest: wheel weight near its W_s0 Ω̄²) a rotor 2 rad/s above
+    nominal is brought back at no more than k k_Ω W_s0 exp(−μ δ) per second — under 1/s, where a rotor
+    drive answers at 1/τ ≈ 7/s — torque-free; the speed term divided by Ω̄ only (not Ω̄²) asked ~190 rad/s²
+    for it and put the array into a limit cycle through the drives."""
+    params = air_bearing_testbed()
+    p = SteeringParams(null_gain=0.5)
+    steer = VscmgSteering(params, p)
+    nominal = params.nominal_rotor_speed
+    w = np.full((1, 3), nominal)
+    w[0, 0] += 2.0
+    out = steer.solve(np.zeros(3), np.zeros(3), w, 0.02)
+    rate = p.null_gain * p.speed_gain * p.wheel_weight * np.exp(-p.mu * out.delta[0])  # 1/s
+    assert 0.0 < -out.rotor_accel[0, 0] <= rate * 2.0 < 2.0
+    np.testing.assert_allclose(out.torque, 0.0, atol=1e-12)
+    at_nominal = steer.solve(np.zeros(3), np.zeros(3), np.full((1, 3), nominal), 0.02)
+    np.testing.assert_allclose(at_nominal.rotor_accel, 0.0, atol=1e-12)  # γ = 0 is a δ extremum too
 
 
 def test_limits_scale_the_command_and_keep_its_direction():

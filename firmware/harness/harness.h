@@ -7,7 +7,8 @@
  * plus the cycles it spent held in reset by a brown-out, so it runs on through resets.
  *
  * Parts: bridge.c (pty <-> UART0, link noise), power.c (battery, UBEC rail, ADC inputs, brown-out),
- * record.c (pulse edges and resets to a file), control.c (commands on stdin), main.c (options, loop).
+ * record.c (pulse edges and resets to a file), ocr.c (the timers' double-buffered compare registers,
+ * which simavr lacks), control.c (commands on stdin), main.c (options, loop).
  */
 #ifndef HARNESS_H
 #define HARNESS_H
@@ -88,6 +89,10 @@ void record_attach(harness_t *h);
 void record_reset(harness_t *h, int cause);
 void record_line(harness_t *h, const char *fmt, ...) __attribute__((format(printf, 2, 3)));
 void record_flush(harness_t *h);
+
+/* ocr.c */
+void ocr_attach(harness_t *h);
+void ocr_reset(harness_t *h);
 
 /* selftest / resets (main.c) */
 void harness_reset(harness_t *h, int cause);

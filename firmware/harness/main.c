@@ -94,6 +94,7 @@ static void on_core_reset(avr_t *avr)
     if (core_reset)
         core_reset(avr);
     int cause = H.pending_cause == -2 ? CAUSE_WATCHDOG : H.pending_cause;
+    ocr_reset(&H);
     record_reset(&H, cause);
     if (selftest_irq)
         avr_raise_irq(selftest_irq, 1); /* a momentary self-test press ends with the reset */
@@ -213,8 +214,9 @@ static void pace(harness_t *h, double *wall0, double sim_s, int control)
 {
     double ahead = sim_s - (wall_seconds() - *wall0);
     if (ahead < -MAX_LAG_S) {
-        *wall0 += ahead;
+        *wall0 -= ahead; /* wall time of sim 0 moves later by the lag: from here on, in step again */
         h->lag_resets++;
+        ahead = 0.0;
     }
     if (ahead <= 0)
         return;
@@ -365,6 +367,7 @@ int main(int argc, char **argv)
         return 2;
     }
     record_attach(h);
+    ocr_attach(h);
     selftest_irq = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(SELFTEST_PIN_PORT), SELFTEST_PIN_BIT);
     avr_raise_irq(selftest_irq, 1); /* the pin's pull-up: released */
     bridge_attach(h);

@@ -9,10 +9,19 @@
  *   S <cycle> <1|0>           the ESC supply cut pin went high (supply cut) / low (supply on)
  *   T <cycle>                 a time mark written on every flush (the file is complete up to here)
  * Pulses still high when a reset begins are cut short: a reader must drop them (see firmware_sim/avr).
+ *
+ * A pulse pin's edges are stamped on its timer's clock: simavr raises a compare or overflow output at the
+ * end of the instruction it falls in, up to a few cycles late (an interrupt entry is 5), which would make
+ * widths measured to the cycle jitter by more than half a 0.5 us timer tick (8 cycles). The true edge lies
+ * on the timer's tick grid (its last overflow plus whole ticks), so an edge is stamped at the grid point at
+ * or before the cycle it was seen in.
  */
 #include <stdarg.h>
 
+#include <string.h>
+
 #include <avr_ioport.h>
+#include <avr_timer.h>
 #include <sim_io.h>
 #include <sim_irq.h>
 
@@ -21,6 +30,19 @@
 
 static harness_t *recorder;
 static avr_irq_t *pin_irq[PULSE_CHANNELS_HW];
+static avr_timer_t *pin_timer[PULSE_CHANNELS_HW]; /* the 16-bit timer whose compare unit drives the pin */
+static const char PIN_TIMERS[] = "111333444555";  /* board_pins.h: OC1A..OC5C */
+
+/* Harness time of an edge seen now on `pin`: the timer tick at or before now (see the header). */
+static uint64_t edge_time(const harness_t *h, unsigned pin)
+{
+    const avr_timer_t *t = pin_timer[pin];
+    uint64_t cycle = h->avr->cycle;
+    uint64_t tick = t ? t->cs_div_value : 0; /* cycles per timer tick (the prescaler) */
+    if (tick && tick <= 1024 && t->tov_base && t->tov_base <= cycle)
+        cycle -= (cycle - t->tov_base) % tick;
+    return cycle + h->held_cycles;
+}
 
 static void on_supply_pin(struct avr_irq_t *irq, uint32_t value, void *param)
 {
@@ -57,7 +79,7 @@ static void on_pin(struct avr_irq_t *irq, uint32_t value, void *param)
     (void)irq;
     harness_t *h = recorder;
     unsigned pin = (unsigned)(uintptr_t)param;
-    uint64_t now = harness_now(h);
+    uint64_t now = edge_time(h, pin);
     int level = value != 0;
     if (level == h->level[pin])
         return;
@@ -75,6 +97,14 @@ void record_attach(harness_t *h)
     static const char ports[] = PULSE_PIN_PORTS;
     static const int bits[] = PULSE_PIN_BITS;
     recorder = h;
+    for (avr_io_t *io = h->avr->io_port; io; io = io->next) {
+        if (!io->kind || strcmp(io->kind, "timer") != 0)
+            continue;
+        avr_timer_t *t = (avr_timer_t *)io;
+        for (unsigned pin = 0; pin < PULSE_CHANNELS_HW; pin++)
+            if (PIN_TIMERS[pin] == t->name)
+                pin_timer[pin] = t;
+    }
     for (unsigned pin = 0; pin < PULSE_CHANNELS_HW; pin++) {
         pin_irq[pin] = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(ports[pin]), bits[pin]);
         avr_irq_register_notify(pin_irq[pin], on_pin, (void *)(uintptr_t)pin);

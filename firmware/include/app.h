@@ -72,6 +72,8 @@ extern board_t board;
 void app_boot(uint8_t reset_cause, config_status_t config, uint8_t config_problem);
 /* One pass of the main loop's work at `now` (ms); 1 if work is left for the next pass (do not sleep). */
 uint8_t app_poll(uint32_t now);
+/* From the 1 kHz tick interrupt: the link watchdog's stop (see app.c). */
+void app_tick(uint32_t now_ms);
 
 /* report.c */
 void report_send(uint8_t msg_id, const void *msg, uint8_t flags, int16_t seq);

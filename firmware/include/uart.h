@@ -22,6 +22,8 @@ typedef struct {
 void uart_init(uint32_t baud);
 /* Next received byte into *b: 1, or 0 if none waiting. */
 uint8_t uart_read(uint8_t *b);
+/* 1 if received bytes wait in the ring (also from an interrupt). */
+uint8_t uart_rx_pending(void);
 /* Queue n bytes for sending: 1, or 0 (nothing queued) if the ring has no room for all of them. */
 uint8_t uart_send(const uint8_t *data, uint16_t n);
 void uart_stats(uart_stats_t *out);

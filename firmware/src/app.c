@@ -11,6 +11,7 @@
 #include <avr/pgmspace.h>
 #include <math.h>
 #include <string.h>
+#include <util/atomic.h>
 
 #include "calib.h"
 #include "clock.h"
@@ -49,6 +50,10 @@ uint8_t periodic_due(periodic_t *p, uint32_t now)
 
 /* ------------------------------------------------------------------------------------------ outputs */
 /*
+ * Widths are fine widths (1/512 us, pulses.h): a map's float us rounded to 1/512 us, which the pulse stage
+ * dithers over frames in whole 0.5 us ticks; whole-us widths (the safe pulse, raw pulses, ESC endpoints)
+ * are whole ticks (<< 9). board.outputs keeps the whole us each is reported as.
+ *
  * A calibration map costs 0.3-0.9 ms of float arithmetic on the ATmega, so conversions are cached
  * (recomputed only when their inputs change) and computed one per main-loop pass (convert_step), which
  * keeps every pass short: the watchdog check-in, the link watchdog and received bytes never wait behind
@@ -57,12 +62,12 @@ uint8_t periodic_due(periodic_t *p, uint32_t now)
  */
 typedef struct {
     float input, arg; /* the command and its second input (battery volts or gimbal mode) */
-    uint16_t us;
+    uint32_t fine;
     uint8_t clamp, valid;
 } conv_cache_t;
 
 typedef struct {
-    uint16_t pulse_us;
+    uint32_t fine; /* the width (1/512 us) the value stands for */
     float arg;   /* battery volts or gimbal mode the value was computed for */
     float value; /* rotor: steady speed rad/s; gimbal: rate rad/s or angle rad the pulse stands for */
     uint8_t valid;
@@ -72,11 +77,16 @@ static conv_cache_t gimbal_conv[MAX_HW_UNITS], rotor_conv[MAX_HW_UNITS];
 static value_cache_t rotor_target[MAX_HW_UNITS], gimbal_target[MAX_HW_UNITS];
 static float rotor_decay_up, rotor_decay_down, gimbal_decay; /* per frame, from the time constants */
 
-static uint16_t to_us(float value)
+/* A map's width (us) as a fine width: 1/512 us, round half to even as protocol/pulse_widths.py. */
+static uint32_t to_fine(float value)
 {
-    long w = lrintf(value); /* round half to even, as Python's round() */
-    return (uint16_t)(w < 0 ? 0 : (w > 0xFFFF ? 0xFFFF : w));
+    long w = lrintf(value * (float)PULSE_FINE_PER_US);
+    return (uint32_t)(w < 0 ? 0 : (w > (long)PULSE_MAX_US * PULSE_FINE_PER_US ? (long)PULSE_MAX_US * PULSE_FINE_PER_US : w));
 }
+
+static uint32_t whole_us(uint16_t us) { return (uint32_t)us * PULSE_FINE_PER_US; }
+
+static float fine_us(uint32_t fine) { return (float)fine * (1.0f / (float)PULSE_FINE_PER_US); }
 
 static uint8_t calibrations_complete(void)
 {
@@ -110,29 +120,29 @@ static uint8_t convert_step(void)
         float mode = (float)board.gimbal_mode;
         if (!raw && (!g->valid || g->input != board.gimbal_cmd[u] || g->arg != mode)) {
             cal_conv_t c = cal_gimbal_pulse_us(cal, board.gimbal_cmd[u], board.gimbal_mode);
-            *g = (conv_cache_t){board.gimbal_cmd[u], mode, to_us(c.value), c.clamp, 1};
+            *g = (conv_cache_t){board.gimbal_cmd[u], mode, to_fine(c.value), c.clamp, 1};
             return 1;
         }
         conv_cache_t *r = &rotor_conv[u];
         if (armed_converting() &&
             (!r->valid || r->input != board.rotor_cmd[u] || r->arg != board.conversion_v)) {
             cal_conv_t c = cal_rotor_pulse_us(cal, board.rotor_cmd[u], board.conversion_v);
-            *r = (conv_cache_t){board.rotor_cmd[u], board.conversion_v, to_us(c.value), c.clamp, 1};
+            *r = (conv_cache_t){board.rotor_cmd[u], board.conversion_v, to_fine(c.value), c.clamp, 1};
             return 1;
         }
     }
     for (uint8_t u = 0; u < board.cfg.n_units; u++) {
         const uint8_t *cal = storage_cal(u, 0);
-        uint16_t rotor_us = board.outputs[2 * u + 1], gimbal_us = board.outputs[2 * u];
+        uint32_t rotor = pulses_get((uint8_t)(2 * u + 1)), gimbal = pulses_get((uint8_t)(2 * u));
         value_cache_t *r = &rotor_target[u], *g = &gimbal_target[u];
-        if (cal && rotor_us && (!r->valid || r->pulse_us != rotor_us || r->arg != board.conversion_v)) {
-            *r = (value_cache_t){rotor_us, board.conversion_v,
-                                 cal_rotor_speed(cal, rotor_us, board.conversion_v).value, 1};
+        if (cal && rotor && (!r->valid || r->fine != rotor || r->arg != board.conversion_v)) {
+            *r = (value_cache_t){rotor, board.conversion_v,
+                                 cal_rotor_speed(cal, fine_us(rotor), board.conversion_v).value, 1};
             return 1;
         }
         float mode = (float)board.gimbal_mode;
-        if (cal && gimbal_us && (!g->valid || g->pulse_us != gimbal_us || g->arg != mode)) {
-            *g = (value_cache_t){gimbal_us, mode, cal_gimbal_value(cal, gimbal_us, board.gimbal_mode).value,
+        if (cal && gimbal && (!g->valid || g->fine != gimbal || g->arg != mode)) {
+            *g = (value_cache_t){gimbal, mode, cal_gimbal_value(cal, fine_us(gimbal), board.gimbal_mode).value,
                                  1};
             return 1;
         }
@@ -140,9 +150,9 @@ static uint8_t convert_step(void)
     return 0;
 }
 
-/* The pulse widths for the present state, command and power stage (board.py: _compute_outputs), from
- * the cached conversions. */
-static void compute_outputs(uint16_t *out)
+/* The fine pulse widths for the present state, command and power stage (board.py: _compute_outputs),
+ * from the cached conversions. */
+static void compute_outputs(uint32_t *out)
 {
     const board_config_t *c = &board.cfg;
     uint8_t clamped = 0;
@@ -152,34 +162,34 @@ static void compute_outputs(uint16_t *out)
     for (uint8_t u = 0; u < c->n_units; u++) {
         const uint8_t *cal = storage_cal(u, 0);
         const conv_cache_t *gc = &gimbal_conv[u], *rc = &rotor_conv[u];
-        uint16_t g, r;
+        uint32_t g, r;
         if (raw) {
-            g = board.raw_cmd[2 * u];
+            g = whole_us(board.raw_cmd[2 * u]);
         } else if (!cal) {
             g = 0;
         } else if (board.gimbal_mode == GIMBAL_MODE_RATE && board.gimbal_cmd[u] == 0.0f) {
-            g = to_us(
+            g = to_fine(
                 cal_gimbal_pulse_us(cal, 0.0f, GIMBAL_MODE_RATE).value); /* the hold pulse: no solving */
         } else {
             clamped |= gc->valid && gc->clamp != CAL_CLAMP_NONE && armed;
-            g = gc->valid ? gc->us : board.outputs[2 * u];
+            g = gc->valid ? gc->fine : pulses_get((uint8_t)(2 * u));
         }
         if (!armed || shed) {
-            r = c->rotor_safe_us;
+            r = whole_us(c->rotor_safe_us);
         } else if (raw) {
-            r = board.raw_cmd[2 * u + 1];
+            r = whole_us(board.raw_cmd[2 * u + 1]);
         } else if (!cal) {
-            r = c->rotor_safe_us;
+            r = whole_us(c->rotor_safe_us);
         } else {
             clamped |= rc->valid && rc->clamp != CAL_CLAMP_NONE;
-            r = rc->valid ? rc->us : c->rotor_safe_us;
+            r = rc->valid ? rc->fine : whole_us(c->rotor_safe_us);
         }
         uint16_t esc = esc_cal_width(u); /* the ESC endpoint procedure drives this rotor channel */
         if (esc)
-            r = esc;
+            r = whole_us(esc);
         if (armed && !shed && board.power_state == POWER_STATE_LIMIT && cal) {
             float lo = cal_esc_low_us(cal), hi = cal_esc_high_us(cal);
-            uint16_t cap = to_us(lo + c->limit_throttle * (hi - lo));
+            uint32_t cap = to_fine(lo + c->limit_throttle * (hi - lo));
             if (r > cap) {
                 r = cap;
                 clamped = 1;
@@ -193,11 +203,11 @@ static void compute_outputs(uint16_t *out)
 
 static void apply_outputs(void)
 {
-    uint16_t out[MAX_HW_CHANNELS];
+    uint32_t out[MAX_HW_CHANNELS];
     compute_outputs(out);
     for (uint8_t ch = 0; ch < board.n_channels; ch++) {
-        if (out[ch] != board.outputs[ch]) {
-            board.outputs[ch] = out[ch];
+        if (out[ch] != pulses_get(ch)) {
+            board.outputs[ch] = pulses_reported_us(out[ch]);
             pulses_set(ch, out[ch]);
         }
     }
@@ -244,18 +254,29 @@ static void hold_gimbals(void)
         board.gimbal_cmd[u] = board.gimbal_mode == GIMBAL_MODE_RATE ? 0.0f : board.units[u].gimbal_angle;
 }
 
-static void set_state(uint8_t next)
+/* The new state's outputs take effect before anything is reported: formatting a Log and a Heartbeat
+ * takes ~1 ms of CPU each, and a stop (FAILSAFE, DISARMED, BOOT) must reach the timers first so that it
+ * is in the next pulse frame (the link-loss failsafe: within its timeout plus one frame). */
+static uint8_t enter_state(uint8_t next)
 {
     uint8_t old = board.state;
     if (next == old)
-        return;
+        return old;
     board.state = next;
     if (!motors_enabled(next)) {
         hold_gimbals();
         memset(board.rotor_cmd, 0, sizeof board.rotor_cmd);
         board.have_raw = 0;
+        apply_outputs();
     }
     board.outputs_dirty = 1;
+    return old;
+}
+
+static void report_state(uint8_t old, uint8_t next)
+{
+    if (next == old)
+        return;
     char a[12], b[12];
     report_name(PSTR(BOARD_STATE_NAMES), old, a, sizeof a);
     report_name(PSTR(BOARD_STATE_NAMES), next, b, sizeof b);
@@ -268,22 +289,55 @@ static uint8_t apply(uint8_t event)
 {
     transition_t t = state_transition(board.state, event, power_ok());
     if (!t.refused)
-        set_state(t.state);
+        report_state(enter_state(t.state), t.state);
     return t.refused;
+}
+
+/*
+ * The link watchdog decides in the main loop (on_link_lost: state, gimbal hold, reports), but a pass can
+ * take a few ms when a Log, telemetry and a calibration conversion fall together, and the rotors must be
+ * safe within the timeout plus one pulse frame. So the 1 kHz tick interrupt stops them itself, in the
+ * tick the link times out: the rotor channels go to the safe pulse and are held there (pulses_hold)
+ * until the main loop's next pass has made the change. It stands back while received bytes wait in the
+ * UART ring: those are for the main loop to judge first.
+ */
+static volatile uint8_t link_stopped;
+
+static uint16_t rotor_channels(void)
+{
+    uint16_t mask = 0;
+    for (uint8_t u = 0; u < board.cfg.n_units; u++)
+        mask |= (uint16_t)(1u << (2u * u + 1u));
+    return mask;
+}
+
+void app_tick(uint32_t now_ms)
+{
+    if (link_stopped || !board.session || board.link_lost || !board.have_rx || !motors_enabled(board.state))
+        return;
+    if (now_ms - board.last_rx_ms < board.cfg.link_timeout_ms || uart_rx_pending())
+        return;
+    link_stopped = 1;
+    pulses_hold(rotor_channels(), board.cfg.rotor_safe_us);
 }
 
 static void on_link_lost(uint32_t now)
 {
     board.link_lost = 1;
+    transition_t t = state_transition(board.state, EVENT_LINK_LOST, power_ok());
+    uint8_t old = t.refused ? board.state : enter_state(t.state); /* outputs first, then the reports */
+    pulses_release(rotor_channels()); /* the outputs are the main loop's again: safe, in FAILSAFE */
+    link_stopped = 0;
+    esc_cal_abort(ESC_CAL_ABORT_LINK_LOST, now); /* an ESC being taught: to minimum, before any report */
     report_log(SEVERITY_WARNING, LOG_CODE_LINK_LOST, PSTR("link lost: nothing valid for %u ms"),
                board.cfg.link_timeout_ms);
-    esc_cal_abort(ESC_CAL_ABORT_LINK_LOST, now);
-    apply(EVENT_LINK_LOST);
+    if (!t.refused)
+        report_state(old, t.state);
 }
 
 static void on_valid_rx(uint32_t now)
 {
-    board.last_rx_ms = now;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { board.last_rx_ms = now; } /* app_tick reads it */
     board.have_rx = 1;
     if (board.link_lost) {
         board.link_lost = 0;
@@ -667,7 +721,7 @@ uint8_t app_poll(uint32_t now)
 {
     process_rx(now);
     if (board.session && !board.link_lost && board.have_rx &&
-        now - board.last_rx_ms >= board.cfg.link_timeout_ms)
+        (link_stopped || now - board.last_rx_ms >= board.cfg.link_timeout_ms))
         on_link_lost(now);
     esc_cal_poll(now);
     if ((int32_t)(now - board.next_power_ms) >= 0) {

@@ -63,6 +63,7 @@ static uint8_t reset_cause(uint8_t mcusr)
 void tick_hook(uint32_t now_ms)
 {
     watchdog_on_tick(now_ms);
+    app_tick(now_ms);
     adc_start_round();
 }
 

@@ -34,45 +34,89 @@ static const channel_t CHANNELS[PULSE_CHANNELS_HW] PROGMEM = {
     {&OCR5B, &TCCR5A, _BV(COM5B1), &DDRL, 4}, {&OCR5C, &TCCR5A, _BV(COM5C1), &DDRL, 5},
 };
 
-static uint16_t widths[PULSE_CHANNELS_HW];
+/* Each channel's fine width (1/512 us: whole ticks << 8 | 256ths of a tick) and the fraction of a tick
+ * carried to the next frame. The frame-start interrupt writes each channel's dithered ticks for the next
+ * frame; a new width is also written at once (output), so it takes effect at the next frame's start (the
+ * hardware double-buffers OCRnx until BOTTOM; the simavr harness models that, firmware/harness/ocr.c). */
+static volatile uint16_t ticks[PULSE_CHANNELS_HW]; /* fine >> 8: whole ticks (0: no pulse) */
+static volatile uint8_t fraction[PULSE_CHANNELS_HW]; /* fine & 0xFF: 256ths of a tick */
+static uint8_t residue[PULSE_CHANNELS_HW];
 static uint16_t top;
 static uint8_t channels, ppm_on;
 static volatile uint8_t frame_flag;
 static volatile uint16_t ppm_ticks[PPM_CHANNELS + 1]; /* periods of the next PPM frame: channels, sync */
 static volatile uint8_t ppm_slot, ppm_count;
 
-void pulses_set(uint8_t ch, uint16_t width_us)
+static volatile uint16_t held; /* channels pulses_set leaves alone (pulses_hold) */
+
+/* Channel `ch` to `width_fine` (its pin connected or not, its ticks and fraction for the frame-start
+ * interrupt, its PPM slot); with interrupts off. */
+static void output(uint8_t ch, uint32_t width_fine)
 {
-    if (ch >= channels)
-        return;
     channel_t cc;
     memcpy_P(&cc, &CHANNELS[ch], sizeof cc);
     const channel_t *c = &cc;
-    widths[ch] = width_us;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
-    {
-        if (width_us) {
-            *c->ocr = (uint16_t)(width_us * TICKS_PER_US - 1u);
-            *c->tccra |= c->com;
-        } else {
-            *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
-        }
+    uint16_t whole = (uint16_t)(width_fine >> PULSE_FRACTION_BITS);
+    if (!whole) {
+        *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
+    } else {
+        /* OCRnx is double-buffered in fast-PWM mode: written now, it takes effect at the next frame's
+         * start (an undithered width for that one frame); the frame-start interrupt then writes each
+         * following frame's, dithered. Left to the interrupt alone, a change would wait a frame longer. */
+        *c->ocr = (uint16_t)(whole - 1u);
+        if (!ticks[ch])
+            *c->tccra |= c->com; /* a channel coming on (boot, a calibration stored) */
     }
+    ticks[ch] = whole;
+    fraction[ch] = (uint8_t)width_fine;
     if (ppm_on && ch < PPM_CHANNELS) {
         /* the PPM stage clamps to its channel range; a channel without pulses sends its minimum */
+        uint16_t width_us = pulses_reported_us(width_fine);
         uint16_t w = width_us < PPM_MIN_US ? PPM_MIN_US : (width_us > PPM_MAX_US ? PPM_MAX_US : width_us);
         uint16_t sum = 0;
-        ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
-        {
-            ppm_ticks[ch] = (uint16_t)(w * TICKS_PER_US);
-            for (uint8_t i = 0; i < ppm_count; i++)
-                sum = (uint16_t)(sum + ppm_ticks[i] / TICKS_PER_US);
-            ppm_ticks[ppm_count] = (uint16_t)((PPM_FRAME_US - sum) * TICKS_PER_US);
-        }
+        ppm_ticks[ch] = (uint16_t)(w * TICKS_PER_US);
+        for (uint8_t i = 0; i < ppm_count; i++)
+            sum = (uint16_t)(sum + ppm_ticks[i] / TICKS_PER_US);
+        ppm_ticks[ppm_count] = (uint16_t)((PPM_FRAME_US - sum) * TICKS_PER_US);
     }
 }
 
-uint16_t pulses_get(uint8_t ch) { return ch < channels ? widths[ch] : 0; }
+void pulses_set(uint8_t ch, uint32_t width_fine)
+{
+    if (ch >= channels)
+        return;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        if (!(held & (1u << ch)))
+            output(ch, width_fine);
+    }
+}
+
+void pulses_hold(uint16_t mask, uint16_t width_us)
+{
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        for (uint8_t ch = 0; ch < channels; ch++)
+            if (mask & (1u << ch))
+                output(ch, (uint32_t)width_us * PULSE_FINE_PER_US);
+        held |= mask;
+    }
+}
+
+void pulses_release(uint16_t mask)
+{
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { held &= (uint16_t)~mask; }
+}
+
+uint32_t pulses_get(uint8_t ch)
+{
+    uint32_t w = 0;
+    if (ch < channels)
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { w = ((uint32_t)ticks[ch] << PULSE_FRACTION_BITS) | fraction[ch]; }
+    return w;
+}
+
+uint16_t pulses_reported_us(uint32_t width_fine) { return (uint16_t)((width_fine + 256u) >> 9); }
 
 float pulses_period_s(void) { return (float)(top + 1u) / (TICKS_PER_US * 1e6f); }
 
@@ -87,7 +131,25 @@ uint8_t pulses_frame_started(void)
     return f;
 }
 
-ISR(TIMER1_OVF_vect) { frame_flag = 1; }
+/* Frame start (every timer is at BOTTOM within a few cycles of Timer1): each channel's whole ticks for
+ * the next frame (OCRnx is double-buffered until BOTTOM), its fraction of a tick carried on (first-order
+ * sigma-delta), so the widths of n frames add up to n fine widths within one tick. Runs on when the main loop hangs. ~45 cycles a channel,
+ * ~35 us for twelve: interrupts stay enabled (ISR_NOBLOCK) so that a byte arriving at 1 Mbaud (one every
+ * 10 us, the UART holds three) is never lost behind it. Nothing else touches these arrays or timers
+ * 1/3/4's registers from an interrupt (Timer5's PPM interrupt only runs when Timer5 drives no channel). */
+ISR(TIMER1_OVF_vect, ISR_NOBLOCK)
+{
+    frame_flag = 1;
+    for (uint8_t ch = 0; ch < channels; ch++) {
+        uint16_t whole = ticks[ch];
+        if (!whole)
+            continue;
+        uint16_t sum = (uint16_t)(residue[ch] + fraction[ch]);
+        residue[ch] = (uint8_t)sum;
+        volatile uint16_t *ocr = (volatile uint16_t *)pgm_read_ptr(&CHANNELS[ch].ocr);
+        *ocr = (uint16_t)(whole + (sum >> 8) - 1u);
+    }
+}
 
 ISR(TIMER5_OVF_vect)
 {

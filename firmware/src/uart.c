@@ -60,6 +60,13 @@ uint8_t uart_read(uint8_t *b)
     return 1;
 }
 
+uint8_t uart_rx_pending(void)
+{
+    uint8_t pending;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { pending = rx_head != rx_tail; }
+    return pending;
+}
+
 uint8_t uart_send(const uint8_t *data, uint16_t n)
 {
     uint16_t tail;

@@ -12,8 +12,17 @@
 ``firmware-sim --avr`` serves the firmware on a pty like ``firmware-sim`` serves the Python emulator.
 """
 
-from .build import ensure_built
+from .build import ToolchainMissing, ensure_built, missing_tools
 from .harness import AvrBoard, HarnessOptions
 from .paths import CODEC_CHECK_ELF, FIRMWARE_DIR, FIRMWARE_ELF
 
-__all__ = ["CODEC_CHECK_ELF", "FIRMWARE_DIR", "FIRMWARE_ELF", "AvrBoard", "HarnessOptions", "ensure_built"]
+__all__ = [
+    "CODEC_CHECK_ELF",
+    "FIRMWARE_DIR",
+    "FIRMWARE_ELF",
+    "AvrBoard",
+    "HarnessOptions",
+    "ToolchainMissing",
+    "ensure_built",
+    "missing_tools",
+]

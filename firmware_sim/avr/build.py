@@ -1,9 +1,11 @@
 """Building the firmware, its codec check and the simavr harness with ``make -C firmware``.
 
 The toolchain is Debian's (gcc-avr, avr-libc, binutils-avr for the firmware; gcc, libsimavr-dev,
-libelf-dev, pkg-config for the harness; ``.ci/apt-packages`` lists them). A missing tool is a
-:class:`ConfigError` that says what to install: the tests that need the firmware then fail loudly, they
-never skip.
+libelf-dev, pkg-config for the harness). ``.ci/apt-packages`` is the one list of them: ``.ci/run``
+installs it, the README points to it and :class:`ToolchainMissing` quotes it. A missing tool is a
+:class:`ToolchainMissing` that says what to install; the tests that need the firmware are marked
+``firmware`` and skip with one line naming the packages (``tests/conftest.py``), unless
+``VSCMG_HIL_REQUIRE_ALL=1`` (set by ``.ci/run``) makes the absence a failure.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import threading
 
 from protocol.errors import ConfigError
 
-from .paths import FIRMWARE_DIR
+from .paths import APT_PACKAGES, FIRMWARE_DIR
 
 TOOLS = {
     "make": "make",
@@ -30,6 +32,29 @@ HEADERS = {
     "/usr/lib/avr/include/avr/io.h": "avr-libc",
 }
 
+
+class ToolchainMissing(ConfigError):
+    """The AVR toolchain or simavr is not installed: the firmware cannot be built (names the packages)."""
+
+
+def apt_packages() -> list[str]:
+    """The Debian packages of ``.ci/apt-packages`` (the one list), or those the checks below name when
+    the checkout's ``.ci`` folder is not there (an installed, not editable, package)."""
+    try:
+        lines = APT_PACKAGES.read_text(encoding="utf-8").splitlines()
+    except OSError:
+        return sorted(set(TOOLS.values()) | set(HEADERS.values()))
+    return [w for line in lines for w in line.split("#", 1)[0].split()]
+
+
+def install_hint() -> str:
+    """Which packages to install, and how."""
+    return (
+        f"install the Debian packages of .ci/apt-packages ({' '.join(apt_packages())}): "
+        "sudo apt-get install $(grep -v '^#' .ci/apt-packages)"
+    )
+
+
 _lock = threading.Lock()
 _built = False
 
@@ -43,6 +68,11 @@ def missing_tools() -> list[str]:
     return sorted(missing)
 
 
+def toolchain_message(missing: list[str]) -> str:
+    """What a user without the toolchain reads (the skip line of the tests, ``firmware-sim --avr``)."""
+    return f"the board firmware cannot be built ({', '.join(missing)} missing); {install_hint()}"
+
+
 def ensure_built(force: bool = False) -> None:
     """Run ``make -C firmware`` once per process (make itself skips what is up to date)."""
     global _built
@@ -51,11 +81,7 @@ def ensure_built(force: bool = False) -> None:
             return
         missing = missing_tools()
         if missing:
-            raise ConfigError(
-                f"cannot build the firmware: install the Debian packages {', '.join(missing)}"
-                " (see .ci/apt-packages)",
-                "firmware/Makefile",
-            )
+            raise ToolchainMissing(toolchain_message(missing), "firmware/Makefile")
         result = subprocess.run(
             ["make", "-C", str(FIRMWARE_DIR), "all"], capture_output=True, text=True, check=False
         )

@@ -6,6 +6,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = ROOT / "firmware"
+APT_PACKAGES = ROOT / ".ci" / "apt-packages"
+"""The one list of Debian packages the firmware build and its tests need."""
 BUILD_DIR = FIRMWARE_DIR / "build"
 FIRMWARE_ELF = BUILD_DIR / "vscmg-adk.elf"
 """The board firmware: the very binary that is flashed (its .hex beside it)."""

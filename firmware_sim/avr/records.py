@@ -7,9 +7,9 @@ shapes firmware_sim's timeline has (:class:`~firmware_sim.timeline.PulseFrame`,
 tests read both targets alike.
 
 A pulse is a rising edge and the falling edge after it on one pin. Its width is measured to the cycle
-(1/16 µs) and reported in whole µs, the unit the firmware sets widths in: simavr delivers timer events
-at instruction boundaries, a cycle or two late, so the raw cycle count jitters by that much while the
-pin's true width (a whole number of 0.5 µs timer ticks) does not. Every channel
+(1/16 µs) and reported in whole 0.5 µs timer ticks (µs, a multiple of 0.5), the unit the timers put out:
+simavr delivers timer events at instruction boundaries, a cycle or two late, so the raw cycle count
+jitters by that much while the pin's true width (a whole number of ticks) does not. Every channel
 rises at the start of a frame, so the pulses whose rising edges lie within
 :data:`FRAME_SKEW_US` of the first one form one frame; a channel without a pulse in it is ``None``.
 Pulses that a reset cut short are not pulses an ESC would accept: their frame is dropped and counted
@@ -24,6 +24,7 @@ from pathlib import Path
 
 from protocol.errors import InputFormatError
 from protocol.messages import ResetCause
+from protocol.pulse_widths import TICK_US
 from protocol.pulses import DEFAULT_PPM
 
 from ..timeline import PpmTrain, PulseFrame, ResetEvent
@@ -36,7 +37,7 @@ FRAME_SKEW_US = 50.0
 class _Pending:
     t0: int  # cycle of the frame's first rising edge
     rises: dict[int, int] = field(default_factory=dict)  # pin -> rising cycle
-    widths: dict[int, int] = field(default_factory=dict)  # pin -> width µs (completed pulses)
+    widths: dict[int, float] = field(default_factory=dict)  # pin -> width µs (completed pulses)
 
 
 class RecordReader:
@@ -123,7 +124,8 @@ class RecordReader:
                 p = self._pending = _Pending(cycle)
             p.rises[pin] = cycle
         elif p is not None and pin in p.rises:
-            p.widths[pin] = round((cycle - p.rises[pin]) / self._cycles_per_us)
+            ticks = round((cycle - p.rises[pin]) / (self._cycles_per_us * TICK_US))
+            p.widths[pin] = ticks * TICK_US
 
     def _close_frame(self) -> None:
         p, self._pending = self._pending, None

@@ -30,6 +30,7 @@ from protocol.messages import (
     UnitState,
     WatchdogState,
 )
+from protocol.pulse_widths import FINE_PER_US, SigmaDelta, reported_us, whole_us
 
 from ..actuators import ActuatorTruth, UnitModel
 from ..config import BoardConfig
@@ -112,6 +113,7 @@ class Board:
         self.power_supervisor = PowerSupervisor(cfg.power, self.outbox)
         self.power_manager = self.power_supervisor.manager
         self.pulses = PulseShaper(cfg)
+        self.dither = SigmaDelta(cfg.n_channels)
         self.dead_esc_detector = DeadEscDetector(cfg, self.outbox)
         self.transfers = CalibrationTransfers(
             self.calibrations, self.link, self.outbox, self._store_calibration
@@ -134,7 +136,10 @@ class Board:
         self.command = self.commands.command
 
         # MCU state (reset by _reset)
-        self.outputs: tuple[int | None, ...] = (None,) * cfg.n_channels
+        self.targets: tuple[int | None, ...] = (None,) * cfg.n_channels
+        """The fine widths (1/512 µs, :mod:`protocol.pulse_widths`) the firmware aims each channel at."""
+        self.outputs: tuple[float | None, ...] = (None,) * cfg.n_channels
+        """The widths (µs, whole 0.5 µs ticks) on the pins this frame: the targets, dithered."""
         self._clamped = False
         self._release_us = t0
         self._wdt_us = _NEVER
@@ -217,22 +222,30 @@ class Board:
     def uptime_ms(self) -> int:
         return uptime_ms(self._t_us, self.resets[-1])
 
-    def set_unit_states(self, states: Sequence[UnitState] | None) -> None:
+    def set_unit_states(self, states: Sequence[UnitState] | None, at: float | None = None) -> None:
         """Closed-loop hook: the world's measured unit states (one per unit) replace the internal motor
         model from now on (for telemetry, power draw, dead-ESC detection, gimbal hold); ``None`` hands
-        the units back to the internal model."""
-        self.step()
+        the units back to the internal model. ``at``: the board time (s) the states were measured at, for
+        a world that steps in batches up to the board's next event and hands them over without moving
+        the board (its next ``step`` uses them); default: the board first catches up to its clock's now."""
+        if at is None:
+            self.step()
         if states is not None and len(states) != self.config.n_units:
             raise ConfigError(
                 f"{len(states)} states for {self.config.n_units} units", "Board.set_unit_states"
             )
+        stamp = self._t_us / 1e6 if at is None else at
         for i, unit in enumerate(self.units):
-            unit.override(None if states is None else states[i], self._t_us / 1e6)
+            unit.override(None if states is None else states[i], stamp)
 
-    def commanded_outputs(self) -> tuple[int | None, ...]:
-        """The widths (µs) the firmware would put on the next pulse frame for its present state, command
-        and power stage (``outputs`` is what the last frame carried)."""
-        return self._compute_outputs()[0]
+    def commanded_outputs(self) -> tuple[float | None, ...]:
+        """The mean widths (µs, to 1/512 µs) the firmware would aim the next pulse frames at for its present
+        state, command and power stage (``outputs`` is what the last frame carried)."""
+        return tuple(None if q is None else q / FINE_PER_US for q in self._compute_outputs()[0])
+
+    def reported_outputs(self) -> tuple[int | None, ...]:
+        """The targets in whole µs, as ``Telemetry.pulses_us`` reports them."""
+        return tuple(None if q is None else reported_us(q) for q in self.targets)
 
     @property
     def gimbal_mode(self) -> GimbalMode:
@@ -321,7 +334,7 @@ class Board:
             self._pulse_frame(t)
         if self._ppm.is_due(t):
             self._ppm.advance(t)
-            self.timeline.ppm.append(ppm_train(t, self.outputs, self.config.rotor_safe_us))
+            self.timeline.ppm.append(ppm_train(t, self.targets, self.config.rotor_safe_us))
 
     # ================================================================== reset, boot, main loop
     def _reset(self, cause: ResetCause, t: int) -> None:
@@ -339,7 +352,8 @@ class Board:
         self.esc_calibration.reset()
         self.link.reset()
         self.power_supervisor.reset()
-        self.outputs = (None,) * self.config.n_channels
+        self.targets = self.outputs = (None,) * self.config.n_channels
+        self.dither.reset()
         for s in (self._frames, self._telemetry, self._heartbeat, self._ppm):
             s.stop()
 
@@ -350,7 +364,7 @@ class Board:
         if self.config.ppm:
             self._ppm.start(t)
         self.power_supervisor.update(self.power, 0.0, motors_enabled(self.state))
-        self.outputs, self._clamped = self._compute_outputs()
+        self.targets, self._clamped = self._compute_outputs()  # on the pins from the first frame (now)
         self.outbox.log(Severity.INFO, LogCode.BOOT, f"boot: reset cause {self.reset_cause.name}")
 
     def _main_loop(self, t: int) -> None:
@@ -370,7 +384,8 @@ class Board:
 
     # ================================================================== outputs
     def _compute_outputs(self) -> tuple[tuple[int | None, ...], bool]:
-        """(widths, clamped): the firmware's pulse widths for the present state, command and power stage."""
+        """(fine widths, clamped): the firmware's pulse widths for the present state, command and power
+        stage."""
         pm = self.power_manager
         widths, clamped = self.pulses.widths(
             self.calibrations,
@@ -384,13 +399,15 @@ class Board:
         esc = self.esc_calibration.rotor_width()
         if esc is not None:
             channel, width = esc
-            widths = widths[:channel] + (width,) + widths[channel + 1 :]
+            widths = widths[:channel] + (whole_us(width),) + widths[channel + 1 :]
         return widths, clamped
 
     def _pulse_frame(self, t: int) -> None:
+        """A frame starts: the main loop's targets (RUNNING), dithered into this frame's widths by the
+        frame-start interrupt — which runs on in a HUNG main loop, so the last targets go on."""
         if self.phase is McuPhase.RUNNING:
-            self.outputs, self._clamped = self._compute_outputs()
-        # HUNG: the timers keep generating the last widths.
+            self.targets, self._clamped = self._compute_outputs()
+        self.outputs = self.dither.frame(self.targets)
         self.timeline.record(t / 1e6, self.outputs)
 
     def _store_calibration(self, unit: int, cal: Any) -> None:
@@ -431,7 +448,8 @@ class Board:
             )
             if not self.power_supervisor.power_ok:
                 self.esc_calibration.abort(EscCalAbort.POWER, t)
-            self.dead_esc_detector.check(t, self.outputs, self.units, self.power.battery_v, self.gimbal_mode)
+            means = tuple(None if q is None else q / FINE_PER_US for q in self.targets)
+            self.dead_esc_detector.check(t, means, self.units, self.power.battery_v, self.gimbal_mode)
 
     # ================================================================== messages out
     def _send_telemetry(self, t: int) -> None:
@@ -448,7 +466,7 @@ class Board:
                 link_age_us=None if last_rx is None else t - last_rx,
                 power=self.power,
                 counters=self.link.deframer.counters,
-                outputs=self.outputs,
+                outputs=self.reported_outputs(),
                 units=self.unit_states(),
             )
         )

@@ -34,12 +34,13 @@ class DeadEscDetector:
     def check(
         self,
         t: int,
-        outputs: Sequence[int | None],
+        outputs: Sequence[float | None],
         units: Sequence[UnitModel],
         battery_v: float,
         gimbal_mode: GimbalMode,
     ) -> None:
-        """Compare each unit's response at ``t`` (µs) with what ``outputs`` (µs) command at ``battery_v``."""
+        """Compare each unit's response at ``t`` (µs) with what ``outputs`` (the mean widths, µs) command at
+        ``battery_v``."""
         now = t / 1e6
         v = battery_v
         for i, unit in enumerate(units):

@@ -1,17 +1,22 @@
-"""Pulse outputs: the widths (µs) the firmware puts on each channel for its state, command and power
-stage, and the optional PPM-sum train.
+"""Pulse outputs: the widths the firmware aims each channel at for its state, command and power stage,
+and the optional PPM-sum train.
 
 Channels alternate per unit: gimbal ``2·i``, rotor ``2·i + 1``. Widths come from each unit's calibration
 (``UnitCalibration.gimbal_pulse_us``/``rotor_pulse_us``, the rotor's at the filtered battery voltage
-rounded to 10 mV so conversions can be cached). Disarmed or shedding load, every rotor gets
+rounded to 10 mV so conversions can be cached) as **fine widths** (1/512 µs,
+:mod:`protocol.pulse_widths`), which the pulse stage dithers over frames in whole 0.5 µs ticks
+(:class:`protocol.pulse_widths.SigmaDelta`). Disarmed or shedding load, every rotor gets
 ``rotor_safe_us``; in the LIMIT power stage rotor widths are capped at ``limit_throttle`` of their range.
-A unit without calibration gets no gimbal pulse and a safe rotor.
+A unit without calibration gets no gimbal pulse and a safe rotor. Whole-µs widths (the safe pulse, raw
+pulses, an ESC endpoint) are whole ticks: they go out exactly, undithered.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
+
+from protocol.pulse_widths import fine_width, reported_us, whole_us
 
 from ..config import BoardConfig
 from ..timeline import PpmTrain
@@ -52,11 +57,11 @@ class PulseShaper:
         limit: bool,
         battery_v: float,
     ) -> tuple[tuple[int | None, ...], bool]:
-        """(widths per channel, clamped): the firmware's pulse widths for the present state (``armed``:
-        motors enabled), control mode (``raw_mode``: RAW_PULSES), power stage (``shed``: rotors stopped,
-        ``limit``: rotors capped) and ``command``; ``clamped`` is true when a setpoint had to be limited
-        (a saturated conversion, or the LIMIT cap)."""
-        safe = self.rotor_safe_us
+        """(fine widths per channel, clamped): the firmware's pulse widths (1/512 µs; None: no pulse) for
+        the present state (``armed``: motors enabled), control mode (``raw_mode``: RAW_PULSES), power stage
+        (``shed``: rotors stopped, ``limit``: rotors capped) and ``command``; ``clamped`` is true when a
+        setpoint had to be limited (a saturated conversion, or the LIMIT cap)."""
+        safe = whole_us(self.rotor_safe_us)
         v = battery_v
         out: list[int | None] = []
         clamped = False
@@ -65,24 +70,24 @@ class PulseShaper:
             cal = calibrations[i]
             # gimbal channel
             if raw is not None:
-                g: int | None = raw[2 * i]
+                g: int | None = whole_us(raw[2 * i])
             elif cal is None:
                 g = None
             else:
                 conv = self._convert(cal, "g", command.gimbal[i], command.gimbal_mode)
                 clamped |= conv.saturated and armed
-                g = round(conv.value)
+                g = fine_width(conv.value)
             # rotor channel
             if not armed or shed:
                 r: int | None = safe
             elif raw is not None:
-                r = raw[2 * i + 1]
+                r = whole_us(raw[2 * i + 1])
             elif cal is None:
                 r = safe
             else:
                 conv = self._convert(cal, "r", command.rotor[i], v)
                 clamped |= conv.saturated
-                r = round(conv.value)
+                r = fine_width(conv.value)
             if armed and not shed and limit and cal is not None and r is not None:
                 cap = self._rotor_cap(cal, v)
                 if r > cap:
@@ -93,9 +98,10 @@ class PulseShaper:
         return tuple(out), clamped
 
     def _rotor_cap(self, cal: Any, v: float) -> int:
+        """The LIMIT stage's highest rotor width (fine)."""
         lo = self._convert(cal, "r", 0.0, v).value
         hi = self._convert(cal, "r", 1e9, v).value
-        return round(lo + self.limit_throttle * (hi - lo))
+        return fine_width(lo + self.limit_throttle * (hi - lo))
 
     def _convert(self, cal: Any, kind: str, value: float, arg: Any) -> Any:
         key = (id(cal), kind, value, arg)
@@ -111,11 +117,12 @@ class PulseShaper:
         return hit
 
 
-def ppm_train(t_us: int, outputs: Sequence[int | None], rotor_safe_us: int) -> PpmTrain:
-    """The PPM-sum frame starting at ``t_us`` for the first 8 channels (no pulse: the safe width)."""
+def ppm_train(t_us: int, targets: Sequence[int | None], rotor_safe_us: int) -> PpmTrain:
+    """The PPM-sum frame starting at ``t_us`` for the first 8 channels' fine widths, in whole µs (a PPM
+    receiver resolves no finer; no pulse: the safe width)."""
     from protocol.pulses import clamp_ppm_width, encode_ppm  # optional output: imported on first use
 
     # Like a PPM output stage, limit each width to the PPM channel range (raw pulses may reach 500-2500).
-    widths = [clamp_ppm_width(w if w is not None else rotor_safe_us) for w in outputs[:8]]
+    widths = [clamp_ppm_width(reported_us(w) if w else rotor_safe_us) for w in targets[:8]]
     train = encode_ppm(widths)
     return PpmTrain(t_us / 1e6, tuple(float(e) for e in train))

@@ -1,4 +1,5 @@
-"""``hil montecarlo``: a Monte Carlo campaign of dispersed lockstep closed-loop runs, on Dask."""
+"""``hil montecarlo``: a Monte Carlo campaign of dispersed lockstep runs through the one closed loop (host,
+emulated board, world), on Dask."""
 
 from __future__ import annotations
 
@@ -52,7 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--workers", type=int, metavar="W", help="LocalCluster worker processes (default: all cores)"
     )
-    p.add_argument("--batch", type=int, default=8, metavar="B", help="runs stepped together per task (8)")
+    p.add_argument(
+        "--batch", type=int, default=4, metavar="B", help="runs per Dask task, one after another (4)"
+    )
     p.add_argument(
         "--out", type=Path, metavar="DIR", help="output directory (default: runs/<stamp>-mc-<name>)"
     )

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 ORDER = 30
+MAX_GAP_S = 10.0  # hil.logs.replay.MAX_GAP_S (not imported here: the CLI loads its modules lazily)
 
 EPILOG = """\
 examples:
@@ -16,7 +17,8 @@ examples:
   hil replay trial.mat --out runs/broad01                      # BROAD trial: also scores against its truth
   hil replay ../shared/data/tyrex-nexus5/Guillaume_Nexus5_NoDist_Texting --preset paper
   hil replay log.csv --window 10 70 --no-plots                 # the project's own CSV, 60 s of it
-  hil replay phyphox.zip --lat 52.52 --lon 13.40 --date 2025-06-01   # true north from WMM2025
+  hil replay phyphox.zip --lat 52.52 --lon 13.40 --date 2019-06-01   # true north from IGRF-14 (1900-2030)
+  hil replay phyphox-exports/                                  # several single-sensor phyphox exports
   hil replay log.csv --paced                                   # in real time, on the log's clock
 
   # drive a board: the controller holds the attitude estimated after the warm-up against the log's
@@ -25,9 +27,12 @@ examples:
   hil replay trial.mat --port /dev/ttyACM0 --scenario paper-testbed        # a real board, 3 units
   hil replay log.csv --port "emu://?units=4"                               # in-process board, lockstep
 
-writes OUT/estimates.csv (t_s, quaternion body->ENU, rate estimate, flags), OUT/summary.json and figures:
+writes OUT (default runs/replay-<log name>/) estimates.csv (t_s, quaternion body->ENU, rate estimate,
+flags), summary.json and figures:
 attitude_error.png and rate_error.png (the paper's two) when the log has ground truth, attitude.png and
 rates.png always. formats: csv, sensorlogger, phyphox, tyrex, broad (detected when not given).
+a log without a magnetometer replays 6-axis: inclination from gravity, heading unobserved (drifts).
+where the log's clock jumps by more than --max-gap seconds the filter restarts (reported).
 with --port: a run directory under --out (default runs/): telemetry.csv, events.jsonl, summary.json,
 plots/ (`hil report` redraws them); --paced, --progress and the estimates CSV do not apply.
 """
@@ -46,11 +51,15 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--format", choices=("csv", "sensorlogger", "phyphox", "tyrex", "broad"), help="skip detection"
     )
-    p.add_argument("--out", type=Path, help="output folder (default: replay-<log name> here)")
+    p.add_argument("--out", type=Path, help="output folder (default: runs/replay-<log name>)")
     p.add_argument(
         "--preset", choices=("tuned", "paper"), default="tuned", help="tuned (default) or exactly the paper's"
     )
     p.add_argument("--window", nargs=2, type=float, metavar=("T0", "T1"), help="replay only this part (s)")
+    p.add_argument(
+        "--max-gap", type=float, default=MAX_GAP_S, metavar="S",
+        help=f"restart the filter where the log's clock jumps by more (default {MAX_GAP_S:g} s)",
+    )  # fmt: skip
     field = p.add_mutually_exclusive_group()
     field.add_argument(
         "--inclination", type=float, metavar="DEG", help="field inclination (default: measured)"
@@ -58,9 +67,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--declination", type=float, default=0.0, metavar="DEG", help="east of true north (default 0)"
     )
-    field.add_argument("--lat", type=float, help="latitude (deg) for WMM2025 (with --lon and --date)")
-    p.add_argument("--lon", type=float, help="longitude (deg) for WMM2025")
-    p.add_argument("--date", help="recording date YYYY-MM-DD for WMM2025")
+    field.add_argument("--lat", type=float, help="latitude (deg) for IGRF-14 (with --lon and --date)")
+    p.add_argument("--lon", type=float, help="longitude (deg) for IGRF-14")
+    p.add_argument("--date", help="recording date YYYY-MM-DD for IGRF-14 (1900-2030)")
     p.add_argument(
         "--gyro-bias",
         choices=("still", "none"),
@@ -121,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     name = args.log.resolve().name.removesuffix(".zip")
     if args.port is not None:
         return _drive(args, name, field_model)
-    out = args.out or Path(f"replay-{name}")
+    out = args.out or Path("runs") / f"replay-{name}"
     show = args.progress or sys.stderr.isatty()
     options = ReplayOptions(
         out_dir=out,
@@ -132,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
         field_model=field_model,
         gyro_bias=args.gyro_bias,
         window_s=tuple(args.window) if args.window else None,
+        max_gap_s=args.max_gap,
         plotter=None if args.no_plots else plot_replay,
         paced=args.paced,
         clock=WallClock() if args.paced else None,
@@ -155,6 +165,14 @@ def run(args: argparse.Namespace) -> int:
               f"(longest {longest[0]:.1f}-{longest[1]:.1f} s); every interval in summary.json")  # fmt: skip
     if result.gyro_bias is not None:
         print(f"  gyro bias estimate at the end: {[round(x, 5) for x in result.gyro_bias]} rad/s")
+    if result.log.six_axis:
+        print("  heading: NOT observed (no magnetometer): the gyroscope's integral, drifting")
+    for warning in result.warnings:
+        print(f"  warning: {warning}")
+    if len(result.segments) > 1:
+        for seg in result.segments:
+            what = seg.get("skipped", f"{seg.get('steps', 0)} steps")
+            print(f"  part {seg['t0_s']:.3f}-{seg['t1_s']:.3f} s: {what}")
     if result.comparison is not None:
         c = result.comparison
         print(f"  vs ground truth: RMSE {c.rmse} over {c.rmse.n} samples")
@@ -167,8 +185,9 @@ def run(args: argparse.Namespace) -> int:
 def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     """``--port``: the log as the phone of a run that drives the board (hil.runtime)."""
     from hil.cli.run import LiveProgress, draw_plots, format_summary
+    from hil.estimation.inertial import field_warnings
     from hil.logs import read_log
-    from hil.logs.replay import ReplayOptions, configure
+    from hil.logs.replay import ReplayOptions, configure, field_model_of, split_at_gaps
     from hil.runtime import ReplayInput, RunOptions
     from hil.runtime import run as run_scenario
     from hil.scenario import load_scenario
@@ -180,6 +199,15 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     log = read_log(args.log, args.format)
     if args.window:
         log = log.window(*args.window)
+    parts = split_at_gaps(log, args.max_gap)
+    if len(parts) > 1:  # a board is driven on the clock: never wait out a gap; drive the longest part
+        t0, t1 = max(parts, key=lambda p: p[1] - p[0])
+        print(
+            f"warning: the log's clock jumps by more than {args.max_gap:g} s {len(parts) - 1} time(s); "
+            f"driving the board with its longest part, {t0:.3f}-{t1:.3f} s",
+            file=sys.stderr,
+        )
+        log = log.window(t0, t1)
     options = ReplayOptions(
         out_dir=Path("."), preset=args.preset, inclination_deg=args.inclination,
         declination_deg=args.declination, field_model=field_model, gyro_bias=args.gyro_bias,  # type: ignore[arg-type]
@@ -191,6 +219,9 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     )
     for line in setup:
         print(f"  {line}", file=sys.stderr)
+    for warning in field_warnings(log, field_model_of(options)):
+        print(f"  warning: {warning}", file=sys.stderr)
+        setup.append(f"warning: {warning}")
     result = run_scenario(
         scenario,
         RunOptions(
@@ -200,6 +231,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         ),
     )  # fmt: skip
     if not args.no_plots:
+        assert result.run_dir is not None  # out_root is given
         draw_plots(result.run_dir)
     print(file=sys.stderr)
     print(format_summary(result.summary))

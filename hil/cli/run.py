@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -12,8 +13,10 @@ EPILOG = """\
 examples:
   hil run                                          # built-in emulator, default scenario, lockstep
   hil run --scenario paper-testbed --duration 20   # the paper's air-bearing testbed, 20 s after the slew
-  hil run --realtime                               # built-in emulator on the wall clock, phone over HTTP
+  hil run --realtime                               # built-in emulator on the wall clock, phone over UDP
   hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
+  hil run --gcs                                    # ... watched and commanded from a browser (docs/gcs.md)
+  hil run --gcs --pace 5 --duration 60             # lockstep at 5x the wall clock, 60 s after the slew
 
   # two terminals: the emulated board with its world on a pty, then the host against it
   firmware-sim --world cubesat-1u --link /tmp/vscmg
@@ -28,6 +31,17 @@ plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/
 """
 
 
+def seconds(text: str) -> float:
+    """An argparse type: a finite, positive number of seconds (``nan``, ``inf``, 0 and below refused)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text!r}")
+    return value
+
+
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser(
         "run",
@@ -39,7 +53,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--port", metavar="URL", help="board transport (default: the built-in emulator)")
     p.add_argument("--scenario", default="cubesat-1u", metavar="NAME|FILE", help="default cubesat-1u")
-    p.add_argument("--duration", type=float, metavar="S", help="run this long after the slew starts")
+    p.add_argument(
+        "--duration", type=seconds, metavar="S",
+        help="run this long after the slew starts (default: the scenario's duration_s)",
+    )  # fmt: skip
     timing = p.add_mutually_exclusive_group()
     timing.add_argument("--realtime", action="store_true", help="wall clock (default with --port)")
     timing.add_argument("--lockstep", action="store_true", help="simulated time (default without --port)")
@@ -49,10 +66,21 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md)",
     )  # fmt: skip
     p.add_argument(
-        "--phone-wait", type=float, default=10.0, metavar="S", help="with --port: wait S s for the phone"
-    )
+        "--phone-wait", type=seconds, default=10.0, metavar="S",
+        help="with --port: wait S s for the phone's first samples (default %(default)g s)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
+    p.add_argument(
+        "--gcs", nargs="?", const="", default=None, metavar="HOST:PORT",
+        help="serve a ground-station page for the run (default 127.0.0.1:8470; its URL, with an access "
+        "token, is printed at start; docs/gcs.md)",
+    )  # fmt: skip
+    p.add_argument(
+        "--pace", type=float, metavar="X",
+        help="lockstep at most X times as fast as the wall clock (1: real time; default with --gcs: 1, "
+        "0: as fast as it goes)",
+    )  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -70,7 +98,7 @@ class LiveProgress:
         if t < self.next_t:
             return
         self.next_t = t + self.every
-        trace = host.trace["point_err_deg"]
+        trace = host.trace.point_err_deg
         err = f"{trace[-1]:7.3f}°" if trace else "    -   "
         waiting = "" if host.estimate is not None else "  (waiting for the phone)"
         start, end = ("\r", "   ") if self.tty else ("", "\n")
@@ -88,28 +116,117 @@ def run(args: argparse.Namespace) -> int:
     from hil.scenario import load_scenario
     from protocol.errors import HilError
 
+    plotter = None if args.no_plots else Plotter()
+    station = None
     try:
         scenario = load_scenario(args.scenario)
         lockstep = True if args.lockstep else (False if args.realtime else None)
+        lockstep_run = lockstep if lockstep is not None else args.port is None
+        pace = (
+            args.pace if args.pace is not None else (1.0 if args.gcs is not None and lockstep_run else None)
+        )
         opts = RunOptions(
             port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
-            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(),
+            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(), pace=pace or None,
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
+        if args.port is None:
+            from hil.runtime import warmup
+
+            if warmup.needed():
+                print("compiling the simulation kernels (once after an install or an edit of them)",
+                      file=sys.stderr)  # fmt: skip
+        if args.gcs is not None:
+            station = start_station(args.gcs)
+            opts.observer = station.observer
         result = run_scenario(scenario, opts)
-        if not args.no_plots:
-            draw_plots(result.run_dir)
-    except HilError as exc:
+    except BaseException as exc:
+        if plotter is not None:
+            plotter.cancel()
+        if not isinstance(exc, HilError):
+            raise
         print(f"\nhil run: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if station is not None:
+            station.close()
+    if station is not None and station.error is not None:  # the page stopped updating; the run did not
+        print(f"ground station: its pump failed: {station.error!r}", file=sys.stderr)
+    if plotter is not None:
+        assert result.run_dir is not None
+        plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
     print(file=sys.stderr)
     print(format_summary(result.summary))
     print(f"run directory: {result.run_dir}")
+    if plotter is not None:
+        error = plotter.wait()
+        if error:
+            print(f"hil run: {error}", file=sys.stderr)
+            return 2
     return 0 if result.summary.get("exit") == "completed" else 1
 
 
+class Plotter:
+    """``python -m hil.cli._plotter`` started now, so its imports (matplotlib) overlap the run on another
+    core; :meth:`draw` hands it the run directory, :meth:`wait` its error text ("" when the figures are
+    drawn)."""
+
+    def __init__(self) -> None:
+        import subprocess
+
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "hil.cli._plotter"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            start_new_session=True,
+        )  # fmt: skip — its own session: a Ctrl-C ends the run (whose plots are still drawn), not it
+
+    def draw(self, run_dir: Path) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write(f"{run_dir}\n")
+        self.process.stdin.close()
+
+    def wait(self) -> str:
+        assert self.process.stderr is not None
+        err = self.process.stderr.read()  # to its end: the process has exited then
+        self.process.stderr.close()
+        self.process.wait()
+        if self.process.returncode == 0:
+            return ""
+        return (
+            err.strip().splitlines()[-1] if err.strip() else f"plots: exit status {self.process.returncode}"
+        )
+
+    def cancel(self) -> None:
+        """Nothing to draw (the run failed or was interrupted): the process ends without drawing."""
+        if self.process.poll() is None:
+            self.process.kill()
+        self.process.wait()
+        if self.process.stdin is not None:
+            self.process.stdin.close()
+        if self.process.stderr is not None:
+            self.process.stderr.close()
+
+
+def start_station(bind: str):  # type: ignore[no-untyped-def]
+    """A live ground station on ``bind`` (``--gcs``), its URL printed to stderr."""
+    from hil.gcs import GroundStation
+
+    station = GroundStation.live(bind=bind or None)
+    print(f"ground station: {station.url}", file=sys.stderr)
+    if not station.loopback:
+        print(
+            f"ground station: listening on {station.host}, not only this machine: anyone who reaches it "
+            "with the token can command the board", file=sys.stderr,
+        )  # fmt: skip
+    sys.stderr.flush()
+    return station
+
+
 def draw_plots(run_dir: Path) -> None:
-    """The run directory's plots (``plots/``), as ``hil report`` redraws them."""
+    """The run directory's plots (``plots/``), as ``hil report`` redraws them, in this process."""
     from hil.plots.run import plot_run
 
     plot_run(run_dir)

@@ -27,7 +27,6 @@ below the speed.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,11 +34,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil.control.steering import SteeringOutput
 from hil.vscmg import SpacecraftParams
+from hil.vscmg.drives import Drive
 from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError
 from protocol.messages import ActuatorSetpoint, GimbalMode, UnitSetpoint
 
 Array = NDArray[np.float64]
+_TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -112,15 +113,22 @@ class SetpointGenerator:
 class ServoParams:
     """Motor-driver response: ``gimbal_time_constant_s``, ``rotor_time_constant_s`` (spinning up and, with
     an ESC that brakes, down), ``coast_time_constant_s`` (None: the ESC brakes; else slowing down follows
-    this), ``load_rejection`` ρ in [0, 1] (how much of the gyroscopic load the drives cancel)."""
+    this), ``load_rejection`` ρ in [0, 1] (how much of the gyroscopic load the drives cancel),
+    ``angle_time_constant_s`` the gimbal servo's position loop (a gimbal driven to an angle, ANGLE mode)."""
 
     gimbal_time_constant_s: float = 0.05
     rotor_time_constant_s: float = 0.15
     coast_time_constant_s: float | None = None
     load_rejection: float = 1.0
+    angle_time_constant_s: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in ("gimbal_time_constant_s", "rotor_time_constant_s", "coast_time_constant_s"):
+        for name in (
+            "gimbal_time_constant_s",
+            "rotor_time_constant_s",
+            "coast_time_constant_s",
+            "angle_time_constant_s",
+        ):
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"must be positive, got {v!r}", f"ServoParams.{name}")
@@ -131,8 +139,14 @@ class ServoParams:
 
 
 class ServoModel:
-    """Gimbal and rotor servos of every unit as a :data:`hil.vscmg.TorqueLaw`: call :meth:`hold` with the
-    current setpoints and pass the instance to ``Plant.step``."""
+    """Gimbal and rotor servos of every unit as a :data:`hil.vscmg.TorqueLaw` (numpy, batched): call
+    :meth:`hold` with the current setpoints and pass the instance to ``Plant.step``. The compiled plant
+    (:class:`hil.vscmg.CompiledPlant`) takes it too: :meth:`drive` packs the same law for its kernel
+    (:func:`hil.vscmg.drives.drive_torques`, which this class's ``__call__`` is the reference of).
+
+    Beyond the rate setpoints of :class:`Setpoints`, :meth:`hold` takes per unit an angle mode (the gimbal
+    servo's own position loop toward a target angle, ``γ̇_sp = sat(rem(γ_sp − γ, 2π) / τ_pos, γ̇max)``) and
+    undriven rotors (no pulses or a dead ESC: the rotor keeps its speed, ``φ̇_sp = φ̇``)."""
 
     def __init__(self, params: SpacecraftParams, servo: ServoParams | None = None) -> None:
         self.params = params
@@ -142,15 +156,38 @@ class ServoModel:
         iw = [inertia_tensor(u.rotor_inertia, "rotor_inertia")[2, 2] for u in units]
         self.gimbal_inertia = np.array(ig) + np.array(iw)
         self.spin_inertia = np.array([u.rotor_spin_inertia for u in units])
-        self.gimbal_rate_sp = np.zeros((1, len(units)))
-        self.rotor_speed_sp = np.full((1, len(units)), params.nominal_rotor_speed)
-        self._scalar_src: tuple[Array, Array] | None = None
-        self._scalar_inertia: list[tuple[float, float]] = []
+        n = len(units)
+        self.gimbal_rate_sp = np.zeros((1, n))
+        self.rotor_speed_sp = np.full((1, n), params.nominal_rotor_speed)
+        self.angle_target: Array | None = None
+        self.rotor_undriven: Array | None = None
+        self._drive: Drive | None = None  # drive() of the setpoints held now, built on demand
+        sv, lim = self.servo, params.limits
+        self._header = (
+            sv.load_rejection,
+            sv.gimbal_time_constant_s,
+            sv.rotor_time_constant_s,
+            0.0 if sv.coast_time_constant_s is None else sv.coast_time_constant_s,
+            lim.max_gimbal_torque,
+            lim.max_rotor_torque,
+            sv.angle_time_constant_s,
+            lim.max_gimbal_rate,
+        )
 
-    def hold(self, setpoints: Setpoints) -> None:
-        """Take new setpoints (held until the next call)."""
+    def hold(
+        self,
+        setpoints: Setpoints,
+        angle_target: ArrayLike | None = None,
+        rotor_undriven: ArrayLike | None = None,
+    ) -> None:
+        """Take new setpoints (held until the next call). ``angle_target`` (B, n) rad: NaN where a gimbal
+        follows its rate setpoint, else the angle its servo turns it to; ``rotor_undriven`` (B, n) bool:
+        rotors that get no drive and keep their speed. None: every gimbal on its rate, every rotor driven."""
         self.gimbal_rate_sp = setpoints.gimbal_rate
         self.rotor_speed_sp = setpoints.rotor_speed
+        self.angle_target = None if angle_target is None else np.asarray(angle_target, dtype=float)
+        self.rotor_undriven = None if rotor_undriven is None else np.asarray(rotor_undriven, dtype=bool)
+        self._drive = None
 
     def __call__(
         self,
@@ -163,8 +200,17 @@ class ServoModel:
     ) -> tuple[Array, Array]:
         lim, sv = self.params.limits, self.servo
         rho = sv.load_rejection
-        ug = self.gimbal_inertia * (self.gimbal_rate_sp - gimbal_rate) / sv.gimbal_time_constant_s
+        rate_sp = self.gimbal_rate_sp
+        if self.angle_target is not None:
+            on_angle = ~np.isnan(self.angle_target)
+            err = np.where(on_angle, self.angle_target, 0.0) - gimbal_angle
+            err = (err - _TWO_PI * np.rint(err / _TWO_PI)) / sv.angle_time_constant_s
+            loop = np.clip(err, -lim.max_gimbal_rate, lim.max_gimbal_rate)
+            rate_sp = np.where(on_angle, loop, rate_sp)
+        ug = self.gimbal_inertia * (rate_sp - gimbal_rate) / sv.gimbal_time_constant_s
         err = self.rotor_speed_sp - rotor_rate
+        if self.rotor_undriven is not None:
+            err = np.where(self.rotor_undriven, 0.0, err)
         tau = np.full_like(err, sv.rotor_time_constant_s)
         if sv.coast_time_constant_s is not None:
             tau = np.where(err < 0.0, sv.coast_time_constant_s, tau)
@@ -174,57 +220,39 @@ class ServoModel:
             np.clip(us - rho * rotor_load, -lim.max_rotor_torque, lim.max_rotor_torque),
         )
 
-    # ------------------------------------------------------------------ one run in floats
-    def scalar_setpoints(self) -> tuple[list[float], list[float]]:
-        """The held setpoints of a single run as floats ``(gimbal rates, rotor speeds)``, for
-        :meth:`torques_scalar` (:class:`hil.vscmg.fast.SingleRunPlant` reads them once per step)."""
-        n = len(self.spin_inertia)
-        out = []
-        for sp in (self.gimbal_rate_sp, self.rotor_speed_sp):
-            if not (isinstance(sp, np.ndarray) and sp.shape == (1, n)):  # the usual shape, else broadcast
-                try:
-                    sp = np.broadcast_to(np.asarray(sp, dtype=float), (1, n))
-                except ValueError as e:
-                    raise ConfigError(
-                        f"the held setpoints are not one run's: {e}", "ServoModel.scalar_setpoints"
-                    ) from e
-            out.append(sp[0].tolist())
-        return out[0], out[1]
+    # ------------------------------------------------------------------ for the compiled plant
+    def drive(self) -> Drive:
+        """The held setpoints of a single run with this servo's parameters, as the compiled plant's
+        :class:`hil.vscmg.drives.Drive` (ConfigError if the setpoints are not one run's). Built once per
+        :meth:`hold`."""
+        if self._drive is None:
+            self._drive = self._pack()
+        return self._drive
 
-    def torques_scalar(
-        self,
-        gimbal_rate: Sequence[float],
-        rotor_rate: Sequence[float],
-        gimbal_load: Sequence[float],
-        rotor_load: Sequence[float],
-        setpoints: tuple[Sequence[float], Sequence[float]] | None = None,
-    ) -> tuple[list[float], list[float]]:
-        """What :meth:`__call__` gives for one run, on sequences of n floats: ``(gimbal torques, rotor
-        torques)``. ``setpoints``: :meth:`scalar_setpoints` read beforehand (default: read now)."""
-        gsp, wsp = self.scalar_setpoints() if setpoints is None else setpoints
-        src = self._scalar_src
-        if src is None or src[0] is not self.gimbal_inertia or src[1] is not self.spin_inertia:
-            self._scalar_src = (self.gimbal_inertia, self.spin_inertia)
-            self._scalar_inertia = list(
-                zip(self.gimbal_inertia.tolist(), self.spin_inertia.tolist(), strict=True)
+    def _pack(self) -> Drive:
+        n = len(self.spin_inertia)
+        try:
+            gimbal = np.broadcast_to(np.asarray(self.gimbal_rate_sp, dtype=float), (1, n))[0]
+            rotor = np.broadcast_to(np.asarray(self.rotor_speed_sp, dtype=float), (1, n))[0]
+            target = (
+                np.full(n, np.nan)
+                if self.angle_target is None
+                else np.broadcast_to(self.angle_target, (1, n))[0]
             )
-        lim, sv = self.params.limits, self.servo
-        rho, tg, tr, tc = (
-            sv.load_rejection,
-            sv.gimbal_time_constant_s,
-            sv.rotor_time_constant_s,
-            sv.coast_time_constant_s,
+            undriven = (
+                np.zeros(n)
+                if self.rotor_undriven is None
+                else np.broadcast_to(self.rotor_undriven, (1, n))[0]
+            )
+        except ValueError as e:
+            raise ConfigError(f"the held setpoints are not one run's: {e}", "ServoModel.drive") from e
+        on_angle = ~np.isnan(target)
+        return Drive.servo(
+            self._header,
+            self.gimbal_inertia,
+            self.spin_inertia,
+            np.where(on_angle, target, gimbal),
+            on_angle,
+            rotor,
+            undriven,
         )
-        gmax, rmax = lim.max_gimbal_torque, lim.max_rotor_torque
-        ug: list[float] = []
-        us: list[float] = []
-        for (jg, js), gs, ws, gr, wr, fg, fp in zip(
-            self._scalar_inertia, gsp, wsp, gimbal_rate, rotor_rate, gimbal_load, rotor_load, strict=True
-        ):
-            u = jg * (gs - gr) / tg - rho * fg
-            # np.clip(u, lo, hi) = min(max(u, lo), hi), NaN passing through
-            ug.append(-gmax if u < -gmax else gmax if u > gmax else u)
-            err = ws - wr
-            u = js * err / (tc if tc is not None and err < 0.0 else tr) - rho * fp
-            us.append(-rmax if u < -rmax else rmax if u > rmax else u)
-        return ug, us

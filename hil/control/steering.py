@@ -26,8 +26,14 @@ rotors take over as reaction wheels, so Q W Qᵀ stays invertible (D₀ has full
 array) and the commands stay bounded.
 
 Null motion (optional, ``null_gain`` > 0): ``η̇_N = k (I − W Qᵀ(QWQᵀ)⁻¹Q) W d`` changes nothing in ``Q η̇``
-(the torque) while moving the gimbals along ``d = (−k_Ω (Ω − Ω_nom)/Ω_nom, ∂δ/∂γ)``, i.e. towards gimbal
-sets of higher δ and rotor speeds back towards nominal.
+(the torque) while moving the gimbals along ``d = (−k_Ω (Ω − Ω_nom)/Ω̄², ∂δ/∂γ)``, i.e. towards gimbal
+sets of higher δ and rotor speeds back towards nominal. The speed part is the gradient of
+``½ k_Ω ((Ω − Ω_nom)/Ω̄)²`` with respect to Ω, so that with the wheel weight's Ω̄² a rotor off its nominal
+speed is returned at ``k k_Ω W_s0 exp(−μ δ)`` per second (≤ 1/s at the defaults): slower than a rotor
+drive answers (1/τ ≈ 7/s). Divided by Ω̄ only, it ran Ω̄ times faster — ~120/s on the air-bearing testbed,
+whose tetrahedron sits at δ ≈ 0.07 in wheel mode — and the rotors' drives, lagging and unable to brake,
+turned it into a limit cycle of the whole array in the hold (gimbals ±0.15 rad/s at ~1 Hz, rotor
+commands ±80 rad/s², a 0.23° offset; docs/dynamics.md).
 
 Limits: rotors that would leave [min, max] speed within one control period lose their wheel weight
 (re-solved without them, :attr:`Saturation.ROTOR_SPEED`); then the whole command is scaled by one factor
@@ -341,8 +347,8 @@ def solve_rows(
             flags |= _ROTOR_SPEED
         if kp[K_NULL] > 0:  # k (W d − W Qᵀ(QWQᵀ)⁻¹ Q W d): toward higher δ and nominal rotor speed
             nominal = kp[K_NOMINAL]
-            for i in range(n):
-                d[i] = -kp[K_SPEED] * (w[b, i] - nominal) / nominal
+            for i in range(n):  # the gradient of ½ k_Ω ((Ω − Ω_nom)/Ω̄)²: W's Ω̄² makes it 1/s
+                d[i] = -kp[K_SPEED] * (w[b, i] - nominal) / (nominal * nominal)
             _delta_gradient(kp, geom, w[b], s, t, d[n:])
             for c in range(2 * n):
                 d[c] *= wt[c]

@@ -48,7 +48,9 @@ def solve(
         sat |= np.where(out.any(axis=1), int(Saturation.ROTOR_SPEED), 0)
     if p.null_gain > 0:
         nominal = steer.params.nominal_rotor_speed
-        d = np.concatenate([-p.speed_gain * (w - nominal) / nominal, delta_gradient(steer, gam, w)], axis=1)
+        d = np.concatenate(
+            [-p.speed_gain * (w - nominal) / nominal**2, delta_gradient(steer, gam, w)], axis=1
+        )
         wd = np.concatenate([ws, np.full_like(ws, p.gimbal_weight)], axis=1) * d
         eta += p.null_gain * (wd - _weighted(steer, Q, ws, np.einsum("bij,bj->bi", Q, wd)))
     # one scale factor for every limit

@@ -3,10 +3,9 @@
 
 1. **Given** — e.g. the paper's E (``hil.estimation.params.PAPER_E``), or any field vector through
    :func:`directions_from_field`.
-2. **A local field model** — :func:`wmm2025`: the World Magnetic Model 2025 (NOAA/BGS, degree and order
-   12, epoch 2025.0, valid 2025.0–2030.0, coefficients from NOAA's ``WMM.COF`` of 2024-11-13, public
-   domain) evaluated at a user's latitude, longitude, height and date; E is then in *true-north* ENU.
-   Checked against NOAA's published test values.
+2. **A local field model** — :mod:`hil.estimation.geomag`: IGRF-14 (any date 1900–2030, :func:`igrf14`)
+   or WMM2025 (:func:`wmm2025`) at a user's latitude, longitude, height and date; E is then in
+   *true-north* ENU.
 3. **An initial still window of a log** — :func:`find_still_window` then :func:`directions_from_still`:
    gravity gives "up"; the angle between the mean accelerometer and magnetometer readings gives the field's
    inclination (dip). Heading cannot be observed from the phone alone, so this E is in *magnetic-north*
@@ -20,17 +19,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from datetime import date, datetime
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from hil import so3
+from hil.estimation.geomag import GeomagneticField, decimal_year, igrf14, wmm2025
 from hil.estimation.params import directions_matrix
 from hil.estimation.sensors import SensorKind, SensorLog
-from protocol.errors import ConfigError, InputFormatError
+from protocol.errors import InputFormatError
 
 Array = NDArray[np.float64]
 UP = np.array([0.0, 0.0, 1.0])
+__all__ = ["GeomagneticField", "decimal_year", "igrf14", "wmm2025"]  # the field models, for callers here
 
 
 def directions_from_field(field_enu: ArrayLike) -> Array:
@@ -45,156 +46,6 @@ def directions_from_dip(inclination_deg: float, declination_deg: float = 0.0) ->
     return directions_from_field([math.cos(i) * math.sin(d), math.cos(i) * math.cos(d), -math.sin(i)])
 
 
-# --------------------------------------------------------------------------- WMM2025
-@dataclass(frozen=True)
-class GeomagneticField:
-    """The main field at a place and time: north/east/down components (nT), declination (degrees east of
-    true north), inclination (degrees, positive downward) and total intensity (nT)."""
-
-    north_nT: float
-    east_nT: float
-    down_nT: float
-
-    @property
-    def declination_deg(self) -> float:
-        return math.degrees(math.atan2(self.east_nT, self.north_nT))
-
-    @property
-    def inclination_deg(self) -> float:
-        return math.degrees(math.atan2(self.down_nT, math.hypot(self.north_nT, self.east_nT)))
-
-    @property
-    def total_nT(self) -> float:
-        return math.sqrt(self.north_nT**2 + self.east_nT**2 + self.down_nT**2)
-
-    @property
-    def enu(self) -> Array:
-        """The field in ENU (nT): (east, north, up)."""
-        return np.array([self.east_nT, self.north_nT, -self.down_nT])
-
-    @property
-    def directions(self) -> Array:
-        """E in true-north ENU."""
-        return directions_from_field(self.enu)
-
-
-# n, m, g (nT), h (nT), dg/dt (nT/yr), dh/dt (nT/yr): NOAA WMM.COF, WMM-2025, released 2024-11-13
-_WMM2025 = """
-1 0 -29351.8 0.0 12.0 0.0|1 1 -1410.8 4545.4 9.7 -21.5|2 0 -2556.6 0.0 -11.6 0.0|2 1 2951.1 -3133.6 -5.2 -27.7
-2 2 1649.3 -815.1 -8.0 -12.1|3 0 1361.0 0.0 -1.3 0.0|3 1 -2404.1 -56.6 -4.2 4.0|3 2 1243.8 237.5 0.4 -0.3
-3 3 453.6 -549.5 -15.6 -4.1|4 0 895.0 0.0 -1.6 0.0|4 1 799.5 278.6 -2.4 -1.1|4 2 55.7 -133.9 -6.0 4.1
-4 3 -281.1 212.0 5.6 1.6|4 4 12.1 -375.6 -7.0 -4.4|5 0 -233.2 0.0 0.6 0.0|5 1 368.9 45.4 1.4 -0.5
-5 2 187.2 220.2 0.0 2.2|5 3 -138.7 -122.9 0.6 0.4|5 4 -142.0 43.0 2.2 1.7|5 5 20.9 106.1 0.9 1.9
-6 0 64.4 0.0 -0.2 0.0|6 1 63.8 -18.4 -0.4 0.3|6 2 76.9 16.8 0.9 -1.6|6 3 -115.7 48.8 1.2 -0.4
-6 4 -40.9 -59.8 -0.9 0.9|6 5 14.9 10.9 0.3 0.7|6 6 -60.7 72.7 0.9 0.9|7 0 79.5 0.0 -0.0 0.0
-7 1 -77.0 -48.9 -0.1 0.6|7 2 -8.8 -14.4 -0.1 0.5|7 3 59.3 -1.0 0.5 -0.8|7 4 15.8 23.4 -0.1 0.0
-7 5 2.5 -7.4 -0.8 -1.0|7 6 -11.1 -25.1 -0.8 0.6|7 7 14.2 -2.3 0.8 -0.2|8 0 23.2 0.0 -0.1 0.0
-8 1 10.8 7.1 0.2 -0.2|8 2 -17.5 -12.6 0.0 0.5|8 3 2.0 11.4 0.5 -0.4|8 4 -21.7 -9.7 -0.1 0.4
-8 5 16.9 12.7 0.3 -0.5|8 6 15.0 0.7 0.2 -0.6|8 7 -16.8 -5.2 -0.0 0.3|8 8 0.9 3.9 0.2 0.2
-9 0 4.6 0.0 -0.0 0.0|9 1 7.8 -24.8 -0.1 -0.3|9 2 3.0 12.2 0.1 0.3|9 3 -0.2 8.3 0.3 -0.3
-9 4 -2.5 -3.3 -0.3 0.3|9 5 -13.1 -5.2 0.0 0.2|9 6 2.4 7.2 0.3 -0.1|9 7 8.6 -0.6 -0.1 -0.2
-9 8 -8.7 0.8 0.1 0.4|9 9 -12.9 10.0 -0.1 0.1|10 0 -1.3 0.0 0.1 0.0|10 1 -6.4 3.3 0.0 0.0
-10 2 0.2 0.0 0.1 -0.0|10 3 2.0 2.4 0.1 -0.2|10 4 -1.0 5.3 -0.0 0.1|10 5 -0.6 -9.1 -0.3 -0.1
-10 6 -0.9 0.4 0.0 0.1|10 7 1.5 -4.2 -0.1 0.0|10 8 0.9 -3.8 -0.1 -0.1|10 9 -2.7 0.9 -0.0 0.2
-10 10 -3.9 -9.1 -0.0 -0.0|11 0 2.9 0.0 0.0 0.0|11 1 -1.5 0.0 -0.0 -0.0|11 2 -2.5 2.9 0.0 0.1
-11 3 2.4 -0.6 0.0 -0.0|11 4 -0.6 0.2 0.0 0.1|11 5 -0.1 0.5 -0.1 -0.0|11 6 -0.6 -0.3 0.0 -0.0
-11 7 -0.1 -1.2 -0.0 0.1|11 8 1.1 -1.7 -0.1 -0.0|11 9 -1.0 -2.9 -0.1 0.0|11 10 -0.2 -1.8 -0.1 0.0
-11 11 2.6 -2.3 -0.1 0.0|12 0 -2.0 0.0 0.0 0.0|12 1 -0.2 -1.3 0.0 -0.0|12 2 0.3 0.7 -0.0 0.0
-12 3 1.2 1.0 -0.0 -0.1|12 4 -1.3 -1.4 -0.0 0.1|12 5 0.6 -0.0 -0.0 -0.0|12 6 0.6 0.6 0.1 -0.0
-12 7 0.5 -0.1 -0.0 -0.0|12 8 -0.1 0.8 0.0 0.0|12 9 -0.4 0.1 0.0 -0.0|12 10 -0.2 -1.0 -0.1 -0.0
-12 11 -1.3 0.1 -0.0 0.0|12 12 -0.7 0.2 -0.1 -0.1
-"""
-WMM_EPOCH = 2025.0
-WMM_VALID_UNTIL = 2030.0
-_DEGREE = 12
-_A_KM = 6378.137  # WGS-84 semi-major axis
-_F = 1.0 / 298.257223563  # WGS-84 flattening
-_RE_KM = 6371.2  # geomagnetic reference radius
-
-
-def _coefficients() -> tuple[Array, Array, Array, Array]:
-    g, h, gd, hd = (np.zeros((_DEGREE + 1, _DEGREE + 1)) for _ in range(4))
-    for row in _WMM2025.replace("\n", "|").split("|"):
-        if row.strip():
-            n, m, *vals = row.split()
-            g[int(n), int(m)], h[int(n), int(m)], gd[int(n), int(m)], hd[int(n), int(m)] = map(float, vals)
-    return g, h, gd, hd
-
-
-_G, _H, _GD, _HD = _coefficients()
-
-
-def decimal_year(when: date | datetime | float) -> float:
-    """``2025.5``-style year of a date (UTC midnight) or datetime; a float passes through."""
-    if isinstance(when, int | float):
-        return float(when)
-    if not isinstance(when, datetime):
-        when = datetime(when.year, when.month, when.day)
-    start = datetime(when.year, 1, 1, tzinfo=when.tzinfo)
-    end = datetime(when.year + 1, 1, 1, tzinfo=when.tzinfo)
-    return when.year + (when - start).total_seconds() / (end - start).total_seconds()
-
-
-def wmm2025(
-    lat_deg: float, lon_deg: float, when: date | datetime | float, height_km: float = 0.0
-) -> GeomagneticField:
-    """The WMM2025 main field at geodetic latitude/longitude (degrees, WGS-84), height above the ellipsoid
-    (km) and date. Outside 2025.0–2030.0 the model does not apply: ConfigError."""
-    year = decimal_year(when)
-    if not (WMM_EPOCH <= year < WMM_VALID_UNTIL):
-        raise ConfigError(f"WMM2025 is valid for 2025.0 <= year < 2030.0, got {year:.3f}", "field model date")
-    if not (-90.0 <= lat_deg <= 90.0 and math.isfinite(lon_deg) and math.isfinite(height_km)):
-        place = f"latitude {lat_deg!r}, longitude {lon_deg!r}, height {height_km!r} km"
-        raise ConfigError(f"not a place on Earth: {place}", "field model")
-    dt = year - WMM_EPOCH
-    g, h = _G + dt * _GD, _H + dt * _HD
-    # geodetic → geocentric spherical
-    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
-    e2 = _F * (2.0 - _F)
-    rc = _A_KM / math.sqrt(1.0 - e2 * math.sin(lat) ** 2)
-    xp = (rc + height_km) * math.cos(lat)
-    zp = (rc * (1.0 - e2) + height_km) * math.sin(lat)
-    r = math.hypot(xp, zp)
-    lat_c = math.asin(zp / r)
-    p, dp = _schmidt_legendre(math.sin(lat_c), math.cos(lat_c))
-    cos_c = max(math.cos(lat_c), 1e-12)  # the east component's 1/cos is finite at the pole limit
-    bx = by = bz = 0.0  # geocentric north, east, down
-    for n in range(1, _DEGREE + 1):
-        scale = (_RE_KM / r) ** (n + 2)
-        for m in range(n + 1):
-            cm, sm = math.cos(m * lon), math.sin(m * lon)
-            along = g[n, m] * cm + h[n, m] * sm
-            bx -= scale * along * dp[n, m]
-            by += scale * m * (g[n, m] * sm - h[n, m] * cm) * p[n, m] / cos_c
-            bz -= scale * (n + 1) * along * p[n, m]
-    tilt = lat_c - lat  # geocentric → geodetic (ellipsoidal) frame
-    north = bx * math.cos(tilt) - bz * math.sin(tilt)
-    down = bx * math.sin(tilt) + bz * math.cos(tilt)
-    return GeomagneticField(north, by, down)
-
-
-def _schmidt_legendre(x: float, c: float) -> tuple[Array, Array]:
-    """Schmidt semi-normalised associated Legendre functions P_n^m(sin φ) and dP/dφ, n ≤ 12."""
-    p = np.zeros((_DEGREE + 1, _DEGREE + 1))
-    dp = np.zeros_like(p)
-    p[0, 0] = 1.0
-    for n in range(1, _DEGREE + 1):
-        for m in range(n + 1):
-            if n == m:
-                k = math.sqrt(1.0 - 1.0 / (2 * n)) if n > 1 else 1.0
-                p[n, n] = k * c * p[n - 1, n - 1]
-                dp[n, n] = k * (c * dp[n - 1, n - 1] - x * p[n - 1, n - 1])
-            else:
-                a = math.sqrt((n - m) * (n + m))
-                b = (2 * n - 1) / a
-                d = math.sqrt((n - m - 1) * (n + m - 1)) / a if n - 2 >= m else 0.0
-                p2 = p[n - 2, m] if n - 2 >= m else 0.0
-                dp2 = dp[n - 2, m] if n - 2 >= m else 0.0
-                p[n, m] = b * x * p[n - 1, m] - d * p2
-                dp[n, m] = b * (x * dp[n - 1, m] + c * p[n - 1, m]) - d * dp2
-    return p, dp
-
-
 # --------------------------------------------------------------------------- still window
 @dataclass(frozen=True)
 class StillWindow:
@@ -204,17 +55,19 @@ class StillWindow:
     t0: float
     t1: float
     acc: Array
-    mag: Array
+    mag: Array | None  # None for a 6-axis log
 
     @property
     def inclination_deg(self) -> float:
         """Field inclination (positive downward): the angle between the field and the horizontal plane."""
+        if self.mag is None:
+            raise InputFormatError("no magnetometer: the field's inclination is not observed", "still window")
         ua, um = self.acc / np.linalg.norm(self.acc), self.mag / np.linalg.norm(self.mag)
         return math.degrees(math.asin(float(np.clip(-ua @ um, -1.0, 1.0))))
 
     @property
     def field_uT(self) -> float:
-        return float(np.linalg.norm(self.mag))
+        return float(np.linalg.norm(self.mag)) if self.mag is not None else math.nan
 
     @property
     def gravity(self) -> float:
@@ -232,9 +85,11 @@ def find_still_window(
 
     Still means: every gyroscope sample below ``max_rate`` rad/s in norm, the accelerometer's norm varying
     by at most ``max_acc_std`` m/s² (standard deviation) around a value within 1 m/s² of 9.81, and at
-    least a few samples of each sensor. Raises InputFormatError (naming the log) if there is none.
+    least a few samples of each sensor. Raises InputFormatError (naming the log) if there is none. A 6-axis
+    log's window has no magnetometer mean (``mag`` None).
     """
-    gyr, acc, mag = (log.streams[k] for k in (SensorKind.GYR, SensorKind.ACC, SensorKind.MAG))
+    gyr, acc = log.streams[SensorKind.GYR], log.streams[SensorKind.ACC]
+    mag = log.streams.get(SensorKind.MAG)
     t_start = log.start
     acc_norm = np.linalg.norm(acc.xyz, axis=1)
     gyr_norm = np.linalg.norm(gyr.xyz, axis=1)
@@ -242,16 +97,17 @@ def find_still_window(
         t1 = t0 + duration_s
         g = (gyr.t >= t0) & (gyr.t <= t1)
         a = (acc.t >= t0) & (acc.t <= t1)
-        m = (mag.t >= t0) & (mag.t <= t1)
-        if min(g.sum(), a.sum(), m.sum()) < 5:
+        m = (mag.t >= t0) & (mag.t <= t1) if mag is not None else None
+        if min(g.sum(), a.sum(), 5 if m is None else m.sum()) < 5:
             continue
         if (
             np.all(gyr_norm[g] < max_rate)
             and np.std(acc_norm[a]) <= max_acc_std
             and abs(np.mean(acc_norm[a]) - 9.81) < 1.0
-            and np.all(np.isfinite(mag.xyz[m]))
+            and (mag is None or np.all(np.isfinite(mag.xyz[m])))
         ):
-            return StillWindow(float(t0), float(t1), acc.xyz[a].mean(axis=0), mag.xyz[m].mean(axis=0))
+            mag_mean = None if mag is None else mag.xyz[m].mean(axis=0)
+            return StillWindow(float(t0), float(t1), acc.xyz[a].mean(axis=0), mag_mean)
     raise InputFormatError(
         f"no still window of {duration_s:g} s (gyro < {max_rate:g} rad/s, |acc| std <= {max_acc_std:g} m/s²) "
         f"in the first {search_s:g} s",
@@ -268,7 +124,9 @@ def median_inclination_deg(log: SensorLog, window_s: float = 10.0) -> float:
     """The field inclination from the first ``window_s`` of a log, moving or not: the angle between the
     accelerometer and magnetometer readings does not depend on the attitude, so its median over the window
     (acceleration and disturbances are outliers) estimates the dip. Samples are paired by nearest time."""
-    acc, mag = log.streams[SensorKind.ACC], log.streams[SensorKind.MAG]
+    acc, mag = log.streams[SensorKind.ACC], log.streams.get(SensorKind.MAG)
+    if mag is None:
+        raise InputFormatError("no magnetometer: the field's inclination is not observed", log.source)
     sel = (mag.t >= log.start) & (mag.t <= log.start + window_s) & np.all(np.isfinite(mag.xyz), axis=1)
     if sel.sum() < 5 or len(acc) < 2:
         raise InputFormatError(f"too few magnetometer samples in the first {window_s:g} s", log.source)
@@ -294,3 +152,97 @@ def directions_from_log(log: SensorLog, window_s: float = 10.0) -> tuple[Array, 
     return directions_from_still(still), (
         f"inclination {still.inclination_deg:.1f} deg (still window {still.t0:.2f}-{still.t1:.2f} s)"
     )
+
+
+# --------------------------------------------------------------------------- 6-axis start, field checks
+def tilt_attitude(log: SensorLog, window_s: float = 0.5) -> Array:
+    """A body → ENU attitude (3, 3) from gravity alone, heading 0: the smallest rotation taking the mean
+    accelerometer reading (the still window's, else the first ``window_s``'s) to "up". For a log without a
+    magnetometer, whose heading is not observed."""
+    acc = log.streams[SensorKind.ACC]
+    try:
+        a = find_still_window(log).acc
+    except InputFormatError:
+        sel = (acc.t <= acc.t[0] + window_s) & np.all(np.isfinite(acc.xyz), axis=1)
+        a = np.median(acc.xyz[sel], axis=0) if sel.any() else UP
+    n = float(np.linalg.norm(a))
+    if not (math.isfinite(n) and n > 0):
+        return np.eye(3)
+    u = a / n
+    axis = np.cross(u, UP)
+    s, c = float(np.linalg.norm(axis)), float(u @ UP)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    return so3.exp(axis / s * math.atan2(s, c))
+
+
+FIELD_DIP_TOL_DEG = 10.0
+"""Inclination disagreement (deg) that is warned about: start vs rest of the log, log vs model."""
+EARTH_FIELD_UT = (20.0, 70.0)
+"""The geomagnetic field's strength at the surface, µT (about 22–67): outside it the magnetometer is
+disturbed or not calibrated."""
+
+
+def field_warnings(log: SensorLog, model: GeomagneticField | None = None, start_s: float = 10.0) -> list[str]:
+    """What is wrong with the measured field, in words: its inclination (the angle between gravity and the
+    field, which does not depend on the attitude) at the start against the rest of the log and against
+    ``model``; its steadiness at the start; its strength. Empty when all is well or there is no
+    magnetometer. The estimator's inertial directions come from the start (the still window), so a
+    disturbed start gives a wrong inclination — this says so."""
+    mag = log.streams.get(SensorKind.MAG)
+    acc = log.streams[SensorKind.ACC]
+    if mag is None or len(mag) < 10 or len(acc) < 2:
+        return []
+    ok = np.all(np.isfinite(mag.xyz), axis=1) & np.isfinite(mag.t)
+    t, m = mag.t[ok], mag.xyz[ok]
+    idx = np.clip(np.searchsorted(acc.t, t), 0, len(acc) - 1)
+    a = acc.xyz[idx]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        norm = np.linalg.norm(m, axis=1)
+        dots = np.sum(a * m, axis=1) / (np.linalg.norm(a, axis=1) * norm)
+    dip = np.degrees(np.arcsin(np.clip(-dots, -1.0, 1.0)))
+    good = np.isfinite(dip)
+    t, dip, norm = t[good], dip[good], norm[good]
+    if dip.size < 10:
+        return []
+    start = t <= t[0] + start_s
+    rest = ~start
+    out = []
+    d_start = float(np.median(dip[start]))
+    spread = float(np.percentile(dip[start], 90) - np.percentile(dip[start], 10))
+    if spread > 2 * FIELD_DIP_TOL_DEG:
+        out.append(
+            f"the magnetic field is unsteady over the first {start_s:g} s: its inclination spans "
+            f"{spread:.0f} deg (disturbed? a magnet, metal or a charger near the phone)"
+        )
+    if rest.sum() >= 10:
+        d_rest = float(np.median(dip[rest]))
+        if abs(d_start - d_rest) > FIELD_DIP_TOL_DEG:
+            out.append(
+                f"the field's inclination over the first {start_s:g} s ({d_start:.1f} deg) disagrees with "
+                f"the rest of the log ({d_rest:.1f} deg): a disturbed start? the inertial directions come "
+                "from the start; give --inclination or --lat/--lon/--date"
+            )
+    if model is not None:
+        d_model = model.inclination_deg
+        d_all = float(np.median(dip))
+        if abs(d_all - d_model) > FIELD_DIP_TOL_DEG:
+            out.append(
+                f"the measured inclination ({d_all:.1f} deg) disagrees with the field model's "
+                f"({d_model:.1f} deg) by {abs(d_all - d_model):.0f} deg: disturbed magnetometer, or the "
+                "wrong place/date?"
+            )
+        strength = float(np.median(norm))
+        if abs(strength - model.total_nT / 1000.0) > 0.25 * model.total_nT / 1000.0:
+            out.append(
+                f"the measured field strength ({strength:.1f} uT) disagrees with the model's "
+                f"({model.total_nT / 1000:.1f} uT): magnetometer not calibrated or disturbed"
+            )
+    strength = float(np.median(norm))
+    lo, hi = EARTH_FIELD_UT
+    if model is None and not lo <= strength <= hi:
+        out.append(
+            f"the measured field strength ({strength:.1f} uT) is outside the Earth's ({lo:g}-{hi:g} uT): "
+            "magnetometer not calibrated (an uncalibrated file?) or disturbed"
+        )
+    return out

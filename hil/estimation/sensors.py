@@ -45,6 +45,8 @@ class SensorKind(enum.IntEnum):
 
 _UNITS = {SensorKind.GYR: "rad/s", SensorKind.ACC: "m/s^2", SensorKind.MAG: "uT"}
 KINDS: tuple[SensorKind, ...] = (SensorKind.GYR, SensorKind.ACC, SensorKind.MAG)
+REQUIRED: tuple[SensorKind, ...] = (SensorKind.GYR, SensorKind.ACC)
+"""Sensors every log must have; the magnetometer is optional (a 6-axis log)."""
 
 
 class StepFlag(enum.IntFlag):
@@ -162,6 +164,10 @@ class SensorLog:
 
     ``dropped`` counts rows a reader discarded (e.g. ``{"acc: NaN": 3}``) so nothing is lost silently;
     ``notes`` records what the reader did to normalise units, frames and clocks.
+
+    The gyroscope and accelerometer are required; the magnetometer is not: a recording without one
+    (:attr:`six_axis`) observes inclination from gravity but not heading, which only the gyroscope
+    carries (drifting).
     """
 
     streams: Mapping[SensorKind, SensorStream]
@@ -172,9 +178,21 @@ class SensorLog:
     dropped: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        missing = [k.name for k in KINDS if k not in self.streams or len(self.streams[k]) == 0]
+        missing = [k.name for k in REQUIRED if k not in self.streams or len(self.streams[k]) == 0]
         if missing:
             raise InputFormatError(f"log has no {', '.join(missing)} samples", self.source)
+        if SensorKind.MAG in self.streams and len(self.streams[SensorKind.MAG]) == 0:
+            raise InputFormatError("log has an empty MAG stream (leave it out for a 6-axis log)", self.source)
+
+    @property
+    def six_axis(self) -> bool:
+        """No magnetometer: heading is not observed (the gyroscope alone carries it, drifting)."""
+        return SensorKind.MAG not in self.streams
+
+    @property
+    def kinds(self) -> tuple[SensorKind, ...]:
+        """The sensors this log has, in :data:`KINDS` order."""
+        return tuple(k for k in KINDS if k in self.streams)
 
     @property
     def n_samples(self) -> int:

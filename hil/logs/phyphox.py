@@ -1,99 +1,196 @@
-"""phyphox (RWTH Aachen) "Export data → CSV": a zip (or its folder) of one CSV per sensor.
+"""phyphox (RWTH Aachen) "Export data → CSV": one CSV per sensor, from one experiment or several.
 
-Files ``Accelerometer.csv`` ("Acceleration with g": gravity included), ``Gyroscope.csv``,
-``Magnetometer.csv``; headers like ``"Time (s)","Acceleration x (m/s^2)",…``, ``"Gyroscope x (rad/s)"``,
-``"Magnetic field x (µT)"``. Columns are found by name: the time column starts with "Time", axis columns
-carry a lone ``x``/``y``/``z`` and their unit in parentheses, which is converted to SI (g → m/s² with
-9.80665, °/s → rad/s, mT/nT → µT). All three of phyphox's CSV dialects are read: comma with decimal
-point, tab with decimal point, semicolon with decimal comma. ``Time (s)`` is seconds since the experiment
-started, one clock for all sensors; axes are the phone's sensor frame. ``Linear Acceleration.csv`` (no
-gravity) cannot replace the accelerometer and is refused.
+Layouts read (docs/formats.md):
+
+- one experiment with several sensors: ``Accelerometer.csv`` ("Acceleration with g"), ``Gyroscope.csv``,
+  ``Magnetometer.csv`` — one clock, ``Time (s)`` since the experiment started;
+- the built-in single-sensor experiments, each exported on its own: a zip (or its folder) holding
+  ``Raw Data.csv`` and ``meta/time.csv``. Several of them in one folder (or zips in one folder) are read
+  together: each file is on its own clock starting at 0, and its export's ``meta/time.csv`` (``"event",
+  "experiment time","system time","system time text"``, rows ``START``/``PAUSE``) gives the system time of
+  its START, which puts every file on one clock;
+- a custom experiment's buffers, e.g. ``Acceleration.csv`` with ``"time","Acceleration x"`` (no unit:
+  SI assumed).
+
+What a file holds is read from its x column's label: ``Acceleration``/``Accelerometer`` (gravity
+included), ``Gyroscope``, ``Magnetic field``/``Magnetometer``. Linear (gravity-free) acceleration —
+``Linear Accelerometer.csv`` (current phyphox), ``Linear Acceleration.csv`` (older), a ``Linear
+Acceleration x`` column — cannot give the gravity direction: it is ignored beside an accelerometer with g,
+refused alone. Units in parentheses convert to SI (:mod:`hil.logs.columns`). Dialects: comma, tab or
+semicolon separated, decimal point or decimal comma (told from the first data line). Without a
+magnetometer file the log is 6-axis (heading unobserved). An Excel (``.xls``) export is refused with a
+message to export CSV.
 """
 
 from __future__ import annotations
 
-import math
 import re
+from dataclasses import dataclass
 
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
-from hil.logs.table import Container, Table, parse_table
+from hil.logs.columns import axis_columns, axis_of, time_column
+from hil.logs.table import Container, read_table, split_header
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
-FILES = {
-    SensorKind.ACC: "Accelerometer.csv",
-    SensorKind.GYR: "Gyroscope.csv",
-    SensorKind.MAG: "Magnetometer.csv",
-}
-_UNITS = {
-    SensorKind.ACC: {"m/s^2": 1.0, "m/s²": 1.0, "m/s2": 1.0, "g": 9.80665},
-    SensorKind.GYR: {"rad/s": 1.0, "°/s": math.pi / 180, "deg/s": math.pi / 180},
-    SensorKind.MAG: {"µt": 1.0, "μt": 1.0, "ut": 1.0, "mt": 1000.0, "nt": 1e-3},
-}
-_AXIS = re.compile(r"(?<![A-Za-z])([xyz])(?![A-Za-z])", re.IGNORECASE)
-_UNIT = re.compile(r"\(([^()]*)\)\s*$")
+TIME_CSV = "meta/time.csv"
+EXCEL = (".xls", ".xlsx")
+_LINEAR = re.compile(r"linear", re.IGNORECASE)
+_KINDS = (
+    (re.compile(r"acceler", re.IGNORECASE), SensorKind.ACC),
+    (re.compile(r"gyro", re.IGNORECASE), SensorKind.GYR),
+    (re.compile(r"magnet", re.IGNORECASE), SensorKind.MAG),
+)
+
+
+def excel_message(where: str) -> InputFormatError:
+    return InputFormatError(
+        "an Excel export: hil reads CSV; in phyphox use Export data -> 'CSV (Comma, decimal point)' "
+        "(any of its CSV options works)",
+        where,
+    )
+
+
+@dataclass(frozen=True)
+class _File:
+    """A sensor CSV of the export: member name, what it holds, its dialect and its export group."""
+
+    name: str
+    kind: SensorKind | None  # None: gravity-free (linear) acceleration
+    delimiter: str
+    decimal_comma: bool
+    group: str  # the folder of its export ("" at the top): where its meta/time.csv is
+
+
+def _csv_members(c: Container) -> list[str]:
+    return [n for n in c.names() if n.lower().endswith(".csv") and "meta/" not in f"/{n}".lower()]
+
+
+def _dialect(head: list[str]) -> tuple[str, bool]:
+    header = head[0] if head else ""
+    delimiter = ";" if ";" in header else "\t" if "\t" in header else ","
+    first = next((line for line in head[1:] if line.strip()), "")
+    return delimiter, delimiter != "," and "," in first
+
+
+def _classify(c: Container, name: str) -> _File | None:
+    """The file's sensor from its header, or None if it is not a phyphox sensor table."""
+    head = [line for line in c.head(name, 8) if line.strip() and not line.lstrip().startswith("#")][:2]
+    if not head:
+        return None
+    delimiter, decimal_comma = _dialect(head)
+    cells = split_header(head[0], delimiter)
+    if not cells or not cells[0].lower().startswith("time"):
+        return None
+    x_col = next((col for col in cells[1:] if axis_of(col) == "x"), None)
+    if x_col is None:
+        return None
+    if _LINEAR.search(name.rsplit("/", 1)[-1]) or _LINEAR.search(x_col):
+        kind = None
+    else:
+        kind = next((k for pattern, k in _KINDS if pattern.search(x_col)), None)
+        if kind is None:
+            return None
+    group = name.rsplit("/", 1)[0] + "/" if "/" in name else ""
+    return _File(name, kind, delimiter, decimal_comma, group)
 
 
 def detect(c: Container) -> bool:
-    for name in FILES.values():
-        if c.has(name):
-            head = c.text(name).split("\n", 1)[0]
-            return head.lstrip('"').startswith("Time")
-    return False
-
-
-def _dialect(header: str) -> tuple[str, bool]:
-    if ";" in header:
-        return ";", True
-    if "\t" in header:
-        return "\t", False
-    return ",", False
-
-
-def _stream(c: Container, kind: SensorKind) -> SensorStream:
-    name = FILES[kind]
-    text = c.text(name)
-    delimiter, decimal_comma = _dialect(text.split("\n", 1)[0])
-    table = parse_table(
-        text, c.where(name), delimiter, header=True, decimal_comma=decimal_comma, min_columns=4
-    )
-    time_col = next((col for col in table.columns if col.lower().startswith("time")), None)
-    if time_col is None:
-        raise InputFormatError(f"no 'Time (s)' column (columns: {', '.join(table.columns)})", table.source)
-    axes = []
-    for axis in "xyz":
-        col = next((x for x in table.columns if x != time_col and _axis_of(x) == axis), None)
-        if col is None:
-            raise InputFormatError(f"no {axis} column (columns: {', '.join(table.columns)})", table.source)
-        axes.append(table.column(col) * _scale(kind, col, table))
-    return SensorStream(kind, table.column(time_col), np.column_stack(axes))
-
-
-def _axis_of(column: str) -> str | None:
-    label = _UNIT.sub("", column)
-    m = _AXIS.findall(label)
-    return m[-1].lower() if len(m) == 1 else None
-
-
-def _scale(kind: SensorKind, column: str, table: Table) -> float:
-    m = _UNIT.search(column)
-    unit = m.group(1).strip().lower() if m else ""
-    factor = _UNITS[kind].get(unit) or _UNITS[kind].get(unit.replace("µ", "u"))
-    if factor is None:
-        raise InputFormatError(f"unknown unit {unit!r} for the {kind.label}", table.source, 1, column)
-    return factor
+    if any(n.lower().endswith(EXCEL) for n in c.names()) and not _csv_members(c):
+        raise excel_message(str(c.path))
+    return any(_classify(c, n) is not None for n in _csv_members(c)[:20])
 
 
 def read(c: Container) -> SensorLog:
-    if not c.has(FILES[SensorKind.ACC]) and c.has("Linear Acceleration.csv"):
+    files = [f for f in (_classify(c, n) for n in _csv_members(c)) if f is not None]
+    if not files and any(n.lower().endswith(EXCEL) for n in c.names()):
+        raise excel_message(str(c.path))
+    notes = ["phyphox export: units converted to SI"]
+    chosen: dict[SensorKind, _File] = {}
+    for f in files:
+        if f.kind is not None and f.kind not in chosen:
+            chosen[f.kind] = f
+        elif f.kind is not None:
+            notes.append(f"{f.name}: a second {f.kind.label} file, ignored (using {chosen[f.kind].name})")
+    linear = [f.name for f in files if f.kind is None]
+    if SensorKind.ACC not in chosen and linear:
         raise InputFormatError(
-            "only 'Linear Acceleration.csv' (gravity removed): record with phyphox's 'Acceleration with g'",
-            c.where("Linear Acceleration.csv"),
+            f"only linear acceleration ({', '.join(linear)}: gravity removed): the estimator needs the "
+            "gravity direction; record with phyphox's 'Acceleration with g'",
+            c.where(linear[0]),
         )
-    missing = [n for n in FILES.values() if not c.has(n)]
-    if missing:
-        raise InputFormatError(f"missing {', '.join(missing)}", str(c.path))
-    streams = {kind: _stream(c, kind) for kind in FILES}
-    return SensorLog(streams, str(c.path), NAME, None, ("phyphox export: units converted to SI",))
+    for kind in (SensorKind.ACC, SensorKind.GYR):
+        if kind not in chosen:
+            found = ", ".join(f.name for f in files) or "no sensor tables"
+            raise InputFormatError(f"no {kind.name.lower()} file (found: {found})", str(c.path))
+    if linear:
+        notes.append(f"ignored (gravity removed): {', '.join(linear)}")
+    if SensorKind.MAG not in chosen:
+        notes.append("no magnetometer file: 6-axis log, heading not observed (gyroscope only, drifting)")
+    offsets = _clock_offsets(c, {f.group for f in chosen.values()}, notes)
+    streams = {kind: _stream(c, f, offsets[f.group]) for kind, f in chosen.items()}
+    acc_norm = float(np.nanmedian(np.linalg.norm(streams[SensorKind.ACC].xyz, axis=1)))
+    if acc_norm < 3.0:
+        raise InputFormatError(
+            f"the accelerometer's median norm is {acc_norm:.2f} m/s^2: gravity is missing (linear "
+            "acceleration?); record with phyphox's 'Acceleration with g'",
+            c.where(chosen[SensorKind.ACC].name),
+        )
+    return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
+
+
+def _stream(c: Container, f: _File, offset_s: float) -> SensorStream:
+    table = read_table(c, f.name, f.delimiter, decimal_comma=f.decimal_comma, min_columns=4)
+    assert f.kind is not None
+    t_col, t_scale = time_column(table.columns, table.source, table.header_line)
+    axes = axis_columns(table.columns, f.kind, table.source, table.header_line, skip=(t_col,))
+    xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
+    return SensorStream(f.kind, table.column(t_col) * t_scale + offset_s, xyz)
+
+
+def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str, float]:
+    """Seconds to add to each export's times to put them on one clock (0 for a single export)."""
+    if len(groups) == 1:
+        return dict.fromkeys(groups, 0.0)
+    starts = {}
+    for g in sorted(groups):
+        name = g + TIME_CSV
+        if not c.has(name):
+            where = g or "the top folder"
+            raise InputFormatError(
+                f"several exports ({', '.join(sorted(groups))}) and no {TIME_CSV} in {where}: "
+                "their clocks cannot be aligned (each starts at 0)",
+                str(c.path),
+            )
+        starts[g] = _start_system_time(c, name)
+    first = min(starts.values())
+    notes.append(
+        "exports aligned by meta/time.csv: "
+        + ", ".join(f"{g.rstrip('/')} +{s - first:.3f} s" for g, s in sorted(starts.items()))
+    )
+    return {g: s - first for g, s in starts.items()}
+
+
+def _start_system_time(c: Container, name: str) -> float:
+    """System time (s since the epoch) at experiment time 0, from the first START row."""
+    text_cells = {0: lambda s: 0.0 if s.strip('"') == "START" else 1.0, 3: lambda s: 0.0}
+    table = read_table(c, name, ",", converters=text_cells, min_columns=3, locate=_time_csv_error)
+    starts = np.flatnonzero(table.data[:, 0] == 0.0)
+    if not len(starts):
+        raise InputFormatError("no START event", table.source, table.header_line)
+    row = table.data[starts[0]]
+    return float(row[table.columns.index("system time")] - row[table.columns.index("experiment time")])
+
+
+def _time_csv_error(pending, columns, source):  # type: ignore[no-untyped-def]
+    for line_no, line in pending:
+        cells = line.split(",")
+        if len(cells) < 3:
+            raise InputFormatError(f"{len(cells)} values, expected at least 3", source, line_no)
+        for col, cell in zip(columns[1:3], cells[1:3], strict=True):
+            try:
+                float(cell)
+            except ValueError:
+                raise InputFormatError(f"{cell!r} is not a number", source, line_no, col) from None

@@ -21,15 +21,15 @@ line and column.
 
 from __future__ import annotations
 
-import io
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from hil import so3
-from hil.estimation.sensors import KINDS, SensorLog, SensorStream, Truth
-from hil.logs.table import Container
+from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
+from hil.logs.table import Container, read_table
 from protocol.errors import InputFormatError
 
 NAME = "csv"
@@ -43,73 +43,64 @@ def detect(c: Container) -> bool:
     names = c.names()
     if len(names) != 1 or not names[0].lower().endswith(".csv"):
         return False
-    head = c.raw(names[0])[:512].decode("utf-8", "replace")
-    return head.startswith(MAGIC) or HEADER in head.splitlines()[:5]
+    head = c.head(names[0], 5)
+    return bool(head) and (head[0].startswith(MAGIC) or HEADER in head)
 
 
 def read(c: Container) -> SensorLog:
     name = c.names()[0]
     where = c.where(name)
-    text = c.text(name)
-    lines = text.splitlines()
-    header_at = next((i for i, line in enumerate(lines) if line.strip() and not line.startswith("#")), None)
-    if header_at is None or lines[header_at].replace(" ", "") != HEADER:
-        got = lines[header_at] if header_at is not None else "nothing"
-        raise InputFormatError(f"expected header {HEADER!r}, found {got!r}", where, (header_at or 0) + 1)
-    try:
-        data = np.loadtxt(
-            io.StringIO("\n".join(lines[header_at + 1 :])),
-            delimiter=",",
-            comments="#",
-            ndmin=2,
-            converters={1: lambda s: _CODES[s.strip()], 5: lambda s: float(s) if s.strip() else math.nan},
-            dtype=float,
+    converters = {1: _sensor_code, 5: lambda s: float(s) if s.strip() else math.nan}
+    table = read_table(c, name, ",", converters=converters, locate=_locate)  # type: ignore[arg-type]
+    if table.columns != tuple(_COLUMNS):
+        raise InputFormatError(
+            f"expected header {HEADER!r}, found {','.join(table.columns)!r}", where, table.header_line
         )
-    except (ValueError, KeyError):
-        _locate(lines, header_at + 1, where)
-        raise
-    if data.size == 0:
-        data = np.zeros((0, 6))
+    data = table.data
     streams = {}
     for kind in KINDS:
         rows = data[data[:, 1] == int(kind)]
-        streams[kind] = SensorStream(kind, rows[:, 0], rows[:, 2:5])
+        if len(rows) or kind is not SensorKind.MAG:  # no magnetometer rows: a 6-axis log
+            streams[kind] = SensorStream(kind, rows[:, 0], rows[:, 2:5])
     truth_rows = data[data[:, 1] == 3]
     truth = None
     if len(truth_rows):
         quat = truth_rows[:, [5, 2, 3, 4]]
         bad = ~(np.abs(np.linalg.norm(quat, axis=1) - 1.0) < 1e-3)
         if bad.any():
-            line = _line_of_row(lines, header_at + 1, int(np.flatnonzero(data[:, 1] == 3)[np.argmax(bad)]))
+            row = int(np.flatnonzero(data[:, 1] == 3)[np.argmax(bad)])
+            line = _line_of_row(c, name, row)
             raise InputFormatError("truth quaternion is not of unit norm", where, line, "w")
         order = np.argsort(truth_rows[:, 0], kind="stable")
         truth = Truth(truth_rows[order, 0], so3.quat_to_matrix(quat[order]))
     return SensorLog(streams, where, NAME, truth, ("project CSV v1",))
 
 
-def _line_of_row(lines: list[str], first: int, row: int) -> int:
-    """1-based file line of data row ``row`` (comments and blank lines skipped)."""
-    seen = -1
-    for i in range(first, len(lines)):
-        if lines[i].strip() and not lines[i].lstrip().startswith("#"):
-            seen += 1
-            if seen == row:
-                return i + 1
-    return len(lines)
+def _sensor_code(cell: str) -> float:
+    return _CODES[cell.strip()]
 
 
-def _locate(lines: list[str], first: int, where: str) -> None:
-    for i in range(first, len(lines)):
-        line = lines[i]
-        if not line.strip() or line.lstrip().startswith("#"):
-            continue
+def _line_of_row(c: Container, name: str, row: int) -> int:
+    """1-based file line of data row ``row`` (comments, blank lines and the header skipped), streamed."""
+    seen = -2  # the header is the first non-comment line
+    with c.open_text(name) as f:
+        for i, line in enumerate(f, 1):
+            if line.strip() and not line.lstrip().startswith("#"):
+                seen += 1
+                if seen == row:
+                    return i
+    return 0
+
+
+def _locate(pending: Sequence[tuple[int, str]], columns: tuple[str, ...], where: str) -> None:
+    for line_no, line in pending:
         cells = line.split(",")
         if len(cells) != len(_COLUMNS):
-            raise InputFormatError(f"{len(cells)} values, expected {len(_COLUMNS)}", where, i + 1)
+            raise InputFormatError(f"{len(cells)} values, expected {len(_COLUMNS)}", where, line_no)
         sensor = cells[1].strip()
         if sensor not in _CODES:
             raise InputFormatError(
-                f"unknown sensor {sensor!r} (gyr, acc, mag or truth)", where, i + 1, "sensor"
+                f"unknown sensor {sensor!r} (gyr, acc, mag or truth)", where, line_no, "sensor"
             )
         for col, cell in zip(_COLUMNS, cells, strict=True):
             if col == "sensor" or (col == "w" and sensor != "truth" and not cell.strip()):
@@ -118,7 +109,7 @@ def _locate(lines: list[str], first: int, where: str) -> None:
                 float(cell)
             except ValueError:
                 what = f"{cell.strip()!r} is not a number" if cell.strip() else "empty value"
-                raise InputFormatError(what, where, i + 1, col) from None
+                raise InputFormatError(what, where, line_no, col) from None
 
 
 def write(log: SensorLog, path: Path | str) -> Path:
@@ -126,7 +117,7 @@ def write(log: SensorLog, path: Path | str) -> Path:
     times to the nanosecond, values to 10 significant digits."""
     path = Path(path)
     blocks = []
-    for kind in KINDS:
+    for kind in log.kinds:
         s = log.streams[kind]
         blocks.append((s.t, np.full(len(s), int(kind)), s.xyz, np.full(len(s), np.nan)))
     if log.truth is not None:

@@ -13,6 +13,14 @@ every interval in which the magnetometer was left out as disturbed, time at rest
 estimate), and figures: with ground truth the paper's two — the principal angle of the attitude
 estimation error and the angular-velocity estimation error — else the estimated attitude (roll/pitch/yaw)
 and rates; the magnetometer's rejection intervals shaded on the attitude figures.
+
+Gaps: where the log's clock (all sensors together) jumps by more than ``max_gap_s`` (default
+:data:`MAX_GAP_S`) — a recording paused, or a corrupt timestamp — the log is split and the filter starts
+afresh on each part (it never integrates across the gap); each split is reported (``summary.json``
+``segments``). A 6-axis log (no magnetometer) runs with gravity alone (the filter's 6-axis mode):
+inclination is observed, heading is the gyroscope's integral (reported unobserved, drifting). The
+measured field is checked against the field model, and for steadiness
+(:func:`hil.estimation.inertial.field_warnings`).
 """
 
 from __future__ import annotations
@@ -26,13 +34,19 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.estimation.estimator import Estimate, EstimateBatch
+from hil.estimation.estimator import Estimate, EstimateBatch, _concat
 from hil.estimation.filter import AttitudeFilter, FilterConfig
-from hil.estimation.inertial import directions_from_dip, directions_from_log, find_still_window, wmm2025
+from hil.estimation.geomag import GeomagneticField, igrf14
+from hil.estimation.inertial import (
+    directions_from_dip,
+    directions_from_log,
+    field_warnings,
+    find_still_window,
+    tilt_attitude,
+)
 from hil.estimation.metrics import TruthComparison, compare_to_truth
 from hil.estimation.multirate import MergePolicy, Merger, MergeStats, merge
 from hil.estimation.sensors import (
-    KINDS,
     MergedStep,
     MergedSteps,
     SensorKind,
@@ -52,9 +66,15 @@ ESTIMATES_COMMENT = (
 )
 
 
+MAX_GAP_S = 10.0
+"""A jump of the log's clock longer than this (s) splits the replay: the filter restarts after it."""
+MIN_SEGMENT_STEPS = 10
+"""A part of a split log shorter than this many merged steps is not run (reported)."""
+
+
 @dataclass(frozen=True)
 class FieldModel:
-    """Where and when a log was recorded, for the WMM2025 field (true-north ENU)."""
+    """Where and when a log was recorded, for the IGRF-14 field (true-north ENU), any date 1900–2030."""
 
     lat_deg: float
     lon_deg: float
@@ -70,12 +90,12 @@ Plotter = Callable[["ReplayResult", Path], dict[str, Path]]
 @dataclass(frozen=True)
 class ReplayOptions:
     """How to replay. ``preset``: ``"tuned"`` (default) or ``"paper"`` (exactly the paper, incl. its
-    1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions: measured
-    from the log (the default), or ``inclination_deg`` given, both with ``declination_deg`` (default 0:
-    magnetic north); or a ``field_model`` (true north).
-    ``gyro_bias``: ``"still"`` (default) subtracts the mean gyro over the log's initial still window, if it
-    has one; ``"none"`` does not. ``window_s``: replay only ``[t0, t1]`` s of the log. ``plotter``: draws the
-    figures (none by default)."""
+    1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions:
+    measured from the log (the default), or ``inclination_deg`` given, both with ``declination_deg``
+    (default 0: magnetic north); or a ``field_model`` (true north). ``gyro_bias``: ``"still"`` (default)
+    subtracts the mean gyro over the log's initial still window, if it has one; ``"none"`` does not.
+    ``window_s``: replay only ``[t0, t1]`` s of the log. ``max_gap_s``: split the log where its clock
+    jumps by more. ``plotter``: draws the figures (none by default)."""
 
     out_dir: Path
     format: str | None = None
@@ -87,6 +107,7 @@ class ReplayOptions:
     field_model: FieldModel | None = None
     gyro_bias: str = "still"
     window_s: tuple[float, float] | None = None
+    max_gap_s: float = MAX_GAP_S
     plotter: Plotter | None = None
     paced: bool = False
     clock: Clock | None = None
@@ -105,6 +126,8 @@ class ReplayResult:
     comparison: TruthComparison | None = None
     files: dict[str, Path] = field(default_factory=dict)
     gyro_bias: tuple[float, float, float] | None = None  # the estimate at the end (batch path), rad/s
+    segments: list[dict[str, float | int | str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def mag_rejections(self) -> list[tuple[float, float]]:
@@ -133,49 +156,111 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, lis
         except InputFormatError:
             setup.append("no still window: the gyro bias is estimated online from zero")
     declination = options.declination_deg
+    model = None
     if options.field_model is not None:
         fm = options.field_model
-        model = wmm2025(fm.lat_deg, fm.lon_deg, fm.year, fm.height_km)
+        model = igrf14(fm.lat_deg, fm.lon_deg, fm.year, fm.height_km)
         dip, declination = model.inclination_deg, model.declination_deg
-        place = f"{fm.lat_deg:g}, {fm.lon_deg:g}, {fm.year:g}"
-        setup.append(f"WMM2025 at {place}: inclination {dip:.2f} deg, declination {declination:.2f} deg")
+        place = f"{fm.lat_deg:g}, {fm.lon_deg:g}, {fm.year:.2f}"
+        setup.append(f"IGRF-14 at {place}: inclination {dip:.2f} deg, declination {declination:.2f} deg")
     elif options.inclination_deg is not None:
         dip = options.inclination_deg
         setup.append(f"inclination {dip:g} deg given")
+    elif log.six_axis:
+        dip = 0.0
+        setup.append("no magnetometer (6-axis): inclination from gravity; heading NOT observed, it is the")
+        setup.append("  gyroscope's integral from an arbitrary start (yaw 0) and drifts with its bias")
     else:
         e, how = directions_from_log(log)
         dip = math.degrees(math.asin(float(np.clip(-e[2, 1], -1.0, 1.0))))
         setup.append(f"inertial directions from the log: {how}")
-    if options.field_model is None:
+    if options.field_model is None and not log.six_axis:
         setup.append(f"declination {declination:g} deg" + (" (magnetic north)" if declination == 0 else ""))
+    overrides: dict[str, object] = {"gyro_bias": bias}
+    if log.six_axis:  # the filter's 6-axis mode, started from gravity alone (heading 0)
+        overrides["init"] = tilt_attitude(log)
+        overrides["magnetometer"] = "none"
     if options.preset == "paper":
-        config = FilterConfig.paper(E=directions_from_dip(dip, declination), gyro_bias=bias)
+        config = FilterConfig.paper(E=directions_from_dip(dip, declination), **overrides)
         setup.append("preset paper: W, m, D, Φ and the 1 rad/s body-frame pre-filter of the paper")
     else:
-        config = FilterConfig.tuned(declination_deg=declination, gyro_bias=bias)
+        config = FilterConfig.tuned(declination_deg=declination, **overrides)
         setup.append("preset tuned: strapdown-frame pre-filter, horizontal magnetometer, tuned gains")
     return config, setup
 
 
+def field_model_of(options: ReplayOptions) -> GeomagneticField | None:
+    """The IGRF-14 field at the options' place and date, if given."""
+    fm = options.field_model
+    return None if fm is None else igrf14(fm.lat_deg, fm.lon_deg, fm.year, fm.height_km)
+
+
+def split_at_gaps(log: SensorLog, max_gap_s: float) -> list[tuple[float, float]]:
+    """``[t0, t1]`` parts of the log between jumps of its clock (every sensor's times together) longer
+    than ``max_gap_s``; one part when there is none."""
+    times = np.unique(np.concatenate([s.t[np.isfinite(s.t)] for s in log.streams.values()]))
+    if not times.size:
+        return []
+    cut = np.flatnonzero(np.diff(times) > max_gap_s)
+    starts = np.concatenate([[times[0]], times[cut + 1]])
+    ends = np.concatenate([times[cut], [times[-1]]])
+    return [(float(a), float(b)) for a, b in zip(starts, ends, strict=True)]
+
+
 def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     """Read, merge, filter and write one log; see the module docstring."""
+    if not (math.isfinite(options.max_gap_s) and options.max_gap_s > 0):
+        raise ConfigError(f"must be a positive number of seconds, got {options.max_gap_s!r}", "max_gap_s")
     log = read_log(path, options.format)
     if options.window_s is not None:
         log = log.window(*options.window_s)
     config, setup = configure(log, options)
-    steps, stats = merge(log.streams, options.policy)
-    first = _first_complete(steps)
-    if first:
-        setup.append(f"first {first} steps dropped: not every sensor had spoken yet")
-        steps = steps.rows(first)
-    bias = None
-    if options.paced or options.on_step is not None:
-        estimates = _run_live(log, steps, stats, config, options)
-    else:
-        chain = AttitudeFilter(config)
-        estimates = chain.run(steps, options.progress)
-        bias = tuple(float(x) for x in chain.gyro_bias)
-    result = ReplayResult(log, steps, estimates, stats, config, setup, gyro_bias=bias)  # type: ignore[arg-type]
+    warnings = field_warnings(log, field_model_of(options))
+    parts = split_at_gaps(log, options.max_gap_s)
+    all_steps, all_estimates, segments = [], [], []
+    stats = MergeStats()
+    bias: tuple[float, float, float] | None = None
+    for i, (t0, t1) in enumerate(parts):
+        segment: dict[str, float | int | str] = {"t0_s": t0, "t1_s": t1}
+        if i:
+            segment["gap_before_s"] = t0 - parts[i - 1][1]
+            warnings.append(
+                f"the log's clock jumps by {t0 - parts[i - 1][1]:.6g} s at {parts[i - 1][1]:.3f} s "
+                f"(> {options.max_gap_s:g} s): the filter restarts there, it does not integrate across"
+            )
+        segments.append(segment)
+        speaking = [bool(((s.t >= t0) & (s.t <= t1)).any()) for s in log.streams.values()]
+        if not all(speaking):
+            segment["skipped"] = "not every sensor speaks in it"
+            continue
+        part = log.window(t0, t1) if len(parts) > 1 else log
+        steps, seg_stats = merge(part.streams, options.policy)
+        first = _first_complete(steps, log)
+        if first:
+            where = f" of part {i}" if len(parts) > 1 else ""
+            setup.append(f"first {first} steps{where} dropped: not every sensor had spoken yet")
+            steps = steps.rows(first)
+        if len(steps) < MIN_SEGMENT_STEPS:
+            segment["skipped"] = f"{len(steps)} steps (fewer than {MIN_SEGMENT_STEPS})"
+            continue
+        segment["steps"] = len(steps)
+        _add_stats(stats, seg_stats)
+        if options.paced or options.on_step is not None:
+            estimates = _run_live(part, steps, seg_stats, config, options)
+        else:
+            chain = AttitudeFilter(config)
+            estimates = chain.run(steps, options.progress)
+            b = chain.gyro_bias  # the last part's estimate at its end
+            bias = (float(b[0]), float(b[1]), float(b[2]))
+        all_steps.append(steps)
+        all_estimates.append(estimates)
+    if not all_estimates:
+        raise InputFormatError("no part of the log has every sensor speaking for long enough", log.source)
+    steps = all_steps[0] if len(all_steps) == 1 else _concat_steps(all_steps)
+    estimates = all_estimates[0] if len(all_estimates) == 1 else _concat(all_estimates)
+    result = ReplayResult(
+        log, steps, estimates, stats, config, setup, segments=segments, warnings=warnings, gyro_bias=bias
+    )
     _score(result)
     options.out_dir.mkdir(parents=True, exist_ok=True)
     result.files["estimates"] = write_estimates(estimates, options.out_dir / "estimates.csv")
@@ -185,8 +270,26 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     return result
 
 
-def _first_complete(steps: MergedSteps) -> int:
-    spoken = np.all([np.isfinite(steps.age[:, k]) for k in KINDS], axis=0)
+def _add_stats(total: MergeStats, part: MergeStats) -> None:
+    """Add one part's merge counters to the run's."""
+    for name in ("accepted", "nan", "duplicate", "out_of_order", "stale_steps"):
+        mine, theirs = getattr(total, name), getattr(part, name)
+        for key, value in theirs.items():
+            mine[key] = mine.get(key, 0) + value
+    total.steps += part.steps
+    total.gaps += part.gaps
+    total.failover_steps += part.failover_steps
+    if total.driver is None:
+        total.driver, total.failover_order = part.driver, part.failover_order
+
+
+def _concat_steps(parts: list[MergedSteps]) -> MergedSteps:
+    return MergedSteps(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                         ("t", "gyr", "acc", "mag", "age", "fresh", "flags")))  # fmt: skip
+
+
+def _first_complete(steps: MergedSteps, log: SensorLog) -> int:
+    spoken = np.all([np.isfinite(steps.age[:, k]) for k in log.kinds], axis=0)
     return int(np.argmax(spoken)) if spoken.any() else 0
 
 
@@ -267,6 +370,12 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
         "format": result.log.format,
         "reader_notes": list(result.log.notes),
         "setup": result.setup,
+        "sensors": [k.label for k in result.log.kinds],
+        "heading": "not observed (no magnetometer): the gyroscope's integral, drifting"
+        if result.log.six_axis
+        else "observed (magnetometer)",
+        "warnings": result.warnings,
+        "segments": result.segments,
         "samples": result.log.n_samples,
         "steps": len(result.estimates),
         "merge": {

@@ -20,7 +20,7 @@ import numpy as np
 import scipy.io
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.table import Container, parse_table
+from hil.logs.table import Container, read_table
 from protocol.errors import InputFormatError
 
 NAME = "tyrex"
@@ -52,7 +52,7 @@ def read(c: Container) -> SensorLog:
             raise InputFormatError(f"missing {names[0]}", str(c.path))
         if "calibrated" not in name and kind is not SensorKind.ACC:
             notes.append(f"{name}: uncalibrated (the OS bias columns are ignored)")
-        table = parse_table(c.text(name), c.where(name), None, header=False, min_columns=4)
+        table = read_table(c, name, None, header=False, min_columns=4)
         streams[kind] = SensorStream(kind, table.data[:, 0], table.data[:, 1:4])
     truth = _truth(c, notes) if c.has("qualisys.mat") else None
     return SensorLog(streams, str(c.path), NAME, truth, tuple(notes))
@@ -62,7 +62,7 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     where = c.where("qualisys.mat")
     offset = 0.0
     if c.has("timeAlignment.txt"):
-        table = parse_table(c.text("timeAlignment.txt"), c.where("timeAlignment.txt"), None, header=False)
+        table = read_table(c, "timeAlignment.txt", None, header=False)
         offset = float(table.data[0, 0])
     else:
         notes.append("no timeAlignment.txt: motion-capture and phone clocks taken as equal")

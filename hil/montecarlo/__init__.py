@@ -1,6 +1,7 @@
-"""Monte Carlo campaigns: dispersed lockstep closed-loop runs of a scenario, scaled out on Dask
-(docs/montecarlo.md). ``dispersions`` (TOML dispersion files, per-run draws), ``runner`` (a worker's chunk
-of runs on the closed loop's batch axis), ``metrics``, ``store`` (the output directory, written run by
+"""Monte Carlo campaigns: dispersed lockstep runs of a scenario through the one closed loop (host, emulated
+board, world: :func:`hil.runtime.run`), scaled out on Dask (docs/montecarlo.md). ``dispersions`` (TOML
+dispersion files, per-run draws), ``runner`` (a run's scenario from its draws; a worker's chunk of runs),
+``metrics``, ``store`` (the output directory, written run by
 run), ``campaign`` (the Dask driver), ``summary`` and ``plots``."""
 
 from .campaign import Campaign, CampaignReport, open_client, run_campaign, summarise_dir

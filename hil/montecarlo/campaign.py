@@ -1,11 +1,13 @@
-"""Monte Carlo campaigns on Dask: N dispersed lockstep closed-loop runs of a scenario, on a
+"""Monte Carlo campaigns on Dask: N dispersed lockstep runs of a scenario through the one closed loop (the
+host, the emulated board and its protocol, the world: :func:`hil.runtime.run`), on a
 ``dask.distributed`` cluster — a LocalCluster on this machine (one single-threaded worker process per core)
 or any running scheduler given by address. Both take the same path: :func:`run_campaign` gets a
 :class:`distributed.Client` and never asks which kind it is.
 
 The driver draws each run's parameters (:func:`~.dispersions.draw`: a pure function of seed and index),
-skips the runs the output directory already holds, and submits chunks of ``batch`` runs; a worker steps a
-chunk's runs together on the closed loop's batch axis (:func:`~.runner.run_chunk`). Finished chunks are
+skips the runs the output directory already holds, and submits chunks of ``batch`` runs; a worker runs a
+chunk's runs one after another (:func:`~.runner.run_chunk`: a chunk amortises Dask's per-task cost over
+its runs). Finished chunks are
 taken as they complete (``as_completed``) and each run is written to disk at once
 (:class:`~.store.ResultStore`), so Ctrl-C or a crash loses no finished run. A chunk whose worker died
 (Dask retries it elsewhere first) is recorded as failed runs with the error, never dropped.
@@ -35,14 +37,14 @@ from .summary import summarise
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_BATCH = 8
+DEFAULT_BATCH = 4  # runs per Dask task: spreads Dask's per-task cost, keeps the workers balanced
 DEFAULT_TRACE_HZ = 5.0
 
 
 @dataclass(frozen=True)
 class Campaign:
     """What to run: ``runs`` runs (indices 0..runs-1) of ``scenario`` (its slew's ``duration_s`` is each
-    run's length) under ``dispersions``, from ``seed``; ``batch`` runs per task (stepped together);
+    run's length) under ``dispersions``, from ``seed``; ``batch`` runs per Dask task (run one after another);
     ``trace_hz`` the rate of the stored error traces."""
 
     scenario: Scenario
@@ -121,7 +123,7 @@ def open_client(
         raise ConfigError(f"must be at least 1, got {n}", "workers")
     with (
         LocalCluster(
-            n_workers=n, threads_per_worker=1, processes=processes, dashboard_address=":0",
+            n_workers=n, threads_per_worker=1, processes=processes, dashboard_address="127.0.0.1:0",
             silence_logs=logging.ERROR,
         ) as cluster,
         Client(cluster) as client,

@@ -24,7 +24,8 @@ Parameters (``[table] key``; "per unit" and "per axis" draw each element indepen
 ``initial.angle_deg``                         start attitude turned by this angle about a random axis
 ``manoeuvre.angle_deg``                       slew angle (mean: the scenario's)
 ``manoeuvre.axis_tilt_deg``                   slew axis tilted by this angle in a random direction
-``link.outages_per_minute``                   rate of link outages (Poisson) over the run
+``link.outages_per_minute``                   rate of link outages (Poisson) over the run: the
+                                              board's first warm-up + duration seconds (its clock)
 ``link.outage_duration_s``                    each outage's duration (required with a rate)
 ============================================  =====================================================
 
@@ -52,13 +53,16 @@ from numpy.typing import NDArray
 
 from hil import so3
 from hil.scenario import Scenario
-from hil.scenario.paths import FIXTURES
+from hil.scenario.paths import FIXTURES, read_text
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
 
 DISPERSION_DIR = FIXTURES / "dispersions"
 DEFAULT_DISPERSIONS = DISPERSION_DIR / "default.toml"
+LINK_RANGES = {"link.outages_per_minute": (0.0, 600.0), "link.outage_duration_s": (0.0, 60.0)}
+"""What link outages a file may ask for: up to ten a second, each up to a minute (a rate's draws are
+clipped into it, so a run's outage list stays bounded: at most ~10 per second of run)."""
 
 
 # --------------------------------------------------------------------------- distributions
@@ -181,7 +185,7 @@ PARAMETERS: tuple[Parameter, ...] = (
 _BY_KEY = {p.key: p for p in PARAMETERS}
 LINK_COLUMNS = ("link.outages", "link.outage_s", "link.outage_list")
 """Columns describing a run's drawn outages (with link dispersions): count, total seconds, and the list
-``start:duration;...`` (seconds from the slew's start)."""
+``start:duration;...`` (seconds on the board's clock, from its start: firmware-sim's ``--stall``)."""
 
 
 # --------------------------------------------------------------------------- a campaign's dispersions
@@ -218,9 +222,9 @@ class RunParams:
     """One run's draws. ``values``: parameter key → drawn values (shape as the parameter's nominal);
     ``directions``: the random directions some parameters turn about (``initial.angle_deg``: a unit axis
     (3,); ``manoeuvre.axis_tilt_deg`` and ``spacecraft.gimbal_misalignment_rad``: azimuths (rad) of the
-    tilt about the tilted axis, (1,) or per unit); ``outages``: ``(start_s, duration_s)`` from the slew's
-    start; ``phone_seed``: the run's sensor-noise stream; ``columns``: the values flattened for the
-    results (column name → value)."""
+    tilt about the tilted axis, (1,) or per unit); ``outages``: ``(start_s, duration_s)`` on the board's
+    clock (from its start, as firmware-sim's ``--stall AT:DURATION``); ``phone_seed``: the run's
+    sensor-noise stream; ``columns``: the values flattened for the results (column name → value)."""
 
     index: int
     seed: int
@@ -257,7 +261,7 @@ def draw(dispersions: Dispersions, seed: int, run_index: int) -> RunParams:
         elif param.key == "link.outages_per_minute":
             duration = dispersions.get("link.outage_duration_s")
             assert duration is not None, "checked when the file was read"
-            outages = _outages(rng, float(drawn[0]), duration, sc.slew.duration_s)
+            outages = _outages(rng, float(drawn[0]), duration, outage_window_s(sc))
         if not isinstance(dist, Fixed):
             columns.update(zip(param.columns(sc), (float(v) for v in drawn), strict=True))
     if dispersions.has_link:
@@ -266,6 +270,13 @@ def draw(dispersions: Dispersions, seed: int, run_index: int) -> RunParams:
         columns["link.outage_list"] = ";".join(f"{a:.3f}:{d:.3f}" for a, d in outages)
     phone_seed = int(_stream(seed, run_index, "phone").integers(2**31))
     return RunParams(run_index, seed, phone_seed, values, directions, outages, columns)
+
+
+def outage_window_s(scenario: Scenario) -> float:
+    """The span (s of board time from its start) link outages are drawn over: the warm-up and the run's
+    duration (the board's clock also covers the connection and the rotors' spin-up, ~0.7 s at 1U scale,
+    so the window ends a little before the run does)."""
+    return scenario.loop.warmup_s + scenario.slew.duration_s
 
 
 def _isotropic(rng: np.random.Generator) -> Array:
@@ -277,8 +288,9 @@ def _outages(
     rng: np.random.Generator, per_minute: float, duration: Distribution, run_s: float
 ) -> tuple[tuple[float, float], ...]:
     """A Poisson process of ``per_minute`` outages over ``run_s`` seconds, each lasting a draw of
-    ``duration`` (a negative rate counts as none)."""
-    count = int(rng.poisson(max(per_minute, 0.0) * run_s / 60.0))
+    ``duration``; the rate is clipped into :data:`LINK_RANGES` (a normal's tail), so the count is bounded."""
+    lo, hi = LINK_RANGES["link.outages_per_minute"]
+    count = int(rng.poisson(min(max(per_minute, lo), hi) * run_s / 60.0))
     starts = np.sort(rng.uniform(0.0, run_s, count))
     lengths = duration.sample(rng, np.zeros(count))
     return tuple((float(a), float(d)) for a, d in zip(starts, lengths, strict=True))
@@ -305,11 +317,7 @@ def load_dispersions(name_or_path: str | Path | None, scenario: Scenario) -> Dis
     """Read a dispersion file (see :func:`resolve_dispersions_path`) for ``scenario``; errors are
     :class:`ConfigError` naming the file and the dotted key."""
     path = resolve_dispersions_path(name_or_path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"cannot read: {exc.strerror}", str(path)) from exc
-    return parse_dispersions(text, scenario, path.name)
+    return parse_dispersions(read_text(path), scenario, path.name)
 
 
 def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>") -> Dispersions:
@@ -328,8 +336,26 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
     if (rate is None) != (duration is None):
         missing = "link.outage_duration_s" if duration is None else "link.outages_per_minute"
         raise ConfigError("link outages need both a rate and a duration", f"{where}: {missing}")
+    for key, (lo, hi) in LINK_RANGES.items():
+        if key in found:
+            _check_support(found[key], lo, hi, f"{where}: {key}")
     entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
     return Dispersions(scenario, entries, text, where)
+
+
+def _check_support(dist: Distribution, lo: float, hi: float, where: str) -> None:
+    """Refuse a distribution that can draw outside ``[lo, hi]`` (a normal's mean and its clip bounds)."""
+    if isinstance(dist, Fixed):
+        values: tuple[float | None, ...] = (dist.value,)
+    elif isinstance(dist, Uniform):
+        values = (dist.low, dist.high)
+    elif isinstance(dist, Choice):
+        values = dist.values
+    else:
+        values = (dist.mean, dist.low, dist.high)
+    bad = [v for v in values if v is not None and not lo <= v <= hi]
+    if bad:
+        raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
 
 
 def _leaves(node: Mapping[str, Any], where: str, prefix: str = "") -> list[tuple[str, Any]]:

@@ -1,20 +1,28 @@
-"""The worker's side of a campaign: turn drawn parameters into a run's inputs and simulate a chunk of runs
-on the closed loop's batch axis (:meth:`hil.simulation.closed_loop.ClosedLoop.run_batch`: one vectorised
-plant step
-for every run of the chunk, each run with its own true spacecraft, phone and estimator, link outages).
+"""The worker's side of a campaign: turn a run's draws into the scenario it flies (:func:`realise`) and run
+it through the one closed loop (:func:`hil.runtime.run` in lockstep: the host, the emulated board
+``emu://`` with its protocol, watchdog and failsafe, and the world), several runs one after another per
+task (:func:`run_chunk`).
+
+A realised scenario carries everything a run disperses: the true spacecraft the world flies
+(``Scenario.true_spacecraft``; the host's controller keeps the nominal ``spacecraft``), the phone and its
+noise seed (``phone``, ``seed``), the start attitude and the slew (``slew``), and the link outages as the
+board's own fault injection (``fault_options["stall"]``, firmware-sim's ``--stall AT:DURATION`` on the
+board's clock), so the board's watchdog, its failsafe and the host's re-arm are what an outage tests. A
+run writes no run directory (``RunOptions(out_root=None)``): its metrics and its decimated traces come from
+the host's per-tick trace in memory.
 
 Nothing here raises for a bad run: a run whose parameters the model refuses, or whose simulation raises,
-comes back as a failed :class:`RunResult` with the error text. A failure inside a batched simulation
-(one diverging run stops the shared plant step) re-runs the chunk's runs one by one, so only the runs
-that really fail are recorded as failed.
+comes back as a failed :class:`RunResult` with the error text; the chunk's other runs go on.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import time
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TypeVar
 
@@ -23,7 +31,7 @@ from numpy.typing import NDArray
 
 from hil import so3
 from hil.scenario import Scenario
-from hil.simulation.closed_loop import ClosedLoop, EstimatorInTheLoop, LoopConfig, SlewScenario
+from hil.scenario.config import SlewScenario
 from hil.simulation.phone import PhoneSpec
 from hil.vscmg import SpacecraftParams
 from hil.vscmg.params import inertia_tensor
@@ -33,18 +41,6 @@ from .dispersions import SENSOR_KINDS, RunParams
 from .metrics import decimated_trace, run_metrics, trace_length
 
 T = TypeVar("T")
-
-
-@dataclass(frozen=True)
-class RunInputs:
-    """What one run simulates: its true ``spacecraft``, its ``phone``, its ``slew`` and link ``outages``
-    (``(start_s, duration_s)`` from the slew's start), and the phone's noise seed."""
-
-    spacecraft: SpacecraftParams
-    phone: PhoneSpec
-    slew: SlewScenario
-    outages: tuple[tuple[float, float], ...]
-    phone_seed: int
 
 
 @dataclass(frozen=True)
@@ -78,18 +74,23 @@ def describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}{at}".replace("\n", " | ")
 
 
-# --------------------------------------------------------------------------- a run's inputs
-def realise(scenario: Scenario, run: RunParams) -> RunInputs:
-    """The scenario with run ``run``'s draws applied; a value the model refuses is a ConfigError naming the
-    run and the parameter."""
+# --------------------------------------------------------------------------- a run's scenario
+def realise(scenario: Scenario, run: RunParams) -> Scenario:
+    """``scenario`` with run ``run``'s draws applied (see the module docstring); a value the model refuses
+    is a ConfigError naming the run and the parameter."""
     v = run.values
-    return RunInputs(
-        spacecraft=_checked(run, "spacecraft", lambda: _spacecraft(scenario.spacecraft, run)),
-        phone=_checked(run, "sensors", lambda: _phone(scenario.phone, v)),
-        slew=_checked(run, "initial/manoeuvre", lambda: _slew(scenario.slew, run)),
-        outages=run.outages,
-        phone_seed=run.phone_seed,
-    )
+    changes: dict[str, object] = {
+        "true_spacecraft": _checked(run, "spacecraft", lambda: _spacecraft(scenario.spacecraft, run)),
+        "phone": _checked(run, "sensors", lambda: _phone(scenario.phone, v)),
+        "slew": _checked(run, "initial/manoeuvre", lambda: _slew(scenario.slew, run)),
+        "seed": run.phone_seed,
+    }
+    if run.outages:
+        stalls = scenario.fault_options.get("stall", [])
+        stalls = list(stalls) if isinstance(stalls, list) else [stalls]
+        stalls += [f"{start!r}:{duration!r}" for start, duration in run.outages]
+        changes["fault_options"] = {**scenario.fault_options, "stall": stalls}
+    return scenario.with_changes(**changes)
 
 
 def _checked(run: RunParams, group: str, build: Callable[[], T]) -> T:
@@ -167,60 +168,49 @@ def _perpendicular(axis: np.ndarray, azimuth: float) -> np.ndarray:
     return math.cos(azimuth) * e1 + math.sin(azimuth) * np.cross(axis, e1)
 
 
-# --------------------------------------------------------------------------- simulating a chunk
-def loop_config(scenario: Scenario) -> LoopConfig:
-    """The scenario's loop with its board's link timeout (``[board] link_timeout``, firmware-sim's)."""
-    timeout = float(scenario.board_options.get("link_timeout", scenario.loop.link_timeout_s))
-    try:
-        return replace(scenario.loop, link_timeout_s=timeout)
-    except ConfigError as exc:
-        raise ConfigError(exc.detail, f"{scenario.name}: board.link_timeout") from exc
-
-
+# --------------------------------------------------------------------------- running a chunk
 def run_chunk(scenario: Scenario, runs: Sequence[RunParams], trace_hz: float) -> list[RunResult]:
-    """Simulate ``runs`` of ``scenario`` together on the batch axis and return one result per run, in
-    order. Runs whose parameters are refused fail alone; if the batched simulation raises, each run is
-    retried on its own (see the module docstring)."""
+    """Run ``runs`` of ``scenario`` one after another through the runtime and return one result per run,
+    in order; a run that fails (refused parameters, an error in its simulation) fails alone."""
+    return [run_one(scenario, run, trace_hz) for run in runs]
+
+
+def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
+    """One run: :func:`realise`, then :func:`hil.runtime.run` in lockstep without a run directory."""
+    from hil.runtime import RunOptions
+    from hil.runtime import run as run_scenario
+
     start = time.perf_counter()
-    results: dict[int, RunResult] = {}
-    ready: list[tuple[RunParams, RunInputs]] = []
-    for run in runs:
-        try:
-            ready.append((run, realise(scenario, run)))
-        except Exception as exc:  # any error: recorded with the run, never lost
-            results[run.index] = RunResult.failed(run, exc)
-    if ready:
-        try:
-            done = _simulate(scenario, ready, trace_hz)
-        except Exception as exc:  # a failure of the batch: find the runs that fail
-            if len(ready) == 1:
-                done = [RunResult.failed(ready[0][0], exc)]
-            else:
-                done = [r for run, _ in ready for r in run_chunk(scenario, [run], trace_hz)]
-        results.update((r.index, r) for r in done)
-    share = (time.perf_counter() - start) / max(len(runs), 1)
-    return [replace(results[run.index], wall_s=results[run.index].wall_s or share) for run in runs]
+    try:
+        realised = realise(scenario, run)
+        with _quiet(_RUN_LOGGERS):  # a campaign counts failsafes and resets in its metrics
+            result = run_scenario(realised, RunOptions(out_root=None))
+        if result.summary.get("exit") != "completed":
+            raise HilError(f"the run did not complete: {result.summary.get('exit')}")
+        trace = result.trace.arrays()
+        failsafes = int(result.summary.get("failsafe_events", 0))
+        metrics = run_metrics(trace, scenario.settle_deg, failsafes)
+        samples = trace_length(scenario.slew.duration_s, trace_hz)
+        decimated = decimated_trace(trace, trace_hz, samples)
+    except Exception as exc:  # any error: recorded with the run, never lost
+        return RunResult.failed(run, exc, time.perf_counter() - start)
+    return RunResult(run.index, True, run.columns, metrics, decimated, wall_s=time.perf_counter() - start)
 
 
-def _simulate(
-    scenario: Scenario, ready: Sequence[tuple[RunParams, RunInputs]], trace_hz: float
-) -> list[RunResult]:
-    loop = ClosedLoop(scenario.spacecraft, loop_config(scenario))
-    config = scenario.filter_config()
-    logs = loop.run_batch(
-        [inputs.slew for _, inputs in ready],
-        [EstimatorInTheLoop(inputs.phone, config, inputs.phone_seed) for _, inputs in ready],
-        spacecraft=[inputs.spacecraft for _, inputs in ready],
-        link_outages=[inputs.outages for _, inputs in ready],
-    )
-    samples = trace_length(scenario.slew.duration_s, trace_hz)
-    return [
-        RunResult(
-            run.index,
-            True,
-            run.columns,
-            run_metrics(log, scenario.settle_deg),
-            decimated_trace(log, trace_hz, samples),
-        )
-        for (run, _), log in zip(ready, logs, strict=True)
-    ]
+_RUN_LOGGERS = ("hil.runtime.host", "hil.link.board.session")
+"""What warns about a run's failsafes and resets on the console (``hil run`` wants that, a campaign of
+hundreds of runs does not: its metrics count them)."""
+
+
+@contextlib.contextmanager
+def _quiet(names: Sequence[str]) -> Iterator[None]:
+    """Those loggers' warnings off for the block (errors still show)."""
+    loggers = [logging.getLogger(name) for name in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, InputFormatError
 
 from .metrics import METRICS, TRACES
@@ -110,8 +111,8 @@ class ResultStore:
 
     def _check_manifest(self, path: Path) -> None:
         try:
-            old = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+            old = json.loads(read_text(path))
+        except json.JSONDecodeError as exc:
             raise ConfigError(f"unreadable campaign manifest: {exc}", str(path)) from exc
         for key in _SAME:
             if old.get(key) == self.manifest[key]:
@@ -203,10 +204,7 @@ class Results:
 def read_runs(out_dir: str | os.PathLike[str]) -> Results:
     """Read ``OUT/runs.csv``; a line with the wrong number of cells is dropped and counted."""
     path = Path(out_dir) / RUNS
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputFormatError(f"cannot read results: {exc.strerror}", str(path)) from exc
+    text = read_text(path, InputFormatError, "results")
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
     if not header or list(header[:3]) != list(FIXED_COLUMNS):
@@ -239,7 +237,7 @@ def read_traces(
     """The traces of ``OUT``: run indices (M,) and traces (M, len(TRACES), samples), one per index (the
     last record wins), only for ``keep`` indices when given (e.g. the runs.csv rows)."""
     out = Path(out_dir)
-    info = json.loads((out / MANIFEST).read_text())
+    info = json.loads(read_text(out / MANIFEST, InputFormatError))
     dtype = trace_dtype(int(info["trace_samples"]))
     path = out / TRACE_FILE
     raw = path.read_bytes() if path.exists() else b""

@@ -19,7 +19,10 @@ if TYPE_CHECKING:
 
 
 def _figure(title: str, ylabel: str) -> tuple[Figure, Axes]:
+    """One 8 × 4 in axes with fixed margins (room for a title, the axis labels and 5-digit tick labels:
+    a tight layout costs a second drawing of every figure)."""
     fig = Figure(figsize=(8, 4))
+    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.12, top=0.91)
     ax = fig.add_subplot()
     ax.set_xlabel("time (s)")
     ax.set_ylabel(ylabel)
@@ -38,7 +41,6 @@ def _shade(ax: Axes, intervals: list[tuple[float, float]], t0: float) -> None:
 def _save(fig: Figure, ax: Axes, path: Path) -> Path:
     ax.legend(loc="upper right")
     FigureCanvasAgg(fig)
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
     return path
 
@@ -87,12 +89,13 @@ def plot_attitude(
     title: str = "",
     rejected: list[tuple[float, float]] | None = None,
     t0: float = 0.0,
+    yaw_label: str = "yaw",
 ) -> Path:
     """The attitude estimate as roll, pitch, yaw (deg, ENU, z-y-x) against time; the ``rejected``
     intervals shaded (as :func:`plot_attitude_error`)."""
     fig, ax = _figure(title or "Attitude estimate", "attitude estimate (deg, ENU, z-y-x)")
     _shade(ax, rejected or [], t0)
-    for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", "yaw"), strict=True):
+    for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", yaw_label), strict=True):
         ax.plot(t, series, lw=0.8, label=label)
     return _save(fig, ax, path)
 
@@ -110,10 +113,11 @@ def plot_replay(result: ReplayResult, out_dir: Path) -> dict[str, Path]:
     est = result.estimates
     name = Path(result.log.source).name
     rejected = result.mag_rejections
+    six = result.log.six_axis  # no magnetometer: the yaw is the gyroscope's integral, drifting
+    title = f"Attitude estimate — {name}" + (" (6-axis: heading unobserved)" if six else "")
+    yaw = "yaw (unobserved: gyroscope only, drifts)" if six else "yaw"
     files = {
-        "attitude": plot_attitude(
-            est.t, est.R, out_dir / "attitude.png", f"Attitude estimate — {name}", rejected
-        ),
+        "attitude": plot_attitude(est.t, est.R, out_dir / "attitude.png", title, rejected, yaw_label=yaw),
         "rates": plot_rates(est.t, est.omega, out_dir / "rates.png", f"Angular velocity estimate — {name}"),
     }
     c = result.comparison

@@ -1,8 +1,9 @@
 """The host's runtime: one closed-loop run against a board (:mod:`hil.runtime.loop`) around the host's
 estimator and controller (:mod:`hil.runtime.host`)."""
 
-from hil.runtime.host import Host, Phase, TruthSample, telemetry_columns
+from hil.runtime.host import Host, Phase, TruthSample
 from hil.runtime.loop import ReplayInput, RunOptions, RunResult, run
+from hil.runtime.telemetry import RunTrace, telemetry_columns
 
 __all__ = [
     "Host",
@@ -10,6 +11,7 @@ __all__ = [
     "ReplayInput",
     "RunOptions",
     "RunResult",
+    "RunTrace",
     "TruthSample",
     "run",
     "telemetry_columns",

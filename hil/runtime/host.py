@@ -50,6 +50,7 @@ from hil.link.board.events import (
     StateEvent,
 )
 from hil.runtime.runlog import CsvLog, EventLog
+from hil.runtime.telemetry import RunTrace, angle_between9, log9, mat9, telemetry_columns
 from hil.scenario import Scenario
 from protocol.errors import BoardReset, CommandFailed, LinkError
 from protocol.messages import ActuatorSetpoint, Arm, BoardState, GimbalMode, UnitSetpoint
@@ -76,18 +77,6 @@ class TruthSample:
     omega: Array
 
 
-def telemetry_columns(n_units: int) -> list[str]:
-    """The telemetry.csv columns for ``n_units`` units (docs/architecture.md, "Run directory")."""
-    cols = ["t", "phase", "est_err_deg", "rate_err", "point_err_deg", "track_err_deg"]
-    cols += [f"{who}_{q}{axis}" for q in ("r", "w") for who in ("est", "true") for axis in "xyz"]
-    cols += [f"tau_{a}" for a in "xyz"] + ["delta"]
-    for name in ("gimbal_angle", "gimbal_rate", "rotor_speed", "cmd_gimbal_rate", "cmd_rotor_speed"):
-        cols += [f"{name}_{i}" for i in range(n_units)]
-    cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
-    cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
-    return cols
-
-
 @dataclass
 class HostCounters:
     estimator_steps: int = 0
@@ -102,11 +91,12 @@ class HostCounters:
 
 @dataclass
 class Host:
-    """One run's host side. ``truth`` (optional) returns the simulation's truth now (None on hardware)."""
+    """One run's host side. ``truth`` (optional) returns the simulation's truth now (None on hardware);
+    ``telemetry`` None keeps no telemetry rows (a Monte Carlo run: its figures come from :attr:`trace`)."""
 
     scenario: Scenario
     client: BoardClient
-    telemetry: CsvLog
+    telemetry: CsvLog | None
     events: EventLog
     truth: Callable[[], TruthSample | None] = lambda: None
     duration_s: float | None = None
@@ -144,8 +134,10 @@ class Host:
         self.n = self.params.n_units
         self._rearm: Any = None
         self._errors_sq: list[float] = []
-        self.trace: dict[str, list[float]] = {"t": [], "point_err_deg": [], "delta": [], "gimbal_rate": []}
+        self.trace = RunTrace()
         self.columns = telemetry_columns(self.n)
+        self._target9: tuple[float, ...] | None = None if self.target is None else mat9(self.target)
+        self._none3 = (None, None, None)
 
     # ------------------------------------------------------------------ estimator task
     def feed(self, samples: Sequence[SensorSample]) -> None:
@@ -178,7 +170,7 @@ class Host:
                 self.client.send_setpoint(command)
             except BoardReset:  # the reset event arrives with the next service(); re-armed then
                 self.counters.setpoint_errors += 1
-        self._log_row(t, tel, gimbal, rotor, command, cmd_out, ref)
+        self._record(t, tel, gimbal, rotor, command, cmd_out, ref)
         if self.slew_start is not None and t - self.slew_start >= self._duration - 1e-9:
             self.finished = True
 
@@ -237,6 +229,7 @@ class Host:
             R_hat = np.asarray(self.estimate.R)
             sl = self.scenario.slew
             self.target = R_hat.copy() if self.hold else sl.R_target
+            self._target9 = mat9(self.target)
             self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
             self.slew_start = t
             self.setpoints.reset(rotor)
@@ -248,6 +241,21 @@ class Host:
                 gyro_bias_online=online.tolist(),
             )  # fmt: skip
 
+    def retarget(self, t: float, R_target: Array | None = None) -> str | None:
+        """A new target from outside the loop (the ground station's slew or hold): an eigenaxis slew from the
+        attitude estimated now to ``R_target`` (3, 3), body → inertial (None: hold the attitude estimated
+        now), within the scenario's rate and acceleration limits, from ``t`` (s). The run still ends
+        ``duration_s`` after the scenario's slew started. Returns why it was refused, or None: during the
+        warm-up there is no estimate to start from and the scenario's own slew is still to come."""
+        if self.phase is Phase.WARMUP or self.estimate is None:
+            return "the warm-up is not over (the scenario's slew has not started)"
+        R_hat = np.asarray(self.estimate.R)
+        self.target = R_hat.copy() if R_target is None else np.asarray(R_target, dtype=float)
+        sl = self.scenario.slew
+        self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
+        self.phase = Phase.SLEW
+        return None
+
     # ------------------------------------------------------------------ board events
     def _on_event(self, event: Any) -> None:
         t = event.t
@@ -258,10 +266,12 @@ class Host:
                 self.counters.failsafe_events += 1
                 logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): re-arming", t)
                 self._want_rearm()
+                self._restart_warmup(t)
         elif isinstance(event, BoardResetEvent):
             self.counters.resets += 1
             self.events.write(t, "board_reset", cause=event.cause.name, evidence=event.evidence)
             self._want_rearm()
+            self._restart_warmup(t)
         elif isinstance(event, LinkLostEvent):
             self.counters.link_lost += 1
             self.events.write(t, "link_lost", reason=event.reason)
@@ -273,6 +283,16 @@ class Host:
             self.events.write(t, "silence", since=event.since, ended=event.ended)
         elif isinstance(event, LogEvent):
             self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text)
+
+    def _restart_warmup(self, t: float) -> None:
+        """A failsafe or reset during the warm-up: the rotors coast down, so the still window (and the gyro
+        bias measured over it) starts again once they are back at speed after the re-arm."""
+        if self.phase is not Phase.WARMUP or (self.spinup_since is None and self.still_since is None):
+            return
+        self.spinup_since = self.still_since = None
+        self.bias_samples.clear()
+        self._collecting_bias = False
+        self.events.write(t, "warmup_restart")
 
     def _want_rearm(self) -> None:
         if self._rearm is None:
@@ -297,63 +317,70 @@ class Host:
             self._rearm = "pending"
 
     # ------------------------------------------------------------------ telemetry rows
-    def _log_row(
+    def _record(
         self, t: float, tel: Any, gimbal: Array, rotor: Array, command: ActuatorSetpoint, cmd_out: Any,
         ref: Reference | None,
     ) -> None:  # fmt: skip
+        """The tick's errors into the trace (from the slew's start) and its row into the telemetry log:
+        plain floats in column order (:mod:`hil.runtime.telemetry`), formatted by the log's writer thread."""
         truth = self.truth()
         est = self.estimate
-        target = self.target
-        row: dict[str, Any] = {"t": t, "phase": int(self.phase)}
-        R_att = truth.R if truth is not None else (None if est is None else np.asarray(est.R))
-        if est is not None:
-            R_hat = np.asarray(est.R)
-            w_hat = np.asarray(est.omega)
-            row.update(zip(("est_rx", "est_ry", "est_rz"), so3.log(R_hat), strict=True))
-            row.update(zip(("est_wx", "est_wy", "est_wz"), w_hat, strict=True))
-            if truth is not None:
-                err = math.degrees(so3.principal_angle(truth.R @ R_hat.T))
-                row["est_err_deg"] = err
-                row["rate_err"] = float(np.linalg.norm(w_hat - truth.omega))
-                if self.phase is not Phase.WARMUP:
-                    self._errors_sq.append(err * err)
+        none3 = self._none3
+        R_true = w_true = R_hat = w_hat = None
         if truth is not None:
-            row.update(zip(("true_rx", "true_ry", "true_rz"), so3.log(truth.R), strict=True))
-            row.update(zip(("true_wx", "true_wy", "true_wz"), truth.omega, strict=True))
-        if R_att is not None and target is not None:
-            row["point_err_deg"] = math.degrees(so3.principal_angle(R_att.T @ target))
+            R_true, w_true = mat9(truth.R), tuple(np.asarray(truth.omega, dtype=float).tolist())
+        if est is not None:
+            R_hat, w_hat = mat9(est.R), tuple(np.asarray(est.omega, dtype=float).tolist())
+        est_err = rate_err = None
+        if R_true is not None and R_hat is not None:
+            assert w_true is not None and w_hat is not None
+            est_err = math.degrees(angle_between9(R_true, R_hat))
+            rate_err = math.dist(w_hat, w_true)
+            if self.phase is not Phase.WARMUP:
+                self._errors_sq.append(est_err * est_err)
+        R_att = R_true if R_true is not None else R_hat
+        point = track = None
+        if R_att is not None and self._target9 is not None:
+            point = math.degrees(angle_between9(R_att, self._target9))
             if ref is not None:
-                row["track_err_deg"] = math.degrees(so3.principal_angle(R_att.T @ ref.R))
-        delta = float(self.steering.delta(gimbal, rotor)[0])
-        row["delta"] = delta
-        if cmd_out is not None:
-            row.update(zip(("tau_x", "tau_y", "tau_z"), cmd_out[0].torque, strict=True))
+                track = math.degrees(angle_between9(R_att, mat9(ref.R)))
+        if cmd_out is not None:  # steering computed δ from this telemetry already
+            delta = float(cmd_out[1].delta[0])
+        else:
+            delta = float(self.steering.delta(gimbal, rotor)[0])
         rates = [u.gimbal_rate for u in tel.units]
-        for i in range(self.n):
-            row[f"gimbal_angle_{i}"] = gimbal[i]
-            row[f"gimbal_rate_{i}"] = rates[i]
-            row[f"rotor_speed_{i}"] = rotor[i]
-            row[f"cmd_gimbal_rate_{i}"] = command.units[i].gimbal
-            row[f"cmd_rotor_speed_{i}"] = command.units[i].rotor_speed
-        for ch, width in enumerate(tel.pulses_us[: 2 * self.n]):
-            row[f"pulse_{'gimbal' if ch % 2 == 0 else 'rotor'}_{ch // 2}"] = width
-        row.update(
-            battery_v=tel.battery_mv / 1000.0, board_state=int(tel.state), link_rx_frames=tel.rx_frames,
-            link_bad_frames=tel.rx_bad, link_age_ms=tel.link_age_ms,
-        )  # fmt: skip
-        self.telemetry.write(row)
         if self.slew_start is not None:
-            self.trace["t"].append(t - self.slew_start)
-            self.trace["point_err_deg"].append(row.get("point_err_deg", math.nan))
-            self.trace["delta"].append(delta)
-            self.trace["gimbal_rate"].append(float(np.max(np.abs(rates))))
+            nan = math.nan
+            self.trace.append(
+                t - self.slew_start, nan if point is None else point, nan if track is None else track,
+                nan if est_err is None else est_err, max(abs(r) for r in rates), delta,
+            )  # fmt: skip
+        if self.telemetry is None:
+            return
+        n = self.n
+        row: list[Any] = [t, int(self.phase), est_err, rate_err, point, track]
+        row += none3 if R_hat is None else log9(R_hat)
+        row += none3 if R_true is None else log9(R_true)
+        row += none3 if w_hat is None else w_hat
+        row += none3 if w_true is None else w_true
+        row += none3 if cmd_out is None else cmd_out[0].torque.tolist()
+        row.append(delta)
+        row += gimbal.tolist()
+        row += rates
+        row += rotor.tolist()
+        row += [u.gimbal for u in command.units]
+        row += [u.rotor_speed for u in command.units]
+        pulses = list(tel.pulses_us[: 2 * n])
+        row += pulses + [None] * (2 * n - len(pulses))
+        row += [tel.battery_mv / 1000.0, int(tel.state), tel.rx_frames, tel.rx_bad, tel.link_age_ms]
+        self.telemetry.write_values(row)
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:
         """The run's figures: settle time (first time after which the pointing error stays ≤ settle_deg,
         from the slew's start), final and peak pointing error, peak gimbal rate, minimum δ, the
         estimator's RMSE over slew + hold (simulated runs), failsafe events; None where not reached."""
-        tr = {k: np.asarray(v, dtype=float) for k, v in self.trace.items()}
+        tr = self.trace.arrays()
         sc = self.scenario
         out: dict[str, Any] = {
             "scenario": sc.name,

@@ -4,9 +4,11 @@
 Four ways to run, one host (:class:`hil.runtime.host.Host`):
 
 - **lockstep** (the built-in emulator, ``hil run``'s default): the board (``emu://``) and the world
-  (:class:`firmware_sim.world.World`) live in this process on a :class:`LockstepClock`; a world task steps
-  the plant every ``plant_step_s`` and hands the phone's samples over in-process. As fast as the CPU allows,
-  and deterministic.
+  (:class:`firmware_sim.world.World`) live in this process on a :class:`LockstepClock`; a world task
+  advances the world every ``plant_step_s``, and the estimator and control tasks bring it to their own
+  present before they look, so whatever the order of tasks due together, the host sees the world of
+  its instant. The phone's samples are handed over in-process. As fast as the CPU allows, and
+  deterministic.
 - **real time, built-in emulator** (``--realtime``): the same board on the wall clock; the world runs in its
   own thread and streams the phone over UDP on loopback, the way the SensaGram app streams
   (:mod:`hil.link.sources`) — the live-phone path exercised for real.
@@ -23,12 +25,22 @@ Tasks: ``estimator`` at the fastest sensor's rate (drains the samples that arriv
 last sample of the slower sensors), ``control`` at the control rate (board events, control, setpoint,
 telemetry row), and in lockstep ``world`` at the plant step. The scheduler's absolute deadlines and its
 lateness statistics (p50/p99/max per task) go into the summary.
+
+One process serves many runs (a Monte Carlo worker runs one after another): a run keeps nothing between
+runs — its clock, board, world, host and logs are its own. With ``RunOptions.out_root=None`` a run writes
+no run directory at all: no telemetry rows are formatted, its events stay in memory, and its figures come
+back in :class:`RunResult` (``summary`` and the per-tick ``trace`` from the slew's start).
+
+A run may be watched and commanded while it happens (``RunOptions.observer``, :mod:`hil.runtime.observer`:
+the ground station, :mod:`hil.gcs`), and a lockstep run may be paced to the wall clock (``RunOptions.pace``)
+so that a person can follow it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -40,8 +52,10 @@ from hil.estimation.sensors import SensorLog, SensorSample
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
 from hil.link.sources.recorded import RecordedSource
 from hil.link.transports import InProcessBoard, create_transport
-from hil.runtime.host import Host, TruthSample, telemetry_columns
+from hil.runtime.host import Host, TruthSample
+from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, new_run_dir, write_summary
+from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.scheduler import PeriodicTask, Scheduler
@@ -53,6 +67,7 @@ Progress = Callable[[Host, float], None]
 """Called after every control tick with the host and the time since the run started (s)."""
 
 SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by Host.MAX_SPINUP_S)
+PACE_PERIOD_S = 0.01  # a paced lockstep run waits for the wall clock every this much simulated time
 
 
 @dataclass(frozen=True)
@@ -74,23 +89,33 @@ class RunOptions:
     ``phone``: where the host listens for the phone stream with a port (:func:`hil.link.sources.phone_url`:
     ``udp://HOST:PORT`` or ``http://HOST:PORT/``); ``phone_wait_s``: how long to wait for the first phone
     samples on a port before giving up; ``replay``: take the phone from a recorded log instead (needs a
-    port), the controller holding the attitude estimated at the end of the warm-up."""
+    port), the controller holding the attitude estimated at the end of the warm-up; ``out_root`` None:
+    no run directory (see the module docstring); ``observer``: sees every row and event and may command
+    the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run goes at most this many times as fast as
+    the wall clock (1.0: real time), None: as fast as it can."""
 
     port: str | None = None
     lockstep: bool | None = None
     duration_s: float | None = None
-    out_root: Path = Path("runs")
+    out_root: Path | None = Path("runs")
     phone: str = DEFAULT_PHONE_URL
     phone_wait_s: float = 10.0
     progress: Progress | None = None
     label: str | None = None
     replay: ReplayInput | None = None
+    observer: RunObserver | None = None
+    pace: float | None = None
 
 
 @dataclass
 class RunResult:
-    run_dir: Path
+    """``run_dir`` (None without one), the ``summary`` (as in summary.json), the per-tick ``trace`` from
+    the slew's start, and the ``events`` (kept in memory only without a run directory)."""
+
+    run_dir: Path | None
     summary: dict[str, Any] = field(default_factory=dict)
+    trace: RunTrace = field(default_factory=RunTrace)
+    events: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -130,10 +155,26 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     the exit reason is written; a Ctrl-C ends the run early with a complete summary."""
     opts = options or RunOptions()
     plan = _plan(opts)
-    run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
-    (run_dir / "scenario.toml").write_text(scenario.source)
-    telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units))
-    events = EventLog(run_dir / "events.jsonl")
+    if opts.pace is not None and not plan.lockstep:
+        raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
+    if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
+        raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
+    if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
+        from hil.runtime.warmup import warm
+
+        compiled_s = warm(scenario)
+        if compiled_s is not None:
+            logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
+    observer = opts.observer
+    tap_row = None if observer is None else observer.row
+    tap_event = None if observer is None else observer.event
+    run_dir: Path | None = None
+    telemetry: CsvLog | None = None
+    if opts.out_root is not None:
+        run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
+        (run_dir / "scenario.toml").write_text(scenario.source)
+        telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units), tap=tap_row)
+    events = EventLog(None if run_dir is None else run_dir / "events.jsonl", tap=tap_event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
     if opts.replay is not None:
         summary["replay"] = {"log": opts.replay.log.source, "format": opts.replay.log.format,
@@ -144,10 +185,18 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     try:
         with contextlib.ExitStack() as stack:
             built = _build(scenario, opts, plan, telemetry, events, stack)
-            built.scheduler.run(until=built.until)
+            if observer is not None:
+                observer.started(RunStart(built.host, built.scheduler, run_dir, plan.mode))
+            loop_started = time.monotonic()
+            try:
+                built.scheduler.run(until=built.until)
+            finally:
+                summary["loop_wall_s"] = time.monotonic() - loop_started
             summary["exit"] = "completed" if built.host.finished else "time limit (the slew never started)"
     except KeyboardInterrupt:
         summary["exit"] = "interrupted"
+    except RunAborted as exc:
+        summary["exit"] = f"aborted: {exc}"
     except BaseException as exc:
         summary["exit"] = f"error: {exc}"
         error = exc
@@ -165,12 +214,23 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
             summary["sim_s"] = scheduler.clock.now() - scheduler.origin
             if summary["wall_s"] > 0:
                 summary["realtime_factor"] = summary["sim_s"] / summary["wall_s"]
-        telemetry.close()
+            if summary.get("loop_wall_s", 0.0) > 0:
+                summary["loop_realtime_factor"] = summary["sim_s"] / summary["loop_wall_s"]
+        try:
+            if telemetry is not None:
+                telemetry.close()
+        except OSError as exc:  # the writer thread's error (a full disk): the run's error if it had none
+            summary["exit"] = f"error: telemetry.csv: {exc}"
+            error = error or exc
         events.close()
-        write_summary(run_dir, summary)
+        if run_dir is not None:
+            write_summary(run_dir, summary)
+        if observer is not None:
+            observer.finished(summary)
     if error is not None:
         raise error
-    return RunResult(run_dir, summary)
+    trace = built.host.trace if built is not None else RunTrace()
+    return RunResult(run_dir, summary, trace, list(events.events))
 
 
 @dataclass
@@ -183,7 +243,7 @@ class _Built:
 
 
 def _build(
-    scenario: Scenario, opts: RunOptions, plan: _Plan, telemetry: CsvLog, events: EventLog,
+    scenario: Scenario, opts: RunOptions, plan: _Plan, telemetry: CsvLog | None, events: EventLog,
     stack: contextlib.ExitStack,
 ) -> _Built:  # fmt: skip
     """Board client, phone source (world, live stream or recording), host and scheduler for ``plan``;
@@ -267,10 +327,16 @@ def _build(
     origin = clock.now()
     until = _time_limit(scenario, opts, origin)
     estimator_hz = estimator_rate_hz(scenario)
-    pending: list[SensorSample] = []
+    catch_up: Callable[[], None] | None = None
     if plan.source == "world" and plan.lockstep:
+        pending: list[SensorSample] = []
+        w = world
+
+        def catch_up() -> None:  # the world to the present: plant steps, pulse frames, phone samples
+            pending.extend(w.advance_to(clock.now()))
 
         def drain() -> list[SensorSample]:
+            catch_up()
             out = pending.copy()
             pending.clear()
             return out
@@ -287,7 +353,13 @@ def _build(
     def estimator_task(_due: float) -> None:
         host.feed(drain())
 
+    observer = opts.observer
+
     def control_task(_due: float) -> None:
+        if observer is not None:
+            observer.tick(clock.now())  # commands from outside act here, in the control thread
+        if catch_up is not None:
+            catch_up()
         host.tick(clock.now(), client.service())
         if opts.progress is not None:
             opts.progress(host, clock.now() - origin)
@@ -300,13 +372,16 @@ def _build(
         PeriodicTask("estimator", 1.0 / estimator_hz, estimator_task),
         PeriodicTask("control", 1.0 / scenario.loop.control_rate_hz, control_task),
     ]
-    if plan.source == "world" and plan.lockstep:
-        w = world
-
-        def world_task(_due: float) -> None:
-            pending.extend(w.advance_to(clock.now()))
-
-        tasks.insert(0, PeriodicTask("world", scenario.loop.plant_step_s, world_task))
+    if catch_up is not None:
+        # Every plant step, so the board's telemetry and power draw see the units of the present step
+        # (World.advance_to hands the board their states once per call: called every 5 ms instead, the
+        # reported rotor speeds lag by up to that and the pulse-quantised hold loses about half a degree),
+        # unless the world says it keeps the board current over a longer span (SimulatedWorld).
+        step = catch_up
+        period = float(getattr(world, "advance_period_s", None) or scenario.loop.plant_step_s)
+        tasks.insert(0, PeriodicTask("world", period, lambda _due: step()))
+    if opts.pace is not None:
+        tasks.append(_pacer(opts.pace, origin))
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
     return _Built(host, scheduler, until, phone, recorded)
@@ -318,6 +393,22 @@ def _in_process_board(url: str) -> InProcessBoard:
     if not isinstance(link, InProcessBoard):
         raise ConfigError(f"{url} is not an in-process board with a world", "run")
     return link
+
+
+def _pacer(pace: float, origin: float) -> PeriodicTask:
+    """A lockstep task that waits, every :data:`PACE_PERIOD_S` of simulated time, until the wall clock has
+    caught up with ``pace`` × the simulated time since ``origin`` (a run slower than that is not held)."""
+    wall_origin: list[float] = []
+
+    def pace_task(due: float) -> None:
+        now = time.monotonic()
+        if not wall_origin:
+            wall_origin.append(now - (due - origin) / pace)
+        ahead = wall_origin[0] + (due - origin) / pace - now
+        if ahead > 0.0:
+            time.sleep(ahead)
+
+    return PeriodicTask("pace", PACE_PERIOD_S, pace_task)
 
 
 def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:

@@ -10,25 +10,30 @@ Layout of ``RUN_DIR``::
     scenario.toml   the scenario the run used (a copy), when there was one
     *.png           plots (``hil report RUN_DIR`` redraws them)
 
-Each row and event is flushed to the operating system as it is written, so SIGKILL loses at most a
-partly written last line, which :func:`read_telemetry` drops and counts.
+Each event is flushed to the operating system as it is written, each telemetry row by the log's writer
+thread moments later (:class:`CsvLog`), so SIGKILL loses at most a partly written last line, which
+:func:`read_telemetry` drops and counts.
 """
 
 from __future__ import annotations
 
+import collections
 import csv
 import io
 import json
 import math
 import os
+import queue
+import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from hil.scenario.paths import read_text
 from protocol.errors import InputFormatError
 
 TELEMETRY = "telemetry.csv"
@@ -51,34 +56,115 @@ def new_run_dir(root: str | os.PathLike[str], label: str) -> Path:
             path = base.with_name(f"{base.name}-{n}")
 
 
-class CsvLog:
-    """Rows of numbers under a fixed header, line-flushed. Missing values are written empty (read as NaN)."""
+Tap = Callable[[Mapping[str, Any]], None]
+"""Called with each row or event record as it is written (a run's observer, :mod:`hil.gcs`)."""
 
-    def __init__(self, path: str | os.PathLike[str], columns: Sequence[str]) -> None:
+
+class CsvLog:
+    """Rows of numbers under a fixed header. Missing values (None, NaN) are written empty (read as NaN).
+
+    Written off the caller's thread: :meth:`write_values` puts the row on a bounded queue (a list of
+    numbers in column order: no formatting on the control tick) and a writer thread, woken by a row, lets
+    rows gather for ``batch_s`` (wall time: one write and one flush per batch, not per row), then formats
+    whatever has queued, writes it and flushes it to the operating system — so a killed run keeps every row
+    older than about ``batch_s``, at most a torn last line. A full queue (``max_pending`` rows: a disk that
+    stalls for that long) makes the caller wait: rows are never dropped. An error of the writer thread (a
+    full disk) is raised by the next :meth:`write_values`, :meth:`flush` or :meth:`close`. ``tap``
+    (optional: a run's observer, :mod:`hil.gcs`) sees each row, by column name, as it is written.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        columns: Sequence[str],
+        max_pending: int = 4096,
+        batch_s: float = 0.05,
+        tap: Tap | None = None,
+    ) -> None:
         if len(set(columns)) != len(columns):
             raise ValueError(f"duplicate CSV columns: {list(columns)}")
         self.path = Path(path)
         self.columns = tuple(columns)
-        self._file: io.TextIOWrapper | None = open(self.path, "w", newline="", buffering=1)  # noqa: SIM115
-        self._writer = csv.writer(self._file)
-        self._writer.writerow(self.columns)
+        self._index = {name: i for i, name in enumerate(self.columns)}
+        self._file: io.TextIOWrapper | None = open(self.path, "w", newline="")  # noqa: SIM115
+        self._file.write(",".join(self.columns) + _EOL)
+        self._file.flush()
         self.rows = 0
+        self._queue: queue.Queue[Sequence[Any] | None] = queue.Queue(max_pending)
+        self._batch_s = batch_s
+        self._closing = threading.Event()
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=f"csv:{self.path.name}", daemon=True)
+        self._thread.start()
+        self.tap = tap
 
     def write(self, row: Mapping[str, Any]) -> None:
-        """Write one row (unknown keys raise KeyError: a typo must not silently drop a column)."""
-        unknown = set(row) - set(self.columns)
+        """Write one row given by column name (unknown keys raise KeyError: a typo must not silently drop a
+        column)."""
+        unknown = set(row) - set(self._index)
         if unknown:
             raise KeyError(f"{self.path.name}: no column(s) {sorted(unknown)}")
+        self.write_values([row.get(c) for c in self.columns])
+
+    def write_values(self, values: Sequence[Any]) -> None:
+        """Write one row given as ``len(columns)`` values in column order (the control tick's path)."""
         if self._file is None:
             raise ValueError(f"{self.path}: log is closed")
-        self._writer.writerow([_cell(row.get(c)) for c in self.columns])
-        self._file.flush()
+        self._check()
+        if len(values) != len(self.columns):
+            raise ValueError(f"{self.path.name}: {len(values)} values for {len(self.columns)} columns")
+        self._queue.put(values)
         self.rows += 1
+        if self.tap is not None:
+            self.tap(dict(zip(self.columns, values, strict=True)))
+
+    def flush(self) -> None:
+        """Wait until every row written so far is in the file (flushed to the operating system; up to
+        ``batch_s`` later)."""
+        if self._file is not None:
+            self._queue.join()
+        self._check()
 
     def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        if self._file is None:
+            return
+        self._closing.set()
+        self._queue.put(None)
+        self._thread.join()
+        self._file.close()
+        self._file = None
+        self._check()
+
+    def _check(self) -> None:
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+    def _run(self) -> None:
+        """The writer thread: everything queued, formatted and written in one go, then flushed."""
+        assert self._file is not None
+        out = self._file
+        q = self._queue
+        while True:
+            batch = [q.get()]
+            self._closing.wait(self._batch_s)  # let rows gather (not when closing)
+            while True:
+                try:
+                    batch.append(q.get_nowait())
+                except queue.Empty:
+                    break
+            rows = [r for r in batch if r is not None]
+            try:
+                if rows and self._error is None:
+                    out.write("".join(",".join(map(_cell, r)) + _EOL for r in rows))
+                    out.flush()
+            except BaseException as exc:  # stored, raised on the caller's thread: never lost silently
+                self._error = exc
+            finally:
+                for _ in batch:
+                    q.task_done()
+            if len(rows) < len(batch):  # the close() sentinel
+                return
 
     def __enter__(self) -> CsvLog:
         return self
@@ -87,8 +173,13 @@ class CsvLog:
         self.close()
 
 
+_EOL = "\r\n"  # csv.writer's line terminator: the files' format since the first runs
+
+
 def _cell(value: Any) -> str:
     """A CSV cell: floats (Python or numpy) at full precision, NaN and None empty."""
+    if type(value) is float:  # the common case first
+        return repr(value) if value == value else ""
     if value is None:
         return ""
     if isinstance(value, float | np.floating):
@@ -99,21 +190,40 @@ def _cell(value: Any) -> str:
 
 
 class EventLog:
-    """JSON lines, each flushed: ``{"t": seconds, "kind": ..., ...}``."""
+    """JSON lines, each flushed: ``{"t": seconds, "kind": ..., ...}``. ``path`` None keeps the events in
+    memory instead (``events``; a run without a run directory, e.g. a Monte Carlo run), the newest
+    ``keep`` of them: older ones are counted in ``dropped``, never an unbounded list. ``tap`` (optional)
+    sees each record as it is written."""
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
-        self._file: io.TextIOWrapper | None = open(self.path, "a", buffering=1)  # noqa: SIM115
+    def __init__(
+        self, path: str | os.PathLike[str] | None, keep: int = 10_000, tap: Tap | None = None
+    ) -> None:
+        self.path = None if path is None else Path(path)
+        self._file: io.TextIOWrapper | None = None
+        if self.path is not None:
+            self._file = open(self.path, "a", buffering=1)  # noqa: SIM115
+        self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=keep)
+        self._closed = False
         self.count = 0
+        self.dropped = 0
+        self.tap = tap
 
     def write(self, t: float, kind: str, **fields: Any) -> None:
-        if self._file is None:
-            raise ValueError(f"{self.path}: log is closed")
-        self._file.write(json.dumps({"t": t, "kind": kind, **fields}, default=str) + "\n")
-        self._file.flush()
+        if self._closed:
+            raise ValueError(f"{self.path or 'event log'}: log is closed")
+        record = event = {"t": t, "kind": kind, **fields}
+        if self._file is not None:
+            self._file.write(json.dumps(event, default=str) + "\n")
+            self._file.flush()
+        else:
+            self.dropped += len(self.events) == self.events.maxlen
+            self.events.append(event)
         self.count += 1
+        if self.tap is not None:
+            self.tap(record)
 
     def close(self) -> None:
+        self._closed = True
         if self._file is not None:
             self._file.close()
             self._file = None
@@ -157,10 +267,7 @@ def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
     """Read a run's telemetry CSV. A line with the wrong number of cells or a non-number is dropped and
     counted (a run killed mid-write leaves one); a missing or header-less file is an InputFormatError."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputFormatError(f"cannot read telemetry: {exc.strerror}", str(path)) from exc
+    text = read_text(path, InputFormatError, "telemetry")
     reader = csv.reader(io.StringIO(text))
     try:
         header = next(reader)

@@ -75,7 +75,7 @@ from pathlib import Path
 from protocol.errors import ConfigError, HilError
 
 from .model import Scenario
-from .paths import FIXTURES
+from .paths import FIXTURES, read_text
 from .reader import _Reader
 
 SCENARIO_DIR = FIXTURES / "scenarios"
@@ -106,11 +106,7 @@ def load_scenario(name_or_path: str | Path = DEFAULT_SCENARIO) -> Scenario:
     """Read and check a scenario (see the module docstring); any error is a :class:`ConfigError` naming
     the file and key."""
     path = resolve_scenario_path(name_or_path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"cannot read: {exc.strerror}", str(path)) from exc
-    return parse_scenario(text, path)
+    return parse_scenario(read_text(path), path)
 
 
 def parse_scenario(text: str, path: Path | None = None) -> Scenario:

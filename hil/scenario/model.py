@@ -10,9 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from hil.simulation.closed_loop import LoopConfig, SlewScenario
 from hil.simulation.phone import PhoneSpec
 from hil.vscmg import SpacecraftParams
+
+from .config import LoopConfig, SlewScenario
 
 
 @dataclass(frozen=True)

@@ -13,11 +13,11 @@ import numpy as np
 from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
-from hil.simulation.closed_loop import LoopConfig, SlewScenario
 from hil.simulation.phone import PhoneSpec, SensorSpec
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
+from .config import LoopConfig, SlewScenario
 from .model import Scenario
 
 _SPACECRAFT_PRESETS = ("cubesat_1u", "air_bearing_testbed")
@@ -74,6 +74,23 @@ _KEYS: dict[str, frozenset[str]] = {
         }
     ),  # fmt: skip
 }
+
+
+BOARD_RANGES: dict[str, tuple[float, float, type]] = {
+    "frame_rate": (50.0, 490.0, float),
+    "telemetry_rate": (0.1, 1000.0, float),
+    "heartbeat_rate": (0.1, 1000.0, float),
+    "link_timeout": (0.01, 60.0, float),
+    "mcu_watchdog": (0.015, 8.0, float),
+    "cells": (1, 12, int),
+    "soc": (0.0, 1.0, float),
+}
+"""The board options a scenario may set (firmware-sim's spelling) and their ranges, checked here so an
+error names the scenario's file and key; the board's own check (``firmware_sim.config.BoardConfig``)
+agrees (tests/test_scenario_checks.py)."""
+MAX_DURATION_S = 86_400.0
+MIN_SKEW_DEG = 5.0
+MAX_ANGLE_DEG = 360.0
 
 
 class _Reader:
@@ -138,17 +155,31 @@ class _Reader:
             raise self.error("scenario.seed", f"must be a non-negative integer, got {seed!r}")
         spacecraft = self.spacecraft()
         loop = self.controller()
-        slew, settle = self.manoeuvre(spacecraft, self.number(head, "scenario", "duration_s", 40.0))
+        duration = self.number(head, "scenario", "duration_s", 40.0)
+        if duration > MAX_DURATION_S:
+            raise self.error("scenario.duration_s", f"must be at most {MAX_DURATION_S:g} s, got {duration!r}")
+        slew, settle = self.manoeuvre(spacecraft, duration)
         board = self.options("board")
-        if "frame_rate" in board and float(board["frame_rate"]) < loop.control_rate_hz:
-            raise self.error("board.frame_rate", "must be at least controller.control_rate_hz")
+        for key, value in board.items():
+            lo, hi, kind = BOARD_RANGES[key]
+            ok = not isinstance(value, bool) and (
+                isinstance(value, int) if kind is int else isinstance(value, int | float)
+            )
+            if not ok or not (math.isfinite(value) and lo <= value <= hi):
+                what = "an integer" if kind is int else "a number"
+                raise self.error(f"board.{key}", f"must be {what} in {lo:g}..{hi:g}, got {value!r}")
+        frame_rate = float(board.get("frame_rate", 50.0))  # firmware-sim's default
+        if frame_rate < loop.control_rate_hz:
+            raise self.error(
+                "board.frame_rate", "must be at least controller.control_rate_hz (firmware-sim's default: 50)"
+            )
         return Scenario(
             name=name,
             description=str(head.get("description", "")),
             spacecraft=spacecraft,
             phone=self.sensors(),
             estimator=self.choice(self.table("estimator"), "estimator", "preset", _ESTIMATOR_PRESETS),
-            loop=replace(loop, frame_rate_hz=float(board.get("frame_rate", 50.0))),
+            loop=replace(loop, frame_rate_hz=frame_rate),
             slew=slew,
             settle_deg=settle,
             seed=seed,
@@ -204,9 +235,14 @@ class _Reader:
                 n = arr.get("units", 4)
                 if not isinstance(n, int) or isinstance(n, bool) or not 2 <= n <= 8:
                     raise self.error("array.units", f"must be an integer 2..8, got {n!r}")
-                skew = math.radians(
-                    self.number(arr, "array", "skew_deg", math.degrees(geometry.PYRAMID_BETA))
-                )
+                skew_deg = self.number(arr, "array", "skew_deg", math.degrees(geometry.PYRAMID_BETA))
+                if not MIN_SKEW_DEG <= skew_deg <= 90.0 - MIN_SKEW_DEG:
+                    raise self.error(
+                        "array.skew_deg",
+                        f"must be within {MIN_SKEW_DEG:g}..{90 - MIN_SKEW_DEG:g} deg, got {skew_deg!r}: the "
+                        "pyramid degenerates towards 0 deg (gimbal axes parallel) and 90 deg (coplanar)",
+                    )
+                skew = math.radians(skew_deg)
                 return geometry.pyramid(n, skew, radius_m=0.025, height_m=-0.02, template=template)
             if kind == "tetrahedron":
                 return geometry.tetrahedron(radius_m=0.12, height_m=0.05, template=template)
@@ -280,7 +316,11 @@ class _Reader:
         m = self.table("manoeuvre")
 
         def rotation(axis_key: str, angle_key: str, default_angle: float) -> np.ndarray:
-            angle = math.radians(self.number(m, "manoeuvre", angle_key, default_angle, positive=False))
+            degrees = self.number(m, "manoeuvre", angle_key, default_angle, positive=False)
+            if abs(degrees) > MAX_ANGLE_DEG:
+                what = f"must be within ±{MAX_ANGLE_DEG:g} deg, got {degrees!r}"
+                raise self.error(f"manoeuvre.{angle_key}", what)
+            angle = math.radians(degrees)
             if angle == 0.0:
                 return np.eye(3)
             axis = self.vector(m, "manoeuvre", axis_key, (3,)) if axis_key in m else np.array([0.0, 0.0, 1.0])

@@ -1,2 +1,2 @@
 """The simulated spacecraft's surroundings, pure math (no I/O): the simulated phone on the body
-(:mod:`.phone`) and the setpoint-level closed loop (:mod:`.closed_loop`)."""
+(:mod:`.phone`)."""

@@ -30,7 +30,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
 from hil.estimation.params import PAPER_E
-from hil.estimation.sensors import SensorKind, SensorLog, SensorSample, SensorStream, Truth
+from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorSample, SensorStream, Truth
+from hil.jit import kernel
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -169,24 +170,54 @@ def simulate(traj: Trajectory, spec: PhoneSpec | None = None, seed: int | None =
 
 
 class BodyPhone:
-    """A phone fixed to a simulated body (its frame = the body frame), sampled step by step from the
-    body's true motion as a simulation produces it: the emulator's world and the lockstep closed loop.
+    """A phone fixed to a simulated body (its frame = the body frame), sampled from the body's true motion as
+    a simulation produces it: the emulator's world and the lockstep closed loop.
 
     Each sensor samples at its own rate (``spec``) from ``t0`` on, with timestamp jitter, white noise and
     a constant bias drawn once from ``seed``. Between two true states the attitude is interpolated along
     the geodesic and the rate linearly. The world is ENU on the ground: the accelerometer reads
-    ``Rᵀ g·up``, the magnetometer ``Rᵀ B``."""
+    ``Rᵀ g·up``, the magnetometer ``Rᵀ B``.
+
+    Two ways to sample, giving the same samples to rounding: :meth:`sample` between two states (numpy, the
+    reference) and :meth:`sample_path` along many (one compiled call, :func:`_sample_path`). Both take
+    their noise from one stream of standard normals drawn from the seeded generator in blocks, in the
+    order ``rng.normal(0, σ, 3)`` then ``rng.normal(0, σ_t)`` per sample would draw them (bit for bit the
+    same numbers), so either may follow the other."""
 
     def __init__(self, spec: PhoneSpec | None = None, seed: int = 0, t0: float = 0.0) -> None:
-        from hil.estimation.sensors import KINDS
-
         self.spec = spec if spec is not None else PhoneSpec.nexus5()
         self.rng = np.random.default_rng(seed)
         self.kinds = KINDS
         self.bias = {k: self.rng.normal(0.0, self.spec.spec(k).bias, 3) for k in KINDS}
-        self.next_t = {k: t0 + self.spec.spec(k).offset_s for k in KINDS}
+        self._next = np.array([t0 + self.spec.spec(k).offset_s for k in KINDS])  # next nominal times
         self._gravity = np.array([0.0, 0.0, self.spec.gravity])
         self._field = np.asarray(self.spec.field_enu_uT, dtype=float)
+        sensors = [self.spec.spec(k) for k in KINDS]
+        # per sensor: rate, noise, jitter; biases; what it measures (gyro: unused)
+        self._table = np.array([[s.rate_hz, s.noise, s.jitter_s] for s in sensors])
+        self._bias = np.array([self.bias[k] for k in KINDS])
+        self._vectors = np.array([np.zeros(3), self._gravity, self._field])
+        self._normals = np.zeros(0)
+        self._used = 0
+        self._out = np.empty((0, 6))
+
+    @property
+    def next_t(self) -> dict[SensorKind, float]:
+        """Each sensor's next nominal sample time (s)."""
+        return {k: float(t) for k, t in zip(KINDS, self._next, strict=True)}
+
+    def _draws(self, count: int) -> None:
+        """At least ``count`` unused standard normals in the buffer (new ones appended, in order)."""
+        left = self._normals[self._used :]
+        if left.size < count:
+            self._normals = np.concatenate([left, self.rng.standard_normal(max(count, _BLOCK))])
+            self._used = 0
+
+    def _take(self, count: int) -> Array:
+        self._draws(count)
+        out = self._normals[self._used : self._used + count]
+        self._used += count
+        return out
 
     def sample(
         self, t0: float, R0: Array, omega0: Array, t1: float, R1: Array, omega1: Array
@@ -196,19 +227,178 @@ class BodyPhone:
         out: list[SensorSample] = []
         span = t1 - t0
         turn = so3.log(R0.T @ R1) if span > 0 else np.zeros(3)
-        for k in self.kinds:
+        for i, k in enumerate(self.kinds):
             sensor = self.spec.spec(k)
-            while self.next_t[k] <= t1:
-                t = self.next_t[k]
-                self.next_t[k] += 1.0 / sensor.rate_hz
+            while self._next[i] <= t1:
+                t = float(self._next[i])
+                self._next[i] += 1.0 / sensor.rate_hz
                 f = (t - t0) / span if span > 0 else 1.0
                 if k is SensorKind.GYR:
                     clean = omega0 + f * (omega1 - omega0)
                 else:
                     R = R0 @ so3.exp(f * turn)
                     clean = R.T @ (self._gravity if k is SensorKind.ACC else self._field)
-                noisy = clean + self.bias[k] + self.rng.normal(0.0, sensor.noise, 3)
-                stamp = t + (self.rng.normal(0.0, sensor.jitter_s) if sensor.jitter_s else 0.0)
+                noisy = clean + self.bias[k] + (0.0 + sensor.noise * self._take(3))
+                stamp = t + ((0.0 + sensor.jitter_s * float(self._take(1)[0])) if sensor.jitter_s else 0.0)
                 out.append(SensorSample(stamp, k, (float(noisy[0]), float(noisy[1]), float(noisy[2]))))
         out.sort(key=lambda s: s.t_s)
         return out
+
+    def sample_path(self, path: Array) -> list[SensorSample]:
+        """The samples every sensor takes along ``path`` (m + 1, 13), rows ``[t, R (9, row-major, body →
+        ENU), Ω (3)]`` of successive true states: what :meth:`sample` gives for each pair of consecutive
+        rows in turn (each pair's samples sorted by timestamp), in one compiled call."""
+        path = np.ascontiguousarray(path, dtype=float)
+        if path.ndim != 2 or path.shape[1] != 13:
+            raise ConfigError(f"needs a path of (m + 1, 13), got {path.shape}", "BodyPhone.sample_path")
+        if path.shape[0] < 2:
+            return []
+        times = path[:, 0]
+        if not np.all(times[1:] >= times[:-1]):
+            raise ConfigError("a path whose times run backwards", "BodyPhone.sample_path")
+        end = float(path[-1, 0])
+        cap = 0  # samples due by the path's end, and a margin
+        for t, rate in zip(self._next.tolist(), self._table[:, 0].tolist(), strict=True):
+            if t <= end:
+                cap += int((end - t) * rate) + 2
+        if cap == 0:  # no sensor is due: nothing to draw or sample
+            return []
+        self._draws(4 * cap)
+        if self._out.shape[0] < cap:
+            self._out = np.empty((2 * cap, 6))
+        out = self._out
+        next_t = self._next.copy()  # taken over only if the sampler succeeds
+        count, used = _sample_path(
+            path, self._table, self._bias, self._vectors, next_t, self._normals, self._used, out
+        )
+        if count < 0:
+            raise ConfigError(f"the sampler refused the path (status {count})", "BodyPhone.sample_path")
+        self._next, self._used = next_t, used
+        if count == 0:
+            return []
+        rows = out[:count]
+        if count > 1:
+            rows = rows[np.lexsort((rows[:, 1], rows[:, 0]))]  # by interval, then stamp, as sample() sorts
+        kinds = self.kinds
+        return [SensorSample(t, kinds[int(k)], (x, y, z)) for _, t, k, x, y, z in rows.tolist()]
+
+
+_BLOCK = 4096
+"""Standard normals drawn at a time for the phone's noise."""
+
+
+@kernel
+def _sample_path(
+    path: Array,
+    table: Array,
+    bias: Array,
+    vectors: Array,
+    next_t: Array,
+    normals: Array,
+    used: int,
+    out: Array,
+) -> tuple[int, int]:
+    """:meth:`BodyPhone.sample` along every interval of ``path`` (rows ``[t, R (9), Ω (3)]``), unsorted:
+    rows of ``out`` are ``[interval, stamp, sensor index, x, y, z]``. ``table`` (3, 3) per sensor
+    rate, noise, jitter; ``bias`` (3, 3); ``vectors`` (3, 3) what each senses in ENU (gyro: unused);
+    ``next_t`` (3,) each sensor's next nominal time (advanced in place); ``normals[used:]`` the noise
+    stream. Returns ``(samples written, normals used)``; (-1, used) if the times run backwards, (-2, used)
+    if ``out`` is full (the caller sized it from the rates)."""
+    count = 0
+    R0T1 = np.empty(9)
+    turn = np.empty(3)
+    E = np.empty(9)
+    for i in range(path.shape[0] - 1):
+        a, b = path[i], path[i + 1]
+        t0, t1 = a[0], b[0]
+        span = t1 - t0
+        if span < 0.0:
+            return -1, used
+        if span > 0.0:
+            for r in range(3):
+                for c in range(3):
+                    R0T1[3 * r + c] = a[1 + r] * b[1 + c] + a[4 + r] * b[4 + c] + a[7 + r] * b[7 + c]
+            _log(R0T1, turn)
+        else:
+            turn[0] = turn[1] = turn[2] = 0.0
+        for k in range(3):
+            rate, noise, jitter = table[k, 0], table[k, 1], table[k, 2]
+            while next_t[k] <= t1:
+                if count == out.shape[0]:
+                    return -2, used
+                t = next_t[k]
+                next_t[k] += 1.0 / rate
+                f = (t - t0) / span if span > 0.0 else 1.0
+                row = out[count]
+                if k == 0:
+                    for j in range(3):
+                        row[3 + j] = a[10 + j] + f * (b[10 + j] - a[10 + j])
+                else:
+                    _exp_small(f * turn[0], f * turn[1], f * turn[2], E)
+                    v = vectors[k]
+                    for j in range(3):  # (R₀ E)ᵀ v = Eᵀ (R₀ᵀ v)
+                        row[3 + j] = 0.0
+                    for q in range(3):
+                        w = a[1 + q] * v[0] + a[4 + q] * v[1] + a[7 + q] * v[2]
+                        for j in range(3):
+                            row[3 + j] += E[3 * q + j] * w
+                for j in range(3):
+                    row[3 + j] = row[3 + j] + bias[k, j] + (0.0 + noise * normals[used + j])
+                used += 3
+                if jitter != 0.0:
+                    row[1] = t + (0.0 + jitter * normals[used])
+                    used += 1
+                else:
+                    row[1] = t + 0.0
+                row[0] = i
+                row[2] = k
+                count += 1
+    return count, used
+
+
+@kernel
+def _exp_small(p0: float, p1: float, p2: float, out: Array) -> None:
+    """``exp(φ^×)`` row-major, as :func:`hil.so3.exp` (series below 1e-4 rad)."""
+    th2 = p0 * p0 + p1 * p1 + p2 * p2
+    if th2 < 1e-8:
+        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
+        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
+    else:
+        th = math.sqrt(th2)
+        a = math.sin(th) / th
+        s = math.sin(0.5 * th)
+        b = 2.0 * s * s / (th * th)
+    out[0] = 1.0 - b * (p1 * p1 + p2 * p2)
+    out[1] = b * (p0 * p1) - a * p2
+    out[2] = b * (p0 * p2) + a * p1
+    out[3] = b * (p0 * p1) + a * p2
+    out[4] = 1.0 - b * (p0 * p0 + p2 * p2)
+    out[5] = b * (p1 * p2) - a * p0
+    out[6] = b * (p0 * p2) - a * p1
+    out[7] = b * (p1 * p2) + a * p0
+    out[8] = 1.0 - b * (p0 * p0 + p1 * p1)
+
+
+@kernel
+def _log(r: Array, out: Array) -> None:
+    """Rotation vector of ``r`` (row-major), as :func:`hil.so3.log`."""
+    c = min(max((r[0] + r[4] + r[8] - 1.0) * 0.5, -1.0), 1.0)
+    theta = math.acos(c)
+    w0, w1, w2 = 0.5 * (r[7] - r[5]), 0.5 * (r[2] - r[6]), 0.5 * (r[3] - r[1])
+    if theta < 1e-4:
+        k = 1.0 + theta * theta / 6.0
+        out[0], out[1], out[2] = w0 * k, w1 * k, w2 * k
+    elif theta < math.pi - 1e-3:
+        k = theta / math.sin(theta)
+        out[0], out[1], out[2] = w0 * k, w1 * k, w2 * k
+    else:  # near π: the axis from the symmetric part, its sign from the skew part
+        d0, d1, d2 = r[0] - c, r[4] - c, r[8] - c
+        j = 0 if (d0 >= d1 and d0 >= d2) else (1 if d1 >= d2 else 2)
+        n0 = 0.5 * (r[j] + r[3 * j]) - (c if j == 0 else 0.0)
+        n1 = 0.5 * (r[3 + j] + r[3 * j + 1]) - (c if j == 1 else 0.0)
+        n2 = 0.5 * (r[6 + j] + r[3 * j + 2]) - (c if j == 2 else 0.0)
+        norm = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if n0 * w0 + n1 * w1 + n2 * w2 < 0.0:
+            norm = -norm
+        theta = math.atan2(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2), c)
+        out[0], out[1], out[2] = n0 / norm * theta, n1 / norm * theta, n2 / norm * theta

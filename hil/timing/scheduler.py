@@ -6,7 +6,9 @@ Deadlines are ``origin + k · period`` with an integer ``k`` — never ``t += pe
 ``sleep(period)`` — so period errors do not accumulate at any rate.
 
 Tasks due at the same instant run in the order they were given (e.g. world, sensors, estimator, control):
-in lockstep the run is therefore deterministic. A task that is found late by more than its period has
+in lockstep the run is therefore deterministic. "The same instant" is the same nanosecond: deadlines of
+commensurate periods that meet (5 × 1 ms and 1 × 5 ms) differ in their last bits of floating point, and
+must not run in the order of their rounding errors. A task that is found late by more than its period has
 overrun: the missed activations are *skipped* (counted in ``overruns``), never replayed in a burst, since a
 stale control step is worse than a missed one.
 
@@ -16,6 +18,7 @@ p50 / p99 / max, and the number of runs and overruns — the jitter figures ``be
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -115,21 +118,28 @@ class Scheduler:
         None: until :meth:`stop`)."""
         self._stop = False
         clock = self.clock
+        tasks = self.tasks
+        heap = [(self._key(i), i) for i in range(len(tasks))]  # (deadline in ns, given order)
+        heapq.heapify(heap)
+        limit = math.inf if until is None else until + _EPS
         while not self._stop:
-            index = min(range(len(self.tasks)), key=self._key)
+            index = heap[0][1]
             due = self.deadline(index)
-            if until is not None and due > until + _EPS:
+            if due > limit:
+                assert until is not None
                 clock.sleep_until(until)
                 return
             clock.sleep_until(due)
-            task = self.tasks[index]
+            task = tasks[index]
             started = clock.now()
-            task.stats.record(max(started - due, 0.0))
+            task.stats.record(started - due if started > due else 0.0)
             task.callback(due)
             self._advance(index, clock.now())
+            heapq.heapreplace(heap, (self._key(index), index))
 
-    def _key(self, index: int) -> tuple[float, int]:
-        return (self.deadline(index), index)
+    def _key(self, index: int) -> int:
+        """Task ``index``'s next deadline in whole nanoseconds: the order of tasks due together."""
+        return round(self.deadline(index) * 1e9)
 
     def _advance(self, index: int, now: float) -> None:
         """Next activation: one period on, or — if ``now`` is already past that — the first deadline after

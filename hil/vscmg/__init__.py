@@ -1,8 +1,10 @@
 """The spacecraft with its array of variable-speed control moment gyroscopes: parameters, geometries, the
-model (mass matrix, momenta, energy) and the plant integrator (numpy, batched; and :mod:`.fast`, the same
-step for one run in plain floats). Pure math, no I/O; docs/dynamics.md derives the equations."""
+model (mass matrix, momenta, energy) and the plant integrator (numpy, batched: the reference; and
+:mod:`.compiled`, the same step for one run compiled, with the motor drives of :mod:`.drives`). Pure math,
+no I/O; docs/dynamics.md derives the equations."""
 
-from .fast import FastState, SingleRunPlant
+from .compiled import CompiledPlant
+from .drives import Drive
 from .geometry import (
     PYRAMID_BETA,
     TETRAHEDRON_BETA,
@@ -21,11 +23,11 @@ __all__ = [
     "RPM",
     "TETRAHEDRON_BETA",
     "ActuatorLimits",
-    "FastState",
+    "CompiledPlant",
+    "Drive",
     "GravityGradient",
     "Plant",
     "PlantState",
-    "SingleRunPlant",
     "SpacecraftParams",
     "TorqueLaw",
     "Torques",

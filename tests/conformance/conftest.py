@@ -16,7 +16,13 @@ from conformance.targets import TARGETS, TargetSpec, resolve
 SPEC = TargetSpec()
 
 
-@pytest.fixture(params=sorted(TARGETS))
+def _param(name: str) -> object:
+    """A target; one that runs the C firmware needs the toolchain (marker ``firmware``, tests/conftest.py)."""
+    needs = getattr(TARGETS[name], "needs_firmware_build", False)
+    return pytest.param(name, marks=pytest.mark.firmware) if needs else name
+
+
+@pytest.fixture(params=[_param(name) for name in sorted(TARGETS)])
 def target(request):
     cls = resolve(request.param)
     with cls(SPEC) as t:

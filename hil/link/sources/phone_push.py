@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import http.client
+import io
 import json
 import logging
 import math
@@ -32,11 +33,12 @@ import socket
 import threading
 import time
 from collections.abc import Iterable, Sequence
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler
 from typing import Any
 
 from hil.estimation.sensors import SensorKind, SensorSample
-from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
+from hil.link.sources.http_guard import BodyError, BoundedHTTPServer, DeadlineReader, read_body
+from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, parse_json, split_url
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)
@@ -48,6 +50,8 @@ NAMES: dict[str, SensorKind] = {
 }
 _NAME_OF = {kind: name for name, kind in NAMES.items()}
 MAX_BODY = 4 * 1024 * 1024  # bytes: a batch larger than this is refused (413), not buffered
+REQUEST_TIMEOUT_S = 10.0  # s: from waiting for a request to its last byte (an idle keep-alive ends here)
+MAX_CONNECTIONS = 8  # served at once; the app keeps one
 
 
 _Timed = tuple[float, tuple[float, float, float]]
@@ -61,12 +65,10 @@ def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], 
     """Parse one HTTP Push batch into samples (time-ordered per sensor, seconds since the epoch).
 
     Returns ``(samples, bad_entries, ignored_entries, message_id)``. A body that is not a JSON object with
-    a ``payload`` list raises :class:`InputFormatError` naming ``source``.
+    a ``payload`` list raises :class:`InputFormatError` naming ``source`` — whatever the bytes, nothing
+    else is raised; a reading that cannot be used is counted in ``bad_entries``.
     """
-    try:
-        doc = json.loads(body)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"not JSON ({exc})", source) from None
+    doc = parse_json(body, source)
     if not isinstance(doc, dict) or not isinstance(doc.get("payload"), list):
         raise InputFormatError("expected a JSON object with a 'payload' list", source)
     message_id = doc.get("messageId")
@@ -97,9 +99,9 @@ def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], 
         else:
             have_total |= NAMES[name] is SensorKind.ACC
             samples.append(SensorSample(t, NAMES[name], xyz))
-    if not have_total:
+    if not have_total and user_acc and gravity:
         samples.extend(_total_from_parts(user_acc, gravity))
-    else:
+    else:  # the parts are not needed (or one of them is missing): counted, not silently lost
         ignored += len(user_acc) + len(gravity)
     samples.sort(key=lambda s: (s.t_s, int(s.kind)))
     return samples, bad, ignored, message_id
@@ -114,7 +116,7 @@ def _reading(entry: dict[str, Any]) -> tuple[float, tuple[float, float, float]] 
         whole = isinstance(t_ns, int) or (isinstance(t_ns, str) and t_ns.isdigit())
         t = (int(t_ns) if whole else float(t_ns)) / 1_000_000_000
         xyz = (float(values["x"]), float(values["y"]), float(values["z"]))
-    except (KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, OverflowError):  # OverflowError: a 400-digit integer
         return None
     if not all(math.isfinite(v) for v in (t, *xyz)):
         return None
@@ -156,63 +158,33 @@ class PhonePushServer(PhoneReceiver):
 
     A background thread serves HTTP; :meth:`drain` hands the samples received so far to the consumer (the
     runtime's estimator task). ``GET`` answers 200 so the app's "Tap to Test Pushing" button succeeds; a
-    batch that cannot be read is answered 400 and counted. Errors in the serving thread are stored and
+    batch that cannot be read is answered 400 and counted. Whatever a peer sends, a body is at most
+    ``max_body`` bytes, a request has ``timeout_s`` to arrive, at most ``max_connections`` are served at
+    once (:mod:`.http_guard`), and only this server's socket failing is fatal: that error is stored and
     raised by :meth:`check` — threads never die silently.
     """
 
     scheme = "http"
     app = "Sensor Logger (HTTP Push)"
 
-    def __init__(self, url: str = "http://127.0.0.1:8123/", max_queue: int = MAX_QUEUE) -> None:
+    def __init__(
+        self,
+        url: str = "http://127.0.0.1:8123/",
+        max_queue: int = MAX_QUEUE,
+        max_body: int = MAX_BODY,
+        timeout_s: float = REQUEST_TIMEOUT_S,
+        max_connections: int = MAX_CONNECTIONS,
+    ) -> None:
         super().__init__(max_queue)
         host, port, self.path = _address(url)
         self._last_id: int | None = None
         self._connections: set[socket.socket] = set()
-        server = self
-
-        class Handler(BaseHTTPRequestHandler):
-            protocol_version = "HTTP/1.1"
-
-            def setup(self) -> None:
-                super().setup()
-                with server._lock:
-                    server._connections.add(self.connection)
-
-            def finish(self) -> None:
-                with server._lock:
-                    server._connections.discard(self.connection)
-                super().finish()
-
-            def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
-                length = int(self.headers.get("Content-Length") or 0)
-                if length > MAX_BODY:
-                    server._reject(f"a batch of {length} bytes is larger than {MAX_BODY}")
-                    self._answer(413, "batch too large")
-                    self.close_connection = True
-                    return
-                body = self.rfile.read(length)
-                code, text = server._accept(body, self.client_address[0])
-                self._answer(code, text)
-
-            def do_GET(self) -> None:  # noqa: N802
-                self._answer(200, "vscmg-hil phone push receiver")
-
-            def _answer(self, code: int, text: str) -> None:
-                data = text.encode()
-                self.send_response(code)
-                self.send_header("Content-Type", "text/plain")
-                self.send_header("Content-Length", str(len(data)))
-                self.end_headers()
-                self.wfile.write(data)
-
-            def log_message(self, format: str, *args: Any) -> None:  # noqa: A002
-                logger.debug("push %s: " + format, self.client_address[0], *args)
-
         try:
-            self._httpd = ThreadingHTTPServer((host, port), Handler)
+            handler = _handler(self, max_body, timeout_s)
+            address = (host, port)
+            self._httpd = BoundedHTTPServer(address, handler, max_connections, self._refused, self._reject)
         except OSError as exc:
             raise LinkError(f"cannot listen for phone pushes on {host}:{port}: {exc.strerror}") from exc
-        self._httpd.daemon_threads = True
         self._thread = threading.Thread(target=self._serve, name="phone-push", daemon=True)
         self._thread.start()
 
@@ -229,18 +201,24 @@ class PhonePushServer(PhoneReceiver):
             self._error = exc
 
     def _accept(self, body: bytes, peer: str) -> tuple[int, str]:
-        try:
-            samples, bad, ignored, message_id = decode_push(body, f"push from {peer}")
-        except InputFormatError as exc:
-            self._reject(str(exc))
-            logger.warning("%s", exc)
-            return 400, str(exc)
+        batch, refused = self._decode(decode_push, body, f"push from {peer}")
+        if batch is None:
+            return 400, refused
+        samples, bad, ignored, message_id = batch
         with self._lock:
             last, self._last_id = self._last_id, message_id if message_id is not None else self._last_id
             if message_id is not None and last is not None and message_id > last + 1:
                 self.stats.message_gaps += message_id - last - 1
         self._deliver(samples, bad, ignored)
         return 200, "ok"
+
+    def _refused(self) -> None:
+        with self._lock:
+            self.stats.refused_connections += 1
+
+    def _timed_out(self) -> None:
+        with self._lock:
+            self.stats.timeouts += 1
 
     def close(self) -> None:
         """Stop serving, drop open (keep-alive) connections and release the port. Idempotent."""
@@ -253,6 +231,65 @@ class PhonePushServer(PhoneReceiver):
         for conn in connections:
             with contextlib.suppress(OSError):
                 conn.shutdown(socket.SHUT_RDWR)
+
+
+def _handler(server: PhonePushServer, max_body: int, timeout_s: float) -> type[BaseHTTPRequestHandler]:
+    """The request handler class of ``server``: keep-alive HTTP/1.1, bodies read by
+    :func:`~.http_guard.read_body`, every request under a :class:`~.http_guard.DeadlineReader`."""
+
+    class Handler(BaseHTTPRequestHandler):
+        protocol_version = "HTTP/1.1"
+        # The answer goes out as two writes (headers, body): with Nagle's algorithm the second waits for
+        # the peer's delayed ACK of the first, 40 ms a batch on Linux, and the app waits for the answer.
+        disable_nagle_algorithm = True
+
+        def setup(self) -> None:
+            super().setup()
+            self.rfile.close()  # makefile()'s reader: replaced by one with a deadline per request
+            self._reader = DeadlineReader(self.connection, timeout_s, server._timed_out)
+            self.rfile = io.BufferedReader(self._reader)
+            with server._lock:
+                server._connections.add(self.connection)
+
+        def finish(self) -> None:
+            with server._lock:
+                server._connections.discard(self.connection)
+            super().finish()
+
+        def handle_one_request(self) -> None:
+            self._reader.start()  # the next request, from waiting for it to its last byte: timeout_s
+            super().handle_one_request()
+
+        def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
+            peer = self.client_address[0]
+            try:
+                body = read_body(self.headers, self.rfile, max_body, f"push from {peer}")
+            except BodyError as exc:
+                server._reject(str(exc))
+                self.close_connection = True  # the rest of what this peer sent cannot be trusted
+                self._answer(exc.status, exc.detail)
+                return
+            code, text = server._accept(body, peer)
+            self._answer(code, text)
+
+        def do_GET(self) -> None:  # noqa: N802
+            self._answer(200, "vscmg-hil phone push receiver")
+
+        def _answer(self, code: int, text: str) -> None:
+            data = text.encode()
+            self.connection.settimeout(timeout_s)  # a peer that does not read its answer cannot hold us
+            self.send_response(code)
+            self.send_header("Content-Type", "text/plain")
+            self.send_header("Content-Length", str(len(data)))
+            if self.close_connection:
+                self.send_header("Connection", "close")
+            self.end_headers()
+            self.wfile.write(data)
+
+        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002
+            logger.debug("push %s: " + format, self.client_address[0], *args)
+
+    return Handler
 
 
 class PhonePushSender:

@@ -23,17 +23,14 @@ from __future__ import annotations
 
 import contextlib
 import json
-import logging
 import math
 import socket
 import threading
 from collections.abc import Sequence
 
 from hil.estimation.sensors import SensorKind, SensorSample
-from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, split_url
+from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, parse_json, split_url
 from protocol.errors import InputFormatError, LinkError
-
-logger = logging.getLogger(__name__)
 
 TYPES: dict[str, SensorKind] = {
     "android.sensor.accelerometer": SensorKind.ACC,
@@ -42,18 +39,22 @@ TYPES: dict[str, SensorKind] = {
 }
 _TYPE_OF = {kind: name for name, kind in TYPES.items()}
 MAX_DATAGRAM = 65_507  # bytes: the largest UDP payload over IPv4
+MAX_MESSAGE = 4096  # bytes: a SensaGram datagram is ~100; a larger one is dropped unparsed
+MAX_BRACKETS = 8  # a SensaGram datagram holds one object and one list; deeper ones are dropped unparsed
 
 
 def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
     """One SensaGram datagram → its sample (seconds on the phone's clock), or None for another sensor.
 
     A datagram that is not a JSON object with a string ``type``, or one of our sensors without an integer
-    or numeric ``timestamp`` and three finite ``values``, raises :class:`InputFormatError` naming ``source``.
+    or numeric ``timestamp`` and three finite ``values``, raises :class:`InputFormatError` naming ``source``
+    — whatever the bytes, nothing else is raised.
     """
-    try:
-        doc = json.loads(data)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"not JSON ({exc})", source) from None
+    if len(data) > MAX_MESSAGE:
+        raise InputFormatError(f"a datagram of {len(data)} bytes is larger than {MAX_MESSAGE}", source)
+    if data.count(b"[") + data.count(b"{") > MAX_BRACKETS:  # refused before the parser spends ~0.3 ms
+        raise InputFormatError(f"more than {MAX_BRACKETS} brackets: not one sensor event", source)
+    doc = parse_json(data, source)
     if not isinstance(doc, dict) or not isinstance(doc.get("type"), str):
         raise InputFormatError("expected a JSON object with a string 'type'", source)
     kind = TYPES.get(doc["type"])
@@ -66,9 +67,9 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
         raise InputFormatError(f"{doc['type']}: 'values' must be a list of 3 numbers", source)
     try:
         xyz = (float(values[0]), float(values[1]), float(values[2]))
-    except (TypeError, ValueError):
-        raise InputFormatError(f"{doc['type']}: 'values' must be numbers", source) from None
-    t = t_ns / 1_000_000_000  # int / int: correctly rounded, so t_s survives a round trip through ns
+        t = t_ns / 1_000_000_000  # int / int: correctly rounded, so t_s survives a round trip through ns
+    except (TypeError, ValueError, OverflowError):
+        raise InputFormatError(f"{doc['type']}: time and 'values' must be finite numbers", source) from None
     if not all(math.isfinite(v) for v in (t, *xyz)):
         raise InputFormatError(f"{doc['type']}: time and values must be finite", source)
     return SensorSample(t, kind, xyz)
@@ -88,8 +89,9 @@ def _address(url: str) -> tuple[str, int]:
 class PhoneUdpReceiver(PhoneReceiver):
     """Receives SensaGram datagrams on ``udp://HOST:PORT`` (port 0 picks a free one; see :attr:`url`).
 
-    A background thread reads the socket; bad datagrams are counted (``stats.bad_messages``) and logged,
-    never fatal. :meth:`drain` hands over what arrived; :meth:`check` raises the thread's error.
+    A background thread reads the socket; a datagram that cannot be read, whatever is in it, is counted
+    (``stats.bad_messages``) and logged, never fatal. :meth:`drain` hands over what arrived; :meth:`check`
+    raises the thread's error (only the socket itself failing is one).
     """
 
     scheme = "udp"
@@ -122,7 +124,7 @@ class PhoneUdpReceiver(PhoneReceiver):
             while not self._stop.is_set():
                 try:
                     data, peer = self._sock.recvfrom(MAX_DATAGRAM)
-                except TimeoutError:
+                except (TimeoutError, ConnectionError):  # idle; an ICMP error queued on the socket
                     continue
                 self._accept(data, peer[0])
         except OSError as exc:
@@ -132,11 +134,8 @@ class PhoneUdpReceiver(PhoneReceiver):
             self._error = exc
 
     def _accept(self, data: bytes, peer: str) -> None:
-        try:
-            sample = decode_datagram(data, f"udp from {peer}")
-        except InputFormatError as exc:
-            self._reject(str(exc))
-            logger.warning("%s", exc)
+        sample, refused = self._decode(decode_datagram, data, f"udp from {peer}")
+        if refused:
             return
         if sample is None:
             self._deliver((), ignored=1)

@@ -2,6 +2,12 @@
 estimator task drains, counters for everything received and everything dropped, and the network thread's
 error stored and raised in the consumer (threads never die silently).
 
+A receiver listens on the network, so anything on that network can send it anything: every message is
+decoded through :meth:`PhoneReceiver._decode`, which turns *any* failure of that one message (the
+decoder's :class:`~protocol.errors.InputFormatError`, and whatever else hostile input makes a parser
+raise, e.g. ``RecursionError`` from ``json.loads(b"[" * 60000)``) into a counted, logged drop. Only the
+socket itself failing ends a receiver. Drops are logged at most once per second (with the count since).
+
 A receiver (:class:`PhoneReceiver`) listens on one address; its :attr:`~PhoneReceiver.url` says where a
 phone must stream to. Senders (the emulator's simulated phone) implement :class:`PhoneSender`.
 :mod:`hil.link.sources` picks both by URL scheme.
@@ -9,17 +15,35 @@ phone must stream to. Senders (the emulator's simulated phone) implement :class:
 
 from __future__ import annotations
 
+import json
+import logging
 import threading
+import time
 from collections import deque
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, TypeVar
 from urllib.parse import urlsplit
 
 from hil.estimation.sensors import SensorSample
-from protocol.errors import LinkError
+from protocol.errors import InputFormatError, LinkError
+
+logger = logging.getLogger(__name__)
 
 MAX_QUEUE = 200_000  # samples held for the consumer; beyond this the oldest are dropped and counted
+LOG_EVERY_S = 1.0  # s: at most one warning about dropped messages this often (the rest are counted)
+
+T = TypeVar("T")
+
+
+def parse_json(data: bytes, source: str) -> object:
+    """``data`` as JSON, or :class:`InputFormatError` naming ``source`` for anything unreadable: bad
+    UTF-8 or syntax, nesting too deep for the parser (``RecursionError``), an integer past Python's
+    digit limit."""
+    try:
+        return json.loads(data)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise InputFormatError(f"not JSON ({type(exc).__name__}: {str(exc)[:120]})", source) from None
 
 
 def split_url(url: str, scheme: str, form: str, default_port: int | None = None) -> tuple[str, int, str]:
@@ -43,11 +67,13 @@ class StreamStats:
 
     messages: int = 0  # accepted messages
     samples: int = 0  # samples handed to the queue
-    bad_messages: int = 0  # not JSON, wrong shape, too large
+    bad_messages: int = 0  # unreadable: not JSON, wrong shape, too large, a refused HTTP request
     bad_entries: int = 0  # a reading without finite values or time
     ignored_entries: int = 0  # other sensors (location, light, …)
     overflow: int = 0  # samples dropped because the consumer did not keep up
     message_gaps: int = 0  # messages lost in transit (where the format numbers them)
+    refused_connections: int = 0  # HTTP: connections beyond the cap, closed unanswered
+    timeouts: int = 0  # HTTP: connections closed because a request did not arrive in time
     last_error: str = ""
     per_kind: dict[str, int] = field(default_factory=dict)
 
@@ -59,12 +85,15 @@ class PhoneReceiver:
     scheme = ""
     app = ""  # the phone app that streams in this format (for error messages)
 
-    def __init__(self, max_queue: int = MAX_QUEUE) -> None:
+    def __init__(self, max_queue: int = MAX_QUEUE, clock: Callable[[], float] = time.monotonic) -> None:
         self.stats = StreamStats()
         self._queue: deque[SensorSample] = deque()
         self._max_queue = max_queue
         self._lock = threading.Lock()
         self._error: BaseException | None = None
+        self._clock = clock  # s, monotonic: paces the drop warnings
+        self._next_log = -float("inf")
+        self._unlogged = 0
 
     @property
     def url(self) -> str:
@@ -88,11 +117,32 @@ class PhoneReceiver:
                 self._queue.popleft()
             st.overflow += max(excess, 0)
 
+    def _decode(self, decode: Callable[[bytes, str], T], data: bytes, source: str) -> tuple[T | None, str]:
+        """``(decode(data, source), "")``, or ``(None, reason)`` once the message is counted and logged as
+        unreadable: whatever ``decode`` raises costs this one message, never the receiver."""
+        try:
+            return decode(data, source), ""
+        except InputFormatError as exc:
+            reason = str(exc)
+        except Exception as exc:  # hostile input can make any parser raise (RecursionError, …)
+            reason = f"{source}: unreadable ({type(exc).__name__}: {str(exc)[:120]})"
+        self._reject(reason)
+        return None, reason
+
     def _reject(self, reason: str) -> None:
-        """A message that could not be read at all: counted, remembered."""
+        """A message that could not be read at all: counted, remembered, logged (at most once a second,
+        saying how many more were dropped since)."""
         with self._lock:
             self.stats.bad_messages += 1
             self.stats.last_error = reason
+            now = self._clock()
+            if now < self._next_log:
+                self._unlogged += 1
+                return
+            self._next_log = now + LOG_EVERY_S
+            unlogged, self._unlogged = self._unlogged, 0
+        more = f" (and {unlogged} more dropped since the last warning)" if unlogged else ""
+        logger.warning("phone %s: dropped %s%s", self.scheme, reason, more)
 
     def drain(self) -> list[SensorSample]:
         """Every sample received since the last call, in arrival order; raises the network thread's error."""

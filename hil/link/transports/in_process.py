@@ -37,7 +37,13 @@ class WorldTruth(Protocol):
 
 class SimulatedWorld(Protocol):
     """A world the board's pulses drive: stepped to the board clock's present, it returns the phone
-    samples taken meanwhile."""
+    samples taken meanwhile.
+
+    A lockstep run advances it every plant step (the board's telemetry and power draw then see the units
+    of the present step), and before each estimator and control activation. A world that keeps the board's
+    view of its units current by itself between its own steps may say how long one ``advance_to`` may then
+    span, as a float attribute ``advance_period_s`` (s): the runtime advances it that often instead (many
+    plant steps per call; the phone's samples and the host's view are the same)."""
 
     def advance_to(self, t: float) -> list[SensorSample]: ...
 

@@ -1,0 +1,131 @@
+"""The downlink's history and its readers: encoded chunks in order, held up to a byte budget, and a cursor
+per browser.
+
+The pump thread publishes one chunk per cycle; each stream (one HTTP handler thread per browser) waits for
+chunks after its cursor and writes them all in one go. Nothing here waits on a browser: a slow one falls
+behind, and if the chunks it has not read yet are trimmed (the budget is full) it skips to the oldest one
+held, the skip counted. A browser that connects late (or reconnects) gets ``info`` and then the whole
+history held, so its plots and timeline start from the beginning of what is held.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+DEFAULT_BUDGET = 64 * 1024 * 1024  # bytes of history held for late joiners and the replay's timeline
+
+
+@dataclass
+class HubStats:
+    chunks: int = 0  # published
+    bytes_published: int = 0
+    trimmed_chunks: int = 0  # dropped from the history (budget full)
+    skipped_chunks: int = 0  # not delivered to a slow reader because they had been trimmed
+    bytes_sent: int = 0  # written to browsers' sockets (downlink)
+    streams_opened: int = 0
+    streams_open: int = 0
+
+
+class Hub:
+    """Chunks numbered from 0; ``budget`` bytes of the newest are held."""
+
+    def __init__(self, budget: int = DEFAULT_BUDGET) -> None:
+        self.budget = budget
+        self.stats = HubStats()
+        self._cond = threading.Condition()
+        self._chunks: list[bytes] = []
+        self._first = 0  # number of the oldest chunk held
+        self._held = 0  # bytes held
+        self._info: bytes | None = None
+        self._info_version = 0
+        self.closed = False
+
+    # ------------------------------------------------------------------ the pump's side
+    def set_info(self, info: bytes) -> None:
+        """The ``info`` message every reader gets first (a new one restarts every reader's stream)."""
+        with self._cond:
+            self._info = info
+            self._info_version += 1
+            self._cond.notify_all()
+
+    def publish(self, chunk: bytes) -> None:
+        with self._cond:
+            self._chunks.append(chunk)
+            self._held += len(chunk)
+            self.stats.chunks += 1
+            self.stats.bytes_published += len(chunk)
+            if self._held > self.budget and len(self._chunks) > 1:
+                # trim to 90 % of the budget in one go (a list slice, not one pop per chunk)
+                n, freed = 0, 0
+                while n < len(self._chunks) - 1 and self._held - freed > 0.9 * self.budget:
+                    freed += len(self._chunks[n])
+                    n += 1
+                del self._chunks[:n]
+                self._held -= freed
+                self._first += n
+                self.stats.trimmed_chunks += n
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        """Wake every reader for the last time."""
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+    # ------------------------------------------------------------------ the readers' side
+    def count_sent(self, n: int) -> None:
+        with self._cond:
+            self.stats.bytes_sent += n
+
+    def count_stream(self, delta: int) -> None:
+        with self._cond:
+            self.stats.streams_open += delta
+            self.stats.streams_opened += max(delta, 0)
+
+    def reader(self) -> Reader:
+        return Reader(self)
+
+    def _read(self, reader: Reader, timeout: float) -> bytes | None:
+        """What ``reader`` has not had yet (``info`` first), waiting up to ``timeout`` s for something; b""
+        if nothing came, None when the hub is closed and the reader has everything."""
+        with self._cond:
+            end_wait = self._cond.wait_for(
+                lambda: (
+                    self.closed
+                    or (self._info is not None and reader.info_version != self._info_version)
+                    or (reader.info_version and reader.cursor < self._first + len(self._chunks))
+                ),
+                timeout,
+            )
+            if not end_wait:
+                return b""
+            out = b""
+            if self._info is not None and reader.info_version != self._info_version:
+                reader.info_version = self._info_version
+                reader.cursor = self._first  # a new run description: the whole history again
+                out += self._info
+            if not reader.info_version:
+                return None if self.closed else out
+            if reader.cursor < self._first:
+                self.stats.skipped_chunks += self._first - reader.cursor
+                reader.cursor = self._first
+            start = reader.cursor - self._first
+            chunks = self._chunks[start:]
+            reader.cursor += len(chunks)
+            out += b"".join(chunks)
+            if not out and self.closed:
+                return None
+            return out
+
+
+class Reader:
+    """One browser's position in the hub."""
+
+    def __init__(self, hub: Hub) -> None:
+        self.hub = hub
+        self.cursor = 0
+        self.info_version = 0
+
+    def read(self, timeout: float) -> bytes | None:
+        return self.hub._read(self, timeout)

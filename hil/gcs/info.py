@@ -1,0 +1,107 @@
+"""The run as the page needs to draw it (the ``info`` message): columns, the VSCMG units' geometry, the
+limits the plots mark, the target, and whether the page may command the run.
+
+The same description comes from a live run's :class:`~hil.scenario.Scenario` and from a run directory's
+``scenario.toml`` (a directory without one still replays: the page then draws no units and no limits).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from hil import so3
+from hil.estimation.sensors import KINDS
+from hil.scenario import Scenario
+from protocol.messages import BoardState, ControlMode, FaultFlag, PowerState, WatchdogState
+
+PHONE_LABELS = tuple(k.label for k in KINDS)
+
+LIVE_COLUMNS = (
+    "battery_a", "battery_soc", "ubec_v", "ubec_a", "power_state", "watchdog", "faults", "board_mode",
+    "tel_age_ms",
+    *(f"phone_rate_{k}" for k in PHONE_LABELS),
+    *(f"phone_age_ms_{k}" for k in PHONE_LABELS),
+)  # fmt: skip
+"""What a live run adds to telemetry.csv's columns for the page: the board's power, UBEC, watchdog, faults
+and mode from its latest Telemetry, the host-side age of that Telemetry, and each phone sensor's sample rate
+(Hz, over the last second) and the age of its newest sample (ms, on the host's clock)."""
+
+STALE_AFTER_S = 0.25  # a phone sample or board telemetry older than this is drawn stale (merge policy's)
+
+
+def enums() -> dict[str, Any]:
+    """Names of the board's enumerations and fault bits, for the page's labels."""
+    return {
+        "board_state": {int(s): s.name for s in BoardState},
+        "power_state": {int(s): s.name for s in PowerState},
+        "watchdog": {int(s): s.name for s in WatchdogState},
+        "board_mode": {int(s): s.name for s in ControlMode},
+        "faults": {int(f): f.name for f in FaultFlag if f.value and f.name},
+    }
+
+
+def units_of(scenario: Scenario) -> list[dict[str, list[float]]]:
+    """Per unit, body frame: gimbal axis ``g``, spin axis ``s0`` and ``t0 = g × s0`` at gimbal angle 0 (so
+    ``s(γ) = cos γ s0 + sin γ t0``), pivot position ``p`` (m)."""
+    out = []
+    for u in scenario.spacecraft.units:
+        g, s0 = np.asarray(u.gimbal_axis, float), np.asarray(u.spin_axis, float)
+        out.append({"g": g.tolist(), "s0": s0.tolist(), "t0": np.cross(g, s0).tolist(),
+                    "p": list(u.position_m)})  # fmt: skip
+    return out
+
+
+def scenario_info(scenario: Scenario, hold: bool = False) -> dict[str, Any]:
+    """The scenario's part of ``info``: units, limits, target (None with ``hold``: the run holds the attitude
+    it estimates at the end of its warm-up, known from its ``slew_start`` event)."""
+    params = scenario.spacecraft
+    lim = params.limits
+    return {
+        "scenario": scenario.name,
+        "description": scenario.description,
+        "n_units": params.n_units,
+        "units": units_of(scenario),
+        "control_rate_hz": scenario.loop.control_rate_hz,
+        "limits": {
+            "max_gimbal_rate": lim.max_gimbal_rate,
+            "min_rotor_speed": lim.min_rotor_speed,
+            "max_rotor_speed": lim.max_rotor_speed,
+            "nominal_rotor_speed": params.nominal_rotor_speed,
+            "settle_deg": scenario.settle_deg,
+            "gimbal_angle": None,  # multi-turn gimbals: no angle limit (docs/gcs.md)
+        },
+        "target_r": None if hold else so3.log(np.asarray(scenario.slew.R_target)).tolist(),
+        "max_rate": scenario.slew.max_rate,
+        "max_accel": scenario.slew.max_accel,
+    }
+
+
+def units_from_columns(columns: Sequence[str]) -> int:
+    """How many units a telemetry header has (its ``gimbal_angle_<i>`` columns)."""
+    return sum(1 for c in columns if re.fullmatch(r"gimbal_angle_\d+", c))
+
+
+def info(
+    *, mode: str, run: str, columns: Sequence[str], uplink: bool, scenario: Scenario | None,
+    hold: bool = False, note: str = "",
+) -> dict[str, Any]:  # fmt: skip
+    """The whole ``info`` message. ``mode``: ``live`` or ``replay``."""
+    out: dict[str, Any] = {
+        "mode": mode,
+        "run": run,
+        "columns": list(columns),
+        "uplink": uplink,
+        "stale_after_s": STALE_AFTER_S,
+        "phone": list(PHONE_LABELS),
+        "enums": enums(),
+        "note": note,
+    }
+    if scenario is not None:
+        out.update(scenario_info(scenario, hold))
+    else:
+        out.update(n_units=units_from_columns(columns), units=[], limits={}, target_r=None)
+    return out

@@ -1,0 +1,188 @@
+"""A live run's side of the ground station: the run's observer (:mod:`hil.runtime.observer`) on the control
+path, and the feed the station's pump drains.
+
+On the control path (every call returns at once): each telemetry row and event goes into a bounded queue
+— when the queue is full (the pump thread starved) the item is dropped and counted, never waited for —
+with the row's live extras (:data:`hil.gcs.info.LIVE_COLUMNS`: the board's latest power/UBEC/watchdog
+state, the age of its telemetry, each phone sensor's rate and sample age) read from the host, which costs
+a few attribute reads. Link statistics are taken every :data:`LINK_PERIOD_S` of run time. Commands from
+the page are carried out in :meth:`LiveFeed.tick` (:class:`hil.gcs.uplink.Uplink`).
+
+On the pump's side: :meth:`LiveFeed.poll` empties the queue into one :class:`~hil.gcs.wire.Batch`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from hil.gcs import info as run_info
+from hil.gcs.uplink import Uplink
+from hil.gcs.wire import Batch
+from hil.runtime.observer import RunStart
+
+if TYPE_CHECKING:
+    from hil.runtime.host import Host
+
+logger = logging.getLogger(__name__)
+
+CAPACITY = 8192  # items (rows, events, link snapshots) between two pump cycles; beyond: dropped, counted
+LINK_PERIOD_S = 0.2  # link statistics every this much run time
+RATE_WINDOW_S = 1.0  # phone sample rates over this window
+
+
+@dataclass
+class FeedStats:
+    rows: int = 0
+    events: int = 0
+    dropped_rows: int = 0
+    dropped_events: int = 0
+    dropped_link: int = 0
+
+
+class _Phone:
+    """Each sensor's sample rate over the last second and the age of its newest sample, from the merger's
+    accepted-sample counters (host clock: when the count last moved)."""
+
+    def __init__(self) -> None:
+        self.labels = run_info.PHONE_LABELS
+        self.last_count = dict.fromkeys(self.labels, 0)
+        self.last_seen: dict[str, float | None] = dict.fromkeys(self.labels)
+        self.window_t: float | None = None
+        self.window_count = dict.fromkeys(self.labels, 0)
+        self.rates: dict[str, float | None] = dict.fromkeys(self.labels)
+
+    def update(self, t: float, accepted: Mapping[str, int]) -> list[float | None]:
+        for k in self.labels:
+            n = accepted.get(k, 0)
+            if n != self.last_count[k]:
+                self.last_count[k] = n
+                self.last_seen[k] = t
+        if self.window_t is None:
+            self.window_t = t
+            self.window_count = dict(self.last_count)
+        elif t - self.window_t >= RATE_WINDOW_S:
+            span = t - self.window_t
+            self.rates = {k: (self.last_count[k] - self.window_count[k]) / span for k in self.labels}
+            self.window_t, self.window_count = t, dict(self.last_count)
+        ages = [None if (s := self.last_seen[k]) is None else (t - s) * 1e3 for k in self.labels]
+        return [self.rates[k] for k in self.labels] + ages
+
+
+class LiveFeed:
+    """The run observer of a live ground station (see the module docstring)."""
+
+    def __init__(self, uplink: Uplink | None = None, capacity: int = CAPACITY) -> None:
+        self.uplink = uplink
+        self.capacity = capacity
+        self.stats = FeedStats()
+        self._items: deque[tuple[str, Any]] = deque()
+        self._host: Host | None = None
+        self._phone = _Phone()
+        self._next_link = -float("inf")
+        self._lock = threading.Lock()  # only for started/finished (rare); the hot path takes none
+        self._info: dict[str, Any] | None = None
+        self._info_sent = False
+        self._status: dict[str, Any] = {"state": "waiting"}
+        self._status_changed = True
+        self._counters: dict[str, int] = {}
+        self.started_at: RunStart | None = None
+
+    # ------------------------------------------------------------------ the control path
+    def started(self, start: RunStart) -> None:
+        host = start.host
+        columns = list(host.columns) + list(run_info.LIVE_COLUMNS)
+        description = run_info.info(
+            mode="live", run=start.run_dir.name if start.run_dir else "", columns=columns,
+            uplink=self.uplink is not None, scenario=host.scenario, hold=host.hold,
+        )  # fmt: skip
+        description["clock"] = start.mode
+        with self._lock:
+            self._host = host
+            self.started_at = start
+            self._info = description
+            self._status = {"state": "running", "mode": start.mode}
+            self._status_changed = True
+
+    def row(self, row: Mapping[str, Any]) -> None:
+        if len(self._items) >= self.capacity:
+            self.stats.dropped_rows += 1
+            return
+        self.stats.rows += 1
+        self._items.append(("row", (row, self._extras(row))))
+
+    def event(self, record: Mapping[str, Any]) -> None:
+        if len(self._items) >= self.capacity:
+            self.stats.dropped_events += 1
+            return
+        self.stats.events += 1
+        self._items.append(("event", record))
+
+    def tick(self, t: float) -> None:
+        host = self._host
+        if host is None:
+            return
+        if self.uplink is not None:
+            self.uplink.service(host, t)
+        if t >= self._next_link:
+            self._next_link = t + LINK_PERIOD_S
+            if len(self._items) >= self.capacity:
+                self.stats.dropped_link += 1
+            else:
+                self._items.append(("link", (t, host.client.stats())))
+
+    def finished(self, summary: Mapping[str, Any]) -> None:
+        with self._lock:
+            self._status = {"state": "ended", "exit": summary.get("exit"), "summary": dict(summary)}
+            self._status_changed = True
+
+    def _extras(self, row: Mapping[str, Any]) -> list[Any]:
+        """The :data:`~hil.gcs.info.LIVE_COLUMNS` values now (None where not known)."""
+        host = self._host
+        t = row.get("t")
+        if host is None or t is None:
+            return [None] * len(run_info.LIVE_COLUMNS)
+        client = host.client
+        tel = client.telemetry
+        tel_t = client.telemetry_time
+        if tel is None:
+            board: list[Any] = [None] * 8
+        else:
+            board = [tel.battery_ma / 1e3, tel.battery_soc, tel.ubec_mv / 1e3, tel.ubec_ma / 1e3,
+                     int(tel.power), int(tel.watchdog), tel.faults, int(tel.mode)]  # fmt: skip
+        age = None if tel_t is None else (t - tel_t) * 1e3
+        return [*board, age, *self._phone.update(t, host.merger.stats.accepted)]
+
+    # ------------------------------------------------------------------ the pump's side
+    def poll(self) -> Batch:
+        """Everything queued since the last poll."""
+        batch = Batch()
+        with self._lock:
+            if self._info is not None and not self._info_sent:
+                batch.info, self._info_sent = self._info, True
+            if self._status_changed:
+                batch.status, self._status_changed = dict(self._status), False
+        items = self._items
+        for _ in range(len(items)):
+            kind, payload = items.popleft()
+            if kind == "row":
+                row, extras = payload
+                host = self._host
+                columns = host.columns if host is not None else list(row)
+                batch.rows.append([row.get(c) for c in columns] + extras)
+            elif kind == "event":
+                batch.events.append(payload)
+            else:
+                t, stats = payload
+                batch.link.append({"t": t, **stats.as_dict()})
+        counters = {"feed_dropped_rows": self.stats.dropped_rows,
+                    "feed_dropped_events": self.stats.dropped_events,
+                    "uplink_rejected": 0 if self.uplink is None else self.uplink.stats.rejected}  # fmt: skip
+        if batch.status is not None or counters != self._counters:
+            self._counters = counters
+            batch.status = {**(batch.status or self._status), **counters}
+        return batch

@@ -1,0 +1,189 @@
+"""A run directory as the page's source (``hil gcs RUN_DIR``): finished, killed, or still being written by
+another process — the reader follows it.
+
+Each poll reads what was appended to ``telemetry.csv`` and ``events.jsonl`` since the last one, complete
+lines only (a line still being written, or torn by a kill, waits; a malformed complete line is dropped and
+counted — :mod:`hil.runtime.runlog` flushes whole lines). ``summary.json`` appearing (written atomically
+when a run ends) means the run is finished: its final link statistics are sent, and the reader stops
+following once it has read the rest. A directory that stops growing without a summary is a killed run
+(or a stalled one): the page shows how long nothing has come.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+from hil.gcs import info as run_info
+from hil.gcs.wire import Batch
+from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY
+from hil.scenario import load_scenario
+from protocol.errors import HilError, InputFormatError
+
+logger = logging.getLogger(__name__)
+
+READ_CHUNK = 4 * 1024 * 1024  # bytes read per file per poll (a big file comes in over several polls)
+
+
+class _Tail:
+    """Complete lines appended to one file since the last read."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.offset = 0
+        self.partial = b""
+
+    def lines(self) -> list[str]:
+        try:
+            with open(self.path, "rb") as f:
+                f.seek(self.offset)
+                data = f.read(READ_CHUNK)
+        except FileNotFoundError:
+            return []
+        except OSError as exc:
+            raise InputFormatError(f"cannot read: {exc.strerror}", str(self.path)) from exc
+        self.offset += len(data)
+        data = self.partial + data
+        cut = data.rfind(b"\n")
+        if cut < 0:
+            self.partial = data
+            return []
+        self.partial = data[cut + 1 :]
+        return data[: cut + 1].decode("utf-8", errors="replace").splitlines()
+
+
+class RunDirSource:
+    """The page's source for a run directory (see the module docstring); ``follow=False`` reads what is
+    there and stops."""
+
+    def __init__(self, run_dir: str | os.PathLike[str], follow: bool = True) -> None:
+        self.run_dir = Path(run_dir)
+        if not self.run_dir.is_dir():
+            raise InputFormatError("not a directory", str(self.run_dir))
+        if not (self.run_dir / TELEMETRY).exists() and not (self.run_dir / EVENTS).exists():
+            raise InputFormatError(f"not a run directory (no {TELEMETRY} or {EVENTS})", str(self.run_dir))
+        self.follow = follow
+        self._telemetry = _Tail(self.run_dir / TELEMETRY)
+        self._events = _Tail(self.run_dir / EVENTS)
+        self.columns: list[str] | None = None
+        self.rows = 0
+        self.events = 0
+        self.bad_rows = 0
+        self.bad_events = 0
+        self.finished = False
+        self._done = False  # finished and everything read
+        self._last_t: float | None = None
+        self._state: dict[str, Any] = {"state": "waiting"}
+        self._sent_status: dict[str, Any] | None = None
+
+    def _info(self, columns: list[str]) -> dict[str, Any]:
+        scenario, note = None, ""
+        path = self.run_dir / "scenario.toml"
+        if path.exists():
+            try:
+                scenario = load_scenario(path)
+            except HilError as exc:
+                note = f"scenario.toml unreadable ({exc}): no units or limits drawn"
+        else:
+            note = "no scenario.toml: no units or limits drawn"
+        hold = False
+        summary = self._summary()
+        if summary is not None and summary.get("replay"):
+            hold = True  # a recording drove the board: the target was the attitude held after warm-up
+        return run_info.info(mode="replay", run=self.run_dir.name, columns=columns, uplink=False,
+                             scenario=scenario, hold=hold, note=note)  # fmt: skip
+
+    def _summary(self) -> dict[str, Any] | None:
+        path = self.run_dir / SUMMARY
+        try:
+            value = json.loads(path.read_text())
+        except FileNotFoundError:
+            return None
+        except (OSError, json.JSONDecodeError) as exc:  # written atomically: a bad one is a damaged file
+            logger.warning("%s: %s", path, exc)
+            return {"exit": f"unreadable summary: {exc}"}
+        return value if isinstance(value, dict) else {"exit": "unreadable summary"}
+
+    def poll(self) -> Batch:
+        batch = Batch()
+        if self._done:
+            return batch
+        finished = (self.run_dir / SUMMARY).exists()  # before reading: what follows is all there is
+        lines = self._telemetry.lines()
+        if self.columns is None and (lines or finished):
+            self.columns = next(csv.reader([lines[0]])) if lines else []
+            lines = lines[1:]
+            batch.info = self._info(self.columns)
+            self._state = {"state": "following" if self.follow else "reading"}
+        if self.columns is not None:
+            self._rows(lines, batch)
+        self._read_events(batch)
+        more = self._telemetry.offset < _size(self._telemetry.path)
+        if self.columns is not None and not more:
+            if finished:
+                summary = self._summary() or {}
+                self.finished = self._done = True
+                link = summary.get("link")
+                if isinstance(link, dict) and link:
+                    batch.link.append({"t": self._last_t, **_flatten(link)})
+                self._state = {"state": "finished", "exit": summary.get("exit"), "summary": summary}
+            elif not self.follow:
+                self._done = True
+                self._state = {"state": "read", "exit": None}
+        status = {**self._state, "bad_rows": self.bad_rows, "bad_events": self.bad_events}
+        if status != self._sent_status:
+            batch.status = self._sent_status = status
+        return batch
+
+    def _rows(self, lines: list[str], batch: Batch) -> None:
+        assert self.columns is not None
+        width = len(self.columns)
+        for cells in csv.reader(lines):
+            if len(cells) != width:
+                self.bad_rows += 1
+                continue
+            try:
+                row = [float(c) if c else None for c in cells]
+            except ValueError:
+                self.bad_rows += 1
+                continue
+            batch.rows.append(row)
+            if row and row[0] is not None:
+                self._last_t = row[0]
+        self.rows += len(batch.rows)
+
+    def _read_events(self, batch: Batch) -> None:
+        for line in self._events.lines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                self.bad_events += 1
+                continue
+            if isinstance(record, dict):
+                batch.events.append(record)
+            else:
+                self.bad_events += 1
+        self.events += len(batch.events)
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+def _flatten(value: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"rtt": {"p99_ms": 1}}`` → ``{"rtt.p99_ms": 1}``, as :meth:`LinkStats.as_dict` names them."""
+    out: dict[str, Any] = {}
+    for key, v in value.items():
+        name = f"{prefix}{key}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{name}."))
+        else:
+            out[name] = v
+    return out

@@ -1,0 +1,216 @@
+// The ground station page: the downlink (Server-Sent Events) into the store, a timeline cursor (following
+// the newest data, or scrubbed / played back), and a redraw of plots, 3D view and panels in the next
+// animation frame whenever something changed — and only then: an idle page draws nothing (its drawing is
+// what it costs the machine a run shares with it). Counters for tests and benchmarks: window.gcs.stats.
+
+import { Store } from "./store.js";
+import { Plots } from "./plots.js";
+import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
+import { $, fmt, setCell, drawPanels, drawEvents } from "./panels.js";
+import { Uplink } from "./uplink.js";
+
+const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
+const FEED_STALE_S = 1.0;  // no message for this long: the live feed is stale
+
+const token = new URLSearchParams(location.search).get("token") || "";
+const view = new View3D($("view3d"));
+const uplink = new Uplink(token);
+uplink.enable(false);
+
+const state = {
+  info: null, store: null, plots: null, status: {}, follow: true, cursor: NaN, playing: false,
+  dirty: false, lastMessage: performance.now(), ended: false, connected: false,
+};
+const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [] };
+window.gcs = { state, stats };
+
+// ---------------------------------------------------------------- the downlink
+function connect() {
+  if (!token) {
+    $("note").textContent = "no token in the URL: open the address hil printed (…/?token=…)";
+    return;
+  }
+  const es = new EventSource(`/api/stream?token=${encodeURIComponent(token)}`);
+  const on = (name, fn) => es.addEventListener(name, (m) => {
+    stats.messages += 1; stats.bytes += m.data.length; state.lastMessage = performance.now();
+    fn(JSON.parse(m.data));
+  });
+  es.onopen = () => { state.connected = true; };
+  es.onerror = () => { state.connected = false; if (state.ended) es.close(); };
+  on("info", onInfo);
+  on("rows", (d) => { if (state.store) { state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
+  on("events", (list) => { if (state.store) { state.store.pushEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
+  on("link", (list) => { if (state.store) { state.store.pushLink(list); invalidate(); } });
+  on("status", (s) => {
+    state.status = { ...state.status, ...s };
+    if (["ended", "finished", "read", "error"].includes(s.state)) uplink.enable(false);
+    invalidate();
+    showStatus();
+  });
+  es.addEventListener("bye", () => { state.ended = true; es.close(); uplink.enable(false); showStatus(); });
+}
+
+function onInfo(info) {
+  state.info = info;
+  if (state.plots) state.plots.destroy();
+  state.store = new Store(info.columns);
+  state.plots = new Plots($("plots"), info, state.store, () => { invalidate(); });
+  state.follow = true;
+  $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
+  $("mode").textContent = info.mode === "live" ? `live (${info.clock || "run"})` : "replay";
+  $("mode").className = `badge ${info.mode}`;
+  $("note").textContent = info.note || "";
+  $("link").dataset.built = "";
+  uplink.enable(Boolean(info.uplink));
+  document.title = `GCS · ${info.run}`;
+  invalidate();
+}
+
+function showStatus() {
+  const s = state.status;
+  const parts = [];
+  if (s.exit) parts.push(`exit: ${s.exit}`);
+  if (s.feed_dropped_rows) parts.push(`${s.feed_dropped_rows} rows dropped by the feed`);
+  if (s.bad_rows) parts.push(`${s.bad_rows} unreadable rows`);
+  if (s.uplink_rejected) parts.push(`${s.uplink_rejected} requests refused`);
+  if (s.error) parts.push(`error: ${s.error}`);
+  $("note").textContent = [state.info && state.info.note, ...parts].filter(Boolean).join(" · ");
+}
+
+// ---------------------------------------------------------------- the timeline
+const timeline = $("timeline");
+timeline.addEventListener("input", () => { state.follow = false; state.playing = false; state.cursor = Number(timeline.value); invalidate(); });
+$("follow").addEventListener("click", () => { state.follow = true; state.playing = false; invalidate(); });
+$("window").addEventListener("change", () => { invalidate(); });
+$("play").addEventListener("click", () => {
+  const store = state.store;
+  if (!store || !store.n) return;
+  state.playing = !state.playing;
+  if (state.playing) {
+    state.follow = false;
+    if (!(state.cursor < store.tLast)) state.cursor = store.tFirst;
+    playClock = performance.now();
+  }
+  invalidate();
+});
+
+function feedState() {
+  const age = (performance.now() - state.lastMessage) / 1e3;
+  const live = state.info && state.info.mode === "live";
+  const following = state.status.state === "following";
+  if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return { text: state.status.state === "finished" ? "finished" : "ended", cls: "ended", age: 0 };
+  if ((live || following) && age > FEED_STALE_S) return { text: `stale: nothing for ${age.toFixed(1)} s`, cls: "stale", age };
+  if (!state.connected) return { text: "reconnecting", cls: "bad", age };
+  return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
+}
+
+// ---------------------------------------------------------------- drawing
+let lastRows = 0, frameRequested = false;
+
+function invalidate() {
+  state.dirty = true;
+  if (!frameRequested) { frameRequested = true; requestAnimationFrame(frame); }
+}
+
+function showFeed() {
+  const feed = feedState();
+  const feedEl = $("feed");
+  if (feedEl.textContent !== feed.text) feedEl.textContent = feed.text;  // unchanged: no relayout
+  if (feedEl.className !== `badge ${feed.cls}`) feedEl.className = `badge ${feed.cls}`;
+  document.body.classList.toggle("feed-stale", feed.cls === "stale");
+  return feed;
+}
+
+let playClock = 0;
+function frame(now) {
+  frameRequested = false;
+  if (state.playing && state.store) {
+    const speed = Number($("speed").value);
+    state.cursor += (now - playClock) / 1e3 * speed;
+    playClock = now;
+    if (state.cursor >= state.store.tLast) { state.cursor = state.store.tLast; state.playing = false; }
+    else invalidate();  // the next frame moves on
+  }
+  const feed = showFeed();
+  if (!state.dirty || !state.store) return;
+  state.dirty = false;
+  render(feed);
+}
+
+setInterval(() => { if (showFeed().cls === "stale") invalidate(); }, CLOCK_MS);  // the ages shown grow
+
+function render(feed) {
+  const t0 = performance.now();
+  const { store, info } = state;
+  const hasRows = store.n > 0;
+  if (state.follow && hasRows) state.cursor = store.tLast;
+  setProp(timeline, "min", String(hasRows ? store.tFirst : 0));
+  setProp(timeline, "max", String(hasRows ? store.tLast : 0));
+  setProp(timeline, "value", String(Number.isFinite(state.cursor) ? state.cursor : 0));
+  setProp($("play"), "textContent", state.playing ? "❚❚" : "▶");
+  setProp($("follow"), "disabled", state.follow);
+  setCell($("cursor-time"), hasRows ? `${fmt(state.cursor, 2)} s of ${fmt(store.tLast, 1)} s` : "no rows yet");
+  const i = hasRows ? Math.max(store.indexAt(state.cursor), 0) : -1;
+  if (hasRows) {
+    const win = Number($("window").value);
+    const i0 = win > 0 ? Math.max(store.indexAt(state.cursor - win), 0) : 0;
+    state.plots.update(i0, i);
+  }
+  const t = store.col("t");
+  const period = info.control_rate_hz ? 1 / info.control_rate_hz : 0.02;
+  const rowGap = i > 0 && t[i] - t[i - 1] > 3 * period ? t[i] - t[i - 1] : 0;
+  const feedAge = state.follow ? feed.age : 0;
+  if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap });
+  drawAttitude(i, feedAge, rowGap);
+  drawEvents(store, hasRows ? state.cursor : Infinity);
+  stats.renders += 1;
+  if (store.seen !== lastRows) { stats.dataRenders += 1; lastRows = store.seen; stats.renderTimes.push(performance.now()); }
+  const now = performance.now();
+  while (stats.renderTimes.length && stats.renderTimes[0] < now - 2000) stats.renderTimes.shift();
+  stats.updateHz = stats.renderTimes.length / 2;
+  stats.renderMs = performance.now() - t0;
+  setProp($("stats"), "textContent", `${stats.updateHz.toFixed(0)} updates/s · ${store.n} rows${store.keepEvery > 1 ? ` (1 in ${store.keepEvery})` : ""} · ${(stats.bytes / 1e6).toFixed(1)} MB`);
+}
+
+// Assign only what changed: an unchanged assignment still costs the page a relayout or a repaint.
+function setProp(el, name, value) {
+  if (el[name] !== value) el[name] = value;
+}
+
+function targetAt(tc) {
+  // The target: the scenario's, or the newest one a ground command set ("applied" carries target_r).
+  let r = state.info.target_r;
+  for (const e of state.store.events) {
+    if (e.t > tc) break;
+    if (e.kind === "command" && e.status === "applied" && e.target_r) r = e.target_r;
+  }
+  return r ? rotvecToMatrix(r) : null;
+}
+
+function drawAttitude(i, feedAge, rowGap) {
+  const { store, info } = state;
+  const truth = ["true_rx", "true_ry", "true_rz"].map((c) => store.value(c, i));
+  const est = ["est_rx", "est_ry", "est_rz"].map((c) => store.value(c, i));
+  const useTruth = truth.every(Number.isFinite);
+  const r = useTruth ? truth : est.every(Number.isFinite) ? est : null;
+  const R = r ? rotvecToMatrix(r) : null;
+  const target = targetAt(Number.isFinite(state.cursor) ? state.cursor : Infinity);
+  const n = info.n_units || 0;
+  const gamma = Array.from({ length: n }, (_, k) => store.value(`gimbal_angle_${k}`, i));
+  const omega = Array.from({ length: n }, (_, k) => store.value(`rotor_speed_${k}`, i));
+  const age = Math.max(feedAge, rowGap);
+  const stale = age > (info.stale_after_s || 0.25) ? `stale: ${age.toFixed(1)} s old` : "";
+  view.draw({ R, target, units: info.units || [], gamma, omega, stale,
+    nominal: (info.limits || {}).nominal_rotor_speed, maxSpeed: (info.limits || {}).max_rotor_speed });
+  const canvas = $("view3d");
+  canvas.dataset.attitude = r ? r.map((x) => x.toFixed(5)).join(",") : "";
+  canvas.dataset.gimbal = gamma.map((x) => (Number.isFinite(x) ? x.toFixed(4) : "")).join(",");
+  const eul = (M) => (M ? eulerZYX(M).map((x) => `${x.toFixed(1)}°`).join(", ") : "—");
+  const staleAge = stale ? age : false;
+  setCell($("attitude"), eul(R), staleAge);
+  setCell($("target"), eul(target));
+  setCell($("attitude-source"), r ? (useTruth ? "truth (simulated); the estimate is in the plots" : "estimate") : "—");
+  setCell($("point-err"), fmt(store.value("point_err_deg", i), 2, "°"), staleAge);
+}
+
+connect();

@@ -1,0 +1,209 @@
+// The status panels, the units table and the event log, drawn for the row at the cursor. A value that is
+// old looks old: the cell gets the "stale" class (grey, hatched) and its age.
+
+export const $ = (id) => document.getElementById(id);
+
+export function fmt(v, digits = 2, unit = "") {
+  return Number.isFinite(v) ? `${v.toFixed(digits)}${unit}` : "—";
+}
+
+function ageText(seconds) {
+  return seconds >= 10 ? `${seconds.toFixed(0)} s old` : seconds >= 1 ? `${seconds.toFixed(1)} s old` : `${(seconds * 1e3).toFixed(0)} ms old`;
+}
+
+// Set a cell's text; stale (an age in s, a few words saying why, or false) greys it and says so.
+export function setCell(el, text, staleAge = false) {
+  if (!el) return;
+  if (el.textContent !== text) el.textContent = text;
+  const stale = staleAge !== false && staleAge !== null;
+  el.classList.toggle("stale", stale);
+  if (stale) el.dataset.age = Number.isFinite(staleAge) ? ageText(staleAge) : String(staleAge);
+  else delete el.dataset.age;
+}
+
+function enumName(info, kind, v) {
+  if (!Number.isFinite(v)) return "—";
+  const names = (info.enums || {})[kind] || {};
+  return names[String(Math.round(v))] || String(v);
+}
+
+function faultNames(info, v) {
+  if (!Number.isFinite(v)) return "—";
+  if (!v) return "none";
+  const names = (info.enums || {}).faults || {};
+  return Object.entries(names).filter(([bit]) => v & Number(bit)).map(([, n]) => n).join(", ") || `0x${v.toString(16)}`;
+}
+
+const PILL = { ARMED: "ok", DISARMED: "", BOOT: "warn", FAILSAFE: "bad", OK: "ok", LINK_LOST: "bad",
+  NORMAL: "ok", WARN: "warn", LIMIT: "warn", SHED: "bad", BROWN_OUT: "bad" };
+
+function setPill(el, name, staleAge) {
+  setCell(el, name, staleAge);
+  el.className = `pill ${PILL[name] || ""}${el.classList.contains("stale") ? " stale" : ""}`;
+}
+
+// ctx: {info, store, i (row index), t (cursor time), feedAge (s, live) , rowGap (s before row i)}
+export function drawPanels(ctx) {
+  const { info, store, i } = ctx;
+  const v = (name) => store.value(name, i);
+  const staleAfter = info.stale_after_s || 0.25;
+  // Board telemetry is stale when the host's copy is old (live), when rows stopped coming (a gap before
+  // this row, or the feed itself silent).
+  const telAge = Number.isFinite(v("tel_age_ms")) ? v("tel_age_ms") / 1e3 : 0;
+  const boardAge = Math.max(telAge, ctx.rowGap || 0, ctx.feedAge || 0);
+  const boardStale = boardAge > staleAfter ? boardAge : false;
+
+  setCell($("time"), fmt(ctx.t, 2));
+  setCell($("phase"), ["warm-up", "slew", "hold"][v("phase")] || "—", boardStale);
+  const state = enumName(info, "board_state", v("board_state"));
+  setPill($("board-state"), state, boardStale);
+  setPill($("watchdog"), enumName(info, "watchdog", v("watchdog")), boardStale);
+  setPill($("power-state"), enumName(info, "power_state", v("power_state")), boardStale);
+
+  setCell($("board-mode"), `${state} / ${enumName(info, "board_mode", v("board_mode"))}`, boardStale);
+  setCell($("faults"), faultNames(info, v("faults")), boardStale);
+  const linkAge = v("link_age_ms");
+  setCell($("link-age"), fmt(linkAge, 0, " ms ago"), linkAge > staleAfter * 1e3 ? linkAge / 1e3 : boardStale);
+  setCell($("tel-age"), store.has("tel_age_ms") ? fmt(v("tel_age_ms"), 0, " ms ago") : "not recorded",
+    telAge > staleAfter ? telAge : false);
+
+  setCell($("battery"), `${fmt(v("battery_v"), 2, " V")}  ${fmt(v("battery_a"), 2, " A")}  ${fmt(v("battery_soc"), 0, " %")}`, boardStale);
+  setCell($("ubec"), `${fmt(v("ubec_v"), 2, " V")}  ${fmt(v("ubec_a"), 2, " A")}`, boardStale);
+  setCell($("power"), enumName(info, "power_state", v("power_state")), boardStale);
+
+  drawUnits(ctx, boardStale);
+  drawPhone(ctx);
+  drawLink(ctx);
+}
+
+function drawUnits(ctx, boardStale) {
+  const { info, store, i } = ctx;
+  const body = document.querySelector("#units tbody");
+  const n = info.n_units || 0;
+  if (body.children.length !== n) {
+    body.innerHTML = "";
+    for (let k = 0; k < n; k++) {
+      const tr = document.createElement("tr");
+      tr.innerHTML = `<td>${k + 1}</td><td id="u${k}-angle"></td><td id="u${k}-rate"></td><td id="u${k}-rotor"></td><td id="u${k}-pulse"></td>`;
+      body.appendChild(tr);
+    }
+  }
+  const maxRate = (info.limits || {}).max_gimbal_rate;
+  for (let k = 0; k < n; k++) {
+    const rate = store.value(`gimbal_rate_${k}`, i);
+    setCell($(`u${k}-angle`), fmt(store.value(`gimbal_angle_${k}`, i) * 180 / Math.PI, 1), boardStale);
+    const rateCell = $(`u${k}-rate`);
+    setCell(rateCell, fmt(rate, 3), boardStale);
+    rateCell.style.color = maxRate && Math.abs(rate) > 0.9 * maxRate ? "var(--bad)" : "";
+    setCell($(`u${k}-rotor`), fmt(store.value(`rotor_speed_${k}`, i), 0), boardStale);
+    setCell($(`u${k}-pulse`), `${fmt(store.value(`pulse_gimbal_${k}`, i), 0)} / ${fmt(store.value(`pulse_rotor_${k}`, i), 0)}`, boardStale);
+  }
+}
+
+function drawPhone(ctx) {
+  const { info, store, i } = ctx;
+  const body = document.querySelector("#phone tbody");
+  const labels = info.phone || [];
+  if (body.children.length !== labels.length) {
+    body.innerHTML = "";
+    for (const k of labels) {
+      const tr = document.createElement("tr");
+      tr.innerHTML = `<td>${k}</td><td id="phone-rate-${k}"></td><td id="phone-age-${k}"></td>`;
+      body.appendChild(tr);
+    }
+  }
+  const staleAfter = info.stale_after_s || 0.25;
+  for (const k of labels) {
+    if (!store.has(`phone_age_ms_${k}`)) {
+      setCell($(`phone-rate-${k}`), "not recorded");
+      setCell($(`phone-age-${k}`), "—");
+      continue;
+    }
+    const age = store.value(`phone_age_ms_${k}`, i) / 1e3 + (ctx.feedAge || 0);
+    const stale = !Number.isFinite(age) ? "no sample yet" : age > staleAfter ? age : false;
+    setCell($(`phone-rate-${k}`), fmt(store.value(`phone_rate_${k}`, i), 1), stale);
+    setCell($(`phone-age-${k}`), Number.isFinite(age) ? `${(age * 1e3).toFixed(0)} ms ago` : "none yet", stale);
+  }
+}
+
+const LINK_ROWS = [
+  ["frames_in", "frames received"], ["bad_frames_total", "bad frames"], ["resyncs", "resyncs"],
+  ["seq_gaps", "sequence gaps"], ["counters.frames_out", "frames sent"], ["retries", "command retries"],
+  ["acked", "acked / nacked / failed"], ["rtt.p99_ms", "command RTT p50 / p99"],
+  ["counters.link_losses", "link losses / reconnects"], ["board_rx_bad", "board: frames / bad"],
+  ["bytes_in", "bytes in / out"],
+];
+
+function drawLink(ctx) {
+  const { store, t } = ctx;
+  const table = $("link");
+  // A replay has the run's final figures only (summary.json): shown, marked as from the end of the run.
+  const atEnd = !store.linkAt(t) && store.link.length ? store.link[store.link.length - 1] : null;
+  const s = store.linkAt(t) || atEnd;
+  if (!s) { table.innerHTML = "<tr><td class='muted'>no link statistics yet</td></tr>"; table.dataset.built = ""; return; }
+  if (!table.dataset.built) {
+    table.innerHTML = LINK_ROWS.map(([k, label]) => `<tr><th>${label}</th><td id="link-${k.replace(/\./g, "-")}"></td></tr>`).join("")
+      + `<tr><th>bad frames by reason</th><td id="link-reasons"></td></tr>`;
+    table.dataset.built = "1";
+  }
+  const age = Number.isFinite(s.t) && Number.isFinite(t) ? Math.max(t - s.t, 0) + (ctx.feedAge || 0) : 0;
+  const stale = atEnd ? "at the end of the run" : age > 1.0 ? age : false;
+  const n = (k) => (s[k] === null || s[k] === undefined ? "—" : String(s[k]));
+  const vals = {
+    "frames_in": n("frames_in"), "resyncs": n("resyncs"),
+    // a live snapshot has the total; a run's summary.json only the counts by reason
+    "bad_frames_total": String(s.bad_frames_total ?? Object.entries(s).filter(([k]) => k.startsWith("bad_frames."))
+      .reduce((sum, [, x]) => sum + (Number(x) || 0), 0)),
+    "seq_gaps": n("seq_gaps"), "counters.frames_out": n("counters.frames_out"), "retries": n("retries"),
+    "acked": `${n("acked")} / ${n("nacked")} / ${n("failed")}`,
+    "rtt.p99_ms": `${fmt(s["rtt.p50_ms"], 1)} / ${fmt(s["rtt.p99_ms"], 1)} ms`,
+    "counters.link_losses": `${n("counters.link_losses")} / ${n("counters.reconnects")}`,
+    "board_rx_bad": `${n("board_rx_frames")} / ${n("board_rx_bad")}`,
+    "bytes_in": `${n("bytes_in")} / ${n("bytes_out")}`,
+  };
+  for (const [k, text] of Object.entries(vals)) setCell($(`link-${k.replace(/\./g, "-")}`), text, stale);
+  const reasons = Object.entries(s).filter(([k, x]) => k.startsWith("bad_frames.") && x).map(([k, x]) => `${k.slice(11)} ${x}`);
+  setCell($("link-reasons"), reasons.join(", ") || "none", stale);
+}
+
+const EVENT_CLASS = (e) => {
+  if (e.kind === "command") return "cmd";
+  if (e.kind === "board_reset" || e.kind === "link_lost" || (e.kind === "board_state" && e.new === "FAILSAFE")) return "bad";
+  if (e.kind === "silence" || e.kind === "rearm_failed" || (e.kind === "board_log" && e.severity !== "INFO")) return "warn";
+  return "";
+};
+
+// Numbers to 4 significant digits (an event's rotation vectors and times are for reading, not for copying).
+function short(x) {
+  if (typeof x === "number") return Number.isInteger(x) ? String(x) : String(Number(x.toPrecision(4)));
+  if (Array.isArray(x)) return `[${x.map(short).join(", ")}]`;
+  if (x !== null && typeof x === "object") return JSON.stringify(x);
+  return String(x);
+}
+
+function describe(e) {
+  const rest = Object.entries(e).filter(([k]) => k !== "t" && k !== "kind").map(([k, x]) => `${k}=${short(x)}`);
+  return `${e.kind} ${rest.join(" ")}`;
+}
+
+// The newest events at or before the cursor (redrawn only when they change).
+export function drawEvents(store, t, limit = 200) {
+  const list = $("events");
+  let end = store.events.length;
+  while (end > 0 && store.events[end - 1].t > t) end--;
+  const key = `${end}/${store.events.length}`;
+  if (list.dataset.key === key) return;
+  list.dataset.key = key;
+  const shown = store.events.slice(Math.max(0, end - limit), end).reverse();
+  list.innerHTML = "";
+  for (const e of shown) {
+    const li = document.createElement("li");
+    li.className = EVENT_CLASS(e);
+    li.dataset.kind = e.kind;
+    li.innerHTML = `<span class="t"></span>`;
+    li.firstChild.textContent = Number.isFinite(e.t) ? e.t.toFixed(2) : "";
+    li.appendChild(document.createTextNode(describe(e)));
+    list.appendChild(li);
+  }
+  $("event-count").textContent = `(${end} of ${store.events.length})`;
+}

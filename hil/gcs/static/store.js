@@ -1,0 +1,87 @@
+// The page's copy of the run: telemetry as columns of Float64Array (NaN = no value), events and link
+// snapshots in time order. Bounded: past MAX_ROWS rows every other row is dropped (the resolution halves,
+// the whole run stays), and from then on only every 2nd (4th, ...) row is kept.
+
+export const MAX_ROWS = 250000;
+
+export class Store {
+  constructor(columns) {
+    this.columns = columns;
+    this.index = Object.fromEntries(columns.map((c, i) => [c, i]));
+    this.capacity = 4096;
+    this.n = 0;
+    this.data = columns.map(() => new Float64Array(this.capacity));
+    this.keepEvery = 1;  // rows kept: 1 in keepEvery (after decimation)
+    this.seen = 0;       // rows received
+    this.events = [];
+    this.link = [];
+  }
+
+  has(name) { return name in this.index; }
+
+  col(name) {
+    const i = this.index[name];
+    return i === undefined ? null : this.data[i];
+  }
+
+  pushRows(rows) {
+    for (const row of rows) {
+      this.seen += 1;
+      if ((this.seen - 1) % this.keepEvery) continue;
+      if (this.n === this.capacity) this.grow();
+      const n = this.n;
+      for (let i = 0; i < this.data.length; i++) {
+        const v = row[i];
+        this.data[i][n] = v === null || v === undefined ? NaN : v;
+      }
+      this.n = n + 1;
+    }
+  }
+
+  grow() {
+    if (this.capacity >= MAX_ROWS) {  // decimate in place: keep the even rows
+      const half = Math.ceil(this.n / 2);
+      for (const col of this.data) for (let i = 0; i < half; i++) col[i] = col[2 * i];
+      this.n = half;
+      this.keepEvery *= 2;
+      return;
+    }
+    this.capacity = Math.min(this.capacity * 2, MAX_ROWS);
+    this.data = this.data.map((old) => { const a = new Float64Array(this.capacity); a.set(old); return a; });
+  }
+
+  pushEvents(events) {
+    for (const e of events) {
+      let i = this.events.length;
+      while (i > 0 && this.events[i - 1].t > e.t) i--;  // nearly always appended at the end
+      this.events.splice(i, 0, e);
+    }
+  }
+
+  pushLink(snapshots) { for (const s of snapshots) this.link.push(s); }
+
+  get tFirst() { return this.n ? this.data[0][0] : NaN; }
+  get tLast() { return this.n ? this.data[0][this.n - 1] : NaN; }
+
+  // Index of the last row with t <= time (-1 if none).
+  indexAt(time) {
+    const t = this.data[0];
+    let lo = 0, hi = this.n - 1, found = -1;
+    while (lo <= hi) {
+      const mid = (lo + hi) >> 1;
+      if (t[mid] <= time) { found = mid; lo = mid + 1; } else hi = mid - 1;
+    }
+    return found;
+  }
+
+  value(name, i) {
+    const c = this.col(name);
+    return c === null || i < 0 ? NaN : c[i];
+  }
+
+  // The newest link snapshot at or before time.
+  linkAt(time) {
+    for (let i = this.link.length - 1; i >= 0; i--) if (!(this.link[i].t > time)) return this.link[i];
+    return null;
+  }
+}

@@ -1,0 +1,95 @@
+// The uplink panel: a command needs a second click to confirm (arm, disarm, abort, slew), goes out as a
+// JSON POST with the token, and its line in the command log follows what the run says about it (its
+// "command" events: sent -> acked / nacked / failed, or applied / refused).
+
+import { $ } from "./panels.js";
+
+const CONFIRM_MS = 4000;
+
+export class Uplink {
+  constructor(token) {
+    this.token = token;
+    this.enabled = false;
+    this.items = new Map();  // id -> <li>
+    this.latest = new Map();  // id -> the newest "command" event (it may come before the POST's answer)
+    for (const button of document.querySelectorAll("#uplink button[data-command]")) {
+      button.addEventListener("click", () => this.click(button));
+    }
+  }
+
+  enable(on) {
+    this.enabled = on;
+    $("uplink-off").hidden = on;
+    for (const b of document.querySelectorAll("#uplink button, #uplink input")) b.disabled = !on;
+  }
+
+  click(button) {
+    if (!this.enabled) return;
+    if (button.dataset.confirm && !button.classList.contains("confirming")) {
+      button.dataset.label = button.dataset.label || button.textContent;
+      button.classList.add("confirming");
+      button.textContent = `Confirm ${button.dataset.label.toLowerCase()}?`;
+      button._timer = setTimeout(() => this.reset(button), CONFIRM_MS);
+      return;
+    }
+    this.reset(button);
+    const body = { command: button.dataset.command };
+    if (body.command === "slew") {
+      body.roll_deg = Number($("slew-roll").value);
+      body.pitch_deg = Number($("slew-pitch").value);
+      body.yaw_deg = Number($("slew-yaw").value);
+    }
+    this.send(body);
+  }
+
+  reset(button) {
+    clearTimeout(button._timer);
+    if (button.classList.contains("confirming")) {
+      button.classList.remove("confirming");
+      button.textContent = button.dataset.label;
+    }
+  }
+
+  async send(body) {
+    const li = document.createElement("li");
+    li.dataset.command = body.command;
+    this.setStatus(li, "sending", describe(body));
+    $("cmd-log").prepend(li);
+    try {
+      const answer = await fetch("/api/command", {
+        method: "POST",
+        headers: { "Content-Type": "application/json", "Authorization": `token ${this.token}` },
+        body: JSON.stringify(body),
+      });
+      const reply = await answer.json();
+      if (!answer.ok) { this.setStatus(li, "error", `${describe(body)}: ${reply.error || answer.status}`); return; }
+      li.dataset.id = String(reply.id);
+      this.items.set(reply.id, li);
+      this.setStatus(li, "queued", `#${reply.id} ${describe(body)}`);
+      const known = this.latest.get(reply.id);
+      if (known) this.onEvent(known);
+    } catch (err) {
+      this.setStatus(li, "error", `${describe(body)}: ${err}`);
+    }
+  }
+
+  setStatus(li, status, text) {
+    li.dataset.status = status;
+    li.textContent = `${text} — ${status}`;
+  }
+
+  // A "command" event of the run: update that command's line.
+  onEvent(e) {
+    if (e.kind !== "command" || e.id === null || e.id === undefined) return;
+    this.latest.set(e.id, e);
+    const li = this.items.get(e.id);
+    if (!li) return;
+    const detail = e.reason ? ` (${e.reason})` : e.after_ms !== undefined ? ` after ${Number(e.after_ms).toFixed(0)} ms` : "";
+    this.setStatus(li, e.status, `#${e.id} ${e.command}${detail}`);
+  }
+}
+
+function describe(body) {
+  if (body.command !== "slew") return body.command;
+  return `slew to roll ${body.roll_deg}°, pitch ${body.pitch_deg}°, yaw ${body.yaw_deg}°`;
+}

@@ -1,0 +1,112 @@
+"""The downlink's format: Server-Sent Events whose data is JSON (docs/gcs.md, "Downlink").
+
+One *batch* per pump cycle (~30 per second) becomes one chunk of SSE messages:
+
+``info``    the run: columns, units and their geometry, limits, target, whether commands are taken
+``rows``    ``{"rows": [[v, ...], ...]}`` telemetry rows, values in ``info.columns`` order (null: no value)
+``events``  ``[{"t": s, "kind": ..., ...}, ...]`` as in ``events.jsonl``
+``link``    ``[{"t": s, "frames_in": ..., "bad_frames.crc": ..., ...}, ...]`` link statistics snapshots
+``status``  ``{"state": "waiting" | "running" | "ended" | "following" | "finished", ...}`` and counters
+
+JSON has no NaN or infinity: they are sent as null. Floats keep 7 significant digits (time 10), enough for
+a display and a third of ``repr``'s bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+Row = Sequence[Any]
+
+
+@dataclass
+class Batch:
+    """What a source has for the page since its last poll."""
+
+    info: dict[str, Any] | None = None
+    rows: list[Row] = field(default_factory=list)
+    events: list[Mapping[str, Any]] = field(default_factory=list)
+    link: list[Mapping[str, Any]] = field(default_factory=list)
+    status: dict[str, Any] | None = None
+
+    def __bool__(self) -> bool:
+        return bool(self.info or self.rows or self.events or self.link or self.status)
+
+
+def number(value: Any, digits: int = 7) -> str:
+    """One value as JSON text: finite numbers (Python or numpy) compactly, anything else null."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, int):
+        return str(value)
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return "null"
+    if not math.isfinite(f):
+        return "null"
+    if f == int(f) and abs(f) < 1e15:
+        return str(int(f))
+    return format(f, f".{digits}g")
+
+
+def encode_rows(rows: Sequence[Row]) -> str:
+    """``{"rows": [[...], ...]}`` with the first column (time) at 10 significant digits."""
+    parts = []
+    for row in rows:
+        if not row:
+            continue
+        cells = [number(row[0], 10)]
+        cells += [number(v) for v in row[1:]]
+        parts.append("[" + ",".join(cells) + "]")
+    return '{"rows":[' + ",".join(parts) + "]}"
+
+
+def clean(value: Any) -> Any:
+    """``value`` made JSON-safe: non-finite floats → None, numpy scalars and arrays → Python, tuples → lists,
+    anything else unknown → its ``str``."""
+    if isinstance(value, Mapping):
+        return {str(k): clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [clean(v) for v in value]
+    if value is None or isinstance(value, (bool, str, int)):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    tolist = getattr(value, "tolist", None)
+    if callable(tolist):
+        return clean(tolist())
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return f if math.isfinite(f) else None
+
+
+def dumps(value: Any) -> str:
+    return json.dumps(clean(value), separators=(",", ":"), allow_nan=False)
+
+
+def sse(event: str, data: str) -> bytes:
+    """One SSE message (``data`` is single-line JSON)."""
+    return f"event: {event}\ndata: {data}\n\n".encode()
+
+
+def encode_batch(batch: Batch) -> bytes:
+    """The batch's SSE messages except ``info`` (which the hub keeps apart), in a fixed order."""
+    out = b""
+    if batch.rows:
+        out += sse("rows", encode_rows(batch.rows))
+    if batch.events:
+        out += sse("events", dumps(batch.events))
+    if batch.link:
+        out += sse("link", dumps(batch.link))
+    if batch.status is not None:
+        out += sse("status", dumps(batch.status))
+    return out

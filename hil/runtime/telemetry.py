@@ -1,0 +1,111 @@
+"""A control tick's telemetry: the ``telemetry.csv`` columns, the rotation arithmetic a row needs on plain
+floats, and the run's in-memory trace from the slew's start (:class:`RunTrace`: what the summary, the live
+progress line and a Monte Carlo campaign's metrics are computed from, with no file in between).
+
+A row is built on the control tick as a flat list of numbers in column order — no dict, no numpy call per
+cell: rotations are handled as row-major 9-tuples (``hil.so3.floats``' layout) — and handed to the
+run's :class:`hil.runtime.runlog.CsvLog`, whose writer thread formats and writes it off the tick.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+Mat9 = tuple[float, ...]
+
+_SMALL = 1e-4  # rad: below, the log's series form (as hil.so3.log)
+_NEAR_PI = math.pi - 1e-3  # rad: above, the log takes its axis from the symmetric part (hil.so3.log)
+
+
+def telemetry_columns(n_units: int) -> list[str]:
+    """The telemetry.csv columns for ``n_units`` units (docs/architecture.md, "Run directory")."""
+    cols = ["t", "phase", "est_err_deg", "rate_err", "point_err_deg", "track_err_deg"]
+    cols += [f"{who}_{q}{axis}" for q in ("r", "w") for who in ("est", "true") for axis in "xyz"]
+    cols += [f"tau_{a}" for a in "xyz"] + ["delta"]
+    for name in ("gimbal_angle", "gimbal_rate", "rotor_speed", "cmd_gimbal_rate", "cmd_rotor_speed"):
+        cols += [f"{name}_{i}" for i in range(n_units)]
+    cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
+    cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
+    return cols
+
+
+# --------------------------------------------------------------------------- rotations as 9-tuples
+def mat9(R: Array) -> Mat9:
+    """A (3, 3) rotation as a row-major 9-tuple of floats."""
+    return tuple(np.asarray(R, dtype=float).ravel().tolist())
+
+
+def angle_between9(a: Mat9, b: Mat9) -> float:
+    """The principal angle (rad, [0, π]) of ``aᵀ b`` — the angle between two rotations — by
+    ``atan2(|vee(m)|, (tr m − 1)/2)`` as :func:`hil.so3.principal_angle` (accurate at every angle)."""
+    a0, a1, a2, a3, a4, a5, a6, a7, a8 = a
+    b0, b1, b2, b3, b4, b5, b6, b7, b8 = b
+    trace = a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 + a4 * b4 + a5 * b5 + a6 * b6 + a7 * b7 + a8 * b8
+    m01 = a0 * b1 + a3 * b4 + a6 * b7
+    m10 = a1 * b0 + a4 * b3 + a7 * b6
+    m02 = a0 * b2 + a3 * b5 + a6 * b8
+    m20 = a2 * b0 + a5 * b3 + a8 * b6
+    m12 = a1 * b2 + a4 * b5 + a7 * b8
+    m21 = a2 * b1 + a5 * b4 + a8 * b7
+    x, y, z = m21 - m12, m02 - m20, m10 - m01
+    return math.atan2(0.5 * math.sqrt(x * x + y * y + z * z), 0.5 * (trace - 1.0))
+
+
+def log9(r: Mat9) -> tuple[float, float, float]:
+    """The rotation vector of ``r`` (|φ| ≤ π), as :func:`hil.so3.log` to rounding (which it calls within
+    1 mrad of π, where the axis comes from the symmetric part)."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
+    cos_theta = min(1.0, max(-1.0, 0.5 * (r0 + r4 + r8 - 1.0)))
+    theta = math.acos(cos_theta)
+    wx, wy, wz = 0.5 * (r7 - r5), 0.5 * (r2 - r6), 0.5 * (r3 - r1)
+    if theta < _SMALL:
+        k = 1.0 + theta * theta / 6.0
+    elif theta < _NEAR_PI:
+        k = theta / math.sin(theta)
+    else:
+        from hil import so3
+
+        x, y, z = so3.log(np.reshape(r, (3, 3))).tolist()
+        return x, y, z
+    return wx * k, wy * k, wz * k
+
+
+# --------------------------------------------------------------------------- the run's trace
+@dataclass
+class RunTrace:
+    """One value per control tick from the slew's start: ``t`` (s from the slew's start), the pointing
+    error to the target ``point_err_deg``, to the moving reference ``track_err_deg``, the estimator's
+    attitude error ``est_err_deg`` (NaN without a truth), the largest |gimbal rate| of any unit
+    ``gimbal_rate`` (rad/s) and the singularity measure ``delta``. Lists of floats while the run grows
+    (a float per tick each: 6 × 8 bytes × 50 Hz, ~2.4 kB per simulated second)."""
+
+    t: list[float] = field(default_factory=list)
+    point_err_deg: list[float] = field(default_factory=list)
+    track_err_deg: list[float] = field(default_factory=list)
+    est_err_deg: list[float] = field(default_factory=list)
+    gimbal_rate: list[float] = field(default_factory=list)
+    delta: list[float] = field(default_factory=list)
+
+    FIELDS = ("t", "point_err_deg", "track_err_deg", "est_err_deg", "gimbal_rate", "delta")
+
+    def append(
+        self, t: float, point: float, track: float, est: float, gimbal_rate: float, delta: float
+    ) -> None:
+        self.t.append(t)
+        self.point_err_deg.append(point)
+        self.track_err_deg.append(track)
+        self.est_err_deg.append(est)
+        self.gimbal_rate.append(gimbal_rate)
+        self.delta.append(delta)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def arrays(self) -> dict[str, Array]:
+        """Every field as a float array (K,)."""
+        return {name: np.asarray(getattr(self, name), dtype=float) for name in self.FIELDS}

@@ -1,0 +1,149 @@
+"""Compiling a fresh install's kernels on both cores at once, before the first closed-loop run.
+
+The compiled kernels (:mod:`hil.jit`) compile on their first call and are cached on disk; on a fresh
+install (or after an edit of a kernel package) the first run pays for compiling them all: ~5–11 CPU s for
+the world's (the plant step, the drive law, the simulated phone) and ~8 for the host's (the attitude
+filter's chain, the variational step, steering), one after the other in one process. :func:`warm` splits
+that in two: a child process compiles the world's by stepping a world of the run's scenario for a moment,
+while this process compiles the host's by stepping the scenario's attitude filter and steering on
+synthetic samples — the same objects, through the same calls, with the same argument types as the run,
+so the run then finds every kernel in the cache (``tests/test_warmup.py`` checks that it compiles none).
+A marker beside numba's cache, named after the kernel sources' stamp and numba's version, says that it
+was done; nothing happens once it exists, or when compiling is switched off (``NUMBA_DISABLE_JIT=1``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hil import jit
+from hil.scenario import Scenario, parse_scenario
+
+logger = logging.getLogger(__name__)
+
+WORLD_WARM_S = 0.3
+"""Board seconds of world stepped to compile its kernels (the board boots, the phone samples, the
+drives run)."""
+
+
+def marker() -> Path:
+    """Where the 'kernels compiled' marker lives: numba's cache directory (``NUMBA_CACHE_DIR``) if set, else
+    ``hil/jit/__pycache__`` (numba caches beside the sources there)."""
+    import numba
+
+    name = f"warm-{jit.tree_stamp()[:16]}-numba{numba.__version__}"
+    root = os.environ.get("NUMBA_CACHE_DIR") or str(Path(jit.__file__).parent / "__pycache__")
+    return Path(root) / name
+
+
+def needed() -> bool:
+    """Whether a run would compile kernels first (no marker for these sources yet)."""
+    return jit.COMPILED and not marker().exists()
+
+
+def warm(scenario: Scenario) -> float | None:
+    """Compile the kernels the run of ``scenario`` needs, world and host in parallel; the seconds it took,
+    or None if there was nothing to do. A child that fails is logged, never fatal: the run then compiles
+    what is missing itself."""
+    if not needed():
+        return None
+    start = time.monotonic()
+    with tempfile.TemporaryFile() as err:
+        child = subprocess.Popen(
+            [sys.executable, "-m", "hil.runtime.warmup"],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+        )
+        try:
+            assert child.stdin is not None
+            with child.stdin:
+                child.stdin.write((scenario.source or _default_source()).encode())
+            warm_host(scenario)
+        finally:
+            child.wait()
+        if child.returncode != 0:
+            err.seek(0)
+            logger.warning("compiling the world's kernels failed (the run compiles them): %s",
+                           err.read().decode("utf-8", "replace")[-500:])  # fmt: skip
+            return time.monotonic() - start
+    try:
+        path = marker()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(f"compiled in {time.monotonic() - start:.1f} s\n")
+    except OSError as exc:  # a read-only cache location: numba falls back to another, the marker cannot
+        logger.info("cannot write the kernel marker %s: %s", exc.filename, exc.strerror)
+    return time.monotonic() - start
+
+
+def _default_source() -> str:
+    """A scenario built in code has no TOML: the world's kernels are the same for any, so the default's."""
+    from hil.scenario import load_scenario
+
+    return load_scenario().source
+
+
+def warm_host(scenario: Scenario) -> None:
+    """Step the scenario's attitude filter (through the multi-rate merger, as the host does) and its steering
+    law once each, with samples and states of the run's types."""
+    from hil.control.steering import VscmgSteering
+    from hil.estimation.filter import AttitudeFilter
+    from hil.estimation.multirate import Merger
+    from hil.estimation.sensors import SensorKind, SensorSample
+
+    estimator = AttitudeFilter(scenario.filter_config())
+    merger = Merger()
+    field = np.asarray(scenario.phone.field_enu_uT, dtype=float)
+    readings: dict[SensorKind, tuple[float, float, float]] = {
+        SensorKind.GYR: (0.01, -0.02, 0.03),
+        SensorKind.ACC: (0.1, 0.2, 9.8),
+        SensorKind.MAG: (float(field[0]), float(field[1]), float(field[2])),
+    }
+    for k in range(40):
+        for kind, xyz in readings.items():
+            sample = SensorSample(0.005 * k, kind, xyz)
+            for step in merger.push(sample):
+                estimator.step(step)
+    steering = VscmgSteering(scenario.spacecraft, scenario.loop.steering)
+    n = scenario.n_units
+    gimbal = np.linspace(0.1, 0.4, n)
+    rotor = np.full(n, scenario.spacecraft.nominal_rotor_speed)
+    steering.momentum(gimbal, rotor)
+    steering.delta(gimbal, rotor)
+    steering.solve(np.array([1e-4, -2e-4, 5e-5]), gimbal, rotor, 1.0 / scenario.loop.control_rate_hz)
+
+
+def warm_world(scenario: Scenario) -> None:
+    """Step the scenario's simulated world (the built-in emulator's board with its plant, drives and
+    phone) for :data:`WORLD_WARM_S` board seconds."""
+    from hil.link.transports import InProcessBoard, create_transport
+    from hil.timing.clock import LockstepClock
+
+    link = create_transport(scenario.emulator_url())
+    assert isinstance(link, InProcessBoard)
+    clock = LockstepClock()
+    link.bind_clock(clock)
+    world = link.open_world(scenario)
+    while clock.now() < WORLD_WARM_S:
+        clock.advance(0.01)
+        world.advance_to(clock.now())
+    world.truth()
+
+
+def _main() -> int:
+    """The child: the scenario's TOML on stdin, its world's kernels compiled."""
+    scenario = parse_scenario(sys.stdin.read())
+    warm_world(scenario)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main())

@@ -1,0 +1,113 @@
+"""Shared by the ground-station tests: HTTP requests to a station, a run played in a thread with a station
+watching it, and a quick scenario."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil import so3
+from hil.gcs import GroundStation
+from hil.runtime import RunOptions, RunResult, run
+from hil.runtime.runlog import read_events
+from hil.scenario import Scenario, load_scenario
+
+
+def quick_scenario(angle_deg: float = 30.0) -> Scenario:
+    """cubesat-1u with a shorter slew (as tests/test_runtime.py's quick scenario)."""
+    sc = load_scenario("cubesat-1u")
+    axis = so3.log(sc.slew.R0.T @ sc.slew.R_target)
+    target = sc.slew.R0 @ so3.exp(axis / np.linalg.norm(axis) * np.radians(angle_deg))
+    slew = sc.slew.__class__(**{**sc.slew.__dict__, "R_target": target, "max_accel": 0.08})
+    return sc.with_changes(slew=slew)
+
+
+def request(
+    station: GroundStation, method: str, path: str, body: Any = None, headers: dict[str, str] | None = None,
+    token: str | None = "station",
+) -> tuple[int, Any]:  # fmt: skip
+    """``(status, decoded JSON or text)`` of one request; ``token="station"``: the station's own in the
+    Authorization header, None: none."""
+    conn = http.client.HTTPConnection("127.0.0.1", station.port, timeout=10)
+    hdrs = {"Host": f"127.0.0.1:{station.port}"}
+    if token is not None:
+        hdrs["Authorization"] = f"token {station.token if token == 'station' else token}"
+    if body is not None and not isinstance(body, bytes):
+        body = json.dumps(body).encode()
+        hdrs["Content-Type"] = "application/json"
+    hdrs.update(headers or {})
+    conn.request(method, path, body=body, headers=hdrs)
+    answer = conn.getresponse()
+    data = answer.read()
+    conn.close()
+    try:
+        return answer.status, json.loads(data)
+    except ValueError:
+        return answer.status, data.decode(errors="replace")
+
+
+def command(station: GroundStation, body: dict[str, Any], **kw: Any) -> tuple[int, Any]:
+    return request(station, "POST", "/api/command", body, **kw)
+
+
+class RunInThread:
+    """``run(scenario, options)`` in a thread, ``station`` observing it; its run directory once it exists."""
+
+    def __init__(self, scenario: Scenario, options: RunOptions, station: GroundStation | None = None) -> None:
+        if station is not None:
+            options.observer = station.observer
+        self.station = station
+        self.result: RunResult | None = None
+        self.error: BaseException | None = None
+        self.thread = threading.Thread(target=self._run, args=(scenario, options), daemon=True)
+        self.out_root = options.out_root
+        self.thread.start()
+
+    def _run(self, scenario: Scenario, options: RunOptions) -> None:
+        try:
+            self.result = run(scenario, options)
+        except BaseException as exc:  # raised again in join()
+            self.error = exc
+
+    @property
+    def run_dir(self) -> Path:
+        found = wait_for(lambda: sorted(Path(self.out_root).glob("*/events.jsonl")), 20.0, "a run directory")
+        return found[0].parent
+
+    def events(self) -> list[dict[str, Any]]:
+        return read_events(self.run_dir / "events.jsonl")[0]
+
+    def wait_event(self, predicate: Callable[[dict[str, Any]], bool], timeout: float = 30.0,
+                   what: str = "an event") -> dict[str, Any]:  # fmt: skip
+        def found() -> dict[str, Any] | None:
+            if self.error is not None:
+                raise self.error
+            return next((e for e in self.events() if predicate(e)), None)
+
+        return wait_for(found, timeout, what)
+
+    def join(self, timeout: float = 120.0) -> RunResult:
+        self.thread.join(timeout)
+        if self.thread.is_alive():
+            raise TimeoutError("the run did not end")
+        if self.error is not None:
+            raise self.error
+        assert self.result is not None
+        return self.result
+
+
+def wait_for(predicate: Callable[[], Any], timeout: float, what: str) -> Any:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise TimeoutError(f"no {what} within {timeout} s")

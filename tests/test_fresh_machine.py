@@ -1,0 +1,77 @@
+"""A fresh machine: without the AVR toolchain the tests that need it skip with ONE line naming the
+packages of ``.ci/apt-packages``; with ``VSCMG_HIL_REQUIRE_ALL=1`` (CI) the absence fails the run. The
+toolchain's absence is pretended with ``VSCMG_HIL_PRETEND_MISSING`` (tests/conftest.py)."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from firmware_sim.avr import build
+from firmware_sim.avr.paths import APT_PACKAGES, ROOT
+
+SELECTION = ["tests/test_firmware_codegen.py", "tests/test_firmware_logic.py"]
+
+
+def _pytest(*args: str, **env: str) -> subprocess.CompletedProcess[str]:
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("VSCMG_HIL_")}
+    return subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *args],
+        cwd=ROOT, env={**clean, **env}, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+
+
+def test_without_the_toolchain_the_firmware_tests_skip_with_one_line_naming_the_packages():
+    out = _pytest(*SELECTION, VSCMG_HIL_PRETEND_MISSING="gcc-avr,libsimavr-dev")
+    assert out.returncode == 0, out.stdout[-3000:]
+    skips = [line for line in out.stdout.splitlines() if line.startswith("SKIPPED")]
+    assert len(skips) == 1, skips
+    assert all(pkg in skips[0] for pkg in build.apt_packages())
+    n_skipped = int(re.search(r"SKIPPED \[(\d+)\]", skips[0]).group(1))
+    assert n_skipped >= 10 and re.search(rf"\d+ passed, {n_skipped} skipped", out.stdout)
+
+
+def test_ci_makes_a_missing_toolchain_a_failure():
+    out = _pytest(*SELECTION, VSCMG_HIL_PRETEND_MISSING="gcc-avr", VSCMG_HIL_REQUIRE_ALL="1")
+    assert out.returncode not in (0, 5)
+    assert "VSCMG_HIL_REQUIRE_ALL=1" in out.stderr and "gcc-avr" in out.stderr
+    assert out.stderr.count("apt-get install") == 1  # one message, not one per test
+
+
+@pytest.mark.firmware  # needs the toolchain itself: skipped with the others where it is missing
+def test_with_the_toolchain_nothing_is_skipped_for_it():
+    out = _pytest("tests/test_firmware_codegen.py", VSCMG_HIL_REQUIRE_ALL="1")
+    assert out.returncode == 0 and "skipped" not in out.stdout, out.stdout[-2000:]
+
+
+def test_one_list_of_packages_for_ci_the_readme_and_the_message():
+    listed = build.apt_packages()
+    assert set(build.TOOLS.values()) | set(build.HEADERS.values()) <= set(listed)
+    assert ".ci/apt-packages" in (ROOT / ".ci" / "run").read_text()
+    readme = (ROOT / "README.md").read_text()
+    assert "grep -v '^#' .ci/apt-packages" in readme
+    assert not any(re.search(rf"\b{re.escape(p)}\b", readme) for p in ("gcc-avr", "libsimavr-dev")), (
+        "the README points to .ci/apt-packages instead of copying it"
+    )
+    assert "VSCMG_HIL_REQUIRE_ALL=1" in (ROOT / ".ci" / "run").read_text()
+    assert APT_PACKAGES.exists()
+
+
+def test_firmware_sim_avr_without_the_toolchain_is_one_line(monkeypatch, capsys):
+    from firmware_sim.cli import main
+
+    monkeypatch.setattr(build, "_built", False)
+    monkeypatch.setattr(build, "missing_tools", lambda: ["gcc-avr"])
+    assert main(["--avr"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "gcc-avr" in err[0] and ".ci/apt-packages" in err[0]
+
+
+def test_the_readme_test_command_is_the_one_ci_runs():
+    assert "python -m pytest" in (ROOT / "README.md").read_text()
+    assert Path(ROOT / ".ci" / "run").read_text().count(".venv/bin/python -m pytest") == 1

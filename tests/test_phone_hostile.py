@@ -1,0 +1,240 @@
+"""Hostile peers against the live phone receivers, through real loopback sockets: whatever a peer on the
+network sends, it costs that one message (counted, logged), never the receiver; HTTP bodies are bounded
+whatever the headers say, slow and idle connections time out, and connections are capped.
+
+Regression tests for issue 16, findings 4 (``b"[" * 60000`` to the UDP port ended the run) and 5
+(``Content-Length: -1`` read to EOF past the cap, ``Content-Length: abc`` printed a traceback, no socket
+timeout, a thread per idle connection)."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+
+import pytest
+
+from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.sources.phone_push import PhonePushSender, PhonePushServer, encode_push
+from hil.link.sources.phone_udp import PhoneUdpReceiver, PhoneUdpSender, encode_datagram
+
+GOOD = SensorSample(1.0, SensorKind.GYR, (0.1, 0.2, 0.3))
+HOSTILE_DATAGRAMS = [
+    b"[" * 60000,  # finding 4: RecursionError in json.loads (and larger than any SensaGram datagram)
+    b"[" * 3000,  # under the size cap: refused before the parser (which would raise RecursionError)
+    b"1" * 4400,  # past Python's integer digit limit
+    b'{"type":"android.sensor.gyroscope","timestamp":1,"values":[' + b"9" * 400 + b",0,0]}",  # OverflowError
+    b'{"type":"android.sensor.gyroscope","timestamp":' + b"9" * 400 + b',"values":[0,0,0]}',
+    b"\xff\xfe\x00",
+    b"",
+]
+
+
+def _udp_address(receiver: PhoneUdpReceiver) -> tuple[str, int]:
+    host, port = receiver.url.removeprefix("udp://").split(":")
+    return host, int(port)
+
+
+def _http_address(server: PhonePushServer) -> tuple[str, int]:
+    host, port = server.url.removeprefix("http://").split("/")[0].split(":")
+    return host, int(port)
+
+
+def _wait(predicate, timeout_s: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+# =========================================================================== UDP (finding 4)
+def test_datagrams_that_break_the_json_parser_cost_only_themselves(caplog):
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        for data in HOSTILE_DATAGRAMS:
+            raw.sendto(data, _udp_address(receiver))
+        raw.close()
+        PhoneUdpSender(receiver.url).send([GOOD])
+        assert _wait(lambda: receiver.stats.samples == 1)
+        receiver.check()  # the thread's error, if any, would be raised here
+        assert receiver._thread.is_alive()
+        assert receiver.drain() == [GOOD]
+        assert receiver.stats.bad_messages == len(HOSTILE_DATAGRAMS)
+    warnings = [r for r in caplog.records if "dropped" in r.getMessage()]
+    assert 1 <= len(warnings) <= 2  # at most one a second: a flood does not flood the log
+    assert "udp from 127.0.0.1" in warnings[0].getMessage()
+
+
+def test_a_flood_of_hostile_datagrams_is_counted_and_the_stream_goes_on():
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sent = []
+        for k in range(300):
+            raw.sendto(HOSTILE_DATAGRAMS[k % len(HOSTILE_DATAGRAMS)], _udp_address(receiver))
+            sample = SensorSample(2.0 + 0.005 * k, SensorKind.ACC, (0.0, float(k), 9.8))
+            raw.sendto(encode_datagram(sample), _udp_address(receiver))
+            sent.append(sample)
+        raw.close()
+        assert _wait(lambda: receiver.stats.messages + receiver.stats.bad_messages == 600)
+        assert [s.xyz for s in receiver.drain()] == [s.xyz for s in sent]  # every one, in order
+        assert receiver.stats.bad_messages == 300
+
+
+# =========================================================================== HTTP (finding 5)
+def _request(server: PhonePushServer, head: bytes, body: bytes = b"", timeout_s: float = 5.0) -> bytes:
+    """Send ``head`` (request line and headers, CRLF-terminated) and ``body`` on a fresh connection;
+    everything the server answers until it closes or goes quiet."""
+    with socket.create_connection(_http_address(server), timeout=timeout_s) as conn:
+        conn.sendall(head + b"\r\n" + body)
+        return _read_all(conn)
+
+
+def _read_all(conn: socket.socket) -> bytes:
+    out = b""
+    while True:
+        try:
+            chunk = conn.recv(65536)
+        except (TimeoutError, ConnectionResetError):
+            return out
+        if not chunk:
+            return out
+        out += chunk
+        if b"\r\n\r\n" in out and out.endswith((b"ok", b"receiver")):
+            return out
+
+
+def _status(answer: bytes) -> int:
+    return int(answer.split(b" ", 2)[1]) if answer.startswith(b"HTTP/1.1 ") else 0
+
+
+def _post_head(*headers: str) -> bytes:
+    return ("POST / HTTP/1.1\r\nHost: phone\r\n" + "".join(h + "\r\n" for h in headers)).encode()
+
+
+def _still_serving(server: PhonePushServer) -> bool:
+    sender = PhonePushSender(server.url)
+    try:
+        return sender.send([GOOD]) and server.drain()[-1] == GOOD
+    finally:
+        sender.close()
+
+
+def test_content_length_minus_one_is_refused_before_the_body_is_read():
+    """Finding 5: it read to EOF past the 4 MB cap (300 MB streamed: +288 MB RSS)."""
+    with PhonePushServer("http://127.0.0.1:0/") as server:
+        conn = socket.create_connection(_http_address(server), timeout=5)
+        conn.sendall(_post_head("Content-Length: -1") + b"\r\n")
+        sent, block = 0, b"x" * 65536
+        try:  # stream up to 300 MB; the server answers and closes long before
+            while sent < 300 * 2**20:
+                conn.sendall(block)
+                sent += len(block)
+        except (BrokenPipeError, ConnectionResetError):
+            pass
+        conn.settimeout(2.0)
+        try:
+            answer = conn.recv(4096)
+        except ConnectionResetError:  # closed with our unread bytes in its buffer: an RST
+            answer = b""
+        conn.close()
+        assert sent < 64 * 2**20  # what the socket buffers took before the close, not the stream
+        assert answer == b"" or _status(answer) == 400
+        assert server.stats.bad_messages == 1 and "Content-Length '-1'" in server.stats.last_error
+        assert _still_serving(server)
+
+
+@pytest.mark.parametrize(
+    ("headers", "status", "reason"),
+    [
+        (("Content-Length: abc",), 400, "not a byte count"),
+        (("Content-Length: +5",), 400, "not a byte count"),
+        (("Content-Length: 1e3",), 400, "not a byte count"),
+        (("Content-Length: 5", "Content-Length: 6"), 400, "contradicting"),
+        (("Content-Length: 99999999999999",), 413, "larger than"),
+        ((), 411, "needs a Content-Length"),
+        (("Transfer-Encoding: gzip, chunked",), 501, "not supported"),
+    ],
+)
+def test_bad_body_headers_are_answered_counted_and_print_nothing(headers, status, reason, capfd):
+    """Finding 5: ``Content-Length: abc`` printed a traceback."""
+    with PhonePushServer("http://127.0.0.1:0/") as server:
+        answer = _request(server, _post_head(*headers), b"{}")
+        assert _status(answer) == status and reason.encode() in answer
+        assert b"Connection: close" in answer
+        assert server.stats.bad_messages == 1 and reason in server.stats.last_error
+        assert _still_serving(server)
+    assert capfd.readouterr().err == ""
+
+
+def test_chunked_bodies_are_decoded_under_the_same_cap():
+    body = encode_push([GOOD], 1, "s", "d")
+    chunked = b"".join(b"%x\r\n%s\r\n" % (len(part), part) for part in (body[:10], body[10:])) + b"0\r\n\r\n"
+    with PhonePushServer("http://127.0.0.1:0/", max_body=1000) as server:
+        assert _status(_request(server, _post_head("Transfer-Encoding: chunked"), chunked)) == 200
+        assert server.drain() == [GOOD]
+        huge = b"".join(b"200\r\n" + b"x" * 0x200 + b"\r\n" for _ in range(3))  # 1536 bytes > 1000
+        assert _status(_request(server, _post_head("Transfer-Encoding: chunked"), huge)) == 413
+        bad = b"zz\r\nxx\r\n0\r\n\r\n"
+        assert _status(_request(server, _post_head("Transfer-Encoding: chunked"), bad)) == 400
+        assert server.stats.bad_messages == 2 and server.stats.samples == 1
+
+
+def test_idle_and_dripping_connections_time_out():
+    """Finding 5: there was no socket timeout; an idle connection held its thread forever."""
+    with PhonePushServer("http://127.0.0.1:0/", timeout_s=0.5) as server:
+        idle = socket.create_connection(_http_address(server), timeout=5)
+        drip = socket.create_connection(_http_address(server), timeout=5)
+        start = time.monotonic()
+        closed_at: dict[str, float] = {}
+
+        def dripping() -> None:
+            try:
+                for byte in _post_head("Content-Length: 10"):  # a byte every 0.1 s: each read is quick
+                    drip.sendall(bytes([byte]))
+                    time.sleep(0.1)
+            except OSError:
+                closed_at["drip"] = time.monotonic() - start
+
+        thread = threading.Thread(target=dripping)
+        thread.start()
+        assert idle.recv(1) == b""  # the server closed the idle connection
+        closed_at["idle"] = time.monotonic() - start
+        thread.join(timeout=10)
+        idle.close()
+        drip.close()
+        assert 0.4 <= closed_at["idle"] <= 2.0
+        assert 0.4 <= closed_at["drip"] <= 2.0  # its request never completed: closed at the deadline
+        assert server.stats.timeouts == 2
+        assert _still_serving(server)
+
+
+def test_connections_beyond_the_cap_are_refused_and_a_freed_slot_serves_again():
+    with PhonePushServer("http://127.0.0.1:0/", max_connections=3, timeout_s=5.0) as server:
+        held = [socket.create_connection(_http_address(server), timeout=5) for _ in range(3)]
+        assert _wait(lambda: server._httpd.active == 3)
+        extra = socket.create_connection(_http_address(server), timeout=5)
+        assert extra.recv(1) == b""  # closed unanswered
+        extra.close()
+        assert server.stats.refused_connections == 1
+        held.pop().close()
+        assert _wait(lambda: server._httpd.active == 2)
+        assert _still_serving(server)
+        for conn in held:
+            conn.close()
+        assert _wait(lambda: server._httpd.active == 0)
+
+
+def test_a_hostile_batch_is_answered_400_and_the_keep_alive_connection_goes_on():
+    with PhonePushServer("http://127.0.0.1:0/") as server:
+        with socket.create_connection(_http_address(server), timeout=5) as conn:
+            deep = b"[" * 60000
+            conn.sendall(_post_head(f"Content-Length: {len(deep)}") + b"\r\n" + deep)
+            first = _read_all(conn)
+            good = encode_push([GOOD], 1, "s", "d")
+            conn.sendall(_post_head(f"Content-Length: {len(good)}") + b"\r\n" + good)
+            second = _read_all(conn)
+        assert _status(first) == 400 and b"RecursionError" in first
+        assert _status(second) == 200 and server.drain() == [GOOD]
+        server.check()

@@ -1,0 +1,141 @@
+"""Bad scenario, dispersion and run-directory input: one error naming the file and key, bounded cost.
+Also the small things a newcomer meets in ``hil run --help`` and the package metadata."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from firmware_sim.config import BoardConfig
+from hil.cli import main
+from hil.montecarlo.dispersions import draw, load_dispersions, parse_dispersions
+from hil.scenario import load_scenario, parse_scenario
+from hil.scenario.paths import ROOT
+from hil.scenario.reader import BOARD_RANGES
+from protocol.errors import ConfigError
+
+BASE = "[scenario]\nname='x'\n"
+
+
+@pytest.mark.parametrize(
+    ("text", "where", "detail"),
+    [
+        ("[array]\ngeometry='pyramid'\nskew_deg=90\n", "x.toml: array.skew_deg", "degenerate"),
+        ("[array]\ngeometry='pyramid'\nskew_deg=2\n", "x.toml: array.skew_deg", "degenerate"),
+        ("[manoeuvre]\nangle_deg=1e308\n", "x.toml: manoeuvre.angle_deg", "360"),
+        ("[manoeuvre]\ninitial_angle_deg=-1e308\n", "x.toml: manoeuvre.initial_angle_deg", "360"),
+        ("[scenario]\nname='x'\nduration_s=1e308\n", "x.toml: scenario.duration_s", "at most"),
+        ("[board]\nlink_timeout=-1\n", "x.toml: board.link_timeout", "0.01..60"),
+        ("[board]\ncells=13\n", "x.toml: board.cells", "1..12"),
+        ("[board]\ncells=3.5\n", "x.toml: board.cells", "integer"),
+        ("[board]\nsoc=1.5\n", "x.toml: board.soc", "0..1"),
+    ],
+)
+def test_values_the_parts_cannot_take_are_refused_naming_file_and_key(text, where, detail):
+    doc = text if text.startswith("[scenario]") else BASE + text
+    with pytest.raises(ConfigError, match=detail) as info:
+        parse_scenario(doc, Path("x.toml"))
+    assert info.value.where == where
+
+
+_FIELDS = {"frame_rate": "frame_rate_hz", "telemetry_rate": "telemetry_rate_hz",
+           "heartbeat_rate": "heartbeat_rate_hz", "link_timeout": "link_timeout_s",
+           "mcu_watchdog": "mcu_watchdog_s"}  # fmt: skip
+
+
+@pytest.mark.parametrize("key", sorted(BOARD_RANGES))
+def test_the_scenario_board_ranges_are_the_boards_own(key):
+    """What the scenario reader accepts is exactly what BoardConfig accepts, at both ends."""
+    lo, hi, kind = BOARD_RANGES[key]
+    step = 1 if kind is int else 1e-6 * max(1.0, abs(hi))
+
+    def board_takes(value: float) -> bool:
+        base = BoardConfig()
+        try:
+            if key in _FIELDS:
+                base.replace(**{_FIELDS[key]: value})
+            else:
+                battery = dataclasses.replace(
+                    base.power.battery, **{"cells" if key == "cells" else "initial_soc": value}
+                )
+                base.replace(power=dataclasses.replace(base.power, battery=battery))
+        except ConfigError:
+            return False
+        return True
+
+    def scenario_takes(value: float) -> bool:
+        try:
+            parse_scenario(
+                BASE + f"[controller]\ncontrol_rate_hz=10\n[board]\n{key}={value!r}\n", Path("x.toml")
+            )
+        except ConfigError as exc:
+            assert exc.where == f"x.toml: board.{key}"
+            return False
+        return True
+
+    for value in (lo, hi, kind(lo - step), kind(hi + step)):
+        assert scenario_takes(value) == board_takes(value), value
+
+
+def test_binary_scenario_and_dispersion_files_are_one_line_naming_the_file(tmp_path, capsys):
+    binary = tmp_path / "scenario.toml"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff\xfe" * 50)
+    with pytest.raises(ConfigError, match="not a text file") as info:
+        load_scenario(binary)
+    assert str(binary) in str(info.value)
+    assert main(["run", "--scenario", str(binary)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(binary) in err[0]
+    with pytest.raises(ConfigError, match="not a text file"):
+        load_dispersions(binary, load_scenario("cubesat-1u"))
+
+
+def test_a_binary_run_directory_file_is_one_line_naming_it(tmp_path, capsys):
+    (tmp_path / "telemetry.csv").write_bytes(b"\xff\xfe\x00t,phase\n" + bytes(range(256)))
+    assert main(["report", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "telemetry.csv" in err[0] and "not a text file" in err[0]
+
+
+@pytest.mark.parametrize(
+    ("value", "detail"),
+    [
+        ("1e12", "outside 0..600"),
+        ("-3", "outside 0..600"),
+        ("{ dist = 'normal', mean = 1e12, sigma = 1 }", "outside"),
+    ],
+)
+def test_link_outage_rates_are_bounded(value, detail):
+    sc = load_scenario("cubesat-1u")
+    text = f"[link]\noutages_per_minute = {value}\noutage_duration_s = 0.5\n"
+    with pytest.raises(ConfigError, match=detail) as info:
+        parse_dispersions(text, sc, "d.toml")
+    assert info.value.where == "d.toml: link.outages_per_minute"
+
+
+def test_a_normal_rate_tail_is_clipped_so_a_run_s_outages_stay_bounded():
+    sc = load_scenario("cubesat-1u")
+    rate = "{ dist = 'normal', mean = 600, sigma = 1e6 }"
+    d = parse_dispersions(f"[link]\noutages_per_minute = {rate}\noutage_duration_s = 0.1\n", sc, "d.toml")
+    for i in range(5):
+        assert len(draw(d, 1, i).outages) < 2 * 600 * sc.slew.duration_s / 60
+
+
+def test_hil_run_refuses_a_duration_of_nan_and_its_help_tells_defaults_and_udp(capsys):
+    for bad in ("nan", "inf", "-1", "0"):
+        with pytest.raises(SystemExit) as info:
+            main(["run", "--duration", bad])
+        assert info.value.code == 2 and "--duration" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    out = capsys.readouterr().out
+    assert "phone over UDP" in out and "over HTTP" not in out
+    assert "scenario's duration_s" in out and "default 10 s" in out
+
+
+def test_package_metadata_uses_an_spdx_license_string():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["license"] == "MIT"  # a string: setuptools deprecates license = { text = ... }
