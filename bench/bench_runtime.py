@@ -32,6 +32,14 @@ run:
     without absolute deadlines gets. Its errors also *accumulate*; the drift over the loop is in the
     note (the Scheduler's deadlines do not drift at all: ``origin + k * period``).
 
+* **``hil run --port`` in its own process** (the command as a user types it, against
+  ``spawn://firmware-sim`` with the still stand-in phone, the scenario's 50 Hz control, 3 s after the slew):
+  its control task's worst lateness, overruns and the board's failsafes, from its ``summary.json``, next to
+  a bare Scheduler loop at the same rate. A fresh process is the case the in-process figures above cannot
+  show: there the benchmark's own process has loaded numba and its kernels before the run; a user's
+  ``hil run`` loads them itself — before arming, since issue 16's finding 7 (a first kernel call inside the
+  control task stalled it 0.35–0.7 s, past the board's link timeout).
+
 * **host setpoint -> pulse change reported** p50 / p99 over the pty: measured by
   :func:`bench.bench_link._pty_latency` (the full client against ``spawn://firmware-sim``, 490 Hz frames,
   1 kHz telemetry) and emitted here too, next to the same raw pty echo peer — not re-implemented.
@@ -282,6 +290,40 @@ def _jitter_results(rate_hz: float, duration_s: float, peer_s: float, world_note
     return rows
 
 
+def _cli_port_run(duration_s: float) -> tuple[dict, float]:
+    """``hil run --port spawn://firmware-sim?... --phone udp://...`` in its own process with the still
+    stand-in phone: (its control task's statistics, its failsafe events)."""
+    scenario = load_scenario(SCENARIO)
+    phone = _phone_url()
+    url = "spawn://firmware-sim?" + urlencode(scenario.firmware_sim_options())
+    with tempfile.TemporaryDirectory(prefix="bench-runtime-") as tmp, _still_phone(phone):
+        argv = [sys.executable, "-m", "hil", "run", "--port", url, "--phone", phone, "--duration",
+                str(duration_s), "--no-plots", "--out", tmp]  # fmt: skip
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=300, check=False)
+        written = sorted(Path(tmp).glob("*/summary.json"))
+        if not written:
+            why = done.stderr[-999:]
+            raise RuntimeError(f"hil run --port left no summary (exit {done.returncode}): {why}")
+        summary = json.loads(written[0].read_text())
+    return summary["tasks"]["control"], float(summary.get("failsafe_events", 0))
+
+
+def _cli_port_results(duration_s: float, peer_s: float) -> list[Result]:
+    control, failsafes = _cli_port_run(duration_s)
+    rate = load_scenario(SCENARIO).loop.control_rate_hz
+    floor = _scheduler_floor(rate, peer_s)
+    note = (f"{control['runs']} control runs, p99 {control['lateness_p99_us']:.0f} us; "
+            f"bare loop {floor.runs} runs, {floor.overruns} overruns")  # fmt: skip
+    return [
+        Result(NAME, f"hil run --port, own process: control lateness max @{rate:.0f} Hz",
+               control["lateness_max_us"], "us", "bare Scheduler loop max", floor.max, False, note),
+        Result(NAME, "hil run --port, own process: control overruns", control["overruns"], "skipped",
+               "bare Scheduler loop overruns", floor.overruns, False),
+        Result(NAME, "hil run --port, own process: board failsafes", failsafes, "events", "", None, False,
+               "a healthy board: any failsafe is the host's stall"),
+    ]  # fmt: skip
+
+
 def _latency_results(samples: int) -> list[Result]:
     latency, board_share, echo = _pty_latency(samples)
     note = (
@@ -383,6 +425,7 @@ def run(quick: bool) -> list[Result]:
     )  # fmt: skip
     for rate in RATES:
         results += _jitter_results(rate, duration_s, peer_s, world_note)
+    results += _cli_port_results(3.0, peer_s)
     results += _latency_results(30 if quick else 300)
     results += _hil_run_results(quick)
     first = results[0]

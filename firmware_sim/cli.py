@@ -170,6 +170,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="collapse the battery for 0.3 s at T: brown-out reset",
     )
     f.add_argument("--dead-esc", action="append", default=[], metavar="CH[@AT]", help="dead ESC on a channel")
+    f.add_argument(
+        "--phone-gap", action="append", default=[], metavar="AT:DURATION",
+        help="with a world: its phone sends nothing for DURATION s from AT (repeatable)",
+    )  # fmt: skip
     return p
 
 
@@ -185,14 +189,14 @@ def parse_sag(spec: str, option: str = "--sag") -> tuple[float, float | None, fl
         raise ConfigError(f"{spec!r}: not a number", option) from None
 
 
-def parse_stall(spec: str) -> tuple[float, float]:
+def parse_stall(spec: str, option: str = "--stall") -> tuple[float, float]:
     m = re.fullmatch(r"(?P<at>[0-9.eE+-]+):(?P<d>[0-9.eE+-]+)", spec.strip())
     if not m:
-        raise ConfigError(f"{spec!r} is not AT:DURATION (e.g. 5:2)", "--stall")
+        raise ConfigError(f"{spec!r} is not AT:DURATION (e.g. 5:2)", option)
     try:
         return float(m["at"]), float(m["d"])
     except ValueError:
-        raise ConfigError(f"{spec!r}: not a number", "--stall") from None
+        raise ConfigError(f"{spec!r}: not a number", option) from None
 
 
 def parse_dead_esc(spec: str) -> tuple[int, float | None]:
@@ -255,6 +259,9 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
     full = cfg.power.battery.cells * 4.2
     for t in args.brownout_at:
         faults.sag(drop_v=full, at=t, duration=0.3)
+    for spec in args.phone_gap:
+        at, duration = parse_stall(spec, "--phone-gap")
+        faults.phone_gap(duration, at=at)
     for spec in args.dead_esc:
         ch, esc_at = parse_dead_esc(spec)
         if ch >= cfg.n_channels:  # the API checks too; here the error names the option

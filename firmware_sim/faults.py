@@ -15,6 +15,8 @@ fault                         effect
 ``sag(drop_v, …, at=)``       the pack's open-circuit voltage drops by ``drop_v`` (ramped over
                               ``ramp_s``) and/or its resistance grows by ``extra_resistance_ohm``
 ``dead_esc(channel, at=)``    the ESC/servo on that output channel stops responding
+``phone_gap(duration, at=)``  the world's simulated phone sends nothing for ``duration`` s (an app
+                              that pauses its stream and resumes it; only with a world)
 ============================  ===================================================================
 """
 
@@ -83,6 +85,7 @@ class FaultInjector:
         self.hangs: list[float] = []  # pending hang times
         self.sags: list[Sag] = []
         self.dead_escs: dict[int, float] = {}  # channel -> from when
+        self.phone_gaps: list[Stall] = []
         self.stats = LinkStats()
 
     # ------------------------------------------------------------------ API
@@ -126,6 +129,13 @@ class FaultInjector:
         self.sags.append(s)
         return s
 
+    def phone_gap(self, duration: float, at: float | None = None) -> Stall:
+        """The world's phone sends nothing from ``at`` for ``duration`` s (its samples are not taken)."""
+        _check_nonneg(duration, "faults.phone_gap.duration")
+        gap = Stall(self._at(at), float(duration))
+        self.phone_gaps.append(gap)
+        return gap
+
     def dead_esc(self, channel: int, at: float | None = None) -> None:
         where = "faults.dead_esc.channel"
         if isinstance(channel, bool) or not isinstance(channel, int) or channel < 0:
@@ -141,6 +151,7 @@ class FaultInjector:
         self.hangs.clear()
         self.sags.clear()
         self.dead_escs.clear()
+        self.phone_gaps.clear()
 
     # ------------------------------------------------------------------ used by the board
     def next_hang(self) -> float:
@@ -157,6 +168,10 @@ class FaultInjector:
             volts += k * s.drop_v
             ohms += k * s.extra_resistance_ohm
         return volts, ohms
+
+    def phone_silent(self, t: float) -> bool:
+        """Whether the world's phone is paused at ``t``."""
+        return any(g.covers(t) for g in self.phone_gaps)
 
     def channel_dead(self, channel: int, t: float) -> bool:
         since = self.dead_escs.get(channel)

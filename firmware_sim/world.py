@@ -201,6 +201,9 @@ class World:
             samples += self._run(self._steps_before(due, t))
             self.batches += 1
         self._push(self.now)  # for whatever steps the board before the world's next call
+        faults = board.faults
+        if faults.phone_gaps:  # a phone that paused its stream (firmware-sim --phone-gap)
+            samples = [s for s in samples if not faults.phone_silent(s.t_s)]
         return samples
 
     def _push(self, at: float) -> None:

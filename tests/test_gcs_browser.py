@@ -234,3 +234,28 @@ def test_a_finished_run_directory_replays_and_its_timeline_scrubs(browser, tmp_p
         assert last_t == pytest.approx(tel["t"][i], abs=1e-3)
         browser.save_screenshot(str(tmp_path / "replay-scrubbed.png"))
     assert not _page_errors(browser)
+
+
+def test_a_replayed_outage_shows_the_board_unknown_and_its_values_empty(browser, tmp_path):
+    """Rows without a live board (a hung MCU: telemetry stale, then the reset's handshake) carry no board
+    value: at a cursor inside the outage the page says the board state is unknown and why, and shows no
+    rotor speed — not the last one, as if fresh."""
+    sc = quick_scenario().with_changes(fault_options={"hang_at": ["4.0"]})
+    result = run(sc, RunOptions(out_root=tmp_path, duration_s=3.0))
+    tel = read_telemetry(result.run_dir / "telemetry.csv")
+    blind = np.nonzero((tel["board_link"] == 1) & (tel["t"] > 4.0))[0]
+    assert len(blind) > 5
+    inside = float(tel["t"][blind[len(blind) // 2]])
+    with GroundStation.replay(result.run_dir, bind="127.0.0.1:0") as station:
+        browser.get(station.url)
+        wait_for(lambda: _js(browser, "return window.gcs.state.status.state") == "finished", 20, "the replay")
+        wait_for(lambda: _js(browser, "return window.gcs.state.store.n") == tel.rows, 10, "every row")
+        _js(browser, """const s = document.getElementById('timeline'); s.value = arguments[0];
+                        s.dispatchEvent(new Event('input'));""", inside)  # fmt: skip
+        wait_for(lambda: _text(browser, "board-state").startswith("UNKNOWN"), 5, "the board state unknown")
+        assert _text(browser, "board-state") == "UNKNOWN (no telemetry)"
+        assert "bad" in browser.find_element(By.ID, "board-state").get_attribute("class")
+        assert _text(browser, "u0-rotor") == "—"
+        assert "ms ago" in _text(browser, "tel-age")
+        browser.save_screenshot(str(tmp_path / "replay-outage.png"))
+    assert not _page_errors(browser)

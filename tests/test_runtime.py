@@ -152,7 +152,10 @@ def test_run_directory_holds_telemetry_events_summary_and_scenario(lockstep_run)
     assert np.all((tel["pulse_rotor_0"][-10:] > 1000) & (tel["pulse_rotor_0"][-10:] < 2000))
     hold = tel["est_err_deg"][phases == 2]
     assert hold[-1] < 1.5 and hold[-1] < np.nanmax(hold)  # the estimate converges once the body is still
-    kinds = [e["kind"] for e in read_events(d / "events.jsonl")[0]]
+    events = read_events(d / "events.jsonl")[0]
+    times = [e["t"] for e in events]
+    assert times == sorted(times), "events.jsonl in time order (the board's boot log before 'armed')"
+    kinds = [e["kind"] for e in events]
     for kind in ("connected", "armed", "spin_up", "still_window", "slew_start", "slew_end"):
         assert kind in kinds
     assert json.loads((d / "summary.json").read_text())["scenario"] == "cubesat-1u"
@@ -179,6 +182,7 @@ def test_a_link_stall_puts_the_board_in_failsafe_and_the_host_rearms(tmp_path):
     assert s["exit"] == "completed"
     assert s["failsafe_events"] == 1 and s["rearms"] == 1
     events = read_events(result.run_dir / "events.jsonl")[0]
+    assert [e["t"] for e in events] == sorted(e["t"] for e in events)
     states = [e["new"] for e in events if e["kind"] == "board_state"]
     assert "FAILSAFE" in states and states[-1] == "ARMED"
     t_fail = next(e["t"] for e in events if e["kind"] == "board_state" and e["new"] == "FAILSAFE")
@@ -351,3 +355,13 @@ def test_gimbal_rates_far_below_their_limit_are_drawn_on_their_own_scale(lockste
     peak, limit = result.summary["peak_gimbal_rate"], result.summary["max_gimbal_rate_limit"]
     assert peak < 0.25 * limit and high < 2 * peak and low > -2 * peak
     assert "off the scale" in title and f"{limit:g}" in title and lines == 4  # the four units, no limit lines
+
+
+def test_the_printed_summary_explains_delta_and_a_missing_estimator_rmse():
+    """A newcomer reads what "minimum delta" measures, and why an estimator RMSE is "-" (no truth)."""
+    from hil.cli.run import format_summary
+
+    with_truth = format_summary({"exit": "completed", "min_delta": 1.19, "estimator_rmse_deg": 4.2})
+    without = format_summary({"exit": "completed", "min_delta": 0.02, "estimator_rmse_deg": None})
+    assert "0 is singular" in with_truth and "(slew + hold)" in with_truth
+    assert "estimator RMSE    - (no ground truth in this run)" in without

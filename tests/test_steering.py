@@ -59,11 +59,16 @@ def test_cmg_mode_away_from_singularities_wheel_mode_at_one():
     assert np.max(np.abs(near.rotor_accel)) > 1.0
     # a pure CMG pseudo-inverse near the singularity would need far larger gimbal rates than VSCMG steering
     slightly_off = SINGULAR_GIMBALS + np.radians([0.5, -0.5, 0.5, -0.5])
-    cmg = VscmgSteering(PARAMS, SteeringParams(wheel_weight=0.0))
+    cmg = VscmgSteering(PARAMS, SteeringParams(wheel_weight=0.0, singular_eps=1e-12))  # undamped
     vscmg = steer.solve(torque, slightly_off, W0, 0.02)
     pure = cmg.solve(torque, slightly_off, W0, 0.02)
     assert pure.saturation[0] & Saturation.GIMBAL_RATE or np.max(np.abs(pure.gimbal_rate)) > 0.5
     assert np.max(np.abs(vscmg.gimbal_rate)) < 0.1 * np.max(np.abs(pure.gimbal_rate))
+    assert not vscmg.saturation[0] & Saturation.DAMPED  # the wheels carry the axis: nothing to damp
+    # the same CMG-only array with the default damping: damped least squares bounds its gimbal rates
+    damped = VscmgSteering(PARAMS, SteeringParams(wheel_weight=0.0)).solve(torque, slightly_off, W0, 0.02)
+    assert damped.saturation[0] & Saturation.DAMPED
+    assert np.max(np.abs(damped.gimbal_rate)) < 0.5 * np.max(np.abs(pure.gimbal_rate))
 
 
 def test_null_motion_is_torque_free_and_raises_delta():
@@ -139,6 +144,88 @@ def test_batch_rows_are_independent_and_bad_params_refused():
         replace(SteeringParams(), gimbal_weight=0.0)
 
 
+# ------------------------------------------------------------------- no authority: damped least squares
+def test_stopped_rotors_after_a_reset_make_no_singular_solve():
+    """Issue 16, finding 1: a board that reset reports its rotors stopped. Then D₁ = 0 (no gimbal
+    authority) and the speed rule takes every rotor that would have to slow below its minimum speed out of
+    wheel mode, so Q W Qᵀ loses rank — the undamped solve divided by zero (LinAlgError in numpy,
+    ZeroDivisionError in the kernel). The damped solve returns a bounded command, flagged DAMPED, that
+    delivers torque only where the array has authority."""
+    from hil.control import steering_reference as ref
+
+    steer = VscmgSteering(PARAMS, SteeringParams(null_gain=0.5))
+    stopped = np.zeros(4)
+    rng = np.random.default_rng(5)
+    torques = rng.normal(size=(32, 3)) * 1e-3
+    got = steer.solve(torques, np.zeros((32, 4)), np.zeros((32, 4)), 0.02)
+    want = ref.solve(steer, torques, np.zeros((32, 4)), np.zeros((32, 4)), 0.02)
+    singular = 0
+    for b in range(32):
+        kept = got.wheel_weight[b] > 0
+        D0, _ = steer.jacobians(np.zeros((1, 4)), stopped[None])
+        singular += np.linalg.matrix_rank(D0[0][:, kept]) < 3  # the undamped Q W Qᵀ was singular
+    assert singular >= 8
+    assert np.all(got.saturation & Saturation.DAMPED)
+    for out in (got, want):
+        assert np.all(np.isfinite(out.rotor_accel)) and np.all(np.isfinite(out.gimbal_rate))
+        assert np.all(np.abs(out.rotor_accel) <= PARAMS.limits.max_rotor_accel * (1 + 1e-12))
+        assert np.all(out.gimbal_rate == 0.0)  # D₁ = 0: the gimbals can do nothing
+    np.testing.assert_allclose(got.rotor_accel, want.rotor_accel, rtol=1e-9, atol=1e-9)
+    # the torque delivered is the one the command makes (−Q η̇), never more than asked for
+    assert np.all(np.einsum("bi,bi->b", got.torque, torques) >= -1e-15)
+
+
+def test_the_damping_is_nil_wherever_the_array_has_authority():
+    """At the rotors' nominal speed — far from, near, and at a CMG singularity — the solve is the plain
+    weighted pseudo-inverse: never damped, the torque delivered exactly."""
+    steer = VscmgSteering(PARAMS)
+    rng = np.random.default_rng(6)
+    gam = rng.uniform(-np.pi, np.pi, (64, 4))
+    gam[:16] = SINGULAR_GIMBALS + 1e-4 * rng.normal(size=(16, 4))
+    torque = rng.normal(size=(64, 3)) * 1e-5
+    out = steer.solve(torque, gam, np.tile(W0, (64, 1)), 0.02)
+    assert not np.any(out.saturation & Saturation.DAMPED)
+    free = out.saturation == 0
+    np.testing.assert_allclose(out.torque[free], torque[free], rtol=1e-9, atol=1e-15)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    gimbals=st.lists(st.floats(-7.0, 7.0), min_size=4, max_size=4),
+    speeds=st.lists(st.sampled_from([0.0, 1e-9, 1.0, 150.0, 400.0, 900.0]) | st.floats(0.0, 1000.0),
+                    min_size=4, max_size=4),
+    torque=st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3),
+    null_gain=st.sampled_from([0.0, 0.5]),
+)  # fmt: skip
+def test_no_state_of_the_array_makes_steering_raise(gimbals, speeds, torque, null_gain):
+    """Any gimbal angles, rotor speeds from stopped to beyond their limits, any torque: a finite command
+    within every limit, from the kernel and from its reference alike."""
+    from hil.control import steering_reference as ref
+
+    steer = VscmgSteering(PARAMS, SteeringParams(null_gain=null_gain))
+    for out in (steer.solve(torque, gimbals, speeds, 0.02), ref.solve(steer, torque, gimbals, speeds, 0.02)):
+        for name in ("gimbal_rate", "rotor_accel", "torque"):
+            assert np.all(np.isfinite(getattr(out, name))), name
+        assert np.all(np.abs(out.gimbal_rate) <= PARAMS.limits.max_gimbal_rate * (1 + 1e-12))
+        assert np.all(np.abs(out.rotor_accel) <= PARAMS.limits.max_rotor_accel * (1 + 1e-12))
+
+
+def test_the_smallest_eigenvalue_in_closed_form():
+    from hil.control.steering import min_eigenvalue_sym3
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        a = rng.normal(size=(3, 3))
+        m = a @ a.T * 10.0 ** rng.uniform(-12, 2)
+        if rng.random() < 0.3:  # rank-deficient, as Q W Qᵀ without authority about an axis
+            m = a[:, :2] @ a[:, :2].T
+        got = min_eigenvalue_sym3(m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2])
+        assert got == pytest.approx(np.linalg.eigvalsh(m)[0], abs=1e-13 * np.trace(m))
+    assert min_eigenvalue_sym3(2.0, 0.0, 0.0, 2.0, 0.0, 2.0) == 2.0
+    with pytest.raises(ConfigError, match="singular_eps"):
+        SteeringParams(singular_eps=0.0)
+
+
 # --------------------------------------------------------------------------- the kernel vs its reference
 @pytest.mark.parametrize("null_gain", [0.0, 1.0])
 @pytest.mark.parametrize("preset", ["cubesat_1u", "air_bearing_testbed"])
@@ -160,16 +247,26 @@ def test_compiled_solve_equals_the_numpy_reference(preset, null_gain):
     w = rng.uniform(lim.min_rotor_speed, lim.max_rotor_speed, (rows, n))
     w[8:16, 0] = lim.max_rotor_speed - 0.01
     w[16:24, 1] = lim.min_rotor_speed + 0.01
+    w[24:32] = 0.0  # rotors stopped (a board that has just reset): damped least squares
+    w[32:40] = rng.uniform(0.0, 0.05 * lim.min_rotor_speed, (8, n))  # ... and at the damping's edge
     h = params.nominal_wheel_momentum
     torque = rng.normal(size=(rows, 3)) * h * rng.choice([0.1, 1.0, 30.0], size=(rows, 1))
     got = steer.solve(torque, gam, w, 0.02)
     want = ref.solve(steer, torque, gam, w, 0.02)
+    # Rows at the damping's edge are ill-conditioned by construction: Q W Qᵀ's entries, summed in another
+    # order, and its smallest eigenvalue (closed form vs LAPACK) agree to ~1e-16 of its trace, which the
+    # damped solve amplifies by its condition number there; everywhere else: to rounding.
+    edge = np.zeros(rows, bool)
+    edge[32:40] = True
     for name in ("gimbal_rate", "rotor_accel", "torque", "wheel_weight", "scale"):
         a, b = getattr(got, name), getattr(want, name)
-        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * np.abs(b).max(), err_msg=name)
+        for rows_, rtol in ((~edge, 1e-9), (edge, 1e-6)):
+            np.testing.assert_allclose(a[rows_], b[rows_], rtol=rtol, atol=1e-12 * np.abs(b).max(),
+                                       err_msg=name)  # fmt: skip
     np.testing.assert_allclose(got.delta, want.delta, rtol=1e-9, atol=1e-15)
     np.testing.assert_array_equal(got.saturation, want.saturation)
     assert {int(s) for s in got.saturation} > {0, int(Saturation.GIMBAL_RATE)}
+    assert np.any(got.saturation & Saturation.DAMPED) and not np.all(got.saturation & Saturation.DAMPED)
     np.testing.assert_allclose(steer.delta_gradient(gam, w), ref.delta_gradient(steer, gam, w), rtol=1e-9,
                                atol=1e-12)  # fmt: skip
 

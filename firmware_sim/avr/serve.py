@@ -27,6 +27,7 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
         ("--stall", args.stall),
         ("--sag-ohms", args.sag_ohms),
         ("--dead-esc", args.dead_esc),
+        ("--phone-gap", args.phone_gap),  # only with --world
         ("--capacity", args.capacity != build_parser().get_default("capacity")),  # no charge modelled
         ("--no-hold", args.no_hold),  # the harness always holds the pty open for a host that comes back
         ("--world", args.world is not None),  # the world steps the Python board's outputs

@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     """``--port``: the log as the phone of a run that drives the board (hil.runtime)."""
-    from hil.cli.run import LiveProgress, draw_plots, format_summary
+    from hil.cli.run import LiveProgress, draw_plots, exit_status, format_summary
     from hil.estimation.inertial import field_warnings
     from hil.logs import read_log
     from hil.logs.replay import ReplayOptions, configure, field_model_of, split_at_gaps
@@ -236,4 +236,4 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     print(file=sys.stderr)
     print(format_summary(result.summary))
     print(f"run directory: {result.run_dir}")
-    return 0 if result.summary.get("exit") == "completed" else 1
+    return exit_status(result.summary)  # as hil run's (docs/faults.md)

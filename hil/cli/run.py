@@ -28,7 +28,18 @@ examples:
 
 writes RUN_DIR/telemetry.csv (one row per control tick), events.jsonl, summary.json, scenario.toml and
 plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/scenarios/.
+
+exit status:
+  0  completed: the run's time after the slew's start is up, the board and the phone in hand at the end
+  1  ended early or incomplete: interrupted (Ctrl-C), aborted from the ground station, the time limit
+     reached before the slew started, or the plots failed
+  2  an error: bad options or scenario, a port that cannot be opened, a board that never answered or is
+     incompatible, no phone stream, a reader thread's failure
+  3  lost: the board (or the phone) was lost and not back within --recover-within (or at the end)
 """
+
+EXIT_COMPLETED, EXIT_INCOMPLETE, EXIT_ERROR, EXIT_LOST = 0, 1, 2, 3
+MAX_FAULT_LINES = 12  # faults listed in the printed summary; all of them are in summary.json
 
 
 def seconds(text: str) -> float:
@@ -69,6 +80,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--phone-wait", type=seconds, default=10.0, metavar="S",
         help="with --port: wait S s for the phone's first samples (default %(default)g s)",
     )  # fmt: skip
+    p.add_argument(
+        "--recover-within", type=seconds, default=15.0, metavar="S",
+        help="a board outage (or phone gap) longer than S s ends the run as lost, exit status 3 "
+        "(default %(default)g s)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
     p.add_argument(
@@ -104,7 +120,8 @@ class LiveProgress:
         start, end = ("\r", "   ") if self.tty else ("", "\n")
         self.stream.write(
             f"{start} t {t:6.1f} s  {host.phase.name:<6}  pointing error {err}  "
-            f"estimator steps {host.counters.estimator_steps:6d}  failsafes {host.counters.failsafe_events}"
+            f"estimator steps {host.counters.estimator_steps:6d}  failsafes {host.watch.failsafes}"
+            f"{'' if host.in_control else '  (board not in hand)'}"
             f"{waiting}{end}"
         )
         self.stream.flush()
@@ -128,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
         opts = RunOptions(
             port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
             phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(), pace=pace or None,
+            recover_within_s=args.recover_within,
         )  # fmt: skip
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
         if args.port is None:
@@ -146,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         if not isinstance(exc, HilError):
             raise
         print(f"\nhil run: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_ERROR
     finally:
         if station is not None:
             station.close()
@@ -162,8 +180,20 @@ def run(args: argparse.Namespace) -> int:
         error = plotter.wait()
         if error:
             print(f"hil run: {error}", file=sys.stderr)
-            return 2
-    return 0 if result.summary.get("exit") == "completed" else 1
+            return EXIT_INCOMPLETE
+    return exit_status(result.summary)
+
+
+def exit_status(summary: dict) -> int:  # type: ignore[type-arg]
+    """The command's exit status for a run's summary (the module's EPILOG)."""
+    reason = str(summary.get("exit"))
+    if reason == "completed":
+        return EXIT_COMPLETED
+    if reason.startswith("lost:"):
+        return EXIT_LOST
+    if reason.startswith("error:"):
+        return EXIT_ERROR
+    return EXIT_INCOMPLETE
 
 
 class Plotter:
@@ -247,11 +277,16 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
         f"final error       {num('final_error_deg', '.3f', ' deg')}",
         f"peak gimbal rate  {num('peak_gimbal_rate', '.3f', ' rad/s')} "
         f"(limit {s.get('max_gimbal_rate_limit')})",
-        f"minimum delta     {num('min_delta', '.3f')}",
-        f"estimator RMSE    {num('estimator_rmse_deg', '.2f', ' deg')} (slew + hold)",
+        f"minimum delta     {num('min_delta', '.3f')} (singularity measure det(D1 D1ᵀ)/h̄⁶ of the "
+        "gimbal array: 0 is singular, the paper's δ)",
+        f"estimator RMSE    {num('estimator_rmse_deg', '.2f', ' deg')} "
+        + ("(slew + hold)" if s.get("estimator_rmse_deg") is not None else "(no ground truth in this run)"),
         f"failsafe events   {s.get('failsafe_events', 0)}  resets {s.get('board_resets', 0)}  "
         f"re-arms {s.get('rearms', 0)}",
+        f"link              lost {s.get('link_lost', 0)}  reconnects {s.get('reconnects', 0)}  "
+        f"stale {s.get('stale_episodes', 0)}  phone gaps {s.get('phone_gaps', 0)}",
     ]
+    lines += fault_lines(s)
     control = s.get("tasks", {}).get("control")
     if control and s.get("mode") != "lockstep":
         lines.append(
@@ -259,3 +294,35 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
             f"p99 {control['lateness_p99_us']:.0f} us  max {control['lateness_max_us']:.0f} us"
         )
     return "\n".join(lines)
+
+
+def fault_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
+    """Each fault (failsafe, reset with its cause, link loss, reconnect, stale telemetry, phone gap) with
+    its time, and each outage with how long it lasted; the first :data:`MAX_FAULT_LINES` of each."""
+    lines: list[str] = []
+    if s.get("lost"):
+        lines.append(f"LOST              {s['lost']}")
+    faults = s.get("faults") or []
+    for f in faults[:MAX_FAULT_LINES]:
+        detail = {k: v for k, v in f.items() if k not in ("t", "kind")}
+        words = "  ".join(f"{k} {_short(v)}" for k, v in detail.items())
+        lines.append(f"  fault  t {f['t']:8.3f} s  {f['kind']:<13} {words}".rstrip())
+    more = len(faults) - MAX_FAULT_LINES + int(s.get("faults_not_kept") or 0)
+    if more > 0:
+        lines.append(f"  ... and {more} more faults (summary.json)")
+    for name, key in (("outage", "outages"), ("phone gap", "phone_gap_list")):
+        episodes = s.get(key) or []
+        for o in episodes[:MAX_FAULT_LINES]:
+            end = "not back" if o["end"] is None else f"back at {o['end']:.3f} s"
+            lines.append(f"  {name:<6} t {o['start']:8.3f} s  for {o['duration_s']:6.2f} s  {end}  "
+                         f"({', '.join(o['causes'])})")  # fmt: skip
+        if len(episodes) > MAX_FAULT_LINES:
+            lines.append(f"  ... and {len(episodes) - MAX_FAULT_LINES} more {name}s (summary.json)")
+    return lines
+
+
+def _short(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.1f}"
+    text = str(value)
+    return text if len(text) <= 60 else text[:57] + "..."

@@ -39,6 +39,18 @@ Limits: rotors that would leave [min, max] speed within one control period lose 
 (re-solved without them, :attr:`Saturation.ROTOR_SPEED`); then the whole command is scaled by one factor
 (the torque keeps its direction, falls short in size) so that every gimbal rate and rotor acceleration is
 within its limit (:attr:`Saturation.GIMBAL_RATE`, :attr:`Saturation.ROTOR_ACCEL`).
+
+**No authority in some direction: damped least squares.** ``Q W Qᵀ`` is singular when the array can
+deliver no torque about some axis with the weights in force: the rotors stopped (``D₁ = 0``: no gimbal
+authority at all) and the speed rule above took the wheels that would have to slow below their minimum
+out of wheel mode — the state of a board that has just reset while the host still steered (issue 16,
+finding 1). The solve therefore uses ``(Q W Qᵀ + λ² I)⁻¹`` (Nakamura & Hanafusa's singularity-robust
+inverse; Maciejewski & Klein's damping schedule): with ``σ`` the smallest eigenvalue of ``Q W Qᵀ`` and
+``ε = singular_eps · h̄²``, ``λ² = damping · h̄² · (1 − σ/ε)²`` while ``σ < ε``, else 0. The damping is
+continuous in the state, nil wherever the array has authority about every axis (every case above: at a CMG
+singularity the wheels carry the missing axis, so ``σ`` stays of order ``W_s0 h̄²``), and bounds the
+command in a direction without authority, where it delivers no torque instead of dividing by zero
+(:attr:`Saturation.DAMPED`). No state of the array makes :meth:`VscmgSteering.solve` raise.
 """
 
 from __future__ import annotations
@@ -64,27 +76,34 @@ class Saturation(enum.IntFlag):
     GIMBAL_RATE = 1  # scaled down to the gimbal-rate limit
     ROTOR_ACCEL = 2  # scaled down to the rotor-acceleration limit
     ROTOR_SPEED = 4  # a rotor at a speed limit was taken out of wheel mode
+    DAMPED = 8  # no authority about some axis: damped least squares (the module docstring)
 
 
 @dataclass(frozen=True)
 class SteeringParams:
     """``wheel_weight`` W_s0 (dimensionless, see the module docstring) and ``mu`` μ of the wheel weights,
     ``gimbal_weight`` W_g, ``null_gain`` k
-    (1/s; 0 = no null motion), ``speed_gain`` k_Ω weighting the rotor-speed return in the null motion."""
+    (1/s; 0 = no null motion), ``speed_gain`` k_Ω weighting the rotor-speed return in the null motion;
+    ``singular_eps`` and ``damping`` (dimensionless, × h̄²) the damped least squares' threshold ε on the
+    smallest eigenvalue of Q W Qᵀ and its largest damping λ² (the module docstring)."""
 
     wheel_weight: float = 2.0
     mu: float = 10.0
     gimbal_weight: float = 1.0
     null_gain: float = 0.0
     speed_gain: float = 1.0
+    singular_eps: float = 1e-3
+    damping: float = 1e-3
 
     def __post_init__(self) -> None:
-        for name in ("wheel_weight", "mu", "gimbal_weight", "null_gain", "speed_gain"):
+        for name in ("wheel_weight", "mu", "gimbal_weight", "null_gain", "speed_gain", "singular_eps",
+                     "damping"):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"must be finite and non-negative, got {v!r}", f"SteeringParams.{name}")
-        if self.gimbal_weight == 0:
-            raise ConfigError("must be positive", "SteeringParams.gimbal_weight")
+        for name in ("gimbal_weight", "singular_eps", "damping"):
+            if getattr(self, name) == 0:
+                raise ConfigError("must be positive", f"SteeringParams.{name}")
 
 
 @dataclass(frozen=True)
@@ -186,12 +205,15 @@ K_MAX_SPEED = 7  # rad/s
 K_MIN_SPEED = 8  # rad/s
 K_MAX_GIMBAL_RATE = 9  # rad/s
 K_MAX_ROTOR_ACCEL = 10  # rad/s²
-K_SIZE = 11
+K_EPS = 11  # ε = singular_eps h̄²: below this smallest eigenvalue of Q W Qᵀ the solve is damped
+K_DAMPING = 12  # damping h̄²: λ² where the smallest eigenvalue is 0
+K_SIZE = 13
 """The kernels' parameter array (float64); the geometry array is (n, 7): ``s0`` (3), ``t0`` (3), I_Ws."""
 
 _ROTOR_SPEED = int(Saturation.ROTOR_SPEED)
 _GIMBAL_RATE = int(Saturation.GIMBAL_RATE)
 _ROTOR_ACCEL = int(Saturation.ROTOR_ACCEL)
+_DAMPED = int(Saturation.DAMPED)
 
 
 def pack(steer: VscmgSteering) -> tuple[Array, Array]:
@@ -204,6 +226,7 @@ def pack(steer: VscmgSteering) -> tuple[Array, Array]:
     kp[K_HBAR6] = steer.h_bar**6
     kp[K_MAX_SPEED], kp[K_MIN_SPEED] = lim.max_rotor_speed, lim.min_rotor_speed
     kp[K_MAX_GIMBAL_RATE], kp[K_MAX_ROTOR_ACCEL] = lim.max_gimbal_rate, lim.max_rotor_accel
+    kp[K_EPS], kp[K_DAMPING] = p.singular_eps * steer.h_bar**2, p.damping * steer.h_bar**2
     geom = np.ascontiguousarray(np.column_stack([steer.s0, steer.t0, steer.I_ws]))
     return kp, geom
 
@@ -287,9 +310,28 @@ def _solve3(m, rhs, x):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def _weighted(q, wt, rhs, out, m, lam):  # type: ignore[no-untyped-def]
-    """``out = W Qᵀ (Q W Qᵀ)⁻¹ rhs`` (2n,) for ``q`` (3, 2n), weights ``wt`` (2n,); ``m`` (3, 3) and
-    ``lam`` (3,) are scratch; ``rhs`` (3,) is overwritten."""
+def min_eigenvalue_sym3(a00, a01, a02, a11, a12, a22):  # type: ignore[no-untyped-def]
+    """The smallest eigenvalue of a symmetric 3×3 matrix, in closed form (Smith 1961: the roots of its
+    characteristic polynomial by the trigonometric formula); absolute error ~1e-16 × its trace."""
+    q = (a00 + a11 + a22) / 3.0
+    p1 = a01 * a01 + a02 * a02 + a12 * a12
+    b00, b11, b22 = a00 - q, a11 - q, a22 - q
+    p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1
+    if p2 <= 0.0:
+        return q  # a multiple of the identity
+    p = math.sqrt(p2 / 6.0)
+    det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+    r = det / (2.0 * p * p * p)
+    r = min(1.0, max(-1.0, r))
+    phi = math.acos(r) / 3.0
+    return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+
+
+@kernel
+def _weighted(q, wt, rhs, out, m, lam, kp):  # type: ignore[no-untyped-def]
+    """``out = W Qᵀ (Q W Qᵀ + λ² I)⁻¹ rhs`` (2n,) for ``q`` (3, 2n), weights ``wt`` (2n,), λ² from the
+    smallest eigenvalue of Q W Qᵀ (the module docstring); ``m`` (3, 3) and ``lam`` (3,) are scratch,
+    ``rhs`` (3,) is overwritten. Returns λ² (0: undamped)."""
     cols = q.shape[1]
     for i in range(3):
         for j in range(3):
@@ -297,9 +339,17 @@ def _weighted(q, wt, rhs, out, m, lam):  # type: ignore[no-untyped-def]
             for c in range(cols):
                 acc += (q[i, c] * wt[c]) * q[j, c]
             m[i, j] = acc
+    sigma = min_eigenvalue_sym3(m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2])
+    damp = 0.0
+    if sigma < kp[K_EPS]:
+        k = 1.0 - max(sigma, 0.0) / kp[K_EPS]
+        damp = kp[K_DAMPING] * k * k
+        for i in range(3):
+            m[i, i] += damp
     _solve3(m, rhs, lam)
     for c in range(cols):
         out[c] = (q[0, c] * wt[c]) * lam[0] + (q[1, c] * wt[c]) * lam[1] + (q[2, c] * wt[c]) * lam[2]
+    return damp
 
 
 @kernel
@@ -332,7 +382,7 @@ def solve_rows(
             wt[n + i] = kp[K_GIMBAL]
         for r in range(3):
             rhs[r] = -torque[b, r]
-        _weighted(q, wt, rhs, eta, m, lam)
+        damped = _weighted(q, wt, rhs, eta, m, lam, kp)
         flags = 0
         out_any = False  # rotors about to leave their speed range lose wheel mode (one re-solve)
         for i in range(n):
@@ -343,8 +393,10 @@ def solve_rows(
         if out_any:
             for r in range(3):
                 rhs[r] = -torque[b, r]
-            _weighted(q, wt, rhs, eta, m, lam)
+            damped = _weighted(q, wt, rhs, eta, m, lam, kp)
             flags |= _ROTOR_SPEED
+        if damped > 0.0:  # the solve that stands (the re-solve if there was one) was damped
+            flags |= _DAMPED
         if kp[K_NULL] > 0:  # k (W d − W Qᵀ(QWQᵀ)⁻¹ Q W d): toward higher δ and nominal rotor speed
             nominal = kp[K_NOMINAL]
             for i in range(n):  # the gradient of ½ k_Ω ((Ω − Ω_nom)/Ω̄)²: W's Ω̄² makes it 1/s
@@ -357,7 +409,7 @@ def solve_rows(
                 for c in range(2 * n):
                     acc += q[r, c] * d[c]
                 rhs[r] = acc
-            _weighted(q, wt, rhs, extra, m, lam)
+            _weighted(q, wt, rhs, extra, m, lam, kp)
             for c in range(2 * n):
                 eta[c] += kp[K_NULL] * (d[c] - extra[c])
         g_max = a_max = 0.0  # one scale factor for every limit

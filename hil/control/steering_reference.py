@@ -1,6 +1,7 @@
 """The numpy reference of the compiled steering law (:mod:`hil.control.steering`): the weighted
-pseudo-inverse, the rotor-speed re-solve, the null motion and the limit scaling on numpy arrays with a
-batch axis, written from the equations. The tests compare the kernels with it to rounding; nothing runs it
+pseudo-inverse with its damped least squares, the rotor-speed re-solve, the null motion and the limit
+scaling on numpy arrays with a batch axis, written from the equations (the damping's smallest eigenvalue
+from ``numpy.linalg.eigvalsh``). The tests compare the kernels with it to rounding; nothing runs it
 at run time. Pure math."""
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ def solve(
     scale2 = steer.params.nominal_rotor_speed**2
     ws = np.repeat((p.wheel_weight * scale2 * np.exp(-p.mu * delta))[:, None], n, axis=1)
     sat = np.zeros(L.shape[0], dtype=np.int64)
-    eta = _weighted(steer, Q, ws, -L)
+    eta, damped = _weighted(steer, Q, ws, -L)
     # rotors about to leave their speed range lose wheel mode (one re-solve)
     ahead = w + eta[:, :n] * dt
     out = ((ahead > lim.max_rotor_speed) & (eta[:, :n] > 0)) | (
@@ -44,15 +45,19 @@ def solve(
     )
     if out.any():
         ws = np.where(out, 0.0, ws)
-        eta = _weighted(steer, Q, ws, -L)
-        sat |= np.where(out.any(axis=1), int(Saturation.ROTOR_SPEED), 0)
+        again, damped_again = _weighted(steer, Q, ws, -L)
+        redo: Array = np.asarray(out.any(axis=1))
+        eta = np.where(redo[:, None], again, eta)
+        damped = np.where(redo, damped_again, damped)
+        sat |= np.where(redo, int(Saturation.ROTOR_SPEED), 0)
+    sat |= np.where(damped > 0.0, int(Saturation.DAMPED), 0)
     if p.null_gain > 0:
         nominal = steer.params.nominal_rotor_speed
         d = np.concatenate(
             [-p.speed_gain * (w - nominal) / nominal**2, delta_gradient(steer, gam, w)], axis=1
         )
         wd = np.concatenate([ws, np.full_like(ws, p.gimbal_weight)], axis=1) * d
-        eta += p.null_gain * (wd - _weighted(steer, Q, ws, np.einsum("bij,bj->bi", Q, wd)))
+        eta += p.null_gain * (wd - _weighted(steer, Q, ws, np.einsum("bij,bj->bi", Q, wd))[0])
     # one scale factor for every limit
     g_ratio = np.max(np.abs(eta[:, n:]), axis=1) / lim.max_gimbal_rate
     a_ratio = np.max(np.abs(eta[:, :n]), axis=1) / lim.max_rotor_accel
@@ -64,12 +69,18 @@ def solve(
     return SteeringOutput(eta[:, n:], eta[:, :n], delivered, delta, ws, scale, sat)
 
 
-def _weighted(steer: VscmgSteering, Q: Array, ws: Array, rhs: Array) -> Array:
-    """``W Qᵀ (Q W Qᵀ)⁻¹ rhs`` (B, 2n)."""
+def _weighted(steer: VscmgSteering, Q: Array, ws: Array, rhs: Array) -> tuple[Array, Array]:
+    """``W Qᵀ (Q W Qᵀ + λ² I)⁻¹ rhs`` (B, 2n) and λ² (B,): ``λ² = damping h̄² (1 − σ/ε)²`` where the
+    smallest eigenvalue σ of Q W Qᵀ is below ``ε = singular_eps h̄²``, else 0."""
     W = np.concatenate([ws, np.full_like(ws, steer.p.gimbal_weight)], axis=1)
     QW = Q * W[:, None, :]
-    lam = np.linalg.solve(QW @ np.swapaxes(Q, -1, -2), rhs[..., None])
-    return (np.swapaxes(QW, -1, -2) @ lam)[..., 0]
+    M = QW @ np.swapaxes(Q, -1, -2)
+    sigma = np.linalg.eigvalsh(M)[:, 0]
+    h2 = steer.h_bar**2
+    eps = steer.p.singular_eps * h2
+    damp = np.where(sigma < eps, steer.p.damping * h2 * (1.0 - np.maximum(sigma, 0.0) / eps) ** 2, 0.0)
+    lam = np.linalg.solve(M + damp[:, None, None] * np.eye(3), rhs[..., None])
+    return (np.swapaxes(QW, -1, -2) @ lam)[..., 0], damp
 
 
 def adjugate(A: Array) -> Array:

@@ -15,28 +15,31 @@ import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import KINDS
+from hil.runtime import faults as runtime_faults
 from hil.scenario import Scenario
 from protocol.messages import BoardState, ControlMode, FaultFlag, PowerState, WatchdogState
 
 PHONE_LABELS = tuple(k.label for k in KINDS)
 
 LIVE_COLUMNS = (
-    "battery_a", "battery_soc", "ubec_v", "ubec_a", "power_state", "watchdog", "faults", "board_mode",
-    "tel_age_ms",
     *(f"phone_rate_{k}" for k in PHONE_LABELS),
     *(f"phone_age_ms_{k}" for k in PHONE_LABELS),
 )  # fmt: skip
-"""What a live run adds to telemetry.csv's columns for the page: the board's power, UBEC, watchdog, faults
-and mode from its latest Telemetry, the host-side age of that Telemetry, and each phone sensor's sample rate
-(Hz, over the last second) and the age of its newest sample (ms, on the host's clock)."""
+"""What a live run adds to telemetry.csv's columns for the page: each phone sensor's sample rate (Hz, over
+the last second) and the age of its newest sample (ms, on the host's clock). (The board's power, UBEC,
+watchdog, faults and mode, the host-side age of its telemetry and the host's view of the board are
+telemetry.csv's own columns: :data:`hil.runtime.telemetry.BOARD_EXTRA_COLUMNS` and ``VIEW_COLUMNS``.)"""
 
-STALE_AFTER_S = 0.25  # a phone sample or board telemetry older than this is drawn stale (merge policy's)
+STALE_AFTER_S = runtime_faults.STALE_AFTER_S
+"""A phone sample or board telemetry older than this is drawn stale: the host's own bound, by which its
+telemetry rows already leave out a board it cannot hear (:mod:`hil.runtime.faults`)."""
 
 
 def enums() -> dict[str, Any]:
     """Names of the board's enumerations and fault bits, for the page's labels."""
     return {
         "board_state": {int(s): s.name for s in BoardState},
+        "board_link": {int(s): s.name for s in runtime_faults.BoardLink},
         "power_state": {int(s): s.name for s in PowerState},
         "watchdog": {int(s): s.name for s in WatchdogState},
         "board_mode": {int(s): s.name for s in ControlMode},

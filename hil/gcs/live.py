@@ -3,10 +3,10 @@ path, and the feed the station's pump drains.
 
 On the control path (every call returns at once): each telemetry row and event goes into a bounded queue
 — when the queue is full (the pump thread starved) the item is dropped and counted, never waited for —
-with the row's live extras (:data:`hil.gcs.info.LIVE_COLUMNS`: the board's latest power/UBEC/watchdog
-state, the age of its telemetry, each phone sensor's rate and sample age) read from the host, which costs
-a few attribute reads. Link statistics are taken every :data:`LINK_PERIOD_S` of run time. Commands from
-the page are carried out in :meth:`LiveFeed.tick` (:class:`hil.gcs.uplink.Uplink`).
+with the row's live extras (:data:`hil.gcs.info.LIVE_COLUMNS`: each phone sensor's rate and sample age)
+read from the host, which costs a few attribute reads. Link statistics are taken every
+:data:`LINK_PERIOD_S` of run time. Commands from the page are carried out in :meth:`LiveFeed.tick`
+(:class:`hil.gcs.uplink.Uplink`).
 
 On the pump's side: :meth:`LiveFeed.poll` empties the queue into one :class:`~hil.gcs.wire.Batch`.
 """
@@ -146,16 +146,7 @@ class LiveFeed:
         t = row.get("t")
         if host is None or t is None:
             return [None] * len(run_info.LIVE_COLUMNS)
-        client = host.client
-        tel = client.telemetry
-        tel_t = client.telemetry_time
-        if tel is None:
-            board: list[Any] = [None] * 8
-        else:
-            board = [tel.battery_ma / 1e3, tel.battery_soc, tel.ubec_mv / 1e3, tel.ubec_ma / 1e3,
-                     int(tel.power), int(tel.watchdog), tel.faults, int(tel.mode)]  # fmt: skip
-        age = None if tel_t is None else (t - tel_t) * 1e3
-        return [*board, age, *self._phone.update(t, host.merger.stats.accepted)]
+        return self._phone.update(t, host.merger.stats.accepted)
 
     # ------------------------------------------------------------------ the pump's side
     def poll(self) -> Batch:

@@ -208,8 +208,8 @@ class Uplink:
         name = command.name
         if name in ("arm", "disarm", "abort"):
             message = Arm() if name == "arm" else Disarm()
-            try:
-                handle = host.client.command(message)
+            try:  # through the host: its own re-arming yields to the operator's disarm
+                handle = host.arm(t) if name == "arm" else host.disarm(t)
             except HilError as exc:
                 self._log(host, t, command, "refused", reason=f"link: {exc}")
                 if name == "abort":

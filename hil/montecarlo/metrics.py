@@ -35,8 +35,9 @@ METRICS: tuple[str, ...] = (
 - ``final_error_deg``: pointing error to the target, mean over the run's last second;
 - ``peak_error_deg``: largest pointing error to the target (the slew angle, or more on an overshoot);
 - ``peak_tracking_deg``: largest error to the moving reference (how well the slew was followed);
-- ``peak_gimbal_rate``: largest |gimbal rate| of any unit (rad/s);
-- ``min_delta``: smallest singularity measure δ (0 at a CMG singularity; 1.19 for the pyramid at rest);
+- ``peak_gimbal_rate``: largest |gimbal rate| of any unit (rad/s), over the ticks with a live board;
+- ``min_delta``: smallest singularity measure δ (0 at a CMG singularity or with the rotors stopped; 1.19 for
+  the pyramid at rest), over the ticks with a live board;
 - ``estimator_rmse_deg``: RMS of the estimator's attitude error over slew and hold;
 - ``failsafe_events``: how many times the board's link watchdog fired.
 """
@@ -71,8 +72,8 @@ def run_metrics(trace: Trace, settle_deg: float, failsafe_events: int) -> dict[s
         "final_error_deg": float(np.mean(err[last])),
         "peak_error_deg": float(np.max(err)),
         "peak_tracking_deg": float(np.nanmax(trace["track_err_deg"])),  # NaN at the slew's first tick
-        "peak_gimbal_rate": float(np.max(trace["gimbal_rate"])),
-        "min_delta": float(np.min(trace["delta"])),
+        "peak_gimbal_rate": float(np.nanmax(trace["gimbal_rate"])),  # NaN: no live board at that tick
+        "min_delta": float(np.nanmin(trace["delta"])),
         "estimator_rmse_deg": float(np.sqrt(np.mean(np.square(trace["est_err_deg"])))),
         "failsafe_events": float(failsafe_events),
     }

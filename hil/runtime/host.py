@@ -19,8 +19,20 @@ With ``hold=True`` (``hil replay --port``: a recorded phone's motion, which the 
 the target is the attitude estimated at the end of the warm-up: the controller then commands what it
 takes to hold that attitude against the recorded motion.
 
-The run ends ``duration_s`` after the slew started. A board in FAILSAFE (link watchdog) or reset is
-re-armed as soon as the link answers again; each such episode is counted and logged.
+The run ends ``duration_s`` after the slew started.
+
+**Faults** (:mod:`hil.runtime.watch`, :mod:`hil.runtime.faults`). The host's view of the board has an age:
+while no telemetry comes for ``stale_after_s`` (or the link is lost) the host stops commanding the board —
+one hold setpoint (gimbals still, rotors at nominal speed) when it loses sight of it, nothing more — and
+its telemetry rows carry no board value, only how old the last telemetry is and why. A board that fails
+safe, resets, reconnects or is disarmed is re-armed through the protocol (not when the operator disarmed
+it) and the host **re-enters its warm-up** before it steers again: the rotors back at speed and every check
+passed (telemetry live, the board armed, the phone fresh), then a new slew from the attitude estimated
+then to the target. (The rotors of a reset board are stopped: steering them gives no gimbal authority.) A
+phone gap (no sample for ``stale_after_s``) or a phone that restarted its clock (the estimator starts
+afresh) holds the gimbals too, and its warm-up includes the still window (the gyro bias measured in the
+first one is kept). Every fault is in the run's fault journal; an outage longer than ``recover_within_s``
+ends the run as lost (:attr:`Host.lost`).
 """
 
 from __future__ import annotations
@@ -41,19 +53,15 @@ from hil.control.motor_loops import SetpointGenerator
 from hil.control.steering import VscmgSteering
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
-from hil.link.board.events import (
-    BoardResetEvent,
-    ConnectedEvent,
-    LinkLostEvent,
-    LogEvent,
-    SilenceEvent,
-    StateEvent,
-)
+from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
+from hil.runtime.rows import TickRecorder
 from hil.runtime.runlog import CsvLog, EventLog
-from hil.runtime.telemetry import RunTrace, angle_between9, log9, mat9, telemetry_columns
+from hil.runtime.telemetry import RunTrace, mat9, telemetry_columns
+from hil.runtime.watch import BoardWatch
 from hil.scenario import Scenario
-from protocol.errors import BoardReset, CommandFailed, LinkError
-from protocol.messages import ActuatorSetpoint, Arm, BoardState, GimbalMode, UnitSetpoint
+from protocol.errors import BoardReset, LinkError
+from protocol.messages import ActuatorSetpoint, BoardState, GimbalMode, UnitSetpoint
+from protocol.reliable import Command
 
 logger = logging.getLogger(__name__)
 
@@ -61,6 +69,9 @@ Array = NDArray[np.float64]
 
 SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may start
 MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear error
+PHONE_RESTART_S = 1.0  # phone samples this much older than the newest: the stream restarted its clock ...
+PHONE_RESTART_SAMPLES = 10  # ... when this many come in a row ...
+PHONE_RESTART_SPAN_S = 0.05  # ... spanning this much of their own clock: a stream, not a burst of strays
 
 
 class Phase(enum.IntEnum):
@@ -82,17 +93,16 @@ class HostCounters:
     estimator_steps: int = 0
     samples: int = 0
     control_ticks: int = 0
-    failsafe_events: int = 0
-    resets: int = 0
-    link_lost: int = 0
-    rearms: int = 0
     setpoint_errors: int = 0
+    phone_restarts: int = 0
 
 
 @dataclass
 class Host:
     """One run's host side. ``truth`` (optional) returns the simulation's truth now (None on hardware);
-    ``telemetry`` None keeps no telemetry rows (a Monte Carlo run: its figures come from :attr:`trace`)."""
+    ``telemetry`` None keeps no telemetry rows (a Monte Carlo run: its figures come from :attr:`trace`);
+    ``stale_after_s``: board telemetry and phone samples older than this are not live;
+    ``recover_within_s``: an outage (or phone gap) longer than this loses the run (:attr:`lost`)."""
 
     scenario: Scenario
     client: BoardClient
@@ -102,6 +112,8 @@ class Host:
     duration_s: float | None = None
     filter_config: Any = None  # the estimator's FilterConfig (default: the scenario's phone)
     hold: bool = False  # target the attitude estimated at the end of the warm-up, not the scenario's
+    stale_after_s: float = STALE_AFTER_S
+    recover_within_s: float = RECOVER_WITHIN_S
     counters: HostCounters = field(default_factory=HostCounters)
 
     def __post_init__(self) -> None:
@@ -114,7 +126,8 @@ class Host:
         self.params = sc.spacecraft
         plant = Plant(self.params)
         state0 = plant.state(gimbal_angle=sc.slew.gimbal_angle0)
-        self.filter = AttitudeFilter(self.filter_config or sc.filter_config())
+        self._filter_config = self.filter_config or sc.filter_config()
+        self.filter = AttitudeFilter(self._filter_config)
         self.merger = Merger()
         self.controller = AttitudeController(plant.locked_inertia(state0)[0], loop.gains)
         self.steering = VscmgSteering(self.params, loop.steering)
@@ -131,64 +144,161 @@ class Host:
         self.slew: EigenaxisSlew | None = None
         self.slew_start: float | None = None
         self.finished = False
+        self.lost: str | None = None  # why the run lost the board (or the phone), if it did
         self.n = self.params.n_units
-        self._rearm: Any = None
-        self._errors_sq: list[float] = []
+        self.journal = FaultJournal(self.recover_within_s)
+        self.watch = BoardWatch(self.client, self.events, self.journal, self.stale_after_s)
+        self.in_control = True
+        self.need_still = True  # the warm-up's still window is due (the first one, or the phone's back)
+        self._hold = ActuatorSetpoint(
+            gimbal_mode=GimbalMode.RATE,
+            units=tuple(UnitSetpoint(0.0, self.params.nominal_rotor_speed) for _ in range(self.n)),
+        )
+        self._hold_sent = False  # the hold setpoint went out since the board was last seen
+        self._hold_tick = -1  # the control tick it went out in
+        self._phone_newest = -math.inf  # newest phone sample time (the phone's clock)
+        self._phone_old = 0  # samples in a row well before the newest ...
+        self._phone_old_t = (0.0, 0.0)  # ... their first and last times (phone clock)
+        self.phone_count = 0  # accepted samples seen at the last tick
+        self.phone_heard: float | None = None  # host time the count last moved
         self.trace = RunTrace()
         self.columns = telemetry_columns(self.n)
-        self._target9: tuple[float, ...] | None = None if self.target is None else mat9(self.target)
-        self._none3 = (None, None, None)
+        self.target9: tuple[float, ...] | None = None if self.target is None else mat9(self.target)
+        self.rows = TickRecorder(self)
 
     # ------------------------------------------------------------------ estimator task
-    def feed(self, samples: Sequence[SensorSample]) -> None:
-        """Phone samples (any order within a batch) through hold-last-sample merging into the estimator."""
+    def feed(self, samples: Sequence[SensorSample], now: float | None = None) -> None:
+        """Phone samples (any order within a batch) through hold-last-sample merging into the estimator;
+        ``now``: the host's time (s), for the record of a phone that restarted its clock."""
         collecting = self._collecting_bias
         for sample in sorted(samples, key=lambda s: s.t_s):
             self.counters.samples += 1
+            if sample.t_s < self._phone_newest - PHONE_RESTART_S:
+                if self._phone_old == 0 or sample.t_s < self._phone_old_t[1]:
+                    self._phone_old, self._phone_old_t = 0, (sample.t_s, sample.t_s)  # (re)start the run
+                self._phone_old += 1
+                self._phone_old_t = (self._phone_old_t[0], sample.t_s)
+                first, last = self._phone_old_t
+                if self._phone_old >= PHONE_RESTART_SAMPLES and last - first >= PHONE_RESTART_SPAN_S:
+                    self._phone_restarted(sample.t_s, now)
+            else:
+                self._phone_old = 0
+            self._phone_newest = max(self._phone_newest, sample.t_s)
             if collecting and sample.kind is SensorKind.GYR:
                 self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
             for step in self.merger.push(sample):
                 self.estimate = self.filter.step(step)
                 self.counters.estimator_steps += 1
 
+    def _phone_restarted(self, t_s: float, now: float | None) -> None:
+        """:data:`PHONE_RESTART_SAMPLES` samples in a row stamped well before the newest one, their times
+        going forward over :data:`PHONE_RESTART_SPAN_S`: the phone stream started again with a new clock (an
+        app restarted, firmware-sim's world started over). Its samples would all be dropped as out of
+        order; the merger and the estimator start afresh instead (the gyro bias is kept; the samples of the
+        new stream before this one were dropped), and the warm-up's still window lets the estimate converge
+        before the host steers again. Stray datagrams stamped in the past — one, or a burst of them — are
+        only dropped (the merger counts them out of order)."""
+        from hil.estimation.filter import AttitudeFilter
+        from hil.estimation.multirate import Merger
+
+        self.counters.phone_restarts += 1
+        detail = {"newest_s": self._phone_newest, "sample_s": t_s}
+        self.merger = Merger(self.merger.policy)
+        self.filter = AttitudeFilter(self._filter_config)
+        self.filter.set_gyro_bias(self.gyro_bias)
+        self.estimate = None
+        self._phone_newest = -math.inf
+        self._phone_old = 0
+        self.phone_count = 0
+        t = now if now is not None else (self.phone_heard or 0.0)
+        self.journal.fault(t, "phone_restart", **detail)
+        self.events.write(t, "phone_restart", **detail)
+        self._restart_warmup(t, "phone_restart", still=True)
+
     # ------------------------------------------------------------------ control task
     def tick(self, t: float, events: Sequence[Any]) -> None:
         """One control period at host time ``t`` (s), after the board client's new ``events``."""
         self.counters.control_ticks += 1
-        for event in events:
-            self._on_event(event)
-        self._rearm_if_needed(t)
-        tel = self.client.telemetry
+        watch = self.watch
+        watch.on_events(events)
+        for why in watch.take_upsets():
+            self._restart_warmup(t, why, still=False)
+        phone_fresh = self._watch_phone(t)
+        view = watch.view(t)
+        watch.rearm_if_needed(t)
+        self.in_control = watch.in_control(t, view, phone_fresh)
+        lost = self.journal.overdue(t)
+        if lost is not None and self.lost is None:
+            self.lost = lost
+            self.finished = True
+            self.events.write(t, "lost", why=lost)
+            logger.error("%s", lost)
+        tel = view.telemetry
         if tel is None or len(tel.units) != self.n:
+            self._hold_if_blind()
+            hold = self._hold if self._hold_tick == self.counters.control_ticks else None
+            self.rows.blind(t, view, hold)
             return
+        self._hold_sent = False
         gimbal = np.array([u.gimbal_angle for u in tel.units])
         rotor = np.array([u.rotor_speed for u in tel.units])
         armed = tel.state is BoardState.ARMED
-        command, cmd_out, ref = self._control(t, gimbal, rotor, armed)
-        if armed and self._rearm is None:
-            try:
-                self.client.send_setpoint(command)
-            except BoardReset:  # the reset event arrives with the next service(); re-armed then
-                self.counters.setpoint_errors += 1
-        self._record(t, tel, gimbal, rotor, command, cmd_out, ref)
+        command, cmd_out, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
+        if armed and not watch.rearm_pending:
+            self._send(command)
+        self.rows.live(t, tel, view, gimbal, rotor, command, cmd_out, ref)
         if self.slew_start is not None and t - self.slew_start >= self._duration - 1e-9:
             self.finished = True
+
+    def _send(self, command: ActuatorSetpoint) -> None:
+        try:
+            self.client.send_setpoint(command)
+        except BoardReset:  # the reset event arrives with the next service(); re-armed then
+            self.counters.setpoint_errors += 1
+
+    def _hold_if_blind(self) -> None:
+        """The host cannot see the board: it stops commanding it. One hold setpoint (gimbals still, rotors
+        at nominal speed) goes out when it loses sight of it, if the link carries it, so that a board that
+        still hears the host does not carry on with a command made from what is now stale."""
+        if self._hold_sent or not self.client.connected or self.watch.rearm_pending:
+            return
+        self._hold_sent = True
+        self._hold_tick = self.counters.control_ticks
+        self._send(self._hold)
+
+    def _watch_phone(self, t: float) -> bool:
+        """Whether the phone's samples are fresh at ``t`` (the merger accepted one within
+        ``stale_after_s``, or none has come yet); a gap is a fault, and the warm-up (with its still window)
+        follows it."""
+        count = sum(self.merger.stats.accepted.values())
+        if count != self.phone_count:
+            self.phone_count = count
+            self.phone_heard = t
+            back = self.journal.phone_back(t)
+            if back is not None:
+                self.events.write(t, "phone_back", since=back.start, gap_s=t - back.start)
+            return True
+        heard = self.phone_heard
+        if heard is None or t - heard <= self.stale_after_s:
+            return True
+        if self.journal.phone_out is None:
+            self.journal.fault(t, "phone_gap", since=heard)
+            self.events.write(t, "phone_gap", since=heard)
+            logger.warning("no phone sample for %.2f s at t=%.3f s: holding", t - heard, t)
+            self._restart_warmup(t, "phone_gap", still=True)
+        return False
 
     @property
     def _duration(self) -> float:
         return self.scenario.slew.duration_s if self.duration_s is None else self.duration_s
 
     def _control(
-        self, t: float, gimbal: Array, rotor: Array, armed: bool
+        self, t: float, gimbal: Array, rotor: Array, armed: bool, phone_fresh: bool
     ) -> tuple[ActuatorSetpoint, Any, Reference | None]:
-        nominal = self.params.nominal_rotor_speed
-        loop = self.scenario.loop
         if self.phase is Phase.WARMUP:
-            self._warm_up(t, rotor, nominal, armed, loop.warmup_s)
-            hold = ActuatorSetpoint(
-                gimbal_mode=GimbalMode.RATE, units=tuple(UnitSetpoint(0.0, nominal) for _ in range(self.n))
-            )
-            return hold, None, None
+            self._warm_up(t, rotor, armed, phone_fresh)
+            if self.phase is Phase.WARMUP:
+                return self._hold, None, None
         assert self.slew is not None and self.estimate is not None
         if self.phase is Phase.SLEW and t >= self.slew.start_s + self.slew.duration_s:
             self.phase = Phase.HOLD
@@ -201,195 +311,144 @@ class Host:
         sp = self.setpoints.update(cmd, rotor)
         return sp.message(), (out, cmd), ref
 
-    def _warm_up(self, t: float, rotor: Array, nominal: float, armed: bool, warmup_s: float) -> None:
-        if not armed:
+    def _warm_up(self, t: float, rotor: Array, armed: bool, phone_fresh: bool) -> None:
+        """Spin-up (gimbals still), the checks, the still window when due; then the slew — the scenario's
+        at the end of the first warm-up, a new one from the estimate to the target after a recovery."""
+        if not armed or self.watch.rearm_pending:
             return
+        nominal = self.params.nominal_rotor_speed
         if self.spinup_since is None:
             self.spinup_since = t
             self.events.write(t, "spin_up", nominal_rad_s=nominal)
         if self.still_since is None:
-            if np.all(np.abs(rotor - nominal) <= SPUN_UP * nominal):
-                self.still_since = t
+            if not np.all(np.abs(rotor - nominal) <= SPUN_UP * nominal):
+                if t - self.spinup_since > MAX_SPINUP_S:
+                    raise LinkError(
+                        f"the rotors did not reach {nominal:.0f} rad/s within {MAX_SPINUP_S:.0f} s "
+                        f"(telemetry: {rotor.round(1).tolist()} rad/s)"
+                    )
+                return
+            if self.need_still and not phone_fresh:
+                return  # the still window is the estimator's: it starts when the phone streams again
+            self.still_since = t
+            if self.need_still:
                 self.events.write(t, "still_window", rotor_rad_s=rotor.round(1).tolist())
-            elif t - self.spinup_since > MAX_SPINUP_S:
-                raise LinkError(
-                    f"the rotors did not reach {nominal:.0f} rad/s within {MAX_SPINUP_S:.0f} s "
-                    f"(telemetry: {rotor.round(1).tolist()} rad/s)"
-                )
+        if self.estimate is None or not phone_fresh:
             return
-        if self.estimate is None:
+        if not self.need_still:
+            self._resume(t, rotor)
             return
-        self._collecting_bias = t - self.still_since >= 0.5 * warmup_s
-        if t - self.still_since >= warmup_s:
-            self._collecting_bias = False
-            online = self.filter.gyro_bias  # what the estimator had found by itself
-            if self.scenario.loop.calibrate_rate_bias and self.bias_samples:
-                self.gyro_bias = np.mean(self.bias_samples, axis=0)
-                self.filter.set_gyro_bias(self.gyro_bias)
-            R_hat = np.asarray(self.estimate.R)
-            sl = self.scenario.slew
-            self.target = R_hat.copy() if self.hold else sl.R_target
-            self._target9 = mat9(self.target)
-            self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
-            self.slew_start = t
-            self.setpoints.reset(rotor)
-            self.controller.reset()
-            self.phase = Phase.SLEW
-            self.events.write(
-                t, "slew_start", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ self.target)),
-                slew_s=self.slew.duration_s, gyro_bias=self.gyro_bias.tolist(),
-                gyro_bias_online=online.tolist(),
-            )  # fmt: skip
+        warmup_s = self.scenario.loop.warmup_s
+        first = self.slew_start is None
+        self._collecting_bias = first and t - self.still_since >= 0.5 * warmup_s
+        if t - self.still_since < warmup_s:
+            return
+        self._collecting_bias = False
+        self.need_still = False
+        if not first:
+            self._resume(t, rotor)
+            return
+        online = self.filter.gyro_bias  # what the estimator had found by itself
+        if self.scenario.loop.calibrate_rate_bias and self.bias_samples:
+            self.gyro_bias = np.mean(self.bias_samples, axis=0)
+            self.filter.set_gyro_bias(self.gyro_bias)
+        R_hat = np.asarray(self.estimate.R)
+        sl = self.scenario.slew
+        self.target = R_hat.copy() if self.hold else sl.R_target
+        self.target9 = mat9(self.target)
+        self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
+        self.slew_start = t
+        self.setpoints.reset(rotor)
+        self.controller.reset()
+        self.phase = Phase.SLEW
+        self.events.write(
+            t, "slew_start", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ self.target)),
+            slew_s=self.slew.duration_s, gyro_bias=self.gyro_bias.tolist(),
+            gyro_bias_online=online.tolist(),
+        )  # fmt: skip
+
+    def _resume(self, t: float, rotor: Array) -> None:
+        """The end of a recovery: a new slew from the attitude estimated now to the target."""
+        assert self.estimate is not None and self.target is not None
+        R_hat = np.asarray(self.estimate.R)
+        sl = self.scenario.slew
+        self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
+        self.setpoints.reset(rotor)
+        self.controller.reset()
+        self.phase = Phase.SLEW
+        self.events.write(
+            t, "resume", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ self.target)),
+            slew_s=self.slew.duration_s,
+        )  # fmt: skip
 
     def retarget(self, t: float, R_target: Array | None = None) -> str | None:
         """A new target from outside the loop (the ground station's slew or hold): an eigenaxis slew from the
         attitude estimated now to ``R_target`` (3, 3), body → inertial (None: hold the attitude estimated
         now), within the scenario's rate and acceleration limits, from ``t`` (s). The run still ends
         ``duration_s`` after the scenario's slew started. Returns why it was refused, or None: during the
-        warm-up there is no estimate to start from and the scenario's own slew is still to come."""
-        if self.phase is Phase.WARMUP or self.estimate is None:
+        first warm-up there is no estimate to start from and the scenario's own slew is still to come.
+        During a recovery's warm-up the target is taken and the slew to it starts when the recovery ends
+        (planned anew from the attitude estimated then)."""
+        if self.slew_start is None or self.estimate is None:
             return "the warm-up is not over (the scenario's slew has not started)"
         R_hat = np.asarray(self.estimate.R)
         self.target = R_hat.copy() if R_target is None else np.asarray(R_target, dtype=float)
+        self.target9 = mat9(self.target)
         sl = self.scenario.slew
         self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
-        self.phase = Phase.SLEW
+        if self.phase is not Phase.WARMUP:
+            self.phase = Phase.SLEW
         return None
 
-    # ------------------------------------------------------------------ board events
-    def _on_event(self, event: Any) -> None:
-        t = event.t
-        if isinstance(event, StateEvent):
-            old = None if event.old is None else event.old.name
-            self.events.write(t, "board_state", old=old, new=event.new.name)
-            if event.new is BoardState.FAILSAFE:
-                self.counters.failsafe_events += 1
-                logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): re-arming", t)
-                self._want_rearm()
-                self._restart_warmup(t)
-        elif isinstance(event, BoardResetEvent):
-            self.counters.resets += 1
-            self.events.write(t, "board_reset", cause=event.cause.name, evidence=event.evidence)
-            self._want_rearm()
-            self._restart_warmup(t)
-        elif isinstance(event, LinkLostEvent):
-            self.counters.link_lost += 1
-            self.events.write(t, "link_lost", reason=event.reason)
-        elif isinstance(event, ConnectedEvent):
-            self.events.write(t, "connected", reconnects=event.reconnects)
-            if event.reconnects:
-                self._want_rearm()
-        elif isinstance(event, SilenceEvent):
-            self.events.write(t, "silence", since=event.since, ended=event.ended)
-        elif isinstance(event, LogEvent):
-            self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text)
+    def arm(self, t: float) -> Command:
+        """The operator's Arm (the ground station): the host re-arms on its own again after later faults."""
+        return self.watch.operator_arm(t)
 
-    def _restart_warmup(self, t: float) -> None:
-        """A failsafe or reset during the warm-up: the rotors coast down, so the still window (and the gyro
-        bias measured over it) starts again once they are back at speed after the re-arm."""
-        if self.phase is not Phase.WARMUP or (self.spinup_since is None and self.still_since is None):
-            return
+    def disarm(self, t: float) -> Command:
+        """The operator's Disarm (the ground station): a re-arm the host had pending is cancelled, it does
+        not re-arm on its own until :meth:`arm`, and it warms up again (spin-up, checks) after that Arm."""
+        return self.watch.operator_disarm(t)
+
+    def _restart_warmup(self, t: float, why: str, still: bool) -> None:
+        """The board left the state the host commanded (failsafe, reset, link loss, reconnect, disarm) or
+        the phone went away: back to the warm-up — spin-up and checks; the still window too if ``still``
+        (the phone), or if the first warm-up was not over (its bias window then starts again)."""
+        started = self.spinup_since is not None or self.still_since is not None
+        if self.phase is Phase.WARMUP and not started and not (still and not self.need_still):
+            return  # nothing under way to restart
+        first = self.slew_start is None
+        self.phase = Phase.WARMUP
         self.spinup_since = self.still_since = None
-        self.bias_samples.clear()
+        self.need_still = self.need_still or still or first
+        if first:
+            self.bias_samples.clear()
         self._collecting_bias = False
-        self.events.write(t, "warmup_restart")
-
-    def _want_rearm(self) -> None:
-        if self._rearm is None:
-            self._rearm = "pending"
-
-    def _rearm_if_needed(self, t: float) -> None:
-        """Re-arm without blocking the loop: send Arm, then look at the answer on later ticks."""
-        if self._rearm is None or not self.client.connected:
-            return
-        if self._rearm == "pending":
-            self._rearm = self.client.command(Arm())
-            return
-        if not self._rearm.done:
-            return
-        try:
-            self._rearm.result()
-            self.counters.rearms += 1
-            self.events.write(t, "rearmed")
-            self._rearm = None
-        except CommandFailed as exc:  # e.g. still in reset: try again next tick
-            self.events.write(t, "rearm_failed", detail=str(exc))
-            self._rearm = "pending"
-
-    # ------------------------------------------------------------------ telemetry rows
-    def _record(
-        self, t: float, tel: Any, gimbal: Array, rotor: Array, command: ActuatorSetpoint, cmd_out: Any,
-        ref: Reference | None,
-    ) -> None:  # fmt: skip
-        """The tick's errors into the trace (from the slew's start) and its row into the telemetry log:
-        plain floats in column order (:mod:`hil.runtime.telemetry`), formatted by the log's writer thread."""
-        truth = self.truth()
-        est = self.estimate
-        none3 = self._none3
-        R_true = w_true = R_hat = w_hat = None
-        if truth is not None:
-            R_true, w_true = mat9(truth.R), tuple(np.asarray(truth.omega, dtype=float).tolist())
-        if est is not None:
-            R_hat, w_hat = mat9(est.R), tuple(np.asarray(est.omega, dtype=float).tolist())
-        est_err = rate_err = None
-        if R_true is not None and R_hat is not None:
-            assert w_true is not None and w_hat is not None
-            est_err = math.degrees(angle_between9(R_true, R_hat))
-            rate_err = math.dist(w_hat, w_true)
-            if self.phase is not Phase.WARMUP:
-                self._errors_sq.append(est_err * est_err)
-        R_att = R_true if R_true is not None else R_hat
-        point = track = None
-        if R_att is not None and self._target9 is not None:
-            point = math.degrees(angle_between9(R_att, self._target9))
-            if ref is not None:
-                track = math.degrees(angle_between9(R_att, mat9(ref.R)))
-        if cmd_out is not None:  # steering computed δ from this telemetry already
-            delta = float(cmd_out[1].delta[0])
-        else:
-            delta = float(self.steering.delta(gimbal, rotor)[0])
-        rates = [u.gimbal_rate for u in tel.units]
-        if self.slew_start is not None:
-            nan = math.nan
-            self.trace.append(
-                t - self.slew_start, nan if point is None else point, nan if track is None else track,
-                nan if est_err is None else est_err, max(abs(r) for r in rates), delta,
-            )  # fmt: skip
-        if self.telemetry is None:
-            return
-        n = self.n
-        row: list[Any] = [t, int(self.phase), est_err, rate_err, point, track]
-        row += none3 if R_hat is None else log9(R_hat)
-        row += none3 if R_true is None else log9(R_true)
-        row += none3 if w_hat is None else w_hat
-        row += none3 if w_true is None else w_true
-        row += none3 if cmd_out is None else cmd_out[0].torque.tolist()
-        row.append(delta)
-        row += gimbal.tolist()
-        row += rates
-        row += rotor.tolist()
-        row += [u.gimbal for u in command.units]
-        row += [u.rotor_speed for u in command.units]
-        pulses = list(tel.pulses_us[: 2 * n])
-        row += pulses + [None] * (2 * n - len(pulses))
-        row += [tel.battery_mv / 1000.0, int(tel.state), tel.rx_frames, tel.rx_bad, tel.link_age_ms]
-        self.telemetry.write_values(row)
+        self.events.write(t, "warmup_restart" if first else "recovery_start", reason=why)
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:
         """The run's figures: settle time (first time after which the pointing error stays ≤ settle_deg,
         from the slew's start), final and peak pointing error, peak gimbal rate, minimum δ, the
-        estimator's RMSE over slew + hold (simulated runs), failsafe events; None where not reached."""
+        estimator's RMSE over slew + hold (simulated runs); the faults — failsafes, resets, link losses,
+        reconnects, stale telemetry, phone gaps, each with its time and cause — and the outages they made
+        (:meth:`hil.runtime.faults.FaultJournal.summary`); None where not reached."""
         tr = self.trace.arrays()
         sc = self.scenario
+        w = self.watch
+        now = self.client.clock.now()
         out: dict[str, Any] = {
             "scenario": sc.name,
             "settle_requirement_deg": sc.settle_deg,
             "slew_started": self.slew_start is not None,
-            "failsafe_events": self.counters.failsafe_events,
-            "board_resets": self.counters.resets,
-            "link_lost": self.counters.link_lost,
-            "rearms": self.counters.rearms,
+            "failsafe_events": w.failsafes,
+            "board_resets": w.resets,
+            "link_lost": w.link_losses,
+            "reconnects": w.reconnects,
+            "rearms": w.rearms,
+            "stale_episodes": w.stale_episodes,
+            "phone_gaps": len(self.journal.phone_gaps),
+            "phone_restarts": self.counters.phone_restarts,
+            "lost": self.lost or self.journal.open_at_end(now),
             "estimator_steps": self.counters.estimator_steps,
             "phone_samples": self.counters.samples,
             "control_ticks": self.counters.control_ticks,
@@ -403,12 +462,22 @@ class Host:
                 settle_s=(float(tr["t"][above[-1] + 1]) if len(above) else 0.0) if settled else None,
                 final_error_deg=float(err[-1]),
                 peak_error_deg=float(np.nanmax(err)),
-                peak_gimbal_rate=float(np.max(tr["gimbal_rate"])),
-                min_delta=float(np.min(tr["delta"])),
+                peak_gimbal_rate=_nan_or(np.nanmax, tr["gimbal_rate"]),
+                min_delta=_nan_or(np.nanmin, tr["delta"]),
                 slew_s=None if self.slew is None else self.slew.duration_s,
             )
             out["settled"] = bool(settled and out["settle_s"] is not None)
             limit = self.params.limits.max_gimbal_rate
-            out["gimbal_rate_within_limit"] = bool(out["peak_gimbal_rate"] <= limit)
-        out["estimator_rmse_deg"] = float(np.sqrt(np.mean(self._errors_sq))) if self._errors_sq else None
+            peak = out["peak_gimbal_rate"]
+            out["gimbal_rate_within_limit"] = None if peak is None else bool(peak <= limit)
+        out["estimator_rmse_deg"] = self.rows.estimator_rmse()
+        journal = self.journal.summary(now)
+        out["phone_gap_list"] = journal.pop("phone_gaps")
+        out.update(journal)
         return out
+
+
+def _nan_or(reduce: Callable[[Array], Any], values: Array) -> float | None:
+    """``reduce`` over the values that are not NaN (ticks without a live board have none); None if none."""
+    finite = values[~np.isnan(values)]
+    return float(reduce(finite)) if finite.size else None

@@ -39,19 +39,21 @@ so that a person can follow it.
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hil.estimation.filter import FilterConfig
 from hil.estimation.sensors import SensorLog, SensorSample
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
 from hil.link.sources.recorded import RecordedSource
 from hil.link.transports import InProcessBoard, create_transport
+from hil.runtime.faults import RECOVER_WITHIN_S
 from hil.runtime.host import Host, TruthSample
 from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, new_run_dir, write_summary
@@ -60,6 +62,9 @@ from hil.scenario import Scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.scheduler import PeriodicTask, Scheduler
 from protocol.errors import ConfigError, HilError, LinkTimeout
+
+if TYPE_CHECKING:
+    from hil.link.board import BoardClient
 
 logger = logging.getLogger(__name__)
 
@@ -92,7 +97,8 @@ class RunOptions:
     port), the controller holding the attitude estimated at the end of the warm-up; ``out_root`` None:
     no run directory (see the module docstring); ``observer``: sees every row and event and may command
     the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run goes at most this many times as fast as
-    the wall clock (1.0: real time), None: as fast as it can."""
+    the wall clock (1.0: real time), None: as fast as it can; ``recover_within_s``: an outage of the board
+    (or a phone gap) longer than this ends the run as lost (:mod:`hil.runtime.faults`)."""
 
     port: str | None = None
     lockstep: bool | None = None
@@ -105,6 +111,7 @@ class RunOptions:
     replay: ReplayInput | None = None
     observer: RunObserver | None = None
     pace: float | None = None
+    recover_within_s: float = RECOVER_WITHIN_S
 
 
 @dataclass
@@ -159,12 +166,17 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
     if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
         raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
+    if not (math.isfinite(opts.recover_within_s) and opts.recover_within_s > 0):
+        raise ConfigError(f"must be a positive number of seconds, got {opts.recover_within_s!r}",
+                          "run --recover-within")  # fmt: skip
     if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
         from hil.runtime.warmup import warm
 
         compiled_s = warm(scenario)
         if compiled_s is not None:
             logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
+    if not plan.lockstep:
+        _load_kernels(scenario, plan)
     observer = opts.observer
     tap_row = None if observer is None else observer.row
     tap_event = None if observer is None else observer.event
@@ -188,11 +200,15 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
             if observer is not None:
                 observer.started(RunStart(built.host, built.scheduler, run_dir, plan.mode))
             loop_started = time.monotonic()
+            if not plan.lockstep:
+                gc.freeze()  # a full collection would scan every object of the set-up (~120 000: ~30 ms)
             try:
                 built.scheduler.run(until=built.until)
             finally:
                 summary["loop_wall_s"] = time.monotonic() - loop_started
-            summary["exit"] = "completed" if built.host.finished else "time limit (the slew never started)"
+                if not plan.lockstep:
+                    gc.unfreeze()
+            summary["exit"] = _outcome(built.host)
     except KeyboardInterrupt:
         summary["exit"] = "interrupted"
     except RunAborted as exc:
@@ -261,7 +277,12 @@ def _build(
     stack.callback(client.close)
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
     info = client.connect()
-    events.write(clock.now(), "connected", board=info.describe(), units=info.n_units)
+    # What the board said during the handshake is older than the records below: the host's watch writes
+    # it first, once it exists, and these records wait for it (events.jsonl stays in time order).
+    handshake = client.drain_events()
+    held: list[tuple[float, str, dict[str, Any]]] = [
+        (clock.now(), "connected", {"board": info.describe(), "units": info.n_units})
+    ]
     if info.n_units != scenario.n_units:
         raise ConfigError(
             f"the board has {info.n_units} units, the scenario's spacecraft {scenario.n_units}", "run --port"
@@ -274,7 +295,7 @@ def _build(
         phone = open_receiver(opts.phone if plan.source == "phone" else "udp://127.0.0.1:0")
         stack.callback(phone.close)
         drain = phone.drain
-        events.write(clock.now(), "phone_listening", url=phone.url)
+        held.append((clock.now(), "phone_listening", {"url": phone.url}))
     if plan.source == "world":
         world = link.open_world(scenario)
         lock = link.lock
@@ -318,14 +339,19 @@ def _build(
     host = Host(
         scenario, client, telemetry, events, truth, duration,
         filter_config=None if replay is None else replay.filter_config, hold=replay is not None,
+        recover_within_s=opts.recover_within_s,
     )  # fmt: skip
+    host.watch.on_events(handshake)
+    for t, kind, fields in held:
+        events.write(t, kind, **fields)
     if plan.source == "phone":  # before arming: the board's link watchdog is not fed while we wait
         assert phone is not None
-        _wait_for_phone(phone, opts.phone_wait_s)
+        _wait_for_phone(phone, opts.phone_wait_s, client, host.watch.on_events)
     client.arm()
+    host.watch.on_events(client.drain_events())  # what the board said while arming goes before "armed"
     events.write(clock.now(), "armed")
     origin = clock.now()
-    until = _time_limit(scenario, opts, origin)
+    until = _time_limit(scenario, opts, origin) + opts.recover_within_s
     estimator_hz = estimator_rate_hz(scenario)
     catch_up: Callable[[], None] | None = None
     if plan.source == "world" and plan.lockstep:
@@ -351,7 +377,7 @@ def _build(
     scheduler_ref: list[Scheduler] = []
 
     def estimator_task(_due: float) -> None:
-        host.feed(drain())
+        host.feed(drain(), clock.now())
 
     observer = opts.observer
 
@@ -360,7 +386,8 @@ def _build(
             observer.tick(clock.now())  # commands from outside act here, in the control thread
         if catch_up is not None:
             catch_up()
-        host.tick(clock.now(), client.service())
+        events = client.service()
+        host.tick(clock.now(), events)  # now after the service: the telemetry it took is not from the future
         if opts.progress is not None:
             opts.progress(host, clock.now() - origin)
         if recorded is not None and recorded.exhausted:
@@ -385,6 +412,31 @@ def _build(
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
     return _Built(host, scheduler, until, phone, recorded)
+
+
+def _outcome(host: Host) -> str:
+    """The run's exit reason when its loop ended on its own: ``lost: ...`` if an outage of the board (or a
+    phone gap) outlasted its bound or was still on at the end, ``completed`` once the run's time after the
+    slew's start is up, else the time limit."""
+    lost = host.lost or host.journal.open_at_end(host.client.clock.now())
+    if lost is not None:
+        return f"lost: {lost}"
+    return "completed" if host.finished else "time limit (the slew never started)"
+
+
+def _load_kernels(scenario: Scenario, plan: _Plan) -> None:
+    """Load the compiled kernels a wall-clock run calls into this process before the board is armed.
+
+    A kernel is loaded from numba's on-disk cache (or compiled) on its first call: ~0.35 s for the host's
+    on an idle 2-core machine, 0.7 s loaded. Left to the run, the estimator's came with the first phone
+    samples after arming and steering's with the first slew tick: each stalled the control task past the
+    board's 0.25 s link timeout, and the board failed safe (issue 16, finding 7). A run with the world in
+    a thread loads the world's too."""
+    from hil.runtime.warmup import warm_host, warm_world
+
+    warm_host(scenario)
+    if plan.source == "world":
+        warm_world(scenario)
 
 
 def _in_process_board(url: str) -> InProcessBoard:
@@ -416,14 +468,19 @@ def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:
     return origin + scenario.loop.warmup_s + duration + SPINUP_ALLOWANCE_S
 
 
-def _wait_for_phone(server: PhoneReceiver, wait_s: float) -> None:
-    """The first phone samples within ``wait_s`` (wall clock), or a clear error saying where to send them."""
+def _wait_for_phone(
+    server: PhoneReceiver, wait_s: float, client: BoardClient, on_events: Callable[[list[Any]], None]
+) -> None:
+    """The first phone samples within ``wait_s`` (wall clock), or a clear error saying where to send them.
+    The board client is serviced meanwhile (its heartbeats keep the board's link watchdog fed; what the
+    board says goes to ``on_events``)."""
     end = time.monotonic() + wait_s
     while time.monotonic() < end:
         server.check()
+        on_events(client.service())
         if server.stats.samples:
             return
-        time.sleep(0.05)
+        time.sleep(0.02)
     st = server.stats
     bad = f" ({st.bad_messages} unreadable, the last: {st.last_error})" if st.bad_messages else ""
     raise LinkTimeout(

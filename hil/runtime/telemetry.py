@@ -31,7 +31,30 @@ def telemetry_columns(n_units: int) -> list[str]:
         cols += [f"{name}_{i}" for i in range(n_units)]
     cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
     cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
+    cols += list(BOARD_EXTRA_COLUMNS) + list(VIEW_COLUMNS)
     return cols
+
+
+def board_columns(n_units: int) -> list[str]:
+    """The columns whose values come from the board's telemetry: empty in every row whose ``board_link``
+    is not live (:class:`hil.runtime.faults.BoardLink`), never the last values repeated."""
+    cols = [f"{name}_{i}" for name in ("gimbal_angle", "gimbal_rate", "rotor_speed") for i in range(n_units)]
+    cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
+    cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
+    return cols + list(BOARD_EXTRA_COLUMNS)
+
+
+BOARD_EXTRA_COLUMNS = (
+    "battery_a", "battery_soc", "ubec_v", "ubec_a", "power_state", "watchdog", "faults", "board_mode",
+)  # fmt: skip
+"""The rest of the board's latest Telemetry: battery current (A) and charge (%), UBEC volts and amps, power
+state, watchdog state, fault bits, control mode (enumerations as their numbers). Empty, as every board
+value, when the host's view of the board is not live."""
+
+VIEW_COLUMNS = ("tel_age_ms", "board_link", "phone_age_ms")
+"""The host's view: how old the latest board telemetry is (ms, host clock: it grows while none comes),
+:class:`hil.runtime.faults.BoardLink` (0 live, 1 stale, 2 link lost), and how old the newest phone sample
+is (ms, host clock; empty before the first)."""
 
 
 # --------------------------------------------------------------------------- rotations as 9-tuples

@@ -55,8 +55,14 @@ export function drawPanels(ctx) {
 
   setCell($("time"), fmt(ctx.t, 2));
   setCell($("phase"), ["warm-up", "slew", "hold"][v("phase")] || "—", boardStale);
-  const state = enumName(info, "board_state", v("board_state"));
+  // The host's view of the board (telemetry.csv's board_link): a row without a live board has no board
+  // value at all; say why rather than show "—".
+  const link = v("board_link");
+  const blind = Number.isFinite(link) && link !== 0;
+  const why = enumName(info, "board_link", link) === "LOST" ? "link lost" : "no telemetry";
+  const state = blind ? `UNKNOWN (${why})` : enumName(info, "board_state", v("board_state"));
   setPill($("board-state"), state, boardStale);
+  if (blind) $("board-state").classList.add("bad");
   setPill($("watchdog"), enumName(info, "watchdog", v("watchdog")), boardStale);
   setPill($("power-state"), enumName(info, "power_state", v("power_state")), boardStale);
 

@@ -1,0 +1,462 @@
+"""The fault soak: the host (:func:`hil.runtime.run`, as ``hil run`` runs it) against the emulated board
+through many cycles of faults, every cycle checked.
+
+Faults, each cycle one fault and the host's recovery from it:
+
+============  ==========  ===========================================================================
+kind          mode        how
+============  ==========  ===========================================================================
+stall         lockstep    the link carries nothing for 0.6 s (``emu://?stall=AT:0.6``): the board fails
+                          safe; the host sees its telemetry go stale, then the FAILSAFE
+hang          lockstep    the MCU's main loop hangs (``hang_at``): the MCU watchdog resets the board
+brownout      lockstep    the pack collapses for 0.3 s (``brownout_at``): a brown-out reset
+corruption    lockstep    1 % of the bytes damaged, both ways, all run long (``corrupt=0.01``); a cycle
+                          is a stretch of the run as long as the others'
+phone_gap     lockstep    the world's phone stops for 1 s (``phone_gap``) and streams again
+kill          pty         ``firmware-sim --world`` killed with SIGKILL and started again 1 s later
+phone_pause   pty         the phone's UDP stream paused for 1 s by the relay between phone and host
+hostile       pty         hostile datagrams to the host's phone port
+                          (:func:`bench.soak_phone.hostile_datagrams`)
+============  ==========  ===========================================================================
+
+The lockstep runs (the in-process board on the host's clock: fault times are exact, the board's own
+outputs inspectable) put all cycles of a kind in one run, ``PERIOD_S`` apart from ``FIRST_S`` on. The pty
+run is one ``hil run --port`` against firmware-sim with its world on a pty, in real time, the host in a
+thread of this process (its run observer timestamps everything), faults injected one after the other once
+the host steers again.
+
+After each fault it checks (a failed check is a *problem* of the cycle; a cycle without one survived):
+
+- no crash or hang: the run goes on (and ends by itself, or when told, within its time);
+- the fault detected and reported with its cause within its bound (:data:`DETECT_S`; a reset's cause
+  within :data:`RESET_S`);
+- the board fails safe within its link timeout + one pulse frame (stall cycles: the board's own pulse
+  record, from the last frame it took to the first frame with every rotor at the safe pulse);
+- re-arming only through the handshake: after a reset the host's ``rearmed`` follows the new handshake's
+  reset report, and no live row shows the board armed before it;
+- no stale row: a row without a live board has no board value; a live row's telemetry is younger than the
+  stale bound (checked on every row of the run as it is written);
+- the host back in control (``board_back`` / ``phone_back``) within :data:`BACK_S`, and steering again
+  (``resume``) after a recovery;
+- nothing logged lost: ``telemetry.csv`` holds every row the run wrote (one per control tick in lockstep),
+  ``events.jsonl`` every event, no fault record dropped; the phone receiver counted every datagram.
+
+Figures: cycles survived, detection latency (fault → its first report), time back in control and time to
+steering again, p50 / p99, per kind and overall. Next to the detection latency, the board client's own
+silence detector (its ``SilenceEvent``, 1 s) on the same faults, where it fires.
+
+    python -m bench.soak --ci --json soak.json      # the short soak CI runs (tests/test_soak.py)
+    python -m bench.soak --cycles 40 --pty 5        # per kind
+    python -m bench soak                            # the benchmark (bench/bench_soak.py): >= 200 cycles
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hil.runtime import RunOptions, run
+from hil.runtime.faults import BoardLink
+from hil.runtime.observer import RunAborted, RunStart
+from hil.runtime.runlog import read_events, read_telemetry
+from hil.runtime.telemetry import board_columns
+from hil.scenario import Scenario, load_scenario
+
+SCENARIO = "cubesat-1u"
+LOCKSTEP_KINDS = ("stall", "hang", "brownout", "corruption", "phone_gap")
+PTY_KINDS = ("kill", "phone_pause", "hostile")
+FIRST_S = 5.0  # board s: the first fault (the slew starts at ~2.7 s)
+PERIOD_S = 7.0  # board s between faults in a lockstep run
+STALL_S, GAP_S, PAUSE_S, RESTART_S = 0.6, 1.0, 1.0, 1.0
+STALE_S = 0.25  # the host's stale bound (hil.runtime.faults.STALE_AFTER_S)
+DETECT_S = {"lockstep": STALE_S + 0.045, "pty": STALE_S + 0.25}  # + two ticks; + wall-clock slack
+RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, brown-out 0.3 s, boot, handshake)
+BACK_S = {"lockstep": 4.0, "pty": 12.0}  # fault → in control again (pty: a restart, reconnect back-off)
+STEER_S = {"lockstep": 6.5, "pty": 16.0}  # fault → steering again (spin-up, still window after the phone)
+FAILSAFE_S = 0.25 + 1 / 50.0  # link timeout + one pulse frame (cubesat-1u: 50 Hz frames)
+RECOVER_WITHIN_S = 15.0
+
+
+@dataclass
+class Cycle:
+    """One fault and what the host made of it; times in s from the fault (None: not applicable)."""
+
+    kind: str
+    mode: str
+    t_fault: float  # host clock
+    detection_s: float | None = None
+    silence_s: float | None = None  # the board client's SilenceEvent, the peer
+    back_s: float | None = None
+    steering_s: float | None = None
+    failsafe_s: float | None = None
+    cause: str = ""
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def survived(self) -> bool:
+        return not self.problems
+
+
+class Recorder:
+    """The run's observer (:mod:`hil.runtime.observer`): keeps every event and a compact record of every
+    row (time, link, board state, phase), checks each row for staleness as it is written, maps the host's
+    clock to ``time.monotonic`` and calls ``on_tick`` (fault probes) on the control thread."""
+
+    def __init__(self, n_units: int) -> None:
+        self.columns = board_columns(n_units)
+        self.events: list[dict[str, Any]] = []
+        self.rows: list[tuple[float, int, float, int]] = []  # t, board_link, board_state (NaN), phase
+        self.stale_rows: list[tuple[float, str]] = []
+        self.start: RunStart | None = None
+        self.offset: float | None = None  # time.monotonic() - host t
+        self.on_tick: Any = None
+        self.abort: str | None = None
+        self.summary: dict[str, Any] = {}
+
+    def started(self, start: RunStart) -> None:
+        self.start = start
+
+    def row(self, row: Any) -> None:
+        t, link, state = row["t"], row["board_link"], row["board_state"]
+        if link != BoardLink.LIVE:
+            full = [c for c in self.columns if row[c] is not None]
+            if full:
+                self.stale_rows.append((t, f"board_link {link} with board values in {full[:3]}"))
+        elif row["tel_age_ms"] is None or row["tel_age_ms"] > STALE_S * 1e3 + 1e-6:
+            self.stale_rows.append((t, f"live with telemetry {row['tel_age_ms']} ms old"))
+        self.rows.append((t, int(link), np.nan if state is None else float(state), int(row["phase"])))
+
+    def event(self, record: Any) -> None:
+        self.events.append(dict(record))
+
+    def tick(self, t: float) -> None:
+        self.offset = time.monotonic() - t
+        if self.on_tick is not None:
+            self.on_tick(t)
+        if self.abort is not None:
+            raise RunAborted(self.abort)
+
+    def finished(self, summary: Any) -> None:
+        self.summary = dict(summary)
+
+    def now(self) -> float:
+        """The host's clock now (real time)."""
+        assert self.offset is not None
+        return time.monotonic() - self.offset
+
+    def first(self, kind: str, after: float, before: float = np.inf, **match: Any) -> dict[str, Any] | None:
+        for e in self.events:
+            if (
+                e["kind"] == kind
+                and after <= e["t"] < before
+                and all(e.get(k) == v for k, v in match.items())
+            ):
+                return e
+        return None
+
+
+# =========================================================================== checks shared by both modes
+def check_recovery(c: Cycle, rec: Recorder, end: float, mode: str, faults: list[dict[str, Any]]) -> None:
+    """Detection (the first of the cycle's own fault records) with its cause, back in control, steering
+    again, re-arming through the handshake, no stale row; into ``c``."""
+    t0 = c.t_fault
+    mine = [f for f in faults if t0 <= f["t"] < end]
+    want = {"stall": "stale", "hang": "stale", "brownout": "stale", "kill": "link_lost",
+            "phone_gap": "phone_gap", "phone_pause": "phone_gap"}[c.kind]  # fmt: skip
+    first = next((f for f in mine if f["kind"] == want), None)
+    if first is None:
+        c.problems.append(f"no {want} reported")
+        return
+    c.detection_s = first["t"] - t0
+    if c.detection_s > DETECT_S[mode]:
+        c.problems.append(f"{want} reported {c.detection_s:.3f} s after the fault (bound {DETECT_S[mode]} s)")
+    silence = rec.first("silence", t0, end, ended=False)
+    c.silence_s = None if silence is None else silence["t"] - t0
+    causes = {"stall": ("failsafe", None), "hang": ("reset", "WATCHDOG"), "brownout": ("reset", "BROWN_OUT"),
+              "kill": ("reset", "POWER_ON")}  # fmt: skip
+    if c.kind in causes:
+        kind, cause = causes[c.kind]
+        found = next((f for f in mine if f["kind"] == kind and f.get("cause") == cause), None)
+        if found is None:
+            c.problems.append(f"no {kind} {cause or ''} reported".rstrip())
+        else:
+            c.cause = f"{kind} {cause}" if cause else kind
+            if kind == "reset" and mode == "lockstep" and found["t"] - t0 > RESET_S:
+                c.problems.append(
+                    f"reset reported {found['t'] - t0:.2f} s after the fault (bound {RESET_S} s)"
+                )
+            _rearmed_through_handshake(c, rec, found["t"], end)
+    else:
+        c.cause = want
+    back = rec.first("phone_back" if "phone" in c.kind else "board_back", first["t"], end)
+    if back is None:
+        c.problems.append("never back in control")
+        return
+    c.back_s = back["t"] - t0
+    if c.back_s > BACK_S[mode]:
+        c.problems.append(f"back in control {c.back_s:.2f} s after the fault (bound {BACK_S[mode]} s)")
+    resume = rec.first("resume", back["t"] - 1e-9, end)
+    if resume is None:
+        c.problems.append("never steering again")
+    else:
+        c.steering_s = resume["t"] - t0
+        if c.steering_s > STEER_S[mode]:
+            c.problems.append(
+                f"steering again {c.steering_s:.2f} s after the fault (bound {STEER_S[mode]} s)"
+            )
+    stale = [why for t, why in rec.stale_rows if t0 <= t < end]
+    if stale:
+        c.problems.append(f"{len(stale)} stale rows: {stale[0]}")
+
+
+def _rearmed_through_handshake(c: Cycle, rec: Recorder, reported: float, end: float) -> None:
+    """After a reset (reported when the new handshake answered) or a failsafe, the host's re-arm comes
+    after the report, and no live row shows the board ARMED between the fault and the re-arm."""
+    rearmed = rec.first("rearmed", reported - 1e-9, end)
+    if rearmed is None:
+        c.problems.append("not re-armed after the reset/failsafe")
+        return
+    armed_early = [t for t, link, state, _ in rec.rows
+                   if reported < t < rearmed["t"] - 1e-9 and link == 0 and state == 2]  # fmt: skip
+    if armed_early:
+        c.problems.append(f"the board armed at t={armed_early[0]:.3f} s before the host re-armed it")
+
+
+def check_logs(run_dir: Path, rec: Recorder, summary: dict[str, Any], lockstep: bool) -> list[str]:
+    """Nothing logged lost: every row and event the run wrote is in its files, in order."""
+    problems = []
+    tel = read_telemetry(run_dir / "telemetry.csv")
+    events, bad = read_events(run_dir / "events.jsonl")
+    if tel.dropped_lines or tel.rows != len(rec.rows):
+        problems.append(
+            f"telemetry.csv has {tel.rows} rows ({tel.dropped_lines} bad), the run wrote {len(rec.rows)}"
+        )
+    elif not np.array_equal(tel["t"], np.array([r[0] for r in rec.rows])):
+        problems.append("telemetry.csv's times are not the rows' times")
+    if bad or len(events) != len(rec.events):
+        problems.append(
+            f"events.jsonl has {len(events)} records ({bad} bad), the run wrote {len(rec.events)}"
+        )
+    if lockstep and tel.rows != summary.get("control_ticks"):
+        problems.append(f"{tel.rows} rows for {summary.get('control_ticks')} control ticks")
+    if summary.get("faults_not_kept"):
+        problems.append(f"{summary['faults_not_kept']} fault records not kept")
+    return problems
+
+
+# =========================================================================== lockstep
+def _lockstep_scenario(kind: str, times: list[float]) -> Scenario:
+    spec = {
+        "stall": {"stall": [f"{t!r}:{STALL_S!r}" for t in times]},
+        "hang": {"hang_at": [repr(t) for t in times]},
+        "brownout": {"brownout_at": [repr(t) for t in times]},
+        "phone_gap": {"phone_gap": [f"{t!r}:{GAP_S!r}" for t in times]},
+        "corruption": {"corrupt": "0.01"},
+    }[kind]
+    return load_scenario(SCENARIO).with_changes(fault_options=spec)
+
+
+def lockstep_kind(kind: str, cycles: int, out_root: Path) -> list[Cycle]:
+    """``cycles`` faults of ``kind`` in one lockstep run, each checked."""
+    times = [FIRST_S + i * PERIOD_S for i in range(cycles)]
+    scenario = _lockstep_scenario(kind, times)
+    rec = Recorder(scenario.n_units)
+    probe = _FailsafeProbe(rec, times) if kind == "stall" else _LinkCounter(rec, times)
+    rec.on_tick = probe
+    duration = times[-1] + PERIOD_S  # from the slew's start (~2.7 s): the last cycle's window and more
+    out = [Cycle(kind, "lockstep", t) for t in times]
+    try:
+        result = run(scenario, RunOptions(out_root=out_root, duration_s=duration, observer=rec,
+                                          recover_within_s=RECOVER_WITHIN_S))  # fmt: skip
+    except Exception as exc:  # a crash: the cycles after the last row did not survive
+        last = rec.rows[-1][0] if rec.rows else 0.0
+        for c in out:
+            if c.t_fault + PERIOD_S > last:
+                c.problems.append(f"the run failed: {exc!r}")
+        return out
+    s = result.summary
+    faults = s.get("faults", [])
+    run_problems = check_logs(result.run_dir, rec, s, lockstep=True) if result.run_dir else []
+    if s.get("exit") != "completed":
+        run_problems.append(f"exit {s.get('exit')!r}")
+    for i, c in enumerate(out):
+        end = times[i + 1] if i + 1 < len(times) else np.inf
+        if kind == "corruption":
+            _check_corruption(c, rec, probe, i, end, faults)
+        else:
+            check_recovery(c, rec, end, "lockstep", faults)
+        if isinstance(probe, _FailsafeProbe):
+            _check_failsafe(c, probe, i)
+        c.problems += run_problems
+    return out
+
+
+class _LinkCounter:
+    """At each cycle's start and end: the link's bad-frame counters (host's deframer, board's receiver)."""
+
+    def __init__(self, rec: Recorder, times: list[float]) -> None:
+        self.rec, self.times = rec, times
+        self.at: dict[int, int] = {}
+
+    def __call__(self, t: float) -> None:
+        start = self.rec.start
+        for i, t0 in enumerate(self.times):
+            if i not in self.at and t >= t0 and start is not None:
+                stats = start.host.client.stats()
+                self.at[i] = sum(stats.bad_frames.values()) + (stats.board_rx_bad or 0)
+
+
+class _FailsafeProbe(_LinkCounter):
+    """Stall cycles: the last frame the board took before each stall (its receiver's clock, read during
+    the stall), for the failsafe check against the board's pulse record."""
+
+    def __init__(self, rec: Recorder, times: list[float]) -> None:
+        super().__init__(rec, times)
+        self.last_rx: dict[int, float] = {}
+        self.safe_at: dict[int, float | None] = {}
+
+    def __call__(self, t: float) -> None:
+        super().__call__(t)
+        start = self.rec.start
+        if start is None:
+            return
+        board = start.host.client.transport.board  # type: ignore[attr-defined]  # emu://: the board itself
+        for i, t0 in enumerate(self.times):
+            if i not in self.last_rx and t0 + 0.1 <= t < t0 + STALL_S:
+                self.last_rx[i] = board.commands.last_rx_us / 1e6
+            if i in self.last_rx and i not in self.safe_at and t >= t0 + STALL_S:
+                safe = board.config.rotor_safe_us
+                self.safe_at[i] = next(
+                    (f.t for f in board.timeline.frames
+                     if f.t > self.last_rx[i] and all(w == safe for w in f.widths[1::2])), None,
+                )  # fmt: skip
+
+
+def _check_failsafe(c: Cycle, probe: _FailsafeProbe, i: int) -> None:
+    safe, last = probe.safe_at.get(i), probe.last_rx.get(i)
+    if safe is None or last is None:
+        c.problems.append("the board's rotors never went to the safe pulse")
+        return
+    c.failsafe_s = safe - last
+    if c.failsafe_s > FAILSAFE_S + 1e-6:
+        c.problems.append(
+            f"failsafe {c.failsafe_s * 1e3:.1f} ms after the last frame (bound {FAILSAFE_S * 1e3:.0f} ms)"
+        )
+
+
+def _check_corruption(c: Cycle, rec: Recorder, counter: _LinkCounter, i: int, end: float,
+                      faults: list[dict[str, Any]]) -> None:  # fmt: skip
+    """A stretch of a run with 1 % of the bytes damaged: damaged frames counted (the fault detected),
+    every outage in it over within the bound, no stale row."""
+    t0 = c.t_fault
+    before, after = counter.at.get(i), counter.at.get(i + 1)
+    if before is not None and after is not None and after <= before:
+        c.problems.append("no damaged frame counted")
+    episodes = [f for f in faults if t0 <= f["t"] < end and f["kind"] in ("stale", "failsafe", "reset")]
+    c.cause = f"crc, {len(episodes)} outage faults"  # a continuous fault: no detection latency of its own
+    for f in episodes:
+        if rec.first("board_back", f["t"], end + RECOVER_WITHIN_S) is None:
+            c.problems.append(f"{f['kind']} at t={f['t']:.2f} s: never back in control")
+            break
+    stale = [why for t, why in rec.stale_rows if t0 <= t < end]
+    if stale:
+        c.problems.append(f"{len(stale)} stale rows: {stale[0]}")
+
+
+# =========================================================================== summary
+def figures(cycles: list[Cycle]) -> dict[str, Any]:
+    """Cycles survived, and p50 / p99 of detection, back-in-control and steering-again times, overall and
+    per kind (s)."""
+
+    def pct(values: list[float]) -> dict[str, float | None]:
+        if not values:
+            return {"p50": None, "p99": None, "max": None, "n": 0}
+        a = np.asarray(values)
+        return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+                "max": float(a.max()), "n": int(a.size)}  # fmt: skip
+
+    def of(group: list[Cycle]) -> dict[str, Any]:
+        return {
+            "cycles": len(group),
+            "survived": sum(c.survived for c in group),
+            "detection_s": pct([c.detection_s for c in group if c.detection_s is not None]),
+            "silence_s": pct([c.silence_s for c in group if c.silence_s is not None]),
+            "back_s": pct([c.back_s for c in group if c.back_s is not None]),
+            "steering_s": pct([c.steering_s for c in group if c.steering_s is not None]),
+            "failsafe_s": pct([c.failsafe_s for c in group if c.failsafe_s is not None]),
+        }
+
+    kinds = sorted({c.kind for c in cycles}, key=(LOCKSTEP_KINDS + PTY_KINDS).index)
+    return {"all": of(cycles), **{k: of([c for c in cycles if c.kind == k]) for k in kinds}}
+
+
+def soak(cycles: int, pty: int, out_root: Path, kinds: tuple[str, ...] = LOCKSTEP_KINDS + PTY_KINDS
+         ) -> list[Cycle]:  # fmt: skip
+    """``cycles`` of each lockstep kind and ``pty`` of each pty kind."""
+    from bench.soak_pty import pty_soak
+
+    out: list[Cycle] = []
+    for kind in kinds:
+        if kind in LOCKSTEP_KINDS and cycles:
+            out += lockstep_kind(kind, cycles, out_root / kind)
+    plan = [k for _ in range(pty) for k in PTY_KINDS if k in kinds]
+    if plan:
+        out += pty_soak(plan, out_root / "pty")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.ERROR, format="%(levelname)s %(name)s: %(message)s")
+    p = argparse.ArgumentParser(prog="python -m bench.soak", description=__doc__.split("\n\n")[0])
+    p.add_argument("--ci", action="store_true", help="the short soak: 2 cycles of each kind")
+    p.add_argument("--cycles", type=int, default=40, help="cycles of each lockstep kind (default 40)")
+    p.add_argument("--pty", type=int, default=5, help="cycles of each pty kind (default 5)")
+    p.add_argument(
+        "--kinds", nargs="+", choices=LOCKSTEP_KINDS + PTY_KINDS, default=LOCKSTEP_KINDS + PTY_KINDS
+    )
+    p.add_argument("--json", type=Path, help="write every cycle and the figures here")
+    p.add_argument("--keep", type=Path, help="keep the run directories here (default: a temporary one)")
+    args = p.parse_args(argv)
+    cycles, pty = (2, 2) if args.ci else (args.cycles, args.pty)
+    started = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="soak-") as tmp:
+        root = args.keep or Path(tmp)
+        result = soak(cycles, pty, root, tuple(args.kinds))
+    wall = time.monotonic() - started
+    figs = figures(result)
+    for c in result:
+        if not c.survived:
+            print(
+                f"FAILED {c.kind} ({c.mode}) at t={c.t_fault:.2f} s: {'; '.join(c.problems)}", file=sys.stderr
+            )
+    for name, f in figs.items():
+        det, back, steer = f["detection_s"], f["back_s"], f["steering_s"]
+        print(f"{name:<12} {f['survived']:4d}/{f['cycles']:<4d} survived  detection p50 {_ms(det['p50'])} "
+              f"p99 {_ms(det['p99'])}  back p50 {_s(back['p50'])} p99 {_s(back['p99'])}  "
+              f"steering p50 {_s(steer['p50'])} p99 {_s(steer['p99'])}")  # fmt: skip
+    print(f"{len(result)} cycles in {wall:.1f} s")
+    if args.json:
+        args.json.write_text(json.dumps({"cycles": [asdict(c) | {"survived": c.survived} for c in result],
+                                         "figures": figs, "wall_s": wall}, indent=1))  # fmt: skip
+    return 0 if all(c.survived for c in result) else 1
+
+
+def _ms(v: float | None) -> str:
+    return "    -   " if v is None else f"{v * 1e3:6.0f} ms"
+
+
+def _s(v: float | None) -> str:
+    return "   -   " if v is None else f"{v:5.2f} s"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,172 @@
+"""The fault soak's real-time part: ``hil run --port`` (the host, in a thread of this process, its run
+observer timestamping everything) against ``firmware-sim --world`` on a pty, the world's phone reaching
+the host through :class:`bench.soak_phone.PhoneRelay`; faults one after the other, each once the host steers
+again: the board killed with SIGKILL and started again (``kill``), the phone paused (``phone_pause``),
+hostile datagrams to the host's phone port (``hostile``). See :mod:`bench.soak`.
+"""
+
+from __future__ import annotations
+
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from bench.soak import (
+    BACK_S,
+    PAUSE_S,
+    RECOVER_WITHIN_S,
+    RESTART_S,
+    SCENARIO,
+    STEER_S,
+    Cycle,
+    Recorder,
+    check_logs,
+    check_recovery,
+)
+from bench.soak_phone import PhoneRelay, hostile_datagrams, send
+from hil.runtime import RunOptions, run
+from hil.scenario import load_scenario
+
+START_S = 90.0  # firmware-sim's world and the host's first slew, at most (a loaded machine)
+HOSTILE_WATCH_S = 1.5  # after a hostile burst: nothing may happen for this long
+HOSTILE_REPEAT = 5  # each hostile datagram sent this many times a cycle
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _board(link: Path, phone_url: str) -> subprocess.Popen[str]:
+    sim = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "--world", SCENARIO, "--link", str(link),
+         "--phone", phone_url],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    assert sim.stdout is not None
+    if not sim.stdout.readline().startswith("/dev/pts/"):
+        sim.kill()
+        raise RuntimeError("firmware-sim did not start")
+    return sim
+
+
+def _wait(predicate: Any, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def pty_soak(plan: list[str], out_root: Path) -> list[Cycle]:
+    """The faults of ``plan`` (``kill``, ``phone_pause``, ``hostile``) in one real-time run."""
+    scenario = load_scenario(SCENARIO)
+    port = _free_udp_port()
+    relay = PhoneRelay(("127.0.0.1", port)).start()
+    link = out_root / "board"
+    out_root.mkdir(parents=True, exist_ok=True)
+    sims = [_board(link, relay.url)]
+    rec = Recorder(scenario.n_units)
+    outcome: dict[str, Any] = {}
+
+    def host() -> None:
+        try:
+            outcome["result"] = run(scenario, RunOptions(
+                port=str(link), phone=f"udp://127.0.0.1:{port}", duration_s=3_600.0, out_root=out_root,
+                observer=rec, recover_within_s=RECOVER_WITHIN_S,
+            ))  # fmt: skip
+        except BaseException as exc:  # noqa: BLE001 - a crash is what the soak looks for
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=host, name="soak-host", daemon=True)
+    thread.start()
+    cycles: list[Cycle] = []
+    hostile_bad = 0
+    try:
+        if not _wait(lambda: rec.first("slew_start", -1.0) is not None or not thread.is_alive(), START_S):
+            raise RuntimeError("the host did not start its slew")
+        for kind in plan:
+            if not thread.is_alive():
+                cycles.append(Cycle(kind, "pty", rec.now(), problems=[f"the host stopped: {outcome}"]))
+                continue
+            c = Cycle(kind, "pty", rec.now())
+            if kind == "kill":
+                sims[-1].send_signal(signal.SIGKILL)
+                sims[-1].wait()
+                time.sleep(RESTART_S)
+                sims.append(_board(link, relay.url))
+            elif kind == "phone_pause":
+                relay.pause(PAUSE_S)
+            else:
+                datagrams, bad = hostile_datagrams(relay.newest_ns)
+                send(datagrams, ("127.0.0.1", port), HOSTILE_REPEAT)
+                hostile_bad += bad * HOSTILE_REPEAT
+            cycles.append(c)
+            if kind == "hostile":
+                time.sleep(HOSTILE_WATCH_S)
+                _check_hostile(c, rec)
+            elif not _wait(lambda c=c: rec.first("resume", c.t_fault) is not None, STEER_S["pty"] + 2.0):
+                c.problems.append(f"not steering again within {STEER_S['pty'] + 2.0} s (a hang?)")
+            _wait(lambda: rec.start is not None and rec.start.host.in_control, BACK_S["pty"])
+    finally:
+        rec.abort = "soak done"
+        thread.join(timeout=60.0)
+        for sim in sims:
+            if sim.poll() is None:
+                sim.send_signal(signal.SIGINT)
+                try:
+                    sim.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    sim.kill()
+                    sim.wait()
+        relay.close()
+    _after(cycles, rec, outcome, thread, relay, hostile_bad)
+    return cycles
+
+
+def _check_hostile(c: Cycle, rec: Recorder) -> None:
+    """Nothing happened: no fault, no phone gap or restart, the host in control all along."""
+    c.cause = "counted"
+    upsets = ("phone_gap", "phone_restart", "link_lost", "board_reset", "lost", "recovery_start")
+    faults = [e for e in rec.events if e["t"] >= c.t_fault and e["kind"] in upsets]
+    if faults:
+        c.problems.append(f"hostile datagrams made a {faults[0]['kind']}")
+    if rec.start is None or not rec.start.host.in_control:
+        c.problems.append("the host is not in control after hostile datagrams")
+
+
+def _after(cycles: list[Cycle], rec: Recorder, outcome: dict[str, Any], thread: threading.Thread,
+           relay: PhoneRelay, hostile_bad: int) -> None:  # fmt: skip
+    """The run-level checks (the run ended as told, nothing logged lost, every datagram counted) and each
+    recovering cycle's checks, once every event is in."""
+    problems: list[str] = []
+    if thread.is_alive():
+        problems.append("the host did not end when told (a hang)")
+    if "error" in outcome:
+        problems.append(f"the run failed: {outcome['error']!r}")
+    result = outcome.get("result")
+    summary = rec.summary
+    if result is not None:
+        if not str(summary.get("exit", "")).startswith("aborted: soak done"):
+            problems.append(f"exit {summary.get('exit')!r}")
+        problems += check_logs(result.run_dir, rec, summary, lockstep=False)
+        phone = summary.get("phone", {})
+        counted = phone.get("messages", 0) + phone.get("bad_messages", 0)
+        if phone.get("bad_messages", 0) < hostile_bad or counted < relay.forwarded:
+            problems.append(
+                f"the phone receiver counted {phone.get('messages')} + {phone.get('bad_messages')} datagrams "
+                f"for {relay.forwarded} forwarded and {hostile_bad} hostile"
+            )
+    faults = summary.get("faults", [])
+    for i, c in enumerate(cycles):
+        end = cycles[i + 1].t_fault if i + 1 < len(cycles) else float("inf")
+        if c.kind != "hostile" and not c.problems:
+            check_recovery(c, rec, end, "pty", faults)
+        c.problems += problems

@@ -1,0 +1,209 @@
+"""The host's hold on the board and the phone, on the control tick: what the board client's events mean
+for the run (``events.jsonl`` records, the fault journal), the host's view of the board by the age of its
+telemetry, re-arming through the protocol, and the operator's own arm and disarm (the ground station).
+
+Re-arming: after a FAILSAFE (the board's link watchdog), a reset or a reconnect the host arms the board
+again — only through the protocol: an acknowledged ``Arm`` in a session whose handshake is done
+(:attr:`BoardClient.connected`), retried on the next tick when refused. A board the operator disarmed is
+never re-armed on the host's own account: the Disarm cancels a re-arm already pending (one already sent is
+overtaken by the Disarm, which the board carries out after it), and the host waits for the operator's Arm.
+
+What the rest of the host is told (:meth:`BoardWatch.take_upsets`): that the board has left the state the
+host commanded, or may have (``failsafe``, ``reset``, ``link_lost``, ``reconnect``, ``disarm``) — the host
+re-enters its warm-up before it steers again (:mod:`hil.runtime.host`). Telemetry that merely goes stale
+is not one: the host holds while it cannot see the board and carries on if the board comes back armed in
+the same session.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from hil.link.board import BoardClient
+from hil.link.board.events import (
+    BoardResetEvent,
+    ConnectedEvent,
+    LinkLostEvent,
+    LogEvent,
+    SilenceEvent,
+    StateEvent,
+)
+from hil.runtime.faults import BoardLink, FaultJournal
+from hil.runtime.runlog import EventLog
+from protocol.errors import CommandFailed
+from protocol.messages import Arm, BoardState, Disarm, Telemetry
+from protocol.reliable import Command
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class View:
+    """The host's view of the board at one tick: ``link``; ``telemetry`` (None unless live); ``age_s`` of
+    the latest telemetry received (None: none yet)."""
+
+    link: BoardLink
+    telemetry: Telemetry | None
+    age_s: float | None
+
+
+class BoardWatch:
+    """See the module docstring. ``stale_after_s``: telemetry older than this is not live."""
+
+    def __init__(
+        self, client: BoardClient, events: EventLog, journal: FaultJournal, stale_after_s: float
+    ) -> None:
+        self.client = client
+        self.events = events
+        self.journal = journal
+        self.stale_after_s = stale_after_s
+        self.failsafes = self.resets = self.link_losses = self.reconnects = self.rearms = 0
+        self.stale_episodes = 0
+        self.operator_disarmed = False
+        self._rearm: str | Command | None = None  # "pending" or the Arm in flight
+        self._fresh_after = -math.inf  # telemetry received before this (host s) is from an older session
+        self._link = BoardLink.STALE  # nothing seen yet
+        self._stale_noted = False  # the stale episode going on is in the journal
+        self._started: float | None = None  # the first tick
+        self._upsets: list[str] = []
+
+    # ------------------------------------------------------------------ events
+    def on_events(self, events: Sequence[Any]) -> None:
+        """The board client's new events: records, faults, re-arm wishes."""
+        for event in events:
+            self._on_event(event)
+
+    def _on_event(self, event: Any) -> None:
+        t = event.t
+        if isinstance(event, StateEvent):
+            old = None if event.old is None else event.old.name
+            self.events.write(t, "board_state", old=old, new=event.new.name)
+            if event.new is BoardState.FAILSAFE:
+                self.failsafes += 1
+                logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): re-arming", t)
+                self.journal.fault(t, "failsafe")
+                self._upset("failsafe")
+        elif isinstance(event, BoardResetEvent):
+            self.resets += 1
+            self._fresh_after = t
+            self.events.write(t, "board_reset", cause=event.cause.name, evidence=event.evidence)
+            self.journal.fault(t, "reset", cause=event.cause.name, evidence=event.evidence)
+            self._upset("reset")
+        elif isinstance(event, LinkLostEvent):
+            self.link_losses += 1
+            self._fresh_after = t
+            self.events.write(t, "link_lost", reason=event.reason)
+            self.journal.fault(t, "link_lost", reason=event.reason)
+            self._upset("link_lost")
+        elif isinstance(event, ConnectedEvent):
+            self.events.write(t, "connected", reconnects=event.reconnects)
+            if event.reconnects:
+                self.reconnects += 1
+                self._fresh_after = t
+                self.journal.fault(t, "reconnect", reconnects=event.reconnects)
+                self._upset("reconnect")
+        elif isinstance(event, SilenceEvent):
+            self.events.write(t, "silence", since=event.since, ended=event.ended)
+        elif isinstance(event, LogEvent):
+            self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text)
+
+    def _upset(self, why: str) -> None:
+        self._upsets.append(why)
+        if not self.operator_disarmed and self._rearm is None:
+            self._rearm = "pending"
+
+    def take_upsets(self) -> list[str]:
+        """Why the board left the state the host commanded since the last call (oldest first)."""
+        upsets, self._upsets = self._upsets, []
+        return upsets
+
+    # ------------------------------------------------------------------ the view
+    def view(self, t: float) -> View:
+        """The board as the host may use it at ``t``. Telemetry is live while younger than
+        ``stale_after_s`` and received after the latest link loss, reconnect or reset. A change of view is
+        an ``events.jsonl`` record; going without live telemetry for ``stale_after_s`` (counted from the
+        last live telemetry, the first tick, or the session's start, whichever is latest) is a ``stale``
+        fault — the short wait for the first telemetry of a new session is not."""
+        client = self.client
+        tel, tel_t = client.telemetry, client.telemetry_time
+        age = None if tel_t is None else t - tel_t
+        if self._started is None:
+            self._started = t
+        fresh = tel_t is not None and tel_t > self._fresh_after and t - tel_t <= self.stale_after_s
+        if not client.connected:
+            link = BoardLink.LOST
+        else:
+            link = BoardLink.LIVE if fresh else BoardLink.STALE
+        if link is not self._link:
+            self.events.write(t, "board_link", link=link.name, tel_age_ms=None if age is None else age * 1e3)
+            self._link = link
+        if link is BoardLink.LIVE:
+            self._stale_noted = False
+        elif link is BoardLink.STALE and not self._stale_noted:
+            since = max(self._started, self._fresh_after, -math.inf if tel_t is None else tel_t)
+            if t - since > self.stale_after_s:
+                self._stale_noted = True
+                self.stale_episodes += 1
+                heard = "never" if age is None else f"{age * 1e3:.0f} ms ago"
+                logger.warning("no board telemetry for %.2f s at t=%.3f s (the last: %s)", t - since, t,
+                               heard)  # fmt: skip
+                self.journal.fault(t, "stale", tel_age_ms=None if age is None else age * 1e3)
+        return View(link, tel if link is BoardLink.LIVE else None, age)
+
+    def in_control(self, t: float, view: View, phone_fresh: bool) -> bool:
+        """Whether the host has the board in hand at ``t`` (telemetry live, the board armed — or disarmed by
+        the operator — no re-arm pending, the phone fresh); ends the open outage when it does."""
+        tel = view.telemetry
+        if tel is None or self._rearm is not None or not phone_fresh:
+            return False
+        if tel.state is not BoardState.ARMED and not self.operator_disarmed:
+            return False
+        back = self.journal.board_back(t)
+        if back is not None:
+            self.events.write(t, "board_back", since=back.start, outage_s=t - back.start, causes=back.causes)
+        return True
+
+    # ------------------------------------------------------------------ arming
+    @property
+    def rearm_pending(self) -> bool:
+        return self._rearm is not None
+
+    def rearm_if_needed(self, t: float) -> None:
+        """Re-arm without blocking the loop: send Arm once a session is up, look at the answer later."""
+        if self._rearm is None or not self.client.connected:
+            return
+        if self._rearm == "pending":
+            self._rearm = self.client.command(Arm())
+            return
+        assert isinstance(self._rearm, Command)
+        if not self._rearm.done:
+            return
+        try:
+            self._rearm.result()
+            self.rearms += 1
+            self.events.write(t, "rearmed")
+            self._rearm = None
+        except CommandFailed as exc:  # e.g. still in reset: try again next tick
+            self.events.write(t, "rearm_failed", detail=str(exc))
+            self._rearm = "pending"
+
+    def operator_disarm(self, t: float) -> Command:
+        """The operator's Disarm: sent now; any re-arm the host had pending is cancelled, and the host does
+        not re-arm on its own until :meth:`operator_arm`."""
+        self.operator_disarmed = True
+        if self._rearm is not None:
+            self.events.write(t, "rearm_cancelled", reason="disarmed by the operator")
+            self._rearm = None
+        cmd = self.client.command(Disarm())
+        self._upsets.append("disarm")
+        return cmd
+
+    def operator_arm(self, t: float) -> Command:
+        """The operator's Arm: sent now; the host re-arms on its own again after later faults."""
+        self.operator_disarmed = False
+        self._rearm = None
+        return self.client.command(Arm())
