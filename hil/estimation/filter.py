@@ -114,7 +114,7 @@ class FilterConfig:
 
 
 TUNED: dict = {
-    "W_diag": (6.0, 0.6, 0.05),
+    "W_diag": (4.0, 0.4, 0.05),
     "m": 0.1,
     "D_diag": (6.0, 6.5, 7.0),
     "acc_cutoff": 0.47,
@@ -123,8 +123,8 @@ TUNED: dict = {
     "bias_vertical": 1.5,
     "bias_max": 0.05,
     "gyro_delay_s": 0.005,
-    "mag_gate": MagneticSettings(norm_tol=0.3, dip_tol_deg=15.0),
-    "motion": MotionSettings(acc_scale=2.0, calm=1.5, dynamic=0.5),
+    "mag_gate": MagneticSettings(norm_tol=0.3, dip_tol_deg=15.0, late_weight=0.5, boost=6.0),
+    "motion": MotionSettings(acc_scale=2.0, calm=1.0, dynamic=1.0, rest_gain=0.5),
 }
 """Tuned settings: chosen by leave-one-trial-out over every shared trial (``python -m bench.bench_estimator
 --tune``); see docs/estimator.md, "The tuned preset"."""
