@@ -84,12 +84,13 @@ def log9(r: Mat9) -> tuple[float, float, float]:
     1 mrad of π, where the axis comes from the symmetric part)."""
     r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
     cos_theta = min(1.0, max(-1.0, 0.5 * (r0 + r4 + r8 - 1.0)))
-    theta = math.acos(cos_theta)
     wx, wy, wz = 0.5 * (r7 - r5), 0.5 * (r2 - r6), 0.5 * (r3 - r1)
+    sin_theta = math.sqrt(wx * wx + wy * wy + wz * wz)
+    theta = math.atan2(sin_theta, cos_theta)
     if theta < _SMALL:
         k = 1.0 + theta * theta / 6.0
     elif theta < _NEAR_PI:
-        k = theta / math.sin(theta)
+        k = theta / sin_theta
     else:
         from hil import so3
 

@@ -383,13 +383,14 @@ def _exp_small(p0: float, p1: float, p2: float, out: Array) -> None:
 def _log(r: Array, out: Array) -> None:
     """Rotation vector of ``r`` (row-major), as :func:`hil.so3.log`."""
     c = min(max((r[0] + r[4] + r[8] - 1.0) * 0.5, -1.0), 1.0)
-    theta = math.acos(c)
     w0, w1, w2 = 0.5 * (r[7] - r[5]), 0.5 * (r[2] - r[6]), 0.5 * (r[3] - r[1])
+    s = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    theta = math.atan2(s, c)
     if theta < 1e-4:
         k = 1.0 + theta * theta / 6.0
         out[0], out[1], out[2] = w0 * k, w1 * k, w2 * k
     elif theta < math.pi - 1e-3:
-        k = theta / math.sin(theta)
+        k = theta / s
         out[0], out[1], out[2] = w0 * k, w1 * k, w2 * k
     else:  # near π: the axis from the symmetric part, its sign from the skew part
         d0, d1, d2 = r[0] - c, r[4] - c, r[8] - c
@@ -400,5 +401,4 @@ def _log(r: Array, out: Array) -> None:
         norm = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         if n0 * w0 + n1 * w1 + n2 * w2 < 0.0:
             norm = -norm
-        theta = math.atan2(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2), c)
         out[0], out[1], out[2] = n0 / norm * theta, n1 / norm * theta, n2 / norm * theta
