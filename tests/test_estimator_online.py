@@ -126,6 +126,31 @@ def test_at_rest_the_bias_is_measured_within_seconds():
     assert np.linalg.norm(slow.gyro_bias - true_bias) > 5 * np.linalg.norm(f.gyro_bias - true_bias)
 
 
+def test_rest_learning_can_be_switched_off_and_on_while_running():
+    """``set_rest_learning(False)`` (the host, once its spacecraft moves under control): rest is still
+    flagged but b̂ no longer follows the gyro there — only the torque law moves it, as with a zero
+    ``rest_gain``; switched on again it learns as before. Live and batch paths alike (same kernel)."""
+    steps, traj = phone_steps(still, 12.0, biased_phone(0.02), seed=4)
+    true_bias = gyro_bias_of(steps, traj)
+    half = len(steps) // 2
+    off = AttitudeFilter(FilterConfig.tuned(declination_deg=7.2))
+    off.set_rest_learning(False)
+    out = off.run(steps.rows(0, half))
+    assert ((out.flags & StepFlag.REST) != 0).any()
+    motion = FilterConfig.tuned().motion
+    assert motion is not None and motion.rest_gain > 0
+    plain = AttitudeFilter(
+        FilterConfig.tuned(declination_deg=7.2, motion=dataclasses.replace(motion, rest_gain=0.0))
+    )
+    plain.run(steps.rows(0, half))
+    np.testing.assert_array_equal(off.gyro_bias, plain.gyro_bias)
+    assert np.linalg.norm(off.gyro_bias - true_bias) > 0.5 * np.linalg.norm(true_bias)
+    off.set_rest_learning(True)
+    for i in range(half, len(steps)):
+        off.step(steps[i])
+    assert np.linalg.norm(off.gyro_bias - true_bias) < 0.1 * np.linalg.norm(true_bias)
+
+
 def test_in_motion_the_bias_is_learnt_and_the_heading_holds():
     """The testbed's turning (no rest) with a 0.6 °/s gyro bias, 180 s: the online estimate takes most of
     the bias out, and the attitude error over the last minute is well below the filter's without it."""

@@ -19,7 +19,7 @@ from hil.estimation import chain
 from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, estimate
 from hil.estimation.inertial import directions_from_dip
 from hil.estimation.magnetic import MagneticSettings, pack_mag_params
-from hil.estimation.motion import MotionSettings, pack_motion_params
+from hil.estimation.motion import MP_REST_GAIN, MotionSettings, pack_motion_params
 from hil.estimation.params import EstimatorParams
 from hil.estimation.prefilter import PAPER_CUTOFF_RAD_S, SS_N, pack_signal_params
 from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
@@ -167,6 +167,15 @@ class AttitudeFilter:
             raise ConfigError(f"must be a finite 3-vector, got {bias!r}", "AttitudeFilter.set_gyro_bias")
         self._cs[chain.CS_BIAS : chain.CS_BIAS + 3] = b
         self._es[S_BIAS : S_BIAS + 3] = b
+
+    def set_rest_learning(self, enabled: bool) -> None:
+        """Let rest detection pull the bias estimate toward the gyro (the settings' ``rest_gain``) or not
+        (0), from the next step on; rest is still detected and flagged. For a caller that knows better
+        than the detector: the host, whose spacecraft ending a slew under control turns steadily below
+        ``rate_max`` — what the detector takes for rest —, learns only in its still window."""
+        if self.config.motion is not None:
+            gain = self.config.motion.rest_gain if enabled else 0.0
+            self._cp[chain.CP_MOTION + MP_REST_GAIN] = gain
 
     def step(self, s: MergedStep) -> Estimate:
         """One merged step (live path)."""

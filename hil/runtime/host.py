@@ -8,9 +8,10 @@ Phases (``telemetry.csv`` column ``phase``):
 0. **warm-up** — the board is armed, the rotors spin up to their nominal speed with the gimbals still;
    once every rotor is within 5 % of it the still window of ``warmup_s`` starts: the estimator converges
    and the raw gyroscope samples of the window's second half are averaged into the gyro bias, which
-   becomes the estimator's bias estimate — the tuned estimator keeps refining it online, at rest and in
-   motion (the phone gyro's residual bias would otherwise leave a steady attitude error and a rate offset
-   in the control loop);
+   becomes the estimator's bias estimate — the tuned estimator, which has been learning it from rest
+   detection in the window, keeps refining it online in motion (rest learning ends with the window: a
+   slew's slow end would pass for rest) — (the phone gyro's residual bias would otherwise leave a steady
+   attitude error and a rate offset in the control loop);
 1. **slew** — an eigenaxis rest-to-rest slew from the estimated attitude to the scenario's target within
    its rate and acceleration limits, tracked by the geometric controller;
 2. **hold** — the reference stays at the target.
@@ -206,6 +207,7 @@ class Host:
         self.merger = Merger(self.merger.policy)
         self.filter = AttitudeFilter(self._filter_config)
         self.filter.set_gyro_bias(self.gyro_bias)
+        self.filter.set_rest_learning(self.slew_start is None)
         self.estimate = None
         self._phone_newest = -math.inf
         self._phone_old = 0
@@ -352,6 +354,10 @@ class Host:
         if self.scenario.loop.calibrate_rate_bias and self.bias_samples:
             self.gyro_bias = np.mean(self.bias_samples, axis=0)
             self.filter.set_gyro_bias(self.gyro_bias)
+        # from now on the spacecraft moves under control: a slew's slow end or a hold turns steadily below
+        # the rest detector's rate bound, and learning that as bias would be wrong (4.8° off after a 90°
+        # slew); the variational bias law keeps correcting the estimate in motion
+        self.filter.set_rest_learning(False)
         R_hat = np.asarray(self.estimate.R)
         sl = self.scenario.slew
         self.target = R_hat.copy() if self.hold else sl.R_target

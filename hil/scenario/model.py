@@ -74,21 +74,13 @@ class Scenario:
         return f"emu://?{query}" if scheme == "emu" else f"spawn://firmware-sim?{query}"
 
     def filter_config(self) -> Any:
-        """The estimator's :class:`hil.estimation.filter.FilterConfig` for this scenario's phone.
-
-        ``tuned``: the tuned preset with one change, no bias learning from rest detection
-        (``rest_gain`` 0). Rest detection takes a steady turn slower than ``rate_max`` (0.05 rad/s) for
-        rest — right for a phone on a table, wrong for a spacecraft ending a slew or holding under
-        control, whose slow true rate it would learn as gyro bias (a 90° slew then ended 4.8° off, the
-        estimate 4.5° RMSE, where it ends 0.12° off without it). The host's own still window is the bias
-        initialiser instead, and the variational bias law keeps correcting it in motion."""
-        from hil.estimation.filter import TUNED, FilterConfig
+        """The estimator's :class:`hil.estimation.filter.FilterConfig` for this scenario's phone."""
+        from hil.estimation.filter import FilterConfig
         from hil.estimation.inertial import directions_from_field
 
         f = np.asarray(self.phone.field_enu_uT, dtype=float)
         if self.estimator == "tuned":  # horizontal magnetometer: only the declination matters
-            motion = replace(TUNED["motion"], rest_gain=0.0)
-            return FilterConfig.tuned(declination_deg=math.degrees(math.atan2(f[0], f[1])), motion=motion)
+            return FilterConfig.tuned(declination_deg=math.degrees(math.atan2(f[0], f[1])))
         return FilterConfig.paper(E=directions_from_field(f))
 
     def with_changes(self, **changes: Any) -> Scenario:
