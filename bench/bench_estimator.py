@@ -1,37 +1,41 @@
-"""The paper's estimator against VQF, ahrs Madgwick and imufusion, in one run: accuracy on real data with
-ground truth (the tyrex Nexus 5 smartphone trials and the BROAD trials), speed per step, and replay speed
-on a 720k-sample log.
+"""The paper's estimator, tuned, against VQF, ahrs Madgwick and imufusion, in one run: accuracy on real data
+with ground truth (the tyrex Nexus 5 smartphone trials and the BROAD trials), speed per step, and replay
+speed on a 720k-sample log.
 
 Accuracy: every algorithm sees the same merged steps (the gyroscope drives; accelerometer and
 magnetometer held at gyro times, as the data README's figures were measured); estimates are interpolated to
 the truth's timestamps and scored with BROAD's metric (RMSE of total / heading / inclination error, earth
 frame) over each benchmark's evaluated samples (tyrex: motion-capture time 0–120 s minus the authors'
-exclusions; BROAD: ``movement``). Our variants:
+exclusions; BROAD: ``movement``). Groups: the smartphone trials (none has a still window), the BROAD
+trials as recorded (each starts with ~30 s at rest), and the same BROAD trials from their first motion
+(no still window left for anyone). Our variants:
 
+- ``ours``: :meth:`hil.estimation.filter.FilterConfig.tuned` online only — no still window given: the
+  bias is the estimator's own (at rest and in motion) — as ``hil replay --gyro-bias none`` runs it;
+- ``ours+still``: the same with the bias measured over the log's initial still window as the
+  initialiser (``hil replay``'s default; the same as ``ours`` on logs without one);
 - ``ours-paper``: exactly the paper — its W, m, D, Φ(x) = x and the 1 rad/s body-frame pre-filter on all
   three signals; E from the log (measured field inclination, magnetic north).
-- ``ours-paper-nopf``: the paper's gains without the pre-filter.
-- ``ours-tuned``: the paper's estimator with :data:`hil.estimation.filter.TUNED` (gains, strapdown-frame
-  pre-filter, horizontal magnetometer) and the gyro bias measured over the log's initial still window,
-  found by :func:`tune` — a grid search on :data:`TUNING_TRIALS`; the other trials are held out.
+
+The tuned preset's parameters come from :mod:`bench.estimator_tuning` (``--tune``). ``--per-trial`` prints
+every trial's RMSE; the summary rows also give ours through ``hil replay``'s own path
+(:func:`hil.logs.replay.replay`: its merge, its configuration) on the as-recorded trials.
 
 Speed (per sample, batch, a 720k-sample replay, compile cost): :mod:`bench.estimator_speed`.
-``python -m bench.bench_estimator --per-trial`` prints every trial's RMSE.
 
 Peers with their default (or documented example) settings: VQF (C++, ``quat9D``; estimates its own gyro
 bias), ahrs Madgwick (MARG, default gain; output NWU, converted to ENU), imufusion (the library's example
 settings: gain 0.5, ±2000 °/s, rejection 10°, timeout 5 s; ENU).
-
-``python -m bench.bench_estimator --tune`` re-runs the grid search (about half an hour).
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
+import json
 import math
 import os
 import sys
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,13 +43,13 @@ from pathlib import Path
 import numpy as np
 
 from bench import estimator_speed as speed
+from bench import estimator_tuning as tuning
 from bench.common import Result
 from hil import so3
 from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.inertial import directions_from_dip, directions_from_log, find_still_window
 from hil.estimation.metrics import AttitudeErrors, Rmse, resample_quats
 from hil.estimation.multirate import MergePolicy, first_full_step, merge
-from hil.estimation.params import PAPER_D, EstimatorParams
 from hil.estimation.sensors import MergedSteps, SensorKind, SensorLog
 from hil.logs import read_log
 from hil.scenario.paths import SHARED_DATA
@@ -54,15 +58,7 @@ from protocol.errors import InputFormatError
 NAME = "estimator"
 TYREX = SHARED_DATA / "tyrex-nexus5"
 BROAD = SHARED_DATA / "broad"
-TUNING_TRIALS = (
-    "Guillaume_Nexus5_NoDist_Texting",
-    "Guillaume_Nexus5_NoDist_RunningHand",
-    "Guillaume_Nexus5_Dist_Phoning",
-    "01_undisturbed_slow_rotation_A",
-    "06_undisturbed_fast_rotation_A",
-    "24_disturbed_tapping_A",
-)
-"""The trials the tuned parameters were chosen on; all others are held out."""
+GROUPS = ("smartphone", "BROAD", "BROAD from first motion")
 
 
 @dataclass
@@ -73,16 +69,33 @@ class Trial:
     steps: MergedSteps
     inclination_deg: float
     gyro_bias: tuple[float, float, float]
+    path: Path
 
     @property
-    def held_out(self) -> bool:
-        return self.name not in TUNING_TRIALS
+    def family(self) -> str:
+        """``smartphone``, ``BROAD`` or ``BROAD from first motion``."""
+        if self.group.startswith("tyrex"):
+            return "smartphone"
+        return "BROAD from first motion" if self.name.endswith("(from first motion)") else "BROAD"
 
 
 def _trial(path: Path, group: str, window_s: tuple[float, float] | None) -> Trial:
     log = read_log(path)
     if window_s is not None:
         log = log.window(log.start + window_s[0], log.start + window_s[1])
+    return _trial_of(log, path, path.name.removesuffix(".mat"), group)
+
+
+def from_first_motion(trial: Trial) -> Trial:
+    """The trial from its first evaluated (moving) sample on: no still window left."""
+    truth = trial.log.truth
+    assert truth is not None and truth.evaluate is not None
+    t0 = float(truth.t[np.argmax(truth.evaluate)])
+    log = trial.log.window(t0, trial.log.end)
+    return _trial_of(log, trial.path, f"{trial.name} (from first motion)", trial.group)
+
+
+def _trial_of(log: SensorLog, path: Path, name: str, group: str) -> Trial:
     steps, _ = merge(log.streams, MergePolicy(driver=SensorKind.GYR))
     steps = steps.rows(first_full_step(steps))  # from when every sensor has spoken
     e, _ = directions_from_log(log)
@@ -94,11 +107,12 @@ def _trial(path: Path, group: str, window_s: tuple[float, float] | None) -> Tria
         bias = tuple(float(x) for x in gyr.xyz[sel].mean(axis=0))
     except InputFormatError:
         bias = (0.0, 0.0, 0.0)
-    return Trial(path.name.removesuffix(".mat"), group, log, steps, dip, bias)  # type: ignore[arg-type]
+    return Trial(name, group, log, steps, dip, bias, path)  # type: ignore[arg-type]
 
 
-def load_trials(quick: bool = False, names: tuple[str, ...] | None = None) -> list[Trial]:
-    """All tyrex and BROAD trials (``quick``: one of each, 30 s of motion)."""
+def load_trials(quick: bool = False, cropped: bool = True) -> list[Trial]:
+    """All tyrex and BROAD trials, and (``cropped``) the BROAD ones again from their first motion
+    (``quick``: one of each, 30 s of motion)."""
     paths: list[tuple[Path, str]] = []
     for p in sorted(TYREX.iterdir()) if TYREX.is_dir() else []:
         if p.is_dir():
@@ -112,15 +126,14 @@ def load_trials(quick: bool = False, names: tuple[str, ...] | None = None) -> li
                 else "broad-undisturbed",
             )
         )
-    if names is not None:
-        paths = [(p, g) for p, g in paths if p.name.removesuffix(".mat") in names]
     if quick:
         paths = [p for p in paths if p[0].name.startswith(("Guillaume_Nexus5_NoDist_Texting", "01_"))]
     # quick: 30 s of motion (BROAD trials start with ~34 s at rest, not evaluated)
-    return [
+    trials = [
         _trial(p, g, ((30.0, 60.0) if g.startswith("broad") else (0.0, 30.0)) if quick else None)
         for p, g in paths
     ]
+    return trials + [from_first_motion(t) for t in trials if cropped and t.group.startswith("broad")]
 
 
 # --------------------------------------------------------------------------- algorithms
@@ -135,11 +148,11 @@ def _paper(trial: Trial) -> FilterConfig:
     return FilterConfig.paper(E=directions_from_dip(trial.inclination_deg))
 
 
-def _paper_nopf(trial: Trial) -> FilterConfig:
-    return FilterConfig.paper(E=directions_from_dip(trial.inclination_deg), prefilter_rad_s={})
-
-
 def _tuned(trial: Trial) -> FilterConfig:
+    return FilterConfig.tuned()
+
+
+def _tuned_still(trial: Trial) -> FilterConfig:
     return FilterConfig.tuned(gyro_bias=trial.gyro_bias)
 
 
@@ -194,9 +207,9 @@ def imufusion_quats(trial: Trial) -> np.ndarray:
 
 
 ALGORITHMS: dict[str, Callable[[Trial], np.ndarray]] = {
+    "ours": _ours(_tuned),
+    "ours+still": _ours(_tuned_still),
     "ours-paper": _ours(_paper),
-    "ours-paper-nopf": _ours(_paper_nopf),
-    "ours-tuned": _ours(_tuned),
     "VQF": vqf_quats,
     "Madgwick": madgwick_quats,
     "imufusion": imufusion_quats,
@@ -223,63 +236,45 @@ def _mean(rmses: list[Rmse]) -> tuple[float, float, float]:
     return tuple(float(np.mean([getattr(r, f) for r in rmses])) for f in ("total", "heading", "inclination"))  # type: ignore[return-value]
 
 
-# --------------------------------------------------------------------------- tuning
-def tune(trials: list[Trial]) -> list[tuple[float, dict]]:
-    """Grid search of the tuned settings on ``trials``: minimises the mean total RMSE (BROAD's "TAGP"
-    idea: one parameter set for all trials). Returns (score, settings) sorted best first."""
-    grid = {  # stage 2; stage 1 (w_acc 1.5–12, w_mag 0.5–2, w_cross 0.25/1, d_scale 0.5–2, acc cut-off
-        # 0.15–0.6, mag cut-off none/0.5) favoured low damping, no magnetometer pre-filter, small w_cross
-        "w_acc": (1.5, 3.0, 6.0),
-        "w_mag": (0.5, 1.0, 2.0),
-        "w_cross": (0.25,),
-        "d_scale": (0.25, 0.5),
-        "acc_cutoff": (0.15, 0.3),
-        "mag_cutoff": (None,),
-        "m": (0.1, 0.5),
-    }
-    results = []
-    for values in itertools.product(*grid.values()):
-        s = dict(zip(grid, values, strict=True))
-        diag = (s["w_acc"], s["w_mag"], s["w_cross"])
-        if len(set(diag)) < 3:
-            continue
-        cfg_of = _tuned_config(diag, s["d_scale"], s["acc_cutoff"], s["mag_cutoff"], s["m"])
-        rmses = [score(t, AttitudeFilter(cfg_of(t)).run(t.steps).quat) for t in trials]
-        results.append((_mean(rmses)[0], s))
-        print(f"{results[-1][0]:7.3f}  {s}", file=sys.stderr, flush=True)
-    return sorted(results, key=lambda r: r[0])
-
-
-def _tuned_config(w_diag, d_scale, acc_cutoff, mag_cutoff, m):  # type: ignore[no-untyped-def]
-    def config(trial: Trial) -> FilterConfig:
-        base = FilterConfig.tuned(gyro_bias=trial.gyro_bias)
-        params = EstimatorParams(
-            E=base.params.E, W=np.diag(w_diag), m=m, D=np.diag(np.diag(PAPER_D)) * d_scale
-        )
-        cut = {SensorKind.ACC: acc_cutoff, SensorKind.MAG: mag_cutoff, SensorKind.GYR: None}
-        return FilterConfig.tuned(gyro_bias=trial.gyro_bias, params=params, prefilter_rad_s=cut)
-
-    return config
-
-
 # --------------------------------------------------------------------------- the benchmark
+def replay_rmse(trial: Trial, gyro_bias: str) -> Rmse:
+    """Ours through ``hil replay``'s own path on a trial as recorded (its merge, its configuration)."""
+    from hil.logs.replay import ReplayOptions, replay
+
+    with tempfile.TemporaryDirectory() as tmp:
+        result = replay(trial.path, ReplayOptions(out_dir=Path(tmp), gyro_bias=gyro_bias))
+    assert result.comparison is not None
+    return result.comparison.rmse
+
+
 def run(quick: bool) -> list[Result]:
     results: list[Result] = []
     trials = load_trials(quick)
     if not trials:
         return [Result(NAME, "no shared data", 0.0, "", note=f"{SHARED_DATA} not found")]
     acc = accuracy(trials, ALGORITHMS)
-    groups = sorted({t.group for t in trials})
-    for group in groups + ["held-out"]:
-        members = [t for t in trials if (t.group == group if group != "held-out" else t.held_out)]
+    for family in GROUPS:
+        members = [t for t in trials if t.family == family]
         if not members:
             continue
         means = {a: _mean([acc[a][t.name] for t in members]) for a in ALGORITHMS}
         detail = "; ".join(f"{a} {m[0]:.2f}/{m[1]:.2f}/{m[2]:.2f}" for a, m in means.items())
-        for name in ("ours-tuned", "ours-paper-nopf", "ours-paper", "Madgwick", "imufusion"):
-            note = detail if name == "ours-tuned" else ""
-            label = f"{group} ({len(members)}) RMSE total, {name}"
-            results.append(Result(NAME, label, means[name][0], "deg", "VQF", means["VQF"][0], False, note))
+        names = ["ours"] if family == "BROAD from first motion" else ["ours", "ours+still"]
+        for name in [*names, "ours-paper", "Madgwick", "imufusion"]:
+            for k, part in enumerate(("total", "heading", "inclination")):
+                if part != "total" and not name.startswith("ours"):
+                    continue
+                note = detail if (name, part) == ("ours", "total") else ""
+                label = f"{family} ({len(members)}) RMSE {part}, {name}"
+                results.append(
+                    Result(NAME, label, means[name][k], "deg", "VQF", means["VQF"][k], False, note)
+                )
+        if family != "BROAD from first motion" and not quick:
+            for bias in ("none", "still"):
+                rm = _mean([replay_rmse(t, bias) for t in members])
+                label = f"{family} ({len(members)}) RMSE total, hil replay --gyro-bias {bias}"
+                results.append(Result(NAME, label, rm[0], "deg", "VQF", means["VQF"][0], False,
+                                      f"{rm[0]:.2f}/{rm[1]:.2f}/{rm[2]:.2f}"))  # fmt: skip
     results += speed_results(trials[0], quick)
     return results
 
@@ -333,7 +328,9 @@ def per_trial_table(trials: list[Trial]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.bench_estimator")
-    parser.add_argument("--tune", action="store_true", help="grid-search the tuned settings on TUNING_TRIALS")
+    parser.add_argument(
+        "--tune", action="store_true", help="choose the tuned preset (bench.estimator_tuning), ~30 min"
+    )
     parser.add_argument(
         "--per-trial", action="store_true", help="print every trial's RMSE, not the benchmark"
     )
@@ -343,9 +340,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.tune:
         os.nice(5)
-        best = tune(load_trials(names=TUNING_TRIALS))
-        for value, settings in best[:10]:
-            print(f"{value:.3f}  {settings}")
+        trials = load_trials(cropped=False)
+        vqf = np.array([[(r := score(t, vqf_quats(t))).total, r.heading, r.inclination] for t in trials])
+        result = tuning.tune(trials, vqf, score)
+        print(json.dumps({"preset": result["preset"], "summary": result["summary"]}, indent=1))
         return 0
     from bench.__main__ import format_table
 

@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 
 from hil import so3
-from hil.estimation import chain, reference
+from hil.estimation import chain, reference, reference_chain
 from hil.estimation import variational as k
 from hil.estimation.estimator import Estimate, VariationalEstimator
 from hil.estimation.filter import AttitudeFilter, FilterConfig
+from hil.estimation.magnetic import MagneticGate, MagneticSettings
 from hil.estimation.multirate import MergePolicy, first_full_step, merge
 from hil.estimation.params import EstimatorParams, phi_log, wahba
-from hil.estimation.prefilter import GateSettings, MagneticGate, SignalPrefilter
+from hil.estimation.prefilter import SignalPrefilter
 from hil.estimation.sensors import MergedSteps, SensorKind, StepFlag
 from hil.logs import read_log
 from hil.scenario.paths import SHARED_DATA
@@ -29,6 +30,9 @@ FULL_D = np.array([[12.0, 2.0, -1.0], [2.0, 13.0, 0.5], [-1.0, 0.5, 14.0]])
 PARAMS = {
     "paper": EstimatorParams.paper(),
     "full D, log Φ": EstimatorParams(D=FULL_D, phi=phi_log(2.0)),
+    "bias law, delay": EstimatorParams(
+        bias_gain=(0.02, 0.03, 0.01), bias_max=0.04, bias_vertical=1.7, gyro_delay_s=0.004
+    ),
 }
 
 
@@ -53,8 +57,9 @@ def test_measurement_and_torque_kernels_equal_the_reference(name):
         acc, mag = random_vector(rng, 9.8), random_vector(rng, 45.0)
         if i % 25 == 0:  # (nearly) parallel: degenerate
             mag = acc * 3.0 + 1e-3 * rng.normal(size=3)
-        ref = reference.measurement(p, acc, mag)
-        mask, big_l, kk, flags = k.measurement(ep, *acc.tolist(), *mag.tolist())
+        weight = 1.0 if i % 3 else rng.uniform(0.0, 1.0)  # the field's weight (magnetic handling)
+        ref = reference.measurement(p, acc, mag, weight)
+        mask, big_l, kk, flags = k.measurement(ep, *acc.tolist(), *mag.tolist(), weight)
         assert (mask, flags) == (ref.mask, ref.flags)
         np.testing.assert_allclose(np.reshape(big_l, (3, 3)), ref.L, rtol=0, atol=1e-13)
         kinds.add(mask)
@@ -79,21 +84,37 @@ def test_newton_and_advance_kernels_equal_the_reference(name):
         r = so3.exp(rng.normal(size=3) * 2.0)
         acc, mag = rng.normal(size=3), rng.normal(size=3)
         ref_meas = reference.measurement(p, acc, mag)
-        mask, big_l, kk, _ = k.measurement(ep, *acc.tolist(), *mag.tolist())
+        mask, big_l, kk, _ = k.measurement(ep, *acc.tolist(), *mag.tolist(), 1.0)
         c = rng.normal(size=3) * 0.2
         w_k, it_k, ok_k = k.newton(ep, 0.5 * h, tuple(g1), tuple(c))
         w_r, it_r, ok_r = reference.newton(p, 0.5 * h, g1, c)
         np.testing.assert_allclose(w_k, w_r, rtol=0, atol=1e-13)
         assert ok_k and ok_r and abs(it_k - it_r) <= 1
-        out = k.advance(ep, tuple(r.ravel()), tuple(w), tuple(g0), tuple(tau0), h, tuple(g1), big_l, mask, kk)
-        ref = reference.advance(p, r, w, g0, tau0, h, g1, ref_meas)
+        b = rng.normal(size=3) * 0.01
+        trust, up = rng.uniform(0.0, 1.0), acc / np.linalg.norm(acc)
+        bl = (trust, *up.tolist())
+        args = (
+            tuple(r.ravel()),
+            tuple(w),
+            tuple(b),
+            tuple(g0),
+            tuple(tau0),
+            h,
+            tuple(g1),
+            big_l,
+            mask,
+            kk,
+            bl,
+        )
+        out = k.advance(ep, *args)
+        ref = reference.advance(p, r, w, b, g0, tau0, h, g1, ref_meas, trust, up)
         np.testing.assert_allclose(np.reshape(out[0], (3, 3)), ref[0], rtol=0, atol=1e-13)
-        for got, want in zip(out[1:3], ref[1:3], strict=True):
+        for got, want in zip(out[1:4], ref[1:4], strict=True):
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
-        assert out[4] and ref[4]
+        assert out[5] and ref[5]
 
 
-def test_prefilter_and_gate_kernels_equal_the_reference():
+def test_prefilter_and_magnetic_kernels_equal_the_reference():
     rng = np.random.default_rng(3)
     n = 3000
     t = np.cumsum(rng.uniform(0.003, 0.007, n))
@@ -103,7 +124,7 @@ def test_prefilter_and_gate_kernels_equal_the_reference():
     mag = np.array([0.0, 20.0, -40.0]) + rng.normal(size=(n, 3))
     acc[500:520] = np.nan  # drop-outs restart a filter
     mag[1000:1005, 1] = np.nan
-    mag[1500:1700] *= 1.5  # a disturbance for the gate
+    mag[1500:1700] *= 1.5  # a disturbance
     cut = {SensorKind.GYR: 5.0, SensorKind.ACC: 0.3, SensorKind.MAG: 1.0}
     for frame in ("body", "strapdown"):
         steps = MergedSteps(t, gyr, acc, mag, np.zeros((n, 3)), np.ones((n, 3), bool), np.zeros(n, np.int64))
@@ -111,10 +132,11 @@ def test_prefilter_and_gate_kernels_equal_the_reference():
         want = reference.signal_run(cut, frame, h, gyr, acc, mag)
         for g, w in zip((got.gyr, got.acc, got.mag), want, strict=True):
             np.testing.assert_allclose(g, w, rtol=0, atol=1e-9, equal_nan=True)
-    settings = GateSettings(norm_tol=0.2, dip_tol_deg=15.0, tau_s=5.0, timeout_s=2.0)
-    passed = ~np.isnan(MagneticGate(*vars(settings).values()).run(h, acc, mag)[:, 0])
-    np.testing.assert_array_equal(passed, reference.gate_run(settings, h, acc, mag))
-    assert passed[1550:1650].mean() < 0.05 and passed[1800:].mean() > 0.95  # the disturbance rejected
+    settings = MagneticSettings(tau_s=5.0, steady_s=1.0, max_rejection_s=0.5, min_rate=0.5)
+    rate = np.abs(gyr[:, 0])
+    weights = MagneticGate(settings).run(h, rate, acc, mag)
+    np.testing.assert_array_equal(weights, reference_chain.mag_run(settings, h, rate, acc, mag))
+    assert weights[1550:1650].max() < 1.0 and weights[1800:].mean() > 0.95  # disturbance left out, then back
 
 
 @pytest.mark.parametrize("preset", ["paper", "tuned"])
@@ -154,11 +176,14 @@ def noisy_steps(seed: int, n: int = 2000) -> MergedSteps:
 def test_estimator_run_equals_the_reference_through_gaps_and_drop_outs(name):
     p = PARAMS[name]
     steps = noisy_steps(5)
-    r0, w0 = so3.exp([0.4, -1.0, 1.7]), np.array([0.01, -0.02, 0.005])
-    est = VariationalEstimator(p, r0, w0)
+    r0, w0, b0 = so3.exp([0.4, -1.0, 1.7]), np.array([0.01, -0.02, 0.005]), np.array([0.003, 0.0, -0.01])
+    est = VariationalEstimator(p, r0, w0, b0)
     got = est.update_batch(steps)
-    ref = reference.run(p, r0, w0, steps.t, steps.gyr, steps.acc, steps.mag)
+    ref = reference.run(p, r0, w0, steps.t, steps.gyr, steps.acc, steps.mag, b0)
     np.testing.assert_allclose(got.R, ref.R, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(est.bias, ref.bias[-1], rtol=0, atol=1e-12)
+    if any(p.bias_gain):
+        assert np.linalg.norm(est.bias - b0) > 1e-3  # the bias law moved it
     np.testing.assert_allclose(got.omega_err, ref.omega_err, rtol=0, atol=1e-11)
     np.testing.assert_allclose(got.omega, ref.omega, rtol=0, atol=1e-11)
     np.testing.assert_array_equal(got.flags, ref.flags)
@@ -196,26 +221,38 @@ def recorded(request):
     return request.param.name, steps.rows(first_full_step(steps))
 
 
-@pytest.mark.parametrize("preset", ["paper", "tuned"])
+CHAIN_CONFIGS = {
+    "paper": FilterConfig.paper(),
+    "tuned": FilterConfig.tuned(declination_deg=2.0, gyro_bias=(1e-3, -2e-3, 5e-4)),
+    "6-axis": FilterConfig.tuned(magnetometer="none"),
+    "full field, body frame, no motion": FilterConfig.tuned(
+        magnetometer="full",
+        prefilter_frame="body",
+        motion=None,
+        params=EstimatorParams(bias_gain=(0.01,) * 3),
+    ),
+}
+
+
+@pytest.mark.parametrize("preset", CHAIN_CONFIGS)
 def test_filter_chain_equals_the_reference_on_recorded_data(recorded, preset):
     """The whole chain on 60 s of a real phone (tyrex, 199/199/50 Hz) and a real IMU (BROAD, 286 Hz,
-    magnetically disturbed): kernel vs the numpy reference (closed-form pre-filter, per-step numpy
-    estimator) to rounding, and the live path (one call per step) equal to the batch path bit for bit."""
+    at rest, then tapped: magnetically disturbed): kernel vs the numpy reference (a per-step numpy
+    transcription) to rounding, and the live path (one call per step) equal to the batch path bit for
+    bit."""
     name, steps = recorded
-    config = (
-        FilterConfig.paper()
-        if preset == "paper"
-        else FilterConfig.tuned(declination_deg=2.0, gyro_bias=(1e-3, -2e-3, 5e-4))
-    )
+    config = CHAIN_CONFIGS[preset]
     got = AttitudeFilter(config).run(steps, chunk=5000)
-    ref = reference.filter_run(config, steps)
+    ref = reference_chain.filter_run(config, steps)
     assert so3.orthonormality_error(got.R[-1]) < 1e-12
     angle = np.array([so3.angle_between(a, b) for a, b in zip(got.R[::50], ref.R[::50], strict=True)])
     assert angle.max() < 1e-8
     np.testing.assert_allclose(got.omega, ref.omega, rtol=0, atol=1e-8)
     np.testing.assert_array_equal(got.flags, ref.flags)
-    if preset == "tuned" and "_Dist_" in name:  # a magnetically disturbed trial: the gate acts
+    if preset == "tuned" and "_Dist_" in name:  # a magnetically disturbed trial: the handling acts
         assert np.any(got.flags & StepFlag.MAG_DISTURBED)
+    if preset == "tuned" and name.startswith("24_"):  # BROAD starts at rest: detected
+        assert np.any(got.flags & StepFlag.REST)
     live = AttitudeFilter(config)
     first = [live.step(s) for s in steps.rows(0, 3000)]
     np.testing.assert_array_equal(np.array([e.R for e in first]), got.R[:3000])

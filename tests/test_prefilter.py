@@ -147,28 +147,3 @@ def test_signal_prefilter_batch_equals_steps_with_gaps_in_a_signal():
     for k, name in enumerate(("gyr", "acc", "mag")):
         got = np.array([r[k] if r[k] is not None else nan3 for r in rows])
         np.testing.assert_allclose(getattr(batch, name), got, atol=1e-9, equal_nan=True)
-
-
-def test_magnetic_gate_rejects_a_disturbance_and_relearns_after_the_timeout():
-    from dataclasses import astuple
-
-    from hil.estimation.prefilter import GateSettings, MagneticGate
-
-    h = 0.02
-    n = 2100  # 42 s
-    up = np.tile([0.0, 0.0, 9.81], (n, 1))
-    mag = np.tile([0.0, 20.0, -40.0], (n, 1))
-    mag[500:700] *= 1.4  # a magnet for 4 s: norm off by 40 %
-    mag[1000:1100] = [30.0, 20.0, -25.0]  # bent direction for 2 s, norm about the same: dip off
-    mag[1500:] *= 1.3  # a new environment for good
-    gate = MagneticGate(*astuple(GateSettings(norm_tol=0.2, dip_tol_deg=15.0, timeout_s=10.0)))
-    out = gate.run(np.full(n, h), up, mag)
-    rejected = np.isnan(out[:, 0])
-    assert rejected[500:700].all() and rejected[1000:1100].all()
-    assert not rejected[:500].any() and not rejected[700:1000].any() and not rejected[1100:1500].any()
-    assert rejected[1500:1999].all() and not rejected[2001:].any()  # after 10 s the new field is learnt
-    again = MagneticGate(0.2, 15.0, 20.0, 10.0)
-    singles = [again.step(h, tuple(u), tuple(m)) is None for u, m in zip(up, mag, strict=True)]
-    np.testing.assert_array_equal(singles, rejected)
-    with pytest.raises(ConfigError):
-        MagneticGate(norm_tol=0.0)

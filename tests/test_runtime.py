@@ -162,6 +162,18 @@ def test_run_directory_holds_telemetry_events_summary_and_scenario(lockstep_run)
     assert (d / "scenario.toml").read_text() == sc.source
 
 
+def test_with_the_tuned_estimator_the_host_uses_its_online_gyro_bias(tmp_path):
+    """The tuned estimator in the loop: by the end of the still window it has found most of the phone
+    gyro's bias by itself (rest detection, ~2 s of it); the window's mean becomes its estimate, which it
+    keeps refining; the slew completes."""
+    sc = _quick().with_changes(estimator="tuned")
+    result = run(sc, RunOptions(out_root=tmp_path, duration_s=12.0))
+    assert result.summary["exit"] == "completed" and result.summary["final_error_deg"] < 3.0
+    start = next(e for e in read_events(result.run_dir / "events.jsonl")[0] if e["kind"] == "slew_start")
+    still, online = np.asarray(start["gyro_bias"]), np.asarray(start["gyro_bias_online"])
+    assert np.linalg.norm(still) > 1e-3 and np.linalg.norm(online - still) < 0.6 * np.linalg.norm(still)
+
+
 def test_a_link_stall_puts_the_board_in_failsafe_and_the_host_rearms(tmp_path):
     sc = _quick()
     sc = sc.with_changes(fault_options={"stall": ["6.0:0.6"]})  # board time: during the slew

@@ -71,7 +71,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--lon", type=float, help="longitude (deg) for IGRF-14")
     p.add_argument("--date", help="recording date YYYY-MM-DD for IGRF-14 (1900-2030)")
     p.add_argument(
-        "--gyro-bias", choices=("still", "none"), default="still", help="from the still window or not"
+        "--gyro-bias",
+        choices=("still", "none"),
+        default="still",
+        help="the online bias estimate starts from the still window's mean gyro (still) or zero (none)",
     )
     p.add_argument("--paced", action="store_true", help="release steps at the log's pace (wall clock)")
     p.add_argument("--no-plots", action="store_true", help="write the CSV and summary only")
@@ -154,6 +157,14 @@ def run(args: argparse.Namespace) -> int:
     drops += f", out of order {sum(stats.out_of_order.values())}"
     print(f"  merge: driver {driver}, {stats.dropped} samples dropped ({drops}), {stats.gaps} gaps, "
           f"{stats.failover_steps} failover steps")  # fmt: skip
+    rejected = result.mag_rejections
+    if rejected:
+        total = sum(b - a for a, b in rejected)
+        longest = max(rejected, key=lambda ab: ab[1] - ab[0])
+        print(f"  magnetometer left out as disturbed: {len(rejected)} intervals, {total:.1f} s in all "
+              f"(longest {longest[0]:.1f}-{longest[1]:.1f} s); every interval in summary.json")  # fmt: skip
+    if result.gyro_bias is not None:
+        print(f"  gyro bias estimate at the end: {[round(x, 5) for x in result.gyro_bias]} rad/s")
     if result.log.six_axis:
         print("  heading: NOT observed (no magnetometer): the gyroscope's integral, drifting")
     for warning in result.warnings:

@@ -1,25 +1,28 @@
 """The attitude filter's chain as compiled kernels: one call per merged step (:func:`step`) or per batch
 of steps (:func:`run`), the same code. Pure math, no I/O.
 
-A step: the gyro bias is removed; the three signals go through the pre-filter
-(:func:`hil.estimation.prefilter.signal_step`); the magnetometer through the disturbance gate
-(:func:`~hil.estimation.prefilter.gate_step`, flagging :attr:`StepFlag.MAG_DISTURBED`) and, if asked, is
-reduced to its part perpendicular to the measured gravity (heading only); an estimator waiting for a
-measured initial attitude restarts from Wahba's solution (:func:`wahba`) at the first step where both
-directions are usable; then the estimator steps (:func:`hil.estimation.variational.step`).
-:class:`hil.estimation.filter.AttitudeFilter` holds the arrays and makes the calls.
+A step: the gyro, less the bias estimate b̂, and the accelerometer and magnetometer go through the
+pre-filter (:func:`hil.estimation.prefilter.signal_step`; the accelerometer's cut-off scaled by its trust);
+rest detection and the accelerometer's trust are updated (:func:`hil.estimation.motion.motion_step`), and
+at rest b̂ moves toward the low-passed gyro (:attr:`StepFlag.REST`); the magnetometer goes through the
+disturbance handling (:func:`hil.estimation.magnetic.mag_step`, :attr:`StepFlag.MAG_DISTURBED` while it
+is left out) and, if asked, is reduced to its part perpendicular to the measured gravity (heading only),
+or is not used at all (6-axis); an estimator waiting for a measured initial attitude restarts from Wahba's
+solution (:func:`wahba`) at the first step where both directions are usable — from gravity alone
+(:func:`tilt`) while there is no field yet; then the estimator steps (:func:`hil.estimation.variational.
+step`, which updates b̂ by the variational law). :class:`hil.estimation.filter.AttitudeFilter` holds the
+arrays and makes the calls.
 
 Arrays (float64; slots are the constants below) — besides the estimator's own (``ep``, ``es``,
-:mod:`hil.estimation.variational`):
+:mod:`hil.estimation.variational`, whose state holds b̂):
 
-- chain parameters ``cp`` (:data:`CP_SIZE`): horizontal-magnetometer flag, gate flag, ω0 for a measured
-  restart (3), then the pre-filter's parameters (``SP_SIZE``) and the gate's (``GP_SIZE``);
-- chain state ``cs`` (:data:`CS_SIZE`): the gyro bias removed (3, rad/s), waiting-for-a-measured-attitude
-  flag, the last step's time (s), this step's signals (9: gyr, acc, mag), then the pre-filter's state
-  (``SS_SIZE``) and the gate's (``GS_SIZE``).
-
-A later stage (online gyro-bias estimation, magnetic disturbance handling, adaptive accelerometer trust)
-appends its slots to these layouts and its code to :func:`step`.
+- chain parameters ``cp`` (:data:`CP_SIZE`): the magnetometer's use (``MAG_*``), disturbance-handling
+  flag, ω0 for a measured restart (3), the pre-filter's parameters (``SP_SIZE``), the magnetic handling's
+  (``GP_SIZE``), the motion flag and rest detection's and accelerometer trust's (``MP_SIZE``);
+- chain state ``cs`` (:data:`CS_SIZE`): the initial gyro bias estimate (3, rad/s), where the measured
+  initial attitude stands (``AWAIT_*``), the last step's time (s), this step's signals (9: gyr, acc, mag),
+  then the pre-filter's state (``SS_SIZE``), the magnetic handling's (``GS_SIZE``) and the motion state
+  (``MS_SIZE``).
 """
 
 from __future__ import annotations
@@ -29,31 +32,48 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from hil.estimation import magnetic as mg
+from hil.estimation import motion as mo
 from hil.estimation import prefilter as pf
 from hil.estimation import variational as v
-from hil.estimation.prefilter import gate_step, signal_step
+from hil.estimation.magnetic import mag_step
+from hil.estimation.motion import motion_step
+from hil.estimation.prefilter import signal_step
 from hil.estimation.sensors import StepFlag
 from hil.jit import kernel
+from hil.so3.floats import apply_f, exp_f
 
 Array = NDArray[np.float64]
 
-CP_HORIZONTAL = 0  # 1: the magnetometer's part perpendicular to gravity only
-CP_GATE = 1  # 1: the magnetic gate is on
+CP_MAG_MODE = 0  # MAG_FULL, MAG_HORIZONTAL or MAG_NONE
+CP_GATE = 1  # 1: magnetic disturbances are detected (hil.estimation.magnetic)
 CP_OMEGA0 = 2  # ω0 (3) rad/s for the measured restart
 CP_SIGNAL = 5  # the pre-filter's parameters (pf.SP_SIZE)
-CP_GATE_PARAMS = CP_SIGNAL + pf.SP_SIZE  # the gate's parameters (pf.GP_SIZE)
-CP_SIZE = CP_GATE_PARAMS + pf.GP_SIZE
+CP_GATE_PARAMS = CP_SIGNAL + pf.SP_SIZE  # the magnetic handling's parameters (mg.GP_SIZE)
+CP_MOTION_ON = CP_GATE_PARAMS + mg.GP_SIZE  # 1: rest detection and accelerometer trust
+CP_MOTION = CP_MOTION_ON + 1  # their parameters (mo.MP_SIZE)
+CP_SIZE = CP_MOTION + mo.MP_SIZE
 
-CS_BIAS = 0  # gyro bias (3) rad/s, subtracted first
-CS_AWAITING = 3  # 1: restart from Wahba's solution at the first step with both directions usable
+MAG_FULL = 0  # the field direction as measured
+MAG_HORIZONTAL = 1  # its part perpendicular to the measured gravity (heading only)
+MAG_NONE = 2  # not used (6-axis)
+
+CS_BIAS = 0  # the initial gyro bias estimate (3) rad/s, b̂ at the start and at a measured restart
+CS_AWAITING = 3  # AWAIT_* : where the measured initial attitude stands
 CS_T = 4  # the last step's time (s)
 CS_IO = 5  # this step's gyr, acc, mag (9)
 CS_SIGNAL = CS_IO + 9  # the pre-filter's state (pf.SS_SIZE)
-CS_GATE = CS_SIGNAL + pf.SS_SIZE  # the gate's state (pf.GS_SIZE)
-CS_SIZE = CS_GATE + pf.GS_SIZE
+CS_GATE = CS_SIGNAL + pf.SS_SIZE  # the magnetic handling's state (mg.GS_SIZE)
+CS_MOTION = CS_GATE + mg.GS_SIZE  # rest detection's and accelerometer trust's state (mo.MS_SIZE)
+CS_SIZE = CS_MOTION + mo.MS_SIZE
+
+AWAIT_NONE = 0.0  # the initial attitude is given, or measured already
+AWAIT_BOTH = 1.0  # restart from Wahba's solution at the first step with both directions usable
+AWAIT_FIELD = 0.5  # restarted from gravity alone (no field yet): restart from Wahba's once there is one
 
 BAD_STEP = v.BAD_STEP
 _MAG_DISTURBED = int(StepFlag.MAG_DISTURBED)
+_REST = int(StepFlag.REST)
 _NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 _GYR_STALE = int(StepFlag.GYR_STALE)
 _ACC_STALE = int(StepFlag.ACC_STALE)
@@ -61,26 +81,37 @@ _MAG_STALE = int(StepFlag.MAG_STALE)
 
 
 def pack_params(
-    signal: Array, gate: Array | None, horizontal: bool, omega_err0: tuple[float, float, float]
+    signal: Array,
+    gate: Array | None,
+    mag_mode: int,
+    omega_err0: tuple[float, float, float],
+    motion: Array | None = None,
 ) -> Array:
-    """The chain parameters ``cp``: pre-filter parameters ``signal`` (``pf.pack_signal_params``), gate
-    parameters (``pf.pack_gate_params``, None: no gate), horizontal magnetometer, ω0 (rad/s)."""
+    """The chain parameters ``cp``: pre-filter parameters ``signal`` (``pf.pack_signal_params``), magnetic
+    handling's (``mg.pack_mag_params``; None: every field sample used), the magnetometer's use
+    (``MAG_*``), ω0 (rad/s), rest detection's and accelerometer trust's (``mo.pack_motion_params``; None:
+    neither)."""
     cp = np.zeros(CP_SIZE)
-    cp[CP_HORIZONTAL] = 1.0 if horizontal else 0.0
+    cp[CP_MAG_MODE] = mag_mode
     cp[CP_OMEGA0 : CP_OMEGA0 + 3] = omega_err0
     cp[CP_SIGNAL : CP_SIGNAL + pf.SP_SIZE] = signal
     if gate is not None:
         cp[CP_GATE] = 1.0
-        cp[CP_GATE_PARAMS : CP_GATE_PARAMS + pf.GP_SIZE] = gate
+        cp[CP_GATE_PARAMS : CP_GATE_PARAMS + mg.GP_SIZE] = gate
+    if motion is not None:
+        cp[CP_MOTION_ON] = 1.0
+        cp[CP_MOTION : CP_MOTION + mo.MP_SIZE] = motion
     return cp
 
 
 def new_state(bias: ArrayLike, awaiting: bool) -> Array:
-    """A chain state ``cs`` before the first step: ``bias`` (3,) rad/s, waiting for a measured attitude."""
+    """A chain state ``cs`` before the first step: the initial bias estimate ``bias`` (3,) rad/s, waiting
+    for a measured attitude or not."""
     cs = np.zeros(CS_SIZE)
     cs[CS_BIAS : CS_BIAS + 3] = np.asarray(bias, dtype=float).reshape(3)
-    cs[CS_AWAITING] = 1.0 if awaiting else 0.0
+    cs[CS_AWAITING] = AWAIT_BOTH if awaiting else AWAIT_NONE
     cs[CS_SIGNAL : CS_SIGNAL + pf.SS_SIZE] = pf.new_signal_state()
+    cs[CS_MOTION : CS_MOTION + mo.MS_SIZE] = mo.new_motion_state()
     return cs
 
 
@@ -147,43 +178,112 @@ def both_usable(ep, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
 
 
 @kernel
+def tilt(ep, ax, ay, az):  # type: ignore[no-untyped-def]
+    """The attitude from gravity alone (no field: 6-axis, or before the first field sample): the shortest
+    rotation taking the measured direction ``a`` to E's e1 (up), so the heading is wherever it lands. A
+    row-major 9-tuple, body → inertial."""
+    n = math.sqrt(ax * ax + ay * ay + az * az)
+    ux, uy, uz = ax / n, ay / n, az / n
+    ex, ey, ez = ep[v.P_E], ep[v.P_E + 3], ep[v.P_E + 6]
+    kx, ky, kz = uy * ez - uz * ey, uz * ex - ux * ez, ux * ey - uy * ex  # sin θ · axis
+    s = math.sqrt(kx * kx + ky * ky + kz * kz)
+    c = ux * ex + uy * ey + uz * ez
+    if s < 1e-12:  # parallel (identity) or opposite (half a turn about any perpendicular axis)
+        if c > 0.0:
+            return (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+        px, py, pz = (0.0, -uz, uy) if abs(ux) < 0.9 else (-uz, 0.0, ux)
+        p = math.sqrt(px * px + py * py + pz * pz)
+        return exp_f(math.pi * px / p, math.pi * py / p, math.pi * pz / p)
+    theta = math.atan2(s, c)
+    return exp_f(theta * kx / s, theta * ky / s, theta * kz / s)
+
+
+@kernel
+def restart(cp, cs, es, r):  # type: ignore[no-untyped-def]
+    """The estimator started over from the attitude ``r`` (row-major 9-tuple) and ω0, counters from zero;
+    the gyro bias estimate is kept (what it has learnt so far is still true)."""
+    b0, b1, b2 = es[v.S_BIAS], es[v.S_BIAS + 1], es[v.S_BIAS + 2]
+    es[:] = 0.0
+    for i in range(9):
+        es[v.S_R + i] = r[i]
+    for i in range(3):
+        es[v.S_OMEGA + i] = cp[CP_OMEGA0 + i]
+    es[v.S_BIAS], es[v.S_BIAS + 1], es[v.S_BIAS + 2] = b0, b1, b2
+    es[v.S_BIAS_TRUST] = es[v.S_MAG_WEIGHT] = 1.0
+
+
+@kernel
 def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
     """One merged step at time ``t`` (s), ``h`` s after the previous one (ignored on the first): raw
-    gyr (rad/s), acc, mag (NaN: not usable). Returns the estimator step's flags, with
-    :attr:`StepFlag.MAG_DISTURBED` when the gate rejected the magnetometer, ``| newton_updates <<
-    ITER_SHIFT``; or :data:`BAD_STEP` (nothing changed) for a step after the first whose ``h`` is not a
-    positive number."""
+    gyr (rad/s), acc (m/s²), mag (NaN: not usable). Returns the estimator step's flags, with
+    :attr:`StepFlag.MAG_DISTURBED` when the magnetometer was left out as disturbed and
+    :attr:`StepFlag.REST` at rest, ``| newton_updates << ITER_SHIFT``; or :data:`BAD_STEP` (nothing
+    changed) for a step after the first whose ``h`` is not a positive number."""
     ss = cs[CS_SIGNAL : CS_SIGNAL + pf.SS_SIZE]
-    if ss[pf.SS_N] > 0.0 and not (h > 0.0 and math.isfinite(h)):
+    started = ss[pf.SS_N] > 0.0
+    if started and not (h > 0.0 and math.isfinite(h)):
         return BAD_STEP
-    io = cs[CS_IO : CS_IO + 9]
-    io[0], io[1], io[2] = gx - cs[CS_BIAS], gy - cs[CS_BIAS + 1], gz - cs[CS_BIAS + 2]
-    io[3], io[4], io[5] = ax, ay, az
-    io[6], io[7], io[8] = mx, my, mz
-    signal_step(cp[CP_SIGNAL : CP_SIGNAL + pf.SP_SIZE], ss, h, io)
-    ax, ay, az, mx, my, mz = io[3], io[4], io[5], io[6], io[7], io[8]
-    flags = 0
-    if cp[CP_GATE] != 0.0 and math.isfinite(mx + my + mz):
-        gp = cp[CP_GATE_PARAMS : CP_GATE_PARAMS + pf.GP_SIZE]
-        if not gate_step(gp, cs[CS_GATE : CS_GATE + pf.GS_SIZE], h, ax, ay, az, mx, my, mz):
-            mx = my = mz = math.nan
-            flags |= _MAG_DISTURBED
-    if cp[CP_HORIZONTAL] != 0.0:
-        n2 = ax * ax + ay * ay + az * az
-        if n2 > 0.0 and math.isfinite(n2) and math.isfinite(mx + my + mz):
-            k = (mx * ax + my * ay + mz * az) / n2
-            mx, my, mz = mx - k * ax, my - k * ay, mz - k * az
-        else:
-            mx = my = mz = math.nan
-    if cs[CS_AWAITING] != 0.0 and both_usable(ep, ax, ay, az, mx, my, mz):
-        cs[CS_AWAITING] = 0.0  # restart the estimator from the measured attitude, counters from zero
-        r = wahba(ep, ax, ay, az, mx, my, mz)
-        es[:] = 0.0
-        for i in range(9):
-            es[v.S_R + i] = r[i]
+    if not started:
         for i in range(3):
-            es[v.S_OMEGA + i] = cp[CP_OMEGA0 + i]
-    code = v.step(ep, es, h, io[0], io[1], io[2], ax, ay, az, mx, my, mz)
+            es[v.S_BIAS + i] = cs[CS_BIAS + i]
+    bx, by, bz = es[v.S_BIAS], es[v.S_BIAS + 1], es[v.S_BIAS + 2]
+    mode = cp[CP_MAG_MODE]
+    io = cs[CS_IO : CS_IO + 9]
+    io[0], io[1], io[2] = gx - bx, gy - by, gz - bz  # the pre-filter's strapdown frame: gyro less b̂
+    io[3], io[4], io[5] = ax, ay, az
+    io[6], io[7], io[8] = (math.nan, math.nan, math.nan) if mode == MAG_NONE else (mx, my, mz)
+    motion = cp[CP_MOTION_ON] != 0.0
+    ms = cs[CS_MOTION : CS_MOTION + mo.MS_SIZE]
+    signal_step(cp[CP_SIGNAL : CP_SIGNAL + pf.SP_SIZE], ss, h, io, ms[mo.MS_ACC_CUT] if motion else 1.0)
+    flags = 0
+    if motion:  # rest and the accelerometer's trust, from the raw acc in the strapdown frame
+        sx, sy, sz = apply_f((ss[0], ss[1], ss[2], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8]), (ax, ay, az))
+        mp = cp[CP_MOTION : CP_MOTION + mo.MP_SIZE]
+        rest = motion_step(mp, ms, h, gx, gy, gz, bx, by, bz, sx, sy, sz)
+        es[v.S_BIAS_TRUST] = ms[mo.MS_CALM]  # the bias law trusts the torque as much as gravity's reading
+        if rest:
+            flags |= _REST
+            k = min(1.0, h * mp[mo.MP_REST_GAIN])  # at rest the gyro reads its bias: b̂ follows lp(Ω^m)
+            lim = ep[v.P_BIAS_MAX]
+            for i in range(3):
+                b = es[v.S_BIAS + i] + k * (ms[mo.MS_GYR_LP + i] - es[v.S_BIAS + i])
+                es[v.S_BIAS + i] = min(lim, max(-lim, b))
+    ax, ay, az, mx, my, mz = io[3], io[4], io[5], io[6], io[7], io[8]
+    # the vertical in the body frame: the estimate's (R̂ᵀ e1) once it runs from a measured or given
+    # attitude, else the (pre-filtered) accelerometer's
+    if cs[CS_AWAITING] == AWAIT_NONE:
+        e0, e1, e2 = ep[v.P_E], ep[v.P_E + 3], ep[v.P_E + 6]
+        ux = es[v.S_R] * e0 + es[v.S_R + 3] * e1 + es[v.S_R + 6] * e2
+        uy = es[v.S_R + 1] * e0 + es[v.S_R + 4] * e1 + es[v.S_R + 7] * e2
+        uz = es[v.S_R + 2] * e0 + es[v.S_R + 5] * e1 + es[v.S_R + 8] * e2
+    else:
+        na = math.sqrt(ax * ax + ay * ay + az * az)
+        ux = uy = uz = math.nan
+        if na > 0.0 and math.isfinite(na):
+            ux, uy, uz = ax / na, ay / na, az / na
+    weight = 1.0
+    if cp[CP_GATE] != 0.0 and math.isfinite(mx + my + mz):
+        gp = cp[CP_GATE_PARAMS : CP_GATE_PARAMS + mg.GP_SIZE]
+        rate = math.sqrt(io[0] * io[0] + io[1] * io[1] + io[2] * io[2])
+        weight = mag_step(gp, cs[CS_GATE : CS_GATE + mg.GS_SIZE], h, rate, ux, uy, uz, mx, my, mz)
+        if weight < 1.0:  # left out, or at the late weight: disturbed
+            flags |= _MAG_DISTURBED
+        if weight == 0.0:
+            mx = my = mz = math.nan
+    es[v.S_MAG_WEIGHT] = weight
+    if mode == MAG_HORIZONTAL:  # the field's part perpendicular to the vertical: heading only
+        k = mx * ux + my * uy + mz * uz
+        mx, my, mz = mx - k * ux, my - k * uy, mz - k * uz
+    awaiting = cs[CS_AWAITING]
+    if awaiting != AWAIT_NONE:
+        if both_usable(ep, ax, ay, az, mx, my, mz):
+            cs[CS_AWAITING] = AWAIT_NONE  # restart the estimator from the measured attitude
+            restart(cp, cs, es, wahba(ep, ax, ay, az, mx, my, mz))
+        elif awaiting == AWAIT_BOTH and math.isfinite(ax + ay + az) and ax * ax + ay * ay + az * az > 0.0:
+            cs[CS_AWAITING] = AWAIT_NONE if mode == MAG_NONE else AWAIT_FIELD
+            restart(cp, cs, es, tilt(ep, ax, ay, az))
+    # the estimator takes Ω^m (it removes its own b̂): the pre-filtered gyro with the bias put back
+    code = v.step(ep, es, h, io[0] + bx, io[1] + by, io[2] + bz, ax, ay, az, mx, my, mz)
     if code < 0:  # an estimator stepped outside this chain: its h is not this one's
         return code
     es[v.S_T] = t

@@ -12,7 +12,7 @@ Its parameters are in :mod:`hil.estimation.params`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from operator import itemgetter
 
 import numpy as np
@@ -37,7 +37,8 @@ class EstimatorState:
 
     ``t`` s since the first sample; ``R`` (3, 3) body → inertial; ``omega_err`` (3,) rad/s the rate-estimate
     error ω (``Ω̂ = Ω^m − ω``); ``gyr`` (3,) rad/s the last rate measurement Ω^m[i] used; ``torque`` (3,) the
-    cached ``Φ'(U⁰[i]) S_L[i]``; ``started`` whether a first sample has been taken.
+    cached ``Φ'(U⁰[i]) S_L[i]``; ``started`` whether a first sample has been taken; ``bias`` (3,) rad/s the
+    gyro bias estimate b̂ (``Ω̂ = Ω^m − b̂ − ω``).
     """
 
     t: float
@@ -46,6 +47,7 @@ class EstimatorState:
     gyr: Array
     torque: Array
     started: bool
+    bias: Array = field(default_factory=lambda: np.zeros(3))
 
 
 @dataclass(frozen=True)
@@ -137,7 +139,9 @@ class VariationalEstimator:
     ``R0`` (3, 3) is the initial attitude estimate (body → inertial; default identity — see
     :func:`~hil.estimation.params.wahba` to start from the first measurement,
     :func:`~hil.estimation.params.paper_initial_attitude` for the paper's 127° error);
-    ``omega_err0`` (3,) rad/s the initial rate-estimate error ω0.
+    ``omega_err0`` (3,) rad/s the initial rate-estimate error ω0; ``bias0`` (3,) rad/s the initial gyro
+    bias estimate b̂0 (e.g. measured over a still window), which ``params.bias_gain`` lets the estimator
+    correct online.
 
     The numbers live in the two arrays the kernels of :mod:`hil.estimation.variational` take (parameters,
     and the state with its counters; layouts there): :attr:`arrays` hands them to a compiled caller (the
@@ -149,25 +153,36 @@ class VariationalEstimator:
         params: EstimatorParams | None = None,
         R0: ArrayLike | None = None,
         omega_err0: ArrayLike = (0.0, 0.0, 0.0),
+        bias0: ArrayLike = (0.0, 0.0, 0.0),
     ) -> None:
         self.params = params or EstimatorParams()
         self._ep = k.pack_params(self.params)
         self._es = np.zeros(k.S_SIZE)
         self._raise = self.params.on_newton_failure == "raise"
-        self.reset(R0, omega_err0)
+        self.reset(R0, omega_err0, bias0)
 
-    def reset(self, R0: ArrayLike | None = None, omega_err0: ArrayLike = (0.0, 0.0, 0.0)) -> None:
-        """Start over from ``R0`` (default identity; projected onto SO(3)) and ``omega_err0``; counters
-        restart from zero."""
+    def reset(
+        self,
+        R0: ArrayLike | None = None,
+        omega_err0: ArrayLike = (0.0, 0.0, 0.0),
+        bias0: ArrayLike = (0.0, 0.0, 0.0),
+    ) -> None:
+        """Start over from ``R0`` (default identity; projected onto SO(3)), ``omega_err0`` and ``bias0``;
+        counters restart from zero."""
         r = np.eye(3) if R0 is None else so3.project(np.asarray(R0, dtype=float).reshape(3, 3))
         w = as_vec3(omega_err0)
         if w is None:
             raise ConfigError(f"must be a finite 3-vector, got {omega_err0!r}", "omega_err0")
+        b = as_vec3(bias0)
+        if b is None:
+            raise ConfigError(f"must be a finite 3-vector, got {bias0!r}", "bias0")
         es = self._es
         es[:] = 0.0
         es[k.S_R : k.S_R + 9] = r.reshape(-1)
         es[k.S_OMEGA : k.S_OMEGA + 3] = w
-        es[k.S_RATE : k.S_RATE + 3] = -np.asarray(w)
+        es[k.S_BIAS : k.S_BIAS + 3] = b
+        es[k.S_BIAS_TRUST] = es[k.S_MAG_WEIGHT] = 1.0
+        es[k.S_RATE : k.S_RATE + 3] = -np.asarray(w) - np.asarray(b)
 
     @property
     def arrays(self) -> tuple[Array, Array]:
@@ -185,6 +200,7 @@ class VariationalEstimator:
             es[k.S_GYR : k.S_GYR + 3].copy(),
             es[k.S_TORQUE : k.S_TORQUE + 3].copy(),
             bool(es[k.S_STARTED]),
+            es[k.S_BIAS : k.S_BIAS + 3].copy(),
         )
 
     def restore(self, state: EstimatorState) -> None:
@@ -196,7 +212,10 @@ class VariationalEstimator:
         es[k.S_GYR : k.S_GYR + 3] = np.asarray(state.gyr, dtype=float).reshape(3)
         es[k.S_TORQUE : k.S_TORQUE + 3] = np.asarray(state.torque, dtype=float).reshape(3)
         es[k.S_STARTED] = 1.0 if state.started else 0.0
-        es[k.S_RATE : k.S_RATE + 3] = es[k.S_GYR : k.S_GYR + 3] - es[k.S_OMEGA : k.S_OMEGA + 3]
+        es[k.S_BIAS : k.S_BIAS + 3] = np.asarray(state.bias, dtype=float).reshape(3)
+        es[k.S_RATE : k.S_RATE + 3] = (
+            es[k.S_GYR : k.S_GYR + 3] - es[k.S_BIAS : k.S_BIAS + 3] - es[k.S_OMEGA : k.S_OMEGA + 3]
+        )
 
     @property
     def stats(self) -> EstimatorStats:
@@ -219,8 +238,13 @@ class VariationalEstimator:
 
     @property
     def omega(self) -> Array:
-        """Current body rate estimate Ω̂ = Ω^m − ω (3,), rad/s."""
+        """Current body rate estimate Ω̂ = Ω^m − b̂ − ω (3,), rad/s."""
         return self._es[k.S_RATE : k.S_RATE + 3].copy()
+
+    @property
+    def bias(self) -> Array:
+        """Current gyro bias estimate b̂ (3,), rad/s."""
+        return self._es[k.S_BIAS : k.S_BIAS + 3].copy()
 
     # ----------------------------------------------------------------- stepping
     def update(

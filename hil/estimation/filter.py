@@ -1,8 +1,9 @@
-"""The attitude filter as it runs on a phone's merged steps: gyro bias removal, the pre-filter, the
-magnetic gate, the magnetometer's handling (full field or horizontal part) and the measured initial
-attitude around :class:`hil.estimation.estimator.VariationalEstimator` (:class:`AttitudeFilter`), set up
-by :class:`FilterConfig` with the paper's or the tuned (:data:`TUNED`) settings. The steps themselves
-are the compiled kernels of :mod:`hil.estimation.chain`. Pure math, no I/O."""
+"""The attitude filter as it runs on a phone's merged steps: the pre-filter, rest detection and the
+accelerometer's trust, magnetic disturbance handling, the magnetometer's use (full field, horizontal part,
+or none: 6-axis) and the measured initial attitude around :class:`hil.estimation.estimator.
+VariationalEstimator` with its online gyro bias estimate (:class:`AttitudeFilter`), set up by
+:class:`FilterConfig` with the paper's or the tuned (:data:`TUNED`) settings. The steps themselves are
+the compiled kernels of :mod:`hil.estimation.chain`. Pure math, no I/O."""
 
 from __future__ import annotations
 
@@ -17,21 +18,18 @@ from numpy.typing import ArrayLike, NDArray
 from hil.estimation import chain
 from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, estimate
 from hil.estimation.inertial import directions_from_dip
+from hil.estimation.magnetic import MagneticSettings, pack_mag_params
+from hil.estimation.motion import MP_REST_GAIN, MotionSettings, pack_motion_params
 from hil.estimation.params import EstimatorParams
-from hil.estimation.prefilter import (
-    PAPER_CUTOFF_RAD_S,
-    SS_N,
-    GateSettings,
-    pack_gate_params,
-    pack_signal_params,
-)
+from hil.estimation.prefilter import PAPER_CUTOFF_RAD_S, SS_N, pack_signal_params
 from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
-from hil.estimation.variational import S_OMEGA
+from hil.estimation.variational import S_BIAS, S_OMEGA
 from protocol.errors import ConfigError, ConvergenceError
 
 Array = NDArray[np.float64]
 
 _NAN3 = (math.nan, math.nan, math.nan)
+_MAG_MODES = {"full": chain.MAG_FULL, "horizontal": chain.MAG_HORIZONTAL, "none": chain.MAG_NONE}
 _NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 
 
@@ -45,29 +43,36 @@ class FilterConfig:
 
     ``prefilter_rad_s``: pre-filter cut-off per sensor (rad/s), None for none; ``prefilter_frame``
     ``"body"`` (the paper) or ``"strapdown"`` (see :class:`hil.estimation.prefilter.SignalPrefilter`).
-    ``gyro_bias`` (3,) rad/s: subtracted from every gyro sample first (e.g. measured over a still window).
+    ``gyro_bias`` (3,) rad/s: the initial gyro bias estimate b̂0 (e.g. measured over a still window: an
+    optional initialiser), corrected online when ``params.bias_gain`` is not zero (and at rest with
+    ``motion``); with a zero gain it is subtracted as given.
     ``magnetometer``: ``"full"`` uses the field direction as measured (the paper; E's e2 is the full field
     direction); ``"horizontal"`` uses its component perpendicular to the measured gravity direction, so that
-    the magnetometer informs heading only (E's e2 must then be horizontal, e.g. magnetic north).
-    ``init``: initial attitude — ``"measured"`` (Wahba's solution from the first step with both directions),
-    ``"identity"``, or a (3, 3) body → inertial matrix; ``omega_err0`` (3,) rad/s the initial ω.
-    ``mag_gate``: reject disturbed magnetometer samples (:class:`hil.estimation.prefilter.MagneticGate`),
-    or None.
+    the magnetometer informs heading only (E's e2 must then be horizontal, e.g. magnetic north); ``"none"``
+    does not use it (6-axis: inclination from gravity, heading the bias-corrected gyro's integral).
+    ``init``: initial attitude — ``"measured"`` (Wahba's solution from the first step with both directions;
+    from gravity alone, heading where it lands, until there is a field), ``"identity"``, or a (3, 3)
+    body → inertial matrix; ``omega_err0`` (3,) rad/s the initial ω.
+    ``mag_gate``: magnetic disturbance handling (:mod:`hil.estimation.magnetic`), or None (every field
+    sample used). ``motion``: rest detection and accelerometer trust (:mod:`hil.estimation.motion`), or
+    None (neither).
     """
 
     params: EstimatorParams = field(default_factory=EstimatorParams)
     prefilter_rad_s: dict[SensorKind, float | None] = field(default_factory=lambda: dict(PAPER_PREFILTER))
     prefilter_frame: Literal["body", "strapdown"] = "body"
     gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    magnetometer: Literal["full", "horizontal"] = "full"
+    magnetometer: Literal["full", "horizontal", "none"] = "full"
     init: Literal["measured", "identity"] | ArrayLike = "measured"
     omega_err0: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    mag_gate: GateSettings | None = None
+    mag_gate: MagneticSettings | None = None
+    motion: MotionSettings | None = None
 
     def __post_init__(self) -> None:
-        if self.magnetometer not in ("full", "horizontal"):
+        if self.magnetometer not in _MAG_MODES:
             raise ConfigError(
-                f"must be 'full' or 'horizontal', got {self.magnetometer!r}", "FilterConfig.magnetometer"
+                f"must be 'full', 'horizontal' or 'none', got {self.magnetometer!r}",
+                "FilterConfig.magnetometer",
             )
         if self.magnetometer == "horizontal" and abs(float(self.params.E[2, 1])) > 1e-9:
             raise ConfigError(
@@ -91,8 +96,11 @@ class FilterConfig:
         (see docs/estimator.md, "Tuning"): :data:`TUNED`; E is magnetic north (or true north given the
         declination) with a horizontal magnetometer, so only the field's direction in the horizontal
         plane matters and no inclination is needed."""
-        params = EstimatorParams(E=directions_from_dip(0.0, declination_deg), W=np.diag(TUNED["W_diag"]),
-                                 m=TUNED["m"], D=np.diag(TUNED["D_diag"]))  # fmt: skip
+        params = EstimatorParams(
+            E=directions_from_dip(0.0, declination_deg), W=np.diag(TUNED["W_diag"]), m=TUNED["m"],
+            D=np.diag(TUNED["D_diag"]), bias_gain=(TUNED["bias_gain"],) * 3, bias_max=TUNED["bias_max"],
+            bias_vertical=TUNED["bias_vertical"], gyro_delay_s=TUNED["gyro_delay_s"],
+        )  # fmt: skip
         cut = {SensorKind.ACC: TUNED["acc_cutoff"], SensorKind.MAG: TUNED["mag_cutoff"], SensorKind.GYR: None}
         base = {
             "params": params,
@@ -100,21 +108,26 @@ class FilterConfig:
             "prefilter_frame": "strapdown",
             "magnetometer": "horizontal",
             "mag_gate": TUNED["mag_gate"],
+            "motion": TUNED["motion"],
         }
         return cls(**{**base, **overrides})  # type: ignore[arg-type]
 
 
 TUNED: dict = {
-    "W_diag": (6.0, 1.0, 0.25),
+    "W_diag": (4.0, 0.4, 0.05),
     "m": 0.1,
     "D_diag": (6.0, 6.5, 7.0),
-    "acc_cutoff": 0.15,
+    "acc_cutoff": 0.47,
     "mag_cutoff": None,
-    "mag_gate": GateSettings(norm_tol=0.2, dip_tol_deg=15.0),
+    "bias_gain": 0.003,
+    "bias_vertical": 1.5,
+    "bias_max": 0.05,
+    "gyro_delay_s": 0.005,
+    "mag_gate": MagneticSettings(norm_tol=0.3, dip_tol_deg=15.0, late_weight=0.5, boost=6.0),
+    "motion": MotionSettings(acc_scale=2.0, calm=1.0, dynamic=1.0, rest_gain=0.5),
 }
-"""Tuned settings: a two-stage grid search (``python -m bench.bench_estimator --tune``) minimising the
-mean total RMSE over six real trials (three tyrex smartphone, three BROAD), then the magnetometer gate's
-tolerances chosen on the same six; see docs/estimator.md."""
+"""Tuned settings: chosen by leave-one-trial-out over every shared trial (``python -m bench.bench_estimator
+--tune``); see docs/estimator.md, "The tuned preset"."""
 
 
 class AttitudeFilter:
@@ -131,21 +144,38 @@ class AttitudeFilter:
         self.config = cfg = config or FilterConfig()
         init = cfg.init
         r0 = None if isinstance(init, str) else init
-        self.estimator = VariationalEstimator(cfg.params, r0, cfg.omega_err0)
+        self.estimator = VariationalEstimator(cfg.params, r0, cfg.omega_err0, cfg.gyro_bias)
         self._ep, self._es = self.estimator.arrays
-        signal = pack_signal_params(cfg.prefilter_rad_s, cfg.prefilter_frame)
-        gate = None if cfg.mag_gate is None else pack_gate_params(cfg.mag_gate)
-        self._cp = chain.pack_params(signal, gate, cfg.magnetometer == "horizontal", cfg.omega_err0)
+        signal = pack_signal_params(cfg.prefilter_rad_s, cfg.prefilter_frame, cfg.params.gyro_delay_s)
+        gate = None if cfg.mag_gate is None else pack_mag_params(cfg.mag_gate)
+        motion = None if cfg.motion is None else pack_motion_params(cfg.motion)
+        mode = _MAG_MODES[cfg.magnetometer]
+        self._cp = chain.pack_params(signal, gate, mode, cfg.omega_err0, motion)
         self._cs = chain.new_state(cfg.gyro_bias, isinstance(init, str) and init == "measured")
         self._raise = cfg.params.on_newton_failure == "raise"
 
+    @property
+    def gyro_bias(self) -> Array:
+        """The gyro bias estimate b̂ (3,), rad/s."""
+        return self._es[S_BIAS : S_BIAS + 3].copy()
+
     def set_gyro_bias(self, bias: ArrayLike) -> None:
-        """Subtract ``bias`` (3,) rad/s from every later gyro sample: a bias measured while running (the
-        host's still window) — the estimator's attitude would otherwise carry a steady offset from it."""
+        """Set the gyro bias estimate to ``bias`` (3,) rad/s, measured while running (the host's still
+        window): the estimator continues from it (and keeps correcting it, given a bias gain)."""
         b = as_vec3(tuple(np.asarray(bias, dtype=float).tolist()))
         if b is None:
             raise ConfigError(f"must be a finite 3-vector, got {bias!r}", "AttitudeFilter.set_gyro_bias")
         self._cs[chain.CS_BIAS : chain.CS_BIAS + 3] = b
+        self._es[S_BIAS : S_BIAS + 3] = b
+
+    def set_rest_learning(self, enabled: bool) -> None:
+        """Let rest detection pull the bias estimate toward the gyro (the settings' ``rest_gain``) or not
+        (0), from the next step on; rest is still detected and flagged. For a caller that knows better
+        than the detector: the host, whose spacecraft ending a slew under control turns steadily below
+        ``rate_max`` — what the detector takes for rest —, learns only in its still window."""
+        if self.config.motion is not None:
+            gain = self.config.motion.rest_gain if enabled else 0.0
+            self._cp[chain.CP_MOTION + MP_REST_GAIN] = gain
 
     def step(self, s: MergedStep) -> Estimate:
         """One merged step (live path)."""

@@ -102,6 +102,11 @@ class EstimatorParams:
     replaced by) the normalised cross product. ``W`` (3, 3) symmetric weights: ``E W Eᵀ`` must be positive
     definite with distinct eigenvalues (U⁰ is then a Morse function on SO(3) with an almost-global basin).
     ``m`` > 0 (the estimator's 'inertia'), ``D`` (3, 3) symmetric positive definite (its 'dissipation').
+
+    ``bias_gain`` (3,) ≥ 0: the diagonal of P⁻¹ in the gyro bias estimate's law ``db̂/dt = P⁻¹ Φ'(U⁰) S_L``
+    (docs/estimator.md, "Gyro bias"; rad/s of bias per second per unit of torque); all zero (the paper's
+    estimator) keeps b̂ at its initial value. ``bias_max`` (rad/s): each component of b̂ is kept within
+    ±``bias_max`` (a projection, which never moves b̂ away from a true bias inside the bound).
     """
 
     E: Array = field(default_factory=lambda: np.array(PAPER_E))
@@ -114,6 +119,10 @@ class EstimatorParams:
     on_newton_failure: Literal["flag", "raise"] = "flag"
     max_step_s: float = 0.05
     min_direction_angle_deg: float = 2.0
+    bias_gain: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    bias_max: float = math.inf
+    gyro_delay_s: float = 0.0
+    bias_vertical: float = 1.0
 
     def __post_init__(self) -> None:
         e = np.asarray(self.E, dtype=float)
@@ -146,6 +155,9 @@ class EstimatorParams:
             ("max_step_s", self.max_step_s > 0),
             ("on_newton_failure", self.on_newton_failure in ("flag", "raise")),
             ("min_direction_angle_deg", 0 < self.min_direction_angle_deg < 90),
+            ("bias_max", self.bias_max > 0),
+            ("gyro_delay_s", math.isfinite(self.gyro_delay_s) and self.gyro_delay_s >= 0),
+            ("bias_vertical", math.isfinite(self.bias_vertical) and self.bias_vertical >= 0.0),
         ):
             if not ok:
                 raise ConfigError(f"invalid value {getattr(self, name)!r}", f"EstimatorParams.{name}")
@@ -155,6 +167,10 @@ class EstimatorParams:
                 "Potential with a constant_derivative",
                 "EstimatorParams.phi",
             )
+        gain = np.broadcast_to(np.asarray(self.bias_gain, dtype=float), (3,))
+        if not np.all(np.isfinite(gain) & (gain >= 0.0)):
+            raise ConfigError(f"must be finite and >= 0, got {self.bias_gain!r}", "EstimatorParams.bias_gain")
+        object.__setattr__(self, "bias_gain", tuple(float(x) for x in gain))
         object.__setattr__(self, "E", e_full)
         object.__setattr__(self, "W", w)
         object.__setattr__(self, "D", d)

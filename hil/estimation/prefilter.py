@@ -1,5 +1,5 @@
-"""The paper's first-order Butterworth low-pass pre-filter, discretised by the bilinear (Tustin) transform,
-and the magnetometer's disturbance gate — compiled kernels and the objects around them.
+"""The paper's first-order Butterworth low-pass pre-filter, discretised by the bilinear (Tustin) transform
+— compiled kernels and the objects around them.
 
 Continuous filter with cut-off ``ω_c`` (rad/s): ``H(s) = ω_c / (s + ω_c)``, i.e. ``dx̄/dt = ω_c (x − x̄)``.
 Substituting ``s = (2/h)(z − 1)/(z + 1)`` over a step of ``h`` seconds and multiplying by ``h (z + 1)``:
@@ -17,17 +17,14 @@ false, or any non-finite component) yields NaN and resets the filter, which rest
 sample: after a sensor drop-out the output follows the fresh data instead of sliding over from the old.
 
 Compiled (:func:`hil.jit.kernel`): :func:`lowpass` (one sample of a filter of any dimension),
-:func:`signal_step` (a phone's three signals, body or strapdown frame), :func:`gate_step` (the magnetic
-gate); the attitude filter's chain (:mod:`hil.estimation.chain`) runs them inside its own kernel. Their
-arrays (float64; slots are the constants below):
+:func:`signal_step` (a phone's three signals, body or strapdown frame); the attitude filter's chain
+(:mod:`hil.estimation.chain`) runs them inside its own kernel. Their arrays (float64; slots are the
+constants below):
 
 - a low-pass state (``1 + 2 d`` for dimension d): running flag, previous input (d), previous output (d);
 - signal parameters ``sp`` (:data:`SP_SIZE`): the cut-offs of gyr, acc, mag (rad/s; 0 = not filtered),
   strapdown flag; signal state ``ss`` (:data:`SS_SIZE`): the strapdown frame ``R_g`` (9), the last gyro
-  (3), steps taken, then the three low-pass states (gyr, acc, mag);
-- gate parameters ``gp`` (:data:`GP_SIZE`): norm tolerance, sin of the dip tolerance, reference time
-  constant (s), rejection timeout (s); gate state ``gs`` (:data:`GS_SIZE`): reference norm (and whether
-  set), reference sin-dip (and whether set), seconds rejected so far.
+  (3), steps taken, then the three low-pass states (gyr, acc, mag).
 
 :func:`filter_batch` is the filter in closed form on numpy arrays (the numpy reference the tests compare
 :func:`lowpass` with); :mod:`hil.estimation.reference` has the others.
@@ -36,7 +33,7 @@ arrays (float64; slots are the constants below):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -57,7 +54,8 @@ BAD_STEP = -1
 
 SP_CUTOFF = 0  # cut-offs (3) rad/s in KINDS order, 0 = not filtered
 SP_STRAPDOWN = 3  # 1: acc and mag filtered in the gyro-only frame
-SP_SIZE = 4
+SP_GYRO_DELAY = 4  # s the gyro's readings lag the motion (R_g's midpoint rule moved forward by it)
+SP_SIZE = 5
 
 SS_RG = 0  # R_g (9), the gyro integrated alone
 SS_GYR = 9  # the last gyro (3), non-finite read as 0
@@ -65,19 +63,6 @@ SS_N = 12  # steps taken
 SS_LP = 13  # three low-pass states of LP_SIZE (gyr, acc, mag)
 LP_SIZE = 7  # a 3-vector's low-pass state: running, previous input (3), previous output (3)
 SS_SIZE = SS_LP + 3 * LP_SIZE
-
-GP_NORM_TOL = 0  # fraction
-GP_SIN_TOL = 1  # sin of the dip tolerance
-GP_TAU = 2  # s
-GP_TIMEOUT = 3  # s
-GP_SIZE = 4
-
-GS_HAS_NORM = 0
-GS_NORM = 1
-GS_HAS_DIP = 2
-GS_DIP = 3  # sin of the dip: −(ĝ·m̂), ĝ the gravity reading's direction (up)
-GS_REJECTED_FOR = 4  # s
-GS_SIZE = 5
 
 _IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 
@@ -129,12 +114,14 @@ def lowpass(st, cutoff, h, x, y):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def signal_step(sp, ss, h, io):  # type: ignore[no-untyped-def]
+def signal_step(sp, ss, h, io, acc_scale):  # type: ignore[no-untyped-def]
     """One merged step of ``h`` s (ignored on the first) through a phone's three signals: ``io`` (9,)
     holds gyr, acc, mag (NaN: not usable) and receives them filtered (NaN where not usable; a signal that
     is not filtered passes through). In the strapdown frame, acc and mag are filtered as ``R_g v`` and
-    rotated back (see :class:`SignalPrefilter`). Returns 0, or :data:`BAD_STEP` (nothing changed) for a
-    step after the first whose ``h`` is not a positive number."""
+    rotated back (see :class:`SignalPrefilter`). The accelerometer's cut-off is multiplied by
+    ``acc_scale`` for this step (its trust: :mod:`hil.estimation.motion`; 1 for the configured cut-off).
+    Returns 0, or :data:`BAD_STEP` (nothing changed) for a step after the first whose ``h`` is not a
+    positive number."""
     if ss[SS_N] > 0.0 and not (h > 0.0 and math.isfinite(h)):
         return BAD_STEP
     gx, gy, gz = io[0], io[1], io[2]
@@ -144,8 +131,9 @@ def signal_step(sp, ss, h, io):  # type: ignore[no-untyped-def]
     r = (ss[0], ss[1], ss[2], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8])
     if strap and ss[SS_N] > 0.0:
         ax, ay, az = ss[SS_GYR], ss[SS_GYR + 1], ss[SS_GYR + 2]
+        f = 0.5 + sp[SP_GYRO_DELAY] / h  # the rate at the step's middle, as the estimator takes it
         r = reorthonormalize_f(
-            matmul_f(r, exp_f(0.5 * h * (ax + gx), 0.5 * h * (ay + gy), 0.5 * h * (az + gz)))
+            matmul_f(r, exp_f(h * (ax + f * (gx - ax)), h * (ay + f * (gy - ay)), h * (az + f * (gz - az))))
         )
         for i in range(9):
             ss[SS_RG + i] = r[i]
@@ -155,6 +143,8 @@ def signal_step(sp, ss, h, io):  # type: ignore[no-untyped-def]
         cut = sp[SP_CUTOFF + s]
         if cut == 0.0:
             continue
+        if s == 1:
+            cut *= acc_scale
         v = io[3 * s : 3 * s + 3]
         st = ss[SS_LP + LP_SIZE * s : SS_LP + LP_SIZE * (s + 1)]
         if strap and s > 0 and math.isfinite(v[0] + v[1] + v[2]):  # filter R_g v, rotate back
@@ -167,56 +157,13 @@ def signal_step(sp, ss, h, io):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def gate_step(gp, gs, h, ux, uy, uz, mx, my, mz):  # type: ignore[no-untyped-def]
-    """Whether the magnetometer sample ``m`` passes the gate (see :class:`MagneticGate`), given the
-    gravity reading ``u`` (up; NaN if not usable) and the step ``h`` s; updates the references in ``gs``.
-    A non-finite or zero ``m`` does not pass and changes nothing."""
-    n = math.sqrt(mx * mx + my * my + mz * mz)
-    if not (n > 0.0 and math.isfinite(n)):
-        return False
-    dip, has_dip = 0.0, False
-    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
-    if nu > 0.0 and math.isfinite(nu):
-        dip, has_dip = -(ux * mx + uy * my + uz * mz) / (nu * n), True
-    if gs[GS_HAS_NORM] == 0.0:
-        gs[GS_HAS_NORM], gs[GS_NORM] = 1.0, n
-        gs[GS_HAS_DIP], gs[GS_DIP] = (1.0 if has_dip else 0.0), dip
-        return True
-    ok = abs(n / gs[GS_NORM] - 1.0) <= gp[GP_NORM_TOL]
-    if has_dip and gs[GS_HAS_DIP] != 0.0:
-        ok = ok and abs(dip - gs[GS_DIP]) <= gp[GP_SIN_TOL]
-    if not ok:
-        gs[GS_REJECTED_FOR] += h
-        if gs[GS_REJECTED_FOR] < gp[GP_TIMEOUT]:
-            return False
-        gs[GS_NORM] = n  # the environment changed: start over from here
-        gs[GS_HAS_DIP], gs[GS_DIP] = (1.0 if has_dip else 0.0), dip
-    gs[GS_REJECTED_FOR] = 0.0
-    k = min(1.0, h / gp[GP_TAU])
-    gs[GS_NORM] += k * (n - gs[GS_NORM])
-    if has_dip:
-        if gs[GS_HAS_DIP] == 0.0:
-            gs[GS_HAS_DIP], gs[GS_DIP] = 1.0, dip
-        else:
-            gs[GS_DIP] += k * (dip - gs[GS_DIP])
-    return True
-
-
-@kernel
 def _signal_run(sp, ss, h, io):  # type: ignore[no-untyped-def]
     """:func:`signal_step` over N steps: ``h`` (N,), ``io`` (N, 9) in place. Returns the index of a bad
     step, or N."""
     for i in range(h.shape[0]):
-        if signal_step(sp, ss, h[i], io[i]) < 0:
+        if signal_step(sp, ss, h[i], io[i], 1.0) < 0:
             return i
     return h.shape[0]
-
-
-@kernel
-def _gate_run(gp, gs, h, up, mag, passed):  # type: ignore[no-untyped-def]
-    """:func:`gate_step` over N steps: ``h`` (N,), ``up`` and ``mag`` (N, 3), into ``passed`` (N,)."""
-    for i in range(h.shape[0]):
-        passed[i] = gate_step(gp, gs, h[i], up[i, 0], up[i, 1], up[i, 2], mag[i, 0], mag[i, 1], mag[i, 2])
 
 
 # --------------------------------------------------------------------------- one signal
@@ -315,8 +262,11 @@ def _filter_run(h: Array, x: Array, cutoff: float) -> Array:
 
 
 # --------------------------------------------------------------------------- a phone's three signals
-def pack_signal_params(cutoffs: dict[SensorKind, float | None], frame: str) -> Array:
-    """The signal parameters ``sp`` (:data:`SP_SIZE`) for per-sensor ``cutoffs`` (None: not filtered)."""
+def pack_signal_params(
+    cutoffs: dict[SensorKind, float | None], frame: str, gyro_delay_s: float = 0.0
+) -> Array:
+    """The signal parameters ``sp`` (:data:`SP_SIZE`) for per-sensor ``cutoffs`` (None: not filtered) and
+    the gyroscope's delay (s, see :class:`hil.estimation.params.EstimatorParams`)."""
     if frame not in ("body", "strapdown"):
         raise ConfigError(f"pre-filter frame must be 'body' or 'strapdown', got {frame!r}", "prefilter frame")
     sp = np.zeros(SP_SIZE)
@@ -324,6 +274,7 @@ def pack_signal_params(cutoffs: dict[SensorKind, float | None], frame: str) -> A
         cut = cutoffs.get(kind)
         sp[SP_CUTOFF + int(kind)] = 0.0 if cut is None else _check_cutoff(float(cut))
     sp[SP_STRAPDOWN] = 1.0 if frame == "strapdown" else 0.0
+    sp[SP_GYRO_DELAY] = gyro_delay_s
     return sp
 
 
@@ -368,7 +319,7 @@ class SignalPrefilter:
         io = self._io
         for s, v in enumerate((gyr, acc, mag)):
             io[3 * s : 3 * s + 3] = math.nan if v is None else v
-        if signal_step(self._sp, self._ss, float(h), io) < 0:
+        if signal_step(self._sp, self._ss, float(h), io, 1.0) < 0:
             raise ValueError(f"pre-filter step must be positive, got h = {h!r} s")
         out = io.tolist()
         g, a, m = (_vec(out[3 * s : 3 * s + 3]) for s in range(3))
@@ -389,67 +340,3 @@ class SignalPrefilter:
 def _vec(v: list[float]) -> Vec | None:
     x, y, z = v
     return (x, y, z) if math.isfinite(x + y + z) else None
-
-
-# --------------------------------------------------------------------------- magnetic disturbances
-@dataclass(frozen=True)
-class GateSettings:
-    """:class:`MagneticGate` settings: norm tolerance (fraction), dip tolerance (deg), reference time
-    constant (s), rejection timeout (s)."""
-
-    norm_tol: float = 0.1
-    dip_tol_deg: float = 8.0
-    tau_s: float = 20.0
-    timeout_s: float = 10.0
-
-
-def pack_gate_params(settings: GateSettings) -> Array:
-    """The gate parameters ``gp`` (:data:`GP_SIZE`); ConfigError for a setting that is not positive."""
-    for name, v in vars(settings).items():
-        if not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"must be a positive number, got {v!r}", f"MagneticGate.{name}")
-    gp = np.zeros(GP_SIZE)
-    gp[GP_NORM_TOL] = settings.norm_tol
-    gp[GP_SIN_TOL] = math.sin(math.radians(settings.dip_tol_deg))
-    gp[GP_TAU] = settings.tau_s
-    gp[GP_TIMEOUT] = settings.timeout_s
-    return gp
-
-
-class MagneticGate:
-    """Rejects magnetometer samples that a local disturbance (steel, magnets, electronics) has bent.
-
-    The geomagnetic field has a fixed strength and a fixed angle to gravity (the dip); a disturbance
-    changes one or both. A sample is rejected when its norm is more than ``norm_tol`` (fraction) from the
-    reference norm, or its dip — the angle to the gravity direction given (e.g. the pre-filtered
-    accelerometer) — more than ``dip_tol_deg`` from the reference dip. References start at the first
-    sample and follow accepted samples with time constant ``tau_s``; after ``timeout_s`` of continuous
-    rejection the gate accepts again and re-learns (a changed environment, not a passing disturbance).
-    Rejected samples come out None (flagged :attr:`StepFlag.MAG_DISTURBED` by the caller).
-    """
-
-    def __init__(
-        self, norm_tol: float = 0.1, dip_tol_deg: float = 8.0, tau_s: float = 20.0, timeout_s: float = 10.0
-    ):
-        self._gp = pack_gate_params(GateSettings(norm_tol, dip_tol_deg, tau_s, timeout_s))
-        self._gs = np.zeros(GS_SIZE)
-
-    def step(self, h: float, up: Vec | None, mag: Vec | None) -> Vec | None:
-        if mag is None:
-            return None
-        ux, uy, uz = (math.nan, math.nan, math.nan) if up is None else up
-        mx, my, mz = mag
-        gp, gs = self._gp, self._gs
-        passed = gate_step(gp, gs, float(h), float(ux), float(uy), float(uz), float(mx), float(my), float(mz))
-        return mag if passed else None
-
-    def run(self, h: Array, up: Array, mag: Array) -> Array:
-        """Gate every step in one compiled call (the same numbers as :meth:`step` one by one); rejected
-        rows come out NaN."""
-        passed = np.empty(len(h), dtype=np.bool_)
-        _gate_run(self._gp, self._gs, _c(h), _c(up), _c(mag), passed)
-        return np.where(passed[:, None], mag, np.nan)
-
-
-def _c(a: ArrayLike) -> Array:
-    return np.ascontiguousarray(a, dtype=float)

@@ -2,12 +2,12 @@
 time, with numpy 3×3 algebra (:mod:`hil.so3.arrays`), written from the equations rather than from the
 kernels' scalar code. The tests compare every kernel with them to rounding; nothing runs them at run time.
 
-- :func:`measurement`, :func:`potential`, :func:`torque`, :func:`newton`, :func:`advance`, :func:`run` —
-  :mod:`hil.estimation.variational` (U⁰ from its definition ``½⟨E_S − R̂U_S, (E_S − R̂U_S) W_SS⟩``);
+- :func:`measurement`, :func:`potential`, :func:`torque`, :func:`newton`, :func:`advance`,
+  :class:`Estimator`, :func:`run` — :mod:`hil.estimation.variational` (U⁰ from its definition
+  ``½⟨E_S − R̂U_S, (E_S − R̂U_S) W_SS⟩``, the gyro bias law);
 - :func:`strapdown_frames`, :func:`signal_run` (the closed-form :func:`~hil.estimation.prefilter.
-  filter_batch` in either frame), :func:`gate_run` — :mod:`hil.estimation.prefilter`;
-- :func:`filter_run` — the whole chain of :mod:`hil.estimation.chain` (Wahba's attitude by
-  :func:`hil.estimation.params.wahba`).
+  filter_batch` in either frame) — :mod:`hil.estimation.prefilter`;
+- the motion and magnetic stages and the whole chain: :mod:`hil.estimation.reference_chain`.
 """
 
 from __future__ import annotations
@@ -19,10 +19,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.estimation.filter import FilterConfig
-from hil.estimation.params import EstimatorParams, wahba
-from hil.estimation.prefilter import GateSettings, filter_batch
-from hil.estimation.sensors import KINDS, MergedSteps, SensorKind, StepFlag
+from hil.estimation.params import EstimatorParams
+from hil.estimation.prefilter import filter_batch
+from hil.estimation.sensors import KINDS, SensorKind, StepFlag
 
 Array = NDArray[np.float64]
 
@@ -30,14 +29,14 @@ _DEGENERATE = int(StepFlag.DEGENERATE)
 _NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 _SUBSTEPPED = int(StepFlag.SUBSTEPPED)
 _GYR_STALE = int(StepFlag.GYR_STALE)
-_MAG_DISTURBED = int(StepFlag.MAG_DISTURBED)
+_NAN3 = np.full(3, np.nan)
 
 
 # --------------------------------------------------------------------------- the variational step
 @dataclass(frozen=True)
 class Measurement:
-    """One step's directions: ``U`` (3, 3) with the unusable columns zero, ``used`` (3,) bool (acc, mag,
-    acc×mag), ``L = E W_SS Uᵀ`` (3, 3), ``flags``."""
+    """One step's directions: ``U`` (3, 3) with the unusable columns zero (the field's scaled by its
+    weight), ``used`` (3,) bool (acc, mag, acc×mag), ``L = E W_SS Uᵀ`` (3, 3), ``flags``."""
 
     U: Array
     used: NDArray[np.bool_]
@@ -49,7 +48,7 @@ class Measurement:
         return int(self.used[0]) | 2 * int(self.used[1]) | 4 * int(self.used[2])
 
 
-def _unit(v: ArrayLike | None) -> Array | None:
+def unit(v: ArrayLike | None) -> Array | None:
     if v is None:
         return None
     a = np.asarray(v, dtype=float)
@@ -57,9 +56,12 @@ def _unit(v: ArrayLike | None) -> Array | None:
     return a / n if math.isfinite(n) and n > 0.0 else None
 
 
-def measurement(p: EstimatorParams, acc: ArrayLike | None, mag: ArrayLike | None) -> Measurement:
-    """The usable directions of one step and ``L`` (see :mod:`hil.estimation.variational`)."""
-    u1, u2, u3 = _unit(acc), _unit(mag), None
+def measurement(
+    p: EstimatorParams, acc: ArrayLike | None, mag: ArrayLike | None, mag_weight: float = 1.0
+) -> Measurement:
+    """The usable directions of one step and ``L`` (see :mod:`hil.estimation.variational`); the field's
+    column of U is scaled by ``mag_weight``."""
+    u1, u2, u3 = unit(acc), unit(mag), None
     flags = 0
     if u1 is not None and u2 is not None:
         c = np.cross(u1, u2)
@@ -69,6 +71,8 @@ def measurement(p: EstimatorParams, acc: ArrayLike | None, mag: ArrayLike | None
             flags |= _DEGENERATE
             u2 = None
     used = np.array([u is not None for u in (u1, u2, u3)])
+    if u2 is not None:
+        u2 = mag_weight * u2
     u = np.column_stack([np.zeros(3) if x is None else x for x in (u1, u2, u3)])
     s = np.diag(used.astype(float))
     return Measurement(u, used, p.E @ (s @ p.W @ s) @ u.T, flags)
@@ -119,17 +123,100 @@ def newton(p: EstimatorParams, hh: float, g1: Array, c: Array) -> tuple[Array, i
     return w, p.newton_max_iter, False
 
 
+def bias_rate(p: EstimatorParams, tau: Array, trust: float, up: Array) -> Array:
+    """``P⁻¹ τ'`` with ``τ' = γ τ + (ν − γ)(τ·u) u`` (γ the trust, ν ``bias_vertical``, u the vertical)."""
+    t = trust * tau + (p.bias_vertical - trust) * float(tau @ up) * up
+    return np.asarray(p.bias_gain) * t
+
+
 def advance(
-    p: EstimatorParams, r: Array, w: Array, g0: Array, tau0: Array, h: float, g1: Array, meas: Measurement
-) -> tuple[Array, Array, Array, int, bool]:
-    """Proposition 1 from (R̂[i], ω[i]) to i+1 (see :func:`hil.estimation.variational.advance`)."""
+    p: EstimatorParams,
+    r: Array,
+    w: Array,
+    b: Array,
+    g0: Array,
+    tau0: Array,
+    h: float,
+    g1: Array,
+    meas: Measurement,
+    trust: float = 1.0,
+    up: Array | None = None,
+) -> tuple[Array, Array, Array, Array, int, bool]:
+    """Proposition 1 with the gyro bias estimate from (R̂[i], ω[i], b̂[i]) to i+1 (see
+    :func:`hil.estimation.variational.advance`)."""
     m, hh, eye = p.m, 0.5 * h, np.eye(3)
-    w_half = np.linalg.solve(m * eye + hh * p.D, so3.exp(-hh * (g0 - w)) @ (m * w) + hh * tau0)
-    r1 = r @ so3.exp(h * (0.5 * (g0 + g1) - w_half))
+    u = np.zeros(3) if up is None else up
+    clip = lambda x: np.clip(x, -p.bias_max, p.bias_max)  # noqa: E731
+    b_half = clip(b + hh * bias_rate(p, tau0, trust, u))
+    w_half = np.linalg.solve(m * eye + hh * p.D, so3.exp(-hh * (g0 - b - w)) @ (m * w) + hh * tau0)
+    rate = g0 + (0.5 + p.gyro_delay_s / h) * (g1 - g0)  # the readings at the step's middle, delayed
+    r1 = r @ so3.exp(h * (rate - b_half - w_half))
     r1 = r1 @ (1.5 * eye - 0.5 * r1.T @ r1)  # one Newton–Schulz polar step, as the kernel
     tau1 = torque(p, r1, meas)
-    w1, iters, ok = newton(p, hh, g1, (m * eye - hh * p.D) @ w_half + hh * tau1)
-    return r1, w1, tau1, iters, ok
+    b1 = clip(b_half + hh * bias_rate(p, tau1, trust, u))
+    w1, iters, ok = newton(p, hh, g1 - b1, (m * eye - hh * p.D) @ w_half + hh * tau1)
+    return r1, w1, b1, tau1, iters, ok
+
+
+@dataclass
+class Estimator:
+    """The estimator's state, stepped one merged step at a time (:meth:`step`): R̂, ω, b̂, the last
+    rate measurement and the cached torque; counters."""
+
+    p: EstimatorParams
+    r: Array
+    w: Array
+    b: Array = field(default_factory=lambda: np.zeros(3))
+    g0: Array = field(default_factory=lambda: np.zeros(3))
+    tau: Array = field(default_factory=lambda: np.zeros(3))
+    started: bool = False
+    counters: dict[str, int] = field(
+        default_factory=lambda: dict.fromkeys(
+            ("substeps", "newton_updates", "max_newton_updates", "no_direction"), 0
+        )  # fmt: skip
+    )
+
+    def step(
+        self, h: float, gyr: Array, acc: Array, mag: Array, mag_weight: float = 1.0, trust: float = 1.0
+    ) -> tuple[int, int]:
+        """One step: the first only initialises; a long one is sub-stepped (gyro interpolated, measurement
+        held). Returns (flags, Newton updates)."""
+        p = self.p
+        ok_g = bool(np.all(np.isfinite(gyr)))
+        g1 = np.asarray(gyr, dtype=float) if ok_g else np.zeros(3)
+        flags = 0 if ok_g else _GYR_STALE
+        meas = measurement(p, acc, mag, mag_weight)
+        flags |= meas.flags
+        up = unit(acc)
+        up = np.zeros(3) if up is None else up
+        total = 0
+        if not self.started:
+            self.started = True
+            self.tau = torque(p, self.r, meas)
+        else:
+            n_sub = 1 if h <= p.max_step_s else math.ceil(h / p.max_step_s)
+            if n_sub > 1:
+                flags |= _SUBSTEPPED
+            start = self.g0
+            for j in range(1, n_sub + 1):
+                ga = start + j / n_sub * (g1 - start) if j < n_sub else g1
+                self.r, self.w, self.b, self.tau, iters, ok = advance(
+                    p, self.r, self.w, self.b, self.g0, self.tau, h / n_sub, ga, meas, trust, up
+                )
+                self.g0 = ga
+                total += iters
+                flags |= 0 if ok else _NEWTON_FAILED
+            self.counters["substeps"] += n_sub - 1
+        self.g0 = g1
+        self.counters["newton_updates"] += total
+        self.counters["max_newton_updates"] = max(self.counters["max_newton_updates"], total)
+        self.counters["no_direction"] += int(not meas.used.any())
+        return flags, total
+
+    @property
+    def rate(self) -> Array:
+        """Ω̂ = Ω^m − b̂ − ω."""
+        return self.g0 - self.b - self.w
 
 
 @dataclass
@@ -141,64 +228,59 @@ class RunResult:
     omega_err: Array
     flags: NDArray[np.int64]
     iterations: NDArray[np.int64]
+    bias: Array
     counters: dict[str, int] = field(default_factory=dict)
+
+    @classmethod
+    def empty(cls, n: int) -> RunResult:
+        return cls(np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.zeros(n, np.int64),
+                   np.zeros(n, np.int64), np.empty((n, 3)))  # fmt: skip
+
+    def record(self, i: int, est: Estimator, flags: int, iters: int) -> None:
+        self.R[i], self.omega[i], self.omega_err[i], self.bias[i] = est.r, est.rate, est.w, est.b
+        self.flags[i], self.iterations[i] = flags, iters
 
 
 def run(
-    p: EstimatorParams, r0: ArrayLike, w0: ArrayLike, t: Array, gyr: Array, acc: Array, mag: Array
+    p: EstimatorParams,
+    r0: ArrayLike,
+    w0: ArrayLike,
+    t: Array,
+    gyr: Array,
+    acc: Array,
+    mag: Array,
+    b0: ArrayLike = (0.0, 0.0, 0.0),
 ) -> RunResult:
-    """The estimator over N steps at times ``t`` from ``(R̂0, ω0)``: rows with a NaN are not usable; the
-    first step only initialises; long steps are sub-stepped (gyro interpolated, measurement held)."""
+    """The estimator over N steps at times ``t`` from ``(R̂0, ω0, b̂0)``: rows with a NaN are not usable;
+    the first step only initialises; long steps are sub-stepped (gyro interpolated, measurement held)."""
     n = len(t)
-    out = RunResult(np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.zeros(n, np.int64),
-                    np.zeros(n, np.int64))  # fmt: skip
-    cnt = dict.fromkeys(("substeps", "newton_updates", "max_newton_updates", "no_direction"), 0)
-    r, w = np.array(r0, dtype=float), np.array(w0, dtype=float)
-    g0 = tau = np.zeros(3)
+    out = RunResult.empty(n)
+    est = Estimator(p, np.array(r0, dtype=float), np.array(w0, dtype=float), np.array(b0, dtype=float))
     for i in range(n):
-        g1 = gyr[i] if np.all(np.isfinite(gyr[i])) else np.zeros(3)
-        flags = 0 if np.all(np.isfinite(gyr[i])) else _GYR_STALE
-        meas = measurement(p, acc[i], mag[i])
-        flags |= meas.flags
-        total = 0
-        if i == 0:
-            tau = torque(p, r, meas)
-        else:
-            h = t[i] - t[i - 1]
-            n_sub = 1 if h <= p.max_step_s else math.ceil(h / p.max_step_s)
-            if n_sub > 1:
-                flags |= _SUBSTEPPED
-            start = g0
-            for j in range(1, n_sub + 1):
-                ga = start + j / n_sub * (g1 - start) if j < n_sub else g1
-                r, w, tau, iters, ok = advance(p, r, w, g0, tau, h / n_sub, ga, meas)
-                g0 = ga
-                total += iters
-                flags |= 0 if ok else _NEWTON_FAILED
-            cnt["substeps"] += n_sub - 1
-        g0 = g1
-        out.R[i], out.omega[i], out.omega_err[i] = r, g1 - w, w
-        out.flags[i], out.iterations[i] = flags, total
-        cnt["newton_updates"] += total
-        cnt["max_newton_updates"] = max(cnt["max_newton_updates"], total)
-        cnt["no_direction"] += int(not meas.used.any())
-    out.counters = cnt
+        flags, iters = est.step(t[i] - t[i - 1] if i else 0.0, gyr[i], acc[i], mag[i])
+        out.record(i, est, flags, iters)
+    out.counters = est.counters
     return out
 
 
-# --------------------------------------------------------------------------- pre-filter and gate
-def strapdown_frames(h: Array, gyr: Array) -> Array:
-    """``R_g`` (N, 3, 3) at each step: the gyro (non-finite rows read as 0) integrated by the midpoint
-    rule from the identity, one Newton–Schulz polar step after each product."""
+# --------------------------------------------------------------------------- pre-filter
+def strapdown_frames(h: Array, gyr: Array, delay_s: float = 0.0) -> Array:
+    """``R_g`` (N, 3, 3) at each step: the gyro (non-finite rows read as 0) integrated from the identity
+    at the step's middle moved forward by ``delay_s``, one Newton–Schulz polar step after each product."""
     g = np.where(np.all(np.isfinite(gyr), axis=1)[:, None], gyr, 0.0)
     frames = np.empty((len(h), 3, 3))
     r = np.eye(3)
     for k in range(len(h)):
         if k:
-            r = r @ so3.exp(0.5 * h[k] * (g[k - 1] + g[k]))
+            r = r @ strapdown_step(h[k], g[k - 1], g[k], delay_s)
             r = r @ (1.5 * np.eye(3) - 0.5 * r.T @ r)
         frames[k] = r
     return frames
+
+
+def strapdown_step(h: float, g0: Array, g1: Array, delay_s: float) -> Array:
+    """The gyro-only frame's rotation over one step."""
+    return so3.exp(h * (g0 + (0.5 + delay_s / h) * (g1 - g0)))
 
 
 def signal_run(
@@ -220,75 +302,21 @@ def signal_run(
     return out[0], out[1], out[2]
 
 
-def gate_run(settings: GateSettings, h: Array, up: Array, mag: Array) -> NDArray[np.bool_]:
-    """Which magnetometer rows pass the gate (see :class:`hil.estimation.prefilter.MagneticGate`)."""
-    sin_tol = math.sin(math.radians(settings.dip_tol_deg))
-    norm: float | None = None
-    dip_ref: float | None = None
-    rejected_for = 0.0
-    passed = np.zeros(len(h), dtype=bool)
-    for i in range(len(h)):
-        n = float(np.linalg.norm(mag[i]))
-        if not (math.isfinite(n) and n > 0.0):
-            continue
-        nu = float(np.linalg.norm(up[i]))
-        dip = -float(up[i] @ mag[i]) / (nu * n) if math.isfinite(nu) and nu > 0.0 else None
-        if norm is None:
-            norm, dip_ref, passed[i] = n, dip, True
-            continue
-        ok = abs(n / norm - 1.0) <= settings.norm_tol
-        if dip is not None and dip_ref is not None:
-            ok = ok and abs(dip - dip_ref) <= sin_tol
-        if not ok:
-            rejected_for += h[i]
-            if rejected_for < settings.timeout_s:
-                continue
-            norm, dip_ref = n, dip
-        rejected_for = 0.0
-        k = min(1.0, h[i] / settings.tau_s)
-        norm += k * (n - norm)
-        if dip is not None:
-            dip_ref = dip if dip_ref is None else dip_ref + k * (dip - dip_ref)
-        passed[i] = True
-    return passed
+class Lowpass:
+    """The first-order Tustin low-pass of a 3-vector, one step at a time, with a per-step cut-off."""
 
+    def __init__(self) -> None:
+        self.x: Array | None = None
+        self.y: Array | None = None
 
-# --------------------------------------------------------------------------- the chain
-def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
-    """The attitude filter (``config``: a :class:`hil.estimation.filter.FilterConfig`) over ``steps``
-    from a fresh start: bias, pre-filter, gate, horizontal magnetometer, measured initial attitude, then
-    :func:`run`. Flags include the merger's and MAG_DISTURBED."""
-    h = steps.h
-    gyr, acc, mag = (np.where(steps.valid(k)[:, None], steps.value(k), np.nan) for k in KINDS)
-    gyr = gyr - np.asarray(config.gyro_bias)
-    gyr, acc, mag = signal_run(config.prefilter_rad_s, config.prefilter_frame, h, gyr, acc, mag)
-    flags = steps.flags.copy()
-    if config.mag_gate is not None:
-        finite = np.all(np.isfinite(mag), axis=1)
-        passed = gate_run(config.mag_gate, h, acc, mag)
-        flags |= np.where(finite & ~passed, _MAG_DISTURBED, 0)
-        mag = np.where(passed[:, None], mag, np.nan)
-    if config.magnetometer == "horizontal":
-        with np.errstate(invalid="ignore", divide="ignore"):
-            k = np.sum(mag * acc, axis=1) / np.sum(acc * acc, axis=1)
-        mag = mag - k[:, None] * acc
-    p = config.params
-    measured = isinstance(config.init, str) and config.init == "measured"
-    r0 = np.eye(3) if isinstance(config.init, str) else np.asarray(config.init, dtype=float)
-    start = 0
-    if measured:
-        usable = [bool(measurement(p, a, m).used.all()) for a, m in zip(acc, mag, strict=True)]
-        start = usable.index(True) if any(usable) else len(steps)
-    parts = []
-    if start:
-        parts.append(run(p, r0, config.omega_err0, steps.t[:start], gyr[:start], acc[:start], mag[:start]))
-    if start < len(steps):
-        if measured:
-            r0 = wahba(p, acc[start], mag[start])
-        s = slice(start, None)
-        parts.append(run(p, r0, config.omega_err0, steps.t[s], gyr[s], acc[s], mag[s]))
-    fields = ("R", "omega", "omega_err", "flags", "iterations")
-    out = RunResult(*(np.concatenate([getattr(x, f) for x in parts]) for f in fields))  # type: ignore[arg-type]
-    out.flags |= flags
-    out.counters = parts[-1].counters
-    return out
+    def __call__(self, h: float, x: Array, cutoff: float) -> Array:
+        if not np.all(np.isfinite(x)):
+            self.x = self.y = None
+            return _NAN3.copy()
+        if self.x is None or self.y is None:
+            self.x, self.y = x.copy(), x.copy()
+            return x.copy()
+        a, b = (2.0 - cutoff * h) / (2.0 + cutoff * h), cutoff * h / (2.0 + cutoff * h)
+        self.y = a * self.y + b * (self.x + x)
+        self.x = x.copy()
+        return self.y.copy()

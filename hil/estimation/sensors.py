@@ -62,6 +62,7 @@ class StepFlag(enum.IntFlag):
     NEWTON_FAILED = 1 << 6  # the implicit step did not meet its tolerance within the iteration cap
     SUBSTEPPED = 1 << 7  # a long step was split into sub-steps (estimator stability limit)
     MAG_DISTURBED = 1 << 8  # magnetometer rejected: field norm or dip off its reference (disturbance)
+    REST = 1 << 9  # the phone is at rest (gyro and accelerometer steady): the gyro bias is measured
 
     @staticmethod
     def stale(kind: SensorKind) -> StepFlag:
@@ -318,3 +319,12 @@ def as_vec3(v: ArrayLike | None) -> tuple[float, float, float] | None:
         raise ValueError(f"expected a 3-vector, got shape {a.shape}")
     x, y, z = a.tolist()
     return (x, y, z) if math.isfinite(x + y + z) else None
+
+
+def flagged_intervals(t: ArrayLike, flags: ArrayLike, flag: StepFlag) -> list[tuple[float, float]]:
+    """The ``(start, end)`` times (s) of every run of consecutive steps carrying ``flag``: e.g. each
+    interval in which the magnetometer was left out as disturbed. ``t`` (N,) step times, ``flags`` (N,)."""
+    on = (np.asarray(flags, dtype=np.int64) & int(flag)) != 0
+    t = np.asarray(t, dtype=float)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(np.int8), [0]])))
+    return [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2], strict=True)]

@@ -87,7 +87,11 @@ P_E = 18  # E (9)
 P_W = 27  # W (9)
 P_MTAB = 36  # M = E W_S per mask (8 × 9)
 P_TRACE = 108  # tr(E_Sᵀ E_S W_SS) per mask (8)
-P_SIZE = 116
+P_BIAS_GAIN = 116  # diagonal of P⁻¹ (3): the bias estimate's gain, rad/s per unit torque per s (0: none)
+P_BIAS_MAX = 119  # bound on each component of the bias estimate (rad/s)
+P_GYRO_DELAY = 120  # s the gyroscope's readings lag the motion (0: the paper's midpoint rule)
+P_BIAS_VERTICAL = 121  # share of the torque along the measured vertical the bias law takes (1: all)
+P_SIZE = 122
 
 PHI_CONSTANT = 0  # Φ' constant (Φ linear: the paper's Φ(x) = x)
 PHI_LOG = 1  # Φ(x) = s ln(1 + x/s): Φ' = 1 / (1 + x/s)
@@ -100,6 +104,9 @@ S_TORQUE = 18  # Φ'(U⁰[i]) S_L[i] (3)
 S_T = 21  # time (s)
 S_STARTED = 22  # 1 once the first sample is taken
 S_COUNTS = 23  # the counters (C_SIZE), at S_COUNTS + C_*
+S_BIAS = S_COUNTS + 8  # b̂ (3) rad/s, the gyro bias estimate (constant when P⁻¹ = 0)
+S_BIAS_TRUST = S_BIAS + 3  # this step's factor on P⁻¹, in [0, 1] (an input: 1 unless a caller lowers it)
+S_MAG_WEIGHT = S_BIAS_TRUST + 1  # this step's weight on the field direction, in [0, 1] (an input, like it)
 
 C_STEPS = 0
 C_NEWTON_FAILURES = 1
@@ -110,7 +117,7 @@ C_DEGENERATE = 5
 C_NO_DIRECTION = 6
 C_GYRO_MISSING = 7
 C_SIZE = 8
-S_SIZE = S_COUNTS + C_SIZE
+S_SIZE = S_MAG_WEIGHT + 1
 
 ITER_SHIFT = 16
 FLAG_BITS = (1 << ITER_SHIFT) - 1
@@ -144,6 +151,10 @@ def pack_params(p: EstimatorParams) -> Array:
     ep[P_D : P_D + 9] = p.D.reshape(-1)
     ep[P_E : P_E + 9] = p.E.reshape(-1)
     ep[P_W : P_W + 9] = p.W.reshape(-1)
+    ep[P_BIAS_GAIN : P_BIAS_GAIN + 3] = p.bias_gain
+    ep[P_BIAS_MAX] = p.bias_max
+    ep[P_GYRO_DELAY] = p.gyro_delay_s
+    ep[P_BIAS_VERTICAL] = p.bias_vertical
     for mask in range(8):
         sel = np.array([bool(mask & b) for b in (_ACC, _MAG, _CROSS)], dtype=float)
         w_sel = p.W * np.outer(sel, sel)
@@ -154,9 +165,11 @@ def pack_params(p: EstimatorParams) -> Array:
 
 # --------------------------------------------------------------------------- measurement terms
 @kernel
-def measurement(ep, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+def measurement(ep, ax, ay, az, mx, my, mz, wm):  # type: ignore[no-untyped-def]
     """``(mask, L, k, flags)`` for one step's accelerometer and magnetometer readings (any units; NaN or
-    zero means not usable): the usable-direction mask (0: none), ``L = E W_S U_Sᵀ`` (9, row-major),
+    zero means not usable), the field direction taken with weight ``wm`` (its column of U scaled: for a
+    diagonal W, W's field weight times ``wm``): the usable-direction mask (0: none), ``L = E W_S U_Sᵀ``
+    (9, row-major),
     ``k = ½ tr(E_SᵀE_S W) + ½ tr(U_SᵀU_S W)`` (the second term only for a non-constant Φ') and the
     :attr:`StepFlag.DEGENERATE` bit. With ``L`` and ``k``, ``U⁰ = k − ⟨R̂, L⟩`` (R̂ orthonormal)."""
     flags = 0
@@ -182,6 +195,7 @@ def measurement(ep, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
             flags |= _DEGENERATE
             mag_ok = False
             b0 = b1 = b2 = 0.0
+    b0, b1, b2 = wm * b0, wm * b1, wm * b2
     mask = (_ACC if acc_ok else 0) | (_MAG if mag_ok else 0) | (_CROSS if cross_ok else 0)
     if mask == 0:
         return 0, _ZERO9, 0.0, flags
@@ -288,17 +302,46 @@ def newton(ep, hh, g1, c):  # type: ignore[no-untyped-def]
 
 
 @kernel
-def advance(ep, r, w, g0, tau0, h, g1, big_l, mask, k):  # type: ignore[no-untyped-def]
-    """One step of Proposition 1 from ``(R̂[i], ω[i])`` with ``Ω^m[i] = g0`` and the cached
-    ``Φ'(U⁰[i]) S_L[i] = tau0`` to step i+1 with ``Ω^m[i+1] = g1`` and measurement ``(mask, L, k)``.
+def bias_half_step(ep, b, hh, tau, bl):  # type: ignore[no-untyped-def]
+    """``b̂ + hh P⁻¹ τ'``, each component kept within ``±bias_max`` (a projection onto a box: it never
+    moves the estimate away from a true bias inside it). ``bl = (γ, u)``: ``τ' = γ τ + (ν − γ)(τ·u) u``
+    with ``u`` the measured vertical (unit; zero when there is none), ``γ`` the step's trust in the torque
+    (1 unless a caller lowers it) and ``ν`` = ``bias_vertical``, the weight of the torque's vertical
+    (heading) part. ``γ = ν = 1`` is the variational law."""
+    lim = ep[P_BIAS_MAX]
+    g = P_BIAS_GAIN
+    trust, ux, uy, uz = bl
+    c = (ep[P_BIAS_VERTICAL] - trust) * (tau[0] * ux + tau[1] * uy + tau[2] * uz)
+    return (
+        min(lim, max(-lim, b[0] + hh * ep[g] * (trust * tau[0] + c * ux))),
+        min(lim, max(-lim, b[1] + hh * ep[g + 1] * (trust * tau[1] + c * uy))),
+        min(lim, max(-lim, b[2] + hh * ep[g + 2] * (trust * tau[2] + c * uz))),
+    )
 
-    Returns ``(R̂[i+1], ω[i+1], Φ'(U⁰[i+1]) S_L[i+1], Newton updates, converged)``.
+
+@kernel
+def advance(ep, r, w, b, g0, tau0, h, g1, big_l, mask, k, bl):  # type: ignore[no-untyped-def]
+    """One step of Proposition 1, extended with the gyro bias estimate b̂ (docs/estimator.md, "Gyro
+    bias"), from ``(R̂[i], ω[i], b̂[i])`` with ``Ω^m[i] = g0`` and the cached ``Φ'(U⁰[i]) S_L[i] = tau0``
+    to step i+1 with ``Ω^m[i+1] = g1`` and measurement ``(mask, L, k)``::
+
+        b̂[i+½] = b̂[i] + h/2 P⁻¹ τ[i]
+        ω[i+½] = (m I + h/2 D)⁻¹ { exp(−h/2 Ω̂[i]^×) m ω[i] + h/2 τ[i] },   Ω̂ = Ω^m − b̂ − ω
+        R̂[i+1] = R̂[i] exp(h (Ω^m[i+½] − b̂[i+½] − ω[i+½])^×)
+        b̂[i+1] = b̂[i+½] + h/2 P⁻¹ τ[i+1]
+        m ω[i+1] = exp(−h/2 Ω̂[i+1]^×) { (m I − h/2 D) ω[i+½] + h/2 τ[i+1] }
+
+    With P⁻¹ = 0 and b̂ = 0 this is the paper's step, bit for bit.
+
+    Returns ``(R̂[i+1], ω[i+1], b̂[i+1], Φ'(U⁰[i+1]) S_L[i+1], Newton updates, converged)``.
     """
     m = ep[P_M]
     hh = 0.5 * h
     wx, wy, wz = w
-    g0x, g0y, g0z = g0
+    b0x, b0y, b0z = b
+    g0x, g0y, g0z = g0[0] - b0x, g0[1] - b0y, g0[2] - b0z  # Ω^m[i] − b̂[i]
     t0x, t0y, t0z = tau0
+    bhx, bhy, bhz = bias_half_step(ep, b, hh, tau0, bl)
     # ω[i+½] = (m I + h/2 D)⁻¹ { exp(−h/2 Ω̂[i]^×) m ω[i] + h/2 τ[i] }
     vx, vy, vz = rotate_f(hh * (wx - g0x), hh * (wy - g0y), hh * (wz - g0z), m * wx, m * wy, m * wz)
     bx, by, bz = vx + hh * t0x, vy + hh * t0y, vz + hh * t0z
@@ -315,12 +358,17 @@ def advance(ep, r, w, g0, tau0, h, g1, big_l, mask, k):  # type: ignore[no-untyp
         hx = (c0 * bx + (m2 * m7 - m1 * m8) * by + (m1 * m5 - m2 * m4) * bz) * inv
         hy = (c1 * bx + (m0 * m8 - m2 * m6) * by + (m2 * m3 - m0 * m5) * bz) * inv
         hz = (c2 * bx + (m1 * m6 - m0 * m7) * by + (m0 * m4 - m1 * m3) * bz) * inv
-    # R̂[i+1] = R̂[i] exp(h (Ω^m[i+½] − ω[i+½])^×)
+    # R̂[i+1] = R̂[i] exp(h (Ω^m[i+½] − b̂[i+½] − ω[i+½])^×)
     g1x, g1y, g1z = g1
-    step = exp_f(h * (0.5 * (g0x + g1x) - hx), h * (0.5 * (g0y + g1y) - hy), h * (0.5 * (g0z + g1z) - hz))
+    f = 0.5 + ep[P_GYRO_DELAY] / h  # the step's rate: the readings at its middle, d later
+    step = exp_f(
+        h * (g0[0] + f * (g1x - g0[0]) - bhx - hx), h * (g0[1] + f * (g1y - g0[1]) - bhy - hy),
+        h * (g0[2] + f * (g1z - g0[2]) - bhz - hz),
+    )  # fmt: skip
     r1 = reorthonormalize_f(matmul_f(r, step))
     tau1 = torque(ep, r1, big_l, mask, k)
     t1x, t1y, t1z = tau1
+    b1 = bias_half_step(ep, (bhx, bhy, bhz), hh, tau1, bl)
     # m ω[i+1] = exp(−h/2 Ω̂[i+1]^×) { (m I − h/2 D) ω[i+½] + h/2 τ[i+1] }
     if diagonal:
         c = (
@@ -334,8 +382,8 @@ def advance(ep, r, w, g0, tau0, h, g1, big_l, mask, k):  # type: ignore[no-untyp
             m * hy - hh * (ep[d + 3] * hx + ep[d + 4] * hy + ep[d + 5] * hz) + hh * t1y,
             m * hz - hh * (ep[d + 6] * hx + ep[d + 7] * hy + ep[d + 8] * hz) + hh * t1z,
         )
-    w1, iters, ok = newton(ep, hh, g1, c)
-    return r1, w1, tau1, iters, ok
+    w1, iters, ok = newton(ep, hh, (g1x - b1[0], g1y - b1[1], g1z - b1[2]), c)
+    return r1, w1, b1, tau1, iters, ok
 
 
 @kernel
@@ -352,7 +400,7 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
     if not math.isfinite(gx + gy + gz):
         gx = gy = gz = 0.0
         flags |= _GYR_STALE
-    mask, big_l, k, mflags = measurement(ep, ax, ay, az, mx, my, mz)
+    mask, big_l, k, mflags = measurement(ep, ax, ay, az, mx, my, mz, es[S_MAG_WEIGHT])
     flags |= mflags
     r = (es[0], es[1], es[2], es[3], es[4], es[5], es[6], es[7], es[8])
     g1 = (gx, gy, gz)
@@ -364,11 +412,17 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
         if not (h > 0.0 and math.isfinite(h)):
             return BAD_STEP
         w = (es[S_OMEGA], es[S_OMEGA + 1], es[S_OMEGA + 2])
+        b = (es[S_BIAS], es[S_BIAS + 1], es[S_BIAS + 2])
+        na = math.sqrt(ax * ax + ay * ay + az * az)
+        if na > 0.0 and math.isfinite(na):
+            bl = (es[S_BIAS_TRUST], ax / na, ay / na, az / na)
+        else:
+            bl = (es[S_BIAS_TRUST], 0.0, 0.0, 0.0)
         g0 = (es[S_GYR], es[S_GYR + 1], es[S_GYR + 2])
         tau = (es[S_TORQUE], es[S_TORQUE + 1], es[S_TORQUE + 2])
         max_step = ep[P_MAX_STEP]
         if h <= max_step:
-            r, w, tau, total, ok = advance(ep, r, w, g0, tau, h, g1, big_l, mask, k)
+            r, w, b, tau, total, ok = advance(ep, r, w, b, g0, tau, h, g1, big_l, mask, k, bl)
             if not ok:
                 flags |= _NEWTON_FAILED
         else:  # sub-steps: gyro interpolated linearly, measurement held
@@ -378,7 +432,7 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
             for j in range(1, n_sub + 1):
                 f = j / n_sub
                 ga = (a0 + f * (gx - a0), a1 + f * (gy - a1), a2 + f * (gz - a2)) if j < n_sub else g1
-                r, w, tau, iters, ok = advance(ep, r, w, g0, tau, h / n_sub, ga, big_l, mask, k)
+                r, w, b, tau, iters, ok = advance(ep, r, w, b, g0, tau, h / n_sub, ga, big_l, mask, k, bl)
                 g0 = ga
                 total += iters
                 if not ok:
@@ -387,10 +441,11 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
         for i in range(9):
             es[S_R + i] = r[i]
         es[S_OMEGA], es[S_OMEGA + 1], es[S_OMEGA + 2] = w
+        es[S_BIAS], es[S_BIAS + 1], es[S_BIAS + 2] = b
     es[S_GYR], es[S_GYR + 1], es[S_GYR + 2] = g1
     es[S_TORQUE], es[S_TORQUE + 1], es[S_TORQUE + 2] = tau
     for i in range(3):
-        es[S_RATE + i] = es[S_GYR + i] - es[S_OMEGA + i]
+        es[S_RATE + i] = es[S_GYR + i] - es[S_BIAS + i] - es[S_OMEGA + i]
     c = S_COUNTS
     es[c + C_STEPS] += 1.0
     es[c + C_NEWTON_UPDATES] += total

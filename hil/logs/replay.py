@@ -8,16 +8,19 @@ Two ways to run: as fast as possible (the batch path: vectorised merge and pre-f
 loop), or *paced* — each step released at its log time on an injected clock (``WallClock`` for real time,
 ``LockstepClock`` in tests), through the live path that a real phone stream takes.
 
-Outputs in ``out_dir``: ``estimates.csv`` (docs/formats.md), ``summary.json`` (settings, counters, RMSE),
-and figures: with ground truth the paper's two — the principal angle of the attitude estimation error and
-the angular-velocity estimation error — else the estimated attitude (roll/pitch/yaw) and rates.
+Outputs in ``out_dir``: ``estimates.csv`` (docs/formats.md), ``summary.json`` (settings, counters, RMSE,
+every interval in which the magnetometer was left out as disturbed, time at rest, the final gyro bias
+estimate), and figures: with ground truth the paper's two — the principal angle of the attitude
+estimation error and the angular-velocity estimation error — else the estimated attitude (roll/pitch/yaw)
+and rates; the magnetometer's rejection intervals shaded on the attitude figures.
 
 Gaps: where the log's clock (all sensors together) jumps by more than ``max_gap_s`` (default
 :data:`MAX_GAP_S`) — a recording paused, or a corrupt timestamp — the log is split and the filter starts
 afresh on each part (it never integrates across the gap); each split is reported (``summary.json``
-``segments``). A 6-axis log (no magnetometer) runs with gravity alone: inclination is observed, heading
-is the gyroscope's integral (reported unobserved, drifting). The measured field is checked against the
-field model, and for steadiness (:func:`hil.estimation.inertial.field_warnings`).
+``segments``). A 6-axis log (no magnetometer) runs with gravity alone (the filter's 6-axis mode):
+inclination is observed, heading is the gyroscope's integral (reported unobserved, drifting). The
+measured field is checked against the field model, and for steadiness
+(:func:`hil.estimation.inertial.field_warnings`).
 """
 
 from __future__ import annotations
@@ -43,7 +46,14 @@ from hil.estimation.inertial import (
 )
 from hil.estimation.metrics import TruthComparison, compare_to_truth
 from hil.estimation.multirate import MergePolicy, Merger, MergeStats, merge
-from hil.estimation.sensors import MergedStep, MergedSteps, SensorKind, SensorLog, StepFlag
+from hil.estimation.sensors import (
+    MergedStep,
+    MergedSteps,
+    SensorKind,
+    SensorLog,
+    StepFlag,
+    flagged_intervals,
+)
 from hil.logs import read_log
 from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
@@ -115,8 +125,14 @@ class ReplayResult:
     setup: list[str]
     comparison: TruthComparison | None = None
     files: dict[str, Path] = field(default_factory=dict)
+    gyro_bias: tuple[float, float, float] | None = None  # the estimate at the end (batch path), rad/s
     segments: list[dict[str, float | int | str]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+
+    @property
+    def mag_rejections(self) -> list[tuple[float, float]]:
+        """Every interval (s, log time) in which the magnetometer was left out as disturbed."""
+        return flagged_intervals(self.estimates.t, self.estimates.flags, StepFlag.MAG_DISTURBED)
 
 
 def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, list[str]]:
@@ -136,9 +152,9 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, lis
             sel = (gyr.t >= still.t0) & (gyr.t <= still.t1)
             bias = tuple(float(x) for x in gyr.xyz[sel].mean(axis=0))  # type: ignore[assignment]
             where = f"still window {still.t0:.2f}-{still.t1:.2f} s"
-            setup.append(f"gyro bias {np.round(bias, 5).tolist()} rad/s from the {where}")
+            setup.append(f"gyro bias estimate starts at {np.round(bias, 5).tolist()} rad/s from the {where}")
         except InputFormatError:
-            setup.append("no still window: gyro bias not corrected")
+            setup.append("no still window: the gyro bias is estimated online from zero")
     declination = options.declination_deg
     model = None
     if options.field_model is not None:
@@ -161,8 +177,9 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, lis
     if options.field_model is None and not log.six_axis:
         setup.append(f"declination {declination:g} deg" + (" (magnetic north)" if declination == 0 else ""))
     overrides: dict[str, object] = {"gyro_bias": bias}
-    if log.six_axis:  # no magnetometer to start from: gravity alone, heading 0
+    if log.six_axis:  # the filter's 6-axis mode, started from gravity alone (heading 0)
         overrides["init"] = tilt_attitude(log)
+        overrides["magnetometer"] = "none"
     if options.preset == "paper":
         config = FilterConfig.paper(E=directions_from_dip(dip, declination), **overrides)
         setup.append("preset paper: W, m, D, Φ and the 1 rad/s body-frame pre-filter of the paper")
@@ -202,6 +219,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     parts = split_at_gaps(log, options.max_gap_s)
     all_steps, all_estimates, segments = [], [], []
     stats = MergeStats()
+    bias: tuple[float, float, float] | None = None
     for i, (t0, t1) in enumerate(parts):
         segment: dict[str, float | int | str] = {"t0_s": t0, "t1_s": t1}
         if i:
@@ -230,14 +248,19 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         if options.paced or options.on_step is not None:
             estimates = _run_live(part, steps, seg_stats, config, options)
         else:
-            estimates = AttitudeFilter(config).run(steps, options.progress)
+            chain = AttitudeFilter(config)
+            estimates = chain.run(steps, options.progress)
+            b = chain.gyro_bias  # the last part's estimate at its end
+            bias = (float(b[0]), float(b[1]), float(b[2]))
         all_steps.append(steps)
         all_estimates.append(estimates)
     if not all_estimates:
         raise InputFormatError("no part of the log has every sensor speaking for long enough", log.source)
     steps = all_steps[0] if len(all_steps) == 1 else _concat_steps(all_steps)
     estimates = all_estimates[0] if len(all_estimates) == 1 else _concat(all_estimates)
-    result = ReplayResult(log, steps, estimates, stats, config, setup, segments=segments, warnings=warnings)
+    result = ReplayResult(
+        log, steps, estimates, stats, config, setup, segments=segments, warnings=warnings, gyro_bias=bias
+    )
     _score(result)
     options.out_dir.mkdir(parents=True, exist_ok=True)
     result.files["estimates"] = write_estimates(estimates, options.out_dir / "estimates.csv")
@@ -331,6 +354,14 @@ def write_estimates(est: EstimateBatch, path: Path) -> Path:
     return path
 
 
+def _flagged_time(est: EstimateBatch, flag: StepFlag) -> float:
+    """Seconds spent in steps carrying ``flag`` (each step counts its own length)."""
+    if len(est) < 2:
+        return 0.0
+    h = np.diff(est.t, prepend=est.t[0])
+    return float(h[(est.flags & int(flag)) != 0].sum())
+
+
 def _write_summary(result: ReplayResult, path: Path) -> Path:
     stats = result.merge_stats
     flags = result.estimates.flags
@@ -360,6 +391,12 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
         "flagged_steps": {
             f.name: int(np.count_nonzero(flags & int(f))) for f in StepFlag if f.name and f != StepFlag.NONE
         },
+        "magnetometer_rejected": {
+            "intervals_s": [[round(a, 4), round(b, 4)] for a, b in result.mag_rejections],
+            "total_s": round(_flagged_time(result.estimates, StepFlag.MAG_DISTURBED), 4),
+        },
+        "rest_s": round(_flagged_time(result.estimates, StepFlag.REST), 4),
+        "gyro_bias_final_rad_s": None if result.gyro_bias is None else list(result.gyro_bias),
         "rmse_deg": None if result.comparison is None else asdict(result.comparison.rmse),
         "rate_rmse_rad_s": None if result.comparison is None else result.comparison.rate_rmse,
         "files": {k: str(v) for k, v in result.files.items()},

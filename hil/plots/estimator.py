@@ -31,6 +31,13 @@ def _figure(title: str, ylabel: str) -> tuple[Figure, Axes]:
     return fig, ax
 
 
+def _shade(ax: Axes, intervals: list[tuple[float, float]], t0: float) -> None:
+    """Shade each interval (s) in which the magnetometer was left out as disturbed."""
+    for i, (a, b) in enumerate(intervals):
+        label = "magnetometer left out (disturbed)" if i == 0 else None
+        ax.axvspan(a - t0, b - t0, color="tab:red", alpha=0.12, lw=0, label=label)
+
+
 def _save(fig: Figure, ax: Axes, path: Path) -> Path:
     ax.legend(loc="upper right")
     FigureCanvasAgg(fig)
@@ -38,9 +45,18 @@ def _save(fig: Figure, ax: Axes, path: Path) -> Path:
     return path
 
 
-def plot_attitude_error(t: np.ndarray, errors: AttitudeErrors, path: Path, title: str = "") -> Path:
-    """Principal angle of the attitude estimation error (deg) against time, heading/inclination beside."""
+def plot_attitude_error(
+    t: np.ndarray,
+    errors: AttitudeErrors,
+    path: Path,
+    title: str = "",
+    rejected: list[tuple[float, float]] | None = None,
+    t0: float = 0.0,
+) -> Path:
+    """Principal angle of the attitude estimation error (deg) against time, heading/inclination beside;
+    the ``rejected`` intervals (s, on the clock ``t`` is on less ``t0``) shaded."""
     fig, ax = _figure(title or "Attitude estimation error", "attitude estimation error (deg)")
+    _shade(ax, rejected or [], t0)
     ax.plot(t, errors.total, lw=1.0, label="principal angle of Q = R R̂ᵀ")
     ax.plot(t, errors.heading, lw=0.6, alpha=0.7, label="heading part")
     ax.plot(t, errors.inclination, lw=0.6, alpha=0.7, label="inclination part")
@@ -66,9 +82,19 @@ def euler_zyx_deg(r: np.ndarray) -> np.ndarray:
     return np.degrees(np.column_stack([roll, pitch, yaw]))
 
 
-def plot_attitude(t: np.ndarray, r: np.ndarray, path: Path, title: str = "", yaw_label: str = "yaw") -> Path:
-    """The attitude estimate as roll, pitch, yaw (deg, ENU, z-y-x) against time."""
+def plot_attitude(
+    t: np.ndarray,
+    r: np.ndarray,
+    path: Path,
+    title: str = "",
+    rejected: list[tuple[float, float]] | None = None,
+    t0: float = 0.0,
+    yaw_label: str = "yaw",
+) -> Path:
+    """The attitude estimate as roll, pitch, yaw (deg, ENU, z-y-x) against time; the ``rejected``
+    intervals shaded (as :func:`plot_attitude_error`)."""
     fig, ax = _figure(title or "Attitude estimate", "attitude estimate (deg, ENU, z-y-x)")
+    _shade(ax, rejected or [], t0)
     for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", yaw_label), strict=True):
         ax.plot(t, series, lw=0.8, label=label)
     return _save(fig, ax, path)
@@ -86,18 +112,19 @@ def plot_replay(result: ReplayResult, out_dir: Path) -> dict[str, Path]:
     """The figures for one replay; returns ``{name: path}``."""
     est = result.estimates
     name = Path(result.log.source).name
+    rejected = result.mag_rejections
     six = result.log.six_axis  # no magnetometer: the yaw is the gyroscope's integral, drifting
     title = f"Attitude estimate — {name}" + (" (6-axis: heading unobserved)" if six else "")
     yaw = "yaw (unobserved: gyroscope only, drifts)" if six else "yaw"
     files = {
-        "attitude": plot_attitude(est.t, est.R, out_dir / "attitude.png", title, yaw),
+        "attitude": plot_attitude(est.t, est.R, out_dir / "attitude.png", title, rejected, yaw_label=yaw),
         "rates": plot_rates(est.t, est.omega, out_dir / "rates.png", f"Angular velocity estimate — {name}"),
     }
     c = result.comparison
     if c is None:
         return files
     files["attitude_error"] = plot_attitude_error(
-        c.t, c.errors, out_dir / "attitude_error.png", f"Attitude estimation error — {name}"
+        c.t, c.errors, out_dir / "attitude_error.png", f"Attitude estimation error — {name}", rejected
     )
     files["rate_error"] = plot_rate_error(
         c.rate_t, c.rate_error, out_dir / "rate_error.png", f"Angular velocity estimation error — {name}"

@@ -7,8 +7,10 @@ Phases (``telemetry.csv`` column ``phase``):
 
 0. **warm-up** — the board is armed, the rotors spin up to their nominal speed with the gimbals still;
    once every rotor is within 5 % of it the still window of ``warmup_s`` starts: the estimator converges
-   and the raw gyroscope samples of the window's second half are averaged into the gyro bias, which the
-   estimator subtracts from then on (the phone gyro's residual bias would otherwise leave a steady
+   and the raw gyroscope samples of the window's second half are averaged into the gyro bias, which
+   becomes the estimator's bias estimate — the tuned estimator, which has been learning it from rest
+   detection in the window, keeps refining it online in motion (rest learning ends with the window: a
+   slew's slow end would pass for rest) — (the phone gyro's residual bias would otherwise leave a steady
    attitude error and a rate offset in the control loop);
 1. **slew** — an eigenaxis rest-to-rest slew from the estimated attitude to the scenario's target within
    its rate and acceleration limits, tracked by the geometric controller;
@@ -138,7 +140,7 @@ class Host:
         self.spinup_since: float | None = None
         self.bias_samples: list[Array] = []  # raw gyro samples over the still window's second half
         self._collecting_bias = False
-        self.gyro_bias = np.zeros(3)  # measured over the still window, removed by the filter from then on
+        self.gyro_bias = np.zeros(3)  # measured over the still window: the estimator's bias from then on
         self.target: Array | None = None if self.hold else sc.slew.R_target
         self.slew: EigenaxisSlew | None = None
         self.slew_start: float | None = None
@@ -205,6 +207,7 @@ class Host:
         self.merger = Merger(self.merger.policy)
         self.filter = AttitudeFilter(self._filter_config)
         self.filter.set_gyro_bias(self.gyro_bias)
+        self.filter.set_rest_learning(self.slew_start is None)
         self.estimate = None
         self._phone_newest = -math.inf
         self._phone_old = 0
@@ -347,9 +350,14 @@ class Host:
         if not first:
             self._resume(t, rotor)
             return
+        online = self.filter.gyro_bias  # what the estimator had found by itself
         if self.scenario.loop.calibrate_rate_bias and self.bias_samples:
             self.gyro_bias = np.mean(self.bias_samples, axis=0)
             self.filter.set_gyro_bias(self.gyro_bias)
+        # from now on the spacecraft moves under control: a slew's slow end or a hold turns steadily below
+        # the rest detector's rate bound, and learning that as bias would be wrong (4.8° off after a 90°
+        # slew); the variational bias law keeps correcting the estimate in motion
+        self.filter.set_rest_learning(False)
         R_hat = np.asarray(self.estimate.R)
         sl = self.scenario.slew
         self.target = R_hat.copy() if self.hold else sl.R_target
@@ -362,6 +370,7 @@ class Host:
         self.events.write(
             t, "slew_start", angle_deg=math.degrees(so3.principal_angle(R_hat.T @ self.target)),
             slew_s=self.slew.duration_s, gyro_bias=self.gyro_bias.tolist(),
+            gyro_bias_online=online.tolist(),
         )  # fmt: skip
 
     def _resume(self, t: float, rotor: Array) -> None:
@@ -408,8 +417,8 @@ class Host:
 
     def _restart_warmup(self, t: float, why: str, still: bool) -> None:
         """The board left the state the host commanded (failsafe, reset, link loss, reconnect, disarm) or
-        the phone went away: back to the warm-up — spin-up and checks; the still window too if ``still`` (the phone),
-        or if the first warm-up was not over (its bias window then starts again)."""
+        the phone went away: back to the warm-up — spin-up and checks; the still window too if ``still``
+        (the phone), or if the first warm-up was not over (its bias window then starts again)."""
         started = self.spinup_since is not None or self.still_since is not None
         if self.phase is Phase.WARMUP and not started and not (still and not self.need_still):
             return  # nothing under way to restart
