@@ -18,7 +18,13 @@ from test_calibration_strategies import unit_calibrations
 
 from firmware_sim.avr.hostlib import cal_call, cal_status_text, cal_validate
 from hil.scenario.paths import FIXTURES
-from protocol.calibration import UnitCalibration, default_unit_calibration
+from protocol.calibration import (
+    EscThrottleMap,
+    MonotoneCubic,
+    RotorSpeedMap,
+    UnitCalibration,
+    default_unit_calibration,
+)
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import CalibrationError
 from protocol.messages import GimbalMode
@@ -178,3 +184,19 @@ def test_malformed_sets_are_refused_like_python(kind):
     status, _, _ = cal_validate(bad)
     assert status != 0, f"{kind}: the firmware accepted a set Python refuses"
     assert cal_status_text(status) not in ("ok", "unknown")
+
+
+@pytest.mark.firmware
+@pytest.mark.parametrize("tiny", [2.788583944006386e-42, 1e-40, 1e-39, 1e-36])
+@pytest.mark.parametrize("default", [True, False], ids=["default unit", "low 900 deadband 1 kv 190"])
+def test_a_subnormal_rotor_speed_is_still_the_smallest_throttle_in_c_as_in_python(tiny, default):
+    """Hypothesis found it: a speed whose throttle fraction is subnormal in float32 was solved to throttle
+    0 by the C (the arming pulse, 900 µs) and to a throttle just above it by Python (901 µs: the deadband's
+    end). A positive speed is the smallest throttle on both."""
+    cal = default_unit_calibration()
+    if not default:
+        esc = EscThrottleMap(low_us=900.0, high_us=1800.0, deadband_us=1.0)
+        rotor = RotorSpeedMap(esc, 190.0, MonotoneCubic.pchip((0.0, 0.5, 1.0), (0.0, 2 / 3, 1.0)))
+        cal = UnitCalibration(rotor, cal.gimbal_rate, cal.gimbal_angle)
+    check_maps(cal, speeds=[tiny, -tiny], volts=[7.0], rates=[tiny, -tiny], angles=[tiny], pulses=[1500.0])
+    assert cal.rotor_pulse_us(tiny, 7.0).value == cal.rotor.esc.start_us

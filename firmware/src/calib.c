@@ -189,7 +189,10 @@ cal_conv_t cal_rotor_pulse_us(const uint8_t *set, float speed_rad_s, float batte
     if (phi >= 1.0f)
         return conv(cal_esc_high_us(set), phi > 1.0f ? CAL_CLAMP_HIGH : CAL_CLAMP_NONE);
     table_t curve = table_of(set, CAL_TABLE_ROTOR);
-    return conv(esc_pulse(set, table_solve(&curve, phi).value), CAL_CLAMP_NONE);
+    float tau = table_solve(&curve, phi).value;
+    if (tau <= 0.0f) /* a subnormal fraction the float32 solve takes to 0: still a speed, the smallest throttle */
+        tau = 1e-30f;
+    return conv(esc_pulse(set, tau), CAL_CLAMP_NONE);
 }
 
 /* GimbalRateMap: rate 0 in the dead zone [lower's last pulse, upper's first pulse], tables either side. */
