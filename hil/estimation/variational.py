@@ -13,35 +13,27 @@ error, ``Ω̂ = Ω^m − ω`` the rate estimate, ``R̂`` the attitude estimate (
     m ω[i+1] = exp(−h/2 Ω̂[i+1]^×) { (m I − h/2 D) ω[i+½] + h/2 Φ'(U⁰[i+1]) S_L[i+1] }
     S_L(R̂)  = vex(Lᵀ R̂ − R̂ᵀ L),  L = E W Uᵀ,  U⁰ = ½ ⟨E − R̂ U, (E − R̂ U) W⟩
 
-``E = [e1 e2 e1×e2]`` holds the inertial directions (e1: the accelerometer's reading of gravity, i.e. *up*;
-e2: the geomagnetic field direction), ``U = [u1 u2 u1×u2]`` the measured ones in the body frame (unit
-accelerometer and magnetometer vectors); third columns are normalised cross products.
+``E = [e1 e2 e1×e2]``: inertial directions (e1 *up*, as the accelerometer reads gravity; e2 the field);
+``U = [u1 u2 u1×u2]`` the measured unit vectors in the body frame (third columns: normalised crosses).
 
 The last line is implicit in ``ω[i+1]`` (``Ω̂[i+1] = Ω^m[i+1] − ω[i+1]``). With ``c`` its braced right-hand
 side and ``φ(ω) = h/2 (ω − Ω^m[i+1])`` it reads ``f(ω) = m ω − exp(φ^×) c = 0``, solved by Newton–Raphson
 with the analytic Jacobian ``∂f/∂ω = m I + h/2 y^× J_l(φ)``, ``y = exp(φ^×) c`` and ``J_l`` the left
-Jacobian of SO(3), from one fixed-point pass ``ω = exp(φ(c/m)^×) c / m``. Iteration stops when the
-residual satisfies ``‖f‖ / m ≤ newton_tol · √(1 + ‖ω‖²)`` (default 1e-12 rad/s; ``‖f‖/m`` is the size of
-the next Newton update to O(h)); after ``newton_max_iter`` updates (default 10) the step is a failure:
-flagged :attr:`StepFlag.NEWTON_FAILED` and counted, or raised as :class:`ConvergenceError` by the caller
-(``on_newton_failure``). At phone rates one update suffices (quadratic convergence from an O(h²) start).
+Jacobian of SO(3), from one fixed-point pass ``ω = exp(φ(c/m)^×) c / m``, until ``‖f‖ / m ≤ newton_tol ·
+√(1 + ‖ω‖²)`` (default 1e-12 rad/s; ``‖f‖/m`` is the next update's size to O(h)); after ``newton_max_iter``
+updates (10) the step fails: :attr:`StepFlag.NEWTON_FAILED`, counted, or :class:`ConvergenceError` from the
+caller (``on_newton_failure``). At phone rates one update suffices (quadratic convergence, O(h²) start).
 
-Missing measurements: a direction that is not usable (NaN input, a stale sensor) is left out of the
-potential: ``L = E_S W_SS U_Sᵀ`` over the usable set S ⊆ {acc, mag, acc×mag} (the cross-product column
-needs both, and is dropped when they are within ``min_direction_angle_deg`` of parallel). With no usable
-direction the potential term vanishes and the filter propagates the gyro. A gyroscope that is not usable
-is read as a zero rate measurement (the filter then runs on the vector measurements alone, ``Ω̂ = −ω``).
+Missing measurements: an unusable direction (NaN, a stale sensor) is left out: ``L = E_S W_SS U_Sᵀ`` over
+the usable S ⊆ {acc, mag, acc×mag} (the cross product needs both, not within ``min_direction_angle_deg``
+of parallel); with none the filter propagates the gyro; an unusable gyro reads as zero (``Ω̂ = −ω``).
 
-Long steps: the scheme's discrete dissipation factor ``(m − h/2 d)/(m + h/2 d)`` turns negative (a
-ringing, though bounded, rate error) once ``h > 2m/d``; steps longer than ``max_step_s`` are therefore
-split into equal sub-steps with the gyro interpolated linearly and the new measurement held
-(:attr:`StepFlag.SUBSTEPPED`).
+Long steps: the discrete dissipation factor ``(m − h/2 d)/(m + h/2 d)`` turns negative (a bounded ringing)
+once ``h > 2m/d``, so steps over ``max_step_s`` are split (gyro interpolated, measurement held;
+:attr:`StepFlag.SUBSTEPPED`). R̂ stays a rotation: exact Rodrigues factors and one Newton–Schulz polar
+correction per step keep ``‖R̂ᵀR̂ − I‖`` at rounding level.
 
-R̂ stays a rotation: each step multiplies by an exact rotation (Rodrigues) and applies one Newton–Schulz
-polar correction, which keeps ``‖R̂ᵀR̂ − I‖`` at rounding level however many steps are taken.
-
-Arrays the kernels take (float64 unless said; slots are the ``P_*``, ``S_*``, ``C_*`` constants below;
-matrices row-major; a later slot is only ever appended, so a new state — e.g. a gyro bias — extends these):
+Arrays the kernels take (float64; slots: the ``P_*``, ``S_*``, ``C_*`` constants; row-major; only appended):
 
 - parameters ``ep`` (:data:`P_SIZE`), built once by :func:`pack_params`: m, Newton tolerance and cap, the
   failure policy, ``max_step_s``, sin of ``min_direction_angle_deg``, Φ' (kind and argument), D (with a
@@ -52,9 +44,7 @@ matrices row-major; a later slot is only ever appended, so a new state — e.g. 
   at ``S_COUNTS + C_*``: the :class:`~hil.estimation.estimator.EstimatorStats` fields). R̂, Ω̂ and ω come
   first and contiguous, so the estimate is one copy of ``es[:15]``.
 
-Two arrays per call, not more: numba's dispatcher costs ~0.1 µs per array argument, and a live step's
-whole budget is a few µs.
-
+Two arrays per call (numba's dispatcher costs ~0.1 µs per array argument; a live step has a few µs).
 A step's result is one int: its :class:`StepFlag` bits ``| newton_updates << ITER_SHIFT``.
 """
 

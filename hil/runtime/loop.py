@@ -277,12 +277,10 @@ def _build(
     stack.callback(client.close)
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
     info = client.connect()
-    # What the board said during the handshake is older than the records below: the host's watch writes
-    # it first, once it exists, and these records wait for it (events.jsonl stays in time order).
+    # The handshake's board events are older than the records below: the host's watch writes them first,
+    # once it exists, and these records wait for it (events.jsonl stays in time order).
     handshake = client.drain_events()
-    held: list[tuple[float, str, dict[str, Any]]] = [
-        (clock.now(), "connected", {"board": info.describe(), "units": info.n_units})
-    ]
+    held = [(clock.now(), "connected", {"board": info.describe(), "units": info.n_units})]
     if info.n_units != scenario.n_units:
         raise ConfigError(
             f"the board has {info.n_units} units, the scenario's spacecraft {scenario.n_units}", "run --port"
