@@ -10,7 +10,9 @@ run's :class:`hil.runtime.runlog.CsvLog`, whose writer thread formats and writes
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -133,3 +135,32 @@ class RunTrace:
     def arrays(self) -> dict[str, Array]:
         """Every field as a float array (K,)."""
         return {name: np.asarray(getattr(self, name), dtype=float) for name in self.FIELDS}
+
+    def figures(self, settle_deg: float, gimbal_rate_limit: float) -> dict[str, Any]:
+        """The pointing figures of the run so far ({} before the slew): settle time (s from the slew's
+        start after which the pointing error stays ≤ ``settle_deg``; None if it never did), final and
+        peak pointing error (deg), peak gimbal rate (rad/s) and whether it kept within the limit, minimum
+        δ — the last three over the ticks with a live board (None without any)."""
+        tr = self.arrays()
+        if not len(tr["t"]):
+            return {}
+        err = tr["point_err_deg"]
+        above = np.nonzero(~(err <= settle_deg))[0]
+        settled = len(above) == 0 or above[-1] + 1 < len(err)
+        settle_s = (float(tr["t"][above[-1] + 1]) if len(above) else 0.0) if settled else None
+        peak = _nan_or(np.nanmax, tr["gimbal_rate"])
+        return {
+            "settle_s": settle_s,
+            "final_error_deg": float(err[-1]),
+            "peak_error_deg": float(np.nanmax(err)),
+            "peak_gimbal_rate": peak,
+            "min_delta": _nan_or(np.nanmin, tr["delta"]),
+            "settled": settle_s is not None,
+            "gimbal_rate_within_limit": None if peak is None else bool(peak <= gimbal_rate_limit),
+        }
+
+
+def _nan_or(reduce: Callable[[Array], Any], values: Array) -> float | None:
+    """``reduce`` over the values that are not NaN (ticks without a live board have none); None if none."""
+    finite = values[~np.isnan(values)]
+    return float(reduce(finite)) if finite.size else None
