@@ -156,7 +156,7 @@ class _ForeignSite(http.server.BaseHTTPRequestHandler):
         self.wfile.write(body)
 
     def log_message(self, *args):
-        pass
+        """Quiet: the test's own server logs nothing to stderr."""
 
 
 def test_a_wrong_token_and_a_foreign_origin_are_refused(browser, tmp_path):

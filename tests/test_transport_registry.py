@@ -37,7 +37,7 @@ def test_a_scheme_registered_at_run_time_is_used_and_an_unknown_one_is_named():
             self.buffer += data
 
         def _close(self) -> None:
-            pass
+            """Nothing to release: the bytes live in this object."""
 
     module = type(sys)("echo_transport_for_test")
     module.Echo = Echo  # type: ignore[attr-defined]

@@ -320,18 +320,14 @@ class Host:
         return sp.message(), (out, cmd), ref
 
     @property
-    def _resting(self) -> bool:
-        """The first warm-up's still window, before the spin-up: the rotors held stopped."""
+    def _resting(self) -> bool:  # the first warm-up's still window, before the spin-up: rotors held stopped
         return self._rest_still and self.spinup_since is None
 
     def _warm_up(self, t: float, rotor: Array, armed: bool, phone_fresh: bool) -> None:
-        """The still window when due, the spin-up (gimbals still) and the checks; then the slew — the
-        scenario's at the end of the first warm-up, a new one from the estimate to the target after a
-        recovery. The first still window comes *before* the spin-up when the rotors are at rest: with
-        gimbal axes a few mrad off their nominal directions, spun-up rotors leave the array a net momentum
-        that turns the body (~0.005 rad/s), which a still window after the spin-up took for gyro bias
-        (Monte Carlo: 0 of 8 runs within 0.5° with misaligned gimbals; docs/montecarlo.md). A later one
-        (the phone back after a gap) keeps the rotors spinning: the controller holds the body then."""
+        """The still window when due, spin-up (gimbals still), checks; then the slew (the scenario's, or
+        after a recovery a new one to the target). The first still window comes *before* the spin-up when
+        the rotors are at rest: spun-up rotors on gimbal axes a few mrad off nominal turn the body, which a
+        later window took for gyro bias (docs/montecarlo.md). A later one keeps the rotors spinning."""
         if not armed or self.watch.rearm_pending:
             return
         nominal = self.params.nominal_rotor_speed
