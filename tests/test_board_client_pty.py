@@ -210,17 +210,24 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
         client.close()
 
 
+def _connected_to_a_board_then_killed(link: Path, config: ClientConfig) -> BoardClient:
+    """A client that had a session with a 1-unit firmware-sim on ``link``, killed with SIGKILL since (its
+    symlink removed, as a new firmware-sim would replace it)."""
+    with firmware_sim("--units", "1", "--link", str(link)) as first:
+        client = BoardClient(str(link), config=config)
+        client.connect()
+        first.send_signal(signal.SIGKILL)
+        link.unlink()
+    return client
+
+
 def test_another_board_on_the_reconnected_port_is_refused_and_ours_taken_back(tmp_path: Path):
     """After a kill the port's name can reach another board (a pty name reused by another process, a board
     swapped): it is never commanded, the refusal is reported, and the client goes on looking for its own
     board, which it takes back when it answers again."""
     link = tmp_path / "board"
     config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1)
-    with firmware_sim("--units", "1", "--link", str(link)) as first:
-        client = BoardClient(str(link), config=config)
-        client.connect()
-        first.send_signal(signal.SIGKILL)
-        link.unlink()
+    client = _connected_to_a_board_then_killed(link, config)
     events: list = []
     try:
         with firmware_sim("--units", "2", "--link", str(link)) as foreign:
@@ -242,11 +249,7 @@ def test_another_board_on_the_reconnected_port_is_refused_and_ours_taken_back(tm
 def test_a_port_that_only_reaches_another_board_ends_in_a_link_error_that_says_so(tmp_path: Path):
     link = tmp_path / "board"
     config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.1, reconnect_give_up_s=1.0)
-    with firmware_sim("--units", "1", "--link", str(link)) as first:
-        client = BoardClient(str(link), config=config)
-        client.connect()
-        first.send_signal(signal.SIGKILL)
-        link.unlink()
+    client = _connected_to_a_board_then_killed(link, config)
     try:
         with firmware_sim("--units", "2", "--link", str(link)):
             with pytest.raises(LinkError, match="gave up reconnecting.*another board answered.*2 units"):
