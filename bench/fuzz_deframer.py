@@ -25,10 +25,10 @@ from __future__ import annotations
 
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 import atheris
+from fuzz_main import run_fuzzer  # beside this script (it runs as one)
 
 with atheris.instrument_imports(include=["protocol"]):
     from protocol import cobs, fields, frame, messages  # noqa: F401  (instrumented for coverage)
@@ -116,14 +116,7 @@ def seeds() -> list[bytes]:
 
 
 def main(argv: list[str]) -> None:
-    corpus = [a for a in argv[1:] if not a.startswith("-")]
-    seed_dir = Path(tempfile.mkdtemp(prefix="vscmg-fuzz-seeds-"))
-    for i, data in enumerate(seeds()):
-        (seed_dir / f"seed-{i:04d}").write_bytes(data)
-    # libFuzzer writes new inputs to the first corpus directory and reads seeds from all of them.
-    args = [argv[0], *[a for a in argv[1:] if a.startswith("-")], *corpus, str(seed_dir)]
-    atheris.Setup(args, test_one_input)
-    atheris.Fuzz()
+    run_fuzzer(argv, seeds(), test_one_input, "vscmg-fuzz-seeds-")
 
 
 if __name__ == "__main__":

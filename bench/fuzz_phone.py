@@ -29,10 +29,9 @@ import io
 import json
 import math
 import sys
-import tempfile
-from pathlib import Path
 
 import atheris
+from fuzz_main import run_fuzzer  # beside this script (it runs as one)
 
 with atheris.instrument_imports(include=["hil.link.sources"]):
     from hil.estimation.sensors import SensorKind, SensorSample
@@ -113,13 +112,7 @@ def seeds() -> list[bytes]:
 
 
 def main(argv: list[str]) -> None:
-    corpus = [a for a in argv[1:] if not a.startswith("-")]
-    seed_dir = Path(tempfile.mkdtemp(prefix="vscmg-fuzz-phone-seeds-"))
-    for i, data in enumerate(seeds()):
-        (seed_dir / f"seed-{i:04d}").write_bytes(data)
-    args = [argv[0], *[a for a in argv[1:] if a.startswith("-")], *corpus, str(seed_dir)]
-    atheris.Setup(args, test_one_input)
-    atheris.Fuzz()
+    run_fuzzer(argv, seeds(), test_one_input, "vscmg-fuzz-phone-seeds-")
 
 
 if __name__ == "__main__":

@@ -72,7 +72,7 @@ def test_a_third_party_package_registers_a_scheme_by_entry_point(tmp_path):
             def _write(self, data):
                 self.data += data
             def _close(self):
-                pass
+                self.data = b""  # nothing else to release: the bytes live in this object
     '''))  # fmt: skip
     info = tmp_path / "thirdparty_link-1.0.dist-info"
     info.mkdir()
