@@ -32,6 +32,7 @@ from hil import so3
 from hil.estimation.params import PAPER_E
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorSample, SensorStream, Truth
 from hil.jit import kernel
+from hil.vscmg.kernels import exp9  # the plant's exp(φ^×): one kernel for both
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -334,7 +335,7 @@ def _sample_path(
                     for j in range(3):
                         row[3 + j] = a[10 + j] + f * (b[10 + j] - a[10 + j])
                 else:
-                    _exp_small(f * turn[0], f * turn[1], f * turn[2], E)
+                    exp9(f * turn[0], f * turn[1], f * turn[2], E)
                     v = vectors[k]
                     for j in range(3):  # (R₀ E)ᵀ v = Eᵀ (R₀ᵀ v)
                         row[3 + j] = 0.0
@@ -354,29 +355,6 @@ def _sample_path(
                 row[2] = k
                 count += 1
     return count, used
-
-
-@kernel
-def _exp_small(p0: float, p1: float, p2: float, out: Array) -> None:
-    """``exp(φ^×)`` row-major, as :func:`hil.so3.exp` (series below 1e-4 rad)."""
-    th2 = p0 * p0 + p1 * p1 + p2 * p2
-    if th2 < 1e-8:
-        a = 1.0 - th2 / 6.0 + th2 * th2 / 120.0
-        b = 0.5 - th2 / 24.0 + th2 * th2 / 720.0
-    else:
-        th = math.sqrt(th2)
-        a = math.sin(th) / th
-        s = math.sin(0.5 * th)
-        b = 2.0 * s * s / (th * th)
-    out[0] = 1.0 - b * (p1 * p1 + p2 * p2)
-    out[1] = b * (p0 * p1) - a * p2
-    out[2] = b * (p0 * p2) + a * p1
-    out[3] = b * (p0 * p1) + a * p2
-    out[4] = 1.0 - b * (p0 * p0 + p2 * p2)
-    out[5] = b * (p1 * p2) - a * p0
-    out[6] = b * (p0 * p2) - a * p1
-    out[7] = b * (p1 * p2) + a * p0
-    out[8] = 1.0 - b * (p0 * p0 + p1 * p1)
 
 
 @kernel

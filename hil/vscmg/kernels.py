@@ -53,7 +53,7 @@ def work_size(n: int) -> int:
 
 # --------------------------------------------------------------------------- SO(3) on 9-vectors
 @kernel
-def _exp(p0: float, p1: float, p2: float, out: Array) -> None:
+def exp9(p0: float, p1: float, p2: float, out: Array) -> None:
     """``exp(φ^×)`` (row-major) as the reference's ``_exp``: series below θ = 1e-4 rad."""
     th2 = p0 * p0 + p1 * p1 + p2 * p2
     if th2 < 1e-8:
@@ -84,7 +84,7 @@ def _matmul(p: Array, q: Array, out: Array) -> None:
 @kernel
 def _turn(R0: Array, p0: float, p1: float, p2: float, e: Array, out: Array) -> None:
     """``R₀ exp(φ^×)`` into ``out`` (``e`` scratch of 9)."""
-    _exp(p0, p1, p2, e)
+    exp9(p0, p1, p2, e)
     _matmul(R0, e, out)
 
 
