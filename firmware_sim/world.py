@@ -47,6 +47,7 @@ Array = NDArray[np.float64]
 YIELD_S = 2e-4  # s: the pause a lagging world thread takes between chunks, so the board's server runs
 LAG_WARNING_S = 0.1  # s: a world this far behind the board's clock is reported (once)
 _EPS = 1e-9  # s: slack on "a whole step fits before t"
+LOOK_AHEAD_S = 0.05  # s: the most the plant steps ahead of the present in one batch (frames come sooner)
 logger = logging.getLogger(__name__)
 
 
@@ -108,10 +109,16 @@ class World:
         self.step_s = scenario.loop.plant_step_s
         n = self.n = self.params.n_units
         self.t0 = board.now
-        self.compiled: CompiledPlant | None = CompiledPlant(self.plant) if compiled else None
-        self._flat = np.zeros(0)
-        self._ref: PlantState | None = None
-        self._path = np.zeros((64, 13))
+        self.layout = CompiledPlant(self.plant)  # the flat state's layout (pack, unpack, views); numpy only
+        self.compiled: CompiledPlant | None = self.layout if compiled else None
+        size = self.layout.size
+        self._rows = np.zeros((64, size))  # row _at: the present; rows _at + 1 .. _head: stepped ahead
+        self._at = self._head = 0
+        self._work = np.zeros(size)
+        self._sensed: list[SensorSample] = []  # what the phone sensed along the steps ahead (rows 0 .. head)
+        self._sensed_in: NDArray[np.int64] = np.zeros(0, np.int64)  # each one's interval (its first row)
+        self._given = 0  # how many of them the world has handed out (those before the present row)
+        self._phone_at: tuple | None = None  # the phone as it was at row 0
         self.state = self.plant.state(
             R=scenario.slew.R0, gimbal_angle=scenario.slew.gimbal_angle0, rotor_rate=np.zeros(n), t=0.0
         )
@@ -122,59 +129,48 @@ class World:
         self._undriven = np.zeros((1, n), bool)
         self._unclamped = np.zeros(1, bool)
         self._pushed_at: float | None = None
-        self._read_at = -math.inf  # board time at which the drives last read the board's outputs
+        self._read: tuple | None = None  # what the drives last read from the board (its drive epoch, mode)
         self._held: tuple | None = None
-        self.steps = 0
-        self.batches = 0
+        self.steps = 0  # plant steps the world has moved through
+        self.batches = 0  # compiled calls (each steps ahead to the next pulse frame)
+        self.rewinds = 0  # times the steps ahead were dropped (an event changed what the drives see)
         board.set_unit_states(self.unit_states())
 
     # ------------------------------------------------------------------ state
     @property
+    def _flat(self) -> Array:
+        """The present flat state (a view of the row the world has reached)."""
+        return self._rows[self._at]
+
+    @property
     def state(self) -> PlantState:
-        """The plant's state (batch 1; on the compiled plant built from the flat state on each read)."""
-        if self.compiled is not None:
-            return self.compiled.unpack(self._flat)
-        assert self._ref is not None
-        return self._ref
+        """The plant's state now (batch 1, built from the flat state on each read)."""
+        return self.layout.unpack(self._flat)
 
     @state.setter
     def state(self, s: PlantState) -> None:
-        if self.compiled is not None:
-            self._flat = self.compiled.pack(s)
-        else:
-            self._ref = s
-
-    def _plant_t(self) -> float:
-        return float(self._flat[0]) if self.compiled is not None else self._ref.t  # type: ignore[union-attr]
+        self._drop_ahead()
+        self._rows[0] = self.layout.pack(s)
+        self._at = self._head = 0
 
     @property
     def now(self) -> float:
         """World time on the board's clock (s)."""
-        return self.t0 + self._plant_t()
+        return self.t0 + float(self._rows[self._at, 0])
 
-    def _units(self) -> tuple[Array, Array, Array]:
-        """Gimbal angles, gimbal rates and rotor speeds (n,), views of the state."""
-        c = self.compiled
-        if c is not None:
-            f = self._flat
-            return c.gimbal_angle_of(f), c.gimbal_rate_of(f), c.rotor_rate_of(f)
-        s = self._ref
-        assert s is not None
-        return s.gimbal_angle[0], s.gimbal_rate[0], s.rotor_rate[0]
+    def _units(self, row: Array | None = None) -> tuple[Array, Array, Array]:
+        """Gimbal angles, gimbal rates and rotor speeds (n,) now (or in ``row``), views of the state."""
+        c, f = self.layout, self._flat if row is None else row
+        return c.gimbal_angle_of(f), c.gimbal_rate_of(f), c.rotor_rate_of(f)
 
     def truth(self) -> Truth:
         """The true motion now (copies; nothing else is built)."""
-        c = self.compiled
-        if c is not None:
-            R, omega = c.R_of(self._flat), c.omega_of(self._flat)
-        else:
-            assert self._ref is not None
-            R, omega = self._ref.R[0], self._ref.omega[0]
+        c, f = self.layout, self._flat
         angle, rate, speed = self._units()
-        return Truth(self.now, R.copy(), omega.copy(), angle.copy(), rate.copy(), speed.copy())
+        return Truth(self.now, c.R_of(f).copy(), c.omega_of(f).copy(), angle.copy(), rate.copy(), speed.copy())
 
-    def unit_states(self) -> list[UnitState]:
-        angle, rate, speed = self._units()
+    def unit_states(self, row: Array | None = None) -> list[UnitState]:
+        angle, rate, speed = self._units(row)
         return [
             UnitState(_wrap(a), g, w)
             for a, g, w in zip(angle.tolist(), rate.tolist(), speed.tolist(), strict=True)
@@ -182,75 +178,158 @@ class World:
 
     # ------------------------------------------------------------------ stepping
     def advance_to(self, t: float) -> list[SensorSample]:
-        """Step the plant up to board time ``t`` (whole steps) and return the phone's samples meanwhile: in
-        batches from one board event to the next, the board's events run at the plant step they fall in."""
+        """Step the plant up to board time ``t`` (whole steps) and return the phone's samples meanwhile.
+
+        The plant steps ahead in one batch to the board's next pulse frame (its pulses cannot change
+        before, unless the MCU resets, a channel dies or the gimbal mode changes), possibly past ``t``.
+        The world then moves through those steps to ``t``: each board event runs at the plant step it falls
+        in, with the unit states of that step; should one change what the drives see, the steps ahead of
+        it are dropped and the world steps again from there. What the phone sensed is handed out as the
+        world moves, never ahead of it."""
         samples: list[SensorSample] = []
         h, board = self.step_s, self.board
+        self._reread()  # the host's I/O may have stepped the board since the last call
         while self.now + h <= t + _EPS:
-            now = self.now
-            due = board.next_deadline()
-            if round(now * 1e6) >= due * 1e6 or board.now > self._read_at:
-                # an event is due (pulse frame, power sample, command...), or the board moved on since the
-                # drives last read it (a host's I/O steps it to the clock's now): hand it the unit states,
-                # let it run what is due, and read its outputs
-                self._push(now)
-                board.step(now)
-                self._drive()
-                self._read_at = board.now
-                due = board.next_deadline()
-            samples += self._run(self._steps_before(due, t))
-            self.batches += 1
-        self._push(self.now)  # for whatever steps the board before the world's next call
+            if self._at == self._head:
+                now = self.now
+                if round(now * 1e6) >= board.next_deadline_us():  # events due now run before stepping on
+                    self._push(now, self._flat)
+                    board.step(now)
+                    self._reread()
+                self._look_ahead()
+            end, cut = self._through_events(self._last_row_by(t))
+            samples += self._sample(end)
+            self.steps += end - self._at
+            self._at = end
+            if cut:
+                if end < self._head:
+                    self._drop_ahead()
+                    self.rewinds += 1
+                self._reread()
+        self._push(self.now, self._flat)  # for whatever steps the board before the world's next call
         faults = board.faults
         if faults.phone_gaps:  # a phone that paused its stream (firmware-sim --phone-gap)
             samples = [s for s in samples if not faults.phone_silent(s.t_s)]
         return samples
 
-    def _push(self, at: float) -> None:
-        """The unit states at board time ``at`` to the board (once per time)."""
+    def _reread(self) -> None:
+        """Drop the steps ahead and take the board's outputs anew if what the drives see has changed."""
+        board = self.board
+        if (board.drive_epoch, board.gimbal_mode) != self._read:
+            if self._head > self._at:
+                self._drop_ahead()
+                self.rewinds += 1
+            self._drive()
+
+    def _push(self, at: float, row: Array) -> None:
+        """The unit states of ``row`` (the world at board time ``at``) to the board (once per time)."""
         if self._pushed_at != at:
-            self.board.set_unit_states(self.unit_states(), at=at)
+            self.board.set_unit_states(self.unit_states(row), at=at)
             self._pushed_at = at
 
-    def _steps_before(self, deadline: float, t: float) -> int:
-        """Plant steps from now (at least one) up to the first step that starts at or after the board's
-        ``deadline`` (s, whole µs), without passing ``t``: the times the step-by-step loop would reach."""
-        due_us = deadline * 1e6
+    def _look_ahead(self) -> None:
+        """Step from the present (at least one step) to the first step that starts at or after the board's
+        next pulse frame (whole µs) — or at most :data:`LOOK_AHEAD_S` — keeping every state."""
+        horizon_us = min(self.board.next_output_change_us(), round((self.now + LOOK_AHEAD_S) * 1e6))
         h, t0 = self.step_s, self.t0
-        pt = self._plant_t()
+        pt = float(self._flat[0])
         steps = 0
         while True:
             pt += h
             steps += 1
-            now = t0 + pt
-            if now + h > t + _EPS or round(now * 1e6) >= due_us:
-                return steps
+            if round((t0 + pt) * 1e6) >= horizon_us:
+                break
+        rows = self._rows
+        if rows.shape[0] < steps + 1:
+            rows = self._rows = np.zeros((2 * steps + 1, rows.shape[1]))
+        rows[0] = rows[self._at]
+        self._at = 0
+        self._head = steps
+        self._run(steps)
+        self.batches += 1
+        self._phone_at = self.phone.checkpoint()
+        self._sensed, self._sensed_in = self._sense(0, steps)
+        self._given = 0
 
-    def _run(self, steps: int) -> list[SensorSample]:
-        """``steps`` plant steps under the held drives, and the phone's samples along them."""
-        h = self.step_s
-        self.steps += steps
-        c = self.compiled
-        if c is not None:
-            if self._path.shape[0] < steps + 1:
-                self._path = np.zeros((2 * steps + 1, 13))
-            path = self._path[: steps + 1]
-            c.advance(self._flat, h, steps, self.servo, path)
+    def _sense(self, start: int, end: int) -> tuple[list[SensorSample], NDArray[np.int64]]:
+        """What the phone senses from row ``start`` to row ``end``, and the interval (its first row) each
+        sample was taken in."""
+        rows = self._rows[start : end + 1]
+        if self.compiled is not None:
+            path = rows[:, self.layout.path_columns]
             path[:, 0] += self.t0
-            return self.phone.sample_path(path)
+            return self.phone.sample_path_intervals(path)
         out: list[SensorSample] = []
-        for _ in range(steps):
-            prev = self._ref
-            assert prev is not None
-            s = self._ref = self.plant.step(prev, h, self.servo)
-            out += self.phone.sample(
-                self.t0 + prev.t, prev.R[0], prev.omega[0], self.t0 + s.t, s.R[0], s.omega[0]
-            )
+        intervals: list[int] = []
+        c, t0 = self.layout, self.t0
+        for i, (a, b) in enumerate(zip(rows[:-1], rows[1:], strict=True)):
+            taken = self.phone.sample(t0 + a[0], c.R_of(a), c.omega_of(a), t0 + b[0], c.R_of(b), c.omega_of(b))
+            out += taken
+            intervals += [start + i] * len(taken)
+        return out, np.array(intervals, np.int64)
+
+    def _sample(self, end: int) -> list[SensorSample]:
+        """The phone's samples from the present row to row ``end`` (sensed when the world stepped ahead)."""
+        upto = int(np.searchsorted(self._sensed_in, end))
+        out = self._sensed[self._given : upto]
+        self._given = upto
         return out
 
+    def _drop_ahead(self) -> None:
+        """Forget the steps ahead of the present, and what the phone sensed along them."""
+        if self._head == self._at:
+            return
+        self._head = self._at
+        self.phone.restore(self._phone_at)
+        self._sense(0, self._at)  # the phone as it was at the present row (the samples are given already)
+        self._phone_at = self.phone.checkpoint()
+        self._sensed, self._sensed_in = self._sensed[: self._given], self._sensed_in[: self._given]
+
+    def _run(self, steps: int) -> None:
+        """``steps`` plant steps from row 0 under the held drives, each state into the next row."""
+        rows, h = self._rows, self.step_s
+        c = self.compiled
+        if c is not None:
+            work = self._work
+            work[:] = rows[0]
+            c.advance(work, h, steps, self.servo, rows[: steps + 1])
+            return
+        layout = self.layout
+        for k in range(steps):
+            rows[k + 1] = layout.pack(self.plant.step(layout.unpack(rows[k]), h, self.servo))
+
+    def _last_row_by(self, t: float) -> int:
+        """The last row stepped (past the present) whose time is ``t`` or before."""
+        end = self._at + 1
+        limit = t + _EPS - self.t0
+        rows = self._rows
+        while end < self._head and rows[end + 1, 0] <= limit:
+            end += 1
+        return end
+
+    def _through_events(self, end: int) -> tuple[int, bool]:
+        """Run the board's events due up to row ``end``, each at the first row at or after it with that
+        row's unit states. Returns ``(end, cut)``: ``cut`` if an event changed what the drives see, ``end``
+        then being its row."""
+        board, rows, t0 = self.board, self._rows, self.t0
+        k = self._at + 1
+        while True:
+            due_us = board.next_deadline_us()
+            while k <= end and round((t0 + rows[k, 0]) * 1e6) < due_us:
+                k += 1
+            if k > end:
+                return end, False
+            at = t0 + float(rows[k, 0])
+            self._push(at, rows[k])
+            board.step(at)
+            if (board.drive_epoch, board.gimbal_mode) != self._read:
+                return k, True
+
     def _drive(self) -> None:
-        """The drives' targets from the widths on the board's outputs now (held anew only if they changed)."""
+        """The drives' targets from the widths on the board's outputs now, at the battery voltage now (held
+        anew only if they changed)."""
         board = self.board
+        self._read = (board.drive_epoch, board.gimbal_mode)
         outputs = board.outputs
         volts = board.power.battery_v
         mode = board.gimbal_mode

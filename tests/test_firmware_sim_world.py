@@ -6,6 +6,7 @@ mode and undriven rotors."""
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import astuple, replace
 
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 
 from hil import so3
 from hil.vscmg import cubesat_1u
+from protocol.errors import BoardReset
 from protocol.messages import ActuatorSetpoint, GimbalMode, UnitSetpoint
 
 
@@ -45,11 +47,14 @@ def _drive(
     period: float = 0.005,
     mode=GimbalMode.RATE,
     stiff_battery: bool = False,
+    faults=None,
 ):
     """The world driven for ``seconds``: rotors spun up, gimbals turned both ways (or to angles), the world
-    advanced every ``chunk`` s and a setpoint sent every ``period`` s. Returns the phone samples, truths
-    (every 0.1 s) and the world."""
+    advanced every ``chunk`` s and a setpoint sent every ``period`` s; ``faults(board)`` schedules faults
+    first. Returns the phone samples, truths (every 0.1 s) and the world."""
     clock, client, world = _rig(compiled, stiff_battery=stiff_battery)
+    if faults is not None:
+        faults(world.board)
     samples, truths = [], []
     k_period = round(period / chunk)
     for k in range(round(seconds / chunk)):
@@ -63,7 +68,8 @@ def _drive(
                 gimbal = (0.6, -0.8 * np.cos(t), 1.2, -1.0)
             speeds = (300.0 + 40 * t, 250.0, 350.0 - 20 * t, 300.0)
             units = tuple(UnitSetpoint(g, w) for g, w in zip(gimbal, speeds, strict=True))
-            client.send_setpoint(ActuatorSetpoint(gimbal_mode=mode, units=units))
+            with contextlib.suppress(BoardReset):  # a reset board stays disarmed: this host does not re-arm
+                client.send_setpoint(ActuatorSetpoint(gimbal_mode=mode, units=units))
             client.service()
         if round((k + 1) * chunk / 0.1, 9).is_integer():
             truths.append(world.truth())
@@ -125,8 +131,8 @@ def test_gimbals_on_angles_reach_them_and_match_the_reference():
 def test_how_the_caller_chunks_time_does_not_change_the_world():
     """The board's events fall at the same plant steps, and the board runs only at its own events and
     when the host's I/O steps it, whether the world is advanced every plant step (the lockstep runtime's
-    plant task), every 5 ms or every 20 ms: the same samples and truth to rounding, and fewer Python
-    batches for longer chunks. (The world also hands the board its unit states at the end of each call,
+    plant task), every 5 ms or every 20 ms: the same samples and truth to rounding, and one compiled
+    batch per pulse frame whatever the chunks (50 Hz frames). (The world also hands the board its unit states at the end of each call,
     for a host that steps the board before the world's next call; the board's power draw estimates the
     rotors' acceleration between hand-overs, so with a sagging battery the ESCs' voltage, and through
     it their speeds, would follow the chunks a little. Hence a stiff battery here.)"""
@@ -140,7 +146,30 @@ def test_how_the_caller_chunks_time_does_not_change_the_world():
     _same_truths(t1, t5, atol=1e-12)
     _same_truths(t1, t20, atol=1e-12)
     assert w1.steps == w5.steps == w20.steps == 1000
-    assert w1.batches == 1000 > w5.batches >= w20.batches
+    assert w1.batches == w5.batches == w20.batches <= 52
+    assert w1.rewinds == w5.rewinds == w20.rewinds == 0
+
+
+def test_steps_taken_ahead_are_dropped_when_the_board_changes_its_pulses_between_frames(monkeypatch):
+    """The world steps ahead to the next pulse frame; a rotor ESC that dies between frames and an MCU hang
+    whose watchdog resets the board (outputs off) change the drives at once: the world drops what it
+    stepped ahead and steps again from there — the same samples and truth as a world that steps one plant
+    step at a time and is called every step (its drives read the board after every step). A stiff
+    battery, as in the chunks' test."""
+    import firmware_sim.world as world_module
+
+    def faults(board):
+        board.faults.dead_esc(1, at=board.now + 0.1137)  # unit 0's rotor ESC, while it spins up
+        board.faults.hang(at=board.now + 0.6213)
+
+    fast_samples, fast_truth, fast = _drive(True, 1.5, chunk=0.005, faults=faults, stiff_battery=True)
+    monkeypatch.setattr(world_module, "LOOK_AHEAD_S", 1e-4)  # shorter than a plant step: one at a time
+    ref_samples, ref_truth, ref = _drive(True, 1.5, chunk=0.001, faults=faults, stiff_battery=True)
+    assert fast.rewinds >= 2 and ref.rewinds == 0
+    assert ref.batches == ref.steps == fast.steps == 1500 and fast.batches < 200
+    assert [r.cause.name for r in fast.board.resets[1:]] == ["WATCHDOG"]
+    _same_samples(fast_samples, ref_samples, atol=1e-12)
+    _same_truths(fast_truth, ref_truth, atol=1e-12)
 
 
 def test_the_board_follows_the_world_at_its_own_events():

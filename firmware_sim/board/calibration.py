@@ -107,7 +107,9 @@ class CalibrationTransfers:
     @property
     def next_retry_us(self) -> float:
         """Board time (µs) of the next resend (inf: nothing pending)."""
-        return min((entry[2] for entry in self._pending.values()), default=math.inf)
+        if not self._pending:  # the usual case, asked at every board event
+            return math.inf
+        return min(entry[2] for entry in self._pending.values())
 
     def retry_due(self, t: int) -> None:
         """Resend every fragment due at ``t`` (µs); give up the download after the last try."""

@@ -140,6 +140,10 @@ class Board:
         """The fine widths (1/512 µs, :mod:`protocol.pulse_widths`) the firmware aims each channel at."""
         self.outputs: tuple[float | None, ...] = (None,) * cfg.n_channels
         """The widths (µs, whole 0.5 µs ticks) on the pins this frame: the targets, dithered."""
+        self.drive_epoch = 0
+        """Counts the changes of what the motors' drivers see: a pulse frame starts (its widths), the
+        outputs go off (reset), a channel dies or revives. A world that stepped ahead under the old
+        pulses steps again from where it moved (:mod:`firmware_sim.world`)."""
         self._clamped = False
         self._release_us = t0
         self._wdt_us = _NEVER
@@ -187,6 +191,19 @@ class Board:
     def next_deadline(self) -> float:
         """Board-clock time (s) of the next wake-up; an I/O loop should call ``step`` then."""
         return self._next_due_us() / 1e6
+
+    def next_deadline_us(self) -> float:
+        """:meth:`next_deadline` in whole µs of board time (inf: nothing scheduled)."""
+        return self._next_due_us()
+
+    def next_output_change_us(self) -> float:
+        """Board time (µs) before which the pulses on the pins stay as they are unless the MCU resets, a
+        channel dies or the gimbal mode changes (all of which move :attr:`drive_epoch`): the next pulse
+        frame, or while the MCU is held in reset its release (inf: none scheduled)."""
+        due = self._frames.next_us
+        if self.phase is McuPhase.RESET:
+            due = min(due, max(self._release_us, self._t_us))
+        return due
 
     @property
     def now(self) -> float:
@@ -353,6 +370,7 @@ class Board:
         self.link.reset()
         self.power_supervisor.reset()
         self.targets = self.outputs = (None,) * self.config.n_channels
+        self.drive_epoch += 1
         self.dither.reset()
         for s in (self._frames, self._telemetry, self._heartbeat, self._ppm):
             s.stop()
@@ -408,6 +426,7 @@ class Board:
         if self.phase is McuPhase.RUNNING:
             self.targets, self._clamped = self._compute_outputs()
         self.outputs = self.dither.frame(self.targets)
+        self.drive_epoch += 1
         self.timeline.record(t / 1e6, self.outputs)
 
     def _store_calibration(self, unit: int, cal: Any) -> None:
@@ -430,8 +449,11 @@ class Board:
         supply_on = not self.esc_calibration.supply_cut
         for i, unit in enumerate(self.units):
             if dead:
+                was = unit.rotor_dead, unit.gimbal_dead
                 unit.rotor_dead = self.faults.channel_dead(2 * i + 1, now)
                 unit.gimbal_dead = self.faults.channel_dead(2 * i, now)
+                if (unit.rotor_dead, unit.gimbal_dead) != was:
+                    self.drive_epoch += 1
             unit.update_esc(now, outputs[2 * i + 1], supply_on)
             unit.advance(dt, outputs[2 * i], outputs[2 * i + 1], v)
         self.battery.discharge(self.power.battery_a, dt)

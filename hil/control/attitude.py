@@ -24,6 +24,7 @@ Rest-to-rest slews: :class:`EigenaxisSlew` is a smooth (minimum-jerk) rotation a
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -155,9 +156,10 @@ class EigenaxisSlew:
         T = max(1.875 * theta / max_rate, math.sqrt(5.7735 * theta / max_accel), 1e-9)
         return cls(R0, R_f, T, start_s)
 
-    @property
+    @functools.cached_property
     def axis_angle(self) -> Array:
-        """The body-frame rotation vector (3,) from R0 to R_f."""
+        """The body-frame rotation vector (3,) from R0 to R_f (computed once: :meth:`at` runs every
+        control tick)."""
         return so3.log(np.asarray(self.R0).T @ np.asarray(self.R_f))
 
     def at(self, t: float) -> Reference:
@@ -166,4 +168,6 @@ class EigenaxisSlew:
         s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
         ds = 30.0 * tau * tau * (1.0 - tau) ** 2 / self.duration_s
         dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / self.duration_s**2
-        return Reference(np.asarray(self.R0) @ so3.exp(s * phi), ds * phi, dds * phi)
+        x, y, z = (s * phi).tolist()
+        turn = np.array(so3.exp_f(x, y, z)).reshape(3, 3)  # Rodrigues on floats: one vector, no batching
+        return Reference(np.asarray(self.R0) @ turn, ds * phi, dds * phi)

@@ -123,10 +123,11 @@ class MergeStats:
     def count_step(self, flags: int) -> None:
         """Count one step with these :class:`StepFlag` bits."""
         self.steps += 1
-        self.gaps += bool(flags & StepFlag.GAP)
-        self.failover_steps += bool(flags & StepFlag.FAILOVER)
-        for kind in KINDS:
-            self.stale_steps[kind.label] += bool(flags & StepFlag.stale(kind))
+        if flags:  # the usual step has none
+            self.gaps += bool(flags & StepFlag.GAP)
+            self.failover_steps += bool(flags & StepFlag.FAILOVER)
+            for kind in KINDS:
+                self.stale_steps[kind.label] += bool(flags & StepFlag.stale(kind))
 
     def count_steps(self, flags: NDArray[np.int64]) -> None:
         """Count many steps at once (the batch path); same result as :meth:`count_step` on each."""

@@ -175,8 +175,7 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         compiled_s = warm(scenario)
         if compiled_s is not None:
             logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
-    if not plan.lockstep:
-        _load_kernels(scenario, plan)
+    _load_kernels(scenario, plan)
     observer = opts.observer
     tap_row = None if observer is None else observer.row
     tap_event = None if observer is None else observer.event
@@ -423,13 +422,13 @@ def _outcome(host: Host) -> str:
 
 
 def _load_kernels(scenario: Scenario, plan: _Plan) -> None:
-    """Load the compiled kernels a wall-clock run calls into this process before the board is armed.
+    """Load the compiled kernels a run calls into this process before the board is armed.
 
     A kernel is loaded from numba's on-disk cache (or compiled) on its first call: ~0.35 s for the host's
     on an idle 2-core machine, 0.7 s loaded. Left to the run, the estimator's came with the first phone
     samples after arming and steering's with the first slew tick: each stalled the control task past the
-    board's 0.25 s link timeout, and the board failed safe (issue 16, finding 7). A run with the world in
-    a thread loads the world's too."""
+    board's 0.25 s link timeout, and the board failed safe (issue 16, finding 7). A run with the world
+    loads the world's too. A lockstep run loads them here as well: start-up, not time in its run loop."""
     from hil.runtime.warmup import warm_host, warm_world
 
     warm_host(scenario)

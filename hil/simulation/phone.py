@@ -245,15 +245,29 @@ class BodyPhone:
         out.sort(key=lambda s: s.t_s)
         return out
 
+    def checkpoint(self) -> tuple:
+        """The sampler's state now (next sample times, noise stream), for :meth:`restore`."""
+        return self._next.copy(), self._normals, self._used, self.rng.bit_generator.state
+
+    def restore(self, checkpoint: tuple) -> None:
+        """Back to a :meth:`checkpoint`: the samples taken since are taken again, the same."""
+        next_t, self._normals, self._used, self.rng.bit_generator.state = checkpoint
+        self._next = next_t.copy()
+
     def sample_path(self, path: Array) -> list[SensorSample]:
         """The samples every sensor takes along ``path`` (m + 1, 13), rows ``[t, R (9, row-major, body →
         ENU), Ω (3)]`` of successive true states: what :meth:`sample` gives for each pair of consecutive
         rows in turn (each pair's samples sorted by timestamp), in one compiled call."""
+        return self.sample_path_intervals(path)[0]
+
+    def sample_path_intervals(self, path: Array) -> tuple[list[SensorSample], Array]:
+        """:meth:`sample_path`, and for each sample the interval of ``path`` it was taken in (its first
+        row's index; non-decreasing)."""
         path = np.ascontiguousarray(path, dtype=float)
         if path.ndim != 2 or path.shape[1] != 13:
             raise ConfigError(f"needs a path of (m + 1, 13), got {path.shape}", "BodyPhone.sample_path")
         if path.shape[0] < 2:
-            return []
+            return [], _NONE
         times = path[:, 0]
         if not np.all(times[1:] >= times[:-1]):
             raise ConfigError("a path whose times run backwards", "BodyPhone.sample_path")
@@ -263,7 +277,7 @@ class BodyPhone:
             if t <= end:
                 cap += int((end - t) * rate) + 2
         if cap == 0:  # no sensor is due: nothing to draw or sample
-            return []
+            return [], _NONE
         self._draws(4 * cap)
         if self._out.shape[0] < cap:
             self._out = np.empty((2 * cap, 6))
@@ -276,15 +290,17 @@ class BodyPhone:
             raise ConfigError(f"the sampler refused the path (status {count})", "BodyPhone.sample_path")
         self._next, self._used = next_t, used
         if count == 0:
-            return []
+            return [], _NONE
         rows = out[:count]
         if count > 1:
             rows = rows[np.lexsort((rows[:, 1], rows[:, 0]))]  # by interval, then stamp, as sample() sorts
         kinds = self.kinds
-        return [SensorSample(t, kinds[int(k)], (x, y, z)) for _, t, k, x, y, z in rows.tolist()]
+        samples = [SensorSample(t, kinds[int(k)], (x, y, z)) for _, t, k, x, y, z in rows.tolist()]
+        return samples, rows[:, 0].astype(np.int64)
 
 
 _BLOCK = 4096
+_NONE = np.zeros(0, np.int64)
 """Standard normals drawn at a time for the phone's noise."""
 
 

@@ -73,6 +73,8 @@ class CompiledPlant:
         self._omega = slice(10 + nx, 13 + nx)
         self._gimbal_rate = slice(13 + nx, 13 + nx + n)
         self._rotor_rate = slice(13 + nx + n, 13 + nx + 2 * n)
+        self.path_columns = np.r_[0:10, 10 + nx : 13 + nx]
+        """The columns of a whole-state path (:meth:`advance`) that make a path of t, R, Ω rows."""
 
     # ------------------------------------------------------------------ state
     def pack(self, s: PlantState, index: int = 0) -> Array:
@@ -163,7 +165,8 @@ class CompiledPlant:
         path: Array | None = None,
     ) -> None:
         """``steps`` steps of ``dt`` seconds on ``state`` in place (RKMK4, as :meth:`Plant.step`). With
-        ``path`` ((steps + 1, 13): t, R, Ω per row) the start and every state reached are recorded. Raises
+        ``path`` ((steps + 1, 13): t, R, Ω per row; or (steps + 1, :attr:`size`): whole states) the start and
+        every state reached are recorded. Raises
         NumericalError as the reference does (the state is then the last good one)."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ConfigError(f"must be a positive step, got {dt!r}", "CompiledPlant.step.dt")
@@ -172,8 +175,11 @@ class CompiledPlant:
         d = self.drive(torques)
         if path is None:
             path = _NO_PATH
-        elif path.shape != (steps + 1, k.PATH_WIDTH):
-            raise ConfigError(f"needs a path of ({steps + 1}, {k.PATH_WIDTH})", "CompiledPlant.advance.path")
+        elif path.shape not in ((steps + 1, k.PATH_WIDTH), (steps + 1, self.size)):
+            raise ConfigError(
+                f"needs a path of ({steps + 1}, {k.PATH_WIDTH}) or ({steps + 1}, {self.size})",
+                "CompiledPlant.advance.path",
+            )
         try:
             status, _ = k.advance(self.model, state, float(dt), int(steps), d.mode, d.data, path, self._work)
         except (ValueError, OverflowError, ZeroDivisionError) as e:

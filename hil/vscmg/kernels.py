@@ -12,7 +12,8 @@ Layouts (n units):
   then per unit ``[s₀ (3), t₀ (3), g (3), Ī_G (9), Ī_W (9), D⁻¹ (3) (constant when axisymmetric)]``.
 - state (:func:`state_size`): ``[t, R (9, row-major), π (3), γ (n), φ (n), p_γ (n), p_φ (n), Ω (3), γ̇ (n),
   φ̇ (n)]`` — the integrated variables ``x`` as :meth:`Plant.step` stacks them, then the velocities.
-- path row (:data:`PATH_WIDTH`): ``[t, R (9), Ω (3)]``, one per state visited (the phone samples along it).
+- path row (:data:`PATH_WIDTH`): ``[t, R (9), Ω (3)]``, one per state visited (the phone samples along it);
+  or, in a path :func:`state_size` wide, the whole state (a world that looks ahead and may go back).
 """
 
 from __future__ import annotations
@@ -299,8 +300,8 @@ def advance(
     model: Array, state: Array, h: float, steps: int, mode: int, drive: Array, path: Array, work: Array
 ) -> tuple[int, int]:
     """``steps`` RKMK4 steps of ``h`` seconds on ``state`` (in place) under the drive ``(mode, drive)``;
-    with ``path`` (steps + 1, :data:`PATH_WIDTH`) rows, the start and every state reached are written to
-    it. Returns ``(status, steps done)``; on an error the state is the last good one and ``work[:2n+1]``
+    with ``path`` (steps + 1, :data:`PATH_WIDTH` or :func:`state_size`) rows, the start and every state
+    reached are written to it. Returns ``(status, steps done)``; on an error the state is the last good one and ``work[:2n+1]``
     holds the stage time and the offending torques (:data:`BAD_TORQUE`) or nothing."""
     n = int(model[0])
     nx = 3 + 4 * n
@@ -403,6 +404,10 @@ def advance(
 
 @kernel
 def _record(state: Array, n: int, row: Array) -> None:
+    if row.shape[0] != PATH_WIDTH:  # a row as wide as the state: all of it
+        for i in range(row.shape[0]):
+            row[i] = state[i]
+        return
     for i in range(10):
         row[i] = state[i]
     for i in range(3):
