@@ -294,3 +294,19 @@ def test_estimates_are_immutable_and_do_not_share_memory():
     np.testing.assert_array_equal(e.R, np.eye(3))
     np.testing.assert_array_equal(e.omega - e.omega_err, [-3, -3, -3])
     assert repr(e).startswith("Estimate(t=0.5, R=[[1.0, 0.0, 0.0]") and e.iterations == 2
+
+
+def test_the_compiled_quaternions_are_the_numpy_references():
+    """hil.estimation.quaternions.quats_of against hil.so3.matrix_to_quat: random rotations, every one of
+    Shepperd's four branches (rotations by nearly π about each axis, and the identity), to rounding."""
+    from hil.estimation.quaternions import quats_of
+
+    rng = np.random.default_rng(7)
+    vectors = rng.normal(size=(500, 3)) * rng.uniform(0.0, np.pi, (500, 1))
+    branches = [np.zeros(3)] + [np.pi * (1 - 1e-9) * e for e in np.eye(3)] + [-np.pi * np.eye(3)[1]]
+    R = so3.exp(np.concatenate([vectors, branches]))
+    got, want = quats_of(R), so3.matrix_to_quat(R)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-15)
+    assert np.all(got[:, 0] >= 0.0)
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0, atol=1e-15)
+    assert np.argmax(np.abs(got[-4:-1, 1:]), axis=1).tolist() == [0, 1, 2]  # x, y, z branches taken

@@ -132,10 +132,11 @@ def test_how_the_caller_chunks_time_does_not_change_the_world():
     """The board's events fall at the same plant steps, and the board runs only at its own events and
     when the host's I/O steps it, whether the world is advanced every plant step (the lockstep runtime's
     plant task), every 5 ms or every 20 ms: the same samples and truth to rounding, and one compiled
-    batch per pulse frame whatever the chunks (50 Hz frames). (The world also hands the board its unit states at the end of each call,
-    for a host that steps the board before the world's next call; the board's power draw estimates the
-    rotors' acceleration between hand-overs, so with a sagging battery the ESCs' voltage, and through
-    it their speeds, would follow the chunks a little. Hence a stiff battery here.)"""
+    batch per pulse frame whatever the chunks (50 Hz frames). (The world also hands the board its unit
+    states at the end of each call, for a host that steps the board before the world's next call; the
+    board's power draw estimates the rotors' acceleration between hand-overs, so with a sagging battery
+    the ESCs' voltage, and through it their speeds, would follow the chunks a little. Hence a stiff
+    battery here.)"""
     runs = {
         chunk: _drive(True, 1.0, chunk=chunk, period=0.02, stiff_battery=True)
         for chunk in (0.001, 0.005, 0.02)

@@ -11,6 +11,7 @@ Its parameters are in :mod:`hil.estimation.params`.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from operator import itemgetter
@@ -21,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from hil import so3
 from hil.estimation import variational as k
 from hil.estimation.params import EstimatorParams
+from hil.estimation.quaternions import quats_of
 from hil.estimation.sensors import MergedSteps, StepFlag, as_vec3
 from protocol.errors import ConfigError, ConvergenceError
 
@@ -125,10 +127,10 @@ class EstimateBatch:
     def __len__(self) -> int:
         return int(self.t.shape[0])
 
-    @property
+    @functools.cached_property
     def quat(self) -> Array:
-        """Attitude as unit quaternions ``[w, x, y, z]`` (N, 4), body → inertial."""
-        return so3.matrix_to_quat(self.R)
+        """Attitude as unit quaternions ``[w, x, y, z]`` (N, 4), body → inertial (computed once)."""
+        return quats_of(self.R)
 
 
 # --------------------------------------------------------------------------- the estimator

@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from hil import so3
 from hil.estimation.geomag import GeomagneticField, decimal_year, igrf14, wmm2025
 from hil.estimation.params import directions_matrix
-from hil.estimation.sensors import SensorKind, SensorLog
+from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from protocol.errors import InputFormatError
 
 Array = NDArray[np.float64]
@@ -88,26 +88,33 @@ def find_still_window(
     least a few samples of each sensor. Raises InputFormatError (naming the log) if there is none. A 6-axis
     log's window has no magnetometer mean (``mag`` None).
     """
-    gyr, acc = log.streams[SensorKind.GYR], log.streams[SensorKind.ACC]
-    mag = log.streams.get(SensorKind.MAG)
     t_start = log.start
-    acc_norm = np.linalg.norm(acc.xyz, axis=1)
-    gyr_norm = np.linalg.norm(gyr.xyz, axis=1)
+    end = t_start + search_s + 1e-6  # no window reaches past this: only the samples before it are searched
+
+    def head(stream: SensorStream) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        keep = stream.t <= end
+        return stream.t[keep], stream.xyz[keep]
+
+    (gyr_t, gyr_xyz), (acc_t, acc_xyz) = head(log.streams[SensorKind.GYR]), head(log.streams[SensorKind.ACC])
+    mag_stream = log.streams.get(SensorKind.MAG)
+    mag = None if mag_stream is None else head(mag_stream)
+    acc_norm = np.linalg.norm(acc_xyz, axis=1)
+    gyr_norm = np.linalg.norm(gyr_xyz, axis=1)
     for t0 in np.arange(t_start, t_start + search_s - duration_s + 1e-9, duration_s / 4):
         t1 = t0 + duration_s
-        g = (gyr.t >= t0) & (gyr.t <= t1)
-        a = (acc.t >= t0) & (acc.t <= t1)
-        m = (mag.t >= t0) & (mag.t <= t1) if mag is not None else None
+        g = (gyr_t >= t0) & (gyr_t <= t1)
+        a = (acc_t >= t0) & (acc_t <= t1)
+        m = (mag[0] >= t0) & (mag[0] <= t1) if mag is not None else None
         if min(g.sum(), a.sum(), 5 if m is None else m.sum()) < 5:
             continue
         if (
             np.all(gyr_norm[g] < max_rate)
             and np.std(acc_norm[a]) <= max_acc_std
             and abs(np.mean(acc_norm[a]) - 9.81) < 1.0
-            and (mag is None or np.all(np.isfinite(mag.xyz[m])))
+            and (mag is None or np.all(np.isfinite(mag[1][m])))
         ):
-            mag_mean = None if mag is None else mag.xyz[m].mean(axis=0)
-            return StillWindow(float(t0), float(t1), acc.xyz[a].mean(axis=0), mag_mean)
+            mag_mean = None if mag is None else mag[1][m].mean(axis=0)
+            return StillWindow(float(t0), float(t1), acc_xyz[a].mean(axis=0), mag_mean)
     raise InputFormatError(
         f"no still window of {duration_s:g} s (gyro < {max_rate:g} rad/s, |acc| std <= {max_acc_std:g} m/s²) "
         f"in the first {search_s:g} s",

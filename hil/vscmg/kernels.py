@@ -301,8 +301,9 @@ def advance(
 ) -> tuple[int, int]:
     """``steps`` RKMK4 steps of ``h`` seconds on ``state`` (in place) under the drive ``(mode, drive)``;
     with ``path`` (steps + 1, :data:`PATH_WIDTH` or :func:`state_size`) rows, the start and every state
-    reached are written to it. Returns ``(status, steps done)``; on an error the state is the last good one and ``work[:2n+1]``
-    holds the stage time and the offending torques (:data:`BAD_TORQUE`) or nothing."""
+    reached are written to it. Returns ``(status, steps done)``; on an error the state is the last good
+    one and ``work[:2n+1]`` holds the stage time and the offending torques (:data:`BAD_TORQUE`) or
+    nothing."""
     n = int(model[0])
     nx = 3 + 4 * n
     nv = 3 + 2 * n
