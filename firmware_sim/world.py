@@ -26,6 +26,7 @@ returns the phone samples taken meanwhile. The truth (attitude, rate) is there f
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 import threading
@@ -112,11 +113,22 @@ class World:
         self.layout = CompiledPlant(self.plant)  # the flat state's layout (pack, unpack, views); numpy only
         self.compiled: CompiledPlant | None = self.layout if compiled else None
         size = self.layout.size
+        index = np.arange(size, dtype=float)  # the layout's views of it are the units' columns
+        units = (
+            self.layout.gimbal_angle_of(index),
+            self.layout.gimbal_rate_of(index),
+            self.layout.rotor_rate_of(index),
+        )
+        self._unit_columns = np.concatenate(units).astype(
+            np.int64
+        )  # gimbal angles, gimbal rates, rotor speeds
         self._rows = np.zeros((64, size))  # row _at: the present; rows _at + 1 .. _head: stepped ahead
         self._at = self._head = 0
         self._work = np.zeros(size)
         self._sensed: list[SensorSample] = []  # what the phone sensed along the steps ahead (rows 0 .. head)
-        self._sensed_in: NDArray[np.int64] = np.zeros(0, np.int64)  # each one's interval (its first row)
+        self._sensed_in: list[int] = []  # each one's interval (its first row)
+        self._row_t: list[float] = [0.0]  # each row's plant time (s), as Python floats for the loops below
+        self._row_us: list[int] = [0]  # each row's board time in whole µs (events fall at these)
         self._given = 0  # how many of them the world has handed out (those before the present row)
         self._phone_at: tuple | None = None  # the phone as it was at row 0
         self.state = self.plant.state(
@@ -171,11 +183,10 @@ class World:
         return Truth(self.now, R, omega, angle.copy(), rate.copy(), speed.copy())
 
     def unit_states(self, row: Array | None = None) -> list[UnitState]:
-        angle, rate, speed = self._units(row)
-        return [
-            UnitState(_wrap(a), g, w)
-            for a, g, w in zip(angle.tolist(), rate.tolist(), speed.tolist(), strict=True)
-        ]
+        """The units' states now (or in ``row``), as the board's telemetry reports them."""
+        n = self.n
+        v = (self._flat if row is None else row)[self._unit_columns].tolist()  # angles, rates, speeds
+        return [UnitState(_wrap(v[i]), v[n + i], v[2 * n + i]) for i in range(n)]
 
     # ------------------------------------------------------------------ stepping
     def advance_to(self, t: float) -> list[SensorSample]:
@@ -249,7 +260,11 @@ class World:
         self._run(steps)
         self.batches += 1
         self._phone_at = self.phone.checkpoint()
-        self._sensed, self._sensed_in = self._sense(0, steps)
+        times = rows[: steps + 1, 0]
+        self._row_t = times.tolist()
+        self._row_us = np.rint((self.t0 + times) * 1e6).astype(np.int64).tolist()
+        sensed, intervals = self._sense(0, steps)
+        self._sensed, self._sensed_in = sensed, intervals.tolist()
         self._given = 0
 
     def _sense(self, start: int, end: int) -> tuple[list[SensorSample], NDArray[np.int64]]:
@@ -273,7 +288,7 @@ class World:
 
     def _sample(self, end: int) -> list[SensorSample]:
         """The phone's samples from the present row to row ``end`` (sensed when the world stepped ahead)."""
-        upto = int(np.searchsorted(self._sensed_in, end))
+        upto = bisect.bisect_left(self._sensed_in, end)
         out = self._sensed[self._given : upto]
         self._given = upto
         return out
@@ -303,10 +318,10 @@ class World:
 
     def _last_row_by(self, t: float) -> int:
         """The last row stepped (past the present) whose time is ``t`` or before."""
-        end = self._at + 1
+        end, head = self._at + 1, self._head
         limit = t + _EPS - self.t0
-        rows = self._rows
-        while end < self._head and rows[end + 1, 0] <= limit:
+        times = self._row_t
+        while end < head and times[end + 1] <= limit:
             end += 1
         return end
 
@@ -314,16 +329,16 @@ class World:
         """Run the board's events due up to row ``end``, each at the first row at or after it with that
         row's unit states. Returns ``(end, cut)``: ``cut`` if an event changed what the drives see, ``end``
         then being its row."""
-        board, rows, t0 = self.board, self._rows, self.t0
+        board, row_us, t0 = self.board, self._row_us, self.t0
         k = self._at + 1
         while True:
             due_us = board.next_deadline_us()
-            while k <= end and round((t0 + rows[k, 0]) * 1e6) < due_us:
+            while k <= end and row_us[k] < due_us:
                 k += 1
             if k > end:
                 return end, False
-            at = t0 + float(rows[k, 0])
-            self._push(at, rows[k])
+            at = t0 + self._row_t[k]
+            self._push(at, self._rows[k])
             board.step(at)
             if (board.drive_epoch, board.gimbal_mode) != self._read:
                 return k, True
