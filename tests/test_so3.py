@@ -152,3 +152,20 @@ def test_reorthonormalize_squares_the_error_and_keeps_the_rotation():
 def test_solve3_rejects_singular_systems():
     with pytest.raises(NumericalError, match="singular"):
         so3.solve3_f((1.0, 2.0, 3.0, 2.0, 4.0, 6.0, 0.0, 0.0, 1.0), (1.0, 1.0, 1.0))
+
+
+def test_the_float_log_is_the_numpy_log_at_every_angle():
+    """so3.log_f (the simulated phone's compiled sampler and the telemetry rows use it) against so3.log:
+    random rotations, tiny ones, and rotations within 1 mrad of π about each axis and about random axes
+    (where the axis comes from the symmetric part), to rounding."""
+    rng = np.random.default_rng(11)
+    axes = rng.normal(size=(300, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([rng.uniform(0.0, np.pi, 200), rng.uniform(0.0, 1e-4, 50),
+                             np.pi - rng.uniform(0.0, 1e-3, 50)])  # fmt: skip
+    vectors = np.concatenate([axes * angles[:, None], np.pi * (1 - 1e-7) * np.eye(3), -np.pi * np.eye(3)])
+    for phi in vectors:
+        R = so3.exp(phi)
+        got = np.array(so3.log_f(tuple(R.ravel().tolist())))
+        np.testing.assert_allclose(got, so3.log(R), rtol=0, atol=5e-15)
+        np.testing.assert_allclose(so3.exp(got), R, rtol=0, atol=2e-14)  # exp adds its own rounding

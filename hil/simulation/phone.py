@@ -32,6 +32,7 @@ from hil import so3
 from hil.estimation.params import PAPER_E
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorSample, SensorStream, Truth
 from hil.jit import kernel
+from hil.so3.floats import log_f  # the one float log(R)
 from hil.vscmg.kernels import exp9  # the plant's exp(φ^×): one kernel for both
 from protocol.errors import ConfigError
 
@@ -335,7 +336,9 @@ def _sample_path(
             for r in range(3):
                 for c in range(3):
                     R0T1[3 * r + c] = a[1 + r] * b[1 + c] + a[4 + r] * b[4 + c] + a[7 + r] * b[7 + c]
-            _log(R0T1, turn)
+            turn[0], turn[1], turn[2] = log_f(
+                (R0T1[0], R0T1[1], R0T1[2], R0T1[3], R0T1[4], R0T1[5], R0T1[6], R0T1[7], R0T1[8])
+            )
         else:
             turn[0] = turn[1] = turn[2] = 0.0
         for k in range(3):
@@ -371,28 +374,3 @@ def _sample_path(
                 row[2] = k
                 count += 1
     return count, used
-
-
-@kernel
-def _log(r: Array, out: Array) -> None:
-    """Rotation vector of ``r`` (row-major), as :func:`hil.so3.log`."""
-    c = min(max((r[0] + r[4] + r[8] - 1.0) * 0.5, -1.0), 1.0)
-    w0, w1, w2 = 0.5 * (r[7] - r[5]), 0.5 * (r[2] - r[6]), 0.5 * (r[3] - r[1])
-    s = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-    theta = math.atan2(s, c)
-    if theta < 1e-4:
-        k = 1.0 + theta * theta / 6.0
-        out[0], out[1], out[2] = w0 * k, w1 * k, w2 * k
-    elif theta < math.pi - 1e-3:
-        k = theta / s
-        out[0], out[1], out[2] = w0 * k, w1 * k, w2 * k
-    else:  # near π: the axis from the symmetric part, its sign from the skew part
-        d0, d1, d2 = r[0] - c, r[4] - c, r[8] - c
-        j = 0 if (d0 >= d1 and d0 >= d2) else (1 if d1 >= d2 else 2)
-        n0 = 0.5 * (r[j] + r[3 * j]) - (c if j == 0 else 0.0)
-        n1 = 0.5 * (r[3 + j] + r[3 * j + 1]) - (c if j == 1 else 0.0)
-        n2 = 0.5 * (r[6 + j] + r[3 * j + 2]) - (c if j == 2 else 0.0)
-        norm = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        if n0 * w0 + n1 * w1 + n2 * w2 < 0.0:
-            norm = -norm
-        out[0], out[1], out[2] = n0 / norm * theta, n1 / norm * theta, n2 / norm * theta

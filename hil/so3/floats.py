@@ -78,6 +78,35 @@ def exp_f(px: float, py: float, pz: float) -> Mat9:
 
 
 @register_jitable
+def log_f(r: Mat9) -> Vec3:
+    """The rotation vector (|φ| ≤ π) of the row-major 9-tuple ``r``, as :func:`hil.so3.log` (the numpy
+    reference) to rounding: θ by atan2; near π the axis from the symmetric part, its sign from the skew
+    part. The one float version: the simulated phone's compiled sampler and the telemetry rows call it."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
+    c = min(max((r0 + r4 + r8 - 1.0) * 0.5, -1.0), 1.0)
+    w0, w1, w2 = 0.5 * (r7 - r5), 0.5 * (r2 - r6), 0.5 * (r3 - r1)
+    s = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    theta = math.atan2(s, c)
+    if theta < _SMALL:
+        k = 1.0 + theta * theta / 6.0
+        return w0 * k, w1 * k, w2 * k
+    if theta < math.pi - 1e-3:
+        k = theta / s
+        return w0 * k, w1 * k, w2 * k
+    d0, d1, d2 = r0 - c, r4 - c, r8 - c  # the diagonal of (R + Rᵀ)/2 − cos θ I = (1 − cos θ) n nᵀ
+    if d0 >= d1 and d0 >= d2:  # its largest entry's column
+        n0, n1, n2 = d0, 0.5 * (r3 + r1), 0.5 * (r6 + r2)
+    elif d1 >= d2:
+        n0, n1, n2 = 0.5 * (r1 + r3), d1, 0.5 * (r7 + r5)
+    else:
+        n0, n1, n2 = 0.5 * (r2 + r6), 0.5 * (r5 + r7), d2
+    norm = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    if n0 * w0 + n1 * w1 + n2 * w2 < 0.0:
+        norm = -norm
+    return n0 / norm * theta, n1 / norm * theta, n2 / norm * theta
+
+
+@register_jitable
 def matmul_f(p: Mat9, q: Mat9) -> Mat9:
     """``p @ q`` for row-major 9-tuples."""
     p0, p1, p2, p3, p4, p5, p6, p7, p8 = p
