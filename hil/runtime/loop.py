@@ -175,7 +175,9 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         compiled_s = warm(scenario)
         if compiled_s is not None:
             logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
-    _load_kernels(scenario, plan)
+    from hil.runtime.warmup import load_kernels
+
+    load_kernels(scenario, world=plan.source == "world")
     observer = opts.observer
     tap_row = None if observer is None else observer.row
     tap_event = None if observer is None else observer.event
@@ -419,21 +421,6 @@ def _outcome(host: Host) -> str:
     if lost is not None:
         return f"lost: {lost}"
     return "completed" if host.finished else "time limit (the slew never started)"
-
-
-def _load_kernels(scenario: Scenario, plan: _Plan) -> None:
-    """Load the compiled kernels a run calls into this process before the board is armed.
-
-    A kernel is loaded from numba's on-disk cache (or compiled) on its first call: ~0.35 s for the host's
-    on an idle 2-core machine, 0.7 s loaded. Left to the run, the estimator's came with the first phone
-    samples after arming and steering's with the first slew tick: each stalled the control task past the
-    board's 0.25 s link timeout, and the board failed safe (issue 16, finding 7). A run with the world
-    loads the world's too. A lockstep run loads them here as well: start-up, not time in its run loop."""
-    from hil.runtime.warmup import warm_host, warm_world
-
-    warm_host(scenario)
-    if plan.source == "world":
-        warm_world(scenario)
 
 
 def _in_process_board(url: str) -> InProcessBoard:
