@@ -54,10 +54,8 @@ class Setpoints:
 
     def message(self, index: int = 0) -> ActuatorSetpoint:
         """Run ``index``'s setpoints as the wire message (RATE mode)."""
-        units = tuple(
-            UnitSetpoint(gimbal=float(g), rotor_speed=float(w))
-            for g, w in zip(self.gimbal_rate[index], self.rotor_speed[index], strict=True)
-        )
+        rates, speeds = self.gimbal_rate[index].tolist(), self.rotor_speed[index].tolist()
+        units = tuple(map(UnitSetpoint, rates, speeds))  # (gimbal, rotor_speed): Python floats
         return ActuatorSetpoint(gimbal_mode=GimbalMode.RATE, units=units)
 
 
@@ -102,9 +100,10 @@ class SetpointGenerator:
         wanted = self.rotor_speed + command.rotor_accel * self.dt
         lo = np.maximum(lim.min_rotor_speed, measured - self.max_lead)
         hi = np.minimum(lim.max_rotor_speed, measured + self.max_lead)
-        speed = np.clip(wanted, lo, hi)
-        rate = np.clip(command.gimbal_rate, -lim.max_gimbal_rate, lim.max_gimbal_rate)
-        clamped = np.any((speed != wanted) | (rate != command.gimbal_rate), axis=1)
+        # clamps as minimum(maximum(..)), which np.clip is defined as, without its dispatch (once per tick)
+        speed = np.minimum(np.maximum(wanted, lo), hi)
+        rate = np.minimum(np.maximum(command.gimbal_rate, -lim.max_gimbal_rate), lim.max_gimbal_rate)
+        clamped = ((speed != wanted) | (rate != command.gimbal_rate)).any(axis=1)
         self.rotor_speed = speed
         return Setpoints(rate, speed.copy(), clamped)
 
