@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.so3.floats import Mat9, Vec3, apply_f, matmul_f
+from hil.so3.floats import Mat9, Vec3, apply_f, exp_f, matmul_f
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -223,12 +223,17 @@ class EigenaxisSlew:
         control tick)."""
         return so3.log(np.asarray(self.R0).T @ np.asarray(self.R_f))
 
+    @functools.cached_property
+    def _floats(self) -> tuple[Mat9, Vec3]:
+        """``R0`` as a row-major 9-tuple and :attr:`axis_angle` as a 3-tuple, for :meth:`at`'s float math."""
+        return _mat9(self.R0), _vec3(self.axis_angle)
+
     def at(self, t: float) -> Reference:
         tau = min(max((t - self.start_s) / self.duration_s, 0.0), 1.0)
-        phi = self.axis_angle
+        r0, (px, py, pz) = self._floats
         s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
         ds = 30.0 * tau * tau * (1.0 - tau) ** 2 / self.duration_s
         dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / self.duration_s**2
-        x, y, z = (s * phi).tolist()
-        turn = np.array(so3.exp_f(x, y, z)).reshape(3, 3)  # Rodrigues on floats: one vector, no batching
-        return Reference(np.asarray(self.R0) @ turn, ds * phi, dds * phi)
+        # R0 exp(s φ^×) by Rodrigues on floats: one rotation a control tick, where numpy's overhead dominates
+        R = np.array(matmul_f(r0, exp_f(s * px, s * py, s * pz))).reshape(3, 3)
+        return Reference(R, np.array((ds * px, ds * py, ds * pz)), np.array((dds * px, dds * py, dds * pz)))

@@ -231,18 +231,10 @@ class ServoModel:
     def _pack(self) -> Drive:
         n = len(self.spin_inertia)
         try:
-            gimbal = np.broadcast_to(np.asarray(self.gimbal_rate_sp, dtype=float), (1, n))[0]
-            rotor = np.broadcast_to(np.asarray(self.rotor_speed_sp, dtype=float), (1, n))[0]
-            target = (
-                np.full(n, np.nan)
-                if self.angle_target is None
-                else np.broadcast_to(self.angle_target, (1, n))[0]
-            )
-            undriven = (
-                np.zeros(n)
-                if self.rotor_undriven is None
-                else np.broadcast_to(self.rotor_undriven, (1, n))[0]
-            )
+            gimbal = _one_run(self.gimbal_rate_sp, n)
+            rotor = _one_run(self.rotor_speed_sp, n)
+            target = np.full(n, np.nan) if self.angle_target is None else _one_run(self.angle_target, n)
+            undriven = np.zeros(n) if self.rotor_undriven is None else _one_run(self.rotor_undriven, n)
         except ValueError as e:
             raise ConfigError(f"the held setpoints are not one run's: {e}", "ServoModel.drive") from e
         on_angle = ~np.isnan(target)
@@ -255,3 +247,10 @@ class ServoModel:
             rotor,
             undriven,
         )
+
+
+def _one_run(values: ArrayLike, n: int) -> Array:
+    """``values`` broadcast to one run's row (n,) (ValueError if they are not one run's). A (1, n) array,
+    what the world holds every pulse frame, is taken as it is: np.broadcast_to costs ~4 µs a call."""
+    a = np.asarray(values)
+    return a[0] if a.shape == (1, n) else np.broadcast_to(a, (1, n))[0]
