@@ -93,7 +93,7 @@ class SetpointGenerator:
     def update(self, command: SteeringOutput, measured_rotor_speed: ArrayLike) -> Setpoints:
         """One control period: integrate the rotor accelerations over the period, clamp, anti-windup."""
         lim = self.params.limits
-        measured = np.atleast_2d(np.asarray(measured_rotor_speed, dtype=float))
+        measured = np.array(measured_rotor_speed, dtype=float, ndmin=2, copy=None)  # (B, n), not copied
         if self.rotor_speed is None:
             self.reset(measured)
         assert self.rotor_speed is not None

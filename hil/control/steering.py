@@ -154,8 +154,8 @@ class VscmgSteering:
     def momentum(self, gimbal_angle: ArrayLike, rotor_speed: ArrayLike) -> Array:
         """The rotors' spin momentum ``Σ I_Wsᵢ Ωᵢ sᵢ`` (B, 3), body frame, N m s: the array momentum h as the
         controller's gyroscopic term needs it (gimbal-structure terms are orders smaller)."""
-        gam = np.atleast_2d(np.asarray(gimbal_angle, dtype=float))
-        k = self.I_ws * np.atleast_2d(np.asarray(rotor_speed, dtype=float))
+        gam = self._rows(gimbal_angle)
+        k = self.I_ws * self._rows(rotor_speed)
         # Σ kᵢ (cos γᵢ s0ᵢ + sin γᵢ t0ᵢ) as two (B, n) @ (n, 3) products, without forming the axes
         # (:meth:`axes`): the host calls this every control tick, where numpy's per-call cost dominates
         return (k * np.cos(gam)) @ self.s0 + (k * np.sin(gam)) @ self.t0
@@ -180,8 +180,7 @@ class VscmgSteering:
         """Commands that deliver ``torque`` (B, 3) N m (the required array torque L_r, body frame) at the
         current ``gimbal_angle`` and ``rotor_speed`` (B, n); ``dt`` (s) is the control period over which a
         rotor must not leave its speed range. Unbatched inputs are taken as B = 1."""
-        L = np.ascontiguousarray(np.atleast_2d(np.asarray(torque, dtype=float)))
-        gam, w = self._rows(gimbal_angle), self._rows(rotor_speed)
+        L, gam, w = self._rows(torque), self._rows(gimbal_angle), self._rows(rotor_speed)
         b, n = gam.shape
         out = SteeringOutput(
             np.empty((b, n)), np.empty((b, n)), np.empty((b, 3)), np.empty(b), np.empty((b, n)), np.empty(b),
@@ -192,7 +191,9 @@ class VscmgSteering:
         return out
 
     def _rows(self, a: ArrayLike) -> Array:
-        return np.ascontiguousarray(np.atleast_2d(np.asarray(a, dtype=float)))
+        """``a`` as a C-contiguous float array of at least two dimensions (B, ...), copied only if it is
+        not one: one numpy call (atleast_2d and ascontiguousarray cost ~0.3 µs each, every control tick)."""
+        return np.array(a, dtype=float, ndmin=2, copy=None, order="C")
 
 
 # --------------------------------------------------------------------------- kernels
