@@ -90,6 +90,38 @@ def test_controller_output_includes_gyroscopic_terms_for_the_array():
     np.testing.assert_allclose(out.torque - out.feedback, np.cross(w, J @ w + h), rtol=1e-12)
 
 
+def test_the_float_control_law_matches_its_numpy_form():
+    """update() and the slew's reference run on Python floats; the law written in numpy (the module
+    docstring's equations) gives the same outputs to rounding, integral term and distinct weights included."""
+    rng = np.random.default_rng(7)
+    Jf = np.array([[2.1e-3, 1e-4, -5e-5], [1e-4, 2.3e-3, 2e-4], [-5e-5, 2e-4, 2.5e-3]])
+    gains = ControllerGains(0.7, 0.9, weights=(1.0, 1.4, 0.6), integral_time_s=2.0, integral_limit=0.02)
+    c = AttitudeController(Jf, gains)
+    K, K_R, K_O = np.diag(gains.weights), 0.49 * Jf, 2 * 0.9 * 0.7 * Jf
+    integral = np.zeros(3)
+    for _ in range(200):
+        R, Rd = so3.exp(rng.normal(size=3)), so3.exp(rng.normal(size=3))
+        w, h = rng.normal(size=3) * 0.2, rng.normal(size=3) * 1e-3
+        ref = Reference(Rd, rng.normal(size=3) * 0.1, rng.normal(size=3) * 0.01)
+        out = c.update(R, w, ref, 0.05, h)
+        m = R.T @ Rd
+        e_R = 0.5 * so3.vee(K @ m.T - m @ K)
+        e_w = w - m @ ref.omega
+        integral = np.clip(integral + 0.05 * e_R, -0.02, 0.02)
+        fb = -K_R @ e_R - K_O @ e_w - K_R @ integral / 2.0
+        fb += Jf @ (m @ ref.omega_dot - np.cross(w, m @ ref.omega))
+        for got, want in ((out.e_R, e_R), (out.e_omega, e_w), (c.integral, integral), (out.feedback, fb),
+                          (out.torque, fb + np.cross(w, Jf @ w + h))):  # fmt: skip
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15 * np.abs(want).max())
+        assert out.angle == pytest.approx(so3.principal_angle(m), rel=1e-14, abs=1e-15)
+    slew = EigenaxisSlew.within_limits(np.eye(3), so3.exp([0.3, -1.2, 0.5]), 0.15, 0.025, start_s=1.0)
+    phi = so3.log(so3.exp([0.3, -1.2, 0.5]))
+    for t in np.linspace(0.0, slew.duration_s + 2.0, 23):
+        tau = min(max((t - 1.0) / slew.duration_s, 0.0), 1.0)
+        s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
+        np.testing.assert_allclose(slew.at(t).R, so3.exp(s * phi), rtol=0, atol=1e-15)
+
+
 def test_bad_gains_and_inertia_are_refused():
     with pytest.raises(ConfigError, match="natural_frequency"):
         ControllerGains(natural_frequency=0.0)

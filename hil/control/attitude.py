@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
+from hil.so3.floats import Mat9, Vec3, apply_f, exp_f, matmul_f
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -100,16 +101,29 @@ class AttitudeController:
         self.K_Omega = 2.0 * zeta * wn * J
         self.K = np.diag(self.gains.weights)
         self.integral = np.zeros(3)
+        # the same matrices as 9-tuples, for update()'s float math
+        self._J, self._K_R, self._K_Omega = _mat9(J), _mat9(self.K_R), _mat9(self.K_Omega)
+        k1, k2, k3 = (float(k) for k in self.gains.weights)
+        self._k = (k1, k2, k3)
 
     def reset(self) -> None:
         self.integral = np.zeros(3)
 
     def errors(self, R: ArrayLike, omega: ArrayLike, ref: Reference) -> tuple[Array, Array, Array]:
         """``(e_R, e_Ω, Rᵀ R_d)`` for attitude ``R`` (3, 3) and body rate ``omega`` (3,)."""
-        R = np.asarray(R, dtype=float)
-        rt_rd = R.T @ ref.R
-        e_R = 0.5 * so3.vee(self.K @ rt_rd.T - rt_rd @ self.K)
-        return e_R, np.asarray(omega, dtype=float) - rt_rd @ ref.omega, rt_rd
+        m = _transpose_matmul(_mat9(R), _mat9(ref.R))
+        wx, wy, wz = _vec3(omega)
+        dx, dy, dz = apply_f(m, _vec3(ref.omega))
+        return np.array(self._attitude_error(m)), np.array((wx - dx, wy - dy, wz - dz)), np.reshape(m, (3, 3))
+
+    def _attitude_error(self, m: Mat9) -> Vec3:
+        """``e_R = ½ vee(K mᵀ − m K)`` for ``m = Rᵀ R_d`` (row-major 9-tuple), K diagonal."""
+        k1, k2, k3 = self._k
+        m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
+        a21, a12 = k3 * m5 - m7 * k2, k2 * m7 - m5 * k3  # A = K mᵀ − m K, element by element
+        a02, a20 = k1 * m6 - m2 * k3, k3 * m2 - m6 * k1
+        a10, a01 = k2 * m1 - m3 * k1, k1 * m3 - m1 * k2
+        return 0.5 * (0.5 * (a21 - a12)), 0.5 * (0.5 * (a02 - a20)), 0.5 * (0.5 * (a10 - a01))
 
     def update(
         self,
@@ -119,18 +133,65 @@ class AttitudeController:
         dt: float = 0.0,
         array_momentum: ArrayLike = (0.0, 0.0, 0.0),
     ) -> ControlOutput:
-        w = np.asarray(omega, dtype=float)
-        e_R, e_w, rt_rd = self.errors(R, w, ref)
-        fb = -self.K_R @ e_R - self.K_Omega @ e_w
+        # on Python floats (3-tuples, row-major 9-tuples: hil.so3.floats), the control law of the module
+        # docstring term by term: numpy's per-call overhead on 3-vectors was most of this once-per-tick cost
+        w = wx, wy, wz = _vec3(omega)
+        m = _transpose_matmul(_mat9(R), _mat9(ref.R))  # Rᵀ R_d
+        e_R = self._attitude_error(m)
+        w_d = apply_f(m, _vec3(ref.omega))
+        e_w = (wx - w_d[0], wy - w_d[1], wz - w_d[2])
+        kr, ko = apply_f(self._K_R, e_R), apply_f(self._K_Omega, e_w)
+        fb = (-kr[0] - ko[0], -kr[1] - ko[1], -kr[2] - ko[2])
         if self.gains.integral_time_s is not None:
-            lim = self.gains.integral_limit
-            self.integral = np.clip(self.integral + dt * e_R, -lim, lim)
-            fb -= self.K_R @ self.integral / self.gains.integral_time_s
-        w_d = rt_rd @ ref.omega
-        fb += self.J @ (rt_rd @ ref.omega_dot - np.cross(w, w_d))
-        torque = fb + np.cross(w, self.J @ w + np.asarray(array_momentum, dtype=float))
-        angle = so3.principal_angle(rt_rd)
-        return ControlOutput(torque, fb, e_R, e_w, angle)
+            lim, t_i = self.gains.integral_limit, self.gains.integral_time_s
+            ix, iy, iz = self.integral.tolist()
+            i3 = (_clip(ix + dt * e_R[0], lim), _clip(iy + dt * e_R[1], lim), _clip(iz + dt * e_R[2], lim))
+            self.integral = np.array(i3)
+            ki = apply_f(self._K_R, i3)
+            fb = (fb[0] - ki[0] / t_i, fb[1] - ki[1] / t_i, fb[2] - ki[2] / t_i)
+        ax, ay, az = apply_f(m, _vec3(ref.omega_dot))
+        cx, cy, cz = _cross(w, w_d)
+        ff = apply_f(self._J, (ax - cx, ay - cy, az - cz))  # J (Rᵀ R_d Ω̇_d − Ω^× Rᵀ R_d Ω_d)
+        fb = (fb[0] + ff[0], fb[1] + ff[1], fb[2] + ff[2])
+        hx, hy, hz = _vec3(array_momentum)
+        jx, jy, jz = apply_f(self._J, w)
+        gx, gy, gz = _cross(w, (jx + hx, jy + hy, jz + hz))  # Ω × (J Ω + h)
+        torque = (fb[0] + gx, fb[1] + gy, fb[2] + gz)
+        return ControlOutput(np.array(torque), np.array(fb), np.array(e_R), np.array(e_w), _angle(m))
+
+
+def _mat9(R: ArrayLike) -> Mat9:
+    """A (3, 3) matrix as a row-major 9-tuple of floats."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = np.asarray(R, dtype=float).reshape(9).tolist()
+    return (m0, m1, m2, m3, m4, m5, m6, m7, m8)
+
+
+def _vec3(v: ArrayLike) -> Vec3:
+    """A (3,) vector as a 3-tuple of floats."""
+    x, y, z = np.asarray(v, dtype=float).reshape(3).tolist()
+    return (x, y, z)
+
+
+def _transpose_matmul(p: Mat9, q: Mat9) -> Mat9:
+    """``pᵀ q`` for row-major 9-tuples."""
+    p0, p1, p2, p3, p4, p5, p6, p7, p8 = p
+    return matmul_f((p0, p3, p6, p1, p4, p7, p2, p5, p8), q)
+
+
+def _cross(a: Vec3, b: Vec3) -> Vec3:
+    """``a × b`` (as ``np.cross``)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _clip(x: float, lim: float) -> float:
+    """``x`` clamped to [−lim, lim] (as ``np.clip``: NaN stays NaN, min and max returning it)."""
+    return min(max(x, -lim), lim)
+
+
+def _angle(m: Mat9) -> float:
+    """The principal angle (rad, [0, π]) of the rotation ``m`` as :func:`hil.so3.principal_angle`."""
+    x, y, z = 0.5 * (m[7] - m[5]), 0.5 * (m[2] - m[6]), 0.5 * (m[3] - m[1])
+    return math.atan2(math.sqrt(x * x + y * y + z * z), (m[0] + m[4] + m[8] - 1.0) * 0.5)
 
 
 @dataclass(frozen=True)
@@ -162,12 +223,17 @@ class EigenaxisSlew:
         control tick)."""
         return so3.log(np.asarray(self.R0).T @ np.asarray(self.R_f))
 
+    @functools.cached_property
+    def _floats(self) -> tuple[Mat9, Vec3]:
+        """``R0`` as a row-major 9-tuple and :attr:`axis_angle` as a 3-tuple, for :meth:`at`'s float math."""
+        return _mat9(self.R0), _vec3(self.axis_angle)
+
     def at(self, t: float) -> Reference:
         tau = min(max((t - self.start_s) / self.duration_s, 0.0), 1.0)
-        phi = self.axis_angle
+        r0, (px, py, pz) = self._floats
         s = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau * tau)
         ds = 30.0 * tau * tau * (1.0 - tau) ** 2 / self.duration_s
         dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / self.duration_s**2
-        x, y, z = (s * phi).tolist()
-        turn = np.array(so3.exp_f(x, y, z)).reshape(3, 3)  # Rodrigues on floats: one vector, no batching
-        return Reference(np.asarray(self.R0) @ turn, ds * phi, dds * phi)
+        # R0 exp(s φ^×) by Rodrigues on floats: one rotation a control tick, where numpy's overhead dominates
+        R = np.array(matmul_f(r0, exp_f(s * px, s * py, s * pz))).reshape(3, 3)
+        return Reference(R, np.array((ds * px, ds * py, ds * pz)), np.array((dds * px, dds * py, dds * pz)))

@@ -123,9 +123,10 @@ class SteeringOutput:
 
 
 class VscmgSteering:
-    """The weighted pseudo-inverse steering law for the array of ``params``: :meth:`solve` and
-    :meth:`delta_gradient` run compiled kernels (:func:`solve_rows`), one call per batch;
-    :mod:`hil.control.steering_reference` is their numpy reference."""
+    """The weighted pseudo-inverse steering law for the array of ``params``: :meth:`solve`, :meth:`delta`
+    and :meth:`delta_gradient` run compiled kernels (:func:`solve_rows`), one call per batch;
+    :mod:`hil.control.steering_reference` is their numpy reference. :meth:`momentum` too (a kernel for
+    the host's every control tick; its numpy form, from :meth:`axes`, is in the tests)."""
 
     def __init__(self, params: SpacecraftParams, steering: SteeringParams | None = None) -> None:
         self.params = params
@@ -154,14 +155,17 @@ class VscmgSteering:
     def momentum(self, gimbal_angle: ArrayLike, rotor_speed: ArrayLike) -> Array:
         """The rotors' spin momentum ``Σ I_Wsᵢ Ωᵢ sᵢ`` (B, 3), body frame, N m s: the array momentum h as the
         controller's gyroscopic term needs it (gimbal-structure terms are orders smaller)."""
-        s, _ = self.axes(np.atleast_2d(gimbal_angle))
-        w = np.atleast_2d(np.asarray(rotor_speed, dtype=float))
-        return np.einsum("bn,bni->bi", self.I_ws * w, s)
+        gam, w = self._rows(gimbal_angle), self._rows(rotor_speed)
+        out = np.empty((gam.shape[0], 3))
+        momentum_rows(self._geom, gam, w, out)
+        return out
 
     def delta(self, gimbal_angle: ArrayLike, rotor_speed: ArrayLike) -> Array:
         """The singularity measure ``δ = det(D₁ D₁ᵀ / h̄²)`` (B,): dimensionless, 0 at a CMG singularity."""
-        _, D1 = self.jacobians(np.atleast_2d(gimbal_angle), np.atleast_2d(rotor_speed))
-        return np.linalg.det(D1 @ np.swapaxes(D1, -1, -2)) / self.h_bar**6
+        gam, w = self._rows(gimbal_angle), self._rows(rotor_speed)
+        out = np.empty(gam.shape[0])
+        delta_rows(self._kp, self._geom, gam, w, out)
+        return out
 
     def delta_gradient(self, gimbal_angle: ArrayLike, rotor_speed: ArrayLike) -> Array:
         """``∂δ/∂γ`` (B, n): ``2 (∂d₁ᵢ)ᵀ adj(A) d₁ᵢ / h̄⁶`` with ``A = D₁D₁ᵀ`` and ``∂d₁ᵢ/∂γᵢ = −I_Ws Ω sᵢ``
@@ -178,8 +182,7 @@ class VscmgSteering:
         """Commands that deliver ``torque`` (B, 3) N m (the required array torque L_r, body frame) at the
         current ``gimbal_angle`` and ``rotor_speed`` (B, n); ``dt`` (s) is the control period over which a
         rotor must not leave its speed range. Unbatched inputs are taken as B = 1."""
-        L = np.ascontiguousarray(np.atleast_2d(np.asarray(torque, dtype=float)))
-        gam, w = self._rows(gimbal_angle), self._rows(rotor_speed)
+        L, gam, w = self._rows(torque), self._rows(gimbal_angle), self._rows(rotor_speed)
         b, n = gam.shape
         out = SteeringOutput(
             np.empty((b, n)), np.empty((b, n)), np.empty((b, 3)), np.empty(b), np.empty((b, n)), np.empty(b),
@@ -190,7 +193,9 @@ class VscmgSteering:
         return out
 
     def _rows(self, a: ArrayLike) -> Array:
-        return np.ascontiguousarray(np.atleast_2d(np.asarray(a, dtype=float)))
+        """``a`` as a C-contiguous float array of at least two dimensions (B, ...), copied only if it is
+        not one: one numpy call (atleast_2d and ascontiguousarray cost ~0.3 µs each, every control tick)."""
+        return np.array(a, dtype=float, ndmin=2, copy=None, order="C")
 
 
 # --------------------------------------------------------------------------- kernels
@@ -261,6 +266,43 @@ def _d1_gram(geom, w, t):  # type: ignore[no-untyped-def]
             for c in range(3):
                 a[3 * r + c] += (k * t[i, r]) * (k * t[i, c])
     return a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8]
+
+
+@kernel
+def momentum_rows(geom, gam, w, out):  # type: ignore[no-untyped-def]
+    """``Σ I_Wsᵢ Ωᵢ sᵢ`` (B, 3) for B rows of ``gam`` and ``w`` (B, n) into ``out`` (see
+    :meth:`VscmgSteering.momentum`)."""
+    n = gam.shape[1]
+    s, t = np.empty((n, 3)), np.empty((n, 3))
+    for b in range(gam.shape[0]):
+        _axes(geom, gam[b], s, t)
+        for r in range(3):
+            acc = 0.0
+            for i in range(n):
+                acc += (geom[i, 6] * w[b, i]) * s[i, r]
+            out[b, r] = acc
+
+
+@kernel
+def _delta(kp, geom, w, t):  # type: ignore[no-untyped-def]
+    """``δ = det(D₁ D₁ᵀ) / h̄⁶`` for one row, the transverse axes ``t`` (n, 3) computed."""
+    a = _d1_gram(geom, w, t)
+    det = (
+        a[0] * (a[4] * a[8] - a[5] * a[7])
+        - a[1] * (a[3] * a[8] - a[5] * a[6])
+        + a[2] * (a[3] * a[7] - a[4] * a[6])
+    )
+    return det / kp[K_HBAR6]
+
+
+@kernel
+def delta_rows(kp, geom, gam, w, out):  # type: ignore[no-untyped-def]
+    """``δ`` (B,) for B rows of ``gam`` and ``w`` (B, n) into ``out`` (see :meth:`VscmgSteering.delta`)."""
+    n = gam.shape[1]
+    s, t = np.empty((n, 3)), np.empty((n, 3))
+    for b in range(gam.shape[0]):
+        _axes(geom, gam[b], s, t)
+        out[b] = _delta(kp, geom, w[b], t)
 
 
 @kernel
@@ -369,13 +411,7 @@ def solve_rows(
             for r in range(3):
                 q[r, i] = geom[i, 6] * s[i, r]
                 q[r, n + i] = (geom[i, 6] * w[b, i]) * t[i, r]
-        a = _d1_gram(geom, w[b], t)
-        det = (
-            a[0] * (a[4] * a[8] - a[5] * a[7])
-            - a[1] * (a[3] * a[8] - a[5] * a[6])
-            + a[2] * (a[3] * a[7] - a[4] * a[6])
-        )
-        delta[b] = det / kp[K_HBAR6]
+        delta[b] = _delta(kp, geom, w[b], t)
         ws = kp[K_WHEEL] * math.exp(-kp[K_MU] * delta[b])
         for i in range(n):
             wt[i] = ws

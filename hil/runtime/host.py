@@ -41,6 +41,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
+import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -74,6 +75,9 @@ MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear e
 PHONE_RESTART_S = 1.0  # phone samples this much older than the newest: the stream restarted its clock ...
 PHONE_RESTART_SAMPLES = 10  # ... when this many come in a row ...
 PHONE_RESTART_SPAN_S = 0.05  # ... spanning this much of their own clock: a stream, not a burst of strays
+
+
+_SAMPLE_TIME = operator.attrgetter("t_s")  # SensorSample.t_s, the key phone samples are sorted by
 
 
 class Phase(enum.IntEnum):
@@ -178,7 +182,7 @@ class Host:
         """Phone samples (any order within a batch) through hold-last-sample merging into the estimator;
         ``now``: the host's time (s), for the record of a phone that restarted its clock."""
         collecting = self._collecting_bias
-        for sample in sorted(samples, key=lambda s: s.t_s):
+        for sample in sorted(samples, key=_SAMPLE_TIME):
             self.counters.samples += 1
             if sample.t_s < self._phone_newest - PHONE_RESTART_S:
                 if self._phone_old == 0 or sample.t_s < self._phone_old_t[1]:
@@ -190,7 +194,8 @@ class Host:
                     self._phone_restarted(sample.t_s, now)
             else:
                 self._phone_old = 0
-            self._phone_newest = max(self._phone_newest, sample.t_s)
+            if sample.t_s > self._phone_newest:
+                self._phone_newest = sample.t_s
             if collecting and sample.kind is SensorKind.GYR:
                 self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
             for step in self.merger.push(sample):
