@@ -5,13 +5,12 @@ estimator task and :meth:`Host.tick` from the control task, in real time or in l
 
 Phases (``telemetry.csv`` column ``phase``):
 
-0. **warm-up** — the board is armed, the rotors spin up to their nominal speed with the gimbals still;
-   once every rotor is within 5 % of it the still window of ``warmup_s`` starts: the estimator converges
-   and the raw gyroscope samples of the window's second half are averaged into the gyro bias, which
-   becomes the estimator's bias estimate — the tuned estimator, which has been learning it from rest
-   detection in the window, keeps refining it online in motion (rest learning ends with the window: a
-   slew's slow end would pass for rest) — (the phone gyro's residual bias would otherwise leave a steady
-   attitude error and a rate offset in the control loop);
+0. **warm-up** — the board is armed; with the rotors still at rest the still window of ``warmup_s`` runs:
+   the estimator converges and the raw gyroscope samples of the window's second half are averaged into
+   the gyro bias, the estimator's bias estimate (the tuned estimator, learning it from rest detection in
+   the window, refines it online in motion); then the rotors spin up with the gimbals still, and the slew
+   starts ``ROTOR_SETTLE_S`` after every rotor is within 5 % of its nominal speed (the phone gyro's
+   residual bias would otherwise leave a steady attitude error and a rate offset in the control loop);
 1. **slew** — an eigenaxis rest-to-rest slew from the estimated attitude to the scenario's target within
    its rate and acceleration limits, tracked by the geometric controller;
 2. **hold** — the reference stays at the target.
@@ -75,9 +74,6 @@ MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear e
 PHONE_RESTART_S = 1.0  # phone samples this much older than the newest: the stream restarted its clock ...
 PHONE_RESTART_SAMPLES = 10  # ... when this many come in a row ...
 PHONE_RESTART_SPAN_S = 0.05  # ... spanning this much of their own clock: a stream, not a burst of strays
-
-
-_SAMPLE_TIME = operator.attrgetter("t_s")  # SensorSample.t_s, the key phone samples are sorted by
 
 
 class Phase(enum.IntEnum):
@@ -182,7 +178,7 @@ class Host:
         """Phone samples (any order within a batch) through hold-last-sample merging into the estimator;
         ``now``: the host's time (s), for the record of a phone that restarted its clock."""
         collecting = self._collecting_bias
-        for sample in sorted(samples, key=_SAMPLE_TIME):
+        for sample in sorted(samples, key=operator.attrgetter("t_s")):
             self.counters.samples += 1
             if sample.t_s < self._phone_newest - PHONE_RESTART_S:
                 if self._phone_old == 0 or sample.t_s < self._phone_old_t[1]:
@@ -194,8 +190,7 @@ class Host:
                     self._phone_restarted(sample.t_s, now)
             else:
                 self._phone_old = 0
-            if sample.t_s > self._phone_newest:
-                self._phone_newest = sample.t_s
+            self._phone_newest = sample.t_s if sample.t_s > self._phone_newest else self._phone_newest
             if collecting and sample.kind is SensorKind.GYR:
                 self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
             for step in self.merger.push(sample):
