@@ -88,6 +88,8 @@ class EmulatedEsc:
         if not powered:
             self.mode = EscMode.OFF
             return
+        if self.mode is EscMode.ARMED:
+            return  # the usual case, at every physics step: the motor follows the pulse, nothing changes
         if self.mode is EscMode.OFF:
             self._enter(EscMode.STARTING, t)
         if pulse_us is None:
@@ -119,9 +121,6 @@ class EmulatedEsc:
     def _waiting(self, t: float, pulse_us: float) -> None:
         if pulse_us <= self._threshold(self.params.arm_fraction):
             self._enter(EscMode.ARMED, t)
-
-    def _armed(self, t: float, pulse_us: float) -> None:
-        pass
 
     def _program_high(self, t: float, pulse_us: float) -> None:
         p = self.params

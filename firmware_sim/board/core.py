@@ -91,6 +91,8 @@ class Board:
             UnitModel(cfg.motor, cfg.gimbal, calibration_or_default(self.calibrations, i), truths[i], cfg.esc)
             for i in range(n)
         ]
+        self._unit_channels = [(unit, 2 * i, 2 * i + 1) for i, unit in enumerate(self.units)]
+        """Each unit with its gimbal and rotor channel numbers (the physics step's loop)."""
         self.power = PowerReading(soc=self.battery.soc)
         self.power.battery_v = self.battery.ocv()
         self.rx_lost_in_reset = 0
@@ -140,6 +142,8 @@ class Board:
         """The fine widths (1/512 µs, :mod:`protocol.pulse_widths`) the firmware aims each channel at."""
         self.outputs: tuple[float | None, ...] = (None,) * cfg.n_channels
         """The widths (µs, whole 0.5 µs ticks) on the pins this frame: the targets, dithered."""
+        self._means_of: tuple[int | None, ...] | None = None
+        self._means: tuple[float | None, ...] = ()
         self.drive_epoch = 0
         """Counts the changes of what the motors' drivers see: a pulse frame starts (its widths), the
         outputs go off (reset), a channel dies or revives. A world that stepped ahead under the old
@@ -298,6 +302,8 @@ class Board:
         return round(t * 1_000_000)
 
     def _next_due_us(self) -> float:
+        # Asked at every board event and every world step: plain attributes (no properties) and one
+        # min() per phase.
         due = min(self._power_period.next_us, self._frames.next_us)
         phase = self.phase
         if phase is McuPhase.RESET:
@@ -312,14 +318,13 @@ class Board:
             self._telemetry.next_us,
             self._heartbeat.next_us,
             self._ppm.next_us,
-            max(self._us(self.faults.next_hang()), self._t_us) if self.faults.hangs else _NEVER,  # late: now
-        )
-        return min(
-            due,
             self.commands.link_deadline_us,
             self.transfers.next_retry_us,
-            self.esc_calibration.next_due_us,
+            self.esc_calibration.deadline_us,
         )
+        if self.faults.hangs:
+            due = min(due, max(self._us(self.faults.next_hang()), self._t_us))  # late: now
+        return due
 
     def _wake(self, t: int) -> None:
         self._t_us = t
@@ -447,15 +452,16 @@ class Board:
         v = self.power.battery_v
         dead = self.faults.dead_escs
         supply_on = not self.esc_calibration.supply_cut
-        for i, unit in enumerate(self.units):
+        for unit, g_ch, r_ch in self._unit_channels:
             if dead:
                 was = unit.rotor_dead, unit.gimbal_dead
-                unit.rotor_dead = self.faults.channel_dead(2 * i + 1, now)
-                unit.gimbal_dead = self.faults.channel_dead(2 * i, now)
+                unit.rotor_dead = self.faults.channel_dead(r_ch, now)
+                unit.gimbal_dead = self.faults.channel_dead(g_ch, now)
                 if (unit.rotor_dead, unit.gimbal_dead) != was:
                     self.drive_epoch += 1
-            unit.update_esc(now, outputs[2 * i + 1], supply_on)
-            unit.advance(dt, outputs[2 * i], outputs[2 * i + 1], v)
+            rotor_us = outputs[r_ch]
+            unit.update_esc(now, rotor_us, supply_on)
+            unit.advance(dt, outputs[g_ch], rotor_us, v)
         self.battery.discharge(self.power.battery_a, dt)
         solve_supply(self.power, self.battery, self.config.power.ubec, self.units, self.faults, now)
 
@@ -470,8 +476,18 @@ class Board:
             )
             if not self.power_supervisor.power_ok:
                 self.esc_calibration.abort(EscCalAbort.POWER, t)
-            means = tuple(None if q is None else q / FINE_PER_US for q in self.targets)
-            self.dead_esc_detector.check(t, means, self.units, self.power.battery_v, self.gimbal_mode)
+            self.dead_esc_detector.check(
+                t, self._mean_targets(), self.units, self.power.battery_v, self.gimbal_mode
+            )
+
+    def _mean_targets(self) -> tuple[float | None, ...]:
+        """The targets as mean widths (µs), converted once per new ``targets`` (a pulse frame, 50 Hz and
+        up, sets them; the power manager asks at 200 Hz)."""
+        targets = self.targets
+        if targets is not self._means_of:  # the same tuple object: the same widths
+            self._means_of = targets
+            self._means = tuple(None if q is None else q / FINE_PER_US for q in targets)
+        return self._means
 
     # ================================================================== messages out
     def _send_telemetry(self, t: int) -> None:

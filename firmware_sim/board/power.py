@@ -32,12 +32,16 @@ def solve_supply(
     at ``now`` (s, battery sag faults applied), written into ``reading``."""
     if faults.sags or battery.sag_v or battery.extra_resistance_ohm:
         battery.sag_v, battery.extra_resistance_ohm = faults.battery_sag(now)
-    rail_load = ubec.electronics_current_a + sum(u.gimbal_current_a() for u in units)
     # The loads are solved as constant power at the last voltage (their weak voltage dependence lags
     # one physics step, a few ms).
     v = reading.battery_v if reading.battery_v > 0 else battery.ocv()
+    gimbal_a = rotor_w = 0.0
+    for u in units:  # one pass in unit order (what sum() adds), not two generators: every physics step
+        gimbal_a += u.gimbal_current_a()
+        rotor_w += u.rotor_power_w(v)
+    rail_load = ubec.electronics_current_a + gimbal_a
     rail_v, rail_a, over = ubec_output(ubec, v, rail_load)
-    p = sum(u.rotor_power_w(v) for u in units) + ubec_input_power(ubec, rail_v, rail_a)
+    p = rotor_w + ubec_input_power(ubec, rail_v, rail_a)
     v, amps = battery.terminal(p)
     rail_v, rail_a, over = ubec_output(ubec, v, rail_load)
     reading.battery_v, reading.battery_a, reading.soc = v, amps, battery.soc
