@@ -33,7 +33,7 @@ from protocol.calibration import EscMotorModel, GimbalServoModel
 from protocol.messages import GIMBAL_ANGLE_LIMIT, GIMBAL_RATE_LIMIT, ROTOR_SPEED_LIMIT, GimbalMode, UnitState
 
 from .config import GimbalParams, MotorParams
-from .esc import EmulatedEsc, EscParams
+from .esc import EmulatedEsc, EscMode, EscParams
 
 
 @dataclass(frozen=True)
@@ -160,7 +160,8 @@ class UnitModel:
     # ------------------------------------------------------------------ dynamics
     def advance(self, dt: float, gimbal_us: float | None, rotor_us: float | None, battery_v: float) -> None:
         """Integrate ``dt`` seconds with constant pulse inputs (None: no pulse on that channel)."""
-        self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.powered
+        # ``esc.powered`` spelt out: this runs for every unit at every physics step
+        self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.mode is not EscMode.OFF
         self.gimbal_driven = gimbal_us is not None and not self.gimbal_dead
         if dt <= 0.0 or self._external is not None:
             return
@@ -223,9 +224,14 @@ class UnitModel:
         if not self.rotor_driven:
             return 0.0
         m = self.motor
-        w = abs(self.rotor_speed)
+        speed = self.rotor_speed
+        w = abs(speed)
         drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
-        accel = max(m.inertia_kg_m2 * w * self.rotor_accel * math.copysign(1.0, self.rotor_speed or 1.0), 0.0)
+        accel = m.inertia_kg_m2 * w * self.rotor_accel  # power into the rotor's speed along its spin
+        if speed < 0.0:
+            accel = -accel
+        if accel < 0.0:  # slowing down returns nothing (the ESC does not brake)
+            accel = 0.0
         return (drag + accel) / m.efficiency + m.idle_current_a * battery_v
 
     def gimbal_current_a(self) -> float:

@@ -41,12 +41,16 @@ class Battery:
         self.extra_resistance_ohm = 0.0
         self._soc_pts = [s for s, _ in params.ocv_curve]
         self._v_pts = [v for _, v in params.ocv_curve]
+        self._segment = 0  # the curve's segment the last SoC fell in (it moves rarely)
 
     def ocv(self) -> float:
         """Open-circuit pack voltage (V), fault sag included, never below 0."""
         s = min(max(self.soc, 0.0), 1.0)
-        i = min(max(bisect.bisect_right(self._soc_pts, s) - 1, 0), len(self._soc_pts) - 2)
-        s0, s1 = self._soc_pts[i], self._soc_pts[i + 1]
+        pts = self._soc_pts
+        i = self._segment
+        if not pts[i] <= s < pts[i + 1]:  # search only when the SoC left the last segment
+            i = self._segment = min(max(bisect.bisect_right(pts, s) - 1, 0), len(pts) - 2)
+        s0, s1 = pts[i], pts[i + 1]
         v0, v1 = self._v_pts[i], self._v_pts[i + 1]
         cell = v0 + (v1 - v0) * (s - s0) / (s1 - s0)
         return max(cell * self.params.cells - self.sag_v, 0.0)
@@ -101,6 +105,11 @@ class PowerManager:
         self.cells = cells
         self.filtered_v_cell: float | None = None
         self.state = PowerState.NORMAL
+        self._levels = (  # highest stage first
+            (PowerState.SHED, thresholds.shed_v_cell),
+            (PowerState.LIMIT, thresholds.limit_v_cell),
+            (PowerState.WARN, thresholds.warn_v_cell),
+        )
 
     def reset(self) -> None:
         self.filtered_v_cell = None
@@ -119,16 +128,11 @@ class PowerManager:
         return self.state
 
     def _stage(self, v: float) -> PowerState:
-        t = self.t
-        levels = (
-            (PowerState.SHED, t.shed_v_cell),
-            (PowerState.LIMIT, t.limit_v_cell),
-            (PowerState.WARN, t.warn_v_cell),
-        )
+        hysteresis = self.t.hysteresis_v_cell
         current = self.state if self.state is not PowerState.BROWN_OUT else PowerState.NORMAL
-        for stage, level in levels:
+        for stage, level in self._levels:
             # Enter below the level; stay in a stage already reached until hysteresis above it.
-            if v < level or (current >= stage and v < level + t.hysteresis_v_cell):
+            if v < level or (current >= stage and v < level + hysteresis):
                 return stage
         return PowerState.NORMAL
 

@@ -256,8 +256,12 @@ class Board:
                 f"{len(states)} states for {self.config.n_units} units", "Board.set_unit_states"
             )
         stamp = self._t_us / 1e6 if at is None else at
-        for i, unit in enumerate(self.units):
-            unit.override(None if states is None else states[i], stamp)
+        if states is None:
+            for unit in self.units:
+                unit.override(None, stamp)
+        else:
+            for unit, state in zip(self.units, states, strict=True):
+                unit.override(state, stamp)
 
     def commanded_outputs(self) -> tuple[float | None, ...]:
         """The mean widths (µs, to 1/512 µs) the firmware would aim the next pulse frames at for its present
@@ -304,26 +308,27 @@ class Board:
     def _next_due_us(self) -> float:
         # Asked at every board event and every world step: plain attributes (no properties) and one
         # min() per phase.
-        due = min(self._power_period.next_us, self._frames.next_us)
         phase = self.phase
-        if phase is McuPhase.RESET:
-            if self._release_us > self._phys_us:
-                due = min(due, self._release_us)
+        if phase is McuPhase.RUNNING:
+            due = min(
+                self._power_period.next_us,
+                self._frames.next_us,
+                self._rx_due_us,
+                self._telemetry.next_us,
+                self._heartbeat.next_us,
+                self._ppm.next_us,
+                self.commands.link_deadline_us,
+                self.transfers.next_retry_us,
+                self.esc_calibration.deadline_us,
+            )
+            if self.faults.hangs:
+                due = min(due, max(self._us(self.faults.next_hang()), self._t_us))  # late: now
             return due
         if phase is McuPhase.HUNG:  # the timers (pulse frames, PPM train) keep running: hardware
-            return min(due, self._wdt_us, self._ppm.next_us)
-        due = min(
-            due,
-            self._rx_due_us,
-            self._telemetry.next_us,
-            self._heartbeat.next_us,
-            self._ppm.next_us,
-            self.commands.link_deadline_us,
-            self.transfers.next_retry_us,
-            self.esc_calibration.deadline_us,
-        )
-        if self.faults.hangs:
-            due = min(due, max(self._us(self.faults.next_hang()), self._t_us))  # late: now
+            return min(self._power_period.next_us, self._frames.next_us, self._wdt_us, self._ppm.next_us)
+        due = min(self._power_period.next_us, self._frames.next_us)
+        if self._release_us > self._phys_us:  # RESET
+            due = min(due, self._release_us)
         return due
 
     def _wake(self, t: int) -> None:

@@ -43,25 +43,30 @@ class DeadEscDetector:
         ``battery_v``."""
         now = t / 1e6
         v = battery_v
+        rated = self.rated_speed_rad_s
+        rate_mode = gimbal_mode is GimbalMode.RATE
+        since = self._since
         for i, unit in enumerate(units):
             g_ch, r_ch = 2 * i, 2 * i + 1
             rotor_us = outputs[r_ch]
             expected = 0.0 if rotor_us is None else unit.rotor_speed_for(rotor_us, v)
-            rotor_bad = expected > 0.1 * self.rated_speed_rad_s and abs(unit.rotor_speed) < 0.05 * expected
+            rotor_bad = expected > 0.1 * rated and abs(unit.rotor_speed) < 0.05 * expected
             gimbal_us = outputs[g_ch]
-            if gimbal_us is None or gimbal_mode is not GimbalMode.RATE:
+            if gimbal_us is None or not rate_mode:
                 gimbal_bad = False
             else:
                 want = abs(unit.gimbal_value_for(gimbal_us, GimbalMode.RATE))
                 gimbal_bad = want > 0.1 and abs(unit.gimbal_rate) < 0.1 * want
+            if not (gimbal_bad or rotor_bad) and since[g_ch] is None and since[r_ch] is None:
+                continue  # the usual case: both respond, neither was suspect
             for ch, bad in ((g_ch, gimbal_bad), (r_ch, rotor_bad)):
                 if not bad:
-                    self._since[ch] = None
+                    since[ch] = None
                     continue
-                since = self._since[ch]
-                if since is None:
-                    self._since[ch] = now
-                elif now - since >= self.detect_s and ch not in self.found:
+                since_ch = since[ch]
+                if since_ch is None:
+                    since[ch] = now
+                elif now - since_ch >= self.detect_s and ch not in self.found:
                     self.found.add(ch)
                     kind = "gimbal" if ch % 2 == 0 else "rotor"
                     self._out.log(
