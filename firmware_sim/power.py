@@ -62,10 +62,9 @@ class Battery:
     def terminal(self, power_w: float) -> tuple[float, float]:
         """(volts, amps) at the terminals while loads draw ``power_w`` watts."""
         voc = self.ocv()
-        r = self.resistance
         if power_w <= 0.0 or voc <= 0.0:
             return voc, 0.0
-        disc = voc * voc - 4.0 * r * power_w
+        disc = voc * voc - 4.0 * self.resistance * power_w
         v = voc / 2.0 if disc <= 0.0 else (voc + math.sqrt(disc)) / 2.0
         return v, power_w / v if v > 0 else 0.0
 
@@ -82,7 +81,11 @@ def ubec_output(params: UbecParams, battery_v: float, load_a: float) -> tuple[fl
     over = load_a > params.current_limit_a
     if over:
         v *= params.current_limit_a / load_a
-    v = max(min(v, battery_v - params.dropout_v), 0.0)
+    ceiling = battery_v - params.dropout_v
+    if ceiling < v:  # min() and max() spelt out: solved twice at every physics step
+        v = ceiling
+    if 0.0 > v:
+        v = 0.0
     amps = load_a * v / params.set_voltage_v if params.set_voltage_v > 0 else 0.0
     return v, amps, over
 

@@ -444,6 +444,7 @@ class Board:
         self.calibrations[unit] = cal
         self.units[unit].calibration = cal
         self.pulses.clear_cache()
+        self.dead_esc_detector.forget()
 
     # ================================================================== hardware
     def _physics(self, t: int) -> None:
