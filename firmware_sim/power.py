@@ -41,19 +41,29 @@ class Battery:
         self.extra_resistance_ohm = 0.0
         self._soc_pts = [s for s, _ in params.ocv_curve]
         self._v_pts = [v for _, v in params.ocv_curve]
-        self._segment = 0  # the curve's segment the last SoC fell in (it moves rarely)
+        self._segment = self._segment_at(params.initial_soc)  # the SoC's, kept: it moves rarely
 
     def ocv(self) -> float:
         """Open-circuit pack voltage (V), fault sag included, never below 0."""
-        s = min(max(self.soc, 0.0), 1.0)
-        pts = self._soc_pts
-        i = self._segment
-        if not pts[i] <= s < pts[i + 1]:  # search only when the SoC left the last segment
-            i = self._segment = min(max(bisect.bisect_right(pts, s) - 1, 0), len(pts) - 2)
-        s0, s1 = pts[i], pts[i + 1]
-        v0, v1 = self._v_pts[i], self._v_pts[i + 1]
+        # Asked at every physics step: the clamps spelt out, the curve searched only when the SoC left
+        # the last segment.
+        s = self.soc
+        if s < 0.0:
+            s = 0.0
+        elif s > 1.0:
+            s = 1.0
+        s0, s1, v0, v1 = self._segment
+        if not s0 <= s < s1:
+            s0, s1, v0, v1 = self._segment = self._segment_at(s)
         cell = v0 + (v1 - v0) * (s - s0) / (s1 - s0)
-        return max(cell * self.params.cells - self.sag_v, 0.0)
+        v = cell * self.params.cells - self.sag_v
+        return 0.0 if v < 0.0 else v
+
+    def _segment_at(self, s: float) -> tuple[float, float, float, float]:
+        """(SoC, SoC, V, V) at the ends of the OCV curve's segment that holds ``s`` (0..1)."""
+        pts = self._soc_pts
+        i = min(max(bisect.bisect_right(pts, s) - 1, 0), len(pts) - 2)
+        return pts[i], pts[i + 1], self._v_pts[i], self._v_pts[i + 1]
 
     @property
     def resistance(self) -> float:
