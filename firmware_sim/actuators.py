@@ -33,7 +33,7 @@ from protocol.calibration import EscMotorModel, GimbalServoModel
 from protocol.messages import GIMBAL_ANGLE_LIMIT, GIMBAL_RATE_LIMIT, ROTOR_SPEED_LIMIT, GimbalMode, UnitState
 
 from .config import GimbalParams, MotorParams
-from .esc import EmulatedEsc, EscMode, EscParams
+from .esc import EmulatedEsc, EscParams
 
 
 @dataclass(frozen=True)
@@ -160,8 +160,7 @@ class UnitModel:
     # ------------------------------------------------------------------ dynamics
     def advance(self, dt: float, gimbal_us: float | None, rotor_us: float | None, battery_v: float) -> None:
         """Integrate ``dt`` seconds with constant pulse inputs (None: no pulse on that channel)."""
-        # ``esc.powered`` spelt out: this runs for every unit at every physics step
-        self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.mode is not EscMode.OFF
+        self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.powered
         self.gimbal_driven = gimbal_us is not None and not self.gimbal_dead
         if dt <= 0.0 or self._external is not None:
             return
@@ -252,4 +251,8 @@ class UnitModel:
 def _clamp(x: float, limit: float) -> float:
     if not math.isfinite(x):
         return 0.0
-    return max(min(x, limit), -limit)
+    if x > limit:  # max(min(x, limit), -limit) spelt out: three per unit in every Telemetry
+        return limit
+    if x < -limit:
+        return -limit
+    return x

@@ -79,7 +79,8 @@ class Battery:
         return v, power_w / v if v > 0 else 0.0
 
     def discharge(self, amps: float, dt: float) -> None:
-        self.soc = max(self.soc - amps * dt / (self.params.capacity_mah * 3.6), 0.0)
+        soc = self.soc - amps * dt / (self.params.capacity_mah * 3.6)
+        self.soc = 0.0 if soc < 0.0 else soc  # max(soc, 0.0), at every physics step
 
 
 def ubec_output(params: UbecParams, battery_v: float, load_a: float) -> tuple[float, float, bool]:
