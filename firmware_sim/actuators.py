@@ -241,6 +241,14 @@ class UnitModel:
 
     def state(self) -> UnitState:
         """The unit's state clamped to the wire's ranges (for Telemetry)."""
+        ext = self._external  # the unit's state while set (the model does not move it)
+        if (
+            type(ext) is UnitState
+            and -GIMBAL_ANGLE_LIMIT <= ext.gimbal_angle <= GIMBAL_ANGLE_LIMIT
+            and -GIMBAL_RATE_LIMIT <= ext.gimbal_rate <= GIMBAL_RATE_LIMIT
+            and -ROTOR_SPEED_LIMIT <= ext.rotor_speed <= ROTOR_SPEED_LIMIT
+        ):
+            return ext  # measured on the wire's ranges already: its own clamped copy (saves a new one)
         return UnitState(
             gimbal_angle=_clamp(self.gimbal_angle, GIMBAL_ANGLE_LIMIT),
             gimbal_rate=_clamp(self.gimbal_rate, GIMBAL_RATE_LIMIT),
