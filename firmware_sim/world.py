@@ -167,9 +167,7 @@ class World:
         """The true motion now (copies; nothing else is built)."""
         c, f = self.layout, self._flat
         angle, rate, speed = self._units()
-        return Truth(
-            self.now, c.R_of(f).copy(), c.omega_of(f).copy(), angle.copy(), rate.copy(), speed.copy()
-        )
+        return Truth(self.now, c.R_of(f).copy(), c.omega_of(f).copy(), angle.copy(), rate.copy(), speed.copy())
 
     def unit_states(self, row: Array | None = None) -> list[UnitState]:
         angle, rate, speed = self._units(row)
@@ -265,9 +263,7 @@ class World:
         intervals: list[int] = []
         c, t0 = self.layout, self.t0
         for i, (a, b) in enumerate(zip(rows[:-1], rows[1:], strict=True)):
-            taken = self.phone.sample(
-                t0 + a[0], c.R_of(a), c.omega_of(a), t0 + b[0], c.R_of(b), c.omega_of(b)
-            )
+            taken = self.phone.sample(t0 + a[0], c.R_of(a), c.omega_of(a), t0 + b[0], c.R_of(b), c.omega_of(b))
             out += taken
             intervals += [start + i] * len(taken)
         return out, np.array(intervals, np.int64)
