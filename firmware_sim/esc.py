@@ -94,7 +94,7 @@ class EmulatedEsc:
             return
         if self.mode is _ARMED:
             return  # the usual case, at every physics step: the motor follows the pulse, nothing changes
-        if self.mode is EscMode.OFF:
+        if self.mode is _OFF:
             self._enter(EscMode.STARTING, t)
         if pulse_us is None:
             if self.mode in (EscMode.PROGRAM_HIGH, EscMode.PROGRAM_LOW):
