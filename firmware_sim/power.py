@@ -106,6 +106,10 @@ def ubec_input_power(params: UbecParams, rail_v: float, rail_a: float) -> float:
     return rail_v * rail_a / params.efficiency
 
 
+# Stages looked up once (an enum member's lookup costs about 60 ns; the manager samples at 200 Hz).
+_NORMAL, _BROWN_OUT = PowerState.NORMAL, PowerState.BROWN_OUT
+
+
 class PowerManager:
     """The staged thresholds, on a low-pass filtered battery voltage (per cell), with hysteresis.
 
@@ -143,12 +147,12 @@ class PowerManager:
 
     def _stage(self, v: float) -> PowerState:
         hysteresis = self.t.hysteresis_v_cell
-        current = self.state if self.state is not PowerState.BROWN_OUT else PowerState.NORMAL
+        current = self.state if self.state is not _BROWN_OUT else _NORMAL
         for stage, level in self._levels:
             # Enter below the level; stay in a stage already reached until hysteresis above it.
             if v < level or (current >= stage and v < level + hysteresis):
                 return stage
-        return PowerState.NORMAL
+        return _NORMAL
 
     def browned_out(self, rail_v: float) -> bool:
         return rail_v < self.t.brownout_v
