@@ -223,9 +223,14 @@ class UnitModel:
         if not self.rotor_driven:
             return 0.0
         m = self.motor
-        w = abs(self.rotor_speed)
+        speed = self.rotor_speed
+        w = abs(speed)
         drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
-        accel = max(m.inertia_kg_m2 * w * self.rotor_accel * math.copysign(1.0, self.rotor_speed or 1.0), 0.0)
+        accel = m.inertia_kg_m2 * w * self.rotor_accel  # power into the rotor's speed along its spin
+        if speed < 0.0:
+            accel = -accel
+        if accel < 0.0:  # slowing down returns nothing (the ESC does not brake)
+            accel = 0.0
         return (drag + accel) / m.efficiency + m.idle_current_a * battery_v
 
     def gimbal_current_a(self) -> float:
@@ -236,6 +241,14 @@ class UnitModel:
 
     def state(self) -> UnitState:
         """The unit's state clamped to the wire's ranges (for Telemetry)."""
+        ext = self._external  # the unit's state while set (the model does not move it)
+        if (
+            type(ext) is UnitState
+            and -GIMBAL_ANGLE_LIMIT <= ext.gimbal_angle <= GIMBAL_ANGLE_LIMIT
+            and -GIMBAL_RATE_LIMIT <= ext.gimbal_rate <= GIMBAL_RATE_LIMIT
+            and -ROTOR_SPEED_LIMIT <= ext.rotor_speed <= ROTOR_SPEED_LIMIT
+        ):
+            return ext  # measured on the wire's ranges already: its own clamped copy (saves a new one)
         return UnitState(
             gimbal_angle=_clamp(self.gimbal_angle, GIMBAL_ANGLE_LIMIT),
             gimbal_rate=_clamp(self.gimbal_rate, GIMBAL_RATE_LIMIT),
@@ -246,4 +259,8 @@ class UnitModel:
 def _clamp(x: float, limit: float) -> float:
     if not math.isfinite(x):
         return 0.0
-    return max(min(x, limit), -limit)
+    if x > limit:  # max(min(x, limit), -limit) spelt out: three per unit in every Telemetry
+        return limit
+    if x < -limit:
+        return -limit
+    return x

@@ -181,7 +181,7 @@ class FaultInjector:
         """``data`` as it crosses the link at ``t`` in ``direction`` ("rx" or "tx")."""
         if not data:
             return data
-        if any(s.covers(t) for s in self.stalls):
+        if self.stalls and any(s.covers(t) for s in self.stalls):  # (no generator for no stalls)
             self.stats.stalled += len(data)
             return b""
         noise = self.noise

@@ -41,15 +41,29 @@ class Battery:
         self.extra_resistance_ohm = 0.0
         self._soc_pts = [s for s, _ in params.ocv_curve]
         self._v_pts = [v for _, v in params.ocv_curve]
+        self._segment = self._segment_at(params.initial_soc)  # the SoC's, kept: it moves rarely
 
     def ocv(self) -> float:
         """Open-circuit pack voltage (V), fault sag included, never below 0."""
-        s = min(max(self.soc, 0.0), 1.0)
-        i = min(max(bisect.bisect_right(self._soc_pts, s) - 1, 0), len(self._soc_pts) - 2)
-        s0, s1 = self._soc_pts[i], self._soc_pts[i + 1]
-        v0, v1 = self._v_pts[i], self._v_pts[i + 1]
+        # Asked at every physics step: the clamps spelt out, the curve searched only when the SoC left
+        # the last segment.
+        s = self.soc
+        if s < 0.0:
+            s = 0.0
+        elif s > 1.0:
+            s = 1.0
+        s0, s1, v0, v1 = self._segment
+        if not s0 <= s < s1:
+            s0, s1, v0, v1 = self._segment = self._segment_at(s)
         cell = v0 + (v1 - v0) * (s - s0) / (s1 - s0)
-        return max(cell * self.params.cells - self.sag_v, 0.0)
+        v = cell * self.params.cells - self.sag_v
+        return 0.0 if v < 0.0 else v
+
+    def _segment_at(self, s: float) -> tuple[float, float, float, float]:
+        """(SoC, SoC, V, V) at the ends of the OCV curve's segment that holds ``s`` (0..1)."""
+        pts = self._soc_pts
+        i = min(max(bisect.bisect_right(pts, s) - 1, 0), len(pts) - 2)
+        return pts[i], pts[i + 1], self._v_pts[i], self._v_pts[i + 1]
 
     @property
     def resistance(self) -> float:
@@ -58,15 +72,15 @@ class Battery:
     def terminal(self, power_w: float) -> tuple[float, float]:
         """(volts, amps) at the terminals while loads draw ``power_w`` watts."""
         voc = self.ocv()
-        r = self.resistance
         if power_w <= 0.0 or voc <= 0.0:
             return voc, 0.0
-        disc = voc * voc - 4.0 * r * power_w
+        disc = voc * voc - 4.0 * self.resistance * power_w
         v = voc / 2.0 if disc <= 0.0 else (voc + math.sqrt(disc)) / 2.0
         return v, power_w / v if v > 0 else 0.0
 
     def discharge(self, amps: float, dt: float) -> None:
-        self.soc = max(self.soc - amps * dt / (self.params.capacity_mah * 3.6), 0.0)
+        soc = self.soc - amps * dt / (self.params.capacity_mah * 3.6)
+        self.soc = 0.0 if soc < 0.0 else soc  # max(soc, 0.0), at every physics step
 
 
 def ubec_output(params: UbecParams, battery_v: float, load_a: float) -> tuple[float, float, bool]:
@@ -78,7 +92,11 @@ def ubec_output(params: UbecParams, battery_v: float, load_a: float) -> tuple[fl
     over = load_a > params.current_limit_a
     if over:
         v *= params.current_limit_a / load_a
-    v = max(min(v, battery_v - params.dropout_v), 0.0)
+    ceiling = battery_v - params.dropout_v
+    if ceiling < v:  # min() and max() spelt out: solved twice at every physics step
+        v = ceiling
+    if 0.0 > v:
+        v = 0.0
     amps = load_a * v / params.set_voltage_v if params.set_voltage_v > 0 else 0.0
     return v, amps, over
 
@@ -86,6 +104,10 @@ def ubec_output(params: UbecParams, battery_v: float, load_a: float) -> tuple[fl
 def ubec_input_power(params: UbecParams, rail_v: float, rail_a: float) -> float:
     """Watts the UBEC draws from the battery to deliver ``rail_v · rail_a``."""
     return rail_v * rail_a / params.efficiency
+
+
+# Stages looked up once (an enum member's lookup costs about 60 ns; the manager samples at 200 Hz).
+_NORMAL, _BROWN_OUT = PowerState.NORMAL, PowerState.BROWN_OUT
 
 
 class PowerManager:
@@ -101,6 +123,11 @@ class PowerManager:
         self.cells = cells
         self.filtered_v_cell: float | None = None
         self.state = PowerState.NORMAL
+        self._levels = (  # highest stage first
+            (PowerState.SHED, thresholds.shed_v_cell),
+            (PowerState.LIMIT, thresholds.limit_v_cell),
+            (PowerState.WARN, thresholds.warn_v_cell),
+        )
 
     def reset(self) -> None:
         self.filtered_v_cell = None
@@ -119,18 +146,13 @@ class PowerManager:
         return self.state
 
     def _stage(self, v: float) -> PowerState:
-        t = self.t
-        levels = (
-            (PowerState.SHED, t.shed_v_cell),
-            (PowerState.LIMIT, t.limit_v_cell),
-            (PowerState.WARN, t.warn_v_cell),
-        )
-        current = self.state if self.state is not PowerState.BROWN_OUT else PowerState.NORMAL
-        for stage, level in levels:
+        hysteresis = self.t.hysteresis_v_cell
+        current = self.state if self.state is not _BROWN_OUT else _NORMAL
+        for stage, level in self._levels:
             # Enter below the level; stay in a stage already reached until hysteresis above it.
-            if v < level or (current >= stage and v < level + t.hysteresis_v_cell):
+            if v < level or (current >= stage and v < level + hysteresis):
                 return stage
-        return PowerState.NORMAL
+        return _NORMAL
 
     def browned_out(self, rail_v: float) -> bool:
         return rail_v < self.t.brownout_v

@@ -113,6 +113,8 @@ class CalibrationTransfers:
 
     def retry_due(self, t: int) -> None:
         """Resend every fragment due at ``t`` (µs); give up the download after the last try."""
+        if not self._pending:  # the usual case, at every main-loop pass
+            return
         for seq, entry in list(self._pending.items()):
             if entry[2] <= t:
                 self._retry(seq, entry, t)

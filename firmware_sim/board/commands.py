@@ -56,6 +56,7 @@ from .power import PowerSupervisor
 from .telemetry import Outbox, hello_reply, uptime_ms
 
 _NEVER = math.inf
+_ACK_REQUESTED = int(Flags.ACK_REQUESTED)  # tested as an int: IntFlag's ``&`` runs in Python (~1 µs a frame)
 
 
 @dataclass
@@ -125,6 +126,8 @@ class CommandHandler:
         self.link_lost = False
         self.last_rx_us: int | None = None
         self._timeout_us = round(config.link_timeout_s * 1e6)
+        self.link_deadline_us: float = _NEVER
+        """Board time (µs) the link watchdog expires (inf: not watching: no session, or already lost)."""
         self._out = outbox
         self._catch_up = catch_up
 
@@ -136,6 +139,7 @@ class CommandHandler:
         self.link_lost = False
         self.session = False
         self.command.reset()
+        self._watch()
 
     @property
     def reported_mode(self) -> ControlMode:
@@ -147,12 +151,13 @@ class CommandHandler:
         return WatchdogState.LINK_LOST if self.link_lost else WatchdogState.OK
 
     # ------------------------------------------------------------------ link watchdog
-    @property
-    def link_deadline_us(self) -> float:
-        """Board time (µs) the link watchdog expires (inf: not watching: no session, or already lost)."""
+    def _watch(self) -> None:
+        """Set :attr:`link_deadline_us` anew after the session, the link state or the last frame changed
+        (a plain attribute, not a property: the board reads it at every event)."""
         if self.session and not self.link_lost and self.last_rx_us is not None:
-            return self.last_rx_us + self._timeout_us
-        return _NEVER
+            self.link_deadline_us = self.last_rx_us + self._timeout_us
+        else:
+            self.link_deadline_us = _NEVER
 
     def check_link(self, t: int) -> None:
         """The link watchdog at ``t`` (µs): nothing valid for ``link_timeout_s`` → link lost."""
@@ -164,9 +169,11 @@ class CommandHandler:
         if self.link_lost:
             self.link_lost = False
             self._out.log(Severity.INFO, LogCode.LINK_RESTORED, "link restored")
+        self._watch()
 
     def _on_link_lost(self, t: int) -> None:
         self.link_lost = True
+        self._watch()
         self._out.log(
             Severity.WARNING,
             LogCode.LINK_LOST,
@@ -192,7 +199,7 @@ class CommandHandler:
 
     def _handle_frame(self, frame: Frame, t: int) -> None:
         msg = frame.message
-        wants_answer = bool(frame.flags & Flags.ACK_REQUESTED) or type(msg).RELIABLE
+        wants_answer = bool(int(frame.flags) & _ACK_REQUESTED) or type(msg).RELIABLE
         if isinstance(msg, (HelloReply, Telemetry, Log)):
             self.link.stats.ignored += 1  # board-to-host messages echoed back: not ours
             return
@@ -279,6 +286,7 @@ class CommandHandler:
             self._apply(Event.HELLO, t)
             if not self.session:
                 self.session = True
+                self._watch()
                 self.telemetry.start(t, first_offset=True)
         else:
             self._out.log(

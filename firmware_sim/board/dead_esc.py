@@ -26,10 +26,19 @@ class DeadEscDetector:
         self.found: set[int] = set()
         self._since: list[float | None] = [None] * config.n_channels
         self._out = outbox
+        # The speeds below which each unit's rotor and gimbal count as not responding, for the outputs,
+        # voltage (10 mV) and gimbal mode they were worked out for: the outputs change at the pulse
+        # frames, the check runs with every power sample (see :meth:`_floors`).
+        self._floors_for: tuple[Sequence[float | None], float, GimbalMode] | None = None
+        self._floor_values: list[tuple[float | None, float | None]] = []
 
     def reset(self) -> None:
         self._since = [None] * len(self._since)
         self.found.clear()
+
+    def forget(self) -> None:
+        """A calibration changed: what a pulse stands for is worked out anew."""
+        self._floors_for = None
 
     def check(
         self,
@@ -42,26 +51,22 @@ class DeadEscDetector:
         """Compare each unit's response at ``t`` (µs) with what ``outputs`` (the mean widths, µs) command at
         ``battery_v``."""
         now = t / 1e6
-        v = battery_v
-        for i, unit in enumerate(units):
+        since = self._since
+        for i, (rotor_floor, gimbal_floor) in enumerate(self._floors(outputs, units, battery_v, gimbal_mode)):
+            unit = units[i]
+            rotor_bad = rotor_floor is not None and abs(unit.rotor_speed) < rotor_floor
+            gimbal_bad = gimbal_floor is not None and abs(unit.gimbal_rate) < gimbal_floor
             g_ch, r_ch = 2 * i, 2 * i + 1
-            rotor_us = outputs[r_ch]
-            expected = 0.0 if rotor_us is None else unit.rotor_speed_for(rotor_us, v)
-            rotor_bad = expected > 0.1 * self.rated_speed_rad_s and abs(unit.rotor_speed) < 0.05 * expected
-            gimbal_us = outputs[g_ch]
-            if gimbal_us is None or gimbal_mode is not GimbalMode.RATE:
-                gimbal_bad = False
-            else:
-                want = abs(unit.gimbal_value_for(gimbal_us, GimbalMode.RATE))
-                gimbal_bad = want > 0.1 and abs(unit.gimbal_rate) < 0.1 * want
+            if not (gimbal_bad or rotor_bad) and since[g_ch] is None and since[r_ch] is None:
+                continue  # the usual case: both respond, neither was suspect
             for ch, bad in ((g_ch, gimbal_bad), (r_ch, rotor_bad)):
                 if not bad:
-                    self._since[ch] = None
+                    since[ch] = None
                     continue
-                since = self._since[ch]
-                if since is None:
-                    self._since[ch] = now
-                elif now - since >= self.detect_s and ch not in self.found:
+                since_ch = since[ch]
+                if since_ch is None:
+                    since[ch] = now
+                elif now - since_ch >= self.detect_s and ch not in self.found:
                     self.found.add(ch)
                     kind = "gimbal" if ch % 2 == 0 else "rotor"
                     self._out.log(
@@ -69,3 +74,31 @@ class DeadEscDetector:
                         LogCode.DEAD_ESC,
                         f"{kind} ESC on channel {ch} (unit {ch // 2}) not responding",
                     )
+
+    def _floors(
+        self,
+        outputs: Sequence[float | None],
+        units: Sequence[UnitModel],
+        battery_v: float,
+        gimbal_mode: GimbalMode,
+    ) -> list[tuple[float | None, float | None]]:
+        """Per unit, (rotor, gimbal) speed below which it does not respond to ``outputs`` (None: not
+        asked enough to tell). Rotor speeds are converted at ``battery_v`` to 10 mV (``rotor_speed_for``),
+        so the floors hold while the same outputs tuple and the same 10 mV step last."""
+        volts = round(battery_v, 2)
+        held = self._floors_for
+        if held is not None and held[0] is outputs and held[1] == volts and held[2] is gimbal_mode:
+            return self._floor_values
+        rated = self.rated_speed_rad_s
+        floors: list[tuple[float | None, float | None]] = []
+        for i, unit in enumerate(units):
+            rotor_us, gimbal_us = outputs[2 * i + 1], outputs[2 * i]
+            expected = 0.0 if rotor_us is None else unit.rotor_speed_for(rotor_us, battery_v)
+            rotor_floor = 0.05 * expected if expected > 0.1 * rated else None
+            gimbal_floor = None
+            if gimbal_us is not None and gimbal_mode is GimbalMode.RATE:
+                want = abs(unit.gimbal_value_for(gimbal_us, GimbalMode.RATE))
+                gimbal_floor = 0.1 * want if want > 0.1 else None
+            floors.append((rotor_floor, gimbal_floor))
+        self._floors_for, self._floor_values = (outputs, volts, gimbal_mode), floors
+        return floors

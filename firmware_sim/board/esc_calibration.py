@@ -65,6 +65,8 @@ class EscCalibration:
     def reset(self) -> None:
         """MCU reset: the procedure is forgotten and the switch output released (the supply is on)."""
         self.phase = EscCalPhase.IDLE
+        self.active = False
+        """Whether the procedure runs (kept with ``phase``: the board asks at every event)."""
         self.abort_reason = EscCalAbort.NONE
         self.unit = 0
         self.low_us = self.high_us = 0
@@ -72,14 +74,7 @@ class EscCalibration:
         self.supply_cut = False
         self.phase_start_us = 0
         self.deadline_us: float = _NEVER
-
-    @property
-    def active(self) -> bool:
-        return self.phase in _RUNNING
-
-    @property
-    def next_due_us(self) -> float:
-        return self.deadline_us if self.active else _NEVER
+        """Board time (µs) of the next phase change: inf whenever the procedure is not running."""
 
     def rotor_width(self) -> tuple[int, int] | None:
         """(channel, width µs) the procedure puts on its rotor channel now, or None (not running)."""
@@ -193,6 +188,7 @@ class EscCalibration:
 
     def _enter(self, phase: EscCalPhase, t: int, deadline: float) -> None:
         self.phase = phase
+        self.active = phase in _RUNNING
         self.phase_start_us = t
         self.deadline_us = deadline
         if phase in (EscCalPhase.SUPPLY_OFF, EscCalPhase.HIGH, EscCalPhase.LOW):
