@@ -32,7 +32,7 @@ from typing import Any
 from protocol.calibration import EscMotorModel, GimbalServoModel
 from protocol.messages import GIMBAL_ANGLE_LIMIT, GIMBAL_RATE_LIMIT, ROTOR_SPEED_LIMIT, GimbalMode, UnitState
 
-from .config import GimbalParams, MotorParams
+from .config import BoardConfig, GimbalParams, MotorParams
 from .esc import EmulatedEsc, EscParams
 
 
@@ -264,3 +264,12 @@ def _clamp(x: float, limit: float) -> float:
     if x < -limit:
         return -limit
     return x
+
+
+def bench_truths(cfg: BoardConfig) -> list[ActuatorTruth | None]:
+    """Each unit's true actuators: None (ideal units) or drawn from ``cfg.unit_spread_seed``."""
+    if cfg.unit_spread_seed is None:
+        return [None] * cfg.n_units
+    from hil.calibration.generate import bench_units  # the stated models' spread, only when asked for
+
+    return [ActuatorTruth(u.motor, u.gimbal) for u in bench_units(cfg.n_units, cfg.unit_spread_seed)]

@@ -231,6 +231,7 @@ def test_a_wall_clock_run_loads_its_kernels_before_it_arms(monkeypatch, tmp_path
 
     order: list[str] = []
     warm_host, arm = warmup.warm_host, BoardClient.arm
+    monkeypatch.setattr(warmup, "_LOADED", set())  # as in a fresh process (loaded once per process)
     monkeypatch.setattr(warmup, "warm_host", lambda sc: (order.append("kernels"), warm_host(sc))[1])
     monkeypatch.setattr(BoardClient, "arm", lambda self, *a: (order.append("arm"), arm(self, *a))[1])
     result = run(_quick(), RunOptions(lockstep=False, out_root=tmp_path, duration_s=0.2))

@@ -32,7 +32,7 @@ from protocol.messages import (
 )
 from protocol.pulse_widths import FINE_PER_US, SigmaDelta, reported_us, whole_us
 
-from ..actuators import ActuatorTruth, UnitModel
+from ..actuators import UnitModel, bench_truths
 from ..config import BoardConfig
 from ..faults import FaultInjector
 from ..link import BoardLink
@@ -52,8 +52,7 @@ from .telemetry import Outbox, fault_flags, telemetry, uptime_ms
 logger = logging.getLogger("firmware_sim.board")  # the whole board logs under one name
 
 _NEVER = math.inf
-# The phases as plain names: an enum member's lookup (``McuPhase.RUNNING``) costs about 60 ns, and the
-# phase is asked several times at every board event.
+# The phases as plain names: a lookup of ``McuPhase.RUNNING`` costs ~60 ns, several times per board event.
 _RESET, _RUNNING, _HUNG = McuPhase.RESET, McuPhase.RUNNING, McuPhase.HUNG
 
 
@@ -89,7 +88,7 @@ class Board:
         self.timeline = PulseTimeline(cfg.timeline_frames)
         self.resets: list[ResetEvent] = []
         self.battery = Battery(cfg.power.battery)
-        truths = _bench_truths(cfg)
+        truths = bench_truths(cfg)
         self.units = [
             UnitModel(cfg.motor, cfg.gimbal, calibration_or_default(self.calibrations, i), truths[i], cfg.esc)
             for i in range(n)
@@ -145,8 +144,6 @@ class Board:
         """The fine widths (1/512 µs, :mod:`protocol.pulse_widths`) the firmware aims each channel at."""
         self.outputs: tuple[float | None, ...] = (None,) * cfg.n_channels
         """The widths (µs, whole 0.5 µs ticks) on the pins this frame: the targets, dithered."""
-        self._means_of: tuple[int | None, ...] | None = None
-        self._means: tuple[float | None, ...] = ()
         self.drive_epoch = 0
         """Counts the changes of what the motors' drivers see: a pulse frame starts (its widths), the
         outputs go off (reset), a channel dies or revives. A world that stepped ahead under the old
@@ -201,27 +198,12 @@ class Board:
 
     def next_deadline_us(self) -> float:
         """:meth:`next_deadline` in whole µs of board time (inf: nothing scheduled)."""
-        # Asked at every board event and every world step: plain attributes (no properties), and while
-        # running the earliest of nine by comparisons (twice as fast as min() over ints and inf).
-        phase = self.phase
+        phase = self.phase  # asked at every board event and world step: plain attributes, no properties
         if phase is _RUNNING:
-            due = self._power_period.next_us
-            if (t := self._frames.next_us) < due:
-                due = t
-            if (t := self._rx_due_us) < due:
-                due = t
-            if (t := self._telemetry.next_us) < due:
-                due = t
-            if (t := self._heartbeat.next_us) < due:
-                due = t
-            if (t := self._ppm.next_us) < due:
-                due = t
-            if (t := self.commands.link_deadline_us) < due:
-                due = t
-            if (t := self.transfers.next_retry_us) < due:
-                due = t
-            if (t := self.esc_calibration.deadline_us) < due:
-                due = t
+            due = min(self._power_period.next_us, self._frames.next_us, self._telemetry.next_us,
+                      self._heartbeat.next_us, self._ppm.next_us, self._rx_due_us,
+                      self.commands.link_deadline_us, self.transfers.next_retry_us,
+                      self.esc_calibration.deadline_us)  # fmt: skip
             if self.faults.hangs:
                 due = min(due, max(self._us(self.faults.next_hang()), self._t_us))  # late: now
             return due
@@ -488,18 +470,7 @@ class Board:
             )
             if not self.power_supervisor.power_ok:
                 self.esc_calibration.abort(EscCalAbort.POWER, t)
-            self.dead_esc_detector.check(
-                t, self._mean_targets(), self.units, self.power.battery_v, self.gimbal_mode
-            )
-
-    def _mean_targets(self) -> tuple[float | None, ...]:
-        """The targets as mean widths (µs), converted once per new ``targets`` (a pulse frame, 50 Hz and
-        up, sets them; the power manager asks at 200 Hz)."""
-        targets = self.targets
-        if targets is not self._means_of:  # the same tuple object: the same widths
-            self._means_of = targets
-            self._means = tuple(None if q is None else q / FINE_PER_US for q in targets)
-        return self._means
+            self.dead_esc_detector.check(t, self.targets, self.units, self.power.battery_v, self.gimbal_mode)
 
     # ================================================================== messages out
     def _send_telemetry(self, t: int) -> None:
@@ -520,12 +491,3 @@ class Board:
                 units=self.unit_states(),
             )
         )
-
-
-def _bench_truths(cfg: BoardConfig) -> list[ActuatorTruth | None]:
-    """Each unit's true actuators: None (ideal units) or drawn from ``cfg.unit_spread_seed``."""
-    if cfg.unit_spread_seed is None:
-        return [None] * cfg.n_units
-    from hil.calibration.generate import bench_units  # the stated models' spread, only when asked for
-
-    return [ActuatorTruth(u.motor, u.gimbal) for u in bench_units(cfg.n_units, cfg.unit_spread_seed)]

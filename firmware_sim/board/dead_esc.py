@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from protocol.messages import GimbalMode, Severity
+from protocol.pulse_widths import FINE_PER_US
 
 from ..actuators import UnitModel
 from ..config import BoardConfig
@@ -29,7 +30,7 @@ class DeadEscDetector:
         # The speeds below which each unit's rotor and gimbal count as not responding, for the outputs,
         # voltage (10 mV) and gimbal mode they were worked out for: the outputs change at the pulse
         # frames, the check runs with every power sample (see :meth:`_floors`).
-        self._floors_for: tuple[Sequence[float | None], float, GimbalMode] | None = None
+        self._floors_for: tuple[Sequence[int | None], float, GimbalMode] | None = None
         self._floor_values: list[tuple[float | None, float | None]] = []
 
     def reset(self) -> None:
@@ -43,16 +44,16 @@ class DeadEscDetector:
     def check(
         self,
         t: int,
-        outputs: Sequence[float | None],
+        targets: Sequence[int | None],
         units: Sequence[UnitModel],
         battery_v: float,
         gimbal_mode: GimbalMode,
     ) -> None:
-        """Compare each unit's response at ``t`` (µs) with what ``outputs`` (the mean widths, µs) command at
-        ``battery_v``."""
+        """Compare each unit's response at ``t`` (µs) with what the firmware's ``targets`` (fine widths,
+        1/512 µs) command at ``battery_v``."""
         now = t / 1e6
         since = self._since
-        for i, (rotor_floor, gimbal_floor) in enumerate(self._floors(outputs, units, battery_v, gimbal_mode)):
+        for i, (rotor_floor, gimbal_floor) in enumerate(self._floors(targets, units, battery_v, gimbal_mode)):
             unit = units[i]
             rotor_bad = rotor_floor is not None and abs(unit.rotor_speed) < rotor_floor
             gimbal_bad = gimbal_floor is not None and abs(unit.gimbal_rate) < gimbal_floor
@@ -77,18 +78,20 @@ class DeadEscDetector:
 
     def _floors(
         self,
-        outputs: Sequence[float | None],
+        targets: Sequence[int | None],
         units: Sequence[UnitModel],
         battery_v: float,
         gimbal_mode: GimbalMode,
     ) -> list[tuple[float | None, float | None]]:
-        """Per unit, (rotor, gimbal) speed below which it does not respond to ``outputs`` (None: not
+        """Per unit, (rotor, gimbal) speed below which it does not respond to ``targets`` (None: not
         asked enough to tell). Rotor speeds are converted at ``battery_v`` to 10 mV (``rotor_speed_for``),
-        so the floors hold while the same outputs tuple and the same 10 mV step last."""
+        so the floors hold while the same targets tuple (a pulse frame sets a new one) and the same 10 mV
+        step last."""
         volts = round(battery_v, 2)
         held = self._floors_for
-        if held is not None and held[0] is outputs and held[1] == volts and held[2] is gimbal_mode:
+        if held is not None and held[0] is targets and held[1] == volts and held[2] is gimbal_mode:
             return self._floor_values
+        outputs = [None if q is None else q / FINE_PER_US for q in targets]  # mean widths, µs
         rated = self.rated_speed_rad_s
         floors: list[tuple[float | None, float | None]] = []
         for i, unit in enumerate(units):
@@ -100,5 +103,5 @@ class DeadEscDetector:
                 want = abs(unit.gimbal_value_for(gimbal_us, GimbalMode.RATE))
                 gimbal_floor = 0.1 * want if want > 0.1 else None
             floors.append((rotor_floor, gimbal_floor))
-        self._floors_for, self._floor_values = (outputs, volts, gimbal_mode), floors
+        self._floors_for, self._floor_values = (targets, volts, gimbal_mode), floors
         return floors
