@@ -139,14 +139,18 @@ class UnitModel:
         self._cache[key] = value
 
     # ------------------------------------------------------------------ closed-loop hook
-    def override(self, state: UnitState | None, t: float) -> None:
-        """Use measured ``state`` instead of the internal model (None: back to the model)."""
+    def override(self, state: UnitState | None, t: float, rotor_accel: float | None = None) -> None:
+        """Use measured ``state`` at ``t`` (s) instead of the internal model (None: back to the model).
+        ``rotor_accel`` (rad/s²; the power draw's acceleration term): as measured with the state, or by
+        default the speed's change since the last state handed over (over whatever span that was)."""
         if state is None:
             self._external = None
             self._external_t = None
             return
         prev, prev_t = self._external, self._external_t
-        if prev is not None and prev_t is not None and t > prev_t:
+        if rotor_accel is not None:
+            self.rotor_accel = rotor_accel
+        elif prev is not None and prev_t is not None and t > prev_t:
             self.rotor_accel = (state.rotor_speed - prev.rotor_speed) / (t - prev_t)
         self._external, self._external_t = state, t
         self.rotor_speed = state.rotor_speed

@@ -114,20 +114,17 @@ class World:
         self.compiled: CompiledPlant | None = self.layout if compiled else None
         size = self.layout.size
         index = np.arange(size, dtype=float)  # the layout's views of it are the units' columns
-        units = (
-            self.layout.gimbal_angle_of(index),
-            self.layout.gimbal_rate_of(index),
-            self.layout.rotor_rate_of(index),
-        )
-        self._unit_columns = np.concatenate(units).astype(
-            np.int64
-        )  # gimbal angles, gimbal rates, rotor speeds
+        c = self.layout
+        units = (c.gimbal_angle_of(index), c.gimbal_rate_of(index), c.rotor_rate_of(index))
+        self._unit_columns = np.concatenate(units).astype(np.int64)  # gimbal angles, rates, rotor speeds
+        self._rotor_columns = self._unit_columns[2 * n :]
         self._rows = np.zeros((64, size))  # row _at: the present; rows _at + 1 .. _head: stepped ahead
         self._at = self._head = 0
         self._work = np.zeros(size)
         self._sensed: list[SensorSample] = []  # what the phone sensed along the steps ahead (rows 0 .. head)
         self._sensed_in: list[int] = []  # each one's interval (its first row)
         self._row_t: list[float] = [0.0]  # each row's plant time (s), as Python floats for the loops below
+        self._row_accel: list[list[float]] = [[0.0] * n]  # each row's rotor accelerations over its step
         self._row_us: list[int] = [0]  # each row's board time in whole µs (events fall at these)
         self._given = 0  # how many of them the world has handed out (those before the present row)
         self._phone_at: tuple | None = None  # the phone as it was at row 0
@@ -146,7 +143,7 @@ class World:
         self.steps = 0  # plant steps the world has moved through
         self.batches = 0  # compiled calls (each steps ahead to the next pulse frame)
         self.rewinds = 0  # times the steps ahead were dropped (an event changed what the drives see)
-        board.set_unit_states(self.unit_states())
+        board.set_unit_states(self.unit_states(), rotor_accel=self._row_accel[0])
 
     # ------------------------------------------------------------------ state
     @property
@@ -163,6 +160,7 @@ class World:
     def state(self, s: PlantState) -> None:
         self._drop_ahead()
         self._rows[0] = self.layout.pack(s)
+        self._row_accel = [[0.0] * self.n]
         self._at = self._head = 0
 
     @property
@@ -205,7 +203,7 @@ class World:
             if self._at == self._head:
                 now = self.now
                 if round(now * 1e6) >= board.next_deadline_us():  # events due now run before stepping on
-                    self._push(now, self._flat)
+                    self._push(now, self._at)
                     board.step(now)
                     self._reread()
                 self._look_ahead()
@@ -218,7 +216,7 @@ class World:
                     self._drop_ahead()
                     self.rewinds += 1
                 self._reread()
-        self._push(self.now, self._flat)  # for whatever steps the board before the world's next call
+        self._push(self.now, self._at)  # for whatever steps the board before the world's next call
         faults = board.faults
         if faults.phone_gaps:  # a phone that paused its stream (firmware-sim --phone-gap)
             samples = [s for s in samples if not faults.phone_silent(s.t_s)]
@@ -233,10 +231,12 @@ class World:
                 self.rewinds += 1
             self._drive()
 
-    def _push(self, at: float, row: Array) -> None:
-        """The unit states of ``row`` (the world at board time ``at``) to the board (once per time)."""
+    def _push(self, at: float, k: int) -> None:
+        """The unit states of row ``k`` (the world at board time ``at``) to the board (once per time), with
+        the rotors' accelerations over the step that reached it: their power draw then follows the
+        physics, not the spacing of the hand-overs (which depends on how the caller chunks time)."""
         if self._pushed_at != at:
-            self.board.set_unit_states(self.unit_states(row), at=at)
+            self.board.set_unit_states(self.unit_states(self._rows[k]), at=at, rotor_accel=self._row_accel[k])
             self._pushed_at = at
 
     def _look_ahead(self) -> None:
@@ -255,6 +255,8 @@ class World:
         if rows.shape[0] < steps + 1:
             rows = self._rows = np.zeros((2 * steps + 1, rows.shape[1]))
         rows[0] = rows[self._at]
+        accel = np.empty((steps + 1, self.n))
+        accel[0] = self._row_accel[self._at]
         self._at = 0
         self._head = steps
         self._run(steps)
@@ -262,6 +264,8 @@ class World:
         self._phone_at = self.phone.checkpoint()
         times = rows[: steps + 1, 0]
         self._row_t = times.tolist()
+        accel[1:] = np.diff(rows[: steps + 1, self._rotor_columns], axis=0) / self.step_s
+        self._row_accel = accel.tolist()
         self._row_us = np.rint((self.t0 + times) * 1e6).astype(np.int64).tolist()
         sensed, intervals = self._sense(0, steps)
         self._sensed, self._sensed_in = sensed, intervals.tolist()
@@ -338,7 +342,7 @@ class World:
             if k > end:
                 return end, False
             at = t0 + self._row_t[k]
-            self._push(at, self._rows[k])
+            self._push(at, k)
             board.step(at)
             if (board.drive_epoch, board.gimbal_mode) != self._read:
                 return k, True

@@ -18,9 +18,8 @@ from protocol.errors import BoardReset
 from protocol.messages import ActuatorSetpoint, GimbalMode, UnitSetpoint
 
 
-def _rig(compiled: bool, scenario=None, seed=None, stiff_battery: bool = False):
-    """A world on a board in lockstep, the board armed through the protocol by a host. ``stiff_battery``: a
-    pack without sag and with charge to spare, whose voltage does not depend on the load."""
+def _rig(compiled: bool, scenario=None, seed=None):
+    """A world on a board in lockstep, the board armed through the protocol by a host."""
     from firmware_sim.transports import EmulatorTransport
     from firmware_sim.world import World
     from hil.link.board import BoardClient
@@ -32,9 +31,6 @@ def _rig(compiled: bool, scenario=None, seed=None, stiff_battery: bool = False):
     link = EmulatorTransport(scenario.emulator_url(), clock)
     client = BoardClient(link, clock=clock)
     client.connect()
-    if stiff_battery:
-        battery = link.board.battery
-        battery.params = replace(battery.params, internal_resistance_ohm=0.0, capacity_mah=1e12)
     world = World(scenario, link.board, seed=seed, compiled=compiled)
     client.arm()
     return clock, client, world
@@ -46,13 +42,12 @@ def _drive(
     chunk: float = 0.005,
     period: float = 0.005,
     mode=GimbalMode.RATE,
-    stiff_battery: bool = False,
     faults=None,
 ):
     """The world driven for ``seconds``: rotors spun up, gimbals turned both ways (or to angles), the world
     advanced every ``chunk`` s and a setpoint sent every ``period`` s; ``faults(board)`` schedules faults
     first. Returns the phone samples, truths (every 0.1 s) and the world."""
-    clock, client, world = _rig(compiled, stiff_battery=stiff_battery)
+    clock, client, world = _rig(compiled)
     if faults is not None:
         faults(world.board)
     samples, truths = [], []
@@ -132,15 +127,11 @@ def test_how_the_caller_chunks_time_does_not_change_the_world():
     """The board's events fall at the same plant steps, and the board runs only at its own events and
     when the host's I/O steps it, whether the world is advanced every plant step (the lockstep runtime's
     plant task), every 5 ms or every 20 ms: the same samples and truth to rounding, and one compiled
-    batch per pulse frame whatever the chunks (50 Hz frames). (The world also hands the board its unit
-    states at the end of each call, for a host that steps the board before the world's next call; the
-    board's power draw estimates the rotors' acceleration between hand-overs, so with a sagging battery
-    the ESCs' voltage, and through it their speeds, would follow the chunks a little. Hence a stiff
-    battery here.)"""
-    runs = {
-        chunk: _drive(True, 1.0, chunk=chunk, period=0.02, stiff_battery=True)
-        for chunk in (0.001, 0.005, 0.02)
-    }
+    batch per pulse frame whatever the chunks (50 Hz frames). The world also hands the board its unit
+    states at the end of each call (for a host that steps the board before the world's next call), with
+    the rotors' accelerations over their last plant step: the board's power draw, and through the
+    battery's sag the ESCs' speeds, do not depend on when the hand-overs come."""
+    runs = {chunk: _drive(True, 1.0, chunk=chunk, period=0.02) for chunk in (0.001, 0.005, 0.02)}
     (s1, t1, w1), (s5, t5, w5), (s20, t20, w20) = runs.values()
     _same_samples(s1, s5, atol=1e-12)
     _same_samples(s1, s20, atol=1e-12)
@@ -155,17 +146,16 @@ def test_steps_taken_ahead_are_dropped_when_the_board_changes_its_pulses_between
     """The world steps ahead to the next pulse frame; a rotor ESC that dies between frames and an MCU hang
     whose watchdog resets the board (outputs off) change the drives at once: the world drops what it
     stepped ahead and steps again from there — the same samples and truth as a world that steps one plant
-    step at a time and is called every step (its drives read the board after every step). A stiff
-    battery, as in the chunks' test."""
+    step at a time and is called every step (its drives read the board after every step)."""
     import firmware_sim.world as world_module
 
     def faults(board):
         board.faults.dead_esc(1, at=board.now + 0.1137)  # unit 0's rotor ESC, while it spins up
         board.faults.hang(at=board.now + 0.6213)
 
-    fast_samples, fast_truth, fast = _drive(True, 1.5, chunk=0.005, faults=faults, stiff_battery=True)
+    fast_samples, fast_truth, fast = _drive(True, 1.5, chunk=0.005, faults=faults)
     monkeypatch.setattr(world_module, "LOOK_AHEAD_S", 1e-4)  # shorter than a plant step: one at a time
-    ref_samples, ref_truth, ref = _drive(True, 1.5, chunk=0.001, faults=faults, stiff_battery=True)
+    ref_samples, ref_truth, ref = _drive(True, 1.5, chunk=0.001, faults=faults)
     assert fast.rewinds >= 2 and ref.rewinds == 0
     assert ref.batches == ref.steps == fast.steps == 1500 and fast.batches < 200
     assert [r.cause.name for r in fast.board.resets[1:]] == ["WATCHDOG"]

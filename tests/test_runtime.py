@@ -131,14 +131,10 @@ def test_a_world_that_keeps_the_board_current_is_advanced_less_often(monkeypatch
     assert chunk_summary["tasks"]["world"]["runs"] == pytest.approx(chunk_summary["sim_s"] * 20, abs=2)
     rates = [s["phone_samples"] / s["sim_s"] for s in (every_step, chunk_summary)]
     assert rates[1] == pytest.approx(rates[0], rel=0.01)
-    # the world hands the board its units at the board's own events, so chunking changes next to nothing:
-    # the rounding (the plant's time sums and the phone's interpolation run over other spans) and, while
-    # the rotors spin up, their reported speeds by up to 3e-5 relative (0.011 rad/s; cause not found yet,
-    # docs/dynamics.md) — which the trace, starting 1 s after the spin-up, still shows at ~2e-7 in δ
+    # the world hands the board its units (and the rotors' accelerations) at the board's own events, and
+    # steps ahead to the pulse frames whatever the caller's chunks: the same run
     for name in ("t", "point_err_deg", "est_err_deg", "gimbal_rate", "delta"):
-        np.testing.assert_allclose(
-            getattr(chunked.trace, name), getattr(every.trace, name), rtol=2e-6, atol=1e-9
-        )
+        np.testing.assert_array_equal(getattr(chunked.trace, name), getattr(every.trace, name))
 
 
 def test_run_directory_holds_telemetry_events_summary_and_scenario(lockstep_run):

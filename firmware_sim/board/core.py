@@ -257,12 +257,18 @@ class Board:
     def uptime_ms(self) -> int:
         return uptime_ms(self._t_us, self.resets[-1])
 
-    def set_unit_states(self, states: Sequence[UnitState] | None, at: float | None = None) -> None:
+    def set_unit_states(
+        self,
+        states: Sequence[UnitState] | None,
+        at: float | None = None,
+        rotor_accel: Sequence[float] | None = None,
+    ) -> None:
         """Closed-loop hook: the world's measured unit states (one per unit) replace the internal motor
         model from now on (for telemetry, power draw, dead-ESC detection, gimbal hold); ``None`` hands
         the units back to the internal model. ``at``: the board time (s) the states were measured at, for
         a world that steps in batches up to the board's next event and hands them over without moving
-        the board (its next ``step`` uses them); default: the board first catches up to its clock's now."""
+        the board (its next ``step`` uses them); default: the board first catches up to its clock's now.
+        ``rotor_accel`` (rad/s², per unit, for the power draw): default, the speed change since the last."""
         if at is None:
             self.step()
         if states is not None and len(states) != self.config.n_units:
@@ -274,8 +280,9 @@ class Board:
             for unit in self.units:
                 unit.override(None, stamp)
         else:
-            for unit, state in zip(self.units, states, strict=True):
-                unit.override(state, stamp)
+            accel = (None,) * len(states) if rotor_accel is None else rotor_accel
+            for unit, state, a in zip(self.units, states, accel, strict=True):
+                unit.override(state, stamp, a)
 
     def commanded_outputs(self) -> tuple[float | None, ...]:
         """The mean widths (µs, to 1/512 µs) the firmware would aim the next pulse frames at for its present
