@@ -12,8 +12,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hil.control.attitude import Reference
-from hil.runtime.telemetry import angle_between9, log9, mat9
+from hil.runtime.telemetry import angle_between9, mat9
 from hil.runtime.watch import View
+from hil.so3 import log_f
 from protocol.messages import ActuatorSetpoint, Telemetry
 
 if TYPE_CHECKING:
@@ -126,8 +127,8 @@ class TickRecorder:
         if host.telemetry is None:
             return None
         row: list[Any] = [t, int(host.phase), est_err, rate_err, point, track]
-        row += none3 if R_hat is None else log9(R_hat)
-        row += none3 if R_true is None else log9(R_true)
+        row += none3 if R_hat is None else log_f(R_hat)
+        row += none3 if R_true is None else log_f(R_true)
         row += none3 if w_hat is None else w_hat
         row += none3 if w_true is None else w_true
         return row

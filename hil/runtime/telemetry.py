@@ -20,9 +20,6 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 Mat9 = tuple[float, ...]
 
-_SMALL = 1e-4  # rad: below, the log's series form (as hil.so3.log)
-_NEAR_PI = math.pi - 1e-3  # rad: above, the log takes its axis from the symmetric part (hil.so3.log)
-
 
 def telemetry_columns(n_units: int) -> list[str]:
     """The telemetry.csv columns for ``n_units`` units (docs/architecture.md, "Run directory")."""
@@ -79,26 +76,6 @@ def angle_between9(a: Mat9, b: Mat9) -> float:
     m21 = a2 * b1 + a5 * b4 + a8 * b7
     x, y, z = m21 - m12, m02 - m20, m10 - m01
     return math.atan2(0.5 * math.sqrt(x * x + y * y + z * z), 0.5 * (trace - 1.0))
-
-
-def log9(r: Mat9) -> tuple[float, float, float]:
-    """The rotation vector of ``r`` (|φ| ≤ π), as :func:`hil.so3.log` to rounding (which it calls within
-    1 mrad of π, where the axis comes from the symmetric part)."""
-    r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
-    cos_theta = min(1.0, max(-1.0, 0.5 * (r0 + r4 + r8 - 1.0)))
-    wx, wy, wz = 0.5 * (r7 - r5), 0.5 * (r2 - r6), 0.5 * (r3 - r1)
-    sin_theta = math.sqrt(wx * wx + wy * wy + wz * wz)
-    theta = math.atan2(sin_theta, cos_theta)
-    if theta < _SMALL:
-        k = 1.0 + theta * theta / 6.0
-    elif theta < _NEAR_PI:
-        k = theta / sin_theta
-    else:
-        from hil import so3
-
-        x, y, z = so3.log(np.reshape(r, (3, 3))).tolist()
-        return x, y, z
-    return wx * k, wy * k, wz * k
 
 
 # --------------------------------------------------------------------------- the run's trace
