@@ -8,16 +8,19 @@ battery voltage, the gimbal servo's rate (or angle) — and lets the drives of
 without pulses (board booting, outputs off, a dead ESC) leaves its drive where it was: the gimbal holds,
 the rotor keeps its speed.
 
-**Batches.** Those widths change only at the board's events (pulse frames, commands; the power manager's
-samples change the battery voltage the ESC map reads), so the world steps the plant in compiled batches
-from one board event to the next (``Board.next_deadline()``; the scenario's ``plant_step_s`` ≤ 1 ms per
-step, several per call): :class:`hil.vscmg.CompiledPlant` with the drive law inside its integrator stages,
-then :meth:`hil.simulation.phone.BodyPhone.sample_path` along the states it passed. At each event the unit
-states go back to the board (``Board.set_unit_states``: its telemetry, power draw and dead-ESC detection
-follow the physics at the board's own rates), the board runs what is due, and the drives take the new
-widths — what a step-by-step loop would do, with the board's events at the same plant steps.
-``World(..., compiled=False)`` runs the same schedule on the numpy :class:`hil.vscmg.Plant` and
-:meth:`BodyPhone.sample`, one step at a time (the reference; the same samples and truth to rounding).
+**Batches.** Those widths change only at the pulse frames (unless the MCU resets, a channel dies or the
+gimbal mode changes: ``Board.drive_epoch``), so the world steps the plant *ahead* in one compiled batch to
+the board's next frame (:class:`hil.vscmg.CompiledPlant` with the drive law inside its integrator stages,
+keeping every state; the scenario's ``plant_step_s`` ≤ 1 ms per step) and the phone senses along it
+(:meth:`hil.simulation.phone.BodyPhone.sample_path_intervals`). The world then moves through those steps as
+the caller's time passes: at each board event the unit states of the step it falls in go to the board
+(``Board.set_unit_states``: its telemetry, power draw and dead-ESC detection follow the physics at the
+board's own rates), the board runs what is due, and the phone's samples are handed out up to the present.
+An event that changes what the drives see drops the steps ahead (the phone's noise stream is rewound with
+them) and the drives take the new widths there — what a step-by-step loop would do, with the board's
+events at the same plant steps. ``World(..., compiled=False)`` runs the same schedule on the numpy
+:class:`hil.vscmg.Plant` and :meth:`BodyPhone.sample`, one step at a time (the reference; the same samples
+and truth to rounding).
 
 The world keeps the board's time: it is advanced to the board clock's present by :meth:`World.advance_to`
 (the lockstep runtime calls it from its plant task; ``firmware-sim --world`` from its serving loop) and
@@ -252,9 +255,10 @@ class World:
             if round((t0 + pt) * 1e6) >= horizon_us:
                 break
         rows = self._rows
-        if rows.shape[0] < steps + 1:
-            rows = self._rows = np.zeros((2 * steps + 1, rows.shape[1]))
-        rows[0] = rows[self._at]
+        if rows.shape[0] < steps + 1:  # a shorter plant step than any before: room for the new batch
+            rows = np.zeros((2 * steps + 1, rows.shape[1]))
+        rows[0] = self._rows[self._at]
+        self._rows = rows
         accel = np.empty((steps + 1, self.n))
         accel[0] = self._row_accel[self._at]
         self._at = 0

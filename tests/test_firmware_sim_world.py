@@ -43,11 +43,12 @@ def _drive(
     period: float = 0.005,
     mode=GimbalMode.RATE,
     faults=None,
+    scenario=None,
 ):
     """The world driven for ``seconds``: rotors spun up, gimbals turned both ways (or to angles), the world
     advanced every ``chunk`` s and a setpoint sent every ``period`` s; ``faults(board)`` schedules faults
     first. Returns the phone samples, truths (every 0.1 s) and the world."""
-    clock, client, world = _rig(compiled)
+    clock, client, world = _rig(compiled, scenario)
     if faults is not None:
         faults(world.board)
     samples, truths = [], []
@@ -219,3 +220,18 @@ def test_a_short_world_run_equals_the_reference_world():
     _same_samples(fast_samples, ref_samples)
     _same_truths(fast_truth, ref_truth)
     assert world.steps == 300 and len(fast_samples) > 100
+
+
+def test_a_finer_plant_step_than_a_batch_had_room_for():
+    """A 0.25 ms plant step: 80 steps to the next pulse frame, more than the world first made room for —
+    the same samples and truth as the reference world."""
+    from hil.scenario import load_scenario
+
+    base = load_scenario("cubesat-1u")
+    fine = base.with_changes(loop=replace(base.loop, plant_step_s=2.5e-4))
+    fast_samples, fast_truth, world = _drive(True, 0.3, scenario=fine)
+    ref_samples, ref_truth, _ = _drive(False, 0.3, scenario=fine)
+    _same_samples(fast_samples, ref_samples)
+    _same_truths(fast_truth, ref_truth)
+    assert world.steps == round((world.now - world.t0) / 2.5e-4) >= 1200 and world.batches <= 17
+    assert np.all(fast_truth[-1].rotor_speed > 50.0)
