@@ -306,6 +306,7 @@ class World:
         if self._head == self._at:
             return
         self._head = self._at
+        assert self._phone_at is not None  # taken when the world stepped ahead
         self.phone.restore(self._phone_at)
         self._sense(0, self._at)  # the phone as it was at the present row (the samples are given already)
         self._phone_at = self.phone.checkpoint()

@@ -170,7 +170,7 @@ class Host:
         self.phone_heard: float | None = None  # host time the count last moved
         self.trace = RunTrace()
         self.columns = telemetry_columns(self.n)
-        self.target9: tuple[float, ...] | None = None if self.target is None else mat9(self.target)
+        self.target9: so3.Mat9 | None = None if self.target is None else mat9(self.target)
         self.rows = TickRecorder(self)
 
     # ------------------------------------------------------------------ estimator task

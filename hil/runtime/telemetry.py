@@ -17,8 +17,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.so3.floats import Mat9
+
 Array = NDArray[np.float64]
-Mat9 = tuple[float, ...]
 
 
 def telemetry_columns(n_units: int) -> list[str]:
@@ -59,7 +60,7 @@ is (ms, host clock; empty before the first)."""
 # --------------------------------------------------------------------------- rotations as 9-tuples
 def mat9(R: Array) -> Mat9:
     """A (3, 3) rotation as a row-major 9-tuple of floats."""
-    return tuple(np.asarray(R, dtype=float).ravel().tolist())
+    return tuple(np.asarray(R, dtype=float).ravel().tolist())  # type: ignore[return-value]
 
 
 def angle_between9(a: Mat9, b: Mat9) -> float:

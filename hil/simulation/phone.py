@@ -261,7 +261,7 @@ class BodyPhone:
         rows in turn (each pair's samples sorted by timestamp), in one compiled call."""
         return self.sample_path_intervals(path)[0]
 
-    def sample_path_intervals(self, path: Array) -> tuple[list[SensorSample], Array]:
+    def sample_path_intervals(self, path: Array) -> tuple[list[SensorSample], NDArray[np.int64]]:
         """:meth:`sample_path`, and for each sample the interval of ``path`` it was taken in (its first
         row's index; non-decreasing)."""
         path = np.ascontiguousarray(path, dtype=float)
