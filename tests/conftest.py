@@ -11,6 +11,7 @@ a machine that has them).
 from __future__ import annotations
 
 import os
+import socket
 
 import pytest
 
@@ -44,3 +45,12 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
     reason = item.config.stash.get(_REASON, None)
     if reason is not None and item.get_closest_marker("firmware") is not None:
         pytest.skip(reason)  # raised here for every such test: pytest -ra folds them into one line
+
+
+@pytest.fixture
+def phone_port() -> int:
+    """A UDP port on the loopback address that nothing holds now, for a test's phone stream: a fixed port
+    collides with another test run on the same machine (two checkouts, a helper's run)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])

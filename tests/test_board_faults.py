@@ -298,12 +298,12 @@ def _board(link: Path, phone: str) -> subprocess.Popen:
     return sim
 
 
-def test_a_board_killed_mid_slew_and_restarted_is_recovered(tmp_path):
+def test_a_board_killed_mid_slew_and_restarted_is_recovered(tmp_path, phone_port):
     """Finding 1 as a user found it: firmware-sim --world on a pty, `hil run --port` against it, the board
     killed with SIGKILL during the slew and started again. The host reports the link loss, the new
     board's reset (POWER_ON) and its phone's new clock, re-arms after the handshake, warms up (the new
     board's rotors are stopped: steering them was the singular matrix) and slews again: exit 0."""
-    link, phone = tmp_path / "board", "udp://127.0.0.1:18131"
+    link, phone = tmp_path / "board", f"udp://127.0.0.1:{phone_port}"
     runs = tmp_path / "runs"
     sim = _board(link, phone)
     host = subprocess.Popen(
@@ -354,11 +354,11 @@ def reset_t(events) -> float:
     return _first(events, "board_reset")["t"]
 
 
-def test_a_board_killed_for_good_ends_the_run_lost_with_exit_3(tmp_path):
+def test_a_board_killed_for_good_ends_the_run_lost_with_exit_3(tmp_path, phone_port):
     """Finding 3 as a user found it: the board killed 2 s into the slew and never started again. The host
     does not "control" it for the rest of the run: 3 s later (--recover-within 3) the run ends, exit status
     3, and the printed summary says the link was lost, when, and for how long."""
-    link, phone = tmp_path / "board", "udp://127.0.0.1:18132"
+    link, phone = tmp_path / "board", f"udp://127.0.0.1:{phone_port}"
     runs = tmp_path / "runs"
     sim = _board(link, phone)
     host = subprocess.Popen(

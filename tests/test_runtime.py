@@ -195,19 +195,19 @@ def _hil(*args: str, **kw) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "hil", *args], capture_output=True, text=True, **kw)
 
 
-def test_realtime_over_a_pty_against_firmware_sim_with_its_world(tmp_path):
+def test_realtime_over_a_pty_against_firmware_sim_with_its_world(tmp_path, phone_port):
     """Two processes as a user runs them: firmware-sim with the world on a pty, streaming its phone over
     UDP as SensaGram does; `hil run --port` against it, in real time."""
     link = tmp_path / "board"
     sim = subprocess.Popen(
         [sys.executable, "-m", "firmware_sim", "--world", "cubesat-1u", "--link", str(link),
-         "--phone", "udp://127.0.0.1:18123", "--duration", "30"],
+         "--phone", f"udp://127.0.0.1:{phone_port}", "--duration", "30"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
         assert sim.stdout is not None and sim.stdout.readline().startswith("/dev/pts/")
         done = _hil(
-            "run", "--port", str(link), "--phone", "127.0.0.1:18123", "--duration", "1",
+            "run", "--port", str(link), "--phone", f"127.0.0.1:{phone_port}", "--duration", "1",
             "--no-plots", "--out", str(tmp_path), timeout=60,
         )  # fmt: skip
     finally:
@@ -218,7 +218,7 @@ def test_realtime_over_a_pty_against_firmware_sim_with_its_world(tmp_path):
     assert summary["mode"] == "port" and summary["slew_started"]
     assert summary["phone_samples"] > 500  # ~3.5 s of a 450 Hz phone stream arrived over UDP
     phone = summary["phone"]
-    assert phone["url"] == "udp://127.0.0.1:18123" and phone["bad_messages"] == 0
+    assert phone["url"] == f"udp://127.0.0.1:{phone_port}" and phone["bad_messages"] == 0
     assert phone["messages"] == phone["samples"] >= summary["phone_samples"]  # one datagram per sample
     assert summary["tasks"]["control"]["lateness_p50_us"] < 5000
     assert summary["estimator_rmse_deg"] is None  # no truth across the process boundary
@@ -235,13 +235,13 @@ def test_hil_run_prints_its_summary_and_leaves_its_plots(tmp_path):
     assert {"attitude_error.png", "pointing_error.png", "rotor_speeds.png", "delta.png"} <= set(plots)
 
 
-def test_port_without_a_phone_stream_is_a_clear_error(tmp_path):
+def test_port_without_a_phone_stream_is_a_clear_error(tmp_path, phone_port):
     done = _hil(
-        "run", "--port", "spawn://firmware-sim?units=4", "--phone", "127.0.0.1:18124", "--no-plots",
+        "run", "--port", "spawn://firmware-sim?units=4", "--phone", f"127.0.0.1:{phone_port}", "--no-plots",
         "--phone-wait", "1", "--out", str(tmp_path), timeout=60,
     )  # fmt: skip
     assert done.returncode == 2
-    assert "no phone samples on udp://127.0.0.1:18124" in done.stderr and "SensaGram" in done.stderr
+    assert f"no phone samples on udp://127.0.0.1:{phone_port}" in done.stderr and "SensaGram" in done.stderr
     summary = json.loads(next(tmp_path.glob("*/summary.json")).read_text())
     assert summary["exit"].startswith("error: no phone samples")
 
