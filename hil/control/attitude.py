@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
-from hil.so3.floats import Mat9, Vec3, apply_f, exp_f, matmul_f
+from hil.so3.floats import Mat9, Vec3, apply_f, exp_f, mat9, matmul_f, vec3
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -102,7 +102,7 @@ class AttitudeController:
         self.K = np.diag(self.gains.weights)
         self.integral = np.zeros(3)
         # the same matrices as 9-tuples, for update()'s float math
-        self._J, self._K_R, self._K_Omega = _mat9(J), _mat9(self.K_R), _mat9(self.K_Omega)
+        self._J, self._K_R, self._K_Omega = mat9(J), mat9(self.K_R), mat9(self.K_Omega)
         k1, k2, k3 = (float(k) for k in self.gains.weights)
         self._k = (k1, k2, k3)
 
@@ -111,9 +111,9 @@ class AttitudeController:
 
     def errors(self, R: ArrayLike, omega: ArrayLike, ref: Reference) -> tuple[Array, Array, Array]:
         """``(e_R, e_Ω, Rᵀ R_d)`` for attitude ``R`` (3, 3) and body rate ``omega`` (3,)."""
-        m = _transpose_matmul(_mat9(R), _mat9(ref.R))
-        wx, wy, wz = _vec3(omega)
-        dx, dy, dz = apply_f(m, _vec3(ref.omega))
+        m = _transpose_matmul(mat9(R), mat9(ref.R))
+        wx, wy, wz = vec3(omega)
+        dx, dy, dz = apply_f(m, vec3(ref.omega))
         return np.array(self._attitude_error(m)), np.array((wx - dx, wy - dy, wz - dz)), np.reshape(m, (3, 3))
 
     def _attitude_error(self, m: Mat9) -> Vec3:
@@ -135,10 +135,10 @@ class AttitudeController:
     ) -> ControlOutput:
         # on Python floats (3-tuples, row-major 9-tuples: hil.so3.floats), the control law of the module
         # docstring term by term: numpy's per-call overhead on 3-vectors was most of this once-per-tick cost
-        w = wx, wy, wz = _vec3(omega)
-        m = _transpose_matmul(_mat9(R), _mat9(ref.R))  # Rᵀ R_d
+        w = wx, wy, wz = vec3(omega)
+        m = _transpose_matmul(mat9(R), mat9(ref.R))  # Rᵀ R_d
         e_R = self._attitude_error(m)
-        w_d = apply_f(m, _vec3(ref.omega))
+        w_d = apply_f(m, vec3(ref.omega))
         e_w = (wx - w_d[0], wy - w_d[1], wz - w_d[2])
         kr, ko = apply_f(self._K_R, e_R), apply_f(self._K_Omega, e_w)
         fb = (-kr[0] - ko[0], -kr[1] - ko[1], -kr[2] - ko[2])
@@ -149,27 +149,15 @@ class AttitudeController:
             self.integral = np.array(i3)
             ki = apply_f(self._K_R, i3)
             fb = (fb[0] - ki[0] / t_i, fb[1] - ki[1] / t_i, fb[2] - ki[2] / t_i)
-        ax, ay, az = apply_f(m, _vec3(ref.omega_dot))
+        ax, ay, az = apply_f(m, vec3(ref.omega_dot))
         cx, cy, cz = _cross(w, w_d)
         ff = apply_f(self._J, (ax - cx, ay - cy, az - cz))  # J (Rᵀ R_d Ω̇_d − Ω^× Rᵀ R_d Ω_d)
         fb = (fb[0] + ff[0], fb[1] + ff[1], fb[2] + ff[2])
-        hx, hy, hz = _vec3(array_momentum)
+        hx, hy, hz = vec3(array_momentum)
         jx, jy, jz = apply_f(self._J, w)
         gx, gy, gz = _cross(w, (jx + hx, jy + hy, jz + hz))  # Ω × (J Ω + h)
         torque = (fb[0] + gx, fb[1] + gy, fb[2] + gz)
         return ControlOutput(np.array(torque), np.array(fb), np.array(e_R), np.array(e_w), _angle(m))
-
-
-def _mat9(R: ArrayLike) -> Mat9:
-    """A (3, 3) matrix as a row-major 9-tuple of floats."""
-    m0, m1, m2, m3, m4, m5, m6, m7, m8 = np.asarray(R, dtype=float).reshape(9).tolist()
-    return (m0, m1, m2, m3, m4, m5, m6, m7, m8)
-
-
-def _vec3(v: ArrayLike) -> Vec3:
-    """A (3,) vector as a 3-tuple of floats."""
-    x, y, z = np.asarray(v, dtype=float).reshape(3).tolist()
-    return (x, y, z)
 
 
 def _transpose_matmul(p: Mat9, q: Mat9) -> Mat9:
@@ -226,7 +214,7 @@ class EigenaxisSlew:
     @functools.cached_property
     def _floats(self) -> tuple[Mat9, Vec3]:
         """``R0`` as a row-major 9-tuple and :attr:`axis_angle` as a 3-tuple, for :meth:`at`'s float math."""
-        return _mat9(self.R0), _vec3(self.axis_angle)
+        return mat9(self.R0), vec3(self.axis_angle)
 
     def at(self, t: float) -> Reference:
         tau = min(max((t - self.start_s) / self.duration_s, 0.0), 1.0)

@@ -57,7 +57,7 @@ from hil.link.board import BoardClient
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
 from hil.runtime.rows import TickRecorder
 from hil.runtime.runlog import CsvLog, EventLog
-from hil.runtime.telemetry import RunTrace, mat9, telemetry_columns
+from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.runtime.watch import BoardWatch
 from hil.scenario import Scenario
 from protocol.errors import BoardReset, LinkError
@@ -170,7 +170,7 @@ class Host:
         self.phone_heard: float | None = None  # host time the count last moved
         self.trace = RunTrace()
         self.columns = telemetry_columns(self.n)
-        self.target9: so3.Mat9 | None = None if self.target is None else mat9(self.target)
+        self.target9: so3.Mat9 | None = None if self.target is None else so3.mat9(self.target)
         self.rows = TickRecorder(self)
 
     # ------------------------------------------------------------------ estimator task
@@ -392,7 +392,7 @@ class Host:
         R_hat = np.asarray(self.estimate.R)
         sl = self.scenario.slew
         self.target = R_hat.copy() if self.hold else sl.R_target
-        self.target9 = mat9(self.target)
+        self.target9 = so3.mat9(self.target)
         self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
         self.slew_start = t
         self.setpoints.reset(rotor)
@@ -430,7 +430,7 @@ class Host:
             return "the warm-up is not over (the scenario's slew has not started)"
         R_hat = np.asarray(self.estimate.R)
         self.target = R_hat.copy() if R_target is None else np.asarray(R_target, dtype=float)
-        self.target9 = mat9(self.target)
+        self.target9 = so3.mat9(self.target)
         sl = self.scenario.slew
         self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
         if self.phase is not Phase.WARMUP:

@@ -12,9 +12,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hil.control.attitude import Reference
-from hil.runtime.telemetry import angle_between9, mat9
+from hil.runtime.telemetry import angle_between9
 from hil.runtime.watch import View
-from hil.so3 import log_f
+from hil.so3 import log_f, mat9
 from protocol.messages import ActuatorSetpoint, Telemetry
 
 if TYPE_CHECKING:

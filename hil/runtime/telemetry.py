@@ -58,11 +58,6 @@ is (ms, host clock; empty before the first)."""
 
 
 # --------------------------------------------------------------------------- rotations as 9-tuples
-def mat9(R: Array) -> Mat9:
-    """A (3, 3) rotation as a row-major 9-tuple of floats."""
-    return tuple(np.asarray(R, dtype=float).ravel().tolist())  # type: ignore[return-value]
-
-
 def angle_between9(a: Mat9, b: Mat9) -> float:
     """The principal angle (rad, [0, π]) of ``aᵀ b`` — the angle between two rotations — by
     ``atan2(|vee(m)|, (tr m − 1)/2)`` as :func:`hil.so3.principal_angle` (accurate at every angle)."""

@@ -27,11 +27,13 @@ from .floats import (
     apply_transpose_f,
     exp_f,
     log_f,
+    mat9,
     matmul_f,
     reorthonormalize_f,
     rodrigues_coefficients,
     rotate_f,
     solve3_f,
+    vec3,
 )
 
 __all__ = [
@@ -47,6 +49,7 @@ __all__ = [
     "is_rotation",
     "log",
     "log_f",
+    "mat9",
     "matmul_f",
     "matrix_to_quat",
     "orthonormality_error",
@@ -57,5 +60,6 @@ __all__ = [
     "rodrigues_coefficients",
     "rotate_f",
     "solve3_f",
+    "vec3",
     "vee",
 ]

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba.extending import register_jitable
+from numpy.typing import ArrayLike
 
 from protocol.errors import NumericalError
 
@@ -23,6 +25,18 @@ Mat9 = tuple[float, float, float, float, float, float, float, float, float]
 
 
 _C_SERIES = tuple(1.0 / math.factorial(2 * k + 3) for k in range(9))
+
+
+def mat9(R: ArrayLike) -> Mat9:
+    """A (3, 3) matrix as a row-major 9-tuple of floats (from Python: numpy in, floats out)."""
+    m0, m1, m2, m3, m4, m5, m6, m7, m8 = np.asarray(R, dtype=float).reshape(9).tolist()
+    return (m0, m1, m2, m3, m4, m5, m6, m7, m8)
+
+
+def vec3(v: ArrayLike) -> Vec3:
+    """A (3,) vector as a 3-tuple of floats."""
+    x, y, z = np.asarray(v, dtype=float).reshape(3).tolist()
+    return (x, y, z)
 
 
 @register_jitable
