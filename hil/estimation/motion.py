@@ -107,6 +107,17 @@ def new_motion_state() -> Array:
 
 
 @kernel
+def _low_pass(ms, lp, d2, k, x, y, z):  # type: ignore[no-untyped-def]
+    """One step of gain ``k`` of the low-pass ``ms[lp:lp + 3]`` towards ``(x, y, z)``, and of the low-passed
+    squared distance ``ms[d2]`` between them (how much the signal moves about its mean)."""
+    dx, dy, dz = x - ms[lp], y - ms[lp + 1], z - ms[lp + 2]
+    ms[d2] += k * (dx * dx + dy * dy + dz * dz - ms[d2])
+    ms[lp] += k * dx
+    ms[lp + 1] += k * dy
+    ms[lp + 2] += k * dz
+
+
+@kernel
 def motion_step(mp, ms, h, gx, gy, gz, bx, by, bz, ax, ay, az):  # type: ignore[no-untyped-def]
     """One step of ``h`` s: raw gyro ``g`` (rad/s; NaN: not usable), the bias estimate ``b``, the
     accelerometer in the strapdown frame ``a`` (m/s²; NaN: not usable). Updates the state: rest (its flag
@@ -123,17 +134,9 @@ def motion_step(mp, ms, h, gx, gy, gz, bx, by, bz, ax, ay, az):  # type: ignore[
         return 0
     k = min(1.0, h / mp[MP_TAU])
     if g_ok:
-        dx, dy, dz = gx - ms[MS_GYR_LP], gy - ms[MS_GYR_LP + 1], gz - ms[MS_GYR_LP + 2]
-        ms[MS_DG2] += k * (dx * dx + dy * dy + dz * dz - ms[MS_DG2])
-        ms[MS_GYR_LP] += k * dx
-        ms[MS_GYR_LP + 1] += k * dy
-        ms[MS_GYR_LP + 2] += k * dz
+        _low_pass(ms, MS_GYR_LP, MS_DG2, k, gx, gy, gz)
     if a_ok:
-        dx, dy, dz = ax - ms[MS_ACC_LP], ay - ms[MS_ACC_LP + 1], az - ms[MS_ACC_LP + 2]
-        ms[MS_DA2] += k * (dx * dx + dy * dy + dz * dz - ms[MS_DA2])
-        ms[MS_ACC_LP] += k * dx
-        ms[MS_ACC_LP + 1] += k * dy
-        ms[MS_ACC_LP + 2] += k * dz
+        _low_pass(ms, MS_ACC_LP, MS_DA2, k, ax, ay, az)
     calm, dyn = mp[MP_CALM], mp[MP_DYNAMIC]
     ms[MS_CALM] = 1.0 / (1.0 + ms[MS_DA2] / (mp[MP_ACC_SCALE] * mp[MP_ACC_SCALE]))
     ms[MS_ACC_CUT] = dyn + (calm - dyn) * ms[MS_CALM]
