@@ -47,10 +47,21 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
         pytest.skip(reason)  # raised here for every such test: pytest -ra folds them into one line
 
 
-@pytest.fixture
-def phone_port() -> int:
-    """A UDP port on the loopback address that nothing holds now, for a test's phone stream: a fixed port
-    collides with another test run on the same machine (two checkouts, a helper's run)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+def _free_port(kind: socket.SocketKind) -> int:
+    """A port on the loopback address that nothing holds now (the kernel's pick): a fixed port collides
+    with another test run on the same machine (two checkouts, a helper's run)."""
+    with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def phone_port() -> int:
+    """A free UDP port for a test's phone stream (SensaGram's datagrams)."""
+    return _free_port(socket.SOCK_DGRAM)
+
+
+@pytest.fixture
+def push_port() -> int:
+    """A free TCP port for a test's phone stream over HTTP (Sensor Logger's HTTP Push)."""
+    return _free_port(socket.SOCK_STREAM)

@@ -273,7 +273,7 @@ def test_a_run_killed_with_sigkill_leaves_a_readable_log(tmp_path):
     assert (files[0].parent / "plots" / "rotor_speeds.png").stat().st_size > 10_000
 
 
-def test_the_same_run_over_a_python_can_virtual_bus(tmp_path):
+def test_the_same_run_over_a_python_can_virtual_bus(tmp_path, push_port):
     """The board served on a CAN bus (virtual, in this process) with its world streaming the phone over
     HTTP, as Sensor Logger's HTTP Push does."""
     from firmware_sim.can_server import CanServer
@@ -285,11 +285,12 @@ def test_the_same_run_over_a_python_can_virtual_bus(tmp_path):
     server = CanServer(board, "virtual/runtime-test").start()
     with server.lock:
         world = World(sc, board)
-    streamer = WorldStreamer(world, server.lock, "http://127.0.0.1:18125/").start()
+    url = f"http://127.0.0.1:{push_port}/"
+    streamer = WorldStreamer(world, server.lock, url).start()
     try:
         result = run(
             sc,
-            RunOptions(port="can://virtual/runtime-test", phone="http://127.0.0.1:18125/", duration_s=1.0,
+            RunOptions(port="can://virtual/runtime-test", phone=url, duration_s=1.0,
                        out_root=tmp_path),
         )  # fmt: skip
     finally:
