@@ -171,17 +171,11 @@ class World:
         """World time on the board's clock (s)."""
         return self.t0 + float(self._rows[self._at, 0])
 
-    def _units(self, row: Array | None = None) -> tuple[Array, Array, Array]:
-        """Gimbal angles, gimbal rates and rotor speeds (n,) now (or in ``row``), views of the state."""
-        c, f = self.layout, self._flat if row is None else row
-        return c.gimbal_angle_of(f), c.gimbal_rate_of(f), c.rotor_rate_of(f)
-
     def truth(self) -> Truth:
         """The true motion now (copies; nothing else is built)."""
         c, f = self.layout, self._flat
-        angle, rate, speed = self._units()
-        R, omega = c.R_of(f).copy(), c.omega_of(f).copy()
-        return Truth(self.now, R, omega, angle.copy(), rate.copy(), speed.copy())
+        units = c.gimbal_angle_of(f).copy(), c.gimbal_rate_of(f).copy(), c.rotor_rate_of(f).copy()
+        return Truth(self.now, c.R_of(f).copy(), c.omega_of(f).copy(), *units)
 
     def unit_states(self, row: Array | None = None) -> list[UnitState]:
         """The units' states now (or in ``row``), as the board's telemetry reports them."""
