@@ -197,7 +197,9 @@ def test_the_operators_disarm_wins_over_the_hosts_rearm(tmp_path):
     states = [e["new"] for e in events if e["kind"] == "board_state" and e["t"] > 6.0]
     assert "FAILSAFE" in states and states[-1] == "DISARMED" and "ARMED" not in states
     assert tel["board_state"][-1] == int(BoardState.DISARMED)
-    assert s["exit"] == "completed"  # the operator's disarm is not an outage
+    # the operator's disarm is not an outage, and a run left disarmed by the operator did not complete
+    assert s["lost"] is None and s["outages"][-1]["recovered"]
+    assert s["exit"].startswith("disarmed by the operator at t=6.1") and s["suspended_at_end"] >= 6.1
 
 
 def test_a_disarm_cancels_a_rearm_already_pending(tmp_path):

@@ -18,13 +18,14 @@ import pytest
 from gcs_support import RunInThread, command, quick_scenario, request, wait_for
 
 from hil import so3
-from hil.gcs import GroundStation, LiveFeed, RunDirSource, euler_zyx, parse_bind
+from hil.gcs import GroundStation, LiveFeed, RunDirSource, parse_bind
 from hil.gcs.access import Access
 from hil.gcs.hub import Hub
 from hil.gcs.uplink import INBOX, parse_command
 from hil.gcs.wire import encode_rows, number
 from hil.runtime import RunOptions, run
 from hil.runtime.runlog import read_events, read_telemetry
+from hil.so3 import euler_zyx
 from protocol.errors import ConfigError, InputFormatError
 from protocol.messages import BoardState
 

@@ -286,6 +286,7 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
         f"link              lost {s.get('link_lost', 0)}  reconnects {s.get('reconnects', 0)}  "
         f"stale {s.get('stale_episodes', 0)}  phone gaps {s.get('phone_gaps', 0)}",
     ]
+    lines += operator_lines(s)
     lines += fault_lines(s)
     control = s.get("tasks", {}).get("control")
     if control and s.get("mode") != "lockstep":
@@ -294,6 +295,24 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
             f"p99 {control['lateness_p99_us']:.0f} us  max {control['lateness_max_us']:.0f} us"
         )
     return "\n".join(lines)
+
+
+def operator_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
+    """The operator's commands (who sent them, when, how each ended) and how long they kept the run
+    suspended; the first :data:`MAX_FAULT_LINES`."""
+    ops = s.get("operator") or []
+    if not ops:
+        return []
+    words = [
+        f"{o['command']} at {o['t']:.1f} s ({o['origin']}, {o['status']})" for o in ops[:MAX_FAULT_LINES]
+    ]
+    more = f", ... and {len(ops) - MAX_FAULT_LINES} more" if len(ops) > MAX_FAULT_LINES else ""
+    lines = [f"operator          {', '.join(words)}{more}"]
+    if s.get("suspended_s"):
+        lines.append(
+            f"suspended         {s['suspended_s']:.1f} s disarmed by the operator (not counted in the run)"
+        )
+    return lines
 
 
 def fault_lines(s: dict) -> list[str]:  # type: ignore[type-arg]

@@ -15,6 +15,6 @@ from hil.gcs.access import parse_bind
 from hil.gcs.live import LiveFeed
 from hil.gcs.rundir import RunDirSource
 from hil.gcs.station import GroundStation
-from hil.gcs.uplink import Uplink, euler_zyx
+from hil.gcs.uplink import Uplink
 
-__all__ = ["GroundStation", "LiveFeed", "RunDirSource", "Uplink", "euler_zyx", "parse_bind"]
+__all__ = ["GroundStation", "LiveFeed", "RunDirSource", "Uplink", "parse_bind"]

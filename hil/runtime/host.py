@@ -80,6 +80,7 @@ class Phase(enum.IntEnum):
     WARMUP = 0
     SLEW = 1
     HOLD = 2
+    SUSPENDED = 3  # disarmed by the operator: no reference, no requirement clock, until the operator's Arm
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,7 @@ class Host:
         self.in_control = True
         self.need_still = True  # the warm-up's still window is due (the first one, or the phone's back)
         self._rest_still = False  # the first still window runs before the spin-up (the rotors at rest)
+        self._resume_still = False  # the phone went away while suspended: the Arm's warm-up has its window
         self._hold = ActuatorSetpoint(
             gimbal_mode=GimbalMode.RATE,
             units=tuple(UnitSetpoint(0.0, self.params.nominal_rotor_speed) for _ in range(self.n)),
@@ -171,6 +173,11 @@ class Host:
         self.trace = RunTrace()
         self.columns = telemetry_columns(self.n)
         self.target9: so3.Mat9 | None = None if self.target is None else so3.mat9(self.target)
+        self.operator_log: list[dict[str, Any]] = []  # each operator command, its last status (summary)
+        self.suspended_since: float | None = None  # the operator's Disarm suspended the run at (host s)
+        self.suspended_s = 0.0  # closed suspensions in all (host s): the run's time limit moves by this
+        self.suspended_after_slew_s = 0.0  # ... of it after the slew's start: the requirement clock's
+        self._resume_phase = Phase.WARMUP  # where an operator's Arm takes the run back to
         self.rows = TickRecorder(self)
 
     # ------------------------------------------------------------------ estimator task
@@ -252,11 +259,12 @@ class Host:
         rotor = np.array([u.rotor_speed for u in tel.units])
         armed = tel.state is BoardState.ARMED
         command, cmd_out, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
-        if armed and not watch.rearm_pending:
+        if armed and not watch.rearm_pending and command is not None:
             self._send(command)
         self.rows.live(t, tel, view, gimbal, rotor, command, cmd_out, ref)
-        if self.slew_start is not None and t - self.slew_start >= self._duration - 1e-9:
-            self.finished = True
+        if self.suspended_since is None and self.slew_start is not None:
+            if t - self.slew_start - self.suspended_after_slew_s >= self._duration - 1e-9:
+                self.finished = True
 
     def _send(self, command: ActuatorSetpoint) -> None:
         try:
@@ -302,7 +310,9 @@ class Host:
 
     def _control(
         self, t: float, gimbal: Array, rotor: Array, armed: bool, phone_fresh: bool
-    ) -> tuple[ActuatorSetpoint, Any, Reference | None]:
+    ) -> tuple[ActuatorSetpoint | None, Any, Reference | None]:
+        if self.phase is Phase.SUSPENDED:
+            return None, None, None  # the operator disarmed the board: nothing to command
         if self.phase is Phase.WARMUP:
             self._warm_up(t, rotor, armed, phone_fresh)
             if self.phase is Phase.WARMUP:
@@ -424,8 +434,8 @@ class Host:
         now), within the scenario's rate and acceleration limits, from ``t`` (s). The run still ends
         ``duration_s`` after the scenario's slew started. Returns why it was refused, or None: during the
         first warm-up there is no estimate to start from and the scenario's own slew is still to come.
-        During a recovery's warm-up the target is taken and the slew to it starts when the recovery ends
-        (planned anew from the attitude estimated then)."""
+        During a recovery's warm-up (or while the operator has the run suspended) the target is taken and
+        the slew to it starts when the recovery ends (planned anew from the attitude estimated then)."""
         if self.slew_start is None or self.estimate is None:
             return "the warm-up is not over (the scenario's slew has not started)"
         R_hat = np.asarray(self.estimate.R)
@@ -433,25 +443,90 @@ class Host:
         self.target9 = so3.mat9(self.target)
         sl = self.scenario.slew
         self.slew = EigenaxisSlew.within_limits(R_hat, self.target, sl.max_rate, sl.max_accel, start_s=t)
-        if self.phase is not Phase.WARMUP:
+        if self.phase in (Phase.SLEW, Phase.HOLD):
             self.phase = Phase.SLEW
         return None
 
-    def arm(self, t: float) -> Command:
-        """The operator's Arm (the ground station): the host re-arms on its own again after later faults."""
-        return self.watch.operator_arm(t)
+    def arm(self, t: float, origin: str = "gcs") -> Command:
+        """The operator's Arm (sent now): the host re-arms on its own again after later faults. After the
+        operator's Disarm it ends the suspension: the warm-up runs again (spin-up, checks; the still
+        window too if the phone went away meanwhile), then a new slew from the attitude estimated then to
+        the target (the first warm-up starts over if the scenario's slew had not started)."""
+        cmd = self.watch.operator_arm(t)
+        since = self.suspended_since
+        if since is not None:
+            self.suspended_since = None
+            self.suspended_s += t - since
+            if self.slew_start is not None:
+                self.suspended_after_slew_s += t - max(since, self.slew_start)
+            self.phase = Phase.WARMUP
+            self._restart_warmup(t, "operator_arm", still=self._resume_still, force=True)
+            self.events.write(t, "suspension_end", by=origin, suspended_s=t - since)
+        return cmd
 
-    def disarm(self, t: float) -> Command:
-        """The operator's Disarm (the ground station): a re-arm the host had pending is cancelled, it does
-        not re-arm on its own until :meth:`arm`, and it warms up again (spin-up, checks) after that Arm."""
-        return self.watch.operator_disarm(t)
+    def disarm(self, t: float, origin: str = "gcs") -> Command:
+        """The operator's Disarm (sent now): a re-arm the host had pending is cancelled and the run is
+        *suspended* — no reference (the slew does not go on without the actuators), no setpoints, no
+        requirement clock, no re-arming on the host's own account — until :meth:`arm`. A run that ends
+        suspended did not complete (``hil.runtime.loop``)."""
+        cmd = self.watch.operator_disarm(t)
+        if self.suspended_since is None:
+            self.suspended_since = t
+            self._resume_still = False
+            self.phase = Phase.SUSPENDED
+            self.events.write(t, "suspended", by=origin)
+        return cmd
 
-    def _restart_warmup(self, t: float, why: str, still: bool) -> None:
-        """The board left the state the host commanded (failsafe, reset, link loss, reconnect, disarm) or
-        the phone went away: back to the warm-up — spin-up and checks; the still window too if ``still``
-        (the phone), or if the first warm-up was not over (its bias window then starts again)."""
+    def record_command(self, t: float, command: Any, status: str, **fields: Any) -> None:
+        """An operator command's step (:mod:`hil.runtime.operator`): an ``events.jsonl`` record, and its
+        entry in :attr:`operator_log` (created at its first step, updated with its last status)."""
+        self.events.write(
+            t,
+            "command",
+            origin=command.origin,
+            id=command.id,
+            command=command.name,
+            status=status,
+            remote=command.remote,
+            **fields,
+        )
+        for entry in reversed(self.operator_log):
+            if entry["id"] == command.id and entry["origin"] == command.origin:
+                entry.update(status=status, status_t=t)
+                if "reason" in fields:
+                    entry["reason"] = fields["reason"]
+                return
+        entry = {
+            "t": t,
+            "id": command.id,
+            "origin": command.origin,
+            "command": command.name,
+            "status": status,
+            "status_t": t,
+        }
+        if command.target is not None:
+            entry["target_euler_deg"] = list(command.target)
+        if "reason" in fields:
+            entry["reason"] = fields["reason"]
+        self.operator_log.append(entry)
+
+    @property
+    def time_limit_extension_s(self) -> float:
+        """How far the operator's suspensions (closed ones) move the run's time limit (s)."""
+        return self.suspended_s
+
+    def _restart_warmup(self, t: float, why: str, still: bool, force: bool = False) -> None:
+        """The board left the state the host commanded (failsafe, reset, link loss, reconnect) or the
+        phone went away: back to the warm-up — spin-up and checks; the still window too if ``still`` (the
+        phone), or if the first warm-up was not over (its bias window then starts again). While the
+        operator has the run suspended it stays so; the warm-up the operator's Arm starts then includes
+        the still window if the phone went away meanwhile."""
+        if self.phase is Phase.SUSPENDED:
+            self._resume_still = self._resume_still or still
+            self.events.write(t, "fault_while_suspended", reason=why)
+            return
         started = self.spinup_since is not None or self.still_since is not None
-        if self.phase is Phase.WARMUP and not started and not (still and not self.need_still):
+        if not force and self.phase is Phase.WARMUP and not started and not (still and not self.need_still):
             return  # nothing under way to restart
         first = self.slew_start is None
         self.phase = Phase.WARMUP
@@ -472,6 +547,7 @@ class Host:
         sc = self.scenario
         w = self.watch
         now = self.client.clock.now()
+        since = self.suspended_since
         out: dict[str, Any] = {
             "scenario": sc.name,
             "settle_requirement_deg": sc.settle_deg,
@@ -489,6 +565,10 @@ class Host:
             "phone_samples": self.counters.samples,
             "control_ticks": self.counters.control_ticks,
             "max_gimbal_rate_limit": self.params.limits.max_gimbal_rate,
+            "operator": [dict(entry) for entry in self.operator_log],
+            "operator_commands": len(self.operator_log),
+            "suspended_s": self.suspended_s + (0.0 if since is None else now - since),
+            "suspended_at_end": self.suspended_since,
         }
         out.update(self.trace.figures(sc.settle_deg, self.params.limits.max_gimbal_rate))
         if len(self.trace):

@@ -204,7 +204,7 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
             if not plan.lockstep:
                 gc.freeze()  # a full collection would scan every object of the set-up (~120 000: ~30 ms)
             try:
-                built.scheduler.run(until=built.until)
+                _run_scheduler(built)
             finally:
                 summary["loop_wall_s"] = time.monotonic() - loop_started
                 if not plan.lockstep:
@@ -413,13 +413,30 @@ def _build(
     return _Built(host, scheduler, until, phone, recorded)
 
 
+def _run_scheduler(built: _Built) -> None:
+    """Run the scheduler to the run's time limit, moved on by the time the operator kept the run
+    suspended (a Disarm then an Arm: :attr:`Host.time_limit_extension_s`); a suspension still on at the
+    limit does not move it, so a Disarm without an Arm ends the run there."""
+    until = built.until
+    while True:
+        built.scheduler.run(until=until)
+        host = built.host
+        extended = built.until + host.time_limit_extension_s
+        if host.finished or extended <= until + 1e-9:
+            return
+        until = extended
+
+
 def _outcome(host: Host) -> str:
     """The run's exit reason when its loop ended on its own: ``lost: ...`` if an outage of the board (or a
-    phone gap) outlasted its bound or was still on at the end, ``completed`` once the run's time after the
-    slew's start is up, else the time limit."""
+    phone gap) outlasted its bound or was still on at the end; ``disarmed by the operator ...`` if the
+    operator's Disarm suspended the run and no Arm followed; ``completed`` once the run's time after the
+    slew's start (its suspensions not counted) is up; else the time limit."""
     lost = host.lost or host.journal.open_at_end(host.client.clock.now())
     if lost is not None:
         return f"lost: {lost}"
+    if host.suspended_since is not None:
+        return f"disarmed by the operator at t={host.suspended_since:.3f} s and not armed again"
     return "completed" if host.finished else "time limit (the slew never started)"
 
 

@@ -55,3 +55,31 @@ class RunObserver(Protocol):
     def tick(self, t: float) -> None: ...
 
     def finished(self, summary: Mapping[str, Any]) -> None: ...
+
+
+class Observers:
+    """Several observers as one (``RunOptions.observer`` takes one): each is told everything, in the order
+    given; a :class:`RunAborted` from any one's :meth:`tick` ends the run."""
+
+    def __init__(self, *observers: RunObserver) -> None:
+        self.observers = observers
+
+    def started(self, start: RunStart) -> None:
+        for o in self.observers:
+            o.started(start)
+
+    def row(self, row: Mapping[str, Any]) -> None:
+        for o in self.observers:
+            o.row(row)
+
+    def event(self, record: Mapping[str, Any]) -> None:
+        for o in self.observers:
+            o.event(record)
+
+    def tick(self, t: float) -> None:
+        for o in self.observers:
+            o.tick(t)
+
+    def finished(self, summary: Mapping[str, Any]) -> None:
+        for o in self.observers:
+            o.finished(summary)

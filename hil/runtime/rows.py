@@ -35,8 +35,8 @@ class TickRecorder:
         return float(np.sqrt(np.mean(self._errors_sq))) if self._errors_sq else None
 
     def live(
-        self, t: float, tel: Telemetry, view: View, gimbal: Array, rotor: Array, command: ActuatorSetpoint,
-        cmd_out: Any, ref: Reference | None,
+        self, t: float, tel: Telemetry, view: View, gimbal: Array, rotor: Array,
+        command: ActuatorSetpoint | None, cmd_out: Any, ref: Reference | None,
     ) -> None:  # fmt: skip
         """The tick's errors into the trace (from the slew's start) and its row into the telemetry log:
         plain floats in column order (:mod:`hil.runtime.telemetry`), formatted by the log's writer thread."""
@@ -55,8 +55,11 @@ class TickRecorder:
         row += gimbal.tolist()
         row += rates
         row += rotor.tolist()
-        row += [u.gimbal for u in command.units]
-        row += [u.rotor_speed for u in command.units]
+        if command is None:  # the operator has the run suspended: nothing commanded
+            row += [None] * (2 * n)
+        else:
+            row += [u.gimbal for u in command.units]
+            row += [u.rotor_speed for u in command.units]
         pulses = list(tel.pulses_us[: 2 * n])
         row += pulses + [None] * (2 * n - len(pulses))
         row += [tel.battery_mv / 1000.0, int(tel.state), tel.rx_frames, tel.rx_bad, tel.link_age_ms]

@@ -9,7 +9,7 @@ never re-armed on the host's own account: the Disarm cancels a re-arm already pe
 overtaken by the Disarm, which the board carries out after it), and the host waits for the operator's Arm.
 
 What the rest of the host is told (:meth:`BoardWatch.take_upsets`): that the board has left the state the
-host commanded, or may have (``failsafe``, ``reset``, ``link_lost``, ``reconnect``, ``disarm``) — the host
+host commanded, or may have (``failsafe``, ``reset``, ``link_lost``, ``reconnect``) — the host
 re-enters its warm-up before it steers again (:mod:`hil.runtime.host`). Telemetry that merely goes stale
 is not one: the host holds while it cannot see the board and carries on if the board comes back armed in
 the same session.
@@ -193,14 +193,12 @@ class BoardWatch:
 
     def operator_disarm(self, t: float) -> Command:
         """The operator's Disarm: sent now; any re-arm the host had pending is cancelled, and the host does
-        not re-arm on its own until :meth:`operator_arm`."""
+        not re-arm on its own until :meth:`operator_arm` (the host suspends the run meanwhile)."""
         self.operator_disarmed = True
         if self._rearm is not None:
             self.events.write(t, "rearm_cancelled", reason="disarmed by the operator")
             self._rearm = None
-        cmd = self.client.command(Disarm())
-        self._upsets.append("disarm")
-        return cmd
+        return self.client.command(Disarm())
 
     def operator_arm(self, t: float) -> Command:
         """The operator's Arm: sent now; the host re-arms on its own again after later faults."""

@@ -9,6 +9,7 @@ stacked inputs where noted (leading batch dimensions ``...``). :mod:`.arrays` wo
 from .arrays import (
     Array,
     angle_between,
+    euler_zyx,
     exp,
     hat,
     is_rotation,
@@ -41,6 +42,7 @@ __all__ = [
     "Mat9",
     "Vec3",
     "angle_between",
+    "euler_zyx",
     "apply_f",
     "apply_transpose_f",
     "exp",

@@ -7,6 +7,8 @@ stacked inputs where noted (leading batch dimensions ``...``).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -164,3 +166,17 @@ def matrix_to_quat(r: ArrayLike) -> Array:
     q = np.choose(k[..., None], rows) / (2.0 * s[..., None])
     q *= np.where(q[..., :1] < 0.0, -1.0, 1.0)
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def euler_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> Array:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) (3, 3), body → inertial (the aerospace yaw-pitch-roll sequence), from
+    angles in degrees."""
+    r, p, y = (math.radians(a) for a in (roll_deg, pitch_deg, yaw_deg))
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )

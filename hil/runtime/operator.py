@@ -1,0 +1,215 @@
+"""The operator's commands to a run — arm, disarm, abort, hold, slew — carried out on the control thread,
+whoever sends them: the ground station's page (:mod:`hil.gcs.uplink` queues them from its server
+threads), a fault campaign's drawn schedule (:mod:`hil.montecarlo.faults`), a test.
+
+==========  ==========================================================================================
+command     what the run does
+==========  ==========================================================================================
+``arm``     Arm through the board protocol (acknowledged by the board); after an operator's Disarm the
+            host warms up again (spin-up, checks) and plans a new slew to its target
+            (:meth:`hil.runtime.host.Host.arm`)
+``disarm``  Disarm (acknowledged): rotors to the safe pulse, gimbals hold; the run is *suspended* — no
+            reference, no requirement clock, no re-arming on the host's own account — until the
+            operator's Arm (:meth:`hil.runtime.host.Host.disarm`)
+``abort``   Disarm, then end the run once the board's telemetry shows it disarmed; when the link cannot
+            carry the Disarm the host lets go of the board and its link watchdog fails it safe within
+            its timeout
+``hold``    hold the attitude estimated now (the host's reference stops there)
+``slew``    slew to R = Rz(yaw) Ry(pitch) Rx(roll), body → inertial (:func:`hil.so3.euler_zyx`), within
+            the scenario's rate and acceleration limits
+==========  ==========================================================================================
+
+Every step is an ``events.jsonl`` record ``{"kind": "command", "origin": ..., "id": n, "command": ...,
+"status": ...}``: ``sent`` (to the board) then ``acked`` / ``nacked`` / ``failed`` (the board protocol's
+answer), or ``applied`` / ``refused`` (host-side), each with details; and each command is in the run's
+operator log (:attr:`hil.runtime.host.Host.operator_log`, ``summary.json``'s ``operator``) with its last
+status, so a run's record says what an operator did to it and when.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from hil import so3
+from hil.runtime.observer import RunAborted
+from protocol.errors import HilError
+from protocol.messages import BoardState
+
+if TYPE_CHECKING:
+    from hil.runtime.host import Host
+    from protocol.reliable import Command as BoardCommand
+
+COMMANDS = ("arm", "disarm", "abort", "hold", "slew")
+ABORT_CONFIRM_S = 0.5  # an abort waits this long after the Disarm's ack for telemetry that shows it
+ORIGINS = {"gcs": "the ground station", "campaign": "the fault campaign"}
+"""Who sends commands, as an exit reason names them (another origin is named as it is)."""
+
+
+def sender(origin: str) -> str:
+    """``origin`` as the exit reason names it ("the ground station")."""
+    return ORIGINS.get(origin, origin)
+
+
+@dataclass(frozen=True)
+class OperatorCommand:
+    """One command: ``id`` (unique within the run, per origin), ``name`` (one of :data:`COMMANDS`),
+    ``target`` (roll, pitch, yaw) degrees for ``slew``, ``origin`` who sent it (``gcs``, ``campaign``, ...)
+    and ``remote`` (the sender's address, where there is one)."""
+
+    id: int
+    name: str
+    target: tuple[float, float, float] | None = None
+    origin: str = "gcs"
+    remote: str = ""
+
+
+@dataclass
+class _Pending:
+    command: OperatorCommand
+    handle: BoardCommand
+    sent_t: float
+
+
+class Operator:
+    """Carries out :class:`OperatorCommand` s on the control thread (see the module docstring). Not
+    thread-safe: call it from the run's control tick only."""
+
+    def __init__(self) -> None:
+        self._pending: list[_Pending] = []
+        self._abort: _Pending | None = None
+
+    @property
+    def aborting(self) -> bool:
+        return self._abort is not None
+
+    def apply(self, host: Host, t: float, command: OperatorCommand) -> None:
+        """Carry out ``command`` at ``t`` (s); its answer, for board commands, is settled by :meth:`service`
+        on a later tick. Raises :class:`RunAborted` when an abort cannot reach the board."""
+        if self._abort is not None:
+            self._log(host, t, command, "refused", reason="the run is being aborted")
+            return
+        name = command.name
+        if name in ("arm", "disarm", "abort"):
+            try:  # through the host: its own re-arming yields to the operator's disarm
+                if name == "arm":
+                    handle = host.arm(t, command.origin)
+                else:
+                    handle = host.disarm(t, command.origin)
+            except HilError as exc:
+                self._log(host, t, command, "refused", reason=f"link: {exc}")
+                if name == "abort":
+                    raise RunAborted(
+                        f"from {sender(command.origin)} (command {command.id}: the link is down; the board's "
+                        "link watchdog fails it safe)"
+                    ) from exc
+                return
+            pending = _Pending(command, handle, t)
+            self._log(host, t, command, "sent", message="Arm" if name == "arm" else "Disarm")
+            if name == "abort":
+                self._abort = pending
+            self._pending.append(pending)
+            return
+        if name == "hold":
+            reason = host.retarget(t, None)
+        else:
+            assert command.target is not None
+            reason = host.retarget(t, so3.euler_zyx(*command.target))
+        if reason is not None:
+            self._log(host, t, command, "refused", reason=reason)
+            return
+        assert host.slew is not None and host.target is not None
+        self._log(
+            host,
+            t,
+            command,
+            "applied",
+            target_r=so3.log(host.target).tolist(),
+            slew_s=host.slew.duration_s,
+            target_euler_deg=command.target,
+        )
+
+    def service(self, host: Host, t: float) -> None:
+        """Settle the commands the board has answered; raises :class:`RunAborted` once an abort's Disarm is
+        answered (or cannot be sent) and the board is seen disarmed."""
+        still = []
+        for p in self._pending:
+            if p.handle.done:
+                self._settle(host, t, p)
+            else:
+                still.append(p)
+        self._pending = still
+        abort = self._abort
+        if abort is not None and abort.handle.done:
+            self._end_abort(host, t, abort)
+
+    def _end_abort(self, host: Host, t: float, abort: _Pending) -> None:
+        """End the run once the board says it is no longer armed (its telemetry after the Disarm's ack),
+        or at once if the Disarm failed (the board's link watchdog then fails it safe when the host lets
+        go); at most :data:`ABORT_CONFIRM_S` after the ack."""
+        n, origin = abort.command.id, sender(abort.command.origin)
+        if not abort.handle.ok:
+            raise RunAborted(
+                f"from {origin} (command {n}: the Disarm failed; the board's link watchdog fails it safe)"
+            )
+        tel = host.client.telemetry
+        settled = abort.handle.settled_at
+        if (
+            tel is not None
+            and tel.state is BoardState.ARMED
+            and (settled is None or t - settled < ABORT_CONFIRM_S)
+        ):
+            return  # acknowledged; wait for the telemetry that shows it
+        state = "no telemetry" if tel is None else tel.state.name
+        raise RunAborted(f"from {origin} (command {n}: board disarmed, telemetry says {state})")
+
+    def _settle(self, host: Host, t: float, p: _Pending) -> None:
+        """The board's answer, as the protocol settled it: acked, nacked (with its reason) or failed."""
+        from protocol.reliable import CommandState
+
+        handle = p.handle
+        after_ms = (t - p.sent_t) * 1e3
+        if handle.state is CommandState.ACKED:
+            self._log(host, t, p.command, "acked", after_ms=after_ms, seq=handle.seq)
+        elif handle.state is CommandState.NACKED:
+            reason = None if handle.reason is None else handle.reason.name
+            self._log(host, t, p.command, "nacked", reason=reason, after_ms=after_ms, seq=handle.seq)
+        else:
+            self._log(host, t, p.command, "failed", reason=handle.failure, after_ms=after_ms, seq=handle.seq)
+
+    @staticmethod
+    def _log(host: Host, t: float, command: OperatorCommand, status: str, **fields: Any) -> None:
+        host.record_command(t, command, status, **fields)
+
+
+class ScheduledOperator:
+    """A run observer (:class:`hil.runtime.observer.RunObserver`) that sends ``schedule``'s commands at
+    their times (host clock s), through an :class:`Operator` — what a fault campaign's drawn operator does
+    to a run, and what a test scripts. Commands due at the same tick go in the order given."""
+
+    def __init__(self, schedule: list[tuple[float, OperatorCommand]]) -> None:
+        self.schedule = sorted(schedule, key=lambda item: item[0])
+        self.operator = Operator()
+        self._next = 0
+        self.host: Host | None = None
+
+    def started(self, start: Any) -> None:
+        self.host = start.host
+
+    def row(self, row: Any) -> None:
+        """Rows are not what this observer acts on."""
+
+    def event(self, record: Any) -> None:
+        """Nor events: it acts on the clock alone."""
+
+    def tick(self, t: float) -> None:
+        host = self.host
+        if host is None:
+            return
+        while self._next < len(self.schedule) and self.schedule[self._next][0] <= t:
+            self.operator.apply(host, t, self.schedule[self._next][1])
+            self._next += 1
+        self.operator.service(host, t)
+
+    def finished(self, summary: Any) -> None:
+        """The run's summary holds the operator log itself."""
