@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import re
 import signal
 import sys
@@ -171,9 +172,42 @@ def build_parser() -> argparse.ArgumentParser:
     )
     f.add_argument("--dead-esc", action="append", default=[], metavar="CH[@AT]", help="dead ESC on a channel")
     f.add_argument(
-        "--phone-gap", action="append", default=[], metavar="AT:DURATION",
+        "--phone-gap",
+        action="append",
+        default=[],
+        metavar="AT:DURATION",
         help="with a world: its phone sends nothing for DURATION s from AT (repeatable)",
-    )  # fmt: skip
+    )
+    f.add_argument(
+        "--unplug",
+        action="append",
+        default=[],
+        metavar="AT:DURATION",
+        help="the USB cable pulled for DURATION s from AT: the MCU unpowered, then a power-on boot "
+        "(in process, the port vanishes meanwhile; repeatable)",
+    )
+    f.add_argument(
+        "--noise",
+        action="append",
+        default=[],
+        metavar="AT:DURATION:P",
+        help="byte corruption at probability P, both ways, for DURATION s from AT (repeatable)",
+    )
+    f.add_argument(
+        "--phone-jump",
+        action="append",
+        default=[],
+        metavar="AT:OFFSET",
+        help="with a world: from AT on its phone stamps samples OFFSET s later (negative: earlier)",
+    )
+    f.add_argument(
+        "--phone-spoof",
+        action="append",
+        default=[],
+        metavar="AT:KIND",
+        help="with a world: at AT its phone sends hostile readings of KIND (huge, nan, saturated, future, "
+        "past, duplicate, burst; repeatable)",
+    )
     return p
 
 
@@ -197,6 +231,29 @@ def parse_stall(spec: str, option: str = "--stall") -> tuple[float, float]:
         return float(m["at"]), float(m["d"])
     except ValueError:
         raise ConfigError(f"{spec!r}: not a number", option) from None
+
+
+def parse_numbers(spec: str, count: int, option: str, example: str) -> tuple[float, ...]:
+    """``A:B[:C]`` — ``count`` finite numbers separated by colons."""
+    parts = spec.strip().split(":")
+    try:
+        values = tuple(float(p) for p in parts)
+    except ValueError:
+        raise ConfigError(f"{spec!r}: not numbers (e.g. {example})", option) from None
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"{spec!r} is not {count} finite numbers separated by ':' (e.g. {example})", option)
+    return values
+
+
+def parse_spoof(spec: str) -> tuple[float, str]:
+    at, sep, kind = spec.strip().partition(":")
+    try:
+        t = float(at)
+    except ValueError:
+        t = math.nan
+    if not sep or not math.isfinite(t):
+        raise ConfigError(f"{spec!r} is not AT:KIND (e.g. 12.5:huge)", "--phone-spoof")
+    return t, kind
 
 
 def parse_dead_esc(spec: str) -> tuple[int, float | None]:
@@ -262,6 +319,18 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
     for spec in args.phone_gap:
         at, duration = parse_stall(spec, "--phone-gap")
         faults.phone_gap(duration, at=at)
+    for spec in args.unplug:
+        at, duration = parse_stall(spec, "--unplug")
+        faults.unplug(duration, at=at)
+    for spec in args.noise:
+        at, duration, p = parse_numbers(spec, 3, "--noise", "8:1.5:0.02")
+        faults.noisy_link(p, duration, at=at)
+    for spec in args.phone_jump:
+        at, offset = parse_numbers(spec, 2, "--phone-jump", "12:-100")
+        faults.phone_jump(offset, at=at)
+    for spec in args.phone_spoof:
+        at, kind = parse_spoof(spec)
+        faults.phone_spoof(kind, at=at)
     for spec in args.dead_esc:
         ch, esc_at = parse_dead_esc(spec)
         if ch >= cfg.n_channels:  # the API checks too; here the error names the option

@@ -26,7 +26,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 
 class EscMode(enum.Enum):
@@ -152,7 +152,7 @@ class EmulatedEsc:
 
 
 def replay_esc(
-    frames: Iterable[tuple[float, Sequence[float | None]]],
+    frames: Iterable[Sequence[Any]],
     channel: int,
     supply_cut: Sequence[tuple[float, bool]] = (),
     params: EscParams | None = None,
@@ -174,7 +174,8 @@ def replay_esc(
             esc.update(changes[k][0], None, not cut)
             k += 1
 
-    for t, widths in frames:
+    for frame in frames:  # (t, widths[, state]): a PulseFrame or a plain pair
+        t, widths = frame[0], frame[1]
         if last is not None and t - last > gap_s:
             supply_until(last + gap_s)
             esc.update(last + gap_s, None, not cut)

@@ -17,6 +17,17 @@ fault                         effect
 ``dead_esc(channel, at=)``    the ESC/servo on that output channel stops responding
 ``phone_gap(duration, at=)``  the world's simulated phone sends nothing for ``duration`` s (an app
                               that pauses its stream and resumes it; only with a world)
+``unplug(duration, at=)``     the board's USB cable is pulled for ``duration`` s: the MCU loses power
+                              (held in reset, no pulses, nothing sent) and, in process, the port
+                              vanishes; plugged back, it boots with reset cause POWER_ON (what a
+                              ``firmware-sim`` killed and started again looks like to the host)
+``noisy_link(p, duration, at=)``  byte corruption at probability ``p`` per byte, both ways, for
+                              ``duration`` s (a noisy cable for a while)
+``phone_jump(offset, at=)``   from ``at`` on, the world's phone stamps its samples ``offset`` s later
+                              (negative: earlier) than before — an app restarted, a clock stepped
+``phone_spoof(kind, at=)``    at ``at`` the world's phone sends a few hostile readings of ``kind``
+                              (:data:`SPOOF_KINDS`): absurd values that still parse, or plausible
+                              values with the wrong time
 ============================  ===================================================================
 """
 
@@ -30,6 +41,11 @@ from hil.timing.clock import Clock
 from protocol.errors import ConfigError
 
 DIRECTIONS = ("rx", "tx", "both")
+SPOOF_KINDS = ("huge", "nan", "saturated", "future", "past", "duplicate", "burst")
+"""Hostile readings the world's phone can send (:meth:`FaultInjector.phone_spoof`): ``huge`` (±1e160 in
+every axis), ``nan``, ``saturated`` (a gyro reading of 1e6 rad/s), ``future`` / ``past`` (a plausible
+triple stamped 100 s ahead / behind), ``duplicate`` (the last triple again, same times), ``burst`` (200
+plausible readings stamped within one millisecond)."""
 
 
 @dataclass(frozen=True)
@@ -65,6 +81,34 @@ class Sag:
         return min((t - self.start) / self.ramp_s, 1.0)
 
 
+@dataclass(frozen=True)
+class PhoneJump:
+    """From board time ``at`` on, the phone's stamps are ``offset_s`` later (negative: earlier)."""
+
+    at: float
+    offset_s: float
+
+
+@dataclass(frozen=True)
+class PhoneSpoof:
+    """Hostile readings of ``kind`` (:data:`SPOOF_KINDS`) sent at board time ``at``."""
+
+    at: float
+    kind: str
+
+
+@dataclass(frozen=True)
+class NoiseWindow:
+    """Byte corruption at ``corrupt`` per byte, both ways, over ``[start, start + duration)``."""
+
+    start: float
+    duration: float
+    corrupt: float
+
+    def covers(self, t: float) -> bool:
+        return self.start <= t < self.start + self.duration
+
+
 @dataclass
 class LinkStats:
     corrupted: int = 0
@@ -86,6 +130,10 @@ class FaultInjector:
         self.sags: list[Sag] = []
         self.dead_escs: dict[int, float] = {}  # channel -> from when
         self.phone_gaps: list[Stall] = []
+        self.unplugs: list[Stall] = []
+        self.noise_windows: list[NoiseWindow] = []
+        self.phone_jumps: list[PhoneJump] = []
+        self.phone_spoofs: list[PhoneSpoof] = []
         self.stats = LinkStats()
 
     # ------------------------------------------------------------------ API
@@ -136,6 +184,43 @@ class FaultInjector:
         self.phone_gaps.append(gap)
         return gap
 
+    def unplug(self, duration: float, at: float | None = None) -> Stall:
+        """Pull the board's USB cable at ``at`` for ``duration`` s (see the module docstring)."""
+        _check_positive(duration, "faults.unplug.duration")
+        u = Stall(self._at(at), float(duration))
+        self.unplugs.append(u)
+        self.unplugs.sort(key=lambda x: x.start)
+        return u
+
+    def noisy_link(self, corrupt: float, duration: float, at: float | None = None) -> NoiseWindow:
+        """Corrupt bytes at probability ``corrupt`` per byte, both ways, from ``at`` for ``duration`` s."""
+        if not (isinstance(corrupt, (int, float)) and 0.0 <= corrupt <= 1.0):
+            raise ConfigError(f"{corrupt!r} is not a probability in 0..1", "faults.noise.corrupt")
+        _check_nonneg(duration, "faults.noise.duration")
+        w = NoiseWindow(self._at(at), float(duration), float(corrupt))
+        self.noise_windows.append(w)
+        return w
+
+    def phone_jump(self, offset_s: float, at: float | None = None) -> PhoneJump:
+        """From ``at`` on, stamp the world's phone samples ``offset_s`` s later (negative: earlier)."""
+        if not (isinstance(offset_s, (int, float)) and math.isfinite(offset_s) and offset_s != 0):
+            raise ConfigError(
+                f"{offset_s!r} must be a finite, non-zero number of seconds", "faults.phone_jump"
+            )
+        j = PhoneJump(self._at(at), float(offset_s))
+        self.phone_jumps.append(j)
+        self.phone_jumps.sort(key=lambda x: x.at)
+        return j
+
+    def phone_spoof(self, kind: str, at: float | None = None) -> PhoneSpoof:
+        """Send hostile readings of ``kind`` (:data:`SPOOF_KINDS`) from the world's phone at ``at``."""
+        if kind not in SPOOF_KINDS:
+            raise ConfigError(f"{kind!r} is not one of {', '.join(SPOOF_KINDS)}", "faults.phone_spoof")
+        sp = PhoneSpoof(self._at(at), kind)
+        self.phone_spoofs.append(sp)
+        self.phone_spoofs.sort(key=lambda x: x.at)
+        return sp
+
     def dead_esc(self, channel: int, at: float | None = None) -> None:
         where = "faults.dead_esc.channel"
         if isinstance(channel, bool) or not isinstance(channel, int) or channel < 0:
@@ -152,6 +237,10 @@ class FaultInjector:
         self.sags.clear()
         self.dead_escs.clear()
         self.phone_gaps.clear()
+        self.unplugs.clear()
+        self.noise_windows.clear()
+        self.phone_jumps.clear()
+        self.phone_spoofs.clear()
 
     # ------------------------------------------------------------------ used by the board
     def next_hang(self) -> float:
@@ -173,6 +262,21 @@ class FaultInjector:
         """Whether the world's phone is paused at ``t``."""
         return any(g.covers(t) for g in self.phone_gaps)
 
+    def unplugged(self, t: float) -> Stall | None:
+        """The unplug in effect at ``t`` (the cable out, the board unpowered), if any."""
+        for u in self.unplugs:
+            if u.covers(t):
+                return u
+        return None
+
+    def next_unplug(self, t: float) -> float:
+        """When the next unplug at or after ``t`` starts (inf: none)."""
+        return next((u.start for u in self.unplugs if u.start >= t), math.inf)
+
+    def phone_offset(self, t: float) -> float:
+        """How far the phone's clock is off at board time ``t`` (s): the jumps up to then, summed."""
+        return sum(j.offset_s for j in self.phone_jumps if j.at <= t)
+
     def channel_dead(self, channel: int, t: float) -> bool:
         since = self.dead_escs.get(channel)
         return since is not None and t >= since
@@ -185,6 +289,10 @@ class FaultInjector:
             self.stats.stalled += len(data)
             return b""
         noise = self.noise
+        if self.noise_windows:
+            window = next((w for w in self.noise_windows if w.covers(t)), None)
+            if window is not None and window.corrupt > noise.corrupt:
+                noise = LinkNoise(window.corrupt, noise.drop, "both")
         if noise.direction not in (direction, "both") or (noise.corrupt == 0.0 and noise.drop == 0.0):
             return data
         rng = self._rng
@@ -210,3 +318,8 @@ class FaultInjector:
 def _check_nonneg(value: float, where: str) -> None:
     if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
         raise ConfigError(f"{value!r} must be a finite number >= 0", where)
+
+
+def _check_positive(value: float, where: str) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ConfigError(f"{value!r} must be a finite number > 0", where)

@@ -25,8 +25,12 @@ class PulseEdge(NamedTuple):
 
 
 class PulseFrame(NamedTuple):
+    """A frame's pulses at ``t`` (s) and the protocol state the board was in when it started them
+    (``BoardState`` value; None where the record does not say: the firmware's edges under simavr)."""
+
     t: float
     widths: tuple[float | None, ...]
+    state: int | None = None
 
 
 class ResetEvent(NamedTuple):
@@ -51,16 +55,24 @@ class PulseTimeline:
         self.ppm: deque[PpmTrain] = deque(maxlen=capacity)
         self.total_frames = 0
 
-    def record(self, t: float, widths: tuple[float | None, ...]) -> None:
-        self.frames.append(PulseFrame(t, widths))
+    def record(self, t: float, widths: tuple[float | None, ...], state: int | None = None) -> None:
+        self.frames.append(PulseFrame(t, widths, state))
         self.total_frames += 1
+
+    def since(self, count: int) -> tuple[list[PulseFrame], int]:
+        """The frames recorded after the first ``count`` (oldest first) and how many of those the ring
+        no longer holds (it keeps the last ``capacity``)."""
+        new = self.total_frames - count
+        held = min(new, len(self.frames))
+        frames = list(self.frames)[len(self.frames) - held :] if held > 0 else []
+        return frames, max(new - held, 0)
 
     def edges(self, channel: int | None = None, since: float | None = None) -> list[PulseEdge]:
         """Rising edges, oldest first, optionally of one channel and at or after ``since`` seconds."""
         return list(self._iter_edges(channel, since))
 
     def _iter_edges(self, channel: int | None, since: float | None) -> Iterator[PulseEdge]:
-        for t, widths in self.frames:
+        for t, widths, _state in self.frames:
             if since is not None and t < since:
                 continue
             for ch, w in enumerate(widths):

@@ -46,7 +46,7 @@ from typing import IO, TYPE_CHECKING, Any, NoReturn
 from urllib.parse import parse_qsl, urlsplit
 
 from hil.link.transports.base import Transport
-from hil.link.transports.in_process import InProcessBoard, SimulatedWorld, WorldStream
+from hil.link.transports.in_process import InProcessBoard, PulseRecord, SimulatedWorld, WorldStream
 from hil.link.transports.serial_port import SerialTransport
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from protocol.errors import TransportError
@@ -155,6 +155,17 @@ class EmulatorTransport(InProcessBoard):
         with self.lock:
             return self.board.next_deadline()
 
+    def pulse_record(self, since: int) -> PulseRecord:
+        with self.lock:
+            board = self.board
+            frames, missed = board.timeline.since(since)
+            count = board.timeline.total_frames
+            cfg = board.config
+        rotors = tuple(range(1, cfg.n_channels, 2))  # channel 2i: unit i's gimbal servo, 2i + 1 its rotor ESC
+        return PulseRecord(
+            [(f.t, f.widths, f.state) for f in frames], count, missed, rotors, float(cfg.rotor_safe_us)
+        )
+
     def open_world(self, scenario: Any, seed: int | None = None) -> SimulatedWorld:
         """The scenario's world (:class:`firmware_sim.world.World`) on this board."""
         from firmware_sim.world import World
@@ -172,12 +183,21 @@ class EmulatorTransport(InProcessBoard):
 
     # ------------------------------------------------------------------ backend
     def _open_impl(self) -> None:
-        _ = self.board  # the board powers up with the first connection and keeps running across reopens
+        board = self.board  # the board powers up with the first connection and keeps running across reopens
+        with self.lock:
+            board.step()
+            self._check_plugged(board)
+
+    def _check_plugged(self, board: Board) -> None:
+        """A board whose cable is out (``unplug`` fault) has no port: it vanished, as a USB device does."""
+        if board.unplugged():
+            raise TransportError(f"{self.url}: the port vanished (the board's cable is out: unplug fault)")
 
     def _read(self, timeout: float | None) -> bytes:
         board, clock = self.board, self.board.clock
         with self.lock:
             board.step()
+            self._check_plugged(board)
             out = board.take_output()
             if out or not self.realtime or timeout == 0:
                 return out
@@ -197,6 +217,8 @@ class EmulatorTransport(InProcessBoard):
 
     def _write(self, data: bytes) -> None:
         with self.lock:
+            self.board.step()
+            self._check_plugged(self.board)
             self.board.feed(data)
             self.lock.notify_all()  # a reader waiting for the board's next wake-up: it comes sooner
 

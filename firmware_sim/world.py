@@ -46,6 +46,7 @@ from hil.vscmg import CompiledPlant, Plant, PlantState
 from protocol.messages import GimbalMode, UnitState
 
 from .board import Board
+from .phone_faults import PhoneTamper
 
 Array = NDArray[np.float64]
 YIELD_S = 2e-4  # s: the pause a lagging world thread takes between chunks, so the board's server runs
@@ -96,6 +97,7 @@ class World:
             )
         self.scenario = scenario
         self.board = board
+        self.tamper = PhoneTamper(board.faults)
         self.params = scenario.world_spacecraft
         self.plant = Plant(self.params)
         motor = board.config.motor
@@ -217,6 +219,8 @@ class World:
         faults = board.faults
         if faults.phone_gaps:  # a phone that paused its stream (firmware-sim --phone-gap)
             samples = [s for s in samples if not faults.phone_silent(s.t_s)]
+        if self.tamper.active:  # its clock jumps, hostile readings (--phone-jump, --phone-spoof)
+            samples = self.tamper.apply(samples, self.now)
         return samples
 
     def _reread(self) -> None:

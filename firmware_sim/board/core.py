@@ -206,13 +206,30 @@ class Board:
                       self.esc_calibration.deadline_us)  # fmt: skip
             if self.faults.hangs:
                 due = min(due, max(self._us(self.faults.next_hang()), self._t_us))  # late: now
+            if self.faults.unplugs:
+                due = min(due, self._next_unplug_us())
             return due
         if phase is _HUNG:  # the timers (pulse frames, PPM train) keep running: hardware
-            return min(self._power_period.next_us, self._frames.next_us, self._wdt_us, self._ppm.next_us)
+            due = min(self._power_period.next_us, self._frames.next_us, self._wdt_us, self._ppm.next_us)
+            if self.faults.unplugs:
+                due = min(due, self._next_unplug_us())
+            return due
         due = min(self._power_period.next_us, self._frames.next_us)
         if self._release_us > self._phys_us:  # RESET
             due = min(due, self._release_us)
         return due
+
+    def _next_unplug_us(self) -> float:
+        """The next unplug's start (µs of board time; now if one is on and not taken yet)."""
+        t = self._t_us / 1e6
+        if self.faults.unplugged(t) is not None:
+            return self._t_us
+        start = self.faults.next_unplug(t)
+        return start if math.isinf(start) else self._us(start)
+
+    def unplugged(self) -> bool:
+        """Whether the board's cable is out now (the in-process port then vanishes: the transport asks)."""
+        return bool(self.faults.unplugs) and self.faults.unplugged(self._t_us / 1e6) is not None
 
     def next_output_change_us(self) -> float:
         """Board time (µs) before which the pulses on the pins stay as they are unless the MCU resets, a
@@ -328,6 +345,8 @@ class Board:
 
     def _wake(self, t: int) -> None:
         self._t_us = t
+        if self.faults.unplugs:
+            self._power_cut(t)
         if (
             t >= self._power_period.due_us
             or self._frames.is_due(t)
@@ -359,6 +378,17 @@ class Board:
             self.timeline.ppm.append(ppm_train(t, self.targets, self.config.rotor_safe_us))
 
     # ================================================================== reset, boot, main loop
+    def _power_cut(self, t: int) -> None:
+        """The cable is out at ``t`` (``faults.unplug``): the MCU loses power — held in reset, its reset
+        cause POWER_ON — until the cable is back and it has booted."""
+        cut = self.faults.unplugged(t / 1e6)
+        if cut is None:
+            return
+        back_us = self._us(cut.start + cut.duration) + self._us(self.config.boot_time_s)
+        if self.phase is not _RESET or self.resets[-1].cause is not ResetCause.POWER_ON:
+            self._reset(ResetCause.POWER_ON, t)
+        self._release_us = max(self._release_us, back_us)
+
     def _reset(self, cause: ResetCause, t: int) -> None:
         if self.resets:
             logger.info("board reset at %.6f s: %s", t / 1e6, cause.name)
@@ -432,7 +462,7 @@ class Board:
             self.targets, self._clamped = self._compute_outputs()
         self.outputs = self.dither.frame(self.targets)
         self.drive_epoch += 1
-        self.timeline.record(t / 1e6, self.outputs)
+        self.timeline.record(t / 1e6, self.outputs, int(self.commands.state))
 
     def _store_calibration(self, unit: int, cal: Any) -> None:
         """An uploaded calibration into EEPROM: the unit's model and the pulse conversions use it now."""

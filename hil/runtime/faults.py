@@ -89,6 +89,14 @@ class FaultJournal:
         if kind not in causes:
             causes.append(kind)
 
+    def note(self, t: float, kind: str, **detail: Any) -> None:
+        """A fault of ``kind`` at ``t`` that opens no outage: the host stays in control through it (readings
+        dropped by the admission policy, a dead ESC the board reported) — in the record, with its cause."""
+        if len(self.faults) < MAX_FAULTS:
+            self.faults.append({"t": t, "kind": kind, **detail})
+        else:
+            self.dropped += 1
+
     def board_back(self, t: float) -> Outage | None:
         """The host has the board in hand again at ``t``: the open outage ends (returned), if any."""
         return _close(self.outages, t)

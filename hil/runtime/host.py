@@ -40,7 +40,6 @@ from __future__ import annotations
 import enum
 import logging
 import math
-import operator
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -52,16 +51,17 @@ from hil import so3
 from hil.control.attitude import AttitudeController, EigenaxisSlew, Reference
 from hil.control.motor_loops import SetpointGenerator
 from hil.control.steering import VscmgSteering
+from hil.estimation.admission import PhoneGuard, Verdict
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
 from hil.runtime.rows import TickRecorder
-from hil.runtime.runlog import CsvLog, EventLog
+from hil.runtime.runlog import CsvLog, EventLog, RowTap
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.runtime.watch import BoardWatch
 from hil.scenario import Scenario
 from protocol.errors import BoardReset, LinkError
-from protocol.messages import ActuatorSetpoint, BoardState, GimbalMode, UnitSetpoint
+from protocol.messages import ActuatorSetpoint, BoardState, FaultFlag, GimbalMode, UnitSetpoint
 from protocol.reliable import Command
 
 logger = logging.getLogger(__name__)
@@ -71,9 +71,13 @@ Array = NDArray[np.float64]
 SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may start
 ROTOR_SETTLE_S = 1.0  # the first slew waits this long with the rotors spun up (their transient over)
 MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear error
-PHONE_RESTART_S = 1.0  # phone samples this much older than the newest: the stream restarted its clock ...
-PHONE_RESTART_SAMPLES = 10  # ... when this many come in a row ...
-PHONE_RESTART_SPAN_S = 0.05  # ... spanning this much of their own clock: a stream, not a burst of strays
+DROP_NOTE_S = 1.0  # a reason's dropped readings make at most one journal record per this long (s)
+
+
+def _time_order(sample: SensorSample) -> tuple[bool, float]:
+    """Sort key: by time stamp, the stamps that are not numbers last (the guard drops them)."""
+    t = sample.t_s
+    return (True, 0.0) if not math.isfinite(t) else (False, t)
 
 
 class Phase(enum.IntEnum):
@@ -109,7 +113,7 @@ class Host:
 
     scenario: Scenario
     client: BoardClient
-    telemetry: CsvLog | None
+    telemetry: CsvLog | RowTap | None
     events: EventLog
     truth: Callable[[], TruthSample | None] = lambda: None
     duration_s: float | None = None
@@ -165,9 +169,9 @@ class Host:
         )
         self._hold_sent = False  # the hold setpoint went out since the board was last seen
         self._hold_tick = -1  # the control tick it went out in
-        self._phone_newest = -math.inf  # newest phone sample time (the phone's clock)
-        self._phone_old = 0  # samples in a row well before the newest ...
-        self._phone_old_t = (0.0, 0.0)  # ... their first and last times (phone clock)
+        self.guard = PhoneGuard()  # the admission policy and the phone's clock guard
+        self._esc_dead = False  # the board's DEAD_ESC flag as last seen
+        self._drops: dict[str, tuple[float, int]] = {}  # reason -> (last noted at, dropped since)
         self.phone_count = 0  # accepted samples seen at the last tick
         self.phone_heard: float | None = None  # host time the count last moved
         self.trace = RunTrace()
@@ -182,53 +186,66 @@ class Host:
 
     # ------------------------------------------------------------------ estimator task
     def feed(self, samples: Sequence[SensorSample], now: float | None = None) -> None:
-        """Phone samples (any order within a batch) through hold-last-sample merging into the estimator;
-        ``now``: the host's time (s), for the record of a phone that restarted its clock."""
+        """Phone samples (any order within a batch) through the admission policy and clock guard
+        (:mod:`hil.estimation.admission`: absurd, spoofed and flooding readings dropped and counted; a
+        stream whose clock really moved re-anchored) and hold-last-sample merging into the estimator;
+        ``now``: the host's time (s), for the record."""
         collecting = self._collecting_bias
-        for sample in sorted(samples, key=operator.attrgetter("t_s")):
+        guard = self.guard
+        for sample in sorted(samples, key=_time_order):
             self.counters.samples += 1
-            if sample.t_s < self._phone_newest - PHONE_RESTART_S:
-                if self._phone_old == 0 or sample.t_s < self._phone_old_t[1]:
-                    self._phone_old, self._phone_old_t = 0, (sample.t_s, sample.t_s)  # (re)start the run
-                self._phone_old += 1
-                self._phone_old_t = (self._phone_old_t[0], sample.t_s)
-                first, last = self._phone_old_t
-                if self._phone_old >= PHONE_RESTART_SAMPLES and last - first >= PHONE_RESTART_SPAN_S:
-                    self._phone_restarted(sample.t_s, now)
-            else:
-                self._phone_old = 0
-            self._phone_newest = sample.t_s if sample.t_s > self._phone_newest else self._phone_newest
+            verdict = guard.admit(sample, now)
+            if verdict is Verdict.DROP:
+                self._note_drop(guard.last_reason, now)
+                continue
+            if verdict is not Verdict.ACCEPT:
+                self._phone_reanchored(verdict, sample.t_s, now)
             if collecting and sample.kind is SensorKind.GYR:
                 self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
             for step in self.merger.push(sample):
                 self.estimate = self.filter.step(step)
                 self.counters.estimator_steps += 1
 
-    def _phone_restarted(self, t_s: float, now: float | None) -> None:
-        """:data:`PHONE_RESTART_SAMPLES` samples in a row stamped well before the newest one, their times
-        going forward over :data:`PHONE_RESTART_SPAN_S`: the phone stream started again with a new clock (an
-        app restarted, firmware-sim's world started over). Its samples would all be dropped as out of
-        order; the merger and the estimator start afresh instead (the gyro bias is kept; the samples of the
-        new stream before this one were dropped), and the warm-up's still window lets the estimate converge
-        before the host steers again. Stray datagrams stamped in the past — one, or a burst of them — are
-        only dropped (the merger counts them out of order)."""
+    def _note_drop(self, reason: str | None, now: float | None) -> None:
+        """A dropped reading into the journal and ``events.jsonl``: the first of each reason, then one
+        record per :data:`DROP_NOTE_S` with the count since (a flood makes a few records, not one each).
+        Duplicates are the merger's ordinary business (a phone's jitter), not a fault."""
+        if reason is None or reason == "duplicate":
+            return
+        t = now if now is not None else (self.phone_heard or 0.0)
+        first, count = self._drops.get(reason, (-math.inf, 0))
+        if t - first < DROP_NOTE_S:
+            self._drops[reason] = (first, count + 1)
+            return
+        self._drops[reason] = (t, 0)
+        total = self.guard.stats.dropped[reason]
+        self.journal.note(t, "readings_dropped", reason=reason, since_last=count + 1, total=total)
+        self.events.write(t, "readings_dropped", reason=reason, since_last=count + 1, total=total)
+        if count == 0:
+            logger.warning("phone reading dropped at t=%.3f s: %s (counted)", t, reason)
+
+    def _phone_reanchored(self, verdict: Verdict, t_s: float, now: float | None) -> None:
+        """The phone stream's clock moved (:class:`~hil.estimation.admission.PhoneGuard`): restarted (an
+        app restarted, firmware-sim's world started over) or jumped forward. Integrating across the jump
+        would be wrong either way: the merger and the estimator start afresh from the measurements (the
+        gyro bias is kept), and the warm-up's still window lets the estimate converge before the host
+        steers again."""
         from hil.estimation.filter import AttitudeFilter
         from hil.estimation.multirate import Merger
 
+        kind = "phone_restart" if verdict is Verdict.RESTART else "phone_jump"
         self.counters.phone_restarts += 1
-        detail = {"newest_s": self._phone_newest, "sample_s": t_s}
+        detail = {"newest_s": self.guard.anchored_from, "sample_s": t_s}
         self.merger = Merger(self.merger.policy)
         self.filter = AttitudeFilter(self._filter_config)
         self.filter.set_gyro_bias(self.gyro_bias)
         self.filter.set_rest_learning(self.slew_start is None)
         self.estimate = None
-        self._phone_newest = -math.inf
-        self._phone_old = 0
         self.phone_count = 0
         t = now if now is not None else (self.phone_heard or 0.0)
-        self.journal.fault(t, "phone_restart", **detail)
-        self.events.write(t, "phone_restart", **detail)
-        self._restart_warmup(t, "phone_restart", still=True)
+        self.journal.fault(t, kind, **detail)
+        self.events.write(t, kind, **detail)
+        self._restart_warmup(t, kind, still=True)
 
     # ------------------------------------------------------------------ control task
     def tick(self, t: float, events: Sequence[Any]) -> None:
@@ -255,6 +272,7 @@ class Host:
             self.rows.blind(t, view, hold)
             return
         self._hold_sent = False
+        self._watch_escs(t, tel.faults)
         gimbal = np.array([u.gimbal_angle for u in tel.units])
         rotor = np.array([u.rotor_speed for u in tel.units])
         armed = tel.state is BoardState.ARMED
@@ -265,6 +283,16 @@ class Host:
         if self.suspended_since is None and self.slew_start is not None:
             if t - self.slew_start - self.suspended_after_slew_s >= self._duration - 1e-9:
                 self.finished = True
+
+    def _watch_escs(self, t: float, faults: int) -> None:
+        """The board's dead-ESC flag (an output commanded to move shows no response) into the journal and
+        ``events.jsonl`` when it appears; the host goes on with what the array has left."""
+        dead = bool(faults & FaultFlag.DEAD_ESC)
+        if dead and not self._esc_dead:
+            self.journal.note(t, "esc_dead")
+            self.events.write(t, "esc_dead")
+            logger.warning("the board reports a dead ESC at t=%.3f s (its log names the channel)", t)
+        self._esc_dead = dead
 
     def _send(self, command: ActuatorSetpoint) -> None:
         try:
@@ -574,7 +602,46 @@ class Host:
         if len(self.trace):
             out["slew_s"] = None if self.slew is None else self.slew.duration_s
         out["estimator_rmse_deg"] = self.rows.estimator_rmse()
+        out["phone_admission"] = self.guard.as_dict()
+        out["requirement"] = self._requirement(out, now)
         journal = self.journal.summary(now)
         out["phone_gap_list"] = journal.pop("phone_gaps")
         out.update(journal)
         return out
+
+    def _requirement(self, figures: dict[str, Any], now: float) -> dict[str, Any]:
+        """Whether the run met its pointing requirement (settled within ``settle_deg``) and, when it did
+        not, why — what the record holds that explains it: the operator's suspensions and retargets, the
+        faults since the slew started, a recovery that left too little time. ``explained`` is False when
+        nothing in the record explains a miss (a controller that did not settle on its own)."""
+        if figures.get("settled"):
+            return {"met": True, "why": None, "explained": True}
+        reasons: list[str] = []
+        if self.slew_start is None:
+            reasons.append("the slew never started")
+        suspended = figures.get("suspended_s") or 0.0
+        if suspended > 0 or self.suspended_since is not None:
+            reasons.append(f"disarmed by the operator for {suspended:.1f} s")
+        retargets = [
+            o for o in self.operator_log if o["command"] in ("slew", "hold") and o["status"] == "applied"
+        ]
+        if retargets:
+            reasons.append(f"retargeted by the operator at t={retargets[-1]['t']:.1f} s")
+        since = -math.inf if self.slew_start is None else self.slew_start
+        kinds: dict[str, int] = {}
+        for f in self.journal.faults:
+            if f["t"] >= since:
+                kinds[f["kind"]] = kinds.get(f["kind"], 0) + 1
+        if kinds:
+            reasons.append("faults: " + ", ".join(f"{k} x{n}" for k, n in kinds.items()))
+        if self.slew is not None and self.slew_start is not None:
+            left = now - self.slew.start_s
+            if left < self.slew.duration_s:
+                reasons.append(
+                    f"steering from t={self.slew.start_s:.1f} s, {left:.1f} s before the end: its slew "
+                    f"needed {self.slew.duration_s:.1f} s"
+                )
+        explained = bool(reasons)
+        if not reasons:
+            reasons.append("nothing in the record explains it: the controller did not settle")
+        return {"met": False, "why": "; ".join(reasons), "explained": explained}

@@ -56,7 +56,7 @@ from hil.link.transports import InProcessBoard, create_transport
 from hil.runtime.faults import RECOVER_WITHIN_S
 from hil.runtime.host import Host, TruthSample
 from hil.runtime.observer import RunAborted, RunObserver, RunStart
-from hil.runtime.runlog import CsvLog, EventLog, new_run_dir, write_summary
+from hil.runtime.runlog import CsvLog, EventLog, RowTap, new_run_dir, write_summary
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
@@ -98,7 +98,10 @@ class RunOptions:
     no run directory (see the module docstring); ``observer``: sees every row and event and may command
     the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run goes at most this many times as fast as
     the wall clock (1.0: real time), None: as fast as it can; ``recover_within_s``: an outage of the board
-    (or a phone gap) longer than this ends the run as lost (:mod:`hil.runtime.faults`)."""
+    (or a phone gap) longer than this ends the run as lost (:mod:`hil.runtime.faults`);
+    ``rows_to_observer``: without a run directory, still build each tick's telemetry row and hand it to
+    the observer (its ``row_columns`` attribute, if any, names the columns it wants) — a fault campaign's
+    run checks its invariants on them."""
 
     port: str | None = None
     lockstep: bool | None = None
@@ -112,6 +115,7 @@ class RunOptions:
     observer: RunObserver | None = None
     pace: float | None = None
     recover_within_s: float = RECOVER_WITHIN_S
+    rows_to_observer: bool = False
 
 
 @dataclass
@@ -182,11 +186,14 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     tap_row = None if observer is None else observer.row
     tap_event = None if observer is None else observer.event
     run_dir: Path | None = None
-    telemetry: CsvLog | None = None
+    telemetry: CsvLog | RowTap | None = None
     if opts.out_root is not None:
         run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
         (run_dir / "scenario.toml").write_text(scenario.source)
         telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units), tap=tap_row)
+    elif opts.rows_to_observer and tap_row is not None:
+        keep = getattr(observer, "row_columns", None)
+        telemetry = RowTap(telemetry_columns(scenario.n_units), tap_row, keep)
     events = EventLog(None if run_dir is None else run_dir / "events.jsonl", tap=tap_event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
     if opts.replay is not None:
@@ -260,7 +267,7 @@ class _Built:
 
 
 def _build(
-    scenario: Scenario, opts: RunOptions, plan: _Plan, telemetry: CsvLog | None, events: EventLog,
+    scenario: Scenario, opts: RunOptions, plan: _Plan, telemetry: CsvLog | RowTap | None, events: EventLog,
     stack: contextlib.ExitStack,
 ) -> _Built:  # fmt: skip
     """Board client, phone source (world, live stream or recording), host and scheduler for ``plan``;

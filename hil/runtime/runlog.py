@@ -60,6 +60,36 @@ Tap = Callable[[Mapping[str, Any]], None]
 """Called with each row or event record as it is written (a run's observer, :mod:`hil.gcs`)."""
 
 
+class RowTap:
+    """Rows that go to a tap only, never to a file: what a run without a run directory writes when its
+    observer wants the rows (a fault campaign's run checks its invariants on them). ``keep`` names the
+    columns the tap is given (default: all); the rest are not copied."""
+
+    def __init__(self, columns: Sequence[str], tap: Tap, keep: Sequence[str] | None = None) -> None:
+        self.columns = tuple(columns)
+        index = {name: i for i, name in enumerate(self.columns)}
+        names = self.columns if keep is None else tuple(keep)
+        missing = [name for name in names if name not in index]
+        if missing:
+            raise KeyError(f"no column(s) {missing}")
+        self._picks = tuple((name, index[name]) for name in names)
+        self.tap = tap
+        self.rows = 0
+
+    def write_values(self, values: Sequence[Any]) -> None:
+        """One row in column order, handed to the tap by name (the kept columns)."""
+        if len(values) != len(self.columns):
+            raise ValueError(f"{len(values)} values for {len(self.columns)} columns")
+        self.rows += 1
+        self.tap({name: values[i] for name, i in self._picks})
+
+    def flush(self) -> None:
+        """Nothing is held back."""
+
+    def close(self) -> None:
+        """Nothing to close."""
+
+
 class CsvLog:
     """Rows of numbers under a fixed header. Missing values (None, NaN) are written empty (read as NaN).
 

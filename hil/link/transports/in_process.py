@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import abc
 import threading
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 from .base import Transport
 
@@ -61,6 +61,20 @@ class WorldStream(Protocol):
     def close(self) -> None: ...
 
 
+class PulseRecord(NamedTuple):
+    """Frames from an in-process board's own record (:meth:`InProcessBoard.pulse_record`): ``frames``
+    ``(t, widths, state)`` (s, µs per channel or None, ``BoardState`` value), oldest first; ``total`` the
+    board's frame count now (ask for the frames since it next time); ``missed`` frames the record no longer
+    held; ``rotor_channels`` and ``rotor_safe_us``: the outputs no frame may drive above the safe width
+    unless the board is ARMED."""
+
+    frames: list[tuple[float, tuple[float | None, ...], int | None]]
+    total: int
+    missed: int
+    rotor_channels: tuple[int, ...]
+    rotor_safe_us: float
+
+
 class InProcessBoard(Transport):
     """A transport whose board lives in this process. ``lock`` guards the board: hold it to touch the
     board (or its world) from another thread."""
@@ -79,6 +93,11 @@ class InProcessBoard(Transport):
     @abc.abstractmethod
     def next_wake(self) -> float:
         """Clock time (s) at which the board next does something (a lockstep driver advances to it)."""
+
+    @abc.abstractmethod
+    def pulse_record(self, since: int) -> PulseRecord:
+        """The pulse frames the board started after its first ``since`` (its own record of what was on the
+        pins, each with the protocol state it started in), for checks on what a run really did."""
 
     @abc.abstractmethod
     def open_world(self, scenario: Any, seed: int | None = None) -> SimulatedWorld:

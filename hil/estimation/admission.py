@@ -1,0 +1,177 @@
+"""What a phone reading must be to reach the estimator: the admission policy and the phone's clock guard,
+applied where samples enter the host (:meth:`hil.runtime.host.Host.feed`: every live source and a
+recording played to a board alike). Pure logic, no I/O.
+
+A reading is **dropped and counted by reason** (:class:`AdmissionStats`) when it
+
+==================  =====================================================================================
+reason              the reading
+==================  =====================================================================================
+``bad_time``        has a time stamp that is not a finite number
+``non_finite``      has a value that is NaN or infinite
+``out_of_range``    exceeds its sensor's physical range (:class:`ReadingLimits`: a phone gyro saturates
+                    near 35 rad/s, an accelerometer near 16 g, a magnetometer near 5 mT) — a value
+                    that parses but no phone can measure
+``future``          is stamped more than :data:`JUMP_S` after the stream's newest reading plus the host
+                    time since it came (a stray, or the first of a clock that jumped forward: see
+                    below; a stream that paused and resumes is not ahead of its clock)
+``past``            is stamped more than :data:`JUMP_S` before the newest (a stray, or the first of a
+                    clock that restarted)
+``duplicate``       repeats the time stamp of the last reading of its sensor
+``burst``           comes less than :data:`MIN_INTERVAL_S` after the last reading of its sensor: faster
+                    than any phone samples (a flood of plausible readings)
+==================  =====================================================================================
+
+**The clock guard.** A stream whose clock really moved — an app restarted (its clock back at zero), a
+phone whose clock was stepped — is *re-anchored*, never on one reading: only after
+:data:`REANCHOR_READINGS` readings in a row stamped beyond :data:`JUMP_S` on the same side of the newest,
+going forward and spanning at least :data:`REANCHOR_SPAN_S` of their own clock (a stream, not a burst of
+strays). :meth:`PhoneGuard.admit` then answers ``RESTART`` (backwards) or ``JUMP`` (forwards): the caller
+starts the estimator afresh from the measurements instead of integrating across the jump, and warms up
+again. Readings the guard dropped before it re-anchored are counted (``past`` / ``future``).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+from hil.estimation.sensors import KINDS, SensorKind, SensorSample
+
+JUMP_S = 1.0
+"""s: a reading this far from the stream's newest (either way) is not part of the stream as it was."""
+REANCHOR_READINGS = 10
+"""Readings in a row beyond :data:`JUMP_S`, on one side, before the guard believes the clock moved ..."""
+REANCHOR_SPAN_S = 0.05
+"""... spanning this much of their own clock (s)."""
+MIN_INTERVAL_S = 1e-4
+"""s: readings of one sensor closer than this are a flood, not a phone (10 kHz; phones sample ≤ 500 Hz)."""
+
+
+@dataclass(frozen=True)
+class ReadingLimits:
+    """The largest magnitude of any axis each sensor can measure: gyroscope rad/s, accelerometer m/s²,
+    magnetometer µT. The defaults are a phone's (±2000 °/s ≈ 35 rad/s, ±16 g, ±4.9 mT) with a margin;
+    configurable per source."""
+
+    gyr: float = 40.0
+    acc: float = 16.0 * 9.80665 * 1.1
+    mag: float = 5000.0
+
+    def limit(self, kind: SensorKind) -> float:
+        return self.gyr if kind is SensorKind.GYR else self.acc if kind is SensorKind.ACC else self.mag
+
+
+class Verdict(enum.Enum):
+    ACCEPT = "accept"
+    DROP = "drop"
+    RESTART = "restart"  # the stream's clock went back: re-anchored on this reading
+    JUMP = "jump"  # the stream's clock jumped forward: re-anchored on this reading
+
+
+REASONS = ("bad_time", "non_finite", "out_of_range", "future", "past", "duplicate", "burst")
+
+
+@dataclass
+class AdmissionStats:
+    """Readings accepted, dropped by reason (:data:`REASONS`), and the clock's re-anchorings."""
+
+    accepted: int = 0
+    dropped: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REASONS, 0))
+    restarts: int = 0
+    jumps: int = 0
+
+    @property
+    def dropped_total(self) -> int:
+        return sum(self.dropped.values())
+
+
+class PhoneGuard:
+    """The admission policy and clock guard of one phone stream (see the module docstring)."""
+
+    def __init__(self, limits: ReadingLimits | None = None) -> None:
+        self.limits = limits if limits is not None else ReadingLimits()
+        self.stats = AdmissionStats()
+        self.newest = -math.inf  # the stream's newest accepted time stamp (its own clock, s)
+        self.last_reason: str | None = None  # why the last dropped reading was dropped
+        self.anchored_from = -math.inf  # the newest stamp of the clock the last re-anchoring left
+        self._newest_at = -math.inf  # host time (s) the newest reading came
+        self._last: dict[SensorKind, float] = {}
+        self._run_side = 0  # -1: readings in a row before the newest, +1: after it, 0: none
+        self._run_count = 0
+        self._run_first = self._run_last = 0.0
+
+    def admit(self, sample: SensorSample, now: float | None = None) -> Verdict:
+        """The verdict on one reading (readings in time order within a batch, as they arrived); ``now``
+        (s, the host's clock; None: not known) lets a stream that paused resume with stamps as far ahead
+        as the pause was long."""
+        t = sample.t_s
+        reason = self._reason(sample)
+        if reason is not None:
+            return self._drop(reason)
+        newest = self.newest
+        ahead = newest + JUMP_S + (0.0 if now is None else max(now - self._newest_at, 0.0))
+        if newest > -math.inf and (t < newest - JUMP_S or t > ahead):
+            side = -1 if t < newest else 1
+            if self._run_side != side or t < self._run_last:
+                self._run_side, self._run_count, self._run_first = side, 0, t  # (re)start the run
+            self._run_count += 1
+            self._run_last = t
+            if self._run_count >= REANCHOR_READINGS and t - self._run_first >= REANCHOR_SPAN_S:
+                return self._reanchor(sample, Verdict.RESTART if side < 0 else Verdict.JUMP, now)
+            return self._drop("past" if side < 0 else "future")
+        self._run_side = 0
+        last = self._last.get(sample.kind)
+        if last is not None:
+            if t == last:
+                return self._drop("duplicate")
+            if last < t < last + MIN_INTERVAL_S:
+                return self._drop("burst")
+        self._accept(sample, now)
+        return Verdict.ACCEPT
+
+    def _reason(self, sample: SensorSample) -> str | None:
+        """Why the reading cannot be one at all (its own values), or None."""
+        if not math.isfinite(sample.t_s):
+            return "bad_time"
+        limit = self.limits.limit(sample.kind)
+        for v in sample.xyz:
+            if not math.isfinite(v):
+                return "non_finite"
+            if abs(v) > limit:
+                return "out_of_range"
+        return None
+
+    def _drop(self, reason: str) -> Verdict:
+        self.stats.dropped[reason] += 1
+        self.last_reason = reason
+        return Verdict.DROP
+
+    def _accept(self, sample: SensorSample, now: float | None) -> None:
+        self.stats.accepted += 1
+        self._last[sample.kind] = sample.t_s
+        if sample.t_s > self.newest:
+            self.newest = sample.t_s
+            self._newest_at = -math.inf if now is None else now
+
+    def _reanchor(self, sample: SensorSample, verdict: Verdict, now: float | None) -> Verdict:
+        """The stream's clock moved: forget the old one, take this reading as the first of the new."""
+        if verdict is Verdict.RESTART:
+            self.stats.restarts += 1
+        else:
+            self.stats.jumps += 1
+        self.anchored_from = self.newest
+        self.newest = -math.inf
+        self._last.clear()
+        self._run_side = 0
+        self._accept(sample, now)
+        return verdict
+
+    def as_dict(self) -> dict[str, object]:
+        """For ``summary.json``."""
+        s = self.stats
+        return {"accepted": s.accepted, "dropped": dict(s.dropped), "restarts": s.restarts, "jumps": s.jumps}
+
+
+__all__ = ["JUMP_S", "KINDS", "AdmissionStats", "PhoneGuard", "ReadingLimits", "Verdict"]
