@@ -1,7 +1,8 @@
 """``firmware-sim``: the emulated ADK board on a real pseudo-terminal, in real time, until interrupted.
 
 The first line on stdout is the pty's path and nothing else (scripts read it); everything else goes to
-stderr. SIGINT and SIGTERM end it cleanly (the symlink is removed, exit status 0).
+stderr. SIGINT and SIGTERM end it cleanly (the symlink is removed, exit status 0); a bad option is exit
+status 2; with ``--avr``, a harness that dies under it is one error line and exit status 3.
 """
 
 from __future__ import annotations
@@ -49,6 +50,10 @@ Times are seconds since start on the board's clock. Channels: gimbal 0, rotor 0,
 """
 
 _AT = r"(?:@(?P<at>[0-9.eE+-]+))?"
+
+EXIT_HARNESS_DIED = 3
+"""The exit status of ``firmware-sim --avr`` when its ``avr-harness`` ended without being asked to (killed,
+crashed, exited): the board it served is gone (docs/firmware_sim.md, "Lifetimes")."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -349,13 +354,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
     if args.avr is not None:
+        from .avr.harness import HarnessDied
         from .avr.serve import run
 
         try:
             return run(args, board_config(args))
         except HilError as exc:
             print(f"firmware-sim: error: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_HARNESS_DIED if isinstance(exc, HarnessDied) else 2
     from .can_server import CanServer
     from .pty_server import PtyServer
 

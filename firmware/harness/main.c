@@ -5,6 +5,11 @@
  * the answers to the commands read on stdin (control.c). Everything else, simavr's own chatter
  * included, goes to stderr. SIGINT/SIGTERM stop it cleanly (EEPROM saved, symlink removed, status 0);
  * a firmware that crashes the simulated core ends it with status 3.
+ *
+ * The process that starts it ties the harness's life to its own through stdin (--control or
+ * --lifeline): a pipe whose write end only that process holds. The kernel closes that end however the
+ * process dies, SIGKILL included, so end of file on stdin stops the harness as cleanly as SIGTERM: a
+ * board nobody can reach any more must not keep serving its pty behind a stale symlink.
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -55,7 +60,9 @@ static const char USAGE[] =
     "  --hang-at T          pull the watchdog self-test pin low at T s (repeatable)\n"
     "  --corrupt P --drop P per-byte link damage / loss probabilities, both ways\n"
     "  --seed N             seed of the link noise\n"
-    "  --control            read commands on stdin, answer on stdout (see control.c)\n"
+    "  --control            read commands on stdin, answer on stdout (see control.c); stop at its end\n"
+    "  --lifeline           stop (as on SIGTERM) when stdin reaches its end: the parent holds the\n"
+    "                       other end of a pipe, so the harness ends however the parent dies\n"
     "\n"
     "examples:\n"
     "  avr-harness build/vscmg-adk.elf                       serve the board on a pty, real time\n"
@@ -210,7 +217,7 @@ static double wall_seconds(void)
  * catch up: that would squeeze seconds of board time into milliseconds of wall time in which no host
  * byte can arrive, and trip the link watchdog for nothing. Instead the board's clock falls behind. */
 #define MAX_LAG_S 0.02
-static void pace(harness_t *h, double *wall0, double sim_s, int control)
+static void pace(harness_t *h, double *wall0, double sim_s, int watch_stdin)
 {
     double ahead = sim_s - (wall_seconds() - *wall0);
     if (ahead < -MAX_LAG_S) {
@@ -222,7 +229,21 @@ static void pace(harness_t *h, double *wall0, double sim_s, int control)
         return;
     struct pollfd fds[2] = {{.fd = h->master, .events = POLLIN}, {.fd = STDIN_FILENO, .events = POLLIN}};
     struct timespec ts = {.tv_sec = (time_t)ahead, .tv_nsec = (long)((ahead - floor(ahead)) * 1e9)};
-    ppoll(fds, control ? 2 : 1, &ts, NULL);
+    ppoll(fds, watch_stdin ? 2 : 1, &ts, NULL);
+}
+
+/* --lifeline: whether stdin (non-blocking) has reached its end, the parent's end of the pipe closed.
+ * Whatever is written on it is read and ignored; a read error counts as the end too. */
+static int lifeline_cut(void)
+{
+    for (;;) {
+        char buf[256];
+        ssize_t n = read(STDIN_FILENO, buf, sizeof buf);
+        if (n == 0)
+            return 1;
+        if (n < 0)
+            return !(errno == EAGAIN || errno == EINTR);
+    }
 }
 
 int main(int argc, char **argv)
@@ -243,6 +264,7 @@ int main(int argc, char **argv)
         {"drop", required_argument, 0, 'p'},
         {"seed", required_argument, 0, 'S'},
         {"control", no_argument, 0, 'C'},
+        {"lifeline", no_argument, 0, 'L'},
         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
@@ -259,9 +281,16 @@ int main(int argc, char **argv)
     h->bod_release_v = 4.5;
     h->electronics_a = 0.15;
     h->rng = 0x9E3779B97F4A7C15ULL;
-    int paced = 1, control = 0;
+    int paced = 1, control = 0, lifeline = 0;
     double duration = INFINITY;
     const char *link = NULL, *record = NULL, *eeprom = NULL;
+
+    /* A stop asked for at any time, even before the pty exists, is a clean stop: once the pty path is
+     * out, whoever read it may signal us at once, and must find the handler in place. */
+    struct sigaction sa = {.sa_handler = on_signal};
+    sigaction(SIGINT, &sa, NULL);
+    sigaction(SIGTERM, &sa, NULL);
+    signal(SIGPIPE, SIG_IGN);
 
     /* Our stdout is the pty path and command answers only: keep a private copy of it and send the
      * library's prints (fd 1) to stderr. */
@@ -321,6 +350,9 @@ int main(int argc, char **argv)
         case 'C':
             control = 1;
             break;
+        case 'L':
+            lifeline = 1;
+            break;
         case 'h':
             fputs(USAGE, stderr);
             return 0;
@@ -377,13 +409,8 @@ int main(int argc, char **argv)
     record_line(h, "R 0 %d\n", CAUSE_POWER_ON);
     if (bridge_open(h, link) < 0)
         return 2;
-    if (control)
+    if (control || lifeline)
         fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
-
-    struct sigaction sa = {.sa_handler = on_signal};
-    sigaction(SIGINT, &sa, NULL);
-    sigaction(SIGTERM, &sa, NULL);
-    signal(SIGPIPE, SIG_IGN);
 
     const uint64_t slice = (uint64_t)(h->freq * SLICE_S);
     const uint64_t flush_every = (uint64_t)(h->freq * FLUSH_S);
@@ -423,8 +450,12 @@ int main(int argc, char **argv)
             record_flush(h);
         if (control && control_service(h, out))
             break;
+        if (!control && lifeline && lifeline_cut()) {
+            fprintf(stderr, "avr-harness: stdin closed (the process that started it is gone): stopping\n");
+            break;
+        }
         if (paced)
-            pace(h, &wall0, harness_seconds(h), control);
+            pace(h, &wall0, harness_seconds(h), control || lifeline);
     }
 done:
     record_flush(h);

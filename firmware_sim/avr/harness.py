@@ -12,11 +12,13 @@ Times are the harness's: CPU cycles / 16 MHz since power-on, running on through 
 from __future__ import annotations
 
 import contextlib
+import os
 import queue
+import signal
 import subprocess
 import tempfile
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -58,11 +60,13 @@ class HarnessOptions:
     extra_args: tuple[str, ...] = ()
 
     def arguments(self, eeprom_path: Path, record_path: Path | None, control: bool) -> list[str]:
+        """The harness's command line. Its stdin is always its lifeline (``--control``: the commands'
+        pipe; else ``--lifeline``): the caller must give it a pipe that only the caller holds, so the
+        harness stops when the caller dies, however it dies."""
         args = [str(HARNESS), "--eeprom", str(eeprom_path), "--battery", repr(self.battery_v)]
         if record_path is not None:
             args += ["--record", str(record_path)]
-        if control:
-            args.append("--control")
+        args.append("--control" if control else "--lifeline")
         if not self.paced:
             args.append("--unpaced")
         if self.link:
@@ -341,34 +345,99 @@ def _symbols(elf: Path) -> dict[str, int]:
     return symbols
 
 
+class HarnessDied(LinkError):
+    """The harness ended without being asked to (killed, crashed, exited): the board it served is gone.
+    ``pid`` was its process id, ``returncode`` its ``Popen.returncode`` (negative: the signal)."""
+
+    def __init__(self, pid: int, returncode: int, pty: str) -> None:
+        where = f"the board on {pty} is gone" if pty else "before it served a pty"
+        super().__init__(f"avr-harness (pid {pid}) {_ending(returncode)}: {where}")
+        self.pid, self.returncode = pid, returncode
+
+
 def spawn_interactive(options: HarnessOptions, config: BoardConfig, out: IO[str] | Any) -> int:
     """Run the harness in the foreground for ``firmware-sim --avr``: print its pty path on ``out``, serve
-    until it stops (or SIGINT/SIGTERM), return its exit status."""
-    import signal
+    until it stops, and return its exit status.
 
+    SIGINT/SIGTERM (and ``--duration``) stop it cleanly: the harness removes its symlink and saves the
+    EEPROM, status 0; it refusing its options at start-up is status 2 (it said why on stderr). Should it
+    end any other way, the symlink it can no longer remove is removed if it still points at its pty (a
+    later pty may get the same number) and :class:`HarnessDied` says how it ended. The other way round, the
+    harness's stdin is a pipe only this process holds (``--lifeline``): however this process dies, the
+    kernel closes it and the harness stops by itself (docs/firmware_sim.md, "Lifetimes")."""
     eeprom.check_hardware(config)
     ensure_built()
-    with tempfile.TemporaryDirectory(prefix="avr-board-") as work:
-        path = options.eeprom_file or Path(work) / "eeprom.bin"
-        if options.eeprom_file is None or not path.exists():
-            path.write_bytes(eeprom.EepromImage(config).to_bytes())
+    with _eeprom_for(options, config) as (path, fds):
         proc = subprocess.Popen(
-            options.arguments(path, None, control=False), stdout=subprocess.PIPE, text=True
+            options.arguments(path, None, control=False),
+            stdin=subprocess.PIPE,  # the lifeline: never written, closed when this process ends
+            stdout=subprocess.PIPE,
+            text=True,
+            pass_fds=fds,
         )
-        assert proc.stdout is not None
+        assert proc.stdout is not None and proc.stdin is not None
+        stopping = False
 
         def forward(signum: int, frame: object) -> None:
+            nonlocal stopping
+            stopping = True
             proc.terminate()
 
         old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
-            first = proc.stdout.readline()
-            if first:
-                print(first.strip(), file=out, flush=True)
-            return proc.wait()
+            pty = proc.stdout.readline().strip()
+            if pty:
+                print(pty, file=out, flush=True)
+            code = proc.wait()
         finally:
             for s, handler in old.items():
                 signal.signal(s, handler)
             if proc.poll() is None:
                 proc.terminate()
                 proc.wait()
+            proc.stdout.close()
+            proc.stdin.close()
+    if code != 0 and pty and options.link:
+        _remove_link(options.link, pty)  # it did not stop cleanly: the link is still there
+    if code == 0 and (stopping or options.duration_s is not None):
+        return 0
+    if stopping and code == -signal.SIGTERM:
+        return 0  # ended by the signal that was forwarded to it: what was asked
+    if not pty and code == 2:
+        return 2  # it refused an option or a file and said why on stderr (firmware-sim's status too)
+    raise HarnessDied(proc.pid, code, pty)
+
+
+@contextlib.contextmanager
+def _eeprom_for(options: HarnessOptions, config: BoardConfig) -> Iterator[tuple[Path, tuple[int, ...]]]:
+    """The harness's ``--eeprom`` argument and the descriptors it needs passed.
+
+    ``--eeprom FILE``: that file (the image written first if there is none). Otherwise an anonymous
+    temporary file, handed over as ``/dev/fd/N``: it has no name, so nothing is left behind however this
+    process or the harness ends, SIGKILL included (a temporary directory outlived a killed firmware-sim)."""
+    if options.eeprom_file is not None:
+        if not options.eeprom_file.exists():
+            options.eeprom_file.write_bytes(eeprom.EepromImage(config).to_bytes())
+        yield options.eeprom_file, ()
+        return
+    with tempfile.TemporaryFile() as image:
+        image.write(eeprom.EepromImage(config).to_bytes())
+        image.flush()
+        yield Path(f"/dev/fd/{image.fileno()}"), (image.fileno(),)
+
+
+def _ending(code: int) -> str:
+    """How a process ended, from its ``Popen.returncode``: "killed by SIGKILL", "exited with status 3"."""
+    if code >= 0:
+        return f"exited with status {code}"
+    try:
+        return f"killed by {signal.Signals(-code).name}"
+    except ValueError:
+        return f"killed by signal {-code}"
+
+
+def _remove_link(link: str, pty: str) -> None:
+    """Remove the symlink ``link`` if it still points at ``pty`` (anything else there is not ours)."""
+    with contextlib.suppress(OSError):
+        if os.readlink(link) == pty:
+            os.unlink(link)
