@@ -103,3 +103,21 @@ class BoardReset(LinkError):
 
 class TransportError(LinkError):
     """A transport URL that cannot be resolved or opened."""
+
+
+class PortBusy(TransportError):
+    """A serial port that another process holds exclusively: another host is talking to that board.
+
+    Every host locks its port (``flock``), so a second host cannot handshake with a board under the first
+    one (the handshake would disarm it). ``holder_pid`` and ``holder_cmdline`` name the process that holds
+    it, when it can be found (else None): that is what the user has to stop."""
+
+    def __init__(self, port: str, holder_pid: int | None = None, holder_cmdline: str | None = None) -> None:
+        if holder_pid is None:
+            holder = "another process"
+        else:
+            holder = f"pid {holder_pid}" + (f" ({holder_cmdline})" if holder_cmdline else "")
+        super().__init__(f"{port}: port busy: held by {holder} (another host is using this board)")
+        self.port = port
+        self.holder_pid = holder_pid
+        self.holder_cmdline = holder_cmdline

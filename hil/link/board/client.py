@@ -25,16 +25,21 @@ handshakes again and reports :class:`ConnectedEvent` (it re-arms only if ``rearm
 A reconnect that reaches another board (another identity or unit count: a pty name reused by another
 process after the board's was killed, a board swapped on the port) or an incompatible one is refused —
 never commanded — and counted (``boards_refused``); the client closes the port and keeps looking for its
-own board within the give-up bound. What is raised: :class:`HandshakeError` (an incompatible board at
-connect), :class:`LinkTimeout` (no board answered the first handshake), :class:`LinkError` (reconnection
-given up — its message carries the last refusal — or the client is closed), :class:`CommandFailed` (a
-command NACKed or never answered), :class:`BoardReset` (a setpoint after the armed board reset; see
+own board within the give-up bound. A port found busy on reconnection (:class:`PortBusy`: another host
+holds its lock, so the path now leads to a board someone else drives — a reused pty number again, with
+a board whose identity may match ours) is refused the same way before a byte is sent: counted in
+``boards_refused``, logged once per run of refusals, retried. What is raised: :class:`HandshakeError`
+(an incompatible board at connect), :class:`PortBusy` (another host holds the port at connect),
+:class:`LinkTimeout` (no board answered the first handshake), :class:`LinkError` (reconnection given
+up — its message carries the last refusal — or the client is closed), :class:`CommandFailed` (a command
+NACKed or never answered), :class:`BoardReset` (a setpoint after the armed board reset; see
 :mod:`hil.link.board.session`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import threading
 from collections import deque
@@ -45,7 +50,7 @@ from typing import Any
 from hil.link.transports import InProcessBoard, Transport, create_transport
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from protocol.calibration import UnitCalibration
-from protocol.errors import ConfigError, HandshakeError, HilError, LinkError, LinkTimeout
+from protocol.errors import ConfigError, HandshakeError, HilError, LinkError, LinkTimeout, PortBusy
 from protocol.messages import (
     ActuatorSetpoint,
     Arm,
@@ -62,6 +67,8 @@ from .config import ClientConfig
 from .events import BoardInfo, Event
 from .session import Phase, Session
 from .stats import LinkStats
+
+logger = logging.getLogger(__name__)
 
 _MIN_STEP_S = 1e-6  # a lockstep wait always moves the clock at least this far
 
@@ -110,6 +117,7 @@ class BoardClient:
         self._attempts = 0
         self._lost_at: float | None = None
         self._last_error = ""
+        self._busy_logged = False  # the current run of "port busy" refusals was logged
         self._write_failure: LinkError | None = None  # a write failed in the caller's thread
 
     # ================================================================== session
@@ -461,7 +469,7 @@ class BoardClient:
         if s.phase is Phase.DOWN and s.failure is not None and not self._connected:
             raise s.failure  # the first handshake went unanswered
         if s.phase is Phase.READY:
-            self._lost_at, self._attempts = None, 0
+            self._lost_at, self._attempts, self._busy_logged = None, 0, False
             return
         if s.phase is Phase.DOWN and self.transport.is_open and self._connected:
             self._lose_link(now, s.failure or LinkError("session lost"))  # the board stopped answering
@@ -477,10 +485,21 @@ class BoardClient:
         self._attempts += 1
         try:
             self.transport.open()
+        except PortBusy as exc:
+            # Another host holds the port: whatever board is behind it is not ours to command (our own
+            # board would be held by nobody). Not fatal: the holder may let go, the path may be ours again.
+            s.counters.boards_refused += 1
+            if not self._busy_logged:
+                self._busy_logged = True
+                logger.warning("reconnection refused, not our board: %s; still looking", exc)
+            self._last_error = str(exc)
+            self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
+            return
         except LinkError as exc:
             self._last_error = str(exc)
             self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
             return
+        self._busy_logged = False
         self._reconnect_at = None
         self._write(s.link_up(now), now)
 

@@ -55,7 +55,8 @@ class SessionCounters:
     link_losses: int = 0
     reconnects: int = 0
     resets: int = 0  # board resets detected
-    boards_refused: int = 0  # reconnects that reached another or an incompatible board (never commanded)
+    # reconnects that reached another or an incompatible board, or a port another host holds (never commanded)
+    boards_refused: int = 0
     silences: int = 0
     events_dropped: int = 0  # the event queue was full (nobody drained it)
     unknown_board_states: int = 0  # a Heartbeat.state that is no BoardState

@@ -4,15 +4,26 @@
 Pty pitfalls handled (see pyserial): reads always have a deadline; DTR/RTS are not touched on a pty;
 a far side that closes makes ``read()`` raise "device reports readiness to read but returned no
 data" or EIO — both become :class:`LinkError` so the board client can reconnect.
+
+Every port is opened exclusively (pyserial's ``exclusive=True``: ``flock(LOCK_EX | LOCK_NB)`` on the
+device, for device paths and the URL handlers that open one, ``spy://`` and ``hwgrep://``; the socket and
+loop handlers ignore it). Two hosts on one board would each handshake, and a handshake leaves the board
+DISARMED under the other host; the lock refuses the second host instead, as :class:`PortBusy` naming the
+process that holds the port. ``firmware-sim`` keeps the pty's slave open without a lock, so it never
+stands in the host's way.
 """
 
 from __future__ import annotations
 
+import errno
+import os
+
 import serial
 
-from protocol.errors import LinkError, TransportError
+from protocol.errors import LinkError, PortBusy, TransportError
 
 from .base import Transport
+from .port_holder import find_holder
 
 DEFAULT_BAUDRATE = 115200
 
@@ -29,16 +40,33 @@ class SerialTransport(Transport):
         self._port: serial.SerialBase | None = None
 
     def _open_impl(self) -> None:
+        port: serial.SerialBase | None = None
         try:
-            self._port = serial.serial_for_url(
-                self.url, baudrate=self.baudrate, timeout=0.05, write_timeout=2.0
+            port = serial.serial_for_url(
+                self.url,
+                baudrate=self.baudrate,
+                timeout=0.05,
+                write_timeout=2.0,
+                exclusive=True,
+                do_not_open=True,  # so a refused lock still tells which device it was (port.port)
             )
+            port.open()
+            self._port = port
         except serial.SerialException as exc:
+            if exc.errno == errno.EWOULDBLOCK and port is not None and port.port:
+                raise self._busy(str(port.port)) from exc
             raise TransportError(f"{self.url}: {exc}") from exc
         except (ValueError, KeyError) as exc:
             # pyserial's URL handlers raise ValueError for bad options; loop:// raises KeyError
             # (a format-string bug in its own error message), so both mean "bad URL options".
             raise TransportError(f"{self.url}: bad URL or options ({exc!r})") from exc
+
+    def _busy(self, device: str) -> PortBusy:
+        """The refusal of a port another process has locked, naming that process when it can be found."""
+        real = os.path.realpath(device)
+        where = self.url if real == self.url else f"{self.url} ({real})"
+        holder = find_holder(real)
+        return PortBusy(where) if holder is None else PortBusy(where, *holder)
 
     def _read(self, timeout: float | None) -> bytes:
         port = self._port
