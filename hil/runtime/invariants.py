@@ -1,0 +1,461 @@
+"""Invariants checked on what a faulted run recorded (Jepsen's way: a checker over the recorded history,
+not over what the code meant to do): its events, its rows, its summary and the board's own pulse record
+(:class:`hil.runtime.record.RunRecorder`), against the faults injected into it (:class:`InjectedFault`).
+
+==========================  ==========================================================================
+invariant                   holds when
+==========================  ==========================================================================
+``no_crash_or_hang``        the run ended by itself (no exception) within its time limit, measured in
+                            simulated time
+``faults_detected``         every injected fault the host could see is reported with its cause within
+                            its bound (:data:`EXPECTED`): in the fault journal, the events, the counters
+``no_stale_as_live``        no row shows a board value without a live board, or telemetry older than
+                            the stale bound as live; the host does not steer on a phone older than it
+``safe_when_not_armed``     no pulse frame the board started drove a rotor above its safe width while
+                            the board was not ARMED (the board's own pulse record)
+``honest_exit``             the exit says what happened: ``completed`` only for a run that completed;
+                            a lost board, an operator's abort or Disarm said as such; every operator
+                            command in the summary; an unmet requirement says why
+``back_in_control``         after a recoverable fault the host is back in control within its bound,
+                            re-armed only through the handshake, with the rotors at nominal speed
+                            when it steers again; the requirement met, or missed for a reason the
+                            record holds
+==========================  ==========================================================================
+
+A fault the host *cannot* see is not expected to be reported: one that lands while the link is already
+down (masked by another), one too short to matter (a stall shorter than the stale bound), or one too close
+to the run's end for its bound to pass. Figures come back too: each detected fault's latency and each
+recovery's time (fault → the host back in control), for a campaign's percentiles.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hil.runtime.faults import BoardLink
+from hil.runtime.record import RunRecorder
+
+INVARIANTS = (
+    "no_crash_or_hang",
+    "faults_detected",
+    "no_stale_as_live",
+    "safe_when_not_armed",
+    "honest_exit",
+    "back_in_control",
+)
+BOARD_KINDS = ("stall", "hang", "brownout", "unplug", "noise", "dead_esc")
+PHONE_KINDS = ("phone_gap", "phone_jump", "phone_spoof")
+OPERATOR_KINDS = ("disarm", "arm", "abort", "slew", "hold")
+FAULT_KINDS = BOARD_KINDS + PHONE_KINDS + OPERATOR_KINDS
+"""Every kind of fault a run can be given (:mod:`hil.montecarlo.fault_plan` draws them)."""
+
+SPOOF_REASONS = {
+    "huge": "out_of_range",
+    "nan": "non_finite",
+    "saturated": "out_of_range",
+    "future": "future",
+    "past": "past",
+    "burst": "burst",
+    "duplicate": "duplicate",
+}
+"""The admission reason each hostile reading of ``firmware-sim --phone-spoof KIND`` is dropped for."""
+RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, boot, handshake)
+DEAD_ESC_S = 25.0  # a dead rotor ESC → the board's report: its rotor has to coast below 5 % of its command
+DROP_NOTE_S = 0.1  # the host notes a reason's dropped readings at most this often (hil.runtime.host)
+REARM_S = 0.6  # a reconnect → the re-arm (the first try, or after a refusal while the board boots)
+SPUN_UP = 0.05  # rotors within this fraction of nominal when the host steers again (hil.runtime.host)
+
+
+@dataclass(frozen=True)
+class InjectedFault:
+    """One fault given to a run: ``kind`` (:data:`FAULT_KINDS`) at ``t`` (s, the run's clock: the board's
+    in lockstep), with its ``params`` (``duration_s``, ``offset_s``, ``corrupt``, ``channel``, ``spoof``,
+    ``target_deg``, ...)."""
+
+    kind: str
+    t: float
+    params: Mapping[str, Any] = field(default_factory=dict)
+
+    def describe(self) -> str:
+        extra = "".join(f" {k}={_short(v)}" for k, v in self.params.items())
+        return f"{self.kind}@{self.t:.3f}{extra}"
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """The bounds the checks hold a run to (s): the stale bound, the control tick, the board's telemetry
+    and the phone's slowest sample period, the longest reconnection back-off, the outage bound
+    (``recover_within_s``), the run's time limit (clock time, from its start), and the rotors' nominal
+    speed (rad/s)."""
+
+    stale_after_s: float
+    tick_s: float
+    telemetry_s: float
+    phone_period_s: float
+    reconnect_max_s: float
+    recover_within_s: float
+    time_limit_s: float
+    nominal_rotor: float
+
+    @property
+    def detect_s(self) -> float:
+        """Fault → a stale view or a phone gap reported: the stale bound from the last sign of life (up to
+        a telemetry period or phone sample before the fault), then the next control tick, and one more."""
+        return self.stale_after_s + 2 * self.tick_s + max(self.telemetry_s, self.phone_period_s) + 1e-6
+
+
+@dataclass
+class InvariantReport:
+    """Violations by invariant (a message each; an empty list: it held), and the figures: ``detection``
+    and ``recovery`` as (kind, seconds)."""
+
+    violations: dict[str, list[str]] = field(default_factory=lambda: {name: [] for name in INVARIANTS})
+    detection: list[tuple[str, float]] = field(default_factory=list)
+    recovery: list[tuple[str, float]] = field(default_factory=list)
+    unseen: list[str] = field(default_factory=list)  # faults the host could not see (masked, too late)
+
+    def add(self, name: str, message: str) -> None:
+        self.violations[name].append(message)
+
+    @property
+    def counts(self) -> dict[str, int]:
+        return {name: len(v) for name, v in self.violations.items()}
+
+    @property
+    def ok(self) -> bool:
+        return not any(self.violations.values())
+
+    def first(self) -> str:
+        """The first violation, "invariant: message" ("" when none)."""
+        for name, messages in self.violations.items():
+            if messages:
+                return f"{name}: {messages[0]}"
+        return ""
+
+
+def check_run(
+    faults: Sequence[InjectedFault], record: RunRecorder, bounds: Bounds, error: str | None = None
+) -> InvariantReport:
+    """Every invariant of the module docstring on one run; ``error`` is the exception the run raised, if
+    it did."""
+    report = InvariantReport()
+    summary = record.summary
+    _crash_or_hang(report, summary, bounds, error)
+    if not summary or not record.events:
+        return report
+    rows = record.rows()
+    end = float(rows["t"][-1]) if len(rows["t"]) else 0.0
+    _stale(report, rows, bounds)
+    _pulses(report, record)
+    _detected(report, faults, record, rows, bounds, end)
+    _honest(report, faults, summary, record, end)
+    _back(report, faults, summary, record, rows, bounds, end)
+    return report
+
+
+# --------------------------------------------------------------------------- no crash, no hang
+def _crash_or_hang(
+    report: InvariantReport, summary: Mapping[str, Any], bounds: Bounds, error: str | None
+) -> None:
+    if error is not None:
+        report.add("no_crash_or_hang", f"the run raised {error}")
+    exit_reason = str(summary.get("exit", ""))
+    if exit_reason.startswith("error:"):
+        report.add("no_crash_or_hang", f"the run ended in an error: {exit_reason}")
+    sim_s = summary.get("sim_s")
+    limit = bounds.time_limit_s + float(summary.get("suspended_s") or 0.0)
+    if sim_s is not None and sim_s > limit + 1.0:
+        report.add(
+            "no_crash_or_hang", f"the run took {sim_s:.1f} s of simulated time, its limit {limit:.1f} s"
+        )
+    if not summary:
+        report.add("no_crash_or_hang", "the run left no summary")
+
+
+# --------------------------------------------------------------------------- stale shown as live
+def _stale(report: InvariantReport, rows: Mapping[str, np.ndarray], bounds: Bounds) -> None:
+    link, age, values = rows["board_link"], rows["tel_age_ms"], rows["board_values"]
+    t = rows["t"]
+    blind = (link != BoardLink.LIVE) & values
+    if blind.any():
+        k = int(np.argmax(blind))
+        report.add(
+            "no_stale_as_live",
+            f"row at t={t[k]:.3f} s: board values without a live board ({blind.sum()} rows)",
+        )
+    old = (link == BoardLink.LIVE) & ~(age <= bounds.stale_after_s * 1e3 + 1e-6)
+    if old.any():
+        k = int(np.argmax(old))
+        report.add("no_stale_as_live", f"row at t={t[k]:.3f} s: live with telemetry {age[k]:.0f} ms old")
+    phone_age, phase = rows["phone_age_ms"], rows["phase"]
+    steering = (phase == 1) | (phase == 2)  # slew or hold: the host commands the board
+    stale_phone = steering & (phone_age > (bounds.stale_after_s + bounds.tick_s) * 1e3 + 1e-6)
+    if stale_phone.any():
+        k = int(np.argmax(stale_phone))
+        report.add(
+            "no_stale_as_live", f"row at t={t[k]:.3f} s: steering on a phone {phone_age[k]:.0f} ms old"
+        )
+
+
+# --------------------------------------------------------------------------- safe pulses
+def _pulses(report: InvariantReport, record: RunRecorder) -> None:
+    if not record.pulses_recorded:
+        return
+    if record.unsafe_frames:
+        report.add(
+            "safe_when_not_armed",
+            f"{record.unsafe_frames} frames drove a rotor above the safe pulse while not ARMED; "
+            + "; ".join(record.unsafe_examples),
+        )
+    if record.frames_missed:
+        report.add(
+            "safe_when_not_armed", f"{record.frames_missed} pulse frames were not checked (record overrun)"
+        )
+
+
+# --------------------------------------------------------------------------- detection
+@dataclass(frozen=True)
+class _Expect:
+    """What reports a fault: journal kinds (any of them) and a reset cause, within ``bound`` s."""
+
+    kinds: tuple[str, ...]
+    bound: float
+    cause: str | None = None
+    reason: str | None = None
+
+
+def _expectations(fault: InjectedFault, b: Bounds) -> list[_Expect]:
+    """What must report ``fault`` (empty: a fault the host is not expected to see)."""
+    p = fault.params
+    kind = fault.kind
+    if kind == "stall":
+        if p["duration_s"] < b.stale_after_s + b.telemetry_s + 2 * b.tick_s:
+            return []  # shorter than the stale bound: the link carries again before anything is due
+        return [_Expect(("stale", "failsafe", "link_lost"), b.detect_s)]
+    if kind == "hang":
+        return [_Expect(("stale",), b.detect_s), _Expect(("reset",), RESET_S, cause="WATCHDOG")]
+    if kind == "brownout":
+        return [_Expect(("reset",), RESET_S, cause="BROWN_OUT")]
+    if kind == "unplug":
+        return [
+            _Expect(("link_lost",), 2 * b.tick_s + 1e-6),
+            _Expect(("reset",), p["duration_s"] + b.reconnect_max_s + RESET_S, cause="POWER_ON"),
+        ]
+    if kind == "dead_esc":
+        return [_Expect(("esc_dead",), DEAD_ESC_S)]
+    if kind == "phone_gap":
+        if p["duration_s"] < b.stale_after_s + b.phone_period_s + 2 * b.tick_s:
+            return []
+        return [_Expect(("phone_gap",), b.detect_s)]
+    if kind == "phone_jump":
+        offset = p["offset_s"]
+        if offset <= -1.0:
+            return [_Expect(("phone_restart",), 0.2)]
+        if offset >= 1.0:
+            return [_Expect(("phone_jump",), 0.2)]
+        return []
+    if kind == "phone_spoof":
+        reason = SPOOF_REASONS[p["spoof"]]
+        if reason == "duplicate":
+            return []  # the merger's business (counted), not a fault of its own
+        return [_Expect(("readings_dropped",), 2 * b.tick_s + DROP_NOTE_S, reason=reason)]
+    return []
+
+
+def _detected(
+    report: InvariantReport,
+    faults: Sequence[InjectedFault],
+    record: RunRecorder,
+    rows: Mapping[str, np.ndarray],
+    bounds: Bounds,
+    end: float,
+) -> None:
+    journal = record.summary.get("faults", [])
+    for fault in faults:
+        if fault.kind in OPERATOR_KINDS:
+            continue
+        expected = _expectations(fault, bounds)
+        if not expected:
+            continue
+        if _masked(fault, rows, bounds):
+            report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
+            continue
+        for e in expected:
+            if fault.t + e.bound > end:
+                report.unseen.append(f"{fault.describe()} (too close to the end for its {e.bound:.2f} s)")
+                continue
+            lo = fault.t - (DROP_NOTE_S if e.reason else 1e-9)
+            found = next(
+                (
+                    f
+                    for f in journal
+                    if f["kind"] in e.kinds
+                    and lo <= f["t"] <= fault.t + e.bound
+                    and (e.cause is None or f.get("cause") == e.cause)
+                    and (e.reason is None or f.get("reason") == e.reason)
+                ),
+                None,
+            )
+            if found is None:
+                what = (
+                    "/".join(e.kinds)
+                    + (f" {e.cause}" if e.cause else "")
+                    + (f" ({e.reason})" if e.reason else "")
+                )
+                report.add(
+                    "faults_detected", f"{fault.describe()}: no {what} reported within {e.bound:.2f} s"
+                )
+            else:
+                report.detection.append((fault.kind, max(found["t"] - fault.t, 0.0)))
+    noise = [f for f in faults if f.kind == "noise" and f.params["corrupt"] * f.params["duration_s"] >= 0.01]
+    link = record.summary.get("link") or {}
+    if noise and not (sum((link.get("bad_frames") or {}).values()) + (link.get("board_rx_bad") or 0)):
+        report.add("faults_detected", f"{noise[0].describe()}: no damaged frame counted by either side")
+
+
+def _masked(fault: InjectedFault, rows: Mapping[str, np.ndarray], bounds: Bounds) -> bool:
+    """Whether the host could not see the board (or the phone) when ``fault`` came: the link already down
+    or the view already stale (another fault), the board not yet connected, the phone not yet streaming."""
+    t = rows["t"]
+    k = int(np.searchsorted(t, fault.t)) - 1
+    if k < 0:
+        return True  # before the first row: the host was still connecting
+    if fault.kind.startswith("phone"):
+        age = rows["phone_age_ms"][k]
+        return bool(np.isnan(age) or age > bounds.stale_after_s * 1e3)
+    return bool(rows["board_link"][k] != BoardLink.LIVE)
+
+
+# --------------------------------------------------------------------------- an honest exit
+def _honest(
+    report: InvariantReport,
+    faults: Sequence[InjectedFault],
+    summary: Mapping[str, Any],
+    record: RunRecorder,
+    end: float,
+) -> None:
+    exit_reason = str(summary.get("exit", ""))
+    ops = summary.get("operator") or []
+    sent = [o for o in ops if o["status"] not in ("refused",)]
+    if exit_reason == "completed":
+        if summary.get("lost"):
+            report.add("honest_exit", f"completed, yet lost: {summary['lost']}")
+        if summary.get("suspended_at_end") is not None:
+            report.add("honest_exit", "completed, yet the operator's Disarm was in force at the end")
+        if not summary.get("slew_started"):
+            report.add("honest_exit", "completed, yet the slew never started")
+        if any(o["command"] == "abort" for o in sent):
+            report.add("honest_exit", "completed, yet the operator aborted the run")
+    if summary.get("lost") and not exit_reason.startswith(("lost:", "aborted:", "error:")):
+        report.add("honest_exit", f"the board was lost ({summary['lost']}) but the exit says {exit_reason!r}")
+    if summary.get("suspended_at_end") is not None and not exit_reason.startswith(
+        ("disarmed by the operator", "lost:", "aborted:", "error:")
+    ):
+        report.add("honest_exit", f"disarmed by the operator at the end, yet the exit says {exit_reason!r}")
+    injected = [f for f in faults if f.kind in OPERATOR_KINDS and f.t <= end]
+    logged = sum(1 for o in ops if o.get("origin") == "campaign")
+    if logged < len(injected):
+        report.add("honest_exit", f"{len(injected)} operator commands sent, {logged} in the summary")
+    requirement = summary.get("requirement") or {}
+    if summary.get("slew_started") and not requirement.get("met") and not requirement.get("why"):
+        report.add("honest_exit", "the requirement was not met and the summary does not say why")
+
+
+# --------------------------------------------------------------------------- back in control
+def _back(
+    report: InvariantReport,
+    faults: Sequence[InjectedFault],
+    summary: Mapping[str, Any],
+    record: RunRecorder,
+    rows: Mapping[str, np.ndarray],
+    bounds: Bounds,
+    end: float,
+) -> None:
+    for o in summary.get("outages") or []:
+        if o["recovered"]:
+            report.recovery.append(("+".join(o["causes"]), o["duration_s"]))
+        elif o["start"] + bounds.recover_within_s < end - bounds.tick_s:
+            report.add(
+                "back_in_control", f"outage at t={o['start']:.2f} s ({', '.join(o['causes'])}) never ended"
+            )
+    lost = summary.get("lost")
+    if lost and not _unrecoverable(faults, bounds):
+        report.add("back_in_control", f"lost: {lost}")
+    _rearmed_through_handshake(report, record, rows)
+    _spun_up_to_steer(report, record, rows, bounds, faults)
+    requirement = summary.get("requirement") or {}
+    if summary.get("slew_started") and not requirement.get("met") and not requirement.get("explained"):
+        report.add(
+            "back_in_control",
+            f"the requirement was missed with no fault to explain it: {requirement.get('why')}",
+        )
+
+
+def _unrecoverable(faults: Sequence[InjectedFault], bounds: Bounds) -> bool:
+    """Whether a fault was drawn that no host could recover from within the outage bound."""
+    for f in faults:
+        if (
+            f.kind in ("stall", "unplug", "phone_gap")
+            and f.params.get("duration_s", 0.0) >= bounds.recover_within_s - 2.0
+        ):
+            return True
+    return False
+
+
+def _rearmed_through_handshake(
+    report: InvariantReport, record: RunRecorder, rows: Mapping[str, np.ndarray]
+) -> None:
+    """After each reset the host re-armed through the protocol: no live row shows the board ARMED between
+    the reset's report and the host's ``rearmed`` (or the operator's Arm)."""
+    t, link, state = rows["t"], rows["board_link"], rows["board_state"]
+    for reset in (e for e in record.events if e["kind"] == "board_reset"):
+        after = reset["t"]
+        rearm = next(
+            (
+                e["t"]
+                for e in record.events
+                if e["t"] >= after
+                and (e["kind"] == "rearmed" or (e["kind"] == "command" and e.get("command") == "arm"))
+            ),
+            math.inf,
+        )
+        early = (t > after + 1e-9) & (t < rearm - 1e-9) & (link == BoardLink.LIVE) & (state == 2)
+        if early.any():
+            k = int(np.argmax(early))
+            report.add("back_in_control", f"the board armed at t={t[k]:.3f} s, before the host re-armed it")
+
+
+def _spun_up_to_steer(
+    report: InvariantReport,
+    record: RunRecorder,
+    rows: Mapping[str, np.ndarray],
+    bounds: Bounds,
+    faults: Sequence[InjectedFault],
+) -> None:
+    """When the host steers again after a recovery (``resume``) every rotor is at nominal speed (unless
+    an ESC was made to die)."""
+    if any(f.kind == "dead_esc" for f in faults):
+        return
+    t, rotors = rows["t"], rows["rotor_speed"]
+    nominal = bounds.nominal_rotor
+    for e in record.events:
+        if e["kind"] != "resume":
+            continue
+        k = min(int(np.searchsorted(t, e["t"] - 1e-9)), len(t) - 1)
+        speeds = rotors[k]
+        if np.all(np.isnan(speeds)):
+            continue
+        if np.any(~(np.abs(speeds - nominal) <= 1.5 * SPUN_UP * nominal)):
+            report.add(
+                "back_in_control",
+                f"steering again at t={e['t']:.3f} s with rotors at {np.round(speeds, 1).tolist()} rad/s",
+            )
+
+
+def _short(value: Any) -> str:
+    return f"{value:.3g}" if isinstance(value, float) else str(value)
