@@ -9,9 +9,17 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from hil.montecarlo import CampaignReport
 
 ORDER = 20
+
+EXIT_OK = 0
+EXIT_RUNS_FAILED = 1
+"""At least one run in the output directory failed (every run failing included). Status 2 is an error in
+the options or files (the ``hil`` entry point's, for every command), 130 an interrupt."""
 
 EPILOG = """\
 examples:
@@ -28,6 +36,13 @@ examples:
 writes OUT/runs.csv (one row per run: index, status, error, dispersed parameters, metrics; flushed as
 each run finishes), traces.bin (decimated error traces), campaign.json, summary.json and plots/.
 Dispersion files: fixtures/dispersions/ (default.toml documents the format).
+
+exit status:
+  0    every run in OUT finished ok
+  1    at least one run in OUT failed (every run failing included; a resumed campaign counts the
+       failures the directory already held)
+  2    an error in the options or the files (nothing, or nothing more, is run)
+  130  interrupted (Ctrl-C): the finished runs are on disk; the same command finishes the rest
 """
 
 
@@ -95,6 +110,16 @@ class ProgressBar:
         self.stream.flush()
 
 
+def exit_status(report: CampaignReport) -> tuple[int, str]:
+    """The command's exit status for a finished campaign, and why when it is not 0: the one place that
+    decides it (see ``EPILOG``). Counted over every run in the output directory (``report.summary``), so
+    that running the command again on a campaign with failures does not turn it into a success."""
+    summary = report.summary
+    if summary.get("failed", 0):
+        return EXIT_RUNS_FAILED, f"{summary['failed']} of {summary['runs']} runs failed"
+    return EXIT_OK, ""
+
+
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -140,4 +165,7 @@ def run(args: argparse.Namespace) -> int:
         f"\n{report.completed} runs in {report.wall_s:.1f} s on {report.workers} workers "
         f"({report.runs_per_minute:.1f} runs/min); results in {out}"
     )
-    return 0
+    status, why = exit_status(report)
+    if status != EXIT_OK:
+        print(f"hil montecarlo: {why} (exit status {status})", file=sys.stderr)
+    return status
