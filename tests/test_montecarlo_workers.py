@@ -1,4 +1,6 @@
-"""What a campaign tells about its runs (issue 25, finding 6): a campaign with failed runs exits non-zero.
+"""What a campaign tells about its workers and its runs (issue 25, finding 6): a Dask worker lost mid-campaign
+is reported as it happens and counted (its runs still land in runs.csv exactly once), a campaign with failed
+runs exits non-zero, and each run's row reaches runs.csv as that run finishes, not with its chunk.
 
 Real clusters throughout: a LocalCluster of worker processes where a process has to die, in-process threads
 where nothing needs a process. Runs are short (0.5 s warm-up, 1 s after the slew's start, ~0.3 s of CPU
@@ -8,12 +10,15 @@ each), and nothing here waits on a fixed delay, so a busy CPU only makes the tes
 from __future__ import annotations
 
 import csv
+import json
+import os
+import signal
 from pathlib import Path
 
 import pytest
 
 from hil.cli import main as hil_main
-from hil.montecarlo import read_runs
+from hil.montecarlo import Campaign, open_client, parse_dispersions, read_runs, run_campaign
 from hil.montecarlo.store import RUNS
 from hil.scenario import SCENARIO_DIR, load_scenario
 
@@ -57,6 +62,62 @@ def _row_indices(out: Path) -> list[int]:
     """The run index of every row of runs.csv, duplicates kept (read_runs keeps the last of an index)."""
     with open(out / RUNS, newline="") as f:
         return [int(row[0]) for row in list(csv.reader(f))[1:]]
+
+
+def test_a_worker_killed_mid_campaign_is_reported_counted_and_its_runs_land_once(scenario, tmp_path):
+    """SIGKILL to a worker process busy in a chunk, from the first result's callback: the loss reaches
+    ``on_worker_lost`` once (the worker, the chunk it had, that Dask retries it), is counted in the report,
+    in summary.json and in the command's closing line, and every run is in runs.csv exactly once: the
+    killed chunk's runs that had already streamed back are not written again when the retry reruns them."""
+    campaign = Campaign(scenario, parse_dispersions(DISPERSIONS, scenario), runs=8, seed=5, batch=3)
+    out = tmp_path / "mc"
+    killed: list[str] = []
+    losses = []
+    with open_client(workers=2) as client:
+
+        def kill_a_busy_worker(result, done, total):
+            if killed:
+                return
+            processing = client.processing()  # worker -> its tasks (running, and queued on it)
+            busiest = max(processing, key=lambda address: len(processing[address]))
+            assert processing[busiest], "no worker busy after the first result"
+            pid = client.run(os.getpid, workers=[busiest])[busiest]
+            os.kill(pid, signal.SIGKILL)
+            killed.append(busiest)
+
+        report = run_campaign(
+            campaign, out, client, on_result=kill_a_busy_worker, on_worker_lost=losses.append, plots=False
+        )
+    assert [loss.worker for loss in losses] == killed
+    loss = losses[0]
+    assert loss.tasks >= 1 and loss.runs >= 1 and loss.retried == loss.tasks and loss.given_up == 0
+    assert report.workers_lost == 1 and report.losses == losses
+    assert json.loads((out / "summary.json").read_text())["workers_lost"] == 1
+    assert sorted(_row_indices(out)) == list(range(8))  # every run once: none lost, none twice
+    assert read_runs(out).ok.all() and report.completed == 8 and report.failed == 0
+    from hil.cli.montecarlo import closing_line
+
+    assert "on 2 workers, 1 worker lost" in closing_line(report)
+
+
+def test_rows_reach_runs_csv_as_each_run_finishes(scenario, tmp_path):
+    """One chunk of three runs on one worker: when the first and the second result are announced their
+    rows are already in runs.csv, while the chunk is still running on the worker (before, a chunk's rows
+    landed together when the whole chunk had finished)."""
+    campaign = Campaign(scenario, parse_dispersions(DISPERSIONS, scenario), runs=3, seed=2, batch=3)
+    seen: list[tuple[int, int, int]] = []
+    with open_client(workers=1, processes=False) as client:
+
+        def look(result, done, total):
+            rows = _row_indices(tmp_path)
+            running = sum(len(keys) for keys in client.processing().values())
+            assert rows[-1] == result.index
+            seen.append((done, len(rows), running))
+
+        report = run_campaign(campaign, tmp_path, client, on_result=look, plots=False)
+    assert [(done, rows) for done, rows, _ in seen] == [(1, 1), (2, 2), (3, 3)]
+    assert [running for _, _, running in seen[:2]] == [1, 1]  # the chunk still at work on its next run
+    assert report.completed == 3 and sorted(_row_indices(tmp_path)) == [0, 1, 2]
 
 
 def _cli(scenario_file: Path, dispersions: Path, out: Path, scheduler: str, runs: int) -> int:
