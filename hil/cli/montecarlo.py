@@ -9,9 +9,17 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:
+    from hil.montecarlo import CampaignReport
 
 ORDER = 20
+
+EXIT_OK = 0
+EXIT_RUNS_FAILED = 1
+"""At least one run in the output directory failed (every run failing included). Status 2 is an error in
+the options or files (the ``hil`` entry point's, for every command), 130 an interrupt."""
 
 EPILOG = """\
 examples:
@@ -28,6 +36,16 @@ examples:
 writes OUT/runs.csv (one row per run: index, status, error, dispersed parameters, metrics; flushed as
 each run finishes), traces.bin (decimated error traces), campaign.json, summary.json and plots/.
 Dispersion files: fixtures/dispersions/ (default.toml documents the format).
+
+A Dask worker lost mid-campaign (its process died) is reported on stderr as it happens; Dask reruns its
+chunks elsewhere, and the closing line counts the lost workers.
+
+exit status:
+  0    every run in OUT finished ok
+  1    at least one run in OUT failed (every run failing included; a resumed campaign counts the
+       failures the directory already held)
+  2    an error in the options or the files (nothing, or nothing more, is run)
+  130  interrupted (Ctrl-C): the finished runs are on disk; the same command finishes the rest
 """
 
 
@@ -74,6 +92,7 @@ class ProgressBar:
         self.start = time.monotonic()
         self.first: int | None = None
         self.failed = 0
+        self.line = ""  # the bar as last drawn: a note covers it, then draws it again below
 
     def __call__(self, result: Any, done: int, total: int) -> None:
         if self.first is None:
@@ -84,15 +103,48 @@ class ProgressBar:
         rate = (done - self.first) / elapsed * 60.0 if elapsed > 0 else math.nan
         left = (total - done) / rate * 60.0 if rate > 0 else math.nan
         eta = "-" if not math.isfinite(left) else f"{int(left // 60)}m{int(left % 60):02d}s"
-        self.stream.write(
-            f"\r[{'#' * fill}{'.' * (self.width - fill)}] {done}/{total} runs  {self.failed} failed  "
+        line = (
+            f"[{'#' * fill}{'.' * (self.width - fill)}] {done}/{total} runs  {self.failed} failed  "
             f"{rate:6.1f} runs/min  ETA {eta}   "
         )
+        self.stream.write(f"\r{line}")
+        self.line = line
+        self.stream.flush()
+
+    def note(self, line: str) -> None:
+        """A line of its own above the bar (a lost worker), as it happens; the bar goes on below it."""
+        self.stream.write(f"\r{line.ljust(len(self.line))}\n{self.line}")
         self.stream.flush()
 
     def close(self) -> None:
         self.stream.write("\n")
         self.stream.flush()
+
+
+def exit_status(report: CampaignReport) -> tuple[int, str]:
+    """The command's exit status for a finished campaign, and why when it is not 0: the one place that
+    decides it (see ``EPILOG``). Counted over every run in the output directory (``report.summary``), so
+    that running the command again on a campaign with failures does not turn it into a success."""
+    summary = report.summary
+    if summary.get("failed", 0):
+        return EXIT_RUNS_FAILED, f"{summary['failed']} of {summary['runs']} runs failed"
+    return EXIT_OK, ""
+
+
+def closing_line(report: CampaignReport) -> str:
+    """What the session did: runs, time, workers (and those lost), the rate, where the results are."""
+    workers = f"{report.workers} worker{'' if report.workers == 1 else 's'}"
+    lost = report.workers_lost
+    if lost:
+        noun = "worker" if lost == 1 else "workers"
+        if report.workers_joined >= lost:
+            workers += f", {lost} {noun} lost and restarted"
+        else:
+            workers += f", {lost} {noun} lost ({report.workers_joined} restarted)"
+    return (
+        f"{report.completed} runs in {report.wall_s:.1f} s on {workers} "
+        f"({report.runs_per_minute:.1f} runs/min); results in {report.out_dir}"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -128,7 +180,14 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         try:
-            report = run_campaign(campaign, out, client, on_result=bar, plots=not args.no_plots)
+            report = run_campaign(
+                campaign,
+                out,
+                client,
+                on_result=bar,
+                plots=not args.no_plots,
+                on_worker_lost=lambda loss: bar.note(f"hil montecarlo: {loss.describe()}"),
+            )
         finally:
             bar.close()
     if report.skipped:
@@ -136,8 +195,8 @@ def run(args: argparse.Namespace) -> int:
             f"{report.skipped} runs were already in {out}; ran the other {report.completed}", file=sys.stderr
         )
     print(format_table(report.summary))
-    print(
-        f"\n{report.completed} runs in {report.wall_s:.1f} s on {report.workers} workers "
-        f"({report.runs_per_minute:.1f} runs/min); results in {out}"
-    )
-    return 0
+    print(f"\n{closing_line(report)}")
+    status, why = exit_status(report)
+    if status != EXIT_OK:
+        print(f"hil montecarlo: {why} (exit status {status})", file=sys.stderr)
+    return status

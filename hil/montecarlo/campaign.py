@@ -6,32 +6,42 @@ or any running scheduler given by address. Both take the same path: :func:`run_c
 
 The driver draws each run's parameters (:func:`~.dispersions.draw`: a pure function of seed and index),
 skips the runs the output directory already holds, and submits chunks of ``batch`` runs; a worker runs a
-chunk's runs one after another (:func:`~.runner.run_chunk`: a chunk amortises Dask's per-task cost over
-its runs). Finished chunks are
-taken as they complete (``as_completed``) and each run is written to disk at once
-(:class:`~.store.ResultStore`), so Ctrl-C or a crash loses no finished run. A chunk whose worker died
-(Dask retries it elsewhere first) is recorded as failed runs with the error, never dropped.
+chunk's runs one after another (:func:`stream_chunk`: a chunk amortises Dask's per-task cost over its
+runs) and sends each run's result back as it finishes, as an event through the scheduler, so the driver
+writes that run's row then and not when the chunk ends (:class:`~.store.ResultStore`): Ctrl-C or a crash
+loses no finished run. The chunk's return value carries its results again: the driver writes those it has
+not had yet, and a run written once is never written again (a chunk that Dask reruns after losing its
+worker streams its first runs a second time).
+
+The driver also listens to the scheduler's own events: a worker that leaves unexpectedly (its process
+died) is reported as it happens (:class:`WorkerLoss`: which worker, when, the campaign's chunks it had,
+whether Dask retried them) and counted in the report and summary.json. A chunk that Dask gave up on
+(``KilledWorker``) is recorded as failed runs with the error, never dropped.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import os
+import pickle
+import queue
 import time
-from collections.abc import Callable, Iterator, Sequence
+import uuid
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hil.runtime.runlog import write_summary
+from hil.runtime.runlog import SUMMARY, write_summary
 from hil.scenario import Scenario
 from protocol.errors import ConfigError, LinkError
 
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
-from .runner import RunResult, describe, run_chunk
+from .runner import RunResult, describe, run_one
 from .store import ResultStore, manifest, read_runs
 from .summary import summarise
 
@@ -39,6 +49,11 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_BATCH = 4  # runs per Dask task: spreads Dask's per-task cost, keeps the workers balanced
 DEFAULT_TRACE_HZ = 5.0
+RESULTS_TOPIC = "hil-montecarlo-results"
+"""The scheduler event topic the workers send each finished run on. One topic for every campaign (a
+session's events carry its token): the scheduler keeps the last ``distributed.admin.low-level-log-length``
+events of each topic for good, so a topic per session would leave that much behind on a long-lived
+scheduler for every campaign it ever ran."""
 
 
 @dataclass(frozen=True)
@@ -78,11 +93,51 @@ class Campaign:
         )  # fmt: skip
 
 
+@dataclass(frozen=True)
+class WorkerLoss:
+    """A worker that left the cluster unexpectedly during the campaign (its process died or its machine or
+    network went; a worker retired on purpose hands its tasks over and is no loss): ``worker`` its address,
+    ``at`` when the driver heard of it (``time.time()``) and ``at_s`` how far into the session; ``tasks``
+    this campaign's chunks it was running, holding queued or holding unread results of, ``runs`` the runs
+    of those chunks. Dask reruns such a chunk on another worker (``retried``) until it has lost
+    ``distributed.scheduler.allowed-failures`` workers (3; judged by this process's Dask configuration),
+    then gives up (``given_up``): those runs are recorded as failed with ``KilledWorker``."""
+
+    worker: str
+    at: float
+    at_s: float
+    tasks: int
+    runs: int
+    retried: int
+    given_up: int
+
+    def describe(self) -> str:
+        """One line for the console: the loss, as it happens."""
+        clock = time.strftime("%H:%M:%S", time.localtime(self.at))
+        head = f"worker {self.worker} lost at {clock} ({self.at_s:.1f} s in)"
+        if not self.tasks:
+            return f"{head}, running none of this campaign's chunks"
+        line = f"{head} with {_count(self.tasks, 'chunk')} ({_count(self.runs, 'run')}) of this campaign"
+        if self.retried:
+            line += f"; Dask reruns {_count(self.retried, 'chunk')} on another worker"
+        if self.given_up:
+            line += (
+                f"; Dask gave up on {_count(self.given_up, 'chunk')} (KilledWorker: lost too many workers), "
+                "its runs are recorded as failed"
+            )
+        return line
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 @dataclass
 class CampaignReport:
     """How a session went: ``skipped`` runs were already in the directory, ``completed`` finished now (of
-    them ``failed`` with an error) in ``wall_s`` on ``workers`` worker threads; ``summary`` covers every run
-    in the directory."""
+    them ``failed`` with an error) in ``wall_s`` on ``workers`` worker threads; ``losses`` the workers lost
+    meanwhile and ``workers_joined`` the workers that joined the cluster meanwhile (a nanny's restart of a
+    lost one, or a new one); ``summary`` covers every run in the directory."""
 
     out_dir: Path
     runs: int
@@ -91,12 +146,18 @@ class CampaignReport:
     failed: int
     wall_s: float
     workers: int
+    losses: list[WorkerLoss] = field(default_factory=list)
+    workers_joined: int = 0
     summary: dict[str, Any] = field(default_factory=dict)
     plots: dict[str, Path] = field(default_factory=dict)
 
     @property
     def runs_per_minute(self) -> float:
         return 60.0 * self.completed / self.wall_s if self.wall_s > 0 else math.nan
+
+    @property
+    def workers_lost(self) -> int:
+        return len(self.losses)
 
 
 @contextmanager
@@ -140,52 +201,65 @@ def chunks(indices: Sequence[int], batch: int, workers: int) -> list[list[int]]:
     return [list(indices[k : k + size]) for k in range(0, len(indices), size)]
 
 
+def stream_chunk(
+    scenario: Scenario, runs: Sequence[RunParams], trace_hz: float, session: str
+) -> list[RunResult]:
+    """The Dask task: ``runs`` one after another (:func:`~.runner.run_one`, as :func:`~.runner.run_chunk`
+    does), each result sent to the driver as soon as its run finishes, as an event on
+    :data:`RESULTS_TOPIC` tagged with the driver's ``session`` token, so that its row reaches runs.csv then
+    and not with the chunk's last run. Returns every result again: what the driver writes of a chunk whose
+    events it has not had (they travel through the scheduler like everything else, but a client that
+    reconnects misses them)."""
+    from distributed import get_worker
+
+    try:
+        worker = get_worker()
+    except ValueError:  # called outside a Dask worker (a debugger): nothing to stream to
+        worker = None
+    results = []
+    for run in runs:
+        result = run_one(scenario, run, trace_hz)
+        if worker is not None:  # events must be msgpack-able: the result travels pickled
+            worker.log_event(RESULTS_TOPIC, {"session": session, "result": pickle.dumps(result)})
+        results.append(result)
+    return results
+
+
 def run_campaign(
     campaign: Campaign,
     out_dir: str | os.PathLike[str],
     client: Any,
     on_result: Callable[[RunResult, int, int], None] | None = None,
     plots: bool = True,
+    on_worker_lost: Callable[[WorkerLoss], None] | None = None,
 ) -> CampaignReport:
     """Run the campaign's missing runs on ``client`` into ``out_dir`` (created, or resumed: see the module
     docstring), then write ``summary.json`` and the plots. ``on_result(result, done, total)`` is called
-    after each run is on disk (the CLI's progress bar). KeyboardInterrupt cancels the pending work and
+    after each run is on disk (the CLI's progress bar), ``on_worker_lost(loss)`` when a worker is lost
+    (default: a warning on this module's logger). For its duration the client is subscribed to the
+    scheduler's ``all`` event topic (where workers' comings and goings are announced; a handler already
+    there is replaced) and to :data:`RESULTS_TOPIC`. KeyboardInterrupt cancels the pending work and
     propagates; every run finished by then is on disk."""
-    from distributed import as_completed
-
     out = Path(out_dir)
     start = time.perf_counter()
     workers = max(1, sum(client.nthreads().values()))
-    completed = failed = 0
     with ResultStore(out, campaign.manifest()) as store:
         todo = [i for i in range(campaign.runs) if i not in store.finished]
         skipped = campaign.runs - len(todo)
-        pending: dict[Any, list[RunParams]] = {}
-        try:
-            for chunk in chunks(todo, campaign.batch, workers):
-                runs = [campaign.draw(i) for i in chunk]
-                future = client.submit(run_chunk, campaign.scenario, runs, campaign.trace_hz, pure=False)
-                pending[future] = runs
-            for future in as_completed(list(pending)):
-                runs = pending.pop(future)
-                try:
-                    results = future.result()
-                except Exception as exc:  # the worker died or the task was lost: record, never drop
-                    results = [RunResult.failed(r, f"chunk lost: {describe(exc)}") for r in runs]
-                for result in results:
-                    store.append(result)
-                    completed += 1
-                    failed += not result.ok
-                    if on_result is not None:
-                        on_result(result, skipped + completed, campaign.runs)
-                store.sync()
-        except BaseException:
-            client.cancel(list(pending))
-            raise
+        driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
+        driver.run(chunks(todo, campaign.batch, workers))
     report = CampaignReport(
-        out, campaign.runs, skipped, completed, failed, time.perf_counter() - start, workers
+        out,
+        campaign.runs,
+        skipped,
+        driver.completed,
+        driver.failed,
+        time.perf_counter() - start,
+        workers,
+        driver.losses,
+        driver.joined,
     )
-    report.summary = summarise_dir(out, campaign.scenario)
+    report.summary = summarise_dir(out, campaign.scenario, workers_lost=report.workers_lost)
     if plots:
         from .plots import plot_campaign
 
@@ -194,11 +268,149 @@ def run_campaign(
     return report
 
 
-def summarise_dir(out_dir: str | os.PathLike[str], scenario: Scenario) -> dict[str, Any]:
-    """Summarise every run in ``out_dir`` against ``scenario``'s requirements and write summary.json."""
+def _now() -> tuple[float, float]:
+    """When an event arrived: the wall clock (to print) and ``perf_counter`` (the session's clock)."""
+    return time.time(), time.perf_counter()
+
+
+class _Driver:
+    """One session's submission and bookkeeping. Everything that happens elsewhere — a run finished on a
+    worker (an event on :data:`RESULTS_TOPIC`), a chunk finished (its future's callback), a worker came or
+    went (the scheduler's ``all`` topic) — is put on one queue by the client's threads and handled here in
+    order, on the caller's thread: the store and the callbacks are only ever touched from there, and a
+    loss is reported the moment it arrives rather than with the next result."""
+
+    _WAIT_S = 0.5  # the queue is polled, not waited on for ever: Ctrl-C is seen within this
+
+    def __init__(
+        self,
+        campaign: Campaign,
+        store: ResultStore,
+        client: Any,
+        start: float,
+        skipped: int,
+        on_result: Callable[[RunResult, int, int], None] | None,
+        on_worker_lost: Callable[[WorkerLoss], None] | None,
+    ) -> None:
+        import dask
+
+        self.campaign, self.store, self.client = campaign, store, client
+        self.start, self.skipped = start, skipped
+        self.on_result, self.on_worker_lost = on_result, on_worker_lost
+        self.session = uuid.uuid4().hex
+        self.events: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+        # future key -> (the future, its runs) until the chunk is done and read: held, Dask keeps the result
+        self.chunks: dict[Any, tuple[Any, list[RunParams]]] = {}
+        self.lost_by: dict[Any, int] = {}  # future key -> workers it was on when they were lost
+        self.allowed_failures = int(dask.config.get("distributed.scheduler.allowed-failures", 3))
+        self.completed = self.failed = self.joined = 0
+        self.losses: list[WorkerLoss] = []
+
+    def run(self, chunk_indices: list[list[int]]) -> None:
+        """Submit every chunk and handle the queue until every chunk is done."""
+        client, campaign = self.client, self.campaign
+        client.subscribe_topic(RESULTS_TOPIC, lambda event: self.events.put(("result", event[1])))
+        client.subscribe_topic("all", lambda event: self.events.put(("cluster", (_now(), event[1]))))
+        try:
+            for indices in chunk_indices:
+                runs = [campaign.draw(i) for i in indices]
+                future = client.submit(
+                    stream_chunk, campaign.scenario, runs, campaign.trace_hz, self.session, pure=False
+                )
+                self.chunks[future.key] = future, runs
+                future.add_done_callback(lambda f: self.events.put(("done", f)))
+            while self.chunks:
+                try:
+                    kind, item = self.events.get(timeout=self._WAIT_S)
+                except queue.Empty:
+                    continue
+                if kind == "result":
+                    self._streamed(item)
+                elif kind == "done":
+                    self._chunk_done(item)
+                else:
+                    self._cluster_event(*item)
+        except BaseException:
+            client.cancel([future for future, _ in self.chunks.values()])
+            raise
+        finally:
+            client.unsubscribe_topic(RESULTS_TOPIC)
+            client.unsubscribe_topic("all")
+
+    def _record(self, result: RunResult) -> None:
+        """Write a run's row (its commit record) unless it is written already, then tell the caller."""
+        if result.index in self.store.finished:
+            return  # this session wrote it (streamed, then in its chunk's result; or a rerun chunk's)
+        self.store.append(result)
+        self.completed += 1
+        self.failed += not result.ok
+        if self.on_result is not None:
+            self.on_result(result, self.skipped + self.completed, self.campaign.runs)
+
+    def _streamed(self, message: Mapping[str, Any]) -> None:
+        if message.get("session") == self.session:  # not another campaign's on the same scheduler
+            self._record(pickle.loads(message["result"]))
+
+    def _chunk_done(self, future: Any) -> None:
+        if future.key not in self.chunks:
+            return
+        _, runs = self.chunks.pop(future.key)
+        try:
+            results = future.result()
+        except Exception as exc:  # Dask gave up (KilledWorker) or the task was lost: record, never drop
+            results = [RunResult.failed(r, f"chunk lost: {describe(exc)}") for r in runs]
+        for result in results:
+            self._record(result)
+        self.store.sync()
+
+    def _cluster_event(self, at: tuple[float, float], message: Mapping[str, Any]) -> None:
+        action = message.get("action")
+        if action == "add-worker":
+            self.joined += 1
+        elif action == "remove-worker" and not message.get("expected", False):
+            self._lost(str(message.get("worker")), at, message)
+
+    def _lost(self, worker: str, at: tuple[float, float], message: Mapping[str, Any]) -> None:
+        held = set(message.get("processing-tasks", ())) | set(message.get("lost-computed-tasks", ()))
+        ours = [key for key in held if key in self.chunks]
+        retried = given_up = 0
+        for key in ours:
+            self.lost_by[key] = self.lost_by.get(key, 0) + 1
+            if self.lost_by[key] > self.allowed_failures:
+                given_up += 1
+            else:
+                retried += 1
+        runs = sum(len(self.chunks[key][1]) for key in ours)
+        clock, monotonic = at
+        loss = WorkerLoss(worker, clock, monotonic - self.start, len(ours), runs, retried, given_up)
+        self.losses.append(loss)
+        if self.on_worker_lost is not None:
+            self.on_worker_lost(loss)
+        else:
+            logger.warning("%s", loss.describe())
+
+
+def summarise_dir(
+    out_dir: str | os.PathLike[str], scenario: Scenario, workers_lost: int | None = None
+) -> dict[str, Any]:
+    """Summarise every run in ``out_dir`` against ``scenario``'s requirements and write summary.json, with
+    ``workers_lost``: the workers the session that wrote it lost (None, as `hil report` re-summarising a
+    directory says: the number the existing summary.json holds, 0 without one)."""
     sc = scenario
     summary = summarise(
         read_runs(out_dir), sc.name, sc.slew.duration_s, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate
     )
+    if workers_lost is None:
+        workers_lost = _previous_workers_lost(Path(out_dir) / SUMMARY)
+    summary["workers_lost"] = workers_lost
     write_summary(out_dir, summary)
     return summary
+
+
+def _previous_workers_lost(path: Path) -> int:
+    """``workers_lost`` of an existing summary.json; 0 if there is none or it does not say."""
+    try:
+        value = json.loads(path.read_text()).get("workers_lost", 0)
+    except (OSError, ValueError, AttributeError):
+        return 0
+    return value if isinstance(value, int) else 0
