@@ -121,3 +121,8 @@ class PortBusy(TransportError):
         self.port = port
         self.holder_pid = holder_pid
         self.holder_cmdline = holder_cmdline
+
+
+class RunHung(HilError, TimeoutError):
+    """A run that did not end within its wall-clock budget (a campaign's guard against a loop that stops
+    advancing simulated time): the campaign records it as a hang and goes on."""

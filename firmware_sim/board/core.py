@@ -149,6 +149,7 @@ class Board:
         outputs go off (reset), a channel dies or revives. A world that stepped ahead under the old
         pulses steps again from where it moved (:mod:`firmware_sim.world`)."""
         self._clamped = False
+        self._cut: Any = None  # the unplug (faults.unplug) that cut the power last
         self._release_us = t0
         self._wdt_us = _NEVER
         self._rx_due_us: float = _NEVER
@@ -220,12 +221,14 @@ class Board:
         return due
 
     def _next_unplug_us(self) -> float:
-        """The next unplug's start (µs of board time; now if one is on and not taken yet)."""
+        """The next unplug's start (µs of board time): now if one is on that has not cut the power yet,
+        else the first one to start after now."""
         t = self._t_us / 1e6
-        if self.faults.unplugged(t) is not None:
+        on = self.faults.unplugged(t)
+        if on is not None and on is not self._cut:
             return self._t_us
-        start = self.faults.next_unplug(t)
-        return start if math.isinf(start) else self._us(start)
+        start = self.faults.next_unplug(t if on is None else on.start + on.duration)
+        return start if math.isinf(start) else max(self._us(start), self._t_us + 1)
 
     def unplugged(self) -> bool:
         """Whether the board's cable is out now (the in-process port then vanishes: the transport asks)."""
@@ -382,12 +385,15 @@ class Board:
         """The cable is out at ``t`` (``faults.unplug``): the MCU loses power — held in reset, its reset
         cause POWER_ON — until the cable is back and it has booted."""
         cut = self.faults.unplugged(t / 1e6)
-        if cut is None:
+        if cut is None or cut is self._cut:
             return
+        self._cut = cut
+        self._reset(ResetCause.POWER_ON, t)
         back_us = self._us(cut.start + cut.duration) + self._us(self.config.boot_time_s)
-        if self.phase is not _RESET or self.resets[-1].cause is not ResetCause.POWER_ON:
-            self._reset(ResetCause.POWER_ON, t)
         self._release_us = max(self._release_us, back_us)
+        self.resets[-1] = ResetEvent(
+            cut.start + cut.duration, ResetCause.POWER_ON
+        )  # its uptime from power-up
 
     def _reset(self, cause: ResetCause, t: int) -> None:
         if self.resets:

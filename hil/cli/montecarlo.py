@@ -41,9 +41,10 @@ A Dask worker lost mid-campaign (its process died) is reported on stderr as it h
 chunks elsewhere, and the closing line counts the lost workers.
 
 exit status:
-  0    every run in OUT finished ok
+  0    every run in OUT finished ok (and, with [faults], kept every invariant)
   1    at least one run in OUT failed (every run failing included; a resumed campaign counts the
-       failures the directory already held)
+       failures the directory already held), or violated an invariant of the fault campaign (a run
+       that misses its requirement because of a fault, and says so, is not a violation)
   2    an error in the options or the files (nothing, or nothing more, is run)
   130  interrupted (Ctrl-C): the finished runs are on disk; the same command finishes the rest
 """
@@ -128,6 +129,9 @@ def exit_status(report: CampaignReport) -> tuple[int, str]:
     summary = report.summary
     if summary.get("failed", 0):
         return EXIT_RUNS_FAILED, f"{summary['failed']} of {summary['runs']} runs failed"
+    broken = summary.get("runs_with_violations", 0)
+    if broken:
+        return EXIT_RUNS_FAILED, f"{broken} of {summary['runs']} runs violated an invariant"
     return EXIT_OK, ""
 
 

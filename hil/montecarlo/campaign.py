@@ -41,7 +41,7 @@ from protocol.errors import ConfigError, LinkError
 
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
-from .runner import RunResult, describe, run_one
+from .runner import CHECK_COLUMNS, RunResult, describe, run_one
 from .store import ResultStore, manifest, read_runs
 from .summary import summarise
 
@@ -87,10 +87,18 @@ class Campaign:
 
     def manifest(self) -> dict[str, Any]:
         sc = self.scenario
+        checks = CHECK_COLUMNS if self.dispersions.faults is not None else ()
         return manifest(
-            sc.name, sc.source, self.dispersions.text, self.seed, sc.slew.duration_s, self.trace_hz,
-            trace_length(sc.slew.duration_s, self.trace_hz), self.dispersions.columns(),
-        )  # fmt: skip
+            sc.name,
+            sc.source,
+            self.dispersions.text,
+            self.seed,
+            sc.slew.duration_s,
+            self.trace_hz,
+            trace_length(sc.slew.duration_s, self.trace_hz),
+            self.dispersions.columns(),
+            checks,
+        )
 
 
 @dataclass(frozen=True)

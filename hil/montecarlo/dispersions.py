@@ -52,9 +52,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
+from hil.runtime.invariants import InjectedFault
 from hil.scenario import Scenario
 from hil.scenario.paths import FIXTURES, read_text
 from protocol.errors import ConfigError
+
+from .fault_plan import FaultSpec, draw_faults, parse_faults
+from .fault_plan import describe as describe_faults
 
 Array = NDArray[np.float64]
 
@@ -183,6 +187,9 @@ PARAMETERS: tuple[Parameter, ...] = (
 """Every dispersible parameter, in the canonical order of the results' columns."""
 
 _BY_KEY = {p.key: p for p in PARAMETERS}
+FAULT_COLUMNS = ("faults.n", "faults.list")
+"""Columns describing a run's drawn faults (with a ``[faults]`` section): how many, and each as
+``kind@t param=value`` (:mod:`.fault_plan`)."""
 LINK_COLUMNS = ("link.outages", "link.outage_s", "link.outage_list")
 """Columns describing a run's drawn outages (with link dispersions): count, total seconds, and the list
 ``start:duration;...`` (seconds on the board's clock, from its start: firmware-sim's ``--stall``)."""
@@ -199,6 +206,7 @@ class Dispersions:
     entries: tuple[tuple[Parameter, Distribution], ...]
     text: str = ""
     where: str = "<dispersions>"
+    faults: FaultSpec | None = None
 
     def get(self, key: str) -> Distribution | None:
         return next((d for p, d in self.entries if p.key == key), None)
@@ -214,7 +222,8 @@ class Dispersions:
         for param, dist in self.entries:
             if not isinstance(dist, Fixed) and param.key != "link.outage_duration_s":
                 cols += param.columns(self.scenario)
-        return cols + (list(LINK_COLUMNS) if self.has_link else [])
+        cols += list(LINK_COLUMNS) if self.has_link else []
+        return cols + (list(FAULT_COLUMNS) if self.faults is not None else [])
 
 
 @dataclass(frozen=True)
@@ -224,7 +233,8 @@ class RunParams:
     (3,); ``manoeuvre.axis_tilt_deg`` and ``spacecraft.gimbal_misalignment_rad``: azimuths (rad) of the
     tilt about the tilted axis, (1,) or per unit); ``outages``: ``(start_s, duration_s)`` on the board's
     clock (from its start, as firmware-sim's ``--stall AT:DURATION``); ``phone_seed``: the run's
-    sensor-noise stream; ``columns``: the values flattened for the results (column name → value)."""
+    sensor-noise stream; ``columns``: the values flattened for the results (column name → value);
+    ``faults``: the faults drawn for the run (:mod:`.fault_plan`; None: the file has no ``[faults]``)."""
 
     index: int
     seed: int
@@ -233,6 +243,7 @@ class RunParams:
     directions: Mapping[str, Array]
     outages: tuple[tuple[float, float], ...]
     columns: Mapping[str, float | int | str]
+    faults: tuple[InjectedFault, ...] | None = None
 
 
 def _stream(seed: int, index: int, key: str) -> np.random.Generator:
@@ -268,8 +279,13 @@ def draw(dispersions: Dispersions, seed: int, run_index: int) -> RunParams:
         columns["link.outages"] = len(outages)
         columns["link.outage_s"] = float(sum(d for _, d in outages))
         columns["link.outage_list"] = ";".join(f"{a:.3f}:{d:.3f}" for a, d in outages)
+    faults = None
+    if dispersions.faults is not None:
+        faults = draw_faults(dispersions.faults, sc, seed, run_index)
+        columns["faults.n"] = len(faults)
+        columns["faults.list"] = describe_faults(faults)
     phone_seed = int(_stream(seed, run_index, "phone").integers(2**31))
-    return RunParams(run_index, seed, phone_seed, values, directions, outages, columns)
+    return RunParams(run_index, seed, phone_seed, values, directions, outages, columns, faults)
 
 
 def outage_window_s(scenario: Scenario) -> float:
@@ -326,6 +342,7 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"not valid TOML: {exc}", where) from None
+    faults = parse_faults(doc.pop("faults"), where, _distribution) if "faults" in doc else None
     found: dict[str, Distribution] = {}
     for key, value in _leaves(doc, where):
         if key not in _BY_KEY:
@@ -340,7 +357,7 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
         if key in found:
             _check_support(found[key], lo, hi, f"{where}: {key}")
     entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
-    return Dispersions(scenario, entries, text, where)
+    return Dispersions(scenario, entries, text, where, faults)
 
 
 def _check_support(dist: Distribution, lo: float, hi: float, where: str) -> None:

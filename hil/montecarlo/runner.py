@@ -18,27 +18,34 @@ comes back as a failed :class:`RunResult` with the error text; the chunk's other
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import logging
 import math
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, replace
-from typing import TypeVar
+from dataclasses import dataclass, field, replace
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
+from hil.runtime.invariants import INVARIANTS, Bounds, InvariantReport, check_run
+from hil.runtime.observer import Observers
+from hil.runtime.operator import ScheduledOperator
+from hil.runtime.record import RunRecorder
 from hil.scenario import Scenario
 from hil.scenario.config import SlewScenario
 from hil.simulation.phone import PhoneSpec
 from hil.vscmg import SpacecraftParams
 from hil.vscmg.params import inertia_tensor
-from protocol.errors import ConfigError, HilError
+from protocol.errors import ConfigError, HilError, RunHung
 
 from .dispersions import SENSOR_KINDS, RunParams
-from .metrics import decimated_trace, run_metrics, trace_length
+from .fault_plan import fault_options, operator_schedule
+from .metrics import METRICS, TRACES, decimated_trace, run_metrics, trace_length
 
 T = TypeVar("T")
 
@@ -48,7 +55,8 @@ class RunResult:
     """One finished run: ``ok`` with its ``metrics`` (:data:`~.metrics.METRICS`) and ``trace`` (see
     :func:`~.metrics.decimated_trace`), or failed with ``error`` ("ExceptionType: message"). ``columns``
     are its drawn parameters (always, so a failed run can be reproduced and looked into); ``wall_s`` its
-    share of the chunk's compute time."""
+    share of the chunk's compute time; ``checks`` (a fault campaign's run) its exit, each invariant's
+    violations and the faults' detection and recovery times (:data:`CHECK_COLUMNS`)."""
 
     index: int
     ok: bool
@@ -57,11 +65,18 @@ class RunResult:
     trace: NDArray[np.float32] | None
     error: str = ""
     wall_s: float = 0.0
+    checks: Mapping[str, float | int | str] = field(default_factory=dict)
 
     @classmethod
-    def failed(cls, run: RunParams, error: BaseException | str, wall_s: float = 0.0) -> RunResult:
+    def failed(
+        cls,
+        run: RunParams,
+        error: BaseException | str,
+        wall_s: float = 0.0,
+        checks: Mapping[str, Any] | None = None,
+    ) -> RunResult:
         text = error if isinstance(error, str) else describe(error)
-        return cls(run.index, False, run.columns, {}, None, text, wall_s)
+        return cls(run.index, False, run.columns, {}, None, text, wall_s, checks or {})
 
 
 def describe(exc: BaseException) -> str:
@@ -85,11 +100,16 @@ def realise(scenario: Scenario, run: RunParams) -> Scenario:
         "slew": _checked(run, "initial/manoeuvre", lambda: _slew(scenario.slew, run)),
         "seed": run.phone_seed,
     }
+    options: dict[str, Any] = dict(scenario.fault_options)
     if run.outages:
-        stalls = scenario.fault_options.get("stall", [])
+        stalls = options.get("stall", [])
         stalls = list(stalls) if isinstance(stalls, list) else [stalls]
         stalls += [f"{start!r}:{duration!r}" for start, duration in run.outages]
-        changes["fault_options"] = {**scenario.fault_options, "stall": stalls}
+        options["stall"] = stalls
+    if run.faults:
+        options = fault_options(run.faults, options)
+    if options != scenario.fault_options:
+        changes["fault_options"] = options
     return scenario.with_changes(**changes)
 
 
@@ -176,10 +196,13 @@ def run_chunk(scenario: Scenario, runs: Sequence[RunParams], trace_hz: float) ->
 
 
 def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
-    """One run: :func:`realise`, then :func:`hil.runtime.run` in lockstep without a run directory."""
+    """One run: :func:`realise`, then :func:`hil.runtime.run` in lockstep without a run directory (with
+    faults drawn: :func:`run_faulted`)."""
     from hil.runtime import RunOptions
     from hil.runtime import run as run_scenario
 
+    if run.faults is not None:
+        return run_faulted(scenario, run, trace_hz)
     start = time.perf_counter()
     try:
         realised = realise(scenario, run)
@@ -195,6 +218,131 @@ def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
     except Exception as exc:  # any error: recorded with the run, never lost
         return RunResult.failed(run, exc, time.perf_counter() - start)
     return RunResult(run.index, True, run.columns, metrics, decimated, wall_s=time.perf_counter() - start)
+
+
+CHECK_COLUMNS: tuple[str, ...] = (
+    "exit",
+    *(f"inv.{name}" for name in INVARIANTS),
+    "inv.first",
+    "detection.list",
+    "recovery.list",
+    "unseen",
+)
+"""A fault campaign's per-run columns: the run's exit reason, each invariant's violation count, the first
+violation, each detected fault's latency (``kind:seconds;...``), each outage's recovery time, and the
+faults the host could not have seen (masked by another, too close to the end)."""
+
+
+def run_faulted(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
+    """A run with drawn faults (:mod:`.fault_plan`): the board's and the world's faults in its scenario,
+    the operator's commands on the control tick, everything it recorded kept
+    (:class:`~hil.runtime.record.RunRecorder`) and its invariants checked
+    (:func:`~hil.runtime.invariants.check_run`). A run that did not complete is not a failed run here —
+    whether it said so honestly is an invariant; a failed run is one whose record cannot be had."""
+    from hil.runtime import RunOptions
+    from hil.runtime import run as run_scenario
+
+    assert run.faults is not None
+    start = time.perf_counter()
+    try:
+        realised = realise(scenario, run)
+    except Exception as exc:
+        return RunResult.failed(run, exc, time.perf_counter() - start)
+    recorder = RunRecorder(realised.n_units)
+    schedule = operator_schedule(run.faults)
+    observer = Observers(recorder, ScheduledOperator(schedule)) if schedule else recorder
+    error: str | None = None
+    bounds = fault_bounds(realised)
+    budget = WALL_BUDGET_S + WALL_PER_SIM_S * bounds.time_limit_s
+    try:
+        with _quiet(_RUN_LOGGERS), wall_budget(budget):
+            result = run_scenario(
+                realised, RunOptions(out_root=None, observer=observer, rows_to_observer=True)
+            )
+        summary = result.summary
+    except Exception as exc:  # a crash is what the invariants look for: recorded with the run
+        error = describe(exc)
+        summary = recorder.summary
+        result = None
+    report = check_run(run.faults, recorder, bounds, error)
+    checks = _checks(summary, report)
+    wall = time.perf_counter() - start
+    if result is None:
+        return RunResult.failed(run, error or "no record", wall, checks)
+    trace = result.trace.arrays()
+    metrics: dict[str, float] = dict.fromkeys(METRICS, math.nan)
+    if len(trace["t"]):
+        metrics = run_metrics(trace, scenario.settle_deg, int(summary.get("failsafe_events", 0)))
+    samples = trace_length(scenario.slew.duration_s, trace_hz)
+    decimated = np.full((len(TRACES), samples), np.nan, dtype=np.float32)
+    if len(trace["t"]):
+        decimated = decimated_trace(trace, trace_hz, samples)
+    return RunResult(run.index, True, run.columns, metrics, decimated, wall_s=wall, checks=checks)
+
+
+WALL_BUDGET_S = 120.0
+WALL_PER_SIM_S = 2.0
+"""A faulted run's wall-clock budget: this much, plus this many wall seconds per simulated second of its
+time limit (a lockstep run goes 20-30x faster than real time: the budget only catches a loop that stopped
+advancing simulated time)."""
+
+
+@contextlib.contextmanager
+def wall_budget(seconds: float) -> Iterator[None]:
+    """Raise :class:`~protocol.errors.RunHung` in this thread if the block is still running after
+    ``seconds`` of wall time (at its next Python bytecode: a compiled kernel that never returns is not
+    caught)."""
+    thread = threading.get_ident()
+    lock = threading.Lock()
+    state = {"done": False}
+
+    def fire() -> None:
+        with lock:
+            if not state["done"]:
+                ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread), ctypes.py_object(RunHung))
+
+    timer = threading.Timer(seconds, fire)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        with lock:
+            state["done"] = True
+        timer.cancel()
+
+
+def fault_bounds(scenario: Scenario) -> Bounds:
+    """The bounds a fault campaign holds ``scenario``'s runs to (:class:`~hil.runtime.invariants.Bounds`)."""
+    from hil.link.board.config import ClientConfig
+    from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S
+    from hil.runtime.loop import SPINUP_ALLOWANCE_S
+
+    loop = scenario.loop
+    phone = scenario.phone
+    slowest = 1.0 / min(phone.gyr.rate_hz, phone.acc.rate_hz, phone.mag.rate_hz)
+    limit = loop.warmup_s + scenario.slew.duration_s + SPINUP_ALLOWANCE_S + RECOVER_WITHIN_S
+    return Bounds(
+        stale_after_s=STALE_AFTER_S,
+        tick_s=1.0 / loop.control_rate_hz,
+        telemetry_s=1.0 / float(scenario.board_options.get("telemetry_rate", 20.0)),
+        phone_period_s=slowest,
+        reconnect_max_s=ClientConfig().reconnect_max_s,
+        recover_within_s=RECOVER_WITHIN_S,
+        time_limit_s=limit,
+        nominal_rotor=scenario.spacecraft.nominal_rotor_speed,
+    )
+
+
+def _checks(summary: Mapping[str, Any], report: InvariantReport) -> dict[str, Any]:
+    out: dict[str, Any] = {"exit": str(summary.get("exit", "")).split(":")[0] if summary else "crashed"}
+    for name, count in report.counts.items():
+        out[f"inv.{name}"] = count
+    out["inv.first"] = report.first()
+    out["detection.list"] = ";".join(f"{k}:{v:.4f}" for k, v in report.detection)
+    out["recovery.list"] = ";".join(f"{k}:{v:.4f}" for k, v in report.recovery)
+    out["unseen"] = ";".join(report.unseen)
+    return out
 
 
 _RUN_LOGGERS = ("hil.runtime.host", "hil.link.board.session")

@@ -36,7 +36,7 @@ from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, InputFormatError
 
 from .metrics import METRICS, TRACES
-from .runner import RunResult
+from .runner import CHECK_COLUMNS, RunResult
 
 MANIFEST = "campaign.json"
 RUNS = "runs.csv"
@@ -47,7 +47,7 @@ _SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_h
 
 def manifest(
     scenario_name: str, scenario_text: str, dispersions_text: str, seed: int, duration_s: float,
-    trace_hz: float, samples: int, parameter_columns: Sequence[str],
+    trace_hz: float, samples: int, parameter_columns: Sequence[str], check_columns: Sequence[str] = (),
 ) -> dict[str, Any]:  # fmt: skip
     """What identifies a campaign's results (a re-run into the same directory must match, except for the
     number of runs)."""
@@ -60,7 +60,7 @@ def manifest(
         "trace_hz": trace_hz,
         "trace_samples": samples,
         "traces": list(TRACES),
-        "columns": [*FIXED_COLUMNS, *parameter_columns, *METRICS],
+        "columns": [*FIXED_COLUMNS, *parameter_columns, *METRICS, *check_columns],
         "scenario_toml": scenario_text,
         "dispersions_toml": dispersions_text,
     }
@@ -139,6 +139,7 @@ class ResultStore:
         }  # fmt: skip
         row.update(result.columns)
         row.update(result.metrics)
+        row.update(result.checks)
         self._csv.writerow([_cell(row.get(c)) for c in self.columns])
         self._rows.flush()
         self.finished.add(result.index)
@@ -198,7 +199,11 @@ class Results:
 
     def parameter_columns(self) -> list[str]:
         """The drawn parameters that are numbers, in file order."""
-        return [c for c in self.columns if c not in FIXED_COLUMNS and c not in METRICS and c in self.values]
+        return [
+            c
+            for c in self.columns
+            if c not in FIXED_COLUMNS and c not in METRICS and c not in CHECK_COLUMNS and c in self.values
+        ]
 
 
 def read_runs(out_dir: str | os.PathLike[str]) -> Results:

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from hil.runtime.invariants import INVARIANTS
+
 from .metrics import METRICS
 from .store import Results
 
@@ -77,7 +79,63 @@ def summarise(
         "worst_final_error": worst,
         "failures": [{"index": i, "error": e} for i, e in sorted(results.errors.items())],
         "dropped_lines": results.dropped,
+        **fault_figures(results),
     }
+
+
+def fault_figures(results: Results) -> dict[str, Any]:
+    """A fault campaign's figures ({} without ``[faults]``): faults injected by kind, the runs' exits,
+    ``invariant_violations`` (invariant → violations over all runs) with the runs that broke each (up to
+    10 indices) and their first message, detection latency and recovery time (s) p50 / p99 / max by
+    kind and over all."""
+    if "faults.list" not in results.text and "faults.n" not in results.values:
+        return {}
+    injected: dict[str, int] = {}
+    for cell in results.text.get("faults.list", np.array([], dtype=str)):
+        for fault in filter(None, str(cell).split(";")):
+            kind = fault.split("@", 1)[0]
+            injected[kind] = injected.get(kind, 0) + 1
+    exits: dict[str, int] = {}
+    for cell in results.text.get("exit", np.array([], dtype=str)):
+        exits[str(cell)] = exits.get(str(cell), 0) + 1
+    violations: dict[str, int] = {}
+    broken: dict[str, list[int]] = {}
+    for name in INVARIANTS:
+        counts = results.values.get(f"inv.{name}", np.zeros(len(results)))
+        violations[name] = int(np.nansum(counts))
+        broken[name] = [int(i) for i in results.index[np.nan_to_num(counts) > 0][:10]]
+    first = results.text.get("inv.first", np.array([], dtype=str))
+    examples = {int(results.index[k]): str(first[k]) for k in range(len(first)) if first[k]}
+    return {
+        "faults_injected": dict(sorted(injected.items())),
+        "exits": exits,
+        "invariant_violations": violations,
+        "runs_with_violations": len(examples),
+        "violating_runs": {name: runs for name, runs in broken.items() if runs},
+        "first_violations": dict(list(examples.items())[:10]),
+        "detection_s": _by_kind(results.text.get("detection.list")),
+        "recovery_s": _by_kind(results.text.get("recovery.list")),
+    }
+
+
+def _by_kind(cells: Any) -> dict[str, dict[str, float | int]]:
+    """``kind:seconds;...`` cells → p50 / p99 / max / n per kind and ``all``."""
+    values: dict[str, list[float]] = {}
+    for cell in [] if cells is None else cells:
+        for item in filter(None, str(cell).split(";")):
+            kind, _, seconds = item.rpartition(":")
+            values.setdefault(kind, []).append(float(seconds))
+            values.setdefault("all", []).append(float(seconds))
+    out = {}
+    for kind, v in sorted(values.items()):
+        a = np.asarray(v)
+        out[kind] = {
+            "p50": float(np.percentile(a, 50)),
+            "p99": float(np.percentile(a, 99)),
+            "max": float(a.max()),
+            "n": int(a.size),
+        }
+    return out
 
 
 def _rate(passed: int, n: int) -> dict[str, Any]:
@@ -123,6 +181,26 @@ def format_table(summary: dict[str, Any]) -> str:
         lo, hi = req["ci95"]
         ci = "-" if lo is None else f"{100 * lo:.1f}-{100 * hi:.1f}%"
         lines.append(f"{name:<14}{condition:<30}{rate:>10}{ci:>16}")
+    if "invariant_violations" in summary:
+        lines += [
+            "",
+            "faults injected  " + ", ".join(f"{k} {n}" for k, n in summary["faults_injected"].items()),
+        ]
+        lines.append("exits            " + ", ".join(f"{k} {n}" for k, n in summary["exits"].items()))
+        total = sum(summary["invariant_violations"].values())
+        lines.append(
+            f"invariants       {total} violations in {summary['runs_with_violations']} runs: "
+            + ", ".join(f"{k} {n}" for k, n in summary["invariant_violations"].items())
+        )
+        for index, first in summary["first_violations"].items():
+            lines.append(f"  run {index}: {first}")
+        for name in ("detection_s", "recovery_s"):
+            every = summary[name].get("all")
+            if every:
+                lines.append(
+                    f"{name.split('_')[0]:<17}p50 {every['p50']:.3f} s  p99 {every['p99']:.3f} s  "
+                    f"max {every['max']:.3f} s  ({every['n']})"
+                )
     if summary["failures"]:
         lines += ["", f"failed runs ({len(summary['failures'])}):"]
         lines += [f"  run {f['index']}: {f['error']}" for f in summary["failures"][:10]]

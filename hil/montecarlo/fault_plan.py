@@ -1,0 +1,297 @@
+"""The ``[faults]`` section of a dispersion file: which faults a campaign's runs are given, how many, and
+when — each at a time drawn **uniformly over the whole run** (handshake, warm-up, spin-up, slew, hold),
+never at fixed moments — and how a run's drawn faults reach it: the board's and the world's fault
+injection (``emu://`` options, firmware-sim's ``--stall``, ``--unplug``, ...) and the operator's commands
+(:class:`hil.runtime.operator.ScheduledOperator`, the path the ground station's take).
+
+Each kind is a table: ``count`` (a number, or a distribution rounded to a whole count) or ``per_minute``
+(a Poisson rate over the run), and the kind's parameters (a number or a distribution, as for dispersions;
+``spoof`` and ``channels`` take strings)::
+
+    [faults]
+    hang = { count = 1 }
+    unplug = { count = 1, duration_s = { dist = "uniform", low = 0.3, high = 4.0 } }
+    stall = { per_minute = 2.0, duration_s = { dist = "uniform", low = 0.05, high = 1.0 } }
+    phone_spoof = { count = 2, spoof = ["huge", "nan", "future"] }
+    disarm = { count = 1, arm_after_s = { dist = "uniform", low = 1.0, high = 6.0 } }
+
+==============  =====================================  ==================================================
+kind            parameters                             what happens
+==============  =====================================  ==================================================
+``stall``       ``duration_s``                         the link carries nothing (a pulled cable)
+``hang``        —                                      the MCU's main loop hangs: a watchdog reset
+``brownout``    —                                      the pack collapses for 0.3 s: a brown-out reset
+``unplug``      ``duration_s``                         the board's USB cable out: port gone, board off,
+                                                       then a power-on boot (a restarted board)
+``noise``       ``duration_s``, ``corrupt``            bytes damaged at ``corrupt`` per byte, both ways
+``dead_esc``    ``channels`` (rotors, gimbals, any)    one output's ESC or servo dies for good
+``phone_gap``   ``duration_s``                         the phone stops streaming, then resumes
+``phone_jump``  ``offset_s``                           the phone's clock jumps (negative: back)
+``phone_spoof`` ``spoof`` (list of kinds)              hostile readings: huge, nan, saturated, future,
+                                                       past, duplicate, burst
+``disarm``      ``arm_after_s`` (optional)             the operator's Disarm (and Arm that much later)
+``arm``         —                                      the operator's Arm
+``abort``       —                                      the operator's abort (the run ends)
+``slew``        ``roll_deg``, ``pitch_deg``,           the operator's slew to a new attitude
+                ``yaw_deg``
+``hold``        —                                      the operator's hold
+==============  =====================================  ==================================================
+
+A run's faults are a pure function of the campaign seed, the run index and the kind (their own random
+stream, ``[seed, index, crc32("faults." + kind)]``): adding a kind leaves the others' draws unchanged.
+Counts are bounded (:data:`MAX_COUNT` per kind and run) and durations too (:data:`MAX_DURATION_S`).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hil.runtime.invariants import FAULT_KINDS, OPERATOR_KINDS, SPOOF_REASONS, InjectedFault
+from hil.runtime.operator import OperatorCommand
+from hil.scenario import Scenario
+from protocol.errors import ConfigError
+
+MAX_COUNT = 100
+"""Faults of one kind in one run, at most (a rate's draw is clipped to it)."""
+MAX_DURATION_S = 60.0
+"""The longest stall, unplug, noise burst or phone gap a file may ask for (s)."""
+SPINUP_S = 2.0
+"""The run's spin-up and rotor settling, added to its warm-up and duration for the drawing window (s)."""
+CHANNEL_SETS = ("rotors", "gimbals", "any")
+
+_PARAMS: dict[str, dict[str, tuple[float, float] | None]] = {
+    "stall": {"duration_s": (0.0, MAX_DURATION_S)},
+    "hang": {},
+    "brownout": {},
+    "unplug": {"duration_s": (0.05, MAX_DURATION_S)},
+    "noise": {"duration_s": (0.0, MAX_DURATION_S), "corrupt": (0.0, 1.0)},
+    "dead_esc": {"channels": None},
+    "phone_gap": {"duration_s": (0.0, MAX_DURATION_S)},
+    "phone_jump": {"offset_s": (-1e6, 1e6)},
+    "phone_spoof": {"spoof": None},
+    "disarm": {"arm_after_s": (0.0, 600.0)},
+    "arm": {},
+    "abort": {},
+    "slew": {"roll_deg": (-180.0, 180.0), "pitch_deg": (-90.0, 90.0), "yaw_deg": (-180.0, 180.0)},
+    "hold": {},
+}
+"""Each kind's parameters and the range a value must lie in (None: a string parameter)."""
+_REQUIRED = {
+    "stall": ("duration_s",),
+    "unplug": ("duration_s",),
+    "noise": ("duration_s", "corrupt"),
+    "phone_gap": ("duration_s",),
+    "phone_jump": ("offset_s",),
+}
+_DEFAULTS: dict[str, dict[str, Any]] = {
+    "slew": {"roll_deg": (-30.0, 30.0), "pitch_deg": (-20.0, 20.0), "yaw_deg": (-60.0, 60.0)},
+    "dead_esc": {"channels": "any"},
+    "phone_spoof": {"spoof": tuple(SPOOF_REASONS)},
+}
+"""What a parameter left out means: a range to draw uniformly from, or a value."""
+
+
+@dataclass(frozen=True)
+class KindSpec:
+    """One kind's table: how many (``count`` a distribution, or ``per_minute``) and its parameters
+    (name → a distribution, or strings)."""
+
+    kind: str
+    count: Any | None
+    per_minute: float | None
+    params: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """The ``[faults]`` section as read."""
+
+    kinds: tuple[KindSpec, ...]
+
+
+def parse_faults(table: Any, where: str, distribution: Any) -> FaultSpec:
+    """The ``[faults]`` table (``distribution`` reads a number-or-distribution value, as dispersions do);
+    errors are :class:`ConfigError` naming the file and the dotted key."""
+    if not isinstance(table, dict):
+        raise ConfigError("must be a table of fault kinds", f"{where}: faults")
+    kinds = []
+    for kind, spec in table.items():
+        at = f"{where}: faults.{kind}"
+        if kind not in _PARAMS:
+            raise ConfigError(f"unknown fault kind; known: {', '.join(FAULT_KINDS)}", at)
+        if not isinstance(spec, dict):
+            raise ConfigError("must be a table ({ count = N, ... })", at)
+        known = {"count", "per_minute", *_PARAMS[kind]}
+        for key in spec:
+            if key not in known:
+                raise ConfigError(f"unknown key for {kind}; known: {', '.join(sorted(known))}", f"{at}.{key}")
+        if ("count" in spec) == ("per_minute" in spec):
+            raise ConfigError("give exactly one of count and per_minute", at)
+        count = None
+        per_minute = None
+        if "count" in spec:
+            count = distribution(spec["count"], f"{at}.count")
+        else:
+            value = spec["per_minute"]
+            if not (isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value <= 600):
+                raise ConfigError(
+                    f"must be a number of faults per minute in 0..600, got {value!r}", f"{at}.per_minute"
+                )
+            per_minute = float(value)
+        for key in _REQUIRED.get(kind, ()):
+            if key not in spec:
+                raise ConfigError(f"required for {kind}", f"{at}.{key}")
+        params: dict[str, Any] = {}
+        for key, rng in _PARAMS[kind].items():
+            if key not in spec:
+                continue
+            if rng is None:
+                params[key] = _strings(kind, key, spec[key], f"{at}.{key}")
+            else:
+                params[key] = distribution(spec[key], f"{at}.{key}")
+                _check_range(params[key], rng, f"{at}.{key}")
+        kinds.append(KindSpec(kind, count, per_minute, params))
+    order = {k: i for i, k in enumerate(FAULT_KINDS)}
+    return FaultSpec(tuple(sorted(kinds, key=lambda s: order[s.kind])))
+
+
+def _strings(kind: str, key: str, value: Any, where: str) -> tuple[str, ...]:
+    allowed = tuple(SPOOF_REASONS) if key == "spoof" else CHANNEL_SETS
+    values = [value] if isinstance(value, str) else value
+    if not isinstance(values, list) or not values or not all(isinstance(v, str) for v in values):
+        raise ConfigError(f"must be one of {', '.join(allowed)} or a list of them, got {value!r}", where)
+    bad = [v for v in values if v not in allowed]
+    if bad:
+        raise ConfigError(f"{bad[0]!r} is not one of {', '.join(allowed)}", where)
+    return tuple(values)
+
+
+def _check_range(dist: Any, bounds: tuple[float, float], where: str) -> None:
+    """Refuse a distribution that can draw outside ``bounds`` (its fixed value, limits, clip bounds)."""
+    lo, hi = bounds
+    values = [getattr(dist, name, None) for name in ("value", "low", "high", "mean")]
+    values += list(getattr(dist, "values", ()) or ())
+    bad = [v for v in values if v is not None and not lo <= v <= hi]
+    if bad:
+        raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
+
+
+# --------------------------------------------------------------------------- drawing a run's faults
+def run_window_s(scenario: Scenario) -> float:
+    """The span a run's faults are drawn over (s of the run's clock from its start): the warm-up, the
+    spin-up and the run's duration — the whole run, from the handshake to the end of the hold."""
+    return scenario.loop.warmup_s + SPINUP_S + scenario.slew.duration_s
+
+
+def draw_faults(spec: FaultSpec, scenario: Scenario, seed: int, index: int) -> tuple[InjectedFault, ...]:
+    """Run ``index``'s faults, in time order: a pure function of (seed, index) per kind."""
+    window = run_window_s(scenario)
+    out: list[InjectedFault] = []
+    for ks in spec.kinds:
+        rng = np.random.default_rng([seed, index, zlib.crc32(f"faults.{ks.kind}".encode())])
+        if ks.per_minute is not None:
+            n = int(rng.poisson(ks.per_minute * window / 60.0))
+        else:
+            assert ks.count is not None
+            n = int(round(float(ks.count.sample(rng, np.zeros(1))[0])))
+        n = min(max(n, 0), MAX_COUNT)
+        times = np.sort(rng.uniform(0.0, window, n))
+        for t in times:
+            out += _one(ks, float(t), rng, scenario)
+    return tuple(sorted(out, key=lambda f: f.t))
+
+
+def _one(ks: KindSpec, t: float, rng: np.random.Generator, scenario: Scenario) -> list[InjectedFault]:
+    """One fault of ``ks`` at ``t`` with its parameters drawn (a Disarm with an Arm after it: two)."""
+    params: dict[str, Any] = {}
+    defaults = _DEFAULTS.get(ks.kind, {})
+    for key in _PARAMS[ks.kind]:
+        if key in ks.params:
+            value = ks.params[key]
+            params[key] = (
+                str(rng.choice(value))
+                if isinstance(value, tuple)
+                else float(value.sample(rng, np.zeros(1))[0])
+            )
+        elif key in defaults:
+            value = defaults[key]
+            if isinstance(value, tuple) and isinstance(value[0], float):
+                params[key] = float(rng.uniform(*value))
+            else:
+                params[key] = str(rng.choice(value)) if isinstance(value, tuple) else value
+    if ks.kind == "dead_esc":
+        n = scenario.n_units
+        pool = {"rotors": range(1, 2 * n, 2), "gimbals": range(0, 2 * n, 2), "any": range(2 * n)}
+        params = {"channel": int(rng.choice(list(pool[params.pop("channels")])))}
+    for key in ("duration_s", "arm_after_s"):
+        if key in params:
+            params[key] = min(max(params[key], 0.0), MAX_DURATION_S if key == "duration_s" else 600.0)
+    if ks.kind == "phone_jump" and params["offset_s"] == 0.0:
+        params["offset_s"] = 1e-3
+    arm_after = params.pop("arm_after_s", None)
+    fault = InjectedFault(ks.kind, t, params)
+    if ks.kind == "disarm" and arm_after is not None:
+        return [fault, InjectedFault("arm", t + arm_after, {"after_disarm_s": arm_after})]
+    return [fault]
+
+
+# --------------------------------------------------------------------------- a run's faults, realised
+def fault_options(faults: tuple[InjectedFault, ...], base: Mapping[str, Any]) -> dict[str, Any]:
+    """The board's and the world's fault injection for ``faults`` (``emu://`` options, firmware-sim's
+    command line), added to the scenario's own ``base`` options."""
+    out: dict[str, Any] = {k: (list(v) if isinstance(v, list) else [v]) for k, v in base.items()}
+
+    def add(key: str, value: str) -> None:
+        out.setdefault(key, []).append(value)
+
+    for f in faults:
+        p, t = f.params, f.t
+        if f.kind == "stall":
+            add("stall", f"{t!r}:{p['duration_s']!r}")
+        elif f.kind == "hang":
+            add("hang_at", repr(t))
+        elif f.kind == "brownout":
+            add("brownout_at", repr(t))
+        elif f.kind == "unplug":
+            add("unplug", f"{t!r}:{p['duration_s']!r}")
+        elif f.kind == "noise":
+            add("noise", f"{t!r}:{p['duration_s']!r}:{p['corrupt']!r}")
+        elif f.kind == "dead_esc":
+            add("dead_esc", f"{p['channel']}@{t!r}")
+        elif f.kind == "phone_gap":
+            add("phone_gap", f"{t!r}:{p['duration_s']!r}")
+        elif f.kind == "phone_jump":
+            add("phone_jump", f"{t!r}:{p['offset_s']!r}")
+        elif f.kind == "phone_spoof":
+            add("phone_spoof", f"{t!r}:{p['spoof']}")
+    return out
+
+
+def operator_schedule(faults: tuple[InjectedFault, ...]) -> list[tuple[float, OperatorCommand]]:
+    """The operator's commands among ``faults``, as a :class:`~hil.runtime.operator.ScheduledOperator`
+    takes them (origin ``campaign``)."""
+    schedule = []
+    for i, f in enumerate(f for f in faults if f.kind in OPERATOR_KINDS):
+        target = None
+        if f.kind == "slew":
+            target = (f.params["roll_deg"], f.params["pitch_deg"], f.params["yaw_deg"])
+        schedule.append((f.t, OperatorCommand(i + 1, f.kind, target, origin="campaign")))
+    return schedule
+
+
+def describe(faults: tuple[InjectedFault, ...]) -> str:
+    """The drawn faults as one cell of ``runs.csv``: ``kind@t param=value;...``."""
+    return ";".join(f.describe() for f in faults)
+
+
+def counts(faults: tuple[InjectedFault, ...]) -> dict[str, int]:
+    """Faults by kind."""
+    out: dict[str, int] = {}
+    for f in faults:
+        out[f.kind] = out.get(f.kind, 0) + 1
+    return out
