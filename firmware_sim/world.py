@@ -5,8 +5,8 @@ The world reads the widths the board's timers put out (``Board.outputs``) and tu
 motor driver makes of it through the unit's calibration map — the rotor ESC's steady speed at the present
 battery voltage, the gimbal servo's rate (or angle) — and lets the drives of
 :class:`hil.control.motor_loops.ServoModel` drive the plant (:mod:`hil.vscmg`) towards it. A channel
-without pulses (board booting, outputs off, a dead ESC) leaves its drive where it was: the gimbal holds,
-the rotor keeps its speed.
+without pulses (board booting, outputs off, a dead ESC) has no drive: the gimbal holds, the rotor coasts
+down against its drag (the motor's coasting time constant, as the board's own unit model has it).
 
 **Batches.** Those widths change only at the pulse frames (unless the MCU resets, a channel dies or the
 gimbal mode changes: ``Board.drive_epoch``), so the world steps the plant *ahead* in one compiled batch to
@@ -369,7 +369,7 @@ class World:
             if r_us is not None and not unit.rotor_dead:
                 rotor[i] = unit.rotor_speed_for(r_us, volts)
                 undriven[i] = False
-            else:  # no pulses or a dead ESC: no drive; the rotor keeps its speed (coasting is slow)
+            else:  # no pulses or a dead ESC: no drive; the rotor coasts down
                 rotor[i] = 0.0
                 undriven[i] = True
             angle[i] = math.nan

@@ -237,13 +237,14 @@ def test_drive_law_kernel_is_what_the_servo_model_computes(coast):
         assert drive_torques(d.mode, d.data, 4, ga[0], gr[0], wr[0], fg[0], fp[0], ug, us)
         np.testing.assert_array_equal(ug, ref_g[0])
         np.testing.assert_array_equal(us, ref_s[0])
-    # the modes did something: a saturated position loop, an undriven rotor only rejecting its load
+    # the modes did something: a saturated position loop, an undriven rotor coasting (or not, without a model)
     servo = _servo(params, coast=coast, modes=True)
     g, s = servo(
         0.0, np.zeros((1, 4)), np.zeros((1, 4)), np.full((1, 4), 400.0), np.zeros((1, 4)), np.zeros((1, 4))
     )
     assert g[0, 1] == pytest.approx(servo.gimbal_inertia[1] * lim.max_gimbal_rate / 0.05)
-    assert s[0, 3] == 0.0
+    drag = 0.0 if coast is None else -servo.spin_inertia[3] * 400.0 / coast  # undriven: no motor, drag only
+    assert s[0, 3] == drag
     servo.hold(Setpoints(np.zeros((2, 4)), np.zeros((2, 4)), np.zeros(2, bool)))
     with pytest.raises(ConfigError, match="one run"):
         servo.drive()

@@ -145,7 +145,9 @@ class ServoModel:
 
     Beyond the rate setpoints of :class:`Setpoints`, :meth:`hold` takes per unit an angle mode (the gimbal
     servo's own position loop toward a target angle, ``γ̇_sp = sat(rem(γ_sp − γ, 2π) / τ_pos, γ̇max)``) and
-    undriven rotors (no pulses or a dead ESC: the rotor keeps its speed, ``φ̇_sp = φ̇``)."""
+    undriven rotors (no pulses or a dead ESC: no motor torque; the rotor coasts down against its drag with
+    the coasting time constant, ``u_φ = −J_φ φ̇ / τ_coast`` — as the board's own unit model has it — or keeps
+    its speed when the servo has no coasting model)."""
 
     def __init__(self, params: SpacecraftParams, servo: ServoParams | None = None) -> None:
         self.params = params
@@ -208,16 +210,20 @@ class ServoModel:
             rate_sp = np.where(on_angle, loop, rate_sp)
         ug = self.gimbal_inertia * (rate_sp - gimbal_rate) / sv.gimbal_time_constant_s
         err = self.rotor_speed_sp - rotor_rate
-        if self.rotor_undriven is not None:
-            err = np.where(self.rotor_undriven, 0.0, err)
         tau = np.full_like(err, sv.rotor_time_constant_s)
         if sv.coast_time_constant_s is not None:
             tau = np.where(err < 0.0, sv.coast_time_constant_s, tau)
-        us = self.spin_inertia * err / tau
-        return (
-            np.clip(ug - rho * gimbal_load, -lim.max_gimbal_torque, lim.max_gimbal_torque),
-            np.clip(us - rho * rotor_load, -lim.max_rotor_torque, lim.max_rotor_torque),
+        us = np.clip(
+            self.spin_inertia * err / tau - rho * rotor_load, -lim.max_rotor_torque, lim.max_rotor_torque
         )
+        if self.rotor_undriven is not None:
+            # no motor torque: drag alone slows the rotor (or nothing, without a coasting model)
+            if sv.coast_time_constant_s is None:
+                drag = np.zeros_like(rotor_rate)
+            else:
+                drag = -self.spin_inertia * rotor_rate / sv.coast_time_constant_s
+            us = np.where(self.rotor_undriven, drag, us)
+        return np.clip(ug - rho * gimbal_load, -lim.max_gimbal_torque, lim.max_gimbal_torque), us
 
     # ------------------------------------------------------------------ for the compiled plant
     def drive(self) -> Drive:

@@ -65,7 +65,7 @@ SPOOF_REASONS = {
 }
 """The admission reason each hostile reading of ``firmware-sim --phone-spoof KIND`` is dropped for."""
 RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, boot, handshake)
-DEAD_ESC_S = 25.0  # a dead rotor ESC → the board's report: its rotor has to coast below 5 % of its command
+DEAD_ESC_S = 8.0  # a dead rotor ESC → the board's report: its rotor coasts below 5 % of its command (τ 1.5 s), then 0.5 s
 DROP_NOTE_S = 0.1  # the host notes a reason's dropped readings at most this often (hil.runtime.host)
 REARM_S = 0.6  # a reconnect → the re-arm (the first try, or after a refusal while the board boots)
 SPUN_UP = 0.05  # rotors within this fraction of nominal when the host steers again (hil.runtime.host)
@@ -247,6 +247,8 @@ def _expectations(fault: InjectedFault, b: Bounds) -> list[_Expect]:
             _Expect(("reset",), p["duration_s"] + b.reconnect_max_s + RESET_S, cause="POWER_ON"),
         ]
     if kind == "dead_esc":
+        if p["channel"] % 2 == 0:
+            return []  # a gimbal servo: the board tells it dead only when asked above 0.1 rad/s (dead_esc.py)
         return [_Expect(("esc_dead",), DEAD_ESC_S)]
     if kind == "phone_gap":
         if p["duration_s"] < b.stale_after_s + b.phone_period_s + 2 * b.tick_s:
@@ -285,7 +287,10 @@ def _detected(
         if _masked(fault, rows, bounds):
             report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
             continue
+        blocked = _blocked_s(fault, faults, bounds)
+        resets = _other_resets(fault, faults, bounds)
         for e in expected:
+            e = _Expect(e.kinds, e.bound + blocked, None if resets else e.cause, e.reason)
             if fault.t + e.bound > end:
                 report.unseen.append(f"{fault.describe()} (too close to the end for its {e.bound:.2f} s)")
                 continue
@@ -312,10 +317,48 @@ def _detected(
                 )
             else:
                 report.detection.append((fault.kind, max(found["t"] - fault.t, 0.0)))
-    noise = [f for f in faults if f.kind == "noise" and f.params["corrupt"] * f.params["duration_s"] >= 0.01]
+    noise = [f for f in faults if f.kind == "noise" and f.params["corrupt"] * _live_s(f, rows) >= 0.01]
     link = record.summary.get("link") or {}
     if noise and not (sum((link.get("bad_frames") or {}).values()) + (link.get("board_rx_bad") or 0)):
         report.add("faults_detected", f"{noise[0].describe()}: no damaged frame counted by either side")
+
+
+LINK_BLOCKING = ("stall", "unplug", "hang", "brownout")
+
+
+def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> float:
+    """How long other faults kept the host from hearing the board around ``fault`` (s): a stall or an
+    unplug (and its reconnection back-off) overlapping the time its report was due hides the report
+    until the link carries again."""
+    extra = 0.0
+    for other in faults:
+        if other is fault or other.kind not in ("stall", "unplug"):
+            continue
+        length = other.params.get("duration_s", 0.0) + (
+            b.reconnect_max_s + RESET_S if other.kind == "unplug" else 0.0
+        )
+        if other.t <= fault.t + RESET_S + b.detect_s and other.t + length >= fault.t:
+            extra += length
+    return extra
+
+
+def _other_resets(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> bool:
+    """Whether another reset (a hang, a brown-out, an unplug) came before ``fault``'s reset could be
+    reported: the board then tells only its last reset's cause."""
+    return any(
+        other is not fault and other.kind in ("hang", "brownout", "unplug") and abs(other.t - fault.t) < 10.0
+        for other in faults
+    )
+
+
+def _live_s(fault: InjectedFault, rows: Mapping[str, np.ndarray]) -> float:
+    """How long the host had a live board during ``fault``'s window (s)."""
+    t = rows["t"]
+    inside = (t >= fault.t) & (t < fault.t + fault.params.get("duration_s", 0.0))
+    if not inside.any():
+        return 0.0
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    return float(np.sum(rows["board_link"][inside] == BoardLink.LIVE)) * dt
 
 
 def _masked(fault: InjectedFault, rows: Mapping[str, np.ndarray], bounds: Bounds) -> bool:
@@ -384,7 +427,8 @@ def _back(
                 "back_in_control", f"outage at t={o['start']:.2f} s ({', '.join(o['causes'])}) never ended"
             )
     lost = summary.get("lost")
-    if lost and not _unrecoverable(faults, bounds):
+    open_at_end = lost is not None and "not back when the run ended" in lost
+    if lost and not open_at_end and not _unrecoverable(faults, bounds):
         report.add("back_in_control", f"lost: {lost}")
     _rearmed_through_handshake(report, record, rows)
     _spun_up_to_steer(report, record, rows, bounds, faults)

@@ -61,10 +61,18 @@ from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.scheduler import PeriodicTask, Scheduler
-from protocol.errors import ConfigError, HilError, LinkTimeout
+from protocol.errors import (
+    CommandFailed,
+    ConfigError,
+    HilError,
+    LinkError,
+    LinkTimeout,
+    PortBusy,
+    TransportError,
+)
 
 if TYPE_CHECKING:
-    from hil.link.board import BoardClient
+    from hil.link.board import BoardClient, BoardInfo
 
 logger = logging.getLogger(__name__)
 
@@ -284,7 +292,7 @@ def _build(
         client = BoardClient(opts.port, clock=clock)
     stack.callback(client.close)
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
-    info = client.connect()
+    info = _connect(client, events, opts.recover_within_s)
     # The handshake's board events are older than the records below: the host's watch writes them first,
     # once it exists, and these records wait for it (events.jsonl stays in time order).
     handshake = client.drain_events()
@@ -353,9 +361,15 @@ def _build(
     if plan.source == "phone":  # before arming: the board's link watchdog is not fed while we wait
         assert phone is not None
         _wait_for_phone(phone, opts.phone_wait_s, client, host.watch.on_events)
-    client.arm()
-    host.watch.on_events(client.drain_events())  # what the board said while arming goes before "armed"
-    events.write(clock.now(), "armed")
+    try:
+        client.arm()
+    except (CommandFailed, LinkError) as exc:  # a stall, a reset, a vanished port while arming: a fault
+        host.watch.on_events(client.drain_events())
+        events.write(clock.now(), "arm_failed", detail=str(exc))
+        host.watch.request_arm()  # re-armed through the protocol on the control tick, as after any fault
+    else:
+        host.watch.on_events(client.drain_events())  # what the board said while arming goes before "armed"
+        events.write(clock.now(), "armed")
     origin = clock.now()
     until = _time_limit(scenario, opts, origin) + opts.recover_within_s
     estimator_hz = estimator_rate_hz(scenario)
@@ -469,6 +483,28 @@ def _pacer(pace: float, origin: float) -> PeriodicTask:
             time.sleep(ahead)
 
     return PeriodicTask("pace", PACE_PERIOD_S, pace_task)
+
+
+def _connect(client: BoardClient, events: EventLog, bound_s: float) -> BoardInfo:
+    """The first handshake. A port that vanishes or cannot be opened meanwhile (a board unplugged and
+    plugged back, a firmware-sim restarting) is tried again with the client's back-off for up to
+    ``bound_s`` (the run's outage bound; each try an ``events.jsonl`` record); a board that answers
+    nothing, answers another protocol, or a port another host holds fails at once."""
+    clock = client.clock
+    start = clock.now()
+    attempt = 0
+    while True:
+        try:
+            return client.connect()
+        except PortBusy:
+            raise
+        except TransportError as exc:
+            now = clock.now()
+            if now - start >= bound_s:
+                raise TransportError(f"{exc} (tried for {now - start:.1f} s)") from exc
+            events.write(now, "connect_retry", attempt=attempt, detail=str(exc))
+            clock.sleep_until(now + client.config.reconnect_delay(attempt))
+            attempt += 1
 
 
 def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:

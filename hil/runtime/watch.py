@@ -63,6 +63,7 @@ class BoardWatch:
         self.stale_after_s = stale_after_s
         self.failsafes = self.resets = self.link_losses = self.reconnects = self.rearms = 0
         self.stale_episodes = 0
+        self._reconnects_seen = 0  # the session's reconnect count at the last ConnectedEvent
         self.operator_disarmed = False
         self._rearm: str | Command | None = None  # "pending" or the Arm in flight
         self._fresh_after = -math.inf  # telemetry received before this (host s) is from an older session
@@ -101,7 +102,8 @@ class BoardWatch:
             self._upset("link_lost")
         elif isinstance(event, ConnectedEvent):
             self.events.write(t, "connected", reconnects=event.reconnects)
-            if event.reconnects:
+            if event.reconnects > self._reconnects_seen:  # the session's count: a handshake after a reset
+                self._reconnects_seen = event.reconnects  # on a session that reconnected once is not one
                 self.reconnects += 1
                 self._fresh_after = t
                 self.journal.fault(t, "reconnect", reconnects=event.reconnects)
@@ -189,6 +191,12 @@ class BoardWatch:
             self._rearm = None
         except CommandFailed as exc:  # e.g. still in reset: try again next tick
             self.events.write(t, "rearm_failed", detail=str(exc))
+            self._rearm = "pending"
+
+    def request_arm(self) -> None:
+        """Arm the board through the protocol on a coming tick (the run's first Arm failed: a fault while
+        arming), unless the operator has it disarmed."""
+        if not self.operator_disarmed and self._rearm is None:
             self._rearm = "pending"
 
     def operator_disarm(self, t: float) -> Command:

@@ -9,8 +9,9 @@ reference; ``ServoModel.drive()`` packs its parameters and held setpoints into a
 with ``τ_φ`` the coasting time constant when the rotor is above its setpoint and the ESC cannot brake.
 Per unit, a gimbal may follow an angle instead of a rate (the servo's own position loop,
 ``γ̇_sp = sat(rem(γ_sp − γ, 2π) / τ_pos, γ̇max)``) and a rotor may be undriven (no pulses, a dead ESC:
-``φ̇_sp = φ̇``, it keeps its speed against nothing but its load). Both are evaluated at every stage, so the
-trajectory does not depend on how often the caller refreshes the setpoints.
+no motor torque, it coasts down against its drag, ``u_φ = −J_φ φ̇ / τ_coast``; it keeps its speed when
+there is no coasting model). Both are evaluated at every stage, so the trajectory does not depend on how
+often the caller refreshes the setpoints.
 
 Why the law lives here, beside the plant, rather than with ``ServoModel`` in :mod:`hil.control`: the
 compiled step calls it at each stage, and a compiled function handed another as an argument is compiled
@@ -127,7 +128,10 @@ def drive_torques(
                 sp = -rate_max if err < -rate_max else rate_max if err > rate_max else err
             u = jg * (sp - gr[i]) / tau_g - rho * fg[i]
             ug[i] = -gmax if u < -gmax else gmax if u > gmax else u  # NaN passes, as np.clip's
-            e = 0.0 if drive[b + 5 * n + i] != 0.0 else drive[b + 4 * n + i] - wr[i]
+            if drive[b + 5 * n + i] != 0.0:  # undriven: no motor torque, drag alone (no coast model: none)
+                us[i] = -js * wr[i] / tau_c if tau_c > 0.0 else 0.0
+                continue
+            e = drive[b + 4 * n + i] - wr[i]
             u = js * e / (tau_c if (tau_c > 0.0 and e < 0.0) else tau_r) - rho * fp[i]
             us[i] = -rmax if u < -rmax else rmax if u > rmax else u
     for i in range(n):
