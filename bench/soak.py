@@ -17,13 +17,19 @@ kill          pty         ``firmware-sim --world`` killed with SIGKILL and start
 phone_pause   pty         the phone's UDP stream paused for 1 s by the relay between phone and host
 hostile       pty         hostile datagrams to the host's phone port
                           (:func:`bench.soak_phone.hostile_datagrams`)
+second_host   pty         another host opens the board's port: refused (it is locked), naming the
+                          holder; the run notices nothing
 ============  ==========  ===========================================================================
 
-The lockstep runs (the in-process board on the host's clock: fault times are exact, the board's own
-outputs inspectable) put all cycles of a kind in one run, ``PERIOD_S`` apart from ``FIRST_S`` on. The pty
-run is one ``hil run --port`` against firmware-sim with its world on a pty, in real time, the host in a
-thread of this process (its run observer timestamps everything), faults injected one after the other once
-the host steers again.
+**Every moment, not a chosen one.** Each lockstep cycle is a run of its own (the in-process board on the
+host's clock: fault times exact, the board's own outputs inspectable) given its fault at a moment drawn
+uniformly over the whole run — the handshake, the still window, the spin-up, the slew, the hold
+(:func:`draw_times`, reproducible from ``--seed``) — and checked with the fault campaigns' invariants
+(:mod:`hil.runtime.invariants`) besides the checks below. The pty run is one ``hil run --port`` against
+firmware-sim with its world on a pty, in real time, the host in a thread of this process (its run observer
+timestamps everything): its first fault comes at a moment drawn from the run's start (the handshake and
+the first warm-up included: a board restarted then never came back, issue 25), each next one at a drawn
+delay after the host has the board back (its recovery warm-up, the still window, the resumed slew).
 
 After each fault it checks (a failed check is a *problem* of the cycle; a cycle without one survived):
 
@@ -58,7 +64,8 @@ import logging
 import sys
 import tempfile
 import time
-from dataclasses import asdict, dataclass, field
+import zlib
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -69,13 +76,11 @@ from hil.runtime.faults import BoardLink
 from hil.runtime.observer import RunAborted, RunStart
 from hil.runtime.runlog import read_events, read_telemetry
 from hil.runtime.telemetry import board_columns
-from hil.scenario import Scenario, load_scenario
+from hil.scenario import load_scenario
 
 SCENARIO = "cubesat-1u"
 LOCKSTEP_KINDS = ("stall", "hang", "brownout", "corruption", "phone_gap")
-PTY_KINDS = ("kill", "phone_pause", "hostile")
-FIRST_S = 5.0  # board s: the first fault (the slew starts at ~2.7 s)
-PERIOD_S = 7.0  # board s between faults in a lockstep run
+PTY_KINDS = ("kill", "phone_pause", "hostile", "second_host")
 STALL_S, GAP_S, PAUSE_S, RESTART_S = 0.6, 1.0, 1.0, 1.0
 STALE_S = 0.25  # the host's stale bound (hil.runtime.faults.STALE_AFTER_S)
 DETECT_S = {"lockstep": STALE_S + 0.045, "pty": STALE_S + 0.25}  # + two ticks; + wall-clock slack
@@ -254,50 +259,75 @@ def check_logs(run_dir: Path, rec: Recorder, summary: dict[str, Any], lockstep: 
 
 
 # =========================================================================== lockstep
-def _lockstep_scenario(kind: str, times: list[float]) -> Scenario:
-    spec = {
-        "stall": {"stall": [f"{t!r}:{STALL_S!r}" for t in times]},
-        "hang": {"hang_at": [repr(t) for t in times]},
-        "brownout": {"brownout_at": [repr(t) for t in times]},
-        "phone_gap": {"phone_gap": [f"{t!r}:{GAP_S!r}" for t in times]},
-        "corruption": {"corrupt": "0.01"},
-    }[kind]
-    return load_scenario(SCENARIO).with_changes(fault_options=spec)
+LOCKSTEP_DURATION_S = 22.0  # each lockstep cycle's run, from its slew's start
+_AS_INJECTED = {"stall": "stall", "hang": "hang", "brownout": "brownout", "corruption": "noise",
+                "phone_gap": "phone_gap"}  # fmt: skip
+_PARAMS = {"stall": {"duration_s": STALL_S}, "phone_gap": {"duration_s": GAP_S},
+           "corruption": {"duration_s": 3.0, "corrupt": 0.01}}  # fmt: skip
 
 
-def lockstep_kind(kind: str, cycles: int, out_root: Path) -> list[Cycle]:
-    """``cycles`` faults of ``kind`` in one lockstep run, each checked."""
-    times = [FIRST_S + i * PERIOD_S for i in range(cycles)]
-    scenario = _lockstep_scenario(kind, times)
-    rec = Recorder(scenario.n_units)
-    probe = _FailsafeProbe(rec, times) if kind == "stall" else _LinkCounter(rec, times)
-    rec.on_tick = probe
-    duration = times[-1] + PERIOD_S  # from the slew's start (~2.7 s): the last cycle's window and more
-    out = [Cycle(kind, "lockstep", t) for t in times]
-    try:
-        result = run(scenario, RunOptions(out_root=out_root, duration_s=duration, observer=rec,
-                                          recover_within_s=RECOVER_WITHIN_S))  # fmt: skip
-    except Exception as exc:  # a crash: the cycles after the last row did not survive
-        last = rec.rows[-1][0] if rec.rows else 0.0
-        for c in out:
-            if c.t_fault + PERIOD_S > last:
-                c.problems.append(f"the run failed: {exc!r}")
-        return out
-    s = result.summary
-    faults = s.get("faults", [])
-    run_problems = check_logs(result.run_dir, rec, s, lockstep=True) if result.run_dir else []
-    if s.get("exit") != "completed":
-        run_problems.append(f"exit {s.get('exit')!r}")
-    for i, c in enumerate(out):
-        end = times[i + 1] if i + 1 < len(times) else np.inf
+def draw_times(kind: str, cycles: int, window_s: float, seed: int) -> list[float]:
+    """``cycles`` fault moments for ``kind``, uniform over a run's whole span ``[0, window_s)`` (s from
+    the run's start: handshake, warm-up, spin-up, slew, hold), reproducible from ``seed``."""
+    rng = np.random.default_rng([seed, zlib.crc32(kind.encode())])
+    return [float(t) for t in rng.uniform(0.0, window_s, cycles)]
+
+
+def lockstep_kind(kind: str, cycles: int, out_root: Path, seed: int = 0) -> list[Cycle]:
+    """``cycles`` lockstep runs, each given one fault of ``kind`` at a moment drawn over the whole run
+    (:func:`draw_times`); each run checked with the campaigns' invariants
+    (:func:`hil.runtime.invariants.check_run`: detection, no stale row, safe pulses, an honest exit, back
+    in control) and the soak's own checks (the board's failsafe timing, nothing logged lost)."""
+    from hil.montecarlo.fault_plan import fault_options, run_window_s
+    from hil.montecarlo.runner import fault_bounds
+    from hil.runtime.invariants import InjectedFault, check_run
+    from hil.runtime.observer import Observers
+    from hil.runtime.record import RunRecorder
+
+    base = load_scenario(SCENARIO)
+    base = base.with_changes(slew=replace(base.slew, duration_s=LOCKSTEP_DURATION_S))
+    out: list[Cycle] = []
+    for i, t in enumerate(draw_times(kind, cycles, run_window_s(base), seed)):
+        fault = InjectedFault(_AS_INJECTED[kind], t, dict(_PARAMS.get(kind, {})))
+        scenario = base.with_changes(fault_options=fault_options((fault,), {}))
+        rec = Recorder(scenario.n_units)
+        probe = _FailsafeProbe(rec, [t]) if kind == "stall" else _LinkCounter(rec, [t])
+        rec.on_tick = probe
+        record = RunRecorder(scenario.n_units)
+        c = Cycle(kind, "lockstep", t)
+        out.append(c)
+        try:
+            result = run(scenario, RunOptions(out_root=out_root / f"{i:03d}", observer=Observers(rec, record),
+                                              recover_within_s=RECOVER_WITHIN_S))  # fmt: skip
+        except Exception as exc:  # a crash: what the soak looks for
+            c.problems.append(f"the run failed: {exc!r}")
+            continue
+        report = check_run([fault], record, fault_bounds(scenario))
+        c.problems += [f"{name}: {m}" for name, ms in report.violations.items() for m in ms]
+        c.detection_s = min((s for _, s in report.detection), default=None)
+        c.back_s = report.recovery[0][1] if report.recovery else None
+        resume = rec.first("resume", t)
+        c.steering_s = None if resume is None else resume["t"] - t
+        c.cause = ", ".join(sorted({f["kind"] for f in result.summary.get("faults", []) if f["t"] >= t})) or (
+            "unseen: " + "; ".join(report.unseen) if report.unseen else "none"
+        )
+        silence = rec.first("silence", t, ended=False)
+        c.silence_s = None if silence is None else silence["t"] - t
+        if result.run_dir is not None:
+            c.problems += check_logs(result.run_dir, rec, result.summary, lockstep=True)
+        if kind == "stall" and _armed_before(rec, t):
+            assert isinstance(probe, _FailsafeProbe)
+            _check_failsafe(c, probe, 0)
         if kind == "corruption":
-            _check_corruption(c, rec, probe, i, end, faults)
-        else:
-            check_recovery(c, rec, end, "lockstep", faults)
-        if isinstance(probe, _FailsafeProbe):
-            _check_failsafe(c, probe, i)
-        c.problems += run_problems
+            _check_corruption(c, rec, probe, 0, t + 3.0, result.summary.get("faults", []))
     return out
+
+
+def _armed_before(rec: Recorder, t: float) -> bool:
+    """Whether the host's last row before ``t`` saw the board live and ARMED (a stall then must fail it
+    safe; one during the handshake or while it is disarmed has nothing to make safe)."""
+    before = [r for r in rec.rows if r[0] < t]
+    return bool(before) and before[-1][1] == BoardLink.LIVE and before[-1][2] == 2
 
 
 class _LinkCounter:
@@ -399,18 +429,19 @@ def figures(cycles: list[Cycle]) -> dict[str, Any]:
     return {"all": of(cycles), **{k: of([c for c in cycles if c.kind == k]) for k in kinds}}
 
 
-def soak(cycles: int, pty: int, out_root: Path, kinds: tuple[str, ...] = LOCKSTEP_KINDS + PTY_KINDS
-         ) -> list[Cycle]:  # fmt: skip
-    """``cycles`` of each lockstep kind and ``pty`` of each pty kind."""
+def soak(
+    cycles: int, pty: int, out_root: Path, kinds: tuple[str, ...] = LOCKSTEP_KINDS + PTY_KINDS, seed: int = 0
+) -> list[Cycle]:
+    """``cycles`` of each lockstep kind and ``pty`` of each pty kind, the moments drawn from ``seed``."""
     from bench.soak_pty import pty_soak
 
     out: list[Cycle] = []
     for kind in kinds:
         if kind in LOCKSTEP_KINDS and cycles:
-            out += lockstep_kind(kind, cycles, out_root / kind)
+            out += lockstep_kind(kind, cycles, out_root / kind, seed)
     plan = [k for _ in range(pty) for k in PTY_KINDS if k in kinds]
     if plan:
-        out += pty_soak(plan, out_root / "pty")
+        out += pty_soak(plan, out_root / "pty", seed)
     return out
 
 
@@ -425,12 +456,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     p.add_argument("--json", type=Path, help="write every cycle and the figures here")
     p.add_argument("--keep", type=Path, help="keep the run directories here (default: a temporary one)")
+    p.add_argument("--seed", type=int, default=0, help="draws the faults' moments (default 0)")
     args = p.parse_args(argv)
     cycles, pty = (2, 2) if args.ci else (args.cycles, args.pty)
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="soak-") as tmp:
         root = args.keep or Path(tmp)
-        result = soak(cycles, pty, root, tuple(args.kinds))
+        result = soak(cycles, pty, root, tuple(args.kinds), args.seed)
     wall = time.monotonic() - started
     figs = figures(result)
     for c in result:

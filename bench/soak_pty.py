@@ -16,6 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from bench.soak import (
     BACK_S,
     PAUSE_S,
@@ -65,8 +67,15 @@ def _wait(predicate: Any, timeout: float) -> bool:
     return False
 
 
-def pty_soak(plan: list[str], out_root: Path) -> list[Cycle]:
-    """The faults of ``plan`` (``kill``, ``phone_pause``, ``hostile``) in one real-time run."""
+FIRST_WINDOW_S = (0.2, 8.0)  # the first fault: from the run's start (handshake, still window, spin-up, slew)
+NEXT_WINDOW_S = (0.0, 8.0)  # each next one: after the host has the board back (recovery warm-up, slew)
+
+
+def pty_soak(plan: list[str], out_root: Path, seed: int = 0) -> list[Cycle]:
+    """The faults of ``plan`` (``kill``, ``phone_pause``, ``hostile``, ``second_host``) in one real-time
+    run, each at a drawn moment: the first from the run's start, the next ones after the host is back in
+    control (see :mod:`bench.soak`)."""
+    rng = np.random.default_rng([seed, 7])
     scenario = load_scenario(SCENARIO)
     port = _free_udp_port()
     relay = PhoneRelay(("127.0.0.1", port)).start()
@@ -90,9 +99,13 @@ def pty_soak(plan: list[str], out_root: Path) -> list[Cycle]:
     cycles: list[Cycle] = []
     hostile_bad = 0
     try:
-        if not _wait(lambda: rec.first("slew_start", -1.0) is not None or not thread.is_alive(), START_S):
-            raise RuntimeError("the host did not start its slew")
-        for kind in plan:
+        if not _wait(lambda: rec.first("armed", -1.0) is not None or not thread.is_alive(), START_S):
+            raise RuntimeError("the host did not arm the board")
+        start = rec.now()
+        for n, kind in enumerate(plan):
+            lo, hi = FIRST_WINDOW_S if n == 0 else NEXT_WINDOW_S
+            at = (start if n == 0 else rec.now()) + float(rng.uniform(lo, hi))
+            _wait(lambda at=at: rec.now() >= at or not thread.is_alive(), hi + 1.0)
             if not thread.is_alive():
                 cycles.append(Cycle(kind, "pty", rec.now(), problems=[f"the host stopped: {outcome}"]))
                 continue
@@ -104,12 +117,14 @@ def pty_soak(plan: list[str], out_root: Path) -> list[Cycle]:
                 sims.append(_board(link, relay.url))
             elif kind == "phone_pause":
                 relay.pause(PAUSE_S)
+            elif kind == "second_host":
+                _second_host(c, link)
             else:
                 datagrams, bad = hostile_datagrams(relay.newest_ns)
                 send(datagrams, ("127.0.0.1", port), HOSTILE_REPEAT)
                 hostile_bad += bad * HOSTILE_REPEAT
             cycles.append(c)
-            if kind == "hostile":
+            if kind in ("hostile", "second_host"):
                 time.sleep(HOSTILE_WATCH_S)
                 _check_hostile(c, rec)
             elif not _wait(lambda c=c: rec.first("resume", c.t_fault) is not None, STEER_S["pty"] + 2.0):
@@ -131,9 +146,27 @@ def pty_soak(plan: list[str], out_root: Path) -> list[Cycle]:
     return cycles
 
 
+def _second_host(c: Cycle, link: Path) -> None:
+    """Another host tries the board's port while the run holds it (issue 25, finding 4): refused at once,
+    the refusal naming the holder; the run's host must notice nothing (:func:`_check_hostile`)."""
+    from hil.link.board import BoardClient
+    from protocol.errors import PortBusy
+
+    try:
+        with BoardClient(str(link)) as intruder:
+            intruder.connect(timeout=2.0)
+    except PortBusy as exc:
+        c.cause = f"refused: {exc.holder_pid is not None and 'holder named' or 'holder unknown'}"
+        return
+    except Exception as exc:  # noqa: BLE001 - any other outcome is the finding
+        c.problems.append(f"the second host was not refused as busy: {exc!r}")
+        return
+    c.problems.append("a second host connected to the board the run holds")
+
+
 def _check_hostile(c: Cycle, rec: Recorder) -> None:
     """Nothing happened: no fault, no phone gap or restart, the host in control all along."""
-    c.cause = "counted"
+    c.cause = c.cause or "counted"
     upsets = ("phone_gap", "phone_restart", "link_lost", "board_reset", "lost", "recovery_start")
     faults = [e for e in rec.events if e["t"] >= c.t_fault and e["kind"] in upsets]
     if faults:

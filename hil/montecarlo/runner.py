@@ -255,7 +255,7 @@ def run_faulted(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResul
     bounds = fault_bounds(realised)
     budget = WALL_BUDGET_S + WALL_PER_SIM_S * bounds.time_limit_s
     try:
-        with _quiet(_RUN_LOGGERS), wall_budget(budget):
+        with _quiet(_RUN_LOGGERS, logging.CRITICAL), wall_budget(budget):
             result = run_scenario(
                 realised, RunOptions(out_root=None, observer=observer, rows_to_observer=True)
             )
@@ -351,12 +351,13 @@ hundreds of runs does not: its metrics count them)."""
 
 
 @contextlib.contextmanager
-def _quiet(names: Sequence[str]) -> Iterator[None]:
-    """Those loggers' warnings off for the block (errors still show)."""
+def _quiet(names: Sequence[str], level: int = logging.ERROR) -> Iterator[None]:
+    """Those loggers' records below ``level`` off for the block (by default errors still show; a fault
+    campaign's run records its faults and errors, and checks them)."""
     loggers = [logging.getLogger(name) for name in names]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
-        lg.setLevel(logging.ERROR)
+        lg.setLevel(level)
     try:
         yield
     finally:
