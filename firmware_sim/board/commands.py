@@ -92,7 +92,9 @@ class CommandHandler:
     all), ``units`` (gimbal mode, held angles), ``power`` (``Arm`` is refused while shedding load, and
     clears the SHED latch), ``transfers`` (calibration upload/download), ``telemetry`` (the schedule a
     session starts), ``resets`` (the MCU's reset record: uptime and reset cause). ``catch_up(t)`` brings
-    the hardware models to ``t`` (µs) before the gimbals' present angles are held."""
+    the hardware models to ``t`` (µs) before the gimbals' present angles are held; ``apply_outputs()``
+    makes the board aim its outputs at what the present state and command give, at once (leaving ARMED
+    must not wait for the next pulse frame: see :meth:`_set_state`)."""
 
     def __init__(
         self,
@@ -108,6 +110,7 @@ class CommandHandler:
         telemetry: Periodic,
         resets: Sequence[ResetEvent],
         catch_up: Callable[[int], None],
+        apply_outputs: Callable[[], None],
     ) -> None:
         self.config = config
         self.link = link
@@ -130,6 +133,7 @@ class CommandHandler:
         """Board time (µs) the link watchdog expires (inf: not watching: no session, or already lost)."""
         self._out = outbox
         self._catch_up = catch_up
+        self._apply_outputs = apply_outputs
 
     def reset(self) -> None:
         """MCU reset: BOOT, SETPOINT mode, no session, the command forgotten."""
@@ -254,6 +258,12 @@ class CommandHandler:
         return tr.refused
 
     def _set_state(self, new: BoardState, t: int) -> None:
+        """Enter ``new``. Leaving ARMED (Disarm, Hello, link loss) stops the rotors and holds the gimbals
+        *in this main-loop pass*, before the change is reported, as the C firmware's ``enter_state``
+        does: the widths the board aims at (and reports in ``Telemetry.pulses_us``) are the safe ones
+        from this tick on, and the next pulse frame carries them. Waiting for that frame to recompute
+        them left telemetry reporting the armed rotor pulse with state DISARMED for up to a frame
+        (issue 25, finding 7). The frame under way keeps its width: the pins change at a frame start."""
         old = self.state
         if new is old:
             return
@@ -261,6 +271,7 @@ class CommandHandler:
         if not motors_enabled(new):
             self._hold_gimbals(t)
             self.command.stop_rotors()
+            self._apply_outputs()
         self._out.log(
             Severity.WARNING if new is BoardState.FAILSAFE else Severity.INFO,
             LogCode.STATE,

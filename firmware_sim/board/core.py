@@ -135,6 +135,7 @@ class Board:
             telemetry=self._telemetry,
             resets=self.resets,
             catch_up=self._physics,
+            apply_outputs=self._apply_outputs,
         )
         self.counters = self.commands.counters
         self.command = self.commands.command
@@ -461,11 +462,17 @@ class Board:
             widths = widths[:channel] + (whole_us(width),) + widths[channel + 1 :]
         return widths, clamped
 
+    def _apply_outputs(self) -> None:
+        """The main loop aims the outputs at once (the firmware's ``apply_outputs``): ``targets`` — what
+        telemetry reports and the next frame dithers — follow the present state, command and power stage.
+        Called when the board leaves ARMED; ``outputs`` (the pins) change only at the next frame start."""
+        self.targets, self._clamped = self._compute_outputs()
+
     def _pulse_frame(self, t: int) -> None:
         """A frame starts: the main loop's targets (RUNNING), dithered into this frame's widths by the
         frame-start interrupt — which runs on in a HUNG main loop, so the last targets go on."""
         if self.phase is _RUNNING:
-            self.targets, self._clamped = self._compute_outputs()
+            self._apply_outputs()
         self.outputs = self.dither.frame(self.targets)
         self.drive_epoch += 1
         self.timeline.record(t / 1e6, self.outputs, int(self.commands.state))

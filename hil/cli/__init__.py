@@ -4,6 +4,11 @@ Each subcommand module defines ``register(subparsers)``, which adds its parser a
 handler ``(args) -> int``, and an integer ``ORDER`` (where ``hil --help`` lists it; smaller first).
 Modules are discovered, so adding a command is adding a module. Heavy imports happen inside handlers so
 ``hil --help`` stays fast.
+
+SIGTERM and SIGINT both raise ``KeyboardInterrupt`` while a command runs (:mod:`hil.cli._signals`), so a
+command ends the same clean way whichever it gets; one that escapes the command ends ``hil`` with
+128 + the signal's number (130, 143). ``hil run`` and ``hil replay --port`` catch it in the run and report
+it in their summary instead (exit status 1: docs/faults.md).
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ from collections.abc import Sequence
 from types import ModuleType
 
 from protocol.errors import HilError
+
+from ._signals import exit_status, interrupts_raise, signal_of
 
 
 def command_modules() -> list[ModuleType]:
@@ -49,13 +56,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
-        return int(args.func(args) or 0)
+        with interrupts_raise():
+            return int(args.func(args) or 0)
     except HilError as exc:
         print(f"hil {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"hil {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"hil {args.command}: interrupted ({signal_of(exc).name})", file=sys.stderr)
+        return exit_status(exc)
 
 
 if __name__ == "__main__":

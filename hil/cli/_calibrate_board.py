@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -154,6 +156,30 @@ def _client(args: argparse.Namespace) -> Any:
     return client
 
 
+@contextmanager
+def _bench(args: argparse.Namespace) -> Iterator[Any]:
+    """The bench link on the board at ``args.port``, closed afterwards. Interrupted (Ctrl-C, or SIGTERM
+    from ``timeout``, systemd or a CI cancel: :mod:`hil.cli._signals`), the board is put back to rest
+    first — its outputs to the base pulses, Disarm, SETPOINT mode (``BenchLink.safe``) — best effort: a
+    sweep already does that on its way out, but ESC programming does not, and closing the port alone
+    leaves the board to its link watchdog. A second interrupt gives that up."""
+    from hil.calibration.benchlink import BenchLink
+    from protocol.errors import HilError
+
+    client = _client(args)
+    link = BenchLink(client)
+    try:
+        yield link
+    except KeyboardInterrupt:
+        try:
+            link.safe()
+        except (HilError, KeyboardInterrupt) as exc:
+            print(f"hil calibrate: could not put the board back to rest: {exc!r}", file=sys.stderr)
+        raise
+    finally:
+        client.close()
+
+
 def _settling(args: argparse.Namespace) -> Any:
     from hil.calibration.benchlink import Settling
 
@@ -183,21 +209,16 @@ def _ask(prompt: str) -> None:
 
 # --------------------------------------------------------------------------- esc
 def run_esc(args: argparse.Namespace) -> int:
-    from hil.calibration.benchlink import BenchLink
     from hil.calibration.esc import program_esc
 
     program = _program(args)
-    client = _client(args)
-    try:
-        link = BenchLink(client)
+    with _bench(args) as link:
         for unit in args.unit:
             outcome = program_esc(
                 link, unit, program, confirm_unloaded=args.confirm_unloaded, ask_supply=_ask
             )
             phases = " -> ".join(p.name for p in outcome.phases)
             print(f"unit {unit}: ESC taught {outcome.low_us}-{outcome.high_us} us ({phases})")
-    finally:
-        client.close()
     return 0
 
 
@@ -216,7 +237,6 @@ def _range(text: str) -> tuple[int, int]:
 
 def run_sweep_cmd(args: argparse.Namespace) -> int:
     from hil.calibration.bench import BenchKind
-    from hil.calibration.benchlink import BenchLink
     from hil.calibration.sweep import SweepPlan, run_sweep
 
     low, high = _range(args.range)
@@ -231,11 +251,8 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
         tolerance=args.tolerance,
         guard=_guard(args),
     )
-    client = _client(args)
-    try:
-        results = run_sweep(BenchLink(client), args.unit, plan)
-    finally:
-        client.close()
+    with _bench(args) as link:
+        results = run_sweep(link, args.unit, plan)
     status = 0
     for unit, result in results.items():
         path = result.write_csv(args.out_dir / f"unit{unit}_{args.map}.csv")
@@ -251,7 +268,6 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- unit
 def run_unit(args: argparse.Namespace) -> int:
     from hil.calibration.bench import BenchKind
-    from hil.calibration.benchlink import BenchLink
     from hil.calibration.cycle import CycleOptions, calibrate_units
     from hil.calibration.fit import FitOptions
     from hil.calibration.sweep import SweepPlan
@@ -298,16 +314,13 @@ def run_unit(args: argparse.Namespace) -> int:
         esc=_program(args) if args.program_esc else None,
         verify=verify,
     )
-    client = _client(args)
-    try:
+    with _bench(args) as link:
         calibrate_units(
-            BenchLink(client),
+            link,
             args.unit,
             options,
             confirm_unloaded=args.confirm_unloaded,
             ask_supply=_ask,
             report=print,
         )
-    finally:
-        client.close()
     return 0

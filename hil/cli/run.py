@@ -31,11 +31,14 @@ plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/
 
 exit status:
   0  completed: the run's time after the slew's start is up, the board and the phone in hand at the end
-  1  ended early or incomplete: interrupted (Ctrl-C), aborted from the ground station, the time limit
-     reached before the slew started, or the plots failed
+  1  ended early or incomplete: interrupted by SIGINT (Ctrl-C) or SIGTERM (timeout, systemd, a CI cancel;
+     the board is disarmed, summary.json says "interrupted (SIGTERM)"), aborted from the ground station,
+     the time limit reached before the slew started, or the plots failed
   2  an error: bad options or scenario, a port that cannot be opened, a board that never answered or is
      incompatible, no phone stream, a reader thread's failure
   3  lost: the board (or the phone) was lost and not back within --recover-within (or at the end)
+  interrupted before the run starts (while the kernels compile): 130 (SIGINT) or 143 (SIGTERM), no run
+  directory
 """
 
 EXIT_COMPLETED, EXIT_INCOMPLETE, EXIT_ERROR, EXIT_LOST = 0, 1, 2, 3

@@ -42,6 +42,7 @@ import contextlib
 import gc
 import logging
 import math
+import signal
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -81,6 +82,7 @@ Progress = Callable[[Host, float], None]
 
 SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by Host.MAX_SPINUP_S)
 PACE_PERIOD_S = 0.01  # a paced lockstep run waits for the wall clock every this much simulated time
+DISARM_WAIT_S = 1.0  # an interrupted run waits at most this long (its clock) for the board's Disarm answer
 
 
 @dataclass(frozen=True)
@@ -225,8 +227,8 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
                 if not plan.lockstep:
                     gc.unfreeze()
             summary["exit"] = _outcome(built.host)
-    except KeyboardInterrupt:
-        summary["exit"] = "interrupted"
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM through hil's CLI (hil.cli._signals)
+        summary["exit"] = _interrupted(exc)
     except RunAborted as exc:
         summary["exit"] = f"aborted: {exc}"
     except BaseException as exc:
@@ -293,6 +295,7 @@ def _build(
     stack.callback(client.close)
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
     info = _connect(client, events, opts.recover_within_s)
+    stack.push(_disarm_if_interrupted(client, events))  # unwound before the close: the link still up
     # The handshake's board events are older than the records below: the host's watch writes them first,
     # once it exists, and these records wait for it (events.jsonl stays in time order).
     handshake = client.drain_events()
@@ -459,6 +462,42 @@ def _outcome(host: Host) -> str:
     if host.suspended_since is not None:
         return f"disarmed by the operator at t={host.suspended_since:.3f} s and not armed again"
     return "completed" if host.finished else "time limit (the slew never started)"
+
+
+def _interrupted(exc: BaseException) -> str:
+    """The exit reason of an interrupted run, naming the signal: ``interrupted (SIGTERM)``. hil's CLI
+    raises a ``KeyboardInterrupt`` carrying ``signum`` for SIGINT and SIGTERM alike; a bare one is
+    Python's own SIGINT handler's (a caller of :func:`run` that installed none)."""
+    return f"interrupted ({signal.Signals(getattr(exc, 'signum', signal.SIGINT)).name})"
+
+
+def _disarm_if_interrupted(client: BoardClient, events: EventLog) -> Callable[..., bool]:
+    """An exit callback for the run's ExitStack: when the run is interrupted, disarm the board the host
+    holds before the link is closed, best effort within :data:`DISARM_WAIT_S`, and say so in events.jsonl
+    (``disarmed``, or ``disarm_failed`` with why). Closing the port alone leaves an armed board spinning its
+    rotors until its own link watchdog fails it safe (FAILSAFE after its timeout, the operator's Disarm
+    never given). A second interrupt while waiting gives up the Disarm, not the run's summary. Any other
+    way out (completed, lost, an error) leaves the board as before. Never suppresses the exception."""
+
+    def on_exit(exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> bool:
+        if not isinstance(exc, KeyboardInterrupt):
+            return False
+        reason = _interrupted(exc)
+        if not client.connected:
+            events.write(
+                client.clock.now(), "disarm_failed", reason=reason, error="no session with the board"
+            )
+            return False
+        try:
+            client.disarm(timeout=DISARM_WAIT_S)
+        except (HilError, KeyboardInterrupt) as failure:
+            error = str(failure) or f"{type(failure).__name__} while waiting"
+            events.write(client.clock.now(), "disarm_failed", reason=reason, error=error)
+        else:
+            events.write(client.clock.now(), "disarmed", reason=reason)
+        return False
+
+    return on_exit
 
 
 def _in_process_board(url: str) -> InProcessBoard:
