@@ -71,7 +71,8 @@ Array = NDArray[np.float64]
 SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may start
 ROTOR_SETTLE_S = 1.0  # the first slew waits this long with the rotors spun up (their transient over)
 MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear error
-DROP_NOTE_S = 1.0  # a reason's dropped readings make at most one journal record per this long (s)
+DROP_NOTE_S = 0.1  # a reason's dropped readings make at most one journal record per this long (s)
+ROTOR_LAG_S = 1.0  # a rotor held at its setpoint's lead limit this long does not follow it (s)
 
 
 def _time_order(sample: SensorSample) -> tuple[bool, float]:
@@ -171,6 +172,8 @@ class Host:
         self._hold_tick = -1  # the control tick it went out in
         self.guard = PhoneGuard()  # the admission policy and the phone's clock guard
         self._esc_dead = False  # the board's DEAD_ESC flag as last seen
+        self._rotor_lag: list[float | None] = [None] * self.n  # since when each rotor lags its setpoint
+        self._rotor_noted: set[int] = set()  # the units reported as not following
         self._drops: dict[str, tuple[float, int]] = {}  # reason -> (last noted at, dropped since)
         self.phone_count = 0  # accepted samples seen at the last tick
         self.phone_heard: float | None = None  # host time the count last moved
@@ -279,6 +282,8 @@ class Host:
         command, cmd_out, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
         if armed and not watch.rearm_pending and command is not None:
             self._send(command)
+            if cmd_out is not None:
+                self._watch_rotors(t, rotor, command)
         self.rows.live(t, tel, view, gimbal, rotor, command, cmd_out, ref)
         if self.suspended_since is None and self.slew_start is not None:
             if t - self.slew_start - self.suspended_after_slew_s >= self._duration - 1e-9:
@@ -293,6 +298,28 @@ class Host:
             self.events.write(t, "esc_dead")
             logger.warning("the board reports a dead ESC at t=%.3f s (its log names the channel)", t)
         self._esc_dead = dead
+
+    def _watch_rotors(self, t: float, rotor: Array, command: ActuatorSetpoint) -> None:
+        """A rotor that does not follow its speed setpoint — the setpoint held at its lead limit above the
+        measured speed (:class:`~hil.control.motor_loops.SetpointGenerator`) for :data:`ROTOR_LAG_S` — is a
+        fault the host reports (``rotor_not_following``, the unit): a dead ESC, a motor that lost its
+        supply. The board's own detector cannot see it while the host steers: the setpoint, kept within
+        its lead of the measured speed, follows the rotor down."""
+        lead = 0.9 * self.setpoints.max_lead
+        for i, unit in enumerate(command.units):
+            lagging = unit.rotor_speed - rotor[i] >= lead
+            since = self._rotor_lag[i]
+            if not lagging:
+                self._rotor_lag[i] = None
+            elif since is None:
+                self._rotor_lag[i] = t
+            elif t - since >= ROTOR_LAG_S and i not in self._rotor_noted:
+                self._rotor_noted.add(i)
+                self.journal.note(t, "rotor_not_following", unit=i, speed_rad_s=float(rotor[i]))
+                self.events.write(t, "rotor_not_following", unit=i, speed_rad_s=float(rotor[i]))
+                logger.warning(
+                    "unit %d's rotor does not follow its setpoint at t=%.3f s (%.0f rad/s)", i, t, rotor[i]
+                )
 
     def _send(self, command: ActuatorSetpoint) -> None:
         try:

@@ -65,9 +65,8 @@ SPOOF_REASONS = {
 }
 """The admission reason each hostile reading of ``firmware-sim --phone-spoof KIND`` is dropped for."""
 RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, boot, handshake)
-DEAD_ESC_S = 8.0  # a dead rotor ESC → the board's report: its rotor coasts below 5 % of its command (τ 1.5 s), then 0.5 s
+DEAD_ESC_S = 8.0  # a dead rotor ESC → reported: it coasts below 5 % of its command (τ 1.5 s), then 0.5 s
 DROP_NOTE_S = 0.1  # the host notes a reason's dropped readings at most this often (hil.runtime.host)
-REARM_S = 0.6  # a reconnect → the re-arm (the first try, or after a refusal while the board boots)
 SPUN_UP = 0.05  # rotors within this fraction of nominal when the host steers again (hil.runtime.host)
 
 
@@ -249,7 +248,7 @@ def _expectations(fault: InjectedFault, b: Bounds) -> list[_Expect]:
     if kind == "dead_esc":
         if p["channel"] % 2 == 0:
             return []  # a gimbal servo: the board tells it dead only when asked above 0.1 rad/s (dead_esc.py)
-        return [_Expect(("esc_dead",), DEAD_ESC_S)]
+        return [_Expect(("esc_dead", "rotor_not_following"), DEAD_ESC_S)]
     if kind == "phone_gap":
         if p["duration_s"] < b.stale_after_s + b.phone_period_s + 2 * b.tick_s:
             return []
@@ -327,12 +326,13 @@ LINK_BLOCKING = ("stall", "unplug", "hang", "brownout")
 
 
 def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> float:
-    """How long other faults kept the host from hearing the board around ``fault`` (s): a stall or an
-    unplug (and its reconnection back-off) overlapping the time its report was due hides the report
-    until the link carries again."""
+    """How long other faults kept the host from hearing the board around ``fault`` (s): a stall, an
+    unplug (and its reconnection back-off) or a burst of heavy byte damage overlapping the time its report
+    was due hides the report until the link carries again."""
     extra = 0.0
     for other in faults:
-        if other is fault or other.kind not in ("stall", "unplug"):
+        noisy = other.kind == "noise" and other.params.get("corrupt", 0.0) >= 0.005  # frames mostly lost
+        if other is fault or (other.kind not in ("stall", "unplug") and not noisy):
             continue
         length = other.params.get("duration_s", 0.0) + (
             b.reconnect_max_s + RESET_S if other.kind == "unplug" else 0.0
@@ -371,6 +371,11 @@ def _masked(fault: InjectedFault, rows: Mapping[str, np.ndarray], bounds: Bounds
     if fault.kind.startswith("phone"):
         age = rows["phone_age_ms"][k]
         return bool(np.isnan(age) or age > bounds.stale_after_s * 1e3)
+    if fault.kind == "dead_esc":  # told only by a board commanding it: armed and live all the while
+        window = (t >= fault.t) & (t <= fault.t + DEAD_ESC_S)
+        return not bool(
+            np.all((rows["board_link"][window] == BoardLink.LIVE) & (rows["board_state"][window] == 2))
+        )
     return bool(rows["board_link"][k] != BoardLink.LIVE)
 
 
