@@ -286,9 +286,9 @@ def _detected(
         if _masked(fault, rows, bounds):
             report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
             continue
-        blocked = _blocked_s(fault, faults, bounds)
         resets = _other_resets(fault, faults, bounds)
         for e in expected:
+            blocked = _blocked_s(fault, faults, bounds, e.bound)
             e = _Expect(e.kinds, e.bound + blocked, None if resets else e.cause, e.reason)
             if fault.t + e.bound > end:
                 report.unseen.append(f"{fault.describe()} (too close to the end for its {e.bound:.2f} s)")
@@ -325,10 +325,10 @@ def _detected(
 LINK_BLOCKING = ("stall", "unplug", "hang", "brownout")
 
 
-def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> float:
+def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds, due_s: float) -> float:
     """How long other faults kept the host from hearing the board around ``fault`` (s): a stall, an
-    unplug (and its reconnection back-off) or a burst of heavy byte damage overlapping the time its report
-    was due hides the report until the link carries again."""
+    unplug (and its reconnection back-off) or a burst of heavy byte damage overlapping the ``due_s`` its
+    report had hides the report until the link carries again."""
     extra = 0.0
     for other in faults:
         noisy = other.kind == "noise" and other.params.get("corrupt", 0.0) >= 0.005  # frames mostly lost
@@ -337,7 +337,7 @@ def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds)
         length = other.params.get("duration_s", 0.0) + (
             b.reconnect_max_s + RESET_S if other.kind == "unplug" else 0.0
         )
-        if other.t <= fault.t + RESET_S + b.detect_s and other.t + length >= fault.t:
+        if other.t <= fault.t + due_s + extra and other.t + length >= fault.t:
             extra += length
     return extra
 
