@@ -81,12 +81,15 @@ from hil.scenario import load_scenario
 SCENARIO = "cubesat-1u"
 LOCKSTEP_KINDS = ("stall", "hang", "brownout", "corruption", "phone_gap")
 PTY_KINDS = ("kill", "phone_pause", "hostile", "second_host")
+AVR_KINDS = ("kill", "kill_harness", "second_host")
+"""What the soak does to the firmware under simavr (``firmware-sim --avr``, no world: its units are the
+firmware's own estimates and the phone a still stand-in), in real time over a pty."""
 STALL_S, GAP_S, PAUSE_S, RESTART_S = 0.6, 1.0, 1.0, 1.0
 STALE_S = 0.25  # the host's stale bound (hil.runtime.faults.STALE_AFTER_S)
-DETECT_S = {"lockstep": STALE_S + 0.045, "pty": STALE_S + 0.25}  # + two ticks; + wall-clock slack
+DETECT_S = {"lockstep": STALE_S + 0.045, "pty": STALE_S + 0.25, "avr": STALE_S + 0.25}  # + ticks; + slack
 RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, brown-out 0.3 s, boot, handshake)
-BACK_S = {"lockstep": 4.0, "pty": 12.0}  # fault → in control again (pty: a restart, reconnect back-off)
-STEER_S = {"lockstep": 6.5, "pty": 16.0}  # fault → steering again (spin-up, still window after the phone)
+BACK_S = {"lockstep": 4.0, "pty": 12.0, "avr": 12.0}  # fault → in control again (a restart, back-off)
+STEER_S = {"lockstep": 6.5, "pty": 16.0, "avr": 16.0}  # fault → steering again (spin-up, still window)
 FAILSAFE_S = 0.25 + 1 / 50.0  # link timeout + one pulse frame (cubesat-1u: 50 Hz frames)
 RECOVER_WITHIN_S = 15.0
 
@@ -175,8 +178,15 @@ def check_recovery(c: Cycle, rec: Recorder, end: float, mode: str, faults: list[
     again, re-arming through the handshake, no stale row; into ``c``."""
     t0 = c.t_fault
     mine = [f for f in faults if t0 <= f["t"] < end]
-    want = {"stall": "stale", "hang": "stale", "brownout": "stale", "kill": "link_lost",
-            "phone_gap": "phone_gap", "phone_pause": "phone_gap"}[c.kind]  # fmt: skip
+    want = {
+        "stall": "stale",
+        "hang": "stale",
+        "brownout": "stale",
+        "kill": "link_lost",
+        "kill_harness": "link_lost",
+        "phone_gap": "phone_gap",
+        "phone_pause": "phone_gap",
+    }[c.kind]
     first = next((f for f in mine if f["kind"] == want), None)
     if first is None:
         c.problems.append(f"no {want} reported")
@@ -187,6 +197,7 @@ def check_recovery(c: Cycle, rec: Recorder, end: float, mode: str, faults: list[
     silence = rec.first("silence", t0, end, ended=False)
     c.silence_s = None if silence is None else silence["t"] - t0
     causes = {"stall": ("failsafe", None), "hang": ("reset", "WATCHDOG"), "brownout": ("reset", "BROWN_OUT"),
+              "kill_harness": ("reset", "POWER_ON"),
               "kill": ("reset", "POWER_ON")}  # fmt: skip
     if c.kind in causes:
         kind, cause = causes[c.kind]
@@ -425,14 +436,21 @@ def figures(cycles: list[Cycle]) -> dict[str, Any]:
             "failsafe_s": pct([c.failsafe_s for c in group if c.failsafe_s is not None]),
         }
 
-    kinds = sorted({c.kind for c in cycles}, key=(LOCKSTEP_KINDS + PTY_KINDS).index)
+    order = list(dict.fromkeys(LOCKSTEP_KINDS + PTY_KINDS + AVR_KINDS))
+    kinds = sorted({c.kind for c in cycles}, key=order.index)
     return {"all": of(cycles), **{k: of([c for c in cycles if c.kind == k]) for k in kinds}}
 
 
 def soak(
-    cycles: int, pty: int, out_root: Path, kinds: tuple[str, ...] = LOCKSTEP_KINDS + PTY_KINDS, seed: int = 0
+    cycles: int,
+    pty: int,
+    out_root: Path,
+    kinds: tuple[str, ...] = LOCKSTEP_KINDS + PTY_KINDS + AVR_KINDS,
+    seed: int = 0,
+    avr: int = 0,
 ) -> list[Cycle]:
-    """``cycles`` of each lockstep kind and ``pty`` of each pty kind, the moments drawn from ``seed``."""
+    """``cycles`` of each lockstep kind, ``pty`` of each pty kind against the Python board and ``avr`` of
+    each against the firmware on simavr, the moments drawn from ``seed``."""
     from bench.soak_pty import pty_soak
 
     out: list[Cycle] = []
@@ -442,6 +460,9 @@ def soak(
     plan = [k for _ in range(pty) for k in PTY_KINDS if k in kinds]
     if plan:
         out += pty_soak(plan, out_root / "pty", seed)
+    avr_plan = [k for _ in range(avr) for k in AVR_KINDS if k in kinds]
+    if avr_plan:
+        out += pty_soak(avr_plan, out_root / "avr", seed, target="avr")
     return out
 
 
@@ -452,17 +473,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cycles", type=int, default=40, help="cycles of each lockstep kind (default 40)")
     p.add_argument("--pty", type=int, default=5, help="cycles of each pty kind (default 5)")
     p.add_argument(
-        "--kinds", nargs="+", choices=LOCKSTEP_KINDS + PTY_KINDS, default=LOCKSTEP_KINDS + PTY_KINDS
+        "--avr", type=int, default=0, help="cycles of each kind against the firmware on simavr (default 0)"
     )
+    every = tuple(dict.fromkeys(LOCKSTEP_KINDS + PTY_KINDS + AVR_KINDS))
+    p.add_argument("--kinds", nargs="+", choices=every, default=every)
     p.add_argument("--json", type=Path, help="write every cycle and the figures here")
     p.add_argument("--keep", type=Path, help="keep the run directories here (default: a temporary one)")
     p.add_argument("--seed", type=int, default=0, help="draws the faults' moments (default 0)")
     args = p.parse_args(argv)
-    cycles, pty = (2, 2) if args.ci else (args.cycles, args.pty)
+    cycles, pty, avr = (2, 2, args.avr and 1) if args.ci else (args.cycles, args.pty, args.avr)
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="soak-") as tmp:
         root = args.keep or Path(tmp)
-        result = soak(cycles, pty, root, tuple(args.kinds), args.seed)
+        result = soak(cycles, pty, root, tuple(args.kinds), args.seed, avr)
     wall = time.monotonic() - started
     figs = figures(result)
     for c in result:

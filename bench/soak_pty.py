@@ -7,6 +7,7 @@ hostile datagrams to the host's phone port (``hostile``). See :mod:`bench.soak`.
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
@@ -45,17 +46,41 @@ def _free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-def _board(link: Path, phone_url: str) -> subprocess.Popen[str]:
+TARGETS = ("python", "avr")
+"""The boards the real-time soak serves: the Python emulator with its world (``firmware-sim --world``,
+its phone the world's), or the C firmware on simavr (``firmware-sim --avr``, its units the firmware's own
+open-loop estimates; the phone a still stand-in streaming from its own process)."""
+
+
+def _board(link: Path, phone_url: str, target: str = "python") -> subprocess.Popen[str]:
+    if target == "python":
+        options = ["--world", SCENARIO, "--phone", phone_url]
+    else:
+        options = [
+            "--avr",
+            *load_scenario(SCENARIO).firmware_sim_argv()[2:],
+        ]  # the board options, not --units
     sim = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", "--world", SCENARIO, "--link", str(link),
-         "--phone", phone_url],
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-    )  # fmt: skip
+        [sys.executable, "-m", "firmware_sim", "--link", str(link), *options],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     assert sim.stdout is not None
     if not sim.stdout.readline().startswith("/dev/pts/"):
         sim.kill()
         raise RuntimeError("firmware-sim did not start")
     return sim
+
+
+def _harness_of(sim: subprocess.Popen[str]) -> int | None:
+    """The pid of ``firmware-sim --avr``'s harness (its child), if it runs."""
+    children = Path(f"/proc/{sim.pid}/task/{sim.pid}/children")
+    try:
+        pids = [int(p) for p in children.read_text().split()]
+    except (OSError, ValueError):
+        return None
+    return pids[0] if pids else None
 
 
 def _wait(predicate: Any, timeout: float) -> bool:
@@ -71,17 +96,26 @@ FIRST_WINDOW_S = (0.2, 8.0)  # the first fault: from the run's start (handshake,
 NEXT_WINDOW_S = (0.0, 8.0)  # each next one: after the host has the board back (recovery warm-up, slew)
 
 
-def pty_soak(plan: list[str], out_root: Path, seed: int = 0) -> list[Cycle]:
-    """The faults of ``plan`` (``kill``, ``phone_pause``, ``hostile``, ``second_host``) in one real-time
-    run, each at a drawn moment: the first from the run's start, the next ones after the host is back in
-    control (see :mod:`bench.soak`)."""
+def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "python") -> list[Cycle]:
+    """The faults of ``plan`` (``kill``, ``kill_harness`` with the firmware, ``phone_pause``, ``hostile``,
+    ``second_host``) in one real-time run against ``target`` (:data:`TARGETS`), each at a drawn moment:
+    the first from the run's start, the next ones after the host is back in control (see
+    :mod:`bench.soak`)."""
+    from contextlib import ExitStack
+
+    from bench.bench_runtime import _still_phone
+
     rng = np.random.default_rng([seed, 7])
     scenario = load_scenario(SCENARIO)
     port = _free_udp_port()
     relay = PhoneRelay(("127.0.0.1", port)).start()
     link = out_root / "board"
     out_root.mkdir(parents=True, exist_ok=True)
-    sims = [_board(link, relay.url)]
+    stack = ExitStack()
+    if target == "avr":
+        stack.enter_context(_still_phone(relay.url))
+    sims = [_board(link, relay.url, target)]
+    mode = "pty" if target == "python" else "avr"
     rec = Recorder(scenario.n_units)
     outcome: dict[str, Any] = {}
 
@@ -107,14 +141,18 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0) -> list[Cycle]:
             at = (start if n == 0 else rec.now()) + float(rng.uniform(lo, hi))
             _wait(lambda at=at: rec.now() >= at or not thread.is_alive(), hi + 1.0)
             if not thread.is_alive():
-                cycles.append(Cycle(kind, "pty", rec.now(), problems=[f"the host stopped: {outcome}"]))
+                cycles.append(Cycle(kind, mode, rec.now(), problems=[f"the host stopped: {outcome}"]))
                 continue
-            c = Cycle(kind, "pty", rec.now())
+            c = Cycle(kind, mode, rec.now())
             if kind == "kill":
                 sims[-1].send_signal(signal.SIGKILL)
                 sims[-1].wait()
                 time.sleep(RESTART_S)
-                sims.append(_board(link, relay.url))
+                sims.append(_board(link, relay.url, target))
+            elif kind == "kill_harness":
+                _kill_harness(c, sims[-1])
+                time.sleep(RESTART_S)
+                sims.append(_board(link, relay.url, target))
             elif kind == "phone_pause":
                 relay.pause(PAUSE_S)
             elif kind == "second_host":
@@ -127,12 +165,13 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0) -> list[Cycle]:
             if kind in ("hostile", "second_host"):
                 time.sleep(HOSTILE_WATCH_S)
                 _check_hostile(c, rec)
-            elif not _wait(lambda c=c: rec.first("resume", c.t_fault) is not None, STEER_S["pty"] + 2.0):
-                c.problems.append(f"not steering again within {STEER_S['pty'] + 2.0} s (a hang?)")
-            _wait(lambda: rec.start is not None and rec.start.host.in_control, BACK_S["pty"])
+            elif not _wait(lambda c=c: rec.first("resume", c.t_fault) is not None, STEER_S[mode] + 2.0):
+                c.problems.append(f"not steering again within {STEER_S[mode] + 2.0} s (a hang?)")
+            _wait(lambda: rec.start is not None and rec.start.host.in_control, BACK_S[mode])
     finally:
         rec.abort = "soak done"
         thread.join(timeout=60.0)
+        stack.close()
         for sim in sims:
             if sim.poll() is None:
                 sim.send_signal(signal.SIGINT)
@@ -144,6 +183,25 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0) -> list[Cycle]:
         relay.close()
     _after(cycles, rec, outcome, thread, relay, hostile_bad)
     return cycles
+
+
+def _kill_harness(c: Cycle, sim: subprocess.Popen[str]) -> None:
+    """SIGKILL the firmware's harness under ``firmware-sim --avr`` (issue 25, finding 5): firmware-sim
+    must notice at once, say so and exit non-zero, leaving no board serving the pty."""
+    harness = _harness_of(sim)
+    if harness is None:
+        c.problems.append("no avr-harness under firmware-sim to kill")
+        return
+    os.kill(harness, signal.SIGKILL)
+    try:
+        status = sim.wait(timeout=10.0)
+    except subprocess.TimeoutExpired:
+        c.problems.append("firmware-sim kept running after its harness died")
+        sim.kill()
+        sim.wait()
+        return
+    if status == 0:
+        c.problems.append("firmware-sim exited 0 after its harness died")
 
 
 def _second_host(c: Cycle, link: Path) -> None:
@@ -201,5 +259,5 @@ def _after(cycles: list[Cycle], rec: Recorder, outcome: dict[str, Any], thread: 
     for i, c in enumerate(cycles):
         end = cycles[i + 1].t_fault if i + 1 < len(cycles) else float("inf")
         if c.kind != "hostile" and not c.problems:
-            check_recovery(c, rec, end, "pty", faults)
+            check_recovery(c, rec, end, c.mode, faults)
         c.problems += problems

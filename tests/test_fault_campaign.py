@@ -95,7 +95,9 @@ def test_the_shipped_fault_file_has_every_kind_and_reaches_board_world_and_opera
         faults = draw(d, 1, i).faults
         seen |= {f.kind for f in faults}
         options = fault_options(faults, {})
-        assert len(operator_schedule(faults)) == sum(f.kind in ("disarm", "arm", "abort", "slew", "hold") for f in faults)
+        assert len(operator_schedule(faults)) == sum(
+            f.kind in ("disarm", "arm", "abort", "slew", "hold") for f in faults
+        )
         board_faults = [f for f in faults if f.kind not in ("disarm", "arm", "abort", "slew", "hold")]
         assert sum(len(v) for v in options.values()) == len(board_faults)
     assert seen == set(FAULT_KINDS)
@@ -133,7 +135,10 @@ def test_the_checker_sees_a_stale_row_an_unsafe_pulse_and_a_dishonest_exit():
     row = list(recorder._rows[k])
     row[2] = 1.0  # board_link STALE, yet the row keeps its board values
     recorder._rows[k] = tuple(row)
-    recorder.unsafe_frames, recorder.unsafe_examples = 1, ["frame at t=3.0 s: channel 1 at 1700 us while DISARMED"]
+    recorder.unsafe_frames, recorder.unsafe_examples = (
+        1,
+        ["frame at t=3.0 s: channel 1 at 1700 us while DISARMED"],
+    )
     recorder.summary["lost"] = "board lost at t=5.000 s for 16.0 s (link_lost): not back within 15 s"
     report = check_run([], recorder, fault_bounds(sc))
     assert report.violations["no_stale_as_live"]
@@ -196,7 +201,10 @@ def test_a_fault_campaign_with_a_drawn_seed_keeps_every_invariant(tmp_path, caps
     seed = int(os.environ.get("FAULT_SEED", random.SystemRandom().randrange(1_000_000)))
     print(f"fault campaign seed {seed} (rerun with FAULT_SEED={seed})", file=sys.stderr)
     status, summary, text, _ = _campaign(tmp_path, seed, 10, capsys)
-    assert summary["invariant_violations"] == dict.fromkeys(INVARIANTS, 0), (seed, summary["first_violations"])
+    assert summary["invariant_violations"] == dict.fromkeys(INVARIANTS, 0), (
+        seed,
+        summary["first_violations"],
+    )
     assert status == 0, (seed, text)
 
 

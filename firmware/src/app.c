@@ -206,10 +206,11 @@ static void apply_outputs(void)
     uint32_t out[MAX_HW_CHANNELS];
     compute_outputs(out);
     for (uint8_t ch = 0; ch < board.n_channels; ch++) {
-        if (out[ch] != pulses_get(ch)) {
-            board.outputs[ch] = pulses_reported_us(out[ch]);
+        /* reported even when the timer already has it: the tick interrupt sets a failsafe's safe widths
+         * on the pins before the main loop gets here, and telemetry must say what the pins say */
+        board.outputs[ch] = pulses_reported_us(out[ch]);
+        if (out[ch] != pulses_get(ch))
             pulses_set(ch, out[ch]);
-        }
     }
     board.outputs_dirty = 0;
 }

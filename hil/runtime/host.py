@@ -60,7 +60,7 @@ from hil.runtime.runlog import CsvLog, EventLog, RowTap
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.runtime.watch import BoardWatch
 from hil.scenario import Scenario
-from protocol.errors import BoardReset, LinkError
+from protocol.errors import BoardReset
 from protocol.messages import ActuatorSetpoint, BoardState, FaultFlag, GimbalMode, UnitSetpoint
 from protocol.reliable import Command
 
@@ -70,7 +70,8 @@ Array = NDArray[np.float64]
 
 SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may start
 ROTOR_SETTLE_S = 1.0  # the first slew waits this long with the rotors spun up (their transient over)
-MAX_SPINUP_S = 20.0  # rotors that never get there: the run fails with a clear error
+MAX_SPINUP_S = 20.0  # rotors that never get there are given up on (a fault in the record)
+DEAD_SPINUP_S = 3.0  # ... this soon once the board reports a dead ESC
 DROP_NOTE_S = 0.1  # a reason's dropped readings make at most one journal record per this long (s)
 ROTOR_LAG_S = 1.0  # a rotor held at its setpoint's lead limit this long does not follow it (s)
 
@@ -174,6 +175,7 @@ class Host:
         self._esc_dead = False  # the board's DEAD_ESC flag as last seen
         self._rotor_lag: list[float | None] = [None] * self.n  # since when each rotor lags its setpoint
         self._rotor_noted: set[int] = set()  # the units reported as not following
+        self._given_up: set[int] = set()  # units whose rotor never reached speed: not waited for again
         self._drops: dict[str, tuple[float, int]] = {}  # reason -> (last noted at, dropped since)
         self.phone_count = 0  # accepted samples seen at the last tick
         self.phone_heard: float | None = None  # host time the count last moved
@@ -407,12 +409,7 @@ class Host:
             self.spinup_since = t
             self.events.write(t, "spin_up", nominal_rad_s=nominal)
         if self.still_since is None or not self.need_still:  # not during a still window once begun
-            if not np.all(np.abs(rotor - nominal) <= SPUN_UP * nominal):
-                if t - self.spinup_since > MAX_SPINUP_S:
-                    raise LinkError(
-                        f"the rotors did not reach {nominal:.0f} rad/s within {MAX_SPINUP_S:.0f} s "
-                        f"(telemetry: {rotor.round(1).tolist()} rad/s)"
-                    )
+            if not self._spun_up(t, rotor, nominal):
                 return
             if self.spun_since is None:
                 self.spun_since = t
@@ -424,6 +421,34 @@ class Host:
             self._resume(t, rotor)
         elif self.spun_since is not None and t - self.spun_since >= ROTOR_SETTLE_S:
             self._start_slew(t, rotor)
+
+    def _spun_up(self, t: float, rotor: Array, nominal: float) -> bool:
+        """Whether every rotor the host still counts on is within :data:`SPUN_UP` of ``nominal``. A rotor
+        that does not get there within :data:`MAX_SPINUP_S` of the spin-up (:data:`DEAD_SPINUP_S` once the
+        board reports a dead ESC) is given up on — a fault in the record (``spin_up_failed``) — and the
+        host goes on with the array it has (steering degrades gracefully; the run's requirement says
+        why it was missed), rather than end the run."""
+        off = np.abs(rotor - nominal) > SPUN_UP * nominal
+        off[list(self._given_up)] = False
+        if not off.any():
+            return True
+        assert self.spinup_since is not None
+        waited = t - self.spinup_since
+        if waited > MAX_SPINUP_S or (self._esc_dead and waited > DEAD_SPINUP_S):
+            units = [int(i) for i in np.nonzero(off)[0]]
+            self._given_up.update(units)
+            speeds = rotor.round(1).tolist()
+            self.journal.note(t, "spin_up_failed", units=units, rotor_rad_s=speeds)
+            self.events.write(t, "spin_up_failed", units=units, rotor_rad_s=speeds)
+            logger.error(
+                "units %s did not reach %.0f rad/s within %.0f s (telemetry %s rad/s): going on without them",
+                units,
+                nominal,
+                waited,
+                speeds,
+            )
+            return True
+        return False
 
     def _still_window(self, t: float, rotor: Array, phone_fresh: bool) -> bool:
         """The still window (``warmup_s``; the first one's second half gives the gyro bias): True once it

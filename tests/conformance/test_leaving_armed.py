@@ -8,19 +8,17 @@ width, and from the next frame start on the pins carry the safe width. Checked o
 Hellos at scattered moments of the pulse frame and telemetry period, and for the link-loss FAILSAFE.
 Times are the board's own (heartbeat uptime, the target's pulse record); the wire carries milliseconds.
 
-The C firmware does not meet it on a link loss (found by this test): its 1 kHz tick interrupt puts the
+The C firmware once failed it on a link loss (found by this test): its 1 kHz tick interrupt puts the
 rotor pins at the safe width first (``app_tick`` → ``pulses_hold``), and the main loop's ``apply_outputs``
-then updates the reported widths (``board.outputs``) only for channels whose pulse *differs* from what is
-on the timer — which the interrupt already changed — so FAILSAFE telemetry keeps reporting the armed rotor
-widths (pins at 1000 µs, ``pulses_us`` 1711 ...) for as long as FAILSAFE lasts. Marked as an expected
-failure on simavr (strict: it turns into a failure once the firmware is fixed) until ``firmware/`` is.
+updated the reported widths (``board.outputs``) only for channels whose pulse *differed* from what was on
+the timer — which the interrupt had already changed — so FAILSAFE telemetry kept reporting the armed rotor
+widths (pins at 1000 µs, ``pulses_us`` 1711 ...) for as long as FAILSAFE lasted. ``apply_outputs`` now
+reports every channel's width whether or not the timer needed it.
 """
 
 from __future__ import annotations
 
 import random
-
-import pytest
 
 from conformance.host import heartbeat
 from conformance.targets import uptime_origin
@@ -75,15 +73,7 @@ def test_disarm_and_hello_withdraw_the_armed_rotor_pulse_at_once(target, host):
         _check_change(target, host, start, BoardState.DISARMED)
 
 
-def test_link_loss_failsafe_withdraws_the_armed_rotor_pulse_at_once(target, host, request):
-    if target.name == "simavr":
-        request.applymarker(
-            pytest.mark.xfail(
-                strict=True,
-                reason="firmware app.c: apply_outputs skips board.outputs for rotor channels app_tick "
-                "already held safe, so FAILSAFE telemetry reports the armed widths (see the docstring)",
-            )
-        )
+def test_link_loss_failsafe_withdraws_the_armed_rotor_pulse_at_once(target, host):
     sp = setpoint(target.spec, speed=450.0)
     for _ in range(2):
         start = len(host.received)
