@@ -60,7 +60,7 @@ from hil.runtime.runlog import CsvLog, EventLog, RowTap
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.runtime.watch import BoardWatch
 from hil.scenario import Scenario
-from protocol.errors import BoardReset
+from protocol.errors import BoardReset, HilError
 from protocol.messages import ActuatorSetpoint, BoardState, FaultFlag, GimbalMode, UnitSetpoint
 from protocol.reliable import Command
 
@@ -74,6 +74,7 @@ MAX_SPINUP_S = 20.0  # rotors that never get there are given up on (a fault in t
 DEAD_SPINUP_S = 3.0  # ... this soon once the board reports a dead ESC
 DROP_NOTE_S = 0.1  # a reason's dropped readings make at most one journal record per this long (s)
 ROTOR_LAG_S = 1.0  # a rotor held at its setpoint's lead limit this long does not follow it (s)
+GIMBAL_MIN_RATE = 0.005  # rad/s: a gimbal asked at least this fast and turning at less than half of it ...
 
 
 def _time_order(sample: SensorSample) -> tuple[bool, float]:
@@ -174,7 +175,8 @@ class Host:
         self.guard = PhoneGuard()  # the admission policy and the phone's clock guard
         self._esc_dead = False  # the board's DEAD_ESC flag as last seen
         self._rotor_lag: list[float | None] = [None] * self.n  # since when each rotor lags its setpoint
-        self._rotor_noted: set[int] = set()  # the units reported as not following
+        self._gimbal_lag: list[float | None] = [None] * self.n  # ... each gimbal its rate setpoint
+        self._rotor_noted: set[int] = set()  # reported as not following: rotor i as i, gimbal i as n + i
         self._given_up: set[int] = set()  # units whose rotor never reached speed: not waited for again
         self._drops: dict[str, tuple[float, int]] = {}  # reason -> (last noted at, dropped since)
         self.phone_count = 0  # accepted samples seen at the last tick
@@ -286,6 +288,7 @@ class Host:
             self._send(command)
             if cmd_out is not None:
                 self._watch_rotors(t, rotor, command)
+                self._watch_gimbals(t, tel, command)
         self.rows.live(t, tel, view, gimbal, rotor, command, cmd_out, ref)
         if self.suspended_since is None and self.slew_start is not None:
             if t - self.slew_start - self.suspended_after_slew_s >= self._duration - 1e-9:
@@ -322,6 +325,28 @@ class Host:
                 logger.warning(
                     "unit %d's rotor does not follow its setpoint at t=%.3f s (%.0f rad/s)", i, t, rotor[i]
                 )
+
+    def _watch_gimbals(self, t: float, tel: Any, command: ActuatorSetpoint) -> None:
+        """A gimbal that does not follow its rate setpoint — asked for at least :data:`GIMBAL_MIN_RATE`
+        and turning at less than half of it, for :data:`ROTOR_LAG_S` — is a fault the host reports
+        (``gimbal_not_following``, the unit): a dead servo. The board's own detector looks only at rates
+        above 0.1 rad/s, more than a slew at this scale asks for."""
+        if command.gimbal_mode is not GimbalMode.RATE:
+            return
+        for i, (unit, state) in enumerate(zip(command.units, tel.units, strict=True)):
+            want = unit.gimbal
+            stuck = abs(want) >= GIMBAL_MIN_RATE and abs(state.gimbal_rate - want) > 0.5 * abs(want)
+            key = self.n + i
+            since = self._gimbal_lag[i]
+            if not stuck:
+                self._gimbal_lag[i] = None
+            elif since is None:
+                self._gimbal_lag[i] = t
+            elif t - since >= ROTOR_LAG_S and key not in self._rotor_noted:
+                self._rotor_noted.add(key)
+                self.journal.note(t, "gimbal_not_following", unit=i, rate_rad_s=float(state.gimbal_rate))
+                self.events.write(t, "gimbal_not_following", unit=i, rate_rad_s=float(state.gimbal_rate))
+                logger.warning("unit %d's gimbal does not follow its rate setpoint at t=%.3f s", i, t)
 
     def _send(self, command: ActuatorSetpoint) -> None:
         try:
@@ -661,6 +686,14 @@ class Host:
         out.update(journal)
         return out
 
+    def _damaged_frames(self) -> int:
+        """Frames damaged on the link, either way (the host's deframer and the board's receiver)."""
+        try:
+            stats = self.client.stats()
+        except HilError:
+            return 0
+        return sum(stats.bad_frames.values()) + (stats.board_rx_bad or 0)
+
     def _requirement(self, figures: dict[str, Any], now: float) -> dict[str, Any]:
         """Whether the run met its pointing requirement (settled within ``settle_deg``) and, when it did
         not, why — what the record holds that explains it: the operator's suspensions and retargets, the
@@ -686,6 +719,9 @@ class Host:
                 kinds[f["kind"]] = kinds.get(f["kind"], 0) + 1
         if kinds:
             reasons.append("faults: " + ", ".join(f"{k} x{n}" for k, n in kinds.items()))
+        damaged = self._damaged_frames()
+        if damaged:
+            reasons.append(f"link: {damaged} damaged frames (setpoints and telemetry lost with them)")
         if self.slew is not None and self.slew_start is not None:
             left = now - self.slew.start_s
             if left < self.slew.duration_s:

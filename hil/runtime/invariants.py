@@ -247,7 +247,7 @@ def _expectations(fault: InjectedFault, b: Bounds) -> list[_Expect]:
         ]
     if kind == "dead_esc":
         if p["channel"] % 2 == 0:
-            return []  # a gimbal servo: the board tells it dead only when asked above 0.1 rad/s (dead_esc.py)
+            return []  # a gimbal servo: told dead only once asked to turn (the requirement's why says so)
         return [_Expect(("esc_dead", "rotor_not_following"), DEAD_ESC_S)]
     if kind == "phone_gap":
         if p["duration_s"] < b.stale_after_s + b.phone_period_s + 2 * b.tick_s:
