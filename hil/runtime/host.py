@@ -54,6 +54,7 @@ from hil.control.steering import VscmgSteering
 from hil.estimation.admission import PhoneGuard, Verdict
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
+from hil.runtime.actuators import ActuatorWatch
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
 from hil.runtime.rows import TickRecorder
 from hil.runtime.runlog import CsvLog, EventLog, RowTap
@@ -61,7 +62,7 @@ from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.runtime.watch import BoardWatch
 from hil.scenario import Scenario
 from protocol.errors import BoardReset, HilError
-from protocol.messages import ActuatorSetpoint, BoardState, FaultFlag, GimbalMode, UnitSetpoint
+from protocol.messages import ActuatorSetpoint, BoardState, GimbalMode, UnitSetpoint
 from protocol.reliable import Command
 
 logger = logging.getLogger(__name__)
@@ -73,8 +74,6 @@ ROTOR_SETTLE_S = 1.0  # the first slew waits this long with the rotors spun up (
 MAX_SPINUP_S = 20.0  # rotors that never get there are given up on (a fault in the record)
 DEAD_SPINUP_S = 3.0  # ... this soon once the board reports a dead ESC
 DROP_NOTE_S = 0.1  # a reason's dropped readings make at most one journal record per this long (s)
-ROTOR_LAG_S = 1.0  # a rotor held at its setpoint's lead limit this long does not follow it (s)
-GIMBAL_MIN_RATE = 0.005  # rad/s: a gimbal asked at least this fast and turning at less than half of it ...
 
 
 def _time_order(sample: SensorSample) -> tuple[bool, float]:
@@ -173,10 +172,7 @@ class Host:
         self._hold_sent = False  # the hold setpoint went out since the board was last seen
         self._hold_tick = -1  # the control tick it went out in
         self.guard = PhoneGuard()  # the admission policy and the phone's clock guard
-        self._esc_dead = False  # the board's DEAD_ESC flag as last seen
-        self._rotor_lag: list[float | None] = [None] * self.n  # since when each rotor lags its setpoint
-        self._gimbal_lag: list[float | None] = [None] * self.n  # ... each gimbal its rate setpoint
-        self._rotor_noted: set[int] = set()  # reported as not following: rotor i as i, gimbal i as n + i
+        self.actuators = ActuatorWatch(self.n, self.journal, self.events, self.setpoints.max_lead)
         self._given_up: set[int] = set()  # units whose rotor never reached speed: not waited for again
         self._drops: dict[str, tuple[float, int]] = {}  # reason -> (last noted at, dropped since)
         self.phone_count = 0  # accepted samples seen at the last tick
@@ -279,74 +275,19 @@ class Host:
             self.rows.blind(t, view, hold)
             return
         self._hold_sent = False
-        self._watch_escs(t, tel.faults)
+        self.actuators.board_flags(t, tel.faults)
         gimbal = np.array([u.gimbal_angle for u in tel.units])
         rotor = np.array([u.rotor_speed for u in tel.units])
         armed = tel.state is BoardState.ARMED
         command, cmd_out, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
         if armed and not watch.rearm_pending and command is not None:
             self._send(command)
-            if cmd_out is not None:
-                self._watch_rotors(t, rotor, command)
-                self._watch_gimbals(t, tel, command)
+            if cmd_out is not None:  # the steering's: what the actuators should follow
+                self.actuators.following(t, rotor, tel.units, command)
         self.rows.live(t, tel, view, gimbal, rotor, command, cmd_out, ref)
         if self.suspended_since is None and self.slew_start is not None:
             if t - self.slew_start - self.suspended_after_slew_s >= self._duration - 1e-9:
                 self.finished = True
-
-    def _watch_escs(self, t: float, faults: int) -> None:
-        """The board's dead-ESC flag (an output commanded to move shows no response) into the journal and
-        ``events.jsonl`` when it appears; the host goes on with what the array has left."""
-        dead = bool(faults & FaultFlag.DEAD_ESC)
-        if dead and not self._esc_dead:
-            self.journal.note(t, "esc_dead")
-            self.events.write(t, "esc_dead")
-            logger.warning("the board reports a dead ESC at t=%.3f s (its log names the channel)", t)
-        self._esc_dead = dead
-
-    def _watch_rotors(self, t: float, rotor: Array, command: ActuatorSetpoint) -> None:
-        """A rotor that does not follow its speed setpoint — the setpoint held at its lead limit above the
-        measured speed (:class:`~hil.control.motor_loops.SetpointGenerator`) for :data:`ROTOR_LAG_S` — is a
-        fault the host reports (``rotor_not_following``, the unit): a dead ESC, a motor that lost its
-        supply. The board's own detector cannot see it while the host steers: the setpoint, kept within
-        its lead of the measured speed, follows the rotor down."""
-        lead = 0.9 * self.setpoints.max_lead
-        for i, unit in enumerate(command.units):
-            lagging = unit.rotor_speed - rotor[i] >= lead
-            since = self._rotor_lag[i]
-            if not lagging:
-                self._rotor_lag[i] = None
-            elif since is None:
-                self._rotor_lag[i] = t
-            elif t - since >= ROTOR_LAG_S and i not in self._rotor_noted:
-                self._rotor_noted.add(i)
-                self.journal.note(t, "rotor_not_following", unit=i, speed_rad_s=float(rotor[i]))
-                self.events.write(t, "rotor_not_following", unit=i, speed_rad_s=float(rotor[i]))
-                logger.warning(
-                    "unit %d's rotor does not follow its setpoint at t=%.3f s (%.0f rad/s)", i, t, rotor[i]
-                )
-
-    def _watch_gimbals(self, t: float, tel: Any, command: ActuatorSetpoint) -> None:
-        """A gimbal that does not follow its rate setpoint — asked for at least :data:`GIMBAL_MIN_RATE`
-        and turning at less than half of it, for :data:`ROTOR_LAG_S` — is a fault the host reports
-        (``gimbal_not_following``, the unit): a dead servo. The board's own detector looks only at rates
-        above 0.1 rad/s, more than a slew at this scale asks for."""
-        if command.gimbal_mode is not GimbalMode.RATE:
-            return
-        for i, (unit, state) in enumerate(zip(command.units, tel.units, strict=True)):
-            want = unit.gimbal
-            stuck = abs(want) >= GIMBAL_MIN_RATE and abs(state.gimbal_rate - want) > 0.5 * abs(want)
-            key = self.n + i
-            since = self._gimbal_lag[i]
-            if not stuck:
-                self._gimbal_lag[i] = None
-            elif since is None:
-                self._gimbal_lag[i] = t
-            elif t - since >= ROTOR_LAG_S and key not in self._rotor_noted:
-                self._rotor_noted.add(key)
-                self.journal.note(t, "gimbal_not_following", unit=i, rate_rad_s=float(state.gimbal_rate))
-                self.events.write(t, "gimbal_not_following", unit=i, rate_rad_s=float(state.gimbal_rate))
-                logger.warning("unit %d's gimbal does not follow its rate setpoint at t=%.3f s", i, t)
 
     def _send(self, command: ActuatorSetpoint) -> None:
         try:
@@ -459,7 +400,7 @@ class Host:
             return True
         assert self.spinup_since is not None
         waited = t - self.spinup_since
-        if waited > MAX_SPINUP_S or (self._esc_dead and waited > DEAD_SPINUP_S):
+        if waited > MAX_SPINUP_S or (self.actuators.esc_dead and waited > DEAD_SPINUP_S):
             units = [int(i) for i in np.nonzero(off)[0]]
             self._given_up.update(units)
             speeds = rotor.round(1).tolist()
