@@ -45,7 +45,7 @@ Counts are bounded (:data:`MAX_COUNT` per kind and run) and durations too (:data
 from __future__ import annotations
 
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -241,34 +241,28 @@ def _one(ks: KindSpec, t: float, rng: np.random.Generator, scenario: Scenario) -
 
 
 # --------------------------------------------------------------------------- a run's faults, realised
+_OPTIONS: dict[str, tuple[str, Callable[[float, Mapping[str, Any]], str]]] = {
+    "stall": ("stall", lambda t, p: f"{t!r}:{p['duration_s']!r}"),
+    "hang": ("hang_at", lambda t, p: repr(t)),
+    "brownout": ("brownout_at", lambda t, p: repr(t)),
+    "unplug": ("unplug", lambda t, p: f"{t!r}:{p['duration_s']!r}"),
+    "noise": ("noise", lambda t, p: f"{t!r}:{p['duration_s']!r}:{p['corrupt']!r}"),
+    "dead_esc": ("dead_esc", lambda t, p: f"{p['channel']}@{t!r}"),
+    "phone_gap": ("phone_gap", lambda t, p: f"{t!r}:{p['duration_s']!r}"),
+    "phone_jump": ("phone_jump", lambda t, p: f"{t!r}:{p['offset_s']!r}"),
+    "phone_spoof": ("phone_spoof", lambda t, p: f"{t!r}:{p['spoof']}"),
+}
+"""Each board or world fault kind as the emulator's option (firmware-sim's, without dashes) and its value."""
+
+
 def fault_options(faults: tuple[InjectedFault, ...], base: Mapping[str, Any]) -> dict[str, Any]:
     """The board's and the world's fault injection for ``faults`` (``emu://`` options, firmware-sim's
     command line), added to the scenario's own ``base`` options."""
     out: dict[str, Any] = {k: (list(v) if isinstance(v, list) else [v]) for k, v in base.items()}
-
-    def add(key: str, value: str) -> None:
-        out.setdefault(key, []).append(value)
-
     for f in faults:
-        p, t = f.params, f.t
-        if f.kind == "stall":
-            add("stall", f"{t!r}:{p['duration_s']!r}")
-        elif f.kind == "hang":
-            add("hang_at", repr(t))
-        elif f.kind == "brownout":
-            add("brownout_at", repr(t))
-        elif f.kind == "unplug":
-            add("unplug", f"{t!r}:{p['duration_s']!r}")
-        elif f.kind == "noise":
-            add("noise", f"{t!r}:{p['duration_s']!r}:{p['corrupt']!r}")
-        elif f.kind == "dead_esc":
-            add("dead_esc", f"{p['channel']}@{t!r}")
-        elif f.kind == "phone_gap":
-            add("phone_gap", f"{t!r}:{p['duration_s']!r}")
-        elif f.kind == "phone_jump":
-            add("phone_jump", f"{t!r}:{p['offset_s']!r}")
-        elif f.kind == "phone_spoof":
-            add("phone_spoof", f"{t!r}:{p['spoof']}")
+        if f.kind in _OPTIONS:
+            key, spell = _OPTIONS[f.kind]
+            out.setdefault(key, []).append(spell(f.t, f.params))
     return out
 
 
