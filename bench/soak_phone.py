@@ -81,8 +81,10 @@ class PhoneRelay:
 def hostile_datagrams(phone_now_ns: int | None) -> tuple[list[bytes], int]:
     """What a peer on the network may send to the host's phone port: datagrams no decoder takes (deep
     brackets, oversized, binary, wrong shapes, numbers past every limit, NaN) and, if the phone's clock is
-    known, well-formed samples stamped an hour before it (which the merger drops as out of order; the host
-    must not take them for a phone that restarted). Returns them and how many are unreadable."""
+    known, well-formed samples that parse but are hostile: stamped an hour before it or 100 s after it, at
+    1e18 ns, values of 1e160 or a gyro at 1e6 rad/s (the host's admission policy drops and counts them;
+    none may stall it, reset its estimator or pass for a phone that restarted). Returns them and how many
+    are unreadable."""
     bad = [
         b"[" * 60_000,
         b"{" * 5_000,
@@ -101,9 +103,19 @@ def hostile_datagrams(phone_now_ns: int | None) -> tuple[list[bytes], int]:
     ]
     stray: list[bytes] = []
     if phone_now_ns is not None:
-        old = phone_now_ns - 3_600 * 10**9
-        for kind in ("gyroscope", "accelerometer", "magnetic_field"):
-            doc = {"type": f"android.sensor.{kind}", "timestamp": old, "values": [0.0, 0.0, 9.8]}
+        ahead = phone_now_ns + 100 * 10**9
+        for stamp in (phone_now_ns - 3_600 * 10**9, ahead):  # an hour behind; 100 s ahead (issue 26, 3)
+            for kind in ("gyroscope", "accelerometer", "magnetic_field"):
+                doc = {"type": f"android.sensor.{kind}", "timestamp": stamp, "values": [0.0, 0.0, 9.8]}
+                stray.append(json.dumps(doc).encode())
+        absurd = [  # they parse: the host's admission policy drops and counts them (issue 26, 1 and 2)
+            ("gyroscope", 10**18, [0.0, 0.0, 0.1]),  # stamped 1e18 ns: once a host hang
+            ("gyroscope", phone_now_ns, [1e160, -1e160, 1e160]),  # once a crash (a NaN setpoint)
+            ("gyroscope", phone_now_ns, [1e6, 0.0, 0.0]),  # 1e6 rad/s: once a run that said completed
+            ("accelerometer", phone_now_ns, [0.0, 0.0, 1e300]),
+        ]
+        for kind, stamp, values in absurd:
+            doc = {"type": f"android.sensor.{kind}", "timestamp": stamp, "values": values}
             stray.append(json.dumps(doc).encode())
     return bad + stray, len(bad)
 

@@ -225,10 +225,22 @@ def _second_host(c: Cycle, link: Path) -> None:
 def _check_hostile(c: Cycle, rec: Recorder) -> None:
     """Nothing happened: no fault, no phone gap or restart, the host in control all along."""
     c.cause = c.cause or "counted"
-    upsets = ("phone_gap", "phone_restart", "link_lost", "board_reset", "lost", "recovery_start")
+    upsets = (
+        "phone_gap",
+        "phone_restart",
+        "phone_jump",
+        "link_lost",
+        "board_reset",
+        "lost",
+        "recovery_start",
+    )
     faults = [e for e in rec.events if e["t"] >= c.t_fault and e["kind"] in upsets]
     if faults:
         c.problems.append(f"hostile datagrams made a {faults[0]['kind']}")
+    if c.kind == "hostile":
+        dropped = {e["reason"] for e in rec.events if e["t"] >= c.t_fault and e["kind"] == "readings_dropped"}
+        if not {"out_of_range", "future"} <= dropped:  # the readable but absurd ones: dropped, counted
+            c.problems.append(f"the absurd readings were not dropped and counted (reasons seen: {dropped})")
     if rec.start is None or not rec.start.host.in_control:
         c.problems.append("the host is not in control after hostile datagrams")
 

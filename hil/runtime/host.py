@@ -73,6 +73,7 @@ SPUN_UP = 0.05  # rotors within this fraction of nominal: the still window may s
 ROTOR_SETTLE_S = 1.0  # the first slew waits this long with the rotors spun up (their transient over)
 MAX_SPINUP_S = 20.0  # rotors that never get there are given up on (a fault in the record)
 DEAD_SPINUP_S = 3.0  # ... this soon once the board reports a dead ESC
+MAX_GAP_S = 1.0  # s: a pause in the phone's stamps longer than this restarts the estimator (not integrated)
 DROP_NOTE_S = 0.1  # a reason's dropped readings make at most one journal record per this long (s)
 
 
@@ -197,12 +198,17 @@ class Host:
         guard = self.guard
         for sample in sorted(samples, key=_time_order):
             self.counters.samples += 1
+            newest = guard.newest
             verdict = guard.admit(sample, now)
             if verdict is Verdict.DROP:
                 self._note_drop(guard.last_reason, now)
                 continue
             if verdict is not Verdict.ACCEPT:
                 self._phone_reanchored(verdict, sample.t_s, now)
+            elif sample.t_s - newest > MAX_GAP_S and self.estimate is not None:
+                self._restart_estimator()  # a stream that paused: not integrated across
+                t = now if now is not None else sample.t_s
+                self.events.write(t, "estimator_restart", gap_s=sample.t_s - newest)
             if collecting and sample.kind is SensorKind.GYR:
                 self.bias_samples.append(np.asarray(sample.xyz, dtype=float))
             for step in self.merger.push(sample):
@@ -227,23 +233,29 @@ class Host:
         if count == 0:
             logger.warning("phone reading dropped at t=%.3f s: %s (counted)", t, reason)
 
+    def _restart_estimator(self) -> None:
+        """The merger and the estimator afresh, from the next measurements (the gyro bias measured so far
+        kept): after a stream's clock moved, or a pause longer than :data:`MAX_GAP_S` — integrating the
+        held gyro across it would be a guess, and its cost grows with the gap (sub-steps)."""
+        from hil.estimation.filter import AttitudeFilter
+        from hil.estimation.multirate import Merger
+
+        self.merger = Merger(self.merger.policy)
+        self.filter = AttitudeFilter(self._filter_config)
+        self.filter.set_gyro_bias(self.gyro_bias)
+        self.filter.set_rest_learning(self.slew_start is None)
+        self.estimate = None
+
     def _phone_reanchored(self, verdict: Verdict, t_s: float, now: float | None) -> None:
         """The phone stream's clock moved (:class:`~hil.estimation.admission.PhoneGuard`): restarted (an
         app restarted, firmware-sim's world started over) or jumped forward. Integrating across the jump
         would be wrong either way: the merger and the estimator start afresh from the measurements (the
         gyro bias is kept), and the warm-up's still window lets the estimate converge before the host
         steers again."""
-        from hil.estimation.filter import AttitudeFilter
-        from hil.estimation.multirate import Merger
-
         kind = "phone_restart" if verdict is Verdict.RESTART else "phone_jump"
         self.counters.phone_restarts += 1
         detail = {"newest_s": self.guard.anchored_from, "sample_s": t_s}
-        self.merger = Merger(self.merger.policy)
-        self.filter = AttitudeFilter(self._filter_config)
-        self.filter.set_gyro_bias(self.gyro_bias)
-        self.filter.set_rest_learning(self.slew_start is None)
-        self.estimate = None
+        self._restart_estimator()
         self.phone_count = 0
         t = now if now is not None else (self.phone_heard or 0.0)
         self.journal.fault(t, kind, **detail)
