@@ -1,0 +1,143 @@
+"""Readings that parse but are hostile, into a running host (issue 26, findings 1-3): SensaGram datagrams
+through a real UDP socket and the real receiver, handed to a lockstep host beside its world's own phone at
+drawn moments of the run — time stamps anywhere in int64 nanoseconds or a little off the phone's clock,
+magnitudes up to 1e308, bursts. Whatever they are: the run ends in bounded time, every reading is either
+taken or dropped and counted, the run keeps the fault campaigns' invariants, and none stalls it.
+
+Before the admission policy, one gyro reading stamped 1e18 ns hung the host (the estimator sub-stepped the
+gap without a bound), one of [1e160, -1e160, 1e160] ended the run (a NaN setpoint), 1e6 rad/s gave a run
+that said "completed" 169° off, and a few triples stamped 100 s ahead restarted the slew each time.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hil.link.sources.phone_udp import PhoneUdpReceiver
+from hil.montecarlo.runner import fault_bounds
+from hil.runtime import RunOptions, run
+from hil.runtime.invariants import check_run
+from hil.runtime.observer import Observers
+from hil.runtime.record import RunRecorder
+from hil.scenario import load_scenario
+
+TYPES = ("android.sensor.gyroscope", "android.sensor.accelerometer", "android.sensor.magnetic_field")
+INT64 = 2**63 - 1
+
+absurd_numbers = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([1e160, -1e160, 1e308, -1e308, 1e6, 35.0, 0.0]),
+    st.floats(-50.0, 50.0),
+)
+stamps = st.one_of(
+    st.tuples(st.just("absolute"), st.integers(-INT64 - 1, INT64)),
+    st.tuples(st.just("offset"), st.integers(-200 * 10**9, 200 * 10**9)),  # ns off the phone's clock
+    st.tuples(st.just("offset"), st.integers(-(10**6), 10**6)),  # within a millisecond: duplicates, bursts
+)
+reading = st.tuples(st.sampled_from(TYPES), stamps, st.lists(absurd_numbers, min_size=3, max_size=3))
+injection = st.tuples(st.floats(0.3, 9.0), st.lists(reading, min_size=1, max_size=12), st.integers(1, 40))
+
+
+class Injector:
+    """At each injection's moment, sends its datagrams (``repeat`` times: a burst) through a real UDP socket
+    to a real receiver, and hands what the receiver decoded to the host, as the estimator task would."""
+
+    def __init__(self, receiver: PhoneUdpReceiver, plan: list) -> None:  # type: ignore[type-arg]
+        self.receiver = receiver
+        self.plan = sorted(plan, key=lambda p: p[0])
+        self.host = None
+        self.sent = 0
+        self.handed = 0
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        host, port = receiver.url.removeprefix("udp://").rsplit(":", 1)
+        self._to = (host, int(port))
+
+    def started(self, start) -> None:  # type: ignore[no-untyped-def]
+        self.host = start.host
+
+    def row(self, row) -> None:  # type: ignore[no-untyped-def]
+        """Not used."""
+
+    def event(self, record) -> None:  # type: ignore[no-untyped-def]
+        """Not used."""
+
+    def finished(self, summary) -> None:  # type: ignore[no-untyped-def]
+        self._sock.close()
+
+    def _received(self) -> int:
+        stats = self.receiver.stats
+        return stats.messages + stats.bad_messages
+
+    def tick(self, t: float) -> None:
+        while self.plan and self.plan[0][0] <= t:
+            _, readings, repeat = self.plan.pop(0)
+            for _ in range(repeat):
+                for kind, (how, stamp), values in readings:
+                    ns = stamp if how == "absolute" else round(t * 1e9) + stamp
+                    doc = {"type": kind, "timestamp": ns, "values": values}
+                    self._sock.sendto(json.dumps(doc).encode(), self._to)
+                    self.sent += 1
+            end = time.monotonic() + 5.0  # the receiver's thread takes them off the socket
+            while self._received() < self.sent and time.monotonic() < end:
+                time.sleep(0.001)
+            samples = self.receiver.drain()
+            self.handed += len(samples)
+            assert self.host is not None
+            self.host.feed(samples, t)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(injection, min_size=1, max_size=4))
+def test_hostile_readings_into_a_running_host_are_dropped_and_counted(plan):
+    sc = load_scenario("cubesat-1u")
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        injector = Injector(receiver, list(plan))
+        recorder = RunRecorder(sc.n_units)
+        started = time.monotonic()
+        result = run(
+            sc,
+            RunOptions(
+                out_root=None, duration_s=4.0, observer=Observers(recorder, injector), rows_to_observer=True
+            ),
+        )
+        wall = time.monotonic() - started
+    s = result.summary
+    assert wall < 60.0, f"a run of {s['sim_s']:.0f} s simulated took {wall:.0f} s"
+    assert not s["exit"].startswith("error"), s["exit"]
+    stats = receiver.stats
+    assert stats.messages + stats.bad_messages >= injector.sent * 0.99  # UDP on loopback: all of them
+    admission = s["phone_admission"]
+    fed = s["phone_samples"]
+    assert admission["accepted"] + sum(admission["dropped"].values()) == fed  # every reading accounted for
+    report = check_run([], recorder, fault_bounds(sc))
+    assert report.ok, report.violations
+
+
+def test_the_issues_readings_each_leave_the_run_alone():
+    """The reproductions of issue 26 (1-3), each a burst of the same reading: a gyro stamped 1e18 ns,
+    [1e160, -1e160, 1e160], 1e6 rad/s, and 8 triples stamped 100 s ahead over 21 s — dropped and counted,
+    the run completes and settles, no restart of the estimator or the slew."""
+    sc = load_scenario("cubesat-1u")
+    far = [(TYPES[0], ("absolute", 10**18), [0.0, 0.0, 0.1])]
+    huge = [(TYPES[0], ("offset", 0), [1e160, -1e160, 1e160])]
+    fast = [(TYPES[0], ("offset", 1_000), [1e6, 0.0, 0.0])]
+    ahead = [(kind, ("offset", 100 * 10**9), [0.0, 0.0, 9.8]) for kind in TYPES]
+    plan = [(4.0, far, 1), (6.0, huge, 1), (8.0, fast, 1)] + [(9.0 + 3 * k, ahead, 1) for k in range(8)]
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        recorder = RunRecorder(sc.n_units)
+        injector = Injector(receiver, plan)
+        result = run(
+            sc, RunOptions(out_root=None, observer=Observers(recorder, injector), rows_to_observer=True)
+        )
+    s = result.summary
+    assert s["exit"] == "completed" and s["settled"], (s["exit"], s["requirement"])
+    dropped = s["phone_admission"]["dropped"]
+    assert dropped["future"] >= 1 + 24 and dropped["out_of_range"] >= 2
+    assert s["phone_restarts"] == 0
+    assert not [e for e in recorder.events if e["kind"] in ("recovery_start", "phone_jump", "phone_restart")]
+    assert check_run([], recorder, fault_bounds(sc)).ok
