@@ -1,6 +1,8 @@
 """The fault soak as a benchmark (:mod:`bench.soak`): 40 cycles of each lockstep fault (link stall, MCU
-hang, brown-out, 1 % byte corruption, phone gap) and 5 of each real-time one against firmware-sim on a pty
-(SIGKILL and restart, phone pause, hostile datagrams) — 215 cycles; ``--quick``: 4 and 1.
+hang, brown-out, byte corruption, phone gap), each at a moment drawn over its run, 5 of each real-time one
+against firmware-sim on a pty (SIGKILL and restart, phone pause, hostile datagrams, a second host) and, where
+the firmware can be built, 3 of each against the firmware under simavr (killed, its harness killed, a
+second host) — 229 cycles; ``--quick``: 4, 1 and 1.
 
 Figures: cycles survived (every check of :mod:`bench.soak` passed) out of cycles run; for the board's
 faults and for the phone's, detection latency (fault → its first report) p50 / p99 next to the board
@@ -18,7 +20,7 @@ import tempfile
 from pathlib import Path
 
 from bench.common import Result
-from bench.soak import BACK_S, FAILSAFE_S, PTY_KINDS, STEER_S, Cycle, figures, soak
+from bench.soak import AVR_KINDS, BACK_S, FAILSAFE_S, PTY_KINDS, STEER_S, Cycle, figures, soak
 
 NAME = "soak"
 SILENCE_S = 1.0  # the board client's SilenceEvent (ClientConfig.silence_after_s)
@@ -26,8 +28,11 @@ SILENCE_S = 1.0  # the board client's SilenceEvent (ClientConfig.silence_after_s
 
 def run(quick: bool) -> list[Result]:
     load = os.getloadavg()[0]
+    from firmware_sim.avr.build import missing_tools
+
+    avr = 0 if missing_tools() else (1 if quick else 3)  # the firmware under simavr, where it can be built
     with tempfile.TemporaryDirectory(prefix="bench-soak-") as tmp:
-        cycles = soak(4 if quick else 40, 1 if quick else 5, Path(tmp))
+        cycles = soak(4 if quick else 40, 1 if quick else 5, Path(tmp), avr=avr)
     figs = figures(cycles)
     total = figs["all"]
     failed = [c for c in cycles if not c.survived]
@@ -37,7 +42,7 @@ def run(quick: bool) -> list[Result]:
     )  # fmt: skip
     rows = [Result(NAME, "cycles survived", total["survived"], "cycles", "cycles run", total["cycles"], True,
                    note)]  # fmt: skip
-    board = [c for c in cycles if c.kind in ("stall", "hang", "brownout", "kill")]
+    board = [c for c in cycles if c.kind in ("stall", "hang", "brownout", "kill", "kill_harness")]
     phone = [c for c in cycles if c.kind in ("phone_gap", "phone_pause")]
     for label, group in (("board faults", board), ("phone gaps", phone)):
         rows += _latency_rows(label, group)
@@ -49,7 +54,7 @@ def run(quick: bool) -> list[Result]:
     for kind, fk in figs.items():
         if kind == "all" or fk["back_s"]["p50"] is None:
             continue
-        mode = "pty" if kind in PTY_KINDS else "lockstep"
+        mode = "pty" if kind in PTY_KINDS or kind in AVR_KINDS else "lockstep"
         back, steer = fk["back_s"], fk["steering_s"]
         rows.append(Result(NAME, f"{kind}: back in control p99", back["p99"], "s", "the soak's bound",
                            BACK_S[mode], False, f"p50 {back['p50']:.3f} s; {fk['survived']}/{fk['cycles']} "
