@@ -13,7 +13,7 @@ brownout      lockstep    the pack collapses for 0.3 s (``brownout_at``): a brow
 corruption    lockstep    1 % of the bytes damaged, both ways, all run long (``corrupt=0.01``); a cycle
                           is a stretch of the run as long as the others'
 phone_gap     lockstep    the world's phone stops for 1 s (``phone_gap``) and streams again
-kill          pty         ``firmware-sim --world`` killed with SIGKILL and started again 1 s later
+kill          pty         ``firmware-sim --world`` killed with SIGKILL and started again 0.5-6 s later
 phone_pause   pty         the phone's UDP stream paused for 1 s by the relay between phone and host
 hostile       pty         hostile datagrams to the host's phone port
                           (:func:`bench.soak_phone.hostile_datagrams`)
@@ -84,7 +84,8 @@ PTY_KINDS = ("kill", "phone_pause", "hostile", "second_host")
 AVR_KINDS = ("kill", "kill_harness", "second_host")
 """What the soak does to the firmware under simavr (``firmware-sim --avr``, no world: its units are the
 firmware's own estimates and the phone a still stand-in), in real time over a pty."""
-STALL_S, GAP_S, PAUSE_S, RESTART_S = 0.6, 1.0, 1.0, 1.0
+STALL_S, GAP_S, PAUSE_S = 0.6, 1.0, 1.0
+RESTART_S = (0.5, 6.0)  # a killed board is started again after a delay drawn from this range (s)
 STALE_S = 0.25  # the host's stale bound (hil.runtime.faults.STALE_AFTER_S)
 DETECT_S = {"lockstep": STALE_S + 0.045, "pty": STALE_S + 0.25, "avr": STALE_S + 0.25}  # + ticks; + slack
 RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, brown-out 0.3 s, boot, handshake)

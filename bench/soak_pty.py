@@ -144,14 +144,13 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
                 cycles.append(Cycle(kind, mode, rec.now(), problems=[f"the host stopped: {outcome}"]))
                 continue
             c = Cycle(kind, mode, rec.now())
-            if kind == "kill":
-                sims[-1].send_signal(signal.SIGKILL)
-                sims[-1].wait()
-                time.sleep(RESTART_S)
-                sims.append(_board(link, relay.url, target))
-            elif kind == "kill_harness":
-                _kill_harness(c, sims[-1])
-                time.sleep(RESTART_S)
+            if kind in ("kill", "kill_harness"):
+                if kind == "kill":
+                    sims[-1].send_signal(signal.SIGKILL)
+                    sims[-1].wait()
+                else:
+                    _kill_harness(c, sims[-1])
+                time.sleep(float(rng.uniform(*RESTART_S)))  # started again a drawn while later
                 sims.append(_board(link, relay.url, target))
             elif kind == "phone_pause":
                 relay.pause(PAUSE_S)
