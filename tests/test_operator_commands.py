@@ -97,3 +97,23 @@ def test_faults_while_suspended_do_not_restart_the_warm_up_and_the_arm_brings_it
     assert not [e for e in events if 8.0 < e["t"] < 13.0 and e["kind"] in ("rearmed", "spin_up", "resume")]
     assert _t(events, "resume", after=13.0) > 13.0
     assert s["exit"] == "completed" and s["settled"]
+
+
+def test_an_operators_arm_lost_in_a_stall_is_carried_on_by_the_host(tmp_path):
+    """The operator's Arm goes out while the link carries nothing (a campaign's finding: the Arm failed,
+    the host then waited for an armed board nobody armed, and lost it 15 s later): the host re-arms
+    through the protocol once the link carries again, and the run completes."""
+    sc = load_scenario("cubesat-1u").with_changes(fault_options={"stall": ["16.0:1.2"]})
+    operator = ScheduledOperator(
+        [
+            (10.0, OperatorCommand(1, "disarm", origin="test")),
+            (16.3, OperatorCommand(2, "arm", origin="test")),
+        ]
+    )
+    result = run(sc, RunOptions(out_root=tmp_path, duration_s=30.0, observer=operator))
+    events, _ = read_events(result.run_dir / "events.jsonl")
+    s = result.summary
+    assert [o["status"] for o in s["operator"]] == ["acked", "failed"]
+    assert _t(events, "rearm_for_operator") > 16.3
+    assert _t(events, "rearmed", after=16.3) > 16.3
+    assert s["exit"] == "completed" and s["lost"] is None

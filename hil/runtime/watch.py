@@ -66,6 +66,7 @@ class BoardWatch:
         self._reconnects_seen = 0  # the session's reconnect count at the last ConnectedEvent
         self.operator_disarmed = False
         self._rearm: str | Command | None = None  # "pending" or the Arm in flight
+        self._operator_arm: Command | None = None  # the operator's Arm in flight
         self._fresh_after = -math.inf  # telemetry received before this (host s) is from an older session
         self._link = BoardLink.STALE  # nothing seen yet
         self._stale_noted = False  # the stale episode going on is in the journal
@@ -175,7 +176,15 @@ class BoardWatch:
         return self._rearm is not None
 
     def rearm_if_needed(self, t: float) -> None:
-        """Re-arm without blocking the loop: send Arm once a session is up, look at the answer later."""
+        """Re-arm without blocking the loop: send Arm once a session is up, look at the answer later. An
+        operator's Arm that failed (a stall, a reset while it was in flight) is carried on the same way:
+        the operator asked for an armed board, and a link fault does not take that back."""
+        arm = self._operator_arm
+        if arm is not None and arm.done:
+            self._operator_arm = None
+            if not arm.ok and not self.operator_disarmed and self._rearm is None:
+                self.events.write(t, "rearm_for_operator", detail=str(arm.failure or arm.reason))
+                self._rearm = "pending"
         if self._rearm is None or not self.client.connected:
             return
         if self._rearm == "pending":
@@ -209,7 +218,9 @@ class BoardWatch:
         return self.client.command(Disarm())
 
     def operator_arm(self, t: float) -> Command:
-        """The operator's Arm: sent now; the host re-arms on its own again after later faults."""
+        """The operator's Arm: sent now (should it fail, the host re-arms through the protocol:
+        :meth:`rearm_if_needed`); the host re-arms on its own again after later faults."""
         self.operator_disarmed = False
         self._rearm = None
-        return self.client.command(Arm())
+        self._operator_arm = self.client.command(Arm())
+        return self._operator_arm
