@@ -239,11 +239,13 @@ def _rearmed_through_handshake(c: Cycle, rec: Recorder, reported: float, end: fl
     """After a reset (reported when the new handshake answered) or a failsafe, the host's re-arm comes
     after the report, and no live row shows the board ARMED between the fault and the re-arm."""
     rearmed = rec.first("rearmed", reported - 1e-9, end)
-    if rearmed is None:
+    sent = rec.first("rearm_sent", reported - 1e-9, end)
+    if rearmed is None or sent is None:
         c.problems.append("not re-armed after the reset/failsafe")
         return
-    armed_early = [t for t, link, state, _ in rec.rows
-                   if reported < t < rearmed["t"] - 1e-9 and link == 0 and state == 2]  # fmt: skip
+    armed_early = [
+        t for t, link, state, _ in rec.rows if reported < t < sent["t"] - 1e-9 and link == 0 and state == 2
+    ]
     if armed_early:
         c.problems.append(f"the board armed at t={armed_early[0]:.3f} s before the host re-armed it")
 

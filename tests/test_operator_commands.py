@@ -117,3 +117,22 @@ def test_an_operators_arm_lost_in_a_stall_is_carried_on_by_the_host(tmp_path):
     assert _t(events, "rearm_for_operator") > 16.3
     assert _t(events, "rearmed", after=16.3) > 16.3
     assert s["exit"] == "completed" and s["lost"] is None
+
+
+def test_an_arm_that_cannot_go_out_leaves_the_run_suspended_and_the_board_disarmed(tmp_path):
+    """The operator's Arm while the board's cable is out (no session: refused). A campaign found the host
+    then taking the board for its own again and re-arming it after the reconnect — armed and live while
+    the run still said suspended. Now nothing changes: refused, the board comes back disarmed and stays so,
+    the run ends disarmed by the operator."""
+    sc = load_scenario("cubesat-1u").with_changes(fault_options={"unplug": ["9.0:2.0"]})
+    operator = ScheduledOperator(
+        [(6.0, OperatorCommand(1, "disarm", origin="test")), (10.0, OperatorCommand(2, "arm", origin="test"))]
+    )
+    result = run(sc, RunOptions(out_root=tmp_path, duration_s=10.0, observer=operator))
+    tel = read_telemetry(result.run_dir / "telemetry.csv")
+    s = result.summary
+    assert [o["status"] for o in s["operator"]] == ["acked", "refused"]
+    assert s["rearms"] == 0
+    after = (tel["t"] > 12.0) & (tel["board_link"] == 0)
+    assert after.any() and not np.any(tel["board_state"][after] == 2)  # never armed again
+    assert s["exit"].startswith("disarmed by the operator")

@@ -527,13 +527,15 @@ class Host:
         *suspended* — no reference (the slew does not go on without the actuators), no setpoints, no
         requirement clock, no re-arming on the host's own account — until :meth:`arm`. A run that ends
         suspended did not complete (``hil.runtime.loop``)."""
-        cmd = self.watch.operator_disarm(t)
         if self.suspended_since is None:
             self.suspended_since = t
             self._resume_still = False
             self.phase = Phase.SUSPENDED
             self.events.write(t, "suspended", by=origin)
-        return cmd
+        # Without a session the Disarm cannot go out (LinkError, the operator's record says so), yet the
+        # run stays suspended and the host never re-arms: the board, failed safe for want of the link,
+        # comes back disarmed from its next handshake.
+        return self.watch.operator_disarm(t)
 
     def record_command(self, t: float, command: Any, status: str, **fields: Any) -> None:
         """An operator command's step (:mod:`hil.runtime.operator`): an ``events.jsonl`` record, and its

@@ -460,7 +460,8 @@ def _rearmed_through_handshake(
     report: InvariantReport, record: RunRecorder, rows: Mapping[str, np.ndarray]
 ) -> None:
     """After each reset the host re-armed through the protocol: no live row shows the board ARMED between
-    the reset's report and the host's ``rearmed`` (or the operator's Arm)."""
+    the reset's report and the host's Arm (``rearm_sent``, or the operator's Arm) — the Arm's send, not its
+    answer: a board that took the Arm shows ARMED at once though its Ack may be lost on the way back."""
     t, link, state = rows["t"], rows["board_link"], rows["board_state"]
     for reset in (e for e in record.events if e["kind"] == "board_reset"):
         after = reset["t"]
@@ -469,7 +470,7 @@ def _rearmed_through_handshake(
                 e["t"]
                 for e in record.events
                 if e["t"] >= after
-                and (e["kind"] == "rearmed" or (e["kind"] == "command" and e.get("command") == "arm"))
+                and (e["kind"] == "rearm_sent" or (e["kind"] == "command" and e.get("command") == "arm"))
             ),
             math.inf,
         )

@@ -189,6 +189,7 @@ class BoardWatch:
             return
         if self._rearm == "pending":
             self._rearm = self.client.command(Arm())
+            self.events.write(t, "rearm_sent", seq=self._rearm.seq)
             return
         assert isinstance(self._rearm, Command)
         if not self._rearm.done:
@@ -220,7 +221,8 @@ class BoardWatch:
     def operator_arm(self, t: float) -> Command:
         """The operator's Arm: sent now (should it fail, the host re-arms through the protocol:
         :meth:`rearm_if_needed`); the host re-arms on its own again after later faults."""
+        arm = self.client.command(Arm())  # LinkError without a session: then nothing changes here
         self.operator_disarmed = False
         self._rearm = None
-        self._operator_arm = self.client.command(Arm())
-        return self._operator_arm
+        self._operator_arm = arm
+        return arm
