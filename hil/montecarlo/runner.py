@@ -334,8 +334,17 @@ def fault_bounds(scenario: Scenario) -> Bounds:
     )
 
 
+def exit_kind(reason: str) -> str:
+    """A run's exit reason without its particulars (times, causes): ``completed``, ``lost``, ``aborted``,
+    ``disarmed by the operator``, ``interrupted``, ``error``, ``time limit`` — what a campaign counts."""
+    for kind in ("disarmed by the operator", "time limit", "interrupted"):
+        if reason.startswith(kind):
+            return kind
+    return reason.split(":")[0]
+
+
 def _checks(summary: Mapping[str, Any], report: InvariantReport) -> dict[str, Any]:
-    out: dict[str, Any] = {"exit": str(summary.get("exit", "")).split(":")[0] if summary else "crashed"}
+    out: dict[str, Any] = {"exit": exit_kind(str(summary.get("exit", ""))) if summary else "crashed"}
     for name, count in report.counts.items():
         out[f"inv.{name}"] = count
     out["inv.first"] = report.first()
