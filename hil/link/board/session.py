@@ -334,6 +334,12 @@ class Session:
         if self.armed and self.state is not BoardState.ARMED:
             self.armed = False
             self.pending_reset = PendingReset(now, evidence)
+        # Commands in flight were for the board before its reset: a retry landing on the board after it
+        # (its answer cache empty) would be carried out there — an Arm from the old session arming the new
+        # one before the host has seen the reset. They fail now; the caller sends anew if it still wants.
+        why = f"the board reset ({evidence})"
+        self.commands.abandon(now, why)
+        self._transfers.abandon(why)
         if reply is not None:  # the handshake that just happened already told why
             self._report_reset(now, reply.reset_cause, evidence)
             return
