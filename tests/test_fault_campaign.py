@@ -267,3 +267,31 @@ def test_a_handshake_after_a_reset_is_not_another_reconnect():
     faults = [InjectedFault("unplug", 4.0, {"duration_s": 1.0}), InjectedFault("hang", 14.0)]
     s = _recorded(sc, faults).summary
     assert s["reconnects"] == 1 and s["board_resets"] == 2
+
+
+@pytest.mark.parametrize(
+    ("seed", "index", "found"),
+    [
+        (1, 16, "noise while the board was unplugged: nothing to count (a checker's false alarm, fixed)"),
+        (1, 19, "a dead rotor ESC never reported (the world's rotor kept its speed)"),
+        (2, 43, "a rotor ESC dead from the first warm-up ended the run in an error"),
+        (2, 165, "a missed requirement whose why left out the link damage"),
+        (1, 226, "an operator's Arm lost in a stall, never tried again: the board lost"),
+        (1, 35, "a reset reported late behind an overlapping stall (a checker's false alarm, fixed)"),
+        (1, 52, "an Arm from before a brown-out retried onto the rebooted board, arming it unseen"),
+        (
+            1,
+            511,
+            "a re-arm judged by its answer, lost to byte damage, not its send (a checker's false alarm)",
+        ),
+        (1, 675, "an operator's Arm refused for want of a session, yet the host re-armed the board itself"),
+    ],
+)
+def test_a_run_the_campaigns_failed_now_keeps_every_invariant(seed, index, found):
+    """A failing seed becomes a test: each (seed, index) of ``faults.toml`` on ``cubesat-1u`` that broke
+    an invariant on the way (``found``: why), run again — every invariant kept."""
+    sc = load_scenario(SCENARIO)
+    result = run_one(sc, draw(load_dispersions("faults", sc), seed, index), 5.0)
+    assert result.ok, result.error
+    violations = {k: v for k, v in result.checks.items() if k.startswith("inv.") and k != "inv.first" and v}
+    assert not violations, (found, result.checks["inv.first"])
