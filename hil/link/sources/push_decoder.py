@@ -30,15 +30,17 @@ arrival anyway, and are counted there without being built).
 
 A child that does not answer within ``timeout_s`` is killed; one that died is started afresh for the
 next push (``restarts``). Either costs that one push (a :class:`~protocol.errors.LinkError`, which the
-server answers 503 and counts), never the server. The child ignores SIGINT and runs in its own session
-(a Ctrl-C to ``hil run`` is the host's to handle), prints nothing, and exits when its input closes — also
-when the host is killed.
+server answers 503 and counts), never the server. The child runs at a lower priority (:data:`NICE`: on a busy
+machine the control loop, and an emulated board beside it, get the CPU first; a push waits), ignores
+SIGINT and runs in its own session (a Ctrl-C to ``hil run`` is the host's to handle), prints nothing, and
+exits when its input closes — also when the host is killed.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
 import struct
 import subprocess
@@ -53,6 +55,8 @@ from protocol.errors import InputFormatError, LinkError, LinkTimeout
 
 DECODE_TIMEOUT_S = 5.0
 """s: how long a push may wait for the decoder and then for its answer (a 4 MiB push takes ~0.3 s)."""
+NICE = 10
+"""The decoder's niceness above the host's: bulk work, behind the control loop for the CPU."""
 _REQUEST = struct.Struct("<II")
 _LENGTH = struct.Struct("<I")
 _RECORD = struct.Struct("<dBddd")
@@ -237,6 +241,8 @@ def answer(body: bytes, keep: int) -> bytes:
 def main() -> int:
     """Answer requests on stdin until it closes."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the host handles Ctrl-C; this ends when its input does
+    with contextlib.suppress(OSError):
+        os.nice(NICE)
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     while True:
         head = stdin.read(_REQUEST.size)
