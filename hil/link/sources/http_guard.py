@@ -241,7 +241,7 @@ class GuardedHTTPServer(ThreadingHTTPServer):
                 self.evicted += 1
                 evicted = (sock, who)
                 live -= 1
-            admitted = live < self.limits.max_connections
+            admitted = live < cap
             if admitted:
                 self.active += 1
                 self._open.add(request)
