@@ -4,11 +4,16 @@ whatever the headers say, slow and idle connections time out, and connections ar
 
 Regression tests for issue 16, findings 4 (``b"[" * 60000`` to the UDP port ended the run) and 5
 (``Content-Length: -1`` read to EOF past the cap, ``Content-Length: abc`` printed a traceback, no socket
-timeout, a thread per idle connection)."""
+timeout, a thread per idle connection), and issue 26, findings 4 and 7 (a flood handed to the estimator
+in one batch, a 4 MB push decoded in the host's process, any path accepted, idle sockets locking a good
+client out)."""
 
 from __future__ import annotations
 
 import contextlib
+import http.client
+import os
+import signal
 import socket
 import threading
 import time
@@ -16,8 +21,9 @@ import time
 import pytest
 
 from hil.estimation.sensors import SensorKind, SensorSample
-from hil.link.sources.phone_push import PhonePushSender, PhonePushServer, encode_push
+from hil.link.sources.phone_push import INLINE_MAX, PhonePushSender, PhonePushServer, decode_push, encode_push
 from hil.link.sources.phone_udp import PhoneUdpReceiver, PhoneUdpSender, encode_datagram
+from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver
 
 GOOD = SensorSample(1.0, SensorKind.GYR, (0.1, 0.2, 0.3))
 HOSTILE_DATAGRAMS = [
@@ -79,8 +85,38 @@ def test_a_flood_of_hostile_datagrams_is_counted_and_the_stream_goes_on():
             sent.append(sample)
         raw.close()
         assert _wait(lambda: receiver.stats.messages + receiver.stats.bad_messages == 600)
-        assert [s.xyz for s in receiver.drain()] == [s.xyz for s in sent]  # every one, in order
+        assert [s.xyz for s in _drain_all(receiver)] == [s.xyz for s in sent]  # every one, in order
         assert receiver.stats.bad_messages == 300
+
+
+def _drain_all(receiver: PhoneReceiver) -> list[SensorSample]:
+    """Drain until nothing is held, checking that no call hands over more than the batch bound."""
+    out: list[SensorSample] = []
+    while batch := receiver.drain():
+        assert len(batch) <= MAX_BATCH
+        out += batch
+    return out
+
+
+def test_a_flood_of_datagrams_reaches_the_consumer_in_bounded_batches_the_excess_held_or_dropped_oldest():
+    """Issue 26, finding 4's UDP half: the estimator task was handed whatever had arrived, in one batch.
+    Now each drain hands over at most MAX_BATCH; the rest is held for the next drains, up to MAX_QUEUE,
+    beyond which the oldest are dropped and counted."""
+    n = MAX_QUEUE + 1000
+    sent = [SensorSample(3.0 + 1e-3 * k, SensorKind.GYR, (0.0, 0.0, float(k))) for k in range(n)]
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        for sample in sent:
+            raw.sendto(encode_datagram(sample), _udp_address(receiver))
+        raw.close()
+        assert _wait(lambda: receiver.stats.samples == n, 30.0)
+        first = receiver.drain()
+        st_ = receiver.stats
+        assert len(first) == MAX_BATCH and st_.held == MAX_QUEUE - MAX_BATCH
+        assert st_.overflow == n - MAX_QUEUE  # the oldest went: counted, not silently lost
+        rest = _drain_all(receiver)
+        assert [s.xyz for s in first + rest] == [s.xyz for s in sent[-MAX_QUEUE:]]  # the newest, in order
+        assert receiver.stats.held == 0
 
 
 # =========================================================================== HTTP (finding 5)
@@ -210,20 +246,109 @@ def test_idle_and_dripping_connections_time_out():
         assert _still_serving(server)
 
 
-def test_connections_beyond_the_cap_are_refused_and_a_freed_slot_serves_again():
-    with PhonePushServer("http://127.0.0.1:0/", max_connections=3, timeout_s=5.0) as server:
+def test_idle_connections_beyond_the_cap_make_way_for_a_new_one_and_threads_stay_bounded():
+    """Issue 16 capped the connections, so three idle sockets locked every phone out until their deadline
+    (issue 26, finding 7). Now the one that has waited longest is closed for the newcomer, and counted."""
+    base = threading.active_count()
+    with PhonePushServer("http://127.0.0.1:0/", max_connections=3, timeout_s=30.0) as server:
         held = [socket.create_connection(_http_address(server), timeout=5) for _ in range(3)]
         assert _wait(lambda: server._httpd.active == 3)
-        extra = socket.create_connection(_http_address(server), timeout=5)
-        assert extra.recv(1) == b""  # closed unanswered
-        extra.close()
-        assert server.stats.refused_connections == 1
-        held.pop().close()
-        assert _wait(lambda: server._httpd.active == 2)
-        assert _still_serving(server)
-        for conn in held:
+        more = [socket.create_connection(_http_address(server), timeout=5) for _ in range(20)]
+        assert held[0].recv(1) == b""  # the longest waiting was closed for a newcomer
+        assert _still_serving(server)  # a phone gets through at once, not after 30 s
+        assert server.stats.evicted_connections >= 21 and server.stats.refused_connections == 0
+        assert threading.active_count() <= base + 2 + 2 * 3  # the server's thread, the decoder's; 2 x cap
+        for conn in held + more:
             conn.close()
         assert _wait(lambda: server._httpd.active == 0)
+
+
+def test_the_push_server_answers_only_its_path():
+    """Issue 26, finding 7: any path was taken for the push path."""
+    good = encode_push([GOOD], 1, "s", "d")
+    with PhonePushServer("http://127.0.0.1:0/sensors") as server:
+        host, port = _http_address(server)
+        conn = http.client.HTTPConnection(host, port, timeout=5)
+        answers = []
+        for method, path in [("POST", "/"), ("POST", "/sensors/x"), ("GET", "/admin"), ("GET", "/sensors")]:
+            conn.request(method, path, good if method == "POST" else None)
+            response = conn.getresponse()
+            answers.append((response.status, response.read()))
+            if response.getheader("Connection") == "close":
+                conn.close()
+        conn.request("POST", "/sensors?session=1", good)  # the query is not part of the path
+        response = conn.getresponse()
+        answers.append((response.status, response.read()))
+        conn.close()
+        assert [a[0] for a in answers] == [404, 404, 404, 200, 200]
+        assert b"the push path is /sensors" in answers[0][1]
+        assert server.stats.not_found == 3 and server.drain() == [GOOD]  # the 404s delivered nothing
+
+
+def _big_push(n: int, t0_s: float = 50.0, message_id: int = 1) -> bytes:
+    """A push of ``n`` plausible readings (the three sensors in turn, 0.1 ms apart): ~81 bytes each."""
+    kinds = [SensorKind.GYR, SensorKind.ACC, SensorKind.MAG]
+    xyz = {
+        SensorKind.GYR: (0.01, -0.02, 0.003),
+        SensorKind.ACC: (0.1, 0.2, 9.8),
+        SensorKind.MAG: (20.5, -5.25, -40.5),
+    }
+    samples = [SensorSample(t0_s + 1e-4 * k, kinds[k % 3], xyz[kinds[k % 3]]) for k in range(n)]
+    return encode_push(samples, message_id, "s", "d")
+
+
+def _post(server: PhonePushServer, body: bytes, timeout_s: float = 30.0) -> tuple[int, bytes]:
+    host, port = _http_address(server)
+    conn = http.client.HTTPConnection(host, port, timeout=timeout_s)
+    try:
+        conn.request("POST", "/", body, {"Content-Type": "application/json"})
+        response = conn.getresponse()
+        return response.status, response.read()
+    finally:
+        conn.close()
+
+
+def test_a_4_mib_push_is_decoded_in_a_process_of_its_own_and_every_reading_counted():
+    """Issue 26, finding 4: a legal 4 MB push was parsed in the host's process, stalling its control loop.
+    Now it goes to the decoder process; the host builds only what its queue keeps, and counts the rest."""
+    body = _big_push(50_000)
+    assert INLINE_MAX < len(body) <= 4 * 2**20
+    want = decode_push(body)[0][-MAX_QUEUE:]
+    with PhonePushServer("http://127.0.0.1:0/") as server:
+        assert _post(server, body)[0] == 200
+        child = server._decoder._proc
+        assert child is not None and child.pid != os.getpid() and child.poll() is None
+        st_ = server.stats
+        assert st_.samples == 50_000 and st_.overflow == 50_000 - MAX_QUEUE
+        assert st_.per_kind == {"gyr": 16_667, "acc": 16_667, "mag": 16_666}
+        got = _drain_all(server)
+        assert got == want  # the newest readings, exactly as the pure decoder reads them
+        assert _post(server, b'{"payload": [' + b"1," * 40_000 + b"1]}")[0] == 200  # entries, not readings
+        assert server.stats.bad_entries == 40_001
+        status, text = _post(server, b"[" * (INLINE_MAX + 1))
+        assert status == 400 and b"not JSON" in text and server.stats.bad_messages == 1
+
+
+def test_a_decoder_that_dies_or_hangs_costs_one_push_and_is_started_again():
+    body = _big_push(2_000)
+    assert len(body) > INLINE_MAX
+    with PhonePushServer("http://127.0.0.1:0/", decode_timeout_s=3.0) as server:
+        assert _post(server, body)[0] == 200
+        first = server._decoder._proc
+        assert first is not None
+        first.kill()
+        first.wait()
+        assert _post(server, _big_push(2_000, 60.0, 2))[0] == 200  # a new decoder, at once
+        second = server._decoder._proc
+        assert second is not None and second.pid != first.pid and server.stats.decoder_restarts == 1
+        os.kill(second.pid, signal.SIGSTOP)  # a decoder that never answers
+        start = time.monotonic()
+        status, text = _post(server, _big_push(2_000, 70.0, 3))
+        assert status == 503 and b"did not answer within 3.0 s" in text
+        assert 2.5 <= time.monotonic() - start <= 20.0
+        assert server.stats.bad_messages == 1 and "not decoded" in server.stats.last_error
+        assert _post(server, _big_push(2_000, 80.0, 4))[0] == 200
+        assert server.stats.decoder_restarts == 2 and server.stats.samples == 6_000
 
 
 def test_a_hostile_batch_is_answered_400_and_the_keep_alive_connection_goes_on():

@@ -12,8 +12,17 @@ Routes (every ``/api/`` route needs the token; :mod:`hil.gcs.access` has the che
 
 Answers: 403 for a foreign ``Origin`` (checked first; a CORS preflight is always refused) or, on a
 loopback server, a non-loopback ``Host``; 401 without the right token; 400 for a malformed command (saying
-what is wrong); 409 when there is no uplink (a replay); 503 when the command inbox or the stream limit is
-full; 202 with the command's id when it is queued.
+what is wrong); 411/413/501 for a body the guard refuses (no length, over :data:`~hil.gcs.uplink.MAX_BODY`,
+another transfer coding); 409 when there is no uplink (a replay); 503 when the command inbox or the stream
+limit is full; 202 with the command's id when it is queued.
+
+Whatever a client sends, the server runs under the phone receiver's guard (:mod:`hil.link.sources.http_guard`,
+:data:`LIMITS`): a request has :data:`REQUEST_TIMEOUT_S` from connecting to its last byte (a slowloris
+client is cut off), at most :data:`MAX_CONNECTIONS` are served at once (an idle socket makes way for a new
+one; beyond, closed unanswered), no handler's exception is printed. Every request or connection turned
+away — each 4xx/5xx but a GET's 404 and the inbox's 503 (counted by the uplink) — is counted
+(``/api/stats``) and, on a live run, logged in ``events.jsonl`` as a ``rejected`` command record with its
+reason (:meth:`GcsHttpServer.turned_away`).
 """
 
 from __future__ import annotations
@@ -27,14 +36,14 @@ import threading
 from collections import Counter
 from collections.abc import Callable
 from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from hil.gcs.access import Access
 from hil.gcs.hub import Hub
-from hil.gcs.uplink import Uplink
+from hil.gcs.uplink import MAX_BODY, Uplink
+from hil.link.sources.http_guard import BodyError, GuardedHandler, GuardedHTTPServer, HttpLimits
 from protocol.errors import InputFormatError
 
 logger = logging.getLogger(__name__)
@@ -42,22 +51,38 @@ logger = logging.getLogger(__name__)
 MAX_STREAMS = 16  # concurrent downlink streams (each holds a thread)
 KEEPALIVE_S = 10.0  # an SSE comment when nothing else was sent for this long
 SEND_TIMEOUT_S = 30.0  # a browser that stops reading for this long loses its stream (the hub never waits)
+REQUEST_TIMEOUT_S = 10.0  # s: from connecting (or the previous request) to a request's last byte
+MAX_CONNECTIONS = 32  # served at once: MAX_STREAMS streams and room for the page's files and commands
+LIMITS = HttpLimits(max_body=MAX_BODY, timeout_s=REQUEST_TIMEOUT_S, max_connections=MAX_CONNECTIONS)
 _STATIC_NAME = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
-_TYPES = {".js": "text/javascript", ".css": "text/css", ".html": "text/html", ".png": "image/png",
-          ".txt": "text/plain", ".svg": "image/svg+xml"}  # fmt: skip
+_TYPES = {
+    ".js": "text/javascript",
+    ".css": "text/css",
+    ".html": "text/html",
+    ".png": "image/png",
+    ".txt": "text/plain",
+    ".svg": "image/svg+xml",
+}
 
 
-class GcsHttpServer(ThreadingHTTPServer):
-    daemon_threads = True
+class GcsHttpServer(GuardedHTTPServer):
+    """The ground station's server on ``host``:``port``, under ``limits`` (:data:`LIMITS` by default)."""
+
     allow_reuse_address = True
-    block_on_close = False
 
     def __init__(
-        self, host: str, port: int, access_token: str, hub: Hub, uplink: Uplink | None,
-        info: Callable[[], dict[str, Any] | None], stats: Callable[[], dict[str, Any]],
-    ) -> None:  # fmt: skip
+        self,
+        host: str,
+        port: int,
+        access_token: str,
+        hub: Hub,
+        uplink: Uplink | None,
+        info: Callable[[], dict[str, Any] | None],
+        stats: Callable[[], dict[str, Any]],
+        limits: HttpLimits = LIMITS,
+    ) -> None:
         self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        super().__init__((host, port), _Handler)
+        super().__init__((host, port), _Handler, limits, self.turned_away)
         self.access = Access(access_token, host, self.server_address[1])
         self.hub = hub
         self.uplink = uplink
@@ -75,29 +100,48 @@ class GcsHttpServer(ThreadingHTTPServer):
         return int(self.server_address[1])
 
     def start(self) -> None:
-        self.thread = threading.Thread(target=self.serve_forever, kwargs={"poll_interval": 0.2},
-                                       name=f"gcs-http :{self.port}", daemon=True)  # fmt: skip
+        self.thread = threading.Thread(
+            target=self.serve_forever,
+            kwargs={"poll_interval": 0.2},
+            name=f"gcs-http :{self.port}",
+            daemon=True,
+        )
         self.thread.start()
 
     def stop(self) -> None:
         self.hub.close()
         self.shutdown()
         self.server_close()
+        self.close_connections()
         if self.thread is not None:
             self.thread.join(timeout=5.0)
 
     def counters(self) -> dict[str, Any]:
         with self.lock:
-            return {"requests": self.requests, "streams_open": self.streams, "rejected": dict(self.rejected)}
+            return {
+                "requests": self.requests,
+                "streams_open": self.streams,
+                "rejected": dict(self.rejected),
+                "connections_open": self.active,
+                "connections_refused": self.refused,
+                "connections_evicted": self.evicted,
+            }
+
+    def turned_away(self, reason: str, remote: str, detail: str = "") -> None:
+        """A request or connection turned away — by a handler (``host``, ``origin``, ``token``, ``format``,
+        ``size``, ``path``, ``busy``) or the guard (``timeout``, ``evicted``, ``connections``, ``request``,
+        ``error``): counted, and logged in the run's events when there is a run (docs/gcs.md: an attempt
+        leaves a trace)."""
+        with self.lock:
+            self.rejected[reason] += 1
+        if self.uplink is not None:
+            self.uplink.reject(reason, remote, detail[:300])
 
 
-class _Handler(BaseHTTPRequestHandler):
+class _Handler(GuardedHandler):
     server: GcsHttpServer
     protocol_version = "HTTP/1.0"
     server_version = "vscmg-hil-gcs"
-
-    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the base class's name
-        logger.debug("%s %s", self.address_string(), format % args)
 
     # ------------------------------------------------------------------ routing
     def do_GET(self) -> None:  # noqa: N802 - http.server's name
@@ -114,7 +158,10 @@ class _Handler(BaseHTTPRequestHandler):
         if url.path.startswith("/static/"):
             return self._static(url.path.removeprefix("/static/"))
         if url.path.startswith("/api/"):
-            token = parse_qs(url.query).get("token", [None])[0] or self._header_token()
+            try:
+                token = parse_qs(url.query).get("token", [None])[0] or self._header_token()
+            except ValueError:  # parse_qs refuses more than max_num_fields; a bad query is no token
+                token = None
             if not self._api_allowed(token):
                 return None
             if url.path == "/api/stream":
@@ -131,31 +178,32 @@ class _Handler(BaseHTTPRequestHandler):
         uplink = self.server.uplink
         remote = self.address_string()
         if url.path != "/api/command":
-            return self._json(HTTPStatus.NOT_FOUND, {"error": f"no such endpoint: {url.path}"})
+            return self._refuse(HTTPStatus.NOT_FOUND, "path", f"no such endpoint: {url.path[:80]}")
         if not self.server.access.host_ok(self.headers.get("Host")):
-            if uplink is not None:
-                uplink.reject("host", remote, str(self.headers.get("Host")))
             return self._refuse(
                 HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name"
             )
-        if not self._api_allowed(self._header_token(), uplink):
+        if not self._api_allowed(self._header_token()):
             return None
-        length = self._length()
-        if length is None:
-            return None
-        body = self.rfile.read(length)
+        try:
+            body = self.read_body(f"POST {url.path} from {remote}")
+        except BodyError as exc:
+            if self.server.was_evicted(self.connection):
+                return None  # its slot went to a new connection: reported as evicted
+            reason = "size" if exc.status == HTTPStatus.REQUEST_ENTITY_TOO_LARGE else "format"
+            return self._refuse(HTTPStatus(exc.status), reason, exc.detail)
         if uplink is None:
             return self._json(HTTPStatus.CONFLICT, {"error": "a replay takes no commands"})
         if (self.headers.get("Content-Type") or "").split(";")[0].strip() != "application/json":
-            uplink.reject("format", remote, "Content-Type is not application/json")
             return self._refuse(HTTPStatus.UNSUPPORTED_MEDIA_TYPE, "format", "send application/json")
         try:
             command = uplink.submit(body, remote)
         except InputFormatError as exc:
-            uplink.reject("format", remote, exc.detail)
             return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
-        if command is None:
-            return self._refuse(HTTPStatus.SERVICE_UNAVAILABLE, "busy", "too many commands waiting")
+        if command is None:  # counted by the uplink (inbox_full), not a rejection: the sender may retry
+            return self._json(
+                HTTPStatus.SERVICE_UNAVAILABLE, {"error": "too many commands waiting", "reason": "busy"}
+            )
         return self._json(
             HTTPStatus.ACCEPTED, {"id": command.id, "command": command.name, "status": "queued"}
         )
@@ -163,11 +211,8 @@ class _Handler(BaseHTTPRequestHandler):
     def do_OPTIONS(self) -> None:  # noqa: N802
         """A CORS preflight: only a foreign page sends one, and none is allowed (no CORS headers)."""
         self._count()
-        if self.server.uplink is not None and urlsplit(self.path).path == "/api/command":
-            self.server.uplink.reject(
-                "origin", self.address_string(), f"preflight from {self.headers.get('Origin')}"
-            )
-        self._refuse(HTTPStatus.FORBIDDEN, "origin", "cross-origin requests are not accepted")
+        origin = self.headers.get("Origin")
+        self._refuse(HTTPStatus.FORBIDDEN, "origin", f"cross-origin requests are not accepted ({origin})")
 
     # ------------------------------------------------------------------ checks
     def _header_token(self) -> str | None:
@@ -175,49 +220,40 @@ class _Handler(BaseHTTPRequestHandler):
         scheme, _, value = auth.partition(" ")
         return value.strip() if scheme.lower() == "token" and value.strip() else None
 
-    def _api_allowed(self, token: str | None, uplink: Uplink | None = None) -> bool:
+    def _api_allowed(self, token: str | None) -> bool:
         """The Origin first (a foreign page is refused whatever it sends), then the token."""
         access = self.server.access
-        remote = self.address_string()
         origin = self.headers.get("Origin")
         if not access.origin_ok(origin, self.headers.get("Host")):
-            if uplink is not None:
-                uplink.reject("origin", remote, str(origin))
             self._refuse(HTTPStatus.FORBIDDEN, "origin", f"requests from {origin} are not accepted")
             return False
         if not access.token_ok(token):
-            if uplink is not None:
-                uplink.reject("token", remote, "missing" if token is None else "wrong")
             self._refuse(
-                HTTPStatus.UNAUTHORIZED, "token", "missing or wrong token (see the URL printed at start)"
+                HTTPStatus.UNAUTHORIZED,
+                "token",
+                "missing or wrong token (see the URL printed at start)",
+                "missing" if token is None else "wrong",
             )
             return False
         return True
-
-    def _length(self) -> int | None:
-        try:
-            length = int(self.headers.get("Content-Length") or "0")
-        except ValueError:
-            length = -1
-        if not 0 <= length <= 4096:
-            self._refuse(HTTPStatus.BAD_REQUEST, "format", "Content-Length must be 0-4096")
-            return None
-        return length
 
     # ------------------------------------------------------------------ answers
     def _count(self) -> None:
         with self.server.lock:
             self.server.requests += 1
 
-    def _refuse(self, status: HTTPStatus, reason: str, message: str) -> None:
-        with self.server.lock:
-            self.server.rejected[reason] += 1
+    def _refuse(self, status: HTTPStatus, reason: str, message: str, detail: str | None = None) -> None:
+        """Answer ``status`` saying ``message``; the request is counted and logged as turned away
+        (``detail``, default the message, goes into the record)."""
+        self.server.turned_away(reason, self.address_string(), message if detail is None else detail)
+        self.close_connection = True
         self._json(status, {"error": message, "reason": reason})
 
     def _json(self, status: HTTPStatus, value: Any) -> None:
         self._reply(status, json.dumps(value, default=str).encode(), "application/json")
 
     def _reply(self, status: HTTPStatus, body: bytes, content_type: str) -> None:
+        self.deadline_for_answer()  # a client that does not read its answer cannot hold the thread
         try:
             self.send_response(status)
             self.send_header("Content-Type", content_type)
@@ -226,8 +262,8 @@ class _Handler(BaseHTTPRequestHandler):
             self.send_header("X-Content-Type-Options", "nosniff")
             self.end_headers()
             self.wfile.write(body)
-        except (BrokenPipeError, ConnectionResetError):
-            pass  # the browser went away: nothing to tell it
+        except OSError:  # the browser went away or stopped reading: nothing to tell it
+            self.close_connection = True
 
     def _static(self, name: str) -> None:
         if not _STATIC_NAME.match(name) or ".." in name.split("/"):
@@ -250,7 +286,9 @@ class _Handler(BaseHTTPRequestHandler):
                 full = False
                 server.streams += 1
         if full:
-            return self._refuse(HTTPStatus.SERVICE_UNAVAILABLE, "busy", f"{MAX_STREAMS} streams already open")
+            return self._refuse(
+                HTTPStatus.SERVICE_UNAVAILABLE, "streams", f"{MAX_STREAMS} streams already open"
+            )
         hub = server.hub
         hub.count_stream(+1)
         try:

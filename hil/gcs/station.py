@@ -31,9 +31,10 @@ from hil.gcs.access import is_loopback, new_token, parse_bind, url_host
 from hil.gcs.hub import DEFAULT_BUDGET, Hub
 from hil.gcs.live import LiveFeed
 from hil.gcs.rundir import RunDirSource
-from hil.gcs.server import GcsHttpServer
+from hil.gcs.server import LIMITS, GcsHttpServer
 from hil.gcs.uplink import Uplink
 from hil.gcs.wire import Batch, dumps, encode_batch, sse
+from hil.link.sources.http_guard import HttpLimits
 from protocol.errors import LinkError
 
 logger = logging.getLogger(__name__)
@@ -49,13 +50,21 @@ class Source(Protocol):
 
 class GroundStation:
     """Serve ``source`` on ``bind`` (``HOST:PORT``, default loopback :data:`hil.gcs.access.DEFAULT_PORT`);
-    ``uplink`` takes commands (a live run's). Starts at once; :meth:`close` (or ``with``) stops it."""
+    ``uplink`` takes commands (a live run's); ``limits`` bound what a client may hold of the server
+    (:data:`hil.gcs.server.LIMITS`). Starts at once; :meth:`close` (or ``with``) stops it."""
 
     def __init__(
-        self, source: Source, *, bind: str | None = None, token: str | None = None,
-        uplink: Uplink | None = None, budget: int = DEFAULT_BUDGET,
-    ) -> None:  # fmt: skip
+        self,
+        source: Source,
+        *,
+        bind: str | None = None,
+        token: str | None = None,
+        uplink: Uplink | None = None,
+        budget: int = DEFAULT_BUDGET,
+        limits: HttpLimits = LIMITS,
+    ) -> None:
         host, port, explicit = parse_bind(bind)
+        self.limits = limits
         self.source = source
         self.uplink = uplink
         self.token = token or new_token()
@@ -74,11 +83,16 @@ class GroundStation:
 
     @classmethod
     def live(
-        cls, *, bind: str | None = None, token: str | None = None, commands: bool = True
+        cls,
+        *,
+        bind: str | None = None,
+        token: str | None = None,
+        commands: bool = True,
+        limits: HttpLimits = LIMITS,
     ) -> GroundStation:
         """A station for a run that is about to start: pass :attr:`observer` as ``RunOptions.observer``."""
         uplink = Uplink() if commands else None
-        return cls(LiveFeed(uplink), bind=bind, token=token, uplink=uplink)
+        return cls(LiveFeed(uplink), bind=bind, token=token, uplink=uplink, limits=limits)
 
     @classmethod
     def replay(
@@ -92,8 +106,16 @@ class GroundStation:
         tries = 1 if explicit or port == 0 else PORT_TRIES
         for attempt in range(tries):
             try:
-                return GcsHttpServer(host, port + attempt, self.token, self.hub, self.uplink,
-                                     lambda: self.info, self.stats)  # fmt: skip
+                return GcsHttpServer(
+                    host,
+                    port + attempt,
+                    self.token,
+                    self.hub,
+                    self.uplink,
+                    lambda: self.info,
+                    self.stats,
+                    self.limits,
+                )
             except OSError as exc:
                 if exc.errno == errno.EADDRINUSE and attempt + 1 < tries:
                     continue

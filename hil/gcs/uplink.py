@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import threading
 from collections import deque
 from dataclasses import dataclass, field
@@ -31,18 +32,32 @@ MAX_BODY = 4096  # bytes of a command request
 INBOX = 16  # commands waiting for the next control tick; more answer 503
 REJECTED_LOG = 64  # turned-away requests waiting to be logged; more are counted only
 ANGLE_RANGE = {"roll_deg": 180.0, "pitch_deg": 90.0, "yaw_deg": 180.0}
+MAX_DEPTH = 8  # JSON nesting: a command is one flat object; deeper is refused before the parser sees it
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
+_BRACKET = re.compile(rb"[\[\]{}]")
+_WHERE = "POST /api/command"
 
 
 def parse_command(body: bytes, command_id: int, remote: str = "") -> OperatorCommand:
     """A request body as an :class:`OperatorCommand` from the ground station; :class:`InputFormatError`
-    saying what is wrong otherwise."""
-    where = "POST /api/command"
+    saying what is wrong otherwise — whatever the bytes, nothing else is raised. The body must be one JSON
+    object of at most :data:`MAX_BODY` bytes, nested at most :data:`MAX_DEPTH` deep (checked before
+    ``json.loads``, whose recursion ``[`` x 4000 would exhaust), with no key given twice (which of two
+    values would count is a guess: ``{"command": "hold", "command": "disarm"}`` is refused, not a disarm)."""
+    where = _WHERE
     if len(body) > MAX_BODY:
         raise InputFormatError(f"body of {len(body)} bytes (at most {MAX_BODY})", where)
+    depth = _depth(body)
+    if depth > MAX_DEPTH:
+        raise InputFormatError(f"nested {depth} deep (at most {MAX_DEPTH}): not a command", where)
     try:
-        doc = json.loads(body)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"not JSON: {exc}", where) from None
+        doc = json.loads(body, object_pairs_hook=_unique_keys)
+    except InputFormatError:  # a key given twice (_unique_keys)
+        raise
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, an integer past the digit limit
+        raise InputFormatError(f"not JSON: {str(exc)[:200]}", where) from None
+    except RecursionError:  # not reachable under MAX_DEPTH; kept so that no input can raise anything else
+        raise InputFormatError("not JSON: nested too deep", where) from None
     if not isinstance(doc, dict):
         raise InputFormatError("expected a JSON object", where)
     name = doc.get("command")
@@ -62,6 +77,26 @@ def parse_command(body: bytes, command_id: int, remote: str = "") -> OperatorCom
             raise InputFormatError(f"{key} must lie within ±{limit:g}°, got {value}", where)
         angles.append(float(value))
     return OperatorCommand(command_id, name, (angles[0], angles[1], angles[2]), "gcs", remote)
+
+
+def _depth(body: bytes) -> int:
+    """How deep the brackets of ``body`` nest, outside JSON strings (an unterminated string's brackets
+    count: such a body is refused either way)."""
+    depth = deepest = 0
+    for bracket in _BRACKET.findall(_STRING.sub(b'""', body)):
+        depth += 1 if bracket in (b"[", b"{") else -1
+        deepest = max(deepest, depth)
+    return deepest
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``json.loads``' object hook: an object that gives a key twice is refused."""
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise InputFormatError(f"the key {key[:40]!r} is given twice", _WHERE)
+        doc[key] = value
+    return doc
 
 
 @dataclass

@@ -1,26 +1,38 @@
-"""An HTTP/1.1 receiving end that a peer on the network cannot exhaust: how the phone-push server reads
-request bodies and holds connections.
+"""An HTTP receiving end that a peer on the network cannot exhaust: how the host's two servers — the phone
+push receiver (:mod:`.phone_push`) and the ground station (:mod:`hil.gcs.server`) — read requests and
+hold connections. One guard for both, so both pass the same hostile-peer tests.
 
-A phone on the Wi-Fi pushes its batches to the host; anything else on that network can connect too. So,
-whatever a peer sends:
+Anything that can reach a server's port can connect. So, whatever a peer sends (:class:`HttpLimits`):
 
-* a request body is at most ``limit`` bytes, whatever the headers say (:func:`read_body`):
+* a request body is at most ``max_body`` bytes, whatever the headers say (:func:`read_body`):
   ``Content-Length`` must be one plain decimal number (``-1``, ``abc``, ``+5``, ``1e3`` and two
-  different values are refused 400; more than ``limit`` is refused 413 before a byte of the body is
+  different values are refused 400; more than the limit is refused 413 before a byte of the body is
   read); ``Transfer-Encoding: chunked`` is decoded under the same cap, with bounded chunk-size lines
   and trailers; a POST with neither is refused 411; any other transfer coding 501;
 * each request has ``timeout_s`` from the moment the server starts waiting for it to its last byte
-  (:class:`DeadlineReader`): an idle keep-alive connection and a peer dripping a byte a second are
-  both closed, and counted;
-* at most ``max_connections`` connections are served at once (:class:`BoundedHTTPServer`); the ones
-  beyond are closed at once, and counted;
-* nothing is printed: a connection's error is counted and logged, and the server carries on.
+  (:class:`DeadlineReader`): an idle connection and a peer dripping a byte a second (slowloris) are
+  both closed, and reported (``timeout``); an answer the peer does not read within ``timeout_s`` ends
+  the connection too;
+* at most ``max_connections`` connections are served at once (:class:`GuardedHTTPServer`), each by a
+  thread. A connection still *waiting* — for its request, or for the rest of its body — holds its slot
+  only until a new connection needs it: then the one that has waited longest is closed (``evicted``),
+  so idle or dripping sockets cannot lock the others out, while a request being answered or a stream
+  being served is never cut. When every slot is busy (or ``max_connections`` evicted connections are
+  still winding down), a new connection is closed unanswered (``connections``). Threads: at most
+  ``2 * max_connections``, whatever a peer opens;
+* a connection that ends is first drained of what the peer still sends, for at most ``linger_s`` and
+  :data:`LINGER_BYTES` (a "lingering close"): closing a socket with unread input sends a reset, which
+  can destroy the answer (a 413 before the body, a 401) before the peer reads it;
+* nothing is printed: every turned-away request and connection is reported to the server's
+  ``on_turned_away(reason, peer, detail)`` (each server counts and logs them its own way), a handler's
+  exception included (``error``), and the server carries on.
 
 :func:`read_body` needs only a readable binary file, so it is tested and fuzzed on ``io.BytesIO``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
 import re
@@ -29,8 +41,9 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from email.message import Message
-from http.server import ThreadingHTTPServer
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any, Protocol
 
 from protocol.errors import InputFormatError
@@ -39,8 +52,31 @@ logger = logging.getLogger(__name__)
 
 MAX_LINE = 1024  # bytes: a chunk-size line or a trailer line longer than this is refused
 MAX_TRAILERS = 32  # trailer lines after the last chunk
+LINGER_BYTES = 1024 * 1024  # at most this much of what a peer still sends is read and dropped at the close
+BACKLOG = 128  # connections the kernel holds until the server accepts them (socketserver's default: 5)
 _DECIMAL = re.compile(r"[0-9]{1,19}")
 _HEX = re.compile(r"[0-9a-fA-F]{1,16}")
+
+
+@dataclass(frozen=True)
+class HttpLimits:
+    """What one server lets a peer hold: ``max_body`` bytes per request body, ``timeout_s`` seconds per
+    request (from waiting for it to its last byte; also per answer written), ``max_connections`` served at
+    once, ``linger_s`` seconds of draining at a connection's close."""
+
+    max_body: int
+    timeout_s: float
+    max_connections: int
+    linger_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.max_body < 0 or self.timeout_s <= 0 or self.max_connections < 1 or self.linger_s < 0:
+            raise ValueError(f"impossible HTTP limits: {self}")
+
+
+TurnedAway = Callable[[str, str, str], None]
+"""``on_turned_away(reason, peer, detail)``: a request or connection the guard turned away — ``timeout``,
+``evicted``, ``connections`` (the cap), ``error`` (a handler's exception), or what a handler refuses."""
 
 
 class ByteReader(Protocol):
@@ -162,60 +198,209 @@ class DeadlineReader(io.RawIOBase):
             raise
 
 
-class BoundedHTTPServer(ThreadingHTTPServer):
-    """A threading HTTP server serving at most ``max_connections`` connections at once; the ones beyond
-    are closed unanswered (``on_refused()`` hears of each). ``on_error(reason)`` hears of every connection
-    that ended in an exception (nothing is printed). Handler threads are daemons."""
+class GuardedHTTPServer(ThreadingHTTPServer):
+    """A threading HTTP server that serves at most ``limits.max_connections`` connections at once, evicts
+    the longest-waiting idle one when a new connection needs its slot, and reports every connection it
+    turns away, and every handler's exception, to ``on_turned_away`` (nothing printed). Its handler must
+    derive from :class:`GuardedHandler`. Handler threads are daemons; :meth:`server_close` does not wait
+    for them (:meth:`close_connections` ends them)."""
 
     daemon_threads = True
+    block_on_close = False
+    request_queue_size = BACKLOG
 
     def __init__(
         self,
         address: tuple[str, int],
-        handler: type,
-        max_connections: int,
-        on_refused: Callable[[], None],
-        on_error: Callable[[str], None],
+        handler: type[GuardedHandler],
+        limits: HttpLimits,
+        on_turned_away: TurnedAway,
     ) -> None:
-        self.max_connections = max_connections
-        self.active = 0
+        self.limits = limits
+        self.on_turned_away = on_turned_away
+        self.active = 0  # connections with a thread (evicted ones winding down included)
         self.refused = 0
-        self._on_refused = on_refused
-        self._on_error = on_error
+        self.evicted = 0
         self._slots = threading.Lock()
+        self._open: set[socket.socket] = set()
+        self._waiting: dict[socket.socket, str] = {}  # waiting for (the rest of) a request: oldest first
+        self._leaving: set[socket.socket] = set()  # evicted, their thread not yet ended
         super().__init__(address, handler)
 
+    # ------------------------------------------------------------------ slots (the accept thread)
     def verify_request(self, request: Any, client_address: Any) -> bool:
+        peer = str(client_address[0])
+        evicted: tuple[socket.socket, str] | None = None
         with self._slots:
-            if self.active < self.max_connections:
+            live = self.active - len(self._leaving)
+            cap = self.limits.max_connections
+            if live >= cap and self._waiting and len(self._leaving) < cap:
+                sock, who = next(iter(self._waiting.items()))  # the one that has waited longest
+                del self._waiting[sock]
+                self._leaving.add(sock)
+                self.evicted += 1
+                evicted = (sock, who)
+                live -= 1
+            admitted = live < cap
+            if admitted:
                 self.active += 1
-                return True
-            self.refused += 1
-            refused = self.refused
-        self._on_refused()
+                self._open.add(request)
+                self._waiting[request] = peer
+            else:
+                self.refused += 1
+                refused, active = self.refused, self.active
+        if evicted is not None:
+            with contextlib.suppress(OSError):  # its thread's read returns at once: the thread ends
+                evicted[0].shutdown(socket.SHUT_RDWR)
+            self.on_turned_away("evicted", evicted[1], "closed while waiting: its slot was needed")
+        if admitted:
+            return True
         if refused == 1 or refused % 100 == 0:
-            logger.warning("%d connection(s) refused so far: %d open", refused, self.max_connections)
+            logger.warning("%d connection(s) refused so far: %d open", refused, active)
+        self.on_turned_away("connections", peer, f"{self.limits.max_connections} connections open")
         return False
 
     def process_request(self, request: Any, client_address: Any) -> None:
         try:
             super().process_request(request, client_address)
         except BaseException:  # the thread did not start: its slot is free again
-            self._release()
+            self._release(request)
             raise
 
     def process_request_thread(self, request: Any, client_address: Any) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self._release()
+            self._release(request)
 
-    def _release(self) -> None:
+    def _release(self, request: socket.socket) -> None:
         with self._slots:
             self.active -= 1
+            self._open.discard(request)
+            self._waiting.pop(request, None)
+            self._leaving.discard(request)
+
+    # ------------------------------------------------------------------ what handlers say
+    def mark(self, request: socket.socket, peer: str, waiting: bool) -> None:
+        """``request`` is waiting for (the rest of) a request — evictable, the longest waiting first — or
+        busy answering one (never evicted)."""
+        with self._slots:
+            if request in self._leaving or request not in self._open:
+                return
+            self._waiting.pop(request, None)
+            if waiting:
+                self._waiting[request] = peer
+
+    def was_evicted(self, request: socket.socket) -> bool:
+        with self._slots:
+            return request in self._leaving
+
+    def close_connections(self) -> None:
+        """End every open connection (their threads then end): for a server that is closing."""
+        with self._slots:
+            sockets = list(self._open)
+        for sock in sockets:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
 
     def handle_error(self, request: Any, client_address: Any) -> None:
-        """socketserver prints a traceback here; a peer's bad request is counted and logged instead."""
+        """socketserver prints a traceback here; a handler's exception is reported instead (an evicted
+        connection's failing write is no news)."""
         exc = sys.exc_info()[1]
-        self._on_error(f"connection from {client_address[0]} failed: {type(exc).__name__}: {exc}"[:300])
-        logger.debug("phone push connection from %s failed", client_address[0], exc_info=True)
+        logger.debug("connection from %s failed", client_address[0], exc_info=True)
+        if not self.was_evicted(request):
+            detail = f"{type(exc).__name__}: {exc}"[:300]
+            self.on_turned_away("error", str(client_address[0]), detail)
+
+
+class GuardedHandler(BaseHTTPRequestHandler):
+    """The request handler half of the guard: every request read under a :class:`DeadlineReader`, the
+    connection marked waiting (evictable) until its request — body included, when read through
+    :meth:`read_body` — is in, answers written under a deadline, http.server's own refusals (a malformed
+    request line, an unsupported method, headers too long) reported, a lingering close. Subclasses write
+    ``do_GET``/``do_POST`` as usual."""
+
+    server: GuardedHTTPServer
+
+    def setup(self) -> None:
+        super().setup()
+        limits = self.server.limits
+        self.rfile.close()  # makefile()'s reader: replaced by one with a deadline per request
+        self._reader = DeadlineReader(self.connection, limits.timeout_s, self._timed_out)
+        self.rfile = io.BufferedReader(self._reader)
+        self._peer = str(self.client_address[0])
+
+    def handle_one_request(self) -> None:
+        self._answered = False
+        self._reader.start()  # the next request, from waiting for it to its last byte: timeout_s
+        self.server.mark(self.connection, self._peer, waiting=True)
+        super().handle_one_request()
+
+    def parse_request(self) -> bool:
+        ok = super().parse_request()
+        if ok:  # the head is in: answering it is never cut by an eviction
+            self.server.mark(self.connection, self._peer, waiting=False)
+        return ok
+
+    def read_body(self, source: str, limit: int | None = None) -> bytes:
+        """This request's body (:func:`read_body`, at most ``limit`` or the server's ``max_body``; errors
+        name ``source``); the connection is evictable while it trickles in. Raises :class:`BodyError`."""
+        cap = self.server.limits.max_body if limit is None else limit
+        self.server.mark(self.connection, self._peer, waiting=True)
+        try:
+            return read_body(self.headers, self.rfile, cap, source)
+        finally:
+            self.server.mark(self.connection, self._peer, waiting=False)
+
+    def deadline_for_answer(self, seconds: float | None = None) -> None:
+        """A peer that does not read its answer cannot hold the thread: writes wait at most ``seconds``
+        (default the request deadline)."""
+        self.connection.settimeout(self.server.limits.timeout_s if seconds is None else seconds)
+
+    def send_response(self, code: int, message: str | None = None) -> None:
+        self._answered = True
+        super().send_response(code, message)
+
+    def _timed_out(self) -> None:
+        if not self.server.was_evicted(self.connection):
+            detail = f"no complete request within {self._reader.timeout_s} s"
+            self.server.on_turned_away("timeout", self._peer, detail)
+
+    def send_error(self, code: int, message: str | None = None, explain: str | None = None) -> None:
+        """http.server's own refusals (400 bad request line, 414, 431, 501 unsupported method) are
+        reported like the handlers' ones, and answered under the write deadline."""
+        self.server.on_turned_away("request", self._peer, f"{code} {message or ''}".strip()[:200])
+        self.close_connection = True
+        self.deadline_for_answer()
+        with contextlib.suppress(OSError):
+            super().send_error(code, message, explain)
+
+    def finish(self) -> None:
+        with contextlib.suppress(OSError):
+            super().finish()
+        self._linger()
+
+    def _linger(self) -> None:
+        """After an answer, send our FIN, then read and drop what the peer still sends until it closes,
+        for at most ``linger_s`` and :data:`LINGER_BYTES`: so the answer is not destroyed by a reset. (A
+        connection closed without an answer — timed out, evicted — has nothing to protect.)"""
+        sock = self.connection
+        if not getattr(self, "_answered", False) or self.server.was_evicted(sock):
+            return
+        self.server.mark(sock, self._peer, waiting=True)  # a slot needed meanwhile ends the lingering
+        end = time.monotonic() + self.server.limits.linger_s
+        left = LINGER_BYTES
+        with contextlib.suppress(OSError):
+            sock.shutdown(socket.SHUT_WR)
+            while left > 0:
+                remaining = end - time.monotonic()
+                if remaining <= 0:
+                    break
+                sock.settimeout(remaining)
+                data = sock.recv(min(left, 65536))
+                if not data:
+                    break
+                left -= len(data)
+
+    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (http.server's naming)
+        logger.debug("%s %s", self._peer if hasattr(self, "_peer") else "?", format % args)

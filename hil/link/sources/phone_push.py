@@ -23,22 +23,20 @@ function, :func:`decode_push`, so it is tested without sockets.
 
 from __future__ import annotations
 
-import contextlib
 import http.client
-import io
 import json
 import logging
 import math
-import socket
 import threading
 import time
 from collections.abc import Iterable, Sequence
-from http.server import BaseHTTPRequestHandler
 from typing import Any
+from urllib.parse import urlsplit
 
 from hil.estimation.sensors import SensorKind, SensorSample
-from hil.link.sources.http_guard import BodyError, BoundedHTTPServer, DeadlineReader, read_body
-from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, parse_json, split_url
+from hil.link.sources.http_guard import BodyError, GuardedHandler, GuardedHTTPServer, HttpLimits
+from hil.link.sources.push_decoder import DECODE_TIMEOUT_S, PushDecoder
+from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)
@@ -52,6 +50,10 @@ _NAME_OF = {kind: name for name, kind in NAMES.items()}
 MAX_BODY = 4 * 1024 * 1024  # bytes: a batch larger than this is refused (413), not buffered
 REQUEST_TIMEOUT_S = 10.0  # s: from waiting for a request to its last byte (an idle keep-alive ends here)
 MAX_CONNECTIONS = 8  # served at once; the app keeps one
+INLINE_MAX = 64 * 1024
+"""bytes: a push up to this size (~800 readings; the app's 20 ms batch is ~1 kB) is decoded in the server's
+handler thread — ~1 ms of json.loads holding the interpreter's lock, a few ms of Python that yields it;
+larger ones in the decoder process (:mod:`.push_decoder`), so that no push can stall the control loop."""
 
 
 _Timed = tuple[float, tuple[float, float, float]]
@@ -157,10 +159,13 @@ class PhonePushServer(PhoneReceiver):
     """Receives Sensor Logger pushes at ``http://HOST:PORT/PATH`` (port 0 picks a free one; see :attr:`url`).
 
     A background thread serves HTTP; :meth:`drain` hands the samples received so far to the consumer (the
-    runtime's estimator task). ``GET`` answers 200 so the app's "Tap to Test Pushing" button succeeds; a
-    batch that cannot be read is answered 400 and counted. Whatever a peer sends, a body is at most
-    ``max_body`` bytes, a request has ``timeout_s`` to arrive, at most ``max_connections`` are served at
-    once (:mod:`.http_guard`), and only this server's socket failing is fatal: that error is stored and
+    runtime's estimator task), at most ``max_batch`` a call (:mod:`.stream`). ``GET PATH`` answers 200 so
+    the app's "Tap to Test Pushing" button succeeds; any other path is answered 404 and counted
+    (``not_found``). A push's body is decoded in a process of its own (:mod:`.push_decoder`: no push can
+    stall the host's control loop); one that cannot be read is answered 400 and counted, one the decoder
+    could not take in time 503. Whatever a peer sends, a body is at most ``max_body`` bytes, a request has
+    ``timeout_s`` to arrive, at most ``max_connections`` are served at once, idle ones making way for new
+    ones (:mod:`.http_guard`), and only this server's socket failing is fatal: that error is stored and
     raised by :meth:`check` — threads never die silently.
     """
 
@@ -174,17 +179,18 @@ class PhonePushServer(PhoneReceiver):
         max_body: int = MAX_BODY,
         timeout_s: float = REQUEST_TIMEOUT_S,
         max_connections: int = MAX_CONNECTIONS,
+        max_batch: int = MAX_BATCH,
+        decode_timeout_s: float = DECODE_TIMEOUT_S,
     ) -> None:
-        super().__init__(max_queue)
+        super().__init__(max_queue, max_batch=max_batch)
         host, port, self.path = _address(url)
         self._last_id: int | None = None
-        self._connections: set[socket.socket] = set()
+        limits = HttpLimits(max_body, timeout_s, max_connections)
         try:
-            handler = _handler(self, max_body, timeout_s)
-            address = (host, port)
-            self._httpd = BoundedHTTPServer(address, handler, max_connections, self._refused, self._reject)
+            self._httpd = GuardedHTTPServer((host, port), _handler(self), limits, self._turned_away)
         except OSError as exc:
             raise LinkError(f"cannot listen for phone pushes on {host}:{port}: {exc.strerror}") from exc
+        self._decoder = PushDecoder(decode_timeout_s)  # its process starts at the first large push
         self._thread = threading.Thread(target=self._serve, name="phone-push", daemon=True)
         self._thread.start()
 
@@ -201,70 +207,97 @@ class PhonePushServer(PhoneReceiver):
             self._error = exc
 
     def _accept(self, body: bytes, peer: str) -> tuple[int, str]:
-        batch, refused = self._decode(decode_push, body, f"push from {peer}")
-        if batch is None:
-            return 400, refused
-        samples, bad, ignored, message_id = batch
+        """One push's body into the queue — decoded here if small (:data:`INLINE_MAX`), else by the decoder
+        process —: ``(status, text)`` to answer."""
+        source = f"push from {peer}"
+        if len(body) <= INLINE_MAX:
+            inline, refused = self._decode(decode_push, body, source)
+            if inline is None:
+                return 400, refused
+            samples, bad, ignored, message_id = inline
+            self._count_gaps(message_id)
+            self._deliver(samples, bad, ignored)
+            return 200, "ok"
+        try:
+            batch = self._decoder.decode(body, self._max_queue, source)
+        except InputFormatError as exc:
+            self._reject(str(exc))
+            return 400, str(exc)
+        except LinkError as exc:  # the decoder was busy, silent or dead: this push is lost, and counted
+            with self._lock:
+                self.stats.decoder_restarts = self._decoder.restarts
+            self._reject(f"{source}: not decoded: {exc}")
+            return 503, f"not decoded: {exc}"
+        with self._lock:
+            self.stats.decoder_restarts = self._decoder.restarts
+        self._count_gaps(batch.message_id)
+        self._deliver(batch.samples, batch.bad, batch.ignored, batch.per_kind)
+        return 200, "ok"
+
+    def _count_gaps(self, message_id: int | None) -> None:
+        """Batches lost in transit: a jump in the app's ``messageId``."""
         with self._lock:
             last, self._last_id = self._last_id, message_id if message_id is not None else self._last_id
             if message_id is not None and last is not None and message_id > last + 1:
                 self.stats.message_gaps += message_id - last - 1
-        self._deliver(samples, bad, ignored)
-        return 200, "ok"
 
-    def _refused(self) -> None:
+    def _turned_away(self, reason: str, peer: str, detail: str) -> None:
+        """What the HTTP guard (and the handler) turned away: counted by kind; requests also logged."""
         with self._lock:
-            self.stats.refused_connections += 1
-
-    def _timed_out(self) -> None:
-        with self._lock:
-            self.stats.timeouts += 1
+            st = self.stats
+            if reason == "connections":
+                st.refused_connections += 1
+            elif reason == "evicted":
+                st.evicted_connections += 1
+            elif reason == "timeout":
+                st.timeouts += 1
+            elif reason == "path":
+                st.not_found += 1
+        if reason == "path":
+            self._warn(f"a request from {peer} for {detail}: not the push path {self.path}")
+        elif reason not in ("connections", "evicted", "timeout"):
+            self._reject(f"push from {peer}: {detail}")
 
     def close(self) -> None:
-        """Stop serving, drop open (keep-alive) connections and release the port. Idempotent."""
+        """Stop serving, drop open (keep-alive) connections, stop the decoder and release the port.
+        Idempotent."""
         if self._thread.is_alive():
             self._httpd.shutdown()
             self._thread.join(timeout=5.0)
         self._httpd.server_close()
-        with self._lock:
-            connections, self._connections = self._connections, set()
-        for conn in connections:
-            with contextlib.suppress(OSError):
-                conn.shutdown(socket.SHUT_RDWR)
+        self._httpd.close_connections()
+        self._decoder.close()
 
 
-def _handler(server: PhonePushServer, max_body: int, timeout_s: float) -> type[BaseHTTPRequestHandler]:
-    """The request handler class of ``server``: keep-alive HTTP/1.1, bodies read by
-    :func:`~.http_guard.read_body`, every request under a :class:`~.http_guard.DeadlineReader`."""
+def _handler(server: PhonePushServer) -> type[GuardedHandler]:
+    """The request handler class of ``server``: keep-alive HTTP/1.1 under the guard (:mod:`.http_guard`);
+    only ``server.path`` is served."""
 
-    class Handler(BaseHTTPRequestHandler):
+    class Handler(GuardedHandler):
         protocol_version = "HTTP/1.1"
         # The answer goes out as two writes (headers, body): with Nagle's algorithm the second waits for
         # the peer's delayed ACK of the first, 40 ms a batch on Linux, and the app waits for the answer.
         disable_nagle_algorithm = True
 
-        def setup(self) -> None:
-            super().setup()
-            self.rfile.close()  # makefile()'s reader: replaced by one with a deadline per request
-            self._reader = DeadlineReader(self.connection, timeout_s, server._timed_out)
-            self.rfile = io.BufferedReader(self._reader)
-            with server._lock:
-                server._connections.add(self.connection)
-
-        def finish(self) -> None:
-            with server._lock:
-                server._connections.discard(self.connection)
-            super().finish()
-
-        def handle_one_request(self) -> None:
-            self._reader.start()  # the next request, from waiting for it to its last byte: timeout_s
-            super().handle_one_request()
+        def _ours(self) -> bool:
+            """Whether the request is for the push path; if not, answered 404 and counted."""
+            path = urlsplit(self.path).path
+            if path == server.path:
+                return True
+            server._turned_away("path", self.client_address[0], f"{self.command} {path[:80]!r}")
+            self.close_connection = True  # its body, if any, is not read
+            self._answer(404, f"no such path: the push path is {server.path}")
+            return False
 
         def do_POST(self) -> None:  # noqa: N802 (http.server's naming)
+            if not self._ours():
+                return
             peer = self.client_address[0]
             try:
-                body = read_body(self.headers, self.rfile, max_body, f"push from {peer}")
+                body = self.read_body(f"push from {peer}")
             except BodyError as exc:
+                if self.server.was_evicted(self.connection):
+                    return  # its slot went to a new connection: counted as evicted
                 server._reject(str(exc))
                 self.close_connection = True  # the rest of what this peer sent cannot be trusted
                 self._answer(exc.status, exc.detail)
@@ -273,21 +306,22 @@ def _handler(server: PhonePushServer, max_body: int, timeout_s: float) -> type[B
             self._answer(code, text)
 
         def do_GET(self) -> None:  # noqa: N802
-            self._answer(200, "vscmg-hil phone push receiver")
+            if self._ours():
+                self._answer(200, "vscmg-hil phone push receiver")
 
         def _answer(self, code: int, text: str) -> None:
             data = text.encode()
-            self.connection.settimeout(timeout_s)  # a peer that does not read its answer cannot hold us
-            self.send_response(code)
-            self.send_header("Content-Type", "text/plain")
-            self.send_header("Content-Length", str(len(data)))
-            if self.close_connection:
-                self.send_header("Connection", "close")
-            self.end_headers()
-            self.wfile.write(data)
-
-        def log_message(self, format: str, *args: Any) -> None:  # noqa: A002
-            logger.debug("push %s: " + format, self.client_address[0], *args)
+            self.deadline_for_answer()  # a peer that does not read its answer cannot hold us
+            try:
+                self.send_response(code)
+                self.send_header("Content-Type", "text/plain")
+                self.send_header("Content-Length", str(len(data)))
+                if self.close_connection:
+                    self.send_header("Connection", "close")
+                self.end_headers()
+                self.wfile.write(data)
+            except OSError:  # the peer went away or stopped reading: its push still counts
+                self.close_connection = True
 
     return Handler
 

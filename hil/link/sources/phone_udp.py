@@ -29,7 +29,7 @@ import threading
 from collections.abc import Sequence
 
 from hil.estimation.sensors import SensorKind, SensorSample
-from hil.link.sources.stream import MAX_QUEUE, PhoneReceiver, parse_json, split_url
+from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
 from protocol.errors import InputFormatError, LinkError
 
 TYPES: dict[str, SensorKind] = {
@@ -90,15 +90,17 @@ class PhoneUdpReceiver(PhoneReceiver):
     """Receives SensaGram datagrams on ``udp://HOST:PORT`` (port 0 picks a free one; see :attr:`url`).
 
     A background thread reads the socket; a datagram that cannot be read, whatever is in it, is counted
-    (``stats.bad_messages``) and logged, never fatal. :meth:`drain` hands over what arrived; :meth:`check`
-    raises the thread's error (only the socket itself failing is one).
+    (``stats.bad_messages``) and logged, never fatal. :meth:`drain` hands over what arrived, at most
+    ``max_batch`` samples a call (a flood of datagrams is held, then dropped oldest first beyond
+    ``max_queue``: :mod:`.stream`); :meth:`check` raises the thread's error (only the socket itself failing
+    is one).
     """
 
     scheme = "udp"
     app = "SensaGram (UDP)"
 
-    def __init__(self, url: str, max_queue: int = MAX_QUEUE) -> None:
-        super().__init__(max_queue)
+    def __init__(self, url: str, max_queue: int = MAX_QUEUE, max_batch: int = MAX_BATCH) -> None:
+        super().__init__(max_queue, max_batch=max_batch)
         host, port = _address(url)
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
