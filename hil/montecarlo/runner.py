@@ -354,7 +354,13 @@ def _checks(summary: Mapping[str, Any], report: InvariantReport) -> dict[str, An
     return out
 
 
-_RUN_LOGGERS = ("hil.runtime.host", "hil.runtime.watch", "hil.link.board.session", "hil.estimation.multirate")
+_RUN_LOGGERS = (
+    "hil.runtime.host",
+    "hil.runtime.watch",
+    "hil.runtime.actuators",
+    "hil.link.board.session",
+    "hil.estimation.multirate",
+)
 """What warns about a run's failsafes and resets on the console (``hil run`` wants that, a campaign of
 hundreds of runs does not: its metrics count them)."""
 
