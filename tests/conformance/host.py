@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import serial
 
 from protocol.frame import Deframer, Frame, Framer
-from protocol.messages import SCHEMA_HASH, Ack, Heartbeat, Hello, HelloReply, Nack
+from protocol.messages import SCHEMA_HASH, Ack, Heartbeat, Hello, HelloReply, Nack, Telemetry
 
 STALLED_S = 30.0
 """A host waiting on a board whose clock does not move for this long (wall time) gives up."""
@@ -260,16 +260,41 @@ class LockstepSerialHost(SerialHost):
         super().close()
 
 
-def retry_if_starved(host: Host, attempt: Callable[[], Any], within: float, tries: int = 10) -> Any:
+def quiet_on_arrival(received: Sequence[Any]) -> float:
+    """The longest the board went, by its own telemetry, with no frame at all arriving — valid or damaged
+    (``rx_frames + rx_bad`` standing still) — since traffic first reached it in ``received`` (s)."""
+    longest, since, count = 0.0, None, None
+    for m in received:
+        if not isinstance(m, Telemetry):
+            continue
+        total, t = m.rx_frames + m.rx_bad, m.time_ms / 1000
+        if count is not None and total > count:
+            since = t
+        elif count is not None and total < count:
+            since = None  # the counters started again (a reset)
+        elif since is not None:
+            longest = max(longest, t - since)
+        count = total
+    return longest
+
+
+def retry_if_starved(
+    host: Host, attempt: Callable[[], Any], within: float, tries: int = 10, board: bool = False
+) -> Any:
     """``attempt()``, made again when it failed (an AssertionError) while the host was not kept up: two
-    frames it sent ``within`` seconds or more apart (:meth:`Host.kept_up`), a machine too busy to run it.
-    A failure while the host kept up is raised at once; a lockstep host always keeps up."""
+    frames it sent ``within`` seconds or more apart (:meth:`Host.kept_up`), a machine too busy to run it
+    — or, with ``board``, the board going that long with nothing arriving (:func:`quiet_on_arrival`: a
+    machine too busy to pass the host's bytes on to a real-time board). A failure while the host kept up
+    is raised at once; a lockstep host always keeps up."""
     for _ in range(tries):
-        since = len(host.sends)
+        sends, received = len(host.sends), len(host.received)
         try:
             return attempt()
         except AssertionError:
-            if host.kept_up(since, within):
+            starved = not host.kept_up(sends, within)
+            if board:
+                starved = starved or quiet_on_arrival(host.received[received:]) >= within
+            if not starved:
                 raise
     raise AssertionError(f"the host was left unscheduled for {within} s or more in all {tries} attempts")
 

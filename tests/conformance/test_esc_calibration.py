@@ -12,6 +12,7 @@ import pytest
 
 from conformance.host import heartbeat, retry_if_starved
 from conformance.targets import uptime_origin
+from conformance.test_conformance import MAIN_LOOP_S
 from protocol.messages import (
     ESC_CALIBRATION_CONFIRM,
     Ack,
@@ -37,7 +38,6 @@ UNIT = 1
 CHANNEL = 2 * UNIT + 1
 LOW, HIGH = 1050, 1950  # distinct from the safe pulse (1000) and the emulated ESC's factory 1100..1900
 MS = 0.0015  # the wire carries milliseconds
-MAIN_LOOP_S = 0.008  # how late the C firmware's main loop may notice a timeout (see the link-loss test)
 WAIT = 5.0
 """Slack on every wait for a message (board time, as every wait of the host: ``conformance.host``). The
 waits only bound how long a failing test hangs; what is asserted is timed on the board's clock."""
@@ -171,7 +171,7 @@ def test_esc_mode_aborts_to_minimum_on_link_loss(target, host):
 
     # A real-time board whose host was left unscheduled for the link timeout before HIGH aborted early
     # (rightly): that attempt is made again.
-    since = retry_if_starved(host, teach_until_high, within=spec.link_timeout_s)
+    since = retry_if_starved(host, teach_until_high, within=spec.link_timeout_s, board=True)
     host.keepalive = None  # the host goes quiet
     aborted = status(host, EscCalPhase.ABORTED, WAIT * 2.0, since)
     assert aborted.abort == EscCalAbort.LINK_LOST
