@@ -246,6 +246,8 @@ class LockstepSerialHost(SerialHost):
         data = self.port.read(want) if want > 0 else b""
         if len(data) < want:
             raise AssertionError(f"the pty passed on {len(data)} of the {want} bytes the board put out")
+        waiting = self.port.in_waiting  # bytes left over from before this host opened the port, if any
+        data += self.port.read(waiting) if waiting else b""
         self._got += len(data)
         return data
 
