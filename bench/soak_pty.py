@@ -269,6 +269,6 @@ def _after(cycles: list[Cycle], rec: Recorder, outcome: dict[str, Any], thread: 
     faults = summary.get("faults", [])
     for i, c in enumerate(cycles):
         end = cycles[i + 1].t_fault if i + 1 < len(cycles) else float("inf")
-        if c.kind != "hostile" and not c.problems:
+        if c.kind not in ("hostile", "second_host") and not c.problems:  # those two: _check_hostile
             check_recovery(c, rec, end, c.mode, faults)
         c.problems += problems

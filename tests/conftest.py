@@ -1,50 +1,103 @@
-"""Tests that need the AVR toolchain and simavr (marker ``firmware``: the C firmware, its host library
-and its simavr harness, built by ``make -C firmware``).
+"""Tests that need tools beyond Python, one marker per kind, all skipped from this one place:
 
-Without the toolchain they are skipped, all from this one place, so pytest's ``-ra`` summary shows ONE
-line naming the Debian packages (``.ci/apt-packages``). With ``VSCMG_HIL_REQUIRE_ALL=1`` (``.ci/run``
-sets it) a missing toolchain stops the run before any test instead, so CI can never pass by skipping.
-``VSCMG_HIL_PRETEND_MISSING=pkg,...`` makes the check report those packages missing (to test this file on
-a machine that has them).
+* ``firmware``: the AVR toolchain and simavr (the C firmware, its host library and its simavr harness,
+  built by ``make -C firmware``);
+* ``browser``: a headless Chromium driven through chromedriver by Selenium (the ground station's page).
+
+Without the tools those tests are skipped, each kind with ONE reason, so pytest's ``-ra`` summary shows one
+line per kind naming the Debian packages to install (``.ci/apt-packages``, the one list). With
+``VSCMG_HIL_REQUIRE_ALL=1`` (``.ci/run`` sets it) a missing tool stops the run before any test instead, so
+CI can never pass by skipping. ``VSCMG_HIL_PRETEND_MISSING=pkg,...`` makes the checks report those packages
+missing (to test this file on a machine that has them): ``gcc-avr``, ``libsimavr-dev``, ... for the
+firmware, ``chromium``, ``chromium-driver`` or ``selenium`` for the browser.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
+import shutil
 import socket
+from collections.abc import Callable
 
 import pytest
 
-from firmware_sim.avr.build import missing_tools, toolchain_message
+from firmware_sim.avr.build import install_hint, missing_tools, toolchain_message
 
 REQUIRE_ALL = "VSCMG_HIL_REQUIRE_ALL"
 PRETEND_MISSING = "VSCMG_HIL_PRETEND_MISSING"
+CHROMIUM = os.environ.get("VSCMG_HIL_CHROMIUM", "/usr/bin/chromium")
+CHROMEDRIVER = os.environ.get("VSCMG_HIL_CHROMEDRIVER", "/usr/bin/chromedriver")
 
 
-def _missing() -> list[str]:
-    pretend = [p for p in os.environ.get(PRETEND_MISSING, "").split(",") if p]
-    return sorted(set(missing_tools()) | set(pretend))
+def _pretended() -> set[str]:
+    return {p for p in os.environ.get(PRETEND_MISSING, "").split(",") if p}
 
 
-_REASON = pytest.StashKey[str]()
+def _firmware_missing() -> list[str]:
+    return sorted(set(missing_tools()) | (_pretended() - {"chromium", "chromium-driver", "selenium"}))
+
+
+def _browser_missing() -> list[str]:
+    """Debian packages (or ``selenium``) missing for the browser tests. An executable is what counts:
+    a path that exists but cannot be run (hidden by ``.ci/without-avr-toolchain``) is missing."""
+    missing = {pkg for path, pkg in ((CHROMIUM, "chromium"), (CHROMEDRIVER, "chromium-driver"))
+               if shutil.which(path) is None}  # fmt: skip
+    if importlib.util.find_spec("selenium") is None:
+        missing.add("selenium")
+    return sorted(missing | (_pretended() & {"chromium", "chromium-driver", "selenium"}))
+
+
+def _browser_message(missing: list[str]) -> str:
+    debs = [m for m in missing if m != "selenium"]
+    parts = [f"the ground station's browser tests need a headless Chromium ({', '.join(missing)} missing)"]
+    if debs:
+        parts.append(install_hint())
+    if "selenium" in missing:
+        parts.append("pip install -e '.[test]' (selenium)")
+    return "; ".join(parts)
+
+
+NEEDS: dict[str, tuple[Callable[[], list[str]], Callable[[list[str]], str]]] = {
+    "firmware": (_firmware_missing, toolchain_message),
+    "browser": (_browser_missing, _browser_message),
+}
+"""marker -> (what is missing for its tests, the one line saying what to install)."""
+
+_REASONS = pytest.StashKey[dict[str, str]]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(  # ``firmware`` is declared in pyproject.toml
+        "markers",
+        "browser: needs chromium and chromedriver (.ci/apt-packages) and selenium; skipped without, "
+        "unless VSCMG_HIL_REQUIRE_ALL=1",
+    )
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    needs = [item for item in items if item.get_closest_marker("firmware") is not None]
-    missing = _missing() if needs else []
-    if not missing:
-        return
-    message = toolchain_message(missing)
-    if os.environ.get(REQUIRE_ALL) == "1":
-        raise pytest.UsageError(f"{REQUIRE_ALL}=1 and {len(needs)} selected tests need it: {message}")
-    config.stash[_REASON] = message
+    reasons: dict[str, str] = {}
+    needed: dict[str, int] = {}
+    for marker, (missing_of, message_of) in NEEDS.items():
+        n = sum(1 for item in items if item.get_closest_marker(marker) is not None)
+        missing = missing_of() if n else []
+        if missing:
+            reasons[marker], needed[marker] = message_of(missing), n
+    if reasons and os.environ.get(REQUIRE_ALL) == "1":
+        raise pytest.UsageError(
+            "\n".join(
+                f"{REQUIRE_ALL}=1 and {needed[m]} selected tests need it: {r}" for m, r in reasons.items()
+            )
+        )
+    config.stash[_REASONS] = reasons
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    reason = item.config.stash.get(_REASON, None)
-    if reason is not None and item.get_closest_marker("firmware") is not None:
-        pytest.skip(reason)  # raised here for every such test: pytest -ra folds them into one line
+    reasons = item.config.stash.get(_REASONS, {})
+    for marker, reason in reasons.items():
+        if item.get_closest_marker(marker) is not None:
+            pytest.skip(reason)  # raised here for every such test: pytest -ra folds them into one line
 
 
 def _free_port(kind: socket.SocketKind) -> int:

@@ -208,6 +208,7 @@ def test_a_sweep_stops_at_the_current_guard(tmp_path, capsys):
     assert len(amps) == len(data) and amps.max() <= 0.6
 
 
+@pytest.mark.firmware  # the C firmware under simavr: the AVR toolchain (.ci/apt-packages)
 def test_the_same_commands_drive_the_firmware_under_simavr(tmp_path, capsys):
     from firmware_sim.avr import AvrBoard
     from firmware_sim.config import BoardConfig

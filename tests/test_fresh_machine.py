@@ -1,6 +1,8 @@
 """A fresh machine: without the AVR toolchain the tests that need it skip with ONE line naming the
-packages of ``.ci/apt-packages``; with ``VSCMG_HIL_REQUIRE_ALL=1`` (CI) the absence fails the run. The
-toolchain's absence is pretended with ``VSCMG_HIL_PRETEND_MISSING`` (tests/conftest.py)."""
+packages of ``.ci/apt-packages``, and without Chromium the browser tests with one more; with
+``VSCMG_HIL_REQUIRE_ALL=1`` (CI) either absence fails the run. The absences are pretended with
+``VSCMG_HIL_PRETEND_MISSING`` (tests/conftest.py); CI also runs the whole command with the tools really
+hidden (``.ci/fresh-machine``)."""
 
 from __future__ import annotations
 
@@ -47,6 +49,34 @@ def test_ci_makes_a_missing_toolchain_a_failure():
 def test_with_the_toolchain_nothing_is_skipped_for_it():
     out = _pytest("tests/test_firmware_codegen.py", VSCMG_HIL_REQUIRE_ALL="1")
     assert out.returncode == 0 and "skipped" not in out.stdout, out.stdout[-2000:]
+
+
+def test_without_chromium_the_browser_tests_skip_with_one_line_naming_the_packages():
+    out = _pytest("tests/test_gcs_browser.py", VSCMG_HIL_PRETEND_MISSING="chromium-driver")
+    assert out.returncode == 0, out.stdout[-3000:]
+    skips = [line for line in out.stdout.splitlines() if line.startswith("SKIPPED")]
+    assert len(skips) == 1, skips
+    assert "headless Chromium (chromium-driver missing)" in skips[0] and ".ci/apt-packages" in skips[0]
+    assert re.search(r"SKIPPED \[(\d+)\]", skips[0]).group(1) == re.search(
+        r"(\d+) skipped", out.stdout
+    ).group(1)
+
+
+def test_ci_makes_a_missing_browser_a_failure():
+    out = _pytest(
+        "tests/test_gcs_browser.py", VSCMG_HIL_PRETEND_MISSING="chromium", VSCMG_HIL_REQUIRE_ALL="1"
+    )
+    assert out.returncode not in (0, 5)
+    assert "VSCMG_HIL_REQUIRE_ALL=1" in out.stderr and "chromium missing" in out.stderr
+
+
+def test_ci_runs_the_command_again_as_on_a_fresh_machine():
+    run = (ROOT / ".ci" / "run").read_text()
+    fresh = (ROOT / ".ci" / "fresh-machine").read_text()
+    hide = (ROOT / ".ci" / "without-avr-toolchain").read_text()
+    assert ".ci/fresh-machine" in run and ".ci/without-avr-toolchain" in fresh
+    assert ".venv/bin/python -m pytest" in fresh and "-u VSCMG_HIL_REQUIRE_ALL" in fresh
+    assert all(tool in hide for tool in ("/usr/bin/avr-*", "/usr/bin/chromium", "/usr/bin/chromedriver"))
 
 
 def test_one_list_of_packages_for_ci_the_readme_and_the_message():

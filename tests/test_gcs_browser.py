@@ -3,8 +3,9 @@ headless. A short real-time run's page loads and its plots and 3D view follow th
 Disarm click disarms the emulated board; a wrong token and a foreign origin are refused; a finished run
 directory replays and its timeline scrubs. Screenshots go to each test's tmp directory.
 
-Without chromium, chromedriver or selenium this module skips (one line); with ``VSCMG_HIL_REQUIRE_ALL``
-set (CI: ``.ci/run``), it fails instead.
+Marker ``browser``: without chromium, chromedriver (Debian's, ``.ci/apt-packages``) or selenium every test
+here is skipped, with one line in pytest's summary; with ``VSCMG_HIL_REQUIRE_ALL=1`` (CI: ``.ci/run``) the
+run fails instead (tests/conftest.py, which checks the same two paths).
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ import os
 import shutil
 import tempfile
 import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -33,28 +33,14 @@ FLAGS = (
 )  # fmt: skip
 
 
-def _missing() -> str:
-    try:
-        import selenium  # noqa: F401
-    except ImportError:
-        return "selenium (pip install -e '.[test]')"
-    for path, package in ((CHROMIUM, "chromium"), (CHROMEDRIVER, "chromium-driver")):
-        if not (shutil.which(path) or Path(path).exists()):
-            return f"{path} (Debian's {package})"
-    return ""
+pytestmark = pytest.mark.browser  # without chromium, chromedriver or selenium: skipped (tests/conftest.py)
 
-
-_why = _missing()
-if _why:
-    if os.environ.get("VSCMG_HIL_REQUIRE_ALL"):
-        pytest.fail(f"the browser tests need {_why}; VSCMG_HIL_REQUIRE_ALL is set", pytrace=False)
-    pytest.skip(
-        f"no {_why}: the ground-station browser tests need a headless chromium", allow_module_level=True
-    )
-
-from selenium import webdriver  # noqa: E402
-from selenium.webdriver.chrome.service import Service  # noqa: E402
-from selenium.webdriver.common.by import By  # noqa: E402
+try:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.by import By
+except ImportError:  # then no test here runs: the marker skips them, with the one line for them all
+    pass
 
 
 @pytest.fixture(scope="module")

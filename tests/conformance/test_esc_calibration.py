@@ -8,8 +8,11 @@ pulse timeline), never on host wall time.
 
 from __future__ import annotations
 
-from conformance.host import heartbeat
+import pytest
+
+from conformance.host import heartbeat, retry_if_starved
 from conformance.targets import uptime_origin
+from conformance.test_conformance import MAIN_LOOP_S
 from protocol.messages import (
     ESC_CALIBRATION_CONFIRM,
     Ack,
@@ -36,9 +39,8 @@ CHANNEL = 2 * UNIT + 1
 LOW, HIGH = 1050, 1950  # distinct from the safe pulse (1000) and the emulated ESC's factory 1100..1900
 MS = 0.0015  # the wire carries milliseconds
 WAIT = 5.0
-"""Slack on every wait for a message (host wall time): simavr on a loaded machine runs the ATmega slower
-than real time, so a procedure of 2.8 s board time can take several seconds of wall time. The waits only
-bound how long a failing test hangs; what is asserted is timed on the board's clock."""
+"""Slack on every wait for a message (board time, as every wait of the host: ``conformance.host``). The
+waits only bound how long a failing test hangs; what is asserted is timed on the board's clock."""
 
 
 def teach(unit=UNIT, confirm=ESC_CALIBRATION_CONFIRM, supply_off_ms=300, high_ms=1500, low_ms=1000):
@@ -54,10 +56,12 @@ def teach(unit=UNIT, confirm=ESC_CALIBRATION_CONFIRM, supply_off_ms=300, high_ms
     )
 
 
-def status(host, phase, timeout):
-    """The first status in ``phase`` (already received, e.g. in the batch with an Ack, or still to come)."""
+def status(host, phase, timeout, since=0):
+    """The first status in ``phase`` received from message ``since`` on (already received, e.g. in the
+    batch with an Ack, or still to come)."""
     wanted = lambda m: isinstance(m, EscCalibrationStatus) and m.phase == phase  # noqa: E731
-    return next((m for m in host.received if wanted(m)), None) or host.wait_for(wanted, timeout, phase.name)
+    got = next((m for m in host.received[since:] if wanted(m)), None)
+    return got or host.wait_for(wanted, timeout, phase.name)
 
 
 def channel_frames(target, since=None):
@@ -121,8 +125,8 @@ def test_esc_mode_programs_the_emulated_escs_endpoints(target, host):
     frame = 1.0 / spec.frame_rate_hz
     assert all(w == HIGH for t, w in frames if t_high <= t < t_low)
     assert all(w == LOW for t, w in frames if t_low <= t < t_safe)
-    assert 0.3 + 1.5 - frame - MS <= t_low - t_high <= 0.3 + 1.5 + frame + 0.005
-    assert 1.0 - frame - 0.005 <= t_safe - t_low <= 1.0 + frame + 0.005
+    assert 0.3 + 1.5 - frame - MS <= t_low - t_high <= 0.3 + 1.5 + frame + MAIN_LOOP_S
+    assert 1.0 - frame - MAIN_LOOP_S <= t_safe - t_low <= 1.0 + frame + MAIN_LOOP_S
     esc = target.esc(UNIT)
     assert [(p.low_us, p.high_us) for p in esc.programmed] == [(LOW, HIGH)]
     assert (esc.low_us, esc.high_us) == (LOW, HIGH) and esc.mode.value == "armed"
@@ -152,16 +156,34 @@ def test_esc_mode_aborts_to_minimum_on_disarm(target, host):
     assert esc.mode.value == "armed"  # it saw the minimum and armed on its factory endpoints
 
 
+@pytest.mark.link_watchdog
 def test_esc_mode_aborts_to_minimum_on_link_loss(target, host):
     spec = target.spec
-    host.handshake()
-    host.keepalive = heartbeat
-    assert isinstance(host.request(teach(high_ms=3000)), Ack)
-    status(host, EscCalPhase.HIGH, WAIT * 2.0)
-    host.keepalive = None  # the host goes quiet
-    aborted = status(host, EscCalPhase.ABORTED, WAIT * 2.0)
-    assert aborted.abort == EscCalAbort.LINK_LOST
-    tel = host.wait_type(Telemetry, WAIT * 1.0)
+
+    def teach_until_high() -> int:
+        since = len(host.received)
+        host.keepalive = None
+        host.handshake()
+        host.keepalive = heartbeat
+        assert isinstance(host.request(teach(high_ms=3000)), Ack)
+        status(host, EscCalPhase.HIGH, WAIT * 2.0, since)
+        return since
+
+    for _ in range(10):
+        # A real-time board whose host was left unscheduled for the link timeout before HIGH aborted early
+        # (rightly): that attempt is made again.
+        since = retry_if_starved(host, teach_until_high, within=spec.link_timeout_s, board=True)
+        host.keepalive = None  # the host goes quiet
+        aborted = status(host, EscCalPhase.ABORTED, WAIT * 2.0, since)
+        assert aborted.abort == EscCalAbort.LINK_LOST
+        tel = host.first_after(aborted, Telemetry, WAIT * 1.0)
+        # Made again too: a frame arriving after the abort (the machine held the host's last frames up on
+        # their way to a real-time board, past the timeout) — the board's report no longer dates the last
+        # frame before the silence.
+        if tel.link_age_ms >= spec.link_timeout_s * 1000 - 1:
+            break
+    else:
+        raise AssertionError(f"no clean silence in 10 attempts; the last report: {tel}")
     assert tel.watchdog == 1 and tel.state == BoardState.DISARMED and tel.mode == ControlMode.SETPOINT
     origin = uptime_origin(target.resets(), target.now())
     t_last = origin + (tel.time_ms - tel.link_age_ms) / 1000  # the last frame the board took
@@ -169,7 +191,10 @@ def test_esc_mode_aborts_to_minimum_on_link_loss(target, host):
     t_safe = next(t for t, w in frames if t >= t_last and w == spec.rotor_safe_us)
     assert all(w == HIGH for t, w in frames if t_last <= t < t_safe)
     frame = 1.0 / spec.frame_rate_hz
-    assert spec.link_timeout_s - MS <= t_safe - t_last <= spec.link_timeout_s + frame + 0.005
+    # Not the tick interrupt (as for an armed board) but the main loop stops an ESC being taught, on its
+    # next pass: under simavr 255.4-265.4 ms in 40 runs unloaded, 266.4 ms once under load (the next
+    # frame start after a pass 5.4-6.4 ms past the timeout).
+    assert spec.link_timeout_s - MS <= t_safe - t_last <= spec.link_timeout_s + frame + MAIN_LOOP_S
     assert target.esc(UNIT).programmed == []
 
 

@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import random
 
+import pytest
+
 from conformance.host import heartbeat
 from conformance.targets import uptime_origin
 from conformance.test_conformance import armed_and_streaming, setpoint, silence_after_a_steady_stream
@@ -32,8 +34,9 @@ def _rotors_safe(widths, safe: int, tol: float = 0.0) -> bool:
     return all((w or 0) <= safe + tol for w in widths[1::2])
 
 
-def _check_change(target, host, start: int, new: BoardState) -> None:
-    """What arrived since ``start`` (the change to ``new`` among it) and the pulse record around it."""
+def _check_change(target, host, start: int, new: BoardState, beat: Heartbeat | None = None) -> None:
+    """What arrived since ``start`` and the pulse record around the change to ``new``: its state-change
+    ``beat``, or the first Heartbeat in state ``new`` since ``start``."""
     spec = target.spec
     safe, tol = spec.rotor_safe_us, spec.pulse_tolerance_us
     got = host.received[start:]
@@ -45,7 +48,8 @@ def _check_change(target, host, start: int, new: BoardState) -> None:
         and not _rotors_safe(m.pulses_us, safe)
     ]
     assert not late, f"{target.name}: telemetry reports an armed rotor pulse after leaving ARMED: {late[0]}"
-    beat = next(m for m in got if isinstance(m, Heartbeat) and m.state == new)
+    if beat is None:
+        beat = next(m for m in got if isinstance(m, Heartbeat) and m.state == new)
     origin = uptime_origin(target.resets(), target.now())
     t_change = origin + beat.time_ms / 1000
     frames = [f for f in target.timeline() if t_change - 0.1 <= f.t]
@@ -73,10 +77,11 @@ def test_disarm_and_hello_withdraw_the_armed_rotor_pulse_at_once(target, host):
         _check_change(target, host, start, BoardState.DISARMED)
 
 
+@pytest.mark.link_watchdog
 def test_link_loss_failsafe_withdraws_the_armed_rotor_pulse_at_once(target, host):
     sp = setpoint(target.spec, speed=450.0)
     for _ in range(2):
         start = len(host.received)
-        silence_after_a_steady_stream(target, host, sp)
+        _, beat = silence_after_a_steady_stream(target, host, sp)
         host.poll(0.1)
-        _check_change(target, host, start, BoardState.FAILSAFE)
+        _check_change(target, host, start, BoardState.FAILSAFE, beat)
