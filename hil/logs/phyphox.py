@@ -31,7 +31,7 @@ import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns, axis_of, time_column
-from hil.logs.table import Container, read_table, split_header
+from hil.logs.table import Container, read_table, shown, split_header
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
@@ -193,4 +193,4 @@ def _time_csv_error(pending, columns, source):  # type: ignore[no-untyped-def]
             try:
                 float(cell)
             except ValueError:
-                raise InputFormatError(f"{cell!r} is not a number", source, line_no, col) from None
+                raise InputFormatError(f"{shown(cell)} is not a number", source, line_no, col) from None
