@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import gzip
 import struct
-import subprocess
-import sys
 import time
 import tracemalloc
 import zipfile
@@ -21,6 +19,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from measure_support import MB, run_measured
 
 from hil.logs import READERS, read_log
 from hil.logs import table as log_table
@@ -28,33 +27,8 @@ from hil.logs.replay import ReplayOptions, replay
 from hil.scenario.paths import FIXTURES
 from protocol.errors import InputFormatError
 
-MB = 1 << 20
 REPLAY_PEAK_LIMIT = 512 * MB
 SENSOR_LOGGER_HEADER = "time,seconds_elapsed,z,y,x\n"
-MEASURE = """\
-import resource, subprocess, sys, time
-start = time.monotonic()
-run = subprocess.run(sys.argv[1:], capture_output=True, text=True)
-seconds = time.monotonic() - start
-peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
-sys.stdout.write(f"{run.returncode} {peak} {seconds}\\n")
-sys.stdout.write(run.stderr)
-"""
-
-
-def run_measured(*argv: str, timeout: float = 300.0) -> tuple[int, int, float, str]:
-    """Run ``python -m hil ARGV`` in a fresh process that reports its child's exit status, peak resident
-    memory (bytes) and wall time: the child is the only process that parent ever waited for, so its peak is
-    the command's own. Returns (status, peak bytes, seconds, stderr)."""
-    out = subprocess.run(
-        [sys.executable, "-c", MEASURE, sys.executable, "-m", "hil", *argv],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
-    head, _, stderr = out.stdout.partition("\n")
-    status, peak, seconds = head.split()
-    return int(status), int(peak), float(seconds), stderr
 
 
 def zip_bomb(path: Path, nul_bytes: int) -> Path:
