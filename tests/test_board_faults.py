@@ -115,7 +115,7 @@ def test_a_board_that_never_comes_back_ends_the_run_lost(tmp_path):
     result, tel, events = _run(tmp_path, _quick(stall=["5.0:100"]), duration_s=30.0, recover_within_s=2.0)
     s = result.summary
     assert s["exit"].startswith("lost: board lost at t=5.2") and "for 2.0 s (stale)" in s["exit"]
-    assert s["lost"] == s["exit"][len("lost: "):]
+    assert s["lost"] == s["exit"][len("lost: ") :]
     assert exit_status(s) == EXIT_LOST
     outage = s["outages"][-1]
     assert outage["recovered"] is False and outage["start"] == pytest.approx(5.26, abs=0.03)

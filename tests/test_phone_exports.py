@@ -191,6 +191,28 @@ def test_phyphox_current_linear_accelerometer_is_ignored_beside_g_and_refused_al
     assert "Linear Accelerometer.csv" in info.value.path
 
 
+@pytest.mark.parametrize("linear_name", ["Linear Accelerometer.csv", "Linear Acceleration.csv"])
+def test_phyphox_experiment_with_bare_axis_headers_reads_the_accelerometer_with_g_beside_the_linear_one(
+    tmp_path, linear_name
+):
+    """Current phyphox names an experiment's columns ``"X (m/s^2)"``: the sensor is the file's name. The
+    accelerometer with g is read; the linear one beside it is ignored, as docs/formats.md says."""
+    t, gyr, acc, mag = motion()
+    folder = tmp_path / "experiment"
+    bare = {unit: tuple(f"{axis} ({unit})" for axis in "XYZ") for unit in ("m/s^2", "rad/s", "µT")}
+    phyphox_csv(folder / "Accelerometer.csv", ("Time (s)", *bare["m/s^2"]), t, acc)
+    phyphox_csv(folder / linear_name, ("Time (s)", *bare["m/s^2"]), t, acc - [0, 0, 9.80665])
+    phyphox_csv(folder / "Gyroscope.csv", ("Time (s)", *bare["rad/s"]), t, gyr)
+    phyphox_csv(folder / "Magnetometer.csv", ("Time (s)", *bare["µT"]), t, mag)
+    phyphox_csv(folder / "Barometer.csv", ("Time (s)", "X (hPa)", "Y (hPa)", "Z (hPa)"), t, acc)
+    log = read_log(folder)
+    assert log.format == "phyphox" and not log.six_axis
+    np.testing.assert_allclose(log.streams[ACC].xyz, acc, rtol=1e-8)  # the one with g, not the linear
+    np.testing.assert_allclose(log.streams[GYR].xyz, gyr, atol=1e-12)
+    np.testing.assert_allclose(log.streams[MAG].xyz, mag, rtol=1e-8)
+    assert any(linear_name in n and "gravity removed" in n for n in log.notes)
+
+
 def test_phyphox_custom_experiment_buffers_without_units(tmp_path):
     t, gyr, acc, mag = motion()
     folder = tmp_path / "custom"

@@ -82,7 +82,6 @@ def test_paper_experiment_converges_to_a_small_neighbourhood_of_identity_and_zer
     assert rate_err[t > 25.0].max() < 0.02
 
 
-
 def flip_sign_of_S_L(monkeypatch):
     """Negate the compiled kernel's tables of L = E W Uᵀ: S_L(R̂) = vex(LᵀR̂ − R̂ᵀL) is linear in L, so the
     potential's torque Φ'(U⁰) S_L flips sign (Φ' is constant for the paper's Φ(x) = x)."""

@@ -40,7 +40,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -48,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from hil.logs.bounded import load_toml
 from protocol.calibration import (
     EscThrottleMap,
     GimbalAngleMap,
@@ -119,10 +119,7 @@ def load_calibration(path: str | os.PathLike[str]) -> CalibrationSet:
 
 
 def parse_calibration(text: str, source: str = "<calibration>") -> CalibrationSet:
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"not valid TOML: {exc}", source) from exc
+    doc = load_toml(text, source, CalibrationError)
     top = f"{source}: "
     _keys(doc, {"format", "version", "unit"}, {"format", "version", "unit"}, top)
     if doc["format"] != FORMAT:

@@ -7,20 +7,15 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+from hil.logs.bounded import MAX_DOCUMENT_BYTES, read_document
 from protocol.errors import ConfigError, HilError
 
 
 def read_text(path: str | os.PathLike[str], error: Callable[[str, str], HilError]) -> str:
-    """The UTF-8 text of ``path``; ``error(detail, path)`` is raised when it is missing or unreadable."""
-    p = str(path)
-    try:
-        return Path(path).read_text(encoding="utf-8")
-    except FileNotFoundError as exc:
-        raise error("no such file", p) from exc
-    except UnicodeDecodeError as exc:
-        raise error(f"not UTF-8 text ({exc.reason} at byte {exc.start})", p) from exc
-    except OSError as exc:
-        raise error(f"cannot read: {exc.strerror or exc}", p) from exc
+    """The UTF-8 text of ``path``, at most :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES` (a calibration
+    file or a bench CSV is a few kB); ``error(detail, path)`` is raised when it is missing, unreadable,
+    not text or larger (:func:`hil.logs.bounded.read_document`)."""
+    return read_document(path, error, limit=MAX_DOCUMENT_BYTES)
 
 
 def write_atomic(path: str | os.PathLike[str], text: str) -> Path:

@@ -61,7 +61,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("scenario", metavar="SCENARIO", help="a shipped scenario name or a scenario TOML file")
-    p.add_argument("--runs", type=int, required=True, metavar="N", help="number of runs (indices 0..N-1)")
+    p.add_argument(
+        "--runs", type=int, required=True, metavar="N", help="number of runs (indices 0..N-1; at most 10^7)"
+    )
     p.add_argument("--seed", type=int, metavar="S", help="campaign seed (default: the scenario's seed)")
     p.add_argument(
         "--dispersions", metavar="FILE", help="dispersion TOML file or shipped name (default: default)"
@@ -151,6 +153,30 @@ def closing_line(report: CampaignReport) -> str:
     )
 
 
+MAX_WORKERS = 4096
+"""The most LocalCluster worker processes ``--workers`` may ask for."""
+MAX_SEED = 2**63 - 1
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """The numbers on the command line within their documented bounds (``--runs`` 1..10⁷, ``--batch``
+    1..10⁴, ``--workers`` 1..4096, ``--seed`` 0..2⁶³−1), before anything is read or started: one
+    :class:`ConfigError` naming the option."""
+    from hil.montecarlo.campaign import MAX_BATCH, MAX_RUNS
+    from protocol.errors import ConfigError
+
+    bounds = {
+        "runs": (1, MAX_RUNS),
+        "batch": (1, MAX_BATCH),
+        "workers": (1, MAX_WORKERS),
+        "seed": (0, MAX_SEED),
+    }
+    for name, (lo, hi) in bounds.items():
+        value = getattr(args, name)
+        if value is not None and not lo <= value <= hi:
+            raise ConfigError(f"must be an integer in {lo}..{hi}, got {value}", f"--{name}")
+
+
 def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -160,14 +186,18 @@ def run(args: argparse.Namespace) -> int:
     from hil.montecarlo.summary import format_table
     from hil.runtime.runlog import new_run_dir
     from hil.scenario import load_scenario
+    from hil.scenario.reader import check_run_length
     from protocol.errors import ConfigError
 
     if not args.verbose:  # Dask's scheduler logs every worker's comings and goings at INFO
         logging.getLogger("distributed").setLevel(logging.WARNING)
+    check_options(args)
     scenario = load_scenario(args.scenario)
     if args.duration is not None:
         if not (math.isfinite(args.duration) and args.duration > 0):
             raise ConfigError(f"must be positive, got {args.duration}", "--duration")
+        loop = scenario.loop
+        check_run_length(loop.warmup_s, args.duration, loop.plant_step_s, "--duration")
         scenario = scenario.with_changes(slew=replace(scenario.slew, duration_s=args.duration))
     dispersions = load_dispersions(args.dispersions, scenario)
     campaign = Campaign(

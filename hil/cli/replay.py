@@ -4,6 +4,7 @@ optionally drive a board with the controller's output (``--port``)."""
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -109,6 +110,32 @@ class ProgressBar:
         self.stream.flush()
 
 
+ANGLE_BOUNDS = {"inclination": 90.0, "declination": 180.0, "lat": 90.0, "lon": 180.0}
+"""The most each angle option may be, either way (degrees)."""
+
+
+def check_numbers(args: argparse.Namespace) -> None:
+    """The numbers on the command line within their bounds — ``--window T0 T1`` finite with T0 < T1,
+    ``--max-gap`` finite and positive, the angles within :data:`ANGLE_BOUNDS` — or one ConfigError
+    naming the option."""
+    from protocol.errors import ConfigError
+
+    if args.window is not None:
+        t0, t1 = args.window
+        if not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1):
+            raise ConfigError(
+                f"must be two finite times T0 < T1 (s), got {t0!r} {t1!r}", "hil replay --window"
+            )
+    if not (math.isfinite(args.max_gap) and args.max_gap > 0):
+        raise ConfigError(
+            f"must be a finite number of seconds > 0, got {args.max_gap!r}", "hil replay --max-gap"
+        )
+    for name, most in ANGLE_BOUNDS.items():
+        value = getattr(args, name)
+        if value is not None and not (math.isfinite(value) and abs(value) <= most):
+            raise ConfigError(f"must be within ±{most:g} deg, got {value!r}", f"hil replay --{name}")
+
+
 def run(args: argparse.Namespace) -> int:
     from datetime import date
 
@@ -118,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
     from hil.timing.clock import WallClock
     from protocol.errors import ConfigError
 
+    check_numbers(args)
     field_model = None
     if args.lat is not None or args.lon is not None or args.date is not None:
         if args.lat is None or args.lon is None or args.date is None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 ORDER = 15
@@ -66,18 +65,30 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
 def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
     from hil.cli.run import format_summary
     from hil.plots.run import plot_run
-    from hil.runtime.runlog import read_events, read_telemetry
+    from hil.runtime.runlog import count_events, read_telemetry
+    from protocol.errors import InputFormatError
 
     tel = read_telemetry(path / "telemetry.csv")
-    events, bad_events = read_events(path / "events.jsonl") if (path / "events.jsonl").is_file() else ([], 0)
-    print(f"run {path}: {tel.rows} telemetry rows, {len(events)} events")
+    if "t" not in tel:
+        raise InputFormatError("no 't' column: not a run's telemetry", str(path / "telemetry.csv"), 1)
+    events, bad_events = count_events(path / "events.jsonl")
+    print(f"run {path}: {tel.rows} telemetry rows, {events} events")
     if tel.dropped_lines or bad_events:
-        print(f"  unreadable: {tel.dropped_lines} telemetry lines, {bad_events} event lines (a torn tail)")
-    summary = _json(path / "summary.json")
-    if summary is not None:
-        print(format_summary(summary))
-    else:
+        print(f"  unreadable: {tel.dropped_lines} telemetry lines, {bad_events} event lines (dropped)")
+    try:
+        summary = _json(path / "summary.json")
+    except InputFormatError as exc:
+        print(f"  summary.json damaged ({exc.detail}): not shown, and no plots (they read it)")
+        return {}
+    if summary is None:
         print("  no summary.json (the run was killed): plots from the telemetry alone")
+    else:
+        try:
+            print(format_summary(summary))
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+            # a summary.json hil did not write: its values are not the shapes a run's summary has
+            why = f"{type(exc).__name__}: {exc}"
+            print(f"  summary.json damaged (a value is not what a run writes: {why}): not shown")
     return plot_run(path) if plots else {}
 
 
@@ -102,15 +113,15 @@ def _campaign(path: Path, plots: bool) -> dict[str, Path]:
 
 
 def _json(path: Path) -> dict | None:  # type: ignore[type-arg]
-    """A JSON object from ``path``; None if the file is missing; an unreadable one names itself."""
+    """A JSON object from ``path``; None if the file is missing; an unreadable one — not JSON, larger than
+    :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES`, nested deeper than :data:`~hil.logs.bounded.MAX_NESTING`,
+    not an object — is an InputFormatError naming it."""
+    from hil.logs.bounded import load_json, read_document
     from protocol.errors import InputFormatError
 
     if not path.is_file():
         return None
-    try:
-        doc = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"not JSON ({exc})", str(path)) from None
+    doc = load_json(read_document(path, InputFormatError, path.name), str(path))
     if not isinstance(doc, dict):
         raise InputFormatError("expected a JSON object", str(path))
     return doc

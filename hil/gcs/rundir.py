@@ -11,8 +11,6 @@ following once it has read the rest. A directory that stops growing without a su
 
 from __future__ import annotations
 
-import csv
-import json
 import logging
 import os
 from pathlib import Path
@@ -20,6 +18,7 @@ from typing import Any
 
 from hil.gcs import info as run_info
 from hil.gcs.wire import Batch
+from hil.logs.bounded import LineSplitter, load_json, read_document
 from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY
 from hil.scenario import load_scenario
 from protocol.errors import HilError, InputFormatError
@@ -30,30 +29,29 @@ READ_CHUNK = 4 * 1024 * 1024  # bytes read per file per poll (a big file comes i
 
 
 class _Tail:
-    """Complete lines appended to one file since the last read."""
+    """Complete lines appended to one file since the last read (:class:`~hil.logs.bounded.LineSplitter`):
+    an unfinished line waits for its end, but only up to :data:`~hil.logs.bounded.MAX_LINE_BYTES` — a
+    longer one (a file that never breaks its line) is dropped as it arrives, and counted, never held."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.offset = 0
-        self.partial = b""
+        self._splitter = LineSplitter()
 
-    def lines(self) -> list[str]:
+    def lines(self) -> tuple[list[str], int]:
+        """The new complete lines, and how many lines too long to keep ended or began among them."""
         try:
             with open(self.path, "rb") as f:
                 f.seek(self.offset)
                 data = f.read(READ_CHUNK)
         except FileNotFoundError:
-            return []
+            return [], 0
         except OSError as exc:
             raise InputFormatError(f"cannot read: {exc.strerror}", str(self.path)) from exc
         self.offset += len(data)
-        data = self.partial + data
-        cut = data.rfind(b"\n")
-        if cut < 0:
-            self.partial = data
-            return []
-        self.partial = data[cut + 1 :]
-        return data[: cut + 1].decode("utf-8", errors="replace").splitlines()
+        lines = self._splitter.feed(data)
+        kept = [line.decode("utf-8", errors="replace") for line in lines if line is not None]
+        return kept, len(lines) - len(kept)
 
 
 class RunDirSource:
@@ -72,8 +70,8 @@ class RunDirSource:
         self.columns: list[str] | None = None
         self.rows = 0
         self.events = 0
-        self.bad_rows = 0
-        self.bad_events = 0
+        self.bad_rows = 0  # damaged telemetry lines: too long, wrong cell count, not numbers
+        self.bad_events = 0  # damaged event lines: too long, not a JSON object, nested too deep
         self.finished = False
         self._done = False  # finished and everything read
         self._last_t: float | None = None
@@ -98,24 +96,29 @@ class RunDirSource:
                              scenario=scenario, hold=hold, note=note)  # fmt: skip
 
     def _summary(self) -> dict[str, Any] | None:
+        """The run's summary.json, or None before it is written; a damaged one (not a JSON object, larger
+        than :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES`, nested deeper than
+        :data:`~hil.logs.bounded.MAX_NESTING`) is logged and stands as ``{"exit": "unreadable summary:
+        ..."}``."""
         path = self.run_dir / SUMMARY
-        try:
-            value = json.loads(path.read_text())
-        except FileNotFoundError:
+        if not path.exists():
             return None
-        except (OSError, json.JSONDecodeError) as exc:  # written atomically: a bad one is a damaged file
-            logger.warning("%s: %s", path, exc)
-            return {"exit": f"unreadable summary: {exc}"}
-        return value if isinstance(value, dict) else {"exit": "unreadable summary"}
+        try:
+            value = load_json(read_document(path, InputFormatError, "summary"), str(path))
+        except InputFormatError as exc:  # written atomically: a bad one is a damaged file
+            logger.warning("%s", exc)
+            return {"exit": f"unreadable summary: {exc.detail}"}
+        return value if isinstance(value, dict) else {"exit": "unreadable summary: not a JSON object"}
 
     def poll(self) -> Batch:
         batch = Batch()
         if self._done:
             return batch
         finished = (self.run_dir / SUMMARY).exists()  # before reading: what follows is all there is
-        lines = self._telemetry.lines()
+        lines, too_long = self._telemetry.lines()
+        self.bad_rows += too_long
         if self.columns is None and (lines or finished):
-            self.columns = next(csv.reader([lines[0]])) if lines else []
+            self.columns = lines[0].split(",") if lines else []
             lines = lines[1:]
             batch.info = self._info(self.columns)
             self._state = {"state": "following" if self.follow else "reading"}
@@ -142,7 +145,8 @@ class RunDirSource:
     def _rows(self, lines: list[str], batch: Batch) -> None:
         assert self.columns is not None
         width = len(self.columns)
-        for cells in csv.reader(lines):
+        for line in lines:
+            cells = line.split(",")  # the log's writer never quotes: numbers and empty cells
             if len(cells) != width:
                 self.bad_rows += 1
                 continue
@@ -157,10 +161,13 @@ class RunDirSource:
         self.rows += len(batch.rows)
 
     def _read_events(self, batch: Batch) -> None:
-        for line in self._events.lines():
+        where = str(self._events.path)
+        lines, too_long = self._events.lines()
+        self.bad_events += too_long
+        for line in lines:
             try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
+                record = load_json(line, where)
+            except InputFormatError:
                 self.bad_events += 1
                 continue
             if isinstance(record, dict):

@@ -8,13 +8,11 @@ and not evaluated. The IMU is a research IMU, not a phone, but its axes are used
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
-import scipy.io
 
 from hil import so3
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
+from hil.logs.matfile import load_mat, mat_variables
 from hil.logs.table import Container
 from protocol.errors import InputFormatError
 
@@ -26,19 +24,13 @@ def detect(c: Container) -> bool:
     names = c.names()
     if len(names) != 1 or not names[0].endswith(".mat"):
         return False
-    try:
-        return any(v[0] == "imu_gyr" for v in scipy.io.whosmat(io.BytesIO(c.raw(names[0]))))
-    except (ValueError, OSError):
-        return False
+    return any(v[0] == "imu_gyr" for v in mat_variables(c, names[0]))
 
 
 def read(c: Container) -> SensorLog:
     name = c.names()[0]
     where = c.where(name)
-    try:
-        mat = scipy.io.loadmat(io.BytesIO(c.raw(name)))
-    except (ValueError, OSError) as exc:
-        raise InputFormatError(f"not a readable MATLAB file ({exc})", where) from None
+    mat = load_mat(c, name, variable_names=_KEYS)
     missing = [k for k in _KEYS if k not in mat]
     if missing:
         raise InputFormatError(f"missing {', '.join(missing)}", where, None, missing[0])
@@ -51,6 +43,7 @@ def read(c: Container) -> SensorLog:
             )
     if not rate > 0:
         raise InputFormatError(f"sampling rate {rate!r}", where, None, "sampling_rate")
+    c.count_samples(3 * n, where, None)
     t = np.arange(n) / rate
     streams = {
         SensorKind.GYR: SensorStream(SensorKind.GYR, t, mat["imu_gyr"]),

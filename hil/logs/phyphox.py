@@ -12,14 +12,16 @@ Layouts read (docs/formats.md):
 - a custom experiment's buffers, e.g. ``Acceleration.csv`` with ``"time","Acceleration x"`` (no unit:
   SI assumed).
 
-What a file holds is read from its x column's label: ``Acceleration``/``Accelerometer`` (gravity
-included), ``Gyroscope``, ``Magnetic field``/``Magnetometer``. Linear (gravity-free) acceleration —
-``Linear Accelerometer.csv`` (current phyphox), ``Linear Acceleration.csv`` (older), a ``Linear
-Acceleration x`` column — cannot give the gravity direction: it is ignored beside an accelerometer with g,
-refused alone. Units in parentheses convert to SI (:mod:`hil.logs.columns`). Dialects: comma, tab or
-semicolon separated, decimal point or decimal comma (told from the first data line). Without a
-magnetometer file the log is 6-axis (heading unobserved). An Excel (``.xls``) export is refused with a
-message to export CSV.
+What a file holds is read from its x column's label — ``Acceleration``/``Accelerometer`` (gravity
+included), ``Gyroscope``, ``Magnetic field``/``Magnetometer`` — or, when that is a bare ``"X (m/s^2)"`` (as
+current phyphox writes an experiment's files), from the file's name (``Accelerometer.csv``,
+``Gyroscope.csv``, ``Magnetometer.csv``), or from its export folder's name (a built-in export's ``Raw
+Data.csv``). Linear (gravity-free) acceleration — ``Linear Accelerometer.csv`` (current phyphox), ``Linear
+Acceleration.csv`` (older), a ``Linear Acceleration x`` column, an "Acceleration (without g)" export —
+cannot give the gravity direction: it is ignored beside an accelerometer with g, refused alone. Units in
+parentheses convert to SI (:mod:`hil.logs.columns`). Dialects: comma, tab or semicolon separated, decimal
+point or decimal comma (told from the first data line). Without a magnetometer file the log is 6-axis
+(heading unobserved). An Excel (``.xls``) export is refused with a message to export CSV.
 """
 
 from __future__ import annotations
@@ -31,13 +33,13 @@ import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns, axis_of, time_column
-from hil.logs.table import Container, read_table, split_header
+from hil.logs.table import Container, read_table, shown, split_header
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
 TIME_CSV = "meta/time.csv"
 EXCEL = (".xls", ".xlsx")
-_LINEAR = re.compile(r"linear", re.IGNORECASE)
+_LINEAR = re.compile(r"linear|without\s*g\b", re.IGNORECASE)
 _KINDS = (
     (re.compile(r"acceler", re.IGNORECASE), SensorKind.ACC),
     (re.compile(r"gyro", re.IGNORECASE), SensorKind.GYR),
@@ -76,7 +78,7 @@ def _dialect(head: list[str]) -> tuple[str, bool]:
 
 
 def _classify(c: Container, name: str) -> _File | None:
-    """The file's sensor from its header, or None if it is not a phyphox sensor table."""
+    """The file's sensor, or None if it is not a phyphox sensor table (see :func:`_kind`)."""
     head = [line for line in c.head(name, 8) if line.strip() and not line.lstrip().startswith("#")][:2]
     if not head:
         return None
@@ -87,14 +89,33 @@ def _classify(c: Container, name: str) -> _File | None:
     x_col = next((col for col in cells[1:] if axis_of(col) == "x"), None)
     if x_col is None:
         return None
-    if _LINEAR.search(name.rsplit("/", 1)[-1]) or _LINEAR.search(x_col):
-        kind = None
-    else:
-        kind = next((k for pattern, k in _KINDS if pattern.search(x_col)), None)
-        if kind is None:
-            return None
     group = name.rsplit("/", 1)[0] + "/" if "/" in name else ""
+    found = _kind(x_col, name.rsplit("/", 1)[-1], group.rstrip("/").rsplit("/", 1)[-1])
+    if found is _NOT_A_SENSOR:
+        return None
+    kind = found if isinstance(found, SensorKind) else None
     return _File(name, kind, delimiter, decimal_comma, group)
+
+
+_NOT_A_SENSOR = object()
+
+
+def _kind(x_col: str, file_name: str, folder: str) -> SensorKind | None | object:
+    """What a table holds, from the labels that can say it: gravity-free acceleration (None) when its x
+    column or its file's name says "linear" (or "without g"); else the sensor its x column names
+    (``"Acceleration x (m/s^2)"``), else the one its file's name names (an experiment's
+    ``Accelerometer.csv`` whose columns are ``"X (m/s^2)"``), else the one its export folder's name names
+    (a built-in export's ``Raw Data.csv``); :data:`_NOT_A_SENSOR` when none does (a barometer, a
+    location)."""
+    if _LINEAR.search(x_col) or _LINEAR.search(file_name):
+        return None
+    for label in (x_col, file_name):
+        kind = next((k for pattern, k in _KINDS if pattern.search(label)), None)
+        if kind is not None:
+            return kind
+    if _LINEAR.search(folder):
+        return None
+    return next((k for pattern, k in _KINDS if pattern.search(folder)), _NOT_A_SENSOR)
 
 
 def detect(c: Container) -> bool:
@@ -193,4 +214,4 @@ def _time_csv_error(pending, columns, source):  # type: ignore[no-untyped-def]
             try:
                 float(cell)
             except ValueError:
-                raise InputFormatError(f"{cell!r} is not a number", source, line_no, col) from None
+                raise InputFormatError(f"{shown(cell)} is not a number", source, line_no, col) from None

@@ -29,7 +29,7 @@ import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.table import Container, read_table
+from hil.logs.table import Container, read_table, shown, text_lines
 from protocol.errors import InputFormatError
 
 NAME = "csv"
@@ -83,12 +83,12 @@ def _sensor_code(cell: str) -> float:
 def _line_of_row(c: Container, name: str, row: int) -> int:
     """1-based file line of data row ``row`` (comments, blank lines and the header skipped), streamed."""
     seen = -2  # the header is the first non-comment line
-    with c.open_text(name) as f:
-        for i, line in enumerate(f, 1):
+    for first, lines in text_lines(c, name):
+        for i, line in enumerate(lines):
             if line.strip() and not line.lstrip().startswith("#"):
                 seen += 1
                 if seen == row:
-                    return i
+                    return first + i
     return 0
 
 
@@ -100,7 +100,7 @@ def _locate(pending: Sequence[tuple[int, str]], columns: tuple[str, ...], where:
         sensor = cells[1].strip()
         if sensor not in _CODES:
             raise InputFormatError(
-                f"unknown sensor {sensor!r} (gyr, acc, mag or truth)", where, line_no, "sensor"
+                f"unknown sensor {shown(sensor)} (gyr, acc, mag or truth)", where, line_no, "sensor"
             )
         for col, cell in zip(_COLUMNS, cells, strict=True):
             if col == "sensor" or (col == "w" and sensor != "truth" and not cell.strip()):
@@ -108,7 +108,7 @@ def _locate(pending: Sequence[tuple[int, str]], columns: tuple[str, ...], where:
             try:
                 float(cell)
             except ValueError:
-                what = f"{cell.strip()!r} is not a number" if cell.strip() else "empty value"
+                what = f"{shown(cell.strip())} is not a number" if cell.strip() else "empty value"
                 raise InputFormatError(what, where, line_no, col) from None
 
 

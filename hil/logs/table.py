@@ -1,19 +1,29 @@
 """Numeric text tables (CSV and friends) read as a stream, with errors that say file, line and column.
 
-A table is read in chunks of :data:`CHUNK_BYTES` of lines: each chunk goes to ``numpy.loadtxt`` and only the
-parsed floats are kept, so memory is bounded by the samples kept (not by the file's size), and a bad line
-fails as soon as its chunk is parsed — the rest of the file is never read. When a chunk fails, its lines
-are walked to raise :class:`InputFormatError` naming the first bad cell. ``nan``/``NaN`` cells are numbers
-(NaN samples, counted and dropped later by the merge); anything else unparseable is an error.
+A table is read in pieces of about :data:`~hil.logs.bounded.CHUNK_BYTES` of lines
+(:func:`hil.logs.bounded.read_lines`): each piece goes to ``numpy.loadtxt`` and only the parsed floats are
+kept, so memory is bounded by the samples kept (not by the file's size), and a bad line fails as soon as its
+piece is parsed — the rest of the file is never read. When a piece fails, its lines are walked to raise
+:class:`InputFormatError` naming the first bad cell. ``nan``/``NaN`` cells are numbers (NaN samples,
+counted and dropped later by the merge); anything else unparseable is an error.
+
+What a log may be is bounded by what its files are (:mod:`hil.logs.bounded`): a member yields at most
+:data:`~hil.logs.bounded.MAX_MEMBER_BYTES` decompressed and at most
+:data:`~hil.logs.bounded.MAX_COMPRESSION_RATIO` times its compressed size, a line is at most
+:data:`~hil.logs.bounded.MAX_LINE_BYTES`, a log holds at most :data:`~hil.logs.bounded.MAX_MEMBERS` files
+and :data:`MAX_LOG_SAMPLES` rows; past any of them the reader stops with an error naming the file and line.
 """
 
 from __future__ import annotations
 
+import codecs
 import csv
 import gzip
 import io
+import os
+import warnings
 import zipfile
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -21,13 +31,24 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.logs.bounded import (
+    MAX_DOCUMENT_BYTES,
+    MAX_LINE_BYTES,
+    MAX_MEMBER_BYTES,
+    MAX_MEMBERS,
+    LimitedReader,
+    read_lines,
+)
 from protocol.errors import InputFormatError
 
 Array = NDArray[np.float64]
-CHUNK_BYTES = 1 << 20
-"""Text parsed at once (about 20 000 lines): the most a reader holds as text, and how far past a bad line
-it can have read."""
 HEAD_BYTES = 4096
+MAX_LOG_SAMPLES = 2_000_000
+"""The most rows a log's tables may hold together (2 million: 1.5 hours of three sensors at 100 Hz). The
+parsed floats of a log cost about 100 bytes a row while read; a longer log is refused naming the file and
+the line it reached, rather than read into all the memory there is."""
+MAX_RAW_BYTES = 64 << 20
+"""The most a member read whole (a MATLAB ``.mat`` file) may hold: the BROAD and Qualisys files are 4 MB."""
 
 
 @dataclass(frozen=True)
@@ -55,8 +76,10 @@ class Table:
 
 class Container:
     """Files of a log: a directory, a zip archive, or a single file. ``names()`` lists member file names
-    (paths relative to the container, '/'-separated); ``open_text(name)`` streams one (``.gz`` members
-    decompressed), ``head(name)`` gives its first lines, ``where(name)`` says where it is."""
+    (paths relative to the container, '/'-separated); ``lines(name)`` streams one's lines (``.gz`` members
+    decompressed; see the module docstring for the bounds), ``head(name)`` gives its first lines,
+    ``where(name)`` says where it is. ``samples`` counts the rows read from its tables
+    (:meth:`count_samples`)."""
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
@@ -65,24 +88,50 @@ class Container:
         # name -> (the zip archive holding it or None, the path inside it or on disk)
         self._members: dict[str, tuple[zipfile.ZipFile | None, str]] = {}
         self._zips: list[zipfile.ZipFile] = []
-        if zipfile.is_zipfile(self.path):
+        self.samples = 0
+        if self.path.is_file() and zipfile.is_zipfile(self.path):
             self._add_zip(self.path, "")
         elif self.path.is_dir():
-            for p in sorted(q for q in self.path.rglob("*") if q.is_file()):
+            for p in sorted(self._files()):
                 rel = p.relative_to(self.path).as_posix()
                 if p.suffix.lower() == ".zip" and zipfile.is_zipfile(p):
                     self._add_zip(p, rel.removesuffix(p.suffix) + "/")  # an export zip inside a folder
                 else:
-                    self._members[rel] = (None, str(p))
+                    self._add(rel, None, str(p))
         else:
             self._members[self.path.name] = (None, str(self.path))
 
+    def _files(self) -> Iterator[Path]:
+        """The files under the folder, at most :data:`MAX_MEMBERS` of them (an error past that)."""
+        seen = 0
+        for p in self.path.rglob("*"):
+            if p.is_file():
+                seen += 1
+                if seen > MAX_MEMBERS:
+                    raise InputFormatError(f"more than {MAX_MEMBERS} files: not a phone log", str(self.path))
+                yield p
+
+    def _add(self, name: str, archive: zipfile.ZipFile | None, inner: str) -> None:
+        if len(self._members) >= MAX_MEMBERS:
+            where = archive.filename if archive is not None else str(self.path)
+            raise InputFormatError(f"more than {MAX_MEMBERS} files: not a phone log", str(where))
+        self._members[name] = (archive, inner)
+
     def _add_zip(self, path: Path, prefix: str) -> None:
-        archive = zipfile.ZipFile(path)
+        entries = _zip_entries(path)
+        if entries > MAX_MEMBERS:
+            raise InputFormatError(
+                f"a zip of {entries} entries (at most {MAX_MEMBERS}): not a phone log", str(path)
+            )
+        try:
+            archive = zipfile.ZipFile(path)
+        except (zipfile.BadZipFile, OSError, ValueError) as exc:
+            raise InputFormatError(f"not a readable zip ({exc})", str(path)) from None
         self._zips.append(archive)
         members = [n for n in archive.namelist() if not n.endswith("/")]
+        shared = _shared_folder(members)
         for n in members:
-            self._members[prefix + _relative(n, members)] = (archive, n)
+            self._add(prefix + (n[len(shared) :] if shared else n), archive, n)
 
     def names(self) -> list[str]:
         return list(self._members)
@@ -94,31 +143,52 @@ class Container:
         archive, inner = self._members.get(name, (None, str(self.path / name)))
         return f"{archive.filename}:{inner}" if archive is not None else inner
 
-    def _open(self, name: str) -> IO[bytes]:
+    def _open(self, name: str, limit: int = MAX_MEMBER_BYTES) -> IO[bytes]:
+        """The member's bytes (a ``.gz`` decompressed), at most ``limit`` of them and at most
+        :data:`~hil.logs.bounded.MAX_COMPRESSION_RATIO` times what they were compressed from."""
         if name not in self._members:
             raise InputFormatError(f"missing {name}", str(self.path))
         archive, inner = self._members[name]
-        raw: IO[bytes] = archive.open(inner) if archive is not None else open(inner, "rb")  # noqa: SIM115
-        return gzip.GzipFile(fileobj=raw) if name.endswith(".gz") else raw  # type: ignore[return-value]
+        where = self.where(name)
+        packed: int | None
+        try:
+            if archive is not None:
+                info = archive.getinfo(inner)
+                raw: IO[bytes] = archive.open(info)
+                packed = info.compress_size if info.compress_type != zipfile.ZIP_STORED else None
+            else:
+                raw = open(inner, "rb")  # noqa: SIM115 — closed with the reader that wraps it
+                packed = None
+        except (OSError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
+            raise InputFormatError(f"cannot read ({exc})", where) from None
+        if name.endswith(".gz"):
+            if packed is None:
+                packed = _size(inner) if archive is None else archive.getinfo(inner).file_size
+            raw = gzip.GzipFile(fileobj=raw)  # type: ignore[assignment]
+        return io.BufferedReader(LimitedReader(raw, where, limit, packed), 1 << 16)
 
-    def raw(self, name: str) -> bytes:
+    def raw(self, name: str, limit: int = MAX_RAW_BYTES) -> bytes:
+        """The member whole: at most ``limit`` bytes (an error naming it past that)."""
+        with self._open(name, limit) as f:
+            return _guarded(f.read, self.where(name))
+
+    def lines(self, name: str) -> Iterator[list[bytes | None]]:
+        """The member's lines, a batch at a time (:func:`hil.logs.bounded.read_lines`: ``None`` for a
+        line longer than :data:`~hil.logs.bounded.MAX_LINE_BYTES`)."""
         with self._open(name) as f:
-            return f.read()
-
-    def open_text(self, name: str) -> io.TextIOWrapper:
-        """The member as UTF-8 text, streamed (a BOM is skipped); close it (``with``)."""
-        return io.TextIOWrapper(self._open(name), encoding="utf-8-sig", newline=None)
+            yield from _guarded_iter(read_lines(f), self.where(name))
 
     def head(self, name: str, lines: int = 3) -> list[str]:
         """The first ``lines`` lines (of at most :data:`HEAD_BYTES` bytes), decoded leniently: enough to
         recognise a format without reading the file."""
         with self._open(name) as f:
-            data = f.read(HEAD_BYTES)
+            data = _guarded(lambda: f.read(HEAD_BYTES), self.where(name))
         return data.decode("utf-8-sig", "replace").splitlines()[:lines]
 
     def text(self, name: str) -> str:
-        """A small member whole (metadata files): UTF-8 or InputFormatError naming it."""
-        data = self.raw(name)
+        """A small member whole (metadata files, at most
+        :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES`): UTF-8 or InputFormatError naming it."""
+        data = self.raw(name, MAX_DOCUMENT_BYTES)
         try:
             return data.decode("utf-8-sig")
         except UnicodeDecodeError as exc:
@@ -126,13 +196,63 @@ class Container:
                 f"not UTF-8 text ({exc.reason} at byte {exc.start})", self.where(name)
             ) from None
 
+    def count_samples(self, rows: int, where: str, line: int | None) -> None:
+        """Count ``rows`` more rows read from the log's tables; past :data:`MAX_LOG_SAMPLES` an
+        InputFormatError naming the file and the line reached."""
+        self.samples += rows
+        if self.samples > MAX_LOG_SAMPLES:
+            raise InputFormatError(
+                f"the log holds more than {MAX_LOG_SAMPLES} samples: longer than hil reads at once "
+                "(cut it into parts)",
+                where,
+                line,
+            )
 
-def _relative(member: str, members: Sequence[str]) -> str:
-    """A zip member's name without the one folder every member shares (exports zip their folder)."""
+
+def _zip_entries(path: Path) -> int:
+    """The number of entries a zip's end record declares (read before its directory is parsed, so that a
+    directory of millions of entries is refused rather than held)."""
+    try:
+        with open(path, "rb") as f:
+            end = zipfile._EndRecData(f)  # type: ignore[attr-defined]  # stable since Python 2
+    except OSError as exc:
+        raise InputFormatError(f"cannot read ({exc.strerror})", str(path)) from None
+    return int(end[zipfile._ECD_ENTRIES_TOTAL]) if end else 0  # type: ignore[attr-defined]
+
+
+def _size(path: str) -> int:
+    try:
+        return os.stat(path).st_size
+    except OSError:
+        return 0
+
+
+def _guarded(read: Callable[[], bytes], where: str) -> bytes:
+    """``read()``, a damaged member (bad CRC, truncated deflate or gzip stream) an InputFormatError."""
+    try:
+        return read()
+    except (OSError, EOFError, zipfile.BadZipFile, gzip.BadGzipFile) as exc:
+        raise InputFormatError(f"damaged ({exc})", where) from None
+
+
+def _guarded_iter(batches: Iterator[list[bytes | None]], where: str) -> Iterator[list[bytes | None]]:
+    while True:
+        try:
+            batch = next(batches)
+        except StopIteration:
+            return
+        except (OSError, EOFError, zipfile.BadZipFile) as exc:
+            raise InputFormatError(f"damaged ({exc})", where) from None
+        yield batch
+
+
+def _shared_folder(members: Sequence[str]) -> str:
+    """The one folder every member of a zip shares, with its slash ("" if none): exports zip their
+    folder, and its name is left out of the members' names."""
     tops = {m.split("/", 1)[0] for m in members}
     if len(tops) == 1 and all("/" in m for m in members):
-        return member.split("/", 1)[1]
-    return member
+        return next(iter(tops)) + "/"
+    return ""
 
 
 def split_header(line: str, delimiter: str | None) -> list[str]:
@@ -164,59 +284,100 @@ def read_table(
     "semicolon/tab, decimal comma" CSV. Lines starting with ``#`` are comments; blank lines are skipped.
     Every data row must have as many cells as the header (or the first row). ``exact_columns`` are also
     read as int64 (e.g. nanosecond epoch times, which float64 rounds to 256 ns); ``converters`` and
-    ``locate`` let a reader parse non-numeric cells and explain their errors."""
+    ``locate`` let a reader parse non-numeric cells and explain their errors. The rows read count towards
+    the log's :data:`MAX_LOG_SAMPLES`."""
     source = container.where(name)
-    with container.open_text(name) as f:
-        try:
-            line_no, head = _first_line(f)
-            if not head:
-                raise InputFormatError("empty file: no header and no data", source)
-            if header:
-                columns, header_line = tuple(split_header(head, delimiter)), line_no
-            else:
-                columns, header_line = tuple(f"col{i}" for i in range(len(_split(head, delimiter)))), 0
+    parser: _Chunks | None = None
+    header_line = 0
+    for first_line, lines in text_lines(container, name):
+        start = 0
+        if parser is None:
+            found = _first_content(lines)
+            if found is None:
+                continue
+            columns, header_line = _columns(lines[found], first_line + found, header, delimiter)
             if len(columns) < min_columns:
                 raise InputFormatError(
                     f"expected at least {min_columns} columns, found {len(columns)}: is this the right file?",
                     source,
-                    header_line or 1,
+                    header_line or first_line + found,
                 )
             exact_idx = tuple((c, columns.index(c)) for c in exact_columns if c in columns)
             parser = _Chunks(columns, source, delimiter, decimal_comma, converters, locate, exact_idx)
-            if not header:
-                parser.parse([head + "\n"], line_no)
-            while chunk := f.readlines(CHUNK_BYTES):
-                parser.parse(chunk, line_no + 1)
-                line_no += len(chunk)
-        except UnicodeDecodeError as exc:
-            bad = _undecodable_line(container, name)
-            raise InputFormatError(f"not UTF-8 text ({exc.reason})", source, bad) from None
+            start = found + 1 if header else found
+        rows = parser.parse(lines[start:], first_line + start)
+        container.count_samples(rows, source, first_line + len(lines) - 1)
+    if parser is None:
+        raise InputFormatError("empty file: no header and no data", source)
     return parser.table(header_line)
 
 
-def _first_line(f: io.TextIOWrapper) -> tuple[int, str]:
-    """The first line that is neither blank nor a comment, and its 1-based number ("" at the end)."""
-    line_no = 0
-    for line_no, line in enumerate(iter(f.readline, ""), 1):  # noqa: B007
+def text_lines(container: Container, name: str) -> Iterator[tuple[int, list[str]]]:
+    """The member's lines as text, a batch at a time with the 1-based number of its first line (a BOM
+    skipped). A line longer than :data:`~hil.logs.bounded.MAX_LINE_BYTES`, one holding a NUL byte (binary
+    data) or one that is not UTF-8 is an :class:`InputFormatError` naming its line — after the lines before
+    it have been given, so that an earlier bad cell is the one reported."""
+    source = container.where(name)
+    line_no = 1
+    for batch in container.lines(name):
+        if line_no == 1 and batch[0] is not None and batch[0].startswith(codecs.BOM_UTF8):
+            batch[0] = batch[0][len(codecs.BOM_UTF8) :]
+        good, problem = _good_prefix(batch)
+        if good:
+            yield line_no, good
+        if problem is not None:
+            raise InputFormatError(problem, source, line_no + len(good))
+        line_no += len(batch)
+
+
+def _good_prefix(batch: list[bytes | None]) -> tuple[list[str], str | None]:
+    """The batch's lines decoded up to its first bad one, and what is wrong with that one (None: all
+    good)."""
+    end = next((i for i, line in enumerate(batch) if line is None), len(batch))
+    problem = None
+    if end < len(batch):
+        problem = (
+            f"a line longer than {MAX_LINE_BYTES} bytes: binary data or no line breaks, not a text table"
+        )
+    blob = b"\n".join(batch[:end])  # type: ignore[arg-type]  # None only from ``end`` on
+    nul = blob.find(b"\x00")
+    if nul >= 0:
+        end = blob.count(b"\n", 0, nul)
+        problem = "binary data (a NUL byte), not a text table"
+        blob = b"\n".join(batch[:end])  # type: ignore[arg-type]
+    try:
+        text = blob.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        end = blob.count(b"\n", 0, exc.start)
+        problem = f"not UTF-8 text ({exc.reason})"
+        text = b"\n".join(batch[:end]).decode("utf-8")  # type: ignore[arg-type]
+    return (text.split("\n") if end else []), problem
+
+
+def _first_content(lines: Sequence[str]) -> int | None:
+    """The index of the first line that is neither blank nor a comment (None: there is none)."""
+    for i, line in enumerate(lines):
         stripped = line.strip()
         if stripped and not stripped.startswith("#"):
-            return line_no, line.rstrip("\r\n")
-    return line_no, ""
+            return i
+    return None
 
 
-def _undecodable_line(container: Container, name: str) -> int:
-    """The 1-based number of the first line that is not UTF-8 (the error path only)."""
-    with container._open(name) as raw:
-        for line_no, line in enumerate(raw, 1):
-            try:
-                line.decode("utf-8-sig" if line_no == 1 else "utf-8")
-            except UnicodeDecodeError:
-                return line_no
-    return 0
+def _columns(line: str, line_no: int, header: bool, delimiter: str | None) -> tuple[tuple[str, ...], int]:
+    """The table's columns from its first line (its header, or ``col0``… for as many cells as the first
+    row), and the header's line number (0 without one)."""
+    if header:
+        return tuple(split_header(line, delimiter)), line_no
+    return tuple(f"col{i}" for i in range(len(_split(line, delimiter)))), 0
 
 
 def _split(line: str, delimiter: str | None) -> list[str]:
     return line.split(delimiter) if delimiter is not None else line.split()
+
+
+def shown(cell: str, keep: int = 40) -> str:
+    """A cell for a message: its repr, cut to ``keep`` characters (a bad cell can be a megabyte)."""
+    return repr(cell) if len(cell) <= keep else repr(cell[:keep]) + f"… ({len(cell)} characters)"
 
 
 @dataclass
@@ -233,22 +394,37 @@ class _Chunks:
     chunks: list[Array] = field(default_factory=list)
     exact: dict[str, list[NDArray[np.int64]]] = field(default_factory=dict)
 
-    def parse(self, lines: list[str], first_line: int) -> None:
-        """Parse ``lines`` (raw, with their newlines), the first of which is line ``first_line``."""
-        text = "".join(lines)
+    def parse(self, lines: list[str], first_line: int) -> int:
+        """Parse ``lines`` (without their line breaks), the first of which is line ``first_line``; returns
+        the number of rows kept."""
+        text = "\n".join(lines)
+        if not text.strip():
+            return 0
         if self.decimal_comma:
             text = text.replace(",", ".")
+        converters: Any = self.converters
         try:
-            converters: Any = self.converters
-            data = np.loadtxt(io.StringIO(text), delimiter=self.delimiter, ndmin=2, dtype=float,
-                              comments="#", converters=converters, quotechar='"')  # fmt: skip
+            with warnings.catch_warnings():  # a piece of comment lines only is no data, and no news
+                warnings.simplefilter("ignore", UserWarning)
+                data = np.loadtxt(
+                    io.StringIO(text),
+                    delimiter=self.delimiter,
+                    ndmin=2,
+                    dtype=float,
+                    comments="#",
+                    converters=converters,
+                    quotechar='"',
+                )
             if data.size == 0:
-                return  # only blank lines and comments
+                return 0  # only blank lines and comments
             if data.shape[1] != len(self.columns):
                 raise ValueError("column count")
         except (ValueError, KeyError):
-            pending = [(first_line + i, line.rstrip("\r\n")) for i, line in enumerate(lines)
-                       if line.strip() and not line.lstrip().startswith("#")]  # fmt: skip
+            pending = [
+                (first_line + i, line.rstrip("\r"))
+                for i, line in enumerate(lines)
+                if line.strip() and not line.lstrip().startswith("#")
+            ]
             if self.locate is not None:
                 self.locate(pending, self.columns, self.source)
             locate_numeric(pending, self.columns, self.source, self.delimiter, self.decimal_comma)
@@ -256,16 +432,27 @@ class _Chunks:
         self.chunks.append(data)
         for col, idx in self.exact_idx:
             try:
-                ints = np.loadtxt(io.StringIO(text), delimiter=self.delimiter, usecols=idx, dtype=np.int64,
-                                  ndmin=1, comments="#", quotechar='"')  # fmt: skip
+                ints = np.loadtxt(
+                    io.StringIO(text),
+                    delimiter=self.delimiter,
+                    usecols=idx,
+                    dtype=np.int64,
+                    ndmin=1,
+                    comments="#",
+                    quotechar='"',
+                )
             except ValueError:  # not integers (a re-saved file): the float column, to its precision
                 ints = data[:, idx].astype(np.int64)
             self.exact.setdefault(col, []).append(ints)
+        return int(data.shape[0])
 
     def table(self, header_line: int) -> Table:
         data = np.concatenate(self.chunks) if self.chunks else np.zeros((0, len(self.columns)))
-        exact = {c: np.concatenate(self.exact[c]) if c in self.exact else np.zeros(0, np.int64)
-                 for c, _ in self.exact_idx}  # fmt: skip
+        self.chunks.clear()
+        exact = {}
+        for column, _ in self.exact_idx:
+            parts = self.exact.get(column)
+            exact[column] = np.concatenate(parts) if parts else np.zeros(0, np.int64)
         return Table(self.columns, data, self.source, header_line, exact)
 
 
@@ -286,5 +473,5 @@ def locate_numeric(
             try:
                 float(value.replace(",", ".") if decimal_comma else value)
             except ValueError:
-                what = f"{value!r} is not a number" if value else "empty value"
+                what = f"{shown(value)} is not a number" if value else "empty value"
                 raise InputFormatError(what, source, line_no, name) from None

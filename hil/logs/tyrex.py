@@ -17,9 +17,9 @@ NaN frames are occlusions (kept, not evaluated). Evaluation follows the benchmar
 from __future__ import annotations
 
 import numpy as np
-import scipy.io
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
+from hil.logs.matfile import load_mat
 from hil.logs.table import Container, read_table
 from protocol.errors import InputFormatError
 
@@ -66,12 +66,7 @@ def _truth(c: Container, notes: list[str]) -> Truth:
         offset = float(table.data[0, 0])
     else:
         notes.append("no timeAlignment.txt: motion-capture and phone clocks taken as equal")
-    import io
-
-    try:
-        mat = scipy.io.loadmat(io.BytesIO(c.raw("qualisys.mat")), squeeze_me=True, struct_as_record=False)
-    except (ValueError, OSError) as exc:
-        raise InputFormatError(f"not a readable MATLAB file ({exc})", where) from None
+    mat = load_mat(c, "qualisys.mat", squeeze_me=True, struct_as_record=False)
     keys = [k for k in mat if not k.startswith("__")]
     try:
         qtm = mat[keys[0]]

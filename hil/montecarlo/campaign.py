@@ -5,13 +5,14 @@ or any running scheduler given by address. Both take the same path: :func:`run_c
 :class:`distributed.Client` and never asks which kind it is.
 
 The driver draws each run's parameters (:func:`~.dispersions.draw`: a pure function of seed and index),
-skips the runs the output directory already holds, and submits chunks of ``batch`` runs; a worker runs a
-chunk's runs one after another (:func:`stream_chunk`: a chunk amortises Dask's per-task cost over its
-runs) and sends each run's result back as it finishes, as an event through the scheduler, so the driver
-writes that run's row then and not when the chunk ends (:class:`~.store.ResultStore`): Ctrl-C or a crash
-loses no finished run. The chunk's return value carries its results again: the driver writes those it has
-not had yet, and a run written once is never written again (a chunk that Dask reruns after losing its
-worker streams its first runs a second time).
+skips the runs the output directory already holds, and submits chunks of ``batch`` runs, a few per worker
+at a time (:data:`IN_FLIGHT_PER_WORKER`: nothing is held per run of the campaign before it starts); a
+worker runs a chunk's runs one after another (:func:`stream_chunk`: a chunk amortises Dask's per-task
+cost over its runs) and sends each run's result back as it finishes, as an event through the scheduler,
+so the driver writes that run's row then and not when the chunk ends (:class:`~.store.ResultStore`):
+Ctrl-C or a crash loses no finished run. The chunk's return value carries its results again: the driver
+writes those it has not had yet, and a run written once is never written again (a chunk that Dask reruns
+after losing its worker streams its first runs a second time).
 
 The driver also listens to the scheduler's own events: a worker that leaves unexpectedly (its process
 died) is reported as it happens (:class:`WorkerLoss`: which worker, when, the campaign's chunks it had,
@@ -21,6 +22,7 @@ whether Dask retried them) and counted in the report and summary.json. A chunk t
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import math
@@ -29,7 +31,7 @@ import pickle
 import queue
 import time
 import uuid
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +50,16 @@ from .summary import summarise
 logger = logging.getLogger(__name__)
 
 DEFAULT_BATCH = 4  # runs per Dask task: spreads Dask's per-task cost, keeps the workers balanced
+MAX_RUNS = 10_000_000
+"""The most runs a campaign may ask for (10⁷: a year of a thousand cores at the shipped scenarios' pace).
+Nothing is allocated per run before the runs start — indices and chunks are made as they are submitted —
+so the bound is about what a campaign directory and its summary can hold, not the driver's memory."""
+MAX_BATCH = 10_000
+"""The most runs one Dask task may run one after another."""
+IN_FLIGHT_PER_WORKER = 4
+"""Chunks submitted to Dask per worker thread at a time: enough to keep every worker busy (Dask queues a
+few on each), few enough that a campaign of millions of runs holds only these in the driver and the
+scheduler; the next chunk is submitted as one finishes."""
 DEFAULT_TRACE_HZ = 5.0
 RESULTS_TOPIC = "hil-montecarlo-results"
 """The scheduler event topic the workers send each finished run on. One topic for every campaign (a
@@ -70,10 +82,10 @@ class Campaign:
     trace_hz: float = DEFAULT_TRACE_HZ
 
     def __post_init__(self) -> None:
-        for name in ("runs", "batch"):
+        for name, most in (("runs", MAX_RUNS), ("batch", MAX_BATCH)):
             value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ConfigError(f"must be a positive integer, got {value!r}", f"campaign.{name}")
+            if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= most:
+                raise ConfigError(f"must be an integer in 1..{most}, got {value!r}", f"campaign.{name}")
         if not isinstance(self.seed, int) or self.seed < 0:
             raise ConfigError(f"must be a non-negative integer, got {self.seed!r}", "campaign.seed")
         rate = self.scenario.loop.control_rate_hz
@@ -200,13 +212,14 @@ def open_client(
         yield client
 
 
-def chunks(indices: Sequence[int], batch: int, workers: int) -> list[list[int]]:
-    """``indices`` in consecutive chunks of at most ``batch``, smaller when there are too few runs to keep
-    every worker busy (then each worker gets about one chunk)."""
-    if not indices:
-        return []
-    size = max(1, min(batch, math.ceil(len(indices) / max(workers, 1))))
-    return [list(indices[k : k + size]) for k in range(0, len(indices), size)]
+def chunks(indices: Iterable[int], count: int, batch: int, workers: int) -> Iterator[list[int]]:
+    """The ``count`` ``indices`` in consecutive chunks of at most ``batch``, smaller when there are too few
+    runs to keep every worker busy (then each worker gets about one chunk); made as they are taken, so
+    nothing is held per run."""
+    size = max(1, min(batch, math.ceil(count / max(workers, 1))))
+    it = iter(indices)
+    while chunk := list(itertools.islice(it, size)):
+        yield chunk
 
 
 def stream_chunk(
@@ -252,10 +265,10 @@ def run_campaign(
     start = time.perf_counter()
     workers = max(1, sum(client.nthreads().values()))
     with ResultStore(out, campaign.manifest()) as store:
-        todo = [i for i in range(campaign.runs) if i not in store.finished]
-        skipped = campaign.runs - len(todo)
+        skipped = sum(1 for i in store.finished if 0 <= i < campaign.runs)
+        todo = (i for i in range(campaign.runs) if i not in store.finished)
         driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
-        driver.run(chunks(todo, campaign.batch, workers))
+        driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
     report = CampaignReport(
         out,
         campaign.runs,
@@ -314,19 +327,14 @@ class _Driver:
         self.completed = self.failed = self.joined = 0
         self.losses: list[WorkerLoss] = []
 
-    def run(self, chunk_indices: list[list[int]]) -> None:
-        """Submit every chunk and handle the queue until every chunk is done."""
-        client, campaign = self.client, self.campaign
+    def run(self, chunk_indices: Iterator[list[int]], workers: int) -> None:
+        """Submit chunks, :data:`IN_FLIGHT_PER_WORKER` per worker at a time (another as each finishes),
+        and handle the queue until every chunk is done."""
+        client = self.client
         client.subscribe_topic(RESULTS_TOPIC, lambda event: self.events.put(("result", event[1])))
         client.subscribe_topic("all", lambda event: self.events.put(("cluster", (_now(), event[1]))))
         try:
-            for indices in chunk_indices:
-                runs = [campaign.draw(i) for i in indices]
-                future = client.submit(
-                    stream_chunk, campaign.scenario, runs, campaign.trace_hz, self.session, pure=False
-                )
-                self.chunks[future.key] = future, runs
-                future.add_done_callback(lambda f: self.events.put(("done", f)))
+            self._submit(chunk_indices, workers)
             while self.chunks:
                 try:
                     kind, item = self.events.get(timeout=self._WAIT_S)
@@ -336,6 +344,7 @@ class _Driver:
                     self._streamed(item)
                 elif kind == "done":
                     self._chunk_done(item)
+                    self._submit(chunk_indices, workers)
                 else:
                     self._cluster_event(*item)
         except BaseException:
@@ -344,6 +353,22 @@ class _Driver:
         finally:
             client.unsubscribe_topic(RESULTS_TOPIC)
             client.unsubscribe_topic("all")
+
+    def _submit(self, chunk_indices: Iterator[list[int]], workers: int) -> None:
+        """Submit chunks until :data:`IN_FLIGHT_PER_WORKER` per worker (those it started with, plus those
+        that joined, less those lost) are in flight, or none is left."""
+        campaign = self.campaign
+        window = IN_FLIGHT_PER_WORKER * max(1, workers + self.joined - len(self.losses))
+        while len(self.chunks) < window:
+            indices = next(chunk_indices, None)
+            if indices is None:
+                return
+            runs = [campaign.draw(i) for i in indices]
+            future = self.client.submit(
+                stream_chunk, campaign.scenario, runs, campaign.trace_hz, self.session, pure=False
+            )
+            self.chunks[future.key] = future, runs
+            future.add_done_callback(lambda f: self.events.put(("done", f)))
 
     def _record(self, result: RunResult) -> None:
         """Write a run's row (its commit record) unless it is written already, then tell the caller."""

@@ -34,14 +34,17 @@ from its own stream ``numpy.random.default_rng([seed, index, crc32(key)])``, so 
 same run on any machine and in any order, and adding a dispersion to a file leaves the draws of the others
 unchanged (common random numbers between campaign variants).
 
-Values are not checked at draw time: a drawn value the model refuses (a negative noise, an inertia that is
-not positive definite) makes that run fail with an error naming the parameter, recorded with the run.
+Every parameter has bounds on its size (:data:`BOUNDS`: a sensor rate at most 1 kHz, an angle at most a
+turn, ...): a file that asks for more is refused naming the file and key, and draws are clipped into them.
+Within them, values are not checked at draw time: a drawn value the model refuses (a negative noise, an
+inertia that is not positive definite) makes that run fail with an error naming the parameter, recorded
+with the run. The file itself is read bounded (:mod:`hil.logs.bounded`: at most 16 MiB, nested at most
+32 deep).
 """
 
 from __future__ import annotations
 
 import math
-import tomllib
 import zlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -52,6 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
+from hil.logs.bounded import MAX_DOCUMENT_BYTES, load_toml
 from hil.runtime.invariants import InjectedFault
 from hil.scenario import Scenario
 from hil.scenario.paths import FIXTURES, read_text
@@ -67,6 +71,26 @@ DEFAULT_DISPERSIONS = DISPERSION_DIR / "default.toml"
 LINK_RANGES = {"link.outages_per_minute": (0.0, 600.0), "link.outage_duration_s": (0.0, 60.0)}
 """What link outages a file may ask for: up to ten a second, each up to a minute (a rate's draws are
 clipped into it, so a run's outage list stays bounded: at most ~10 per second of run)."""
+BOUNDS: dict[str, tuple[float, float]] = {
+    "spacecraft.inertia_scale": (-100.0, 100.0),
+    "spacecraft.inertia_offdiag": (-1.0, 1.0),
+    "spacecraft.gimbal_misalignment_rad": (-math.pi, math.pi),
+    "spacecraft.rotor_offset_m": (-0.1, 0.1),
+    "sensors.*.noise": (-1e3, 1e3),
+    "sensors.*.bias": (-1e3, 1e3),
+    "sensors.*.rate_hz": (-1e3, 1e3),
+    "sensors.*.jitter_s": (-0.1, 0.1),
+    "initial.angle_deg": (-360.0, 360.0),
+    "manoeuvre.angle_deg": (-360.0, 360.0),
+    "manoeuvre.axis_tilt_deg": (-180.0, 180.0),
+    **LINK_RANGES,
+}
+"""The most a dispersion may ask of each parameter (``sensors.*`` for each sensor), as the scenario's own
+bounds (:data:`hil.scenario.reader.RANGES`) have it: a value beyond them (a phone sampling at 10⁹ Hz) makes
+a run that cannot end or cannot be simulated. A fixed value, a uniform's ends, a choice's values and a
+normal's mean and clip bounds must lie within them (a :class:`ConfigError` naming the file and key), and
+every draw is clipped into them (a normal's tail). Within them, a value the model refuses (a negative noise)
+is the run's failure, recorded with it, not the file's: the bounds are about size, not sign."""
 
 
 # --------------------------------------------------------------------------- distributions
@@ -263,7 +287,7 @@ def draw(dispersions: Dispersions, seed: int, run_index: int) -> RunParams:
         rng = _stream(seed, run_index, param.key)
         if param.key == "link.outage_duration_s":
             continue
-        drawn = dist.sample(rng, param.nominal(sc))
+        drawn = np.clip(dist.sample(rng, param.nominal(sc)), *bounds_of(param.key))
         values[param.key] = drawn
         if param.key == "initial.angle_deg":
             directions[param.key] = _isotropic(rng)
@@ -333,15 +357,12 @@ def load_dispersions(name_or_path: str | Path | None, scenario: Scenario) -> Dis
     """Read a dispersion file (see :func:`resolve_dispersions_path`) for ``scenario``; errors are
     :class:`ConfigError` naming the file and the dotted key."""
     path = resolve_dispersions_path(name_or_path)
-    return parse_dispersions(read_text(path), scenario, path.name)
+    return parse_dispersions(read_text(path, limit=MAX_DOCUMENT_BYTES), scenario, path.name)
 
 
 def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>") -> Dispersions:
     """:func:`load_dispersions` on TOML text (``where`` names the source in errors)."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", where) from None
+    doc = load_toml(text, where)
     faults = parse_faults(doc.pop("faults"), where, _distribution) if "faults" in doc else None
     found: dict[str, Distribution] = {}
     for key, value in _leaves(doc, where):
@@ -353,11 +374,17 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
     if (rate is None) != (duration is None):
         missing = "link.outage_duration_s" if duration is None else "link.outages_per_minute"
         raise ConfigError("link outages need both a rate and a duration", f"{where}: {missing}")
-    for key, (lo, hi) in LINK_RANGES.items():
-        if key in found:
-            _check_support(found[key], lo, hi, f"{where}: {key}")
+    for key, dist in found.items():
+        lo, hi = bounds_of(key)
+        _check_support(dist, lo, hi, f"{where}: {key}")
     entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
     return Dispersions(scenario, entries, text, where, faults)
+
+
+def bounds_of(key: str) -> tuple[float, float]:
+    """A parameter's :data:`BOUNDS` (a sensor's by its field)."""
+    parts = key.split(".")
+    return BOUNDS[f"sensors.*.{parts[2]}" if parts[0] == "sensors" else key]
 
 
 def _check_support(dist: Distribution, lo: float, hi: float, where: str) -> None:
@@ -440,7 +467,7 @@ def _choice(value: dict[str, Any], where: str) -> Choice:
         not isinstance(weights, list)
         or len(weights) != len(values)
         or not all(_is_number(w) and w >= 0 for w in weights)
-        or sum(weights) <= 0
+        or not 0 < sum(weights) < math.inf
     ):
         raise ConfigError(
             f"must be {len(values)} non-negative numbers, not all zero; got {weights!r}", f"{where}.weights"

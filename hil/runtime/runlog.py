@@ -18,7 +18,6 @@ thread moments later (:class:`CsvLog`), so SIGKILL loses at most a partly writte
 from __future__ import annotations
 
 import collections
-import csv
 import io
 import json
 import math
@@ -26,14 +25,14 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from hil.scenario.paths import read_text
+from hil.logs.bounded import MAX_LINE_BYTES, load_json, read_lines
 from protocol.errors import InputFormatError
 
 TELEMETRY = "telemetry.csv"
@@ -294,39 +293,109 @@ class Telemetry:
 
 
 def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
-    """Read a run's telemetry CSV. A line with the wrong number of cells or a non-number is dropped and
-    counted (a run killed mid-write leaves one); a missing or header-less file is an InputFormatError."""
+    """Read a run's telemetry CSV, streamed (:func:`hil.logs.bounded.read_lines`: memory holds the
+    numbers, not the text). A line with the wrong number of cells, a non-number, bytes that are not UTF-8
+    or more than :data:`~hil.logs.bounded.MAX_LINE_BYTES` is dropped and counted (a run killed mid-write
+    leaves one); a missing or header-less file is an InputFormatError."""
     path = Path(path)
-    text = read_text(path, InputFormatError, "telemetry")
-    reader = csv.reader(io.StringIO(text))
     try:
-        header = next(reader)
-    except StopIteration:
-        raise InputFormatError("empty file (no header)", str(path), 1) from None
-    values: list[list[float]] = []
+        f = open(path, "rb")  # noqa: SIM115 — closed below
+    except FileNotFoundError:
+        raise InputFormatError("no such file (telemetry)", str(path)) from None
+    except OSError as exc:
+        raise InputFormatError(f"cannot read telemetry: {exc.strerror}", str(path)) from exc
+    header: list[str] | None = None
+    blocks: list[np.ndarray] = []
     dropped = 0
-    for cells in reader:
-        if len(cells) != len(header):
-            dropped += 1
-            continue
-        try:
-            values.append([float(c) if c != "" else math.nan for c in cells])
-        except ValueError:
-            dropped += 1
-    data = np.array(values, dtype=float).reshape(len(values), len(header))
-    return Telemetry({name: data[:, i] for i, name in enumerate(header)}, len(values), dropped)
+    with f:
+        for batch in read_lines(f):
+            if header is None:
+                header = _header(batch.pop(0), path)
+            values = []
+            for line in batch:
+                row = _numbers(line, len(header))
+                if row is None:
+                    dropped += 1
+                else:
+                    values.append(row)
+            if values:
+                blocks.append(np.array(values, dtype=float))
+    if header is None:
+        raise InputFormatError("empty file (no header)", str(path), 1)
+    data = np.concatenate(blocks) if blocks else np.zeros((0, len(header)))
+    return Telemetry({name: data[:, i] for i, name in enumerate(header)}, len(data), dropped)
+
+
+def _header(line: bytes | None, path: Path) -> list[str]:
+    """A telemetry file's column names (its first line), or InputFormatError naming its line 1."""
+    if line is None:
+        raise InputFormatError(f"a header longer than {MAX_LINE_BYTES} bytes: not telemetry", str(path), 1)
+    try:
+        text = line.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputFormatError(f"not a text file (not UTF-8: {exc.reason})", str(path), 1) from None
+    return text.split(",")
+
+
+def _numbers(line: bytes | None, width: int) -> list[float] | None:
+    """A telemetry row's ``width`` numbers (an empty cell is NaN), or None for a damaged line."""
+    if line is None:
+        return None
+    try:
+        cells = line.decode("utf-8").split(",")
+        if len(cells) != width:
+            return None
+        return [float(c) if c != "" else math.nan for c in cells]
+    except (UnicodeDecodeError, ValueError):
+        return None
 
 
 def read_events(path: str | os.PathLike[str]) -> tuple[list[dict[str, Any]], int]:
-    """Events of a run and the number of unreadable (torn) lines."""
+    """Events of a run and the number of unreadable lines (torn by a kill, not a JSON object, nested more
+    than :data:`~hil.logs.bounded.MAX_NESTING` deep, longer than :data:`~hil.logs.bounded.MAX_LINE_BYTES`):
+    dropped and counted, never fatal. Memory holds the events, not the file."""
     events: list[dict[str, Any]] = []
     bad = 0
-    p = Path(path)
-    if not p.exists():
-        return events, 0
-    for line in p.read_text().splitlines():
-        try:
-            events.append(json.loads(line))
-        except json.JSONDecodeError:
+    for event in _events(Path(path)):
+        if event is None:
             bad += 1
+        else:
+            events.append(event)
     return events, bad
+
+
+def count_events(path: str | os.PathLike[str]) -> tuple[int, int]:
+    """The number of readable events and of unreadable lines in a run's events log (as
+    :func:`read_events`), without holding them."""
+    good = bad = 0
+    for event in _events(Path(path)):
+        good += event is not None
+        bad += event is None
+    return good, bad
+
+
+def _events(path: Path) -> Iterator[dict[str, Any] | None]:
+    """Each line of an events log as its event, or None when it is unreadable; nothing if there is no
+    file."""
+    try:
+        f = open(path, "rb")  # noqa: SIM115 — closed below
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise InputFormatError(f"cannot read events: {exc.strerror}", str(path)) from exc
+    with f:
+        for batch in read_lines(f):
+            for line in batch:
+                yield event_of(line, str(path))
+
+
+def event_of(line: bytes | None, where: str) -> dict[str, Any] | None:
+    """One line of an events log as its event (a JSON object), or None if it is damaged (see
+    :func:`read_events`)."""
+    if line is None:
+        return None
+    try:
+        value = load_json(line, where)
+    except InputFormatError:
+        return None
+    return value if isinstance(value, dict) else None

@@ -5,6 +5,10 @@ A scenario is looked up by name in ``fixtures/scenarios/`` (``cubesat-1u`` → `
 from a path. Every table and key is optional except ``[scenario] name``; what is left out takes the
 defaults below. Unknown keys are errors (a typo must not silently become a default), and every error names
 the file and the dotted key (:class:`ConfigError` ``where="cubesat-1u.toml: manoeuvre.angle_deg"``).
+Every number has documented bounds (:data:`hil.scenario.reader.RANGES`: e.g. ``plant_step_s`` 10 µs..1 ms,
+``warmup_s`` 0..600 s, sensor rates 1..1000 Hz), and a run is at most a day of simulated time (warm-up and
+duration) and 10⁸ plant steps. The file is at most 16 MiB and nested at most 32 deep
+(:mod:`hil.logs.bounded`).
 
 ```toml
 [scenario]
@@ -69,9 +73,9 @@ settle_deg = 0.5               # the requirement the summary checks
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
+from hil.logs.bounded import MAX_DOCUMENT_BYTES, load_toml
 from protocol.errors import ConfigError, HilError
 
 from .model import Scenario
@@ -106,16 +110,13 @@ def load_scenario(name_or_path: str | Path = DEFAULT_SCENARIO) -> Scenario:
     """Read and check a scenario (see the module docstring); any error is a :class:`ConfigError` naming
     the file and key."""
     path = resolve_scenario_path(name_or_path)
-    return parse_scenario(read_text(path), path)
+    return parse_scenario(read_text(path, limit=MAX_DOCUMENT_BYTES), path)
 
 
 def parse_scenario(text: str, path: Path | None = None) -> Scenario:
     """:func:`load_scenario` on TOML text (``path`` only names the source in errors)."""
     where = path.name if path is not None else "<scenario>"
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"not valid TOML: {exc}", where) from None
+    doc = load_toml(text, where)
     reader = _Reader(doc, where)
     try:
         return reader.scenario(text, path)

@@ -89,8 +89,72 @@ BOARD_RANGES: dict[str, tuple[float, float, type]] = {
 error names the scenario's file and key; the board's own check (``firmware_sim.config.BoardConfig``)
 agrees (tests/test_scenario_checks.py)."""
 MAX_DURATION_S = 86_400.0
+"""The longest run a scenario may ask for, warm-up included (a day of simulated time)."""
+MAX_PLANT_STEPS = 100_000_000
+"""The most plant steps a run may take (its warm-up and duration over ``plant_step_s``): a day at 1 ms is
+86.4 million. A lockstep run takes a few hours for that many; more is a run that never ends."""
 MIN_SKEW_DEG = 5.0
 MAX_ANGLE_DEG = 360.0
+
+RANGES: dict[str, tuple[float, float, str]] = {
+    "spacecraft.rotor_offset_m": (-0.1, 0.1, "m"),
+    "spacecraft.nominal_rotor_speed": (1.0, 2_000.0, "rad/s"),
+    "spacecraft.bus_inertia": (-1e3, 1e3, "kg m²"),
+    "array.gimbal_axes": (-1e3, 1e3, ""),
+    "array.spin_axes": (-1e3, 1e3, ""),
+    "sensors.gravity": (0.1, 100.0, "m/s²"),
+    "sensors.field_enu_uT": (-1e4, 1e4, "µT"),
+    "sensors.*.rate_hz": (1.0, 1_000.0, "Hz"),
+    "sensors.*.noise": (0.0, 1e3, "(the sensor's unit)"),
+    "sensors.*.bias": (0.0, 1e3, "(the sensor's unit)"),
+    "sensors.*.jitter_s": (0.0, 0.1, "s"),
+    "sensors.*.offset_s": (0.0, 10.0, "s"),
+    "controller.control_rate_hz": (1.0, 490.0, "Hz"),
+    "controller.plant_step_s": (1e-5, 1e-3, "s"),
+    "controller.natural_frequency": (1e-3, 100.0, "rad/s"),
+    "controller.damping": (1e-3, 10.0, ""),
+    "controller.null_gain": (0.0, 100.0, "1/s"),
+    "controller.wheel_weight": (0.0, 1e6, ""),
+    "controller.mu": (0.0, 1e6, ""),
+    "controller.warmup_s": (0.0, 600.0, "s"),
+    "manoeuvre.angle_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
+    "manoeuvre.initial_angle_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
+    "manoeuvre.axis": (-1e6, 1e6, ""),
+    "manoeuvre.initial_axis": (-1e6, 1e6, ""),
+    "manoeuvre.max_rate": (1e-4, 10.0, "rad/s"),
+    "manoeuvre.max_accel": (1e-5, 100.0, "rad/s²"),
+    "manoeuvre.gimbal_angles_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
+    "manoeuvre.settle_deg": (1e-3, 180.0, "deg"),
+}
+"""Every number a scenario may set (``sensors.*`` for each of gyr, acc and mag; a vector's or matrix's
+every element), and its bounds, inclusive — besides ``scenario.duration_s`` (positive, at most
+:data:`MAX_DURATION_S` with the warm-up, at most :data:`MAX_PLANT_STEPS` plant steps:
+:func:`check_run_length`), ``array.skew_deg`` (:data:`MIN_SKEW_DEG` from 0 and 90 deg) and
+``array.units`` (2..8), checked with their reasons. Wide enough for any spacecraft and phone the
+project models (a 1U CubeSat to an air-bearing table; phone sensors to 1 kHz), narrow enough that no value
+makes a run that cannot end or cannot be simulated (a plant step of 1e-12 s, a warm-up of 1e9 s). Checked
+as the file is read: an error names the file and the key. The board's options have their own,
+:data:`BOARD_RANGES`."""
+
+
+def check_run_length(warmup_s: float, duration_s: float, plant_step_s: float, where: str) -> None:
+    """Refuse a run whose simulated length (warm-up and duration) exceeds :data:`MAX_DURATION_S`, or
+    that would take more than :data:`MAX_PLANT_STEPS` plant steps: a :class:`ConfigError` at ``where``
+    (the file and key, or the option, that set the duration)."""
+    length = warmup_s + duration_s
+    if not (math.isfinite(length) and length <= MAX_DURATION_S):
+        raise ConfigError(
+            f"the run's simulated length, warm-up {warmup_s:g} s + duration {duration_s:g} s, must be at "
+            f"most {MAX_DURATION_S:g} s",
+            where,
+        )
+    steps = length / plant_step_s
+    if steps > MAX_PLANT_STEPS:
+        raise ConfigError(
+            f"{length:g} s at a plant step of {plant_step_s:g} s is {steps:.3g} plant steps, more than "
+            f"{MAX_PLANT_STEPS:.0e}: shorten the run or lengthen controller.plant_step_s",
+            where,
+        )
 
 
 class _Reader:
@@ -122,12 +186,26 @@ class _Reader:
     def number(
         self, tbl: dict[str, Any], table: str, key: str, default: float, positive: bool = True
     ) -> float:
+        """A number at ``table.key`` (``default`` when absent): finite, positive unless told otherwise, and
+        within its :data:`RANGES`."""
         value = tbl.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
             raise self.error(f"{table}.{key}", f"must be a number, got {value!r}")
         if positive and value <= 0:
             raise self.error(f"{table}.{key}", f"must be positive, got {value!r}")
+        self.in_range(table, key, value)
         return float(value)
+
+    def in_range(self, table: str, key: str, value: float) -> None:
+        """Refuse ``value`` outside the :data:`RANGES` of ``table.key`` (``sensors.<kind>`` as
+        ``sensors.*``)."""
+        pattern = "sensors.*" if table.startswith("sensors.") else table
+        bounds = RANGES.get(f"{pattern}.{key}")
+        if bounds is not None and not bounds[0] <= value <= bounds[1]:
+            lo, hi, unit = bounds
+            raise self.error(
+                f"{table}.{key}", f"must be within {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {value!r}"
+            )
 
     def vector(self, tbl: dict[str, Any], table: str, key: str, shape: tuple[int, ...]) -> np.ndarray:
         try:
@@ -136,6 +214,8 @@ class _Reader:
             raise self.error(f"{table}.{key}", f"must be numbers, got {tbl[key]!r}") from None
         if arr.shape != shape or not np.all(np.isfinite(arr)):
             raise self.error(f"{table}.{key}", f"must be finite numbers of shape {shape}, got {tbl[key]!r}")
+        for element in arr.ravel():
+            self.in_range(table, key, float(element))
         return arr
 
     def choice(self, tbl: dict[str, Any], table: str, key: str, options: tuple[str, ...]) -> str:
@@ -158,6 +238,7 @@ class _Reader:
         duration = self.number(head, "scenario", "duration_s", 40.0)
         if duration > MAX_DURATION_S:
             raise self.error("scenario.duration_s", f"must be at most {MAX_DURATION_S:g} s, got {duration!r}")
+        check_run_length(loop.warmup_s, duration, loop.plant_step_s, f"{self.where}: scenario.duration_s")
         slew, settle = self.manoeuvre(spacecraft, duration)
         board = self.options("board")
         for key, value in board.items():
@@ -206,10 +287,12 @@ class _Reader:
             changes["nominal_rotor_speed"] = self.number(sc, "spacecraft", "nominal_rotor_speed", 0.0)
         if "bus_inertia" in sc:
             raw = np.asarray(sc["bus_inertia"], dtype=float) if _numeric(sc["bus_inertia"]) else None
-            if raw is None or raw.shape not in ((3,), (3, 3)):
+            if raw is None or raw.shape not in ((3,), (3, 3)) or not np.all(np.isfinite(raw)):
                 raise self.error(
                     "spacecraft.bus_inertia", "must be 3 diagonal values or a 3x3 matrix (kg m²)"
                 )
+            for element in raw.ravel():
+                self.in_range("spacecraft", "bus_inertia", float(element))
             try:
                 changes["bus_inertia"] = tuple(map(tuple, inertia_tensor(raw, "bus_inertia")))
             except ConfigError as exc:
@@ -250,8 +333,10 @@ class _Reader:
                 if key not in arr:
                     raise self.error(f"array.{key}", "required for a custom geometry")
             g = np.asarray(arr["gimbal_axes"], dtype=float)
-            if g.ndim != 2 or g.shape[1] != 3 or not 1 <= len(g) <= 8:
-                raise self.error("array.gimbal_axes", "must be 1..8 vectors of 3 numbers")
+            if g.ndim != 2 or g.shape[1] != 3 or not 1 <= len(g) <= 8 or not np.all(np.isfinite(g)):
+                raise self.error("array.gimbal_axes", "must be 1..8 vectors of 3 finite numbers")
+            for element in g.ravel():
+                self.in_range("array", "gimbal_axes", float(element))
             s = self.vector(arr, "array", "spin_axes", g.shape)
             return geometry.custom_array(g, s, template=template)
         except (ConfigError, ValueError) as exc:
@@ -300,14 +385,16 @@ class _Reader:
             null_gain=self.number(c, "controller", "null_gain", base.steering.null_gain, False),
         )
         rate = self.number(c, "controller", "control_rate_hz", base.control_rate_hz)
+        step = self.number(c, "controller", "plant_step_s", base.plant_step_s)
+        warmup = self.number(c, "controller", "warmup_s", base.warmup_s, positive=False)
         try:
             return LoopConfig(
-                plant_step_s=self.number(c, "controller", "plant_step_s", base.plant_step_s),
+                plant_step_s=step,
                 control_rate_hz=rate,
                 frame_rate_hz=max(rate, base.frame_rate_hz),
                 gains=gains,
                 steering=steering,
-                warmup_s=self.number(c, "controller", "warmup_s", base.warmup_s, positive=False),
+                warmup_s=warmup,
             )
         except ConfigError as exc:
             raise self.error("controller", str(exc)) from None

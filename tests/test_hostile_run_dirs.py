@@ -1,0 +1,185 @@
+"""A run directory's files damaged or hostile — one deeply nested events line, a nested or oversized
+summary.json, a summary whose values are not what a run writes, a telemetry file that never ends its line,
+binary bytes — into the readers' real entry points: ``hil report`` (as a process), ``hil gcs``'s source
+and its server, :mod:`hil.runtime.runlog`. A damaged line is dropped and counted, a damaged summary is
+reported as such; nothing dies, and memory stays bounded by what the files really hold."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import tracemalloc
+from pathlib import Path
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hil.gcs import GroundStation, RunDirSource
+from hil.runtime.runlog import read_events, read_telemetry
+
+MB = 1 << 20
+NESTED = "[" * 100_000 + "]" * 100_000  # a JSON line nested 100 000 deep: a RecursionError in json.loads
+SUMMARY = {"exit": "completed", "mode": "lockstep", "link": {"frames_in": 9, "rtt": {"p99_ms": 1.5}}}
+
+
+def run_dir(d: Path, rows: int = 20, events: str = "", summary: str | None = None) -> Path:
+    """A small run directory: telemetry rows, an events log of one good event (then ``events``), and a
+    summary.json (``summary`` as given, or a good one)."""
+    d.mkdir(parents=True, exist_ok=True)
+    lines = "".join(f"{k / 50},1,{30 - k}\n" for k in range(rows))
+    (d / "telemetry.csv").write_text("t,phase,point_err_deg\n" + lines)
+    (d / "events.jsonl").write_text('{"t": 0.0, "kind": "armed"}\n' + events)
+    (d / "summary.json").write_text(json.dumps(SUMMARY) if summary is None else summary)
+    return d
+
+
+def hil(*argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "hil", *argv], capture_output=True, text=True, timeout=300)
+
+
+# --------------------------------------------------------------------------- hil report
+def test_hil_report_drops_and_counts_a_deeply_nested_events_line(tmp_path):
+    d = run_dir(tmp_path / "run", events=f'{{"t": 1, "kind": {NESTED}}}\n{{"t": 2.0, "kind": "disarmed"}}\n')
+    done = hil("report", str(d), "--no-plots")
+    assert done.returncode == 0, done.stderr
+    assert "20 telemetry rows, 2 events" in done.stdout
+    assert "0 telemetry lines, 1 event lines (dropped)" in done.stdout
+
+
+def test_hil_report_says_a_nested_summary_is_damaged_and_goes_on(tmp_path):
+    nested = json.dumps({"exit": "completed", "faults": json.loads("[" * 40 + "]" * 40)})
+    d = run_dir(tmp_path / "run", summary=nested)
+    done = hil("report", str(d))
+    assert done.returncode == 0, done.stderr
+    assert "summary.json damaged (JSON nested deeper than 32 levels at faults" in done.stdout
+    deeper = run_dir(tmp_path / "deeper", summary='{"exit": ' + NESTED + "}")
+    done = hil("report", str(deeper), "--no-plots")
+    assert done.returncode == 0 and "summary.json damaged (JSON nested deeper" in done.stdout, done.stderr
+
+
+def test_hil_report_says_a_summary_of_the_wrong_shapes_is_damaged(tmp_path):
+    """A fault without its time (the ``KeyError: 't'`` a hostile summary gave) and a tasks list."""
+    shapes = {**SUMMARY, "faults": [{"kind": "stall"}], "tasks": ["control"]}
+    d = run_dir(tmp_path / "run", summary=json.dumps(shapes))
+    done = hil("report", str(d), "--no-plots")
+    assert done.returncode == 0, done.stderr
+    assert "summary.json damaged (a value is not what a run writes: KeyError: 't')" in done.stdout
+
+
+def test_hil_report_of_a_telemetry_without_a_time_column_is_one_line_naming_it(tmp_path):
+    d = tmp_path / "run"
+    d.mkdir()
+    (d / "telemetry.csv").write_text("x,y\n1,2\n")
+    done = hil("report", str(d))
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"hil report: error: {d / 'telemetry.csv'}:1: no 't' column: not a run's telemetry"
+    ]
+
+
+# --------------------------------------------------------------------------- hil gcs RUN_DIR
+def _stream_until_finished(station: GroundStation) -> list[dict]:
+    """Every message of the station's event stream until the run directory is read to its end."""
+    with socket.create_connection(("127.0.0.1", station.port), timeout=20) as s:
+        s.sendall(f"GET /api/stream?token={station.token} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n".encode())
+        data = b""
+        while b'"state":"finished"' not in data:
+            chunk = s.recv(65536)
+            assert chunk, data[-300:]
+            data += chunk
+    body = data.partition(b"\r\n\r\n")[2].decode()
+    messages = []
+    for block in body.split("\n\n"):
+        if block.startswith("event:"):
+            kind = block.split("\n")[0].removeprefix("event: ")
+            messages.append({"kind": kind, "data": json.loads(block.split("data: ", 1)[1])})
+    return messages
+
+
+def test_hil_gcs_streams_a_run_directory_with_a_nested_events_line_and_a_nested_summary(tmp_path):
+    d = run_dir(
+        tmp_path / "run",
+        events=f"{NESTED}\n" + '{"t": 0.5, "kind": "spin_up"}\n',
+        summary=json.dumps({"exit": "completed", "link": json.loads('{"a": ' * 40 + "1" + "}" * 40)}),
+    )
+    with GroundStation.replay(d, bind="127.0.0.1:0") as station:
+        messages = _stream_until_finished(station)
+    status = [m["data"] for m in messages if m["kind"] == "status"][-1]
+    assert status["state"] == "finished" and status["bad_events"] == 1
+    assert "unreadable summary: JSON nested deeper than 32 levels" in status["exit"]
+    events = [e for m in messages if m["kind"] == "events" for e in m["data"]]
+    assert [e["kind"] for e in events] == ["armed", "spin_up"]
+    rows = [r for m in messages if m["kind"] == "rows" for r in m["data"]["rows"]]
+    assert len(rows) == 20
+
+
+def test_following_a_300_mb_telemetry_line_holds_at_most_a_line(tmp_path):
+    d = tmp_path / "run"
+    d.mkdir()
+    with (d / "telemetry.csv").open("wb") as f:
+        f.write(b"t,phase,point_err_deg\n0.0,1,30\n")
+        block = b"0.02,1,29," * (MB // 10)  # never a line break
+        for _ in range(300):
+            f.write(block)
+    source = RunDirSource(d, follow=False)
+    tracemalloc.start()
+    try:
+        rows = 0
+        for _ in range(200):
+            batch = source.poll()
+            rows += len(batch.rows)
+            if batch.status and batch.status["state"] == "read":
+                break
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert rows == 1 and source.bad_rows == 1 and batch.status["state"] == "read"
+    assert peak < 24 * MB, f"{peak / MB:.0f} MB traced"
+
+
+# --------------------------------------------------------------------------- the run log's readers
+def test_read_telemetry_streams_and_drops_a_line_that_never_ends(tmp_path):
+    path = tmp_path / "telemetry.csv"
+    with path.open("wb") as f:
+        f.write(b"t,x\n0.0,1.0\n")
+        for _ in range(64):
+            f.write(b"1," * (MB // 2))
+        f.write(b"\n0.1,2.0\n\xff\xfe,3\n0.2,\n")
+    tracemalloc.start()
+    try:
+        tel = read_telemetry(path)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert tel.rows == 3 and tel.dropped_lines == 2 and list(tel["x"][:2]) == [1.0, 2.0]
+    assert peak < 16 * MB, f"{peak / MB:.0f} MB traced"
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    lines=st.lists(
+        st.one_of(
+            st.binary(max_size=200),
+            st.builds(lambda n: b"[" * n, st.integers(0, 5000)),
+            st.builds(lambda n: b'{"t": 1, "a": ' * n + b"1" + b"}" * n, st.integers(0, 100)),
+            st.sampled_from([b'{"t": 0.0, "kind": "armed"}', b"[]", b"null", b'"x"', b"", b"\x00" * 50]),
+        ),
+        max_size=20,
+    ),
+    long_line=st.booleans(),
+)
+def test_any_events_log_is_read_line_by_line_with_every_damaged_line_counted(tmp_path, lines, long_line):
+    """Random lines: each is an event (a JSON object nested at most 32 deep) or one counted drop."""
+    from hil.runtime.runlog import count_events
+
+    path = tmp_path / "events.jsonl"
+    body = b"\n".join(lines) + b"\n"
+    if long_line:
+        body += b"x" * (MB + 10) + b"\n"
+    path.write_bytes(body)
+    events, bad = read_events(path)
+    assert all(isinstance(e, dict) for e in events)
+    assert count_events(path) == (len(events), bad)
+    assert len(events) + bad == len(body.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")) - 1
