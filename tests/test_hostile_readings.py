@@ -18,6 +18,8 @@ import time
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from hil.estimation.admission import PhoneGuard, Verdict
+from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.phone_udp import PhoneUdpReceiver
 from hil.montecarlo.runner import fault_bounds
 from hil.runtime import RunOptions, run
@@ -141,3 +143,31 @@ def test_the_issues_readings_each_leave_the_run_alone():
     assert s["phone_restarts"] == 0
     assert not [e for e in recorder.events if e["kind"] in ("recovery_start", "phone_jump", "phone_restart")]
     assert check_run([], recorder, fault_bounds(sc)).ok
+
+
+def _stream(guard: PhoneGuard, t0: float, n: int, dt: float) -> list[Verdict]:
+    """``n`` gyro readings from ``t0`` every ``dt`` seconds into ``guard``; their verdicts."""
+    return [guard.admit(SensorSample(t0 + k * dt, SensorKind.GYR, (0.0, 0.0, 0.1))) for k in range(n)]
+
+
+@given(
+    ahead=st.floats(2.0, 1e10),
+    further=st.floats(2.0, 1e10),
+    copies=st.integers(1, 40),
+    side=st.sampled_from([-1, 1]),
+)
+@settings(max_examples=200, deadline=None)
+def test_strays_at_far_stamps_never_pass_for_a_moved_clock(ahead, further, copies, side):
+    """Copies of strays at one or two far stamps (the soak's hostile cycle sent 100 s ahead and 1e18 ns,
+    five times each, and they were taken for a phone whose clock jumped): dropped and counted, the clock
+    kept; then a stream that really moved (50 Hz from a far stamp) re-anchors it once."""
+    guard = PhoneGuard()
+    _stream(guard, 10.0, 50, 0.02)
+    newest = guard.newest
+    strays = [newest + side * ahead] * copies + [newest + side * (ahead + further)] * copies
+    verdicts = [guard.admit(SensorSample(t, SensorKind.GYR, (0.0, 0.0, 0.1))) for t in strays]
+    assert set(verdicts) == {Verdict.DROP} and guard.newest == newest
+    assert sum(guard.stats.dropped.values()) == 2 * copies
+    moved = _stream(guard, newest + side * ahead, 20, 0.02)
+    assert moved.count(Verdict.RESTART if side < 0 else Verdict.JUMP) == 1
+    assert guard.stats.restarts + guard.stats.jumps == 1

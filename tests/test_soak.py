@@ -31,6 +31,7 @@ def _soak(tmp_path: Path, *args: str) -> dict:  # type: ignore[type-arg]
         text=True,
         timeout=900,
     )
+    assert out.exists(), f"the soak wrote no report (exit {done.returncode}):\n{done.stderr[-3000:]}"
     report = json.loads(out.read_text())
     failed = [c for c in report["cycles"] if not c["survived"]]
     assert not failed, "\n".join(f"{c['kind']} at {c['t_fault']:.2f} s: {c['problems']}" for c in failed)

@@ -25,10 +25,11 @@ reason              the reading
 **The clock guard.** A stream whose clock really moved — an app restarted (its clock back at zero), a
 phone whose clock was stepped — is *re-anchored*, never on one reading: only after
 :data:`REANCHOR_READINGS` readings in a row stamped beyond :data:`JUMP_S` on the same side of the newest,
-going forward and spanning at least :data:`REANCHOR_SPAN_S` of their own clock (a stream, not a burst of
-strays). :meth:`PhoneGuard.admit` then answers ``RESTART`` (backwards) or ``JUMP`` (forwards): the caller
-starts the estimator afresh from the measurements instead of integrating across the jump, and warms up
-again. Readings the guard dropped before it re-anchored are counted (``past`` / ``future``).
+going forward, each within :data:`JUMP_S` of the one before, and spanning at least :data:`REANCHOR_SPAN_S`
+of their own clock (a stream, not a burst of strays: copies of one far stamp span nothing, and strays at
+two far stamps — 100 s ahead, then 10⁹ s ahead — are two runs, not one). :meth:`PhoneGuard.admit`
+then answers ``RESTART`` (backwards) or ``JUMP`` (forwards): the caller starts the estimator afresh from
+the measurements instead of integrating across the jump, and warms up again. Readings the guard dropped before it re-anchored are counted (``past`` / ``future``).
 """
 
 from __future__ import annotations
@@ -114,7 +115,7 @@ class PhoneGuard:
         ahead = newest + JUMP_S + (0.0 if now is None else max(now - self._newest_at, 0.0))
         if newest > -math.inf and (t < newest - JUMP_S or t > ahead):
             side = -1 if t < newest else 1
-            if self._run_side != side or t < self._run_last:
+            if self._run_side != side or not self._run_last <= t <= self._run_last + JUMP_S:
                 self._run_side, self._run_count, self._run_first = side, 0, t  # (re)start the run
             self._run_count += 1
             self._run_last = t
