@@ -45,6 +45,11 @@ class PhoneRelay:
         """Drop everything for ``seconds`` from now (monotonic)."""
         self._paused_until = time.monotonic() + seconds
 
+    def stop_forwarding(self) -> None:
+        """Forward nothing more (what comes is counted ``dropped``): the soak's end, before the host closes
+        its receiver, so every datagram counted ``forwarded`` reached a listening host."""
+        self._paused_until = float("inf")
+
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5.0)

@@ -37,6 +37,7 @@ from hil.scenario import load_scenario
 
 START_S = 90.0  # firmware-sim's world and the host's first slew, at most (a loaded machine)
 HOSTILE_WATCH_S = 1.5  # after a hostile burst: nothing may happen for this long
+RELAY_DRAIN_S = 0.5  # s: the relay's last datagrams, read by the host before the soak ends its run
 HOSTILE_REPEAT = 5  # each hostile datagram sent this many times a cycle
 
 
@@ -168,6 +169,8 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
                 c.problems.append(f"not steering again within {STEER_S[mode] + 2.0} s (a hang?)")
             _wait(lambda: rec.start is not None and rec.start.host.in_control, BACK_S[mode])
     finally:
+        relay.stop_forwarding()
+        time.sleep(RELAY_DRAIN_S)  # the host reads what is on its way before it is told to stop
         rec.abort = "soak done"
         thread.join(timeout=60.0)
         stack.close()
