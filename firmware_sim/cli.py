@@ -76,10 +76,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="run the board firmware on simavr instead of the emulator (default: firmware/build/*.elf)",
     )
     p.add_argument(
-        "--eeprom", metavar="FILE",
+        "--eeprom",
+        metavar="FILE",
         help="with --avr: the board's EEPROM, loaded and saved back (a stored configuration wins over the "
         "board options)",
-    )  # fmt: skip
+    )
     p.add_argument(
         "--can",
         metavar="INTERFACE/CHANNEL[?OPTIONS]",

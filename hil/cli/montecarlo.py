@@ -201,9 +201,13 @@ def run(args: argparse.Namespace) -> int:
         scenario = scenario.with_changes(slew=replace(scenario.slew, duration_s=args.duration))
     dispersions = load_dispersions(args.dispersions, scenario)
     campaign = Campaign(
-        scenario, dispersions, args.runs, scenario.seed if args.seed is None else args.seed, args.batch,
+        scenario,
+        dispersions,
+        args.runs,
+        scenario.seed if args.seed is None else args.seed,
+        args.batch,
         args.trace_hz,
-    )  # fmt: skip
+    )
     bar = ProgressBar()
     with open_client(args.scheduler, args.workers) as client:
         out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")

@@ -68,38 +68,54 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument("--port", metavar="URL", help="board transport (default: the built-in emulator)")
     p.add_argument("--scenario", default="cubesat-1u", metavar="NAME|FILE", help="default cubesat-1u")
     p.add_argument(
-        "--duration", type=seconds, metavar="S",
+        "--duration",
+        type=seconds,
+        metavar="S",
         help="run this long after the slew starts (default: the scenario's duration_s)",
-    )  # fmt: skip
+    )
     timing = p.add_mutually_exclusive_group()
     timing.add_argument("--realtime", action="store_true", help="wall clock (default with --port)")
     timing.add_argument("--lockstep", action="store_true", help="simulated time (default without --port)")
     p.add_argument(
-        "--phone", default="udp://127.0.0.1:8123", metavar="URL",
+        "--phone",
+        default="udp://127.0.0.1:8123",
+        metavar="URL",
         help="with --port: listen for the phone here (udp://HOST:PORT: SensaGram, the default "
         "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md)",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--phone-wait", type=seconds, default=10.0, metavar="S",
+        "--phone-wait",
+        type=seconds,
+        default=10.0,
+        metavar="S",
         help="with --port: wait S s for the phone's first samples (default %(default)g s)",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--recover-within", type=seconds, default=15.0, metavar="S",
+        "--recover-within",
+        type=seconds,
+        default=15.0,
+        metavar="S",
         help="a board outage (or phone gap) longer than S s ends the run as lost, exit status 3 "
         "(default %(default)g s)",
-    )  # fmt: skip
+    )
     p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
     p.add_argument(
-        "--gcs", nargs="?", const="", default=None, metavar="HOST:PORT",
+        "--gcs",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="HOST:PORT",
         help="serve a ground-station page for the run (default 127.0.0.1:8470; its URL, with an access "
         "token, is printed at start; docs/gcs.md)",
-    )  # fmt: skip
+    )
     p.add_argument(
-        "--pace", type=float, metavar="X",
+        "--pace",
+        type=float,
+        metavar="X",
         help="lockstep at most X times as fast as the wall clock (1: real time; default with --gcs: 1, "
         "0: as fast as it goes)",
-    )  # fmt: skip
+    )
     p.set_defaults(func=run)
 
 
@@ -146,17 +162,25 @@ def run(args: argparse.Namespace) -> int:
             args.pace if args.pace is not None else (1.0 if args.gcs is not None and lockstep_run else None)
         )
         opts = RunOptions(
-            port=args.port, lockstep=lockstep, duration_s=args.duration, out_root=args.out,
-            phone=args.phone, phone_wait_s=args.phone_wait, progress=LiveProgress(), pace=pace or None,
+            port=args.port,
+            lockstep=lockstep,
+            duration_s=args.duration,
+            out_root=args.out,
+            phone=args.phone,
+            phone_wait_s=args.phone_wait,
+            progress=LiveProgress(),
+            pace=pace or None,
             recover_within_s=args.recover_within,
-        )  # fmt: skip
+        )
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
         if args.port is None:
             from hil.runtime import warmup
 
             if warmup.needed():
-                print("compiling the simulation kernels (once after an install or an edit of them)",
-                      file=sys.stderr)  # fmt: skip
+                print(
+                    "compiling the simulation kernels (once after an install or an edit of them)",
+                    file=sys.stderr,
+                )
         if args.gcs is not None:
             station = start_station(args.gcs)
             opts.observer = station.observer
@@ -214,7 +238,7 @@ class Plotter:
             stderr=subprocess.PIPE,
             text=True,
             start_new_session=True,
-        )  # fmt: skip — its own session: a Ctrl-C ends the run (whose plots are still drawn), not it
+        )  # its own session: a Ctrl-C ends the run (whose plots are still drawn), not it
 
     def draw(self, run_dir: Path) -> None:
         assert self.process.stdin is not None
@@ -252,8 +276,9 @@ def start_station(bind: str):  # type: ignore[no-untyped-def]
     if not station.loopback:
         print(
             f"ground station: listening on {station.host}, not only this machine: anyone who reaches it "
-            "with the token can command the board", file=sys.stderr,
-        )  # fmt: skip
+            "with the token can command the board",
+            file=sys.stderr,
+        )
     sys.stderr.flush()
     return station
 
@@ -336,8 +361,10 @@ def fault_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
         episodes = s.get(key) or []
         for o in episodes[:MAX_FAULT_LINES]:
             end = "not back" if o["end"] is None else f"back at {o['end']:.3f} s"
-            lines.append(f"  {name:<6} t {o['start']:8.3f} s  for {o['duration_s']:6.2f} s  {end}  "
-                         f"({', '.join(o['causes'])})")  # fmt: skip
+            lines.append(
+                f"  {name:<6} t {o['start']:8.3f} s  for {o['duration_s']:6.2f} s  {end}  "
+                f"({', '.join(o['causes'])})"
+            )
         if len(episodes) > MAX_FAULT_LINES:
             lines.append(f"  ... and {len(episodes) - MAX_FAULT_LINES} more {name}s (summary.json)")
     return lines

@@ -96,8 +96,15 @@ class SteeringParams:
     damping: float = 1e-3
 
     def __post_init__(self) -> None:
-        for name in ("wheel_weight", "mu", "gimbal_weight", "null_gain", "speed_gain", "singular_eps",
-                     "damping"):  # fmt: skip
+        for name in (
+            "wheel_weight",
+            "mu",
+            "gimbal_weight",
+            "null_gain",
+            "speed_gain",
+            "singular_eps",
+            "damping",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"must be finite and non-negative, got {v!r}", f"SteeringParams.{name}")
@@ -185,11 +192,29 @@ class VscmgSteering:
         L, gam, w = self._rows(torque), self._rows(gimbal_angle), self._rows(rotor_speed)
         b, n = gam.shape
         out = SteeringOutput(
-            np.empty((b, n)), np.empty((b, n)), np.empty((b, 3)), np.empty(b), np.empty((b, n)), np.empty(b),
+            np.empty((b, n)),
+            np.empty((b, n)),
+            np.empty((b, 3)),
+            np.empty(b),
+            np.empty((b, n)),
+            np.empty(b),
             np.empty(b, np.int64),
-        )  # fmt: skip
-        solve_rows(self._kp, self._geom, L, gam, w, float(dt), out.gimbal_rate, out.rotor_accel, out.torque,
-                   out.delta, out.wheel_weight, out.scale, out.saturation)  # fmt: skip
+        )
+        solve_rows(
+            self._kp,
+            self._geom,
+            L,
+            gam,
+            w,
+            float(dt),
+            out.gimbal_rate,
+            out.rotor_accel,
+            out.torque,
+            out.delta,
+            out.wheel_weight,
+            out.scale,
+            out.saturation,
+        )
         return out
 
     def _rows(self, a: ArrayLike) -> Array:

@@ -24,7 +24,7 @@ PHONE_LABELS = tuple(k.label for k in KINDS)
 LIVE_COLUMNS = (
     *(f"phone_rate_{k}" for k in PHONE_LABELS),
     *(f"phone_age_ms_{k}" for k in PHONE_LABELS),
-)  # fmt: skip
+)
 """What a live run adds to telemetry.csv's columns for the page: each phone sensor's sample rate (Hz, over
 the last second) and the age of its newest sample (ms, on the host's clock). (The board's power, UBEC,
 watchdog, faults and mode, the host-side age of its telemetry and the host's view of the board are
@@ -53,8 +53,9 @@ def units_of(scenario: Scenario) -> list[dict[str, list[float]]]:
     out = []
     for u in scenario.spacecraft.units:
         g, s0 = np.asarray(u.gimbal_axis, float), np.asarray(u.spin_axis, float)
-        out.append({"g": g.tolist(), "s0": s0.tolist(), "t0": np.cross(g, s0).tolist(),
-                    "p": list(u.position_m)})  # fmt: skip
+        out.append(
+            {"g": g.tolist(), "s0": s0.tolist(), "t0": np.cross(g, s0).tolist(), "p": list(u.position_m)}
+        )
     return out
 
 
@@ -89,9 +90,15 @@ def units_from_columns(columns: Sequence[str]) -> int:
 
 
 def info(
-    *, mode: str, run: str, columns: Sequence[str], uplink: bool, scenario: Scenario | None,
-    hold: bool = False, note: str = "",
-) -> dict[str, Any]:  # fmt: skip
+    *,
+    mode: str,
+    run: str,
+    columns: Sequence[str],
+    uplink: bool,
+    scenario: Scenario | None,
+    hold: bool = False,
+    note: str = "",
+) -> dict[str, Any]:
     """The whole ``info`` message. ``mode``: ``live`` or ``replay``."""
     out: dict[str, Any] = {
         "mode": mode,

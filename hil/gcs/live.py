@@ -97,9 +97,13 @@ class LiveFeed:
         host = start.host
         columns = list(host.columns) + list(run_info.LIVE_COLUMNS)
         description = run_info.info(
-            mode="live", run=start.run_dir.name if start.run_dir else "", columns=columns,
-            uplink=self.uplink is not None, scenario=host.scenario, hold=host.hold,
-        )  # fmt: skip
+            mode="live",
+            run=start.run_dir.name if start.run_dir else "",
+            columns=columns,
+            uplink=self.uplink is not None,
+            scenario=host.scenario,
+            hold=host.hold,
+        )
         description["clock"] = start.mode
         with self._lock:
             self._host = host
@@ -170,9 +174,11 @@ class LiveFeed:
             else:
                 t, stats = payload
                 batch.link.append({"t": t, **stats.as_dict()})
-        counters = {"feed_dropped_rows": self.stats.dropped_rows,
-                    "feed_dropped_events": self.stats.dropped_events,
-                    "uplink_rejected": 0 if self.uplink is None else self.uplink.stats.rejected}  # fmt: skip
+        counters = {
+            "feed_dropped_rows": self.stats.dropped_rows,
+            "feed_dropped_events": self.stats.dropped_events,
+            "uplink_rejected": 0 if self.uplink is None else self.uplink.stats.rejected,
+        }
         if batch.status is not None or counters != self._counters:
             self._counters = counters
             batch.status = {**(batch.status or self._status), **counters}

@@ -92,8 +92,15 @@ class RunDirSource:
         summary = self._summary()
         if summary is not None and summary.get("replay"):
             hold = True  # a recording drove the board: the target was the attitude held after warm-up
-        return run_info.info(mode="replay", run=self.run_dir.name, columns=columns, uplink=False,
-                             scenario=scenario, hold=hold, note=note)  # fmt: skip
+        return run_info.info(
+            mode="replay",
+            run=self.run_dir.name,
+            columns=columns,
+            uplink=False,
+            scenario=scenario,
+            hold=hold,
+            note=note,
+        )
 
     def _summary(self) -> dict[str, Any] | None:
         """The run's summary.json, or None before it is written; a damaged one (not a JSON object, larger

@@ -96,9 +96,13 @@ class GroundStation:
 
     @classmethod
     def replay(
-        cls, run_dir: str | os.PathLike[str], *, bind: str | None = None, token: str | None = None,
+        cls,
+        run_dir: str | os.PathLike[str],
+        *,
+        bind: str | None = None,
+        token: str | None = None,
         follow: bool = True,
-    ) -> GroundStation:  # fmt: skip
+    ) -> GroundStation:
         """A station showing a run directory (following it while another process writes it)."""
         return cls(RunDirSource(Path(run_dir), follow=follow), bind=bind, token=token)
 
@@ -119,8 +123,9 @@ class GroundStation:
             except OSError as exc:
                 if exc.errno == errno.EADDRINUSE and attempt + 1 < tries:
                     continue
-                raise LinkError(f"the ground station cannot listen on {host}:{port + attempt}: "
-                                f"{exc.strerror or exc}") from exc  # fmt: skip
+                raise LinkError(
+                    f"the ground station cannot listen on {host}:{port + attempt}: {exc.strerror or exc}"
+                ) from exc
         raise AssertionError("unreachable")
 
     # ------------------------------------------------------------------ what users see
@@ -143,14 +148,22 @@ class GroundStation:
     def stats(self) -> dict[str, Any]:
         """Counters: the hub's (bytes sent, streams, trimmed history), the server's (requests, rejections),
         the feed's drops, the uplink's, the pump's cycles."""
-        out: dict[str, Any] = {"hub": asdict(self.hub.stats), "server": self.server.counters(),
-                               "pump_cycles": self.pump_cycles}  # fmt: skip
+        out: dict[str, Any] = {
+            "hub": asdict(self.hub.stats),
+            "server": self.server.counters(),
+            "pump_cycles": self.pump_cycles,
+        }
         feed = self.source
         if isinstance(feed, LiveFeed):
             out["feed"] = asdict(feed.stats)
         if isinstance(feed, RunDirSource):
-            out["run_dir"] = {"rows": feed.rows, "events": feed.events, "bad_rows": feed.bad_rows,
-                              "bad_events": feed.bad_events, "finished": feed.finished}  # fmt: skip
+            out["run_dir"] = {
+                "rows": feed.rows,
+                "events": feed.events,
+                "bad_rows": feed.bad_rows,
+                "bad_events": feed.bad_events,
+                "finished": feed.finished,
+            }
         if self.uplink is not None:
             out["uplink"] = asdict(self.uplink.stats)
         return out

@@ -204,11 +204,14 @@ def open_client(
         raise ConfigError(f"must be at least 1, got {n}", "workers")
     with (
         LocalCluster(
-            n_workers=n, threads_per_worker=1, processes=processes, dashboard_address="127.0.0.1:0",
+            n_workers=n,
+            threads_per_worker=1,
+            processes=processes,
+            dashboard_address="127.0.0.1:0",
             silence_logs=logging.ERROR,
         ) as cluster,
         Client(cluster) as client,
-    ):  # fmt: skip
+    ):
         yield client
 
 

@@ -46,9 +46,16 @@ _SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_h
 
 
 def manifest(
-    scenario_name: str, scenario_text: str, dispersions_text: str, seed: int, duration_s: float,
-    trace_hz: float, samples: int, parameter_columns: Sequence[str], check_columns: Sequence[str] = (),
-) -> dict[str, Any]:  # fmt: skip
+    scenario_name: str,
+    scenario_text: str,
+    dispersions_text: str,
+    seed: int,
+    duration_s: float,
+    trace_hz: float,
+    samples: int,
+    parameter_columns: Sequence[str],
+    check_columns: Sequence[str] = (),
+) -> dict[str, Any]:
     """What identifies a campaign's results (a re-run into the same directory must match, except for the
     number of runs)."""
     return {
@@ -135,8 +142,10 @@ class ResultStore:
             self._traces.write(rec.tobytes())
             self._traces.flush()
         row: dict[str, float | int | str] = {
-            "index": result.index, "status": "ok" if result.ok else "failed", "error": result.error,
-        }  # fmt: skip
+            "index": result.index,
+            "status": "ok" if result.ok else "failed",
+            "error": result.error,
+        }
         row.update(result.columns)
         row.update(result.metrics)
         row.update(result.checks)

@@ -86,16 +86,32 @@ def plot_run(run_dir: str | Path) -> dict[str, Path]:
                 ax.set_title(f"{title} (peak {peak:.3g} rad/s, limit ±{limit:g} rad/s: off the scale)")
         out[name] = _save(fig, ax, out_dir / f"{name}.png")
 
-    figure("attitude_error", "Attitude estimation error (principal angle of Q = R R̂ᵀ)",
-           "attitude estimation error (deg)", ["est_err_deg"], "est err")  # fmt: skip
+    figure(
+        "attitude_error",
+        "Attitude estimation error (principal angle of Q = R R̂ᵀ)",
+        "attitude estimation error (deg)",
+        ["est_err_deg"],
+        "est err",
+    )
     figure("rate_error", "Angular velocity estimation error", "|Ω − Ω̂| (rad/s)", ["rate_err"], "rate err")
-    figure("pointing_error", "Pointing error (to the target) and tracking error (to the reference)",
-           "error (deg)", ["point_err_deg", "track_err_deg"], "", log=True)  # fmt: skip
+    figure(
+        "pointing_error",
+        "Pointing error (to the target) and tracking error (to the reference)",
+        "error (deg)",
+        ["point_err_deg", "track_err_deg"],
+        "",
+        log=True,
+    )
     figure("gimbal_angles", "Gimbal angles", "angle (rad)", _units(c, "gimbal_angle_"), "gimbal")
     figure("gimbal_rates", "Gimbal rates", "rate (rad/s)", _units(c, "gimbal_rate_"), "gimbal")
     figure("rotor_speeds", "Rotor speeds", "speed (rad/s)", _units(c, "rotor_speed_"), "rotor")
-    figure("pulse_widths", "Pulse widths on the board's outputs", "width (µs)",
-           _units(c, "pulse_gimbal_") + _units(c, "pulse_rotor_"), "pulse")  # fmt: skip
+    figure(
+        "pulse_widths",
+        "Pulse widths on the board's outputs",
+        "width (µs)",
+        _units(c, "pulse_gimbal_") + _units(c, "pulse_rotor_"),
+        "pulse",
+    )
     figure("battery", "Battery voltage", "voltage (V)", ["battery_v"], "battery")
     figure("delta", "Singularity measure δ", "δ", ["delta"], "δ")
     return out

@@ -44,7 +44,7 @@ _KEYS: dict[str, frozenset[str]] = {
             "mu",
             "warmup_s",
         }
-    ),  # fmt: skip
+    ),
     "board": frozenset(
         {"frame_rate", "telemetry_rate", "heartbeat_rate", "link_timeout", "mcu_watchdog", "cells", "soc"}
     ),
@@ -72,7 +72,7 @@ _KEYS: dict[str, frozenset[str]] = {
             "gimbal_angles_deg",
             "settle_deg",
         }
-    ),  # fmt: skip
+    ),
 }
 
 
