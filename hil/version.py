@@ -1,0 +1,56 @@
+"""Which ``hil`` this is: the installed package's version and, for a checkout, its git revision.
+
+A run directory and a campaign record both (:func:`describe`), so a result can be traced to the code that
+made it, and a campaign's workers can be checked to run the same code as its driver. ``hil --version``
+prints them.
+"""
+
+from __future__ import annotations
+
+import functools
+import subprocess
+from importlib import metadata
+from pathlib import Path
+
+DISTRIBUTION = "vscmg-hil"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@functools.cache
+def package_version() -> str:
+    """The installed distribution's version (``pyproject.toml``), or ``"unknown"`` when it is not
+    installed (the sources run from a copy)."""
+    try:
+        return metadata.version(DISTRIBUTION)
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+@functools.cache
+def source_revision() -> str | None:
+    """``git describe --always --dirty`` of the checkout the sources run from (``-dirty``: edited since
+    that commit), or None when they are not a git checkout or git is missing."""
+    try:
+        done = subprocess.run(
+            ["git", "describe", "--always", "--dirty"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=10.0,
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    if done.returncode != 0 or not (ROOT / ".git").exists():
+        return None
+    return done.stdout.strip() or None
+
+
+def describe() -> dict[str, str | None]:
+    """``{"version": ..., "revision": ...}``: for ``summary.json`` and a campaign's manifest."""
+    return {"version": package_version(), "revision": source_revision()}
+
+
+def version_line() -> str:
+    """What ``hil --version`` prints."""
+    revision = source_revision()
+    return f"hil (vscmg-hil) {package_version()}" + (f", revision {revision}" if revision else "")
