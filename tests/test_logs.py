@@ -277,3 +277,24 @@ def test_truncated_and_non_text_files_are_input_format_errors(tmp_path):
     bad.write_bytes(b"# vscmg-hil sensor log v1\nt_s,sensor,x,y,z,w\n\xff\xfe,gyr\n")
     with pytest.raises(InputFormatError, match="UTF-8"):
         read_log(bad)
+
+
+@pytest.mark.parametrize("folder", [TYREX, BROAD], ids=["tyrex", "broad"])
+def test_a_folder_of_trials_is_refused_with_one_trial_suggested(folder):
+    """``hil replay`` given the folder of a benchmark's trials, not one trial: the error names a trial to
+    replay and how many more there are (it said only "not a recognised log")."""
+    with pytest.raises(InputFormatError) as err:
+        read_log(folder)
+    message = str(err.value)
+    trials = sorted(p for p in folder.iterdir() if p.name not in ("trials.json", "LICENCE"))
+    assert f"replay one, e.g. {trials[0]}" in message and f"and {len(trials) - 1} more" in message
+    assert detect_format(trials[0]) in ("tyrex", "broad")
+
+
+def test_a_folder_of_other_things_gets_no_suggestion(tmp_path):
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "a.txt").write_text("hello\n")
+    (tmp_path / "b.csv").write_text("x,y\n1,2\n")
+    with pytest.raises(InputFormatError) as err:
+        read_log(tmp_path)
+    assert "not a recognised log" in str(err.value) and "replay one" not in str(err.value)

@@ -25,14 +25,45 @@ READERS: dict[str, ModuleType] = {m.NAME: m for m in (project_csv, sensorlogger,
 
 def detect_format(path: Path | str) -> str:
     """The format of ``path`` (see :data:`READERS`), or InputFormatError listing what was looked for."""
+    name = _recognise(Path(path))
+    if name is not None:
+        return name
     container = Container(Path(path))
-    for name, reader in READERS.items():
-        if reader.detect(container):
-            return name
+    inside = logs_inside(Path(path))
+    hint = ""
+    if inside:
+        more = f" and {len(inside) - 1} more" if len(inside) > 1 else ""
+        hint = f"; it holds logs: replay one, e.g. {inside[0]}{more}"
     raise InputFormatError(
-        f"not a recognised log (tried {', '.join(READERS)}; files: {', '.join(container.names()[:8])})",
+        f"not a recognised log (tried {', '.join(READERS)}; files: {', '.join(container.names()[:8])}){hint}",
         str(path),
     )
+
+
+MAX_PROBED = 64
+"""The most entries of a folder :func:`logs_inside` looks at (a folder of trials: BROAD's 39, tyrex's 20)."""
+
+
+def _recognise(path: Path) -> str | None:
+    """The format of ``path``, or None."""
+    container = Container(path)
+    return next((name for name, reader in READERS.items() if reader.detect(container)), None)
+
+
+def logs_inside(folder: Path) -> list[Path]:
+    """The entries of ``folder`` (the first :data:`MAX_PROBED`, by name) that are logs themselves: a folder
+    of trials given where one trial was meant. Empty when ``folder`` is not a folder; an entry that cannot
+    be read is passed over (the error is the folder's, not its entries')."""
+    if not folder.is_dir():
+        return []
+    found = []
+    for entry in sorted(folder.iterdir())[:MAX_PROBED]:
+        try:
+            if _recognise(entry) is not None:
+                found.append(entry)
+        except (InputFormatError, OSError):
+            continue
+    return found
 
 
 def read_log(path: Path | str, format: str | None = None) -> SensorLog:

@@ -13,16 +13,18 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from hil.estimation.metrics import AttitudeErrors
+from hil.plots.series import break_wraps, envelope, wrap_times
 
 if TYPE_CHECKING:
     from hil.logs.replay import ReplayResult
 
 
 def _figure(title: str, ylabel: str) -> tuple[Figure, Axes]:
-    """One 8 × 4 in axes with fixed margins (room for a title, the axis labels and 5-digit tick labels:
-    a tight layout costs a second drawing of every figure)."""
-    fig = Figure(figsize=(8, 4))
-    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.12, top=0.91)
+    """One 8 × 4 in axes with fixed margins (room for a title, the axis labels, 5-digit tick labels and,
+    right of the axes, the legend, which so never covers data: a tight layout costs a second drawing of
+    every figure)."""
+    fig = Figure(figsize=(10, 4))
+    fig.subplots_adjust(left=0.08, right=0.74, bottom=0.12, top=0.91)
     ax = fig.add_subplot()
     ax.set_xlabel("time (s)")
     ax.set_ylabel(ylabel)
@@ -38,8 +40,23 @@ def _shade(ax: Axes, intervals: list[tuple[float, float]], t0: float) -> None:
         ax.axvspan(a - t0, b - t0, color="tab:red", alpha=0.12, lw=0, label=label)
 
 
+def _line(
+    ax: Axes, t: np.ndarray, y: np.ndarray, label: str, period: float | None = None, **style: object
+) -> None:
+    """Draw ``y`` (N,) against ``t`` (N,) s: a long series as its bins' means with their min/max band
+    (:func:`hil.plots.series.envelope`), an angle with ``period`` cut where it wraps around."""
+    env = envelope(t, y, period=period)
+    if env is None:
+        if period is not None:
+            t, y = wrap_times(t, y, period), break_wraps(y, period)
+        ax.plot(t, y, label=label, **style)  # type: ignore[arg-type]
+        return
+    (line,) = ax.plot(env.t, env.mean, label=label, **style)  # type: ignore[arg-type]
+    ax.fill_between(env.t, env.low, env.high, color=line.get_color(), alpha=0.25, lw=0)
+
+
 def _save(fig: Figure, ax: Axes, path: Path) -> Path:
-    ax.legend(loc="upper right")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
     FigureCanvasAgg(fig)
     fig.savefig(path, dpi=110)
     return path
@@ -57,9 +74,9 @@ def plot_attitude_error(
     the ``rejected`` intervals (s, on the clock ``t`` is on less ``t0``) shaded."""
     fig, ax = _figure(title or "Attitude estimation error", "attitude estimation error (deg)")
     _shade(ax, rejected or [], t0)
-    ax.plot(t, errors.total, lw=1.0, label="principal angle of Q = R R̂ᵀ")
-    ax.plot(t, errors.heading, lw=0.6, alpha=0.7, label="heading part")
-    ax.plot(t, errors.inclination, lw=0.6, alpha=0.7, label="inclination part")
+    _line(ax, t, errors.total, "principal angle of Q = R R̂ᵀ", lw=1.0)
+    _line(ax, t, errors.heading, "heading part", lw=0.6, alpha=0.7)
+    _line(ax, t, errors.inclination, "inclination part", lw=0.6, alpha=0.7)
     return _save(fig, ax, path)
 
 
@@ -69,8 +86,8 @@ def plot_rate_error(t: np.ndarray, error: np.ndarray, path: Path, title: str = "
         title or "Angular velocity estimation error", "angular velocity estimation error (rad/s)"
     )
     for i, axis in enumerate("xyz"):
-        ax.plot(t, error[:, i], lw=0.6, label=axis)
-    ax.plot(t, np.linalg.norm(error, axis=1), "k", lw=0.8, label="norm")
+        _line(ax, t, error[:, i], axis, lw=0.6)
+    _line(ax, t, np.linalg.norm(error, axis=1), "norm", color="k", lw=0.8)
     return _save(fig, ax, path)
 
 
@@ -96,7 +113,7 @@ def plot_attitude(
     fig, ax = _figure(title or "Attitude estimate", "attitude estimate (deg, ENU, z-y-x)")
     _shade(ax, rejected or [], t0)
     for series, label in zip(euler_zyx_deg(r).T, ("roll", "pitch", yaw_label), strict=True):
-        ax.plot(t, series, lw=0.8, label=label)
+        _line(ax, t, series, label, period=360.0, lw=0.8)  # roll and yaw wrap at ±180°
     return _save(fig, ax, path)
 
 
@@ -104,7 +121,7 @@ def plot_rates(t: np.ndarray, omega: np.ndarray, path: Path, title: str = "") ->
     """The body rate estimate Ω̂ (rad/s) against time."""
     fig, ax = _figure(title or "Angular velocity estimate", "body rate estimate (rad/s)")
     for i, axis in enumerate("xyz"):
-        ax.plot(t, omega[:, i], lw=0.6, label=f"Ω̂{axis}")
+        _line(ax, t, omega[:, i], f"Ω̂{axis}", lw=0.6)
     return _save(fig, ax, path)
 
 
