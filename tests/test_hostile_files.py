@@ -166,7 +166,7 @@ def test_a_replay_longer_than_the_step_cap_is_refused_before_merging_and_a_windo
 )
 def test_the_line_splitter_gives_every_line_once_in_order_whatever_the_pieces(pieces, max_line):
     """Against a trivial model (split the whole text at once): same lines, each over-long one as None."""
-    from hil.logs.bounded import LineSplitter
+    from hil.files.bounded import LineSplitter
 
     data = b"".join(pieces)
     splitter = LineSplitter(max_line)

@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.logs.bounded import load_toml
+from hil.files.bounded import load_toml
 from protocol.calibration import (
     EscThrottleMap,
     GimbalAngleMap,

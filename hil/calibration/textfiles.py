@@ -7,14 +7,14 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from hil.logs.bounded import MAX_DOCUMENT_BYTES, read_document
+from hil.files.bounded import MAX_DOCUMENT_BYTES, read_document
 from protocol.errors import ConfigError, HilError
 
 
 def read_text(path: str | os.PathLike[str], error: Callable[[str, str], HilError]) -> str:
-    """The UTF-8 text of ``path``, at most :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES` (a calibration
+    """The UTF-8 text of ``path``, at most :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES` (a calibration
     file or a bench CSV is a few kB); ``error(detail, path)`` is raised when it is missing, unreadable,
-    not text or larger (:func:`hil.logs.bounded.read_document`)."""
+    not text or larger (:func:`hil.files.bounded.read_document`)."""
     return read_document(path, error, limit=MAX_DOCUMENT_BYTES)
 
 

@@ -114,9 +114,9 @@ def _campaign(path: Path, plots: bool) -> dict[str, Path]:
 
 def _json(path: Path) -> dict | None:  # type: ignore[type-arg]
     """A JSON object from ``path``; None if the file is missing; an unreadable one — not JSON, larger than
-    :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES`, nested deeper than :data:`~hil.logs.bounded.MAX_NESTING`,
+    :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES`, nested deeper than :data:`~hil.files.bounded.MAX_NESTING`,
     not an object — is an InputFormatError naming it."""
-    from hil.logs.bounded import load_json, read_document
+    from hil.files.bounded import load_json, read_document
     from protocol.errors import InputFormatError
 
     if not path.is_file():

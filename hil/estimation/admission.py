@@ -29,7 +29,8 @@ going forward, each within :data:`JUMP_S` of the one before, and spanning at lea
 of their own clock (a stream, not a burst of strays: copies of one far stamp span nothing, and strays at
 two far stamps — 100 s ahead, then 10⁹ s ahead — are two runs, not one). :meth:`PhoneGuard.admit`
 then answers ``RESTART`` (backwards) or ``JUMP`` (forwards): the caller starts the estimator afresh from
-the measurements instead of integrating across the jump, and warms up again. Readings the guard dropped before it re-anchored are counted (``past`` / ``future``).
+the measurements instead of integrating across the jump, and warms up again. Readings the guard dropped
+before it re-anchored are counted (``past`` / ``future``).
 """
 
 from __future__ import annotations

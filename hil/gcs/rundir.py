@@ -16,9 +16,9 @@ import os
 from pathlib import Path
 from typing import Any
 
+from hil.files.bounded import LineSplitter, load_json, read_document
 from hil.gcs import info as run_info
 from hil.gcs.wire import Batch
-from hil.logs.bounded import LineSplitter, load_json, read_document
 from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY
 from hil.scenario import load_scenario
 from protocol.errors import HilError, InputFormatError
@@ -29,8 +29,8 @@ READ_CHUNK = 4 * 1024 * 1024  # bytes read per file per poll (a big file comes i
 
 
 class _Tail:
-    """Complete lines appended to one file since the last read (:class:`~hil.logs.bounded.LineSplitter`):
-    an unfinished line waits for its end, but only up to :data:`~hil.logs.bounded.MAX_LINE_BYTES` — a
+    """Complete lines appended to one file since the last read (:class:`~hil.files.bounded.LineSplitter`):
+    an unfinished line waits for its end, but only up to :data:`~hil.files.bounded.MAX_LINE_BYTES` — a
     longer one (a file that never breaks its line) is dropped as it arrives, and counted, never held."""
 
     def __init__(self, path: Path) -> None:
@@ -104,8 +104,8 @@ class RunDirSource:
 
     def _summary(self) -> dict[str, Any] | None:
         """The run's summary.json, or None before it is written; a damaged one (not a JSON object, larger
-        than :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES`, nested deeper than
-        :data:`~hil.logs.bounded.MAX_NESTING`) is logged and stands as ``{"exit": "unreadable summary:
+        than :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES`, nested deeper than
+        :data:`~hil.files.bounded.MAX_NESTING`) is logged and stands as ``{"exit": "unreadable summary:
         ..."}``."""
         path = self.run_dir / SUMMARY
         if not path.exists():

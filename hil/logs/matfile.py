@@ -6,7 +6,7 @@ reads a compressed element by inflating it as it goes, to the sizes the inner el
 file can claim, and inflate to, gigabytes. Before SciPy sees a file, :func:`check_expansion` walks its
 top-level elements and inflates each compressed one in pieces, counting and dropping the bytes, and refuses
 a file whose elements expand to more than :data:`MAX_MAT_EXPANDED` bytes together (or more than
-:data:`~hil.logs.bounded.MAX_COMPRESSION_RATIO` times their compressed size): what SciPy then builds is no
+:data:`~hil.files.bounded.MAX_COMPRESSION_RATIO` times their compressed size): what SciPy then builds is no
 larger than what the file really holds. The file itself is at most :data:`~hil.logs.table.MAX_RAW_BYTES`.
 """
 
@@ -19,7 +19,7 @@ from typing import Any
 
 import scipy.io
 
-from hil.logs.bounded import CHUNK_BYTES, MAX_COMPRESSION_RATIO, RATIO_GRACE_BYTES
+from hil.files.bounded import CHUNK_BYTES, MAX_COMPRESSION_RATIO, RATIO_GRACE_BYTES
 from hil.logs.table import Container
 from protocol.errors import InputFormatError
 

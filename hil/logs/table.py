@@ -1,16 +1,16 @@
 """Numeric text tables (CSV and friends) read as a stream, with errors that say file, line and column.
 
-A table is read in pieces of about :data:`~hil.logs.bounded.CHUNK_BYTES` of lines
-(:func:`hil.logs.bounded.read_lines`): each piece goes to ``numpy.loadtxt`` and only the parsed floats are
+A table is read in pieces of about :data:`~hil.files.bounded.CHUNK_BYTES` of lines
+(:func:`hil.files.bounded.read_lines`): each piece goes to ``numpy.loadtxt`` and only the parsed floats are
 kept, so memory is bounded by the samples kept (not by the file's size), and a bad line fails as soon as its
 piece is parsed — the rest of the file is never read. When a piece fails, its lines are walked to raise
 :class:`InputFormatError` naming the first bad cell. ``nan``/``NaN`` cells are numbers (NaN samples,
 counted and dropped later by the merge); anything else unparseable is an error.
 
-What a log may be is bounded by what its files are (:mod:`hil.logs.bounded`): a member yields at most
-:data:`~hil.logs.bounded.MAX_MEMBER_BYTES` decompressed and at most
-:data:`~hil.logs.bounded.MAX_COMPRESSION_RATIO` times its compressed size, a line is at most
-:data:`~hil.logs.bounded.MAX_LINE_BYTES`, a log holds at most :data:`~hil.logs.bounded.MAX_MEMBERS` files
+What a log may be is bounded by what its files are (:mod:`hil.files.bounded`): a member yields at most
+:data:`~hil.files.bounded.MAX_MEMBER_BYTES` decompressed and at most
+:data:`~hil.files.bounded.MAX_COMPRESSION_RATIO` times its compressed size, a line is at most
+:data:`~hil.files.bounded.MAX_LINE_BYTES`, a log holds at most :data:`~hil.files.bounded.MAX_MEMBERS` files
 and :data:`MAX_LOG_SAMPLES` rows; past any of them the reader stops with an error naming the file and line.
 """
 
@@ -31,7 +31,7 @@ from typing import IO, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.logs.bounded import (
+from hil.files.bounded import (
     MAX_DOCUMENT_BYTES,
     MAX_LINE_BYTES,
     MAX_MEMBER_BYTES,
@@ -145,7 +145,7 @@ class Container:
 
     def _open(self, name: str, limit: int = MAX_MEMBER_BYTES) -> IO[bytes]:
         """The member's bytes (a ``.gz`` decompressed), at most ``limit`` of them and at most
-        :data:`~hil.logs.bounded.MAX_COMPRESSION_RATIO` times what they were compressed from."""
+        :data:`~hil.files.bounded.MAX_COMPRESSION_RATIO` times what they were compressed from."""
         if name not in self._members:
             raise InputFormatError(f"missing {name}", str(self.path))
         archive, inner = self._members[name]
@@ -173,8 +173,8 @@ class Container:
             return _guarded(f.read, self.where(name))
 
     def lines(self, name: str) -> Iterator[list[bytes | None]]:
-        """The member's lines, a batch at a time (:func:`hil.logs.bounded.read_lines`: ``None`` for a
-        line longer than :data:`~hil.logs.bounded.MAX_LINE_BYTES`)."""
+        """The member's lines, a batch at a time (:func:`hil.files.bounded.read_lines`: ``None`` for a
+        line longer than :data:`~hil.files.bounded.MAX_LINE_BYTES`)."""
         with self._open(name) as f:
             yield from _guarded_iter(read_lines(f), self.where(name))
 
@@ -187,7 +187,7 @@ class Container:
 
     def text(self, name: str) -> str:
         """A small member whole (metadata files, at most
-        :data:`~hil.logs.bounded.MAX_DOCUMENT_BYTES`): UTF-8 or InputFormatError naming it."""
+        :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES`): UTF-8 or InputFormatError naming it."""
         data = self.raw(name, MAX_DOCUMENT_BYTES)
         try:
             return data.decode("utf-8-sig")
@@ -314,7 +314,7 @@ def read_table(
 
 def text_lines(container: Container, name: str) -> Iterator[tuple[int, list[str]]]:
     """The member's lines as text, a batch at a time with the 1-based number of its first line (a BOM
-    skipped). A line longer than :data:`~hil.logs.bounded.MAX_LINE_BYTES`, one holding a NUL byte (binary
+    skipped). A line longer than :data:`~hil.files.bounded.MAX_LINE_BYTES`, one holding a NUL byte (binary
     data) or one that is not UTF-8 is an :class:`InputFormatError` naming its line — after the lines before
     it have been given, so that an earlier bad cell is the one reported."""
     source = container.where(name)

@@ -38,7 +38,7 @@ Every parameter has bounds on its size (:data:`BOUNDS`: a sensor rate at most 1 
 turn, ...): a file that asks for more is refused naming the file and key, and draws are clipped into them.
 Within them, values are not checked at draw time: a drawn value the model refuses (a negative noise, an
 inertia that is not positive definite) makes that run fail with an error naming the parameter, recorded
-with the run. The file itself is read bounded (:mod:`hil.logs.bounded`: at most 16 MiB, nested at most
+with the run. The file itself is read bounded (:mod:`hil.files.bounded`: at most 16 MiB, nested at most
 32 deep).
 """
 
@@ -55,7 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
-from hil.logs.bounded import MAX_DOCUMENT_BYTES, load_toml
+from hil.files.bounded import MAX_DOCUMENT_BYTES, load_toml
 from hil.runtime.invariants import InjectedFault
 from hil.scenario import Scenario
 from hil.scenario.paths import FIXTURES, read_text

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.logs.bounded import MAX_LINE_BYTES, load_json, read_lines
+from hil.files.bounded import MAX_LINE_BYTES, load_json, read_lines
 from protocol.errors import InputFormatError
 
 TELEMETRY = "telemetry.csv"
@@ -293,9 +293,9 @@ class Telemetry:
 
 
 def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
-    """Read a run's telemetry CSV, streamed (:func:`hil.logs.bounded.read_lines`: memory holds the
+    """Read a run's telemetry CSV, streamed (:func:`hil.files.bounded.read_lines`: memory holds the
     numbers, not the text). A line with the wrong number of cells, a non-number, bytes that are not UTF-8
-    or more than :data:`~hil.logs.bounded.MAX_LINE_BYTES` is dropped and counted (a run killed mid-write
+    or more than :data:`~hil.files.bounded.MAX_LINE_BYTES` is dropped and counted (a run killed mid-write
     leaves one); a missing or header-less file is an InputFormatError."""
     path = Path(path)
     try:
@@ -352,7 +352,7 @@ def _numbers(line: bytes | None, width: int) -> list[float] | None:
 
 def read_events(path: str | os.PathLike[str]) -> tuple[list[dict[str, Any]], int]:
     """Events of a run and the number of unreadable lines (torn by a kill, not a JSON object, nested more
-    than :data:`~hil.logs.bounded.MAX_NESTING` deep, longer than :data:`~hil.logs.bounded.MAX_LINE_BYTES`):
+    than :data:`~hil.files.bounded.MAX_NESTING` deep, longer than :data:`~hil.files.bounded.MAX_LINE_BYTES`):
     dropped and counted, never fatal. Memory holds the events, not the file."""
     events: list[dict[str, Any]] = []
     bad = 0

@@ -8,7 +8,7 @@ the file and the dotted key (:class:`ConfigError` ``where="cubesat-1u.toml: mano
 Every number has documented bounds (:data:`hil.scenario.reader.RANGES`: e.g. ``plant_step_s`` 10 µs..1 ms,
 ``warmup_s`` 0..600 s, sensor rates 1..1000 Hz), and a run is at most a day of simulated time (warm-up and
 duration) and 10⁸ plant steps. The file is at most 16 MiB and nested at most 32 deep
-(:mod:`hil.logs.bounded`).
+(:mod:`hil.files.bounded`).
 
 ```toml
 [scenario]
@@ -75,7 +75,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hil.logs.bounded import MAX_DOCUMENT_BYTES, load_toml
+from hil.files.bounded import MAX_DOCUMENT_BYTES, load_toml
 from protocol.errors import ConfigError, HilError
 
 from .model import Scenario

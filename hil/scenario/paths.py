@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hil.logs.bounded import read_document
+from hil.files.bounded import read_document
 from protocol.errors import ConfigError, HilError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -19,5 +19,5 @@ def read_text(
     """A text file the project reads (scenario, dispersions, a run directory's files) as UTF-8, at most
     ``limit`` bytes (None: no limit, for a file bounded by how it is used, e.g. a campaign's results); an
     unreadable, binary or larger one is one ``error`` naming the file, never a traceback
-    (:func:`hil.logs.bounded.read_document`)."""
+    (:func:`hil.files.bounded.read_document`)."""
     return read_document(path, error, what, limit)  # type: ignore[arg-type]
