@@ -77,7 +77,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--phone", default="udp://127.0.0.1:8123", metavar="URL",
         help="with --port: listen for the phone here (udp://HOST:PORT: SensaGram, the default "
-        "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md)",
+        "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md), or another registered "
+        "phone source (vscmg_hil.phone_sources entry points)",
     )  # fmt: skip
     p.add_argument(
         "--phone-wait", type=seconds, default=10.0, metavar="S",

@@ -21,6 +21,10 @@ Four ways to run, one host (:class:`hil.runtime.host.Host`):
   at the end of the warm-up against the recorded motion, and the board (a port in real time, or ``emu://``
   in lockstep) carries out the commands; the log's ground truth, if it has one, is the truth.
 
+The phone is one :class:`hil.link.sources.PhoneSource` whatever the way: ``sim://`` (the built-in emulator's
+world, in-process in lockstep, over UDP on loopback in real time), ``--phone URL`` with a port, or
+``recording://`` for a replay, built by :func:`hil.link.sources.create_source` and driven the same way.
+
 Tasks: ``estimator`` at the fastest sensor's rate (drains the samples that arrived; the merger holds the
 last sample of the slower sensors), ``control`` at the control rate (board events, control, setpoint,
 telemetry row), and in lockstep ``world`` at the plant step. The scheduler's absolute deadlines and its
@@ -101,10 +105,11 @@ class RunOptions:
     """``port``: a transport URL, None for the built-in emulator and its world; ``lockstep``: None picks
     lockstep for the built-in emulator (and for a replay against ``emu://``), real time otherwise (a real
     port cannot run in lockstep); ``duration_s`` overrides the scenario's (from the slew's start);
-    ``phone``: where the host listens for the phone stream with a port (:func:`hil.link.sources.phone_url`:
-    ``udp://HOST:PORT`` or ``http://HOST:PORT/``); ``phone_wait_s``: how long to wait for the first phone
-    samples on a port before giving up; ``replay``: take the phone from a recorded log instead (needs a
-    port), the controller holding the attitude estimated at the end of the warm-up; ``out_root`` None:
+    ``phone``: the phone source with a port (:func:`hil.link.sources.create_source`: where the host listens
+    for ``udp://HOST:PORT`` or ``http://HOST:PORT/``, or any registered scheme); ``phone_wait_s``: how
+    long to wait for the first phone samples on a port before giving up; ``replay``: take the phone from a
+    recorded log instead (needs a port), the controller holding the attitude estimated at the end of the
+    warm-up; ``out_root`` None:
     no run directory (see the module docstring); ``observer``: sees every row and event and may command
     the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run goes at most this many times as fast as
     the wall clock (1.0: real time), None: as fast as it can; ``recover_within_s``: an outage of the board
