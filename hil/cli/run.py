@@ -81,7 +81,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         default="udp://127.0.0.1:8123",
         metavar="URL",
         help="with --port: listen for the phone here (udp://HOST:PORT: SensaGram, the default "
-        "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md)",
+        "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md), or another registered "
+        "phone source (vscmg_hil.phone_sources entry points)",
     )
     p.add_argument(
         "--phone-wait",

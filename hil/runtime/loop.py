@@ -21,6 +21,10 @@ Four ways to run, one host (:class:`hil.runtime.host.Host`):
   at the end of the warm-up against the recorded motion, and the board (a port in real time, or ``emu://``
   in lockstep) carries out the commands; the log's ground truth, if it has one, is the truth.
 
+The phone is one :class:`hil.link.sources.PhoneSource` whatever the way: ``sim://`` (the built-in emulator's
+world, in-process in lockstep, over UDP on loopback in real time), ``--phone URL`` with a port, or
+``recording://`` for a replay, built by :func:`hil.link.sources.create_source` and driven the same way.
+
 Tasks: ``estimator`` at the fastest sensor's rate (drains the samples that arrived; the merger holds the
 last sample of the slower sensors), ``control`` at the control rate (board events, control, setpoint,
 telemetry row), and in lockstep ``world`` at the plant step. The scheduler's absolute deadlines and its
@@ -50,9 +54,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hil.estimation.filter import FilterConfig
-from hil.estimation.sensors import SensorLog, SensorSample
-from hil.link.sources import DEFAULT_PHONE_URL, PhoneReceiver, open_receiver
-from hil.link.sources.recorded import RecordedSource
+from hil.estimation.sensors import SensorLog
+from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, create_source
+from hil.link.sources.recorded import RECORDING_URL
+from hil.link.sources.simulated import SIMULATED_URL
 from hil.link.transports import InProcessBoard, create_transport
 from hil.runtime.faults import RECOVER_WITHIN_S
 from hil.runtime.host import Host, TruthSample
@@ -67,7 +72,6 @@ from protocol.errors import (
     ConfigError,
     HilError,
     LinkError,
-    LinkTimeout,
     PortBusy,
     TransportError,
 )
@@ -101,10 +105,11 @@ class RunOptions:
     """``port``: a transport URL, None for the built-in emulator and its world; ``lockstep``: None picks
     lockstep for the built-in emulator (and for a replay against ``emu://``), real time otherwise (a real
     port cannot run in lockstep); ``duration_s`` overrides the scenario's (from the slew's start);
-    ``phone``: where the host listens for the phone stream with a port (:func:`hil.link.sources.phone_url`:
-    ``udp://HOST:PORT`` or ``http://HOST:PORT/``); ``phone_wait_s``: how long to wait for the first phone
-    samples on a port before giving up; ``replay``: take the phone from a recorded log instead (needs a
-    port), the controller holding the attitude estimated at the end of the warm-up; ``out_root`` None:
+    ``phone``: the phone source with a port (:func:`hil.link.sources.create_source`: where the host listens
+    for ``udp://HOST:PORT`` or ``http://HOST:PORT/``, or any registered scheme); ``phone_wait_s``: how
+    long to wait for the first phone samples on a port before giving up; ``replay``: take the phone from a
+    recorded log instead (needs a port), the controller holding the attitude estimated at the end of the
+    warm-up; ``out_root`` None:
     no run directory (see the module docstring); ``observer``: sees every row and event and may command
     the run (:mod:`hil.runtime.observer`); ``pace``: a lockstep run goes at most this many times as fast as
     the wall clock (1.0: real time), None: as fast as it can; ``recover_within_s``: an outage of the board
@@ -142,10 +147,11 @@ class RunResult:
 @dataclass(frozen=True)
 class _Plan:
     """Where the phone comes from (``world``: the built-in emulator's; ``phone``: a live stream on a port;
-    ``log``: a recording) and on which clock."""
+    ``log``: a recording), on which clock, and the phone source's URL (:mod:`hil.link.sources`)."""
 
     source: str
     lockstep: bool
+    phone: str
 
     @property
     def mode(self) -> str:
@@ -162,12 +168,12 @@ def _plan(opts: RunOptions) -> _Plan:
         lockstep = in_process if opts.lockstep is None else opts.lockstep
         if lockstep and not in_process:
             raise ConfigError("a replay runs in lockstep only against the in-process board (emu://)", "run")
-        return _Plan("log", lockstep)
+        return _Plan("log", lockstep, RECORDING_URL)
     if opts.port is None:
-        return _Plan("world", True if opts.lockstep is None else opts.lockstep)
+        return _Plan("world", True if opts.lockstep is None else opts.lockstep, SIMULATED_URL)
     if opts.lockstep:
         raise ConfigError("lockstep needs the built-in emulator (leave out --port, or use --realtime)", "run")
-    return _Plan("phone", False)
+    return _Plan("phone", False, opts.phone)
 
 
 def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
@@ -239,10 +245,8 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         if built is not None:
             summary.update(built.host.summary())
             summary["link"] = _link_stats(built.host)
-            if built.phone is not None:
-                summary["phone"] = {"url": built.phone.url, **asdict(built.phone.stats)}
-            if built.recorded is not None:
-                summary["replay"]["samples_released"] = built.recorded.released
+            for section, fields in built.source.report().items():
+                summary.setdefault(section, {}).update(fields)
             scheduler = built.scheduler
             summary["tasks"] = scheduler.summary()
             summary["sim_s"] = scheduler.clock.now() - scheduler.origin
@@ -272,20 +276,40 @@ class _Built:
     host: Host
     scheduler: Scheduler
     until: float  # clock time (s) at which the run ends whatever happened
-    phone: PhoneReceiver | None = None
-    recorded: RecordedSource | None = None
+    source: PhoneSource
+
+
+class _HeldEvents:
+    """``events.jsonl``'s writer while the run is set up: the board's handshake events are older than the
+    records of the set-up, and the host's watch writes them once the host exists, so the set-up's records
+    wait until :meth:`release`, then go straight through (``events.jsonl`` stays in time order)."""
+
+    def __init__(self, events: EventLog) -> None:
+        self._events = events
+        self._held: list[tuple[float, str, dict[str, Any]]] | None = []
+
+    def __call__(self, t: float, kind: str, **fields: Any) -> None:
+        if self._held is None:
+            self._events.write(t, kind, **fields)
+        else:
+            self._held.append((t, kind, fields))
+
+    def release(self) -> None:
+        """Write what was held, in order; what comes after is written at once."""
+        held, self._held = self._held or [], None
+        for t, kind, fields in held:
+            self._events.write(t, kind, **fields)
 
 
 def _build(
     scenario: Scenario, opts: RunOptions, plan: _Plan, telemetry: CsvLog | RowTap | None, events: EventLog,
     stack: contextlib.ExitStack,
 ) -> _Built:  # fmt: skip
-    """Board client, phone source (world, live stream or recording), host and scheduler for ``plan``;
-    everything opened is closed by ``stack``."""
+    """Board client, phone source (:func:`hil.link.sources.create_source` on ``plan.phone``), host and
+    scheduler for ``plan``; everything opened is closed by ``stack``."""
     from hil.link.board import BoardClient
 
     clock: Clock = LockstepClock() if plan.lockstep else WallClock()
-    truth: Callable[[], TruthSample | None] = lambda: None  # noqa: E731
     if plan.source == "world":
         link = _in_process_board(scenario.emulator_url())
         client = BoardClient(link, clock=clock)
@@ -296,62 +320,27 @@ def _build(
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
     info = _connect(client, events, opts.recover_within_s)
     stack.push(_disarm_if_interrupted(client, events))  # unwound before the close: the link still up
-    # The handshake's board events are older than the records below: the host's watch writes them first,
-    # once it exists, and these records wait for it (events.jsonl stays in time order).
     handshake = client.drain_events()
-    held = [(clock.now(), "connected", {"board": info.describe(), "units": info.n_units})]
+    write_event = _HeldEvents(events)
+    write_event(clock.now(), "connected", board=info.describe(), units=info.n_units)
     if info.n_units != scenario.n_units:
         raise ConfigError(
             f"the board has {info.n_units} units, the scenario's spacecraft {scenario.n_units}", "run --port"
         )
-    phone: PhoneReceiver | None = None
-    recorded: RecordedSource | None = None
-    world: Any = None
-    drain: Callable[[], list[SensorSample]]
-    if plan.source == "phone" or (plan.source == "world" and not plan.lockstep):
-        phone = open_receiver(opts.phone if plan.source == "phone" else "udp://127.0.0.1:0")
-        stack.callback(phone.close)
-        drain = phone.drain
-        held.append((clock.now(), "phone_listening", {"url": phone.url}))
-    if plan.source == "world":
-        world = link.open_world(scenario)
-        lock = link.lock
-
-        def truth() -> TruthSample:
-            with lock:
-                now = world.truth()
-            return TruthSample(now.R, now.omega)
-
-    if plan.source == "world" and not plan.lockstep:
-        import sys
-
-        assert phone is not None
-        receiver = phone
-        # The world thread shares this interpreter: hand the GIL over every 0.5 ms (default 5 ms), so a
-        # control deadline waits at most that long for it.
-        stack.callback(sys.setswitchinterval, sys.getswitchinterval())
-        sys.setswitchinterval(5e-4)
-        streamer = link.stream_world(world, phone.url)
-        stack.callback(streamer.close)
-        stack.callback(lambda: events.write(clock.now(), "world_end", max_lag_ms=streamer.max_lag_s * 1e3))
-
-        def drain() -> list[SensorSample]:
-            streamer.check()  # the world thread's error, raised here
-            return receiver.drain()
-
     replay = opts.replay
     duration = opts.duration_s
     if replay is not None:  # the recording's own still window gave the gyro bias: no calibration here
         scenario = scenario.with_changes(loop=replace(scenario.loop, calibrate_rate_bias=False))
         duration = replay.log.end - replay.log.start  # the recording sets the end, not the host
-        recorded = source = RecordedSource(replay.log)
+    context = SourceContext(
+        scenario, clock, plan.lockstep, client.transport, write_event, None if replay is None else replay.log
+    )
+    source = create_source(plan.phone, context)
+    stack.callback(source.close)
 
-        def drain() -> list[SensorSample]:
-            return source.drain(clock.now())
-
-        def truth() -> TruthSample | None:
-            found = source.truth(clock.now())
-            return None if found is None else TruthSample(*found)
+    def truth() -> TruthSample | None:
+        found = source.truth(clock.now())
+        return None if found is None else TruthSample(found.R, found.omega)
 
     host = Host(
         scenario, client, telemetry, events, truth, duration,
@@ -359,11 +348,9 @@ def _build(
         recover_within_s=opts.recover_within_s,
     )  # fmt: skip
     host.watch.on_events(handshake)
-    for t, kind, fields in held:
-        events.write(t, kind, **fields)
-    if plan.source == "phone":  # before arming: the board's link watchdog is not fed while we wait
-        assert phone is not None
-        _wait_for_phone(phone, opts.phone_wait_s, client, host.watch.on_events)
+    write_event.release()
+    # before arming: the board's link watchdog is fed while we wait, not by the armed loop
+    source.wait_ready(opts.phone_wait_s, lambda: host.watch.on_events(client.service()))
     try:
         client.arm()
     except (CommandFailed, LinkError) as exc:  # a stall, a reset, a vanished port while arming: a fault
@@ -375,66 +362,41 @@ def _build(
         events.write(clock.now(), "armed")
     origin = clock.now()
     until = _time_limit(scenario, opts, origin) + opts.recover_within_s
-    estimator_hz = estimator_rate_hz(scenario)
-    catch_up: Callable[[], None] | None = None
-    if plan.source == "world" and plan.lockstep:
-        pending: list[SensorSample] = []
-        w = world
-
-        def catch_up() -> None:  # the world to the present: plant steps, pulse frames, phone samples
-            pending.extend(w.advance_to(clock.now()))
-
-        def drain() -> list[SensorSample]:
-            catch_up()
-            out = pending.copy()
-            pending.clear()
-            return out
-
-    if recorded is not None:
-        assert replay is not None
-        recorded.start(origin)
-        until = recorded.end + 2.0 / scenario.loop.control_rate_hz  # the tick after the last sample ends it
-        estimator_hz = 1.0 / min(s.median_period() for s in replay.log.streams.values())
-        events.write(origin, "replay_start", log=replay.log.source, until=until)
+    source_end = source.start(origin)
+    if source_end is not None:  # a recording: the tick after its last sample ends the run
+        until = source_end
+    estimator_hz = source.rate_hz or estimator_rate_hz(scenario)
 
     scheduler_ref: list[Scheduler] = []
 
     def estimator_task(_due: float) -> None:
-        host.feed(drain(), clock.now())
+        host.feed(source.drain(clock.now()), clock.now())
 
     observer = opts.observer
 
     def control_task(_due: float) -> None:
         if observer is not None:
             observer.tick(clock.now())  # commands from outside act here, in the control thread
-        if catch_up is not None:
-            catch_up()
+        source.advance(clock.now())  # a simulated world to the present before the board is serviced
         events = client.service()
         host.tick(clock.now(), events)  # now after the service: the telemetry it took is not from the future
         if opts.progress is not None:
             opts.progress(host, clock.now() - origin)
-        if recorded is not None and recorded.exhausted:
+        if source.exhausted:
             host.finished = True  # the whole recording was played
         if host.finished:
             scheduler_ref[0].stop()
 
     tasks = [
+        *source.tasks(),
         PeriodicTask("estimator", 1.0 / estimator_hz, estimator_task),
         PeriodicTask("control", 1.0 / scenario.loop.control_rate_hz, control_task),
     ]
-    if catch_up is not None:
-        # Every plant step, so the board's telemetry and power draw see the units of the present step
-        # (World.advance_to hands the board their states once per call: called every 5 ms instead, the
-        # reported rotor speeds lag by up to that and the pulse-quantised hold loses about half a degree),
-        # unless the world says it keeps the board current over a longer span (SimulatedWorld).
-        step = catch_up
-        period = float(getattr(world, "advance_period_s", None) or scenario.loop.plant_step_s)
-        tasks.insert(0, PeriodicTask("world", period, lambda _due: step()))
     if opts.pace is not None:
         tasks.append(_pacer(opts.pace, origin))
     scheduler = Scheduler(clock, tasks, origin=origin)
     scheduler_ref.append(scheduler)
-    return _Built(host, scheduler, until, phone, recorded)
+    return _Built(host, scheduler, until, source)
 
 
 def _run_scheduler(built: _Built) -> None:
@@ -549,27 +511,6 @@ def _connect(client: BoardClient, events: EventLog, bound_s: float) -> BoardInfo
 def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:
     duration = scenario.slew.duration_s if opts.duration_s is None else opts.duration_s
     return origin + scenario.loop.warmup_s + duration + SPINUP_ALLOWANCE_S
-
-
-def _wait_for_phone(
-    server: PhoneReceiver, wait_s: float, client: BoardClient, on_events: Callable[[list[Any]], None]
-) -> None:
-    """The first phone samples within ``wait_s`` (wall clock), or a clear error saying where to send them.
-    The board client is serviced meanwhile (its heartbeats keep the board's link watchdog fed; what the
-    board says goes to ``on_events``)."""
-    end = time.monotonic() + wait_s
-    while time.monotonic() < end:
-        server.check()
-        on_events(client.service())
-        if server.stats.samples:
-            return
-        time.sleep(0.02)
-    st = server.stats
-    bad = f" ({st.bad_messages} unreadable, the last: {st.last_error})" if st.bad_messages else ""
-    raise LinkTimeout(
-        f"no phone samples on {server.url} within {wait_s:.0f} s{bad}: start `firmware-sim --world SCENARIO "
-        f"--phone {server.url}` (it streams its simulated phone there) or point {server.app} on a phone at it"
-    )
 
 
 def _link_stats(host: Host) -> dict[str, Any]:

@@ -1,59 +1,116 @@
-"""Live phone sources, picked by URL like the board's transports.
+"""A run's phone, picked by URL through one registry like the board's transports.
 
 =================================  =====================================================================
-``udp://HOST:PORT``                SensaGram's JSON datagrams, one per sensor event (:mod:`.phone_udp`)
-``http://HOST:PORT[/PATH]``        Sensor Logger's HTTP Push batches (:mod:`.phone_push`)
+URL                                phone source
+=================================  =====================================================================
+``udp://HOST:PORT``                SensaGram's JSON datagrams, one per sensor event, received live
+                                   (:mod:`.listening`, :mod:`.phone_udp`)
+``http://HOST:PORT[/PATH]``        Sensor Logger's HTTP Push batches, received live
+                                   (:mod:`.listening`, :mod:`.phone_push`)
 ``HOST:PORT``                      the same as ``udp://HOST:PORT``
+``recording://``                   the log ``hil replay`` plays, on the run's clock (:mod:`.recorded`)
+``sim://``                         the built-in emulator's simulated world: in-process in lockstep,
+                                   streamed over UDP on loopback in real time (:mod:`.simulated`)
 =================================  =====================================================================
 
-The host *listens* on the URL (:func:`open_receiver`; port 0 picks a free one); the emulator's simulated
-phone *streams* to it (:func:`open_sender`), exactly as the app would, so the live path is the one a real
-phone uses. ``docs/formats.md`` says how to set up each app.
+Every source has one shape (:class:`~.base.PhoneSource`: ``drain(now)``, ``truth(now)``, ``close()``, and
+what the runtime asks of any source), so the runtime builds each the same way: :func:`create_source` with
+the run's :class:`~.base.SourceContext`. For a live stream the host *listens* on the URL (port 0 picks a
+free one); the emulator's simulated phone *streams* to it (:func:`open_sender`), exactly as the app would,
+so the live path is the one a real phone uses. ``docs/formats.md`` says how to set up each app.
+
+Every scheme, the built-in ones included, is an entry point in the group ``vscmg_hil.phone_sources``
+whose name is the scheme and whose value is ``"module:factory"`` (a :data:`~.base.SourceFactory`: it takes
+the URL and the context and returns the source, open), imported on first use. Another package adds a
+scheme in its ``pyproject.toml``::
+
+    [project.entry-points."vscmg_hil.phone_sources"]
+    myrig = "mypackage.phone:open_rig"
+
+:func:`register` adds one at run time.
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.metadata
 from urllib.parse import urlsplit
 
+from hil.link.sources.base import GroundTruth, PhoneSource, SourceContext, SourceFactory
+from hil.link.sources.listening import ListeningSource, open_receiver, open_sender, phone_url
 from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
 from protocol.errors import ConfigError
 
+ENTRY_POINT_GROUP = "vscmg_hil.phone_sources"
 DEFAULT_PHONE_URL = "udp://127.0.0.1:8123"
 
-__all__ = ["DEFAULT_PHONE_URL", "PhoneReceiver", "PhoneSender", "StreamStats", "open_receiver",
-           "open_sender", "phone_url"]  # fmt: skip
+# scheme -> "module:factory", from the installed entry points and register().
+_REGISTRY: dict[str, str] = {}
+_discovered = False
 
 
-def phone_url(address: str, where: str = "--phone") -> str:
-    """``address`` as a phone-stream URL: a bare ``HOST:PORT`` becomes ``udp://HOST:PORT``; a scheme other
-    than udp or http is a :class:`ConfigError` naming ``where``."""
-    url = address if "://" in address else f"udp://{address}"
-    scheme = urlsplit(url).scheme
-    if scheme not in ("udp", "http"):
-        raise ConfigError(f"{address!r}: a phone stream is udp://HOST:PORT or http://HOST:PORT/PATH", where)
-    return url
+def _discover() -> None:
+    """Add the schemes installed packages register as entry points (once; :func:`register` wins)."""
+    global _discovered
+    if _discovered:
+        return
+    _discovered = True
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        _REGISTRY.setdefault(entry.name.lower(), entry.value)
 
 
-def open_receiver(address: str) -> PhoneReceiver:
-    """Listen for a phone stream at ``address`` (see :func:`phone_url`); a busy or bad address is a
-    :class:`~protocol.errors.LinkError`."""
-    url = phone_url(address)
-    if url.startswith("http://"):
-        from hil.link.sources.phone_push import PhonePushServer
-
-        return PhonePushServer(url)
-    from hil.link.sources.phone_udp import PhoneUdpReceiver
-
-    return PhoneUdpReceiver(url)
+def register(scheme: str, target: str) -> None:
+    """Add (or replace) the phone source for ``scheme``; ``target`` is ``"module:factory"``."""
+    _REGISTRY[scheme.lower()] = target
 
 
-def open_sender(address: str) -> PhoneSender:
-    """Stream a (simulated) phone to ``address`` the way its app does."""
-    url = phone_url(address)
-    if url.startswith("http://"):
-        from hil.link.sources.phone_push import PhonePushSender
+def schemes() -> list[str]:
+    _discover()
+    return sorted(_REGISTRY)
 
-        return PhonePushSender(url)
-    from hil.link.sources.phone_udp import PhoneUdpSender
 
-    return PhoneUdpSender(url)
+def source_url(address: str) -> str:
+    """``address`` as a phone-source URL: a bare ``HOST:PORT`` is SensaGram's ``udp://HOST:PORT``."""
+    return address if "://" in address else f"udp://{address}"
+
+
+def create_source(address: str, context: SourceContext, where: str = "--phone") -> PhoneSource:
+    """The phone source for ``address`` (see the module docstring), open. A scheme nobody registered, or
+    a factory that cannot be imported, is a :class:`ConfigError` naming ``where`` (and the known schemes);
+    a source that cannot open (a busy port) raises its own error."""
+    url = source_url(address)
+    scheme = urlsplit(url).scheme.lower()
+    _discover()
+    target = _REGISTRY.get(scheme)
+    if target is None:
+        known = schemes()
+        why = f"unknown phone source scheme {scheme!r} (known: {', '.join(known)})"
+        if "udp" not in known:  # an install older than the entry points: its metadata lacks the built-ins
+            why += "; the built-in schemes are vscmg-hil's entry points: install it again (pip install -e .)"
+        raise ConfigError(f"{address!r}: {why}", where)
+    module_name, _, attr = target.partition(":")
+    try:
+        factory: SourceFactory = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"{address!r}: phone source {target} is not available: {exc}", where) from exc
+    return factory(url, context)
+
+
+__all__ = [
+    "DEFAULT_PHONE_URL",
+    "ENTRY_POINT_GROUP",
+    "GroundTruth",
+    "ListeningSource",
+    "PhoneReceiver",
+    "PhoneSender",
+    "PhoneSource",
+    "SourceContext",
+    "SourceFactory",
+    "StreamStats",
+    "create_source",
+    "open_receiver",
+    "open_sender",
+    "phone_url",
+    "register",
+    "schemes",
+]

@@ -1,37 +1,61 @@
-"""A recorded phone log as a live source: its samples released at their own pace on a run's clock.
+"""A recorded phone log as a run's phone (``recording://``): its samples released at their own pace on the
+run's clock.
 
 ``hil replay LOG --port URL`` drives a board with the controller's output while the estimator runs over a
 recording; the runtime then takes its phone samples from here instead of a phone or the world. Times are
-moved onto the run's clock (the log's first sample at ``origin``), so the estimator, the controller, the
-telemetry and the log's ground truth share one time axis; on a :class:`~hil.timing.clock.WallClock` the log
-plays
-in real time, on a :class:`~hil.timing.clock.LockstepClock` as fast as the CPU allows.
+moved onto the run's clock (the log's first sample at the run's origin), so the estimator, the controller,
+the telemetry and the log's ground truth share one time axis; on a :class:`~hil.timing.clock.WallClock` the
+log plays in real time, on a :class:`~hil.timing.clock.LockstepClock` as fast as the CPU allows.
+
+The log is the one ``hil replay`` read, windowed and configured the estimator for
+(:attr:`~hil.link.sources.base.SourceContext.recording`): the URL names the source, not a file to read
+again.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
 from hil.estimation.sensors import SensorLog, SensorSample
+from hil.link.sources.base import EventWriter, GroundTruth, PhoneSource, SourceContext
+from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
 
+RECORDING_URL = "recording://"
+"""The URL of the recording a run plays (``hil replay``)."""
+END_TICKS = 2
+"""The run ends this many control ticks after the recording's last sample: the tick after it is due."""
 
-class RecordedSource:
-    """``log``'s samples, every sensor's in one time order, on the run's clock from ``origin`` (s; the log's
-    first sample is due then). Nothing is due before :meth:`start` sets the origin."""
 
-    def __init__(self, log: SensorLog, origin: float = math.inf) -> None:
+def play(url: str, context: SourceContext) -> RecordedSource:
+    """The ``recording://`` source: the run's recording (``hil replay``), played from the run's origin."""
+    if context.recording is None:
+        raise ConfigError(f"{url}: a recording is played by `hil replay LOG --port URL`", "--phone")
+    stop_after_s = END_TICKS / context.scenario.loop.control_rate_hz
+    return RecordedSource(context.recording, url, stop_after_s, context.write_event)
+
+
+class RecordedSource(PhoneSource):
+    """``log``'s samples, every sensor's in one time order, on the run's clock from its origin (s; the log's
+    first sample is due then). Nothing is due before :meth:`start` sets the origin; the run ends
+    ``stop_after_s`` (s) after the last sample (``replay_start`` in ``events.jsonl`` says when)."""
+
+    def __init__(self, log: SensorLog, url: str, stop_after_s: float, write_event: EventWriter) -> None:
         self.log = log
+        self.url = url
+        self._stop_after_s = stop_after_s
+        self._write_event = write_event
         every = (s for stream in log.streams.values() for s in stream.samples())
         self._samples = sorted(every, key=lambda s: (s.t_s, int(s.kind)))  # on the log's clock
         self._log_times = np.array([s.t_s for s in self._samples])
         self._next = 0
-        self.start(origin)
+        self._play_from(math.inf)
         truth = log.truth
         self._truth_log_t = None if truth is None else np.asarray(truth.t, dtype=float)
         self._truth_R = None if truth is None else np.asarray(truth.R, dtype=float)
@@ -40,10 +64,21 @@ class RecordedSource:
         R = self._truth_R
         self._truth_ok = None if R is None else np.all(np.isfinite(R), axis=(1, 2))
 
-    def start(self, origin: float) -> None:
-        """Play the log from run time ``origin`` (s)."""
+    def _play_from(self, origin: float) -> None:
         self.origin = origin
         self._shift = origin - self.log.start
+
+    def start(self, origin: float) -> float:
+        """Play the log from run time ``origin`` (s); returns the run time at which the run ends."""
+        self._play_from(origin)
+        until = self.end + self._stop_after_s
+        self._write_event(origin, "replay_start", log=self.log.source, until=until)
+        return until
+
+    @property
+    def rate_hz(self) -> float:
+        """The log's fastest sensor's rate (Hz, from its median sample period): the estimator task's."""
+        return 1.0 / min(s.median_period() for s in self.log.streams.values())
 
     @property
     def end(self) -> float:
@@ -66,7 +101,7 @@ class RecordedSource:
         self._next = max(stop, self._next)
         return out
 
-    def truth(self, now: float) -> tuple[Array, Array] | None:
+    def truth(self, now: float) -> GroundTruth | None:
         """The log's ground truth at run time ``now``: attitude (3, 3) body → ENU by geodesic interpolation
         between the neighbouring truth samples, and body rate (3,) rad/s from their difference; None without
         truth, outside it, or next to a missing truth sample (a motion-capture occlusion)."""
@@ -82,4 +117,10 @@ class RecordedSource:
             return None
         R0, R1 = self._truth_R[k], self._truth_R[k + 1]
         step = so3.log(R0.T @ R1)
-        return R0 @ so3.exp(step * ((now - t[k]) / dt)), step / dt
+        return GroundTruth(R0 @ so3.exp(step * ((now - t[k]) / dt)), step / dt)
+
+    def close(self) -> None:
+        """Nothing to release: the log was read before the run and stays the caller's."""
+
+    def report(self) -> dict[str, dict[str, Any]]:
+        return {"replay": {"samples_released": self.released}}

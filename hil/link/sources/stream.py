@@ -20,7 +20,7 @@ call and the memory held are bounded whatever arrives.
 
 A receiver (:class:`PhoneReceiver`) listens on one address; its :attr:`~PhoneReceiver.url` says where a
 phone must stream to. Senders (the emulator's simulated phone) implement :class:`PhoneSender`.
-:mod:`hil.link.sources` picks both by URL scheme.
+:mod:`hil.link.sources.listening` picks both by URL scheme.
 """
 
 from __future__ import annotations

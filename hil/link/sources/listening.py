@@ -1,0 +1,118 @@
+"""A phone streaming over the network while the run goes: the ``udp://`` and ``http://`` phone sources.
+
+Each streamed format has a receiving end (the host listens) and a sending end (the emulator's simulated
+phone streams to the host exactly as the app would), looked up by URL scheme in :data:`STREAMS`:
+
+=================================  =====================================================================
+``udp://HOST:PORT``                SensaGram's JSON datagrams, one per sensor event (:mod:`.phone_udp`)
+``http://HOST:PORT[/PATH]``        Sensor Logger's HTTP Push batches (:mod:`.phone_push`)
+``HOST:PORT``                      the same as ``udp://HOST:PORT``
+=================================  =====================================================================
+
+:class:`ListeningSource` is a receiver in the one shape of a run's phone (:class:`~.base.PhoneSource`);
+:func:`listen` is the factory both schemes register under ``vscmg_hil.phone_sources``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+from typing import TYPE_CHECKING, Any
+from urllib.parse import urlsplit
+
+from hil.link.sources.base import GroundTruth, PhoneSource, SourceContext
+from hil.link.sources.stream import PhoneReceiver, PhoneSender
+from protocol.errors import ConfigError, LinkTimeout
+
+if TYPE_CHECKING:
+    from hil.estimation.sensors import SensorSample
+
+STREAMS: dict[str, tuple[str, str]] = {
+    "udp": ("hil.link.sources.phone_udp:PhoneUdpReceiver", "hil.link.sources.phone_udp:PhoneUdpSender"),
+    "http": ("hil.link.sources.phone_push:PhonePushServer", "hil.link.sources.phone_push:PhonePushSender"),
+}
+"""Streamed format by URL scheme: ``("module:Receiver", "module:Sender")``, each class taking the URL and
+imported on first use (the HTTP side brings its guard and decoder process along)."""
+
+POLL_S = 0.02  # s: how often the wait for a first sample looks (and keeps the board's link fed)
+
+
+def phone_url(address: str, where: str = "--phone") -> str:
+    """``address`` as a phone-stream URL: a bare ``HOST:PORT`` becomes ``udp://HOST:PORT``; a scheme that
+    is not a streamed format (:data:`STREAMS`) is a :class:`ConfigError` naming ``where``."""
+    url = address if "://" in address else f"udp://{address}"
+    scheme = urlsplit(url).scheme
+    if scheme not in STREAMS:
+        raise ConfigError(f"{address!r}: a phone stream is udp://HOST:PORT or http://HOST:PORT/PATH", where)
+    return url
+
+
+def _stream_class(url: str, end: int) -> Any:
+    module_name, _, name = STREAMS[urlsplit(url).scheme][end].partition(":")
+    return getattr(importlib.import_module(module_name), name)
+
+
+def open_receiver(address: str) -> PhoneReceiver:
+    """Listen for a phone stream at ``address`` (see :func:`phone_url`; port 0 picks a free one); a busy
+    or bad address is a :class:`~protocol.errors.LinkError`."""
+    url = phone_url(address)
+    receiver: PhoneReceiver = _stream_class(url, 0)(url)
+    return receiver
+
+
+def open_sender(address: str) -> PhoneSender:
+    """Stream a (simulated) phone to ``address`` the way its app does."""
+    url = phone_url(address)
+    sender: PhoneSender = _stream_class(url, 1)(url)
+    return sender
+
+
+class ListeningSource(PhoneSource):
+    """A receiver as a run's phone: what arrived is drained whatever the clock says (the samples carry the
+    phone's own stamps), there is no truth, and the receiver's counters go to ``summary.json``'s
+    ``phone`` section."""
+
+    def __init__(self, receiver: PhoneReceiver) -> None:
+        self.receiver = receiver
+        self.url = receiver.url
+
+    def drain(self, now: float) -> list[SensorSample]:
+        return self.receiver.drain()
+
+    def truth(self, now: float) -> GroundTruth | None:
+        return None
+
+    def close(self) -> None:
+        self.receiver.close()
+
+    def wait_ready(self, wait_s: float, keep_alive: Callable[[], None]) -> None:
+        """The first samples within ``wait_s`` (wall clock), or a :class:`LinkTimeout` saying where to send
+        them (and how many messages were unreadable, with the last reason)."""
+        receiver = self.receiver
+        end = time.monotonic() + wait_s
+        while time.monotonic() < end:
+            receiver.check()
+            keep_alive()
+            if receiver.stats.samples:
+                return
+            time.sleep(POLL_S)
+        st = receiver.stats
+        bad = f" ({st.bad_messages} unreadable, the last: {st.last_error})" if st.bad_messages else ""
+        raise LinkTimeout(
+            f"no phone samples on {self.url} within {wait_s:.0f} s{bad}: start `firmware-sim --world "
+            f"SCENARIO --phone {self.url}` (it streams its simulated phone there) or point {receiver.app} on "
+            "a phone at it"
+        )
+
+    def report(self) -> dict[str, dict[str, Any]]:
+        return {"phone": {"url": self.url, **asdict(self.receiver.stats)}}
+
+
+def listen(url: str, context: SourceContext) -> ListeningSource:
+    """The ``udp://`` and ``http://`` source: listen on ``url`` (``events.jsonl`` gets ``phone_listening``
+    with the address bound, a port 0 resolved)."""
+    source = ListeningSource(open_receiver(url))
+    context.write_event(context.clock.now(), "phone_listening", url=source.url)
+    return source
