@@ -67,7 +67,6 @@ from protocol.messages import (
     ResetCause,
     Severity,
     Telemetry,
-    encode_payload,
 )
 from protocol.reliable import Command, CommandState, ReliableSender
 
@@ -154,7 +153,7 @@ class Session:
         self._reply_since_sample: HelloReply | None = None
         self._reset_evidence: str | None = None
         self._setpoint_slot = -math.inf
-        self._pending_setpoint: ActuatorSetpoint | RawPulses | None = None
+        self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
         self._transfers = CalibrationTransfers()
         self._auto: dict[int, str] = {}  # id(Command) -> why the session sent it on its own
 
@@ -214,16 +213,16 @@ class Session:
         self._now = now
         if self.pending_reset is not None:
             raise self.pending_reset.error()
-        self._check_setpoint(message)
+        body = self._check_setpoint(message)
         if self.phase is not Phase.READY:
             self.counters.setpoints_dropped += 1
             return b""
         if now >= self._setpoint_slot:
-            self._send_setpoint(message, now)
+            self._send_setpoint(body, now)
         else:
             if self._pending_setpoint is not None:
                 self.counters.setpoints_coalesced += 1
-            self._pending_setpoint = message
+            self._pending_setpoint = body
         return self._take()
 
     def upload_fragments(self, unit: int, calibration: UnitCalibration) -> list[CalibrationData]:
@@ -247,8 +246,8 @@ class Session:
         self._put(self.commands.poll(now), now)
         if self.phase is Phase.READY:
             if self._pending_setpoint is not None and now >= self._setpoint_slot:
-                message, self._pending_setpoint = self._pending_setpoint, None
-                self._send_setpoint(message, now)
+                body, self._pending_setpoint = self._pending_setpoint, None
+                self._send_setpoint(body, now)
             if now - self._last_tx >= self.config.heartbeat_period_s:
                 self._send(Heartbeat(time_ms=round(now * 1000.0) % _U32, state=0), now)
                 self.counters.heartbeats_sent += 1
@@ -452,13 +451,15 @@ class Session:
         if self.phase is not Phase.READY:
             raise LinkError(f"no session with the board (link {self.phase.value})")
 
-    def _check_setpoint(self, message: ActuatorSetpoint | RawPulses) -> None:
+    def _check_setpoint(self, message: ActuatorSetpoint | RawPulses) -> bytes:
+        """``message`` checked and encoded, once, before anything is held: the body
+        :meth:`_send_setpoint` numbers and sends (now, or at its slot if it is not replaced first)."""
         if not isinstance(message, (ActuatorSetpoint, RawPulses)):
             raise ProtocolError(f"{type(message).__name__} is not a setpoint (ActuatorSetpoint or RawPulses)")
-        encode_payload(message)  # FieldRangeError for NaN / out-of-range values, before anything is held
+        body = self.framer.prepare(message)  # FieldRangeError for NaN / out-of-range values
         info = self.info
         if info is None:
-            return
+            return body
         if isinstance(message, ActuatorSetpoint) and len(message.units) != info.n_units:
             raise ProtocolError(
                 f"ActuatorSetpoint for {len(message.units)} units; the board has {info.n_units}"
@@ -467,6 +468,7 @@ class Session:
             raise ProtocolError(
                 f"RawPulses for {len(message.pulses_us)} channels; the board has {info.n_channels}"
             )
+        return body
 
     def _check_unit(self, unit: int) -> None:
         self._require_session()
@@ -474,8 +476,9 @@ class Session:
         if isinstance(unit, bool) or not isinstance(unit, int) or not 0 <= unit < self.info.n_units:
             raise ProtocolError(f"unit {unit!r} does not exist (the board has {self.info.n_units})")
 
-    def _send_setpoint(self, message: ActuatorSetpoint | RawPulses, now: float) -> None:
-        self._send(message, now)
+    def _send_setpoint(self, body: bytes, now: float) -> None:
+        _, data = self.framer.send_prepared(body)
+        self._put(data, now)
         self.counters.setpoints_sent += 1
         self._setpoint_slot = now + 1.0 / self._setpoint_rate()
 
