@@ -37,7 +37,9 @@ from __future__ import annotations
 import enum
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from types import MethodType
 from typing import Any
 
 from protocol.calibration import UnitCalibration
@@ -52,19 +54,24 @@ from protocol.errors import (
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import (
     PROTOCOL_VERSION,
+    Ack,
     ActuatorSetpoint,
     Arm,
     BoardState,
     CalibrationData,
     CalibrationRequest,
     Disarm,
+    EscCalibrate,
     EscCalibrationStatus,
     Heartbeat,
     Hello,
     HelloReply,
     Log,
+    Message,
+    Nack,
     RawPulses,
     ResetCause,
+    SetMode,
     Severity,
     Telemetry,
 )
@@ -156,6 +163,10 @@ class Session:
         self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
         self._transfers = CalibrationTransfers()
         self._auto: dict[int, str] = {}  # id(Command) -> why the session sent it on its own
+        self._receive: dict[type[Message], Callable[[Frame, float], None]] = {
+            cls: MethodType(receive, self) for cls, receive in RECEIVE.items()
+        }
+        """:data:`RECEIVE` bound to this session: a frame's handler is one look-up by its message's type."""
 
     # ================================================================== link lifecycle
     def link_up(self, now: float) -> bytes:
@@ -291,29 +302,42 @@ class Session:
         if self._silent:
             self._silent = False
             self._emit(SilenceEvent(now, now, ended=True))
-        msg = frame.message
-        if isinstance(msg, HelloReply):
-            self.hellos.on_frame(frame, now)
-        elif isinstance(msg, Telemetry):
-            self.telemetry, self.telemetry_time = msg, now
-            self._board_clock(msg.time_ms, msg.state, now)
-            self._emit(TelemetryEvent(now, msg))
-        elif isinstance(msg, Heartbeat):
-            try:
-                state: BoardState | None = BoardState(msg.state)
-            except ValueError:
-                self.counters.unknown_board_states += 1
-                state = None
-            self._board_clock(msg.time_ms, state, now)
-        elif isinstance(msg, Log):
-            logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s", msg.text)
-            self._emit(LogEvent(now, msg))
-        elif isinstance(msg, CalibrationData):
-            self._on_calibration_data(frame, now)
-        elif isinstance(msg, EscCalibrationStatus):
-            self._emit(EscCalibrationEvent(now, msg))
-        else:
-            self.commands.on_frame(frame, now)  # Ack / Nack (anything else is ignored there)
+        self._receive[type(frame.message)](frame, now)
+
+    # ------------------------------------------------------------------ RECEIVE's handlers
+    def _on_hello_reply_frame(self, frame: Frame, now: float) -> None:
+        self.hellos.on_frame(frame, now)
+
+    def _on_telemetry(self, frame: Frame, now: float) -> None:
+        msg: Telemetry = frame.message
+        self.telemetry, self.telemetry_time = msg, now
+        self._board_clock(msg.time_ms, msg.state, now)
+        self._emit(TelemetryEvent(now, msg))
+
+    def _on_heartbeat(self, frame: Frame, now: float) -> None:
+        msg: Heartbeat = frame.message
+        try:
+            state: BoardState | None = BoardState(msg.state)
+        except ValueError:
+            self.counters.unknown_board_states += 1
+            state = None
+        self._board_clock(msg.time_ms, state, now)
+
+    def _on_log(self, frame: Frame, now: float) -> None:
+        msg: Log = frame.message
+        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s", msg.text)
+        self._emit(LogEvent(now, msg))
+
+    def _on_esc_calibration_status(self, frame: Frame, now: float) -> None:
+        self._emit(EscCalibrationEvent(now, frame.message))
+
+    def _on_answer(self, frame: Frame, now: float) -> None:
+        """An Ack or Nack: settles the command it answers (a stray one is counted there)."""
+        self.commands.on_frame(frame, now)
+
+    def _on_not_ours(self, frame: Frame, now: float) -> None:
+        """A host-to-board message come back (a loopback, a crossed wire): nothing to do; it still showed
+        the link alive (``last_heard``)."""
 
     def _board_clock(self, uptime_ms: int, state: BoardState | None, now: float) -> None:
         """An uptime sample (and state) from the board: the reset detector."""
@@ -505,3 +529,31 @@ class Session:
 
     def _emit(self, event: Event) -> None:
         self._events.append(event)
+
+
+Receive = Callable[[Session, Frame, float], None]
+"""A received message's handler: ``(session, frame, now)``."""
+
+RECEIVE: dict[type[Message], Receive] = {
+    # board to host
+    HelloReply: Session._on_hello_reply_frame,  # settles the handshake's Hello
+    Telemetry: Session._on_telemetry,
+    Heartbeat: Session._on_heartbeat,
+    Log: Session._on_log,
+    CalibrationData: Session._on_calibration_data,  # a download's fragment, acknowledged
+    EscCalibrationStatus: Session._on_esc_calibration_status,
+    Ack: Session._on_answer,
+    Nack: Session._on_answer,
+    # host to board, come back
+    Hello: Session._on_not_ours,
+    Arm: Session._on_not_ours,
+    Disarm: Session._on_not_ours,
+    SetMode: Session._on_not_ours,
+    EscCalibrate: Session._on_not_ours,
+    ActuatorSetpoint: Session._on_not_ours,
+    RawPulses: Session._on_not_ours,
+    CalibrationRequest: Session._on_not_ours,
+}
+"""What the host's session does with each message of the catalogue (``protocol.messages.CATALOGUE``) that
+arrives from the board, by type. Every catalogue message has an entry — ``tests/test_message_dispatch.py``
+fails naming one that has not (docs/protocol.md, "Adding a message")."""
