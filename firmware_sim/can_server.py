@@ -21,8 +21,8 @@ import threading
 from dataclasses import dataclass
 from types import TracebackType
 
+from hil.threads import ThreadError
 from protocol.can import Direction
-from protocol.errors import LinkError
 
 from .board import Board
 
@@ -55,7 +55,7 @@ class CanServer:
         self.path = url  # what the host opens (the pty server's ``path`` counterpart)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
+        self._thread_error = ThreadError(f"CAN server on {self.path} failed")
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> CanServer:
@@ -68,19 +68,15 @@ class CanServer:
         return self
 
     def _run_thread(self) -> None:
-        try:
+        with self._thread_error.caught(logger, "CAN server thread failed"):  # raised by close()/check()
             self.serve()
-        except BaseException as exc:  # stored and raised by close()/check(): threads never die silently
-            self._error = exc
-            logger.exception("CAN server thread failed")
 
     def stop(self) -> None:
         self._stop.set()
 
     def check(self) -> None:
         """Raise the serving thread's error, if it had one."""
-        if self._error is not None:
-            raise LinkError(f"CAN server on {self.path} failed: {self._error!r}") from self._error
+        self._thread_error.check()
 
     def close(self) -> None:
         """Stop serving and release the bus. Idempotent."""

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
+from hil.threads import ThreadError
 from protocol.errors import LinkError
 
 from .board import Board
@@ -75,7 +76,7 @@ class PtyServer:
         self._host_absent = False
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._error: BaseException | None = None
+        self._thread_error = ThreadError(f"pty server on {self.path} failed")
         self.link: Path | None = None
         if link is not None:
             try:
@@ -96,19 +97,15 @@ class PtyServer:
         return self
 
     def _run_thread(self) -> None:
-        try:
+        with self._thread_error.caught(logger, "pty server thread failed"):  # raised by close()/check()
             self.serve()
-        except BaseException as exc:  # stored and raised by close()/check(): threads never die silently
-            self._error = exc
-            logger.exception("pty server thread failed")
 
     def stop(self) -> None:
         self._stop.set()
 
     def check(self) -> None:
         """Raise the serving thread's error, if it had one."""
-        if self._error is not None:
-            raise LinkError(f"pty server on {self.path} failed: {self._error!r}") from self._error
+        self._thread_error.check()
 
     def close(self) -> None:
         """Stop serving, close the pty, remove the symlink. Idempotent."""

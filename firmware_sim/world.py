@@ -42,6 +42,7 @@ from numpy.typing import NDArray
 from hil.control.motor_loops import ServoModel, Setpoints
 from hil.estimation.sensors import SensorSample
 from hil.simulation.phone import BodyPhone
+from hil.threads import ThreadError
 from hil.vscmg import CompiledPlant, Plant, PlantState
 from protocol.messages import GimbalMode, UnitState
 
@@ -419,7 +420,7 @@ class WorldStreamer:
         self.batches = 0
         self.max_lag_s = 0.0  # the furthest the world fell behind the board's clock (s)
         self._stop = threading.Event()
-        self._error: BaseException | None = None
+        self._thread_error = ThreadError("the world thread failed")
         self._thread = threading.Thread(target=self._run, name="world", daemon=True)
 
     def start(self) -> WorldStreamer:
@@ -428,7 +429,7 @@ class WorldStreamer:
 
     def _run(self) -> None:
         clock, world = self.world.board.clock, self.world
-        try:
+        with self._thread_error.caught(logger, "world thread failed"):  # raised by check()/close()
             pending: list[SensorSample] = []
             origin = next_push = clock.now()
             k = 0
@@ -457,15 +458,10 @@ class WorldStreamer:
                     self.batches += 1
                     pending = []
                 k = max(k, int((clock.now() - origin) / self.step_s))  # missed steps skipped, never burst
-        except BaseException as exc:  # stored, raised by check(): threads never die silently
-            self._error = exc
-            logger.exception("world thread failed")
 
     def check(self) -> None:
-        if self._error is not None:
-            from protocol.errors import LinkError
-
-            raise LinkError(f"the world thread failed: {self._error!r}") from self._error
+        """Raise the world thread's error, if it had one (as every later call does)."""
+        self._thread_error.check()
 
     def close(self) -> None:
         self._stop.set()

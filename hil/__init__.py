@@ -2,7 +2,8 @@
 
 Pure math (no I/O): :mod:`hil.so3`, :mod:`hil.estimation`, :mod:`hil.vscmg`, :mod:`hil.control`,
 :mod:`hil.simulation`. Around it: :mod:`hil.scenario` (what a run simulates), :mod:`hil.timing` (clocks,
-scheduler), :mod:`hil.link` (board client, transports, phone sources), :mod:`hil.runtime` (the host's loop
-and its run directory), and the tools: :mod:`hil.logs`, :mod:`hil.calibration`, :mod:`hil.montecarlo`,
-:mod:`hil.plots`, :mod:`hil.cli`. docs/architecture.md draws the layers.
+scheduler), :mod:`hil.threads` (a background thread's error, raised by its owner), :mod:`hil.link`
+(board client, transports, phone sources), :mod:`hil.runtime` (the host's loop and its run directory),
+and the tools: :mod:`hil.logs`, :mod:`hil.calibration`, :mod:`hil.montecarlo`, :mod:`hil.plots`,
+:mod:`hil.cli`. docs/architecture.md draws the layers.
 """

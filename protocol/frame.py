@@ -97,10 +97,18 @@ _new_frame = fast_constructor(Frame)
 _ENCODERS = {msg_id: codec.encode for msg_id, codec in CODECS.items()}
 _DECODERS = {msg_id: codec.decode for msg_id, codec in CODECS.items()}
 _MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
+_SEQ_BYTES = tuple(bytes((seq,)) for seq in range(256))
+"""A sequence number as the one byte it is in the header, by value."""
 
 
 def encode_frame(message: Any, seq: int, flags: int = 0) -> bytes:
     """The wire bytes (COBS + delimiter) of one frame. Raises FieldRangeError for bad fields."""
+    return seal(encode_body(message, seq, flags))
+
+
+def encode_body(message: Any, seq: int, flags: int = 0) -> bytes:
+    """One frame before it is sealed: header and payload, no CRC, no COBS (what :func:`encode_frame`
+    seals). Raises FieldRangeError for bad fields, ProtocolError for a payload over MAX_PAYLOAD."""
     if not 0 <= seq <= 0xFF:
         raise FieldRangeError("header", "seq", seq)
     if not 0 <= flags <= 0xFF:
@@ -112,7 +120,7 @@ def encode_frame(message: Any, seq: int, flags: int = 0) -> bytes:
     if len(body) > _MAX_BODY:
         size = len(body) - HEADER_SIZE
         raise ProtocolError(f"{type(message).__name__} payload is {size} bytes > {MAX_PAYLOAD}")
-    return seal(body)
+    return body
 
 
 def _decode_fast(encoded: bytes) -> Frame | None:
@@ -301,7 +309,9 @@ class Deframer:
 
 class Framer:
     """Sender side: numbers frames. ``encode(msg)`` takes the next sequence number; a retry passes the
-    original ``seq`` and gets the RETRANSMIT flag."""
+    original ``seq`` and gets the RETRANSMIT flag. A message checked when it is given but sent later, or
+    never (a setpoint that waits for its slot and may be replaced by a newer one), is encoded once by
+    :meth:`prepare` and numbered when it leaves by :meth:`send_prepared`."""
 
     def __init__(self, first_seq: int = 0) -> None:
         self._next = first_seq & 0xFF
@@ -323,6 +333,21 @@ class Framer:
         wire = encode_frame(message, seq, flags)
         if new:
             self._next = (seq + 1) & 0xFF
+        return seq, wire
+
+    def prepare(self, message: Any) -> bytes:
+        """``message`` encoded now (FieldRangeError, ProtocolError here), its sequence number left to
+        :meth:`send_prepared`: the unsealed frame (:func:`encode_body`) with sequence number 0. Uses up
+        no sequence number."""
+        flags = Flags.ACK_REQUESTED if getattr(message, "RELIABLE", False) else 0
+        return encode_body(message, 0, flags)
+
+    def send_prepared(self, body: bytes) -> tuple[int, bytes]:
+        """``(seq, wire_bytes)`` of a body from :meth:`prepare`, with the next sequence number: the same
+        bytes :meth:`encode` gives for its message."""
+        seq = self._next
+        wire = seal(body[:2] + _SEQ_BYTES[seq] + body[3:])  # the header's third byte is seq
+        self._next = (seq + 1) & 0xFF
         return seq, wire
 
 

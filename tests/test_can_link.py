@@ -94,7 +94,7 @@ def test_an_error_in_the_serving_thread_is_raised_not_swallowed():
     time.sleep(0.1)
     server.transport.close()  # the bus goes away under the running loop
     deadline = time.monotonic() + 2.0
-    while server._error is None and time.monotonic() < deadline:
+    while server._thread_error.error is None and time.monotonic() < deadline:
         time.sleep(0.01)
     with pytest.raises(LinkError, match="CAN server .* failed"):
         server.check()

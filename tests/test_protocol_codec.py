@@ -254,6 +254,18 @@ def test_framer_retry_keeps_the_sequence_number_and_marks_retransmit():
     assert framer.encode(Arm())[0] == 0  # wraps
 
 
+@given(seqs, st.lists(messages(), min_size=1, max_size=30))
+def test_a_prepared_message_is_sent_as_the_same_bytes_as_an_encoded_one(first, msgs):
+    """Framer.prepare encodes once (a setpoint checked when given, sent at its slot); send_prepared numbers
+    it: the wire bytes are encode()'s, and a prepared message never sent takes no number."""
+    encoding, preparing = Framer(first), Framer(first)
+    for msg in msgs:
+        body = preparing.prepare(msg)
+        preparing.prepare(msg)  # prepared and dropped (a coalesced setpoint): no number used
+        assert preparing.send_prepared(body) == encoding.encode(msg)
+    assert preparing.next_seq == encoding.next_seq
+
+
 def test_array_records_are_records():
     for cls in CATALOGUE:
         for _, codec in layout_of(cls).fields:

@@ -4,7 +4,8 @@ disarming, the control mode, setpoints and raw pulses, calibration transfers —
 puts an armed board into FAILSAFE when nothing valid arrives for ``link_timeout_s``.
 
 The transitions themselves are the pure function :func:`firmware_sim.state.transition`; this module
-adds what a state change does (stop the rotors, hold the gimbals, log, send a ``Heartbeat``).
+adds what a state change does (stop the rotors, hold the gimbals, log, send a ``Heartbeat``). What each
+message does is :data:`EXECUTE`, a table with an entry for every message of the catalogue.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from types import MethodType
 from typing import Any
 
 from protocol.frame import BadFrame, Frame
@@ -28,12 +30,14 @@ from protocol.messages import (
     Disarm,
     EscCalAbort,
     EscCalibrate,
+    EscCalibrationStatus,
     Flags,
     GimbalMode,
     Heartbeat,
     Hello,
     HelloReply,
     Log,
+    Message,
     Nack,
     NackReason,
     RawPulses,
@@ -134,6 +138,10 @@ class CommandHandler:
         self._out = outbox
         self._catch_up = catch_up
         self._apply_outputs = apply_outputs
+        self._execute: dict[type[Message], Callable[[Any, int], NackReason | None] | None] = {
+            cls: None if execute is None else MethodType(execute, self) for cls, execute in EXECUTE.items()
+        }
+        """:data:`EXECUTE` bound to this board: a frame's handler is one look-up by its message's type."""
 
     def reset(self) -> None:
         """MCU reset: BOOT, SETPOINT mode, no session, the command forgotten."""
@@ -204,7 +212,8 @@ class CommandHandler:
     def _handle_frame(self, frame: Frame, t: int) -> None:
         msg = frame.message
         wants_answer = bool(int(frame.flags) & _ACK_REQUESTED) or type(msg).RELIABLE
-        if isinstance(msg, (HelloReply, Telemetry, Log)):
+        execute = self._execute[type(msg)]
+        if execute is None:
             self.link.stats.ignored += 1  # board-to-host messages echoed back: not ours
             return
         self._on_valid_rx(t)
@@ -213,7 +222,7 @@ class CommandHandler:
             if cached is not None:
                 self._out.send(cached)
                 return
-        refused = self._execute(msg, t)
+        refused = execute(msg, t)
         if wants_answer:
             answer: Ack | Nack
             if refused is None:
@@ -222,33 +231,6 @@ class CommandHandler:
                 answer = Nack(msg_id=frame.msg_id, seq=frame.seq, reason=refused)
             self.link.remember_answer(frame, answer)
             self._out.send(answer)
-
-    def _execute(self, msg: Any, t: int) -> NackReason | None:
-        """Run one command; returns None (accepted) or the NACK reason."""
-        if isinstance(msg, ActuatorSetpoint):
-            self._on_setpoint(msg)
-        elif isinstance(msg, RawPulses):
-            self._on_raw_pulses(msg)
-        elif isinstance(msg, Heartbeat):
-            pass
-        elif isinstance(msg, Hello):
-            self._on_hello(msg, t)
-        elif isinstance(msg, Arm):
-            return self._on_arm(t)
-        elif isinstance(msg, Disarm):
-            self.esc_calibration.abort(EscCalAbort.DISARM, t)
-            return self._apply(Event.DISARM, t)
-        elif isinstance(msg, EscCalibrate):
-            return self.esc_calibration.command(msg, self.state, self.power.power_ok, t)
-        elif isinstance(msg, SetMode):
-            return self._on_set_mode(msg)
-        elif isinstance(msg, CalibrationData):
-            return self.transfers.upload(msg, self.state)
-        elif isinstance(msg, CalibrationRequest):
-            return self.transfers.download(msg, self.state, t)
-        elif isinstance(msg, (Ack, Nack)):
-            self.transfers.on_answer(msg)
-        return None
 
     # ------------------------------------------------------------------ state changes
     def _apply(self, event: Event, t: int) -> NackReason | None:
@@ -287,7 +269,7 @@ class CommandHandler:
             self._catch_up(t)
             self.command.gimbal = [u.gimbal_angle for u in self.units]
 
-    # ------------------------------------------------------------------ commands
+    # ------------------------------------------------------------------ commands (EXECUTE's handlers)
     def _on_hello(self, msg: Hello, t: int) -> None:
         compatible = msg.protocol_version == PROTOCOL_VERSION and msg.schema_hash == SCHEMA_HASH
         if compatible:
@@ -308,7 +290,7 @@ class CommandHandler:
             )
         self._out.send(hello_reply(self.config, self.resets[-1].cause, self.state))
 
-    def _on_arm(self, t: int) -> NackReason | None:
+    def _on_arm(self, msg: Arm, t: int) -> NackReason | None:
         if self.state is not BoardState.BOOT and any(c is None for c in self.calibrations):
             return NackReason.BAD_CALIBRATION
         if self.esc_calibration.active:
@@ -321,7 +303,28 @@ class CommandHandler:
                 self.command.stop_rotors()
         return refused
 
-    def _on_set_mode(self, msg: SetMode) -> NackReason | None:
+    def _on_disarm(self, msg: Disarm, t: int) -> NackReason | None:
+        self.esc_calibration.abort(EscCalAbort.DISARM, t)
+        return self._apply(Event.DISARM, t)
+
+    def _on_esc_calibrate(self, msg: EscCalibrate, t: int) -> NackReason | None:
+        return self.esc_calibration.command(msg, self.state, self.power.power_ok, t)
+
+    def _on_calibration_data(self, msg: CalibrationData, t: int) -> NackReason | None:
+        return self.transfers.upload(msg, self.state)
+
+    def _on_calibration_request(self, msg: CalibrationRequest, t: int) -> NackReason | None:
+        return self.transfers.download(msg, self.state, t)
+
+    def _on_answer(self, msg: Ack | Nack, t: int) -> None:
+        """The host's Ack or Nack: of a download fragment, or counted as ignored by the transfers."""
+        self.transfers.on_answer(msg)
+
+    def _on_nothing_to_do(self, msg: Any, t: int) -> None:
+        """A valid frame that asks nothing of the board (a Heartbeat: it only feeds the link watchdog),
+        answered if it asked to be."""
+
+    def _on_set_mode(self, msg: SetMode, t: int) -> NackReason | None:
         refused = transition(self.state, Event.SET_MODE).refused
         if refused is not None:
             return refused
@@ -334,7 +337,7 @@ class CommandHandler:
             self._out.log(Severity.INFO, LogCode.STATE, f"mode {msg.mode.name}")
         return None
 
-    def _on_setpoint(self, msg: ActuatorSetpoint) -> None:
+    def _on_setpoint(self, msg: ActuatorSetpoint, t: int) -> None:
         if not motors_enabled(self.state) or self.mode is not ControlMode.SETPOINT:
             self.counters["ignored_setpoints"] += 1
             return
@@ -354,7 +357,7 @@ class CommandHandler:
         cmd.gimbal = [u.gimbal for u in msg.units]
         cmd.rotor = [u.rotor_speed for u in msg.units]
 
-    def _on_raw_pulses(self, msg: RawPulses) -> None:
+    def _on_raw_pulses(self, msg: RawPulses, t: int) -> None:
         if not motors_enabled(self.state) or self.mode is not ControlMode.RAW_PULSES:
             self.counters["ignored_setpoints"] += 1
             return
@@ -368,3 +371,33 @@ class CommandHandler:
             return
         self.counters["setpoints"] += 1
         self.command.raw = tuple(msg.pulses_us)
+
+
+Execute = Callable[[CommandHandler, Any, int], NackReason | None]
+"""A message's handler: ``(board's handler, message, t µs) -> None (accepted) or the NACK reason``."""
+
+EXECUTE: dict[type[Message], Execute | None] = {
+    # host to board: what the board does, returning None (accepted) or the NACK reason
+    Hello: CommandHandler._on_hello,
+    Heartbeat: CommandHandler._on_nothing_to_do,
+    Arm: CommandHandler._on_arm,
+    Disarm: CommandHandler._on_disarm,
+    SetMode: CommandHandler._on_set_mode,
+    EscCalibrate: CommandHandler._on_esc_calibrate,
+    ActuatorSetpoint: CommandHandler._on_setpoint,
+    RawPulses: CommandHandler._on_raw_pulses,
+    CalibrationData: CommandHandler._on_calibration_data,  # an upload's fragment
+    CalibrationRequest: CommandHandler._on_calibration_request,
+    Ack: CommandHandler._on_answer,
+    Nack: CommandHandler._on_answer,
+    # board to host, echoed back (a loopback, a crossed wire): not ours, counted in ``link.stats.ignored``
+    # and not a valid frame for the link watchdog (firmware/src/app.c tests the same three ids)
+    HelloReply: None,
+    Telemetry: None,
+    Log: None,
+    # board to host as well, but taken as a valid frame that asks nothing (as app.c's switch does)
+    EscCalibrationStatus: CommandHandler._on_nothing_to_do,
+}
+"""What the board does with each message of the catalogue (``protocol.messages.CATALOGUE``), by type:
+``None`` for the board-to-host messages it ignores. Every catalogue message has an entry —
+``tests/test_message_dispatch.py`` fails naming one that has not (docs/protocol.md, "Adding a message")."""

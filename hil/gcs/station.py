@@ -35,6 +35,7 @@ from hil.gcs.server import LIMITS, GcsHttpServer
 from hil.gcs.uplink import Uplink
 from hil.gcs.wire import Batch, dumps, encode_batch, sse
 from hil.link.sources.http_guard import HttpLimits
+from hil.threads import ThreadError
 from protocol.errors import LinkError
 
 logger = logging.getLogger(__name__)
@@ -70,7 +71,7 @@ class GroundStation:
         self.token = token or new_token()
         self.hub = Hub(budget)
         self.info: dict[str, Any] | None = None
-        self.error: BaseException | None = None
+        self._thread_error = ThreadError("the ground station's pump failed")
         self.pump_cycles = 0
         self.server = self._listen(host, port, explicit)
         self.host = host
@@ -168,10 +169,14 @@ class GroundStation:
             out["uplink"] = asdict(self.uplink.stats)
         return out
 
+    @property
+    def error(self) -> BaseException | None:
+        """The pump thread's error, if it had one (the page stopped updating)."""
+        return self._thread_error.error
+
     def check(self) -> None:
         """Raise the pump thread's error, if it had one."""
-        if self.error is not None:
-            raise LinkError(f"the ground station's pump failed: {self.error!r}") from self.error
+        self._thread_error.check()
 
     # ------------------------------------------------------------------ the pump
     def _pump(self) -> None:
@@ -190,7 +195,7 @@ class GroundStation:
             self._cycle()  # what came in while stopping
         except Exception as exc:  # stored, raised by check(), shown in the page: never silent
             logger.exception("ground station pump failed")
-            self.error = exc
+            self._thread_error.store(exc)
             self.hub.publish(sse("status", dumps({"state": "error", "error": repr(exc)})))
 
     def _cycle(self) -> None:

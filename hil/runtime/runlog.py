@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from hil.files.bounded import MAX_LINE_BYTES, load_json, read_lines
+from hil.threads import ThreadError
 from protocol.errors import InputFormatError
 
 TELEMETRY = "telemetry.csv"
@@ -122,7 +123,8 @@ class CsvLog:
         self._queue: queue.Queue[Sequence[Any] | None] = queue.Queue(max_pending)
         self._batch_s = batch_s
         self._closing = threading.Event()
-        self._error: BaseException | None = None
+        # The writer thread's error (a full disk), raised as it is, once, by the next write, flush or close.
+        self._thread_error = ThreadError(None, once=True)
         self._thread = threading.Thread(target=self._run, name=f"csv:{self.path.name}", daemon=True)
         self._thread.start()
         self.tap = tap
@@ -139,7 +141,7 @@ class CsvLog:
         """Write one row given as ``len(columns)`` values in column order (the control tick's path)."""
         if self._file is None:
             raise ValueError(f"{self.path}: log is closed")
-        self._check()
+        self._thread_error.check()
         if len(values) != len(self.columns):
             raise ValueError(f"{self.path.name}: {len(values)} values for {len(self.columns)} columns")
         self._queue.put(values)
@@ -152,7 +154,7 @@ class CsvLog:
         ``batch_s`` later)."""
         if self._file is not None:
             self._queue.join()
-        self._check()
+        self._thread_error.check()
 
     def close(self) -> None:
         if self._file is None:
@@ -162,12 +164,7 @@ class CsvLog:
         self._thread.join()
         self._file.close()
         self._file = None
-        self._check()
-
-    def _check(self) -> None:
-        error, self._error = self._error, None
-        if error is not None:
-            raise error
+        self._thread_error.check()
 
     def _run(self) -> None:
         """The writer thread: everything queued, formatted and written in one go, then flushed."""
@@ -184,11 +181,11 @@ class CsvLog:
                     break
             rows = [r for r in batch if r is not None]
             try:
-                if rows and self._error is None:
+                if rows and self._thread_error.error is None:
                     out.write("".join(",".join(map(_cell, r)) + _EOL for r in rows))
                     out.flush()
             except BaseException as exc:  # stored, raised on the caller's thread: never lost silently
-                self._error = exc
+                self._thread_error.store(exc)
             finally:
                 for _ in batch:
                     q.task_done()

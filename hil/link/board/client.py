@@ -48,6 +48,7 @@ from types import TracebackType
 from typing import Any
 
 from hil.link.transports import InProcessBoard, Transport, create_transport
+from hil.threads import ThreadError
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from protocol.calibration import UnitCalibration
 from protocol.errors import ConfigError, HandshakeError, HilError, LinkError, LinkTimeout, PortBusy
@@ -110,7 +111,12 @@ class BoardClient:
         self._cond = threading.Condition(threading.RLock())
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self._error: BaseException | None = None
+        # The reader thread's error, or a fatal one of the session met in the caller's pump: raised by
+        # every later call; the session's own HilError (an incompatible board) as it is, anything else
+        # as a LinkError naming the transport.
+        self._thread_error = ThreadError(
+            lambda: f"{self.transport.url}: the reader thread failed", as_is=HilError
+        )
         self._closed = False
         self._connected = False  # a session was established once: from then on, losses are reconnected
         self._reconnect_at: float | None = None
@@ -151,7 +157,7 @@ class BoardClient:
             if not self._connected:  # leave nothing half-open: stop the reader, close, and allow a retry
                 self.stop()
                 with self._cond:
-                    self._error = None  # it is being raised to the caller right now
+                    self._thread_error.clear()  # it is being raised to the caller right now
                     self.transport.close()
                     self.session.link_down(self.clock.now(), "connect failed", lost=False)
             raise
@@ -345,11 +351,7 @@ class BoardClient:
     # ================================================================== internals
     def _check(self) -> None:
         """Raise the stored error (from the reader thread or an earlier pump); refuse a closed client."""
-        error = self._error
-        if error is not None:
-            if isinstance(error, HilError):
-                raise error
-            raise LinkError(f"{self.transport.url}: the reader thread failed: {error!r}") from error
+        self._thread_error.check()
         if self._closed:
             raise LinkError(f"{self.transport.url}: the board client is closed")
 
@@ -360,7 +362,7 @@ class BoardClient:
                 self._pump(max(min(self._next_wake(now), now + self.config.max_block_s) - now, 0.0))
         except BaseException as exc:  # stored and raised in the caller's loop: never swallowed
             with self._cond:
-                self._error = exc
+                self._thread_error.store(exc)
                 self._cond.notify_all()
 
     def _wait_until(self, predicate: Callable[[], object], timeout: float | None) -> bool:
@@ -428,7 +430,8 @@ class BoardClient:
                 self._keep_link(now)
             except HilError as exc:  # fatal for the session (incompatible board, reconnection given up)
                 if self._connected:
-                    self._error = exc  # raised again by every later call (before: connect() may be retried)
+                    # raised again by every later call (before: connect() may be retried)
+                    self._thread_error.store(exc)
                 raise
             finally:
                 self._dispatch()

@@ -37,7 +37,9 @@ from __future__ import annotations
 import enum
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from types import MethodType
 from typing import Any
 
 from protocol.calibration import UnitCalibration
@@ -52,22 +54,26 @@ from protocol.errors import (
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import (
     PROTOCOL_VERSION,
+    Ack,
     ActuatorSetpoint,
     Arm,
     BoardState,
     CalibrationData,
     CalibrationRequest,
     Disarm,
+    EscCalibrate,
     EscCalibrationStatus,
     Heartbeat,
     Hello,
     HelloReply,
     Log,
+    Message,
+    Nack,
     RawPulses,
     ResetCause,
+    SetMode,
     Severity,
     Telemetry,
-    encode_payload,
 )
 from protocol.reliable import Command, CommandState, ReliableSender
 
@@ -154,9 +160,13 @@ class Session:
         self._reply_since_sample: HelloReply | None = None
         self._reset_evidence: str | None = None
         self._setpoint_slot = -math.inf
-        self._pending_setpoint: ActuatorSetpoint | RawPulses | None = None
+        self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
         self._transfers = CalibrationTransfers()
         self._auto: dict[int, str] = {}  # id(Command) -> why the session sent it on its own
+        self._receive: dict[type[Message], Callable[[Frame, float], None]] = {
+            cls: MethodType(receive, self) for cls, receive in RECEIVE.items()
+        }
+        """:data:`RECEIVE` bound to this session: a frame's handler is one look-up by its message's type."""
 
     # ================================================================== link lifecycle
     def link_up(self, now: float) -> bytes:
@@ -214,16 +224,16 @@ class Session:
         self._now = now
         if self.pending_reset is not None:
             raise self.pending_reset.error()
-        self._check_setpoint(message)
+        body = self._check_setpoint(message)
         if self.phase is not Phase.READY:
             self.counters.setpoints_dropped += 1
             return b""
         if now >= self._setpoint_slot:
-            self._send_setpoint(message, now)
+            self._send_setpoint(body, now)
         else:
             if self._pending_setpoint is not None:
                 self.counters.setpoints_coalesced += 1
-            self._pending_setpoint = message
+            self._pending_setpoint = body
         return self._take()
 
     def upload_fragments(self, unit: int, calibration: UnitCalibration) -> list[CalibrationData]:
@@ -247,8 +257,8 @@ class Session:
         self._put(self.commands.poll(now), now)
         if self.phase is Phase.READY:
             if self._pending_setpoint is not None and now >= self._setpoint_slot:
-                message, self._pending_setpoint = self._pending_setpoint, None
-                self._send_setpoint(message, now)
+                body, self._pending_setpoint = self._pending_setpoint, None
+                self._send_setpoint(body, now)
             if now - self._last_tx >= self.config.heartbeat_period_s:
                 self._send(Heartbeat(time_ms=round(now * 1000.0) % _U32, state=0), now)
                 self.counters.heartbeats_sent += 1
@@ -292,29 +302,42 @@ class Session:
         if self._silent:
             self._silent = False
             self._emit(SilenceEvent(now, now, ended=True))
-        msg = frame.message
-        if isinstance(msg, HelloReply):
-            self.hellos.on_frame(frame, now)
-        elif isinstance(msg, Telemetry):
-            self.telemetry, self.telemetry_time = msg, now
-            self._board_clock(msg.time_ms, msg.state, now)
-            self._emit(TelemetryEvent(now, msg))
-        elif isinstance(msg, Heartbeat):
-            try:
-                state: BoardState | None = BoardState(msg.state)
-            except ValueError:
-                self.counters.unknown_board_states += 1
-                state = None
-            self._board_clock(msg.time_ms, state, now)
-        elif isinstance(msg, Log):
-            logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s", msg.text)
-            self._emit(LogEvent(now, msg))
-        elif isinstance(msg, CalibrationData):
-            self._on_calibration_data(frame, now)
-        elif isinstance(msg, EscCalibrationStatus):
-            self._emit(EscCalibrationEvent(now, msg))
-        else:
-            self.commands.on_frame(frame, now)  # Ack / Nack (anything else is ignored there)
+        self._receive[type(frame.message)](frame, now)
+
+    # ------------------------------------------------------------------ RECEIVE's handlers
+    def _on_hello_reply_frame(self, frame: Frame, now: float) -> None:
+        self.hellos.on_frame(frame, now)
+
+    def _on_telemetry(self, frame: Frame, now: float) -> None:
+        msg: Telemetry = frame.message
+        self.telemetry, self.telemetry_time = msg, now
+        self._board_clock(msg.time_ms, msg.state, now)
+        self._emit(TelemetryEvent(now, msg))
+
+    def _on_heartbeat(self, frame: Frame, now: float) -> None:
+        msg: Heartbeat = frame.message
+        try:
+            state: BoardState | None = BoardState(msg.state)
+        except ValueError:
+            self.counters.unknown_board_states += 1
+            state = None
+        self._board_clock(msg.time_ms, state, now)
+
+    def _on_log(self, frame: Frame, now: float) -> None:
+        msg: Log = frame.message
+        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s", msg.text)
+        self._emit(LogEvent(now, msg))
+
+    def _on_esc_calibration_status(self, frame: Frame, now: float) -> None:
+        self._emit(EscCalibrationEvent(now, frame.message))
+
+    def _on_answer(self, frame: Frame, now: float) -> None:
+        """An Ack or Nack: settles the command it answers (a stray one is counted there)."""
+        self.commands.on_frame(frame, now)
+
+    def _on_not_ours(self, frame: Frame, now: float) -> None:
+        """A host-to-board message come back (a loopback, a crossed wire): nothing to do; it still showed
+        the link alive (``last_heard``)."""
 
     def _board_clock(self, uptime_ms: int, state: BoardState | None, now: float) -> None:
         """An uptime sample (and state) from the board: the reset detector."""
@@ -452,13 +475,15 @@ class Session:
         if self.phase is not Phase.READY:
             raise LinkError(f"no session with the board (link {self.phase.value})")
 
-    def _check_setpoint(self, message: ActuatorSetpoint | RawPulses) -> None:
+    def _check_setpoint(self, message: ActuatorSetpoint | RawPulses) -> bytes:
+        """``message`` checked and encoded, once, before anything is held: the body
+        :meth:`_send_setpoint` numbers and sends (now, or at its slot if it is not replaced first)."""
         if not isinstance(message, (ActuatorSetpoint, RawPulses)):
             raise ProtocolError(f"{type(message).__name__} is not a setpoint (ActuatorSetpoint or RawPulses)")
-        encode_payload(message)  # FieldRangeError for NaN / out-of-range values, before anything is held
+        body = self.framer.prepare(message)  # FieldRangeError for NaN / out-of-range values
         info = self.info
         if info is None:
-            return
+            return body
         if isinstance(message, ActuatorSetpoint) and len(message.units) != info.n_units:
             raise ProtocolError(
                 f"ActuatorSetpoint for {len(message.units)} units; the board has {info.n_units}"
@@ -467,6 +492,7 @@ class Session:
             raise ProtocolError(
                 f"RawPulses for {len(message.pulses_us)} channels; the board has {info.n_channels}"
             )
+        return body
 
     def _check_unit(self, unit: int) -> None:
         self._require_session()
@@ -474,8 +500,9 @@ class Session:
         if isinstance(unit, bool) or not isinstance(unit, int) or not 0 <= unit < self.info.n_units:
             raise ProtocolError(f"unit {unit!r} does not exist (the board has {self.info.n_units})")
 
-    def _send_setpoint(self, message: ActuatorSetpoint | RawPulses, now: float) -> None:
-        self._send(message, now)
+    def _send_setpoint(self, body: bytes, now: float) -> None:
+        _, data = self.framer.send_prepared(body)
+        self._put(data, now)
         self.counters.setpoints_sent += 1
         self._setpoint_slot = now + 1.0 / self._setpoint_rate()
 
@@ -502,3 +529,31 @@ class Session:
 
     def _emit(self, event: Event) -> None:
         self._events.append(event)
+
+
+Receive = Callable[[Session, Frame, float], None]
+"""A received message's handler: ``(session, frame, now)``."""
+
+RECEIVE: dict[type[Message], Receive] = {
+    # board to host
+    HelloReply: Session._on_hello_reply_frame,  # settles the handshake's Hello
+    Telemetry: Session._on_telemetry,
+    Heartbeat: Session._on_heartbeat,
+    Log: Session._on_log,
+    CalibrationData: Session._on_calibration_data,  # a download's fragment, acknowledged
+    EscCalibrationStatus: Session._on_esc_calibration_status,
+    Ack: Session._on_answer,
+    Nack: Session._on_answer,
+    # host to board, come back
+    Hello: Session._on_not_ours,
+    Arm: Session._on_not_ours,
+    Disarm: Session._on_not_ours,
+    SetMode: Session._on_not_ours,
+    EscCalibrate: Session._on_not_ours,
+    ActuatorSetpoint: Session._on_not_ours,
+    RawPulses: Session._on_not_ours,
+    CalibrationRequest: Session._on_not_ours,
+}
+"""What the host's session does with each message of the catalogue (``protocol.messages.CATALOGUE``) that
+arrives from the board, by type. Every catalogue message has an entry — ``tests/test_message_dispatch.py``
+fails naming one that has not (docs/protocol.md, "Adding a message")."""

@@ -201,10 +201,8 @@ class PhonePushServer(PhoneReceiver):
         return f"http://{host}:{self._httpd.server_port}{self.path}"
 
     def _serve(self) -> None:
-        try:
+        with self._thread_error.caught():  # raised by check()
             self._httpd.serve_forever(poll_interval=0.05)
-        except BaseException as exc:  # stored, raised by check()
-            self._error = exc
 
     def _accept(self, body: bytes, peer: str) -> tuple[int, str]:
         """One push's body into the queue — decoded here if small (:data:`INLINE_MAX`), else by the decoder

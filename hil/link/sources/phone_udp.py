@@ -131,9 +131,9 @@ class PhoneUdpReceiver(PhoneReceiver):
                 self._accept(data, peer[0])
         except OSError as exc:
             if not self._stop.is_set():  # a socket closed by close() is the normal end
-                self._error = exc
+                self._thread_error.store(exc)
         except BaseException as exc:  # stored, raised by check()
-            self._error = exc
+            self._thread_error.store(exc)
 
     def _accept(self, data: bytes, peer: str) -> None:
         sample, refused = self._decode(decode_datagram, data, f"udp from {peer}")

@@ -36,6 +36,7 @@ from typing import Protocol, TypeVar
 from urllib.parse import urlsplit
 
 from hil.estimation.sensors import SensorSample
+from hil.threads import ThreadError
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)
@@ -101,7 +102,8 @@ class StreamStats:
 
 class PhoneReceiver:
     """The shared half of a receiver: subclasses start a network thread that calls :meth:`_deliver` (or
-    :meth:`_reject`) and stores a fatal error in ``_error``; they implement :attr:`url` and :meth:`close`."""
+    :meth:`_reject`) and stores a fatal error in ``_thread_error`` (a :class:`~hil.threads.ThreadError`);
+    they implement :attr:`url` and :meth:`close`."""
 
     scheme = ""
     app = ""  # the phone app that streams in this format (for error messages)
@@ -119,7 +121,7 @@ class PhoneReceiver:
         self._max_queue = max_queue
         self._max_batch = max_batch
         self._lock = threading.Lock()
-        self._error: BaseException | None = None
+        self._thread_error = ThreadError(lambda: f"phone receiver on {self.url} failed")
         self._clock = clock  # s, monotonic: paces the drop warnings
         self._next_log = -float("inf")
         self._unlogged = 0
@@ -205,8 +207,8 @@ class PhoneReceiver:
         return out
 
     def check(self) -> None:
-        if self._error is not None:
-            raise LinkError(f"phone receiver on {self.url} failed: {self._error!r}") from self._error
+        """Raise the network thread's error, if it had one (as every later call does)."""
+        self._thread_error.check()
 
     def close(self) -> None:
         raise NotImplementedError
