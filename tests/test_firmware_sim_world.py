@@ -20,7 +20,7 @@ from protocol.messages import ActuatorSetpoint, GimbalMode, UnitSetpoint
 
 def _rig(compiled: bool, scenario=None, seed=None):
     """A world on a board in lockstep, the board armed through the protocol by a host."""
-    from firmware_sim.transports import EmulatorTransport
+    from firmware_sim.servers.transports import EmulatorTransport
     from firmware_sim.world import World
     from hil.link.board import BoardClient
     from hil.scenario import load_scenario

@@ -9,7 +9,7 @@ exceed the board's pulse frame rate (a faster loop would only have its setpoints
 
 Plant side, :class:`ServoModel`: what the motor drivers do with those setpoints, as torques on the
 plant (:data:`hil.vscmg.TorqueLaw`), so a simulated world closes the loop board pulses → motor torque →
-plant. Unloaded, both respond in first order with the time constants of ``firmware_sim.actuators``
+plant. Unloaded, both respond in first order with the time constants of ``firmware_sim.board.actuators``
 (gimbal 0.05 s, rotor ESC 0.15 s spinning up); torques are limited to the motors' stall torques::
 
     u = sat(−ρ ∂T/∂q + J_q (q̇_sp − q̇) / τ, u_max)        q = γ (gimbal) or φ (rotor)

@@ -32,7 +32,7 @@ from types import TracebackType
 
 from protocol.errors import LinkError
 
-from .board import Board
+from ..board import Board
 
 logger = logging.getLogger(__name__)
 

@@ -24,7 +24,7 @@ from types import TracebackType
 from protocol.can import Direction
 from protocol.errors import LinkError
 
-from .board import Board
+from ..board import Board
 
 logger = logging.getLogger(__name__)
 

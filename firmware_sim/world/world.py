@@ -45,7 +45,7 @@ from hil.simulation.phone import BodyPhone
 from hil.vscmg import CompiledPlant, Plant, PlantState
 from protocol.messages import GimbalMode, UnitState
 
-from .board import Board
+from ..board import Board
 from .phone_faults import PhoneTamper
 
 Array = NDArray[np.float64]
