@@ -156,7 +156,7 @@ def _world_cost() -> float:
 _STILL_PHONE = r"""
 import signal, sys, time
 import numpy as np
-from hil.simulation.phone import BodyPhone
+from firmware_sim.world.models import BodyPhone
 from hil.scenario import load_scenario
 from hil.link.sources import open_sender
 scenario = load_scenario(sys.argv[1])

@@ -1,7 +1,7 @@
 """Generate ``firmware/include/board_gen.h`` from ``firmware_sim.board.config`` and
-``firmware_sim.avr.eeprom``: the EEPROM layout (configuration block offsets, calibration slots), the defaults of ``BoardConfig`` the
-firmware falls back on, the identity strings, and the LiPo discharge curve. :mod:`.codegen` writes and
-checks it with the protocol files.
+``firmware_sim.avr.eeprom``: the EEPROM layout (configuration block offsets, calibration slots), the defaults
+of ``BoardConfig`` the firmware falls back on, the identity strings, and the LiPo discharge curve.
+:mod:`.codegen` writes and checks it with the protocol files.
 """
 
 from __future__ import annotations

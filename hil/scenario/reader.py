@@ -13,12 +13,12 @@ import numpy as np
 from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
-from hil.simulation.phone import PhoneSpec, SensorSpec
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
 from .config import LoopConfig, SlewScenario
 from .model import Scenario
+from .phone import PhoneSpec, SensorSpec
 
 _SPACECRAFT_PRESETS = ("cubesat_1u", "air_bearing_testbed")
 _GEOMETRIES = ("pyramid", "tetrahedron", "custom")
