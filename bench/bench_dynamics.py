@@ -1,17 +1,17 @@
-"""The VSCMG plant (hil.vscmg) side by side with Basilisk's ``VSCMGStateEffector`` (balanced model) on the
-same scenario in one run: plant steps per second and simulated seconds per wall second (4 units, 1 ms
-step, single run), our batch path's aggregate rate, the momentum and energy drift of both, and how
-closely the two trajectories agree (Basilisk's ``speedOutMsg`` carries the gimbal angles at the start of
-the step it is stamped with, so its gimbal angles are compared with ours one step earlier). (The closed
-loop's figures are bench_runtime's: every closed-loop run goes through the runtime.)
+"""The VSCMG plant (firmware_sim.world.models) side by side with Basilisk's ``VSCMGStateEffector`` (balanced
+model) on the same scenario in one run: plant steps per second and simulated seconds per wall second (4 units,
+1 ms step, single run), our batch path's aggregate rate, the momentum and energy drift of both, and how
+closely the two trajectories agree (Basilisk's ``speedOutMsg`` carries the gimbal angles at the start of the
+step it is stamped with, so its gimbal angles are compared with ours one step earlier). (The closed loop's
+figures are bench_runtime's: every closed-loop run goes through the runtime.)
 
-The compiled plant (:class:`hil.vscmg.CompiledPlant`, what the emulator's world steps) runs the same
-scenarios in the same process: its steps per second inside one compiled call (the world's batches) and with
-one Python call per step, against Basilisk and against the numpy :class:`Plant` at B = 1, and how far its
-final state lies from the numpy plant's (rounding only). Also the emulator's whole world (plant, drives,
+The compiled plant (:class:`firmware_sim.world.models.CompiledPlant`, what the emulator's world steps) runs
+the same scenarios in the same process: its steps per second inside one compiled call (the world's batches)
+and with one Python call per step, against Basilisk and against the numpy :class:`Plant` at B = 1, and how far
+its final state lies from the numpy plant's (rounding only). Also the emulator's whole world (plant, drives,
 phone, board; ``firmware_sim.world.World``) in CPU seconds per simulated second on the compiled plant and on
-the numpy references, and what compiling costs: a first run on an empty numba cache (a fresh install)
-against one on a warm cache, each in a fresh process.
+the numpy references, and what compiling costs: a first run on an empty numba cache (a fresh install) against
+one on a warm cache, each in a fresh process.
 
 The shared scenario is what Basilisk's balanced model describes: a 1U bus with the 54.74° pyramid of four
 units, each with diagonal gimbal and axisymmetric rotor inertias and no rotor offset or unit mass (the
@@ -35,8 +35,9 @@ import time
 import numpy as np
 
 from bench.common import Result
+from firmware_sim.world.models import CompiledPlant, Plant
 from hil import so3
-from hil.vscmg import CompiledPlant, Plant, UnitParams, cubesat_1u, pyramid
+from hil.vscmg import UnitParams, cubesat_1u, pyramid
 
 NAME = "dynamics"
 STEP = 1e-3
@@ -91,7 +92,8 @@ def _ours(duration: float, driven: bool) -> dict:
 
 def _ours_compiled(duration: float, driven: bool, per_call: bool) -> dict:
     """The same run on the compiled plant: one call for every step (``per_call``: one Python call each, the
-    torques converted to the plant's :class:`~hil.vscmg.Drive` once, as the world holds its drives)."""
+    torques converted to the plant's :class:`~firmware_sim.world.models.Drive` once, as the world holds its
+    drives)."""
     plant = Plant(balanced_params())
     c = CompiledPlant(plant)
     state = c.pack(
@@ -145,9 +147,8 @@ _FIRST_RUN = """
 import time
 t0 = time.perf_counter()
 import numpy as np
-from hil.vscmg import CompiledPlant, Plant, cubesat_1u
-from hil.control.motor_loops import ServoModel
-from hil.simulation.phone import BodyPhone
+from hil.vscmg import cubesat_1u
+from firmware_sim.world.models import BodyPhone, CompiledPlant, Plant, ServoModel
 t1 = time.perf_counter()
 plant = Plant(cubesat_1u())
 c = CompiledPlant(plant)

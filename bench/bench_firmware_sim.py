@@ -246,7 +246,7 @@ def _latency(samples: int) -> tuple[list[float], list[float], int]:
 
 def _lockstep_speed(seconds: float) -> float:
     from firmware_sim.board import Board
-    from firmware_sim.config import BoardConfig
+    from firmware_sim.board.config import BoardConfig
     from hil.timing.clock import LockstepClock
 
     clock = LockstepClock()

@@ -26,7 +26,7 @@ import serial
 
 from bench.bench_firmware_sim import _PEER, _pct, _process
 from bench.common import Result
-from firmware_sim.transports import EmulatorTransport
+from firmware_sim.servers.transports import EmulatorTransport
 from hil.link.board import BoardClient, ClientConfig, Event, TelemetryEvent
 from hil.timing.clock import LockstepClock
 from protocol.frame import Deframer, Frame, Framer
@@ -125,7 +125,7 @@ def _client_round_trips(seconds: float) -> float:
 
 def _bare_board() -> tuple[Any, LockstepClock, Framer, Deframer]:
     from firmware_sim.board import Board
-    from firmware_sim.config import BoardConfig
+    from firmware_sim.board.config import BoardConfig
 
     clock = LockstepClock()
     board = Board(BoardConfig(n_units=N_UNITS, frame_rate_hz=490.0, telemetry_rate_hz=1000.0), clock)

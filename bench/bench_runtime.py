@@ -156,7 +156,7 @@ def _world_cost() -> float:
 _STILL_PHONE = r"""
 import signal, sys, time
 import numpy as np
-from hil.simulation.phone import BodyPhone
+from firmware_sim.world.models import BodyPhone
 from hil.scenario import load_scenario
 from hil.link.sources import open_sender
 scenario = load_scenario(sys.argv[1])
@@ -381,7 +381,8 @@ def _imports() -> tuple[float, float]:
     """Wall s of a process importing what ``hil run`` needs before its first tick, and of ``python -c
     pass`` (best of three each)."""
     needed = (
-        "import hil.cli, hil.cli.run, hil.runtime, hil.scenario, firmware_sim.transports, firmware_sim.world"
+        "import hil.cli, hil.cli.run, hil.runtime, hil.scenario, "
+        "firmware_sim.servers.transports, firmware_sim.world"
     )
 
     def best(code: str) -> float:

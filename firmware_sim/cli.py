@@ -276,7 +276,7 @@ def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     """The board configuration the options describe."""
     from dataclasses import replace
 
-    from .config import BatteryParams, BoardConfig, PowerConfig
+    from .board.config import BatteryParams, BoardConfig, PowerConfig
 
     return BoardConfig(
         n_units=args.units,
@@ -363,8 +363,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except HilError as exc:
             print(f"firmware-sim: error: {exc}", file=sys.stderr)
             return EXIT_HARNESS_DIED if isinstance(exc, HarnessDied) else 2
-    from .can_server import CanServer
-    from .pty_server import PtyServer
+    from .servers.can_server import CanServer
+    from .servers.pty_server import PtyServer
 
     try:
         scenario = None

@@ -12,6 +12,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from firmware_sim.world.models import Trajectory, simulate
 from hil import so3
 from hil.estimation.geomag import GeomagneticField
 from hil.estimation.inertial import directions_from_dip, field_warnings
@@ -19,7 +20,7 @@ from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, StepFlag
 from hil.logs import project_csv, read_log
 from hil.logs.replay import ReplayOptions, replay
 from hil.scenario.paths import FIXTURES
-from hil.simulation.phone import PhoneSpec, SensorSpec, Trajectory, simulate
+from hil.scenario.phone import PhoneSpec, SensorSpec
 from protocol.errors import InputFormatError
 
 SIMULATED = FIXTURES / "logs" / "simulated_testbed_4s.csv"

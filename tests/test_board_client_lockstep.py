@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from firmware_sim.transports import EmulatorTransport
+from firmware_sim.servers.transports import EmulatorTransport
 from hil.link.board import (
     BoardClient,
     BoardResetEvent,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_sim.transports import EmulatorTransport
+from firmware_sim.servers.transports import EmulatorTransport
 from hil.link.board import (
     BoardClient,
     BoardResetEvent,

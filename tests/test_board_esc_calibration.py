@@ -9,8 +9,8 @@ import dataclasses
 import pytest
 from conformance.host import heartbeat, lockstep
 
-from firmware_sim.config import BoardConfig
-from firmware_sim.esc import EscMode
+from firmware_sim.board.config import BoardConfig
+from firmware_sim.board.esc import EscMode
 from hil.calibration.generate import bench_units
 from protocol.messages import (
     ESC_CALIBRATION_CONFIRM,

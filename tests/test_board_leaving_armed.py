@@ -17,7 +17,7 @@ from conformance.host import heartbeat, lockstep
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from protocol.messages import (
     Ack,
     ActuatorSetpoint,

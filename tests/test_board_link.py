@@ -7,7 +7,7 @@ import pytest
 from conformance.host import heartbeat, lockstep
 
 from firmware_sim.board import Board
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from hil.timing.clock import LockstepClock
 from protocol.calibration import Reassembler, default_unit_calibration, fragment
 from protocol.frame import encode_frame

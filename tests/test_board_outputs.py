@@ -7,7 +7,7 @@ import math
 import pytest
 from conformance.host import lockstep
 
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from protocol.messages import (
     Ack,
     ActuatorSetpoint,

@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from firmware_sim.board import McuPhase
-from firmware_sim.config import BatteryParams, BoardConfig, PowerThresholds, UbecParams
-from firmware_sim.power import Battery, PowerManager, ubec_output
+from firmware_sim.board.config import BatteryParams, BoardConfig, PowerThresholds, UbecParams
+from firmware_sim.board.power_models import Battery, PowerManager, ubec_output
 from protocol.messages import (
     Ack,
     ActuatorSetpoint,

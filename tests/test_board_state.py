@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
 
 from firmware_sim.board import Board, McuPhase
-from firmware_sim.config import BoardConfig
-from firmware_sim.state import Event, motors_enabled, transition
+from firmware_sim.board.config import BoardConfig
+from firmware_sim.board.state import Event, motors_enabled, transition
 from hil.timing.clock import LockstepClock
 from protocol.messages import (
     Ack,

@@ -6,7 +6,7 @@ import pytest
 from conformance.host import heartbeat, lockstep
 
 from firmware_sim.board import McuPhase
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from protocol.messages import (
     Ack,
     ActuatorSetpoint,

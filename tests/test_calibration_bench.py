@@ -211,7 +211,7 @@ def test_a_sweep_stops_at_the_current_guard(tmp_path, capsys):
 @pytest.mark.firmware  # the C firmware under simavr: the AVR toolchain (.ci/apt-packages)
 def test_the_same_commands_drive_the_firmware_under_simavr(tmp_path, capsys):
     from firmware_sim.avr import AvrBoard
-    from firmware_sim.config import BoardConfig
+    from firmware_sim.board.config import BoardConfig
 
     # a 1 s link watchdog: these tests are about calibration, not about a host starved by a loaded CPU
     config = BoardConfig(n_units=2, frame_rate_hz=100.0, link_timeout_s=1.0, esc_supply_switch=True)

@@ -14,8 +14,8 @@ import time
 import pytest
 
 from firmware_sim.board import Board
-from firmware_sim.can_server import CanServer
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
+from firmware_sim.servers.can_server import CanServer
 from hil.link.board import BoardClient
 from hil.timing.clock import WallClock
 from protocol.errors import LinkError

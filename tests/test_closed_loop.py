@@ -23,6 +23,7 @@ import math
 import numpy as np
 import pytest
 
+from firmware_sim.world.models import BodyPhone
 from hil import so3
 from hil.estimation.sensors import SensorKind
 from hil.montecarlo.metrics import settle_time
@@ -30,7 +31,7 @@ from hil.runtime import RunOptions, RunResult, run
 from hil.runtime.runlog import read_telemetry
 from hil.scenario import Scenario, load_scenario
 from hil.scenario.config import LoopConfig
-from hil.simulation.phone import BodyPhone, PhoneSpec
+from hil.scenario.phone import PhoneSpec
 from protocol.errors import ConfigError
 
 BASE = load_scenario("cubesat-1u")

@@ -1,11 +1,11 @@
-"""The emulated hobby ESC (firmware_sim.esc): factory endpoints, arming at minimum, endpoint programming,
-and its replay over recorded pulse frames."""
+"""The emulated hobby ESC (firmware_sim.board.esc): factory endpoints, arming at minimum, endpoint
+programming, and its replay over recorded pulse frames."""
 
 from __future__ import annotations
 
 import pytest
 
-from firmware_sim.esc import EmulatedEsc, EscMode, EscParams, replay_esc
+from firmware_sim.board.esc import EmulatedEsc, EscMode, EscParams, replay_esc
 
 P = EscParams()  # factory 1100..1900 us, programming above 1700 us, 1.0 s / 0.5 s acknowledgements
 

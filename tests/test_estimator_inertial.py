@@ -8,6 +8,7 @@ from datetime import date
 import numpy as np
 import pytest
 
+from firmware_sim.world.models import Trajectory, simulate
 from hil import so3
 from hil.estimation.inertial import (
     decimal_year,
@@ -19,7 +20,7 @@ from hil.estimation.inertial import (
     wmm2025,
 )
 from hil.estimation.params import EstimatorParams
-from hil.simulation.phone import PhoneSpec, SensorSpec, Trajectory, simulate
+from hil.scenario.phone import PhoneSpec, SensorSpec
 from protocol.errors import ConfigError, InputFormatError
 
 # NOAA WMM2025 test values: year, height km, lat, lon, X (north) nT, Y (east) nT, Z (down) nT, D deg

@@ -9,12 +9,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from firmware_sim.world.models import paper_testbed_rate
 from hil import so3
 from hil.estimation import reference_chain
 from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.magnetic import MagneticGate, MagneticSettings, pack_mag_params
 from hil.estimation.sensors import StepFlag
-from hil.simulation.phone import PhoneSpec, paper_testbed_rate
+from hil.scenario.phone import PhoneSpec
 from protocol.errors import ConfigError
 from tests.test_estimator_online import errors, phone_steps
 

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from firmware_sim.world.models import Trajectory, paper_testbed_rate, simulate
 from hil import so3
 from hil.estimation import motion as mo
 from hil.estimation import reference, reference_chain
@@ -18,7 +19,7 @@ from hil.estimation.motion import MotionSettings, motion_step, pack_motion_param
 from hil.estimation.multirate import MergePolicy, first_full_step, merge
 from hil.estimation.params import EstimatorParams, paper_initial_attitude
 from hil.estimation.sensors import MergedSteps, SensorKind, StepFlag
-from hil.simulation.phone import PhoneSpec, Trajectory, paper_testbed_rate, simulate
+from hil.scenario.phone import PhoneSpec
 from protocol.errors import ConfigError
 from tests.test_estimator import body_directions, steps_of, trajectory
 

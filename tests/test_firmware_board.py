@@ -16,7 +16,7 @@ import pytest
 from conformance.host import SerialHost, heartbeat
 
 from firmware_sim.avr import AvrBoard, eeprom
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from protocol.calibration import EscMotorModel, GimbalServoModel, fragment, model_unit_calibration, reassemble
 from protocol.frame import Frame
 from protocol.messages import (

@@ -1,6 +1,7 @@
 """The firmware's sans-IO logic in C (state.c, power.c, link.c, config.c) against its Python references:
-firmware_sim.state.transition, firmware_sim.power.PowerManager, protocol.calibration.Reassembler,
-protocol.reliable's receiver rules, and the EEPROM configuration block of firmware_sim.avr.eeprom."""
+firmware_sim.board.state.transition, firmware_sim.board.power_models.PowerManager,
+protocol.calibration.Reassembler, protocol.reliable's receiver rules, and the EEPROM configuration block of
+firmware_sim.avr.eeprom."""
 
 from __future__ import annotations
 
@@ -14,9 +15,9 @@ from hypothesis import given, settings
 
 from firmware_sim.avr import eeprom
 from firmware_sim.avr.hostlib import CAnswerCache, CPowerManager, CReassembler, config_parse, state_transition
-from firmware_sim.config import BoardConfig, PowerThresholds
-from firmware_sim.power import PowerManager
-from firmware_sim.state import Event, transition
+from firmware_sim.board.config import BoardConfig, PowerThresholds
+from firmware_sim.board.power_models import PowerManager
+from firmware_sim.board.state import Event, transition
 from protocol.calibration import Reassembler, fragment
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import CalibrationError, ConfigError

@@ -1,4 +1,4 @@
-"""The pty wrapper (firmware_sim.pty_server) through real ptys and pyserial: hosts that vanish (EIO),
+"""The pty wrapper (firmware_sim.servers.pty_server) through real ptys and pyserial: hosts that vanish (EIO),
 a host that does not read, the symlink, and errors in the serving thread."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import pytest
 from conformance.host import SerialHost, heartbeat
 
 from firmware_sim.board import Board
-from firmware_sim.config import BoardConfig
-from firmware_sim.pty_server import PtyServer
+from firmware_sim.board.config import BoardConfig
+from firmware_sim.servers.pty_server import PtyServer
 from hil.timing.clock import WallClock
 from protocol.errors import LinkError
 from protocol.messages import BoardState, Telemetry

@@ -20,7 +20,7 @@ from protocol.messages import ActuatorSetpoint, GimbalMode, UnitSetpoint
 
 def _rig(compiled: bool, scenario=None, seed=None):
     """A world on a board in lockstep, the board armed through the protocol by a host."""
-    from firmware_sim.transports import EmulatorTransport
+    from firmware_sim.servers.transports import EmulatorTransport
     from firmware_sim.world import World
     from hil.link.board import BoardClient
     from hil.scenario import load_scenario
@@ -148,7 +148,7 @@ def test_steps_taken_ahead_are_dropped_when_the_board_changes_its_pulses_between
     whose watchdog resets the board (outputs off) change the drives at once: the world drops what it
     stepped ahead and steps again from there — the same samples and truth as a world that steps one plant
     step at a time and is called every step (its drives read the board after every step)."""
-    import firmware_sim.world as world_module
+    import firmware_sim.world.world as world_module
 
     def faults(board):
         board.faults.dead_esc(1, at=board.now + 0.1137)  # unit 0's rotor ESC, while it spins up

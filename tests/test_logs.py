@@ -12,12 +12,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from firmware_sim.world.models import Trajectory, paper_testbed_rate, simulate
 from hil import so3
 from hil.estimation.multirate import merge
 from hil.estimation.sensors import SensorKind, SensorLog, Truth
 from hil.logs import detect_format, project_csv, read_log
 from hil.scenario.paths import FIXTURES, SHARED_DATA
-from hil.simulation.phone import PhoneSpec, Trajectory, paper_testbed_rate, simulate
+from hil.scenario.phone import PhoneSpec
 from protocol.errors import InputFormatError
 
 GYR, ACC, MAG = SensorKind.GYR, SensorKind.ACC, SensorKind.MAG

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil.control.motor_loops import ServoModel, ServoParams, SetpointGenerator
+from firmware_sim.world.models import Plant, ServoModel
+from hil.control.motor_loops import ServoParams, SetpointGenerator
 from hil.control.steering import SteeringOutput
-from hil.vscmg import Plant, cubesat_1u
+from hil.vscmg import cubesat_1u
 from protocol.errors import ConfigError
 from protocol.frame import decode_frame, encode_frame
 from protocol.messages import ActuatorSetpoint, GimbalMode

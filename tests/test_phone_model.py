@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from firmware_sim.world.models import BodyPhone, Trajectory, paper_testbed_rate, simulate
 from hil import so3
 from hil.estimation import variational as est_mod
 from hil.estimation.filter import PAPER_PREFILTER, AttitudeFilter, FilterConfig
@@ -13,7 +14,7 @@ from hil.estimation.metrics import AttitudeErrors, rate_error, settling_time
 from hil.estimation.multirate import MergePolicy, Merger, merge
 from hil.estimation.params import PAPER_OMEGA0, paper_initial_attitude
 from hil.estimation.sensors import MergedSteps, SensorKind
-from hil.simulation.phone import BodyPhone, PhoneSpec, SensorSpec, Trajectory, paper_testbed_rate, simulate
+from hil.scenario.phone import PhoneSpec, SensorSpec
 from protocol.errors import ConfigError
 
 R0 = so3.exp([0.3, -0.2, 0.5])

@@ -199,7 +199,8 @@ def test_a_live_phone_that_sends_nothing_is_a_clear_error():
 
 
 def test_a_recording_plays_on_the_runs_clock_with_its_truth():
-    from hil.simulation.phone import PhoneSpec, Trajectory, paper_testbed_rate, simulate
+    from firmware_sim.world.models.phone import Trajectory, paper_testbed_rate, simulate
+    from hil.scenario.phone import PhoneSpec
 
     log = simulate(Trajectory.from_rate(paper_testbed_rate, 2.0, dt=2e-3), PhoneSpec.nexus5(), seed=1)
     context, events = _context(LockstepClock(), recording=log)

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 
 from firmware_sim.board import Board
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from hil.timing.clock import LockstepClock
 from protocol.errors import CommandFailed, ConfigError, FieldRangeError, ProtocolError
 from protocol.frame import Deframer, Frame, decode_stream, encode_frame

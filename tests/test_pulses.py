@@ -11,7 +11,7 @@ from conformance.host import lockstep
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from protocol.errors import ConfigError, FieldRangeError, ProtocolError
 from protocol.messages import (
     Ack,

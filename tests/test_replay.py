@@ -123,9 +123,10 @@ def test_every_magnetometer_rejection_interval_is_in_the_summary_and_shaded(tmp_
     rest and the final bias estimate; the CLI says it; the attitude figures are drawn with it shaded."""
     from dataclasses import replace as dc_replace
 
+    from firmware_sim.world.models import Trajectory, paper_testbed_rate, simulate
     from hil.estimation.sensors import SensorKind, SensorStream
     from hil.logs import project_csv
-    from hil.simulation.phone import PhoneSpec, Trajectory, paper_testbed_rate, simulate
+    from hil.scenario.phone import PhoneSpec
 
     traj = Trajectory.from_rate(paper_testbed_rate, 60.0, dt=2e-3)
     log = simulate(traj, PhoneSpec.nexus5(), seed=12)

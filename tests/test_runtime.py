@@ -276,8 +276,8 @@ def test_a_run_killed_with_sigkill_leaves_a_readable_log(tmp_path):
 def test_the_same_run_over_a_python_can_virtual_bus(tmp_path, push_port):
     """The board served on a CAN bus (virtual, in this process) with its world streaming the phone over
     HTTP, as Sensor Logger's HTTP Push does."""
-    from firmware_sim.can_server import CanServer
     from firmware_sim.cli import build_parser, make_board
+    from firmware_sim.servers.can_server import CanServer
     from firmware_sim.world import World, WorldStreamer
 
     sc = _quick()

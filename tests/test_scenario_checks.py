@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_sim.config import BoardConfig
+from firmware_sim.board.config import BoardConfig
 from hil.cli import main
 from hil.montecarlo.dispersions import draw, load_dispersions, parse_dispersions
 from hil.scenario import load_scenario, parse_scenario

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from firmware_sim.transports import EmulatorTransport, SpawnTransport
+from firmware_sim.servers.transports import EmulatorTransport, SpawnTransport
 from hil.link.transports import create_transport, open_transport
 from hil.timing.clock import LockstepClock, WallClock
 from protocol.errors import LinkError, TransportError

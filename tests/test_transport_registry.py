@@ -15,11 +15,11 @@ def test_the_emulator_schemes_come_from_firmware_sims_entry_points():
     import importlib.metadata
 
     points = {e.name: e.value for e in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
-    assert points["emu"] == "firmware_sim.transports:EmulatorTransport"
-    assert points["spawn"] == "firmware_sim.transports:SpawnTransport"
+    assert points["emu"] == "firmware_sim.servers.transports:EmulatorTransport"
+    assert points["spawn"] == "firmware_sim.servers.transports:SpawnTransport"
     assert {"emu", "spawn", "can", "socket"} <= set(schemes())
     link = create_transport("emu://?units=3")
-    assert isinstance(link, InProcessBoard) and type(link).__module__ == "firmware_sim.transports"
+    assert isinstance(link, InProcessBoard) and type(link).__module__ == "firmware_sim.servers.transports"
 
 
 def test_a_scheme_registered_at_run_time_is_used_and_an_unknown_one_is_named():

@@ -1,5 +1,5 @@
-"""The compiled plant (hil.vscmg.compiled, its kernels and the drive law of hil.vscmg.drives) against the
-numpy Plant and ServoModel as the references: the same states to rounding over thousands of steps from
+"""The compiled plant (firmware_sim.world.models.compiled, its kernels and the drive law of .drives) against
+the numpy Plant and ServoModel as the references: the same states to rounding over thousands of steps from
 random states (both presets, axisymmetric, non-axisymmetric and g-coupled gimbal inertias, rotor offset σ,
 gravity gradient; no, constant and servo torques, gimbals on rates and on angles, undriven rotors), the
 plant's invariants on the compiled plant (momentum, energy, the motors' work), and its errors."""
@@ -12,13 +12,11 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 
+from firmware_sim.world.models import CompiledPlant, Drive, GravityGradient, Plant, ServoModel
+from firmware_sim.world.models.drives import drive_torques
 from hil import so3
-from hil.control.motor_loops import ServoModel, ServoParams, Setpoints
+from hil.control.motor_loops import ServoParams, Setpoints
 from hil.vscmg import (
-    CompiledPlant,
-    Drive,
-    GravityGradient,
-    Plant,
     PlantState,
     SpacecraftParams,
     UnitParams,
@@ -26,7 +24,6 @@ from hil.vscmg import (
     cubesat_1u,
     pyramid,
 )
-from hil.vscmg.drives import drive_torques
 from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError, NumericalError
 

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from firmware_sim.world.models import GravityGradient, Plant
 from hil import so3
 from hil.vscmg import (
-    GravityGradient,
-    Plant,
     UnitParams,
     air_bearing_testbed,
     cubesat_1u,

@@ -22,7 +22,7 @@ COUNT_MISSES = textwrap.dedent('''
     before = needed()
     run(load_scenario(), RunOptions(out_root=None, duration_s=1.0))
     misses = []
-    for pkg in ("hil.vscmg", "hil.estimation", "hil.control", "hil.simulation", "hil.so3"):
+    for pkg in ("hil.vscmg", "hil.estimation", "hil.control", "hil.so3", "firmware_sim.world.models"):
         for info in pkgutil.walk_packages(importlib.import_module(pkg).__path__, pkg + "."):
             module = importlib.import_module(info.name)
             for name, obj in vars(module).items():

@@ -23,7 +23,7 @@
 #define CAL_DOWNLOAD_RETRY_MS 100u
 #define CAL_DOWNLOAD_TRIES 5u
 
-/* A schedule of deadlines origin + k * period (like firmware_sim/periodic.py), in ms of uptime. */
+/* A schedule of deadlines origin + k * period (like firmware_sim/board/periodic.py), in ms of uptime. */
 typedef struct {
     uint64_t at;     /* the next deadline in 1/256 us */
     uint32_t period; /* in 1/256 us */

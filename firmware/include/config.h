@@ -1,5 +1,5 @@
 /*
- * config.h - the board configuration (firmware_sim.config.BoardConfig's fields the firmware uses), read
+ * config.h - the board configuration (firmware_sim.board.config.BoardConfig's fields the firmware uses), read
  * from the EEPROM block at boot (layout generated into board_gen.h from firmware_sim/avr/eeprom.py).
  * Without a valid block the defaults of BoardConfig, compiled in, are used.
  */

@@ -1,5 +1,5 @@
 /*
- * power.h - the staged power manager (the C twin of firmware_sim/power.py: PowerManager).
+ * power.h - the staged power manager (the C twin of firmware_sim/board/power_models.py: PowerManager).
  *
  * The battery voltage per cell is low-pass filtered (time constant filter_time_constant_s) and compared
  * with the staged thresholds warn > limit > shed (volts per cell); each stage is entered below its level

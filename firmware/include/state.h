@@ -1,5 +1,5 @@
 /*
- * state.h - the board's state machine as a pure transition function (firmware_sim/state.py).
+ * state.h - the board's state machine as a pure transition function (firmware_sim/board/state.py).
  *
  *   reset -> BOOT --Hello--> DISARMED <--Disarm/Hello-- ARMED, FAILSAFE
  *            DISARMED --Arm--> ARMED --link lost--> FAILSAFE --Arm--> ARMED

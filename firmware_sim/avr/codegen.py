@@ -6,7 +6,7 @@
   message ids, enums, C structs for every message and record, range macros, the wire field tables walked
   by ``firmware/src/wire.c``, ``PROTOCOL_VERSION``, ``SCHEMA_HASH``, the board's log codes and the
   default calibration set (``protocol.calibration.default_unit_calibration()``) the firmware boots with;
-* ``firmware/include/board_gen.h`` from ``firmware_sim.config`` and ``firmware_sim.avr.eeprom``: the
+* ``firmware/include/board_gen.h`` from ``firmware_sim.board.config`` and ``firmware_sim.avr.eeprom``: the
   EEPROM layout (configuration block offsets, calibration slots), the defaults of ``BoardConfig`` the
   firmware falls back on, the identity strings, and the LiPo discharge curve (:mod:`.codegen_board`).
 

@@ -1,7 +1,7 @@
-"""Generate ``firmware/include/board_gen.h`` from ``firmware_sim.config`` and ``firmware_sim.avr.eeprom``:
-the EEPROM layout (configuration block offsets, calibration slots), the defaults of ``BoardConfig`` the
-firmware falls back on, the identity strings, and the LiPo discharge curve. :mod:`.codegen` writes and
-checks it with the protocol files.
+"""Generate ``firmware/include/board_gen.h`` from ``firmware_sim.board.config`` and
+``firmware_sim.avr.eeprom``: the EEPROM layout (configuration block offsets, calibration slots), the defaults
+of ``BoardConfig`` the firmware falls back on, the identity strings, and the LiPo discharge curve.
+:mod:`.codegen` writes and checks it with the protocol files.
 """
 
 from __future__ import annotations
@@ -17,14 +17,14 @@ BOARD_SERIAL = "ADK0001"
 def generate_board() -> str:
     """The text of board_gen.h: EEPROM layout, BoardConfig defaults, identity, LiPo curve."""
     from firmware_sim.board import esc_calibration
-    from firmware_sim.config import BoardConfig
+    from firmware_sim.board.config import BoardConfig
 
     from . import eeprom
 
     cfg = BoardConfig()
     ident = cfg.identity
     h = [
-        BANNER.replace("protocol/messages.py", "firmware_sim/config.py and firmware_sim/avr/eeprom.py"),
+        BANNER.replace("protocol/messages.py", "firmware_sim/board/config.py and firmware_sim/avr/eeprom.py"),
         "#ifndef BOARD_GEN_H",
         "#define BOARD_GEN_H",
         "",
@@ -63,7 +63,7 @@ def generate_board() -> str:
         f"#define ESC_MIN_SUPPLY_OFF_MS {esc_calibration.ESC_MIN_SUPPLY_OFF_MS}u",
         f"#define ESC_SUPPLY_WAIT_MS {esc_calibration.SUPPLY_WAIT_MS}UL",
     ]
-    h += ["", "/* Identity (AOA accessory strings, firmware_sim.config.Identity) of the real board. */"]
+    h += ["", "/* Identity (AOA accessory strings, firmware_sim.board.config.Identity) of the real board. */"]
     for name, value in (
         ("MANUFACTURER", ident.manufacturer),
         ("MODEL", ident.model),

@@ -1,7 +1,7 @@
 """The firmware's EEPROM: the board configuration block and the per-unit calibration slots.
 
 The board reads its configuration at boot from the block at address 0; without a valid block (erased,
-damaged, wrong version) it runs on the defaults of :class:`firmware_sim.config.BoardConfig`, which the
+damaged, wrong version) it runs on the defaults of :class:`firmware_sim.board.config.BoardConfig`, which the
 code generator compiles into the firmware, and says so in a ``Log``. A lab writes a block to a real
 board with avrdude (``python -m firmware_sim.avr.eeprom --out board.eep`` then
 ``avrdude ... -U eeprom:w:board.eep:r``); the simavr harness loads the same image.

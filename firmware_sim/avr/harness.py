@@ -271,7 +271,7 @@ class AvrBoard:
 
     def esc(self, unit: int, params: EscParams | None = None) -> EmulatedEsc:
         """An emulated ESC on ``unit``'s rotor channel that has seen every pulse the firmware put on that
-        pin, powered through the firmware's ESC supply cut pin (:func:`firmware_sim.esc.replay_esc`)."""
+        pin, powered through the firmware's ESC supply cut pin (:func:`firmware_sim.board.esc.replay_esc`)."""
         if not 0 <= unit < self.config.n_units:
             raise ConfigError(f"unit {unit} does not exist", "AvrBoard.esc")
         records = self._records_now()

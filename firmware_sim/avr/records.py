@@ -2,9 +2,9 @@
 
 The harness writes one event a line (``firmware/harness/record.c``), times in CPU cycles of harness
 time. :class:`RecordReader` reads the file incrementally (it only grows) and turns it into the same
-shapes firmware_sim's timeline has (:class:`~firmware_sim.timeline.PulseFrame`,
-:class:`~firmware_sim.timeline.PpmTrain`, :class:`~firmware_sim.timeline.ResetEvent`), so the conformance
-tests read both targets alike.
+shapes firmware_sim's timeline has (:class:`~firmware_sim.board.timeline.PulseFrame`,
+:class:`~firmware_sim.board.timeline.PpmTrain`, :class:`~firmware_sim.board.timeline.ResetEvent`), so the
+conformance tests read both targets alike.
 
 A pulse is a rising edge and the falling edge after it on one pin. Its width is measured to the cycle
 (1/16 µs) and reported in whole 0.5 µs timer ticks (µs, a multiple of 0.5), the unit the timers put out:

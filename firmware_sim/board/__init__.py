@@ -1,5 +1,5 @@
 """The emulated ADK board as a sans-IO core: bytes in (``feed``), time passes (``step``), bytes out
-(``take_output``). The same object runs behind a pseudo-terminal (:mod:`firmware_sim.pty_server`),
+(``take_output``). The same object runs behind a pseudo-terminal (:mod:`firmware_sim.servers.pty_server`),
 in-process in lockstep, or under fault injection.
 
 Time. The board keeps its own time in integer microseconds on the injected clock's time base and
@@ -22,10 +22,16 @@ Parts, one job per module:
 * :mod:`.telemetry` — the messages it sends (``Log``, ``Telemetry``, ``HelloReply``, fault flags);
 * :mod:`.codes` — :class:`McuPhase` and :class:`LogCode`.
 
-Beside the package: :mod:`firmware_sim.state` (transition function), :mod:`firmware_sim.link` (UART
-ring, framing, duplicate filter), :mod:`firmware_sim.power` (battery, UBEC, staged thresholds),
-:mod:`firmware_sim.actuators` (ESC/motor and gimbal response), :mod:`firmware_sim.timeline` (pulse
-frames, resets), :mod:`firmware_sim.faults` (fault injection).
+The board's hardware and the firmware's building blocks, which those use:
+
+* :mod:`.state` — the board's state machine as a pure transition function;
+* :mod:`.link` — the UART ring, framing and the duplicate filter;
+* :mod:`.periodic` — exact periodic schedules in integer microseconds;
+* :mod:`.power_models` — the battery, the UBEC rail and the staged thresholds;
+* :mod:`.actuators` and :mod:`.esc` — the ESC/motor and gimbal-servo response, the ESC's endpoints;
+* :mod:`.timeline` — the record of pulse frames and resets;
+* :mod:`.faults` — fault injection (link, MCU, battery, ESCs, the phone);
+* :mod:`.config` — the board's parameters.
 
 Board time vs. uptime. ``Telemetry.time_ms`` and board ``Heartbeat.time_ms`` are the MCU's uptime:
 milliseconds since its last reset (like ``millis()``); :attr:`Board.resets` records each reset on the

@@ -24,8 +24,8 @@ from protocol.messages import (
     Severity,
 )
 
-from ..link import BoardLink
 from .codes import LogCode
+from .link import BoardLink
 from .telemetry import Outbox
 
 _RETRY_US = 100_000  # µs between resends of an unacknowledged download fragment (0.1 s)

@@ -3,7 +3,7 @@
 disarming, the control mode, setpoints and raw pulses, calibration transfers — and the link watchdog
 puts an armed board into FAILSAFE when nothing valid arrives for ``link_timeout_s``.
 
-The transitions themselves are the pure function :func:`firmware_sim.state.transition`; this module
+The transitions themselves are the pure function :func:`firmware_sim.board.state.transition`; this module
 adds what a state change does (stop the rotors, hold the gimbals, log, send a ``Heartbeat``). What each
 message does is :data:`EXECUTE`, a table with an entry for every message of the catalogue.
 """
@@ -47,17 +47,17 @@ from protocol.messages import (
     WatchdogState,
 )
 
-from ..actuators import UnitModel
-from ..config import BoardConfig
-from ..link import BoardLink
-from ..periodic import Periodic
-from ..state import Event, motors_enabled, transition
-from ..timeline import ResetEvent
+from .actuators import UnitModel
 from .calibration import CalibrationTransfers
 from .codes import LogCode
+from .config import BoardConfig
 from .esc_calibration import EscCalibration
+from .link import BoardLink
+from .periodic import Periodic
 from .power import PowerSupervisor
+from .state import Event, motors_enabled, transition
 from .telemetry import Outbox, hello_reply, uptime_ms
+from .timeline import ResetEvent
 
 _NEVER = math.inf
 _ACK_REQUESTED = int(Flags.ACK_REQUESTED)  # tested as an int: IntFlag's ``&`` runs in Python (~1 µs a frame)

@@ -32,22 +32,22 @@ from protocol.messages import (
 )
 from protocol.pulse_widths import FINE_PER_US, SigmaDelta, reported_us, whole_us
 
-from ..actuators import UnitModel, bench_truths
-from ..config import BoardConfig
-from ..faults import FaultInjector
-from ..link import BoardLink
-from ..periodic import Periodic
-from ..power import Battery, PowerReading
-from ..state import motors_enabled
-from ..timeline import PulseTimeline, ResetEvent
+from .actuators import UnitModel, bench_truths
 from .calibration import CalibrationTransfers, calibration_or_default
 from .codes import LogCode, McuPhase
 from .commands import CommandHandler
+from .config import BoardConfig
 from .dead_esc import DeadEscDetector
 from .esc_calibration import EscCalibration
+from .faults import FaultInjector
+from .link import BoardLink
 from .outputs import PulseShaper, conversion_voltage, ppm_train
+from .periodic import Periodic
 from .power import PowerSupervisor, solve_supply
+from .power_models import Battery, PowerReading
+from .state import motors_enabled
 from .telemetry import Outbox, fault_flags, telemetry, uptime_ms
+from .timeline import PulseTimeline, ResetEvent
 
 logger = logging.getLogger("firmware_sim.board")  # the whole board logs under one name
 

@@ -12,9 +12,9 @@ from collections.abc import Sequence
 from protocol.messages import GimbalMode, Severity
 from protocol.pulse_widths import FINE_PER_US
 
-from ..actuators import UnitModel
-from ..config import BoardConfig
+from .actuators import UnitModel
 from .codes import LogCode
+from .config import BoardConfig
 from .telemetry import Outbox
 
 

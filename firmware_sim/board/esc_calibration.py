@@ -37,9 +37,9 @@ from protocol.messages import (
     Severity,
 )
 
-from ..actuators import UnitModel
-from ..config import BoardConfig
+from .actuators import UnitModel
 from .codes import LogCode
+from .config import BoardConfig
 from .telemetry import Outbox
 
 ESC_MIN_SPAN_US = 400

@@ -18,9 +18,9 @@ from typing import Any
 
 from protocol.pulse_widths import fine_width, reported_us, whole_us
 
-from ..config import BoardConfig
-from ..timeline import PpmTrain
 from .commands import Command
+from .config import BoardConfig
+from .timeline import PpmTrain
 
 _VOLT_QUANTUM = 0.01  # V: pulse conversions are cached per 10 mV of battery voltage
 _CACHE_ENTRIES = 4096

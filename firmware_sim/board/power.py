@@ -3,7 +3,7 @@ running), and the firmware's power manager around them — the staged thresholds
 BROWN_OUT while the rail is in the MCU's brown-out zone), the SHED latch (rotors stay stopped until a
 new ``Arm``), the UBEC over-current report and the brown-out detector's trip and release levels.
 
-The models themselves (``Battery``, ``ubec_output``, ``PowerManager``) are in :mod:`firmware_sim.power`.
+The models themselves (``Battery``, ``ubec_output``, ``PowerManager``) are in :mod:`.power_models`.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ from collections.abc import Sequence
 
 from protocol.messages import PowerState, Severity
 
-from ..actuators import UnitModel
-from ..config import PowerConfig, UbecParams
-from ..faults import FaultInjector
-from ..power import Battery, PowerManager, PowerReading, ubec_input_power, ubec_output
+from .actuators import UnitModel
 from .codes import LogCode
+from .config import PowerConfig, UbecParams
+from .faults import FaultInjector
+from .power_models import Battery, PowerManager, PowerReading, ubec_input_power, ubec_output
 from .telemetry import Outbox
 
 _SHED = PowerState.SHED  # looked up once: an enum member's lookup costs about 60 ns, asked at 200 Hz

@@ -1,7 +1,7 @@
 """Messages the board builds for the host: ``Log`` lines, ``Telemetry``, ``HelloReply`` and the fault
 flags telemetry carries.
 
-Every message leaves through the board's link (:class:`~firmware_sim.link.BoardLink`); :class:`Outbox`
+Every message leaves through the board's link (:class:`~firmware_sim.board.link.BoardLink`); :class:`Outbox`
 is the one place that sends them, so a ``Log`` is never sent while the MCU is in reset (no UART then).
 """
 
@@ -29,11 +29,11 @@ from protocol.messages import (
     WatchdogState,
 )
 
-from ..config import BoardConfig
-from ..link import BoardLink
-from ..power import PowerReading
-from ..timeline import ResetEvent
 from .codes import LogCode
+from .config import BoardConfig
+from .link import BoardLink
+from .power_models import PowerReading
+from .timeline import ResetEvent
 
 logger = logging.getLogger("firmware_sim.board")  # the whole board logs under one name
 

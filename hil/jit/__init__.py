@@ -1,7 +1,7 @@
 """Compiled kernels: the project's one switch between compiled and interpreted numerics.
 
-Each hot kernel (the plant step, the drive models, the simulated phone, the estimator's inner loop,
-steering's pseudo-inverse) is written once, in the subset of Python that numba compiles, and decorated
+Each hot kernel (the estimator's inner loop, steering's pseudo-inverse; on the far side the plant step, the
+drive models, the simulated phone) is written once, in the subset of Python that numba compiles, and decorated
 with :func:`kernel`; its numpy reference lives beside it and the tests compare the two. numba compiles a
 kernel on its first call and caches the machine code on disk (``__pycache__`` beside the source, or
 ``NUMBA_CACHE_DIR``), so only a fresh install's first run pays for compiling.
@@ -9,9 +9,11 @@ kernel on its first call and caches the machine code on disk (``__pycache__`` be
 numba invalidates a cached kernel when *its own* source file changes, not when a function it calls from
 another file does (numba issue #1833): a kernel in one module calling one in another would then run the
 callee's old machine code. The cache of every :func:`kernel` is therefore stamped with a hash of all the
-sources of the packages kernels live in (:data:`STAMPED`): editing any of them recompiles them all. Reading
-those sources (through :mod:`importlib.resources`, once per process) is this package's only I/O besides
-numba's own cache files.
+sources of the packages hil's kernels live in (:data:`STAMPED`): editing any of them recompiles them all.
+A kernel that lives outside them (the world's, :mod:`firmware_sim.world.models`, which call hil's but are
+never called by them) is stamped with its own package's sources too. Reading those sources (through
+:mod:`importlib.resources`, once per process and package) is this package's only I/O besides numba's own
+cache files.
 
 ``NUMBA_DISABLE_JIT=1`` (numba's own switch) turns every kernel back into the plain Python it is written
 in: slower, but steppable in a debugger, with Python's tracebacks. :data:`COMPILED` says which is in force.
@@ -33,8 +35,9 @@ F = TypeVar("F", bound=Callable[..., Any])
 COMPILED: bool = not getattr(numba.config, "DISABLE_JIT", False)
 """False when ``NUMBA_DISABLE_JIT=1``: every kernel runs as plain Python."""
 
-STAMPED = ("so3", "estimation", "vscmg", "control", "simulation", "jit")
-"""The packages of ``hil`` whose sources stamp every kernel's cache: where kernels and their callees live."""
+STAMPED = ("so3", "estimation", "vscmg", "control", "jit")
+"""The packages of ``hil`` whose sources stamp every kernel's cache: where hil's kernels and their callees
+live."""
 
 
 def kernel(fn: F) -> F:
@@ -43,7 +46,7 @@ def kernel(fn: F) -> F:
     if not COMPILED:
         return fn
     dispatcher = numba.njit(nogil=True)(fn)
-    cache = _cache_class()
+    cache = _cache_class(_home(fn))
     if cache is None:  # a numba without the locator API this relies on: numba's own per-file stamp
         dispatcher.enable_caching()
     else:
@@ -51,12 +54,24 @@ def kernel(fn: F) -> F:
     return cast(F, dispatcher)
 
 
+def _home(fn: Callable[..., Any]) -> str | None:
+    """The package of a kernel that lives outside ``hil`` (its sources stamp its cache beside
+    :data:`STAMPED`'s), or None for one of hil's own."""
+    package = fn.__module__.rpartition(".")[0]
+    return None if package.partition(".")[0] == "hil" else package
+
+
 @functools.cache
-def tree_stamp() -> str:
-    """SHA-256 of the sources of :data:`STAMPED` (names and contents), computed once per process."""
+def tree_stamp(home: str | None = None) -> str:
+    """SHA-256 of the sources of :data:`STAMPED` (names and contents) and, for a kernel that lives outside
+    hil, of its package ``home`` (dotted, e.g. ``firmware_sim.world.models``); computed once per process."""
     digest = hashlib.sha256()
     for package in STAMPED:
         for name, source in _sources(resources.files("hil") / package, f"hil/{package}"):
+            digest.update(name.encode())
+            digest.update(source)
+    if home is not None:
+        for name, source in _sources(resources.files(home), home.replace(".", "/")):
             digest.update(name.encode())
             digest.update(source)
     return digest.hexdigest()
@@ -72,8 +87,9 @@ def _sources(folder: Traversable, name: str) -> Iterator[tuple[str, bytes]]:
 
 
 @functools.cache
-def _cache_class() -> type | None:
-    """numba's function cache with its two source-file locators stamped by :func:`tree_stamp` too."""
+def _cache_class(home: str | None) -> type | None:
+    """numba's function cache with its two source-file locators stamped by :func:`tree_stamp` (of
+    ``home`` too, for a kernel outside hil)."""
     try:
         from numba.core import caching
 
@@ -84,7 +100,7 @@ def _cache_class() -> type | None:
 
     def stamped(base: Any) -> type:
         def get_source_stamp(self: Any) -> object:
-            return (base.get_source_stamp(self), tree_stamp())
+            return (base.get_source_stamp(self), tree_stamp(home))
 
         return type(f"Stamped{base.__name__}", (base,), {"get_source_stamp": get_source_stamp})
 

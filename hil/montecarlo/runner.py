@@ -38,7 +38,7 @@ from hil.runtime.operator import ScheduledOperator
 from hil.runtime.record import RunRecorder
 from hil.scenario import Scenario
 from hil.scenario.config import SlewScenario
-from hil.simulation.phone import PhoneSpec
+from hil.scenario.phone import PhoneSpec
 from hil.vscmg import SpacecraftParams
 from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError, HilError, RunHung

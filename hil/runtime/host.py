@@ -129,7 +129,7 @@ class Host:
     def __post_init__(self) -> None:
         from hil.estimation.filter import AttitudeFilter
         from hil.estimation.multirate import Merger
-        from hil.vscmg import Plant
+        from hil.vscmg import PlantModel as Plant
 
         sc = self.scenario
         loop = sc.loop

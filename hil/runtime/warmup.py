@@ -8,8 +8,10 @@ that in two: a child process compiles the world's by stepping a world of the run
 while this process compiles the host's by stepping the scenario's attitude filter and steering on
 synthetic samples — the same objects, through the same calls, with the same argument types as the run,
 so the run then finds every kernel in the cache (``tests/test_warmup.py`` checks that it compiles none).
-A marker beside numba's cache, named after the kernel sources' stamp and numba's version, says that it
-was done; nothing happens once it exists, or when compiling is switched off (``NUMBA_DISABLE_JIT=1``).
+A marker beside numba's cache, named after hil's kernel sources' stamp (:func:`hil.jit.tree_stamp`) and
+numba's version, says that it was done; nothing happens once it exists, or when compiling is switched off
+(``NUMBA_DISABLE_JIT=1``). An edit of the world's kernels alone (:mod:`firmware_sim.world.models`, stamped
+with their own sources too) leaves the marker: a run then compiles those itself, as numba's stamp tells it.
 """
 
 from __future__ import annotations

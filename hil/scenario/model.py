@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from hil.simulation.phone import PhoneSpec
 from hil.vscmg import SpacecraftParams
 
 from .config import LoopConfig, SlewScenario
+from .phone import PhoneSpec
 
 
 @dataclass(frozen=True)

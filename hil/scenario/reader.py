@@ -13,12 +13,12 @@ import numpy as np
 from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
-from hil.simulation.phone import PhoneSpec, SensorSpec
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
 from .config import LoopConfig, SlewScenario
 from .model import Scenario
+from .phone import PhoneSpec, SensorSpec
 
 _SPACECRAFT_PRESETS = ("cubesat_1u", "air_bearing_testbed")
 _GEOMETRIES = ("pyramid", "tetrahedron", "custom")
@@ -86,7 +86,7 @@ BOARD_RANGES: dict[str, tuple[float, float, type]] = {
     "soc": (0.0, 1.0, float),
 }
 """The board options a scenario may set (firmware-sim's spelling) and their ranges, checked here so an
-error names the scenario's file and key; the board's own check (``firmware_sim.config.BoardConfig``)
+error names the scenario's file and key; the board's own check (``firmware_sim.board.config.BoardConfig``)
 agrees (tests/test_scenario_checks.py)."""
 MAX_DURATION_S = 86_400.0
 """The longest run a scenario may ask for, warm-up included (a day of simulated time)."""

@@ -1,10 +1,9 @@
 """The spacecraft with its array of variable-speed control moment gyroscopes: parameters, geometries, the
-model (mass matrix, momenta, energy) and the plant integrator (numpy, batched: the reference; and
-:mod:`.compiled`, the same step for one run compiled, with the motor drives of :mod:`.drives`). Pure math,
-no I/O; docs/dynamics.md derives the equations."""
+model (mass matrix, momenta, energy) and the plant's state with what the model says of it
+(:mod:`.plant_model`: the locked inertia the controller starts from, the invariants). Pure math, no I/O;
+docs/dynamics.md derives the equations. Stepping the plant in time, the motor drives and the simulated phone
+are the world's: :mod:`firmware_sim.world.models`."""
 
-from .compiled import CompiledPlant
-from .drives import Drive
 from .geometry import (
     PYRAMID_BETA,
     TETRAHEDRON_BETA,
@@ -16,21 +15,16 @@ from .geometry import (
     tetrahedron,
 )
 from .params import RPM, ActuatorLimits, SpacecraftParams, UnitParams
-from .plant import GravityGradient, Plant, PlantState, TorqueLaw, Torques
+from .plant_model import PlantModel, PlantState
 
 __all__ = [
     "PYRAMID_BETA",
     "RPM",
     "TETRAHEDRON_BETA",
     "ActuatorLimits",
-    "CompiledPlant",
-    "Drive",
-    "GravityGradient",
-    "Plant",
+    "PlantModel",
     "PlantState",
     "SpacecraftParams",
-    "TorqueLaw",
-    "Torques",
     "UnitParams",
     "air_bearing_testbed",
     "cubesat_1u",

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from conformance.host import PTY_WALL_S
-from firmware_sim.timeline import PulseFrame, ResetEvent
+from firmware_sim.board.timeline import PulseFrame, ResetEvent
 
 LINK_TIMEOUT_S = 0.25
 """The link watchdog of the tests about it (marker ``link_watchdog``)."""
@@ -69,7 +69,7 @@ class Target(Protocol):
     def timeline(self) -> Sequence[PulseFrame]: ...
     def resets(self) -> Sequence[ResetEvent]: ...
     def calibration(self, unit: int) -> Any: ...  # protocol.calibration.UnitCalibration in use
-    def esc(self, unit: int) -> Any: ...  # firmware_sim.esc.EmulatedEsc on the unit's rotor channel
+    def esc(self, unit: int) -> Any: ...  # firmware_sim.board.esc.EmulatedEsc on the unit's rotor channel
     def inject_link_noise(self, corrupt: float, drop: float = 0.0) -> None: ...
     def inject_hang(self) -> float: ...  # returns the target time the main loop stopped
     def inject_sag(self, drop_v: float, ramp_s: float, duration_s: float) -> None: ...
@@ -83,8 +83,8 @@ def uptime_origin(resets: Sequence[ResetEvent], t: float) -> float:
 
 
 def board_config(spec: TargetSpec) -> Any:
-    """The ``firmware_sim.config.BoardConfig`` a target runs for ``spec``."""
-    from firmware_sim.config import BoardConfig
+    """The ``firmware_sim.board.config.BoardConfig`` a target runs for ``spec``."""
+    from firmware_sim.board.config import BoardConfig
 
     return BoardConfig(
         n_units=spec.n_units,
@@ -103,8 +103,8 @@ class FirmwareSimTarget:
     ``LockstepClock``) moves only while the host waits (:class:`conformance.host.LockstepSerialHost`
     advances it), and every byte the host wrote is fed to the board before its clock moves on. The bytes
     go through the pty as they would from any serial port; what the board does, and when, does not
-    depend on how busy the machine is. (The emulator's real-time pty server, ``firmware_sim.pty_server``,
-    has tests of its own: tests/test_firmware_sim_pty.py.)"""
+    depend on how busy the machine is. (The emulator's real-time pty server,
+    ``firmware_sim.servers.pty_server``, has tests of its own: tests/test_firmware_sim_pty.py.)"""
 
     name = "firmware_sim"
     lockstep = True

@@ -1,7 +1,7 @@
 """ESC endpoint programming (``EscCalibrate``) through a real serial port, for every target in TARGETS.
 
 The board runs the procedure on its own clock; what it teaches is judged by an emulated hobby ESC
-(:mod:`firmware_sim.esc`) that sees the target's real pulses and ESC supply switch: the emulator's own
+(:mod:`firmware_sim.board.esc`) that sees the target's real pulses and ESC supply switch: the emulator's own
 ESC, or one replaying the C firmware's pins under simavr. Timing is asserted on the board's clock (the
 pulse timeline), never on host wall time.
 """

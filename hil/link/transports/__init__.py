@@ -9,9 +9,9 @@ URL                                         transport
 ``can://<interface>/<channel>?node=N``      a python-can bus (``virtual``, ``udp_multicast``,
                                             ``socketcan``, ...): :mod:`.can_bus`
 ``emu://?units=4&...``                      the emulated board in-process, on the host's clock
-                                            (lockstep or real time): ``firmware_sim.transports``
+                                            (lockstep or real time): ``firmware_sim.servers.transports``
 ``spawn://firmware-sim?units=4&...``        ``firmware-sim`` started on a pty for the
-                                            connection, stopped on close: ``firmware_sim.transports``
+                                            connection, stopped on close: ``firmware_sim.servers.transports``
 ==========================================  ===============================================
 
 Each scheme maps to ``"module:Class"``, imported on first use, so a missing optional backend only

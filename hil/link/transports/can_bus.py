@@ -30,7 +30,7 @@ rest of its bytes); :meth:`read` hands up the wire frames the reassembler comple
 above sees exactly what a serial link would give it. Lost and incomplete frames, duplicates and foreign
 traffic are counted in :meth:`counters`, never delivered. A host sends towards the board
 (``Direction.TO_BOARD``) and accepts the board's direction only; the board's side
-(:mod:`firmware_sim.can_server`) is the same class with ``sends=Direction.TO_HOST``.
+(:mod:`firmware_sim.servers.can_server`) is the same class with ``sends=Direction.TO_HOST``.
 """
 
 from __future__ import annotations

@@ -33,7 +33,7 @@ from types import TracebackType
 from hil.threads import ThreadError
 from protocol.errors import LinkError
 
-from .board import Board
+from ..board import Board
 
 logger = logging.getLogger(__name__)
 

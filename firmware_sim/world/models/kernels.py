@@ -1,4 +1,4 @@
-"""The plant step compiled: :meth:`hil.vscmg.Plant.step` (the numpy reference) for one run, on flat float64
+"""The plant step compiled: :meth:`.plant.Plant.step` (the numpy reference) for one run, on flat float64
 arrays, in the order the reference takes it — configuration (gimbal frames, rotor inertia turned by φ
 for non-axisymmetric rotors, locked inertia J, the mass matrix's columns b_γ, b_φ and 2×2 block inverses),
 velocities (the 3×3 Schur complement solved by its adjugate), body rates and gyroscopic forces, motor
@@ -229,7 +229,7 @@ def _forces(model: Array, n: int, geo: Array, v: Array, fg: Array, fp: Array) ->
 
 @kernel
 def _gravity(model: Array, t: float, R: Array, J: Array, out: Array) -> None:
-    """``R τ`` (inertial) with ``τ = 3 n² r̂ × J r̂`` (:meth:`hil.vscmg.GravityGradient.torque`)."""
+    """``R τ`` (inertial) with ``τ = 3 n² r̂ × J r̂`` (:meth:`.plant.GravityGradient.torque`)."""
     ang = model[3] * t
     ca, sa = math.cos(ang), math.sin(ang)
     e0 = ca * model[5] + sa * model[8]

@@ -4,22 +4,22 @@ and gimbal servos of a spacecraft with VSCMGs, and a phone on the spacecraft sen
 The world reads the widths the board's timers put out (``Board.outputs``) and turns each into what the
 motor driver makes of it through the unit's calibration map — the rotor ESC's steady speed at the present
 battery voltage, the gimbal servo's rate (or angle) — and lets the drives of
-:class:`hil.control.motor_loops.ServoModel` drive the plant (:mod:`hil.vscmg`) towards it. A channel
+:class:`.models.ServoModel` drive the plant (:class:`.models.Plant`) towards it. A channel
 without pulses (board booting, outputs off, a dead ESC) has no drive: the gimbal holds, the rotor coasts
 down against its drag (the motor's coasting time constant, as the board's own unit model has it).
 
 **Batches.** Those widths change only at the pulse frames (unless the MCU resets, a channel dies or the
 gimbal mode changes: ``Board.drive_epoch``), so the world steps the plant *ahead* in one compiled batch to
-the board's next frame (:class:`hil.vscmg.CompiledPlant` with the drive law inside its integrator stages,
+the board's next frame (:class:`.models.CompiledPlant` with the drive law inside its integrator stages,
 keeping every state; the scenario's ``plant_step_s`` ≤ 1 ms per step) and the phone senses along it
-(:meth:`hil.simulation.phone.BodyPhone.sample_path_intervals`). The world then moves through those steps as
+(:meth:`.models.BodyPhone.sample_path_intervals`). The world then moves through those steps as
 the caller's time passes: at each board event the unit states of the step it falls in go to the board
 (``Board.set_unit_states``: its telemetry, power draw and dead-ESC detection follow the physics at the
 board's own rates), the board runs what is due, and the phone's samples are handed out up to the present.
 An event that changes what the drives see drops the steps ahead (the phone's noise stream is rewound with
 them) and the drives take the new widths there — what a step-by-step loop would do, with the board's
 events at the same plant steps. ``World(..., compiled=False)`` runs the same schedule on the numpy
-:class:`hil.vscmg.Plant` and :meth:`BodyPhone.sample`, one step at a time (the reference; the same samples
+:class:`.models.Plant` and :meth:`BodyPhone.sample`, one step at a time (the reference; the same samples
 and truth to rounding).
 
 The world keeps the board's time: it is advanced to the board clock's present by :meth:`World.advance_to`
@@ -39,14 +39,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.control.motor_loops import ServoModel, Setpoints
+from hil.control.motor_loops import Setpoints
 from hil.estimation.sensors import SensorSample
-from hil.simulation.phone import BodyPhone
 from hil.threads import ThreadError
-from hil.vscmg import CompiledPlant, Plant, PlantState
+from hil.vscmg import PlantState
 from protocol.messages import GimbalMode, UnitState
 
-from .board import Board
+from ..board import Board
+from .models import BodyPhone, CompiledPlant, Plant, ServoModel
 from .phone_faults import PhoneTamper
 
 Array = NDArray[np.float64]
@@ -74,7 +74,7 @@ class World:
     """``scenario`` (:class:`hil.scenario.Scenario`): spacecraft (``world_spacecraft``: the true one when a
     run disperses it), servos, phone, start attitude and gimbal angles; the rotors start at rest (the host
     spins them up). ``board``: the emulated board whose pulses drive it (its unit count must match the
-    spacecraft's). ``compiled``: step :class:`hil.vscmg.CompiledPlant` and the phone's compiled sampler
+    spacecraft's). ``compiled``: step :class:`.models.CompiledPlant` and the phone's compiled sampler
     (default) rather than the numpy references. ``state`` is the plant's :class:`PlantState` either way
     (built on demand); :meth:`truth` reads the flat state without building one."""
 

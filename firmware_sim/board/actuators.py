@@ -1,6 +1,6 @@
 """ESC/motor and gimbal-servo response of one VSCMG unit, driven by pulse widths.
 
-The rotor's ESC (:class:`firmware_sim.esc.EmulatedEsc`: factory endpoints, endpoint programming, arming
+The rotor's ESC (:class:`firmware_sim.board.esc.EmulatedEsc`: factory endpoints, endpoint programming, arming
 at minimum) drives the motor only while it is powered and armed. Its steady no-load speed comes from one
 of two sources:
 

@@ -24,7 +24,7 @@ from types import TracebackType
 from hil.threads import ThreadError
 from protocol.can import Direction
 
-from .board import Board
+from ..board import Board
 
 logger = logging.getLogger(__name__)
 

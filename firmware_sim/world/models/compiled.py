@@ -8,7 +8,7 @@ stacks them, then Ω, γ̇, φ̇); :meth:`CompiledPlant.pack` and :meth:`Compile
 from :class:`PlantState` (batch 1) exactly, and the ``*_of`` helpers read views of it.
 
 Torques: None, a held ``(gimbal, rotor)`` pair, a :class:`.drives.Drive`, or anything with a ``drive()``
-method returning one (:class:`hil.control.motor_loops.ServoModel`): the drive law runs inside the
+method returning one (:class:`.servos.ServoModel`): the drive law runs inside the
 compiled stages. A Python torque law cannot (the compiled loop does not call back into Python): step
 those on :class:`Plant`.
 

@@ -4,7 +4,7 @@ absurd, or plausible values stamped at the wrong time. Applied to the samples th
 (:meth:`firmware_sim.world.World.advance_to`), so they reach the host the way the phone's samples do: in
 process in lockstep, over UDP from ``firmware-sim --world``.
 
-The board's :class:`~firmware_sim.faults.FaultInjector` holds the schedule (board-clock times); this
+The board's :class:`~firmware_sim.board.faults.FaultInjector` holds the schedule (board-clock times); this
 module keeps what applying it needs (the spoofs already sent, the last plausible reading of each sensor).
 """
 
@@ -15,7 +15,7 @@ from dataclasses import replace
 
 from hil.estimation.sensors import KINDS, SensorKind, SensorSample
 
-from .faults import FaultInjector, PhoneSpoof
+from ..board.faults import FaultInjector, PhoneSpoof
 
 HUGE = 1e160
 SATURATED = {SensorKind.GYR: 1e6, SensorKind.ACC: 1e5, SensorKind.MAG: 1e7}  # rad/s, m/s², µT

@@ -1,7 +1,7 @@
 """Motor torques for the compiled plant (:mod:`.compiled`): none, a held pair, or first-order motor drives,
 as flat data and one compiled law evaluated at every integrator stage.
 
-The drives are those of :class:`hil.control.motor_loops.ServoModel` (its numpy ``__call__`` is the
+The drives are those of :class:`.servos.ServoModel` (its numpy ``__call__`` is the
 reference; ``ServoModel.drive()`` packs its parameters and held setpoints into a :class:`Drive`)::
 
     u_γ = sat(J_γ (γ̇_sp − γ̇) / τ_γ − ρ ∂T/∂γ, u_γmax)        u_φ = sat(J_φ (φ̇_sp − φ̇) / τ_φ − ρ ∂T/∂φ, u_φmax)
@@ -13,10 +13,10 @@ no motor torque, it coasts down against its drag, ``u_φ = −J_φ φ̇ / τ_coa
 there is no coasting model). Both are evaluated at every stage, so the trajectory does not depend on how
 often the caller refreshes the setpoints.
 
-Why the law lives here, beside the plant, rather than with ``ServoModel`` in :mod:`hil.control`: the
-compiled step calls it at each stage, and a compiled function handed another as an argument is compiled
-afresh in every process (numba keys its disk cache on the function object), so the plant's kernel
-names its one torque law directly; the layers (control above vscmg) then put that law here.
+Why the law is a kernel of its own beside the plant rather than a method of ``ServoModel``: the compiled
+step calls it at each stage, and a compiled function handed another as an argument is compiled afresh in
+every process (numba keys its disk cache on the function object), so the plant's kernel names its one
+torque law directly.
 """
 
 from __future__ import annotations

@@ -1,2 +1,0 @@
-"""The simulated spacecraft's surroundings, pure math (no I/O): the simulated phone on the body
-(:mod:`.phone`)."""
