@@ -29,7 +29,7 @@ from protocol.calibration import MAX_SIZE as CAL_MAX_SIZE
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import ConfigError
 
-from ..config import BoardConfig
+from ..board.config import BoardConfig
 
 EEPROM_SIZE = 4096
 CONFIG_MAGIC = 0x4342

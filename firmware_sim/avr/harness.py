@@ -27,9 +27,9 @@ from typing import IO, Any
 from protocol.calibration import UnitCalibration, default_unit_calibration
 from protocol.errors import ConfigError, LinkError, LinkTimeout
 
-from ..config import BoardConfig
-from ..esc import EmulatedEsc, EscParams, replay_esc
-from ..timeline import PpmTrain, PulseFrame, ResetEvent
+from ..board.config import BoardConfig
+from ..board.esc import EmulatedEsc, EscParams, replay_esc
+from ..board.timeline import PpmTrain, PulseFrame, ResetEvent
 from . import eeprom
 from .build import ensure_built
 from .paths import FIRMWARE_ELF, HARNESS

@@ -27,7 +27,7 @@ from protocol.messages import ResetCause
 from protocol.pulse_widths import TICK_US
 from protocol.pulses import DEFAULT_PPM
 
-from ..timeline import PpmTrain, PulseFrame, ResetEvent
+from ..board.timeline import PpmTrain, PulseFrame, ResetEvent
 
 FRAME_SKEW_US = 50.0
 """Rising edges this close to a frame's first one belong to the same frame (timers start together)."""

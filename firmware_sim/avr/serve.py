@@ -14,7 +14,7 @@ from pathlib import Path
 
 from protocol.errors import ConfigError
 
-from ..config import BoardConfig
+from ..board.config import BoardConfig
 from .harness import HarnessOptions, spawn_interactive
 from .paths import FIRMWARE_ELF
 
