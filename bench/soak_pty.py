@@ -263,11 +263,13 @@ def _after(cycles: list[Cycle], rec: Recorder, outcome: dict[str, Any], thread: 
             problems.append(f"exit {summary.get('exit')!r}")
         problems += check_logs(result.run_dir, rec, summary, lockstep=False)
         phone = summary.get("phone", {})
-        counted = phone.get("messages", 0) + phone.get("bad_messages", 0)
+        # Every datagram read, refused or dropped by the kernel for want of buffer (counted, logged).
+        counted = phone.get("messages", 0) + phone.get("bad_messages", 0) + phone.get("kernel_dropped", 0)
         if phone.get("bad_messages", 0) < hostile_bad or counted < relay.forwarded:
             problems.append(
-                f"the phone receiver counted {phone.get('messages')} + {phone.get('bad_messages')} datagrams "
-                f"for {relay.forwarded} forwarded and {hostile_bad} hostile"
+                f"the phone receiver counted {phone.get('messages')} + {phone.get('bad_messages')} + "
+                f"{phone.get('kernel_dropped')} (kernel) datagrams for {relay.forwarded} forwarded and "
+                f"{hostile_bad} hostile"
             )
     faults = summary.get("faults", [])
     for i, c in enumerate(cycles):

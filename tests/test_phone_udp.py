@@ -158,3 +158,41 @@ def _receive(receiver, n: int, timeout_s: float = 5.0) -> list[SensorSample]:
         got += receiver.drain()
         time.sleep(0.005)
     return got
+
+
+def test_datagrams_the_kernel_drops_are_counted_never_silently_lost(caplog):
+    """A flood faster than the receiver reads (a host left unscheduled longer than its receive buffer holds,
+    as the soak saw under load): whatever the kernel drops is counted from its own report (SO_RXQ_OVFL,
+    stamped on each datagram as it is queued) and logged, so every datagram sent is read or counted."""
+    datagram = encode_datagram(SensorSample(1.0, SensorKind.GYR, (0.0, 0.0, 0.1))) + b" " * 1_000
+    with PhoneUdpReceiver("udp://127.0.0.1:0", max_queue=16) as receiver:
+        assert receiver.counts_kernel_drops  # Linux
+        host, port = receiver.url.removeprefix("udp://").split(":")
+        address = (host, int(port))
+
+        def accounted() -> int:
+            st = receiver.stats
+            return st.messages + st.bad_messages + st.kernel_dropped
+
+        def settle() -> None:
+            """Until the receiver has read what the kernel holds (nothing new for a second)."""
+            last, quiet_since, deadline = -1, time.monotonic(), time.monotonic() + 120
+            while time.monotonic() < deadline and time.monotonic() - quiet_since < 1.0:
+                if (now := accounted()) != last:
+                    last, quiet_since = now, time.monotonic()
+                time.sleep(0.05)
+
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as raw:
+            for _ in range(FLOOD):
+                raw.sendto(datagram, address)
+            settle()
+            raw.sendto(datagram, address)  # queued after the flood: it carries the flood's whole count
+            settle()
+        st = receiver.stats
+        assert st.kernel_dropped > 0, "the flood did not overrun the receive buffer"
+        assert accounted() == FLOOD + 1
+    assert any("receive buffer was full" in r.getMessage() for r in caplog.records)
+
+
+FLOOD = 60_000
+"""Datagrams of ~1.1 kB sent as fast as one socket can (~66 MB): several times the 8 MB receive buffer."""

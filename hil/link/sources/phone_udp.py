@@ -25,6 +25,7 @@ import contextlib
 import json
 import math
 import socket
+import sys
 import threading
 from collections.abc import Sequence
 
@@ -86,6 +87,22 @@ def _address(url: str) -> tuple[str, int]:
     return host, port
 
 
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+"""Linux's socket option (40) that has the kernel hand each datagram's reader the count of datagrams it
+dropped on that socket for want of buffer space (a uint32, cumulative)."""
+OVERFLOW_SPACE = socket.CMSG_SPACE(4)
+
+
+def _count_overflows(sock: socket.socket) -> bool:
+    """Ask the kernel to report its drops on ``sock`` (Linux); False where it cannot (then a drop in the
+    kernel goes uncounted by the receiver: the platform's limit, said in docs/formats.md)."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+    except OSError:
+        return False
+    return True
+
+
 class PhoneUdpReceiver(PhoneReceiver):
     """Receives SensaGram datagrams on ``udp://HOST:PORT`` (port 0 picks a free one; see :attr:`url`).
 
@@ -106,6 +123,7 @@ class PhoneUdpReceiver(PhoneReceiver):
         try:
             # A phone streams hundreds of datagrams a second; a deep receive buffer rides out a slow tick.
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
+            self.counts_kernel_drops = _count_overflows(self._sock)
             self._sock.bind((host, port))
         except OSError as exc:
             self._sock.close()
@@ -125,9 +143,12 @@ class PhoneUdpReceiver(PhoneReceiver):
         try:
             while not self._stop.is_set():
                 try:
-                    data, peer = self._sock.recvfrom(MAX_DATAGRAM)
+                    data, ancillary, _flags, peer = self._sock.recvmsg(MAX_DATAGRAM, OVERFLOW_SPACE)
                 except (TimeoutError, ConnectionError):  # idle; an ICMP error queued on the socket
                     continue
+                for level, kind, value in ancillary:
+                    if (level, kind) == (socket.SOL_SOCKET, SO_RXQ_OVFL) and len(value) >= 4:
+                        self._kernel_dropped(int.from_bytes(value[:4], sys.byteorder))
                 self._accept(data, peer[0])
         except OSError as exc:
             if not self._stop.is_set():  # a socket closed by close() is the normal end

@@ -91,6 +91,7 @@ class StreamStats:
     overflow: int = 0  # samples dropped, oldest first, beyond max_queue held (a flood, a stalled consumer)
     held: int = 0  # samples waiting for the next drain (at most max_queue), at the last drain
     message_gaps: int = 0  # messages lost in transit (where the format numbers them)
+    kernel_dropped: int = 0  # UDP: datagrams the kernel dropped, its receive buffer full (SO_RXQ_OVFL)
     refused_connections: int = 0  # HTTP: connections beyond the cap (every slot busy), closed unanswered
     evicted_connections: int = 0  # HTTP: idle connections closed to make room for a new one
     timeouts: int = 0  # HTTP: connections closed because a request did not arrive in time
@@ -173,6 +174,17 @@ class PhoneReceiver:
             reason = f"{source}: unreadable ({type(exc).__name__}: {str(exc)[:120]})"
         self._reject(reason)
         return None, reason
+
+    def _kernel_dropped(self, total: int) -> None:
+        """The kernel's count of datagrams it dropped on this socket (cumulative, as ``SO_RXQ_OVFL``
+        reports it with each datagram): the new ones counted and logged — lost before the receiver saw
+        them (the host unscheduled longer than its receive buffer holds), never silently."""
+        with self._lock:
+            new = total - self.stats.kernel_dropped
+            if new <= 0:
+                return
+            self.stats.kernel_dropped = total
+        self._warn(f"{new} datagram(s) in the kernel: its receive buffer was full", new)
 
     def _reject(self, reason: str) -> None:
         """A message that could not be read at all: counted, remembered, logged (at most once a second,
