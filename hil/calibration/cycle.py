@@ -19,7 +19,6 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +30,8 @@ from .benchlink import BenchLink, GuardTripped
 from .esc import EscOutcome, EscProgram, program_esc
 from .files import CalibrationSet, FitInfo, UnitEntry, load_calibration, save_calibration
 from .fit import Fit, FitOptions, fit_bench
+from .operator import Operator
+from .progress import Report, no_report
 from .sweep import SweepPlan, SweepResult, run_sweep
 from .verify import VerifyPlan, VerifyReport, run_verify
 
@@ -68,10 +69,12 @@ def calibrate_units(
     options: CycleOptions,
     *,
     confirm_unloaded: bool = False,
-    ask_supply: Callable[[str], None] | None = None,
-    report: Callable[[str], None] = lambda line: None,
+    operator: Operator | None = None,
+    report: Report = no_report,
 ) -> CycleResult:
-    """See the module docstring. ``report`` gets one line per step (the CLI prints them)."""
+    """See the module docstring. ``operator`` is asked for the ESC supply on a board without a supply
+    switch (:func:`~hil.calibration.esc.program_esc`); ``report`` gets one line per step, with the time
+    left (the CLI prints them)."""
     for unit in units:
         link.check_unit(unit)
     kinds = [p.kind for p in options.plans]
@@ -92,7 +95,12 @@ def calibrate_units(
         )
         for unit in units:
             esc[unit] = program_esc(
-                link, unit, options.esc, confirm_unloaded=confirm_unloaded, ask_supply=ask_supply
+                link,
+                unit,
+                options.esc,
+                confirm_unloaded=confirm_unloaded,
+                operator=operator,
+                report=report,
             )
             report(f"unit {unit}: ESC taught {options.esc.low_us}-{options.esc.high_us} us")
     sweeps: dict[int, dict[BenchKind, SweepResult]] = {u: {} for u in units}

@@ -198,24 +198,28 @@ def _program(args: argparse.Namespace) -> Any:
     return EscProgram(args.esc_low, args.esc_high, args.supply_off_ms, args.high_ms, args.low_ms)
 
 
-def _ask(prompt: str) -> None:
-    print(prompt, flush=True)
-    if not sys.stdin.isatty():
-        from protocol.errors import ConfigError
-
-        raise ConfigError("the board asks for the ESC supply: run on a terminal to confirm it", "stdin")
-    input("Press Enter once it is connected: ")
+def _print(line: str) -> None:
+    """A progress line, flushed at once (the operator watches it; stdout may be a pipe)."""
+    print(line, flush=True)
 
 
 # --------------------------------------------------------------------------- esc
 def run_esc(args: argparse.Namespace) -> int:
     from hil.calibration.esc import program_esc
 
+    from ._operator import TerminalOperator
+
     program = _program(args)
+    operator = TerminalOperator()
     with _bench(args) as link:
         for unit in args.unit:
             outcome = program_esc(
-                link, unit, program, confirm_unloaded=args.confirm_unloaded, ask_supply=_ask
+                link,
+                unit,
+                program,
+                confirm_unloaded=args.confirm_unloaded,
+                operator=operator,
+                report=_print,
             )
             phases = " -> ".join(p.name for p in outcome.phases)
             print(f"unit {unit}: ESC taught {outcome.low_us}-{outcome.high_us} us ({phases})")
@@ -274,6 +278,8 @@ def run_unit(args: argparse.Namespace) -> int:
     from hil.calibration.verify import VerifyPlan
     from protocol.errors import ConfigError
 
+    from ._operator import TerminalOperator
+
     names = [m.strip() for m in args.maps.split(",") if m.strip()]
     unknown = [m for m in names if m not in _MAPS]
     if unknown or not names:
@@ -320,7 +326,7 @@ def run_unit(args: argparse.Namespace) -> int:
             args.unit,
             options,
             confirm_unloaded=args.confirm_unloaded,
-            ask_supply=_ask,
-            report=print,
+            operator=TerminalOperator(),
+            report=_print,
         )
     return 0
