@@ -160,24 +160,47 @@ def _client(args: argparse.Namespace) -> Any:
 def _bench(args: argparse.Namespace) -> Iterator[Any]:
     """The bench link on the board at ``args.port``, closed afterwards. Interrupted (Ctrl-C, or SIGTERM
     from ``timeout``, systemd or a CI cancel: :mod:`hil.cli._signals`), the board is put back to rest
-    first — its outputs to the base pulses, Disarm, SETPOINT mode (``BenchLink.safe``) — best effort: a
-    sweep already does that on its way out, but ESC programming does not, and closing the port alone
-    leaves the board to its link watchdog. A second interrupt gives that up."""
+    first — its outputs to the base pulses, Disarm (which also aborts an ESC being taught, to its minimum
+    pulse), SETPOINT mode (``BenchLink.safe``) — and the state it was left in, as its telemetry reports
+    it, is printed; a sweep has kept its partial bench CSV, marked so. Best effort: closing the port alone
+    would leave the board to its link watchdog. A second interrupt gives that up."""
     from hil.calibration.benchlink import BenchLink
-    from protocol.errors import HilError
 
     client = _client(args)
     link = BenchLink(client)
     try:
         yield link
     except KeyboardInterrupt:
-        try:
-            link.safe()
-        except (HilError, KeyboardInterrupt) as exc:
-            print(f"hil calibrate: could not put the board back to rest: {exc!r}", file=sys.stderr)
+        print(f"hil calibrate: {_left_at_rest(link)}", file=sys.stderr, flush=True)
         raise
     finally:
         client.close()
+
+
+def _left_at_rest(link: Any) -> str:
+    """Put the board back to rest and say what state its telemetry then shows."""
+    from protocol.errors import HilError
+    from protocol.messages import BoardState, ControlMode
+
+    try:
+        link.safe()
+        tel = link.latest(
+            lambda t: t.state is not BoardState.ARMED and t.mode is not ControlMode.ESC_CALIBRATION,
+            timeout=2.0,
+        )
+    except (HilError, KeyboardInterrupt) as exc:
+        return (
+            f"could not put the board back to rest ({exc!r}); closing the port leaves it to its link "
+            "watchdog, which stops its rotors within its timeout"
+        )
+    widths = tel.pulses_us
+    outputs = "; ".join(
+        f"unit {u} gimbal {widths[2 * u]} us, rotor {widths[2 * u + 1]} us" for u in range(len(widths) // 2)
+    )
+    return (
+        f"the board was left {tel.state.name} in {tel.mode.name} mode (no ESC being taught), its outputs at "
+        f"rest: {outputs}"
+    )
 
 
 def _settling(args: argparse.Namespace) -> Any:
@@ -255,11 +278,12 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
         tolerance=args.tolerance,
         guard=_guard(args),
     )
+    paths = {unit: args.out_dir / f"unit{unit}_{args.map}.csv" for unit in args.unit}
     with _bench(args) as link:
-        results = run_sweep(link, args.unit, plan)
+        results = run_sweep(link, args.unit, plan, paths=paths, report=_print)
     status = 0
     for unit, result in results.items():
-        path = result.write_csv(args.out_dir / f"unit{unit}_{args.map}.csv")
+        path = paths[unit]
         unsettled = sum(not r.settled for r in result.rows)
         note = f", {unsettled} unsettled" if unsettled else ""
         print(f"unit {unit}: {len(result.rows)} steps{note} -> {path}")
