@@ -52,7 +52,9 @@ def register_actions(actions: Any) -> None:
         help="teach a rotor ESC its endpoints through the board (the board times the procedure)",
         description="Run the ESC endpoint procedure on a unit's rotor channel: the board powers the ESC up "
         "at the high endpoint (cutting its supply, or asking for it), waits for the acknowledgement, then "
-        "gives the low endpoint and goes back to the safe pulse. The board must be disarmed.",
+        "gives the low endpoint and goes back to the safe pulse. The board must be disarmed. A board "
+        "without a supply switch waits up to 60 s for you to connect the ESC's supply and press Enter; the "
+        "link is kept alive meanwhile.",
         epilog=_ESC_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -65,7 +67,9 @@ def register_actions(actions: Any) -> None:
         help="step a rotor or gimbal channel over its range and write the bench CSV fit reads",
         description="Sweep the pulse width of the chosen map's channel of each unit (up and down, settle "
         "and dwell, rate-limited, with a battery current/voltage guard) and record the response the "
-        "board's telemetry reports: <out-dir>/unit<N>_<map>.csv with the board, unit, date and battery.",
+        "board's telemetry reports: <out-dir>/unit<N>_<map>.csv with the board, unit, date and battery, "
+        "rewritten after every step and marked '# status: partial' until the sweep completes (an interrupted "
+        "sweep keeps what it measured). Each step is printed with the time left.",
         epilog=_SWEEP_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -84,7 +88,9 @@ def register_actions(actions: Any) -> None:
         description="Calibrate units in one go: optionally teach their ESCs, sweep each map, fit (refusing "
         "a fit that fails validation), upload through the CALIBRATION transfer, read back, verify with "
         "setpoints through the uploaded maps (tracking error per point; on failure the previous sets are "
-        "put back), and save the units in the calibration file.",
+        "put back), and save the units in the calibration file, each unit's fit plot beside it "
+        "(<out stem>-unit<N>.png). Every step is printed with the time left; an interrupt leaves the board "
+        "at rest, says its state, and keeps the sweep's partial bench CSV, marked '# status: partial'.",
         epilog=_UNIT_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
