@@ -109,6 +109,11 @@ ESC_CALIBRATION_CONFIRM = 0x444C4E55
 """``EscCalibrate.confirm`` must be this (the bytes of ASCII "UNLD" on the wire): the operator states the
 rotor is off or unloaded, because the ESC sees its full-throttle pulse during the procedure."""
 
+ESC_SUPPLY_WAIT_MS = 60_000
+"""A board without an ESC supply switch holds the procedure at ``WAIT_SUPPLY`` this long (ms) for the
+operator to connect the ESC's supply (while its link lives: link loss aborts it), then aborts it
+``SUPPLY_TIMEOUT``."""
+
 
 class PowerState(enum.IntEnum):
     """Staged power thresholds: warn → limit → shed (rotors stopped) → brown-out (reset)."""

@@ -24,6 +24,7 @@ from protocol.messages import (
     EscCalibrationStatus,
     EscCalPhase,
     EscCalStep,
+    FaultFlag,
     Log,
     Nack,
     NackReason,
@@ -169,3 +170,19 @@ def test_a_bench_unit_runs_on_its_escs_endpoints_factory_until_programmed():
     expected = dataclasses.replace(truth, low_us=1000.0, high_us=2000.0).speed(1950.0, v)
     assert w_taught == pytest.approx(expected, rel=0.01) and w_taught < 0.98 * w_factory
     assert board.units[0].steady_rotor_speed(1130, v) > 20.0
+
+
+def test_an_esc_being_taught_is_not_reported_dead():
+    """Its channel at the high endpoint stands for full speed, yet the ESC turns nothing: unpowered while
+    the board waits for its supply, then in its programming mode. That is what the procedure expects; it
+    was reported ``ERROR rotor ESC on channel 3 (unit 1) not responding`` in every emulated calibration."""
+    board, clock, host = session(MANUAL)
+    assert isinstance(host.request(teach()), Ack)
+    host.poll(2.0 + MANUAL.dead_esc_detect_s)  # well past the detector's time, at full-speed width
+    assert board.outputs[3] == 2000 and board.units[1].rotor_speed == 0.0
+    assert isinstance(host.request(teach(step=EscCalStep.SUPPLY_APPLIED)), Ack)
+    host.poll(3.0)
+    assert phases(host)[-1] is EscCalPhase.DONE
+    logs = [m for m in host.received if isinstance(m, Log)]
+    assert not [m for m in logs if "not responding" in m.text] and board.dead_esc_detector.found == set()
+    assert not any(t.faults & FaultFlag.DEAD_ESC for t in host.received if isinstance(t, Telemetry))

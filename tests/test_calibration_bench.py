@@ -61,6 +61,13 @@ def test_a_whole_bench_cycle_recovers_each_units_motor_constants(tmp_path, capsy
     assert main(argv) == 0
     printed = capsys.readouterr().out
     assert printed.count("ESC taught 1000-2000 us") == 4
+    # progress: every ESC phase, every sweep step and verification point, with the time left
+    assert printed.count("ESC: step 3/3 LOW") == 4
+    assert "rotor sweep 21/41, 2000 us up: unit 0 " in printed and "gimbal_angle sweep 41/41" in printed
+    assert "about " in printed and " left" in printed and "verify 12/12" in printed
+    for unit in range(4):  # the fit plots, as hil calibrate fit saves them
+        assert f"unit {unit}: fit plot -> {out.parent / f'array-unit{unit}.png'}" in printed
+        assert (out.parent / f"array-unit{unit}.png").read_bytes()[:4] == b"\x89PNG"
     assert "FAIL" not in printed and printed.count(" ok") >= 4 * (4 + 5 + 3)  # every verified point
     cset = load_calibration(out)
     assert [u.index for u in cset.units] == [0, 1, 2, 3]
@@ -85,6 +92,7 @@ def test_a_whole_bench_cycle_recovers_each_units_motor_constants(tmp_path, capsy
         head = csv.read_text().splitlines()[:6]
         assert any(line.startswith("# board: vscmg-hil ADK-VSCMG") for line in head)
         assert any(line.startswith("# date: ") for line in head)
+        assert "# status: complete" in csv.read_text()
         assert any(line.startswith("# battery at start: ") for line in head)
         data = read_bench_csv(csv)
         assert len(data) == 2 * 21 - 1 and data.pulse_us.min() == 1000 and data.pulse_us.max() == 2000
@@ -199,8 +207,9 @@ def test_a_sweep_stops_at_the_current_guard(tmp_path, capsys):
     assert "stopped early: battery current" in capsys.readouterr().err
     path = tmp_path / "unit0_rotor.csv"
     text = path.read_text()
-    assert "# STOPPED EARLY: battery current" in text and "over the limit 0.6 A" in text
+    assert "# status: partial: stopped early: battery current" in text and "over the limit 0.6 A" in text
     data = read_bench_csv(path)
+    assert data.partial is not None and "stopped early: battery current" in data.partial
     assert 1300 <= data.pulse_us.max() < 2000  # it got some way, then stopped short of the top
     rows = [line.split(",") for line in text.splitlines() if line and not line.startswith("#")]
     assert rows[0][3] == "battery_a"

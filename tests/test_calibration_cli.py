@@ -171,3 +171,58 @@ def test_the_committed_bench_fixtures_are_what_the_generator_makes(tmp_path):
     for path in sorted(tmp_path.iterdir()):
         assert path.read_text() == (committed / path.name).read_text(), path.name
     assert len(list(committed.iterdir())) == 12
+
+
+def test_the_fit_plot_is_in_the_unit_the_residuals_are_printed_in(bench, tmp_path, capsys):
+    """The rotor CSV is in rpm; the fit, its printed residuals and its plot are all rad/s (the residual
+    axis once said rpm while the printed residuals were rad/s)."""
+    assert "rpm" in (bench / "unit0_rotor.csv").read_text().splitlines()[3]
+    svg = tmp_path / "rotor.svg"
+    argv = ["calibrate", "fit", _csvs(bench, 0)[0], "-o", str(tmp_path / "s.toml"), "--base", "default"]
+    assert main([*argv, "--plot", str(svg)]) == 0
+    printed = capsys.readouterr().out
+    assert "residual rms" in printed and " rad/s, max " in printed and "rpm" not in printed
+    text = svg.read_text()
+    # matplotlib draws text as glyph paths; the label strings are kept in comments
+    assert "residual (rad/s)" in text and "no-load speed (rad/s)" in text
+    assert "rpm" not in text
+
+
+def _partial(bench, tmp_path, status):
+    lines = (bench / "unit0_rotor.csv").read_text().splitlines()
+    path = tmp_path / "unit0_rotor.csv"
+    path.write_text("\n".join([*lines[:3], f"# status: {status}", *lines[3:]]) + "\n")
+    return path
+
+
+def test_a_partial_bench_csv_is_refused_by_fit_unless_allowed_and_then_flagged(bench, tmp_path, capsys):
+    path = _partial(bench, tmp_path, "partial: stopped early: interrupted (SIGINT); 12 of 51 steps")
+    out = tmp_path / "set.toml"
+    argv = ["calibrate", "fit", str(path), "-o", str(out), "--base", "default"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: a partial sweep ({path}:4: stopped early: interrupted (SIGINT); 12 of 51 steps)" in err
+    assert "--allow-partial" in err and not out.exists()
+    assert main([*argv, "--allow-partial"]) == 0
+    captured = capsys.readouterr()
+    assert f"warning: fitting a partial sweep: {path}:4: stopped early" in captured.err and out.exists()
+
+
+@pytest.mark.parametrize(
+    ("status", "phrase"),
+    [
+        ("done", "status 'done': need 'complete' or 'partial[: why]'"),
+        ("complete\n# status: complete", "a second"),
+    ],
+)
+def test_a_bench_csv_status_is_complete_or_partial(bench, tmp_path, capsys, status, phrase):
+    path = _partial(bench, tmp_path, status)
+    assert main(["calibrate", "fit", str(path), "-o", str(tmp_path / "s.toml"), "--base", "default"]) == 2
+    assert phrase in capsys.readouterr().err
+
+
+def test_a_complete_bench_csv_is_not_partial(bench, tmp_path):
+    from hil.calibration.bench import read_bench_csv
+
+    assert read_bench_csv(_partial(bench, tmp_path, "complete")).partial is None
+    assert read_bench_csv(bench / "unit0_rotor.csv").partial is None  # no status: hand-made, complete

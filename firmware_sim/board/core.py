@@ -537,7 +537,15 @@ class Board:
             )
             if not self.power_supervisor.power_ok:
                 self.esc_calibration.abort(EscCalAbort.POWER, t)
-            self.dead_esc_detector.check(t, self.targets, self.units, self.power.battery_v, self.gimbal_mode)
+            taught = self.esc_calibration.rotor_width()
+            self.dead_esc_detector.check(
+                t,
+                self.targets,
+                self.units,
+                self.power.battery_v,
+                self.gimbal_mode,
+                being_taught=None if taught is None else taught[0],
+            )
 
     # ================================================================== messages out
     def _send_telemetry(self, t: int) -> None:

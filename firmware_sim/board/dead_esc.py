@@ -2,7 +2,11 @@
 reported once per channel per boot (``Log`` DEAD_ESC, fault flag DEAD_ESC).
 
 A rotor is suspect when the speed its pulse stands for is above 10 % of rated and it turns below 5 % of
-that; a gimbal (RATE mode only) when it is asked more than 0.1 rad/s and moves below 10 % of it.
+that; a gimbal (RATE mode only) when it is asked more than 0.1 rad/s and moves below 10 % of it. The
+rotor channel the ESC endpoint procedure drives (:mod:`.esc_calibration`) is not checked while it runs:
+its ESC sees the high endpoint unpowered (waiting for its supply) or in its programming mode, where it
+beeps and turns nothing — what the procedure expects, not a dead ESC (it was once reported as one, an
+ERROR in every emulated calibration).
 """
 
 from __future__ import annotations
@@ -48,16 +52,20 @@ class DeadEscDetector:
         units: Sequence[UnitModel],
         battery_v: float,
         gimbal_mode: GimbalMode,
+        being_taught: int | None = None,
     ) -> None:
         """Compare each unit's response at ``t`` (µs) with what the firmware's ``targets`` (fine widths,
-        1/512 µs) command at ``battery_v``."""
+        1/512 µs) command at ``battery_v``; channel ``being_taught`` (its ESC's endpoints: not expected to
+        turn) counts as responding."""
         now = t / 1e6
         since = self._since
         for i, (rotor_floor, gimbal_floor) in enumerate(self._floors(targets, units, battery_v, gimbal_mode)):
             unit = units[i]
-            rotor_bad = rotor_floor is not None and abs(unit.rotor_speed) < rotor_floor
-            gimbal_bad = gimbal_floor is not None and abs(unit.gimbal_rate) < gimbal_floor
             g_ch, r_ch = 2 * i, 2 * i + 1
+            rotor_bad = (
+                rotor_floor is not None and abs(unit.rotor_speed) < rotor_floor and r_ch != being_taught
+            )
+            gimbal_bad = gimbal_floor is not None and abs(unit.gimbal_rate) < gimbal_floor
             if not (gimbal_bad or rotor_bad) and since[g_ch] is None and since[r_ch] is None:
                 continue  # the usual case: both respond, neither was suspect
             for ch, bad in ((g_ch, gimbal_bad), (r_ch, rotor_bad)):

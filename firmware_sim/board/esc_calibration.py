@@ -27,6 +27,7 @@ from collections.abc import Sequence
 
 from protocol.messages import (
     ESC_CALIBRATION_CONFIRM,
+    ESC_SUPPLY_WAIT_MS,
     BoardState,
     EscCalAbort,
     EscCalibrate,
@@ -46,8 +47,9 @@ ESC_MIN_SPAN_US = 400
 """The endpoints taught must lie at least this far apart."""
 ESC_MIN_SUPPLY_OFF_MS = 100
 """With a supply switch, the ESC is kept off at least this long (its capacitors discharge)."""
-SUPPLY_WAIT_MS = 60_000
-"""Without a switch, how long the board waits for the operator to connect the ESC's supply."""
+SUPPLY_WAIT_MS = ESC_SUPPLY_WAIT_MS
+"""Without a switch, how long the board waits for the operator to connect the ESC's supply (the
+protocol's figure: the host shows the operator how long is left)."""
 
 _NEVER = math.inf
 _RUNNING = (EscCalPhase.SUPPLY_OFF, EscCalPhase.WAIT_SUPPLY, EscCalPhase.HIGH, EscCalPhase.LOW)

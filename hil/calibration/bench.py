@@ -8,6 +8,12 @@ other line is the header. Columns (any order; extra columns are ignored):
 * exactly one measurement: ``rpm`` or ``rotor_speed_rad_s`` (rotor no-load speed, ≥ 0),
   ``gimbal_rate_rad_s`` or ``gimbal_rate_deg_s``, ``gimbal_angle_rad`` or ``gimbal_angle_deg``.
 
+A comment ``# status: complete`` or ``# status: partial[: why]`` says whether the file holds a whole
+sweep (at most one; a file without one, hand-made or generated, is taken as complete). A sweep cut short
+— interrupted, stopped by its guard, its board lost, its host killed — is kept and marked partial
+(:mod:`.sweep`): :attr:`BenchData.partial` says why and where, and ``hil calibrate fit`` refuses such a
+file unless told to fit it anyway (``--allow-partial``).
+
 Every malformed row raises :class:`InputFormatError` naming file, line and column.
 """
 
@@ -29,6 +35,8 @@ from protocol.messages import PULSE_MAX_US, PULSE_MIN_US
 from .textfiles import read_text, write_atomic
 
 MAX_BATTERY_V = 60.0
+STATUS_KEY = "status:"
+"""The comment that marks a bench CSV complete or partial (``# status: partial: why``)."""
 
 
 class BenchKind(enum.Enum):
@@ -63,6 +71,8 @@ class BenchData:
     battery_v: np.ndarray
     value: np.ndarray
     lines: np.ndarray
+    partial: str | None = None
+    """None for a whole sweep; else ``path:line: why`` of its ``# status: partial`` comment."""
 
     def __len__(self) -> int:
         return len(self.pulse_us)
@@ -88,8 +98,15 @@ def parse_bench_csv(text: str, path: str = "<bench csv>") -> BenchData:
     header: list[str] | None = None
     header_line = 0
     rows: list[tuple[int, list[str]]] = []
+    status: tuple[int, str] | None = None
     for lineno, line in enumerate(text.splitlines(), start=1):
         stripped = line.strip()
+        if stripped.startswith("#") and stripped[1:].strip().startswith(STATUS_KEY):
+            if status is not None:
+                raise InputFormatError(
+                    f"a second status comment (the first is line {status[0]})", path, lineno
+                )
+            status = (lineno, _status(stripped[1:].strip()[len(STATUS_KEY) :].strip(), path, lineno))
         if not stripped or stripped.startswith("#"):
             continue
         try:
@@ -130,7 +147,18 @@ def parse_bench_csv(text: str, path: str = "<bench csv>") -> BenchData:
             )
         low = 0.0 if kind is BenchKind.ROTOR else -math.inf
         value[r] = factor * _number(cells[i_value], path, lineno, column, low, math.inf)
-    return BenchData(kind, path, column, pulse, battery, value, lines)
+    partial = None if status is None or not status[1] else f"{path}:{status[0]}: {status[1]}"
+    return BenchData(kind, path, column, pulse, battery, value, lines, partial)
+
+
+def _status(text: str, path: str, line: int) -> str:
+    """'' for ``complete``; the reason (or ``partial``) for ``partial[: why]``."""
+    if text == "complete":
+        return ""
+    head, _, why = text.partition(":")
+    if head.strip() != "partial":
+        raise InputFormatError(f"status {text!r}: need 'complete' or 'partial[: why]'", path, line)
+    return why.strip() or "partial"
 
 
 def _measurement_column(header: list[str], path: str, line: int) -> tuple[str, BenchKind, float]:

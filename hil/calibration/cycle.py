@@ -8,7 +8,8 @@
 3. sweep each map asked for (:func:`~hil.calibration.sweep.run_sweep`) and write its bench CSV
    (``<bench_dir>/unit<N>_<map>.csv``); a sweep stopped by a guard ends the run here;
 4. fit every CSV (:func:`~hil.calibration.fit.fit_bench`, with the ESC endpoints taught); **a fit that
-   fails validation ends the run before anything is uploaded**;
+   fails validation ends the run before anything is uploaded**; each unit's fits are drawn beside the
+   calibration file (``<out stem>-unit<N>.png``, as ``hil calibrate fit`` does);
 5. upload each unit's new set (``CALIBRATION`` transfer), download it again and require the same bytes;
 6. run the verification sweep (:func:`~hil.calibration.verify.run_verify`) through the uploaded maps; if
    any point misses its tolerance the previous sets are uploaded back and the run fails;
@@ -19,7 +20,6 @@
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +31,9 @@ from .benchlink import BenchLink, GuardTripped
 from .esc import EscOutcome, EscProgram, program_esc
 from .files import CalibrationSet, FitInfo, UnitEntry, load_calibration, save_calibration
 from .fit import Fit, FitOptions, fit_bench
+from .operator import Operator
+from .plot import plot_fits, plot_path
+from .progress import Report, no_report
 from .sweep import SweepPlan, SweepResult, run_sweep
 from .verify import VerifyPlan, VerifyReport, run_verify
 
@@ -51,7 +54,8 @@ class CycleOptions:
 
 @dataclass(frozen=True)
 class CycleResult:
-    """What a successful run did: per unit its fits, the sweeps, the ESC outcomes, the verification."""
+    """What a successful run did: per unit its fits, the sweeps, the ESC outcomes, the verification, the
+    fit plots."""
 
     calibrations: dict[int, UnitCalibration]
     fits: dict[int, dict[BenchKind, Fit]]
@@ -60,6 +64,7 @@ class CycleResult:
     esc: dict[int, EscOutcome]
     verify: VerifyReport | None
     saved: Path
+    plots: dict[int, Path] = field(default_factory=dict)
 
 
 def calibrate_units(
@@ -68,10 +73,12 @@ def calibrate_units(
     options: CycleOptions,
     *,
     confirm_unloaded: bool = False,
-    ask_supply: Callable[[str], None] | None = None,
-    report: Callable[[str], None] = lambda line: None,
+    operator: Operator | None = None,
+    report: Report = no_report,
 ) -> CycleResult:
-    """See the module docstring. ``report`` gets one line per step (the CLI prints them)."""
+    """See the module docstring. ``operator`` is asked for the ESC supply on a board without a supply
+    switch (:func:`~hil.calibration.esc.program_esc`); ``report`` gets one line per step, with the time
+    left (the CLI prints them)."""
     for unit in units:
         link.check_unit(unit)
     kinds = [p.kind for p in options.plans]
@@ -92,24 +99,35 @@ def calibrate_units(
         )
         for unit in units:
             esc[unit] = program_esc(
-                link, unit, options.esc, confirm_unloaded=confirm_unloaded, ask_supply=ask_supply
+                link,
+                unit,
+                options.esc,
+                confirm_unloaded=confirm_unloaded,
+                operator=operator,
+                report=report,
             )
             report(f"unit {unit}: ESC taught {options.esc.low_us}-{options.esc.high_us} us")
     sweeps: dict[int, dict[BenchKind, SweepResult]] = {u: {} for u in units}
     csvs: dict[int, dict[BenchKind, Path]] = {u: {} for u in units}
-    for plan in options.plans:
-        results = run_sweep(link, units, plan)
+    for n, plan in enumerate(options.plans, start=1):
+        paths = {u: options.bench_dir / f"unit{u}_{plan.kind.value}.csv" for u in units}
+        report(f"sweep {n} of {len(options.plans)}: {plan.kind.value}, {len(plan.pulses())} steps")
+        results = run_sweep(link, units, plan, paths=paths, report=report)
         for unit, result in results.items():
-            path = result.write_csv(options.bench_dir / f"unit{unit}_{plan.kind.value}.csv")
-            sweeps[unit][plan.kind], csvs[unit][plan.kind] = result, path
-            report(f"unit {unit}: {plan.kind.value} sweep, {len(result.rows)} steps -> {path}")
+            sweeps[unit][plan.kind], csvs[unit][plan.kind] = result, paths[unit]
+            report(f"unit {unit}: {plan.kind.value} sweep, {len(result.rows)} steps -> {paths[unit]}")
         stopped = next((r.stopped for r in results.values() if r.stopped), None)
         if stopped:
             raise GuardTripped(f"the {plan.kind.value} sweep stopped early ({stopped}); nothing was uploaded")
-    fits = {u: {k: fit_bench(read_bench_csv(p), fit_options) for k, p in csvs[u].items()} for u in units}
+    data = {u: {k: read_bench_csv(p) for k, p in csvs[u].items()} for u in units}
+    fits = {u: {k: fit_bench(d, fit_options) for k, d in data[u].items()} for u in units}
+    plots: dict[int, Path] = {}
     for unit in units:
         for fit in fits[unit].values():
             report(f"unit {unit}: {fit.report.summary()}")
+        pairs = [(data[unit][k], fits[unit][k]) for k in fits[unit]]
+        plots[unit] = plot_fits(pairs, plot_path(options.out, unit), title=f"{options.out.name}: unit {unit}")
+        report(f"unit {unit}: fit plot -> {plots[unit]}")
     calibrations = {u: _assemble(fits[u], existing.unit(u), previous[u]) for u in units}
     for unit, cal in calibrations.items():
         client.upload_calibration(unit, cal)
@@ -119,7 +137,7 @@ def calibrate_units(
         report(f"unit {unit}: uploaded and read back ({len(cal.to_bytes())} bytes)")
     verified = None
     if options.verify is not None:
-        verified = run_verify(link, calibrations, options.verify, tuple(kinds))
+        verified = run_verify(link, calibrations, options.verify, tuple(kinds), report=report)
         report(verified.table())
         if not verified.ok:
             for unit, cal in previous.items():
@@ -132,7 +150,7 @@ def calibrate_units(
             )
     saved = _save(existing, options.out, calibrations, fits, csvs)
     report(f"saved units {units} in {saved}")
-    return CycleResult(calibrations, fits, sweeps, csvs, esc, verified, saved)
+    return CycleResult(calibrations, fits, sweeps, csvs, esc, verified, saved, plots)
 
 
 def _assemble(fits: dict[BenchKind, Fit], entry: UnitEntry | None, board: UnitCalibration) -> UnitCalibration:

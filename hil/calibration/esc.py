@@ -1,20 +1,23 @@
 """Teaching a rotor ESC its endpoints from the host: ``EscCalibrate`` and the board's reports of it.
 
 The board runs and times the procedure (docs/protocol.md, "ESC endpoint programming"); the host starts
-it, answers the board's request for the ESC supply on a board without a supply switch (through the
-``ask_supply`` callback: the operator connects it, then the host says so), and follows its
-``EscCalibrationStatus`` reports to the end. The operator's statement that the rotor is off or unloaded
+it, answers the board's request for the ESC supply on a board without a supply switch (an
+:class:`~hil.calibration.operator.Operator` is asked; the operator connects it, then the host says so),
+and follows its ``EscCalibrationStatus`` reports to the end. The board holds that request only while its
+link lives, so the host never blocks on the operator: it keeps servicing the link and looks at the answer
+between waits. The operator's statement that the rotor is off or unloaded
 is required here (``confirm_unloaded``) and carried to the board in the command's ``confirm`` field.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
 from dataclasses import dataclass
 
-from protocol.errors import ConfigError, LinkTimeout, ProtocolError
+from protocol.errors import CommandFailed, ConfigError, HilError, LinkTimeout, ProtocolError
 from protocol.messages import (
     ESC_CALIBRATION_CONFIRM,
+    ESC_SUPPLY_WAIT_MS,
     EscCalAbort,
     EscCalibrate,
     EscCalibrationStatus,
@@ -23,6 +26,13 @@ from protocol.messages import (
 )
 
 from .benchlink import BenchLink
+from .operator import Answer, Operator
+from .progress import Report, duration, no_report
+
+OPERATOR_POLL_S = 0.05
+"""While the operator is asked, the link is serviced in waits this long (s) between looks at the answer."""
+REMIND_S = 10.0
+"""While the operator is asked, how often the time the board still waits is reported (s)."""
 
 
 class EscProgrammingAborted(ProtocolError):
@@ -89,14 +99,16 @@ def program_esc(
     program: EscProgram,
     *,
     confirm_unloaded: bool,
-    ask_supply: Callable[[str], None] | None = None,
+    operator: Operator | None = None,
+    report: Report = no_report,
 ) -> EscOutcome:
     """Teach ``unit``'s rotor ESC ``program``'s endpoints. Raises :class:`ConfigError` without the
     operator's confirmation (nothing is sent), :class:`CommandFailed` if the board refuses (armed:
     BAD_STATE, busy, ...), :class:`EscProgrammingAborted` if it stops early, :class:`LinkTimeout` if it
-    never finishes. ``ask_supply(prompt)`` returns once the operator has connected the ESC's supply
-    (boards without a supply switch, which wait 60 s for it; without a callback such a board's request
-    is an error and the procedure is aborted)."""
+    never finishes. A board without a supply switch asks for the ESC's supply and holds the procedure
+    (up to ``ESC_SUPPLY_WAIT_MS``) while its link lives: ``operator.ask`` shows the request and the link
+    keeps being serviced until the answer comes (without an operator such a board's request is an error
+    and the procedure is aborted). ``report`` gets one line per phase, with the time left."""
     if not confirm_unloaded:
         raise ConfigError(
             "the ESC sees its full-throttle pulse during programming: confirm that the rotor is off or "
@@ -108,28 +120,102 @@ def program_esc(
     link.take_statuses()
     client.wait(client.command(program.message(unit)))
     seen: list[EscCalibrationStatus] = []
-    asked = False
+    answer: Answer | None = None
+    waiting = False  # the operator is being waited for
+    shown: EscCalPhase | None = None
+    reminded = link.now
     end = link.now + program.duration_s + 5.0
     while True:
-        link.wait(max(min(0.1, end - link.now), 0.0))
+        given = False
+        if waiting:
+            assert answer is not None
+            link.wait(OPERATOR_POLL_S)
+            try:  # a lockstep board waits in the operator's time: the wall clock paces it
+                given = answer.wait(OPERATOR_POLL_S) if client.lockstep else answer.ready()
+            except HilError:
+                client.disarm()  # nobody can answer: abort it, the ESC is left at minimum
+                raise
+        else:
+            link.wait(max(min(0.1, end - link.now), 0.0))
         seen += [s for s in link.take_statuses() if s.unit == unit]
         phase = seen[-1].phase if seen else None
+        if phase is not None and phase is not shown:
+            shown = phase
+            report(_phase_line(unit, program, phase))
         if phase is EscCalPhase.DONE:
             return EscOutcome(unit, program.low_us, program.high_us, tuple(seen))
         if phase is EscCalPhase.ABORTED:
             raise EscProgrammingAborted(unit, seen[-1].abort)
-        if phase is EscCalPhase.WAIT_SUPPLY and not asked:
-            asked = True
-            if ask_supply is None:
+        if phase is EscCalPhase.WAIT_SUPPLY and answer is None:
+            if operator is None:
                 client.disarm()  # aborts it: the ESC is left at minimum
                 raise ConfigError(
                     "the board has no ESC supply switch and asks for the ESC's supply to be connected; "
                     "run interactively (or give the board a switch)",
                     "ask_supply",
                 )
-            ask_supply(f"Connect the supply of unit {unit}'s ESC now (it sees {program.high_us} us)")
-            client.wait(client.command(program.message(unit, EscCalStep.SUPPLY_APPLIED)))
+            answer = operator.ask(
+                f"Connect the supply of unit {unit}'s ESC now (it sees {program.high_us} us)"
+            )
+            waiting = True
+            reminded = link.now
+            end = link.now + ESC_SUPPLY_WAIT_MS / 1000.0 + 5.0  # the board gives up first
+        if waiting and given:
+            waiting = False
+            _supply_applied(link, unit, program, seen)
             end = link.now + (program.high_ms + program.low_ms) / 1000.0 + 5.0
+        elif waiting and link.now - reminded >= REMIND_S and seen:
+            reminded = link.now
+            left = ESC_SUPPLY_WAIT_MS / 1000.0 - seen[-1].phase_ms / 1000.0
+            report(f"unit {unit} ESC: still waiting for its supply; the board gives up in {duration(left)}")
         if link.now >= end:
             name = "nothing" if phase is None else phase.name
             raise LinkTimeout(f"ESC calibration of unit {unit}: no end reported (last phase: {name})")
+
+
+def _supply_applied(
+    link: BenchLink, unit: int, program: EscProgram, seen: list[EscCalibrationStatus]
+) -> None:
+    """Tell the board the operator connected the supply; if the board gave up meanwhile (its wait ran
+    out), say that rather than its refusal of a step it no longer waits for."""
+    client = link.client
+    try:
+        client.wait(client.command(program.message(unit, EscCalStep.SUPPLY_APPLIED)))
+    except CommandFailed:
+        link.wait(0.0)
+        seen += [s for s in link.take_statuses() if s.unit == unit]
+        if seen and seen[-1].phase is EscCalPhase.ABORTED:
+            raise EscProgrammingAborted(unit, seen[-1].abort) from None
+        raise
+
+
+def _phase_line(unit: int, program: EscProgram, phase: EscCalPhase) -> str:
+    """What the board does in ``phase`` and how long the procedure has left from its start (s)."""
+    high, low, channel = program.high_us, program.low_us, 2 * unit + 1
+    high_s, low_s = program.high_ms / 1000.0, program.low_ms / 1000.0
+    steps: dict[EscCalPhase, tuple[int, str, float]] = {
+        EscCalPhase.SUPPLY_OFF: (
+            1,
+            f"ESC supply cut for {duration(program.supply_off_ms / 1000.0)}, {high} us on channel {channel}",
+            program.supply_off_ms / 1000.0 + high_s + low_s,
+        ),
+        EscCalPhase.WAIT_SUPPLY: (
+            1,
+            f"{high} us on channel {channel}, waiting for the operator to connect the ESC's supply (the "
+            f"board waits {duration(ESC_SUPPLY_WAIT_MS / 1000.0)})",
+            math.inf,
+        ),
+        EscCalPhase.HIGH: (
+            2,
+            f"{high} us for {duration(high_s)}: the ESC acknowledges (beeps)",
+            high_s + low_s,
+        ),
+        EscCalPhase.LOW: (3, f"{low} us for {duration(low_s)}: the ESC stores both endpoints", low_s),
+    }
+    if phase in steps:
+        index, what, left = steps[phase]
+        after = (
+            f"then about {duration(high_s + low_s)}" if math.isinf(left) else f"about {duration(left)} left"
+        )
+        return f"unit {unit} ESC: step {index}/3 {phase.name}: {what}; {after}"
+    return f"unit {unit} ESC: {phase.name}"

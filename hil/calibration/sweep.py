@@ -14,23 +14,26 @@ stops at once, the outputs go back to rest, and the result says why (``stopped``
 :meth:`SweepResult.write_csv` writes the bench CSV ``hil calibrate fit`` reads (``pulse_us``,
 ``battery_v``, the measurement, and the extra columns ``battery_a``, ``direction``, ``samples``,
 ``settled``, ``board_time_s``) with ``#`` metadata lines: board identity, port, unit and channel, date,
-battery state at the start and the end, the plan, and the stop reason if any.
+battery state at the start and the end, the plan, and its status: ``# status: complete``, or ``# status:
+partial: <why>; <n> of <m> steps`` for a sweep stopped by the guard, interrupted, failed, or still running
+(:func:`run_sweep` keeps the file up to date after every step; see :mod:`.bench` for what readers do).
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 
-from protocol.errors import ConfigError, ProtocolError
+from protocol.errors import ConfigError, HilError, ProtocolError
 from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry
 
-from .bench import BenchKind, write_bench_csv
+from .bench import STATUS_KEY, BenchKind, write_bench_csv
 from .benchlink import TICK_S, BenchLink, Guard, GuardTripped, Settling, hold
+from .progress import Eta, Report, duration, no_report
 
 
 @dataclass(frozen=True)
@@ -129,9 +132,21 @@ class SweepResult:
     rows: tuple[SweepRow, ...]
     metadata: tuple[str, ...]
     stopped: str | None = None
+    planned: int = 0
+    """Steps the plan has (``len(plan.pulses())``)."""
 
-    def write_csv(self, path: str | os.PathLike[str]) -> Path:
-        """The bench CSV of this sweep (see the module docstring)."""
+    def status(self, partial: bool) -> str:
+        """The file's status comment: ``complete``, or ``partial: <why>`` (bench.py reads it)."""
+        if not partial:
+            return "complete"
+        why = (
+            f"stopped early: {self.stopped}" if self.stopped else "in progress (a file left so was cut short)"
+        )
+        return f"partial: {why}; {len(self.rows)} of {self.planned} steps"
+
+    def write_csv(self, path: str | os.PathLike[str], partial: bool | None = None) -> Path:
+        """The bench CSV of this sweep (see the module docstring), marked partial if ``partial`` (None:
+        if it stopped early)."""
         m = self.plan.measure
         columns = [
             "pulse_us",
@@ -156,52 +171,124 @@ class SweepResult:
             )
             for r in self.rows
         ]
-        return write_bench_csv(path, columns, rows, list(self.metadata))
+        status = self.status(self.stopped is not None if partial is None else partial)
+        return write_bench_csv(path, columns, rows, [*self.metadata, f"{STATUS_KEY} {status}"])
 
 
-def run_sweep(link: BenchLink, units: Sequence[int], plan: SweepPlan) -> dict[int, SweepResult]:
+def run_sweep(
+    link: BenchLink,
+    units: Sequence[int],
+    plan: SweepPlan,
+    *,
+    paths: Mapping[int, str | os.PathLike[str]] | None = None,
+    report: Report = no_report,
+) -> dict[int, SweepResult]:
     """Sweep the channel of each of ``units`` together (see the module docstring; the channels are
     independent, the guard sees their sum), one result per unit. A tripped guard ends the sweep early
-    with ``stopped`` set; a board that leaves ARMED (link watchdog, reset) raises :class:`ProtocolError`.
-    Either way the outputs are put back to rest (raw base widths, Disarm, SETPOINT mode)."""
+    with ``stopped`` set; a board that leaves ARMED (link watchdog, reset) raises :class:`ProtocolError`;
+    an interrupt (Ctrl-C, SIGTERM) is raised on. Whichever way it ends the outputs are put back to rest
+    (raw base widths, Disarm, SETPOINT mode) first.
+
+    ``paths`` (unit → file): each unit's bench CSV is rewritten after every step, marked
+    ``# status: partial`` until the sweep completes, so a sweep cut short (interrupted, stopped by the
+    guard, the board lost, the host killed) leaves what it measured, marked as such. ``report`` gets one
+    line per step with the time left."""
     if not units or len(set(units)) != len(units):
         raise ConfigError(f"{list(units)}: give each unit once", "--unit")
     for unit in units:
         link.check_unit(unit)
     m = plan.measure
     channels = {unit: 2 * unit + m.offset for unit in units}
+    pulses = plan.pulses()
     started = datetime.now(UTC).isoformat(timespec="seconds")
     first = link.prepare(ControlMode.RAW_PULSES, m.gimbal_mode)
     assert link.base_widths is not None
     rows: dict[int, list[SweepRow]] = {unit: [] for unit in units}
+    eta = Eta(len(pulses))
+
+    def results(stopped: str | None, last: Telemetry | None) -> dict[int, SweepResult]:
+        meta = _metadata(link, plan, units, channels, started, first, last)
+        return {
+            unit: SweepResult(unit, plan, tuple(rows[unit]), tuple(meta[unit]), stopped, len(pulses))
+            for unit in units
+        }
+
+    def keep(stopped: str | None, last: Telemetry | None, partial: bool) -> dict[int, SweepResult]:
+        out = results(stopped, last)
+        for unit, result in out.items():
+            if paths is not None:
+                result.write_csv(paths[unit], partial=partial)
+        return out
+
     stopped = None
     try:
         link.client.arm()
         width = link.base_widths[channels[units[0]]]
-        for target, direction in plan.pulses():
+        for target, direction in pulses:
             width = _ramp(link, plan, list(channels.values()), width, target)
             for unit, row in _measure(link, plan, channels, target, direction).items():
                 rows[unit].append(row)
+            eta.step()
+            report(_step_line(plan, rows, eta))
+            keep(None, None, partial=True)
     except GuardTripped as exc:
         stopped = str(exc)
-    finally:
-        link.safe()
-    last = link.latest()
-    results = {}
-    for unit, channel in channels.items():
-        meta = [
+    except BaseException as exc:  # interrupted, the board lost: kept as measured, marked, raised on
+        why = f"interrupted ({exc or 'SIGINT'})" if isinstance(exc, KeyboardInterrupt) else f"failed: {exc}"
+        try:
+            link.safe()
+        except HilError as unsafe:  # the caller's own attempt (hil calibrate's) reports the board's state
+            report(f"could not put the outputs back to rest: {unsafe}")
+        finally:
+            kept = keep(why, None, partial=True)
+            if paths is not None:
+                for unit, result in kept.items():
+                    report(
+                        f"unit {unit}: partial bench CSV kept, {len(result.rows)} of {len(pulses)} steps, "
+                        f"marked '# status: partial' -> {paths[unit]}"
+                    )
+        raise
+    link.safe()
+    return keep(stopped, link.latest(), partial=stopped is not None)
+
+
+def _step_line(plan: SweepPlan, rows: Mapping[int, list[SweepRow]], eta: Eta) -> str:
+    """``rotor sweep 12/51, 1440 us up: unit 0 523.1 rad/s; 25 s elapsed, about 1 min 20 s left``."""
+    unit_of = "rad" if plan.kind is BenchKind.GIMBAL_ANGLE else "rad/s"
+    values = ", ".join(
+        f"unit {unit} {r[-1].value:.4g} {unit_of}{'' if r[-1].settled else ' (unsettled)'}"
+        for unit, r in rows.items()
+    )
+    row = next(iter(rows.values()))[-1]
+    return (
+        f"{plan.kind.value} sweep {eta.done}/{eta.total}, {row.pulse_us} us {row.direction}: {values}; "
+        f"{duration(eta.elapsed_s)} elapsed, "
+        + ("done" if eta.done >= eta.total else f"about {duration(eta.left_s)} left")
+    )
+
+
+def _metadata(
+    link: BenchLink,
+    plan: SweepPlan,
+    units: Sequence[int],
+    channels: Mapping[int, int],
+    started: str,
+    first: Telemetry,
+    last: Telemetry | None,
+) -> dict[int, list[str]]:
+    end = "(the sweep did not end)" if last is None else _battery(last)
+    return {
+        unit: [
             f"vscmg-hil bench sweep: {plan.kind.value} of unit {unit} (channel {channel}), hil calibrate",
             f"board: {link.info.describe()}",
             f"port: {link.client.transport.url}",
             f"date: {started} (host clock, UTC)",
-            f"battery at start: {_battery(first)}; at end: {_battery(last)}",
+            f"battery at start: {_battery(first)}; at end: {end}",
             f"plan: {plan.describe()}"
             + (f"; swept together with units {list(units)}" if len(units) > 1 else ""),
         ]
-        if stopped:
-            meta.append(f"STOPPED EARLY: {stopped}")
-        results[unit] = SweepResult(unit, plan, tuple(rows[unit]), tuple(meta), stopped)
-    return results
+        for unit, channel in channels.items()
+    }
 
 
 def _battery(tel: Telemetry) -> str:

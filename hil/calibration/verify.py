@@ -21,6 +21,7 @@ from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry, Un
 
 from .bench import BenchKind
 from .benchlink import BenchLink, Guard, GuardTripped, Settling, hold
+from .progress import Eta, Report, no_report
 
 
 @dataclass(frozen=True)
@@ -86,35 +87,60 @@ def run_verify(
     calibrations: Mapping[int, UnitCalibration],
     plan: VerifyPlan,
     kinds: tuple[BenchKind, ...] = tuple(BenchKind),
+    *,
+    report: Report = no_report,
 ) -> VerifyReport:
     """Verify the units of ``calibrations`` (the sets the board holds for them) on the maps ``kinds``.
-    The outputs are put back to rest afterwards (Disarm); a tripped guard raises :class:`GuardTripped`."""
+    The outputs are put back to rest afterwards (Disarm); a tripped guard raises :class:`GuardTripped`.
+    ``report`` gets one line per point with the time left."""
     for unit in calibrations:
         link.check_unit(unit)
+    fractions = {
+        BenchKind.ROTOR: plan.rotor_fractions,
+        BenchKind.GIMBAL_RATE: (*plan.gimbal_rate_fractions, 0.0),  # 0: the hold pulse must hold
+        BenchKind.GIMBAL_ANGLE: plan.gimbal_angle_fractions,
+    }
+    order = [k for k in BenchKind if k in kinds]
+    eta = Eta(sum(len(fractions[k]) for k in order))
     points: list[VerifyPoint] = []
     first = link.prepare(ControlMode.SETPOINT, GimbalMode.RATE)
+    volts = first.battery_mv / 1000.0
     try:
         link.client.arm()
-        if BenchKind.ROTOR in kinds:
-            volts = first.battery_mv / 1000.0
-            for f in plan.rotor_fractions:
-                full = {u: c.rotor.kv_rad_s_per_v * volts for u, c in calibrations.items()}
-                targets = {u: f * full[u] for u in calibrations}
-                tol = {u: plan.rotor_tolerance * full[u] for u in calibrations}
-                points += _point(link, plan, BenchKind.ROTOR, targets, tol)
-        if BenchKind.GIMBAL_RATE in kinds:
-            tol = dict.fromkeys(calibrations, plan.gimbal_rate_tolerance_rad_s)
-            for f in (*plan.gimbal_rate_fractions, 0.0):  # 0: the hold pulse must hold
-                targets = {u: _rate_target(c, f) for u, c in calibrations.items()}
-                points += _point(link, plan, BenchKind.GIMBAL_RATE, targets, tol)
-        if BenchKind.GIMBAL_ANGLE in kinds:
-            for f in plan.gimbal_angle_fractions:
-                targets = {u: _angle_target(c, f) for u, c in calibrations.items()}
-                tol = dict.fromkeys(calibrations, plan.gimbal_angle_tolerance_rad)
-                points += _point(link, plan, BenchKind.GIMBAL_ANGLE, targets, tol)
+        for kind in order:
+            for f in fractions[kind]:
+                targets, tol = _targets(kind, f, calibrations, plan, volts)
+                done = _point(link, plan, kind, targets, tol)
+                points += done
+                eta.step()
+                worst = max(done, key=lambda p: abs(p.error) - p.tolerance)
+                report(
+                    f"verify {eta.text()}: {kind.value} at {f:+.0%}, worst unit {worst.unit} error "
+                    f"{worst.error:+.4f} (tolerance {worst.tolerance:.4f}) {'ok' if worst.ok else 'FAIL'}"
+                )
     finally:
         link.safe()
     return VerifyReport(tuple(points))
+
+
+def _targets(
+    kind: BenchKind,
+    fraction: float,
+    calibrations: Mapping[int, UnitCalibration],
+    plan: VerifyPlan,
+    volts: float,
+) -> tuple[dict[int, float], dict[int, float]]:
+    """Each unit's setpoint for ``fraction`` of ``kind``'s range and its tolerance (rad/s or rad)."""
+    if kind is BenchKind.ROTOR:
+        full = {u: c.rotor.kv_rad_s_per_v * volts for u, c in calibrations.items()}
+        return {u: fraction * full[u] for u in calibrations}, {
+            u: plan.rotor_tolerance * full[u] for u in full
+        }
+    if kind is BenchKind.GIMBAL_RATE:
+        targets = {u: _rate_target(c, fraction) for u, c in calibrations.items()}
+        return targets, dict.fromkeys(calibrations, plan.gimbal_rate_tolerance_rad_s)
+    targets = {u: _angle_target(c, fraction) for u, c in calibrations.items()}
+    return targets, dict.fromkeys(calibrations, plan.gimbal_angle_tolerance_rad)
 
 
 def _rate_target(cal: UnitCalibration, fraction: float) -> float:

@@ -52,7 +52,9 @@ def register_actions(actions: Any) -> None:
         help="teach a rotor ESC its endpoints through the board (the board times the procedure)",
         description="Run the ESC endpoint procedure on a unit's rotor channel: the board powers the ESC up "
         "at the high endpoint (cutting its supply, or asking for it), waits for the acknowledgement, then "
-        "gives the low endpoint and goes back to the safe pulse. The board must be disarmed.",
+        "gives the low endpoint and goes back to the safe pulse. The board must be disarmed. A board "
+        "without a supply switch waits up to 60 s for you to connect the ESC's supply and press Enter; the "
+        "link is kept alive meanwhile.",
         epilog=_ESC_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -65,7 +67,9 @@ def register_actions(actions: Any) -> None:
         help="step a rotor or gimbal channel over its range and write the bench CSV fit reads",
         description="Sweep the pulse width of the chosen map's channel of each unit (up and down, settle "
         "and dwell, rate-limited, with a battery current/voltage guard) and record the response the "
-        "board's telemetry reports: <out-dir>/unit<N>_<map>.csv with the board, unit, date and battery.",
+        "board's telemetry reports: <out-dir>/unit<N>_<map>.csv with the board, unit, date and battery, "
+        "rewritten after every step and marked '# status: partial' until the sweep completes (an interrupted "
+        "sweep keeps what it measured). Each step is printed with the time left.",
         epilog=_SWEEP_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -84,7 +88,9 @@ def register_actions(actions: Any) -> None:
         description="Calibrate units in one go: optionally teach their ESCs, sweep each map, fit (refusing "
         "a fit that fails validation), upload through the CALIBRATION transfer, read back, verify with "
         "setpoints through the uploaded maps (tracking error per point; on failure the previous sets are "
-        "put back), and save the units in the calibration file.",
+        "put back), and save the units in the calibration file, each unit's fit plot beside it "
+        "(<out stem>-unit<N>.png). Every step is printed with the time left; an interrupt leaves the board "
+        "at rest, says its state, and keeps the sweep's partial bench CSV, marked '# status: partial'.",
         epilog=_UNIT_EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -160,24 +166,47 @@ def _client(args: argparse.Namespace) -> Any:
 def _bench(args: argparse.Namespace) -> Iterator[Any]:
     """The bench link on the board at ``args.port``, closed afterwards. Interrupted (Ctrl-C, or SIGTERM
     from ``timeout``, systemd or a CI cancel: :mod:`hil.cli._signals`), the board is put back to rest
-    first — its outputs to the base pulses, Disarm, SETPOINT mode (``BenchLink.safe``) — best effort: a
-    sweep already does that on its way out, but ESC programming does not, and closing the port alone
-    leaves the board to its link watchdog. A second interrupt gives that up."""
+    first — its outputs to the base pulses, Disarm (which also aborts an ESC being taught, to its minimum
+    pulse), SETPOINT mode (``BenchLink.safe``) — and the state it was left in, as its telemetry reports
+    it, is printed; a sweep has kept its partial bench CSV, marked so. Best effort: closing the port alone
+    would leave the board to its link watchdog. A second interrupt gives that up."""
     from hil.calibration.benchlink import BenchLink
-    from protocol.errors import HilError
 
     client = _client(args)
     link = BenchLink(client)
     try:
         yield link
     except KeyboardInterrupt:
-        try:
-            link.safe()
-        except (HilError, KeyboardInterrupt) as exc:
-            print(f"hil calibrate: could not put the board back to rest: {exc!r}", file=sys.stderr)
+        print(f"hil calibrate: {_left_at_rest(link)}", file=sys.stderr, flush=True)
         raise
     finally:
         client.close()
+
+
+def _left_at_rest(link: Any) -> str:
+    """Put the board back to rest and say what state its telemetry then shows."""
+    from protocol.errors import HilError
+    from protocol.messages import BoardState, ControlMode
+
+    try:
+        link.safe()
+        tel = link.latest(
+            lambda t: t.state is not BoardState.ARMED and t.mode is not ControlMode.ESC_CALIBRATION,
+            timeout=2.0,
+        )
+    except (HilError, KeyboardInterrupt) as exc:
+        return (
+            f"could not put the board back to rest ({exc!r}); closing the port leaves it to its link "
+            "watchdog, which stops its rotors within its timeout"
+        )
+    widths = tel.pulses_us
+    outputs = "; ".join(
+        f"unit {u} gimbal {widths[2 * u]} us, rotor {widths[2 * u + 1]} us" for u in range(len(widths) // 2)
+    )
+    return (
+        f"the board was left {tel.state.name} in {tel.mode.name} mode (no ESC being taught), its outputs at "
+        f"rest: {outputs}"
+    )
 
 
 def _settling(args: argparse.Namespace) -> Any:
@@ -198,24 +227,28 @@ def _program(args: argparse.Namespace) -> Any:
     return EscProgram(args.esc_low, args.esc_high, args.supply_off_ms, args.high_ms, args.low_ms)
 
 
-def _ask(prompt: str) -> None:
-    print(prompt, flush=True)
-    if not sys.stdin.isatty():
-        from protocol.errors import ConfigError
-
-        raise ConfigError("the board asks for the ESC supply: run on a terminal to confirm it", "stdin")
-    input("Press Enter once it is connected: ")
+def _print(line: str) -> None:
+    """A progress line, flushed at once (the operator watches it; stdout may be a pipe)."""
+    print(line, flush=True)
 
 
 # --------------------------------------------------------------------------- esc
 def run_esc(args: argparse.Namespace) -> int:
     from hil.calibration.esc import program_esc
 
+    from ._operator import TerminalOperator
+
     program = _program(args)
+    operator = TerminalOperator()
     with _bench(args) as link:
         for unit in args.unit:
             outcome = program_esc(
-                link, unit, program, confirm_unloaded=args.confirm_unloaded, ask_supply=_ask
+                link,
+                unit,
+                program,
+                confirm_unloaded=args.confirm_unloaded,
+                operator=operator,
+                report=_print,
             )
             phases = " -> ".join(p.name for p in outcome.phases)
             print(f"unit {unit}: ESC taught {outcome.low_us}-{outcome.high_us} us ({phases})")
@@ -251,11 +284,12 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
         tolerance=args.tolerance,
         guard=_guard(args),
     )
+    paths = {unit: args.out_dir / f"unit{unit}_{args.map}.csv" for unit in args.unit}
     with _bench(args) as link:
-        results = run_sweep(link, args.unit, plan)
+        results = run_sweep(link, args.unit, plan, paths=paths, report=_print)
     status = 0
     for unit, result in results.items():
-        path = result.write_csv(args.out_dir / f"unit{unit}_{args.map}.csv")
+        path = paths[unit]
         unsettled = sum(not r.settled for r in result.rows)
         note = f", {unsettled} unsettled" if unsettled else ""
         print(f"unit {unit}: {len(result.rows)} steps{note} -> {path}")
@@ -273,6 +307,8 @@ def run_unit(args: argparse.Namespace) -> int:
     from hil.calibration.sweep import SweepPlan
     from hil.calibration.verify import VerifyPlan
     from protocol.errors import ConfigError
+
+    from ._operator import TerminalOperator
 
     names = [m.strip() for m in args.maps.split(",") if m.strip()]
     unknown = [m for m in names if m not in _MAPS]
@@ -320,7 +356,7 @@ def run_unit(args: argparse.Namespace) -> int:
             args.unit,
             options,
             confirm_unloaded=args.confirm_unloaded,
-            ask_supply=_ask,
-            report=print,
+            operator=TerminalOperator(),
+            report=_print,
         )
     return 0

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 from pathlib import Path
 
 ORDER = 40
@@ -55,6 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     f.add_argument("--rotor-knots", type=int, default=9, help="knots of the throttle curve, 3..16 (9)")
     f.add_argument("--gimbal-rate-knots", type=int, default=6, help="knots each side of the dead zone (6)")
     f.add_argument("--gimbal-angle-knots", type=int, default=9, help="knots of the angle table (9)")
+    f.add_argument(
+        "--allow-partial",
+        action="store_true",
+        help="fit a bench CSV marked '# status: partial' (a sweep cut short) anyway, with a warning",
+    )
     f.set_defaults(func=run_fit)
 
     b = actions.add_parser(
@@ -111,6 +117,7 @@ def run_fit(args: argparse.Namespace) -> int:
     from hil.calibration.files import CalibrationSet, FitInfo, UnitEntry, load_calibration, save_calibration
     from hil.calibration.fit import FitOptions, fit_bench
     from hil.calibration.plot import plot_fits
+    from hil.calibration.plot import plot_path as default_plot_path
     from protocol.calibration import UnitCalibration, default_unit_calibration
     from protocol.errors import CalibrationError
 
@@ -122,6 +129,15 @@ def run_fit(args: argparse.Namespace) -> int:
         gimbal_angle_knots=args.gimbal_angle_knots,
     )
     datasets = [read_bench_csv(path) for path in args.csv]
+    for d in datasets:
+        if d.partial is not None and not args.allow_partial:
+            raise CalibrationError(
+                f"a partial sweep ({d.partial}): it may not cover the range a fit needs; sweep again, or "
+                "fit it anyway with --allow-partial",
+                d.path,
+            )
+        if d.partial is not None:
+            print(f"warning: fitting a partial sweep: {d.partial}", file=sys.stderr)
     kinds = [d.kind.value for d in datasets]
     for d in datasets:
         if kinds.count(d.kind.value) > 1:
@@ -168,7 +184,7 @@ def run_fit(args: argparse.Namespace) -> int:
         provenance[d.kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
     name = args.name or (base.name if base is not None and args.base != "default" else f"unit{args.unit}")
     written = save_calibration(existing.with_unit(UnitEntry(args.unit, name, cal, provenance)), args.out)
-    plot_path = args.plot or args.out.with_name(f"{args.out.stem}-unit{args.unit}.png")
+    plot_path = args.plot or default_plot_path(args.out, args.unit)
     plot_fits(fits, plot_path, title=f"{written.name}: unit {args.unit} ({name})")
     for _, fit in fits:
         print(fit.report.summary())
