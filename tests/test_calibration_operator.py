@@ -89,7 +89,7 @@ def test_an_answer_is_polled_not_waited_for():
 @pytest.mark.firmware  # the C firmware under simavr: the AVR toolchain (.ci/apt-packages)
 def test_the_c_firmware_without_a_supply_switch_waits_for_an_operator_answering_after_5_s():
     from firmware_sim.avr import AvrBoard
-    from firmware_sim.config import BoardConfig
+    from firmware_sim.board.config import BoardConfig
 
     config = BoardConfig(n_units=2, frame_rate_hz=100.0, link_timeout_s=0.5, esc_supply_switch=False)
     with AvrBoard(config) as avr:
