@@ -143,10 +143,11 @@ def pack_params(p: EstimatorParams) -> Array:
     direction-angle limit, whether D is diagonal (its inverse is then three divisions), and per
     usable-direction mask ``M = E W_S`` and ``tr(E_SᵀE_S W_SS)``, so that a step with a stale sensor costs
     no more than one with all three directions."""
-    if p.phi.constant_derivative is not None:
-        phi_kind, phi_arg = PHI_CONSTANT, p.phi.constant_derivative
-    else:  # EstimatorParams checked that Φ has a compiled form
+    phi_arg: float | None = p.phi.constant_derivative
+    phi_kind = PHI_CONSTANT
+    if phi_arg is None:  # EstimatorParams checked that Φ has a compiled form: the log potential's scale
         phi_kind, phi_arg = PHI_LOG, p.phi.log_scale
+    assert phi_arg is not None
     slots: dict[int, float | ArrayLike] = {
         P_M: p.m,
         P_TOL: p.newton_tol,
