@@ -29,7 +29,6 @@ import importlib
 import importlib.metadata
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from typing import Any
 
 from hil.estimation.interface import Estimator, EstimatorKind, Site
@@ -106,7 +105,7 @@ class EstimatorChoice:
             )
         checked = kind.check(self.settings, self.where)
         object.__setattr__(self, "name", self.name.lower())
-        object.__setattr__(self, "settings", MappingProxyType(dict(checked)))
+        object.__setattr__(self, "settings", dict(checked))
 
     @property
     def kind(self) -> EstimatorKind:
