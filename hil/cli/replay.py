@@ -160,7 +160,7 @@ def estimator_of(args: argparse.Namespace) -> EstimatorChoice:
     if name != "variational":
         if args.preset is not None:
             raise ConfigError(f"is the variational estimator's, not {name!r}'s", "hil replay --preset")
-        return EstimatorChoice(name, {}, "hil replay --estimator")
+        return EstimatorChoice.by_name(name, "hil replay --estimator")
     if args.preset is None:
         return REPLAY_ESTIMATOR
     return EstimatorChoice(name, {"preset": args.preset}, "hil replay --preset")

@@ -119,9 +119,16 @@ class EstimatorChoice:
         """One line: the estimator and its settings."""
         return self.kind.describe(self.settings)
 
+    @classmethod
+    def by_name(cls, name: str, where: str) -> EstimatorChoice:
+        """The estimator called ``name`` with its default settings (a command line's ``--estimator``:
+        errors name the option ``where`` itself, not a table's key)."""
+        estimator_kind(name, where)
+        return cls(name, {}, where)
+
     def named(self, name: str | None, where: str) -> EstimatorChoice:
         """This choice with another estimator (``--estimator NAME``, checked naming ``where``): the same
         one unchanged, another with its default settings; None keeps this one."""
         if name is None or name.lower() == self.name:
             return self
-        return EstimatorChoice(name, {}, where)
+        return EstimatorChoice.by_name(name, where)
