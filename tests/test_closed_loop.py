@@ -25,6 +25,7 @@ import pytest
 
 from firmware_sim.world.models import BodyPhone
 from hil import so3
+from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import SensorKind
 from hil.montecarlo.metrics import settle_time
 from hil.runtime import RunOptions, RunResult, run
@@ -68,7 +69,8 @@ def _scenario(
         BASE.slew, R_target=so3.exp(math.radians(angle_deg) * axis), max_rate=0.2, max_accel=0.04,
         duration_s=duration_s,
     )  # fmt: skip
-    return BASE.with_changes(slew=slew, phone=_phone(), estimator=estimator, settle_deg=SETTLE_DEG, **changes)
+    choice = EstimatorChoice("variational", {"preset": estimator})
+    return BASE.with_changes(slew=slew, phone=_phone(), estimator=choice, settle_deg=SETTLE_DEG, **changes)
 
 
 def _run(scenario: Scenario, **options) -> RunResult:

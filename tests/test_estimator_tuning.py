@@ -15,6 +15,7 @@ import pytest
 
 from bench import estimator_tuning as tuning
 from hil.estimation.filter import TUNED, FilterConfig
+from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import SensorKind
 from hil.logs import read_log
 from hil.logs.replay import ReplayOptions, configure
@@ -89,7 +90,8 @@ def test_leave_one_trial_out_chooses_without_the_left_out_trial():
 
 def test_hil_replay_runs_the_tuned_preset(tmp_path):
     log = read_log(FIXTURES / "logs" / "simulated_testbed_4s.csv")
-    config, setup = configure(log, ReplayOptions(out_dir=tmp_path, gyro_bias="none"))
+    estimator, site, setup = configure(log, ReplayOptions(out_dir=tmp_path, gyro_bias="none"))
+    config = estimator.build(site).config
     _same_config(config, FilterConfig.tuned())
     assert any("preset tuned" in line for line in setup)
     assert config.prefilter_rad_s[SensorKind.ACC] == TUNED["acc_cutoff"]
@@ -99,7 +101,8 @@ def test_the_host_runs_the_tuned_preset_when_the_scenario_asks_for_it():
     """(The host switches rest learning off once its slew starts: tests/test_runtime.py,
     tests/test_closed_loop.py.)"""
     scenario = load_scenario()
-    tuned = dataclasses.replace(scenario, estimator="tuned").filter_config()
+    choice = EstimatorChoice("variational", {"preset": "tuned"})
+    tuned = dataclasses.replace(scenario, estimator=choice).make_estimator().config
     assert tuned.params.bias_gain == (TUNED["bias_gain"],) * 3
     assert tuned.mag_gate == TUNED["mag_gate"] and tuned.motion == TUNED["motion"]
     np.testing.assert_array_equal(tuned.params.W, np.diag(TUNED["W_diag"]))

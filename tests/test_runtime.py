@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from firmware_sim.world import World
+from hil.estimation.registry import EstimatorChoice
 from hil.runtime import RunOptions, run, telemetry_columns
 from hil.runtime.runlog import read_events, read_telemetry
 from hil.scenario import load_scenario, parse_scenario, scenario_names
@@ -164,7 +165,7 @@ def test_with_the_tuned_estimator_the_host_uses_its_online_gyro_bias(tmp_path):
     """The tuned estimator in the loop: by the end of the still window it has found most of the phone
     gyro's bias by itself (rest detection, ~2 s of it); the window's mean becomes its estimate, which it
     keeps refining; the slew completes."""
-    sc = _quick().with_changes(estimator="tuned")
+    sc = _quick().with_changes(estimator=EstimatorChoice("variational", {"preset": "tuned"}))
     result = run(sc, RunOptions(out_root=tmp_path, duration_s=12.0))
     assert result.summary["exit"] == "completed" and result.summary["final_error_deg"] < 3.0
     start = next(e for e in read_events(result.run_dir / "events.jsonl")[0] if e["kind"] == "slew_start")

@@ -1,5 +1,6 @@
-"""``hil replay``: run a recorded phone log through the merge, pre-filter and the paper's estimator, and
-optionally drive a board with the controller's output (``--port``)."""
+"""``hil replay``: run a recorded phone log through the merge and an estimator (the paper's, pre-filtered,
+unless ``--estimator`` names another), and optionally drive a board with the controller's output
+(``--port``)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,10 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from hil.estimation.registry import EstimatorChoice
 
 ORDER = 30
 MAX_GAP_S = 10.0  # hil.logs.replay.MAX_GAP_S (not imported here: the CLI loads its modules lazily)
@@ -21,6 +26,7 @@ examples:
   hil replay phyphox.zip --lat 52.52 --lon 13.40 --date 2019-06-01   # true north from IGRF-14 (1900-2030)
   hil replay phyphox-exports/                                  # several single-sensor phyphox exports
   hil replay log.csv --paced                                   # in real time, on the log's clock
+  hil replay ../shared/data/sensorlogger-android --estimator vqf   # VQF instead (pip install vqf)
 
   # drive a board: the controller holds the attitude estimated after the warm-up against the log's
   # motion, its commands go to the board in real time; a run directory as `hil run` writes
@@ -54,7 +60,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--out", type=Path, help="output folder (default: runs/replay-<log name>)")
     p.add_argument(
-        "--preset", choices=("tuned", "paper"), default="tuned", help="tuned (default) or exactly the paper's"
+        "--estimator",
+        metavar="NAME",
+        help="variational (the default), vqf (pip install vqf), or an installed package's estimator",
+    )
+    p.add_argument(
+        "--preset",
+        choices=("tuned", "paper"),
+        help="the variational estimator's: tuned (default) or exactly the paper's",
     )
     p.add_argument("--window", nargs=2, type=float, metavar=("T0", "T1"), help="replay only this part (s)")
     p.add_argument(
@@ -136,6 +149,23 @@ def check_numbers(args: argparse.Namespace) -> None:
             raise ConfigError(f"must be within ±{most:g} deg, got {value!r}", f"hil replay --{name}")
 
 
+def estimator_of(args: argparse.Namespace) -> EstimatorChoice:
+    """``--estimator`` and ``--preset`` as an estimator choice: the variational estimator's tuned preset
+    unless told; ``--preset`` only with the variational estimator (ConfigError naming the option)."""
+    from hil.estimation.registry import DEFAULT_ESTIMATOR, EstimatorChoice
+    from hil.logs.replay import REPLAY_ESTIMATOR
+    from protocol.errors import ConfigError
+
+    name = (args.estimator or DEFAULT_ESTIMATOR).lower()
+    if name != "variational":
+        if args.preset is not None:
+            raise ConfigError(f"is the variational estimator's, not {name!r}'s", "hil replay --preset")
+        return EstimatorChoice.by_name(name, "hil replay --estimator")
+    if args.preset is None:
+        return REPLAY_ESTIMATOR
+    return EstimatorChoice(name, {"preset": args.preset}, "hil replay --preset")
+
+
 def run(args: argparse.Namespace) -> int:
     from datetime import date
 
@@ -163,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
     options = ReplayOptions(
         out_dir=out,
         format=args.format,
-        preset=args.preset,
+        estimator=estimator_of(args),
         inclination_deg=args.inclination,
         declination_deg=args.declination,
         field_model=field_model,
@@ -237,10 +267,14 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         )
         log = log.window(t0, t1)
     options = ReplayOptions(
-        out_dir=Path("."), preset=args.preset, inclination_deg=args.inclination,
-        declination_deg=args.declination, field_model=field_model, gyro_bias=args.gyro_bias,  # type: ignore[arg-type]
-    )  # fmt: skip
-    config, setup = configure(log, options)
+        out_dir=Path("."),
+        estimator=estimator_of(args),
+        inclination_deg=args.inclination,
+        declination_deg=args.declination,
+        field_model=field_model,  # type: ignore[arg-type]
+        gyro_bias=args.gyro_bias,
+    )
+    estimator, site, setup = configure(log, options)
     print(
         f"{log.source} ({log.format}): {log.n_samples} samples over {log.end - log.start:.1f} s",
         file=sys.stderr,
@@ -255,7 +289,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         RunOptions(
             port=args.port, lockstep=True if args.lockstep else None, out_root=args.out or Path("runs"),
             progress=LiveProgress(), label=f"replay-{name}",
-            replay=ReplayInput(log, config, tuple(setup)),
+            replay=ReplayInput(log, estimator, site, tuple(setup)),
         ),
     )  # fmt: skip
     if not args.no_plots:

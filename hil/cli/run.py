@@ -17,6 +17,7 @@ examples:
   hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
   hil run --gcs                                    # ... watched and commanded from a browser (docs/gcs.md)
   hil run --gcs --pace 5 --duration 60             # lockstep at 5x the wall clock, 60 s after the slew
+  hil run --estimator vqf                          # VQF as the host's estimator (pip install vqf)
 
   # two terminals: the emulated board with its world on a pty, then the host against it
   firmware-sim --world cubesat-1u --link /tmp/vscmg
@@ -67,6 +68,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--port", metavar="URL", help="board transport (default: the built-in emulator)")
     p.add_argument("--scenario", default="cubesat-1u", metavar="NAME|FILE", help="default cubesat-1u")
+    p.add_argument(
+        "--estimator",
+        metavar="NAME",
+        help="the host's estimator instead of the scenario's [estimator] kind, with its default settings: "
+        "variational (the default), vqf (pip install vqf), or an installed package's",
+    )
     p.add_argument(
         "--duration",
         type=seconds,
@@ -157,6 +164,8 @@ def run(args: argparse.Namespace) -> int:
     station = None
     try:
         scenario = load_scenario(args.scenario)
+        estimator = scenario.estimator.named(args.estimator, "hil run --estimator")
+        scenario = scenario.with_changes(estimator=estimator)
         lockstep = True if args.lockstep else (False if args.realtime else None)
         lockstep_run = lockstep if lockstep is not None else args.port is None
         pace = (
@@ -174,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
             recover_within_s=args.recover_within,
         )
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
+        print(f"estimator {estimator.name}: {estimator.describe()}", file=sys.stderr)
         if args.port is None:
             from hil.runtime import warmup
 

@@ -39,7 +39,15 @@ from hil.estimation import variational as v
 from hil.estimation.magnetic import mag_step
 from hil.estimation.motion import motion_step
 from hil.estimation.prefilter import signal_step
-from hil.estimation.sensors import StepFlag
+from hil.estimation.slots import (
+    ACC_STALE,
+    GYR_STALE,
+    MAG_DISTURBED,
+    MAG_STALE,
+    NEWTON_FAILED,
+    REST,
+    pack,
+)
 from hil.jit import kernel
 from hil.so3.floats import apply_f, exp_f
 
@@ -72,12 +80,6 @@ AWAIT_BOTH = 1.0  # restart from Wahba's solution at the first step with both di
 AWAIT_FIELD = 0.5  # restarted from gravity alone (no field yet): restart from Wahba's once there is one
 
 BAD_STEP = v.BAD_STEP
-_MAG_DISTURBED = int(StepFlag.MAG_DISTURBED)
-_REST = int(StepFlag.REST)
-_NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
-_GYR_STALE = int(StepFlag.GYR_STALE)
-_ACC_STALE = int(StepFlag.ACC_STALE)
-_MAG_STALE = int(StepFlag.MAG_STALE)
 
 
 def pack_params(
@@ -91,17 +93,18 @@ def pack_params(
     handling's (``mg.pack_mag_params``; None: every field sample used), the magnetometer's use
     (``MAG_*``), ω0 (rad/s), rest detection's and accelerometer trust's (``mo.pack_motion_params``; None:
     neither)."""
-    cp = np.zeros(CP_SIZE)
-    cp[CP_MAG_MODE] = mag_mode
-    cp[CP_OMEGA0 : CP_OMEGA0 + 3] = omega_err0
-    cp[CP_SIGNAL : CP_SIGNAL + pf.SP_SIZE] = signal
+    slots: dict[int, float | ArrayLike] = {
+        CP_MAG_MODE: mag_mode,
+        CP_OMEGA0: omega_err0,
+        CP_SIGNAL: signal,
+    }
     if gate is not None:
-        cp[CP_GATE] = 1.0
-        cp[CP_GATE_PARAMS : CP_GATE_PARAMS + mg.GP_SIZE] = gate
+        slots[CP_GATE] = 1.0
+        slots[CP_GATE_PARAMS] = gate
     if motion is not None:
-        cp[CP_MOTION_ON] = 1.0
-        cp[CP_MOTION : CP_MOTION + mo.MP_SIZE] = motion
-    return cp
+        slots[CP_MOTION_ON] = 1.0
+        slots[CP_MOTION] = motion
+    return pack(CP_SIZE, slots)
 
 
 def new_state(bias: ArrayLike, awaiting: bool) -> Array:
@@ -242,7 +245,7 @@ def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ign
         rest = motion_step(mp, ms, h, gx, gy, gz, bx, by, bz, sx, sy, sz)
         es[v.S_BIAS_TRUST] = ms[mo.MS_CALM]  # the bias law trusts the torque as much as gravity's reading
         if rest:
-            flags |= _REST
+            flags |= REST
             k = min(1.0, h * mp[mo.MP_REST_GAIN])  # at rest the gyro reads its bias: b̂ follows lp(Ω^m)
             lim = ep[v.P_BIAS_MAX]
             for i in range(3):
@@ -267,7 +270,7 @@ def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ign
         rate = math.sqrt(io[0] * io[0] + io[1] * io[1] + io[2] * io[2])
         weight = mag_step(gp, cs[CS_GATE : CS_GATE + mg.GS_SIZE], h, rate, ux, uy, uz, mx, my, mz)
         if weight < 1.0:  # left out, or at the late weight: disturbed
-            flags |= _MAG_DISTURBED
+            flags |= MAG_DISTURBED
         if weight == 0.0:
             mx = my = mz = math.nan
     es[v.S_MAG_WEIGHT] = weight
@@ -303,9 +306,9 @@ def run(cp, cs, ep, es, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out
     nan = math.nan
     for i in range(n):
         fi = flags_in[i]
-        gx, gy, gz = (nan, nan, nan) if fi & _GYR_STALE else (gyr[i, 0], gyr[i, 1], gyr[i, 2])
-        ax, ay, az = (nan, nan, nan) if fi & _ACC_STALE else (acc[i, 0], acc[i, 1], acc[i, 2])
-        mx, my, mz = (nan, nan, nan) if fi & _MAG_STALE else (mag[i, 0], mag[i, 1], mag[i, 2])
+        gx, gy, gz = (nan, nan, nan) if fi & GYR_STALE else (gyr[i, 0], gyr[i, 1], gyr[i, 2])
+        ax, ay, az = (nan, nan, nan) if fi & ACC_STALE else (acc[i, 0], acc[i, 1], acc[i, 2])
+        mx, my, mz = (nan, nan, nan) if fi & MAG_STALE else (mag[i, 0], mag[i, 1], mag[i, 2])
         h = t[i] - cs[CS_T] if cs[CS_SIGNAL + pf.SS_N] > 0.0 else 0.0
         code = step(cp, cs, ep, es, t[i], h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
@@ -313,6 +316,6 @@ def run(cp, cs, ep, es, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out
         v.write_row(es, i, out_r, out_omega, out_w)
         out_flags[i] = fi | (code & v.FLAG_BITS)
         out_iters[i] = code >> v.ITER_SHIFT
-        if stop and code & _NEWTON_FAILED:
+        if stop and code & NEWTON_FAILED:
             return i + 1
     return n

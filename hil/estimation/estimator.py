@@ -24,13 +24,13 @@ from hil.estimation import variational as k
 from hil.estimation.params import EstimatorParams
 from hil.estimation.quaternions import quats_of
 from hil.estimation.sensors import MergedSteps, StepFlag, as_vec3
+from hil.estimation.slots import NEWTON_FAILED
 from protocol.errors import ConfigError, ConvergenceError
 
 Array = NDArray[np.float64]
 
 _NAN3 = (math.nan, math.nan, math.nan)
 _FLAGS: dict[int, StepFlag] = {}
-_NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 
 
 @dataclass(frozen=True)
@@ -80,8 +80,11 @@ class Estimate(tuple):  # type: ignore[type-arg]
     def __new__(
         cls, t: float, R: ArrayLike, omega: ArrayLike, omega_err: ArrayLike, flags: StepFlag, iterations: int
     ) -> Estimate:
-        parts = (np.asarray(R, dtype=float).reshape(9), np.asarray(omega, dtype=float).reshape(3),
-                 np.asarray(omega_err, dtype=float).reshape(3))  # fmt: skip
+        parts = (
+            np.asarray(R, dtype=float).reshape(9),
+            np.asarray(omega, dtype=float).reshape(3),
+            np.asarray(omega_err, dtype=float).reshape(3),
+        )
         return tuple.__new__(cls, (t, flags, iterations, np.concatenate(parts)))
 
     @classmethod
@@ -269,7 +272,7 @@ class VariationalEstimator:
         code = k.update(self._ep, es, float(dt), gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
             raise ValueError(f"update: dt must be a positive number of seconds, got {dt!r}")
-        if snapshot is not None and code & _NEWTON_FAILED:
+        if snapshot is not None and code & NEWTON_FAILED:
             self._fail(snapshot, 0, dt)
         return estimate(es.item(k.S_T), es, code)
 
@@ -286,16 +289,30 @@ class VariationalEstimator:
         t = np.ascontiguousarray(steps.t, dtype=float)
         check_times(t, self._es, "update_batch")
         out = EstimateBatch(
-            t.copy(), np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int64),
+            t.copy(),
+            np.empty((n, 3, 3)),
+            np.empty((n, 3)),
+            np.empty((n, 3)),
             np.empty(n, np.int64),
-        )  # fmt: skip
+            np.empty(n, np.int64),
+        )
         es = self._es
         snapshot = es.copy() if self._raise else None
         done = k.run(
-            self._ep, es, t, _ints(steps.flags), _rows(steps.gyr), _rows(steps.acc), _rows(steps.mag),
-            out.R, out.omega, out.omega_err, out.flags, out.iterations,
-        )  # fmt: skip
-        if snapshot is not None and done and out.flags[done - 1] & _NEWTON_FAILED:
+            self._ep,
+            es,
+            t,
+            _ints(steps.flags),
+            _rows(steps.gyr),
+            _rows(steps.acc),
+            _rows(steps.mag),
+            out.R,
+            out.omega,
+            out.omega_err,
+            out.flags,
+            out.iterations,
+        )
+        if snapshot is not None and done and out.flags[done - 1] & NEWTON_FAILED:
             i = done - 1
             self._fail(snapshot, i, float(t[i] - (t[i - 1] if i else snapshot[k.S_T])))
         return out

@@ -22,7 +22,8 @@ from hil.estimation.magnetic import MagneticSettings, pack_mag_params
 from hil.estimation.motion import MP_REST_GAIN, MotionSettings, pack_motion_params
 from hil.estimation.params import EstimatorParams
 from hil.estimation.prefilter import PAPER_CUTOFF_RAD_S, SS_N, pack_signal_params
-from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, StepFlag, as_vec3
+from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, as_vec3
+from hil.estimation.slots import NEWTON_FAILED
 from hil.estimation.variational import S_BIAS, S_OMEGA
 from protocol.errors import ConfigError, ConvergenceError
 
@@ -30,7 +31,6 @@ Array = NDArray[np.float64]
 
 _NAN3 = (math.nan, math.nan, math.nan)
 _MAG_MODES = {"full": chain.MAG_FULL, "horizontal": chain.MAG_HORIZONTAL, "none": chain.MAG_NONE}
-_NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
 
 
 PAPER_PREFILTER: dict[SensorKind, float | None] = {k: PAPER_CUTOFF_RAD_S for k in KINDS}
@@ -97,10 +97,15 @@ class FilterConfig:
         declination) with a horizontal magnetometer, so only the field's direction in the horizontal
         plane matters and no inclination is needed."""
         params = EstimatorParams(
-            E=directions_from_dip(0.0, declination_deg), W=np.diag(TUNED["W_diag"]), m=TUNED["m"],
-            D=np.diag(TUNED["D_diag"]), bias_gain=(TUNED["bias_gain"],) * 3, bias_max=TUNED["bias_max"],
-            bias_vertical=TUNED["bias_vertical"], gyro_delay_s=TUNED["gyro_delay_s"],
-        )  # fmt: skip
+            E=directions_from_dip(0.0, declination_deg),
+            W=np.diag(TUNED["W_diag"]),
+            m=TUNED["m"],
+            D=np.diag(TUNED["D_diag"]),
+            bias_gain=(TUNED["bias_gain"],) * 3,
+            bias_max=TUNED["bias_max"],
+            bias_vertical=TUNED["bias_vertical"],
+            gyro_delay_s=TUNED["gyro_delay_s"],
+        )
         cut = {SensorKind.ACC: TUNED["acc_cutoff"], SensorKind.MAG: TUNED["mag_cutoff"], SensorKind.GYR: None}
         base = {
             "params": params,
@@ -187,7 +192,7 @@ class AttitudeFilter:
         code = chain.step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
             raise ValueError(f"filter step must be positive, got h = {s.h!r} s (t = {s.t!r} s)")
-        if snapshot is not None and code & _NEWTON_FAILED:
+        if snapshot is not None and code & NEWTON_FAILED:
             self._fail(snapshot, s.t, s.h)
         return estimate(s.t, es, code, int(s.flags))
 
@@ -207,9 +212,13 @@ class AttitudeFilter:
                 f"filter run: first step time {t[0]!r} is not after the last one, {cs[chain.CS_T]!r}"
             )
         out = EstimateBatch(
-            t.copy(), np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.empty(n, np.int64),
+            t.copy(),
+            np.empty((n, 3, 3)),
+            np.empty((n, 3)),
+            np.empty((n, 3)),
             np.empty(n, np.int64),
-        )  # fmt: skip
+            np.empty(n, np.int64),
+        )
         flags = np.ascontiguousarray(steps.flags, dtype=np.int64)
         gyr, acc, mag = (np.ascontiguousarray(a, dtype=float) for a in (steps.gyr, steps.acc, steps.mag))
         ep, es = self.estimator.arrays
@@ -217,10 +226,22 @@ class AttitudeFilter:
         for i in range(0, n, chunk):
             j = min(i + chunk, n)
             done = chain.run(
-                self._cp, cs, ep, es, t[i:j], flags[i:j], gyr[i:j], acc[i:j], mag[i:j],
-                out.R[i:j], out.omega[i:j], out.omega_err[i:j], out.flags[i:j], out.iterations[i:j],
-            )  # fmt: skip
-            if snapshot is not None and done and out.flags[i + done - 1] & _NEWTON_FAILED:
+                self._cp,
+                cs,
+                ep,
+                es,
+                t[i:j],
+                flags[i:j],
+                gyr[i:j],
+                acc[i:j],
+                mag[i:j],
+                out.R[i:j],
+                out.omega[i:j],
+                out.omega_err[i:j],
+                out.flags[i:j],
+                out.iterations[i:j],
+            )
+            if snapshot is not None and done and out.flags[i + done - 1] & NEWTON_FAILED:
                 k = i + done - 1
                 self._fail(snapshot, float(t[k]), float(t[k] - t[k - 1]) if k else 0.0)
             if progress is not None:

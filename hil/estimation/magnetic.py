@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from hil.estimation.slots import pack
 from hil.jit import kernel
 from protocol.errors import ConfigError
 
@@ -118,15 +119,26 @@ def pack_mag_params(s: MagneticSettings) -> Array:
         raise ConfigError(f"must be below 90, got {s.dip_tol_deg!r}", "MagneticSettings.dip_tol_deg")
     if not s.field_min < s.field_max:
         raise ConfigError(f"{s.field_min!r} is not below {s.field_max!r}", "MagneticSettings.field_min")
-    gp = np.zeros(GP_SIZE)
-    gp[GP_NORM_TOL], gp[GP_SIN_TOL] = s.norm_tol, math.sin(math.radians(s.dip_tol_deg))
-    gp[GP_CURRENT_TAU], gp[GP_TAU], gp[GP_MIN_UNDISTURBED] = s.current_tau_s, s.tau_s, s.min_undisturbed_s
-    gp[GP_STEADY], gp[GP_MIN_RATE] = s.steady_s, s.min_rate
-    gp[GP_FIELD_MIN], gp[GP_FIELD_MAX] = s.field_min, s.field_max
-    gp[GP_MAX_REJECTION], gp[GP_RECOVERY], gp[GP_LATE_WEIGHT] = s.max_rejection_s, s.recovery, s.late_weight
-    gp[GP_FIRST_STEADY] = s.first_steady_s
-    gp[GP_BOOST], gp[GP_BOOST_S] = s.boost, s.boost_s
-    return gp
+    return pack(
+        GP_SIZE,
+        {
+            GP_NORM_TOL: s.norm_tol,
+            GP_SIN_TOL: math.sin(math.radians(s.dip_tol_deg)),
+            GP_CURRENT_TAU: s.current_tau_s,
+            GP_TAU: s.tau_s,
+            GP_MIN_UNDISTURBED: s.min_undisturbed_s,
+            GP_STEADY: s.steady_s,
+            GP_MIN_RATE: s.min_rate,
+            GP_FIELD_MIN: s.field_min,
+            GP_FIELD_MAX: s.field_max,
+            GP_MAX_REJECTION: s.max_rejection_s,
+            GP_RECOVERY: s.recovery,
+            GP_LATE_WEIGHT: s.late_weight,
+            GP_FIRST_STEADY: s.first_steady_s,
+            GP_BOOST: s.boost,
+            GP_BOOST_S: s.boost_s,
+        },
+    )
 
 
 @kernel

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.estimation.slots import pack
 from hil.jit import kernel
 from protocol.errors import ConfigError
 
@@ -85,18 +86,22 @@ def pack_motion_params(s: MotionSettings) -> Array:
     for name, v in vars(s).items():
         ok = math.isfinite(v) and (v > 0 if name in positive else v >= 0)
         if not ok:
-            raise ConfigError(f"must be a {'positive' if name in positive else 'non-negative'} number, got "
-                              f"{v!r}", f"MotionSettings.{name}")  # fmt: skip
-    mp = np.zeros(MP_SIZE)
-    mp[MP_TAU], mp[MP_REST_GYR], mp[MP_REST_ACC], mp[MP_REST_MIN] = (
-        s.tau_s,
-        s.rest_gyr,
-        s.rest_acc,
-        s.rest_min_s,
+            sign = "positive" if name in positive else "non-negative"
+            raise ConfigError(f"must be a {sign} number, got {v!r}", f"MotionSettings.{name}")
+    return pack(
+        MP_SIZE,
+        {
+            MP_TAU: s.tau_s,
+            MP_REST_GYR: s.rest_gyr,
+            MP_REST_ACC: s.rest_acc,
+            MP_REST_MIN: s.rest_min_s,
+            MP_RATE_MAX: s.rate_max,
+            MP_REST_GAIN: s.rest_gain,
+            MP_CALM: s.calm,
+            MP_DYNAMIC: s.dynamic,
+            MP_ACC_SCALE: s.acc_scale,
+        },
     )
-    mp[MP_RATE_MAX], mp[MP_REST_GAIN] = s.rate_max, s.rest_gain
-    mp[MP_CALM], mp[MP_DYNAMIC], mp[MP_ACC_SCALE] = s.calm, s.dynamic, s.acc_scale
-    return mp
 
 
 def new_motion_state() -> Array:
@@ -143,9 +148,12 @@ def motion_step(mp, ms, h, gx, gy, gz, bx, by, bz, ax, ay, az):  # type: ignore[
     rx, ry, rz = ms[MS_GYR_LP] - bx, ms[MS_GYR_LP + 1] - by, ms[MS_GYR_LP + 2] - bz
     lim_g, lim_a, lim_r = mp[MP_REST_GYR], mp[MP_REST_ACC], mp[MP_RATE_MAX]
     still = (
-        g_ok and a_ok and ms[MS_DG2] < lim_g * lim_g and ms[MS_DA2] < lim_a * lim_a
+        g_ok
+        and a_ok
+        and ms[MS_DG2] < lim_g * lim_g
+        and ms[MS_DA2] < lim_a * lim_a
         and rx * rx + ry * ry + rz * rz < lim_r * lim_r
-    )  # fmt: skip
+    )
     if not still:
         ms[MS_REST_FOR] = 0.0
         ms[MS_REST] = 0.0

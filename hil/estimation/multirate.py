@@ -55,6 +55,7 @@ from hil.estimation.sensors import (
     SensorStream,
     StepFlag,
 )
+from hil.estimation.slots import FAILOVER, GAP
 from protocol.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -98,7 +99,6 @@ class MergePolicy:
 
 _LABELS = tuple(k.label for k in KINDS)  # indexed by SensorKind (``label`` is a property: computed per call)
 _STALE = tuple(int(StepFlag.stale(k)) for k in KINDS)
-_GAP, _FAILOVER = int(StepFlag.GAP), int(StepFlag.FAILOVER)
 
 
 @dataclass
@@ -135,8 +135,8 @@ class MergeStats:
     def count_steps(self, flags: NDArray[np.int64]) -> None:
         """Count many steps at once (the batch path); same result as :meth:`count_step` on each."""
         self.steps += int(flags.shape[0])
-        self.gaps += int(np.count_nonzero(flags & int(StepFlag.GAP)))
-        self.failover_steps += int(np.count_nonzero(flags & int(StepFlag.FAILOVER)))
+        self.gaps += int(np.count_nonzero(flags & GAP))
+        self.failover_steps += int(np.count_nonzero(flags & FAILOVER))
         for kind in KINDS:
             self.stale_steps[kind.label] += int(np.count_nonzero(flags & int(StepFlag.stale(kind))))
 
@@ -241,9 +241,9 @@ def merge(
     n = step_t.shape[0]
 
     flags = np.zeros(n, dtype=np.int64)
-    flags[step_rank > 0] |= int(StepFlag.FAILOVER)
+    flags[step_rank > 0] |= FAILOVER
     h = np.diff(step_t, prepend=step_t[:1]) if n else np.zeros(0)
-    flags[h > policy.gap_after_s] |= int(StepFlag.GAP)
+    flags[h > policy.gap_after_s] |= GAP
     values: dict[SensorKind, Array] = {}
     age = np.empty((n, 3))
     fresh = np.empty((n, 3), bool)
@@ -366,9 +366,9 @@ class Merger:
     def _step(self, at: float, rank: int) -> MergedStep:
         h = at - self._last_step if self._last_step > -math.inf else 0.0
         # StepFlag bits as an int, one memoised StepFlag at the end: IntFlag arithmetic costs ~1 µs a use
-        bits = _FAILOVER if rank else 0
+        bits = FAILOVER if rank else 0
         if h > self.policy.gap_after_s:
-            bits |= _GAP
+            bits |= GAP
         stale_after = self.policy.stale_after_s
         values: list[tuple[float, float, float] | None] = []
         ages: list[float] = []

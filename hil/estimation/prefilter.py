@@ -40,6 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil.estimation.sensors import KINDS, MergedSteps, SensorKind
+from hil.estimation.slots import pack
 from hil.jit import kernel
 from hil.so3.floats import apply_f, apply_transpose_f, exp_f, matmul_f, reorthonormalize_f
 from protocol.errors import ConfigError
@@ -269,13 +270,15 @@ def pack_signal_params(
     the gyroscope's delay (s, see :class:`hil.estimation.params.EstimatorParams`)."""
     if frame not in ("body", "strapdown"):
         raise ConfigError(f"pre-filter frame must be 'body' or 'strapdown', got {frame!r}", "prefilter frame")
-    sp = np.zeros(SP_SIZE)
-    for kind in KINDS:
-        cut = cutoffs.get(kind)
-        sp[SP_CUTOFF + int(kind)] = 0.0 if cut is None else _check_cutoff(float(cut))
-    sp[SP_STRAPDOWN] = 1.0 if frame == "strapdown" else 0.0
-    sp[SP_GYRO_DELAY] = gyro_delay_s
-    return sp
+    cut = [cutoffs.get(kind) for kind in KINDS]
+    return pack(
+        SP_SIZE,
+        {
+            SP_CUTOFF: [0.0 if c is None else _check_cutoff(float(c)) for c in cut],
+            SP_STRAPDOWN: 1.0 if frame == "strapdown" else 0.0,
+            SP_GYRO_DELAY: gyro_delay_s,
+        },
+    )
 
 
 def new_signal_state() -> Array:

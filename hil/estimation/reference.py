@@ -21,14 +21,11 @@ from numpy.typing import ArrayLike, NDArray
 from hil import so3
 from hil.estimation.params import EstimatorParams
 from hil.estimation.prefilter import filter_batch
-from hil.estimation.sensors import KINDS, SensorKind, StepFlag
+from hil.estimation.sensors import KINDS, SensorKind
+from hil.estimation.slots import DEGENERATE, GYR_STALE, NEWTON_FAILED, SUBSTEPPED
 
 Array = NDArray[np.float64]
 
-_DEGENERATE = int(StepFlag.DEGENERATE)
-_NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
-_SUBSTEPPED = int(StepFlag.SUBSTEPPED)
-_GYR_STALE = int(StepFlag.GYR_STALE)
 _NAN3 = np.full(3, np.nan)
 
 
@@ -68,7 +65,7 @@ def measurement(
         if np.linalg.norm(c) >= math.sin(math.radians(p.min_direction_angle_deg)):
             u3 = c / np.linalg.norm(c)
         else:
-            flags |= _DEGENERATE
+            flags |= DEGENERATE
             u2 = None
     used = np.array([u is not None for u in (u1, u2, u3)])
     if u2 is not None:
@@ -173,7 +170,7 @@ class Estimator:
     counters: dict[str, int] = field(
         default_factory=lambda: dict.fromkeys(
             ("substeps", "newton_updates", "max_newton_updates", "no_direction"), 0
-        )  # fmt: skip
+        )
     )
 
     def step(
@@ -184,7 +181,7 @@ class Estimator:
         p = self.p
         ok_g = bool(np.all(np.isfinite(gyr)))
         g1 = np.asarray(gyr, dtype=float) if ok_g else np.zeros(3)
-        flags = 0 if ok_g else _GYR_STALE
+        flags = 0 if ok_g else GYR_STALE
         meas = measurement(p, acc, mag, mag_weight)
         flags |= meas.flags
         up = unit(acc)
@@ -196,7 +193,7 @@ class Estimator:
         else:
             n_sub = 1 if h <= p.max_step_s else math.ceil(h / p.max_step_s)
             if n_sub > 1:
-                flags |= _SUBSTEPPED
+                flags |= SUBSTEPPED
             start = self.g0
             for j in range(1, n_sub + 1):
                 ga = start + j / n_sub * (g1 - start) if j < n_sub else g1
@@ -205,7 +202,7 @@ class Estimator:
                 )
                 self.g0 = ga
                 total += iters
-                flags |= 0 if ok else _NEWTON_FAILED
+                flags |= 0 if ok else NEWTON_FAILED
             self.counters["substeps"] += n_sub - 1
         self.g0 = g1
         self.counters["newton_updates"] += total
@@ -233,8 +230,14 @@ class RunResult:
 
     @classmethod
     def empty(cls, n: int) -> RunResult:
-        return cls(np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 3)), np.zeros(n, np.int64),
-                   np.zeros(n, np.int64), np.empty((n, 3)))  # fmt: skip
+        return cls(
+            np.empty((n, 3, 3)),
+            np.empty((n, 3)),
+            np.empty((n, 3)),
+            np.zeros(n, np.int64),
+            np.zeros(n, np.int64),
+            np.empty((n, 3)),
+        )
 
     def record(self, i: int, est: Estimator, flags: int, iters: int) -> None:
         self.R[i], self.omega[i], self.omega_err[i], self.bias[i] = est.r, est.rate, est.w, est.b

@@ -18,12 +18,11 @@ from hil.estimation.magnetic import MagneticSettings
 from hil.estimation.motion import MotionSettings
 from hil.estimation.params import wahba
 from hil.estimation.reference import Estimator, Lowpass, RunResult, measurement, strapdown_step, unit
-from hil.estimation.sensors import KINDS, MergedSteps, SensorKind, StepFlag
+from hil.estimation.sensors import KINDS, MergedSteps, SensorKind
+from hil.estimation.slots import MAG_DISTURBED, REST
 
 Array = NDArray[np.float64]
 
-_MAG_DISTURBED = int(StepFlag.MAG_DISTURBED)
-_REST = int(StepFlag.REST)
 _NAN3 = np.full(3, np.nan)
 
 
@@ -220,7 +219,7 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
             rest = motion.step(h, gyr_in[i], b, rg @ acc_in[i])
             trust = motion.calm
             if rest:
-                flags |= _REST
+                flags |= REST
                 k = min(1.0, h * config.motion.rest_gain)  # type: ignore[union-attr]
                 est.b = np.clip(est.b + k * (motion.gyr_lp - est.b), -p.bias_max, p.bias_max)  # type: ignore[operator]
         unit_acc = unit(acc)
@@ -229,7 +228,7 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
         if magnetic is not None and np.all(np.isfinite(mag)):
             weight = magnetic.step(h, float(np.linalg.norm(g)), up, mag)
             if weight < 1.0:
-                flags |= _MAG_DISTURBED
+                flags |= MAG_DISTURBED
             if weight == 0.0:
                 mag = _NAN3.copy()
         if config.magnetometer == "horizontal":

@@ -13,27 +13,35 @@ error, ``Ω̂ = Ω^m − ω`` the rate estimate, ``R̂`` the attitude estimate (
     m ω[i+1] = exp(−h/2 Ω̂[i+1]^×) { (m I − h/2 D) ω[i+½] + h/2 Φ'(U⁰[i+1]) S_L[i+1] }
     S_L(R̂)  = vex(Lᵀ R̂ − R̂ᵀ L),  L = E W Uᵀ,  U⁰ = ½ ⟨E − R̂ U, (E − R̂ U) W⟩
 
-``E = [e1 e2 e1×e2]``: inertial directions (e1 *up*, as the accelerometer reads gravity; e2 the field);
-``U = [u1 u2 u1×u2]`` the measured unit vectors in the body frame (third columns: normalised crosses).
+``E = [e1 e2 e1×e2]`` holds the inertial directions (e1: the accelerometer's reading of gravity, i.e. *up*;
+e2: the geomagnetic field direction), ``U = [u1 u2 u1×u2]`` the measured ones in the body frame (unit
+accelerometer and magnetometer vectors); third columns are normalised cross products.
 
 The last line is implicit in ``ω[i+1]`` (``Ω̂[i+1] = Ω^m[i+1] − ω[i+1]``). With ``c`` its braced right-hand
 side and ``φ(ω) = h/2 (ω − Ω^m[i+1])`` it reads ``f(ω) = m ω − exp(φ^×) c = 0``, solved by Newton–Raphson
 with the analytic Jacobian ``∂f/∂ω = m I + h/2 y^× J_l(φ)``, ``y = exp(φ^×) c`` and ``J_l`` the left
-Jacobian of SO(3), from one fixed-point pass ``ω = exp(φ(c/m)^×) c / m``, until ``‖f‖ / m ≤ newton_tol ·
-√(1 + ‖ω‖²)`` (default 1e-12 rad/s; ``‖f‖/m`` is the next update's size to O(h)); after ``newton_max_iter``
-updates (10) the step fails: :attr:`StepFlag.NEWTON_FAILED`, counted, or :class:`ConvergenceError` from the
-caller (``on_newton_failure``). At phone rates one update suffices (quadratic convergence, O(h²) start).
+Jacobian of SO(3), from one fixed-point pass ``ω = exp(φ(c/m)^×) c / m``. Iteration stops when the
+residual satisfies ``‖f‖ / m ≤ newton_tol · √(1 + ‖ω‖²)`` (default 1e-12 rad/s; ``‖f‖/m`` is the size of
+the next Newton update to O(h)); after ``newton_max_iter`` updates (default 10) the step is a failure:
+flagged :attr:`StepFlag.NEWTON_FAILED` and counted, or raised as :class:`ConvergenceError` by the caller
+(``on_newton_failure``). At phone rates one update suffices (quadratic convergence from an O(h²) start).
 
-Missing measurements: an unusable direction (NaN, a stale sensor) is left out: ``L = E_S W_SS U_Sᵀ`` over
-the usable S ⊆ {acc, mag, acc×mag} (the cross product needs both, not within ``min_direction_angle_deg``
-of parallel); with none the filter propagates the gyro; an unusable gyro reads as zero (``Ω̂ = −ω``).
+Missing measurements: a direction that is not usable (NaN input, a stale sensor) is left out of the
+potential: ``L = E_S W_SS U_Sᵀ`` over the usable set S ⊆ {acc, mag, acc×mag} (the cross-product column
+needs both, and is dropped when they are within ``min_direction_angle_deg`` of parallel). With no usable
+direction the potential term vanishes and the filter propagates the gyro. A gyroscope that is not usable
+is read as a zero rate measurement (the filter then runs on the vector measurements alone, ``Ω̂ = −ω``).
 
-Long steps: the discrete dissipation factor ``(m − h/2 d)/(m + h/2 d)`` turns negative (a bounded ringing)
-once ``h > 2m/d``, so steps over ``max_step_s`` are split (gyro interpolated, measurement held;
-:attr:`StepFlag.SUBSTEPPED`). R̂ stays a rotation: exact Rodrigues factors and one Newton–Schulz polar
-correction per step keep ``‖R̂ᵀR̂ − I‖`` at rounding level.
+Long steps: the scheme's discrete dissipation factor ``(m − h/2 d)/(m + h/2 d)`` turns negative (a
+ringing, though bounded, rate error) once ``h > 2m/d``; steps longer than ``max_step_s`` are therefore
+split into equal sub-steps with the gyro interpolated linearly and the new measurement held
+(:attr:`StepFlag.SUBSTEPPED`).
 
-Arrays the kernels take (float64; slots: the ``P_*``, ``S_*``, ``C_*`` constants; row-major; only appended):
+R̂ stays a rotation: each step multiplies by an exact rotation (Rodrigues) and applies one Newton–Schulz
+polar correction, which keeps ``‖R̂ᵀR̂ − I‖`` at rounding level however many steps are taken.
+
+Arrays the kernels take (float64 unless said; slots are the ``P_*``, ``S_*``, ``C_*`` constants below;
+matrices row-major; a later slot is only ever appended, so a new state — e.g. a gyro bias — extends these):
 
 - parameters ``ep`` (:data:`P_SIZE`), built once by :func:`pack_params`: m, Newton tolerance and cap, the
   failure policy, ``max_step_s``, sin of ``min_direction_angle_deg``, Φ' (kind and argument), D (with a
@@ -44,7 +52,9 @@ Arrays the kernels take (float64; slots: the ``P_*``, ``S_*``, ``C_*`` constants
   at ``S_COUNTS + C_*``: the :class:`~hil.estimation.estimator.EstimatorStats` fields). R̂, Ω̂ and ω come
   first and contiguous, so the estimate is one copy of ``es[:15]``.
 
-Two arrays per call (numba's dispatcher costs ~0.1 µs per array argument; a live step has a few µs).
+Two arrays per call, not more: numba's dispatcher costs ~0.1 µs per array argument, and a live step's
+whole budget is a few µs.
+
 A step's result is one int: its :class:`StepFlag` bits ``| newton_updates << ITER_SHIFT``.
 """
 
@@ -53,10 +63,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from hil.estimation.params import EstimatorParams
-from hil.estimation.sensors import StepFlag
+from hil.estimation.slots import (
+    ACC_STALE,
+    DEGENERATE,
+    GYR_STALE,
+    MAG_STALE,
+    NEWTON_FAILED,
+    SUBSTEPPED,
+    pack,
+)
 from hil.jit import kernel
 from hil.so3.floats import exp_f, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f
 
@@ -115,42 +133,45 @@ BAD_STEP = -1
 """What :func:`update` returns, having changed nothing, for a step ``dt`` that is not a positive number."""
 
 _ACC, _MAG, _CROSS = 1, 2, 4  # bits of the usable-direction mask
-_GYR_STALE = int(StepFlag.GYR_STALE)
-_ACC_STALE = int(StepFlag.ACC_STALE)
-_MAG_STALE = int(StepFlag.MAG_STALE)
-_DEGENERATE = int(StepFlag.DEGENERATE)
-_NEWTON_FAILED = int(StepFlag.NEWTON_FAILED)
-_SUBSTEPPED = int(StepFlag.SUBSTEPPED)
 _ZERO9 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def pack_params(p: EstimatorParams) -> Array:
-    """The parameter array ``ep`` (:data:`P_SIZE`) of ``p`` (see the module docstring for its layout)."""
-    ep = np.zeros(P_SIZE)
-    ep[P_M] = p.m
-    ep[P_TOL] = p.newton_tol
-    ep[P_MAX_ITER] = p.newton_max_iter
-    ep[P_RAISE] = 1.0 if p.on_newton_failure == "raise" else 0.0
-    ep[P_MAX_STEP] = p.max_step_s
-    ep[P_MIN_SIN] = math.sin(math.radians(p.min_direction_angle_deg))
-    if p.phi.constant_derivative is not None:
-        ep[P_PHI_KIND], ep[P_PHI_ARG] = PHI_CONSTANT, p.phi.constant_derivative
-    else:  # EstimatorParams checked that Φ has a compiled form
-        ep[P_PHI_KIND], ep[P_PHI_ARG] = PHI_LOG, p.phi.log_scale
-    ep[P_D_DIAG] = 0.0 if np.any(p.D - np.diag(np.diag(p.D))) else 1.0
-    ep[P_D : P_D + 9] = p.D.reshape(-1)
-    ep[P_E : P_E + 9] = p.E.reshape(-1)
-    ep[P_W : P_W + 9] = p.W.reshape(-1)
-    ep[P_BIAS_GAIN : P_BIAS_GAIN + 3] = p.bias_gain
-    ep[P_BIAS_MAX] = p.bias_max
-    ep[P_GYRO_DELAY] = p.gyro_delay_s
-    ep[P_BIAS_VERTICAL] = p.bias_vertical
+    """The parameter array ``ep`` (:data:`P_SIZE`) of ``p`` (see the module docstring for its layout).
+
+    Besides ``p``'s numbers it holds what every step would otherwise recompute: the sine of the
+    direction-angle limit, whether D is diagonal (its inverse is then three divisions), and per
+    usable-direction mask ``M = E W_S`` and ``tr(E_SᵀE_S W_SS)``, so that a step with a stale sensor costs
+    no more than one with all three directions."""
+    phi_arg: float | None = p.phi.constant_derivative
+    phi_kind = PHI_CONSTANT
+    if phi_arg is None:  # EstimatorParams checked that Φ has a compiled form: the log potential's scale
+        phi_kind, phi_arg = PHI_LOG, p.phi.log_scale
+    assert phi_arg is not None
+    slots: dict[int, float | ArrayLike] = {
+        P_M: p.m,
+        P_TOL: p.newton_tol,
+        P_MAX_ITER: p.newton_max_iter,
+        P_RAISE: 1.0 if p.on_newton_failure == "raise" else 0.0,
+        P_MAX_STEP: p.max_step_s,
+        P_MIN_SIN: math.sin(math.radians(p.min_direction_angle_deg)),
+        P_PHI_KIND: phi_kind,
+        P_PHI_ARG: phi_arg,
+        P_D_DIAG: 0.0 if np.any(p.D - np.diag(np.diag(p.D))) else 1.0,
+        P_D: p.D,
+        P_E: p.E,
+        P_W: p.W,
+        P_BIAS_GAIN: p.bias_gain,
+        P_BIAS_MAX: p.bias_max,
+        P_GYRO_DELAY: p.gyro_delay_s,
+        P_BIAS_VERTICAL: p.bias_vertical,
+    }
     for mask in range(8):
         sel = np.array([bool(mask & b) for b in (_ACC, _MAG, _CROSS)], dtype=float)
         w_sel = p.W * np.outer(sel, sel)
-        ep[P_MTAB + 9 * mask : P_MTAB + 9 * mask + 9] = (p.E @ w_sel).reshape(-1)
-        ep[P_TRACE + mask] = float(np.trace(p.E.T @ p.E @ w_sel))
-    return ep
+        slots[P_MTAB + 9 * mask] = p.E @ w_sel
+        slots[P_TRACE + mask] = float(np.trace(p.E.T @ p.E @ w_sel))
+    return pack(P_SIZE, slots)
 
 
 # --------------------------------------------------------------------------- measurement terms
@@ -182,7 +203,7 @@ def measurement(ep, ax, ay, az, mx, my, mz, wm):  # type: ignore[no-untyped-def]
             c0, c1, c2 = cx / n, cy / n, cz / n
             cross_ok = True
         else:  # (nearly) parallel: the magnetometer adds nothing trustworthy
-            flags |= _DEGENERATE
+            flags |= DEGENERATE
             mag_ok = False
             b0 = b1 = b2 = 0.0
     b0, b1, b2 = wm * b0, wm * b1, wm * b2
@@ -191,8 +212,16 @@ def measurement(ep, ax, ay, az, mx, my, mz, wm):  # type: ignore[no-untyped-def]
         return 0, _ZERO9, 0.0, flags
     o = P_MTAB + 9 * mask
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = (
-        ep[o], ep[o + 1], ep[o + 2], ep[o + 3], ep[o + 4], ep[o + 5], ep[o + 6], ep[o + 7], ep[o + 8]
-    )  # fmt: skip
+        ep[o],
+        ep[o + 1],
+        ep[o + 2],
+        ep[o + 3],
+        ep[o + 4],
+        ep[o + 5],
+        ep[o + 6],
+        ep[o + 7],
+        ep[o + 8],
+    )
     # L = M Uᵀ: L[i][j] = Σ_k M[i][k] U[j][k], U's columns being a, b, c
     big_l = (
         m0 * a0 + m1 * b0 + m2 * c0, m0 * a1 + m1 * b1 + m2 * c1, m0 * a2 + m1 * b2 + m2 * c2,
@@ -205,9 +234,13 @@ def measurement(ep, ax, ay, az, mx, my, mz, wm):  # type: ignore[no-untyped-def]
         aa, bb, cc = a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2, c0 * c0 + c1 * c1 + c2 * c2
         ab, ac, bc = a0 * b0 + a1 * b1 + a2 * b2, a0 * c0 + a1 * c1 + a2 * c2, b0 * c0 + b1 * c1 + b2 * c2
         k += 0.5 * (
-            aa * ep[w] + bb * ep[w + 4] + cc * ep[w + 8]
-            + ab * (ep[w + 1] + ep[w + 3]) + ac * (ep[w + 2] + ep[w + 6]) + bc * (ep[w + 5] + ep[w + 7])
-        )  # fmt: skip
+            aa * ep[w]
+            + bb * ep[w + 4]
+            + cc * ep[w + 8]
+            + ab * (ep[w + 1] + ep[w + 3])
+            + ac * (ep[w + 2] + ep[w + 6])
+            + bc * (ep[w + 5] + ep[w + 7])
+        )
     return mask, big_l, k, flags
 
 
@@ -352,9 +385,10 @@ def advance(ep, r, w, b, g0, tau0, h, g1, big_l, mask, k, bl):  # type: ignore[n
     g1x, g1y, g1z = g1
     f = 0.5 + ep[P_GYRO_DELAY] / h  # the step's rate: the readings at its middle, d later
     step = exp_f(
-        h * (g0[0] + f * (g1x - g0[0]) - bhx - hx), h * (g0[1] + f * (g1y - g0[1]) - bhy - hy),
+        h * (g0[0] + f * (g1x - g0[0]) - bhx - hx),
+        h * (g0[1] + f * (g1y - g0[1]) - bhy - hy),
         h * (g0[2] + f * (g1z - g0[2]) - bhz - hz),
-    )  # fmt: skip
+    )
     r1 = reorthonormalize_f(matmul_f(r, step))
     tau1 = torque(ep, r1, big_l, mask, k)
     t1x, t1y, t1z = tau1
@@ -389,7 +423,7 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
     flags = 0
     if not math.isfinite(gx + gy + gz):
         gx = gy = gz = 0.0
-        flags |= _GYR_STALE
+        flags |= GYR_STALE
     mask, big_l, k, mflags = measurement(ep, ax, ay, az, mx, my, mz, es[S_MAG_WEIGHT])
     flags |= mflags
     r = (es[0], es[1], es[2], es[3], es[4], es[5], es[6], es[7], es[8])
@@ -414,11 +448,11 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
         if h <= max_step:
             r, w, b, tau, total, ok = advance(ep, r, w, b, g0, tau, h, g1, big_l, mask, k, bl)
             if not ok:
-                flags |= _NEWTON_FAILED
+                flags |= NEWTON_FAILED
         else:  # sub-steps: gyro interpolated linearly, measurement held
             n_sub = int(math.ceil(h / max_step))
             a0, a1, a2 = g0
-            flags |= _SUBSTEPPED
+            flags |= SUBSTEPPED
             for j in range(1, n_sub + 1):
                 f = j / n_sub
                 ga = (a0 + f * (gx - a0), a1 + f * (gy - a1), a2 + f * (gz - a2)) if j < n_sub else g1
@@ -426,7 +460,7 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
                 g0 = ga
                 total += iters
                 if not ok:
-                    flags |= _NEWTON_FAILED
+                    flags |= NEWTON_FAILED
             es[S_COUNTS + C_SUBSTEPS] += n_sub - 1
         for i in range(9):
             es[S_R + i] = r[i]
@@ -440,11 +474,11 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
     es[c + C_STEPS] += 1.0
     es[c + C_NEWTON_UPDATES] += total
     es[c + C_MAX_NEWTON_UPDATES] = max(es[c + C_MAX_NEWTON_UPDATES], total)
-    if flags & _NEWTON_FAILED:
+    if flags & NEWTON_FAILED:
         es[c + C_NEWTON_FAILURES] += 1.0
-    if flags & _DEGENERATE:
+    if flags & DEGENERATE:
         es[c + C_DEGENERATE] += 1.0
-    if flags & _GYR_STALE:
+    if flags & GYR_STALE:
         es[c + C_GYRO_MISSING] += 1.0
     if mask == 0:
         es[c + C_NO_DIRECTION] += 1.0
@@ -484,9 +518,9 @@ def run(ep, es, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_flags, 
     nan = math.nan
     for i in range(n):
         fi = flags_in[i]
-        gx, gy, gz = (nan, nan, nan) if fi & _GYR_STALE else (gyr[i, 0], gyr[i, 1], gyr[i, 2])
-        ax, ay, az = (nan, nan, nan) if fi & _ACC_STALE else (acc[i, 0], acc[i, 1], acc[i, 2])
-        mx, my, mz = (nan, nan, nan) if fi & _MAG_STALE else (mag[i, 0], mag[i, 1], mag[i, 2])
+        gx, gy, gz = (nan, nan, nan) if fi & GYR_STALE else (gyr[i, 0], gyr[i, 1], gyr[i, 2])
+        ax, ay, az = (nan, nan, nan) if fi & ACC_STALE else (acc[i, 0], acc[i, 1], acc[i, 2])
+        mx, my, mz = (nan, nan, nan) if fi & MAG_STALE else (mag[i, 0], mag[i, 1], mag[i, 2])
         h = t[i] - es[S_T] if es[S_STARTED] != 0.0 else 0.0
         code = step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:  # a time not after the previous one: the caller checks, this is the backstop
@@ -495,6 +529,6 @@ def run(ep, es, t, flags_in, gyr, acc, mag, out_r, out_omega, out_w, out_flags, 
         write_row(es, i, out_r, out_omega, out_w)
         out_flags[i] = fi | (code & FLAG_BITS)
         out_iters[i] = code >> ITER_SHIFT
-        if stop and code & _NEWTON_FAILED:
+        if stop and code & NEWTON_FAILED:
             return i + 1
     return n

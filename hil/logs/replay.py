@@ -35,17 +35,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil.estimation.estimator import Estimate, EstimateBatch, _concat
-from hil.estimation.filter import AttitudeFilter, FilterConfig
 from hil.estimation.geomag import GeomagneticField, igrf14
 from hil.estimation.inertial import (
-    directions_from_dip,
     directions_from_log,
     field_warnings,
     find_still_window,
     tilt_attitude,
 )
+from hil.estimation.interface import Estimator, Site
 from hil.estimation.metrics import TruthComparison, compare_to_truth
 from hil.estimation.multirate import MergePolicy, Merger, MergeStats, merge
+from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import (
     MergedStep,
     MergedSteps,
@@ -92,10 +92,15 @@ Plotter = Callable[["ReplayResult", Path], dict[str, Path]]
 :func:`hil.plots.estimator.plot_replay`; a library caller passes none or its own)."""
 
 
+REPLAY_ESTIMATOR = EstimatorChoice("variational", {"preset": "tuned"})
+"""What ``hil replay`` runs unless told: the variational estimator, tuned on real phone logs."""
+
+
 @dataclass(frozen=True)
 class ReplayOptions:
-    """How to replay. ``preset``: ``"tuned"`` (default) or ``"paper"`` (exactly the paper, incl. its
-    1 rad/s body-frame pre-filter); ``config`` overrides the preset entirely. Inertial directions:
+    """How to replay. ``estimator``: the estimator and its settings (:mod:`hil.estimation.registry`;
+    default :data:`REPLAY_ESTIMATOR`, the variational estimator's tuned preset — ``preset = "paper"`` is
+    exactly the paper, incl. its 1 rad/s body-frame pre-filter). Inertial directions:
     measured from the log (the default), or ``inclination_deg`` given, both with ``declination_deg``
     (default 0: magnetic north); or a ``field_model`` (true north). ``gyro_bias``: ``"still"`` (default)
     subtracts the mean gyro over the log's initial still window, if it has one; ``"none"`` does not.
@@ -104,8 +109,7 @@ class ReplayOptions:
 
     out_dir: Path
     format: str | None = None
-    preset: str = "tuned"
-    config: FilterConfig | None = None
+    estimator: EstimatorChoice = field(default_factory=lambda: REPLAY_ESTIMATOR)
     policy: MergePolicy = field(default_factory=MergePolicy)
     inclination_deg: float | None = None
     declination_deg: float = 0.0
@@ -126,7 +130,8 @@ class ReplayResult:
     steps: MergedSteps
     estimates: EstimateBatch
     merge_stats: MergeStats
-    config: FilterConfig
+    estimator: EstimatorChoice
+    site: Site
     setup: list[str]
     comparison: TruthComparison | None = None
     files: dict[str, Path] = field(default_factory=dict)
@@ -140,13 +145,10 @@ class ReplayResult:
         return flagged_intervals(self.estimates.t, self.estimates.flags, StepFlag.MAG_DISTURBED)
 
 
-def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, list[str]]:
-    """The filter configuration for this log: preset, inertial directions, gyro bias; and what was done."""
+def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, Site, list[str]]:
+    """The estimator and the site it runs at for this log — inertial directions, gyro bias, the merged
+    steps' period, 6-axis or not —, and what was done to find them."""
     setup: list[str] = []
-    if options.config is not None:
-        return options.config, ["configuration given"]
-    if options.preset not in ("tuned", "paper"):
-        raise ConfigError(f"unknown preset {options.preset!r} (tuned or paper)", "replay preset")
     if options.gyro_bias not in ("still", "none"):
         raise ConfigError(f"must be 'still' or 'none', got {options.gyro_bias!r}", "replay gyro bias")
     bias = (0.0, 0.0, 0.0)
@@ -181,17 +183,14 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[FilterConfig, lis
         setup.append(f"inertial directions from the log: {how}")
     if options.field_model is None and not log.six_axis:
         setup.append(f"declination {declination:g} deg" + (" (magnetic north)" if declination == 0 else ""))
-    overrides: dict[str, object] = {"gyro_bias": bias}
-    if log.six_axis:  # the filter's 6-axis mode, started from gravity alone (heading 0)
-        overrides["init"] = tilt_attitude(log)
-        overrides["magnetometer"] = "none"
-    if options.preset == "paper":
-        config = FilterConfig.paper(E=directions_from_dip(dip, declination), **overrides)
-        setup.append("preset paper: W, m, D, Φ and the 1 rad/s body-frame pre-filter of the paper")
-    else:
-        config = FilterConfig.tuned(declination_deg=declination, **overrides)
-        setup.append("preset tuned: strapdown-frame pre-filter, horizontal magnetometer, tuned gains")
-    return config, setup
+    known: dict[str, object] = {"gyro_bias": bias}
+    if log.six_axis:  # 6-axis, started from gravity alone (heading 0)
+        known["init"] = tilt_attitude(log)
+        known["magnetometer"] = False
+    period = min(stream.median_period() for stream in log.streams.values())
+    site = Site.of_dip(dip, declination, period, **known)
+    setup.append(options.estimator.describe())
+    return options.estimator, site, setup
 
 
 def field_model_of(options: ReplayOptions) -> GeomagneticField | None:
@@ -219,7 +218,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     log = read_log(path, options.format)
     if options.window_s is not None:
         log = log.window(*options.window_s)
-    config, setup = configure(log, options)
+    estimator, site, setup = configure(log, options)
     warnings = field_warnings(log, field_model_of(options))
     parts = split_at_gaps(log, options.max_gap_s)
     all_steps, all_estimates, segments = [], [], []
@@ -255,9 +254,9 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         _check_length(part, total_steps, log.source, merged=True)
         _add_stats(stats, seg_stats)
         if options.paced or options.on_step is not None:
-            estimates = _run_live(part, steps, seg_stats, config, options)
+            estimates = _run_live(part, steps, seg_stats, estimator.build(site), options)
         else:
-            chain = AttitudeFilter(config)
+            chain = estimator.build(site)
             estimates = chain.run(steps, options.progress)
             b = chain.gyro_bias  # the last part's estimate at its end
             bias = (float(b[0]), float(b[1]), float(b[2]))
@@ -268,7 +267,16 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     steps = all_steps[0] if len(all_steps) == 1 else _concat_steps(all_steps)
     estimates = all_estimates[0] if len(all_estimates) == 1 else _concat(all_estimates)
     result = ReplayResult(
-        log, steps, estimates, stats, config, setup, segments=segments, warnings=warnings, gyro_bias=bias
+        log,
+        steps,
+        estimates,
+        stats,
+        estimator,
+        site,
+        setup,
+        segments=segments,
+        warnings=warnings,
+        gyro_bias=bias,
     )
     _score(result)
     options.out_dir.mkdir(parents=True, exist_ok=True)
@@ -309,8 +317,8 @@ def _add_stats(total: MergeStats, part: MergeStats) -> None:
 
 
 def _concat_steps(parts: list[MergedSteps]) -> MergedSteps:
-    return MergedSteps(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                         ("t", "gyr", "acc", "mag", "age", "fresh", "flags")))  # fmt: skip
+    names = ("t", "gyr", "acc", "mag", "age", "fresh", "flags")
+    return MergedSteps(*(np.concatenate([getattr(p, name) for p in parts]) for name in names))
 
 
 def _first_complete(steps: MergedSteps, log: SensorLog) -> int:
@@ -319,12 +327,12 @@ def _first_complete(steps: MergedSteps, log: SensorLog) -> int:
 
 
 def _run_live(
-    log: SensorLog, steps: MergedSteps, stats: MergeStats, config: FilterConfig, options: ReplayOptions
+    log: SensorLog, steps: MergedSteps, stats: MergeStats, chain: Estimator, options: ReplayOptions
 ) -> EstimateBatch:
-    """The live path: samples through a :class:`Merger` in time order, each step paced on the clock."""
-    merger = Merger(MergePolicy(**{**asdict(options.policy), "driver": stats.driver,
-                                   "failover_order": stats.failover_order}))  # fmt: skip
-    chain = AttitudeFilter(config)
+    """The live path: samples through a :class:`Merger` in time order into the estimator ``chain``, each
+    step paced on the clock."""
+    policy = {**asdict(options.policy), "driver": stats.driver, "failover_order": stats.failover_order}
+    merger = Merger(MergePolicy(**policy))
     samples = sorted(
         (s for stream in log.streams.values() for s in stream.samples()),
         key=lambda s: (s.t_s, s.kind == stats.driver),

@@ -52,6 +52,7 @@ from hil.control.attitude import AttitudeController, EigenaxisSlew, Reference
 from hil.control.motor_loops import SetpointGenerator
 from hil.control.steering import VscmgSteering
 from hil.estimation.admission import PhoneGuard, Verdict
+from hil.estimation.interface import Estimator
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
 from hil.runtime.actuators import ActuatorWatch
@@ -120,14 +121,13 @@ class Host:
     events: EventLog
     truth: Callable[[], TruthSample | None] = lambda: None
     duration_s: float | None = None
-    filter_config: Any = None  # the estimator's FilterConfig (default: the scenario's phone)
+    make_estimator: Callable[[], Estimator] | None = None  # a fresh estimator (default: the scenario's)
     hold: bool = False  # target the attitude estimated at the end of the warm-up, not the scenario's
     stale_after_s: float = STALE_AFTER_S
     recover_within_s: float = RECOVER_WITHIN_S
     counters: HostCounters = field(default_factory=HostCounters)
 
     def __post_init__(self) -> None:
-        from hil.estimation.filter import AttitudeFilter
         from hil.estimation.multirate import Merger
         from hil.vscmg import PlantModel as Plant
 
@@ -136,8 +136,8 @@ class Host:
         self.params = sc.spacecraft
         plant = Plant(self.params)
         state0 = plant.state(gimbal_angle=sc.slew.gimbal_angle0)
-        self._filter_config = self.filter_config or sc.filter_config()
-        self.filter = AttitudeFilter(self._filter_config)
+        self._make_estimator = self.make_estimator or sc.make_estimator
+        self.filter: Estimator = self._make_estimator()
         self.merger = Merger()
         self.controller = AttitudeController(plant.locked_inertia(state0)[0], loop.gains)
         self.steering = VscmgSteering(self.params, loop.steering)
@@ -237,11 +237,10 @@ class Host:
         """The merger and the estimator afresh, from the next measurements (the gyro bias measured so far
         kept): after a stream's clock moved, or a pause longer than :data:`MAX_GAP_S` — integrating the
         held gyro across it would be a guess, and its cost grows with the gap (sub-steps)."""
-        from hil.estimation.filter import AttitudeFilter
         from hil.estimation.multirate import Merger
 
         self.merger = Merger(self.merger.policy)
-        self.filter = AttitudeFilter(self._filter_config)
+        self.filter = self._make_estimator()
         self.filter.set_gyro_bias(self.gyro_bias)
         self.filter.set_rest_learning(self.slew_start is None)
         self.estimate = None

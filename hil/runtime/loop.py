@@ -50,10 +50,12 @@ import signal
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hil.estimation.filter import FilterConfig
+from hil.estimation.interface import Site
+from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import SensorLog
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, create_source
 from hil.link.sources.recorded import RECORDING_URL
@@ -91,12 +93,13 @@ DISARM_WAIT_S = 1.0  # an interrupted run waits at most this long (its clock) fo
 
 @dataclass(frozen=True)
 class ReplayInput:
-    """A recorded phone log as the run's phone (``hil replay LOG --port URL``): the log and the estimator
-    configured for it (:func:`hil.logs.replay.configure`: inertial directions and gyro bias from the log);
-    ``setup`` says what was configured."""
+    """A recorded phone log as the run's phone (``hil replay LOG --port URL``): the log, the estimator
+    chosen and the site it was configured for (:func:`hil.logs.replay.configure`: inertial directions
+    and gyro bias from the log); ``setup`` says what was configured."""
 
     log: SensorLog
-    filter_config: FilterConfig
+    estimator: EstimatorChoice
+    site: Site
     setup: tuple[str, ...] = ()
 
 
@@ -344,7 +347,8 @@ def _build(
 
     host = Host(
         scenario, client, telemetry, events, truth, duration,
-        filter_config=None if replay is None else replay.filter_config, hold=replay is not None,
+        make_estimator=None if replay is None else partial(replay.estimator.build, replay.site),
+        hold=replay is not None,
         recover_within_s=opts.recover_within_s,
     )  # fmt: skip
     host.watch.on_events(handshake)

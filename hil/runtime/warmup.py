@@ -97,11 +97,10 @@ def warm_host(scenario: Scenario) -> None:
     """Step the scenario's attitude filter (through the multi-rate merger, as the host does) and its steering
     law once each, with samples and states of the run's types."""
     from hil.control.steering import VscmgSteering
-    from hil.estimation.filter import AttitudeFilter
     from hil.estimation.multirate import Merger
     from hil.estimation.sensors import SensorKind, SensorSample
 
-    estimator = AttitudeFilter(scenario.filter_config())
+    estimator = scenario.make_estimator()
     merger = Merger()
     field = np.asarray(scenario.phone.field_enu_uT, dtype=float)
     readings: dict[SensorKind, tuple[float, float, float]] = {

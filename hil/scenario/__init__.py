@@ -37,8 +37,10 @@ field_enu_uT = [0.0, 27.0, -38.0]
 [sensors.gyr]                  # also acc, mag: any of rate_hz, noise, bias, jitter_s, offset_s
 rate_hz = 200.0
 
-[estimator]
-preset = "paper"               # or "tuned"
+[estimator]                    # hil.estimation.registry; `hil run --estimator NAME` picks another
+kind = "variational"           # the default; or "vqf" (pip install vqf), or an installed package's
+preset = "paper"               # variational: or "tuned"
+# tau_acc_s = 3.0              # vqf: tau_acc_s, tau_mag_s, motion_bias, rest_bias, mag_rejection
 
 [controller]
 control_rate_hz = 50.0         # ≤ board.frame_rate

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from hil.estimation.interface import Estimator, Site
+from hil.estimation.registry import EstimatorChoice
 from hil.vscmg import SpacecraftParams
 
 from .config import LoopConfig, SlewScenario
@@ -28,7 +27,7 @@ class Scenario:
     description: str
     spacecraft: SpacecraftParams
     phone: PhoneSpec
-    estimator: str
+    estimator: EstimatorChoice
     loop: LoopConfig
     slew: SlewScenario
     settle_deg: float = 0.5
@@ -73,15 +72,16 @@ class Scenario:
         query = urlencode(self.firmware_sim_options())
         return f"emu://?{query}" if scheme == "emu" else f"spawn://firmware-sim?{query}"
 
-    def filter_config(self) -> Any:
-        """The estimator's :class:`hil.estimation.filter.FilterConfig` for this scenario's phone."""
-        from hil.estimation.filter import FilterConfig
-        from hil.estimation.inertial import directions_from_field
+    def estimator_site(self) -> Site:
+        """Where the host's estimator runs: this scenario's phone's field (ENU), its fastest sensor's
+        period (the merged steps'), the attitude measured from the first samples."""
+        phone = self.phone
+        fastest_hz = max(s.rate_hz for s in (phone.gyr, phone.acc, phone.mag))
+        return Site.of_field(phone.field_enu_uT, 1.0 / fastest_hz)
 
-        f = np.asarray(self.phone.field_enu_uT, dtype=float)
-        if self.estimator == "tuned":  # horizontal magnetometer: only the declination matters
-            return FilterConfig.tuned(declination_deg=math.degrees(math.atan2(f[0], f[1])))
-        return FilterConfig.paper(E=directions_from_field(f))
+    def make_estimator(self) -> Estimator:
+        """A fresh estimator of this scenario's choice (``[estimator]``) for its phone."""
+        return self.estimator.build(self.estimator_site())
 
     def with_changes(self, **changes: Any) -> Scenario:
         """A copy with fields replaced (Monte Carlo dispersions, ``--duration``)."""

@@ -13,6 +13,7 @@ import numpy as np
 from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
+from hil.estimation.registry import DEFAULT_ESTIMATOR, EstimatorChoice
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
@@ -23,7 +24,6 @@ from .phone import PhoneSpec, SensorSpec
 _SPACECRAFT_PRESETS = ("cubesat_1u", "air_bearing_testbed")
 _GEOMETRIES = ("pyramid", "tetrahedron", "custom")
 _SENSOR_PRESETS = ("nexus5", "ideal")
-_ESTIMATOR_PRESETS = ("paper", "tuned")
 
 # Every key each table accepts (anything else is a typo and an error naming it).
 _KEYS: dict[str, frozenset[str]] = {
@@ -32,7 +32,7 @@ _KEYS: dict[str, frozenset[str]] = {
     "array": frozenset({"geometry", "units", "skew_deg", "gimbal_axes", "spin_axes"}),
     "sensors": frozenset({"preset", "gravity", "field_enu_uT", "gyr", "acc", "mag"}),
     "sensors.*": frozenset({"rate_hz", "noise", "bias", "jitter_s", "offset_s"}),
-    "estimator": frozenset({"preset"}),
+    "estimator": frozenset({"kind"}),  # and the kind's own keys (hil.estimation.registry checks them)
     "controller": frozenset(
         {
             "control_rate_hz",
@@ -259,7 +259,7 @@ class _Reader:
             description=str(head.get("description", "")),
             spacecraft=spacecraft,
             phone=self.sensors(),
-            estimator=self.choice(self.table("estimator"), "estimator", "preset", _ESTIMATOR_PRESETS),
+            estimator=self.estimator(),
             loop=replace(loop, frame_rate_hz=frame_rate),
             slew=slew,
             settle_deg=settle,
@@ -269,6 +269,19 @@ class _Reader:
             source=text,
             path=path,
         )
+
+    def estimator(self) -> EstimatorChoice:
+        """``[estimator]``: ``kind`` (default ``variational``) and that kind's own settings, which the kind
+        checks (:class:`~hil.estimation.registry.EstimatorChoice`): an unknown key, a bad value or a
+        missing package is an error naming the file and the key."""
+        tbl = self.doc.get("estimator", {})
+        if not isinstance(tbl, dict):
+            raise self.error("estimator", "must be a table")
+        kind = tbl.get("kind", DEFAULT_ESTIMATOR)
+        if not isinstance(kind, str):
+            raise self.error("estimator.kind", f"must be an estimator's name, got {kind!r}")
+        settings = {key: value for key, value in tbl.items() if key != "kind"}
+        return EstimatorChoice(kind, settings, f"{self.where}: estimator")
 
     def spacecraft(self) -> SpacecraftParams:
         from hil.vscmg import geometry

@@ -1,0 +1,134 @@
+"""Estimators by name, chosen by configuration: the registry of :class:`~hil.estimation.interface.
+EstimatorKind` s (after the transports' in :mod:`hil.link.transports`) and :class:`EstimatorChoice`, the
+kind and settings a scenario's ``[estimator]`` table or ``--estimator NAME`` picks.
+
+=================  ==================================================================================
+name               estimator
+=================  ==================================================================================
+``variational``    the paper's variational estimator with its pre-filter and measurement handling
+                   (:class:`hil.estimation.filter.AttitudeFilter`); setting ``preset``: ``"paper"``
+                   (the default for a scenario) or ``"tuned"``. The default.
+``vqf``            VQF (Laidig & Seel 2023) through the ``vqf`` package (``pip install vqf``):
+                   :mod:`hil.estimation.vqf_adapter`; settings ``tau_acc_s``, ``tau_mag_s``,
+                   ``motion_bias``, ``rest_bias``, ``mag_rejection``.
+=================  ==================================================================================
+
+Each name maps to ``"module:attribute"``, imported on first use, so an optional estimator's package is
+only needed when it is chosen. Other packages add estimators as entry points in the group
+``vscmg_hil.estimators`` whose name is the estimator's and whose value is ``"module:attribute"``, the
+attribute an :class:`~hil.estimation.interface.EstimatorKind`. In a ``pyproject.toml``::
+
+    [project.entry-points."vscmg_hil.estimators"]
+    mine = "mypackage.estimator:MY_ESTIMATOR"
+
+:func:`register_estimator` adds one at run time. Pure configuration, no I/O."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from hil.estimation.interface import Estimator, EstimatorKind, Site
+from protocol.errors import ConfigError
+
+ENTRY_POINT_GROUP = "vscmg_hil.estimators"
+DEFAULT_ESTIMATOR = "variational"
+
+# name -> "module:attribute", the attribute an EstimatorKind
+_REGISTRY: dict[str, str] = {
+    "variational": "hil.estimation.variational_kind:VARIATIONAL",
+    "vqf": "hil.estimation.vqf_adapter:VQF_ESTIMATOR",
+}
+_discovered = False
+
+
+def _discover() -> None:
+    """Add the estimators installed packages register as entry points (once; :func:`register_estimator`
+    and the built-in names win)."""
+    global _discovered
+    if _discovered:
+        return
+    _discovered = True
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        _REGISTRY.setdefault(entry.name.lower(), entry.value)
+
+
+def register_estimator(name: str, target: str) -> None:
+    """Add (or replace) the estimator called ``name``; ``target`` is ``"module:attribute"``, the attribute
+    an :class:`~hil.estimation.interface.EstimatorKind`."""
+    _REGISTRY[name.lower()] = target
+
+
+def estimator_names() -> list[str]:
+    """Every estimator's name, registered or installed."""
+    _discover()
+    return sorted(_REGISTRY)
+
+
+def estimator_kind(name: str, where: str = "estimator") -> EstimatorKind:
+    """The estimator kind called ``name``; ConfigError naming ``where`` for an unknown name or one whose
+    module cannot be imported."""
+    _discover()
+    target = _REGISTRY.get(name.lower())
+    if target is None:
+        raise ConfigError(f"unknown estimator {name!r} (known: {', '.join(estimator_names())})", where)
+    module_name, _, attr = target.partition(":")
+    try:
+        kind: EstimatorKind = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ConfigError(f"estimator {name!r} ({target}) is not available: {exc}", where) from exc
+    return kind
+
+
+@dataclass(frozen=True)
+class EstimatorChoice:
+    """An estimator chosen by configuration: the kind's ``name`` and its ``settings``, checked and
+    completed with the kind's defaults on construction (ConfigError naming ``where``: a scenario's file
+    and key, or a command-line option). :meth:`build` makes a fresh estimator for a site — the host makes
+    one at the start and after every restart of the phone's stream."""
+
+    name: str = DEFAULT_ESTIMATOR
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    where: str = field(default="estimator", compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        kind = estimator_kind(self.name, f"{self.where}.kind")
+        unknown = set(self.settings) - kind.keys
+        if unknown:
+            key = sorted(unknown)[0]
+            known = ", ".join(sorted(kind.keys | {"kind"}))
+            raise ConfigError(
+                f"unknown key for estimator {self.name!r}; known: {known}", f"{self.where}.{key}"
+            )
+        checked = kind.check(self.settings, self.where)
+        object.__setattr__(self, "name", self.name.lower())
+        object.__setattr__(self, "settings", dict(checked))
+
+    @property
+    def kind(self) -> EstimatorKind:
+        return estimator_kind(self.name, f"{self.where}.kind")
+
+    def build(self, site: Site) -> Estimator:
+        """A fresh estimator for ``site``."""
+        return self.kind.build(self.settings, site)
+
+    def describe(self) -> str:
+        """One line: the estimator and its settings."""
+        return self.kind.describe(self.settings)
+
+    @classmethod
+    def by_name(cls, name: str, where: str) -> EstimatorChoice:
+        """The estimator called ``name`` with its default settings (a command line's ``--estimator``:
+        errors name the option ``where`` itself, not a table's key)."""
+        estimator_kind(name, where)
+        return cls(name, {}, where)
+
+    def named(self, name: str | None, where: str) -> EstimatorChoice:
+        """This choice with another estimator (``--estimator NAME``, checked naming ``where``): the same
+        one unchanged, another with its default settings; None keeps this one."""
+        if name is None or name.lower() == self.name:
+            return self
+        return EstimatorChoice.by_name(name, where)
