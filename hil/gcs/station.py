@@ -8,7 +8,7 @@ source has into downlink chunks ~30 times a second, the hub that holds them, and
                                                                            ▼
                                                pump thread: encode once ─► Hub (history, byte budget)
                                                                            │ one cursor per browser
-    browser ◄── SSE ── HTTP handler thread ◄───────────────────────────────┘
+    browser ◄── SSE ── tornado IOLoop thread (woken by the hub) ◄──────────┘
     browser ── POST /api/command ──► Uplink inbox (bounded) ──► control thread, next tick
 
 Nothing on the right of the feed can delay the control thread: the feed is the only thing it touches, and
@@ -31,7 +31,7 @@ from hil.gcs.access import is_loopback, new_token, parse_bind, url_host
 from hil.gcs.hub import DEFAULT_BUDGET, Hub
 from hil.gcs.live import LiveFeed
 from hil.gcs.rundir import RunDirSource
-from hil.gcs.server import LIMITS, GcsHttpServer
+from hil.gcs.server import LIMITS, GcsServer
 from hil.gcs.uplink import Uplink
 from hil.gcs.wire import Batch, dumps, encode_batch, sse
 from hil.link.sources.http_guard import HttpLimits
@@ -51,7 +51,9 @@ class Source(Protocol):
 class GroundStation:
     """Serve ``source`` on ``bind`` (``HOST:PORT``, default loopback :data:`hil.gcs.access.DEFAULT_PORT`);
     ``uplink`` takes commands (a live run's); ``limits`` bound what a client may hold of the server
-    (:data:`hil.gcs.server.LIMITS`). Starts at once; :meth:`close` (or ``with``) stops it."""
+    (:data:`hil.gcs.server.LIMITS`); ``server_class`` is the HTTP server (:class:`~hil.gcs.server.GcsServer`;
+    ``bench/bench_gcs.py`` passes the earlier threaded one to compare). Starts at once; :meth:`close` (or
+    ``with``) stops it."""
 
     def __init__(
         self,
@@ -62,8 +64,10 @@ class GroundStation:
         uplink: Uplink | None = None,
         budget: int = DEFAULT_BUDGET,
         limits: HttpLimits = LIMITS,
+        server_class: type[GcsServer] = GcsServer,
     ) -> None:
         host, port, explicit = parse_bind(bind)
+        self.server_class = server_class
         self.limits = limits
         self.source = source
         self.uplink = uplink
@@ -106,11 +110,11 @@ class GroundStation:
         """A station showing a run directory (following it while another process writes it)."""
         return cls(RunDirSource(Path(run_dir), follow=follow), bind=bind, token=token)
 
-    def _listen(self, host: str, port: int, explicit: bool) -> GcsHttpServer:
+    def _listen(self, host: str, port: int, explicit: bool) -> GcsServer:
         tries = 1 if explicit or port == 0 else PORT_TRIES
         for attempt in range(tries):
             try:
-                return GcsHttpServer(
+                return self.server_class(
                     host,
                     port + attempt,
                     self.token,
