@@ -23,6 +23,7 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Protocol
@@ -48,6 +49,22 @@ class Source(Protocol):
     def poll(self) -> Batch: ...
 
 
+class Server(Protocol):
+    """What the station needs of its HTTP server (:class:`~hil.gcs.server.GcsServer`)."""
+
+    @property
+    def port(self) -> int: ...
+
+    def start(self) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def counters(self) -> dict[str, Any]: ...
+
+
+ServerClass = Callable[..., Server]
+
+
 class GroundStation:
     """Serve ``source`` on ``bind`` (``HOST:PORT``, default loopback :data:`hil.gcs.access.DEFAULT_PORT`);
     ``uplink`` takes commands (a live run's); ``limits`` bound what a client may hold of the server
@@ -64,7 +81,7 @@ class GroundStation:
         uplink: Uplink | None = None,
         budget: int = DEFAULT_BUDGET,
         limits: HttpLimits = LIMITS,
-        server_class: type[GcsServer] = GcsServer,
+        server_class: ServerClass = GcsServer,
     ) -> None:
         host, port, explicit = parse_bind(bind)
         self.server_class = server_class
@@ -93,10 +110,13 @@ class GroundStation:
         token: str | None = None,
         commands: bool = True,
         limits: HttpLimits = LIMITS,
+        server_class: ServerClass = GcsServer,
     ) -> GroundStation:
         """A station for a run that is about to start: pass :attr:`observer` as ``RunOptions.observer``."""
         uplink = Uplink() if commands else None
-        return cls(LiveFeed(uplink), bind=bind, token=token, uplink=uplink, limits=limits)
+        return cls(
+            LiveFeed(uplink), bind=bind, token=token, uplink=uplink, limits=limits, server_class=server_class
+        )
 
     @classmethod
     def replay(
@@ -110,7 +130,7 @@ class GroundStation:
         """A station showing a run directory (following it while another process writes it)."""
         return cls(RunDirSource(Path(run_dir), follow=follow), bind=bind, token=token)
 
-    def _listen(self, host: str, port: int, explicit: bool) -> GcsServer:
+    def _listen(self, host: str, port: int, explicit: bool) -> Server:
         tries = 1 if explicit or port == 0 else PORT_TRIES
         for attempt in range(tries):
             try:
