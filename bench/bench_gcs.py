@@ -1,37 +1,36 @@
-"""The ground station's cost to the control loop, and what the page gets.
+"""The ground station's cost to the control loop, and what the page gets — on the tornado server and, in
+the same run, on the earlier threaded one (``bench/gcs_threaded_server.py``).
 
 One real-time run at **100 Hz control** (the runtime against ``spawn://firmware-sim`` with its world on a
 pty, the world's phone streaming over loopback UDP, as in ``bench_runtime``; where the world cannot keep
 real time here, the board's internal actuator model and a still stand-in phone, the rows then saying ``no
-world``), with a live ground station observing it (:class:`hil.gcs.GroundStation`, its pump encoding and
-holding every row whether or not a browser reads). After the slew starts:
+world``), observed by **two** live ground stations at once (:class:`_Fanout`): one on the tornado server
+(:class:`hil.gcs.server.GcsServer`), one on the threaded server it replaced. Both pumps encode every row
+in every window, so the windows differ only in what is attached. After the slew starts:
 
-1. window **A**, no page attached: the control task's lateness after its absolute deadline (the
+1. window **A**, nothing attached: the control task's lateness after its absolute deadline (the
    scheduler's own samples, one per control tick), p50 and p99;
-2. window **C**: a reader that takes the downlink and draws nothing, in its own process — what serving
-   the downlink costs the host's process, apart from what drawing it costs the machine;
-3. a real headless chromium (Selenium + chromedriver, as the browser tests) opens the page; once it has
-   its history, window **B**, page attached: the same lateness figures, the page's redraws with new data
-   per second (``window.gcs.stats.dataRenders``), the downlink's bytes per second on the socket (the
-   hub's ``bytes_sent``), the browser's CPU;
-4. window **D**: the same browser with its processes reniced to :data:`NICE` (below the run) — a browser
-   on the machine that runs the loop, as an operator would set it up;
+2. window **B**: a real headless chromium (Selenium + chromedriver, as the browser tests) with the page
+   of the tornado station — lateness, the page's redraws with new data per second
+   (``window.gcs.stats.dataRenders``), the downlink's bytes per second, the browser's CPU;
+3. window **B'**: the same browser on the threaded station's page;
+4. window **I**: 200 idle sockets held open on the tornado station (reopened as the server closes them),
+   no page; window **I'**: the same on the threaded one — lateness, and the process's threads;
 5. an Abort from the uplink ends the run.
 
-Figures: lateness p50/p99 with the page (B, D) and with the bare reader (C) against the same run without
-any (A) — the target is no measurable change; page updates per second against the 20 Hz target; downlink
-bytes/s against the bytes/s the same run writes to ``telemetry.csv`` (the downlink adds the live columns
-and link statistics, and sends JSON). The feed's dropped rows go into the note (they should be 0), with
-the machine's load average: on a shared 2-core machine the lateness percentiles move with it.
+Figures: lateness p50/p99 of each window against A (the target: no measurable change), and the tornado
+server's against the threaded one's (ours/peer); page updates per second against the 20 Hz target. The
+feeds' dropped rows and the machine's load average go into the note: on a shared 2-core machine the
+lateness percentiles move with the load.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import selectors
 import shutil
-import subprocess
-import sys
+import socket
 import tempfile
 import threading
 import time
@@ -44,6 +43,7 @@ import numpy as np
 
 from bench.bench_runtime import SCENARIO, WORLD_BUDGET, _at_rate, _phone_url, _still_phone, _world_cost
 from bench.common import Result
+from bench.gcs_threaded_server import ThreadedGcsServer
 from hil.gcs import GroundStation
 from hil.runtime import RunOptions
 from hil.runtime import run as run_scenario
@@ -52,36 +52,41 @@ from hil.scenario import load_scenario
 
 NAME = "gcs"
 RATE_HZ = 100.0
-NICE = 10  # window D: the browser's processes at this niceness (the run's at 0)
+IDLE_SOCKETS = 200
 CHROMIUM = os.environ.get("VSCMG_HIL_CHROMIUM", "/usr/bin/chromium")
 CHROMEDRIVER = os.environ.get("VSCMG_HIL_CHROMEDRIVER", "/usr/bin/chromedriver")
 
 
 @dataclass
-class _Recorder:
-    """The station's observer, and the wall time of every control tick (index = the scheduler's run
-    number, which is also the index of its lateness sample)."""
+class _Fanout:
+    """The run's observer: both stations' feeds, and the wall time of every control tick (index = the
+    scheduler's run number, which is also the index of its lateness sample)."""
 
-    inner: Any
+    inner: list[Any]
     ticks: list[float] = field(default_factory=list)
     start: RunStart | None = None
 
     def started(self, start: RunStart) -> None:
         self.start = start
-        self.inner.started(start)
+        for o in self.inner:
+            o.started(start)
 
     def row(self, row: Any) -> None:
-        self.inner.row(row)
+        for o in self.inner:
+            o.row(row)
 
     def event(self, record: Any) -> None:
-        self.inner.event(record)
+        for o in self.inner:
+            o.event(record)
 
     def tick(self, t: float) -> None:
         self.ticks.append(time.monotonic())
-        self.inner.tick(t)
+        for o in self.inner:
+            o.tick(t)
 
     def finished(self, summary: Any) -> None:
-        self.inner.finished(summary)
+        for o in self.inner:
+            o.finished(summary)
 
     def lateness_us(self, t0: float, t1: float) -> np.ndarray:
         """Control lateness samples (µs) of the ticks between wall times ``t0`` and ``t1``."""
@@ -90,6 +95,119 @@ class _Recorder:
         samples = control.stats.lateness
         ticks = np.asarray(self.ticks[: samples.size])
         return samples[(ticks >= t0) & (ticks < t1)] * 1e6
+
+
+class _IdleSockets:
+    """``n`` idle TCP connections to ``port``, each reopened as soon as the server closes it (eviction,
+    the request deadline), from a thread of this process."""
+
+    def __init__(self, port: int, n: int) -> None:
+        self.port, self.n = port, n
+        self.stop = threading.Event()
+        self.reopened = 0
+        self.thread = threading.Thread(target=self._hold, daemon=True)
+        self.thread.start()
+
+    def _hold(self) -> None:
+        sel = selectors.DefaultSelector()
+        for _ in range(self.n):
+            sel.register(socket.create_connection(("127.0.0.1", self.port)), selectors.EVENT_READ)
+        while not self.stop.is_set():
+            for key, _ in sel.select(0.2):
+                sock = key.fileobj
+                assert isinstance(sock, socket.socket)
+                sel.unregister(sock)
+                sock.close()
+                with contextlib.suppress(OSError):
+                    sel.register(socket.create_connection(("127.0.0.1", self.port)), selectors.EVENT_READ)
+                    self.reopened += 1
+        for key in list(sel.get_map().values()):
+            assert isinstance(key.fileobj, socket.socket)
+            key.fileobj.close()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(10)
+
+
+def _measure(window_s: float, world: bool) -> dict[str, Any]:
+    import http.client
+    import json
+
+    if not (shutil.which(CHROMIUM) or Path(CHROMIUM).exists()):
+        raise RuntimeError(f"bench_gcs needs a headless chromium at {CHROMIUM} (Debian's chromium)")
+    scenario = _at_rate(load_scenario(SCENARIO), RATE_HZ)
+    phone = _phone_url()
+    query = scenario.firmware_sim_options() + ([("world", SCENARIO), ("phone", phone)] if world else [])
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory(prefix="bench-gcs-") as tmp, contextlib.ExitStack() as stack:
+        if not world:
+            stack.enter_context(_still_phone(phone))
+        new = stack.enter_context(GroundStation.live(bind="127.0.0.1:0"))
+        old = stack.enter_context(GroundStation.live(bind="127.0.0.1:0", server_class=ThreadedGcsServer))
+        fanout = _Fanout([new.observer, old.observer])
+        options = RunOptions(port="spawn://firmware-sim?" + urlencode(query), phone=phone,
+                             duration_s=6 * window_s + 60, out_root=Path(tmp), observer=fanout)  # fmt: skip
+        result: dict[str, Any] = {}
+
+        def play() -> None:
+            try:
+                result["r"] = run_scenario(scenario, options)
+            except BaseException as exc:  # raised in this thread by started
+                result["error"] = exc
+
+        def started() -> bool:
+            if "error" in result:
+                raise RuntimeError(f"bench_gcs: the run failed: {result['error']}") from result["error"]
+            if "r" in result:
+                raise RuntimeError(f"bench_gcs: the run ended early: {result['r'].summary.get('exit')}")
+            return any(e.get("kind") == "slew_start" for e in _events(tmp))
+
+        thread = threading.Thread(target=play, daemon=True)
+        thread.start()
+        _wait(started, 120, "slew start")
+        a0 = time.monotonic()
+        time.sleep(window_s)
+        out["a"] = fanout.lateness_us(a0, time.monotonic())
+        browser = _browser()
+        stack.callback(browser.quit)
+        for key, station in (("new", new), ("old", old)):
+            browser.get(station.url)
+            _wait(lambda: browser.execute_script("return window.gcs.stats.rows") > 0, 30, "page data")
+            time.sleep(1.5)  # the history's burst is over
+            b0 = time.monotonic()
+            cpu0 = _cpu_s(browser.service.process.pid)
+            renders0 = browser.execute_script("return window.gcs.stats.dataRenders")
+            sent0 = station.hub.stats.bytes_sent
+            time.sleep(window_s)
+            b1 = time.monotonic()
+            renders1 = browser.execute_script("return window.gcs.stats.dataRenders")
+            out[f"page_{key}"] = fanout.lateness_us(b0, b1)
+            out[f"cpu_{key}"] = (_cpu_s(browser.service.process.pid) - cpu0) / (b1 - b0)
+            out[f"updates_{key}"] = (renders1 - renders0) / (b1 - b0)
+            out[f"bytes_{key}"] = (station.hub.stats.bytes_sent - sent0) / (b1 - b0)
+        browser.get("about:blank")
+        for key, station in (("new", new), ("old", old)):
+            idle = _IdleSockets(station.port, IDLE_SOCKETS)
+            time.sleep(1.0)
+            i0 = time.monotonic()
+            threads = []
+            while time.monotonic() < i0 + window_s:
+                threads.append(threading.active_count())
+                time.sleep(0.25)
+            out[f"idle_{key}"] = fanout.lateness_us(i0, time.monotonic())
+            out[f"threads_{key}"] = max(threads)
+            out[f"reopened_{key}"] = idle.reopened
+            idle.close()
+            time.sleep(1.0)
+        conn = http.client.HTTPConnection("127.0.0.1", new.port, timeout=10)
+        headers = {"Content-Type": "application/json", "Authorization": f"token {new.token}"}
+        conn.request("POST", "/api/command", body=json.dumps({"command": "abort"}), headers=headers)
+        conn.getresponse().read()
+        thread.join(60)
+        out.update(feed_new=new.stats()["feed"], feed_old=old.stats()["feed"],
+                   exit=result["r"].summary.get("exit") if "r" in result else "no result")  # fmt: skip
+    return out
 
 
 def _browser() -> Any:
@@ -115,103 +233,6 @@ def _wait(predicate: Any, timeout: float, what: str) -> Any:
             return value
         time.sleep(0.05)
     raise TimeoutError(f"bench_gcs: no {what} within {timeout} s")
-
-
-def _measure(window_s: float, world: bool) -> dict[str, Any]:
-    import http.client
-    import json
-
-    if not (shutil.which(CHROMIUM) or Path(CHROMIUM).exists()):
-        raise RuntimeError(f"bench_gcs needs a headless chromium at {CHROMIUM} (Debian's chromium)")
-    scenario = _at_rate(load_scenario(SCENARIO), RATE_HZ)
-    phone = _phone_url()
-    query = scenario.firmware_sim_options() + ([("world", SCENARIO), ("phone", phone)] if world else [])
-    out: dict[str, Any] = {}
-    with tempfile.TemporaryDirectory(prefix="bench-gcs-") as tmp, contextlib.ExitStack() as stack:
-        if not world:
-            stack.enter_context(_still_phone(phone))
-        station = stack.enter_context(GroundStation.live(bind="127.0.0.1:0"))
-        recorder = _Recorder(station.observer)
-        options = RunOptions(port="spawn://firmware-sim?" + urlencode(query), phone=phone,
-                             duration_s=4 * window_s + 20, out_root=Path(tmp), observer=recorder)  # fmt: skip
-        result: dict[str, Any] = {}
-
-        def play() -> None:
-            try:
-                result["r"] = run_scenario(scenario, options)
-            except BaseException as exc:  # raised in this thread by _started
-                result["error"] = exc
-
-        def started() -> bool:
-            if "error" in result:
-                raise RuntimeError(f"bench_gcs: the run failed: {result['error']}") from result["error"]
-            if "r" in result:
-                raise RuntimeError(f"bench_gcs: the run ended early: {result['r'].summary.get('exit')}")
-            return any(e.get("kind") == "slew_start" for e in _events(tmp))
-
-        thread = threading.Thread(target=play, daemon=True)
-        thread.start()
-        _wait(started, 60, "slew start")
-        a0 = time.monotonic()
-        time.sleep(window_s)
-        a1 = time.monotonic()
-        reader = subprocess.Popen([sys.executable, "-c", _RAW_READER, str(station.port), station.token])
-        time.sleep(1.0)
-        c0 = time.monotonic()
-        time.sleep(window_s)
-        c1 = time.monotonic()
-        reader.terminate()
-        reader.wait(10)
-        browser = _browser()
-        stack.callback(browser.quit)
-        browser.get(station.url)
-        _wait(lambda: browser.execute_script("return window.gcs.stats.rows") > 0, 20, "page data")
-        time.sleep(1.5)  # the history's burst is over
-        b0 = time.monotonic()
-        browser_cpu0 = _cpu_s(browser.service.process.pid)
-        renders0 = browser.execute_script("return window.gcs.stats.dataRenders")
-        sent0 = station.hub.stats.bytes_sent
-        csv0 = _csv_bytes(tmp)
-        time.sleep(window_s)
-        b1 = time.monotonic()
-        browser_cpu1 = _cpu_s(browser.service.process.pid)
-        renders1 = browser.execute_script("return window.gcs.stats.dataRenders")
-        sent1 = station.hub.stats.bytes_sent
-        csv1 = _csv_bytes(tmp)
-        for pid in _tree(browser.service.process.pid):  # the same page, the browser below the run's priority
-            with contextlib.suppress(OSError):
-                os.setpriority(os.PRIO_PROCESS, pid, NICE)
-        time.sleep(1.0)
-        d0 = time.monotonic()
-        renders_d0 = browser.execute_script("return window.gcs.stats.dataRenders")
-        time.sleep(window_s)
-        d1 = time.monotonic()
-        renders_d1 = browser.execute_script("return window.gcs.stats.dataRenders")
-        conn = http.client.HTTPConnection("127.0.0.1", station.port, timeout=10)
-        headers = {"Content-Type": "application/json", "Authorization": f"token {station.token}"}
-        conn.request("POST", "/api/command", body=json.dumps({"command": "abort"}), headers=headers)
-        conn.getresponse().read()
-        thread.join(60)
-        out.update(
-            a=recorder.lateness_us(a0, a1), b=recorder.lateness_us(b0, b1), c=recorder.lateness_us(c0, c1),
-            d=recorder.lateness_us(d0, d1), updates_niced_hz=(renders_d1 - renders_d0) / (d1 - d0),
-            browser_cpu=(browser_cpu1 - browser_cpu0) / (b1 - b0),
-            updates_hz=(renders1 - renders0) / (b1 - b0), bytes_s=(sent1 - sent0) / (b1 - b0),
-            csv_bytes_s=(csv1 - csv0) / (b1 - b0), feed=station.stats()["feed"],
-            exit=result["r"].summary.get("exit") if "r" in result else "no result",
-        )  # fmt: skip
-    return out
-
-
-# A downlink reader that draws nothing (reads the stream and drops it), in its own process: what serving
-# the downlink costs the host's process, apart from what a browser's drawing costs the machine.
-_RAW_READER = r"""
-import socket, sys
-s = socket.create_connection(("127.0.0.1", int(sys.argv[1])))
-s.sendall(f"GET /api/stream?token={sys.argv[2]} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n".encode())
-while s.recv(1 << 16):
-    pass
-"""
 
 
 def _tree(pid: int) -> list[int]:
@@ -250,46 +271,54 @@ def _events(tmp: str) -> list[dict[str, Any]]:
     return out
 
 
-def _csv_bytes(tmp: str) -> int:
-    return sum(p.stat().st_size for p in Path(tmp).glob("*/telemetry.csv"))
-
-
 def run(quick: bool) -> list[Result]:
     window_s = 4.0 if quick else 10.0
     load = os.getloadavg()[0]
     cost = _world_cost()
     world = cost < WORLD_BUDGET
     m = _measure(window_s, world)
-    a, b, c, d = m["a"], m["b"], m["c"], m["d"]
     where = "with its world" if world else f"no world (the world needs {cost:.2f} CPU s per s here)"
 
     def pct(x: np.ndarray, q: float) -> float:
         return float(np.percentile(x, q)) if x.size else float("nan")
 
+    a = m["a"]
     note = (
-        f"100 Hz control against spawn://firmware-sim {where}; windows of {window_s:.0f} s after the slew "
-        f"starts: A {a.size} ticks without a page, C {c.size} with a reader that draws nothing (own process),"
-        " "
-        f"B {b.size} with the page in headless chromium (which used {m['browser_cpu']:.2f} CPU s per s), "
-        f"D {d.size} with the same browser at nice {NICE} ({m['updates_niced_hz']:.1f} page updates/s); "
-        f"feed dropped {m['feed']['dropped_rows']} rows; run exit {m['exit']!r}; load average {load:.2f} on "
-        f"{os.cpu_count()} CPUs"
+        f"100 Hz control against spawn://firmware-sim {where}, observed by a tornado station and a threaded "
+        f"one at once; windows of {window_s:.0f} s after the slew starts: A {a.size} ticks with nothing "
+        f"attached; the page (headless chromium) on tornado {m['page_new'].size} ticks "
+        f"({m['cpu_new']:.2f} browser CPU s/s), on threaded {m['page_old'].size} ({m['cpu_old']:.2f}); "
+        f"{IDLE_SOCKETS} idle sockets on tornado {m['idle_new'].size} ticks (at most {m['threads_new']} "
+        f"threads in the process, {m['reopened_new']} reopened after the server closed them), on threaded "
+        f"{m['idle_old'].size} (at most {m['threads_old']} threads, {m['reopened_old']} reopened); feeds "
+        f"dropped {m['feed_new']['dropped_rows']} / {m['feed_old']['dropped_rows']} rows; run exit "
+        f"{m['exit']!r}; load average {load:.2f} on {os.cpu_count()} CPUs"
     )
-    return [
-        Result(NAME, "control lateness p50 at 100 Hz, page attached", pct(b, 50), "us",
-               "same run, no page", pct(a, 50), False, note),
-        Result(NAME, "control lateness p99 at 100 Hz, page attached", pct(b, 99), "us",
-               "same run, no page", pct(a, 99), False),
-        Result(NAME, f"control lateness p50 at 100 Hz, page attached, browser nice {NICE}", pct(d, 50), "us",
-               "same run, no page", pct(a, 50), False),
-        Result(NAME, f"control lateness p99 at 100 Hz, page attached, browser nice {NICE}", pct(d, 99), "us",
-               "same run, no page", pct(a, 99), False),
-        Result(NAME, "control lateness p50 at 100 Hz, downlink read, not drawn", pct(c, 50), "us",
-               "same run, no page", pct(a, 50), False),
-        Result(NAME, "control lateness p99 at 100 Hz, downlink read, not drawn", pct(c, 99), "us",
-               "same run, no page", pct(a, 99), False),
-        Result(NAME, "page updates with new data", m["updates_hz"], "Hz", "target", 20.0, True,
+    out = []
+    idle = f"{IDLE_SOCKETS} idle sockets"
+    for q in (50, 99):
+        page, sockets = (
+            f"control lateness p{q} at 100 Hz, page attached",
+            f"control lateness p{q} at 100 Hz, {idle}",
+        )
+        out += [
+            Result(NAME, f"{page} (tornado)", pct(m["page_new"], q), "us", "same run, nothing attached",
+                   pct(a, q), False, note if q == 50 else ""),
+            Result(NAME, f"{page} (tornado)", pct(m["page_new"], q), "us", "same run, page on threaded",
+                   pct(m["page_old"], q), False),
+            Result(NAME, f"{sockets} (tornado)", pct(m["idle_new"], q), "us", "same run, nothing attached",
+                   pct(a, q), False),
+            Result(NAME, f"{sockets} (tornado)", pct(m["idle_new"], q), "us", f"same run, {idle} on threaded",
+                   pct(m["idle_old"], q), False),
+        ]  # fmt: skip
+    out += [
+        Result(NAME, "page updates with new data (tornado)", m["updates_new"], "Hz", "target", 20.0, True,
                "headless chromium, redraws of plots, 3D view and panels that had new rows"),
-        Result(NAME, "downlink on the socket", m["bytes_s"] / 1e3, "kB/s", "telemetry.csv written",
-               m["csv_bytes_s"] / 1e3, False, "SSE: rows with the live columns, events, link statistics"),
+        Result(NAME, "page updates with new data (tornado)", m["updates_new"], "Hz", "threaded server",
+               m["updates_old"], True),
+        Result(NAME, f"threads in the process, {idle} (tornado)", m["threads_new"], "threads",
+               "threaded server", m["threads_old"], False),
+        Result(NAME, "downlink on the socket (tornado)", m["bytes_new"] / 1e3, "kB/s", "threaded server",
+               m["bytes_old"] / 1e3, False, "SSE: rows with the live columns, events, link statistics"),
     ]  # fmt: skip
+    return out

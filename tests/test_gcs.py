@@ -430,3 +430,25 @@ def test_hil_run_gcs_prints_the_url_and_serves_the_run(tmp_path):
     line = next(x for x in done.stderr.splitlines() if x.startswith("ground station: "))
     assert line.startswith("ground station: http://127.0.0.1:") and "/?token=" in line
     assert "exit              completed" in done.stdout
+
+
+def test_an_alarm_acknowledgement_is_checked_queued_and_logged_as_an_event(tmp_path):
+    """``POST /api/ack`` during a live run: a malformed one is refused (400, logged as rejected); a good
+    one is answered 202 and becomes an ``alarm_ack`` record in ``events.jsonl`` with who sent it."""
+    with GroundStation.live(bind="127.0.0.1:0") as station:
+        runner = RunInThread(
+            quick_scenario(), RunOptions(out_root=tmp_path, duration_s=60.0, pace=1.0), station
+        )
+        runner.wait_event(lambda e: e["kind"] == "armed", what="arming")
+        status, answer = request(station, "POST", "/api/ack", {"alarm": "Pointing Error!"})
+        assert status == 400 and "alarm must be an alarm's key" in answer["error"]
+        status, answer = request(station, "POST", "/api/ack", {"alarm": "point_err", "raised_t": 3.5})
+        assert status == 202 and answer == {"alarm": "point_err", "status": "queued"}
+        assert request(station, "POST", "/api/ack", {"alarm": "x"}, token="guess")[0] == 401
+        ack = runner.wait_event(lambda e: e["kind"] == "alarm_ack", what="the acknowledgement logged")
+        assert (ack["alarm"], ack["raised_t"], ack["origin"], ack["remote"]) == (
+            "point_err", 3.5, "gcs", "127.0.0.1")  # fmt: skip
+        assert command(station, {"command": "abort"})[0] == 202
+        runner.join()
+    reasons = [e["reason"] for e in runner.events() if e["kind"] == "command" and e["status"] == "rejected"]
+    assert reasons == ["format", "token"]

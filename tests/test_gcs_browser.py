@@ -13,6 +13,8 @@ from __future__ import annotations
 import http.server
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 import threading
 
@@ -117,6 +119,10 @@ def test_a_live_real_time_run_follows_the_attitude_and_a_disarm_click_disarms_th
         wait_for(lambda: _text(browser, "board-state") == "DISARMED", 5, "the page to show DISARMED")
         browser.save_screenshot(str(tmp_path / "live-disarmed.png"))
         result = runner.join()
+        # the run ended: the page says so (not "Replay"), and takes no more commands
+        wait_for(lambda: "run has ended" in _text(browser, "uplink-off"), 10, "the page to say the run ended")
+        assert _text(browser, "mode").startswith("live run ended")
+        assert disarm.get_attribute("disabled")
     assert not _page_errors(browser)
     events = read_events(result.run_dir / "events.jsonl")[0]
     commands = [e for e in events if e["kind"] == "command"]
@@ -247,3 +253,59 @@ def test_a_replayed_outage_shows_the_board_unknown_and_its_values_empty(browser,
         assert "ms ago" in _text(browser, "tel-age")
         browser.save_screenshot(str(tmp_path / "replay-outage.png"))
     assert not _page_errors(browser)
+
+
+STALE_CELLS = ("board-mode", "faults", "link-age", "tel-age", "battery", "ubec", "power", "point-err",
+               "attitude", "u0-rotor", "u0-angle", "phone-rate-gyr")  # fmt: skip
+
+
+def test_after_its_host_dies_the_page_shows_every_value_stale_and_takes_no_commands(browser, tmp_path):
+    """``hil run --gcs`` in its own process, killed (SIGKILL) while the page follows it: within a few
+    seconds the badge says the host is lost, every value cell is marked stale (the host's telemetry age
+    among them), the uplink's buttons are disabled and the panel says why — no "Failed to fetch" from a
+    click on a dead host."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil", "run", "--gcs", "127.0.0.1:0", "--duration", "120", "--no-plots",
+         "--out", str(tmp_path)],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        url = wait_for(lambda: _url_line(proc), 120, "the ground station's URL")
+        browser.get(url)
+        wait_for(lambda: _text(browser, "board-state") == "ARMED", 60, "an armed board in the page")
+        hold = browser.find_element(By.CSS_SELECTOR, "button[data-command=hold]")
+        assert not hold.get_attribute("disabled") and _text(browser, "mode").startswith("live")
+        assert "stale" not in browser.find_element(By.ID, "tel-age").get_attribute("class")
+        proc.kill()
+        proc.wait(10)
+        wait_for(lambda: hold.get_attribute("disabled"), 10, "the buttons disabled")
+        wait_for(
+            lambda: _text(browser, "mode").startswith("host lost"), 5, "the badge to say the host is lost"
+        )
+        assert "No word from the host" in _text(browser, "uplink-off")
+        for name in ("arm", "disarm", "abort", "slew"):
+            assert browser.find_element(By.CSS_SELECTOR, f"button[data-command={name}]").get_attribute(
+                "disabled"
+            )
+        wait_for(lambda: all("stale" in _classes(browser, c) for c in STALE_CELLS), 10, "every cell stale")
+        assert browser.find_element(By.ID, "tel-age").get_attribute("data-age").endswith("old")
+        _js(browser, "arguments[0].click()", hold)  # disabled: nothing is sent, nothing fails
+        assert not browser.find_elements(By.CSS_SELECTOR, "#cmd-log li")
+        browser.save_screenshot(str(tmp_path / "host-died.png"))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert not [e for e in _page_errors(browser) if "Failed to fetch" in e or "TypeError" in e]
+
+
+def _classes(driver, element_id: str) -> str:
+    return driver.find_element(By.ID, element_id).get_attribute("class") or ""
+
+
+def _url_line(proc: subprocess.Popen) -> str | None:
+    """The URL ``hil run --gcs`` prints on stderr (read a line at a time; None until it comes)."""
+    if proc.poll() is not None:
+        raise RuntimeError(f"hil run ended early: {proc.stderr.read()[-2000:]}")
+    line = proc.stderr.readline()
+    return line.split(": ", 1)[1].strip() if line.startswith("ground station: ") else None

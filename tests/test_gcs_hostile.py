@@ -173,7 +173,7 @@ def test_when_every_connection_is_busy_a_new_one_is_closed_unanswered_and_counte
         for _ in range(3):  # a stream is being served: never evicted
             s = socket.create_connection(("127.0.0.1", station.port), timeout=10)
             s.sendall(f"GET /api/stream?token={station.token} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n".encode())
-            assert s.recv(64).startswith(b"HTTP/1.0 200")
+            assert s.recv(64).split(b" ")[1] == b"200"  # tornado answers HTTP/1.1 to a 1.0 request
             streams.append(s)
         extra = socket.create_connection(("127.0.0.1", station.port), timeout=10)
         try:
@@ -270,3 +270,73 @@ def test_any_command_body_gets_an_answer_in_bounded_time_and_every_refusal_is_lo
 
         one()
     assert "Traceback" not in capfd.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------- raw requests
+def _raw(station: GroundStation, data: bytes, timeout_s: float = 10.0) -> bytes:
+    """Send ``data`` on a fresh socket, read the answer until the server closes."""
+    with socket.create_connection(("127.0.0.1", station.port), timeout=timeout_s) as s:
+        s.sendall(data)
+        out = b""
+        try:
+            while chunk := s.recv(65536):
+                out += chunk
+        except ConnectionResetError:
+            pass
+    return out
+
+
+@pytest.mark.parametrize(
+    ("head", "body", "status", "reason"),
+    [
+        ("Transfer-Encoding: chunked", b"1000\r\n" + b"x" * 4096 + b"\r\n1\r\ny\r\n0\r\n\r\n", 413, "size"),
+        ("Transfer-Encoding: gzip", b"", 501, "format"),
+        ("Content-Length: 12abc", b"", 400, "format"),
+        ("Content-Length: 5\r\nContent-Length: 6", b"{}", 400, "format"),
+        ("X-Nothing: 1", b"", 411, "format"),
+    ],
+)
+def test_bodies_refused_from_their_headers_are_answered_and_reported_once(head, body, status, reason):
+    """The phone receiver's rules for a body (:func:`~hil.link.sources.http_guard.content_length`),
+    checked before tornado reads it: a JSON answer with the status, one report."""
+    with GroundStation.live(bind="127.0.0.1:0") as station:
+        request_head = (
+            f"POST /api/command HTTP/1.1\r\nHost: 127.0.0.1:{station.port}\r\n"
+            f"Authorization: token {station.token}\r\nContent-Type: application/json\r\n{head}\r\n\r\n"
+        )
+        answer = _raw(station, request_head.encode() + body)
+        first, _, rest = answer.partition(b"\r\n")
+        assert first.split(b" ")[1] == str(status).encode(), answer[:300]
+        assert json.loads(rest.partition(b"\r\n\r\n")[2])["reason"] == reason
+        assert station.stats()["server"]["rejected"] == {reason: 1}
+
+
+def test_what_tornado_refuses_itself_is_reported_not_printed(capfd, caplog):
+    """A malformed request line (tornado's bare 400) and a request head over 16 KiB (closed): each one
+    ``request`` rejection, logged in the run's events like any other; nothing printed or logged."""
+    with GroundStation.live(bind="127.0.0.1:0") as station:
+        assert _raw(station, b"HELLO\r\n\r\n").startswith(b"HTTP/1.1 400")
+        _raw(station, b"GET / HTTP/1.1\r\nX-Pad: " + b"a" * 40000 + b"\r\n\r\n")
+        wait_for(lambda: station.stats()["server"]["rejected"].get("request") == 2, 5.0, "two reports")
+        uplink = station.uplink
+        assert uplink is not None and uplink.stats.rejected == 2
+        assert request(station, "GET", "/", token=None)[0] == 200
+    assert "Malformed" not in capfd.readouterr().err and not caplog.records
+
+
+def test_the_server_is_one_thread_whatever_the_clients_hold():
+    base = threading.active_count()
+    with GroundStation.live(bind="127.0.0.1:0") as station:
+        streams = []
+        try:
+            for _ in range(10):
+                s = socket.create_connection(("127.0.0.1", station.port), timeout=10)
+                s.sendall(
+                    f"GET /api/stream?token={station.token} HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n".encode()
+                )
+                streams.append(s)
+            wait_for(lambda: station.hub.stats.streams_open == 10, 10.0, "ten streams")
+            assert threading.active_count() == base + 2  # the server's IOLoop and the pump
+        finally:
+            for s in streams:
+                s.close()

@@ -1,8 +1,9 @@
 """The downlink's history and its readers: encoded chunks in order, held up to a byte budget, and a cursor
 per browser.
 
-The pump thread publishes one chunk per cycle; each stream (one HTTP handler thread per browser) waits for
-chunks after its cursor and writes them all in one go. Nothing here waits on a browser: a slow one falls
+The pump thread publishes one chunk per cycle; each stream (a coroutine on the server's IOLoop, woken
+through :meth:`Hub.watch`; or a thread blocking in :meth:`Reader.read`) takes the chunks after its cursor
+and writes them all in one go. Nothing here waits on a browser: a slow one falls
 behind, and if the chunks it has not read yet are trimmed (the budget is full) it skips to the oldest one
 held, the skip counted. A browser that connects late (or reconnects) gets ``info`` and then the whole
 history held, so its plots and timeline start from the beginning of what is held.
@@ -11,6 +12,7 @@ history held, so its plots and timeline start from the beginning of what is held
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 DEFAULT_BUDGET = 64 * 1024 * 1024  # bytes of history held for late joiners and the replay's timeline
@@ -40,6 +42,17 @@ class Hub:
         self._info: bytes | None = None
         self._info_version = 0
         self.closed = False
+        self._watchers: list[Callable[[], None]] = []
+
+    def watch(self, on_change: Callable[[], None]) -> None:
+        """Call ``on_change()`` (from the publishing thread, outside the hub's lock; it must not block)
+        after every publish, new ``info`` and close: how an event loop learns there is something to read
+        without a thread waiting on the hub."""
+        self._watchers.append(on_change)
+
+    def _changed(self) -> None:
+        for on_change in self._watchers:
+            on_change()
 
     # ------------------------------------------------------------------ the pump's side
     def set_info(self, info: bytes) -> None:
@@ -48,6 +61,7 @@ class Hub:
             self._info = info
             self._info_version += 1
             self._cond.notify_all()
+        self._changed()
 
     def publish(self, chunk: bytes) -> None:
         with self._cond:
@@ -66,12 +80,14 @@ class Hub:
                 self._first += n
                 self.stats.trimmed_chunks += n
             self._cond.notify_all()
+        self._changed()
 
     def close(self) -> None:
         """Wake every reader for the last time."""
         with self._cond:
             self.closed = True
             self._cond.notify_all()
+        self._changed()
 
     # ------------------------------------------------------------------ the readers' side
     def count_sent(self, n: int) -> None:
@@ -128,4 +144,6 @@ class Reader:
         self.info_version = 0
 
     def read(self, timeout: float) -> bytes | None:
+        """What this reader has not had yet, waiting up to ``timeout`` s (0: not at all) for something;
+        b"" if nothing came, None once the hub is closed and everything was read."""
         return self.hub._read(self, timeout)

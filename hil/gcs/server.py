@@ -1,5 +1,7 @@
-"""The ground station's HTTP server: the page and its files, the downlink as Server-Sent Events, the uplink
-as JSON POSTs. Standard library only (``http.server``), one thread per request, its own accept thread.
+"""The ground station's HTTP server, on tornado (a maintained asynchronous server; what Jupyter and Dask's
+dashboard run on): the page and its files, the downlink as Server-Sent Events, the uplink as JSON POSTs.
+One thread, its own IOLoop; no thread per connection (docs/gcs.md, "How it is built", says why tornado
+and why SSE rather than a WebSocket).
 
 Routes (every ``/api/`` route needs the token; :mod:`hil.gcs.access` has the checks):
 
@@ -9,24 +11,28 @@ Routes (every ``/api/`` route needs the token; :mod:`hil.gcs.access` has the che
 ``GET  /api/info?token=T``      the run's ``info`` as JSON
 ``GET  /api/stats?token=T``     the server's counters (streams, bytes sent, rejections, the feed's drops)
 ``POST /api/command``           a command (``Authorization: token T``, ``Content-Type: application/json``)
+``POST /api/ack``               an alarm acknowledged by the operator (same headers; :mod:`hil.gcs.uplink`)
 
 Answers: 403 for a foreign ``Origin`` (checked first; a CORS preflight is always refused) or, on a
 loopback server, a non-loopback ``Host``; 401 without the right token; 400 for a malformed command (saying
-what is wrong); 411/413/501 for a body the guard refuses (no length, over :data:`~hil.gcs.uplink.MAX_BODY`,
-another transfer coding); 409 when there is no uplink (a replay); 503 when the command inbox or the stream
-limit is full; 202 with the command's id when it is queued.
+what is wrong); 411/413/501 for a body refused from its headers (no length, over
+:data:`~hil.gcs.uplink.MAX_BODY`, another transfer coding); 409 when there is no uplink (a replay); 503
+when the command inbox or the stream limit is full; 202 with the command's id when it is queued.
 
-Whatever a client sends, the server runs under the phone receiver's guard (:mod:`hil.link.sources.http_guard`,
-:data:`LIMITS`): a request has :data:`REQUEST_TIMEOUT_S` from connecting to its last byte (a slowloris
-client is cut off), at most :data:`MAX_CONNECTIONS` are served at once (an idle socket makes way for a new
-one; beyond, closed unanswered), no handler's exception is printed. Every request or connection turned
+Limits (:data:`LIMITS`): tornado's own settings where it has them (:func:`hil.gcs.guard.tornado_settings`:
+each phase's timeout, head and body sizes, its read buffer, one request per connection) and
+:class:`~hil.gcs.guard.ConnectionGuard` for what it lacks (the connection cap with eviction, the
+whole-request deadline, a report for each connection turned away). Every request or connection turned
 away — each 4xx/5xx but a GET's 404 and the inbox's 503 (counted by the uplink) — is counted
 (``/api/stats``) and, on a live run, logged in ``events.jsonl`` as a ``rejected`` command record with its
-reason (:meth:`GcsHttpServer.turned_away`).
+reason (:meth:`GcsServer.turned_away`). Nothing is printed: tornado's access log is off, its reports of
+refused requests are taken by :class:`~hil.gcs.guard.TornadoReports`, a handler's exception is reported
+(``error``).
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 import mimetypes
@@ -38,22 +44,30 @@ from collections.abc import Callable
 from http import HTTPStatus
 from importlib import resources
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
+
+from tornado import gen, httputil, web
+from tornado.httpserver import HTTPServer
+from tornado.ioloop import IOLoop
+from tornado.iostream import IOStream, StreamClosedError
+from tornado.locks import Condition
+from tornado.netutil import bind_sockets
 
 from hil.gcs.access import Access
+from hil.gcs.guard import ConnectionGuard, TornadoReports, tornado_settings
 from hil.gcs.hub import Hub
 from hil.gcs.uplink import MAX_BODY, Uplink
-from hil.link.sources.http_guard import BodyError, GuardedHandler, GuardedHTTPServer, HttpLimits
+from hil.link.sources.http_guard import BACKLOG, BodyError, HttpLimits, content_length
 from protocol.errors import InputFormatError
 
 logger = logging.getLogger(__name__)
 
-MAX_STREAMS = 16  # concurrent downlink streams (each holds a thread)
+MAX_STREAMS = 16  # concurrent downlink streams
 KEEPALIVE_S = 10.0  # an SSE comment when nothing else was sent for this long
 SEND_TIMEOUT_S = 30.0  # a browser that stops reading for this long loses its stream (the hub never waits)
-REQUEST_TIMEOUT_S = 10.0  # s: from connecting (or the previous request) to a request's last byte
-MAX_CONNECTIONS = 32  # served at once: MAX_STREAMS streams and room for the page's files and commands
+REQUEST_TIMEOUT_S = 10.0  # s: from connecting to a request's last byte
+MAX_CONNECTIONS = 32  # open at once: MAX_STREAMS streams and room for the page's files and commands
 LIMITS = HttpLimits(max_body=MAX_BODY, timeout_s=REQUEST_TIMEOUT_S, max_connections=MAX_CONNECTIONS)
+STOP_TIMEOUT_S = 5.0
 _STATIC_NAME = re.compile(r"^[A-Za-z0-9_.-]+(/[A-Za-z0-9_.-]+)*$")
 _TYPES = {
     ".js": "text/javascript",
@@ -64,11 +78,13 @@ _TYPES = {
     ".svg": "image/svg+xml",
 }
 
+Submit = Callable[[bytes, str], Any]
 
-class GcsHttpServer(GuardedHTTPServer):
-    """The ground station's server on ``host``:``port``, under ``limits`` (:data:`LIMITS` by default)."""
 
-    allow_reuse_address = True
+class GcsServer:
+    """The ground station's server on ``host``:``port`` (0: a free one), under ``limits``; binds at once
+    (an ``OSError`` here, EADDRINUSE among them, is the caller's), serves from :meth:`start` on its own
+    thread until :meth:`stop`. ``acks`` takes an alarm acknowledgement's body (``POST /api/ack``)."""
 
     def __init__(
         self,
@@ -81,150 +97,212 @@ class GcsHttpServer(GuardedHTTPServer):
         stats: Callable[[], dict[str, Any]],
         limits: HttpLimits = LIMITS,
     ) -> None:
-        self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
-        super().__init__((host, port), _Handler, limits, self.turned_away)
-        self.access = Access(access_token, host, self.server_address[1])
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self._sockets = bind_sockets(port, host or None, family=family, backlog=BACKLOG)
+        self.limits = limits
+        self.access = Access(access_token, host, self.port)
         self.hub = hub
         self.uplink = uplink
         self.info = info
         self.extra_stats = stats
+        self.static = resources.files("hil.gcs") / "static"
         self.lock = threading.Lock()
         self.rejected: Counter[str] = Counter()
-        self.streams = 0
         self.requests = 0
-        self.static = resources.files("hil.gcs") / "static"
+        self.streams = 0
+        self._asyncio = asyncio.new_event_loop()
+        self.loop: IOLoop | None = None
+        self.guard: ConnectionGuard | None = None
+        self._http: HTTPServer | None = None
+        self._wake: Condition | None = None
+        self._ready = threading.Event()
         self.thread: threading.Thread | None = None
 
     @property
     def port(self) -> int:
-        return int(self.server_address[1])
+        return int(self._sockets[0].getsockname()[1])
 
+    # ------------------------------------------------------------------ life
     def start(self) -> None:
-        self.thread = threading.Thread(
-            target=self.serve_forever,
-            kwargs={"poll_interval": 0.2},
-            name=f"gcs-http :{self.port}",
-            daemon=True,
-        )
+        self.thread = threading.Thread(target=self._serve, name=f"gcs-http :{self.port}", daemon=True)
         self.thread.start()
+        if not self._ready.wait(STOP_TIMEOUT_S):
+            raise RuntimeError("the ground station's server thread did not start")
+
+    def _serve(self) -> None:
+        asyncio.set_event_loop(self._asyncio)
+        loop = IOLoop.current()
+        self.loop = loop
+        guard = ConnectionGuard(loop, self.limits, self.turned_away)
+        self.guard = guard
+        TornadoReports.register(guard.malformed)
+        self._wake = Condition()
+        self.hub.watch(self._hub_changed)
+        app = web.Application(_routes(self), log_function=_no_access_log, compress_response=False)
+        self._http = _GuardedHTTPServer(app, **tornado_settings(self.limits))
+        self._http.guard = guard
+        self._http.add_sockets(self._sockets)
+        self._ready.set()
+        try:
+            loop.start()
+        finally:
+            TornadoReports.unregister()
+
+    def _hub_changed(self) -> None:
+        """From the pump's thread: wake every stream on the IOLoop."""
+        loop, wake = self.loop, self._wake
+        if loop is not None and wake is not None:
+            loop.add_callback(wake.notify_all)
 
     def stop(self) -> None:
+        """Close the listening sockets and every connection, stop the loop, join its thread."""
         self.hub.close()
-        self.shutdown()
-        self.server_close()
-        self.close_connections()
-        if self.thread is not None:
-            self.thread.join(timeout=5.0)
+        loop = self.loop
+        if loop is None or self.thread is None:
+            for s in self._sockets:
+                s.close()
+            return
 
+        def shut() -> None:
+            if self._http is not None:
+                self._http.stop()
+            if self.guard is not None:
+                self.guard.close_all()
+            loop.add_callback(loop.stop)
+
+        loop.add_callback(shut)
+        self.thread.join(STOP_TIMEOUT_S)
+        if not self.thread.is_alive():
+            loop.close(all_fds=True)
+
+    # ------------------------------------------------------------------ counters and reports
     def counters(self) -> dict[str, Any]:
+        guard = self.guard
+        g = guard.counters if guard is not None else None
         with self.lock:
             return {
                 "requests": self.requests,
                 "streams_open": self.streams,
                 "rejected": dict(self.rejected),
-                "connections_open": self.active,
-                "connections_refused": self.refused,
-                "connections_evicted": self.evicted,
+                "connections_open": g.open if g else 0,
+                "connections_refused": g.refused if g else 0,
+                "connections_evicted": g.evicted if g else 0,
+                "answers_abandoned": g.answers_abandoned if g else 0,
             }
 
     def turned_away(self, reason: str, remote: str, detail: str = "") -> None:
         """A request or connection turned away — by a handler (``host``, ``origin``, ``token``, ``format``,
-        ``size``, ``path``, ``busy``) or the guard (``timeout``, ``evicted``, ``connections``, ``request``,
-        ``error``): counted, and logged in the run's events when there is a run (docs/gcs.md: an attempt
-        leaves a trace)."""
+        ``size``, ``path``, ``streams``, ``method``) or the guard (``timeout``, ``evicted``,
+        ``connections``, ``request``, ``error``): counted, and logged in the run's events when there is a
+        run (docs/gcs.md: an attempt leaves a trace)."""
         with self.lock:
             self.rejected[reason] += 1
         if self.uplink is not None:
             self.uplink.reject(reason, remote, detail[:300])
 
 
-class _Handler(GuardedHandler):
-    server: GcsHttpServer
-    protocol_version = "HTTP/1.0"
-    server_version = "vscmg-hil-gcs"
+class _GuardedHTTPServer(HTTPServer):
+    """Tornado's HTTP server with :class:`~hil.gcs.guard.ConnectionGuard` told of each connection."""
 
-    # ------------------------------------------------------------------ routing
-    def do_GET(self) -> None:  # noqa: N802 - http.server's name
-        self._count()
-        url = urlsplit(self.path)
-        if not self.server.access.host_ok(self.headers.get("Host")):
-            return self._refuse(
-                HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name"
-            )
-        if url.path in ("/", "/index.html"):
-            return self._static("index.html")
-        if url.path == "/favicon.ico":
-            return self._reply(HTTPStatus.NO_CONTENT, b"", "text/plain")
-        if url.path.startswith("/static/"):
-            return self._static(url.path.removeprefix("/static/"))
-        if url.path.startswith("/api/"):
-            try:
-                token = parse_qs(url.query).get("token", [None])[0] or self._header_token()
-            except ValueError:  # parse_qs refuses more than max_num_fields; a bad query is no token
-                token = None
-            if not self._api_allowed(token):
-                return None
-            if url.path == "/api/stream":
-                return self._stream()
-            if url.path == "/api/info":
-                return self._json(HTTPStatus.OK, self.server.info() or {})
-            if url.path == "/api/stats":
-                return self._json(HTTPStatus.OK, self.server.extra_stats())
-        return self._json(HTTPStatus.NOT_FOUND, {"error": f"no such page: {url.path}"})
+    guard: ConnectionGuard
 
-    def do_POST(self) -> None:  # noqa: N802
-        self._count()
-        url = urlsplit(self.path)
-        uplink = self.server.uplink
-        remote = self.address_string()
-        if url.path != "/api/command":
-            return self._refuse(HTTPStatus.NOT_FOUND, "path", f"no such endpoint: {url.path[:80]}")
-        if not self.server.access.host_ok(self.headers.get("Host")):
-            return self._refuse(
-                HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name"
-            )
-        if not self._api_allowed(self._header_token()):
-            return None
-        try:
-            body = self.read_body(f"POST {url.path} from {remote}")
-        except BodyError as exc:
-            if self.server.was_evicted(self.connection):
-                return None  # its slot went to a new connection: reported as evicted
-            reason = "size" if exc.status == HTTPStatus.REQUEST_ENTITY_TOO_LARGE else "format"
-            return self._refuse(HTTPStatus(exc.status), reason, exc.detail)
-        if uplink is None:
-            return self._json(HTTPStatus.CONFLICT, {"error": "a replay takes no commands"})
-        if (self.headers.get("Content-Type") or "").split(";")[0].strip() != "application/json":
-            return self._refuse(HTTPStatus.UNSUPPORTED_MEDIA_TYPE, "format", "send application/json")
-        try:
-            command = uplink.submit(body, remote)
-        except InputFormatError as exc:
-            return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
-        if command is None:  # counted by the uplink (inbox_full), not a rejection: the sender may retry
-            return self._json(
-                HTTPStatus.SERVICE_UNAVAILABLE, {"error": "too many commands waiting", "reason": "busy"}
-            )
-        return self._json(
-            HTTPStatus.ACCEPTED, {"id": command.id, "command": command.name, "status": "queued"}
-        )
+    def handle_stream(self, stream: IOStream, address: tuple[Any, ...]) -> None:
+        if not self.guard.accept(stream, address):
+            stream.close()
+            return
+        super().handle_stream(stream, address)
 
-    def do_OPTIONS(self) -> None:  # noqa: N802
+    def on_close(self, server_conn: object) -> None:
+        super().on_close(server_conn)
+        self.guard.closed(getattr(server_conn, "stream", None))
+
+
+def _no_access_log(handler: web.RequestHandler) -> None:
+    """Tornado's access log is off: refusals are counted and logged in the run's events instead."""
+
+
+def _routes(server: GcsServer) -> list[tuple[str, type[web.RequestHandler], dict[str, Any]]]:
+    kw = {"server": server}
+    return [
+        (r"/(?:index\.html)?", _Page, kw),
+        (r"/favicon\.ico", _Favicon, kw),
+        (r"/static/(.*)", _Static, kw),
+        (r"/api/stream", _Stream, kw),
+        (r"/api/info", _Info, kw),
+        (r"/api/stats", _Stats, kw),
+        (r"/api/command", _Command, kw),
+        (r"/api/ack", _Ack, kw),
+        (r".*", _Base, kw),
+    ]
+
+
+class _Base(web.RequestHandler):
+    """Every route's checks and answers; on its own, the answer to a path that does not exist."""
+
+    SUPPORTED_METHODS = ("GET", "POST", "OPTIONS")  # type: ignore[assignment]
+    server: GcsServer
+
+    def initialize(self, server: GcsServer) -> None:
+        self.server = server
+        self._answered = False
+
+    # ------------------------------------------------------------------ tornado's hooks
+    def set_default_headers(self) -> None:
+        self.set_header("Server", "vscmg-hil-gcs")
+        self.set_header("Cache-Control", "no-store")
+        self.set_header("X-Content-Type-Options", "nosniff")
+
+    def prepare(self) -> None:
+        with self.server.lock:
+            self.server.requests += 1
+        self._busy()
+        if self.request.method != "POST" and not self._host_ok():
+            self._refuse(HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name")
+
+    def on_finish(self) -> None:
+        guard = self.server.guard
+        if guard is not None:
+            guard.answered(self._stream())
+
+    def write_error(self, status_code: int, **kwargs: Any) -> None:
+        """An answer tornado makes itself (a method this route does not take: 405) or after a handler's
+        exception (500), as JSON like every other; each reported."""
+        if status_code == HTTPStatus.METHOD_NOT_ALLOWED:
+            self.server.turned_away("method", self.request.remote_ip or "", f"{self.request.method}")
+        self.finish({"error": self._reason, "reason": "method" if status_code == 405 else "error"})
+
+    def log_exception(self, typ: Any, value: Any, tb: Any) -> None:
+        """A handler's exception is reported (``error``), never printed."""
+        if isinstance(value, web.HTTPError):
+            return
+        self.server.turned_away("error", self.request.remote_ip or "", f"{self.request.path}: {value!r}")
+
+    # ------------------------------------------------------------------ the default route
+    def get(self, *args: str) -> None:
+        self._json(HTTPStatus.NOT_FOUND, {"error": f"no such page: {self.request.path[:200]}"})
+
+    def post(self, *args: str) -> None:
+        self._refuse(HTTPStatus.NOT_FOUND, "path", f"no such endpoint: {self.request.path[:80]}")
+
+    def options(self, *args: str) -> None:
         """A CORS preflight: only a foreign page sends one, and none is allowed (no CORS headers)."""
-        self._count()
-        origin = self.headers.get("Origin")
+        origin = self.request.headers.get("Origin")
         self._refuse(HTTPStatus.FORBIDDEN, "origin", f"cross-origin requests are not accepted ({origin})")
 
     # ------------------------------------------------------------------ checks
+    def _host_ok(self) -> bool:
+        return self.server.access.host_ok(self.request.headers.get("Host"))
+
     def _header_token(self) -> str | None:
-        auth = self.headers.get("Authorization") or ""
+        auth = self.request.headers.get("Authorization") or ""
         scheme, _, value = auth.partition(" ")
         return value.strip() if scheme.lower() == "token" and value.strip() else None
 
     def _api_allowed(self, token: str | None) -> bool:
         """The Origin first (a foreign page is refused whatever it sends), then the token."""
         access = self.server.access
-        origin = self.headers.get("Origin")
-        if not access.origin_ok(origin, self.headers.get("Host")):
+        origin = self.request.headers.get("Origin")
+        if not access.origin_ok(origin, self.request.headers.get("Host")):
             self._refuse(HTTPStatus.FORBIDDEN, "origin", f"requests from {origin} are not accepted")
             return False
         if not access.token_ok(token):
@@ -237,33 +315,42 @@ class _Handler(GuardedHandler):
             return False
         return True
 
+    def _query_token(self) -> str | None:
+        return self.get_query_argument("token", None) or self._header_token()
+
     # ------------------------------------------------------------------ answers
-    def _count(self) -> None:
-        with self.server.lock:
-            self.server.requests += 1
+    def _stream(self) -> IOStream | None:
+        connection = self.request.connection
+        return getattr(connection, "stream", None)
+
+    def _busy(self) -> None:
+        guard = self.server.guard
+        if guard is not None:
+            guard.busy(self._stream())
 
     def _refuse(self, status: HTTPStatus, reason: str, message: str, detail: str | None = None) -> None:
         """Answer ``status`` saying ``message``; the request is counted and logged as turned away
         (``detail``, default the message, goes into the record)."""
-        self.server.turned_away(reason, self.address_string(), message if detail is None else detail)
-        self.close_connection = True
+        self._busy()
+        remote = self.request.remote_ip or ""
+        self.server.turned_away(reason, remote, message if detail is None else detail)
         self._json(status, {"error": message, "reason": reason})
 
     def _json(self, status: HTTPStatus, value: Any) -> None:
         self._reply(status, json.dumps(value, default=str).encode(), "application/json")
 
     def _reply(self, status: HTTPStatus, body: bytes, content_type: str) -> None:
-        self.deadline_for_answer()  # a client that does not read its answer cannot hold the thread
-        try:
-            self.send_response(status)
-            self.send_header("Content-Type", content_type)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            self.send_header("X-Content-Type-Options", "nosniff")
-            self.end_headers()
-            self.wfile.write(body)
-        except OSError:  # the browser went away or stopped reading: nothing to tell it
-            self.close_connection = True
+        if self._finished:
+            return
+        self._answered = True
+        self.set_status(int(status))
+        self.set_header("Content-Type", content_type)
+        self.finish(body)
+
+
+class _Page(_Base):
+    def get(self, *args: str) -> None:
+        self._static("index.html")
 
     def _static(self, name: str) -> None:
         if not _STATIC_NAME.match(name) or ".." in name.split("/"):
@@ -277,13 +364,40 @@ class _Handler(GuardedHandler):
         kind = _TYPES.get(suffix) or mimetypes.guess_type(name)[0] or "application/octet-stream"
         return self._reply(HTTPStatus.OK, body, kind)
 
-    def _stream(self) -> None:
+
+class _Static(_Page):
+    def get(self, *args: str) -> None:
+        self._static(args[0] if args else "")
+
+
+class _Favicon(_Base):
+    def get(self, *args: str) -> None:
+        self.set_status(HTTPStatus.NO_CONTENT)
+        self.finish()
+
+
+class _Info(_Base):
+    def get(self, *args: str) -> None:
+        if self._api_allowed(self._query_token()):
+            self._json(HTTPStatus.OK, self.server.info() or {})
+
+
+class _Stats(_Base):
+    def get(self, *args: str) -> None:
+        if self._api_allowed(self._query_token()):
+            self._json(HTTPStatus.OK, self.server.extra_stats())
+
+
+class _Stream(_Base):
+    """The downlink: the hub's chunks as Server-Sent Events, woken by the hub (never a thread waiting)."""
+
+    async def get(self, *args: str) -> None:  # type: ignore[override]  # tornado takes either
+        if not self._api_allowed(self._query_token()):
+            return
         server = self.server
         with server.lock:
-            if server.streams >= MAX_STREAMS:
-                full = True
-            else:
-                full = False
+            full = server.streams >= MAX_STREAMS
+            if not full:
                 server.streams += 1
         if full:
             return self._refuse(
@@ -292,25 +406,147 @@ class _Handler(GuardedHandler):
         hub = server.hub
         hub.count_stream(+1)
         try:
-            self.connection.settimeout(SEND_TIMEOUT_S)
-            self.send_response(HTTPStatus.OK)
-            self.send_header("Content-Type", "text/event-stream")
-            self.send_header("Cache-Control", "no-store")
-            self.send_header("X-Accel-Buffering", "no")
-            self.end_headers()
-            self.wfile.write(b"retry: 1000\n\n")
+            self.set_header("Content-Type", "text/event-stream")
+            self.set_header("X-Accel-Buffering", "no")
+            await self._send(b"retry: 1000\n\n")
             reader = hub.reader()
+            wake = server._wake
+            assert wake is not None
             while True:
-                data = reader.read(KEEPALIVE_S)
+                data = reader.read(0)
                 if data is None:
-                    self.wfile.write(b"event: bye\ndata: {}\n\n")
+                    await self._send(b"event: bye\ndata: {}\n\n")
                     break
-                data = data or b": keep-alive\n\n"
-                self.wfile.write(data)
-                hub.count_sent(len(data))
-        except (BrokenPipeError, ConnectionResetError, TimeoutError, OSError):
-            pass  # the browser went away or stopped reading
+                if data:
+                    await self._send(data)
+                    hub.count_sent(len(data))
+                    continue
+                loop = IOLoop.current()
+                if not await wake.wait(timeout=loop.time() + KEEPALIVE_S):
+                    await self._send(b": keep-alive\n\n")
+        except (StreamClosedError, gen.TimeoutError, TimeoutError):
+            pass  # the browser went away or stopped reading for SEND_TIMEOUT_S
         finally:
             hub.count_stream(-1)
             with server.lock:
                 server.streams -= 1
+        if not self._finished:
+            self.finish()
+
+    async def _send(self, data: bytes) -> None:
+        self.write(data)
+        await gen.with_timeout(IOLoop.current().time() + SEND_TIMEOUT_S, self.flush())
+
+
+class _Headers:
+    """Tornado's headers as :func:`~hil.link.sources.http_guard.content_length` reads them (the phone
+    receiver's rules: one plain decimal number, every copy the same)."""
+
+    def __init__(self, headers: httputil.HTTPHeaders) -> None:
+        self.headers = headers
+
+    def get_all(self, name: str, default: list[str]) -> list[str]:
+        return self.headers.get_list(name) or default
+
+
+@web.stream_request_body
+class _Command(_Base):
+    """``POST /api/command``: checked from its headers before its body is read (origin, token, length,
+    type), the body taken in pieces up to :data:`MAX_BODY`, then parsed and queued (:class:`Uplink`)."""
+
+    def prepare(self) -> None:
+        with self.server.lock:
+            self.server.requests += 1
+        self._body = bytearray()
+        self._over = False
+        if not self._host_ok():
+            self._busy()
+            return self._refuse(
+                HTTPStatus.FORBIDDEN, "host", "Host header is not this server's loopback name"
+            )
+        if self.request.method != "POST":
+            return None
+        if not self._api_allowed(self._header_token()):
+            return None
+        headers = self.request.headers
+        codings = [c.strip().lower() for v in headers.get_list("Transfer-Encoding") for c in v.split(",")]
+        codings = [c for c in codings if c]
+        where = f"POST {self.request.path} from {self.request.remote_ip}"
+        try:
+            if codings and codings != ["chunked"]:
+                raise BodyError(501, f"transfer coding {', '.join(codings)!r} is not supported", where)
+            if not codings and content_length(_Headers(headers), MAX_BODY, where) is None:  # type: ignore[arg-type]
+                raise BodyError(411, "a POST needs a Content-Length or chunked transfer coding", where)
+        except BodyError as exc:
+            reason = "size" if exc.status == HTTPStatus.REQUEST_ENTITY_TOO_LARGE else "format"
+            return self._refuse(HTTPStatus(exc.status), reason, exc.detail)
+        return None
+
+    def data_received(self, chunk: bytes) -> None:
+        if self._finished or self._over:
+            return  # refused already: the rest is read and dropped (so the answer is not lost to a reset)
+        if len(self._body) + len(chunk) > MAX_BODY:
+            self._over = True
+            self._body.clear()
+            return
+        self._body += chunk
+
+    def post(self, *args: str) -> None:
+        if self._finished:
+            return
+        self._busy()
+        if self._over:
+            return self._refuse(
+                HTTPStatus.REQUEST_ENTITY_TOO_LARGE, "size", f"a chunked body of more than {MAX_BODY} bytes"
+            )
+        self._take(bytes(self._body))
+
+    def _take(self, body: bytes) -> None:
+        uplink = self.server.uplink
+        remote = self.request.remote_ip or ""
+        if uplink is None:
+            return self._json(HTTPStatus.CONFLICT, {"error": "a replay takes no commands"})
+        if not self._json_type():
+            return None
+        try:
+            command = uplink.submit(body, remote)
+        except InputFormatError as exc:
+            return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
+        if command is None:  # counted by the uplink (inbox_full), not a rejection: the sender may retry
+            return self._json(
+                HTTPStatus.SERVICE_UNAVAILABLE, {"error": "too many commands waiting", "reason": "busy"}
+            )
+        return self._json(
+            HTTPStatus.ACCEPTED, {"id": command.id, "command": command.name, "status": "queued"}
+        )
+
+    def _json_type(self) -> bool:
+        if (self.request.headers.get("Content-Type") or "").split(";")[0].strip() != "application/json":
+            self._refuse(HTTPStatus.UNSUPPORTED_MEDIA_TYPE, "format", "send application/json")
+            return False
+        return True
+
+    def get(self, *args: str) -> None:
+        self._json(HTTPStatus.NOT_FOUND, {"error": f"no such page: {self.request.path[:200]}"})
+
+
+class _Ack(_Command):
+    """``POST /api/ack``: ``{"alarm": KEY}`` — the operator acknowledged an alarm (logged as an event on
+    the next control tick, :meth:`Uplink.acknowledge`)."""
+
+    def _take(self, body: bytes) -> None:
+        uplink = self.server.uplink
+        if uplink is None:
+            return self._json(HTTPStatus.CONFLICT, {"error": "a replay takes no acknowledgements"})
+        if not self._json_type():
+            return None
+        try:
+            ack = uplink.acknowledge(body, self.request.remote_ip or "")
+        except InputFormatError as exc:
+            return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
+        if ack is None:
+            return self._json(
+                HTTPStatus.SERVICE_UNAVAILABLE,
+                {"error": "too many acknowledgements waiting", "reason": "busy"},
+            )
+        return self._json(HTTPStatus.ACCEPTED, {"alarm": ack["alarm"], "status": "queued"})

@@ -8,7 +8,7 @@ source has into downlink chunks ~30 times a second, the hub that holds them, and
                                                                            ▼
                                                pump thread: encode once ─► Hub (history, byte budget)
                                                                            │ one cursor per browser
-    browser ◄── SSE ── HTTP handler thread ◄───────────────────────────────┘
+    browser ◄── SSE ── tornado IOLoop thread (woken by the hub) ◄──────────┘
     browser ── POST /api/command ──► Uplink inbox (bounded) ──► control thread, next tick
 
 Nothing on the right of the feed can delay the control thread: the feed is the only thing it touches, and
@@ -23,6 +23,7 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Protocol
@@ -31,7 +32,7 @@ from hil.gcs.access import is_loopback, new_token, parse_bind, url_host
 from hil.gcs.hub import DEFAULT_BUDGET, Hub
 from hil.gcs.live import LiveFeed
 from hil.gcs.rundir import RunDirSource
-from hil.gcs.server import LIMITS, GcsHttpServer
+from hil.gcs.server import LIMITS, GcsServer
 from hil.gcs.uplink import Uplink
 from hil.gcs.wire import Batch, dumps, encode_batch, sse
 from hil.link.sources.http_guard import HttpLimits
@@ -49,10 +50,28 @@ class Source(Protocol):
     def poll(self) -> Batch: ...
 
 
+class Server(Protocol):
+    """What the station needs of its HTTP server (:class:`~hil.gcs.server.GcsServer`)."""
+
+    @property
+    def port(self) -> int: ...
+
+    def start(self) -> None: ...
+
+    def stop(self) -> None: ...
+
+    def counters(self) -> dict[str, Any]: ...
+
+
+ServerClass = Callable[..., Server]
+
+
 class GroundStation:
     """Serve ``source`` on ``bind`` (``HOST:PORT``, default loopback :data:`hil.gcs.access.DEFAULT_PORT`);
     ``uplink`` takes commands (a live run's); ``limits`` bound what a client may hold of the server
-    (:data:`hil.gcs.server.LIMITS`). Starts at once; :meth:`close` (or ``with``) stops it."""
+    (:data:`hil.gcs.server.LIMITS`); ``server_class`` is the HTTP server (:class:`~hil.gcs.server.GcsServer`;
+    ``bench/bench_gcs.py`` passes the earlier threaded one to compare). Starts at once; :meth:`close` (or
+    ``with``) stops it."""
 
     def __init__(
         self,
@@ -63,8 +82,10 @@ class GroundStation:
         uplink: Uplink | None = None,
         budget: int = DEFAULT_BUDGET,
         limits: HttpLimits = LIMITS,
+        server_class: ServerClass = GcsServer,
     ) -> None:
         host, port, explicit = parse_bind(bind)
+        self.server_class = server_class
         self.limits = limits
         self.source = source
         self.uplink = uplink
@@ -90,10 +111,13 @@ class GroundStation:
         token: str | None = None,
         commands: bool = True,
         limits: HttpLimits = LIMITS,
+        server_class: ServerClass = GcsServer,
     ) -> GroundStation:
         """A station for a run that is about to start: pass :attr:`observer` as ``RunOptions.observer``."""
         uplink = Uplink() if commands else None
-        return cls(LiveFeed(uplink), bind=bind, token=token, uplink=uplink, limits=limits)
+        return cls(
+            LiveFeed(uplink), bind=bind, token=token, uplink=uplink, limits=limits, server_class=server_class
+        )
 
     @classmethod
     def replay(
@@ -107,11 +131,11 @@ class GroundStation:
         """A station showing a run directory (following it while another process writes it)."""
         return cls(RunDirSource(Path(run_dir), follow=follow), bind=bind, token=token)
 
-    def _listen(self, host: str, port: int, explicit: bool) -> GcsHttpServer:
+    def _listen(self, host: str, port: int, explicit: bool) -> Server:
         tries = 1 if explicit or port == 0 else PORT_TRIES
         for attempt in range(tries):
             try:
-                return GcsHttpServer(
+                return self.server_class(
                     host,
                     port + attempt,
                     self.token,

@@ -33,6 +33,7 @@ INBOX = 16  # commands waiting for the next control tick; more answer 503
 REJECTED_LOG = 64  # turned-away requests waiting to be logged; more are counted only
 ANGLE_RANGE = {"roll_deg": 180.0, "pitch_deg": 90.0, "yaw_deg": 180.0}
 MAX_DEPTH = 8  # JSON nesting: a command is one flat object; deeper is refused before the parser sees it
+ALARM_KEY = re.compile(r"[a-z0-9_.:-]{1,64}")  # an alarm's key, as the page names it (static/alarms.js)
 _STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
 _BRACKET = re.compile(rb"[\[\]{}]")
 _WHERE = "POST /api/command"
@@ -79,6 +80,38 @@ def parse_command(body: bytes, command_id: int, remote: str = "") -> OperatorCom
     return OperatorCommand(command_id, name, (angles[0], angles[1], angles[2]), "gcs", remote)
 
 
+def parse_ack(body: bytes, remote: str = "") -> dict[str, Any]:
+    """An alarm acknowledgement ``{"alarm": KEY, "raised_t": s}`` (``raised_t``: the run time the alarm
+    was raised, so the log says which raising was acknowledged); the same checks as a command's body
+    (size, nesting, a key given twice); :class:`InputFormatError` saying what is wrong otherwise."""
+    where = "POST /api/ack"
+    if len(body) > MAX_BODY:
+        raise InputFormatError(f"body of {len(body)} bytes (at most {MAX_BODY})", where)
+    depth = _depth(body)
+    if depth > MAX_DEPTH:
+        raise InputFormatError(f"nested {depth} deep (at most {MAX_DEPTH}): not an acknowledgement", where)
+    try:
+        doc = json.loads(body, object_pairs_hook=_unique_keys)
+    except InputFormatError:
+        raise
+    except (ValueError, RecursionError) as exc:
+        raise InputFormatError(f"not JSON: {str(exc)[:200]}", where) from None
+    if not isinstance(doc, dict):
+        raise InputFormatError("expected a JSON object", where)
+    extra = set(doc) - {"alarm", "raised_t"}
+    if extra:
+        raise InputFormatError(f"unknown field(s): {', '.join(sorted(extra))}", where)
+    alarm = doc.get("alarm")
+    if not isinstance(alarm, str) or not ALARM_KEY.fullmatch(alarm):
+        raise InputFormatError(f"alarm must be an alarm's key ([a-z0-9_.:-], 1-64), got {alarm!r}", where)
+    raised = doc.get("raised_t")
+    if raised is not None and (
+        isinstance(raised, bool) or not isinstance(raised, int | float) or not math.isfinite(raised)
+    ):
+        raise InputFormatError(f"raised_t must be a number of seconds, got {raised!r}", where)
+    return {"alarm": alarm, "raised_t": None if raised is None else float(raised), "remote": remote}
+
+
 def _depth(body: bytes) -> int:
     """How deep the brackets of ``body`` nest, outside JSON strings (an unterminated string's brackets
     count: such a body is refused either way)."""
@@ -105,6 +138,7 @@ class UplinkStats:
     inbox_full: int = 0
     rejected: int = 0  # requests turned away by the server (token, origin, host, format)
     rejected_unlogged: int = 0  # ... beyond REJECTED_LOG between two ticks
+    acks: int = 0  # alarm acknowledgements queued
 
 
 @dataclass
@@ -117,6 +151,7 @@ class Uplink:
         self._lock = threading.Lock()
         self._inbox: deque[OperatorCommand] = deque()
         self._rejected: deque[dict[str, Any]] = deque()
+        self._acks: deque[dict[str, Any]] = deque()
         self._next_id = 1
         self.operator = Operator()
 
@@ -133,6 +168,18 @@ class Uplink:
             self._inbox.append(command)
             self.stats.accepted += 1
             return command
+
+    def acknowledge(self, body: bytes, remote: str = "") -> dict[str, Any] | None:
+        """Parse and queue an alarm acknowledgement; None when :data:`INBOX` are already waiting
+        (InputFormatError for a malformed one)."""
+        with self._lock:
+            if len(self._acks) >= INBOX:
+                self.stats.inbox_full += 1
+                return None
+            ack = parse_ack(body, remote)
+            self._acks.append(ack)
+            self.stats.acks += 1
+            return ack
 
     def reject(self, reason: str, remote: str, detail: str = "") -> None:
         """A request the server turned away, to be logged in the run's events on the next tick."""
@@ -153,8 +200,12 @@ class Uplink:
             self._inbox.clear()
             rejected = list(self._rejected)
             self._rejected.clear()
+            acks = list(self._acks)
+            self._acks.clear()
         for r in rejected:
             host.events.write(t, "command", origin="gcs", id=None, command=None, status="rejected", **r)
+        for a in acks:
+            host.events.write(t, "alarm_ack", origin="gcs", **a)
         for command in commands:
             self.operator.apply(host, t, command)
         self.operator.service(host, t)

@@ -15,7 +15,7 @@ const FEED_STALE_S = 1.0;  // no message for this long: the live feed is stale
 const token = new URLSearchParams(location.search).get("token") || "";
 const view = new View3D($("view3d"));
 const uplink = new Uplink(token);
-uplink.enable(false);
+uplink.enable(false, "Connecting: no commands yet.");
 
 const state = {
   info: null, store: null, plots: null, status: {}, follow: true, cursor: NaN, playing: false,
@@ -43,11 +43,11 @@ function connect() {
   on("link", (list) => { if (state.store) { state.store.pushLink(list); invalidate(); } });
   on("status", (s) => {
     state.status = { ...state.status, ...s };
-    if (["ended", "finished", "read", "error"].includes(s.state)) uplink.enable(false);
     invalidate();
     showStatus();
+    showFeed();
   });
-  es.addEventListener("bye", () => { state.ended = true; es.close(); uplink.enable(false); showStatus(); });
+  es.addEventListener("bye", () => { state.ended = true; es.close(); showStatus(); showFeed(); });
 }
 
 function onInfo(info) {
@@ -57,11 +57,8 @@ function onInfo(info) {
   state.plots = new Plots($("plots"), info, state.store, () => { invalidate(); });
   state.follow = true;
   $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
-  $("mode").textContent = info.mode === "live" ? `live (${info.clock || "run"})` : "replay";
-  $("mode").className = `badge ${info.mode}`;
   $("note").textContent = info.note || "";
   $("link").dataset.built = "";
-  uplink.enable(Boolean(info.uplink));
   document.title = `GCS · ${info.run}`;
   invalidate();
 }
@@ -100,7 +97,7 @@ function feedState() {
   const following = state.status.state === "following";
   if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return { text: state.status.state === "finished" ? "finished" : "ended", cls: "ended", age: 0 };
   if ((live || following) && age > FEED_STALE_S) return { text: `stale: nothing for ${age.toFixed(1)} s`, cls: "stale", age };
-  if (!state.connected) return { text: "reconnecting", cls: "bad", age };
+  if (!state.connected) return { text: `reconnecting: nothing for ${age.toFixed(1)} s`, cls: "bad", age };
   return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
 }
 
@@ -112,12 +109,42 @@ function invalidate() {
   if (!frameRequested) { frameRequested = true; requestAnimationFrame(frame); }
 }
 
+// Whether the page may command the run now, and if not, why (the uplink panel says it): a replay never; a
+// live run only while its host answers — a silent or lost feed disables the buttons (a click would only
+// fail), and they come back when the host does.
+function uplinkState(feed) {
+  const info = state.info;
+  if (!info) return { on: false, why: state.connected ? "Waiting for the run: no commands yet." : "Connecting: no commands yet." };
+  if (info.mode !== "live") return { on: false, why: "Replay: no commands." };
+  if (!info.uplink) return { on: false, why: "This run takes no commands (started without an uplink)." };
+  if (feed.cls === "ended") return { on: false, why: `The run has ended${state.status.exit ? ` (${state.status.exit})` : ""}: no commands.` };
+  if (feed.cls === "stale" || feed.cls === "bad") return { on: false, why: `No word from the host (${feed.text}): commands are off until it answers.` };
+  return { on: true, why: "" };
+}
+
+// The mode badge says what the page is looking at: a live run whose host answers, one whose host fell
+// silent or went away, one that ended, or a replay.
+function modeBadge(feed) {
+  const info = state.info;
+  if (!info) return { text: state.connected ? "waiting" : "connecting", cls: "" };
+  if (info.mode !== "live") return { text: "replay", cls: "replay" };
+  const clock = info.clock || "run";
+  if (feed.cls === "ended") return { text: `live run ended (${clock})`, cls: "ended" };
+  if (feed.cls === "stale" || feed.cls === "bad") return { text: `host lost (${clock})`, cls: "bad" };
+  return { text: `live (${clock})`, cls: "live" };
+}
+
 function showFeed() {
   const feed = feedState();
   const feedEl = $("feed");
   if (feedEl.textContent !== feed.text) feedEl.textContent = feed.text;  // unchanged: no relayout
   if (feedEl.className !== `badge ${feed.cls}`) feedEl.className = `badge ${feed.cls}`;
-  document.body.classList.toggle("feed-stale", feed.cls === "stale");
+  document.body.classList.toggle("feed-stale", feed.cls === "stale" || (feed.cls === "bad" && Boolean(state.info)));
+  const mode = modeBadge(feed);
+  setProp($("mode"), "textContent", mode.text);
+  setProp($("mode"), "className", `badge ${mode.cls}`);
+  const up = uplinkState(feed);
+  uplink.enable(up.on, up.why);
   return feed;
 }
 
@@ -137,7 +164,7 @@ function frame(now) {
   render(feed);
 }
 
-setInterval(() => { if (showFeed().cls === "stale") invalidate(); }, CLOCK_MS);  // the ages shown grow
+setInterval(() => { const cls = showFeed().cls; if (cls === "stale" || cls === "bad") invalidate(); }, CLOCK_MS);  // the ages shown grow
 
 function render(feed) {
   const t0 = performance.now();
@@ -159,7 +186,7 @@ function render(feed) {
   const t = store.col("t");
   const period = info.control_rate_hz ? 1 / info.control_rate_hz : 0.02;
   const rowGap = i > 0 && t[i] - t[i - 1] > 3 * period ? t[i] - t[i - 1] : 0;
-  const feedAge = state.follow ? feed.age : 0;
+  const feedAge = state.follow && state.info.mode === "live" ? feed.age : 0;
   if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap });
   drawAttitude(i, feedAge, rowGap);
   drawEvents(store, hasRows ? state.cursor : Infinity);

@@ -70,8 +70,9 @@ export function drawPanels(ctx) {
   setCell($("faults"), faultNames(info, v("faults")), boardStale);
   const linkAge = v("link_age_ms");
   setCell($("link-age"), fmt(linkAge, 0, " ms ago"), linkAge > staleAfter * 1e3 ? linkAge / 1e3 : boardStale);
-  setCell($("tel-age"), store.has("tel_age_ms") ? fmt(v("tel_age_ms"), 0, " ms ago") : "not recorded",
-    telAge > staleAfter ? telAge : false);
+  // The host's age of the board's telemetry, as of the row shown; when the feed itself is silent (the host
+  // died) the row is that old too, and the cell says so like every other.
+  setCell($("tel-age"), store.has("tel_age_ms") ? fmt(v("tel_age_ms"), 0, " ms ago") : "not recorded", boardStale);
 
   setCell($("battery"), `${fmt(v("battery_v"), 2, " V")}  ${fmt(v("battery_a"), 2, " A")}  ${fmt(v("battery_soc"), 0, " %")}`, boardStale);
   setCell($("ubec"), `${fmt(v("ubec_v"), 2, " V")}  ${fmt(v("ubec_a"), 2, " A")}`, boardStale);

@@ -17,10 +17,18 @@ export class Uplink {
     }
   }
 
-  enable(on) {
+  // on: commands allowed; why: what the panel says when they are not (a replay, an ended run, a host
+  // that does not answer). Touches the DOM only when something changed (called 4 times a second).
+  enable(on, why = "") {
+    const off = $("uplink-off");
+    if (this.enabled === on && off.textContent === why) return;
     this.enabled = on;
-    $("uplink-off").hidden = on;
-    for (const b of document.querySelectorAll("#uplink button, #uplink input")) b.disabled = !on;
+    off.hidden = on;
+    off.textContent = why;
+    for (const b of document.querySelectorAll("#uplink .buttons button, #uplink .slew button, #uplink .slew input")) {
+      b.disabled = !on;
+      if (!on) this.reset(b);
+    }
   }
 
   click(button) {
@@ -68,8 +76,8 @@ export class Uplink {
       this.setStatus(li, "queued", `#${reply.id} ${describe(body)}`);
       const known = this.latest.get(reply.id);
       if (known) this.onEvent(known);
-    } catch (err) {
-      this.setStatus(li, "error", `${describe(body)}: ${err}`);
+    } catch (err) {  // the host went away between the click and the answer
+      this.setStatus(li, "error", `${describe(body)}: not sent, the host does not answer (${err.message || err})`);
     }
   }
 
