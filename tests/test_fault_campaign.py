@@ -285,6 +285,7 @@ def test_a_handshake_after_a_reset_is_not_another_reconnect():
             "a re-arm judged by its answer, lost to byte damage, not its send (a checker's false alarm)",
         ),
         (1, 675, "an operator's Arm refused for want of a session, yet the host re-armed the board itself"),
+        (27, 195, "a gimbal stuck while asked for 4.5 mrad/s, the pointing 0.9° off, never reported"),
     ],
 )
 def test_a_run_the_campaigns_failed_now_keeps_every_invariant(seed, index, found):
