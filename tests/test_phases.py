@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from numpy.typing import ArrayLike
 
 from hil.runtime.faults import FaultJournal
 from hil.runtime.phases import ROTOR_SETTLE_S, Phase, RunPhases
@@ -21,7 +22,7 @@ class _Estimator:
         self.gyro_bias = np.zeros(3)
         self.rest_learning = True
 
-    def set_gyro_bias(self, bias: np.ndarray) -> None:
+    def set_gyro_bias(self, bias: ArrayLike) -> None:
         self.gyro_bias = np.asarray(bias, dtype=float)
 
     def set_rest_learning(self, enabled: bool) -> None:
