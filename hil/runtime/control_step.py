@@ -20,11 +20,12 @@ from protocol.messages import ActuatorSetpoint, GimbalMode, UnitSetpoint
 Array = NDArray[np.float64]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Steered:
     """One control step's result: ``setpoint`` the message for the board, ``torque`` (3,) N m the
     controller asked of the array (L_r, body frame) and ``delta`` the array's singularity measure δ at the
-    step's gimbal angles and rotor speeds."""
+    step's gimbal angles and rotor speeds. (Not ``frozen``, as :class:`hil.runtime.rows.TickSnapshot`:
+    made on every control tick.)"""
 
     setpoint: ActuatorSetpoint
     torque: Array
