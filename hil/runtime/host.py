@@ -109,8 +109,7 @@ class Host:
         from hil.estimation.multirate import Merger
 
         sc = self.scenario
-        self.params = sc.spacecraft
-        self.n = self.params.n_units
+        self.n = sc.spacecraft.n_units
         self._filter_config = self.filter_config or sc.filter_config()
         self.filter = self._new_filter()
         self.merger = Merger()
