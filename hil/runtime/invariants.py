@@ -66,8 +66,8 @@ SPOOF_REASONS = {
 """The admission reason each hostile reading of ``firmware-sim --phone-spoof KIND`` is dropped for."""
 RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, boot, handshake)
 DEAD_ESC_S = 8.0  # a dead rotor ESC → reported: it coasts below 5 % of its command (τ 1.5 s), then 0.5 s
-DROP_NOTE_S = 0.1  # the host notes a reason's dropped readings at most this often (hil.runtime.host)
-SPUN_UP = 0.05  # rotors within this fraction of nominal when the host steers again (hil.runtime.host)
+DROP_NOTE_S = 0.1  # the host notes a reason's dropped readings at most this often (hil.runtime.phone_clock)
+SPUN_UP = 0.05  # rotors within this fraction of nominal when the host steers again (hil.runtime.phases)
 
 
 @dataclass(frozen=True)

@@ -86,7 +86,7 @@ logger = logging.getLogger(__name__)
 Progress = Callable[[Host, float], None]
 """Called after every control tick with the host and the time since the run started (s)."""
 
-SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by Host.MAX_SPINUP_S)
+SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by phases.MAX_SPINUP_S)
 PACE_PERIOD_S = 0.01  # a paced lockstep run waits for the wall clock every this much simulated time
 DISARM_WAIT_S = 1.0  # an interrupted run waits at most this long (its clock) for the board's Disarm answer
 

@@ -22,7 +22,7 @@ command     what the run does
 Every step is an ``events.jsonl`` record ``{"kind": "command", "origin": ..., "id": n, "command": ...,
 "status": ...}``: ``sent`` (to the board) then ``acked`` / ``nacked`` / ``failed`` (the board protocol's
 answer), or ``applied`` / ``refused`` (host-side), each with details; and each command is in the run's
-operator log (:attr:`hil.runtime.host.Host.operator_log`, ``summary.json``'s ``operator``) with its last
+operator log (:class:`OperatorLog`, ``summary.json``'s ``operator``) with its last
 status, so a run's record says what an operator did to it and when.
 """
 
@@ -38,6 +38,7 @@ from protocol.messages import BoardState
 
 if TYPE_CHECKING:
     from hil.runtime.host import Host
+    from hil.runtime.runlog import EventLog
     from protocol.reliable import Command as BoardCommand
 
 COMMANDS = ("arm", "disarm", "abort", "hold", "slew")
@@ -180,6 +181,49 @@ class Operator:
     @staticmethod
     def _log(host: Host, t: float, command: OperatorCommand, status: str, **fields: Any) -> None:
         host.record_command(t, command, status, **fields)
+
+
+class OperatorLog:
+    """The run's record of the operator's commands: each step of each command an ``events.jsonl`` record,
+    and each command one entry in :attr:`entries` (``summary.json``'s ``operator``), created at its first
+    step and updated with its last status."""
+
+    def __init__(self, events: EventLog) -> None:
+        self.events = events
+        self.entries: list[dict[str, Any]] = []
+
+    def record(self, t: float, command: OperatorCommand, status: str, **fields: Any) -> None:
+        """``command``'s step at ``t`` (s): ``status`` (``sent``, ``acked``, ``refused``, ...) and its
+        details ``fields`` (a ``reason`` is kept in the entry too)."""
+        self.events.write(
+            t,
+            "command",
+            origin=command.origin,
+            id=command.id,
+            command=command.name,
+            status=status,
+            remote=command.remote,
+            **fields,
+        )
+        for entry in reversed(self.entries):
+            if entry["id"] == command.id and entry["origin"] == command.origin:
+                entry.update(status=status, status_t=t)
+                if "reason" in fields:
+                    entry["reason"] = fields["reason"]
+                return
+        entry = {
+            "t": t,
+            "id": command.id,
+            "origin": command.origin,
+            "command": command.name,
+            "status": status,
+            "status_t": t,
+        }
+        if command.target is not None:
+            entry["target_euler_deg"] = list(command.target)
+        if "reason" in fields:
+            entry["reason"] = fields["reason"]
+        self.entries.append(entry)
 
 
 class ScheduledOperator:

@@ -2,15 +2,17 @@
 floats, and the run's in-memory trace from the slew's start (:class:`RunTrace`: what the summary, the live
 progress line and a Monte Carlo campaign's metrics are computed from, with no file in between).
 
-A row is built on the control tick as a flat list of numbers in column order — no dict, no numpy call per
-cell: rotations are handled as row-major 9-tuples (``hil.so3.floats``' layout) — and handed to the
-run's :class:`hil.runtime.runlog.CsvLog`, whose writer thread formats and writes it off the tick.
+The columns are one schema (:class:`TelemetrySchema`) that gives both the header and a row's layout: a row is
+given on the control tick by name — a few dozen plain numbers under their blocks' keys, no numpy call per
+cell: rotations are handled as row-major 9-tuples (``hil.so3.floats``' layout) — laid out by the schema
+in column order and handed to the run's :class:`hil.runtime.runlog.CsvLog`, whose writer thread formats
+and writes it off the tick.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,31 +24,32 @@ from hil.so3.floats import Mat9
 Array = NDArray[np.float64]
 
 
-def telemetry_columns(n_units: int) -> list[str]:
-    """The telemetry.csv columns for ``n_units`` units (docs/architecture.md, "Run directory")."""
-    cols = ["t", "phase", "est_err_deg", "rate_err", "point_err_deg", "track_err_deg"]
-    cols += [f"{who}_{q}{axis}" for q in ("r", "w") for who in ("est", "true") for axis in "xyz"]
-    cols += [f"tau_{a}" for a in "xyz"] + ["delta"]
-    for name in ("gimbal_angle", "gimbal_rate", "rotor_speed", "cmd_gimbal_rate", "cmd_rotor_speed"):
-        cols += [f"{name}_{i}" for i in range(n_units)]
-    cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
-    cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
-    cols += list(BOARD_EXTRA_COLUMNS) + list(VIEW_COLUMNS)
-    return cols
+@dataclass(frozen=True, slots=True)
+class ColumnBlock:
+    """One value of a telemetry row by name: ``key`` (the name the row's values are given under),
+    ``names`` (its columns: one for a scalar, several for a vector such as a value per unit), and whether
+    it comes from the board's telemetry (``board``: empty in every row whose ``board_link`` is not live)."""
+
+    key: str
+    names: tuple[str, ...]
+    board: bool = False
 
 
-def board_columns(n_units: int) -> list[str]:
-    """The columns whose values come from the board's telemetry: empty in every row whose ``board_link``
-    is not live (:class:`hil.runtime.faults.BoardLink`), never the last values repeated."""
-    cols = [f"{name}_{i}" for name in ("gimbal_angle", "gimbal_rate", "rotor_speed") for i in range(n_units)]
-    cols += [f"pulse_{kind}_{i}" for i in range(n_units) for kind in ("gimbal", "rotor")]
-    cols += ["battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms"]
-    return cols + list(BOARD_EXTRA_COLUMNS)
+def _scalars(*names: str, board: bool = False) -> list[ColumnBlock]:
+    """One block per column, keyed by the column's own name."""
+    return [ColumnBlock(name, (name,), board) for name in names]
 
 
 BOARD_EXTRA_COLUMNS = (
-    "battery_a", "battery_soc", "ubec_v", "ubec_a", "power_state", "watchdog", "faults", "board_mode",
-)  # fmt: skip
+    "battery_a",
+    "battery_soc",
+    "ubec_v",
+    "ubec_a",
+    "power_state",
+    "watchdog",
+    "faults",
+    "board_mode",
+)
 """The rest of the board's latest Telemetry: battery current (A) and charge (%), UBEC volts and amps, power
 state, watchdog state, fault bits, control mode (enumerations as their numbers). Empty, as every board
 value, when the host's view of the board is not live."""
@@ -55,6 +58,73 @@ VIEW_COLUMNS = ("tel_age_ms", "board_link", "phone_age_ms")
 """The host's view: how old the latest board telemetry is (ms, host clock: it grows while none comes),
 :class:`hil.runtime.faults.BoardLink` (0 live, 1 stale, 2 link lost), and how old the newest phone sample
 is (ms, host clock; empty before the first)."""
+
+
+class TelemetrySchema:
+    """The ``telemetry.csv`` columns for ``n_units`` units (docs/architecture.md, "Run directory") and
+    the one way a row is made from its values, so that the header and the values cannot disagree: a row is
+    given by name (:meth:`row`: a block's key → its value, or a sequence of as many values as the block
+    has columns), laid out in column order here and nowhere else. A block not given is empty (a tick
+    without a live board gives no board value). A key that names no block, or a vector of the wrong
+    length, is an error (a misspelled key would otherwise empty a column without a word).
+
+    Blocks, in order: time and phase, the estimator's and the pointing errors; the estimated and true
+    attitude (``*_r*``: rotation vector, rad) and rate (``*_w*``, rad/s); the torque demand (N m) and the
+    singularity measure δ; per unit the gimbal angles (rad), gimbal rates (rad/s), rotor speeds (rad/s)
+    and the commanded gimbal rates and rotor speeds; the pulse widths (µs, gimbal and rotor per unit);
+    the board's battery, state and link counters; :data:`BOARD_EXTRA_COLUMNS`; :data:`VIEW_COLUMNS`."""
+
+    def __init__(self, n_units: int) -> None:
+        self.n_units = n_units
+        units = range(n_units)
+        blocks = _scalars("t", "phase", "est_err_deg", "rate_err", "point_err_deg", "track_err_deg")
+        for q in ("r", "w"):
+            for who in ("est", "true"):
+                blocks.append(ColumnBlock(f"{who}_{q}", tuple(f"{who}_{q}{axis}" for axis in "xyz")))
+        blocks.append(ColumnBlock("tau", tuple(f"tau_{axis}" for axis in "xyz")))
+        blocks += _scalars("delta")
+        for name in ("gimbal_angle", "gimbal_rate", "rotor_speed"):
+            blocks.append(ColumnBlock(name, tuple(f"{name}_{i}" for i in units), board=True))
+        for name in ("cmd_gimbal_rate", "cmd_rotor_speed"):
+            blocks.append(ColumnBlock(name, tuple(f"{name}_{i}" for i in units)))
+        pulses = tuple(f"pulse_{kind}_{i}" for i in units for kind in ("gimbal", "rotor"))
+        blocks.append(ColumnBlock("pulse", pulses, board=True))
+        board = ("battery_v", "board_state", "link_rx_frames", "link_bad_frames", "link_age_ms")
+        blocks += _scalars(*board, *BOARD_EXTRA_COLUMNS, board=True)
+        blocks += _scalars(*VIEW_COLUMNS)
+        self.blocks = tuple(blocks)
+        self.columns = tuple(name for block in self.blocks for name in block.names)
+        self.board_columns = tuple(name for block in self.blocks if block.board for name in block.names)
+        self._keys = frozenset(block.key for block in self.blocks)
+        self._layout = tuple((block.key, len(block.names)) for block in self.blocks)
+
+    def row(self, values: Mapping[str, Any]) -> list[Any]:
+        """The row of ``values`` (by block key) in column order, None where a block is not given."""
+        if not values.keys() <= self._keys:
+            raise KeyError(f"no telemetry column block(s) {sorted(values.keys() - self._keys)}")
+        row: list[Any] = []
+        for key, width in self._layout:
+            value = values.get(key)
+            if width == 1:
+                row.append(value)
+            elif value is None:
+                row.extend([None] * width)
+            elif len(value) == width:
+                row.extend(value)
+            else:
+                raise ValueError(f"telemetry block {key!r}: {len(value)} values for {width} columns")
+        return row
+
+
+def telemetry_columns(n_units: int) -> list[str]:
+    """The telemetry.csv columns for ``n_units`` units (:class:`TelemetrySchema`)."""
+    return list(TelemetrySchema(n_units).columns)
+
+
+def board_columns(n_units: int) -> list[str]:
+    """The columns whose values come from the board's telemetry: empty in every row whose ``board_link``
+    is not live (:class:`hil.runtime.faults.BoardLink`), never the last values repeated."""
+    return list(TelemetrySchema(n_units).board_columns)
 
 
 # --------------------------------------------------------------------------- rotations as 9-tuples

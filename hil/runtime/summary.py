@@ -1,0 +1,145 @@
+"""The run's summary (``summary.json``'s host part): its counts, its pointing figures, the faults and the
+outages they made, the operator's commands, and whether the run met its pointing requirement — and when
+it did not, why, from what the record holds."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from hil.link.board import BoardClient
+from hil.runtime.faults import FaultJournal
+from hil.runtime.phases import RunPhases
+from hil.runtime.telemetry import RunTrace
+from hil.runtime.watch import BoardWatch
+from hil.scenario import Scenario
+from protocol.errors import HilError
+
+
+@dataclass
+class HostCounters:
+    """What the host has done so far: estimator steps, phone samples fed (accepted or not), control
+    ticks, setpoints the board reset under, phone clock re-anchorings."""
+
+    estimator_steps: int = 0
+    samples: int = 0
+    control_ticks: int = 0
+    setpoint_errors: int = 0
+    phone_restarts: int = 0
+
+
+def run_summary(
+    *,
+    scenario: Scenario,
+    client: BoardClient,
+    watch: BoardWatch,
+    journal: FaultJournal,
+    phases: RunPhases,
+    counters: HostCounters,
+    trace: RunTrace,
+    estimator_rmse: float | None,
+    phone_admission: dict[str, Any],
+    operator_log: list[dict[str, Any]],
+    lost: str | None,
+) -> dict[str, Any]:
+    """The run's figures: settle time (first time after which the pointing error stays ≤ settle_deg,
+    from the slew's start), final and peak pointing error, peak gimbal rate, minimum δ, the
+    estimator's RMSE over slew + hold (``estimator_rmse``, simulated runs); the faults — failsafes,
+    resets, link losses, reconnects, stale telemetry, phone gaps, each with its time and cause — and the
+    outages they made (:meth:`hil.runtime.faults.FaultJournal.summary`); the operator's commands and
+    suspensions; ``lost`` why the run lost the board (or the phone), if it did; None where not reached.
+    Taken at the client's clock's now."""
+    now = client.clock.now()
+    since = phases.suspended_since
+    gimbal_rate_limit = scenario.spacecraft.limits.max_gimbal_rate
+    out: dict[str, Any] = {
+        "scenario": scenario.name,
+        "settle_requirement_deg": scenario.settle_deg,
+        "slew_started": phases.slew_start is not None,
+        "failsafe_events": watch.failsafes,
+        "board_resets": watch.resets,
+        "link_lost": watch.link_losses,
+        "reconnects": watch.reconnects,
+        "rearms": watch.rearms,
+        "stale_episodes": watch.stale_episodes,
+        "phone_gaps": len(journal.phone_gaps),
+        "phone_restarts": counters.phone_restarts,
+        "lost": lost or journal.open_at_end(now),
+        "estimator_steps": counters.estimator_steps,
+        "phone_samples": counters.samples,
+        "control_ticks": counters.control_ticks,
+        "max_gimbal_rate_limit": gimbal_rate_limit,
+        "operator": [dict(entry) for entry in operator_log],
+        "operator_commands": len(operator_log),
+        "suspended_s": phases.suspended_s + (0.0 if since is None else now - since),
+        "suspended_at_end": since,
+    }
+    out.update(trace.figures(scenario.settle_deg, gimbal_rate_limit))
+    if len(trace):
+        out["slew_s"] = None if phases.slew is None else phases.slew.duration_s
+    out["estimator_rmse_deg"] = estimator_rmse
+    out["phone_admission"] = phone_admission
+    out["requirement"] = requirement(out, now, phases, journal, operator_log, client)
+    faults = journal.summary(now)
+    out["phone_gap_list"] = faults.pop("phone_gaps")
+    out.update(faults)
+    return out
+
+
+def requirement(
+    figures: dict[str, Any],
+    now: float,
+    phases: RunPhases,
+    journal: FaultJournal,
+    operator_log: list[dict[str, Any]],
+    client: BoardClient,
+) -> dict[str, Any]:
+    """Whether the run met its pointing requirement (settled within ``settle_deg``: ``figures``' ``settled``)
+    and, when it did not, why — what the record holds that explains it: the operator's suspensions and
+    retargets, the faults since the slew started, frames damaged on the link, a recovery that left too
+    little time (at ``now``, host s). ``explained`` is False when nothing in the record explains a miss
+    (a controller that did not settle on its own)."""
+    if figures.get("settled"):
+        return {"met": True, "why": None, "explained": True}
+    reasons: list[str] = []
+    if phases.slew_start is None:
+        reasons.append("the slew never started")
+    suspended = figures.get("suspended_s") or 0.0
+    if suspended > 0 or phases.suspended_since is not None:
+        reasons.append(f"disarmed by the operator for {suspended:.1f} s")
+    retargets = [o for o in operator_log if o["command"] in ("slew", "hold") and o["status"] == "applied"]
+    if retargets:
+        reasons.append(f"retargeted by the operator at t={retargets[-1]['t']:.1f} s")
+    since = -math.inf if phases.slew_start is None else phases.slew_start
+    kinds: dict[str, int] = {}
+    for f in journal.faults:
+        if f["t"] >= since:
+            kinds[f["kind"]] = kinds.get(f["kind"], 0) + 1
+    if kinds:
+        reasons.append("faults: " + ", ".join(f"{k} x{n}" for k, n in kinds.items()))
+    damaged = damaged_frames(client)
+    if damaged:
+        reasons.append(f"link: {damaged} damaged frames (setpoints and telemetry lost with them)")
+    slew = phases.slew
+    if slew is not None and phases.slew_start is not None:
+        left = now - slew.start_s
+        if left < slew.duration_s:
+            reasons.append(
+                f"steering from t={slew.start_s:.1f} s, {left:.1f} s before the end: its slew "
+                f"needed {slew.duration_s:.1f} s"
+            )
+    explained = bool(reasons)
+    if not reasons:
+        reasons.append("nothing in the record explains it: the controller did not settle")
+    return {"met": False, "why": "; ".join(reasons), "explained": explained}
+
+
+def damaged_frames(client: BoardClient) -> int:
+    """Frames damaged on the link, either way (the host's deframer and the board's receiver); 0 when the
+    client has no statistics to give (no session)."""
+    try:
+        stats = client.stats()
+    except HilError:
+        return 0
+    return sum(stats.bad_frames.values()) + (stats.board_rx_bad or 0)

@@ -1,0 +1,116 @@
+"""The run's phases as a state machine on their own (:class:`hil.runtime.phases.RunPhases`), driven tick by
+tick without a board, a phone or a host: the first warm-up (still window at rest, spin-up, the settle
+time) into the scenario's slew, the slew into the hold, a fault back into a recovery warm-up, and the
+operator's suspension with its time kept off the run's clock."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.typing import ArrayLike
+
+from hil.runtime.faults import FaultJournal
+from hil.runtime.phases import ROTOR_SETTLE_S, Phase, RunPhases
+from hil.runtime.runlog import EventLog
+from hil.scenario import load_scenario
+
+
+class _Estimator:
+    """What the phases need of an estimator: its bias, and rest learning on or off."""
+
+    def __init__(self) -> None:
+        self.gyro_bias = np.zeros(3)
+        self.rest_learning = True
+
+    def set_gyro_bias(self, bias: ArrayLike) -> None:
+        self.gyro_bias = np.asarray(bias, dtype=float)
+
+    def set_rest_learning(self, enabled: bool) -> None:
+        self.rest_learning = enabled
+
+
+def _kinds(events: EventLog) -> list[str]:
+    return [e["kind"] for e in events.events]
+
+
+def _through_first_warmup(phases: RunPhases, estimator: _Estimator, dt: float = 0.02) -> float:
+    """Ticks with the rotors at rest through the still window, then at nominal speed until the slew starts;
+    returns the slew's start (s)."""
+    scenario = phases.scenario
+    n = scenario.n_units
+    rest, spun = np.zeros(n), np.full(n, phases.nominal_rotor_speed)
+    attitude = np.eye(3)
+    t = 0.0
+    while phases.resting or phases.spinup_since is None:
+        if phases.collecting_bias:
+            phases.add_bias_sample(np.array([1e-3, -2e-3, 5e-4]))
+        phases.warm_up(
+            t, rest, ready=True, phone_fresh=True, attitude=attitude, estimator=estimator, esc_dead=False
+        )
+        t += dt
+    while not phases.warm_up(
+        t, spun, ready=True, phone_fresh=True, attitude=attitude, estimator=estimator, esc_dead=False
+    ):
+        t += dt
+    return t
+
+
+def test_the_first_warm_up_measures_the_bias_at_rest_then_spins_up_and_starts_the_slew():
+    scenario = load_scenario()
+    events = EventLog(None)
+    phases = RunPhases(scenario, events, FaultJournal(), hold=False)
+    estimator = _Estimator()
+    assert phases.phase is Phase.WARMUP and phases.first_warmup
+    start = _through_first_warmup(phases, estimator)
+    assert phases.phase is Phase.SLEW and phases.slew_start == start
+    assert phases.spun_since is not None and start - phases.spun_since >= ROTOR_SETTLE_S - 1e-9
+    assert np.allclose(phases.gyro_bias, [1e-3, -2e-3, 5e-4])  # the window's second half, averaged
+    assert np.allclose(estimator.gyro_bias, phases.gyro_bias) and not estimator.rest_learning
+    assert _kinds(events) == ["still_window", "spin_up", "slew_start"]
+    assert phases.slew is not None
+    phases.finish_slew(start + phases.slew.duration_s)
+    assert phases.phase is Phase.HOLD and _kinds(events)[-1] == "slew_end"
+
+
+def test_a_fault_brings_a_recovery_warm_up_and_a_new_slew_to_the_same_target():
+    scenario = load_scenario()
+    events = EventLog(None)
+    phases = RunPhases(scenario, events, FaultJournal(), hold=False)
+    estimator = _Estimator()
+    start = _through_first_warmup(phases, estimator)
+    target = phases.target
+    phases.restart_warmup(start + 1.0, "failsafe", still=False)
+    assert phases.phase is Phase.WARMUP and not phases.need_still
+    assert _kinds(events)[-1] == "recovery_start"
+    spun = np.full(scenario.n_units, phases.nominal_rotor_speed)
+    assert phases.warm_up(
+        start + 1.1,
+        spun,
+        ready=True,
+        phone_fresh=True,
+        attitude=np.eye(3),
+        estimator=estimator,
+        esc_dead=False,
+    )
+    assert phases.phase is Phase.SLEW and phases.target is target and phases.slew_start == start
+    assert _kinds(events)[-2:] == ["spin_up", "resume"]
+
+
+def test_the_operators_suspension_holds_faults_and_moves_the_run_clock():
+    scenario = load_scenario()
+    events = EventLog(None)
+    phases = RunPhases(scenario, events, FaultJournal(), hold=False)
+    start = _through_first_warmup(phases, _Estimator())
+    phases.suspend(start + 2.0, "gcs")
+    assert phases.phase is Phase.SUSPENDED
+    phases.restart_warmup(start + 3.0, "phone_gap", still=True)
+    assert phases.phase is Phase.SUSPENDED and _kinds(events)[-1] == "fault_while_suspended"
+    assert not phases.time_is_up(start + 1e6, 1.0)  # no requirement clock while suspended
+    phases.end_suspension(start + 7.0, "gcs")
+    assert phases.phase is Phase.WARMUP and phases.need_still  # the phone went away meanwhile
+    assert _kinds(events)[-2:] == ["recovery_start", "suspension_end"]
+    assert phases.suspended_s == pytest.approx(5.0) and phases.suspended_after_slew_s == pytest.approx(5.0)
+    assert not phases.time_is_up(
+        start + 14.9, 10.0
+    )  # 9.9 s of the run's clock: the 5 s suspended not counted
+    assert phases.time_is_up(start + 15.0, 10.0)
