@@ -19,10 +19,11 @@ the run's :class:`~.base.SourceContext`. For a live stream the host *listens* on
 free one); the emulator's simulated phone *streams* to it (:func:`open_sender`), exactly as the app would,
 so the live path is the one a real phone uses. ``docs/formats.md`` says how to set up each app.
 
-Every scheme, the built-in ones included, is an entry point in the group ``vscmg_hil.phone_sources``
-whose name is the scheme and whose value is ``"module:factory"`` (a :data:`~.base.SourceFactory`: it takes
-the URL and the context and returns the source, open), imported on first use. Another package adds a
-scheme in its ``pyproject.toml``::
+As with the transports (:mod:`hil.link.transports`) and the estimators (:mod:`hil.estimation.registry`),
+the schemes ``hil`` ships are in its table and each maps to ``"module:factory"`` (a
+:data:`~.base.SourceFactory`: it takes the URL and the context and returns the source, open), imported on
+first use; another package adds a scheme as an entry point in the group ``vscmg_hil.phone_sources``
+whose name is the scheme, in its ``pyproject.toml``::
 
     [project.entry-points."vscmg_hil.phone_sources"]
     myrig = "mypackage.phone:open_rig"
@@ -44,13 +45,19 @@ from protocol.errors import ConfigError
 ENTRY_POINT_GROUP = "vscmg_hil.phone_sources"
 DEFAULT_PHONE_URL = "udp://127.0.0.1:8123"
 
-# scheme -> "module:factory", from the installed entry points and register().
-_REGISTRY: dict[str, str] = {}
+# scheme -> "module:factory": hil's own, then the installed entry points and register().
+_REGISTRY: dict[str, str] = {
+    "udp": "hil.link.sources.listening:listen",
+    "http": "hil.link.sources.listening:listen",
+    "recording": "hil.link.sources.recorded:play",
+    "sim": "hil.link.sources.simulated:simulated_phone",
+}
 _discovered = False
 
 
 def _discover() -> None:
-    """Add the schemes installed packages register as entry points (once; :func:`register` wins)."""
+    """Add the schemes installed packages register as entry points (once; :func:`register` and the
+    built-in schemes win)."""
     global _discovered
     if _discovered:
         return
