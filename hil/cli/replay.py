@@ -71,9 +71,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("--window", nargs=2, type=float, metavar=("T0", "T1"), help="replay only this part (s)")
     p.add_argument(
-        "--max-gap", type=float, default=MAX_GAP_S, metavar="S",
+        "--max-gap",
+        type=float,
+        default=MAX_GAP_S,
+        metavar="S",
         help=f"restart the filter where the log's clock jumps by more (default {MAX_GAP_S:g} s)",
-    )  # fmt: skip
+    )
     field = p.add_mutually_exclusive_group()
     field.add_argument(
         "--inclination", type=float, metavar="DEG", help="field inclination (default: measured)"
@@ -96,9 +99,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     board = p.add_argument_group("driving a board")
     board.add_argument("--port", metavar="URL", help="drive the board at URL (a hil run transport URL)")
     board.add_argument(
-        "--scenario", default="cubesat-1u", metavar="NAME|FILE",
+        "--scenario",
+        default="cubesat-1u",
+        metavar="NAME|FILE",
         help="with --port: the spacecraft, array and controller (default cubesat-1u)",
-    )  # fmt: skip
+    )
     board.add_argument(
         "--lockstep", action="store_true", help="with --port emu://...: simulated time (the default there)"
     )
@@ -213,14 +218,18 @@ def run(args: argparse.Namespace) -> int:
     driver = stats.driver.label if stats.driver is not None else "-"
     drops = f"nan {sum(stats.nan.values())}, duplicate {sum(stats.duplicate.values())}"
     drops += f", out of order {sum(stats.out_of_order.values())}"
-    print(f"  merge: driver {driver}, {stats.dropped} samples dropped ({drops}), {stats.gaps} gaps, "
-          f"{stats.failover_steps} failover steps")  # fmt: skip
+    print(
+        f"  merge: driver {driver}, {stats.dropped} samples dropped ({drops}), {stats.gaps} gaps, "
+        f"{stats.failover_steps} failover steps"
+    )
     rejected = result.mag_rejections
     if rejected:
         total = sum(b - a for a, b in rejected)
         longest = max(rejected, key=lambda ab: ab[1] - ab[0])
-        print(f"  magnetometer left out as disturbed: {len(rejected)} intervals, {total:.1f} s in all "
-              f"(longest {longest[0]:.1f}-{longest[1]:.1f} s); every interval in summary.json")  # fmt: skip
+        print(
+            f"  magnetometer left out as disturbed: {len(rejected)} intervals, {total:.1f} s in all "
+            f"(longest {longest[0]:.1f}-{longest[1]:.1f} s); every interval in summary.json"
+        )
     if result.gyro_bias is not None:
         print(f"  gyro bias estimate at the end: {[round(x, 5) for x in result.gyro_bias]} rad/s")
     if result.log.six_axis:
@@ -287,11 +296,14 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     result = run_scenario(
         scenario,
         RunOptions(
-            port=args.port, lockstep=True if args.lockstep else None, out_root=args.out or Path("runs"),
-            progress=LiveProgress(), label=f"replay-{name}",
+            port=args.port,
+            lockstep=True if args.lockstep else None,
+            out_root=args.out or Path("runs"),
+            progress=LiveProgress(),
+            label=f"replay-{name}",
             replay=ReplayInput(log, estimator, site, tuple(setup)),
         ),
-    )  # fmt: skip
+    )
     if not args.no_plots:
         assert result.run_dir is not None  # out_root is given
         draw_plots(result.run_dir)

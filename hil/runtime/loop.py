@@ -190,8 +190,9 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
         raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
     if not (math.isfinite(opts.recover_within_s) and opts.recover_within_s > 0):
-        raise ConfigError(f"must be a positive number of seconds, got {opts.recover_within_s!r}",
-                          "run --recover-within")  # fmt: skip
+        raise ConfigError(
+            f"must be a positive number of seconds, got {opts.recover_within_s!r}", "run --recover-within"
+        )
     if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
         from hil.runtime.warmup import warm
 
@@ -216,8 +217,11 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     events = EventLog(None if run_dir is None else run_dir / "events.jsonl", tap=tap_event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
     if opts.replay is not None:
-        summary["replay"] = {"log": opts.replay.log.source, "format": opts.replay.log.format,
-                             "setup": list(opts.replay.setup)}  # fmt: skip
+        summary["replay"] = {
+            "log": opts.replay.log.source,
+            "format": opts.replay.log.format,
+            "setup": list(opts.replay.setup),
+        }
     started = time.monotonic()
     built: _Built | None = None
     error: BaseException | None = None
@@ -305,9 +309,13 @@ class _HeldEvents:
 
 
 def _build(
-    scenario: Scenario, opts: RunOptions, plan: _Plan, telemetry: CsvLog | RowTap | None, events: EventLog,
+    scenario: Scenario,
+    opts: RunOptions,
+    plan: _Plan,
+    telemetry: CsvLog | RowTap | None,
+    events: EventLog,
     stack: contextlib.ExitStack,
-) -> _Built:  # fmt: skip
+) -> _Built:
     """Board client, phone source (:func:`hil.link.sources.create_source` on ``plan.phone``), host and
     scheduler for ``plan``; everything opened is closed by ``stack``."""
     from hil.link.board import BoardClient
@@ -346,11 +354,16 @@ def _build(
         return None if found is None else TruthSample(found.R, found.omega)
 
     host = Host(
-        scenario, client, telemetry, events, truth, duration,
+        scenario,
+        client,
+        telemetry,
+        events,
+        truth,
+        duration,
         make_estimator=None if replay is None else partial(replay.estimator.build, replay.site),
         hold=replay is not None,
         recover_within_s=opts.recover_within_s,
-    )  # fmt: skip
+    )
     host.watch.on_events(handshake)
     write_event.release()
     # before arming: the board's link watchdog is fed while we wait, not by the armed loop

@@ -74,8 +74,10 @@ def warm(scenario: Scenario) -> float | None:
             child.wait()
         if child.returncode != 0:
             err.seek(0)
-            logger.warning("compiling the world's kernels failed (the run compiles them): %s",
-                           err.read().decode("utf-8", "replace")[-500:])  # fmt: skip
+            logger.warning(
+                "compiling the world's kernels failed (the run compiles them): %s",
+                err.read().decode("utf-8", "replace")[-500:],
+            )
             return time.monotonic() - start
     try:
         path = marker()

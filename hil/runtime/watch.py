@@ -152,8 +152,9 @@ class BoardWatch:
                 self._stale_noted = True
                 self.stale_episodes += 1
                 heard = "never" if age is None else f"{age * 1e3:.0f} ms ago"
-                logger.warning("no board telemetry for %.2f s at t=%.3f s (the last: %s)", t - since, t,
-                               heard)  # fmt: skip
+                logger.warning(
+                    "no board telemetry for %.2f s at t=%.3f s (the last: %s)", t - since, t, heard
+                )
                 self.journal.fault(t, "stale", tel_age_ms=None if age is None else age * 1e3)
         return View(link, tel if link is BoardLink.LIVE else None, age)
 
