@@ -306,7 +306,13 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
 
     cfg = board_config(args)
     board = Board(cfg, clock if clock is not None else WallClock())  # type: ignore[arg-type]
-    faults = board.faults
+    schedule_faults(board.faults, args, cfg)
+    return board
+
+
+def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ignore[no-untyped-def]
+    """The fault options into ``faults`` (a board's ``FaultInjector``; times relative to its clock's
+    start): the Python board's, or the firmware board's in a world (:mod:`.avr.stepped`)."""
     faults.link(corrupt=args.corrupt, drop=args.drop, direction=args.fault_direction)
     for spec in args.stall:
         at, duration = parse_stall(spec)
@@ -342,7 +348,6 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
         if ch >= cfg.n_channels:  # the API checks too; here the error names the option
             raise ConfigError(f"channel {ch} does not exist (the board has {cfg.n_channels})", "--dead-esc")
         faults.dead_esc(ch, at=esc_at)
-    return board
 
 
 def main(argv: Sequence[str] | None = None) -> int:
