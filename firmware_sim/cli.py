@@ -42,6 +42,8 @@ examples:
   firmware-sim --world cubesat-1u --link /tmp/vscmg
                                                 the board drives a simulated spacecraft (a hil scenario);
                                                 its phone streams to udp://127.0.0.1:8123 (hil run --port)
+  firmware-sim --avr --world cubesat-1u --link /tmp/vscmg
+                                                ... the real firmware under simavr drives it, in real time
   firmware-sim --can udp_multicast/239.74.163.2?port=43113
                                                 serve on a CAN bus instead (prints the host's URL)
   hil run --port can://udp_multicast/239.74.163.2?port=43113   (in another terminal) drive it
@@ -359,7 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
-    if args.avr is not None:
+    if args.avr is not None and args.world is None:  # with a world, the firmware is stepped from here
         from .avr.harness import HarnessDied
         from .avr.serve import run
 
@@ -380,7 +382,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             scenario = load_scenario(args.world)
             args.units = scenario.n_units
             args.phone = phone_url(args.phone)
-        board = make_board(args)
+        if args.avr is not None:
+            from hil.timing.clock import WallClock
+
+            from .avr.stepped import firmware_board
+
+            board = firmware_board(args, WallClock())  # the Board interface the server and world call
+        else:
+            board = make_board(args)
         server: PtyServer | CanServer
         if args.can is not None:
             server = CanServer(board, args.can)

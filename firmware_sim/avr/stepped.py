@@ -40,6 +40,7 @@ import subprocess
 import weakref
 from collections.abc import Sequence
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 from hil.timing.clock import Clock, LockstepClock
@@ -54,7 +55,7 @@ from ..board.power import solve_supply
 from ..board.power_models import Battery, PowerReading
 from ..board.timeline import PulseTimeline, ResetEvent
 from .harness import F_CPU, AvrBoard, HarnessOptions
-from .paths import FIRMWARE_DIR
+from .paths import FIRMWARE_DIR, FIRMWARE_ELF
 
 SETTLE_US = 2100
 """How long after a frame starts its pulses have all ended (µs): the longest rotor pulse (2000 µs) and
@@ -322,7 +323,9 @@ def firmware_board(args: argparse.Namespace, clock: Clock) -> FirmwareBoard:
     if args.unplug:
         raise ConfigError("not available with the firmware board (a cable unplug is not modelled)", "unplug")
     cfg = board_config(args)
-    board = FirmwareBoard(cfg, clock, HarnessOptions(seed=args.seed))
+    elf = Path(args.avr) if getattr(args, "avr", None) else FIRMWARE_ELF
+    eeprom_file = Path(args.eeprom) if getattr(args, "eeprom", None) else None
+    board = FirmwareBoard(cfg, clock, HarnessOptions(elf=elf, eeprom_file=eeprom_file, seed=args.seed))
     try:
         schedule_faults(board.faults, args, cfg)
     except BaseException:
