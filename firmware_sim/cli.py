@@ -15,6 +15,7 @@ import signal
 import sys
 from collections.abc import Sequence
 from types import FrameType
+from typing import Any
 
 from protocol.errors import ConfigError, HilError
 
@@ -382,6 +383,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             scenario = load_scenario(args.world)
             args.units = scenario.n_units
             args.phone = phone_url(args.phone)
+        board: Any  # a Board, or a FirmwareBoard with the interface the servers and the world call
         if args.avr is not None:
             from hil.timing.clock import WallClock
 
