@@ -122,6 +122,7 @@ class FirmwareBoard:
         self._sent_power = ""
         self._out = bytearray()
         self.steps = 0  # harness step commands
+        solve_supply(self.power, self.battery, cfg.power.ubec, self.units, self.faults, self.now)
         self._send_power()
 
     # ------------------------------------------------------------------ lifecycle
@@ -146,17 +147,18 @@ class FirmwareBoard:
         return BoardState(self._watched[0]) if self._watched else BoardState.BOOT
 
     def step(self, now: float | None = None) -> None:
-        """Run the firmware up to ``now`` (s; default the clock's now): the units and the battery first
-        (the analog inputs for the span), hangs due meanwhile injected at their time, then the new pulse
-        frames, resets and state read from the harness's record."""
+        """Run the firmware up to ``now`` (s; default the clock's now): the analog inputs set from the
+        battery and rail as they are, the units and the battery brought to the span's end, hangs due
+        meanwhile injected at their time, then the new pulse frames, resets and state read from the
+        harness's record."""
         target = round((self.clock.now() if now is None else now) * 1e6)
         while self._t_us < target:
             until = min(target, self._t_us + round(MAX_STEP_S * 1e6))
             hang_us = round(self.faults.next_hang() * 1e6) if self.faults.hangs else math.inf
             if hang_us <= until:
                 until = max(int(hang_us), self._t_us)
+            self._send_power()  # the battery and rail as they are now, for the span (never ahead of it)
             self._physics(until)
-            self._send_power()
             self._run_to(until)
             if self.faults.hangs and round(self.faults.next_hang() * 1e6) <= self._t_us:
                 self.faults.pop_hang()
