@@ -15,6 +15,7 @@ import signal
 import sys
 from collections.abc import Sequence
 from types import FrameType
+from typing import Any
 
 from protocol.errors import ConfigError, HilError
 
@@ -42,6 +43,8 @@ examples:
   firmware-sim --world cubesat-1u --link /tmp/vscmg
                                                 the board drives a simulated spacecraft (a hil scenario);
                                                 its phone streams to udp://127.0.0.1:8123 (hil run --port)
+  firmware-sim --avr --world cubesat-1u --link /tmp/vscmg
+                                                ... the real firmware under simavr drives it, in real time
   firmware-sim --can udp_multicast/239.74.163.2?port=43113
                                                 serve on a CAN bus instead (prints the host's URL)
   hil run --port can://udp_multicast/239.74.163.2?port=43113   (in another terminal) drive it
@@ -306,7 +309,13 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
 
     cfg = board_config(args)
     board = Board(cfg, clock if clock is not None else WallClock())  # type: ignore[arg-type]
-    faults = board.faults
+    schedule_faults(board.faults, args, cfg)
+    return board
+
+
+def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ignore[no-untyped-def]
+    """The fault options into ``faults`` (a board's ``FaultInjector``; times relative to its clock's
+    start): the Python board's, or the firmware board's in a world (:mod:`.avr.stepped`)."""
     faults.link(corrupt=args.corrupt, drop=args.drop, direction=args.fault_direction)
     for spec in args.stall:
         at, duration = parse_stall(spec)
@@ -342,7 +351,6 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
         if ch >= cfg.n_channels:  # the API checks too; here the error names the option
             raise ConfigError(f"channel {ch} does not exist (the board has {cfg.n_channels})", "--dead-esc")
         faults.dead_esc(ch, at=esc_at)
-    return board
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -354,7 +362,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
-    if args.avr is not None:
+    if args.avr is not None and args.world is None:  # with a world, the firmware is stepped from here
         from .avr.harness import HarnessDied
         from .avr.serve import run
 
@@ -375,7 +383,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             scenario = load_scenario(args.world)
             args.units = scenario.n_units
             args.phone = phone_url(args.phone)
-        board = make_board(args)
+        board: Any  # a Board, or a FirmwareBoard with the interface the servers and the world call
+        if args.avr is not None:
+            from hil.timing.clock import WallClock
+
+            from .avr.stepped import firmware_board
+
+            board = firmware_board(args, WallClock())  # the Board interface the server and world call
+        else:
+            board = make_board(args)
         server: PtyServer | CanServer
         if args.can is not None:
             server = CanServer(board, args.can)

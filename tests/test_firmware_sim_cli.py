@@ -55,7 +55,10 @@ def test_help_teaches_by_example(capsys):
         (["--dead-esc", "99"], "--dead-esc"),
         (["--corrupt", "1.5"], "faults.link.corrupt"),
         (["--soc", "2"], "initial_soc"),
-        (["--avr", "--world", "cubesat-1u"], "--world: not available with --avr"),
+        (
+            ["--avr", "--world", "cubesat-1u", "--unplug", "3:1"],
+            "unplug: not available with the firmware board",
+        ),
     ],
 )
 def test_bad_options_are_clear_errors(argv, where, capsys):

@@ -116,10 +116,20 @@ void bridge_attach(harness_t *h)
     avr_irq_register_notify(avr_io_getirq(h->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_xoff, h);
 }
 
+/* One byte from the host into the receive queue (link noise applied); a full queue loses it. */
+void bridge_receive(harness_t *h, uint8_t b)
+{
+    h->bytes_in++;
+    if (h->rxq_tail - h->rxq_head == (uint32_t)sizeof h->rxq)
+        h->dropped++;
+    else if (noisy(h, &b))
+        h->rxq[h->rxq_tail++ % sizeof h->rxq] = b;
+}
+
 void bridge_service(harness_t *h)
 {
-    /* host -> queue */
-    uint32_t room = (uint32_t)sizeof h->rxq - (h->rxq_tail - h->rxq_head);
+    /* host -> queue (--uart-pipe: the "rx" command fills it instead) */
+    uint32_t room = h->uart_pipe ? 0 : (uint32_t)sizeof h->rxq - (h->rxq_tail - h->rxq_head);
     while (room > 0) {
         uint8_t buf[4096];
         ssize_t n = read(h->master, buf, room < sizeof buf ? room : sizeof buf);
@@ -138,8 +148,8 @@ void bridge_service(harness_t *h)
         avr_raise_irq(uart_input, h->rxq[h->rxq_head++ % sizeof h->rxq]);
     if (h->held)
         h->rxq_head = h->rxq_tail;
-    /* UART -> host */
-    if (h->txq_len) {
+    /* UART -> host (--uart-pipe: the "step" answer takes them) */
+    if (h->txq_len && !h->uart_pipe) {
         ssize_t n = write(h->master, h->txq, h->txq_len);
         if (n > 0) {
             h->bytes_out += (uint64_t)n;

@@ -13,6 +13,14 @@
  *   eeprom                    -> ok                   write the EEPROM to its file now (--eeprom)
  *   mem <addr> <len>          -> ok <hex>             read data memory (RAM), at most 256 bytes
  *   quit                      -> ok                   stop (EEPROM saved, pty closed)
+ * Lockstep (--stepped, --uart-pipe; firmware_sim.avr.stepped drives these):
+ *   step <cycles>             -> ok <cycles> <tx>     run until harness time reaches <cycles> (the record
+ *                                                     flushed); <tx>: the
+ *                                                     bytes UART0 sent meanwhile in hex (--uart-pipe), or -
+ *   rx <hex>                  -> ok                   bytes from the host into UART0's receive queue now
+ *   power <bv> <ba> <uv> <ua> -> ok                   the analog inputs from now on (V, A, V, A): the
+ *                                                     caller's battery and UBEC, brown-out included
+ *   watch <addr> <len>        -> ok                   record RAM[addr..addr+len) as M lines when it changes
  * Anything else -> "error <why>". Commands act between simulation slices (every simulated ms).
  */
 #include <errno.h>
@@ -95,6 +103,62 @@ static int execute(harness_t *h, char *cmd, FILE *out)
             for (unsigned long i = 0; i < len; i++)
                 fprintf(out, "%02x", h->avr->data[addr + i]);
             fprintf(out, "\n");
+        }
+    } else if (!strcmp(c, "step") && argc == 2) {
+        unsigned long long target = strtoull(argv[1], NULL, 10);
+        if (!h->stepped) {
+            fprintf(out, "error step: only with --stepped\n");
+        } else if (harness_run_until(h, target) != 0) {
+            fprintf(out, "error step: the firmware crashed the simulated core at %.6f s\n", harness_seconds(h));
+        } else {
+            fprintf(out, "ok %llu ", (unsigned long long)harness_now(h));
+            if (h->uart_pipe && h->txq_len) {
+                for (uint32_t i = 0; i < h->txq_len; i++)
+                    fprintf(out, "%02x", h->txq[i]);
+                h->bytes_out += h->txq_len;
+                h->txq_len = 0;
+            } else {
+                fputc('-', out);
+            }
+            fputc('\n', out);
+            record_flush(h); /* the record is complete up to the answer's time */
+        }
+    } else if (!strcmp(c, "rx") && argc == 2) {
+        size_t n = strlen(argv[1]);
+        if (!h->uart_pipe || n % 2) {
+            fprintf(out, "error rx: needs --uart-pipe and whole bytes in hex\n");
+        } else {
+            for (size_t i = 0; i < n; i += 2) {
+                char pair[3] = {argv[1][i], argv[1][i + 1], 0};
+                bridge_receive(h, (uint8_t)strtoul(pair, NULL, 16));
+            }
+            fprintf(out, "ok\n");
+        }
+    } else if (!strcmp(c, "power") && argc == 5) {
+        double v[4];
+        int good = 1;
+        for (int i = 0; i < 4; i++) {
+            v[i] = strtod(argv[i + 1], NULL);
+            good &= v[i] >= 0 && v[i] <= 60;
+        }
+        if (!good) {
+            fprintf(out, "error power: volts and amps must lie in 0..60\n");
+        } else {
+            h->power_external = 1;
+            h->ext_battery_v = v[0], h->ext_battery_a = v[1], h->ext_ubec_v = v[2], h->ext_ubec_a = v[3];
+            fprintf(out, "ok\n");
+        }
+    } else if (!strcmp(c, "watch") && argc == 3) {
+        unsigned long addr = strtoul(argv[1], NULL, 0), len = strtoul(argv[2], NULL, 0);
+        if (len == 0 || len > sizeof h->watched || addr + len > (unsigned long)h->avr->ramend + 1u) {
+            fprintf(out, "error watch: 1..%u bytes inside 0..0x%x\n", (unsigned)sizeof h->watched,
+                    (unsigned)h->avr->ramend);
+        } else {
+            h->watch_addr = (uint16_t)addr;
+            h->watch_len = (uint16_t)len;
+            h->watch_valid = 0;
+            record_watch(h);
+            fprintf(out, "ok\n");
         }
     } else if (!strcmp(c, "quit")) {
         fprintf(out, "ok\n");

@@ -42,8 +42,9 @@ typedef struct {
     int uart_xoff;
     uint8_t rxq[65536];
     uint32_t rxq_head, rxq_tail;
-    uint8_t txq[4096];
+    uint8_t txq[65536]; /* --uart-pipe: held until a "step" answer takes them (a pty takes them at once) */
     uint32_t txq_len;
+    int uart_pipe; /* UART0 through the control pipe ("rx" in, "step" answers out), no pty traffic */
     uint64_t bytes_in, bytes_out, dropped_out, corrupted, dropped, lag_resets;
 
     /* power */
@@ -57,6 +58,16 @@ typedef struct {
     uint64_t rise[16];
     int level[16];
     int esc_supply_cut; /* the firmware's ESC supply cut pin is high: the rotor ESCs draw nothing */
+    int power_external; /* the "power" command sets the four analog inputs: the caller's battery model */
+    double ext_battery_v, ext_battery_a, ext_ubec_v, ext_ubec_a;
+
+    /* watched RAM ("watch" command): recorded as M lines whenever it changes */
+    uint16_t watch_addr, watch_len;
+    uint8_t watched[16];
+    int watch_valid;
+
+    /* --stepped: simulated time moves only on "step" commands */
+    int stepped, status; /* status: 3 once the firmware crashed the core (every later step fails) */
 
     /* self-test pin and scheduled hangs */
     double hangs[MAX_HANGS];
@@ -78,6 +89,7 @@ int bridge_open(harness_t *h, const char *link);
 void bridge_attach(harness_t *h);
 void bridge_service(harness_t *h);
 void bridge_close(harness_t *h, const char *link);
+void bridge_receive(harness_t *h, uint8_t byte);
 
 /* power.c */
 void power_init(harness_t *h);
@@ -94,7 +106,10 @@ void record_flush(harness_t *h);
 void ocr_attach(harness_t *h);
 void ocr_reset(harness_t *h);
 
-/* selftest / resets (main.c) */
+void record_watch(harness_t *h);
+
+/* selftest / resets / running (main.c) */
+int harness_run_until(harness_t *h, uint64_t target);
 void harness_reset(harness_t *h, int cause);
 void harness_set_selftest(harness_t *h, int low);
 int harness_save_eeprom(harness_t *h);

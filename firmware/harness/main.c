@@ -61,6 +61,8 @@ static const char USAGE[] =
     "  --corrupt P --drop P per-byte link damage / loss probabilities, both ways\n"
     "  --seed N             seed of the link noise\n"
     "  --control            read commands on stdin, answer on stdout (see control.c); stop at its end\n"
+    "  --stepped            simulated time moves only on \"step\" commands (implies --control): lockstep\n"
+    "  --uart-pipe          UART0 through the control pipe (\"rx\" in, \"step\" answers out), not the pty\n"
     "  --lifeline           stop (as on SIGTERM) when stdin reaches its end: the parent holds the\n"
     "                       other end of a pipe, so the harness ends however the parent dies\n"
     "\n"
@@ -246,6 +248,56 @@ static int lifeline_cut(void)
     }
 }
 
+static uint64_t slice_cycles(const harness_t *h) { return (uint64_t)(h->freq * SLICE_S); }
+
+/* One slice of `cycles` of harness time: bytes moved, the MCU run (or held in reset), the analog inputs,
+ * the watched RAM and the scheduled hangs updated, the record flushed now and then. Returns 0, or 3 if the
+ * firmware stopped the simulated core (the harness's exit status). */
+static int run_slice(harness_t *h, uint64_t cycles)
+{
+    bridge_service(h);
+    if (h->held) {
+        h->held_cycles += cycles;
+    } else {
+        uint64_t target = h->avr->cycle + cycles;
+        while (h->avr->cycle < target) {
+            int state = avr_run(h->avr);
+            if (state == cpu_Done || state == cpu_Crashed) {
+                fprintf(stderr, "avr-harness: the firmware %s at %.6f s (pc 0x%x)\n",
+                        state == cpu_Done ? "stopped (sleep with interrupts off)" : "crashed",
+                        harness_seconds(h), (unsigned)h->avr->pc);
+                return 3;
+            }
+        }
+    }
+    no_level_polling(h);
+    bridge_service(h);
+    power_update(h);
+    record_watch(h);
+    double t = harness_seconds(h);
+    for (int i = 0; i < h->n_hangs; i++) {
+        if (h->hangs[i] <= t) {
+            harness_set_selftest(h, 1);
+            h->hangs[i--] = h->hangs[--h->n_hangs];
+        }
+    }
+    if (harness_now(h) - h->last_flush >= (uint64_t)(h->freq * FLUSH_S))
+        record_flush(h);
+    return 0;
+}
+
+/* --stepped: run until harness time reaches `target` cycles, in slices of at most SLICE_S (the link and
+ * the analog inputs are serviced between slices, as in the paced loop). 0, or 3 if the firmware crashed
+ * (then every later step fails too). */
+int harness_run_until(harness_t *h, uint64_t target)
+{
+    while (!h->status && harness_now(h) < target) {
+        uint64_t left = target - harness_now(h), slice = slice_cycles(h);
+        h->status = run_slice(h, left < slice ? left : slice);
+    }
+    return h->status;
+}
+
 int main(int argc, char **argv)
 {
     static const struct option opts[] = {
@@ -265,6 +317,8 @@ int main(int argc, char **argv)
         {"seed", required_argument, 0, 'S'},
         {"control", no_argument, 0, 'C'},
         {"lifeline", no_argument, 0, 'L'},
+        {"stepped", no_argument, 0, 'T'},
+        {"uart-pipe", no_argument, 0, 'U'},
         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
@@ -353,6 +407,12 @@ int main(int argc, char **argv)
         case 'L':
             lifeline = 1;
             break;
+        case 'T':
+            h->stepped = control = 1;
+            break;
+        case 'U':
+            h->uart_pipe = 1;
+            break;
         case 'h':
             fputs(USAGE, stderr);
             return 0;
@@ -412,42 +472,21 @@ int main(int argc, char **argv)
     if (control || lifeline)
         fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
 
-    const uint64_t slice = (uint64_t)(h->freq * SLICE_S);
-    const uint64_t flush_every = (uint64_t)(h->freq * FLUSH_S);
     double wall0 = wall_seconds();
     int status = 0;
     while (!stop_requested) {
-        double t = harness_seconds(h);
-        if (t >= duration)
+        if (h->stepped) { /* time moves only in "step" commands: wait for the next one */
+            struct pollfd in = {.fd = STDIN_FILENO, .events = POLLIN};
+            struct timespec wait = {.tv_sec = 0, .tv_nsec = 100000000L};
+            ppoll(&in, 1, &wait, NULL);
+            if (control_service(h, out) || h->status)
+                break;
+            continue;
+        }
+        if (harness_seconds(h) >= duration)
             break;
-        bridge_service(h);
-        if (h->held) {
-            h->held_cycles += slice;
-        } else {
-            uint64_t target = h->avr->cycle + slice;
-            while (h->avr->cycle < target) {
-                int state = avr_run(h->avr);
-                if (state == cpu_Done || state == cpu_Crashed) {
-                    fprintf(stderr, "avr-harness: the firmware %s at %.6f s (pc 0x%x)\n",
-                            state == cpu_Done ? "stopped (sleep with interrupts off)" : "crashed",
-                            harness_seconds(h), (unsigned)h->avr->pc);
-                    status = 3;
-                    goto done;
-                }
-            }
-        }
-        no_level_polling(h);
-        bridge_service(h);
-        power_update(h);
-        t = harness_seconds(h);
-        for (int i = 0; i < h->n_hangs; i++) {
-            if (h->hangs[i] <= t) {
-                harness_set_selftest(h, 1);
-                h->hangs[i--] = h->hangs[--h->n_hangs];
-            }
-        }
-        if (harness_now(h) - h->last_flush >= flush_every)
-            record_flush(h);
+        if ((status = run_slice(h, slice_cycles(h))) != 0)
+            goto done;
         if (control && control_service(h, out))
             break;
         if (!control && lifeline && lifeline_cut()) {
@@ -457,6 +496,7 @@ int main(int argc, char **argv)
         if (paced)
             pace(h, &wall0, harness_seconds(h), control || lifeline);
     }
+    status = status ? status : h->status;
 done:
     record_flush(h);
     if (h->record)

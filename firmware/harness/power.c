@@ -8,6 +8,9 @@
  * at 85 % efficiency. The UBEC rail follows its set voltage until the pack drops within its dropout.
  * These four quantities reach the firmware through ADC0..3 scaled as on the board (board_pins.h).
  *
+ * With the "power" command the caller's battery model (firmware_sim's, driven by the simulated world's
+ * units) sets the four quantities instead, and this model stands aside: one battery, not two.
+ *
  * Brown-out: while the rail is under the BODLEVEL (4.3 V) the MCU is held in reset and runs no
  * instructions; once it is back above the release level it starts with BORF set in MCUSR.
  */
@@ -84,16 +87,23 @@ void power_update(harness_t *h)
             servo_a += SERVO_A;
         }
     }
-    double ocv = fmax(h->battery_ocv_v - sag_volts(h, t), 0.0);
-    double rail = fmin(h->ubec_set_v, fmax(h->battery_v - h->ubec_dropout_v, 0.0));
-    double ubec_a = rail > 0 ? h->electronics_a + servo_a : 0.0;
-    /* constant-power loads at the last voltage; one fixed-point step per slice converges in a few ms */
-    double v = h->battery_v > 0.5 ? h->battery_v : ocv;
-    double amps = rotor_a + (rail * ubec_a / UBEC_EFFICIENCY) / v;
-    h->battery_v = fmax(ocv - h->battery_ohm * amps, 0.0);
-    h->battery_a = h->battery_v > 0 ? amps : 0.0;
-    h->ubec_v = fmin(h->ubec_set_v, fmax(h->battery_v - h->ubec_dropout_v, 0.0));
-    h->ubec_a = ubec_a;
+    if (h->power_external) {
+        h->battery_v = h->ext_battery_v;
+        h->battery_a = h->ext_battery_a;
+        h->ubec_v = h->ext_ubec_v;
+        h->ubec_a = h->ext_ubec_a;
+    } else {
+        double ocv = fmax(h->battery_ocv_v - sag_volts(h, t), 0.0);
+        double rail = fmin(h->ubec_set_v, fmax(h->battery_v - h->ubec_dropout_v, 0.0));
+        double ubec_a = rail > 0 ? h->electronics_a + servo_a : 0.0;
+        /* constant-power loads at the last voltage; one fixed-point step per slice converges in a few ms */
+        double v = h->battery_v > 0.5 ? h->battery_v : ocv;
+        double amps = rotor_a + (rail * ubec_a / UBEC_EFFICIENCY) / v;
+        h->battery_v = fmax(ocv - h->battery_ohm * amps, 0.0);
+        h->battery_a = h->battery_v > 0 ? amps : 0.0;
+        h->ubec_v = fmin(h->ubec_set_v, fmax(h->battery_v - h->ubec_dropout_v, 0.0));
+        h->ubec_a = ubec_a;
+    }
     set_pin(h, ADC_CH_BATTERY_V, h->battery_v * 1000.0 * BATTERY_DIVIDER_DEN / BATTERY_DIVIDER_NUM);
     set_pin(h, ADC_CH_BATTERY_I, h->battery_a * BATTERY_I_MV_PER_A);
     set_pin(h, ADC_CH_UBEC_V, h->ubec_v * 1000.0 * UBEC_DIVIDER_DEN / UBEC_DIVIDER_NUM);

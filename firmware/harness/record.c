@@ -7,6 +7,8 @@
  *   B <cycle> <1|0>           the brown-out detector began / stopped holding the MCU in reset
  *   H <cycle> <1|0>           the watchdog self-test pin was pulled low / released
  *   S <cycle> <1|0>           the ESC supply cut pin went high (supply cut) / low (supply on)
+ *   M <cycle> <hex>           the watched RAM ("watch" command) as it is now, written when it changed
+ *                             (checked at every rising pulse edge and after every slice)
  *   T <cycle>                 a time mark written on every flush (the file is complete up to here)
  * Pulses still high when a reset begins are cut short: a reader must drop them (see firmware_sim/avr).
  *
@@ -74,6 +76,21 @@ void record_flush(harness_t *h)
     h->last_flush = harness_now(h);
 }
 
+void record_watch(harness_t *h)
+{
+    if (!h->watch_len)
+        return;
+    const uint8_t *now = h->avr->data + h->watch_addr;
+    if (h->watch_valid && !memcmp(now, h->watched, h->watch_len))
+        return;
+    memcpy(h->watched, now, h->watch_len);
+    h->watch_valid = 1;
+    record_line(h, "M %llu ", (unsigned long long)harness_now(h));
+    for (unsigned i = 0; i < h->watch_len; i++)
+        record_line(h, "%02x", now[i]);
+    record_line(h, "\n");
+}
+
 static void on_pin(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
@@ -85,6 +102,7 @@ static void on_pin(struct avr_irq_t *irq, uint32_t value, void *param)
         return;
     h->level[pin] = level;
     if (level) {
+        record_watch(h); /* the firmware's state as this pulse starts */
         h->rise[pin] = now;
     } else if (h->rise[pin]) {
         h->pulse_us[pin] = (uint16_t)((now - h->rise[pin]) * 1000000u / h->freq);

@@ -57,6 +57,8 @@ class HarnessOptions:
     hang_at: tuple[float, ...] = ()
     sags: tuple[tuple[float, float, float, float], ...] = ()  # (volts, at, ramp, duration)
     duration_s: float | None = None
+    stepped: bool = False  # time moves only on "step" commands (lockstep: firmware_sim.avr.stepped)
+    uart_pipe: bool = False  # UART0 through the control pipe instead of the pty (with stepped)
     extra_args: tuple[str, ...] = ()
 
     def arguments(self, eeprom_path: Path, record_path: Path | None, control: bool) -> list[str]:
@@ -69,6 +71,10 @@ class HarnessOptions:
         args.append("--control" if control else "--lifeline")
         if not self.paced:
             args.append("--unpaced")
+        if self.stepped:
+            args.append("--stepped")
+        if self.uart_pipe:
+            args.append("--uart-pipe")
         if self.link:
             args += ["--link", self.link]
         if self.corrupt or self.drop:

@@ -58,6 +58,8 @@ class RecordReader:
         self.brownouts: list[tuple[float, bool]] = []  # (t, held) from 'B' lines
         self.selftest: list[tuple[float, bool]] = []  # (t, pulled low) from 'H' lines
         self.esc_supply: list[tuple[float, bool]] = []  # (t, supply cut) from 'S' lines
+        self.watched: list[tuple[float, bytes]] = []  # (t, RAM bytes) from 'M' lines, as they changed
+        self.total_frames = 0  # frames closed since the start (the deque keeps the newest ``capacity``)
         self.truncated = 0
         self.marked_cycle = 0  # the file is complete up to this cycle ('T' line)
         self._offset = 0
@@ -84,6 +86,14 @@ class RecordReader:
     def _parse(self, line: str) -> None:
         parts = line.split()
         if not parts:
+            return
+        if parts[0] == "M" and len(parts) == 3:  # watched RAM: its bytes in hex
+            try:
+                self.watched.append((self._seconds(int(parts[1])), bytes.fromhex(parts[2])))
+            except ValueError:
+                raise InputFormatError(
+                    f"unreadable record line {line!r}", str(self.path), self._line
+                ) from None
             return
         try:
             kind, cycle, args = parts[0], int(parts[1]), [int(p) for p in parts[2:]]
@@ -136,6 +146,7 @@ class RecordReader:
             return
         widths = tuple(p.widths.get(ch) for ch in range(self.n_channels))
         self.frames.append(PulseFrame(self._seconds(p.t0), widths))
+        self.total_frames += 1
 
     def _reset(self, cycle: int) -> None:
         """A reset (or brown-out hold) turns every output off: pulses in flight are cut short."""
@@ -156,6 +167,13 @@ class RecordReader:
                 PulseFrame(self._seconds(p.t0), tuple(p.widths.get(ch) for ch in range(self.n_channels)))
             )
         return frames
+
+    def newest_complete(self) -> PulseFrame | None:
+        """The newest frame whose pulses have all ended (the one in progress if it has), or None."""
+        p = self._pending
+        if p is not None and p.rises and len(p.widths) == len(p.rises):
+            return PulseFrame(self._seconds(p.t0), tuple(p.widths.get(ch) for ch in range(self.n_channels)))
+        return self.frames[-1] if self.frames else None
 
     # ------------------------------------------------------------------ PPM
     def _ppm_edge(self, cycle: int) -> None:

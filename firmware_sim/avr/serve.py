@@ -3,7 +3,8 @@
 The board options (units, rates, timeouts, battery) become the firmware's EEPROM configuration block;
 the fault options the harness can reproduce become harness options. What the harness does not model
 (a link stall, extra pack resistance, a dead ESC, battery capacity) is refused with a clear error
-rather than silently ignored.
+rather than silently ignored. With ``--world`` the firmware is not served from here: firmware-sim steps it
+as the board of the world (:mod:`.stepped`), behind its own pty server.
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
         ("--phone-gap", args.phone_gap),  # only with --world
         ("--capacity", args.capacity != build_parser().get_default("capacity")),  # no charge modelled
         ("--no-hold", args.no_hold),  # the harness always holds the pty open for a host that comes back
-        ("--world", args.world is not None),  # the world steps the Python board's outputs
         ("--phone", args.phone != build_parser().get_default("phone")),  # only with --world
         ("--unit-spread", args.unit_spread is not None),  # the firmware's units are open-loop estimates
     )

@@ -5,6 +5,7 @@ dashes (``frame_rate`` or ``frame-rate`` for ``--frame-rate``; a flag is ``ppm=1
 repeated: ``stall=5:2&stall=9:1``)::
 
     emu://?units=4                          an in-process board on the host's clock
+    emu://?units=4&board=firmware           ... the real firmware under simavr, stepped on that clock
     emu://?units=3&frame_rate=400&stall=5:2 ... with a link stall at t = 5 s
     spawn://firmware-sim?units=4            firmware-sim started on a pty, stopped on close
     spawn://firmware-sim?corrupt=0.01&link=/tmp/board&start_timeout=20
@@ -19,6 +20,10 @@ runs as fast as the CPU allows and replays exactly. With any other clock the boa
 board: a read waits (up to its timeout) until the board's next wake-up produces bytes. The board is
 :attr:`EmulatorTransport.board`, for the world simulation (``Board.set_unit_states``, the pulse timeline,
 ``board.faults``); in real time, touch it only inside ``with transport.lock:``.
+
+``board`` chooses the board: ``emulator`` (the Python emulator, :class:`firmware_sim.board.Board`, the
+default) or ``firmware`` (the firmware ELF under simavr, :class:`firmware_sim.avr.stepped.FirmwareBoard`:
+deterministic in lockstep, its pulses driving the same world; ``spawn://`` runs ``firmware-sim --avr``).
 
 **Spawned** (:class:`SpawnTransport`). Runs ``sys.executable -m firmware_sim`` with the options, reads the
 pty path from its first stdout line and opens it with :class:`SerialTransport`. The process is in its own
@@ -52,6 +57,7 @@ from hil.timing.clock import Clock, LockstepClock, WallClock
 from protocol.errors import TransportError
 
 if TYPE_CHECKING:
+    from firmware_sim.avr.stepped import FirmwareBoard
     from firmware_sim.board import Board
 
 DEFAULT_START_TIMEOUT_S = 10.0
@@ -61,6 +67,9 @@ _PROCESS_ONLY = frozenset({"link", "duration", "avr", "eeprom", "no_hold", "verb
 """firmware-sim options that only make sense for a separate process (a pty, a wall-clock run)."""
 _NEVER = frozenset({"can", "help"})
 """Options neither form takes: the spawned board is reached through its pty, not a CAN bus."""
+
+BOARDS = ("emulator", "firmware")
+"""The boards an ``emu://`` or ``spawn://`` URL may choose with ``board=``."""
 
 _TRUE = ("", "1", "true", "yes", "on")
 _FALSE = ("0", "false", "no", "off")
@@ -95,6 +104,15 @@ def firmware_sim_argv(
     return argv
 
 
+def split_board(url: str, options: list[tuple[str, str]]) -> tuple[str, list[tuple[str, str]]]:
+    """The ``board`` option (the last one; default ``emulator``) and the other options, in order."""
+    boards = [v for k, v in options if k == "board"]
+    board = boards[-1] if boards else "emulator"
+    if board not in BOARDS:
+        raise TransportError(f"{url}: board={board!r} is not one of {', '.join(BOARDS)}")
+    return board, [(k, v) for k, v in options if k != "board"]
+
+
 def _parse(parser: argparse.ArgumentParser, argv: list[str], url: str) -> argparse.Namespace:
     def refuse(message: str) -> NoReturn:
         raise TransportError(f"{url}: {message}")
@@ -116,9 +134,10 @@ class EmulatorTransport(InProcessBoard):
         parts = urlsplit(url)
         if parts.netloc or parts.path.strip("/"):
             raise TransportError(f"{url}: the in-process emulator takes only options (emu://?units=4&...)")
-        self._argv = firmware_sim_argv(url, parse_qsl(parts.query, keep_blank_values=True), _PROCESS_ONLY)
+        self.board_kind, options = split_board(url, parse_qsl(parts.query, keep_blank_values=True))
+        self._argv = firmware_sim_argv(url, options, _PROCESS_ONLY)
         self._clock = clock
-        self._board: Board | None = None
+        self._board: Board | FirmwareBoard | None = None
         self.lock = threading.Condition(threading.RLock())
 
     @property
@@ -134,7 +153,7 @@ class EmulatorTransport(InProcessBoard):
         self._clock = clock
 
     @property
-    def board(self) -> Board:
+    def board(self) -> Board | FirmwareBoard:
         """The emulated board (created on first use, on the bound clock)."""
         if self._board is None:
             from firmware_sim.cli import build_parser, make_board
@@ -142,7 +161,12 @@ class EmulatorTransport(InProcessBoard):
             if self._clock is None:
                 self._clock = WallClock()
             args = _parse(build_parser(), self._argv, self.url)
-            self._board = make_board(args, self._clock)
+            if self.board_kind == "firmware":
+                from firmware_sim.avr.stepped import firmware_board
+
+                self._board = firmware_board(args, self._clock)
+            else:
+                self._board = make_board(args, self._clock)
         return self._board
 
     @property
@@ -188,7 +212,7 @@ class EmulatorTransport(InProcessBoard):
             board.step()
             self._check_plugged(board)
 
-    def _check_plugged(self, board: Board) -> None:
+    def _check_plugged(self, board: Board | FirmwareBoard) -> None:
         """A board whose cable is out (``unplug`` fault) has no port: it vanished, as a USB device does."""
         if board.unplugged():
             raise TransportError(f"{self.url}: the port vanished (the board's cable is out: unplug fault)")
@@ -273,7 +297,10 @@ class SpawnTransport(Transport):
         if parts.netloc != "firmware-sim" or parts.path.strip("/"):
             raise TransportError(f"{url}: only spawn://firmware-sim[?options] can be spawned")
         pairs = parse_qsl(parts.query, keep_blank_values=True)
-        options = [(k, v) for k, v in pairs if k != "start_timeout"]
+        board, pairs = split_board(url, pairs)
+        options = [(k, v) for k, v in pairs if k != "start_timeout"] + (
+            [("avr", "")] if board == "firmware" else []
+        )
         timeouts = [v for k, v in pairs if k == "start_timeout"]
         try:
             self.start_timeout = float(timeouts[-1]) if timeouts else DEFAULT_START_TIMEOUT_S

@@ -34,7 +34,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,7 +47,13 @@ from hil.threads import ThreadError
 from hil.vscmg import PlantState
 from protocol.messages import GimbalMode, UnitState
 
-from ..board import Board
+from ..board.actuators import UnitModel
+from ..board.config import BoardConfig
+from ..board.faults import FaultInjector
+from ..board.power_models import PowerReading
+
+if TYPE_CHECKING:
+    from hil.timing.clock import Clock
 from .models import BodyPhone, CompiledPlant, Plant, ServoModel
 from .phone_faults import PhoneTamper
 
@@ -70,13 +78,54 @@ class Truth:
     rotor_speed: Array
 
 
+class DrivingBoard(Protocol):
+    """What the world needs of the board whose pulses drive it: the Python emulator
+    (:class:`firmware_sim.board.Board`) and the firmware under simavr
+    (:class:`firmware_sim.avr.stepped.FirmwareBoard`) both have it. ``outputs``: the widths on the pins
+    (µs, None: no pulse); ``drive_epoch`` moves whenever what the drives see changes (a frame, a reset, a
+    channel dying), ``next_output_change_us`` says before when it cannot (µs of board time, barring those
+    events); ``units`` turn widths into rates and speeds (their calibration maps) and draw power from the
+    battery (``power``) by the states handed over in ``set_unit_states``."""
+
+    config: BoardConfig
+    faults: FaultInjector
+    units: list[UnitModel]
+    outputs: tuple[float | None, ...]
+    drive_epoch: int
+    power: PowerReading
+
+    @property
+    def gimbal_mode(self) -> GimbalMode: ...
+
+    @property
+    def clock(self) -> Clock: ...
+
+    @property
+    def now(self) -> float: ...
+
+    def step(self, now: float | None = None) -> None: ...
+
+    def next_deadline_us(self) -> float: ...
+
+    def next_output_change_us(self) -> float: ...
+
+    def set_unit_states(
+        self,
+        states: Sequence[UnitState] | None,
+        at: float | None = None,
+        rotor_accel: Sequence[float] | None = None,
+    ) -> None: ...
+
+
 class World:
     """``scenario`` (:class:`hil.scenario.Scenario`): spacecraft (``world_spacecraft``: the true one when a
     run disperses it), servos, phone, start attitude and gimbal angles; the rotors start at rest (the host
     spins them up). ``board``: the emulated board whose pulses drive it (its unit count must match the
-    spacecraft's). ``compiled``: step :class:`.models.CompiledPlant` and the phone's compiled sampler
-    (default) rather than the numpy references. ``state`` is the plant's :class:`PlantState` either way
-    (built on demand); :meth:`truth` reads the flat state without building one."""
+    spacecraft's): the Python emulator, or the firmware under simavr
+    (:class:`firmware_sim.avr.stepped.FirmwareBoard`, the same interface). ``compiled``: step
+    :class:`.models.CompiledPlant` and the phone's compiled sampler (default) rather than the numpy
+    references. ``state`` is the plant's :class:`PlantState` either way (built on demand); :meth:`truth`
+    reads the flat state without building one."""
 
     advance_period_s = 0.05
     """How long one :meth:`advance_to` may span (s): the world hands the board its unit states at every
@@ -84,7 +133,11 @@ class World:
     the world to the present before each estimator and control activation)."""
 
     def __init__(
-        self, scenario: object, board: Board, seed: int | None = None, compiled: bool = True
+        self,
+        scenario: object,
+        board: DrivingBoard,
+        seed: int | None = None,
+        compiled: bool = True,
     ) -> None:
         from hil.scenario import Scenario
 

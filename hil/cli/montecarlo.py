@@ -80,6 +80,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--out", type=Path, metavar="DIR", help="output directory (default: runs/<stamp>-mc-<name>)"
     )
+    p.add_argument(
+        "--board",
+        choices=("emulator", "firmware"),
+        help="each run's board: the Python emulator (the default) or the firmware ELF under simavr "
+        "(make -C firmware; emu://?board=firmware)",
+    )
     p.add_argument("--duration", type=float, metavar="S", help="each run this long after the slew starts")
     p.add_argument("--trace-hz", type=float, default=5.0, metavar="HZ", help="stored error traces' rate (5)")
     p.add_argument("--no-plots", action="store_true", help="skip the plots")
@@ -192,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.verbose:  # Dask's scheduler logs every worker's comings and goings at INFO
         logging.getLogger("distributed").setLevel(logging.WARNING)
     check_options(args)
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario).with_board(args.board)
     if args.duration is not None:
         if not (math.isfinite(args.duration) and args.duration > 0):
             raise ConfigError(f"must be positive, got {args.duration}", "--duration")

@@ -14,6 +14,7 @@ examples:
   hil run                                          # built-in emulator, default scenario, lockstep
   hil run --scenario paper-testbed --duration 20   # the paper's air-bearing testbed, 20 s after the slew
   hil run --realtime                               # built-in emulator on the wall clock, phone over UDP
+  hil run --board firmware                         # the firmware ELF under simavr drives the world, lockstep
   hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
   hil run --gcs                                    # ... watched and commanded from a browser (docs/gcs.md)
   hil run --gcs --pace 5 --duration 60             # lockstep at 5x the wall clock, 60 s after the slew
@@ -73,6 +74,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         metavar="NAME",
         help="the host's estimator instead of the scenario's [estimator] kind, with its default settings: "
         "variational (the default), vqf (pip install vqf), or an installed package's",
+    )
+    p.add_argument(
+        "--board",
+        choices=("emulator", "firmware"),
+        help="the built-in board: the Python emulator (the default) or the firmware ELF under simavr "
+        "(make -C firmware; emu://?board=firmware)",
     )
     p.add_argument(
         "--duration",
@@ -158,14 +165,20 @@ def run(args: argparse.Namespace) -> int:
     from hil.runtime import RunOptions
     from hil.runtime import run as run_scenario
     from hil.scenario import load_scenario
-    from protocol.errors import HilError
+    from protocol.errors import ConfigError, HilError
 
     plotter = None if args.no_plots else Plotter()
     station = None
     try:
         scenario = load_scenario(args.scenario)
         estimator = scenario.estimator.named(args.estimator, "hil run --estimator")
-        scenario = scenario.with_changes(estimator=estimator)
+        if args.board is not None and args.port is not None:
+            raise ConfigError(
+                "chooses the built-in board; with --port the board is the port's "
+                '(e.g. "spawn://firmware-sim?board=firmware&world=cubesat-1u")',
+                "--board",
+            )
+        scenario = scenario.with_changes(estimator=estimator).with_board(args.board)
         lockstep = True if args.lockstep else (False if args.realtime else None)
         lockstep_run = lockstep if lockstep is not None else args.port is None
         pace = (

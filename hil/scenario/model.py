@@ -83,6 +83,13 @@ class Scenario:
         """A fresh estimator of this scenario's choice (``[estimator]``) for its phone."""
         return self.estimator.build(self.estimator_site())
 
+    def with_board(self, board: str | None) -> Scenario:
+        """A copy whose built-in emulator is ``board`` (``emu://?board=...``: ``emulator``, the Python
+        board, or ``firmware``, the firmware ELF under simavr); None: as the scenario says."""
+        if board is None:
+            return self
+        return replace(self, board_options={**self.board_options, "board": board})
+
     def with_changes(self, **changes: Any) -> Scenario:
         """A copy with fields replaced (Monte Carlo dispersions, ``--duration``)."""
         return replace(self, **changes)
