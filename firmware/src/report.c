@@ -62,10 +62,25 @@ void report_log(uint8_t severity, uint16_t code, const char *fmt_flash, ...)
     report_send(MSG_LOG, m, 0, -1);
 }
 
+/*
+ * The uptime a message carries never goes back within a boot: a message stamped with a fresh clock read
+ * (a state change's heartbeat) may be followed, in the same main-loop pass, by one stamped with the pass's
+ * start, a millisecond earlier — and a host takes an uptime that went back for a reset (a closed loop
+ * through the firmware saw a false POWER_ON reset that way). Wrap-aware: 2^32 ms is 49.7 days.
+ */
+static uint32_t last_stamp;
+
+static uint32_t stamp(uint32_t now)
+{
+    if ((int32_t)(now - last_stamp) > 0)
+        last_stamp = now;
+    return last_stamp;
+}
+
 void report_heartbeat(uint32_t now)
 {
     heartbeat_t *m = &out.heartbeat;
-    m->time_ms = now;
+    m->time_ms = stamp(now);
     m->state = board.state;
     report_send(MSG_HEARTBEAT, m, 0, -1);
 }
@@ -164,7 +179,7 @@ void report_telemetry(uint32_t now)
     telemetry_t *m = &out.telemetry;
     const link_counters_t *c = &board.deframer.counters;
     memset(m, 0, sizeof *m);
-    m->time_ms = now;
+    m->time_ms = stamp(now);
     m->state = board.state;
     m->mode = esc_cal_active() ? CONTROL_MODE_ESC_CALIBRATION : board.mode;
     m->watchdog = board.link_lost ? WATCHDOG_STATE_LINK_LOST : WATCHDOG_STATE_OK;

@@ -339,3 +339,23 @@ def test_a_vanished_host_never_crashes_the_board(target, host):
     finally:
         again.close()
     assert math.isfinite(target.now())
+
+
+def test_the_boards_time_stamps_never_go_back_within_a_boot(target, host):
+    """Heartbeats and telemetry carry the board's uptime; between two boots it never goes back, or the
+    host takes the board for one that reset. The C firmware once stamped a state change's heartbeat with
+    a fresh clock read and the same pass's telemetry with the pass's start, 1 ms earlier (a closed-loop
+    run through the firmware saw "its uptime went back from 4453 ms to 4452 ms": a false reset)."""
+    sp = setpoint(target.spec)
+    armed_and_streaming(target, host, sp, seconds=0.5)
+    for _ in range(3):  # state changes (each with its heartbeat) between telemetry frames
+        host.keepalive = heartbeat
+        assert isinstance(host.request(Disarm()), Ack)
+        host.stream(0.15)
+        assert isinstance(host.request(Arm()), Ack)
+        host.keepalive = lambda: sp
+        host.stream(0.15)
+    stamps = [m.time_ms for m in host.received if isinstance(m, (Heartbeat, Telemetry))]
+    assert len(stamps) > 20
+    back = [(a, b) for a, b in zip(stamps, stamps[1:], strict=False) if b < a]
+    assert not back, f"the board's uptime went back: {back[:5]}"
