@@ -19,6 +19,7 @@ from hil.estimation.registry import EstimatorChoice
 from hil.runtime import RunOptions, run, telemetry_columns
 from hil.runtime.runlog import read_events, read_telemetry
 from hil.scenario import load_scenario, parse_scenario, scenario_names
+from hil.version import package_version
 from protocol.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -157,8 +158,16 @@ def test_run_directory_holds_telemetry_events_summary_and_scenario(lockstep_run)
     kinds = [e["kind"] for e in events]
     for kind in ("connected", "armed", "spin_up", "still_window", "slew_start", "slew_end"):
         assert kind in kinds
-    assert json.loads((d / "summary.json").read_text())["scenario"] == "cubesat-1u"
+    summary = json.loads((d / "summary.json").read_text())
+    assert summary["scenario"] == "cubesat-1u"
+    assert summary["hil"]["version"] == package_version()  # the code that made the run
     assert (d / "scenario.toml").read_text() == sc.source
+    # the coded columns' numbers, named beside them
+    codes = json.loads((d / "telemetry_codes.json").read_text())
+    assert [codes["phase"]["values"][str(int(p))] for p in (phases[0], phases[-1])] == ["WARMUP", "HOLD"]
+    armed = tel["board_state"][phases == 2]
+    assert codes["board_state"]["values"][str(int(armed[-1]))] == "ARMED"
+    assert codes["faults"]["kind"] == "bits" and codes["faults"]["values"]["2"] == "DEAD_ESC"
 
 
 def test_with_the_tuned_estimator_the_host_uses_its_online_gyro_bias(tmp_path):

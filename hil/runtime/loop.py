@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import json
 import logging
 import math
 import signal
@@ -61,6 +62,7 @@ from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, crea
 from hil.link.sources.recorded import RECORDING_URL
 from hil.link.sources.simulated import SIMULATED_URL
 from hil.link.transports import InProcessBoard, create_transport
+from hil.runtime.codes import CODES_FILE, code_table
 from hil.runtime.faults import RECOVER_WITHIN_S
 from hil.runtime.host import Host, TruthSample
 from hil.runtime.observer import RunAborted, RunObserver, RunStart
@@ -69,6 +71,7 @@ from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.scheduler import PeriodicTask, Scheduler
+from hil.version import describe
 from protocol.errors import (
     CommandFailed,
     ConfigError,
@@ -210,12 +213,14 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     if opts.out_root is not None:
         run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
         (run_dir / "scenario.toml").write_text(scenario.source)
+        (run_dir / CODES_FILE).write_text(json.dumps(code_table(), indent=1) + "\n")
         telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units), tap=tap_row)
     elif opts.rows_to_observer and tap_row is not None:
         keep = getattr(observer, "row_columns", None)
         telemetry = RowTap(telemetry_columns(scenario.n_units), tap_row, keep)
     events = EventLog(None if run_dir is None else run_dir / "events.jsonl", tap=tap_event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
+    summary["hil"] = describe()  # the code that made the run: its version and git revision
     if opts.replay is not None:
         summary["replay"] = {
             "log": opts.replay.log.source,

@@ -8,6 +8,7 @@ Layout of ``RUN_DIR``::
     events.jsonl    one JSON object per line: board LOG messages, state changes, faults, resets
     summary.json    written when the run ends (atomically: a killed run has none, ``hil report`` copes)
     scenario.toml   the scenario the run used (a copy), when there was one
+    telemetry_codes.json  what the numbers in telemetry.csv's coded columns mean (:mod:`.codes`)
     *.png           plots (``hil report RUN_DIR`` redraws them)
 
 Each event is flushed to the operating system as it is written, each telemetry row by the log's writer
