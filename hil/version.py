@@ -54,3 +54,14 @@ def version_line() -> str:
     """What ``hil --version`` prints."""
     revision = source_revision()
     return f"hil (vscmg-hil) {package_version()}" + (f", revision {revision}" if revision else "")
+
+
+def mismatch(here: dict[str, str | None], there: dict[str, str | None]) -> str | None:
+    """Why two :func:`describe` results are not the same code (a campaign's worker against its driver), or
+    None. Revisions are compared when both are known (a worker installed from a wheel has none: then the
+    versions alone)."""
+    if here["version"] != there["version"]:
+        return f"version {here['version']} against {there['version']}"
+    if here["revision"] and there["revision"] and here["revision"] != there["revision"]:
+        return f"revision {here['revision']} against {there['revision']}"
+    return None

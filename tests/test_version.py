@@ -27,3 +27,29 @@ def test_hil_version_names_the_package_and_the_revision():
         ).stdout.strip()
         assert revision is not None and head[:7] in revision
         assert f"revision {revision}" in out.stdout
+
+
+def test_a_worker_running_other_code_refuses_the_campaigns_chunk():
+    """A campaign's worker checks it runs the driver's code (hil --version's version and revision): one of
+    another version, or another revision of a checkout, refuses the chunk, naming both; a worker
+    installed without git (no revision) is judged by the version alone."""
+    import pytest
+
+    from hil.montecarlo.campaign import stream_chunk
+    from hil.scenario import load_scenario
+    from hil.version import mismatch
+    from protocol.errors import ConfigError
+
+    here = describe()
+    assert mismatch(here, dict(here)) is None
+    assert mismatch({"version": "0.1.0", "revision": None}, {"version": "0.1.0", "revision": "abc"}) is None
+    assert "version 0.1.0 against 9.9" in str(
+        mismatch({"version": "0.1.0", "revision": None}, {"version": "9.9", "revision": None})
+    )
+    other = {"version": here["version"], "revision": "0000000-elsewhere"}
+    if here["revision"]:
+        with pytest.raises(ConfigError) as refused:
+            stream_chunk(load_scenario("cubesat-1u"), [], 5.0, "session", other)
+        assert "other code than the campaign's driver" in str(refused.value)
+        assert "0000000-elsewhere" in str(refused.value)
+    assert stream_chunk(load_scenario("cubesat-1u"), [], 5.0, "session", here) == []

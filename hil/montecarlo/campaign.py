@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hil import version
 from hil.runtime.runlog import SUMMARY, write_summary
 from hil.scenario import Scenario
 from protocol.errors import ConfigError, LinkError
@@ -226,15 +227,23 @@ def chunks(indices: Iterable[int], count: int, batch: int, workers: int) -> Iter
 
 
 def stream_chunk(
-    scenario: Scenario, runs: Sequence[RunParams], trace_hz: float, session: str
+    scenario: Scenario,
+    runs: Sequence[RunParams],
+    trace_hz: float,
+    session: str,
+    code: dict[str, str | None] | None = None,
 ) -> list[RunResult]:
     """The Dask task: ``runs`` one after another (:func:`~.runner.run_one`, as :func:`~.runner.run_chunk`
     does), each result sent to the driver as soon as its run finishes, as an event on
     :data:`RESULTS_TOPIC` tagged with the driver's ``session`` token, so that its row reaches runs.csv then
     and not with the chunk's last run. Returns every result again: what the driver writes of a chunk whose
     events it has not had (they travel through the scheduler like everything else, but a client that
-    reconnects misses them)."""
+    reconnects misses them). ``code``: the driver's :func:`hil.version.describe`; a worker running other
+    code refuses the chunk (a ConfigError naming both), so a campaign never mixes results of two versions."""
     from distributed import get_worker
+
+    if code is not None and (why := version.mismatch(version.describe(), code)) is not None:
+        raise ConfigError(f"this worker runs other code than the campaign's driver: {why}", "worker")
 
     try:
         worker = get_worker()
@@ -368,7 +377,13 @@ class _Driver:
                 return
             runs = [campaign.draw(i) for i in indices]
             future = self.client.submit(
-                stream_chunk, campaign.scenario, runs, campaign.trace_hz, self.session, pure=False
+                stream_chunk,
+                campaign.scenario,
+                runs,
+                campaign.trace_hz,
+                self.session,
+                version.describe(),
+                pure=False,
             )
             self.chunks[future.key] = future, runs
             future.add_done_callback(lambda f: self.events.put(("done", f)))
