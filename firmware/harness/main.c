@@ -105,8 +105,15 @@ static void on_core_reset(avr_t *avr)
     int cause = H.pending_cause == -2 ? CAUSE_WATCHDOG : H.pending_cause;
     ocr_reset(&H);
     record_reset(&H, cause);
-    if (selftest_irq)
-        avr_raise_irq(selftest_irq, 1); /* a momentary self-test press ends with the reset */
+    if (selftest_irq) {
+        /* A momentary self-test press ends with the reset, and the pin's pull-up reads high again. The
+         * reset cleared PINK but not the irq's value: raised unchanged (1, after a reset no press caused:
+         * a brown-out, the reset button) simavr filters it out, the pin read low from then on and no
+         * later press could be seen (a hang after a brown-out never reset the MCU). Low, then high: the
+         * pin is written whatever it was; nothing runs in between and the reset cleared PCMSK. */
+        avr_raise_irq(selftest_irq, 0);
+        avr_raise_irq(selftest_irq, 1);
+    }
     H.selftest_low = 0;
 }
 

@@ -61,7 +61,7 @@ from hil.scenario import Scenario
 from hil.scenario.paths import FIXTURES, read_text
 from protocol.errors import ConfigError
 
-from .fault_plan import FaultSpec, draw_faults, parse_faults
+from .fault_plan import FaultSpec, board_of, check_board, draw_faults, parse_faults
 from .fault_plan import describe as describe_faults
 
 Array = NDArray[np.float64]
@@ -364,6 +364,8 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
     """:func:`load_dispersions` on TOML text (``where`` names the source in errors)."""
     doc = load_toml(text, where)
     faults = parse_faults(doc.pop("faults"), where, _distribution) if "faults" in doc else None
+    if faults is not None:
+        check_board((k.kind for k in faults.kinds), board_of(scenario), where)
     found: dict[str, Distribution] = {}
     for key, value in _leaves(doc, where):
         if key not in _BY_KEY:

@@ -37,6 +37,11 @@ kind            parameters                             what happens
 ``hold``        —                                      the operator's hold
 ==============  =====================================  ==================================================
 
+Not every board models every kind: the firmware board (``--board firmware``, the ELF under simavr) has no
+``unplug`` (:data:`UNAVAILABLE`). A file that asks one for it is refused when it is read, naming the kind
+and the board (:func:`check_board`) — never a run that quietly goes without; ``faults-firmware`` is the
+shipped campaign without it.
+
 A run's faults are a pure function of the campaign seed, the run index and the kind (their own random
 stream, ``[seed, index, crc32("faults." + kind)]``): adding a kind leaves the others' draws unchanged.
 Counts are bounded (:data:`MAX_COUNT` per kind and run) and durations too (:data:`MAX_DURATION_S`).
@@ -45,7 +50,7 @@ Counts are bounded (:data:`MAX_COUNT` per kind and run) and durations too (:data
 from __future__ import annotations
 
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,6 +99,13 @@ _DEFAULTS: dict[str, dict[str, Any]] = {
     "phone_spoof": {"spoof": tuple(SPOOF_REASONS)},
 }
 """What a parameter left out means: a range to draw uniformly from, or a value."""
+UNAVAILABLE: dict[str, dict[str, str]] = {
+    "firmware": {
+        "unplug": "a cable unplug is not modelled: the simavr harness has no unpowered MCU that comes back "
+        "with a power-on reset",
+    },
+}
+"""The kinds a board cannot be given (board → kind → why); a board not named takes every kind."""
 
 
 @dataclass(frozen=True)
@@ -179,6 +191,24 @@ def _check_range(dist: Any, bounds: tuple[float, float], where: str) -> None:
     bad = [v for v in values if v is not None and not lo <= v <= hi]
     if bad:
         raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
+
+
+def check_board(kinds: Iterable[str], board: str, where: str) -> None:
+    """Refuse ``kinds`` that ``board`` (``emulator``, ``firmware``) cannot be given (:data:`UNAVAILABLE`):
+    a :class:`ConfigError` at ``where: faults.KIND`` naming the kind, the board and why."""
+    refused = UNAVAILABLE.get(board, {})
+    for kind in kinds:
+        if kind in refused:
+            raise ConfigError(
+                f"the {kind!r} fault is not available with the {board} board ({refused[kind]}); "
+                "leave it out (the shipped faults-firmware has every other kind)",
+                f"{where}: faults.{kind}",
+            )
+
+
+def board_of(scenario: Scenario) -> str:
+    """The board ``scenario``'s runs go through (``emu://?board=``): ``emulator`` unless it says."""
+    return str(scenario.board_options.get("board", "emulator"))
 
 
 # --------------------------------------------------------------------------- drawing a run's faults

@@ -44,7 +44,7 @@ from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError, HilError, RunHung
 
 from .dispersions import SENSOR_KINDS, RunParams
-from .fault_plan import fault_options, operator_schedule
+from .fault_plan import board_of, check_board, fault_options, operator_schedule
 from .metrics import METRICS, TRACES, decimated_trace, run_metrics, trace_length
 
 T = TypeVar("T")
@@ -107,6 +107,7 @@ def realise(scenario: Scenario, run: RunParams) -> Scenario:
         stalls += [f"{start!r}:{duration!r}" for start, duration in run.outages]
         options["stall"] = stalls
     if run.faults:
+        check_board(sorted({f.kind for f in run.faults}), board_of(scenario), f"run {run.index}")
         options = fault_options(run.faults, options)
     if options != scenario.fault_options:
         changes["fault_options"] = options
