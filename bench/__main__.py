@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.common import Result
+from firmware_sim.avr.build import ToolchainMissing
 
 PEER_EXTRAS = {
     "pymavlink": "bench",
@@ -115,6 +116,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             module = importlib.import_module(f"bench.bench_{name}")
             results.extend(module.run(quick=args.quick))
+        except ToolchainMissing as exc:  # the firmware's benchmarks on a machine without the AVR toolchain
+            skipped.append(f"[{name}]: {exc}")
+            print(f"skipped {skipped[-1]}", file=sys.stderr, flush=True)
         except Exception as exc:  # a broken benchmark must not hide the others' figures
             peer = missing_peer(exc)
             if peer is None:
