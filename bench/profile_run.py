@@ -1,0 +1,167 @@
+"""Where a default ``hil run`` spends its time: the host's share against the world's, per control tick and
+per estimator step (issue 29's profile, docs/compiled.md "Profile").
+
+``python -m bench.profile_run`` runs ``hil run --no-plots`` (lockstep, the built-in emulator, cubesat-1u)
+in this process twice over:
+
+- **timed** (no profiler): perf_counter around the run loop (:func:`hil.runtime.loop._run_scheduler`), the
+  world (:meth:`firmware_sim.world.World.advance_to`, everything the far side does: plant, drives, phone,
+  board), the host's control tick (:meth:`hil.runtime.host.Host.tick`) and its estimator task
+  (:meth:`hil.runtime.host.Host.feed`). The host's share is the loop minus the world (the board link's
+  service and the scheduler are the host's). Wrapping costs ~0.3 µs per call on each side alike.
+- **profiled** (``--profile FILE``): cProfile over the whole command, its top functions by own time, each
+  marked host or world by where it lives. cProfile inflates every Python call (2–3× here), so its times
+  rank the functions; the timed run gives the costs.
+
+Counts (calls per tick, per step) are exact and load-independent; times on a shared machine are not, so
+compare two trees by alternating them in one session (``--repeat``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import cProfile
+import io
+import pstats
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+WORLD_SIDE = "firmware_sim/"
+HOST_SIDE = ("hil/", "protocol/")
+"""Where the host's code lives (relative to the checkout); ``firmware_sim/`` is the world's."""
+
+
+def _short(filename: str) -> str:
+    """A profiled function's file relative to the checkout, or to site-packages for a library's."""
+    path = Path(filename)
+    if path.is_relative_to(ROOT):
+        return str(path.relative_to(ROOT))
+    return filename.split("site-packages/")[-1]
+
+
+@dataclass
+class Stopwatch:
+    """Accumulated wall time (s) and calls of one wrapped function."""
+
+    seconds: float = 0.0
+    calls: int = 0
+
+    def wrap(self, fn: Callable[..., Any]) -> Callable[..., Any]:
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            start = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.seconds += time.perf_counter() - start
+                self.calls += 1
+
+        return timed
+
+
+@dataclass
+class Timing:
+    """One timed run's figures (s, calls)."""
+
+    loop: Stopwatch = field(default_factory=Stopwatch)
+    world: Stopwatch = field(default_factory=Stopwatch)
+    tick: Stopwatch = field(default_factory=Stopwatch)
+    feed: Stopwatch = field(default_factory=Stopwatch)
+    estimator_steps: int = 0
+    command_s: float = 0.0
+
+    def lines(self) -> list[str]:
+        host = self.loop.seconds - self.world.seconds
+        steps = max(self.estimator_steps, 1)
+        ticks = max(self.tick.calls, 1)
+        return [
+            f"whole command {self.command_s:.2f} s; run loop {self.loop.seconds:.3f} s",
+            f"world (World.advance_to, {self.world.calls} calls) {self.world.seconds:.3f} s "
+            f"({100 * self.world.seconds / self.loop.seconds:.0f}% of the loop)",
+            f"host (loop - world) {host:.3f} s ({100 * host / self.loop.seconds:.0f}%)",
+            f"Host.tick {self.tick.calls} ticks, {1e6 * self.tick.seconds / ticks:.1f} µs/tick",
+            f"Host.feed {self.feed.calls} calls, {self.estimator_steps} estimator steps, "
+            f"{1e6 * self.feed.seconds / steps:.1f} µs/step (admission, merge, filter step)",
+        ]
+
+
+def _argv(out: str) -> list[str]:
+    return ["run", "--no-plots", "--out", out]
+
+
+def timed_run() -> Timing:
+    """One ``hil run --no-plots`` with the stopwatches in place (restored after)."""
+    from firmware_sim.world import World
+    from hil.cli import main
+    from hil.runtime import host as host_module
+    from hil.runtime import loop as loop_module
+
+    timing = Timing()
+    originals = (loop_module._run_scheduler, World.advance_to, host_module.Host.tick, host_module.Host.feed)
+    loop_module._run_scheduler = timing.loop.wrap(originals[0])  # type: ignore[assignment]
+    World.advance_to = timing.world.wrap(originals[1])  # type: ignore[method-assign]
+    host_module.Host.tick = timing.tick.wrap(originals[2])  # type: ignore[method-assign]
+    steps_seen: list[Any] = []
+    feed = originals[3]
+
+    def counted_feed(self: Any, samples: Any, now: Any = None) -> None:
+        feed(self, samples, now)
+        steps_seen[:] = [self.counters.estimator_steps]
+
+    host_module.Host.feed = timing.feed.wrap(counted_feed)  # type: ignore[method-assign]
+    try:
+        with tempfile.TemporaryDirectory() as out:
+            start = time.perf_counter()
+            with contextlib.redirect_stdout(io.StringIO()):
+                main(_argv(out))
+            timing.command_s = time.perf_counter() - start
+    finally:
+        loop_module._run_scheduler = originals[0]  # type: ignore[assignment]
+        World.advance_to, host_module.Host.tick, host_module.Host.feed = originals[1:]  # type: ignore[method-assign]
+    timing.estimator_steps = steps_seen[0] if steps_seen else 0
+    return timing
+
+
+def profiled_run(path: str, top: int) -> str:
+    """One ``hil run --no-plots`` under cProfile, written to ``path``; the top ``top`` functions by own
+    time, each marked ``world`` (firmware_sim), ``host`` (hil, protocol) or ``-`` (builtins, libraries)."""
+    from hil.cli import main
+
+    with tempfile.TemporaryDirectory() as out:
+        profiler = cProfile.Profile()
+        with contextlib.redirect_stdout(io.StringIO()):
+            profiler.runcall(main, _argv(out))
+    profiler.dump_stats(path)
+    stats = pstats.Stats(path, stream=io.StringIO())
+    rows = sorted(stats.stats.items(), key=lambda kv: kv[1][2], reverse=True)[:top]  # type: ignore[attr-defined]
+    lines = [f"{'own s':>7} {'calls':>8} {'µs/call':>8}  side   function"]
+    for (filename, line, name), (_cc, calls, own, _cum, _callers) in rows:
+        where = _short(filename)
+        side = "world" if where.startswith(WORLD_SIDE) else "host" if where.startswith(HOST_SIDE) else "-"
+        per_call = 1e6 * own / max(calls, 1)
+        lines.append(f"{own:7.3f} {calls:8d} {per_call:8.1f}  {side:5}  {where}:{line}({name})")
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench.profile_run", description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=1, help="timed runs (the first loads the kernels)")
+    parser.add_argument("--profile", metavar="FILE", help="also run once under cProfile, written to FILE")
+    parser.add_argument("--top", type=int, default=30, help="functions listed from the profile")
+    args = parser.parse_args()
+    for i in range(args.repeat):
+        print(f"timed run {i + 1}:")
+        for line in timed_run().lines():
+            print("  " + line)
+    if args.profile:
+        print(profiled_run(args.profile, args.top))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
