@@ -10,8 +10,10 @@ in this process twice over:
   (:meth:`hil.runtime.host.Host.feed`). The host's share is the loop minus the world (the board link's
   service and the scheduler are the host's). Wrapping costs ~0.3 µs per call on each side alike.
 - **profiled** (``--profile FILE``): cProfile over the whole command, its top functions by own time, each
-  marked host or world by where it lives. cProfile inflates every Python call (2–3× here), so its times
-  rank the functions; the timed run gives the costs.
+  marked host, world or protocol by where it lives. cProfile inflates every Python call (2–3× here), so
+  its times rank the functions; the timed run gives the costs.
+- **first tick** (``--first-tick``): a fresh ``python -X importtime`` process up to the host's first
+  control tick: wall time from spawn, the imports on the way, and which heavy libraries are loaded.
 
 Counts (calls per tick, per step) are exact and load-independent; times on a shared machine are not, so
 compare two trees by alternating them in one session (``--repeat``).
@@ -33,8 +35,10 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 WORLD_SIDE = "firmware_sim/"
-HOST_SIDE = ("hil/", "protocol/")
-"""Where the host's code lives (relative to the checkout); ``firmware_sim/`` is the world's."""
+HOST_SIDE = "hil/"
+SHARED = "protocol/"
+"""Where each side's code lives (relative to the checkout): ``protocol/`` is both sides' (the board
+emulator's pulse calibration and telemetry encoding too), marked ``proto``."""
 
 
 def _short(filename: str) -> str:
@@ -135,6 +139,52 @@ def parts_run() -> dict[str, Stopwatch]:
     return watches
 
 
+FIRST_TICK = "first tick"
+"""What the child of :func:`first_tick` prints at the host's first control tick."""
+
+_FIRST_TICK_CHILD = """
+import os, sys
+from hil.cli import main
+from hil.runtime.host import Host
+
+def first_tick(self, t, events):
+    heavy = sorted(m for m in ("matplotlib", "dask", "distributed", "tornado", "selenium", "scipy.linalg")
+                   if m in sys.modules)
+    print("first tick", len(sys.modules), "modules; heavy:", heavy, flush=True)
+    os._exit(0)
+
+Host.tick = first_tick
+main(["run", "--no-plots", "--out", sys.argv[1]])
+"""
+
+
+def first_tick() -> tuple[float, float, str]:
+    """A fresh ``python -X importtime`` process running ``hil run --no-plots`` up to the host's first
+    control tick (it exits there): (wall s from spawn to that tick, s of imports on the way, the child's
+    line: modules loaded and which heavy ones)."""
+    import subprocess
+    import sys
+
+    with tempfile.TemporaryDirectory() as out:
+        start = time.perf_counter()
+        done = subprocess.run(
+            [sys.executable, "-X", "importtime", "-c", _FIRST_TICK_CHILD, out],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=ROOT,
+        )
+        wall = time.perf_counter() - start
+    imports_us = 0
+    for line in done.stderr.splitlines():
+        parts = line.split("|")
+        if line.startswith("import time:") and len(parts) == 3 and parts[1].strip().isdigit():
+            if not parts[2].startswith("  "):  # top level: its cumulative time covers its children
+                imports_us += int(parts[1])
+    said = next(line for line in done.stdout.splitlines() if line.startswith(FIRST_TICK))
+    return wall, imports_us / 1e6, said
+
+
 def _argv(out: str) -> list[str]:
     return ["run", "--no-plots", "--out", out]
 
@@ -174,7 +224,8 @@ def timed_run() -> Timing:
 
 def profiled_run(path: str, top: int) -> str:
     """One ``hil run --no-plots`` under cProfile, written to ``path``; the top ``top`` functions by own
-    time, each marked ``world`` (firmware_sim), ``host`` (hil, protocol) or ``-`` (builtins, libraries)."""
+    time, each marked ``world`` (firmware_sim), ``host`` (hil), ``proto`` (protocol, either side's) or ``-``
+    (builtins, libraries)."""
     from hil.cli import main
 
     with tempfile.TemporaryDirectory() as out:
@@ -187,7 +238,8 @@ def profiled_run(path: str, top: int) -> str:
     lines = [f"{'own s':>7} {'calls':>8} {'µs/call':>8}  side   function"]
     for (filename, line, name), (_cc, calls, own, _cum, _callers) in rows:
         where = _short(filename)
-        side = "world" if where.startswith(WORLD_SIDE) else "host" if where.startswith(HOST_SIDE) else "-"
+        sides = ((WORLD_SIDE, "world"), (HOST_SIDE, "host"), (SHARED, "proto"))
+        side = next((name for prefix, name in sides if where.startswith(prefix)), "-")
         per_call = 1e6 * own / max(calls, 1)
         lines.append(f"{own:7.3f} {calls:8d} {per_call:8.1f}  {side:5}  {where}:{line}({name})")
     return "\n".join(lines)
@@ -199,7 +251,17 @@ def main() -> int:
     parser.add_argument("--profile", metavar="FILE", help="also run once under cProfile, written to FILE")
     parser.add_argument("--top", type=int, default=30, help="functions listed from the profile")
     parser.add_argument("--parts", action="store_true", help="also time the host's parts (PARTS)")
+    parser.add_argument(
+        "--first-tick", action="store_true", help="only: a fresh process's way to its first tick"
+    )
     args = parser.parse_args()
+    if args.first_tick:
+        for i in range(args.repeat):
+            wall, imports_s, said = first_tick()
+            print(
+                f"run {i + 1}: first tick {wall:.2f} s after spawn, {imports_s:.2f} s of it imports; {said}"
+            )
+        return 0
     for i in range(args.repeat):
         print(f"timed run {i + 1}:")
         for line in timed_run().lines():
