@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -44,6 +46,55 @@ def test_rotor_speed_integrates_acceleration_with_anti_windup():
     # and never past the speed limit, nor a gimbal rate past its limit
     sp = gen.update(_command([9.0, 0, 0, 0], [0.0] * 4), np.full(4, PARAMS.limits.max_rotor_speed))
     assert sp.gimbal_rate[0, 0] == PARAMS.limits.max_gimbal_rate
+
+
+def test_one_run_on_floats_gives_the_batch_paths_bits():
+    """The control tick's path (B = 1, Python floats) and the batch path (numpy, B = 2: the run and a
+    companion) give the same bits over many ticks, through both limits, the anti-windup, NaN and ±0."""
+    rng = np.random.default_rng(7)
+    lim = PARAMS.limits
+    specials = [np.nan, 0.0, -0.0, lim.max_gimbal_rate, -lim.max_gimbal_rate, 1e3, -1e3]
+    one, batch = (
+        SetpointGenerator(PARAMS, 50.0, max_lead=20.0),
+        SetpointGenerator(PARAMS, 50.0, max_lead=20.0),
+    )
+    start = np.array([0.0, -0.0, 400.0, lim.max_rotor_speed])
+    one.reset(start)
+    batch.reset(np.stack([start, start[::-1]]))
+    # a rotor at rest against a speed floor of 0: -0.0 meets 0.0 in the clamp (numpy keeps the second)
+    floor0 = dataclasses.replace(PARAMS, limits=dataclasses.replace(lim, min_rotor_speed=0.0))
+    rest_one, rest_batch = SetpointGenerator(floor0, 50.0), SetpointGenerator(floor0, 50.0)
+    rest_one.reset(np.full(4, -0.0))
+    rest_batch.reset(np.full((2, 4), -0.0))
+    got = rest_one.update(_command([0.0] * 4, [-0.0] * 4), np.zeros(4))
+    want = rest_batch.update(_command(np.zeros((2, 4)), np.full((2, 4), -0.0)), np.zeros((2, 4)))
+    assert repr(got.rotor_speed[0].tolist()) == repr(want.rotor_speed[0].tolist()) == repr([0.0] * 4)
+    for tick in range(300):
+        rate = rng.normal(0.0, 2.0 * lim.max_gimbal_rate, 4)
+        accel = rng.normal(0.0, 3000.0, 4)
+        measured = rng.uniform(-50.0, lim.max_rotor_speed + 50.0, 4)
+        if tick % 5 == 0:
+            rate[tick % 4], accel[(tick + 1) % 4] = specials[tick % 7], specials[(tick + 3) % 7]
+        if tick % 11 == 0:
+            measured[tick % 4] = specials[tick % 3]
+        got = one.update(_command(rate, accel), measured)
+        cmd = SteeringOutput(
+            np.stack([rate, rate[::-1]]),
+            np.stack([accel, accel[::-1]]),
+            np.zeros((2, 3)),
+            np.zeros(2),
+            np.zeros((2, 4)),
+            np.ones(2),
+            np.zeros(2),
+        )
+        want = batch.update(cmd, np.stack([measured, measured[::-1]]))
+        assert got.gimbal_rate.shape == got.rotor_speed.shape == (1, 4) and got.clamped.shape == (1,)
+        assert repr(got.gimbal_rate[0].tolist()) == repr(want.gimbal_rate[0].tolist())
+        assert repr(got.rotor_speed[0].tolist()) == repr(want.rotor_speed[0].tolist())
+        assert bool(got.clamped[0]) == bool(want.clamped[0])
+        if tick % 13 == 0:  # keep NaN from sticking in the integrators for the rest of the run
+            one.reset(start)
+            batch.reset(np.stack([start, start[::-1]]))
 
 
 def test_setpoints_become_a_wire_message_that_round_trips():

@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hil.scenario.paths import FIXTURES
-
 ORDER = 90
 
 
@@ -17,20 +15,24 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         description="Encode and decode every canonical frame of the protocol test vectors and report.",
         epilog="example: hil selftest",
     )
-    p.add_argument("--vectors", type=Path, default=FIXTURES / "protocol_vectors.json", help="vectors file")
+    # The default is resolved in run(): hil.scenario.paths imports the scenario package (and numba with
+    # it), which building every command's parser (`hil run --help`) must not pay for.
+    p.add_argument("--vectors", type=Path, help="vectors file (default: fixtures/protocol_vectors.json)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from hil.scenario.paths import FIXTURES
     from protocol.messages import CATALOGUE, SCHEMA_HASH
     from protocol.vectors import check_vectors
 
-    results = check_vectors(args.vectors)
+    vectors = args.vectors if args.vectors is not None else FIXTURES / "protocol_vectors.json"
+    results = check_vectors(vectors)
     failed = [r for r in results if not r.ok]
     for r in failed:
         print(f"FAIL {r.name}: {r.detail}")
     print(
         f"protocol: {len(CATALOGUE)} messages, schema hash {SCHEMA_HASH:#010x}; "
-        f"{len(results) - len(failed)}/{len(results)} vectors pass ({args.vectors})"
+        f"{len(results) - len(failed)}/{len(results)} vectors pass ({vectors})"
     )
     return 1 if failed else 0

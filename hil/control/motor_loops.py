@@ -81,6 +81,8 @@ class SetpointGenerator:
         if self.rotor_speed is None:
             self.reset(measured)
         assert self.rotor_speed is not None
+        if measured.shape[0] == 1 and self.rotor_speed.shape[0] == 1 and command.rotor_accel.shape[0] == 1:
+            return self._update_one(command, measured)
         wanted = self.rotor_speed + command.rotor_accel * self.dt
         lo = np.maximum(lim.min_rotor_speed, measured - self.max_lead)
         hi = np.minimum(lim.max_rotor_speed, measured + self.max_lead)
@@ -90,6 +92,46 @@ class SetpointGenerator:
         clamped = ((speed != wanted) | (rate != command.gimbal_rate)).any(axis=1)
         self.rotor_speed = speed
         return Setpoints(rate, speed.copy(), clamped)
+
+    def _update_one(self, command: SteeringOutput, measured: Array) -> Setpoints:
+        """:meth:`update` for one run (B = 1, the control tick's case) on Python floats: the same IEEE
+        operations and numpy's ``maximum``/``minimum`` semantics (:func:`_maximum`, :func:`_minimum`: NaN
+        propagates, a tie gives the second, ±0 included), so the same bits, without ~10 numpy calls on
+        (1, n) arrays (~50 µs a tick against ~10)."""
+        assert self.rotor_speed is not None
+        lim = self.params.limits
+        dt, lead = self.dt, self.max_lead
+        lo_limit, hi_limit, rate_limit = lim.min_rotor_speed, lim.max_rotor_speed, lim.max_gimbal_rate
+        speeds: list[float] = []
+        rates: list[float] = []
+        clamped = False
+        for held, accel, now, gimbal_rate in zip(
+            self.rotor_speed[0].tolist(),
+            command.rotor_accel[0].tolist(),
+            measured[0].tolist(),
+            command.gimbal_rate[0].tolist(),
+            strict=True,
+        ):
+            wanted = held + accel * dt
+            lo = _maximum(lo_limit, now - lead)
+            hi = _minimum(hi_limit, now + lead)
+            speed = _minimum(_maximum(wanted, lo), hi)
+            rate = _minimum(_maximum(gimbal_rate, -rate_limit), rate_limit)
+            clamped = clamped or speed != wanted or rate != gimbal_rate
+            speeds.append(speed)
+            rates.append(rate)
+        self.rotor_speed = np.array([speeds])
+        return Setpoints(np.array([rates]), np.array([speeds]), np.array([clamped]))
+
+
+def _maximum(a: float, b: float) -> float:
+    """``np.maximum(a, b)`` on two floats: NaN if either is, ``b`` on a tie (as numpy, ±0 included)."""
+    return a if a > b or a != a else b
+
+
+def _minimum(a: float, b: float) -> float:
+    """``np.minimum(a, b)`` on two floats: NaN if either is, ``b`` on a tie (as numpy, ±0 included)."""
+    return a if a < b or a != a else b
 
 
 @dataclass(frozen=True)

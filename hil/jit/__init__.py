@@ -15,6 +15,14 @@ never called by them) is stamped with its own package's sources too. Reading tho
 :mod:`importlib.resources`, once per process and package) is this package's only I/O besides numba's own
 cache files.
 
+numba's CPU target, when it first loads (a kernel's first call in a process), imports
+``numba.np.arraymath``, which imports ``scipy.linalg`` only to learn whether a BLAS is there (its
+``_check_blas``; the answer picks a BLAS or a plain loop for ``np.correlate``/``np.convolve``, which no
+kernel here uses). All of ``scipy.linalg`` (numpy.testing, scipy's array-API layer) is 0.1–0.3 s of a
+process's start, 1.2 s on a loaded machine: :class:`_BlasProbeDeclined` answers that one probe "no BLAS",
+once, and steps aside; a kernel that really calls BLAS (``np.dot``, ``np.linalg``) still imports it where
+numba compiles that call (``ensure_blas``), and so does anyone else who imports scipy.
+
 ``NUMBA_DISABLE_JIT=1`` (numba's own switch) turns every kernel back into the plain Python it is written
 in: slower, but steppable in a debugger, with Python's tracebacks. :data:`COMPILED` says which is in force.
 """
@@ -23,9 +31,11 @@ from __future__ import annotations
 
 import functools
 import hashlib
-from collections.abc import Callable, Iterator
+import sys
+from collections.abc import Callable, Iterator, Sequence
 from importlib import resources
-from importlib.abc import Traversable
+from importlib.abc import MetaPathFinder, Traversable
+from importlib.machinery import ModuleSpec
 from typing import Any, TypeVar, cast
 
 import numba
@@ -38,6 +48,57 @@ COMPILED: bool = not getattr(numba.config, "DISABLE_JIT", False)
 STAMPED = ("so3", "estimation", "vscmg", "control", "jit")
 """The packages of ``hil`` whose sources stamp every kernel's cache: where hil's kernels and their callees
 live."""
+
+
+BLAS_PROBE = ("numba.np.arraymath", "_check_blas")
+"""The module and function of numba's import-time BLAS probe (:class:`_BlasProbeDeclined`)."""
+
+
+class _BlasProbeDeclined(MetaPathFinder):
+    """Refuses ``import scipy.linalg`` to numba's BLAS probe (:data:`BLAS_PROBE`) alone, once, then takes
+    itself off ``sys.meta_path``: every other import of scipy.linalg, before or after, is untouched. A
+    numba whose probe is named otherwise never meets it (and pays the import as before)."""
+
+    MAX_DEPTH = 40
+    """Frames searched up from the import for the probe (the import machinery's own are ~10)."""
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None, target: object = None
+    ) -> ModuleSpec | None:
+        if fullname != "scipy.linalg" or not _called_from(*BLAS_PROBE, self.MAX_DEPTH):
+            return None
+        _uninstall_blas_probe_guard()
+        raise ImportError("hil.jit: numba's BLAS probe answered 'no' (no kernel uses np.correlate)")
+
+
+def _called_from(module: str, function: str, max_depth: int) -> bool:
+    """Whether ``module.function`` is on the calling thread's stack within ``max_depth`` frames."""
+    frame = sys._getframe(1)
+    for _ in range(max_depth):
+        if frame is None:
+            return False
+        if frame.f_code.co_name == function and frame.f_globals.get("__name__") == module:
+            return True
+        frame = frame.f_back  # type: ignore[assignment]
+    return False
+
+
+_BLAS_PROBE_GUARD = _BlasProbeDeclined()
+
+
+def _install_blas_probe_guard() -> None:
+    """The guard on ``sys.meta_path``, unless numba's probe has already run or scipy.linalg is loaded."""
+    if BLAS_PROBE[0] not in sys.modules and "scipy.linalg" not in sys.modules:
+        sys.meta_path.insert(0, _BLAS_PROBE_GUARD)
+
+
+def _uninstall_blas_probe_guard() -> None:
+    if _BLAS_PROBE_GUARD in sys.meta_path:
+        sys.meta_path.remove(_BLAS_PROBE_GUARD)
+
+
+if COMPILED:
+    _install_blas_probe_guard()
 
 
 def kernel(fn: F) -> F:

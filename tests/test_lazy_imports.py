@@ -1,0 +1,112 @@
+"""``hil run`` reaches its first tick without the heavy libraries it does not use (issue 29): each check runs
+in a fresh interpreter (a subprocess) and reads its ``sys.modules``, so an eager import added anywhere on
+the path (a package ``__init__``, a module-level import in hil.cli, hil.runtime, hil.link) fails here.
+
+Plotting (matplotlib), campaigns (Dask, distributed, tornado), the browser tests (selenium) and scipy's
+linear algebra (which numba's BLAS probe would pull in: :class:`hil.jit._BlasProbeDeclined`) are loaded
+where they are used, never on the way to a run's first tick.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+HEAVY = ("matplotlib", "dask", "distributed", "tornado", "selenium", "pandas", "scipy.linalg")
+"""Modules no run needs before its first tick."""
+
+
+def _loaded(code: str, timeout_s: float = 240.0) -> dict[str, object]:
+    """Run ``code`` in a fresh interpreter from the checkout's root; it prints one JSON object last."""
+    done = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
+
+
+def _heavy_check(before: str) -> str:
+    return f"""
+        import json, sys
+        {before}
+        print(json.dumps({{"heavy": sorted(m for m in {HEAVY!r} if m in sys.modules),
+                           "numba": "numba" in sys.modules}}))
+    """
+
+
+def test_the_run_loop_imports_none_of_the_heavy_libraries():
+    loaded = _loaded(_heavy_check("import hil.runtime.loop, hil.cli.run, hil.link.sources.simulated"))
+    assert loaded["heavy"] == []
+
+
+def test_building_the_command_line_does_not_import_numba():
+    """``hil run --help`` (every command's parser) is argparse and the command modules: no scenario
+    package, no numba, no numpy-heavy stack (hil.cli's docstring)."""
+    loaded = _loaded(_heavy_check("from hil.cli import build_parser; build_parser()"))
+    assert loaded == {"heavy": [], "numba": False}
+
+
+def test_numbas_blas_probe_does_not_load_scipy_linalg_and_scipy_still_imports():
+    """numba's target loads numba.np.arraymath on a kernel's first call; its BLAS probe is declined (no
+    scipy.linalg), once: an import of scipy.linalg afterwards works, and the guard is gone."""
+    loaded = _loaded(
+        """
+        import json, sys
+        import hil.jit, numba.np.arraymath as arraymath
+        probe_loaded = "scipy.linalg" in sys.modules
+        guard_left = any(type(f).__name__ == "_BlasProbeDeclined" for f in sys.meta_path)
+        import scipy.linalg.cython_blas
+        print(json.dumps({"probe_loaded": probe_loaded, "have_blas": arraymath._HAVE_BLAS,
+                          "guard_left": guard_left, "later": "scipy.linalg" in sys.modules}))
+        """
+    )
+    assert loaded == {"probe_loaded": False, "have_blas": False, "guard_left": False, "later": True}
+
+
+def test_a_scipy_linalg_loaded_first_is_left_alone():
+    """With scipy.linalg already imported the guard is not installed: numba's probe finds its BLAS."""
+    loaded = _loaded(
+        """
+        import json, sys
+        import scipy.linalg
+        import hil.jit, numba.np.arraymath as arraymath
+        print(json.dumps({"have_blas": arraymath._HAVE_BLAS,
+                          "guard": any(type(f).__name__ == "_BlasProbeDeclined" for f in sys.meta_path)}))
+        """
+    )
+    assert loaded == {"have_blas": True, "guard": False}
+
+
+def test_a_default_run_reaches_its_first_tick_without_the_heavy_libraries(tmp_path):
+    """The real path: ``hil run --no-plots`` (lockstep, the built-in emulator: scenario, kernels loaded,
+    world, board link, phone source), ``sys.modules`` read at the host's first control tick."""
+    loaded = _loaded(
+        f"""
+        import json, sys
+        from hil.cli import main
+        from hil.runtime.host import Host
+
+        seen = {{}}
+        tick = Host.tick
+
+        def first_tick(self, t, events):
+            if not seen:
+                seen["heavy"] = sorted(m for m in {HEAVY!r} if m in sys.modules)
+            return tick(self, t, events)
+
+        Host.tick = first_tick
+        main(["run", "--no-plots", "--duration", "1", "--out", {str(tmp_path)!r}])
+        print(json.dumps(seen))
+        """
+    )
+    assert loaded == {"heavy": []}
