@@ -8,6 +8,7 @@ import { Plots } from "./plots.js";
 import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
 import { $, fmt, setCell, drawPanels, drawEvents } from "./panels.js";
 import { Uplink } from "./uplink.js";
+import { Alarms, AlarmPanel } from "./alarms.js";
 
 const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
 const FEED_STALE_S = 1.0;  // no message for this long: the live feed is stale
@@ -16,9 +17,10 @@ const token = new URLSearchParams(location.search).get("token") || "";
 const view = new View3D($("view3d"));
 const uplink = new Uplink(token);
 uplink.enable(false, "Connecting: no commands yet.");
+const alarmPanel = new AlarmPanel(token, () => invalidate());
 
 const state = {
-  info: null, store: null, plots: null, status: {}, follow: true, cursor: NaN, playing: false,
+  info: null, store: null, plots: null, alarms: null, status: {}, follow: true, cursor: NaN, playing: false,
   dirty: false, lastMessage: performance.now(), ended: false, connected: false,
 };
 const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [] };
@@ -38,8 +40,8 @@ function connect() {
   es.onopen = () => { state.connected = true; };
   es.onerror = () => { state.connected = false; if (state.ended) es.close(); };
   on("info", onInfo);
-  on("rows", (d) => { if (state.store) { state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
-  on("events", (list) => { if (state.store) { state.store.pushEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
+  on("rows", (d) => { if (state.store) { state.alarms.feed(d.rows); state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
+  on("events", (list) => { if (state.store) { state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
   on("link", (list) => { if (state.store) { state.store.pushLink(list); invalidate(); } });
   on("status", (s) => {
     state.status = { ...state.status, ...s };
@@ -54,6 +56,7 @@ function onInfo(info) {
   state.info = info;
   if (state.plots) state.plots.destroy();
   state.store = new Store(info.columns);
+  state.alarms = new Alarms(info);
   state.plots = new Plots($("plots"), info, state.store, () => { invalidate(); });
   state.follow = true;
   $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
@@ -187,7 +190,10 @@ function render(feed) {
   const period = info.control_rate_hz ? 1 / info.control_rate_hz : 0.02;
   const rowGap = i > 0 && t[i] - t[i - 1] > 3 * period ? t[i] - t[i - 1] : 0;
   const feedAge = state.follow && state.info.mode === "live" ? feed.age : 0;
-  if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap });
+  const alarmAt = hasRows ? state.cursor : Infinity;
+  const alarmColumns = state.alarms.activeColumns(alarmAt);
+  if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap, alarmColumns });
+  alarmPanel.draw(state.alarms, alarmAt, uplinkState(feed).on);
   drawAttitude(i, feedAge, rowGap);
   drawEvents(store, hasRows ? state.cursor : Infinity);
   stats.renders += 1;

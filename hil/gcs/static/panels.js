@@ -81,6 +81,31 @@ export function drawPanels(ctx) {
   drawUnits(ctx, boardStale);
   drawPhone(ctx);
   drawLink(ctx);
+  markAlarms(ctx);
+}
+
+// The cell showing each channel, coloured while one of its alarms is active at the cursor.
+function alarmCells(info) {
+  const cells = { point_err_deg: "point-err", battery_v: "battery", ubec_v: "ubec", link_age_ms: "link-age",
+    tel_age_ms: "tel-age", board_state: "board-mode" };
+  for (let k = 0; k < (info.n_units || 0); k++) {
+    cells[`gimbal_rate_${k}`] = `u${k}-rate`;
+    cells[`rotor_speed_${k}`] = `u${k}-rotor`;
+  }
+  return cells;
+}
+
+function markAlarms(ctx) {
+  const active = ctx.alarmColumns || {};
+  for (const [column, id] of Object.entries(alarmCells(ctx.info))) {
+    const el = $(id);
+    if (!el) continue;
+    const severity = active[column] || "";
+    if ((el.dataset.alarm || "") === severity) continue;
+    el.classList.toggle("alarm-warning", severity === "warning");
+    el.classList.toggle("alarm-critical", severity === "critical");
+    if (severity) el.dataset.alarm = severity; else delete el.dataset.alarm;
+  }
 }
 
 function drawUnits(ctx, boardStale) {

@@ -3,30 +3,43 @@
 
 const MAX_POINTS = 1200;
 const UNIT_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#9a6324"];
-const LIMIT = { stroke: "#c62828", dash: [5, 4], width: 1, points: { show: false } };
+const LIMIT_COLORS = { warning: "#c77c02", critical: "#c62828" };
 
 function perUnit(prefix, n, label) {
   return Array.from({ length: n }, (_, i) => ({ col: `${prefix}${i}`, label: `${label} ${i + 1}`, stroke: UNIT_COLORS[i % 8] }));
 }
 
-// Each plot: id, title, series [{col, label, stroke, dash}], limits (info) -> [{value, label}].
+// The horizontal lines a plot draws: the thresholds of the run's alarms (info.alarms) on its columns, one
+// line per distinct threshold (the units share theirs), ±value for a limit on |x|.
+export function limitLines(info, columns) {
+  const lines = new Map();
+  for (const a of info.alarms || []) {
+    if (!columns.includes(a.column) || a.op === "equals") continue;
+    const values = a.op === "abs_above" ? [a.value, -a.value] : [a.value];
+    for (const value of values) {
+      const key = `${value}`;
+      if (lines.has(key)) continue;
+      const word = a.op === "below" ? "min" : "max";
+      lines.set(key, { value, severity: a.severity, label: `${a.label.replace(/^unit \d+ /, "")} ${value < 0 ? "−" : ""}${word}` });
+    }
+  }
+  return [...lines.values()];
+}
+
+// Each plot: id, title, series [{col, label, stroke, dash}]; its limit lines come from limitLines.
 export function plotSpecs(info) {
-  const n = info.n_units || 0, lim = info.limits || {};
+  const n = info.n_units || 0;
   const specs = [
     { id: "pointing", title: "Pointing error (deg)", series: [
       { col: "point_err_deg", label: "pointing", stroke: "#e6194b" },
-      { col: "track_err_deg", label: "tracking", stroke: "#4363d8" }],
-      limits: lim.settle_deg ? [{ value: lim.settle_deg, label: "settle" }] : [] },
+      { col: "track_err_deg", label: "tracking", stroke: "#4363d8" }] },
     { id: "est_att", title: "Estimator: attitude error, principal angle of R R̂ᵀ (deg)", series: [
       { col: "est_err_deg", label: "attitude error", stroke: "#911eb4" }] },
     { id: "est_rate", title: "Estimator: angular velocity error |Ω − Ω̂| (rad/s)", series: [
       { col: "rate_err", label: "rate error", stroke: "#f58231" }] },
     { id: "gimbal_angle", title: "Gimbal angles γ (rad) — multi-turn, no angle limit", series: perUnit("gimbal_angle_", n, "γ") },
-    { id: "gimbal_rate", title: "Gimbal rates γ̇ (rad/s)", series: perUnit("gimbal_rate_", n, "γ̇"),
-      limits: lim.max_gimbal_rate ? [{ value: lim.max_gimbal_rate, label: "+max" }, { value: -lim.max_gimbal_rate, label: "−max" }] : [] },
-    { id: "rotor", title: "Rotor speeds Ω (rad/s)", series: perUnit("rotor_speed_", n, "Ω"),
-      limits: [lim.min_rotor_speed && { value: lim.min_rotor_speed, label: "min" },
-               lim.max_rotor_speed && { value: lim.max_rotor_speed, label: "max" }].filter(Boolean) },
+    { id: "gimbal_rate", title: "Gimbal rates γ̇ (rad/s)", series: perUnit("gimbal_rate_", n, "γ̇") },
+    { id: "rotor", title: "Rotor speeds Ω (rad/s)", series: perUnit("rotor_speed_", n, "Ω") },
     { id: "pulses", title: "Pulse widths (µs)", series: [
       ...perUnit("pulse_gimbal_", n, "gimbal").map((s) => ({ ...s })),
       ...perUnit("pulse_rotor_", n, "rotor").map((s) => ({ ...s, dash: [4, 3] }))] },
@@ -35,6 +48,9 @@ export function plotSpecs(info) {
       { col: "battery_v", label: "battery V", stroke: "#3cb44b" },
       { col: "ubec_v", label: "UBEC V", stroke: "#4363d8" },
       { col: "battery_a", label: "battery A", stroke: "#f58231", dash: [4, 3] }] },
+    { id: "ages", title: "Link: the board's age of the host's frames, the host's of the board's telemetry (ms)", series: [
+      { col: "link_age_ms", label: "board: last host frame", stroke: "#4363d8" },
+      { col: "tel_age_ms", label: "host: last telemetry", stroke: "#e6194b" }] },
   ];
   return specs;
 }
@@ -60,7 +76,7 @@ export class Plots {
       box.className = "plot"; box.id = `plot-${spec.id}`;
       box.innerHTML = `<h3>${spec.title}</h3>`;
       container.appendChild(box);
-      const limits = spec.limits || [];
+      const limits = limitLines(info, series.map((s) => s.col));
       const opts = {
         width: Math.max(box.clientWidth - 8, 200), height: 150,
         scales: { x: { time: false } },
@@ -69,9 +85,10 @@ export class Plots {
         axes: [{ size: 28 }, { size: 52 }],
         series: [{ label: "t (s)" },
           ...series.map((s) => ({ label: s.label, stroke: s.stroke, width: 1.5, dash: s.dash, points: { show: false } })),
-          ...limits.map((l) => ({ ...LIMIT, label: l.label }))],
+          ...limits.map((l) => ({ label: l.label, stroke: LIMIT_COLORS[l.severity] || LIMIT_COLORS.critical, dash: [5, 4], width: 1, points: { show: false } }))],
       };
       const chart = new uPlot(opts, [[], ...series.map(() => []), ...limits.map(() => [])], box);
+      box.dataset.limits = limits.map((l) => `${l.label}=${l.value}`).join(";");
       this.charts.push({ spec, series, limits, chart, box, visible: true });
       this.visibility.observe(box);
     }
