@@ -172,7 +172,7 @@ def test_a_finished_run_directory_replays_and_its_timeline_scrubs(browser, tmp_p
         assert _text(browser, "mode") == "replay" and _text(browser, "feed") == "finished"
         assert browser.find_element(By.CSS_SELECTOR, "button[data-command=disarm]").get_attribute("disabled")
         end_attitude = browser.find_element(By.ID, "view3d").get_attribute("data-attitude")
-        assert int(_js(browser, "return document.querySelectorAll('#events li').length")) > 5
+        assert int(_js(browser, "return document.querySelectorAll('#events tbody tr').length")) > 5
         browser.save_screenshot(str(tmp_path / "replay-end.png"))
         slew_start = next(
             e["t"] for e in read_events(result.run_dir / "events.jsonl")[0] if e["kind"] == "slew_start"

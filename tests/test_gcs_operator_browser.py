@@ -80,3 +80,118 @@ def test_an_alarm_is_raised_and_cleared_as_a_run_crosses_a_limit_and_acknowledge
     assert np.all(err[back:] <= 15.0)  # and it stayed inside: one occurrence
     events = read_events(result.run_dir / "events.jsonl")[0]
     assert [e["alarm"] for e in events if e["kind"] == "alarm_ack"] == [POINTING]
+
+
+def _click_twice(browser, name: str) -> None:
+    """A command button's click and its confirmation, in one script (the page redraws between frames)."""
+    script = "const b = document.querySelector(`button[data-command=${arguments[0]}]`); b.click(); b.click();"
+    js(browser, script, name)
+
+
+def _read_download(browser) -> tuple[str, bytes]:
+    """The page's last export (#download): its file name and its bytes, read back through its Blob URL."""
+    name, data = browser.execute_async_script("""
+        const done = arguments[arguments.length - 1];
+        const a = document.getElementById('download');
+        fetch(a.href).then((r) => r.arrayBuffer())
+          .then((b) => done([a.download, Array.from(new Uint8Array(b))]));
+    """)  # fmt: skip
+    return name, bytes(data)
+
+
+def _export(browser, selector: str, before: str) -> tuple[str, bytes]:
+    js(browser, "document.querySelector(arguments[0]).click()", selector)
+    wait_for(lambda: browser.find_element(By.ID, "download").get_attribute("href") not in (None, "", before),
+             20, "the export")  # fmt: skip
+    return _read_download(browser)
+
+
+def test_commands_are_marked_on_the_plots_listed_in_the_history_and_exported(browser, tmp_path):
+    """A paced lockstep run: a slew commanded from the page is marked on the pointing plot at the time the
+    run applied it; the history lists it, a Disarm (acked by the board) and a request with a wrong token
+    (rejected) with sender, time, acknowledgement and outcome; its CSV export, read back through the Blob
+    URL, says the same. A plot's CSV holds the points it shows, its PNG is a PNG; γ is in degrees in the
+    plot as in the table; the events are a table that wraps rather than scrolls sideways."""
+    import csv
+    import io
+
+    from gcs_support import command, request
+
+    with GroundStation.live(bind="127.0.0.1:0") as station:
+        browser.get(station.url)
+        runner = RunInThread(
+            quick_scenario(), RunOptions(out_root=tmp_path, duration_s=60.0, pace=2.0), station
+        )
+        runner.wait_event(lambda e: e["kind"] == "slew_start", 60, "the warm-up's end")
+        wait_for(lambda: browser.find_element(By.CSS_SELECTOR, "button[data-command=slew]").is_enabled(), 20,
+                 "the uplink on")  # fmt: skip
+        js(browser, """for (const [k, v] of [['roll', 20], ['pitch', -10], ['yaw', 120]])
+                         document.getElementById('slew-' + k).value = v;""")  # fmt: skip
+        _click_twice(browser, "slew")
+        applied = runner.wait_event(lambda e: e["kind"] == "command" and e.get("status") == "applied",
+                                    what="the slew applied")  # fmt: skip
+        pointing = browser.find_element(By.ID, "plot-pointing")
+        label = f"{applied['t']} slew to 20/-10/120° (gcs)"
+        wait_for(lambda: label in (pointing.get_attribute("data-markers") or "").split(";"), 20,
+                 "the slew marked on the pointing plot")  # fmt: skip
+        assert "slew start" in pointing.get_attribute("data-markers")
+        browser.save_screenshot(str(tmp_path / "slew-marked.png"))
+        _click_twice(browser, "disarm")
+        runner.wait_event(
+            lambda e: e["kind"] == "command" and e.get("status") == "acked", what="the disarm acked"
+        )
+        assert request(station, "POST", "/api/command", {"command": "hold"}, token="guessed")[0] == 401
+        runner.wait_event(
+            lambda e: e["kind"] == "command" and e.get("status") == "rejected", what="the rejection"
+        )
+        wait_for(lambda: len(browser.find_elements(By.CSS_SELECTOR, "#cmd-history tbody tr")) == 3, 20,
+                 "three commands in the history")  # fmt: skip
+        history = [[td.text for td in tr.find_elements(By.TAG_NAME, "td")]
+                   for tr in browser.find_elements(By.CSS_SELECTOR, "#cmd-history tbody tr")]  # fmt: skip
+        _, csv_bytes = _export(browser, "#export-history", "")
+        exported = list(csv.reader(io.StringIO(csv_bytes.decode())))
+
+        href = browser.find_element(By.ID, "download").get_attribute("href")
+        name, plot_csv = _export(browser, "#plot-pointing [data-export=csv]", href)
+        href = browser.find_element(By.ID, "download").get_attribute("href")
+        png_name, png = _export(browser, "#plot-pointing [data-export=png]", href)
+
+        gimbal = browser.find_element(By.ID, "plot-gimbal_angle")
+        assert "(°)" in gimbal.find_element(By.CSS_SELECTOR, "h3").text
+        wait_for(lambda: abs(float(gimbal.get_attribute("data-last") or "nan")
+                             - float(browser.find_element(By.ID, "u0-angle").text)) < 0.06, 10,
+                 "γ in degrees in the plot as in the table")  # fmt: skip
+        events_card = browser.find_element(By.CSS_SELECTOR, ".card.events")
+        assert len(browser.find_elements(By.CSS_SELECTOR, "#events tbody tr")) > 5
+        assert js(browser, "return arguments[0].scrollWidth <= arguments[0].clientWidth", events_card)
+        command(station, {"command": "abort"})
+        result = runner.join()
+    assert not page_errors(browser)
+    events = read_events(result.run_dir / "events.jsonl")[0]
+    commands = [e for e in events if e["kind"] == "command"]
+    slew = next(e for e in commands if e["command"] == "slew")
+    disarm_sent = next(e for e in commands if e["command"] == "disarm" and e["status"] == "sent")
+    disarm_acked = next(e for e in commands if e["command"] == "disarm" and e["status"] == "acked")
+    rejected = next(e for e in commands if e["status"] == "rejected")
+    assert (
+        history[0][0] == ""
+        and history[0][2] == "gcs 127.0.0.1"
+        and history[0][5].startswith("rejected: token")
+    )
+    assert history[1][:3] == [str(disarm_sent["id"]), f"{disarm_sent['t']:.2f}", "gcs 127.0.0.1"]
+    assert (
+        history[1][4] == f"acked by the board after {disarm_acked['after_ms']:.0f} ms"
+        and history[1][5] == "done"
+    )
+    assert history[2][:4] == [str(slew["id"]), f"{slew['t']:.2f}", "gcs 127.0.0.1",
+                              "slew to roll 20°, pitch -10°, yaw 120°"]  # fmt: skip
+    assert history[2][4:] == ["applied by the host", "done"]
+    assert exported[0] == ["id", "t (s)", "sender", "command", "acknowledgement", "outcome"]
+    assert [float(r[1]) for r in exported[1:]] == [slew["t"], disarm_sent["t"], rejected["t"]]
+    assert [r[4] for r in exported[1:]] == [history[2][4], history[1][4], history[0][4]]
+    assert name.endswith("-pointing.csv") and png_name.endswith("-pointing.png")
+    rows = list(csv.reader(io.StringIO(plot_csv.decode())))
+    assert rows[0] == ["t (s)", "pointing", "tracking"] and len(rows) > 20
+    times = [float(r[0]) for r in rows[1:]]
+    assert times == sorted(times) and times[-1] - times[0] <= 30.0  # the plot's window, as shown
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 2000

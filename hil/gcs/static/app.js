@@ -9,6 +9,7 @@ import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
 import { $, fmt, setCell, drawPanels, drawEvents } from "./panels.js";
 import { Uplink } from "./uplink.js";
 import { Alarms, AlarmPanel } from "./alarms.js";
+import { drawHistory, exportHistory } from "./commands.js";
 
 const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
 const FEED_STALE_S = 1.0;  // no message for this long: the live feed is stale
@@ -82,6 +83,9 @@ const timeline = $("timeline");
 timeline.addEventListener("input", () => { state.follow = false; state.playing = false; state.cursor = Number(timeline.value); invalidate(); });
 $("follow").addEventListener("click", () => { state.follow = true; state.playing = false; invalidate(); });
 $("window").addEventListener("change", () => { invalidate(); });
+$("export-history").addEventListener("click", () => {
+  if (state.store) exportHistory(state.store.events, state.store.n ? state.cursor : Infinity, state.info.run);
+});
 $("play").addEventListener("click", () => {
   const store = state.store;
   if (!store || !store.n) return;
@@ -196,6 +200,7 @@ function render(feed) {
   alarmPanel.draw(state.alarms, alarmAt, uplinkState(feed).on);
   drawAttitude(i, feedAge, rowGap);
   drawEvents(store, hasRows ? state.cursor : Infinity);
+  drawHistory(store.events, hasRows ? state.cursor : Infinity);
   stats.renders += 1;
   if (store.seen !== lastRows) { stats.dataRenders += 1; lastRows = store.seen; stats.renderTimes.push(performance.now()); }
   const now = performance.now();

@@ -1,5 +1,9 @@
-// The time-series plots (uPlot): which columns each shows, the limits it marks, and how a window of the
-// store becomes uPlot's data (at most MAX_POINTS per series, NaN as a gap).
+// The time-series plots (uPlot): which columns each shows (in which unit), the limits it marks, the
+// commands and events it marks (markers.js), its PNG and CSV exports, and how a window of the store becomes
+// uPlot's data (at most MAX_POINTS per series, NaN as a gap).
+
+import { runMarkers, markerPlugin } from "./markers.js";
+import { download, downloadCsv, safeName } from "./exports.js";
 
 const MAX_POINTS = 1200;
 const UNIT_COLORS = ["#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#9a6324"];
@@ -37,7 +41,8 @@ export function plotSpecs(info) {
       { col: "est_err_deg", label: "attitude error", stroke: "#911eb4" }] },
     { id: "est_rate", title: "Estimator: angular velocity error |Ω − Ω̂| (rad/s)", series: [
       { col: "rate_err", label: "rate error", stroke: "#f58231" }] },
-    { id: "gimbal_angle", title: "Gimbal angles γ (rad) — multi-turn, no angle limit", series: perUnit("gimbal_angle_", n, "γ") },
+    { id: "gimbal_angle", title: "Gimbal angles γ (°) — multi-turn, no angle limit",
+      series: perUnit("gimbal_angle_", n, "γ").map((s) => ({ ...s, scale: 180 / Math.PI })) },
     { id: "gimbal_rate", title: "Gimbal rates γ̇ (rad/s)", series: perUnit("gimbal_rate_", n, "γ̇") },
     { id: "rotor", title: "Rotor speeds Ω (rad/s)", series: perUnit("rotor_speed_", n, "Ω") },
     { id: "pulses", title: "Pulse widths (µs)", series: [
@@ -61,6 +66,9 @@ export class Plots {
     this.container = container;
     this.store = store;
     this.charts = [];
+    this.markers = [];
+    this.markedEvents = -1;  // the store's event count the markers were made from
+    this.runName = safeName(info.run);
     this.visibility = new IntersectionObserver((entries) => {
       for (const entry of entries) {
         const c = this.charts.find((x) => x.box === entry.target);
@@ -74,7 +82,8 @@ export class Plots {
       if (!series.length) continue;
       const box = document.createElement("div");
       box.className = "plot"; box.id = `plot-${spec.id}`;
-      box.innerHTML = `<h3>${spec.title}</h3>`;
+      box.innerHTML = `<h3><span class="title"></span><span class="exports"><button data-export="png" title="this plot as a PNG">PNG</button><button data-export="csv" title="the points shown, as CSV">CSV</button></span></h3>`;
+      box.querySelector(".title").textContent = spec.title;
       container.appendChild(box);
       const limits = limitLines(info, series.map((s) => s.col));
       const opts = {
@@ -83,17 +92,45 @@ export class Plots {
         legend: { show: true, live: false },
         cursor: { drag: { x: false, y: false } },
         axes: [{ size: 28 }, { size: 52 }],
+        plugins: [markerPlugin(() => this.markers, box)],
         series: [{ label: "t (s)" },
           ...series.map((s) => ({ label: s.label, stroke: s.stroke, width: 1.5, dash: s.dash, points: { show: false } })),
           ...limits.map((l) => ({ label: l.label, stroke: LIMIT_COLORS[l.severity] || LIMIT_COLORS.critical, dash: [5, 4], width: 1, points: { show: false } }))],
       };
       const chart = new uPlot(opts, [[], ...series.map(() => []), ...limits.map(() => [])], box);
       box.dataset.limits = limits.map((l) => `${l.label}=${l.value}`).join(";");
-      this.charts.push({ spec, series, limits, chart, box, visible: true });
+      const entry = { spec, series, limits, chart, box, visible: true };
+      this.charts.push(entry);
+      box.querySelector("[data-export=png]").addEventListener("click", () => this.exportPng(entry));
+      box.querySelector("[data-export=csv]").addEventListener("click", () => this.exportCsv(entry));
       this.visibility.observe(box);
     }
     this.resize = () => { for (const c of this.charts) c.chart.setSize({ width: Math.max(c.box.clientWidth - 8, 200), height: 150 }); };
     window.addEventListener("resize", this.resize);
+  }
+
+  // The plot as drawn (axes, lines, limits, markers) under its title, as a PNG.
+  exportPng(c) {
+    const src = c.chart.ctx.canvas, pad = 24 * devicePixelRatio;
+    const out = document.createElement("canvas");
+    out.width = src.width; out.height = src.height + pad;
+    const ctx = out.getContext("2d");
+    const style = getComputedStyle(document.body);
+    ctx.fillStyle = style.getPropertyValue("--card").trim() || "#fff";
+    ctx.fillRect(0, 0, out.width, out.height);
+    ctx.fillStyle = style.getPropertyValue("--ink").trim() || "#000";
+    ctx.font = `600 ${Math.round(12 * devicePixelRatio)}px system-ui, sans-serif`;
+    ctx.fillText(c.spec.title, 6 * devicePixelRatio, 16 * devicePixelRatio);
+    ctx.drawImage(src, 0, pad);
+    out.toBlob((blob) => download(blob, `${this.runName}-${c.spec.id}.png`), "image/png");
+  }
+
+  // The points the plot shows (its window, thinned as drawn), one row per time, as CSV.
+  exportCsv(c) {
+    const data = c.chart.data, n = c.series.length;
+    const header = ["t (s)", ...c.series.map((s) => s.label)];
+    const rows = data[0].map((t, k) => [t, ...Array.from({ length: n }, (_, j) => data[j + 1][k])]);
+    downloadCsv(`${this.runName}-${c.spec.id}.csv`, header, rows);
   }
 
   destroy() {
@@ -109,15 +146,19 @@ export class Plots {
     const store = this.store, count = i1 - i0 + 1;
     if (count <= 0) return;
     const stride = Math.max(1, Math.ceil(count / MAX_POINTS));
-    const take = (col) => {
+    const take = (col, scale = 1) => {
       const out = [];
-      for (let i = i0; i <= i1; i += stride) { const v = col[i]; out.push(Number.isFinite(v) ? v : null); }
+      for (let i = i0; i <= i1; i += stride) { const v = col[i]; out.push(Number.isFinite(v) ? v * scale : null); }
       return out;
     };
+    if (store.events.length !== this.markedEvents) {
+      this.markedEvents = store.events.length;
+      this.markers = runMarkers(store.events);
+    }
     const x = take(store.col("t"));
     for (const c of this.charts) {
       if (!c.visible) continue;
-      const data = [x, ...c.series.map((s) => take(store.col(s.col))), ...c.limits.map((l) => x.map(() => l.value))];
+      const data = [x, ...c.series.map((s) => take(store.col(s.col), s.scale || 1)), ...c.limits.map((l) => x.map(() => l.value))];
       c.chart.setData(data);
       const last = data[1][data[1].length - 1];
       c.box.dataset.points = String(x.length);
