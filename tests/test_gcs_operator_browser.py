@@ -195,3 +195,89 @@ def test_commands_are_marked_on_the_plots_listed_in_the_history_and_exported(bro
     times = [float(r[0]) for r in rows[1:]]
     assert times == sorted(times) and times[-1] - times[0] <= 30.0  # the plot's window, as shown
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 2000
+
+
+def _cursor(browser) -> float:
+    return float(js(browser, "return window.gcs.state.cursor"))
+
+
+def _at(browser, t: float) -> bool:
+    """The page's cursor is at ``t`` (s; the downlink sends times to 10 significant digits)."""
+    return abs(_cursor(browser) - t) < 1e-6
+
+
+def test_the_keyboard_scrubs_the_timeline_and_the_colours_follow_the_system(browser, tmp_path):
+    """A finished run replayed: → and ← move the cursor to the next and previous telemetry row, Shift+→ and
+    Shift+← by one second, also with the timeline slider focused (whose own step is 0.01 s); Space plays
+    and pauses; f follows the newest row again. A dark system scheme darkens the page, a light one not."""
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.keys import Keys
+
+    from hil.runtime import run
+
+    result = run(quick_scenario(), RunOptions(out_root=tmp_path, duration_s=4.0))
+    t = read_telemetry(result.run_dir / "telemetry.csv")["t"]
+    with GroundStation.replay(result.run_dir, bind="127.0.0.1:0") as station:
+        browser.get(station.url)
+        wait_for(lambda: js(browser, "return window.gcs.state.status.state") == "finished", 30, "the replay")
+        wait_for(lambda: js(browser, "return window.gcs.state.store.n") == len(t), 20, "every row")
+        keys = ActionChains(browser)
+
+        def press(*sequence) -> None:
+            for key in sequence:
+                keys.send_keys(key)
+            keys.perform()
+            keys.reset_actions()
+
+        js(browser, "document.activeElement.blur()")
+        press(Keys.ARROW_LEFT)  # from following the last row: the row before it
+        wait_for(lambda: _at(browser, t[-2]), 10, "one frame back")
+        assert js(browser, "return window.gcs.state.follow") is False
+        k = len(t) // 2
+        js(browser, """const s = document.getElementById('timeline'); s.value = arguments[0];
+                       s.dispatchEvent(new Event('input'));""", float(t[k]))  # fmt: skip
+        wait_for(lambda: _at(browser, t[k]), 10, "the cursor at the middle row")
+        press(Keys.ARROW_RIGHT)
+        wait_for(lambda: _at(browser, t[k + 1]), 10, "one frame on")
+        press(Keys.ARROW_LEFT, Keys.ARROW_LEFT)
+        wait_for(lambda: _at(browser, t[k - 1]), 10, "two frames back")
+        keys.key_down(Keys.SHIFT).send_keys(Keys.ARROW_RIGHT).key_up(Keys.SHIFT).perform()
+        keys.reset_actions()
+        wait_for(lambda: _at(browser, t[k - 1] + 1.0), 10, "a second on")
+        keys.key_down(Keys.SHIFT).send_keys(Keys.ARROW_LEFT, Keys.ARROW_LEFT).key_up(Keys.SHIFT).perform()
+        keys.reset_actions()
+        wait_for(lambda: _at(browser, t[k - 1] - 1.0), 10, "two seconds back")
+        assert text(browser, "cursor-time").startswith(f"{t[k - 1] - 1.0:.2f}")
+        # the slider focused: its own arrow step (0.01 s) is not what happens
+        js(browser, "document.getElementById('timeline').focus()")
+        before = _cursor(browser)
+        i = int(np.searchsorted(t, before, side="right")) - 1
+        press(Keys.ARROW_RIGHT)
+        wait_for(lambda: _at(browser, t[i + 1]), 10, "one frame on from the slider")
+        # Space plays from the cursor and pauses
+        js(browser, "document.activeElement.blur()")
+        start = _cursor(browser)
+        press(Keys.SPACE)
+        wait_for(lambda: js(browser, "return window.gcs.state.playing"), 10, "playing")
+        wait_for(lambda: _cursor(browser) > start + 0.2, 20, "the cursor to move on while playing")
+        press(Keys.SPACE)
+        wait_for(lambda: not js(browser, "return window.gcs.state.playing"), 10, "paused")
+        paused = _cursor(browser)
+        assert paused > start
+        press("f")
+        wait_for(lambda: js(browser, "return window.gcs.state.follow") and _at(browser, t[-1]), 10,
+                 "following the newest row")  # fmt: skip
+
+        def background() -> tuple[int, ...]:
+            rgb = js(browser, "return getComputedStyle(document.body).backgroundColor")
+            return tuple(int(x) for x in rgb[rgb.index("(") + 1 : rgb.index(")")].split(",")[:3])
+
+        try:
+            for scheme, dark in (("dark", True), ("light", False)):
+                features = [{"name": "prefers-color-scheme", "value": scheme}]
+                browser.execute_cdp_cmd("Emulation.setEmulatedMedia", {"features": features})
+                wait_for(lambda d=dark: (sum(background()) < 150) == d, 10, f"the {scheme} scheme")
+                browser.save_screenshot(str(tmp_path / f"{scheme}.png"))
+        finally:
+            browser.execute_cdp_cmd("Emulation.setEmulatedMedia", {"features": []})
+    assert not page_errors(browser)

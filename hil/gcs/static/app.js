@@ -53,12 +53,20 @@ function connect() {
   es.addEventListener("bye", () => { state.ended = true; es.close(); showStatus(); showFeed(); });
 }
 
+function buildPlots() {
+  if (state.plots) state.plots.destroy();
+  state.plots = new Plots($("plots"), state.info, state.store, () => { invalidate(); });
+}
+
+// Light or dark follows the system (CSS prefers-color-scheme); the plots' canvas colours are taken from the
+// page's style when they are built, so a change of scheme rebuilds them.
+matchMedia("(prefers-color-scheme: dark)").addEventListener("change", () => { if (state.store) { buildPlots(); invalidate(); } });
+
 function onInfo(info) {
   state.info = info;
-  if (state.plots) state.plots.destroy();
   state.store = new Store(info.columns);
   state.alarms = new Alarms(info);
-  state.plots = new Plots($("plots"), info, state.store, () => { invalidate(); });
+  buildPlots();
   state.follow = true;
   $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
   $("note").textContent = info.note || "";
@@ -86,7 +94,7 @@ $("window").addEventListener("change", () => { invalidate(); });
 $("export-history").addEventListener("click", () => {
   if (state.store) exportHistory(state.store.events, state.store.n ? state.cursor : Infinity, state.info.run);
 });
-$("play").addEventListener("click", () => {
+function togglePlay() {
   const store = state.store;
   if (!store || !store.n) return;
   state.playing = !state.playing;
@@ -96,6 +104,45 @@ $("play").addEventListener("click", () => {
     playClock = performance.now();
   }
   invalidate();
+}
+$("play").addEventListener("click", togglePlay);
+
+// The cursor moved by the keyboard: by rows (a frame: the next or previous telemetry row) or by seconds;
+// it stops following and playing, and stays within the run.
+function step(rows, seconds) {
+  const store = state.store;
+  if (!store || !store.n) return;
+  state.follow = false;
+  state.playing = false;
+  const t = store.col("t");
+  const now = Number.isFinite(state.cursor) ? state.cursor : store.tLast;
+  if (rows) {
+    let i = store.indexAt(now);
+    if (rows < 0 && i >= 0 && t[i] < now) i += 1;  // between two rows: the previous one is the row at i
+    i = Math.min(Math.max(i + rows, 0), store.n - 1);
+    state.cursor = t[i];
+  } else {
+    state.cursor = Math.min(Math.max(now + seconds, store.tFirst), store.tLast);
+  }
+  invalidate();
+}
+
+// Keys (docs/gcs.md): Space play/pause, ←/→ a frame, Shift+←/→ a second, f follow. Not while typing in a
+// field; Space never presses a focused button (an operator's Space is for the timeline, not a command).
+const KEY_ACTIONS = {
+  " ": () => togglePlay(),
+  "ArrowLeft": (ev) => (ev.shiftKey ? step(0, -1) : step(-1, 0)),
+  "ArrowRight": (ev) => (ev.shiftKey ? step(0, 1) : step(1, 0)),
+  "f": () => { state.follow = true; state.playing = false; invalidate(); },
+};
+document.addEventListener("keydown", (ev) => {
+  if (ev.ctrlKey || ev.metaKey || ev.altKey) return;
+  const el = ev.target;
+  const typing = (el.tagName === "INPUT" && el.type !== "range") || el.tagName === "SELECT" || el.tagName === "TEXTAREA";
+  const key = ev.key === "F" ? "f" : ev.key;
+  if (typing || !(key in KEY_ACTIONS)) return;
+  ev.preventDefault();
+  KEY_ACTIONS[key](ev);
 });
 
 function feedState() {

@@ -77,6 +77,9 @@ export class Plots {
       onShown();
     });
     container.innerHTML = "";
+    const style = getComputedStyle(document.body);
+    const ink = style.getPropertyValue("--ink").trim() || "#1d232b";
+    const grid = style.getPropertyValue("--grid").trim() || "rgba(0,0,0,0.07)";
     for (const spec of plotSpecs(info)) {
       const series = spec.series.filter((s) => store.has(s.col));
       if (!series.length) continue;
@@ -91,7 +94,8 @@ export class Plots {
         scales: { x: { time: false } },
         legend: { show: true, live: false },
         cursor: { drag: { x: false, y: false } },
-        axes: [{ size: 28 }, { size: 52 }],
+        axes: [{ size: 28, stroke: ink, grid: { stroke: grid }, ticks: { stroke: grid } },
+               { size: 52, stroke: ink, grid: { stroke: grid }, ticks: { stroke: grid } }],
         plugins: [markerPlugin(() => this.markers, box)],
         series: [{ label: "t (s)" },
           ...series.map((s) => ({ label: s.label, stroke: s.stroke, width: 1.5, dash: s.dash, points: { show: false } })),
