@@ -281,3 +281,49 @@ def test_the_keyboard_scrubs_the_timeline_and_the_colours_follow_the_system(brow
         finally:
             browser.execute_cdp_cmd("Emulation.setEmulatedMedia", {"features": []})
     assert not page_errors(browser)
+
+
+def test_two_runs_compared_on_one_page(browser, tmp_path):
+    """Two real lockstep runs (a 30° and a 15° slew) compared: every row of each reaches the page, the
+    pointing plot's legend names each run, and its points — exported as CSV — are each run's own values at
+    the first run's times."""
+    import csv
+    import io
+
+    from hil.runtime import run
+
+    a = run(quick_scenario(30.0), RunOptions(out_root=tmp_path / "a", duration_s=3.0, label="wide")).run_dir
+    b = run(quick_scenario(15.0), RunOptions(out_root=tmp_path / "b", duration_s=3.0, label="narrow")).run_dir
+    tel_a, tel_b = read_telemetry(a / "telemetry.csv"), read_telemetry(b / "telemetry.csv")
+    with GroundStation.compare([a, b], bind="127.0.0.1:0") as station:
+        browser.get(station.url)
+        first = "return window.gcs.state.store && window.gcs.state.store.n"
+        second = "const o = window.gcs.state.overlays[1]; return o && o.store.n"
+        wait_for(lambda: js(browser, first) == tel_a.rows, 30, "every row of the first run")
+        wait_for(lambda: js(browser, second) == tel_b.rows, 30, "every row of the second run")
+        assert text(browser, "mode") == "compare: 2 runs"
+        assert a.name in text(browser, "run-name") and b.name in text(browser, "run-name")
+        legend = [e.text for e in browser.find_elements(By.CSS_SELECTOR, "#plot-pointing .u-legend .u-label")]
+        assert f"pointing · {a.name}" in legend and f"pointing · {b.name}" in legend
+        _js_select_window_all(browser)
+        name, data = _export(browser, "#plot-pointing [data-export=csv]", "")
+        browser.save_screenshot(str(tmp_path / "compare.png"))
+    assert not page_errors(browser)
+    rows = list(csv.reader(io.StringIO(data.decode())))
+    header = rows[0]
+    assert header == ["t (s)", f"pointing · {a.name}", f"tracking · {a.name}", f"pointing · {b.name}",
+                      f"tracking · {b.name}"]  # fmt: skip
+    points = np.array([[float(x) if x else np.nan for x in r] for r in rows[1:]])
+    assert len(points) == tel_a.rows  # the whole first run (window "all"; under the page's point cap)
+    for col, tel in ((1, tel_a), (3, tel_b)):
+        i = np.searchsorted(tel["t"], points[:, 0] + 1e-9, side="right") - 1  # each run's row at that time
+        np.testing.assert_allclose(points[:, col], tel["point_err_deg"][i], rtol=1e-6, atol=1e-9)
+    assert np.nanmax(np.abs(points[:, 1] - points[:, 3])) > 10.0  # the two runs differ, each drawn
+
+
+def _js_select_window_all(browser) -> None:
+    js(browser, """const w = document.getElementById('window'); w.value = '0';
+                   w.dispatchEvent(new Event('change'));""")  # fmt: skip
+    shown = "return document.getElementById('plot-pointing').dataset.points"
+    rows = "return window.gcs.state.store.n"
+    wait_for(lambda: js(browser, shown) == str(js(browser, rows)), 10, "the whole run in the plot")

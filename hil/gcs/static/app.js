@@ -21,7 +21,7 @@ uplink.enable(false, "Connecting: no commands yet.");
 const alarmPanel = new AlarmPanel(token, () => invalidate());
 
 const state = {
-  info: null, store: null, plots: null, alarms: null, status: {}, follow: true, cursor: NaN, playing: false,
+  info: null, store: null, plots: null, alarms: null, overlays: [], status: {}, follow: true, cursor: NaN, playing: false,
   dirty: false, lastMessage: performance.now(), ended: false, connected: false,
 };
 const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [] };
@@ -43,6 +43,14 @@ function connect() {
   on("info", onInfo);
   on("rows", (d) => { if (state.store) { state.alarms.feed(d.rows); state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
   on("events", (list) => { if (state.store) { state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
+  // runs compared (hil/gcs/compare.py): another run's description, then its rows
+  on("overlay", (o) => {
+    if (!state.store) return;
+    state.overlays[o.run] = { name: o.name, store: new Store(o.columns), note: o.note };
+    buildPlots();
+    invalidate();
+  });
+  on("overlay_rows", (d) => { const o = state.overlays[d.run]; if (o) { o.store.pushRows(d.rows); invalidate(); } });
   on("link", (list) => { if (state.store) { state.store.pushLink(list); invalidate(); } });
   on("status", (s) => {
     state.status = { ...state.status, ...s };
@@ -55,7 +63,7 @@ function connect() {
 
 function buildPlots() {
   if (state.plots) state.plots.destroy();
-  state.plots = new Plots($("plots"), state.info, state.store, () => { invalidate(); });
+  state.plots = new Plots($("plots"), state.info, state.store, () => { invalidate(); }, state.overlays.filter(Boolean));
 }
 
 // Light or dark follows the system (CSS prefers-color-scheme); the plots' canvas colours are taken from the
@@ -66,9 +74,11 @@ function onInfo(info) {
   state.info = info;
   state.store = new Store(info.columns);
   state.alarms = new Alarms(info);
+  state.overlays = [];
   buildPlots();
   state.follow = true;
-  $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
+  $("run-name").textContent = info.compare ? `compared: ${info.compare.join(" · ")} (the timeline is ${info.run}'s)`
+    : info.run + (info.scenario ? ` · ${info.scenario}` : "");
   $("note").textContent = info.note || "";
   $("link").dataset.built = "";
   document.title = `GCS · ${info.run}`;
@@ -181,7 +191,7 @@ function uplinkState(feed) {
 function modeBadge(feed) {
   const info = state.info;
   if (!info) return { text: state.connected ? "waiting" : "connecting", cls: "" };
-  if (info.mode !== "live") return { text: "replay", cls: "replay" };
+  if (info.mode !== "live") return { text: info.compare ? `compare: ${info.compare.length} runs` : "replay", cls: "replay" };
   const clock = info.clock || "run";
   if (feed.cls === "ended") return { text: `live run ended (${clock})`, cls: "ended" };
   if (feed.cls === "stale" || feed.cls === "bad") return { text: `host lost (${clock})`, cls: "bad" };

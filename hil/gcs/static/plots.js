@@ -60,11 +60,43 @@ export function plotSpecs(info) {
   return specs;
 }
 
+const RUN_COLORS = ["#e6194b", "#4363d8", "#3cb44b", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#9a6324"];
+const RUN_DASHES = [undefined, [6, 3], [2, 2], [9, 3, 2, 3], [1, 3], [12, 4]];
+
+// Runs compared (overlays: [{name, store}]): every series of a plot once per run, coloured by run (the
+// series within a run told apart by their dash), labelled "series · run" — the legend by run name.
+function seriesPerRun(specSeries, runs) {
+  const out = [];
+  runs.forEach((run, r) => {
+    specSeries.filter((s) => run.store.has(s.col)).forEach((s, j) => {
+      out.push({ ...s, label: `${s.label} · ${run.name}`, stroke: RUN_COLORS[r % RUN_COLORS.length],
+        dash: RUN_DASHES[j % RUN_DASHES.length], store: run.store });
+    });
+  });
+  return out;
+}
+
+// Column col of another run's store at the times xs (increasing; null: none): the value of its row at or
+// before each time (sample and hold), none before its first row or after its last.
+function sampleAt(store, col, xs, scale) {
+  const t = store.col("t"), v = store.col(col), n = store.n, out = new Array(xs.length);
+  let j = 0;
+  for (let k = 0; k < xs.length; k++) {
+    const x = xs[k];
+    if (x === null || !n || x < t[0] || x > t[n - 1] + 1e-9) { out[k] = null; continue; }
+    while (j + 1 < n && t[j + 1] <= x) j++;
+    out[k] = Number.isFinite(v[j]) ? v[j] * scale : null;
+  }
+  return out;
+}
+
 export class Plots {
-  // onShown: called when a plot scrolls into view (it was not redrawn while hidden).
-  constructor(container, info, store, onShown = () => {}) {
+  // onShown: called when a plot scrolls into view (it was not redrawn while hidden); overlays: other runs
+  // compared with this one ([{name, store}], hil/gcs/compare.py), drawn on this run's time axis.
+  constructor(container, info, store, onShown = () => {}, overlays = []) {
     this.container = container;
     this.store = store;
+    const runs = overlays.length ? [{ name: info.run, store }, ...overlays] : null;
     this.charts = [];
     this.markers = [];
     this.markedEvents = -1;  // the store's event count the markers were made from
@@ -81,14 +113,14 @@ export class Plots {
     const ink = style.getPropertyValue("--ink").trim() || "#1d232b";
     const grid = style.getPropertyValue("--grid").trim() || "rgba(0,0,0,0.07)";
     for (const spec of plotSpecs(info)) {
-      const series = spec.series.filter((s) => store.has(s.col));
+      const series = runs ? seriesPerRun(spec.series, runs) : spec.series.filter((s) => store.has(s.col));
       if (!series.length) continue;
       const box = document.createElement("div");
       box.className = "plot"; box.id = `plot-${spec.id}`;
       box.innerHTML = `<h3><span class="title"></span><span class="exports"><button data-export="png" title="this plot as a PNG">PNG</button><button data-export="csv" title="the points shown, as CSV">CSV</button></span></h3>`;
       box.querySelector(".title").textContent = spec.title;
       container.appendChild(box);
-      const limits = limitLines(info, series.map((s) => s.col));
+      const limits = limitLines(info, [...new Set(series.map((s) => s.col))]);
       const opts = {
         width: Math.max(box.clientWidth - 8, 200), height: 150,
         scales: { x: { time: false } },
@@ -162,7 +194,8 @@ export class Plots {
     const x = take(store.col("t"));
     for (const c of this.charts) {
       if (!c.visible) continue;
-      const data = [x, ...c.series.map((s) => take(store.col(s.col), s.scale || 1)), ...c.limits.map((l) => x.map(() => l.value))];
+      const values = (s) => (s.store && s.store !== store ? sampleAt(s.store, s.col, x, s.scale || 1) : take(store.col(s.col), s.scale || 1));
+      const data = [x, ...c.series.map(values), ...c.limits.map((l) => x.map(() => l.value))];
       c.chart.setData(data);
       const last = data[1][data[1].length - 1];
       c.box.dataset.points = String(x.length);
