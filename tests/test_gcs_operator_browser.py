@@ -33,6 +33,20 @@ def browser():
 POINTING = "point_err_deg:high"
 
 
+def _alarm_row(browser, key: str) -> dict | None:
+    """The alarm list's row for ``key``, read in one script (the list is redrawn as the run goes on, so an
+    element found in one call may be gone in the next): its classes, raised and cleared cells, ack cell."""
+    return js(
+        browser,
+        """const tr = document.querySelector(`#alarms tr[data-key="${arguments[0]}"]`);
+           if (!tr) return null;
+           const cell = (c) => tr.querySelector('td.' + c).textContent;
+           return {cls: tr.className, raised: tr.dataset.raised, cleared: cell('cleared'),
+                   ack: cell('ack')};""",
+        key,
+    )
+
+
 def test_an_alarm_is_raised_and_cleared_as_a_run_crosses_a_limit_and_acknowledged_from_the_page(
     browser, tmp_path
 ):
@@ -46,23 +60,23 @@ def test_an_alarm_is_raised_and_cleared_as_a_run_crosses_a_limit_and_acknowledge
         browser.get(station.url)
         runner = RunInThread(sc, RunOptions(out_root=tmp_path, duration_s=5.0, pace=1.0), station)
         selector = f'#alarms tr[data-key="{POINTING}"]'
-        wait_for(lambda: browser.find_elements(By.CSS_SELECTOR, selector), 60, "the pointing alarm listed")
-        row = browser.find_element(By.CSS_SELECTOR, selector)
-        assert "active" in row.get_attribute("class") and "warning" in row.get_attribute("class")
+        row = wait_for(lambda: _alarm_row(browser, POINTING), 60, "the pointing alarm listed")
+        assert "active" in row["cls"] and "warning" in row["cls"]
         assert text(browser, "alarm-badge") == "alarms: 1 active"
         wait_for(lambda: "alarm-warning" in (browser.find_element(By.ID, "point-err").get_attribute("class")),
                  10, "the pointing error cell coloured")  # fmt: skip
-        raised = float(row.get_attribute("data-raised"))
+        raised = float(row["raised"])
         browser.save_screenshot(str(tmp_path / "alarm-raised.png"))
         js(browser, "document.querySelector(arguments[0] + ' button').click()", selector)
         ack = runner.wait_event(lambda e: e["kind"] == "alarm_ack", what="the acknowledgement logged")
         assert ack["alarm"] == POINTING and ack["origin"] == "gcs" and ack["remote"] == "127.0.0.1"
         assert ack["raised_t"] == pytest.approx(raised, abs=1e-6)
-        wait_for(lambda: "✓" in browser.find_element(By.CSS_SELECTOR, f"{selector} td.ack").text, 20,
-                 "the page to show the acknowledgement")  # fmt: skip
-        wait_for(lambda: "cleared" in browser.find_element(By.CSS_SELECTOR, selector).get_attribute("class"),
-                 60, "the alarm cleared")  # fmt: skip
-        cleared = float(browser.find_element(By.CSS_SELECTOR, f"{selector} td.cleared").text)
+        wait_for(
+            lambda: "✓" in _alarm_row(browser, POINTING)["ack"], 20, "the page to show the acknowledgement"
+        )
+        row = wait_for(lambda: (r := _alarm_row(browser, POINTING)) and "cleared" in r["cls"] and r, 60,
+                       "the alarm cleared")  # fmt: skip
+        cleared = float(row["cleared"])
         assert text(browser, "alarm-badge") == "alarms: none active"
         assert "alarm-warning" not in browser.find_element(By.ID, "point-err").get_attribute("class")
         browser.save_screenshot(str(tmp_path / "alarm-cleared.png"))
@@ -146,8 +160,8 @@ def test_commands_are_marked_on_the_plots_listed_in_the_history_and_exported(bro
         )
         wait_for(lambda: len(browser.find_elements(By.CSS_SELECTOR, "#cmd-history tbody tr")) == 3, 20,
                  "three commands in the history")  # fmt: skip
-        history = [[td.text for td in tr.find_elements(By.TAG_NAME, "td")]
-                   for tr in browser.find_elements(By.CSS_SELECTOR, "#cmd-history tbody tr")]  # fmt: skip
+        history = js(browser, """return Array.from(document.querySelectorAll('#cmd-history tbody tr'),
+                                 (tr) => Array.from(tr.cells, (td) => td.textContent));""")  # fmt: skip
         _, csv_bytes = _export(browser, "#export-history", "")
         exported = list(csv.reader(io.StringIO(csv_bytes.decode())))
 
