@@ -108,8 +108,13 @@ export class Alarms {
   }
 }
 
+// A unit after a number: "°" for degrees, else " V", " ms", ...
+function unitText(unit) {
+  return unit === "deg" ? "°" : unit ? ` ${unit}` : "";
+}
+
 function limitText(l) {
-  const unit = l.unit ? ` ${l.unit}` : "";
+  const unit = unitText(l.unit);
   if (l.op === "equals") return "FAILSAFE";
   const sign = { above: ">", below: "<", abs_above: "|x| >" }[l.op];
   return `${sign} ${fmt(l.value, l.value >= 100 ? 0 : 2)}${unit}`;
@@ -118,7 +123,7 @@ function limitText(l) {
 function peakText(o) {
   const l = o.limit;
   if (l.op === "equals") return "";
-  return `${fmt(o.peak, Math.abs(o.peak) >= 100 ? 0 : 2)}${l.unit ? ` ${l.unit}` : ""}`;
+  return `${fmt(o.peak, Math.abs(o.peak) >= 100 ? 0 : 2)}${unitText(l.unit)}`;
 }
 
 // The alarm list at the cursor: severity, channel, limit, raised, cleared, worst value, acknowledgement.
@@ -177,7 +182,8 @@ export class AlarmPanel {
         ackCell.textContent = this.errors.get(id);
       } else if (canAck) {
         const button = document.createElement("button");
-        button.textContent = this.sending.has(id) ? "sent…" : "Acknowledge";
+        button.textContent = this.sending.has(id) ? "sent…" : "Ack";
+        button.title = "acknowledge this alarm (logged in the run's events)";
         button.disabled = this.sending.has(id);
         button.dataset.alarm = o.key;
         button.addEventListener("click", () => this.acknowledge(o, id));
