@@ -11,15 +11,13 @@ run fails instead (tests/conftest.py, which checks the same two paths).
 from __future__ import annotations
 
 import http.server
-import os
-import shutil
 import subprocess
 import sys
-import tempfile
 import threading
 
 import numpy as np
 import pytest
+from browser_support import chromium, js, page_errors, text
 from gcs_support import RunInThread, quick_scenario, wait_for
 
 from hil.gcs import GroundStation
@@ -27,19 +25,9 @@ from hil.runtime import RunOptions, run
 from hil.runtime.runlog import read_events, read_telemetry
 from protocol.messages import BoardState
 
-CHROMIUM = os.environ.get("VSCMG_HIL_CHROMIUM", "/usr/bin/chromium")
-CHROMEDRIVER = os.environ.get("VSCMG_HIL_CHROMEDRIVER", "/usr/bin/chromedriver")
-FLAGS = (
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-sync",
-    "--disable-background-networking", "--disable-component-update", "--window-size=1600,1000",
-)  # fmt: skip
-
-
 pytestmark = pytest.mark.browser  # without chromium, chromedriver or selenium: skipped (tests/conftest.py)
 
 try:
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
     from selenium.webdriver.common.by import By
 except ImportError:  # then no test here runs: the marker skips them, with the one line for them all
     pass
@@ -47,33 +35,10 @@ except ImportError:  # then no test here runs: the marker skips them, with the o
 
 @pytest.fixture(scope="module")
 def browser():
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in FLAGS:
-        options.add_argument(flag)
-    profile = tempfile.mkdtemp(prefix="gcs-chromium-")
-    options.add_argument(f"--user-data-dir={profile}")
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(options=options, service=Service(CHROMEDRIVER))
-    driver.set_script_timeout(15)
-    try:
-        yield driver
-    finally:
-        driver.quit()
-        shutil.rmtree(profile, ignore_errors=True)
+    yield from chromium()
 
 
-def _js(driver, script: str, *args):
-    return driver.execute_script(script, *args)
-
-
-def _page_errors(driver) -> list[str]:
-    return [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"
-            and "/api/" not in e["message"]]  # fmt: skip
-
-
-def _text(driver, element_id: str) -> str:
-    return driver.find_element(By.ID, element_id).text
+_js, _page_errors, _text = js, page_errors, text
 
 
 def test_a_live_real_time_run_follows_the_attitude_and_a_disarm_click_disarms_the_board(browser, tmp_path):
@@ -207,7 +172,7 @@ def test_a_finished_run_directory_replays_and_its_timeline_scrubs(browser, tmp_p
         assert _text(browser, "mode") == "replay" and _text(browser, "feed") == "finished"
         assert browser.find_element(By.CSS_SELECTOR, "button[data-command=disarm]").get_attribute("disabled")
         end_attitude = browser.find_element(By.ID, "view3d").get_attribute("data-attitude")
-        assert int(_js(browser, "return document.querySelectorAll('#events li').length")) > 5
+        assert int(_js(browser, "return document.querySelectorAll('#events tbody tr').length")) > 5
         browser.save_screenshot(str(tmp_path / "replay-end.png"))
         slew_start = next(
             e["t"] for e in read_events(result.run_dir / "events.jsonl")[0] if e["kind"] == "slew_start"

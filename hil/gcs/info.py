@@ -1,5 +1,6 @@
 """The run as the page needs to draw it (the ``info`` message): columns, the VSCMG units' geometry, the
-limits the plots mark, the target, and whether the page may command the run.
+limits the plots mark and the alarms check (:mod:`hil.gcs.alarms`), the target, and whether the page
+may command the run.
 
 The same description comes from a live run's :class:`~hil.scenario.Scenario` and from a run directory's
 ``scenario.toml`` (a directory without one still replays: the page then draws no units and no limits).
@@ -15,6 +16,7 @@ import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import KINDS
+from hil.gcs.alarms import alarm_limits
 from hil.runtime import faults as runtime_faults
 from hil.scenario import Scenario
 from protocol.messages import BoardState, ControlMode, FaultFlag, PowerState, WatchdogState
@@ -78,6 +80,7 @@ def scenario_info(scenario: Scenario, hold: bool = False) -> dict[str, Any]:
             "settle_deg": scenario.settle_deg,
             "gimbal_angle": None,  # multi-turn gimbals: no angle limit (docs/gcs.md)
         },
+        "alarms": alarm_limits(scenario),
         "target_r": None if hold else so3.log(np.asarray(scenario.slew.R_target)).tolist(),
         "max_rate": scenario.slew.max_rate,
         "max_accel": scenario.slew.max_accel,
@@ -113,5 +116,5 @@ def info(
     if scenario is not None:
         out.update(scenario_info(scenario, hold))
     else:
-        out.update(n_units=units_from_columns(columns), units=[], limits={}, target_r=None)
+        out.update(n_units=units_from_columns(columns), units=[], limits={}, alarms=[], target_r=None)
     return out

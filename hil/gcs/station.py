@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from hil.gcs.access import is_loopback, new_token, parse_bind, url_host
+from hil.gcs.compare import CompareSource
 from hil.gcs.hub import DEFAULT_BUDGET, Hub
 from hil.gcs.live import LiveFeed
 from hil.gcs.rundir import RunDirSource
@@ -131,6 +132,19 @@ class GroundStation:
         """A station showing a run directory (following it while another process writes it)."""
         return cls(RunDirSource(Path(run_dir), follow=follow), bind=bind, token=token)
 
+    @classmethod
+    def compare(
+        cls,
+        run_dirs: list[str | os.PathLike[str]],
+        *,
+        bind: str | None = None,
+        token: str | None = None,
+        follow: bool = True,
+    ) -> GroundStation:
+        """A station comparing run directories: the first replayed, the others drawn over its plots
+        (:mod:`hil.gcs.compare`)."""
+        return cls(CompareSource(run_dirs, follow=follow), bind=bind, token=token)
+
     def _listen(self, host: str, port: int, explicit: bool) -> Server:
         tries = 1 if explicit or port == 0 else PORT_TRIES
         for attempt in range(tries):
@@ -181,6 +195,9 @@ class GroundStation:
         feed = self.source
         if isinstance(feed, LiveFeed):
             out["feed"] = asdict(feed.stats)
+        if isinstance(feed, CompareSource):
+            out["compare"] = feed.counters()
+            feed = feed.primary
         if isinstance(feed, RunDirSource):
             out["run_dir"] = {
                 "rows": feed.rows,

@@ -7,6 +7,9 @@ One *batch* per pump cycle (~30 per second) becomes one chunk of SSE messages:
 ``events``  ``[{"t": s, "kind": ..., ...}, ...]`` as in ``events.jsonl``
 ``link``    ``[{"t": s, "frames_in": ..., "bad_frames.crc": ..., ...}, ...]`` link statistics snapshots
 ``status``  ``{"state": "waiting" | "running" | "ended" | "following" | "finished", ...}`` and counters
+``overlay``       ``{"run": k, "name": ..., "columns": [...], "note": ...}`` another run compared with
+                  this one (:mod:`hil.gcs.compare`)
+``overlay_rows``  ``{"run": k, "rows": [[v, ...], ...]}`` that run's telemetry rows, in its columns' order
 
 JSON has no NaN or infinity: they are sent as null. Floats keep 7 significant digits (time 10), enough for
 a display and a third of ``repr``'s bytes.
@@ -32,9 +35,19 @@ class Batch:
     events: list[Mapping[str, Any]] = field(default_factory=list)
     link: list[Mapping[str, Any]] = field(default_factory=list)
     status: dict[str, Any] | None = None
+    overlays: list[dict[str, Any]] = field(default_factory=list)  # runs compared: their descriptions
+    overlay_rows: list[tuple[int, list[Row]]] = field(default_factory=list)  # (run index, its rows)
 
     def __bool__(self) -> bool:
-        return bool(self.info or self.rows or self.events or self.link or self.status)
+        return bool(
+            self.info
+            or self.rows
+            or self.events
+            or self.link
+            or self.status
+            or self.overlays
+            or self.overlay_rows
+        )
 
 
 def number(value: Any, digits: int = 7) -> str:
@@ -56,8 +69,9 @@ def number(value: Any, digits: int = 7) -> str:
     return format(f, f".{digits}g")
 
 
-def encode_rows(rows: Sequence[Row]) -> str:
-    """``{"rows": [[...], ...]}`` with the first column (time) at 10 significant digits."""
+def encode_rows(rows: Sequence[Row], run: int | None = None) -> str:
+    """``{"rows": [[...], ...]}`` with the first column (time) at 10 significant digits (``{"run": k,
+    "rows": ...}`` for an overlay's)."""
     parts = []
     for row in rows:
         if not row:
@@ -65,7 +79,8 @@ def encode_rows(rows: Sequence[Row]) -> str:
         cells = [number(row[0], 10)]
         cells += [number(v) for v in row[1:]]
         parts.append("[" + ",".join(cells) + "]")
-    return '{"rows":[' + ",".join(parts) + "]}"
+    head = "{" if run is None else f'{{"run":{int(run)},'
+    return head + '"rows":[' + ",".join(parts) + "]}"
 
 
 def clean(value: Any) -> Any:
@@ -109,4 +124,8 @@ def encode_batch(batch: Batch) -> bytes:
         out += sse("link", dumps(batch.link))
     if batch.status is not None:
         out += sse("status", dumps(batch.status))
+    for overlay in batch.overlays:
+        out += sse("overlay", dumps(overlay))
+    for run, rows in batch.overlay_rows:
+        out += sse("overlay_rows", encode_rows(rows, run))
     return out

@@ -1,7 +1,8 @@
 """A run directory's figures (``hil run`` draws them at the end, ``hil report`` again): the paper's two
 estimator figures (simulated runs, where the truth is known), pointing and tracking error, gimbal angles and
 rates, rotor speeds, pulse widths, battery voltage and the singularity measure δ — each from
-``telemetry.csv``; a column a run lacks is skipped and named in the result's ``skipped`` list."""
+``telemetry.csv``, with the operator's commands, the slew and the faults of ``events.jsonl`` marked
+(:mod:`hil.plots.markers`); a column a run lacks is skipped and named in the result's ``skipped`` list."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ import numpy as np
 from matplotlib.axes import Axes
 
 from hil.plots.estimator import _figure, _save
-from hil.runtime.runlog import read_telemetry
+from hil.plots.markers import draw_markers, run_markers
+from hil.runtime.runlog import read_events, read_telemetry
 from protocol.errors import InputFormatError
 
 
@@ -65,6 +67,8 @@ def plot_run(run_dir: str | Path) -> dict[str, Path]:
     summary_path = run_dir / "summary.json"
     if summary_path.is_file():
         limit = json.loads(summary_path.read_text()).get("max_gimbal_rate_limit")
+    events_path = run_dir / "events.jsonl"
+    markers = run_markers(read_events(events_path)[0]) if events_path.is_file() else []
     out_dir = run_dir / "plots"
     out_dir.mkdir(exist_ok=True)
     out: dict[str, Path] = {}
@@ -84,6 +88,7 @@ def plot_run(run_dir: str | Path) -> dict[str, Path]:
                     ax.axhline(sign * limit, color="r", ls="--", lw=0.8, label="limit" if sign > 0 else None)
             else:  # rates far below the limit: scaled to the data (a ±limit axis would flatten them)
                 ax.set_title(f"{title} (peak {peak:.3g} rad/s, limit ±{limit:g} rad/s: off the scale)")
+        draw_markers(ax, markers)
         out[name] = _save(fig, ax, out_dir / f"{name}.png")
 
     figure(

@@ -8,6 +8,8 @@ import { Plots } from "./plots.js";
 import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
 import { $, fmt, setCell, drawPanels, drawEvents } from "./panels.js";
 import { Uplink } from "./uplink.js";
+import { Alarms, AlarmPanel } from "./alarms.js";
+import { drawHistory, exportHistory } from "./commands.js";
 
 const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
 const FEED_STALE_S = 1.0;  // no message for this long: the live feed is stale
@@ -16,9 +18,10 @@ const token = new URLSearchParams(location.search).get("token") || "";
 const view = new View3D($("view3d"));
 const uplink = new Uplink(token);
 uplink.enable(false, "Connecting: no commands yet.");
+const alarmPanel = new AlarmPanel(token, () => invalidate());
 
 const state = {
-  info: null, store: null, plots: null, status: {}, follow: true, cursor: NaN, playing: false,
+  info: null, store: null, plots: null, alarms: null, overlays: [], status: {}, follow: true, cursor: NaN, playing: false,
   dirty: false, lastMessage: performance.now(), ended: false, connected: false,
 };
 const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [] };
@@ -38,8 +41,16 @@ function connect() {
   es.onopen = () => { state.connected = true; };
   es.onerror = () => { state.connected = false; if (state.ended) es.close(); };
   on("info", onInfo);
-  on("rows", (d) => { if (state.store) { state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
-  on("events", (list) => { if (state.store) { state.store.pushEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
+  on("rows", (d) => { if (state.store) { state.alarms.feed(d.rows); state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
+  on("events", (list) => { if (state.store) { state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
+  // runs compared (hil/gcs/compare.py): another run's description, then its rows
+  on("overlay", (o) => {
+    if (!state.store) return;
+    state.overlays[o.run] = { name: o.name, store: new Store(o.columns), note: o.note };
+    buildPlots();
+    invalidate();
+  });
+  on("overlay_rows", (d) => { const o = state.overlays[d.run]; if (o) { o.store.pushRows(d.rows); invalidate(); } });
   on("link", (list) => { if (state.store) { state.store.pushLink(list); invalidate(); } });
   on("status", (s) => {
     state.status = { ...state.status, ...s };
@@ -50,13 +61,24 @@ function connect() {
   es.addEventListener("bye", () => { state.ended = true; es.close(); showStatus(); showFeed(); });
 }
 
+function buildPlots() {
+  if (state.plots) state.plots.destroy();
+  state.plots = new Plots($("plots"), state.info, state.store, () => { invalidate(); }, state.overlays.filter(Boolean));
+}
+
+// Light or dark follows the system (CSS prefers-color-scheme); the plots' canvas colours are taken from the
+// page's style when they are built, so a change of scheme rebuilds them.
+matchMedia("(prefers-color-scheme: dark)").addEventListener("change", () => { if (state.store) { buildPlots(); invalidate(); } });
+
 function onInfo(info) {
   state.info = info;
-  if (state.plots) state.plots.destroy();
   state.store = new Store(info.columns);
-  state.plots = new Plots($("plots"), info, state.store, () => { invalidate(); });
+  state.alarms = new Alarms(info);
+  state.overlays = [];
+  buildPlots();
   state.follow = true;
-  $("run-name").textContent = info.run + (info.scenario ? ` · ${info.scenario}` : "");
+  $("run-name").textContent = info.compare ? `compared: ${info.compare.join(" · ")} (the timeline is ${info.run}'s)`
+    : info.run + (info.scenario ? ` · ${info.scenario}` : "");
   $("note").textContent = info.note || "";
   $("link").dataset.built = "";
   document.title = `GCS · ${info.run}`;
@@ -79,7 +101,10 @@ const timeline = $("timeline");
 timeline.addEventListener("input", () => { state.follow = false; state.playing = false; state.cursor = Number(timeline.value); invalidate(); });
 $("follow").addEventListener("click", () => { state.follow = true; state.playing = false; invalidate(); });
 $("window").addEventListener("change", () => { invalidate(); });
-$("play").addEventListener("click", () => {
+$("export-history").addEventListener("click", () => {
+  if (state.store) exportHistory(state.store.events, state.store.n ? state.cursor : Infinity, state.info.run);
+});
+function togglePlay() {
   const store = state.store;
   if (!store || !store.n) return;
   state.playing = !state.playing;
@@ -89,6 +114,45 @@ $("play").addEventListener("click", () => {
     playClock = performance.now();
   }
   invalidate();
+}
+$("play").addEventListener("click", togglePlay);
+
+// The cursor moved by the keyboard: by rows (a frame: the next or previous telemetry row) or by seconds;
+// it stops following and playing, and stays within the run.
+function step(rows, seconds) {
+  const store = state.store;
+  if (!store || !store.n) return;
+  state.follow = false;
+  state.playing = false;
+  const t = store.col("t");
+  const now = Number.isFinite(state.cursor) ? state.cursor : store.tLast;
+  if (rows) {
+    let i = store.indexAt(now);
+    if (rows < 0 && i >= 0 && t[i] < now) i += 1;  // between two rows: the previous one is the row at i
+    i = Math.min(Math.max(i + rows, 0), store.n - 1);
+    state.cursor = t[i];
+  } else {
+    state.cursor = Math.min(Math.max(now + seconds, store.tFirst), store.tLast);
+  }
+  invalidate();
+}
+
+// Keys (docs/gcs.md): Space play/pause, ←/→ a frame, Shift+←/→ a second, f follow. Not while typing in a
+// field; Space never presses a focused button (an operator's Space is for the timeline, not a command).
+const KEY_ACTIONS = {
+  " ": () => togglePlay(),
+  "ArrowLeft": (ev) => (ev.shiftKey ? step(0, -1) : step(-1, 0)),
+  "ArrowRight": (ev) => (ev.shiftKey ? step(0, 1) : step(1, 0)),
+  "f": () => { state.follow = true; state.playing = false; invalidate(); },
+};
+document.addEventListener("keydown", (ev) => {
+  if (ev.ctrlKey || ev.metaKey || ev.altKey) return;
+  const el = ev.target;
+  const typing = (el.tagName === "INPUT" && el.type !== "range") || el.tagName === "SELECT" || el.tagName === "TEXTAREA";
+  const key = ev.key === "F" ? "f" : ev.key;
+  if (typing || !(key in KEY_ACTIONS)) return;
+  ev.preventDefault();
+  KEY_ACTIONS[key](ev);
 });
 
 function feedState() {
@@ -127,7 +191,7 @@ function uplinkState(feed) {
 function modeBadge(feed) {
   const info = state.info;
   if (!info) return { text: state.connected ? "waiting" : "connecting", cls: "" };
-  if (info.mode !== "live") return { text: "replay", cls: "replay" };
+  if (info.mode !== "live") return { text: info.compare ? `compare: ${info.compare.length} runs` : "replay", cls: "replay" };
   const clock = info.clock || "run";
   if (feed.cls === "ended") return { text: `live run ended (${clock})`, cls: "ended" };
   if (feed.cls === "stale" || feed.cls === "bad") return { text: `host lost (${clock})`, cls: "bad" };
@@ -187,9 +251,13 @@ function render(feed) {
   const period = info.control_rate_hz ? 1 / info.control_rate_hz : 0.02;
   const rowGap = i > 0 && t[i] - t[i - 1] > 3 * period ? t[i] - t[i - 1] : 0;
   const feedAge = state.follow && state.info.mode === "live" ? feed.age : 0;
-  if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap });
+  const alarmAt = hasRows ? state.cursor : Infinity;
+  const alarmColumns = state.alarms.activeColumns(alarmAt);
+  if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap, alarmColumns });
+  alarmPanel.draw(state.alarms, alarmAt, uplinkState(feed).on);
   drawAttitude(i, feedAge, rowGap);
   drawEvents(store, hasRows ? state.cursor : Infinity);
+  drawHistory(store.events, hasRows ? state.cursor : Infinity);
   stats.renders += 1;
   if (store.seen !== lastRows) { stats.dataRenders += 1; lastRows = store.seen; stats.renderTimes.push(performance.now()); }
   const now = performance.now();

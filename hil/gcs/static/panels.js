@@ -81,6 +81,31 @@ export function drawPanels(ctx) {
   drawUnits(ctx, boardStale);
   drawPhone(ctx);
   drawLink(ctx);
+  markAlarms(ctx);
+}
+
+// The cell showing each channel, coloured while one of its alarms is active at the cursor.
+function alarmCells(info) {
+  const cells = { point_err_deg: "point-err", battery_v: "battery", ubec_v: "ubec", link_age_ms: "link-age",
+    tel_age_ms: "tel-age", board_state: "board-mode" };
+  for (let k = 0; k < (info.n_units || 0); k++) {
+    cells[`gimbal_rate_${k}`] = `u${k}-rate`;
+    cells[`rotor_speed_${k}`] = `u${k}-rotor`;
+  }
+  return cells;
+}
+
+function markAlarms(ctx) {
+  const active = ctx.alarmColumns || {};
+  for (const [column, id] of Object.entries(alarmCells(ctx.info))) {
+    const el = $(id);
+    if (!el) continue;
+    const severity = active[column] || "";
+    if ((el.dataset.alarm || "") === severity) continue;
+    el.classList.toggle("alarm-warning", severity === "warning");
+    el.classList.toggle("alarm-critical", severity === "critical");
+    if (severity) el.dataset.alarm = severity; else delete el.dataset.alarm;
+  }
 }
 
 function drawUnits(ctx, boardStale) {
@@ -184,33 +209,38 @@ const EVENT_CLASS = (e) => {
 function short(x) {
   if (typeof x === "number") return Number.isInteger(x) ? String(x) : String(Number(x.toPrecision(4)));
   if (Array.isArray(x)) return `[${x.map(short).join(", ")}]`;
-  if (x !== null && typeof x === "object") return JSON.stringify(x);
+  if (x !== null && typeof x === "object") return Object.entries(x).map(([k, v]) => `${k} ${short(v)}`).join(", ");
   return String(x);
 }
 
-function describe(e) {
-  const rest = Object.entries(e).filter(([k]) => k !== "t" && k !== "kind").map(([k, x]) => `${k}=${short(x)}`);
-  return `${e.kind} ${rest.join(" ")}`;
+// An event's fields but its time and kind, as "name value" pairs (a cell that wraps, never a line that
+// scrolls sideways).
+function details(e) {
+  return Object.entries(e).filter(([k, x]) => k !== "t" && k !== "kind" && x !== null && x !== "")
+    .map(([k, x]) => `${k.replace(/_/g, " ")}: ${short(x)}`).join(" · ");
 }
 
-// The newest events at or before the cursor (redrawn only when they change).
+// The newest events at or before the cursor, as a table (redrawn only when they change).
 export function drawEvents(store, t, limit = 200) {
-  const list = $("events");
+  const body = document.querySelector("#events tbody");
   let end = store.events.length;
   while (end > 0 && store.events[end - 1].t > t) end--;
   const key = `${end}/${store.events.length}`;
-  if (list.dataset.key === key) return;
-  list.dataset.key = key;
+  if (body.dataset.key === key) return;
+  body.dataset.key = key;
   const shown = store.events.slice(Math.max(0, end - limit), end).reverse();
-  list.innerHTML = "";
+  body.innerHTML = "";
   for (const e of shown) {
-    const li = document.createElement("li");
-    li.className = EVENT_CLASS(e);
-    li.dataset.kind = e.kind;
-    li.innerHTML = `<span class="t"></span>`;
-    li.firstChild.textContent = Number.isFinite(e.t) ? e.t.toFixed(2) : "";
-    li.appendChild(document.createTextNode(describe(e)));
-    list.appendChild(li);
+    const tr = document.createElement("tr");
+    tr.className = EVENT_CLASS(e);
+    tr.dataset.kind = e.kind;
+    for (const [cls, text] of [["t", Number.isFinite(e.t) ? e.t.toFixed(2) : ""], ["kind", e.kind], ["details", details(e)]]) {
+      const td = document.createElement("td");
+      td.className = cls;
+      td.textContent = text;
+      tr.appendChild(td);
+    }
+    body.appendChild(tr);
   }
   $("event-count").textContent = `(${end} of ${store.events.length})`;
 }

@@ -1,0 +1,73 @@
+"""Runs compared: two or more run directories on one page (``hil gcs RUN_A RUN_B ...``).
+
+The first run is the page's own — its timeline, 3D view, panels, alarms and events, as in a replay — and
+every other one is an *overlay*: its telemetry drawn on the same plots, on the first run's time axis, with
+a legend by run name. The downlink (:mod:`hil.gcs.wire`) carries an overlay as an ``overlay`` message (its
+index, name and columns: what the page needs to hold its rows) and ``overlay_rows`` messages; its events and
+link statistics are not sent (the page shows the first run's).
+
+Overlays are read once the first run has described itself, so the page never gets an overlay's rows
+before the run they are drawn over.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from hil.gcs.rundir import RunDirSource
+from hil.gcs.wire import Batch
+from protocol.errors import InputFormatError
+
+
+class CompareSource:
+    """The page's source for ``run_dirs`` (at least two; each a run directory, followed while it is written
+    when ``follow``). :class:`~protocol.errors.InputFormatError` naming the directory that is not one, or
+    when fewer than two are given or one is given twice."""
+
+    def __init__(self, run_dirs: list[str | os.PathLike[str]], follow: bool = True) -> None:
+        paths = [Path(d) for d in run_dirs]
+        if len(paths) < 2:
+            raise InputFormatError("comparing needs at least two run directories", "hil gcs")
+        resolved = [p.resolve() for p in paths]
+        if len(set(resolved)) != len(resolved):
+            raise InputFormatError("a run directory is given twice", "hil gcs")
+        self.sources = [RunDirSource(p, follow=follow) for p in paths]
+        self.names = [p.name for p in resolved]
+        self._described: set[int] = set()
+        self._primary_described = False
+
+    @property
+    def primary(self) -> RunDirSource:
+        return self.sources[0]
+
+    def poll(self) -> Batch:
+        batch = self.primary.poll()
+        if batch.info is not None:
+            batch.info["compare"] = list(self.names)
+            self._primary_described = True
+        if not self._primary_described:
+            return batch
+        for k, source in enumerate(self.sources[1:], start=1):
+            part = source.poll()
+            if part.info is not None:
+                batch.overlays.append(
+                    {
+                        "run": k,
+                        "name": self.names[k],
+                        "columns": part.info["columns"],
+                        "note": part.info["note"],
+                    }
+                )
+                self._described.add(k)
+            if part.rows:
+                batch.overlay_rows.append((k, part.rows))
+        return batch
+
+    def counters(self) -> dict[str, Any]:
+        """Each run's rows, events and damaged lines, by name."""
+        return {
+            name: {"rows": s.rows, "bad_rows": s.bad_rows, "finished": s.finished}
+            for name, s in zip(self.names, self.sources, strict=True)
+        }
