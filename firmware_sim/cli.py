@@ -363,8 +363,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         except HilError as exc:
             print(f"firmware-sim: error: {exc}", file=sys.stderr)
             return EXIT_HARNESS_DIED if isinstance(exc, HarnessDied) else 2
+    from .servers.base import BoardServer
     from .servers.can_server import CanServer
     from .servers.pty_server import PtyServer
+    from .servers.status import StatusLines
 
     try:
         scenario = None
@@ -376,7 +378,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.units = scenario.n_units
             args.phone = phone_url(args.phone)
         board = make_board(args)
-        server: PtyServer | CanServer
+        server: BoardServer
         if args.can is not None:
             server = CanServer(board, args.can)
         else:
@@ -403,8 +405,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         file=sys.stderr,
         flush=True,
     )
-    status = StatusLines(server, board)
-    status.start()
+    status = StatusLines(server).start()
     try:
         server.serve(duration=args.duration)
     finally:
@@ -415,6 +416,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if streamer is not None:
             streamer.close()
     stats = server.stats
+    link_line = (
+        f"{stats.frames_in} frames in, {stats.frames_out} out; host left {stats.host_gone} time(s), "
+        f"came back {stats.reconnects}; {stats.errors} link error(s)"
+    )
     world_line = ""
     if streamer is not None:
         world_line = (
@@ -422,7 +427,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"({streamer.sender.failed} failed), lagged the clock by up to {streamer.max_lag_s * 1e3:.0f} ms"
         )
     print(
-        f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, "
+        f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, {link_line}; "
         f"{len(board.resets) - 1} reset(s){world_line}",
         file=sys.stderr,
     )
@@ -434,44 +439,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
     return 0
-
-
-class StatusLines:
-    """A thread that says on stderr what the board goes through: a host connecting (its first bytes),
-    leaving, and every state change (DISARMED after the handshake, ARMED, FAILSAFE), with the board time."""
-
-    def __init__(self, server: object, board: object, period_s: float = 0.1) -> None:
-        import threading
-
-        self.server, self.board, self.period_s = server, board, period_s
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="firmware-sim-status", daemon=True)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-
-    def _run(self) -> None:
-        server, board = self.server, self.board
-        state, connected, gone = None, False, 0
-        while not self._stop.wait(self.period_s):
-            with server.lock:  # type: ignore[attr-defined]
-                now, new_state = board.now, board.state  # type: ignore[attr-defined]
-            stats = server.stats  # type: ignore[attr-defined]
-            if not connected and stats.bytes_in:
-                connected = True
-                print(f"firmware-sim: {now:8.2f} s  host connected", file=sys.stderr, flush=True)
-            if stats.host_gone > gone:
-                gone, connected = stats.host_gone, False
-                print(f"firmware-sim: {now:8.2f} s  host left; waiting for it", file=sys.stderr, flush=True)
-            if new_state != state:
-                if state is not None:
-                    line = f"firmware-sim: {now:8.2f} s  board {state.name} -> {new_state.name}"
-                    print(line, file=sys.stderr, flush=True)
-                state = new_state
 
 
 if __name__ == "__main__":
