@@ -353,6 +353,30 @@ def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ign
         faults.dead_esc(ch, at=esc_at)
 
 
+def board_and_world(args: argparse.Namespace, scenario: object | None):  # type: ignore[no-untyped-def]
+    """The board the options describe and, with a scenario, the world it drives — ready before the
+    board's clock starts: the world's kernels loaded (a twin flown in lockstep) before the board and its
+    clock are made, its first batch stepped right after. (Loading them on the world's first real-time
+    pass left it ~400 ms behind the board's clock at start-up, reported as a machine too slow.)"""
+    if scenario is None:
+        return make_board(args), None
+    from .world import World, load_kernels
+
+    load_kernels(scenario, board_config(args))
+    board: Any  # a Board, or a FirmwareBoard with the interface the servers and the world call
+    if args.avr is not None:
+        from hil.timing.clock import WallClock
+
+        from .avr.stepped import firmware_board
+
+        board = firmware_board(args, WallClock())
+    else:
+        board = make_board(args)
+    world = World(scenario, board)
+    world.prepare()
+    return board, world
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -371,8 +395,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         except HilError as exc:
             print(f"firmware-sim: error: {exc}", file=sys.stderr)
             return EXIT_HARNESS_DIED if isinstance(exc, HarnessDied) else 2
+    from .servers.base import BoardServer
     from .servers.can_server import CanServer
     from .servers.pty_server import PtyServer
+    from .servers.status import StatusLines
 
     try:
         scenario = None
@@ -383,16 +409,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             scenario = load_scenario(args.world)
             args.units = scenario.n_units
             args.phone = phone_url(args.phone)
-        board: Any  # a Board, or a FirmwareBoard with the interface the servers and the world call
-        if args.avr is not None:
-            from hil.timing.clock import WallClock
-
-            from .avr.stepped import firmware_board
-
-            board = firmware_board(args, WallClock())  # the Board interface the server and world call
-        else:
-            board = make_board(args)
-        server: PtyServer | CanServer
+        board, world = board_and_world(args, scenario)
+        server: BoardServer
         if args.can is not None:
             server = CanServer(board, args.can)
         else:
@@ -405,11 +423,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         server.stop()
 
     streamer = None
-    if scenario is not None:
-        from .world import World, WorldStreamer
+    if world is not None:
+        from .world import WorldStreamer
 
-        with server.lock:
-            world = World(scenario, board)
         streamer = WorldStreamer(world, server.lock, args.phone).start()
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     print(server.path, flush=True)
@@ -419,8 +435,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         file=sys.stderr,
         flush=True,
     )
-    status = StatusLines(server, board)
-    status.start()
+    status = StatusLines(server).start()
     try:
         server.serve(duration=args.duration)
     finally:
@@ -431,14 +446,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         if streamer is not None:
             streamer.close()
     stats = server.stats
+    link_line = (
+        f"{stats.frames_in} frames in, {stats.frames_out} out; host left {stats.host_gone} time(s), "
+        f"came back {stats.reconnects}; {stats.errors} link error(s)"
+    )
     world_line = ""
     if streamer is not None:
+        lag = streamer.lag.stats
         world_line = (
             f"; world: {streamer.world.steps} plant steps, {streamer.sender.sent} phone messages "
-            f"({streamer.sender.failed} failed), lagged the clock by up to {streamer.max_lag_s * 1e3:.0f} ms"
+            f"({streamer.sender.failed} failed), started {lag.startup_lag_s * 1e3:.0f} ms behind the board's "
+            f"clock, then {lag.episodes} lag episode(s), at most {lag.max_lag_s * 1e3:.0f} ms behind"
         )
     print(
-        f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, "
+        f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, {link_line}; "
         f"{len(board.resets) - 1} reset(s){world_line}",
         file=sys.stderr,
     )
@@ -450,44 +471,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
     return 0
-
-
-class StatusLines:
-    """A thread that says on stderr what the board goes through: a host connecting (its first bytes),
-    leaving, and every state change (DISARMED after the handshake, ARMED, FAILSAFE), with the board time."""
-
-    def __init__(self, server: object, board: object, period_s: float = 0.1) -> None:
-        import threading
-
-        self.server, self.board, self.period_s = server, board, period_s
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="firmware-sim-status", daemon=True)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=1.0)
-
-    def _run(self) -> None:
-        server, board = self.server, self.board
-        state, connected, gone = None, False, 0
-        while not self._stop.wait(self.period_s):
-            with server.lock:  # type: ignore[attr-defined]
-                now, new_state = board.now, board.state  # type: ignore[attr-defined]
-            stats = server.stats  # type: ignore[attr-defined]
-            if not connected and stats.bytes_in:
-                connected = True
-                print(f"firmware-sim: {now:8.2f} s  host connected", file=sys.stderr, flush=True)
-            if stats.host_gone > gone:
-                gone, connected = stats.host_gone, False
-                print(f"firmware-sim: {now:8.2f} s  host left; waiting for it", file=sys.stderr, flush=True)
-            if new_state != state:
-                if state is not None:
-                    line = f"firmware-sim: {now:8.2f} s  board {state.name} -> {new_state.name}"
-                    print(line, file=sys.stderr, flush=True)
-                state = new_state
 
 
 if __name__ == "__main__":

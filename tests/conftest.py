@@ -2,7 +2,9 @@
 
 * ``firmware``: the AVR toolchain and simavr (the C firmware, its host library and its simavr harness,
   built by ``make -C firmware``);
-* ``browser``: a headless Chromium driven through chromedriver by Selenium (the ground station's page).
+* ``browser``: a headless Chromium driven through chromedriver by Selenium (the ground station's page);
+* ``udp_multicast``: IPv4 multicast between two sockets on this machine (python-can's ``udp_multicast``
+  CAN interface; a sandbox without a multicast route lacks it: ``tests/can_support.py`` tries it).
 
 Without the tools those tests are skipped, each kind with ONE reason, so pytest's ``-ra`` summary shows one
 line per kind naming the Debian packages to install (``.ci/apt-packages``, the one list). With
@@ -58,9 +60,21 @@ def _browser_message(missing: list[str]) -> str:
     return "; ".join(parts)
 
 
+def _multicast_missing() -> list[str]:
+    from can_support import udp_multicast_problem
+
+    problem = udp_multicast_problem()
+    return [] if problem is None else [problem]
+
+
+def _multicast_message(missing: list[str]) -> str:
+    return f"the CAN tests over udp_multicast need IPv4 multicast between local sockets: {missing[0]}"
+
+
 NEEDS: dict[str, tuple[Callable[[], list[str]], Callable[[list[str]], str]]] = {
     "firmware": (_firmware_missing, toolchain_message),
     "browser": (_browser_missing, _browser_message),
+    "udp_multicast": (_multicast_missing, _multicast_message),
 }
 """marker -> (what is missing for its tests, the one line saying what to install)."""
 
@@ -72,6 +86,11 @@ def pytest_configure(config: pytest.Config) -> None:
         "markers",
         "browser: needs chromium and chromedriver (.ci/apt-packages) and selenium; skipped without, "
         "unless VSCMG_HIL_REQUIRE_ALL=1",
+    )
+    config.addinivalue_line(
+        "markers",
+        "udp_multicast: needs IPv4 multicast between local sockets (python-can's udp_multicast); skipped "
+        "without, unless VSCMG_HIL_REQUIRE_ALL=1",
     )
 
 

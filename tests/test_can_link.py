@@ -67,7 +67,11 @@ def test_the_exchange_over_a_virtual_bus(fd):
         assert server.counters()["tx_frames_dropped"] == 0
 
 
+@pytest.mark.udp_multicast
 def test_the_exchange_with_the_board_in_another_process_over_udp_multicast():
+    """Also issue 31's first reproduction: firmware-sim's status thread read the pty server's statistics
+    off the CAN server and died (AttributeError) as the host arrived; now it says when the host comes and
+    goes, and the final line counts the link as on a pty."""
     port = random.randint(40_000, 60_000)
     node = random.randint(1, 126)
     spec = f"udp_multicast/239.74.163.{random.randint(1, 254)}?port={port}&node={node}"
@@ -83,10 +87,15 @@ def test_the_exchange_with_the_board_in_another_process_over_udp_multicast():
         assert url == f"can://{spec}", board.stderr.read() if board.stderr else ""
         client = exchange(url, 2)
         assert client.stats().transport["rx_ignored"] > 0  # udp_multicast loops our own frames back
+        time.sleep(1.5)  # the host is silent (closed) for longer than HOST_SILENCE_S: gone
     finally:
         board.terminate()
         board.wait(5)
     assert board.returncode == 0
+    err = board.stderr.read() if board.stderr else ""
+    assert "Traceback" not in err and "Error" not in err, err
+    assert "host connected" in err and "host left" in err, err
+    assert " frames in, " in err and "host left 1 time(s)" in err and "0 link error(s)" in err, err
 
 
 def test_an_error_in_the_serving_thread_is_raised_not_swallowed():

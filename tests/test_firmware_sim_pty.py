@@ -21,16 +21,20 @@ CFG = BoardConfig(n_units=2, telemetry_rate_hz=200.0)
 def test_without_holding_the_slave_eio_is_survived_and_the_host_can_return():
     with PtyServer(Board(CFG, WallClock()), hold_slave=False) as server:
         time.sleep(0.1)  # nobody on the slave yet: the master reads EIO
-        assert server.stats.host_gone >= 1
+        assert not server.stats.host_present and server.stats.host_gone == 0  # never there: never gone
         for _ in range(2):
             host = SerialHost(server.path)
             reply = host.handshake()
             assert reply.state == BoardState.DISARMED
             host.keepalive = heartbeat
             assert host.wait_type(Telemetry, 1.0).state == BoardState.DISARMED
+            assert server.stats.host_present
             host.close()
             time.sleep(0.15)
-        assert server.stats.host_gone >= 2  # noticed each departure
+            assert not server.stats.host_present  # EIO: gone at once, not after a silence
+        stats = server.stats
+        assert (stats.host_gone, stats.reconnects) == (2, 1)  # noticed each departure and the return
+        assert stats.frames_in >= 4 and stats.frames_out > stats.frames_in and stats.errors == 0
         server.check()
         assert server._thread is not None and server._thread.is_alive()
 

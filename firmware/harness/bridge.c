@@ -116,10 +116,20 @@ void bridge_attach(harness_t *h)
     avr_irq_register_notify(avr_io_getirq(h->avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_xoff, h);
 }
 
+/* 1 when byte b ends a wire frame (a 0x00 after at least one other byte; idle 0x00 fill counts nothing),
+ * for the link statistics every far-side server reports (firmware_sim/servers/base.py). */
+static int count_frame(int *open, uint8_t b)
+{
+    int ended = b == 0 && *open;
+    *open = b != 0;
+    return ended;
+}
+
 /* One byte from the host into the receive queue (link noise applied); a full queue loses it. */
 void bridge_receive(harness_t *h, uint8_t b)
 {
     h->bytes_in++;
+    h->frames_in += count_frame(&h->frame_open_in, b);
     if (h->rxq_tail - h->rxq_head == (uint32_t)sizeof h->rxq)
         h->dropped++;
     else if (noisy(h, &b))
@@ -138,6 +148,7 @@ void bridge_service(harness_t *h)
         h->bytes_in += (uint64_t)n;
         for (ssize_t i = 0; i < n; i++) {
             uint8_t b = buf[i];
+            h->frames_in += count_frame(&h->frame_open_in, b);
             if (noisy(h, &b))
                 h->rxq[h->rxq_tail++ % sizeof h->rxq] = b;
         }
@@ -153,6 +164,8 @@ void bridge_service(harness_t *h)
         ssize_t n = write(h->master, h->txq, h->txq_len);
         if (n > 0) {
             h->bytes_out += (uint64_t)n;
+            for (ssize_t i = 0; i < n; i++)
+                h->frames_out += count_frame(&h->frame_open_out, h->txq[i]);
             memmove(h->txq, h->txq + n, h->txq_len - (uint32_t)n);
             h->txq_len -= (uint32_t)n;
         } else if (n < 0 && errno != EAGAIN) {

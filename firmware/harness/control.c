@@ -10,6 +10,7 @@
  *   clear                     -> ok                   no noise, no sags, self-test pin released
  *   flush                     -> ok <cycles>          the record file is complete up to <cycles>
  *   stats                     -> ok <bytes_in> <bytes_out> <dropped_out> <corrupted> <dropped> <lag_resets>
+ *                                   <frames_in> <frames_out>
  *   eeprom                    -> ok                   write the EEPROM to its file now (--eeprom)
  *   mem <addr> <len>          -> ok <hex>             read data memory (RAM), at most 256 bytes
  *   quit                      -> ok                   stop (EEPROM saved, pty closed)
@@ -85,10 +86,11 @@ static int execute(harness_t *h, char *cmd, FILE *out)
         record_flush(h);
         fprintf(out, "ok %llu\n", now);
     } else if (!strcmp(c, "stats") && argc == 1) {
-        fprintf(out, "ok %llu %llu %llu %llu %llu %llu\n", (unsigned long long)h->bytes_in,
+        fprintf(out, "ok %llu %llu %llu %llu %llu %llu %llu %llu\n", (unsigned long long)h->bytes_in,
                 (unsigned long long)h->bytes_out, (unsigned long long)h->dropped_out,
                 (unsigned long long)h->corrupted, (unsigned long long)h->dropped,
-                (unsigned long long)h->lag_resets);
+                (unsigned long long)h->lag_resets, (unsigned long long)h->frames_in,
+                (unsigned long long)h->frames_out);
     } else if (!strcmp(c, "eeprom") && argc == 1) {
         if (harness_save_eeprom(h) < 0)
             fprintf(out, "error eeprom: no --eeprom file, or it cannot be written\n");

@@ -46,6 +46,8 @@ typedef struct {
     uint32_t txq_len;
     int uart_pipe; /* UART0 through the control pipe ("rx" in, "step" answers out), no pty traffic */
     uint64_t bytes_in, bytes_out, dropped_out, corrupted, dropped, lag_resets;
+    uint64_t frames_in, frames_out; /* wire frames: a 0x00 ending at least one other byte (as sent) */
+    int frame_open_in, frame_open_out;
 
     /* power */
     double battery_ocv_v, battery_ohm, ubec_set_v, ubec_dropout_v, bod_v, bod_release_v;

@@ -336,7 +336,11 @@ class AvrBoard:
         return len(free) - len(free.lstrip(bytes([STACK_PAINT])))
 
     def link_stats(self) -> dict[str, int]:
-        names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped", "lag_resets")
+        """The bridge's counters: bytes and wire frames each way (as the host sent them, before the
+        injected noise), output dropped with no host reading, bytes corrupted and dropped by the noise,
+        pacing resets."""
+        names: tuple[str, ...] = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped")
+        names += ("lag_resets", "frames_in", "frames_out")
         return dict(zip(names, (int(w) for w in self.command("stats")), strict=True))
 
 

@@ -9,6 +9,8 @@ never dies when the host closes it: the host simply reopens the path (pyserial f
 sent meanwhile). With ``hold_slave=False`` the master reads EIO while no host has the slave open; the
 server then treats the host as absent — drops what the board sends, polls for its return — and never
 crashes. Output that the pty cannot take (the host not reading) is dropped and counted, as a UART would.
+Whether a host is there is judged as on every transport (:mod:`.base`): its bytes arriving, its silence,
+and — without a held slave — EIO at once.
 
 Thread safety: :meth:`serve` runs the loop in the calling thread; :meth:`start` runs it in a daemon
 thread. Other threads must touch the board only inside ``with server.lock:`` (fault injection,
@@ -23,17 +25,15 @@ import logging
 import os
 import select
 import termios
-import threading
 import time
 import tty
-from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 
-from hil.threads import ThreadError
 from protocol.errors import LinkError
+from protocol.messages import BoardState
 
 from ..board import Board
+from .base import BoardServer, FrameCounter, HostPresence
 
 logger = logging.getLogger(__name__)
 
@@ -42,24 +42,13 @@ _ABSENT_POLL_S = 0.02  # with the host gone (EIO), look for its return this ofte
 _OUT_LIMIT = 4096  # bytes held back while the pty is full, like a UART ring (older ones are dropped)
 
 
-@dataclass
-class PtyStats:
-    bytes_in: int = 0
-    bytes_out: int = 0
-    dropped_out: int = 0  # bytes discarded because nobody read them
-    host_gone: int = 0  # times the master reported EIO (no host on the slave)
-    loops: int = 0
-
-
-class PtyServer:
+class PtyServer(BoardServer):
     """Serve ``board`` on a new pty. ``link`` (optional) is a symlink kept pointing at the slave path."""
 
     def __init__(
         self, board: Board, link: str | os.PathLike[str] | None = None, hold_slave: bool = True
     ) -> None:
         self.board = board
-        self.lock = threading.RLock()
-        self.stats = PtyStats()
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line discipline, even before the host sets its own modes
         attrs = termios.tcgetattr(slave)
@@ -67,16 +56,16 @@ class PtyServer:
         termios.tcsetattr(slave, termios.TCSANOW, attrs)
         os.set_blocking(master, False)
         self.path = os.ttyname(slave)
+        super().__init__(f"pty server on {self.path}")
+        self.presence = HostPresence(self.stats)
+        self._frames_in, self._frames_out = FrameCounter(), FrameCounter()
         self._master: int | None = master
         self._slave: int | None = slave
         if not hold_slave:
             os.close(slave)
             self._slave = None
         self._out = bytearray()
-        self._host_absent = False
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._thread_error = ThreadError(f"pty server on {self.path} failed")
+        self._host_absent = False  # the master reads EIO: nobody holds the slave (only without hold_slave)
         self.link: Path | None = None
         if link is not None:
             try:
@@ -86,33 +75,17 @@ class PtyServer:
                 raise
             self.link = Path(link)
 
-    # ------------------------------------------------------------------ lifecycle
-    def start(self) -> PtyServer:
-        """Serve in a daemon thread; :meth:`close` stops it. An error in the thread is re-raised there."""
-        if self._thread is None:
-            self._thread = threading.Thread(
-                target=self._run_thread, name=f"pty-server {self.path}", daemon=True
-            )
-            self._thread.start()
-        return self
+    # ------------------------------------------------------------------ BoardServer
+    def board_time(self) -> float:
+        with self.lock:
+            return self.board.now
 
-    def _run_thread(self) -> None:
-        with self._thread_error.caught(logger, "pty server thread failed"):  # raised by close()/check()
-            self.serve()
+    def board_state(self) -> BoardState:
+        with self.lock:
+            return self.board.state
 
-    def stop(self) -> None:
-        self._stop.set()
-
-    def check(self) -> None:
-        """Raise the serving thread's error, if it had one."""
-        self._thread_error.check()
-
-    def close(self) -> None:
-        """Stop serving, close the pty, remove the symlink. Idempotent."""
-        self._stop.set()
-        thread, self._thread = self._thread, None
-        if thread is not None and thread is not threading.current_thread():
-            thread.join(timeout=5.0)
+    def _release(self) -> None:
+        """Close the pty and remove the symlink."""
         for fd in (self._master, self._slave):
             if fd is not None:
                 with contextlib.suppress(OSError):
@@ -122,15 +95,6 @@ class PtyServer:
             with contextlib.suppress(OSError):
                 if self.link.is_symlink() and os.readlink(self.link) == self.path:
                     self.link.unlink()
-        self.check()
-
-    def __enter__(self) -> PtyServer:
-        return self.start()
-
-    def __exit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        self.close()
 
     # ------------------------------------------------------------------ the loop
     def serve(self, duration: float | None = None) -> None:
@@ -138,7 +102,7 @@ class PtyServer:
         board = self.board
         clock = board.clock
         end = None if duration is None else clock.now() + duration
-        while not self._stop.is_set():
+        while not self.stopping():
             master = self._master
             if master is None:
                 return
@@ -146,6 +110,7 @@ class PtyServer:
                 now = clock.now()
                 board.step(now)
                 self._queue(board.take_output())
+                self.presence.tick(now)
                 if end is not None and now >= end:
                     return  # the board has run to the end of the duration
                 wait = board.next_deadline() - clock.now()
@@ -178,8 +143,13 @@ class PtyServer:
         if not data:
             self._host_left()
             return
+        self._take_in(data)
+
+    def _take_in(self, data: bytes) -> None:
         self.stats.bytes_in += len(data)
+        self.stats.frames_in += self._frames_in.feed(data)
         with self.lock:
+            self.presence.heard(self.board.now)
             self.board.feed(data)
 
     def _write(self, master: int) -> None:
@@ -193,6 +163,7 @@ class PtyServer:
                 return
             raise
         self.stats.bytes_out += n
+        self.stats.frames_out += self._frames_out.feed(self._out[:n])
         del self._out[:n]
 
     def _queue(self, data: bytes) -> None:
@@ -208,7 +179,7 @@ class PtyServer:
     def _host_left(self) -> None:
         if not self._host_absent:
             logger.info("host closed %s; waiting for it to come back", self.path)
-            self.stats.host_gone += 1
+        self.presence.left()
         self._host_absent = True
         self.stats.dropped_out += len(self._out)
         self._out.clear()
@@ -229,9 +200,7 @@ class PtyServer:
         if data:
             self._host_absent = False
             logger.info("host is back on %s", self.path)
-            self.stats.bytes_in += len(data)
-            with self.lock:
-                self.board.feed(data)
+            self._take_in(data)
 
 
 def _replace_symlink(link: Path, target: str) -> None:

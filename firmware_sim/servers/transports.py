@@ -203,6 +203,8 @@ class EmulatorTransport(InProcessBoard):
         from firmware_sim.world import World, WorldStreamer
 
         assert isinstance(world, World)
+        with self.lock:
+            world.prepare()  # its first batch stepped before its thread's first pass
         return WorldStreamer(world, self.lock, phone_url).start()
 
     # ------------------------------------------------------------------ backend

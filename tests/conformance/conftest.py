@@ -29,9 +29,15 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def _param(name: str) -> object:
-    """A target; one that runs the C firmware needs the toolchain (marker ``firmware``, tests/conftest.py)."""
-    needs = getattr(TARGETS[name], "needs_firmware_build", False)
-    return pytest.param(name, marks=pytest.mark.firmware) if needs else name
+    """A target; one that runs the C firmware needs the toolchain (marker ``firmware``), one on
+    ``udp_multicast`` IPv4 multicast between local sockets (marker ``udp_multicast``; tests/conftest.py)."""
+    target = TARGETS[name]
+    marks = []
+    if getattr(target, "needs_firmware_build", False):
+        marks.append(pytest.mark.firmware)
+    if getattr(target, "needs_multicast", False):
+        marks.append(pytest.mark.udp_multicast)
+    return pytest.param(name, marks=marks)
 
 
 @pytest.fixture(params=[_param(name) for name in sorted(TARGETS)])

@@ -1,11 +1,15 @@
 """A minimal protocol host for tests: frames out, frames in, reliable commands with retries.
 
-Deliberately independent of ``hil``'s board client (so the board and the client are each checked against
-the protocol, not against each other). Every timeout is board time. Byte pipes: a real serial port
-(pyserial on a pty) to a board that runs on its own, its clock read from the target
+Deliberately independent of ``hil``'s board client and transports (so the board and the client are each
+checked against the protocol, not against each other). Every timeout is board time. Byte pipes: a real
+serial port (pyserial on a pty) to a board that runs on its own, its clock read from the target
 (:class:`SerialHost`); the same to a lockstep target, which the host runs while it waits
-(:class:`LockstepSerialHost`); and an in-process lockstep board (:class:`LockstepHost`).
-:func:`connect` picks the serial one a target needs.
+(:class:`LockstepSerialHost`); a python-can bus to a lockstep board served on it, the frames cut and
+reassembled by :mod:`protocol.can` (:class:`LockstepCanHost`); and an in-process lockstep board
+(:class:`LockstepHost`). :func:`connect` picks the one a target needs.
+
+Every host counts what it put on the link (``bytes_sent``, ``frames_sent``) and what reached it
+(``bytes_received``; its deframer's counters), for the link statistics both sides must agree on.
 """
 
 from __future__ import annotations
@@ -14,9 +18,12 @@ import contextlib
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
+from urllib.parse import parse_qsl, urlsplit
 
+import can
 import serial
 
+from protocol.can import CanReassembler, CanSegmenter, Direction
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import SCHEMA_HASH, Ack, Heartbeat, Hello, HelloReply, Nack, Telemetry
 
@@ -46,6 +53,9 @@ class Host:
         self.keepalive: Callable[[], Any] | None = None
         self.keepalive_period = 0.05
         self._next_keepalive = 0.0
+        self.bytes_sent = 0
+        self.frames_sent = 0  # whole frames (send); torn ones are not counted (send_torn)
+        self.bytes_received = 0
 
     # ---------------------------------------------------------------- pipe (subclasses)
     def _write(self, data: bytes) -> None:
@@ -61,12 +71,24 @@ class Host:
     def send(self, message: Any, seq: int | None = None) -> int:
         seq, data = self.framer.encode(message, seq=seq)
         self.send_raw(data)
+        self.frames_sent += 1
         return seq
 
     def send_raw(self, data: bytes) -> None:
         before = self.now()
         self._write(data)
+        self.bytes_sent += len(data)
         self.sends.append((before, self.now()))
+
+    def damage_seen(self) -> int:
+        """Damaged frames that reached this host and were discarded: on a serial link the deframer's bad
+        frames."""
+        return self.deframer.counters.bad_total
+
+    def send_torn(self, wire: bytes) -> None:
+        """The first half of the wire frame ``wire``, as a host that dies while sending it leaves: on a
+        serial link its first bytes."""
+        self.send_raw(wire[: len(wire) // 2])
 
     def kept_up(
         self, since: int, within: float, start: float | None = None, end: float | None = None
@@ -117,7 +139,9 @@ class Host:
             self._maybe_keepalive()
             remaining = end - self.now()
             step = min(max(remaining, 0.0), self.keepalive_period if self.keepalive else remaining)
-            for event in self.deframer.feed(self._read(max(step, 0.0))):
+            data = self._read(max(step, 0.0))
+            self.bytes_received += len(data)
+            for event in self.deframer.feed(data):
                 if isinstance(event, Frame):
                     out.append(event.message)
             if self.now() >= end:
@@ -301,9 +325,125 @@ def retry_if_starved(
     raise AssertionError(f"the host was left unscheduled for {within} s or more in all {tries} attempts")
 
 
-def connect(target: Any) -> SerialHost:
+class LockstepCanHost(Host):
+    """Host on a lockstep target's CAN bus (:class:`conformance.targets.FirmwareSimCanTarget`: ``port``
+    a ``can://<interface>/<channel>?node=N&fd=0|1[&port=P]`` URL). Frames are cut into segments and
+    reassembled by :mod:`protocol.can` on python-can messages. Lockstep as over the pty: every segment
+    the host sent reaches the board before its clock moves on (:meth:`target.host_sent`), and every
+    segment the board sent is read before the host looks at the clock again."""
+
+    def __init__(self, target: Any, max_step: float = 0.001) -> None:
+        super().__init__()
+        self.target = target
+        self.max_step = max_step
+        parts = urlsplit(target.port)
+        options = dict(parse_qsl(parts.query))
+        self.interface, self.channel = parts.netloc, parts.path[1:]
+        self.node, self.fd = int(options.get("node", "0")), options.get("fd", "0") == "1"
+        self._bus_options = {"port": int(options["port"])} if "port" in options else {}
+        self.bus = self._open()
+        self._segmenter = CanSegmenter(self.node, Direction.TO_BOARD, self.fd)
+        self._reassembler = CanReassembler(self.node, Direction.TO_HOST)
+        self._pending = bytearray()
+        self._base = target.segments_out()  # what the board put on the bus before this host was on it
+        self.segments_sent = 0
+        self._closed = False
+
+    def _open(self) -> can.BusABC:
+        return can.Bus(interface=self.interface, channel=self.channel, fd=self.fd, **self._bus_options)
+
+    def now(self) -> float:
+        return float(self.target.now())
+
+    def _send_segments(self, frames: Sequence[Any]) -> None:
+        for f in frames:
+            message = can.Message(
+                arbitration_id=f.arbitration_id, data=f.data, is_fd=f.is_fd, is_extended_id=False
+            )
+            self.bus.send(message)
+        self.segments_sent += len(frames)
+        self.target.host_sent(len(frames))
+
+    def _write(self, data: bytes) -> None:
+        pending = self._pending
+        pending += data
+        while (end := pending.find(0)) >= 0:
+            wire = bytes(pending[: end + 1])
+            del pending[: end + 1]
+            if len(wire) > 1:
+                self._send_segments(self._segmenter.segment(wire))
+
+    def send_torn(self, wire: bytes) -> None:
+        """The first half of ``wire``'s segments (at least one, never all): a host gone mid-frame. A frame
+        of one segment cannot be torn on a bus (it arrives whole or not at all)."""
+        segments = self._segmenter.segment(wire)
+        assert len(segments) >= 2, "a frame of one CAN segment cannot be torn: take a longer one"
+        before = self.now()
+        self._send_segments(segments[: len(segments) // 2])
+        self.sends.append((before, self.now()))
+
+    def damage_seen(self) -> int:
+        """Damaged frames that reached this host: the deframer's bad frames, and those the reassembly
+        already threw out — a frame whose bytes were damaged before they were cut into segments fails
+        its CRC there (``spliced``), one that lost its delimiter never completes (``incomplete``)."""
+        stats = self._reassembler.stats
+        return super().damage_seen() + stats.spliced + stats.incomplete + stats.malformed
+
+    def _received(self) -> int:
+        stats = self._reassembler.stats
+        return stats.segments + stats.malformed
+
+    def _read(self, timeout: float) -> bytes:
+        target = self.target
+        end = target.now() + timeout
+        while True:
+            target.take_in()
+            if target.segments_out() > self._base + self._received():
+                return self._collect()
+            if target.now() >= end:
+                return b""
+            target.advance(min(target.next_deadline(), end, target.now() + self.max_step))
+
+    def _collect(self) -> bytes:
+        """The frames of every segment the board has put on the bus so far (a bus passes them on
+        asynchronously: waits for them, wall time only to bound a broken bus)."""
+        want = self.target.segments_out() - self._base
+        out = bytearray()
+        deadline = time.monotonic() + PTY_WALL_S
+        while self._received() < want:
+            msg = self.bus.recv(max(deadline - time.monotonic(), 0.0))
+            if msg is None:
+                got = self._received()
+                raise AssertionError(f"the bus passed on {got} of the {want} segments the board sent")
+            out += self._reassembler.feed_message(msg)
+        return bytes(out)
+
+    def reopen(self) -> None:
+        """Leave the bus and join it again (a host restarting): a new segmenter and reassembler."""
+        with contextlib.suppress(AssertionError):
+            self._collect()
+        self.bus.shutdown()
+        self.bus = self._open()
+        self._segmenter = CanSegmenter(self.node, Direction.TO_BOARD, self.fd)
+        self._reassembler = CanReassembler(self.node, Direction.TO_HOST)
+        self._pending.clear()
+        self._base = self.target.segments_out()
+        self.deframer.reset()
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        with contextlib.suppress(AssertionError):
+            self._collect()
+        self.bus.shutdown()
+        self._closed = True
+
+
+def connect(target: Any) -> Host:
     """A host on ``target``'s port, its timeouts on the board's clock: a lockstep target is run by the
-    host while it waits, a real-time one runs on its own."""
+    host while it waits, a real-time one runs on its own; a ``can://`` port is a CAN bus."""
+    if str(target.port).startswith("can://"):
+        return LockstepCanHost(target)
     if getattr(target, "lockstep", False):
         return LockstepSerialHost(target)
     return SerialHost(target.port, clock=target.now)

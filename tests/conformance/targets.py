@@ -61,8 +61,10 @@ class TargetSpec:
 class Target(Protocol):
     name: str
     spec: TargetSpec
-    port: str  # a path pyserial opens (a pty)
+    port: str  # a path pyserial opens (a pty), or a can:// URL (conformance.host.connect)
     lockstep: bool  # runs only while the host waits (advance, take_in, ...: FirmwareSimTarget)
+    stats: Any  # firmware_sim.servers.base.ServerStats: the board side's link statistics
+    reports_host_presence: bool  # stats.host_present/host_gone/reconnects are kept
 
     def now(self) -> float: ...
     def idle(self, seconds: float) -> None: ...  # let that much board time pass, no host waiting
@@ -98,16 +100,16 @@ def board_config(spec: TargetSpec) -> Any:
     )
 
 
-class FirmwareSimTarget:
-    """The Python emulator (``firmware_sim``) behind a real pty, in lockstep: its clock (a
-    ``LockstepClock``) moves only while the host waits (:class:`conformance.host.LockstepSerialHost`
-    advances it), and every byte the host wrote is fed to the board before its clock moves on. The bytes
-    go through the pty as they would from any serial port; what the board does, and when, does not
-    depend on how busy the machine is. (The emulator's real-time pty server,
-    ``firmware_sim.servers.pty_server``, has tests of its own: tests/test_firmware_sim_pty.py.)"""
+class EmulatedTarget:
+    """The Python emulator (``firmware_sim``) in lockstep: its clock (a ``LockstepClock``) moves only while
+    the host waits (the lockstep hosts of :mod:`conformance.host` advance it), and every byte the host
+    wrote is fed to the board before its clock moves on; what the board does, and when, does not depend
+    on how busy the machine is. Subclasses put it behind a link; the board side's statistics are the
+    servers' own type (:class:`firmware_sim.servers.base.ServerStats`, host presence included)."""
 
     name = "firmware_sim"
     lockstep = True
+    reports_host_presence = True
 
     def __init__(self, spec: TargetSpec) -> None:
         from firmware_sim.board import Board
@@ -116,64 +118,12 @@ class FirmwareSimTarget:
         self.spec = spec
         self.clock = LockstepClock(0.0)
         self.board = Board(board_config(spec), self.clock)
-        master, slave = os.openpty()
-        tty.setraw(slave)  # no echo, no line discipline, before the host sets its own modes
-        os.set_blocking(master, False)
-        self._master: int | None = master
-        self._slave: int | None = slave  # held open: a host closing the port never hangs the pty up
-        self.port = os.ttyname(slave)
-        self.bytes_in = 0  # bytes the board took from the pty
-        self.bytes_out = 0  # bytes the board put into the pty
-        self.dropped_out = 0  # bytes the pty could not take (nobody reading), dropped as by a UART
-        self._host_wrote = 0  # bytes hosts wrote into the pty (they say so: host_wrote)
-
-    def __enter__(self) -> FirmwareSimTarget:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                with contextlib.suppress(OSError):
-                    os.close(fd)
-        self._master = self._slave = None
-
-    # ---------------------------------------------------------------- lockstep (the host drives these)
-    def host_wrote(self, n: int) -> None:
-        """A host wrote ``n`` bytes into the pty: they reach the board before its clock moves on."""
-        self._host_wrote += n
-
-    def take_in(self) -> None:
-        """Feed the board, at its present time, every byte hosts have written so far. The pty passes
-        bytes on asynchronously, so this waits for them (wall time, only to bound a broken pty)."""
-        assert self._master is not None, "the target is closed"
-        deadline = time.monotonic() + PTY_WALL_S
-        while self.bytes_in < self._host_wrote:
-            readable, _, _ = select.select([self._master], [], [], max(deadline - time.monotonic(), 0.0))
-            if not readable:
-                raise AssertionError(
-                    f"the pty passed on {self.bytes_in} of the {self._host_wrote} bytes hosts wrote"
-                )
-            data = os.read(self._master, 65536)
-            self.bytes_in += len(data)
-            self.board.feed(data)
-
-    def advance(self, until: float) -> None:
-        """Run the board to board time ``until`` (its input taken in first), its output into the pty."""
-        self.take_in()
-        self.clock.set(max(until, self.clock.now()))
-        self.board.step()
-        data = self.board.take_output()
-        if data:
-            assert self._master is not None, "the target is closed"
-            try:
-                n = os.write(self._master, data)
-            except BlockingIOError:
-                n = 0
-            self.bytes_out += n
-            self.dropped_out += len(data) - n
 
     def next_deadline(self) -> float:
         return self.board.next_deadline()
+
+    def advance(self, until: float) -> None:
+        raise NotImplementedError
 
     def idle(self, seconds: float) -> None:
         """Let ``seconds`` of board time pass with no host waiting."""
@@ -214,9 +164,168 @@ class FirmwareSimTarget:
         self.board.faults.clear()
 
     def check(self) -> None:
+        self.board.step()  # a board that cannot run raises here
+
+
+class FirmwareSimTarget(EmulatedTarget):
+    """The emulator behind a real pty, in lockstep: the bytes go through the pty as they would from any
+    serial port. (The emulator's real-time pty server, ``firmware_sim.servers.pty_server``, has tests of
+    its own: tests/test_firmware_sim_pty.py.)"""
+
+    name = "firmware_sim"
+
+    def __init__(self, spec: TargetSpec) -> None:
+        from firmware_sim.servers.base import FrameCounter, HostPresence, ServerStats
+
+        super().__init__(spec)
+        master, slave = os.openpty()
+        tty.setraw(slave)  # no echo, no line discipline, before the host sets its own modes
+        os.set_blocking(master, False)
+        self._master: int | None = master
+        self._slave: int | None = slave  # held open: a host closing the port never hangs the pty up
+        self.port = os.ttyname(slave)
+        self.stats = ServerStats()
+        self.presence = HostPresence(self.stats)
+        self._frames_in, self._frames_out = FrameCounter(), FrameCounter()
+        self._host_wrote = 0  # bytes hosts wrote into the pty (they say so: host_wrote)
+
+    @property
+    def bytes_out(self) -> int:
+        """Bytes the board put into the pty."""
+        return self.stats.bytes_out
+
+    def __enter__(self) -> FirmwareSimTarget:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+        self._master = self._slave = None
+
+    # ---------------------------------------------------------------- lockstep (the host drives these)
+    def host_wrote(self, n: int) -> None:
+        """A host wrote ``n`` bytes into the pty: they reach the board before its clock moves on."""
+        self._host_wrote += n
+
+    def take_in(self) -> None:
+        """Feed the board, at its present time, every byte hosts have written so far. The pty passes
+        bytes on asynchronously, so this waits for them (wall time, only to bound a broken pty)."""
+        assert self._master is not None, "the target is closed"
+        deadline = time.monotonic() + PTY_WALL_S
+        while self.stats.bytes_in < self._host_wrote:
+            readable, _, _ = select.select([self._master], [], [], max(deadline - time.monotonic(), 0.0))
+            if not readable:
+                raise AssertionError(
+                    f"the pty passed on {self.stats.bytes_in} of the {self._host_wrote} bytes hosts wrote"
+                )
+            data = os.read(self._master, 65536)
+            self.stats.bytes_in += len(data)
+            self.stats.frames_in += self._frames_in.feed(data)
+            self.presence.heard(self.now())
+            self.board.feed(data)
+
+    def advance(self, until: float) -> None:
+        """Run the board to board time ``until`` (its input taken in first), its output into the pty."""
+        self.take_in()
+        self.clock.set(max(until, self.clock.now()))
+        self.board.step()
+        self.presence.tick(self.now())
+        data = self.board.take_output()
+        if data:
+            assert self._master is not None, "the target is closed"
+            try:
+                n = os.write(self._master, data)
+            except BlockingIOError:
+                n = 0
+            self.stats.bytes_out += n
+            self.stats.frames_out += self._frames_out.feed(data[:n])
+            self.stats.dropped_out += len(data) - n
+
+    def check(self) -> None:
         if self._master is None:
             raise AssertionError("the firmware_sim target's pty is closed")
-        self.board.step()  # a board that cannot run raises here
+        super().check()
+
+
+class FirmwareSimCanTarget(EmulatedTarget):
+    """The emulator served on a python-can bus by the real server, ``firmware_sim.servers.can_server``,
+    in lockstep (its :meth:`~CanServer.pump` and :meth:`~CanServer.take_in` driven by the host's waits
+    instead of its real-time loop). ``interface``: ``virtual`` (in-process) or ``udp_multicast`` (through
+    the kernel's sockets, as between processes); ``fd``: CAN FD frames (63 bytes of a frame per segment)
+    or classic CAN (7)."""
+
+    interface = "virtual"
+    fd = False
+    needs_multicast = False
+
+    def __init__(self, spec: TargetSpec) -> None:
+        from can_support import multicast_url, virtual_url
+
+        from firmware_sim.servers.can_server import CanServer
+
+        super().__init__(spec)
+        make_url = multicast_url if self.interface == "udp_multicast" else virtual_url
+        self.port = make_url(fd=self.fd)
+        self.server = CanServer(self.board, self.port)
+        self.stats = self.server.stats
+        self._host_sent = 0  # CAN segments hosts sent (they say so: host_sent)
+
+    def __enter__(self) -> FirmwareSimCanTarget:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.close()
+
+    def segments_out(self) -> int:
+        """CAN segments the board has put on the bus."""
+        return self.server.counters()["tx_segments_sent"]
+
+    def _segments_in(self) -> int:
+        counters = self.server.counters()
+        return counters["rx_segments"] + counters["rx_malformed"]
+
+    def host_sent(self, n: int) -> None:
+        """A host sent ``n`` segments: they reach the board before its clock moves on."""
+        self._host_sent += n
+
+    def take_in(self) -> None:
+        """Feed the board, at its present time, every segment hosts have sent so far (a bus passes them on
+        asynchronously: waits for them, wall time only to bound a broken bus)."""
+        self.server.take_in(0.0)  # drain the bus even with nothing owed: over udp_multicast the board's
+        # own segments come back to its socket, which a board that does not read would let overflow (the
+        # kernel then drops what the host sends)
+        deadline = time.monotonic() + PTY_WALL_S
+        while self._segments_in() < self._host_sent:
+            if time.monotonic() > deadline:
+                raise AssertionError(
+                    f"the bus passed on {self._segments_in()} of the {self._host_sent} segments hosts sent"
+                )
+            self.server.take_in(0.005)
+
+    def advance(self, until: float) -> None:
+        """Run the board to board time ``until`` (its input taken in first), its output onto the bus."""
+        self.take_in()
+        self.clock.set(max(until, self.clock.now()))
+        self.server.pump(self.clock.now())
+
+    def check(self) -> None:
+        self.server.check()
+        super().check()
+
+
+class FirmwareSimCanFdTarget(FirmwareSimCanTarget):
+    fd = True
+
+
+class FirmwareSimMulticastTarget(FirmwareSimCanTarget):
+    interface = "udp_multicast"
+    needs_multicast = True
+
+
+class FirmwareSimMulticastFdTarget(FirmwareSimMulticastTarget):
+    fd = True
 
 
 class SimavrTarget:
@@ -241,6 +350,23 @@ class SimavrTarget:
 
     def __enter__(self) -> SimavrTarget:
         return self
+
+    reports_host_presence = False
+    """The harness holds the pty's slave open and reports bytes and frames, not who is on the link."""
+
+    @property
+    def stats(self) -> Any:
+        """The bridge's counters as the servers' statistics (``ServerStats``; host presence not seen)."""
+        from firmware_sim.servers.base import ServerStats
+
+        link = self.board.link_stats()
+        return ServerStats(
+            bytes_in=link["bytes_in"],
+            bytes_out=link["bytes_out"],
+            frames_in=link["frames_in"],
+            frames_out=link["frames_out"],
+            dropped_out=link["dropped_out"],
+        )
 
     def __exit__(self, *exc: object) -> None:
         self.board.close()
@@ -289,6 +415,10 @@ class SimavrTarget:
 # runs against it.
 TARGETS: dict[str, Any] = {
     "firmware_sim": FirmwareSimTarget,
+    "firmware_sim-can": FirmwareSimCanTarget,
+    "firmware_sim-canfd": FirmwareSimCanFdTarget,
+    "firmware_sim-udp_multicast": FirmwareSimMulticastTarget,
+    "firmware_sim-udp_multicast-fd": FirmwareSimMulticastFdTarget,
     "simavr": SimavrTarget,
 }
 

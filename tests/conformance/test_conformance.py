@@ -26,6 +26,7 @@ from protocol.messages import (
     FaultFlag,
     GimbalMode,
     Heartbeat,
+    Hello,
     PowerState,
     RawPulses,
     ResetCause,
@@ -306,7 +307,7 @@ def test_a_link_with_one_percent_corrupted_bytes_still_carries_the_exchange(targ
         cal = target.calibration(0)
         g = cal.gimbal_pulse_us(sp.units[0].gimbal, GimbalMode.RATE).value
         assert abs(tel.pulses_us[0] - g) <= spec.pulse_tolerance_us + 0.5
-        assert host.deframer.counters.bad_total > 0  # damage reached the host ...
+        assert host.damage_seen() > 0  # damage reached the host ...
         later = telemetry(host, timeout=2.0)
         # ... and the board, where 1 % per byte costs about a third of the 42-byte setpoint frames, no more.
         assert later.rx_bad > 0 and later.rx_frames > later.rx_bad
@@ -317,17 +318,23 @@ def test_a_link_with_one_percent_corrupted_bytes_still_carries_the_exchange(targ
     retry_if_starved(host, attempt, within=spec.link_timeout_s / 2, board=True)
 
 
+def torn_frame(host):
+    """A frame long enough to take several CAN FD segments, for a host to die while sending it."""
+    hello = Hello(schema_hash=SCHEMA_HASH, manufacturer="tests", description="d" * 48, serial="T1")
+    return host.framer.encode(hello)[1]
+
+
 def test_a_vanished_host_never_crashes_the_board(target, host):
     spec = target.spec
     armed_and_streaming(target, host, setpoint(spec))
-    host.port.write(b"\x05\x01\x20")  # half a frame, then the host is gone
+    host.send_torn(torn_frame(host))  # half a frame, then the host is gone
     host.close()
     target.idle(0.4)
     target.check()
     for _ in range(3):  # hosts come and go, some mid-frame
         h = connect(target)
         h.handshake()
-        h.port.write(b"\x07\x01")
+        h.send_torn(torn_frame(h))
         h.close()
         target.check()
     again = connect(target)
@@ -359,3 +366,41 @@ def test_the_boards_time_stamps_never_go_back_within_a_boot(target, host):
     assert len(stamps) > 20
     back = [(a, b) for a, b in zip(stamps, stamps[1:], strict=False) if b < a]
     assert not back, f"the board's uptime went back: {back[:5]}"
+
+
+def test_both_ends_count_the_same_link(target, host):
+    """The board side's statistics (``ServerStats``, the same type on every transport) against the
+    host's own counts: every byte and frame the host sent arrived, every frame the board sent reached the
+    host whole, nothing was lost or damaged on the way; and where the target tracks who is on the link,
+    the host's arrival, departure (a silence of ``HOST_SILENCE_S``) and return."""
+    from firmware_sim.servers.base import HOST_SILENCE_S
+
+    spec = target.spec
+    armed_and_streaming(target, host, setpoint(spec), seconds=0.5)
+    host.keepalive = heartbeat
+    telemetry(host)
+    host.poll(0.05)
+    stats = target.stats
+    if target.lockstep:  # a real-time board may still be taking in the last bytes: they are on their way
+        assert (stats.bytes_in, stats.frames_in) == (host.bytes_sent, host.frames_sent)
+    else:
+        assert stats.frames_in <= host.frames_sent and stats.bytes_in <= host.bytes_sent
+    counters = host.deframer.counters
+    assert counters.bad_total == 0 and stats.errors == 0 and stats.dropped_out == 0
+    if target.lockstep:
+        assert stats.bytes_out == host.bytes_received and stats.frames_out == counters.frames
+    else:
+        assert stats.frames_out >= counters.frames
+    if not target.reports_host_presence:
+        return
+    assert stats.host_present and (stats.host_gone, stats.reconnects) == (0, 0)
+    host.keepalive = None
+    host.close()
+    target.idle(HOST_SILENCE_S + 0.1)
+    assert not target.stats.host_present and target.stats.host_gone == 1
+    again = connect(target)
+    try:
+        again.handshake()
+        assert target.stats.host_present and target.stats.reconnects == 1
+    finally:
+        again.close()

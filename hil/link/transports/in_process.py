@@ -52,9 +52,10 @@ class SimulatedWorld(Protocol):
 
 class WorldStream(Protocol):
     """A world stepped in real time by its own thread, streaming its phone to a URL; ``check`` raises the
-    thread's error, ``max_lag_s`` is the furthest it fell behind the board's clock (s)."""
+    thread's error, ``max_lag_s`` is the furthest it fell behind the board's clock after start-up (s)."""
 
-    max_lag_s: float
+    @property
+    def max_lag_s(self) -> float: ...
 
     def check(self) -> None: ...
 
