@@ -162,6 +162,14 @@ class Recorder:
         assert self.offset is not None
         return time.monotonic() - self.offset
 
+    def steering(self, after: float, before: float = np.inf) -> dict[str, Any] | None:
+        """The first record of the host steering after ``after``: a ``resume`` (a recovery's slew), or a
+        ``slew_start`` when the fault came before the run's first slew (its warm-up started again)."""
+        found = [
+            e for e in (self.first("resume", after, before), self.first("slew_start", after, before)) if e
+        ]
+        return min(found, key=lambda e: e["t"], default=None)
+
     def first(self, kind: str, after: float, before: float = np.inf, **match: Any) -> dict[str, Any] | None:
         for e in self.events:
             if (
@@ -221,7 +229,7 @@ def check_recovery(c: Cycle, rec: Recorder, end: float, mode: str, faults: list[
     c.back_s = back["t"] - t0
     if c.back_s > BACK_S[mode]:
         c.problems.append(f"back in control {c.back_s:.2f} s after the fault (bound {BACK_S[mode]} s)")
-    resume = rec.first("resume", back["t"] - 1e-9, end)
+    resume = rec.steering(back["t"] - 1e-9, end)
     if resume is None:
         c.problems.append("never steering again")
     else:
@@ -320,7 +328,7 @@ def lockstep_kind(kind: str, cycles: int, out_root: Path, seed: int = 0) -> list
         c.problems += [f"{name}: {m}" for name, ms in report.violations.items() for m in ms]
         c.detection_s = min((s for _, s in report.detection), default=None)
         c.back_s = report.recovery[0][1] if report.recovery else None
-        resume = rec.first("resume", t)
+        resume = rec.steering(t)
         c.steering_s = None if resume is None else resume["t"] - t
         c.cause = ", ".join(sorted({f["kind"] for f in result.summary.get("faults", []) if f["t"] >= t})) or (
             "unseen: " + "; ".join(report.unseen) if report.unseen else "none"

@@ -29,6 +29,7 @@ class PhoneRelay:
         self.forwarded = self.dropped = 0
         self.newest_ns: int | None = None  # the newest SensaGram timestamp seen (the phone's clock)
         self._paused_until = 0.0
+        self._seen_listening = False
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="soak-relay", daemon=True)
 
@@ -44,6 +45,22 @@ class PhoneRelay:
     def pause(self, seconds: float) -> None:
         """Drop everything for ``seconds`` from now (monotonic)."""
         self._paused_until = time.monotonic() + seconds
+
+    def _listening(self) -> bool:
+        """Whether a socket is bound to the host's port yet (Linux: ``/proc/net/udp``). Until the host
+        listens, what the phone streams is lost and counted ``dropped``, not ``forwarded``: the kernel
+        takes a datagram for an unbound port without a word (sendto succeeds), and the soak's every-
+        datagram check would count it against the host. Once seen, it is not asked again."""
+        if self._seen_listening:
+            return True
+        suffix = f":{self.forward[1]:04X}"  # local_address is HEXIP:HEXPORT, the second field
+        try:
+            with open("/proc/net/udp") as table:
+                next(table)  # the header
+                self._seen_listening = any(line.split()[1].endswith(suffix) for line in table)
+        except OSError:
+            self._seen_listening = True  # no such table: the old behaviour, counted from the start
+        return self._seen_listening
 
     def stop_forwarding(self) -> None:
         """Forward nothing more (what comes is counted ``dropped``): the soak's end, before the host closes
@@ -64,7 +81,7 @@ class PhoneRelay:
                 continue
             except OSError:
                 return
-            if time.monotonic() < self._paused_until:
+            if time.monotonic() < self._paused_until or not self._listening():
                 self.dropped += 1
                 continue
             self._note_time(data)

@@ -165,7 +165,7 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
             if kind in ("hostile", "second_host"):
                 time.sleep(HOSTILE_WATCH_S)
                 _check_hostile(c, rec)
-            elif not _wait(lambda c=c: rec.first("resume", c.t_fault) is not None, STEER_S[mode] + 2.0):
+            elif not _wait(lambda c=c: rec.steering(c.t_fault) is not None, STEER_S[mode] + 2.0):
                 c.problems.append(f"not steering again within {STEER_S[mode] + 2.0} s (a hang?)")
             _wait(lambda: rec.start is not None and rec.start.host.in_control, BACK_S[mode])
     finally:
