@@ -25,59 +25,46 @@ attribute an :class:`~hil.estimation.interface.EstimatorKind`. In a ``pyproject.
 
 from __future__ import annotations
 
-import importlib
-import importlib.metadata
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 from hil.estimation.interface import Estimator, EstimatorKind, Site
+from hil.plugins import Registry
 from protocol.errors import ConfigError
 
 ENTRY_POINT_GROUP = "vscmg_hil.estimators"
 DEFAULT_ESTIMATOR = "variational"
 
 # name -> "module:attribute", the attribute an EstimatorKind
-_REGISTRY: dict[str, str] = {
-    "variational": "hil.estimation.variational_kind:VARIATIONAL",
-    "vqf": "hil.estimation.vqf_adapter:VQF_ESTIMATOR",
-}
-_discovered = False
-
-
-def _discover() -> None:
-    """Add the estimators installed packages register as entry points (once; :func:`register_estimator`
-    and the built-in names win)."""
-    global _discovered
-    if _discovered:
-        return
-    _discovered = True
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        _REGISTRY.setdefault(entry.name.lower(), entry.value)
+_REGISTRY = Registry(
+    ENTRY_POINT_GROUP,
+    {
+        "variational": "hil.estimation.variational_kind:VARIATIONAL",
+        "vqf": "hil.estimation.vqf_adapter:VQF_ESTIMATOR",
+    },
+)
 
 
 def register_estimator(name: str, target: str) -> None:
     """Add (or replace) the estimator called ``name``; ``target`` is ``"module:attribute"``, the attribute
     an :class:`~hil.estimation.interface.EstimatorKind`."""
-    _REGISTRY[name.lower()] = target
+    _REGISTRY.register(name, target)
 
 
 def estimator_names() -> list[str]:
     """Every estimator's name, registered or installed."""
-    _discover()
-    return sorted(_REGISTRY)
+    return _REGISTRY.names()
 
 
 def estimator_kind(name: str, where: str = "estimator") -> EstimatorKind:
     """The estimator kind called ``name``; ConfigError naming ``where`` for an unknown name or one whose
     module cannot be imported."""
-    _discover()
-    target = _REGISTRY.get(name.lower())
+    target = _REGISTRY.target(name)
     if target is None:
         raise ConfigError(f"unknown estimator {name!r} (known: {', '.join(estimator_names())})", where)
-    module_name, _, attr = target.partition(":")
     try:
-        kind: EstimatorKind = getattr(importlib.import_module(module_name), attr)
+        kind: EstimatorKind = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
         raise ConfigError(f"estimator {name!r} ({target}) is not available: {exc}", where) from exc
     return kind

@@ -33,47 +33,36 @@ whose name is the scheme, in its ``pyproject.toml``::
 
 from __future__ import annotations
 
-import importlib
-import importlib.metadata
 from urllib.parse import urlsplit
 
 from hil.link.sources.base import GroundTruth, PhoneSource, SourceContext, SourceFactory
 from hil.link.sources.listening import ListeningSource, open_receiver, open_sender, phone_url
 from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
+from hil.plugins import Registry
 from protocol.errors import ConfigError
 
 ENTRY_POINT_GROUP = "vscmg_hil.phone_sources"
 DEFAULT_PHONE_URL = "udp://127.0.0.1:8123"
 
 # scheme -> "module:factory": hil's own, then the installed entry points and register().
-_REGISTRY: dict[str, str] = {
-    "udp": "hil.link.sources.listening:listen",
-    "http": "hil.link.sources.listening:listen",
-    "recording": "hil.link.sources.recorded:play",
-    "sim": "hil.link.sources.simulated:simulated_phone",
-}
-_discovered = False
-
-
-def _discover() -> None:
-    """Add the schemes installed packages register as entry points (once; :func:`register` and the
-    built-in schemes win)."""
-    global _discovered
-    if _discovered:
-        return
-    _discovered = True
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        _REGISTRY.setdefault(entry.name.lower(), entry.value)
+_REGISTRY = Registry(
+    ENTRY_POINT_GROUP,
+    {
+        "udp": "hil.link.sources.listening:listen",
+        "http": "hil.link.sources.listening:listen",
+        "recording": "hil.link.sources.recorded:play",
+        "sim": "hil.link.sources.simulated:simulated_phone",
+    },
+)
 
 
 def register(scheme: str, target: str) -> None:
     """Add (or replace) the phone source for ``scheme``; ``target`` is ``"module:factory"``."""
-    _REGISTRY[scheme.lower()] = target
+    _REGISTRY.register(scheme, target)
 
 
 def schemes() -> list[str]:
-    _discover()
-    return sorted(_REGISTRY)
+    return _REGISTRY.names()
 
 
 def source_url(address: str) -> str:
@@ -87,17 +76,12 @@ def create_source(address: str, context: SourceContext, where: str = "--phone") 
     a source that cannot open (a busy port) raises its own error."""
     url = source_url(address)
     scheme = urlsplit(url).scheme.lower()
-    _discover()
-    target = _REGISTRY.get(scheme)
+    target = _REGISTRY.target(scheme)
     if target is None:
-        known = schemes()
-        why = f"unknown phone source scheme {scheme!r} (known: {', '.join(known)})"
-        if "udp" not in known:  # an install older than the entry points: its metadata lacks the built-ins
-            why += "; the built-in schemes are vscmg-hil's entry points: install it again (pip install -e .)"
+        why = f"unknown phone source scheme {scheme!r} (known: {', '.join(schemes())})"
         raise ConfigError(f"{address!r}: {why}", where)
-    module_name, _, attr = target.partition(":")
     try:
-        factory: SourceFactory = getattr(importlib.import_module(module_name), attr)
+        factory: SourceFactory = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
         raise ConfigError(f"{address!r}: phone source {target} is not available: {exc}", where) from exc
     return factory(url, context)

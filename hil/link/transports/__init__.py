@@ -30,9 +30,7 @@ takes the URL and returns an unopened :class:`Transport`). ``firmware_sim`` regi
 
 from __future__ import annotations
 
-import importlib
-import importlib.metadata
-
+from hil.plugins import Registry
 from protocol.errors import TransportError
 
 from .base import Transport, UrlOptions
@@ -41,35 +39,26 @@ from .in_process import InProcessBoard, SimulatedWorld, WorldStream, WorldTruth
 ENTRY_POINT_GROUP = "vscmg_hil.transports"
 
 # scheme -> "module:factory"; the factory takes the URL and returns an unopened Transport.
-_REGISTRY: dict[str, str] = {
-    "socket": "hil.link.transports.serial_port:SerialTransport",
-    "loop": "hil.link.transports.serial_port:SerialTransport",
-    "spy": "hil.link.transports.serial_port:SerialTransport",
-    "rfc2217": "hil.link.transports.serial_port:SerialTransport",
-    "hwgrep": "hil.link.transports.serial_port:SerialTransport",
-    "can": "hil.link.transports.can_bus:CanTransport",
-}
-_discovered = False
-
-
-def _discover() -> None:
-    """Add the schemes installed packages register as entry points (once; :func:`register` wins)."""
-    global _discovered
-    if _discovered:
-        return
-    _discovered = True
-    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
-        _REGISTRY.setdefault(entry.name.lower(), entry.value)
+_REGISTRY = Registry(
+    ENTRY_POINT_GROUP,
+    {
+        "socket": "hil.link.transports.serial_port:SerialTransport",
+        "loop": "hil.link.transports.serial_port:SerialTransport",
+        "spy": "hil.link.transports.serial_port:SerialTransport",
+        "rfc2217": "hil.link.transports.serial_port:SerialTransport",
+        "hwgrep": "hil.link.transports.serial_port:SerialTransport",
+        "can": "hil.link.transports.can_bus:CanTransport",
+    },
+)
 
 
 def register(scheme: str, target: str) -> None:
     """Add (or replace) the transport for ``scheme``; ``target`` is ``"module:factory"``."""
-    _REGISTRY[scheme] = target
+    _REGISTRY.register(scheme, target)
 
 
 def schemes() -> list[str]:
-    _discover()
-    return sorted(_REGISTRY)
+    return _REGISTRY.names()
 
 
 def _scheme_of(url: str) -> str:
@@ -85,13 +74,11 @@ def create_transport(url: str) -> Transport:
         from .serial_port import SerialTransport
 
         return SerialTransport(url)
-    _discover()
-    target = _REGISTRY.get(scheme)
+    target = _REGISTRY.target(scheme)
     if target is None:
         raise TransportError(f"{url}: unknown transport scheme {scheme!r} (known: {', '.join(schemes())})")
-    module_name, _, attr = target.partition(":")
     try:
-        factory = getattr(importlib.import_module(module_name), attr)
+        factory = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
         raise TransportError(f"{url}: transport {target} is not available: {exc}") from exc
     transport: Transport = factory(url)
