@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -61,16 +62,21 @@ def _board(link: Path, phone_url: str, target: str = "python") -> subprocess.Pop
             "--avr",
             *load_scenario(SCENARIO).firmware_sim_argv()[2:],
         ]  # the board options, not --units
+    errors = tempfile.TemporaryFile(mode="w+")  # what it says if it does not start (kept by the OS)
     sim = subprocess.Popen(
         [sys.executable, "-m", "firmware_sim", "--link", str(link), *options],
         stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
+        stderr=errors,
         text=True,
     )
     assert sim.stdout is not None
-    if not sim.stdout.readline().startswith("/dev/pts/"):
+    first = sim.stdout.readline()
+    if not first.startswith("/dev/pts/"):
         sim.kill()
-        raise RuntimeError("firmware-sim did not start")
+        sim.wait()
+        errors.seek(0)
+        said = (first + errors.read())[-2000:]
+        raise RuntimeError(f"firmware-sim did not start (exit {sim.returncode}): {said}")
     return sim
 
 
