@@ -19,12 +19,20 @@ from __future__ import annotations
 import importlib.util
 import os
 import shutil
+import signal
 import socket
 from collections.abc import Callable
 
 import pytest
 
 from firmware_sim.avr.build import install_hint, missing_tools, toolchain_message
+
+# A test run started in the background by a non-interactive shell (`cmd &`, as CI runners and nohup do)
+# inherits SIGINT ignored, and every process it starts would too: the tests that press Ctrl-C on a
+# `python -m hil` subprocess (calibration, runs) would see it ignored. Ctrl-C is restored for them here;
+# a signal handler, unlike SIG_IGN, is not inherited through exec, so each child starts with the default.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 REQUIRE_ALL = "VSCMG_HIL_REQUIRE_ALL"
 PRETEND_MISSING = "VSCMG_HIL_PRETEND_MISSING"
