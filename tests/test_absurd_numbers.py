@@ -261,7 +261,10 @@ def test_a_campaign_of_ten_million_runs_holds_nothing_per_run_before_its_first_r
         assert total == 10_000_000
         raise FirstResult
 
-    with open_client(workers=1, processes=False) as client:
+    # The worker is a process: tracemalloc counts the driver alone, and no thread of this process runs a
+    # compiled kernel (which allocates without the GIL) while tracemalloc stops — CPython before 3.12.9
+    # can crash then (python/cpython#128679: a CI run died in a worker thread's filter step here).
+    with open_client(workers=1, processes=True) as client:
         counting = _CountingClient(client)
         tracemalloc.start()
         try:
