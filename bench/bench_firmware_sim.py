@@ -78,22 +78,25 @@ def _process(args: list[str], ready: str = "/dev/") -> Iterator[tuple[subprocess
             proc.wait()
 
 
-def _emulator(frame_rate: int, telemetry_rate: int) -> Any:
-    return _process(
-        [
-            sys.executable,
-            "-m",
-            "firmware_sim",
-            "--units",
-            str(N_UNITS),
-            "--frame-rate",
-            str(frame_rate),
-            "--telemetry-rate",
-            str(telemetry_rate),
-            "--link-timeout",
-            "2",
-        ]
-    )
+def _emulator(frame_rate: int, telemetry_rate: int, can: str | None = None) -> Any:
+    """``firmware-sim`` with ``N_UNITS`` units in its own process, on a pty, or on the CAN bus ``can``
+    (``can://…``) when given; yields (the process, what the host opens)."""
+    argv = [
+        sys.executable,
+        "-m",
+        "firmware_sim",
+        "--units",
+        str(N_UNITS),
+        "--frame-rate",
+        str(frame_rate),
+        "--telemetry-rate",
+        str(telemetry_rate),
+        "--link-timeout",
+        "2",
+    ]
+    if can is not None:
+        return _process([*argv, "--can", can], ready="can://")
+    return _process(argv)
 
 
 def _setpoint(speed: float, gimbal_rate: float = 0.1) -> ActuatorSetpoint:
@@ -101,19 +104,22 @@ def _setpoint(speed: float, gimbal_rate: float = 0.1) -> ActuatorSetpoint:
 
 
 class _Host:
-    def __init__(self, path: str) -> None:
-        self.port = serial.Serial(path, timeout=0.001)
+    """The bench's bare host: framer, deframer and a transport opened from ``url`` (a pty path, a
+    ``can://`` URL: :func:`hil.link.transports.open_transport`), no client, so what is measured is the
+    link and the board."""
+
+    def __init__(self, url: str) -> None:
+        from hil.link.transports import open_transport
+
+        self.link = open_transport(url)
         self.framer = Framer()
         self.deframer = Deframer()
 
     def send(self, msg: Any) -> None:
-        self.port.write(self.framer.encode(msg)[1])
+        self.link.write(self.framer.encode(msg)[1])
 
     def messages(self, timeout: float) -> list[Any]:
-        self.port.timeout = timeout
-        data = self.port.read(1)
-        if data and self.port.in_waiting:
-            data += self.port.read(self.port.in_waiting)
+        data = self.link.read(timeout)
         return [e.message for e in self.deframer.feed(data) if isinstance(e, Frame)]
 
     def wait(self, cls: type, timeout: float = 2.0) -> Any:
@@ -135,6 +141,9 @@ class _Host:
         self.send(Arm())
         self.wait(Ack)
 
+    def close(self) -> None:
+        self.link.close()
+
 
 RATES = (2_000, 5_000, 10_000, 20_000, 40_000)  # setpoint frames/s offered to the emulator
 LOSS_OK = 0.001  # a rate is sustained while at most this fraction of the frames is lost
@@ -145,16 +154,17 @@ def _decoded(host: _Host) -> int:
     return int(host.wait(Telemetry, 1.0).rx_frames)
 
 
-def _offer(host: _Host, frame: bytes, rate: float, seconds: float) -> tuple[int, int]:
-    """Write ``frame`` at ``rate`` frames/s on absolute 1 ms deadlines for ``seconds``, reading what the
-    board sends meanwhile; returns (frames sent, frames the board decoded)."""
+def _offer(host: _Host, frames: list[bytes], rate: float, seconds: float) -> tuple[int, int]:
+    """Write ``frames`` round after round at ``rate`` frames/s on absolute 1 ms deadlines for
+    ``seconds``, reading what the board sends meanwhile; returns (frames sent, frames the board
+    decoded)."""
     before = _decoded(host)
     sent = 0
     t0 = time.perf_counter()
     while (now := time.perf_counter() - t0) < seconds:
         due = int(now * rate) + 1 - sent  # frames due by now
         if due > 0:
-            host.port.write(frame * due)
+            host.link.write(b"".join(frames[(sent + k) % len(frames)] for k in range(due)))
             sent += due
         host.messages(0.0)
         time.sleep(max(0.0, 0.001 - (time.perf_counter() - t0 - now)))
@@ -163,23 +173,35 @@ def _offer(host: _Host, frame: bytes, rate: float, seconds: float) -> tuple[int,
     return sent, _decoded(host) - before
 
 
-def _frames_per_second(seconds: float) -> tuple[float, float, str]:
-    """The highest setpoint rate the emulator decodes through the pty without losing frames (≤ 0.1 %),
-    stepping the offered rate up; and a raw pty sink taking the same bytes as fast as they come."""
-    with _emulator(50, 50) as (_, path):
-        host = _Host(path)
+def sustained_rate(
+    seconds: float, can: str | None = None, rates: tuple[int, ...] = RATES
+) -> tuple[float, str]:
+    """The highest setpoint rate (frames/s) the emulator decodes without losing frames (≤ 0.1 %), on a
+    pty or on the CAN bus ``can``, stepping the offered ``rates`` up; and a note of each step's loss."""
+    with _emulator(50, 50, can) as (_, where):
+        host = _Host(where)
         host.session()
-        frame = host.framer.encode(_setpoint(300.0))[1]
+        # One frame per sequence number, as a host's stream has them: byte-identical repeats would be
+        # taken for CAN double receptions by the bus's reassembly (protocol.can) and not delivered.
+        frames = [host.framer.encode(_setpoint(300.0))[1] for _ in range(256)]
         sustained = 0.0
         steps = []
-        for rate in RATES:
-            sent, decoded = _offer(host, frame, rate, seconds)
+        for rate in rates:
+            sent, decoded = _offer(host, frames, rate, seconds)
             loss = 1.0 - decoded / sent
             steps.append(f"{rate / 1000:g}k: {max(loss, 0.0):.1%} lost")
             if loss > LOSS_OK:
                 break
             sustained = decoded / seconds
-        host.port.close()
+        host.close()
+    return sustained, f"{len(frames[0])}-byte 4-unit setpoints offered at rising rates ({', '.join(steps)})"
+
+
+def _frames_per_second(seconds: float) -> tuple[float, float, str]:
+    """:func:`sustained_rate` through a pty; and a raw pty sink taking the same bytes as fast as they
+    come."""
+    sustained, note = sustained_rate(seconds)
+    frame = Framer().encode(_setpoint(300.0))[1]
     batch = frame * 64
     with _process([sys.executable, "-c", _PEER, "sink"]) as (proc, path):
         port = serial.Serial(path, timeout=0.01)
@@ -194,19 +216,18 @@ def _frames_per_second(seconds: float) -> tuple[float, float, str]:
         proc.stdin.flush()
         peer_rate = int(proc.stdout.readline()) / elapsed
         port.close()
-    note = f"{len(frame)}-byte 4-unit setpoints offered at rising rates ({', '.join(steps)})"
     return sustained, peer_rate, note
 
 
-def _latency(samples: int) -> tuple[list[float], list[float], int]:
-    """Host setpoint → Telemetry showing the new gimbal pulse (ms), a raw pty echo of the same bytes (ms),
+def pulse_latency(samples: int, can: str | None = None) -> tuple[list[float], int]:
+    """Host setpoint → Telemetry showing the new gimbal pulse (ms), on a pty or on the CAN bus ``can``,
     and the samples given up (no report within 0.5 s). The gimbal channel is used because its RATE-mode
     pulse depends on the setpoint alone (a rotor pulse also follows the battery voltage)."""
     out: list[float] = []
     lost = 0
     rates = (0.1, 0.3)
-    with _emulator(490, 1000) as (_, path):
-        host = _Host(path)
+    with _emulator(490, 1000, can) as (_, where):
+        host = _Host(where)
         host.session()
         expect: dict[float, int] = {}
         for rate in rates:  # the pulse each setpoint gives, once settled
@@ -228,7 +249,14 @@ def _latency(samples: int) -> tuple[list[float], list[float], int]:
                     break
             else:
                 lost += 1
-        host.port.close()
+        host.close()
+    return out, lost
+
+
+def _latency(samples: int) -> tuple[list[float], list[float], int]:
+    """:func:`pulse_latency` through a pty, a raw pty echo of the same bytes (ms), and the samples given
+    up."""
+    out, lost = pulse_latency(samples)
     echo: list[float] = []
     with _process([sys.executable, "-c", _PEER, "echo"]) as (_, path):
         port = serial.Serial(path, timeout=1.0)

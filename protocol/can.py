@@ -234,15 +234,17 @@ class _Partial:
 class _Stream:
     """One arbitration id: frames being assembled; the segment that completed the last delivered frame
     (transfer id, index, bytes) while it is the last segment heard (a double reception follows its
-    original at once: that repeat is dropped at once); and the last frame delivered under each transfer
-    id, so that a repeat arriving later, whose segments assemble into a frame byte for byte equal to one
-    already delivered under its transfer id, is recognised as a duplicate too. Single segments are never
-    judged against delivered frames: a later frame four transfer ids on (the frames between lost whole)
-    may share a segment with one — a last segment holding only the delimiter, say."""
+    original at once: that repeat is dropped at once); and the last frame delivered (transfer id, wire
+    bytes), so that a repeat arriving later, before the sender's next frame, whose segments assemble into
+    that frame byte for byte under its transfer id, is recognised as a duplicate too. Only the *last*
+    frame: a frame four transfer ids on that equals an older one byte for byte is the sender's — a command
+    retransmitted with its sequence number, or a stream of identical frames — and is delivered. Single
+    segments are never judged against delivered frames: a later frame four transfer ids on (the frames
+    between lost whole) may share a segment with one — a last segment holding only the delimiter, say."""
 
     partials: OrderedDict[int, _Partial] = field(default_factory=OrderedDict)
     completed_by: tuple[int, int, bytes] | None = None
-    delivered: dict[int, bytes] = field(default_factory=dict)  # transfer id -> the last wire frame delivered
+    delivered: tuple[int, bytes] | None = None  # (transfer id, wire frame) of the last frame delivered
 
 
 def _intact(wire: bytes) -> bool:
@@ -344,10 +346,10 @@ class CanReassembler:
             return b""
         del partials[tid]
         stream.completed_by = (tid, index, chunk)
-        if stream.delivered.get(tid) == wire:
-            self.stats.duplicates += len(partial.segments)  # a late repeat of a delivered frame
+        if stream.delivered == (tid, wire):
+            self.stats.duplicates += len(partial.segments)  # a late repeat of the frame just delivered
             return b""
-        stream.delivered[tid] = wire
+        stream.delivered = (tid, wire)
         self.stats.frames += 1
         return wire
 

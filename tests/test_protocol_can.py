@@ -360,3 +360,19 @@ def test_double_reception_delivers_each_frame_once(fd):
     assert [e.seq for e in events] == list(range(9))
     assert rx.stats.frames == 9 and rx.stats.incomplete == 0
     assert rx.stats.duplicates == sum(len(seg.segment(encode_frame(m, 0))) for m in sent)
+
+
+@pytest.mark.parametrize("fd", [False, True])
+def test_byte_identical_frames_one_after_another_are_all_delivered(fd):
+    """A sender's frame equal byte for byte to one it sent four transfer ids before is new, not a
+    repeat: a command retransmitted under its sequence number (five tries), or a stream of one frame
+    written again and again. Each one is delivered (only a repeat of the frame just delivered is not)."""
+    seg = CanSegmenter(NODE, Direction.TO_BOARD, fd=fd)
+    rx = CanReassembler(NODE, Direction.TO_BOARD)
+    wire = encode_frame(ActuatorSetpoint(units=(UnitSetpoint(0.1, 300.0),) * 4), 17)
+    delivered = []
+    for _ in range(9):
+        for f in seg.segment(wire):
+            delivered.append(rx.feed(f.arbitration_id, f.data, fd))
+    assert [d for d in delivered if d] == [wire] * 9
+    assert rx.stats.frames == 9 and rx.stats.duplicates == 0 and rx.stats.incomplete == 0

@@ -1,0 +1,177 @@
+"""Real time over each transport, in one run: the same board (``firmware-sim`` in its own process) behind a
+pty and on a CAN bus (python-can's ``udp_multicast``, classic CAN and CAN FD), the same measurements on
+each, every CAN figure next to the pty's measured in the same run (the pty is the peer: the link the
+project was built on, and what a USB-serial board gives).
+
+Per transport:
+
+* **setpoint → pulse reported, p50 / p99** — a bare host (framer, deframer and the transport: no client)
+  sends a setpoint and waits for the Telemetry showing the new gimbal pulse (490 Hz pulse frames, 1 kHz
+  telemetry): :func:`bench.bench_firmware_sim.pulse_latency`;
+* **setpoints sustained with 0 loss** — setpoint frames offered at rising rates on 1 ms deadlines; the
+  highest rate the board decodes with at most 0.1 % lost (the board's own ``rx_frames``):
+  :func:`bench.bench_firmware_sim.sustained_rate`;
+* **the closed loop** — ``hil run --port`` (its own process) against ``firmware-sim --world cubesat-1u``
+  (the world's phone streaming to it): the host's control lateness p99 and overruns (``summary.json``),
+  and the world's lag behind the board's clock after start-up, as firmware-sim reports it when stopped.
+
+A machine without an IPv4 multicast route cannot carry ``udp_multicast``: the CAN rows are then left out
+with that reason in a note, and the pty's are still measured.
+
+    python -m bench transports [--quick]
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+from bench.bench_firmware_sim import RATES, _pct, pulse_latency, sustained_rate
+from bench.common import Result
+from hil.scenario import load_scenario
+
+NAME = "transports"
+SCENARIO = "cubesat-1u"
+CAN_RATES = (500, 1_000, *RATES)
+"""Setpoint frames/s offered on a bus (each frame is several CAN segments, each a UDP datagram here)."""
+
+_WORLD_LINE = re.compile(
+    r"started (?P<startup>\d+) ms behind the board's clock, then (?P<episodes>\d+) lag episode\(s\), "
+    r"at most (?P<max>\d+) ms behind"
+)
+
+
+def can_url(fd: bool) -> str:
+    """A ``can://udp_multicast/…`` URL on a group and port drawn at random (another run on this machine is
+    on another bus)."""
+    group = f"239.74.{random.randint(0, 255)}.{random.randint(1, 254)}"
+    return f"can://udp_multicast/{group}?port={random.randint(40_000, 60_000)}&fd={int(fd)}"
+
+
+def multicast_problem() -> str | None:
+    """Why ``udp_multicast`` cannot carry a frame here, or None when it can (one frame, two buses)."""
+    import can
+
+    url = can_url(False)
+    group, _, rest = url.removeprefix("can://udp_multicast/").partition("?port=")
+    port = int(rest.partition("&")[0])
+    try:
+        with (
+            can.Bus(interface="udp_multicast", channel=group, port=port) as a,
+            can.Bus(interface="udp_multicast", channel=group, port=port) as b,
+        ):
+            a.send(can.Message(arbitration_id=0x123, data=b"probe", is_extended_id=False))
+            for _ in range(20):
+                msg = b.recv(0.1)
+                if msg is not None and msg.arbitration_id == 0x123:
+                    return None
+    except (OSError, can.CanError) as exc:
+        return f"IPv4 multicast is not available here: {exc}"
+    return f"a frame sent to {group} never arrived (no multicast route?)"
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def closed_loop(duration_s: float, can: str | None) -> dict[str, float]:
+    """``hil run --port`` against ``firmware-sim --world`` on a pty or on the bus ``can`` for
+    ``duration_s`` s: control lateness p99 and max (µs), overruns, and the world's lag (ms) after
+    start-up, with its episodes."""
+    phone = f"udp://127.0.0.1:{_free_udp_port()}"
+    with tempfile.TemporaryDirectory(prefix="bench-transports-") as tmp:
+        link = Path(tmp) / "board"
+        where = ["--can", can] if can is not None else ["--link", str(link)]
+        sim = subprocess.Popen(
+            [sys.executable, "-m", "firmware_sim", "--world", SCENARIO, "--phone", phone, *where],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+            assert sim.stdout is not None
+            port = sim.stdout.readline().strip()
+            if not port:
+                raise RuntimeError(f"firmware-sim did not start: {sim.communicate(timeout=10)[1][-999:]}")
+            port = port if can is not None else str(link)
+            argv = [sys.executable, "-m", "hil", "run", "--port", port, "--phone", phone, "--duration",
+                    str(duration_s), "--no-plots", "--out", tmp]  # fmt: skip
+            done = subprocess.run(argv, capture_output=True, text=True, timeout=duration_s + 240, check=False)
+        finally:
+            sim.send_signal(signal.SIGINT)
+            _, said = sim.communicate(timeout=20)
+        written = sorted(Path(tmp).glob("*/summary.json"))
+        if not written:
+            raise RuntimeError(f"hil run left no summary (exit {done.returncode}): {done.stderr[-999:]}")
+        summary = json.loads(written[0].read_text())
+    world = _WORLD_LINE.search(said)
+    if world is None:
+        raise RuntimeError(f"firmware-sim did not report its world's lag: {said[-999:]}")
+    control = summary["tasks"]["control"]
+    return {
+        "lateness_p99_us": float(control["lateness_p99_us"]),
+        "lateness_max_us": float(control["lateness_max_us"]),
+        "overruns": float(control["overruns"]),
+        "world_startup_ms": float(world["startup"]),
+        "world_lag_max_ms": float(world["max"]),
+        "world_episodes": float(world["episodes"]),
+    }
+
+
+def _measure(samples: int, seconds: float, duration_s: float, can: str | None) -> dict[str, float]:
+    latency, lost = pulse_latency(samples, can)
+    rate, note = sustained_rate(seconds, can, CAN_RATES if can is not None else RATES)
+    loop = closed_loop(duration_s, can)
+    return {
+        "p50": statistics.median(latency),
+        "p99": _pct(latency, 99),
+        "lost": float(lost),
+        "samples": float(len(latency)),
+        "rate": rate,
+        "rate_note": note,  # type: ignore[dict-item]
+        **loop,
+    }
+
+
+def _rows(label: str, ours: dict[str, float], pty: dict[str, float]) -> list[Result]:
+    peer = "pty, same run"
+    rows = [
+        Result(NAME, f"{label}: setpoint -> pulse reported p50", ours["p50"], "ms", peer, pty["p50"], False,
+               f"{ours['samples']:.0f} samples, {ours['lost']:.0f} given up after 0.5 s"),
+        Result(NAME, f"{label}: setpoint -> pulse reported p99", ours["p99"], "ms", peer, pty["p99"], False),
+        Result(NAME, f"{label}: setpoints sustained (<= 0.1 % lost)", ours["rate"], "frames/s", peer,
+               pty["rate"], True, str(ours["rate_note"])),
+        Result(NAME, f"{label}: hil run control lateness p99", ours["lateness_p99_us"], "us", peer,
+               pty["lateness_p99_us"], False, f"max {ours['lateness_max_us']:.0f} us, "
+               f"{ours['overruns']:.0f} overruns"),
+        Result(NAME, f"{label}: world lag after start-up, max", ours["world_lag_max_ms"], "ms", peer,
+               pty["world_lag_max_ms"], False, f"{ours['world_episodes']:.0f} lag episode(s); started "
+               f"{ours['world_startup_ms']:.0f} ms behind"),
+    ]  # fmt: skip
+    return rows
+
+
+def run(quick: bool) -> list[Result]:
+    samples = 30 if quick else 300
+    seconds = 0.5 if quick else 2.0
+    duration_s = 12.0 if quick else load_scenario(SCENARIO).slew.duration_s
+    pty = _measure(samples, seconds, duration_s, None)
+    results = _rows("pty", pty, pty)
+    problem = multicast_problem()
+    if problem is not None:
+        results.append(Result(NAME, "CAN (udp_multicast)", float("nan"), "", "", None, False,
+                              f"not measured: {problem}"))  # fmt: skip
+        return results
+    for label, fd in (("CAN classic", False), ("CAN FD", True)):
+        results += _rows(label, _measure(samples, seconds, duration_s, can_url(fd)), pty)
+    return results
