@@ -1,0 +1,80 @@
+"""The same link statistics on both sides of every transport: the board client's count of what it sent and
+took against ``firmware-sim``'s (in another process) count of what it took and sent, over a pty and over a
+CAN bus (``udp_multicast``, classic CAN and CAN FD) — and the host's coming and going reported alike."""
+
+from __future__ import annotations
+
+import random
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.test_can_link import exchange
+
+_STOPPED = re.compile(
+    r"firmware-sim: stopped; (?P<bytes_in>\d+) bytes in, (?P<bytes_out>\d+) out, "
+    r"(?P<frames_in>\d+) frames in, (?P<frames_out>\d+) out; "
+    r"host left (?P<gone>\d+) time\(s\), came back (?P<back>\d+); "
+    r"(?P<errors>\d+) link error\(s\)"
+)
+
+
+def _where(transport: str, tmp_path: Path) -> list[str]:
+    if transport == "pty":
+        return ["--link", str(tmp_path / "board")]
+    group = f"239.74.{random.randint(0, 255)}.{random.randint(1, 254)}"
+    fd = int(transport == "can-fd")
+    return ["--can", f"udp_multicast/{group}?port={random.randint(40_000, 60_000)}&fd={fd}"]
+
+
+@pytest.mark.parametrize(
+    "transport",
+    [
+        "pty",
+        pytest.param("can", marks=pytest.mark.udp_multicast),
+        pytest.param("can-fd", marks=pytest.mark.udp_multicast),
+    ],
+)
+def test_both_ends_count_the_same_frames_and_the_host_leaving(transport, tmp_path):
+    board = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "firmware_sim",
+            "--units",
+            "2",
+            "--telemetry-rate",
+            "50",
+            *_where(transport, tmp_path),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert board.stdout is not None
+        url = board.stdout.readline().strip()
+        assert url, board.stderr.read() if board.stderr else ""
+        client = exchange(str(tmp_path / "board") if transport == "pty" else url, 2)
+        time.sleep(1.5)  # the host is silent (closed) for longer than HOST_SILENCE_S: gone
+    finally:
+        board.terminate()
+        board.wait(5)
+    err = board.stderr.read() if board.stderr else ""
+    assert board.returncode == 0, err
+    stopped = _STOPPED.search(err)
+    assert stopped is not None, err
+    board_side = {k: int(v) for k, v in stopped.groupdict().items()}
+    host = client.stats()
+    # Every frame the host wrote was taken, whole; the board sent at least what the host took (it talks
+    # before the host arrives, and on a bus nobody keeps what no host heard).
+    assert board_side["frames_in"] == host.counters.frames_out, (board_side, host.counters)
+    assert board_side["bytes_in"] == host.bytes_out, (board_side, host.bytes_out)
+    assert 0 < host.frames_in <= board_side["frames_out"], (board_side, host.frames_in)
+    assert board_side["errors"] == 0 and host.bad_frames_total == 0
+    assert board_side["gone"] == 1 and board_side["back"] == 0, err
+    assert "host connected" in err and "host left" in err, err
