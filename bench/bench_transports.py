@@ -24,7 +24,6 @@ with that reason in a note, and the pty's are still measured.
 from __future__ import annotations
 
 import json
-import random
 import re
 import signal
 import socket
@@ -35,6 +34,7 @@ import tempfile
 from pathlib import Path
 
 from bench.bench_firmware_sim import RATES, _pct, pulse_latency, sustained_rate
+from bench.can_bus import multicast_url, udp_multicast_problem
 from bench.common import Result
 from hil.scenario import load_scenario
 
@@ -47,35 +47,6 @@ _WORLD_LINE = re.compile(
     r"started (?P<startup>\d+) ms behind the board's clock, then (?P<episodes>\d+) lag episode\(s\), "
     r"at most (?P<max>\d+) ms behind"
 )
-
-
-def can_url(fd: bool) -> str:
-    """A ``can://udp_multicast/…`` URL on a group and port drawn at random (another run on this machine is
-    on another bus)."""
-    group = f"239.74.{random.randint(0, 255)}.{random.randint(1, 254)}"
-    return f"can://udp_multicast/{group}?port={random.randint(40_000, 60_000)}&fd={int(fd)}"
-
-
-def multicast_problem() -> str | None:
-    """Why ``udp_multicast`` cannot carry a frame here, or None when it can (one frame, two buses)."""
-    import can
-
-    url = can_url(False)
-    group, _, rest = url.removeprefix("can://udp_multicast/").partition("?port=")
-    port = int(rest.partition("&")[0])
-    try:
-        with (
-            can.Bus(interface="udp_multicast", channel=group, port=port) as a,
-            can.Bus(interface="udp_multicast", channel=group, port=port) as b,
-        ):
-            a.send(can.Message(arbitration_id=0x123, data=b"probe", is_extended_id=False))
-            for _ in range(20):
-                msg = b.recv(0.1)
-                if msg is not None and msg.arbitration_id == 0x123:
-                    return None
-    except (OSError, can.CanError) as exc:
-        return f"IPv4 multicast is not available here: {exc}"
-    return f"a frame sent to {group} never arrived (no multicast route?)"
 
 
 def _free_udp_port() -> int:
@@ -167,11 +138,11 @@ def run(quick: bool) -> list[Result]:
     duration_s = 12.0 if quick else load_scenario(SCENARIO).slew.duration_s
     pty = _measure(samples, seconds, duration_s, None)
     results = _rows("pty", pty, pty)
-    problem = multicast_problem()
+    problem = udp_multicast_problem()
     if problem is not None:
         results.append(Result(NAME, "CAN (udp_multicast)", float("nan"), "", "", None, False,
                               f"not measured: {problem}"))  # fmt: skip
         return results
     for label, fd in (("CAN classic", False), ("CAN FD", True)):
-        results += _rows(label, _measure(samples, seconds, duration_s, can_url(fd)), pty)
+        results += _rows(label, _measure(samples, seconds, duration_s, multicast_url(fd)), pty)
     return results

@@ -19,6 +19,13 @@ hostile       pty         hostile datagrams to the host's phone port
                           (:func:`bench.soak_phone.hostile_datagrams`)
 second_host   pty         another host opens the board's port: refused (it is locked), naming the
                           holder; the run notices nothing
+kill          can         ``firmware-sim --world --can`` on a ``udp_multicast`` bus (classic CAN, then
+                          CAN FD: modes ``can``, ``can-fd``), killed and started again as on a pty
+freeze        can         the board's process stopped (SIGSTOP) for 0.6 s and let go: the board fails
+                          safe; the host sees its telemetry go stale, then the FAILSAFE
+noise         can         a noisy node on the bus for 1 s: 200 damaged segments a second under the
+                          board's and the host's arbitration ids; counted, every outage recovered
+phone_pause   can         as on a pty
 ============  ==========  ===========================================================================
 
 **Every moment, not a chosen one.** Each lockstep cycle is a run of its own (the in-process board on the
@@ -53,6 +60,7 @@ silence detector (its ``SilenceEvent``, 1 s) on the same faults, where it fires.
 
     python -m bench.soak --ci --json soak.json      # the short soak CI runs (tests/test_soak.py)
     python -m bench.soak --cycles 40 --pty 5        # per kind
+    python -m bench.soak --cycles 0 --pty 0 --can 3 # on CAN only
     python -m bench soak                            # the benchmark (bench/bench_soak.py): >= 200 cycles
 """
 
@@ -81,16 +89,24 @@ from hil.scenario import load_scenario
 SCENARIO = "cubesat-1u"
 LOCKSTEP_KINDS = ("stall", "hang", "brownout", "corruption", "phone_gap")
 PTY_KINDS = ("kill", "phone_pause", "hostile", "second_host")
+CAN_KINDS = ("kill", "freeze", "noise", "phone_pause")
+"""What the soak does to the Python board with its world on a ``udp_multicast`` CAN bus, classic CAN and
+CAN FD, in real time: the pty's board faults (a bus has no port to lock: no ``second_host``) plus a frozen
+board and a noisy node (a bus's corruption)."""
 AVR_KINDS = ("kill", "kill_harness", "second_host")
 """What the soak does to the firmware under simavr (``firmware-sim --avr``, no world: its units are the
 firmware's own estimates and the phone a still stand-in), in real time over a pty."""
 STALL_S, GAP_S, PAUSE_S = 0.6, 1.0, 1.0
+FREEZE_S = 0.6  # a board process stopped (SIGSTOP) this long, then let go (SIGCONT): a real-time stall
+NOISE_S, NOISE_HZ = 1.0, 200.0  # a noisy node on a bus: this long, this many damaged segments a second
 RESTART_S = (0.5, 6.0)  # a killed board is started again after a delay drawn from this range (s)
 STALE_S = 0.25  # the host's stale bound (hil.runtime.faults.STALE_AFTER_S)
-DETECT_S = {"lockstep": STALE_S + 0.045, "pty": STALE_S + 0.25, "avr": STALE_S + 0.25}  # + ticks; + slack
+BUS_MODES = ("can", "can-fd")
+REAL_TIME = ("pty", "avr", *BUS_MODES)  # the real-time modes: a pty, the firmware, a bus
+DETECT_S = {"lockstep": STALE_S + 0.045} | dict.fromkeys(REAL_TIME, STALE_S + 0.25)  # + ticks; + slack
 RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, brown-out 0.3 s, boot, handshake)
-BACK_S = {"lockstep": 4.0, "pty": 12.0, "avr": 12.0}  # fault → in control again (a restart, back-off)
-STEER_S = {"lockstep": 6.5, "pty": 16.0, "avr": 16.0}  # fault → steering again (spin-up, still window)
+BACK_S = {"lockstep": 4.0} | dict.fromkeys(REAL_TIME, 12.0)  # fault → in control again (restart, back-off)
+STEER_S = {"lockstep": 6.5} | dict.fromkeys(REAL_TIME, 16.0)  # fault → steering again (spin-up, still)
 FAILSAFE_S = 0.25 + 1 / 50.0  # link timeout + one pulse frame (cubesat-1u: 50 Hz frames)
 RECOVER_WITHIN_S = 15.0
 
@@ -193,9 +209,12 @@ def check_recovery(c: Cycle, rec: Recorder, end: float, mode: str, faults: list[
         "brownout": "stale",
         "kill": "link_lost",
         "kill_harness": "link_lost",
+        "freeze": "stale",
         "phone_gap": "phone_gap",
         "phone_pause": "phone_gap",
     }[c.kind]
+    if c.kind == "kill" and mode in BUS_MODES:
+        want = "stale"  # a bus has no connection to lose: the board falls silent, then reports its reset
     first = next((f for f in mine if f["kind"] == want), None)
     if first is None:
         c.problems.append(f"no {want} reported")
@@ -205,7 +224,8 @@ def check_recovery(c: Cycle, rec: Recorder, end: float, mode: str, faults: list[
         c.problems.append(f"{want} reported {c.detection_s:.3f} s after the fault (bound {DETECT_S[mode]} s)")
     silence = rec.first("silence", t0, end, ended=False)
     c.silence_s = None if silence is None else silence["t"] - t0
-    causes = {"stall": ("failsafe", None), "hang": ("reset", "WATCHDOG"), "brownout": ("reset", "BROWN_OUT"),
+    causes = {"stall": ("failsafe", None), "freeze": ("failsafe", None),
+              "hang": ("reset", "WATCHDOG"), "brownout": ("reset", "BROWN_OUT"),
               "kill_harness": ("reset", "POWER_ON"),
               "kill": ("reset", "POWER_ON")}  # fmt: skip
     if c.kind in causes:
@@ -409,12 +429,20 @@ def _check_corruption(c: Cycle, rec: Recorder, counter: _LinkCounter, i: int, en
                       faults: list[dict[str, Any]]) -> None:  # fmt: skip
     """A stretch of a run with 1 % of the bytes damaged: damaged frames counted (the fault detected),
     every outage in it over within the bound, no stale row."""
-    t0 = c.t_fault
     before, after = counter.at.get(i), counter.at.get(i + 1)
     if before is not None and after is not None and after <= before:
         c.problems.append("no damaged frame counted")
+    c.cause = "crc"  # a continuous fault: no detection latency of its own
+    check_outages(c, rec, end, faults)
+
+
+def check_outages(c: Cycle, rec: Recorder, end: float, faults: list[dict[str, Any]]) -> None:
+    """A damaging fault from ``c.t_fault`` to ``end`` (corrupted bytes, a noisy bus): every outage it
+    caused (stale, failsafe, reset) over — the host back in control — within :data:`RECOVER_WITHIN_S`,
+    and no stale row; the outages are counted into ``c.cause``."""
+    t0 = c.t_fault
     episodes = [f for f in faults if t0 <= f["t"] < end and f["kind"] in ("stale", "failsafe", "reset")]
-    c.cause = f"crc, {len(episodes)} outage faults"  # a continuous fault: no detection latency of its own
+    c.cause = f"{c.cause}, {len(episodes)} outage faults"
     for f in episodes:
         if rec.first("board_back", f["t"], end + RECOVER_WITHIN_S) is None:
             c.problems.append(f"{f['kind']} at t={f['t']:.2f} s: never back in control")
@@ -447,7 +475,7 @@ def figures(cycles: list[Cycle]) -> dict[str, Any]:
             "failsafe_s": pct([c.failsafe_s for c in group if c.failsafe_s is not None]),
         }
 
-    order = list(dict.fromkeys(LOCKSTEP_KINDS + PTY_KINDS + AVR_KINDS))
+    order = list(dict.fromkeys(LOCKSTEP_KINDS + PTY_KINDS + CAN_KINDS + AVR_KINDS))
     kinds = sorted({c.kind for c in cycles}, key=order.index)
     return {"all": of(cycles), **{k: of([c for c in cycles if c.kind == k]) for k in kinds}}
 
@@ -456,12 +484,14 @@ def soak(
     cycles: int,
     pty: int,
     out_root: Path,
-    kinds: tuple[str, ...] = LOCKSTEP_KINDS + PTY_KINDS + AVR_KINDS,
+    kinds: tuple[str, ...] = LOCKSTEP_KINDS + PTY_KINDS + CAN_KINDS + AVR_KINDS,
     seed: int = 0,
     avr: int = 0,
+    can: int = 0,
 ) -> list[Cycle]:
-    """``cycles`` of each lockstep kind, ``pty`` of each pty kind against the Python board and ``avr`` of
-    each against the firmware on simavr, the moments drawn from ``seed``."""
+    """``cycles`` of each lockstep kind, ``pty`` of each pty kind against the Python board, ``can`` of each
+    bus kind against it on classic CAN and on CAN FD, and ``avr`` of each against the firmware on simavr,
+    the moments drawn from ``seed``."""
     from bench.soak_pty import pty_soak
 
     out: list[Cycle] = []
@@ -471,6 +501,10 @@ def soak(
     plan = [k for _ in range(pty) for k in PTY_KINDS if k in kinds]
     if plan:
         out += pty_soak(plan, out_root / "pty", seed)
+    can_plan = [k for _ in range(can) for k in CAN_KINDS if k in kinds]
+    if can_plan:
+        for bus in ("can", "can-fd"):
+            out += pty_soak(can_plan, out_root / bus, seed, target=bus)
     avr_plan = [k for _ in range(avr) for k in AVR_KINDS if k in kinds]
     if avr_plan:
         out += pty_soak(avr_plan, out_root / "avr", seed, target="avr")
@@ -486,17 +520,24 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--avr", type=int, default=0, help="cycles of each kind against the firmware on simavr (default 0)"
     )
-    every = tuple(dict.fromkeys(LOCKSTEP_KINDS + PTY_KINDS + AVR_KINDS))
+    p.add_argument(
+        "--can",
+        type=int,
+        default=0,
+        help="cycles of each bus kind on udp_multicast, classic CAN and CAN FD (default 0)",
+    )
+    every = tuple(dict.fromkeys(LOCKSTEP_KINDS + PTY_KINDS + CAN_KINDS + AVR_KINDS))
     p.add_argument("--kinds", nargs="+", choices=every, default=every)
     p.add_argument("--json", type=Path, help="write every cycle and the figures here")
     p.add_argument("--keep", type=Path, help="keep the run directories here (default: a temporary one)")
     p.add_argument("--seed", type=int, default=0, help="draws the faults' moments (default 0)")
     args = p.parse_args(argv)
     cycles, pty, avr = (2, 2, args.avr and 1) if args.ci else (args.cycles, args.pty, args.avr)
+    can = (args.can and 1) if args.ci else args.can
     started = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="soak-") as tmp:
         root = args.keep or Path(tmp)
-        result = soak(cycles, pty, root, tuple(args.kinds), args.seed, avr)
+        result = soak(cycles, pty, root, tuple(args.kinds), args.seed, avr, can)
     wall = time.monotonic() - started
     figs = figures(result)
     for c in result:

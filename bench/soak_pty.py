@@ -1,8 +1,11 @@
 """The fault soak's real-time part: ``hil run --port`` (the host, in a thread of this process, its run
-observer timestamping everything) against ``firmware-sim --world`` on a pty, the world's phone reaching
-the host through :class:`bench.soak_phone.PhoneRelay`; faults one after the other, each once the host steers
-again: the board killed with SIGKILL and started again (``kill``), the phone paused (``phone_pause``),
-hostile datagrams to the host's phone port (``hostile``). See :mod:`bench.soak`.
+observer timestamping everything) against ``firmware-sim --world`` on a pty or on a CAN bus
+(``udp_multicast``, classic CAN or CAN FD), the world's phone reaching the host through
+:class:`bench.soak_phone.PhoneRelay`; faults one after the other, each once the host steers again: the
+board killed with SIGKILL and started again (``kill``), frozen with SIGSTOP and let go (``freeze``: a
+stalled board), the phone paused (``phone_pause``), hostile datagrams to the host's phone port
+(``hostile``), and on a bus, a noisy node sending damaged segments under the board's and the host's
+arbitration ids (``noise``). See :mod:`bench.soak`.
 """
 
 from __future__ import annotations
@@ -22,6 +25,9 @@ import numpy as np
 
 from bench.soak import (
     BACK_S,
+    FREEZE_S,
+    NOISE_HZ,
+    NOISE_S,
     PAUSE_S,
     RECOVER_WITHIN_S,
     RESTART_S,
@@ -30,6 +36,7 @@ from bench.soak import (
     Cycle,
     Recorder,
     check_logs,
+    check_outages,
     check_recovery,
 )
 from bench.soak_phone import PhoneRelay, hostile_datagrams, send
@@ -48,30 +55,38 @@ def _free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
-TARGETS = ("python", "avr")
+TARGETS = ("python", "avr", "can", "can-fd")
 """The boards the real-time soak serves: the Python emulator with its world (``firmware-sim --world``,
-its phone the world's), or the C firmware on simavr (``firmware-sim --avr``, its units the firmware's own
-open-loop estimates; the phone a still stand-in streaming from its own process)."""
+its phone the world's) on a pty, or on a ``udp_multicast`` CAN bus (``can``: classic CAN, ``can-fd``), or
+the C firmware on simavr (``firmware-sim --avr``, its units the firmware's own open-loop estimates; the
+phone a still stand-in streaming from its own process) on a pty."""
+BUS_TARGETS = ("can", "can-fd")
 
 
-def _board(link: Path, phone_url: str, target: str = "python") -> subprocess.Popen[str]:
-    if target == "python":
-        options = ["--world", SCENARIO, "--phone", phone_url]
+def _board(link: Path | str, phone_url: str, target: str = "python") -> subprocess.Popen[str]:
+    """firmware-sim serving ``target`` on the pty ``link`` (a path) or the bus ``link`` (a ``can://``
+    URL), started and answering."""
+    if target in BUS_TARGETS:
+        options = ["--world", SCENARIO, "--phone", phone_url, "--can", str(link)]
+    elif target == "python":
+        options = ["--link", str(link), "--world", SCENARIO, "--phone", phone_url]
     else:
         options = [
+            "--link",
+            str(link),
             "--avr",
             *load_scenario(SCENARIO).firmware_sim_argv()[2:],
         ]  # the board options, not --units
     errors = tempfile.TemporaryFile(mode="w+")  # what it says if it does not start (kept by the OS)
     sim = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", "--link", str(link), *options],
+        [sys.executable, "-m", "firmware_sim", *options],
         stdout=subprocess.PIPE,
         stderr=errors,
         text=True,
     )
     assert sim.stdout is not None
     first = sim.stdout.readline()
-    if not first.startswith("/dev/pts/"):
+    if not first.startswith(("/dev/pts/", "can://")):
         sim.kill()
         sim.wait()
         errors.seek(0)
@@ -104,10 +119,10 @@ NEXT_WINDOW_S = (0.0, 8.0)  # each next one: after the host has the board back (
 
 
 def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "python") -> list[Cycle]:
-    """The faults of ``plan`` (``kill``, ``kill_harness`` with the firmware, ``phone_pause``, ``hostile``,
-    ``second_host``) in one real-time run against ``target`` (:data:`TARGETS`), each at a drawn moment:
-    the first from the run's start, the next ones after the host is back in control (see
-    :mod:`bench.soak`)."""
+    """The faults of ``plan`` (``kill``, ``freeze``, ``kill_harness`` with the firmware, ``phone_pause``,
+    ``hostile``, ``second_host`` on a pty, ``noise`` on a bus) in one real-time run against ``target``
+    (:data:`TARGETS`), each at a drawn moment: the first from the run's start, the next ones after the
+    host is back in control (see :mod:`bench.soak`)."""
     from contextlib import ExitStack
 
     from bench.bench_runtime import _still_phone
@@ -116,14 +131,19 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
     scenario = load_scenario(SCENARIO)
     port = _free_udp_port()
     relay = PhoneRelay(("127.0.0.1", port)).start()
-    link = out_root / "board"
     out_root.mkdir(parents=True, exist_ok=True)
+    link: Path | str = out_root / "board"
+    if target in BUS_TARGETS:
+        from bench.can_bus import multicast_url
+
+        link = multicast_url(fd=target == "can-fd")
     stack = ExitStack()
     if target == "avr":
         stack.enter_context(_still_phone(relay.url))
     sims = [_board(link, relay.url, target)]
-    mode = "pty" if target == "python" else "avr"
+    mode = {"python": "pty"}.get(target, target)
     rec = Recorder(scenario.n_units)
+    noise_counted: dict[int, int] = {}  # cycle number -> damaged CAN frames the host counted in its noise
     outcome: dict[str, Any] = {}
 
     def host() -> None:
@@ -151,7 +171,16 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
                 cycles.append(Cycle(kind, mode, rec.now(), problems=[f"the host stopped: {outcome}"]))
                 continue
             c = Cycle(kind, mode, rec.now())
-            if kind in ("kill", "kill_harness"):
+            if kind == "freeze":
+                sims[-1].send_signal(signal.SIGSTOP)
+                time.sleep(FREEZE_S)
+                sims[-1].send_signal(signal.SIGCONT)
+            elif kind == "noise":
+                before = _damaged(rec)
+                _bus_noise(str(link), rng)
+                time.sleep(0.3)  # the host's reader has taken what the noise left on the bus
+                noise_counted[len(cycles)] = _damaged(rec) - before
+            elif kind in ("kill", "kill_harness"):
                 if kind == "kill":
                     sims[-1].send_signal(signal.SIGKILL)
                     sims[-1].wait()
@@ -168,7 +197,9 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
                 send(datagrams, ("127.0.0.1", port), HOSTILE_REPEAT)
                 hostile_bad += bad * HOSTILE_REPEAT
             cycles.append(c)
-            if kind in ("hostile", "second_host"):
+            if kind == "noise":
+                _wait(lambda: rec.start is not None and rec.start.host.in_control, BACK_S[mode])
+            elif kind in ("hostile", "second_host"):
                 time.sleep(HOSTILE_WATCH_S)
                 _check_hostile(c, rec)
             elif not _wait(lambda c=c: rec.steering(c.t_fault) is not None, STEER_S[mode] + 2.0):
@@ -189,8 +220,40 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
                     sim.kill()
                     sim.wait()
         relay.close()
-    _after(cycles, rec, outcome, thread, relay, hostile_bad)
+    _after(cycles, rec, outcome, thread, relay, hostile_bad, noise_counted)
     return cycles
+
+
+def _damaged(rec: Recorder) -> int:
+    """CAN frames the host's transport found damaged and discarded so far (incomplete, spliced,
+    malformed: :meth:`hil.link.transports.can_bus.CanTransport.counters`)."""
+    start = rec.start
+    if start is None:
+        return 0
+    counters = start.host.client.transport.counters()  # type: ignore[attr-defined]  # a CanTransport
+    return int(counters["rx_incomplete"] + counters["rx_spliced"] + counters["rx_malformed"])
+
+
+def _bus_noise(url: str, rng: np.random.Generator) -> None:
+    """A noisy node on the bus ``url`` for ``NOISE_S`` s: ``NOISE_HZ`` CAN frames a second under the
+    board's and the host's arbitration ids (every priority), each a segment with a drawn transfer id and
+    index and drawn bytes — damaged segments, as a failing transceiver or a node with a wrong bit timing
+    puts on a bus."""
+    import can
+
+    from hil.link.transports.can_bus import CanTransport
+    from protocol.can import CanId, Direction, Priority
+
+    bus = CanTransport(url)  # for its parsed options only (interface, channel, node, fd, port)
+    ids = [CanId(p, d, bus.node).value for p in Priority for d in Direction]
+    size = 64 if bus.fd else 8
+    with can.Bus(interface=bus.interface, channel=bus.channel, fd=bus.fd, **bus._bus_options) as noisy:
+        end = time.monotonic() + NOISE_S
+        while time.monotonic() < end:
+            data = bytes(rng.integers(0, 256, int(rng.integers(2, size + 1)), dtype=np.uint8))
+            noisy.send(can.Message(arbitration_id=int(rng.choice(ids)), data=data, is_fd=bus.fd,
+                                   is_extended_id=False))  # fmt: skip
+            time.sleep(1.0 / NOISE_HZ)
 
 
 def _kill_harness(c: Cycle, sim: subprocess.Popen[str]) -> None:
@@ -212,7 +275,7 @@ def _kill_harness(c: Cycle, sim: subprocess.Popen[str]) -> None:
         c.problems.append("firmware-sim exited 0 after its harness died")
 
 
-def _second_host(c: Cycle, link: Path) -> None:
+def _second_host(c: Cycle, link: Path | str) -> None:
     """Another host tries the board's port while the run holds it (issue 25, finding 4): refused at once,
     the refusal naming the holder; the run's host must notice nothing (:func:`_check_hostile`)."""
     from hil.link.board import BoardClient
@@ -254,7 +317,7 @@ def _check_hostile(c: Cycle, rec: Recorder) -> None:
 
 
 def _after(cycles: list[Cycle], rec: Recorder, outcome: dict[str, Any], thread: threading.Thread,
-           relay: PhoneRelay, hostile_bad: int) -> None:  # fmt: skip
+           relay: PhoneRelay, hostile_bad: int, noise_counted: dict[int, int]) -> None:  # fmt: skip
     """The run-level checks (the run ended as told, nothing logged lost, every datagram counted) and each
     recovering cycle's checks, once every event is in."""
     problems: list[str] = []
@@ -280,6 +343,17 @@ def _after(cycles: list[Cycle], rec: Recorder, outcome: dict[str, Any], thread: 
     faults = summary.get("faults", [])
     for i, c in enumerate(cycles):
         end = cycles[i + 1].t_fault if i + 1 < len(cycles) else float("inf")
-        if c.kind not in ("hostile", "second_host") and not c.problems:  # those two: _check_hostile
+        if c.kind == "noise":
+            _check_noise(c, rec, noise_counted.get(i, 0), end, faults)
+        elif c.kind not in ("hostile", "second_host") and not c.problems:  # those two: _check_hostile
             check_recovery(c, rec, end, c.mode, faults)
         c.problems += problems
+
+
+def _check_noise(c: Cycle, rec: Recorder, counted: int, end: float, faults: list[dict[str, Any]]) -> None:
+    """A noisy node on the bus: the damaged frames counted (the fault detected), every outage it caused
+    over within its bound, no stale row."""
+    if counted <= 0:
+        c.problems.append("no damaged CAN frame counted by the host")
+    c.cause = f"{counted} damaged CAN frames counted"
+    check_outages(c, rec, end, faults)

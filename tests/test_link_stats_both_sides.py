@@ -4,7 +4,6 @@ CAN bus (``udp_multicast``, classic CAN and CAN FD) — and the host's coming an
 
 from __future__ import annotations
 
-import random
 import re
 import subprocess
 import sys
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.can_bus import multicast_url
 from tests.test_can_link import exchange
 
 _STOPPED = re.compile(
@@ -26,9 +26,7 @@ _STOPPED = re.compile(
 def _where(transport: str, tmp_path: Path) -> list[str]:
     if transport == "pty":
         return ["--link", str(tmp_path / "board")]
-    group = f"239.74.{random.randint(0, 255)}.{random.randint(1, 254)}"
-    fd = int(transport == "can-fd")
-    return ["--can", f"udp_multicast/{group}?port={random.randint(40_000, 60_000)}&fd={fd}"]
+    return ["--can", multicast_url(fd=transport == "can-fd")]
 
 
 @pytest.mark.parametrize(

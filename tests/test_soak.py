@@ -2,9 +2,10 @@
 fault, each at a moment drawn over a run's whole span — link stall, MCU hang, brown-out, byte corruption
 and a phone gap in lockstep (each cycle a run of its own, checked with the fault campaigns' invariants);
 firmware-sim killed and restarted, the phone paused, hostile datagrams and a second host on the board's
-port in real time over a pty — and the firmware under simavr killed, its harness killed, a second host
-refused. Every check of every cycle passed: no crash or hang, each fault detected and reported with its
-cause within its bound, the board's failsafe within link timeout + one frame, re-arming only through the
+port in real time over a pty; on a CAN bus (classic and FD) the board killed, frozen, a noisy node, the
+phone paused — and the firmware under simavr killed, its harness killed, a second host refused. Every
+check of every cycle passed: no crash or hang, each fault detected and reported with its cause within its
+bound, the board's failsafe within link timeout + one frame, re-arming only through the
 handshake, no stale row, the host back in control and steering again, nothing logged lost."""
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 LOCKSTEP = {"stall", "hang", "brownout", "corruption", "phone_gap"}
 PTY = {"kill", "phone_pause", "hostile", "second_host"}
 AVR = {"kill", "kill_harness", "second_host"}
+CAN = {"kill", "freeze", "noise", "phone_pause"}
 
 
 def _soak(tmp_path: Path, *args: str) -> dict:  # type: ignore[type-arg]
@@ -59,6 +61,25 @@ def test_the_short_fault_soak(tmp_path):
             assert c["cause"] == "reset POWER_ON" and c["back_s"] is not None and c["steering_s"] is not None
         if c["kind"] == "second_host":
             assert c["cause"] == "refused: holder named"
+
+
+@pytest.mark.udp_multicast
+def test_the_short_soak_on_a_can_bus(tmp_path):
+    """The Python board with its world on a ``udp_multicast`` bus, classic CAN and CAN FD, in real time:
+    killed and restarted, frozen (a stalled board), a noisy node's damaged segments, the phone paused —
+    each at a drawn moment, every check passed (issue 31)."""
+    report = _soak(tmp_path, "--cycles", "0", "--pty", "0", "--can", "1", "--seed", "31")
+    cycles = report["cycles"]
+    assert sorted(c["mode"] for c in cycles) == ["can"] * len(CAN) + ["can-fd"] * len(CAN)
+    for mode in ("can", "can-fd"):
+        assert {c["kind"] for c in cycles if c["mode"] == mode} == CAN
+    for c in cycles:
+        if c["kind"] == "kill":
+            assert c["cause"] == "reset POWER_ON" and c["back_s"] is not None and c["steering_s"] is not None
+        if c["kind"] == "freeze":
+            assert c["cause"] == "failsafe" and c["detection_s"] is not None
+        if c["kind"] == "noise":
+            assert c["cause"].split()[0].isdigit() and int(c["cause"].split()[0]) > 0
 
 
 @pytest.mark.firmware
