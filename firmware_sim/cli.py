@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from types import FrameType
 from typing import Any
 
-from protocol.errors import ConfigError, HilError
+from protocol.errors import ConfigError, HilError, LinkError
 
 EPILOG = """\
 examples:
@@ -47,6 +47,8 @@ examples:
                                                 ... the real firmware under simavr drives it, in real time
   firmware-sim --can udp_multicast/239.74.163.2?port=43113
                                                 serve on a CAN bus instead (prints the host's URL)
+  firmware-sim --avr --can udp_multicast/239.74.163.2?port=43113
+                                                ... the real firmware, its UART bridged onto the bus
   hil run --port can://udp_multicast/239.74.163.2?port=43113   (in another terminal) drive it
 
 Times are seconds since start on the board's clock. Channels: gimbal 0, rotor 0, gimbal 1, rotor 1, ...
@@ -353,25 +355,29 @@ def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ign
         faults.dead_esc(ch, at=esc_at)
 
 
+def _board(args: argparse.Namespace) -> Any:
+    """The Python board, or with ``--avr`` the firmware stepped under simavr (a FirmwareBoard, with the
+    interface the servers and the world call), on the wall clock."""
+    if args.avr is None:
+        return make_board(args)
+    from hil.timing.clock import WallClock
+
+    from .avr.stepped import firmware_board
+
+    return firmware_board(args, WallClock())
+
+
 def board_and_world(args: argparse.Namespace, scenario: object | None):  # type: ignore[no-untyped-def]
     """The board the options describe and, with a scenario, the world it drives — ready before the
     board's clock starts: the world's kernels loaded (a twin flown in lockstep) before the board and its
     clock are made, its first batch stepped right after. (Loading them on the world's first real-time
     pass left it ~400 ms behind the board's clock at start-up, reported as a machine too slow.)"""
     if scenario is None:
-        return make_board(args), None
+        return _board(args), None
     from .world import World, load_kernels
 
     load_kernels(scenario, board_config(args))
-    board: Any  # a Board, or a FirmwareBoard with the interface the servers and the world call
-    if args.avr is not None:
-        from hil.timing.clock import WallClock
-
-        from .avr.stepped import firmware_board
-
-        board = firmware_board(args, WallClock())
-    else:
-        board = make_board(args)
+    board = _board(args)
     world = World(scenario, board)
     world.prepare()
     return board, world
@@ -380,13 +386,15 @@ def board_and_world(args: argparse.Namespace, scenario: object | None):  # type:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.can is not None and (args.link or args.no_hold or args.avr is not None):
-        parser.error("--can serves a CAN bus: it cannot be combined with --link, --no-hold or --avr")
+    if args.can is not None and (args.link or args.no_hold):
+        parser.error("--can serves a CAN bus: it cannot be combined with --link or --no-hold")
     level = logging.WARNING - 10 * min(args.verbose + 1, 2)
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
-    if args.avr is not None and args.world is None:  # with a world, the firmware is stepped from here
+    if args.avr is not None and args.world is None and args.can is None:
+        # On a pty without a world, the harness serves the pty itself; with a world or on a bus, the
+        # firmware is stepped from here (.avr.stepped) behind this process's server.
         from .avr.harness import HarnessDied
         from .avr.serve import run
 
@@ -395,6 +403,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except HilError as exc:
             print(f"firmware-sim: error: {exc}", file=sys.stderr)
             return EXIT_HARNESS_DIED if isinstance(exc, HarnessDied) else 2
+    from .avr.harness import HarnessDied
     from .servers.base import BoardServer
     from .servers.can_server import CanServer
     from .servers.pty_server import PtyServer
@@ -436,15 +445,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         flush=True,
     )
     status = StatusLines(server).start()
+    harness_died = False
     try:
         server.serve(duration=args.duration)
+    except HarnessDied as exc:  # the firmware board's simulator went: one line, exit 3, as on a pty
+        print(f"firmware-sim: error: {exc}", file=sys.stderr, flush=True)
+        harness_died = not server.stopping()
     finally:
         status.stop()
         for s, handler in old.items():
             signal.signal(s, handler)
         server.close()
         if streamer is not None:
-            streamer.close()
+            try:
+                streamer.close()
+            except LinkError as exc:  # the world thread met the harness's death first: the same end
+                if not isinstance(exc.__cause__, HarnessDied):
+                    raise
+                if not harness_died:
+                    print(f"firmware-sim: error: {exc.__cause__}", file=sys.stderr, flush=True)
+                harness_died = True
+        if args.avr is not None:
+            board.close()  # the firmware board's harness: stopped, its EEPROM saved back
     stats = server.stats
     link_line = (
         f"{stats.frames_in} frames in, {stats.frames_out} out; host left {stats.host_gone} time(s), "
@@ -458,9 +480,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"({streamer.sender.failed} failed), started {lag.startup_lag_s * 1e3:.0f} ms behind the board's "
             f"clock, then {lag.episodes} lag episode(s), at most {lag.max_lag_s * 1e3:.0f} ms behind"
         )
+    resets = max(len(board.resets) - 1, 0)  # the first is the power-on (a firmware board that never ran:
+    # none at all)
     print(
         f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, {link_line}; "
-        f"{len(board.resets) - 1} reset(s){world_line}",
+        f"{resets} reset(s){world_line}",
         file=sys.stderr,
     )
     if stats.dropped_out:
@@ -470,7 +494,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "board keeps at most 4 KiB, like a UART buffer)",
             file=sys.stderr,
         )
-    return 0
+    return EXIT_HARNESS_DIED if harness_died else 0
 
 
 if __name__ == "__main__":

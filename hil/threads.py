@@ -82,10 +82,14 @@ class ThreadError:
     def caught(self, logger: logging.Logger | None = None, message: str = "") -> Iterator[None]:
         """Run a thread's body under this: any exception (``BaseException``: a ``SystemExit`` in a
         thread is a failure of the thread, not the process's exit) is stored instead of ending the thread
-        silently, and logged with its traceback on ``logger`` when given (``message``: what failed)."""
+        silently, and logged on ``logger`` when given (``message``: what failed): with its traceback,
+        except a :class:`~protocol.errors.LinkError` — the far side gone, a bus closed: an event its
+        message names whole, not a bug to trace — logged as one line."""
         try:
             yield
         except BaseException as exc:  # stored, raised by the owner's check(): threads never die silently
             self.error = exc
-            if logger is not None:
+            if logger is not None and isinstance(exc, LinkError):
+                logger.error("%s: %s", message, exc)
+            elif logger is not None:
                 logger.exception(message)

@@ -187,3 +187,99 @@ def test_a_sigkilled_host_takes_its_spawned_avr_board_with_it(tmp_path):
                 os.kill(pid, signal.SIGKILL)
         assert host.stdout is not None
         host.stdout.close()
+
+
+# --------------------------------------------------------------------------- the stepped firmware board
+# With a world (``--avr --world``) or on a bus (``--avr --can``) the firmware is stepped from firmware-sim
+# (firmware_sim.avr.stepped) behind its own server: the same lifetimes hold there.
+
+
+def _where(kind: str, tmp_path: Path) -> list[str]:
+    from bench.can_bus import multicast_url
+
+    if kind == "can":
+        return ["--can", multicast_url(fd=True)]
+    return ["--world", "cubesat-1u", "--link", str(tmp_path / "board")]
+
+
+@contextmanager
+def _stepped(tmp_path: Path, kind: str) -> Iterator[tuple[subprocess.Popen[str], str, Path]]:
+    """``firmware-sim --avr`` stepping the firmware (``kind``: "can" or "world"), in a session of its own
+    (so a signal can go to its whole process group, as a terminal's Ctrl-C does): (process, what the host
+    opens, TMPDIR)."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    units = ["--units", "2"] if kind == "can" else []
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "--avr", *units, *_where(kind, tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "TMPDIR": str(tmp)},
+        start_new_session=True,
+    )
+    try:
+        yield proc, _first_line(proc), tmp
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        for stream in (proc.stdout, proc.stderr):
+            assert stream is not None
+            stream.close()
+
+
+@pytest.mark.udp_multicast
+@pytest.mark.parametrize("kind", ["can", "world"])
+def test_a_stepped_harness_that_dies_ends_firmware_sim_with_exit_3_and_one_error_line(tmp_path, kind):
+    """It once ended in a traceback, exit 1 (the world's thread and the server both met the dead pipe)."""
+    with _stepped(tmp_path, kind) as (proc, _, tmp):
+        pid, _ = _harness_of(proc.pid)
+        os.kill(pid, signal.SIGKILL)
+        _until(lambda: proc.poll() is not None, "firmware-sim exiting after its harness died")
+        assert proc.stderr is not None
+        err = proc.stderr.read()
+        assert proc.returncode == HARNESS_DIED, err
+        assert "Traceback" not in err, err
+        errors = [line for line in err.splitlines() if line.startswith("firmware-sim: error:")]
+        assert len(errors) == 1 and f"avr-harness (pid {pid}) killed by SIGKILL" in errors[0], err
+        assert list(tmp.iterdir()) == []
+
+
+@pytest.mark.udp_multicast
+@pytest.mark.parametrize("to_group", [False, True], ids=["to-firmware-sim", "to-its-process-group"])
+def test_a_sigint_stops_the_stepped_firmware_cleanly(tmp_path, to_group):
+    """A Ctrl-C reaches the whole foreground process group: the harness (in a session of its own) is
+    stopped by firmware-sim, never taken for a harness that died."""
+    with _stepped(tmp_path, "can") as (proc, _, tmp):
+        harness = _harness_of(proc.pid)
+        if to_group:
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGINT)
+        _until(lambda: proc.poll() is not None, "firmware-sim stopping on SIGINT")
+        assert proc.stderr is not None
+        err = proc.stderr.read()
+        assert proc.returncode == 0, err
+        assert "firmware-sim: stopped;" in err and "firmware-sim: error" not in err, err
+        assert " -1 reset(s)" not in err, err  # it once said so, stopped before the firmware ran
+        assert _gone(*harness)
+        assert list(tmp.iterdir()) == []
+
+
+@pytest.mark.udp_multicast
+def test_the_firmware_on_a_can_bus_answers_a_host(tmp_path):
+    """``firmware-sim --avr --can``: the firmware's UART bridged onto a bus by the CAN server; the host's
+    whole exchange (handshake, arm, rotor pulses following setpoints, disarm) and both ends' counts."""
+    from tests.test_can_link import exchange
+
+    with _stepped(tmp_path, "can") as (proc, url, _):
+        assert url.startswith("can://udp_multicast/")
+        client = exchange(url, 2)
+        proc.send_signal(signal.SIGINT)
+        _until(lambda: proc.poll() is not None, "firmware-sim stopping on SIGINT")
+        assert proc.stderr is not None
+        err = proc.stderr.read()
+    assert proc.returncode == 0, err
+    assert "host connected" in err, err
+    assert f"{client.stats().counters.frames_out} frames in" in err, err

@@ -22,7 +22,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, Any, NoReturn
 
 from protocol.calibration import UnitCalibration, default_unit_calibration
 from protocol.errors import ConfigError, LinkError, LinkTimeout
@@ -129,12 +129,16 @@ class AvrBoard:
         self._record_path = work / "record.txt"
         self._record_path.touch()
         self._lock = threading.Lock()
+        # Its own session: a terminal's Ctrl-C (sent to the foreground process group) reaches only the
+        # process driving it, which stops it by closing the control pipe (EOF ends the harness, as it
+        # does when that process dies), so a Ctrl-C is never mistaken for the harness dying.
         self._proc: subprocess.Popen[str] | None = subprocess.Popen(
             self.options.arguments(self._eeprom_path, self._record_path, control=True),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
+            start_new_session=True,
         )
         self._stderr: list[str] = []
         self._lines: queue.Queue[str] = queue.Queue()
@@ -185,18 +189,23 @@ class AvrBoard:
         try:
             line = self._lines.get(timeout=timeout)
         except queue.Empty:
-            line = ""
-        if not line:
             self._died(f"no answer ({what}) within {timeout} s")
+        if not line:
+            self._died(f"its control pipe closed, no answer ({what})", ended=True)
         return line
 
-    def _died(self, why: str) -> None:
+    def _died(self, why: str, ended: bool = False) -> NoReturn:
+        """Raise what went wrong: :class:`HarnessDied` when the harness has ended (``ended``: its pipes
+        closed, so it is reaped first), :class:`LinkTimeout` when it runs but does not answer."""
         proc = self._proc
         code = None if proc is None else proc.poll()
+        if code is None and proc is not None and ended:
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                code = proc.wait(timeout=1.0)
         tail = "\n".join(self._stderr[-10:])
-        status = "still running" if code is None else f"exit status {code}"
-        error = LinkTimeout if code is None else LinkError
-        raise error(f"avr-harness: {why} ({status}){': ' + tail if tail else ''}")
+        if proc is not None and code is not None:
+            raise HarnessDied(proc.pid, code, "", f"{why}{': ' + tail if tail else ''}")
+        raise LinkTimeout(f"avr-harness: {why} (still running){': ' + tail if tail else ''}")
 
     def command(self, line: str) -> list[str]:
         """Send one control command; its answer's words after "ok" (LinkError on "error ..." or death)."""
@@ -208,7 +217,7 @@ class AvrBoard:
                 proc.stdin.write(line + "\n")
                 proc.stdin.flush()
             except (BrokenPipeError, OSError):
-                self._died(f"control pipe broken on {line!r}")
+                self._died(f"control pipe broken on {line!r}", ended=True)
             answer = self._read_line(_ANSWER_TIMEOUT_S, line)
         words = answer.split()
         if not words or words[0] != "ok":
@@ -359,8 +368,11 @@ class HarnessDied(LinkError):
     """The harness ended without being asked to (killed, crashed, exited): the board it served is gone.
     ``pid`` was its process id, ``returncode`` its ``Popen.returncode`` (negative: the signal)."""
 
-    def __init__(self, pid: int, returncode: int, pty: str) -> None:
-        where = f"the board on {pty} is gone" if pty else "before it served a pty"
+    def __init__(self, pid: int, returncode: int, pty: str, detail: str = "") -> None:
+        if detail:  # a stepped harness (no pty of its own): what its driver was doing when it went
+            where = f"the board is gone ({detail})"
+        else:
+            where = f"the board on {pty} is gone" if pty else "before it served a pty"
         super().__init__(f"avr-harness (pid {pid}) {_ending(returncode)}: {where}")
         self.pid, self.returncode = pid, returncode
 
