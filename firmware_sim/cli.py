@@ -392,23 +392,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
-    if args.avr is not None and args.world is None and args.can is None:
-        # On a pty without a world, the harness serves the pty itself; with a world or on a bus, the
-        # firmware is stepped from here (.avr.stepped) behind this process's server.
-        from .avr.harness import HarnessDied
-        from .avr.serve import run
-
-        try:
-            return run(args, board_config(args))
-        except HilError as exc:
-            print(f"firmware-sim: error: {exc}", file=sys.stderr)
-            return EXIT_HARNESS_DIED if isinstance(exc, HarnessDied) else 2
     from .avr.harness import HarnessDied
     from .servers.base import BoardServer
     from .servers.can_server import CanServer
     from .servers.pty_server import PtyServer
     from .servers.status import StatusLines
 
+    board: Any = None  # None: the harness serves the firmware on its pty itself (.avr.serve)
+    world = None
     try:
         scenario = None
         if args.world is not None:
@@ -418,13 +409,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             scenario = load_scenario(args.world)
             args.units = scenario.n_units
             args.phone = phone_url(args.phone)
-        board, world = board_and_world(args, scenario)
         server: BoardServer
-        if args.can is not None:
-            server = CanServer(board, args.can)
-        else:
-            server = PtyServer(board, link=args.link, hold_slave=not args.no_hold)
-    except HilError as exc:
+        if args.avr is not None and args.world is None and args.can is None:
+            from .avr.serve import server_from_args
+
+            server = server_from_args(args, board_config(args))
+        else:  # the Python board, or the firmware stepped from here (.avr.stepped), behind our server
+            board, world = board_and_world(args, scenario)
+            if args.can is not None:
+                server = CanServer(board, args.can)
+            else:
+                server = PtyServer(board, link=args.link, hold_slave=not args.no_hold)
+    except HilError as exc:  # a harness refusing its options at start-up says why here too: status 2
         print(f"firmware-sim: error: {exc}", file=sys.stderr)
         return 2
 
@@ -440,7 +436,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(server.path, flush=True)
     where = f" (link {args.link})" if args.link else ""
     print(
-        f"firmware-sim: {board.config.n_units} units on {server.path}{where}; waiting for a host; ^C to stop",
+        f"firmware-sim: {args.units} units on {server.path}{where}; waiting for a host; ^C to stop",
         file=sys.stderr,
         flush=True,
     )
@@ -448,9 +444,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     harness_died = False
     try:
         server.serve(duration=args.duration)
-    except HarnessDied as exc:  # the firmware board's simulator went: one line, exit 3, as on a pty
-        print(f"firmware-sim: error: {exc}", file=sys.stderr, flush=True)
+    except HarnessDied as exc:  # the firmware's simulator went: one line naming the board, exit 3
         harness_died = not server.stopping()
+        if harness_died:
+            gone = HarnessDied(exc.pid, exc.returncode, server.path)
+            print(f"firmware-sim: error: {gone}", file=sys.stderr, flush=True)
     finally:
         status.stop()
         for s, handler in old.items():
@@ -460,13 +458,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             try:
                 streamer.close()
             except LinkError as exc:  # the world thread met the harness's death first: the same end
-                if not isinstance(exc.__cause__, HarnessDied):
+                died = exc.__cause__
+                if not isinstance(died, HarnessDied):
                     raise
                 if not harness_died:
-                    print(f"firmware-sim: error: {exc.__cause__}", file=sys.stderr, flush=True)
+                    gone = HarnessDied(died.pid, died.returncode, server.path)
+                    print(f"firmware-sim: error: {gone}", file=sys.stderr, flush=True)
                 harness_died = True
-        if args.avr is not None:
-            board.close()  # the firmware board's harness: stopped, its EEPROM saved back
+        if args.avr is not None and board is not None:
+            board.close()  # the stepped firmware's harness: stopped, its EEPROM saved back
     stats = server.stats
     link_line = (
         f"{stats.frames_in} frames in, {stats.frames_out} out; host left {stats.host_gone} time(s), "
@@ -480,11 +480,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"({streamer.sender.failed} failed), started {lag.startup_lag_s * 1e3:.0f} ms behind the board's "
             f"clock, then {lag.episodes} lag episode(s), at most {lag.max_lag_s * 1e3:.0f} ms behind"
         )
-    resets = max(len(board.resets) - 1, 0)  # the first is the power-on (a firmware board that never ran:
-    # none at all)
+    resets = ""
+    if board is not None:  # the first is the power-on (a firmware board that never ran: none at all)
+        resets = f"; {max(len(board.resets) - 1, 0)} reset(s)"
     print(
-        f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, {link_line}; "
-        f"{resets} reset(s){world_line}",
+        f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, {link_line}"
+        f"{resets}{world_line}",
         file=sys.stderr,
     )
     if stats.dropped_out:

@@ -192,9 +192,9 @@ def test_after_a_stall_the_harness_keeps_pace_with_wall_time_instead_of_racing(b
     trip the link watchdog for nothing). Its lag correction had the wrong sign: after one 0.3 s stall the
     board ran ~11x wall time from then on, ~12 000 "lag resets" a second."""
     time.sleep(0.2)
-    os.kill(board._proc.pid, signal.SIGSTOP)
+    os.kill(board.process.pid, signal.SIGSTOP)
     time.sleep(0.3)
-    os.kill(board._proc.pid, signal.SIGCONT)
+    os.kill(board.process.pid, signal.SIGCONT)
     time.sleep(0.1)
     board_0, wall_0 = board.now(), time.monotonic()
     time.sleep(1.0)

@@ -1,6 +1,7 @@
-"""The same link statistics on both sides of every transport: the board client's count of what it sent and
-took against ``firmware-sim``'s (in another process) count of what it took and sent, over a pty and over a
-CAN bus (``udp_multicast``, classic CAN and CAN FD) — and the host's coming and going reported alike."""
+"""The same link statistics on both sides of every transport and every board: the board client's count of
+what it sent and took against ``firmware-sim``'s (in another process) count of what it took and sent, over
+a pty and over a CAN bus (``udp_multicast``, classic CAN and CAN FD), for the Python board and the firmware
+on simavr — and the host's coming and going and the board's state changes reported alike."""
 
 from __future__ import annotations
 
@@ -24,17 +25,27 @@ _STOPPED = re.compile(
 
 
 def _where(transport: str, tmp_path: Path) -> list[str]:
-    if transport == "pty":
-        return ["--link", str(tmp_path / "board")]
-    return ["--can", multicast_url(fd=transport == "can-fd")]
+    """firmware-sim's options for ``transport``: ``pty``/``can``/``can-fd`` serve the Python board,
+    ``firmware-pty`` the firmware on simavr (the harness's own pty bridge), ``firmware-can`` the firmware
+    stepped from firmware-sim behind its CAN server."""
+    board = ["--avr"] if transport.startswith("firmware") else []
+    if transport.endswith("pty"):
+        return [*board, "--link", str(tmp_path / "board")]
+    return [*board, "--can", multicast_url(fd=transport.endswith("fd"))]
+
+
+BUS = pytest.mark.udp_multicast
+FIRMWARE = pytest.mark.firmware
 
 
 @pytest.mark.parametrize(
     "transport",
     [
         "pty",
-        pytest.param("can", marks=pytest.mark.udp_multicast),
-        pytest.param("can-fd", marks=pytest.mark.udp_multicast),
+        pytest.param("can", marks=BUS),
+        pytest.param("can-fd", marks=BUS),
+        pytest.param("firmware-pty", marks=FIRMWARE),
+        pytest.param("firmware-can-fd", marks=[BUS, FIRMWARE]),
     ],
 )
 def test_both_ends_count_the_same_frames_and_the_host_leaving(transport, tmp_path):
@@ -57,7 +68,7 @@ def test_both_ends_count_the_same_frames_and_the_host_leaving(transport, tmp_pat
         assert board.stdout is not None
         url = board.stdout.readline().strip()
         assert url, board.stderr.read() if board.stderr else ""
-        client = exchange(str(tmp_path / "board") if transport == "pty" else url, 2)
+        client = exchange(str(tmp_path / "board") if transport.endswith("pty") else url, 2)
         time.sleep(1.5)  # the host is silent (closed) for longer than HOST_SILENCE_S: gone
     finally:
         board.terminate()
@@ -76,3 +87,8 @@ def test_both_ends_count_the_same_frames_and_the_host_leaving(transport, tmp_pat
     assert board_side["errors"] == 0 and host.bad_frames_total == 0
     assert board_side["gone"] == 1 and board_side["back"] == 0, err
     assert "host connected" in err and "host left" in err, err
+    # Every state change the serving loop saw, however brief; the harness's own pty bridge is looked at
+    # every POLL_S (its handshake's DISARMED may pass unseen there: BOOT -> ARMED).
+    assert "-> ARMED" in err and "board ARMED -> DISARMED" in err, err
+    if not transport.startswith("firmware"):
+        assert "board DISARMED -> ARMED" in err, err

@@ -22,7 +22,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, NoReturn
+from typing import NoReturn
 
 from protocol.calibration import UnitCalibration, default_unit_calibration
 from protocol.errors import ConfigError, LinkError, LinkTimeout
@@ -92,54 +92,30 @@ class HarnessOptions:
         return [*args, *self.extra_args, str(self.elf)]
 
 
-class AvrBoard:
-    """One emulated board. Use as a context manager; :meth:`close` is idempotent.
+class HarnessProcess:
+    """A running ``avr-harness --control``: the process and its control pipe (commands on its stdin,
+    answers on its stdout after the first line, the pty path it serves). The pipe is also its lifeline:
+    only this process holds the write end, so however this process ends the harness reads end of file
+    and stops cleanly (docs/firmware_sim.md, "Lifetimes").
 
-    ``config`` is written into the board's EEPROM configuration block (so ``n_units``, rates, timeouts,
-    power thresholds reach the firmware the way they reach a real board); ``calibrations`` (one
-    ``UnitCalibration`` or None per unit) into its calibration slots (None: erased slot, the default set).
-    ``eeprom_image`` (4096 bytes) replaces all of that with raw EEPROM contents (e.g. a damaged block).
-    """
+    It runs in a session of its own: a terminal's Ctrl-C (sent to the foreground process group) reaches
+    only the process driving it, which stops it by closing the pipe, so a Ctrl-C is never mistaken for
+    the harness dying. ``pass_fds``: descriptors it inherits (an anonymous EEPROM image)."""
 
-    def __init__(
-        self,
-        config: BoardConfig | None = None,
-        options: HarnessOptions | None = None,
-        calibrations: Sequence[UnitCalibration | None] = (),
-        eeprom_image: bytes | None = None,
-    ) -> None:
-        self.config = config if config is not None else BoardConfig()
-        self.options = options if options is not None else HarnessOptions()
-        eeprom.check_hardware(self.config)
-        ensure_built()
-        if not self.options.elf.exists():
-            raise ConfigError(f"no firmware ELF at {self.options.elf}", "HarnessOptions.elf")
-        self._dir = tempfile.TemporaryDirectory(prefix="avr-board-")
-        work = Path(self._dir.name)
-        self._eeprom_path = self.options.eeprom_file or work / "eeprom.bin"
-        if eeprom_image is not None:
-            if len(eeprom_image) != eeprom.EEPROM_SIZE:
-                raise ConfigError(
-                    f"{len(eeprom_image)} bytes, not {eeprom.EEPROM_SIZE}", "AvrBoard.eeprom_image"
-                )
-            self._eeprom_path.write_bytes(eeprom_image)
-        elif self.options.eeprom_file is None or not self._eeprom_path.exists():
-            sets = tuple(None if c is None else c.to_bytes() for c in calibrations)
-            self._eeprom_path.write_bytes(eeprom.EepromImage(self.config, sets).to_bytes())
-        self._record_path = work / "record.txt"
-        self._record_path.touch()
+    def __init__(self, argv: Sequence[str], pass_fds: Sequence[int] = ()) -> None:
         self._lock = threading.Lock()
-        # Its own session: a terminal's Ctrl-C (sent to the foreground process group) reaches only the
-        # process driving it, which stops it by closing the control pipe (EOF ends the harness, as it
-        # does when that process dies), so a Ctrl-C is never mistaken for the harness dying.
         self._proc: subprocess.Popen[str] | None = subprocess.Popen(
-            self.options.arguments(self._eeprom_path, self._record_path, control=True),
+            list(argv),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
             start_new_session=True,
+            pass_fds=tuple(pass_fds),
         )
+        self.pid = self._proc.pid
+        self.returncode: int | None = None
+        """How it ended (``Popen.returncode``) once it has; None while it runs."""
         self._stderr: list[str] = []
         self._lines: queue.Queue[str] = queue.Queue()
         self._threads = [
@@ -155,16 +131,7 @@ class AvrBoard:
         except BaseException:
             self.close()
             raise
-        n_channels = 2 * self.config.n_units
-        self._records = RecordReader(
-            self._record_path,
-            F_CPU,
-            n_channels,
-            PPM_PIN if self.config.ppm else None,
-            capacity=self.config.timeline_frames,
-        )
 
-    # ------------------------------------------------------------------ process plumbing
     def _drain_stderr(self) -> None:
         """Keep the harness's last stderr lines (for error messages); ends when the harness exits."""
         proc = self._proc
@@ -204,6 +171,7 @@ class AvrBoard:
                 code = proc.wait(timeout=1.0)
         tail = "\n".join(self._stderr[-10:])
         if proc is not None and code is not None:
+            self.returncode = code
             raise HarnessDied(proc.pid, code, "", f"{why}{': ' + tail if tail else ''}")
         raise LinkTimeout(f"avr-harness: {why} (still running){': ' + tail if tail else ''}")
 
@@ -225,7 +193,7 @@ class AvrBoard:
         return words[1:]
 
     def check(self) -> None:
-        """Raise :class:`LinkError` if the harness has died (a crashed firmware, a crashed simulator)."""
+        """Raise :class:`HarnessDied` if the harness has died (a crashed firmware, a crashed simulator)."""
         proc = self._proc
         if proc is None:
             raise LinkError("avr-harness is closed")
@@ -233,6 +201,7 @@ class AvrBoard:
             self._died("exited")
 
     def close(self) -> None:
+        """Stop it (``quit``, then end of file; killed if it lingers) and reap it. Idempotent."""
         proc, self._proc = self._proc, None
         if proc is not None:
             with contextlib.suppress(OSError, ValueError):
@@ -249,6 +218,71 @@ class AvrBoard:
             if proc.stdin is not None:
                 with contextlib.suppress(OSError):
                     proc.stdin.close()
+            if self.returncode is None:
+                self.returncode = proc.returncode
+
+
+class AvrBoard:
+    """One emulated board. Use as a context manager; :meth:`close` is idempotent.
+
+    ``config`` is written into the board's EEPROM configuration block (so ``n_units``, rates, timeouts,
+    power thresholds reach the firmware the way they reach a real board); ``calibrations`` (one
+    ``UnitCalibration`` or None per unit) into its calibration slots (None: erased slot, the default set).
+    ``eeprom_image`` (4096 bytes) replaces all of that with raw EEPROM contents (e.g. a damaged block).
+    """
+
+    def __init__(
+        self,
+        config: BoardConfig | None = None,
+        options: HarnessOptions | None = None,
+        calibrations: Sequence[UnitCalibration | None] = (),
+        eeprom_image: bytes | None = None,
+    ) -> None:
+        self.config = config if config is not None else BoardConfig()
+        self.options = options if options is not None else HarnessOptions()
+        eeprom.check_hardware(self.config)
+        ensure_built()
+        if not self.options.elf.exists():
+            raise ConfigError(f"no firmware ELF at {self.options.elf}", "HarnessOptions.elf")
+        self._dir = tempfile.TemporaryDirectory(prefix="avr-board-")
+        work = Path(self._dir.name)
+        self._eeprom_path = self.options.eeprom_file or work / "eeprom.bin"
+        if eeprom_image is not None:
+            if len(eeprom_image) != eeprom.EEPROM_SIZE:
+                raise ConfigError(
+                    f"{len(eeprom_image)} bytes, not {eeprom.EEPROM_SIZE}", "AvrBoard.eeprom_image"
+                )
+            self._eeprom_path.write_bytes(eeprom_image)
+        elif self.options.eeprom_file is None or not self._eeprom_path.exists():
+            sets = tuple(None if c is None else c.to_bytes() for c in calibrations)
+            self._eeprom_path.write_bytes(eeprom.EepromImage(self.config, sets).to_bytes())
+        self._record_path = work / "record.txt"
+        self._record_path.touch()
+        self.process = HarnessProcess(
+            self.options.arguments(self._eeprom_path, self._record_path, control=True)
+        )
+        self.port = self.process.port
+        n_channels = 2 * self.config.n_units
+        self._records = RecordReader(
+            self._record_path,
+            F_CPU,
+            n_channels,
+            PPM_PIN if self.config.ppm else None,
+            capacity=self.config.timeline_frames,
+        )
+
+    # ------------------------------------------------------------------ the control pipe
+    def command(self, line: str) -> list[str]:
+        """Send one control command; its answer's words after "ok" (LinkError on "error ...", HarnessDied
+        when the harness has ended)."""
+        return self.process.command(line)
+
+    def check(self) -> None:
+        """Raise :class:`HarnessDied` if the harness has died (a crashed firmware, a crashed simulator)."""
+        self.process.check()
+
+    def close(self) -> None:
+        self.process.close()
         self._dir.cleanup()
 
     def __enter__(self) -> AvrBoard:
@@ -377,61 +411,8 @@ class HarnessDied(LinkError):
         self.pid, self.returncode = pid, returncode
 
 
-def spawn_interactive(options: HarnessOptions, config: BoardConfig, out: IO[str] | Any) -> int:
-    """Run the harness in the foreground for ``firmware-sim --avr``: print its pty path on ``out``, serve
-    until it stops, and return its exit status.
-
-    SIGINT/SIGTERM (and ``--duration``) stop it cleanly: the harness removes its symlink and saves the
-    EEPROM, status 0; it refusing its options at start-up is status 2 (it said why on stderr). Should it
-    end any other way, the symlink it can no longer remove is removed if it still points at its pty (a
-    later pty may get the same number) and :class:`HarnessDied` says how it ended. The other way round, the
-    harness's stdin is a pipe only this process holds (``--lifeline``): however this process dies, the
-    kernel closes it and the harness stops by itself (docs/firmware_sim.md, "Lifetimes")."""
-    eeprom.check_hardware(config)
-    ensure_built()
-    with _eeprom_for(options, config) as (path, fds):
-        proc = subprocess.Popen(
-            options.arguments(path, None, control=False),
-            stdin=subprocess.PIPE,  # the lifeline: never written, closed when this process ends
-            stdout=subprocess.PIPE,
-            text=True,
-            pass_fds=fds,
-        )
-        assert proc.stdout is not None and proc.stdin is not None
-        stopping = False
-
-        def forward(signum: int, frame: object) -> None:
-            nonlocal stopping
-            stopping = True
-            proc.terminate()
-
-        old = {s: signal.signal(s, forward) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            pty = proc.stdout.readline().strip()
-            if pty:
-                print(pty, file=out, flush=True)
-            code = proc.wait()
-        finally:
-            for s, handler in old.items():
-                signal.signal(s, handler)
-            if proc.poll() is None:
-                proc.terminate()
-                proc.wait()
-            proc.stdout.close()
-            proc.stdin.close()
-    if code != 0 and pty and options.link:
-        _remove_link(options.link, pty)  # it did not stop cleanly: the link is still there
-    if code == 0 and (stopping or options.duration_s is not None):
-        return 0
-    if stopping and code == -signal.SIGTERM:
-        return 0  # ended by the signal that was forwarded to it: what was asked
-    if not pty and code == 2:
-        return 2  # it refused an option or a file and said why on stderr (firmware-sim's status too)
-    raise HarnessDied(proc.pid, code, pty)
-
-
 @contextlib.contextmanager
-def _eeprom_for(options: HarnessOptions, config: BoardConfig) -> Iterator[tuple[Path, tuple[int, ...]]]:
+def eeprom_for(options: HarnessOptions, config: BoardConfig) -> Iterator[tuple[Path, tuple[int, ...]]]:
     """The harness's ``--eeprom`` argument and the descriptors it needs passed.
 
     ``--eeprom FILE``: that file (the image written first if there is none). Otherwise an anonymous
@@ -458,7 +439,7 @@ def _ending(code: int) -> str:
         return f"killed by signal {-code}"
 
 
-def _remove_link(link: str, pty: str) -> None:
+def remove_link(link: str, pty: str) -> None:
     """Remove the symlink ``link`` if it still points at ``pty`` (anything else there is not ours)."""
     with contextlib.suppress(OSError):
         if os.readlink(link) == pty:

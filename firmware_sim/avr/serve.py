@@ -1,23 +1,42 @@
-"""``firmware-sim --avr``: serve the board firmware on simavr behind a pty, from firmware-sim's options.
+"""``firmware-sim --avr``: the board firmware on simavr behind a pty, served by the harness itself, paced
+to real time — a :class:`HarnessServer`, read like every other server (:class:`..servers.base.BoardServer`:
+the same statistics, host presence and status lines).
 
 The board options (units, rates, timeouts, battery) become the firmware's EEPROM configuration block;
 the fault options the harness can reproduce become harness options. What the harness does not model
 (a link stall, extra pack resistance, a dead ESC, battery capacity) is refused with a clear error
-rather than silently ignored. With ``--world`` the firmware is not served from here: firmware-sim steps it
-as the board of the world (:mod:`.stepped`), behind its own pty server.
+rather than silently ignored. With ``--world`` or ``--can`` the firmware is not served from here:
+firmware-sim steps it (:mod:`.stepped`) behind its own pty or CAN server.
+
+The harness serves the pty in C (its UART bridge, paced in its own loop); this server polls its control
+pipe every :data:`POLL_S` for the bridge's counters (``stats``), its time (``now``) and the firmware's
+protocol state (its RAM, ``mem``), so ``firmware-sim``'s status lines and final statistics read as for
+the Python board. A harness that ends without being asked to raises :class:`.harness.HarnessDied` from
+:meth:`HarnessServer.serve` (firmware-sim: one line, exit status 3), its ``--link`` symlink removed if it
+still points at its pty.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
+import contextlib
 from pathlib import Path
 
 from protocol.errors import ConfigError
+from protocol.messages import BoardState
 
 from ..board.config import BoardConfig
-from .harness import HarnessOptions, spawn_interactive
+from ..servers.base import BoardServer, HostPresence
+from .build import ensure_built
+from .eeprom import check_hardware
+from .harness import F_CPU, HarnessDied, HarnessOptions, HarnessProcess, eeprom_for, remove_link
 from .paths import FIRMWARE_ELF
+
+POLL_S = 0.05
+"""How often the server reads the harness's counters, time and state (s): the host's presence and the
+board's state changes are seen within this (well inside HOST_SILENCE_S and a human's notice). A state
+that lasts less (a handshake's DISARMED followed at once by an Arm) may pass unseen: the C bridge serves
+the pty between two looks, unlike the Python servers, which note every change as the board runs."""
 
 
 def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessOptions:
@@ -54,7 +73,6 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
         seed=args.seed,
         hang_at=tuple(args.hang_at),
         sags=tuple(sags),
-        duration_s=args.duration,
     )
 
 
@@ -67,8 +85,75 @@ def _ocv_per_cell(config: BoardConfig, soc: float) -> float:
     return curve[-1][1]
 
 
-def run(args: argparse.Namespace, config: BoardConfig) -> int:
-    """Serve until interrupted (or --duration); the first stdout line is the pty path."""
+class HarnessServer(BoardServer):
+    """The firmware on simavr serving a pty (``options``; its configuration block from ``config``): the
+    harness's own UART bridge, watched through its control pipe. See the module docstring."""
+
+    def __init__(self, options: HarnessOptions, config: BoardConfig) -> None:
+        from .stepped import board_field_address
+
+        check_hardware(config)
+        ensure_built()
+        self.config = config
+        self.options = options
+        self._files = contextlib.ExitStack()
+        eeprom_path, fds = self._files.enter_context(eeprom_for(options, config))
+        self._state_at = board_field_address(options.elf, "state")
+        try:
+            self.process = HarnessProcess(options.arguments(eeprom_path, None, control=True), fds)
+        except BaseException:
+            self._files.close()
+            raise
+        self.path = self.process.port
+        super().__init__(f"firmware on simavr at {self.path}")
+        self.presence = HostPresence(self.stats)
+        self._now = 0.0
+
+    # ------------------------------------------------------------------ BoardServer
+    def board_time(self) -> float:
+        return self._now
+
+    def look(self) -> None:
+        """Read the harness's counters, time and the firmware's state once (see :data:`POLL_S`)."""
+        names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped", "lag_resets")
+        counts = dict(
+            zip((*names, "frames_in", "frames_out"), map(int, self.process.command("stats")), strict=True)
+        )
+        now = int(self.process.command("now")[0]) / F_CPU
+        state = bytes.fromhex(self.process.command(f"mem {self._state_at} 1")[0])[0]
+        stats = self.stats
+        if counts["bytes_in"] > stats.bytes_in:
+            self.presence.heard(now)
+        stats.bytes_in, stats.bytes_out = counts["bytes_in"], counts["bytes_out"]
+        stats.frames_in, stats.frames_out = counts["frames_in"], counts["frames_out"]
+        stats.dropped_out = counts["dropped_out"]
+        self.presence.tick(now)
+        self._now = now
+        with contextlib.suppress(ValueError):  # a byte that is no state: the firmware mid-reset
+            self.note_state(now, BoardState(state))
+
+    def serve(self, duration: float | None = None) -> None:
+        end = None if duration is None else self._now + duration
+        while not self.stopping():
+            self.look()
+            self.stats.loops += 1
+            if end is not None and self._now >= end:
+                return
+            self._stop.wait(POLL_S)
+
+    def _release(self) -> None:
+        process = self.process
+        process.close()
+        self._files.close()
+        if process.returncode not in (0, None) and self.options.link:
+            remove_link(self.options.link, self.path)  # it did not stop cleanly: the link is still there
+
+
+def server_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessServer:
+    """The harness server firmware-sim's options describe (its pty path printed by the caller)."""
     if args.fault_direction != "both" and (args.corrupt or args.drop):
         raise ConfigError("the harness damages both directions", "--fault-direction")
-    return spawn_interactive(options_from_args(args, config), config, sys.stdout)
+    return HarnessServer(options_from_args(args, config), config)
+
+
+__all__ = ["POLL_S", "HarnessDied", "HarnessServer", "options_from_args", "server_from_args"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 import abc
 import logging
 import threading
+from collections import deque
 from dataclasses import asdict, dataclass
 from types import TracebackType
 from typing import Self
@@ -29,6 +30,11 @@ HOST_SILENCE_S = 1.0
 """Board seconds without a byte from the host after which it counts as gone: four times the board's
 default link timeout (0.25 s), so a host that merely stopped streaming setpoints for a moment (a
 failsafe test) is not reported as having left, while one that closed the port is, within a second."""
+
+
+TRANSITIONS_KEPT = 256
+"""State changes a server keeps for its status reader between two looks (a tenth of a second apart: a
+board cannot change state that often but through a fault, and then the newest are what matter)."""
 
 
 @dataclass
@@ -120,7 +126,8 @@ class BoardServer(abc.ABC):
     :meth:`close`), its :class:`ServerStats` and what the status lines read of its board.
 
     Subclasses write :meth:`serve` (the loop; it returns when :meth:`stopping` or at the end of its
-    duration), :meth:`_release` (close the link) and the board readings."""
+    duration; it calls :meth:`note_state` as the board runs), :meth:`_release` (close the link) and
+    :meth:`board_time`."""
 
     path: str
     """What the host opens: a pty path, a ``can://`` URL."""
@@ -133,15 +140,30 @@ class BoardServer(abc.ABC):
         self._thread: threading.Thread | None = None
         self._describe = describe
         self._thread_error = ThreadError(f"{describe} failed")
+        self._state: BoardState | None = None
+        self._transitions: deque[tuple[float, BoardState]] = deque(maxlen=TRANSITIONS_KEPT)
 
     # ------------------------------------------------------------------ what the status lines read
     @abc.abstractmethod
     def board_time(self) -> float:
         """The board's clock now (s)."""
 
-    @abc.abstractmethod
-    def board_state(self) -> BoardState | None:
-        """The board's state now; None where the server cannot see it (the firmware under simavr)."""
+    def note_state(self, now: float, state: BoardState | None) -> None:
+        """The serving loop's look at the board's state at board time ``now``, after the board ran or took
+        the host's bytes: a change is kept for :meth:`take_transitions` — every one, however brief (an
+        Arm and a Disarm within one status period), where a reader sampling the state now and then
+        would miss it."""
+        if state is not None and state != self._state:
+            self._state = state
+            self._transitions.append((now, state))
+
+    def take_transitions(self) -> list[tuple[float, BoardState]]:
+        """The state changes noted since the last call, oldest first: (board time s, new state). At most
+        :data:`TRANSITIONS_KEPT` are kept between calls (the oldest go first)."""
+        out = []
+        while self._transitions:
+            out.append(self._transitions.popleft())
+        return out
 
     # ------------------------------------------------------------------ lifecycle
     @abc.abstractmethod

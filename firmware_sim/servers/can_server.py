@@ -24,7 +24,6 @@ from __future__ import annotations
 import logging
 
 from protocol.can import Direction
-from protocol.messages import BoardState
 
 from ..board import Board
 from .base import BoardServer, FrameCounter, HostPresence
@@ -57,10 +56,6 @@ class CanServer(BoardServer):
         with self.lock:
             return self.board.now
 
-    def board_state(self) -> BoardState:
-        with self.lock:
-            return self.board.state
-
     def _release(self) -> None:
         self.transport.close()
 
@@ -73,6 +68,7 @@ class CanServer(BoardServer):
         """Run the board to ``now`` (its clock's time) and put what it said on the bus."""
         with self.lock:
             self.board.step(now)
+            self.note_state(now, self.board.state)
             out = self.board.take_output()
             self.presence.tick(now)
         if out:
@@ -90,6 +86,7 @@ class CanServer(BoardServer):
             with self.lock:
                 self.presence.heard(self.board.now)
                 self.board.feed(data)
+                self.note_state(self.board.now, self.board.state)
         self.stats.frames_in = self.transport.counters()["rx_frames"]
         self._count_errors()
         return data

@@ -30,7 +30,6 @@ import tty
 from pathlib import Path
 
 from protocol.errors import LinkError
-from protocol.messages import BoardState
 
 from ..board import Board
 from .base import BoardServer, FrameCounter, HostPresence
@@ -80,10 +79,6 @@ class PtyServer(BoardServer):
         with self.lock:
             return self.board.now
 
-    def board_state(self) -> BoardState:
-        with self.lock:
-            return self.board.state
-
     def _release(self) -> None:
         """Close the pty and remove the symlink."""
         for fd in (self._master, self._slave):
@@ -109,6 +104,7 @@ class PtyServer(BoardServer):
             with self.lock:
                 now = clock.now()
                 board.step(now)
+                self.note_state(now, board.state)
                 self._queue(board.take_output())
                 self.presence.tick(now)
                 if end is not None and now >= end:
@@ -151,6 +147,7 @@ class PtyServer(BoardServer):
         with self.lock:
             self.presence.heard(self.board.now)
             self.board.feed(data)
+            self.note_state(self.board.now, self.board.state)
 
     def _write(self, master: int) -> None:
         try:

@@ -50,7 +50,7 @@ class StatusLines:
     def look(self) -> None:
         """One look at the server: a line for each thing that changed since the last."""
         server = self.server
-        now, state = server.board_time(), server.board_state()
+        now = server.board_time()
         stats = server.stats
         if stats.host_gone > self._gone:
             self._gone = stats.host_gone
@@ -61,9 +61,9 @@ class StatusLines:
         if stats.host_present and not self._present:
             self._present = True
             self._say(now, "host connected" if stats.reconnects == 0 else "host connected again")
-        if state is not None and state != self._state:
+        for at, state in server.take_transitions():  # every change, however brief, at its own time
             if self._state is not None:
-                self._say(now, f"board {self._state.name} -> {state.name}")
+                self._say(at, f"board {self._state.name} -> {state.name}")
             self._state = state
 
     def _say(self, now: float, what: str) -> None:
