@@ -15,9 +15,12 @@ import signal
 import sys
 from collections.abc import Sequence
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from protocol.errors import ConfigError, HilError, LinkError
+
+if TYPE_CHECKING:
+    from .avr.harness import HarnessDied
 
 EPILOG = """\
 examples:
@@ -383,6 +386,17 @@ def board_and_world(args: argparse.Namespace, scenario: object | None):  # type:
     return board, world
 
 
+def _say_harness_died(died: HarnessDied, where: str) -> None:
+    """One line naming the board that went (a ``HarnessDied``), after what the harness itself said when it
+    exited by itself with an error (a crashed firmware's message); a killed one said nothing new."""
+    from .avr.harness import HarnessDied
+
+    if died.returncode > 0 and died.said:
+        print(died.said, file=sys.stderr)
+    gone = HarnessDied(died.pid, died.returncode, where)
+    print(f"firmware-sim: error: {gone}", file=sys.stderr, flush=True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -447,8 +461,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except HarnessDied as exc:  # the firmware's simulator went: one line naming the board, exit 3
         harness_died = not server.stopping()
         if harness_died:
-            gone = HarnessDied(exc.pid, exc.returncode, server.path)
-            print(f"firmware-sim: error: {gone}", file=sys.stderr, flush=True)
+            _say_harness_died(exc, server.path)
     finally:
         status.stop()
         for s, handler in old.items():
@@ -462,8 +475,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 if not isinstance(died, HarnessDied):
                     raise
                 if not harness_died:
-                    gone = HarnessDied(died.pid, died.returncode, server.path)
-                    print(f"firmware-sim: error: {gone}", file=sys.stderr, flush=True)
+                    _say_harness_died(died, server.path)
                 harness_died = True
         if args.avr is not None and board is not None:
             board.close()  # the stepped firmware's harness: stopped, its EEPROM saved back

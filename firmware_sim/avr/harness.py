@@ -172,7 +172,7 @@ class HarnessProcess:
         tail = "\n".join(self._stderr[-10:])
         if proc is not None and code is not None:
             self.returncode = code
-            raise HarnessDied(proc.pid, code, "", f"{why}{': ' + tail if tail else ''}")
+            raise HarnessDied(proc.pid, code, "", f"{why}{': ' + tail if tail else ''}", said=tail)
         raise LinkTimeout(f"avr-harness: {why} (still running){': ' + tail if tail else ''}")
 
     def command(self, line: str) -> list[str]:
@@ -402,13 +402,15 @@ class HarnessDied(LinkError):
     """The harness ended without being asked to (killed, crashed, exited): the board it served is gone.
     ``pid`` was its process id, ``returncode`` its ``Popen.returncode`` (negative: the signal)."""
 
-    def __init__(self, pid: int, returncode: int, pty: str, detail: str = "") -> None:
+    def __init__(self, pid: int, returncode: int, pty: str, detail: str = "", said: str = "") -> None:
         if detail:  # a stepped harness (no pty of its own): what its driver was doing when it went
             where = f"the board is gone ({detail})"
         else:
             where = f"the board on {pty} is gone" if pty else "before it served a pty"
         super().__init__(f"avr-harness (pid {pid}) {_ending(returncode)}: {where}")
         self.pid, self.returncode = pid, returncode
+        self.said = said
+        """The harness's last lines on stderr (a crashed firmware's own message), for its driver to show."""
 
 
 @contextlib.contextmanager
