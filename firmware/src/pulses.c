@@ -41,6 +41,7 @@ static const channel_t CHANNELS[PULSE_CHANNELS_HW] PROGMEM = {
 static volatile uint16_t ticks[PULSE_CHANNELS_HW]; /* fine >> 8: whole ticks (0: no pulse) */
 static volatile uint8_t fraction[PULSE_CHANNELS_HW]; /* fine & 0xFF: 256ths of a tick */
 static uint8_t residue[PULSE_CHANNELS_HW];
+static uint8_t before[PULSE_CHANNELS_HW]; /* residue as it was before the frame-start interrupt's last carry */
 static uint16_t top;
 static uint8_t channels, ppm_on;
 static volatile uint8_t frame_flag;
@@ -61,9 +62,15 @@ static void output(uint8_t ch, uint32_t width_fine)
         *c->tccra &= (uint8_t)~c->com; /* disconnected: the pin stays low */
     } else {
         /* OCRnx is double-buffered in fast-PWM mode: written now, it takes effect at the next frame's
-         * start (an undithered width for that one frame); the frame-start interrupt then writes each
-         * following frame's, dithered. Left to the interrupt alone, a change would wait a frame longer. */
-        *c->ocr = (uint16_t)(whole - 1u);
+         * start; the frame-start interrupt then writes each following frame's. Left to the interrupt
+         * alone, a change would wait a frame longer. The next frame is dithered too: its carry taken again
+         * from the residue the interrupt started it with, with the new fraction. (Written undithered, the
+         * fraction was lost on every frame a new width arrived in: with a setpoint each frame, as a 50 Hz
+         * host sends at 50 Hz frames, widths were truncated to whole ticks — a gimbal held just past its
+         * servo's dead zone never moved, and the host's loop wound up against it.) */
+        uint16_t sum = (uint16_t)(before[ch] + (uint8_t)width_fine);
+        residue[ch] = (uint8_t)sum;
+        *c->ocr = (uint16_t)(whole + (sum >> 8) - 1u);
         if (!ticks[ch])
             *c->tccra |= c->com; /* a channel coming on (boot, a calibration stored) */
     }
@@ -145,6 +152,7 @@ ISR(TIMER1_OVF_vect, ISR_NOBLOCK)
         if (!whole)
             continue;
         uint16_t sum = (uint16_t)(residue[ch] + fraction[ch]);
+        before[ch] = residue[ch];
         residue[ch] = (uint8_t)sum;
         volatile uint16_t *ocr = (volatile uint16_t *)pgm_read_ptr(&CHANNELS[ch].ocr);
         *ocr = (uint16_t)(whole + (sum >> 8) - 1u);

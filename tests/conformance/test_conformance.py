@@ -8,6 +8,7 @@ event is read from what the board sent after it, not from whatever arrives first
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
@@ -133,6 +134,44 @@ def test_widths_finer_than_a_tick_are_dithered_over_frames(target, host):
         )
         assert abs(mean_rate - rate) <= abs(step) / len(widths) + 0.02 * abs(rate)
         assert tel.pulses_us[2 * i] == math.floor(want + 0.5)  # the wire reports the mean width in whole µs
+
+
+def test_the_dither_holds_when_a_new_width_comes_every_frame(target, host):
+    """A closed loop sends a new setpoint each control tick, as often as the frames go out (a 50 Hz host at
+    50 Hz frames): the width changes every frame, by a hair. The firmware wrote each new width to its
+    timer undithered (the fraction of a tick lost on every such frame), so widths just past the servo's
+    dead zone came out at its edge, rate 0, frame after frame — a held gimbal never moved and the host's
+    loop wound up against it (issue 32: the firmware's closed loop did not settle). Every run of frames
+    still adds up to the widths asked for within one tick."""
+    spec = target.spec
+    rates = tuple(1e-3 * (i + 1) * (-1) ** i for i in range(spec.n_units))
+    sent = itertools.count()
+
+    scales = (1.0, 1.05)  # a few 1/512 µs apart: the same ticks, another fraction
+
+    def changing() -> ActuatorSetpoint:
+        scale = scales[next(sent) % 2]
+        return ActuatorSetpoint(
+            gimbal_mode=GimbalMode.RATE, units=tuple(UnitSetpoint(r * scale, 300.0) for r in rates)
+        )
+
+    host.keepalive_period = 0.5 / spec.frame_rate_hz  # more than one new width a frame
+    host.handshake()
+    host.keepalive = heartbeat
+    assert isinstance(host.request(Arm()), Ack)
+    host.keepalive = changing
+    host.stream(1.0)
+    tel = telemetry(host, state=BoardState.ARMED)
+    t_tel = uptime_origin(target.resets(), target.now()) + tel.time_ms / 1000
+    frames = [f for f in target.timeline() if t_tel - 0.4 <= f.t <= t_tel]
+    assert len(frames) >= 0.35 * spec.frame_rate_hz
+    for i, rate in enumerate(rates):
+        cal = target.calibration(i)
+        want = sum(cal.gimbal_pulse_us(rate * k, GimbalMode.RATE).value for k in scales) / 2
+        widths = [f.widths[2 * i] for f in frames]
+        low = math.floor(2 * want) / 2
+        assert set(widths) == {low, low + 0.5}, (i, want, sorted(set(widths)))
+        assert abs(sum(widths) - len(widths) * want) <= 0.5 + 0.01 * len(widths), (i, want, widths)
 
 
 def test_raw_pulses_are_output_exactly(target, host):
