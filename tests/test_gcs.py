@@ -219,6 +219,21 @@ def replay_station(tmp_path):
         yield station
 
 
+def test_a_run_directory_s_info_is_there_when_the_station_is(tmp_path):
+    """Asked at once, as a script does after reading the printed URL (a CI run on a busy machine asked
+    before the pump's first pass and got an empty answer): the first pass is done before serving."""
+    d = _write_run_dir(tmp_path / "run", 10)
+    with GroundStation.replay(d, bind="127.0.0.1:0") as station:
+        status, info = request(station, "GET", f"/api/info?token={station.token}", token=None)
+    assert status == 200 and info["mode"] == "replay" and info["run"] == "run"
+
+
+def test_a_live_station_before_its_run_says_it_is_waiting():
+    with GroundStation.live(bind="127.0.0.1:0") as station:
+        status, body = request(station, "GET", f"/api/info?token={station.token}", token=None)
+    assert status == 503 and body == {"state": "waiting", "error": "no run has started yet"}
+
+
 def test_the_page_and_its_vendored_libraries_are_served_without_a_token(replay_station):
     status, page = request(replay_station, "GET", "/", token=None)
     assert status == 200 and "/static/vendor/uPlot.iife.min.js" in page and "//cdn" not in page

@@ -8,7 +8,7 @@ Routes (every ``/api/`` route needs the token; :mod:`hil.gcs.access` has the che
 ``GET  /``                      the page (it reads the token from its own URL)
 ``GET  /static/<file>``         the page's scripts, styles and vendored libraries (``hil/gcs/static/``)
 ``GET  /api/stream?token=T``    the downlink (``text/event-stream``, :mod:`hil.gcs.wire`)
-``GET  /api/info?token=T``      the run's ``info`` as JSON
+``GET  /api/info?token=T``      the run's ``info`` as JSON (503, ``Retry-After``, before a live run starts)
 ``GET  /api/stats?token=T``     the server's counters (streams, bytes sent, rejections, the feed's drops)
 ``POST /api/command``           a command (``Authorization: token T``, ``Content-Type: application/json``)
 ``POST /api/ack``               an alarm acknowledged by the operator (same headers; :mod:`hil.gcs.uplink`)
@@ -378,8 +378,15 @@ class _Favicon(_Base):
 
 class _Info(_Base):
     def get(self, *args: str) -> None:
-        if self._api_allowed(self._query_token()):
-            self._json(HTTPStatus.OK, self.server.info() or {})
+        if not self._api_allowed(self._query_token()):
+            return
+        info = self.server.info()
+        if info is None:  # a live station whose run has not started: say so, never an empty "info"
+            self.set_header("Retry-After", "1")
+            waiting = {"state": "waiting", "error": "no run has started yet"}
+            self._json(HTTPStatus.SERVICE_UNAVAILABLE, waiting)
+            return
+        self._json(HTTPStatus.OK, info)
 
 
 class _Stats(_Base):

@@ -100,6 +100,10 @@ class GroundStation:
         self.loopback = is_loopback(host)
         self._stop = threading.Event()
         self._closed = False
+        # The first cycle before serving: a run directory's info (its mode, columns, limits) is known by
+        # the time the URL is printed, so a client that asks at once gets it (on a busy machine the pump's
+        # first pass came after such a request, which got an empty answer).
+        self._cycle()
         self.server.start()
         self._pump_thread = threading.Thread(target=self._pump, name="gcs-pump", daemon=True)
         self._pump_thread.start()
