@@ -184,8 +184,12 @@ def test_datagrams_the_kernel_drops_are_counted_never_silently_lost(caplog):
                 time.sleep(0.05)
 
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as raw:
-            for _ in range(FLOOD):
-                raw.sendto(datagram, address)
+            # The receiver's thread stalled at its first delivery while the flood goes out, as a host left
+            # unscheduled is: the kernel's buffer overflows whatever this machine's speed (a CI machine
+            # once read a free-running flood as fast as it came, and nothing was dropped to count).
+            with receiver._lock:
+                for _ in range(FLOOD):
+                    raw.sendto(datagram, address)
             settle()
             raw.sendto(datagram, address)  # queued after the flood: it carries the flood's whole count
             settle()

@@ -63,3 +63,18 @@ def test_a_long_series_draws_one_point_per_bin_with_its_band():
     short = Figure().add_subplot()
     _line(short, t[:500], y[:500], "short")
     assert len(short.get_lines()[0].get_xdata()) == 500 and not short.collections
+
+
+def test_an_angle_turning_faster_than_half_a_turn_a_bin_is_cut_between_bins():
+    """Hypothesis's find in CI: 39 deg a sample, five samples a bin, the wrap falling between two samples
+    of one bin and not the next: two neighbouring bins' means 195 deg apart with no wrap between them.
+    The line is cut there (it would read as turning the other way), every bin's mean still drawn."""
+    steps = np.full(649, 39.0)
+    steps[[0, 1, 2, 257]] = 0.0  # the example as Hypothesis shrank it
+    yaw = (np.cumsum(steps) + 180.0) % 360.0 - 180.0
+    t = np.arange(len(yaw)) * 0.02
+    env = envelope(t, yaw, bins=len(yaw) // 5, period=360.0)
+    assert env is not None
+    jumps = np.abs(np.diff(env.mean))
+    assert not np.any(jumps[np.isfinite(jumps)] > 180.0)
+    assert np.all(np.diff(env.t) >= 0) and len(env.t) == len(env.mean) == len(env.low) == len(env.high)

@@ -22,7 +22,8 @@ MAX_BINS = 1_500
 @dataclass(frozen=True)
 class Envelope:
     """One series in bins: ``t`` (B,) s, the bin's centre; ``mean``, ``low``, ``high`` (B,) in the
-    series' unit. Bins with no finite value are NaN (a gap stays a gap)."""
+    series' unit. Bins with no finite value are NaN (a gap stays a gap); an angle's envelope has a NaN
+    row besides wherever its line is cut (B counts those too)."""
 
     t: NDArray[np.float64]
     mean: NDArray[np.float64]
@@ -35,7 +36,8 @@ def envelope(
 ) -> Envelope | None:
     """``y`` (N,) against ``t`` (N,) s in ``bins`` equal spans of time, or None when ``y`` has no more
     points than two per bin (then it is drawn as it is). With ``period`` (an angle's, e.g. 360 deg), a bin
-    in which the series wraps around is left empty: the line is cut there, not drawn across the axes."""
+    in which the series wraps around is left empty, and two neighbouring bins whose means are more than
+    half a turn apart are cut apart: the line is never drawn across the axes, nor the wrong way round."""
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     if len(t) <= 2 * bins or not np.isfinite(t).all() or t[-1] <= t[0]:
@@ -56,7 +58,16 @@ def envelope(
         wrapped = np.flatnonzero(np.abs(np.diff(y)) > period / 2) + 1
         empty |= np.bincount(index[wrapped], minlength=bins) > 0
     mean[empty] = low[empty] = high[empty] = np.nan
-    return Envelope(0.5 * (edges[:-1] + edges[1:]), mean, low, high)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    if period is not None:
+        # Two neighbouring bins whose means are more than half a turn apart without a wrap between them:
+        # the angle turned faster than half a turn a bin, and a line between them would read as turning
+        # the other way. Cut it there (a NaN row at the later bin's time), as at a wrap.
+        cuts = np.flatnonzero(np.abs(np.diff(mean)) > period / 2) + 1
+        if cuts.size:
+            centres = np.insert(centres, cuts, centres[cuts])
+            mean, low, high = (np.insert(a, cuts, np.nan) for a in (mean, low, high))
+    return Envelope(centres, mean, low, high)
 
 
 def break_wraps(y: NDArray[np.float64], period: float = 360.0) -> NDArray[np.float64]:
