@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import re
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -34,6 +33,7 @@ import tempfile
 from pathlib import Path
 
 from bench.bench_firmware_sim import RATES, _pct, pulse_latency, sustained_rate
+from bench.bench_runtime import _phone_url
 from bench.can_bus import multicast_url, udp_multicast_problem
 from bench.common import Result
 from hil.scenario import load_scenario
@@ -49,17 +49,11 @@ _WORLD_LINE = re.compile(
 )
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def closed_loop(duration_s: float, can: str | None) -> dict[str, float]:
     """``hil run --port`` against ``firmware-sim --world`` on a pty or on the bus ``can`` for
     ``duration_s`` s: control lateness p99 and max (µs), overruns, and the world's lag (ms) after
     start-up, with its episodes."""
-    phone = f"udp://127.0.0.1:{_free_udp_port()}"
+    phone = _phone_url()
     with tempfile.TemporaryDirectory(prefix="bench-transports-") as tmp:
         link = Path(tmp) / "board"
         where = ["--can", can] if can is not None else ["--link", str(link)]

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.bench_runtime import _free_port
 from bench.soak import (
     BACK_S,
     FREEZE_S,
@@ -47,12 +48,6 @@ START_S = 90.0  # firmware-sim's world and the host's first slew, at most (a loa
 HOSTILE_WATCH_S = 1.5  # after a hostile burst: nothing may happen for this long
 RELAY_DRAIN_S = 0.5  # s: the relay's last datagrams, read by the host before the soak ends its run
 HOSTILE_REPEAT = 5  # each hostile datagram sent this many times a cycle
-
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 TARGETS = ("python", "avr", "can", "can-fd")
@@ -129,7 +124,7 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
 
     rng = np.random.default_rng([seed, 7])
     scenario = load_scenario(SCENARIO)
-    port = _free_udp_port()
+    port = _free_port(socket.SOCK_DGRAM)
     relay = PhoneRelay(("127.0.0.1", port)).start()
     out_root.mkdir(parents=True, exist_ok=True)
     link: Path | str = out_root / "board"
