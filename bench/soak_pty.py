@@ -155,8 +155,17 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
     cycles: list[Cycle] = []
     hostile_bad = 0
     try:
-        if not _wait(lambda: rec.first("armed", -1.0) is not None or not thread.is_alive(), START_S):
+
+        def ready() -> bool:
+            """Armed (in the run's set-up) and ticking (the recorder knows the host's clock, on which the
+            first fault's moment is drawn: the first tick comes after the Arm), or ended."""
+            armed = rec.first("armed", -1.0) is not None
+            return (armed and rec.offset is not None) or not thread.is_alive()
+
+        if not _wait(ready, START_S):
             raise RuntimeError("the host did not arm the board")
+        if rec.offset is None:  # the host's run ended before its loop ticked
+            raise RuntimeError(f"the host's run ended before it began: {outcome}")
         start = rec.now()
         for n, kind in enumerate(plan):
             lo, hi = FIRST_WINDOW_S if n == 0 else NEXT_WINDOW_S
