@@ -9,15 +9,13 @@ the board do not share a GIL; the host is pyserial, as in ``hil``.
 from __future__ import annotations
 
 import statistics
-import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import serial
 
+from bench.child import firmware_sim, started
 from bench.common import Result
 from protocol.frame import Deframer, Frame, Framer
 from protocol.messages import (
@@ -56,35 +54,10 @@ while True:
 """
 
 
-@contextmanager
-def _process(args: list[str], ready: str = "/dev/") -> Iterator[tuple[subprocess.Popen[str], str]]:
-    """Start ``args``; wait for its first stdout line, which must start with ``ready`` (by default a pty
-    path); yield the process and that line; terminate it (kill if it lingers) on the way out."""
-    proc = subprocess.Popen(
-        args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
-    )
-    try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline().strip()
-        if not line.startswith(ready):
-            raise RuntimeError(f"{args[:3]} did not print {ready!r}...: {line!r}")
-        yield proc, line
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
 def _emulator(frame_rate: int, telemetry_rate: int, can: str | None = None) -> Any:
     """``firmware-sim`` with ``N_UNITS`` units in its own process, on a pty, or on the CAN bus ``can``
     (``can://…``) when given; yields (the process, what the host opens)."""
-    argv = [
-        sys.executable,
-        "-m",
-        "firmware_sim",
+    argv = firmware_sim(
         "--units",
         str(N_UNITS),
         "--frame-rate",
@@ -93,10 +66,10 @@ def _emulator(frame_rate: int, telemetry_rate: int, can: str | None = None) -> A
         str(telemetry_rate),
         "--link-timeout",
         "2",
-    ]
+    )
     if can is not None:
-        return _process([*argv, "--can", can], ready="can://")
-    return _process(argv)
+        return started([*argv, "--can", can], ready="can://")
+    return started(argv, ready="/dev/")
 
 
 def _setpoint(speed: float, gimbal_rate: float = 0.1) -> ActuatorSetpoint:
@@ -178,7 +151,8 @@ def sustained_rate(
 ) -> tuple[float, str]:
     """The highest setpoint rate (frames/s) the emulator decodes without losing frames (≤ 0.1 %), on a
     pty or on the CAN bus ``can``, stepping the offered ``rates`` up; and a note of each step's loss."""
-    with _emulator(50, 50, can) as (_, where):
+    with _emulator(50, 50, can) as board:
+        where = board.first_line
         host = _Host(where)
         host.session()
         # One frame per sequence number, as a host's stream has them: byte-identical repeats would be
@@ -203,8 +177,9 @@ def _frames_per_second(seconds: float) -> tuple[float, float, str]:
     sustained, note = sustained_rate(seconds)
     frame = Framer().encode(_setpoint(300.0))[1]
     batch = frame * 64
-    with _process([sys.executable, "-c", _PEER, "sink"]) as (proc, path):
-        port = serial.Serial(path, timeout=0.01)
+    with started([sys.executable, "-c", _PEER, "sink"], ready="/dev/") as sink:
+        proc = sink.proc
+        port = serial.Serial(sink.first_line, timeout=0.01)
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < seconds:
             port.write(batch)
@@ -226,7 +201,8 @@ def pulse_latency(samples: int, can: str | None = None) -> tuple[list[float], in
     out: list[float] = []
     lost = 0
     rates = (0.1, 0.3)
-    with _emulator(490, 1000, can) as (_, where):
+    with _emulator(490, 1000, can) as board:
+        where = board.first_line
         host = _Host(where)
         host.session()
         expect: dict[float, int] = {}
@@ -258,7 +234,8 @@ def _latency(samples: int) -> tuple[list[float], list[float], int]:
     up."""
     out, lost = pulse_latency(samples)
     echo: list[float] = []
-    with _process([sys.executable, "-c", _PEER, "echo"]) as (_, path):
+    with started([sys.executable, "-c", _PEER, "echo"], ready="/dev/") as peer:
+        path = peer.first_line
         port = serial.Serial(path, timeout=1.0)
         data = Framer().encode(_setpoint(300.0))[1]
         for _ in range(samples):

@@ -24,7 +24,8 @@ from typing import Any
 
 import serial
 
-from bench.bench_firmware_sim import _PEER, _pct, _process
+from bench.bench_firmware_sim import _PEER, _pct
+from bench.child import started
 from bench.common import Result
 from firmware_sim.servers.transports import EmulatorTransport
 from hil.link.board import BoardClient, ClientConfig, Event, TelemetryEvent
@@ -87,7 +88,8 @@ def _changed(reports: list[TelemetryEvent], previous: int) -> TelemetryEvent | N
 def _echo(samples: int) -> list[float]:
     data = Framer().encode(_setpoint(300.0))[1]
     out = []
-    with _process([sys.executable, "-c", _PEER, "echo"]) as (_, path):
+    with started([sys.executable, "-c", _PEER, "echo"], ready="/dev/") as peer:
+        path = peer.first_line
         port = serial.Serial(path, timeout=1.0)
         for _ in range(samples):
             t0 = time.perf_counter()

@@ -75,8 +75,9 @@ from urllib.parse import urlencode, urlsplit
 
 import numpy as np
 
-from bench.bench_firmware_sim import _pct, _process
+from bench.bench_firmware_sim import _pct
 from bench.bench_link import _pty_latency
+from bench.child import started
 from bench.common import Result
 from hil.scenario import Scenario, load_scenario
 from hil.timing.clock import WallClock
@@ -183,7 +184,7 @@ sender.close()  # a clean end of the connection, as an app that stops streaming
 @contextmanager
 def _still_phone(url: str) -> Iterator[None]:
     """The stand-in phone, streaming to ``url`` before the run starts."""
-    with _process([sys.executable, "-c", _STILL_PHONE, SCENARIO, url], ready="streaming"):
+    with started([sys.executable, "-c", _STILL_PHONE, SCENARIO, url], ready="streaming"):
         yield
 
 

@@ -35,6 +35,7 @@ from pathlib import Path
 from bench.bench_firmware_sim import RATES, _pct, pulse_latency, sustained_rate
 from bench.bench_runtime import _phone_url
 from bench.can_bus import multicast_url, udp_multicast_problem
+from bench.child import firmware_sim, started
 from bench.common import Result
 from hil.scenario import load_scenario
 
@@ -57,24 +58,12 @@ def closed_loop(duration_s: float, can: str | None) -> dict[str, float]:
     with tempfile.TemporaryDirectory(prefix="bench-transports-") as tmp:
         link = Path(tmp) / "board"
         where = ["--can", can] if can is not None else ["--link", str(link)]
-        sim = subprocess.Popen(
-            [sys.executable, "-m", "firmware_sim", "--world", SCENARIO, "--phone", phone, *where],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        try:
-            assert sim.stdout is not None
-            port = sim.stdout.readline().strip()
-            if not port:
-                raise RuntimeError(f"firmware-sim did not start: {sim.communicate(timeout=10)[1][-999:]}")
-            port = port if can is not None else str(link)
+        with started(firmware_sim("--world", SCENARIO, "--phone", phone, *where), stop=signal.SIGINT) as sim:
+            port = sim.first_line if can is not None else str(link)
             argv = [sys.executable, "-m", "hil", "run", "--port", port, "--phone", phone, "--duration",
                     str(duration_s), "--no-plots", "--out", tmp]  # fmt: skip
             done = subprocess.run(argv, capture_output=True, text=True, timeout=duration_s + 240, check=False)
-        finally:
-            sim.send_signal(signal.SIGINT)
-            _, said = sim.communicate(timeout=20)
+        said = sim.said
         written = sorted(Path(tmp).glob("*/summary.json"))
         if not written:
             raise RuntimeError(f"hil run left no summary (exit {done.returncode}): {done.stderr[-999:]}")

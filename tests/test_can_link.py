@@ -13,6 +13,7 @@ import time
 
 import pytest
 
+from bench.child import firmware_sim, started
 from firmware_sim.board import Board
 from firmware_sim.board.config import BoardConfig
 from firmware_sim.servers.can_server import CanServer
@@ -77,24 +78,13 @@ def test_the_exchange_with_the_board_in_another_process_over_udp_multicast():
     port = random.randint(40_000, 60_000)
     node = random.randint(1, 126)
     spec = f"udp_multicast/239.74.163.{random.randint(1, 254)}?port={port}&node={node}"
-    board = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", "--units", "2", "--telemetry-rate", "50", "--can", spec],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert board.stdout is not None
-        url = board.stdout.readline().strip()
-        assert url == f"can://{spec}", board.stderr.read() if board.stderr else ""
-        client = exchange(url, 2)
+    with started(firmware_sim("--units", "2", "--telemetry-rate", "50", "--can", spec)) as board:
+        assert board.first_line == f"can://{spec}", board.said
+        client = exchange(board.first_line, 2)
         assert client.stats().transport["rx_ignored"] > 0  # udp_multicast loops our own frames back
         time.sleep(1.5)  # the host is silent (closed) for longer than HOST_SILENCE_S: gone
-    finally:
-        board.terminate()
-        board.wait(5)
-    assert board.returncode == 0
-    err = board.stderr.read() if board.stderr else ""
+    assert board.proc.returncode == 0
+    err = board.said
     assert "Traceback" not in err and "Error" not in err, err
     assert "host connected" in err and "host left" in err, err
     assert " frames in, " in err and "host left 1 time(s)" in err and "0 link error(s)" in err, err

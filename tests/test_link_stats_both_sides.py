@@ -6,14 +6,13 @@ on simavr — and the host's coming and going and the board's state changes repo
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
 from bench.can_bus import multicast_url
+from bench.child import firmware_sim, started
 from tests.test_can_link import exchange
 
 _STOPPED = re.compile(
@@ -49,32 +48,12 @@ FIRMWARE = pytest.mark.firmware
     ],
 )
 def test_both_ends_count_the_same_frames_and_the_host_leaving(transport, tmp_path):
-    board = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "firmware_sim",
-            "--units",
-            "2",
-            "--telemetry-rate",
-            "50",
-            *_where(transport, tmp_path),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        assert board.stdout is not None
-        url = board.stdout.readline().strip()
-        assert url, board.stderr.read() if board.stderr else ""
-        client = exchange(str(tmp_path / "board") if transport.endswith("pty") else url, 2)
+    options = ["--units", "2", "--telemetry-rate", "50", *_where(transport, tmp_path)]
+    with started(firmware_sim(*options)) as board:
+        client = exchange(str(tmp_path / "board") if transport.endswith("pty") else board.first_line, 2)
         time.sleep(1.5)  # the host is silent (closed) for longer than HOST_SILENCE_S: gone
-    finally:
-        board.terminate()
-        board.wait(5)
-    err = board.stderr.read() if board.stderr else ""
-    assert board.returncode == 0, err
+    err = board.said
+    assert board.proc.returncode == 0, err
     stopped = _STOPPED.search(err)
     assert stopped is not None, err
     board_side = {k: int(v) for k, v in stopped.groupdict().items()}
