@@ -15,6 +15,7 @@ import pytest
 
 from conformance.host import connect, heartbeat, retry_if_starved
 from conformance.targets import uptime_origin
+from firmware_sim.board.timeline import PulseFrame
 from protocol.messages import (
     PROTOCOL_VERSION,
     SCHEMA_HASH,
@@ -108,6 +109,26 @@ def test_arm_and_setpoints_give_the_expected_pulse_widths(target, host):
     assert tel.pulses_us[1::2] == (spec.rotor_safe_us,) * spec.n_units
 
 
+def frames_before(target, tel: Telemetry, seconds: float) -> list[PulseFrame]:
+    """The pulse frames of the ``seconds`` before the board sent ``tel`` (its timeline), at least 35 % of
+    the frames that span holds, less one in eight (a timeline with a hole is a failure, not a shorter
+    average)."""
+    t_tel = uptime_origin(target.resets(), target.now()) + tel.time_ms / 1000
+    frames = [f for f in target.timeline() if t_tel - seconds <= f.t <= t_tel]
+    assert len(frames) >= 0.875 * seconds * target.spec.frame_rate_hz, len(frames)
+    return frames
+
+
+def assert_dithered(widths: list[float], want: float, slack_us_per_frame: float) -> float:
+    """``widths`` (µs, one a frame) dither ``want`` µs over the two neighbouring 0.5 µs ticks, both used, and
+    add up to it within one tick (plus ``slack_us_per_frame`` for the calibration's rounding a frame).
+    Returns the lower tick."""
+    low = math.floor(2 * want) / 2
+    assert set(widths) == {low, low + 0.5}, (want, sorted(set(widths)))
+    assert abs(sum(widths) - len(widths) * want) <= 0.5 + slack_us_per_frame * len(widths), (want, widths)
+    return low
+
+
 def test_widths_finer_than_a_tick_are_dithered_over_frames(target, host):
     """A calibration map asks for widths between the timers' 0.5 µs ticks: the board puts out whole ticks
     and carries the rest to the next frame, so any run of frames adds up to the width asked for within
@@ -118,16 +139,12 @@ def test_widths_finer_than_a_tick_are_dithered_over_frames(target, host):
     sp = ActuatorSetpoint(gimbal_mode=GimbalMode.RATE, units=tuple(UnitSetpoint(r, 300.0) for r in rates))
     armed_and_streaming(target, host, sp, seconds=1.0)
     tel = telemetry(host, state=BoardState.ARMED)
-    t_tel = uptime_origin(target.resets(), target.now()) + tel.time_ms / 1000
-    frames = [f for f in target.timeline() if t_tel - 0.4 <= f.t <= t_tel]
-    assert len(frames) >= 0.35 * spec.frame_rate_hz
+    frames = frames_before(target, tel, 0.4)
     for i, rate in enumerate(rates):
         cal = target.calibration(i)
         want = cal.gimbal_pulse_us(rate, GimbalMode.RATE).value  # e.g. 1510.15 µs
         widths = [f.widths[2 * i] for f in frames]
-        low = math.floor(2 * want) / 2
-        assert set(widths) == {low, low + 0.5}  # two neighbouring ticks, both used
-        assert abs(sum(widths) - len(widths) * want) <= 0.5 + 0.01 * len(widths) / 100
+        low = assert_dithered(widths, want, slack_us_per_frame=1e-4)
         mean_rate = sum(cal.gimbal_value(w, GimbalMode.RATE).value for w in widths) / len(widths)
         step = (
             cal.gimbal_value(low + 0.5, GimbalMode.RATE).value - cal.gimbal_value(low, GimbalMode.RATE).value
@@ -162,16 +179,11 @@ def test_the_dither_holds_when_a_new_width_comes_every_frame(target, host):
     host.keepalive = changing
     host.stream(1.0)
     tel = telemetry(host, state=BoardState.ARMED)
-    t_tel = uptime_origin(target.resets(), target.now()) + tel.time_ms / 1000
-    frames = [f for f in target.timeline() if t_tel - 0.4 <= f.t <= t_tel]
-    assert len(frames) >= 0.35 * spec.frame_rate_hz
+    frames = frames_before(target, tel, 0.4)
     for i, rate in enumerate(rates):
         cal = target.calibration(i)
         want = sum(cal.gimbal_pulse_us(rate * k, GimbalMode.RATE).value for k in scales) / 2
-        widths = [f.widths[2 * i] for f in frames]
-        low = math.floor(2 * want) / 2
-        assert set(widths) == {low, low + 0.5}, (i, want, sorted(set(widths)))
-        assert abs(sum(widths) - len(widths) * want) <= 0.5 + 0.01 * len(widths), (i, want, widths)
+        assert_dithered([f.widths[2 * i] for f in frames], want, slack_us_per_frame=0.01)
 
 
 def test_raw_pulses_are_output_exactly(target, host):
