@@ -18,7 +18,7 @@ static struct {
     uint8_t state, step; /* step: 0 GET_PROTOCOL, 1..6 SEND_STRING index step-1, 7 START */
     uint8_t in_toggle, out_toggle, zlp_due, errors, halted_ep;
     uint8_t rx_len, rx_pos;
-    uint16_t version, generation;
+    uint16_t version, generation, start_generation; /* start_generation: the bus generation START was sent in */
     uint32_t since_us;
     const char *serial;
     uint8_t rx[64];
@@ -146,6 +146,7 @@ static void handshake(uint32_t now_us)
         return;
     }
     usb_link_event(AOA_EV_STARTED, aoa.version);
+    aoa.start_generation = aoa.generation;
     enter(AOA_WAIT_REENUM, now_us);
 }
 
@@ -220,8 +221,15 @@ void aoa_poll(uint32_t now_us)
         return;
     }
     switch (aoa.state) {
-    case AOA_IDLE:
     case AOA_WAIT_REENUM:
+        if (aoa.generation == aoa.start_generation) { /* still the phone we sent START to: it drops off soon */
+            if (now_us - aoa.since_us >= AOA_REENUM_US)
+                enter(AOA_IDLE, now_us); /* it never did: start over */
+            break;
+        }
+        device_ready(now_us);
+        break;
+    case AOA_IDLE:
         device_ready(now_us);
         break;
     case AOA_HANDSHAKE:
