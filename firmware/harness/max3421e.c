@@ -25,8 +25,13 @@
  * suspend/resume, no low-speed device, no hub, no isochronous endpoints; transactions do not wait for room
  * in the 1 ms frame; GPIO registers are plain storage.
  *
- * The phone behind the port is phone.c's job in spirit, but the two share one state and one clock, so the
- * device side lives in the second half of this file (one job: a MAX3421E with its phone).
+ * The phone (the device side: descriptors, ep0 requests, AOA, bulk pipes, faults) shares the chip's state
+ * and clock, so it lives in this file too: one job, the USB port of the board with a phone plugged in.
+ * Normal mode: Samsung 04E8:6860 (MTP + ADB). AOA: GET_PROTOCOL (51) answers the "aoa" version, SEND_STRING
+ * (52) records strings 0..5, START (53) drops the phone off the bus START_DETACH_US after the status stage
+ * and brings it back START_ATTACH_US later as 18D1:2D01, interface 0 = bulk IN 0x81 / OUT 0x02, 64 bytes.
+ * Bulk OUT fills the app's buffer (NAK when full: USB flow control); bulk IN serves the app's writes, each
+ * a transfer (short packet or ZLP at its end), NAK while empty. The app-side buffers hold APP_BUF bytes.
  */
 #include "max3421e.h"
 
