@@ -12,13 +12,19 @@ from __future__ import annotations
 import ctypes
 import functools
 import re
+import struct
 
 import hypothesis.strategies as st
 import pytest
 from hypothesis import HealthCheck, given, settings
 
+from firmware_sim.avr import eeprom
 from firmware_sim.avr.build import ensure_built
+from firmware_sim.avr.hostlib import config_parse
 from firmware_sim.avr.paths import BUILD_DIR, FIRMWARE_DIR
+from firmware_sim.board.config import BoardConfig
+from protocol.crc import crc16_ccitt_false
+from protocol.errors import ConfigError
 from protocol.frame import Frame, decode_stream, encode_frame
 from protocol.messages import Heartbeat, Log, Severity
 
@@ -360,3 +366,37 @@ def test_every_pass_is_bounded(stack):
     stack.step(50)
     # a pass runs at most a few transactions of <= 1.2 ms each: the main loop is never held long
     assert stack.lib.usbc_max_pass_us() < 6000
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The link byte of the EEPROM configuration (firmware_sim/avr/eeprom.py -> firmware/src/config.c)
+
+
+@pytest.mark.parametrize("link", eeprom.LINKS)
+def test_the_configuration_block_carries_the_link(link):
+    status, got, _ = config_parse(eeprom.config_block(BoardConfig(), link=link))
+    assert status == 0 and got["link"] == eeprom.LINKS.index(link)
+
+
+def test_uart_stays_the_default_link():
+    status, got, _ = config_parse(eeprom.EepromImage(BoardConfig()).to_bytes()[: eeprom.CONFIG_SIZE])
+    assert status == 0 and eeprom.LINKS[int(got["link"])] == "uart"
+    _, erased, _ = config_parse(b"\xff" * eeprom.CONFIG_SIZE)  # no block: BoardConfig's defaults
+    assert eeprom.LINKS[int(erased["link"])] == "uart"
+
+
+def test_an_unknown_link_is_refused_by_the_image_builder_and_the_firmware():
+    with pytest.raises(ConfigError, match="link"):
+        eeprom.config_block(BoardConfig(), link="can")
+    body = bytearray(eeprom.config_block(BoardConfig())[:-2])
+    body[eeprom.field_offsets()["link"]] = len(eeprom.LINKS)
+    status, got, problem = config_parse(bytes(body) + struct.pack("<H", crc16_ccitt_false(bytes(body))))
+    assert status == 3 and got["link"] == 0  # CONFIG_INVALID: the defaults, UART
+    assert problem == 21  # config.c's BAD_LINK: the last of its problems ("link")
+
+
+def test_the_image_cli_writes_the_link(tmp_path):
+    out = tmp_path / "board.eep"
+    assert eeprom.main(["--out", str(out), "--link", "first"]) == 0
+    _, got, _ = config_parse(out.read_bytes()[: eeprom.CONFIG_SIZE])
+    assert eeprom.LINKS[int(got["link"])] == "first"

@@ -72,9 +72,6 @@ enum {
 /* Bus state from HRSL's J/K bits after a sample (with MODE.LOWSPEED = 0: J = full speed, K = low speed). */
 typedef enum { MAX_BUS_SE0 = 0, MAX_BUS_FULL, MAX_BUS_LOW, MAX_BUS_SE1 } max_bus_t;
 
-/* HIRQ as the chip sent it in the status byte of the last command (full-duplex SPI). */
-extern uint8_t max_status;
-
 uint8_t max_read(uint8_t reg);
 void max_write(uint8_t reg, uint8_t value);
 void max_read_fifo(uint8_t reg, uint8_t *dst, uint8_t n);

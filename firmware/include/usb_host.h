@@ -70,7 +70,7 @@ void usb_host_init(void);
 void usb_host_poll(uint32_t now_us);
 usb_state_t usb_host_state(void);
 /* Counts every bus attach/detach the host saw (the accessory layer compares it to notice either). */
-uint16_t usb_host_generation(void);
+uint8_t usb_host_generation(void);
 /* Drop the device: bus reset and enumerate again (after an unrecoverable pipe error). */
 void usb_host_reenumerate(void);
 
@@ -80,9 +80,10 @@ void usb_ctl_start(const usb_setup_t *s, const uint8_t *out, uint8_t out_flash, 
 usb_ctl_result_t usb_ctl_poll(uint32_t now_us);
 uint8_t usb_ctl_result_hr(void);
 
-/* One bulk IN transaction on endpoint `ep` with its data toggle in *toggle (updated): the HRSL code;
- * on MAX_HR_SUCCESS *n bytes (<= 64) are in dst. */
-uint8_t usb_bulk_in(uint8_t ep, uint8_t *toggle, uint8_t *dst, uint8_t *n);
+/* One bulk IN transaction on endpoint `ep` with its data toggle in *toggle (updated): the HRSL code.
+ * On MAX_HR_SUCCESS the packet's *n bytes (<= 64) are left in the chip's RCVFIFO for the caller to read
+ * (max_read(MAX_RCVFIFO)) and free (HIRQ.RCVDAVIRQ) - a zero-length packet is freed here. */
+uint8_t usb_bulk_in(uint8_t ep, uint8_t *toggle, uint8_t *n);
 /* One bulk OUT transaction of n bytes (0: a zero-length packet): the HRSL code. */
 uint8_t usb_bulk_out(uint8_t ep, uint8_t *toggle, const uint8_t *src, uint8_t n);
 

@@ -14,14 +14,31 @@ static const char S_DESCRIPTION[] FLASH = IDENTITY_DESCRIPTION;
 static const char S_VERSION[] FLASH = IDENTITY_VERSION;
 static const char S_URI[] FLASH = IDENTITY_URI;
 
+/* Identity string `index` (0..4, in flash). A switch, not a table: a table of pointers would sit in RAM. */
+static const char *identity_string(uint8_t index)
+{
+    switch (index) {
+    case 0:
+        return S_MANUFACTURER;
+    case 1:
+        return S_MODEL;
+    case 2:
+        return S_DESCRIPTION;
+    case 3:
+        return S_VERSION;
+    default:
+        return S_URI;
+    }
+}
+
 static struct {
     uint8_t state, step; /* step: 0 GET_PROTOCOL, 1..6 SEND_STRING index step-1, 7 START */
     uint8_t in_toggle, out_toggle, zlp_due, errors, halted_ep;
-    uint8_t rx_len, rx_pos;
-    uint16_t version, generation, start_generation; /* start_generation: the bus generation START was sent in */
+    uint8_t rx_left; /* bytes of the last bulk IN packet still in the chip's RCVFIFO (the receive buffer) */
+    uint16_t version;
+    uint8_t generation, start_generation; /* usb_host_generation(); the one START was sent in */
     uint32_t since_us;
     const char *serial;
-    uint8_t rx[64];
 } aoa;
 
 void aoa_init(const char *serial)
@@ -36,14 +53,26 @@ aoa_state_t aoa_state(void) { return (aoa_state_t)aoa.state; }
 
 uint16_t aoa_protocol_version(void) { return aoa.version; }
 
-uint8_t aoa_rx_pending(void) { return aoa.rx_pos < aoa.rx_len; }
+uint8_t aoa_rx_pending(void) { return aoa.rx_left != 0; }
 
+/* The packet stays in the MAX3421E's RCVFIFO and is read a byte at a time as the deframer takes it:
+ * the chip's 64-byte FIFO is the receive buffer (~3 us of SPI a byte instead of 64 bytes of RAM). */
 uint8_t aoa_read(uint8_t *b)
 {
-    if (aoa.rx_pos >= aoa.rx_len)
+    if (!aoa.rx_left)
         return 0;
-    *b = aoa.rx[aoa.rx_pos++];
+    *b = max_read(MAX_RCVFIFO);
+    if (!--aoa.rx_left)
+        max_write(MAX_HIRQ, MAX_RCVDAVIRQ); /* read out: the buffer is the chip's again */
     return 1;
+}
+
+/* Drop what is left of a received packet (the device went away or is enumerated again). */
+static void rx_drop(void)
+{
+    if (aoa.rx_left)
+        max_write(MAX_HIRQ, MAX_RCVDAVIRQ);
+    aoa.rx_left = 0;
 }
 
 static void version_sink(const uint8_t *d, uint8_t n)
@@ -65,21 +94,26 @@ static uint16_t flash_len(const char *s)
 /* Start the handshake's request number `step`. */
 static void handshake_step(uint8_t step)
 {
+    usb_setup_t s;
+    s.bmRequestType = 0x40u; /* OUT, vendor, device */
+    s.wValue = s.wIndex = s.wLength = 0;
     aoa.step = step;
     if (step == 0) {
-        usb_setup_t s = {0xC0u, AOA_REQ_GET_PROTOCOL, 0, 0, 2};
+        s.bmRequestType = 0xC0u; /* IN, vendor, device */
+        s.bRequest = AOA_REQ_GET_PROTOCOL;
+        s.wLength = 2;
         aoa.version = 0;
         usb_ctl_start(&s, 0, 0, version_sink);
     } else if (step <= AOA_STRINGS) {
         uint8_t index = (uint8_t)(step - 1u);
-        static const char *const strings[5] = {S_MANUFACTURER, S_MODEL, S_DESCRIPTION, S_VERSION, S_URI};
-        const char *text = index < 5u ? strings[index] : aoa.serial;
-        uint8_t in_flash = index < 5u;
-        uint16_t len = (uint16_t)((in_flash ? flash_len(text) : strlen(text)) + 1u); /* with the NUL */
-        usb_setup_t s = {0x40u, AOA_REQ_SEND_STRING, 0, index, len};
+        uint8_t in_flash = index < 5u; /* the serial (index 5) is the board's, from its EEPROM */
+        const char *text = in_flash ? identity_string(index) : aoa.serial;
+        s.bRequest = AOA_REQ_SEND_STRING;
+        s.wIndex = index;
+        s.wLength = (uint16_t)((in_flash ? flash_len(text) : strlen(text)) + 1u); /* with the NUL */
         usb_ctl_start(&s, (const uint8_t *)text, in_flash, 0);
     } else {
-        usb_setup_t s = {0x40u, AOA_REQ_START, 0, 0, 0};
+        s.bRequest = AOA_REQ_START;
         usb_ctl_start(&s, 0, 0, 0);
     }
 }
@@ -101,7 +135,7 @@ static void device_ready(uint32_t now_us)
         }
         aoa.in_toggle = aoa.out_toggle = 0; /* SET_CONFIGURATION resets every data toggle */
         aoa.zlp_due = aoa.errors = 0;
-        aoa.rx_len = aoa.rx_pos = 0;
+        aoa.rx_left = 0;
         enter(AOA_RUNNING, now_us);
         usb_link_event(AOA_EV_UP, usb_dev.pid);
         return;
@@ -154,7 +188,12 @@ static void pipe_error(uint8_t hr, uint8_t ep_addr, uint32_t now_us)
 {
     if (hr == MAX_HR_STALL) {
         /* CLEAR_FEATURE(ENDPOINT_HALT): the endpoint and its toggle start over at DATA0 */
-        usb_setup_t s = {0x02u, 1u, 0u, ep_addr, 0};
+        usb_setup_t s;
+        s.bmRequestType = 0x02u; /* OUT, standard, endpoint */
+        s.bRequest = 1u;         /* CLEAR_FEATURE */
+        s.wValue = 0;            /* ENDPOINT_HALT */
+        s.wIndex = ep_addr;
+        s.wLength = 0;
         aoa.halted_ep = ep_addr;
         usb_ctl_start(&s, 0, 0, 0);
         enter(AOA_CLEAR_HALT, now_us);
@@ -162,18 +201,18 @@ static void pipe_error(uint8_t hr, uint8_t ep_addr, uint32_t now_us)
     }
     if (++aoa.errors >= AOA_PIPE_ERRORS) {
         aoa.errors = 0;
+        rx_drop();
         usb_host_reenumerate();
     }
 }
 
 static void run_pipes(uint32_t now_us)
 {
-    if (aoa.rx_pos >= aoa.rx_len) {
+    if (!aoa.rx_left) {
         uint8_t n;
-        uint8_t hr = usb_bulk_in(usb_dev.bulk_in, &aoa.in_toggle, aoa.rx, &n);
+        uint8_t hr = usb_bulk_in(usb_dev.bulk_in, &aoa.in_toggle, &n);
         if (hr == MAX_HR_SUCCESS) {
-            aoa.rx_len = n;
-            aoa.rx_pos = 0;
+            aoa.rx_left = n;
             aoa.errors = 0;
         } else if (hr != MAX_HR_NAK) { /* NAK: the phone has nothing for us */
             pipe_error(hr, (uint8_t)(0x80u | usb_dev.bulk_in), now_us);
@@ -202,16 +241,17 @@ static void run_pipes(uint32_t now_us)
 void aoa_poll(uint32_t now_us)
 {
     usb_host_poll(now_us);
-    uint16_t gen = usb_host_generation();
+    uint8_t gen = usb_host_generation();
     if (gen != aoa.generation) { /* attached or detached since the last pass: what we had is gone */
         aoa.generation = gen;
         if (aoa.state == AOA_RUNNING || aoa.state == AOA_CLEAR_HALT)
             usb_link_event(AOA_EV_DOWN, 0);
-        aoa.rx_len = aoa.rx_pos = 0;
+        rx_drop(); /* a detach or a new device: free the chip's receive buffer for the next enumeration */
         if (aoa.state != AOA_WAIT_REENUM)
             enter(AOA_IDLE, now_us);
     }
     if (usb_host_state() != USB_CONFIGURED) {
+        rx_drop();
         if (aoa.state == AOA_RUNNING || aoa.state == AOA_CLEAR_HALT || aoa.state == AOA_HANDSHAKE) {
             usb_link_event(aoa.state == AOA_HANDSHAKE ? AOA_EV_FAILED : AOA_EV_DOWN, usb_stats.last_hr);
             enter(AOA_IDLE, now_us);
@@ -243,6 +283,7 @@ void aoa_poll(uint32_t now_us)
         if (r == USB_CTL_BUSY)
             break;
         if (r == USB_CTL_FAILED) {
+            rx_drop();
             usb_host_reenumerate();
             break;
         }

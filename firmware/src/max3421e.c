@@ -3,12 +3,10 @@
 
 #include "spi.h"
 
-uint8_t max_status;
-
 static void command(uint8_t reg, uint8_t write)
 {
     spi_select(1);
-    max_status = spi_byte((uint8_t)(reg << 3 | (write ? 0x02u : 0u)));
+    spi_byte((uint8_t)(reg << 3 | (write ? 0x02u : 0u))); /* MISO: HIRQ (full duplex), not needed here */
 }
 
 uint8_t max_read(uint8_t reg)

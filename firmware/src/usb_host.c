@@ -2,6 +2,8 @@
  * Portable: the chip through max3421e_drv.h, time through spi.h. */
 #include "usb_host.h"
 
+#include <string.h>
+
 #include "flash.h"
 #include "max3421e_drv.h"
 #include "spi.h"
@@ -20,7 +22,7 @@ usb_stats_t usb_stats;
 
 static struct {
     uint8_t state, step, tries, address;
-    uint16_t generation;
+    uint8_t generation; /* wraps: only compared for a change */
     uint32_t since_us; /* when the present state (or enumeration step) began */
 } host;
 
@@ -176,7 +178,7 @@ usb_ctl_result_t usb_ctl_poll(uint32_t now_us)
 }
 
 /* ------------------------------------------------------------------------------- bulk transactions */
-uint8_t usb_bulk_in(uint8_t ep, uint8_t *toggle, uint8_t *dst, uint8_t *n)
+uint8_t usb_bulk_in(uint8_t ep, uint8_t *toggle, uint8_t *n)
 {
     max_write(MAX_PERADDR, host.address);
     max_write(MAX_HCTL, *toggle ? MAX_RCVTOG1 : MAX_RCVTOG0);
@@ -184,12 +186,10 @@ uint8_t usb_bulk_in(uint8_t ep, uint8_t *toggle, uint8_t *dst, uint8_t *n)
     *n = 0;
     if (hr == MAX_HR_SUCCESS) {
         uint8_t c = max_read(MAX_RCVBC);
-        if (c > 64u)
-            c = 64u;
-        max_read_fifo(MAX_RCVFIFO, dst, c);
-        max_write(MAX_HIRQ, MAX_RCVDAVIRQ);
-        *n = c;
+        *n = c > 64u ? 64u : c;
         *toggle = (max_read(MAX_HRSL) & MAX_RCVTOGRD) != 0; /* the chip flipped it on the good packet */
+        if (!*n)
+            max_write(MAX_HIRQ, MAX_RCVDAVIRQ); /* a zero-length packet: nothing to keep */
     } else if (hr == MAX_HR_STALL) {
         usb_stats.stalls++;
     } else if (hr != MAX_HR_NAK) {
@@ -296,7 +296,12 @@ static void start_step(uint8_t step, uint32_t now_us)
 {
     host.step = step;
     host.since_us = now_us;
-    usb_setup_t s = {0x80u, REQ_GET_DESCRIPTOR, (uint16_t)(DESC_DEVICE << 8), 0, 8};
+    usb_setup_t s;
+    s.bmRequestType = 0x80u; /* IN, standard, device */
+    s.bRequest = REQ_GET_DESCRIPTOR;
+    s.wValue = (uint16_t)(DESC_DEVICE << 8);
+    s.wIndex = 0;
+    s.wLength = 8;
     usb_in_sink_t sink = device_sink;
     parse.offset = 0;
     switch (step) {
@@ -304,7 +309,10 @@ static void start_step(uint8_t step, uint32_t now_us)
         usb_dev.max_packet0 = 8; /* until the device says: every device takes 8-byte packets on EP0 */
         break;
     case STEP_SET_ADDRESS:
-        s = (usb_setup_t){0x00u, REQ_SET_ADDRESS, USB_DEVICE_ADDRESS, 0, 0};
+        s.bmRequestType = 0x00u;
+        s.bRequest = REQ_SET_ADDRESS;
+        s.wValue = USB_DEVICE_ADDRESS;
+        s.wLength = 0;
         sink = 0;
         break;
     case STEP_ADDRESS_WAIT:
@@ -323,7 +331,10 @@ static void start_step(uint8_t step, uint32_t now_us)
         sink = config_sink;
         break;
     case STEP_SET_CONFIG:
-        s = (usb_setup_t){0x00u, REQ_SET_CONFIGURATION, usb_dev.config_value, 0, 0};
+        s.bmRequestType = 0x00u;
+        s.bRequest = REQ_SET_CONFIGURATION;
+        s.wValue = usb_dev.config_value;
+        s.wLength = 0;
         sink = 0;
         break;
     default:
@@ -385,7 +396,7 @@ void usb_host_init(void)
 
 usb_state_t usb_host_state(void) { return (usb_state_t)host.state; }
 
-uint16_t usb_host_generation(void) { return host.generation; }
+uint8_t usb_host_generation(void) { return host.generation; }
 
 void usb_host_reenumerate(void)
 {
@@ -400,7 +411,7 @@ static void detached(uint32_t now_us)
         host.generation++;
     }
     host.address = 0;
-    usb_dev = (usb_device_t){0};
+    memset(&usb_dev, 0, sizeof usb_dev);
     max_write(MAX_MODE, MAX_DPPULLDN | MAX_DMPULLDN | MAX_HOST); /* no SOFs to an empty port */
     enter(USB_DETACHED, now_us);
 }
