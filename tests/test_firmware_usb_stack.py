@@ -302,6 +302,19 @@ def test_a_detach_in_the_middle_of_the_handshake_starts_over(stack):
     assert stack.last_error() == ""
 
 
+def test_a_phone_that_stops_answering_mid_handshake_is_retried_and_recovers(stack):
+    assert stack.run_until(HANDSHAKE) > 0
+    stack.fault("nak", 1_000_000)  # every data stage NAKed: each control transfer times out (500 ms)
+    stack.step(3000)
+    assert (EV_FAILED, 4) in stack.events()  # hrNAK was the last word
+    assert stack.state in (IDLE, HANDSHAKE)  # never stuck refusing a phone that may come good
+    assert stack.stats()["enum_failures"] >= 1
+    stack.fault("nak", 0)
+    _accessory(stack)
+    assert stack.phone_strings() == [*_firmware_identity(), "LAB-01"]
+    assert stack.last_error() == ""
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(
     chunks=st.lists(st.binary(min_size=1, max_size=200), min_size=1, max_size=8),

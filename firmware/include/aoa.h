@@ -26,6 +26,7 @@
 #define AOA_REENUM_US 3000000UL /* after START the phone re-enumerates within ~1 s; longer: start over */
 #define AOA_PIPE_ERRORS 8u      /* consecutive bulk errors (not NAKs) before the device is enumerated again */
 #define AOA_OUT_PER_POLL 4u     /* bulk OUT packets per poll */
+#define AOA_HANDSHAKE_TRIES 3u  /* failed handshakes (bus errors, timeouts) before the device is refused */
 
 typedef enum {
     AOA_IDLE = 0,    /* no configured device */

@@ -33,7 +33,9 @@ static const char *identity_string(uint8_t index)
 
 static struct {
     uint8_t state, step; /* step: 0 GET_PROTOCOL, 1..6 SEND_STRING index step-1, 7 START */
-    uint8_t in_toggle, out_toggle, zlp_due, errors, halted_ep;
+    uint8_t in_toggle, out_toggle, zlp_due;
+    uint8_t errors;    /* RUNNING: consecutive bulk errors; before: failed handshakes with this device */
+    uint8_t halted_ep; /* CLEAR_HALT: the endpoint; HANDSHAKE: STALLs of GET_PROTOCOL */
     uint8_t rx_left; /* bytes of the last bulk IN packet still in the chip's RCVFIFO (the receive buffer) */
     uint16_t version;
     uint8_t generation, start_generation; /* usb_host_generation(); the one START was sent in */
@@ -163,7 +165,11 @@ static void handshake(uint32_t now_us)
             return;
         }
         usb_link_event(AOA_EV_FAILED, hr);
-        enter(AOA_REFUSED, now_us);
+        if (++aoa.errors >= AOA_HANDSHAKE_TRIES) {
+            enter(AOA_REFUSED, now_us); /* until it is unplugged: no endless retry against a broken phone */
+            return;
+        }
+        enter(AOA_IDLE, now_us);
         usb_host_reenumerate(); /* a clean start: the next enumeration runs the handshake again */
         return;
     }
@@ -247,6 +253,7 @@ void aoa_poll(uint32_t now_us)
         if (aoa.state == AOA_RUNNING || aoa.state == AOA_CLEAR_HALT)
             usb_link_event(AOA_EV_DOWN, 0);
         rx_drop(); /* a detach or a new device: free the chip's receive buffer for the next enumeration */
+        aoa.errors = aoa.halted_ep = 0; /* a new device starts with a clean slate */
         if (aoa.state != AOA_WAIT_REENUM)
             enter(AOA_IDLE, now_us);
     }
