@@ -565,3 +565,28 @@ def test_app_bytes_arrive_on_bulk_in_in_order(writes, packet, naks, zlp):
         assert c.last_error() == ""
     finally:
         c.close()
+
+
+def test_in_wire_time_depends_on_the_answer(chip):
+    to_accessory(chip)
+    chip.wr(HCTL, RCVTOG0)
+
+    def timed_in() -> tuple[int, int]:
+        chip.wr(HXFR, TOK_IN | ACC_IN)
+        waited = chip.wait(HIRQ, HXFRDNIRQ, step_us=1)
+        chip.wr(HIRQ, HXFRDNIRQ)
+        return chip.rd(HRSL) & 0x0F, waited
+
+    code, nak_us = timed_in()
+    assert code == NAK and nak_us <= 10  # token and handshake only
+    chip.phone_write(bytes(64))
+    code, full_us = timed_in()
+    assert code == SUCCESS and 45 <= full_us <= 60  # plus 64 bytes at 12 Mb/s
+    chip.wr(HIRQ, RCVDAVIRQ)
+    chip.phone_write(bytes(64))
+    chip.wr(HXFR, TOK_IN | ACC_IN)
+    chip.advance(20)  # the device has answered: its data packet is on the wire ...
+    assert not chip.rd(HIRQ) & HXFRDNIRQ
+    chip.fault("detach")  # ... when the cable is pulled
+    chip.wait(HIRQ, HXFRDNIRQ, step_us=1)
+    assert chip.rd(HRSL) & 0x0F == TIMEOUT and not chip.rd(HIRQ) & RCVDAVIRQ

@@ -105,6 +105,15 @@ typedef struct {
     uint32_t head, len;
 } ring_t;
 
+/* What the device sends back for an IN token. */
+typedef struct {
+    int result;        /* HR_* */
+    int pid;           /* DATA0/1 the device sent (IN) */
+    unsigned len;      /* bytes the device sent (IN) */
+    uint8_t data[MAXPKT];
+    int status;        /* ep0: this IN is the status stage of a control write */
+} answer_t;
+
 struct max3421e {
     uint64_t now;
     /* chip */
@@ -113,6 +122,8 @@ struct max3421e {
     int res_low;
     uint64_t osc_ok_at, busrst_end_at, xfer_done_at, next_frame_at;
     uint8_t xfer_token;
+    int in_data;         /* an IN's data packet is on the wire: xfer_done_at is its end */
+    answer_t in_answer;  /* ... and this is it */
     uint8_t sud[8];
     unsigned sud_ptr;
     uint8_t snd[MAXPKT];
@@ -388,14 +399,6 @@ static void control_done(max3421e_t *m)
 
 /* ---------------------------------------------------------------- one transaction, device side */
 
-typedef struct {
-    int result;        /* HR_* */
-    int pid;           /* DATA0/1 the device sent (IN) */
-    unsigned len;      /* bytes the device sent (IN) */
-    uint8_t data[MAXPKT];
-    int status;        /* ep0: this IN is the status stage of a control write */
-} answer_t;
-
 static int nak_fault(max3421e_t *m)
 {
     if (m->nak_left > 0) {
@@ -602,6 +605,8 @@ static int addressed(max3421e_t *m, unsigned ep, int in)
     return 0;
 }
 
+static void finish_in(max3421e_t *m, unsigned ep, int handshake, const answer_t *ap);
+
 static void complete_in(max3421e_t *m, unsigned ep, int handshake)
 {
     answer_t a;
@@ -613,6 +618,24 @@ static void complete_in(max3421e_t *m, unsigned ep, int handshake)
         a = (answer_t){HR_NAK, 0, 0, {0}, 0}; /* MTP, ADB: nothing to say */
     if (a.result != HR_SUCCESS) {
         set_result(m, a.result);
+        return;
+    }
+    if (a.len > 0) { /* the data packet takes its wire time; the host acknowledges it at its end */
+        m->in_answer = a;
+        m->in_data = 1;
+        m->xfer_done_at = m->now + a.len * 2 / 3 + 1;
+        return;
+    }
+    finish_in(m, ep, handshake, &a);
+}
+
+/* The end of an IN's data packet: the host acknowledges it and the chip checks and stores it. */
+static void finish_in(max3421e_t *m, unsigned ep, int handshake, const answer_t *ap)
+{
+    answer_t a = *ap;
+    m->in_data = 0;
+    if (m->state == DEV_DETACHED) { /* unplugged mid-packet: the chip sees no valid packet end */
+        set_result(m, HR_TIMEOUT);
         return;
     }
     int expected = handshake ? 1 : m->rcvtog;
@@ -662,6 +685,10 @@ static void complete_transfer(max3421e_t *m)
     uint8_t tok = m->xfer_token & 0xF0;
     unsigned ep = m->xfer_token & 0x0F;
     m->xfer_done_at = NONE_US;
+    if (m->in_data) {
+        finish_in(m, ep, tok == TOK_HSIN, &m->in_answer);
+        return;
+    }
     if (!addressed(m, ep, tok == TOK_IN || tok == TOK_HSIN)) {
         set_result(m, HR_TIMEOUT);
         return;
@@ -728,10 +755,10 @@ static void launch(max3421e_t *m, uint8_t token)
             set_result(m, HR_BUSY);
             return;
         }
-        bytes = MAXPKT; /* the longest it can be: the wire time is not known before the device answers */
     }
     m->xfer_token = token;
-    m->xfer_done_at = m->now + XFER_US + bytes * 2 / 3; /* 12 Mb/s: 2/3 us a byte */
+    /* 12 Mb/s: 2/3 us a byte. An IN's data, if the device sends any, adds its own time (complete_in). */
+    m->xfer_done_at = m->now + XFER_US + bytes * 2 / 3;
 }
 
 /* ---------------------------------------------------------------- chip: registers */
@@ -754,6 +781,7 @@ static void chip_reset(max3421e_t *m, int keep_spi)
     m->rcvtog = m->sndtog = 0;
     m->bus = 0;
     m->busrst_end_at = m->xfer_done_at = m->next_frame_at = NONE_US;
+    m->in_data = 0;
     m->osc_ok_at = m->now + OSC_START_US;
     /* Without the chip's SOFs the phone suspends; it needs a bus reset before it answers again. */
     if (m->state != DEV_DETACHED) {
