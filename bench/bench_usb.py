@@ -24,6 +24,7 @@ from bench.common import Result
 from firmware_sim.avr import AvrBoard, eeprom
 from firmware_sim.avr.harness import F_CPU, HarnessOptions
 from firmware_sim.avr.paths import FIRMWARE_DIR
+from firmware_sim.avr.records import PulseFrame
 from firmware_sim.board.config import BoardConfig
 from protocol.messages import ActuatorSetpoint, GimbalMode, Telemetry, UnitSetpoint
 
@@ -62,6 +63,11 @@ def _stream(host: _Host, speed: float | None, seconds: float) -> None:
         time.sleep(max(0.0, min(0.025, end - time.monotonic())))
 
 
+def _rotor0(frame: PulseFrame) -> float:
+    """Unit 0's rotor pulse width in a frame (us; 0 if the channel had no pulse)."""
+    return frame.widths[1] or 0.0
+
+
 def _board_now(board: AvrBoard) -> float:
     return int(board.command("now")[0]) / F_CPU
 
@@ -78,7 +84,7 @@ def measure(link: str, steps: int, flood_s: float) -> tuple[list[float], float]:
             for i in range(steps):
                 old, new = (300.0, 500.0) if i % 2 else (500.0, 300.0)
                 _stream(host, old, 0.15)  # steady at the old speed
-                before = board.timeline()[-1].widths[1]
+                before = _rotor0(board.timeline()[-1])
                 t0 = _board_now(board)
                 host.send(_setpoint(new))
                 after = None
@@ -86,7 +92,7 @@ def measure(link: str, steps: int, flood_s: float) -> tuple[list[float], float]:
                 while after is None and time.monotonic() < end:
                     _stream(host, None, 0.02)
                     after = next(
-                        (f for f in board.timeline() if f.t > t0 and abs(f.widths[1] - before) > 5.0), None
+                        (f for f in board.timeline() if f.t > t0 and abs(_rotor0(f) - before) > 5.0), None
                     )
                 if after is None:
                     raise RuntimeError(f"{link}: the rotor pulse never showed the setpoint")

@@ -170,7 +170,9 @@ def _firmware_identity() -> list[str]:
     """The five identity strings compiled into the firmware (board_gen.h), in SEND_STRING order."""
     text = (FIRMWARE_DIR / "include" / "board_gen.h").read_text()
     names = ("MANUFACTURER", "MODEL", "DESCRIPTION", "VERSION", "URI")
-    return [re.search(rf'#define IDENTITY_{n} "([^"]*)"', text).group(1) for n in names]
+    found = [re.search(rf'#define IDENTITY_{n} "([^"]*)"', text) for n in names]
+    assert all(found), "board_gen.h lacks an IDENTITY_* string"
+    return [m.group(1) for m in found if m]
 
 
 def _accessory(stack: Stack) -> None:
