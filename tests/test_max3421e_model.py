@@ -590,3 +590,80 @@ def test_in_wire_time_depends_on_the_answer(chip):
     chip.fault("detach")  # ... when the cable is pulled
     chip.wait(HIRQ, HXFRDNIRQ, step_us=1)
     assert chip.rd(HRSL) & 0x0F == TIMEOUT and not chip.rd(HIRQ) & RCVDAVIRQ
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    chunks=st.lists(st.binary(min_size=0, max_size=64), min_size=1, max_size=20),
+    naks=st.integers(0, 3),
+    read_cap=st.integers(1, 100),
+)
+def test_board_bytes_reach_the_app_in_order(chunks, naks, read_cap):
+    # bulk OUT under NAK storms, the app reading in small bites: nothing lost, nothing repeated
+    c = Chip()
+    try:
+        to_accessory(c)
+        c.fault("nak", naks)
+        c.wr(HCTL, SNDTOG0)
+        got = b""
+        for chunk in chunks:
+            code = c.send(ACC_OUT, chunk)
+            while code == NAK:
+                code = c.xfer(TOK_OUT, ACC_OUT)  # the same loaded packet, again
+            assert code == SUCCESS
+            got += c.phone_read(read_cap)
+        got += c.phone_read(1 << 16)
+        assert got == b"".join(chunks)
+        assert c.last_error() == ""
+    finally:
+        c.close()
+
+
+_OPS = st.one_of(
+    st.tuples(st.just("cmd"), st.integers(0, 255), st.binary(max_size=70)),
+    st.tuples(st.just("advance"), st.integers(0, 60_000)),
+    st.tuples(st.just("fault"), st.sampled_from(["nak", "stall", "detach", "attach", "aoa", "packet", "zlp"]),
+              st.integers(-1, 70)),
+    st.tuples(st.just("write"), st.binary(max_size=300)),
+    st.tuples(st.just("read"), st.integers(0, 5000)),
+    st.tuples(st.just("res"), st.booleans()),
+    st.tuples(st.just("stray"), st.integers(0, 255)),
+)  # fmt: skip
+
+
+@settings(max_examples=150, deadline=None)
+@given(ops=st.lists(_OPS, max_size=60), started=st.booleans())
+def test_any_spi_traffic_is_survived(ops, started):
+    # Whatever a buggy driver clocks in, in whatever order: no crash, the state stays one of the documented
+    # ones, and the chip still answers a proper start afterwards.
+    c = Chip()
+    try:
+        if started:
+            c.start()
+        for op in ops:
+            kind = op[0]
+            if kind == "cmd":
+                c.command(op[1] >> 3, bool(op[1] & 2), op[2], nread=len(op[2]))
+            elif kind == "advance":
+                c.advance(op[1])
+            elif kind == "fault":
+                c.fault(op[1], op[2])
+            elif kind == "write":
+                assert c.phone_write(op[1]) <= len(op[1])
+            elif kind == "read":
+                assert len(c.phone_read(op[1])) <= op[1] if op[1] else True
+            elif kind == "res":
+                c.lib.max3421e_reset_pin(c.m, int(op[1]))
+            else:
+                c.lib.max3421e_spi(c.m, op[1])  # a byte with SS high
+            assert c.mode() in (0, 1, 2)
+            assert len(c.last_error()) < 200
+        c.lib.max3421e_reset_pin(c.m, 0)
+        c.fault("attach")
+        c.fault("nak", 0)
+        c.fault("stall", 15)  # moves a pending one-shot STALL off endpoint 0, to an endpoint nobody uses
+        c.start()
+        assert c.rd(REVISION) == 0x13
+        assert len(c.control_read(0x80, 6, 0x0100, 0, 18)) == 18
+    finally:
+        c.close()
