@@ -24,8 +24,8 @@ from bench.common import Result
 from firmware_sim.avr import AvrBoard, eeprom
 from firmware_sim.avr.harness import F_CPU, HarnessOptions
 from firmware_sim.avr.paths import FIRMWARE_DIR
-from firmware_sim.avr.records import PulseFrame
 from firmware_sim.board.config import BoardConfig
+from firmware_sim.board.timeline import PulseFrame
 from protocol.messages import ActuatorSetpoint, GimbalMode, Telemetry, UnitSetpoint
 
 NAME = "usb"

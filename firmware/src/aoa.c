@@ -130,7 +130,7 @@ static void enter(uint8_t state, uint32_t now_us)
 static void device_ready(uint32_t now_us)
 {
     if (usb_dev.vid == AOA_GOOGLE_VID && usb_dev.pid >= AOA_PID_FIRST && usb_dev.pid <= AOA_PID_LAST) {
-        if (!usb_dev.bulk_in || !usb_dev.bulk_out) {
+        if (!usb_dev.bulk_in || !usb_dev.bulk_out || !usb_dev.in_packet || !usb_dev.out_packet) {
             usb_link_event(AOA_EV_NO_PIPES, usb_dev.pid);
             enter(AOA_REFUSED, now_us);
             return;

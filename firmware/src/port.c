@@ -36,7 +36,7 @@ static uint8_t usb_bytes(void) { return port.mode != LINK_UART && aoa_rx_pending
 
 void port_poll(void)
 {
-    if (port.mode != LINK_UART)
+    if (port.mode != LINK_UART && port.active != LINK_UART) /* "first" won by UART0: USB rests */
         aoa_poll(usb_now_us());
 }
 
@@ -99,6 +99,6 @@ void usb_link_event(uint8_t ev, uint16_t arg)
     char text[72];
     aoa_event_text(ev, arg, text, sizeof text);
     uint8_t refused = ev == AOA_EV_NO_AOA || ev == AOA_EV_FAILED || ev == AOA_EV_NO_PIPES;
-    report_log(refused ? SEVERITY_ERROR : SEVERITY_INFO, refused ? LOG_CODE_HANDSHAKE : LOG_CODE_STATE,
-               PSTR("%s"), text);
+    uint8_t severity = refused ? SEVERITY_ERROR : (ev == AOA_EV_DOWN ? SEVERITY_WARNING : SEVERITY_INFO);
+    report_log(severity, refused ? LOG_CODE_HANDSHAKE : LOG_CODE_STATE, PSTR("%s"), text);
 }
