@@ -133,3 +133,31 @@ def test_first_takes_the_usb_link_when_the_phone_speaks_first():
             assert host.wait_type(Telemetry, 1.0).state == BoardState.DISARMED
         finally:
             host.close()
+
+
+def test_first_takes_uart0_when_the_host_speaks_there_and_no_chip_answers():
+    # the stock harness (no --usb): UART0 on the pty and nothing on the SPI pins, so the stack's chip
+    # never starts its oscillator; the board must run on regardless (no hang, no watchdog reset)
+    image = eeprom.EepromImage(CONFIG, link="first").to_bytes()
+    with AvrBoard(CONFIG, HarnessOptions(), eeprom_image=image) as b:
+        host = SerialHost(b.port)
+        try:
+            reply = host.handshake()
+            assert reply.state == BoardState.DISARMED
+            host.keepalive = heartbeat
+            host.stream(1.5)  # past the stack's first retries of the silent chip (every 1 s)
+            assert host.wait_type(Telemetry, 1.0).state == BoardState.DISARMED
+            assert len(b.resets()) == 1  # the power-on only
+        finally:
+            host.close()
+
+
+def test_a_usb_board_without_its_chip_keeps_running():
+    image = eeprom.EepromImage(CONFIG, link="usb").to_bytes()
+    with AvrBoard(CONFIG, HarnessOptions(), eeprom_image=image) as b:
+        time.sleep(2.5)
+        assert b.now() > 2.0
+        assert len(b.resets()) == 1
+        frames = b.timeline()
+        assert frames and frames[-1].t > 2.0  # the pulses go on
+        assert frames[-1].widths[1::2] == (CONFIG.rotor_safe_us,) * CONFIG.n_units
