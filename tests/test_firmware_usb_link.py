@@ -83,6 +83,8 @@ def test_a_phone_without_accessory_mode_is_refused_and_the_log_says_so():
             assert log.text == "USB device refused: no Android accessory mode (AOA protocol 0)"
             reply = host.handshake()
             assert reply.state == BoardState.DISARMED
+            # a Log from inside the USB stack is its deepest call: the firmware's stack rule still holds
+            assert b.stack_headroom() >= 256
         finally:
             host.close()
 
@@ -118,6 +120,7 @@ def test_unplugging_the_phone_is_a_link_loss_and_plugging_it_back_re_arms():
             host.keepalive = setpoint
             host.stream(0.3)
             assert host.wait_type(Telemetry, 1.0).state == BoardState.ARMED
+            assert b.stack_headroom() >= 256  # bytes of RAM the stack never reached, USB running
         finally:
             host.close()
 
