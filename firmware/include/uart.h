@@ -7,8 +7,8 @@
  * all: uart_send refuses a frame that does not fit the transmit ring (counted by the caller).
  *
  * When the host's protocol runs over USB (port.c), the transmit ring is the USB link's queue instead:
- * uart_tx_to_pin(0) stops the UART taking from it, and the USB stack drains it with uart_tx_peek and
- * uart_tx_consume (no second 1 KB ring in 8 KB of RAM).
+ * uart_hand_over() stops UART0 (no more bytes in or out), and the USB stack drains the ring with
+ * uart_tx_peek and uart_tx_consume (no second 1 KB ring in 8 KB of RAM).
  */
 #ifndef UART_H
 #define UART_H
@@ -31,8 +31,9 @@ uint8_t uart_rx_pending(void);
 /* Queue n bytes for sending: 1, or 0 (nothing queued) if the ring has no room for all of them. */
 uint8_t uart_send(const uint8_t *data, uint16_t n);
 void uart_stats(uart_stats_t *out);
-/* 0: the transmit ring no longer goes to the TXD pin (what is queued is dropped); 1: it does (default). */
-void uart_tx_to_pin(uint8_t on);
+/* UART0 stops for good (receiver and transmitter off, both rings emptied): the transmit ring is the
+ * USB link's queue from now on. */
+void uart_hand_over(void);
 /* Bytes queued in the transmit ring. */
 uint16_t uart_tx_pending(void);
 /* Copy up to `max` of the oldest queued bytes to dst, leaving them queued: the count copied. */

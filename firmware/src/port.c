@@ -25,7 +25,7 @@ void port_init(const board_config_t *cfg)
     if (cfg->link != LINK_USB)
         uart_init(cfg->baud);
     else
-        uart_tx_to_pin(0); /* UART0 stays off; its transmit ring is the USB link's queue */
+        uart_hand_over(); /* UART0 stays off; its transmit ring is the USB link's queue */
     if (cfg->link != LINK_UART)
         aoa_init(cfg->serial);
 }
@@ -84,7 +84,7 @@ void port_frame_valid(void)
         return;
     port.active = port.source;
     if (port.active == LINK_USB)
-        uart_tx_to_pin(0);
+        uart_hand_over(); /* UART0 is silent from now on: no "bytes lost" reports for a port nobody reads */
 }
 
 /* ------------------------------------------------------------------ the USB stack's side (aoa.h) */

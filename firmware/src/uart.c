@@ -10,7 +10,7 @@ static volatile uint16_t rx_head, rx_tail; /* head: next write (ISR), tail: next
 static volatile uint8_t tx_buf[UART_TX_SIZE];
 static volatile uint16_t tx_head, tx_tail;
 static volatile uart_stats_t stats;
-static uint8_t tx_pin = 1; /* the ring goes out on TXD (0: the USB link drains it, port.c) */
+static uint8_t handed_over; /* the transmit ring is the USB link's queue (port.c), not UART0's */
 
 void uart_init(uint32_t baud)
 {
@@ -83,7 +83,7 @@ uint8_t uart_send(const uint8_t *data, uint16_t n)
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
         tx_head = head;
-        if (tx_pin)
+        if (!handed_over)
             UCSR0B |= _BV(UDRIE0);
     }
     return 1;
@@ -98,15 +98,14 @@ void uart_stats(uart_stats_t *out)
     }
 }
 
-void uart_tx_to_pin(uint8_t on)
+void uart_hand_over(void)
 {
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
-        tx_pin = on;
-        if (!on) {
-            UCSR0B &= (uint8_t)~_BV(UDRIE0);
-            tx_tail = tx_head; /* half-sent UART frames must not continue on the other link */
-        }
+        handed_over = 1;
+        UCSR0B = 0;        /* receiver, transmitter and their interrupts off: the pins are plain inputs */
+        tx_tail = tx_head; /* half-sent UART frames must not continue on the other link */
+        rx_tail = rx_head; /* nor UART bytes reach the deframer */
     }
 }
 
