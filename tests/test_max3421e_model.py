@@ -667,3 +667,13 @@ def test_any_spi_traffic_is_survived(ops, started):
         assert len(c.control_read(0x80, 6, 0x0100, 0, 18)) == 18
     finally:
         c.close()
+
+
+def test_only_an_edge_of_ss_starts_a_command(chip):
+    chip.wr(PINCTL, FDUPSPI)
+    lib, m = chip.lib, chip.m
+    lib.max3421e_select(m, 1)
+    lib.max3421e_spi(m, REVISION << 3)
+    lib.max3421e_select(m, 1)  # SS re-driven low (another pin of port B written): the same command goes on
+    assert lib.max3421e_spi(m, 0) == 0x13
+    lib.max3421e_select(m, 0)

@@ -936,7 +936,12 @@ void max3421e_free(max3421e_t *m) { free(m); }
 
 void max3421e_select(max3421e_t *m, int selected)
 {
-    m->selected = selected && !m->res_low;
+    /* Only an edge of SS counts: simavr re-raises a port's pins on every write to it, and a write to PORTB
+     * in the middle of a command (SS staying low) must not start a new one. */
+    selected = selected && !m->res_low;
+    if (selected == m->selected)
+        return;
+    m->selected = selected;
     m->in_command = 0;
 }
 
