@@ -215,3 +215,46 @@ def test_detach_and_reattach_under_the_real_firmware():
             assert host.wait_type(Telemetry, 1.0)
         finally:
             host.close()
+
+
+# --------------------------------------------------------------------------- firmware-sim --avr --usb
+def test_firmware_sim_avr_usb_serves_the_protocol_on_its_pty():
+    import signal
+    import sys
+
+    ensure_built()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "firmware_sim", "--avr", "--usb", "--duration", "60"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/"), proc.stderr.read() if proc.poll() is not None else path
+        host = SerialHost(path)
+        try:
+            reply = host.handshake(tries=100)  # the first ones are lost until the accessory is open
+            assert reply.state == BoardState.DISARMED
+            host.keepalive = heartbeat
+            assert host.wait_type(Telemetry, 1.0)
+        finally:
+            host.close()
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+@pytest.mark.parametrize("argv", [["--usb"], ["--usb", "--avr", "--world", "cubesat-1u"]])
+def test_firmware_sim_usb_needs_avr_alone(argv, capsys):
+    from firmware_sim.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main([*argv, "--duration", "0"])
+    assert exc.value.code == 2
+    assert "--usb" in capsys.readouterr().err
