@@ -292,6 +292,17 @@ def test_detach_goes_back_to_waiting_and_reattach_re_enumerates(stack):
     assert stack.last_error() == ""
 
 
+def test_a_replug_between_two_passes_is_a_new_device(stack):
+    stack.fault("aoa", 0)
+    assert stack.run_until(REFUSED) > 0
+    stack.fault("detach")  # out and back in before the next main-loop pass looks
+    stack.fault("aoa", 2)
+    stack.fault("attach")
+    _accessory(stack)  # not left refusing the phone that was there before
+    assert stack.stats()["detaches"] >= 1
+    assert stack.last_error() == ""
+
+
 def test_a_detach_in_the_middle_of_the_handshake_starts_over(stack):
     assert stack.run_until(HANDSHAKE) > 0
     stack.step(2)
@@ -340,6 +351,56 @@ def test_bytes_arrive_in_order_across_packet_boundaries(chunks, packet, zlp):
         _, phone = s.pump(len(sent) // 64 + 40)
         assert phone == sent
         assert s.last_error() == ""
+    finally:
+        s.close()
+
+
+FAULT_ACTIONS = st.one_of(
+    st.tuples(st.just("nak"), st.integers(0, 40)),
+    st.tuples(st.just("stall"), st.integers(0, 2)),
+    st.tuples(st.just("detach"), st.just(0)),
+    st.tuples(st.just("attach"), st.just(0)),
+    st.tuples(st.just("packet"), st.integers(1, 64)),
+    st.tuples(st.just("zlp"), st.integers(0, 1)),
+    st.tuples(st.just("aoa"), st.integers(0, 2)),
+    st.tuples(st.just("passes"), st.integers(1, 400)),
+    st.tuples(st.just("phone"), st.integers(1, 300)),
+    st.tuples(st.just("board"), st.integers(1, 300)),
+)
+
+
+@settings(max_examples=40, deadline=None)
+@given(actions=st.lists(FAULT_ACTIONS, max_size=25))
+def test_any_sequence_of_faults_leaves_a_stack_that_recovers(actions):
+    """Faults, plugs and traffic in any order: the board never breaks the protocol, no pass runs long,
+    and once the phone is plugged in and well again the link comes back and carries bytes exactly."""
+    s = Stack()
+    try:
+        for name, value in actions:
+            if name == "passes":
+                s.pump(value)
+            elif name == "phone":
+                s.phone_write(bytes(range(256))[:value])
+            elif name == "board":
+                s.board_write(bytes(range(256))[:value])
+            else:
+                s.fault(name, value)
+                if name == "detach":
+                    s.pump(5)  # a cable is out for more than a few main-loop passes
+            assert s.last_error() == ""
+        for name, value in (("nak", 0), ("packet", 64), ("zlp", 0), ("aoa", 2), ("detach", 0)):
+            s.fault(name, value)  # a healthy phone, plugged in afresh
+        s.pump(5)
+        s.fault("attach")
+        _accessory(s)
+        s.pump(300)  # what was in flight before drains (or was lost with the cable)
+        payload = bytes(range(200)) * 3
+        s.phone_write(payload)
+        s.board_write(payload[::-1])
+        board, phone = s.pump(300)
+        assert board == payload and phone == payload[::-1]
+        assert s.last_error() == ""
+        assert s.lib.usbc_max_pass_us() < 2000
     finally:
         s.close()
 

@@ -389,7 +389,10 @@ static void enumerate(uint32_t now_us)
 void usb_host_init(void)
 {
     spi_init();
-    host.generation = 0;
+    memset(&host, 0, sizeof host);
+    memset(&ctl, 0, sizeof ctl);
+    memset(&parse, 0, sizeof parse);
+    memset(&usb_dev, 0, sizeof usb_dev);
     max_chip_reset();
     enter(USB_OSC_WAIT, usb_now_us());
 }
@@ -426,7 +429,14 @@ static void bus_event(uint32_t now_us)
     if (bus == MAX_BUS_SE0 || bus == MAX_BUS_SE1) {
         if (host.state != USB_DETACHED)
             detached(now_us);
-    } else if (host.state == USB_DETACHED || host.state == USB_ERROR) {
+        return;
+    }
+    /* Attached now, yet the port saw a change: unplugged and plugged back between two looks, so what is
+     * there is a new device in its default state. Not right after a reset (the recovery interval), where
+     * an event can only be the reset's own end. */
+    if (host.state != USB_DETACHED && host.state != USB_RESET_RECOVERY)
+        detached(now_us);
+    if (host.state == USB_DETACHED || host.state == USB_ERROR) {
         usb_stats.attaches++;
         host.generation++;
         host.tries = 0;
