@@ -126,6 +126,8 @@ def test_usb_fault_commands():
         assert h.ask("usb packet 65")[0] == "error"
         assert h.ask("usb aoa x")[0] == "error"
         assert h.ask("usb bogus 1")[0] == "error"
+        assert h.ask("usb nak")[0] == "error"  # a value is needed (only detach and attach go without)
+        assert h.ask("usb detach 1")[0] == "ok"
     finally:
         h.close()
 

@@ -208,7 +208,8 @@ void usb_command(harness_t *h, int argc, char **argv, FILE *out)
         fprintf(out, " %llu %llu %llu %llu\n", (unsigned long long)h->usb_to_board,
                 (unsigned long long)h->usb_from_board, (unsigned long long)h->usb_dropped,
                 (unsigned long long)h->usb_spi_bytes);
-    } else if (!strcmp(argv[0], "usb") && (argc == 2 || argc == 3)) {
+    } else if (!strcmp(argv[0], "usb") && (argc == 3 || (argc == 2 && (!strcmp(argv[1], "detach") ||
+                                                                       !strcmp(argv[1], "attach"))))) {
         char *end = NULL;
         double value = argc == 3 ? strtod(argv[2], &end) : 0;
         catch_up(h);
@@ -221,7 +222,7 @@ void usb_command(harness_t *h, int argc, char **argv, FILE *out)
             fprintf(out, "ok %llu\n", (unsigned long long)harness_now(h));
         }
     } else {
-        fprintf(out, "error usb: usage: usb <fault> [value] | usbstate\n");
+        fprintf(out, "error usb: usage: usb detach | usb attach | usb <fault> <value> | usbstate\n");
     }
 }
 
