@@ -183,7 +183,7 @@ void usb_service(harness_t *h)
     drive_int(h, 0);
 }
 
-/* "usb <fault> [value]" and "usbstate" (control.c). */
+/* "usb detach", "usb attach", "usb <fault> <value>" and "usbstate" (control.c). */
 static void put_hex(FILE *out, const char *s)
 {
     if (!*s) {
