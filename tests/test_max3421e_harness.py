@@ -19,7 +19,8 @@ from firmware_sim.avr.harness import HarnessOptions
 from firmware_sim.avr.paths import BUILD_DIR, CODEC_CHECK_ELF, HARNESS
 from firmware_sim.board.config import BoardConfig
 from protocol import aoa
-from protocol.messages import BoardState, Telemetry
+from protocol.frame import Deframer, Frame, encode_frame
+from protocol.messages import SCHEMA_HASH, BoardState, Hello, HelloReply, Telemetry
 
 pytestmark = pytest.mark.firmware
 
@@ -260,3 +261,32 @@ def test_firmware_sim_usb_needs_avr_alone(argv, capsys):
         main([*argv, "--duration", "0"])
     assert exc.value.code == 2
     assert "--usb" in capsys.readouterr().err
+
+
+def test_lockstep_harness_carries_the_protocol_over_usb():
+    # --stepped --uart-pipe --usb: the "rx" bytes are the phone app's writes and the "step" answers carry
+    # what the board sent on bulk OUT, simulated time moving only on steps (as firmware_sim.avr.stepped).
+    config = BoardConfig(n_units=2, link_timeout_s=10.0)
+    options = HarnessOptions(usb=True, stepped=True, uart_pipe=True, paced=False)
+    step = 160_000  # 10 ms of board time
+    with AvrBoard(config, options) as board:
+        cycles = 0
+        for _ in range(500):
+            cycles += step
+            board.command(f"step {cycles}")
+            if board.command("usbstate")[0] == "2":
+                break
+        else:
+            pytest.fail("no accessory after 5 s of board time")
+        board.command("rx " + encode_frame(Hello(schema_hash=SCHEMA_HASH, manufacturer="t"), seq=0).hex())
+        deframer = Deframer()
+        for _ in range(100):
+            cycles += step
+            words = board.command(f"step {cycles}")
+            assert int(words[0]) >= cycles  # to the instruction that crosses it
+            if words[1] != "-":
+                replies = [e for e in deframer.feed(bytes.fromhex(words[1])) if isinstance(e, Frame)]
+                if any(isinstance(f.message, HelloReply) for f in replies):
+                    break
+        else:
+            pytest.fail("no HelloReply over USB within 1 s of board time")
