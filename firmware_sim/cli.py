@@ -43,6 +43,8 @@ examples:
   firmware-sim --duration 30 -v                 stop after 30 s, log state changes
   firmware-sim --avr                            the real firmware (firmware/) on simavr's ATmega2560
   firmware-sim --avr --eeprom board.eep         ... keeping its EEPROM (uploaded calibrations) in a file
+  firmware-sim --avr --usb                      ... its link the phone on its USB host port (Android Open
+                                                Accessory through the emulated MAX3421E), not UART0
   firmware-sim --world cubesat-1u --link /tmp/vscmg
                                                 the board drives a simulated spacecraft (a hil scenario);
                                                 its phone streams to udp://127.0.0.1:8123 (hil run --port)
@@ -88,6 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="with --avr: the board's EEPROM, loaded and saved back (a stored configuration wins over the "
         "board options)",
+    )
+    p.add_argument(
+        "--usb",
+        action="store_true",
+        help="with --avr: the pty is an Android phone's accessory app on the board's USB host port (the "
+        "harness's MAX3421E model, the firmware's AOA link) instead of UART0; a new EEPROM says link = usb",
     )
     p.add_argument(
         "--can",
@@ -402,6 +410,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.can is not None and (args.link or args.no_hold):
         parser.error("--can serves a CAN bus: it cannot be combined with --link or --no-hold")
+    if args.usb and (args.avr is None or args.world is not None or args.can is not None):
+        parser.error("--usb is the firmware's USB link on its pty: it needs --avr, without --world or --can")
     level = logging.WARNING - 10 * min(args.verbose + 1, 2)
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr

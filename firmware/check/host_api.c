@@ -158,7 +158,7 @@ void host_answers_remember(void *c, uint8_t msg_id, uint8_t seq, const uint8_t *
 int host_config_parse(const uint8_t *block, float *numbers, char *serial, uint8_t *problem);
 
 /* numbers: n_units, frame_rate_hz, telemetry_rate_hz, heartbeat_rate_hz, link_timeout_ms, mcu_watchdog_ms,
- * rotor_safe_us, ppm, cells, warn_v_cell, limit_v_cell, shed_v_cell, baud, esc_supply_switch */
+ * rotor_safe_us, ppm, cells, warn_v_cell, limit_v_cell, shed_v_cell, baud, esc_supply_switch, link */
 int host_config_parse(const uint8_t *block, float *numbers, char *serial, uint8_t *problem)
 {
     board_config_t c;
@@ -166,7 +166,7 @@ int host_config_parse(const uint8_t *block, float *numbers, char *serial, uint8_
     float v[] = {c.n_units,         c.frame_rate_hz,   c.telemetry_rate_hz, c.heartbeat_rate_hz,
                  c.link_timeout_ms, c.mcu_watchdog_ms, c.rotor_safe_us,     c.ppm,
                  c.cells,           c.warn_v_cell,     c.limit_v_cell,      c.shed_v_cell,
-                 (float)c.baud,     c.esc_supply_switch};
+                 (float)c.baud,     c.esc_supply_switch, c.link};
     memcpy(numbers, v, sizeof v);
     strcpy(serial, c.serial);
     return st;

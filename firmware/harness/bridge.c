@@ -53,11 +53,9 @@ static int noisy(harness_t *h, uint8_t *b)
     return 1;
 }
 
-static void on_uart_output(struct avr_irq_t *irq, uint32_t value, void *param)
+/* One byte from the board towards the host (link noise applied); a full queue loses it. */
+void bridge_transmit(harness_t *h, uint8_t b)
 {
-    (void)irq;
-    harness_t *h = param;
-    uint8_t b = (uint8_t)value;
     if (!noisy(h, &b))
         return;
     if (h->txq_len == sizeof h->txq) {
@@ -65,6 +63,14 @@ static void on_uart_output(struct avr_irq_t *irq, uint32_t value, void *param)
         return;
     }
     h->txq[h->txq_len++] = b;
+}
+
+static void on_uart_output(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    harness_t *h = param;
+    if (!h->max) /* --usb: UART0 is not wired to the pty */
+        bridge_transmit(h, (uint8_t)value);
 }
 
 static void on_xon(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -154,10 +160,13 @@ void bridge_service(harness_t *h)
         }
         room = (uint32_t)sizeof h->rxq - (h->rxq_tail - h->rxq_head);
     }
-    /* queue -> UART receive FIFO, while it has room; nothing enters an MCU held in reset */
-    while (!h->held && !h->uart_xoff && h->rxq_head != h->rxq_tail)
+    /* queue -> UART receive FIFO, while it has room (--usb: the phone app's writes); nothing enters an MCU
+     * held in reset (the phone's buffer is the phone's: it keeps them) */
+    if (h->max)
+        usb_service(h);
+    while (!h->max && !h->held && !h->uart_xoff && h->rxq_head != h->rxq_tail)
         avr_raise_irq(uart_input, h->rxq[h->rxq_head++ % sizeof h->rxq]);
-    if (h->held)
+    if (h->held && !h->max)
         h->rxq_head = h->rxq_tail;
     /* UART -> host (--uart-pipe: the "step" answer takes them) */
     if (h->txq_len && !h->uart_pipe) {

@@ -22,6 +22,15 @@
  *   power <bv> <ba> <uv> <ua> -> ok                   the analog inputs from now on (V, A, V, A): the
  *                                                     caller's battery and UBEC, brown-out included
  *   watch <addr> <len>        -> ok                   record RAM[addr..addr+len) as M lines when it changes
+ * USB (--usb, usb.c):
+ *   usb <fault> <value>       -> ok <cycles>          a fault of the phone or its cable (max3421e.h): nak N,
+ *                                                     stall EP, detach, attach, aoa 0|1|2, packet 1..64, zlp 0|1
+ *   usbstate                  -> ok <mode> <s0>..<s5> <error> <to_board> <from_board> <dropped> <spi_bytes>
+ *                                                     mode 0 detached, 1 normal, 2 accessory; the six strings
+ *                                                     the board sent (SEND_STRING) and the model's last
+ *                                                     protocol error in hex, "-" if empty; bytes the app
+ *                                                     wrote to the board / read from it / dropped (no
+ *                                                     accessory open); SPI bytes the MCU clocked
  * Anything else -> "error <why>". Commands act between simulation slices (every simulated ms).
  */
 #include <errno.h>
@@ -162,6 +171,8 @@ static int execute(harness_t *h, char *cmd, FILE *out)
             record_watch(h);
             fprintf(out, "ok\n");
         }
+    } else if (!strcmp(c, "usb") || !strcmp(c, "usbstate")) {
+        usb_command(h, argc, argv, out);
     } else if (!strcmp(c, "quit")) {
         fprintf(out, "ok\n");
         fflush(out);

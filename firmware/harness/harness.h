@@ -8,7 +8,8 @@
  *
  * Parts: bridge.c (pty <-> UART0, link noise), power.c (battery, UBEC rail, ADC inputs, brown-out),
  * record.c (pulse edges and resets to a file), ocr.c (the timers' double-buffered compare registers,
- * which simavr lacks), control.c (commands on stdin), main.c (options, loop).
+ * which simavr lacks), control.c (commands on stdin), main.c (options, loop), usb.c (--usb: the USB host
+ * port, a MAX3421E with a phone plugged in, max3421e.c; the pty is then the phone's accessory app).
  */
 #ifndef HARNESS_H
 #define HARNESS_H
@@ -78,6 +79,10 @@ typedef struct {
 
     const char *eeprom_path;
 
+    /* usb.c (--usb): the pty carries the accessory's bulk data instead of UART0 */
+    struct max3421e *max;
+    uint64_t usb_to_board, usb_from_board, usb_dropped, usb_spi_bytes;
+
     /* record */
     FILE *record;
     uint64_t last_flush;
@@ -92,6 +97,7 @@ void bridge_attach(harness_t *h);
 void bridge_service(harness_t *h);
 void bridge_close(harness_t *h, const char *link);
 void bridge_receive(harness_t *h, uint8_t byte);
+void bridge_transmit(harness_t *h, uint8_t byte);
 
 /* power.c */
 void power_init(harness_t *h);
@@ -115,6 +121,13 @@ int harness_run_until(harness_t *h, uint64_t target);
 void harness_reset(harness_t *h, int cause);
 void harness_set_selftest(harness_t *h, int low);
 int harness_save_eeprom(harness_t *h);
+
+/* usb.c */
+int usb_attach(harness_t *h);
+void usb_reset(harness_t *h);
+void usb_service(harness_t *h);
+void usb_command(harness_t *h, int argc, char **argv, FILE *out);
+void usb_close(harness_t *h);
 
 /* control.c: returns 0 to go on, 1 when asked to quit */
 int control_service(harness_t *h, FILE *out);

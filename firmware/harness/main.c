@@ -63,6 +63,8 @@ static const char USAGE[] =
     "  --control            read commands on stdin, answer on stdout (see control.c); stop at its end\n"
     "  --stepped            simulated time moves only on \"step\" commands (implies --control): lockstep\n"
     "  --uart-pipe          UART0 through the control pipe (\"rx\" in, \"step\" answers out), not the pty\n"
+    "  --usb                the board's USB host port has an Android phone plugged in (usb.c); the pty\n"
+    "                       (or --uart-pipe) is the phone's accessory app instead of UART0\n"
     "  --lifeline           stop (as on SIGTERM) when stdin reaches its end: the parent holds the\n"
     "                       other end of a pipe, so the harness ends however the parent dies\n"
     "\n"
@@ -104,6 +106,7 @@ static void on_core_reset(avr_t *avr)
         core_reset(avr);
     int cause = H.pending_cause == -2 ? CAUSE_WATCHDOG : H.pending_cause;
     ocr_reset(&H);
+    usb_reset(&H);
     record_reset(&H, cause);
     if (selftest_irq) {
         /* A momentary self-test press ends with the reset, and the pin's pull-up reads high again. The
@@ -326,6 +329,7 @@ int main(int argc, char **argv)
         {"lifeline", no_argument, 0, 'L'},
         {"stepped", no_argument, 0, 'T'},
         {"uart-pipe", no_argument, 0, 'U'},
+        {"usb", no_argument, 0, 'B'},
         {"help", no_argument, 0, 'h'},
         {0, 0, 0, 0},
     };
@@ -342,7 +346,7 @@ int main(int argc, char **argv)
     h->bod_release_v = 4.5;
     h->electronics_a = 0.15;
     h->rng = 0x9E3779B97F4A7C15ULL;
-    int paced = 1, control = 0, lifeline = 0;
+    int paced = 1, control = 0, lifeline = 0, usb = 0;
     double duration = INFINITY;
     const char *link = NULL, *record = NULL, *eeprom = NULL;
 
@@ -420,6 +424,9 @@ int main(int argc, char **argv)
         case 'U':
             h->uart_pipe = 1;
             break;
+        case 'B':
+            usb = 1;
+            break;
         case 'h':
             fputs(USAGE, stderr);
             return 0;
@@ -470,6 +477,10 @@ int main(int argc, char **argv)
     selftest_irq = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(SELFTEST_PIN_PORT), SELFTEST_PIN_BIT);
     avr_raise_irq(selftest_irq, 1); /* the pin's pull-up: released */
     bridge_attach(h);
+    if (usb && usb_attach(h) < 0) {
+        fprintf(stderr, "avr-harness: --usb: cannot wire the MAX3421E model (no SPI or ports on this core?)\n");
+        return 2;
+    }
     power_init(h);
     no_level_polling(h);
     h->avr->data[MCUSR_ADDR] = MCUSR_PORF;
@@ -511,6 +522,8 @@ done:
     if (eeprom && eeprom_io(h, eeprom, 1) < 0)
         status = status ? status : 1;
     bridge_close(h, link);
+    if (h->max)
+        usb_close(h);
     fprintf(stderr,
             "avr-harness: stopped at %.3f s; %llu bytes in, %llu out, %llu dropped; %llu lag resets\n",
             harness_seconds(h), (unsigned long long)h->bytes_in, (unsigned long long)h->bytes_out,

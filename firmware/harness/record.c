@@ -123,8 +123,14 @@ void record_attach(harness_t *h)
             if (PIN_TIMERS[pin] == t->name)
                 pin_timer[pin] = t;
     }
+    /* Each pulse pin is watched at its timer's compare output, not at the port: on the chip a compare
+     * output overrides PORTx, but simavr 1.6 re-raises every output pin of a port with its PORTx latch
+     * bit on any write to PORTx/DDRx, so the SPI chip select on PB0 (the USB host, board_pins.h) would
+     * "end" the OC1A..C pulses on PB5..PB7 at the first write after they rose. */
     for (unsigned pin = 0; pin < PULSE_CHANNELS_HW; pin++) {
-        pin_irq[pin] = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(ports[pin]), bits[pin]);
+        avr_timer_t *t = pin_timer[pin];
+        pin_irq[pin] = t ? t->io.irq + TIMER_IRQ_OUT_COMP + pin % 3u
+                         : avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(ports[pin]), bits[pin]);
         avr_irq_register_notify(pin_irq[pin], on_pin, (void *)(uintptr_t)pin);
     }
     avr_irq_t *supply = avr_io_getirq(h->avr, AVR_IOCTL_IOPORT_GETIRQ(ESC_SUPPLY_PIN_PORT), ESC_SUPPLY_PIN_BIT);

@@ -31,6 +31,21 @@
  * after boot stops the main loop, so the bench can prove the watchdog resets the board and that the
  * host sees WATCHDOG as the reset cause. Only a high-to-low change seen after boot counts, so a jumper
  * left in place cannot hold the board in a reset loop.
+ *
+ * USB host (the Mega ADK's on-board MAX3421E, on the ATmega2560's SPI; firmware/src/spi.c):
+ *   SCK PB1 [D52], MOSI PB2 [D51], MISO PB3 [D50]  the hardware SPI (mode 0, MSB first, fosc/2 = 8 MHz;
+ *                                                   the chip takes up to 26 MHz)
+ *   SS  PB0 [D53]  the MAX3421E's chip select, active low (also keeps the SPI a master: an SS pin left an
+ *                  input and pulled low would drop the SPI into slave mode)
+ *   INT PE6 [-]    the MAX3421E's INT output, level mode, active low (PINCTL.INTLEVEL; the chip drives
+ *                  it open-drain, so the firmware enables the pull-up). Not broken out to a header.
+ *   RES PJ2 [-]    the MAX3421E's RES input, active low: held high to run the chip. Not broken out.
+ * Verified against the USB Host Shield 2.0 library (felis/USB_Host_Shield_2.0): UsbCore.h selects
+ * `MAX3421e<P53, P54>` for BOARD_MEGA_ADK (which avrpins.h defines for ARDUINO_AVR_ADK on an
+ * ATmega2560), avrpins.h maps P53 = Pb0, and under BOARD_MEGA_ADK "P54 Pe6 // INT on Arduino ADK" and
+ * "P55 Pj2 // MAX_RESET on Arduino ADK"; usbhost.h's MAX3421e constructor drives P55 as an output, high,
+ * on the ADK, and its SPI typedef for the ATmega2560 is SPi<Pb1, Pb2, Pb3, Pb0> (SCK, MOSI, MISO, SS).
+ * None of these pins is a pulse channel (those are PB5-7, PE3-5, PH3-5, PL3-5).
  */
 #ifndef BOARD_PINS_H
 #define BOARD_PINS_H
@@ -60,5 +75,16 @@
 
 #define ESC_SUPPLY_PIN_PORT 'A'
 #define ESC_SUPPLY_PIN_BIT 0
+
+/* The MAX3421E USB host controller (see above): port letter and bit of each line. */
+#define USB_SS_PIN_PORT 'B'
+#define USB_SS_PIN_BIT 0
+#define USB_SCK_PIN_BIT 1 /* port B */
+#define USB_MOSI_PIN_BIT 2 /* port B */
+#define USB_MISO_PIN_BIT 3 /* port B */
+#define USB_INT_PIN_PORT 'E'
+#define USB_INT_PIN_BIT 6
+#define USB_RES_PIN_PORT 'J'
+#define USB_RES_PIN_BIT 2
 
 #endif /* BOARD_PINS_H */

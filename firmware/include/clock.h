@@ -24,6 +24,9 @@ static inline __attribute__((always_inline)) void clock_early(void)
 void clock_init(void);
 /* Milliseconds since reset (wraps after 49.7 days). */
 uint32_t clock_ms(void);
+/* Microseconds since reset (4 us resolution: Timer0's count within the millisecond; wraps after 71.6
+ * minutes). For timeouts shorter than a millisecond (the USB host stack's transactions). */
+uint32_t clock_us(void);
 /* Ticks seen by the main loop: 1 if at least one tick happened since the last call. */
 uint8_t clock_ticked(void);
 /* Called from the tick interrupt with the new uptime (main.c: the watchdog window, ADC sampling). */

@@ -18,6 +18,7 @@ typedef struct {
     float warn_v_cell, limit_v_cell, shed_v_cell, hysteresis_v_cell, limit_throttle;
     float brownout_release_v, filter_time_constant_s, power_update_period_s, ubec_current_limit_a;
     uint32_t baud;
+    uint8_t link; /* LINK_UART, LINK_USB or LINK_FIRST (board_gen.h): where the host's protocol runs */
     char serial[SERIAL_LEN + 1];
 } board_config_t;
 

@@ -5,6 +5,10 @@
  * UART_RX_SIZE bytes; bytes that find it full are dropped and counted (rx_overflow), as are bytes the
  * hardware flags with a framing error or an overrun. Frames for the host are queued whole or not at
  * all: uart_send refuses a frame that does not fit the transmit ring (counted by the caller).
+ *
+ * When the host's protocol runs over USB (port.c), the transmit ring is the USB link's queue instead:
+ * uart_hand_over() stops UART0 (no more bytes in or out), and the USB stack drains the ring with
+ * uart_tx_peek and uart_tx_consume (no second 1 KB ring in 8 KB of RAM).
  */
 #ifndef UART_H
 #define UART_H
@@ -27,5 +31,14 @@ uint8_t uart_rx_pending(void);
 /* Queue n bytes for sending: 1, or 0 (nothing queued) if the ring has no room for all of them. */
 uint8_t uart_send(const uint8_t *data, uint16_t n);
 void uart_stats(uart_stats_t *out);
+/* UART0 stops for good (receiver and transmitter off, both rings emptied): the transmit ring is the
+ * USB link's queue from now on. */
+void uart_hand_over(void);
+/* Bytes queued in the transmit ring. */
+uint16_t uart_tx_pending(void);
+/* Copy up to `max` of the oldest queued bytes to dst, leaving them queued: the count copied. */
+uint8_t uart_tx_peek(uint8_t *dst, uint8_t max);
+/* Remove n bytes (at most those queued) from the front of the ring. */
+void uart_tx_consume(uint8_t n);
 
 #endif /* UART_H */

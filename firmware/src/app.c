@@ -16,6 +16,7 @@
 #include "calib.h"
 #include "clock.h"
 #include "esc_cal.h"
+#include "port.h"
 #include "pulses.h"
 #include "state.h"
 #include "storage.h"
@@ -316,7 +317,7 @@ void app_tick(uint32_t now_ms)
 {
     if (link_stopped || !board.session || board.link_lost || !board.have_rx || !motors_enabled(board.state))
         return;
-    if (now_ms - board.last_rx_ms < board.cfg.link_timeout_ms || uart_rx_pending())
+    if (now_ms - board.last_rx_ms < board.cfg.link_timeout_ms || port_rx_pending())
         return;
     link_stopped = 1;
     pulses_hold(rotor_channels(), board.cfg.rotor_safe_us);
@@ -620,9 +621,11 @@ static void handle_frame(const frame_t *f, uint32_t now)
 static void process_rx(uint32_t now)
 {
     uint8_t b;
-    while (uart_read(&b)) {
-        if (deframer_feed(&board.deframer, b, &board.frame) == DEFRAME_FRAME)
+    while (port_read(&b)) {
+        if (deframer_feed(&board.deframer, b, &board.frame) == DEFRAME_FRAME) {
+            port_frame_valid(); /* "first": this frame's link becomes the link, before any answer */
             handle_frame(&board.frame, now);
+        }
     }
     uart_stats_t st;
     uart_stats(&st);
@@ -720,6 +723,7 @@ void app_boot(uint8_t reset_cause, config_status_t config, uint8_t config_proble
 
 uint8_t app_poll(uint32_t now)
 {
+    port_poll(); /* USB: attach, enumeration, accessory handshake, bulk IN/OUT (bounded) */
     process_rx(now);
     if (board.session && !board.link_lost && board.have_rx &&
         (link_stopped || now - board.last_rx_ms >= board.cfg.link_timeout_ms))

@@ -37,6 +37,21 @@ uint32_t clock_ms(void)
     return now;
 }
 
+uint32_t clock_us(void)
+{
+    uint32_t m;
+    uint8_t t, pending;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        m = ms;
+        t = TCNT0;
+        pending = (TIFR0 & _BV(OCF0A)) != 0; /* the counter wrapped and the tick is not counted yet */
+        if (pending && t < TICKS_PER_MS / 2u)
+            m++; /* read after the wrap: this count belongs to the next millisecond */
+    }
+    return m * 1000UL + (uint32_t)t * (1000UL / TICKS_PER_MS);
+}
+
 uint8_t clock_ticked(void)
 {
     uint8_t t;

@@ -30,6 +30,7 @@ enum {
     BAD_UBEC_CURRENT_LIMIT_A,
     BAD_ESC_SUPPLY_SWITCH,
     BAD_BAUD,
+    BAD_LINK,
 };
 
 /* Names of what config_parse found wrong, in the order above (index = *problem). */
@@ -53,7 +54,8 @@ static const char PROBLEMS[] FLASH = "none\0"
                                      "power_update_period_s\0"
                                      "ubec_current_limit_a\0"
                                      "esc_supply_switch\0"
-                                     "baud\0";
+                                     "baud\0"
+                                     "link\0";
 
 void config_problem_text(uint8_t problem, char *out, unsigned n) { flash_pick(PROBLEMS, problem, out, n); }
 
@@ -120,6 +122,7 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
     c.power_update_period_s = f32(b + CFG_OFF_POWER_UPDATE_PERIOD_S);
     c.ubec_current_limit_a = f32(b + CFG_OFF_UBEC_CURRENT_LIMIT_A);
     c.baud = wire_get_u32(b + CFG_OFF_BAUD);
+    c.link = b[CFG_OFF_LINK];
     uint8_t n = 0;
     while (n < SERIAL_LEN && b[CFG_OFF_SERIAL + n] && b[CFG_OFF_SERIAL + n] < 0x80)
         n++;
@@ -164,6 +167,8 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_ESC_SUPPLY_SWITCH;
     else if (c.baud < 9600 || c.baud > 1000000)
         problem = BAD_BAUD;
+    else if (c.link >= LINK_COUNT)
+        problem = BAD_LINK;
     if (problem)
         return problem;
     c.link_timeout_ms = (uint16_t)lrintf(link * 1000.0f);

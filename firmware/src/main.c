@@ -13,6 +13,7 @@
 #include "adc.h"
 #include "app.h"
 #include "clock.h"
+#include "port.h"
 #include "pulses.h"
 #include "storage.h"
 #include "uart.h"
@@ -73,7 +74,7 @@ int main(void)
     config_status_t config = storage_load_config(&board.cfg, &problem);
     storage_load_calibrations(board.cfg.n_units);
     clock_init();
-    uart_init(board.cfg.baud);
+    port_init(&board.cfg); /* UART0 and/or the USB host, as configured */
     adc_init(&board.power);
     pulses_init(board.cfg.frame_rate_hz, (uint8_t)(2u * board.cfg.n_units), board.cfg.ppm);
     sei();

@@ -15,6 +15,7 @@
 #include "clock.h"
 #include "crc16.h"
 #include "flash.h"
+#include "port.h"
 #include "pulses.h"
 #include "storage.h"
 #include "uart.h"
@@ -44,7 +45,7 @@ void report_send(uint8_t msg_id, const void *msg, uint8_t flags, int16_t seq)
     if (msg_is_reliable(msg_id))
         flags |= FLAGS_ACK_REQUESTED;
     uint16_t n = frame_encode(msg_id, s, flags, msg, wire);
-    if (!n || !uart_send(wire, n))
+    if (!n || !port_send(wire, n))
         board.tx_dropped++;
 }
 

@@ -10,6 +10,7 @@ static volatile uint16_t rx_head, rx_tail; /* head: next write (ISR), tail: next
 static volatile uint8_t tx_buf[UART_TX_SIZE];
 static volatile uint16_t tx_head, tx_tail;
 static volatile uart_stats_t stats;
+static uint8_t handed_over; /* the transmit ring is the USB link's queue (port.c), not UART0's */
 
 void uart_init(uint32_t baud)
 {
@@ -82,7 +83,8 @@ uint8_t uart_send(const uint8_t *data, uint16_t n)
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
         tx_head = head;
-        UCSR0B |= _BV(UDRIE0);
+        if (!handed_over)
+            UCSR0B |= _BV(UDRIE0);
     }
     return 1;
 }
@@ -94,4 +96,43 @@ void uart_stats(uart_stats_t *out)
         out->rx_overflow = stats.rx_overflow;
         out->line_errors = stats.line_errors;
     }
+}
+
+void uart_hand_over(void)
+{
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        handed_over = 1;
+        UCSR0B = 0;        /* receiver, transmitter and their interrupts off: the pins are plain inputs */
+        tx_tail = tx_head; /* half-sent UART frames must not continue on the other link */
+        rx_tail = rx_head; /* nor UART bytes reach the deframer */
+    }
+}
+
+uint16_t uart_tx_pending(void)
+{
+    uint16_t tail;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { tail = tx_tail; }
+    return (uint16_t)((tx_head + UART_TX_SIZE - tail) % UART_TX_SIZE);
+}
+
+uint8_t uart_tx_peek(uint8_t *dst, uint8_t max)
+{
+    uint16_t n = uart_tx_pending();
+    if (n > max)
+        n = max;
+    uint16_t at = tx_tail;
+    for (uint16_t i = 0; i < n; i++) {
+        dst[i] = tx_buf[at];
+        at = (uint16_t)((at + 1u) % UART_TX_SIZE);
+    }
+    return (uint8_t)n;
+}
+
+void uart_tx_consume(uint8_t n)
+{
+    uint16_t pending = uart_tx_pending();
+    if (n > pending)
+        n = (uint8_t)pending;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { tx_tail = (uint16_t)((tx_tail + n) % UART_TX_SIZE); }
 }

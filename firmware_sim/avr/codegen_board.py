@@ -37,6 +37,10 @@ def generate_board() -> str:
         f"#define MAX_HW_UNITS {eeprom.MAX_HW_UNITS}u",
         f"#define SERIAL_LEN {eeprom.SERIAL_LEN}u",
         "",
+        "/* The configuration's link byte (firmware_sim/avr/eeprom.py LINKS). */",
+        *(f"#define LINK_{name.upper()} {i}u" for i, name in enumerate(eeprom.LINKS)),
+        f"#define LINK_COUNT {len(eeprom.LINKS)}u",
+        "",
     ]
     h += [f"#define CFG_OFF_{name.upper()} {off}u" for name, off in eeprom.field_offsets().items()]
     defaults = {

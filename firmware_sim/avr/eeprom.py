@@ -9,7 +9,7 @@ board with avrdude (``python -m firmware_sim.avr.eeprom --out board.eep`` then
 Block layout (little-endian; :data:`CONFIG_FIELDS` is the single definition, the C offsets are generated
 from it)::
 
-    u16 magic 0x4342 ("BC")  u8 version  u8 n_units  f32 frame_rate_hz ... char[24] serial  u16 crc
+    u16 magic 0x4342 ("BC")  u8 version  u8 n_units  f32 frame_rate_hz ... u8 link  char[24] serial  u16 crc
 
 ``crc`` is CRC-16/CCITT-FALSE of every byte before it. Calibration sets (``UnitCalibration.to_bytes()``)
 live from :data:`CAL_BASE` in one slot per unit of :func:`cal_slot_size` bytes (the rest of the EEPROM
@@ -33,7 +33,8 @@ from ..board.config import BoardConfig
 
 EEPROM_SIZE = 4096
 CONFIG_MAGIC = 0x4342
-CONFIG_VERSION = 2
+CONFIG_VERSION = 3
+"""3: the ``link`` byte (version 2 blocks, without it, are refused: the defaults run until rewritten)."""
 MAX_HW_UNITS = 6
 """Twelve hardware output-compare channels (Timers 1, 3, 4, 5) drive at most six units."""
 SERIAL_LEN = 24
@@ -63,10 +64,18 @@ CONFIG_FIELDS: tuple[tuple[str, str, str], ...] = (
     ("ubec_current_limit_a", "f", "power.ubec.current_limit_a"),
     ("esc_supply_switch", "B", "esc_supply_switch"),
     ("baud", "I", "=baud"),
+    ("link", "B", "=link"),
     ("serial", f"{SERIAL_LEN}s", "identity.serial"),
 )
 DEFAULT_BAUD = 115200
 """UART0 speed; 16 MHz with double speed also gives 250000, 500000 and 1000000 baud exactly."""
+LINKS = ("uart", "usb", "first")
+"""Which link the host's protocol runs on (the ``link`` byte is the index): ``uart`` = UART0 (the default,
+the Mega ADK's USB-serial port), ``usb`` = the phone over the Mega ADK's USB host port (Android Open
+Accessory, firmware/src/aoa.c), ``first`` = both listened to until one delivers a valid frame, which then
+is the link until the next reset. Like ``baud`` this is ADK hardware configuration, so it lives in the
+EEPROM block only and not in :class:`BoardConfig`: the Python board emulator speaks on its pty alone."""
+DEFAULT_LINK = "uart"
 CONFIG_STRUCT = struct.Struct("<" + "".join(code for _, code, _ in CONFIG_FIELDS) + "H")
 CONFIG_SIZE = CONFIG_STRUCT.size
 CAL_BASE = 128
@@ -88,7 +97,9 @@ def field_offsets() -> dict[str, int]:
     return offsets
 
 
-def _value(cfg: BoardConfig, source: str, baud: int) -> object:
+def _value(cfg: BoardConfig, source: str, baud: int, link: str) -> object:
+    if source == "=link":
+        return LINKS.index(link)
     if source == "=magic":
         return CONFIG_MAGIC
     if source == "=version":
@@ -115,14 +126,17 @@ def check_hardware(cfg: BoardConfig) -> None:
         raise ConfigError("the board serial must be ASCII", "BoardConfig.identity.serial")
 
 
-def config_block(cfg: BoardConfig, baud: int = DEFAULT_BAUD) -> bytes:
-    """The EEPROM bytes of ``cfg`` (validated for this hardware) with the UART at ``baud``."""
+def config_block(cfg: BoardConfig, baud: int = DEFAULT_BAUD, link: str = DEFAULT_LINK) -> bytes:
+    """The EEPROM bytes of ``cfg`` (validated for this hardware) with the UART at ``baud`` and the host's
+    protocol on ``link`` (one of :data:`LINKS`)."""
     check_hardware(cfg)
     if not 9600 <= baud <= 1_000_000:
         raise ConfigError(f"{baud} baud is outside 9600..1000000", "baud")
+    if link not in LINKS:
+        raise ConfigError(f"link {link!r} is not one of {', '.join(LINKS)}", "link")
     values = []
     for _, code, source in CONFIG_FIELDS:
-        v = _value(cfg, source, baud)
+        v = _value(cfg, source, baud, link)
         if code.endswith("s"):
             raw = str(v).encode("ascii")
             v = raw.ljust(SERIAL_LEN, b"\0")
@@ -142,10 +156,11 @@ class EepromImage:
     config: BoardConfig
     calibrations: tuple[bytes | None, ...] = ()
     baud: int = DEFAULT_BAUD
+    link: str = DEFAULT_LINK
 
     def to_bytes(self) -> bytes:
         image = bytearray(b"\xff" * EEPROM_SIZE)
-        block = config_block(self.config, self.baud)
+        block = config_block(self.config, self.baud, self.link)
         image[: len(block)] = block
         if len(self.calibrations) > self.config.n_units:
             raise ConfigError(
@@ -196,6 +211,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="the ESC supply cut switch is wired (pin D22): ESC endpoint programming power-cycles the ESC",
     )
     p.add_argument("--serial", default="ADK0001", help="board serial number (ASCII, <= 24 bytes)")
+    p.add_argument(
+        "--link",
+        choices=LINKS,
+        default=DEFAULT_LINK,
+        help="where the host's protocol runs: UART0, the phone over USB (AOA), or the first to speak",
+    )
     args = p.parse_args(argv)
     base = BoardConfig()
     try:
@@ -210,7 +231,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             identity=replace(base.identity, serial=args.serial),
             power=replace(base.power, battery=replace(base.power.battery, cells=args.cells)),
         )
-        data = EepromImage(cfg).to_bytes()
+        data = EepromImage(cfg, link=args.link).to_bytes()
     except ConfigError as exc:
         sys.stderr.write(f"error: {exc}\n")
         return 2

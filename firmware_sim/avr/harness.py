@@ -59,7 +59,13 @@ class HarnessOptions:
     duration_s: float | None = None
     stepped: bool = False  # time moves only on "step" commands (lockstep: firmware_sim.avr.stepped)
     uart_pipe: bool = False  # UART0 through the control pipe instead of the pty (with stepped)
+    usb: bool = False  # a phone on the USB host port, the pty its accessory app; the EEPROM's link = usb
     extra_args: tuple[str, ...] = ()
+
+    @property
+    def board_link(self) -> str:
+        """The link a new EEPROM image tells the firmware to use (``eeprom.LINKS``)."""
+        return "usb" if self.usb else "uart"
 
     def arguments(self, eeprom_path: Path, record_path: Path | None, control: bool) -> list[str]:
         """The harness's command line. Its stdin is always its lifeline (``--control``: the commands'
@@ -75,6 +81,8 @@ class HarnessOptions:
             args.append("--stepped")
         if self.uart_pipe:
             args.append("--uart-pipe")
+        if self.usb:
+            args.append("--usb")
         if self.link:
             args += ["--link", self.link]
         if self.corrupt or self.drop:
@@ -255,7 +263,8 @@ class AvrBoard:
             self._eeprom_path.write_bytes(eeprom_image)
         elif self.options.eeprom_file is None or not self._eeprom_path.exists():
             sets = tuple(None if c is None else c.to_bytes() for c in calibrations)
-            self._eeprom_path.write_bytes(eeprom.EepromImage(self.config, sets).to_bytes())
+            image = eeprom.EepromImage(self.config, sets, link=self.options.board_link)
+            self._eeprom_path.write_bytes(image.to_bytes())
         self._record_path = work / "record.txt"
         self._record_path.touch()
         self.process = HarnessProcess(
@@ -422,11 +431,11 @@ def eeprom_for(options: HarnessOptions, config: BoardConfig) -> Iterator[tuple[P
     process or the harness ends, SIGKILL included (a temporary directory outlived a killed firmware-sim)."""
     if options.eeprom_file is not None:
         if not options.eeprom_file.exists():
-            options.eeprom_file.write_bytes(eeprom.EepromImage(config).to_bytes())
+            options.eeprom_file.write_bytes(eeprom.EepromImage(config, link=options.board_link).to_bytes())
         yield options.eeprom_file, ()
         return
     with tempfile.TemporaryFile() as image:
-        image.write(eeprom.EepromImage(config).to_bytes())
+        image.write(eeprom.EepromImage(config, link=options.board_link).to_bytes())
         image.flush()
         yield Path(f"/dev/fd/{image.fileno()}"), (image.fileno(),)
 

@@ -270,6 +270,7 @@ CONFIG_NUMBERS = (
     "shed_v_cell",
     "baud",
     "esc_supply_switch",
+    "link",
 )
 
 

@@ -73,6 +73,7 @@ def options_from_args(args: argparse.Namespace, config: BoardConfig) -> HarnessO
         seed=args.seed,
         hang_at=tuple(args.hang_at),
         sags=tuple(sags),
+        usb=args.usb,
     )
 
 

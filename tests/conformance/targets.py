@@ -409,6 +409,35 @@ class SimavrTarget:
         self.board.check()
 
 
+class SimavrUsbTarget(SimavrTarget):
+    """The same firmware with its link set to ``usb``: the host's bytes reach it as an Android phone's
+    accessory app writing to the Mega ADK's USB host port (the harness's MAX3421E model, ``--usb``), through
+    the firmware's USB host stack and AOA handshake, instead of over UART0. Ready once the phone is in
+    accessory mode (enumerated, switched, enumerated again): before that the app has nothing to write to.
+    After a board reset the stack enumerates the phone again, and until it has, the host's bytes are lost,
+    as an app's writes fail while the accessory is gone."""
+
+    name = "simavr-usb"
+    ACCESSORY_WITHIN_S = 5.0  # board time: debounce, bus resets, two enumerations and the AOA switch
+
+    def __init__(self, spec: TargetSpec) -> None:
+        from firmware_sim.avr import AvrBoard
+        from firmware_sim.avr.harness import HarnessOptions
+
+        self.spec = spec
+        self.board = AvrBoard(board_config(spec), HarnessOptions(usb=True))
+        self.port = self.board.port
+        try:
+            end = self.now() + self.ACCESSORY_WITHIN_S
+            while self.board.command("usbstate")[0] != "2":
+                if self.now() > end:
+                    raise TimeoutError(f"no accessory after {self.ACCESSORY_WITHIN_S} s of board time")
+                time.sleep(0.01)
+        except BaseException:
+            self.board.close()
+            raise
+
+
 # name -> target class, or "module:Class" imported on first use (so a target needing extra tools only
 # costs something when selected); a class with ``needs_firmware_build = True`` is skipped, with one line
 # for all, where the AVR toolchain is missing (tests/conftest.py). Add a board here and the whole suite
@@ -420,6 +449,7 @@ TARGETS: dict[str, Any] = {
     "firmware_sim-udp_multicast": FirmwareSimMulticastTarget,
     "firmware_sim-udp_multicast-fd": FirmwareSimMulticastFdTarget,
     "simavr": SimavrTarget,
+    "simavr-usb": SimavrUsbTarget,
 }
 
 

@@ -1,0 +1,46 @@
+/*
+ * max3421e.h - a register-level model of the MAX3421E USB host controller in host mode, with a full-speed
+ * Android phone plugged into its port (normal mode first, Android Open Accessory after START).
+ *
+ * Pure C, no simavr types: the simavr harness (usb.c) wires it to the MCU's SPI and GPIO pins, and the
+ * host test build (libmax3421e-model.so, libusb-check.so) calls it directly, so the very same model is
+ * exercised from Python through ctypes and by the real firmware under simavr.
+ *
+ * Time is simulated: the caller moves it with max3421e_advance() (microseconds since an arbitrary epoch,
+ * never decreasing). A transaction launched by writing HXFR completes only after a realistic delay, so a
+ * driver must wait for HXFRDNIRQ as on the real chip.
+ */
+#ifndef MAX3421E_MODEL_H
+#define MAX3421E_MODEL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+typedef struct max3421e max3421e_t; /* opaque */
+
+max3421e_t *max3421e_new(void);                    /* a chip with a phone attached (normal mode, AOA v2) */
+void max3421e_free(max3421e_t *m);
+void max3421e_select(max3421e_t *m, int selected); /* SS: 1 = driven low (a command starts), 0 = released (it ends) */
+uint8_t max3421e_spi(max3421e_t *m, uint8_t mosi); /* one full-duplex SPI byte while selected; returns MISO */
+int max3421e_int_asserted(const max3421e_t *m);    /* the INT pin is asserted (IE & IRQ bits, per IENB/CPUCTL.IE, level mode) */
+void max3421e_reset_pin(max3421e_t *m, int low);   /* the chip's RES pin (held low = chip reset) */
+void max3421e_advance(max3421e_t *m, uint64_t now_us); /* simulated time: 1 ms frames (FRAMEIRQ/SOF), device latencies, bus events */
+
+/* The phone's app side of the accessory bulk pipes (bytes, not packets). */
+size_t max3421e_phone_read(max3421e_t *m, uint8_t *buf, size_t cap);         /* bytes the board sent on bulk OUT */
+size_t max3421e_phone_write(max3421e_t *m, const uint8_t *buf, size_t len);  /* queue bytes for bulk IN; returns accepted */
+
+/* State and faults. */
+int max3421e_phone_mode(const max3421e_t *m);                      /* 0 detached, 1 normal (not accessory), 2 accessory */
+const char *max3421e_phone_string(const max3421e_t *m, int index); /* identity string recorded by SEND_STRING (0..5), "" if none */
+/* 0 ok, -1 unknown name/value. Names:
+ *   "nak"    value = number of NAKs to answer on every following bulk/control data transaction (0 = off)
+ *   "stall"  value = endpoint number whose next transaction is STALLed once
+ *   "detach", "attach" (value ignored)
+ *   "aoa"    value = AOA protocol version the phone reports: 0, 1, 2
+ *   "packet" value = max bytes per bulk IN packet, 1..64 (a frame then straddles packet boundaries)
+ *   "zlp"    value 1: end each bulk IN transfer that is a multiple of 64 bytes with a zero-length packet */
+int max3421e_fault(max3421e_t *m, const char *name, double value);
+const char *max3421e_last_error(const max3421e_t *m); /* the last protocol violation the board made ("" if none) */
+
+#endif /* MAX3421E_MODEL_H */

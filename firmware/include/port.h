@@ -1,0 +1,36 @@
+/*
+ * port.h - the byte link to the host: UART0, the phone over USB (Android Open Accessory), or whichever
+ * of the two delivers a valid frame first (board configuration: board_config_t.link, EEPROM).
+ *
+ * app.c reads received bytes and queues frames through here only, so the deframer, the link watchdog and
+ * the failsafe are the same whatever the link. With "first", bytes are taken from one link at a time and
+ * the source changes only at a frame boundary (after a 0x00 delimiter) or when the present source has
+ * been silent for PORT_SWITCH_MS in the middle of a frame (that partial frame is then a counted bad
+ * frame), so the two links' bytes never interleave inside a frame; the first valid frame
+ * (port_frame_valid) makes its link the link until the next reset. Until then the board's own frames go
+ * out on UART0 only.
+ */
+#ifndef PORT_H
+#define PORT_H
+
+#include <stdint.h>
+
+#include "config.h"
+
+#define PORT_SWITCH_MS 20u
+
+void port_init(const board_config_t *cfg);
+/* The USB stack's pass (main loop). */
+void port_poll(void);
+/* Next received byte from the active link: 1, or 0 if none waits. */
+uint8_t port_read(uint8_t *b);
+/* 1 if received bytes wait (also from an interrupt: the link watchdog's stop looks). */
+uint8_t port_rx_pending(void);
+/* Queue a whole frame: 1, or 0 (nothing queued) if it does not fit. */
+uint8_t port_send(const uint8_t *data, uint16_t n);
+/* The bytes read last completed a valid frame: with LINK_FIRST, its link becomes the link. */
+void port_frame_valid(void);
+/* LINK_UART or LINK_USB: the link in use now (LINK_FIRST until one delivered a valid frame). */
+uint8_t port_active(void);
+
+#endif /* PORT_H */

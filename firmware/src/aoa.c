@@ -1,0 +1,338 @@
+/* aoa.c - Android Open Accessory over the USB host stack (see aoa.h). Portable. */
+#include "aoa.h"
+
+#include <string.h>
+
+#include "board_gen.h"
+#include "flash.h"
+#include "max3421e_drv.h"
+#include "usb_host.h"
+
+static const char S_MANUFACTURER[] FLASH = IDENTITY_MANUFACTURER;
+static const char S_MODEL[] FLASH = IDENTITY_MODEL;
+static const char S_DESCRIPTION[] FLASH = IDENTITY_DESCRIPTION;
+static const char S_VERSION[] FLASH = IDENTITY_VERSION;
+static const char S_URI[] FLASH = IDENTITY_URI;
+
+/* Identity string `index` (0..4, in flash). A switch, not a table: a table of pointers would sit in RAM. */
+static const char *identity_string(uint8_t index)
+{
+    switch (index) {
+    case 0:
+        return S_MANUFACTURER;
+    case 1:
+        return S_MODEL;
+    case 2:
+        return S_DESCRIPTION;
+    case 3:
+        return S_VERSION;
+    default:
+        return S_URI;
+    }
+}
+
+static struct {
+    uint8_t state, step; /* step: 0 GET_PROTOCOL, 1..6 SEND_STRING index step-1, 7 START */
+    uint8_t in_toggle, out_toggle, zlp_due;
+    uint8_t errors;    /* RUNNING: consecutive bulk errors; before: failed handshakes with this device */
+    uint8_t halted_ep; /* CLEAR_HALT: the endpoint; HANDSHAKE: STALLs of GET_PROTOCOL */
+    uint8_t rx_left; /* bytes of the last bulk IN packet still in the chip's RCVFIFO (the receive buffer) */
+    uint16_t version;
+    uint8_t generation, start_generation; /* usb_host_generation(); the one START was sent in */
+    uint32_t since_us;
+    const char *serial;
+} aoa;
+
+void aoa_init(const char *serial)
+{
+    memset(&aoa, 0, sizeof aoa);
+    aoa.serial = serial;
+    usb_host_init();
+    aoa.generation = usb_host_generation();
+}
+
+aoa_state_t aoa_state(void) { return (aoa_state_t)aoa.state; }
+
+uint16_t aoa_protocol_version(void) { return aoa.version; }
+
+uint8_t aoa_rx_pending(void) { return aoa.rx_left != 0; }
+
+/* The packet stays in the MAX3421E's RCVFIFO and is read a byte at a time as the deframer takes it:
+ * the chip's 64-byte FIFO is the receive buffer (~3 us of SPI a byte instead of 64 bytes of RAM). */
+uint8_t aoa_read(uint8_t *b)
+{
+    if (!aoa.rx_left)
+        return 0;
+    *b = max_read(MAX_RCVFIFO);
+    if (!--aoa.rx_left)
+        max_write(MAX_HIRQ, MAX_RCVDAVIRQ); /* read out: the buffer is the chip's again */
+    return 1;
+}
+
+/* Drop what is left of a received packet (the device went away or is enumerated again). */
+static void rx_drop(void)
+{
+    if (aoa.rx_left)
+        max_write(MAX_HIRQ, MAX_RCVDAVIRQ);
+    aoa.rx_left = 0;
+}
+
+static void version_sink(const uint8_t *d, uint8_t n)
+{
+    if (n >= 1)
+        aoa.version = d[0];
+    if (n >= 2)
+        aoa.version |= (uint16_t)(d[1] << 8);
+}
+
+static uint16_t flash_len(const char *s)
+{
+    uint16_t n = 0;
+    while (flash_byte(s + n))
+        n++;
+    return n;
+}
+
+/* Start the handshake's request number `step`. */
+static void handshake_step(uint8_t step)
+{
+    usb_setup_t s;
+    s.bmRequestType = 0x40u; /* OUT, vendor, device */
+    s.wValue = s.wIndex = s.wLength = 0;
+    aoa.step = step;
+    if (step == 0) {
+        s.bmRequestType = 0xC0u; /* IN, vendor, device */
+        s.bRequest = AOA_REQ_GET_PROTOCOL;
+        s.wLength = 2;
+        aoa.version = 0;
+        usb_ctl_start(&s, 0, 0, version_sink);
+    } else if (step <= AOA_STRINGS) {
+        uint8_t index = (uint8_t)(step - 1u);
+        uint8_t in_flash = index < 5u; /* the serial (index 5) is the board's, from its EEPROM */
+        const char *text = in_flash ? identity_string(index) : aoa.serial;
+        s.bRequest = AOA_REQ_SEND_STRING;
+        s.wIndex = index;
+        s.wLength = (uint16_t)((in_flash ? flash_len(text) : strlen(text)) + 1u); /* with the NUL */
+        usb_ctl_start(&s, (const uint8_t *)text, in_flash, 0);
+    } else {
+        s.bRequest = AOA_REQ_START;
+        usb_ctl_start(&s, 0, 0, 0);
+    }
+}
+
+static void enter(uint8_t state, uint32_t now_us)
+{
+    aoa.state = state;
+    aoa.since_us = now_us;
+}
+
+/* A configured device: an accessory already, or a phone to switch. */
+static void device_ready(uint32_t now_us)
+{
+    if (usb_dev.vid == AOA_GOOGLE_VID && usb_dev.pid >= AOA_PID_FIRST && usb_dev.pid <= AOA_PID_LAST) {
+        if (!usb_dev.bulk_in || !usb_dev.bulk_out || !usb_dev.in_packet || !usb_dev.out_packet) {
+            usb_link_event(AOA_EV_NO_PIPES, usb_dev.pid);
+            enter(AOA_REFUSED, now_us);
+            return;
+        }
+        aoa.in_toggle = aoa.out_toggle = 0; /* SET_CONFIGURATION resets every data toggle */
+        aoa.zlp_due = aoa.errors = 0;
+        aoa.rx_left = 0;
+        enter(AOA_RUNNING, now_us);
+        usb_link_event(AOA_EV_UP, usb_dev.pid);
+        return;
+    }
+    enter(AOA_HANDSHAKE, now_us);
+    handshake_step(0);
+}
+
+static void handshake(uint32_t now_us)
+{
+    usb_ctl_result_t r = usb_ctl_poll(now_us);
+    if (r == USB_CTL_BUSY)
+        return;
+    if (r == USB_CTL_FAILED) {
+        uint8_t hr = usb_ctl_result_hr();
+        if (aoa.step == 0 && hr == MAX_HR_STALL) {
+            /* a STALLed vendor request is how a device without AOA answers; ep0's STALL clears at the next
+             * SETUP, so ask once more before refusing (a single stray STALL is not a refusal) */
+            if (!aoa.halted_ep++) {
+                handshake_step(0);
+                return;
+            }
+            usb_link_event(AOA_EV_NO_AOA, 0);
+            enter(AOA_REFUSED, now_us);
+            return;
+        }
+        usb_link_event(AOA_EV_FAILED, hr);
+        if (++aoa.errors >= AOA_HANDSHAKE_TRIES) {
+            enter(AOA_REFUSED, now_us); /* until it is unplugged: no endless retry against a broken phone */
+            return;
+        }
+        enter(AOA_IDLE, now_us);
+        usb_host_reenumerate(); /* a clean start: the next enumeration runs the handshake again */
+        return;
+    }
+    if (aoa.step == 0) {
+        aoa.halted_ep = 0;
+        if (aoa.version == 0) {
+            usb_link_event(AOA_EV_NO_AOA, 0);
+            enter(AOA_REFUSED, now_us);
+            return;
+        }
+    }
+    if (aoa.step <= AOA_STRINGS) {
+        handshake_step((uint8_t)(aoa.step + 1u));
+        return;
+    }
+    usb_link_event(AOA_EV_STARTED, aoa.version);
+    aoa.start_generation = aoa.generation;
+    enter(AOA_WAIT_REENUM, now_us);
+}
+
+static void pipe_error(uint8_t hr, uint8_t ep_addr, uint32_t now_us)
+{
+    if (hr == MAX_HR_STALL) {
+        /* CLEAR_FEATURE(ENDPOINT_HALT): the endpoint and its toggle start over at DATA0 */
+        usb_setup_t s;
+        s.bmRequestType = 0x02u; /* OUT, standard, endpoint */
+        s.bRequest = 1u;         /* CLEAR_FEATURE */
+        s.wValue = 0;            /* ENDPOINT_HALT */
+        s.wIndex = ep_addr;
+        s.wLength = 0;
+        aoa.halted_ep = ep_addr;
+        usb_ctl_start(&s, 0, 0, 0);
+        enter(AOA_CLEAR_HALT, now_us);
+        return;
+    }
+    if (++aoa.errors >= AOA_PIPE_ERRORS) {
+        aoa.errors = 0;
+        rx_drop();
+        usb_host_reenumerate();
+    }
+}
+
+static void run_pipes(uint32_t now_us)
+{
+    if (!aoa.rx_left) {
+        uint8_t n;
+        uint8_t hr = usb_bulk_in(usb_dev.bulk_in, &aoa.in_toggle, &n);
+        if (hr == MAX_HR_SUCCESS) {
+            aoa.rx_left = n;
+            aoa.errors = 0;
+        } else if (hr != MAX_HR_NAK) { /* NAK: the phone has nothing for us */
+            pipe_error(hr, (uint8_t)(0x80u | usb_dev.bulk_in), now_us);
+            return;
+        }
+    }
+    for (uint8_t k = 0; k < AOA_OUT_PER_POLL; k++) {
+        uint8_t buf[64];
+        uint8_t n = 0;
+        if (usb_tx_pending())
+            n = usb_tx_peek(buf, usb_dev.out_packet);
+        else if (!aoa.zlp_due)
+            return;
+        uint8_t hr = usb_bulk_out(usb_dev.bulk_out, &aoa.out_toggle, buf, n);
+        if (hr != MAX_HR_SUCCESS) {
+            if (hr != MAX_HR_NAK) /* NAK: the phone's buffer is full; the bytes stay queued */
+                pipe_error(hr, usb_dev.bulk_out, now_us);
+            return;
+        }
+        aoa.errors = 0;
+        usb_tx_consume(n);
+        aoa.zlp_due = n == usb_dev.out_packet && !usb_tx_pending();
+    }
+}
+
+void aoa_poll(uint32_t now_us)
+{
+    usb_host_poll(now_us);
+    uint8_t gen = usb_host_generation();
+    if (gen != aoa.generation) { /* attached or detached since the last pass: what we had is gone */
+        aoa.generation = gen;
+        if (aoa.state == AOA_RUNNING || aoa.state == AOA_CLEAR_HALT)
+            usb_link_event(AOA_EV_DOWN, 0);
+        rx_drop(); /* a detach or a new device: free the chip's receive buffer for the next enumeration */
+        aoa.errors = aoa.halted_ep = 0; /* a new device starts with a clean slate */
+        if (aoa.state != AOA_WAIT_REENUM)
+            enter(AOA_IDLE, now_us);
+    }
+    if (usb_host_state() != USB_CONFIGURED) {
+        rx_drop();
+        if (aoa.state == AOA_RUNNING || aoa.state == AOA_CLEAR_HALT || aoa.state == AOA_HANDSHAKE) {
+            usb_link_event(aoa.state == AOA_HANDSHAKE ? AOA_EV_FAILED : AOA_EV_DOWN, usb_stats.last_hr);
+            enter(AOA_IDLE, now_us);
+        } else if (aoa.state == AOA_WAIT_REENUM && now_us - aoa.since_us >= AOA_REENUM_US) {
+            enter(AOA_IDLE, now_us);
+        }
+        return;
+    }
+    switch (aoa.state) {
+    case AOA_WAIT_REENUM:
+        if (aoa.generation == aoa.start_generation) { /* still the phone we sent START to: it drops off soon */
+            if (now_us - aoa.since_us >= AOA_REENUM_US)
+                enter(AOA_IDLE, now_us); /* it never did: start over */
+            break;
+        }
+        device_ready(now_us);
+        break;
+    case AOA_IDLE:
+        device_ready(now_us);
+        break;
+    case AOA_HANDSHAKE:
+        handshake(now_us);
+        break;
+    case AOA_RUNNING:
+        run_pipes(now_us);
+        break;
+    case AOA_CLEAR_HALT: {
+        usb_ctl_result_t r = usb_ctl_poll(now_us);
+        if (r == USB_CTL_BUSY)
+            break;
+        if (r == USB_CTL_FAILED) {
+            rx_drop();
+            usb_host_reenumerate();
+            break;
+        }
+        if (aoa.halted_ep & 0x80u)
+            aoa.in_toggle = 0;
+        else
+            aoa.out_toggle = 0;
+        aoa.halted_ep = 0;
+        enter(AOA_RUNNING, now_us);
+        break;
+    }
+    default: /* AOA_REFUSED: until the device goes away */
+        break;
+    }
+}
+
+/* ------------------------------------------------------------------------------- log texts */
+static const char TEXTS[] FLASH = "\0"
+                                  "USB accessory connected, product 0x\0"
+                                  "USB accessory disconnected\0"
+                                  "USB device refused: no Android accessory mode (AOA protocol 0)\0"
+                                  "USB phone switching to accessory mode, AOA protocol \0"
+                                  "USB accessory handshake failed, HRSL 0x\0"
+                                  "USB accessory without a bulk pair refused, product 0x\0";
+
+void aoa_event_text(uint8_t ev, uint16_t arg, char *out, uint8_t n)
+{
+    if (!n)
+        return;
+    flash_pick(TEXTS, ev <= AOA_EV_NO_PIPES ? ev : 0u, out, n);
+    if (ev != AOA_EV_UP && ev != AOA_EV_STARTED && ev != AOA_EV_FAILED && ev != AOA_EV_NO_PIPES)
+        return;
+    uint8_t at = (uint8_t)strlen(out);
+    char digits[5];
+    uint8_t k = 0;
+    uint8_t hex = ev != AOA_EV_STARTED;
+    do {
+        uint8_t d = (uint8_t)(hex ? arg % 16u : arg % 10u);
+        digits[k++] = (char)(d < 10u ? (unsigned)'0' + d : (unsigned)'a' + d - 10u);
+        arg = (uint16_t)(hex ? arg / 16u : arg / 10u);
+    } while (arg && k < sizeof digits);
+    while (k && at + 1u < n)
+        out[at++] = digits[--k];
+    out[at] = 0;
+}
