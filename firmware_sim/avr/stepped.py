@@ -48,7 +48,7 @@ from protocol.calibration import default_unit_calibration
 from protocol.errors import ConfigError
 from protocol.messages import BoardState, GimbalMode, UnitState
 
-from ..board.actuators import UnitModel, bench_truths
+from ..board.actuators import UnitModel, bench_truths, follow_all
 from ..board.config import BoardConfig
 from ..board.faults import FaultInjector
 from ..board.power import solve_supply
@@ -223,6 +223,10 @@ class FirmwareBoard:
         accel = (None,) * len(states) if rotor_accel is None else rotor_accel
         for unit, state, a in zip(self.units, states, accel, strict=True):
             unit.override(state, stamp, a)
+
+    def hand_over(self, values: Sequence[float], at: float, rotor_accel: Sequence[float]) -> None:
+        """The world's unit states as plain floats; see ``Board.hand_over``."""
+        follow_all(self.units, values, at, rotor_accel)
 
     def unit_states(self) -> tuple[UnitState, ...]:
         return tuple(u.state() for u in self.units)

@@ -85,7 +85,8 @@ class DrivingBoard(Protocol):
     (µs, None: no pulse); ``drive_epoch`` moves whenever what the drives see changes (a frame, a reset, a
     channel dying), ``next_output_change_us`` says before when it cannot (µs of board time, barring those
     events); ``units`` turn widths into rates and speeds (their calibration maps) and draw power from the
-    battery (``power``) by the states handed over in ``set_unit_states``."""
+    battery (``power``) by the states handed over in ``set_unit_states`` (or, as plain floats at every
+    board event, ``hand_over``)."""
 
     config: BoardConfig
     faults: FaultInjector
@@ -115,6 +116,8 @@ class DrivingBoard(Protocol):
         at: float | None = None,
         rotor_accel: Sequence[float] | None = None,
     ) -> None: ...
+
+    def hand_over(self, values: Sequence[float], at: float, rotor_accel: Sequence[float]) -> None: ...
 
 
 class World:
@@ -184,6 +187,7 @@ class World:
         self._sensed_in: list[int] = []  # each one's interval (its first row)
         self._row_t: list[float] = [0.0]  # each row's plant time (s), as Python floats for the loops below
         self._row_accel: list[list[float]] = [[0.0] * n]  # each row's rotor accelerations over its step
+        self._row_units: list[list[float]] = [[0.0] * 3 * n]  # each row's unit columns, angles wrapped
         self._row_us: list[int] = [0]  # each row's board time in whole µs (events fall at these)
         self._given = 0  # how many of them the world has handed out (those before the present row)
         self._phone_at: tuple | None = None  # the phone as it was at row 0
@@ -220,6 +224,7 @@ class World:
         self._drop_ahead()
         self._rows[0] = self.layout.pack(s)
         self._row_accel = [[0.0] * self.n]
+        self._row_units = self._unit_rows(self._rows[:1])
         self._at = self._head = 0
 
     @property
@@ -232,6 +237,16 @@ class World:
         c, f = self.layout, self._flat
         units = c.gimbal_angle_of(f).copy(), c.gimbal_rate_of(f).copy(), c.rotor_rate_of(f).copy()
         return Truth(self.now, c.R_of(f).copy(), c.omega_of(f).copy(), *units)
+
+    def _unit_rows(self, rows: Array) -> list[list[float]]:
+        """Each of ``rows``' unit columns (gimbal angles wrapped into [−π, π] as :func:`_wrap` does, gimbal
+        rates, rotor speeds) as Python floats: what :meth:`_push` hands the board."""
+        units = rows[:, self._unit_columns]
+        angles = units[:, : self.n]
+        if not np.abs(angles).max() <= math.pi:  # an angle within ±π is its own remainder (NaN is not)
+            outside = ~(np.abs(angles) <= math.pi)
+            angles[outside] = [_wrap(a) for a in angles[outside].tolist()]
+        return units.tolist()
 
     def unit_states(self, row: Array | None = None) -> list[UnitState]:
         """The units' states now (or in ``row``), as the board's telemetry reports them."""
@@ -305,7 +320,7 @@ class World:
         the rotors' accelerations over the step that reached it: their power draw then follows the
         physics, not the spacing of the hand-overs (which depends on how the caller chunks time)."""
         if self._pushed_at != at:
-            self.board.set_unit_states(self.unit_states(self._rows[k]), at=at, rotor_accel=self._row_accel[k])
+            self.board.hand_over(self._row_units[k], at, self._row_accel[k])
             self._pushed_at = at
 
     def _look_ahead(self) -> None:
@@ -336,6 +351,7 @@ class World:
         self._row_t = times.tolist()
         accel[1:] = np.diff(rows[: steps + 1, self._rotor_columns], axis=0) / self.step_s
         self._row_accel = accel.tolist()
+        self._row_units = self._unit_rows(rows[: steps + 1])
         self._row_us = np.rint((self.t0 + times) * 1e6).astype(np.int64).tolist()
         sensed, intervals = self._sense(0, steps)
         self._sensed, self._sensed_in = sensed, intervals.tolist()

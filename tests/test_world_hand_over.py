@@ -1,0 +1,96 @@
+"""The world's hand-over of unit states to the board as plain floats (``World._unit_rows``,
+``Board.hand_over``, ``UnitModel.follow``) against the UnitState path it replaced at every board event
+(``World.unit_states``, ``Board.set_unit_states``, ``UnitModel.override``): the same wrapped angles, the same
+unit state on the board, the same telemetry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from firmware_sim.board import Board
+from firmware_sim.board.config import BoardConfig
+from firmware_sim.world.world import _wrap
+from protocol.messages import UnitState
+
+ANGLES = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=False),  # the plant stops on a state not finite
+    st.floats(-10.0, 10.0),
+    st.sampled_from(
+        [math.pi, -math.pi, math.nextafter(math.pi, 4.0), math.nextafter(-math.pi, -4.0), 0.0, -0.0]
+    ),
+)
+
+
+def _world():
+    from firmware_sim.world import World
+    from hil.scenario import load_scenario
+    from hil.timing.clock import LockstepClock
+
+    scenario = load_scenario("cubesat-1u")
+    board = Board(BoardConfig(n_units=scenario.n_units), LockstepClock())
+    return World(scenario, board)
+
+
+WORLD = _world()
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(ANGLES, min_size=4 * WORLD.n, max_size=4 * WORLD.n))
+def test_unit_rows_wrap_angles_as_the_telemetry_wrap_does(angles):
+    """Angles within ±π are their own IEEE remainder: only the others are wrapped, by :func:`_wrap`."""
+    n, world = WORLD.n, WORLD
+    rows = np.zeros((4, world.layout.size))
+    cols = world._unit_columns
+    rows[:, cols[:n]] = np.reshape(angles, (4, n))
+    rows[:, cols[n:]] = np.arange(4 * 2 * n, dtype=float).reshape(4, 2 * n)
+    got = world._unit_rows(rows)
+    for row, values in zip(rows, got, strict=True):
+        reference = world.unit_states(row)
+        want = [s.gimbal_angle for s in reference] + [s.gimbal_rate for s in reference]
+        want += [s.rotor_speed for s in reference]
+        assert np.array_equal(values, want, equal_nan=True)
+        assert [math.copysign(1.0, v) for v in values[:n]] == [math.copysign(1.0, w) for w in want[:n]]
+        assert all(type(v) is float for v in values)
+    for a in angles:
+        if abs(a) <= math.pi:
+            assert _wrap(a) == a and math.copysign(1.0, _wrap(a)) == math.copysign(1.0, a)
+
+
+FLOATS = st.floats(-500.0, 500.0)
+STATES = st.tuples(FLOATS, FLOATS, FLOATS)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(st.tuples(STATES, st.one_of(st.none(), FLOATS), st.floats(0.0, 0.01)), min_size=1, max_size=6)
+)
+def test_follow_keeps_the_same_unit_state_as_override(hand_overs):
+    """Each hand-over as floats leaves a unit as a UnitState override would: state, acceleration."""
+    a, b = (Board(BoardConfig(n_units=1)).units[0] for _ in range(2))
+    t = 1.0
+    for (angle, rate, speed), accel, dt in hand_overs:
+        t += dt
+        a.override(UnitState(angle, rate, speed), t, accel)
+        b.follow(angle, rate, speed, t, accel)
+        assert (a.state(), a.rotor_accel, a.external) == (b.state(), b.rotor_accel, b.external)
+    a.override(None, t + 1.0)
+    assert not a.external
+
+
+def test_hand_over_gives_the_board_what_set_unit_states_gave():
+    """A board handed the floats reports the same units (telemetry's UnitState) as one handed UnitStates."""
+    boards = [Board(BoardConfig()) for _ in range(2)]
+    n = boards[0].config.n_units
+    states = [UnitState(0.1 * i, -0.01 * i, 100.0 + i) for i in range(n)]
+    values = (
+        [s.gimbal_angle for s in states] + [s.gimbal_rate for s in states] + [s.rotor_speed for s in states]
+    )
+    accel = [float(i) for i in range(n)]
+    boards[0].set_unit_states(states, at=0.5, rotor_accel=accel)
+    boards[1].hand_over(values, 0.5, accel)
+    assert boards[0].unit_states() == boards[1].unit_states() == tuple(states)
+    assert [u.rotor_accel for u in boards[0].units] == [u.rotor_accel for u in boards[1].units] == accel
