@@ -306,8 +306,7 @@ class FirmwareBoard:
                 unit.gimbal_dead = faults.channel_dead(g_ch, now)
                 if (unit.rotor_dead, unit.gimbal_dead) != was:
                     self.drive_epoch += 1
-            unit.update_esc(now, outputs[r_ch], self._supply_on)
-            unit.advance(dt, outputs[g_ch], outputs[r_ch], v)
+            unit.step(now, dt, outputs[g_ch], outputs[r_ch], self._supply_on, v)
         self.battery.discharge(self.power.battery_a, dt)
         solve_supply(self.power, self.battery, self.config.power.ubec, self.units, faults, now)
 

@@ -129,11 +129,6 @@ class UnitModel:
         servo = self.truth.servo
         return servo.rate(float(pulse_us)) if mode == GimbalMode.RATE else servo.angle(float(pulse_us))
 
-    def update_esc(self, t: float, rotor_us: float | None, supply_on: bool) -> None:
-        """The ESC sees ``rotor_us`` (None: no pulse) at ``t`` (s), powered if the board's switch
-        (``supply_on``) and the operator (:attr:`esc_connected`) both let it."""
-        self.esc.update(t, None if self.rotor_dead else rotor_us, supply_on and self.esc_connected)
-
     def _remember(self, key: tuple[str, float, Any], value: float) -> None:
         if len(self._cache) > 4096:
             self._cache.clear()
@@ -175,9 +170,22 @@ class UnitModel:
         return self._external_t is not None
 
     # ------------------------------------------------------------------ dynamics
-    def advance(self, dt: float, gimbal_us: float | None, rotor_us: float | None, battery_v: float) -> None:
-        """Integrate ``dt`` seconds with constant pulse inputs (None: no pulse on that channel)."""
-        self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.powered
+    def step(
+        self,
+        now: float,
+        dt: float,
+        gimbal_us: float | None,
+        rotor_us: float | None,
+        supply_on: bool,
+        battery_v: float,
+    ) -> None:
+        """The unit's hardware at ``now`` (s), ``dt`` s after the last step: its ESC sees ``rotor_us``
+        (None: no pulse, or a dead ESC) powered if the board's switch (``supply_on``) and the operator
+        (:attr:`esc_connected`) both let it, then the motors move over ``dt`` with the pulses held
+        constant (exact for constant inputs; a unit the world drives, :meth:`follow`, does not move)."""
+        esc = self.esc
+        esc.update(now, None if self.rotor_dead else rotor_us, supply_on and self.esc_connected)
+        self.rotor_driven = rotor_us is not None and not self.rotor_dead and esc.powered
         self.gimbal_driven = gimbal_us is not None and not self.gimbal_dead
         if dt <= 0.0 or self._external_t is not None:
             return

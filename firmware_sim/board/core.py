@@ -527,9 +527,7 @@ class Board:
                 unit.gimbal_dead = self.faults.channel_dead(g_ch, now)
                 if (unit.rotor_dead, unit.gimbal_dead) != was:
                     self.drive_epoch += 1
-            rotor_us = outputs[r_ch]
-            unit.update_esc(now, rotor_us, supply_on)
-            unit.advance(dt, outputs[g_ch], rotor_us, v)
+            unit.step(now, dt, outputs[g_ch], outputs[r_ch], supply_on, v)
         self.battery.discharge(self.power.battery_a, dt)
         solve_supply(self.power, self.battery, self.config.power.ubec, self.units, self.faults, now)
 
