@@ -1,4 +1,4 @@
-"""The world's hand-over of unit states to the board as plain floats (``World._unit_rows``,
+"""The world's hand-over of unit states to the board as plain floats (``World._listed_units``,
 ``Board.hand_over``, ``UnitModel.follow``) against the UnitState path it replaced at every board event
 (``World.unit_states``, ``Board.set_unit_states``, ``UnitModel.override``): the same wrapped angles, the same
 unit state on the board, the same telemetry."""
@@ -40,14 +40,14 @@ WORLD = _world()
 
 @settings(max_examples=300, deadline=None)
 @given(st.lists(ANGLES, min_size=4 * WORLD.n, max_size=4 * WORLD.n))
-def test_unit_rows_wrap_angles_as_the_telemetry_wrap_does(angles):
+def test_listed_units_wrap_angles_as_the_telemetry_wrap_does(angles):
     """Angles within ±π are their own IEEE remainder: only the others are wrapped, by :func:`_wrap`."""
     n, world = WORLD.n, WORLD
     rows = np.zeros((4, world.layout.size))
     cols = world._unit_columns
     rows[:, cols[:n]] = np.reshape(angles, (4, n))
     rows[:, cols[n:]] = np.arange(4 * 2 * n, dtype=float).reshape(4, 2 * n)
-    got = world._unit_rows(rows)
+    got = world._listed_units(rows[:, cols])
     for row, values in zip(rows, got, strict=True):
         reference = world.unit_states(row)
         want = [s.gimbal_angle for s in reference] + [s.gimbal_rate for s in reference]

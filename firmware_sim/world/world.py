@@ -179,7 +179,6 @@ class World:
         c = self.layout
         units = (c.gimbal_angle_of(index), c.gimbal_rate_of(index), c.rotor_rate_of(index))
         self._unit_columns = np.concatenate(units).astype(np.int64)  # gimbal angles, rates, rotor speeds
-        self._rotor_columns = self._unit_columns[2 * n :]
         self._rows = np.zeros((64, size))  # row _at: the present; rows _at + 1 .. _head: stepped ahead
         self._at = self._head = 0
         self._work = np.zeros(size)
@@ -223,14 +222,15 @@ class World:
     def state(self, s: PlantState) -> None:
         self._drop_ahead()
         self._rows[0] = self.layout.pack(s)
+        self._row_t = [float(self._rows[0, 0])]
         self._row_accel = [[0.0] * self.n]
-        self._row_units = self._unit_rows(self._rows[:1])
+        self._row_units = self._listed_units(self._rows[:1, self._unit_columns])
         self._at = self._head = 0
 
     @property
     def now(self) -> float:
         """World time on the board's clock (s)."""
-        return self.t0 + float(self._rows[self._at, 0])
+        return self.t0 + self._row_t[self._at]
 
     def truth(self) -> Truth:
         """The true motion now (copies; nothing else is built)."""
@@ -238,10 +238,9 @@ class World:
         units = c.gimbal_angle_of(f).copy(), c.gimbal_rate_of(f).copy(), c.rotor_rate_of(f).copy()
         return Truth(self.now, c.R_of(f).copy(), c.omega_of(f).copy(), *units)
 
-    def _unit_rows(self, rows: Array) -> list[list[float]]:
-        """Each of ``rows``' unit columns (gimbal angles wrapped into [−π, π] as :func:`_wrap` does, gimbal
-        rates, rotor speeds) as Python floats: what :meth:`_push` hands the board."""
-        units = rows[:, self._unit_columns]
+    def _listed_units(self, units: Array) -> list[list[float]]:
+        """Rows of the unit columns (gimbal angles, gimbal rates, rotor speeds; the angles are wrapped into
+        [−π, π] in place, as :func:`_wrap` does) as Python floats: what :meth:`_push` hands the board."""
         angles = units[:, : self.n]
         if not np.abs(angles).max() <= math.pi:  # an angle within ±π is its own remainder (NaN is not)
             outside = ~(np.abs(angles) <= math.pi)
@@ -349,9 +348,10 @@ class World:
         self._phone_at = self.phone.checkpoint()
         times = rows[: steps + 1, 0]
         self._row_t = times.tolist()
-        accel[1:] = np.diff(rows[: steps + 1, self._rotor_columns], axis=0) / self.step_s
+        units = rows[: steps + 1, self._unit_columns]  # a copy: gimbal angles, gimbal rates, rotor speeds
+        accel[1:] = np.diff(units[:, 2 * self.n :], axis=0) / self.step_s
         self._row_accel = accel.tolist()
-        self._row_units = self._unit_rows(rows[: steps + 1])
+        self._row_units = self._listed_units(units)
         self._row_us = np.rint((self.t0 + times) * 1e6).astype(np.int64).tolist()
         sensed, intervals = self._sense(0, steps)
         self._sensed, self._sensed_in = sensed, intervals.tolist()
