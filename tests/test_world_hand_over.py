@@ -1,7 +1,7 @@
 """The world's hand-over of unit states to the board as plain floats (``World._listed_units``,
-``Board.hand_over``, ``UnitModel.follow``) against the UnitState path it replaced at every board event
-(``World.unit_states``, ``Board.set_unit_states``, ``UnitModel.override``): the same wrapped angles, the same
-unit state on the board, the same telemetry."""
+``_wrap_angles``, ``Board.hand_over``, ``UnitModel.follow``) against the UnitState path it replaced at
+every board event (``World.unit_states``, ``Board.set_unit_states``, ``UnitModel.override``): the same
+wrapped angles, the same unit state on the board, the same telemetry."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from firmware_sim.board import Board
 from firmware_sim.board.config import BoardConfig
-from firmware_sim.world.world import _wrap
+from firmware_sim.world.world import _wrap, _wrap_angles
 from protocol.messages import UnitState
 
 ANGLES = st.one_of(
@@ -39,25 +39,35 @@ WORLD = _world()
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.lists(ANGLES, min_size=4 * WORLD.n, max_size=4 * WORLD.n))
-def test_listed_units_wrap_angles_as_the_telemetry_wrap_does(angles):
-    """Angles within ±π are their own IEEE remainder: only the others are wrapped, by :func:`_wrap`."""
-    n, world = WORLD.n, WORLD
-    rows = np.zeros((4, world.layout.size))
+@given(st.lists(ANGLES, min_size=1, max_size=8))
+def test_angles_are_wrapped_as_the_telemetry_wrap_does(angles):
+    """Angles within ±π are their own IEEE remainder: only the others are wrapped, by :func:`_wrap`; the
+    rest of the row is left alone, and a second wrap changes nothing."""
+    n = len(angles)
+    values = list(angles) + [1.0, 2.0]
+    _wrap_angles(values, n)
+    want = [_wrap(a) for a in angles]
+    assert np.array_equal(values[:n], want, equal_nan=True)
+    assert [math.copysign(1.0, v) for v in values[:n]] == [math.copysign(1.0, w) for w in want]
+    assert values[n:] == [1.0, 2.0]
+    again = list(values)
+    _wrap_angles(again, n)
+    assert np.array_equal(again, values, equal_nan=True)
+
+
+def test_the_listed_rows_are_the_reference_unit_states_once_wrapped():
+    """A row the world lists, wrapped, is what :meth:`World.unit_states` gives for it."""
+    world, n = WORLD, WORLD.n
+    rows = np.zeros((3, world.layout.size))
     cols = world._unit_columns
-    rows[:, cols[:n]] = np.reshape(angles, (4, n))
-    rows[:, cols[n:]] = np.arange(4 * 2 * n, dtype=float).reshape(4, 2 * n)
-    got = world._listed_units(rows[:, cols])
-    for row, values in zip(rows, got, strict=True):
-        reference = world.unit_states(row)
-        want = [s.gimbal_angle for s in reference] + [s.gimbal_rate for s in reference]
-        want += [s.rotor_speed for s in reference]
-        assert np.array_equal(values, want, equal_nan=True)
-        assert [math.copysign(1.0, v) for v in values[:n]] == [math.copysign(1.0, w) for w in want[:n]]
+    rows[:, cols] = np.linspace(-9.0, 9.0, 3 * 3 * n).reshape(3, 3 * n)
+    for row, values in zip(rows, world._listed_units(rows[:, cols]), strict=True):
+        _wrap_angles(values, n)
+        states = world.unit_states(row)
+        assert values == [s.gimbal_angle for s in states] + [s.gimbal_rate for s in states] + [
+            s.rotor_speed for s in states
+        ]
         assert all(type(v) is float for v in values)
-    for a in angles:
-        if abs(a) <= math.pi:
-            assert _wrap(a) == a and math.copysign(1.0, _wrap(a)) == math.copysign(1.0, a)
 
 
 FLOATS = st.floats(-500.0, 500.0)

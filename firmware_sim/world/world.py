@@ -239,12 +239,8 @@ class World:
         return Truth(self.now, c.R_of(f).copy(), c.omega_of(f).copy(), *units)
 
     def _listed_units(self, units: Array) -> list[list[float]]:
-        """Rows of the unit columns (gimbal angles, gimbal rates, rotor speeds; the angles are wrapped into
-        [−π, π] in place, as :func:`_wrap` does) as Python floats: what :meth:`_push` hands the board."""
-        angles = units[:, : self.n]
-        if not np.abs(angles).max() <= math.pi:  # an angle within ±π is its own remainder (NaN is not)
-            outside = ~(np.abs(angles) <= math.pi)
-            angles[outside] = [_wrap(a) for a in angles[outside].tolist()]
+        """Rows of the unit columns (gimbal angles, gimbal rates, rotor speeds) as Python floats, for
+        :meth:`_push` (which wraps the angles of the rows it hands over)."""
         return units.tolist()
 
     def unit_states(self, row: Array | None = None) -> list[UnitState]:
@@ -319,7 +315,9 @@ class World:
         the rotors' accelerations over the step that reached it: their power draw then follows the
         physics, not the spacing of the hand-overs (which depends on how the caller chunks time)."""
         if self._pushed_at != at:
-            self.board.hand_over(self._row_units[k], at, self._row_accel[k])
+            values = self._row_units[k]
+            _wrap_angles(values, self.n)
+            self.board.hand_over(values, at, self._row_accel[k])
             self._pushed_at = at
 
     def _look_ahead(self) -> None:
@@ -349,7 +347,8 @@ class World:
         times = rows[: steps + 1, 0]
         self._row_t = times.tolist()
         units = rows[: steps + 1, self._unit_columns]  # a copy: gimbal angles, gimbal rates, rotor speeds
-        accel[1:] = np.diff(units[:, 2 * self.n :], axis=0) / self.step_s
+        speeds = units[:, 2 * self.n :]
+        accel[1:] = (speeds[1:] - speeds[:-1]) / self.step_s  # np.diff's subtraction, without its dispatch
         self._row_accel = accel.tolist()
         self._row_units = self._listed_units(units)
         self._row_us = np.rint((self.t0 + times) * 1e6).astype(np.int64).tolist()
@@ -498,6 +497,16 @@ def load_kernels(scenario: object, config: object) -> None:
 def _wrap(angle: float) -> float:
     """An angle in (−π, π] (the telemetry's range)."""
     return math.remainder(angle, 2 * math.pi)
+
+
+def _wrap_angles(values: list[float], n: int) -> None:
+    """The first ``n`` of ``values`` (angles, rad) wrapped in place as :func:`_wrap` wraps them. An angle
+    within ±π is its own remainder (π is half of 2π as floats; NaN is not within) and is left as it is,
+    so wrapping twice changes nothing and costs four comparisons."""
+    for i in range(n):
+        angle = values[i]
+        if not -math.pi <= angle <= math.pi:
+            values[i] = _wrap(angle)
 
 
 class WorldStreamer:
