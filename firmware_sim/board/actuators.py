@@ -36,6 +36,7 @@ from protocol.messages import GIMBAL_ANGLE_LIMIT, GIMBAL_RATE_LIMIT, ROTOR_SPEED
 
 from .config import BoardConfig, GimbalParams, MotorParams
 from .esc import EmulatedEsc, EscParams
+from .volts import TenMillivolts
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,7 @@ class UnitModel:
         self.esc_connected = True
         self._calibration = calibration
         self._cache: dict[tuple[str, float, Any], float] = {}
+        self._volts = TenMillivolts()  # round(v, 2), the cache's voltage key
         self._true_motor: EscMotorModel | None = None
         self.rotor_speed = 0.0
         self.rotor_accel = 0.0
@@ -92,7 +94,7 @@ class UnitModel:
 
     def rotor_speed_for(self, pulse_us: float, battery_v: float) -> float:
         """Steady no-load speed (rad/s) of ``pulse_us`` at ``battery_v`` (cached per 10 mV)."""
-        v = round(battery_v, 2)
+        v = self._volts(battery_v)
         key = ("r", pulse_us, v)
         hit = self._cache.get(key)
         if hit is None:
