@@ -194,10 +194,6 @@ class World:
             R=scenario.slew.R0, gimbal_angle=scenario.slew.gimbal_angle0, rotor_rate=np.zeros(n), t=0.0
         )
         self.phone = BodyPhone(scenario.phone, scenario.seed if seed is None else seed, t0=self.t0)
-        self._gimbal_sp = np.zeros((1, n))
-        self._rotor_sp = np.zeros((1, n))
-        self._angle = np.full((1, n), np.nan)
-        self._undriven = np.zeros((1, n), bool)
         self._unclamped = np.zeros(1, bool)
         self._pushed_at: float | None = None
         self._read: tuple | None = None  # what the drives last read from the board (its drive epoch, mode)
@@ -435,42 +431,40 @@ class World:
 
     def _drive(self) -> None:
         """The drives' targets from the widths on the board's outputs now, at the battery voltage now (held
-        anew only if they changed)."""
+        anew only if they changed), worked out on Python floats: arrays are built only to hold new ones."""
         board = self.board
         self._read = (board.drive_epoch, board.gimbal_mode)
         outputs = board.outputs
         volts = board.power.battery_v
         mode = board.gimbal_mode
-        gimbal, rotor, angle, undriven = (
-            self._gimbal_sp[0],
-            self._rotor_sp[0],
-            self._angle[0],
-            self._undriven[0],
-        )
+        gimbal: list[float] = []  # rad/s (0.0 while on an angle or without pulses)
+        rotor: list[float] = []  # rad/s
+        angle: list[float | None] = []  # rad, None: the gimbal follows its rate
+        undriven: list[bool] = []
         for i, unit in enumerate(board.units):
             g_us, r_us = outputs[2 * i], outputs[2 * i + 1]
             if r_us is not None and not unit.rotor_dead:
-                rotor[i] = unit.rotor_speed_for(r_us, volts)
-                undriven[i] = False
+                rotor.append(unit.rotor_speed_for(r_us, volts))
+                undriven.append(False)
             else:  # no pulses or a dead ESC: no drive; the rotor coasts down
-                rotor[i] = 0.0
-                undriven[i] = True
-            angle[i] = math.nan
+                rotor.append(0.0)
+                undriven.append(True)
             if g_us is None or unit.gimbal_dead:
-                gimbal[i] = 0.0
+                gimbal.append(0.0)
+                angle.append(None)
             elif mode is GimbalMode.RATE:
-                gimbal[i] = unit.gimbal_value_for(g_us, mode)
+                gimbal.append(unit.gimbal_value_for(g_us, mode))
+                angle.append(None)
             else:  # ANGLE: the servo's own position loop turns the gimbal to the target
-                gimbal[i] = 0.0
-                angle[i] = unit.gimbal_value_for(g_us, mode)
-        targets = [None if math.isnan(a) else a for a in angle.tolist()]
-        held = (gimbal.tolist(), rotor.tolist(), targets, undriven.tolist())
+                gimbal.append(0.0)
+                angle.append(unit.gimbal_value_for(g_us, mode))
+        held = (gimbal, rotor, angle, undriven)
         if held != self._held:
             self._held = held
             self.servo.hold(
-                Setpoints(self._gimbal_sp.copy(), self._rotor_sp.copy(), self._unclamped),
-                angle_target=self._angle.copy(),
-                rotor_undriven=self._undriven.copy(),
+                Setpoints(np.array([gimbal], dtype=float), np.array([rotor], dtype=float), self._unclamped),
+                angle_target=np.array([[math.nan if a is None else a for a in angle]], dtype=float),
+                rotor_undriven=np.array([undriven], dtype=bool),
             )
 
 
