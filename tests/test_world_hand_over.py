@@ -104,3 +104,26 @@ def test_hand_over_gives_the_board_what_set_unit_states_gave():
     boards[1].hand_over(values, 0.5, accel)
     assert boards[0].unit_states() == boards[1].unit_states() == tuple(states)
     assert [u.rotor_accel for u in boards[0].units] == [u.rotor_accel for u in boards[1].units] == accel
+
+
+def test_rotor_accelerations_are_the_batchs_speed_differences_over_the_step():
+    """Worked out per row handed over, they are np.diff of the batch's rotor speeds over the plant step
+    (the numpy pass they replace): rotors coasting down from 400 rad/s, undriven."""
+    world = _world()
+    n = world.n
+    world.state = world.plant.state(
+        R=world.scenario.slew.R0,
+        gimbal_angle=world.scenario.slew.gimbal_angle0,
+        rotor_rate=np.full(n, 400.0),
+        t=0.0,
+    )
+    speeds = world._unit_columns[2 * n :]
+    checked = 0
+    for j in range(1, 40):
+        world.advance_to(world.t0 + j * 0.005)
+        rows = world._rows[: world._head + 1]
+        want = np.diff(rows[:, speeds], axis=0) / world.step_s
+        got = [world._rotor_accel(k) for k in range(1, world._head + 1)]
+        assert np.array_equal(np.reshape(got, want.shape), want)
+        checked += len(got)
+    assert checked > 20 and np.all(want < 0.0)  # coasting: every rotor slows down

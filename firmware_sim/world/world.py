@@ -185,7 +185,7 @@ class World:
         self._sensed: list[SensorSample] = []  # what the phone sensed along the steps ahead (rows 0 .. head)
         self._sensed_in: list[int] = []  # each one's interval (its first row)
         self._row_t: list[float] = [0.0]  # each row's plant time (s), as Python floats for the loops below
-        self._row_accel: list[list[float]] = [[0.0] * n]  # each row's rotor accelerations over its step
+        self._first_accel: list[float] = [0.0] * n  # row 0's rotor accelerations (the batch before's)
         self._row_units: list[list[float]] = [[0.0] * 3 * n]  # each row's unit columns, angles wrapped
         self._row_us: list[int] = [0]  # each row's board time in whole µs (events fall at these)
         self._given = 0  # how many of them the world has handed out (those before the present row)
@@ -201,7 +201,7 @@ class World:
         self.steps = 0  # plant steps the world has moved through
         self.batches = 0  # compiled calls (each steps ahead to the next pulse frame)
         self.rewinds = 0  # times the steps ahead were dropped (an event changed what the drives see)
-        board.set_unit_states(self.unit_states(), rotor_accel=self._row_accel[0])
+        board.set_unit_states(self.unit_states(), rotor_accel=self._first_accel)
 
     # ------------------------------------------------------------------ state
     @property
@@ -219,7 +219,7 @@ class World:
         self._drop_ahead()
         self._rows[0] = self.layout.pack(s)
         self._row_t = [float(self._rows[0, 0])]
-        self._row_accel = [[0.0] * self.n]
+        self._first_accel = [0.0] * self.n
         self._row_units = self._listed_units(self._rows[:1, self._unit_columns])
         self._at = self._head = 0
 
@@ -313,8 +313,19 @@ class World:
         if self._pushed_at != at:
             values = self._row_units[k]
             _wrap_angles(values, self.n)
-            self.board.hand_over(values, at, self._row_accel[k])
+            self.board.hand_over(values, at, self._rotor_accel(k))
             self._pushed_at = at
+
+    def _rotor_accel(self, k: int) -> list[float]:
+        """The rotors' accelerations (rad/s², n) over the plant step that reached row ``k``: their speed
+        change over the step (row 0: carried over from the batch before). Worked out only for the rows
+        handed to the board (about one in three), on the listed floats: the same subtraction and division
+        a numpy pass over the batch makes."""
+        if k == 0:
+            return self._first_accel
+        n, h = self.n, self.step_s
+        now, before = self._row_units[k], self._row_units[k - 1]
+        return [(now[i] - before[i]) / h for i in range(2 * n, 3 * n)]
 
     def _look_ahead(self) -> None:
         """Step from the present (at least one step) to the first step that starts at or after the board's
@@ -333,8 +344,7 @@ class World:
             rows = np.zeros((2 * steps + 1, rows.shape[1]))
         rows[0] = self._rows[self._at]
         self._rows = rows
-        accel = np.empty((steps + 1, self.n))
-        accel[0] = self._row_accel[self._at]
+        self._first_accel = self._rotor_accel(self._at)
         self._at = 0
         self._head = steps
         self._run(steps)
@@ -342,11 +352,7 @@ class World:
         self._phone_at = self.phone.checkpoint()
         times = rows[: steps + 1, 0]
         self._row_t = times.tolist()
-        units = rows[: steps + 1, self._unit_columns]  # a copy: gimbal angles, gimbal rates, rotor speeds
-        speeds = units[:, 2 * self.n :]
-        accel[1:] = (speeds[1:] - speeds[:-1]) / self.step_s  # np.diff's subtraction, without its dispatch
-        self._row_accel = accel.tolist()
-        self._row_units = self._listed_units(units)
+        self._row_units = self._listed_units(rows[: steps + 1, self._unit_columns])
         self._row_us = np.rint((self.t0 + times) * 1e6).astype(np.int64).tolist()
         sensed, intervals = self._sense(0, steps)
         self._sensed, self._sensed_in = sensed, intervals.tolist()
