@@ -14,8 +14,9 @@ the board's next frame (:class:`.models.CompiledPlant` with the drive law inside
 keeping every state; the scenario's ``plant_step_s`` ≤ 1 ms per step) and the phone senses along it
 (:meth:`.models.BodyPhone.sample_path_intervals`). The world then moves through those steps as
 the caller's time passes: at each board event the unit states of the step it falls in go to the board
-(``Board.set_unit_states``: its telemetry, power draw and dead-ESC detection follow the physics at the
-board's own rates), the board runs what is due, and the phone's samples are handed out up to the present.
+(``Board.hand_over``, plain floats: its telemetry, power draw and dead-ESC detection follow the physics
+at the board's own rates), the board runs what is due, and the phone's samples are handed out up to the
+present.
 An event that changes what the drives see drops the steps ahead (the phone's noise stream is rewound with
 them) and the drives take the new widths there — what a step-by-step loop would do, with the board's
 events at the same plant steps. ``World(..., compiled=False)`` runs the same schedule on the numpy
