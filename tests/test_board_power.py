@@ -197,3 +197,34 @@ def test_ubec_overcurrent_is_flagged():
     assert 4500 < tel.ubec_mv < 5000  # folded back, still above the MCU's brown-out level
     assert board.resets[-1].cause is ResetCause.POWER_ON
     assert any(isinstance(m, Log) and "UBEC over current" in m.text for m in host.received)
+
+
+UNIT_LOADS = st.lists(
+    st.tuples(
+        st.booleans(),  # gimbal driven
+        st.booleans(),  # rotor driven
+        st.floats(-5.0, 5.0),  # gimbal rate, rad/s
+        st.floats(-2000.0, 2000.0),  # rotor speed, rad/s
+        st.floats(-5000.0, 5000.0),  # rotor acceleration, rad/s²
+    ),
+    min_size=1,
+    max_size=6,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(loads=UNIT_LOADS, battery_v=st.floats(0.0, 20.0))
+def test_unit_loads_are_the_per_unit_references_summed_in_unit_order(loads, battery_v):
+    """The supply's one loop gives the very floats the units' own load methods sum to."""
+    from firmware_sim.board import Board
+    from firmware_sim.board.power import unit_loads
+
+    units = Board(BoardConfig(n_units=len(loads))).units
+    for unit, (gimbal_on, rotor_on, rate, speed, accel) in zip(units, loads, strict=True):
+        unit.gimbal_driven, unit.rotor_driven = gimbal_on, rotor_on
+        unit.follow(0.0, rate, speed, 1.0, accel)
+    gimbal_a = rotor_w = 0.0
+    for unit in units:
+        gimbal_a += unit.gimbal_current_a()
+        rotor_w += unit.rotor_power_w(battery_v)
+    assert unit_loads(units, battery_v) == (gimbal_a, rotor_w)

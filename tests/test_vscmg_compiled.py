@@ -247,6 +247,37 @@ def test_drive_law_kernel_is_what_the_servo_model_computes(coast):
         servo.drive()
 
 
+@pytest.mark.parametrize("coast", [None, 0.8])
+def test_the_servos_packed_drive_is_drive_servo_of_its_held_setpoints(coast):
+    """``ServoModel.drive()`` (built from Python floats in one array) holds the very data
+    :meth:`Drive.servo` builds from the held setpoints: angle targets where a gimbal is on its angle, its
+    rate setpoint elsewhere; with and without angle modes and undriven rotors held."""
+    params = cubesat_1u()
+    rng = np.random.default_rng(11)
+    for k in range(40):
+        servo = _servo(params, coast=coast, modes=k % 2 == 1)
+        if k % 4 == 2:  # rates and speeds alone: every gimbal on its rate, every rotor driven
+            servo.hold(
+                Setpoints(rng.normal(0.0, 1.0, (1, 4)), rng.uniform(0.0, 600.0, (1, 4)), np.zeros(1, bool))
+            )
+        target = np.full(4, np.nan) if servo.angle_target is None else servo.angle_target[0]
+        undriven = np.zeros(4) if servo.rotor_undriven is None else servo.rotor_undriven[0]
+        on_angle = ~np.isnan(target)
+        want = Drive.servo(
+            servo._header,
+            servo.gimbal_inertia,
+            servo.spin_inertia,
+            np.where(on_angle, target, servo.gimbal_rate_sp[0]),
+            on_angle,
+            servo.rotor_speed_sp[0],
+            undriven,
+        )
+        got = servo.drive()
+        assert got.mode == want.mode
+        assert got.data.dtype == want.data.dtype
+        np.testing.assert_array_equal(got.data, want.data)
+
+
 # --------------------------------------------------------------------------- invariants, compiled
 def test_momentum_conserved_over_100_s_with_servo_drives_working():
     """Inertial angular momentum, recomputed body by body, stays put over 100 s (10 ms steps: π is advanced

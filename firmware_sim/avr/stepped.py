@@ -48,7 +48,7 @@ from protocol.calibration import default_unit_calibration
 from protocol.errors import ConfigError
 from protocol.messages import BoardState, GimbalMode, UnitState
 
-from ..board.actuators import UnitModel, bench_truths
+from ..board.actuators import UnitModel, bench_truths, follow_all
 from ..board.config import BoardConfig
 from ..board.faults import FaultInjector
 from ..board.power import solve_supply
@@ -224,6 +224,10 @@ class FirmwareBoard:
         for unit, state, a in zip(self.units, states, accel, strict=True):
             unit.override(state, stamp, a)
 
+    def hand_over(self, values: Sequence[float], at: float, rotor_accel: Sequence[float]) -> None:
+        """The world's unit states as plain floats; see ``Board.hand_over``."""
+        follow_all(self.units, values, at, rotor_accel)
+
     def unit_states(self) -> tuple[UnitState, ...]:
         return tuple(u.state() for u in self.units)
 
@@ -302,8 +306,7 @@ class FirmwareBoard:
                 unit.gimbal_dead = faults.channel_dead(g_ch, now)
                 if (unit.rotor_dead, unit.gimbal_dead) != was:
                     self.drive_epoch += 1
-            unit.update_esc(now, outputs[r_ch], self._supply_on)
-            unit.advance(dt, outputs[g_ch], outputs[r_ch], v)
+            unit.step(now, dt, outputs[g_ch], outputs[r_ch], self._supply_on, v)
         self.battery.discharge(self.power.battery_a, dt)
         solve_supply(self.power, self.battery, self.config.power.ubec, self.units, faults, now)
 

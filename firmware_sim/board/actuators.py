@@ -26,14 +26,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 from protocol.calibration import EscMotorModel, GimbalServoModel
+from protocol.errors import ConfigError
 from protocol.messages import GIMBAL_ANGLE_LIMIT, GIMBAL_RATE_LIMIT, ROTOR_SPEED_LIMIT, GimbalMode, UnitState
 
 from .config import BoardConfig, GimbalParams, MotorParams
 from .esc import EmulatedEsc, EscParams
+from .volts import TenMillivolts
 
 
 @dataclass(frozen=True)
@@ -67,6 +70,7 @@ class UnitModel:
         self.esc_connected = True
         self._calibration = calibration
         self._cache: dict[tuple[str, float, Any], float] = {}
+        self._volts = TenMillivolts()  # round(v, 2), the cache's voltage key
         self._true_motor: EscMotorModel | None = None
         self.rotor_speed = 0.0
         self.rotor_accel = 0.0
@@ -77,8 +81,7 @@ class UnitModel:
         self.gimbal_dead = False
         self.rotor_driven = False  # the ESC receives pulses and is alive
         self.gimbal_driven = False
-        self._external: UnitState | None = None
-        self._external_t: float | None = None
+        self._external_t: float | None = None  # when the world last handed a state over (None: the model's)
 
     @property
     def calibration(self) -> Any:
@@ -91,7 +94,7 @@ class UnitModel:
 
     def rotor_speed_for(self, pulse_us: float, battery_v: float) -> float:
         """Steady no-load speed (rad/s) of ``pulse_us`` at ``battery_v`` (cached per 10 mV)."""
-        v = round(battery_v, 2)
+        v = self._volts(battery_v)
         key = ("r", pulse_us, v)
         hit = self._cache.get(key)
         if hit is None:
@@ -128,11 +131,6 @@ class UnitModel:
         servo = self.truth.servo
         return servo.rate(float(pulse_us)) if mode == GimbalMode.RATE else servo.angle(float(pulse_us))
 
-    def update_esc(self, t: float, rotor_us: float | None, supply_on: bool) -> None:
-        """The ESC sees ``rotor_us`` (None: no pulse) at ``t`` (s), powered if the board's switch
-        (``supply_on``) and the operator (:attr:`esc_connected`) both let it."""
-        self.esc.update(t, None if self.rotor_dead else rotor_us, supply_on and self.esc_connected)
-
     def _remember(self, key: tuple[str, float, Any], value: float) -> None:
         if len(self._cache) > 4096:
             self._cache.clear()
@@ -144,29 +142,54 @@ class UnitModel:
         ``rotor_accel`` (rad/s²; the power draw's acceleration term): as measured with the state, or by
         default the speed's change since the last state handed over (over whatever span that was)."""
         if state is None:
-            self._external = None
             self._external_t = None
             return
-        prev, prev_t = self._external, self._external_t
+        self.follow(state.gimbal_angle, state.gimbal_rate, state.rotor_speed, t, rotor_accel)
+
+    def follow(
+        self,
+        gimbal_angle: float,
+        gimbal_rate: float,
+        rotor_speed: float,
+        t: float,
+        rotor_accel: float | None = None,
+    ) -> None:
+        """:meth:`override` with the measured state as plain floats (rad, rad/s, rad/s): what the world
+        hands over at every board event, with no :class:`UnitState` built for it (telemetry builds one
+        from them, :meth:`state`)."""
+        prev_t = self._external_t
         if rotor_accel is not None:
             self.rotor_accel = rotor_accel
-        elif prev is not None and prev_t is not None and t > prev_t:
-            self.rotor_accel = (state.rotor_speed - prev.rotor_speed) / (t - prev_t)
-        self._external, self._external_t = state, t
-        self.rotor_speed = state.rotor_speed
-        self.gimbal_angle = state.gimbal_angle
-        self.gimbal_rate = state.gimbal_rate
+        elif prev_t is not None and t > prev_t:  # the model does not move the speed while it is followed
+            self.rotor_accel = (rotor_speed - self.rotor_speed) / (t - prev_t)
+        self._external_t = t
+        self.rotor_speed = rotor_speed
+        self.gimbal_angle = gimbal_angle
+        self.gimbal_rate = gimbal_rate
 
     @property
     def external(self) -> bool:
-        return self._external is not None
+        return self._external_t is not None
 
     # ------------------------------------------------------------------ dynamics
-    def advance(self, dt: float, gimbal_us: float | None, rotor_us: float | None, battery_v: float) -> None:
-        """Integrate ``dt`` seconds with constant pulse inputs (None: no pulse on that channel)."""
-        self.rotor_driven = rotor_us is not None and not self.rotor_dead and self.esc.powered
+    def step(
+        self,
+        now: float,
+        dt: float,
+        gimbal_us: float | None,
+        rotor_us: float | None,
+        supply_on: bool,
+        battery_v: float,
+    ) -> None:
+        """The unit's hardware at ``now`` (s), ``dt`` s after the last step: its ESC sees ``rotor_us``
+        (None: no pulse, or a dead ESC) powered if the board's switch (``supply_on``) and the operator
+        (:attr:`esc_connected`) both let it, then the motors move over ``dt`` with the pulses held
+        constant (exact for constant inputs; a unit the world drives, :meth:`follow`, does not move)."""
+        esc = self.esc
+        esc.update(now, None if self.rotor_dead else rotor_us, supply_on and self.esc_connected)
+        self.rotor_driven = rotor_us is not None and not self.rotor_dead and esc.powered
         self.gimbal_driven = gimbal_us is not None and not self.gimbal_dead
-        if dt <= 0.0 or self._external is not None:
+        if dt <= 0.0 or self._external_t is not None:
             return
         self._advance_rotor(dt, rotor_us, battery_v)
         self._advance_gimbal(dt, gimbal_us)
@@ -245,14 +268,6 @@ class UnitModel:
 
     def state(self) -> UnitState:
         """The unit's state clamped to the wire's ranges (for Telemetry)."""
-        ext = self._external  # the unit's state while set (the model does not move it)
-        if (
-            type(ext) is UnitState
-            and -GIMBAL_ANGLE_LIMIT <= ext.gimbal_angle <= GIMBAL_ANGLE_LIMIT
-            and -GIMBAL_RATE_LIMIT <= ext.gimbal_rate <= GIMBAL_RATE_LIMIT
-            and -ROTOR_SPEED_LIMIT <= ext.rotor_speed <= ROTOR_SPEED_LIMIT
-        ):
-            return ext  # measured on the wire's ranges already: its own clamped copy (saves a new one)
         return UnitState(
             gimbal_angle=_clamp(self.gimbal_angle, GIMBAL_ANGLE_LIMIT),
             gimbal_rate=_clamp(self.gimbal_rate, GIMBAL_RATE_LIMIT),
@@ -277,3 +292,18 @@ def bench_truths(cfg: BoardConfig) -> list[ActuatorTruth | None]:
     from hil.calibration.generate import bench_units  # the stated models' spread, only when asked for
 
     return [ActuatorTruth(u.motor, u.gimbal) for u in bench_units(cfg.n_units, cfg.unit_spread_seed)]
+
+
+def follow_all(
+    units: Sequence[UnitModel], values: Sequence[float], t: float, rotor_accel: Sequence[float]
+) -> None:
+    """Every unit follows the world's state at ``t`` (s): ``values`` holds the gimbal angles (rad), the
+    gimbal rates (rad/s) and the rotor speeds (rad/s), ``len(units)`` of each one after the other (one row
+    of the world's unit columns); ``rotor_accel`` (rad/s², one per unit) as :meth:`UnitModel.follow`."""
+    n = len(units)
+    if len(values) != 3 * n or len(rotor_accel) != n:
+        raise ConfigError(
+            f"{len(values)} values and {len(rotor_accel)} accelerations for {n} units", "follow_all"
+        )
+    for i, unit in enumerate(units):
+        unit.follow(values[i], values[n + i], values[2 * n + i], t, rotor_accel[i])

@@ -32,7 +32,7 @@ from protocol.messages import (
 )
 from protocol.pulse_widths import FINE_PER_US, SigmaDelta, reported_us, whole_us
 
-from .actuators import UnitModel, bench_truths
+from .actuators import UnitModel, bench_truths, follow_all
 from .calibration import CalibrationTransfers, calibration_or_default
 from .codes import LogCode, McuPhase
 from .commands import CommandHandler
@@ -322,6 +322,13 @@ class Board:
             for unit, state, a in zip(self.units, states, accel, strict=True):
                 unit.override(state, stamp, a)
 
+    def hand_over(self, values: Sequence[float], at: float, rotor_accel: Sequence[float]) -> None:
+        """:meth:`set_unit_states` for a world that steps in batches, with the states as plain floats:
+        ``values`` the units' gimbal angles (rad, in (−π, π]), gimbal rates (rad/s) and rotor speeds
+        (rad/s), n of each one after the other, measured at board time ``at`` (s); ``rotor_accel``
+        (rad/s², n). The board does not move; no :class:`UnitState` is built (telemetry builds its own)."""
+        follow_all(self.units, values, at, rotor_accel)
+
     def commanded_outputs(self) -> tuple[float | None, ...]:
         """The mean widths (µs, to 1/512 µs) the firmware would aim the next pulse frames at for its present
         state, command and power stage (``outputs`` is what the last frame carried)."""
@@ -520,9 +527,7 @@ class Board:
                 unit.gimbal_dead = self.faults.channel_dead(g_ch, now)
                 if (unit.rotor_dead, unit.gimbal_dead) != was:
                     self.drive_epoch += 1
-            rotor_us = outputs[r_ch]
-            unit.update_esc(now, rotor_us, supply_on)
-            unit.advance(dt, outputs[g_ch], rotor_us, v)
+            unit.step(now, dt, outputs[g_ch], outputs[r_ch], supply_on, v)
         self.battery.discharge(self.power.battery_a, dt)
         solve_supply(self.power, self.battery, self.config.power.ubec, self.units, self.faults, now)
 

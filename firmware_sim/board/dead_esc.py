@@ -20,6 +20,7 @@ from .actuators import UnitModel
 from .codes import LogCode
 from .config import BoardConfig
 from .telemetry import Outbox
+from .volts import TenMillivolts
 
 
 class DeadEscDetector:
@@ -36,6 +37,7 @@ class DeadEscDetector:
         # frames, the check runs with every power sample (see :meth:`_floors`).
         self._floors_for: tuple[Sequence[int | None], float, GimbalMode] | None = None
         self._floor_values: list[tuple[float | None, float | None]] = []
+        self._volts = TenMillivolts()  # round(v, 2), asked at every power sample
 
     def reset(self) -> None:
         self._since = [None] * len(self._since)
@@ -95,7 +97,7 @@ class DeadEscDetector:
         asked enough to tell). Rotor speeds are converted at ``battery_v`` to 10 mV (``rotor_speed_for``),
         so the floors hold while the same targets tuple (a pulse frame sets a new one) and the same 10 mV
         step last."""
-        volts = round(battery_v, 2)
+        volts = self._volts(battery_v)
         held = self._floors_for
         if held is not None and held[0] is targets and held[1] == volts and held[2] is gimbal_mode:
             return self._floor_values

@@ -37,10 +37,7 @@ def solve_supply(
     # The loads are solved as constant power at the last voltage (their weak voltage dependence lags
     # one physics step, a few ms).
     v = reading.battery_v if reading.battery_v > 0 else battery.ocv()
-    gimbal_a = rotor_w = 0.0
-    for u in units:  # one pass in unit order (what sum() adds), not two generators: every physics step
-        gimbal_a += u.gimbal_current_a()
-        rotor_w += u.rotor_power_w(v)
+    gimbal_a, rotor_w = unit_loads(units, v)
     rail_load = ubec.electronics_current_a + gimbal_a
     rail_v, rail_a, over = ubec_output(ubec, v, rail_load)
     p = rotor_w + ubec_input_power(ubec, rail_v, rail_a)
@@ -48,6 +45,31 @@ def solve_supply(
     rail_v, rail_a, over = ubec_output(ubec, v, rail_load)
     reading.battery_v, reading.battery_a, reading.soc = v, amps, battery.soc
     reading.ubec_v, reading.ubec_a, reading.ubec_overcurrent = rail_v, rail_a, over
+
+
+def unit_loads(units: Sequence[UnitModel], battery_v: float) -> tuple[float, float]:
+    """The units' servo current from the UBEC rail (A) and the ESCs' power from the battery (W) at
+    ``battery_v`` (V): the sums, in unit order, of :meth:`UnitModel.gimbal_current_a` and
+    :meth:`UnitModel.rotor_power_w` (the references), spelt out in one loop — it runs at every physics
+    step, ~20 000 times a default run, where two method calls per unit were a third of the supply's cost.
+    An undriven unit adds nothing (the references' 0.0: the sums are the same floats)."""
+    gimbal_a = rotor_w = 0.0
+    for u in units:
+        if u.gimbal_driven:
+            g = u.gimbal
+            gimbal_a += g.idle_current_a + g.current_per_rad_s_a * abs(u.gimbal_rate)
+        if u.rotor_driven:
+            m = u.motor
+            speed = u.rotor_speed
+            w = abs(speed)
+            drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
+            accel = m.inertia_kg_m2 * w * u.rotor_accel  # power into the rotor's speed along its spin
+            if speed < 0.0:
+                accel = -accel
+            if accel < 0.0:  # slowing down returns nothing (the ESC does not brake)
+                accel = 0.0
+            rotor_w += (drag + accel) / m.efficiency + m.idle_current_a * battery_v
+    return gimbal_a, rotor_w
 
 
 class PowerSupervisor:

@@ -14,8 +14,9 @@ the board's next frame (:class:`.models.CompiledPlant` with the drive law inside
 keeping every state; the scenario's ``plant_step_s`` ≤ 1 ms per step) and the phone senses along it
 (:meth:`.models.BodyPhone.sample_path_intervals`). The world then moves through those steps as
 the caller's time passes: at each board event the unit states of the step it falls in go to the board
-(``Board.set_unit_states``: its telemetry, power draw and dead-ESC detection follow the physics at the
-board's own rates), the board runs what is due, and the phone's samples are handed out up to the present.
+(``Board.hand_over``, plain floats: its telemetry, power draw and dead-ESC detection follow the physics
+at the board's own rates), the board runs what is due, and the phone's samples are handed out up to the
+present.
 An event that changes what the drives see drops the steps ahead (the phone's noise stream is rewound with
 them) and the drives take the new widths there — what a step-by-step loop would do, with the board's
 events at the same plant steps. ``World(..., compiled=False)`` runs the same schedule on the numpy
@@ -85,7 +86,8 @@ class DrivingBoard(Protocol):
     (µs, None: no pulse); ``drive_epoch`` moves whenever what the drives see changes (a frame, a reset, a
     channel dying), ``next_output_change_us`` says before when it cannot (µs of board time, barring those
     events); ``units`` turn widths into rates and speeds (their calibration maps) and draw power from the
-    battery (``power``) by the states handed over in ``set_unit_states``."""
+    battery (``power``) by the states handed over in ``set_unit_states`` (or, as plain floats at every
+    board event, ``hand_over``)."""
 
     config: BoardConfig
     faults: FaultInjector
@@ -115,6 +117,8 @@ class DrivingBoard(Protocol):
         at: float | None = None,
         rotor_accel: Sequence[float] | None = None,
     ) -> None: ...
+
+    def hand_over(self, values: Sequence[float], at: float, rotor_accel: Sequence[float]) -> None: ...
 
 
 class World:
@@ -176,14 +180,14 @@ class World:
         c = self.layout
         units = (c.gimbal_angle_of(index), c.gimbal_rate_of(index), c.rotor_rate_of(index))
         self._unit_columns = np.concatenate(units).astype(np.int64)  # gimbal angles, rates, rotor speeds
-        self._rotor_columns = self._unit_columns[2 * n :]
         self._rows = np.zeros((64, size))  # row _at: the present; rows _at + 1 .. _head: stepped ahead
         self._at = self._head = 0
         self._work = np.zeros(size)
         self._sensed: list[SensorSample] = []  # what the phone sensed along the steps ahead (rows 0 .. head)
         self._sensed_in: list[int] = []  # each one's interval (its first row)
         self._row_t: list[float] = [0.0]  # each row's plant time (s), as Python floats for the loops below
-        self._row_accel: list[list[float]] = [[0.0] * n]  # each row's rotor accelerations over its step
+        self._first_accel: list[float] = [0.0] * n  # row 0's rotor accelerations (the batch before's)
+        self._row_units: list[list[float]] = [[0.0] * 3 * n]  # each row's unit columns, angles wrapped
         self._row_us: list[int] = [0]  # each row's board time in whole µs (events fall at these)
         self._given = 0  # how many of them the world has handed out (those before the present row)
         self._phone_at: tuple | None = None  # the phone as it was at row 0
@@ -191,10 +195,6 @@ class World:
             R=scenario.slew.R0, gimbal_angle=scenario.slew.gimbal_angle0, rotor_rate=np.zeros(n), t=0.0
         )
         self.phone = BodyPhone(scenario.phone, scenario.seed if seed is None else seed, t0=self.t0)
-        self._gimbal_sp = np.zeros((1, n))
-        self._rotor_sp = np.zeros((1, n))
-        self._angle = np.full((1, n), np.nan)
-        self._undriven = np.zeros((1, n), bool)
         self._unclamped = np.zeros(1, bool)
         self._pushed_at: float | None = None
         self._read: tuple | None = None  # what the drives last read from the board (its drive epoch, mode)
@@ -202,7 +202,7 @@ class World:
         self.steps = 0  # plant steps the world has moved through
         self.batches = 0  # compiled calls (each steps ahead to the next pulse frame)
         self.rewinds = 0  # times the steps ahead were dropped (an event changed what the drives see)
-        board.set_unit_states(self.unit_states(), rotor_accel=self._row_accel[0])
+        board.set_unit_states(self.unit_states(), rotor_accel=self._first_accel)
 
     # ------------------------------------------------------------------ state
     @property
@@ -219,19 +219,26 @@ class World:
     def state(self, s: PlantState) -> None:
         self._drop_ahead()
         self._rows[0] = self.layout.pack(s)
-        self._row_accel = [[0.0] * self.n]
+        self._row_t = [float(self._rows[0, 0])]
+        self._first_accel = [0.0] * self.n
+        self._row_units = self._listed_units(self._rows[:1, self._unit_columns])
         self._at = self._head = 0
 
     @property
     def now(self) -> float:
         """World time on the board's clock (s)."""
-        return self.t0 + float(self._rows[self._at, 0])
+        return self.t0 + self._row_t[self._at]
 
     def truth(self) -> Truth:
         """The true motion now (copies; nothing else is built)."""
         c, f = self.layout, self._flat
         units = c.gimbal_angle_of(f).copy(), c.gimbal_rate_of(f).copy(), c.rotor_rate_of(f).copy()
         return Truth(self.now, c.R_of(f).copy(), c.omega_of(f).copy(), *units)
+
+    def _listed_units(self, units: Array) -> list[list[float]]:
+        """Rows of the unit columns (gimbal angles, gimbal rates, rotor speeds) as Python floats, for
+        :meth:`_push` (which wraps the angles of the rows it hands over)."""
+        return units.tolist()
 
     def unit_states(self, row: Array | None = None) -> list[UnitState]:
         """The units' states now (or in ``row``), as the board's telemetry reports them."""
@@ -305,8 +312,21 @@ class World:
         the rotors' accelerations over the step that reached it: their power draw then follows the
         physics, not the spacing of the hand-overs (which depends on how the caller chunks time)."""
         if self._pushed_at != at:
-            self.board.set_unit_states(self.unit_states(self._rows[k]), at=at, rotor_accel=self._row_accel[k])
+            values = self._row_units[k]
+            _wrap_angles(values, self.n)
+            self.board.hand_over(values, at, self._rotor_accel(k))
             self._pushed_at = at
+
+    def _rotor_accel(self, k: int) -> list[float]:
+        """The rotors' accelerations (rad/s², n) over the plant step that reached row ``k``: their speed
+        change over the step (row 0: carried over from the batch before). Worked out only for the rows
+        handed to the board (about one in three), on the listed floats: the same subtraction and division
+        a numpy pass over the batch makes."""
+        if k == 0:
+            return self._first_accel
+        n, h = self.n, self.step_s
+        now, before = self._row_units[k], self._row_units[k - 1]
+        return [(now[i] - before[i]) / h for i in range(2 * n, 3 * n)]
 
     def _look_ahead(self) -> None:
         """Step from the present (at least one step) to the first step that starts at or after the board's
@@ -325,8 +345,7 @@ class World:
             rows = np.zeros((2 * steps + 1, rows.shape[1]))
         rows[0] = self._rows[self._at]
         self._rows = rows
-        accel = np.empty((steps + 1, self.n))
-        accel[0] = self._row_accel[self._at]
+        self._first_accel = self._rotor_accel(self._at)
         self._at = 0
         self._head = steps
         self._run(steps)
@@ -334,8 +353,7 @@ class World:
         self._phone_at = self.phone.checkpoint()
         times = rows[: steps + 1, 0]
         self._row_t = times.tolist()
-        accel[1:] = np.diff(rows[: steps + 1, self._rotor_columns], axis=0) / self.step_s
-        self._row_accel = accel.tolist()
+        self._row_units = self._listed_units(rows[: steps + 1, self._unit_columns])
         self._row_us = np.rint((self.t0 + times) * 1e6).astype(np.int64).tolist()
         sensed, intervals = self._sense(0, steps)
         self._sensed, self._sensed_in = sensed, intervals.tolist()
@@ -420,42 +438,40 @@ class World:
 
     def _drive(self) -> None:
         """The drives' targets from the widths on the board's outputs now, at the battery voltage now (held
-        anew only if they changed)."""
+        anew only if they changed), worked out on Python floats: arrays are built only to hold new ones."""
         board = self.board
         self._read = (board.drive_epoch, board.gimbal_mode)
         outputs = board.outputs
         volts = board.power.battery_v
         mode = board.gimbal_mode
-        gimbal, rotor, angle, undriven = (
-            self._gimbal_sp[0],
-            self._rotor_sp[0],
-            self._angle[0],
-            self._undriven[0],
-        )
+        gimbal: list[float] = []  # rad/s (0.0 while on an angle or without pulses)
+        rotor: list[float] = []  # rad/s
+        angle: list[float | None] = []  # rad, None: the gimbal follows its rate
+        undriven: list[bool] = []
         for i, unit in enumerate(board.units):
             g_us, r_us = outputs[2 * i], outputs[2 * i + 1]
             if r_us is not None and not unit.rotor_dead:
-                rotor[i] = unit.rotor_speed_for(r_us, volts)
-                undriven[i] = False
+                rotor.append(unit.rotor_speed_for(r_us, volts))
+                undriven.append(False)
             else:  # no pulses or a dead ESC: no drive; the rotor coasts down
-                rotor[i] = 0.0
-                undriven[i] = True
-            angle[i] = math.nan
+                rotor.append(0.0)
+                undriven.append(True)
             if g_us is None or unit.gimbal_dead:
-                gimbal[i] = 0.0
+                gimbal.append(0.0)
+                angle.append(None)
             elif mode is GimbalMode.RATE:
-                gimbal[i] = unit.gimbal_value_for(g_us, mode)
+                gimbal.append(unit.gimbal_value_for(g_us, mode))
+                angle.append(None)
             else:  # ANGLE: the servo's own position loop turns the gimbal to the target
-                gimbal[i] = 0.0
-                angle[i] = unit.gimbal_value_for(g_us, mode)
-        targets = [None if math.isnan(a) else a for a in angle.tolist()]
-        held = (gimbal.tolist(), rotor.tolist(), targets, undriven.tolist())
+                gimbal.append(0.0)
+                angle.append(unit.gimbal_value_for(g_us, mode))
+        held = (gimbal, rotor, angle, undriven)
         if held != self._held:
             self._held = held
             self.servo.hold(
-                Setpoints(self._gimbal_sp.copy(), self._rotor_sp.copy(), self._unclamped),
-                angle_target=self._angle.copy(),
-                rotor_undriven=self._undriven.copy(),
+                Setpoints(np.array([gimbal], dtype=float), np.array([rotor], dtype=float), self._unclamped),
+                angle_target=np.array([[math.nan if a is None else a for a in angle]], dtype=float),
+                rotor_undriven=np.array([undriven], dtype=bool),
             )
 
 
@@ -482,6 +498,16 @@ def load_kernels(scenario: object, config: object) -> None:
 def _wrap(angle: float) -> float:
     """An angle in (−π, π] (the telemetry's range)."""
     return math.remainder(angle, 2 * math.pi)
+
+
+def _wrap_angles(values: list[float], n: int) -> None:
+    """The first ``n`` of ``values`` (angles, rad) wrapped in place as :func:`_wrap` wraps them. An angle
+    within ±π is its own remainder (π is half of 2π as floats; NaN is not within) and is left as it is,
+    so wrapping twice changes nothing and costs four comparisons."""
+    for i in range(n):
+        angle = values[i]
+        if not -math.pi <= angle <= math.pi:
+            values[i] = _wrap(angle)
 
 
 class WorldStreamer:

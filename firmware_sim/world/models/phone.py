@@ -209,7 +209,7 @@ class BodyPhone:
         if path.shape[0] < 2:
             return [], _NONE
         times = path[:, 0]
-        if not np.all(times[1:] >= times[:-1]):
+        if not (times[1:] >= times[:-1]).all():  # the method: np.all's wrapper was 2 % of a world
             raise ConfigError("a path whose times run backwards", "BodyPhone.sample_path")
         end = float(path[-1, 0])
         cap = 0  # samples due by the path's end, and a margin
