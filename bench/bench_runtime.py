@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import socket
 import statistics
@@ -188,10 +189,12 @@ def _still_phone(url: str) -> Iterator[None]:
         yield
 
 
-def _runtime_realtime(rate_hz: float, duration_s: float, world: bool) -> tuple[_Jitter, str]:
+def _runtime_realtime(
+    rate_hz: float, duration_s: float, world: bool, rt_priority: int | None = None
+) -> tuple[_Jitter, str]:
     """The runtime against firmware-sim on a pty — with its world (``world``) or, when the world cannot
-    keep real time here, on the board's internal actuator model with a still phone stand-in: (control
-    lateness, note)."""
+    keep real time here, on the board's internal actuator model with a still phone stand-in — its threads
+    under SCHED_FIFO at ``rt_priority`` if given: (control lateness, note)."""
     from hil.runtime import RunOptions, run
 
     scenario = _at_rate(load_scenario(SCENARIO), rate_hz)
@@ -205,7 +208,7 @@ def _runtime_realtime(rate_hz: float, duration_s: float, world: bool) -> tuple[_
             stack.enter_context(_still_phone(phone))
         options = RunOptions(
             port=url, phone=phone, duration_s=duration_s, out_root=Path(tmp),
-            label=f"bench-{rate_hz:.0f}hz",
+            label=f"bench-{rate_hz:.0f}hz", rt_priority=rt_priority,
         )  # fmt: skip
         note = ""
         try:  # the run stops the spawned firmware-sim itself (its transport's close), even on error
@@ -289,6 +292,61 @@ def _jitter_results(rate_hz: float, duration_s: float, peer_s: float, world_note
                f"of {ours.runs + ours.overruns} activations")
     )  # fmt: skip
     return rows
+
+
+BUSY_RATE_HZ = 200.0
+RT_PRIORITY = 20
+"""The busy-core rows: the control rate, and the SCHED_FIFO priority of the run beside the normal one."""
+
+
+@contextmanager
+def _busy_core() -> Iterator[None]:
+    """Another process keeping one core busy (a pure-Python spin, at the normal policy) while the block
+    runs: what a second job, a browser or a campaign worker does to a real-time run on a small machine."""
+    hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        yield
+    finally:
+        hog.kill()
+        hog.wait()
+
+
+def _listed(runs: list[_Jitter]) -> str:
+    """Several runs' p99, max (µs) and overruns, in order, for a note."""
+    p99 = ", ".join(f"{j.p99:.0f}" for j in runs)
+    worst = ", ".join(f"{j.max:.0f}" for j in runs)
+    return f"p99 {p99} µs, max {worst} µs, overruns {', '.join(str(j.overruns) for j in runs)}"
+
+
+def _busy_results(duration_s: float, world_note: str) -> list[Result]:
+    """The runtime at :data:`BUSY_RATE_HZ` against firmware-sim with a core busy beside it, at the normal
+    policy and under ``SCHED_FIFO`` (``hil run --rt-priority``), alternated twice in one run; the better of
+    each pair is not taken: both runs' worse p99 is reported, with both in the note."""
+    from hil.timing.priority import realtime
+
+    try:
+        with realtime(RT_PRIORITY):
+            pass
+    except HilError as exc:
+        return [Result(NAME, f"control lateness p99 @{BUSY_RATE_HZ:.0f} Hz, a core busy, SCHED_FIFO",
+                       math.nan, "us", "normal policy", None, False, f"not measured: {exc}")]  # fmt: skip
+    runs: dict[str, list[_Jitter]] = {"normal": [], "SCHED_FIFO": []}
+    with _busy_core():
+        for _ in range(2):
+            for policy, priority in (("normal", None), ("SCHED_FIFO", RT_PRIORITY)):
+                jitter, _ = _runtime_realtime(BUSY_RATE_HZ, duration_s, not world_note, priority)
+                runs[policy].append(jitter)
+    worst = {policy: max(js, key=lambda j: j.p99) for policy, js in runs.items()}
+    said = "; ".join(f"{policy}: {_listed(js)}" for policy, js in runs.items())
+    at = f"@{BUSY_RATE_HZ:.0f} Hz, a core busy"
+    fifo, normal = worst["SCHED_FIFO"], worst["normal"]
+    return [
+        Result(NAME, f"control lateness p99 {at}, --rt-priority {RT_PRIORITY}", fifo.p99, "us",
+               "normal policy, same run", normal.p99, False, said),
+        Result(NAME, f"control overruns {at}, --rt-priority {RT_PRIORITY}", fifo.overruns, "skipped",
+               "normal policy, same run", normal.overruns, False,
+               f"of {fifo.runs + fifo.overruns} activations (the worse p99 run of two each)"),
+    ]  # fmt: skip
 
 
 def _cli_port_run(duration_s: float) -> tuple[dict, float]:
@@ -427,6 +485,7 @@ def run(quick: bool) -> list[Result]:
     )  # fmt: skip
     for rate in RATES:
         results += _jitter_results(rate, duration_s, peer_s, world_note)
+    results += _busy_results(duration_s, world_note)
     results += _cli_port_results(3.0, peer_s)
     results += _latency_results(30 if quick else 300)
     results += _hil_run_results(quick)

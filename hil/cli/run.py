@@ -131,6 +131,14 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="lockstep at most X times as fast as the wall clock (1: real time; default with --gcs: 1, "
         "0: as fast as it goes)",
     )
+    p.add_argument(
+        "--rt-priority",
+        type=int,
+        metavar="N",
+        help="a real-time run's threads (and a spawned board) under Linux's SCHED_FIFO at priority N "
+        "(1-99): its deadlines kept on a busy machine; needs root, CAP_SYS_NICE or ulimit -r >= N "
+        "(docs/runtime-link.md)",
+    )
     p.set_defaults(func=run)
 
 
@@ -194,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
             progress=LiveProgress(),
             pace=pace or None,
             recover_within_s=args.recover_within,
+            rt_priority=args.rt_priority,
         )
         print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
         print(f"estimator {estimator.name}: {estimator.describe()}", file=sys.stderr)

@@ -70,6 +70,7 @@ from hil.runtime.runlog import CsvLog, EventLog, RowTap, new_run_dir, write_summ
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
+from hil.timing.priority import Scheduling, realtime
 from hil.timing.scheduler import PeriodicTask, Scheduler
 from hil.version import describe
 from protocol.errors import (
@@ -122,7 +123,8 @@ class RunOptions:
     (or a phone gap) longer than this ends the run as lost (:mod:`hil.runtime.faults`);
     ``rows_to_observer``: without a run directory, still build each tick's telemetry row and hand it to
     the observer (its ``row_columns`` attribute, if any, names the columns it wants) — a fault campaign's
-    run checks its invariants on them."""
+    run checks its invariants on them; ``rt_priority``: a real-time run's threads under ``SCHED_FIFO`` at
+    this priority (:mod:`hil.timing.priority`), None: the OS's normal scheduling."""
 
     port: str | None = None
     lockstep: bool | None = None
@@ -137,6 +139,7 @@ class RunOptions:
     pace: float | None = None
     recover_within_s: float = RECOVER_WITHIN_S
     rows_to_observer: bool = False
+    rt_priority: int | None = None
 
 
 @dataclass
@@ -192,6 +195,10 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
     if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
         raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
+    if opts.rt_priority is not None and plan.lockstep:
+        raise ConfigError(
+            "is for real-time runs (a lockstep run never waits for the wall clock)", "run --rt-priority"
+        )
     if not (math.isfinite(opts.recover_within_s) and opts.recover_within_s > 0):
         raise ConfigError(
             f"must be a positive number of seconds, got {opts.recover_within_s!r}", "run --recover-within"
@@ -205,6 +212,12 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     from hil.runtime.warmup import load_kernels
 
     load_kernels(scenario, world=plan.source == "world")
+    with realtime(opts.rt_priority) as scheduling:  # before any thread of the run starts: they inherit it
+        return _play(scenario, opts, plan, scheduling)
+
+
+def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Scheduling) -> RunResult:
+    """The run itself, once its options are checked and its kernels loaded, under ``scheduling``."""
     observer = opts.observer
     tap_row = None if observer is None else observer.row
     tap_event = None if observer is None else observer.event
@@ -221,6 +234,7 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     events = EventLog(None if run_dir is None else run_dir / "events.jsonl", tap=tap_event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
     summary["hil"] = describe()  # the code that made the run: its version and git revision
+    summary["scheduling"] = scheduling.describe()  # the OS's: a lateness figure means little without it
     if opts.replay is not None:
         summary["replay"] = {
             "log": opts.replay.log.source,
