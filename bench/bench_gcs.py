@@ -21,6 +21,11 @@ in every window, so the windows differ only in what is attached. After the slew 
    no page; window **I'**: the same on the threaded one — lateness, and the process's threads;
 5. an Abort from the uplink ends the run.
 
+Then a **second run** the same way under ``hil run --rt-priority 20`` (every thread of the host's process
+under SCHED_FIFO, the stations' servers included; the browser reset to the normal policy), windows A and
+B only: the page attached against nothing attached in that run (docs/runtime-link.md, "Real time on a
+busy machine"). Where SCHED_FIFO is not permitted, its rows say why.
+
 Figures: lateness p50/p99 of each window against A (the target: no measurable change), and the tornado
 server's against the threaded one's (ours/peer); page updates per second against the 20 Hz target. The
 feeds' dropped rows and the machine's load average go into the note: on a shared 2-core machine the
@@ -55,6 +60,8 @@ from hil.scenario import load_scenario
 
 NAME = "gcs"
 RATE_HZ = 100.0
+RT_PRIORITY = 20
+"""The second run's SCHED_FIFO priority (``hil run --rt-priority``)."""
 IDLE_SOCKETS = 200
 CHROMIUM = os.environ.get("VSCMG_HIL_CHROMIUM", "/usr/bin/chromium")
 CHROMEDRIVER = os.environ.get("VSCMG_HIL_CHROMEDRIVER", "/usr/bin/chromedriver")
@@ -133,7 +140,10 @@ class _IdleSockets:
         self.thread.join(10)
 
 
-def _measure(window_s: float, world: bool) -> dict[str, Any]:
+def _measure(window_s: float, world: bool, rt_priority: int | None = None) -> dict[str, Any]:
+    """The windows of the module's docstring, in one run; with ``rt_priority`` the run (every thread of
+    this process: the stations' servers too) under SCHED_FIFO at that priority, the browser at the
+    normal policy, and only windows A and B (``page_rt``)."""
     import http.client
     import json
 
@@ -150,7 +160,8 @@ def _measure(window_s: float, world: bool) -> dict[str, Any]:
         old = stack.enter_context(GroundStation.live(bind="127.0.0.1:0", server_class=ThreadedGcsServer))
         fanout = _Fanout([new.observer, old.observer])
         options = RunOptions(port="spawn://firmware-sim?" + urlencode(query), phone=phone,
-                             duration_s=6 * window_s + 60, out_root=Path(tmp), observer=fanout)  # fmt: skip
+                             duration_s=6 * window_s + 60, out_root=Path(tmp), observer=fanout,
+                             rt_priority=rt_priority)  # fmt: skip
         result: dict[str, Any] = {}
 
         def play() -> None:
@@ -174,7 +185,9 @@ def _measure(window_s: float, world: bool) -> dict[str, Any]:
         out["a"] = fanout.lateness_us(a0, time.monotonic())
         browser = _browser()
         stack.callback(browser.quit)
-        for key, station in (("new", new), ("old", old), ("niced", new)):
+        _normal_policy(browser.service.process.pid)  # started by a thread the run made real-time
+        pages = (("rt", new),) if rt_priority is not None else (("new", new), ("old", old), ("niced", new))
+        for key, station in pages:
             if key == "niced":
                 _renice(browser.service.process.pid, 19)
             browser.get(station.url)
@@ -192,7 +205,7 @@ def _measure(window_s: float, world: bool) -> dict[str, Any]:
             out[f"updates_{key}"] = (renders1 - renders0) / (b1 - b0)
             out[f"bytes_{key}"] = (station.hub.stats.bytes_sent - sent0) / (b1 - b0)
         browser.get("about:blank")
-        for key, station in (("new", new), ("old", old)):
+        for key, station in (("new", new), ("old", old)) if rt_priority is None else ():
             idle = _IdleSockets(station.port, IDLE_SOCKETS)
             time.sleep(1.0)
             i0 = time.monotonic()
@@ -264,6 +277,16 @@ def _renice(pid: int, niceness: int) -> None:
                     os.setpriority(os.PRIO_PROCESS, int(task.name), niceness)
 
 
+def _normal_policy(pid: int) -> None:
+    """Every thread of ``pid`` and its descendants back to the normal policy (SCHED_OTHER): a browser
+    started from a thread under SCHED_FIFO inherited it, and the operator's browser has no such rank."""
+    for p in _tree(pid):
+        with contextlib.suppress(OSError):
+            for task in Path(f"/proc/{p}/task").iterdir():
+                with contextlib.suppress(OSError):
+                    os.sched_setscheduler(int(task.name), os.SCHED_OTHER, os.sched_param(0))
+
+
 def _cpu_s(pid: int) -> float:
     """CPU seconds (user + system, reaped children's too) used so far by ``pid`` and its descendants."""
     tick = os.sysconf("SC_CLK_TCK")
@@ -292,6 +315,7 @@ def run(quick: bool) -> list[Result]:
     cost = _world_cost()
     world = cost < WORLD_BUDGET
     m = _measure(window_s, world)
+    rt = _measure_realtime(window_s, world)
     where = "with its world" if world else f"no world (the world needs {cost:.2f} CPU s per s here)"
 
     def pct(x: np.ndarray, q: float) -> float:
@@ -330,6 +354,7 @@ def run(quick: bool) -> list[Result]:
             Result(NAME, f"{sockets} (tornado)", pct(m["idle_new"], q), "us", f"same run, {idle} on threaded",
                    pct(m["idle_old"], q), False),
         ]  # fmt: skip
+    out += _realtime_rows(rt, pct)
     out += [
         Result(NAME, "page updates with new data (tornado)", m["updates_new"], "Hz", "target", 20.0, True,
                "headless chromium, redraws of plots, 3D view and panels that had new rows"),
@@ -343,3 +368,36 @@ def run(quick: bool) -> list[Result]:
                m["bytes_old"] / 1e3, False, "SSE: rows with the live columns, events, link statistics"),
     ]  # fmt: skip
     return out
+
+
+def _measure_realtime(window_s: float, world: bool) -> dict[str, Any] | str:
+    """Windows A and B of a second run under ``hil run --rt-priority`` (:data:`RT_PRIORITY`), or why it
+    could not be measured here (no privilege for SCHED_FIFO)."""
+    from hil.timing.priority import realtime
+    from protocol.errors import HilError
+
+    try:
+        with realtime(RT_PRIORITY):
+            pass
+    except HilError as exc:
+        return str(exc)
+    return _measure(window_s, world, RT_PRIORITY)
+
+
+def _realtime_rows(rt: dict[str, Any] | str, pct: Any) -> list[Result]:
+    """The page-attached rows of the run under SCHED_FIFO: lateness with the page against nothing
+    attached, in that run."""
+    page = f"control lateness p{{q}} at 100 Hz, page attached, --rt-priority {RT_PRIORITY} (tornado)"
+    if isinstance(rt, str):
+        return [Result(NAME, page.format(q=99), float("nan"), "us", "same run, nothing attached", None, False,
+                       f"not measured: {rt}")]  # fmt: skip
+    note = (
+        f"a second run, every thread of the host's process under SCHED_FIFO {RT_PRIORITY} (the stations' "
+        f"servers too), the browser at the normal policy: A {rt['a'].size} ticks, the page "
+        f"{rt['page_rt'].size} ({rt['cpu_rt']:.2f} browser CPU s/s, {rt['updates_rt']:.1f} updates/s)"
+    )
+    return [
+        Result(NAME, page.format(q=q), pct(rt["page_rt"], q), "us", "same run, nothing attached",
+               pct(rt["a"], q), False, note if q == 50 else "")
+        for q in (50, 99)
+    ]  # fmt: skip

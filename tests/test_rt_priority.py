@@ -44,6 +44,36 @@ def test_a_priority_out_of_range_is_refused_naming_the_option(priority):
 
 
 @FIFO
+def test_a_thread_running_before_the_block_is_switched_too_and_switched_back():
+    """A ground station's server thread starts before the run: left at the normal policy it would hold the
+    interpreter's lock while a browser keeps it off the core."""
+    ask, told = threading.Event(), []
+    done = threading.Event()
+    normal = (os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)
+
+    def server() -> None:
+        while not done.is_set():
+            if ask.wait(0.01):
+                ask.clear()
+                told.append((os.sched_getscheduler(0), os.sched_getparam(0).sched_priority))
+
+    worker = threading.Thread(target=server)
+    worker.start()
+    try:
+        with realtime(PRIORITY):
+            ask.set()
+            while len(told) < 1:
+                worker.join(0.01)
+        ask.set()
+        while len(told) < 2:
+            worker.join(0.01)
+    finally:
+        done.set()
+        worker.join()
+    assert told == [(os.SCHED_FIFO, PRIORITY), normal]
+
+
+@FIFO
 def test_threads_and_processes_started_inside_inherit_it_and_it_ends_with_the_block():
     before = current()
     seen: list[tuple[int, int]] = []

@@ -5,10 +5,12 @@ Why. On a machine with other work on it (a second process busy on one of two cor
 campaign), the kernel's fair scheduler shares a core between the control thread and that work: a control
 activation that wakes while the other process has the core waits for its time slice, ~1–3 ms at p99 at
 200 Hz (``python -m bench runtime``, its busy-core rows). A thread under ``SCHED_FIFO`` runs as soon as it
-is runnable, before every normal thread: the same run's lateness stays at its quiet figure. Every
-thread the run starts afterwards (the board link's reader, the phone's receiver, the CSV writer) and a
-board it spawns (``spawn://firmware-sim``) inherit the policy, so the interpreter's lock is never held by
-a thread the busy process keeps off the core (a priority inversion the control thread would wait out).
+is runnable, before every normal thread: the same run's lateness stays at its quiet figure. It is every
+thread of the process, not the control thread alone: the threads running already (a ground station's
+server) are switched, and those the run starts (the board link's reader, the phone's receiver, the CSV
+writer) and a board it spawns (``spawn://firmware-sim``) inherit it — the interpreter's lock is never
+held by a thread that the busy process, or the browser watching the run, keeps off the core (a priority
+inversion the control thread would wait out: with the page attached, p99 2.4 ms at the normal policy).
 
 What it costs. A real-time thread that never slept would starve the rest of its core; the run's threads
 sleep to their deadlines and block on their I/O, and Linux's real-time throttling (by default 0.95 s of
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -63,10 +66,11 @@ def current() -> Scheduling:
 
 @contextlib.contextmanager
 def realtime(priority: int | None) -> Iterator[Scheduling]:
-    """The calling thread (and the threads and processes it starts inside) under ``SCHED_FIFO`` at
-    ``priority`` until the block ends, then back to what it had; ``None``: left as it is. Yields the
-    scheduling in force. ConfigError, naming what is missing, when the priority is out of range, the
-    OS has no real-time policy, or the process may not use it."""
+    """Every thread of this process — those running now (a ground station's server, started before the
+    run) and those they start inside the block (which inherit it), and the processes they start — under
+    ``SCHED_FIFO`` at ``priority`` until the block ends, then each back to what it had; ``None``: left as
+    it is. Yields the calling thread's scheduling in force. ConfigError, naming what is missing, when the
+    priority is out of range, the OS has no real-time policy, or the process may not use it."""
     if priority is None:
         yield current()
         return
@@ -75,7 +79,7 @@ def realtime(priority: int | None) -> Iterator[Scheduling]:
     low, high = os.sched_get_priority_min(os.SCHED_FIFO), os.sched_get_priority_max(os.SCHED_FIFO)
     if not low <= priority <= high:
         raise ConfigError(f"must be a SCHED_FIFO priority from {low} to {high}, got {priority!r}", WHERE)
-    before_policy, before = os.sched_getscheduler(0), os.sched_getparam(0)
+    before = _policies()
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except PermissionError as exc:
@@ -86,9 +90,28 @@ def realtime(priority: int | None) -> Iterator[Scheduling]:
             WHERE,
         ) from exc
     try:
+        for tid in before:
+            with contextlib.suppress(ProcessLookupError):  # a thread that ended meanwhile
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
         yield current()
     finally:
-        os.sched_setscheduler(0, before_policy, before)
+        for tid, (policy, param) in before.items():
+            with contextlib.suppress(ProcessLookupError):
+                os.sched_setscheduler(tid, policy, param)
+
+
+def _policies() -> dict[int, tuple[int, os.sched_param]]:
+    """Each running thread of this process (its kernel thread id; 0: the calling one) and its policy and
+    parameters. Threads the ``threading`` module does not know (a C library's own) are left alone."""
+    calling = threading.get_native_id()
+    out = {0: (os.sched_getscheduler(0), os.sched_getparam(0))}
+    for thread in threading.enumerate():
+        tid = thread.native_id
+        if tid is None or tid == calling:
+            continue
+        with contextlib.suppress(ProcessLookupError):
+            out[tid] = (os.sched_getscheduler(tid), os.sched_getparam(tid))
+    return out
 
 
 def _rtprio_limit() -> str:
