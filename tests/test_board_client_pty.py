@@ -7,13 +7,14 @@ from __future__ import annotations
 import contextlib
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
+from bench import child
+from bench.child import started
 from firmware_sim.servers.transports import EmulatorTransport
 from hil.link.board import (
     BoardClient,
@@ -59,19 +60,9 @@ def drive(
 
 @contextlib.contextmanager
 def firmware_sim(*args: str) -> Iterator[subprocess.Popen[str]]:
-    """firmware-sim as its own process (the test kills it); its pty path is the first stdout line."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "firmware_sim", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-    )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().startswith("/dev/")
-        yield proc
-    finally:
-        proc.kill()
-        proc.wait()
+    """firmware-sim as its own process (the test kills it; killed on the way out if it did not)."""
+    with started(child.firmware_sim(*args), ready="/dev/", stop=signal.SIGKILL) as board:
+        yield board.proc
 
 
 def test_handshake_arm_setpoints_move_the_pulses_and_disarm():
@@ -206,6 +197,38 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
                     client.send_setpoint(setpoint(300.0, 2))
                 client.arm()
             assert client.stats().counters.reconnects == 1
+    finally:
+        client.close()
+
+
+def test_a_board_restarted_long_before_the_host_is_back_is_reported_reset(tmp_path: Path):
+    """The soak's find (a CI run under load): a board killed early in its session and restarted, which then
+    ran longer than the old one had before the host reached it again, so its uptime did not go back. Its
+    uptime is still short of the old board's running on through the outage: reported as a reset."""
+    link, other = tmp_path / "board", tmp_path / "board-2"
+    config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.2)
+    with firmware_sim("--units", "2", "--link", str(link)) as first:
+        client = BoardClient(str(link), config=config)
+        client.connect()
+        client.start()
+        client.arm()
+        taken = lambda: client.telemetry is not None and client.telemetry.rx_frames >= 20  # noqa: E731
+        drive(client, setpoint(300.0, 2), taken, 3.0)  # a session under way, well under 2.5 s old
+        first.send_signal(signal.SIGKILL)
+        link.unlink()
+        events = drive(client, None, lambda: not client.connected, 2.0)
+    try:
+        with firmware_sim("--units", "2", "--link", str(other)):
+            time.sleep(2.5)  # the new board runs on while the host cannot reach it yet
+            link.symlink_to(other.readlink())  # then its port appears where the host looks
+            drive(client, None, lambda: client.connected, 5.0, events)
+            drive(client, None, lambda: any(isinstance(e, BoardResetEvent) for e in events), 2.0, events)
+            [reset] = [e for e in events if isinstance(e, BoardResetEvent)]
+            assert reset.cause is ResetCause.POWER_ON and reset.during_session, reset
+            assert "count of frames taken went back" in reset.evidence, reset.evidence
+            assert client.state is BoardState.DISARMED  # never re-armed silently
+            with pytest.raises(BoardReset, match="POWER_ON"):
+                client.send_setpoint(setpoint(300.0, 2))
     finally:
         client.close()
 

@@ -157,6 +157,7 @@ class Session:
         self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
         self._armed_at_loss = False  # the host had the board armed when the link was lost
         self._last_uptime: int | None = None
+        self._last_rx_frames: int | None = None  # the board's count of valid frames taken, since its boot
         self._reply_since_sample: HelloReply | None = None
         self._reset_evidence: str | None = None
         self._setpoint_slot = -math.inf
@@ -311,7 +312,7 @@ class Session:
     def _on_telemetry(self, frame: Frame, now: float) -> None:
         msg: Telemetry = frame.message
         self.telemetry, self.telemetry_time = msg, now
-        self._board_clock(msg.time_ms, msg.state, now)
+        self._board_clock(msg.time_ms, msg.state, now, msg.rx_frames)
         self._emit(TelemetryEvent(now, msg))
 
     def _on_heartbeat(self, frame: Frame, now: float) -> None:
@@ -339,21 +340,33 @@ class Session:
         """A host-to-board message come back (a loopback, a crossed wire): nothing to do; it still showed
         the link alive (``last_heard``)."""
 
-    def _board_clock(self, uptime_ms: int, state: BoardState | None, now: float) -> None:
-        """An uptime sample (and state) from the board: the reset detector."""
+    def _board_clock(
+        self, uptime_ms: int, state: BoardState | None, now: float, rx_frames: int | None = None
+    ) -> None:
+        """An uptime sample (and state; with telemetry, the count of frames the board took since its boot)
+        from the board: the reset detector. Either count going back says the board restarted; the frame
+        count also when the restarted board then ran longer than the old one had, before the host reached
+        it again (a board killed early in a run and restarted seconds before the host was back: its uptime
+        did not go back, but it has taken only the new handshake's frames)."""
         if state is not None:
             self._set_state(state, now)
         last, self._last_uptime = self._last_uptime, uptime_ms
+        last_rx = self._last_rx_frames
+        if rx_frames is not None:
+            self._last_rx_frames = rx_frames
         reply, self._reply_since_sample = self._reply_since_sample, None
         evidence = None
-        if last is not None and uptime_ms < last and last - uptime_ms < _U32 // 2:
+        if last is not None and _went_back(last, uptime_ms):
             evidence = f"its uptime went back from {last} ms to {uptime_ms} ms"
+        elif last_rx is not None and rx_frames is not None and _went_back(last_rx, rx_frames):
+            evidence = f"its count of frames taken went back from {last_rx} to {rx_frames}"
         elif state is BoardState.BOOT and self.phase is Phase.READY:
             evidence = "it reports BOOT in the middle of a session"
         elif state is BoardState.BOOT and self._lost:
             evidence = "it reports BOOT after the link came back (it lost the session)"
         if evidence is None:
             return
+        self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
         if self.armed and self.state is not BoardState.ARMED:
             self.armed = False
             self.pending_reset = PendingReset(now, evidence)
@@ -557,3 +570,9 @@ RECEIVE: dict[type[Message], Receive] = {
 """What the host's session does with each message of the catalogue (``protocol.messages.CATALOGUE``) that
 arrives from the board, by type. Every catalogue message has an entry — ``tests/test_message_dispatch.py``
 fails naming one that has not (docs/protocol.md, "Adding a message")."""
+
+
+def _went_back(last: int, now: int) -> bool:
+    """Whether a board's u32 count (its uptime in ms, its frames taken) went back from ``last`` to ``now``
+    rather than on (past its wrap: a count that wraps moves on by less than half its range)."""
+    return now < last and last - now < _U32 // 2
