@@ -66,6 +66,10 @@ SETTLE_US = 2100
 the channels' start skew (:data:`.records.FRAME_SKEW_US`); longer (raw) pulses are seen at the next wake."""
 MAX_STEP_S = 0.5
 """The longest span one harness ``step`` command runs (s), well inside the control pipe's answer timeout."""
+RX_CHUNK = 240
+"""The most bytes one ``rx`` command carries (bytes): its hex fits the harness's 512-character command line
+(``harness/control.c``); a longer write from the host (a server reads up to 64 KiB at once) goes in
+several."""
 _WATCHED_FIELDS = ("state", "mode", "power_state", "gimbal_mode")
 """The firmware's ``board_t`` fields the harness watches (consecutive bytes, app.h)."""
 _CYCLES_PER_US = F_CPU // 1_000_000
@@ -178,8 +182,8 @@ class FirmwareBoard:
         faults, into UART0's receive queue."""
         self.step()
         data = self.faults.filter(data, self.now, "rx")
-        if data:
-            self.harness.command(f"rx {data.hex()}")
+        for at in range(0, len(data), RX_CHUNK):  # the harness's command lines are bounded
+            self.harness.command(f"rx {data[at : at + RX_CHUNK].hex()}")
 
     def take_output(self) -> bytes:
         """Bytes UART0 sent so far (link faults applied)."""
