@@ -101,3 +101,29 @@ def test_phone_detached_mid_run_fails_safe_and_the_run_goes_on(tmp_path: Path, p
     assert float(last_row.split(",")[0]) > outages[-1]["end"] + 1.0  # the run went on after the outage
     stop = err.strip().splitlines()[-1]
     assert "phone on USB: accessory (vscmg-hil / ADK-VSCMG)" in stop, err
+
+
+def _lockstep_usb_run(**options: str) -> dict[str, Any]:
+    """cubesat-1u through the firmware on its USB link in lockstep (``emu://?board=firmware&usb=1``), 4 s
+    after the slew starts: the run's summary."""
+    from dataclasses import replace
+
+    from hil.runtime.loop import RunOptions, run
+    from hil.scenario import load_scenario
+
+    scenario = load_scenario("cubesat-1u")
+    board = {**scenario.board_options, "board": "firmware", "usb": "1", **options}
+    return run(replace(scenario, board_options=board), RunOptions(out_root=None, duration_s=4.0)).summary
+
+
+def test_a_lockstep_phone_detach_over_usb_replays_exactly() -> None:
+    """The same fault in lockstep (the in-process firmware board, ``usb_detach`` in its URL): the phone off
+    from t = 5 s for 1 s fails the board safe and the host re-arms it, and the run replays exactly."""
+    ensure_built()
+    first = _lockstep_usb_run(usb_detach="5:1")
+    assert first["exit"] == "completed" and first["slew_started"]
+    assert first["failsafe_events"] == 1 and first["rearms"] == 1 and first["board_resets"] == 0
+    (outage,) = first["outages"]
+    assert outage["recovered"] and outage["causes"] == ["stale", "failsafe"], outage
+    assert 5.0 < outage["start"] < 5.3 and outage["duration_s"] < 2.0, outage  # stale 250 ms after
+    assert _lockstep_usb_run(usb_detach="5:1")["outages"] == first["outages"]
