@@ -426,11 +426,12 @@ def _say_harness_died(died: HarnessDied, where: str) -> None:
     print(f"firmware-sim: error: {gone}", file=sys.stderr, flush=True)
 
 
-def _usb_line(board: Any) -> str:
-    """The stop summary's words on the phone of a stepped firmware board on USB (its ``usbstate``): its
-    mode, the identity the board sent it, the app's bytes; empty if the harness cannot answer."""
+def _usb_line(source: Any) -> str:
+    """The stop summary's words on the phone of the firmware on USB (the harness's ``usbstate``, from the
+    stepped board or the harness server): its mode, the identity the board sent it, the app's bytes;
+    empty if the harness cannot answer."""
     try:
-        usb = board.usb_state()
+        usb = source.usb_state()
     except LinkError:
         return ""
     who = " / ".join(s for s in usb.strings[:2] if s) or "no strings"
@@ -524,6 +525,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         status.stop()
         for s, handler in old.items():
             signal.signal(s, handler)
+        if args.usb and not harness_died:  # the harness's phone, before the harness stops
+            usb_line = _usb_line(board if board is not None else server)
         server.close()
         if streamer is not None:
             try:
@@ -536,7 +539,6 @@ def main(argv: Sequence[str] | None = None) -> int:
                     _say_harness_died(died, server.path)
                 harness_died = True
         if args.avr is not None and board is not None:
-            usb_line = _usb_line(board) if args.usb and not harness_died else ""
             board.close()  # the stepped firmware's harness: stopped, its EEPROM saved back
     stats = server.stats
     link_line = (

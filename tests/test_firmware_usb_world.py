@@ -90,10 +90,14 @@ def test_phone_detached_mid_run_fails_safe_and_the_run_goes_on(tmp_path: Path, p
     assert summary["failsafe_events"] >= 1 and summary["rearms"] >= 1 and summary["board_resets"] == 0
     outages = summary["outages"]
     assert outages and all(o["recovered"] for o in outages), outages
-    # One outage (stale, failsafe), or two when the telemetry the board queued before the detach arrives
-    # first after the re-enumeration, the FAILSAFE 20 ms behind it (docs/firmware_sim.md, "Over USB").
-    assert "failsafe" in {c for o in outages for c in o["causes"]}, outages
-    assert outages[-1]["end"] - outages[0]["start"] < 3.0, outages
+    # The detach's outage: stale then failsafe, as one outage or as two 20 ms apart when the telemetry the
+    # board queued before the detach arrives first after the re-enumeration (docs/firmware_sim.md, "Over
+    # USB"). A later short one may follow on a loaded machine (a host late by the 250 ms link timeout).
+    first = [outages[0]]
+    while len(first) < len(outages) and outages[len(first)]["start"] - first[-1]["end"] < 0.1:
+        first.append(outages[len(first)])
+    assert "failsafe" in {c for o in first for c in o["causes"]}, outages
+    assert first[-1]["end"] - first[0]["start"] < 3.0, outages
     kinds = [e["kind"] for e in events]
     assert kinds.index("rearm_sent") < kinds.index("rearmed") < kinds.index("board_back"), kinds
     run_dir = next((tmp_path / "runs").iterdir())

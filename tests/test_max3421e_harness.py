@@ -244,7 +244,10 @@ def test_firmware_sim_avr_usb_serves_the_protocol_on_its_pty():
         finally:
             host.close()
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(20) == 0
+        _, err = proc.communicate(timeout=20)
+        assert proc.returncode == 0, err
+        # the stop line ends with the phone as the harness saw it: switched, the board's identity sent
+        assert "phone on USB: accessory (vscmg-hil / ADK-VSCMG)" in err.strip().splitlines()[-1], err
     finally:
         if proc.poll() is None:
             proc.kill()
