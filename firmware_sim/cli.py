@@ -50,6 +50,9 @@ examples:
                                                 its phone streams to udp://127.0.0.1:8123 (hil run --port)
   firmware-sim --avr --world cubesat-1u --link /tmp/vscmg
                                                 ... the real firmware under simavr drives it, in real time
+  firmware-sim --avr --usb --world cubesat-1u --usb-detach 25:1
+                                                ... the host as the phone's accessory app over USB; the
+                                                phone pulled off the board at t=25 s for 1 s
   firmware-sim --can udp_multicast/239.74.163.2?port=43113
                                                 serve on a CAN bus instead (prints the host's URL)
   firmware-sim --avr --can udp_multicast/239.74.163.2?port=43113
@@ -95,7 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--usb",
         action="store_true",
         help="with --avr: the pty is an Android phone's accessory app on the board's USB host port (the "
-        "harness's MAX3421E model, the firmware's AOA link) instead of UART0; a new EEPROM says link = usb",
+        "harness's MAX3421E model, the firmware's AOA link) instead of UART0; a new EEPROM says link = usb "
+        "(with --world too; not with --can)",
     )
     p.add_argument(
         "--can",
@@ -209,6 +213,14 @@ def build_parser() -> argparse.ArgumentParser:
         "(in process, the port vanishes meanwhile; repeatable)",
     )
     f.add_argument(
+        "--usb-detach",
+        action="append",
+        default=[],
+        metavar="AT:DURATION",
+        help="with --avr --usb --world: the phone pulled off the board's USB host port at AT for DURATION s, "
+        "then plugged back in its normal mode (the firmware enumerates and switches it again; repeatable)",
+    )
+    f.add_argument(
         "--noise",
         action="append",
         default=[],
@@ -320,6 +332,15 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
 
     from .board import Board
 
+    for flag, given in (
+        ("--usb", getattr(args, "usb", False)),
+        ("--usb-detach", getattr(args, "usb_detach", [])),
+    ):
+        if given:
+            raise ConfigError(
+                "the phone's USB link is the firmware's: it needs the firmware board (--avr, board=firmware)",
+                flag,
+            )
     cfg = board_config(args)
     board = Board(cfg, clock if clock is not None else WallClock())  # type: ignore[arg-type]
     schedule_faults(board.faults, args, cfg)
@@ -405,13 +426,40 @@ def _say_harness_died(died: HarnessDied, where: str) -> None:
     print(f"firmware-sim: error: {gone}", file=sys.stderr, flush=True)
 
 
+def _usb_line(source: Any) -> str:
+    """The stop summary's words on the phone of the firmware on USB (the harness's ``usbstate``, from the
+    stepped board or the harness server): its mode, the identity the board sent it, the app's bytes;
+    empty if the harness cannot answer."""
+    try:
+        usb = source.usb_state()
+    except LinkError:
+        return ""
+    who = " / ".join(s for s in usb.strings[:2] if s) or "no strings"
+    error = f", model error: {usb.error}" if usb.error else ""
+    return (
+        f"; phone on USB: {usb.mode_name} ({who}), app wrote {usb.to_board} bytes, read {usb.from_board}, "
+        f"{usb.dropped} dropped while no accessory was open{error}"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.can is not None and (args.link or args.no_hold):
         parser.error("--can serves a CAN bus: it cannot be combined with --link or --no-hold")
-    if args.usb and (args.avr is None or args.world is not None or args.can is not None):
-        parser.error("--usb is the firmware's USB link on its pty: it needs --avr, without --world or --can")
+    if args.usb and args.avr is None:
+        parser.error(
+            "--usb is the firmware's USB link (the phone's accessory app on its pty): it needs --avr"
+        )
+    if args.usb and args.can is not None:
+        parser.error(
+            "--usb puts the host on the phone's accessory link, --can on a CAN bus bridged to UART0: "
+            "the firmware listens to one link, choose one"
+        )
+    if args.usb_detach and (not args.usb or args.world is None):
+        parser.error(
+            "--usb-detach pulls the phone off the stepped firmware board: it needs --avr --usb --world"
+        )
     level = logging.WARNING - 10 * min(args.verbose + 1, 2)
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
@@ -466,6 +514,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     status = StatusLines(server).start()
     harness_died = False
+    usb_line = ""
     try:
         server.serve(duration=args.duration)
     except HarnessDied as exc:  # the firmware's simulator went: one line naming the board, exit 3
@@ -476,6 +525,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         status.stop()
         for s, handler in old.items():
             signal.signal(s, handler)
+        if args.usb and not harness_died:  # the harness's phone, before the harness stops
+            usb_line = _usb_line(board if board is not None else server)
         server.close()
         if streamer is not None:
             try:
@@ -507,7 +558,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         resets = f"; {max(len(board.resets) - 1, 0)} reset(s)"
     print(
         f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, {link_line}"
-        f"{resets}{world_line}",
+        f"{resets}{world_line}{usb_line}",
         file=sys.stderr,
     )
     if stats.dropped_out:

@@ -12,7 +12,7 @@ from hil.link.transports import create_transport
 from hil.runtime.loop import RunOptions, RunResult, run
 from hil.scenario import load_scenario
 from hil.timing.clock import LockstepClock
-from protocol.errors import ConfigError, TransportError
+from protocol.errors import ConfigError, LinkError, TransportError
 from protocol.messages import BoardState
 
 SCENARIO = "cubesat-1u"
@@ -102,3 +102,16 @@ def test_firmware_board_refuses_an_unplug() -> None:
     link = create_transport("emu://?units=4&board=firmware&unplug=3:1")
     with pytest.raises(ConfigError, match="unplug"):
         _ = link.board  # type: ignore[attr-defined]
+
+
+@pytest.mark.firmware
+def test_firmware_board_feeds_a_long_write_whole() -> None:
+    """A host write longer than one harness command line carries (a server reads up to 64 KiB at once)
+    reaches UART0 whole, in several ``rx`` commands; an over-long command line is refused, not cut short
+    (which lost the write's tail silently)."""
+    with FirmwareBoard(clock=LockstepClock()) as board:
+        board.feed(bytes(range(1, 256)) * 4)  # 1020 bytes
+        assert board.harness.command("stats")[0] == "1020"
+        with pytest.raises(LinkError, match="longer than 511 characters"):
+            board.harness.command("rx " + "01" * 300)
+        assert board.harness.command("stats")[0] == "1020"

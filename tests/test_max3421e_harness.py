@@ -244,7 +244,10 @@ def test_firmware_sim_avr_usb_serves_the_protocol_on_its_pty():
         finally:
             host.close()
         proc.send_signal(signal.SIGTERM)
-        assert proc.wait(20) == 0
+        _, err = proc.communicate(timeout=20)
+        assert proc.returncode == 0, err
+        # the stop line ends with the phone as the harness saw it: switched, the board's identity sent
+        assert "phone on USB: accessory (vscmg-hil / ADK-VSCMG)" in err.strip().splitlines()[-1], err
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -253,14 +256,33 @@ def test_firmware_sim_avr_usb_serves_the_protocol_on_its_pty():
         proc.stderr.close()
 
 
-@pytest.mark.parametrize("argv", [["--usb"], ["--usb", "--avr", "--world", "cubesat-1u"]])
-def test_firmware_sim_usb_needs_avr_alone(argv, capsys):
+@pytest.mark.parametrize(
+    ("argv", "why"),
+    [
+        (["--usb"], "it needs --avr"),
+        (["--usb", "--avr", "--can", "virtual/0"], "choose one"),  # one link: the phone or the CAN bridge
+        (["--avr", "--world", "cubesat-1u", "--usb-detach", "5:1"], "needs --avr --usb --world"),
+        (["--avr", "--usb", "--usb-detach", "5:1"], "needs --avr --usb --world"),  # the stepped board's
+    ],
+)
+def test_firmware_sim_usb_refusals(argv, why, capsys):
     from firmware_sim.cli import main
 
     with pytest.raises(SystemExit) as exc:
         main([*argv, "--duration", "0"])
     assert exc.value.code == 2
-    assert "--usb" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--usb" in err and why in err, err
+
+
+@pytest.mark.parametrize("query", ["usb=1", "usb_detach=5:1"])
+def test_the_python_board_has_no_usb_link(query):
+    from hil.link.transports import create_transport
+    from protocol.errors import ConfigError
+
+    transport = create_transport(f"emu://?{query}")
+    with pytest.raises(ConfigError, match="firmware board"):
+        transport.board  # noqa: B018  # made on first use: refused there
 
 
 def test_lockstep_harness_carries_the_protocol_over_usb():

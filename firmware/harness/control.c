@@ -31,7 +31,8 @@
  *                                                     protocol error in hex, "-" if empty; bytes the app
  *                                                     wrote to the board / read from it / dropped (no
  *                                                     accessory open); SPI bytes the MCU clocked
- * Anything else -> "error <why>". Commands act between simulation slices (every simulated ms).
+ * Anything else -> "error <why>", a line longer than 511 characters too (refused whole: an "rx" cut short
+ * would lose bytes silently). Commands act between simulation slices (every simulated ms).
  */
 #include <errno.h>
 #include <stdio.h>
@@ -43,6 +44,7 @@
 
 static char line[512];
 static size_t line_len;
+static int line_too_long; /* the line being read did not fit: it is refused whole, never cut short */
 
 static int execute(harness_t *h, char *cmd, FILE *out)
 {
@@ -197,10 +199,18 @@ int control_service(harness_t *h, FILE *out)
             if (buf[i] != '\n') {
                 if (line_len < sizeof line - 1)
                     line[line_len++] = buf[i];
+                else
+                    line_too_long = 1;
                 continue;
             }
             line[line_len] = 0;
             line_len = 0;
+            if (line_too_long) {
+                line_too_long = 0;
+                fprintf(out, "error line longer than %u characters: refused\n", (unsigned)sizeof line - 1);
+                fflush(out);
+                continue;
+            }
             if (execute(h, line, out))
                 return 1;
         }

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from protocol.errors import ConfigError
 from protocol.messages import BoardState
@@ -31,6 +32,9 @@ from .build import ensure_built
 from .eeprom import check_hardware
 from .harness import F_CPU, HarnessDied, HarnessOptions, HarnessProcess, eeprom_for, remove_link
 from .paths import FIRMWARE_ELF
+
+if TYPE_CHECKING:
+    from .stepped import UsbState
 
 POLL_S = 0.05
 """How often the server reads the harness's counters, time and state (s): the host's presence and the
@@ -141,6 +145,12 @@ class HarnessServer(BoardServer):
             if end is not None and self._now >= end:
                 return
             self._stop.wait(POLL_S)
+
+    def usb_state(self) -> UsbState:
+        """The phone on the board's USB host port as the harness sees it now (``usbstate``; ``--usb``)."""
+        from .stepped import UsbState
+
+        return UsbState.parse(self.process.command("usbstate"))
 
     def _release(self) -> None:
         process = self.process

@@ -1,7 +1,9 @@
 """The firmware as the board of a simulated world: the ATmega2560 binary under simavr, stepped on a clock.
 
 :class:`FirmwareBoard` runs ``avr-harness --stepped --uart-pipe`` (:class:`.AvrBoard`): simulated time
-moves only when the board is stepped, and UART0 goes through the control pipe, so the same object is
+moves only when the board is stepped, and the host's link goes through the control pipe — UART0, or with
+``usb`` (``--usb``) the accessory app of the phone on the board's USB host port, which the firmware
+enumerates and switches into accessory mode itself (its EEPROM's link = usb) — so the same object is
 the board of a lockstep run (the host's ``LockstepClock``: deterministic, as fast as simavr goes) and of a
 real-time one (a ``WallClock``: :class:`firmware_sim.servers.pty_server.PtyServer` steps it to the wall
 clock's present as it serves the pty, like the Python board).
@@ -27,7 +29,9 @@ so the world is the same world whichever board drives it:
   for.
 * **Faults.** Link faults act on the bytes between host and UART (``faults.filter``, as for the Python
   board); a hang pulls the firmware's watchdog self-test pin; a dead ESC or servo stops its unit's drive
-  in the world; phone faults act on the world's phone. A cable unplug is not modelled (refused).
+  in the world; phone faults act on the world's phone. A cable unplug is not modelled (refused). With
+  USB, :meth:`FirmwareBoard.detach_phone` pulls the phone off the host port for a while (the harness's
+  ``usb detach``, then ``usb attach`` of a phone in its normal mode, at their times on the board's clock).
 
 Times are the board clock's (s); the harness's time starts at the clock's time when the board is made.
 """
@@ -39,7 +43,7 @@ import math
 import subprocess
 import weakref
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +66,10 @@ SETTLE_US = 2100
 the channels' start skew (:data:`.records.FRAME_SKEW_US`); longer (raw) pulses are seen at the next wake."""
 MAX_STEP_S = 0.5
 """The longest span one harness ``step`` command runs (s), well inside the control pipe's answer timeout."""
+RX_CHUNK = 240
+"""The most bytes one ``rx`` command carries (bytes): its hex fits the harness's 512-character command line
+(``harness/control.c``); a longer write from the host (a server reads up to 64 KiB at once) goes in
+several."""
 _WATCHED_FIELDS = ("state", "mode", "power_state", "gimbal_mode")
 """The firmware's ``board_t`` fields the harness watches (consecutive bytes, app.h)."""
 _CYCLES_PER_US = F_CPU // 1_000_000
@@ -121,6 +129,7 @@ class FirmwareBoard:
         self._watched: bytes | None = None
         self._sent_power = ""
         self._out = bytearray()
+        self._usb_events: list[tuple[int, str]] = []  # (µs of board time, "detach" | "attach"), in order
         self.steps = 0  # harness step commands
         solve_supply(self.power, self.battery, cfg.power.ubec, self.units, self.faults, self.now)
         self._send_power()
@@ -157,20 +166,24 @@ class FirmwareBoard:
             hang_us = round(self.faults.next_hang() * 1e6) if self.faults.hangs else math.inf
             if hang_us <= until:
                 until = max(int(hang_us), self._t_us)
+            if self._usb_events and self._usb_events[0][0] <= until:
+                until = max(self._usb_events[0][0], self._t_us)
             self._send_power()  # the battery and rail as they are now, for the span (never ahead of it)
             self._physics(until)
             self._run_to(until)
             if self.faults.hangs and round(self.faults.next_hang() * 1e6) <= self._t_us:
                 self.faults.pop_hang()
                 self.harness.inject_hang()
+            while self._usb_events and self._usb_events[0][0] <= self._t_us:
+                self.harness.command(f"usb {self._usb_events.pop(0)[1]}")
 
     def feed(self, data: bytes) -> None:
         """Bytes from the host arriving now (the board first catches up to now), through the link's
         faults, into UART0's receive queue."""
         self.step()
         data = self.faults.filter(data, self.now, "rx")
-        if data:
-            self.harness.command(f"rx {data.hex()}")
+        for at in range(0, len(data), RX_CHUNK):  # the harness's command lines are bounded
+            self.harness.command(f"rx {data[at : at + RX_CHUNK].hex()}")
 
     def take_output(self) -> bytes:
         """Bytes UART0 sent so far (link faults applied)."""
@@ -186,6 +199,8 @@ class FirmwareBoard:
         due = min(due, self.next_output_change_us())
         if self.faults.hangs:
             due = min(due, max(round(self.faults.next_hang() * 1e6), self._t_us))
+        if self._usb_events:
+            due = min(due, max(self._usb_events[0][0], self._t_us))
         return due
 
     def next_deadline(self) -> float:
@@ -239,6 +254,34 @@ class FirmwareBoard:
         """Press the reset button (EXTRF) now."""
         self.step()
         self.harness.press_reset()
+
+    # ------------------------------------------------------------------ the phone on the USB host port
+    @property
+    def usb(self) -> bool:
+        """True when the host's link is the phone's accessory app on the USB host port (not UART0)."""
+        return self.harness.options.usb
+
+    def detach_phone(self, duration: float, at: float | None = None) -> None:
+        """Pull the phone off the board's USB host port at ``at`` (s of board time; None: now) and plug it
+        back ``duration`` s later, in its normal mode (the firmware enumerates it and switches it into
+        accessory mode again). Meanwhile the host's writes are lost (the app's write fails) and the board
+        hears nothing: its link watchdog fails it safe. Requires ``usb``."""
+        if not self.usb:
+            raise ConfigError("needs the phone's USB link (usb)", "FirmwareBoard.detach_phone")
+        if not (math.isfinite(duration) and duration > 0):
+            raise ConfigError(f"{duration!r} s must be a finite time > 0", "FirmwareBoard.detach_phone")
+        start = round((self.clock.now() if at is None else at) * 1e6)
+        if start < self._t_us:
+            raise ConfigError(f"{start / 1e6:g} s is in the board's past", "FirmwareBoard.detach_phone")
+        end = start + round(duration * 1e6)
+        self._usb_events += [(start, "detach"), (end, "attach")]
+        self._usb_events.sort()
+
+    def usb_state(self) -> UsbState:
+        """The phone as the harness sees it now (``usbstate``). Requires ``usb``."""
+        if not self.usb:
+            raise ConfigError("needs the phone's USB link (usb)", "FirmwareBoard.usb_state")
+        return UsbState.parse(self.harness.command("usbstate"))
 
     # ------------------------------------------------------------------ internals
     def _run_to(self, until_us: int) -> None:
@@ -321,22 +364,61 @@ class FirmwareBoard:
 
 def firmware_board(args: argparse.Namespace, clock: Clock) -> FirmwareBoard:
     """The firmware board firmware-sim's options describe (``emu://?board=firmware&...``), its faults
-    scheduled (times relative to the clock's start). A cable unplug is refused: the harness has no
-    unpowered MCU that comes back with a power-on reset."""
-    from ..cli import board_config, schedule_faults
+    scheduled (times relative to the clock's start): with ``--usb`` the host's link is the phone's accessory
+    app (a new EEPROM says link = usb), ``--usb-detach AT:DURATION`` pulls the phone off for a while. A
+    cable unplug is refused: the harness has no unpowered MCU that comes back with a power-on reset."""
+    from ..cli import board_config, parse_stall, schedule_faults
 
     if args.unplug:
         raise ConfigError("not available with the firmware board (a cable unplug is not modelled)", "unplug")
+    usb = bool(getattr(args, "usb", False))
+    detaches = [parse_stall(spec, "--usb-detach") for spec in getattr(args, "usb_detach", [])]
+    if detaches and not usb:
+        raise ConfigError("needs the phone's USB link (--usb, usb=1)", "--usb-detach")
     cfg = board_config(args)
     elf = Path(args.avr) if getattr(args, "avr", None) else FIRMWARE_ELF
     eeprom_file = Path(args.eeprom) if getattr(args, "eeprom", None) else None
-    board = FirmwareBoard(cfg, clock, HarnessOptions(elf=elf, eeprom_file=eeprom_file, seed=args.seed))
+    options = HarnessOptions(elf=elf, eeprom_file=eeprom_file, seed=args.seed, usb=usb)
+    board = FirmwareBoard(cfg, clock, options)
     try:
         schedule_faults(board.faults, args, cfg)
+        for at, duration in detaches:
+            board.detach_phone(duration, at=at)
     except BaseException:
         board.close()
         raise
     return board
+
+
+@dataclass(frozen=True)
+class UsbState:
+    """The harness's ``usbstate`` answer: the phone's mode (0 detached, 1 normal, 2 accessory), the six
+    strings the board sent it on SEND_STRING (its identity: manufacturer, model, description, version, URI,
+    serial), the MAX3421E model's last protocol error ("" if none) and byte counters (bytes the app wrote to
+    the board, read from it, dropped while no accessory was open; SPI bytes the MCU clocked)."""
+
+    mode: int
+    strings: tuple[str, ...]
+    error: str
+    to_board: int
+    from_board: int
+    dropped: int
+    spi_bytes: int
+
+    MODES = ("detached", "normal", "accessory")
+
+    @classmethod
+    def parse(cls, words: Sequence[str]) -> UsbState:
+        """From the words after ``ok``."""
+        if len(words) != 12:
+            raise ConfigError(f"not a usbstate answer: {' '.join(words)!r}", "usbstate")
+        text = [bytes.fromhex(w).decode("utf-8", "replace") if w != "-" else "" for w in words[1:8]]
+        counts = [int(w) for w in words[8:12]]
+        return cls(int(words[0]), tuple(text[:6]), text[6], *counts)
+
+    @property
+    def mode_name(self) -> str:
+        return self.MODES[self.mode] if 0 <= self.mode < len(self.MODES) else f"mode {self.mode}"
 
 
 def board_field_address(elf: Any, field: str) -> int:

@@ -9,6 +9,7 @@ repeated: ``stall=5:2&stall=9:1``)::
     emu://?units=3&frame_rate=400&stall=5:2 ... with a link stall at t = 5 s
     spawn://firmware-sim?units=4            firmware-sim started on a pty, stopped on close
     spawn://firmware-sim?corrupt=0.01&link=/tmp/board&start_timeout=20
+    spawn://firmware-sim?board=firmware&usb=1&world=cubesat-1u   the firmware's USB link driving a world
 
 **In-process** (:class:`EmulatorTransport`). The :class:`firmware_sim.board.Board` runs on the clock it is
 given (``clock=`` or :meth:`EmulatorTransport.bind_clock`, which :class:`hil.link.board.BoardClient` calls

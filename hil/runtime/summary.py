@@ -47,14 +47,17 @@ def run_summary(
     from the slew's start), final and peak pointing error, peak gimbal rate, minimum δ, the
     estimator's RMSE over slew + hold (``estimator_rmse``, simulated runs); the faults — failsafes,
     resets, link losses, reconnects, stale telemetry, phone gaps, each with its time and cause — and the
-    outages they made (:meth:`hil.runtime.faults.FaultJournal.summary`); the operator's commands and
-    suspensions; ``lost`` why the run lost the board (or the phone), if it did; None where not reached.
-    Taken at the client's clock's now."""
+    outages they made (:meth:`hil.runtime.faults.FaultJournal.summary`); ``board``: who answered the
+    last handshake (its HelloReply: identity, serial, firmware build, units, frame rate); the operator's
+    commands and suspensions; ``lost`` why the run lost the board (or the phone), if it did; None where
+    not reached. Taken at the client's clock's now."""
     now = client.clock.now()
     since = phases.suspended_since
     gimbal_rate_limit = scenario.spacecraft.limits.max_gimbal_rate
+    info = client.session.info
     out: dict[str, Any] = {
         "scenario": scenario.name,
+        "board": None if info is None else info.describe(),
         "settle_requirement_deg": scenario.settle_deg,
         "slew_started": phases.slew_start is not None,
         "failsafe_events": watch.failsafes,
