@@ -249,16 +249,7 @@ class UnitModel:
         """Electrical power the rotor's ESC draws from the battery (W)."""
         if not self.rotor_driven:
             return 0.0
-        m = self.motor
-        speed = self.rotor_speed
-        w = abs(speed)
-        drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
-        accel = m.inertia_kg_m2 * w * self.rotor_accel  # power into the rotor's speed along its spin
-        if speed < 0.0:
-            accel = -accel
-        if accel < 0.0:  # slowing down returns nothing (the ESC does not brake)
-            accel = 0.0
-        return (drag + accel) / m.efficiency + m.idle_current_a * battery_v
+        return esc_power_w(self.motor, self.rotor_speed, self.rotor_accel, battery_v)
 
     def gimbal_current_a(self) -> float:
         """Current the gimbal servo draws from the UBEC rail (A)."""
@@ -307,3 +298,19 @@ def follow_all(
         )
     for i, unit in enumerate(units):
         unit.follow(values[i], values[n + i], values[2 * n + i], t, rotor_accel[i])
+
+
+def esc_power_w(m: MotorParams, speed: float, accel_rad_s2: float, battery_v: float) -> float:
+    """Electrical power (W) an ESC draws from the battery at ``battery_v`` (V) for its motor ``m`` (a
+    motor model: rated power and speed, rotor inertia, efficiency, idle current) turning at ``speed``
+    rad/s and speeding up at ``accel_rad_s2`` rad/s²: the air drag's cube law plus the power into the
+    rotor's speed along its spin (slowing down returns nothing: the ESC does not brake), through the
+    ESC's efficiency, plus its idle draw."""
+    w = abs(speed)
+    drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
+    accel = m.inertia_kg_m2 * w * accel_rad_s2  # power into the rotor's speed along its spin
+    if speed < 0.0:
+        accel = -accel
+    if accel < 0.0:  # slowing down returns nothing (the ESC does not brake)
+        accel = 0.0
+    return (drag + accel) / m.efficiency + m.idle_current_a * battery_v

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 from protocol.messages import PowerState, Severity
 
-from .actuators import UnitModel
+from .actuators import UnitModel, esc_power_w
 from .codes import LogCode
 from .config import PowerConfig, UbecParams
 from .faults import FaultInjector
@@ -50,8 +50,9 @@ def solve_supply(
 def unit_loads(units: Sequence[UnitModel], battery_v: float) -> tuple[float, float]:
     """The units' servo current from the UBEC rail (A) and the ESCs' power from the battery (W) at
     ``battery_v`` (V): the sums, in unit order, of :meth:`UnitModel.gimbal_current_a` and
-    :meth:`UnitModel.rotor_power_w` (the references), spelt out in one loop — it runs at every physics
-    step, ~20 000 times a default run, where two method calls per unit were a third of the supply's cost.
+    :meth:`UnitModel.rotor_power_w` (the references), in one loop — it runs at every physics step,
+    ~20 000 times a default run, where two method calls per unit were a third of the supply's cost; the
+    ESC's draw is the one formula both use (:func:`~firmware_sim.board.actuators.esc_power_w`).
     An undriven unit adds nothing (the references' 0.0: the sums are the same floats)."""
     gimbal_a = rotor_w = 0.0
     for u in units:
@@ -59,16 +60,7 @@ def unit_loads(units: Sequence[UnitModel], battery_v: float) -> tuple[float, flo
             g = u.gimbal
             gimbal_a += g.idle_current_a + g.current_per_rad_s_a * abs(u.gimbal_rate)
         if u.rotor_driven:
-            m = u.motor
-            speed = u.rotor_speed
-            w = abs(speed)
-            drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
-            accel = m.inertia_kg_m2 * w * u.rotor_accel  # power into the rotor's speed along its spin
-            if speed < 0.0:
-                accel = -accel
-            if accel < 0.0:  # slowing down returns nothing (the ESC does not brake)
-                accel = 0.0
-            rotor_w += (drag + accel) / m.efficiency + m.idle_current_a * battery_v
+            rotor_w += esc_power_w(u.motor, u.rotor_speed, u.rotor_accel, battery_v)
     return gimbal_a, rotor_w
 
 
