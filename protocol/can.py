@@ -218,6 +218,7 @@ class CanStats:
     segments: int = 0  # CAN frames accepted as segments
     frames: int = 0  # wire frames completed and delivered
     incomplete: int = 0  # partial frames discarded (a segment lost, conflicting, or the sender moved on)
+    cut: int = 0  # partial frames in flight when the receiver was reset (a connection closed): not a loss
     spliced: int = 0  # "complete" frames that failed their CRC: segments of different frames joined
     malformed: int = 0  # CAN frames that cannot be a segment (too short or long, bad index, short middle)
     duplicates: int = 0  # segments received twice with the same content
@@ -276,9 +277,11 @@ class CanReassembler:
         self._streams: OrderedDict[int, _Stream] = OrderedDict()
 
     def reset(self) -> None:
-        """Drop every partial frame (counted as incomplete), e.g. after a reconnect."""
+        """Drop every partial frame, e.g. as a connection closes. They are counted as ``cut``, not as
+        ``incomplete``: a peer that streams (a board's telemetry) is often mid-frame when its receiver
+        closes, which says nothing about the link."""
         for stream in self._streams.values():
-            self.stats.incomplete += len(stream.partials)
+            self.stats.cut += len(stream.partials)
         self._streams.clear()
 
     def feed(

@@ -284,6 +284,26 @@ def test_a_frame_given_up_never_completes_later_from_a_newer_frames_identical_se
     assert rx.stats.incomplete == 2 and rx.partial_frames == 1  # the Arm, the SetMode; the Disarm waits
 
 
+def test_a_reset_cuts_the_partial_frames_in_flight_and_counts_them_apart_from_losses():
+    """A receiver reset as its connection closes, the peer mid-frame (a board streaming telemetry): the
+    partial frame is dropped and counted as ``cut``, not as ``incomplete`` (a lost segment), and a frame
+    after the reset is assembled from its own segments only."""
+    seg = CanSegmenter(NODE, Direction.TO_HOST)
+    first, second = (
+        seg.segment(encode_frame(ActuatorSetpoint(units=(UnitSetpoint(g, 2.0),) * 4), n))
+        for g, n in ((0.5, 1), (0.25, 2))
+    )
+    assert len(first) > 2
+    rx = CanReassembler(NODE, Direction.TO_HOST)
+    assert b"".join(rx.feed(f.arbitration_id, f.data) for f in first[:2]) == b""
+    rx.reset()
+    assert (rx.stats.cut, rx.stats.incomplete, rx.partial_frames) == (1, 0, 0)
+    out = b"".join(rx.feed(f.arbitration_id, f.data) for f in first[2:] + second)
+    [frame] = Deframer().feed(out)
+    assert frame.message.units[0].gimbal == 0.25
+    assert rx.stats.frames == 1 and rx.stats.cut == 1
+
+
 def test_identical_duplicates_are_ignored_and_conflicts_discard_the_frame():
     seg = CanSegmenter(NODE, Direction.TO_BOARD)
     frames = seg.segment(encode_frame(ActuatorSetpoint(units=(UnitSetpoint(1.0, 2.0),) * 3), 7))

@@ -145,7 +145,7 @@ class CanTransport(Transport):
     def _close(self) -> None:
         bus, self._bus = self._bus, None
         self._out.clear()
-        self._reassembler.reset()  # partial frames die with the connection (counted as incomplete)
+        self._reassembler.reset()  # partial frames die with the connection (counted as cut)
         if bus is not None:
             try:
                 bus.shutdown()
