@@ -291,6 +291,40 @@ def test_unusable_inputs_never_crash_and_are_flagged():
         est.update(0.0, [0, 0, 0], None, None)
 
 
+def test_every_form_of_a_sample_gives_the_same_step_and_a_bad_one_a_named_error():
+    """update's fast path (lists and tuples of three, converted by the compiled call itself) and its
+    checked path (arrays, None) give identical numbers; ints are numbers; a wrong length or an item that
+    is not a number is an error naming update's inputs, and the state is left as it was."""
+    rng = np.random.default_rng(5)
+    samples = [
+        (rng.normal(0, 0.3, 3), rng.normal([0, 0, 9.8], 0.5), rng.normal([0, 20, -40], 2)) for _ in range(50)
+    ]
+    forms = {
+        "lists": lambda v: v.tolist(),
+        "tuples": lambda v: tuple(v.tolist()),
+        "arrays": lambda v: v,
+        "column arrays": lambda v: v.reshape(3, 1),
+        "lists of numpy floats": lambda v: list(v),
+    }
+    outs = {}
+    for name, form in forms.items():
+        est = VariationalEstimator()
+        outs[name] = np.array([est.update(0.01, *(form(v) for v in sample)).R for sample in samples])
+    for name, R in outs.items():
+        np.testing.assert_array_equal(R, outs["lists"], err_msg=name)
+    est = VariationalEstimator()
+    assert np.array_equal(est.update(1, [0, 0, 1], [0, 0, 10], [0, 20, -40]).R, np.eye(3))  # ints
+    before = est.state
+    with pytest.raises(TypeError, match="update: dt, gyr, acc and mag must be numbers"):
+        est.update(0.01, [0.0, "fast", 0.1], [0, 0, 9.8], [0, 20, -40])
+    with pytest.raises(TypeError, match="update: dt, gyr, acc and mag must be numbers"):
+        est.update(0.01, (0.0, None, 0.1), [0, 0, 9.8], [0, 20, -40])
+    with pytest.raises(ValueError):
+        est.update(0.01, [0.0, 0.1], [0, 0, 9.8], [0, 20, -40])
+    after = est.state
+    assert after.t == before.t and np.array_equal(after.R, before.R) and est.stats.steps == 1
+
+
 def test_gyro_only_propagation_integrates_the_rate():
     est = VariationalEstimator()  # ω0 = 0 and no directions: R̂ follows the gyro exactly
     rate = np.array([0.0, 0.0, 0.5])

@@ -19,7 +19,7 @@ from operator import itemgetter
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil import so3
+from hil import jit, so3
 from hil.estimation import variational as k
 from hil.estimation.params import EstimatorParams
 from hil.estimation.quaternions import quats_of
@@ -31,6 +31,14 @@ Array = NDArray[np.float64]
 
 _NAN3 = (math.nan, math.nan, math.nan)
 _FLAGS: dict[int, StepFlag] = {}
+
+ESTIMATE_SIZE = 15
+"""Floats at the head of the estimator's state that an :class:`Estimate` holds: R̂ row-major, Ω̂, ω."""
+
+# The kernels' layout constants, bound once for the per-sample path (a module attribute costs a lookup).
+_S_T, _FLAG_BITS, _ITER_SHIFT = k.S_T, k.FLAG_BITS, k.ITER_SHIFT
+_new_tuple = tuple.__new__
+_SEQUENCES = (list, tuple)
 
 
 @dataclass(frozen=True)
@@ -162,8 +170,10 @@ class VariationalEstimator:
     ) -> None:
         self.params = params or EstimatorParams()
         self._ep = k.pack_params(self.params)
-        self._es = np.zeros(k.S_SIZE)
+        self._es = np.zeros(k.S_SIZE)  # changed in place only: the views and the kernel below keep it
+        self._head = self._es[:ESTIMATE_SIZE]  # what an Estimate copies
         self._raise = self.params.on_newton_failure == "raise"
+        self._update = jit.direct(k.update, self._ep, self._es, *([0.0] * 10))
         self.reset(R0, omega_err0, bias0)
 
     def reset(
@@ -193,6 +203,12 @@ class VariationalEstimator:
     def arrays(self) -> tuple[Array, Array]:
         """``(parameters, state)``: the arrays themselves (not copies), for compiled callers."""
         return self._ep, self._es
+
+    @property
+    def head(self) -> Array:
+        """The first :data:`ESTIMATE_SIZE` floats of the state (a view, not a copy): what an
+        :class:`Estimate` of the current step holds, for :func:`estimate`."""
+        return self._head
 
     # ----------------------------------------------------------------- snapshot / restore
     @property
@@ -264,17 +280,29 @@ class VariationalEstimator:
         (3,) (direction only), all body frame. None or non-finite means 'not usable' (see
         :mod:`hil.estimation.variational`).
         Returns the estimate at this sample."""
-        gx, gy, gz = xyz(gyr)
-        ax, ay, az = xyz(acc)
-        mx, my, mz = xyz(mag)
+        try:  # lists or tuples of three: the compiled call converts their items to floats itself
+            if type(gyr) not in _SEQUENCES or type(acc) not in _SEQUENCES or type(mag) not in _SEQUENCES:
+                raise TypeError
+            gx, gy, gz = gyr
+            ax, ay, az = acc
+            mx, my, mz = mag
+        except (TypeError, ValueError):  # None, arrays, a wrong length: the checked way
+            gx, gy, gz = xyz(gyr)
+            ax, ay, az = xyz(acc)
+            mx, my, mz = xyz(mag)
         es = self._es
         snapshot = es.copy() if self._raise else None
-        code = k.update(self._ep, es, float(dt), gx, gy, gz, ax, ay, az, mx, my, mz)
+        try:
+            code = self._update(self._ep, es, dt, gx, gy, gz, ax, ay, az, mx, my, mz)
+        except TypeError:  # an item that is not a number
+            raise TypeError(
+                f"update: dt, gyr, acc and mag must be numbers, got {dt!r}, {gyr!r}, {acc!r}, {mag!r}"
+            ) from None
         if code < 0:
             raise ValueError(f"update: dt must be a positive number of seconds, got {dt!r}")
         if snapshot is not None and code & NEWTON_FAILED:
             self._fail(snapshot, 0, dt)
-        return estimate(es.item(k.S_T), es, code)
+        return estimate(es.item(_S_T), self._head, code)
 
     def update_batch(self, steps: MergedSteps) -> EstimateBatch:
         """Run over merged steps (``steps.t`` strictly increasing), continuing from the current state.
@@ -342,9 +370,15 @@ def xyz(v: ArrayLike | None) -> tuple[float, float, float]:
     return _NAN3 if a is None else a
 
 
-def estimate(t: float, es: Array, code: int, flags: int = 0) -> Estimate:
-    """The :class:`Estimate` in the state ``es`` after a step that returned ``code`` (``flags`` added)."""
-    return Estimate.of(t, es[:15].copy(), flag((code & k.FLAG_BITS) | flags), code >> k.ITER_SHIFT)
+def estimate(t: float, head: Array, code: int, flags: int = 0) -> Estimate:
+    """The :class:`Estimate` at ``t`` after a step that returned ``code`` (``flags`` added), from ``head``,
+    the first :data:`ESTIMATE_SIZE` floats of the state (a view kept by the caller: slicing it anew would
+    cost a tenth of a sample's budget). The memoised flag is looked up inline, for the same reason."""
+    bits = (code & _FLAG_BITS) | flags
+    f = _FLAGS.get(bits)
+    if f is None:
+        f = flag(bits)
+    return _new_tuple(Estimate, (t, f, code >> _ITER_SHIFT, head.copy()))
 
 
 def flag(bits: int) -> StepFlag:

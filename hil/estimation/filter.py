@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from hil import jit
 from hil.estimation import chain
 from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, estimate
 from hil.estimation.inertial import directions_from_dip
@@ -158,6 +159,8 @@ class AttitudeFilter:
         self._cp = chain.pack_params(signal, gate, mode, cfg.omega_err0, motion)
         self._cs = chain.new_state(cfg.gyro_bias, isinstance(init, str) and init == "measured")
         self._raise = cfg.params.on_newton_failure == "raise"
+        self._head = self.estimator.head
+        self._step = jit.direct(chain.step, self._cp, self._cs, self._ep, self._es, *([0.0] * 11))
 
     @property
     def gyro_bias(self) -> Array:
@@ -189,12 +192,12 @@ class AttitudeFilter:
         mx, my, mz = _NAN3 if s.mag is None else s.mag
         es = self._es
         snapshot = self._snapshot() if self._raise else None
-        code = chain.step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        code = self._step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
             raise ValueError(f"filter step must be positive, got h = {s.h!r} s (t = {s.t!r} s)")
         if snapshot is not None and code & NEWTON_FAILED:
             self._fail(snapshot, s.t, s.h)
-        return estimate(s.t, es, code, int(s.flags))
+        return estimate(s.t, self._head, code, int(s.flags))
 
     def run(
         self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None, chunk: int = 50_000
