@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from operator import itemgetter
 
@@ -173,7 +174,7 @@ class VariationalEstimator:
         self._es = np.zeros(k.S_SIZE)  # changed in place only: the views and the kernel below keep it
         self._head = self._es[:ESTIMATE_SIZE]  # what an Estimate copies
         self._raise = self.params.on_newton_failure == "raise"
-        self._update = jit.direct(k.update, self._ep, self._es, *([0.0] * 10))
+        self._update: Callable[..., int] | None = None  # k.update's machine code, bound at the first update
         self.reset(R0, omega_err0, bias0)
 
     def reset(
@@ -292,8 +293,11 @@ class VariationalEstimator:
             mx, my, mz = xyz(mag)
         es = self._es
         snapshot = es.copy() if self._raise else None
+        update = self._update
+        if update is None:  # not at construction: a filter's estimator, or a batch's, never needs it
+            update = self._update = jit.direct(k.update, self._ep, es, *([0.0] * 10))
         try:
-            code = self._update(self._ep, es, dt, gx, gy, gz, ax, ay, az, mx, my, mz)
+            code = update(self._ep, es, dt, gx, gy, gz, ax, ay, az, mx, my, mz)
         except TypeError:  # an item that is not a number
             raise TypeError(
                 f"update: dt, gyr, acc and mag must be numbers, got {dt!r}, {gyr!r}, {acc!r}, {mag!r}"

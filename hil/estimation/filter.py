@@ -160,7 +160,7 @@ class AttitudeFilter:
         self._cs = chain.new_state(cfg.gyro_bias, isinstance(init, str) and init == "measured")
         self._raise = cfg.params.on_newton_failure == "raise"
         self._head = self.estimator.head
-        self._step = jit.direct(chain.step, self._cp, self._cs, self._ep, self._es, *([0.0] * 11))
+        self._step: Callable[..., int] | None = None  # chain.step's machine code, bound at the first step
 
     @property
     def gyro_bias(self) -> Array:
@@ -192,7 +192,10 @@ class AttitudeFilter:
         mx, my, mz = _NAN3 if s.mag is None else s.mag
         es = self._es
         snapshot = self._snapshot() if self._raise else None
-        code = self._step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
+        step = self._step
+        if step is None:  # not at construction: a filter that only runs batches never needs it
+            step = self._step = jit.direct(chain.step, self._cp, self._cs, self._ep, es, *([0.0] * 11))
+        code = step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
             raise ValueError(f"filter step must be positive, got h = {s.h!r} s (t = {s.t!r} s)")
         if snapshot is not None and code & NEWTON_FAILED:
