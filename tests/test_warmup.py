@@ -10,6 +10,8 @@ import pytest
 
 from hil import jit
 
+WORLD_TRANSPORT = "emu=firmware_sim.servers.transports:EmulatorTransport"  # as setup.py registers it
+
 pytestmark = pytest.mark.skipif(not jit.COMPILED, reason="compiling is switched off (NUMBA_DISABLE_JIT=1)")
 
 COUNT_MISSES = textwrap.dedent('''
@@ -47,3 +49,21 @@ def test_a_fresh_cache_is_compiled_once_and_the_next_run_compiles_nothing(tmp_pa
     assert first["needed_before"] and first["marker"]
     second = json.loads(_run(COUNT_MISSES, cache))
     assert not second["needed_before"] and second["misses"] == []
+
+
+def test_the_installs_warm_up_leaves_a_cache_from_which_the_first_run_compiles_nothing(tmp_path):
+    """What an editable install runs (setup.py's ``warm_kernels``): the default scenario's kernels compiled
+    with the built-in emulator's transport registered by hand (the build's tree has no entry points yet);
+    the first run after it compiles no kernel and does not warm up again."""
+    import json
+
+    cache = str(tmp_path / "numba-cache")
+    env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+    command = [sys.executable, "-m", "hil.runtime.warmup", "--install", f"--transport={WORLD_TRANSPORT}"]
+    done = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("kernels: compiled in "), done.stdout
+    again = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900)
+    assert again.stdout.strip() == "kernels: in the cache already", again.stdout + again.stderr[-2000:]
+    first = json.loads(_run(COUNT_MISSES, cache))
+    assert not first["needed_before"] and first["misses"] == []

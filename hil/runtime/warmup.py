@@ -22,6 +22,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -51,16 +52,18 @@ def needed() -> bool:
     return jit.COMPILED and not marker().exists()
 
 
-def warm(scenario: Scenario) -> float | None:
+def warm(scenario: Scenario, transports: Mapping[str, str] | None = None) -> float | None:
     """Compile the kernels the run of ``scenario`` needs, world and host in parallel; the seconds it took,
     or None if there was nothing to do. A child that fails is logged, never fatal: the run then compiles
-    what is missing itself."""
+    what is missing itself. ``transports`` (scheme → ``"module:factory"``) are registered in the world's
+    child first: for a tree not installed yet, whose entry points do not resolve (the install's build)."""
     if not needed():
         return None
     start = time.monotonic()
+    registrations = [f"--transport={scheme}={target}" for scheme, target in (transports or {}).items()]
     with tempfile.TemporaryFile() as err:
         child = subprocess.Popen(
-            [sys.executable, "-m", "hil.runtime.warmup"],
+            [sys.executable, "-m", "hil.runtime.warmup", *registrations],
             stdin=subprocess.PIPE,
             stdout=subprocess.DEVNULL,
             stderr=err,
@@ -164,10 +167,34 @@ _LOADED: set[tuple[str, bool]] = set()
 """(scenario TOML, with the world) pairs whose kernels :func:`load_kernels` has loaded in this process."""
 
 
-def _main() -> int:
-    """The child: the scenario's TOML on stdin, its world's kernels compiled."""
-    scenario = parse_scenario(sys.stdin.read())
-    warm_world(scenario)
+def _main(argv: Sequence[str] | None = None) -> int:
+    """The world's child (the scenario's TOML on stdin, its world's kernels compiled), or with
+    ``--install`` the install's warm-up of the default scenario (world and host, the marker written)."""
+    import argparse
+
+    from hil.link.transports import register
+
+    parser = argparse.ArgumentParser(prog="python -m hil.runtime.warmup")
+    parser.add_argument("--install", action="store_true", help="warm the default scenario's kernels")
+    parser.add_argument(
+        "--transport",
+        action="append",
+        default=[],
+        metavar="SCHEME=MODULE:FACTORY",
+        help="register a transport first (a tree whose entry points are not installed yet)",
+    )
+    args = parser.parse_args(argv)
+    transports = dict(entry.split("=", 1) for entry in args.transport)
+    for scheme, target in transports.items():
+        register(scheme, target)
+    if args.install:
+        from hil.scenario import load_scenario
+
+        took = warm(load_scenario(), transports)
+        said = "in the cache already" if took is None else f"compiled in {took:.1f} s"
+        sys.stdout.write(f"kernels: {said}\n")
+        return 0 if not needed() else 1
+    warm_world(parse_scenario(sys.stdin.read()))
     return 0
 
 
