@@ -102,9 +102,7 @@ def test_phone_detached_mid_run_fails_safe_and_the_run_goes_on(tmp_path: Path, p
         end += 1
     assert outages[end - 1]["end"] - outages[start]["start"] < 3.0, outages
     # From the board's failsafe on: the host re-arms, the board says armed, then the host is back in control.
-    failsafe = next(
-        i for i, e in enumerate(events) if e["kind"] == "board_state" and e["new"] == "FAILSAFE"
-    )
+    failsafe = next(i for i, e in enumerate(events) if e["kind"] == "board_state" and e["new"] == "FAILSAFE")
     kinds = [e["kind"] for e in events[failsafe:]]
     assert kinds.index("rearm_sent") < kinds.index("rearmed") < kinds.index("board_back"), kinds
     run_dir = next((tmp_path / "runs").iterdir())

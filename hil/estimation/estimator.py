@@ -282,7 +282,9 @@ class VariationalEstimator:
         :mod:`hil.estimation.variational`).
         Returns the estimate at this sample."""
         try:  # lists or tuples of three: the compiled call converts their items to floats itself
-            if type(gyr) not in _SEQUENCES or type(acc) not in _SEQUENCES or type(mag) not in _SEQUENCES:
+            if not (
+                isinstance(gyr, _SEQUENCES) and isinstance(acc, _SEQUENCES) and isinstance(mag, _SEQUENCES)
+            ):
                 raise TypeError
             gx, gy, gz = gyr
             ax, ay, az = acc
