@@ -140,7 +140,7 @@ def _interrupted_run(out: Path, proc: subprocess.Popen, signum: int, log: Path) 
     assert [(e["kind"], e["reason"]) for e in disarmed] == [("disarmed", f"interrupted ({name})")]
     assert [e["t"] for e in events] == sorted(e["t"] for e in events)
     tel = read_telemetry(csv)
-    assert tel.rows > 30 and tel.dropped_lines == 0
+    assert tel.rows >= 30 and tel.dropped_lines == 0  # at least the rows waited for (31 lines: the header)
     return summary, run_dir
 
 
