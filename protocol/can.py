@@ -33,7 +33,10 @@ under another transfer id ends the frames being assembled under the others. A fr
 — a segment lost, a conflicting duplicate, the sender moved on — is discarded and counted
 (``incomplete``), never delivered half-built; one that assembles but fails its CRC (segments of two frames
 joined after the 2-bit transfer id wrapped) is counted (``spliced``), and assembly restarts from the
-newest segment. A repeat of
+newest segment. Frames cut by the receiver's own start or reset are counted apart (``cut``): those in
+flight at a reset, and on each arbitration id the tail heard before any first segment — a receiver that
+joins a bus its peer already streams on mostly starts mid-frame (it cannot tell that from the very first
+head lost, which is then counted there too). A repeat of
 the segment that completed a frame, arriving next on its arbitration id (CAN's "double reception": the
 transmitter saw an error frame and sends the same CAN frame again at once), is counted as a duplicate;
 a repeat within a frame still being assembled is too. Memory is bounded: per arbitration id ``window``
@@ -218,7 +221,7 @@ class CanStats:
     segments: int = 0  # CAN frames accepted as segments
     frames: int = 0  # wire frames completed and delivered
     incomplete: int = 0  # partial frames discarded (a segment lost, conflicting, or the sender moved on)
-    cut: int = 0  # partial frames in flight when the receiver was reset (a connection closed): not a loss
+    cut: int = 0  # partial frames cut by the receiver's start (a tail heard first) or reset: not a loss
     spliced: int = 0  # "complete" frames that failed their CRC: segments of different frames joined
     malformed: int = 0  # CAN frames that cannot be a segment (too short or long, bad index, short middle)
     duplicates: int = 0  # segments received twice with the same content
@@ -244,6 +247,7 @@ class _Stream:
     between lost whole) may share a segment with one — a last segment holding only the delimiter, say."""
 
     partials: OrderedDict[int, _Partial] = field(default_factory=OrderedDict)
+    headed: bool = False  # a first segment (index 0) has been heard: tails before it are the start's cut
     completed_by: tuple[int, int, bytes] | None = None
     delivered: tuple[int, bytes] | None = None  # (transfer id, wire frame) of the last frame delivered
 
@@ -319,7 +323,12 @@ class CanReassembler:
         # byte-identical to the one it lost (a last segment holding only the delimiter, say).
         for over in [k for k in partials if k != tid]:
             del partials[over]
-            self.stats.incomplete += 1
+            if stream.headed:
+                self.stats.incomplete += 1
+            else:  # the tail of a frame sent before this receiver listened
+                self.stats.cut += 1
+        if index == 0:
+            stream.headed = True
         partial = partials.get(tid)
         if partial is None:
             partial = self._open(partials, tid)

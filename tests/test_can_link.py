@@ -26,9 +26,11 @@ ROTOR = 1
 _channels = itertools.count()
 
 
-def exchange(url: str, units: int) -> BoardClient:
+def exchange(url: str, units: int, lossless: bool = True) -> BoardClient:
     """Over any transport (a pty path, a ``can://`` URL): handshake, arm, setpoints until the rotor pulse
-    follows them, disarm; returns the closed client."""
+    follows them, disarm; returns the closed client. ``lossless=False`` for a bus that may drop a CAN frame
+    (udp_multicast is UDP: a receive buffer that overflows while a loaded machine keeps the reader off the
+    core drops datagrams), where a frame that lost a segment must be counted, never delivered."""
     client = BoardClient(url)
     with client:
         assert client.info is not None and client.info.n_units == units
@@ -54,7 +56,10 @@ def exchange(url: str, units: int) -> BoardClient:
         stats = client.stats()
         assert stats.bad_frames_total == 0 and stats.failed == 0
         if "rx_frames" in stats.transport:  # a CAN bus's reassembly: each frame it completed was taken whole
-            assert stats.transport["rx_frames"] == stats.frames_in and stats.transport["rx_incomplete"] == 0
+            assert stats.transport["rx_frames"] == stats.frames_in
+            assert stats.transport["rx_spliced"] == 0 and stats.transport["rx_malformed"] == 0
+            if lossless:
+                assert stats.transport["rx_incomplete"] == 0
     return client
 
 
@@ -80,7 +85,7 @@ def test_the_exchange_with_the_board_in_another_process_over_udp_multicast():
     spec = f"udp_multicast/239.74.163.{random.randint(1, 254)}?port={port}&node={node}"
     with started(firmware_sim("--units", "2", "--telemetry-rate", "50", "--can", spec)) as board:
         assert board.first_line == f"can://{spec}", board.said
-        client = exchange(board.first_line, 2)
+        client = exchange(board.first_line, 2, lossless=False)
         assert client.stats().transport["rx_ignored"] > 0  # udp_multicast loops our own frames back
         time.sleep(1.5)  # the host is silent (closed) for longer than HOST_SILENCE_S: gone
     assert board.proc.returncode == 0

@@ -286,8 +286,9 @@ def test_a_frame_given_up_never_completes_later_from_a_newer_frames_identical_se
 
 def test_a_reset_cuts_the_partial_frames_in_flight_and_counts_them_apart_from_losses():
     """A receiver reset as its connection closes, the peer mid-frame (a board streaming telemetry): the
-    partial frame is dropped and counted as ``cut``, not as ``incomplete`` (a lost segment), and a frame
-    after the reset is assembled from its own segments only."""
+    partial frame is dropped and counted as ``cut``, not as ``incomplete`` (a lost segment). After the
+    reset the receiver starts afresh: the rest of the cut frame is a tail heard before any head, cut too,
+    and the next frame is assembled from its own segments only."""
     seg = CanSegmenter(NODE, Direction.TO_HOST)
     first, second = (
         seg.segment(encode_frame(ActuatorSetpoint(units=(UnitSetpoint(g, 2.0),) * 4), n))
@@ -301,7 +302,30 @@ def test_a_reset_cuts_the_partial_frames_in_flight_and_counts_them_apart_from_lo
     out = b"".join(rx.feed(f.arbitration_id, f.data) for f in first[2:] + second)
     [frame] = Deframer().feed(out)
     assert frame.message.units[0].gimbal == 0.25
-    assert rx.stats.frames == 1 and rx.stats.cut == 1
+    assert (rx.stats.frames, rx.stats.cut, rx.stats.incomplete) == (1, 2, 0)
+
+
+def test_a_receiver_that_joins_mid_frame_counts_that_tail_as_cut_and_later_losses_as_incomplete():
+    """A host that opens its bus while the board streams hears a frame's tail first: that frame was cut by
+    the receiver's start, not lost on the link. Once a frame's head has been heard on the arbitration id,
+    a frame missing its head is a loss (``incomplete``)."""
+    seg = CanSegmenter(NODE, Direction.TO_HOST)
+    gimbals = (0.5, 0.25, 0.125, 0.0625)
+    frames = [
+        seg.segment(encode_frame(ActuatorSetpoint(units=(UnitSetpoint(g, 2.0),) * 4), n))
+        for n, g in enumerate(gimbals)
+    ]
+    assert all(len(f) > 2 for f in frames)
+    rx = CanReassembler(NODE, Direction.TO_HOST)
+    heard = [
+        *frames[0][1:],
+        *frames[1],
+        *frames[2][1:],
+        *frames[3],
+    ]  # joined mid-frame 0; frame 2's head lost
+    out = b"".join(rx.feed(f.arbitration_id, f.data) for f in heard)
+    assert [f.message.units[0].gimbal for f in Deframer().feed(out)] == [0.25, 0.0625]
+    assert (rx.stats.frames, rx.stats.cut, rx.stats.incomplete) == (2, 1, 1)
 
 
 def test_identical_duplicates_are_ignored_and_conflicts_discard_the_frame():
