@@ -117,12 +117,12 @@ def _hardware(board: Board) -> list[object]:
 def _raised(step: object, t: int) -> type[BaseException] | None:
     try:
         step(t)  # type: ignore[operator]
-    except ArithmeticError as e:
+    except (ArithmeticError, ValueError) as e:  # a cube past the floats; a NaN voltage into a map
         return type(e)
     return None
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=500, deadline=None)
 @given(units=st.lists(UNIT, min_size=1, max_size=5), supply=SUPPLY, steps=st.integers(1, 3))
 def test_the_fused_physics_step_is_the_separate_calls_bit_for_bit(units, supply, steps):
     """Each step of ``_physics`` leaves units, ESCs, battery and reading as ``_physics_reference`` does."""
@@ -132,7 +132,7 @@ def test_the_fused_physics_step_is_the_separate_calls_bit_for_bit(units, supply,
     for _ in range(steps):
         t += supply["dt_us"]
         raised = _raised(new._physics, t)
-        assert raised == _raised(ref._physics_reference, t)  # a speed's cube past the floats: both
+        assert raised == _raised(ref._physics_reference, t)  # the same error from both, if any
         if raised is not None:
             return
         assert _hardware(new) == _hardware(ref)

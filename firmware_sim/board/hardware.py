@@ -11,8 +11,9 @@ Why: the board runs it ~20 000 times a default closed-loop run (every board even
 that moves board time), and its ~20 Python calls each time were the largest single part of the world's
 own Python (docs/compiled.md, "The world's half"). A unit the world drives (``UnitModel.follow``) does not
 move here, so its step is its ESC's supply and arming and two flags; its loads are summed in the same loop.
-The arithmetic is the references' own, operation for operation and in the same order: the results are
-the same floats, not merely close ones.
+The arithmetic is the references' own, operation for operation and in the same order (the ESC's draw,
+:func:`~.actuators.esc_power_w`, and the UBEC's output, :func:`~.power_models.ubec_output`, spelt out
+here too: a call each was a fifth of the step): the results are the same floats, not merely close ones.
 """
 
 from __future__ import annotations
@@ -20,12 +21,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from .actuators import UnitModel, esc_power_w
+from .actuators import UnitModel
 from .config import UbecParams
 from .esc import _ARMED, _OFF
 from .faults import FaultInjector
 from .power import unit_loads
-from .power_models import Battery, PowerReading, ubec_output
+from .power_models import Battery, PowerReading
 
 
 def step_hardware(
@@ -64,8 +65,17 @@ def step_hardware(
             if unit.gimbal_driven:
                 g = unit.gimbal
                 gimbal_a += g.idle_current_a + g.current_per_rad_s_a * abs(unit.gimbal_rate)
-            if unit.rotor_driven:
-                rotor_w += esc_power_w(unit.motor, unit.rotor_speed, unit.rotor_accel, v)
+            if unit.rotor_driven:  # actuators.esc_power_w, spelt out
+                m = unit.motor
+                speed = unit.rotor_speed
+                w = abs(speed)
+                drag = m.rated_power_w * (w / m.rated_speed_rad_s) ** 3
+                accel = m.inertia_kg_m2 * w * unit.rotor_accel
+                if speed < 0.0:
+                    accel = -accel
+                if accel < 0.0:
+                    accel = 0.0
+                rotor_w += (drag + accel) / m.efficiency + m.idle_current_a * v
     # Battery.discharge
     soc = battery.soc - reading.battery_a * dt / (battery.params.capacity_mah * 3.6)
     battery.soc = 0.0 if soc < 0.0 else soc
@@ -76,16 +86,36 @@ def step_hardware(
         v = battery.ocv()
         gimbal_a, rotor_w = unit_loads([unit for unit, _, _ in unit_channels], v)
     rail_load = ubec.electronics_current_a + gimbal_a
-    rail_v, rail_a, _ = ubec_output(ubec, v, rail_load)
+    set_v, limit_a, dropout_v = ubec.set_voltage_v, ubec.current_limit_a, ubec.dropout_v
+    rail_v, rail_a, _ = _rail(set_v, limit_a, dropout_v, v, rail_load)
     p = rotor_w + rail_v * rail_a / ubec.efficiency  # ubec_input_power
     # Battery.terminal(p)
     voc = battery.ocv()
     if p <= 0.0 or voc <= 0.0:
         v, amps = voc, 0.0
     else:
-        disc = voc * voc - 4.0 * battery.resistance * p
+        resistance = battery.params.internal_resistance_ohm + battery.extra_resistance_ohm
+        disc = voc * voc - 4.0 * resistance * p
         v = voc / 2.0 if disc <= 0.0 else (voc + math.sqrt(disc)) / 2.0
         amps = p / v if v > 0 else 0.0
-    rail_v, rail_a, over = ubec_output(ubec, v, rail_load)
+    rail_v, rail_a, over = _rail(set_v, limit_a, dropout_v, v, rail_load)
     reading.battery_v, reading.battery_a, reading.soc = v, amps, battery.soc
     reading.ubec_v, reading.ubec_a, reading.ubec_overcurrent = rail_v, rail_a, over
+
+
+def _rail(
+    set_v: float, limit_a: float, dropout_v: float, battery_v: float, load_a: float
+) -> tuple[float, float, bool]:
+    """:func:`~.power_models.ubec_output` on the UBEC's three figures, read once per step rather than
+    twice: (rail volts, rail amps, over current) feeding ``load_a`` A from ``battery_v`` V."""
+    v = set_v
+    over = load_a > limit_a
+    if over:
+        v *= limit_a / load_a
+    ceiling = battery_v - dropout_v
+    if ceiling < v:
+        v = ceiling
+    if 0.0 > v:
+        v = 0.0
+    amps = load_a * v / set_v if set_v > 0 else 0.0
+    return v, amps, over
