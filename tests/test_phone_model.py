@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from firmware_sim.world.models import BodyPhone, Trajectory, paper_testbed_rate, simulate
 from hil import so3
@@ -231,3 +233,35 @@ def test_body_phone_refuses_a_bad_path():
     path = _body_path(0.01)
     with pytest.raises(ConfigError, match="backwards"):
         phone.sample_path(path[::-1])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.one_of(st.tuples(st.just("path"), st.integers(0, 1500), st.integers(0, 1500)), st.just(("back",))),
+        min_size=1,
+        max_size=8,
+    )
+)
+def test_a_checkpoint_holds_the_generators_state_as_read_then(moves):
+    """The generator state :meth:`BodyPhone.checkpoint` keeps (from the last draw) is the one reading
+    ``rng.bit_generator.state`` at the checkpoint gives (the read it replaced), along any run of sampled
+    paths (each drawing none, some or many blocks of normals) and restores to an earlier checkpoint; a
+    restored phone samples what it sampled the first time."""
+    path = _body_path(3.0)
+    phone = BodyPhone(seed=3)
+    marks = [phone.checkpoint()]
+    assert marks[0][3] == phone.rng.bit_generator.state
+    for move in moves:
+        if move[0] == "back":
+            phone.restore(marks[0])
+            assert phone.checkpoint()[3] == phone.rng.bit_generator.state == marks[0][3]
+            continue
+        a, b = sorted(move[1:])
+        if not phone.sample_path(path[a : b + 1]):
+            continue
+        mark = phone.checkpoint()
+        assert mark[3] == phone.rng.bit_generator.state
+        after = phone.sample_path(path[b : b + 200])
+        phone.restore(mark)
+        assert phone.sample_path(path[b : b + 200]) == after

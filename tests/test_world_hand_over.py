@@ -6,6 +6,7 @@ wrapped angles, the same unit state on the board, the same telemetry."""
 from __future__ import annotations
 
 import math
+import struct
 
 import numpy as np
 from hypothesis import given, settings
@@ -104,6 +105,37 @@ def test_hand_over_gives_the_board_what_set_unit_states_gave():
     boards[1].hand_over(values, 0.5, accel)
     assert boards[0].unit_states() == boards[1].unit_states() == tuple(states)
     assert [u.rotor_accel for u in boards[0].units] == [u.rotor_accel for u in boards[1].units] == accel
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.lists(st.tuples(ANGLES, ANGLES, ANGLES, st.one_of(st.none(), ANGLES)), min_size=4, max_size=4),
+            st.floats(0.0, 0.01),
+        ),
+        min_size=1,
+        max_size=4,
+    )
+)
+def test_follow_all_leaves_every_unit_as_its_own_follow_does(hand_overs):
+    """``follow_all`` (``UnitModel.follow`` spelt out per unit) against ``follow`` called unit by unit: the
+    same floats (NaN, ±0 kept), the same hand-over time, an unmeasured acceleration worked out alike."""
+    from firmware_sim.board.actuators import follow_all
+
+    a, b = (Board(BoardConfig(n_units=4)).units for _ in range(2))
+    t = 1.0
+    for units, dt in hand_overs:
+        t += dt
+        values = [u[0] for u in units] + [u[1] for u in units] + [u[2] for u in units]
+        accel = [u[3] for u in units]
+        follow_all(a, values, t, accel)
+        for i, unit in enumerate(b):
+            unit.follow(values[i], values[4 + i], values[8 + i], t, accel[i])
+        for x, y in zip(a, b, strict=True):
+            got = (x.gimbal_angle, x.gimbal_rate, x.rotor_speed, x.rotor_accel, x._external_t)
+            want = (y.gimbal_angle, y.gimbal_rate, y.rotor_speed, y.rotor_accel, y._external_t)
+            assert [struct.pack("<d", v) for v in got] == [struct.pack("<d", v) for v in want]
 
 
 def test_rotor_accelerations_are_the_batchs_speed_differences_over_the_step():

@@ -40,6 +40,7 @@ from .config import BoardConfig
 from .dead_esc import DeadEscDetector
 from .esc_calibration import EscCalibration
 from .faults import FaultInjector
+from .hardware import step_hardware
 from .link import BoardLink
 from .outputs import PulseShaper, conversion_voltage, ppm_train
 from .periodic import Periodic
@@ -510,7 +511,40 @@ class Board:
 
     # ================================================================== hardware
     def _physics(self, t: int) -> None:
-        """Advance motors, battery and UBEC from the last physics time to ``t`` (hardware: always runs)."""
+        """Advance motors, battery and UBEC from the last physics time to ``t`` (hardware: always runs):
+        :func:`.hardware.step_hardware`, the fused form of :meth:`_physics_reference`."""
+        dt = (t - self._phys_us) / 1e6
+        if dt <= 0.0:
+            return
+        self._phys_us = t
+        now = t / 1e6
+        if self.faults.dead_escs:
+            self._mark_dead(now)
+        step_hardware(
+            self._unit_channels,
+            self.outputs,
+            now,
+            dt,
+            not self.esc_calibration.supply_cut,
+            self.power,
+            self.battery,
+            self.config.power.ubec,
+            self.faults,
+        )
+
+    def _mark_dead(self, now: float) -> None:
+        """The channels dead at ``now`` (s) as the units' ``rotor_dead``/``gimbal_dead``; a change moves
+        :attr:`drive_epoch`."""
+        for unit, g_ch, r_ch in self._unit_channels:
+            was = unit.rotor_dead, unit.gimbal_dead
+            unit.rotor_dead = self.faults.channel_dead(r_ch, now)
+            unit.gimbal_dead = self.faults.channel_dead(g_ch, now)
+            if (unit.rotor_dead, unit.gimbal_dead) != was:
+                self.drive_epoch += 1
+
+    def _physics_reference(self, t: int) -> None:
+        """:meth:`_physics` as the separate calls it fuses (each unit's step, the battery's discharge, the
+        supply's solve): the tests' oracle (``tests/test_board_hardware.py``)."""
         dt = (t - self._phys_us) / 1e6
         if dt <= 0.0:
             return

@@ -141,6 +141,8 @@ class BodyPhone:
         self._normals = np.zeros(0)
         self._used = 0
         self._out = np.empty((0, 6))
+        self._rng_state = self.rng.bit_generator.state
+        """The generator's state as of its last draw (:meth:`_draws` keeps it), for :meth:`checkpoint`."""
 
     @property
     def next_t(self) -> dict[SensorKind, float]:
@@ -153,6 +155,7 @@ class BodyPhone:
         if left.size < count:
             self._normals = np.concatenate([left, self.rng.standard_normal(max(count, _BLOCK))])
             self._used = 0
+            self._rng_state = self.rng.bit_generator.state
 
     def _take(self, count: int) -> Array:
         self._draws(count)
@@ -186,12 +189,19 @@ class BodyPhone:
         return out
 
     def checkpoint(self) -> tuple:
-        """The sampler's state now (next sample times, noise stream), for :meth:`restore`."""
-        return self._next.copy(), self._normals, self._used, self.rng.bit_generator.state
+        """The sampler's state now (next sample times, noise stream), for :meth:`restore`.
+
+        The generator's state is the one kept at its last draw, not read anew: reading it builds a dict of
+        Python ints (the world checkpoints at every batch, 50 times a simulated second, where that read was
+        3 % of the world's time), and only :meth:`_draws` draws from it after the biases (a caller that
+        draws from :attr:`rng` itself must not checkpoint across it). ``tests/test_phone_model.py`` checks
+        it against the read."""
+        return self._next.copy(), self._normals, self._used, self._rng_state
 
     def restore(self, checkpoint: tuple) -> None:
         """Back to a :meth:`checkpoint`: the samples taken since are taken again, the same."""
-        next_t, self._normals, self._used, self.rng.bit_generator.state = checkpoint
+        next_t, self._normals, self._used, state = checkpoint
+        self.rng.bit_generator.state = self._rng_state = state
         self._next = next_t.copy()
 
     def sample_path(self, path: Array) -> list[SensorSample]:
