@@ -32,9 +32,6 @@ import math
 from collections import deque
 from collections.abc import Sequence
 
-import numpy as np
-from numpy.typing import NDArray
-
 from hil.runtime.faults import FaultJournal
 from hil.runtime.runlog import EventLog
 from protocol.messages import ActuatorSetpoint, FaultFlag, GimbalMode, UnitState
@@ -105,13 +102,14 @@ class ActuatorWatch:
         self.esc_dead = dead
 
     def following(
-        self, t: float, rotor: NDArray[np.float64], units: Sequence[UnitState], command: ActuatorSetpoint
+        self, t: float, rotor: Sequence[float], units: Sequence[UnitState], command: ActuatorSetpoint
     ) -> None:
         """The tick's setpoint ``command`` (the steering's, sent at ``t``) against the measured rotor
-        speeds ``rotor`` (n,) rad/s and the telemetry's ``units``."""
+        speeds ``rotor`` (n floats, or an (n,) array) rad/s and the telemetry's ``units``."""
         rate_mode = command.gimbal_mode is GimbalMode.RATE
         for i, (sp, state) in enumerate(zip(command.units, units, strict=True)):
-            self._check(t, "rotor", i, sp.rotor_speed - rotor[i] >= self.lead, float(rotor[i]))
+            speed = float(rotor[i])
+            self._check(t, "rotor", i, sp.rotor_speed - speed >= self.lead, speed)
             stuck = self._gimbal_stuck(i, t, rate_mode, sp.gimbal, state.gimbal_rate)
             self._check(t, "gimbal", i, stuck, float(state.gimbal_rate))
 
