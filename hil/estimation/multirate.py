@@ -56,6 +56,7 @@ from hil.estimation.sensors import (
     StepFlag,
 )
 from hil.estimation.slots import FAILOVER, GAP
+from protocol.compiled import fast_constructor
 from protocol.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -99,6 +100,9 @@ class MergePolicy:
 
 _LABELS = tuple(k.label for k in KINDS)  # indexed by SensorKind (``label`` is a property: computed per call)
 _STALE = tuple(int(StepFlag.stale(k)) for k in KINDS)
+_new_step = fast_constructor(MergedStep)
+"""``MergedStep(t, h, gyr, acc, mag, age, fresh, flags)`` by setting its slots, not through the frozen
+dataclass's ``__init__`` (``object.__setattr__`` per field): one per estimator step."""
 
 
 @dataclass
@@ -400,4 +404,4 @@ class Merger:
         changed[0] = changed[1] = changed[2] = False
         self._last_step = at
         self.stats.count_step(bits)
-        return MergedStep(at, h, gyr, acc, mag, (age_g, age_a, age_m), fresh3, flag(bits))
+        return _new_step(at, h, gyr, acc, mag, (age_g, age_a, age_m), fresh3, flag(bits))
