@@ -229,11 +229,15 @@ class Deframer:
             size = len(self._buf) + first
             if size > MAX_ENCODED:
                 self._too_long(events, size)
-            else:
+            elif self._buf:
                 self._buf += data[:first]
                 self._chunk(bytes(self._buf), events)
+            else:  # nothing left open: the chunk is the data's own (not copied through the buffer)
+                self._chunk(bytes(data[:first]), events)
             self._buf.clear()
         end = len(data)
+        if first + 1 == end:  # one frame, its delimiter last: a board's read, every control tick
+            return events
         for match in _CHUNK.finditer(data, first + 1):
             start, stop = match.span()
             if stop == end:  # no delimiter after it: the start of a frame still arriving

@@ -47,6 +47,22 @@ class Reference:
     omega: Array = field(default_factory=lambda: np.zeros(3))
     omega_dot: Array = field(default_factory=lambda: np.zeros(3))
 
+    @functools.cached_property
+    def floats(self) -> tuple[Mat9, Vec3, Vec3]:
+        """``R`` as a row-major 9-tuple, ``omega`` and ``omega_dot`` as 3-tuples of floats: what the
+        controller computes with (once per reference; :meth:`of_floats` gives them from the start)."""
+        return mat9(self.R), vec3(self.omega), vec3(self.omega_dot)
+
+    @classmethod
+    def of_floats(cls, R: Mat9, omega: Vec3, omega_dot: Vec3) -> Reference:
+        """The reference of these floats (row-major 9-tuple, 3-tuples), its :attr:`floats` kept as given:
+        the slew makes one every control tick from floats, and the controller and the tick's record read
+        them back as floats. (The arrays are the same numbers; changing one in place would not change
+        :attr:`floats`.)"""
+        ref = cls(np.array(R).reshape(3, 3), np.array(omega), np.array(omega_dot))
+        ref.__dict__["floats"] = (R, omega, omega_dot)  # as cached_property stores it (frozen: no setattr)
+        return ref
+
 
 @dataclass(frozen=True)
 class ControllerGains:
@@ -133,12 +149,26 @@ class AttitudeController:
         dt: float = 0.0,
         array_momentum: ArrayLike = (0.0, 0.0, 0.0),
     ) -> ControlOutput:
-        # on Python floats (3-tuples, row-major 9-tuples: hil.so3.floats), the control law of the module
-        # docstring term by term: numpy's per-call overhead on 3-vectors was most of this once-per-tick cost
-        w = wx, wy, wz = vec3(omega)
-        m = _transpose_matmul(mat9(R), mat9(ref.R))  # Rᵀ R_d
+        R_d, w_ref, wd_ref = ref.floats
+        torque, fb, e_R, e_w, m = self.update_floats(
+            mat9(R), vec3(omega), R_d, w_ref, wd_ref, dt, vec3(array_momentum)
+        )
+        return ControlOutput(np.array(torque), np.array(fb), np.array(e_R), np.array(e_w), _angle(m))
+
+    def update_floats(
+        self, R: Mat9, omega: Vec3, R_d: Mat9, omega_d: Vec3, omega_dot_d: Vec3, dt: float, h: Vec3
+    ) -> tuple[Vec3, Vec3, Vec3, Vec3, Mat9]:
+        """:meth:`update` on Python floats (row-major 9-tuples, 3-tuples: ``hil.so3.floats``): ``R`` and
+        ``omega`` the attitude and rate, ``R_d``, ``omega_d`` and ``omega_dot_d`` the reference's,
+        ``h`` the array momentum (N m s). Returns the torque L_r, τ_fb, e_R, e_Ω and ``m = Rᵀ R_d``; the
+        integral term advances by ``dt`` as in :meth:`update`. The control tick calls it with the floats
+        it has (:attr:`Reference.floats`), without an array in or out."""
+        # the control law of the module docstring term by term: numpy's per-call overhead on 3-vectors
+        # was most of this once-per-tick cost
+        w = wx, wy, wz = omega
+        m = _transpose_matmul(R, R_d)  # Rᵀ R_d
         e_R = self._attitude_error(m)
-        w_d = apply_f(m, vec3(ref.omega))
+        w_d = apply_f(m, omega_d)
         e_w = (wx - w_d[0], wy - w_d[1], wz - w_d[2])
         kr, ko = apply_f(self._K_R, e_R), apply_f(self._K_Omega, e_w)
         fb = (-kr[0] - ko[0], -kr[1] - ko[1], -kr[2] - ko[2])
@@ -149,15 +179,15 @@ class AttitudeController:
             self.integral = np.array(i3)
             ki = apply_f(self._K_R, i3)
             fb = (fb[0] - ki[0] / t_i, fb[1] - ki[1] / t_i, fb[2] - ki[2] / t_i)
-        ax, ay, az = apply_f(m, vec3(ref.omega_dot))
+        ax, ay, az = apply_f(m, omega_dot_d)
         cx, cy, cz = _cross(w, w_d)
         ff = apply_f(self._J, (ax - cx, ay - cy, az - cz))  # J (Rᵀ R_d Ω̇_d − Ω^× Rᵀ R_d Ω_d)
         fb = (fb[0] + ff[0], fb[1] + ff[1], fb[2] + ff[2])
-        hx, hy, hz = vec3(array_momentum)
+        hx, hy, hz = h
         jx, jy, jz = apply_f(self._J, w)
         gx, gy, gz = _cross(w, (jx + hx, jy + hy, jz + hz))  # Ω × (J Ω + h)
         torque = (fb[0] + gx, fb[1] + gy, fb[2] + gz)
-        return ControlOutput(np.array(torque), np.array(fb), np.array(e_R), np.array(e_w), _angle(m))
+        return torque, fb, e_R, e_w, m
 
 
 def _transpose_matmul(p: Mat9, q: Mat9) -> Mat9:
@@ -223,5 +253,5 @@ class EigenaxisSlew:
         ds = 30.0 * tau * tau * (1.0 - tau) ** 2 / self.duration_s
         dds = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau) / self.duration_s**2
         # R0 exp(s φ^×) by Rodrigues on floats: one rotation a control tick, where numpy's overhead dominates
-        R = np.array(matmul_f(r0, exp_f(s * px, s * py, s * pz))).reshape(3, 3)
-        return Reference(R, np.array((ds * px, ds * py, ds * pz)), np.array((dds * px, dds * py, dds * pz)))
+        R = matmul_f(r0, exp_f(s * px, s * py, s * pz))
+        return Reference.of_floats(R, (ds * px, ds * py, ds * pz), (dds * px, dds * py, dds * pz))

@@ -14,6 +14,7 @@ setpoints, as torques on the plant, is the world's (:class:`firmware_sim.world.m
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,34 +95,45 @@ class SetpointGenerator:
         return Setpoints(rate, speed.copy(), clamped)
 
     def _update_one(self, command: SteeringOutput, measured: Array) -> Setpoints:
-        """:meth:`update` for one run (B = 1, the control tick's case) on Python floats: the same IEEE
-        operations and numpy's ``maximum``/``minimum`` semantics (:func:`_maximum`, :func:`_minimum`: NaN
-        propagates, a tie gives the second, ±0 included), so the same bits, without ~10 numpy calls on
-        (1, n) arrays (~50 µs a tick against ~10)."""
+        """:meth:`update` for one run (B = 1, the control tick's case) on Python floats
+        (:meth:`update_floats`), without ~10 numpy calls on (1, n) arrays (~50 µs a tick against ~10)."""
+        speeds, rates, clamped = self.update_floats(
+            command.gimbal_rate[0].tolist(), command.rotor_accel[0].tolist(), measured[0].tolist()
+        )
+        return Setpoints(np.array([rates]), np.array([speeds]), np.array([clamped]))
+
+    def update_floats(
+        self, gimbal_rate: Sequence[float], rotor_accel: Sequence[float], measured: Sequence[float]
+    ) -> tuple[list[float], list[float], bool]:
+        """:meth:`update` for one run on Python floats: steering's ``gimbal_rate`` (rad/s) and
+        ``rotor_accel`` (rad/s²) and the ``measured`` rotor speeds (rad/s), n each. Returns the speed
+        setpoints (rad/s), the gimbal-rate setpoints (rad/s) and whether a limit cut a command. The same
+        IEEE operations and numpy's ``maximum``/``minimum`` semantics (:func:`_maximum`, :func:`_minimum`:
+        NaN propagates, a tie gives the second, ±0 included), so the same bits as :meth:`update`."""
+        if self.rotor_speed is None:
+            self.reset([list(measured)])
         assert self.rotor_speed is not None
+        if self.rotor_speed.shape[0] != 1:
+            raise ValueError(f"update_floats is for one run; the generator holds {self.rotor_speed.shape[0]}")
         lim = self.params.limits
         dt, lead = self.dt, self.max_lead
         lo_limit, hi_limit, rate_limit = lim.min_rotor_speed, lim.max_rotor_speed, lim.max_gimbal_rate
         speeds: list[float] = []
         rates: list[float] = []
         clamped = False
-        for held, accel, now, gimbal_rate in zip(
-            self.rotor_speed[0].tolist(),
-            command.rotor_accel[0].tolist(),
-            measured[0].tolist(),
-            command.gimbal_rate[0].tolist(),
-            strict=True,
+        for held, accel, now, asked in zip(
+            self.rotor_speed[0].tolist(), rotor_accel, measured, gimbal_rate, strict=True
         ):
             wanted = held + accel * dt
             lo = _maximum(lo_limit, now - lead)
             hi = _minimum(hi_limit, now + lead)
             speed = _minimum(_maximum(wanted, lo), hi)
-            rate = _minimum(_maximum(gimbal_rate, -rate_limit), rate_limit)
-            clamped = clamped or speed != wanted or rate != gimbal_rate
+            rate = _minimum(_maximum(asked, -rate_limit), rate_limit)
+            clamped = clamped or speed != wanted or rate != asked
             speeds.append(speed)
             rates.append(rate)
         self.rotor_speed = np.array([speeds])
-        return Setpoints(np.array([rates]), np.array([speeds]), np.array([clamped]))
+        return speeds, rates, clamped
 
 
 def _maximum(a: float, b: float) -> float:

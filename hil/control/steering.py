@@ -57,12 +57,14 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil.jit import kernel
+from hil.jit import direct, kernel
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
@@ -144,6 +146,7 @@ class VscmgSteering:
         self.I_ws = np.array([u.rotor_spin_inertia for u in params.units])
         self.h_bar = params.nominal_wheel_momentum
         self._kp, self._geom = pack(self)
+        self._one: _OneRow | None = None  # the control tick's scratch and kernels (:meth:`_row`)
 
     def axes(self, gimbal_angle: ArrayLike) -> tuple[Array, Array]:
         """Spin and transverse axes ``s, t`` (B, n, 3), body frame, at ``gimbal_angle`` (B, n)."""
@@ -217,10 +220,111 @@ class VscmgSteering:
         )
         return out
 
+    def momentum_one(
+        self, gimbal_angle: Sequence[float], rotor_speed: Sequence[float]
+    ) -> tuple[float, float, float]:
+        """:meth:`momentum` for one row (the control tick's): ``gimbal_angle`` rad and ``rotor_speed``
+        rad/s, n values each (floats, or a (n,) array), the momentum (N m s, body frame) as three floats.
+        The same kernel on the same float64 values, so the same bits, called without numba's dispatch
+        into arrays kept for it (:class:`_OneRow`)."""
+        one = self._row(gimbal_angle, rotor_speed)
+        one.momentum(self._geom, one.gam, one.w, one.h)
+        x, y, z = one.h[0].tolist()
+        return x, y, z
+
+    def solve_one(
+        self,
+        torque: Sequence[float],
+        gimbal_angle: Sequence[float],
+        rotor_speed: Sequence[float],
+        dt: float,
+    ) -> tuple[list[float], list[float], float]:
+        """:meth:`solve` for one row (the control tick's): ``torque`` three floats (N m), ``gimbal_angle``
+        rad and ``rotor_speed`` rad/s n values each, ``dt`` s. Returns the gimbal rates (rad/s) and rotor
+        accelerations (rad/s²) as lists of n floats and δ: :meth:`solve`'s ``gimbal_rate[0]``,
+        ``rotor_accel[0]`` and ``delta[0]``, bit for bit (the same kernel, without numba's dispatch, into
+        arrays kept for it; the rest of :class:`SteeringOutput` is not made)."""
+        one = self._row(gimbal_angle, rotor_speed)
+        if len(torque) != 3:
+            raise ValueError(f"torque: {len(torque)} values for 3")
+        one.torque[0] = torque
+        out = one.out
+        one.solve(
+            self._kp,
+            self._geom,
+            one.torque,
+            one.gam,
+            one.w,
+            float(dt),
+            out.gimbal_rate,
+            out.rotor_accel,
+            out.torque,
+            out.delta,
+            out.wheel_weight,
+            out.scale,
+            out.saturation,
+        )
+        return out.gimbal_rate[0].tolist(), out.rotor_accel[0].tolist(), out.delta.item()
+
+    def _row(self, gimbal_angle: Sequence[float], rotor_speed: Sequence[float]) -> _OneRow:
+        """The one-row scratch (made at the first call) holding ``gimbal_angle`` and ``rotor_speed``
+        (n values each: ValueError otherwise, a single value included, which numpy would broadcast)."""
+        one = self._one
+        if one is None:
+            one = self._one = _OneRow(self)
+        if len(gimbal_angle) != one.n or len(rotor_speed) != one.n:
+            raise ValueError(
+                f"{len(gimbal_angle)} gimbal angles and {len(rotor_speed)} rotor speeds for {one.n} units"
+            )
+        one.gam[0] = gimbal_angle
+        one.w[0] = rotor_speed
+        return one
+
     def _rows(self, a: ArrayLike) -> Array:
         """``a`` as a C-contiguous float array of at least two dimensions (B, ...), copied only if it is
         not one: one numpy call (atleast_2d and ascontiguousarray cost ~0.3 µs each, every control tick)."""
         return np.array(a, dtype=float, ndmin=2, copy=None, order="C")
+
+
+class _OneRow:
+    """The arrays one row of :meth:`VscmgSteering.momentum_one` and :meth:`~VscmgSteering.solve_one` go
+    through — inputs (1, n), (1, 3) and :class:`SteeringOutput`'s fields for B = 1, all C-contiguous
+    float64 (int64 for the saturation bits) — and the kernels compiled for exactly those types
+    (:func:`hil.jit.direct`). The direct entry points do not check their arguments' types: only these
+    arrays go in. Made once per steering law; every control tick reuses them (no array is made per
+    tick, and numba's dispatcher does not type 13 arguments to pick the version it already has)."""
+
+    def __init__(self, steer: VscmgSteering) -> None:
+        n = self.n = len(steer.params.units)
+        self.gam, self.w = np.empty((1, n)), np.empty((1, n))
+        self.torque, self.h = np.empty((1, 3)), np.empty((1, 3))
+        self.out = SteeringOutput(
+            np.empty((1, n)),
+            np.empty((1, n)),
+            np.empty((1, 3)),
+            np.empty(1),
+            np.empty((1, n)),
+            np.empty(1),
+            np.empty(1, np.int64),
+        )
+        out = self.out
+        self.momentum: Callable[..., Any] = direct(momentum_rows, steer._geom, self.gam, self.w, self.h)
+        self.solve: Callable[..., Any] = direct(
+            solve_rows,
+            steer._kp,
+            steer._geom,
+            self.torque,
+            self.gam,
+            self.w,
+            0.0,
+            out.gimbal_rate,
+            out.rotor_accel,
+            out.torque,
+            out.delta,
+            out.wheel_weight,
+            out.scale,
+            out.saturation,
+        )
 
 
 # --------------------------------------------------------------------------- kernels

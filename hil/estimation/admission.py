@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import enum
 import math
+import sys
 from dataclasses import dataclass, field
 
 from hil.estimation.sensors import KINDS, SensorKind, SensorSample
@@ -103,15 +104,34 @@ class PhoneGuard:
         self._run_side = 0  # -1: readings in a row before the newest, +1: after it, 0: none
         self._run_count = 0
         self._run_first = self._run_last = 0.0
+        self._limits_of: ReadingLimits | None = None  # the limits _bounds was made from
+        self._bounds: tuple[float, ...] = ()
 
     def admit(self, sample: SensorSample, now: float | None = None) -> Verdict:
         """The verdict on one reading (readings in time order within a batch, as they arrived); ``now``
         (s, the host's clock; None: not known) lets a stream that paused resume with stamps as far ahead
         as the pause was long."""
         t = sample.t_s
-        reason = self._reason(sample)
-        if reason is not None:
-            return self._drop(reason)
+        xyz = sample.xyz
+        limits = self.limits
+        if limits is not self._limits_of:  # the per-sensor bounds, by SensorKind, for the check below
+            # capped at the largest float: an infinite limit still lets no infinite value through here
+            self._limits_of = limits
+            self._bounds = tuple(min(limits.limit(kind), sys.float_info.max) for kind in KINDS)
+        bound = self._bounds[sample.kind]
+        # A reading plainly valid — a finite stamp, three values each within a finite bound, so finite —
+        # needs no reason looked for (every reading of a working phone); any other is looked at one value
+        # at a time (_reason), which says which reason comes first.
+        if not (
+            len(xyz) == 3
+            and t - t == 0.0  # finite: inf - inf and NaN - NaN are NaN
+            and abs(xyz[0]) <= bound
+            and abs(xyz[1]) <= bound
+            and abs(xyz[2]) <= bound
+        ):
+            reason = self._reason(sample)
+            if reason is not None:
+                return self._drop(reason)
         newest = self.newest
         ahead = newest + JUMP_S + (0.0 if now is None else max(now - self._newest_at, 0.0))
         if newest > -math.inf and (t < newest - JUMP_S or t > ahead):

@@ -26,6 +26,7 @@ from hil.estimation.params import EstimatorParams
 from hil.estimation.quaternions import quats_of
 from hil.estimation.sensors import MergedSteps, StepFlag, as_vec3
 from hil.estimation.slots import NEWTON_FAILED
+from hil.so3.floats import Mat9, Vec3
 from protocol.errors import ConfigError, ConvergenceError
 
 Array = NDArray[np.float64]
@@ -116,6 +117,12 @@ class Estimate(tuple):  # type: ignore[type-arg]
     @property
     def omega_err(self) -> Array:
         return self[3][12:15]  # type: ignore[no-any-return]
+
+    def floats(self) -> tuple[Mat9, Vec3]:
+        """``R`` as a row-major 9-tuple and ``omega`` as a 3-tuple of floats, from one ``tolist`` of the
+        kept 15 (the host's control tick and its record compute on floats)."""
+        r0, r1, r2, r3, r4, r5, r6, r7, r8, wx, wy, wz = self[3][:12].tolist()
+        return (r0, r1, r2, r3, r4, r5, r6, r7, r8), (wx, wy, wz)
 
     def __repr__(self) -> str:
         return (

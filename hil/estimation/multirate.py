@@ -56,6 +56,7 @@ from hil.estimation.sensors import (
     StepFlag,
 )
 from hil.estimation.slots import FAILOVER, GAP
+from protocol.compiled import fast_constructor
 from protocol.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -99,6 +100,9 @@ class MergePolicy:
 
 _LABELS = tuple(k.label for k in KINDS)  # indexed by SensorKind (``label`` is a property: computed per call)
 _STALE = tuple(int(StepFlag.stale(k)) for k in KINDS)
+_new_step = fast_constructor(MergedStep)
+"""``MergedStep(t, h, gyr, acc, mag, age, fresh, flags)`` by setting its slots, not through the frozen
+dataclass's ``__init__`` (``object.__setattr__`` per field): one per estimator step."""
 
 
 @dataclass
@@ -285,24 +289,29 @@ class Merger:
         self.policy = policy or MergePolicy()
         self.driver, self.failover_order = resolve_roles(self.policy)
         self.stats = MergeStats(driver=self.driver, failover_order=self.failover_order)
-        self._newest: dict[SensorKind, float] = dict.fromkeys(KINDS, -math.inf)  # newest accepted time
-        self._pending: dict[SensorKind, deque[SensorSample]] = {k: deque() for k in KINDS}
-        self._held: dict[SensorKind, SensorSample | None] = dict.fromkeys(KINDS)
-        self._changed: dict[SensorKind, bool] = dict.fromkeys(KINDS, False)
+        # Per sensor, in lists indexed by SensorKind (0, 1, 2: KINDS order), not dicts: every sample reads
+        # and writes several of them (a list index is the cheapest lookup Python has).
+        self._newest: list[float] = [-math.inf] * len(KINDS)  # newest accepted time
+        self._pending: tuple[deque[SensorSample], ...] = tuple(deque() for _ in KINDS)
+        self._held: list[SensorSample | None] = [None] * len(KINDS)
+        self._changed: list[bool] = [False] * len(KINDS)
         self._watermark = -math.inf
         self._last_step = -math.inf
+        # the failover order as (kind, its bit in an ``arrived`` mask), for _rank
+        self._failover = tuple((kind, 1 << kind) for kind in self.failover_order)
 
     def push(self, sample: SensorSample) -> list[MergedStep]:
         """Take one sample (any sensor, arrival order); returns the steps now complete, oldest first."""
         kind = sample.kind
         t = sample.t_s
         x, y, z = sample.xyz
+        newest = self._newest[kind]
         reason = None
         if not (math.isfinite(t) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             reason = "nan"
-        elif t == self._newest[kind]:
+        elif t == newest:
             reason = "duplicate"
-        elif t < self._newest[kind]:
+        elif t < newest:
             reason = "out_of_order"
         if reason is not None:
             label = _LABELS[kind]
@@ -324,23 +333,27 @@ class Merger:
 
     def _emit(self, horizon: float) -> list[MergedStep]:
         out: list[MergedStep] = []
-        pending = self._pending
-        driver_q = pending[self.driver]
+        q0, q1, q2 = self._pending
+        driver_q = self._pending[self.driver]
+        held, changed = self._held, self._changed
         while True:
-            at = math.inf  # the oldest head (accepted samples are finite): a loop, not min() of a list
-            for q in pending.values():
-                if q and q[0].t_s < at:
-                    at = q[0].t_s
+            at = math.inf  # the oldest head (accepted samples are finite): unrolled, not min() of a list
+            if q0 and q0[0].t_s < at:
+                at = q0[0].t_s
+            if q1 and q1[0].t_s < at:
+                at = q1[0].t_s
+            if q2 and q2[0].t_s < at:
+                at = q2[0].t_s
             if at == math.inf:
                 return out
             if at > horizon or (at == horizon and not (driver_q and driver_q[0].t_s == at)):
                 return out  # wait: more samples stamped `at` may come (unless the driver's completes it)
-            arrived = set()
-            for kind, q in pending.items():
+            arrived = 0  # a bit per sensor (1 << kind)
+            for kind, q in enumerate((q0, q1, q2)):
                 while q and q[0].t_s == at:
-                    self._held[kind] = q.popleft()
-                    self._changed[kind] = True
-                    arrived.add(kind)
+                    held[kind] = q.popleft()
+                    changed[kind] = True
+                    arrived |= 1 << kind
             if at <= self._last_step:
                 continue  # a late sample: held for the next step, no step of its own
             rank = self._rank(at, arrived)
@@ -351,13 +364,14 @@ class Merger:
         held = self._held[kind]
         return held is None or at - held.t_s > self.policy.stale_after_s
 
-    def _rank(self, at: float, arrived: set[SensorKind]) -> int | None:
-        """0 if the driver steps at ``at``, j+1 if failover sensor j does, None if nobody does."""
-        if self.driver in arrived:
+    def _rank(self, at: float, arrived: int) -> int | None:
+        """0 if the driver steps at ``at``, j+1 if failover sensor j does, None if nobody does; ``arrived``
+        has bit ``1 << kind`` set for each sensor with a sample stamped ``at``."""
+        if arrived >> self.driver & 1:
             return 0
         if self._stale(self.driver, at):
-            for j, kind in enumerate(self.failover_order):
-                if kind in arrived:
+            for j, (kind, bit) in enumerate(self._failover):
+                if arrived & bit:
                     return j + 1
                 if not self._stale(kind, at):
                     return None
@@ -370,20 +384,24 @@ class Merger:
         if h > self.policy.gap_after_s:
             bits |= GAP
         stale_after = self.policy.stale_after_s
-        values: list[tuple[float, float, float] | None] = []
-        ages: list[float] = []
-        fresh: list[bool] = []
-        for kind in KINDS:
-            held = self._held[kind]
-            age = math.inf if held is None else at - held.t_s
-            ok = held is not None and age <= stale_after
-            values.append(held.xyz if ok and held is not None else None)
-            ages.append(age)
-            fresh.append(self._changed[kind])
-            self._changed[kind] = False
-            if not ok:
-                bits |= _STALE[kind]
+        held, changed = self._held, self._changed
+        g, a, m = held
+        # unrolled over the three sensors (KINDS order): a sensor's value is None when nothing is held or
+        # what is held is older than stale_after; its age is inf when nothing is held
+        age_g = math.inf if g is None else at - g.t_s
+        age_a = math.inf if a is None else at - a.t_s
+        age_m = math.inf if m is None else at - m.t_s
+        gyr = g.xyz if g is not None and age_g <= stale_after else None
+        acc = a.xyz if a is not None and age_a <= stale_after else None
+        mag = m.xyz if m is not None and age_m <= stale_after else None
+        if gyr is None:
+            bits |= _STALE[0]
+        if acc is None:
+            bits |= _STALE[1]
+        if mag is None:
+            bits |= _STALE[2]
+        fresh3 = (changed[0], changed[1], changed[2])
+        changed[0] = changed[1] = changed[2] = False
         self._last_step = at
         self.stats.count_step(bits)
-        age3, fresh3 = (ages[0], ages[1], ages[2]), (fresh[0], fresh[1], fresh[2])
-        return MergedStep(at, h, values[0], values[1], values[2], age3, fresh3, flag(bits))
+        return _new_step(at, h, gyr, acc, mag, (age_g, age_a, age_m), fresh3, flag(bits))

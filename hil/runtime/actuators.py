@@ -32,9 +32,6 @@ import math
 from collections import deque
 from collections.abc import Sequence
 
-import numpy as np
-from numpy.typing import NDArray
-
 from hil.runtime.faults import FaultJournal
 from hil.runtime.runlog import EventLog
 from protocol.messages import ActuatorSetpoint, FaultFlag, GimbalMode, UnitState
@@ -94,6 +91,7 @@ class ActuatorWatch:
         self._since: dict[tuple[str, int], float] = {}  # (actuator, unit) → off its setpoint since
         self._noted: set[tuple[str, int]] = set()
         self._gimbal = [RateWindow(LAG_S) for _ in range(n)]  # each gimbal's, in RATE mode
+        self._keys = [(("rotor", i), ("gimbal", i)) for i in range(n)]  # each unit's keys of _since
 
     def board_flags(self, t: float, faults: int) -> None:
         """The board's fault flags of a live telemetry at ``t``: its dead-ESC report when it appears."""
@@ -105,13 +103,36 @@ class ActuatorWatch:
         self.esc_dead = dead
 
     def following(
-        self, t: float, rotor: NDArray[np.float64], units: Sequence[UnitState], command: ActuatorSetpoint
+        self, t: float, rotor: Sequence[float], units: Sequence[UnitState], command: ActuatorSetpoint
     ) -> None:
         """The tick's setpoint ``command`` (the steering's, sent at ``t``) against the measured rotor
-        speeds ``rotor`` (n,) rad/s and the telemetry's ``units``."""
+        speeds ``rotor`` (n floats, or an (n,) array) rad/s and the telemetry's ``units``.
+
+        Every control tick, for every unit: a unit that follows (the usual case) costs two comparisons
+        and, only while something is off its setpoint, a look in the record of what is
+        (:meth:`following_reference` is the check spelt out, the oracle of a test)."""
+        rate_mode = command.gimbal_mode is GimbalMode.RATE
+        lead, since, keys = self.lead, self._since, self._keys
+        for i, (sp, state) in enumerate(zip(command.units, units, strict=True)):
+            speed = float(rotor[i])
+            rotor_key, gimbal_key = keys[i]
+            if sp.rotor_speed - speed >= lead:
+                self._off(t, rotor_key, speed)
+            elif since:
+                since.pop(rotor_key, None)
+            if self._gimbal_stuck(i, t, rate_mode, sp.gimbal, state.gimbal_rate):
+                self._off(t, gimbal_key, float(state.gimbal_rate))
+            elif since:
+                since.pop(gimbal_key, None)
+
+    def following_reference(
+        self, t: float, rotor: Sequence[float], units: Sequence[UnitState], command: ActuatorSetpoint
+    ) -> None:
+        """:meth:`following` one check at a time (the form it replaced, kept as its oracle)."""
         rate_mode = command.gimbal_mode is GimbalMode.RATE
         for i, (sp, state) in enumerate(zip(command.units, units, strict=True)):
-            self._check(t, "rotor", i, sp.rotor_speed - rotor[i] >= self.lead, float(rotor[i]))
+            speed = float(rotor[i])
+            self._check(t, "rotor", i, sp.rotor_speed - speed >= self.lead, speed)
             stuck = self._gimbal_stuck(i, t, rate_mode, sp.gimbal, state.gimbal_rate)
             self._check(t, "gimbal", i, stuck, float(state.gimbal_rate))
 
@@ -136,6 +157,12 @@ class ActuatorWatch:
         if not off:
             self._since.pop(key, None)
             return
+        self._off(t, key, measured)
+
+    def _off(self, t: float, key: tuple[str, int], measured: float) -> None:
+        """The actuator ``key`` (actuator, unit) is off its setpoint at ``t``, measured at ``measured``:
+        reported once it has been for :data:`LAG_S`."""
+        actuator, unit = key
         since = self._since.setdefault(key, t)
         if t - since >= LAG_S and key not in self._noted:
             self._noted.add(key)

@@ -246,14 +246,15 @@ class Host:
             return
         self._hold_sent = False
         self.actuators.board_flags(t, tel.faults)
-        gimbal = np.array([u.gimbal_angle for u in tel.units])
-        rotor = np.array([u.rotor_speed for u in tel.units])
+        units = tel.units
+        gimbal = [u.gimbal_angle for u in units]  # floats: the tick computes on floats (rad, rad/s)
+        rotor = [u.rotor_speed for u in units]
         armed = tel.state is BoardState.ARMED
         command, steered, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
         if armed and not watch.rearm_pending and command is not None:
             self._send(command)
             if steered is not None:  # the steering's: what the actuators should follow
-                self.actuators.following(t, rotor, tel.units, command)
+                self.actuators.following(t, rotor, units, command)
         board = BoardReading(tel, gimbal, rotor)
         self.rows.record(self._snapshot(t, view, ref, board, command, steered))
         if self.phases.time_is_up(t, self._duration):
@@ -275,11 +276,12 @@ class Host:
         delta: float | None = None
         if board is not None:  # steering computed δ from this telemetry already, when it ran
             delta = self.control.delta(board.gimbal, board.rotor) if steered is None else steered.delta
+        attitude, rate = (None, None) if est is None else est.floats()
         return TickSnapshot(
             t=t,
             phase=phases.phase,
-            attitude=None if est is None else est.R,
-            rate=None if est is None else est.omega,
+            attitude=attitude,
+            rate=rate,
             true_attitude=None if truth is None else truth.R,
             true_rate=None if truth is None else truth.omega,
             target9=phases.target9,
@@ -323,20 +325,22 @@ class Host:
         return self.scenario.slew.duration_s if self.duration_s is None else self.duration_s
 
     def _control(
-        self, t: float, gimbal: Array, rotor: Array, armed: bool, phone_fresh: bool
+        self, t: float, gimbal: list[float], rotor: list[float], armed: bool, phone_fresh: bool
     ) -> tuple[ActuatorSetpoint | None, Steered | None, Reference | None]:
-        """The tick's command for the board with its gimbals at ``gimbal`` (n,) rad and rotors at ``rotor``
-        (n,) rad/s: none while the operator has the run suspended, the rest or hold setpoint during the
-        warm-up (which may end here, with a new slew), else the control step's on the slew's reference.
+        """The tick's command for the board with its gimbals at ``gimbal`` (n floats, rad) and rotors at
+        ``rotor`` (n floats, rad/s): none while the operator has the run suspended, the rest or hold
+        setpoint during the warm-up (which may end here, with a new slew), else the control step's on the
+        slew's reference.
         Returns the command, the control step's result and the reference (None where it did not run)."""
         phases = self.phases
         if phases.phase is Phase.SUSPENDED:
             return None, None, None  # the operator disarmed the board: nothing to command
         if phases.phase is Phase.WARMUP:
             est = self.estimate
+            rotors = np.array(rotor)
             began = phases.warm_up(
                 t,
-                rotor,
+                rotors,
                 ready=armed and not self.watch.rearm_pending,
                 phone_fresh=phone_fresh,
                 attitude=None if est is None else est.R,
@@ -344,13 +348,13 @@ class Host:
                 esc_dead=self.actuators.esc_dead,
             )
             if began:
-                self.control.reset(rotor)
+                self.control.reset(rotors)
             if phases.phase is Phase.WARMUP:
                 return (self.control.rest if phases.resting else self.control.hold), None, None
         assert phases.slew is not None and self.estimate is not None
         phases.finish_slew(t)
         ref = phases.slew.at(t)
-        R_hat, w_hat = np.asarray(self.estimate.R), np.asarray(self.estimate.omega)
+        R_hat, w_hat = self.estimate.floats()
         steered = self.control.step(R_hat, w_hat, ref, gimbal, rotor)
         return steered.setpoint, steered, ref
 

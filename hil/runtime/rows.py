@@ -21,7 +21,7 @@ from hil.runtime.runlog import CsvLog, RowTap
 from hil.runtime.telemetry import RunTrace, TelemetrySchema, angle_between9
 from hil.runtime.watch import View
 from hil.so3 import log_f, mat9
-from hil.so3.floats import Mat9
+from hil.so3.floats import Mat9, Vec3
 from protocol.messages import ActuatorSetpoint, Telemetry
 
 Array = NDArray[np.float64]
@@ -30,12 +30,12 @@ Array = NDArray[np.float64]
 @dataclass(slots=True)
 class BoardReading:
     """The board as a tick with a live view of it saw it: its latest ``telemetry``, and from it the gimbal
-    angles ``gimbal`` (n,) rad and rotor speeds ``rotor`` (n,) rad/s. (Not ``frozen``: made every tick,
-    as :class:`TickSnapshot`.)"""
+    angles ``gimbal`` (n floats) rad and rotor speeds ``rotor`` (n floats) rad/s. (Not ``frozen``: made
+    every tick, as :class:`TickSnapshot`.)"""
 
     telemetry: Telemetry
-    gimbal: Array
-    rotor: Array
+    gimbal: list[float]
+    rotor: list[float]
 
 
 @dataclass(slots=True)
@@ -45,23 +45,24 @@ class TickSnapshot:
     through ``object.__setattr__``, ~4 µs a tick for these 16 fields against ~0.5 µs (measured, Python
     3.11), on every control tick of every run.
 
-    ``phase`` the run's phase after the tick's step; ``attitude`` (3, 3) body → inertial and ``rate`` (3,)
-    rad/s the estimate (None before the estimator's first output); ``true_attitude`` / ``true_rate`` the
-    simulation's truth (None on hardware); ``target9`` the target attitude as a row-major 9-tuple (None
-    before the target is known); ``slew_start`` host s (None before the first slew); ``reference`` the
-    moving reference the controller tracked (None when it did not steer); ``view`` the host's view of the
-    board; ``phone_heard`` the host time (s) the phone's accepted-sample count last moved and
-    ``phone_samples`` that count (0: none since the phone's clock was last re-anchored).
+    ``phase`` the run's phase after the tick's step; ``attitude`` body → inertial (a row-major 9-tuple)
+    and ``rate`` (3 floats) rad/s the estimate (None before the estimator's first output);
+    ``true_attitude`` / ``true_rate`` the simulation's truth (None on hardware); ``target9`` the target
+    attitude as a row-major 9-tuple (None before the target is known); ``slew_start`` host s (None before
+    the first slew); ``reference`` the moving reference the controller tracked (None when it did not
+    steer); ``view`` the host's view of the board; ``phone_heard`` the host time (s) the phone's
+    accepted-sample count last moved and ``phone_samples`` that count (0: none since the phone's clock was
+    last re-anchored).
 
     ``board`` is the live board (None: a blind tick, every board value empty); ``command`` the setpoint
     that went out (a blind tick: the hold setpoint in the tick it went out; None: nothing commanded);
-    ``torque`` (3,) N m the controller's demand and ``delta`` the singularity measure δ at this tick's
+    ``torque`` (3 floats) N m the controller's demand and ``delta`` the singularity measure δ at this tick's
     telemetry (None on a blind tick; ``torque`` None too when the controller did not run)."""
 
     t: float
     phase: Phase
-    attitude: Array | None
-    rate: Array | None
+    attitude: Mat9 | None
+    rate: Vec3 | None
     true_attitude: Array | None
     true_rate: Array | None
     target9: Mat9 | None
@@ -72,7 +73,7 @@ class TickSnapshot:
     phone_samples: int
     board: BoardReading | None
     command: ActuatorSetpoint | None
-    torque: Array | None
+    torque: Vec3 | None
     delta: float | None
 
 
@@ -110,11 +111,11 @@ class TickRecorder:
             values["cmd_gimbal_rate"] = [u.gimbal for u in command.units]
             values["cmd_rotor_speed"] = [u.rotor_speed for u in command.units]
         if board is not None:
-            values["tau"] = None if snap.torque is None else snap.torque.tolist()
+            values["tau"] = snap.torque
             values["delta"] = delta
-            values["gimbal_angle"] = board.gimbal.tolist()
+            values["gimbal_angle"] = board.gimbal
             values["gimbal_rate"] = rates
-            values["rotor_speed"] = board.rotor.tolist()
+            values["rotor_speed"] = board.rotor
             self._board_values(values, board.telemetry)
         values["tel_age_ms"] = None if snap.view.age_s is None else snap.view.age_s * 1e3
         values["board_link"] = int(snap.view.link)
@@ -152,8 +153,7 @@ class TickRecorder:
             w_true = tuple(np.asarray(snap.true_rate, dtype=float).tolist())
         if snap.attitude is not None:
             assert snap.rate is not None
-            R_hat = mat9(snap.attitude)
-            w_hat = tuple(np.asarray(snap.rate, dtype=float).tolist())
+            R_hat, w_hat = snap.attitude, snap.rate
         est_err = rate_err = None
         if R_true is not None and R_hat is not None:
             assert w_true is not None and w_hat is not None
@@ -166,7 +166,7 @@ class TickRecorder:
         if R_att is not None and snap.target9 is not None:
             point = math.degrees(angle_between9(R_att, snap.target9))
             if snap.reference is not None:
-                track = math.degrees(angle_between9(R_att, mat9(snap.reference.R)))
+                track = math.degrees(angle_between9(R_att, snap.reference.floats[0]))
         if snap.slew_start is not None:
             nan = math.nan
             self.trace.append(
