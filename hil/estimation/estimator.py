@@ -83,7 +83,7 @@ class Estimate(tuple):  # type: ignore[type-arg]
     Immutable (a tuple underneath). The live path builds one for every sample, so it holds one copy of the
     estimate's 15 floats and makes ``R``, ``omega`` and ``omega_err`` as views of it when they are read:
     ~0.3 µs a sample instead of ~1 µs for three arrays and a frozen dataclass (the host reads one estimate
-    in several)."""
+    in several). The live path builds it with :func:`estimate`, around a copy of the state's head."""
 
     __slots__ = ()
 
@@ -96,11 +96,6 @@ class Estimate(tuple):  # type: ignore[type-arg]
             np.asarray(omega_err, dtype=float).reshape(3),
         )
         return tuple.__new__(cls, (t, flags, iterations, np.concatenate(parts)))
-
-    @classmethod
-    def of(cls, t: float, x: Array, flags: StepFlag, iterations: int) -> Estimate:
-        """From ``x`` (15,): R̂ row-major, Ω̂, ω — taken over, not copied."""
-        return tuple.__new__(cls, (t, flags, iterations, x))
 
     t: float = property(itemgetter(0))  # type: ignore[assignment]
     flags: StepFlag = property(itemgetter(1))  # type: ignore[assignment]
