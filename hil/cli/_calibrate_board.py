@@ -188,11 +188,19 @@ def _left_at_rest(link: Any) -> str:
     from protocol.errors import HilError
     from protocol.messages import BoardState, ControlMode
 
+    def at_rest(t: Any) -> bool:
+        return t.state is not BoardState.ARMED and t.mode is not ControlMode.ESC_CALIBRATION
+
     try:
         link.safe()
+        first = link.latest(at_rest, timeout=2.0)
+        # A pulse's width changes at its frame's start, never within a pulse: telemetry sent within a
+        # frame of the state change may still show the width before it (an ESC being taught at 2000 us).
+        # The outputs are read from telemetry two frame periods later.
+        info = link.client.info
+        frame_ms = 2000.0 / (info.frame_rate_hz if info is not None and info.frame_rate_hz else 50)
         tel = link.latest(
-            lambda t: t.state is not BoardState.ARMED and t.mode is not ControlMode.ESC_CALIBRATION,
-            timeout=2.0,
+            lambda t: at_rest(t) and (t.time_ms - first.time_ms) % 2**32 >= frame_ms, timeout=2.0
         )
     except (HilError, KeyboardInterrupt) as exc:
         return (
