@@ -130,6 +130,31 @@ class SteeringOutput:
     scale: Array
     saturation: NDArray[np.int64]
 
+    @classmethod
+    def empty(cls, b: int, n: int) -> SteeringOutput:
+        """Uninitialised arrays for ``b`` rows of ``n`` units, C-contiguous, as :func:`solve_rows` fills them."""
+        return cls(
+            np.empty((b, n)),
+            np.empty((b, n)),
+            np.empty((b, 3)),
+            np.empty(b),
+            np.empty((b, n)),
+            np.empty(b),
+            np.empty(b, np.int64),
+        )
+
+    def kernel_outputs(self) -> tuple[Array, ...]:
+        """The arrays in :func:`solve_rows`'s order of outputs (the fields' order)."""
+        return (
+            self.gimbal_rate,
+            self.rotor_accel,
+            self.torque,
+            self.delta,
+            self.wheel_weight,
+            self.scale,
+            self.saturation,
+        )
+
 
 class VscmgSteering:
     """The weighted pseudo-inverse steering law for the array of ``params``: :meth:`solve`, :meth:`delta`
@@ -193,32 +218,16 @@ class VscmgSteering:
         current ``gimbal_angle`` and ``rotor_speed`` (B, n); ``dt`` (s) is the control period over which a
         rotor must not leave its speed range. Unbatched inputs are taken as B = 1."""
         L, gam, w = self._rows(torque), self._rows(gimbal_angle), self._rows(rotor_speed)
-        b, n = gam.shape
-        out = SteeringOutput(
-            np.empty((b, n)),
-            np.empty((b, n)),
-            np.empty((b, 3)),
-            np.empty(b),
-            np.empty((b, n)),
-            np.empty(b),
-            np.empty(b, np.int64),
-        )
-        solve_rows(
-            self._kp,
-            self._geom,
-            L,
-            gam,
-            w,
-            float(dt),
-            out.gimbal_rate,
-            out.rotor_accel,
-            out.torque,
-            out.delta,
-            out.wheel_weight,
-            out.scale,
-            out.saturation,
-        )
+        out = SteeringOutput.empty(*gam.shape)
+        solve_rows(*self._solve_arguments(L, gam, w, dt, out))
         return out
+
+    def _solve_arguments(
+        self, torque: Array, gimbal_angle: Array, rotor_speed: Array, dt: float, out: SteeringOutput
+    ) -> tuple[Any, ...]:
+        """:func:`solve_rows`'s arguments (its batched call, its direct entry's examples and calls): the one
+        place that spells their order."""
+        return (self._kp, self._geom, torque, gimbal_angle, rotor_speed, float(dt), *out.kernel_outputs())
 
     def momentum_one(
         self, gimbal_angle: Sequence[float], rotor_speed: Sequence[float]
@@ -249,21 +258,7 @@ class VscmgSteering:
             raise ValueError(f"torque: {len(torque)} values for 3")
         one.torque[0] = torque
         out = one.out
-        one.solve(
-            self._kp,
-            self._geom,
-            one.torque,
-            one.gam,
-            one.w,
-            float(dt),
-            out.gimbal_rate,
-            out.rotor_accel,
-            out.torque,
-            out.delta,
-            out.wheel_weight,
-            out.scale,
-            out.saturation,
-        )
+        one.solve(*self._solve_arguments(one.torque, one.gam, one.w, dt, out))
         return out.gimbal_rate[0].tolist(), out.rotor_accel[0].tolist(), out.delta.item()
 
     def _row(self, gimbal_angle: Sequence[float], rotor_speed: Sequence[float]) -> _OneRow:
@@ -298,32 +293,10 @@ class _OneRow:
         n = self.n = len(steer.params.units)
         self.gam, self.w = np.empty((1, n)), np.empty((1, n))
         self.torque, self.h = np.empty((1, 3)), np.empty((1, 3))
-        self.out = SteeringOutput(
-            np.empty((1, n)),
-            np.empty((1, n)),
-            np.empty((1, 3)),
-            np.empty(1),
-            np.empty((1, n)),
-            np.empty(1),
-            np.empty(1, np.int64),
-        )
-        out = self.out
+        self.out = SteeringOutput.empty(1, n)
         self.momentum: Callable[..., Any] = direct(momentum_rows, steer._geom, self.gam, self.w, self.h)
         self.solve: Callable[..., Any] = direct(
-            solve_rows,
-            steer._kp,
-            steer._geom,
-            self.torque,
-            self.gam,
-            self.w,
-            0.0,
-            out.gimbal_rate,
-            out.rotor_accel,
-            out.torque,
-            out.delta,
-            out.wheel_weight,
-            out.scale,
-            out.saturation,
+            solve_rows, *steer._solve_arguments(self.torque, self.gam, self.w, 0.0, self.out)
         )
 
 
