@@ -132,7 +132,7 @@ class SteeringOutput:
 
     @classmethod
     def empty(cls, b: int, n: int) -> SteeringOutput:
-        """Uninitialised arrays for ``b`` rows of ``n`` units, C-contiguous, as :func:`solve_rows` fills them."""
+        """Uninitialised arrays for ``b`` rows of ``n`` units (C-contiguous), as :func:`solve_rows` fills."""
         return cls(
             np.empty((b, n)),
             np.empty((b, n)),
