@@ -64,6 +64,7 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
 
 def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
     from hil.cli.run import format_summary
+    from hil.plots.forked import available_cores
     from hil.plots.run import plot_run
     from hil.runtime.runlog import count_events, read_telemetry
     from protocol.errors import InputFormatError
@@ -89,7 +90,7 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
             # a summary.json hil did not write: its values are not the shapes a run's summary has
             why = f"{type(exc).__name__}: {exc}"
             print(f"  summary.json damaged (a value is not what a run writes: {why}): not shown")
-    return plot_run(path) if plots else {}
+    return plot_run(path, processes=available_cores()) if plots else {}
 
 
 def _campaign(path: Path, plots: bool) -> dict[str, Path]:

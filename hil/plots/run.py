@@ -7,12 +7,15 @@ rates, rotor speeds, pulse widths, battery voltage and the singularity measure �
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 from matplotlib.axes import Axes
 
 from hil.plots.estimator import _figure, _save
+from hil.plots.forked import draw_shared
 from hil.plots.markers import draw_markers, run_markers
 from hil.runtime.runlog import read_events, read_telemetry
 from protocol.errors import InputFormatError
@@ -54,9 +57,39 @@ def _lines(ax: Axes, t: np.ndarray, columns: dict[str, np.ndarray], names: list[
         ax.plot(*thin(t, columns[name]), lw=0.8, label=f"{label} {suffix}" if suffix.isdigit() else name)
 
 
-def plot_run(run_dir: str | Path) -> dict[str, Path]:
+_FIGURES: tuple[tuple[str, str, str, str | tuple[str, ...], str, bool], ...] = (
+    # name, title, y label, its columns (a prefix: a column per unit), line label, log scale
+    ("attitude_error", "Attitude estimation error (principal angle of Q = R R̂ᵀ)",
+     "attitude estimation error (deg)", ("est_err_deg",), "est err", False),
+    ("rate_error", "Angular velocity estimation error", "|Ω − Ω̂| (rad/s)", ("rate_err",), "rate err", False),
+    ("pointing_error", "Pointing error (to the target) and tracking error (to the reference)", "error (deg)",
+     ("point_err_deg", "track_err_deg"), "", True),
+    ("gimbal_angles", "Gimbal angles", "angle (rad)", "gimbal_angle_", "gimbal", False),
+    ("gimbal_rates", "Gimbal rates", "rate (rad/s)", "gimbal_rate_", "gimbal", False),
+    ("rotor_speeds", "Rotor speeds", "speed (rad/s)", "rotor_speed_", "rotor", False),
+    ("pulse_widths", "Pulse widths on the board's outputs", "width (µs)", ("pulse_gimbal_", "pulse_rotor_"),
+     "pulse", False),
+    ("battery", "Battery voltage", "voltage (V)", ("battery_v",), "battery", False),
+    ("delta", "Singularity measure δ", "δ", ("delta",), "δ", False),
+)  # fmt: skip
+"""The figures of :func:`plot_run`, in order. A prefix (a string, or a tuple entry ending in ``_``) stands
+for its per-unit columns in unit order."""
+
+
+def _columns(c: dict[str, np.ndarray], spec: str | tuple[str, ...]) -> list[str]:
+    """The columns a figure's ``spec`` names, per-unit prefixes expanded."""
+    names = (spec,) if isinstance(spec, str) else spec
+    out: list[str] = []
+    for name in names:
+        out += _units(c, name) if name.endswith("_") else [name]
+    return out
+
+
+def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
     """Draw every figure the run's telemetry allows into ``run_dir/plots``; returns name → path.
-    A missing or empty telemetry.csv is an :class:`InputFormatError` naming it."""
+    A missing or empty telemetry.csv is an :class:`InputFormatError` naming it. ``processes`` > 1 shares
+    the figures among that many processes forked after the data is read (:mod:`hil.plots.forked`: call it
+    so only from a process with no other threads running)."""
     run_dir = Path(run_dir)
     tel = read_telemetry(run_dir / "telemetry.csv")
     if tel.rows == 0:
@@ -71,12 +104,8 @@ def plot_run(run_dir: str | Path) -> dict[str, Path]:
     markers = run_markers(read_events(events_path)[0]) if events_path.is_file() else []
     out_dir = run_dir / "plots"
     out_dir.mkdir(exist_ok=True)
-    out: dict[str, Path] = {}
 
-    def figure(name: str, title: str, ylabel: str, columns: list[str], label: str, log: bool = False) -> None:
-        present = [n for n in columns if n in c and np.any(np.isfinite(c[n]))]
-        if not present:
-            return
+    def figure(name: str, title: str, ylabel: str, present: list[str], label: str, log: bool) -> Path:
         fig, ax = _figure(title, ylabel)
         _lines(ax, t, c, present, label)
         if log:
@@ -89,34 +118,13 @@ def plot_run(run_dir: str | Path) -> dict[str, Path]:
             else:  # rates far below the limit: scaled to the data (a ±limit axis would flatten them)
                 ax.set_title(f"{title} (peak {peak:.3g} rad/s, limit ±{limit:g} rad/s: off the scale)")
         draw_markers(ax, markers)
-        out[name] = _save(fig, ax, out_dir / f"{name}.png")
+        return _save(fig, ax, out_dir / f"{name}.png")
 
-    figure(
-        "attitude_error",
-        "Attitude estimation error (principal angle of Q = R R̂ᵀ)",
-        "attitude estimation error (deg)",
-        ["est_err_deg"],
-        "est err",
-    )
-    figure("rate_error", "Angular velocity estimation error", "|Ω − Ω̂| (rad/s)", ["rate_err"], "rate err")
-    figure(
-        "pointing_error",
-        "Pointing error (to the target) and tracking error (to the reference)",
-        "error (deg)",
-        ["point_err_deg", "track_err_deg"],
-        "",
-        log=True,
-    )
-    figure("gimbal_angles", "Gimbal angles", "angle (rad)", _units(c, "gimbal_angle_"), "gimbal")
-    figure("gimbal_rates", "Gimbal rates", "rate (rad/s)", _units(c, "gimbal_rate_"), "gimbal")
-    figure("rotor_speeds", "Rotor speeds", "speed (rad/s)", _units(c, "rotor_speed_"), "rotor")
-    figure(
-        "pulse_widths",
-        "Pulse widths on the board's outputs",
-        "width (µs)",
-        _units(c, "pulse_gimbal_") + _units(c, "pulse_rotor_"),
-        "pulse",
-    )
-    figure("battery", "Battery voltage", "voltage (V)", ["battery_v"], "battery")
-    figure("delta", "Singularity measure δ", "δ", ["delta"], "δ")
-    return out
+    names: list[str] = []
+    jobs: list[Callable[[], Path]] = []
+    for name, title, ylabel, spec, label, log in _FIGURES:
+        present = [n for n in _columns(c, spec) if n in c and np.any(np.isfinite(c[n]))]
+        if present:  # a column the run lacks, or never filled: no figure
+            names.append(name)
+            jobs.append(partial(figure, name, title, ylabel, present, label, log))
+    return dict(zip(names, draw_shared(jobs, processes), strict=True))
