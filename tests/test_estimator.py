@@ -325,6 +325,34 @@ def test_every_form_of_a_sample_gives_the_same_step_and_a_bad_one_a_named_error(
     assert after.t == before.t and np.array_equal(after.R, before.R) and est.stats.steps == 1
 
 
+def test_an_estimate_keeps_its_own_values_read_only_whatever_the_estimator_does_next():
+    """The live path's Estimate holds the state's head as bytes: its arrays are the state's values at its
+    sample (not a view of the state the next update overwrites), they cannot be written through, its floats
+    are its arrays' values, and one built by the constructor equals one the estimator returned."""
+    from hil.estimation.estimator import Estimate
+
+    rng = np.random.default_rng(11)
+    est = VariationalEstimator()
+    kept = []
+    for _ in range(20):
+        e = est.update(0.01, rng.normal(0, 0.3, 3).tolist(), [0.0, 0.0, 9.8], [0.0, 20.0, -40.0])
+        s = est.state
+        kept.append((e, s.R.copy(), s.omega_err.copy()))
+    for e, R, omega_err in kept:  # every estimate still holds its own sample's values
+        np.testing.assert_array_equal(e.R, R)
+        np.testing.assert_array_equal(e.omega_err, omega_err)
+        assert e.R.shape == (3, 3) and e.omega.shape == (3,) and e.omega_err.shape == (3,)
+        for array in (e.R, e.omega, e.omega_err):
+            with pytest.raises(ValueError, match="read-only"):
+                array[0] = 1.0
+        R9, w = e.floats()
+        assert list(R9) == e.R.ravel().tolist() and list(w) == e.omega.tolist()
+        assert all(type(v) is float for v in (*R9, *w))
+        rebuilt = Estimate(e.t, e.R, e.omega, e.omega_err, e.flags, e.iterations)
+        assert rebuilt == e and rebuilt.omega_err.tolist() == e.omega_err.tolist()
+    assert len({e.t for e, _, _ in kept}) == len(kept)
+
+
 def test_gyro_only_propagation_integrates_the_rate():
     est = VariationalEstimator()  # ω0 = 0 and no directions: R̂ follows the gyro exactly
     rate = np.array([0.0, 0.0, 0.5])
