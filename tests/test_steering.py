@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -223,6 +224,45 @@ def test_no_state_of_the_array_makes_steering_raise(gimbals, speeds, torque, nul
             assert np.all(np.isfinite(getattr(out, name))), name
         assert np.all(np.abs(out.gimbal_rate) <= PARAMS.limits.max_gimbal_rate * (1 + 1e-12))
         assert np.all(np.abs(out.rotor_accel) <= PARAMS.limits.max_rotor_accel * (1 + 1e-12))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.integers(-323, 150),
+    st.integers(-323, 150),
+    st.lists(st.floats(-1.0, 1.0), min_size=9, max_size=9),
+    st.floats(-1.0, 1.0),
+)
+def test_the_smallest_eigenvalue_is_defined_at_every_scale(scale_exp, deviation_exp, entries, shift):
+    """Matrices ``s (c I + d B)`` at any finite scale, ``d`` down to the subnormals: the closed form never
+    divides by zero (a kernel's division by zero raises: a tiny deviation from a multiple of the identity
+    once made the scale cubed underflow, and a control tick with a rotor 1e-73 rad/s from rest raised
+    ZeroDivisionError), and it stays within its error of the eigensolver's wherever that is meaningful."""
+    from hil.control.steering import min_eigenvalue_sym3
+
+    b = np.array(entries).reshape(3, 3)
+    m = 10.0**scale_exp * (shift * np.eye(3) + 10.0**deviation_exp * (b + b.T))
+    if not np.all(np.isfinite(m)):
+        return
+    got = min_eigenvalue_sym3(m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2])
+    assert math.isfinite(got)
+    big = float(np.max(np.abs(m)))
+    if big > 1e-150:  # above the subnormals, where the eigensolver's products keep their digits
+        want = np.linalg.eigvalsh(m / big)[0] * big  # scaled: its own squares overflow above ~1e154
+        assert got == pytest.approx(want, abs=1e-7 * big)  # a repeated eigenvalue costs ~half the digits
+
+
+def test_a_rotor_a_hair_from_rest_is_steered_without_raising():
+    """The case Hypothesis found in CI: a rotor 1.75e-73 rad/s from rest, the rest stopped, a torque of
+    1 N m asked: a finite, damped command, the same from the batched call and the one-row call."""
+    steer = VscmgSteering(PARAMS, SteeringParams(null_gain=0.0))
+    gimbal, rotor = [0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.754984234593556e-73]
+    for torque in ([0.0, 0.0, 1.0], [0.0, 0.0, 1e160]):
+        out = steer.solve(torque, gimbal, rotor, 0.02)
+        rates, accels, delta = steer.solve_one(torque, gimbal, rotor, 0.02)
+        assert np.all(np.isfinite(out.gimbal_rate)) and np.all(np.isfinite(out.rotor_accel))
+        assert out.saturation[0] & Saturation.DAMPED
+        assert rates == out.gimbal_rate[0].tolist() and accels == out.rotor_accel[0].tolist()
 
 
 def test_the_smallest_eigenvalue_in_closed_form():

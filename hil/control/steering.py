@@ -456,7 +456,29 @@ def _solve3(m, rhs, x):  # type: ignore[no-untyped-def]
 @kernel
 def min_eigenvalue_sym3(a00, a01, a02, a11, a12, a22):  # type: ignore[no-untyped-def]
     """The smallest eigenvalue of a symmetric 3×3 matrix, in closed form (Smith 1961: the roots of its
-    characteristic polynomial by the trigonometric formula); absolute error ~1e-16 × its trace."""
+    characteristic polynomial by the trigonometric formula); absolute error ~1e-16 × its trace (~1e-8 × it
+    at a repeated eigenvalue, where the formula's arccosine is ill-conditioned).
+
+    Defined for every finite matrix (a compiled kernel's division by zero raises where numpy gives inf: a
+    rotor a hair from rest once stopped the control tick with a ZeroDivisionError). A matrix whose entries
+    would overflow the formula's squares is solved scaled by its largest entry; one whose deviation from a
+    multiple of the identity is so small that its scale cubed would be subnormal takes the determinant of the
+    scaled deviation. Any other matrix gets the plain formula, bit for bit as before."""
+    big = max(abs(a00), abs(a01), abs(a02), abs(a11), abs(a12), abs(a22))
+    if big > _EIGEN_SCALED_ABOVE:
+        return big * _min_eigenvalue(a00 / big, a01 / big, a02 / big, a11 / big, a12 / big, a22 / big)
+    return _min_eigenvalue(a00, a01, a02, a11, a12, a22)
+
+
+_EIGEN_SCALED_ABOVE = 1e100
+"""Entries above which :func:`min_eigenvalue_sym3` scales the matrix (its squares' sums stay finite below)."""
+_EIGEN_PLAIN_ABOVE = 1e-100
+"""The deviation's scale ``p`` above which the formula's ``p³`` is a normal float (full precision)."""
+
+
+@kernel
+def _min_eigenvalue(a00, a01, a02, a11, a12, a22):  # type: ignore[no-untyped-def]
+    """:func:`min_eigenvalue_sym3` for entries of magnitude at most :data:`_EIGEN_SCALED_ABOVE`."""
     q = (a00 + a11 + a22) / 3.0
     p1 = a01 * a01 + a02 * a02 + a12 * a12
     b00, b11, b22 = a00 - q, a11 - q, a22 - q
@@ -464,8 +486,16 @@ def min_eigenvalue_sym3(a00, a01, a02, a11, a12, a22):  # type: ignore[no-untype
     if p2 <= 0.0:
         return q  # a multiple of the identity
     p = math.sqrt(p2 / 6.0)
-    det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
-    r = det / (2.0 * p * p * p)
+    if p == 0.0:  # p2 itself subnormal: within ~1e-162 of a multiple of the identity
+        return q
+    if p > _EIGEN_PLAIN_ABOVE:
+        det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02) + a02 * (a01 * a12 - b11 * a02)
+        r = det / (2.0 * p * p * p)
+    else:  # p³ would be subnormal or 0: the determinant of (A − qI)/p instead, each entry divided first
+        c00, c11, c22, c01, c02, c12 = b00 / p, b11 / p, b22 / p, a01 / p, a02 / p, a12 / p
+        r = 0.5 * (
+            c00 * (c11 * c22 - c12 * c12) - c01 * (c01 * c22 - c12 * c02) + c02 * (c01 * c12 - c11 * c02)
+        )
     r = min(1.0, max(-1.0, r))
     phi = math.acos(r) / 3.0
     return q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
