@@ -184,7 +184,8 @@ def both_usable(ep, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
 def tilt(ep, ax, ay, az):  # type: ignore[no-untyped-def]
     """The attitude from gravity alone (no field: 6-axis, or before the first field sample): the shortest
     rotation taking the measured direction ``a`` to E's e1 (up), so the heading is wherever it lands. A
-    row-major 9-tuple, body → inertial."""
+    row-major 9-tuple, body → inertial. ``a``'s squared norm must be positive and finite (the caller's
+    check): a compiled kernel's division by zero raises."""
     n = math.sqrt(ax * ax + ay * ay + az * az)
     ux, uy, uz = ax / n, ay / n, az / n
     ex, ey, ez = ep[v.P_E], ep[v.P_E + 3], ep[v.P_E + 6]
@@ -282,7 +283,9 @@ def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ign
         if both_usable(ep, ax, ay, az, mx, my, mz):
             cs[CS_AWAITING] = AWAIT_NONE  # restart the estimator from the measured attitude
             restart(cp, cs, es, wahba(ep, ax, ay, az, mx, my, mz))
-        elif awaiting == AWAIT_BOTH and math.isfinite(ax + ay + az) and ax * ax + ay * ay + az * az > 0.0:
+        elif awaiting == AWAIT_BOTH and 0.0 < ax * ax + ay * ay + az * az < math.inf:
+            # a reading whose norm overflows (finite parts, ~1e155 m/s² and up) is no direction here, as
+            # everywhere in the chain: tilt would divide by zero
             cs[CS_AWAITING] = AWAIT_NONE if mode == MAG_NONE else AWAIT_FIELD
             restart(cp, cs, es, tilt(ep, ax, ay, az))
     # the estimator takes Ω^m (it removes its own b̂): the pre-filtered gyro with the bias put back

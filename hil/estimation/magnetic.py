@@ -149,8 +149,11 @@ def _full(gp, gs):  # type: ignore[no-untyped-def]
 
 @kernel
 def _within(gp, gs, slot_norm, slot_dip):  # type: ignore[no-untyped-def]
-    """Whether the low-passed field is within the tolerances of the (norm, dip) at the given slots."""
-    if abs(gs[GS_NORM] / gs[slot_norm] - 1.0) > gp[GP_NORM_TOL]:
+    """Whether the low-passed field is within the tolerances of the (norm, dip) at the given slots. A norm
+    of 0 there holds nothing: a low-pass from a huge field to a normal one in one step (``k`` = 1) can
+    cancel to exactly 0, and a compiled kernel's division by zero raises."""
+    ref = gs[slot_norm]
+    if not ref > 0.0 or abs(gs[GS_NORM] / ref - 1.0) > gp[GP_NORM_TOL]:
         return False
     return gs[GS_HAS_DIP] == 0.0 or abs(gs[GS_DIP] - gs[slot_dip]) <= gp[GP_SIN_TOL]
 
