@@ -72,8 +72,8 @@ _FIGURES: tuple[tuple[str, str, str, str | tuple[str, ...], str, bool], ...] = (
     ("battery", "Battery voltage", "voltage (V)", ("battery_v",), "battery", False),
     ("delta", "Singularity measure δ", "δ", ("delta",), "δ", False),
 )  # fmt: skip
-"""The figures of :func:`plot_run`, in order. A prefix (a string, or a tuple entry ending in ``_``) stands
-for its per-unit columns in unit order."""
+"""The figures of :func:`plot_run`, in order. A column name ending in ``_`` is a prefix: it stands for its
+per-unit columns, in unit order."""
 
 
 def _columns(c: dict[str, np.ndarray], spec: str | tuple[str, ...]) -> list[str]:
@@ -88,8 +88,8 @@ def _columns(c: dict[str, np.ndarray], spec: str | tuple[str, ...]) -> list[str]
 def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
     """Draw every figure the run's telemetry allows into ``run_dir/plots``; returns name → path.
     A missing or empty telemetry.csv is an :class:`InputFormatError` naming it. ``processes`` > 1 shares
-    the figures among that many processes forked after the data is read (:mod:`hil.plots.forked`: call it
-    so only from a process with no other threads running)."""
+    the figures among that many processes forked after the data is read (:mod:`hil.plots.forked`; while
+    another thread of this process runs, they are all drawn here)."""
     run_dir = Path(run_dir)
     tel = read_telemetry(run_dir / "telemetry.csv")
     if tel.rows == 0:
