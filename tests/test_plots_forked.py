@@ -135,9 +135,8 @@ def test_the_plotter_process_draws_the_same_figures_as_one_process(tmp_path):
     for path in (run_dir / "plots").iterdir():
         path.unlink()
     done = subprocess.run(
-        [sys.executable, "-c", "import sys, hil.plots.forked as f; f.available_cores = lambda: 2; "
-         "from hil.cli import _plotter; _plotter.available_cores = f.available_cores; "
-         "sys.exit(_plotter.main())"],
+        [sys.executable, "-c", "import sys; from hil.cli import _plotter; "
+         "_plotter.available_cores = lambda: 2; sys.exit(_plotter.main())"],
         input=f"{run_dir}\n",
         cwd=REPO,
         capture_output=True,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from hil.plots.forked import available_cores
+from hil.cores import available_cores
 from hil.plots.run import plot_run
 from protocol.errors import HilError
 

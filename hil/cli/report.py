@@ -64,7 +64,7 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
 
 def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
     from hil.cli.run import format_summary
-    from hil.plots.forked import available_cores
+    from hil.cores import available_cores
     from hil.plots.run import plot_run
     from hil.runtime.runlog import count_events, read_telemetry
     from protocol.errors import InputFormatError

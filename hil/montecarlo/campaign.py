@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from hil import version
+from hil.cores import available_cores
 from hil.runtime.runlog import SUMMARY, write_summary
 from hil.scenario import Scenario
 from protocol.errors import ConfigError, LinkError
@@ -200,7 +201,7 @@ def open_client(
         with client:
             yield client
         return
-    n = workers if workers is not None else (os.cpu_count() or 1)
+    n = workers if workers is not None else available_cores()
     if n < 1:
         raise ConfigError(f"must be at least 1, got {n}", "workers")
     with (

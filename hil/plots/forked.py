@@ -50,13 +50,6 @@ def draw_shared(jobs: Sequence[Callable[[], T]], processes: int) -> list[T]:
     return [results[i] for i in range(len(jobs))]
 
 
-def available_cores() -> int:
-    """The cores this process may run on (its CPU affinity where the OS says, else the machine's)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
-
-
 def _fork_share(jobs: Sequence[Callable[[], object]], k: int, processes: int) -> tuple[int, int]:
     """A child running jobs ``k, k + processes, ...`` and writing ``{index: result}`` (or the exception)
     to a pipe: (its pid, the pipe's read end)."""
@@ -97,6 +90,5 @@ def _reap(pid: int, read_fd: int) -> object:
 
 
 def _describe(status: int) -> str:
-    if os.WIFSIGNALED(status):
-        return f"signal {os.WTERMSIG(status)}"
-    return f"exit status {os.waitstatus_to_exitcode(status)}"
+    code = os.waitstatus_to_exitcode(status)  # a signal's number, negated
+    return f"signal {-code}" if code < 0 else f"exit status {code}"
