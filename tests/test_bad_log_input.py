@@ -8,9 +8,12 @@ import json
 import subprocess
 import sys
 import tracemalloc
+from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from firmware_sim.world.models import Trajectory, simulate
 from hil import so3
@@ -19,7 +22,7 @@ from hil.estimation.inertial import directions_from_dip, field_warnings
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, StepFlag
 from hil.logs import project_csv, read_log
 from hil.logs.replay import ReplayOptions, replay
-from hil.scenario.paths import FIXTURES
+from hil.scenario.paths import FIXTURES, SHARED_DATA
 from hil.scenario.phone import PhoneSpec, SensorSpec
 from protocol.errors import InputFormatError
 
@@ -152,3 +155,70 @@ def test_no_warning_without_a_magnetometer():
     log = _still_then_turning()
     six = SensorLog({k: s for k, s in log.streams.items() if k != SensorKind.MAG}, "6", "simulated")
     assert six.six_axis and field_warnings(six) == []
+
+
+SENSORLOGGER = SHARED_DATA / "sensorlogger-android"
+ABSURD = st.one_of(
+    st.floats(min_value=41.0, max_value=1e300), st.floats(min_value=-1e300, max_value=-41.0)
+)  # beyond every sensor's range but the magnetometer's: such a value is used for a gyro or an accelerometer
+"""A value that parses but no phone's gyroscope (±40 rad/s) or accelerometer (±172.6 m/s²) measures."""
+
+
+@pytest.fixture(scope="module")
+def real_window(tmp_path_factory):
+    """30 s of the real Sensor Logger export, as the project's CSV (replayed as a file), and its replay."""
+    log = read_log(SENSORLOGGER).window(100.0, 130.0)
+    folder = tmp_path_factory.mktemp("window")
+    path = project_csv.write(log, folder / "window.csv")
+    clean = replay(path, ReplayOptions(out_dir=folder / "out"))
+    return log, clean
+
+
+@settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.data())
+def test_readings_beyond_range_in_a_real_log_are_dropped_counted_and_leave_the_rest_as_it_was(
+    tmp_path, real_window, data
+):
+    """Absurd-but-finite readings (a gyro of 1e300 rad/s, an accelerometer of -1e160 m/s²) added to a real
+    recording at drawn times are dropped and counted, as the live path's admission drops them: the
+    estimates stay finite, and the replay equals the clean one's wherever no reading was added (before the
+    first one it is the same run; the filter never sees them at all)."""
+    log, clean = real_window
+    streams = dict(log.streams)
+    added = {"gyr": 0, "acc": 0}
+    for kind in (SensorKind.GYR, SensorKind.ACC):
+        stream = streams[kind]
+        rows = data.draw(st.lists(st.integers(0, len(stream) - 2), max_size=3, unique=True), label=kind.label)
+        t, xyz = list(stream.t), [list(r) for r in stream.xyz]
+        for row in sorted(rows, reverse=True):  # a new reading between two of the stream's own
+            value = data.draw(ABSURD, label=f"{kind.label} value")
+            axis = data.draw(st.integers(0, 2), label="axis")
+            reading = [0.0, 0.0, 0.0]
+            reading[axis] = value
+            t.insert(row + 1, (t[row] + t[row + 1]) / 2.0)
+            xyz.insert(row + 1, reading)
+        added[kind.label] = len(rows)
+        streams[kind] = SensorStream(kind, np.array(t), np.array(xyz))
+    path = project_csv.write(replace(log, streams=streams), tmp_path / "absurd.csv")
+    result = replay(path, ReplayOptions(out_dir=tmp_path / "out"))
+    assert result.out_of_range == {**added, "mag": 0}
+    assert result.samples_read == log.n_samples + sum(added.values())
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["merge"]["dropped_out_of_range"] == {**added, "mag": 0}
+    assert any("beyond their sensor's range" in w for w in summary["warnings"]) == bool(sum(added.values()))
+    est = result.estimates
+    assert np.all(np.isfinite(est.R)) and np.all(np.isfinite(est.omega))
+    np.testing.assert_array_equal(est.t, clean.estimates.t)  # the added readings make no steps of their own
+    np.testing.assert_array_equal(est.R, clean.estimates.R)
+
+
+def test_a_sensor_whose_every_reading_is_beyond_range_is_a_typed_error_naming_the_log(tmp_path):
+    log = read_log(SIMULATED)
+    acc = log.streams[SensorKind.ACC]
+    absurd = SensorStream(SensorKind.ACC, acc.t, np.full_like(acc.xyz, 1e160))
+    path = project_csv.write(
+        replace(log, streams={**log.streams, SensorKind.ACC: absurd}), tmp_path / "a.csv"
+    )
+    with pytest.raises(InputFormatError, match="every ACC reading .* beyond the sensor's range") as err:
+        replay(path, ReplayOptions(out_dir=tmp_path / "out"))
+    assert str(path) in str(err.value)

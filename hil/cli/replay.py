@@ -212,14 +212,17 @@ def run(args: argparse.Namespace) -> int:
     )
     result = replay(args.log, options)
     log, stats = result.log, result.merge_stats
-    print(f"{log.source} ({log.format}): {log.n_samples} samples, {len(result.estimates)} steps")
+    print(f"{log.source} ({log.format}): {result.samples_read} samples, {len(result.estimates)} steps")
     for line in result.setup:
         print(f"  {line}")
     driver = stats.driver.label if stats.driver is not None else "-"
     drops = f"nan {sum(stats.nan.values())}, duplicate {sum(stats.duplicate.values())}"
     drops += f", out of order {sum(stats.out_of_order.values())}"
+    beyond = sum(result.out_of_range.values())
+    if beyond:
+        drops += f", beyond the sensor's range {beyond}"
     print(
-        f"  merge: driver {driver}, {stats.dropped} samples dropped ({drops}), {stats.gaps} gaps, "
+        f"  merge: driver {driver}, {stats.dropped + beyond} samples dropped ({drops}), {stats.gaps} gaps, "
         f"{stats.failover_steps} failover steps"
     )
     rejected = result.mag_rejections
@@ -254,7 +257,13 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     from hil.cli.run import LiveProgress, draw_plots, exit_status, format_summary
     from hil.estimation.inertial import field_warnings
     from hil.logs import read_log
-    from hil.logs.replay import ReplayOptions, configure, field_model_of, split_at_gaps
+    from hil.logs.replay import (
+        ReplayOptions,
+        configure,
+        drop_out_of_range,
+        field_model_of,
+        split_at_gaps,
+    )
     from hil.runtime import ReplayInput, RunOptions
     from hil.runtime import run as run_scenario
     from hil.scenario import load_scenario
@@ -283,7 +292,9 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         field_model=field_model,  # type: ignore[arg-type]
         gyro_bias=args.gyro_bias,
     )
-    estimator, site, setup = configure(log, options)
+    # the still window's means without readings beyond range; the host's admission drops and counts those
+    in_range, _ = drop_out_of_range(log, options.limits)
+    estimator, site, setup = configure(in_range, options)
     print(
         f"{log.source} ({log.format}): {log.n_samples} samples over {log.end - log.start:.1f} s",
         file=sys.stderr,

@@ -40,6 +40,9 @@ import math
 import sys
 from dataclasses import dataclass, field
 
+import numpy as np
+from numpy.typing import NDArray
+
 from hil.estimation.sensors import KINDS, SensorKind, SensorSample
 
 JUMP_S = 1.0
@@ -196,4 +199,24 @@ class PhoneGuard:
         return {"accepted": s.accepted, "dropped": dict(s.dropped), "restarts": s.restarts, "jumps": s.jumps}
 
 
-__all__ = ["JUMP_S", "KINDS", "AdmissionStats", "PhoneGuard", "ReadingLimits", "Verdict"]
+def out_of_range(
+    kind: SensorKind, t: NDArray[np.float64], xyz: NDArray[np.float64], limits: ReadingLimits
+) -> NDArray[np.bool_]:
+    """The readings of one sensor's whole stream (times ``t`` (N,) s, values ``xyz`` (N, 3)) that
+    :meth:`PhoneGuard.admit` drops as ``out_of_range``: a finite stamp and finite values, one of them beyond
+    the sensor's bound. A reading with a non-finite stamp or value is not among them: that is another
+    reason, the merge's ``nan``. For a recording replayed in one batch, which takes no guard's path."""
+    bound = min(limits.limit(kind), sys.float_info.max)
+    finite = np.isfinite(t) & np.all(np.isfinite(xyz), axis=1)
+    return finite & np.any(np.abs(xyz) > bound, axis=1)
+
+
+__all__ = [
+    "JUMP_S",
+    "KINDS",
+    "AdmissionStats",
+    "PhoneGuard",
+    "ReadingLimits",
+    "Verdict",
+    "out_of_range",
+]

@@ -26,14 +26,16 @@ measured field is checked against the field model, and for steadiness
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.estimation.admission import ReadingLimits, out_of_range
 from hil.estimation.estimator import Estimate, EstimateBatch, _concat
 from hil.estimation.geomag import GeomagneticField, igrf14
 from hil.estimation.inertial import (
@@ -51,12 +53,15 @@ from hil.estimation.sensors import (
     MergedSteps,
     SensorKind,
     SensorLog,
+    SensorStream,
     StepFlag,
     flagged_intervals,
 )
 from hil.logs import read_log
 from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
+
+logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 ESTIMATES_HEADER = "t_s,qw,qx,qy,qz,wx,wy,wz,flags,newton_updates"
@@ -105,7 +110,8 @@ class ReplayOptions:
     (default 0: magnetic north); or a ``field_model`` (true north). ``gyro_bias``: ``"still"`` (default)
     subtracts the mean gyro over the log's initial still window, if it has one; ``"none"`` does not.
     ``window_s``: replay only ``[t0, t1]`` s of the log. ``max_gap_s``: split the log where its clock
-    jumps by more. ``plotter``: draws the figures (none by default)."""
+    jumps by more. ``limits``: each sensor's range; a reading beyond it is dropped and counted, as a live
+    phone's is (:mod:`hil.estimation.admission`). ``plotter``: draws the figures (none by default)."""
 
     out_dir: Path
     format: str | None = None
@@ -117,6 +123,7 @@ class ReplayOptions:
     gyro_bias: str = "still"
     window_s: tuple[float, float] | None = None
     max_gap_s: float = MAX_GAP_S
+    limits: ReadingLimits = field(default_factory=ReadingLimits)
     plotter: Plotter | None = None
     paced: bool = False
     clock: Clock | None = None
@@ -138,6 +145,14 @@ class ReplayResult:
     gyro_bias: tuple[float, float, float] | None = None  # the estimate at the end (batch path), rad/s
     segments: list[dict[str, float | int | str]] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    out_of_range: dict[str, int] = field(default_factory=dict)
+    """Readings dropped per sensor (by label) as beyond its range (:func:`drop_out_of_range`): ``log``
+    holds the rest."""
+
+    @property
+    def samples_read(self) -> int:
+        """The readings the log had (in the window replayed), those dropped as beyond range included."""
+        return self.log.n_samples + sum(self.out_of_range.values())
 
     @property
     def mag_rejections(self) -> list[tuple[float, float]]:
@@ -218,8 +233,15 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     log = read_log(path, options.format)
     if options.window_s is not None:
         log = log.window(*options.window_s)
+    log, beyond = drop_out_of_range(log, options.limits)
     estimator, site, setup = configure(log, options)
     warnings = field_warnings(log, field_model_of(options))
+    if any(beyond.values()):
+        counts = ", ".join(f"{label} {n}" for label, n in beyond.items() if n)
+        warnings.append(
+            f"{sum(beyond.values())} readings beyond their sensor's range dropped ({counts}): "
+            f"a phone measures at most {_ranges(options.limits)}"
+        )
     parts = split_at_gaps(log, options.max_gap_s)
     all_steps, all_estimates, segments = [], [], []
     stats = MergeStats()
@@ -277,6 +299,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         segments=segments,
         warnings=warnings,
         gyro_bias=bias,
+        out_of_range=beyond,
     )
     _score(result)
     options.out_dir.mkdir(parents=True, exist_ok=True)
@@ -285,6 +308,41 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         result.files.update(options.plotter(result, options.out_dir))
     result.files["summary"] = _write_summary(result, options.out_dir / "summary.json")
     return result
+
+
+def drop_out_of_range(log: SensorLog, limits: ReadingLimits) -> tuple[SensorLog, dict[str, int]]:
+    """``log`` without the readings the live path's admission drops as beyond their sensor's range
+    (:func:`hil.estimation.admission.out_of_range`: a value that parses but no phone can measure, 1e160
+    rad/s, say), and how many each sensor lost (by label). One such reading held for a step would poison
+    the still window's means and the filter's state for the rest of the log. A sensor left with none is
+    an :class:`InputFormatError` naming the log."""
+    beyond: dict[str, int] = {}
+    streams: dict[SensorKind, SensorStream] = {}
+    for kind, stream in log.streams.items():
+        drop = out_of_range(kind, stream.t, stream.xyz, limits)
+        beyond[kind.label] = int(np.count_nonzero(drop))
+        streams[kind] = (
+            stream if not beyond[kind.label] else SensorStream(kind, stream.t[~drop], stream.xyz[~drop])
+        )
+        if beyond[kind.label] and not len(streams[kind]):
+            raise InputFormatError(
+                f"every {kind.name} reading ({beyond[kind.label]}) is beyond the sensor's range "
+                f"(|value| > {limits.limit(kind):g})",
+                log.source,
+            )
+    if not any(beyond.values()):
+        return log, beyond
+    for label, n in beyond.items():
+        if n:
+            logger.warning("%s: %d %s readings beyond the sensor's range dropped", log.source, n, label)
+    return replace(log, streams=streams), beyond
+
+
+def _ranges(limits: ReadingLimits) -> str:
+    return (
+        f"±{limits.limit(SensorKind.GYR):g} rad/s, ±{limits.limit(SensorKind.ACC):.4g} m/s², "
+        f"±{limits.limit(SensorKind.MAG):g} µT"
+    )
 
 
 def _check_length(part: SensorLog, steps: int, source: str, merged: bool = False) -> None:
@@ -420,7 +478,7 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
         else "observed (magnetometer)",
         "warnings": result.warnings,
         "segments": result.segments,
-        "samples": result.log.n_samples,
+        "samples": result.samples_read,
         "steps": len(result.estimates),
         "merge": {
             "driver": stats.driver.label if stats.driver is not None else None,
@@ -428,6 +486,7 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
             "dropped_nan": stats.nan,
             "dropped_duplicate": stats.duplicate,
             "dropped_out_of_order": stats.out_of_order,
+            "dropped_out_of_range": result.out_of_range,
             "stale_steps": stats.stale_steps,
             "gaps": stats.gaps,
             "failover_steps": stats.failover_steps,
