@@ -17,6 +17,7 @@ from hil.cli import main
 from hil.estimation.sensors import SensorKind
 from hil.logs import detect_format, read_log
 from hil.logs.replay import ReplayOptions, replay
+from hil.scenario.paths import SHARED_DATA
 from protocol.errors import InputFormatError
 
 GYR, ACC, MAG = SensorKind.GYR, SensorKind.ACC, SensorKind.MAG
@@ -130,17 +131,28 @@ def phyphox_csv(path: Path, columns: tuple[str, ...], t: np.ndarray, xyz: np.nda
     return path
 
 
-def builtin_export(folder: Path, kind: SensorKind, start_unix_s: float, zipped: bool = False) -> None:
+def builtin_export(
+    folder: Path,
+    kind: SensorKind,
+    start_unix_s: float,
+    zipped: bool = False,
+    delimiter: str = ",",
+    decimal: str = ".",
+) -> None:
     """A built-in single-sensor experiment's export: Raw Data.csv on its own clock from 0, meta/time.csv
-    (event, experiment time, system time, system time text) and meta/device.csv."""
+    (event, experiment time, system time, system time text) and meta/device.csv, all in the export's
+    dialect (phyphox writes meta/time.csv with the data's separator and decimal mark)."""
     t, gyr, acc, mag = motion(offset=0.0)
     xyz = {ACC: acc, GYR: gyr, MAG: mag}[kind]
-    phyphox_csv(folder / "Raw Data.csv", ("Time (s)", *HEAD[kind]), t, xyz)
+    phyphox_csv(folder / "Raw Data.csv", ("Time (s)", *HEAD[kind]), t, xyz, delimiter, decimal)
     (folder / "meta").mkdir()
+    rows = [
+        ('"event"', '"experiment time"', '"system time"', '"system time text"'),
+        ('"START"', "0.000000000E0", f"{start_unix_s:.3f}", '"2024-05-01 10:00:00.000 UTC+02:00"'),
+        ('"PAUSE"', f"{t[-1]:.9E}", f"{start_unix_s + t[-1]:.3f}", '"2024-05-01 10:00:04.000 UTC+02:00"'),
+    ]
     (folder / "meta" / "time.csv").write_text(
-        '"event","experiment time","system time","system time text"\n'
-        f'"START",0.000000000E0,{start_unix_s:.3f},"2024-05-01 10:00:00.000 UTC+02:00"\n'
-        f'"PAUSE",{t[-1]:.9E},{start_unix_s + t[-1]:.3f},"2024-05-01 10:00:04.000 UTC+02:00"\n'
+        "".join(delimiter.join(cell.replace(".", decimal) for cell in row) + "\n" for row in rows)
     )
     (folder / "meta" / "device.csv").write_text('"property","value"\n"deviceModel","test"\n')
     if zipped:
@@ -153,12 +165,18 @@ def builtin_export(folder: Path, kind: SensorKind, start_unix_s: float, zipped: 
         folder.rmdir()
 
 
-@pytest.mark.parametrize("zipped", [False, True])
-def test_phyphox_builtin_exports_each_on_its_own_clock_are_aligned_by_meta_time(tmp_path, zipped):
+@pytest.mark.parametrize(
+    ("zipped", "delimiter", "decimal"),
+    [(False, ",", "."), (True, ",", "."), (True, ";", ","), (False, "\t", ","), (False, ";", ".")],
+)
+def test_phyphox_builtin_exports_each_on_its_own_clock_are_aligned_by_meta_time(
+    tmp_path, zipped, delimiter, decimal
+):
     root = tmp_path / "exports"
-    builtin_export(root / "Acceleration with g 2024-05-01", ACC, 1_714_550_400.0, zipped)
-    builtin_export(root / "Gyroscope 2024-05-01", GYR, 1_714_550_400.25, zipped)
-    builtin_export(root / "Magnetometer 2024-05-01", MAG, 1_714_550_400.5, zipped)
+    dialect = {"zipped": zipped, "delimiter": delimiter, "decimal": decimal}
+    builtin_export(root / "Acceleration with g 2024-05-01", ACC, 1_714_550_400.0, **dialect)
+    builtin_export(root / "Gyroscope 2024-05-01", GYR, 1_714_550_400.25, **dialect)
+    builtin_export(root / "Magnetometer 2024-05-01", MAG, 1_714_550_400.5, **dialect)
     log = read_log(root)
     assert log.format == "phyphox"
     assert log.streams[ACC].t[0] == pytest.approx(0.0)
@@ -278,3 +296,167 @@ def test_a_6_axis_phyphox_replay_runs_through_the_library(tmp_path):
     result = replay(folder, ReplayOptions(tmp_path / "out"))
     assert result.log.six_axis and len(result.estimates) > 300
     assert any("heading NOT observed" in s for s in result.setup)
+
+
+# --------------------------------------------------------------------------- the real export, re-laid
+REAL = SHARED_DATA / "sensorlogger-android"
+REAL_FILES = ("Gyroscope.csv", "TotalAcceleration.csv", "Magnetometer.csv")
+REAL_LINES = 1500  # per file: the header and ~30 s of the recording
+
+
+def real_export(folder: Path, rename=lambda name: name, edit=lambda line: line) -> Path:
+    """The first :data:`REAL_LINES` lines of each of the real Sensor Logger export's files, into
+    ``folder`` under ``rename(name)``, each line through ``edit``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for name in REAL_FILES:
+        with open(REAL / name, encoding="utf-8") as f:
+            lines = [edit(next(f).rstrip("\n")) for _ in range(REAL_LINES)]
+        (folder / rename(name)).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return folder
+
+
+def zip_folder(folder: Path, archive: Path, under: str = "", extra: dict[str, bytes] | None = None) -> Path:
+    with zipfile.ZipFile(archive, "w") as z:
+        for f in sorted(folder.rglob("*")):
+            if f.is_file():
+                z.write(f, under + f.relative_to(folder).as_posix())
+        for name, data in (extra or {}).items():
+            z.writestr(name, data)
+    return archive
+
+
+def semicolons(line: str) -> str:
+    """A line as a spreadsheet in a European locale saves it: semicolons, decimal commas."""
+    return line.replace(",", ";").replace(".", ",")
+
+
+def epoch_in(digits_dropped: int):
+    """A line whose ``time`` (ns) is cut to µs (3) or ms (6), as a re-export writes it."""
+
+    def edit(line: str) -> str:
+        head, _, rest = line.partition(",")
+        return line if head == "time" else f"{head[:-digits_dropped]},{rest}"
+
+    return edit
+
+
+LAYOUTS = {
+    "macOS Compress (__MACOSX, ._ files)": lambda tmp: zip_folder(
+        real_export(tmp / "Rec"), tmp / "macos.zip", "Rec/",
+        {"__MACOSX/Rec/._Gyroscope.csv": b"\x00\x05\x16\x07x", "Rec/.DS_Store": b"\x00\x00\x00\x01Bud1"},
+    ),
+    "a zip of the export's folder's folder": lambda tmp: zip_folder(
+        real_export(tmp / "outer" / "Rec"), tmp / "two.zip", "outer/"
+    ),
+    "a folder holding the export's zip": lambda tmp: (
+        zip_folder(real_export(tmp / "Rec"), (tmp / "holder").mkdir() or tmp / "holder" / "Rec.zip"),
+        tmp / "holder",
+    )[1],
+    "file names in lower case": lambda tmp: real_export(tmp / "lower", rename=str.lower),
+    "a semicolon, decimal comma re-save": lambda tmp: real_export(tmp / "semi", edit=semicolons),
+}  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def real_log(tmp_path_factory):
+    return read_log(real_export(tmp_path_factory.mktemp("real") / "export"))
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_the_real_sensor_logger_export_laid_out_as_users_bring_it_reads_the_same(tmp_path, real_log, layout):
+    """Each layout is read as Sensor Logger (never as phyphox: its ns epoch taken for seconds), sample for
+    sample as the export itself."""
+    path = LAYOUTS[layout](tmp_path)
+    assert detect_format(path) == "sensorlogger"
+    log = read_log(path)
+    for kind in (GYR, ACC, MAG):
+        np.testing.assert_array_equal(log.streams[kind].t, real_log.streams[kind].t)
+        np.testing.assert_array_equal(log.streams[kind].xyz, real_log.streams[kind].xyz)
+
+
+@pytest.mark.parametrize(("digits", "unit"), [(3, "µs"), (6, "ms")])
+def test_an_epoch_in_us_or_ms_is_told_by_its_size_and_noted(tmp_path, real_log, digits, unit):
+    log = read_log(real_export(tmp_path / unit, edit=epoch_in(digits)))
+    resolution = 10.0 ** (digits - 9)
+    for kind in (GYR, ACC, MAG):
+        err = np.abs(log.streams[kind].t - real_log.streams[kind].t)
+        assert err.max() <= resolution  # the same recording, to the resolution it was cut to
+    assert sum(f"'time' in {unit} since the epoch" in n for n in log.notes) == 3
+    assert log.end - log.start == pytest.approx(real_log.end - real_log.start, abs=resolution)
+
+
+def seconds_elapsed_doubled(line: str) -> str:
+    time, elapsed, rest = line.split(",", 2)
+    return f"{time},{2 * float(elapsed)!r},{rest}"
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda line: line if line.startswith("time") else "12345" + line[line.index(","):],
+         "no time since the epoch"),
+        (lambda line: line if line.startswith("time") else seconds_elapsed_doubled(line), "spans"),
+    ],
+)  # fmt: skip
+def test_a_time_column_that_is_no_epoch_or_disagrees_with_seconds_elapsed_is_a_typed_error(
+    tmp_path, edit, message
+):
+    folder = real_export(tmp_path / "bad", edit=edit)
+    with pytest.raises(InputFormatError, match=message) as err:
+        read_log(folder)
+    assert "Gyroscope.csv" in str(err.value) and "time" in str(err.value)
+
+
+def test_a_header_only_magnetometer_file_is_a_6_axis_log_and_a_header_only_gyroscope_names_its_file(tmp_path):
+    folder = real_export(tmp_path / "rec")
+    (folder / "Magnetometer.csv").write_text("time,seconds_elapsed,z,y,x\n")
+    log = read_log(folder)
+    assert log.six_axis and any("Magnetometer.csv has no samples" in n for n in log.notes)
+    (folder / "Gyroscope.csv").write_text("time,seconds_elapsed,z,y,x\n")
+    with pytest.raises(InputFormatError, match="no samples") as err:
+        read_log(folder)
+    assert "Gyroscope.csv" in str(err.value)
+
+
+def test_a_sensor_whose_rows_are_out_of_time_order_is_warned_about(tmp_path):
+    folder = real_export(tmp_path / "rec")
+    lines = (folder / "Gyroscope.csv").read_text().splitlines()
+    body = lines[1:]
+    np.random.default_rng(7).shuffle(body)  # a spreadsheet sorted by another column
+    (folder / "Gyroscope.csv").write_text("\n".join([lines[0], *body]) + "\n")
+    result = replay(folder, ReplayOptions(out_dir=tmp_path / "out"))
+    assert any(w.startswith("gyr:") and "not in time order" in w for w in result.warnings)
+    clean = replay(real_export(tmp_path / "clean"), ReplayOptions(out_dir=tmp_path / "out2"))
+    assert not any(w.startswith(("gyr:", "acc:", "mag:")) for w in clean.warnings)
+
+
+def test_a_gunzipped_tyrex_trial_reads_the_calibrated_files_as_the_published_one(tmp_path):
+    import gzip
+    import shutil
+
+    trial = SHARED_DATA / "tyrex-nexus5" / "Guillaume_Nexus5_NoDist_Texting"
+    plain = tmp_path / trial.name
+    plain.mkdir()
+    for f in trial.iterdir():
+        if f.name.endswith(".gz"):
+            with gzip.open(f, "rb") as src, open(plain / f.name.removesuffix(".gz"), "wb") as dst:
+                shutil.copyfileobj(src, dst)
+        else:
+            shutil.copy(f, plain / f.name)
+    published, gunzipped = read_log(trial), read_log(plain)
+    for kind in (GYR, ACC, MAG):
+        np.testing.assert_array_equal(gunzipped.streams[kind].xyz, published.streams[kind].xyz)
+    assert not any("uncalibrated" in n for n in gunzipped.notes)
+
+
+def test_a_time_cell_that_is_no_number_is_a_nan_sample_dropped_and_counted_not_a_clock_jump(tmp_path):
+    """A ``nan`` (or an overflowing) epoch in one row once became INT64_MIN ns: the whole log moved
+    7.5e9 s into the past around a jump the replay split at. It is now that row's NaN sample."""
+    folder = real_export(tmp_path / "rec")
+    lines = (folder / "Gyroscope.csv").read_text().splitlines()
+    lines[500] = "nan" + lines[500][lines[500].index(",") :]
+    lines[700] = "1" + "0" * 25 + lines[700][lines[700].index(",") :]
+    (folder / "Gyroscope.csv").write_text("\n".join(lines) + "\n")
+    result = replay(folder, ReplayOptions(out_dir=tmp_path / "out"))
+    assert result.merge_stats.nan["gyr"] == 2 and len(result.segments) == 1
+    assert result.estimates.t[0] >= 0.0 and result.estimates.t[-1] < 40.0

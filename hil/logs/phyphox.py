@@ -28,12 +28,13 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns, axis_of, time_column
-from hil.logs.table import Container, read_table, shown, split_header
+from hil.logs.table import Container, read_table, shown, sniff_dialect, split_header
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
@@ -70,22 +71,17 @@ def _csv_members(c: Container) -> list[str]:
     return [n for n in c.names() if n.lower().endswith(".csv") and "meta/" not in f"/{n}".lower()]
 
 
-def _dialect(head: list[str]) -> tuple[str, bool]:
-    header = head[0] if head else ""
-    delimiter = ";" if ";" in header else "\t" if "\t" in header else ","
-    first = next((line for line in head[1:] if line.strip()), "")
-    return delimiter, delimiter != "," and "," in first
-
-
 def _classify(c: Container, name: str) -> _File | None:
     """The file's sensor, or None if it is not a phyphox sensor table (see :func:`_kind`)."""
     head = [line for line in c.head(name, 8) if line.strip() and not line.lstrip().startswith("#")][:2]
     if not head:
         return None
-    delimiter, decimal_comma = _dialect(head)
+    delimiter, decimal_comma = sniff_dialect(head)
     cells = split_header(head[0], delimiter)
     if not cells or not cells[0].lower().startswith("time"):
         return None
+    if any(cell.lower() == "seconds_elapsed" for cell in cells):
+        return None  # Sensor Logger's (its epoch time in ns is no phyphox clock)
     x_col = next((col for col in cells[1:] if axis_of(col) == "x"), None)
     if x_col is None:
         return None
@@ -195,9 +191,20 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
 
 
 def _start_system_time(c: Container, name: str) -> float:
-    """System time (s since the epoch) at experiment time 0, from the first START row."""
+    """System time (s since the epoch) at experiment time 0, from the first START row. The file is in its
+    export's dialect (phyphox writes it with the data's separator and decimal mark)."""
     text_cells = {0: lambda s: 0.0 if s.strip('"') == "START" else 1.0, 3: lambda s: 0.0}
-    table = read_table(c, name, ",", converters=text_cells, min_columns=3, locate=_time_csv_error)
+    delimiter, decimal_comma = sniff_dialect([line for line in c.head(name, 8) if line.strip()])
+    locate = partial(_time_csv_error, delimiter=delimiter, decimal_comma=decimal_comma)
+    table = read_table(
+        c,
+        name,
+        delimiter,
+        decimal_comma=decimal_comma,
+        converters=text_cells,
+        min_columns=3,
+        locate=locate,
+    )
     starts = np.flatnonzero(table.data[:, 0] == 0.0)
     if not len(starts):
         raise InputFormatError("no START event", table.source, table.header_line)
@@ -205,13 +212,13 @@ def _start_system_time(c: Container, name: str) -> float:
     return float(row[table.columns.index("system time")] - row[table.columns.index("experiment time")])
 
 
-def _time_csv_error(pending, columns, source):  # type: ignore[no-untyped-def]
+def _time_csv_error(pending, columns, source, delimiter=",", decimal_comma=False):  # type: ignore[no-untyped-def]
     for line_no, line in pending:
-        cells = line.split(",")
+        cells = line.split(delimiter)
         if len(cells) < 3:
             raise InputFormatError(f"{len(cells)} values, expected at least 3", source, line_no)
         for col, cell in zip(columns[1:3], cells[1:3], strict=True):
             try:
-                float(cell)
+                float(cell.replace(",", ".") if decimal_comma else cell)
             except ValueError:
                 raise InputFormatError(f"{shown(cell)} is not a number", source, line_no, col) from None

@@ -286,6 +286,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         all_estimates.append(estimates)
     if not all_estimates:
         raise InputFormatError("no part of the log has every sensor speaking for long enough", log.source)
+    warnings += merge_warnings(stats)
     steps = all_steps[0] if len(all_steps) == 1 else _concat_steps(all_steps)
     estimates = all_estimates[0] if len(all_estimates) == 1 else _concat(all_estimates)
     result = ReplayResult(
@@ -343,6 +344,31 @@ def _ranges(limits: ReadingLimits) -> str:
         f"±{limits.limit(SensorKind.GYR):g} rad/s, ±{limits.limit(SensorKind.ACC):.4g} m/s², "
         f"±{limits.limit(SensorKind.MAG):g} µT"
     )
+
+
+LOSS_WARNED = 0.05
+"""A sensor that loses more than this fraction of its samples to the merge's drops, or is stale on more
+than this fraction of the steps, is warned about: a few drops are a phone's hiccups, more is a log whose
+rows are out of order or whose clock is broken, and its estimates rest on the other sensors."""
+
+
+def merge_warnings(stats: MergeStats) -> list[str]:
+    """The warnings a replay's merge counters call for (:data:`LOSS_WARNED`), one per sensor and kind."""
+    out = []
+    for label in stats.accepted:
+        counts = {reason: getattr(stats, reason)[label] for reason in ("nan", "duplicate", "out_of_order")}
+        lost = sum(counts.values())
+        total = lost + stats.accepted[label]
+        if total and lost > LOSS_WARNED * total:
+            why = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in counts.items() if n)
+            out.append(
+                f"{label}: {lost} of its {total} samples dropped ({why}): its rows are not in time order, "
+                "or its clock is broken; the estimates rest on what is left"
+            )
+        stale = stats.stale_steps[label]
+        if stats.steps and stale > LOSS_WARNED * stats.steps and stats.accepted[label]:
+            out.append(f"{label}: stale (no fresh sample) on {stale} of {stats.steps} steps")
+    return out
 
 
 def _check_length(part: SensorLog, steps: int, source: str, merged: bool = False) -> None:

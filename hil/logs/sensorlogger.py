@@ -21,7 +21,7 @@ import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns
-from hil.logs.table import Container, Table, read_table
+from hil.logs.table import Container, Table, read_table, sniff_dialect, split_header
 from protocol.errors import InputFormatError
 
 NAME = "sensorlogger"
@@ -32,23 +32,75 @@ ACC_FILES = ("TotalAcceleration.csv", "Accelerometer.csv", "AccelerometerUncalib
 _TIME = ("time", "seconds_elapsed")
 
 
+_KNOWN = (*GYR_FILES, *ACC_FILES, *MAG_FILES, "Gravity.csv", "Metadata.csv")
+"""The export's files this reader reads, as the app names them."""
+EPOCH_UNITS: tuple[tuple[int, int, int, str], ...] = (
+    (10**18, 10**19, 1, "ns"),
+    (10**15, 10**16, 1_000, "µs"),
+    (10**12, 10**13, 1_000_000, "ms"),
+    (10**9, 10**10, 1_000_000_000, "s"),
+)
+"""``time`` column units by size: (lowest, highest, ns per unit, name). A time since the epoch between
+2001 and 2286 is 1e9–1e10 s: in ns (the app's) 1e18–1e19, in µs or ms (a re-export) 1e15 or 1e12 on."""
+
+
+def members(c: Container) -> dict[str, str] | None:
+    """Sensor Logger's files in ``c`` (:data:`_KNOWN`, matched whatever their letter case) → the members
+    holding them: at the top, or all in one folder below it (an export zipped twice, a folder holding the
+    export's zip: ``Rec/Gyroscope.csv``). None when they lie in several folders (recordings side by side:
+    each is a log of its own)."""
+    lower = {name.lower(): name for name in _KNOWN}
+    found: dict[str, str] = {}
+    folders: set[str] = set()
+    for member in sorted(c.names()):
+        folder, _, base = member.rpartition("/")
+        name = lower.get(base.lower())
+        if name is not None and name not in found:
+            found[name] = member
+            folders.add(folder)
+    return found if len(folders) <= 1 else None
+
+
 def detect(c: Container) -> bool:
+    files = members(c)
     for name in (*GYR_FILES, *ACC_FILES, *MAG_FILES):
-        if c.has(name):
-            head = c.head(name, 1)
-            cells = [x.strip().strip('"').lower() for x in (head[0] if head else "").split(",")]
+        if files and name in files:
+            head = [line for line in c.head(files[name], 3) if line.strip()]
+            cells = [x.lower() for x in split_header(head[0], sniff_dialect(head)[0])] if head else []
             return "seconds_elapsed" in cells or ("time" in cells and any(" x (" in x for x in cells))
     return False
 
 
-def _table(c: Container, name: str) -> tuple[Table, np.ndarray, list[tuple[str, float]]]:
-    """The file's table, its times (int64 ns since the epoch, or float s since the start) and its axes."""
-    table = read_table(c, name, ",", header=True, min_columns=4, exact_columns=("time",))
-    kind = _KIND[name]
+def _table(
+    c: Container, member: str, notes: list[str], required: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """The file's times (int64 ns since the epoch, or float s since the start) and readings (N, 3), read
+    in its own dialect (a spreadsheet's re-save may use semicolons and decimal commas). A row whose
+    ``time`` is no number (NaN, or beyond int64) has NaN readings: a NaN sample, dropped and counted by
+    the merge. A file with no rows is an InputFormatError naming it when ``required``."""
+    delimiter, decimal_comma = sniff_dialect([line for line in c.head(member, 8) if line.strip()])
+    table = read_table(
+        c,
+        member,
+        delimiter,
+        header=True,
+        decimal_comma=decimal_comma,
+        min_columns=4,
+        exact_columns=("time",),
+    )
+    if required and not len(table.data):
+        raise InputFormatError("no samples (a header only)", table.source)
+    kind = _KIND[member.rpartition("/")[2].lower()]
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=_TIME)
+    xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
     times: np.ndarray
     if "time" in table.exact:
-        times = table.exact["time"]
+        exact = table.column("time")
+        unusable = ~(np.isfinite(exact) & (np.abs(exact) < 2.0**63))
+        if unusable.all() and len(unusable):
+            raise InputFormatError("no 'time' cell is a number", table.source, table.header_line, "time")
+        xyz[unusable] = np.nan
+        times = _epoch_ns(table, ~unusable, notes)
     elif "seconds_elapsed" in table.columns:
         times = table.column("seconds_elapsed")
     else:
@@ -57,36 +109,88 @@ def _table(c: Container, name: str) -> tuple[Table, np.ndarray, list[tuple[str, 
             table.source,
             table.header_line,
         )
-    return table, times, axes
+    return times, xyz
 
 
-_KIND = {n: SensorKind.GYR for n in GYR_FILES} | {n: SensorKind.MAG for n in MAG_FILES}
-_KIND |= {n: SensorKind.ACC for n in (*ACC_FILES, "Gravity.csv")}
+def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> np.ndarray:
+    """The ``time`` column as int64 ns since the epoch, its unit told by its size (:data:`EPOCH_UNITS`:
+    the app writes ns; a re-export may write µs or ms) and checked against ``seconds_elapsed``'s steps
+    where there is one. A time that is no epoch in any unit is an InputFormatError naming the column."""
+    times = table.exact["time"]
+    if not usable.any():
+        return times
+    typical = int(np.median(times[usable]))
+    unit = next((u for u in EPOCH_UNITS if u[0] <= abs(typical) < u[1]), None)
+    if unit is None:
+        raise InputFormatError(
+            f"{typical} is no time since the epoch in ns, µs, ms or s (2001-2286)",
+            table.source,
+            table.header_line,
+            "time",
+        )
+    _, _, ns_per_unit, name = unit
+    ns = np.where(usable, times, typical) * ns_per_unit  # an unusable row's readings are NaN
+    if name != "ns":
+        notes.append(f"{table.source}: 'time' in {name} since the epoch (the app writes ns)")
+    if "seconds_elapsed" in table.columns:
+        rows = np.flatnonzero(usable & np.isfinite(table.column("seconds_elapsed")))
+        elapsed = table.column("seconds_elapsed")[rows]
+        span_s = float(elapsed[-1] - elapsed[0]) if len(rows) else 0.0
+        if abs(span_s) >= 1.0:
+            ratio = float(ns[rows[-1]] - ns[rows[0]]) * 1e-9 / span_s
+            if not 0.99 < ratio < 1.01:
+                raise InputFormatError(
+                    f"read as {name} since the epoch, 'time' spans {ratio:.4g} times what "
+                    f"'seconds_elapsed' does: its unit is not {name}",
+                    table.source,
+                    table.header_line,
+                    "time",
+                )
+    return ns
 
 
-def _first(c: Container, names: tuple[str, ...]) -> str | None:
-    return next((n for n in names if c.has(n)), None)
+_KIND = {n.lower(): SensorKind.GYR for n in GYR_FILES} | {n.lower(): SensorKind.MAG for n in MAG_FILES}
+_KIND |= {n.lower(): SensorKind.ACC for n in (*ACC_FILES, "Gravity.csv")}
+
+
+def _first(files: dict[str, str], names: tuple[str, ...]) -> str | None:
+    return next((n for n in names if n in files), None)
 
 
 def read(c: Container) -> SensorLog:
+    files = members(c)
+    if files is None:
+        folders = sorted({m.rpartition("/")[0] or "." for m in c.names()})
+        raise InputFormatError(
+            f"Sensor Logger files in several folders ({', '.join(folders[:6])}): recordings side by side; "
+            "replay one folder",
+            str(c.path),
+        )
     notes: list[str] = ["Sensor Logger export: columns read by name (files are ordered z, y, x)"]
     parts: dict[SensorKind, tuple[np.ndarray, np.ndarray]] = {}
-    gyr = _first(c, GYR_FILES)
+    gyr = _first(files, GYR_FILES)
     if gyr is None:
         raise InputFormatError("no Gyroscope.csv (nor GyroscopeUncalibrated.csv) in the export", str(c.path))
-    mag = _first(c, MAG_FILES)
+    mag = _first(files, MAG_FILES)
     for kind, name in ((SensorKind.GYR, gyr), (SensorKind.MAG, mag)):
         if name is None:
             continue
-        table, times, axes = _table(c, name)
-        parts[kind] = (times, _xyz(table, axes))
+        times, xyz = _table(c, files[name], notes, required=kind is SensorKind.GYR)
+        if not len(times):  # a magnetometer file with a header only
+            notes.append(f"{name} has no samples: 6-axis log, heading not observed")
+            mag = None
+            continue
+        parts[kind] = (times, xyz)
         if "Uncalibrated" in name:
             notes.append(f"{name}: no calibrated file in the export, using the uncalibrated one")
-    if mag is None:
+    if _first(files, MAG_FILES) is None:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
-    parts[SensorKind.ACC] = _accelerometer(c, notes)
-    if c.has("Metadata.csv") and "ios" in c.text("Metadata.csv").lower():
+    parts[SensorKind.ACC] = _accelerometer(c, files, notes)
+    if "Metadata.csv" in files and "ios" in c.text(files["Metadata.csv"]).lower():
         notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
+    if any(m != name for name, m in files.items()):
+        folder = next(iter(files.values())).rpartition("/")[0]
+        notes.append(f"the export's files read from {folder or 'the top'} (names matched ignoring case)")
     epoch = {k: t.dtype.kind == "i" for k, (t, _) in parts.items()}
     if len(set(epoch.values())) > 1:
         raise InputFormatError(
@@ -104,41 +208,39 @@ def read(c: Container) -> SensorLog:
     return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
 
 
-def _accelerometer(c: Container, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    if c.has("TotalAcceleration.csv"):
-        table, times, axes = _table(c, "TotalAcceleration.csv")
+def _accelerometer(c: Container, files: dict[str, str], notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    if "TotalAcceleration.csv" in files:
+        times, xyz = _table(c, files["TotalAcceleration.csv"], notes)
         notes.append("accelerometer: TotalAcceleration.csv (gravity included)")
-        return times, _xyz(table, axes)
-    if c.has("Accelerometer.csv") and c.has("Gravity.csv"):
-        user, user_t, user_axes = _table(c, "Accelerometer.csv")
-        grav, grav_t, grav_axes = _table(c, "Gravity.csv")
-        base = grav_t[0] if len(grav_t) else 0
+        return times, xyz
+    if "Accelerometer.csv" in files and "Gravity.csv" in files:
+        user_t, user = _table(c, files["Accelerometer.csv"], notes)
+        grav_t, g = _table(c, files["Gravity.csv"], notes)
+        known = np.all(np.isfinite(g), axis=1)  # gravity interpolated between its usable rows
+        if not known.any():
+            raise InputFormatError("no usable samples", c.where(files["Gravity.csv"]))
+        grav_t, g = grav_t[known], g[known]
+        base = grav_t[0]
         tu, tg = (user_t - base).astype(float), (grav_t - base).astype(float)
-        g = _xyz(grav, grav_axes)
-        xyz = _xyz(user, user_axes) + np.column_stack([np.interp(tu, tg, g[:, i]) for i in range(3)])
+        xyz = user + np.column_stack([np.interp(tu, tg, g[:, i]) for i in range(3)])
         notes.append("accelerometer: Accelerometer.csv (user acceleration) + Gravity.csv (interpolated)")
         return user_t, xyz
-    if c.has("AccelerometerUncalibrated.csv"):
-        table, times, axes = _table(c, "AccelerometerUncalibrated.csv")
-        xyz = _xyz(table, axes)
+    if "AccelerometerUncalibrated.csv" in files:
+        times, xyz = _table(c, files["AccelerometerUncalibrated.csv"], notes)
         norm = float(np.nanmedian(np.linalg.norm(xyz, axis=1))) if len(xyz) else G
         if 0.5 < norm < 2.0:  # iOS's raw accelerometer reads in g
             xyz = xyz * G
             notes.append("AccelerometerUncalibrated.csv reads in g (median norm ~1): converted to m/s^2")
         notes.append("accelerometer: AccelerometerUncalibrated.csv (raw, gravity included)")
         return times, xyz
-    if c.has("Accelerometer.csv"):
+    if "Accelerometer.csv" in files:
         raise InputFormatError(
             "only Accelerometer.csv (user acceleration, gravity removed) in the export: the estimator needs "
             "the gravity direction; export TotalAcceleration (or Gravity) as well",
-            c.where("Accelerometer.csv"),
+            c.where(files["Accelerometer.csv"]),
         )
     raise InputFormatError(
         "no accelerometer file (TotalAcceleration.csv, Accelerometer.csv + Gravity.csv, or "
         "AccelerometerUncalibrated.csv)",
         str(c.path),
     )
-
-
-def _xyz(t: Table, axes: list[tuple[str, float]]) -> np.ndarray:
-    return np.column_stack([t.column(col) * factor for col, factor in axes])

@@ -94,6 +94,8 @@ class Container:
         elif self.path.is_dir():
             for p in sorted(self._files()):
                 rel = p.relative_to(self.path).as_posix()
+                if os_litter(rel):
+                    continue
                 if p.suffix.lower() == ".zip" and zipfile.is_zipfile(p):
                     self._add_zip(p, rel.removesuffix(p.suffix) + "/")  # an export zip inside a folder
                 else:
@@ -128,7 +130,7 @@ class Container:
         except (zipfile.BadZipFile, OSError, ValueError) as exc:
             raise InputFormatError(f"not a readable zip ({exc})", str(path)) from None
         self._zips.append(archive)
-        members = [n for n in archive.namelist() if not n.endswith("/")]
+        members = [n for n in archive.namelist() if not n.endswith("/") and not os_litter(n)]
         shared = _shared_folder(members)
         for n in members:
             self._add(prefix + (n[len(shared) :] if shared else n), archive, n)
@@ -246,6 +248,17 @@ def _guarded_iter(batches: Iterator[list[bytes | None]], where: str) -> Iterator
         yield batch
 
 
+_LITTER_FOLDERS = frozenset({"__macosx", ".ds_store", "thumbs.db", "desktop.ini"})
+
+
+def os_litter(name: str) -> bool:
+    """Whether a member (a '/'-separated path) is what an operating system leaves beside a user's files,
+    not part of a log: macOS's ``__MACOSX/`` folder and ``._name`` companions (its "Compress" puts both in
+    every zip), ``.DS_Store``, Windows' ``Thumbs.db`` and ``desktop.ini``."""
+    parts = name.lower().split("/")
+    return parts[-1].startswith("._") or any(part in _LITTER_FOLDERS for part in parts)
+
+
 def _shared_folder(members: Sequence[str]) -> str:
     """The one folder every member of a zip shares, with its slash ("" if none): exports zip their
     folder, and its name is left out of the members' names."""
@@ -253,6 +266,17 @@ def _shared_folder(members: Sequence[str]) -> str:
     if len(tops) == 1 and all("/" in m for m in members):
         return next(iter(tops)) + "/"
     return ""
+
+
+def sniff_dialect(head: Sequence[str]) -> tuple[str, bool]:
+    """(delimiter, decimal comma) of a CSV from its first non-blank lines ``head`` (header first): a
+    semicolon or a tab in the header is the separator, else a comma; with a separator other than the
+    comma, a comma in the first data line is a decimal comma (a spreadsheet's export in a European
+    locale, phyphox's "semicolon, decimal comma")."""
+    header = head[0] if head else ""
+    delimiter = ";" if ";" in header else "\t" if "\t" in header else ","
+    first = next((line for line in head[1:] if line.strip()), "")
+    return delimiter, delimiter != "," and "," in first
 
 
 def split_header(line: str, delimiter: str | None) -> list[str]:
@@ -442,7 +466,9 @@ class _Chunks:
                     quotechar='"',
                 )
             except ValueError:  # not integers (a re-saved file): the float column, to its precision
-                ints = data[:, idx].astype(np.int64)
+                floats = data[:, idx]
+                fits = np.isfinite(floats) & (np.abs(floats) < 2.0**63)
+                ints = np.where(fits, floats, 0.0).astype(np.int64)  # the rest: the float column's to tell
             self.exact.setdefault(col, []).append(ints)
         return int(data.shape[0])
 

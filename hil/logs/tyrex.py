@@ -34,9 +34,21 @@ EXCLUDED: dict[str, tuple[tuple[float, float], ...]] = {
 """Motion-capture-time intervals (s) the benchmark's authors exclude, by trial-name suffix."""
 _FILES = {
     SensorKind.ACC: ("accelerometer.txt.gz", "accelerometer.txt"),
-    SensorKind.GYR: ("gyroscope-calibrated.txt.gz", "gyroscope.txt.gz", "gyroscope.txt"),
-    SensorKind.MAG: ("magnetometer-calibrated.txt.gz", "magnetometer.txt.gz", "magnetometer.txt"),
+    SensorKind.GYR: (
+        "gyroscope-calibrated.txt.gz",
+        "gyroscope-calibrated.txt",
+        "gyroscope.txt.gz",
+        "gyroscope.txt",
+    ),
+    SensorKind.MAG: (
+        "magnetometer-calibrated.txt.gz",
+        "magnetometer-calibrated.txt",
+        "magnetometer.txt.gz",
+        "magnetometer.txt",
+    ),
 }
+"""Each sensor's files, preferred first: the calibrated ones, gzipped (as published) or not (a trial
+gunzipped), before the raw ones."""
 
 
 def detect(c: Container) -> bool:
