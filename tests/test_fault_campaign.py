@@ -147,6 +147,18 @@ def test_the_checker_sees_a_stale_row_an_unsafe_pulse_and_a_dishonest_exit():
     assert report.violations["back_in_control"]
 
 
+def test_the_checker_sees_a_run_that_ran_past_its_end():
+    sc = _sc()
+    recorder = _recorded(sc)
+    assert check_run([], recorder, fault_bounds(sc)).ok
+    late = list(recorder._rows[-1])
+    late[0] += 2.0  # a row 2 s after the run's end: it ran on (to a tick that saw the board again)
+    recorder._rows.append(tuple(late))
+    recorder._board_values.append(recorder._board_values[-1])
+    report = check_run([], recorder, fault_bounds(sc))
+    assert any("was due to end" in v for v in report.violations["honest_exit"])
+
+
 def test_a_run_that_crashed_or_hung_is_a_violation():
     sc = _sc()
     report = check_run([], _recorded(sc), fault_bounds(sc), error="RunHung: no end after 280 s")
@@ -172,6 +184,29 @@ def test_a_board_unplugged_and_plugged_back_in_any_phase_is_re_armed_and_steered
         assert any(f["kind"] == "reset" and f["cause"] == "POWER_ON" for f in s["faults"])
     else:  # during the first handshake: tried again until the board is back (before: an error, exit 2)
         assert recorder.first_event("connect_retry") is not None
+
+
+@pytest.mark.parametrize(
+    "fault",
+    [
+        InjectedFault("unplug", 14.0, {"duration_s": 10.0}),  # out 1.7 s before the end, back long after
+        InjectedFault("hang", 15.3),  # stale 0.1 s before the end
+        InjectedFault("stall", 15.2, {"duration_s": 3.0}),
+    ],
+    ids=lambda f: f.kind,
+)
+def test_a_board_out_at_the_run_s_end_ends_the_run_then_lost_not_completed_at_its_return(fault):
+    """A board the host cannot see when the run's time is up (12 s after the slew's start, at ~15.7 s):
+    the run ends then, lost with its outage still on. It used to run on to the first tick that saw the
+    board again — 9.5 s later for the unplug — and then say ``completed``, exit status 0."""
+    sc = _sc(duration_s=12.0)
+    recorder = _recorded(sc, [fault])
+    report = check_run([fault], recorder, fault_bounds(sc))
+    assert report.ok, report.violations
+    s = recorder.summary
+    assert s["exit"].startswith("lost:") and "not back when the run ended" in s["exit"]
+    due = recorder.first_event("slew_start")["t"] + 12.0
+    assert recorder.rows()["t"][-1] <= due + 1.0 / sc.loop.control_rate_hz + 1e-9
 
 
 # --------------------------------------------------------------------------- campaigns end to end

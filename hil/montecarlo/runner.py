@@ -332,6 +332,7 @@ def fault_bounds(scenario: Scenario) -> Bounds:
         recover_within_s=RECOVER_WITHIN_S,
         time_limit_s=limit,
         nominal_rotor=scenario.spacecraft.nominal_rotor_speed,
+        duration_s=scenario.slew.duration_s,
     )
 
 

@@ -243,6 +243,10 @@ class Host:
             self._hold_if_blind()
             hold = self.control.hold if self._hold_tick == self.counters.control_ticks else None
             self.rows.record(self._snapshot(t, view, None, None, hold, None))
+            # the run's time is up whether or not the board is in view: one that ends blind ends with
+            # its outage still on, and says so (it ran on past its end to the next live tick, completed)
+            if self.phases.time_is_up(t, self._duration):
+                self.finished = True
             return
         self._hold_sent = False
         self.actuators.board_flags(t, tel.faults)

@@ -15,7 +15,9 @@ invariant                   holds when
                             the board was not ARMED (the board's own pulse record)
 ``honest_exit``             the exit says what happened: ``completed`` only for a run that completed;
                             a lost board, an operator's abort or Disarm said as such; every operator
-                            command in the summary; an unmet requirement says why
+                            command in the summary; an unmet requirement says why; a run that ran its
+                            time (completed, or lost with an outage still on at its end) ends then,
+                            not at a later tick that saw the board again
 ``back_in_control``         after a recoverable fault the host is back in control within its bound,
                             re-armed only through the handshake, with the rotors at nominal speed
                             when it steers again; the requirement met, or missed for a reason the
@@ -100,6 +102,8 @@ class Bounds:
     recover_within_s: float
     time_limit_s: float
     nominal_rotor: float
+    duration_s: float = math.inf
+    """The run's time from the slew's start (the scenario's ``slew.duration_s``; inf: not checked)."""
 
     @property
     def detect_s(self) -> float:
@@ -152,7 +156,7 @@ def check_run(
     _stale(report, rows, bounds)
     _pulses(report, record)
     _detected(report, faults, record, rows, bounds, end)
-    _honest(report, faults, summary, record, end)
+    _honest(report, faults, summary, record, bounds, end)
     _back(report, faults, summary, record, rows, bounds, end)
     return report
 
@@ -385,6 +389,7 @@ def _honest(
     faults: Sequence[InjectedFault],
     summary: Mapping[str, Any],
     record: RunRecorder,
+    bounds: Bounds,
     end: float,
 ) -> None:
     exit_reason = str(summary.get("exit", ""))
@@ -412,6 +417,23 @@ def _honest(
     requirement = summary.get("requirement") or {}
     if summary.get("slew_started") and not requirement.get("met") and not requirement.get("why"):
         report.add("honest_exit", "the requirement was not met and the summary does not say why")
+    _ended_on_time(report, summary, record, bounds, end)
+
+
+def _ended_on_time(
+    report: InvariantReport, summary: Mapping[str, Any], record: RunRecorder, bounds: Bounds, end: float
+) -> None:
+    """A run that ran its time ends within a tick of it: its slew's start, plus its duration, plus the
+    operator's suspensions. (One whose board was out at that moment used to run on to the next tick that
+    saw it again, and could then say ``completed``.)"""
+    exit_reason = str(summary.get("exit", ""))
+    ran_its_time = exit_reason == "completed" or "not back when the run ended" in exit_reason
+    starts = [e["t"] for e in record.events if e["kind"] == "slew_start"]
+    if not ran_its_time or not starts or not math.isfinite(bounds.duration_s):
+        return
+    due = starts[0] + bounds.duration_s + float(summary.get("suspended_s") or 0.0)
+    if end > due + bounds.tick_s + 1e-6:
+        report.add("honest_exit", f"the run was due to end at t={due:.3f} s and ran to {end:.3f} s")
 
 
 # --------------------------------------------------------------------------- back in control
