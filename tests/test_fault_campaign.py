@@ -209,6 +209,24 @@ def test_a_board_out_at_the_run_s_end_ends_the_run_then_lost_not_completed_at_it
     assert recorder.rows()["t"][-1] <= due + 1.0 / sc.loop.control_rate_hz + 1e-9
 
 
+@pytest.mark.parametrize("offset_s", [-5.0, 100.0])
+def test_a_phone_clock_that_restarts_or_jumps_is_no_phone_gap(offset_s):
+    """The phone's clock moving (an app restarted: back; a clock stepped: forward) is a restart of the
+    estimator, counted as such; the samples never paused, so no phone gap is counted or left open (it used
+    to open one, ``phone_gaps`` 1 in the summary, and one opened at the end would have read as the phone
+    lost)."""
+    sc = _sc()
+    faults = [InjectedFault("phone_jump", 8.0, {"offset_s": offset_s})]
+    recorder = _recorded(sc, faults)
+    report = check_run(faults, recorder, fault_bounds(sc))
+    assert report.ok, report.violations
+    s = recorder.summary
+    assert s["exit"] == "completed" and s["phone_restarts"] == 1
+    assert s["phone_gaps"] == 0 and s["phone_gap_list"] == []
+    kind = "phone_restart" if offset_s < 0 else "phone_jump"
+    assert [f["kind"] for f in s["faults"] if f["kind"].startswith("phone")] == [kind]
+
+
 # --------------------------------------------------------------------------- campaigns end to end
 def _campaign(tmp_path, seed, runs, capsys):
     out = tmp_path / f"mc-{seed}"

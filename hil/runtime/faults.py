@@ -76,12 +76,13 @@ class FaultJournal:
     # ------------------------------------------------------------------ recording
     def fault(self, t: float, kind: str, **detail: Any) -> None:
         """A fault of ``kind`` (``stale``, ``link_lost``, ``failsafe``, ``reset``, ``reconnect``,
-        ``phone_gap``, ``phone_restart``) at ``t``; board faults open an outage (or join the open one)."""
+        ``phone_gap``) at ``t``: a board fault opens an outage (or joins the open one), a phone gap a
+        phone gap. (A phone clock that restarted or jumped is a :meth:`note`: the stream did not pause.)"""
         if len(self.faults) < MAX_FAULTS:
             self.faults.append({"t": t, "kind": kind, **detail})
         else:
             self.dropped += 1
-        gaps = kind.startswith("phone")
+        gaps = kind == "phone_gap"
         episodes = self.phone_gaps if gaps else self.outages
         if not episodes or episodes[-1].end is not None:
             episodes.append(Outage(t))
