@@ -24,7 +24,8 @@ from hil.estimation.sensors import KINDS, SensorSample
 
 
 class ReferenceGuard(PhoneGuard):
-    """:class:`PhoneGuard` with the admit it had before the shortcut (verbatim)."""
+    """:class:`PhoneGuard` with the admit it had before the shortcut (verbatim, with the first reading's
+    unconfirmed anchor since added to both)."""
 
     def admit(self, sample: SensorSample, now: float | None = None) -> Verdict:
         t = sample.t_s
@@ -49,6 +50,8 @@ class ReferenceGuard(PhoneGuard):
                 return self._drop("duplicate")
             if last < t < last + MIN_INTERVAL_S:
                 return self._drop("burst")
+        if newest == -math.inf:  # the stream's first reading anchors its clock, unconfirmed
+            self._anchor(t)
         self._accept(sample, now)
         return Verdict.ACCEPT
 

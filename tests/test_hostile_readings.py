@@ -171,3 +171,51 @@ def test_strays_at_far_stamps_never_pass_for_a_moved_clock(ahead, further, copie
     moved = _stream(guard, newest + side * ahead, 20, 0.02)
     assert moved.count(Verdict.RESTART if side < 0 else Verdict.JUMP) == 1
     assert guard.stats.restarts + guard.stats.jumps == 1
+
+
+@given(
+    ahead=st.floats(2.0, 1e10),
+    copies=st.integers(1, 6),
+    kinds=st.lists(st.sampled_from(list(SensorKind)), min_size=1, max_size=3, unique=True),
+    side=st.sampled_from([-1, 1]),
+)
+@settings(max_examples=200, deadline=None)
+def test_strays_before_the_stream_s_first_reading_are_dropped_not_a_clock_restart(ahead, copies, kinds, side):
+    """Strays at one far stamp that come before any reading of the stream (a spoof in the first batch,
+    one copy per sensor): the first anchored the clock unseen, and the stream that follows moved it — once,
+    answered as a stray (the strays counted dropped, where they lay), not as the phone's clock restarting
+    or jumping. Then the stream is accepted on and a real restart is still told as one."""
+    guard = PhoneGuard()
+    t0 = 10.0
+    strays = [SensorSample(t0 + side * ahead, kind, (0.0, 0.0, 0.1)) for kind in kinds] * copies
+    first = [guard.admit(s) for s in strays]
+    assert first[0] is Verdict.ACCEPT
+    verdicts = _stream(guard, t0, 60, 0.005)
+    assert verdicts.count(Verdict.STRAY) == 1 and Verdict.RESTART not in verdicts
+    assert Verdict.JUMP not in verdicts and verdicts[-1] is Verdict.ACCEPT
+    placed = "future" if side > 0 else "past"
+    assert guard.stats.dropped[placed] >= len(kinds)  # the strays (and the stream's first, until it moved)
+    assert guard.stats.restarts == guard.stats.jumps == 0
+    assert guard.stats.accepted + guard.stats.dropped_total == len(strays) + 60
+    restarted = _stream(guard, t0 - 5.0, 20, 0.02)  # the app restarted: its clock back 5 s
+    assert restarted.count(Verdict.RESTART) == 1 and guard.stats.restarts == 1
+
+
+def test_a_stray_first_reading_into_a_running_host_is_dropped_and_restarts_nothing():
+    """A spoof 100 s ahead as the phone's very first readings (one per sensor, at t = 0): dropped as
+    ``future``, no ``phone_restart`` told, none counted (it used to anchor the clock, the genuine stream
+    was dropped as ``past`` and then re-anchored as a phone restart)."""
+    from hil.montecarlo.fault_plan import fault_options
+    from hil.runtime.invariants import InjectedFault
+
+    sc = load_scenario("cubesat-1u")
+    sc = sc.with_changes(slew=sc.slew.__class__(**{**sc.slew.__dict__, "duration_s": 8.0}))
+    faults = [InjectedFault("phone_spoof", 0.0, {"spoof": "future"})]
+    sc = sc.with_changes(fault_options=fault_options(tuple(faults), sc.fault_options))
+    recorder = RunRecorder(sc.n_units)
+    run(sc, RunOptions(out_root=None, observer=recorder, rows_to_observer=True))
+    s = recorder.summary
+    assert check_run(faults, recorder, fault_bounds(sc)).ok
+    assert s["exit"] == "completed" and s["phone_restarts"] == 0
+    assert not [f for f in s["faults"] if f["kind"] in ("phone_restart", "phone_jump")]
+    assert any(f["kind"] == "readings_dropped" and f["reason"] == "future" for f in s["faults"])

@@ -31,6 +31,12 @@ two far stamps — 100 s ahead, then 10⁹ s ahead — are two runs, not one). :
 then answers ``RESTART`` (backwards) or ``JUMP`` (forwards): the caller starts the estimator afresh from
 the measurements instead of integrating across the jump, and warms up again. Readings the guard dropped
 before it re-anchored are counted (``past`` / ``future``).
+
+**An anchor no reading confirmed.** The stream's first reading anchors its clock unseen. Should no
+reading of that clock follow it — the stream's first reading was a stray, 100 s ahead, say — the run of
+readings that moves the anchor is the stream, and the anchor was the stray: :meth:`PhoneGuard.admit`
+answers ``STRAY``, the anchor is counted dropped (``future`` or ``past``, not accepted), and no clock
+restart is told (the caller starts its estimator afresh all the same: the stray reached it).
 """
 
 from __future__ import annotations
@@ -74,6 +80,7 @@ class Verdict(enum.Enum):
     DROP = "drop"
     RESTART = "restart"  # the stream's clock went back: re-anchored on this reading
     JUMP = "jump"  # the stream's clock jumped forward: re-anchored on this reading
+    STRAY = "stray"  # the reading anchored on was a stray (none of its clock followed): re-anchored here
 
 
 REASONS = ("bad_time", "non_finite", "out_of_range", "future", "past", "duplicate", "burst")
@@ -104,6 +111,9 @@ class PhoneGuard:
         self.anchored_from = -math.inf  # the newest stamp of the clock the last re-anchoring left
         self._newest_at = -math.inf  # host time (s) the newest reading came
         self._last: dict[SensorKind, float] = {}
+        self._confirmed = True  # a reading of the anchor's clock came after it (none yet: no anchor)
+        self._anchor_t = -math.inf  # the anchor's stamp (its own clock, s)
+        self._unconfirmed = 0  # readings accepted at the anchor's stamp while it is unconfirmed
         self._run_side = 0  # -1: readings in a row before the newest, +1: after it, 0: none
         self._run_count = 0
         self._run_first = self._run_last = 0.0
@@ -153,6 +163,8 @@ class PhoneGuard:
                 return self._drop("duplicate")
             if last < t < last + MIN_INTERVAL_S:
                 return self._drop("burst")
+        if newest == -math.inf:  # the stream's first reading
+            self._anchor(t)
         self._accept(sample, now)
         return Verdict.ACCEPT
 
@@ -174,6 +186,9 @@ class PhoneGuard:
         return Verdict.DROP
 
     def _accept(self, sample: SensorSample, now: float | None) -> None:
+        if not self._confirmed:  # a later stamp of the anchor's clock confirms it (copies of it do not)
+            self._confirmed = sample.t_s > self._anchor_t
+            self._unconfirmed += not self._confirmed
         self.stats.accepted += 1
         self._last[sample.kind] = sample.t_s
         if sample.t_s > self.newest:
@@ -181,8 +196,14 @@ class PhoneGuard:
             self._newest_at = -math.inf if now is None else now
 
     def _reanchor(self, sample: SensorSample, verdict: Verdict, now: float | None) -> Verdict:
-        """The stream's clock moved: forget the old one, take this reading as the first of the new."""
-        if verdict is Verdict.RESTART:
+        """The stream's clock moved: forget the old one, take this reading as the first of the new. An
+        anchor no reading confirmed was a stray, not a clock: counted dropped, answered ``STRAY``."""
+        if not self._confirmed:
+            self.stats.accepted -= self._unconfirmed
+            self.last_reason = "future" if verdict is Verdict.RESTART else "past"  # where the strays lay
+            self.stats.dropped[self.last_reason] += self._unconfirmed
+            verdict = Verdict.STRAY
+        elif verdict is Verdict.RESTART:
             self.stats.restarts += 1
         else:
             self.stats.jumps += 1
@@ -190,8 +211,15 @@ class PhoneGuard:
         self.newest = -math.inf
         self._last.clear()
         self._run_side = 0
+        self._anchor(sample.t_s)
         self._accept(sample, now)
         return verdict
+
+    def _anchor(self, t: float) -> None:
+        """The stream's clock is anchored on a reading stamped ``t``: unconfirmed until a later one."""
+        self._confirmed = False
+        self._anchor_t = t
+        self._unconfirmed = 0
 
     def as_dict(self) -> dict[str, object]:
         """For ``summary.json``."""

@@ -214,8 +214,10 @@ class Host:
         """The phone stream's clock moved (restarted or jumped forward). Integrating across the jump
         would be wrong either way: the merger and the estimator start afresh from the measurements (the
         gyro bias is kept), and the warm-up's still window lets the estimate converge before the host
-        steers again."""
-        self.counters.phone_restarts += 1
+        steers again. (A stray first reading the guard anchored on reached the merger too: the same
+        fresh start, but no clock moved, so no restart is counted.)"""
+        if verdict is not Verdict.STRAY:
+            self.counters.phone_restarts += 1
         self._restart_estimator()
         t, kind = self.phone.reanchored(verdict, t_s, now)
         self.phases.restart_warmup(t, kind, still=True)

@@ -57,11 +57,16 @@ class PhoneClock:
         """The stream's clock moved — restarted (an app restarted, firmware-sim's world started over) or
         jumped forward — and the guard re-anchored on the reading stamped ``t_s``: a fault in the journal
         and ``events.jsonl``, the accepted count from zero (the host starts a new merger). Returns when
-        (host s: ``now``, or when the phone was last heard) and which (``phone_restart``, ``phone_jump``)."""
-        kind = "phone_restart" if verdict is Verdict.RESTART else "phone_jump"
-        detail = {"newest_s": self.guard.anchored_from, "sample_s": t_s}
+        (host s: ``now``, or when the phone was last heard) and which (``phone_restart``, ``phone_jump``;
+        ``phone_stray`` when what moved was the stream's first reading, a stray: a dropped reading in the
+        record, no clock that moved)."""
         self.count = 0
         t = now if now is not None else (self.heard or 0.0)
+        if verdict is Verdict.STRAY:
+            self._note_drop(self.guard.last_reason, now)
+            return t, "phone_stray"
+        kind = "phone_restart" if verdict is Verdict.RESTART else "phone_jump"
+        detail = {"newest_s": self.guard.anchored_from, "sample_s": t_s}
         # a fault in the record, but no phone gap: the stream did not pause (the samples flowed on, on a
         # new clock); the host's warm-up again is its answer (counted as ``phone_restarts``)
         self.journal.note(t, kind, **detail)
