@@ -227,6 +227,21 @@ def test_a_phone_clock_that_restarts_or_jumps_is_no_phone_gap(offset_s):
     assert [f["kind"] for f in s["faults"] if f["kind"].startswith("phone")] == [kind]
 
 
+@pytest.mark.parametrize("late_s", [0.5, 2.0])
+def test_a_phone_that_starts_streaming_late_gets_its_whole_still_window(late_s):
+    """The phone silent for its first ``late_s`` (a phone gap from t = 0): the still window starts with its
+    first samples, not at the first tick (it used to end 2 s later with 0.12 s of samples in it, the gyro
+    bias 25 % off)."""
+    sc = _sc()
+    faults = [InjectedFault("phone_gap", 0.0, {"duration_s": late_s})]
+    recorder = _recorded(sc, faults)
+    assert check_run(faults, recorder, fault_bounds(sc)).ok
+    still = recorder.first_event("still_window")
+    spin_up = recorder.first_event("spin_up")
+    assert still["t"] >= late_s
+    assert spin_up["t"] - still["t"] >= sc.loop.warmup_s - 1e-9
+
+
 # --------------------------------------------------------------------------- campaigns end to end
 def _campaign(tmp_path, seed, runs, capsys):
     out = tmp_path / f"mc-{seed}"

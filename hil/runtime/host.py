@@ -348,7 +348,9 @@ class Host:
                 t,
                 rotors,
                 ready=armed and not self.watch.rearm_pending,
-                phone_fresh=phone_fresh,
+                # a phone that has not streamed yet is not late (no gap), but no still window starts on
+                # it: the window would end with a fraction of its samples (a phone that started late)
+                phone_fresh=phone_fresh and self.phone.heard is not None,
                 attitude=None if est is None else est.R,
                 estimator=self.filter,
                 esc_dead=self.actuators.esc_dead,
