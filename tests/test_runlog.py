@@ -154,3 +154,50 @@ def test_a_write_error_in_the_writer_thread_reaches_the_caller(tmp_path):
     assert done.stdout.strip() == f"raised {errno.EFBIG}", done.stdout + done.stderr
     tel = read_telemetry(tmp_path / "t.csv")  # what fitted is readable
     assert 50 < tel.rows < 200 and tel.dropped_lines <= 1
+
+
+@pytest.mark.parametrize(
+    ("make_root", "label", "why"),
+    [
+        (lambda tmp: tmp / "a-file" / "runs", "cubesat-1u", "Not a directory"),
+        (lambda tmp: tmp / "nowhere", "x" * 300, None),  # a scenario's long name: cut, made
+        (lambda tmp: tmp / ("y" * 300) / "runs", "cubesat-1u", "File name too long"),
+    ],
+)
+def test_a_run_directory_that_cannot_be_made_is_a_config_error_naming_it(tmp_path, make_root, label, why):
+    """Where a run's directory cannot be made (under a file, a name too long for the file system) the
+    error names the path and why (it was an OSError's traceback, exit 1); a long label is cut."""
+    from hil.runtime.runlog import new_run_dir
+    from protocol.errors import ConfigError
+
+    (tmp_path / "a-file").write_text("")
+    root = make_root(tmp_path)
+    if why is None:
+        made = new_run_dir(root, label)
+        assert made.is_dir() and len(made.name) < 100
+        return
+    with pytest.raises(ConfigError, match=why) as err:
+        new_run_dir(root, label)
+    assert str(root) in str(err.value)
+
+
+def test_hil_run_into_a_directory_it_cannot_make_exits_2_with_the_path(tmp_path):
+    (tmp_path / "a-file").write_text("")
+    out = tmp_path / "a-file" / "runs"
+    done = subprocess.run(
+        [sys.executable, "-m", "hil", "run", "--no-plots", "--duration", "1", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr and str(out) in done.stderr and "cannot make" in done.stderr
+
+
+def test_a_run_s_duration_past_a_day_is_refused_before_it_runs():
+    from hil.runtime import RunOptions, run
+    from hil.scenario import load_scenario
+    from protocol.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="run --duration.*at most 86400 s"):
+        run(load_scenario("cubesat-1u"), RunOptions(out_root=None, duration_s=1e9))

@@ -57,6 +57,7 @@ from hil.estimation.sensors import (
     StepFlag,
     flagged_intervals,
 )
+from hil.files.output import make_dir
 from hil.logs import read_log
 from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
@@ -303,7 +304,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         out_of_range=beyond,
     )
     _score(result)
-    options.out_dir.mkdir(parents=True, exist_ok=True)
+    make_dir(options.out_dir)
     result.files["estimates"] = write_estimates(estimates, options.out_dir / "estimates.csv")
     if options.plotter is not None:
         result.files.update(options.plotter(result, options.out_dir))

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.files.output import make_dir
 from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, InputFormatError
 
@@ -92,7 +93,7 @@ class ResultStore:
         self.manifest = dict(manifest)
         self.columns: list[str] = list(manifest["columns"])
         self.dtype = trace_dtype(int(manifest["trace_samples"]))
-        self.dir.mkdir(parents=True, exist_ok=True)
+        make_dir(self.dir)
         path = self.dir / MANIFEST
         if path.exists():
             self._check_manifest(path)

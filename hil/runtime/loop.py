@@ -69,6 +69,7 @@ from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, RowTap, new_run_dir, write_summary
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
+from hil.scenario.reader import check_run_length
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.priority import Scheduling, realtime
 from hil.timing.scheduler import PeriodicTask, Scheduler
@@ -203,6 +204,13 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
         raise ConfigError(
             f"must be a positive number of seconds, got {opts.recover_within_s!r}", "run --recover-within"
         )
+    if opts.duration_s is not None:  # the scenario's own is checked where it is read
+        if not opts.duration_s > 0:
+            raise ConfigError(
+                f"must be a positive number of seconds, got {opts.duration_s!r}", "run --duration"
+            )
+        loop = scenario.loop
+        check_run_length(loop.warmup_s, opts.duration_s, loop.plant_step_s, "run --duration")
     if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
         from hil.runtime.warmup import warm
 

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from hil.files.bounded import MAX_LINE_BYTES, load_json, read_lines
+from hil.files.output import make_dir, safe_label
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError
 
@@ -43,15 +44,14 @@ SUMMARY = "summary.json"
 
 
 def new_run_dir(root: str | os.PathLike[str], label: str) -> Path:
-    """A fresh directory ``root/YYYYmmdd-HHMMSS-label[-n]`` (never an existing one)."""
+    """A fresh directory ``root/YYYYmmdd-HHMMSS-label[-n]`` (never an existing one; ``label`` made safe
+    and cut, :func:`hil.files.output.safe_label`); a ConfigError naming it when it cannot be made."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in label) or "run"
-    base = Path(root) / f"{stamp}-{safe}"
+    base = Path(root) / f"{stamp}-{safe_label(label)}"
     path, n = base, 1
     while True:
         try:
-            path.mkdir(parents=True)
-            return path
+            return make_dir(path, exist_ok=False)
         except FileExistsError:
             n += 1
             path = base.with_name(f"{base.name}-{n}")
