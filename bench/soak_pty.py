@@ -70,7 +70,7 @@ def _board(link: Path | str, phone_url: str, target: str = "python") -> subproce
             "--link",
             str(link),
             "--avr",
-            *load_scenario(SCENARIO).firmware_sim_argv()[2:],
+            *(a for a in load_scenario(SCENARIO).firmware_sim_argv() if not a.startswith("--units=")),
         ]  # the board options, not --units
     errors = tempfile.TemporaryFile(mode="w+")  # what it says if it does not start (kept by the OS)
     sim = subprocess.Popen(

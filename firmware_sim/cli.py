@@ -9,14 +9,21 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
-import re
 import signal
 import sys
 from collections.abc import Sequence
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+from hil.scenario.fault_specs import (
+    MAX_SAG_OHMS,
+    parse_dead_esc,
+    parse_numbers,
+    parse_sag,
+    parse_spoof,
+    parse_stall,
+    parse_time,
+)
 from protocol.errors import ConfigError, HilError, LinkError
 
 if TYPE_CHECKING:
@@ -61,8 +68,6 @@ examples:
 
 Times are seconds since start on the board's clock. Channels: gimbal 0, rotor 0, gimbal 1, rotor 1, ...
 """
-
-_AT = r"(?:@(?P<at>[0-9.eE+-]+))?"
 
 EXIT_HARNESS_DIED = 3
 """The exit status of ``firmware-sim --avr`` when its ``avr-harness`` ended without being asked to (killed,
@@ -245,61 +250,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def parse_sag(spec: str, option: str = "--sag") -> tuple[float, float | None, float]:
-    """``VOLTS[@AT[/RAMP]]`` → (amount, at or None, ramp seconds)."""
-    m = re.fullmatch(r"(?P<v>[0-9.eE+-]+)(?:@(?P<at>[0-9.eE+-]+)(?:/(?P<ramp>[0-9.eE+-]+))?)?", spec.strip())
-    if not m:
-        raise ConfigError(f"{spec!r} is not AMOUNT[@AT[/RAMP]] (e.g. 6@10/5)", option)
-    try:
-        at = None if m["at"] is None else float(m["at"])
-        return float(m["v"]), at, 0.0 if m["ramp"] is None else float(m["ramp"])
-    except ValueError:
-        raise ConfigError(f"{spec!r}: not a number", option) from None
-
-
-def parse_stall(spec: str, option: str = "--stall") -> tuple[float, float]:
-    m = re.fullmatch(r"(?P<at>[0-9.eE+-]+):(?P<d>[0-9.eE+-]+)", spec.strip())
-    if not m:
-        raise ConfigError(f"{spec!r} is not AT:DURATION (e.g. 5:2)", option)
-    try:
-        return float(m["at"]), float(m["d"])
-    except ValueError:
-        raise ConfigError(f"{spec!r}: not a number", option) from None
-
-
-def parse_numbers(spec: str, count: int, option: str, example: str) -> tuple[float, ...]:
-    """``A:B[:C]`` — ``count`` finite numbers separated by colons."""
-    parts = spec.strip().split(":")
-    try:
-        values = tuple(float(p) for p in parts)
-    except ValueError:
-        raise ConfigError(f"{spec!r}: not numbers (e.g. {example})", option) from None
-    if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise ConfigError(f"{spec!r} is not {count} finite numbers separated by ':' (e.g. {example})", option)
-    return values
-
-
-def parse_spoof(spec: str) -> tuple[float, str]:
-    at, sep, kind = spec.strip().partition(":")
-    try:
-        t = float(at)
-    except ValueError:
-        t = math.nan
-    if not sep or not math.isfinite(t):
-        raise ConfigError(f"{spec!r} is not AT:KIND (e.g. 12.5:huge)", "--phone-spoof")
-    return t, kind
-
-
-def parse_dead_esc(spec: str) -> tuple[int, float | None]:
-    m = re.fullmatch(r"(?P<ch>[0-9]+)" + _AT, spec.strip())
-    if not m:
-        raise ConfigError(f"{spec!r} is not CHANNEL[@AT] (e.g. 1@3)", "--dead-esc")
-    try:
-        return int(m["ch"]), None if m["at"] is None else float(m["at"])
-    except ValueError:
-        raise ConfigError(f"{spec!r}: not a number", "--dead-esc") from None
-
-
 def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     """The board configuration the options describe."""
     from dataclasses import replace
@@ -355,16 +305,16 @@ def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ign
         at, duration = parse_stall(spec)
         faults.stall(duration, at=at)
     for t in args.hang_at:
-        faults.hang(at=t)
+        faults.hang(at=parse_time(str(t), "--hang-at"))
     for spec in args.sag:
         volts, sag_at, ramp = parse_sag(spec)
         faults.sag(drop_v=volts, ramp_s=ramp, at=sag_at)
     for spec in args.sag_ohms:
-        ohms, sag_at, ramp = parse_sag(spec, "--sag-ohms")
+        ohms, sag_at, ramp = parse_sag(spec, "--sag-ohms", MAX_SAG_OHMS)
         faults.sag(extra_resistance_ohm=ohms, ramp_s=ramp, at=sag_at)
     full = cfg.power.battery.cells * 4.2
     for t in args.brownout_at:
-        faults.sag(drop_v=full, at=t, duration=0.3)
+        faults.sag(drop_v=full, at=parse_time(str(t), "--brownout-at"), duration=0.3)
     for spec in args.phone_gap:
         at, duration = parse_stall(spec, "--phone-gap")
         faults.phone_gap(duration, at=at)

@@ -32,6 +32,19 @@ BASE = "[scenario]\nname='x'\n"
         ("[board]\ncells=13\n", "x.toml: board.cells", "1..12"),
         ("[board]\ncells=3.5\n", "x.toml: board.cells", "integer"),
         ("[board]\nsoc=1.5\n", "x.toml: board.soc", "0..1"),
+        # [faults]: checked as the file is read, not a run and a warm-up later by the board (issue 27)
+        ("[faults]\nhang_at='nan'\n", "x.toml: faults.hang_at", "not a time"),
+        ("[faults]\nbrownout_at=1e12\n", "x.toml: faults.brownout_at", "0..86400"),
+        ("[faults]\nstall=['-5:-1']\n", "x.toml: faults.stall", "not a time"),
+        ("[faults]\nstall=['5:0']\n", "x.toml: faults.stall", "duration > 0"),
+        ("[faults]\nstall='5'\n", "x.toml: faults.stall", "AT:DURATION"),
+        ("[faults]\nsag=1e160\n", "x.toml: faults.sag", "0..100"),
+        ("[faults]\nsag='6@1e12'\n", "x.toml: faults.sag", "not a time"),
+        ("[faults]\nsag_ohms='-1@3'\n", "x.toml: faults.sag_ohms", "0..100"),
+        ("[faults]\ndead_esc=['8@3']\n", "x.toml: faults.dead_esc", "channel 8 does not exist"),
+        ("[faults]\ndead_esc=['1@-3']\n", "x.toml: faults.dead_esc", "not a time"),
+        ("[faults]\ncorrupt=1.5\n", "x.toml: faults.corrupt", "probability"),
+        ("[faults]\nfault_direction='up'\n", "x.toml: faults.fault_direction", "rx, tx, both"),
     ],
 )
 def test_values_the_parts_cannot_take_are_refused_naming_file_and_key(text, where, detail):
@@ -139,3 +152,17 @@ def test_hil_run_refuses_a_duration_of_nan_and_its_help_tells_defaults_and_udp(c
 def test_package_metadata_uses_an_spdx_license_string():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     assert project["license"] == "MIT"  # a string: setuptools deprecates license = { text = ... }
+
+
+def test_a_scenario_s_faults_reach_the_board_as_written_negative_looking_values_included():
+    """Each [faults] value goes to firmware-sim as ``--option=value``: a stall's ``AT:DURATION`` is the
+    option's, even where it would look like another option to argparse; and the board schedules it."""
+    from firmware_sim.cli import build_parser, make_board
+    from hil.timing.clock import LockstepClock
+
+    doc = BASE + "[faults]\nstall=['5:2', '7.5:0.25']\nhang_at=[3.0]\nsag='6@10/5'\ndead_esc=['1@3']\n"
+    scenario = parse_scenario(doc, Path("x.toml"))
+    argv = scenario.firmware_sim_argv()
+    assert "--stall=5:2" in argv and "--sag=6@10/5" in argv
+    board = make_board(build_parser().parse_args(argv), LockstepClock())
+    assert len(board.faults.stalls) == 2 and board.faults.hangs and board.faults.dead_escs

@@ -100,7 +100,7 @@ def firmware_sim_argv(
             elif value.lower() not in _FALSE:
                 raise TransportError(f"{url}: option {key}={value!r} is not a boolean")
         else:
-            argv += [option, value]
+            argv.append(f"{option}={value}")  # "-5:-1" stays the option's value, not another option
     _parse(parser, argv, url)
     return argv
 

@@ -60,10 +60,8 @@ class Scenario:
 
     def firmware_sim_argv(self) -> list[str]:
         """:meth:`firmware_sim_options` as command-line arguments."""
-        argv: list[str] = []
-        for key, value in self.firmware_sim_options():
-            argv += ["--" + key.replace("_", "-"), value]
-        return argv
+        # OPTION=VALUE: a value such as "-5:-1" is the option's, not another option for argparse
+        return [f"--{key.replace('_', '-')}={value}" for key, value in self.firmware_sim_options()]
 
     def emulator_url(self, scheme: str = "emu") -> str:
         """``emu://?units=4&frame_rate=50&...`` (or ``spawn://firmware-sim?...``) for this scenario."""

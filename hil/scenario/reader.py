@@ -14,6 +14,7 @@ from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
 from hil.estimation.registry import DEFAULT_ESTIMATOR, EstimatorChoice
+from hil.scenario.fault_specs import check_fault_options
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
 
@@ -249,6 +250,8 @@ class _Reader:
             if not ok or not (math.isfinite(value) and lo <= value <= hi):
                 what = "an integer" if kind is int else "a number"
                 raise self.error(f"board.{key}", f"must be {what} in {lo:g}..{hi:g}, got {value!r}")
+        faults = self.options("faults")
+        check_fault_options(faults, 2 * spacecraft.n_units, f"{self.where}: faults")
         frame_rate = float(board.get("frame_rate", 50.0))  # firmware-sim's default
         if frame_rate < loop.control_rate_hz:
             raise self.error(
@@ -265,7 +268,7 @@ class _Reader:
             settle_deg=settle,
             seed=seed,
             board_options=board,
-            fault_options=self.options("faults"),
+            fault_options=faults,
             source=text,
             path=path,
         )
