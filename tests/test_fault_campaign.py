@@ -51,6 +51,15 @@ def _sc(duration_s=12.0):
         ("[faults]\nphone_spoof = { count = 1, spoof = ['meteor'] }", "faults.phone_spoof.spoof"),
         ("[faults]\nhang = { per_minute = 1e9 }", "faults.hang.per_minute"),
         ("[faults]\nnoise = { count = 1, duration_s = 1, corrupt = 2 }", "faults.noise.corrupt"),
+        ("[faults]\nhang = { count = 1e300 }", "faults.hang.count"),
+        (
+            "[faults]\nhang = { count = { dist = 'uniform', low = -1e308, high = 1e308 } }",
+            "faults.hang.count",
+        ),
+        (
+            "[faults]\nhang = { count = { dist = 'normal', mean = 1.7e308, sigma = 1e308 } }",
+            "faults.hang.count",
+        ),
         ("faults = 3", "faults"),
     ],
 )
@@ -81,6 +90,27 @@ def test_faults_are_drawn_over_the_whole_run_a_pure_function_of_seed_and_index()
     for lo, hi in phases:  # every phase gets its share of a uniform draw
         share = np.mean((t >= lo) & (t < hi))
         assert share == pytest.approx((hi - lo) / window, abs=0.06), (lo, hi)
+
+
+def test_draws_of_wide_distributions_stay_within_each_kind_s_range():
+    """A normal of sigma 1e300 about a count or a parameter (its mean in range, so the file is taken):
+    every run's draw is clipped into the kind's range (it was an OverflowError for a count, and a phone
+    clock jump of 1e300 s for an offset)."""
+    text = (
+        "[faults]\n"
+        "hang = { count = { dist = 'normal', mean = 3, sigma = 1e300 } }\n"
+        "phone_jump = { count = 2, offset_s = { dist = 'normal', mean = 0, sigma = 1e300 } }\n"
+        "stall = { count = 2, duration_s = { dist = 'normal', mean = 1, sigma = 1e300 } }\n"
+    )
+    spec = parse_dispersions(text, load_scenario(SCENARIO), "wide.toml")
+    for index in range(40):
+        faults = draw(spec, 5, index).faults
+        assert sum(f.kind == "hang" for f in faults) <= 100
+        for f in faults:
+            if f.kind == "phone_jump":
+                assert -1e6 <= f.params["offset_s"] <= 1e6
+            if f.kind == "stall":
+                assert 0.0 <= f.params["duration_s"] <= 60.0
 
 
 def test_the_shipped_fault_file_has_every_kind_and_reaches_board_world_and_operator():

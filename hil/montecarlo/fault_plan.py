@@ -148,6 +148,7 @@ def parse_faults(table: Any, where: str, distribution: Any) -> FaultSpec:
         per_minute = None
         if "count" in spec:
             count = distribution(spec["count"], f"{at}.count")
+            _check_range(count, (0.0, float(MAX_COUNT)), f"{at}.count")
         else:
             value = spec["per_minute"]
             if not (isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value <= 600):
@@ -228,26 +229,31 @@ def draw_faults(spec: FaultSpec, scenario: Scenario, seed: int, index: int) -> t
             n = int(rng.poisson(ks.per_minute * window / 60.0))
         else:
             assert ks.count is not None
-            n = int(round(float(ks.count.sample(rng, np.zeros(1))[0])))
-        n = min(max(n, 0), MAX_COUNT)
+            n = round(_within(float(ks.count.sample(rng, np.zeros(1))[0]), (0.0, MAX_COUNT)))
         times = np.sort(rng.uniform(0.0, window, n))
         for t in times:
             out += _one(ks, float(t), rng, scenario)
     return tuple(sorted(out, key=lambda f: f.t))
 
 
+def _within(value: float, bounds: tuple[float, float]) -> float:
+    """``value`` clipped to ``bounds`` (NaN: the lower bound)."""
+    lo, hi = bounds
+    return lo if not value >= lo else min(value, hi)
+
+
 def _one(ks: KindSpec, t: float, rng: np.random.Generator, scenario: Scenario) -> list[InjectedFault]:
     """One fault of ``ks`` at ``t`` with its parameters drawn (a Disarm with an Arm after it: two)."""
     params: dict[str, Any] = {}
     defaults = _DEFAULTS.get(ks.kind, {})
-    for key in _PARAMS[ks.kind]:
+    for key, bounds in _PARAMS[ks.kind].items():
         if key in ks.params:
             value = ks.params[key]
-            params[key] = (
-                str(rng.choice(value))
-                if isinstance(value, tuple)
-                else float(value.sample(rng, np.zeros(1))[0])
-            )
+            if isinstance(value, tuple):
+                params[key] = str(rng.choice(value))
+            else:  # a draw of a wide distribution (a normal's tail) kept within the kind's range
+                assert bounds is not None
+                params[key] = _within(float(value.sample(rng, np.zeros(1))[0]), bounds)
         elif key in defaults:
             value = defaults[key]
             if isinstance(value, tuple) and isinstance(value[0], float):
