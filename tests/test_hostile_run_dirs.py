@@ -13,6 +13,7 @@ import sys
 import tracemalloc
 from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -183,3 +184,59 @@ def test_any_events_log_is_read_line_by_line_with_every_damaged_line_counted(tmp
     assert all(isinstance(e, dict) for e in events)
     assert count_events(path) == (len(events), bad)
     assert len(events) + bad == len(body.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")) - 1
+
+
+# --------------------------------------------------------------------------- a campaign's directory
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    """A real two-run campaign's directory (``hil montecarlo``, 3 s runs)."""
+    from hil.cli import main
+
+    out = tmp_path_factory.mktemp("mc") / "c"
+    argv = ["montecarlo", "cubesat-1u", "--runs", "2", "--workers", "1", "--no-plots", "--duration", "3"]
+    assert main([*argv, "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("trace_samples", -5), ("trace_samples", 10**12), ("trace_samples", None), ("duration_s", "1e9"),
+     ("trace_hz", 0), ("trace_hz", True)],
+)  # fmt: skip
+def test_hil_report_of_a_campaign_whose_manifest_was_edited_names_the_key(tmp_path, campaign, key, value):
+    import shutil
+
+    d = tmp_path / "c"
+    shutil.copytree(campaign, d)
+    info = json.loads((d / "campaign.json").read_text())
+    if value is None:
+        del info[key]
+    else:
+        info[key] = value
+    (d / "campaign.json").write_text(json.dumps(info))
+    done = subprocess.run(
+        [sys.executable, "-m", "hil", "report", str(d)], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "campaign.json" in done.stderr and key in done.stderr
+
+
+def test_a_campaign_s_traces_are_read_a_chunk_at_a_time_keeping_what_is_asked(tmp_path, campaign):
+    """traces.bin grown to 64 MB (a hand-truncated file): read in chunks, only the traces asked for kept
+    (it was read whole: a 1 GB file, 2.2 GB of memory)."""
+    import shutil
+
+    from hil.montecarlo import read_traces
+    from hil.montecarlo.metrics import TRACES
+
+    d = tmp_path / "c"
+    shutil.copytree(campaign, d)
+    index, traces = read_traces(d)
+    with open(d / "traces.bin", "r+b") as f:
+        f.truncate(64 * MB)  # zeros: records of run 0
+    tracemalloc.start()
+    again, _ = read_traces(d, keep=[1])
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert list(index) == [0, 1] and traces.shape[:2] == (2, len(TRACES))
+    assert list(again) == [1] and peak < 40 * MB

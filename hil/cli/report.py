@@ -96,13 +96,13 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
 def _campaign(path: Path, plots: bool) -> dict[str, Path]:
     from hil.montecarlo.campaign import summarise_dir
     from hil.montecarlo.plots import plot_campaign
-    from hil.montecarlo.store import MANIFEST
+    from hil.montecarlo.store import MANIFEST, read_manifest
     from hil.montecarlo.summary import format_table
     from hil.scenario import parse_scenario
     from protocol.errors import InputFormatError
 
-    info = _json(path / MANIFEST)
-    if info is None or not isinstance(info.get("scenario_toml"), str):
+    info = read_manifest(path)
+    if not isinstance(info.get("scenario_toml"), str):
         raise InputFormatError("campaign.json holds no scenario", str(path / MANIFEST))
     scenario = parse_scenario(info["scenario_toml"], path / MANIFEST)
     summary = summarise_dir(path, scenario)

@@ -11,7 +11,6 @@ directory alone, so they can be redrawn at any time, also while a campaign is st
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from .metrics import METRICS, TRACES
-from .store import MANIFEST, Results, read_runs, read_traces
+from .store import Results, read_manifest, read_runs, read_traces
 from .summary import requirements
 
 WORST_FRACTION = 0.05
@@ -34,7 +33,7 @@ def plot_campaign(
     """Draw every figure the results allow into ``out_dir/plots``; returns name → path."""
     out = Path(out_dir)
     results = read_runs(out)
-    info = json.loads((out / MANIFEST).read_text())
+    info = read_manifest(out)
     plots = out / "plots"
     plots.mkdir(exist_ok=True)
     drawn: dict[str, Path] = {}

@@ -32,14 +32,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.files.bounded import MAX_DOCUMENT_BYTES, load_json
 from hil.files.output import make_dir
 from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, InputFormatError
 
-from .metrics import METRICS, TRACES
+from .metrics import METRICS, TRACES, trace_length
 from .runner import CHECK_COLUMNS, RunResult
 
 MANIFEST = "campaign.json"
+MAX_DURATION_S = 86_400.0
+"""A campaign run's longest duration (s): the scenario's bound."""
+MAX_TRACE_HZ = 490.0
+"""The highest trace rate (Hz): the highest control rate a scenario may have."""
+TRACE_CHUNK_BYTES = 16 << 20
+"""traces.bin is read this much at a time (whole records)."""
 RUNS = "runs.csv"
 TRACE_FILE = "traces.bin"
 FIXED_COLUMNS = ("index", "status", "error")
@@ -246,21 +253,50 @@ def read_runs(out_dir: str | os.PathLike[str]) -> Results:
     return Results(np.array(order, dtype=np.int64), ok, errors, values, text_cols, list(header), dropped)
 
 
+def read_manifest(out_dir: str | os.PathLike[str]) -> dict[str, Any]:
+    """``OUT/campaign.json``, the figures a reader of the directory relies on checked: a JSON object
+    (bounded, :func:`~hil.files.bounded.load_json`) whose ``duration_s`` (0..a day) and ``trace_hz``
+    (0..the highest control rate) give its ``trace_samples``. Anything else an :class:`InputFormatError`
+    naming the file and the key (a manifest edited by hand had ``trace_samples: -5`` end in numpy's
+    ValueError)."""
+    path = Path(out_dir) / MANIFEST
+    info = load_json(read_text(path, InputFormatError, limit=MAX_DOCUMENT_BYTES), str(path))
+    if not isinstance(info, dict):
+        raise InputFormatError("not a campaign manifest (a JSON object)", str(path))
+    for key, (lo, hi) in {"duration_s": (0.0, MAX_DURATION_S), "trace_hz": (0.0, MAX_TRACE_HZ)}.items():
+        value = info.get(key)
+        if not (isinstance(value, int | float) and not isinstance(value, bool) and lo < value <= hi):
+            raise InputFormatError(
+                f"must be a number in ({lo:g}, {hi:g}], got {value!r}", str(path), None, key
+            )
+    samples = info.get("trace_samples")
+    expected = trace_length(info["duration_s"], info["trace_hz"])
+    if samples != expected or isinstance(samples, bool):
+        raise InputFormatError(
+            f"must be {expected} (duration_s × trace_hz), got {samples!r}", str(path), None, "trace_samples"
+        )
+    return info
+
+
 def read_traces(
     out_dir: str | os.PathLike[str], keep: Iterable[int] | None = None
 ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
     """The traces of ``OUT``: run indices (M,) and traces (M, len(TRACES), samples), one per index (the
-    last record wins), only for ``keep`` indices when given (e.g. the runs.csv rows)."""
+    last record wins), only for ``keep`` indices when given (e.g. the runs.csv rows). Read a chunk of
+    records at a time, keeping only the traces asked for: the memory is theirs, whatever the file's size
+    (a torn last record is left out)."""
     out = Path(out_dir)
-    info = json.loads(read_text(out / MANIFEST, InputFormatError))
-    dtype = trace_dtype(int(info["trace_samples"]))
+    dtype = trace_dtype(int(read_manifest(out)["trace_samples"]))
+    wanted = None if keep is None else set(int(i) for i in keep)
+    last: dict[int, NDArray[np.float32]] = {}
     path = out / TRACE_FILE
-    raw = path.read_bytes() if path.exists() else b""
-    records = np.frombuffer(raw[: len(raw) - len(raw) % dtype.itemsize], dtype=dtype)
-    last: dict[int, int] = {int(i): k for k, i in enumerate(records["index"])}
-    if keep is not None:
-        wanted = set(int(i) for i in keep)
-        last = {i: k for i, k in last.items() if i in wanted}
+    per_chunk = max(1, TRACE_CHUNK_BYTES // dtype.itemsize) * dtype.itemsize
+    with open(path, "rb") if path.exists() else io.BytesIO() as f:
+        while data := f.read(per_chunk):
+            records = np.frombuffer(data[: len(data) - len(data) % dtype.itemsize], dtype=dtype)
+            for k, i in enumerate(records["index"].tolist()):
+                if wanted is None or i in wanted:
+                    last[i] = records["trace"][k].copy()
     order = sorted(last)
-    picked = records[[last[i] for i in order]] if order else records[:0]
-    return np.array(order, dtype=np.int64), np.asarray(picked["trace"], dtype=np.float32)
+    traces = np.array([last[i] for i in order], dtype=np.float32).reshape(len(order), *dtype["trace"].shape)
+    return np.array(order, dtype=np.int64), traces
