@@ -76,8 +76,31 @@ def test_hil_report_of_a_telemetry_without_a_time_column_is_one_line_naming_it(t
     done = hil("report", str(d))
     assert done.returncode == 2
     assert done.stderr.strip().splitlines() == [
-        f"hil report: error: {d / 'telemetry.csv'}:1: no 't' column: not a run's telemetry"
+        f"hil report: error: {d / 'telemetry.csv'}:1: no 't' column first (found 'x'): not a run's telemetry"
     ]
+
+
+@pytest.mark.parametrize("damage", ["no time column", "a header too long to keep"])
+def test_hil_gcs_of_a_telemetry_that_is_no_run_s_says_so_and_draws_nothing(tmp_path, damage):
+    """Without its ``t`` column first, or with a header too long to keep, a run's telemetry is not
+    streamed with another column (or its first data row) taken for the time: the page's status says
+    why (it streamed 1930 rows with the phase for the time, status finished)."""
+    d = run_dir(tmp_path / "run")
+    lines = (d / "telemetry.csv").read_text().splitlines()
+    if damage == "no time column":
+        lines = [",".join(line.split(",")[1:]) for line in lines]
+    else:
+        lines[0] = lines[0] + ",x" * (MB // 2)
+    (d / "telemetry.csv").write_text("\n".join(lines) + "\n")
+    source = RunDirSource(d, follow=False)
+    batch = source.poll()
+    assert batch.info is None and not batch.rows
+    assert (
+        batch.status["state"] == "error"
+        and "not" in batch.status["error"]
+        and "telemetry" in batch.status["error"]
+    )
+    assert not source.poll().rows
 
 
 # --------------------------------------------------------------------------- hil gcs RUN_DIR

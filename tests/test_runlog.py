@@ -105,8 +105,8 @@ def test_summary_is_atomic_json_and_run_dirs_never_collide(tmp_path):
 
 def test_numpy_scalars_are_written_as_plain_numbers(tmp_path):
     path = tmp_path / "t.csv"
-    with CsvLog(path, ["a", "b", "c", "d"]) as log:
-        log.write({"a": np.float64(0.125), "b": np.int64(7), "c": np.float32(np.nan), "d": np.bool_(True)})
+    with CsvLog(path, ["t", "b", "c", "d"]) as log:
+        log.write({"t": np.float64(0.125), "b": np.int64(7), "c": np.float32(np.nan), "d": np.bool_(True)})
     assert path.read_text().splitlines()[1] == "0.125,7,,1"
     tel = read_telemetry(path)
     assert tel.rows == 1 and tel.dropped_lines == 0 and tel["b"][0] == 7.0
@@ -114,7 +114,7 @@ def test_numpy_scalars_are_written_as_plain_numbers(tmp_path):
 
 def test_a_small_queue_slows_the_writer_down_but_loses_no_row(tmp_path):
     path = tmp_path / "t.csv"
-    with CsvLog(path, ["i", "x"], max_pending=4, batch_s=0.001) as log:
+    with CsvLog(path, ["t", "x"], max_pending=4, batch_s=0.001) as log:
         for i in range(2000):
             log.write_values([i, i * 0.5])
         log.flush()
@@ -123,7 +123,7 @@ def test_a_small_queue_slows_the_writer_down_but_loses_no_row(tmp_path):
             log.write_values([1, 2, 3])
     tel = read_telemetry(path)
     assert tel.rows == 2000 and tel.dropped_lines == 0
-    assert list(tel["i"]) == list(range(2000)) and tel["x"][1999] == 999.5
+    assert list(tel["t"]) == list(range(2000)) and tel["x"][1999] == 999.5
 
 
 FULL_DISK = """

@@ -16,10 +16,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-from hil.files.bounded import LineSplitter, load_json, read_document
+from hil.files.bounded import MAX_LINE_BYTES, LineSplitter, load_json, read_document
 from hil.gcs import info as run_info
 from hil.gcs.wire import Batch
-from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY
+from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY, telemetry_header
 from hil.scenario import load_scenario
 from protocol.errors import HilError, InputFormatError
 
@@ -124,8 +124,14 @@ class RunDirSource:
         finished = (self.run_dir / SUMMARY).exists()  # before reading: what follows is all there is
         lines, too_long = self._telemetry.lines()
         self.bad_rows += too_long
-        if self.columns is None and (lines or finished):
-            self.columns = lines[0].split(",") if lines else []
+        if self.columns is None and (lines or too_long or finished):
+            try:
+                self.columns = self._header(lines, too_long)
+            except InputFormatError as exc:  # not a run's telemetry: said on the page, nothing drawn
+                logger.warning("%s", exc)
+                self._done = True
+                batch.status = self._sent_status = {"state": "error", "error": str(exc)}
+                return batch
             lines = lines[1:]
             batch.info = self._info(self.columns)
             self._state = {"state": "following" if self.follow else "reading"}
@@ -148,6 +154,18 @@ class RunDirSource:
         if status != self._sent_status:
             batch.status = self._sent_status = status
         return batch
+
+    def _header(self, lines: list[str], too_long: int) -> list[str]:
+        """The telemetry's columns from its first line kept (none yet: a run that has written no row): a
+        run's, its time first (:func:`hil.runtime.runlog.telemetry_header`), else InputFormatError — so a
+        first data row is never taken for the header of a file whose own was too long to keep."""
+        if lines:
+            return telemetry_header(lines[0], self._telemetry.path)
+        if too_long:
+            raise InputFormatError(
+                f"a header longer than {MAX_LINE_BYTES} bytes: not telemetry", str(self._telemetry.path), 1
+            )
+        return []
 
     def _rows(self, lines: list[str], batch: Batch) -> None:
         assert self.columns is not None

@@ -332,7 +332,19 @@ def _header(line: bytes | None, path: Path) -> list[str]:
         text = line.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputFormatError(f"not a text file (not UTF-8: {exc.reason})", str(path), 1) from None
-    return text.split(",")
+    return telemetry_header(text, path)
+
+
+def telemetry_header(line: str, path: str | os.PathLike[str]) -> list[str]:
+    """The column names of a telemetry file's first line ``line``: a run's, whose first column is its time
+    ``t``; anything else (a file cut at its head, another CSV) an InputFormatError naming line 1 — every
+    reader of a run's rows takes column 0 for the time."""
+    columns = line.rstrip("\r").split(",")
+    if columns[0] != "t":
+        raise InputFormatError(
+            f"no 't' column first (found {columns[0][:40]!r}): not a run's telemetry", str(path), 1
+        )
+    return columns
 
 
 def _numbers(line: bytes | None, width: int) -> list[float] | None:
