@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from hil.calibration.bench import parse_bench_csv, read_bench_csv
 from hil.calibration.fit import FitOptions, fit_bench
 from hil.calibration.generate import bench_units, generate_bench
 from protocol.calibration import GimbalRateMap, RotorSpeedMap
-from protocol.errors import CalibrationError
+from protocol.errors import CalibrationError, InputFormatError
 
 SEED = 11
 
@@ -168,3 +169,41 @@ def test_rotor_speeds_in_rpm_and_rad_s_fit_the_same(bench):
     np.testing.assert_allclose(
         [a.speed(p, 11.1).value for p in grid], [b.speed(p, 11.1).value for p in grid], atol=1e-3
     )
+
+
+BENCH = Path(__file__).resolve().parents[1] / "fixtures" / "calibration" / "bench"
+
+
+def _scaled(name: str, scale: float) -> str:
+    """A bench CSV of the fixtures with its measurement column (the last) multiplied by ``scale``."""
+    out = []
+    for line in (BENCH / name).read_text().splitlines():
+        cells = line.split(",")
+        if line.startswith("#") or not cells[-1].lstrip("-")[:1].isdigit():
+            out.append(line)
+        else:
+            out.append(",".join([*cells[:-1], repr(float(cells[-1]) * scale)]))
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.parametrize("name", ["unit0_rotor.csv", "unit0_gimbal_rate.csv", "unit0_gimbal_angle.csv"])
+def test_a_measurement_no_bench_makes_is_refused_naming_its_line_and_column(name):
+    """A rate of 1e160 parses but was never measured: refused as the file is read (it reached the fit,
+    and scipy's ValueError ended `hil calibrate fit` with a traceback)."""
+    text = _scaled(name, 1e160)
+    with pytest.raises(InputFormatError) as err:
+        parse_bench_csv(text, name)
+    column = text.splitlines()[3].split(",")[-1]
+    assert err.value.column == column and err.value.line is not None and name in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("name", "said"),
+    [("unit0_rotor.csv", "rotor never turned"), ("unit0_gimbal_rate.csv", "gimbal never turned"),
+     ("unit0_gimbal_angle.csv", "angle never changes")],
+)  # fmt: skip
+def test_a_sweep_in_which_nothing_moved_is_refused_not_fitted(name, said):
+    """Every value 1e-300 of itself: the shape of a sweep, but nothing moved. The fits' tests are relative
+    to the sweep's top, so such a sweep got a map (a gimbal rate range of ±5e-10 rad/s)."""
+    with pytest.raises(CalibrationError, match=said):
+        fit_bench(parse_bench_csv(_scaled(name, 1e-300), name))

@@ -5,8 +5,9 @@ other line is the header. Columns (any order; extra columns are ignored):
 
 * ``pulse_us`` — the commanded pulse width (µs, 500–2500), required;
 * ``battery_v`` — battery voltage during the sample (V, 0–60), required for rotor data;
-* exactly one measurement: ``rpm`` or ``rotor_speed_rad_s`` (rotor no-load speed, ≥ 0),
-  ``gimbal_rate_rad_s`` or ``gimbal_rate_deg_s``, ``gimbal_angle_rad`` or ``gimbal_angle_deg``.
+* exactly one measurement: ``rpm`` or ``rotor_speed_rad_s`` (rotor no-load speed, 0–100 000 rpm),
+  ``gimbal_rate_rad_s`` or ``gimbal_rate_deg_s`` (±100 rad/s), ``gimbal_angle_rad`` or ``gimbal_angle_deg``
+  (two turns either way) (:data:`MEASURED_RANGE`).
 
 A comment ``# status: complete`` or ``# status: partial[: why]`` says whether the file holds a whole
 sweep (at most one; a file without one, hand-made or generated, is taken as complete). A sweep cut short
@@ -56,6 +57,14 @@ MEASUREMENTS: dict[str, tuple[BenchKind, float]] = {
     "gimbal_angle_deg": (BenchKind.GIMBAL_ANGLE, math.pi / 180.0),
 }
 """Measurement column → (kind, factor to SI: rad/s or rad)."""
+
+MEASURED_RANGE: dict[BenchKind, tuple[float, float]] = {
+    BenchKind.ROTOR: (0.0, 100_000.0 * math.pi / 30.0),
+    BenchKind.GIMBAL_RATE: (-100.0, 100.0),
+    BenchKind.GIMBAL_ANGLE: (-4.0 * math.pi, 4.0 * math.pi),
+}
+"""What a bench can measure of each kind, SI (a rotor to 100 000 rpm, a gimbal to 100 rad/s, an angle to two
+turns either way): a value past it parses but was never measured (1e160 rpm), and would reach the fit."""
 
 
 @dataclass(frozen=True)
@@ -145,8 +154,8 @@ def parse_bench_csv(text: str, path: str = "<bench csv>") -> BenchData:
             battery[r] = _number(
                 cells[i_battery], path, lineno, "battery_v", 0.0, MAX_BATTERY_V, open_low=True
             )
-        low = 0.0 if kind is BenchKind.ROTOR else -math.inf
-        value[r] = factor * _number(cells[i_value], path, lineno, column, low, math.inf)
+        low, high = MEASURED_RANGE[kind]
+        value[r] = factor * _number(cells[i_value], path, lineno, column, low / factor, high / factor)
     partial = None if status is None or not status[1] else f"{path}:{status[0]}: {status[1]}"
     return BenchData(kind, path, column, pulse, battery, value, lines, partial)
 

@@ -34,6 +34,10 @@ MIN_POINTS = 20
 MIN_INCREMENT = 1e-4  # of the measured range, per knot interval
 OUTLIER_SIGMAS = 8.0
 OUTLIER_FRACTION_OF_RANGE = 0.03
+MIN_MOTION = 1e-3
+"""Below this a sweep saw nothing move: a gimbal's fastest rate (rad/s) or its angle's span (rad); a
+rotor's fastest speed, a thousand times it (1 rad/s, 10 rpm). The fits' other tests are relative to the
+sweep's own top, so without it a sweep of a servo that never moved (rates of 1e-300 rad/s) was fitted."""
 STOPPED_FRACTION = 0.03  # a rotor below 3 % of its top speed (or gimbal below 3 % of its top rate) is still
 TOP_FRACTION = 0.03  # the top rows of a rotor sweep: the last 3 % of the endpoint span ...
 TOP_RISE = 0.01  # ... must be at least 1 % of full speed faster than the rows 6-12 % below the top
@@ -133,8 +137,8 @@ def fit_rotor(data: BenchData, opts: FitOptions) -> Fit:
         )
     z = w / v  # rad/s per volt
     z_top = float(z.max())
-    if z_top <= 0.0:
-        raise CalibrationError("the rotor never turned (all speeds are 0)", data.path)
+    if float(w.max()) < MIN_MOTION * 1_000.0:
+        raise CalibrationError(f"the rotor never turned (its fastest: {float(w.max()):.3g} rad/s)", data.path)
     stopped = z <= STOPPED_FRACTION * z_top
     turning_at_low = np.nonzero((p <= low) & ~stopped)[0]
     if turning_at_low.size:
@@ -220,6 +224,8 @@ def fit_gimbal_rate(data: BenchData, opts: FitOptions) -> Fit:
     s = _direction(p, data.value)
     r = s * data.value  # rising in pulse
     r_top = float(np.abs(r).max())
+    if r_top < MIN_MOTION:
+        raise CalibrationError(f"the gimbal never turned (its fastest: {r_top:.3g} rad/s)", data.path)
     moving = np.abs(r) > STOPPED_FRACTION * r_top
     neg, pos = moving & (r < 0), moving & (r > 0)
     if neg.sum() < 3 or pos.sum() < 3:
@@ -290,8 +296,8 @@ def fit_gimbal_angle(data: BenchData, opts: FitOptions) -> Fit:
     s = _direction(p, data.value)
     a = s * data.value
     a_span = float(a.max() - a.min())
-    if a_span <= 0.0:
-        raise CalibrationError("the angle never changes", data.path)
+    if a_span < MIN_MOTION:
+        raise CalibrationError(f"the angle never changes (it spans {a_span:.3g} rad)", data.path)
     xs = np.linspace(p_min, p_max, n)
     eps = MIN_INCREMENT * a_span
 
@@ -353,7 +359,10 @@ def _monotone_guess(
 
 def _least_squares(fun: Callable[[np.ndarray], np.ndarray], theta0, lb, ub, path: str) -> np.ndarray:
     theta0 = np.clip(theta0, lb, ub)
-    result = least_squares(fun, theta0, bounds=(lb, ub), x_scale="jac", max_nfev=2000)
+    try:
+        result = least_squares(fun, theta0, bounds=(lb, ub), x_scale="jac", max_nfev=2000)
+    except ValueError as exc:  # residuals that overflowed to inf or NaN: no fit, said so
+        raise ConvergenceError(f"{path}: the fit did not converge ({exc})") from None
     if result.status <= 0:
         raise ConvergenceError(f"{path}: the fit did not converge ({result.message})")
     return np.asarray(result.x)
