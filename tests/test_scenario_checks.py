@@ -32,6 +32,19 @@ BASE = "[scenario]\nname='x'\n"
         ("[board]\ncells=13\n", "x.toml: board.cells", "1..12"),
         ("[board]\ncells=3.5\n", "x.toml: board.cells", "integer"),
         ("[board]\nsoc=1.5\n", "x.toml: board.soc", "0..1"),
+        # parse, and lie within the ranges, but no spacecraft or phone is made of them
+        ("[spacecraft]\nbus_inertia=[5e-324, 5e-324, 5e-324]\n", "x.toml: spacecraft", "smallest principal"),
+        (
+            "[array]\ngeometry='custom'\ngimbal_axes=[[0,0,1]]\nspin_axes=[[1,0,0]]\n",
+            "x.toml: array.gimbal_axes",
+            "all parallel",
+        ),
+        (
+            "[array]\ngeometry='custom'\ngimbal_axes=[[0,0,1],[0,0.01,1],[0,0,-1]]\n"
+            "spin_axes=[[1,0,0],[0,1,-0.01],[1,0,0]]\n",
+            "x.toml: array.gimbal_axes",
+            "all parallel",
+        ),
         # [faults]: checked as the file is read, not a run and a warm-up later by the board (issue 27)
         ("[faults]\nhang_at='nan'\n", "x.toml: faults.hang_at", "not a time"),
         ("[faults]\nbrownout_at=1e12\n", "x.toml: faults.brownout_at", "0..86400"),
@@ -166,3 +179,13 @@ def test_a_scenario_s_faults_reach_the_board_as_written_negative_looking_values_
     assert "--stall=5:2" in argv and "--sag=6@10/5" in argv
     board = make_board(build_parser().parse_args(argv), LockstepClock())
     assert len(board.faults.stalls) == 2 and board.faults.hangs and board.faults.dead_escs
+
+
+def test_a_dispersed_sensor_rate_below_1_hz_is_a_run_the_model_refuses():
+    """A dispersion's draw of a phone sensor's rate (5e-324 Hz) is held to what a scenario may say (1 Hz
+    or more): the run fails naming the parameter (its magnetometer never sampled, and it said ok)."""
+    from hil.scenario.phone import SensorSpec
+
+    with pytest.raises(ConfigError, match="1 Hz or more"):
+        SensorSpec(rate_hz=5e-324, noise=0.0, bias=0.0)
+    assert SensorSpec(rate_hz=1.0, noise=0.0, bias=0.0, jitter_s=0.0).rate_hz == 1.0

@@ -27,6 +27,10 @@ from hil.estimation.params import PAPER_E
 from hil.estimation.sensors import SensorKind
 from protocol.errors import ConfigError
 
+MIN_RATE_HZ = 1.0
+"""The slowest a phone sensor may sample (Hz), as a scenario's ``sensors.*.rate_hz`` (a dispersion drew
+5e-324 Hz: a magnetometer that never sampled, and the runs said ok)."""
+
 
 @dataclass(frozen=True)
 class SensorSpec:
@@ -40,8 +44,12 @@ class SensorSpec:
     offset_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (self.rate_hz > 0 and self.noise >= 0 and self.bias >= 0 and self.jitter_s >= 0):
-            raise ConfigError(f"invalid sensor figures {self!r}", "SensorSpec")
+        if not (self.rate_hz >= MIN_RATE_HZ and self.noise >= 0 and self.bias >= 0 and self.jitter_s >= 0):
+            raise ConfigError(
+                f"invalid sensor figures {self!r} (a rate of {MIN_RATE_HZ:g} Hz or more; noise, bias and "
+                "jitter >= 0)",
+                "SensorSpec",
+            )
         if self.jitter_s * 4 >= 1.0 / self.rate_hz:
             raise ConfigError(
                 "timestamp jitter must stay well below the sample period", "SensorSpec.jitter_s"

@@ -354,11 +354,28 @@ class _Reader:
             for element in g.ravel():
                 self.in_range("array", "gimbal_axes", float(element))
             s = self.vector(arr, "array", "spin_axes", g.shape)
+            self._three_axis(g)
             return geometry.custom_array(g, s, template=template)
         except (ConfigError, ValueError) as exc:
             if isinstance(exc, ConfigError) and exc.where.startswith(self.where):
                 raise
             raise self.error(f"array.{kind}", str(exc)) from None
+
+    def _three_axis(self, gimbal_axes: np.ndarray) -> None:
+        """A closed-loop run steers about three axes: a unit's torque (its gimbal's and its rotor's) lies in
+        the plane across its gimbal axis, so the array has three-axis authority only if two of its gimbal
+        axes are :data:`MIN_SKEW_DEG` or more apart (one unit, or units on parallel axes, turn the
+        spacecraft about two axes at most: such a run "completed" 60-88 deg off)."""
+        g = gimbal_axes / np.linalg.norm(gimbal_axes, axis=1, keepdims=True)
+        apart = max(
+            (float(np.linalg.norm(np.cross(a, b))) for i, a in enumerate(g) for b in g[i + 1 :]), default=0.0
+        )
+        if apart < math.sin(math.radians(MIN_SKEW_DEG)):
+            raise self.error(
+                "array.gimbal_axes",
+                f"the gimbal axes are all parallel (within {MIN_SKEW_DEG:g} deg): the array's torque lies in "
+                "one plane, no three-axis control; give units on at least two axes apart",
+            )
 
     def sensors(self) -> PhoneSpec:
         sen = self.table("sensors")

@@ -154,6 +154,12 @@ class ActuatorLimits:
             raise ConfigError("must be below max_rotor_speed", "ActuatorLimits.min_rotor_speed")
 
 
+MIN_BUS_MOMENT_KG_M2 = 1e-6
+"""The smallest principal moment a bus may have (kg m²): a 1U CubeSat's are ~2e-3, an air-bearing table's
+~1. A bus of 5e-324 kg m² passed as positive definite, and its run failed safe 52 times and ended 163 deg
+off, "completed"."""
+
+
 @dataclass(frozen=True)
 class SpacecraftParams:
     """The bus and its VSCMG array.
@@ -172,7 +178,14 @@ class SpacecraftParams:
     nominal_rotor_speed: float = 400.0
 
     def __post_init__(self) -> None:
-        inertia_tensor(self.bus_inertia, "SpacecraftParams.bus_inertia")
+        bus = inertia_tensor(self.bus_inertia, "SpacecraftParams.bus_inertia")
+        smallest = float(np.linalg.eigvalsh(bus)[0])
+        if smallest < MIN_BUS_MOMENT_KG_M2:
+            raise ConfigError(
+                f"its smallest principal moment {smallest:.3g} kg m² is below {MIN_BUS_MOMENT_KG_M2:g} "
+                "(a 10 g, 1 cm part): no spacecraft",
+                "SpacecraftParams.bus_inertia",
+            )
         _positive(self.bus_mass_kg, "SpacecraftParams.bus_mass_kg")
         c = np.asarray(self.bus_com_m, dtype=float)
         if c.shape != (3,) or not np.all(np.isfinite(c)):
