@@ -29,7 +29,9 @@ BASE = "[scenario]\nname='x'\n"
         ("[manoeuvre]\ninitial_angle_deg=-1e308\n", "x.toml: manoeuvre.initial_angle_deg", "360"),
         ("[scenario]\nname='x'\nduration_s=1e308\n", "x.toml: scenario.duration_s", "at most"),
         ("[board]\nlink_timeout=-1\n", "x.toml: board.link_timeout", "0.01..60"),
-        ("[board]\ncells=13\n", "x.toml: board.cells", "1..12"),
+        ("[board]\ncells=13\n", "x.toml: board.cells", "2..12"),
+        ("[board]\ncells=1\n", "x.toml: board.cells", "2..12"),  # the rail cannot boot the MCU
+        ("[scenario]\nname='x'\ndescription=[1, {a = 2}]\n", "x.toml: scenario.description", "a string"),
         ("[board]\ncells=3.5\n", "x.toml: board.cells", "integer"),
         ("[board]\nsoc=1.5\n", "x.toml: board.soc", "0..1"),
         # parse, and lie within the ranges, but no spacecraft or phone is made of them

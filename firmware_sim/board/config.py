@@ -187,7 +187,9 @@ class BoardConfig:
         _int_in(self.tx_buffer_bytes, 512, 1 << 26, f"{w}.tx_buffer_bytes")
         _num_in(self.dead_esc_detect_s, 0.01, 60.0, f"{w}.dead_esc_detect_s")
         b = self.power.battery
-        _int_in(b.cells, 1, 12, f"{w}.power.battery.cells")
+        # two cells at least: one (4.2 V full) cannot hold the UBEC's rail above the MCU's brown-out
+        # release, and the board never boots (a scenario's cells = 1 was a handshake timeout)
+        _int_in(b.cells, 2, 12, f"{w}.power.battery.cells")
         _num_in(b.capacity_mah, 1.0, 1e6, f"{w}.power.battery.capacity_mah")
         _num_in(b.internal_resistance_ohm, 0.0, 10.0, f"{w}.power.battery.internal_resistance_ohm")
         _num_in(b.initial_soc, 0.0, 1.0, f"{w}.power.battery.initial_soc")

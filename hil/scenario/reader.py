@@ -83,7 +83,7 @@ BOARD_RANGES: dict[str, tuple[float, float, type]] = {
     "heartbeat_rate": (0.1, 1000.0, float),
     "link_timeout": (0.01, 60.0, float),
     "mcu_watchdog": (0.015, 8.0, float),
-    "cells": (1, 12, int),
+    "cells": (2, 12, int),
     "soc": (0.0, 1.0, float),
 }
 """The board options a scenario may set (firmware-sim's spelling) and their ranges, checked here so an
@@ -225,6 +225,13 @@ class _Reader:
             raise self.error(f"{table}.{key}", f"must be one of {', '.join(options)}; got {value!r}")
         return str(value)
 
+    def text(self, tbl: dict[str, Any], table: str, key: str, limit: int = 2000) -> str:
+        """A string at ``table.key`` ("" when absent), at most ``limit`` characters."""
+        value = tbl.get(key, "")
+        if not isinstance(value, str) or len(value) > limit:
+            raise self.error(f"{table}.{key}", f"must be a string of at most {limit} characters")
+        return value
+
     # ------------------------------------------------------------------ the tables
     def scenario(self, text: str, path: Path | None) -> Scenario:
         head = self.table("scenario")
@@ -259,7 +266,7 @@ class _Reader:
             )
         return Scenario(
             name=name,
-            description=str(head.get("description", "")),
+            description=self.text(head, "scenario", "description"),
             spacecraft=spacecraft,
             phone=self.sensors(),
             estimator=self.estimator(),
