@@ -263,3 +263,16 @@ def test_a_campaign_s_traces_are_read_a_chunk_at_a_time_keeping_what_is_asked(tm
     tracemalloc.stop()
     assert list(index) == [0, 1] and traces.shape[:2] == (2, len(TRACES))
     assert list(again) == [1] and peak < 40 * MB
+
+
+def test_a_campaign_s_duplicated_rows_are_counted_not_collapsed_silently(tmp_path, campaign):
+    import shutil
+
+    from hil.montecarlo import read_runs
+
+    d = tmp_path / "c"
+    shutil.copytree(campaign, d)
+    lines = (d / "runs.csv").read_text().splitlines()
+    (d / "runs.csv").write_text("\n".join([*lines, *lines[1:] * 50]) + "\n")
+    results = read_runs(d)
+    assert list(results.index) == [0, 1] and results.dropped == 100

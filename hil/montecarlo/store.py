@@ -201,7 +201,8 @@ class Results:
     """A campaign's runs.csv read back, one entry per run in index order (the last row of an index wins):
     ``index`` (N,), ``ok`` (N,) bool, ``errors`` index → error text of the failed runs, ``values`` column
     → float array (N,) (NaN where empty: a failed run's metrics), ``text`` column → str array for
-    columns that are not numbers (e.g. ``link.outage_list``); ``dropped`` malformed lines."""
+    columns that are not numbers (e.g. ``link.outage_list``); ``dropped`` malformed lines, and rows of a
+    run that has a later row too."""
 
     index: NDArray[np.int64]
     ok: NDArray[np.bool_]
@@ -224,7 +225,8 @@ class Results:
 
 
 def read_runs(out_dir: str | os.PathLike[str]) -> Results:
-    """Read ``OUT/runs.csv``; a line with the wrong number of cells is dropped and counted."""
+    """Read ``OUT/runs.csv``; a line with the wrong number of cells, or a run's row with a later one, is
+    dropped and counted."""
     path = Path(out_dir) / RUNS
     text = read_text(path, InputFormatError, "results")
     reader = csv.reader(io.StringIO(text))
@@ -237,7 +239,9 @@ def read_runs(out_dir: str | os.PathLike[str]) -> Results:
         if len(cells) != len(header) or not cells[0].isdigit():
             dropped += 1
             continue
-        rows[int(cells[0])] = cells
+        index = int(cells[0])
+        dropped += index in rows  # a run's row twice (the file was edited): the last kept, the rest counted
+        rows[index] = cells
     order = sorted(rows)
     table = [rows[i] for i in order]
     values: dict[str, NDArray[np.float64]] = {}
