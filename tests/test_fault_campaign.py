@@ -272,6 +272,23 @@ def test_a_phone_that_starts_streaming_late_gets_its_whole_still_window(late_s):
     assert spin_up["t"] - still["t"] >= sc.loop.warmup_s - 1e-9
 
 
+def test_an_arm_that_could_not_reach_the_board_is_named_in_the_exit():
+    """The operator's Disarm and Arm both while the board is unplugged: the Disarm's intent is kept (the
+    board comes back disarmed), the Arm is refused (no session) and arms nothing; the exit says both,
+    not a Disarm that was "not armed again" as though no Arm had come."""
+    sc = _sc()
+    faults = [
+        InjectedFault("unplug", 8.0, {"duration_s": 3.0}),
+        InjectedFault("disarm", 9.0),
+        InjectedFault("arm", 10.0, {"after_disarm_s": 1.0}),
+    ]
+    recorder = _recorded(sc, faults, operator_schedule(tuple(faults)))
+    assert check_run(faults, recorder, fault_bounds(sc)).ok
+    exit_reason = recorder.summary["exit"]
+    assert exit_reason.startswith("disarmed by the operator at t=9.0")
+    assert "an Arm at t=10.0" in exit_reason and "refused" in exit_reason
+
+
 # --------------------------------------------------------------------------- campaigns end to end
 def _campaign(tmp_path, seed, runs, capsys):
     out = tmp_path / f"mc-{seed}"

@@ -466,7 +466,16 @@ def _outcome(host: Host) -> str:
     if lost is not None:
         return f"lost: {lost}"
     if host.suspended_since is not None:
-        return f"disarmed by the operator at t={host.suspended_since:.3f} s and not armed again"
+        said = f"disarmed by the operator at t={host.suspended_since:.3f} s and not armed again"
+        refused = [
+            e
+            for e in host.operator_log
+            if e["command"] == "arm" and e["status"] == "refused" and e["t"] >= host.suspended_since
+        ]
+        if refused:  # the operator did Arm: the command never reached the board (no session then)
+            last = refused[-1]
+            said += f" (an Arm at t={last['t']:.3f} s was refused: {last.get('reason', 'refused')})"
+        return said
     return "completed" if host.finished else "time limit (the slew never started)"
 
 
