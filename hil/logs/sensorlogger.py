@@ -99,8 +99,8 @@ def _table(
         unusable = ~(np.isfinite(exact) & (np.abs(exact) < 2.0**63))
         if unusable.all() and len(unusable):
             raise InputFormatError("no 'time' cell is a number", table.source, table.header_line, "time")
-        xyz[unusable] = np.nan
-        times = _epoch_ns(table, ~unusable, notes)
+        times, usable = _epoch_ns(table, ~unusable, notes)
+        xyz[~usable] = np.nan
     elif "seconds_elapsed" in table.columns:
         times = table.column("seconds_elapsed")
     else:
@@ -112,13 +112,14 @@ def _table(
     return times, xyz
 
 
-def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> np.ndarray:
+def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """The ``time`` column as int64 ns since the epoch, its unit told by its size (:data:`EPOCH_UNITS`:
     the app writes ns; a re-export may write µs or ms) and checked against ``seconds_elapsed``'s steps
-    where there is one. A time that is no epoch in any unit is an InputFormatError naming the column."""
+    where there is one; and the rows whose time is usable (of ``usable``, those whose ns fit int64). A
+    time that is no epoch in any unit is an InputFormatError naming the column."""
     times = table.exact["time"]
     if not usable.any():
-        return times
+        return times, usable
     typical = int(np.median(times[usable]))
     unit = next((u for u in EPOCH_UNITS if u[0] <= abs(typical) < u[1]), None)
     if unit is None:
@@ -129,7 +130,8 @@ def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> np.ndarray:
             "time",
         )
     _, _, ns_per_unit, name = unit
-    ns = np.where(usable, times, typical) * ns_per_unit  # an unusable row's readings are NaN
+    usable = usable & (np.abs(times) <= np.iinfo(np.int64).max // ns_per_unit)  # a stray far off: NaN
+    ns = np.where(usable, times, typical) * ns_per_unit
     if name != "ns":
         notes.append(f"{table.source}: 'time' in {name} since the epoch (the app writes ns)")
     if "seconds_elapsed" in table.columns:
@@ -146,7 +148,7 @@ def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> np.ndarray:
                     table.header_line,
                     "time",
                 )
-    return ns
+    return ns, usable
 
 
 _KIND = {n.lower(): SensorKind.GYR for n in GYR_FILES} | {n.lower(): SensorKind.MAG for n in MAG_FILES}
