@@ -146,3 +146,33 @@ def test_bad_urls_and_busy_ports_are_link_errors():
         with pytest.raises(LinkError, match=str(port)):
             PhonePushServer(f"http://127.0.0.1:{port}/")
     assert math.isfinite(port)
+
+
+def test_a_gzip_or_deflate_body_is_undone_within_the_limit_and_another_coding_is_a_415():
+    """A push whose body is compressed (``Content-Encoding: gzip``, as a proxy or a client library may
+    send it) is read as the app's JSON; a coding the receiver cannot undo is a 415 naming it, and a small
+    body that unpacks to more than the body limit a 413 (it was "not JSON (UnicodeDecodeError ...)")."""
+    import gzip
+    import zlib
+
+    samples = [SensorSample(1.0 + 0.01 * k, SensorKind.GYR, (0.1, 0.2, 0.3)) for k in range(5)]
+    body = encode_push(samples, 1, "s", "d")
+    bomb = gzip.compress(b" " * (64 << 20))  # 64 kB that unpacks to 64 MB
+    with PhonePushServer("http://127.0.0.1:0/") as server:
+        host, port = server.url.split("//")[1].split("/")[0].split(":")
+        conn = http.client.HTTPConnection(host, int(port), timeout=5)
+        answers = []
+        for coding, data in (("gzip", gzip.compress(body)), ("deflate", zlib.compress(body)), ("br", body),
+                             ("gzip", bomb), ("gzip", b"not gzip")):  # fmt: skip
+            conn.request("POST", "/", data, {"Content-Type": "application/json", "Content-Encoding": coding})
+            resp = conn.getresponse()
+            answers.append((resp.status, resp.read()))
+        conn.close()
+        assert [status for status, _ in answers] == [200, 200, 415, 413, 400]
+        assert b"'br'" in answers[2][1] and b"unpacks to more" in answers[3][1]
+        deadline = time.monotonic() + 5
+        got: list[SensorSample] = []
+        while len(got) < 10 and time.monotonic() < deadline:
+            got += server.drain()
+            time.sleep(0.02)
+        assert [s.t_s for s in got] == [s.t_s for s in samples] * 2

@@ -40,6 +40,7 @@ import socket
 import sys
 import threading
 import time
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from email.message import Message
@@ -101,17 +102,51 @@ def read_body(headers: Message, rfile: ByteReader, limit: int, source: str = "ht
     that stops sending raises whatever ``rfile`` raises (a timeout, a closed connection)."""
     codings = [c.strip().lower() for v in headers.get_all("Transfer-Encoding", []) for c in v.split(",")]
     codings = [c for c in codings if c]
+    content = _content_coding(headers, source)  # refused before a byte of the body is read
     if codings:
         if codings != ["chunked"]:
             raise BodyError(501, f"transfer coding {', '.join(codings)!r} is not supported", source)
-        return _read_chunked(rfile, limit, source)
-    length = content_length(headers, limit, source)
-    if length is None:
-        raise BodyError(411, "a POST needs a Content-Length or chunked transfer coding", source)
-    body = rfile.read(length)
-    if len(body) != length:
-        raise BodyError(400, f"the connection ended {length - len(body)} bytes before the body did", source)
-    return body
+        body = _read_chunked(rfile, limit, source)
+    else:
+        length = content_length(headers, limit, source)
+        if length is None:
+            raise BodyError(411, "a POST needs a Content-Length or chunked transfer coding", source)
+        body = rfile.read(length)
+        if len(body) != length:
+            raise BodyError(
+                400, f"the connection ended {length - len(body)} bytes before the body did", source
+            )
+    return body if content is None else _decompressed(body, content, limit, source)
+
+
+_CONTENT_CODINGS = {"gzip": 16 + zlib.MAX_WBITS, "x-gzip": 16 + zlib.MAX_WBITS, "deflate": zlib.MAX_WBITS}
+"""The content codings a body may come in (``Content-Encoding``), as zlib's window bits."""
+
+
+def _content_coding(headers: Message, source: str) -> str | None:
+    """The body's ``Content-Encoding`` (None: identity); one the server cannot undo is a 415."""
+    codings = [c.strip().lower() for v in headers.get_all("Content-Encoding", []) for c in v.split(",")]
+    codings = [c for c in codings if c and c != "identity"]
+    if not codings:
+        return None
+    if len(codings) > 1 or codings[0] not in _CONTENT_CODINGS:
+        raise BodyError(
+            415, f"content coding {', '.join(codings)!r} is not supported (gzip, deflate)", source
+        )
+    return codings[0]
+
+
+def _decompressed(body: bytes, coding: str, limit: int, source: str) -> bytes:
+    """A gzip or deflate ``body`` undone, at most ``limit`` bytes of it (a small body that unpacks to
+    gigabytes is a 413, not the memory it asks for)."""
+    unpacker = zlib.decompressobj(wbits=_CONTENT_CODINGS[coding])
+    try:
+        data = unpacker.decompress(body, limit + 1)
+    except zlib.error as exc:
+        raise BodyError(400, f"not {coding} data ({exc})", source) from None
+    if len(data) > limit or unpacker.unconsumed_tail:
+        raise BodyError(413, f"a {coding} body that unpacks to more than {limit} bytes", source)
+    return data
 
 
 def content_length(headers: Message, limit: int, source: str = "http") -> int | None:
