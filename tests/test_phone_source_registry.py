@@ -33,7 +33,7 @@ from hil.link.sources.simulated import StreamedWorldPhone, WorldPhone
 from hil.link.transports import InProcessBoard, create_transport
 from hil.scenario import load_scenario
 from hil.timing.clock import Clock, LockstepClock, WallClock
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, LinkError
 
 BUILT_IN = {
     "udp": "hil.link.sources.listening:listen",
@@ -169,21 +169,24 @@ def test_a_third_party_package_registers_a_source_by_entry_point(tmp_path):
 def test_a_live_phone_is_listened_for_and_counted(address):
     context, events = _context(WallClock())
     sample = SensorSample(1.0, SensorKind.GYR, np.array([0.01, 0.02, 0.03]))
+    gravity = SensorSample(1.0, SensorKind.ACC, np.array([0.0, 0.0, 9.81]))  # a run starts on both
     with create_source(address, context) as source:
         scheme = address.split("://")[0] if "://" in address else "udp"  # a bare HOST:PORT is SensaGram's
         assert isinstance(source, ListeningSource) and source.url.startswith(f"{scheme}://127.0.0.1:")
         assert events.kinds() == ["phone_listening"] and events.records[0][2] == {"url": source.url}
         sender = open_sender(source.url)
         try:
-            sender.send([sample])
+            sender.send([sample, gravity])
             source.wait_ready(5.0, lambda: None)
         finally:
             sender.close()
-        (got,) = source.drain(0.0)
-        assert got.kind is SensorKind.GYR and np.allclose(got.xyz, sample.xyz)
+        got = {s.kind: s for s in source.drain(0.0)}
+        assert np.allclose(got[SensorKind.GYR].xyz, sample.xyz) and np.allclose(
+            got[SensorKind.ACC].xyz, gravity.xyz
+        )
         assert source.truth(0.0) is None and source.tasks() == [] and source.start(0.0) is None
         report = source.report()["phone"]
-        assert report["url"] == source.url and report["samples"] == 1
+        assert report["url"] == source.url and report["samples"] == 2
 
 
 def test_a_live_phone_that_sends_nothing_is_a_clear_error():
@@ -191,8 +194,43 @@ def test_a_live_phone_that_sends_nothing_is_a_clear_error():
     fed = []
     with create_source("udp://127.0.0.1:0", context) as source, pytest.raises(Exception) as raised:
         source.wait_ready(0.2, lambda: fed.append(1))
-    assert f"no phone samples on {source.url}" in str(raised.value) and "SensaGram" in str(raised.value)
+    assert f"no phone stream on {source.url}" in str(raised.value) and "SensaGram" in str(raised.value)
+    assert "nothing was heard" in str(raised.value)
     assert fed  # the board's link was kept fed meanwhile
+
+
+UNCALIBRATED = "android.sensor.gyroscope_uncalibrated"
+GYROSCOPE, MAGNETOMETER = "android.sensor.gyroscope", "android.sensor.magnetic_field"
+
+
+@pytest.mark.parametrize(
+    ("datagrams", "said"),
+    [
+        # the app on, its gyroscope uncalibrated only: heard, none of it usable
+        ([(UNCALIBRATED, [1, 2, 3, 0, 0, 0])] * 20,
+         ["20 messages heard", "no gyroscope and no accelerometer", "20 readings of sensors the host"]),
+        # a gyroscope and a magnetometer, no accelerometer: the estimator could never start
+        ([(GYROSCOPE, [0.1, 0.2, 0.3]), (MAGNETOMETER, [20, 0, -40])] * 10,
+         ["by sensor: gyr 10, mag 10", "no accelerometer among them"]),
+    ],
+)  # fmt: skip
+def test_a_live_phone_heard_without_what_a_run_needs_is_told_what_was_heard(datagrams, said):
+    """A phone that streams, but not the sensors a run starts on, is not "a phone that sends nothing":
+    the error says what came (it used to say to point the app at the host, which it was), and a stream
+    without an accelerometer no longer starts a run that could never estimate."""
+    import json
+    import socket
+
+    context, _ = _context(WallClock())
+    with create_source("udp://127.0.0.1:0", context) as source, pytest.raises(LinkError) as raised:
+        host, port = source.url.removeprefix("udp://").rsplit(":", 1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for k, (kind, values) in enumerate(datagrams):
+                doc = {"type": kind, "timestamp": 3_925_657_519_043_709 + k * 10**7, "values": values}
+                s.sendto(json.dumps(doc).encode(), (host, int(port)))
+        source.wait_ready(0.5, lambda: None)
+    for part in said:
+        assert part in str(raised.value)
 
 
 def test_a_recording_plays_on_the_runs_clock_with_its_truth():

@@ -251,9 +251,10 @@ def test_port_without_a_phone_stream_is_a_clear_error(tmp_path, phone_port):
         "--phone-wait", "1", "--out", str(tmp_path), timeout=60,
     )  # fmt: skip
     assert done.returncode == 2
-    assert f"no phone samples on udp://127.0.0.1:{phone_port}" in done.stderr and "SensaGram" in done.stderr
+    assert f"no phone stream on udp://127.0.0.1:{phone_port}" in done.stderr and "SensaGram" in done.stderr
+    assert "nothing was heard" in done.stderr
     summary = json.loads(next(tmp_path.glob("*/summary.json")).read_text())
-    assert summary["exit"].startswith("error: no phone samples")
+    assert summary["exit"].startswith("error: no phone stream")
 
 
 def test_a_run_killed_with_sigkill_leaves_a_readable_log(tmp_path):

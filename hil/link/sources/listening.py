@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
 from hil.link.sources.base import GroundTruth, PhoneSource, SourceContext
-from hil.link.sources.stream import PhoneReceiver, PhoneSender
+from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
 from protocol.errors import ConfigError, LinkTimeout
 
 if TYPE_CHECKING:
@@ -88,26 +88,60 @@ class ListeningSource(PhoneSource):
         self.receiver.close()
 
     def wait_ready(self, wait_s: float, keep_alive: Callable[[], None]) -> None:
-        """The first samples within ``wait_s`` (wall clock), or a :class:`LinkTimeout` saying where to send
-        them (and how many messages were unreadable, with the last reason)."""
+        """The gyroscope's and the accelerometer's first samples within ``wait_s`` (wall clock): without
+        either the estimator cannot start. Else a :class:`LinkTimeout` saying what was heard (:func:`heard`)
+        and where to send what is missing."""
         receiver = self.receiver
         end = time.monotonic() + wait_s
         while time.monotonic() < end:
             receiver.check()
             keep_alive()
-            if receiver.stats.samples:
+            if all(receiver.stats.per_kind.get(kind) for kind in NEEDED):
                 return
             time.sleep(POLL_S)
-        st = receiver.stats
-        bad = f" ({st.bad_messages} unreadable, the last: {st.last_error})" if st.bad_messages else ""
         raise LinkTimeout(
-            f"no phone samples on {self.url} within {wait_s:.0f} s{bad}: start `firmware-sim --world "
-            f"SCENARIO --phone {self.url}` (it streams its simulated phone there) or point {receiver.app} on "
-            "a phone at it"
+            f"no phone stream on {self.url} within {wait_s:.0f} s: {heard(receiver.stats)}; start "
+            f"`firmware-sim --world SCENARIO --phone {self.url}` (it streams its simulated phone there) or "
+            f"point {receiver.app} on a phone at it, its accelerometer and gyroscope on"
         )
 
     def report(self) -> dict[str, dict[str, Any]]:
         return {"phone": {"url": self.url, **asdict(self.receiver.stats)}}
+
+
+NEEDED = ("gyr", "acc")
+"""The sensors a run cannot start without (``StreamStats.per_kind``'s labels)."""
+
+
+def heard(stats: StreamStats) -> str:
+    """What a receiver heard, for a user whose phone stream did not start: nothing; or messages with no
+    reading the host uses (another sensor: an uncalibrated one, a user acceleration without gravity),
+    readings it could not use, requests for another path; or which of :data:`NEEDED` never came."""
+    if not (stats.messages or stats.bad_messages or stats.not_found):
+        return "nothing was heard"
+    said = []
+    if stats.messages:
+        kinds = ", ".join(f"{k} {n}" for k, n in stats.per_kind.items()) or "none"
+        said.append(f"{stats.messages} messages heard, their readings by sensor: {kinds}")
+        missing = [k for k in NEEDED if not stats.per_kind.get(k)]
+        if missing:
+            said.append(f"no {' and no '.join(_NAMES[k] for k in missing)} among them")
+    if stats.ignored_entries:
+        said.append(
+            f"{stats.ignored_entries} readings of sensors the host does not use (it takes the calibrated "
+            "gyroscope, magnetometer and accelerometer with gravity: Sensor Logger's TotalAcceleration, "
+            "or Accelerometer with Gravity)"
+        )
+    if stats.bad_entries:
+        said.append(f"{stats.bad_entries} readings without finite values or time")
+    if stats.bad_messages:
+        said.append(f"{stats.bad_messages} unreadable messages, the last: {stats.last_error}")
+    if stats.not_found:
+        said.append(f"{stats.not_found} requests for another path than the push path (answered 404)")
+    return "; ".join(said)
+
+
+_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
 
 
 def listen(url: str, context: SourceContext) -> ListeningSource:
