@@ -176,3 +176,35 @@ def test_a_gzip_or_deflate_body_is_undone_within_the_limit_and_another_coding_is
             got += server.drain()
             time.sleep(0.02)
         assert [s.t_s for s in got] == [s.t_s for s in samples] * 2
+
+
+@pytest.mark.parametrize(
+    ("unit", "scale", "as_float"),
+    [("ns", 10**9, False), ("µs", 10**6, False), ("ms", 10**3, False), ("s", 1, True), ("ms", 10**3, True)],
+)
+def test_a_batch_s_time_in_another_unit_is_told_by_its_epoch_and_spacing(unit, scale, as_float):
+    """A client that writes ``time`` in µs, ms or s since the epoch (the app writes ns): 10 s at 100 Hz
+    read as 10 s, not 10 ms (dropped as a flood) or 10 ns."""
+    t0 = 1_698_501_144.25
+    entries = []
+    for k in range(1000):
+        t = (t0 + 0.01 * k) * scale
+        stamp = t if as_float else round(t)
+        entries.append({"name": "gyroscope", "time": stamp, "values": {"x": 1.0, "y": 0.0, "z": 0.0}})
+    got, bad, _, _ = decode_push(json.dumps({"payload": entries}).encode())
+    assert bad == 0 and len(got) == 1000
+    assert got[0].t_s == pytest.approx(t0, abs=1e-3) and got[-1].t_s - got[0].t_s == pytest.approx(
+        9.99, abs=1e-3
+    )
+
+
+@pytest.mark.parametrize("seconds_from_start", [1.0, 1500.0, 9000.0])
+def test_a_ns_clock_from_its_start_stays_ns_in_every_epoch_band(seconds_from_start):
+    """The emulator's phone stamps ns from its world's start: 1500 s of it is 1.5e12, a ms epoch's size,
+    but its readings 5e6 apart are ns (and a batch of one reading per sensor is taken as ns too)."""
+    samples = [
+        SensorSample(seconds_from_start + 0.005 * k, SensorKind.GYR, (0.0, 0.0, 0.1)) for k in range(20)
+    ]
+    for batch in (samples, samples[:1]):
+        got, _, _, _ = decode_push(encode_push(batch, 1, "s", "d"))
+        assert [s.t_s for s in got] == pytest.approx([s.t_s for s in batch], abs=1e-9)

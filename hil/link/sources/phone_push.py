@@ -68,18 +68,16 @@ def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], 
 
     Returns ``(samples, bad_entries, ignored_entries, message_id)``. A body that is not a JSON object with
     a ``payload`` list raises :class:`InputFormatError` naming ``source`` — whatever the bytes, nothing
-    else is raised; a reading that cannot be used is counted in ``bad_entries``.
+    else is raised; a reading that cannot be used is counted in ``bad_entries``. The batch's ``time``
+    unit is the app's ns unless its readings say otherwise (:func:`time_unit`).
     """
     doc = parse_json(body, source)
     if not isinstance(doc, dict) or not isinstance(doc.get("payload"), list):
         raise InputFormatError("expected a JSON object with a 'payload' list", source)
     message_id = doc.get("messageId")
     message_id = message_id if isinstance(message_id, int) and not isinstance(message_id, bool) else None
-    samples: list[SensorSample] = []
     bad = ignored = 0
-    gravity: list[_Timed] = []
-    user_acc: list[_Timed] = []
-    have_total = False
+    readings: list[tuple[str, int | float, tuple[float, float, float]]] = []
     for entry in doc["payload"]:
         name = entry.get("name") if isinstance(entry, dict) else None
         if not isinstance(name, str):
@@ -93,7 +91,14 @@ def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], 
         if reading is None:
             bad += 1
             continue
-        t, xyz = reading
+        readings.append((name, *reading))
+    ns_per_unit = time_unit(readings)
+    samples: list[SensorSample] = []
+    gravity: list[_Timed] = []
+    user_acc: list[_Timed] = []
+    have_total = False
+    for name, raw, xyz in readings:
+        t = _seconds(raw, ns_per_unit)
         if name == "accelerometer":
             user_acc.append((t, xyz))
         elif name == "gravity":
@@ -109,20 +114,63 @@ def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], 
     return samples, bad, ignored, message_id
 
 
-def _reading(entry: dict[str, Any]) -> tuple[float, tuple[float, float, float]] | None:
-    values, t_ns = entry.get("values"), entry.get("time")
-    if not isinstance(values, dict) or isinstance(t_ns, bool) or not isinstance(t_ns, (int, float, str)):
+EPOCH_BANDS = (
+    (10**15, 10**16, 1_000, 10**6),
+    (10**12, 10**13, 10**6, 10**3),
+    (10**9, 10**10, 10**9, 1),
+)
+"""A batch's ``time`` read in another unit than the app's ns: (lowest, highest) an epoch in that unit can
+be (2001–2286: µs, ms, s), its ns per unit, and the spacing of one sensor's readings below which they are
+in it (in ns, a sensor at 1 kHz is 1e6 apart; in µs, one at 1 Hz is; in ms, 1e3; in s, 1)."""
+
+
+def time_unit(readings: Sequence[tuple[str, int | float, Any]]) -> int:
+    """The ns per unit of a batch's ``time`` values: 1 (the app's ns), or that of µs, ms or s when the
+    batch's median time is an epoch in that unit (:data:`EPOCH_BANDS`) and its sensors' readings are as
+    far apart as a sensor's are in it (another client, a re-export; read as ns, a 10-second recording in
+    µs was 10 ms long and dropped as a flood). With one reading per sensor only a µs epoch is told by its
+    size: one in ms or s is also a ns clock 1–10 000 s from its start (the emulator's phone's)."""
+    if not readings:
+        return 1
+    times = sorted(float(raw) for _, raw, _ in readings)
+    median = abs(times[len(times) // 2])
+    steps = []
+    for name in {name for name, _, _ in readings}:
+        own = sorted(float(raw) for n, raw, _ in readings if n == name)
+        steps += [b - a for a, b in zip(own, own[1:], strict=False) if b > a]
+    spacing = sorted(steps)[len(steps) // 2] if steps else None
+    for low, high, ns_per_unit, apart in EPOCH_BANDS:
+        if not low <= median < high:
+            continue
+        if spacing is not None:
+            return ns_per_unit if spacing < apart else 1
+        return ns_per_unit if ns_per_unit == 1_000 else 1  # one reading each: by its size alone (µs)
+    return 1
+
+
+def _seconds(raw: int | float, ns_per_unit: int) -> float:
+    """A ``time`` value as seconds: int / int is correctly rounded, so t_s survives a round trip through
+    integer nanoseconds."""
+    if isinstance(raw, int):
+        return raw * ns_per_unit / 1_000_000_000
+    return raw * ns_per_unit * 1e-9
+
+
+def _reading(entry: dict[str, Any]) -> tuple[int | float, tuple[float, float, float]] | None:
+    """An entry's ``time`` (as written: an int, or a float) and its ``values``; None when unusable."""
+    values, t_raw = entry.get("values"), entry.get("time")
+    if not isinstance(values, dict) or isinstance(t_raw, bool) or not isinstance(t_raw, (int, float, str)):
         return None
     try:
-        # int / int is correctly rounded: t_s survives a round trip through integer nanoseconds
-        whole = isinstance(t_ns, int) or (isinstance(t_ns, str) and t_ns.isdigit())
-        t = (int(t_ns) if whole else float(t_ns)) / 1_000_000_000
+        whole = isinstance(t_raw, int) or (isinstance(t_raw, str) and t_raw.isdigit())
+        raw: int | float = int(t_raw) if whole else float(t_raw)
         xyz = (float(values["x"]), float(values["y"]), float(values["z"]))
+        seconds = float(raw) * 1e-9  # finite in any unit iff finite in ns
     except (KeyError, TypeError, ValueError, OverflowError):  # OverflowError: a 400-digit integer
         return None
-    if not all(math.isfinite(v) for v in (t, *xyz)):
+    if not all(math.isfinite(v) for v in (seconds, *xyz)) or abs(raw) > 1e300:
         return None
-    return t, xyz
+    return raw, xyz
 
 
 def _total_from_parts(user: list[_Timed], gravity: list[_Timed]) -> list[SensorSample]:
