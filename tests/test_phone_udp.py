@@ -49,6 +49,13 @@ def test_the_apps_datagrams():
         assert decode_datagram(json.dumps(other).encode()) is None
 
 
+def test_a_client_s_spelling_of_the_type_and_its_timestamp_as_a_string_are_read():
+    """Another client than SensaGram: its type in another case, its long timestamp as a digit string
+    (they were ignored and refused, while the HTTP push takes both)."""
+    doc = {"type": "Android.Sensor.Gyroscope", "timestamp": "2000000000", "values": [0.1, 0.2, 0.3]}
+    assert decode_datagram(json.dumps(doc).encode()) == SensorSample(2.0, SensorKind.GYR, (0.1, 0.2, 0.3))
+
+
 @pytest.mark.parametrize(
     ("data", "reason"),
     [

@@ -58,10 +58,12 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
     doc = parse_json(data, source)
     if not isinstance(doc, dict) or not isinstance(doc.get("type"), str):
         raise InputFormatError("expected a JSON object with a string 'type'", source)
-    kind = TYPES.get(doc["type"])
+    kind = TYPES.get(doc["type"].strip().lower())  # Android's names are lower case; a client's may not be
     if kind is None:
         return None
     t_ns, values = doc.get("timestamp"), doc.get("values")
+    if isinstance(t_ns, str) and t_ns.strip().isdigit():  # a client that writes its long as a string
+        t_ns = int(t_ns)
     if isinstance(t_ns, bool) or not isinstance(t_ns, (int, float)):
         raise InputFormatError(f"{doc['type']}: 'timestamp' must be a number of nanoseconds", source)
     if not isinstance(values, list) or len(values) < 3:
