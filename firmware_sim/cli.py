@@ -18,7 +18,8 @@ from typing import TYPE_CHECKING, Any
 from hil.scenario.fault_specs import (
     MAX_SAG_OHMS,
     parse_dead_esc,
-    parse_numbers,
+    parse_jump,
+    parse_noise,
     parse_sag,
     parse_spoof,
     parse_stall,
@@ -322,10 +323,10 @@ def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ign
         at, duration = parse_stall(spec, "--unplug")
         faults.unplug(duration, at=at)
     for spec in args.noise:
-        at, duration, p = parse_numbers(spec, 3, "--noise", "8:1.5:0.02")
+        at, duration, p = parse_noise(spec)
         faults.noisy_link(p, duration, at=at)
     for spec in args.phone_jump:
-        at, offset = parse_numbers(spec, 2, "--phone-jump", "12:-100")
+        at, offset = parse_jump(spec)
         faults.phone_jump(offset, at=at)
     for spec in args.phone_spoof:
         at, kind = parse_spoof(spec)
@@ -406,6 +407,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             "--usb puts the host on the phone's accessory link, --can on a CAN bus bridged to UART0: "
             "the firmware listens to one link, choose one"
         )
+    phone_faults = {
+        "--phone-jump": args.phone_jump,
+        "--phone-spoof": args.phone_spoof,
+        "--phone-gap": args.phone_gap,
+    }
+    given = [flag for flag, values in phone_faults.items() if values]
+    if given and args.world is None:  # accepted and ignored, they were: there is no phone without a world
+        parser.error(f"{given[0]} acts on the world's phone: it needs --world")
     if args.usb_detach and (not args.usb or args.world is None):
         parser.error(
             "--usb-detach pulls the phone off the stepped firmware board: it needs --avr --usb --world"

@@ -105,7 +105,13 @@ class TransportError(LinkError):
     """A transport URL that cannot be resolved or opened."""
 
 
-class PortBusy(TransportError):
+class TransportRefused(TransportError):
+    """A transport that opening again cannot open: its URL describes no board (an option's value the board
+    refuses), or another host holds its port. A run fails on it at once rather than trying again for its
+    outage bound."""
+
+
+class PortBusy(TransportRefused):
     """A serial port that another process holds exclusively: another host is talking to that board.
 
     Every host locks its port (``flock``), so a second host cannot handshake with a board under the first

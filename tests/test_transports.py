@@ -73,3 +73,54 @@ def test_url_options_reject_unknown_and_bad_values():
         opts.finish()
     with pytest.raises(TransportError, match="not a number"):
         UrlOptions("x://y?t=abc").get_float("t", 1.0)
+
+
+@pytest.mark.parametrize("url", ["emu://?units=0", "spawn://firmware-sim?units=0", "emu://?noise=5:1:2"])
+def test_a_board_its_options_cannot_describe_fails_the_run_at_once_not_after_retries(tmp_path, url):
+    """A value the board refuses is no port that may come back: the run says so at once (it was tried
+    again for the whole outage bound, 15 s, a spawned firmware-sim started over and over)."""
+    import json
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "hil", "run", "--port", url, "--phone-wait", "3", "--duration", "1",
+         "--no-plots", "--out", str(tmp_path)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "tried for" not in done.stderr and url in done.stderr
+    events = [json.loads(line) for line in next(tmp_path.glob("*/events.jsonl")).read_text().splitlines()]
+    assert not [e for e in events if e["kind"] == "connect_retry"]
+
+
+@pytest.mark.parametrize("url", ["emu://?units=3&units=5", "emu://?frame-rate=100&frame_rate=200"])
+def test_an_emulator_option_given_twice_is_refused_naming_it(url):
+    """argparse keeps an option's last value: a URL that says two things is refused, not half-read."""
+    with pytest.raises(TransportError, match="given twice"):
+        create_transport(url)
+
+
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [(["--phone-jump", "1:1e308", "--world", "cubesat-1u"], "within"),
+     (["--phone-jump", "1:0", "--world", "cubesat-1u"], "non-zero"),
+     (["--noise", "1:1e9:0.5"], "duration"), (["--noise", "1:1:2"], "probability"),
+     (["--phone-gap", "1:1"], "needs --world"), (["--phone-spoof", "1:huge"], "needs --world")],
+)  # fmt: skip
+def test_firmware_sim_s_fault_options_out_of_range_are_usage_errors_naming_them(args, said):
+    """A phone clock's jump of 1e308 s crashed the world's thread (its datagram's stamp overflowed); a
+    noise burst of 1e9 s was taken; phone faults without a world were accepted and ignored."""
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "firmware_sim", "--duration", "0.2", *args],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert said in done.stderr and args[0] in done.stderr
+
+
+def test_repeatable_fault_options_may_repeat():
+    assert create_transport("emu://?stall=1:1&stall=3:1") is not None

@@ -55,7 +55,7 @@ from hil.link.transports.base import Transport
 from hil.link.transports.in_process import InProcessBoard, PulseRecord, SimulatedWorld, WorldStream
 from hil.link.transports.serial_port import SerialTransport
 from hil.timing.clock import Clock, LockstepClock, WallClock
-from protocol.errors import TransportError
+from protocol.errors import TransportError, TransportRefused
 
 if TYPE_CHECKING:
     from firmware_sim.avr.stepped import FirmwareBoard
@@ -63,6 +63,8 @@ if TYPE_CHECKING:
 
 DEFAULT_START_TIMEOUT_S = 10.0
 _TERMINATE_GRACE_S = 3.0
+EXIT_USAGE = 2
+"""firmware-sim's exit status for a usage error: an option or a value it refuses (argparse's)."""
 
 _PROCESS_ONLY = frozenset({"link", "duration", "avr", "eeprom", "no_hold", "verbose", "world", "phone"})
 """firmware-sim options that only make sense for a separate process (a pty, a wall-clock run)."""
@@ -88,11 +90,16 @@ def firmware_sim_argv(
 
     parser = build_parser()
     flags = {a.dest for a in parser._actions if a.nargs == 0}  # store_true / count options
+    repeatable = {a.dest for a in parser._actions if isinstance(a, argparse._AppendAction)}
     argv: list[str] = []
+    seen: set[str] = set()
     for key, value in options:
         name = key.replace("-", "_")
         if name in refused or name in _NEVER:
             raise TransportError(f"{url}: option {key!r} is not available here")
+        if name in seen and name not in repeatable:  # argparse would keep the last, silently
+            raise TransportError(f"{url}: option {key!r} is given twice (only the faults repeat)")
+        seen.add(name)
         option = "--" + name.replace("_", "-")
         if name in flags:
             if value.lower() in _TRUE:
@@ -375,7 +382,9 @@ class SpawnTransport(Transport):
             chunk = os.read(fd, 4096)
             if not chunk:
                 process.wait(timeout=_TERMINATE_GRACE_S)
-                raise TransportError(
+                # status 2 is its usage error (an option's value): starting it again cannot help
+                refused = TransportRefused if process.returncode == EXIT_USAGE else TransportError
+                raise refused(
                     f"{self.url}: firmware-sim exited with status {process.returncode} "
                     f"before it was ready{self._stderr_tail()}"
                 )

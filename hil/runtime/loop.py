@@ -79,8 +79,8 @@ from protocol.errors import (
     ConfigError,
     HilError,
     LinkError,
-    PortBusy,
     TransportError,
+    TransportRefused,
 )
 
 if TYPE_CHECKING:
@@ -550,7 +550,7 @@ def _connect(client: BoardClient, events: EventLog, bound_s: float) -> BoardInfo
     while True:
         try:
             return client.connect()
-        except PortBusy:
+        except TransportRefused:  # another host's port, options that describe no board: at once
             raise
         except TransportError as exc:
             now = clock.now()

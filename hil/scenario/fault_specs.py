@@ -84,6 +84,25 @@ def parse_numbers(spec: str, count: int, option: str, example: str) -> tuple[flo
     return values
 
 
+def parse_noise(spec: str, option: str = "--noise") -> tuple[float, float, float]:
+    """``AT:DURATION:P`` → (at, duration > 0, per-byte corruption probability ``0..1``)."""
+    at, duration, p = parse_numbers(spec, 3, option, "8:1.5:0.02")
+    _time(at, option)
+    _duration(duration, option, positive=True)
+    if not 0.0 <= p <= 1.0:
+        raise ConfigError(f"{spec!r}: {p!r} is not a probability 0..1", option)
+    return at, duration, p
+
+
+def parse_jump(spec: str, option: str = "--phone-jump") -> tuple[float, float]:
+    """``AT:OFFSET`` → (at, the phone clock's jump, non-zero, at most a day either way, s)."""
+    at, offset = parse_numbers(spec, 2, option, "12:-100")
+    _time(at, option)
+    if offset == 0.0 or abs(offset) > MAX_DURATION_S:
+        raise ConfigError(f"{spec!r}: the offset must be non-zero and within ±{MAX_DURATION_S:g} s", option)
+    return at, offset
+
+
 def parse_spoof(spec: str) -> tuple[float, str]:
     """``AT:KIND`` → (at, kind) (the kind is the world's to check)."""
     at, sep, kind = spec.strip().partition(":")

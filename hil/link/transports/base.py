@@ -13,7 +13,7 @@ import threading
 from types import TracebackType
 from urllib.parse import parse_qs, urlsplit
 
-from protocol.errors import LinkError, TransportError
+from protocol.errors import ConfigError, LinkError, TransportError, TransportRefused
 
 
 class Transport(abc.ABC):
@@ -39,6 +39,8 @@ class Transport(abc.ABC):
                 self._open_impl()
             except LinkError:
                 raise
+            except ConfigError as exc:  # the options describe no board: no second try will open it
+                raise TransportRefused(f"{self.url}: cannot open: {exc}") from exc
             except (OSError, ValueError) as exc:
                 raise TransportError(f"{self.url}: cannot open: {exc}") from exc
             self._open = True
