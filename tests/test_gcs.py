@@ -467,3 +467,30 @@ def test_an_alarm_acknowledgement_is_checked_queued_and_logged_as_an_event(tmp_p
         runner.join()
     reasons = [e["reason"] for e in runner.events() if e["kind"] == "command" and e["status"] == "rejected"]
     assert reasons == ["format", "token"]
+
+
+def test_every_command_answered_queued_has_a_status_even_as_the_run_ends(tmp_path):
+    """Commands sent while a run ends, until the station closes: each one answered 202 ``queued`` has a
+    status in the run's record (carried out on a tick, or refused as the run has ended), and after the
+    run's loop ended the answer is 409. (Commands accepted in the ~40 ms between the last tick and the
+    summary were answered 202 and then neither carried out nor logged.)"""
+    sc = quick_scenario()
+    queued: list[int] = []
+    answers: list[int] = []
+    with GroundStation.live(bind="127.0.0.1:0") as station:
+        runner = RunInThread(sc, RunOptions(out_root=tmp_path, duration_s=1.0), station)
+        runner.wait_event(lambda e: e["kind"] == "slew_start", what="the slew's start")
+        while runner.thread.is_alive():
+            status, answer = command(station, {"command": "hold"})
+            answers.append(status)
+            if status == 202:
+                queued.append(answer["id"])
+        for _ in range(3):  # the run has ended; the station still serves
+            answers.append(command(station, {"command": "hold"})[0])
+        result = runner.join()
+    assert queued and answers[-1] == 409 and set(answers) <= {202, 409, 503}
+    events = read_events(result.run_dir / "events.jsonl")[0]
+    statuses = {e["id"]: e["status"] for e in events if e["kind"] == "command" and e["id"] is not None}
+    assert set(queued) <= set(statuses) and set(statuses.values()) <= {"applied", "refused"}
+    operator = {o["id"] for o in result.summary["operator"]}
+    assert set(queued) <= operator

@@ -139,6 +139,12 @@ class LiveFeed:
             else:
                 self._items.append(("link", (t, host.client.stats())))
 
+    def ending(self, t: float) -> None:
+        """The run's loop has ended at ``t``: the uplink takes no more commands, and logs what came after
+        its last tick (:meth:`Uplink.close`), before the run's summary is written."""
+        if self.uplink is not None and self._host is not None:
+            self.uplink.close(self._host, t)
+
     def finished(self, summary: Mapping[str, Any]) -> None:
         with self._lock:
             self._status = {"state": "ended", "exit": summary.get("exit"), "summary": dict(summary)}

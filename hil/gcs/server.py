@@ -55,7 +55,7 @@ from tornado.netutil import bind_sockets
 from hil.gcs.access import Access
 from hil.gcs.guard import ConnectionGuard, TornadoReports, tornado_settings
 from hil.gcs.hub import Hub
-from hil.gcs.uplink import MAX_BODY, Uplink
+from hil.gcs.uplink import MAX_BODY, Uplink, UplinkClosed
 from hil.link.sources.http_guard import BACKLOG, BodyError, HttpLimits, content_length
 from protocol.errors import InputFormatError
 
@@ -517,6 +517,8 @@ class _Command(_Base):
             return None
         try:
             command = uplink.submit(body, remote)
+        except UplinkClosed as exc:
+            return self._json(HTTPStatus.CONFLICT, {"error": str(exc), "reason": "ended"})
         except InputFormatError as exc:
             return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
         if command is None:  # counted by the uplink (inbox_full), not a rejection: the sender may retry
@@ -549,6 +551,8 @@ class _Ack(_Command):
             return None
         try:
             ack = uplink.acknowledge(body, self.request.remote_ip or "")
+        except UplinkClosed as exc:
+            return self._json(HTTPStatus.CONFLICT, {"error": str(exc), "reason": "ended"})
         except InputFormatError as exc:
             return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
         if ack is None:

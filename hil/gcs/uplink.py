@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from hil.runtime.operator import COMMANDS, Operator, OperatorCommand
-from protocol.errors import InputFormatError
+from protocol.errors import HilError, InputFormatError
 
 if TYPE_CHECKING:
     from hil.runtime.host import Host
@@ -141,6 +141,11 @@ class UplinkStats:
     acks: int = 0  # alarm acknowledgements queued
 
 
+class UplinkClosed(HilError):
+    """A command or an acknowledgement that came after the run's last control tick: nothing will carry
+    it out (the server answers 409)."""
+
+
 @dataclass
 class Uplink:
     """The inbox (server threads) and its executor (the control thread)."""
@@ -153,6 +158,7 @@ class Uplink:
         self._rejected: deque[dict[str, Any]] = deque()
         self._acks: deque[dict[str, Any]] = deque()
         self._next_id = 1
+        self._closed = False
         self.operator = Operator()
 
     # ------------------------------------------------------------------ server threads
@@ -160,6 +166,8 @@ class Uplink:
         """Parse and queue a request; the command, or None when the inbox is full (InputFormatError for a
         malformed request)."""
         with self._lock:
+            if self._closed:
+                raise UplinkClosed("the run has ended: no command is carried out any more")
             if len(self._inbox) >= INBOX:
                 self.stats.inbox_full += 1
                 return None
@@ -173,6 +181,8 @@ class Uplink:
         """Parse and queue an alarm acknowledgement; None when :data:`INBOX` are already waiting
         (InputFormatError for a malformed one)."""
         with self._lock:
+            if self._closed:
+                raise UplinkClosed("the run has ended: no acknowledgement is logged any more")
             if len(self._acks) >= INBOX:
                 self.stats.inbox_full += 1
                 return None
@@ -191,13 +201,23 @@ class Uplink:
             self._rejected.append({"reason": reason, "remote": remote, "detail": detail})
 
     # ------------------------------------------------------------------ the control thread
-    def service(self, host: Host, t: float) -> None:
-        """Log rejections, carry out queued commands (:class:`~hil.runtime.operator.Operator`), settle
-        answered ones; raises :class:`~hil.runtime.observer.RunAborted` once an abort's Disarm is answered
-        (or cannot be sent)."""
+    def close(self, host: Host, t: float) -> None:
+        """The run's loop has ended at ``t`` (s): from now on every command is answered 409
+        (:class:`UplinkClosed`), and what came after the last tick is logged as refused — a command
+        answered 202 ``queued`` is never left without a status (a few were, accepted in the ~40 ms between
+        the last tick and the summary, in neither the events nor the summary)."""
         with self._lock:
+            self._closed = True
             commands = list(self._inbox)
             self._inbox.clear()
+        for command in commands:
+            host.record_command(t, command, "refused", reason="the run has ended")
+        self._log_requests(host, t)  # the rejections and acknowledgements that came meanwhile
+
+    def _log_requests(self, host: Host, t: float) -> None:
+        """The requests turned away and the alarm acknowledgements since the last call, into the run's
+        events."""
+        with self._lock:
             rejected = list(self._rejected)
             self._rejected.clear()
             acks = list(self._acks)
@@ -206,6 +226,15 @@ class Uplink:
             host.events.write(t, "command", origin="gcs", id=None, command=None, status="rejected", **r)
         for a in acks:
             host.events.write(t, "alarm_ack", origin="gcs", **a)
+
+    def service(self, host: Host, t: float) -> None:
+        """Log rejections, carry out queued commands (:class:`~hil.runtime.operator.Operator`), settle
+        answered ones; raises :class:`~hil.runtime.observer.RunAborted` once an abort's Disarm is answered
+        (or cannot be sent)."""
+        with self._lock:
+            commands = list(self._inbox)
+            self._inbox.clear()
+        self._log_requests(host, t)
         for command in commands:
             self.operator.apply(host, t, command)
         self.operator.service(host, t)

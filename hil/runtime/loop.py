@@ -277,6 +277,9 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
     finally:
         summary["wall_s"] = time.monotonic() - started
         if built is not None:
+            ending = getattr(observer, "ending", None)  # optional (RunObserver): before the summary
+            if ending is not None:
+                ending(built.scheduler.clock.now())
             summary.update(built.host.summary())
             summary["link"] = _link_stats(built.host)
             for section, fields in built.source.report().items():

@@ -11,6 +11,9 @@ that drops and counts, never a lock another thread may hold for long, never I/O)
 - :meth:`RunObserver.tick` at the start of every control tick, before the host's own: the observer's place
   to act on the run (commands from the ground arrive here, in the control thread, and nowhere else); it
   may raise :class:`RunAborted` to end the run;
+- ``ending(t)``, if the observer has it (optional: most do not), once when the run's loop has ended at
+  ``t``, before its summary is made: the observer's last moment to write to the run's record (the ground
+  station's uplink logs what came after the last tick, and takes nothing more);
 - :meth:`RunObserver.finished` once with the summary, after ``summary.json`` is written.
 """
 
@@ -79,6 +82,12 @@ class Observers:
     def tick(self, t: float) -> None:
         for o in self.observers:
             o.tick(t)
+
+    def ending(self, t: float) -> None:
+        for o in self.observers:
+            end = getattr(o, "ending", None)
+            if end is not None:
+                end(t)
 
     def finished(self, summary: Mapping[str, Any]) -> None:
         for o in self.observers:
