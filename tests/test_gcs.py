@@ -115,6 +115,8 @@ def test_hub_history_late_and_slow_readers():
         (b'{"command": "slew", "roll_deg": "0", "pitch_deg": 0, "yaw_deg": 0}', "roll_deg must be a number"),
         (b'{"command": "slew", "roll_deg": true, "pitch_deg": 0, "yaw_deg": 0}', "roll_deg must be a number"),
         (b'{"command": "disarm", "pad": "' + b"x" * 5000 + b'"}', "at most 4096"),
+        # UTF-16 (json.loads of bytes takes it): its bytes hid brackets from the nesting check
+        ('{"command": "hold"}'.encode("utf-16"), "not UTF-8"),
     ],
 )
 def test_malformed_commands_say_what_is_wrong(body, message):

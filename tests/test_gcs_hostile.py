@@ -71,7 +71,7 @@ def _post(
         (b'{"command": "hold", "command": "disarm"}', "the key 'command' is given twice"),
         (b'{"command": "slew", "roll_deg": 1, "roll_deg": 2, "pitch_deg": 0, "yaw_deg": 0}', "given twice"),
         (b'{"command": "arm", "x": {"a": 1, "a": 1}}', "the key 'a' is given twice"),
-        (b"\xff\xfe", "not JSON"),
+        (b"\xff\xfe", "not UTF-8"),
     ],
 )
 def test_bodies_nested_too_deep_or_with_a_key_twice_are_refused_before_they_mean_anything(body, message):

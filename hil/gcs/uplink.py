@@ -46,21 +46,7 @@ def parse_command(body: bytes, command_id: int, remote: str = "") -> OperatorCom
     ``json.loads``, whose recursion ``[`` x 4000 would exhaust), with no key given twice (which of two
     values would count is a guess: ``{"command": "hold", "command": "disarm"}`` is refused, not a disarm)."""
     where = _WHERE
-    if len(body) > MAX_BODY:
-        raise InputFormatError(f"body of {len(body)} bytes (at most {MAX_BODY})", where)
-    depth = _depth(body)
-    if depth > MAX_DEPTH:
-        raise InputFormatError(f"nested {depth} deep (at most {MAX_DEPTH}): not a command", where)
-    try:
-        doc = json.loads(body, object_pairs_hook=_unique_keys)
-    except InputFormatError:  # a key given twice (_unique_keys)
-        raise
-    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError, an integer past the digit limit
-        raise InputFormatError(f"not JSON: {str(exc)[:200]}", where) from None
-    except RecursionError:  # not reachable under MAX_DEPTH; kept so that no input can raise anything else
-        raise InputFormatError("not JSON: nested too deep", where) from None
-    if not isinstance(doc, dict):
-        raise InputFormatError("expected a JSON object", where)
+    doc = _json_object(body, where, "a command")
     name = doc.get("command")
     if name not in COMMANDS:
         raise InputFormatError(f"command must be one of {', '.join(COMMANDS)}, got {name!r}", where)
@@ -85,19 +71,7 @@ def parse_ack(body: bytes, remote: str = "") -> dict[str, Any]:
     was raised, so the log says which raising was acknowledged); the same checks as a command's body
     (size, nesting, a key given twice); :class:`InputFormatError` saying what is wrong otherwise."""
     where = "POST /api/ack"
-    if len(body) > MAX_BODY:
-        raise InputFormatError(f"body of {len(body)} bytes (at most {MAX_BODY})", where)
-    depth = _depth(body)
-    if depth > MAX_DEPTH:
-        raise InputFormatError(f"nested {depth} deep (at most {MAX_DEPTH}): not an acknowledgement", where)
-    try:
-        doc = json.loads(body, object_pairs_hook=_unique_keys)
-    except InputFormatError:
-        raise
-    except (ValueError, RecursionError) as exc:
-        raise InputFormatError(f"not JSON: {str(exc)[:200]}", where) from None
-    if not isinstance(doc, dict):
-        raise InputFormatError("expected a JSON object", where)
+    doc = _json_object(body, where, "an acknowledgement")
     extra = set(doc) - {"alarm", "raised_t"}
     if extra:
         raise InputFormatError(f"unknown field(s): {', '.join(sorted(extra))}", where)
@@ -110,6 +84,33 @@ def parse_ack(body: bytes, remote: str = "") -> dict[str, Any]:
     ):
         raise InputFormatError(f"raised_t must be a number of seconds, got {raised!r}", where)
     return {"alarm": alarm, "raised_t": None if raised is None else float(raised), "remote": remote}
+
+
+def _json_object(body: bytes, where: str, what: str) -> dict[str, Any]:
+    """A request body as one JSON object: UTF-8 text (JSON's encoding; ``json.loads`` would also take
+    UTF-16, whose bytes hide brackets from the nesting check), at most :data:`MAX_BODY` bytes, nested at most
+    :data:`MAX_DEPTH` deep (checked before ``json.loads``, whose recursion ``[`` x 4000 would exhaust), no
+    key given twice; :class:`InputFormatError` naming ``where`` otherwise, whatever the bytes."""
+    if len(body) > MAX_BODY:
+        raise InputFormatError(f"body of {len(body)} bytes (at most {MAX_BODY})", where)
+    try:
+        text = body.decode("utf-8-sig")  # a BOM, as json.loads of bytes allows
+    except UnicodeDecodeError as exc:
+        raise InputFormatError(f"not UTF-8 text ({exc.reason} at byte {exc.start})", where) from None
+    depth = _depth(body)
+    if depth > MAX_DEPTH:
+        raise InputFormatError(f"nested {depth} deep (at most {MAX_DEPTH}): not {what}", where)
+    try:
+        doc = json.loads(text, object_pairs_hook=_unique_keys)
+    except InputFormatError:  # a key given twice (_unique_keys)
+        raise
+    except ValueError as exc:  # JSONDecodeError, an integer past the digit limit
+        raise InputFormatError(f"not JSON: {str(exc)[:200]}", where) from None
+    except RecursionError:  # not reachable under MAX_DEPTH; kept so that no input can raise anything else
+        raise InputFormatError("not JSON: nested too deep", where) from None
+    if not isinstance(doc, dict):
+        raise InputFormatError("expected a JSON object", where)
+    return doc
 
 
 def _depth(body: bytes) -> int:
