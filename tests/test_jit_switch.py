@@ -51,9 +51,9 @@ from hil.estimation.filter import AttitudeFilter, FilterConfig
 
 VariationalEstimator()
 AttitudeFilter(FilterConfig.tuned())
-print(len(variational.update.signatures), len(chain.step.signatures))
+print(variational.update.versions, chain.step.versions)
 VariationalEstimator().update(0.01, [0, 0, 0], [0, 0, 9.8], [0, 20, -40])
-print(len(variational.update.signatures), len(chain.step.signatures))
+print(variational.update.versions, chain.step.versions)
 """
 
 

@@ -26,7 +26,7 @@ loaded_at_start = []
 
 class Recording(clocks.WallClock):
     def __init__(self):
-        loaded_at_start.append(bool(kernels.advance.signatures) and bool(phone._sample_path.signatures))
+        loaded_at_start.append(kernels.advance.loaded and phone._sample_path.loaded)
         super().__init__()
 
 clocks.WallClock = Recording

@@ -36,19 +36,31 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from importlib import resources
 from importlib.abc import MetaPathFinder, Traversable
 from importlib.machinery import ModuleSpec
+from types import ModuleType
 from typing import Any, TypeVar, cast
 
-import numba
+from . import ahead
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-COMPILED: bool = not getattr(numba.config, "DISABLE_JIT", False)
-"""False when ``NUMBA_DISABLE_JIT=1``: every kernel runs as plain Python."""
+
+def _jit_disabled(value: str | None) -> bool:
+    """``NUMBA_DISABLE_JIT`` as numba's own configuration reads it (an integer, 0 when unset or empty)."""
+    try:
+        return bool(int(value or 0))
+    except ValueError:
+        return False
+
+
+COMPILED: bool = not _jit_disabled(os.environ.get("NUMBA_DISABLE_JIT"))
+"""False when ``NUMBA_DISABLE_JIT=1``: every kernel runs as plain Python. Read from the environment as
+numba reads it, so that deciding does not import numba."""
 
 STAMPED = ("so3", "estimation", "vscmg", "control", "jit")
 """The packages of ``hil`` whose sources stamp every kernel's cache: where hil's kernels and their callees
@@ -106,29 +118,145 @@ if COMPILED:
     _install_blas_probe_guard()
 
 
+class Kernel:
+    """A kernel: ``py_func`` compiled in nopython mode, cached on disk, releasing the GIL while it runs (so a
+    world thread and the host's control loop can run side by side in real time).
+
+    Nothing is imported or compiled until the kernel is first called from Python or named by another
+    kernel being compiled. A call from Python runs the kernel's ahead-of-time build for the call's
+    argument types when the install made one (:mod:`hil.jit.ahead`: no numba in the process at all), and
+    numba's dispatcher otherwise (:attr:`dispatcher`, created then, numba imported then). Any other
+    attribute (``signatures``, ``stats``, ``compile``, ...) is the dispatcher's."""
+
+    def __init__(self, fn: Callable[..., Any]) -> None:
+        self.py_func = fn
+        self.__name__ = fn.__name__
+        self.__qualname__ = fn.__qualname__
+        self.__module__ = fn.__module__
+        self.__doc__ = fn.__doc__
+        self._dispatcher: Any = None
+        self._ahead: dict[tuple[str | None, ...], Callable[..., Any]] | None = None
+        self.from_python = False
+        """Whether numba's dispatcher was called from Python (or bound by :func:`direct`) in this process:
+        what the ahead-of-time build exports (not the kernels it compiled only as others' callees)."""
+        _KERNELS.append(self)
+
+    @property
+    def dispatcher(self) -> Any:
+        """numba's dispatcher of :attr:`py_func` (created, and numba imported, on first use)."""
+        dispatcher = self._dispatcher
+        if dispatcher is None:
+            dispatcher = self._dispatcher = _dispatcher_of(self.py_func)
+        return dispatcher
+
+    @property
+    def loaded(self) -> bool:
+        """Whether machine code of it is in this process: its ahead-of-time build (looked up at its first
+        call from Python, or by :func:`direct`), or numba's compiled for some argument types."""
+        return self.versions > 0
+
+    @property
+    def versions(self) -> int:
+        """How many versions (argument types) of its machine code are in this process: ahead-of-time
+        builds looked up, and numba's compiled or loaded."""
+        numba_versions = len(self._dispatcher.signatures) if self._dispatcher is not None else 0
+        return len(self._ahead or ()) + numba_versions
+
+    def ahead_of_time(self, types: tuple[str | None, ...]) -> Callable[..., Any] | None:
+        """The ahead-of-time build of this kernel for argument types ``types`` (:func:`ahead.type_key`s),
+        or None."""
+        table = self._ahead
+        if table is None:
+            table = self._ahead = ahead.exports(self.__module__, self.__qualname__, _home(self.py_func))
+        return table.get(types) if table else None
+
+    def __call__(self, *args: Any) -> Any:
+        if self._ahead is None or self._ahead:
+            built = self.ahead_of_time(tuple(map(ahead.type_key, args)))
+            if built is not None:
+                return built(*args)
+        self.from_python = True
+        return self.dispatcher(*args)
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name in ("_dispatcher", "_ahead", "py_func", "from_python"):
+            raise AttributeError(name)  # copy's and pickle's probes, or a kernel half made
+        return getattr(self.dispatcher, name)
+
+    def __repr__(self) -> str:
+        return f"<hil.jit.Kernel {self.__module__}.{self.__qualname__}>"
+
+
+_KERNELS: list[Kernel] = []
+"""Every kernel defined in this process, in definition order (the ahead-of-time build's candidates)."""
+
+_JITABLE: list[Callable[..., Any]] = []
+"""Plain functions :func:`jitable` marked before numba was imported (registered with it then)."""
+
+
 def kernel(fn: F) -> F:
-    """Compile ``fn`` in nopython mode, cached on disk, releasing the GIL while it runs (so a world thread
-    and the host's control loop can run side by side in real time)."""
+    """``fn`` as a :class:`Kernel` (``fn`` itself when compiling is switched off)."""
     if not COMPILED:
         return fn
+    return cast(F, Kernel(fn))
+
+
+def jitable(fn: F) -> F:
+    """``fn`` unchanged, and callable from inside compiled kernels too (numba's ``register_jitable``: numba
+    compiles it into its caller), registered when numba is first imported."""
+    if COMPILED:
+        if _numba.cache_info().currsize:
+            _numba().extending.register_jitable(fn)
+        else:
+            _JITABLE.append(fn)
+    return fn
+
+
+@functools.cache
+def _numba() -> ModuleType:
+    """numba, imported on first need, taught to type a :class:`Kernel` named inside another kernel as its
+    dispatcher, with the :func:`jitable` functions registered."""
+    import numba
+    import numba.extending
+    from numba.core import types
+
+    @numba.extending.typeof_impl.register(Kernel)
+    def _typeof_kernel(value: Kernel, context: Any) -> Any:
+        return types.Dispatcher(value.dispatcher)
+
+    for fn in _JITABLE:
+        numba.extending.register_jitable(fn)
+    _JITABLE.clear()
+    return numba
+
+
+def _dispatcher_of(fn: Callable[..., Any]) -> Any:
+    """numba's dispatcher of ``fn``: nopython, nogil, its disk cache stamped (:func:`_cache_class`)."""
+    numba = _numba()
     dispatcher = numba.njit(nogil=True)(fn)
     cache = _cache_class(_home(fn))
     if cache is None:  # a numba without the locator API this relies on: numba's own per-file stamp
         dispatcher.enable_caching()
     else:
-        dispatcher._cache = cache(dispatcher.py_func)  # type: ignore[attr-defined]  # as enable_caching()
-    return cast(F, dispatcher)
+        dispatcher._cache = cache(dispatcher.py_func)  # as enable_caching()
+    return dispatcher
 
 
 def direct(fn: F, *examples: Any) -> F:
-    """The kernel ``fn`` compiled (or loaded from the cache) for the types of ``examples``, as a callable
-    that skips numba's per-call dispatch. Each argument is converted as the example's type is (a float
-    argument takes any Python number); arrays must have the examples' dtype, dimensions and layout, which
-    nothing checks: for callers that pass their own arrays. ``fn`` itself when compiling is off."""
+    """The kernel ``fn`` for the types of ``examples``, as a callable that skips numba's per-call dispatch:
+    its ahead-of-time build when there is one (:mod:`hil.jit.ahead`), else compiled (or loaded from the
+    cache) by numba. Each argument is converted as the example's type is (a float argument takes any
+    Python number); arrays must have the examples' dtype, dimensions and layout, which nothing checks: for
+    callers that pass their own arrays. ``fn`` itself when compiling is off."""
     if not COMPILED:
         return fn
-    dispatcher = cast(Any, fn)
-    return cast(F, dispatcher.compile(tuple(numba.typeof(a) for a in examples)))
+    kernel_ = cast(Kernel, fn)
+    built = kernel_.ahead_of_time(tuple(map(ahead.type_key, examples)))
+    if built is not None:
+        return cast(F, built)
+    numba = _numba()
+    kernel_.from_python = True
+    return cast(F, kernel_.dispatcher.compile(tuple(numba.typeof(a) for a in examples)))
 
 
 def _home(fn: Callable[..., Any]) -> str | None:
@@ -186,4 +314,4 @@ def _cache_class(home: str | None) -> type | None:
     return type("StampedFunctionCache", (function_cache,), {"_impl_class": stamped_impl})
 
 
-__all__ = ["COMPILED", "STAMPED", "direct", "kernel", "tree_stamp"]
+__all__ = ["COMPILED", "STAMPED", "Kernel", "direct", "jitable", "kernel", "tree_stamp"]

@@ -22,12 +22,13 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from hil import jit
+from hil.jit import ahead
 from hil.scenario import Scenario, parse_scenario
 
 logger = logging.getLogger(__name__)
@@ -48,24 +49,32 @@ def marker() -> Path:
 
 
 def needed() -> bool:
-    """Whether a run would compile kernels first (no marker for these sources yet)."""
-    return jit.COMPILED and not marker().exists()
+    """Whether a run would compile kernels first: hil's kernels have no ahead-of-time build of these sources
+    (:mod:`hil.jit.ahead`) and there is no marker for them yet (numba is imported only to ask the latter)."""
+    return jit.COMPILED and not ahead.available(None) and not marker().exists()
 
 
-def warm(scenario: Scenario, transports: Mapping[str, str] | None = None) -> float | None:
+def warm(
+    scenario: Scenario, transports: Mapping[str, str] | None = None, ahead_of_time: bool = False
+) -> float | None:
     """Compile the kernels the run of ``scenario`` needs, world and host in parallel; the seconds it took,
     or None if there was nothing to do. A child that fails is logged, never fatal: the run then compiles
     what is missing itself. ``transports`` (scheme → ``"module:factory"``) are registered in the world's
-    child first: for a tree not installed yet, whose entry points do not resolve (the install's build)."""
-    if not needed():
+    child first: for a tree not installed yet, whose entry points do not resolve (the install's build).
+    With ``ahead_of_time`` (the install's), each side then also builds the kernels it called into an
+    extension module where there is no build of the present sources yet (:func:`build_ahead`)."""
+    if not needed() and not ahead_of_time:
         return None
     start = time.monotonic()
+    was_needed = needed()
     registrations = [f"--transport={scheme}={target}" for scheme, target in (transports or {}).items()]
-    with tempfile.TemporaryFile() as err:
+    child_options = [*registrations, *(["--ahead"] if ahead_of_time else [])]
+    built: list[str] = []
+    with tempfile.TemporaryFile() as err, tempfile.TemporaryFile() as out:
         child = subprocess.Popen(
-            [sys.executable, "-m", "hil.runtime.warmup", *registrations],
+            [sys.executable, "-m", "hil.runtime.warmup", *child_options],
             stdin=subprocess.PIPE,
-            stdout=subprocess.DEVNULL,
+            stdout=out,
             stderr=err,
         )
         try:
@@ -73,8 +82,12 @@ def warm(scenario: Scenario, transports: Mapping[str, str] | None = None) -> flo
             with child.stdin:
                 child.stdin.write((scenario.source or _default_source()).encode())
             warm_host(scenario)
+            if ahead_of_time:
+                built += [str(path) for path in build_ahead(lambda home: home is None)]
         finally:
             child.wait()
+        out.seek(0)
+        built += out.read().decode("utf-8", "replace").split()
         if child.returncode != 0:
             err.seek(0)
             logger.warning(
@@ -82,6 +95,8 @@ def warm(scenario: Scenario, transports: Mapping[str, str] | None = None) -> flo
                 err.read().decode("utf-8", "replace")[-500:],
             )
             return time.monotonic() - start
+    if not was_needed and not built:
+        return None
     try:
         path = marker()
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -89,6 +104,33 @@ def warm(scenario: Scenario, transports: Mapping[str, str] | None = None) -> flo
     except OSError as exc:  # a read-only cache location: numba falls back to another, the marker cannot
         logger.info("cannot write the kernel marker %s: %s", exc.filename, exc.strerror)
     return time.monotonic() - start
+
+
+def build_ahead(wanted: Callable[[str | None], bool]) -> list[Path]:
+    """Build ahead of time (:func:`hil.jit.ahead.build`) the kernels of each ``wanted`` home called in this
+    process whose build of the present sources is missing; the modules built. A failure (no C compiler,
+    a compiler error) is logged and leaves that home to numba: an install never fails for it."""
+    homes: dict[str | None, list[jit.Kernel]] = {}
+    for kernel in jit._KERNELS:
+        homes.setdefault(jit._home(kernel.py_func), []).append(kernel)
+    built = []
+    for home, kernels in homes.items():
+        if not wanted(home) or ahead.available(home):
+            continue
+        if not ahead.can_build():
+            logger.warning(
+                "no C compiler or Python headers: %s's kernels are compiled by numba when first used",
+                home or "hil",
+            )
+            break
+        try:
+            path = ahead.build(home, kernels)
+        except Exception as exc:  # whatever numba.pycc or the compiler raises: numba's JIT remains
+            logger.warning("building %s's kernels ahead of time failed: %s", home or "hil", exc)
+            continue
+        if path is not None:
+            built.append(path)
+    return built
 
 
 def _default_source() -> str:
@@ -177,6 +219,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m hil.runtime.warmup")
     parser.add_argument("--install", action="store_true", help="warm the default scenario's kernels")
     parser.add_argument(
+        "--ahead", action="store_true", help="(the world's child) also build its kernels ahead of time"
+    )
+    parser.add_argument(
         "--transport",
         action="append",
         default=[],
@@ -190,11 +235,14 @@ def _main(argv: Sequence[str] | None = None) -> int:
     if args.install:
         from hil.scenario import load_scenario
 
-        took = warm(load_scenario(), transports)
+        took = warm(load_scenario(), transports, ahead_of_time=True)
         said = "in the cache already" if took is None else f"compiled in {took:.1f} s"
         sys.stdout.write(f"kernels: {said}\n")
         return 0 if not needed() else 1
     warm_world(parse_scenario(sys.stdin.read()))
+    if args.ahead:
+        for path in build_ahead(lambda home: home is not None):
+            sys.stdout.write(f"{path}\n")
     return 0
 
 

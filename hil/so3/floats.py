@@ -4,7 +4,7 @@ The estimator and the plant step one sample at a time; on 3-vectors and 3×3 mat
 overhead (~1 µs) dominates the arithmetic, so these kernels work on Python floats: vectors are 3-tuples,
 matrices 9-tuples in row-major order. They agree with :mod:`hil.so3.arrays` to rounding.
 
-The ones marked ``@register_jitable`` are also callable from inside compiled kernels (numba compiles them
+The ones marked ``@jitable`` are also callable from inside compiled kernels (numba compiles them
 into the caller: the estimator's kernels use them); called from Python they are these plain functions.
 """
 
@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba.extending import register_jitable
 from numpy.typing import ArrayLike
 
+from hil.jit import jitable
 from protocol.errors import NumericalError
 
 from .arrays import _SMALL
@@ -39,7 +39,7 @@ def vec3(v: ArrayLike) -> Vec3:
     return (x, y, z)
 
 
-@register_jitable
+@jitable
 def rodrigues_coefficients(theta2: float) -> tuple[float, float, float]:
     """``(sin θ/θ, (1 − cos θ)/θ², (θ − sin θ)/θ³)`` for ``θ² = theta2``, each to full precision.
 
@@ -65,7 +65,7 @@ def rodrigues_coefficients(theta2: float) -> tuple[float, float, float]:
     return s / theta, 2.0 * half * half / theta2, c
 
 
-@register_jitable
+@jitable
 def rotate_f(px: float, py: float, pz: float, vx: float, vy: float, vz: float) -> Vec3:
     """``exp(φ^×) v`` for ``φ = (px, py, pz)`` without forming the matrix (Rodrigues on the vector)."""
     a, b, _ = rodrigues_coefficients(px * px + py * py + pz * pz)
@@ -79,7 +79,7 @@ def rotate_f(px: float, py: float, pz: float, vx: float, vy: float, vz: float) -
     )
 
 
-@register_jitable
+@jitable
 def exp_f(px: float, py: float, pz: float) -> Mat9:
     """``exp(φ^×)`` as a row-major 9-tuple (Rodrigues)."""
     a, b, _ = rodrigues_coefficients(px * px + py * py + pz * pz)
@@ -91,7 +91,7 @@ def exp_f(px: float, py: float, pz: float) -> Mat9:
     )  # fmt: skip
 
 
-@register_jitable
+@jitable
 def log_f(r: Mat9) -> Vec3:
     """The rotation vector (|φ| ≤ π) of the row-major 9-tuple ``r``, as :func:`hil.so3.log` (the numpy
     reference) to rounding: θ by atan2; near π the axis from the symmetric part, its sign from the skew
@@ -120,7 +120,7 @@ def log_f(r: Mat9) -> Vec3:
     return n0 / norm * theta, n1 / norm * theta, n2 / norm * theta
 
 
-@register_jitable
+@jitable
 def matmul_f(p: Mat9, q: Mat9) -> Mat9:
     """``p @ q`` for row-major 9-tuples."""
     p0, p1, p2, p3, p4, p5, p6, p7, p8 = p
@@ -132,7 +132,7 @@ def matmul_f(p: Mat9, q: Mat9) -> Mat9:
     )  # fmt: skip
 
 
-@register_jitable
+@jitable
 def apply_f(m: Mat9, v: Vec3) -> Vec3:
     """``m @ v`` for a row-major 9-tuple and a 3-tuple."""
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
@@ -140,7 +140,7 @@ def apply_f(m: Mat9, v: Vec3) -> Vec3:
     return (m0 * x + m1 * y + m2 * z, m3 * x + m4 * y + m5 * z, m6 * x + m7 * y + m8 * z)
 
 
-@register_jitable
+@jitable
 def apply_transpose_f(m: Mat9, v: Vec3) -> Vec3:
     """``m.T @ v`` for a row-major 9-tuple and a 3-tuple."""
     m0, m1, m2, m3, m4, m5, m6, m7, m8 = m
@@ -148,7 +148,7 @@ def apply_transpose_f(m: Mat9, v: Vec3) -> Vec3:
     return (m0 * x + m3 * y + m6 * z, m1 * x + m4 * y + m7 * z, m2 * x + m5 * y + m8 * z)
 
 
-@register_jitable
+@jitable
 def reorthonormalize_f(r: Mat9) -> Mat9:
     """One step of the polar (Newton–Schulz) iteration ``R ← R (3I − RᵀR)/2``.
 

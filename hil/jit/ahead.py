@@ -1,0 +1,242 @@
+"""Kernels compiled ahead of time: an extension module per kernel package, built by the install, loaded
+without numba.
+
+numba compiles a kernel on its first call in a process and caches the machine code on disk, but even a
+cached kernel costs every process ``import numba`` (0.2–0.3 s) and loading its CPU target and the code
+(0.25–0.35 s for the host's kernels), before a run's first tick. The install therefore also builds each
+kernel package's kernels as they were called from Python during its warm-up (:mod:`hil.runtime.warmup`)
+into a CPython extension module with numba's ahead-of-time compiler (``numba.pycc``: the same typing,
+lowering and LLVM as the JIT, the same error model, wrappers that release the GIL like ``nogil=True``):
+one per *home* (hil's kernels; each package outside hil, e.g. ``firmware_sim.world.models``), named after
+the home and the stamp of the sources it was built from (:func:`hil.jit.tree_stamp`), beside numba's cache
+(``NUMBA_CACHE_DIR``, else ``hil/jit/__pycache__``), with a JSON table of its exports beside it.
+
+A call of a :class:`hil.jit.Kernel` from Python then takes the build whose argument types are exactly the
+call's (:func:`type_key`: dtype, dimensions, layout and writability of an array; float, int, bool) and
+numba's dispatcher for anything else. A build of other sources (an edited kernel package) is never
+loaded: its stamp is not the sources'. What the build does not cover — another estimator's kernels,
+another argument type, an edit since the install — runs through numba as before, compiled on first use
+and cached. Building needs a C compiler and the Python headers (as the protocol's ``_speedups.c`` does);
+without them the install's warm-up says so and everything runs through numba.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib.machinery
+import importlib.util
+import json
+import logging
+import os
+import shutil
+import sys
+import sysconfig
+import tempfile
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from hil.jit import Kernel
+
+logger = logging.getLogger(__name__)
+
+PREFIX = "vscmg_ahead_"
+"""Every ahead-of-time module's name starts so: ``vscmg_ahead_<home>_<stamp>``."""
+STAMP_CHARS = 16
+"""Hex digits of the sources' stamp in a module's name."""
+TABLE_SUFFIX = ".json"
+SWITCH = "VSCMG_HIL_AHEAD"
+"""``VSCMG_HIL_AHEAD=0`` leaves every build unused: every kernel through numba (to compare, or debug)."""
+
+TypeKeys = tuple[str | None, ...]
+
+
+def type_key(value: object) -> str | None:
+    """The type a compiled kernel sees for ``value``, as :func:`numba_type_key` names numba's type of it
+    (numba's ``typeof``: a contiguous array is C-layout even when it is Fortran-contiguous too), or None for
+    a value no build takes (a list, a tuple, an object)."""
+    kind = type(value)
+    if kind is float:
+        return "float64"
+    if kind is int:
+        return "int64" if -(2**63) <= value < 2**63 else None  # type: ignore[operator]
+    if kind is bool:
+        return "bool"
+    if kind is np.ndarray:
+        flags = value.flags  # type: ignore[attr-defined]
+        layout = "C" if flags.c_contiguous else "F" if flags.f_contiguous else "A"
+        access = "w" if flags.writeable else "r"
+        aligned = "" if flags.aligned else "u"
+        return f"{value.dtype.str}{value.ndim}{layout}{access}{aligned}"  # type: ignore[attr-defined]
+    if isinstance(value, np.floating | np.integer | np.bool_):
+        return np.dtype(kind).name
+    return None
+
+
+def numba_type_key(nbtype: Any) -> str | None:
+    """:func:`type_key`'s name for the numba type ``nbtype``, None for one builds do not take."""
+    from numba.core import types
+
+    if isinstance(nbtype, types.Array):
+        dtype = np.dtype(str(nbtype.dtype))
+        access = "w" if nbtype.mutable else "r"
+        aligned = "" if nbtype.aligned else "u"
+        return f"{dtype.str}{nbtype.ndim}{nbtype.layout}{access}{aligned}"
+    if isinstance(nbtype, types.Boolean):
+        return "bool"
+    if isinstance(nbtype, types.Float | types.Integer):
+        return str(nbtype)
+    return None
+
+
+def directory() -> Path:
+    """Where builds live: numba's cache directory (``NUMBA_CACHE_DIR``) if set, else ``hil/jit/__pycache__``
+    (numba caches beside the sources there)."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    return Path(root) if root else Path(__file__).parent / "__pycache__"
+
+
+def module_name(home: str | None) -> str:
+    """The module name of ``home``'s build for the present sources (None: hil's own kernels)."""
+    from hil import jit
+
+    tag = "hil" if home is None else home.replace(".", "_")
+    return f"{PREFIX}{tag}_{jit.tree_stamp(home)[:STAMP_CHARS]}"
+
+
+def _paths(name: str) -> tuple[Path, Path]:
+    """(the extension module, its table) for module ``name``."""
+    folder = directory()
+    return folder / f"{name}{importlib.machinery.EXTENSION_SUFFIXES[0]}", folder / f"{name}{TABLE_SUFFIX}"
+
+
+def available(home: str | None) -> bool:
+    """Whether ``home``'s kernels have a build of the present sources."""
+    return bool(_loaded(home)[1])
+
+
+def exports(module: str, qualname: str, home: str | None) -> dict[TypeKeys, Callable[..., Any]]:
+    """The builds of kernel ``module.qualname`` (home ``home``) by argument types; empty when there is no
+    build of the present sources, or it has none of this kernel."""
+    built, table = _loaded(home)
+    if built is None:
+        return {}
+    return {tuple(keys): getattr(built, export) for export, keys in table.get(f"{module}:{qualname}", ())}
+
+
+@functools.cache
+def _loaded(home: str | None) -> tuple[Any, dict[str, list[tuple[str, list[str]]]]]:
+    """``home``'s build of the present sources (the module, its table), loaded once per process; (None, {})
+    when there is none, or it cannot be loaded (logged)."""
+    if os.environ.get(SWITCH) == "0":
+        return None, {}
+    name = module_name(home)
+    library, table_path = _paths(name)
+    if not (library.exists() and table_path.exists()):
+        return None, {}
+    try:
+        table = json.loads(table_path.read_text())["kernels"]
+        spec = importlib.util.spec_from_file_location(name, library)
+        assert spec is not None and spec.loader is not None
+        built = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(built)
+        sys.modules[name] = built
+    except (OSError, ImportError, ValueError, KeyError, TypeError) as exc:
+        logger.warning("the kernels' build %s is not usable (numba compiles them instead): %s", library, exc)
+        return None, {}
+    return built, table
+
+
+def build(home: str | None, kernels: Sequence[Kernel]) -> Path | None:
+    """Build ``home``'s kernels that were called from Python in this process, for every argument types
+    numba compiled them for, as an extension module in :func:`directory` (older builds of the home
+    removed); the module's path, or None when no kernel was called. Raises what the compiler raises."""
+    entries = _entries(kernels)
+    if not entries:
+        return None
+    name = module_name(home)
+    library, table_path = _paths(name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba.pycc's pending deprecation
+        from numba.pycc import CC
+    compiler = CC(name)
+    compiler.verbose = False
+    table: dict[str, list[tuple[str, list[str]]]] = {}
+    for number, (kernel, signature, keys) in enumerate(entries):
+        export = f"k{number}"
+        compiler.export(export, signature)(kernel.py_func)
+        table.setdefault(f"{kernel.__module__}:{kernel.__qualname__}", []).append((export, keys))
+    library.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=library.parent) as scratch, _wrappers_release_the_gil():
+        compiler.output_dir = scratch
+        compiler.compile()
+        os.replace(Path(scratch) / library.name, library)
+        staged = Path(scratch) / table_path.name
+        staged.write_text(json.dumps({"kernels": table}, indent=1))
+        os.replace(staged, table_path)
+    _remove_stale(name)
+    _loaded.cache_clear()
+    return library
+
+
+def _entries(kernels: Sequence[Kernel]) -> list[tuple[Kernel, Any, list[str]]]:
+    """(kernel, numba signature with its return type, argument type keys) of each compiled version of each
+    kernel called from Python, in the kernels' order."""
+    entries = []
+    for kernel in kernels:
+        dispatcher = kernel._dispatcher
+        if dispatcher is None or not kernel.from_python:
+            continue
+        for args in dispatcher.signatures:
+            keys = [numba_type_key(t) for t in args]
+            if any(key is None for key in keys):
+                continue
+            signature = dispatcher.overloads[args].signature
+            entries.append((kernel, signature.return_type(*args), [str(k) for k in keys]))
+    return entries
+
+
+def _remove_stale(name: str) -> None:
+    """Remove the home's builds of other sources than ``name``'s."""
+    stem = name[: -STAMP_CHARS - 1]
+    for path in directory().glob(f"{stem}_*"):
+        if not path.name.startswith(f"{name}.") and len(path.name.split(".")[0]) == len(name):
+            with contextlib.suppress(OSError):
+                path.unlink()
+
+
+@contextlib.contextmanager
+def _wrappers_release_the_gil() -> Iterator[None]:
+    """numba.pycc compiles its exports with default flags; its wrappers release the GIL as a ``nogil=True``
+    dispatcher's do (a world thread beside the control loop), with this flag set for the build."""
+    import numba.pycc.compiler as pycc_compiler
+
+    flags_class = pycc_compiler.Flags
+
+    class ReleasingFlags(flags_class):  # type: ignore[misc, valid-type]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    setattr(pycc_compiler, "Flags", ReleasingFlags)  # noqa: B010 — a module's class swapped for the build
+    try:
+        yield
+    finally:
+        setattr(pycc_compiler, "Flags", flags_class)  # noqa: B010
+
+
+def can_build() -> bool:
+    """Whether this machine can build an extension module: a C compiler on the PATH and the Python headers
+    (numba.pycc compiles its helpers with them; Debian's ``gcc`` and ``python3-dev``)."""
+    compiler = any(shutil.which(cc) for cc in (os.environ.get("CC") or "cc", "gcc", "clang"))
+    return compiler and (Path(sysconfig.get_paths()["include"]) / "Python.h").exists()
+
+
+def loaded_modules() -> list[str]:
+    """The builds loaded in this process (module names), for reports and tests."""
+    return sorted(name for name in sys.modules if name.startswith(PREFIX))
