@@ -106,3 +106,16 @@ def test_the_switch_leaves_every_build_unused(monkeypatch):
     finally:
         monkeypatch.delenv(ahead.SWITCH)
         ahead._loaded.cache_clear()
+
+
+def test_a_kernel_pickles_and_copies_by_name():
+    """A kernel travels by name, as a function does (a campaign's task, a deep copy): the same object back,
+    whatever it has loaded (numba's dispatcher, an ahead-of-time module, which pickles by neither)."""
+    import copy
+    import pickle
+
+    from firmware_sim.world.models import kernels
+
+    for kernel in (steering.momentum_rows, kernels.advance):
+        assert pickle.loads(pickle.dumps(kernel)) is kernel
+        assert copy.deepcopy(kernel) is kernel and copy.copy(kernel) is kernel

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -185,6 +186,19 @@ class Kernel:
 
     def __repr__(self) -> str:
         return f"<hil.jit.Kernel {self.__module__}.{self.__qualname__}>"
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled (and copied) by name, as a function is: neither numba's dispatcher nor a function of an
+        ahead-of-time module travels."""
+        return (_kernel_named, (self.__module__, self.__qualname__))
+
+
+def _kernel_named(module: str, qualname: str) -> Kernel:
+    """The kernel ``module.qualname``, imported."""
+    found: Any = importlib.import_module(module)
+    for part in qualname.split("."):
+        found = getattr(found, part)
+    return cast(Kernel, found)
 
 
 _KERNELS: list[Kernel] = []
