@@ -2,9 +2,12 @@
 
 Each hot kernel (the estimator's inner loop, steering's pseudo-inverse; on the far side the plant step, the
 drive models, the simulated phone) is written once, in the subset of Python that numba compiles, and decorated
-with :func:`kernel`; its numpy reference lives beside it and the tests compare the two. numba compiles a
-kernel on its first call and caches the machine code on disk (``__pycache__`` beside the source, or
-``NUMBA_CACHE_DIR``), so only a fresh install's first run pays for compiling.
+with :func:`kernel`; its numpy reference lives beside it and the tests compare the two. A :class:`Kernel`
+runs the build the install made of it ahead of time (:mod:`hil.jit.ahead`: an extension module, loaded
+without numba) when there is one for the call's argument types; otherwise numba compiles it on its first
+call and caches the machine code on disk (``__pycache__`` beside the source, or ``NUMBA_CACHE_DIR``), so
+only a fresh install's first run pays for compiling. numba itself is imported only then: a process whose
+kernels are all built never imports it (~0.5 s of every process's start with it).
 
 numba invalidates a cached kernel when *its own* source file changes, not when a function it calls from
 another file does (numba issue #1833): a kernel in one module calling one in another would then run the
@@ -168,7 +171,7 @@ class Kernel:
         or None."""
         table = self._ahead
         if table is None:
-            table = self._ahead = ahead.exports(self.__module__, self.__qualname__, _home(self.py_func))
+            table = self._ahead = ahead.exports(self.__module__, self.__qualname__, home(self.py_func))
         return table.get(types) if table else None
 
     def __call__(self, *args: Any) -> Any:
@@ -203,6 +206,12 @@ def _kernel_named(module: str, qualname: str) -> Kernel:
 
 _KERNELS: list[Kernel] = []
 """Every kernel defined in this process, in definition order (the ahead-of-time build's candidates)."""
+
+
+def kernels() -> list[Kernel]:
+    """Every kernel defined (its module imported) in this process, in definition order."""
+    return list(_KERNELS)
+
 
 _JITABLE: list[Callable[..., Any]] = []
 """Plain functions :func:`jitable` marked before numba was imported (registered with it then)."""
@@ -248,7 +257,7 @@ def _dispatcher_of(fn: Callable[..., Any]) -> Any:
     """numba's dispatcher of ``fn``: nopython, nogil, its disk cache stamped (:func:`_cache_class`)."""
     numba = _numba()
     dispatcher = numba.njit(nogil=True)(fn)
-    cache = _cache_class(_home(fn))
+    cache = _cache_class(home(fn))
     if cache is None:  # a numba without the locator API this relies on: numba's own per-file stamp
         dispatcher.enable_caching()
     else:
@@ -273,7 +282,7 @@ def direct(fn: F, *examples: Any) -> F:
     return cast(F, kernel_.dispatcher.compile(tuple(numba.typeof(a) for a in examples)))
 
 
-def _home(fn: Callable[..., Any]) -> str | None:
+def home(fn: Callable[..., Any]) -> str | None:
     """The package of a kernel that lives outside ``hil`` (its sources stamp its cache beside
     :data:`STAMPED`'s), or None for one of hil's own."""
     package = fn.__module__.rpartition(".")[0]
@@ -328,4 +337,4 @@ def _cache_class(home: str | None) -> type | None:
     return type("StampedFunctionCache", (function_cache,), {"_impl_class": stamped_impl})
 
 
-__all__ = ["COMPILED", "STAMPED", "Kernel", "direct", "jitable", "kernel", "tree_stamp"]
+__all__ = ["COMPILED", "STAMPED", "Kernel", "direct", "home", "jitable", "kernel", "kernels", "tree_stamp"]

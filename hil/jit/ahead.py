@@ -189,9 +189,9 @@ def _entries(kernels: Sequence[Kernel]) -> list[tuple[Kernel, Any, list[str]]]:
     kernel called from Python, in the kernels' order."""
     entries = []
     for kernel in kernels:
-        dispatcher = kernel._dispatcher
-        if dispatcher is None or not kernel.from_python:
+        if not kernel.from_python:  # never called from Python here, or only through a build
             continue
+        dispatcher = kernel.dispatcher
         for args in dispatcher.signatures:
             keys = [numba_type_key(t) for t in args]
             if any(key is None for key in keys):

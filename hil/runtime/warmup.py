@@ -17,7 +17,6 @@ with their own sources too) leaves the marker: a run then compiles those itself,
 from __future__ import annotations
 
 import logging
-import os
 import subprocess
 import sys
 import tempfile
@@ -44,8 +43,7 @@ def marker() -> Path:
     import numba
 
     name = f"warm-{jit.tree_stamp()[:16]}-numba{numba.__version__}"
-    root = os.environ.get("NUMBA_CACHE_DIR") or str(Path(jit.__file__).parent / "__pycache__")
-    return Path(root) / name
+    return ahead.directory() / name
 
 
 def needed() -> bool:
@@ -111,8 +109,8 @@ def build_ahead(wanted: Callable[[str | None], bool]) -> list[Path]:
     process whose build of the present sources is missing; the modules built. A failure (no C compiler,
     a compiler error) is logged and leaves that home to numba: an install never fails for it."""
     homes: dict[str | None, list[jit.Kernel]] = {}
-    for kernel in jit._KERNELS:
-        homes.setdefault(jit._home(kernel.py_func), []).append(kernel)
+    for kernel in jit.kernels():
+        homes.setdefault(jit.home(kernel.py_func), []).append(kernel)
     built = []
     for home, kernels in homes.items():
         if not wanted(home) or ahead.available(home):
