@@ -121,8 +121,9 @@ def test_no_fork_while_another_thread_runs():
 
 @pytest.mark.slow
 def test_the_plotter_process_draws_the_same_figures_as_one_process(tmp_path):
-    """A real run's directory drawn by ``python -m hil.cli._plotter`` (forked, one process per core, at
-    least two) and by :func:`plot_run` in one process: the same figures, byte for byte."""
+    """A real run's directory drawn by ``python -m hil.cli._plotter`` (warmed by a figure it throws away,
+    then forked, one process per core, at least two) and by :func:`plot_run` in one process: the same
+    figures, byte for byte."""
     from hil.plots.run import plot_run
     from hil.runtime import RunOptions, run
     from hil.scenario import load_scenario

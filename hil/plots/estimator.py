@@ -5,7 +5,7 @@ inclination split). Without, the estimate itself: roll/pitch/yaw (ENU, z-y-x) an
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, TypeVar
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -17,6 +17,8 @@ from hil.plots.series import break_wraps, envelope, wrap_times
 
 if TYPE_CHECKING:
     from hil.logs.replay import ReplayResult
+
+Target = TypeVar("Target", Path, IO[bytes])
 
 
 def _figure(title: str, ylabel: str) -> tuple[Figure, Axes]:
@@ -55,7 +57,8 @@ def _line(
     ax.fill_between(env.t, env.low, env.high, color=line.get_color(), alpha=0.25, lw=0)
 
 
-def _save(fig: Figure, ax: Axes, path: Path) -> Path:
+def _save(fig: Figure, ax: Axes, path: Target) -> Target:
+    """The legend right of the axes, then the PNG into ``path`` (a file's path, or a binary stream)."""
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
     FigureCanvasAgg(fig)
     fig.savefig(path, dpi=110)

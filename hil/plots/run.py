@@ -6,6 +6,7 @@ rates, rotor speeds, pulse widths, battery voltage and the singularity measure �
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Callable
 from functools import partial
@@ -74,6 +75,20 @@ _FIGURES: tuple[tuple[str, str, str, str | tuple[str, ...], str, bool], ...] = (
 )  # fmt: skip
 """The figures of :func:`plot_run`, in order. A column name ending in ``_`` is a prefix: it stands for its
 per-unit columns, in unit order."""
+
+
+def warm() -> None:
+    """Draw one figure as :func:`plot_run` draws them and throw it away: a process's first figure pays for
+    loading the fonts and filling matplotlib's text and path caches (0.1–0.25 s here), which ``hil run``'s
+    plotter does on its own core while the run runs, so that the run's figures (drawn by forks of it,
+    which inherit the caches) do not."""
+    t = np.linspace(0.0, 10.0, 200)
+    columns = {"x_0": np.sin(t), "x_1": np.cos(t)}
+    fig, ax = _figure("Warm-up δ (deg) |Ω − Ω̂|", "angle (rad)")
+    _lines(ax, t, columns, ["x_0", "x_1"], "unit")
+    ax.set_yscale("log")
+    ax.axhline(0.5, color="r", ls="--", lw=0.8, label="limit")
+    _save(fig, ax, io.BytesIO())
 
 
 def _columns(c: dict[str, np.ndarray], spec: str | tuple[str, ...]) -> list[str]:
