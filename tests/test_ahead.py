@@ -119,3 +119,36 @@ def test_a_kernel_pickles_and_copies_by_name():
     for kernel in (steering.momentum_rows, kernels.advance):
         assert pickle.loads(pickle.dumps(kernel)) is kernel
         assert copy.deepcopy(kernel) is kernel and copy.copy(kernel) is kernel
+
+
+def test_a_build_that_cannot_be_made_leaves_the_kernels_to_numba(monkeypatch, caplog):
+    """No C compiler or Python headers, or a compiler error: the install's warm-up says so and builds
+    nothing (the kernels run through numba); it never fails."""
+    from hil.runtime import warmup
+
+    monkeypatch.setattr(steering.momentum_rows, "from_python", True)  # a candidate for hil's build
+    monkeypatch.setattr(ahead, "available", lambda home: False)
+    monkeypatch.setattr(ahead, "can_build", lambda: False)
+    with caplog.at_level(logging.WARNING, logger="hil.runtime.warmup"):
+        assert warmup.build_ahead(lambda home: home is None) == []
+    assert "no C compiler or Python headers" in caplog.text
+    caplog.clear()
+
+    def broken(home, kernels):
+        raise RuntimeError("cc: internal compiler error")
+
+    monkeypatch.setattr(ahead, "can_build", lambda: True)
+    monkeypatch.setattr(ahead, "build", broken)
+    with caplog.at_level(logging.WARNING, logger="hil.runtime.warmup"):
+        assert warmup.build_ahead(lambda home: home is None) == []
+    assert "ahead of time failed: cc: internal compiler error" in caplog.text
+
+
+def test_a_keyword_call_runs_through_numba():
+    scenario = load_scenario()
+    geom = steering.VscmgSteering(scenario.spacecraft, scenario.loop.steering)._geom
+    gam, w = np.array([[0.1, 0.2, 0.3, 0.4]]), np.array([[500.0, 510.0, 490.0, 505.0]])
+    by_keyword, positional = np.zeros((1, 3)), np.zeros((1, 3))
+    steering.momentum_rows(geom, gam, w=w, out=by_keyword)
+    steering.momentum_rows(geom, gam, w, positional)
+    assert np.array_equal(by_keyword, positional) and np.abs(positional).max() > 0

@@ -174,13 +174,13 @@ class Kernel:
             table = self._ahead = ahead.exports(self.__module__, self.__qualname__, home(self.py_func))
         return table.get(types) if table else None
 
-    def __call__(self, *args: Any) -> Any:
-        if self._ahead is None or self._ahead:
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if not kwargs and (self._ahead is None or self._ahead):  # a build takes positional arguments
             built = self.ahead_of_time(tuple(map(ahead.type_key, args)))
             if built is not None:
                 return built(*args)
         self.from_python = True
-        return self.dispatcher(*args)
+        return self.dispatcher(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__") or name in ("_dispatcher", "_ahead", "py_func", "from_python"):
