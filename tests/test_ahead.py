@@ -6,6 +6,7 @@ test_lazy_imports.py.)"""
 from __future__ import annotations
 
 import logging
+import shutil
 
 import numba
 import numpy as np
@@ -68,15 +69,17 @@ def _use_cache(monkeypatch: pytest.MonkeyPatch, folder) -> None:
 
 
 def test_without_a_build_of_the_present_sources_a_kernel_runs_through_numba(monkeypatch, tmp_path, caplog):
-    """An empty cache, then files of another stamp, then an unloadable file under the present name: each
-    time no build is taken (the last one logged), and the kernel's call gives numba's result."""
+    """An empty cache; files of another stamp; under the present name an unloadable file, a table of the
+    wrong shape, a real build whose table names an export it lacks: each time no build is taken (the
+    last three logged), and the kernel's call gives numba's result."""
     name = ahead.module_name(None)
     library, table = ahead._paths(name)
+    built_here = library  # where the install put hil's build, before the cache moves below
     scenario = load_scenario()
     geom = steering.VscmgSteering(scenario.spacecraft, scenario.loop.steering)._geom
     gam, w = np.array([[0.1, 0.2, 0.3, 0.4]]), np.array([[500.0, 510.0, 490.0, 505.0]])
     expected = steering.momentum_rows.py_func
-    for step in ("empty", "other stamp", "unloadable"):
+    for step in ("empty", "other stamp", "unloadable", "bad table", "table naming no such export"):
         folder = tmp_path / step
         folder.mkdir()
         if step == "other stamp":
@@ -85,11 +88,21 @@ def test_without_a_build_of_the_present_sources_a_kernel_runs_through_numba(monk
         if step == "unloadable":
             (folder / library.name).write_bytes(b"not a shared object")
             (folder / table.name).write_text('{"kernels": {"hil.control.steering:momentum_rows": []}}')
+        if step == "bad table":
+            (folder / library.name).write_bytes(b"not a shared object")
+            (folder / table.name).write_text('{"kernels": {"hil.control.steering:momentum_rows": [["k0"]]}}')
+        if step == "table naming no such export":
+            if not built_here.exists():  # the install's build of these sources (CI's always has one)
+                continue
+            shutil.copy(built_here, folder / library.name)
+            (folder / table.name).write_text(
+                '{"kernels": {"hil.control.steering:momentum_rows": [["k99", ["<f82Cw"]]]}}'
+            )
         _use_cache(monkeypatch, folder)
         with caplog.at_level(logging.WARNING, logger="hil.jit.ahead"):
             assert not ahead.available(None)
             assert steering.momentum_rows.ahead_of_time(("<f82Cw",) * 4) is None
-        assert ("not usable" in caplog.text) == (step == "unloadable")
+        assert ("not usable" in caplog.text) == (step not in ("empty", "other stamp")), caplog.text
         out_numba = np.zeros((1, 3))
         out_python = np.zeros((1, 3))
         steering.momentum_rows(geom, gam, w, out_numba)

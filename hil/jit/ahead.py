@@ -140,16 +140,38 @@ def _loaded(home: str | None) -> tuple[Any, dict[str, list[tuple[str, list[str]]
     if not (library.exists() and table_path.exists()):
         return None, {}
     try:
-        table = json.loads(table_path.read_text())["kernels"]
+        table = _table(json.loads(table_path.read_text()))
         spec = importlib.util.spec_from_file_location(name, library)
         assert spec is not None and spec.loader is not None
         built = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(built)
+        for entries in table.values():
+            for export, _ in entries:
+                getattr(built, export)  # every export the table names is there
         sys.modules[name] = built
-    except (OSError, ImportError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, ImportError, ValueError, KeyError, TypeError, AttributeError) as exc:
         logger.warning("the kernels' build %s is not usable (numba compiles them instead): %s", library, exc)
         return None, {}
     return built, table
+
+
+def _table(document: Any) -> dict[str, list[tuple[str, list[str]]]]:
+    """A build's table (``{"kernels": {"module:qualname": [[export, [type key, ...]], ...]}}``) checked for
+    that shape; a ValueError names what is not."""
+    table = document.get("kernels") if isinstance(document, dict) else None
+    if not isinstance(table, dict):
+        raise ValueError("the table has no 'kernels' object")
+    for kernel, entries in table.items():
+        if not isinstance(entries, list) or not all(
+            isinstance(entry, list)
+            and len(entry) == 2
+            and isinstance(entry[0], str)
+            and isinstance(entry[1], list)
+            and all(isinstance(key, str) for key in entry[1])
+            for entry in entries
+        ):
+            raise ValueError(f"the table's entry for {kernel} is not a list of [export, [types]]")
+    return table
 
 
 def build(home: str | None, kernels: Sequence[Kernel]) -> Path | None:
