@@ -12,6 +12,10 @@ A marker beside numba's cache, named after hil's kernel sources' stamp (:func:`h
 numba's version, says that it was done; nothing happens once it exists, or when compiling is switched off
 (``NUMBA_DISABLE_JIT=1``). An edit of the world's kernels alone (:mod:`firmware_sim.world.models`, stamped
 with their own sources too) leaves the marker: a run then compiles those itself, as numba's stamp tells it.
+
+The install's warm-up (``--install``) goes on: each side builds the kernels it called into an extension
+module ahead of time (:func:`build_ahead`, :mod:`hil.jit.ahead`), so that a run loads no numba at all; a
+run with hil's build of the present sources needs no warm-up either.
 """
 
 from __future__ import annotations
