@@ -57,6 +57,39 @@ def test_a_values_key_is_the_name_of_numbas_type_of_it(value):
     assert ahead.type_key(value) == expected
 
 
+@settings(max_examples=200, deadline=None)
+@given(arrays(), st.booleans())
+def test_an_arrays_kept_key_follows_its_flags(value, misaligned):
+    """The key kept for a kind of array (:data:`ahead.MAX_ARRAY_KEYS`) is the one made anew, for the same
+    array after its writability changes, and for a misaligned copy of it (a raw buffer one byte in), which
+    numba's ``typeof`` calls aligned: its key says unaligned, so that no build (compiled for aligned
+    arrays) takes it."""
+    made = ahead._array_key(value, value.flags)
+    assert ahead.type_key(value) == ahead.type_key(value) == made == ahead.numba_type_key(numba.typeof(value))
+    if value.flags.writeable and value.flags.owndata:
+        value.flags.writeable = False
+        assert ahead.type_key(value) == ahead.numba_type_key(numba.typeof(value))
+        value.flags.writeable = True
+        assert ahead.type_key(value) == made
+    if misaligned and value.dtype.itemsize > 1 and value.size:
+        raw = np.zeros(value.nbytes + 1, np.uint8)[1:]
+        odd = raw.view(value.dtype).reshape(value.shape)
+        assert not odd.flags.aligned
+        key = ahead.type_key(odd)
+        assert key == ahead._array_key(odd, odd.flags) and key.endswith("wu")
+        assert key[:-1] == ahead.numba_type_key(numba.typeof(odd))  # all but the alignment
+
+
+def test_the_kept_keys_are_bounded(monkeypatch: pytest.MonkeyPatch):
+    """Arrays of ever new (structured) dtypes keep at most :data:`ahead.MAX_ARRAY_KEYS` keys, and each
+    array past the bound is still named."""
+    monkeypatch.setattr(ahead, "_ARRAY_KEYS", {})
+    for i in range(ahead.MAX_ARRAY_KEYS + 50):
+        a = np.zeros(2, dtype=[(f"f{i}", np.float64)])
+        assert ahead.type_key(a) == ahead._array_key(a, a.flags)
+    assert len(ahead._ARRAY_KEYS) == ahead.MAX_ARRAY_KEYS
+
+
 @pytest.mark.parametrize("value", [[1.0, 2.0], (1.0, 2.0), "x", None, object(), 2**70, 1 + 2j])
 def test_a_value_no_build_takes_has_no_key(value):
     assert ahead.type_key(value) is None

@@ -69,13 +69,33 @@ def type_key(value: object) -> str | None:
         return "bool"
     if kind is np.ndarray:
         flags = value.flags  # type: ignore[attr-defined]
-        layout = "C" if flags.c_contiguous else "F" if flags.f_contiguous else "A"
-        access = "w" if flags.writeable else "r"
-        aligned = "" if flags.aligned else "u"
-        return f"{value.dtype.str}{value.ndim}{layout}{access}{aligned}"  # type: ignore[attr-defined]
+        probe = (value.dtype, value.ndim, flags.num)  # type: ignore[attr-defined]
+        key = _ARRAY_KEYS.get(probe)
+        if key is None:
+            key = _array_key(value, flags)  # type: ignore[arg-type]
+            if len(_ARRAY_KEYS) < MAX_ARRAY_KEYS:
+                _ARRAY_KEYS[probe] = key
+        return key
     if isinstance(value, np.floating | np.integer | np.bool_):
         return np.dtype(kind).name
     return None
+
+
+def _array_key(value: np.ndarray, flags: Any) -> str:
+    """:func:`type_key` of an array, made from its dtype, dimensions and flags."""
+    layout = "C" if flags.c_contiguous else "F" if flags.f_contiguous else "A"
+    access = "w" if flags.writeable else "r"
+    aligned = "" if flags.aligned else "u"
+    return f"{value.dtype.str}{value.ndim}{layout}{access}{aligned}"
+
+
+MAX_ARRAY_KEYS = 256
+"""Kinds of array whose :func:`type_key` is kept (beyond them each is made anew: a process that meets
+structured dtypes without end keeps no more)."""
+_ARRAY_KEYS: dict[tuple[np.dtype[Any], int, int], str] = {}
+"""An array's :func:`type_key` by its dtype, dimensions and flags' bits (``flags.num``: contiguity,
+alignment, writability), which decide it: a look-up is ~0.2 µs where making the name is ~0.6, and a kernel
+called from Python names every argument at every call (the plant's eight, ~2 000 calls a run)."""
 
 
 def numba_type_key(nbtype: Any) -> str | None:
