@@ -62,6 +62,7 @@ def draw_shared(jobs: Sequence[Callable[[], T]], processes: int) -> list[T]:
     for answer in answers:
         if isinstance(answer, BaseException):
             raise answer
+        assert isinstance(answer, dict)  # what _fork_share writes when it is not an error
         results.update(answer)
     for i in sorted(results):
         if isinstance(results[i], _Raised):
