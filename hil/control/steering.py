@@ -143,7 +143,7 @@ class SteeringOutput:
             np.empty(b, np.int64),
         )
 
-    def kernel_outputs(self) -> tuple[Array, ...]:
+    def kernel_outputs(self) -> tuple[np.ndarray, ...]:
         """The arrays in :func:`solve_rows`'s order of outputs (the fields' order)."""
         return (
             self.gimbal_rate,
