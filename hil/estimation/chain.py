@@ -222,11 +222,16 @@ def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ign
     gyr (rad/s), acc (m/s²), mag (NaN: not usable). Returns the estimator step's flags, with
     :attr:`StepFlag.MAG_DISTURBED` when the magnetometer was left out as disturbed and
     :attr:`StepFlag.REST` at rest, ``| newton_updates << ITER_SHIFT``; or :data:`BAD_STEP` (nothing
-    changed) for a step after the first whose ``h`` is not a positive number."""
+    changed) for a step after the first whose ``h`` is not a positive number or is too long
+    (:func:`~hil.estimation.variational.step_in_range`). A rate reading the estimator cannot use
+    (:func:`~hil.estimation.variational.usable_rate`) is NaN to every stage, the pre-filter and the rest
+    detector included."""
     ss = cs[CS_SIGNAL : CS_SIGNAL + pf.SS_SIZE]
     started = ss[pf.SS_N] > 0.0
-    if started and not (h > 0.0 and math.isfinite(h)):
+    if started and not v.step_in_range(ep, h):
         return BAD_STEP
+    if not v.usable_rate(gx, gy, gz):
+        gx = gy = gz = math.nan
     if not started:
         for i in range(3):
             es[v.S_BIAS + i] = cs[CS_BIAS + i]

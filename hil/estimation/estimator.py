@@ -26,7 +26,7 @@ from hil.estimation import variational as k
 from hil.estimation.params import EstimatorParams
 from hil.estimation.quaternions import quats_of
 from hil.estimation.sensors import MergedSteps, StepFlag, as_vec3
-from hil.estimation.slots import NEWTON_FAILED
+from hil.estimation.slots import MAX_SUBSTEPS, NEWTON_FAILED
 from hil.so3.floats import Mat9, Vec3
 from protocol.errors import ConfigError, ConvergenceError
 
@@ -311,7 +311,10 @@ class VariationalEstimator:
                 f"update: dt, gyr, acc and mag must be numbers, got {dt!r}, {gyr!r}, {acc!r}, {mag!r}"
             ) from None
         if code < 0:
-            raise ValueError(f"update: dt must be a positive number of seconds, got {dt!r}")
+            raise ValueError(
+                f"update: dt must be a positive number of seconds, at most {self._longest_step():.6g} "
+                f"({MAX_SUBSTEPS} sub-steps of max_step_s), got {dt!r}"
+            )
         if snapshot is not None and code & NEWTON_FAILED:
             self._fail(snapshot, 0, dt)
         return estimate(es.item(_S_T), self._head, code)
@@ -327,7 +330,8 @@ class VariationalEstimator:
         """
         n = len(steps)
         t = np.ascontiguousarray(steps.t, dtype=float)
-        check_times(t, self._es, "update_batch")
+        last = float(self._es[k.S_T]) if self._es[k.S_STARTED] else None
+        check_times(t, last, self.params.max_step_s, "update_batch")
         out = EstimateBatch(
             t.copy(),
             np.empty((n, 3, 3)),
@@ -355,7 +359,13 @@ class VariationalEstimator:
         if snapshot is not None and done and out.flags[done - 1] & NEWTON_FAILED:
             i = done - 1
             self._fail(snapshot, i, float(t[i] - (t[i - 1] if i else snapshot[k.S_T])))
+        if done < n:  # a step the kernel refused, which check_times lets through: never rows unfilled
+            raise ValueError(f"update_batch: step {done} at {t[done]!r} s was refused")
         return out
+
+    def _longest_step(self) -> float:
+        """s: the longest step :meth:`update` takes."""
+        return self.params.max_step_s * MAX_SUBSTEPS
 
     def _fail(self, snapshot: Array, index: int, h: float) -> None:
         """Undo the call (the estimator is as it was before it) and raise the Newton failure."""
@@ -401,13 +411,30 @@ def flag(bits: int) -> StepFlag:
     return f
 
 
-def check_times(t: Array, es: Array, where: str) -> None:
-    """Step times must increase strictly, and start after a started estimator's time (ValueError)."""
-    if len(t) and not np.all(np.diff(t) > 0):
-        i = int(np.flatnonzero(~(np.diff(t) > 0))[0])
-        raise ValueError(f"{where}: step times must increase strictly (step {i + 1}: {t[i + 1]!r})")
-    if len(t) and es[k.S_STARTED] and not t[0] > es[k.S_T]:
-        raise ValueError(f"{where}: first step time {t[0]!r} is not after the estimator's {es[k.S_T]!r}")
+def check_times(t: Array, last: float | None, max_step_s: float, where: str) -> None:
+    """Step times ``t`` (N,) s must increase strictly, start after ``last`` (the time of the step before
+    them; None: none), and be at most :data:`~hil.estimation.variational.MAX_SUBSTEPS` sub-steps of
+    ``max_step_s`` apart (the longest step the estimator takes): else a ValueError naming the first step
+    that is not."""
+    if not len(t):
+        return
+    steps = np.diff(t) if last is None else np.diff(t, prepend=last)
+    first = 1 if last is None else 0  # the index in t of steps[0]'s end
+    bad = np.flatnonzero(~(steps > 0))
+    if bad.size:
+        i = int(bad[0]) + first
+        if i == 0:
+            raise ValueError(f"{where}: first step time {t[0]!r} is not after the last one, {last!r}")
+        raise ValueError(f"{where}: step times must increase strictly (step {i}: {t[i]!r})")
+    longest = max_step_s * MAX_SUBSTEPS
+    far = np.flatnonzero(steps > longest)
+    if far.size:
+        i = int(far[0]) + first
+        raise ValueError(
+            f"{where}: step {i} at {t[i]!r} s is {steps[i - first]:.6g} s after the one before it, "
+            f"longer than the estimator takes ({MAX_SUBSTEPS} sub-steps of {max_step_s:g} s, "
+            f"{longest:.6g} s): a far timestamp, not a gap in a stream"
+        )
 
 
 def _rows(a: Array) -> Array:

@@ -17,14 +17,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil import jit
 from hil.estimation import chain
-from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, estimate
+from hil.estimation.estimator import Estimate, EstimateBatch, VariationalEstimator, check_times, estimate
 from hil.estimation.inertial import directions_from_dip
 from hil.estimation.magnetic import MagneticSettings, pack_mag_params
 from hil.estimation.motion import MP_REST_GAIN, MotionSettings, pack_motion_params
 from hil.estimation.params import EstimatorParams
 from hil.estimation.prefilter import PAPER_CUTOFF_RAD_S, SS_N, pack_signal_params
 from hil.estimation.sensors import KINDS, MergedStep, MergedSteps, SensorKind, as_vec3
-from hil.estimation.slots import NEWTON_FAILED
+from hil.estimation.slots import MAX_SUBSTEPS, NEWTON_FAILED
 from hil.estimation.variational import S_BIAS, S_OMEGA
 from protocol.errors import ConfigError, ConvergenceError
 
@@ -197,7 +197,11 @@ class AttitudeFilter:
             step = self._step = jit.direct(chain.step, self._cp, self._cs, self._ep, es, *([0.0] * 11))
         code = step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
-            raise ValueError(f"filter step must be positive, got h = {s.h!r} s (t = {s.t!r} s)")
+            longest = self.estimator.params.max_step_s * MAX_SUBSTEPS
+            raise ValueError(
+                f"filter step must be a positive number of seconds, at most {longest:.6g} "
+                f"({MAX_SUBSTEPS} sub-steps of max_step_s), got h = {s.h!r} s (t = {s.t!r} s)"
+            )
         if snapshot is not None and code & NEWTON_FAILED:
             self._fail(snapshot, s.t, s.h)
         return estimate(s.t, self._head, code, int(s.flags))
@@ -210,13 +214,8 @@ class AttitudeFilter:
         n = len(steps)
         t = np.ascontiguousarray(steps.t, dtype=float)
         cs = self._cs
-        if n and not np.all(np.diff(t) > 0):
-            i = int(np.flatnonzero(~(np.diff(t) > 0))[0])
-            raise ValueError(f"filter run: step times must increase strictly (step {i + 1}: {t[i + 1]!r})")
-        if n and cs[chain.CS_SIGNAL + SS_N] and not t[0] > cs[chain.CS_T]:
-            raise ValueError(
-                f"filter run: first step time {t[0]!r} is not after the last one, {cs[chain.CS_T]!r}"
-            )
+        last = float(cs[chain.CS_T]) if cs[chain.CS_SIGNAL + SS_N] else None
+        check_times(t, last, self.estimator.params.max_step_s, "filter run")
         out = EstimateBatch(
             t.copy(),
             np.empty((n, 3, 3)),
@@ -250,6 +249,8 @@ class AttitudeFilter:
             if snapshot is not None and done and out.flags[i + done - 1] & NEWTON_FAILED:
                 k = i + done - 1
                 self._fail(snapshot, float(t[k]), float(t[k] - t[k - 1]) if k else 0.0)
+            if done < j - i:  # a step the kernel refused, which check_times lets through: never rows unfilled
+                raise ValueError(f"filter run: step {i + done} at {t[i + done]!r} s was refused")
             if progress is not None:
                 progress(j, n)
         return out

@@ -22,7 +22,7 @@ from hil import so3
 from hil.estimation.params import EstimatorParams
 from hil.estimation.prefilter import filter_batch
 from hil.estimation.sensors import KINDS, SensorKind
-from hil.estimation.slots import DEGENERATE, GYR_STALE, NEWTON_FAILED, SUBSTEPPED
+from hil.estimation.slots import DEGENERATE, GYR_STALE, GYRO_LIMIT, NEWTON_FAILED, SUBSTEPPED
 
 Array = NDArray[np.float64]
 
@@ -179,7 +179,7 @@ class Estimator:
         """One step: the first only initialises; a long one is sub-stepped (gyro interpolated, measurement
         held). Returns (flags, Newton updates)."""
         p = self.p
-        ok_g = bool(np.all(np.isfinite(gyr)))
+        ok_g = bool(np.all(np.abs(gyr) <= GYRO_LIMIT))  # NaN fails too
         g1 = np.asarray(gyr, dtype=float) if ok_g else np.zeros(3)
         flags = 0 if ok_g else GYR_STALE
         meas = measurement(p, acc, mag, mag_weight)

@@ -19,7 +19,7 @@ from hil.estimation.motion import MotionSettings
 from hil.estimation.params import wahba
 from hil.estimation.reference import Estimator, Lowpass, RunResult, measurement, strapdown_step, unit
 from hil.estimation.sensors import KINDS, MergedSteps, SensorKind
-from hil.estimation.slots import MAG_DISTURBED, REST
+from hil.estimation.slots import GYRO_LIMIT, MAG_DISTURBED, REST
 
 Array = NDArray[np.float64]
 
@@ -179,6 +179,8 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
     Flags include the merger's, MAG_DISTURBED and REST."""
     p = config.params
     gyr_in, acc_in, mag_in = (np.where(steps.valid(k)[:, None], steps.value(k), np.nan) for k in KINDS)
+    usable = np.all(np.abs(gyr_in) <= GYRO_LIMIT, axis=1)  # a rate no sensor reads: NaN to every stage
+    gyr_in = np.where(usable[:, None], gyr_in, np.nan)
     cut = config.prefilter_rad_s
     strap = config.prefilter_frame == "strapdown"
     lp = {kind: Lowpass() for kind in KINDS}

@@ -33,6 +33,14 @@ SUBSTEPPED = int(StepFlag.SUBSTEPPED)
 MAG_DISTURBED = int(StepFlag.MAG_DISTURBED)
 REST = int(StepFlag.REST)
 
+GYRO_LIMIT = 1e4
+"""rad/s: a rate reading beyond this on any axis is not usable to the estimator (as NaN is). MEMS rate
+sensors read at most ~35 rad/s (a phone's ±2000 °/s) to ~350 rad/s; 1e4 rad/s (~95 000 rpm) is beyond
+every one, and far below where a step's arithmetic overflows (~1e154 rad/s, the square of a rate)."""
+MAX_SUBSTEPS = 1 << 20
+"""Sub-steps the estimator splits a step into at most (~0.15 s of compute): at the default ``max_step_s``
+of 0.05 s a step of up to 14.6 h. A longer one is no gap a phone's stream has, but a far timestamp."""
+
 
 def pack(size: int, slots: Mapping[int, float | ArrayLike]) -> Array:
     """A parameter array of ``size`` float64 slots, zero but where ``slots`` says: slot index → a number,

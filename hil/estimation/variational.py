@@ -31,11 +31,15 @@ potential: ``L = E_S W_SS U_Sᵀ`` over the usable set S ⊆ {acc, mag, acc×mag
 needs both, and is dropped when they are within ``min_direction_angle_deg`` of parallel). With no usable
 direction the potential term vanishes and the filter propagates the gyro. A gyroscope that is not usable
 is read as a zero rate measurement (the filter then runs on the vector measurements alone, ``Ω̂ = −ω``).
+A rate reading beyond :data:`GYRO_LIMIT` on any axis is not usable either: no rate sensor reads it, and
+one of ~1e200 rad/s (finite, so once taken) had overflowed the step into NaN for every later estimate.
 
 Long steps: the scheme's discrete dissipation factor ``(m − h/2 d)/(m + h/2 d)`` turns negative (a
 ringing, though bounded, rate error) once ``h > 2m/d``; steps longer than ``max_step_s`` are therefore
 split into equal sub-steps with the gyro interpolated linearly and the new measurement held
-(:attr:`StepFlag.SUBSTEPPED`).
+(:attr:`StepFlag.SUBSTEPPED`), at most :data:`MAX_SUBSTEPS` of them: a longer step is refused as a step
+that is not a positive number is (:data:`BAD_STEP`, nothing changed) — a far timestamp had been split into
+~1e10 sub-steps, a call that did not return for hours.
 
 R̂ stays a rotation: each step multiplies by an exact rotation (Rodrigues) and applies one Newton–Schulz
 polar correction, which keeps ``‖R̂ᵀR̂ − I‖`` at rounding level however many steps are taken.
@@ -70,12 +74,14 @@ from hil.estimation.slots import (
     ACC_STALE,
     DEGENERATE,
     GYR_STALE,
+    GYRO_LIMIT,
     MAG_STALE,
+    MAX_SUBSTEPS,
     NEWTON_FAILED,
     SUBSTEPPED,
     pack,
 )
-from hil.jit import kernel
+from hil.jit import jitable, kernel
 from hil.so3.floats import exp_f, matmul_f, reorthonormalize_f, rodrigues_coefficients, rotate_f
 
 Array = NDArray[np.float64]
@@ -130,7 +136,8 @@ S_SIZE = S_MAG_WEIGHT + 1
 ITER_SHIFT = 16
 FLAG_BITS = (1 << ITER_SHIFT) - 1
 BAD_STEP = -1
-"""What :func:`update` returns, having changed nothing, for a step ``dt`` that is not a positive number."""
+"""What :func:`update` returns, having changed nothing, for a step ``dt`` that is not a positive number, or
+longer than :data:`MAX_SUBSTEPS` sub-steps of ``max_step_s``."""
 
 _ACC, _MAG, _CROSS = 1, 2, 4  # bits of the usable-direction mask
 _ZERO9 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
@@ -410,6 +417,19 @@ def advance(ep, r, w, b, g0, tau0, h, g1, big_l, mask, k, bl):  # type: ignore[n
     return r1, w1, b1, tau1, iters, ok
 
 
+@jitable
+def usable_rate(gx: float, gy: float, gz: float) -> bool:
+    """Whether a rate reading (rad/s) is usable: every axis a number within :data:`GYRO_LIMIT`."""
+    return abs(gx) <= GYRO_LIMIT and abs(gy) <= GYRO_LIMIT and abs(gz) <= GYRO_LIMIT
+
+
+@jitable
+def step_in_range(ep, h: float) -> bool:  # type: ignore[no-untyped-def]
+    """Whether ``h`` (s) is a step the estimator takes: positive, and at most :data:`MAX_SUBSTEPS`
+    sub-steps of ``max_step_s`` (NaN and inf are neither)."""
+    return 0.0 < h <= ep[P_MAX_STEP] * MAX_SUBSTEPS
+
+
 @kernel
 def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
     """Take one sample into the state ``es``: rates ``g`` (rad/s), accelerometer ``a`` and magnetometer
@@ -419,9 +439,10 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
     held). Counts into the state's counters; leaves the time slot to the callers.
 
     Returns the step's flags ``| newton_updates << ITER_SHIFT``, or :data:`BAD_STEP` (nothing changed)
-    for a started estimator and an ``h`` that is not a positive number."""
+    for a started estimator and an ``h`` that is not a positive number or is too long
+    (:func:`step_in_range`)."""
     flags = 0
-    if not math.isfinite(gx + gy + gz):
+    if not usable_rate(gx, gy, gz):
         gx = gy = gz = 0.0
         flags |= GYR_STALE
     mask, big_l, k, mflags = measurement(ep, ax, ay, az, mx, my, mz, es[S_MAG_WEIGHT])
@@ -433,7 +454,7 @@ def step(ep, es, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-unty
         es[S_STARTED] = 1.0
         tau = torque(ep, r, big_l, mask, k)
     else:
-        if not (h > 0.0 and math.isfinite(h)):
+        if not step_in_range(ep, h):
             return BAD_STEP
         w = (es[S_OMEGA], es[S_OMEGA + 1], es[S_OMEGA + 2])
         b = (es[S_BIAS], es[S_BIAS + 1], es[S_BIAS + 2])
