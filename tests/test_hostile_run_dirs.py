@@ -7,12 +7,14 @@ reported as such; nothing dies, and memory stays bounded by what the files reall
 from __future__ import annotations
 
 import json
+import logging
 import socket
 import subprocess
 import sys
 import tracemalloc
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -256,13 +258,37 @@ def test_a_campaign_s_traces_are_read_a_chunk_at_a_time_keeping_what_is_asked(tm
     shutil.copytree(campaign, d)
     index, traces = read_traces(d)
     with open(d / "traces.bin", "r+b") as f:
-        f.truncate(64 * MB)  # zeros: records of run 0
+        f.truncate(64 * MB)  # zeros: records of zero bytes only
     tracemalloc.start()
     again, _ = read_traces(d, keep=[1])
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     assert list(index) == [0, 1] and traces.shape[:2] == (2, len(TRACES))
     assert list(again) == [1] and peak < 40 * MB
+
+
+@pytest.mark.parametrize("tail", [1, 3, 1000])
+def test_a_campaign_s_zero_filled_traces_tail_is_no_run_s_trace(tmp_path, campaign, caplog, tail):
+    """Records of zero bytes after the real ones (what a crash leaves of appended blocks never written)
+    read as run 0's trace, all zeros, the last record winning over run 0's own; they are left out,
+    counted in a warning, and run 0's trace is its own."""
+    import shutil
+
+    from hil.montecarlo import read_traces
+    from hil.montecarlo.store import read_manifest, trace_dtype
+
+    d = tmp_path / "c"
+    shutil.copytree(campaign, d)
+    index, traces = read_traces(d)
+    record = trace_dtype(int(read_manifest(d)["trace_samples"])).itemsize
+    with open(d / "traces.bin", "ab") as f:
+        f.write(bytes(record * tail))
+    with caplog.at_level(logging.WARNING, logger="hil.montecarlo.store"):
+        again, kept = read_traces(d)
+    assert list(again) == list(index) == [0, 1]
+    np.testing.assert_array_equal(kept, traces)
+    assert np.any(kept[0] != 0.0)
+    assert f"{tail} records of zero bytes only" in caplog.text
 
 
 def test_a_campaign_s_duplicated_rows_are_counted_not_collapsed_silently(tmp_path, campaign):

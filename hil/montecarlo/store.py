@@ -22,6 +22,7 @@ import csv
 import hashlib
 import io
 import json
+import logging
 import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
@@ -45,6 +46,9 @@ MAX_DURATION_S = 86_400.0
 """A campaign run's longest duration (s): the scenario's bound."""
 MAX_TRACE_HZ = 490.0
 """The highest trace rate (Hz): the highest control rate a scenario may have."""
+
+logger = logging.getLogger(__name__)
+
 TRACE_CHUNK_BYTES = 16 << 20
 """traces.bin is read this much at a time (whole records)."""
 RUNS = "runs.csv"
@@ -288,19 +292,32 @@ def read_traces(
     """The traces of ``OUT``: run indices (M,) and traces (M, len(TRACES), samples), one per index (the
     last record wins), only for ``keep`` indices when given (e.g. the runs.csv rows). Read a chunk of
     records at a time, keeping only the traces asked for: the memory is theirs, whatever the file's size
-    (a torn last record is left out)."""
+    (a torn last record is left out).
+
+    A record of zero bytes only is no run's: it is what a crash leaves where appended blocks were
+    allocated and never written (a zero-filled tail), or a file grown by hand. Read as written it would be
+    run 0's trace, all zeros, winning over run 0's own as the last record; such records are left out,
+    counted in a warning."""
     out = Path(out_dir)
     dtype = trace_dtype(int(read_manifest(out)["trace_samples"]))
     wanted = None if keep is None else set(int(i) for i in keep)
     last: dict[int, NDArray[np.float32]] = {}
     path = out / TRACE_FILE
     per_chunk = max(1, TRACE_CHUNK_BYTES // dtype.itemsize) * dtype.itemsize
+    zeroed = 0
     with open(path, "rb") if path.exists() else io.BytesIO() as f:
         while data := f.read(per_chunk):
-            records = np.frombuffer(data[: len(data) - len(data) % dtype.itemsize], dtype=dtype)
+            whole = data[: len(data) - len(data) % dtype.itemsize]
+            records = np.frombuffer(whole, dtype=dtype)
+            written = np.frombuffer(whole, np.uint8).reshape(len(records), dtype.itemsize).any(axis=1)
+            zeroed += len(records) - int(np.count_nonzero(written))
             for k, i in enumerate(records["index"].tolist()):
-                if wanted is None or i in wanted:
+                if written[k] and (wanted is None or i in wanted):
                     last[i] = records["trace"][k].copy()
+    if zeroed:
+        logger.warning(
+            "%s: %d records of zero bytes only (no run's: a crash's unwritten tail?) left out", path, zeroed
+        )
     order = sorted(last)
     traces = np.array([last[i] for i in order], dtype=np.float32).reshape(len(order), *dtype["trace"].shape)
     return np.array(order, dtype=np.int64), traces
