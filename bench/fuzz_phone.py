@@ -58,7 +58,8 @@ def fuzz_datagram(data: bytes) -> None:
 
 def fuzz_push(data: bytes) -> None:
     try:
-        samples, bad, ignored, _ = decode_push(data, "fuzz")
+        batch = decode_push(data, "fuzz")
+        samples, bad, ignored = batch.samples, batch.bad, batch.ignored
     except InputFormatError:
         return
     assert all(_finite(s) for s in samples), "a sample with non-finite values"

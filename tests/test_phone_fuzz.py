@@ -75,7 +75,8 @@ def _check_datagram(data: bytes) -> None:
 
 def _check_push(data: bytes) -> None:
     try:
-        samples, bad, ignored, message_id = decode_push(data, "fuzz")
+        batch = decode_push(data, "fuzz")
+        samples, bad, ignored, message_id = batch.samples, batch.bad, batch.ignored, batch.message_id
     except InputFormatError as exc:
         assert exc.path == "fuzz"
         return

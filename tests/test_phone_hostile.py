@@ -317,7 +317,7 @@ def test_a_4_mib_push_is_decoded_in_a_process_of_its_own_and_every_reading_count
     Now it goes to the decoder process; the host builds only what its queue keeps, and counts the rest."""
     body = _big_push(50_000)
     assert INLINE_MAX < len(body) <= 4 * 2**20
-    want = decode_push(body)[0][-MAX_QUEUE:]
+    want = decode_push(body).samples[-MAX_QUEUE:]
     with PhonePushServer("http://127.0.0.1:0/") as server:
         assert _post(server, body)[0] == 200
         child = server._decoder._proc

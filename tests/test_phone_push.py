@@ -30,7 +30,8 @@ samples = st.lists(
 @settings(max_examples=60, deadline=None)
 @given(samples)
 def test_encode_then_decode_returns_the_samples_in_time_order(batch):
-    got, bad, ignored, mid = decode_push(encode_push(batch, 7, "s", "d"))
+    out = decode_push(encode_push(batch, 7, "s", "d"))
+    got, bad, ignored, mid = out.samples, out.bad, out.ignored, out.message_id
     assert (bad, ignored, mid) == (0, 0, 7)
     want = sorted(batch, key=lambda s: (s.t_s, int(s.kind)))
     assert [(s.kind, s.xyz) for s in got] == [(s.kind, s.xyz) for s in want]
@@ -53,7 +54,8 @@ def test_the_apps_schema_with_other_sensors_and_bad_entries():
             ],
         }
     ).encode()
-    got, bad, ignored, mid = decode_push(body)
+    out = decode_push(body)
+    got, bad, ignored, mid = out.samples, out.bad, out.ignored, out.message_id
     assert [s.kind for s in got] == [SensorKind.GYR, SensorKind.MAG]
     assert got[1].t_s == pytest.approx(2.01) and got[1].xyz == (20.0, -5.0, -40.0)
     assert (bad, ignored, mid) == (3, 1, 3)
@@ -70,7 +72,8 @@ def test_user_acceleration_plus_gravity_when_no_total_acceleration_is_pushed():
             ]
         }
     ).encode()
-    got, bad, ignored, _ = decode_push(body)
+    out = decode_push(body)
+    got, bad, ignored = out.samples, out.bad, out.ignored
     assert [s.xyz for s in got] == [(0.0, 1.0, 10.0), (0.0, 1.0, 9.700000000000001)]
     assert all(s.kind is SensorKind.ACC for s in got) and bad == ignored == 0
 
@@ -191,7 +194,8 @@ def test_a_batch_s_time_in_another_unit_is_told_by_its_epoch_and_spacing(unit, s
         t = (t0 + 0.01 * k) * scale
         stamp = t if as_float else round(t)
         entries.append({"name": "gyroscope", "time": stamp, "values": {"x": 1.0, "y": 0.0, "z": 0.0}})
-    got, bad, _, _ = decode_push(json.dumps({"payload": entries}).encode())
+    out = decode_push(json.dumps({"payload": entries}).encode())
+    got, bad = out.samples, out.bad
     assert bad == 0 and len(got) == 1000
     assert got[0].t_s == pytest.approx(t0, abs=1e-3) and got[-1].t_s - got[0].t_s == pytest.approx(
         9.99, abs=1e-3
@@ -206,5 +210,57 @@ def test_a_ns_clock_from_its_start_stays_ns_in_every_epoch_band(seconds_from_sta
         SensorSample(seconds_from_start + 0.005 * k, SensorKind.GYR, (0.0, 0.0, 0.1)) for k in range(20)
     ]
     for batch in (samples, samples[:1]):
-        got, _, _, _ = decode_push(encode_push(batch, 1, "s", "d"))
+        got = decode_push(encode_push(batch, 1, "s", "d")).samples
         assert [s.t_s for s in got] == pytest.approx([s.t_s for s in batch], abs=1e-9)
+
+
+def _app_batch(message_id: int, t0_ns: int, n: int, total: bool, parts: bool, pad: int = 0) -> bytes:
+    """A Sensor Logger push of ``n`` readings each 5 ms apart from ``t0_ns``: a gyroscope's, and with
+    ``total`` total acceleration (z 9.9), with ``parts`` user acceleration (z 0.1) and gravity (z 9.7);
+    ``pad`` readings of an unused sensor make the body large (the decoder process's path)."""
+    payload = []
+    for k in range(n):
+        t = t0_ns + 5_000_000 * k
+        payload.append({"name": "gyroscope", "time": t, "values": {"x": 0.0, "y": 0.0, "z": 0.01}})
+        if total:
+            payload.append({"name": "totalacceleration", "time": t, "values": {"x": 0.0, "y": 0.0, "z": 9.9}})
+        if parts:
+            payload.append({"name": "accelerometer", "time": t, "values": {"x": 0.0, "y": 0.0, "z": 0.1}})
+            payload.append({"name": "gravity", "time": t, "values": {"x": 0.0, "y": 0.0, "z": 9.7}})
+    payload += [{"name": "light", "time": t0_ns, "values": {"x": 1.0, "y": 0.0, "z": 0.0}}] * pad
+    return json.dumps({"messageId": message_id, "payload": payload}).encode()
+
+
+def test_a_batch_s_parts_are_left_out_once_total_acceleration_was_pushed():
+    """:func:`decode_push` with ``parts=False`` (a stream that has sent total acceleration) ignores the
+    user acceleration and gravity of a batch without it, counted; it says whether a batch held it."""
+    with_total = decode_push(_app_batch(1, 10**18, 2, total=True, parts=True))
+    only_parts = decode_push(_app_batch(2, 10**18, 2, total=False, parts=True), parts=False)
+    combined = decode_push(_app_batch(2, 10**18, 2, total=False, parts=True))
+    assert with_total.total and not only_parts.total and not combined.total
+    assert [s.xyz[2] for s in with_total.samples if s.kind is SensorKind.ACC] == [9.9, 9.9]
+    assert [s.kind for s in only_parts.samples] == [SensorKind.GYR] * 2 and only_parts.ignored == 4
+    assert [s.xyz[2] for s in combined.samples if s.kind is SensorKind.ACC] == [0.1 + 9.7] * 2
+
+
+@pytest.mark.parametrize("pad", [0, 2000], ids=["inline", "decoder process"])
+def test_a_stream_keeps_total_acceleration_as_its_one_accelerometer(pad):
+    """A Sensor Logger stream pushing total acceleration, user acceleration and gravity, whose short
+    batches sometimes hold no total acceleration reading: before the first total acceleration the parts
+    make the accelerometer, from it on only total acceleration does — the two were interleaved batch by
+    batch (a stream's accelerometer alternating between two sensors). Small pushes decoded in the
+    receiver, large ones in its decoder process, alike."""
+    batches = [(False, True), (True, True), (False, True), (True, False), (False, True)]  # (total, parts)
+    with PhonePushServer("http://127.0.0.1:0/") as server:
+        host, port = server.url.split("//")[1].split("/")[0].split(":")
+        conn = http.client.HTTPConnection(host, int(port), timeout=30)
+        for i, (total, parts) in enumerate(batches):
+            body = _app_batch(i + 1, 10**18 + i * 10**8, 2, total, parts, pad)
+            conn.request("POST", "/", body, {"Content-Type": "application/json"})
+            resp = conn.getresponse()
+            assert resp.status == 200, resp.read()
+            resp.read()
+        conn.close()
+        acc = [s.xyz[2] for s in server.drain() if s.kind is SensorKind.ACC]
+        assert acc == [0.1 + 9.7] * 2 + [9.9] * 4  # the first batch's parts, then total acceleration only
+        assert server.stats.ignored_entries == 3 * 4 + pad * len(batches)  # the parts of batches 2, 3, 5

@@ -30,6 +30,8 @@ import math
 import threading
 import time
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from functools import partial
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -63,13 +65,30 @@ def _address(url: str) -> tuple[str, int, str]:
     return split_url(url, "http", "http://HOST:PORT/PATH", default_port=80)
 
 
-def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], int, int, int | None]:
+@dataclass(frozen=True)
+class PushBatch:
+    """One HTTP Push batch, decoded: its ``samples`` (time order, seconds since the epoch), its entries
+    that could not be used (``bad``) and those of other sensors or not needed (``ignored``), the app's
+    ``messageId`` (None: none or not an integer), and whether it held total acceleration (``total``)."""
+
+    samples: list[SensorSample]
+    bad: int
+    ignored: int
+    message_id: int | None
+    total: bool
+
+
+def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> PushBatch:
     """Parse one HTTP Push batch into samples (time-ordered per sensor, seconds since the epoch).
 
-    Returns ``(samples, bad_entries, ignored_entries, message_id)``. A body that is not a JSON object with
-    a ``payload`` list raises :class:`InputFormatError` naming ``source`` — whatever the bytes, nothing
-    else is raised; a reading that cannot be used is counted in ``bad_entries``. The batch's ``time``
-    unit is the app's ns unless its readings say otherwise (:func:`time_unit`).
+    A body that is not a JSON object with a ``payload`` list raises :class:`InputFormatError` naming
+    ``source`` — whatever the bytes, nothing else is raised; a reading that cannot be used is counted in
+    ``bad``. The batch's ``time`` unit is the app's ns unless its readings say otherwise
+    (:func:`time_unit`). ``parts``: whether the user acceleration and gravity of a batch without total
+    acceleration make its accelerometer; a stream that has sent total acceleration keeps it as its one
+    accelerometer (:class:`PhonePushServer`: its later batches' parts are ignored, counted), so that two
+    sensors' readings are never interleaved as one (a 20 ms batch often holds no reading of a ~50 Hz
+    sensor).
     """
     doc = parse_json(body, source)
     if not isinstance(doc, dict) or not isinstance(doc.get("payload"), list):
@@ -106,12 +125,12 @@ def decode_push(body: bytes, source: str = "push") -> tuple[list[SensorSample], 
         else:
             have_total |= NAMES[name] is SensorKind.ACC
             samples.append(SensorSample(t, NAMES[name], xyz))
-    if not have_total and user_acc and gravity:
+    if parts and not have_total and user_acc and gravity:
         samples.extend(_total_from_parts(user_acc, gravity))
     else:  # the parts are not needed (or one of them is missing): counted, not silently lost
         ignored += len(user_acc) + len(gravity)
     samples.sort(key=lambda s: (s.t_s, int(s.kind)))
-    return samples, bad, ignored, message_id
+    return PushBatch(samples, bad, ignored, message_id, have_total)
 
 
 EPOCH_BANDS = (
@@ -233,6 +252,7 @@ class PhonePushServer(PhoneReceiver):
         super().__init__(max_queue, max_batch=max_batch)
         host, port, self.path = _address(url)
         self._last_id: int | None = None
+        self._total_heard = False  # the stream has sent total acceleration: its accelerometer
         limits = HttpLimits(max_body, timeout_s, max_connections)
         try:
             self._httpd = GuardedHTTPServer((host, port), _handler(self), limits, self._turned_away)
@@ -256,16 +276,18 @@ class PhonePushServer(PhoneReceiver):
         """One push's body into the queue — decoded here if small (:data:`INLINE_MAX`), else by the decoder
         process —: ``(status, text)`` to answer."""
         source = f"push from {peer}"
+        with self._lock:
+            parts = not self._total_heard
         if len(body) <= INLINE_MAX:
-            inline, refused = self._decode(decode_push, body, source)
+            inline, refused = self._decode(partial(decode_push, parts=parts), body, source)
             if inline is None:
                 return 400, refused
-            samples, bad, ignored, message_id = inline
-            self._count_gaps(message_id)
-            self._deliver(samples, bad, ignored)
+            self._heard_total(inline.total)
+            self._count_gaps(inline.message_id)
+            self._deliver(inline.samples, inline.bad, inline.ignored)
             return 200, "ok"
         try:
-            batch = self._decoder.decode(body, self._max_queue, source)
+            batch = self._decoder.decode(body, self._max_queue, source, parts)
         except InputFormatError as exc:
             self._reject(str(exc))
             return 400, str(exc)
@@ -276,9 +298,17 @@ class PhonePushServer(PhoneReceiver):
             return 503, f"not decoded: {exc}"
         with self._lock:
             self.stats.decoder_restarts = self._decoder.restarts
+        self._heard_total(batch.total)
         self._count_gaps(batch.message_id)
         self._deliver(batch.samples, batch.bad, batch.ignored, batch.per_kind)
         return 200, "ok"
+
+    def _heard_total(self, total: bool) -> None:
+        """A batch held total acceleration: it is the stream's accelerometer from now on, its later
+        batches' user acceleration and gravity ignored (:func:`decode_push`'s ``parts``)."""
+        if total:
+            with self._lock:
+                self._total_heard = True
 
     def _count_gaps(self, message_id: int | None) -> None:
         """Batches lost in transit: a jump in the app's ``messageId``."""

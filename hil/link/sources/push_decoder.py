@@ -57,7 +57,7 @@ DECODE_TIMEOUT_S = 5.0
 """s: how long a push may wait for the decoder and then for its answer (a 4 MiB push takes ~0.3 s)."""
 NICE = 10
 """The decoder's niceness above the host's: bulk work, behind the control loop for the CPU."""
-_REQUEST = struct.Struct("<II")
+_REQUEST = struct.Struct("<IIB")  # body size, samples to keep, whether the parts may make the accelerometer
 _LENGTH = struct.Struct("<I")
 _RECORD = struct.Struct("<dBddd")
 _MAX_REPLY = 64 * 1024 * 1024  # bytes: a reply claiming more is a broken child, not a push
@@ -72,6 +72,7 @@ class Decoded:
     ignored: int
     message_id: int | None
     per_kind: dict[str, int] = field(default_factory=dict)
+    total: bool = False  # the push held total acceleration (PushBatch.total)
 
 
 class PushDecoder:
@@ -113,8 +114,9 @@ class PushDecoder:
             self.restarts += 1
         return self._start()
 
-    def decode(self, body: bytes, keep: int, source: str) -> Decoded:
-        """``body`` decoded by the child: its newest ``keep`` samples and its counts. Raises
+    def decode(self, body: bytes, keep: int, source: str, parts: bool = True) -> Decoded:
+        """``body`` decoded by the child (:func:`~hil.link.sources.phone_push.decode_push` with ``parts``):
+        its newest ``keep`` samples and its counts. Raises
         :class:`InputFormatError` (naming ``source``) for a body that is not a push, :class:`LinkTimeout`
         when the decoder is busy or silent for ``timeout_s``, :class:`LinkError` when it died."""
         if not self._lock.acquire(timeout=self.timeout_s):
@@ -122,18 +124,18 @@ class PushDecoder:
         try:
             if self._closed:
                 raise LinkError("the push decoder is closed")
-            reply = self._exchange(self._running(), body, max(keep, 1))
+            reply = self._exchange(self._running(), body, max(keep, 1), parts)
         finally:
             self._lock.release()
         return _unpack(reply, source)
 
-    def _exchange(self, proc: subprocess.Popen[bytes], body: bytes, keep: int) -> bytes:
+    def _exchange(self, proc: subprocess.Popen[bytes], body: bytes, keep: int, parts: bool) -> bytes:
         assert proc.stdin is not None and proc.stdout is not None
         killer = threading.Timer(self.timeout_s, proc.kill)  # a silent child is killed: the pipe then ends
         killer.daemon = True
         killer.start()
         try:
-            proc.stdin.write(_REQUEST.pack(len(body), keep))
+            proc.stdin.write(_REQUEST.pack(len(body), keep, parts))
             proc.stdin.write(body)
             proc.stdin.flush()
             (n,) = _LENGTH.unpack(_exact(proc.stdout, _LENGTH.size))
@@ -202,7 +204,12 @@ def _unpack(reply: bytes, source: str) -> Decoded:
         if len(records) != header["records"] * _RECORD.size:
             raise ValueError(f"{len(records)} bytes of records, {header['records']} announced")
         samples = [SensorSample(t, KINDS[k], (x, y, z)) for t, k, x, y, z in _RECORD.iter_unpack(records)]
-        return Decoded(samples, header["bad"], header["ignored"], header["message_id"], header["per_kind"])
+        total = header["total"]
+        if not isinstance(total, bool):
+            raise TypeError(f"total is {total!r}")
+        return Decoded(
+            samples, header["bad"], header["ignored"], header["message_id"], header["per_kind"], total
+        )
     except InputFormatError:
         raise
     except (ValueError, KeyError, TypeError, IndexError, struct.error) as exc:
@@ -210,29 +217,31 @@ def _unpack(reply: bytes, source: str) -> Decoded:
 
 
 # ------------------------------------------------------------------------------------------- the child
-def answer(body: bytes, keep: int) -> bytes:
+def answer(body: bytes, keep: int, parts: bool = True) -> bytes:
     """The reply (without its length prefix) to one request: what the child sends for ``body``."""
     from hil.link.sources.phone_push import decode_push
 
     records = b""
     try:
-        samples, bad, ignored, message_id = decode_push(body)
+        batch = decode_push(body, parts=parts)
     except InputFormatError as exc:
         header: dict[str, Any] = {"error": exc.detail}
     except Exception as exc:  # whatever hostile input makes a parser raise costs this push only
         header = {"error": f"unreadable ({type(exc).__name__}: {str(exc)[:120]})"}
     else:
+        samples = batch.samples
         per_kind: dict[str, int] = {}
         for s in samples:
             per_kind[s.kind.label] = per_kind.get(s.kind.label, 0) + 1
         kept = samples[len(samples) - min(keep, len(samples)) :]
         records = b"".join(_RECORD.pack(s.t_s, int(s.kind), *s.xyz) for s in kept)
         header = {
-            "bad": bad,
-            "ignored": ignored,
-            "message_id": message_id,
+            "bad": batch.bad,
+            "ignored": batch.ignored,
+            "message_id": batch.message_id,
             "per_kind": per_kind,
             "records": len(kept),
+            "total": batch.total,
         }
     text = json.dumps(header).encode()
     return _LENGTH.pack(len(text)) + text + records
@@ -248,11 +257,11 @@ def main() -> int:
         head = stdin.read(_REQUEST.size)
         if len(head) < _REQUEST.size:
             return 0
-        size, keep = _REQUEST.unpack(head)
+        size, keep, parts = _REQUEST.unpack(head)
         body = stdin.read(size)
         if len(body) < size:
             return 0
-        reply = answer(body, keep)
+        reply = answer(body, keep, bool(parts))
         stdout.write(_LENGTH.pack(len(reply)) + reply)
         stdout.flush()
 
