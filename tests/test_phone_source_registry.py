@@ -206,9 +206,11 @@ GYROSCOPE, MAGNETOMETER = "android.sensor.gyroscope", "android.sensor.magnetic_f
 @pytest.mark.parametrize(
     ("datagrams", "said"),
     [
-        # the app on, its gyroscope uncalibrated only: heard, none of it usable
-        ([(UNCALIBRATED, [1, 2, 3, 0, 0, 0])] * 20,
+        # the app on, only sensors the host does not use: heard, none of it usable
+        ([("android.sensor.light", [1, 2, 3]), ("android.sensor.rotation_vector", [0, 0, 0, 1])] * 10,
          ["20 messages heard", "no gyroscope and no accelerometer", "20 readings of sensors the host"]),
+        # its gyroscope uncalibrated only: read (less its bias estimate), but no accelerometer
+        ([(UNCALIBRATED, [1, 2, 3, 0, 0, 0])] * 20, ["by sensor: gyr 20", "no accelerometer among them"]),
         # a gyroscope and a magnetometer, no accelerometer: the estimator could never start
         ([(GYROSCOPE, [0.1, 0.2, 0.3]), (MAGNETOMETER, [20, 0, -40])] * 10,
          ["by sensor: gyr 10, mag 10", "no accelerometer among them"]),

@@ -14,7 +14,13 @@ from hypothesis import strategies as st
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources import open_receiver, open_sender, phone_url
 from hil.link.sources.phone_push import PhonePushSender, PhonePushServer
-from hil.link.sources.phone_udp import PhoneUdpReceiver, PhoneUdpSender, decode_datagram, encode_datagram
+from hil.link.sources.phone_udp import (
+    PhoneUdpReceiver,
+    PhoneUdpSender,
+    UncalibratedSample,
+    decode_datagram,
+    encode_datagram,
+)
 from protocol.errors import ConfigError, InputFormatError, LinkError
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
@@ -43,9 +49,11 @@ def test_the_apps_datagrams():
     mag = {"values": [21.5, -3.0, -40.25], "type": "android.sensor.magnetic_field", "timestamp": 10**9}
     want = SensorSample(1.0, SensorKind.MAG, (21.5, -3.0, -40.25))
     assert decode_datagram(json.dumps(mag).encode()) == want
-    # a sensor with more values (e.g. 6 for an uncalibrated one) is another type; others are ignored
-    uncalibrated = {"type": "android.sensor.gyroscope_uncalibrated", "timestamp": 1, "values": [0] * 6}
-    for other in ({"type": "android.gps", "latitude": 1.0, "longitude": 2.0}, uncalibrated):
+    # another sensor is ignored (an uncalibrated one: below)
+    for other in (
+        {"type": "android.gps", "latitude": 1.0, "longitude": 2.0},
+        {"type": "android.sensor.light"},
+    ):
         assert decode_datagram(json.dumps(other).encode()) is None
 
 
@@ -103,6 +111,69 @@ def test_garbage_and_other_sensors_are_counted_and_the_receiver_keeps_listening(
         st = receiver.stats
         assert (st.bad_messages, st.ignored_entries, st.samples) == (2, 1, 1)
         assert "not JSON" in st.last_error
+
+
+def _event(kind: str, t_ns: int, values: list[float]) -> bytes:
+    return json.dumps({"timestamp": t_ns, "values": values, "type": kind}).encode()
+
+
+def test_an_uncalibrated_event_is_its_reading_less_its_bias_estimate():
+    """Android's ``…_uncalibrated`` types carry the raw reading and the OS's bias estimate: read as their
+    difference (what the calibrated type reports), an :class:`UncalibratedSample`; without a finite
+    estimate, the raw reading."""
+    got = decode_datagram(
+        _event("android.sensor.gyroscope_uncalibrated", 10**9, [0.5, -0.25, 1.0, 0.125, 0.5, -1.0])
+    )
+    assert type(got) is UncalibratedSample and got == UncalibratedSample(
+        1.0, SensorKind.GYR, (0.375, -0.75, 2.0)
+    )
+    mag = decode_datagram(_event("Android.Sensor.Magnetic_Field_Uncalibrated", 2 * 10**9, [30.0, 5.0, -40.0]))
+    assert mag == UncalibratedSample(2.0, SensorKind.MAG, (30.0, 5.0, -40.0))
+    nan_bias = _event("android.sensor.accelerometer_uncalibrated", 10**9, [0.0, 0.0, 9.8, "x", 1e400, 0.0])
+    assert decode_datagram(nan_bias.replace(b"Infinity", b"1e400")) == UncalibratedSample(
+        1.0, SensorKind.ACC, (0.0, 0.0, 9.8)
+    )
+    with pytest.raises(InputFormatError):
+        decode_datagram(
+            _event(
+                "android.sensor.gyroscope_uncalibrated", 10**9, [float("nan"), 0.0, 0.0, 0.0, 0.0, 0.0]
+            ).replace(b"NaN", b"1e999")
+        )
+
+
+def test_a_stream_of_uncalibrated_events_is_used_until_the_calibrated_type_is_heard():
+    """A SensaGram stream with only a sensor's uncalibrated type is read from it (less its bias
+    estimate); once the calibrated type of that sensor is heard, the stream's uncalibrated events of it
+    are ignored and counted — the two are never interleaved — while another sensor's uncalibrated
+    events still count as readings until its own calibrated type comes."""
+    with PhoneUdpReceiver("udp://127.0.0.1:0") as receiver:
+        host, port = receiver.url.removeprefix("udp://").split(":")
+        raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        events = [
+            _event("android.sensor.gyroscope_uncalibrated", 1_000_000_000, [0.2, 0.0, 0.0, 0.1, 0.0, 0.0]),
+            _event(
+                "android.sensor.magnetic_field_uncalibrated", 1_001_000_000, [35.0, 0.0, -40.0, 5.0, 0.0, 0.0]
+            ),
+            _event("android.sensor.gyroscope", 1_005_000_000, [0.11, 0.0, 0.0]),
+            _event("android.sensor.gyroscope_uncalibrated", 1_006_000_000, [0.3, 0.0, 0.0, 0.1, 0.0, 0.0]),
+            _event(
+                "android.sensor.magnetic_field_uncalibrated", 1_007_000_000, [36.0, 0.0, -40.0, 5.0, 0.0, 0.0]
+            ),
+            _event("android.sensor.gyroscope", 1_010_000_000, [0.12, 0.0, 0.0]),
+        ]
+        for data in events:
+            raw.sendto(data, (host, int(port)))
+            time.sleep(0.002)  # loopback keeps the order; the receiver reads them in turn
+        raw.close()
+        got = _receive(receiver, 5)
+        assert [(s.kind, s.xyz[0]) for s in got] == [
+            (SensorKind.GYR, 0.1), (SensorKind.MAG, 30.0), (SensorKind.GYR, 0.11), (SensorKind.MAG, 31.0),
+            (SensorKind.GYR, 0.12),
+        ]  # fmt: skip
+        assert all(type(s) is SensorSample for s in got)
+        assert (
+            receiver.stats.ignored_entries == 1
+        )  # the gyroscope's uncalibrated event after its calibrated one
 
 
 def test_a_full_queue_drops_the_oldest_and_counts_them():

@@ -9,8 +9,14 @@ datagram per Android ``SensorEvent`` to the address and port set in its settings
 epoch: every sensor shares it, so the rate mismatch survives), ``values`` the event's values, ``type`` the
 sensor's Android string type. Used here: ``android.sensor.accelerometer`` (m/s², gravity included),
 ``android.sensor.gyroscope`` (rad/s) and ``android.sensor.magnetic_field`` (µT), all in the Android sensor
-frame (x screen right, y screen up, z out of the screen) — exactly what the estimator takes. Other types
-(``android.gps``, light, rotation vector, …) are ignored and counted. There is no batching, so the
+frame (x screen right, y screen up, z out of the screen) — exactly what the estimator takes. A stream
+that carries a sensor's uncalibrated type instead (``android.sensor.gyroscope_uncalibrated``,
+``…magnetic_field_uncalibrated``, ``…accelerometer_uncalibrated``: six values, the raw reading then the OS's
+estimate of its bias, or of the hard-iron field) is read as the raw reading less that estimate — what the
+calibrated sensor reports — for as long as the calibrated type of that sensor has not been heard: from its
+first event on, the stream's uncalibrated events of it are ignored and counted, so that two sensors'
+readings are never interleaved as one. Other types (``android.gps``, light, rotation vector, …) are
+ignored and counted. There is no batching, so the
 sensing latency is the network's; there is no sequence number, so a lost datagram is not noticed (the
 merger's gap and stale flags are what shows it).
 
@@ -28,6 +34,7 @@ import socket
 import sys
 import threading
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
@@ -39,13 +46,29 @@ TYPES: dict[str, SensorKind] = {
     "android.sensor.magnetic_field": SensorKind.MAG,
 }
 _TYPE_OF = {kind: name for name, kind in TYPES.items()}
+UNCALIBRATED: dict[str, SensorKind] = {
+    "android.sensor.accelerometer_uncalibrated": SensorKind.ACC,
+    "android.sensor.gyroscope_uncalibrated": SensorKind.GYR,
+    "android.sensor.magnetic_field_uncalibrated": SensorKind.MAG,
+}
+"""Android's uncalibrated types: ``values`` the raw reading (3), then the OS's estimate of its bias (3)."""
+
+
+@dataclass(frozen=True, slots=True)
+class UncalibratedSample(SensorSample):
+    """A reading of a sensor's uncalibrated type, its bias estimate removed: used by the receiver only
+    while the calibrated type of its sensor has not been heard (the module docstring)."""
+
+
 MAX_DATAGRAM = 65_507  # bytes: the largest UDP payload over IPv4
 MAX_MESSAGE = 4096  # bytes: a SensaGram datagram is ~100; a larger one is dropped unparsed
 MAX_BRACKETS = 8  # a SensaGram datagram holds one object and one list; deeper ones are dropped unparsed
 
 
 def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
-    """One SensaGram datagram → its sample (seconds on the phone's clock), or None for another sensor.
+    """One SensaGram datagram → its sample (seconds on the phone's clock), or None for another sensor; an
+    uncalibrated type's as an :class:`UncalibratedSample`, its raw reading less its bias estimate (the
+    raw reading when the event has no finite estimate).
 
     A datagram that is not a JSON object with a string ``type``, or one of our sensors without an integer
     or numeric ``timestamp`` and three finite ``values``, raises :class:`InputFormatError` naming ``source``
@@ -58,7 +81,9 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
     doc = parse_json(data, source)
     if not isinstance(doc, dict) or not isinstance(doc.get("type"), str):
         raise InputFormatError("expected a JSON object with a string 'type'", source)
-    kind = TYPES.get(doc["type"].strip().lower())  # Android's names are lower case; a client's may not be
+    name = doc["type"].strip().lower()  # Android's names are lower case; a client's may not be
+    raw = name not in TYPES
+    kind = UNCALIBRATED.get(name) if raw else TYPES[name]
     if kind is None:
         return None
     t_ns, values = doc.get("timestamp"), doc.get("values")
@@ -75,7 +100,23 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
         raise InputFormatError(f"{doc['type']}: time and 'values' must be finite numbers", source) from None
     if not all(math.isfinite(v) for v in (t, *xyz)):
         raise InputFormatError(f"{doc['type']}: time and values must be finite", source)
-    return SensorSample(t, kind, xyz)
+    if not raw:
+        return SensorSample(t, kind, xyz)
+    bias = _bias(values)
+    if bias is not None:
+        xyz = (xyz[0] - bias[0], xyz[1] - bias[1], xyz[2] - bias[2])
+    return UncalibratedSample(t, kind, xyz)
+
+
+def _bias(values: list[object]) -> tuple[float, float, float] | None:
+    """An uncalibrated event's bias estimate (``values[3:6]``), or None when it has none that is finite."""
+    if len(values) < 6:
+        return None
+    try:
+        bias = (float(values[3]), float(values[4]), float(values[5]))  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return bias if all(math.isfinite(b) for b in bias) else None
 
 
 def encode_datagram(sample: SensorSample) -> bytes:
@@ -134,6 +175,7 @@ class PhoneUdpReceiver(PhoneReceiver):
         bound_host, bound_port = self._sock.getsockname()[:2]
         self._url = f"udp://{bound_host}:{bound_port}"  # kept: still answers after close()
         self._stop = threading.Event()
+        self._calibrated: set[SensorKind] = set()  # sensors whose calibrated type the stream has sent
         self._thread = threading.Thread(target=self._serve, name="phone-udp", daemon=True)
         self._thread.start()
 
@@ -164,7 +206,13 @@ class PhoneUdpReceiver(PhoneReceiver):
             return
         if sample is None:
             self._deliver((), ignored=1)
+        elif type(sample) is UncalibratedSample:  # only while its sensor's calibrated type is not heard
+            if sample.kind in self._calibrated:
+                self._deliver((), ignored=1)
+            else:
+                self._deliver((SensorSample(sample.t_s, sample.kind, sample.xyz),))
         else:
+            self._calibrated.add(sample.kind)  # the receiving thread's own: no lock
             self._deliver((sample,))
 
     def close(self) -> None:
