@@ -309,8 +309,9 @@ def read_traces(
         while data := f.read(per_chunk):
             whole = data[: len(data) - len(data) % dtype.itemsize]
             records = np.frombuffer(whole, dtype=dtype)
-            written = np.frombuffer(whole, np.uint8).reshape(len(records), dtype.itemsize).any(axis=1)
-            zeroed += len(records) - int(np.count_nonzero(written))
+            bytes_of = np.frombuffer(whole, np.uint8).reshape(len(records), dtype.itemsize)
+            written: list[bool] = bytes_of.any(axis=1).tolist()
+            zeroed += written.count(False)
             for k, i in enumerate(records["index"].tolist()):
                 if written[k] and (wanted is None or i in wanted):
                     last[i] = records["trace"][k].copy()
