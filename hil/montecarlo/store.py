@@ -310,7 +310,7 @@ def read_traces(
             whole = data[: len(data) - len(data) % dtype.itemsize]
             records = np.frombuffer(whole, dtype=dtype)
             bytes_of = np.frombuffer(whole, np.uint8).reshape(len(records), dtype.itemsize)
-            written = [bool(w) for w in bytes_of.any(axis=1)]
+            written: list[bool] = (np.count_nonzero(bytes_of, axis=1) > 0).tolist()
             zeroed += written.count(False)
             for k, i in enumerate(records["index"].tolist()):
                 if written[k] and (wanted is None or i in wanted):
