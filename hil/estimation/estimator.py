@@ -312,7 +312,7 @@ class VariationalEstimator:
             ) from None
         if code < 0:
             raise ValueError(
-                f"update: dt must be a positive number of seconds, at most {self._longest_step():.6g} "
+                f"update: dt must be a positive number of seconds, at most {self.longest_step_s:.6g} "
                 f"({MAX_SUBSTEPS} sub-steps of max_step_s), got {dt!r}"
             )
         if snapshot is not None and code & NEWTON_FAILED:
@@ -331,7 +331,7 @@ class VariationalEstimator:
         n = len(steps)
         t = np.ascontiguousarray(steps.t, dtype=float)
         last = float(self._es[k.S_T]) if self._es[k.S_STARTED] else None
-        check_times(t, last, self.params.max_step_s, "update_batch")
+        check_times(t, last, self.longest_step_s, "update_batch")
         out = EstimateBatch(
             t.copy(),
             np.empty((n, 3, 3)),
@@ -363,8 +363,10 @@ class VariationalEstimator:
             raise ValueError(f"update_batch: step {done} at {t[done]!r} s was refused")
         return out
 
-    def _longest_step(self) -> float:
-        """s: the longest step :meth:`update` takes."""
+    @property
+    def longest_step_s(self) -> float:
+        """s: the longest step the estimator takes (:data:`~hil.estimation.slots.MAX_SUBSTEPS` sub-steps
+        of ``max_step_s``); a longer one is a far timestamp, refused."""
         return self.params.max_step_s * MAX_SUBSTEPS
 
     def _fail(self, snapshot: Array, index: int, h: float) -> None:
@@ -411,11 +413,10 @@ def flag(bits: int) -> StepFlag:
     return f
 
 
-def check_times(t: Array, last: float | None, max_step_s: float, where: str) -> None:
+def check_times(t: Array, last: float | None, longest_s: float, where: str) -> None:
     """Step times ``t`` (N,) s must increase strictly, start after ``last`` (the time of the step before
-    them; None: none), and be at most :data:`~hil.estimation.variational.MAX_SUBSTEPS` sub-steps of
-    ``max_step_s`` apart (the longest step the estimator takes): else a ValueError naming the first step
-    that is not."""
+    them; None: none), and be at most ``longest_s`` apart (:attr:`VariationalEstimator.longest_step_s`):
+    else a ValueError naming the first step that is not."""
     if not len(t):
         return
     steps = np.diff(t) if last is None else np.diff(t, prepend=last)
@@ -426,14 +427,13 @@ def check_times(t: Array, last: float | None, max_step_s: float, where: str) -> 
         if i == 0:
             raise ValueError(f"{where}: first step time {t[0]!r} is not after the last one, {last!r}")
         raise ValueError(f"{where}: step times must increase strictly (step {i}: {t[i]!r})")
-    longest = max_step_s * MAX_SUBSTEPS
-    far = np.flatnonzero(steps > longest)
+    far = np.flatnonzero(steps > longest_s)
     if far.size:
         i = int(far[0]) + first
         raise ValueError(
             f"{where}: step {i} at {t[i]!r} s is {steps[i - first]:.6g} s after the one before it, "
-            f"longer than the estimator takes ({MAX_SUBSTEPS} sub-steps of {max_step_s:g} s, "
-            f"{longest:.6g} s): a far timestamp, not a gap in a stream"
+            f"longer than the estimator takes ({longest_s:.6g} s, {MAX_SUBSTEPS} sub-steps of max_step_s): "
+            "a far timestamp, not a gap in a stream"
         )
 
 

@@ -197,7 +197,7 @@ class AttitudeFilter:
             step = self._step = jit.direct(chain.step, self._cp, self._cs, self._ep, es, *([0.0] * 11))
         code = step(self._cp, self._cs, self._ep, es, s.t, s.h, gx, gy, gz, ax, ay, az, mx, my, mz)
         if code < 0:
-            longest = self.estimator.params.max_step_s * MAX_SUBSTEPS
+            longest = self.estimator.longest_step_s
             raise ValueError(
                 f"filter step must be a positive number of seconds, at most {longest:.6g} "
                 f"({MAX_SUBSTEPS} sub-steps of max_step_s), got h = {s.h!r} s (t = {s.t!r} s)"
@@ -215,7 +215,7 @@ class AttitudeFilter:
         t = np.ascontiguousarray(steps.t, dtype=float)
         cs = self._cs
         last = float(cs[chain.CS_T]) if cs[chain.CS_SIGNAL + SS_N] else None
-        check_times(t, last, self.estimator.params.max_step_s, "filter run")
+        check_times(t, last, self.estimator.longest_step_s, "filter run")
         out = EstimateBatch(
             t.copy(),
             np.empty((n, 3, 3)),
