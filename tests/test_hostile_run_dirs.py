@@ -71,6 +71,22 @@ def test_hil_report_says_a_summary_of_the_wrong_shapes_is_damaged(tmp_path):
     assert "summary.json damaged (a value is not what a run writes: KeyError: 't')" in done.stdout
 
 
+@pytest.mark.parametrize(
+    ("key", "value", "said"),
+    [("settle_s", "Infinity", "settle_s is inf"), ("final_error_deg", "NaN", "final_error_deg is nan"),
+     ("faults", '[{"t": 1.0, "kind": "stall", "at": -Infinity}]', "faults.0.at is -inf")],
+)  # fmt: skip
+def test_hil_report_says_a_summary_with_a_non_number_is_damaged(tmp_path, key, value, said):
+    """NaN and Infinity parse as JSON in Python, and a run writes neither: an edited summary printed them
+    as figures ("settle time inf s (met)"); it is damaged, naming the key, and not shown."""
+    text = json.dumps({**SUMMARY, key: None}).replace(f'"{key}": null', f'"{key}": {value}')
+    d = run_dir(tmp_path / "run", summary=text)
+    done = hil("report", str(d), "--no-plots")
+    assert done.returncode == 0, done.stderr
+    assert f"summary.json damaged (a value is not what a run writes: {said}): not shown" in done.stdout
+    assert "settle time" not in done.stdout
+
+
 def test_hil_report_of_a_telemetry_without_a_time_column_is_one_line_naming_it(tmp_path):
     d = tmp_path / "run"
     d.mkdir()

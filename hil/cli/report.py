@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 ORDER = 15
@@ -81,6 +82,9 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
         return {}
     if summary is None:
         print("  no summary.json (the run was killed): plots from the telemetry alone")
+    elif (where := _not_a_number(summary)) is not None:
+        # NaN and Infinity are JSON to Python, and a run writes neither (a figure it has not: null)
+        print(f"  summary.json damaged (a value is not what a run writes: {where}): not shown")
     else:
         try:
             print(format_summary(summary))
@@ -89,6 +93,19 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
             why = f"{type(exc).__name__}: {exc}"
             print(f"  summary.json damaged (a value is not what a run writes: {why}): not shown")
     return plot_run(path, processes=available_cores()) if plots else {}
+
+
+def _not_a_number(doc: object, where: str = "") -> str | None:
+    """``KEY is VALUE`` for the first NaN or infinity in a JSON document (keys dotted, list items by
+    index), or None when every number in it is finite."""
+    if isinstance(doc, float) and not math.isfinite(doc):
+        return f"{where or 'the document'} is {doc}"
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, list) else ()
+    for key, value in items:
+        found = _not_a_number(value, f"{where}.{key}" if where else str(key))
+        if found is not None:
+            return found
+    return None
 
 
 def _campaign(path: Path, plots: bool) -> dict[str, Path]:
