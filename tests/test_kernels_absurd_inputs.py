@@ -150,8 +150,8 @@ FAR = st.one_of(
 @given(FAR, st.integers(1, 50))
 def test_a_step_to_a_far_timestamp_is_refused_at_once_and_changes_nothing(far, at):
     """A step longer than :data:`MAX_SUBSTEPS` sub-steps (a far timestamp: 1e8 s had been split into 2e9
-    sub-steps, a call of hours) is a ValueError saying so, through every per-sample call, and the estimate
-    goes on as though the call had not been made."""
+    sub-steps, a call of ~4 min; 1e10 s, hours) is a ValueError saying so, through every per-sample call,
+    and the estimate goes on as though the call had not been made."""
     steps = _steps(60)
     live, clean = AttitudeFilter(FilterConfig.tuned()), AttitudeFilter(FilterConfig.tuned())
     est, est_clean = VariationalEstimator(), VariationalEstimator()
