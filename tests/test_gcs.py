@@ -475,12 +475,14 @@ def test_every_command_answered_queued_has_a_status_even_as_the_run_ends(tmp_pat
     """Commands sent while a run ends, until the station closes: each one answered 202 ``queued`` has a
     status in the run's record (carried out on a tick, or refused as the run has ended), and after the
     run's loop ended the answer is 409. (Commands accepted in the ~40 ms between the last tick and the
-    summary were answered 202 and then neither carried out nor logged.)"""
+    summary were answered 202 and then neither carried out nor logged.) The run is paced (at most 4× real
+    time): unpaced, its second after the slew's start took ~30 ms of wall time, which a loaded machine's
+    HTTP round trips could miss entirely (CI once had no command queued)."""
     sc = quick_scenario()
     queued: list[int] = []
     answers: list[int] = []
     with GroundStation.live(bind="127.0.0.1:0") as station:
-        runner = RunInThread(sc, RunOptions(out_root=tmp_path, duration_s=1.0), station)
+        runner = RunInThread(sc, RunOptions(out_root=tmp_path, duration_s=1.0, pace=4.0), station)
         runner.wait_event(lambda e: e["kind"] == "slew_start", what="the slew's start")
         while runner.thread.is_alive():
             status, answer = command(station, {"command": "hold"})
