@@ -32,9 +32,11 @@ from typing import IO, Any
 
 from protocol.errors import ConfigError, HilError, InputFormatError
 
-CHUNK_BYTES = 1 << 20
+CHUNK_BYTES = 1 << 18
 """Bytes read from a stream at once: with one partial line (:data:`MAX_LINE_BYTES`), the most a line
-reader holds."""
+reader holds. A piece's lines are held as a batch, ~100 bytes of objects each when they are empty: at 1 MiB
+a piece of blank lines took ~100 MB to read (a CI run's hostile-file property, over its 96 MB bound); at
+256 KiB, ~28 MB."""
 MAX_LINE_BYTES = 1 << 20
 """The longest line a text file may have (1 MiB; a sensor log's lines are under 200 bytes, a run's
 telemetry rows a few kB): a longer one is binary data or a file without line breaks."""
