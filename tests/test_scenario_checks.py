@@ -7,6 +7,7 @@ import dataclasses
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from firmware_sim.board.config import BoardConfig
@@ -60,6 +61,15 @@ BASE = "[scenario]\nname='x'\n"
         ("[faults]\ndead_esc=['1@-3']\n", "x.toml: faults.dead_esc", "not a time"),
         ("[faults]\ncorrupt=1.5\n", "x.toml: faults.corrupt", "probability"),
         ("[faults]\nfault_direction='up'\n", "x.toml: faults.fault_direction", "rx, tx, both"),
+        # the host's setpoints feed the board's link watchdog: a control period that is not within the
+        # link timeout is a run whose board fails safe between commands (it ran, and was lost, before)
+        ("[controller]\ncontrol_rate_hz=4\n", "x.toml: controller.control_rate_hz", "link timeout of 0.25"),
+        ("[controller]\ncontrol_rate_hz=1\n", "x.toml: controller.control_rate_hz", "every 1 s"),
+        (
+            "[controller]\ncontrol_rate_hz=10\n[board]\nlink_timeout=0.05\n",
+            "x.toml: controller.control_rate_hz",
+            "board.link_timeout",
+        ),
     ],
 )
 def test_values_the_parts_cannot_take_are_refused_naming_file_and_key(text, where, detail):
@@ -94,10 +104,14 @@ def test_the_scenario_board_ranges_are_the_boards_own(key):
             return False
         return True
 
+    # a control period within the shortest link timeout the board takes (0.01 s), at a frame rate that
+    # keeps up with it (both checked by the reader)
+    rate, frames = (200, "frame_rate=200\n") if key == "link_timeout" else (10, "")
+
     def scenario_takes(value: float) -> bool:
         try:
             parse_scenario(
-                BASE + f"[controller]\ncontrol_rate_hz=10\n[board]\n{key}={value!r}\n", Path("x.toml")
+                BASE + f"[controller]\ncontrol_rate_hz={rate}\n[board]\n{frames}{key}={value!r}\n", Path("x.toml")
             )
         except ConfigError as exc:
             assert exc.where == f"x.toml: board.{key}"
@@ -191,3 +205,30 @@ def test_a_dispersed_sensor_rate_below_1_hz_is_a_run_the_model_refuses():
     with pytest.raises(ConfigError, match="1 Hz or more"):
         SensorSpec(rate_hz=5e-324, noise=0.0, bias=0.0)
     assert SensorSpec(rate_hz=1.0, noise=0.0, bias=0.0, jitter_s=0.0).rate_hz == 1.0
+
+
+def test_the_scenario_link_timeout_default_is_the_boards():
+    from hil.scenario.reader import DEFAULT_LINK_TIMEOUT_S
+
+    assert DEFAULT_LINK_TIMEOUT_S == BoardConfig().link_timeout_s
+
+
+def test_a_slow_control_rate_within_a_longer_link_timeout_is_a_scenario():
+    doc = BASE + "[controller]\ncontrol_rate_hz=2\n[board]\nlink_timeout=1.0\n"
+    assert parse_scenario(doc, Path("x.toml")).loop.control_rate_hz == 2.0
+
+
+@pytest.mark.parametrize("key", ["noise", "bias", "jitter_s", "offset_s"])
+def test_a_negative_zero_sensor_figure_is_zero_and_the_phone_samples(key):
+    """``-0.0`` lies within ``0..`` but numpy's samplers refuse it as a scale ("scale < 0", a traceback
+    from the run before): every sensor's figure is held as +0.0, and the world's phone samples with it."""
+    from firmware_sim.world.models.phone import BodyPhone
+
+    doc = BASE + "".join(f"[sensors.{kind}]\n{key} = -0.0\n" for kind in ("gyr", "acc", "mag"))
+    phone = parse_scenario(doc, Path("x.toml")).phone
+    for kind in (phone.gyr, phone.acc, phone.mag):
+        value = getattr(kind, key)
+        assert value == 0.0 and str(value) == "0.0"
+    path = np.array([np.concatenate([[t], np.eye(3).ravel(), np.zeros(3)]) for t in np.arange(0.0, 0.2, 0.001)])
+    samples = BodyPhone(phone, seed=3).sample_path(path)
+    assert samples and all(np.all(np.isfinite(s.xyz)) for s in samples)

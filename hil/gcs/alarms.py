@@ -28,13 +28,13 @@ from typing import Any
 
 from hil.runtime import faults as runtime_faults
 from hil.scenario import Scenario
+from hil.scenario.reader import DEFAULT_LINK_TIMEOUT_S
 from protocol.messages import BoardState
 
 HYSTERESIS = 0.05
 """An alarm clears this fraction of its threshold back inside the limit."""
 
 DEFAULT_CELLS = 3  # the board's battery cells when the scenario does not say (firmware_sim BatteryParams)
-DEFAULT_LINK_TIMEOUT_S = 0.25  # the board's link watchdog when the scenario does not say (BoardConfig)
 WARN_V_CELL = 3.50  # V per cell: the board's power state goes WARN below this (PowerThresholds.warn_v_cell)
 SHED_V_CELL = 3.30  # V per cell: the board sheds the rotors below this (PowerThresholds.shed_v_cell)
 BROWNOUT_V = 4.30  # V on the UBEC rail: the MCU's brown-out detector resets it (PowerThresholds.brownout_v)

@@ -44,6 +44,9 @@ class SensorSpec:
     offset_s: float = 0.0
 
     def __post_init__(self) -> None:
+        for name in ("rate_hz", "noise", "bias", "jitter_s", "offset_s"):
+            # -0.0 passes ">= 0" but numpy's samplers refuse it as a scale ("scale < 0"): held as 0.0
+            object.__setattr__(self, name, getattr(self, name) + 0.0)
         if not (self.rate_hz >= MIN_RATE_HZ and self.noise >= 0 and self.bias >= 0 and self.jitter_s >= 0):
             raise ConfigError(
                 f"invalid sensor figures {self!r} (a rate of {MIN_RATE_HZ:g} Hz or more; noise, bias and "

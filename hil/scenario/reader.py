@@ -89,6 +89,9 @@ BOARD_RANGES: dict[str, tuple[float, float, type]] = {
 """The board options a scenario may set (firmware-sim's spelling) and their ranges, checked here so an
 error names the scenario's file and key; the board's own check (``firmware_sim.board.config.BoardConfig``)
 agrees (tests/test_scenario_checks.py)."""
+DEFAULT_LINK_TIMEOUT_S = 0.25
+"""The board's link watchdog (s) when a scenario's ``[board]`` does not set ``link_timeout``
+(``firmware_sim.board.config.BoardConfig``'s default; tests/test_scenario_checks.py holds them equal)."""
 MAX_DURATION_S = 86_400.0
 """The longest run a scenario may ask for, warm-up included (a day of simulated time)."""
 MAX_PLANT_STEPS = 100_000_000
@@ -263,6 +266,15 @@ class _Reader:
         if frame_rate < loop.control_rate_hz:
             raise self.error(
                 "board.frame_rate", "must be at least controller.control_rate_hz (firmware-sim's default: 50)"
+            )
+        link_timeout = float(board.get("link_timeout", DEFAULT_LINK_TIMEOUT_S))
+        if 1.0 / loop.control_rate_hz >= link_timeout:
+            # the host's setpoints are what feed the board's link watchdog: one per control period
+            raise self.error(
+                "controller.control_rate_hz",
+                f"{loop.control_rate_hz:g} Hz sends the board a command every {1.0 / loop.control_rate_hz:g} s, "
+                f"not within its link timeout of {link_timeout:g} s (board.link_timeout): the board would fail "
+                "safe between commands; raise the rate or the timeout",
             )
         return Scenario(
             name=name,
