@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+from hil.cli.run import seconds
 from hil.scenario.fault_specs import (
     MAX_SAG_OHMS,
     parse_dead_esc,
@@ -26,6 +27,9 @@ from hil.scenario.fault_specs import (
     parse_time,
 )
 from protocol.errors import ConfigError, HilError, LinkError
+
+DEFAULT_UNITS = 4
+"""VSCMG units of a board without ``--units`` or ``--world``."""
 
 if TYPE_CHECKING:
     from .avr.harness import HarnessDied
@@ -86,7 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
         "-v", "--verbose", action="count", default=0, help="debug log (default: state changes, faults)"
     )
     p.add_argument("--link", metavar="PATH", help="keep a symlink at PATH pointing at the pty")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: run until ^C)")
+    p.add_argument("--duration", type=seconds, metavar="S", help="stop after S seconds (default: run until ^C)")
     p.add_argument(
         "--avr",
         nargs="?",
@@ -130,7 +134,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="do not hold the pty's slave side open (the master then sees EIO while no host is on)",
     )
     b = p.add_argument_group("board")
-    b.add_argument("--units", type=int, default=4, metavar="N", help="VSCMG units, 1..8 (default 4)")
+    b.add_argument(
+        "--units",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"VSCMG units, 1..8 (default {DEFAULT_UNITS}; with --world the scenario's)",
+    )
     b.add_argument(
         "--frame-rate", type=float, default=50.0, metavar="HZ", help="pulse frame rate, 50..490 Hz"
     )
@@ -258,7 +268,7 @@ def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     from .board.config import BatteryParams, BoardConfig, PowerConfig
 
     return BoardConfig(
-        n_units=args.units,
+        n_units=DEFAULT_UNITS if args.units is None else args.units,
         frame_rate_hz=args.frame_rate,
         telemetry_rate_hz=args.telemetry_rate,
         heartbeat_rate_hz=args.heartbeat_rate,
@@ -438,8 +448,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             from hil.scenario import load_scenario
 
             scenario = load_scenario(args.world)
+            if args.units is not None and args.units != scenario.n_units:  # it was silently overridden
+                raise ConfigError(
+                    f"--units {args.units}, but the world {args.world} has {scenario.n_units} units (--world "
+                    "sets them: leave --units out)",
+                    "firmware-sim --units",
+                )
             args.units = scenario.n_units
             args.phone = phone_url(args.phone)
+        elif args.units is None:
+            args.units = DEFAULT_UNITS
         server: BoardServer
         if args.avr is not None and args.world is None and args.can is None:
             from .avr.serve import server_from_args

@@ -59,12 +59,27 @@ def test_help_teaches_by_example(capsys):
             ["--avr", "--world", "cubesat-1u", "--unplug", "3:1"],
             "unplug: not available with the firmware board",
         ),
+        # the world sets the units: a different --units was silently replaced by the scenario's
+        (["--world", "cubesat-1u", "--units", "3"], "the world cubesat-1u has 4 units"),
     ],
 )
 def test_bad_options_are_clear_errors(argv, where, capsys):
-    assert main(argv + ["--duration", "0"]) == 2
+    assert main(argv + ["--duration", "0.01"]) == 2
     err = capsys.readouterr().err
     assert "firmware-sim: error:" in err and where in err
+
+
+@pytest.mark.parametrize("duration", ["0", "-0.0", "-5", "nan", "inf", "1e999"])
+def test_a_duration_that_is_not_a_finite_positive_time_is_refused(duration, capsys):
+    """``--duration 0`` or below served nothing and said it stopped; ``nan`` and ``inf`` served forever."""
+    with pytest.raises(SystemExit) as exc:
+        main(["--duration", duration])
+    assert exc.value.code == 2
+    assert "--duration: must be a finite number of seconds > 0" in capsys.readouterr().err
+
+
+def test_the_worlds_own_units_may_be_given_again():
+    assert main(["--world", "cubesat-1u", "--units", "4", "--duration", "0.01"]) == 0
 
 
 def test_fault_specs_parse():
