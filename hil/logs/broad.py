@@ -4,6 +4,11 @@ Keys: ``imu_gyr`` (N, 3) rad/s, ``imu_acc`` (N, 3) m/s², ``imu_mag`` (N, 3) µT
 truth ``[w, x, y, z]`` sensor → ENU, ``movement`` (N,) the samples BROAD evaluates, ``sampling_rate`` (Hz).
 All sensors share one clock: sample k at k / sampling_rate. NaN ground-truth rows (occlusions) are kept
 and not evaluated. The IMU is a research IMU, not a phone, but its axes are used as the body frame as is.
+
+A ``.mat`` file is whatever MATLAB (or ``scipy.io.savemat``) was given: every variable is checked for what
+the reader needs — real numbers (not text, cells or complex values), the shape above, one sampling rate
+within :data:`~hil.logs.matfile.RATE_HZ` — and anything else is an :class:`InputFormatError` naming the
+variable, never a NumPy error from deep inside the reader.
 """
 
 from __future__ import annotations
@@ -12,12 +17,15 @@ import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.matfile import load_mat, mat_variables
+from hil.logs.matfile import load_mat, mat_variables, one_rate, real_array
 from hil.logs.table import Container
 from protocol.errors import InputFormatError
 
 NAME = "broad"
 _KEYS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "movement", "sampling_rate")
+QUAT_NORM = (0.5, 2.0)
+"""The norms a finite ground-truth quaternion may have (BROAD's are 1 to 1e-15): a row of zeros (or any
+other non-rotation) is an error naming it, not a rotation made up by normalising it."""
 
 
 def detect(c: Container) -> bool:
@@ -34,26 +42,37 @@ def read(c: Container) -> SensorLog:
     missing = [k for k in _KEYS if k not in mat]
     if missing:
         raise InputFormatError(f"missing {', '.join(missing)}", where, None, missing[0])
-    rate = float(np.asarray(mat["sampling_rate"]).reshape(-1)[0])
-    n = np.asarray(mat["imu_gyr"]).shape[0]
+    rate = one_rate(mat["sampling_rate"], "sampling_rate", where)
+    arrays = {key: real_array(mat[key], key, where) for key in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat")}
+    n = arrays["imu_gyr"].shape[0] if arrays["imu_gyr"].ndim else 0
     for key, width in (("imu_gyr", 3), ("imu_acc", 3), ("imu_mag", 3), ("opt_quat", 4)):
-        if np.asarray(mat[key]).shape != (n, width):
-            raise InputFormatError(
-                f"shape {np.asarray(mat[key]).shape}, expected ({n}, {width})", where, None, key
-            )
-    if not rate > 0:
-        raise InputFormatError(f"sampling rate {rate!r}", where, None, "sampling_rate")
+        if arrays[key].shape != (n, width):
+            raise InputFormatError(f"shape {arrays[key].shape}, expected ({n}, {width})", where, None, key)
+    movement = real_array(mat["movement"], "movement", where).reshape(-1)
+    if movement.shape != (n,):
+        raise InputFormatError(
+            f"{movement.size} values, expected one per sample ({n})", where, None, "movement"
+        )
     c.count_samples(3 * n, where, None)
     t = np.arange(n) / rate
     streams = {
-        SensorKind.GYR: SensorStream(SensorKind.GYR, t, mat["imu_gyr"]),
-        SensorKind.ACC: SensorStream(SensorKind.ACC, t, mat["imu_acc"]),
-        SensorKind.MAG: SensorStream(SensorKind.MAG, t, mat["imu_mag"]),
+        SensorKind.GYR: SensorStream(SensorKind.GYR, t, arrays["imu_gyr"]),
+        SensorKind.ACC: SensorStream(SensorKind.ACC, t, arrays["imu_acc"]),
+        SensorKind.MAG: SensorStream(SensorKind.MAG, t, arrays["imu_mag"]),
     }
-    quat = np.asarray(mat["opt_quat"], dtype=float)
+    quat = arrays["opt_quat"]
     finite = np.all(np.isfinite(quat), axis=1)
+    norms = np.linalg.norm(np.where(finite[:, None], quat, 1.0), axis=1)
+    bad = finite & ~((norms >= QUAT_NORM[0]) & (norms <= QUAT_NORM[1]))
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise InputFormatError(
+            f"sample {row}: a quaternion of norm {norms[row]:.3g} is no rotation ({int(bad.sum())} rows)",
+            where,
+            None,
+            "opt_quat",
+        )
     r = np.full((n, 3, 3), np.nan)
     r[finite] = so3.quat_to_matrix(quat[finite])
-    movement = np.asarray(mat["movement"]).reshape(-1).astype(bool)
-    truth = Truth(t, r, movement & finite)
+    truth = Truth(t, r, (movement != 0) & finite)
     return SensorLog(streams, where, NAME, truth, (f"BROAD trial at {rate:g} Hz; evaluated on 'movement'",))

@@ -17,7 +17,9 @@ import struct
 import zlib
 from typing import Any
 
+import numpy as np
 import scipy.io
+from numpy.typing import NDArray
 
 from hil.files.bounded import CHUNK_BYTES, MAX_COMPRESSION_RATIO, RATIO_GRACE_BYTES
 from hil.logs.table import Container
@@ -99,3 +101,40 @@ def mat_variables(c: Container, name: str) -> list[tuple[str, tuple[int, ...], s
         return []
     except Exception:  # noqa: BLE001 — detection: a file SciPy cannot list is not this format
         return []
+
+
+RATE_HZ = (1.0, 10_000.0)
+"""The sample and frame rates a ``.mat`` file may state (Hz): BROAD's IMU samples at 285.714, Qualisys
+records at 60; an IMU or a motion-capture system runs at tens of Hz to a few kHz. A rate outside — 0, inf,
+NaN, 1e300 — would put every sample at one instant (or at NaN, or days apart) and leave nothing
+evaluated, silently."""
+_REAL = "biuf"
+"""NumPy dtype kinds that are real numbers: booleans, integers, floats (not text, objects or complex)."""
+
+
+def real_array(value: Any, key: str, where: str) -> NDArray[np.float64]:
+    """A ``.mat`` variable as an array of floats, or :class:`InputFormatError` naming ``key`` when it holds
+    no real numbers (text, a cell array or struct, complex values: ``float()`` of them raises, or drops the
+    imaginary part with only a warning). A ``.mat`` file is whatever MATLAB or ``scipy.io.savemat`` was
+    given, so every variable is checked before a reader computes with it."""
+    array = np.asarray(value)
+    if array.dtype.kind not in _REAL:
+        what = {"U": "text", "S": "text", "O": "a cell array or struct", "c": "complex numbers"}
+        raise InputFormatError(
+            f"holds {what.get(array.dtype.kind, array.dtype.name)}, expected real numbers", where, None, key
+        )
+    return array.astype(float)
+
+
+def one_rate(value: Any, key: str, where: str) -> float:
+    """The one rate (Hz) the variable ``key`` holds, within :data:`RATE_HZ`; :class:`InputFormatError`
+    naming ``key`` otherwise (none, several, text, 0, inf, NaN, 1e300)."""
+    rates = real_array(value, key, where).reshape(-1)
+    if rates.size != 1:
+        raise InputFormatError(f"{rates.size} values, expected one", where, None, key)
+    rate = float(rates[0])
+    if not RATE_HZ[0] <= rate <= RATE_HZ[1]:
+        raise InputFormatError(
+            f"rate {rate!r} Hz is outside {RATE_HZ[0]:g}-{RATE_HZ[1]:g} Hz", where, None, key
+        )
+    return rate

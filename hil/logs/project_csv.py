@@ -41,7 +41,7 @@ _COLUMNS = HEADER.split(",")
 
 def detect(c: Container) -> bool:
     names = c.names()
-    if len(names) != 1 or not names[0].lower().endswith(".csv"):
+    if len(names) != 1 or not names[0].lower().endswith((".csv", ".csv.gz")):  # gzipped: read decompressed
         return False
     head = c.head(names[0], 5)
     return bool(head) and (head[0].startswith(MAGIC) or HEADER in head)

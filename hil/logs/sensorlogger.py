@@ -17,11 +17,13 @@ no gravity direction and is refused. Gyroscope and magnetometer: the calibrated 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns
-from hil.logs.table import Container, Table, read_table, sniff_dialect, split_header
+from hil.logs.table import Container, Table, read_table, sniff_dialect, split_header, text_lines
 from protocol.errors import InputFormatError
 
 NAME = "sensorlogger"
@@ -54,20 +56,33 @@ def members(c: Container) -> dict[str, str] | None:
     folders: set[str] = set()
     for member in sorted(c.names()):
         folder, _, base = member.rpartition("/")
-        name = lower.get(base.lower())
+        name = lower.get(_plain(base).lower())
         if name is not None and name not in found:
             found[name] = member
             folders.add(folder)
     return found if len(folders) <= 1 else None
 
 
+def _plain(base: str) -> str:
+    """A member's file name without a ``.gz`` (a file gzipped by hand or by a backup tool:
+    :class:`~hil.logs.table.Container` decompresses it as it reads)."""
+    return base[:-3] if base.lower().endswith(".gz") else base
+
+
 def detect(c: Container) -> bool:
-    files = members(c)
+    """Whether ``c`` is a Sensor Logger export, told by the header of its first sensor file that has one.
+    An empty file (a sensor the app wrote nothing for, a copy cut short) says nothing either way: the
+    next one is asked, and :func:`read` names the empty one if it is needed — rather than the export
+    going unrecognised and its other files being offered as logs of their own."""
+    files = members(c) or {}
     for name in (*GYR_FILES, *ACC_FILES, *MAG_FILES):
-        if files and name in files:
-            head = [line for line in c.head(files[name], 3) if line.strip()]
-            cells = [x.lower() for x in split_header(head[0], sniff_dialect(head)[0])] if head else []
-            return "seconds_elapsed" in cells or ("time" in cells and any(" x (" in x for x in cells))
+        if name not in files:
+            continue
+        head = [line for line in c.head(files[name], 3) if line.strip()]
+        if not head:
+            continue
+        cells = [x.lower() for x in split_header(head[0], sniff_dialect(head)[0])]
+        return "seconds_elapsed" in cells or ("time" in cells and any(" x (" in x for x in cells))
     return False
 
 
@@ -78,7 +93,10 @@ def _table(
     in its own dialect (a spreadsheet's re-save may use semicolons and decimal commas). A row whose
     ``time`` is no number (NaN, or beyond int64) has NaN readings: a NaN sample, dropped and counted by
     the merge. A file with no rows is an InputFormatError naming it when ``required``."""
-    delimiter, decimal_comma = sniff_dialect([line for line in c.head(member, 8) if line.strip()])
+    head = [line for line in c.head(member, 8) if line.strip()]
+    delimiter, decimal_comma = sniff_dialect(head)
+    cells = split_header(head[0], delimiter) if head else []
+    time_name = next((cell for cell in cells if cell.lower() == "time"), "time")
     table = read_table(
         c,
         member,
@@ -86,11 +104,12 @@ def _table(
         header=True,
         decimal_comma=decimal_comma,
         min_columns=4,
-        exact_columns=("time",),
+        exact_columns=(time_name,),
     )
+    table = _clock_names_lowered(table)
     if required and not len(table.data):
         raise InputFormatError("no samples (a header only)", table.source)
-    kind = _KIND[member.rpartition("/")[2].lower()]
+    kind = _KIND[_plain(member.rpartition("/")[2]).lower()]
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=_TIME)
     xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
     times: np.ndarray
@@ -110,6 +129,15 @@ def _table(
             table.header_line,
         )
     return times, xyz
+
+
+def _clock_names_lowered(table: Table) -> Table:
+    """``table`` with its clock columns named as the app names them (``TIME``, ``Seconds_Elapsed`` →
+    ``time``, ``seconds_elapsed``): :func:`detect` reads a header whatever its letter case (a spreadsheet
+    or script that re-saved the export may change it), so the reader must find the same columns."""
+    columns = tuple(col.lower() if col.lower() in _TIME else col for col in table.columns)
+    exact = {name.lower(): values for name, values in table.exact.items()}
+    return replace(table, columns=columns, exact=exact)
 
 
 def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -155,6 +183,15 @@ _KIND = {n.lower(): SensorKind.GYR for n in GYR_FILES} | {n.lower(): SensorKind.
 _KIND |= {n.lower(): SensorKind.ACC for n in (*ACC_FILES, "Gravity.csv")}
 
 
+def _holds_nothing(c: Container, member: str) -> bool:
+    """Whether the member has no line but blank ones (0 bytes: the app wrote nothing for that sensor).
+    Streamed, and stopped at the first line with content."""
+    for _, lines in text_lines(c, member):
+        if any(line.strip() for line in lines):
+            return False
+    return True
+
+
 def _first(files: dict[str, str], names: tuple[str, ...]) -> str | None:
     return next((n for n in names if n in files), None)
 
@@ -177,6 +214,10 @@ def read(c: Container) -> SensorLog:
     for kind, name in ((SensorKind.GYR, gyr), (SensorKind.MAG, mag)):
         if name is None:
             continue
+        if kind is SensorKind.MAG and _holds_nothing(c, files[name]):  # as a header only, below
+            notes.append(f"{name} is empty: 6-axis log, heading not observed")
+            mag = None
+            continue
         times, xyz = _table(c, files[name], notes, required=kind is SensorKind.GYR)
         if not len(times):  # a magnetometer file with a header only
             notes.append(f"{name} has no samples: 6-axis log, heading not observed")
@@ -190,7 +231,9 @@ def read(c: Container) -> SensorLog:
     parts[SensorKind.ACC] = _accelerometer(c, files, notes)
     if "Metadata.csv" in files and "ios" in c.text(files["Metadata.csv"]).lower():
         notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
-    if any(m != name for name, m in files.items()):
+    if any(m.rpartition("/")[2] != _plain(m.rpartition("/")[2]) for m in files.values()):
+        notes.append("the export's files are gzipped (.csv.gz): read decompressed")
+    if any(_plain(m) != name for name, m in files.items()):
         folder = next(iter(files.values())).rpartition("/")[0]
         notes.append(f"the export's files read from {folder or 'the top'} (names matched ignoring case)")
     epoch = {k: t.dtype.kind == "i" for k, (t, _) in parts.items()}

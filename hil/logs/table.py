@@ -23,6 +23,7 @@ import io
 import os
 import warnings
 import zipfile
+import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -163,7 +164,7 @@ class Container:
                 packed = None
         except (OSError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
             raise InputFormatError(f"cannot read ({exc})", where) from None
-        if name.endswith(".gz"):
+        if name.lower().endswith(".gz"):
             if packed is None:
                 packed = _size(inner) if archive is None else archive.getinfo(inner).file_size
             raw = gzip.GzipFile(fileobj=raw)  # type: ignore[assignment]
@@ -229,11 +230,16 @@ def _size(path: str) -> int:
         return 0
 
 
+_DAMAGED = (OSError, EOFError, zipfile.BadZipFile, gzip.BadGzipFile, zlib.error)
+"""What reading a damaged member raises: a bad CRC, a truncated stream, and — from inside ``gzip`` and
+``zipfile`` — ``zlib.error`` for a deflate stream whose bytes are corrupt (a bit flipped in a ``.gz``)."""
+
+
 def _guarded(read: Callable[[], bytes], where: str) -> bytes:
-    """``read()``, a damaged member (bad CRC, truncated deflate or gzip stream) an InputFormatError."""
+    """``read()``, a damaged member (:data:`_DAMAGED`) an InputFormatError."""
     try:
         return read()
-    except (OSError, EOFError, zipfile.BadZipFile, gzip.BadGzipFile) as exc:
+    except _DAMAGED as exc:
         raise InputFormatError(f"damaged ({exc})", where) from None
 
 
@@ -243,7 +249,7 @@ def _guarded_iter(batches: Iterator[list[bytes | None]], where: str) -> Iterator
             batch = next(batches)
         except StopIteration:
             return
-        except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        except _DAMAGED as exc:
             raise InputFormatError(f"damaged ({exc})", where) from None
         yield batch
 

@@ -16,10 +16,12 @@ NaN frames are occlusions (kept, not evaluated). Evaluation follows the benchmar
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.matfile import load_mat
+from hil.logs.matfile import load_mat, one_rate
 from hil.logs.table import Container, read_table
 from protocol.errors import InputFormatError
 
@@ -76,16 +78,24 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     if c.has("timeAlignment.txt"):
         table = read_table(c, "timeAlignment.txt", None, header=False)
         offset = float(table.data[0, 0])
+        if not math.isfinite(offset):
+            raise InputFormatError(
+                f"the clock offset {offset!r} is no number of seconds", table.source, None, "col0"
+            )
     else:
         notes.append("no timeAlignment.txt: motion-capture and phone clocks taken as equal")
     mat = load_mat(c, "qualisys.mat", squeeze_me=True, struct_as_record=False)
     keys = [k for k in mat if not k.startswith("__")]
     try:
         qtm = mat[keys[0]]
-        rate = float(qtm.FrameRate)
-        rot = np.asarray(qtm.RigidBodies.Rotations, dtype=float)
+        frame_rate, rotations = qtm.FrameRate, qtm.RigidBodies.Rotations
     except (IndexError, AttributeError) as exc:
         raise InputFormatError(f"not a QTM export with RigidBodies.Rotations ({exc})", where) from None
+    rate = one_rate(frame_rate, "FrameRate", where)
+    try:
+        rot = np.asarray(rotations, dtype=float)
+    except (ValueError, TypeError) as exc:  # text or cells where numbers belong
+        raise InputFormatError(f"holds no real numbers ({exc})", where, None, "Rotations") from None
     rot = rot.reshape(-1, 9, rot.shape[-1])[0] if rot.ndim == 3 else rot
     if rot.shape[0] != 9:
         raise InputFormatError(
