@@ -226,6 +226,34 @@ def test_hil_montecarlo_bounds_its_other_numbers(capsys, tmp_path, option, value
     assert not (tmp_path / "mc").exists()
 
 
+def test_hil_montecarlo_workers_are_bounded_by_this_machines_cores(capsys, tmp_path):
+    """1 000 workers asked of a 2-core machine took minutes to start (and could exhaust its memory)."""
+    from hil.cli.montecarlo import WORKERS_PER_CORE
+    from hil.cores import available_cores
+
+    too_many = str(WORKERS_PER_CORE * available_cores() + 1)
+    argv = ["montecarlo", "cubesat-1u", "--runs", "2", "--workers", too_many, "--out", str(tmp_path / "mc")]
+    line = one_line_error(capsys, argv)
+    assert f"--workers: must be an integer in 1..{WORKERS_PER_CORE * available_cores()}" in line
+    assert f"this machine's {available_cores()}" in line and "--scheduler" in line
+
+
+@pytest.mark.parametrize(
+    ("runs", "batch", "workers", "expected"),
+    [(1, 4, 8, 1), (9, 4, 8, 3), (100, 4, 2, 2), (8, 1, None, None), (3, 4, None, 1)],
+)
+def test_a_local_cluster_has_no_more_workers_than_the_campaign_has_tasks(runs, batch, workers, expected):
+    import argparse
+
+    from hil.cli.montecarlo import local_workers
+    from hil.cores import available_cores
+
+    args = argparse.Namespace(runs=runs, batch=batch, workers=workers, scheduler=None)
+    want = expected if expected is not None else min(available_cores(), -(-runs // batch))
+    assert local_workers(args) == want
+    assert local_workers(argparse.Namespace(runs=runs, batch=batch, workers=None, scheduler="tcp://x:1")) is None
+
+
 def test_hil_montecarlo_duration_is_bounded_by_the_run_length(capsys, tmp_path):
     argv = ["montecarlo", "cubesat-1u", "--runs", "2", "--duration", "1e9", "--out", str(tmp_path / "mc")]
     line = one_line_error(capsys, argv)

@@ -72,7 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--scheduler", metavar="ADDRESS", help="a running Dask scheduler (default: a LocalCluster)"
     )
     p.add_argument(
-        "--workers", type=int, metavar="W", help="LocalCluster worker processes (default: all cores)"
+        "--workers", type=int, metavar="W", help="LocalCluster worker processes (default: all cores; at most 4 a core, and no more than the runs' tasks)"
     )
     p.add_argument(
         "--batch", type=int, default=4, metavar="B", help="runs per Dask task, one after another (4)"
@@ -159,28 +159,50 @@ def closing_line(report: CampaignReport) -> str:
     )
 
 
-MAX_WORKERS = 4096
-"""The most LocalCluster worker processes ``--workers`` may ask for."""
+WORKERS_PER_CORE = 4
+"""The most LocalCluster worker processes ``--workers`` may ask for, per core this process may use: a
+run is CPU-bound, so workers beyond the cores only share them, while each holds its own interpreter and
+kernels (~150 MB) and takes its turn to start — 1 000 asked of a 2-core machine took minutes only to
+start, and could exhaust its memory. A Dask scheduler (``--scheduler``) spreads a campaign further."""
 MAX_SEED = 2**63 - 1
 
 
 def check_options(args: argparse.Namespace) -> None:
     """The numbers on the command line within their documented bounds (``--runs`` 1..10⁷, ``--batch``
-    1..10⁴, ``--workers`` 1..4096, ``--seed`` 0..2⁶³−1), before anything is read or started: one
-    :class:`ConfigError` naming the option."""
+    1..10⁴, ``--workers`` 1..:data:`WORKERS_PER_CORE` × the cores, ``--seed`` 0..2⁶³−1), before anything
+    is read or started: one :class:`ConfigError` naming the option."""
+    from hil.cores import available_cores
     from hil.montecarlo.campaign import MAX_BATCH, MAX_RUNS
     from protocol.errors import ConfigError
 
+    cores = available_cores()
     bounds = {
-        "runs": (1, MAX_RUNS),
-        "batch": (1, MAX_BATCH),
-        "workers": (1, MAX_WORKERS),
-        "seed": (0, MAX_SEED),
+        "runs": (1, MAX_RUNS, ""),
+        "batch": (1, MAX_BATCH, ""),
+        "workers": (
+            1,
+            WORKERS_PER_CORE * cores,
+            f" ({WORKERS_PER_CORE} a core on this machine's {cores}: more only share the cores; "
+            "a Dask scheduler, --scheduler, spreads further)",
+        ),
+        "seed": (0, MAX_SEED, ""),
     }
-    for name, (lo, hi) in bounds.items():
+    for name, (lo, hi, why) in bounds.items():
         value = getattr(args, name)
         if value is not None and not lo <= value <= hi:
-            raise ConfigError(f"must be an integer in {lo}..{hi}, got {value}", f"--{name}")
+            raise ConfigError(f"must be an integer in {lo}..{hi}, got {value}{why}", f"--{name}")
+
+
+def local_workers(args: argparse.Namespace) -> int | None:
+    """The LocalCluster's worker processes: ``--workers`` (default: one per core), but no more than the
+    campaign has tasks (``--runs`` over ``--batch``) — a worker with nothing to run only costs its start;
+    None with ``--scheduler`` (its workers are its own)."""
+    from hil.cores import available_cores
+
+    if args.scheduler is not None:
+        return args.workers  # refused beside a scheduler by open_client, naming it
+    tasks = -(-args.runs // args.batch)
+    return min(args.workers if args.workers is not None else available_cores(), tasks)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -215,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
         args.trace_hz,
     )
     bar = ProgressBar()
-    with open_client(args.scheduler, args.workers) as client:
+    with open_client(args.scheduler, local_workers(args)) as client:
         out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
         where = f"scheduler {args.scheduler}" if args.scheduler else "a local cluster"
         print(
