@@ -28,6 +28,16 @@ seen at the first handshake is reported too (``during_session=False``).
 (default: twice the board's pulse frame rate, so a loop at the frame rate is never held back by jitter);
 one that comes sooner waits for its slot and is replaced by any newer one (counted as coalesced).
 
+**Hostile but well-formed frames** are dropped, counted (:class:`SessionCounters`) and logged at most once
+a second (``DROP_WARN_EVERY_S``, saying how many more since), never taken as the board's word: a
+``Telemetry`` that does not fit the board that answered the handshake (another number of units or pulse
+channels: the calibration tools index them by unit and channel), one identical to the telemetry already
+held (a frame repeated by a stuck transmitter or replayed: taken, it would make old telemetry look live),
+and a ``Telemetry`` or ``Heartbeat`` whose uptime or frame count leapt ahead of what the board could have
+reached (:mod:`.leaps`: taken as the reference, the next honest sample looked like a reset). The board's
+``Log`` frames are all reported as events, but logged at most ``BOARD_LOGS_PER_S`` a second (a board
+flooding its log must not bury the host's own warnings); the rest are counted.
+
 Its configuration, :class:`ClientConfig`, is in :mod:`.config`; the calibration transfers' state
 (:class:`Download`, fragments, reassembly) in :mod:`.transfers`. Both are re-exported here.
 """
@@ -91,6 +101,7 @@ from .events import (
     StateEvent,
     TelemetryEvent,
 )
+from .leaps import LeapCheck
 from .stats import RttRing, SessionCounters
 from .transfers import CalibrationTransfers, Download
 
@@ -99,6 +110,10 @@ __all__ = ["HOST_IDENTITY", "ClientConfig", "Download", "PendingReset", "Phase",
 logger = logging.getLogger(__name__)
 
 _U32 = 1 << 32
+DROP_WARN_EVERY_S = 1.0
+"""Host time (s) between two warnings about dropped board frames (the rest are counted, then summed)."""
+BOARD_LOGS_PER_S = 20
+"""The board's ``Log`` frames logged per second of host time; beyond, counted (``board_logs_unlogged``)."""
 _LOG_LEVELS = {
     Severity.DEBUG: logging.DEBUG,
     Severity.INFO: logging.INFO,
@@ -163,6 +178,13 @@ class Session:
         self._setpoint_slot = -math.inf
         self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
         self._transfers = CalibrationTransfers()
+        self._leaps = LeapCheck()
+        self._telemetry_seq: int | None = None  # the sequence number of the telemetry held
+        self._next_drop_warning = -math.inf
+        self._drops_unlogged = 0
+        self._log_window = -math.inf  # host time the current second of logged board logs began
+        self._logs_in_window = 0
+        self._logs_unlogged = 0  # board logs not logged since the last one that was
         self._auto: dict[int, str] = {}  # id(Command) -> why the session sent it on its own
         self._receive: dict[type[Message], Callable[[Frame, float], None]] = {
             cls: MethodType(receive, self) for cls, receive in RECEIVE.items()
@@ -311,9 +333,33 @@ class Session:
 
     def _on_telemetry(self, frame: Frame, now: float) -> None:
         msg: Telemetry = frame.message
-        self.telemetry, self.telemetry_time = msg, now
-        self._board_clock(msg.time_ms, msg.state, now, msg.rx_frames)
+        misfit = self._telemetry_misfit(frame)
+        if misfit is not None:
+            self._drop(now, misfit)
+            return
+        if not self._board_clock(msg.time_ms, msg.state, now, msg.rx_frames):
+            return
+        self.telemetry, self.telemetry_time, self._telemetry_seq = msg, now, frame.seq
         self._emit(TelemetryEvent(now, msg))
+
+    def _telemetry_misfit(self, frame: Frame) -> str | None:
+        """Why a Telemetry frame is not the board's word on now (counted here), or None to take it."""
+        msg: Telemetry = frame.message
+        info = self.info
+        if info is not None and (len(msg.units), len(msg.pulses_us)) != (info.n_units, info.n_channels):
+            self.counters.telemetry_misfits += 1
+            return (
+                f"Telemetry for {len(msg.units)} units and {len(msg.pulses_us)} pulse channels from a board "
+                f"of {info.n_units} units and {info.n_channels} channels"
+            )
+        held_msg = self.telemetry
+        # the uptime first: a cheap test that settles nearly every frame
+        if held_msg is not None and msg.time_ms == held_msg.time_ms and msg == held_msg:
+            self.counters.telemetry_repeats += 1
+            held = self._telemetry_seq
+            seq = "the same" if frame.seq == held else f"{frame.seq}, not {held}"
+            return f"a Telemetry identical to the one held (board time {msg.time_ms} ms, seq {seq})"
+        return None
 
     def _on_heartbeat(self, frame: Frame, now: float) -> None:
         msg: Heartbeat = frame.message
@@ -325,9 +371,20 @@ class Session:
         self._board_clock(msg.time_ms, state, now)
 
     def _on_log(self, frame: Frame, now: float) -> None:
+        """Every Log is an event; at most :data:`BOARD_LOGS_PER_S` a second of them are logged, the first
+        one logged after a flood saying how many were not."""
         msg: Log = frame.message
-        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s", msg.text)
         self._emit(LogEvent(now, msg))
+        if now - self._log_window >= 1.0:
+            self._log_window, self._logs_in_window = now, 0
+        if self._logs_in_window >= BOARD_LOGS_PER_S:
+            self._logs_unlogged += 1
+            self.counters.board_logs_unlogged += 1
+            return
+        self._logs_in_window += 1
+        more, self._logs_unlogged = self._logs_unlogged, 0
+        since = f" ({more} board logs not logged before this one)" if more else ""
+        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s%s", msg.text, since)
 
     def _on_esc_calibration_status(self, frame: Frame, now: float) -> None:
         self._emit(EscCalibrationEvent(now, frame.message))
@@ -342,12 +399,29 @@ class Session:
 
     def _board_clock(
         self, uptime_ms: int, state: BoardState | None, now: float, rx_frames: int | None = None
-    ) -> None:
+    ) -> bool:
         """An uptime sample (and state; with telemetry, the count of frames the board took since its boot)
         from the board: the reset detector. Either count going back says the board restarted; the frame
         count also when the restarted board then ran longer than the old one had, before the host reached
         it again (a board killed early in a run and restarted seconds before the host was back: its uptime
-        did not go back, but it has taken only the new handshake's frames)."""
+        did not go back, but it has taken only the new handshake's frames). A sample whose counts leapt
+        ahead of what the board could have reached (:mod:`.leaps`) is dropped and counted, and False
+        returned: the frame is not taken."""
+        frames_out = self.counters.frames_out
+        leap = self._leaps.refusal(uptime_ms, rx_frames, frames_out, now)
+        if leap is not None:
+            self.counters.board_leaps += 1
+            self._drop(now, f"a sample of the board's counts: {leap}")
+            return False
+        if self._leaps.reanchoring:
+            self.counters.board_reanchors += 1
+            logger.warning(
+                "board counts consistently ahead of the first ones heard (uptime %d ms, %s frames taken): "
+                "those were the absurd ones; taking these from now on",
+                uptime_ms,
+                rx_frames,
+            )
+            self._leaps.restart(uptime_ms, rx_frames, frames_out, now)
         if state is not None:
             self._set_state(state, now)
         last, self._last_uptime = self._last_uptime, uptime_ms
@@ -365,7 +439,9 @@ class Session:
         elif state is BoardState.BOOT and self._lost:
             evidence = "it reports BOOT after the link came back (it lost the session)"
         if evidence is None:
-            return
+            self._leaps.take(uptime_ms, rx_frames, frames_out, now)
+            return True
+        self._leaps.restart(uptime_ms, rx_frames, frames_out, now)  # the counts of a new boot
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
         if self.armed and self.state is not BoardState.ARMED:
             self.armed = False
@@ -378,11 +454,12 @@ class Session:
         self._transfers.abandon(why)
         if reply is not None:  # the handshake that just happened already told why
             self._report_reset(now, reply.reset_cause, evidence)
-            return
+            return True
         self._reset_evidence = evidence
         if self.phase is Phase.READY:
             self.phase = Phase.HANDSHAKING
             self._hello(now)
+        return True
 
     def _set_state(self, state: BoardState, now: float) -> None:
         old = self.state
@@ -542,6 +619,17 @@ class Session:
 
     def _emit(self, event: Event) -> None:
         self._events.append(event)
+
+    def _drop(self, now: float, what: str) -> None:
+        """A well-formed frame not taken (already counted by its kind): logged at most once per
+        :data:`DROP_WARN_EVERY_S` of host time, the next warning saying how many more were dropped."""
+        if now < self._next_drop_warning:
+            self._drops_unlogged += 1
+            return
+        self._next_drop_warning = now + DROP_WARN_EVERY_S
+        more, self._drops_unlogged = self._drops_unlogged, 0
+        since = f" (and {more} more dropped since the last warning)" if more else ""
+        logger.warning("board frame dropped: %s%s", what, since)
 
 
 Receive = Callable[[Session, Frame, float], None]

@@ -61,6 +61,11 @@ class SessionCounters:
     events_dropped: int = 0  # the event queue was full (nobody drained it)
     unknown_board_states: int = 0  # a Heartbeat.state that is no BoardState
     calibration_answers: int = 0  # CalibrationData fragments from the board answered
+    telemetry_misfits: int = 0  # Telemetry for another number of units or channels than the board's: dropped
+    telemetry_repeats: int = 0  # Telemetry identical to the one held (repeated, replayed): dropped
+    board_leaps: int = 0  # Telemetry/Heartbeat whose uptime or frame count leapt ahead: dropped
+    board_reanchors: int = 0  # leaps so consistent that the first counts heard were the absurd ones
+    board_logs_unlogged: int = 0  # board Log frames beyond BOARD_LOGS_PER_S: reported as events, not logged
 
 
 @dataclass(frozen=True)

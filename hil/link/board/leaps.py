@@ -1,0 +1,137 @@
+"""Whether the board's own counts — its uptime (``Telemetry.time_ms``, ``Heartbeat.time_ms``) and its
+count of frames taken from the host (``Telemetry.rx_frames``) — moved on by an amount the board could
+have reached, sans-IO (every call takes the host's ``now``).
+
+Why: the session's reset detector takes a count that *goes back* as a board reset (and handshakes again,
+which disarms the board). A well-formed frame carrying a count far *ahead* (uptime 2e9 ms five seconds
+into a run: a corrupted build, a replayed frame of another board, a hostile far side) used to become the
+reference the next honest sample was compared with — that sample then "went back", and one absurd frame
+made a spurious reset, disarming an armed board mid-run, while its telemetry was shown as live. Now such
+a sample is refused (the session drops the frame and counts it).
+
+What "could have reached" means, from an *anchor* sample (the first one of the board's boot, or the one a
+reset or a re-anchoring started from):
+
+* uptime: no further ahead than the host's clock moved since the anchor, run ``CLOCK_RATE`` fast, plus
+  ``UPTIME_SLACK_MS`` (the anchor frame's own latency — read late by a paused host — and a board clock
+  ahead of real time for a moment, e.g. simavr catching up its pacing);
+* frames taken: no more than the frames the host has written since the anchor, plus ``FRAMES_SLACK``
+  (the host's frames already in flight when the anchor was sent).
+
+The anchor is fixed, not the last sample: measured from the last sample, a burst of frames each a little
+ahead (all read at the same ``now``) would climb without bound. Should the anchor itself be the absurd
+one (the board's very first sample), every honest sample would be refused from then on; so when samples
+have been refused for ``REANCHOR_AFTER_S`` of host time with none taken in between, the board is
+consistent with itself and the anchor is what is wrong: the sample is let through and anchors the counts
+from then on (the session counts and logs the re-anchoring).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+_U32 = 1 << 32
+_HALF = _U32 // 2
+
+CLOCK_RATE = 1.01
+"""How fast a board's clock may run against the host's: 1 % (ten times a cheap resonator's tolerance)."""
+UPTIME_SLACK_MS = 5_000
+"""How far (ms) a board's uptime may lead the host's clock beyond the anchor's lead."""
+FRAMES_SLACK = 1_000
+"""Frames of the host's the board may count beyond those written since the anchor (in flight then)."""
+REANCHOR_AFTER_S = 1.0
+"""Host time (s) of refused samples, none taken between, after which the anchor is taken to be wrong."""
+
+
+@dataclass
+class _Count:
+    """One of the board's u32 counts, unwrapped: the last value taken (raw and unwrapped) and its anchor
+    (unwrapped value, and the host's measure when it was taken: its time, or its count of frames
+    written)."""
+
+    raw: int
+    value: int
+    anchor_value: int
+    anchor_host: float
+
+    @classmethod
+    def start(cls, raw: int, host: float) -> _Count:
+        return cls(raw, raw, raw, host)
+
+    def ahead(self, raw: int) -> int | None:
+        """``raw`` unwrapped against the last value taken, if it moved on (None: it went back — by less
+        than half the range, the session's rule — which is the reset detector's business, not a leap)."""
+        if raw < self.raw and self.raw - raw < _HALF:
+            return None
+        return self.value + (raw - self.raw) % _U32
+
+    def take(self, raw: int) -> None:
+        value = self.ahead(raw)
+        self.value = value if value is not None else raw
+        self.raw = raw
+
+
+@dataclass
+class LeapCheck:
+    """The board's uptime and frame count against their anchors (see the module docstring). The session
+    asks :meth:`refusal` about each sample, then either takes it (:meth:`take`) or, when the board reset
+    or :attr:`reanchoring` is set, anchors the counts on it (:meth:`restart`)."""
+
+    uptime: _Count | None = None
+    frames: _Count | None = None
+    refusing_since: float | None = None  # host time of the first refused sample since one was taken
+    reanchoring: bool = False  # the sample refusal() just let through ends a long run of leaps
+
+    def refusal(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> str | None:
+        """Why this sample leaps ahead of what the board could have reached; None when it could have, or
+        when samples have been refused for ``REANCHOR_AFTER_S`` (then :attr:`reanchoring` is set: the
+        anchor was the absurd one)."""
+        self.reanchoring = False
+        why = self._leap(uptime_ms, rx_frames, frames_out, now)
+        if why is None:
+            return None
+        if self.refusing_since is None:
+            self.refusing_since = now
+        if now - self.refusing_since >= REANCHOR_AFTER_S:
+            self.reanchoring = True
+            return None
+        return why
+
+    def take(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> None:
+        """A sample accepted: the counts move on (the first one of each anchors it)."""
+        self.refusing_since = None
+        if self.uptime is None:
+            self.uptime = _Count.start(uptime_ms, now)
+        else:
+            self.uptime.take(uptime_ms)
+        if rx_frames is not None:
+            if self.frames is None:
+                self.frames = _Count.start(rx_frames, frames_out)
+            else:
+                self.frames.take(rx_frames)
+
+    def restart(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> None:
+        """The board restarted (or the anchor was wrong): this sample anchors its counts."""
+        self.uptime = self.frames = None
+        self.take(uptime_ms, rx_frames, frames_out, now)
+
+    def _leap(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> str | None:
+        count = self.uptime
+        if count is not None:
+            value = count.ahead(uptime_ms)
+            reach = (now - count.anchor_host) * 1000.0 * CLOCK_RATE + UPTIME_SLACK_MS
+            if value is not None and value - count.anchor_value > reach:
+                return (
+                    f"its uptime leapt from {count.raw} ms to {uptime_ms} ms, {value - count.anchor_value} "
+                    f"ms past its anchor, in {now - count.anchor_host:.3f} s of the host's time"
+                )
+        count = self.frames
+        if count is not None and rx_frames is not None:
+            value = count.ahead(rx_frames)
+            written = frames_out - int(count.anchor_host)
+            if value is not None and value - count.anchor_value > written + FRAMES_SLACK:
+                return (
+                    f"its count of frames taken leapt from {count.raw} to {rx_frames}, "
+                    f"{value - count.anchor_value} past its anchor, when the host wrote {written} since"
+                )
+        return None
