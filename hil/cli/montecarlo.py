@@ -72,7 +72,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--scheduler", metavar="ADDRESS", help="a running Dask scheduler (default: a LocalCluster)"
     )
     p.add_argument(
-        "--workers", type=int, metavar="W", help="LocalCluster worker processes (default: all cores; at most 4 a core, and no more than the runs' tasks)"
+        "--workers",
+        type=int,
+        metavar="W",
+        help="LocalCluster worker processes (default: all cores; at most 4 a core, and no more than the "
+        "runs' tasks)",
     )
     p.add_argument(
         "--batch", type=int, default=4, metavar="B", help="runs per Dask task, one after another (4)"
