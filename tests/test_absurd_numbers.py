@@ -251,7 +251,8 @@ def test_a_local_cluster_has_no_more_workers_than_the_campaign_has_tasks(runs, b
     args = argparse.Namespace(runs=runs, batch=batch, workers=workers, scheduler=None)
     want = expected if expected is not None else min(available_cores(), -(-runs // batch))
     assert local_workers(args) == want
-    assert local_workers(argparse.Namespace(runs=runs, batch=batch, workers=None, scheduler="tcp://x:1")) is None
+    on_a_scheduler = argparse.Namespace(runs=runs, batch=batch, workers=None, scheduler="tcp://x:1")
+    assert local_workers(on_a_scheduler) is None
 
 
 def test_hil_montecarlo_duration_is_bounded_by_the_run_length(capsys, tmp_path):

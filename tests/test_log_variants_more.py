@@ -119,7 +119,12 @@ def tyrex_variant(folder: Path, frame_rate: object = None, alignment: bytes | No
 
 @pytest.mark.parametrize(
     ("frame_rate", "message"),
-    [(0.0, "outside"), (np.nan, "outside"), ("sixty", "holds text, expected real numbers"), (np.zeros(0), "expected one")],
+    [
+        (0.0, "outside"),
+        (np.nan, "outside"),
+        ("sixty", "holds text, expected real numbers"),
+        (np.zeros(0), "expected one"),
+    ],
     ids=["zero", "nan", "text", "empty"],
 )
 def test_a_qualisys_frame_rate_that_is_no_rate_is_a_typed_error_naming_it(tmp_path, frame_rate, message):

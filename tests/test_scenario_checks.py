@@ -110,9 +110,8 @@ def test_the_scenario_board_ranges_are_the_boards_own(key):
 
     def scenario_takes(value: float) -> bool:
         try:
-            parse_scenario(
-                BASE + f"[controller]\ncontrol_rate_hz={rate}\n[board]\n{frames}{key}={value!r}\n", Path("x.toml")
-            )
+            text = f"[controller]\ncontrol_rate_hz={rate}\n[board]\n{frames}{key}={value!r}\n"
+            parse_scenario(BASE + text, Path("x.toml"))
         except ConfigError as exc:
             assert exc.where == f"x.toml: board.{key}"
             return False
@@ -229,6 +228,7 @@ def test_a_negative_zero_sensor_figure_is_zero_and_the_phone_samples(key):
     for kind in (phone.gyr, phone.acc, phone.mag):
         value = getattr(kind, key)
         assert value == 0.0 and str(value) == "0.0"
-    path = np.array([np.concatenate([[t], np.eye(3).ravel(), np.zeros(3)]) for t in np.arange(0.0, 0.2, 0.001)])
+    times = np.arange(0.0, 0.2, 0.001)
+    path = np.array([np.concatenate([[t], np.eye(3).ravel(), np.zeros(3)]) for t in times])
     samples = BodyPhone(phone, seed=3).sample_path(path)
     assert samples and all(np.all(np.isfinite(s.xyz)) for s in samples)

@@ -268,13 +268,14 @@ class _Reader:
                 "board.frame_rate", "must be at least controller.control_rate_hz (firmware-sim's default: 50)"
             )
         link_timeout = float(board.get("link_timeout", DEFAULT_LINK_TIMEOUT_S))
-        if 1.0 / loop.control_rate_hz >= link_timeout:
+        period = 1.0 / loop.control_rate_hz
+        if period >= link_timeout:
             # the host's setpoints are what feed the board's link watchdog: one per control period
             raise self.error(
                 "controller.control_rate_hz",
-                f"{loop.control_rate_hz:g} Hz sends the board a command every {1.0 / loop.control_rate_hz:g} s, "
-                f"not within its link timeout of {link_timeout:g} s (board.link_timeout): the board would fail "
-                "safe between commands; raise the rate or the timeout",
+                f"{loop.control_rate_hz:g} Hz sends the board a command every {period:g} s, not within its "
+                f"link timeout of {link_timeout:g} s (board.link_timeout): the board would fail safe between "
+                "commands; raise the rate or the timeout",
             )
         return Scenario(
             name=name,
