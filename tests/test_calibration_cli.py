@@ -226,3 +226,40 @@ def test_a_complete_bench_csv_is_not_partial(bench, tmp_path):
 
     assert read_bench_csv(_partial(bench, tmp_path, "complete")).partial is None
     assert read_bench_csv(bench / "unit0_rotor.csv").partial is None  # no status: hand-made, complete
+
+
+@pytest.mark.parametrize(
+    ("action", "option", "value", "says"),
+    [
+        # a step held for ever (its dwell's telemetry kept all the while): bounded, naming the option
+        ("sweep", "--dwell", "1e160", "--dwell: 1e+160 must be a positive number of seconds, at most 600"),
+        ("sweep", "--settle-max", "601", "--settle-max: 601.0 must be a positive number of seconds"),
+        ("sweep", "--settle", "20", "--settle-max: 10.0 must be at least the settle time, 20.0"),
+        # a pulse that never reached its first step
+        (
+            "sweep",
+            "--rate-limit",
+            "1e-300",
+            "--rate-limit: 1e-300 must be a finite number of µs/s, at least 1",
+        ),
+        # every step unsettled (negative), every step settled (NaN: comparisons with it are false)
+        ("sweep", "--tolerance", "-1", "--tolerance: -1.0 must be a finite number > 0"),
+        ("sweep", "--tolerance", "nan", "--tolerance: nan must be a finite number > 0"),
+        ("unit", "--rotor-tolerance", "nan", "--rotor-tolerance: nan must be a finite number > 0"),
+        ("unit", "--rate-tolerance", "0", "--rate-tolerance: 0.0 must be a finite number > 0"),
+        ("unit", "--angle-tolerance", "-0.03", "--angle-tolerance: -0.03 must be a finite number > 0"),
+    ],
+)
+def test_board_calibration_numbers_that_never_end_or_never_judge_are_refused_naming_the_option(
+    tmp_path, capsys, action, option, value, says
+):
+    """Refused before the board is opened: one line, exit status 2, nothing written."""
+    port = "emu://?unit_spread=7&esc_supply_switch=1"
+    out = (
+        ["--out-dir", str(tmp_path / "bench")] if action == "sweep" else ["--out", str(tmp_path / "cal.toml")]
+    )
+    if action == "unit":
+        out += ["--bench-dir", str(tmp_path / "bench")]
+    assert main(["calibrate", action, "--port", port, "--unit", "0", *out, option, value]) == 2
+    assert says in capsys.readouterr().err
+    assert not (tmp_path / "bench").exists() and not (tmp_path / "cal.toml").exists()

@@ -170,11 +170,24 @@ class BenchLink:
         client.set_mode(ControlMode.SETPOINT)
 
 
+MAX_HOLD_S = 600.0
+"""The longest (s) a step may settle, be watched or dwell: a rotor spins up and a gimbal turns in seconds,
+and a step held for 1e160 s never ended (its dwell's telemetry kept in memory all the while)."""
+
+
+def check_tolerance(value: float, option: str) -> None:
+    """A settling or verification tolerance: a finite number > 0 in its column's unit, or
+    :class:`ConfigError` naming ``option`` (a negative one left every step unsettled, NaN every step
+    settled: comparisons with NaN are false)."""
+    if not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"{value!r} must be a finite number > 0", option)
+
+
 @dataclass(frozen=True)
 class Settling:
     """How long a held command is watched (s): at least ``settle_s``; settled once every watched value
     stays within its tolerance over ``window_s``; given up after ``max_s`` (the result says unsettled);
-    then ``dwell_s`` of telemetry is averaged."""
+    then ``dwell_s`` of telemetry is averaged. Each at most :data:`MAX_HOLD_S`."""
 
     settle_s: float = 0.3
     window_s: float = 0.5
@@ -184,10 +197,13 @@ class Settling:
     def __post_init__(self) -> None:
         for name in ("settle_s", "window_s", "max_s", "dwell_s"):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"{value!r} must be a positive number of seconds", f"Settling.{name}")
+            if not (math.isfinite(value) and 0 < value <= MAX_HOLD_S):
+                what = f"{value!r} must be a positive number of seconds, at most {MAX_HOLD_S:g}"
+                raise ConfigError(what, f"Settling.{name}")
         if self.max_s < self.settle_s:
-            raise ConfigError("must be at least settle_s", "Settling.max_s")
+            raise ConfigError(
+                f"{self.max_s!r} must be at least the settle time, {self.settle_s!r}", "Settling.max_s"
+            )
 
 
 def hold(

@@ -32,7 +32,7 @@ from protocol.errors import ConfigError, HilError, ProtocolError
 from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry
 
 from .bench import STATUS_KEY, BenchKind, write_bench_csv
-from .benchlink import TICK_S, BenchLink, Guard, GuardTripped, Settling, hold
+from .benchlink import TICK_S, BenchLink, Guard, GuardTripped, Settling, check_tolerance, hold
 from .progress import Eta, Report, duration, no_report
 
 
@@ -58,6 +58,11 @@ MEASURES = {
 }
 
 
+MIN_RATE_LIMIT_US_S = 1.0
+"""The slowest a sweep may move its pulse (µs/s): the whole 500–2500 µs span in at most 2 000 s (at
+1e-300 µs/s the pulse never reached its first step)."""
+
+
 @dataclass(frozen=True)
 class SweepPlan:
     """One sweep (pulses in µs, times in s). ``step_us``/``tolerance`` None: the kind's default."""
@@ -81,8 +86,13 @@ class SweepPlan:
             raise ConfigError(f"{self.step_us} µs does not fit the range", "--step")
         if self.directions not in ("up", "down", "both"):
             raise ConfigError(f"{self.directions!r}; need up, down or both", "--directions")
-        if not (math.isfinite(self.rate_limit_us_s) and self.rate_limit_us_s > 0):
-            raise ConfigError(f"{self.rate_limit_us_s!r} must be a positive number", "--rate-limit")
+        if not (math.isfinite(self.rate_limit_us_s) and self.rate_limit_us_s >= MIN_RATE_LIMIT_US_S):
+            raise ConfigError(
+                f"{self.rate_limit_us_s!r} must be a finite number of µs/s, at least {MIN_RATE_LIMIT_US_S:g}",
+                "--rate-limit",
+            )
+        if self.tolerance is not None:
+            check_tolerance(self.tolerance, "--tolerance")
 
     @property
     def measure(self) -> Measure:

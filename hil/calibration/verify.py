@@ -20,7 +20,7 @@ from protocol.errors import ProtocolError
 from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry, UnitSetpoint
 
 from .bench import BenchKind
-from .benchlink import BenchLink, Guard, GuardTripped, Settling, hold
+from .benchlink import BenchLink, Guard, GuardTripped, Settling, check_tolerance, hold
 from .progress import Eta, Report, no_report
 
 
@@ -36,6 +36,11 @@ class VerifyPlan:
     gimbal_rate_tolerance_rad_s: float = 0.05
     gimbal_angle_tolerance_rad: float = 0.03
     guard: Guard = field(default_factory=Guard)
+
+    def __post_init__(self) -> None:
+        check_tolerance(self.rotor_tolerance, "--rotor-tolerance")
+        check_tolerance(self.gimbal_rate_tolerance_rad_s, "--rate-tolerance")
+        check_tolerance(self.gimbal_angle_tolerance_rad, "--angle-tolerance")
 
 
 @dataclass(frozen=True)

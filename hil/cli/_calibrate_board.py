@@ -217,10 +217,24 @@ def _left_at_rest(link: Any) -> str:
     )
 
 
-def _settling(args: argparse.Namespace) -> Any:
-    from hil.calibration.benchlink import Settling
+_SETTLING_OPTIONS = {
+    "Settling.settle_s": "--settle",
+    "Settling.window_s": "--settle-window",
+    "Settling.max_s": "--settle-max",
+    "Settling.dwell_s": "--dwell",
+}
+"""The option that sets each of :class:`~hil.calibration.benchlink.Settling`'s fields."""
 
-    return Settling(args.settle, args.settle_window, args.settle_max, args.dwell)
+
+def _settling(args: argparse.Namespace) -> Any:
+    """The settling the options describe; a refused value is a :class:`ConfigError` naming its option."""
+    from hil.calibration.benchlink import Settling
+    from protocol.errors import ConfigError
+
+    try:
+        return Settling(args.settle, args.settle_window, args.settle_max, args.dwell)
+    except ConfigError as exc:
+        raise ConfigError(exc.detail, _SETTLING_OPTIONS.get(exc.where, exc.where)) from None
 
 
 def _guard(args: argparse.Namespace) -> Any:
