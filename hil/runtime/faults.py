@@ -76,8 +76,9 @@ class FaultJournal:
     # ------------------------------------------------------------------ recording
     def fault(self, t: float, kind: str, **detail: Any) -> None:
         """A fault of ``kind`` (``stale``, ``link_lost``, ``failsafe``, ``reset``, ``reconnect``,
-        ``phone_gap``) at ``t``: a board fault opens an outage (or joins the open one), a phone gap a
-        phone gap. (A phone clock that restarted or jumped is a :meth:`note`: the stream did not pause.)"""
+        ``disarmed``, ``phone_gap``) at ``t``: a board fault opens an outage (or joins the open one), a
+        phone gap a phone gap. (A phone clock that restarted or jumped is a :meth:`note`: the stream did
+        not pause.)"""
         if len(self.faults) < MAX_FAULTS:
             self.faults.append({"t": t, "kind": kind, **detail})
         else:

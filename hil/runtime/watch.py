@@ -9,10 +9,11 @@ never re-armed on the host's own account: the Disarm cancels a re-arm already pe
 overtaken by the Disarm, which the board carries out after it), and the host waits for the operator's Arm.
 
 What the rest of the host is told (:meth:`BoardWatch.take_upsets`): that the board has left the state the
-host commanded, or may have (``failsafe``, ``reset``, ``link_lost``, ``reconnect``) — the host
-re-enters its warm-up before it steers again (:mod:`hil.runtime.host`). Telemetry that merely goes stale
-is not one: the host holds while it cannot see the board and carries on if the board comes back armed in
-the same session.
+host commanded, or may have (``failsafe``, ``reset``, ``link_lost``, ``reconnect``, ``disarmed``: the
+board DISARMED by no command the host still means, an operator's Disarm retried after the Arm that
+followed it) — the host re-enters its warm-up before it steers again (:mod:`hil.runtime.host`). Telemetry
+that merely goes stale is not one: the host holds while it cannot see the board and carries on if the
+board comes back armed in the same session.
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ class BoardWatch:
         self.stale_after_s = stale_after_s
         self.failsafes = self.resets = self.link_losses = self.reconnects = self.rearms = 0
         self.stale_episodes = 0
+        self.unasked_disarms = 0  # ARMED → DISARMED with the host holding it armed (a Disarm retried late)
         self._reconnects_seen = 0  # the session's reconnect count at the last ConnectedEvent
         self.operator_disarmed = False
         self._rearm: str | Command | None = None  # "pending" or the Arm in flight
@@ -89,6 +91,13 @@ class BoardWatch:
                 logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): re-arming", t)
                 self.journal.fault(t, "failsafe")
                 self._upset("failsafe")
+            elif self._disarmed_unasked(event):
+                self.unasked_disarms += 1
+                logger.warning("board DISARMED at t=%.3f s by no command of the host's now: re-arming", t)
+                self.events.write(t, "unasked_disarm", old=BoardState.ARMED.name)
+                why = "a Disarm the host no longer meant (one retried late)"
+                self.journal.fault(t, "disarmed", detail=why)
+                self._upset("disarmed")
         elif isinstance(event, BoardResetEvent):
             self.resets += 1
             self._fresh_after = t
@@ -113,6 +122,18 @@ class BoardWatch:
             self.events.write(t, "silence", since=event.since, ended=event.ended)
         elif isinstance(event, LogEvent):
             self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text)
+
+    def _disarmed_unasked(self, event: StateEvent) -> bool:
+        """Whether ``event`` is the board leaving ARMED for DISARMED while the host holds it armed: the
+        operator has not disarmed it, and no re-arm (after a failsafe, a reset, a link loss) is under way
+        that would explain a board out of ARMED. It happens when the operator's Disarm, sent into a stalled
+        link, is retried (same sequence number) after the operator's Arm that followed it was carried out:
+        the board ends DISARMED while everything on the host says armed — no setpoint moves a motor, and a
+        run that was not told would say it completed. (A handshake's BOOT → DISARMED is a reset's, and
+        FAILSAFE → DISARMED follows a failsafe already being recovered from.)"""
+        if event.new is not BoardState.DISARMED or event.old is not BoardState.ARMED:
+            return False
+        return not self.operator_disarmed and self._rearm is None and not self._upsets
 
     def _upset(self, why: str) -> None:
         self._upsets.append(why)

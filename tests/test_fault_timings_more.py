@@ -1,0 +1,153 @@
+"""Faults at moments the other fault tests do not use (a seeded probe over every phase of a short lockstep
+run found what is pinned here): the operator's Disarm sent into a stalled link and the Arm that follows it,
+at drawn moments of the warm-up, the spin-up, the slew's start, the slew and the hold; and single board
+faults drawn over the whole run, each run checked for an honest end — a run that says ``completed`` ends
+with the board live and ARMED, and its summary's counts agree with its events.
+
+What broke: the Disarm, not answered in the stall, was retried with its sequence number once the link
+carried again — after the operator's Arm, which the board had already carried out. The board ended
+DISARMED (no setpoint moved a motor) while the host kept steering as though it were armed, opened no
+outage, and the run said ``completed``.
+"""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+
+from hil.montecarlo.fault_plan import fault_options, operator_schedule
+from hil.montecarlo.runner import fault_bounds
+from hil.runtime import RunOptions, run
+from hil.runtime.faults import BoardLink
+from hil.runtime.invariants import InjectedFault, check_run
+from hil.runtime.observer import Observers
+from hil.runtime.operator import ScheduledOperator
+from hil.runtime.record import RunRecorder
+from hil.scenario import load_scenario
+from protocol.messages import BoardState
+
+SCENARIO = "cubesat-1u"
+DURATION_S = 6.0  # after the slew's start (~3.7 s): a run of ~10 s simulated, ~0.4 s of wall time
+SETTINGS = settings(
+    max_examples=8,
+    deadline=None,
+    derandomize=True,
+    phases=[Phase.explicit, Phase.generate],  # no shrinking: a failing run is bounded too
+    suppress_health_check=[HealthCheck.too_slow],
+)
+
+
+def _scenario():
+    sc = load_scenario(SCENARIO)
+    return sc.with_changes(slew=sc.slew.__class__(**{**sc.slew.__dict__, "duration_s": DURATION_S}))
+
+
+def _run(faults):
+    sc = _scenario()
+    recorder = RunRecorder(sc.n_units)
+    schedule = operator_schedule(tuple(faults))
+    observer = Observers(recorder, ScheduledOperator(list(schedule))) if schedule else recorder
+    sc = sc.with_changes(fault_options=fault_options(tuple(faults), sc.fault_options))
+    run(sc, RunOptions(out_root=None, observer=observer, rows_to_observer=True))
+    return sc, recorder
+
+
+def _check_honest_end(faults, sc, recorder):
+    """Every invariant of the campaigns, and: ``completed`` only with the board live and ARMED at the end;
+    the summary's reset and failsafe counts are those of the journal and of ``events.jsonl``."""
+    report = check_run(faults, recorder, fault_bounds(sc))
+    assert report.ok, report.violations
+    s = recorder.summary
+    rows = recorder.rows()
+    if s["exit"] == "completed":
+        assert rows["board_link"][-1] == BoardLink.LIVE, "completed without a live board at the end"
+        assert rows["board_state"][-1] == BoardState.ARMED, (
+            f"completed with the board {BoardState(int(rows['board_state'][-1])).name} at the end"
+        )
+    journal = s["faults"]
+    assert s["board_resets"] == sum(f["kind"] == "reset" for f in journal)
+    assert s["board_resets"] == sum(e["kind"] == "board_reset" for e in recorder.events)
+    assert s["failsafe_events"] == sum(f["kind"] == "failsafe" for f in journal)
+
+
+# --------------------------------------------------------------------------- the Disarm retried late
+def test_a_disarm_retried_after_the_operator_s_arm_is_seen_and_the_board_re_armed():
+    """The stall at 3.551 s (0.3 s, the slew's start at 3.68 s inside it), the Disarm at 3.826 s into it,
+    the Arm at 3.876 s: the board carried out the Arm, then the Disarm's retry (t = 3.98 s). Before, the
+    run said ``completed`` with the board DISARMED from then to its end and no outage; now the host sees a
+    board it holds armed go DISARMED, reports it (``disarmed``), re-arms it through the protocol and
+    steers again."""
+    faults = [
+        InjectedFault("stall", 3.551, {"duration_s": 0.3}),
+        InjectedFault("disarm", 3.826),
+        InjectedFault("arm", 3.876, {"after_disarm_s": 0.05}),
+    ]
+    sc, recorder = _run(faults)
+    _check_honest_end(faults, sc, recorder)
+    s = recorder.summary
+    assert s["exit"] == "completed"
+    disarmed = [f for f in s["faults"] if f["kind"] == "disarmed"]
+    assert len(disarmed) == 1
+    assert recorder.first_event("unasked_disarm") is not None
+    rearmed = recorder.first_event("rearmed", after=disarmed[0]["t"])
+    resumed = recorder.first_event("resume", after=disarmed[0]["t"])
+    assert rearmed is not None and resumed is not None
+    assert all(o["recovered"] for o in s["outages"])
+
+
+@SETTINGS
+@given(
+    stall_at=st.floats(0.5, 8.5),
+    stall_s=st.sampled_from([0.27, 0.3, 0.45, 0.6]),
+    disarm_before_end=st.floats(0.005, 0.1),
+    arm_after_end=st.floats(0.005, 0.06),
+)
+def test_the_operator_s_disarm_in_a_stall_and_arm_after_it_at_any_phase_end_honestly(
+    stall_at, stall_s, disarm_before_end, arm_after_end
+):
+    """A stall at a drawn moment of any phase, the operator's Disarm in its last moments (unanswered, so
+    retried) and the Arm just after the link carries again (carried out before the Disarm's retry): a run
+    that says ``completed`` ends with the board ARMED and live, and every invariant holds."""
+    end = stall_at + stall_s
+    disarm_at = round(end - disarm_before_end, 3)
+    arm_at = round(end + arm_after_end, 3)
+    faults = [
+        InjectedFault("stall", round(stall_at, 3), {"duration_s": stall_s}),
+        InjectedFault("disarm", disarm_at),
+        InjectedFault("arm", arm_at, {"after_disarm_s": round(arm_at - disarm_at, 3)}),
+    ]
+    sc, recorder = _run(faults)
+    _check_honest_end(faults, sc, recorder)
+
+
+# --------------------------------------------------------------------------- single faults, any moment
+PHASE_CHANGES = (0.121, 2.121, 3.681, 9.661)  # still window, spin-up, slew's start, the last tick
+
+
+@SETTINGS
+@given(
+    kind=st.sampled_from(["hang", "brownout", "unplug", "stall"]),
+    at=st.one_of(st.floats(0.0, 10.0), st.sampled_from(PHASE_CHANGES)),
+    duration_s=st.sampled_from([0.3, 0.8, 1.5]),
+)
+def test_a_board_fault_at_any_moment_ends_the_run_honestly(kind, at, duration_s):
+    """A board fault at a drawn moment of the run (the phase changes among them): every invariant holds,
+    a ``completed`` run ends with the board in hand, and the counts agree with the record."""
+    params = {"duration_s": duration_s} if kind in ("unplug", "stall") else {}
+    faults = [InjectedFault(kind, round(at, 3), params)]
+    sc, recorder = _run(faults)
+    _check_honest_end(faults, sc, recorder)
+
+
+@pytest.mark.parametrize("spacing_s", [1.5, 2.5])
+def test_repeated_unplugs_each_counted_and_recovered(spacing_s):
+    """Three restarts of the board in a row, each after the host re-armed it: three resets reported (each
+    POWER_ON), three re-arms, and the run completes with the board in hand."""
+    faults = [InjectedFault("unplug", 4.2 + i * spacing_s, {"duration_s": 0.3}) for i in range(3)]
+    sc, recorder = _run(faults)
+    _check_honest_end(faults, sc, recorder)
+    s = recorder.summary
+    assert s["exit"] == "completed"
+    assert s["board_resets"] == 3 and s["rearms"] == 3
+    assert [f["cause"] for f in s["faults"] if f["kind"] == "reset"] == ["POWER_ON"] * 3
