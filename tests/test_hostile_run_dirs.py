@@ -48,7 +48,7 @@ def test_hil_report_drops_and_counts_a_deeply_nested_events_line(tmp_path):
     done = hil("report", str(d), "--no-plots")
     assert done.returncode == 0, done.stderr
     assert "20 telemetry rows, 2 events" in done.stdout
-    assert "0 telemetry lines, 1 event lines (dropped)" in done.stdout
+    assert "0 telemetry lines (damaged or out of time order), 1 event lines (dropped)" in done.stdout
 
 
 def test_hil_report_says_a_nested_summary_is_damaged_and_goes_on(tmp_path):
@@ -318,3 +318,36 @@ def test_a_campaign_s_duplicated_rows_are_counted_not_collapsed_silently(tmp_pat
     (d / "runs.csv").write_text("\n".join([*lines, *lines[1:] * 50]) + "\n")
     results = read_runs(d)
     assert list(results.index) == [0, 1] and results.dropped == 100
+
+
+# --------------------------------------------------------------------------- rows out of time order
+ABSURD_TIMES = st.sampled_from([1e300, -1e300, 1e8, -1e8, float("nan"), float("inf"), -float("inf"), -5.0])
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    absurd=st.lists(st.tuples(st.integers(1, 59), ABSURD_TIMES), max_size=4),  # -5 s first would be first
+    replayed=st.lists(st.tuples(st.integers(1, 59), st.integers(0, 58), st.integers(1, 20)), max_size=1),
+)
+def test_rows_out_of_time_order_are_dropped_and_counted_by_every_reader(tmp_path_factory, absurd, replayed):
+    """A row whose time is far off (1e300 s squashed every figure into its first pixel), not a number, or
+    before a row already read (a file spliced or edited: rows repeated from earlier drew the run twice over
+    itself) is dropped and counted — by ``read_telemetry`` (hil report, the plots) and by ``hil gcs``'s
+    run-directory source alike — and every row of the run in order is kept."""
+    times = [k / 50 for k in range(60)]
+    rows = [(t, True) for t in times]
+    for at, start, length in replayed:  # a stretch that ended before row ``at`` written again after it
+        if start + length < at:
+            rows[at:at] = [(t, False) for t, _ in rows[start : start + length]]
+    for at, t in absurd:
+        rows.insert(at, (t, False))
+    d = tmp_path_factory.mktemp("ordered")
+    (d / "telemetry.csv").write_text(
+        "t,phase,point_err_deg\n" + "".join(f"{'' if t != t else repr(t)},1,2\n" for t, _ in rows)
+    )
+    kept = [t for t, good in rows if good]
+    tel = read_telemetry(d / "telemetry.csv")
+    assert tel["t"].tolist() == kept and tel.dropped_lines == len(rows) - len(kept)
+    source = RunDirSource(d, follow=False)
+    batch = source.poll()
+    assert [row[0] for row in batch.rows] == kept and source.bad_rows == len(rows) - len(kept)

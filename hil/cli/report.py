@@ -74,7 +74,10 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
     events, bad_events = count_events(path / "events.jsonl")
     print(f"run {path}: {tel.rows} telemetry rows, {events} events")
     if tel.dropped_lines or bad_events:
-        print(f"  unreadable: {tel.dropped_lines} telemetry lines, {bad_events} event lines (dropped)")
+        print(
+            f"  unreadable: {tel.dropped_lines} telemetry lines (damaged or out of time order), "
+            f"{bad_events} event lines (dropped)"
+        )
     try:
         summary = _json(path / "summary.json")
     except InputFormatError as exc:

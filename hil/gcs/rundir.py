@@ -19,7 +19,7 @@ from typing import Any
 from hil.files.bounded import MAX_LINE_BYTES, LineSplitter, load_json, read_document
 from hil.gcs import info as run_info
 from hil.gcs.wire import Batch
-from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY, telemetry_header
+from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY, RowClock, telemetry_header
 from hil.scenario import load_scenario
 from protocol.errors import HilError, InputFormatError
 
@@ -70,7 +70,8 @@ class RunDirSource:
         self.columns: list[str] | None = None
         self.rows = 0
         self.events = 0
-        self.bad_rows = 0  # damaged telemetry lines: too long, wrong cell count, not numbers
+        self.bad_rows = 0  # damaged telemetry lines: too long, wrong cell count, not numbers, out of order
+        self._clock = RowClock()
         self.bad_events = 0  # damaged event lines: too long, not a JSON object, nested too deep
         self.finished = False
         self._done = False  # finished and everything read
@@ -180,9 +181,11 @@ class RunDirSource:
             except ValueError:
                 self.bad_rows += 1
                 continue
+            if not self._clock.take(row[0]):  # out of time order: not drawn, counted
+                self.bad_rows += 1
+                continue
             batch.rows.append(row)
-            if row and row[0] is not None:
-                self._last_t = row[0]
+            self._last_t = row[0]
         self.rows += len(batch.rows)
 
     def _read_events(self, batch: Batch) -> None:

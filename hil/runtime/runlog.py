@@ -290,11 +290,36 @@ class Telemetry:
         return name in self.columns
 
 
+MAX_ROW_TIME_S = 1e7
+"""The largest time (s, either sign) a telemetry row may carry: a run lasts at most a day of simulated time
+(:data:`hil.scenario.reader.MAX_DURATION_S`), and waits for its board and phone by bounded timeouts; 1e7 s
+is 115 days."""
+
+
+class RowClock:
+    """Which rows of a run's telemetry are in time order: a row is taken while its time ``t`` (s; column 0)
+    is finite, within ±:data:`MAX_ROW_TIME_S` and not before the last row taken. A run writes its rows in
+    the order of its ticks; a file edited, spliced or damaged may not — a row at 1e300 s squashed every
+    figure into its first pixel, rows repeated from earlier drew the run twice over itself. Such rows are
+    not taken (their readers count them as dropped)."""
+
+    def __init__(self) -> None:
+        self.last = -math.inf
+
+    def take(self, t: float | None) -> bool:
+        """Whether the row at ``t`` (None: an empty cell) is taken; a taken row moves the clock on."""
+        if t is None or not (self.last <= t <= MAX_ROW_TIME_S and t >= -MAX_ROW_TIME_S):
+            return False
+        self.last = t
+        return True
+
+
 def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
     """Read a run's telemetry CSV, streamed (:func:`hil.files.bounded.read_lines`: memory holds the
     numbers, not the text). A line with the wrong number of cells, a non-number, bytes that are not UTF-8
     or more than :data:`~hil.files.bounded.MAX_LINE_BYTES` is dropped and counted (a run killed mid-write
-    leaves one); a missing or header-less file is an InputFormatError."""
+    leaves one), and so is a row out of time order (:class:`RowClock`); a missing or header-less file is an
+    InputFormatError."""
     path = Path(path)
     try:
         f = open(path, "rb")  # noqa: SIM115 — closed below
@@ -305,6 +330,7 @@ def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
     header: list[str] | None = None
     blocks: list[np.ndarray] = []
     dropped = 0
+    clock = RowClock()
     with f:
         for batch in read_lines(f):
             if header is None:
@@ -312,7 +338,7 @@ def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
             values = []
             for line in batch:
                 row = _numbers(line, len(header))
-                if row is None:
+                if row is None or not clock.take(row[0]):
                     dropped += 1
                 else:
                     values.append(row)
