@@ -180,10 +180,14 @@ class UnitState:
 
 # --------------------------------------------------------------------------- messages
 class Message:
-    """Base of all messages: ``MSG_ID`` is the wire id, ``RELIABLE`` says it is acknowledged."""
+    """Base of all messages: ``MSG_ID`` is the wire id, ``RELIABLE`` says it is acknowledged.
+    ``SETS`` names what a reliable command sets on the board (``"arming"``, ``"mode"``), when a later
+    command setting the same thing makes its retries wrong: the latest wins
+    (:class:`~protocol.reliable.ReliableSender` stops retrying the older one)."""
 
     MSG_ID: ClassVar[int]
     RELIABLE: ClassVar[bool] = False
+    SETS: ClassVar[str | None] = None
 
 
 _IDENTITY_DOC = "AOA accessory identity string"
@@ -239,6 +243,7 @@ class Arm(Message):
 
     MSG_ID: ClassVar[int] = 0x10
     RELIABLE: ClassVar[bool] = True
+    SETS: ClassVar[str | None] = "arming"
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,6 +252,7 @@ class Disarm(Message):
 
     MSG_ID: ClassVar[int] = 0x11
     RELIABLE: ClassVar[bool] = True
+    SETS: ClassVar[str | None] = "arming"
 
 
 @dataclass(frozen=True, slots=True)
@@ -255,6 +261,7 @@ class SetMode(Message):
 
     MSG_ID: ClassVar[int] = 0x12
     RELIABLE: ClassVar[bool] = True
+    SETS: ClassVar[str | None] = "mode"
     mode: ControlMode = wire(Enum8(ControlMode), ControlMode.SETPOINT)
 
 

@@ -159,6 +159,7 @@ class SenderStats:
     failed: int = 0
     late_answers: int = 0  # answers for commands already settled (e.g. the answer to an earlier try)
     unmatched_answers: int = 0  # answers naming no command this sender knows
+    superseded: int = 0  # pending commands failed by a newer one setting the same thing (not retried)
 
 
 _RECENT = 256  # settled commands remembered to tell a late answer from an unmatched one
@@ -200,6 +201,7 @@ class ReliableSender:
         stale = self._pending.pop(cmd.key, None)
         if stale is not None:  # 256 frames went out while it waited: its answers are now ambiguous
             self._settle(stale, CommandState.FAILED, now, failure="sequence number reused by a newer command")
+        self._supersede(cmd, now)
         self._pending[cmd.key] = cmd
         self.stats.sent += 1
         return cmd, data
@@ -269,6 +271,21 @@ class ReliableSender:
         return len(self._pending)
 
     # ------------------------------------------------------------------ internals
+    def _supersede(self, cmd: Command, now: float) -> None:
+        """Stop retrying the pending commands that set what ``cmd`` sets (the message's ``SETS``): they
+        fail, superseded. A Disarm sent into a stalled link, then an Arm: retried after the Arm was carried
+        out, the Disarm left the board disarmed though the host's last word was Arm. (One already on its
+        way is the receiver's to order; one not yet carried out is not sent again.)"""
+        sets = getattr(cmd.message, "SETS", None)
+        if sets is None:
+            return
+        older = [c for c in self._pending.values() if getattr(c.message, "SETS", None) == sets]
+        for old in older:
+            del self._pending[old.key]
+            self.stats.superseded += 1
+            what = f"superseded by a newer {type(cmd.message).__name__} (seq {cmd.seq})"
+            self._settle(old, CommandState.FAILED, now, failure=what)
+
     def _settle(
         self,
         cmd: Command,

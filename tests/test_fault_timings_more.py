@@ -7,7 +7,9 @@ with the board live and ARMED, and its summary's counts agree with its events.
 What broke: the Disarm, not answered in the stall, was retried with its sequence number once the link
 carried again — after the operator's Arm, which the board had already carried out. The board ended
 DISARMED (no setpoint moved a motor) while the host kept steering as though it were armed, opened no
-outage, and the run said ``completed``.
+outage, and the run said ``completed``. Now a newer Arm supersedes the pending Disarm (it is not sent
+again: :meth:`protocol.reliable.ReliableSender.send`), and a board that goes DISARMED by no command the
+host still means is a fault the host recovers from (:class:`hil.runtime.watch.BoardWatch`).
 """
 
 from __future__ import annotations
@@ -75,9 +77,8 @@ def _check_honest_end(faults, sc, recorder):
 def test_a_disarm_retried_after_the_operator_s_arm_is_seen_and_the_board_re_armed():
     """The stall at 3.551 s (0.3 s, the slew's start at 3.68 s inside it), the Disarm at 3.826 s into it,
     the Arm at 3.876 s: the board carried out the Arm, then the Disarm's retry (t = 3.98 s). Before, the
-    run said ``completed`` with the board DISARMED from then to its end and no outage; now the host sees a
-    board it holds armed go DISARMED, reports it (``disarmed``), re-arms it through the protocol and
-    steers again."""
+    run said ``completed`` with the board DISARMED from then to its end and no outage. Now the Arm
+    supersedes the Disarm, which is never sent again: the board stays ARMED from the Arm to the end."""
     faults = [
         InjectedFault("stall", 3.551, {"duration_s": 0.3}),
         InjectedFault("disarm", 3.826),
@@ -86,14 +87,38 @@ def test_a_disarm_retried_after_the_operator_s_arm_is_seen_and_the_board_re_arme
     sc, recorder = _run(faults)
     _check_honest_end(faults, sc, recorder)
     s = recorder.summary
-    assert s["exit"] == "completed"
-    disarmed = [f for f in s["faults"] if f["kind"] == "disarmed"]
-    assert len(disarmed) == 1
-    assert recorder.first_event("unasked_disarm") is not None
-    rearmed = recorder.first_event("rearmed", after=disarmed[0]["t"])
-    resumed = recorder.first_event("resume", after=disarmed[0]["t"])
-    assert rearmed is not None and resumed is not None
-    assert all(o["recovered"] for o in s["outages"])
+    assert s["exit"] == "completed" and s["link"]["superseded"] == 1
+    assert recorder.first_event("unasked_disarm") is None
+    rows = recorder.rows()
+    after_arm = [state for t, state in zip(rows["t"], rows["board_state"], strict=True) if t > 4.0]
+    assert set(after_arm) == {BoardState.ARMED}
+
+
+def test_a_board_disarmed_by_no_command_the_host_means_is_a_fault_it_recovers_from(tmp_path):
+    """The backstop: whatever makes a board the host holds armed go DISARMED (no operator's Disarm, no
+    re-arm under way) is reported — ``unasked_disarm``, a ``disarmed`` fault — and re-armed."""
+    from hil.link.board import BoardClient, StateEvent
+    from hil.runtime.faults import FaultJournal
+    from hil.runtime.runlog import EventLog, read_events
+    from hil.runtime.watch import BoardWatch
+    from hil.timing.clock import LockstepClock
+
+    clock = LockstepClock()
+    with BoardClient("emu://?units=4", clock=clock) as client:
+        client.arm()
+        events, journal = EventLog(tmp_path / "events.jsonl"), FaultJournal()
+        watch = BoardWatch(client, events, journal, 0.25)
+        watch.on_events([StateEvent(clock.now(), BoardState.ARMED, BoardState.DISARMED)])
+        assert watch.take_upsets() == ["disarmed"] and watch.rearm_pending
+        assert [f["kind"] for f in journal.faults] == ["disarmed"] and watch.unasked_disarms == 1
+        watch.operator_disarm(clock.now())  # the operator's own Disarm is no fault
+        watch.on_events([StateEvent(clock.now(), BoardState.ARMED, BoardState.DISARMED)])
+        assert watch.take_upsets() == [] and watch.unasked_disarms == 1
+        events.close()
+    assert [r["kind"] for r in read_events(tmp_path / "events.jsonl")[0]][:2] == [
+        "board_state",
+        "unasked_disarm",
+    ]
 
 
 @SETTINGS

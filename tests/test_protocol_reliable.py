@@ -211,7 +211,7 @@ def test_a_reused_sequence_number_fails_the_stale_command():
 
 def test_abandon_fails_everything_pending():
     sender = ReliableSender()
-    cmds = [sender.send(m, now=0.0)[0] for m in (Arm(), Disarm())]
+    cmds = [sender.send(m, now=0.0)[0] for m in (Arm(), SetMode(ControlMode.SETPOINT))]
     assert sender.abandon(0.5, "board reset") == cmds
     assert all(c.state is CommandState.FAILED and c.failure == "board reset" for c in cmds)
     assert sender.next_deadline() is None
@@ -348,3 +348,21 @@ def test_against_the_emulated_board_a_lost_ack_is_retried_and_answered_from_its_
     assert board.link.stats.duplicates == 1  # the board answered the retry from its cache...
     assert sum("-> ARMED" in text for text in logs) == 1  # ...and armed once
     assert sender.stats.late_answers == 0 and sender.stats.retransmits == 1
+
+
+def test_a_newer_command_setting_the_same_thing_stops_the_older_ones_retries():
+    """A Disarm sent into a stalled link, then an Arm: retried after the Arm was carried out, the Disarm
+    left the board disarmed though the host's last word was Arm. The older one fails, superseded, and is
+    never sent again; commands setting something else are left alone."""
+    sender = ReliableSender(policy=RetryPolicy(timeout_s=0.1, backoff=1.0, max_tries=5))
+    disarm, _ = sender.send(Disarm(), 0.0)
+    mode, _ = sender.send(SetMode(ControlMode.SETPOINT), 0.0)
+    arm, _ = sender.send(Arm(), 0.05)
+    assert disarm.state is CommandState.FAILED and "superseded by a newer Arm" in disarm.failure
+    assert mode.state is CommandState.PENDING and arm.state is CommandState.PENDING
+    resent = Deframer().feed(sender.poll(0.2))
+    assert sorted(type(f.message).__name__ for f in resent) == ["Arm", "SetMode"]
+    assert sender.stats.superseded == 1 and sender.stats.failed == 1
+    again, _ = sender.send(SetMode(ControlMode.SETPOINT), 0.3)
+    assert mode.state is CommandState.FAILED and again.state is CommandState.PENDING
+    assert arm.state is CommandState.PENDING and sender.stats.superseded == 2

@@ -340,6 +340,7 @@ class BoardClient:
                 failed=cmd.failed + hello.failed,
                 late_answers=cmd.late_answers + hello.late_answers,
                 unmatched_answers=cmd.unmatched_answers + hello.unmatched_answers,
+                superseded=cmd.superseded,
                 rtt=s.rtt.summary(),
                 counters=dataclasses.replace(s.counters),
                 board_rx_frames=None if tel is None else tel.rx_frames,

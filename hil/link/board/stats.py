@@ -94,6 +94,7 @@ class LinkStats:
     board_rx_bad: int | None = None
     board_seq_gaps: int | None = None
     transport: dict[str, int] = field(default_factory=dict)
+    superseded: int = 0  # commands not retried: a newer one set the same thing (an Arm after a Disarm)
 
     @property
     def bad_frames_total(self) -> int:
