@@ -3,10 +3,10 @@ the paper
 (= Android's sensor frame: x screen right, y screen up, z out of the screen), times in seconds.
 
 Formats (``docs/formats.md``), detected from the files themselves: the project's own CSV (``csv``), a
-Sensor Logger export (``sensorlogger``, folder or zip), a phyphox CSV export (``phyphox``, zip or folder),
-a tyrex smartphone-benchmark trial folder (``tyrex``, with motion-capture truth) and a BROAD trial
-``.mat`` (``broad``, with optical truth). A malformed file raises :class:`InputFormatError` naming the
-file, line and column.
+Sensor Logger export (``sensorlogger``, folder or zip) or its JSON export (``sensorlogger-json``), a
+phyphox CSV export (``phyphox``, zip or folder), a tyrex smartphone-benchmark trial folder (``tyrex``,
+with motion-capture truth) and a BROAD trial ``.mat`` (``broad``, with optical truth). A malformed file
+raises :class:`InputFormatError` naming the file, line and column.
 """
 
 from __future__ import annotations
@@ -15,11 +15,13 @@ from pathlib import Path
 from types import ModuleType
 
 from hil.estimation.sensors import SensorLog
-from hil.logs import broad, phyphox, project_csv, sensorlogger, tyrex
+from hil.logs import broad, phyphox, project_csv, sensorlogger, sensorlogger_json, tyrex
 from hil.logs.table import Container
 from protocol.errors import InputFormatError
 
-READERS: dict[str, ModuleType] = {m.NAME: m for m in (project_csv, sensorlogger, phyphox, tyrex, broad)}
+READERS: dict[str, ModuleType] = {
+    m.NAME: m for m in (project_csv, sensorlogger, sensorlogger_json, phyphox, tyrex, broad)
+}
 """Format name → reader module (each has ``detect(container)`` and ``read(container)``)."""
 
 

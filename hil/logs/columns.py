@@ -2,9 +2,9 @@
 
 Apps label axes in many ways: Sensor Logger ``x``; older Sensor Logger ``GYROSCOPE X (rad/s)``; phyphox
 ``"Gyroscope x (rad/s)"``, a custom experiment's ``"Acceleration x"`` (no unit). An axis column carries a
-lone ``x``/``y``/``z`` (any case) once its unit in parentheses is set aside; the unit converts to SI
-(:data:`UNITS`); a missing unit means SI. A time column is named ``time``/``Time …``/``t``; its unit
-(``(s)``, ``(ms)``, ``in ms``, ``(ns)``) gives its scale to seconds.
+lone ``x``/``y``/``z`` (any case) once its unit in parentheses (or brackets, ``x [deg/s]``) is set aside;
+the unit converts to SI (:data:`UNITS`); a missing unit means SI. A time column is named
+``time``/``Time …``/``t``; its unit (``(s)``, ``(ms)``, ``in ms``, ``(ns)``) gives its scale to seconds.
 """
 
 from __future__ import annotations
@@ -25,15 +25,18 @@ UNITS: dict[SensorKind, dict[str, float]] = {
 TIME_UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 
 _AXIS = re.compile(r"(?<![A-Za-z])([xyz])(?![A-Za-z])", re.IGNORECASE)
-_UNIT = re.compile(r"\(([^()]*)\)\s*$")
+_UNIT = re.compile(r"(?:\(([^()]*)\)|\[([^\[\]]*)\])\s*$")
+"""A unit in trailing parentheses, ``x (rad/s)``, or brackets, ``x [rad/s]`` (a re-save's spelling: read,
+so that ``[deg/s]`` is never taken for rad/s)."""
 _IN_UNIT = re.compile(r"\bin\s+(\w+)\s*$", re.IGNORECASE)
 
 
 def unit_of(column: str) -> str:
-    """The unit of a header cell: in trailing parentheses, or after a trailing 'in' (lower case)."""
+    """The unit of a header cell: in trailing parentheses or brackets, or after a trailing 'in' (lower
+    case)."""
     m = _UNIT.search(column)
     if m:
-        return m.group(1).strip().lower()
+        return (m.group(1) if m.group(1) is not None else m.group(2)).strip().lower()
     m = _IN_UNIT.search(column.strip())
     return m.group(1).lower() if m else ""
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns, axis_of, time_column
+from hil.logs.sensorlogger import clock_of
 from hil.logs.table import Container, read_table, shown, sniff_dialect, split_header
 from protocol.errors import InputFormatError
 
@@ -80,8 +81,8 @@ def _classify(c: Container, name: str) -> _File | None:
     cells = split_header(head[0], delimiter)
     if not cells or not cells[0].lower().startswith("time"):
         return None
-    if any(cell.lower() == "seconds_elapsed" for cell in cells):
-        return None  # Sensor Logger's (its epoch time in ns is no phyphox clock)
+    if any((clock_of(cell) or ("",))[0] == "seconds_elapsed" for cell in cells):
+        return None  # Sensor Logger's, with or without units (its epoch time in ns is no phyphox clock)
     x_col = next((col for col in cells[1:] if axis_of(col) == "x"), None)
     if x_col is None:
         return None

@@ -2,7 +2,8 @@
 
 Current exports have the header ``time,seconds_elapsed,z,y,x`` — note the **z, y, x** order; older ones
 (late 2022) name their axes like ``GYROSCOPE X (rad/s)``. Columns are found by name
-(:mod:`hil.logs.columns`), never by position. ``time`` is Unix epoch in ns (shared by all sensors), read
+(:mod:`hil.logs.columns`), never by position; a re-save may put units on the clocks too (``time (ns)``,
+``seconds_elapsed [s]``: :func:`clock_of`). ``time`` is Unix epoch in ns (shared by all sensors), read
 as exact integers and converted to seconds since the first sample of any sensor; without it,
 ``seconds_elapsed`` (s since the recording started, also shared). Units (the app's unit reference): m/s²
 (g = 9.80665), rad/s, µT; axes are Android's sensor frame (on iOS, with "Standardise Units & Frames" on).
@@ -13,11 +14,16 @@ interpolated to the accelerometer's times); ``AccelerometerUncalibrated.csv`` (t
 gravity included; in g rather than m/s² when its median norm says so). ``Accelerometer.csv`` alone gives
 no gravity direction and is refused. Gyroscope and magnetometer: the calibrated files, else the
 ``…Uncalibrated.csv`` ones (noted). Without a magnetometer file the log is 6-axis (heading unobserved).
+
+:func:`assemble` does the choosing and the clock for any :class:`Export`, so the app's JSON export
+(:mod:`hil.logs.sensorlogger_json`) is read exactly as its CSV export is.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -32,6 +38,23 @@ GYR_FILES = ("Gyroscope.csv", "GyroscopeUncalibrated.csv")
 MAG_FILES = ("Magnetometer.csv", "MagnetometerUncalibrated.csv")
 ACC_FILES = ("TotalAcceleration.csv", "Accelerometer.csv", "AccelerometerUncalibrated.csv")
 _TIME = ("time", "seconds_elapsed")
+_CLOCK = re.compile(r"^\s*(time|seconds_elapsed)\s*(?:\(\s*([^()]*?)\s*\)|\[\s*([^\[\]]*?)\s*\])?\s*$", re.I)
+"""A clock column's header cell: ``time`` or ``seconds_elapsed``, in any letter case, with or without a
+unit in parentheses or brackets (``time (ns)``, ``seconds_elapsed [s]``: a tool that re-saved the export
+with units in its header)."""
+_EPOCH_LABELS = ("", "ns", "µs", "μs", "us", "ms")
+"""The units a Sensor Logger ``time`` header may carry: none (the app's), or an epoch's fine unit."""
+ELAPSED_UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
+"""``seconds_elapsed`` header units → s: the app writes seconds, unlabelled."""
+
+
+def clock_of(cell: str) -> tuple[str, str] | None:
+    """(``time`` or ``seconds_elapsed``, its unit in lower case, "" for none) when the header cell names a
+    clock column, else None."""
+    m = _CLOCK.match(cell)
+    if m is None:
+        return None
+    return m.group(1).lower(), (m.group(2) or m.group(3) or "").lower()
 
 
 _KNOWN = (*GYR_FILES, *ACC_FILES, *MAG_FILES, "Gravity.csv", "Metadata.csv")
@@ -82,22 +105,20 @@ def detect(c: Container) -> bool:
         if not head:
             continue
         cells = [x.lower() for x in split_header(head[0], sniff_dialect(head)[0])]
-        return "seconds_elapsed" in cells or ("time" in cells and any(" x (" in x for x in cells))
+        clocks = dict(clock for clock in map(clock_of, cells) if clock is not None)
+        epoch = clocks.get("time") in _EPOCH_LABELS  # phyphox's "Time (s)" is no epoch
+        return "seconds_elapsed" in clocks or (epoch and any(" x (" in x for x in cells))
     return False
 
 
-def _table(
-    c: Container, member: str, notes: list[str], required: bool = True
-) -> tuple[np.ndarray, np.ndarray]:
-    """The file's times (int64 ns since the epoch, or float s since the start) and readings (N, 3), read
-    in its own dialect (a spreadsheet's re-save may use semicolons and decimal commas). A row whose
-    ``time`` is no number (NaN, or beyond int64) has NaN readings: a NaN sample, dropped and counted by
-    the merge. A file with no rows is an InputFormatError naming it when ``required``."""
+def _csv_table(c: Container, member: str) -> Table:
+    """One of the export's CSV files as a :class:`Table`, read in its own dialect (a spreadsheet's
+    re-save may use semicolons and decimal commas), its ``time`` column also as exact int64."""
     head = [line for line in c.head(member, 8) if line.strip()]
     delimiter, decimal_comma = sniff_dialect(head)
     cells = split_header(head[0], delimiter) if head else []
-    time_name = next((cell for cell in cells if cell.lower() == "time"), "time")
-    table = read_table(
+    time_name = next((cell for cell in cells if (clock_of(cell) or ("",))[0] == "time"), "time")
+    return read_table(
         c,
         member,
         delimiter,
@@ -106,10 +127,20 @@ def _table(
         min_columns=4,
         exact_columns=(time_name,),
     )
-    table = _clock_names_lowered(table)
+
+
+def samples(
+    table: Table, name: str, notes: list[str], required: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """The times (int64 ns since the epoch, or float s since the start) and readings (N, 3, SI) of
+    ``table``, the export's file ``name`` (``Gyroscope.csv``: it says the sensor) however it was stored
+    (a CSV file, the records of the JSON export). A row whose ``time`` is no number (NaN, or beyond
+    int64) has NaN readings: a NaN sample, dropped and counted by the merge. A table with no rows is an
+    InputFormatError naming it when ``required``."""
+    table, units = _clock_names_lowered(table)
     if required and not len(table.data):
         raise InputFormatError("no samples (a header only)", table.source)
-    kind = _KIND[_plain(member.rpartition("/")[2]).lower()]
+    kind = _KIND[name.lower()]
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=_TIME)
     xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
     times: np.ndarray
@@ -118,7 +149,7 @@ def _table(
         unusable = ~(np.isfinite(exact) & (np.abs(exact) < 2.0**63))
         if unusable.all() and len(unusable):
             raise InputFormatError("no 'time' cell is a number", table.source, table.header_line, "time")
-        times, usable = _epoch_ns(table, ~unusable, notes)
+        times, usable = _epoch_ns(table, ~unusable, notes, units)
         xyz[~usable] = np.nan
     elif "seconds_elapsed" in table.columns:
         times = table.column("seconds_elapsed")
@@ -131,20 +162,64 @@ def _table(
     return times, xyz
 
 
-def _clock_names_lowered(table: Table) -> Table:
-    """``table`` with its clock columns named as the app names them (``TIME``, ``Seconds_Elapsed`` →
-    ``time``, ``seconds_elapsed``): :func:`detect` reads a header whatever its letter case (a spreadsheet
-    or script that re-saved the export may change it), so the reader must find the same columns."""
-    columns = tuple(col.lower() if col.lower() in _TIME else col for col in table.columns)
-    exact = {name.lower(): values for name, values in table.exact.items()}
-    return replace(table, columns=columns, exact=exact)
+@dataclass(frozen=True)
+class _ClockUnits:
+    """The units a header gave its clock columns, as written (``time (ns)`` → ``time="ns"``; "" for
+    none) and the header cells that gave them (for errors)."""
+
+    time: str = ""
+    time_cell: str = "time"
+    elapsed: str = ""
+    elapsed_cell: str = "seconds_elapsed"
 
 
-def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+def _clock_names_lowered(table: Table) -> tuple[Table, _ClockUnits]:
+    """``table`` with its clock columns named as the app names them (``TIME``, ``Seconds_Elapsed``,
+    ``time (ns)`` → ``time``, ``seconds_elapsed``) and the units their header gave: :func:`detect` reads
+    a header whatever its letter case and with units on its clocks (a spreadsheet or script that
+    re-saved the export may change it), so the reader must find the same columns. ``seconds_elapsed``
+    is scaled to s by its unit (an unknown one is an InputFormatError naming the column); ``time``'s
+    unit is checked by :func:`_epoch_ns`."""
+    units = _ClockUnits()
+    columns = []
+    for col in table.columns:
+        clock = clock_of(col)
+        if clock is None or clock[0] in columns:
+            columns.append(col)
+            continue
+        name, unit = clock
+        columns.append(name)
+        if name == "time":
+            units = replace(units, time=unit, time_cell=col)
+        else:
+            units = replace(units, elapsed=unit, elapsed_cell=col)
+    exact = {(clock_of(name) or (name,))[0]: values for name, values in table.exact.items()}
+    data = table.data
+    if units.elapsed:
+        scale = ELAPSED_UNITS.get(units.elapsed.replace("μ", "µ"))
+        if scale is None:
+            raise InputFormatError(
+                f"unknown unit {units.elapsed!r} for seconds_elapsed (known: s, ms, us, ns)",
+                table.source,
+                table.header_line,
+                units.elapsed_cell,
+            )
+        if scale != 1.0:
+            data = data.copy()
+            data[:, columns.index("seconds_elapsed")] *= scale
+    return replace(table, columns=tuple(columns), data=data, exact=exact), units
+
+
+def _epoch_ns(
+    table: Table, usable: np.ndarray, notes: list[str], units: _ClockUnits | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """The ``time`` column as int64 ns since the epoch, its unit told by its size (:data:`EPOCH_UNITS`:
     the app writes ns; a re-export may write µs or ms) and checked against ``seconds_elapsed``'s steps
-    where there is one; and the rows whose time is usable (of ``usable``, those whose ns fit int64). A
-    time that is no epoch in any unit is an InputFormatError naming the column."""
+    where there is one, and against the unit its header names if it names one (``time (ms)`` over
+    values in ns is a header that lies, or values cut wrongly: either way no clock to trust); and the
+    rows whose time is usable (of ``usable``, those whose ns fit int64). A time that is no epoch in any
+    unit is an InputFormatError naming the column."""
+    units = units or _ClockUnits()
     times = table.exact["time"]
     if not usable.any():
         return times, usable
@@ -158,6 +233,14 @@ def _epoch_ns(table: Table, usable: np.ndarray, notes: list[str]) -> tuple[np.nd
             "time",
         )
     _, _, ns_per_unit, name = unit
+    said = units.time.replace("us", "µs").replace("μ", "µ").replace("sec", "s")
+    if said and said != name:
+        raise InputFormatError(
+            f"the header says {units.time!r} but the values are an epoch in {name} (by their size)",
+            table.source,
+            table.header_line,
+            units.time_cell,
+        )
     usable = usable & (np.abs(times) <= np.iinfo(np.int64).max // ns_per_unit)  # a stray far off: NaN
     ns = np.where(usable, times, typical) * ns_per_unit
     if name != "ns":
@@ -192,8 +275,23 @@ def _holds_nothing(c: Container, member: str) -> bool:
     return True
 
 
-def _first(files: dict[str, str], names: tuple[str, ...]) -> str | None:
+def _first(files: Mapping[str, str], names: tuple[str, ...]) -> str | None:
     return next((n for n in names if n in files), None)
+
+
+@dataclass(frozen=True)
+class Export:
+    """A Sensor Logger recording however it was exported (the CSV files, the JSON file), as the sensor
+    files the app names: ``path`` for messages; ``files`` the app's file names present
+    (``Gyroscope.csv``, …, of :data:`_KNOWN`) → where each is read from, for messages; ``table(name)``
+    reads one; ``empty(name)`` says whether it holds nothing at all (0 bytes: the app wrote nothing for
+    that sensor); ``platform`` the recording's platform as its metadata says (lower case, "" unknown)."""
+
+    path: str
+    files: Mapping[str, str]
+    table: Callable[[str], Table]
+    empty: Callable[[str], bool]
+    platform: Callable[[], str]
 
 
 def read(c: Container) -> SensorLog:
@@ -205,20 +303,41 @@ def read(c: Container) -> SensorLog:
             "replay one folder",
             str(c.path),
         )
-    notes: list[str] = ["Sensor Logger export: columns read by name (files are ordered z, y, x)"]
+    layout: list[str] = []
+    if any(m.rpartition("/")[2] != _plain(m.rpartition("/")[2]) for m in files.values()):
+        layout.append("the export's files are gzipped (.csv.gz): read decompressed")
+    if any(_plain(m) != name for name, m in files.items()):
+        folder = next(iter(files.values())).rpartition("/")[0]
+        layout.append(f"the export's files read from {folder or 'the top'} (names matched ignoring case)")
+    export = Export(
+        str(c.path),
+        {name: c.where(member) for name, member in files.items()},
+        lambda name: _csv_table(c, files[name]),
+        lambda name: _holds_nothing(c, files[name]),
+        lambda: c.text(files["Metadata.csv"]).lower() if "Metadata.csv" in files else "",
+    )
+    notes = ["Sensor Logger export: columns read by name (files are ordered z, y, x)"]
+    return assemble(export, NAME, notes, layout)
+
+
+def assemble(export: Export, format_name: str, notes: list[str], layout: Sequence[str] = ()) -> SensorLog:
+    """The log of an export: its gyroscope, magnetometer and accelerometer files chosen and read (see
+    the module docstring), put on one clock, and noted (``notes`` first, then what was chosen, then
+    ``layout``: how the export was stored)."""
+    files = export.files
     parts: dict[SensorKind, tuple[np.ndarray, np.ndarray]] = {}
     gyr = _first(files, GYR_FILES)
     if gyr is None:
-        raise InputFormatError("no Gyroscope.csv (nor GyroscopeUncalibrated.csv) in the export", str(c.path))
+        raise InputFormatError("no Gyroscope.csv (nor GyroscopeUncalibrated.csv) in the export", export.path)
     mag = _first(files, MAG_FILES)
     for kind, name in ((SensorKind.GYR, gyr), (SensorKind.MAG, mag)):
         if name is None:
             continue
-        if kind is SensorKind.MAG and _holds_nothing(c, files[name]):  # as a header only, below
+        if kind is SensorKind.MAG and export.empty(name):  # as a header only, below
             notes.append(f"{name} is empty: 6-axis log, heading not observed")
             mag = None
             continue
-        times, xyz = _table(c, files[name], notes, required=kind is SensorKind.GYR)
+        times, xyz = samples(export.table(name), name, notes, required=kind is SensorKind.GYR)
         if not len(times):  # a magnetometer file with a header only
             notes.append(f"{name} has no samples: 6-axis log, heading not observed")
             mag = None
@@ -228,18 +347,14 @@ def read(c: Container) -> SensorLog:
             notes.append(f"{name}: no calibrated file in the export, using the uncalibrated one")
     if _first(files, MAG_FILES) is None:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
-    parts[SensorKind.ACC] = _accelerometer(c, files, notes)
-    if "Metadata.csv" in files and "ios" in c.text(files["Metadata.csv"]).lower():
+    parts[SensorKind.ACC] = _accelerometer(export, notes)
+    if "ios" in export.platform():
         notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
-    if any(m.rpartition("/")[2] != _plain(m.rpartition("/")[2]) for m in files.values()):
-        notes.append("the export's files are gzipped (.csv.gz): read decompressed")
-    if any(_plain(m) != name for name, m in files.items()):
-        folder = next(iter(files.values())).rpartition("/")[0]
-        notes.append(f"the export's files read from {folder or 'the top'} (names matched ignoring case)")
+    notes.extend(layout)
     epoch = {k: t.dtype.kind == "i" for k, (t, _) in parts.items()}
     if len(set(epoch.values())) > 1:
         raise InputFormatError(
-            "some files have a 'time' column and some do not: no common clock", str(c.path)
+            "some files have a 'time' column and some do not: no common clock", export.path
         )
     streams = {}
     if all(epoch.values()):
@@ -250,20 +365,21 @@ def read(c: Container) -> SensorLog:
     else:
         streams = {kind: SensorStream(kind, t, xyz) for kind, (t, xyz) in parts.items()}
         notes.append("time: seconds_elapsed (no epoch time column)")
-    return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
+    return SensorLog(streams, export.path, format_name, None, tuple(notes))
 
 
-def _accelerometer(c: Container, files: dict[str, str], notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+def _accelerometer(export: Export, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    files = export.files
     if "TotalAcceleration.csv" in files:
-        times, xyz = _table(c, files["TotalAcceleration.csv"], notes)
+        times, xyz = samples(export.table("TotalAcceleration.csv"), "TotalAcceleration.csv", notes)
         notes.append("accelerometer: TotalAcceleration.csv (gravity included)")
         return times, xyz
     if "Accelerometer.csv" in files and "Gravity.csv" in files:
-        user_t, user = _table(c, files["Accelerometer.csv"], notes)
-        grav_t, g = _table(c, files["Gravity.csv"], notes)
+        user_t, user = samples(export.table("Accelerometer.csv"), "Accelerometer.csv", notes)
+        grav_t, g = samples(export.table("Gravity.csv"), "Gravity.csv", notes)
         known = np.all(np.isfinite(g), axis=1)  # gravity interpolated between its usable rows
         if not known.any():
-            raise InputFormatError("no usable samples", c.where(files["Gravity.csv"]))
+            raise InputFormatError("no usable samples", files["Gravity.csv"])
         grav_t, g = grav_t[known], g[known]
         base = grav_t[0]
         tu, tg = (user_t - base).astype(float), (grav_t - base).astype(float)
@@ -271,7 +387,8 @@ def _accelerometer(c: Container, files: dict[str, str], notes: list[str]) -> tup
         notes.append("accelerometer: Accelerometer.csv (user acceleration) + Gravity.csv (interpolated)")
         return user_t, xyz
     if "AccelerometerUncalibrated.csv" in files:
-        times, xyz = _table(c, files["AccelerometerUncalibrated.csv"], notes)
+        name = "AccelerometerUncalibrated.csv"
+        times, xyz = samples(export.table(name), name, notes)
         norm = float(np.nanmedian(np.linalg.norm(xyz, axis=1))) if len(xyz) else G
         if 0.5 < norm < 2.0:  # iOS's raw accelerometer reads in g
             xyz = xyz * G
@@ -282,10 +399,10 @@ def _accelerometer(c: Container, files: dict[str, str], notes: list[str]) -> tup
         raise InputFormatError(
             "only Accelerometer.csv (user acceleration, gravity removed) in the export: the estimator needs "
             "the gravity direction; export TotalAcceleration (or Gravity) as well",
-            c.where(files["Accelerometer.csv"]),
+            files["Accelerometer.csv"],
         )
     raise InputFormatError(
         "no accelerometer file (TotalAcceleration.csv, Accelerometer.csv + Gravity.csv, or "
         "AccelerometerUncalibrated.csv)",
-        str(c.path),
+        export.path,
     )

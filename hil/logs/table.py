@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil.files.bounded import (
+    CHUNK_BYTES,
     MAX_DOCUMENT_BYTES,
     MAX_LINE_BYTES,
     MAX_MEMBER_BYTES,
@@ -181,6 +182,16 @@ class Container:
         with self._open(name) as f:
             yield from _guarded_iter(read_lines(f), self.where(name))
 
+    def chunks(self, name: str, limit: int = MAX_MEMBER_BYTES) -> Iterator[bytes]:
+        """The member's bytes (a ``.gz`` decompressed), a piece of at most
+        :data:`~hil.files.bounded.CHUNK_BYTES` at a time, at most ``limit`` in all (an error naming it
+        past that, or past :data:`~hil.files.bounded.MAX_COMPRESSION_RATIO`): for a reader that is not
+        line by line (a JSON document of one line). A damaged member is an InputFormatError naming it."""
+        where = self.where(name)
+        with self._open(name, limit) as f:
+            while piece := _guarded(lambda: f.read(CHUNK_BYTES), where):
+                yield piece
+
     def head(self, name: str, lines: int = 3) -> list[str]:
         """The first ``lines`` lines (of at most :data:`HEAD_BYTES` bytes), decoded leniently: enough to
         recognise a format without reading the file."""
@@ -315,7 +326,13 @@ def read_table(
     Every data row must have as many cells as the header (or the first row). ``exact_columns`` are also
     read as int64 (e.g. nanosecond epoch times, which float64 rounds to 256 ns); ``converters`` and
     ``locate`` let a reader parse non-numeric cells and explain their errors. The rows read count towards
-    the log's :data:`MAX_LOG_SAMPLES`."""
+    the log's :data:`MAX_LOG_SAMPLES`.
+
+    A header whose last name is empty (``time,seconds_elapsed,z,y,x,``: a tool that re-saved the file
+    ending every line in a delimiter) has no such column, provided every row's last cell is empty too
+    (``…,1.23,``); a row whose trailing cell holds something is an error naming its line and the
+    column by its position, as is a row without the trailing cell. An empty name anywhere else is a
+    column like any other (named by its position in errors)."""
     source = container.where(name)
     parser: _Chunks | None = None
     header_line = 0
@@ -326,6 +343,9 @@ def read_table(
             if found is None:
                 continue
             columns, header_line = _columns(lines[found], first_line + found, header, delimiter)
+            trailing = header and delimiter is not None and len(columns) > 1 and columns[-1] == ""
+            if trailing:  # ``a,b,c,``: a re-save that ends every line in a delimiter
+                columns = columns[:-1]
             if len(columns) < min_columns:
                 raise InputFormatError(
                     f"expected at least {min_columns} columns, found {len(columns)}: is this the right file?",
@@ -333,7 +353,9 @@ def read_table(
                     header_line or first_line + found,
                 )
             exact_idx = tuple((c, columns.index(c)) for c in exact_columns if c in columns)
-            parser = _Chunks(columns, source, delimiter, decimal_comma, converters, locate, exact_idx)
+            parser = _Chunks(
+                columns, source, delimiter, decimal_comma, converters, locate, exact_idx, trailing
+            )
             start = found + 1 if header else found
         rows = parser.parse(lines[start:], first_line + start)
         container.count_samples(rows, source, first_line + len(lines) - 1)
@@ -421,12 +443,48 @@ class _Chunks:
     converters: Mapping[int, Callable[[str], float]] | None
     locate: Locate | None
     exact_idx: tuple[tuple[str, int], ...]
+    trailing: bool = False
+    """Every line ends in a delimiter, after which nothing may stand (see :func:`read_table`)."""
     chunks: list[Array] = field(default_factory=list)
     exact: dict[str, list[NDArray[np.int64]]] = field(default_factory=dict)
 
     def parse(self, lines: list[str], first_line: int) -> int:
         """Parse ``lines`` (without their line breaks), the first of which is line ``first_line``; returns
         the number of rows kept."""
+        problem: InputFormatError | None = None
+        if self.trailing:
+            lines, problem = self._trailing_cut(lines, first_line)
+        rows = self._parse(lines, first_line)
+        if problem is not None:  # raised after the lines before it: an earlier bad cell is the one named
+            raise problem
+        return rows
+
+    def _trailing_cut(self, lines: list[str], first_line: int) -> tuple[list[str], InputFormatError | None]:
+        """``lines`` without their empty trailing cell, up to the first one whose trailing cell is not
+        empty (or missing), and the error naming that one (None: there is none)."""
+        assert self.delimiter is not None
+        cut: list[str] = []
+        empty_cells = (self.delimiter, self.delimiter + '""')
+        for i, line in enumerate(lines):
+            body = line.rstrip("\r").rstrip(" ")  # a trailing cell of spaces is empty too
+            if not body.strip() or body.lstrip().startswith("#"):
+                cut.append(body)
+                continue
+            ending = next((e for e in empty_cells if body.endswith(e)), None)
+            if ending is not None:
+                cut.append(body[: -len(ending)])
+                continue
+            cells = _split(body, self.delimiter)
+            expected = len(self.columns) + 1
+            position = f"{expected}, no name in the header"
+            if len(cells) == expected:
+                what = f"{shown(cells[-1].strip())} in a trailing column whose header name is empty"
+                return cut, InputFormatError(what, self.source, first_line + i, position)
+            what = f"{len(cells)} values, expected {expected} (the header ends in a delimiter)"
+            return cut, InputFormatError(what, self.source, first_line + i)
+        return cut, None
+
+    def _parse(self, lines: list[str], first_line: int) -> int:
         text = "\n".join(lines)
         if not text.strip():
             return 0
@@ -500,10 +558,11 @@ def locate_numeric(
         cells = _split(line, delimiter)
         if len(cells) != len(columns):
             raise InputFormatError(f"{len(cells)} values, expected {len(columns)}", source, line_no)
-        for name, cell in zip(columns, cells, strict=True):
+        for position, (name, cell) in enumerate(zip(columns, cells, strict=True), 1):
             value = cell.strip().strip('"')
             try:
                 float(value.replace(",", ".") if decimal_comma else value)
             except ValueError:
                 what = f"{shown(value)} is not a number" if value else "empty value"
-                raise InputFormatError(what, source, line_no, name) from None
+                column = name or f"{position}, no name in the header"
+                raise InputFormatError(what, source, line_no, column) from None
