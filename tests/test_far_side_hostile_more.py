@@ -301,3 +301,28 @@ def test_a_reset_cause_is_not_made_up_by_a_leap_then_a_real_reset_still_reports(
     resets = [e for e in s.take_events() if isinstance(e, BoardResetEvent)]
     assert [e.cause for e in resets] == [ResetCause.WATCHDOG]
     assert "went back from 1000 ms" in resets[0].evidence
+
+
+def test_a_flood_of_board_logs_is_recorded_in_the_run_at_a_bounded_rate(tmp_path):
+    """20 000 board Log frames in a burst wrote 20 000 flushed lines to ``events.jsonl`` (megabytes a
+    second for as long as the board floods). At most ``BOARD_LOGS_RECORDED_PER_S`` a second of host time
+    are recorded; the rest are counted, and the next one recorded says how many went before it."""
+    from hil.link.board import BoardClient
+    from hil.runtime.faults import FaultJournal
+    from hil.runtime.runlog import EventLog, read_events
+    from hil.runtime.watch import BOARD_LOGS_RECORDED_PER_S, BoardWatch
+    from hil.timing.clock import LockstepClock
+
+    with BoardClient("emu://?units=4", clock=LockstepClock()) as client:
+        events = EventLog(tmp_path / "events.jsonl")
+        watch = BoardWatch(client, events, FaultJournal(), 0.25)
+        flood = [LogEvent(5.0 + k * 1e-5, Log(Severity.WARNING, 7, f"flood {k}")) for k in range(20_000)]
+        watch.on_events(flood)
+        watch.on_events([LogEvent(6.5, Log(Severity.INFO, 1, "after"))])
+        events.close()
+    records = [r for r in read_events(tmp_path / "events.jsonl")[0] if r["kind"] == "board_log"]
+    assert len(records) == BOARD_LOGS_RECORDED_PER_S + 1
+    assert [r["text"] for r in records[:3]] == ["flood 0", "flood 1", "flood 2"]
+    unrecorded = 20_000 - BOARD_LOGS_RECORDED_PER_S
+    assert records[-1]["text"] == "after" and records[-1]["not_recorded_before"] == unrecorded
+    assert watch.board_logs_unrecorded == unrecorded

@@ -66,6 +66,7 @@ def run_summary(
         "reconnects": watch.reconnects,
         "rearms": watch.rearms,
         "stale_episodes": watch.stale_episodes,
+        "board_logs_unrecorded": watch.board_logs_unrecorded,
         "phone_gaps": len(journal.phone_gaps),
         "phone_restarts": counters.phone_restarts,
         "lost": lost or journal.open_at_end(now),

@@ -52,6 +52,11 @@ class View:
     age_s: float | None
 
 
+BOARD_LOGS_RECORDED_PER_S = 20
+"""The board's ``Log`` frames written to ``events.jsonl`` per second of host time (a board logs a few a
+second: its state changes, faults, refused commands); beyond, counted."""
+
+
 class BoardWatch:
     """See the module docstring. ``stale_after_s``: telemetry older than this is not live."""
 
@@ -65,6 +70,10 @@ class BoardWatch:
         self.failsafes = self.resets = self.link_losses = self.reconnects = self.rearms = 0
         self.stale_episodes = 0
         self.unasked_disarms = 0  # ARMED → DISARMED with the host holding it armed (a Disarm retried late)
+        self.board_logs_unrecorded = 0  # board Log frames beyond BOARD_LOGS_RECORDED_PER_S: counted only
+        self._log_window = -math.inf  # host time (s) the current second of recorded board logs began
+        self._logs_in_window = 0
+        self._logs_skipped = 0  # board logs not recorded since the last one that was
         self._reconnects_seen = 0  # the session's reconnect count at the last ConnectedEvent
         self.operator_disarmed = False
         self._rearm: str | Command | None = None  # "pending" or the Arm in flight
@@ -121,7 +130,23 @@ class BoardWatch:
         elif isinstance(event, SilenceEvent):
             self.events.write(t, "silence", since=event.since, ended=event.ended)
         elif isinstance(event, LogEvent):
-            self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text)
+            self._record_board_log(t, event)
+
+    def _record_board_log(self, t: float, event: LogEvent) -> None:
+        """The board's Log into ``events.jsonl``, at most :data:`BOARD_LOGS_RECORDED_PER_S` a second of
+        host time: a board flooding its log (20 000 frames in a burst) wrote a flushed line each — the
+        run directory grew by megabytes a second, the ground station's feed with it. The rest are counted
+        (``board_logs_unrecorded`` in the summary); the next one recorded says how many went before it."""
+        if t - self._log_window >= 1.0:
+            self._log_window, self._logs_in_window = t, 0
+        if self._logs_in_window >= BOARD_LOGS_RECORDED_PER_S:
+            self._logs_skipped += 1
+            self.board_logs_unrecorded += 1
+            return
+        self._logs_in_window += 1
+        skipped = {"not_recorded_before": self._logs_skipped} if self._logs_skipped else {}
+        self._logs_skipped = 0
+        self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text, **skipped)
 
     def _disarmed_unasked(self, event: StateEvent) -> bool:
         """Whether ``event`` is the board leaving ARMED for DISARMED while the host holds it armed: the
