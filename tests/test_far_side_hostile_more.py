@@ -126,15 +126,10 @@ def pty_board() -> Iterator[tuple[ScriptedBoard, BoardClient]]:
         while view:
             view = view[os.write(master, view) :]
 
-    board = ScriptedBoard(read, write)
-    client = BoardClient(os.ttyname(slave))
     try:
-        client.connect(timeout=5.0)
-        client.start()
-        yield board, client
+        with connected(ScriptedBoard(read, write), BoardClient(os.ttyname(slave))) as pair:
+            yield pair
     finally:
-        client.close()
-        board.stop()
         os.close(master)
         os.close(slave)
 
@@ -144,15 +139,20 @@ def can_board() -> Iterator[tuple[ScriptedBoard, BoardClient]]:
     """The same on a python-can ``virtual`` bus: the board's end is a can:// transport sending to the host."""
     url = virtual_url()
     with CanTransport(url, sends=Direction.TO_HOST) as far:
-        board = ScriptedBoard(far.read, far.write)
-        client = BoardClient(url)
-        try:
-            client.connect(timeout=5.0)
-            client.start()
-            yield board, client
-        finally:
-            client.close()
-            board.stop()
+        with connected(ScriptedBoard(far.read, far.write), BoardClient(url)) as pair:
+            yield pair
+
+
+@contextmanager
+def connected(board: ScriptedBoard, client: BoardClient) -> Iterator[tuple[ScriptedBoard, BoardClient]]:
+    """The client's session with the scripted board: connected and started, then both stopped."""
+    try:
+        client.connect(timeout=5.0)
+        client.start()
+        yield board, client
+    finally:
+        client.close()
+        board.stop()
 
 
 def settle(client: BoardClient, until: Callable[[], bool], timeout: float = 3.0) -> None:
