@@ -16,6 +16,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 DEFAULT_BUDGET = 64 * 1024 * 1024  # bytes of history held for late joiners and the replay's timeline
+READ_MAX = 256 * 1024
+"""bytes a stream takes from the hub at a time (one chunk larger than this is taken whole). The whole
+history in one read was a copy of up to the budget per browser, and the server's write buffer another
+until the browser read it: 16 streams that never read held ~2 GiB of a 60 MiB history for
+``SEND_TIMEOUT_S``. In slices, each written once the one before it has gone, a browser that does not
+read holds one slice."""
 
 
 @dataclass
@@ -102,9 +108,10 @@ class Hub:
     def reader(self) -> Reader:
         return Reader(self)
 
-    def _read(self, reader: Reader, timeout: float) -> bytes | None:
+    def _read(self, reader: Reader, timeout: float, max_bytes: int | None = None) -> bytes | None:
         """What ``reader`` has not had yet (``info`` first), waiting up to ``timeout`` s for something; b""
-        if nothing came, None when the hub is closed and the reader has everything."""
+        if nothing came, None when the hub is closed and the reader has everything. ``max_bytes``: whole
+        chunks up to about that many (at least one), the rest left for the next read."""
         with self._cond:
             end_wait = self._cond.wait_for(
                 lambda: (
@@ -127,12 +134,21 @@ class Hub:
                 self.stats.skipped_chunks += self._first - reader.cursor
                 reader.cursor = self._first
             start = reader.cursor - self._first
-            chunks = self._chunks[start:]
+            end = len(self._chunks) if max_bytes is None else self._slice_end(start, max_bytes - len(out))
+            chunks = self._chunks[start:end]
             reader.cursor += len(chunks)
             out += b"".join(chunks)
             if not out and self.closed:
                 return None
             return out
+
+    def _slice_end(self, start: int, room: int) -> int:
+        """The index after the chunks from ``start`` that fit in ``room`` bytes (at least one chunk)."""
+        end, size = start, 0
+        while end < len(self._chunks) and (end == start or size + len(self._chunks[end]) <= room):
+            size += len(self._chunks[end])
+            end += 1
+        return end
 
 
 class Reader:
@@ -143,7 +159,8 @@ class Reader:
         self.cursor = 0
         self.info_version = 0
 
-    def read(self, timeout: float) -> bytes | None:
+    def read(self, timeout: float, max_bytes: int | None = None) -> bytes | None:
         """What this reader has not had yet, waiting up to ``timeout`` s (0: not at all) for something;
-        b"" if nothing came, None once the hub is closed and everything was read."""
-        return self.hub._read(self, timeout)
+        b"" if nothing came, None once the hub is closed and everything was read. ``max_bytes``: at most
+        about that much (whole chunks, at least one; :data:`READ_MAX`), the rest on the next reads."""
+        return self.hub._read(self, timeout, max_bytes)

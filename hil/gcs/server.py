@@ -54,7 +54,7 @@ from tornado.netutil import bind_sockets
 
 from hil.gcs.access import Access
 from hil.gcs.guard import ConnectionGuard, TornadoReports, tornado_settings
-from hil.gcs.hub import Hub
+from hil.gcs.hub import READ_MAX, Hub
 from hil.gcs.uplink import MAX_BODY, Uplink, UplinkClosed
 from hil.link.sources.http_guard import BACKLOG, BodyError, HttpLimits, content_length
 from protocol.errors import InputFormatError
@@ -420,7 +420,7 @@ class _Stream(_Base):
             wake = server._wake
             assert wake is not None
             while True:
-                data = reader.read(0)
+                data = reader.read(0, READ_MAX)  # a slice at a time: a browser that never reads holds one
                 if data is None:
                     await self._send(b"event: bye\ndata: {}\n\n")
                     break

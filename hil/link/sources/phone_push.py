@@ -56,6 +56,12 @@ INLINE_MAX = 64 * 1024
 """bytes: a push up to this size (~800 readings; the app's 20 ms batch is ~1 kB) is decoded in the server's
 handler thread — ~1 ms of json.loads holding the interpreter's lock, a few ms of Python that yields it;
 larger ones in the decoder process (:mod:`.push_decoder`), so that no push can stall the control loop."""
+MAX_MESSAGE_GAP = 100_000
+"""batches: a jump in ``messageId`` at most this far counts the batches between as lost (``message_gaps``:
+at the app's 20 ms period, over half an hour of them). A farther jump is not losses but a numbering of
+another's — a client's own ids, a hostile ``10**4000`` — and starts the count again
+(``message_restarts``), as a jump back does: counted as lost, one id of ``10**4299`` made ``message_gaps`` an
+integer of 4300 digits, and two such made ``summary.json`` unwritable (past Python's digit limit)."""
 
 
 _Timed = tuple[float, tuple[float, float, float]]
@@ -311,11 +317,22 @@ class PhonePushServer(PhoneReceiver):
                 self._total_heard = True
 
     def _count_gaps(self, message_id: int | None) -> None:
-        """Batches lost in transit: a jump in the app's ``messageId``."""
+        """Batches lost in transit: a jump in the app's ``messageId`` of at most :data:`MAX_MESSAGE_GAP`; a
+        jump back or farther is a numbering started again (``message_restarts``), never a count of
+        losses no phone could have sent."""
+        if message_id is None:
+            return
         with self._lock:
-            last, self._last_id = self._last_id, message_id if message_id is not None else self._last_id
-            if message_id is not None and last is not None and message_id > last + 1:
-                self.stats.message_gaps += message_id - last - 1
+            last, self._last_id = self._last_id, message_id
+            if last is None or message_id == last + 1:
+                return
+            jump = message_id - last - 1
+            if 0 < jump <= MAX_MESSAGE_GAP:
+                self.stats.message_gaps += jump
+                return
+            if jump == -1:  # the same batch again (a retry): its samples are the admission's duplicates
+                return
+            self.stats.message_restarts += 1  # nothing dropped: counted, not logged (an app restarts)
 
     def _turned_away(self, reason: str, peer: str, detail: str) -> None:
         """What the HTTP guard (and the handler) turned away: counted by kind; requests also logged."""

@@ -91,6 +91,7 @@ class StreamStats:
     overflow: int = 0  # samples dropped, oldest first, beyond max_queue held (a flood, a stalled consumer)
     held: int = 0  # samples waiting for the next drain (at most max_queue), at the last drain
     message_gaps: int = 0  # messages lost in transit (where the format numbers them)
+    message_restarts: int = 0  # the numbering started again: it went back, or jumped too far to be losses
     kernel_dropped: int = 0  # UDP: datagrams the kernel dropped, its receive buffer full (SO_RXQ_OVFL)
     refused_connections: int = 0  # HTTP: connections beyond the cap (every slot busy), closed unanswered
     evicted_connections: int = 0  # HTTP: idle connections closed to make room for a new one
