@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import IO, TYPE_CHECKING, TypeVar
 
 import numpy as np
+from matplotlib import rc_context
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -27,7 +28,10 @@ def _figure(title: str, ylabel: str) -> tuple[Figure, Axes]:
     every figure)."""
     fig = Figure(figsize=(10, 4))
     fig.subplots_adjust(left=0.08, right=0.74, bottom=0.12, top=0.91)
-    ax = fig.add_subplot()
+    # The title at the axes' top, not placed anew at each draw: nothing is drawn above the axes, and the
+    # automatic placement measured every tick label again (the same pixels; ~3 % of a figure's time).
+    with rc_context({"axes.titley": 1.0}):
+        ax = fig.add_subplot()
     ax.set_xlabel("time (s)")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
