@@ -26,8 +26,18 @@ invariant                   holds when
 
 A fault the host *cannot* see is not expected to be reported: one that lands while the link is already
 down (masked by another), one too short to matter (a stall shorter than the stale bound), or one too close
-to the run's end for its bound to pass. Figures come back too: each detected fault's latency and each
-recovery's time (fault → the host back in control), for a campaign's percentiles.
+to the run's end for its bound to pass. Faults that overlap are held to what the host can honestly tell:
+
+* a report another fault held back is due that much later: a stall or an unplug blocks the board's
+  reports; a phone gap blocks a clock jump's (told only by readings on the new clock);
+* a board that went silent (a hang) and then lost its cable before its stale view was due is reported by
+  the link lost, not a stale view;
+* resets closer together than the board can answer are one reset to the host (:class:`_ResetEpisode`):
+  a hang, brown-out or unplug before the host reported an earlier one's reset is *merged* (listed with
+  the unseen), and that one report is due once the last of them has passed.
+
+Figures come back too: each detected fault's latency and each recovery's time (fault → the host back in
+control), for a campaign's percentiles — one reset report, one figure.
 """
 
 from __future__ import annotations
@@ -281,6 +291,7 @@ def _detected(
     end: float,
 ) -> None:
     journal = record.summary.get("faults", [])
+    episodes = _reset_episodes(faults, journal, bounds)
     for fault in faults:
         if fault.kind in OPERATOR_KINDS:
             continue
@@ -290,10 +301,30 @@ def _detected(
         if _masked(fault, rows, bounds):
             report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
             continue
+        episode = next((ep for ep in episodes if any(fault is f for f in (ep.leader, *ep.merged))), None)
+        if episode is not None and fault is not episode.leader:
+            report.unseen.append(
+                f"{fault.describe()} (merged: it came before the host had reported "
+                f"{episode.leader.describe()}'s reset; a board that resets again before it has answered "
+                "shows the host one reset)"
+            )
+            # its reset is the episode's (the leader's, to its due); a hang that waited for the main loop
+            # has no silence of its own to be stale
+            expected = [] if fault.kind == "hang" else [e for e in expected if "reset" not in e.kinds]
         resets = _other_resets(fault, faults, bounds)
         for e in expected:
-            blocked = _blocked_s(fault, faults, bounds, e.bound)
-            e = _Expect(e.kinds, e.bound + blocked, None if resets else e.cause, e.reason)
+            members: tuple[InjectedFault, ...] = ()
+            if episode is not None and episode.merged and "reset" in e.kinds:
+                e = _Expect(e.kinds, max(e.bound, episode.due - fault.t), e.cause, e.reason)
+                members = episode.merged  # already in the episode's due: not a blocked link besides
+            others = [f for f in faults if not any(f is m for m in members)]
+            blocked = _blocked_s(fault, others, bounds, e.bound)
+            if fault.kind == "phone_jump":
+                blocked += _phone_silent_s(fault, faults, e.bound)
+            kinds = e.kinds
+            if "stale" in kinds and "link_lost" not in kinds and _unplugged_first(fault, faults, bounds):
+                kinds = (*kinds, "link_lost")
+            e = _Expect(kinds, e.bound + blocked, None if resets else e.cause, e.reason)
             if fault.t + e.bound > end:
                 report.unseen.append(f"{fault.describe()} (too close to the end for its {e.bound:.2f} s)")
                 continue
@@ -346,12 +377,91 @@ def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds,
     return extra
 
 
+def _phone_silent_s(fault: InjectedFault, faults: Sequence[InjectedFault], due_s: float) -> float:
+    """How long phone gaps kept ``fault``'s readings from the host within the ``due_s`` its report had
+    (s). A clock jump is told by the readings stamped on the new clock (several in a row, over a span:
+    :mod:`hil.estimation.admission`); a gap that begins before enough of them came, or a jump made during
+    a gap, leaves the host nothing to tell it by until the stream resumes — the report is honest then,
+    ``due_s`` after the gap's end, not ``due_s`` after the jump."""
+    extra = 0.0
+    for other in faults:
+        if other is fault or other.kind != "phone_gap":
+            continue
+        end = other.t + other.params.get("duration_s", 0.0)
+        if other.t <= fault.t + due_s + extra and end >= fault.t:
+            extra += end - max(other.t, fault.t)
+    return extra
+
+
+def _unplugged_first(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> bool:
+    """Whether an unplug came after ``fault`` but before a stale view of it was due: the port is gone
+    then, so the host's first report of the silent board is the link lost, never a stale view (the
+    stale bound runs on a link that still carries nothing; a link that is gone is reported at once)."""
+    return any(
+        other is not fault and other.kind == "unplug" and fault.t <= other.t <= fault.t + b.detect_s
+        for other in faults
+    )
+
+
+RESETTING = ("hang", "brownout", "unplug")
+"""The faults that reset the board (a watchdog, a brown-out, a power-on reset)."""
+
+
+def _reset_due_s(fault: InjectedFault, b: Bounds) -> float:
+    """Fault → its reset reported, at the latest (s): an unplug's once the cable is back and the host has
+    reconnected; a hang's or a brown-out's within :data:`RESET_S`."""
+    if fault.kind == "unplug":
+        return fault.params.get("duration_s", 0.0) + b.reconnect_max_s + RESET_S
+    return RESET_S
+
+
+@dataclass(frozen=True)
+class _ResetEpisode:
+    """Resetting faults the host sees as one reset: the first (``leader``), those that came before the host
+    had reported its reset (``merged``), and when that one report is due at the latest (``due``, s).
+
+    A hang, brown-out or unplug that comes while an earlier one's reset has not yet been reported — the
+    board hung, in reset, unpowered, or booted and not yet through the host's handshake — may well reset
+    the board again (a hang that lands in reset or boot waits and hangs the main loop the moment it runs:
+    ``firmware_sim.board.faults``), but the host cannot tell that reset from the first: the new boot's
+    first frames carry the same uptime as the last boot's did, and the board tells only its last reset's
+    cause. So the host honestly reports one reset for them all, once the last has passed; the merged
+    faults' own resets are not expected of it (an unplug's link lost still is)."""
+
+    leader: InjectedFault
+    merged: tuple[InjectedFault, ...]
+    due: float
+
+
+def _reset_episodes(
+    faults: Sequence[InjectedFault], journal: Sequence[Mapping[str, Any]], b: Bounds
+) -> list[_ResetEpisode]:
+    """The resetting faults grouped as the host can see them (:class:`_ResetEpisode`), in time order —
+    masked ones too: a reset the host could not see still delays the one it reports."""
+    order = {id(f): k for k, f in enumerate(faults)}
+    resetting = sorted((f for f in faults if f.kind in RESETTING), key=lambda f: (f.t, order[id(f)]))
+    episodes: list[_ResetEpisode] = []
+    for fault in resetting:
+        last = episodes[-1] if episodes else None
+        reported = last is not None and any(
+            r["kind"] == "reset" and last.leader.t <= r["t"] <= fault.t for r in journal
+        )
+        if last is None or reported or fault.t >= last.due:
+            episodes.append(_ResetEpisode(fault, (), fault.t + _reset_due_s(fault, b)))
+            continue
+        if fault.kind == "hang":  # it waits for the boot after the reset before it, then hangs that
+            due = max(last.due, fault.t) + RESET_S
+        else:
+            due = max(last.due, fault.t + _reset_due_s(fault, b))
+        episodes[-1] = _ResetEpisode(last.leader, (*last.merged, fault), due)
+    return episodes
+
+
 def _other_resets(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> bool:
     """Whether another reset (a hang, a brown-out, an unplug) came before ``fault``'s reset could be
     reported: the board then tells only its last reset's cause."""
     return any(
-        other is not fault and other.kind in ("hang", "brownout", "unplug") and abs(other.t - fault.t) < 10.0
-        for other in faults
+        other is not fault and other.kind in RESETTING and abs(other.t - fault.t) < 10.0 for other in faults
     )
 
 
