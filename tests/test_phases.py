@@ -114,3 +114,23 @@ def test_the_operators_suspension_holds_faults_and_moves_the_run_clock():
         start + 14.9, 10.0
     )  # 9.9 s of the run's clock: the 5 s suspended not counted
     assert phases.time_is_up(start + 15.0, 10.0)
+
+
+def test_no_tick_commands_the_rotors_before_the_first_still_window_at_rest_has_ended(tmp_path):
+    """The first tick, before any telemetry, sent the blind hold — rotors at nominal speed — to a board
+    already armed: its rotors were kicked to ~20 rad/s inside the still window that measures the gyro bias
+    with them stopped (and a board hung then spun them up). Every command and every rotor speed before
+    the spin-up is now zero."""
+    from hil.runtime import RunOptions, run
+    from hil.runtime.runlog import read_events, read_telemetry
+
+    sc = load_scenario("cubesat-1u")
+    result = run(sc, RunOptions(out_root=tmp_path, duration_s=0.5))
+    events = read_events(result.run_dir / "events.jsonl")[0]
+    spin_up = next(e["t"] for e in events if e["kind"] == "spin_up")
+    tel = read_telemetry(result.run_dir / "telemetry.csv")
+    before = tel["t"] < spin_up
+    assert before.sum() > 50  # the still window's ticks (2 s at 50 Hz)
+    for unit in range(sc.n_units):
+        assert np.all(np.nan_to_num(tel[f"cmd_rotor_speed_{unit}"][before]) == 0.0)
+        assert np.all(np.nan_to_num(tel[f"rotor_speed_{unit}"][before]) == 0.0)

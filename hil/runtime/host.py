@@ -243,7 +243,7 @@ class Host:
         tel = view.telemetry
         if tel is None or len(tel.units) != self.n:
             self._hold_if_blind()
-            hold = self.control.hold if self._hold_tick == self.counters.control_ticks else None
+            hold = self._blind_hold() if self._hold_tick == self.counters.control_ticks else None
             self.rows.record(self._snapshot(t, view, None, None, hold, None))
             # the run's time is up whether or not the board is in view: one that ends blind ends with
             # its outage still on, and says so (it ran on past its end to the next live tick, completed)
@@ -309,14 +309,21 @@ class Host:
             self.counters.setpoint_errors += 1
 
     def _hold_if_blind(self) -> None:
-        """The host cannot see the board: it stops commanding it. One hold setpoint (gimbals still, rotors
-        at nominal speed) goes out when it loses sight of it, if the link carries it, so that a board that
-        still hears the host does not carry on with a command made from what is now stale."""
+        """The host cannot see the board: it stops commanding it. One hold setpoint (:meth:`_blind_hold`)
+        goes out when it loses sight of it, if the link carries it, so that a board that still hears the
+        host does not carry on with a command made from what is now stale."""
         if self._hold_sent or not self.client.connected or self.watch.rearm_pending:
             return
         self._hold_sent = True
         self._hold_tick = self.counters.control_ticks
-        self._send(self.control.hold)
+        self._send(self._blind_hold())
+
+    def _blind_hold(self) -> ActuatorSetpoint:
+        """What the host holds the board at while it cannot see it: gimbals still, the rotors at rest
+        during the first warm-up's still window (before its spin-up: the window measures the gyro bias
+        with the rotors stopped), else at nominal speed. (The first tick, before any telemetry, sent the
+        nominal speed: an armed board's rotors were kicked to ~20 rad/s inside the rest window.)"""
+        return self.control.rest if self.phases.resting else self.control.hold
 
     def _phone_fresh(self, t: float) -> bool:
         """Whether the phone's samples are fresh at ``t`` (:meth:`PhoneClock.freshness`); a gap is a

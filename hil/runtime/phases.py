@@ -101,7 +101,9 @@ class RunPhases:
         self.slew: EigenaxisSlew | None = None
         self.slew_start: float | None = None  # the scenario's slew started at (host s)
         self.need_still = True  # the warm-up's still window is due (the first one, or the phone's back)
-        self._rest_still = False  # the first still window runs before the spin-up (the rotors at rest)
+        # the first still window runs before the spin-up (the rotors at rest); taken to be so until the
+        # first tick with the board in hand measures them, so no tick before it commands nominal speed
+        self._rest_still = True
         self._resume_still = False  # the phone went away while suspended: the Arm's warm-up has its window
         self._given_up: set[int] = set()  # units whose rotor never reached speed: not waited for again
         self.suspended_since: float | None = None  # the operator's Disarm suspended the run at (host s)
