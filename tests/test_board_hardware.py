@@ -82,8 +82,13 @@ def _board(units: list[dict], supply: dict) -> Board:
 
 
 def _bits(x: object) -> object:
-    """A float as its bytes (NaN equals itself, -0.0 differs from 0.0); anything else as it is."""
-    return struct.pack("<d", x) if type(x) is float else x
+    """A float as its bytes (-0.0 differs from 0.0), every NaN as one value (NaN equals itself; its sign
+    and payload mean nothing, and CPython's specialised float operations, which take over after a few
+    calls, may give a NaN of the other sign than the generic ones: the same inputs drew a positive NaN on
+    one call and a negative one on the next); anything else as it is."""
+    if type(x) is float:
+        return "nan" if x != x else struct.pack("<d", x)
+    return x
 
 
 def _hardware(board: Board) -> list[object]:

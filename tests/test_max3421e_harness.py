@@ -269,7 +269,7 @@ def test_firmware_sim_usb_refusals(argv, why, capsys):
     from firmware_sim.cli import main
 
     with pytest.raises(SystemExit) as exc:
-        main([*argv, "--duration", "0"])
+        main([*argv, "--duration", "0.01"])  # refused before it serves: the duration never runs
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--usb" in err and why in err, err
