@@ -23,19 +23,10 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from hil.montecarlo.fault_plan import fault_options, operator_schedule
-from hil.montecarlo.runner import fault_bounds
-from hil.runtime import RunOptions, run
-from hil.runtime.faults import BoardLink
-from hil.runtime.invariants import InjectedFault, InvariantReport, check_run
-from hil.runtime.observer import Observers
-from hil.runtime.operator import ScheduledOperator
+from hil.runtime.invariants import InjectedFault
 from hil.runtime.record import RunRecorder
-from hil.scenario import Scenario, load_scenario
-from protocol.messages import BoardState
+from tests.fault_support import check_honest_end, run_faults
 
-SCENARIO = "cubesat-1u"
-DURATION_S = 6.0  # after the slew's start (~3.7 s): a run of ~10 s simulated, ~0.4 s of wall time
 SETTINGS = settings(
     max_examples=50,
     deadline=None,
@@ -43,40 +34,6 @@ SETTINGS = settings(
     phases=[Phase.explicit, Phase.generate],  # no shrinking: a failing run is bounded too
     suppress_health_check=[HealthCheck.too_slow],
 )
-
-
-def _scenario() -> Scenario:
-    sc = load_scenario(SCENARIO)
-    return sc.with_changes(slew=sc.slew.__class__(**{**sc.slew.__dict__, "duration_s": DURATION_S}))
-
-
-def _run(faults: list[InjectedFault]) -> tuple[Scenario, RunRecorder]:
-    sc = _scenario()
-    recorder = RunRecorder(sc.n_units)
-    schedule = operator_schedule(tuple(faults))
-    observer = Observers(recorder, ScheduledOperator(list(schedule))) if schedule else recorder
-    sc = sc.with_changes(fault_options=fault_options(tuple(faults), sc.fault_options))
-    run(sc, RunOptions(out_root=None, observer=observer, rows_to_observer=True))
-    return sc, recorder
-
-
-def _check_honest_end(faults: list[InjectedFault], sc: Scenario, recorder: RunRecorder) -> InvariantReport:
-    """Every invariant of the campaigns, and: ``completed`` only with the board live and ARMED at the end;
-    the summary's reset and failsafe counts are those of the journal and of ``events.jsonl``."""
-    report = check_run(faults, recorder, fault_bounds(sc))
-    assert report.ok, (report.violations, [f.describe() for f in faults])
-    s = recorder.summary
-    rows = recorder.rows()
-    if s["exit"] == "completed":
-        assert rows["board_link"][-1] == BoardLink.LIVE, "completed without a live board at the end"
-        assert rows["board_state"][-1] == BoardState.ARMED, (
-            f"completed with the board {BoardState(int(rows['board_state'][-1])).name} at the end"
-        )
-    journal = s["faults"]
-    assert s["board_resets"] == sum(f["kind"] == "reset" for f in journal)
-    assert s["board_resets"] == sum(e["kind"] == "board_reset" for e in recorder.events)
-    assert s["failsafe_events"] == sum(f["kind"] == "failsafe" for f in journal)
-    return report
 
 
 def _journal(recorder: RunRecorder, kind: str) -> list[dict]:
@@ -91,8 +48,8 @@ def test_a_hang_then_an_unplug_before_its_stale_is_told_by_the_link_lost(after_s
     so at once (``link_lost``), then reported the reset once it was back. That is the hang's honest first
     report."""
     faults = [InjectedFault("hang", 5.0), InjectedFault("unplug", 5.0 + after_s, {"duration_s": 0.3})]
-    sc, recorder = _run(faults)
-    report = _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    report = check_honest_end(faults, sc, recorder)
     assert not _journal(recorder, "stale"), "no stale view: the link was gone first"
     (lost,) = _journal(recorder, "link_lost")
     assert lost["t"] - (5.0 + after_s) <= 0.02
@@ -118,8 +75,8 @@ def test_a_clock_jump_in_a_phone_gap_is_reported_once_the_stream_resumes(jump_at
         InjectedFault("phone_gap", 5.0, {"duration_s": 1.0}),
         InjectedFault("phone_jump", jump_at, {"offset_s": offset_s}),
     ]
-    sc, recorder = _run(faults)
-    report = _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    report = check_honest_end(faults, sc, recorder)
     (told,) = _journal(recorder, reported_as)
     assert 6.0 <= told["t"] <= 6.2
     assert "phone_jump" in [kind for kind, _ in report.detection]
@@ -132,8 +89,8 @@ def test_hangs_closer_than_the_board_can_answer_are_one_reset_due_after_the_last
     reported at 6.68 s. Before: "hang@5.000: no reset reported within 1.50 s". Now the one reset is due
     1.5 s after each waiting hang's boot, and the later hangs are listed as merged, not detected."""
     faults = [InjectedFault("hang", 5.0), InjectedFault("hang", 5.1), InjectedFault("hang", 5.2)]
-    sc, recorder = _run(faults)
-    report = _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    report = check_honest_end(faults, sc, recorder)
     (reset,) = _journal(recorder, "reset")
     assert reset["cause"] == "WATCHDOG" and reset["t"] > 6.5
     merged = [u for u in report.unseen if "(merged:" in u]
@@ -148,8 +105,8 @@ def test_one_reset_reported_is_one_fault_s_detection():
     """Two hangs 0.2 s apart, one reset reported: before, both hangs were credited with it (and with the
     first's stale view) — four detection figures for two reports. Now two: the first hang's."""
     faults = [InjectedFault("hang", 5.0), InjectedFault("hang", 5.2)]
-    sc, recorder = _run(faults)
-    report = _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    report = check_honest_end(faults, sc, recorder)
     assert len(_journal(recorder, "reset")) == 1 and len(_journal(recorder, "stale")) == 1
     assert [kind for kind, _ in report.detection] == ["hang", "hang"]
 
@@ -181,8 +138,8 @@ def test_board_faults_on_top_of_each_other_end_honestly(start, chain):
     """Two to four hangs, unplugs, brown-outs and stalls, each at a drawn moment soon after the last (the
     first of them anywhere in the run): every invariant holds, and the counts agree with the record."""
     faults = _board_chain(start, chain)
-    sc, recorder = _run(faults)
-    _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    check_honest_end(faults, sc, recorder)
 
 
 @SETTINGS
@@ -205,5 +162,5 @@ def test_a_phone_clock_jump_around_a_phone_gap_ends_honestly(gap_at, gap_s, jump
         kind, after, duration_s = board
         faults += _board_chain(max(gap_at + after, 0.0), [(kind, 0.0, duration_s)])
     faults.sort(key=lambda f: f.t)
-    sc, recorder = _run(faults)
-    _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    check_honest_end(faults, sc, recorder)

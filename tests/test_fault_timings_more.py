@@ -18,19 +18,10 @@ import pytest
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from hil.montecarlo.fault_plan import fault_options, operator_schedule
-from hil.montecarlo.runner import fault_bounds
-from hil.runtime import RunOptions, run
-from hil.runtime.faults import BoardLink
-from hil.runtime.invariants import InjectedFault, check_run
-from hil.runtime.observer import Observers
-from hil.runtime.operator import ScheduledOperator
-from hil.runtime.record import RunRecorder
-from hil.scenario import load_scenario
+from hil.runtime.invariants import InjectedFault
 from protocol.messages import BoardState
+from tests.fault_support import check_honest_end, run_faults
 
-SCENARIO = "cubesat-1u"
-DURATION_S = 6.0  # after the slew's start (~3.7 s): a run of ~10 s simulated, ~0.4 s of wall time
 SETTINGS = settings(
     max_examples=8,
     deadline=None,
@@ -38,39 +29,6 @@ SETTINGS = settings(
     phases=[Phase.explicit, Phase.generate],  # no shrinking: a failing run is bounded too
     suppress_health_check=[HealthCheck.too_slow],
 )
-
-
-def _scenario():
-    sc = load_scenario(SCENARIO)
-    return sc.with_changes(slew=sc.slew.__class__(**{**sc.slew.__dict__, "duration_s": DURATION_S}))
-
-
-def _run(faults):
-    sc = _scenario()
-    recorder = RunRecorder(sc.n_units)
-    schedule = operator_schedule(tuple(faults))
-    observer = Observers(recorder, ScheduledOperator(list(schedule))) if schedule else recorder
-    sc = sc.with_changes(fault_options=fault_options(tuple(faults), sc.fault_options))
-    run(sc, RunOptions(out_root=None, observer=observer, rows_to_observer=True))
-    return sc, recorder
-
-
-def _check_honest_end(faults, sc, recorder):
-    """Every invariant of the campaigns, and: ``completed`` only with the board live and ARMED at the end;
-    the summary's reset and failsafe counts are those of the journal and of ``events.jsonl``."""
-    report = check_run(faults, recorder, fault_bounds(sc))
-    assert report.ok, report.violations
-    s = recorder.summary
-    rows = recorder.rows()
-    if s["exit"] == "completed":
-        assert rows["board_link"][-1] == BoardLink.LIVE, "completed without a live board at the end"
-        assert rows["board_state"][-1] == BoardState.ARMED, (
-            f"completed with the board {BoardState(int(rows['board_state'][-1])).name} at the end"
-        )
-    journal = s["faults"]
-    assert s["board_resets"] == sum(f["kind"] == "reset" for f in journal)
-    assert s["board_resets"] == sum(e["kind"] == "board_reset" for e in recorder.events)
-    assert s["failsafe_events"] == sum(f["kind"] == "failsafe" for f in journal)
 
 
 # --------------------------------------------------------------------------- the Disarm retried late
@@ -84,8 +42,8 @@ def test_a_disarm_retried_after_the_operator_s_arm_is_seen_and_the_board_re_arme
         InjectedFault("disarm", 3.826),
         InjectedFault("arm", 3.876, {"after_disarm_s": 0.05}),
     ]
-    sc, recorder = _run(faults)
-    _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    check_honest_end(faults, sc, recorder)
     s = recorder.summary
     assert s["exit"] == "completed" and s["link"]["superseded"] == 1
     assert recorder.first_event("unasked_disarm") is None
@@ -142,8 +100,8 @@ def test_the_operator_s_disarm_in_a_stall_and_arm_after_it_at_any_phase_end_hone
         InjectedFault("disarm", disarm_at),
         InjectedFault("arm", arm_at, {"after_disarm_s": round(arm_at - disarm_at, 3)}),
     ]
-    sc, recorder = _run(faults)
-    _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    check_honest_end(faults, sc, recorder)
 
 
 # --------------------------------------------------------------------------- single faults, any moment
@@ -161,8 +119,8 @@ def test_a_board_fault_at_any_moment_ends_the_run_honestly(kind, at, duration_s)
     a ``completed`` run ends with the board in hand, and the counts agree with the record."""
     params = {"duration_s": duration_s} if kind in ("unplug", "stall") else {}
     faults = [InjectedFault(kind, round(at, 3), params)]
-    sc, recorder = _run(faults)
-    _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    check_honest_end(faults, sc, recorder)
 
 
 @pytest.mark.parametrize("spacing_s", [1.5, 2.5])
@@ -170,8 +128,8 @@ def test_repeated_unplugs_each_counted_and_recovered(spacing_s):
     """Three restarts of the board in a row, each after the host re-armed it: three resets reported (each
     POWER_ON), three re-arms, and the run completes with the board in hand."""
     faults = [InjectedFault("unplug", 4.2 + i * spacing_s, {"duration_s": 0.3}) for i in range(3)]
-    sc, recorder = _run(faults)
-    _check_honest_end(faults, sc, recorder)
+    sc, recorder = run_faults(faults)
+    check_honest_end(faults, sc, recorder)
     s = recorder.summary
     assert s["exit"] == "completed"
     assert s["board_resets"] == 3 and s["rearms"] == 3
