@@ -3,6 +3,8 @@ pass (tests/test_fault_timings_more.py, tests/test_fault_overlaps.py)."""
 
 from __future__ import annotations
 
+from hypothesis import HealthCheck, Phase, settings
+
 from hil.montecarlo.fault_plan import fault_options, operator_schedule
 from hil.montecarlo.runner import fault_bounds
 from hil.runtime import RunOptions, run
@@ -16,6 +18,18 @@ from protocol.messages import BoardState
 
 SCENARIO = "cubesat-1u"
 DURATION_S = 6.0  # after the slew's start (~3.7 s): a run of ~10 s simulated, ~0.4 s of wall time
+
+
+def faulted_run_settings(max_examples: int) -> settings:
+    """Hypothesis settings for drawn faulted runs: derandomized (the same draws in every CI run) and not
+    shrunk (each run costs ~0.4 s: a failing one stays bounded too)."""
+    return settings(
+        max_examples=max_examples,
+        deadline=None,
+        derandomize=True,
+        phases=[Phase.explicit, Phase.generate],
+        suppress_health_check=[HealthCheck.too_slow],
+    )
 
 
 def short_scenario() -> Scenario:

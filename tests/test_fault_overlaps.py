@@ -20,20 +20,14 @@ What was wrong (the checker each time; the runtime's reports were honest):
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from hil.runtime.invariants import InjectedFault
 from hil.runtime.record import RunRecorder
-from tests.fault_support import check_honest_end, run_faults
+from tests.fault_support import check_honest_end, faulted_run_settings, run_faults
 
-SETTINGS = settings(
-    max_examples=50,
-    deadline=None,
-    derandomize=True,
-    phases=[Phase.explicit, Phase.generate],  # no shrinking: a failing run is bounded too
-    suppress_health_check=[HealthCheck.too_slow],
-)
+SETTINGS = faulted_run_settings(50)
 
 
 def _journal(recorder: RunRecorder, kind: str) -> list[dict]:

@@ -15,20 +15,14 @@ host still means is a fault the host recovers from (:class:`hil.runtime.watch.Bo
 from __future__ import annotations
 
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from hil.runtime.invariants import InjectedFault
 from protocol.messages import BoardState
-from tests.fault_support import check_honest_end, run_faults
+from tests.fault_support import check_honest_end, faulted_run_settings, run_faults
 
-SETTINGS = settings(
-    max_examples=8,
-    deadline=None,
-    derandomize=True,
-    phases=[Phase.explicit, Phase.generate],  # no shrinking: a failing run is bounded too
-    suppress_health_check=[HealthCheck.too_slow],
-)
+SETTINGS = faulted_run_settings(8)
 
 
 # --------------------------------------------------------------------------- the Disarm retried late
