@@ -41,6 +41,13 @@ the segment that completed a frame, arriving next on its arbitration id (CAN's "
 transmitter saw an error frame and sends the same CAN frame again at once), is counted as a duplicate;
 a repeat within a frame still being assembled is too. Memory is bounded: per arbitration id ``window``
 partial frames and one segment, for at most ``max_streams`` arbitration ids.
+
+What cannot be a segment is counted before it can touch a frame in flight: frames of the other kind
+than the receiver's (``wrong_kind``; a receiver taking both never joins the two kinds in one frame),
+error and remote frames (``error_frames``), and ``malformed`` data — under 2 bytes, over the kind's
+limit, a CAN FD length no DLC gives, an index past the last segment, a short middle segment, a first
+segment ending a frame shorter than :data:`MIN_WIRE`. One segment that fails its CRC is ``malformed``
+too (it joins nothing: not a splice).
 """
 
 from __future__ import annotations
@@ -73,6 +80,8 @@ from .speedups import unseal
 
 MAX_WIRE = MAX_ENCODED + 1
 """Longest wire frame including its delimiter."""
+MIN_WIRE = MIN_FRAME + 2
+"""Shortest wire frame: the smallest frame, its COBS code byte and its delimiter."""
 CLASSIC_DATA = 8
 FD_DATA = 64
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
@@ -222,16 +231,20 @@ class CanStats:
     frames: int = 0  # wire frames completed and delivered
     incomplete: int = 0  # partial frames discarded (a segment lost, conflicting, or the sender moved on)
     cut: int = 0  # partial frames cut by the receiver's start (a tail heard first) or reset: not a loss
-    spliced: int = 0  # "complete" frames that failed their CRC: segments of different frames joined
-    malformed: int = 0  # CAN frames that cannot be a segment (too short or long, bad index, short middle)
+    spliced: int = 0  # "complete" frames of 2+ segments that failed their CRC: different frames joined
+    malformed: int = 0  # CAN frames that cannot be a segment (too short or long, bad index or FD length,
+    # short middle, a frame shorter than the shortest wire frame) and one-segment frames failing their CRC
     duplicates: int = 0  # segments received twice with the same content
     ignored: int = 0  # CAN frames outside the scheme, for another node or the other direction
+    wrong_kind: int = 0  # CAN FD frames on a classic link, classic frames on an FD link
+    error_frames: int = 0  # CAN error frames and remote frames (never a segment; ``feed_message``)
 
 
 @dataclass
 class _Partial:
     segments: dict[int, bytes] = field(default_factory=dict)
     last: int | None = None  # index of the segment holding the delimiter
+    fd: bool = False  # the kind of CAN frame its segments came in (their size depends on it)
 
 
 @dataclass
@@ -261,8 +274,10 @@ class CanReassembler:
     """Receiver side: CAN frames in, complete wire frames out (feed them to a ``Deframer``).
 
     ``node``/``direction`` filter what this end accepts (a host: ``direction=Direction.TO_HOST`` and
-    its board's node; None accepts any). Each arbitration id is one stream with up to ``window`` partial
-    frames in flight; at most ``max_streams`` streams are tracked (the least recently heard is dropped).
+    its board's node; None accepts any); ``fd`` the kind of CAN frame (True: CAN FD, False: classic,
+    None: either — segments of one frame are then still never taken from both kinds). Each arbitration
+    id is one stream with up to ``window`` partial frames in flight; at most ``max_streams`` streams are
+    tracked (the least recently heard is dropped).
     """
 
     def __init__(
@@ -271,10 +286,12 @@ class CanReassembler:
         direction: Direction | None = None,
         window: int = 2,
         max_streams: int = 32,
+        fd: bool | None = None,
     ) -> None:
         _check_config(0 if node is None else node, window, max_streams)
         self.node = node
         self.direction = None if direction is None else Direction(direction)
+        self.fd = None if fd is None else bool(fd)
         self.window = window
         self.max_streams = max_streams
         self.stats = CanStats()
@@ -291,14 +308,18 @@ class CanReassembler:
     def feed(
         self, arbitration_id: int, data: bytes, is_fd: bool = False, is_extended_id: bool = False
     ) -> bytes:
-        """One received CAN frame; returns the wire frames it completed (possibly b"")."""
+        """One received CAN data frame; returns the wire frames it completed (possibly b"")."""
+        is_fd = bool(is_fd)
         if is_extended_id or not self._accepts(arbitration_id):
             self.stats.ignored += 1
+            return b""
+        if self.fd is not None and is_fd != self.fd:
+            self.stats.wrong_kind += 1  # another node's traffic: never a segment of this link's frames
             return b""
         data = bytes(data)
         limit = FD_DATA if is_fd else CLASSIC_DATA
         per = segment_payload(is_fd)
-        if len(data) < 2 or len(data) > limit:
+        if len(data) < 2 or len(data) > limit or (is_fd and len(data) not in FD_LENGTHS):
             self.stats.malformed += 1
             return b""
         tid, index = data[0] >> _TID_SHIFT, data[0] & _INDEX_MASK
@@ -306,7 +327,11 @@ class CanReassembler:
         end = chunk.find(DELIMITER)
         if end >= 0:
             chunk = chunk[: end + 1]  # the rest is CAN FD padding
-        if index >= max_segments(is_fd) or (end < 0 and len(chunk) != per):
+        if (
+            index >= max_segments(is_fd)
+            or (end < 0 and len(chunk) != per)
+            or (index == 0 and end >= 0 and len(chunk) < MIN_WIRE)  # a frame shorter than any frame
+        ):
             self.stats.malformed += 1
             return b""
         self.stats.segments += 1
@@ -331,11 +356,11 @@ class CanReassembler:
             stream.headed = True
         partial = partials.get(tid)
         if partial is None:
-            partial = self._open(partials, tid)
-        elif self._conflicts(partial, index, chunk, end >= 0):
+            partial = self._open(partials, tid, is_fd)
+        elif partial.fd != is_fd or self._conflicts(partial, index, chunk, end >= 0):
             del partials[tid]
             self.stats.incomplete += 1
-            partial = self._open(partials, tid)
+            partial = self._open(partials, tid, is_fd)
         elif partial.segments.get(index) == chunk:
             self.stats.duplicates += 1
             return b""
@@ -350,11 +375,15 @@ class CanReassembler:
             self.stats.malformed += 1
             return b""
         if not _intact(wire):
+            if len(partial.segments) == 1:  # one segment joins nothing: a sender's corrupt frame
+                del partials[tid]
+                self.stats.malformed += 1
+                return b""
             # The 2-bit transfer id wrapped: a frame that lost segments met the same id four frames on,
             # the frames between lost whole; their segments joined. Never delivered half-built: the
             # segment just heard is the newest frame's, so assembly starts again from it alone.
             self.stats.spliced += 1
-            partials[tid] = _Partial({index: chunk}, index if end >= 0 else None)
+            partials[tid] = _Partial({index: chunk}, index if end >= 0 else None, is_fd)
             return b""
         del partials[tid]
         stream.completed_by = (tid, index, chunk)
@@ -366,7 +395,11 @@ class CanReassembler:
         return wire
 
     def feed_message(self, message: object) -> bytes:
-        """Convenience for a python-can ``Message`` (duck-typed: no python-can import here)."""
+        """Convenience for a python-can ``Message`` (duck-typed: no python-can import here). Error frames
+        (whose data is the controller's error report) and remote frames are counted, never segments."""
+        if getattr(message, "is_error_frame", False) or getattr(message, "is_remote_frame", False):
+            self.stats.error_frames += 1
+            return b""
         return self.feed(
             message.arbitration_id,  # type: ignore[attr-defined]
             message.data,  # type: ignore[attr-defined]
@@ -400,11 +433,11 @@ class CanReassembler:
             self._streams.move_to_end(arbitration_id)
         return stream
 
-    def _open(self, partials: OrderedDict[int, _Partial], tid: int) -> _Partial:
+    def _open(self, partials: OrderedDict[int, _Partial], tid: int, fd: bool) -> _Partial:
         while len(partials) >= self.window:
             partials.popitem(last=False)
             self.stats.incomplete += 1
-        partial = partials[tid] = _Partial()
+        partial = partials[tid] = _Partial(fd=fd)
         return partial
 
     @staticmethod
@@ -425,6 +458,7 @@ __all__ = [
     "CanSegmenter",
     "CanStats",
     "Direction",
+    "MIN_WIRE",
     "PRIORITY",
     "Priority",
     "max_segments",

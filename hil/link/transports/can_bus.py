@@ -31,10 +31,21 @@ above sees exactly what a serial link would give it. Lost and incomplete frames,
 traffic are counted in :meth:`counters`, never delivered. A host sends towards the board
 (``Direction.TO_BOARD``) and accepts the board's direction only; the board's side
 (:mod:`firmware_sim.servers.can_server`) is the same class with ``sends=Direction.TO_HOST``.
+
+What the bus itself does wrong is told apart from the bus being gone. Gone — the interface down, the
+bus shut down, any other error of python-can's — is a :class:`LinkError` naming the URL (the board
+client then closes and reopens the bus); frames already completed in that read are handed up first and
+the error raised by the next read. Not gone, counted and logged (at most once a second): a message the
+interface received but could not decode (``rx_undecodable``: udp_multicast's datagram from another
+program on the group), and a send refused because the interface's transmit queue is full
+(``tx_frames_dropped``: the send timed out, or ENOBUFS/EAGAIN — socketcan's "No buffer space
+available"); reopening the bus would not help, and the rest of that frame is not sent (the receiver
+counts the partial frame).
 """
 
 from __future__ import annotations
 
+import errno
 import logging
 import time
 from dataclasses import asdict, dataclass
@@ -51,6 +62,9 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_SEND_TIMEOUT_S = 0.1
 _DRAIN = 512  # CAN messages taken per read after the first complete frame (bounded work per call)
+_TX_FULL = frozenset({errno.ENOBUFS, errno.EAGAIN})
+"""errno of a send refused for a full transmit queue (socketcan's ENOBUFS): a dropped frame, the bus there."""
+_LOG_EVERY_S = 1.0  # a counted drop is logged at most this often (the log line says how many since)
 
 
 @dataclass
@@ -62,6 +76,21 @@ class CanTxStats:
     segments_sent: int = 0
     frames_dropped: int = 0
     not_frames: int = 0
+
+
+def _tx_queue_full(exc: BaseException) -> bool:
+    """A python-can send error that says the transmit queue is full (the bus is there)."""
+    cause = exc.__cause__
+    return getattr(exc, "error_code", None) in _TX_FULL or (
+        isinstance(cause, OSError) and cause.errno in _TX_FULL
+    )
+
+
+def _undecodable(exc: BaseException) -> bool:
+    """A python-can receive error about one message the interface could not decode (udp_multicast's
+    ``could not unpack received message``, raised from the decoder's own error), not about the bus."""
+    cause = exc.__cause__
+    return isinstance(exc, can.CanError) and cause is not None and not isinstance(cause, OSError)
 
 
 class CanTransport(Transport):
@@ -93,11 +122,15 @@ class CanTransport(Transport):
         self.sends = Direction(sends)
         receives = Direction.TO_HOST if self.sends is Direction.TO_BOARD else Direction.TO_BOARD
         self._segmenter = CanSegmenter(self.node, self.sends, self.fd)
-        self._reassembler = CanReassembler(self.node, receives)
+        self._reassembler = CanReassembler(self.node, receives, fd=self.fd)
         self._out = bytearray()
         self.tx = CanTxStats()
-        self.error_frames = 0  # CAN error and remote frames seen (never data for us)
+        self.undecodable = 0  # messages the interface received but could not decode
         self._bus: can.BusABC | None = None
+        self._pending: LinkError | None = None  # a receive failure raised by the next read
+        self._skipped = False  # the last _recv returned None for an undecodable message, not a timeout
+        self._logged_at: dict[str, float] = {}  # when each kind of counted drop was last logged
+        self._unlogged: dict[str, int] = {}
 
     # ------------------------------------------------------------------ backend
     def _open_impl(self) -> None:
@@ -111,23 +144,33 @@ class CanTransport(Transport):
             ) from exc
 
     def _read(self, timeout: float | None) -> bytes:
+        if self._pending is not None:
+            exc, self._pending = self._pending, None
+            raise exc
         deadline = None if timeout is None else time.monotonic() + timeout
         out = bytearray()
         taken = 0
-        while not out:  # wait for the first complete frame (or the deadline)
-            wait = None if deadline is None else max(deadline - time.monotonic(), 0.0)
-            msg = self._recv(wait)
-            if msg is None:
-                return b""
-            out += self._accept(msg)
-            taken += 1
-            if wait == 0.0 and taken >= _DRAIN:
-                break
-        for _ in range(_DRAIN):  # then whatever else is already queued
-            msg = self._recv(0.0)
-            if msg is None:
-                break
-            out += self._accept(msg)
+        try:
+            while not out:  # wait for the first complete frame (or the deadline)
+                wait = None if deadline is None else max(deadline - time.monotonic(), 0.0)
+                msg = self._recv(wait)
+                if msg is None and not self._skipped:
+                    return b""
+                if msg is not None:
+                    out += self._accept(msg)
+                taken += 1
+                if wait == 0.0 and taken >= _DRAIN:
+                    break
+            for _ in range(_DRAIN):  # then whatever else is already queued
+                msg = self._recv(0.0)
+                if msg is not None:
+                    out += self._accept(msg)
+                elif not self._skipped:
+                    break
+        except LinkError as exc:
+            if not out:
+                raise
+            self._pending = exc  # the frames completed before the failure are handed up first
         return bytes(out)
 
     def _write(self, data: bytes) -> None:
@@ -145,6 +188,7 @@ class CanTransport(Transport):
     def _close(self) -> None:
         bus, self._bus = self._bus, None
         self._out.clear()
+        self._pending = None  # a reopened bus starts afresh
         self._reassembler.reset()  # partial frames die with the connection (counted as cut)
         if bus is not None:
             try:
@@ -157,26 +201,44 @@ class CanTransport(Transport):
         """Reassembly (``rx_*``) and transmit (``tx_*``) counters, for link statistics."""
         rx = {f"rx_{k}": v for k, v in asdict(self._reassembler.stats).items()}
         tx = {f"tx_{k}": v for k, v in asdict(self.tx).items()}
-        return {**rx, "rx_error_frames": self.error_frames, **tx}
+        return {**rx, "rx_undecodable": self.undecodable, **tx}
 
     # ------------------------------------------------------------------ internals
     def _recv(self, timeout: float | None) -> can.Message | None:
+        """The next message, or None: none within ``timeout``, or one the interface could not decode
+        (counted; ``self._skipped`` says which)."""
         bus = self._bus
-        assert bus is not None
+        if bus is None:  # closed by another thread under this read
+            raise LinkError(f"{self.url}: the CAN bus was closed during a read")
+        self._skipped = False
         try:
             return bus.recv(timeout)
         except (can.CanError, OSError) as exc:
+            if _undecodable(exc):
+                self.undecodable += 1
+                self._skipped = True
+                self._log_drop("rx", f"a received CAN message could not be decoded ({exc.__cause__!r})")
+                return None
             raise LinkError(f"{self.url}: receive failed (interface gone?): {exc}") from exc
 
     def _accept(self, msg: can.Message) -> bytes:
-        if msg.is_error_frame or msg.is_remote_frame:
-            self.error_frames += 1
-            return b""
-        return self._reassembler.feed(msg.arbitration_id, bytes(msg.data), msg.is_fd, msg.is_extended_id)
+        return self._reassembler.feed_message(msg)
+
+    def _log_drop(self, kind: str, what: str) -> None:
+        """Log a counted drop at most once a second per kind, saying how many went unlogged since."""
+        now = time.monotonic()
+        last = self._logged_at.get(kind)
+        if last is not None and now - last < _LOG_EVERY_S:
+            self._unlogged[kind] = self._unlogged.get(kind, 0) + 1
+            return
+        self._logged_at[kind] = now
+        more = self._unlogged.pop(kind, 0)
+        logger.warning("%s: %s; dropped%s", self.url, what, f" ({more} more since)" if more else "")
 
     def _send_frame(self, wire: bytes) -> None:
         bus = self._bus
-        assert bus is not None
+        if bus is None:  # closed by another thread under this write
+            raise LinkError(f"{self.url}: the CAN bus was closed during a write")
         try:
             segments = self._segmenter.segment(wire)
         except ProtocolError as exc:
@@ -192,12 +254,12 @@ class CanTransport(Transport):
             )
             try:
                 bus.send(msg, timeout=self.send_timeout)
-            except can.CanTimeoutError:
-                self.tx.frames_dropped += 1  # the receiver discards the partial frame and counts it
-                logger.warning("%s: CAN send timed out; frame dropped", self.url)
-                return
             except (can.CanError, OSError) as exc:
-                raise LinkError(f"{self.url}: send failed (interface gone?): {exc}") from exc
+                if not (isinstance(exc, can.CanTimeoutError) or _tx_queue_full(exc)):
+                    raise LinkError(f"{self.url}: send failed (interface gone?): {exc}") from exc
+                self.tx.frames_dropped += 1  # the receiver discards the partial frame and counts it
+                self._log_drop("tx", f"CAN transmit queue full ({str(exc) or type(exc).__name__}): a frame")
+                return
             self.tx.segments_sent += 1
         self.tx.frames_sent += 1
 
