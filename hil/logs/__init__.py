@@ -5,8 +5,10 @@ the paper
 Formats (``docs/formats.md``), detected from the files themselves: the project's own CSV (``csv``), a
 Sensor Logger export (``sensorlogger``, folder or zip) or its JSON export (``sensorlogger-json``), a
 phyphox CSV export (``phyphox``, zip or folder), a tyrex smartphone-benchmark trial folder (``tyrex``,
-with motion-capture truth) and a BROAD trial ``.mat`` (``broad``, with optical truth). A malformed file
-raises :class:`InputFormatError` naming the file, line and column.
+with motion-capture truth) and a BROAD trial ``.mat`` (``broad``, with optical truth). Any of them may
+come as a folder, a zip or a tar, or an archive inside one (:mod:`hil.logs.archive`), its text in UTF-8,
+UTF-16 or a legacy 8-bit encoding (:mod:`hil.logs.encoding`). A malformed file raises
+:class:`InputFormatError` naming the file, line and column.
 """
 
 from __future__ import annotations

@@ -95,6 +95,10 @@ def _classify(c: Container, name: str) -> _File | None:
 
 
 _NOT_A_SENSOR = object()
+MAX_TIME_S = 1e11
+"""The latest a sample's time may typically be (s; the median of a file's): an experiment's clock starts at
+0, a custom experiment may count seconds since the epoch (1.7e9); 1e11 s is 3000 years, and an epoch in
+ms, µs or ns (1.7e12 on) read as seconds is refused rather than replayed as millennia."""
 
 
 def _kind(x_col: str, file_name: str, folder: str) -> SensorKind | None | object:
@@ -165,7 +169,17 @@ def _stream(c: Container, f: _File, offset_s: float) -> SensorStream:
     t_col, t_scale = time_column(table.columns, table.source, table.header_line)
     axes = axis_columns(table.columns, f.kind, table.source, table.header_line, skip=(t_col,))
     xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
-    return SensorStream(f.kind, table.column(t_col) * t_scale + offset_s, xyz)
+    t = table.column(t_col) * t_scale
+    finite = np.abs(t[np.isfinite(t)])
+    if len(finite) and float(np.median(finite)) > MAX_TIME_S:
+        raise InputFormatError(
+            f"times of {float(np.median(finite)):.4g} s: no experiment time (s since it started) but a "
+            "time since the epoch in a finer unit (a Sensor Logger file, whose 'time' is in ns?)",
+            table.source,
+            table.header_line,
+            t_col,
+        )
+    return SensorStream(f.kind, t + offset_s, xyz)
 
 
 def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str, float]:

@@ -67,6 +67,10 @@ EPOCH_UNITS: tuple[tuple[int, int, int, str], ...] = (
 )
 """``time`` column units by size: (lowest, highest, ns per unit, name). A time since the epoch between
 2001 and 2286 is 1e9–1e10 s: in ns (the app's) 1e18–1e19, in µs or ms (a re-export) 1e15 or 1e12 on."""
+MAX_RECORDING_S = 31 * 86400
+"""The farthest a row's ``time`` may lie from its file's median (s): a recording of a month. A row
+farther off (one at 1e18 ns, 2001, in a recording of 2023: a corrupt timestamp) would become the clock's
+origin and put every other sample two decades on; it is a NaN sample instead, noted."""
 
 
 def members(c: Container) -> dict[str, str] | None:
@@ -104,11 +108,30 @@ def detect(c: Container) -> bool:
         head = [line for line in c.head(files[name], 3) if line.strip()]
         if not head:
             continue
-        cells = [x.lower() for x in split_header(head[0], sniff_dialect(head)[0])]
+        delimiter = sniff_dialect(head)[0]
+        cells = [x.lower() for x in split_header(head[0], delimiter)]
         clocks = dict(clock for clock in map(clock_of, cells) if clock is not None)
         epoch = clocks.get("time") in _EPOCH_LABELS  # phyphox's "Time (s)" is no epoch
-        return "seconds_elapsed" in clocks or (epoch and any(" x (" in x for x in cells))
+        return "seconds_elapsed" in clocks or (
+            epoch and (any(" x (" in x for x in cells) or _starts_at_an_epoch(head, cells, delimiter))
+        )
     return False
+
+
+def _starts_at_an_epoch(head: Sequence[str], cells: Sequence[str], delimiter: str) -> bool:
+    """Whether the first row's ``time`` is an integer time since the epoch (:data:`EPOCH_UNITS`): a file
+    ``time,z,y,x`` without ``seconds_elapsed`` (an app version or a re-save that left it out) is Sensor
+    Logger's, whose ``time`` is in ns — never a phyphox buffer's ``time`` in s from 0, which read as
+    seconds would put its samples 50 billion years on."""
+    if len(head) < 2:
+        return False
+    column = next(i for i, cell in enumerate(cells) if (clock_of(cell) or ("",))[0] == "time")
+    row = split_header(head[1], delimiter)
+    try:
+        value = abs(int(row[column]))
+    except (ValueError, IndexError):
+        return False
+    return any(low <= value < high for low, high, _, _ in EPOCH_UNITS)
 
 
 def _csv_table(c: Container, member: str) -> Table:
@@ -217,14 +240,16 @@ def _epoch_ns(
     the app writes ns; a re-export may write µs or ms) and checked against ``seconds_elapsed``'s steps
     where there is one, and against the unit its header names if it names one (``time (ms)`` over
     values in ns is a header that lies, or values cut wrongly: either way no clock to trust); and the
-    rows whose time is usable (of ``usable``, those whose ns fit int64). A time that is no epoch in any
-    unit is an InputFormatError naming the column."""
+    rows whose time is usable (of ``usable``, those within the unit's epochs, 2001-2286, whose ns fit
+    int64: a row at 0, at a negative time or at 1e18 ns in a recording of 2023 is a NaN sample, noted, not
+    the clock's origin). A typical time that is no epoch in any unit is an InputFormatError naming the
+    column."""
     units = units or _ClockUnits()
     times = table.exact["time"]
     if not usable.any():
         return times, usable
     typical = int(np.median(times[usable]))
-    unit = next((u for u in EPOCH_UNITS if u[0] <= abs(typical) < u[1]), None)
+    unit = next((u for u in EPOCH_UNITS if u[0] <= typical < u[1]), None)
     if unit is None:
         raise InputFormatError(
             f"{typical} is no time since the epoch in ns, µs, ms or s (2001-2286)",
@@ -232,7 +257,7 @@ def _epoch_ns(
             table.header_line,
             "time",
         )
-    _, _, ns_per_unit, name = unit
+    low, high, ns_per_unit, name = unit
     said = units.time.replace("us", "µs").replace("μ", "µ").replace("sec", "s")
     if said and said != name:
         raise InputFormatError(
@@ -241,7 +266,17 @@ def _epoch_ns(
             table.header_line,
             units.time_cell,
         )
-    usable = usable & (np.abs(times) <= np.iinfo(np.int64).max // ns_per_unit)  # a stray far off: NaN
+    high = min(high, np.iinfo(np.int64).max // ns_per_unit + 1)  # ns that fit int64 (an epoch in s: 2262)
+    near = np.abs(times.astype(float) - typical) <= MAX_RECORDING_S * 1e9 / ns_per_unit  # no int64 wrap
+    stray = usable & ~((times >= low) & (times < high) & near)
+    if stray.any():  # 0, a negative time, one in 2001 in a recording of 2023: no sample of it; NaN
+        notes.append(
+            f"{table.source}: {int(stray.sum())} rows whose 'time' is no time of this recording (no "
+            f"epoch in {name}, or {MAX_RECORDING_S // 86400} days or more from its median; the first on "
+            f"data row {int(np.argmax(stray)) + 1}: {int(times[np.argmax(stray)])}): NaN samples, "
+            "dropped and counted"
+        )
+        usable = usable & ~stray
     ns = np.where(usable, times, typical) * ns_per_unit
     if name != "ns":
         notes.append(f"{table.source}: 'time' in {name} since the epoch (the app writes ns)")

@@ -4,8 +4,11 @@ A table is read in pieces of about :data:`~hil.files.bounded.CHUNK_BYTES` of lin
 (:func:`hil.files.bounded.read_lines`): each piece goes to ``numpy.loadtxt`` and only the parsed floats are
 kept, so memory is bounded by the samples kept (not by the file's size), and a bad line fails as soon as its
 piece is parsed — the rest of the file is never read. When a piece fails, its lines are walked to raise
-:class:`InputFormatError` naming the first bad cell. ``nan``/``NaN`` cells are numbers (NaN samples,
-counted and dropped later by the merge); anything else unparseable is an error.
+:class:`InputFormatError` naming the first bad cell; a piece whose every cell is a number when walked
+(a quoted cell with spaces around its quotes, which ``numpy.loadtxt`` refuses) is parsed that way. A line
+of spaces is a blank line. ``nan``/``NaN`` cells are numbers (NaN samples, counted and dropped later by
+the merge); anything else unparseable is an error. Files are read as UTF-8 whatever their encoding
+(:mod:`hil.logs.encoding`, :func:`text_lines`); a log's archives are opened by :mod:`hil.logs.archive`.
 
 What a log may be is bounded by what its files are (:mod:`hil.files.bounded`): a member yields at most
 :data:`~hil.files.bounded.MAX_MEMBER_BYTES` decompressed and at most
@@ -20,7 +23,6 @@ import codecs
 import csv
 import gzip
 import io
-import os
 import warnings
 import zipfile
 import zlib
@@ -41,6 +43,16 @@ from hil.files.bounded import (
     LimitedReader,
     read_lines,
 )
+from hil.logs.archive import (
+    Member,
+    archive_suffix,
+    file_member,
+    kind_of,
+    members_of,
+    os_litter,
+    without_suffix,
+)
+from hil.logs.encoding import decode_legacy, decode_text, utf8_stream
 from protocol.errors import InputFormatError
 
 Array = NDArray[np.float64]
@@ -77,33 +89,55 @@ class Table:
 
 
 class Container:
-    """Files of a log: a directory, a zip archive, or a single file. ``names()`` lists member file names
-    (paths relative to the container, '/'-separated); ``lines(name)`` streams one's lines (``.gz`` members
-    decompressed; see the module docstring for the bounds), ``head(name)`` gives its first lines,
-    ``where(name)`` says where it is. ``samples`` counts the rows read from its tables
-    (:meth:`count_samples`)."""
+    """Files of a log: a directory, an archive (zip or tar, :mod:`hil.logs.archive`), or a single file.
+    ``names()`` lists member file names (paths relative to the container, '/'-separated); ``lines(name)``
+    streams one's lines (``.gz`` members decompressed, UTF-16 transcoded: :mod:`hil.logs.encoding`; see
+    the module docstring for the bounds), ``head(name)`` gives its first lines, ``where(name)`` says
+    where it is. ``samples`` counts the rows read from its tables (:meth:`count_samples`); ``name`` is
+    the log's own name (its folder's or archive's, without the archive's suffix; the folder an archive's
+    files all lie in when they do)."""
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         if not self.path.exists():
             raise InputFormatError("no such file or directory", str(self.path))
-        # name -> (the zip archive holding it or None, the path inside it or on disk)
-        self._members: dict[str, tuple[zipfile.ZipFile | None, str]] = {}
-        self._zips: list[zipfile.ZipFile] = []
+        self._members: dict[str, Member] = {}
+        self._held: list[object] = []  # open archives and spooled files, kept while the log is read
         self.samples = 0
-        if self.path.is_file() and zipfile.is_zipfile(self.path):
-            self._add_zip(self.path, "")
-        elif self.path.is_dir():
+        self.name = without_suffix(self.path.name)
+        if self.path.is_dir():
             for p in sorted(self._files()):
                 rel = p.relative_to(self.path).as_posix()
                 if os_litter(rel):
                     continue
-                if p.suffix.lower() == ".zip" and zipfile.is_zipfile(p):
-                    self._add_zip(p, rel.removesuffix(p.suffix) + "/")  # an export zip inside a folder
-                else:
-                    self._add(rel, None, str(p))
+                found = self._archive(p) if archive_suffix(rel) else None
+                if found is None:
+                    self._add(rel, file_member(p))
+                for name, member in found or ():  # an export's archive inside a folder
+                    self._add(without_suffix(rel) + "/" + name, member)
         else:
-            self._members[self.path.name] = (None, str(self.path))
+            found = self._archive(self.path)
+            if found is None:
+                self._members[self.path.name] = file_member(self.path)
+            for name, member in found or ():
+                self._add(name, member)
+
+    def _archive(self, path: Path) -> list[tuple[str, Member]] | None:
+        """The members of the archive at ``path`` (None when it is none), its shared folder noted as the
+        log's name when ``path`` is the log."""
+        try:
+            f = open(path, "rb")  # noqa: SIM115 — held (``_held``) while the log is read
+        except OSError as exc:
+            raise InputFormatError(f"cannot read ({exc.strerror})", str(path)) from None
+        kind = kind_of(f)
+        if kind is None:
+            f.close()
+            return None
+        self._held.append(f)
+        shared, members = members_of(f, str(path), kind, self._held)
+        if shared and path == self.path:
+            self.name = shared.rstrip("/").rsplit("/", 1)[-1]
+        return members
 
     def _files(self) -> Iterator[Path]:
         """The files under the folder, at most :data:`MAX_MEMBERS` of them (an error past that)."""
@@ -115,27 +149,10 @@ class Container:
                     raise InputFormatError(f"more than {MAX_MEMBERS} files: not a phone log", str(self.path))
                 yield p
 
-    def _add(self, name: str, archive: zipfile.ZipFile | None, inner: str) -> None:
+    def _add(self, name: str, member: Member) -> None:
         if len(self._members) >= MAX_MEMBERS:
-            where = archive.filename if archive is not None else str(self.path)
-            raise InputFormatError(f"more than {MAX_MEMBERS} files: not a phone log", str(where))
-        self._members[name] = (archive, inner)
-
-    def _add_zip(self, path: Path, prefix: str) -> None:
-        entries = _zip_entries(path)
-        if entries > MAX_MEMBERS:
-            raise InputFormatError(
-                f"a zip of {entries} entries (at most {MAX_MEMBERS}): not a phone log", str(path)
-            )
-        try:
-            archive = zipfile.ZipFile(path)
-        except (zipfile.BadZipFile, OSError, ValueError) as exc:
-            raise InputFormatError(f"not a readable zip ({exc})", str(path)) from None
-        self._zips.append(archive)
-        members = [n for n in archive.namelist() if not n.endswith("/") and not os_litter(n)]
-        shared = _shared_folder(members)
-        for n in members:
-            self._add(prefix + (n[len(shared) :] if shared else n), archive, n)
+            raise InputFormatError(f"more than {MAX_MEMBERS} files: not a phone log", str(self.path))
+        self._members[name] = member
 
     def names(self) -> list[str]:
         return list(self._members)
@@ -144,32 +161,34 @@ class Container:
         return name in self._members
 
     def where(self, name: str) -> str:
-        archive, inner = self._members.get(name, (None, str(self.path / name)))
-        return f"{archive.filename}:{inner}" if archive is not None else inner
+        member = self._members.get(name)
+        return member.where if member is not None else str(self.path / name)
 
-    def _open(self, name: str, limit: int = MAX_MEMBER_BYTES) -> IO[bytes]:
+    def _open(self, name: str, limit: int = MAX_MEMBER_BYTES) -> io.BufferedReader:
         """The member's bytes (a ``.gz`` decompressed), at most ``limit`` of them and at most
         :data:`~hil.files.bounded.MAX_COMPRESSION_RATIO` times what they were compressed from."""
         if name not in self._members:
             raise InputFormatError(f"missing {name}", str(self.path))
-        archive, inner = self._members[name]
-        where = self.where(name)
-        packed: int | None
+        member = self._members[name]
         try:
-            if archive is not None:
-                info = archive.getinfo(inner)
-                raw: IO[bytes] = archive.open(info)
-                packed = info.compress_size if info.compress_type != zipfile.ZIP_STORED else None
-            else:
-                raw = open(inner, "rb")  # noqa: SIM115 — closed with the reader that wraps it
-                packed = None
+            raw = member.open()
         except (OSError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as exc:
-            raise InputFormatError(f"cannot read ({exc})", where) from None
+            raise InputFormatError(f"cannot read ({exc})", member.where) from None
+        packed = member.packed
         if name.lower().endswith(".gz"):
-            if packed is None:
-                packed = _size(inner) if archive is None else archive.getinfo(inner).file_size
+            packed = packed if packed is not None else member.stored
             raw = gzip.GzipFile(fileobj=raw)  # type: ignore[assignment]
-        return io.BufferedReader(LimitedReader(raw, where, limit, packed), 1 << 16)
+        return io.BufferedReader(LimitedReader(raw, member.where, limit, packed), 1 << 16)
+
+    def _open_text(self, name: str, limit: int = MAX_MEMBER_BYTES) -> IO[bytes]:
+        """The member's bytes as UTF-8 (:func:`hil.logs.encoding.utf8_stream`: UTF-16 transcoded)."""
+        f = self._open(name, limit)
+        where = self.where(name)
+        try:
+            return utf8_stream(f, where)
+        except _DAMAGED as exc:  # its first bytes, read to look for a byte-order mark
+            f.close()
+            raise InputFormatError(f"damaged ({exc})", where) from None
 
     def raw(self, name: str, limit: int = MAX_RAW_BYTES) -> bytes:
         """The member whole: at most ``limit`` bytes (an error naming it past that)."""
@@ -179,7 +198,7 @@ class Container:
     def lines(self, name: str) -> Iterator[list[bytes | None]]:
         """The member's lines, a batch at a time (:func:`hil.files.bounded.read_lines`: ``None`` for a
         line longer than :data:`~hil.files.bounded.MAX_LINE_BYTES`)."""
-        with self._open(name) as f:
+        with self._open_text(name) as f:
             yield from _guarded_iter(read_lines(f), self.where(name))
 
     def chunks(self, name: str, limit: int = MAX_MEMBER_BYTES) -> Iterator[bytes]:
@@ -188,27 +207,26 @@ class Container:
         past that, or past :data:`~hil.files.bounded.MAX_COMPRESSION_RATIO`): for a reader that is not
         line by line (a JSON document of one line). A damaged member is an InputFormatError naming it."""
         where = self.where(name)
-        with self._open(name, limit) as f:
+        with self._open_text(name, limit) as f:
             while piece := _guarded(lambda: f.read(CHUNK_BYTES), where):
                 yield piece
 
     def head(self, name: str, lines: int = 3) -> list[str]:
-        """The first ``lines`` lines (of at most :data:`HEAD_BYTES` bytes), decoded leniently: enough to
-        recognise a format without reading the file."""
-        with self._open(name) as f:
+        """The first ``lines`` lines (of at most :data:`HEAD_BYTES` bytes), decoded leniently (UTF-8, UTF-16
+        transcoded, or a legacy 8-bit text: :func:`hil.logs.encoding.decode_text`): enough to recognise a
+        format without reading the file."""
+        with self._open_text(name) as f:
             data = _guarded(lambda: f.read(HEAD_BYTES), self.where(name))
-        return data.decode("utf-8-sig", "replace").splitlines()[:lines]
+        return decode_text(data, final=False).splitlines()[:lines]
 
     def text(self, name: str) -> str:
         """A small member whole (metadata files, at most
-        :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES`): UTF-8 or InputFormatError naming it."""
-        data = self.raw(name, MAX_DOCUMENT_BYTES)
-        try:
-            return data.decode("utf-8-sig")
-        except UnicodeDecodeError as exc:
-            raise InputFormatError(
-                f"not UTF-8 text ({exc.reason} at byte {exc.start})", self.where(name)
-            ) from None
+        :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES`): UTF-8, UTF-16 or a legacy 8-bit text
+        (:mod:`hil.logs.encoding`)."""
+        where = self.where(name)
+        with self._open_text(name, MAX_DOCUMENT_BYTES) as f:
+            data = _guarded(f.read, where)
+        return decode_text(data)
 
     def count_samples(self, rows: int, where: str, line: int | None) -> None:
         """Count ``rows`` more rows read from the log's tables; past :data:`MAX_LOG_SAMPLES` an
@@ -221,24 +239,6 @@ class Container:
                 where,
                 line,
             )
-
-
-def _zip_entries(path: Path) -> int:
-    """The number of entries a zip's end record declares (read before its directory is parsed, so that a
-    directory of millions of entries is refused rather than held)."""
-    try:
-        with open(path, "rb") as f:
-            end = zipfile._EndRecData(f)  # type: ignore[attr-defined]  # stable since Python 2
-    except OSError as exc:
-        raise InputFormatError(f"cannot read ({exc.strerror})", str(path)) from None
-    return int(end[zipfile._ECD_ENTRIES_TOTAL]) if end else 0  # type: ignore[attr-defined]
-
-
-def _size(path: str) -> int:
-    try:
-        return os.stat(path).st_size
-    except OSError:
-        return 0
 
 
 _DAMAGED = (OSError, EOFError, zipfile.BadZipFile, gzip.BadGzipFile, zlib.error)
@@ -263,26 +263,6 @@ def _guarded_iter(batches: Iterator[list[bytes | None]], where: str) -> Iterator
         except _DAMAGED as exc:
             raise InputFormatError(f"damaged ({exc})", where) from None
         yield batch
-
-
-_LITTER_FOLDERS = frozenset({"__macosx", ".ds_store", "thumbs.db", "desktop.ini"})
-
-
-def os_litter(name: str) -> bool:
-    """Whether a member (a '/'-separated path) is what an operating system leaves beside a user's files,
-    not part of a log: macOS's ``__MACOSX/`` folder and ``._name`` companions (its "Compress" puts both in
-    every zip), ``.DS_Store``, Windows' ``Thumbs.db`` and ``desktop.ini``."""
-    parts = name.lower().split("/")
-    return parts[-1].startswith("._") or any(part in _LITTER_FOLDERS for part in parts)
-
-
-def _shared_folder(members: Sequence[str]) -> str:
-    """The one folder every member of a zip shares, with its slash ("" if none): exports zip their
-    folder, and its name is left out of the members' names."""
-    tops = {m.split("/", 1)[0] for m in members}
-    if len(tops) == 1 and all("/" in m for m in members):
-        return next(iter(tops)) + "/"
-    return ""
 
 
 def sniff_dialect(head: Sequence[str]) -> tuple[str, bool]:
@@ -366,25 +346,34 @@ def read_table(
 
 def text_lines(container: Container, name: str) -> Iterator[tuple[int, list[str]]]:
     """The member's lines as text, a batch at a time with the 1-based number of its first line (a BOM
-    skipped). A line longer than :data:`~hil.files.bounded.MAX_LINE_BYTES`, one holding a NUL byte (binary
-    data) or one that is not UTF-8 is an :class:`InputFormatError` naming its line — after the lines before
-    it have been given, so that an earlier bad cell is the one reported."""
+    skipped; UTF-16 transcoded, :mod:`hil.logs.encoding`). A file whose first bytes that are not UTF-8
+    lie in its header (or in the blank and comment lines before it) is a legacy 8-bit text, read as
+    Windows-1252 throughout (``µT``, ``°/s`` saved by an old editor). A line longer than
+    :data:`~hil.files.bounded.MAX_LINE_BYTES`, one holding a NUL byte (binary data) or, in a UTF-8 file,
+    one that is not UTF-8 is an :class:`InputFormatError` naming its line — after the lines before it have
+    been given, so that an earlier bad cell is the one reported."""
     source = container.where(name)
     line_no = 1
+    legacy = False
+    content = False  # a line with content (the header, or a row) has been given
     for batch in container.lines(name):
         if line_no == 1 and batch[0] is not None and batch[0].startswith(codecs.BOM_UTF8):
             batch[0] = batch[0][len(codecs.BOM_UTF8) :]
-        good, problem = _good_prefix(batch)
+        good, problem, not_utf8 = _good_prefix(batch, legacy)
+        if not_utf8 and not content and _first_content(good) is None:
+            legacy = True  # its header is not UTF-8: the whole file is in a legacy encoding
+            good, problem, _ = _good_prefix(batch, legacy)
         if good:
+            content = content or _first_content(good) is not None
             yield line_no, good
         if problem is not None:
             raise InputFormatError(problem, source, line_no + len(good))
         line_no += len(batch)
 
 
-def _good_prefix(batch: list[bytes | None]) -> tuple[list[str], str | None]:
-    """The batch's lines decoded up to its first bad one, and what is wrong with that one (None: all
-    good)."""
+def _good_prefix(batch: list[bytes | None], legacy: bool = False) -> tuple[list[str], str | None, bool]:
+    """The batch's lines decoded (as UTF-8, or Windows-1252 when ``legacy``) up to its first bad one, what
+    is wrong with that one (None: all good), and whether that is bytes that are not UTF-8."""
     end = next((i for i, line in enumerate(batch) if line is None), len(batch))
     problem = None
     if end < len(batch):
@@ -397,13 +386,15 @@ def _good_prefix(batch: list[bytes | None]) -> tuple[list[str], str | None]:
         end = blob.count(b"\n", 0, nul)
         problem = "binary data (a NUL byte), not a text table"
         blob = b"\n".join(batch[:end])  # type: ignore[arg-type]
+    if legacy:
+        return (decode_legacy(blob).split("\n") if end else []), problem, False
     try:
         text = blob.decode("utf-8")
     except UnicodeDecodeError as exc:
         end = blob.count(b"\n", 0, exc.start)
-        problem = f"not UTF-8 text ({exc.reason})"
         text = b"\n".join(batch[:end]).decode("utf-8")  # type: ignore[arg-type]
-    return (text.split("\n") if end else []), problem
+        return (text.split("\n") if end else []), f"not UTF-8 text ({exc.reason})", True
+    return (text.split("\n") if end else []), problem, False
 
 
 def _first_content(lines: Sequence[str]) -> int | None:
@@ -485,6 +476,7 @@ class _Chunks:
         return cut, None
 
     def _parse(self, lines: list[str], first_line: int) -> int:
+        lines = [line if line.strip() else "" for line in lines]  # a line of spaces is a blank line
         text = "\n".join(lines)
         if not text.strip():
             return 0
@@ -516,7 +508,7 @@ class _Chunks:
             if self.locate is not None:
                 self.locate(pending, self.columns, self.source)
             locate_numeric(pending, self.columns, self.source, self.delimiter, self.decimal_comma)
-            raise InputFormatError("unparseable table (no single bad cell found)", self.source) from None
+            return self._parse_cells(pending)
         self.chunks.append(data)
         for col, idx in self.exact_idx:
             try:
@@ -536,6 +528,32 @@ class _Chunks:
             self.exact.setdefault(col, []).append(ints)
         return int(data.shape[0])
 
+    def _parse_cells(self, pending: Sequence[tuple[int, str]]) -> int:
+        """Rows NumPy refused but whose every cell :func:`locate_numeric` (and the reader's ``locate``)
+        took for a number — a quoted cell with spaces around its quotes (``1.0, "2.0" ,3.0``) — parsed a
+        cell at a time as they were judged; returns the number of rows kept."""
+        converters = self.converters or {}
+        rows: list[list[float]] = []
+        exact: dict[str, list[int]] = {col: [] for col, _ in self.exact_idx}
+        for line_no, line in pending:
+            cells = [c.strip().strip('"') for c in _split(line, self.delimiter)]
+            try:
+                row = [
+                    converters[i](cell) if i in converters else _number(cell, self.decimal_comma)
+                    for i, cell in enumerate(cells)
+                ]
+            except (ValueError, KeyError):
+                what = "unparseable row (no single bad cell found)"
+                raise InputFormatError(what, self.source, line_no) from None
+            rows.append(row)
+            for col, idx in self.exact_idx:
+                exact[col].append(_exact_int(cells[idx], row[idx]))
+        if rows:
+            self.chunks.append(np.array(rows, dtype=float).reshape(len(rows), len(self.columns)))
+            for col, values in exact.items():
+                self.exact.setdefault(col, []).append(np.array(values, dtype=np.int64))
+        return len(rows)
+
     def table(self, header_line: int) -> Table:
         data = np.concatenate(self.chunks) if self.chunks else np.zeros((0, len(self.columns)))
         self.chunks.clear()
@@ -544,6 +562,22 @@ class _Chunks:
             parts = self.exact.get(column)
             exact[column] = np.concatenate(parts) if parts else np.zeros(0, np.int64)
         return Table(self.columns, data, self.source, header_line, exact)
+
+
+def _number(cell: str, decimal_comma: bool) -> float:
+    return float(cell.replace(",", ".") if decimal_comma else cell)
+
+
+def _exact_int(cell: str, value: float) -> int:
+    """A cell as int64: exactly when it is an integer, else its float's (0 when that is none: the float
+    column marks the row unusable)."""
+    try:
+        whole = int(cell)
+    except ValueError:
+        whole = None
+    if whole is not None and -(2**63) <= whole < 2**63:
+        return whole
+    return int(value) if np.isfinite(value) and abs(value) < 2.0**63 else 0
 
 
 def locate_numeric(

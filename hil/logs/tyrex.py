@@ -105,7 +105,7 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     r = np.transpose(rot.T.reshape(n, 3, 3), (0, 2, 1))
     t_mocap = np.arange(n) / rate
     evaluate = (t_mocap >= EVALUATED_S[0]) & (t_mocap <= EVALUATED_S[1]) & np.all(np.isfinite(rot), axis=0)
-    trial = c.path.name
+    trial = c.name  # the trial's folder, or its archive's name without .zip (not the archive's file name)
     for suffix, intervals in EXCLUDED.items():
         if trial.endswith(suffix):
             for a, b in intervals:
