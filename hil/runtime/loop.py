@@ -77,8 +77,10 @@ from hil.version import describe
 from protocol.errors import (
     CommandFailed,
     ConfigError,
+    HandshakeError,
     HilError,
     LinkError,
+    LinkTimeout,
     TransportError,
     TransportRefused,
 )
@@ -544,8 +546,9 @@ def _pacer(pace: float, origin: float) -> PeriodicTask:
 
 def _connect(client: BoardClient, events: EventLog, bound_s: float) -> BoardInfo:
     """The first handshake. A port that vanishes or cannot be opened meanwhile (a board unplugged and
-    plugged back, a firmware-sim restarting) is tried again with the client's back-off for up to
-    ``bound_s`` (the run's outage bound; each try an ``events.jsonl`` record); a board that answers
+    plugged back, a firmware-sim restarting — also one that vanishes *during* the handshake: the board's
+    process killed after it opened, before it answered) is tried again with the client's back-off for up
+    to ``bound_s`` (the run's outage bound; each try an ``events.jsonl`` record); a board that answers
     nothing, answers another protocol, or a port another host holds fails at once."""
     clock = client.clock
     start = clock.now()
@@ -553,9 +556,9 @@ def _connect(client: BoardClient, events: EventLog, bound_s: float) -> BoardInfo
     while True:
         try:
             return client.connect()
-        except TransportRefused:  # another host's port, options that describe no board: at once
+        except (TransportRefused, LinkTimeout, HandshakeError):  # no board, not ours, or not free: at once
             raise
-        except TransportError as exc:
+        except LinkError as exc:  # could not open, or vanished under the handshake
             now = clock.now()
             if now - start >= bound_s:
                 raise TransportError(f"{exc} (tried for {now - start:.1f} s)") from exc

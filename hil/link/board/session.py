@@ -15,8 +15,12 @@ Phases::
 
 **Reset detection.** The board's uptime (``Heartbeat.time_ms``, ``Telemetry.time_ms``) only grows while
 it runs. It going backwards, or the board reporting BOOT in the middle of a session or after a lost link
-came back, means it reset (a board that restarted while the link was down and has already run longer
-than before is not caught: nothing it sends tells it from the board that was there). The
+came back, means it reset. So does, after a reconnect, a first uptime shorter than the time the board had
+certainly been running by the reconnect's Hello — since its first answer of that boot (``AGE_SLACK_S``
+and a clock 1 % slow allowed for): a board killed moments after the handshake, before any sample, and
+restarted seconds before the host found it again. (A board that restarted while the link was down within
+``AGE_SLACK_S`` of its first answer, and has already run longer than before, is not caught: nothing it
+sends tells it from the board that was there.) The
 cause is in the next ``HelloReply``: if one arrived since the last uptime sample (a reconnect handshake),
 it is used; otherwise the session handshakes again (Hello → the board is DISARMED with a new session)
 and reports :class:`BoardResetEvent` with the cause it answers. A reset while the host had the board
@@ -101,7 +105,7 @@ from .events import (
     StateEvent,
     TelemetryEvent,
 )
-from .leaps import LeapCheck
+from .leaps import CLOCK_RATE, LeapCheck
 from .stats import RttRing, SessionCounters
 from .transfers import CalibrationTransfers, Download
 
@@ -112,6 +116,9 @@ logger = logging.getLogger(__name__)
 _U32 = 1 << 32
 DROP_WARN_EVERY_S = 1.0
 """Host time (s) between two warnings about dropped board frames (the rest are counted, then summed)."""
+AGE_SLACK_S = 0.5
+"""s: how much younger than the time it had been known to run a board answering a reconnect may seem
+(its first sample's latency, its clock's tick) before it is taken to have restarted meanwhile."""
 BOARD_LOGS_PER_S = 20
 """The board's ``Log`` frames logged per second of host time; beyond, counted (``board_logs_unlogged``)."""
 _LOG_LEVELS = {
@@ -172,6 +179,9 @@ class Session:
         self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
         self._armed_at_loss = False  # the host had the board armed when the link was lost
         self._last_uptime: int | None = None
+        self._booted_by: float | None = None  # host time by which the board's current boot had begun
+        self._link_up_at = 0.0  # host time of the last link_up() (a reconnect's Hello went out after it)
+        self._age_check_from: float | None = None  # set by a reconnect: its first sample's age is checked
         self._last_rx_frames: int | None = None  # the board's count of valid frames taken, since its boot
         self._reply_since_sample: HelloReply | None = None
         self._reset_evidence: str | None = None
@@ -195,6 +205,7 @@ class Session:
     def link_up(self, now: float) -> bytes:
         """The transport is (re)opened: start a handshake."""
         self._now = now
+        self._link_up_at = now
         self.phase = Phase.HANDSHAKING
         self.failure = None
         self.deframer.reset()
@@ -429,6 +440,7 @@ class Session:
         if rx_frames is not None:
             self._last_rx_frames = rx_frames
         reply, self._reply_since_sample = self._reply_since_sample, None
+        age_from, self._age_check_from = self._age_check_from, None
         evidence = None
         if last is not None and _went_back(last, uptime_ms):
             evidence = f"its uptime went back from {last} ms to {uptime_ms} ms"
@@ -438,11 +450,14 @@ class Session:
             evidence = "it reports BOOT in the middle of a session"
         elif state is BoardState.BOOT and self._lost:
             evidence = "it reports BOOT after the link came back (it lost the session)"
+        elif age_from is not None:
+            evidence = self._younger_than_known(uptime_ms, age_from)
         if evidence is None:
             self._leaps.take(uptime_ms, rx_frames, frames_out, now)
             return True
         self._leaps.restart(uptime_ms, rx_frames, frames_out, now)  # the counts of a new boot
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
+        self._booted_by = now if reply is not None else None  # else: the coming handshake's answer
         if self.armed and self.state is not BoardState.ARMED:
             self.armed = False
             self.pending_reset = PendingReset(now, evidence)
@@ -460,6 +475,27 @@ class Session:
             self.phase = Phase.HANDSHAKING
             self._hello(now)
         return True
+
+    def _younger_than_known(self, uptime_ms: int, hello_at: float) -> str | None:
+        """Why the board that answered a reconnect's handshake (its Hello sent at ``hello_at``) cannot be
+        the one the session had — its uptime in the first sample after the answer is shorter than the time
+        that board had certainly been running by then (:data:`AGE_SLACK_S` and the board's clock running
+        ``CLOCK_RATE`` slow allowed for) — or None. It restarted while the link was down: a process killed
+        and started again, a board power-cycled, on the same port. Counts that went back tell it only when
+        the old board had sent some before it died and the new one had not run past them since; a board
+        killed moments after the first handshake (no sample yet) and restarted seconds before the host
+        found it again passed for the same board, its reset never reported."""
+        booted_by = self._booted_by
+        if booted_by is None:
+            return None
+        at_least_s = hello_at - booted_by  # the sample left the board after our Hello reached it
+        uptime_s = uptime_ms / 1000.0
+        if uptime_s * CLOCK_RATE + AGE_SLACK_S >= at_least_s:
+            return None
+        return (
+            f"its uptime ({uptime_ms} ms) is shorter than the {at_least_s:.3f} s the board had been "
+            f"running (it answered at t={booted_by:.3f} s): it restarted while the link was down"
+        )
 
     def _set_state(self, state: BoardState, now: float) -> None:
         old = self.state
@@ -517,6 +553,8 @@ class Session:
             )
             return
         first = previous is None
+        if self._booted_by is None:  # the first answer of this boot: it had begun by now
+            self._booted_by = now
         self.info = info
         self.phase = Phase.READY
         self.counters.handshakes += 1
@@ -531,6 +569,8 @@ class Session:
         reconnect, rearm = self._lost, self._armed_at_loss and self.config.rearm_on_reconnect
         self.counters.reconnects += reconnect
         self._lost = self._armed_at_loss = False
+        if reconnect:  # the board that answered may have restarted while the link was down
+            self._age_check_from = self._link_up_at
         self._emit(ConnectedEvent(now, info, self.counters.reconnects))
         if reconnect and rearm:
             cmd, data = self.commands.send(Arm(), now)
