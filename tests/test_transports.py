@@ -2,6 +2,8 @@
 
 import contextlib
 import os
+import threading
+import time
 
 import pytest
 
@@ -51,6 +53,35 @@ def test_vanished_far_side_is_a_link_error(pty_pair):
     t.close()  # idempotent
     with pytest.raises(LinkError):
         t.read(0.01)
+
+
+@pytest.mark.parametrize("closed_after_s", [0.0, 0.02, 0.1])
+def test_a_port_closed_by_another_thread_under_a_read_is_a_link_error(pty_pair, closed_after_s):
+    """A reconnect closes the port while the reader thread waits in a read: pyserial then fails on its
+    released descriptor (a TypeError, not its own exception), which the reader thread took for a bug of its
+    own — the client's "reader thread failed", a run ended as an error. Whatever the backend raises after
+    the close is a LinkError, as a vanished port is; the port's reads and writes keep failing so."""
+    _, name = pty_pair
+    t = open_transport(name)
+    raised: list[BaseException] = []
+
+    def reader() -> None:
+        try:
+            while True:
+                t.read(0.2)
+        except BaseException as exc:  # noqa: BLE001 - the test looks at what the read raised
+            raised.append(exc)
+
+    thread = threading.Thread(target=reader, daemon=True)
+    thread.start()
+    time.sleep(closed_after_s)
+    t.close()
+    thread.join(5.0)
+    assert not thread.is_alive()
+    [exc] = raised
+    assert isinstance(exc, LinkError), repr(exc)
+    with pytest.raises(LinkError):
+        t.write(b"x")
 
 
 def test_loop_url_and_unknown_things():

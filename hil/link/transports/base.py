@@ -52,7 +52,14 @@ class Transport(abc.ABC):
         Raises LinkError if the port vanished (far side closed, device unplugged)."""
         if not self._open:
             raise LinkError(f"{self.url}: read on a closed transport")
-        data = self._read(timeout)
+        try:
+            data = self._read(timeout)
+        except LinkError:
+            raise
+        except Exception as exc:
+            if self._open:  # a fault of its own, as it is
+                raise
+            raise self._closed_under(exc, "read") from exc
         self.bytes_in += len(data)
         return data
 
@@ -60,8 +67,22 @@ class Transport(abc.ABC):
         if not self._open:
             raise LinkError(f"{self.url}: write on a closed transport")
         with self._lock:  # writers on several threads must not interleave frames
-            self._write(data)
+            try:
+                self._write(data)
+            except LinkError:
+                raise
+            except Exception as exc:
+                if self._open:
+                    raise
+                raise self._closed_under(exc, "write") from exc
         self.bytes_out += len(data)
+
+    def _closed_under(self, exc: Exception, what: str) -> LinkError:
+        """A backend's error after the transport was closed by another thread under the ``what`` (a
+        reconnect's close while the reader thread reads: pyserial then fails on its released descriptor
+        with a TypeError, a backend's check that its port is there fails): a :class:`LinkError`, as a
+        vanished port is. While the transport is open, an unexpected error is raised as it is."""
+        return LinkError(f"{self.url}: the transport was closed during a {what} ({exc!r})")
 
     def close(self) -> None:
         if self._open:
