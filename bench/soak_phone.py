@@ -142,10 +142,15 @@ def hostile_datagrams(phone_now_ns: int | None) -> tuple[list[bytes], int]:
     return bad + stray, len(bad)
 
 
-def send(datagrams: list[bytes], to: tuple[str, int], repeat: int = 1) -> int:
-    """Send each datagram ``repeat`` times; the number that left (an oversized one may not)."""
+def send(
+    datagrams: list[bytes], to: tuple[str, int], repeat: int = 1, sock: socket.socket | None = None
+) -> int:
+    """Send each datagram ``repeat`` times, from ``sock`` (the phone's own socket: the host follows one
+    sender, and another's datagrams never reach its checks) or a socket of their own; the number that left
+    (an oversized one may not)."""
+    s = sock if sock is not None else socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sent = 0
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+    try:
         for _ in range(repeat):
             for data in datagrams:
                 try:
@@ -153,4 +158,7 @@ def send(datagrams: list[bytes], to: tuple[str, int], repeat: int = 1) -> int:
                     sent += 1
                 except OSError:
                     pass
+    finally:
+        if sock is None:
+            s.close()
     return sent

@@ -198,7 +198,7 @@ def pty_soak(plan: list[str], out_root: Path, seed: int = 0, target: str = "pyth
                 _second_host(c, link)
             else:
                 datagrams, bad = hostile_datagrams(relay.newest_ns)
-                send(datagrams, ("127.0.0.1", port), HOSTILE_REPEAT)
+                send(datagrams, ("127.0.0.1", port), HOSTILE_REPEAT, relay.out)  # as the phone
                 hostile_bad += bad * HOSTILE_REPEAT
             cycles.append(c)
             if kind == "noise":

@@ -2,7 +2,8 @@
 batches of 50 000 plausible readings: control keeps its schedule, every reading is counted. Three
 processes as a user would have them: firmware-sim with its world on a pty (streaming its phone to the host
 as Sensor Logger does), the host (``hil.runtime.run``, in this process), and the peer (a process of its
-own, as it would be on the network).
+own, as it would be on the network). The peer poses as the phone (its session and device ids): the
+receiver follows one phone, and another's pushes would be dropped before they reach the queue.
 
 Regression test for issue 26, finding 4: three such pushes made the control task up to 456 ms late
 (93 overruns) and put the board in failsafe three times, and the run still said it completed.
@@ -65,7 +66,7 @@ print("ready", flush=True)
 t0_ns = round(float(sys.stdin.readline()) * 1e9)
 for k in range(pushes):
     payload = ",".join(f'{a}"time":{t0_ns + 500 * i}{b}' for i, (a, b) in enumerate(entries))
-    head = '{"messageId":%d,"sessionId":"s","deviceId":"peer","payload":[' % (1000 + k)
+    head = '{"messageId":%d,"sessionId":"vscmg-hil-sim","deviceId":"simulated-phone","payload":[' % (1000 + k)
     body = (head + payload + "]}").encode()
     try:
         conn = http.client.HTTPConnection("127.0.0.1", port, timeout=60)

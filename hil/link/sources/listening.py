@@ -116,8 +116,9 @@ NEEDED = ("gyr", "acc")
 def heard(stats: StreamStats) -> str:
     """What a receiver heard, for a user whose phone stream did not start: nothing; or messages with no
     reading the host uses (another sensor: an uncalibrated one, a user acceleration without gravity),
-    readings it could not use, requests for another path; or which of :data:`NEEDED` never came."""
-    if not (stats.messages or stats.bad_messages or stats.not_found):
+    readings it could not use, requests for another path, other phones' messages dropped; or which of
+    :data:`NEEDED` never came."""
+    if not (stats.messages or stats.bad_messages or stats.not_found or stats.other_phone_messages):
         return "nothing was heard"
     said = []
     if stats.messages:
@@ -139,6 +140,11 @@ def heard(stats: StreamStats) -> str:
         said.append(f"{stats.bad_messages} unreadable messages, the last: {stats.last_error}")
     if stats.not_found:
         said.append(f"{stats.not_found} requests for another path than the push path (answered 404)")
+    if stats.other_phone_messages:
+        said.append(
+            f"{stats.other_phone_messages} messages of {stats.other_phones} other phone(s) dropped: the "
+            f"receiver follows one phone, {stats.following} (stop the others' apps)"
+        )
     return "; ".join(said)
 
 

@@ -16,6 +16,16 @@ all in the Android sensor frame (x screen right, y screen up, z out of the scree
 sensors are ignored (counted). Set the app's batch period as short as it allows: the batch period is
 added to the control loop's sensing latency.
 
+**One phone.** A batch's sender is its app's ``deviceId`` and ``sessionId`` (one recording of one phone;
+a batch with neither: the peer's address — a TCP connection's port changes as the app reconnects, so it
+names no sender). The receiver follows the first sender heard with a reading the host uses; every other
+sender's batches are answered 200 (an app that saw errors might stop pushing) and dropped, counted and
+logged, never merged — two Sensor Logger phones on one network both stamp Unix ns, so their readings would
+pass for one phone's. The app restarted (a new ``sessionId``) is followed once its old session has been
+silent for :data:`~.senders.SWITCH_AFTER_S` (or four of its batch periods, if longer); a phone that pushed
+alongside the followed one never is (:mod:`.senders`: the rule and why). Nothing authenticates a phone: any
+peer can send any ``deviceId``.
+
 :class:`PhonePushServer` is the receiving end (the host); :class:`PhonePushSender` is the sending end
 (the emulator's simulated phone, which streams to the host exactly as the app would). Parsing is a pure
 function, :func:`decode_push`, so it is tested without sockets.
@@ -23,13 +33,15 @@ function, :func:`decode_push`, so it is tested without sockets.
 
 from __future__ import annotations
 
+import hashlib
 import http.client
 import json
 import logging
 import math
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -37,7 +49,8 @@ from urllib.parse import urlsplit
 
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.http_guard import BodyError, GuardedHandler, GuardedHTTPServer, HttpLimits
-from hil.link.sources.push_decoder import DECODE_TIMEOUT_S, PushDecoder
+from hil.link.sources.push_decoder import DECODE_TIMEOUT_S, Decoded, PushDecoder
+from hil.link.sources.senders import Decision
 from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
 from protocol.errors import InputFormatError, LinkError
 
@@ -62,9 +75,17 @@ at the app's 20 ms period, over half an hour of them). A farther jump is not los
 another's — a client's own ids, a hostile ``10**4000`` — and starts the count again
 (``message_restarts``), as a jump back does: counted as lost, one id of ``10**4299`` made ``message_gaps`` an
 integer of 4300 digits, and two such made ``summary.json`` unwritable (past Python's digit limit)."""
+MAX_ID = 64
+"""characters of a ``deviceId`` or ``sessionId`` kept as they are (the app's are UUIDs, 36); a longer one is
+kept as its start and a digest of the whole, so that what a sender is called stays small, and two long ids
+with one start stay two senders."""
 
 
 _Timed = tuple[float, tuple[float, float, float]]
+
+
+OTHER_PHONE = "not used: this receiver follows another phone"
+"""The answer (200) to a batch of another phone than the one followed: dropped, counted."""
 
 
 def _address(url: str) -> tuple[str, int, str]:
@@ -75,13 +96,27 @@ def _address(url: str) -> tuple[str, int, str]:
 class PushBatch:
     """One HTTP Push batch, decoded: its ``samples`` (time order, seconds since the epoch), its entries
     that could not be used (``bad``) and those of other sensors or not needed (``ignored``), the app's
-    ``messageId`` (None: none or not an integer), and whether it held total acceleration (``total``)."""
+    ``messageId`` (None: none or not an integer), whether it held total acceleration (``total``), and
+    its ``deviceId`` and ``sessionId`` (None: none, or not a string; a long one shortened: :func:`app_id`)."""
 
     samples: list[SensorSample]
     bad: int
     ignored: int
     message_id: int | None
     total: bool
+    device: str | None = None
+    session: str | None = None
+
+
+def app_id(value: object) -> str | None:
+    """A ``deviceId`` or ``sessionId`` as the receiver keeps it: the string itself up to :data:`MAX_ID`
+    characters, a longer one as its start and a digest of the whole; None when it is not a string."""
+    if not isinstance(value, str):
+        return None
+    if len(value) <= MAX_ID:
+        return value
+    digest = hashlib.blake2b(value.encode("utf-8", "surrogatepass"), digest_size=8).hexdigest()
+    return f"{value[: MAX_ID - 20]}…{digest}"
 
 
 def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> PushBatch:
@@ -124,6 +159,9 @@ def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> Pus
     have_total = False
     for name, raw, xyz in readings:
         t = _seconds(raw, ns_per_unit)
+        if not math.isfinite(t):  # a float time finite in ns, past a float's range in the batch's unit
+            bad += 1
+            continue
         if name == "accelerometer":
             user_acc.append((t, xyz))
         elif name == "gravity":
@@ -132,11 +170,15 @@ def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> Pus
             have_total |= NAMES[name] is SensorKind.ACC
             samples.append(SensorSample(t, NAMES[name], xyz))
     if parts and not have_total and user_acc and gravity:
-        samples.extend(_total_from_parts(user_acc, gravity))
+        total = _total_from_parts(user_acc, gravity)
+        finite = [s for s in total if all(math.isfinite(v) for v in s.xyz)]
+        bad += len(total) - len(finite)  # finite parts whose sum is not (1e308 + 1e308)
+        samples.extend(finite)
     else:  # the parts are not needed (or one of them is missing): counted, not silently lost
         ignored += len(user_acc) + len(gravity)
     samples.sort(key=lambda s: (s.t_s, int(s.kind)))
-    return PushBatch(samples, bad, ignored, message_id, have_total)
+    device, session = app_id(doc.get("deviceId")), app_id(doc.get("sessionId"))
+    return PushBatch(samples, bad, ignored, message_id, have_total, device, session)
 
 
 EPOCH_BANDS = (
@@ -239,7 +281,8 @@ class PhonePushServer(PhoneReceiver):
     could not take in time 503. Whatever a peer sends, a body is at most ``max_body`` bytes, a request has
     ``timeout_s`` to arrive, at most ``max_connections`` are served at once, idle ones making way for new
     ones (:mod:`.http_guard`), and only this server's socket failing is fatal: that error is stored and
-    raised by :meth:`check` — threads never die silently.
+    raised by :meth:`check` — threads never die silently. It follows one phone (the module docstring);
+    ``clock`` (s, monotonic) times that phone's silence and paces the warnings.
     """
 
     scheme = "http"
@@ -254,8 +297,9 @@ class PhonePushServer(PhoneReceiver):
         max_connections: int = MAX_CONNECTIONS,
         max_batch: int = MAX_BATCH,
         decode_timeout_s: float = DECODE_TIMEOUT_S,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        super().__init__(max_queue, max_batch=max_batch)
+        super().__init__(max_queue, clock, max_batch)
         host, port, self.path = _address(url)
         self._last_id: int | None = None
         self._total_heard = False  # the stream has sent total acceleration: its accelerometer
@@ -284,30 +328,69 @@ class PhonePushServer(PhoneReceiver):
         source = f"push from {peer}"
         with self._lock:
             parts = not self._total_heard
+        batch, answer = self._decode_push(body, source, parts)
+        if batch is None:
+            return answer
+        decision = self._followed(batch.device, batch.session, peer, sum(batch.per_kind.values()))
+        if decision is Decision.OTHER:
+            return 200, OTHER_PHONE
+        if decision is Decision.SWITCHED and not parts:  # read for the phone followed before: read it anew
+            batch, answer = self._decode_push(body, source, True)
+            if batch is None:
+                return answer
+        if decision.streams:
+            self._heard_total(batch.total)
+            self._count_gaps(batch.message_id)
+        self._deliver(batch.samples, batch.bad, batch.ignored, batch.per_kind)
+        return 200, "ok"
+
+    def _decode_push(self, body: bytes, source: str, parts: bool) -> tuple[Decoded | None, tuple[int, str]]:
+        """``(batch, _)``, or ``(None, (status, text))`` to answer a push that could not be read (counted)."""
         if len(body) <= INLINE_MAX:
             inline, refused = self._decode(partial(decode_push, parts=parts), body, source)
             if inline is None:
-                return 400, refused
-            self._heard_total(inline.total)
-            self._count_gaps(inline.message_id)
-            self._deliver(inline.samples, inline.bad, inline.ignored)
-            return 200, "ok"
+                return None, (400, refused)
+            per_kind = dict(Counter(s.kind.label for s in inline.samples))
+            return Decoded(
+                inline.samples,
+                inline.bad,
+                inline.ignored,
+                inline.message_id,
+                per_kind,
+                inline.total,
+                inline.device,
+                inline.session,
+            ), (200, "ok")
         try:
             batch = self._decoder.decode(body, self._max_queue, source, parts)
         except InputFormatError as exc:
             self._reject(str(exc))
-            return 400, str(exc)
+            return None, (400, str(exc))
         except LinkError as exc:  # the decoder was busy, silent or dead: this push is lost, and counted
             with self._lock:
                 self.stats.decoder_restarts = self._decoder.restarts
             self._reject(f"{source}: not decoded: {exc}")
-            return 503, f"not decoded: {exc}"
+            return None, (503, f"not decoded: {exc}")
         with self._lock:
             self.stats.decoder_restarts = self._decoder.restarts
-        self._heard_total(batch.total)
-        self._count_gaps(batch.message_id)
-        self._deliver(batch.samples, batch.bad, batch.ignored, batch.per_kind)
-        return 200, "ok"
+        return batch, (200, "ok")
+
+    def _followed(self, device: str | None, session: str | None, peer: str, usable: int) -> Decision:
+        """Whose a batch is (:mod:`.senders`); another phone's is counted there, never delivered. A new
+        phone followed starts the stream's state afresh: its ``messageId`` numbering, and whether it
+        sends total acceleration."""
+        if device is None and session is None:
+            sender: tuple[str | None, ...] = ("peer", peer)
+            name = f"{peer} (no deviceId or sessionId)"
+        else:
+            sender = ("app", device, session)
+            name = f"deviceId {device!r} sessionId {session!r} from {peer}"
+        decision = self._attribute(sender, name, usable)
+        if decision is Decision.SWITCHED:
+            with self._lock:
+                self._last_id = None
+                self._total_heard = False
+        return decision
 
     def _heard_total(self, total: bool) -> None:
         """A batch held total acceleration: it is the stream's accelerometer from now on, its later

@@ -20,6 +20,13 @@ ignored and counted. There is no batching, so the
 sensing latency is the network's; there is no sequence number, so a lost datagram is not noticed (the
 merger's gap and stale flags are what shows it).
 
+**One phone.** A datagram carries no phone's name: its sender is its source address *and port* (one app's
+socket). The receiver follows the first sender heard with a reading the host uses; every other sender's
+datagrams are dropped, counted and logged, never merged (two phones on one network, both streaming to this
+port). An app restarted comes back from a new source port: it is followed once the old port has been silent
+for :data:`~.senders.SWITCH_AFTER_S` — a phone that streamed alongside the followed one never is
+(:mod:`.senders`: the rule and why). Nothing authenticates a phone: any host can send from any address.
+
 :class:`PhoneUdpReceiver` is the receiving end (the host); :class:`PhoneUdpSender` is the sending end (the
 emulator's simulated phone streams to the host exactly as the app would). Parsing is a pure function,
 :func:`decode_datagram`, tested without sockets.
@@ -33,10 +40,12 @@ import math
 import socket
 import sys
 import threading
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.sources.senders import Decision
 from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
 from protocol.errors import InputFormatError, LinkError
 
@@ -105,6 +114,8 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
     bias = _bias(values)
     if bias is not None:
         xyz = (xyz[0] - bias[0], xyz[1] - bias[1], xyz[2] - bias[2])
+        if not all(math.isfinite(v) for v in xyz):  # 1e308 less -1e308: finite parts, no finite reading
+            raise InputFormatError(f"{doc['type']}: the reading less its bias is not finite", source)
     return UncalibratedSample(t, kind, xyz)
 
 
@@ -153,14 +164,21 @@ class PhoneUdpReceiver(PhoneReceiver):
     (``stats.bad_messages``) and logged, never fatal. :meth:`drain` hands over what arrived, at most
     ``max_batch`` samples a call (a flood of datagrams is held, then dropped oldest first beyond
     ``max_queue``: :mod:`.stream`); :meth:`check` raises the thread's error (only the socket itself failing
-    is one).
+    is one). It follows one phone (the module docstring); ``clock`` (s, monotonic) times that phone's
+    silence and paces the warnings.
     """
 
     scheme = "udp"
     app = "SensaGram (UDP)"
 
-    def __init__(self, url: str, max_queue: int = MAX_QUEUE, max_batch: int = MAX_BATCH) -> None:
-        super().__init__(max_queue, max_batch=max_batch)
+    def __init__(
+        self,
+        url: str,
+        max_queue: int = MAX_QUEUE,
+        max_batch: int = MAX_BATCH,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        super().__init__(max_queue, clock, max_batch)
         host, port = _address(url)
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -193,17 +211,26 @@ class PhoneUdpReceiver(PhoneReceiver):
                 for level, kind, value in ancillary:
                     if (level, kind) == (socket.SOL_SOCKET, SO_RXQ_OVFL) and len(value) >= 4:
                         self._kernel_dropped(int.from_bytes(value[:4], sys.byteorder))
-                self._accept(data, peer[0])
+                self._accept(data, peer)
         except OSError as exc:
             if not self._stop.is_set():  # a socket closed by close() is the normal end
                 self._thread_error.store(exc)
         except BaseException as exc:  # stored, raised by check()
             self._thread_error.store(exc)
 
-    def _accept(self, data: bytes, peer: str) -> None:
-        sample, refused = self._decode(decode_datagram, data, f"udp from {peer}")
+    def _accept(self, data: bytes, peer: tuple[str, int]) -> None:
+        sample, refused = self._decode(decode_datagram, data, f"udp from {peer[0]}")
         if refused:
             return
+        host, port = peer[0], peer[1]
+        decision = self._attribute((host, port), f"{host}:{port}", sample is not None)
+        if decision is Decision.OTHER:
+            return
+        if decision is Decision.NOTHING:  # another sensor only: nothing of it dropped, no stream state
+            self._deliver((), ignored=1)
+            return
+        if decision is Decision.SWITCHED:  # another app's stream: which sensors it calibrates is its own
+            self._calibrated.clear()
         if sample is None:
             self._deliver((), ignored=1)
         elif type(sample) is UncalibratedSample:  # only while its sensor's calibrated type is not heard

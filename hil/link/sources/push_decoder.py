@@ -24,8 +24,9 @@ reply      u32 ``n``                      then ``n`` bytes: u32 ``h``, ``h`` byt
 =========  =============================  ===============================================================
 
 The header is ``{"error": detail}`` for a body that is not a push, else ``{"bad", "ignored",
-"message_id", "per_kind", "records"}``: the counts are the whole push's; the records are its newest
-``keep`` samples in time order (what the host's queue would keep: the older ones would be dropped on
+"message_id", "per_kind", "records", "total", "device", "session"}``: the counts are the whole push's (its
+ids, shortened: :func:`~hil.link.sources.phone_push.app_id`); the records are its newest ``keep`` samples
+in time order (what the host's queue would keep: the older ones would be dropped on
 arrival anyway, and are counted there without being built).
 
 A child that does not answer within ``timeout_s`` is killed; one that died is started afresh for the
@@ -73,6 +74,8 @@ class Decoded:
     message_id: int | None
     per_kind: dict[str, int] = field(default_factory=dict)
     total: bool = False  # the push held total acceleration (PushBatch.total)
+    device: str | None = None  # its deviceId and sessionId (PushBatch.device, .session)
+    session: str | None = None
 
 
 class PushDecoder:
@@ -204,11 +207,20 @@ def _unpack(reply: bytes, source: str) -> Decoded:
         if len(records) != header["records"] * _RECORD.size:
             raise ValueError(f"{len(records)} bytes of records, {header['records']} announced")
         samples = [SensorSample(t, KINDS[k], (x, y, z)) for t, k, x, y, z in _RECORD.iter_unpack(records)]
-        total = header["total"]
+        total, device, session = header["total"], header["device"], header["session"]
         if not isinstance(total, bool):
             raise TypeError(f"total is {total!r}")
+        if not all(v is None or isinstance(v, str) for v in (device, session)):
+            raise TypeError(f"the ids are {device!r}, {session!r}")
         return Decoded(
-            samples, header["bad"], header["ignored"], header["message_id"], header["per_kind"], total
+            samples,
+            header["bad"],
+            header["ignored"],
+            header["message_id"],
+            header["per_kind"],
+            total,
+            device,
+            session,
         )
     except InputFormatError:
         raise
@@ -242,6 +254,8 @@ def answer(body: bytes, keep: int, parts: bool = True) -> bytes:
             "per_kind": per_kind,
             "records": len(kept),
             "total": batch.total,
+            "device": batch.device,
+            "session": batch.session,
         }
     text = json.dumps(header).encode()
     return _LENGTH.pack(len(text)) + text + records

@@ -18,6 +18,13 @@ wants the present: a sample held longer than the queue takes to drain is stale a
 checked in the network thread at delivery and in the consumer at the drain, so the consumer's work per
 call and the memory held are bounded whatever arrives.
 
+**One phone per receiver.** Several phones may stream to one port (a lab's phones on one network): each
+readable message is attributed to its sender and only one sender is followed — the first heard; every other
+sender's messages are dropped, counted (``other_phones``, ``other_phone_messages``,
+``other_phone_samples``) and logged, never merged; the followed one silent past a bound hands over to a new
+sender (``phone_switches``), never to one that streamed alongside it (:mod:`.senders`: the rule and its
+bound). Nothing authenticates a phone: this keeps two honest phones apart, it is not security.
+
 A receiver (:class:`PhoneReceiver`) listens on one address; its :attr:`~PhoneReceiver.url` says where a
 phone must stream to. Senders (the emulator's simulated phone) implement :class:`PhoneSender`.
 :mod:`hil.link.sources.listening` picks both by URL scheme.
@@ -30,12 +37,13 @@ import logging
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, TypeVar
 from urllib.parse import urlsplit
 
 from hil.estimation.sensors import SensorSample
+from hil.link.sources.senders import Decision, SenderTable
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError, LinkError
 
@@ -50,6 +58,7 @@ MAX_QUEUE = 4096
 """Samples held for the consumer (~9 s of a 450 Hz phone, drained in 64 calls: 0.3 s at 200 Hz); beyond
 this the oldest are dropped and counted (``overflow``)."""
 LOG_EVERY_S = 1.0  # s: at most one warning about dropped messages this often (the rest are counted)
+NEW_SENDER_LOGS = 8  # new other senders logged one by one per LOG_EVERY_S; beyond, counted in the next line
 
 T = TypeVar("T")
 
@@ -98,6 +107,11 @@ class StreamStats:
     timeouts: int = 0  # HTTP: connections closed because a request did not arrive in time
     not_found: int = 0  # HTTP: requests for another path than the push path, answered 404
     decoder_restarts: int = 0  # HTTP: push decoder processes started again (one died or hung)
+    following: str = ""  # the sender followed (:mod:`.senders`): its address, or its app's ids
+    phone_switches: int = 0  # the followed sender was silent, and a new one was followed instead
+    other_phones: int = 0  # senders heard besides the followed one: their messages dropped (each once)
+    other_phone_messages: int = 0  # readable messages of other senders, dropped
+    other_phone_samples: int = 0  # the readings the host uses in them, dropped
     last_error: str = ""
     per_kind: dict[str, int] = field(default_factory=dict)
 
@@ -127,6 +141,10 @@ class PhoneReceiver:
         self._clock = clock  # s, monotonic: paces the drop warnings
         self._next_log = -float("inf")
         self._unlogged = 0
+        self._senders = SenderTable()
+        self._sender_log_window = -float("inf")  # when the current window of new-sender lines began
+        self._sender_logs = 0  # new-sender lines logged in it
+        self._unlogged_senders = 0
 
     @property
     def url(self) -> str:
@@ -163,6 +181,54 @@ class PhoneReceiver:
             st.overflow += dropped
         if dropped:
             self._warn(f"{dropped} sample(s), oldest first: more than {self._max_queue} held", dropped)
+
+    def _attribute(self, sender: Hashable, name: str, usable: int) -> Decision:
+        """Whose a readable message is (:mod:`.senders`): ``sender`` as the format identifies it, ``name``
+        what to call it in the log and ``stats.following``, ``usable`` how many readings the host uses it
+        holds. Another phone's message (:attr:`~Decision.OTHER`) is counted here (``other_phone_*``) and
+        must not be delivered; one with nothing to drop (:attr:`~Decision.NOTHING`) has its entries counted
+        by the caller, and changes no state of the stream; on :attr:`~Decision.SWITCHED` the caller starts
+        its per-stream state afresh."""
+        with self._lock:
+            heard = self._senders.hear(sender, self._clock(), usable > 0)
+            st = self.stats
+            decision, previous = heard.decision, st.following
+            if decision is Decision.OTHER:
+                st.other_phone_messages += 1
+                st.other_phone_samples += usable
+                st.other_phones += heard.new
+            elif decision in (Decision.FIRST, Decision.SWITCHED):
+                st.following = name
+                st.phone_switches += decision is Decision.SWITCHED
+            following = st.following
+        if decision is Decision.FIRST:
+            logger.info("phone %s: following %s, the first phone heard", self.scheme, name)
+        elif decision is Decision.SWITCHED:
+            logger.warning(
+                "phone %s: %s silent for %.1f s: following %s from now on (the host restarts its estimate)",
+                self.scheme, previous, heard.silent_s, name,
+            )  # fmt: skip
+        elif decision is Decision.OTHER and heard.new:
+            self._log_new_sender(name, following)
+        return decision
+
+    def _log_new_sender(self, name: str, following: str) -> None:
+        """Each new other sender logged — at most :data:`NEW_SENDER_LOGS` lines per :data:`LOG_EVERY_S`,
+        the next line saying how many more came meanwhile (a peer spraying source ports makes a few lines)."""
+        with self._lock:
+            now = self._clock()
+            if now >= self._sender_log_window + LOG_EVERY_S:
+                self._sender_log_window, self._sender_logs = now, 0
+            if self._sender_logs >= NEW_SENDER_LOGS:
+                self._unlogged_senders += 1
+                return
+            self._sender_logs += 1
+            unlogged, self._unlogged_senders = self._unlogged_senders, 0
+        more = f" (and {unlogged} more new senders since the last such warning)" if unlogged else ""
+        logger.warning(
+            "phone %s: another phone streams to this port, %s: its messages are dropped, never merged "
+            "(following %s)%s", self.scheme, name, following, more,
+        )  # fmt: skip
 
     def _decode(self, decode: Callable[[bytes, str], T], data: bytes, source: str) -> tuple[T | None, str]:
         """``(decode(data, source), "")``, or ``(None, reason)`` once the message is counted and logged as
