@@ -7,10 +7,22 @@ from __future__ import annotations
 
 import itertools
 import os
+from typing import Any
 
 from bench.can_bus import multicast_url, udp_multicast_problem
 
 _channels = itertools.count()
+
+
+def read_until(transport: Any, n_frames: int, tries: int = 50) -> bytes:
+    """What ``transport`` (a :class:`~hil.link.transports.can_bus.CanTransport`) reads until ``n_frames``
+    frames' delimiters are in (or ``tries`` reads of 20 ms)."""
+    got = b""
+    for _ in range(tries):
+        got += transport.read(0.02)
+        if got.count(0) >= n_frames:
+            break
+    return got
 
 
 def virtual_url(fd: bool = False, node: int = 5) -> str:
@@ -18,4 +30,4 @@ def virtual_url(fd: bool = False, node: int = 5) -> str:
     return f"can://virtual/test-{os.getpid()}-{next(_channels)}?node={node}&fd={int(fd)}"
 
 
-__all__ = ["multicast_url", "udp_multicast_problem", "virtual_url"]
+__all__ = ["multicast_url", "read_until", "udp_multicast_problem", "virtual_url"]

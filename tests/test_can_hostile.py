@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import can
 import hypothesis.strategies as st
 import pytest
-from can_support import multicast_url, virtual_url
+from can_support import multicast_url, read_until, virtual_url
 from hypothesis import given, settings
 from test_protocol_strategies import extreme_message, numbered_stream
 
@@ -60,15 +60,6 @@ def _put(bus: can.BusABC, segments, **kw) -> None:
         bus.send(_msg(s.arbitration_id, s.data, is_fd=s.is_fd, **kw))
 
 
-def _read_frames(transport: CanTransport, n: int, tries: int = 40) -> bytes:
-    got = b""
-    for _ in range(tries):
-        got += transport.read(0.02)
-        if got.count(0) >= n:
-            break
-    return got
-
-
 @pytest.fixture
 def bus_and_host():
     """A raw python-can bus (the other nodes) and a host's CAN transport on one virtual channel."""
@@ -103,7 +94,7 @@ def test_frames_of_the_other_kind_are_counted_never_delivered(bus_and_host, link
     assert counters["rx_segments"] == 0  # the board's stream is untouched
     mine = _wire(0.25)
     _put(raw, _board_segments(mine, fd=link_fd))
-    assert _read_frames(host, 1) == mine
+    assert read_until(host, 1) == mine
 
 
 def test_one_frame_is_never_assembled_from_both_kinds():
@@ -160,7 +151,7 @@ def test_zero_byte_odd_length_and_delimiter_only_frames_are_malformed_and_harmle
     for m in hostile:
         raw.send(m)
     _put(raw, segments[3:])
-    assert _read_frames(host, 1) == wire
+    assert read_until(host, 1) == wire
     c = host.counters()
     assert c["rx_frames"] == 1 and c["rx_incomplete"] == 0 and c["rx_spliced"] == 0
     assert c["rx_duplicates"] == 0
@@ -191,7 +182,7 @@ def test_another_node_s_complete_frames_and_a_flood_are_counted_with_bounded_mem
         pass
     wire = _wire()
     _put(raw, _board_segments(wire))
-    assert _read_frames(host, 1) == wire
+    assert read_until(host, 1) == wire
     c = host.counters()
     assert c["rx_ignored"] == len(foreign) + flood and c["rx_frames"] == 1
     assert host._reassembler.partial_frames <= 2 * 7

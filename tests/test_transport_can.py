@@ -8,6 +8,7 @@ import os
 
 import can
 import pytest
+from can_support import read_until
 
 from hil.link.transports import create_transport, open_transport
 from hil.link.transports.can_bus import CanTransport
@@ -23,15 +24,6 @@ _channels = itertools.count()
 def channel() -> str:
     """A virtual channel no other test (or engineer's test run in this process) uses."""
     return f"test-can-{os.getpid()}-{next(_channels)}"
-
-
-def read_until(transport: CanTransport, n_frames: int, tries: int = 50) -> bytes:
-    got = b""
-    for _ in range(tries):
-        got += transport.read(0.02)
-        if got.count(0) >= n_frames:
-            break
-    return got
 
 
 @pytest.mark.parametrize("fd", [False, True])
