@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from hil.estimation.registry import EstimatorChoice
 
 ORDER = 30
-MAX_GAP_S = 10.0  # hil.logs.replay.MAX_GAP_S (not imported here: the CLI loads its modules lazily)
+MAX_GAP_S = 1.0  # hil.estimation.sensors.MAX_PAUSE_S (not imported here: the CLI loads its modules lazily)
 
 EPILOG = """\
 examples:

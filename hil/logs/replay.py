@@ -49,6 +49,7 @@ from hil.estimation.metrics import TruthComparison, compare_to_truth
 from hil.estimation.multirate import MergePolicy, Merger, MergeStats, merge
 from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import (
+    MAX_PAUSE_S,
     MergedStep,
     MergedSteps,
     SensorKind,
@@ -72,8 +73,9 @@ ESTIMATES_COMMENT = (
 )
 
 
-MAX_GAP_S = 10.0
-"""A jump of the log's clock longer than this (s) splits the replay: the filter restarts after it."""
+MAX_GAP_S = MAX_PAUSE_S
+"""A jump of the log's clock longer than this (s) splits the replay: the filter restarts after it, as the
+live host's does after a pause of its phone (:data:`hil.estimation.sensors.MAX_PAUSE_S`, one rule)."""
 MIN_SEGMENT_STEPS = 10
 """A part of a split log shorter than this many merged steps is not run (reported)."""
 MAX_REPLAY_STEPS = 400_000

@@ -11,13 +11,13 @@ import logging
 import math
 
 from hil.estimation.admission import PhoneGuard, Verdict
-from hil.estimation.sensors import SensorSample
+from hil.estimation.sensors import MAX_PAUSE_S, SensorSample
 from hil.runtime.faults import FaultJournal
 from hil.runtime.runlog import EventLog
 
 logger = logging.getLogger(__name__)
 
-MAX_GAP_S = 1.0  # s: a pause in the phone's stamps longer than this restarts the estimator (not integrated)
+MAX_GAP_S = MAX_PAUSE_S  # s: a pause in the phone's stamps longer than this restarts the estimator
 DROP_NOTE_S = 0.1  # a reason's dropped readings make at most one journal record per this long (s)
 
 
