@@ -255,6 +255,53 @@ def test_any_leap_ahead_is_dropped_and_the_honest_board_goes_on_unreset(leap_ms,
     assert s.telemetry is not None and s.telemetry.time_ms == honest + 20
 
 
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    lag=st.floats(0.0, 0.2),  # the share of wall time the board's clock loses (an emulator not run enough)
+    run_s=st.floats(1.0, 3600.0),
+    outage_s=st.floats(0.05, 2.0),
+    samples=st.integers(1, 12),
+)
+def test_a_board_whose_clock_falls_behind_is_not_taken_for_a_restart_at_a_reconnect(
+    lag, run_s, outage_s, samples
+):
+    """simavr's harness lets the board's clock fall behind the wall when it is not run (a loaded machine),
+    by as much as the load takes. The same board found again after a lost link — its uptime short of the
+    host time since its first answer by all that lag — was reported reset when the check ran from the boot;
+    it runs from when the board was last heard of, where the lag over an outage stays within the slack."""
+    s, board = session()
+    for k in range(1, samples + 1):
+        t = 0.01 + run_s * k / samples
+        s.feed(board.encode(telemetry(round(t * (1 - lag) * 1000), rx_frames=10 + k))[1], t)
+    lost_at = 0.01 + run_s
+    s.link_down(lost_at, "port vanished")
+    back = lost_at + outage_s
+    s.link_up(back)
+    s.feed(board.encode(hello_reply())[1], back + 0.01)
+    uptime_ms = round((back + 0.02) * (1 - lag) * 1000)
+    s.feed(board.encode(telemetry(uptime_ms, rx_frames=11 + samples))[1], back + 0.02)
+    assert s.counters.resets == 0 and s.counters.reconnects == 1
+    assert s.telemetry is not None and s.telemetry.time_ms == uptime_ms
+
+
+@pytest.mark.parametrize("before_answer", [False, True])
+def test_a_board_restarted_before_it_sent_a_sample_is_a_reset_even_if_it_speaks_before_answering(
+    before_answer,
+):
+    """A board killed right after the handshake (no sample yet) and started again ~0.6 s later: its uptime at
+    the reconnect is short of the time since its first answer. A sample the new board sends before it
+    answers the reconnect's Hello (its telemetry, on a host's first bytes) had been taken as the board's
+    latest word, against which the first sample after the answer then looked in time: no reset."""
+    s, board = session()
+    s.link_down(0.05, "port vanished")
+    s.link_up(1.6)
+    if before_answer:
+        s.feed(board.encode(telemetry(590))[1], 1.64)
+    s.feed(board.encode(hello_reply())[1], 1.65)
+    s.feed(board.encode(telemetry(600))[1], 1.67)
+    assert s.counters.resets == 1 and s.counters.reconnects == 1
+
+
 def test_a_backlog_read_all_at_once_after_a_pause_is_taken_whole():
     s, board = session()
     s.feed(board.encode(telemetry(1_000))[1], 0.02)

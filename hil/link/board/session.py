@@ -15,12 +15,12 @@ Phases::
 
 **Reset detection.** The board's uptime (``Heartbeat.time_ms``, ``Telemetry.time_ms``) only grows while
 it runs. It going backwards, or the board reporting BOOT in the middle of a session or after a lost link
-came back, means it reset. So does, after a reconnect, a first uptime shorter than the time the board had
-certainly been running by the reconnect's Hello — since its first answer of that boot (``AGE_SLACK_S``
-and a clock 1 % slow allowed for): a board killed moments after the handshake, before any sample, and
-restarted seconds before the host found it again. (A board that restarted while the link was down within
-``AGE_SLACK_S`` of its first answer, and has already run longer than before, is not caught: nothing it
-sends tells it from the board that was there.) The
+came back, means it reset. So does, after a reconnect, a first uptime shorter than the board had certainly
+run by the reconnect's Hello — its uptime when last heard of (its last sample, or 0 at its first answer)
+and the host time since (``AGE_SLACK_S`` and a clock 1 % slow allowed for): a board killed moments after
+the handshake, before any sample, and restarted seconds before the host found it again. (A board that
+restarted while the link was down within ``AGE_SLACK_S`` of when it was last heard of, and has already
+run longer than before, is not caught: nothing it sends tells it from the board that was there.) The
 cause is in the next ``HelloReply``: if one arrived since the last uptime sample (a reconnect handshake),
 it is used; otherwise the session handshakes again (Hello → the board is DISARMED with a new session)
 and reports :class:`BoardResetEvent` with the cause it answers. A reset while the host had the board
@@ -179,7 +179,9 @@ class Session:
         self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
         self._armed_at_loss = False  # the host had the board armed when the link was lost
         self._last_uptime: int | None = None
-        self._booted_by: float | None = None  # host time by which the board's current boot had begun
+        # (board uptime s, host time s): the board's current boot had run at least that long by then (its
+        # first answer: 0 s; then each sample taken). None after a reset seen: the coming answer sets it.
+        self._ran: tuple[float, float] | None = None
         self._link_up_at = 0.0  # host time of the last link_up() (a reconnect's Hello went out after it)
         self._age_check_from: float | None = None  # set by a reconnect: its first sample's age is checked
         self._last_rx_frames: int | None = None  # the board's count of valid frames taken, since its boot
@@ -454,10 +456,12 @@ class Session:
             evidence = self._younger_than_known(uptime_ms, age_from)
         if evidence is None:
             self._leaps.take(uptime_ms, rx_frames, frames_out, now)
+            if not self._lost:  # a reconnect's samples before its answer are checked by the first after it
+                self._ran = (uptime_ms / 1000.0, now)
             return True
         self._leaps.restart(uptime_ms, rx_frames, frames_out, now)  # the counts of a new boot
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
-        self._booted_by = now if reply is not None else None  # else: the coming handshake's answer
+        self._ran = (uptime_ms / 1000.0, now) if reply is not None else None  # else: the coming answer's
         if self.armed and self.state is not BoardState.ARMED:
             self.armed = False
             self.pending_reset = PendingReset(now, evidence)
@@ -478,23 +482,26 @@ class Session:
 
     def _younger_than_known(self, uptime_ms: int, hello_at: float) -> str | None:
         """Why the board that answered a reconnect's handshake (its Hello sent at ``hello_at``) cannot be
-        the one the session had — its uptime in the first sample after the answer is shorter than the time
-        that board had certainly been running by then (:data:`AGE_SLACK_S` and the board's clock running
-        ``CLOCK_RATE`` slow allowed for) — or None. It restarted while the link was down: a process killed
-        and started again, a board power-cycled, on the same port. Counts that went back tell it only when
-        the old board had sent some before it died and the new one had not run past them since; a board
-        killed moments after the first handshake (no sample yet) and restarted seconds before the host
-        found it again passed for the same board, its reset never reported."""
-        booted_by = self._booted_by
-        if booted_by is None:
+        the one the session had — its uptime in the first sample after the answer is shorter than the
+        board had certainly run by then: as long as when last heard of (its last sample taken, or 0 s at
+        its first answer) and the host time since, less :data:`AGE_SLACK_S`, its clock allowed to run
+        ``CLOCK_RATE`` slow — or None. It restarted while the link was down: a process killed and started
+        again, a board power-cycled, on the same port. Counts that went back tell it only when the new
+        boot had not run past the old one's last sample; a board killed moments after the first handshake
+        (no sample yet) and restarted seconds before the host found it again passed for the same board,
+        its reset never reported. Measured from the last sample, not from the boot: an emulated board's
+        clock falls behind the wall when its process is not run (simavr's harness under load), and over a
+        whole run that lag would pass for a restart; over an outage it stays within the slack."""
+        if self._ran is None:
             return None
-        at_least_s = hello_at - booted_by  # the sample left the board after our Hello reached it
+        ran_s, heard_at = self._ran
+        since_s = hello_at - heard_at  # the sample left the board after our Hello reached it
         uptime_s = uptime_ms / 1000.0
-        if uptime_s * CLOCK_RATE + AGE_SLACK_S >= at_least_s:
+        if (uptime_s - ran_s) * CLOCK_RATE + AGE_SLACK_S >= since_s:
             return None
         return (
-            f"its uptime ({uptime_ms} ms) is shorter than the {at_least_s:.3f} s the board had been "
-            f"running (it answered at t={booted_by:.3f} s): it restarted while the link was down"
+            f"its uptime ({uptime_ms} ms) is shorter than the {ran_s + since_s:.3f} s the board had run "
+            f"(it was at {ran_s:.3f} s at t={heard_at:.3f} s): it restarted while the link was down"
         )
 
     def _set_state(self, state: BoardState, now: float) -> None:
@@ -553,8 +560,8 @@ class Session:
             )
             return
         first = previous is None
-        if self._booted_by is None:  # the first answer of this boot: it had begun by now
-            self._booted_by = now
+        if self._ran is None:  # the first answer of this boot: it had begun by now
+            self._ran = (0.0, now)
         self.info = info
         self.phase = Phase.READY
         self.counters.handshakes += 1
