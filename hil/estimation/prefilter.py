@@ -15,6 +15,10 @@ Initial condition: the filter starts at its first valid input (``x̄[0] = x[0]``
 constant input), so a 9.81 m/s² gravity reading does not ramp up from zero. An invalid input (``valid``
 false, or any non-finite component) yields NaN and resets the filter, which restarts at the next valid
 sample: after a sensor drop-out the output follows the fresh data instead of sliding over from the old.
+The strapdown frame (:class:`SignalPrefilter`) is the exception: there the gyro keeps the old state true
+(gravity and the field do not move in ``R_g``'s frame), so acc and mag keep their filter's state through
+a drop-out while the gyro is usable, and restart only if it is not either — a restart from the first
+sample after a drop-out would take a hand-held phone's jolt for steady state.
 
 Compiled (:func:`hil.jit.kernel`): :func:`lowpass` (one sample of a filter of any dimension),
 :func:`signal_step` (a phone's three signals, body or strapdown frame); the attitude filter's chain
@@ -119,14 +123,17 @@ def signal_step(sp, ss, h, io, acc_scale):  # type: ignore[no-untyped-def]
     """One merged step of ``h`` s (ignored on the first) through a phone's three signals: ``io`` (9,)
     holds gyr, acc, mag (NaN: not usable) and receives them filtered (NaN where not usable; a signal that
     is not filtered passes through). In the strapdown frame, acc and mag are filtered as ``R_g v`` and
-    rotated back (see :class:`SignalPrefilter`). The accelerometer's cut-off is multiplied by
+    rotated back (see :class:`SignalPrefilter`); there a step where acc (or mag) is not usable but the gyro
+    is keeps that filter's state (``R_g`` still follows the body), one where the gyro is not either
+    resets it. The accelerometer's cut-off is multiplied by
     ``acc_scale`` for this step (its trust: :mod:`hil.estimation.motion`; 1 for the configured cut-off).
     Returns 0, or :data:`BAD_STEP` (nothing changed) for a step after the first whose ``h`` is not a
     positive number."""
     if ss[SS_N] > 0.0 and not (h > 0.0 and math.isfinite(h)):
         return BAD_STEP
     gx, gy, gz = io[0], io[1], io[2]
-    if not math.isfinite(gx + gy + gz):
+    gyro_ok = math.isfinite(gx + gy + gz)
+    if not gyro_ok:
         gx = gy = gz = 0.0
     strap = sp[SP_STRAPDOWN] != 0.0
     r = (ss[0], ss[1], ss[2], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8])
@@ -152,6 +159,8 @@ def signal_step(sp, ss, h, io, acc_scale):  # type: ignore[no-untyped-def]
             v[0], v[1], v[2] = apply_f(r, (v[0], v[1], v[2]))
             lowpass(st, cut, h, v, v)
             v[0], v[1], v[2] = apply_transpose_f(r, (v[0], v[1], v[2]))
+        elif strap and s > 0 and gyro_ok:  # not usable: R_g carries the filter's state through the gap
+            v[:] = math.nan
         else:
             lowpass(st, cut, h, v, v)
     return 0
@@ -305,7 +314,10 @@ class SignalPrefilter:
       the field, without the rotation lag (``R_g`` drifts only with the gyro bias, far slower than the
       filter). The gyroscope itself, if given a cut-off, is filtered in the body frame.
 
-    A signal that is None (not usable) comes out None and its filter restarts at its next usable sample.
+    A signal that is None (not usable) comes out None. In the body frame, and in the strapdown frame when
+    the gyro is not usable either, its filter restarts at its next usable sample; in the strapdown frame
+    with a usable gyro, acc's and mag's filters keep their state through the gap (``R_g`` keeps it true)
+    and go on from it, the gap's time not counted.
     :meth:`step` and :meth:`run` run the same kernel and continue from the same state.
     """
 

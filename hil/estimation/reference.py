@@ -290,8 +290,11 @@ def signal_run(
     cutoffs: dict[SensorKind, float | None], frame: str, h: Array, gyr: Array, acc: Array, mag: Array
 ) -> tuple[Array, Array, Array]:
     """The three signals through the closed-form pre-filter (NaN rows: not usable), acc and mag in the
-    strapdown frame if ``frame == "strapdown"``."""
+    strapdown frame if ``frame == "strapdown"``. There a row not usable while the gyro is usable is left
+    out of the filter (it comes out NaN; the filter goes on from the row before it, the gap's time not
+    counted); one where the gyro is not usable either resets it."""
     frames = strapdown_frames(h, gyr) if frame == "strapdown" else None
+    gyro_ok = np.all(np.isfinite(gyr), axis=1)
     out = []
     for kind, v in zip(KINDS, (gyr, acc, mag), strict=True):
         cut = cutoffs.get(kind)
@@ -300,13 +303,16 @@ def signal_run(
         elif frames is None or kind is SensorKind.GYR:
             out.append(filter_batch(h, v, cut))
         else:
-            y = filter_batch(h, np.einsum("nij,nj->ni", frames, v), cut)
+            rows = np.all(np.isfinite(v), axis=1) | ~gyro_ok
+            y = np.full_like(v, np.nan)
+            y[rows] = filter_batch(h[rows], np.einsum("nij,nj->ni", frames[rows], v[rows]), cut)
             out.append(np.einsum("nji,nj->ni", frames, y))
     return out[0], out[1], out[2]
 
 
 class Lowpass:
-    """The first-order Tustin low-pass of a 3-vector, one step at a time, with a per-step cut-off."""
+    """The first-order Tustin low-pass of a 3-vector, one step at a time, with a per-step cut-off; a
+    non-finite input gives NaN and resets it (:meth:`hold` gives NaN and keeps it)."""
 
     def __init__(self) -> None:
         self.x: Array | None = None
@@ -323,3 +329,7 @@ class Lowpass:
         self.y = a * self.y + b * (self.x + x)
         self.x = x.copy()
         return self.y.copy()
+
+    def hold(self) -> Array:
+        """A step without a usable input that keeps the state (the strapdown frame with a usable gyro)."""
+        return _NAN3.copy()

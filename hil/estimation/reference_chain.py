@@ -213,6 +213,8 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
             v = signals[kind]
             if strap and kind is not SensorKind.GYR and np.all(np.isfinite(v)):
                 signals[kind] = rg.T @ lp[kind](h, rg @ v, c)
+            elif strap and kind is not SensorKind.GYR and np.all(np.isfinite(g)):
+                signals[kind] = lp[kind].hold()  # R_g carries the state through the drop-out
             else:
                 signals[kind] = lp[kind](h, v, c)
         g, acc, mag = signals[SensorKind.GYR], signals[SensorKind.ACC], signals[SensorKind.MAG]
