@@ -8,13 +8,19 @@ Each limit is one channel (a telemetry column) against one threshold::
      "op": "above", "value": 0.5, "clear": 0.475, "severity": "warning", "from_phase": 0, "why": "..."}
 
 ``op``: ``above`` (value > threshold), ``below`` (value < threshold), ``abs_above`` (|value| >
-threshold), ``equals`` (a state code). An alarm is raised on the first row past the threshold and cleared
-on the first row back past ``clear`` (a hysteresis band of :data:`HYSTERESIS` of the threshold, so a value
-hovering at its limit does not raise and clear an alarm per row). ``from_phase``: the limit holds from
-that run phase on (0 warm-up, 1 slew, 2 hold): the rotors' minimum speed only once they have been spun up.
-The page evaluates them on every row it receives (``hil/gcs/static/alarms.js``) and sends an
-acknowledgement as ``POST /api/ack {"alarm": key, "raised_t": s}`` (:func:`hil.gcs.uplink.parse_ack`,
-whose key pattern every key here matches).
+threshold), ``equals`` (a state code), ``event`` (no threshold: raised by the run's ``raise_on`` event,
+cleared by its ``clear_on`` one — the host decides, so a replay shows what the live page showed). An alarm
+is raised on the first row past the threshold and cleared on the first row back past ``clear`` (a
+hysteresis band of :data:`HYSTERESIS` of the threshold, so a value hovering at its limit does not raise
+and clear an alarm per row). ``from_phase``: the limit holds from that run phase on (0 warm-up, 1 slew,
+2 hold): the rotors' minimum speed only once they have been spun up. The page evaluates them on every row
+it receives (``hil/gcs/static/alarms.js``) and sends an acknowledgement as ``POST /api/ack {"alarm": key,
+"raised_t": s}`` (:func:`hil.gcs.uplink.parse_ack`, whose key pattern every key here matches).
+
+One alarm is of the run's events rather than a threshold: ``phone_other:streaming``, another phone
+streaming to the phone's port (a caution: its messages are dropped, never merged — docs/formats.md, "One
+phone per receiver"), raised by ``phone_other`` and cleared by ``phone_others_quiet`` (no other phone's
+message for :data:`hil.link.sources.stream.OTHERS_QUIET_S`); its "worst" is the most other phones heard.
 
 The battery and UBEC thresholds are the board's (the emulator's ``firmware_sim.board.config`` defaults,
 which the C firmware's configuration block carries too): the host cannot import the board, so they are
@@ -26,6 +32,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from hil.link.sources.stream import OTHERS_QUIET_S
 from hil.runtime import faults as runtime_faults
 from hil.scenario import Scenario
 from hil.scenario.reader import DEFAULT_LINK_TIMEOUT_S
@@ -76,6 +83,29 @@ def _limit(
         "from_phase": from_phase,
         "why": why,
     }
+
+
+def event_alarms() -> list[dict[str, Any]]:
+    """The alarms raised and cleared by the run's events (``op`` ``event``: the module docstring)."""
+    return [
+        {
+            "key": "phone_other:streaming",
+            "column": "phone_other_phones",  # the cell it colours (the phone panel's other phones)
+            "label": "another phone on the phone's port",
+            "unit": "",
+            "op": "event",
+            "value": None,
+            "clear": None,
+            "raise_on": "phone_other",
+            "clear_on": "phone_others_quiet",
+            "severity": WARNING,
+            "from_phase": 0,
+            "why": (
+                "another phone is streaming to this port: its messages are dropped, never merged (the "
+                f"receiver follows one phone); cleared after {OTHERS_QUIET_S:g} s without one"
+            ),
+        }
+    ]
 
 
 def alarm_limits(scenario: Scenario) -> list[dict[str, Any]]:
@@ -204,4 +234,4 @@ def alarm_limits(scenario: Scenario) -> list[dict[str, Any]]:
             suffix="failsafe",
         ),
     ]
-    return out
+    return out + event_alarms()

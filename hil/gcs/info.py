@@ -23,14 +23,21 @@ from protocol.messages import BoardState, ControlMode, FaultFlag, PowerState, Wa
 
 PHONE_LABELS = tuple(k.label for k in KINDS)
 
+SENDER_COLUMNS = ("phone_other_phones", "phone_other_messages", "phone_switches")
+"""A live receiver's one-phone rule as of the row (:class:`hil.link.sources.base.SenderStatus`): other
+phones heard (their messages dropped), their messages dropped, hand-overs to a new phone; no value when
+the run's phone has no receiver (a world stepped in-process, a recording)."""
+
 LIVE_COLUMNS = (
     *(f"phone_rate_{k}" for k in PHONE_LABELS),
     *(f"phone_age_ms_{k}" for k in PHONE_LABELS),
+    *SENDER_COLUMNS,
 )
 """What a live run adds to telemetry.csv's columns for the page: each phone sensor's sample rate (Hz, over
-the last second) and the age of its newest sample (ms, on the host's clock). (The board's power, UBEC,
-watchdog, faults and mode, the host-side age of its telemetry and the host's view of the board are
-telemetry.csv's own columns: :data:`hil.runtime.telemetry.BOARD_EXTRA_COLUMNS` and ``VIEW_COLUMNS``.)"""
+the last second) and the age of its newest sample (ms, on the host's clock), and the phone receiver's
+counts of other phones (:data:`SENDER_COLUMNS`). (The board's power, UBEC, watchdog, faults and mode, the
+host-side age of its telemetry and the host's view of the board are telemetry.csv's own columns:
+:data:`hil.runtime.telemetry.BOARD_EXTRA_COLUMNS` and ``VIEW_COLUMNS``.)"""
 
 STALE_AFTER_S = runtime_faults.STALE_AFTER_S
 """A phone sample or board telemetry older than this is drawn stale: the host's own bound, by which its

@@ -3,10 +3,10 @@ path, and the feed the station's pump drains.
 
 On the control path (every call returns at once): each telemetry row and event goes into a bounded queue
 — when the queue is full (the pump thread starved) the item is dropped and counted, never waited for —
-with the row's live extras (:data:`hil.gcs.info.LIVE_COLUMNS`: each phone sensor's rate and sample age)
-read from the host, which costs a few attribute reads. Link statistics are taken every
-:data:`LINK_PERIOD_S` of run time. Commands from the page are carried out in :meth:`LiveFeed.tick`
-(:class:`hil.gcs.uplink.Uplink`).
+with the row's live extras (:data:`hil.gcs.info.LIVE_COLUMNS`: each phone sensor's rate and sample age,
+the phone receiver's counts of other phones) read from the host, which costs a few attribute reads. Link
+statistics are taken every :data:`LINK_PERIOD_S` of run time. Commands from the page are carried out in
+:meth:`LiveFeed.tick` (:class:`hil.gcs.uplink.Uplink`).
 
 On the pump's side: :meth:`LiveFeed.poll` empties the queue into one :class:`~hil.gcs.wire.Batch`.
 """
@@ -156,7 +156,12 @@ class LiveFeed:
         t = row.get("t")
         if host is None or t is None:
             return [None] * len(run_info.LIVE_COLUMNS)
-        return self._phone.update(t, host.merger.stats.accepted)
+        senders = host.senders.status  # the receiver's counters as the runtime last read them
+        if senders is None:
+            counts: list[int | None] = [None] * len(run_info.SENDER_COLUMNS)
+        else:
+            counts = [senders.other_phones, senders.other_phone_messages, senders.phone_switches]
+        return [*self._phone.update(t, host.merger.stats.accepted), *counts]
 
     # ------------------------------------------------------------------ the pump's side
     def poll(self) -> Batch:

@@ -5,17 +5,18 @@ control task, in real time or in lockstep.
 
 :class:`Host` is the coordinator; each job is its own module:
 
-==============================  ========================================================================
-:mod:`hil.runtime.phone_clock`  the phone's clock: admission, dropped readings, re-anchorings, gaps
-:mod:`hil.runtime.phases`       the run's phases (warm-up, slew, hold, recovery, the operator's
-                                suspension) as a state machine with named transitions
-:mod:`hil.runtime.control_step` controller → steering → setpoints, and the hold and rest setpoints
-:mod:`hil.runtime.watch`        the board's events, the host's view of it, re-arming
-:mod:`hil.runtime.actuators`    whether the actuators follow what they are told
-:mod:`hil.runtime.rows`         each tick's record from a :class:`~hil.runtime.rows.TickSnapshot`
-:mod:`hil.runtime.summary`      the run's summary and its requirement verdict
-:mod:`hil.runtime.operator`     the operator's commands and their log
-==============================  ========================================================================
+=================================  ========================================================================
+:mod:`hil.runtime.phone_clock`     the phone's clock: admission, dropped readings, re-anchorings, gaps
+:mod:`hil.runtime.phone_senders`   other phones on the phone's port: the receiver's moments as events
+:mod:`hil.runtime.phases`          the run's phases (warm-up, slew, hold, recovery, the operator's
+                                   suspension) as a state machine with named transitions
+:mod:`hil.runtime.control_step`    controller → steering → setpoints, and the hold and rest setpoints
+:mod:`hil.runtime.watch`           the board's events, the host's view of it, re-arming
+:mod:`hil.runtime.actuators`       whether the actuators follow what they are told
+:mod:`hil.runtime.rows`            each tick's record from a :class:`~hil.runtime.rows.TickSnapshot`
+:mod:`hil.runtime.summary`         the run's summary and its requirement verdict
+:mod:`hil.runtime.operator`        the operator's commands and their log
+=================================  ========================================================================
 
 **Faults** (:mod:`hil.runtime.watch`, :mod:`hil.runtime.faults`). The host's view of the board has an age:
 while no telemetry comes for ``stale_after_s`` (or the link is lost) the host stops commanding the board —
@@ -52,6 +53,7 @@ from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
 from hil.runtime.operator import OperatorCommand, OperatorLog
 from hil.runtime.phases import Phase, RunPhases
 from hil.runtime.phone_clock import MAX_GAP_S, Freshness, PhoneClock
+from hil.runtime.phone_senders import SenderWatch
 from hil.runtime.rows import BoardReading, TickRecorder, TickSnapshot
 from hil.runtime.runlog import CsvLog, EventLog, RowTap
 from hil.runtime.summary import HostCounters, run_summary
@@ -121,6 +123,7 @@ class Host:
         self.watch = BoardWatch(self.client, self.events, self.journal, self.stale_after_s)
         self.phases = RunPhases(sc, self.events, self.journal, self.hold)
         self.phone = PhoneClock(self.journal, self.events, self.stale_after_s)
+        self.senders = SenderWatch(self.events)
         self.in_control = True
         self._hold_sent = False  # the hold setpoint went out since the board was last seen
         self._hold_tick = -1  # the control tick it went out in

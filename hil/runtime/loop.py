@@ -420,6 +420,7 @@ def _build(
 
     def estimator_task(_due: float) -> None:
         host.feed(source.drain(clock.now()), clock.now())
+        host.senders.read(clock.now(), source.senders())  # other phones on its port (a live receiver)
 
     observer = opts.observer
 

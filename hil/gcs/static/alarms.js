@@ -2,7 +2,8 @@
 // row the page receives — before the store, whose decimation of a long run must not hide a short excursion
 // — into a list of occurrences (raised, cleared, peak, acknowledged), and the panel that lists them with an
 // Acknowledge button (POST /api/ack; the acknowledgement comes back as the run's "alarm_ack" event, so a
-// replay shows who acknowledged what, and when).
+// replay shows who acknowledged what, and when). An alarm of op "event" has no threshold: the run's
+// raise_on event raises it and its clear_on event clears it (another phone on the phone's port).
 
 import { $, fmt } from "./panels.js";
 
@@ -35,7 +36,8 @@ function worse(limit, a, b) {
 export class Alarms {
   constructor(info) {
     const index = Object.fromEntries(info.columns.map((c, i) => [c, i]));
-    this.limits = (info.alarms || []).filter((l) => l.column in index).map((l) => ({ ...l, i: index[l.column] }));
+    this.limits = (info.alarms || []).filter((l) => l.op !== "event" && l.column in index).map((l) => ({ ...l, i: index[l.column] }));
+    this.eventLimits = (info.alarms || []).filter((l) => l.op === "event");
     this.phaseIndex = index.phase;
     this.active = new Map();  // key -> the occurrence not yet cleared
     this.list = [];           // every occurrence, in the order raised
@@ -68,10 +70,30 @@ export class Alarms {
     }
   }
 
-  // The run's events: an "alarm_ack" marks the occurrence it names as acknowledged.
+  // The run's events: an "alarm_ack" marks the occurrence it names as acknowledged; an event alarm's
+  // raise_on event raises it (its peak: the most other phones heard, the event's other_phones), its
+  // clear_on event clears it.
   onEvents(events) {
     let any = false;
-    for (const e of events) if (e.kind === "alarm_ack") { this.acks.push(e); any = true; }
+    for (const e of events) {
+      if (e.kind === "alarm_ack") { this.acks.push(e); any = true; }
+      for (const limit of this.eventLimits) {
+        const open = this.active.get(limit.key);
+        const count = Number.isFinite(e.other_phones) ? e.other_phones : NaN;
+        if (e.kind === limit.raise_on) {
+          if (open) { open.peak = worse(limit, open.peak, count); continue; }
+          const occurrence = { key: limit.key, limit, raised_t: e.t, cleared_t: null, peak: count, ack: null };
+          this.active.set(limit.key, occurrence);
+          this.list.push(occurrence);
+          any = true;
+          this.version += 1;
+        } else if (e.kind === limit.clear_on && open) {
+          open.cleared_t = e.t;
+          this.active.delete(limit.key);
+          this.version += 1;
+        }
+      }
+    }
     if (any) this.matchAcks();
   }
 
@@ -116,6 +138,7 @@ function unitText(unit) {
 function limitText(l) {
   const unit = unitText(l.unit);
   if (l.op === "equals") return "FAILSAFE";
+  if (l.op === "event") return "streaming to this port";
   const sign = { above: ">", below: "<", abs_above: "|x| >" }[l.op];
   return `${sign} ${fmt(l.value, l.value >= 100 ? 0 : 2)}${unit}`;
 }
@@ -123,6 +146,7 @@ function limitText(l) {
 function peakText(o) {
   const l = o.limit;
   if (l.op === "equals") return "";
+  if (l.op === "event") return Number.isFinite(o.peak) ? `${o.peak} phone${o.peak === 1 ? "" : "s"}` : "";
   return `${fmt(o.peak, Math.abs(o.peak) >= 100 ? 0 : 2)}${unitText(l.unit)}`;
 }
 

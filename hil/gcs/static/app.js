@@ -253,7 +253,9 @@ function render(feed) {
   const feedAge = state.follow && state.info.mode === "live" ? feed.age : 0;
   const alarmAt = hasRows ? state.cursor : Infinity;
   const alarmColumns = state.alarms.activeColumns(alarmAt);
-  if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap, alarmColumns });
+  const ended = feed.cls === "ended";
+  const atEnd = state.follow || !(state.cursor < store.tLast);
+  if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap, alarmColumns, ended, atEnd, summary: state.status.summary });
   alarmPanel.draw(state.alarms, alarmAt, uplinkState(feed).on);
   drawAttitude(i, feedAge, rowGap);
   drawEvents(store, hasRows ? state.cursor : Infinity);

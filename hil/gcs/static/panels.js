@@ -80,6 +80,7 @@ export function drawPanels(ctx) {
 
   drawUnits(ctx, boardStale);
   drawPhone(ctx);
+  drawSenders(ctx);
   drawLink(ctx);
   markAlarms(ctx);
 }
@@ -87,7 +88,7 @@ export function drawPanels(ctx) {
 // The cell showing each channel, coloured while one of its alarms is active at the cursor.
 function alarmCells(info) {
   const cells = { point_err_deg: "point-err", battery_v: "battery", ubec_v: "ubec", link_age_ms: "link-age",
-    tel_age_ms: "tel-age", board_state: "board-mode" };
+    tel_age_ms: "tel-age", board_state: "board-mode", phone_other_phones: "phone-others" };
   for (let k = 0; k < (info.n_units || 0); k++) {
     cells[`gimbal_rate_${k}`] = `u${k}-rate`;
     cells[`rotor_speed_${k}`] = `u${k}-rotor`;
@@ -158,6 +159,54 @@ function drawPhone(ctx) {
   }
 }
 
+// The one-phone rule's records (hil/link/sources/senders.py, docs/formats.md "One phone per receiver").
+const SENDER_KINDS = new Set(["phone_following", "phone_other", "phone_switch", "phone_others_quiet"]);
+
+// The phone followed and the other phones dropped, at the cursor: the row's live counts (a live run), or
+// the counts of the newest record of the rule at or before the cursor (a replay: "as of" its time), or the
+// run's final counts once it has ended and the cursor is at its end ("at the end of the run") — a count is
+// never shown as live once the stream has ended. Without a receiver (a world stepped in-process, a
+// recording) no other phone can stream to the run: it says so.
+function drawSenders(ctx) {
+  const { store, i, t } = ctx;
+  const cells = { following: $("phone-following"), others: $("phone-others"), messages: $("phone-other-messages"), switches: $("phone-switches") };
+  if (!cells.following) return;
+  let listening = null, rule = null, followed = null;
+  for (const e of store.events) {
+    if (e.t > t) break;
+    if (e.kind === "phone_listening") listening = e;
+    else if (SENDER_KINDS.has(e.kind)) {
+      rule = e;
+      if (e.kind === "phone_following" || e.kind === "phone_switch") followed = e;
+    }
+  }
+  const final = (ctx.summary || {}).phone;
+  // stale: the counts' (and, but for a replay's records, the phone followed's: a record says it exactly)
+  const show = (following, counts, stale, followingStale = stale) => {
+    setCell(cells.following, following, followingStale);
+    setCell(cells.others, counts ? String(counts[0]) : "—", stale);
+    setCell(cells.messages, counts ? String(counts[1]) : "—", stale);
+    setCell(cells.switches, counts ? String(counts[2]) : "—", stale);
+  };
+  if (ctx.ended && ctx.atEnd && final && "other_phones" in final) {
+    show(final.following || "none", [final.other_phones, final.other_phone_messages, final.phone_switches], "at the end of the run");
+    return;
+  }
+  const live = ["phone_other_phones", "phone_other_messages", "phone_switches"].map((c) => store.value(c, i));
+  const following = followed ? followed.sender : listening ? "none heard yet" : "";
+  if (live.every(Number.isFinite)) {
+    const age = ctx.feedAge || 0;
+    show(following || "none heard yet", live, age > (ctx.info.stale_after_s || 0.25) ? age : false);
+  } else if (rule) {
+    const counts = [rule.other_phones, rule.other_phone_messages, rule.phone_switches];
+    show(following, counts, `as of ${fmt(rule.t, 1)} s`, false);
+  } else if (listening) {
+    show(following, [0, 0, 0], false);  // the first other phone's message always makes a record
+  } else {
+    show("no receiver: the run's phone is not on a port", null, false);
+  }
+}
+
 const LINK_ROWS = [
   ["frames_in", "frames received"], ["bad_frames_total", "bad frames"], ["resyncs", "resyncs"],
   ["seq_gaps", "sequence gaps"], ["counters.frames_out", "frames sent"], ["retries", "command retries"],
@@ -202,6 +251,7 @@ const EVENT_CLASS = (e) => {
   if (e.kind === "command") return "cmd";
   if (e.kind === "board_reset" || e.kind === "link_lost" || (e.kind === "board_state" && e.new === "FAILSAFE")) return "bad";
   if (e.kind === "silence" || e.kind === "rearm_failed" || (e.kind === "board_log" && e.severity !== "INFO")) return "warn";
+  if (e.kind === "phone_other" || e.kind === "phone_switch") return "warn";
   return "";
 };
 

@@ -18,7 +18,7 @@ function perUnit(prefix, n, label) {
 export function limitLines(info, columns) {
   const lines = new Map();
   for (const a of info.alarms || []) {
-    if (!columns.includes(a.column) || a.op === "equals") continue;
+    if (!columns.includes(a.column) || a.op === "equals" || a.op === "event") continue;
     const values = a.op === "abs_above" ? [a.value, -a.value] : [a.value];
     for (const value of values) {
       const key = `${value}`;

@@ -35,7 +35,14 @@ from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-from hil.link.sources.base import GroundTruth, PhoneSource, SourceContext, SourceFactory
+from hil.link.sources.base import (
+    GroundTruth,
+    PhoneSource,
+    SenderEvent,
+    SenderStatus,
+    SourceContext,
+    SourceFactory,
+)
 from hil.link.sources.listening import ListeningSource, open_receiver, open_sender, phone_url
 from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
 from hil.plugins import Registry
@@ -95,6 +102,8 @@ __all__ = [
     "PhoneReceiver",
     "PhoneSender",
     "PhoneSource",
+    "SenderEvent",
+    "SenderStatus",
     "SourceContext",
     "SourceFactory",
     "StreamStats",

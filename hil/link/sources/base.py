@@ -16,7 +16,7 @@ the source asks for); a source with a thread of its own keeps that thread's erro
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -40,6 +40,31 @@ class GroundTruth:
 
     R: Array
     omega: Array
+
+
+@dataclass(frozen=True)
+class SenderEvent:
+    """A moment of a live receiver's one-phone rule (:mod:`hil.link.sources.senders`) for the run's
+    ``events.jsonl``: its ``kind`` and its ``fields`` (docs/formats.md, "One phone per receiver")."""
+
+    kind: str
+    fields: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class SenderStatus:
+    """A live receiver's one-phone rule as of one read: the sender followed (its address, or its app's
+    ids; "" before one), the counters of ``summary.json``'s ``phone`` section, whether another phone is
+    streaming (one was heard within :data:`hil.link.sources.stream.OTHERS_QUIET_S`), and the
+    :class:`SenderEvent`\\ s since the last read, oldest first."""
+
+    following: str = ""
+    phone_switches: int = 0
+    other_phones: int = 0
+    other_phone_messages: int = 0
+    other_phone_samples: int = 0
+    others_streaming: bool = False
+    events: tuple[SenderEvent, ...] = ()
 
 
 class EventWriter(Protocol):
@@ -130,6 +155,13 @@ class PhoneSource(abc.ABC):
         """True once the source has handed out everything it will ever have (a recording played to its
         end): the run is finished. A stream is never exhausted."""
         return False
+
+    def senders(self) -> SenderStatus | None:
+        """The phones heard on the source's port (:class:`SenderStatus`), read by the runtime at its
+        estimator rate on the control thread: a copy taken under a lock the network thread holds only
+        briefly, never a wait. None for a source that hears one phone by construction (a recording, a
+        world stepped in-process)."""
+        return None
 
     def report(self) -> dict[str, dict[str, Any]]:
         """What the source counted, by ``summary.json`` section (``phone``: a receiver's counters;

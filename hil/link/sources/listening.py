@@ -22,7 +22,7 @@ from dataclasses import asdict
 from typing import TYPE_CHECKING, Any
 from urllib.parse import urlsplit
 
-from hil.link.sources.base import GroundTruth, PhoneSource, SourceContext
+from hil.link.sources.base import GroundTruth, PhoneSource, SenderStatus, SourceContext
 from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
 from protocol.errors import ConfigError, LinkTimeout
 
@@ -104,6 +104,9 @@ class ListeningSource(PhoneSource):
             f"`firmware-sim --world SCENARIO --phone {self.url}` (it streams its simulated phone there) or "
             f"point {receiver.app} on a phone at it, its accelerometer and gyroscope on"
         )
+
+    def senders(self) -> SenderStatus:
+        return self.receiver.senders()
 
     def report(self) -> dict[str, dict[str, Any]]:
         return {"phone": {"url": self.url, **asdict(self.receiver.stats)}}

@@ -23,7 +23,7 @@ import contextlib
 import sys
 from typing import TYPE_CHECKING, Any
 
-from hil.link.sources.base import GroundTruth, PhoneSource, SourceContext
+from hil.link.sources.base import GroundTruth, PhoneSource, SenderStatus, SourceContext
 from hil.link.sources.listening import listen
 from hil.link.transports import InProcessBoard
 from hil.timing.scheduler import PeriodicTask
@@ -146,6 +146,10 @@ class StreamedWorldPhone(PhoneSource):
         """``world_end`` written, the world thread stopped, the GIL's interval restored, the receiver
         closed: the reverse of the opening."""
         self._closing.close()
+
+    def senders(self) -> SenderStatus:
+        """Its receiver's: another phone may stream to the loopback port too."""
+        return self.receiver.senders()
 
     def report(self) -> dict[str, dict[str, Any]]:
         return self.receiver.report()

@@ -25,6 +25,14 @@ sender's messages are dropped, counted (``other_phones``, ``other_phone_messages
 sender (``phone_switches``), never to one that streamed alongside it (:mod:`.senders`: the rule and its
 bound). Nothing authenticates a phone: this keeps two honest phones apart, it is not security.
 
+**The rule's moments, for the run.** The first phone followed, another phone heard (each new one, under
+the log's rate limit; and the first message of another phone after :data:`OTHERS_QUIET_S` without one),
+a hand-over, and other phones gone quiet (no other phone's message for :data:`OTHERS_QUIET_S`) are kept as
+:class:`~.base.SenderEvent`\\ s in a bounded queue (:data:`MAX_SENDER_EVENTS`, the oldest dropped and
+counted: ``unrecorded_sender_events``). The runtime takes them, with a snapshot of the counters, through
+:meth:`PhoneReceiver.senders` at its estimator rate, and writes them to ``events.jsonl``: the network
+thread never writes a record, and the control thread never waits for it.
+
 A receiver (:class:`PhoneReceiver`) listens on one address; its :attr:`~PhoneReceiver.url` says where a
 phone must stream to. Senders (the emulator's simulated phone) implement :class:`PhoneSender`.
 :mod:`hil.link.sources.listening` picks both by URL scheme.
@@ -43,6 +51,7 @@ from typing import Protocol, TypeVar
 from urllib.parse import urlsplit
 
 from hil.estimation.sensors import SensorSample
+from hil.link.sources.base import SenderEvent, SenderStatus
 from hil.link.sources.senders import Decision, SenderTable
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError, LinkError
@@ -59,6 +68,15 @@ MAX_QUEUE = 4096
 this the oldest are dropped and counted (``overflow``)."""
 LOG_EVERY_S = 1.0  # s: at most one warning about dropped messages this often (the rest are counted)
 NEW_SENDER_LOGS = 8  # new other senders logged one by one per LOG_EVERY_S; beyond, counted in the next line
+OTHERS_QUIET_S = 5.0
+"""s: no other phone's message for this long and other phones are quiet again (``phone_others_quiet``; the
+ground station clears its "another phone" caution). 2.5 x :data:`~.senders.SWITCH_AFTER_S`: a phone
+streams every 2-20 ms, a Sensor Logger batch every 20-200 ms, so a phone still streaming is never this
+silent but for a Wi-Fi stall; an app stopped is told within 5 s. (A phone pushing less often than this
+makes a ``phone_other`` and a ``phone_others_quiet`` per push: two records per 5 s at most.)"""
+MAX_SENDER_EVENTS = 64
+"""Moments of the one-phone rule held for the runtime (which takes them 200 times a second: a few at most
+are waiting); beyond, the oldest are dropped and counted (``unrecorded_sender_events``)."""
 
 T = TypeVar("T")
 
@@ -112,6 +130,7 @@ class StreamStats:
     other_phones: int = 0  # senders heard besides the followed one: their messages dropped (each once)
     other_phone_messages: int = 0  # readable messages of other senders, dropped
     other_phone_samples: int = 0  # the readings the host uses in them, dropped
+    unrecorded_sender_events: int = 0  # the rule's moments dropped, MAX_SENDER_EVENTS waiting already
     last_error: str = ""
     per_kind: dict[str, int] = field(default_factory=dict)
 
@@ -145,6 +164,10 @@ class PhoneReceiver:
         self._sender_log_window = -float("inf")  # when the current window of new-sender lines began
         self._sender_logs = 0  # new-sender lines logged in it
         self._unlogged_senders = 0
+        self._sender_events: deque[SenderEvent] = deque()  # for the runtime (:meth:`senders`)
+        self._unrecorded_senders = 0  # new other senders not recorded since the last phone_other
+        self._others_streaming = False  # another phone heard within OTHERS_QUIET_S
+        self._other_last = 0.0  # when another phone's message was last heard
 
     @property
     def url(self) -> str:
@@ -184,22 +207,39 @@ class PhoneReceiver:
 
     def _attribute(self, sender: Hashable, name: str, usable: int) -> Decision:
         """Whose a readable message is (:mod:`.senders`): ``sender`` as the format identifies it, ``name``
-        what to call it in the log and ``stats.following``, ``usable`` how many readings the host uses it
-        holds. Another phone's message (:attr:`~Decision.OTHER`) is counted here (``other_phone_*``) and
-        must not be delivered; one with nothing to drop (:attr:`~Decision.NOTHING`) has its entries counted
-        by the caller, and changes no state of the stream; on :attr:`~Decision.SWITCHED` the caller starts
-        its per-stream state afresh."""
+        what to call it in the log, the run's events and ``stats.following``, ``usable`` how many readings
+        the host uses it holds. Another phone's message (:attr:`~Decision.OTHER`) is counted here
+        (``other_phone_*``) and must not be delivered; one with nothing to drop (:attr:`~Decision.NOTHING`)
+        has its entries counted by the caller, and changes no state of the stream; on
+        :attr:`~Decision.SWITCHED` the caller starts its per-stream state afresh."""
+        line: int | None = None  # a new-sender line is due: how many went unlogged before it
         with self._lock:
-            heard = self._senders.hear(sender, self._clock(), usable > 0)
+            now = self._clock()
+            heard = self._senders.hear(sender, now, usable > 0)
             st = self.stats
             decision, previous = heard.decision, st.following
             if decision is Decision.OTHER:
                 st.other_phone_messages += 1
                 st.other_phone_samples += usable
                 st.other_phones += heard.new
+                if heard.new:
+                    line = self._new_sender_line(now)
+                episode = not self._others_streaming  # the first other phone's message after a quiet
+                self._others_streaming, self._other_last = True, now
+                if line is not None or episode:
+                    unrecorded, self._unrecorded_senders = self._unrecorded_senders, 0
+                    more = {"not_recorded_before": unrecorded} if unrecorded else {}
+                    self._record("phone_other", sender=name, following=st.following, new=heard.new, **more)
+                elif heard.new:
+                    self._unrecorded_senders += 1
             elif decision in (Decision.FIRST, Decision.SWITCHED):
                 st.following = name
                 st.phone_switches += decision is Decision.SWITCHED
+                if decision is Decision.FIRST:
+                    self._record("phone_following", sender=name)
+                else:
+                    silent = round(heard.silent_s, 3)
+                    self._record("phone_switch", sender=name, previous=previous, silent_s=silent)
             following = st.following
         if decision is Decision.FIRST:
             logger.info("phone %s: following %s, the first phone heard", self.scheme, name)
@@ -208,27 +248,66 @@ class PhoneReceiver:
                 "phone %s: %s silent for %.1f s: following %s from now on (the host restarts its estimate)",
                 self.scheme, previous, heard.silent_s, name,
             )  # fmt: skip
-        elif decision is Decision.OTHER and heard.new:
-            self._log_new_sender(name, following)
+        elif line is not None:
+            more = f" (and {line} more new senders since the last such warning)" if line else ""
+            logger.warning(
+                "phone %s: another phone streams to this port, %s: its messages are dropped, never merged "
+                "(following %s)%s", self.scheme, name, following, more,
+            )  # fmt: skip
         return decision
 
-    def _log_new_sender(self, name: str, following: str) -> None:
-        """Each new other sender logged — at most :data:`NEW_SENDER_LOGS` lines per :data:`LOG_EVERY_S`,
-        the next line saying how many more came meanwhile (a peer spraying source ports makes a few lines)."""
+    def _new_sender_line(self, now: float) -> int | None:
+        """Whether a new other sender is logged — at most :data:`NEW_SENDER_LOGS` lines per
+        :data:`LOG_EVERY_S`, the next line saying how many more came meanwhile (a peer spraying source
+        ports makes a few lines): None if not, else how many went unlogged before it. Under the lock."""
+        if now >= self._sender_log_window + LOG_EVERY_S:
+            self._sender_log_window, self._sender_logs = now, 0
+        if self._sender_logs >= NEW_SENDER_LOGS:
+            self._unlogged_senders += 1
+            return None
+        self._sender_logs += 1
+        unlogged, self._unlogged_senders = self._unlogged_senders, 0
+        return unlogged
+
+    def _record(self, kind: str, **fields: object) -> None:
+        """A moment of the one-phone rule for the run (:meth:`senders`), with the counters as they are
+        now; the oldest dropped and counted beyond :data:`MAX_SENDER_EVENTS`. Under the lock."""
+        st = self.stats
+        fields.update(
+            other_phones=st.other_phones,
+            other_phone_messages=st.other_phone_messages,
+            other_phone_samples=st.other_phone_samples,
+            phone_switches=st.phone_switches,
+        )
+        if len(self._sender_events) >= MAX_SENDER_EVENTS:
+            self._sender_events.popleft()
+            st.unrecorded_sender_events += 1
+        self._sender_events.append(SenderEvent(kind, fields))
+
+    def senders(self) -> SenderStatus:
+        """The one-phone rule as of now, and its moments since the last call (:class:`~.base.SenderStatus`):
+        a copy taken under the lock, for the runtime at its estimator rate. Other phones silent for
+        :data:`OTHERS_QUIET_S` since one was last heard are quiet again (``phone_others_quiet``, told
+        here: the network thread hears nothing when nothing comes)."""
         with self._lock:
             now = self._clock()
-            if now >= self._sender_log_window + LOG_EVERY_S:
-                self._sender_log_window, self._sender_logs = now, 0
-            if self._sender_logs >= NEW_SENDER_LOGS:
-                self._unlogged_senders += 1
-                return
-            self._sender_logs += 1
-            unlogged, self._unlogged_senders = self._unlogged_senders, 0
-        more = f" (and {unlogged} more new senders since the last such warning)" if unlogged else ""
-        logger.warning(
-            "phone %s: another phone streams to this port, %s: its messages are dropped, never merged "
-            "(following %s)%s", self.scheme, name, following, more,
-        )  # fmt: skip
+            st = self.stats
+            if self._others_streaming and now - self._other_last >= OTHERS_QUIET_S:
+                self._others_streaming = False
+                self._record(
+                    "phone_others_quiet", following=st.following, silent_s=round(now - self._other_last, 3)
+                )
+            events = tuple(self._sender_events)
+            self._sender_events.clear()
+            return SenderStatus(
+                st.following,
+                st.phone_switches,
+                st.other_phones,
+                st.other_phone_messages,
+                st.other_phone_samples,
+                self._others_streaming,
+                events,
+            )
 
     def _decode(self, decode: Callable[[bytes, str], T], data: bytes, source: str) -> tuple[T | None, str]:
         """``(decode(data, source), "")``, or ``(None, reason)`` once the message is counted and logged as
