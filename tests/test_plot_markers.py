@@ -3,10 +3,14 @@ PNGs ``plot_run`` saves for a real run with a hung board."""
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 from gcs_support import quick_scenario
 from matplotlib.image import imread
 
+from hil.plots import markers
 from hil.plots.markers import COLORS, COMMAND, FAULT, MANOEUVRE, Marker, run_markers
 from hil.plots.run import plot_run
 from hil.runtime import RunOptions, run
@@ -26,6 +30,8 @@ def test_each_command_is_marked_once_with_its_target_and_faults_by_name():
         {"t": 8.0, "kind": "board_state", "old": "ARMED", "new": "FAILSAFE"},
         {"t": 8.5, "kind": "board_reset"},
         {"t": 9.0, "kind": "link_lost"},
+        {"t": 9.5, "kind": "phone_other", "sender": "127.0.0.1:5000"},
+        {"t": 10.0, "kind": "phone_switch", "sender": "127.0.0.1:5001", "previous": "127.0.0.1:4000"},
     ]  # fmt: skip
     assert run_markers(events) == [
         Marker(3.7, "slew start", MANOEUVRE),
@@ -35,7 +41,18 @@ def test_each_command_is_marked_once_with_its_target_and_faults_by_name():
         Marker(8.0, "FAILSAFE", FAULT),
         Marker(8.5, "board reset", FAULT),
         Marker(9.0, "link lost", FAULT),
+        Marker(10.0, "phone switched", FAULT),
     ]
+
+
+def test_the_page_marks_the_faults_the_saved_figures_mark():
+    """hil/gcs/static/markers.js keeps its own table of the fault kinds marked (the page draws its plots
+    itself): the same kinds and labels as the saved figures'."""
+    text = (Path(markers.__file__).parents[1] / "gcs" / "static" / "markers.js").read_text()
+    table = re.search(r"const FAULT_KINDS = \{(.*?)\};", text)
+    assert table is not None
+    page = dict(re.findall(r'(\w+): "([^"]*)"', table.group(1)))
+    assert page == markers.FAULT_KINDS
 
 
 def _vertical_line(path, color: str) -> int:

@@ -23,6 +23,7 @@ FAULT_KINDS = {
     "esc_dead": "ESC dead",
     "phone_gap": "phone gap",
     "silence": "board silent",
+    "phone_switch": "phone switched",  # another phone followed: the estimate starts afresh
 }
 MANOEUVRE_KINDS = {"slew_start": "slew start", "slew_end": "slew end"}
 

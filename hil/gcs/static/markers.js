@@ -2,7 +2,7 @@
 // and end, and the faults the host saw — the rules of hil/plots/markers.py, which marks the saved figures.
 
 export const MARKER_COLORS = { command: "#1f5fbf", manoeuvre: "#6b7480", fault: "#c62828" };
-const FAULT_KINDS = { board_reset: "board reset", link_lost: "link lost", esc_dead: "ESC dead", phone_gap: "phone gap", silence: "board silent" };
+const FAULT_KINDS = { board_reset: "board reset", link_lost: "link lost", esc_dead: "ESC dead", phone_gap: "phone gap", silence: "board silent", phone_switch: "phone switched" };
 const MANOEUVRE_KINDS = { slew_start: "slew start", slew_end: "slew end" };
 
 function commandLabel(e) {
