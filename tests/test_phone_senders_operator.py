@@ -26,6 +26,7 @@ import pytest
 from browser_support import chromium, js, page_errors
 from gcs_support import RunInThread, quick_scenario, request, wait_for
 
+from hil.cli.run import format_summary
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.gcs import GroundStation
 from hil.gcs.info import SENDER_COLUMNS
@@ -212,6 +213,12 @@ def test_a_run_records_the_phone_followed_another_phone_each_hand_over_and_the_o
         assert quiet_again[name] == phone_run.result.summary["phone"][name], name
     assert phone_run.result.summary["phone"]["following"] == world
     assert phone_run.result.summary["phone"]["unrecorded_sender_events"] == 0
+    printed = format_summary(phone_run.result.summary)  # what hil run and hil report print
+    phone = phone_run.result.summary["phone"]
+    assert (
+        f"following {world}; {phone['other_phones']} other(s) dropped "
+        f"({phone['other_phone_messages']} messages), {phone['phone_switches']} hand-over(s)"
+    ) in printed, printed
     # the operator's acknowledgement of the caution, logged with the occurrence it names
     assert phone_run.ack_status == 202
     ack = next(e for e in events if e["kind"] == "alarm_ack")

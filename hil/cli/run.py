@@ -347,6 +347,7 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
         f"link              lost {s.get('link_lost', 0)}  reconnects {s.get('reconnects', 0)}  "
         f"stale {s.get('stale_episodes', 0)}  phone gaps {s.get('phone_gaps', 0)}",
     ]
+    lines += phone_lines(s)
     lines += operator_lines(s)
     lines += fault_lines(s)
     control = s.get("tasks", {}).get("control")
@@ -356,6 +357,19 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
             f"p99 {control['lateness_p99_us']:.0f} us  max {control['lateness_max_us']:.0f} us"
         )
     return "\n".join(lines)
+
+
+def phone_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
+    """Other phones heard on the phone's port (a live receiver follows one: docs/formats.md), if any: the
+    one followed, the others' messages dropped, the hand-overs."""
+    phone = s.get("phone")
+    if not isinstance(phone, dict) or not (phone.get("other_phones") or phone.get("phone_switches")):
+        return []
+    return [
+        f"phones            following {phone.get('following')}; {phone.get('other_phones', 0)} other(s) "
+        f"dropped ({phone.get('other_phone_messages', 0)} messages), "
+        f"{phone.get('phone_switches', 0)} hand-over(s)"
+    ]
 
 
 def operator_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
