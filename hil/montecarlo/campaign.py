@@ -29,10 +29,12 @@ import math
 import os
 import pickle
 import queue
+import signal
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -194,27 +196,130 @@ def open_client(
     if scheduler is not None:
         if workers is not None:
             raise ConfigError("--workers is for a local cluster; a scheduler has its own workers", "workers")
+        check_address(scheduler)
         try:
+            if not scheduler.startswith("inproc://"):  # a scheduler in this process: nothing to probe
+                probe_scheduler(scheduler, timeout_s)
             client = Client(scheduler, timeout=timeout_s)
+        except LinkError:
+            raise
         except (OSError, TimeoutError) as exc:
             raise LinkError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from exc
+        except Exception as exc:  # something answered, not as a scheduler (numpy asked for 3 EiB)
+            raise LinkError(
+                f"no Dask scheduler at {scheduler}: what answered there did not speak Dask's protocol "
+                f"({describe(exc)})"
+            ) from exc
         with client:
             yield client
         return
     n = workers if workers is not None else available_cores()
     if n < 1:
         raise ConfigError(f"must be at least 1, got {n}", "workers")
-    with (
-        LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=processes,
-            dashboard_address="127.0.0.1:0",
-            silence_logs=logging.ERROR,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
+    with ExitStack() as stack:
+        with interrupts_deferred():  # a cluster interrupted half-started left a traceback at exit
+            cluster = stack.enter_context(
+                LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=processes,
+                    dashboard_address="127.0.0.1:0",
+                    silence_logs=logging.ERROR,
+                    preload=[__name__] if processes else [],  # dask_setup below: Ctrl-C is the driver's
+                )
+            )
+            client = stack.enter_context(Client(cluster))
         yield client
+
+
+def check_address(scheduler: str) -> None:
+    """Refuse a scheduler address that names no scheduler to connect to (a :class:`ConfigError` at
+    ``scheduler``): not ``SCHEME://HOST:PORT``, a port beyond 1..65535, or ``tls://`` without Dask's TLS
+    configuration (Dask's own TypeError otherwise)."""
+    import dask
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler, strict=True)
+        port = parse_host_port(location)[1] if scheme in ("tcp", "tls") else 1
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"not a scheduler address like tcp://HOST:8786 ({exc})", "scheduler") from None
+    if not 0 < int(port) < 65536:
+        raise ConfigError(f"port {port} is not in 1..65535", "scheduler")
+    if scheme == "tls" and not dask.config.get("distributed.comm.tls.ca-file", None):
+        raise ConfigError(
+            "tls:// needs Dask's TLS configuration (distributed.comm.tls: ca-file and the client's cert and "
+            "key; docs/montecarlo.md)",
+            "scheduler",
+        )
+
+
+def probe_scheduler(scheduler: str, timeout_s: float) -> None:
+    """Connect to ``scheduler`` and complete Dask's handshake within ``timeout_s``, then hang up. Dask's
+    own ``Client(address, timeout=...)`` bounds the connection but not the handshake's answer: a port that
+    accepts and never speaks (a proxy, a firewall, any other server that waits for its client) held the
+    command for ever. A silent peer is a :class:`LinkError` naming the address."""
+    import asyncio
+
+    from distributed.comm import connect
+    from distributed.security import Security
+
+    args = Security().get_connection_args("client")
+
+    async def handshake() -> None:
+        comm = await asyncio.wait_for(connect(scheduler, timeout=timeout_s, **args), timeout_s)
+        await comm.close()
+
+    try:
+        asyncio.run(handshake())
+    except TimeoutError as exc:  # asyncio's is the built-in one since 3.11
+        raise LinkError(
+            f"no Dask scheduler at {scheduler}: no answer to Dask's handshake within {timeout_s:g} s "
+            "(something accepted the connection and said nothing)"
+        ) from exc
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """SIGINT and SIGTERM held for the block, then handled as they would have been (the handler that was
+    there is called: ``hil``'s raises its interrupt). A LocalCluster interrupted while it starts is left
+    half-made: Dask's exit hook then failed an assertion closing it, with a traceback. Ignored signals stay
+    ignored; outside the main thread nothing changes (Python allows handlers only there). A block that fails
+    after an interrupt came is reported as the interrupt."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous: dict[int, Any] = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(signum)
+        if handler is signal.SIG_IGN or handler is None:
+            continue
+        previous[signum] = signal.signal(signum, lambda received, frame: caught.append(received))
+    try:
+        yield
+    except Exception:
+        if not caught:
+            raise
+        # the block failed because of the interrupt (a worker process it reached died starting): the
+        # interrupt is what happened, and is handled as such
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if caught:
+        handler = previous[caught[0]]
+        if callable(handler):
+            handler(caught[0], None)
+        else:  # SIG_DFL: what the signal would have done
+            signal.raise_signal(caught[0])
+
+
+def dask_setup(worker: Any) -> None:
+    """A LocalCluster worker process's preload: Ctrl-C in a terminal reaches the whole process group, and
+    each worker printed its KeyboardInterrupt's traceback; the driver alone handles it (it cancels the
+    work and closes the cluster, whose nannies stop the workers)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def chunks(indices: Iterable[int], count: int, batch: int, workers: int) -> Iterator[list[int]]:

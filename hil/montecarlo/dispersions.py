@@ -35,7 +35,9 @@ same run on any machine and in any order, and adding a dispersion to a file leav
 unchanged (common random numbers between campaign variants).
 
 Every parameter has bounds on its size (:data:`BOUNDS`: a sensor rate at most 1 kHz, an angle at most a
-turn, ...): a file that asks for more is refused naming the file and key, and draws are clipped into them.
+turn, ...): a file that asks for more is refused naming the file and key, and draws are clipped into them;
+so is a normal whose σ is wider than the whole range (every draw would land on its ends). Each drawn link
+outage lasts :data:`OUTAGE_S` (1 ms..60 s), the board's refusal of a stall of no time never a run's fate.
 Within them, values are not checked at draw time: a drawn value the model refuses (a negative noise, an
 inertia that is not positive definite) makes that run fail with an error naming the parameter, recorded
 with the run. The file itself is read bounded (:mod:`hil.files.bounded`: at most 16 MiB, nested at most
@@ -71,6 +73,12 @@ DEFAULT_DISPERSIONS = DISPERSION_DIR / "default.toml"
 LINK_RANGES = {"link.outages_per_minute": (0.0, 600.0), "link.outage_duration_s": (0.0, 60.0)}
 """What link outages a file may ask for: up to ten a second, each up to a minute (a rate's draws are
 clipped into it, so a run's outage list stays bounded: at most ~10 per second of run)."""
+OUTAGE_S = (1e-3, LINK_RANGES["link.outage_duration_s"][1])
+"""What one drawn outage may last (s): a normal's tail is clipped into it (an outage of 1e160 s, or of a
+negative time, is no stall the board can be given: every such run failed with its option refused)."""
+POSITIVE = frozenset({"link.outage_duration_s"})
+"""Parameters a fixed value must make positive (an outage of no time is none: a file asking for it is
+refused, not every run failing)."""
 BOUNDS: dict[str, tuple[float, float]] = {
     "spacecraft.inertia_scale": (-100.0, 100.0),
     "spacecraft.inertia_offdiag": (-1.0, 1.0),
@@ -332,7 +340,7 @@ def _outages(
     lo, hi = LINK_RANGES["link.outages_per_minute"]
     count = int(rng.poisson(min(max(per_minute, lo), hi) * run_s / 60.0))
     starts = np.sort(rng.uniform(0.0, run_s, count))
-    lengths = duration.sample(rng, np.zeros(count))
+    lengths = np.clip(duration.sample(rng, np.zeros(count)), *OUTAGE_S)
     return tuple((float(a), float(d)) for a, d in zip(starts, lengths, strict=True))
 
 
@@ -379,6 +387,9 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
     for key, dist in found.items():
         lo, hi = bounds_of(key)
         _check_support(dist, lo, hi, f"{where}: {key}")
+        _check_spread(dist, _BY_KEY[key].nominal(scenario), hi - lo, f"{where}: {key}")
+        if key in POSITIVE and isinstance(dist, Fixed) and not dist.value > 0:
+            raise ConfigError(f"must be positive, got {dist.value:g}", f"{where}: {key}")
     entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
     return Dispersions(scenario, entries, text, where, faults)
 
@@ -402,6 +413,25 @@ def _check_support(dist: Distribution, lo: float, hi: float, where: str) -> None
     bad = [v for v in values if v is not None and not lo <= v <= hi]
     if bad:
         raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
+
+
+def _check_spread(dist: Distribution, nominal: Array, span: float, where: str) -> None:
+    """Refuse a normal whose σ (``sigma``, or ``relative_sigma`` × the largest |mean|) is wider than the
+    parameter's whole range ``span``: its draws would all be clipped to the range's ends (σ = 1e160 made
+    every run ±100 × the inertia), and ``relative_sigma`` × |mean| could overflow to inf."""
+    if not isinstance(dist, Normal):
+        return
+    if dist.sigma is not None:
+        sigma, name = dist.sigma, "sigma"
+    else:
+        mean = abs(dist.mean) if dist.mean is not None else float(np.max(np.abs(nominal), initial=0.0))
+        sigma, name = float(dist.relative_sigma or 0.0) * mean, "relative_sigma"
+    if not sigma <= span:
+        raise ConfigError(
+            f"a spread of {sigma:g} is wider than the parameter's whole range ({span:g}): "
+            "every draw would be clipped to its ends",
+            f"{where}.{name}",
+        )
 
 
 def _leaves(node: Mapping[str, Any], where: str, prefix: str = "") -> list[tuple[str, Any]]:

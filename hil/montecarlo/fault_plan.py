@@ -44,7 +44,8 @@ shipped campaign without it.
 
 A run's faults are a pure function of the campaign seed, the run index and the kind (their own random
 stream, ``[seed, index, crc32("faults." + kind)]``): adding a kind leaves the others' draws unchanged.
-Counts are bounded (:data:`MAX_COUNT` per kind and run) and durations too (:data:`MAX_DURATION_S`).
+Counts are bounded (:data:`MAX_COUNT` per kind and run, a rate's Poisson draw included) and durations too
+(:data:`MIN_DURATION_S`..:data:`MAX_DURATION_S`; a fixed duration of 0 is refused).
 """
 
 from __future__ import annotations
@@ -65,6 +66,11 @@ MAX_COUNT = 100
 """Faults of one kind in one run, at most (a rate's draw is clipped to it)."""
 MAX_DURATION_S = 60.0
 """The longest stall, unplug, noise burst or phone gap a file may ask for (s)."""
+MIN_DURATION_S = 1e-3
+"""The shortest one a draw is given (s): the board and the world refuse a fault of no time (``--stall
+T:0``), so a draw clipped to 0 made its run crash, counted as the run's own violation."""
+MAX_JUMP_S = 86_400.0
+"""The largest phone clock jump (s, either way): what the world's ``--phone-jump`` takes."""
 SPINUP_S = 2.0
 """The run's spin-up and rotor settling, added to its warm-up and duration for the drawing window (s)."""
 CHANNEL_SETS = ("rotors", "gimbals", "any")
@@ -77,7 +83,7 @@ _PARAMS: dict[str, dict[str, tuple[float, float] | None]] = {
     "noise": {"duration_s": (0.0, MAX_DURATION_S), "corrupt": (0.0, 1.0)},
     "dead_esc": {"channels": None},
     "phone_gap": {"duration_s": (0.0, MAX_DURATION_S)},
-    "phone_jump": {"offset_s": (-1e6, 1e6)},
+    "phone_jump": {"offset_s": (-MAX_JUMP_S, MAX_JUMP_S)},
     "phone_spoof": {"spoof": None},
     "disarm": {"arm_after_s": (0.0, 600.0)},
     "arm": {},
@@ -168,6 +174,8 @@ def parse_faults(table: Any, where: str, distribution: Any) -> FaultSpec:
             else:
                 params[key] = distribution(spec[key], f"{at}.{key}")
                 _check_range(params[key], rng, f"{at}.{key}")
+                if key == "duration_s" and not getattr(params[key], "value", 1.0) > 0:
+                    raise ConfigError("must be positive (a fault of no time is none)", f"{at}.{key}")
         kinds.append(KindSpec(kind, count, per_minute, params))
     order = {k: i for i, k in enumerate(FAULT_KINDS)}
     return FaultSpec(tuple(sorted(kinds, key=lambda s: order[s.kind])))
@@ -192,6 +200,10 @@ def _check_range(dist: Any, bounds: tuple[float, float], where: str) -> None:
     bad = [v for v in values if v is not None and not lo <= v <= hi]
     if bad:
         raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
+    sigma = getattr(dist, "sigma", None)
+    if sigma is not None and not sigma <= hi - lo:  # every draw clipped to the range's ends
+        why = f"a sigma of {sigma:g} is wider than the whole range {lo:g}..{hi:g}"
+        raise ConfigError(why, f"{where}.sigma")
 
 
 def check_board(kinds: Iterable[str], board: str, where: str) -> None:
@@ -226,7 +238,7 @@ def draw_faults(spec: FaultSpec, scenario: Scenario, seed: int, index: int) -> t
     for ks in spec.kinds:
         rng = np.random.default_rng([seed, index, zlib.crc32(f"faults.{ks.kind}".encode())])
         if ks.per_minute is not None:
-            n = int(rng.poisson(ks.per_minute * window / 60.0))
+            n = min(int(rng.poisson(ks.per_minute * window / 60.0)), MAX_COUNT)
         else:
             assert ks.count is not None
             n = round(_within(float(ks.count.sample(rng, np.zeros(1))[0]), (0.0, MAX_COUNT)))
@@ -266,7 +278,8 @@ def _one(ks: KindSpec, t: float, rng: np.random.Generator, scenario: Scenario) -
         params = {"channel": int(rng.choice(list(pool[params.pop("channels")])))}
     for key in ("duration_s", "arm_after_s"):
         if key in params:
-            params[key] = min(max(params[key], 0.0), MAX_DURATION_S if key == "duration_s" else 600.0)
+            low = MIN_DURATION_S if key == "duration_s" else 0.0
+            params[key] = min(max(params[key], low), MAX_DURATION_S if key == "duration_s" else 600.0)
     if ks.kind == "phone_jump" and params["offset_s"] == 0.0:
         params["offset_s"] = 1e-3
     arm_after = params.pop("arm_after_s", None)

@@ -13,7 +13,10 @@ Layout of ``OUT``::
     plots/          histograms, error envelopes, parameter-vs-metric scatter
 
 A SIGKILL can leave a torn last line or record; opening the directory again cuts it off (and a trace
-whose row never made it is ignored, then written again with the run).
+whose row never made it is ignored, then written again with the run; an empty runs.csv starts afresh). A
+directory this campaign cannot resume — a manifest that is not a JSON object, results without a manifest, a
+runs.csv under another header, a file that is not a regular file — is a ConfigError naming the file, as is
+a write the OS refuses (a full disk); a row whose index or metric is not a number is dropped and counted.
 """
 
 from __future__ import annotations
@@ -25,10 +28,12 @@ import json
 import logging
 import math
 import os
-from collections.abc import Iterable, Mapping, Sequence
+import re
+import stat
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +59,14 @@ TRACE_CHUNK_BYTES = 16 << 20
 RUNS = "runs.csv"
 TRACE_FILE = "traces.bin"
 FIXED_COLUMNS = ("index", "status", "error")
+TAIL_BLOCK_BYTES = 1 << 16
+"""runs.csv's torn tail is looked for this much at a time, from the end."""
+MAX_HEADER_BYTES = 1 << 20
+"""The most of runs.csv's first line read to compare it with the manifest's columns."""
+MAX_INDEX = 2**31 - 1
+"""The largest run index a row may have (a trace record's index is an int32; a campaign's at most 10^7)."""
+_INDEX = re.compile(r"[0-9]{1,10}")
+T = TypeVar("T")
 _SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_hz", "columns")
 
 
@@ -106,33 +119,46 @@ class ResultStore:
         self.dtype = trace_dtype(int(manifest["trace_samples"]))
         make_dir(self.dir)
         path = self.dir / MANIFEST
+        runs, traces = self.dir / RUNS, self.dir / TRACE_FILE
+        for file in (path, runs, traces):
+            _regular_or_absent(file)
         if path.exists():
             self._check_manifest(path)
         else:
+            for orphan in (runs, traces):
+                if orphan.exists() and orphan.stat().st_size:
+                    raise ConfigError(
+                        f"{orphan.name} without a {MANIFEST}: not a campaign's directory this command "
+                        "can resume (its runs' origin is unknown); give another --out",
+                        str(orphan),
+                    )
             tmp = path.with_suffix(".json.tmp")
-            tmp.write_text(json.dumps(self.manifest, indent=2) + "\n")
+            _write(tmp, lambda: tmp.write_text(json.dumps(self.manifest, indent=2) + "\n"))
             os.replace(tmp, path)
-        runs = self.dir / RUNS
         if runs.exists():
-            _cut_torn_tail(runs, lambda size, data: data.rfind(b"\n") + 1)
+            _cut_torn_tail(runs, _last_line_end)
+            if runs.stat().st_size:
+                self._check_header(runs)
         record = self.dtype.itemsize
-        traces = self.dir / TRACE_FILE
         if traces.exists():
-            _cut_torn_tail(traces, lambda size, data: size - size % record)
-        self.finished: set[int] = set(read_runs(self.dir).index.tolist()) if runs.exists() else set()
+            _cut_torn_tail(traces, lambda f, size: size - size % record)
+        # an empty runs.csv (a session stopped before its header reached the disk) is a new one
         new = not runs.exists() or runs.stat().st_size == 0
-        self._rows = open(runs, "a", newline="")  # noqa: SIM115 — closed by close()
+        self.finished: set[int] = set() if new else set(read_runs(self.dir).index.tolist())
+        self._rows = _write(runs, lambda: open(runs, "a", newline=""))
         self._csv = csv.writer(self._rows, lineterminator="\n")
         if new:
-            self._csv.writerow(self.columns)
-            self._rows.flush()
-        self._traces = open(traces, "ab")  # noqa: SIM115
+            _write(runs, lambda: (self._csv.writerow(self.columns), self._rows.flush()))
+        self._traces = _write(traces, lambda: open(traces, "ab"))
 
     def _check_manifest(self, path: Path) -> None:
-        try:
-            old = json.loads(read_text(path))
-        except json.JSONDecodeError as exc:
-            raise ConfigError(f"unreadable campaign manifest: {exc}", str(path)) from exc
+        try:  # bounded: a manifest nested 100 000 deep or of 1 GB is refused, not a RecursionError
+            old = load_json(read_text(path, limit=MAX_DOCUMENT_BYTES), str(path))
+        except InputFormatError as exc:
+            raise ConfigError(f"unreadable campaign manifest: {exc.detail}", str(path)) from exc
+        if not isinstance(old, dict):
+            kind = type(old).__name__
+            raise ConfigError(f"unreadable campaign manifest: not a JSON object ({kind})", str(path))
         for key in _SAME:
             if old.get(key) == self.manifest[key]:
                 continue
@@ -145,14 +171,32 @@ class ResultStore:
                 str(path),
             )
 
+    def _check_header(self, runs: Path) -> None:
+        """runs.csv's header must be the manifest's columns: rows appended under another header would be
+        read back as malformed (dropped) or under the wrong names."""
+        with open(runs, "rb") as f:
+            first = f.readline(MAX_HEADER_BYTES).decode("utf-8-sig", errors="replace")
+        try:
+            header = next(csv.reader([first]), [])
+        except csv.Error:
+            header = []
+        if header != self.columns:
+            raise ConfigError(
+                f"its header is not this campaign's columns ({len(header)} columns, "
+                f"expected {len(self.columns)}: {_first_difference(header, self.columns)}); "
+                "give another --out",
+                str(runs),
+            )
+
     def append(self, result: RunResult) -> None:
-        """Write one finished run: its trace record (ok runs), then its row, each flushed to the OS."""
+        """Write one finished run: its trace record (ok runs), then its row, each flushed to the OS. A
+        write the OS refuses (a full disk, an I/O error) is a ConfigError naming the file: the run is not
+        in ``finished``, and the next session runs it again."""
         if result.ok and result.trace is not None:
             rec = np.zeros((), dtype=self.dtype)
             rec["index"] = result.index
             rec["trace"] = result.trace
-            self._traces.write(rec.tobytes())
-            self._traces.flush()
+            _write(self.dir / TRACE_FILE, lambda: (self._traces.write(rec.tobytes()), self._traces.flush()))
         row: dict[str, float | int | str] = {
             "index": result.index,
             "status": "ok" if result.ok else "failed",
@@ -161,20 +205,22 @@ class ResultStore:
         row.update(result.columns)
         row.update(result.metrics)
         row.update(result.checks)
-        self._csv.writerow([_cell(row.get(c)) for c in self.columns])
-        self._rows.flush()
+        cells = [_cell(row.get(c)) for c in self.columns]
+        _write(self.dir / RUNS, lambda: (self._csv.writerow(cells), self._rows.flush()))
         self.finished.add(result.index)
 
     def sync(self) -> None:
         """Push the written rows to the disk (survives a machine crash, not just a process crash)."""
-        for f in (self._rows, self._traces):
-            f.flush()
-            os.fsync(f.fileno())
+        for f, name in ((self._rows, RUNS), (self._traces, TRACE_FILE)):
+            _write(self.dir / name, lambda f=f: (f.flush(), os.fsync(f.fileno())))
 
     def close(self) -> None:
         for f in (self._rows, self._traces):
             if not f.closed:
-                f.close()
+                try:
+                    f.close()
+                except OSError as exc:  # a full disk refusing the buffered tail: the next session reruns it
+                    logger.warning("%s: closing: %s", self.dir, exc.strerror or exc)
 
     def __enter__(self) -> ResultStore:
         return self
@@ -183,12 +229,54 @@ class ResultStore:
         self.close()
 
 
-def _cut_torn_tail(path: Path, keep: Any) -> None:
-    data = path.read_bytes()
-    size = keep(len(data), data)
-    if size < len(data):
+def _regular_or_absent(path: Path) -> None:
+    """Refuse a campaign file that exists and is not a regular file: a directory, a FIFO (opening it
+    would wait for a writer for ever), a device (``/dev/zero`` never ends)."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise ConfigError(f"cannot read: {exc.strerror or exc}", str(path)) from exc
+    if not stat.S_ISREG(mode):
+        why = "not a regular file (a directory, a FIFO or a device): give another --out"
+        raise ConfigError(why, str(path))
+
+
+def _write(path: Path, action: Callable[[], T]) -> T:
+    """``action()`` (an open, write, flush or fsync of ``path``), an OSError (no space left, an I/O
+    error, no permission) a ConfigError naming the file."""
+    try:
+        return action()
+    except OSError as exc:
+        raise ConfigError(f"cannot write: {exc.strerror or exc}", str(path)) from exc
+
+
+def _last_line_end(f: BinaryIO, size: int) -> int:
+    """Where the last whole line of ``f`` (``size`` bytes) ends: read backwards a block at a time, so a
+    file of one endless line is not read whole."""
+    end = size
+    while end > 0:
+        start = max(0, end - TAIL_BLOCK_BYTES)
+        f.seek(start)
+        at = f.read(end - start).rfind(b"\n")
+        if at >= 0:
+            return start + at + 1
+        end = start
+    return 0
+
+
+def _cut_torn_tail(path: Path, keep: Callable[[BinaryIO, int], int]) -> None:
+    """Cut ``path`` to ``keep(file, size)`` bytes (a torn last line or record)."""
+
+    def cut() -> None:
         with open(path, "r+b") as f:
-            f.truncate(size)
+            size = os.fstat(f.fileno()).st_size
+            end = keep(f, size)
+            if end < size:
+                f.truncate(end)
+
+    _write(path, cut)
 
 
 def _cell(value: Any) -> str:
@@ -229,19 +317,38 @@ class Results:
 
 
 def read_runs(out_dir: str | os.PathLike[str]) -> Results:
-    """Read ``OUT/runs.csv``; a line with the wrong number of cells, or a run's row with a later one, is
-    dropped and counted."""
+    """Read ``OUT/runs.csv``; a malformed line — the wrong number of cells, a run index that is not a
+    plain number 0..:data:`MAX_INDEX`, a metric that is not a number — or a run's row with a later one, is
+    dropped and counted (``dropped``)."""
     path = Path(out_dir) / RUNS
+    try:
+        _regular_or_absent(path)
+    except ConfigError as exc:
+        raise InputFormatError(exc.detail, str(path)) from None
     text = read_text(path, InputFormatError, "results")
     reader = csv.reader(io.StringIO(text))
-    header = next(reader, None)
+    try:
+        header = next(reader, None)
+    except csv.Error as exc:
+        raise InputFormatError(f"not a campaign's runs.csv ({exc})", str(path), 1) from None
     if not header or list(header[:3]) != list(FIXED_COLUMNS):
-        raise InputFormatError(f"not a campaign's runs.csv (header {header!r})", str(path), 1)
+        raise InputFormatError(f"not a campaign's runs.csv (header {header!r:.200})", str(path), 1)
+    numeric = [j for j, name in enumerate(header) if name in METRICS]
     rows: dict[int, list[str]] = {}
     dropped = 0
-    for cells in reader:
-        if len(cells) != len(header) or not cells[0].isdigit():
+    while True:
+        try:
+            cells = next(reader, None)
+        except csv.Error:  # a NUL byte, an unterminated quote at the end: the line is no row
             dropped += 1
+            continue
+        if cells is None:
+            break
+        if len(cells) != len(header) or not _INDEX.fullmatch(cells[0]) or int(cells[0]) > MAX_INDEX:
+            dropped += 1
+            continue
+        if not all(_number_or_empty(cells[j]) for j in numeric):
+            dropped += 1  # a damaged metric would turn its whole column into text, every figure gone
             continue
         index = int(cells[0])
         dropped += index in rows  # a run's row twice (the file was edited): the last kept, the rest counted
@@ -259,6 +366,24 @@ def read_runs(out_dir: str | os.PathLike[str]) -> Results:
     ok = np.array([r[1] == "ok" for r in table], dtype=bool)
     errors = {int(r[0]): r[2] for r in table if r[1] != "ok"}
     return Results(np.array(order, dtype=np.int64), ok, errors, values, text_cols, list(header), dropped)
+
+
+def _number_or_empty(cell: str) -> bool:
+    if cell == "":
+        return True
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _first_difference(header: Sequence[str], columns: Sequence[str]) -> str:
+    """Where ``header`` first differs from ``columns``, for a message."""
+    for k, (a, b) in enumerate(zip(header, columns, strict=False)):
+        if a != b:
+            return f"column {k + 1} is {a[:60]!r}, not {b!r}"
+    return "a column missing" if len(header) < len(columns) else "a column too many"
 
 
 def read_manifest(out_dir: str | os.PathLike[str]) -> dict[str, Any]:
@@ -303,6 +428,10 @@ def read_traces(
     wanted = None if keep is None else set(int(i) for i in keep)
     last: dict[int, NDArray[np.float32]] = {}
     path = out / TRACE_FILE
+    try:
+        _regular_or_absent(path)  # a FIFO would wait for a writer for ever
+    except ConfigError as exc:
+        raise InputFormatError(exc.detail, str(path)) from None
     per_chunk = max(1, TRACE_CHUNK_BYTES // dtype.itemsize) * dtype.itemsize
     zeroed = 0
     with open(path, "rb") if path.exists() else io.BytesIO() as f:
