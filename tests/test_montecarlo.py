@@ -503,6 +503,9 @@ def test_cli_help_and_bad_options(capsys, scenario_file, tmp_path, monkeypatch):
         == 2
     )
     assert "--workers is for a local cluster" in capsys.readouterr().err
+    for rate in ("nan", "0", "1e160"):
+        assert hil_main(["montecarlo", str(scenario_file), "--runs", "2", "--trace-hz", rate]) == 2
+        assert "--trace-hz: must be in (0, " in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # nothing created for a campaign that never started
 
 

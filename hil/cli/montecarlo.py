@@ -232,14 +232,20 @@ def run(args: argparse.Namespace) -> int:
         check_run_length(loop.warmup_s, args.duration, loop.plant_step_s, "--duration")
         scenario = scenario.with_changes(slew=replace(scenario.slew, duration_s=args.duration))
     dispersions = load_dispersions(args.dispersions, scenario)
-    campaign = Campaign(
-        scenario,
-        dispersions,
-        args.runs,
-        scenario.seed if args.seed is None else args.seed,
-        args.batch,
-        args.trace_hz,
-    )
+    try:
+        campaign = Campaign(
+            scenario,
+            dispersions,
+            args.runs,
+            scenario.seed if args.seed is None else args.seed,
+            args.batch,
+            args.trace_hz,
+        )
+    except ConfigError as exc:  # the campaign's field as the option that set it
+        option = {"campaign.trace_hz": "--trace-hz"}.get(exc.where)
+        if option is None:
+            raise
+        raise ConfigError(exc.detail, option) from None
     bar = ProgressBar()
     with open_client(args.scheduler, local_workers(args)) as client:
         out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
