@@ -194,12 +194,17 @@ def test_choice_weights_that_overflow_are_refused():
 
 
 def test_a_wide_normal_draws_within_its_parameter_s_bounds():
-    d = parse_dispersions(
-        "[spacecraft]\ninertia_scale = { dist = 'normal', sigma = 1e6 }\n", load_scenario("cubesat-1u")
-    )
+    """A normal whose tails pass the parameter's range is clipped into it; one wider than the whole range
+    (every draw at an end) is refused, naming the key."""
+    sc = load_scenario("cubesat-1u")
     lo, hi = BOUNDS["spacecraft.inertia_scale"]
+    sigma = 0.75 * (hi - lo)
+    d = parse_dispersions(f"[spacecraft]\ninertia_scale = {{ dist = 'normal', sigma = {sigma} }}\n", sc)
     drawn = np.concatenate([draw(d, 1, i).values["spacecraft.inertia_scale"] for i in range(20)])
     assert np.all((drawn >= lo) & (drawn <= hi)) and np.any(np.abs(drawn) == hi)
+    with pytest.raises(ConfigError, match="wider than the parameter's whole range") as info:
+        parse_dispersions("[spacecraft]\ninertia_scale = { dist = 'normal', sigma = 1e6 }\n", sc)
+    assert info.value.where.endswith("spacecraft.inertia_scale.sigma")
 
 
 # --------------------------------------------------------------------------- the command line

@@ -93,14 +93,14 @@ def test_faults_are_drawn_over_the_whole_run_a_pure_function_of_seed_and_index()
 
 
 def test_draws_of_wide_distributions_stay_within_each_kind_s_range():
-    """A normal of sigma 1e300 about a count or a parameter (its mean in range, so the file is taken):
+    """A normal whose tails pass a count's or a parameter's range (its mean in range, so the file is taken):
     every run's draw is clipped into the kind's range (it was an OverflowError for a count, and a phone
-    clock jump of 1e300 s for an offset)."""
+    clock jump of 1e300 s for an offset). A spread wider than the whole range is refused, naming the key."""
     text = (
         "[faults]\n"
-        "hang = { count = { dist = 'normal', mean = 3, sigma = 1e300 } }\n"
-        "phone_jump = { count = 2, offset_s = { dist = 'normal', mean = 0, sigma = 1e300 } }\n"
-        "stall = { count = 2, duration_s = { dist = 'normal', mean = 1, sigma = 1e300 } }\n"
+        "hang = { count = { dist = 'normal', mean = 3, sigma = 90 } }\n"
+        "phone_jump = { count = 2, offset_s = { dist = 'normal', mean = 0, sigma = 1e5 } }\n"
+        "stall = { count = 2, duration_s = { dist = 'normal', mean = 1, sigma = 50 } }\n"
     )
     spec = parse_dispersions(text, load_scenario(SCENARIO), "wide.toml")
     for index in range(40):
@@ -108,9 +108,13 @@ def test_draws_of_wide_distributions_stay_within_each_kind_s_range():
         assert sum(f.kind == "hang" for f in faults) <= 100
         for f in faults:
             if f.kind == "phone_jump":
-                assert -1e6 <= f.params["offset_s"] <= 1e6
+                assert -86_400.0 <= f.params["offset_s"] <= 86_400.0
             if f.kind == "stall":
-                assert 0.0 <= f.params["duration_s"] <= 60.0
+                assert 0.0 < f.params["duration_s"] <= 60.0
+    wider = "[faults]\nhang = { count = { dist = 'normal', mean = 3, sigma = 1e300 } }\n"
+    with pytest.raises(ConfigError, match="wider than the whole range") as info:
+        parse_dispersions(wider, load_scenario(SCENARIO), "wide.toml")
+    assert info.value.where == "wide.toml: faults.hang.count.sigma"
 
 
 def test_the_shipped_fault_file_has_every_kind_and_reaches_board_world_and_operator():

@@ -172,6 +172,12 @@ def samples(
         unusable = ~(np.isfinite(exact) & (np.abs(exact) < 2.0**63))
         if unusable.all() and len(unusable):
             raise InputFormatError("no 'time' cell is a number", table.source, table.header_line, "time")
+        if unusable.any():  # told as the strays of _epoch_ns are: no row's loss goes unsaid
+            notes.append(
+                f"{table.source}: {int(unusable.sum())} rows whose 'time' is no time of this recording "
+                f"(no number, or beyond int64; the first on data row {int(np.argmax(unusable)) + 1}): NaN "
+                "samples, dropped and counted"
+            )
         times, usable = _epoch_ns(table, ~unusable, notes, units)
         xyz[~usable] = np.nan
     elif "seconds_elapsed" in table.columns:
