@@ -14,7 +14,14 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from hil.link.board import BoardClient, EscCalibrationEvent, LogEvent, TelemetryEvent
+from hil.link.board import (
+    BoardClient,
+    BoardResetEvent,
+    EscCalibrationEvent,
+    LinkLostEvent,
+    LogEvent,
+    TelemetryEvent,
+)
 from protocol.errors import ConfigError, LinkError, ProtocolError
 from protocol.messages import (
     ActuatorSetpoint,
@@ -34,6 +41,18 @@ TICK_S = 0.02
 
 class GuardTripped(ProtocolError):
     """A bench guard stopped the run (battery current or voltage); the outputs are already safe."""
+
+
+class BoardLost(LinkError):
+    """The board reset, or its link was lost, while a bench step was under way: what the step was doing
+    (an ESC being taught, a sweep's step, a verification point) did not happen on the board it started on."""
+
+
+def describe_fault(event: BoardResetEvent | LinkLostEvent) -> str:
+    """One line for a link fault: ``the board reset (POWER_ON: ...)`` or ``the board link was lost (...)``."""
+    if isinstance(event, BoardResetEvent):
+        return f"the board reset ({event.cause.name}: {event.evidence})"
+    return f"the board link was lost ({event.reason})"
 
 
 @dataclass(frozen=True)
@@ -75,6 +94,9 @@ class BenchLink:
         self.logs: list[Log] = []
         self._statuses: list[EscCalibrationStatus] = []
         self.base_widths: tuple[int, ...] | None = None  # the board's disarmed outputs, for RawPulses
+        self.faults: list[BoardResetEvent | LinkLostEvent] = []  # resets and link losses, in order
+        self._faults_seen = 0  # how many of them check_board() has raised already
+        self.touched = False  # a command that moves the outputs went out (prepare, an ESC procedure)
 
     def check_unit(self, unit: int) -> None:
         if isinstance(unit, bool) or not isinstance(unit, int) or not 0 <= unit < self.info.n_units:
@@ -105,6 +127,17 @@ class BenchLink:
                 self.logs.append(event.log)
             elif isinstance(event, EscCalibrationEvent):
                 self._statuses.append(event.status)
+            elif isinstance(event, BoardResetEvent | LinkLostEvent):
+                self.faults.append(event)
+
+    def check_board(self, during: str) -> None:
+        """Raise :class:`BoardLost` for the first reset or link loss not raised yet, saying it happened
+        ``during`` (e.g. ``"the rotor sweep, at 1250 us"``). Each fault is raised once: a caller that puts
+        the board back to rest afterwards is not stopped by the same fault again."""
+        if self._faults_seen < len(self.faults):
+            event = self.faults[self._faults_seen]
+            self._faults_seen = len(self.faults)
+            raise BoardLost(f"{describe_fault(event)} during {during}")
 
     def clear_telemetry(self) -> None:
         self.telemetry.clear()
@@ -129,6 +162,7 @@ class BenchLink:
         rotors at zero). Returns the disarmed telemetry, whose pulses become the base widths of
         :meth:`raw` (rotors at the safe pulse, gimbals holding)."""
         client = self.client
+        self.touched = True
         client.disarm()
         client.set_mode(ControlMode.SETPOINT)
         tel = self.latest(lambda t: t.state is BoardState.DISARMED)

@@ -12,7 +12,10 @@
    calibration file (``<out stem>-unit<N>.png``, as ``hil calibrate fit`` does);
 5. upload each unit's new set (``CALIBRATION`` transfer), download it again and require the same bytes;
 6. run the verification sweep (:func:`~hil.calibration.verify.run_verify`) through the uploaded maps; if
-   any point misses its tolerance the previous sets are uploaded back and the run fails;
+   any point misses its tolerance the previous sets are uploaded back and the run fails. An upload or a
+   verification that does not finish (the board lost, reset or stalled; an interrupt) puts the previous
+   sets back too, wherever the board can still be reached, reads them back, and says what the board
+   holds: a set half sent, or whole but unverified, is never left looking done;
 7. save the units into the array's calibration file (created or updated; other units kept), with each
    fitted map's provenance (CSV, points, residuals).
 """
@@ -24,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol.calibration import UnitCalibration
-from protocol.errors import CalibrationError
+from protocol.errors import CalibrationError, HilError, LinkError
 
 from .bench import BenchKind, read_bench_csv
 from .benchlink import BenchLink, GuardTripped
@@ -129,16 +132,37 @@ def calibrate_units(
         plots[unit] = plot_fits(pairs, plot_path(options.out, unit), title=f"{options.out.name}: unit {unit}")
         report(f"unit {unit}: fit plot -> {plots[unit]}")
     calibrations = {u: _assemble(fits[u], existing.unit(u), previous[u]) for u in units}
-    for unit, cal in calibrations.items():
-        client.upload_calibration(unit, cal)
-        back = client.download_calibration(unit)
-        if back.to_bytes() != cal.to_bytes():
-            raise CalibrationError(f"unit {unit}: the set read back differs from the one uploaded", "board")
-        report(f"unit {unit}: uploaded and read back ({len(cal.to_bytes())} bytes)")
+    uploaded: list[int] = []  # units whose set went out, wholly or in part
     verified = None
-    if options.verify is not None:
-        verified = run_verify(link, calibrations, options.verify, tuple(kinds), report=report)
-        report(verified.table())
+    step = "the upload"
+    try:
+        for unit, cal in calibrations.items():
+            step = f"the upload of unit {unit}'s set"
+            uploaded.append(unit)
+            client.upload_calibration(unit, cal)
+            back = client.download_calibration(unit)
+            if back.to_bytes() != cal.to_bytes():
+                raise CalibrationError(
+                    f"unit {unit}: the set read back differs from the one uploaded", "board"
+                )
+            link.check_board(step)  # a board that reset after the read-back no longer holds it
+            report(f"unit {unit}: uploaded and read back ({len(cal.to_bytes())} bytes)")
+        if options.verify is not None:
+            step = "verification"
+            verified = run_verify(link, calibrations, options.verify, tuple(kinds), report=report)
+            report(verified.table())
+    except (HilError, KeyboardInterrupt) as exc:
+        # A board lost, reset, stalled or interrupted mid-upload or mid-verification: a new set may sit
+        # on it half sent, or whole but unverified. Never leave that looking done: put the previous sets
+        # back where the board can still be reached, read them back, and say what it holds.
+        held = _put_back(link, {u: previous[u] for u in uploaded})
+        if isinstance(exc, KeyboardInterrupt):
+            report(f"{step} did not finish: {held}")
+            raise
+        raise CalibrationError(
+            f"{step} did not finish ({exc}); {held}; the file was not written", str(options.out)
+        ) from exc
+    if verified is not None:
         if not verified.ok:
             for unit, cal in previous.items():
                 client.upload_calibration(unit, cal)
@@ -151,6 +175,43 @@ def calibrate_units(
     saved = _save(existing, options.out, calibrations, fits, csvs)
     report(f"saved units {units} in {saved}")
     return CycleResult(calibrations, fits, sweeps, csvs, esc, verified, saved, plots)
+
+
+RECONNECT_S = 5.0
+"""How long (s) :func:`_put_back` waits for a lost board to come back before giving up on it."""
+
+
+def _put_back(link: BenchLink, previous: dict[int, UnitCalibration]) -> str:
+    """Put ``previous`` (unit → set) back on the board, each read back, after a failed upload or
+    verification; what the board holds now, in words. The outputs go to rest first (an upload needs the
+    board DISARMED); a board that is lost is waited for :data:`RECONNECT_S`. Best effort: never raises."""
+    if not previous:
+        return "nothing was uploaded; the board keeps its sets"
+    units = sorted(previous)
+    client = link.client
+    try:
+        if not client.connected:
+            client.wait_for(lambda: client.connected, RECONNECT_S)
+        if not client.connected:
+            raise LinkError(f"not back within {RECONNECT_S:g} s")
+        link.safe()
+        restored = []
+        for unit in units:
+            if client.download_calibration(unit).to_bytes() == previous[unit].to_bytes():
+                continue
+            client.upload_calibration(unit, previous[unit])
+            if client.download_calibration(unit).to_bytes() != previous[unit].to_bytes():
+                raise CalibrationError(
+                    f"unit {unit}: the set read back differs from the previous one", "board"
+                )
+            restored.append(unit)
+    except (HilError, KeyboardInterrupt) as exc:
+        return (
+            f"the previous sets of units {units} could not be put back ({exc}): the board may hold a new "
+            "set, unverified, or part of one"
+        )
+    how = f"put back (units {restored})" if restored else "still there"
+    return f"the board holds the previous sets of units {units}, read back: {how}"
 
 
 def _assemble(fits: dict[BenchKind, Fit], entry: UnitEntry | None, board: UnitCalibration) -> UnitCalibration:

@@ -104,9 +104,11 @@ def program_esc(
 ) -> EscOutcome:
     """Teach ``unit``'s rotor ESC ``program``'s endpoints. Raises :class:`ConfigError` without the
     operator's confirmation (nothing is sent), :class:`CommandFailed` if the board refuses (armed:
-    BAD_STATE, busy, ...), :class:`EscProgrammingAborted` if it stops early, :class:`LinkTimeout` if it
-    never finishes. A board without a supply switch asks for the ESC's supply and holds the procedure
-    (up to ``ESC_SUPPLY_WAIT_MS``) while its link lives: ``operator.ask`` shows the request and the link
+    BAD_STATE, busy, ...), :class:`EscProgrammingAborted` if it stops early,
+    :class:`~hil.calibration.benchlink.BoardLost` at once if the board resets or its link is lost
+    meanwhile (the procedure is gone with it), :class:`LinkTimeout` if it never finishes. A board
+    without a supply switch asks for the ESC's supply and holds the procedure (up to
+    ``ESC_SUPPLY_WAIT_MS``) while its link lives: ``operator.ask`` shows the request and the link
     keeps being serviced until the answer comes (without an operator such a board's request is an error
     and the procedure is aborted). ``report`` gets one line per phase, with the time left."""
     if not confirm_unloaded:
@@ -118,6 +120,8 @@ def program_esc(
     link.check_unit(unit)
     client = link.client
     link.take_statuses()
+    link.check_board(f"the time before the ESC programming of unit {unit}")
+    link.touched = True
     client.wait(client.command(program.message(unit)))
     seen: list[EscCalibrationStatus] = []
     answer: Answer | None = None
@@ -139,6 +143,11 @@ def program_esc(
             link.wait(max(min(0.1, end - link.now), 0.0))
         seen += [s for s in link.take_statuses() if s.unit == unit]
         phase = seen[-1].phase if seen else None
+        if phase not in (EscCalPhase.DONE, EscCalPhase.ABORTED):
+            # reset or link lost: the procedure is gone with it (a reset board starts idle, a board that
+            # loses its link aborts it), so say so now rather than wait out the procedure's time
+            at = "before its first report" if phase is None else f"in phase {phase.name}"
+            link.check_board(f"the ESC programming of unit {unit} ({at}): its ESC was not taught")
         if phase is not None and phase is not shown:
             shown = phase
             report(_phase_line(unit, program, phase))

@@ -211,6 +211,7 @@ def run_sweep(
     channels = {unit: 2 * unit + m.offset for unit in units}
     pulses = plan.pulses()
     started = datetime.now(UTC).isoformat(timespec="seconds")
+    link.check_board(f"the time before the {plan.kind.value} sweep")  # a board that reset since: say so
     first = link.prepare(ControlMode.RAW_PULSES, m.gimbal_mode)
     assert link.base_widths is not None
     rows: dict[int, list[SweepRow]] = {unit: [] for unit in units}
@@ -306,7 +307,10 @@ def _battery(tel: Telemetry) -> str:
 
 
 def _check(link: BenchLink, plan: SweepPlan, width: int) -> None:
-    """Every telemetry sample collected so far against the guard and the board's state."""
+    """Every telemetry sample collected so far against the guard and the board's state; a reset or a
+    lost link first (:class:`~hil.calibration.benchlink.BoardLost`: said as such, at once, rather than as
+    the state the restarted board reports, or as a step whose telemetry never came)."""
+    link.check_board(f"the {plan.kind.value} sweep, at {width} us")
     for tel in link.telemetry:
         why = plan.guard.check(tel)
         if why is not None:

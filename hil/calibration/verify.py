@@ -108,9 +108,10 @@ def run_verify(
     order = [k for k in BenchKind if k in kinds]
     eta = Eta(sum(len(fractions[k]) for k in order))
     points: list[VerifyPoint] = []
-    first = link.prepare(ControlMode.SETPOINT, GimbalMode.RATE)
-    volts = first.battery_mv / 1000.0
+    link.check_board("the time before verification")  # a board that reset since holds other sets
     try:
+        first = link.prepare(ControlMode.SETPOINT, GimbalMode.RATE)
+        volts = first.battery_mv / 1000.0
         link.client.arm()
         for kind in order:
             for f in fractions[kind]:
@@ -190,6 +191,7 @@ def _point(
     order = list(targets)
 
     def check() -> None:
+        link.check_board(f"verification ({kind.value})")
         for tel in link.telemetry:
             why = plan.guard.check(tel)
             if why is not None:

@@ -155,10 +155,16 @@ def _sweep_options(p: argparse.ArgumentParser) -> None:
 def _client(args: argparse.Namespace) -> Any:
     from hil.link.board import BoardClient
     from hil.timing.clock import LockstepClock
+    from protocol.errors import HandshakeError, LinkError
 
     lockstep = args.port.startswith("emu:") and not args.realtime
     client = BoardClient(args.port, clock=LockstepClock() if lockstep else None)
-    client.connect()
+    try:
+        client.connect()
+    except LinkError as exc:  # a board gone, or going, under the first handshake: said as such
+        client.close()
+        kind = HandshakeError if isinstance(exc, HandshakeError) else LinkError
+        raise kind(f"no session with the board at {args.port} ({exc}); nothing was done") from exc
     return client
 
 
@@ -169,8 +175,11 @@ def _bench(args: argparse.Namespace) -> Iterator[Any]:
     first — its outputs to the base pulses, Disarm (which also aborts an ESC being taught, to its minimum
     pulse), SETPOINT mode (``BenchLink.safe``) — and the state it was left in, as its telemetry reports
     it, is printed; a sweep has kept its partial bench CSV, marked so. Best effort: closing the port alone
-    would leave the board to its link watchdog. A second interrupt gives that up."""
+    would leave the board to its link watchdog. A second interrupt gives that up. A command that fails
+    after it moved the outputs (a board lost, reset or stalled under it; a refused fit) does the same
+    before its error is printed; a board that cannot be reached is said to be so."""
     from hil.calibration.benchlink import BenchLink
+    from protocol.errors import HilError
 
     client = _client(args)
     link = BenchLink(client)
@@ -178,6 +187,11 @@ def _bench(args: argparse.Namespace) -> Iterator[Any]:
         yield link
     except KeyboardInterrupt:
         print(f"hil calibrate: {_left_at_rest(link)}", file=sys.stderr, flush=True)
+        raise
+    except HilError:
+        # failed after the outputs were moved (a board lost, reset or stalled; a refused fit): rest, said
+        if link.touched:
+            print(f"hil calibrate: {_left_at_rest(link)}", file=sys.stderr, flush=True)
         raise
     finally:
         client.close()
@@ -192,6 +206,14 @@ def _left_at_rest(link: Any) -> str:
         return t.state is not BoardState.ARMED and t.mode is not ControlMode.ESC_CALIBRATION
 
     try:
+        client = link.client
+        if not client.connected:  # a board restarted on its port is found again within the back-off
+            client.wait_for(lambda: client.connected, 2.0)
+        if not client.connected:
+            return (
+                "the board cannot be reached (its link is down): closing the port leaves it to its link "
+                "watchdog, which stops its rotors within its timeout"
+            )
         link.safe()
         first = link.latest(at_rest, timeout=2.0)
         # A pulse's width changes at its frame's start, never within a pulse: telemetry sent within a
