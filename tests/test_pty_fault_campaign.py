@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from sim_support import Sim, sims
 
 from hil.link.board import (
     BoardClient,
@@ -58,50 +59,6 @@ SEED = 20261205
 STEP_S = 0.02  # the tests' own loops look this often
 HOST_WALL_S = 60.0  # a hil run process must end within this (bounded wall time, generous on a busy machine)
 LINK_TIMEOUT_S = 0.25  # firmware-sim's default link watchdog
-
-
-# ====================================================================== firmware-sim as a process
-class Sim:
-    """``firmware-sim`` in its own process on a pty (``--link`` kept pointing at it); its log in a file."""
-
-    def __init__(self, tmp: Path, link: Path, *options: str) -> None:
-        self.log = tmp / f"firmware-sim-{time.monotonic_ns()}.log"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "firmware_sim", "--link", str(link), *options],
-            stdout=subprocess.PIPE,
-            stderr=self.log.open("w"),
-            text=True,
-            cwd=ROOT,
-        )
-        assert self.proc.stdout is not None
-        self.path = self.proc.stdout.readline().strip()
-        if not self.path.startswith("/dev/"):
-            self.kill()
-            raise RuntimeError(f"firmware-sim did not start: {self.path} {self.log.read_text()[-2000:]}")
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGCONT)  # a stopped one dies as well, but is reaped at once
-            self.proc.kill()
-        self.proc.wait(timeout=10)
-
-    def pause(self, seconds: float) -> None:
-        self.proc.send_signal(signal.SIGSTOP)
-        try:
-            time.sleep(seconds)
-        finally:
-            self.proc.send_signal(signal.SIGCONT)
-
-
-@contextlib.contextmanager
-def sims(tmp: Path) -> Iterator[list[Sim]]:
-    """The boards a test starts, each killed on the way out."""
-    started: list[Sim] = []
-    try:
-        yield started
-    finally:
-        for sim in started:
-            sim.kill()
 
 
 # ====================================================================== the board client over the pty

@@ -36,8 +36,6 @@ import contextlib
 import json
 import random
 import signal
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -45,6 +43,7 @@ from pathlib import Path
 
 import pytest
 from operator_support import Operated
+from sim_support import Sim
 
 from hil.calibration.bench import read_bench_csv
 from hil.calibration.benchlink import BenchLink
@@ -64,35 +63,6 @@ QUICK_RATE = ["--directions", "up", "--settle", "0.1", "--settle-window", "0.1",
 SENSORLOGGER = SHARED_DATA / "sensorlogger-android"
 WALL_S = 60.0  # every tool run ends within this (bounded wall time, generous on a busy machine)
 AFTER_FAULT_S = 15.0  # ... and within this once the fault is done (a lost board is seen within ~1 s)
-
-
-# ====================================================================== firmware-sim as a process
-class Sim:
-    """``firmware-sim`` in its own process on a pty, ``--link`` kept pointing at it; its log in a file."""
-
-    def __init__(self, tmp: Path, link: Path, *options: str) -> None:
-        self.log = tmp / f"firmware-sim-{time.monotonic_ns()}.log"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "firmware_sim", "--link", str(link), *options],
-            stdout=subprocess.PIPE,
-            stderr=self.log.open("w"),
-            text=True,
-            cwd=ROOT,
-        )
-        assert self.proc.stdout is not None
-        if not self.proc.stdout.readline().startswith("/dev/"):
-            self.kill()
-            raise RuntimeError(f"firmware-sim did not start: {self.log.read_text()[-2000:]}")
-
-    @property
-    def alive(self) -> bool:
-        return self.proc.poll() is None
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGCONT)
-            self.proc.kill()
-        self.proc.wait(timeout=10)
 
 
 class Bench:
