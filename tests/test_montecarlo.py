@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from montecarlo_support import write_quick_scenario
 
 from hil import so3
 from hil.cli import main as hil_main
@@ -41,7 +42,7 @@ from hil.montecarlo import (
 from hil.montecarlo.runner import realise
 from hil.montecarlo.store import RUNS, TRACE_FILE
 from hil.montecarlo.summary import wilson_interval
-from hil.scenario import SCENARIO_DIR, load_scenario
+from hil.scenario import load_scenario
 from hil.scenario.paths import ROOT
 from protocol.errors import ConfigError, NumericalError
 
@@ -67,14 +68,7 @@ outage_duration_s = { dist = "uniform", low = 0.3, high = 0.6 }
 @pytest.fixture(scope="module")
 def scenario_file(tmp_path_factory) -> Path:
     """cubesat-1u, shortened: 0.5 s warm-up, a 20° slew, 1 s after its start."""
-    text = (SCENARIO_DIR / "cubesat-1u.toml").read_text()
-    for old, new in (("duration_s = 35.0", "duration_s = 1.0"), ("warmup_s = 2.0", "warmup_s = 0.5"),
-                     ("angle_deg = 90.0", "angle_deg = 20.0")):  # fmt: skip
-        assert old in text
-        text = text.replace(old, new)
-    path = tmp_path_factory.mktemp("scenario") / "quick.toml"
-    path.write_text(text)
-    return path
+    return write_quick_scenario(tmp_path_factory.mktemp("scenario"))
 
 
 @pytest.fixture(scope="module")

@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from montecarlo_support import write_quick_scenario
 
 from hil.montecarlo import Campaign, draw, open_client, parse_dispersions, read_runs, run_campaign
 from hil.montecarlo.campaign import check_address, interrupts_deferred
@@ -35,7 +36,7 @@ from hil.montecarlo.fault_plan import MAX_COUNT, MIN_DURATION_S
 from hil.montecarlo.metrics import METRICS, TRACES
 from hil.montecarlo.runner import RunResult
 from hil.montecarlo.store import MANIFEST, RUNS, TRACE_FILE, ResultStore
-from hil.scenario import SCENARIO_DIR, load_scenario
+from hil.scenario import load_scenario
 from protocol.errors import ConfigError, LinkError
 
 SETTINGS = settings(
@@ -47,14 +48,7 @@ INERTIA = '[spacecraft]\ninertia_scale = { dist = "normal", sigma = 0.05 }\n'
 @pytest.fixture(scope="module")
 def scenario(tmp_path_factory):
     """cubesat-1u, shortened: 0.5 s warm-up, a 20° slew, 1 s after its start."""
-    text = (SCENARIO_DIR / "cubesat-1u.toml").read_text()
-    for old, new in (("duration_s = 35.0", "duration_s = 1.0"), ("warmup_s = 2.0", "warmup_s = 0.5"),
-                     ("angle_deg = 90.0", "angle_deg = 20.0")):  # fmt: skip
-        assert old in text
-        text = text.replace(old, new)
-    path = tmp_path_factory.mktemp("scenario") / "quick.toml"
-    path.write_text(text)
-    return load_scenario(path)
+    return load_scenario(write_quick_scenario(tmp_path_factory.mktemp("scenario")))
 
 
 # --------------------------------------------------------------------------- absurd dispersion files
