@@ -29,18 +29,22 @@ READERS: dict[str, ModuleType] = {
 
 def detect_format(path: Path | str) -> str:
     """The format of ``path`` (see :data:`READERS`), or InputFormatError listing what was looked for."""
-    name = _recognise(Path(path))
+    return _format_of(Container(Path(path)))
+
+
+def _format_of(container: Container) -> str:
+    """The format of the log ``container`` holds, or InputFormatError listing what was looked for."""
+    name = _recognise(container)
     if name is not None:
         return name
-    container = Container(Path(path))
-    inside = logs_inside(Path(path))
+    inside = logs_inside(container.path)
     hint = ""
     if inside:
         more = f" and {len(inside) - 1} more" if len(inside) > 1 else ""
         hint = f"; it holds logs: replay one, e.g. {inside[0]}{more}"
     raise InputFormatError(
         f"not a recognised log (tried {', '.join(READERS)}; files: {', '.join(container.names()[:8])}){hint}",
-        str(path),
+        str(container.path),
     )
 
 
@@ -48,9 +52,8 @@ MAX_PROBED = 64
 """The most entries of a folder :func:`logs_inside` looks at (a folder of trials: BROAD's 39, tyrex's 20)."""
 
 
-def _recognise(path: Path) -> str | None:
-    """The format of ``path``, or None."""
-    container = Container(path)
+def _recognise(container: Container) -> str | None:
+    """The format of the log ``container`` holds, or None."""
     return next((name for name, reader in READERS.items() if reader.detect(container)), None)
 
 
@@ -63,7 +66,7 @@ def logs_inside(folder: Path) -> list[Path]:
     found = []
     for entry in sorted(folder.iterdir())[:MAX_PROBED]:
         try:
-            if _recognise(entry) is not None:
+            if _recognise(Container(entry)) is not None:
                 found.append(entry)
         except (InputFormatError, OSError):
             continue
@@ -71,8 +74,10 @@ def logs_inside(folder: Path) -> list[Path]:
 
 
 def read_log(path: Path | str, format: str | None = None) -> SensorLog:
-    """Read a log, detecting its format unless given."""
+    """Read a log, detecting its format unless given. The log is opened once for both: a tar, which
+    is unpacked to a temporary file as it is opened (:mod:`hil.logs.archive`), is unpacked once."""
     if format is not None and format not in READERS:
         raise InputFormatError(f"unknown format {format!r} (known: {', '.join(READERS)})", str(path))
-    name = format or detect_format(path)
-    return READERS[name].read(Container(Path(path)))
+    container = Container(Path(path))
+    name = format or _format_of(container)
+    return READERS[name].read(container)

@@ -19,7 +19,8 @@ current phyphox writes an experiment's files), from the file's name (``Accelerom
 Data.csv``). Linear (gravity-free) acceleration — ``Linear Accelerometer.csv`` (current phyphox), ``Linear
 Acceleration.csv`` (older), a ``Linear Acceleration x`` column, an "Acceleration (without g)" export —
 cannot give the gravity direction: it is ignored beside an accelerometer with g, refused alone. Units in
-parentheses convert to SI (:mod:`hil.logs.columns`). Dialects: comma, tab or semicolon separated, decimal
+parentheses convert to SI (:mod:`hil.logs.columns`); only the time and x, y, z columns are parsed (any
+other may hold text). Dialects: comma, tab or semicolon separated, decimal
 point or decimal comma (told from the first data line). Without a magnetometer file the log is 6-axis
 (heading unobserved). An Excel (``.xls``) export is refused with a message to export CSV.
 """
@@ -35,7 +36,7 @@ import numpy as np
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns, axis_of, time_column
 from hil.logs.sensorlogger import clock_of
-from hil.logs.table import Container, read_table, shown, sniff_dialect, split_header
+from hil.logs.table import Container, Header, read_table, sniff_dialect, split_header
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
@@ -79,11 +80,12 @@ def _classify(c: Container, name: str) -> _File | None:
         return None
     delimiter, decimal_comma = sniff_dialect(head)
     cells = split_header(head[0], delimiter)
-    if not cells or not cells[0].lower().startswith("time"):
+    time_at = next((i for i, cell in enumerate(cells) if cell.lower().startswith("time")), None)
+    if time_at is None:  # first as phyphox writes it; after a column a tool added, too
         return None
     if any((clock_of(cell) or ("",))[0] == "seconds_elapsed" for cell in cells):
         return None  # Sensor Logger's, with or without units (its epoch time in ns is no phyphox clock)
-    x_col = next((col for col in cells[1:] if axis_of(col) == "x"), None)
+    x_col = next((col for i, col in enumerate(cells) if i != time_at and axis_of(col) == "x"), None)
     if x_col is None:
         return None
     group = name.rsplit("/", 1)[0] + "/" if "/" in name else ""
@@ -164,10 +166,12 @@ def read(c: Container) -> SensorLog:
 
 
 def _stream(c: Container, f: _File, offset_s: float) -> SensorStream:
-    table = read_table(c, f.name, f.delimiter, decimal_comma=f.decimal_comma, min_columns=4)
-    assert f.kind is not None
+    kind = f.kind
+    assert kind is not None
+    use = partial(_sensor_columns, kind=kind)
+    table = read_table(c, f.name, f.delimiter, decimal_comma=f.decimal_comma, min_columns=4, use=use)
     t_col, t_scale = time_column(table.columns, table.source, table.header_line)
-    axes = axis_columns(table.columns, f.kind, table.source, table.header_line, skip=(t_col,))
+    axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=(t_col,))
     xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
     t = table.column(t_col) * t_scale
     finite = np.abs(t[np.isfinite(t)])
@@ -179,7 +183,15 @@ def _stream(c: Container, f: _File, offset_s: float) -> SensorStream:
             table.header_line,
             t_col,
         )
-    return SensorStream(f.kind, t + offset_s, xyz)
+    return SensorStream(kind, t + offset_s, xyz)
+
+
+def _sensor_columns(header: Header, kind: SensorKind) -> list[str]:
+    """The columns a sensor file is read from: its time column and its x, y, z (by name: a column
+    beside them — a label, an accuracy, an empty one — is never parsed)."""
+    t_col, _ = time_column(header.columns, header.source, header.line)
+    axes = axis_columns(header.columns, kind, header.source, header.line, skip=(t_col,))
+    return [t_col, *(col for col, _ in axes)]
 
 
 def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str, float]:
@@ -207,33 +219,28 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
 
 def _start_system_time(c: Container, name: str) -> float:
     """System time (s since the epoch) at experiment time 0, from the first START row. The file is in its
-    export's dialect (phyphox writes it with the data's separator and decimal mark)."""
-    text_cells = {0: lambda s: 0.0 if s.strip('"') == "START" else 1.0, 3: lambda s: 0.0}
+    export's dialect (phyphox writes it with the data's separator and decimal mark); its ``event`` is
+    text, read as 0 for START, and its ``system time text`` is never parsed."""
     delimiter, decimal_comma = sniff_dialect([line for line in c.head(name, 8) if line.strip()])
-    locate = partial(_time_csv_error, delimiter=delimiter, decimal_comma=decimal_comma)
     table = read_table(
         c,
         name,
         delimiter,
         decimal_comma=decimal_comma,
-        converters=text_cells,
         min_columns=3,
-        locate=locate,
+        use=_TIME_COLUMNS,
+        converters={"event": _start_event},
     )
-    starts = np.flatnonzero(table.data[:, 0] == 0.0)
+    starts = np.flatnonzero(table.column("event") == 0.0)
     if not len(starts):
         raise InputFormatError("no START event", table.source, table.header_line)
-    row = table.data[starts[0]]
-    return float(row[table.columns.index("system time")] - row[table.columns.index("experiment time")])
+    row = starts[0]
+    return float(table.column("system time")[row] - table.column("experiment time")[row])
 
 
-def _time_csv_error(pending, columns, source, delimiter=",", decimal_comma=False):  # type: ignore[no-untyped-def]
-    for line_no, line in pending:
-        cells = line.split(delimiter)
-        if len(cells) < 3:
-            raise InputFormatError(f"{len(cells)} values, expected at least 3", source, line_no)
-        for col, cell in zip(columns[1:3], cells[1:3], strict=True):
-            try:
-                float(cell.replace(",", ".") if decimal_comma else cell)
-            except ValueError:
-                raise InputFormatError(f"{shown(cell)} is not a number", source, line_no, col) from None
+_TIME_COLUMNS = ("event", "experiment time", "system time")
+
+
+def _start_event(cell: str) -> float:
+    """0 for a START event, 1 for any other (PAUSE)."""
+    return 0.0 if cell.strip('"') == "START" else 1.0

@@ -11,25 +11,26 @@ in their own rows, so mismatched rates need no resampling; optional ground-truth
     0.004700,mag,1.2000,28.7000,-37.0000,
     0.000000,truth,0.0,0.0,0.0,1.0
 
-``sensor`` is ``gyr``, ``acc``, ``mag`` or ``truth``. Sensor rows leave ``w`` empty; truth rows hold a unit
-quaternion with vector part ``x, y, z`` and scalar part ``w``. Axes are the body frame (x screen right,
-y screen up, z out of the screen); truth is body → ENU. Rows need not be sorted across sensors; each
-sensor's own rows keep their order (the merge drops and counts any that go backwards). ``nan`` values
-are allowed (NaN samples, counted and dropped by the merge); other unparseable cells are errors with file,
-line and column.
+The six columns are found by name, in any order; a column a tool added beside them is never parsed
+(:mod:`hil.logs.rows`). ``sensor`` is ``gyr``, ``acc``, ``mag`` or ``truth``. Sensor rows leave ``w``
+empty; truth rows hold a unit quaternion with vector part ``x, y, z`` and scalar part ``w``. Axes are
+the body frame (x screen right, y screen up, z out of the screen); truth is body → ENU. Rows need not be
+sorted across sensors; each sensor's own rows keep their order (the merge drops and counts any that go
+backwards). ``nan`` values are allowed (NaN samples, counted and dropped by the merge); other
+unparseable cells are errors with file, line and column.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.table import Container, read_table, shown, text_lines
+from hil.logs.rows import BadCell, shown
+from hil.logs.table import Container, Header, read_table, split_header, text_lines
 from protocol.errors import InputFormatError
 
 NAME = "csv"
@@ -44,19 +45,20 @@ def detect(c: Container) -> bool:
     if len(names) != 1 or not names[0].lower().endswith((".csv", ".csv.gz")):  # gzipped: read decompressed
         return False
     head = c.head(names[0], 5)
-    return bool(head) and (head[0].startswith(MAGIC) or HEADER in head)
+    return bool(head) and (head[0].startswith(MAGIC) or any(_is_header(line) for line in head))
+
+
+def _is_header(line: str) -> bool:
+    """Whether a line is this format's header: its six names, among others a tool may have added."""
+    return set(_COLUMNS) <= set(split_header(line, ","))
 
 
 def read(c: Container) -> SensorLog:
     name = c.names()[0]
     where = c.where(name)
-    converters = {1: _sensor_code, 5: lambda s: float(s) if s.strip() else math.nan}
-    table = read_table(c, name, ",", converters=converters, locate=_locate)  # type: ignore[arg-type]
-    if table.columns != tuple(_COLUMNS):
-        raise InputFormatError(
-            f"expected header {HEADER!r}, found {','.join(table.columns)!r}", where, table.header_line
-        )
-    data = table.data
+    converters = {"sensor": _sensor_code, "w": _w}
+    table = read_table(c, name, ",", use=_columns, converters=converters)
+    data = table.data  # the columns in the header's order, whatever the file's
     streams = {}
     for kind in KINDS:
         rows = data[data[:, 1] == int(kind)]
@@ -76,8 +78,24 @@ def read(c: Container) -> SensorLog:
     return SensorLog(streams, where, NAME, truth, ("project CSV v1",))
 
 
+def _columns(header: Header) -> tuple[str, ...]:
+    """The six columns, found by name: a column a tool added beside them is never parsed."""
+    if not set(_COLUMNS) <= set(header.columns):
+        found = ",".join(header.columns)
+        raise InputFormatError(f"expected header {HEADER!r}, found {found!r}", header.source, header.line)
+    return tuple(_COLUMNS)
+
+
 def _sensor_code(cell: str) -> float:
-    return _CODES[cell.strip()]
+    code = _CODES.get(cell.strip())
+    if code is None:
+        raise BadCell(f"unknown sensor {shown(cell.strip())} (gyr, acc, mag or truth)")
+    return code
+
+
+def _w(cell: str) -> float:
+    """``w``: empty on a sensor row (NaN; a truth row's NaN fails its unit-norm check)."""
+    return float(cell) if cell.strip() else math.nan
 
 
 def _line_of_row(c: Container, name: str, row: int) -> int:
@@ -90,26 +108,6 @@ def _line_of_row(c: Container, name: str, row: int) -> int:
                 if seen == row:
                     return first + i
     return 0
-
-
-def _locate(pending: Sequence[tuple[int, str]], columns: tuple[str, ...], where: str) -> None:
-    for line_no, line in pending:
-        cells = line.split(",")
-        if len(cells) != len(_COLUMNS):
-            raise InputFormatError(f"{len(cells)} values, expected {len(_COLUMNS)}", where, line_no)
-        sensor = cells[1].strip()
-        if sensor not in _CODES:
-            raise InputFormatError(
-                f"unknown sensor {shown(sensor)} (gyr, acc, mag or truth)", where, line_no, "sensor"
-            )
-        for col, cell in zip(_COLUMNS, cells, strict=True):
-            if col == "sensor" or (col == "w" and sensor != "truth" and not cell.strip()):
-                continue
-            try:
-                float(cell)
-            except ValueError:
-                what = f"{shown(cell.strip())} is not a number" if cell.strip() else "empty value"
-                raise InputFormatError(what, where, line_no, col) from None
 
 
 def write(log: SensorLog, path: Path | str) -> Path:

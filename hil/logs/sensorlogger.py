@@ -2,7 +2,8 @@
 
 Current exports have the header ``time,seconds_elapsed,z,y,x`` — note the **z, y, x** order; older ones
 (late 2022) name their axes like ``GYROSCOPE X (rad/s)``. Columns are found by name
-(:mod:`hil.logs.columns`), never by position; a re-save may put units on the clocks too (``time (ns)``,
+(:mod:`hil.logs.columns`), never by position, and only the clocks and axes are parsed (any other column
+may hold text: :func:`sensor_columns`); a re-save may put units on the clocks too (``time (ns)``,
 ``seconds_elapsed [s]``: :func:`clock_of`). ``time`` is Unix epoch in ns (shared by all sensors), read
 as exact integers and converted to seconds since the first sample of any sensor; without it,
 ``seconds_elapsed`` (s since the recording started, also shared). Units (the app's unit reference): m/s²
@@ -24,12 +25,21 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns
-from hil.logs.table import Container, Table, read_table, sniff_dialect, split_header, text_lines
+from hil.logs.table import (
+    Container,
+    Header,
+    Table,
+    read_table,
+    sniff_dialect,
+    split_header,
+    text_lines,
+)
 from protocol.errors import InputFormatError
 
 NAME = "sensorlogger"
@@ -134,9 +144,10 @@ def _starts_at_an_epoch(head: Sequence[str], cells: Sequence[str], delimiter: st
     return any(low <= value < high for low, high, _, _ in EPOCH_UNITS)
 
 
-def _csv_table(c: Container, member: str) -> Table:
-    """One of the export's CSV files as a :class:`Table`, read in its own dialect (a spreadsheet's
-    re-save may use semicolons and decimal commas), its ``time`` column also as exact int64."""
+def _csv_table(c: Container, member: str, kind: SensorKind) -> Table:
+    """One of the export's CSV files as a :class:`Table` of the columns a ``kind`` sensor is read from
+    (:func:`sensor_columns`), read in its own dialect (a spreadsheet's re-save may use semicolons and
+    decimal commas), its ``time`` column also as exact int64."""
     head = [line for line in c.head(member, 8) if line.strip()]
     delimiter, decimal_comma = sniff_dialect(head)
     cells = split_header(head[0], delimiter) if head else []
@@ -148,8 +159,30 @@ def _csv_table(c: Container, member: str) -> Table:
         header=True,
         decimal_comma=decimal_comma,
         min_columns=4,
+        use=partial(sensor_columns, kind=kind),
         exact_columns=(time_name,),
     )
+
+
+def sensor_columns(header: Header, kind: SensorKind) -> list[str]:
+    """The columns of a sensor file that are read: its clocks (the first ``time`` and the first
+    ``seconds_elapsed``, however spelt: :func:`clock_of`) and its x, y, z. Any other — an ``accuracy``
+    of ``HIGH``, a label, an empty column — is never parsed. An InputFormatError naming the header when
+    there is no clock or an axis is missing."""
+    clocks: dict[str, str] = {}
+    for column in header.columns:
+        clock = clock_of(column)
+        if clock is not None and clock[0] not in clocks:
+            clocks[clock[0]] = column
+    if not clocks:
+        raise InputFormatError(
+            f"no 'time' or 'seconds_elapsed' column (columns: {', '.join(header.columns)})",
+            header.source,
+            header.line,
+        )
+    skip = [c for c in header.columns if clock_of(c) is not None]
+    axes = axis_columns(header.columns, kind, header.source, header.line, skip=skip)
+    return [*clocks.values(), *(col for col, _ in axes)]
 
 
 def samples(
@@ -353,7 +386,7 @@ def read(c: Container) -> SensorLog:
     export = Export(
         str(c.path),
         {name: c.where(member) for name, member in files.items()},
-        lambda name: _csv_table(c, files[name]),
+        lambda name: _csv_table(c, files[name], _KIND[name.lower()]),
         lambda name: _holds_nothing(c, files[name]),
         lambda: c.text(files["Metadata.csv"]).lower() if "Metadata.csv" in files else "",
     )

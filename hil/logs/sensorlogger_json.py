@@ -41,8 +41,9 @@ import numpy as np
 
 from hil.estimation.sensors import SensorLog
 from hil.files.bounded import MAX_MEMBER_BYTES
+from hil.logs.rows import shown
 from hil.logs.sensorlogger import ACC_FILES, GYR_FILES, MAG_FILES, Export, assemble
-from hil.logs.table import Container, Table, shown
+from hil.logs.table import Container, Table
 from protocol.errors import InputFormatError
 
 NAME = "sensorlogger-json"

@@ -1,14 +1,16 @@
 """Numeric text tables (CSV and friends) read as a stream, with errors that say file, line and column.
 
 A table is read in pieces of about :data:`~hil.files.bounded.CHUNK_BYTES` of lines
-(:func:`hil.files.bounded.read_lines`): each piece goes to ``numpy.loadtxt`` and only the parsed floats are
-kept, so memory is bounded by the samples kept (not by the file's size), and a bad line fails as soon as its
-piece is parsed — the rest of the file is never read. When a piece fails, its lines are walked to raise
-:class:`InputFormatError` naming the first bad cell; a piece whose every cell is a number when walked
-(a quoted cell with spaces around its quotes, which ``numpy.loadtxt`` refuses) is parsed that way. A line
-of spaces is a blank line. ``nan``/``NaN`` cells are numbers (NaN samples, counted and dropped later by
-the merge); anything else unparseable is an error. Files are read as UTF-8 whatever their encoding
-(:mod:`hil.logs.encoding`, :func:`text_lines`); a log's archives are opened by :mod:`hil.logs.archive`.
+(:func:`hil.files.bounded.read_lines`): each piece is parsed by :class:`~hil.logs.rows.RowParser`
+(``numpy.loadtxt``) and only the floats of the columns its reader uses are kept, so memory is bounded by
+the samples kept (not by the file's size), and a bad line fails as soon as its piece is parsed — the rest
+of the file is never read. Only the used columns must hold numbers; the cells of every other column are
+never parsed, and may hold text or nothing (:mod:`hil.logs.rows`, which also says what every row must
+be). When a piece fails, its lines are walked to raise :class:`InputFormatError` naming the first bad
+cell. A line of spaces is a blank line. ``nan``/``NaN`` cells are numbers (NaN samples, counted and
+dropped later by the merge); anything else unparseable in a used column is an error. Files are read as
+UTF-8 whatever their encoding (:mod:`hil.logs.encoding`, :func:`text_lines`); a log's archives are opened
+by :mod:`hil.logs.archive`.
 
 What a log may be is bounded by what its files are (:mod:`hil.files.bounded`): a member yields at most
 :data:`~hil.files.bounded.MAX_MEMBER_BYTES` decompressed and at most
@@ -23,13 +25,12 @@ import codecs
 import csv
 import gzip
 import io
-import warnings
 import zipfile
 import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,6 +54,7 @@ from hil.logs.archive import (
     without_suffix,
 )
 from hil.logs.encoding import decode_legacy, decode_text, utf8_stream
+from hil.logs.rows import RowParser, cells_of
 from protocol.errors import InputFormatError
 
 Array = NDArray[np.float64]
@@ -283,9 +285,20 @@ def split_header(line: str, delimiter: str | None) -> list[str]:
     return [c.strip().strip('"').strip() for c in next(csv.reader([line], delimiter=delimiter))]
 
 
-Locate = Callable[[Sequence[tuple[int, str]], tuple[str, ...], str], None]
-"""Walks a failed chunk's ``(line number, text)`` pairs (with the columns and the source) and raises
-naming the bad cell."""
+@dataclass(frozen=True)
+class Header:
+    """A table's header as a reader's ``use`` sees it: its ``columns`` (names, stripped and unquoted;
+    ``col0``… without a header), the file (``source``, for messages) and its 1-based ``line`` (0 without
+    a header)."""
+
+    columns: tuple[str, ...]
+    source: str
+    line: int
+
+
+Use = Callable[[Header], Sequence[str]]
+"""A reader's choice of the columns it reads, by name, from the table's header (raising
+InputFormatError naming the header when a column it needs is missing)."""
 
 
 def read_table(
@@ -295,26 +308,30 @@ def read_table(
     header: bool = True,
     decimal_comma: bool = False,
     min_columns: int = 1,
+    use: Use | Sequence[str] | None = None,
     exact_columns: Sequence[str] = (),
-    converters: Mapping[int, Callable[[str], float]] | None = None,
-    locate: Locate | None = None,
+    converters: Mapping[str, Callable[[str], float]] | None = None,
 ) -> Table:
-    """Stream one member of ``container`` into a :class:`Table` (see the module docstring).
+    """Stream one member of ``container`` into a :class:`Table` (see the module docstring) of the columns
+    ``use`` names — a list of names, or a function of the :class:`Header` that returns them — in that
+    order; None reads them all. The cells of every other column are never parsed: they may hold text, or
+    nothing (:mod:`hil.logs.rows`). A name the header holds twice is its first column.
 
     ``delimiter`` None means runs of whitespace; ``decimal_comma`` for exports such as phyphox's
     "semicolon/tab, decimal comma" CSV. Lines starting with ``#`` are comments; blank lines are skipped.
-    Every data row must have as many cells as the header (or the first row). ``exact_columns`` are also
-    read as int64 (e.g. nanosecond epoch times, which float64 rounds to 256 ns); ``converters`` and
-    ``locate`` let a reader parse non-numeric cells and explain their errors. The rows read count towards
-    the log's :data:`MAX_LOG_SAMPLES`.
+    Every data row must have as many cells as the header (or the first row): one with more or fewer is
+    an InputFormatError naming its line. ``exact_columns`` are also read as int64 (e.g. nanosecond epoch
+    times, which float64 rounds to 256 ns); ``converters`` (by column name) parse cells that are no
+    numbers (a text code: raising :class:`~hil.logs.rows.BadCell` to say why a cell is refused). The rows
+    read count towards the log's :data:`MAX_LOG_SAMPLES`.
 
-    A header whose last name is empty (``time,seconds_elapsed,z,y,x,``: a tool that re-saved the file
-    ending every line in a delimiter) has no such column, provided every row's last cell is empty too
-    (``…,1.23,``); a row whose trailing cell holds something is an error naming its line and the
-    column by its position, as is a row without the trailing cell. An empty name anywhere else is a
-    column like any other (named by its position in errors)."""
+    A column whose header name is empty is a column like any other, named by its position in errors: no
+    reader names one, so its cells are never parsed. The last one of a header that ends in a delimiter
+    (``time,seconds_elapsed,z,y,x,``: a tool that re-saved the file ending every line in a delimiter) is
+    that too — its rows end in an empty cell (``…,1.23,``), or hold anything there — and ``use=None``
+    leaves it out; a row without that cell is an error naming its line, as any row too short is."""
     source = container.where(name)
-    parser: _Chunks | None = None
+    parser: RowParser | None = None
     header_line = 0
     for first_line, lines in text_lines(container, name):
         start = 0
@@ -324,24 +341,56 @@ def read_table(
                 continue
             columns, header_line = _columns(lines[found], first_line + found, header, delimiter)
             trailing = header and delimiter is not None and len(columns) > 1 and columns[-1] == ""
-            if trailing:  # ``a,b,c,``: a re-save that ends every line in a delimiter
-                columns = columns[:-1]
-            if len(columns) < min_columns:
+            named = len(columns) - trailing  # ``a,b,c,``: a re-save that ends every line in a delimiter
+            if named < min_columns:
                 raise InputFormatError(
-                    f"expected at least {min_columns} columns, found {len(columns)}: is this the right file?",
+                    f"expected at least {min_columns} columns, found {named}: is this the right file?",
                     source,
                     header_line or first_line + found,
                 )
-            exact_idx = tuple((c, columns.index(c)) for c in exact_columns if c in columns)
-            parser = _Chunks(
-                columns, source, delimiter, decimal_comma, converters, locate, exact_idx, trailing
-            )
+            head = Header(columns, source, header_line or first_line + found)
+            parser = _parser(head, use, named, exact_columns, converters or {}, delimiter, decimal_comma)
             start = found + 1 if header else found
         rows = parser.parse(lines[start:], first_line + start)
         container.count_samples(rows, source, first_line + len(lines) - 1)
     if parser is None:
         raise InputFormatError("empty file: no header and no data", source)
-    return parser.table(header_line)
+    data, exact = parser.arrays()
+    used = tuple(parser.columns[p] for p in parser.used)
+    return Table(used, data, source, header_line, exact)
+
+
+def _parser(
+    head: Header,
+    use: Use | Sequence[str] | None,
+    named: int,
+    exact_columns: Sequence[str],
+    converters: Mapping[str, Callable[[str], float]],
+    delimiter: str | None,
+    decimal_comma: bool,
+) -> RowParser:
+    """The row parser of a table with header ``head``: the columns ``use`` names (None: the first
+    ``named``, all but a re-save's trailing empty one) and the exact ones, by their positions; a name the
+    header lacks is an InputFormatError naming the header."""
+    columns = head.columns
+    used = list(range(named)) if use is None else []
+    names = [] if use is None else list(use(head) if callable(use) else use)
+    for column in names + [c for c in exact_columns if c in columns]:
+        if column not in columns:
+            what = f"no column {column!r} (columns: {', '.join(columns)})"
+            raise InputFormatError(what, head.source, head.line or None)
+        if columns.index(column) not in used:
+            used.append(columns.index(column))
+    by_name = {columns[p]: p for p in reversed(used)}  # a name read twice: its first column
+    return RowParser(
+        columns,
+        tuple(used),
+        head.source,
+        delimiter,
+        decimal_comma,
+        {by_name[c]: f for c, f in converters.items() if c in by_name},
+        tuple((c, by_name[c]) for c in dict.fromkeys(exact_columns) if c in by_name),
+    )
 
 
 def text_lines(container: Container, name: str) -> Iterator[tuple[int, list[str]]]:
@@ -411,192 +460,4 @@ def _columns(line: str, line_no: int, header: bool, delimiter: str | None) -> tu
     row), and the header's line number (0 without one)."""
     if header:
         return tuple(split_header(line, delimiter)), line_no
-    return tuple(f"col{i}" for i in range(len(_split(line, delimiter)))), 0
-
-
-def _split(line: str, delimiter: str | None) -> list[str]:
-    return line.split(delimiter) if delimiter is not None else line.split()
-
-
-def shown(cell: str, keep: int = 40) -> str:
-    """A cell for a message: its repr, cut to ``keep`` characters (a bad cell can be a megabyte)."""
-    return repr(cell) if len(cell) <= keep else repr(cell[:keep]) + f"… ({len(cell)} characters)"
-
-
-@dataclass
-class _Chunks:
-    """Parses chunks of numbered lines into float arrays (and exact int64 columns), keeping only those."""
-
-    columns: tuple[str, ...]
-    source: str
-    delimiter: str | None
-    decimal_comma: bool
-    converters: Mapping[int, Callable[[str], float]] | None
-    locate: Locate | None
-    exact_idx: tuple[tuple[str, int], ...]
-    trailing: bool = False
-    """Every line ends in a delimiter, after which nothing may stand (see :func:`read_table`)."""
-    chunks: list[Array] = field(default_factory=list)
-    exact: dict[str, list[NDArray[np.int64]]] = field(default_factory=dict)
-
-    def parse(self, lines: list[str], first_line: int) -> int:
-        """Parse ``lines`` (without their line breaks), the first of which is line ``first_line``; returns
-        the number of rows kept."""
-        problem: InputFormatError | None = None
-        if self.trailing:
-            lines, problem = self._trailing_cut(lines, first_line)
-        rows = self._parse(lines, first_line)
-        if problem is not None:  # raised after the lines before it: an earlier bad cell is the one named
-            raise problem
-        return rows
-
-    def _trailing_cut(self, lines: list[str], first_line: int) -> tuple[list[str], InputFormatError | None]:
-        """``lines`` without their empty trailing cell, up to the first one whose trailing cell is not
-        empty (or missing), and the error naming that one (None: there is none)."""
-        assert self.delimiter is not None
-        cut: list[str] = []
-        empty_cells = (self.delimiter, self.delimiter + '""')
-        for i, line in enumerate(lines):
-            body = line.rstrip("\r").rstrip(" ")  # a trailing cell of spaces is empty too
-            if not body.strip() or body.lstrip().startswith("#"):
-                cut.append(body)
-                continue
-            ending = next((e for e in empty_cells if body.endswith(e)), None)
-            if ending is not None:
-                cut.append(body[: -len(ending)])
-                continue
-            cells = _split(body, self.delimiter)
-            expected = len(self.columns) + 1
-            position = f"{expected}, no name in the header"
-            if len(cells) == expected:
-                what = f"{shown(cells[-1].strip())} in a trailing column whose header name is empty"
-                return cut, InputFormatError(what, self.source, first_line + i, position)
-            what = f"{len(cells)} values, expected {expected} (the header ends in a delimiter)"
-            return cut, InputFormatError(what, self.source, first_line + i)
-        return cut, None
-
-    def _parse(self, lines: list[str], first_line: int) -> int:
-        lines = [line if line.strip() else "" for line in lines]  # a line of spaces is a blank line
-        text = "\n".join(lines)
-        if not text.strip():
-            return 0
-        if self.decimal_comma:
-            text = text.replace(",", ".")
-        converters: Any = self.converters
-        try:
-            with warnings.catch_warnings():  # a piece of comment lines only is no data, and no news
-                warnings.simplefilter("ignore", UserWarning)
-                data = np.loadtxt(
-                    io.StringIO(text),
-                    delimiter=self.delimiter,
-                    ndmin=2,
-                    dtype=float,
-                    comments="#",
-                    converters=converters,
-                    quotechar='"',
-                )
-            if data.size == 0:
-                return 0  # only blank lines and comments
-            if data.shape[1] != len(self.columns):
-                raise ValueError("column count")
-        except (ValueError, KeyError):
-            pending = [
-                (first_line + i, line.rstrip("\r"))
-                for i, line in enumerate(lines)
-                if line.strip() and not line.lstrip().startswith("#")
-            ]
-            if self.locate is not None:
-                self.locate(pending, self.columns, self.source)
-            locate_numeric(pending, self.columns, self.source, self.delimiter, self.decimal_comma)
-            return self._parse_cells(pending)
-        self.chunks.append(data)
-        for col, idx in self.exact_idx:
-            try:
-                ints = np.loadtxt(
-                    io.StringIO(text),
-                    delimiter=self.delimiter,
-                    usecols=idx,
-                    dtype=np.int64,
-                    ndmin=1,
-                    comments="#",
-                    quotechar='"',
-                )
-            except ValueError:  # not integers (a re-saved file): the float column, to its precision
-                floats = data[:, idx]
-                fits = np.isfinite(floats) & (np.abs(floats) < 2.0**63)
-                ints = np.where(fits, floats, 0.0).astype(np.int64)  # the rest: the float column's to tell
-            self.exact.setdefault(col, []).append(ints)
-        return int(data.shape[0])
-
-    def _parse_cells(self, pending: Sequence[tuple[int, str]]) -> int:
-        """Rows NumPy refused but whose every cell :func:`locate_numeric` (and the reader's ``locate``)
-        took for a number — a quoted cell with spaces around its quotes (``1.0, "2.0" ,3.0``) — parsed a
-        cell at a time as they were judged; returns the number of rows kept."""
-        converters = self.converters or {}
-        rows: list[list[float]] = []
-        exact: dict[str, list[int]] = {col: [] for col, _ in self.exact_idx}
-        for line_no, line in pending:
-            cells = [c.strip().strip('"') for c in _split(line, self.delimiter)]
-            try:
-                row = [
-                    converters[i](cell) if i in converters else _number(cell, self.decimal_comma)
-                    for i, cell in enumerate(cells)
-                ]
-            except (ValueError, KeyError):
-                what = "unparseable row (no single bad cell found)"
-                raise InputFormatError(what, self.source, line_no) from None
-            rows.append(row)
-            for col, idx in self.exact_idx:
-                exact[col].append(_exact_int(cells[idx], row[idx]))
-        if rows:
-            self.chunks.append(np.array(rows, dtype=float).reshape(len(rows), len(self.columns)))
-            for col, values in exact.items():
-                self.exact.setdefault(col, []).append(np.array(values, dtype=np.int64))
-        return len(rows)
-
-    def table(self, header_line: int) -> Table:
-        data = np.concatenate(self.chunks) if self.chunks else np.zeros((0, len(self.columns)))
-        self.chunks.clear()
-        exact = {}
-        for column, _ in self.exact_idx:
-            parts = self.exact.get(column)
-            exact[column] = np.concatenate(parts) if parts else np.zeros(0, np.int64)
-        return Table(self.columns, data, self.source, header_line, exact)
-
-
-def _number(cell: str, decimal_comma: bool) -> float:
-    return float(cell.replace(",", ".") if decimal_comma else cell)
-
-
-def _exact_int(cell: str, value: float) -> int:
-    """A cell as int64: exactly when it is an integer, else its float's (0 when that is none: the float
-    column marks the row unusable)."""
-    try:
-        whole = int(cell)
-    except ValueError:
-        whole = None
-    if whole is not None and -(2**63) <= whole < 2**63:
-        return whole
-    return int(value) if np.isfinite(value) and abs(value) < 2.0**63 else 0
-
-
-def locate_numeric(
-    pending: Sequence[tuple[int, str]],
-    columns: tuple[str, ...],
-    source: str,
-    delimiter: str | None,
-    decimal_comma: bool,
-) -> None:
-    """Raise InputFormatError at the first bad row or cell of ``pending`` (all cells numbers)."""
-    for line_no, line in pending:
-        cells = _split(line, delimiter)
-        if len(cells) != len(columns):
-            raise InputFormatError(f"{len(cells)} values, expected {len(columns)}", source, line_no)
-        for position, (name, cell) in enumerate(zip(columns, cells, strict=True), 1):
-            value = cell.strip().strip('"')
-            try:
-                float(value.replace(",", ".") if decimal_comma else value)
-            except ValueError:
-                what = f"{shown(value)} is not a number" if value else "empty value"
-                column = name or f"{position}, no name in the header"
-                raise InputFormatError(what, source, line_no, column) from None
+    return tuple(f"col{i}" for i in range(len(cells_of(line, delimiter)))), 0

@@ -51,6 +51,10 @@ _FILES = {
 }
 """Each sensor's files, preferred first: the calibrated ones, gzipped (as published) or not (a trial
 gunzipped), before the raw ones."""
+_SENSOR_COLUMNS = ("col0", "col1", "col2", "col3")
+"""The columns of a sensor file that are read, by position (the files have no header): time, x, y, z. The
+raw files' bias columns after them — or any column a tool added there, text or numbers — are never
+parsed."""
 
 
 def detect(c: Container) -> bool:
@@ -66,7 +70,7 @@ def read(c: Container) -> SensorLog:
             raise InputFormatError(f"missing {names[0]}", str(c.path))
         if "calibrated" not in name and kind is not SensorKind.ACC:
             notes.append(f"{name}: uncalibrated (the OS bias columns are ignored)")
-        table = read_table(c, name, None, header=False, min_columns=4)
+        table = read_table(c, name, None, header=False, min_columns=4, use=_SENSOR_COLUMNS)
         streams[kind] = SensorStream(kind, table.data[:, 0], table.data[:, 1:4])
     truth = _truth(c, notes) if c.has("qualisys.mat") else None
     return SensorLog(streams, str(c.path), NAME, truth, tuple(notes))
@@ -76,7 +80,7 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     where = c.where("qualisys.mat")
     offset = 0.0
     if c.has("timeAlignment.txt"):
-        table = read_table(c, "timeAlignment.txt", None, header=False)
+        table = read_table(c, "timeAlignment.txt", None, header=False, use=("col0",))
         offset = float(table.data[0, 0])
         if not math.isfinite(offset):
             raise InputFormatError(
