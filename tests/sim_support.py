@@ -39,8 +39,11 @@ class Sim:
 
     def kill(self) -> None:
         if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGCONT)  # a stopped one dies as well, but is reaped at once
+            # SIGKILL first: a stopped board dies without running again (SIGCONT first let it answer what
+            # its pty held — a Hello sent while it was stopped — before it died); SIGCONT then only wakes
+            # it to be reaped at once
             self.proc.kill()
+            self.proc.send_signal(signal.SIGCONT)
         self.proc.wait(timeout=10)
 
     def pause(self, seconds: float) -> None:

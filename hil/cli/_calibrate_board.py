@@ -8,6 +8,7 @@ process, in simulated time unless ``--realtime``). Registered by :mod:`hil.cli.c
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -15,6 +16,9 @@ from pathlib import Path
 from typing import Any
 
 _MAPS = ("rotor", "gimbal_rate", "gimbal_angle")
+CONNECT_WITHIN_S = 5.0
+"""How long the first handshake is tried again while the port is away (s): a board plugged back, a
+firmware-sim restarted — a bench tool waits seconds, not ``hil run``'s outage bound."""
 
 _ESC_EXAMPLES = """examples:
   # teach unit 2's ESC 1000..2000 us: the board cuts the ESC supply (or asks for it), times every step
@@ -123,6 +127,15 @@ def _board_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--realtime", action="store_true", help="with --port emu://...: wall-clock time (default: simulated)"
     )
+    g.add_argument(
+        "--connect-within",
+        type=float,
+        default=CONNECT_WITHIN_S,
+        metavar="S",
+        help="a port that vanishes or cannot be opened at the first handshake (a board unplugged and plugged "
+        f"back, a firmware-sim restarting) is tried again for this long ({CONNECT_WITHIN_S:g}); a board that "
+        "answers nothing, another protocol or a port another host holds fails at once",
+    )
 
 
 def _esc_options(p: argparse.ArgumentParser) -> None:
@@ -153,18 +166,40 @@ def _sweep_options(p: argparse.ArgumentParser) -> None:
 
 # --------------------------------------------------------------------------- shared
 def _client(args: argparse.Namespace) -> Any:
-    from hil.link.board import BoardClient
+    """The client of the board at ``args.port``, connected (:func:`hil.link.board.connect_within`): a port
+    away at the first handshake is tried again for ``--connect-within`` s, each retry said on stderr."""
+    from hil.link.board import BoardClient, ConnectRetry, connect_within
     from hil.timing.clock import LockstepClock
-    from protocol.errors import HandshakeError, LinkError
+    from protocol.errors import ConfigError, HandshakeError, LinkError
+
+    bound = args.connect_within
+    if not (math.isfinite(bound) and bound >= 0):
+        raise ConfigError(f"{bound!r} must be a number of seconds >= 0", "--connect-within")
+
+    def said(retry: ConnectRetry) -> None:
+        print(
+            f"hil calibrate: no session with the board at {args.port} yet ({retry.error}); trying again in "
+            f"{retry.delay_s:.2f} s (tried for {retry.waited_s:.1f} s of {bound:g} s)",
+            file=sys.stderr,
+            flush=True,
+        )
 
     lockstep = args.port.startswith("emu:") and not args.realtime
     client = BoardClient(args.port, clock=LockstepClock() if lockstep else None)
     try:
-        client.connect()
-    except LinkError as exc:  # a board gone, or going, under the first handshake: said as such
+        connect_within(client, bound, said)
+    except LinkError as exc:  # no board, not ours, not free, or not back within the bound: said as such
         client.close()
         kind = HandshakeError if isinstance(exc, HandshakeError) else LinkError
         raise kind(f"no session with the board at {args.port} ({exc}); nothing was done") from exc
+    except BaseException as exc:
+        client.close()
+        if isinstance(exc, KeyboardInterrupt):  # Ctrl-C or SIGTERM before a session: nothing to put to rest
+            print(
+                f"hil calibrate: no session with the board at {args.port}; nothing was done",
+                file=sys.stderr,
+            )
+        raise
     return client
 
 

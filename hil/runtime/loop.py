@@ -74,19 +74,10 @@ from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.priority import Scheduling, realtime
 from hil.timing.scheduler import PeriodicTask, Scheduler
 from hil.version import describe
-from protocol.errors import (
-    CommandFailed,
-    ConfigError,
-    HandshakeError,
-    HilError,
-    LinkError,
-    LinkTimeout,
-    TransportError,
-    TransportRefused,
-)
+from protocol.errors import CommandFailed, ConfigError, HilError, LinkError
 
 if TYPE_CHECKING:
-    from hil.link.board import BoardClient, BoardInfo
+    from hil.link.board import BoardClient
 
 logger = logging.getLogger(__name__)
 
@@ -350,7 +341,7 @@ def _build(
 ) -> _Built:
     """Board client, phone source (:func:`hil.link.sources.create_source` on ``plan.phone``), host and
     scheduler for ``plan``; everything opened is closed by ``stack``."""
-    from hil.link.board import BoardClient
+    from hil.link.board import BoardClient, connect_within
 
     clock: Clock = LockstepClock() if plan.lockstep else WallClock()
     if plan.source == "world":
@@ -361,7 +352,15 @@ def _build(
         client = BoardClient(opts.port, clock=clock)
     stack.callback(client.close)
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
-    info = _connect(client, events, opts.recover_within_s)
+    # the first handshake: a port that vanishes or cannot be opened meanwhile (a board unplugged and
+    # plugged back, a firmware-sim restarting or killed before it answered) is tried again for up to the
+    # run's outage bound, each try an events.jsonl record; no board, another protocol or a port another
+    # host holds fails at once
+    info = connect_within(
+        client,
+        opts.recover_within_s,
+        lambda retry: events.write(retry.t, "connect_retry", attempt=retry.attempt, detail=str(retry.error)),
+    )
     stack.push(_disarm_if_interrupted(client, events))  # unwound before the close: the link still up
     handshake = client.drain_events()
     write_event = _HeldEvents(events)
@@ -543,29 +542,6 @@ def _pacer(pace: float, origin: float) -> PeriodicTask:
             time.sleep(ahead)
 
     return PeriodicTask("pace", PACE_PERIOD_S, pace_task)
-
-
-def _connect(client: BoardClient, events: EventLog, bound_s: float) -> BoardInfo:
-    """The first handshake. A port that vanishes or cannot be opened meanwhile (a board unplugged and
-    plugged back, a firmware-sim restarting — also one that vanishes *during* the handshake: the board's
-    process killed after it opened, before it answered) is tried again with the client's back-off for up
-    to ``bound_s`` (the run's outage bound; each try an ``events.jsonl`` record); a board that answers
-    nothing, answers another protocol, or a port another host holds fails at once."""
-    clock = client.clock
-    start = clock.now()
-    attempt = 0
-    while True:
-        try:
-            return client.connect()
-        except (TransportRefused, LinkTimeout, HandshakeError):  # no board, not ours, or not free: at once
-            raise
-        except LinkError as exc:  # could not open, or vanished under the handshake
-            now = clock.now()
-            if now - start >= bound_s:
-                raise TransportError(f"{exc} (tried for {now - start:.1f} s)") from exc
-            events.write(now, "connect_retry", attempt=attempt, detail=str(exc))
-            clock.sleep_until(now + client.config.reconnect_delay(attempt))
-            attempt += 1
 
 
 def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:

@@ -12,7 +12,9 @@
 
 Modules: :mod:`.session` (the sans-IO core), :mod:`.config` (``ClientConfig``), :mod:`.transfers`
 (calibration uploads and downloads of a session), :mod:`.client` (transport, clock, reader thread,
-reconnection), :mod:`.events` (what is reported), :mod:`.stats` (link statistics).
+reconnection), :mod:`.events` (what is reported), :mod:`.stats` (link statistics),
+:mod:`.first_handshake` (every tool's first connect, tried again while the port comes back:
+``connect_within``).
 ``docs/runtime-link.md`` is the guide.
 """
 
@@ -31,6 +33,7 @@ from .events import (
     StateEvent,
     TelemetryEvent,
 )
+from .first_handshake import ConnectRetry, connect_within
 from .session import Phase, Session
 from .stats import LinkStats, RoundTrips
 from .transfers import Download
@@ -42,6 +45,7 @@ __all__ = [
     "BoardResetEvent",
     "ClientConfig",
     "CommandEvent",
+    "ConnectRetry",
     "ConnectedEvent",
     "Download",
     "EscCalibrationEvent",
@@ -55,4 +59,5 @@ __all__ = [
     "SilenceEvent",
     "StateEvent",
     "TelemetryEvent",
+    "connect_within",
 ]
