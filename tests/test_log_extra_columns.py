@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from hil.estimation.sensors import SensorKind
@@ -139,6 +139,8 @@ DIALECTS = {
     columns=added_columns(5, ("time", "seconds_elapsed", "x", "z")),
     dialect=st.sampled_from(sorted(DIALECTS)),
 )
+@example(columns=[(0, "accuracy", ["\x1e"])], dialect="comma")  # a break to str.splitlines, not to a row
+@example(columns=[(5, "note", ["\u2028", "\x85", "\x1c"])], dialect="tab")
 def test_columns_of_any_text_beside_the_used_ones_read_sample_for_sample_as_the_export(
     tmp_path_factory, real_log, columns, dialect
 ):

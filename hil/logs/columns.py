@@ -1,10 +1,23 @@
 """Finding a sensor's columns by their header names, whatever the app's spelling, and their units.
 
 Apps label axes in many ways: Sensor Logger ``x``; older Sensor Logger ``GYROSCOPE X (rad/s)``; phyphox
-``"Gyroscope x (rad/s)"``, a custom experiment's ``"Acceleration x"`` (no unit). An axis column carries a
-lone ``x``/``y``/``z`` (any case) once its unit in parentheses (or brackets, ``x [deg/s]``) is set aside;
-the unit converts to SI (:data:`UNITS`); a missing unit means SI. A time column is named
-``time``/``Time …``/``t``; its unit (``(s)``, ``(ms)``, ``in ms``, ``(ns)``) gives its scale to seconds.
+``"Gyroscope x (rad/s)"``, a custom experiment's ``"Acceleration x"`` (no unit). Which column is an axis
+(:func:`axis_column`), its unit in parentheses (or brackets, ``x [deg/s]``) set aside, letter case and
+runs of spaces ignored:
+
+1. an *exact* name: the bare letter (``x``), or a sensor's full name and the letter (``Gyroscope x``:
+   :data:`SENSOR_NAMES`, of the file's sensor only), wherever it stands in the header;
+2. else a *partial* one: a label holding one lone ``x``/``y``/``z`` (``Rotation x``, ``x_uncalibrated``),
+   when exactly one column is such;
+3. a column whose label says ``bias`` (``xBias``, ``bias x``, ``x_bias``: Sensor Logger's uncalibrated
+   files carry the OS's bias estimates beside the reading) is never an axis.
+
+Two columns of different names that are equally the axis (two exact ones, ``x`` and ``x (deg/s)``; or no
+exact one and two partial ones, ``x accuracy`` and ``x_uncalibrated``) are an InputFormatError naming the
+file, the header's line and both columns: never a guess. A name the header holds twice is one column (its
+first: :mod:`hil.logs.rows`). The unit converts to SI (:data:`UNITS`); a missing unit means SI. A time
+column is named ``time``/``Time …``/``t``; its unit (``(s)``, ``(ms)``, ``in ms``, ``(ns)``) gives its
+scale to seconds.
 """
 
 from __future__ import annotations
@@ -41,25 +54,80 @@ def unit_of(column: str) -> str:
     return m.group(1).lower() if m else ""
 
 
+SENSOR_NAMES: dict[SensorKind, tuple[str, ...]] = {
+    SensorKind.ACC: ("acceleration", "accelerometer", "total acceleration", "gravity"),
+    SensorKind.GYR: ("gyroscope",),
+    SensorKind.MAG: ("magnetic field", "magnetometer"),
+}
+"""Per sensor: the names (lower case) an app writes before an axis letter in a full axis label — phyphox's
+``Acceleration x``, ``Gyroscope x``, ``Magnetic field x``; older Sensor Logger's ``ACCELERATION X``,
+``GYROSCOPE X``, ``MAGNETIC FIELD X`` (``GRAVITY X`` in its Gravity.csv)."""
+_BIAS = re.compile(r"bias", re.IGNORECASE)
+
+
+def _label(column: str) -> str:
+    """A header cell without its unit, stripped, in lower case, runs of spaces as one."""
+    return " ".join(_UNIT.sub("", column).split()).lower()
+
+
 def axis_of(column: str) -> str | None:
-    """``x``, ``y`` or ``z`` when the label (unit set aside) holds exactly one lone axis letter."""
-    found = _AXIS.findall(_UNIT.sub("", column))
+    """``x``, ``y`` or ``z`` when the label (unit set aside) holds exactly one lone axis letter and does
+    not say ``bias``: a column that may be an axis (:func:`axis_column` chooses among them)."""
+    label = _UNIT.sub("", column)
+    if _BIAS.search(label):
+        return None
+    found = _AXIS.findall(label)
     return found[0].lower() if len(found) == 1 else None
+
+
+def axis_column(
+    columns: Sequence[str],
+    axis: str,
+    names: Sequence[str],
+    what: str,
+    where: str,
+    line: int = 1,
+    skip: Sequence[str] = (),
+) -> str | None:
+    """The column of ``axis`` (``x``, ``y``, ``z``) among ``columns`` (see the module's docstring): the
+    one exact name (the bare letter, or one of ``names`` and the letter), else the one partial match;
+    None when there is no candidate. Two of different names at the best rank are an InputFormatError
+    naming ``where``, ``line`` and both (``what`` says which sensor, for the message)."""
+    exact_labels = {axis, *(f"{name} {axis}" for name in names)}
+    exact: list[str] = []
+    partial: list[str] = []
+    for column in columns:
+        if column in skip or axis_of(column) != axis:
+            continue
+        rank = exact if _label(column) in exact_labels else partial
+        if column not in rank:
+            rank.append(column)
+    found = exact or partial
+    if len(found) > 1:
+        how = "named exactly" if exact else "named in part (and none exactly)"
+        raise InputFormatError(
+            f"two columns could be the {axis} of the {what}, {how}: {found[0]!r} and {found[1]!r} "
+            f"(columns: {', '.join(columns)}); rename or remove one",
+            where,
+            line,
+        )
+    return found[0] if found else None
 
 
 def axis_columns(
     columns: Sequence[str], kind: SensorKind, where: str, line: int = 1, skip: Sequence[str] = ()
 ) -> list[tuple[str, float]]:
-    """The x, y, z columns of ``kind`` with their factors to SI; InputFormatError naming the header's line
-    and the column when one is missing, ambiguous or in an unknown unit."""
+    """The x, y, z columns of ``kind`` (:func:`axis_column`, its full names :data:`SENSOR_NAMES`) with
+    their factors to SI; InputFormatError naming the header's line and the column when one is missing,
+    ambiguous or in an unknown unit."""
     out = []
     for axis in "xyz":
-        found = [c for c in columns if c not in skip and axis_of(c) == axis]
-        if not found:
+        what = kind.name.lower()
+        col = axis_column(columns, axis, SENSOR_NAMES[kind], what, where, line, skip)
+        if col is None:
             raise InputFormatError(
-                f"no {axis} column for the {kind.name.lower()} (columns: {', '.join(columns)})", where, line
+                f"no {axis} column for the {what} (columns: {', '.join(columns)})", where, line
             )
-        col = found[0]
         out.append((col, unit_factor(kind, col, where, line)))
     return out
 

@@ -34,7 +34,7 @@ from functools import partial
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
-from hil.logs.columns import axis_columns, axis_of, time_column
+from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, time_column
 from hil.logs.sensorlogger import clock_of
 from hil.logs.table import Container, Header, read_table, sniff_dialect, split_header
 from protocol.errors import InputFormatError
@@ -75,7 +75,11 @@ def _csv_members(c: Container) -> list[str]:
 
 def _classify(c: Container, name: str) -> _File | None:
     """The file's sensor, or None if it is not a phyphox sensor table (see :func:`_kind`)."""
-    head = [line for line in c.head(name, 8) if line.strip() and not line.lstrip().startswith("#")][:2]
+    lines = c.head(name, 8)
+    numbered = [
+        (i, line) for i, line in enumerate(lines, 1) if line.strip() and not line.lstrip().startswith("#")
+    ]
+    head = [line for _, line in numbered[:2]]
     if not head:
         return None
     delimiter, decimal_comma = sniff_dialect(head)
@@ -85,7 +89,8 @@ def _classify(c: Container, name: str) -> _File | None:
         return None
     if any((clock_of(cell) or ("",))[0] == "seconds_elapsed" for cell in cells):
         return None  # Sensor Logger's, with or without units (its epoch time in ns is no phyphox clock)
-    x_col = next((col for i, col in enumerate(cells) if i != time_at and axis_of(col) == "x"), None)
+    # the x column as _stream will choose it, the sensor not yet known: any sensor's full name is exact
+    x_col = axis_column(cells, "x", _ANY_SENSOR, "sensor", c.where(name), numbered[0][0], (cells[time_at],))
     if x_col is None:
         return None
     group = name.rsplit("/", 1)[0] + "/" if "/" in name else ""
@@ -96,6 +101,10 @@ def _classify(c: Container, name: str) -> _File | None:
     return _File(name, kind, delimiter, decimal_comma, group)
 
 
+_ANY_SENSOR = tuple(name for names in SENSOR_NAMES.values() for name in names)
+"""The full names of every sensor (``Gyroscope``, ``Magnetic field``, …): a file's x column is found
+before its sensor is known (it says the sensor); ``Linear Acceleration x`` is a partial name, so that a
+bare ``X (rad/s)`` wins over it."""
 _NOT_A_SENSOR = object()
 MAX_TIME_S = 1e11
 """The latest a sample's time may typically be (s; the median of a file's): an experiment's clock starts at

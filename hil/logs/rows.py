@@ -123,12 +123,20 @@ class RowParser:
         self.chunks.append(data)
         for name, position in self.exact:
             ints = self._loadtxt(text, np.int64, (position,))
-            if ints is None or len(ints) != len(data):  # not integers (a re-save): the floats' precision
-                floats = data[:, self.used.index(position)]
-                fits = np.isfinite(floats) & (np.abs(floats) < 2.0**63)
-                ints = np.where(fits, floats, 0.0).astype(np.int64)  # the rest: the float column's to tell
+            if ints is None or len(ints) != len(data):  # a cell that is no integer: each cell on its own
+                ints = self._exact_cells(text, position, data[:, self.used.index(position)])
             self.exact_chunks.setdefault(name, []).append(ints.reshape(-1))
         return int(data.shape[0])
+
+    def _exact_cells(self, text: str, position: int, floats: Array) -> NDArray[np.int64]:
+        """The cells of an exact column, each as :func:`_exact_int` reads it: an integer exactly, any other
+        (a ``nan``, a re-save's ``1.679e18``) at its float's precision — so that one row's ``nan`` leaves
+        every other row of its chunk exact."""
+        cells = self._loadtxt(text, str, (position,))
+        if cells is None or len(cells) != len(floats):  # never seen: loadtxt read the chunk's floats
+            fits = np.isfinite(floats) & (np.abs(floats) < 2.0**63)
+            return np.where(fits, floats, 0.0).astype(np.int64)
+        return np.array([_exact_int(c, f) for c, f in zip(cells.reshape(-1), floats, strict=True)], np.int64)
 
     def _prepared(self, lines: list[str]) -> tuple[str, int | None] | None:
         """The chunk as NumPy is given it — blank and comment lines emptied, a line holding a quote
@@ -250,6 +258,8 @@ class RowParser:
         try:
             if convert is not None:
                 return float(convert(text))
+            if "_" in text:  # Python's float() takes "1_0"; NumPy, JSON and a spreadsheet do not
+                raise ValueError(text)
             return float(text.replace(",", ".") if self.decimal_comma else text)
         except (ValueError, KeyError) as exc:
             if isinstance(exc, BadCell):

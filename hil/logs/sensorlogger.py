@@ -196,7 +196,7 @@ def samples(
     table, units = _clock_names_lowered(table)
     if required and not len(table.data):
         raise InputFormatError("no samples (a header only)", table.source)
-    kind = _KIND[name.lower()]
+    kind = FILE_KINDS[name.lower()]
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=_TIME)
     xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
     times: np.ndarray
@@ -336,8 +336,12 @@ def _epoch_ns(
     return ns, usable
 
 
-_KIND = {n.lower(): SensorKind.GYR for n in GYR_FILES} | {n.lower(): SensorKind.MAG for n in MAG_FILES}
-_KIND |= {n.lower(): SensorKind.ACC for n in (*ACC_FILES, "Gravity.csv")}
+FILE_KINDS: dict[str, SensorKind] = {
+    **{n.lower(): SensorKind.GYR for n in GYR_FILES},
+    **{n.lower(): SensorKind.MAG for n in MAG_FILES},
+    **{n.lower(): SensorKind.ACC for n in (*ACC_FILES, "Gravity.csv")},
+}
+"""The export's sensor files (lower case) → the sensor each holds (Gravity.csv: an accelerometer's)."""
 
 
 def _holds_nothing(c: Container, member: str) -> bool:
@@ -386,7 +390,7 @@ def read(c: Container) -> SensorLog:
     export = Export(
         str(c.path),
         {name: c.where(member) for name, member in files.items()},
-        lambda name: _csv_table(c, files[name], _KIND[name.lower()]),
+        lambda name: _csv_table(c, files[name], FILE_KINDS[name.lower()]),
         lambda name: _holds_nothing(c, files[name]),
         lambda: c.text(files["Metadata.csv"]).lower() if "Metadata.csv" in files else "",
     )

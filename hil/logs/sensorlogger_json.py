@@ -16,15 +16,26 @@ columns (``time`` Unix epoch in ns, ``seconds_elapsed``, ``z``, ``y``, ``x``). A
 into the table its CSV file would be and read as the CSV export is (:func:`hil.logs.sensorlogger.assemble`:
 the same files chosen, units, clock), so the JSON and the CSV export of one recording give the same
 samples. Numbers written as JSON numbers rather than strings (a file re-saved by a script) are read as
-well. Records of the other sensors (location, battery, …) are checked to be flat objects and passed over.
+well. Records of the other sensors (location, battery, …) are passed over.
+
+Only the keys the CSV reader would parse are read (:func:`hil.logs.sensorlogger.sensor_columns`, told
+from the sensor's first record: its clocks and its x, y, z, found by name as in a CSV header,
+:mod:`hil.logs.columns`); any other key of any record — unknown, nested, an array, a string, ``null``,
+``1e308``, an integer of 10 000 digits, present in some records and not in others, given twice — is
+never parsed and never stops the read, as an unused column of the CSV export does not. Keys may come in
+any order. Every record of a sensor must hold the keys read (``seconds_elapsed`` beside ``time`` may be
+left out: a NaN there), each a number or a string holding one; a key read that a record gives twice with
+different values is an error (the first is read when they agree). What a used value then holds is
+judged as the CSV reader judges the same cell: ``"NaN"`` a NaN sample, a ``time`` of 0 or ``1e30`` a
+stray row noted and dropped (:func:`hil.logs.sensorlogger.samples`).
 
 The file is read as a stream (:meth:`hil.logs.table.Container.chunks`), a record at a time: memory is
 bounded by the samples kept (8 bytes a value), not by the file's size. The file is at most
 :data:`MAX_JSON_BYTES` (decompressed, for a ``.json.gz``), a record at most :data:`MAX_RECORD_CHARS`, its
 rows count towards the log's :data:`~hil.logs.table.MAX_LOG_SAMPLES`; anything that is not the layout
-above (not JSON, not UTF-8, binary or gzipped bytes under a ``.json`` name, nested values, a record whose
-keys differ from its sensor's first) is an :class:`InputFormatError` naming the file, the line and the
-record.
+above (not JSON, not UTF-8, binary or gzipped bytes under a ``.json`` name, a record nested past Python's
+recursion limit, a nested value or ``null`` in a key read, a record without a key its sensor's first
+record is read by) is an :class:`InputFormatError` naming the file, the line and the record.
 """
 
 from __future__ import annotations
@@ -42,8 +53,17 @@ import numpy as np
 from hil.estimation.sensors import SensorLog
 from hil.files.bounded import MAX_MEMBER_BYTES
 from hil.logs.rows import shown
-from hil.logs.sensorlogger import ACC_FILES, GYR_FILES, MAG_FILES, Export, assemble
-from hil.logs.table import Container, Table
+from hil.logs.sensorlogger import (
+    ACC_FILES,
+    FILE_KINDS,
+    GYR_FILES,
+    MAG_FILES,
+    Export,
+    assemble,
+    clock_of,
+    sensor_columns,
+)
+from hil.logs.table import Container, Header, Table
 from protocol.errors import InputFormatError
 
 NAME = "sensorlogger-json"
@@ -74,10 +94,22 @@ def _json_members(c: Container) -> list[str]:
 
 
 def _is_export(c: Container, member: str) -> bool:
-    """Whether the member's first bytes are the start of the export: an array whose first record has a
-    ``sensor`` and a clock key."""
+    """Whether the member is the export: an array whose first record has a ``sensor`` and a clock key
+    (told from its first bytes; when they do not hold both keys — a first record with a long key the
+    reader never uses before its clock — from its first record, read as :func:`read` reads it)."""
     head = " ".join(c.head(member, 40)).lstrip()
-    return head.startswith("[") and _HEAD_KEYS.search(head) is not None
+    if not head.startswith("["):
+        return False
+    if _HEAD_KEYS.search(head) is not None:
+        return True
+    pieces = c.chunks(member, MAX_JSON_BYTES)
+    try:
+        _, _, record = next(_records(pieces, c.where(member)))
+    except (InputFormatError, StopIteration):
+        return False
+    finally:
+        pieces.close()  # type: ignore[attr-defined]
+    return "sensor" in record and any(clock_of(key) is not None for key in record)
 
 
 def detect(c: Container) -> bool:
@@ -86,13 +118,34 @@ def detect(c: Container) -> bool:
 
 @dataclass
 class _Sensor:
-    """One sensor's records as they are read: its keys (the first record's, ``sensor`` left out), the
-    values of each row flattened (float), and ``time`` as exact int64 when it is one of the keys."""
+    """One sensor's records as they are read: the keys read (told from its first record, as the CSV
+    reader tells its columns from the header: :func:`~hil.logs.sensorlogger.sensor_columns`), the key
+    that may be missing from a record (``seconds_elapsed`` beside ``time``: NaN), the values of each row
+    flattened (float), and ``time`` as exact int64 (``time_key``, however it is spelt) when it is read.
+    ``problem``: why its first record gives no columns to read (no clock, no axis): raised when the log
+    needs the sensor, as the CSV reader raises it for a file it reads; its records are passed over."""
 
     keys: tuple[str, ...]
     first_line: int
+    time_key: str | None = None
+    optional: str | None = None
+    problem: InputFormatError | None = None
     values: array[float] = field(default_factory=lambda: array("d"))
     times: array[int] = field(default_factory=lambda: array("q"))
+
+
+def _sensor(name: str, record: dict[str, object], index: int, line: int, where: str) -> _Sensor:
+    """The keys a sensor's records are read by, from its first record (``name``: its CSV file)."""
+    keys = tuple(k for k in record if k != "sensor")
+    if not keys:
+        raise InputFormatError(f"record {index} ({name.removesuffix('.csv')}) holds no values", where, line)
+    try:
+        used = tuple(sensor_columns(Header(keys, where, line), FILE_KINDS[name.lower()]))
+    except InputFormatError as exc:
+        return _Sensor((), line, problem=exc)
+    clocks = {clock[0]: key for key in used if (clock := clock_of(key)) is not None}
+    optional = clocks.get("seconds_elapsed") if "time" in clocks else None
+    return _Sensor(used, line, clocks.get("time"), optional)
 
 
 def read(c: Container) -> SensorLog:
@@ -108,11 +161,11 @@ def read(c: Container) -> SensorLog:
     member = exports[0]
     where = c.where(member)
     sensors, ignored = _read_records(c, member, where)
-    tables = {name: _table(sensor, where) for name, sensor in sensors.items()}
+    tables = {name: _table(sensor, where) for name, sensor in sensors.items() if sensor.problem is None}
     export = Export(
         str(c.path),
-        {name: f"{where} (sensor {name.removesuffix('.csv')})" for name in tables},
-        lambda name: tables[name],
+        {name: f"{where} (sensor {name.removesuffix('.csv')})" for name in sensors},
+        lambda name: _needed(sensors[name], tables.get(name)),
         lambda name: False,  # a sensor without records is not in the file at all
         lambda: "",
     )
@@ -139,20 +192,11 @@ def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sen
             if len(ignored) < MAX_NAMED:
                 ignored.add(shown(sensor, 30).strip("'\""))
             continue
-        keys = tuple(k for k in record if k != "sensor")
         found = sensors.get(name)
         if found is None:
-            if not keys:
-                raise InputFormatError(f"record {index} ({sensor}) holds no values", where, line)
-            found = sensors[name] = _Sensor(keys, line)
-        elif len(keys) != len(found.keys) or set(keys) != set(found.keys):
-            raise InputFormatError(
-                f"record {index} ({sensor}) has keys {', '.join(keys)}; its sensor's first record (line "
-                f"{found.first_line}) has {', '.join(found.keys)}",
-                where,
-                line,
-            )
-        _append(found, record, index, line, where)
+            found = sensors[name] = _sensor(name, record, index, line, where)
+        if found.problem is None:
+            _append(found, record, index, line, where)
         pending += 1
         if pending >= COUNT_EVERY:
             c.count_samples(pending, where, line)
@@ -162,10 +206,30 @@ def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sen
 
 
 def _append(sensor: _Sensor, record: dict[str, object], index: int, line: int, where: str) -> None:
-    """One record's values onto its sensor's rows: each a number or a string holding one (``nan`` is a
-    number: a NaN sample, dropped and counted by the merge), ``time`` also as exact int64 (as the CSV
-    reader reads it: a value that is no integer or beyond int64 is its float's to tell)."""
+    """One record's values of the keys read onto its sensor's rows: each a number or a string holding one
+    (``nan`` is a number: a NaN sample, dropped and counted by the merge), ``time`` also as exact int64
+    (as the CSV reader reads it: a value that is no integer or beyond int64 is its float's to tell). Its
+    other keys are never looked at."""
+    twice = getattr(record, "twice", ())
     for key in sensor.keys:
+        if key not in record:
+            if key == sensor.optional:
+                sensor.values.append(math.nan)
+                continue
+            raise InputFormatError(
+                f"record {index} has no {key!r}; its sensor's first record (line {sensor.first_line}) is "
+                f"read by {', '.join(sensor.keys)}",
+                where,
+                line,
+                key,
+            )
+        if key in twice:
+            raise InputFormatError(
+                f"record {index} gives {key!r} twice, with different values: which is meant cannot be told",
+                where,
+                line,
+                key,
+            )
         value = record[key]
         if isinstance(value, bool) or not isinstance(value, str | int | float):
             what = type(value).__name__ if value is not None else "null"
@@ -178,10 +242,13 @@ def _append(sensor: _Sensor, record: dict[str, object], index: int, line: int, w
             number = float(value)
         except (ValueError, OverflowError):
             raise InputFormatError(
-                f"record {index}: {shown(str(value))} is not a number", where, line, key
+                f"record {index}: {shown(str(value)) + ' is not a number' if value != '' else 'empty value'}",
+                where,
+                line,
+                key,
             ) from None
         sensor.values.append(number)
-        if key == "time":
+        if key == sensor.time_key:
             sensor.times.append(_exact(value, number))
 
 
@@ -197,18 +264,26 @@ def _exact(value: str | int | float, number: float) -> int:
     return int(number) if math.isfinite(number) and abs(number) < 2.0**63 else 0
 
 
+def _needed(sensor: _Sensor, table: Table | None) -> Table:
+    """The table of a sensor the log reads; its problem when its records give none."""
+    if sensor.problem is not None or table is None:
+        raise sensor.problem or InputFormatError("no table", "")
+    return table
+
+
 def _table(sensor: _Sensor, where: str) -> Table:
     """A sensor's records as the table its CSV file would be (columns the record's keys)."""
     # views of the arrays, not copies: their records are all read, and a copy would double what is kept
     data = np.frombuffer(sensor.values, dtype=np.float64).reshape(-1, len(sensor.keys))
-    exact = {"time": np.frombuffer(sensor.times, dtype=np.int64)} if "time" in sensor.keys else {}
+    exact = {sensor.time_key: np.frombuffer(sensor.times, dtype=np.int64)} if sensor.time_key else {}
     return Table(sensor.keys, data, where, sensor.first_line, exact)
 
 
 def _records(pieces: Iterator[bytes], where: str) -> Iterator[tuple[int, int, dict[str, object]]]:
     """(line, index from 1, record) of each element of the document's one top-level array, read from
     ``pieces`` of its bytes, holding at most a piece and a record at once. Anything but an array of flat
-    objects is an InputFormatError naming ``where`` and the line."""
+    objects is an InputFormatError naming ``where`` and the line (what a record's values are is
+    :func:`_append`'s to judge, for the keys it reads)."""
     reader = _Reader(pieces, where)
     if reader.next_char() != "[":
         raise reader.error("not a Sensor Logger JSON export: it does not start with '['")
@@ -243,7 +318,7 @@ class _Reader:
     def __init__(self, pieces: Iterator[bytes], where: str) -> None:
         self._pieces = pieces
         self._decoder = codecs.getincrementaldecoder("utf-8-sig")()
-        self._json = json.JSONDecoder()
+        self._json = json.JSONDecoder(object_pairs_hook=_Record.of, parse_int=_integer)
         self.where = where
         self.buffer = ""
         self.pos = 0
@@ -298,7 +373,8 @@ class _Reader:
 
     def decode_object(self, index: int) -> dict[str, object]:
         """The object starting at ``pos``: parsed once the buffer holds all of it (read on while it is
-        cut short, up to :data:`MAX_RECORD_CHARS`), and checked to be flat."""
+        cut short, up to :data:`MAX_RECORD_CHARS`). Its values may be anything JSON holds (nested ones
+        too): only the keys a sensor is read by are judged (:func:`_append`)."""
         while True:
             try:
                 value, end = self._json.raw_decode(self.buffer, self.pos)
@@ -316,18 +392,37 @@ class _Reader:
                     ) from None
                 if not self._more():
                     raise self.error(f"record {index} is not JSON ({exc.msg})") from None
-            except ValueError as exc:  # an integer past Python's digit limit
-                raise self.error(f"record {index} is not a record of the export ({exc})") from None
         if end - self.pos > MAX_RECORD_CHARS:
             raise self.error(f"record {index} is longer than {MAX_RECORD_CHARS} characters: not the export's")
-        nested = next((k for k, v in value.items() if isinstance(v, dict | list)), None)
-        if nested is not None:
-            raise InputFormatError(
-                f"record {index} holds a nested value: the export's records are flat",
-                self.where,
-                self.line,
-                nested,
-            )
         self.line += self.buffer.count("\n", self.pos, end)
         self.pos = end
         return value
+
+
+class _Record(dict[str, object]):
+    """A JSON object as read: its first value of each key (as the CSV reader reads a name its header
+    holds twice from its first column), and ``twice`` the keys given again with another value."""
+
+    twice: frozenset[str] = frozenset()
+
+    @classmethod
+    def of(cls, pairs: list[tuple[str, object]]) -> _Record:
+        record = cls()
+        twice = set()
+        for key, value in pairs:
+            if key not in record:
+                record[key] = value
+            elif record[key] != value or repr(record[key]) != repr(value):
+                twice.add(key)
+        if twice:
+            record.twice = frozenset(twice)
+        return record
+
+
+def _integer(digits: str) -> int | float:
+    """A JSON integer: exact, or (past Python's digit limit: 10 000 digits in a key never read) its
+    float, ``inf``, as a CSV cell of those digits is read."""
+    try:
+        return int(digits)
+    except ValueError:
+        return float(digits)

@@ -25,6 +25,7 @@ import codecs
 import csv
 import gzip
 import io
+import re
 import zipfile
 import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -63,6 +64,8 @@ MAX_LOG_SAMPLES = 2_000_000
 """The most rows a log's tables may hold together (2 million: 1.5 hours of three sensors at 100 Hz). The
 parsed floats of a log cost about 100 bytes a row while read; a longer log is refused naming the file and
 the line it reached, rather than read into all the memory there is."""
+_TEXT_BREAK = re.compile(r"\r\n|\r|\n")
+"""The line breaks of a table's text, as :func:`hil.files.bounded.read_lines` splits its bytes."""
 MAX_RAW_BYTES = 64 << 20
 """The most a member read whole (a MATLAB ``.mat`` file) may hold: the BROAD and Qualisys files are 4 MB."""
 
@@ -219,7 +222,12 @@ class Container:
         format without reading the file."""
         with self._open_text(name) as f:
             data = _guarded(lambda: f.read(HEAD_BYTES), self.where(name))
-        return decode_text(data, final=False).splitlines()[:lines]
+        # split at the breaks the rows are read at (\n, \r\n, \r: hil.files.bounded.read_lines), never at
+        # the others str.splitlines knows (\x1c-\x1e, \x85, \u2028): a cell may hold those
+        pieces = _TEXT_BREAK.split(decode_text(data, final=False))
+        if pieces and not pieces[-1]:
+            pieces.pop()  # the break that ends the text starts no line
+        return pieces[:lines]
 
     def text(self, name: str) -> str:
         """A small member whole (metadata files, at most
