@@ -90,7 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
         "-v", "--verbose", action="count", default=0, help="debug log (default: state changes, faults)"
     )
     p.add_argument("--link", metavar="PATH", help="keep a symlink at PATH pointing at the pty")
-    p.add_argument("--duration", type=seconds, metavar="S", help="stop after S seconds (default: run until ^C)")
+    p.add_argument(
+        "--duration", type=seconds, metavar="S", help="stop after S seconds (default: run until ^C)"
+    )
     p.add_argument(
         "--avr",
         nargs="?",
