@@ -10,6 +10,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 
 @dataclass
@@ -45,7 +46,8 @@ class Operated:
 
     def _read_errors(self) -> None:
         assert self.proc.stderr is not None
-        self.errors += self.proc.stderr
+        for line in self.proc.stderr:  # a line at a time, as it comes (wait_for_error)
+            self.errors.append(line)
 
     def wait_for(self, text: str, timeout: float = 60.0) -> float:
         """The wall time the first stdout line containing ``text`` arrived."""
@@ -57,6 +59,30 @@ class Operated:
             assert self.proc.poll() is None, f"exited {self.proc.returncode}: {self.finish()}"
             time.sleep(0.05)
         raise AssertionError(f"no {text!r} within {timeout} s: {self.stdout}")
+
+    def wait_for_error(self, text: str, timeout: float = 60.0) -> None:
+        """Until a stderr line containing ``text`` has come."""
+        end = time.monotonic() + timeout
+        while not any(text in line for line in list(self.errors)):
+            assert self.proc.poll() is None, (self.proc.returncode, self.errors)
+            assert time.monotonic() < end, (text, self.errors)
+            time.sleep(0.02)
+
+    def wait_for_open(self, path: str, timeout: float = 60.0) -> None:
+        """Until this process holds ``path`` open (a port: the pty a firmware-sim serves, its handshake
+        begun)."""
+        end = time.monotonic() + timeout
+        fds = Path(f"/proc/{self.proc.pid}/fd")
+        while time.monotonic() < end:
+            assert self.proc.poll() is None, (self.proc.returncode, self.errors)
+            for fd in list(fds.iterdir()) if fds.exists() else []:
+                try:
+                    if os.readlink(fd) == path:
+                        return
+                except OSError:  # closed meanwhile
+                    continue
+            time.sleep(0.02)
+        raise AssertionError(f"{path} not opened within {timeout} s: {self.errors}")
 
     def type(self, keys: bytes) -> None:
         os.write(self.master, keys)

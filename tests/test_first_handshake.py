@@ -14,19 +14,15 @@ board was restarted under its first handshake, where ``hil run`` waits for it wi
 
 from __future__ import annotations
 
-import os
-import pty
 import random
 import signal
-import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from operator_support import Operated
 from sim_support import Sim, sims
 
 from firmware_sim.servers.transports import EmulatorTransport
@@ -34,7 +30,6 @@ from hil.link.board import BoardClient, ClientConfig, ConnectRetry, connect_with
 from hil.timing.clock import LockstepClock
 from protocol.errors import HandshakeError, LinkTimeout, TransportError, TransportRefused
 
-ROOT = Path(__file__).resolve().parents[1]
 SEED = 20261206
 SIM = ["--units", "2", "--esc-supply-switch", "--link-timeout", "1"]
 ESC = ["--unit", "0", "--confirm-unloaded", "--supply-off-ms", "300", "--high-ms", "500", "--low-ms", "300"]
@@ -119,70 +114,13 @@ def test_what_no_second_try_can_mend_fails_at_once():
 
 
 # ====================================================================== real processes: hil calibrate
-class Tool:
+class Tool(Operated):
     """``python -m hil ARGV`` with a pty for stdin, its stdout and stderr read line by line as they come."""
 
-    def __init__(self, argv: list[str]) -> None:
-        master, slave = pty.openpty()
-        self.master = master
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hil", *argv],
-            stdin=slave,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-        )
-        os.close(slave)
-        self.out: list[str] = []
-        self.err: list[str] = []
-        self._readers = [
-            threading.Thread(target=self._read, args=(self.proc.stdout, self.out), daemon=True),
-            threading.Thread(target=self._read, args=(self.proc.stderr, self.err), daemon=True),
-        ]
-        for reader in self._readers:
-            reader.start()
-
-    @staticmethod
-    def _read(stream, lines: list[str]) -> None:
-        for line in stream:
-            lines.append(line.rstrip("\n"))
-
-    def wait_for_open(self, port: str, timeout: float = WALL_S) -> None:
-        """Until this process holds ``port`` (the pty a firmware-sim serves) open: its handshake began."""
-        end = time.monotonic() + timeout
-        fds = Path(f"/proc/{self.proc.pid}/fd")
-        while time.monotonic() < end:
-            assert self.proc.poll() is None, (self.proc.returncode, self.err)
-            with_port = False
-            for fd in list(fds.iterdir()) if fds.exists() else []:
-                try:
-                    with_port = with_port or os.readlink(fd) == port
-                except OSError:
-                    pass
-            if with_port:
-                return
-            time.sleep(0.02)
-        raise AssertionError(f"{port} not opened within {timeout} s: {self.err}")
-
-    def wait_for_error_line(self, text: str, timeout: float = WALL_S) -> None:
-        end = time.monotonic() + timeout
-        while not any(text in line for line in list(self.err)):
-            assert self.proc.poll() is None, (self.proc.returncode, self.err)
-            assert time.monotonic() < end, (text, self.err)
-            time.sleep(0.02)
-
-    def finish(self, timeout: float = WALL_S) -> tuple[int, str, str]:
-        try:
-            self.proc.wait(timeout=timeout)
-        finally:
-            if self.proc.poll() is None:
-                self.proc.kill()
-                self.proc.wait()
-            os.close(self.master)
-        for reader in self._readers:
-            reader.join(timeout=5.0)
-        return self.proc.returncode, "\n".join(self.out), "\n".join(self.err)
+    def ended(self, timeout: float = WALL_S) -> tuple[int, str, str]:
+        """(exit status, stdout, stderr) once it has ended (killed after ``timeout`` s)."""
+        code, err = self.finish(timeout)
+        return code, self.stdout, err
 
 
 def stopped_board(tmp: Path, started: list[Sim]) -> tuple[Path, Sim]:
@@ -219,7 +157,7 @@ def test_a_board_restarted_under_calibrate_s_first_handshake_is_connected_to(tmp
         first.kill()
         time.sleep(rng.uniform(0.1, 1.0))
         started.append(Sim(tmp_path, link, *SIM))
-        code, out, err = tool.finish()
+        code, out, err = tool.ended()
     check_no_traceback(code, err)
     assert code == 0 and "unit 0: ESC taught 1000-2000 us" in out, (code, out, err)
     said = retry_lines(err)
@@ -242,7 +180,7 @@ def test_a_board_not_back_within_the_bound_ends_the_tool_having_done_nothing(tmp
         time.sleep(rng.uniform(0.0, 1.0))  # the bound counts from the first try: killed well within it
         first.kill()
         killed = time.monotonic()
-        code, out, err = tool.finish()
+        code, out, err = tool.ended()
     check_no_traceback(code, err)
     assert code == 2 and out == "", (code, out, err)
     last = err.splitlines()[-1]
@@ -269,7 +207,7 @@ def test_a_port_that_answers_nothing_or_is_held_fails_at_once(tmp_path, held):
         try:
             t0 = time.monotonic()
             tool = Tool(["calibrate", "esc", "--port", str(link), *ESC, "--connect-within", "40"])
-            code, out, err = tool.finish()
+            code, out, err = tool.ended()
             took = time.monotonic() - t0
         finally:
             if held:
@@ -292,11 +230,11 @@ def test_an_interrupt_during_the_retries_ends_cleanly(tmp_path, index):
         tool = Tool(["calibrate", "esc", "--port", str(link), *ESC, "--connect-within", "60"])
         tool.wait_for_open(first.path)
         first.kill()
-        tool.wait_for_error_line("trying again in")
+        tool.wait_for_error("trying again in")
         time.sleep(rng.uniform(0.0, 1.0))
         tool.proc.send_signal(signum)
         sent = time.monotonic()
-        code, out, err = tool.finish()
+        code, out, err = tool.ended()
     assert "Traceback" not in err, err
     assert code == 128 + signum and out == "", (code, out, err)
     lines = err.splitlines()

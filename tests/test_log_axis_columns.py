@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from log_support import assert_same_samples
 
 from hil.estimation.sensors import SensorKind
 from hil.logs import detect_format, read_log
@@ -79,13 +80,6 @@ def sensor_logger(folder: Path, decoys=(), rename=None) -> Path:
                     row.insert(at, header if i == 0 else cell)
         write_csv(folder / name, rows)
     return folder
-
-
-def assert_same_samples(log, reference) -> None:
-    assert set(log.streams) == set(reference.streams)
-    for kind in reference.streams:
-        np.testing.assert_array_equal(log.streams[kind].t, reference.streams[kind].t)
-        np.testing.assert_array_equal(log.streams[kind].xyz, reference.streams[kind].xyz)
 
 
 @pytest.fixture(scope="module")

@@ -12,10 +12,10 @@ import gzip
 import tarfile
 from pathlib import Path
 
-import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from log_support import assert_same_samples
 
 from hil.estimation.sensors import SensorKind
 from hil.logs import archive, detect_format, read_log
@@ -100,13 +100,6 @@ def with_columns(lines: list[str], columns, delimiter: str = ",") -> list[str]:
         row += i > 0
         out.append(delimiter.join(cells))
     return out
-
-
-def assert_same_samples(log, reference) -> None:
-    assert set(log.streams) == set(reference.streams)
-    for kind in reference.streams:
-        np.testing.assert_array_equal(log.streams[kind].t, reference.streams[kind].t)
-        np.testing.assert_array_equal(log.streams[kind].xyz, reference.streams[kind].xyz)
 
 
 # --------------------------------------------------------------------------- Sensor Logger

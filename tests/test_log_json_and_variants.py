@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from log_support import assert_same_samples
 
 from hil.estimation.sensors import SensorKind
 from hil.logs import detect_format, read_log
@@ -46,12 +47,6 @@ def real_export(folder: Path, edit=lambda name, line: line) -> Path:
         lines = [edit(name, line) for line in real_lines(name)]
         (folder / name).write_text("\n".join(lines) + "\n", encoding="utf-8")
     return folder
-
-
-def assert_same_samples(log, reference) -> None:
-    for kind in (GYR, ACC, MAG):
-        np.testing.assert_array_equal(log.streams[kind].t, reference.streams[kind].t)
-        np.testing.assert_array_equal(log.streams[kind].xyz, reference.streams[kind].xyz)
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from log_support import assert_same_samples
 
 from hil.estimation.sensors import SensorKind
 from hil.logs import detect_format, read_log
@@ -54,12 +55,6 @@ def real_export(
         lines = edit(name, real_lines(name))
         (folder / name).write_bytes(encode(name, newline.join(lines) + ending))
     return folder
-
-
-def assert_same_samples(log, reference, kinds=(GYR, ACC, MAG)) -> None:
-    for kind in kinds:
-        np.testing.assert_array_equal(log.streams[kind].t, reference.streams[kind].t)
-        np.testing.assert_array_equal(log.streams[kind].xyz, reference.streams[kind].xyz)
 
 
 @pytest.fixture(scope="module")
