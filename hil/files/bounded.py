@@ -11,6 +11,9 @@ that no input can make a reader hold more than a fixed amount of memory or parse
   decompressed, and a compressed one at most :data:`MAX_COMPRESSION_RATIO` times its compressed size
   (:class:`LimitedReader`): a zip bomb is refused after its first megabytes, not after it has filled the
   memory. The count is of the bytes that come out, not of the sizes the archive's header claims;
+- a path is read only if it is a regular file, a folder or a pipe (:func:`input_kind`): a device or a
+  socket is a typed error naming it before anything opens it (``/dev/zero`` never ends; a serial port or
+  a terminal given for a file waits for input for ever);
 - a document read whole (TOML, JSON) is at most :data:`MAX_DOCUMENT_BYTES` (:func:`read_document`) and
   nested at most :data:`MAX_NESTING` deep (:func:`load_json`, :func:`load_toml`): deeper nesting is a
   typed error naming the file and the key, never a ``RecursionError`` in a parser or in the code that walks
@@ -26,6 +29,7 @@ import io
 import json
 import os
 import re
+import stat
 import tomllib
 from collections.abc import Callable, Iterator
 from typing import IO, Any
@@ -193,6 +197,38 @@ def read_lines(
         yield last
 
 
+FILE, FOLDER, PIPE = "file", "folder", "pipe"
+"""What :func:`input_kind` says a path is."""
+_DEVICE_KINDS = (
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def input_kind(path: str | os.PathLike[str], error: ErrorFactory = ConfigError, what: str = "") -> str:
+    """What the input at ``path`` (symbolic links followed) is to a reader: :data:`FILE` (a regular file),
+    :data:`FOLDER` or :data:`PIPE` (a FIFO: a shell's ``<(…)``, a ``/dev/stdin`` fed by a pipe — read once,
+    from its start, as it comes). Anything else is one ``error`` naming it, before it is opened: a device
+    (``/dev/zero`` and ``/dev/urandom`` never end; a serial port, such as a board's, or a terminal waits
+    for input for ever) or a socket. A path that is not there or cannot be looked at is one too."""
+    name = f" {what}" if what else ""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError as exc:
+        raise error(f"no such file{name}", str(path)) from exc
+    except OSError as exc:
+        raise error(f"cannot read{name}: {exc.strerror or exc}", str(path)) from exc
+    if stat.S_ISREG(mode):
+        return FILE
+    if stat.S_ISDIR(mode):
+        return FOLDER
+    if stat.S_ISFIFO(mode):
+        return PIPE
+    kind = next((said for test, said in _DEVICE_KINDS if test(mode)), "not a regular file")
+    raise error(f"{kind}, not a file{name}: give the path of a file", str(path))
+
+
 def read_document(
     path: str | os.PathLike[str],
     error: ErrorFactory = ConfigError,
@@ -201,8 +237,10 @@ def read_document(
 ) -> str:
     """A text file read whole, as UTF-8 (a BOM skipped): at most ``limit`` bytes (None: no limit, for the
     files a caller bounds otherwise). A missing, unreadable, binary or larger file is one ``error`` naming
-    it, never a traceback; only ``limit + 1`` bytes are ever read (``/dev/zero`` is refused at once)."""
+    it, never a traceback; only ``limit + 1`` bytes are ever read; a device or a socket is refused before it
+    is opened (:func:`input_kind`)."""
     name = f" {what}" if what else ""
+    input_kind(path, error, what)  # a device refused before it is opened: a terminal's read blocks
     try:
         with open(path, "rb") as f:
             data = f.read() if limit is None else f.read(limit + 1)
@@ -281,14 +319,18 @@ def _short(path: str, keep: int = 60) -> str:
 
 __all__ = [
     "CHUNK_BYTES",
+    "FILE",
+    "FOLDER",
     "MAX_COMPRESSION_RATIO",
     "MAX_DOCUMENT_BYTES",
     "MAX_LINE_BYTES",
     "MAX_MEMBERS",
     "MAX_MEMBER_BYTES",
     "MAX_NESTING",
+    "PIPE",
     "LimitedReader",
     "LineSplitter",
+    "input_kind",
     "load_json",
     "load_toml",
     "read_document",

@@ -17,6 +17,7 @@ from pathlib import Path
 from types import ModuleType
 
 from hil.estimation.sensors import SensorLog
+from hil.files.bounded import PIPE, input_kind
 from hil.logs import broad, phyphox, project_csv, sensorlogger, sensorlogger_json, tyrex
 from hil.logs.table import Container
 from protocol.errors import InputFormatError
@@ -66,6 +67,8 @@ def logs_inside(folder: Path) -> list[Path]:
     found = []
     for entry in sorted(folder.iterdir())[:MAX_PROBED]:
         try:
+            if input_kind(entry, InputFormatError) == PIPE:
+                continue  # reading one would wait for its writer, and use it up
             if _recognise(Container(entry)) is not None:
                 found.append(entry)
         except (InputFormatError, OSError):

@@ -93,6 +93,48 @@ def file_member(path: Path) -> Member:
     return Member(str(path), lambda: open(path, "rb"), None, size)  # noqa: SIM115 — the caller closes it
 
 
+def spooled_pipe(path: Path, keep: list[object]) -> tuple[IO[bytes], Member]:
+    """A log given as a pipe (``hil replay <(unzip -p export.zip Gyroscope.csv)``, ``curl … | hil replay
+    /dev/stdin``) read to its end into a temporary file (on disk, unlinked at once), at most
+    :data:`~hil.files.bounded.MAX_MEMBER_BYTES` (an error naming it past that): a pipe is read once, from
+    its start, and both an archive's reader and a log's format detection go back in it. The spool (kept
+    in ``keep``) and the pipe's bytes as one member, named as a file of what its first bytes show it to
+    be (:func:`piped_name`)."""
+    where = str(path)
+    spool = tempfile.TemporaryFile()  # noqa: SIM115 — kept open (``keep``) while the log is read
+    keep.append(spool)
+    try:
+        source = open(path, "rb")  # noqa: SIM115 — closed with the reader below
+    except OSError as exc:
+        raise InputFormatError(f"cannot read ({exc.strerror or exc})", where) from None
+    with io.BufferedReader(LimitedReader(source, where, MAX_MEMBER_BYTES)) as f:
+        try:
+            while piece := f.read(CHUNK_BYTES):
+                spool.write(piece)
+        except OSError as exc:
+            raise InputFormatError(f"cannot read ({exc.strerror or exc})", where) from None
+    size = spool.tell()
+    spool.flush()
+    spool.seek(0)
+    return spool, Member(where, _range_opener(spool, 0, size), None, size)
+
+
+_PIPED_SUFFIXES = ((b"MATLAB", ".mat"), (b"\x1f\x8b", ".csv.gz"), (b"[", ".json"), (b"{", ".json"))
+"""A piped file's first bytes (after white space) → the suffix of the file it is: the readers tell a single
+file's format by its name first (a ``.mat``, a ``.json``, a ``.csv``), and a pipe has none."""
+
+
+def piped_name(pipe: Path, spool: IO[bytes]) -> str:
+    """The name a piped single file is read under: the pipe's own (``63`` for ``/dev/fd/63``) with the
+    suffix its first bytes show (:data:`_PIPED_SUFFIXES`; otherwise text: ``.csv``). ``spool`` is left
+    at 0."""
+    spool.seek(0)
+    head = spool.read(64).lstrip()
+    spool.seek(0)
+    suffix = next((s for magic, s in _PIPED_SUFFIXES if head.startswith(magic)), ".csv")
+    return pipe.name + suffix
+
+
 def kind_of(f: IO[bytes]) -> str | None:
     """``"zip"``, ``"tar"`` (plain or compressed) or None for the seekable stream ``f`` (left at 0)."""
     try:

@@ -38,11 +38,14 @@ from numpy.typing import NDArray
 
 from hil.files.bounded import (
     CHUNK_BYTES,
+    FOLDER,
     MAX_DOCUMENT_BYTES,
     MAX_LINE_BYTES,
     MAX_MEMBER_BYTES,
     MAX_MEMBERS,
+    PIPE,
     LimitedReader,
+    input_kind,
     read_lines,
 )
 from hil.logs.archive import (
@@ -52,6 +55,8 @@ from hil.logs.archive import (
     kind_of,
     members_of,
     os_litter,
+    piped_name,
+    spooled_pipe,
     without_suffix,
 )
 from hil.logs.encoding import decode_legacy, decode_text, utf8_stream
@@ -104,13 +109,12 @@ class Container:
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
-        if not self.path.exists():
-            raise InputFormatError("no such file or directory", str(self.path))
+        kind = input_kind(self.path, InputFormatError)  # a device or a socket refused: never opened
         self._members: dict[str, Member] = {}
         self._held: list[object] = []  # open archives and spooled files, kept while the log is read
         self.samples = 0
         self.name = without_suffix(self.path.name)
-        if self.path.is_dir():
+        if kind == FOLDER:
             for p in sorted(self._files()):
                 rel = p.relative_to(self.path).as_posix()
                 if os_litter(rel):
@@ -121,24 +125,36 @@ class Container:
                 for name, member in found or ():  # an export's archive inside a folder
                     self._add(without_suffix(rel) + "/" + name, member)
         else:
-            found = self._archive(self.path)
+            name = self.path.name
+            if kind == PIPE:
+                spool, member = spooled_pipe(self.path, self._held)
+                found, name = self._archive_in(spool, self.path), piped_name(self.path, spool)
+            else:
+                found, member = self._archive(self.path), file_member(self.path)
             if found is None:
-                self._members[self.path.name] = file_member(self.path)
-            for name, member in found or ():
-                self._add(name, member)
+                self._members[name] = member
+            for name, inner in found or ():
+                self._add(name, inner)
 
     def _archive(self, path: Path) -> list[tuple[str, Member]] | None:
-        """The members of the archive at ``path`` (None when it is none), its shared folder noted as the
-        log's name when ``path`` is the log."""
+        """The members of the archive at ``path`` (:meth:`_archive_in`; None when it is none)."""
         try:
             f = open(path, "rb")  # noqa: SIM115 — held (``_held``) while the log is read
         except OSError as exc:
             raise InputFormatError(f"cannot read ({exc.strerror})", str(path)) from None
+        self._held.append(f)
+        found = self._archive_in(f, path)
+        if found is None:
+            self._held.remove(f)
+            f.close()
+        return found
+
+    def _archive_in(self, f: IO[bytes], path: Path) -> list[tuple[str, Member]] | None:
+        """The members of the archive ``f`` (seekable, in ``_held``) read from ``path``, its shared folder
+        noted as the log's name when ``path`` is the log; None when it is no archive."""
         kind = kind_of(f)
         if kind is None:
-            f.close()
             return None
-        self._held.append(f)
         shared, members = members_of(f, str(path), kind, self._held)
         if shared and path == self.path:
             self.name = shared.rstrip("/").rsplit("/", 1)[-1]

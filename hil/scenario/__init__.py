@@ -77,7 +77,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hil.files.bounded import MAX_DOCUMENT_BYTES, load_toml
+from hil.files.bounded import FOLDER, MAX_DOCUMENT_BYTES, input_kind, load_toml
 from protocol.errors import ConfigError, HilError
 
 from .model import Scenario
@@ -97,9 +97,11 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
     """A path as given, or the shipped scenario of that name; :class:`ConfigError` listing the names."""
     p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
+        if not p.exists():
             raise ConfigError("no such scenario file", str(p))
-        return p
+        if input_kind(p, ConfigError, "scenario") == FOLDER:  # a device or a socket raises there
+            raise ConfigError("a folder, not a scenario file", str(p))
+        return p  # a file, or a pipe (``--scenario <(…)``: read once, as load_scenario does)
     shipped = SCENARIO_DIR / f"{name_or_path}.toml"
     if not shipped.is_file():
         raise ConfigError(
