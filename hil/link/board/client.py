@@ -143,7 +143,9 @@ class BoardClient:
                 now = self.clock.now()
                 self._write(self.session.link_up(now), now)
             if not self._wait_until(lambda: self.session.phase is not Phase.HANDSHAKING, timeout):
-                raise LinkTimeout(f"{self.transport.url}: no handshake within {timeout} s")
+                with self._cond:
+                    instead = self.session.heard_instead()
+                raise LinkTimeout(f"{self.transport.url}: no handshake within {timeout} s{instead}")
             with self._cond:
                 self._check()
                 info = self.session.info
@@ -331,8 +333,8 @@ class BoardClient:
                 frames_in=d.frames,
                 bad_frames={reason.value: n for reason, n in d.bad.items()},
                 resyncs=d.resyncs,
-                seq_gaps=d.seq_gaps,
-                duplicates=d.duplicates,
+                seq_gaps=s.seq_gaps,  # the board's frames only: the host's echoes are no gaps
+                duplicates=s.duplicates,
                 commands_sent=cmd.sent + hello.sent,
                 retries=cmd.retransmits + hello.retransmits,
                 acked=cmd.acked + hello.acked,

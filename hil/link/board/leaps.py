@@ -18,8 +18,14 @@ reset or a re-anchoring started from):
 * frames taken: no more than the frames the host has written since the anchor, plus ``FRAMES_SLACK``
   (the host's frames already in flight when the anchor was sent).
 
-The anchor is fixed, not the last sample: measured from the last sample, a burst of frames each a little
-ahead (all read at the same ``now``) would climb without bound. Should the anchor itself be the absurd
+The anchor is not the last sample: measured from the last sample, a burst of frames each a little ahead
+(all read at the same ``now``) would climb without bound. Nor is it fixed for good: a board's clock off by
+more than ``CLOCK_RATE`` — an uncalibrated RC oscillator is off by up to 10 % — drew away from a fixed
+anchor until its honest samples passed the slack (after 55 s at 10 % fast, 8 min at 2 %), then had a
+second of its telemetry refused, and again a minute later, for the whole run. So every ``SLIDE_AFTER_S``
+of host time the anchor moves on to the last sample of an earlier read (the freshest of its burst: a
+backlog read at once after a pause is anchored on its newest frame, not its oldest), and a clock off by
+less than 50 % never draws ``UPTIME_SLACK_MS`` away from it. Should the anchor itself be the absurd
 one (the board's very first sample), every honest sample would be refused from then on; so when samples
 have been refused for ``REANCHOR_AFTER_S`` of host time with none taken in between, the board is
 consistent with itself and the anchor is what is wrong: the sample is let through and anchors the counts
@@ -41,6 +47,8 @@ FRAMES_SLACK = 1_000
 """Frames of the host's the board may count beyond those written since the anchor (in flight then)."""
 REANCHOR_AFTER_S = 1.0
 """Host time (s) of refused samples, none taken between, after which the anchor is taken to be wrong."""
+SLIDE_AFTER_S = 10.0
+"""Host time (s) after which the uptime's anchor moves on to a sample taken since (see the module)."""
 
 
 @dataclass
@@ -81,6 +89,7 @@ class LeapCheck:
     frames: _Count | None = None
     refusing_since: float | None = None  # host time of the first refused sample since one was taken
     reanchoring: bool = False  # the sample refusal() just let through ends a long run of leaps
+    last: tuple[int, float] | None = None  # the last uptime taken (unwrapped) and its host time
 
     def refusal(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> str | None:
         """Why this sample leaps ahead of what the board could have reached; None when it could have, or
@@ -103,7 +112,9 @@ class LeapCheck:
         if self.uptime is None:
             self.uptime = _Count.start(uptime_ms, now)
         else:
+            self._slide(now)
             self.uptime.take(uptime_ms)
+        self.last = (self.uptime.value, now)
         if rx_frames is not None:
             if self.frames is None:
                 self.frames = _Count.start(rx_frames, frames_out)
@@ -112,8 +123,18 @@ class LeapCheck:
 
     def restart(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> None:
         """The board restarted (or the anchor was wrong): this sample anchors its counts."""
-        self.uptime = self.frames = None
+        self.uptime = self.frames = self.last = None
         self.take(uptime_ms, rx_frames, frames_out, now)
+
+    def _slide(self, now: float) -> None:
+        """The uptime's anchor moved on to the last sample taken, if it came in an earlier read (so it was
+        the newest of its read) at least :data:`SLIDE_AFTER_S` after the anchor."""
+        count, last = self.uptime, self.last
+        if count is None or last is None:
+            return
+        value, taken_at = last
+        if taken_at < now and taken_at - count.anchor_host >= SLIDE_AFTER_S:
+            count.anchor_value, count.anchor_host = value, taken_at
 
     def _leap(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> str | None:
         count = self.uptime

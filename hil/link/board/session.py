@@ -38,9 +38,24 @@ a second (``DROP_WARN_EVERY_S``, saying how many more since), never taken as the
 channels: the calibration tools index them by unit and channel), one identical to the telemetry already
 held (a frame repeated by a stuck transmitter or replayed: taken, it would make old telemetry look live),
 and a ``Telemetry`` or ``Heartbeat`` whose uptime or frame count leapt ahead of what the board could have
-reached (:mod:`.leaps`: taken as the reference, the next honest sample looked like a reset). The board's
+reached (:mod:`.leaps`: taken as the reference, the next honest sample looked like a reset). A
+``HelloReply`` no Hello waits for and an ``Ack``/``Nack`` naming no command the host sent are counted by
+the reliable senders and logged the same way (an answer to a command already settled only counted: a
+lossy link's retries make those). The board's last frame repeated (its sequence number again, no
+``RETRANSMIT``: a stuck transmitter, a far side repeating one greeting) is handled as before but not heard:
+it never keeps a silent board looking alive. The board's
 ``Log`` frames are all reported as events, but logged at most ``BOARD_LOGS_PER_S`` a second (a board
 flooding its log must not bury the host's own warnings); the rest are counted.
+
+**The host's own frames coming back** (a port that echoes what is written: a loopback plug, TX joined to
+RX, an echoing RS-485 adapter — :mod:`.echoes`) are told byte for byte from the board's, counted
+(``echoes``) and dropped, warned of once per link; frames of kinds only a host sends that are not its own
+(another host on the line) are counted too (``host_frames``). Neither is heard from the board: they never
+keep a silent board looking alive (``last_heard``, silence), never pass for its Heartbeat (the host's
+says BOOT and the host's clock: a spurious reset), its answers or its calibration fragments, and are left
+out of the sequence numbers' gaps and repeats (:attr:`Session.seq_gaps`, :attr:`Session.duplicates`:
+counted over the board's frames alone, the two ends numbering theirs each on its own). A handshake that no
+board answered says whether the host's frames came back (:class:`LinkTimeout`).
 
 Its configuration, :class:`ClientConfig`, is in :mod:`.config`; the calibration transfers' state
 (:class:`Download`, fragments, reassembly) in :mod:`.transfers`. Both are re-exported here.
@@ -77,6 +92,7 @@ from protocol.messages import (
     Disarm,
     EscCalibrate,
     EscCalibrationStatus,
+    Flags,
     Heartbeat,
     Hello,
     HelloReply,
@@ -92,6 +108,7 @@ from protocol.messages import (
 from protocol.reliable import Command, CommandState, ReliableSender
 
 from .config import HOST_IDENTITY, ClientConfig
+from .echoes import WrittenFrames
 from .events import (
     BoardInfo,
     BoardResetEvent,
@@ -119,6 +136,11 @@ DROP_WARN_EVERY_S = 1.0
 AGE_SLACK_S = 0.5
 """s: how much younger than the time it had been known to run a board answering a reconnect may seem
 (its first sample's latency, its clock's tick) before it is taken to have restarted meanwhile."""
+RATE_BASELINE_S = 10.0
+"""Host time (s) over which the board's samples must spread before its clock's rate against the host's is
+taken from them (for :meth:`Session._younger_than_known`; shorter, the samples' latency would dominate)."""
+SLOWEST_RATE = 0.5
+"""The slowest a board's clock is taken to run against the host's, however slow its samples make it seem."""
 BOARD_LOGS_PER_S = 20
 """The board's ``Log`` frames logged per second of host time; beyond, counted (``board_logs_unlogged``)."""
 _LOG_LEVELS = {
@@ -170,7 +192,14 @@ class Session:
         self.failure: HilError | None = None  # why the last handshake failed (HandshakeError, LinkTimeout)
         self.pending_reset: PendingReset | None = None
         self.armed = False  # the host armed the board (acknowledged) and has not disarmed it since
-        self.last_heard: float | None = None  # host time of the last valid frame from the board
+        # host time of the board's last new frame (the host's own come back, and a frame repeated, left out)
+        self.last_heard: float | None = None
+        self.seq_gaps = 0  # board frames missing by their sequence numbers (the host's echoes left out)
+        self.duplicates = 0  # board frames repeating the last one's sequence number
+        self._board_seq: int | None = None  # the sequence number of the board's last frame on this link
+        self._written = WrittenFrames()  # what the host wrote lately: its echoes are told by it
+        self._echoes_at_link_up = 0  # counters.echoes when the link came up
+        self._host_frames_at_link_up = 0  # counters.host_frames when the link came up
         self._events: list[Event] = []
         self._out = bytearray()
         self._now = 0.0
@@ -182,6 +211,7 @@ class Session:
         # (board uptime s, host time s): the board's current boot had run at least that long by then (its
         # first answer: 0 s; then each sample taken). None after a reset seen: the coming answer sets it.
         self._ran: tuple[float, float] | None = None
+        self._clock_base: tuple[float, float] | None = None  # (uptime s, host s): this boot's first sample
         self._link_up_at = 0.0  # host time of the last link_up() (a reconnect's Hello went out after it)
         self._age_check_from: float | None = None  # set by a reconnect: its first sample's age is checked
         self._last_rx_frames: int | None = None  # the board's count of valid frames taken, since its boot
@@ -211,6 +241,9 @@ class Session:
         self.phase = Phase.HANDSHAKING
         self.failure = None
         self.deframer.reset()
+        self._board_seq = None
+        self._echoes_at_link_up = self.counters.echoes
+        self._host_frames_at_link_up = self.counters.host_frames
         self.last_heard = now
         self._silent = False
         self._hello(now)
@@ -228,6 +261,7 @@ class Session:
         self._armed_at_loss = self._armed_at_loss or (was_up and self.armed)
         self.counters.link_losses += was_up
         self.deframer.reset()
+        self._board_seq = None
         self._pending_setpoint = None
         why = f"link lost: {reason}"
         self.hellos.abandon(now, why)
@@ -334,15 +368,81 @@ class Session:
     def _on_frame(self, frame: Frame, now: float) -> None:
         if self.phase is Phase.DOWN:
             return  # bytes still in flight from a link that is gone
+        receive = self._receive[type(frame.message)]
+        if type(frame.message) in HOST_WRITES and self._from_host(frame, now):
+            return
+        if self._count_board_seq(frame):
+            receive(frame, now)  # taken as before (a repeated Telemetry is dropped there), but not heard
+            return
         self.last_heard = now
         if self._silent:
             self._silent = False
             self._emit(SilenceEvent(now, now, ended=True))
-        self._receive[type(frame.message)](frame, now)
+        receive(frame, now)
+
+    def _from_host(self, frame: Frame, now: float) -> bool:
+        """Whether ``frame`` (of a kind the host writes) is a host's, not the board's: the host's own come
+        back (counted in ``echoes``, warned of at the first on this link) or another host's (a kind only
+        a host sends, not one this host wrote: ``host_frames``). Either is dropped, never heard from the
+        board."""
+        counters = self.counters
+        if self._written.came_back(frame, now):
+            counters.echoes += 1
+            if counters.echoes == self._echoes_at_link_up + 1:
+                logger.warning(
+                    "the port echoes what the host writes (its %s came back): a loopback plug, TX joined to "
+                    "RX or an echoing adapter; echoes are dropped and counted",
+                    type(frame.message).__name__,
+                )
+            return True
+        if type(frame.message) not in HOST_ONLY:
+            return False  # a kind both ends send, not one of ours: the board's
+        counters.host_frames += 1
+        if counters.host_frames == self._host_frames_at_link_up + 1:
+            logger.warning(
+                "a %s arrived that this host did not write: another host is on the line (crossed "
+                "wires?); such frames are dropped and counted",
+                type(frame.message).__name__,
+            )
+        return True
+
+    def _count_board_seq(self, frame: Frame) -> bool:
+        """The board's sequence numbers, step by step: a jump of k > 1 is k - 1 frames lost, a repeat a
+        duplicate. Counted here, not from the deframer's, which numbers every frame read — the host's
+        echoes among them, each of those a false gap. Returns whether ``frame`` repeats the last one's
+        number and is no retry: the same frame again (a transmitter stuck on it, a far side repeating one
+        greeting to everything), which is no sign of a live board — it must not keep one looking alive."""
+        seq = frame.seq
+        last, self._board_seq = self._board_seq, seq
+        if last is None:
+            return False
+        step = (seq - last) & 0xFF
+        if step == 0:
+            self.duplicates += 1
+            return not frame.flags & Flags.RETRANSMIT
+        if step > 1:
+            self.seq_gaps += step - 1
+        return False
 
     # ------------------------------------------------------------------ RECEIVE's handlers
     def _on_hello_reply_frame(self, frame: Frame, now: float) -> None:
-        self.hellos.on_frame(frame, now)
+        """Settles the handshake's Hello; one no Hello waits for is counted there (late or unmatched) and
+        dropped here, logged saying whose it is."""
+        if self.hellos.on_frame(frame, now) is None:
+            self._drop(now, f"a HelloReply no Hello was waiting for, {self._whose(frame.message)}")
+
+    def _whose(self, reply: HelloReply) -> str:
+        """Whose an unasked-for HelloReply is, against the session's board."""
+        info = BoardInfo.from_reply(reply)
+        if (reply.protocol_version, reply.schema_hash) != (PROTOCOL_VERSION, self.config.schema_hash):
+            return (
+                f"from a board of protocol {reply.protocol_version}, schema hash {reply.schema_hash:#010x} "
+                f"(not this host's): {info.describe()}"
+            )
+        held = self.info
+        if held is not None and (held.identity, held.n_units) != (info.identity, info.n_units):
+            return f"from another board than the session's: {info.describe()}"
+        return "from the session's board"
 
     def _on_telemetry(self, frame: Frame, now: float) -> None:
         msg: Telemetry = frame.message
@@ -403,12 +503,23 @@ class Session:
         self._emit(EscCalibrationEvent(now, frame.message))
 
     def _on_answer(self, frame: Frame, now: float) -> None:
-        """An Ack or Nack: settles the command it answers (a stray one is counted there)."""
+        """An Ack or Nack: settles the command it answers. A stray one is counted there: a late one (the
+        answer to an earlier try, a board answering twice) quietly, one naming no command the host sent
+        (a flood of them) also logged, at the drop warnings' rate."""
+        stats = self.commands.stats
+        unmatched = stats.unmatched_answers
         self.commands.on_frame(frame, now)
+        if stats.unmatched_answers != unmatched:
+            msg: Ack | Nack = frame.message
+            self._drop(
+                now,
+                f"a {type(msg).__name__} naming no command the host sent (message id {msg.msg_id:#04x}, "
+                f"seq {msg.seq})",
+            )
 
     def _on_not_ours(self, frame: Frame, now: float) -> None:
-        """A host-to-board message come back (a loopback, a crossed wire): nothing to do; it still showed
-        the link alive (``last_heard``)."""
+        """A host-to-board message: never reached (:meth:`_from_host` counts and drops it first)."""
+        raise AssertionError(f"a {type(frame.message).__name__} from the host reached its handler")
 
     def _board_clock(
         self, uptime_ms: int, state: BoardState | None, now: float, rx_frames: int | None = None
@@ -458,10 +569,13 @@ class Session:
             self._leaps.take(uptime_ms, rx_frames, frames_out, now)
             if not self._lost:  # a reconnect's samples before its answer are checked by the first after it
                 self._ran = (uptime_ms / 1000.0, now)
+                if self._clock_base is None:
+                    self._clock_base = self._ran
             return True
         self._leaps.restart(uptime_ms, rx_frames, frames_out, now)  # the counts of a new boot
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
         self._ran = (uptime_ms / 1000.0, now) if reply is not None else None  # else: the coming answer's
+        self._clock_base = self._ran
         if self.armed and self.state is not BoardState.ARMED:
             self.armed = False
             self.pending_reset = PendingReset(now, evidence)
@@ -491,18 +605,33 @@ class Session:
         (no sample yet) and restarted seconds before the host found it again passed for the same board,
         its reset never reported. Measured from the last sample, not from the boot: an emulated board's
         clock falls behind the wall when its process is not run (simavr's harness under load), and over a
-        whole run that lag would pass for a restart; over an outage it stays within the slack."""
+        whole run that lag would pass for a restart; over an outage it stays within the slack. A board
+        whose clock its own samples showed slower than the host's (:meth:`_board_rate`: an uncalibrated RC
+        oscillator runs up to 10 % slow) is allowed that rate: at the 1 % alone, a board 10 % slow was
+        reported reset after every outage longer than 5.5 s."""
         if self._ran is None:
             return None
         ran_s, heard_at = self._ran
         since_s = hello_at - heard_at  # the sample left the board after our Hello reached it
         uptime_s = uptime_ms / 1000.0
-        if (uptime_s - ran_s) * CLOCK_RATE + AGE_SLACK_S >= since_s:
+        rate = self._board_rate()
+        if (uptime_s - ran_s) * CLOCK_RATE / rate + AGE_SLACK_S >= since_s:
             return None
+        slow = f", its clock taken to run at {rate:.1%} of the host's" if rate < 1.0 else ""
         return (
-            f"its uptime ({uptime_ms} ms) is shorter than the {ran_s + since_s:.3f} s the board had run "
-            f"(it was at {ran_s:.3f} s at t={heard_at:.3f} s): it restarted while the link was down"
+            f"its uptime ({uptime_ms} ms) is shorter than the {ran_s + since_s * rate:.3f} s the board had "
+            f"run (it was at {ran_s:.3f} s at t={heard_at:.3f} s{slow}): it restarted while the link was down"
         )
+
+    def _board_rate(self) -> float:
+        """How fast the board's clock ran against the host's over this boot's samples (board s per host s),
+        at most 1 — a board's clock seeming fast is no reason to expect more of it, an emulator's falls
+        behind when it is not run — at least :data:`SLOWEST_RATE`; 1 until they spread over
+        :data:`RATE_BASELINE_S`."""
+        base, ran = self._clock_base, self._ran
+        if base is None or ran is None or ran[1] - base[1] < RATE_BASELINE_S:
+            return 1.0
+        return min(max((ran[0] - base[0]) / (ran[1] - base[1]), SLOWEST_RATE), 1.0)
 
     def _set_state(self, state: BoardState, now: float) -> None:
         old = self.state
@@ -537,8 +666,29 @@ class Session:
         if cmd.state is CommandState.ACKED:
             self._on_hello_reply(cmd.reply, now)
         elif self.phase is Phase.HANDSHAKING:  # not abandoned by link_down: the board never answered
-            self.failure = LinkTimeout(f"the board did not answer the handshake ({cmd.failure})")
+            self.failure = LinkTimeout(
+                f"the board did not answer the handshake ({cmd.failure}){self.heard_instead()}"
+            )
             self.link_down(now, str(self.failure))
+
+    def heard_instead(self) -> str:
+        """What came back in place of the board's answer since the link came up, said for the operator
+        (empty if nothing did): the host's own frames (the port echoes), or another host's."""
+        echoes = self.counters.echoes - self._echoes_at_link_up
+        others = self.counters.host_frames - self._host_frames_at_link_up
+        said = ""
+        if echoes:
+            said += (
+                f"; {echoes} of the frames the host wrote came back as written: the port echoes what the "
+                "host sends (a loopback plug, TX joined to RX, an echoing RS-485 adapter) — is the board "
+                "on this port, and powered?"
+            )
+        if others:
+            said += (
+                f"; {others} frames only a host sends came from the far side: another host is on the "
+                "line, not a board (crossed wires?)"
+            )
+        return said
 
     def _on_hello_reply(self, reply: HelloReply, now: float) -> None:
         info = BoardInfo.from_reply(reply)
@@ -658,6 +808,7 @@ class Session:
             self._out += data
             self._last_tx = now
             self.counters.frames_out += data.count(0)  # every frame ends with its only 0x00
+            self._written.wrote(data, now)
 
     def _take(self) -> bytes:
         out = bytes(self._out)
@@ -705,6 +856,15 @@ RECEIVE: dict[type[Message], Receive] = {
 """What the host's session does with each message of the catalogue (``protocol.messages.CATALOGUE``) that
 arrives from the board, by type. Every catalogue message has an entry — ``tests/test_message_dispatch.py``
 fails naming one that has not (docs/protocol.md, "Adding a message")."""
+
+HOST_ONLY: frozenset[type[Message]] = frozenset(
+    cls for cls, receive in RECEIVE.items() if receive is Session._on_not_ours
+)
+"""The kinds of frame only a host sends: one arriving is a host's, this one's come back or another's."""
+HOST_WRITES: frozenset[type[Message]] = HOST_ONLY | {Heartbeat, Ack, Nack, CalibrationData}
+"""The kinds of frame this host writes: the host-to-board ones and those both ends send (its heartbeats,
+its answers to a download's fragments, an upload's fragments). One of them arriving may be the host's own
+come back (:mod:`.echoes`)."""
 
 
 def _went_back(last: int, now: int) -> bool:

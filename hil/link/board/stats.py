@@ -66,13 +66,16 @@ class SessionCounters:
     board_leaps: int = 0  # Telemetry/Heartbeat whose uptime or frame count leapt ahead: dropped
     board_reanchors: int = 0  # leaps so consistent that the first counts heard were the absurd ones
     board_logs_unlogged: int = 0  # board Log frames beyond BOARD_LOGS_PER_S: reported as events, not logged
+    echoes: int = 0  # the host's own frames come back (the port echoes what is written): dropped
+    host_frames: int = 0  # frames only a host sends that this host did not write (another host): dropped
 
 
 @dataclass(frozen=True)
 class LinkStats:
-    """A snapshot of the link. ``bad_frames`` by ``BadFrameReason`` value; ``board_*`` are the board's
-    own counters of what it received from the host (from its latest Telemetry); ``transport`` holds the
-    transport's own counters (CAN segments, ...)."""
+    """A snapshot of the link. ``bad_frames`` by ``BadFrameReason`` value; ``seq_gaps`` and ``duplicates``
+    over the board's frames alone (the host's own come back are ``counters.echoes``); ``board_*`` are the
+    board's own counters of what it received from the host (from its latest Telemetry); ``transport``
+    holds the transport's own counters (CAN segments, ...)."""
 
     bytes_in: int
     bytes_out: int

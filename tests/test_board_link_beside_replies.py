@@ -1,0 +1,134 @@
+"""Far sides that answer, but wrongly: one HelloReply repeated to every frame, a HelloReply of another
+protocol version in the middle of a session, a flood of Nacks naming nothing the host sent, every command
+answered twice — through the sans-IO session with injected time.
+
+Before the fixes: the same HelloReply frame repeated (a far side stuck on its greeting) kept the link
+looking alive for ever — ``last_heard`` moving, no silence reported — while no command was answered; the
+unasked-for HelloReplies (another protocol's among them) and the Nacks naming no command were counted in
+the reliable senders' statistics and nowhere said: no log line told the operator what the far side did.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from test_board_link_beside_echo import hello_reply, telemetry
+
+from hil.link.board import Phase, Session, SilenceEvent
+from hil.link.board.session import DROP_WARN_EVERY_S
+from protocol.frame import Framer
+from protocol.messages import PROTOCOL_VERSION, Ack, Arm, HelloReply, Nack, NackReason
+
+LOGGER = "hil.link.board.session"
+
+
+def connected() -> tuple[Session, Framer]:
+    s = Session()
+    s.link_up(0.0)
+    board = Framer()
+    s.feed(board.encode(hello_reply())[1], 0.01)
+    assert s.phase is Phase.READY
+    s.take_events()
+    return s, board
+
+
+class Recorder(logging.Handler):
+    """The messages logged through it (caplog is function-scoped: not for a Hypothesis test's examples)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+def drops(caplog: pytest.LogCaptureFixture, text: str) -> list[str]:
+    return [r.getMessage() for r in caplog.records if r.name == LOGGER and text in r.getMessage()]
+
+
+def test_one_hello_reply_repeated_to_every_frame_is_silence_not_a_live_board(caplog):
+    """The far side answers each of the host's frames with the very HelloReply frame that answered its
+    Hello: the session stays with the board it had, its Arm goes unanswered (a typed failure), the repeats
+    are counted and logged at the drop warnings' rate, and the silence is reported: no frame of the
+    board's since its greeting."""
+    s = Session()
+    greeting = Framer().encode(hello_reply())[1]
+    s.link_up(0.0)
+    s.feed(greeting, 0.01)
+    arm, out = s.command(Arm(), 0.02)
+    t = 0.02
+    with caplog.at_level(logging.WARNING, LOGGER):
+        while t < 3.0:
+            s.feed(greeting * max(out.count(0), 1), t + 0.001)  # one greeting per frame the host wrote
+            t = round(t + 0.01, 6)
+            out = s.poll(t)
+    assert arm.done and not arm.ok and "no answer after" in arm.failure
+    assert s.last_heard == 0.01
+    silences = [e for e in s.take_events() if isinstance(e, SilenceEvent)]
+    assert [e.ended for e in silences] == [False] and silences[0].since == 0.01
+    said = drops(caplog, "a HelloReply no Hello was waiting for, from the session's board")
+    assert 2 <= len(said) <= 3.0 / DROP_WARN_EVERY_S + 1
+    assert s.hellos.stats.late_answers > 100 and s.phase is Phase.READY and s.counters.handshakes == 1
+
+
+def test_a_hello_reply_of_another_protocol_mid_session_is_dropped_and_said(caplog):
+    """Unasked for, in the middle of a session: the session keeps its board and its telemetry flowing;
+    the reply is counted and logged naming its protocol version."""
+    s, board = connected()
+    other = HelloReply(protocol_version=PROTOCOL_VERSION + 1, n_units=2, model="OTHER")
+    with caplog.at_level(logging.WARNING, LOGGER):
+        s.feed(board.encode(telemetry(1_000))[1], 0.1)
+        s.feed(board.encode(other)[1], 0.2)
+        s.feed(board.encode(telemetry(1_200))[1], 0.3)
+    assert s.phase is Phase.READY and s.info is not None and s.info.identity.model == "SCRIPTED"
+    assert s.telemetry is not None and s.telemetry.time_ms == 1_200
+    assert s.hellos.stats.late_answers == 1
+    (said,) = drops(caplog, "a HelloReply no Hello was waiting for")
+    assert f"from a board of protocol {PROTOCOL_VERSION + 1}" in said and "OTHER" in said
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(flood=st.integers(1, 3_000), span_s=st.floats(0.0, 5.0))
+def test_a_flood_of_nacks_naming_nothing_is_counted_and_logged_at_a_bounded_rate(flood, span_s):
+    """Nacks naming no command the host sent, ``flood`` of them over ``span_s``: each counted, at most one
+    warning per DROP_WARN_EVERY_S (the next one saying how many since); the Arm in flight among them is
+    settled by its own Ack, once."""
+    s, board = connected()
+    arm, _ = s.command(Arm(), 0.02)
+    handler = Recorder()
+    records = handler.messages
+    logger = logging.getLogger(LOGGER)
+    logger.addHandler(handler)
+    try:
+        for k in range(flood):
+            t = 0.03 + span_s * k / flood
+            nack = Nack(msg_id=0x11, seq=(arm.seq + 1 + k) % 256, reason=NackReason.BAD_STATE)
+            s.feed(board.encode(nack)[1], t)
+            if k == flood // 2:
+                s.feed(board.encode(Ack(msg_id=arm.msg_id, seq=arm.seq))[1], t)
+    finally:
+        logger.removeHandler(handler)
+    assert arm.ok and s.commands.stats.acked == 1
+    assert s.commands.stats.unmatched_answers == flood
+    said = [m for m in records if "naming no command the host sent" in m]
+    assert 1 <= len(said) <= span_s / DROP_WARN_EVERY_S + 1
+
+
+def test_every_command_answered_twice_settles_once_and_counts_the_second_quietly(caplog):
+    """A board answering each command twice: each command settles once, the second answer is a late
+    one (counted), and nothing is logged for it — a lossy link's retries make such answers every day."""
+    s, board = connected()
+    with caplog.at_level(logging.WARNING, LOGGER):
+        for k in range(5):
+            cmd, _ = s.command(Arm(), 0.1 * k + 0.02)
+            ack = board.encode(Ack(msg_id=cmd.msg_id, seq=cmd.seq))[1]
+            s.feed(ack, 0.1 * k + 0.03)
+            s.feed(board.encode(Ack(msg_id=cmd.msg_id, seq=cmd.seq))[1], 0.1 * k + 0.031)
+            assert cmd.ok
+    stats = s.commands.stats
+    assert (stats.acked, stats.late_answers, stats.unmatched_answers) == (5, 5, 0)
+    assert not drops(caplog, "dropped")
