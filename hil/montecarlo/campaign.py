@@ -48,7 +48,7 @@ from protocol.errors import ConfigError, LinkError
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
 from .runner import CHECK_COLUMNS, RunResult, describe, run_one
-from .store import ResultStore, manifest, read_runs
+from .store import ResultStore, checked_write, manifest, read_runs
 from .summary import summarise
 
 logger = logging.getLogger(__name__)
@@ -65,6 +65,13 @@ IN_FLIGHT_PER_WORKER = 4
 few on each), few enough that a campaign of millions of runs holds only these in the driver and the
 scheduler; the next chunk is submitted as one finishes."""
 DEFAULT_TRACE_HZ = 5.0
+WORKER_TTL_S = 15.0
+"""How long a LocalCluster's scheduler waits for a worker's heartbeat (sent every 0.5 s, from a thread of
+its own, whatever the worker runs) before its nanny restarts it and Dask reruns its chunks elsewhere. A
+worker process stopped (SIGSTOP, a debugger, a frozen container) held its chunks, and the campaign, for
+Dask's default of 5 minutes plus up to 5 more (the scheduler looks once per TTL); now 15 to 30 s. Dask
+never waits less than 10 heartbeats (5 s). A scheduler of your own keeps its own setting
+(``distributed.scheduler.worker-ttl``)."""
 RESULTS_TOPIC = "hil-montecarlo-results"
 """The scheduler event topic the workers send each finished run on. One topic for every campaign (a
 session's events carry its token): the scheduler keeps the last ``distributed.admin.low-level-log-length``
@@ -186,11 +193,16 @@ class CampaignReport:
 
 @contextmanager
 def open_client(
-    scheduler: str | None = None, workers: int | None = None, processes: bool = True, timeout_s: float = 10.0
+    scheduler: str | None = None,
+    workers: int | None = None,
+    processes: bool = True,
+    timeout_s: float = 10.0,
+    worker_ttl_s: float = WORKER_TTL_S,
 ) -> Iterator[Any]:
     """A :class:`distributed.Client`: on the running scheduler at ``scheduler`` (``tcp://host:8786``), or
     on a LocalCluster of ``workers`` single-threaded workers (default: one per core), as processes (or
-    threads of this process with ``processes=False``: for tests and debugging). Closed on exit."""
+    threads of this process with ``processes=False``: for tests and debugging), whose scheduler restarts a
+    worker silent for ``worker_ttl_s`` (:data:`WORKER_TTL_S`). Closed on exit."""
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
@@ -210,13 +222,17 @@ def open_client(
                 f"no Dask scheduler at {scheduler}: what answered there did not speak Dask's protocol "
                 f"({describe(exc)})"
             ) from exc
-        with client:
+        try:
             yield client
+        finally:
+            with interrupts_deferred():  # see below: a second Ctrl-C waits for the close
+                client.close()
         return
     n = workers if workers is not None else available_cores()
     if n < 1:
         raise ConfigError(f"must be at least 1, got {n}", "workers")
-    with ExitStack() as stack:
+    stack = ExitStack()
+    try:
         with interrupts_deferred():  # a cluster interrupted half-started left a traceback at exit
             cluster = stack.enter_context(
                 LocalCluster(
@@ -226,10 +242,17 @@ def open_client(
                     dashboard_address="127.0.0.1:0",
                     silence_logs=logging.ERROR,
                     preload=[__name__] if processes else [],  # dask_setup below: Ctrl-C is the driver's
+                    scheduler_kwargs={"worker_ttl": worker_ttl_s},
                 )
             )
             client = stack.enter_context(Client(cluster))
         yield client
+    finally:
+        # Ctrl-C pressed twice: the second came while the first's close was under way (well under a
+        # second), threw it away half done, and Dask's exit hook then took 10 s more to close the
+        # half-closed cluster after the command had said it was interrupted. Held until it is closed.
+        with interrupts_deferred():
+            stack.close()
 
 
 def check_address(scheduler: str) -> None:
@@ -458,19 +481,33 @@ class _Driver:
                     kind, item = self.events.get(timeout=self._WAIT_S)
                 except queue.Empty:
                     continue
-                if kind == "result":
-                    self._streamed(item)
-                elif kind == "done":
-                    self._chunk_done(item)
-                    self._submit(chunk_indices, workers)
-                else:
-                    self._cluster_event(*item)
+                self._handle(kind, item, chunk_indices, workers)
+            # What came while the last chunk was read is handled too: a worker lost holding that chunk's
+            # result (stopped, then restarted by its nanny) held the read up until Dask had rerun it, and
+            # its loss, queued meanwhile, was left unread: not reported, not counted in summary.json.
+            while True:
+                try:
+                    kind, item = self.events.get_nowait()
+                except queue.Empty:
+                    break
+                self._handle(kind, item, chunk_indices, workers)
         except BaseException:
             client.cancel([future for future, _ in self.chunks.values()])
             raise
         finally:
             client.unsubscribe_topic(RESULTS_TOPIC)
             client.unsubscribe_topic("all")
+
+    def _handle(self, kind: str, item: Any, chunk_indices: Iterator[list[int]], workers: int) -> None:
+        """One event from the queue: a streamed result, a chunk done (and the next submitted), or the
+        cluster's news."""
+        if kind == "result":
+            self._streamed(item)
+        elif kind == "done":
+            self._chunk_done(item)
+            self._submit(chunk_indices, workers)
+        else:
+            self._cluster_event(*item)
 
     def _submit(self, chunk_indices: Iterator[list[int]], workers: int) -> None:
         """Submit chunks until :data:`IN_FLIGHT_PER_WORKER` per worker (those it started with, plus those
@@ -560,7 +597,9 @@ def summarise_dir(
     if workers_lost is None:
         workers_lost = _previous_workers_lost(Path(out_dir) / SUMMARY)
     summary["workers_lost"] = workers_lost
-    write_summary(out_dir, summary)
+    # a full disk, or a directory where summary.json (or its temporary) should be, was an OSError's
+    # traceback after every run had finished: an error naming the file (status 2), the runs on disk
+    checked_write(Path(out_dir) / SUMMARY, lambda: write_summary(out_dir, summary))
     return summary
 
 

@@ -19,12 +19,18 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
+from hil.files.output import make_dir
+
 from .metrics import METRICS, TRACES
-from .store import Results, read_manifest, read_runs, read_traces
+from .store import Results, checked_write, read_manifest, read_runs, read_traces
 from .summary import requirements
 
 WORST_FRACTION = 0.05
 MAX_SCATTER_PANELS = 16
+PLOT_LIMIT = 1e300
+"""Values beyond ± this are left out of the figures (a histogram's title counts them): no metric or
+parameter of a run is that large, but an edited runs.csv may say so, and matplotlib's tick locator loops
+for ever on an axis near the largest float (2**1023), its transforms fail beyond."""
 
 
 def plot_campaign(
@@ -34,8 +40,7 @@ def plot_campaign(
     out = Path(out_dir)
     results = read_runs(out)
     info = read_manifest(out)
-    plots = out / "plots"
-    plots.mkdir(exist_ok=True)
+    plots = make_dir(out / "plots")  # a file of that name is a ConfigError naming it, not a traceback
     drawn: dict[str, Path] = {}
     if results.ok.any():
         limits = {m: lim for m, lim in requirements(info["duration_s"], settle_deg, max_gimbal_rate).values()}
@@ -58,9 +63,11 @@ def _grid(count: int, ncols: int, size: tuple[float, float]) -> tuple[Figure, li
 
 
 def _save(fig: Figure, path: Path) -> Path:
+    """Draw ``fig`` into ``path``; a write the OS refuses (a full disk, a directory of that name) is a
+    ConfigError naming the file, as the campaign's other files' are."""
     FigureCanvasAgg(fig)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    checked_write(path, lambda: fig.savefig(path, dpi=100))
     return path
 
 
@@ -69,17 +76,48 @@ def _histograms(results: Results, limits: dict[str, float], path: Path) -> Path:
     fig, axes = _grid(len(names), 4, (3.6, 2.8))
     for ax, name in zip(axes, names, strict=True):
         values = results.values[name][results.ok]
-        finite = values[np.isfinite(values)]
+        finite = values[_plottable(values)]
         never = int(np.sum(np.isinf(values)))
+        off_scale = len(values) - len(finite) - never - int(np.sum(np.isnan(values)))
         if len(finite):
-            ax.hist(finite, bins=min(40, max(5, len(finite) // 5)), color="tab:blue", alpha=0.8)
+            edges = _bin_edges(finite, min(40, max(5, len(finite) // 5)))
+            ax.hist(finite, bins=edges, color="tab:blue", alpha=0.8)
         if name in limits:
             ax.axvline(limits[name], color="r", ls="--", lw=1.0, label="requirement")
             ax.legend(fontsize=7)
-        ax.set_title(name + (f" ({never} never)" if never else ""), fontsize=9)
+        notes = [f"{never} never"] * bool(never) + [f"{off_scale} off the scale"] * bool(off_scale)
+        ax.set_title(name + (f" ({', '.join(notes)})" if notes else ""), fontsize=9)
         ax.grid(alpha=0.3)
     fig.suptitle(f"{int(results.ok.sum())} ok runs of {len(results)}")
     return _save(fig, path)
+
+
+def _plottable(values: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Where ``values`` can be drawn: finite, within ±:data:`PLOT_LIMIT`."""
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(values) & (np.abs(values) <= PLOT_LIMIT)
+
+
+def _varies(values: NDArray[np.float64]) -> bool:
+    """Whether the drawable ``values`` take more than one value."""
+    shown = values[_plottable(values)]
+    return len(shown) > 1 and bool(np.ptp(shown) > 0)
+
+
+def _bin_edges(values: NDArray[np.float64], count: int) -> NDArray[np.float64]:
+    """``count`` bins over ``values`` (finite), as numpy makes them; values it cannot split into that
+    many bins get wider ones about their centre, at least numpy's own ±0.5 for equal values. A metric
+    equal in every run up to rounding (``peak_error_deg``, the slew's angle, 19.99999999999998 and
+    19.999999999999982) had numpy refuse ("Too many bins for data range") and the campaign end in a
+    ValueError after its last run."""
+    try:
+        return np.histogram_bin_edges(values, bins=count)
+    except ValueError:  # a span of a few ulps (or one beyond the largest float) is no range of bins
+        pass
+    lo, hi = float(values.min()), float(values.max())
+    centre = lo / 2 + hi / 2
+    half = max(0.5, abs(centre) * 1e-6, hi / 2 - lo / 2)
+    return centre + half * np.linspace(-1.0, 1.0, count + 1)  # not linspace(lo, hi): hi - lo may overflow
 
 
 def _envelopes(traces: NDArray[np.float32], trace_hz: float, settle_deg: float, path: Path) -> Path:
@@ -106,10 +144,10 @@ def _envelopes(traces: NDArray[np.float32], trace_hz: float, settle_deg: float, 
 
 
 def _scatter(results: Results, metric: str, path: Path) -> Path:
-    ok = results.ok & np.isfinite(results.values.get(metric, np.full(len(results), np.nan)))
+    ok = results.ok & _plottable(results.values.get(metric, np.full(len(results), np.nan)))
     y = results.values[metric][ok]
     index = results.index[ok]
-    params = [c for c in results.parameter_columns() if len(y) > 1 and np.ptp(results.values[c][ok]) > 0]
+    params = [c for c in results.parameter_columns() if _varies(results.values[c][ok])]
     ranked = sorted(((abs(_spearman(results.values[c][ok], y)), c) for c in params), reverse=True)
     ranked = ranked[:MAX_SCATTER_PANELS]
     fig, axes = _grid(max(len(ranked), 1), 4, (3.6, 2.8))
@@ -119,9 +157,10 @@ def _scatter(results: Results, metric: str, path: Path) -> Path:
     is_worst[worst] = True
     for ax, (_, name) in zip(axes, ranked, strict=False):
         x = results.values[name][ok]
-        ax.scatter(x[~is_worst], y[~is_worst], s=6, color="tab:blue", alpha=0.6)
-        ax.scatter(x[is_worst], y[is_worst], s=14, color="tab:red", label=f"worst {n_worst}")
-        for k in worst[:3]:
+        shown = _plottable(x)
+        ax.scatter(x[~is_worst & shown], y[~is_worst & shown], s=6, color="tab:blue", alpha=0.6)
+        ax.scatter(x[is_worst & shown], y[is_worst & shown], s=14, color="tab:red", label=f"worst {n_worst}")
+        for k in (k for k in worst[:3] if shown[k]):
             ax.annotate(str(index[k]), (x[k], y[k]), fontsize=6, xytext=(2, 2), textcoords="offset points")
         ax.set_title(f"{name}  (ρ = {_spearman(x, y):+.2f})", fontsize=8)
         ax.set_ylabel(metric, fontsize=7)

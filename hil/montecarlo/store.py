@@ -12,7 +12,8 @@ Layout of ``OUT``::
     summary.json    percentiles and pass rates (rewritten at the end of every session)
     plots/          histograms, error envelopes, parameter-vs-metric scatter
 
-A SIGKILL can leave a torn last line or record; opening the directory again cuts it off (and a trace
+One session writes a directory at a time (:func:`_lock_dir`: a second is a ConfigError naming it). A SIGKILL
+can leave a torn last line or record; opening the directory again cuts it off (and a trace
 whose row never made it is ignored, then written again with the run; an empty runs.csv starts afresh). A
 directory this campaign cannot resume — a manifest that is not a JSON object, results without a manifest, a
 runs.csv under another header, a file that is not a regular file — is a ConfigError naming the file, as is
@@ -22,6 +23,7 @@ a write the OS refuses (a full disk); a row whose index or metric is not a numbe
 from __future__ import annotations
 
 import csv
+import fcntl
 import hashlib
 import io
 import json
@@ -41,7 +43,7 @@ from numpy.typing import NDArray
 from hil.files.bounded import MAX_DOCUMENT_BYTES, load_json
 from hil.files.output import make_dir
 from hil.scenario.paths import read_text
-from protocol.errors import ConfigError, InputFormatError
+from protocol.errors import ConfigError, HilError, InputFormatError
 
 from .metrics import METRICS, TRACES, trace_length
 from .runner import CHECK_COLUMNS, RunResult
@@ -118,6 +120,16 @@ class ResultStore:
         self.columns: list[str] = list(manifest["columns"])
         self.dtype = trace_dtype(int(manifest["trace_samples"]))
         make_dir(self.dir)
+        self._lock: int | None = _lock_dir(self.dir)
+        try:
+            self._open()
+        except BaseException:
+            self._unlock()
+            raise
+
+    def _open(self) -> None:
+        """Check the directory against the manifest, repair a torn tail, read the finished runs, and open
+        runs.csv and traces.bin for appending."""
         path = self.dir / MANIFEST
         runs, traces = self.dir / RUNS, self.dir / TRACE_FILE
         for file in (path, runs, traces):
@@ -133,7 +145,7 @@ class ResultStore:
                         str(orphan),
                     )
             tmp = path.with_suffix(".json.tmp")
-            _write(tmp, lambda: tmp.write_text(json.dumps(self.manifest, indent=2) + "\n"))
+            checked_write(tmp, lambda: tmp.write_text(json.dumps(self.manifest, indent=2) + "\n"))
             os.replace(tmp, path)
         if runs.exists():
             _cut_torn_tail(runs, _last_line_end)
@@ -145,11 +157,11 @@ class ResultStore:
         # an empty runs.csv (a session stopped before its header reached the disk) is a new one
         new = not runs.exists() or runs.stat().st_size == 0
         self.finished: set[int] = set() if new else set(read_runs(self.dir).index.tolist())
-        self._rows = _write(runs, lambda: open(runs, "a", newline=""))
+        self._rows = checked_write(runs, lambda: open(runs, "a", newline=""))
         self._csv = csv.writer(self._rows, lineterminator="\n")
         if new:
-            _write(runs, lambda: (self._csv.writerow(self.columns), self._rows.flush()))
-        self._traces = _write(traces, lambda: open(traces, "ab"))
+            checked_write(runs, lambda: (self._csv.writerow(self.columns), self._rows.flush()))
+        self._traces = checked_write(traces, lambda: open(traces, "ab"))
 
     def _check_manifest(self, path: Path) -> None:
         try:  # bounded: a manifest nested 100 000 deep or of 1 GB is refused, not a RecursionError
@@ -196,7 +208,9 @@ class ResultStore:
             rec = np.zeros((), dtype=self.dtype)
             rec["index"] = result.index
             rec["trace"] = result.trace
-            _write(self.dir / TRACE_FILE, lambda: (self._traces.write(rec.tobytes()), self._traces.flush()))
+            checked_write(
+                self.dir / TRACE_FILE, lambda: (self._traces.write(rec.tobytes()), self._traces.flush())
+            )
         row: dict[str, float | int | str] = {
             "index": result.index,
             "status": "ok" if result.ok else "failed",
@@ -206,13 +220,13 @@ class ResultStore:
         row.update(result.metrics)
         row.update(result.checks)
         cells = [_cell(row.get(c)) for c in self.columns]
-        _write(self.dir / RUNS, lambda: (self._csv.writerow(cells), self._rows.flush()))
+        checked_write(self.dir / RUNS, lambda: (self._csv.writerow(cells), self._rows.flush()))
         self.finished.add(result.index)
 
     def sync(self) -> None:
         """Push the written rows to the disk (survives a machine crash, not just a process crash)."""
         for f, name in ((self._rows, RUNS), (self._traces, TRACE_FILE)):
-            _write(self.dir / name, lambda f=f: (f.flush(), os.fsync(f.fileno())))
+            checked_write(self.dir / name, lambda f=f: (f.flush(), os.fsync(f.fileno())))
 
     def close(self) -> None:
         for f in (self._rows, self._traces):
@@ -221,12 +235,43 @@ class ResultStore:
                     f.close()
                 except OSError as exc:  # a full disk refusing the buffered tail: the next session reruns it
                     logger.warning("%s: closing: %s", self.dir, exc.strerror or exc)
+        self._unlock()
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)  # releases the directory's lock
+            self._lock = None
 
     def __enter__(self) -> ResultStore:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _lock_dir(path: Path) -> int | None:
+    """An exclusive lock on the campaign directory for the session (``flock`` on the directory itself: no
+    file of its own, and the OS lets go of it when the process ends, however it ends). Two sessions of
+    one campaign in one directory (the command started again in another terminal) each ran the runs the
+    directory lacked when it started, the same runs twice, and each said it had run them; the second is
+    a ConfigError naming the directory. A file system without locks (some network ones) goes without."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as exc:
+        raise ConfigError(f"cannot open: {exc.strerror or exc}", str(path)) from exc
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise ConfigError(
+            "another session is writing this campaign directory (hil montecarlo in another terminal?): "
+            "let it finish, or give another --out",
+            str(path),
+        ) from None
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
 
 
 def _regular_or_absent(path: Path) -> None:
@@ -243,11 +288,14 @@ def _regular_or_absent(path: Path) -> None:
         raise ConfigError(why, str(path))
 
 
-def _write(path: Path, action: Callable[[], T]) -> T:
+def checked_write(path: Path, action: Callable[[], T]) -> T:
     """``action()`` (an open, write, flush or fsync of ``path``), an OSError (no space left, an I/O
-    error, no permission) a ConfigError naming the file."""
+    error, no permission) a ConfigError naming the file; one of the project's errors that is an OSError
+    too (:class:`~hil.files.output.OutputError`, which names its file already) passes as it is."""
     try:
         return action()
+    except HilError:
+        raise
     except OSError as exc:
         raise ConfigError(f"cannot write: {exc.strerror or exc}", str(path)) from exc
 
@@ -276,7 +324,7 @@ def _cut_torn_tail(path: Path, keep: Callable[[BinaryIO, int], int]) -> None:
             if end < size:
                 f.truncate(end)
 
-    _write(path, cut)
+    checked_write(path, cut)
 
 
 def _cell(value: Any) -> str:
