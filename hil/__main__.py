@@ -1,5 +1,5 @@
 import sys
 
-from hil.cli import main
+from hil.cli import entry
 
-sys.exit(main())
+sys.exit(entry())

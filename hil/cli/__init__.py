@@ -23,7 +23,13 @@ from types import ModuleType
 
 from protocol.errors import HilError
 
-from ._signals import exit_status, interrupts_raise, signal_of
+from ._signals import (
+    exit_on_late_signals,
+    exit_status,
+    ignore_signals_at_last_exit_hook,
+    interrupts_raise,
+    signal_of,
+)
 
 
 def command_modules() -> list[ModuleType]:
@@ -68,21 +74,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int:
+    """Run the command ``argv`` names; its exit status. ``own_process``: this process is the command's
+    (:func:`entry`): once it has ended, a signal ends the process at once with the command's status
+    (:func:`exit_on_late_signals`); otherwise (a test calling it) the caller's handlers come back."""
     parser = build_parser()
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     try:
-        with interrupts_raise():
-            return int(args.func(args) or 0)
+        with interrupts_raise(restore=not own_process):
+            status = int(args.func(args) or 0)
     except HilError as exc:
         print(f"hil {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        status = 2
     except KeyboardInterrupt as exc:
         print(f"hil {args.command}: interrupted ({signal_of(exc).name})", file=sys.stderr)
+        status = exit_status(exc)
+    if own_process:
+        exit_on_late_signals(status)
+    return status
+
+
+def entry() -> int:
+    """The ``hil`` command's process (its console script, ``python -m hil``)."""
+    ignore_signals_at_last_exit_hook()
+    try:
+        return main(own_process=True)
+    except KeyboardInterrupt as exc:  # one that came as main ended, past its handling: the command ended
         return exit_status(exc)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

@@ -1,4 +1,4 @@
-"""SIGTERM ends a ``hil`` command the way Ctrl-C does.
+"""SIGTERM (and SIGHUP) end a ``hil`` command the way Ctrl-C does.
 
 ``timeout``, systemd and a CI runner's cancel send SIGTERM, whose default action ends the process at once:
 no summary, no Disarm, children left running (issue 25, finding 3). Every command already ends cleanly on
@@ -12,17 +12,26 @@ which (``interrupted (SIGTERM)``) while every ``except KeyboardInterrupt`` on th
 
 from __future__ import annotations
 
+import atexit
+import contextlib
+import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-HANDLED = (signal.SIGINT, signal.SIGTERM)
+HANDLED = tuple(
+    s for s in (getattr(signal, name, None) for name in ("SIGINT", "SIGTERM", "SIGHUP")) if s is not None
+)
+"""The signals that end a command the way Ctrl-C does: SIGINT, SIGTERM, and SIGHUP (the terminal or ssh
+session the command was started from closed: its default action ended the process at once — no summary,
+the board left armed until its own watchdog failed it safe)."""
 
 
 class Interrupted(KeyboardInterrupt):
-    """The command was asked to stop by signal ``signum`` (SIGINT or SIGTERM)."""
+    """The command was asked to stop by signal ``signum`` (one of :data:`HANDLED`)."""
 
     def __init__(self, signum: int) -> None:
         super().__init__(signal.Signals(signum).name)
@@ -41,16 +50,28 @@ def exit_status(exc: BaseException) -> int:
     return 128 + int(signal_of(exc))
 
 
+_ended: list[int] = []
+"""The command's exit status once it has one (its own process only: :func:`exit_on_late_signals`)."""
+
+
 def _raise_interrupted(signum: int, frame: FrameType | None) -> None:
+    if _ended:  # the command has ended: the process ends now, with its status
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):  # a closed or broken stream: nothing more to say there
+                stream.flush()
+        os._exit(_ended[0])
     raise Interrupted(signum)
 
 
 @contextmanager
-def interrupts_raise() -> Iterator[None]:
-    """Within the block, SIGINT and SIGTERM raise :class:`Interrupted` in the main thread; the previous
-    handlers come back after it. A signal ignored when the process started (``nohup``, a background job
-    of a non-interactive shell) stays ignored, as POSIX asks of programs that catch signals. Outside the
-    main thread (``main()`` called from a thread) nothing is installed: Python allows handlers only there."""
+def interrupts_raise(restore: bool = True) -> Iterator[None]:
+    """Within the block, the :data:`HANDLED` signals raise :class:`Interrupted` in the main thread; the
+    previous handlers come back after it (``restore``; a command's own process keeps them, for
+    :func:`exit_on_late_signals` to replace: a signal between the two would meet Python's default handler,
+    whose KeyboardInterrupt outside every ``except`` kills the process by SIGINT — status −2 for a command
+    that had finished). A signal ignored when the process started (``nohup``, a background job of a
+    non-interactive shell) stays ignored, as POSIX asks of programs that catch signals. Outside the main
+    thread (``main()`` called from a thread) nothing is installed: Python allows handlers only there."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -62,5 +83,30 @@ def interrupts_raise() -> Iterator[None]:
     try:
         yield
     finally:
-        for signum, handler in previous.items():
+        for signum, handler in previous.items() if restore else ():
             signal.signal(signum, signal.SIG_DFL if handler is None else handler)  # None: set outside Python
+
+
+def exit_on_late_signals(status: int) -> None:
+    """The command has ended with ``status``: from now on a :data:`HANDLED` signal that comes while the
+    interpreter exits — a second Ctrl-C just after the first ended the command, a supervisor's SIGTERM —
+    ends the process at once with that status (through :func:`interrupts_raise`'s handlers, kept by a
+    command's own process), rather than raising an interrupt outside every ``except``: a traceback, or
+    death by the signal, for a command whose work was done."""
+    _ended[:] = [status]
+
+
+def ignore_signals_at_last_exit_hook() -> None:
+    """Register, as the exit hook to run last (the first registered: they run in reverse), one that ignores
+    the :data:`HANDLED` signals. Python's finalization, after the exit hooks, puts the OS's default action
+    back for every signal it had a Python handler for; one arriving then — at whichever thread of the
+    process the kernel picks — killed the finished command (status −2 after a run that had printed its
+    summary). Ignored, such a signal is dropped and the process ends with its command's status (Python
+    leaves an ignored signal ignored). Exit hooks registered later (Dask's, logging's) run before it, still
+    interruptible."""
+    atexit.register(_ignore_handled)
+
+
+def _ignore_handled() -> None:
+    for signum in HANDLED:
+        signal.signal(signum, signal.SIG_IGN)

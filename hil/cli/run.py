@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
+import os
+import signal
 import sys
 from pathlib import Path
 
@@ -33,14 +36,17 @@ plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/
 
 exit status:
   0  completed: the run's time after the slew's start is up, the board and the phone in hand at the end
-  1  ended early or incomplete: interrupted by SIGINT (Ctrl-C) or SIGTERM (timeout, systemd, a CI cancel;
-     the board is disarmed, summary.json says "interrupted (SIGTERM)"), aborted from the ground station,
-     the time limit reached before the slew started, or the plots failed
+  1  ended early or incomplete: interrupted by SIGINT (Ctrl-C), SIGTERM (timeout, systemd, a CI cancel) or
+     SIGHUP (its terminal or ssh session closed) — the board disarmed, summary.json saying
+     "interrupted (SIGTERM)" —, aborted from the ground station, the time limit reached before the slew
+     started, the plots failed, or an interrupt after the run ended (while its summary printed or its plots
+     were drawn: the plots are stopped, summary.json says how the run itself ended)
   2  an error: bad options or scenario, a port that cannot be opened, a board that never answered or is
-     incompatible, no phone stream, a reader thread's failure
+     incompatible, no phone stream, a reader thread's failure, a run directory the disk refused mid-run
+     (full: the board is disarmed, summary.json says which file)
   3  lost: the board (or the phone) was lost and not back within --recover-within (or at the end)
-  interrupted before the run starts (while the kernels compile): 130 (SIGINT) or 143 (SIGTERM), no run
-  directory
+  interrupted before the run starts (while the kernels compile): 130 (SIGINT), 143 (SIGTERM) or 129
+  (SIGHUP), no run directory
 """
 
 EXIT_COMPLETED, EXIT_INCOMPLETE, EXIT_ERROR, EXIT_LOST = 0, 1, 2, 3
@@ -151,25 +157,30 @@ class LiveProgress:
         self.tty = self.stream.isatty()
         self.every = 0.5 if self.tty else 5.0
         self.next_t = 0.0
+        self.gone = False  # the stream refused a write: its terminal closed, its pipe's reader gone
 
     def __call__(self, host, t: float) -> None:  # type: ignore[no-untyped-def]
-        if t < self.next_t:
+        if t < self.next_t or self.gone:
             return
         self.next_t = t + self.every
         trace = host.trace.point_err_deg
         err = f"{trace[-1]:7.3f}°" if trace else "    -   "
         waiting = "" if host.estimate is not None else "  (waiting for the phone)"
         start, end = ("\r", "   ") if self.tty else ("", "\n")
-        self.stream.write(
-            f"{start} t {t:6.1f} s  {host.phase.name:<6}  pointing error {err}  "
-            f"estimator steps {host.counters.estimator_steps:6d}  failsafes {host.watch.failsafes}"
-            f"{'' if host.in_control else '  (board not in hand)'}"
-            f"{waiting}{end}"
-        )
-        self.stream.flush()
+        try:
+            self.stream.write(
+                f"{start} t {t:6.1f} s  {host.phase.name:<6}  pointing error {err}  "
+                f"estimator steps {host.counters.estimator_steps:6d}  failsafes {host.watch.failsafes}"
+                f"{'' if host.in_control else '  (board not in hand)'}"
+                f"{waiting}{end}"
+            )
+            self.stream.flush()
+        except (OSError, ValueError):  # EIO from a hung-up terminal, EPIPE, a closed stream: the run goes on
+            self.gone = True  # (it once ended as an error, the board left armed)
 
 
 def run(args: argparse.Namespace) -> int:
+    """``hil run``: the run, its summary printed, its plots drawn; the exit status (:data:`EPILOG`)."""
     from hil.runtime import RunOptions
     from hil.runtime import run as run_scenario
     from hil.scenario import load_scenario
@@ -203,45 +214,87 @@ def run(args: argparse.Namespace) -> int:
             pace=pace or None,
             recover_within_s=args.recover_within,
             rt_priority=args.rt_priority,
+            report_late_signal=True,
         )
-        print(f"scenario {scenario.name}: {scenario.description}", file=sys.stderr)
-        print(f"estimator {estimator.name}: {estimator.describe()}", file=sys.stderr)
+        say(f"scenario {scenario.name}: {scenario.description}", sys.stderr)
+        say(f"estimator {estimator.name}: {estimator.describe()}", sys.stderr)
         if args.port is None:
             from hil.runtime import warmup
 
             if warmup.needed():
-                print(
-                    "compiling the simulation kernels (once after an install or an edit of them)",
-                    file=sys.stderr,
-                )
+                say("compiling the simulation kernels (once after an install or an edit of them)", sys.stderr)
         if args.gcs is not None:
             station = start_station(args.gcs)
             opts.observer = station.observer
         result = run_scenario(scenario, opts)
     except BaseException as exc:
-        if plotter is not None:
-            plotter.cancel()
+        try:
+            if station is not None:
+                station.close()
+        finally:
+            if plotter is not None:
+                plotter.cancel()
         if not isinstance(exc, HilError):
             raise
-        print(f"\nhil run: {exc}", file=sys.stderr)
+        say(f"\nhil run: {exc}", sys.stderr)
         return EXIT_ERROR
-    finally:
-        if station is not None:
+    try:
+        if station is not None:  # an interrupt while it stops is one after the run, as below
             station.close()
+        return _report(result, plotter, station)
+    except KeyboardInterrupt as exc:  # the run has ended and its summary.json is written
+        from hil.cli._signals import signal_of
+
+        if plotter is not None:
+            plotter.cancel()  # its drawing processes stopped: none left running after hil
+        say(
+            f"\nhil run: interrupted ({signal_of(exc).name}) after the run ended: {_no_plots(result)}",
+            sys.stderr,
+        )
+        return EXIT_INCOMPLETE
+
+
+def _report(result, plotter: Plotter | None, station) -> int:  # type: ignore[no-untyped-def]
+    """The ended run's summary printed and its plots drawn; the exit status. A signal that came while the
+    run wrote its ending (:attr:`~hil.runtime.RunResult.late_signal`) stops it here as one that comes
+    now does: no plots, status 1."""
     if station is not None and station.error is not None:  # the page stopped updating; the run did not
-        print(f"ground station: its pump failed: {station.error!r}", file=sys.stderr)
+        say(f"ground station: its pump failed: {station.error!r}", sys.stderr)
+    late = result.late_signal
     if plotter is not None:
-        assert result.run_dir is not None
-        plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
-    print(file=sys.stderr)
-    print(format_summary(result.summary))
-    print(f"run directory: {result.run_dir}")
+        if late is not None:
+            plotter.cancel()
+            plotter = None
+        else:
+            assert result.run_dir is not None
+            plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
+    say("", sys.stderr)
+    say(format_summary(result.summary), sys.stdout)
+    say(f"run directory: {result.run_dir}", sys.stdout)
+    if late is not None:
+        say(f"hil run: interrupted ({late}) as the run ended: {_no_plots(result)}", sys.stderr)
+        return EXIT_INCOMPLETE
     if plotter is not None:
         error = plotter.wait()
         if error:
-            print(f"hil run: {error}", file=sys.stderr)
+            say(f"hil run: {error}", sys.stderr)
             return EXIT_INCOMPLETE
     return exit_status(result.summary)
+
+
+def _no_plots(result) -> str:  # type: ignore[no-untyped-def]
+    """What an interrupt after the run leaves undone, and how to do it."""
+    where = result.run_dir if result.run_dir is not None else "RUN_DIR"
+    return f"plots not drawn or not all (hil report {where} draws them)"
+
+
+def say(text: str, stream) -> None:  # type: ignore[no-untyped-def]
+    """``text`` and a newline on ``stream``, flushed; nothing when the stream refuses it (its terminal
+    hung up, its pipe's reader gone): the run's exit status must not become a traceback's for that."""
+    try:
+        print(text, file=stream, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def exit_status(summary: dict) -> int:  # type: ignore[type-arg]
@@ -290,9 +343,12 @@ class Plotter:
         )
 
     def cancel(self) -> None:
-        """Nothing to draw (the run failed or was interrupted): the process ends without drawing."""
-        if self.process.poll() is None:
-            self.process.kill()
+        """Nothing to draw (the run failed, or an interrupt came after it): the process ends, with the
+        processes it forked to draw (:mod:`hil.plots.forked`: its process group, its own session's), so none
+        is left drawing after ``hil`` exits."""
+        if self.process.returncode is None:  # not reaped yet: its pid (the group's id) is still its own
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(self.process.pid, signal.SIGKILL)  # the group outlives its leader while forks draw
         self.process.wait()
         if self.process.stdin is not None:
             self.process.stdin.close()

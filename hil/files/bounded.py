@@ -212,7 +212,7 @@ def input_kind(path: str | os.PathLike[str], error: ErrorFactory = ConfigError, 
     from its start, as it comes). Anything else is one ``error`` naming it, before it is opened: a device
     (``/dev/zero`` and ``/dev/urandom`` never end; a serial port, such as a board's, or a terminal waits
     for input for ever) or a socket. A path that is not there or cannot be looked at is one too."""
-    name = f" {what}" if what else ""
+    name = f" ({what})" if what else ""
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError as exc:

@@ -58,12 +58,14 @@ from typing import TYPE_CHECKING, Any
 from hil.estimation.interface import Site
 from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import SensorLog
+from hil.files.output import write_file
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, create_source
 from hil.link.sources.recorded import RECORDING_URL
 from hil.link.sources.simulated import SIMULATED_URL
 from hil.link.transports import InProcessBoard, create_transport
 from hil.runtime.codes import CODES_FILE, code_table
 from hil.runtime.faults import RECOVER_WITHIN_S
+from hil.runtime.held_signals import HeldSignals
 from hil.runtime.host import Host, TruthSample
 from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, RowTap, new_run_dir, write_summary
@@ -75,6 +77,7 @@ from hil.timing.priority import Scheduling, realtime
 from hil.timing.scheduler import PeriodicTask, Scheduler
 from hil.version import describe
 from protocol.errors import CommandFailed, ConfigError, HilError, LinkError
+from protocol.messages import BoardState
 
 if TYPE_CHECKING:
     from hil.link.board import BoardClient
@@ -85,6 +88,9 @@ Progress = Callable[[Host, float], None]
 """Called after every control tick with the host and the time since the run started (s)."""
 
 SPINUP_ALLOWANCE_S = 25.0  # beyond warm-up + duration: connect, arm, spin-up (bounded by phases.MAX_SPINUP_S)
+MIN_PACE = 1e-3
+"""The slowest ``--pace``: a thousandth of real time (the default run then takes ten hours). A slower one
+(``1e-300``) asked the pacer to sleep past the platform's time_t: an OverflowError ended the run."""
 PACE_PERIOD_S = 0.01  # a paced lockstep run waits for the wall clock every this much simulated time
 DISARM_WAIT_S = 1.0  # an interrupted run waits at most this long (its clock) for the board's Disarm answer
 
@@ -118,7 +124,11 @@ class RunOptions:
     ``rows_to_observer``: without a run directory, still build each tick's telemetry row and hand it to
     the observer (its ``row_columns`` attribute, if any, names the columns it wants) — a fault campaign's
     run checks its invariants on them; ``rt_priority``: a real-time run's threads under ``SCHED_FIFO`` at
-    this priority (:mod:`hil.timing.priority`), None: the OS's normal scheduling."""
+    this priority (:mod:`hil.timing.priority`), None: the OS's normal scheduling;
+    ``report_late_signal``: a signal that comes while a run that ended on its own writes its ending is
+    held until the ending is written (:mod:`hil.runtime.held_signals`), then raised to its handler (the
+    default: a campaign stops as it would have), or with this, reported in
+    :attr:`RunResult.late_signal` instead (``hil run``: no plots, status 1)."""
 
     port: str | None = None
     lockstep: bool | None = None
@@ -134,17 +144,23 @@ class RunOptions:
     recover_within_s: float = RECOVER_WITHIN_S
     rows_to_observer: bool = False
     rt_priority: int | None = None
+    report_late_signal: bool = False
 
 
 @dataclass
 class RunResult:
     """``run_dir`` (None without one), the ``summary`` (as in summary.json), the per-tick ``trace`` from
-    the slew's start, and the ``events`` (kept in memory only without a run directory)."""
+    the slew's start, and the ``events`` (kept in memory only without a run directory). ``late_signal``:
+    the name of a signal (``"SIGINT"``) that came while a run that had ended on its own (completed, lost,
+    aborted) wrote its ending — held back so the ending was written whole
+    (:mod:`hil.runtime.held_signals`) and, with ``RunOptions.report_late_signal``, reported here for the
+    caller to act on (``hil run`` draws no plots and exits 1); the summary says how the run ended."""
 
     run_dir: Path | None
     summary: dict[str, Any] = field(default_factory=dict)
     trace: RunTrace = field(default_factory=RunTrace)
     events: list[dict[str, Any]] = field(default_factory=list)
+    late_signal: str | None = None
 
 
 @dataclass(frozen=True)
@@ -187,8 +203,12 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     plan = _plan(opts)
     if opts.pace is not None and not plan.lockstep:
         raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
-    if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace > 0):
-        raise ConfigError(f"must be a positive factor of the wall clock, got {opts.pace!r}", "run --pace")
+    if opts.pace is not None and not (math.isfinite(opts.pace) and opts.pace >= MIN_PACE):
+        raise ConfigError(
+            f"must be a factor of the wall clock of at least {MIN_PACE} (a thousandth of real time), "
+            f"got {opts.pace!r}",
+            "run --pace",
+        )
     if opts.rt_priority is not None and plan.lockstep:
         raise ConfigError(
             "is for real-time runs (a lockstep run never waits for the wall clock)", "run --rt-priority"
@@ -222,19 +242,8 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
     observer = opts.observer
     tap_row = None if observer is None else observer.row
     tap_event = None if observer is None else observer.event
-    run_dir: Path | None = None
-    telemetry: CsvLog | RowTap | None = None
-    if opts.out_root is not None:
-        run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
-        (run_dir / "scenario.toml").write_text(scenario.source)
-        (run_dir / CODES_FILE).write_text(json.dumps(code_table(), indent=1) + "\n")
-        telemetry = CsvLog(run_dir / "telemetry.csv", telemetry_columns(scenario.n_units), tap=tap_row)
-    elif opts.rows_to_observer and tap_row is not None:
-        keep = getattr(observer, "row_columns", None)
-        telemetry = RowTap(telemetry_columns(scenario.n_units), tap_row, keep)
-    events = EventLog(None if run_dir is None else run_dir / "events.jsonl", tap=tap_event)
     summary: dict[str, Any] = {"mode": plan.mode, "source": plan.source, "port": opts.port}
-    summary["hil"] = describe()  # the code that made the run: its version and git revision
+    summary["hil"] = describe()  # the code that made the run: its version and git revision (runs git)
     summary["scheduling"] = scheduling.describe()  # the OS's: a lateness figure means little without it
     if opts.replay is not None:
         summary["replay"] = {
@@ -243,62 +252,130 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
             "setup": list(opts.replay.setup),
         }
     started = time.monotonic()
+    run_dir: Path | None = None
+    telemetry: CsvLog | RowTap | None = None
+    if opts.rows_to_observer and tap_row is not None and opts.out_root is None:
+        keep = getattr(observer, "row_columns", None)
+        telemetry = RowTap(telemetry_columns(scenario.n_units), tap_row, keep)
+    # in memory until the run directory's events.jsonl is open: the run directory and its files are made
+    # inside the try below, so an interrupt or a full disk once it exists still ends with a summary.json
+    # (it was made before git's revision was asked for: an interrupt in those ~20 ms left it empty)
+    events = EventLog(None, tap=tap_event)
     built: _Built | None = None
     error: BaseException | None = None
-    try:
-        with contextlib.ExitStack() as stack:
-            built = _build(scenario, opts, plan, telemetry, events, stack)
-            if observer is not None:
-                observer.started(RunStart(built.host, built.scheduler, run_dir, plan.mode))
-            loop_started = time.monotonic()
-            if not plan.lockstep:
-                gc.freeze()  # a full collection would scan every object of the set-up (~120 000: ~30 ms)
-            try:
-                _run_scheduler(built)
-            finally:
-                summary["loop_wall_s"] = time.monotonic() - loop_started
-                if not plan.lockstep:
-                    gc.unfreeze()
-            summary["exit"] = _outcome(built.host)
-    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM through hil's CLI (hil.cli._signals)
-        summary["exit"] = _interrupted(exc)
-    except RunAborted as exc:
-        summary["exit"] = f"aborted: {exc}"
-    except BaseException as exc:
-        summary["exit"] = f"error: {exc}"
-        error = exc
-    finally:
-        summary["wall_s"] = time.monotonic() - started
-        if built is not None:
-            ending = getattr(observer, "ending", None)  # optional (RunObserver): before the summary
-            if ending is not None:
-                ending(built.scheduler.clock.now())
-            summary.update(built.host.summary())
-            summary["link"] = _link_stats(built.host)
-            for section, fields in built.source.report().items():
-                summary.setdefault(section, {}).update(fields)
-            scheduler = built.scheduler
-            summary["tasks"] = scheduler.summary()
-            summary["sim_s"] = scheduler.clock.now() - scheduler.origin
-            if summary["wall_s"] > 0:
-                summary["realtime_factor"] = summary["sim_s"] / summary["wall_s"]
-            if summary.get("loop_wall_s", 0.0) > 0:
-                summary["loop_realtime_factor"] = summary["sim_s"] / summary["loop_wall_s"]
+    with HeldSignals() as held:
         try:
-            if telemetry is not None:
-                telemetry.close()
-        except OSError as exc:  # the writer thread's error (a full disk): the run's error if it had none
-            summary["exit"] = f"error: telemetry.csv: {exc}"
-            error = error or exc
-        events.close()
-        if run_dir is not None:
-            write_summary(run_dir, summary)
-        if observer is not None:
-            observer.finished(summary)
+            if opts.out_root is not None:
+                run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
+                write_file(run_dir / "scenario.toml", scenario.source)
+                write_file(run_dir / CODES_FILE, json.dumps(code_table(), indent=1) + "\n")
+                events = EventLog(run_dir / "events.jsonl", tap=tap_event)
+                telemetry = CsvLog(
+                    run_dir / "telemetry.csv", telemetry_columns(scenario.n_units), tap=tap_row
+                )
+            with contextlib.ExitStack() as stack:
+                built = _build(scenario, opts, plan, telemetry, events, stack, held)
+                if observer is not None:
+                    observer.started(RunStart(built.host, built.scheduler, run_dir, plan.mode))
+                loop_started = time.monotonic()
+                if not plan.lockstep:
+                    gc.freeze()  # a full collection would scan every object of the set-up (~120 000: ~30 ms)
+                try:
+                    _run_scheduler(built)
+                finally:
+                    summary["loop_wall_s"] = time.monotonic() - loop_started
+                    if not plan.lockstep:
+                        gc.unfreeze()
+                summary["exit"] = _outcome(built.host)
+                held.holding = True  # the run has ended: an interrupt now is noted, the ending written
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM through hil's CLI (hil.cli._signals)
+            held.holding = True  # first: a plain store, nothing can interrupt before it
+            summary["exit"] = _interrupted(exc)
+        except RunAborted as exc:
+            held.holding = True
+            summary["exit"] = f"aborted: {exc}"
+        except BaseException as exc:
+            held.holding = True
+            summary["exit"] = f"error: {exc}"
+            error = exc
+        finally:
+            held.holding = True
+            error = _finish(summary, started, built, observer, telemetry, events, run_dir, error)
     if error is not None:
         raise error
     trace = built.host.trace if built is not None else RunTrace()
-    return RunResult(run_dir, summary, trace, list(events.events))
+    late = None
+    if held.received and not summary["exit"].startswith("interrupted"):
+        late = held.received[0]  # a run that ended on its own, interrupted while it wrote its ending
+        if not opts.report_late_signal:
+            signal.raise_signal(signal.Signals[late])  # its handler's again: raised as it would have been
+    return RunResult(run_dir, summary, trace, list(events.events), late)
+
+
+def _finish(
+    summary: dict[str, Any],
+    started: float,
+    built: _Built | None,
+    observer: RunObserver | None,
+    telemetry: CsvLog | RowTap | None,
+    events: EventLog,
+    run_dir: Path | None,
+    error: BaseException | None,
+) -> BaseException | None:
+    """The run's ending, whatever ended it: its figures into ``summary``, its logs closed, ``summary.json``
+    written (with what the logs could not write, after a refused write), the observer told. Returns the
+    error the run is to raise: ``error``, or the first refused write of a run that had none."""
+    summary["wall_s"] = time.monotonic() - started
+    if built is not None:
+        ending = getattr(observer, "ending", None)  # optional (RunObserver): before the summary
+        if ending is not None:
+            ending(built.scheduler.clock.now())
+        summary.update(built.host.summary())
+        summary["link"] = _link_stats(built.host)
+        for section, fields in built.source.report().items():
+            summary.setdefault(section, {}).update(fields)
+        scheduler = built.scheduler
+        summary["tasks"] = scheduler.summary()
+        summary["sim_s"] = scheduler.clock.now() - scheduler.origin
+        if summary["wall_s"] > 0:
+            summary["realtime_factor"] = summary["sim_s"] / summary["wall_s"]
+        if summary.get("loop_wall_s", 0.0) > 0:
+            summary["loop_realtime_factor"] = summary["sim_s"] / summary["loop_wall_s"]
+    try:
+        if telemetry is not None:
+            telemetry.close()
+    except OSError as exc:  # the writer thread's error (a full disk): the run's error if it had none
+        if error is None:
+            summary["exit"] = f"error: {exc}"
+            error = exc
+    events.close()
+    if events.failed is not None and error is None:
+        summary["exit"] = f"error: {events.failed}"
+        error = events.failed
+    _unwritten(summary, telemetry, events)
+    if run_dir is not None:
+        try:
+            write_summary(run_dir, summary)
+        except OSError as exc:  # the disk is full or the directory gone: the run's error, said as such
+            if error is None or error is events.failed:
+                error = exc
+            else:  # the run's own error is raised; this one is said here
+                logger.error("%s", exc)
+    if observer is not None:
+        observer.finished(summary)
+    return error
+
+
+def _unwritten(summary: dict[str, Any], telemetry: CsvLog | RowTap | None, events: EventLog) -> None:
+    """What the run's logs could not write (a full disk), in its summary: the telemetry rows counted, the
+    events themselves (the newest the log kept, older ones counted)."""
+    rows = getattr(telemetry, "rows_not_written", 0)
+    if rows:
+        summary["telemetry_rows_not_written"] = rows
+    if events.unwritten:
+        summary["events_not_written"] = list(events.unwritten)
+        if events.dropped:
+            summary["events_not_written_dropped"] = events.dropped
 
 
 @dataclass
@@ -338,6 +415,7 @@ def _build(
     telemetry: CsvLog | RowTap | None,
     events: EventLog,
     stack: contextlib.ExitStack,
+    held: HeldSignals,
 ) -> _Built:
     """Board client, phone source (:func:`hil.link.sources.create_source` on ``plan.phone``), host and
     scheduler for ``plan``; everything opened is closed by ``stack``."""
@@ -361,7 +439,7 @@ def _build(
         opts.recover_within_s,
         lambda retry: events.write(retry.t, "connect_retry", attempt=retry.attempt, detail=str(retry.error)),
     )
-    stack.push(_disarm_if_interrupted(client, events))  # unwound before the close: the link still up
+    stack.push(_disarm_on_the_way_out(client, events, held))  # unwound before the close: the link still up
     handshake = client.drain_events()
     write_event = _HeldEvents(events)
     write_event(clock.now(), "connected", board=info.describe(), units=info.n_units)
@@ -485,29 +563,55 @@ def _outcome(host: Host) -> str:
 
 
 def _interrupted(exc: BaseException) -> str:
-    """The exit reason of an interrupted run, naming the signal: ``interrupted (SIGTERM)``. hil's CLI
-    raises a ``KeyboardInterrupt`` carrying ``signum`` for SIGINT and SIGTERM alike; a bare one is
-    Python's own SIGINT handler's (a caller of :func:`run` that installed none)."""
-    return f"interrupted ({signal.Signals(getattr(exc, 'signum', signal.SIGINT)).name})"
+    """The exit reason of an interrupted run, naming the signal that interrupted it first:
+    ``interrupted (SIGTERM)``. hil's CLI raises a ``KeyboardInterrupt`` carrying ``signum`` for SIGINT and
+    SIGTERM alike; a bare one is Python's own SIGINT handler's (a caller of :func:`run` that installed
+    none). A second signal raised while the first one's exception was unwinding (closing the phone source,
+    say) carries the first as its ``__context__``: the run was interrupted by that first one (it once
+    said ``interrupted (SIGINT)`` for a SIGTERM followed by a Ctrl-C)."""
+    first, seen = exc, {id(exc)}
+    context = exc.__context__
+    while context is not None and id(context) not in seen:
+        seen.add(id(context))
+        if isinstance(context, KeyboardInterrupt):
+            first = context
+        context = context.__context__
+    return f"interrupted ({signal.Signals(getattr(first, 'signum', signal.SIGINT)).name})"
 
 
-def _disarm_if_interrupted(client: BoardClient, events: EventLog) -> Callable[..., bool]:
+def _disarm_on_the_way_out(client: BoardClient, events: EventLog, held: HeldSignals) -> Callable[..., bool]:
     """An exit callback for the run's ExitStack: when the run is interrupted, disarm the board the host
     holds before the link is closed, best effort within :data:`DISARM_WAIT_S`, and say so in events.jsonl
     (``disarmed``, or ``disarm_failed`` with why). Closing the port alone leaves an armed board spinning its
     rotors until its own link watchdog fails it safe (FAILSAFE after its timeout, the operator's Disarm
-    never given). A second interrupt while waiting gives up the Disarm, not the run's summary. Any other
-    way out (completed, lost, an error) leaves the board as before. Never suppresses the exception."""
+    never given). A second interrupt while waiting gives up the Disarm, not the run's summary. A run that
+    ends on an error of the host's own (its run directory's disk full, a reader thread's failure) with the
+    board in hand and ARMED disarms it the same way, the error as the reason (it once left the board
+    spinning until its watchdog tripped); an abort has disarmed it already. A completed or lost run leaves
+    the board as before. Never suppresses the exception. After the Disarm (or none) further interrupts
+    are held (``held``): the link is closed and the run's ending written whole."""
 
     def on_exit(exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> bool:
-        if not isinstance(exc, KeyboardInterrupt):
-            return False
-        reason = _interrupted(exc)
+        try:
+            _disarm(exc)
+        finally:
+            held.holding = True
+        return False
+
+    def _disarm(exc: BaseException | None) -> None:
+        if exc is None or isinstance(exc, RunAborted):
+            return
+        if isinstance(exc, KeyboardInterrupt):
+            reason = _interrupted(exc)
+        elif client.connected and client.state is BoardState.ARMED:
+            reason = f"error: {exc}"
+        else:
+            return
         if not client.connected:
             events.write(
                 client.clock.now(), "disarm_failed", reason=reason, error="no session with the board"
             )
-            return False
+            return
         try:
             client.disarm(timeout=DISARM_WAIT_S)
         except (HilError, KeyboardInterrupt) as failure:
@@ -515,7 +619,6 @@ def _disarm_if_interrupted(client: BoardClient, events: EventLog) -> Callable[..
             events.write(client.clock.now(), "disarm_failed", reason=reason, error=error)
         else:
             events.write(client.clock.now(), "disarmed", reason=reason)
-        return False
 
     return on_exit
 

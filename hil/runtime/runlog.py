@@ -6,20 +6,24 @@ Layout of ``RUN_DIR``::
     telemetry.csv   one row per control step: time, estimates, truth (simulated runs), commands, board
                     telemetry, link statistics (columns fixed when the run starts; header first)
     events.jsonl    one JSON object per line: board LOG messages, state changes, faults, resets
-    summary.json    written when the run ends (atomically: a killed run has none, ``hil report`` copes)
+    summary.json    written when the run ends (atomically: a killed run has none, ``hil report`` copes;
+                    signals that come while it is written are held: :mod:`hil.runtime.held_signals`)
     scenario.toml   the scenario the run used (a copy), when there was one
     telemetry_codes.json  what the numbers in telemetry.csv's coded columns mean (:mod:`.codes`)
     *.png           plots (``hil report RUN_DIR`` redraws them)
 
 Each event is flushed to the operating system as it is written, each telemetry row by the log's writer
 thread moments later (:class:`CsvLog`), so SIGKILL loses at most a partly written last line, which
-:func:`read_telemetry` drops and counts.
+:func:`read_telemetry` drops and counts. A write the OS refuses (a full disk) leaves no torn line: the file
+is cut back to its last whole line (:class:`hil.files.appending.LineAppender`), the run ends with an
+:class:`~hil.files.output.OutputError` naming the file, and what could not be written is counted in the
+summary (``telemetry_rows_not_written``) or kept in it (``events_not_written``).
 """
 
 from __future__ import annotations
 
 import collections
-import io
+import contextlib
 import json
 import math
 import os
@@ -33,8 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from hil.files.bounded import MAX_LINE_BYTES, load_json, read_lines
-from hil.files.output import make_dir, safe_label
+from hil.files.appending import LineAppender
+from hil.files.bounded import FILE, MAX_LINE_BYTES, input_kind, load_json, read_lines
+from hil.files.output import OutputError, make_dir, safe_label
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError
 
@@ -100,7 +105,10 @@ class CsvLog:
     whatever has queued, writes it and flushes it to the operating system — so a killed run keeps every row
     older than about ``batch_s``, at most a torn last line. A full queue (``max_pending`` rows: a disk that
     stalls for that long) makes the caller wait: rows are never dropped. An error of the writer thread (a
-    full disk) is raised by the next :meth:`write_values`, :meth:`flush` or :meth:`close`. ``tap``
+    full disk: an :class:`~hil.files.output.OutputError`) is raised by the next :meth:`write_values`,
+    :meth:`flush` or :meth:`close`; the file then ends at the last row that fitted whole, and the rows not
+    written (the rest of that batch and any after it) are counted in :attr:`rows_not_written`, never
+    written later past the gap. ``tap``
     (optional: a run's observer, :mod:`hil.gcs`) sees each row, by column name, as it is written.
     """
 
@@ -117,10 +125,15 @@ class CsvLog:
         self.path = Path(path)
         self.columns = tuple(columns)
         self._index = {name: i for i, name in enumerate(self.columns)}
-        self._file: io.TextIOWrapper | None = open(self.path, "w", newline="")  # noqa: SIM115
-        self._file.write(",".join(self.columns) + _EOL)
-        self._file.flush()
+        self._file: LineAppender | None = LineAppender(self.path, "w")
+        try:
+            self._file.write((",".join(self.columns) + _EOL).encode())
+        except BaseException:
+            self._file.close()
+            raise
         self.rows = 0
+        self._not_written = 0  # the writer thread's count, after a refused write
+        self._refused = 0  # the caller's: rows offered as the refusal was raised
         self._queue: queue.Queue[Sequence[Any] | None] = queue.Queue(max_pending)
         self._batch_s = batch_s
         self._closing = threading.Event()
@@ -142,13 +155,23 @@ class CsvLog:
         """Write one row given as ``len(columns)`` values in column order (the control tick's path)."""
         if self._file is None:
             raise ValueError(f"{self.path}: log is closed")
-        self._thread_error.check()
+        try:
+            self._thread_error.check()
+        except BaseException:
+            self._refused += 1  # this row too: the run ends on the error, the row is not written
+            raise
         if len(values) != len(self.columns):
             raise ValueError(f"{self.path.name}: {len(values)} values for {len(self.columns)} columns")
         self._queue.put(values)
         self.rows += 1
         if self.tap is not None:
             self.tap(dict(zip(self.columns, values, strict=True)))
+
+    @property
+    def rows_not_written(self) -> int:
+        """Rows given to the log that are not in its file (after a write the OS refused; exact once the
+        log is closed)."""
+        return self._not_written + self._refused
 
     def flush(self) -> None:
         """Wait until every row written so far is in the file (flushed to the operating system; up to
@@ -163,7 +186,7 @@ class CsvLog:
         self._closing.set()
         self._queue.put(None)
         self._thread.join()
-        self._file.close()
+        self._file.close()  # nothing held back: never raises for the rows
         self._file = None
         self._thread_error.check()
 
@@ -172,6 +195,7 @@ class CsvLog:
         assert self._file is not None
         out = self._file
         q = self._queue
+        failed = False
         while True:
             batch = [q.get()]
             self._closing.wait(self._batch_s)  # let rows gather (not when closing)
@@ -181,11 +205,17 @@ class CsvLog:
                 except queue.Empty:
                     break
             rows = [r for r in batch if r is not None]
+            before = out.size
+            data = b""
             try:
-                if rows and self._thread_error.error is None:
-                    out.write("".join(",".join(map(_cell, r)) + _EOL for r in rows))
-                    out.flush()
+                if rows and not failed:
+                    data = "".join(",".join(map(_cell, r)) + _EOL for r in rows).encode()
+                    out.write(data)
+                elif rows:  # after a refused write: counted, never written past the gap
+                    self._not_written += len(rows)
             except BaseException as exc:  # stored, raised on the caller's thread: never lost silently
+                failed = True  # the rows that fitted are in the file, whole; the others counted
+                self._not_written += len(rows) - data[: out.size - before].count(b"\n")
                 self._thread_error.store(exc)
             finally:
                 for _ in batch:
@@ -220,16 +250,23 @@ class EventLog:
     """JSON lines, each flushed: ``{"t": seconds, "kind": ..., ...}``. ``path`` None keeps the events in
     memory instead (``events``; a run without a run directory, e.g. a Monte Carlo run), the newest
     ``keep`` of them: older ones are counted in ``dropped``, never an unbounded list. ``tap`` (optional)
-    sees each record as it is written."""
+    sees each record as it is written.
+
+    A write the OS refuses (a full disk) raises an :class:`~hil.files.output.OutputError` once, leaving the
+    file at its last whole line; that event and every later one are kept in :attr:`unwritten` instead (the
+    newest ``keep``, older ones counted in ``dropped``) without raising again — the run is already ending on
+    the first error, and what it still records on its way out (its Disarm) goes into its summary."""
 
     def __init__(
         self, path: str | os.PathLike[str] | None, keep: int = 10_000, tap: Tap | None = None
     ) -> None:
         self.path = None if path is None else Path(path)
-        self._file: io.TextIOWrapper | None = None
+        self._file: LineAppender | None = None
         if self.path is not None:
-            self._file = open(self.path, "a", buffering=1)  # noqa: SIM115
+            self._file = LineAppender(self.path, "a")
         self.events: collections.deque[dict[str, Any]] = collections.deque(maxlen=keep)
+        self.unwritten: collections.deque[dict[str, Any]] = collections.deque(maxlen=keep)
+        self.failed: OutputError | None = None  # the refused write, once there was one
         self._closed = False
         self.count = 0
         self.dropped = 0
@@ -239,15 +276,23 @@ class EventLog:
         if self._closed:
             raise ValueError(f"{self.path or 'event log'}: log is closed")
         record = event = {"t": t, "kind": kind, **fields}
-        if self._file is not None:
-            self._file.write(json.dumps(event, default=str) + "\n")
-            self._file.flush()
-        else:
+        refused: OutputError | None = None
+        if self._file is not None and self.failed is None:
+            try:
+                self._file.write((json.dumps(event, default=str) + "\n").encode())
+            except OutputError as exc:
+                refused = self.failed = exc
+        if self._file is None:
             self.dropped += len(self.events) == self.events.maxlen
             self.events.append(event)
+        elif self.failed is not None:
+            self.dropped += len(self.unwritten) == self.unwritten.maxlen
+            self.unwritten.append(event)
         self.count += 1
         if self.tap is not None:
             self.tap(record)
+        if refused is not None:
+            raise refused
 
     def close(self) -> None:
         self._closed = True
@@ -257,11 +302,18 @@ class EventLog:
 
 
 def write_summary(run_dir: str | os.PathLike[str], summary: Mapping[str, Any]) -> Path:
-    """Write ``summary.json`` atomically (a reader never sees half a file)."""
+    """Write ``summary.json`` atomically (a reader never sees half a file); a write the OS refuses (a full
+    disk, the directory gone) an :class:`~hil.files.output.OutputError` naming it, no temporary file left."""
     path = Path(run_dir) / SUMMARY
     tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(summary, indent=2, default=_json_default, allow_nan=True) + "\n")
-    os.replace(tmp, path)
+    text = json.dumps(summary, indent=2, default=_json_default, allow_nan=True) + "\n"
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise OutputError(path, exc) from exc
     return path
 
 
@@ -321,6 +373,7 @@ def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
     leaves one), and so is a row out of time order (:class:`RowClock`); a missing or header-less file is an
     InputFormatError."""
     path = Path(path)
+    _regular_if_there(path, "telemetry")
     try:
         f = open(path, "rb")  # noqa: SIM115 — closed below
     except FileNotFoundError:
@@ -413,6 +466,7 @@ def count_events(path: str | os.PathLike[str]) -> tuple[int, int]:
 def _events(path: Path) -> Iterator[dict[str, Any] | None]:
     """Each line of an events log as its event, or None when it is unreadable; nothing if there is no
     file."""
+    _regular_if_there(path, "events")
     try:
         f = open(path, "rb")  # noqa: SIM115 — closed below
     except FileNotFoundError:
@@ -423,6 +477,14 @@ def _events(path: Path) -> Iterator[dict[str, Any] | None]:
         for batch in read_lines(f):
             for line in batch:
                 yield event_of(line, str(path))
+
+
+def _regular_if_there(path: Path, what: str) -> None:
+    """Refuse a run's ``what`` file that is there and is not a regular file, naming it: a device
+    (``/dev/zero`` behind a link never ends: ``hil report`` read it for ever), a FIFO (its open waits for a
+    writer), a folder. A run writes regular files only; a missing one is the caller's to say."""
+    if os.path.lexists(path) and input_kind(path, InputFormatError, what) != FILE:
+        raise InputFormatError(f"not a regular file ({what}): a run directory holds files", str(path))
 
 
 def event_of(line: bytes | None, where: str) -> dict[str, Any] | None:
