@@ -229,6 +229,18 @@ def input_kind(path: str | os.PathLike[str], error: ErrorFactory = ConfigError, 
     raise error(f"{kind}, not a file{name}: give the path of a file", str(path))
 
 
+def regular_file_if_there(
+    path: str | os.PathLike[str], error: ErrorFactory = ConfigError, what: str = "", hint: str = ""
+) -> None:
+    """Refuse ``path`` if it is there and is not a regular file, naming it: a device or a socket as
+    :func:`input_kind` does, a folder or a FIFO (whose open waits for a writer) as ``not a regular file``
+    and ``hint``. For the files the project writes and reads back (a run directory's, a campaign's), which
+    are always regular files; a missing one is the caller's to say."""
+    if os.path.exists(path) and input_kind(path, error, what) != FILE:
+        name = f" ({what})" if what else ""
+        raise error(f"not a regular file{name}{hint}", str(path))
+
+
 def read_document(
     path: str | os.PathLike[str],
     error: ErrorFactory = ConfigError,
@@ -335,5 +347,6 @@ __all__ = [
     "load_toml",
     "read_document",
     "read_lines",
+    "regular_file_if_there",
     "too_deep",
 ]

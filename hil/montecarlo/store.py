@@ -31,7 +31,6 @@ import logging
 import math
 import os
 import re
-import stat
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +39,7 @@ from typing import Any, BinaryIO, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.files.bounded import MAX_DOCUMENT_BYTES, load_json
+from hil.files.bounded import MAX_DOCUMENT_BYTES, load_json, regular_file_if_there
 from hil.files.output import make_dir
 from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, HilError, InputFormatError
@@ -277,15 +276,7 @@ def _lock_dir(path: Path) -> int | None:
 def _regular_or_absent(path: Path) -> None:
     """Refuse a campaign file that exists and is not a regular file: a directory, a FIFO (opening it
     would wait for a writer for ever), a device (``/dev/zero`` never ends)."""
-    try:
-        mode = path.stat().st_mode
-    except FileNotFoundError:
-        return
-    except OSError as exc:
-        raise ConfigError(f"cannot read: {exc.strerror or exc}", str(path)) from exc
-    if not stat.S_ISREG(mode):
-        why = "not a regular file (a directory, a FIFO or a device): give another --out"
-        raise ConfigError(why, str(path))
+    regular_file_if_there(path, ConfigError, hint=" (a directory, a FIFO or a device): give another --out")
 
 
 def checked_write(path: Path, action: Callable[[], T]) -> T:

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from hil.files.appending import LineAppender
-from hil.files.bounded import FILE, MAX_LINE_BYTES, input_kind, load_json, read_lines
+from hil.files.bounded import MAX_LINE_BYTES, load_json, read_lines, regular_file_if_there
 from hil.files.output import OutputError, make_dir, safe_label
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError
@@ -366,6 +366,10 @@ class RowClock:
         return True
 
 
+RUN_FILES_ONLY = ": a run directory holds files (a device, a FIFO there is never read: /dev/zero never ends)"
+"""Said of a run's telemetry or events that is there and is not a regular file."""
+
+
 def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
     """Read a run's telemetry CSV, streamed (:func:`hil.files.bounded.read_lines`: memory holds the
     numbers, not the text). A line with the wrong number of cells, a non-number, bytes that are not UTF-8
@@ -373,7 +377,7 @@ def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
     leaves one), and so is a row out of time order (:class:`RowClock`); a missing or header-less file is an
     InputFormatError."""
     path = Path(path)
-    _regular_if_there(path, "telemetry")
+    regular_file_if_there(path, InputFormatError, "telemetry", RUN_FILES_ONLY)
     try:
         f = open(path, "rb")  # noqa: SIM115 — closed below
     except FileNotFoundError:
@@ -466,7 +470,7 @@ def count_events(path: str | os.PathLike[str]) -> tuple[int, int]:
 def _events(path: Path) -> Iterator[dict[str, Any] | None]:
     """Each line of an events log as its event, or None when it is unreadable; nothing if there is no
     file."""
-    _regular_if_there(path, "events")
+    regular_file_if_there(path, InputFormatError, "events", RUN_FILES_ONLY)
     try:
         f = open(path, "rb")  # noqa: SIM115 — closed below
     except FileNotFoundError:
@@ -477,14 +481,6 @@ def _events(path: Path) -> Iterator[dict[str, Any] | None]:
         for batch in read_lines(f):
             for line in batch:
                 yield event_of(line, str(path))
-
-
-def _regular_if_there(path: Path, what: str) -> None:
-    """Refuse a run's ``what`` file that is there and is not a regular file, naming it: a device
-    (``/dev/zero`` behind a link never ends: ``hil report`` read it for ever), a FIFO (its open waits for a
-    writer), a folder. A run writes regular files only; a missing one is the caller's to say."""
-    if os.path.lexists(path) and input_kind(path, InputFormatError, what) != FILE:
-        raise InputFormatError(f"not a regular file ({what}): a run directory holds files", str(path))
 
 
 def event_of(line: bytes | None, where: str) -> dict[str, Any] | None:
