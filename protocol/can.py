@@ -39,7 +39,11 @@ joins a bus its peer already streams on mostly starts mid-frame (it cannot tell 
 head lost, which is then counted there too). A repeat of
 the segment that completed a frame, arriving next on its arbitration id (CAN's "double reception": the
 transmitter saw an error frame and sends the same CAN frame again at once), is counted as a duplicate;
-a repeat within a frame still being assembled is too. Memory is bounded: per arbitration id ``window``
+a repeat within a frame still being assembled is too. Given the frames' receive times (``at``; python-can's
+``Message.timestamp``), a "repeat" heard more than :data:`REPEAT_WINDOW_S` after the frame it equals is
+not one: a sender restarted meanwhile (its transfer ids and sequence numbers from 0 again) says the same
+first frame again — a host killed during its handshake and started again sends the very same ``Hello`` —
+and that frame is new. Memory is bounded: per arbitration id ``window``
 partial frames and one segment, for at most ``max_streams`` arbitration ids.
 
 What cannot be a segment is counted before it can touch a frame in flight: frames of the other kind
@@ -87,6 +91,10 @@ FD_DATA = 64
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 """The data lengths a CAN FD frame can have (DLC 0..15)."""
 NODE_MAX = 0x7F
+REPEAT_WINDOW_S = 0.1
+"""Longest time (s) between a frame and a repeat of it: a CAN controller retransmits a frame at once (in
+microseconds) after an error frame; no sender restarts (a process, an MCU's boot) this fast. A frame equal
+to the last one heard on its arbitration id but later than this is a restarted sender's, and delivered."""
 _TID_SHIFT = 6
 _INDEX_MASK = 0x3F
 
@@ -263,6 +271,7 @@ class _Stream:
     headed: bool = False  # a first segment (index 0) has been heard: tails before it are the start's cut
     completed_by: tuple[int, int, bytes] | None = None
     delivered: tuple[int, bytes] | None = None  # (transfer id, wire frame) of the last frame delivered
+    completed_at: float | None = None  # receive time of the segment that completed it (None: not given)
 
 
 def _intact(wire: bytes) -> bool:
@@ -306,9 +315,17 @@ class CanReassembler:
         self._streams.clear()
 
     def feed(
-        self, arbitration_id: int, data: bytes, is_fd: bool = False, is_extended_id: bool = False
+        self,
+        arbitration_id: int,
+        data: bytes,
+        is_fd: bool = False,
+        is_extended_id: bool = False,
+        at: float | None = None,
     ) -> bytes:
-        """One received CAN data frame; returns the wire frames it completed (possibly b"")."""
+        """One received CAN data frame; returns the wire frames it completed (possibly b"").
+
+        ``at``: when it was received (s, any clock; None: unknown), so that a restarted sender's first
+        frame is not taken for a repeat of its predecessor's last (:data:`REPEAT_WINDOW_S`)."""
         is_fd = bool(is_fd)
         if is_extended_id or not self._accepts(arbitration_id):
             self.stats.ignored += 1
@@ -336,6 +353,9 @@ class CanReassembler:
             return b""
         self.stats.segments += 1
         stream = self._stream(arbitration_id)
+        if at is not None and stream.completed_at is not None and at - stream.completed_at > REPEAT_WINDOW_S:
+            # Too late to repeat the last frame: whatever equals it now is a restarted sender's own.
+            stream.completed_by = stream.delivered = stream.completed_at = None
         if stream.completed_by == (tid, index, chunk):
             self.stats.duplicates += 1  # the completing segment again, at once: CAN double reception
             return b""
@@ -391,12 +411,14 @@ class CanReassembler:
             self.stats.duplicates += len(partial.segments)  # a late repeat of the frame just delivered
             return b""
         stream.delivered = (tid, wire)
+        stream.completed_at = at
         self.stats.frames += 1
         return wire
 
     def feed_message(self, message: object) -> bytes:
         """Convenience for a python-can ``Message`` (duck-typed: no python-can import here). Error frames
-        (whose data is the controller's error report) and remote frames are counted, never segments."""
+        (whose data is the controller's error report) and remote frames are counted, never segments. Its
+        ``timestamp`` is the receive time (0.0, python-can's "not set", counts as unknown)."""
         if getattr(message, "is_error_frame", False) or getattr(message, "is_remote_frame", False):
             self.stats.error_frames += 1
             return b""
@@ -405,6 +427,7 @@ class CanReassembler:
             message.data,  # type: ignore[attr-defined]
             bool(getattr(message, "is_fd", False)),
             bool(getattr(message, "is_extended_id", False)),
+            getattr(message, "timestamp", None) or None,
         )
 
     @property
@@ -461,6 +484,7 @@ __all__ = [
     "MIN_WIRE",
     "PRIORITY",
     "Priority",
+    "REPEAT_WINDOW_S",
     "max_segments",
     "segment_payload",
 ]

@@ -12,8 +12,9 @@ udp_multicast/239.74.163.2?port=43113`` serves ``can://udp_multicast/239.74.163.
 A bus has no connection to lose: a host is there while its frames arrive, gone after a silence
 (:class:`.base.HostPresence`). The statistics (:class:`.base.ServerStats`) are the pty server's, the
 link-layer ``errors`` being the transport's reassembly and send failures (:meth:`CanServer.counters` has
-them one by one; other nodes' traffic — ``rx_ignored``, ``rx_wrong_kind``, ``rx_undecodable`` — is not the
-link's error, and none of it stops the loop: only a bus that fails does, as a ``LinkError``).
+them one by one; other nodes' traffic — ``rx_ignored``, ``rx_wrong_kind``, ``rx_undecodable``, and
+``rx_same_node``: a second board at this node id, logged by the transport — is not the link's error, and
+none of it stops the loop: only a bus that fails does, as a ``LinkError``).
 
 Thread safety: :meth:`serve` runs in the calling thread, :meth:`start` in a daemon thread; other threads
 touch the board only inside ``with server.lock:``. An error in the serving thread is stored, logged and
@@ -85,8 +86,12 @@ class CanServer(BoardServer):
         if data:
             self.stats.bytes_in += len(data)
             with self.lock:
-                self.presence.heard(self.board.now)
+                # Fed first: feeding runs the board to its clock's now, the time the bytes are taken. Heard
+                # at the board's time before it, a host whose frames waited on the bus while this process
+                # was stopped (SIGSTOP, a long pause) would count as silent for the whole stall and be
+                # reported gone, then back, though it never left.
                 self.board.feed(data)
+                self.presence.heard(self.board.now)
                 self.note_state(self.board.now, self.board.state)
         self.stats.frames_in = self.transport.counters()["rx_frames"]
         self._count_errors()

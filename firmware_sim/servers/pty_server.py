@@ -145,8 +145,8 @@ class PtyServer(BoardServer):
         self.stats.bytes_in += len(data)
         self.stats.frames_in += self._frames_in.feed(data)
         with self.lock:
-            self.presence.heard(self.board.now)
-            self.board.feed(data)
+            self.board.feed(data)  # runs the board to its clock's now: the bytes are heard then, not before
+            self.presence.heard(self.board.now)  # (a stall's waiting bytes: the host never left; can_server)
             self.note_state(self.board.now, self.board.state)
 
     def _write(self, master: int) -> None:

@@ -28,8 +28,10 @@ priority class, direction and node; segments of 7 or 63 bytes). :meth:`write` ta
 them at the 0x00 delimiters and sends each complete frame as its segments (a partial frame waits for the
 rest of its bytes); :meth:`read` hands up the wire frames the reassembler completed, so the deframer
 above sees exactly what a serial link would give it. Lost and incomplete frames, duplicates and foreign
-traffic are counted in :meth:`counters`, never delivered. A host sends towards the board
-(``Direction.TO_BOARD``) and accepts the board's direction only; the board's side
+traffic are counted in :meth:`counters`, never delivered; so is, apart (``rx_same_node``, logged), a frame
+in this end's own direction and node id that this end did not send — another node configured with the
+same node id, which the reassembler ignores like the loopback of this end's own frames. A host sends
+towards the board (``Direction.TO_BOARD``) and accepts the board's direction only; the board's side
 (:mod:`firmware_sim.servers.can_server`) is the same class with ``sends=Direction.TO_HOST``.
 
 What the bus itself does wrong is told apart from the bus being gone. Gone — the interface down, the
@@ -47,13 +49,15 @@ from __future__ import annotations
 
 import errno
 import logging
+import threading
 import time
+from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
 
-from protocol.can import MAX_WIRE, NODE_MAX, CanReassembler, CanSegmenter, Direction
+from protocol.can import MAX_WIRE, NODE_MAX, CanId, CanReassembler, CanSegmenter, Direction
 from protocol.errors import LinkError, ProtocolError, TransportError
 
 from .base import Transport, UrlOptions
@@ -65,6 +69,10 @@ _DRAIN = 512  # CAN messages taken per read after the first complete frame (boun
 _TX_FULL = frozenset({errno.ENOBUFS, errno.EAGAIN})
 """errno of a send refused for a full transmit queue (socketcan's ENOBUFS): a dropped frame, the bus there."""
 _LOG_EVERY_S = 1.0  # a counted drop is logged at most this often (the log line says how many since)
+_ECHOES = 4096
+"""This end's sent segments remembered until their loopback comes back (udp_multicast hears its own
+datagrams, in the order sent; the virtual interface does not, and the oldest are then forgotten): a frame
+in this end's own direction and node id that is none of them was sent by another node using this node id."""
 
 
 @dataclass
@@ -126,6 +134,9 @@ class CanTransport(Transport):
         self._out = bytearray()
         self.tx = CanTxStats()
         self.undecodable = 0  # messages the interface received but could not decode
+        self.same_node = 0  # CAN frames as this end (its direction, its node id) that it did not send
+        self._unechoed: deque[tuple[int, bytes]] = deque(maxlen=_ECHOES)  # sent, loopback not yet heard
+        self._echo_lock = threading.Lock()  # the writer appends, the reader takes the loopback off
         self._bus: can.BusABC | None = None
         self._pending: LinkError | None = None  # a receive failure raised by the next read
         self._skipped = False  # the last _recv returned None for an undecodable message, not a timeout
@@ -188,6 +199,8 @@ class CanTransport(Transport):
     def _close(self) -> None:
         bus, self._bus = self._bus, None
         self._out.clear()
+        with self._echo_lock:
+            self._unechoed.clear()
         self._pending = None  # a reopened bus starts afresh
         self._reassembler.reset()  # partial frames die with the connection (counted as cut)
         if bus is not None:
@@ -201,7 +214,7 @@ class CanTransport(Transport):
         """Reassembly (``rx_*``) and transmit (``tx_*``) counters, for link statistics."""
         rx = {f"rx_{k}": v for k, v in asdict(self._reassembler.stats).items()}
         tx = {f"tx_{k}": v for k, v in asdict(self.tx).items()}
-        return {**rx, "rx_undecodable": self.undecodable, **tx}
+        return {**rx, "rx_undecodable": self.undecodable, "rx_same_node": self.same_node, **tx}
 
     # ------------------------------------------------------------------ internals
     def _recv(self, timeout: float | None) -> can.Message | None:
@@ -222,7 +235,40 @@ class CanTransport(Transport):
             raise LinkError(f"{self.url}: receive failed (interface gone?): {exc}") from exc
 
     def _accept(self, msg: can.Message) -> bytes:
+        if self._impersonated(msg):
+            self.same_node += 1
+            peer, twins = ("board", "hosts") if self.sends is Direction.TO_BOARD else ("host", "boards")
+            self._log_drop(
+                "same_node",
+                f"a CAN frame as this end (node {self.node}, towards the {peer}) that it did not send: "
+                f"another node uses node id {self.node} — two {twins} on one node?",
+            )
         return self._reassembler.feed_message(msg)
+
+    def _impersonated(self, msg: can.Message) -> bool:
+        """``msg`` is a data frame in this end's own direction and node id but not one it sent (nor the
+        loopback of one: udp_multicast hears its own datagrams). Such a frame is ignored by the
+        reassembler like any other of that direction, but it means a second node on the bus answers to
+        this node id: both boards would take the host's commands, and the host would hear two boards'
+        telemetry interleaved as one board resetting again and again. Counted and logged, so that the
+        status of either node names the cause."""
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return False
+        try:
+            cid = CanId.parse(msg.arbitration_id)
+        except ProtocolError:
+            return False
+        if cid.node != self.node or cid.direction is not self.sends:
+            return False
+        key = (msg.arbitration_id, bytes(msg.data))
+        with self._echo_lock:
+            try:
+                at = self._unechoed.index(key)
+            except ValueError:
+                return True
+            for _ in range(at + 1):  # our own, looped back; the ones sent before it will not come back now
+                self._unechoed.popleft()
+        return False
 
     def _log_drop(self, kind: str, what: str) -> None:
         """Log a counted drop at most once a second per kind, saying how many went unlogged since."""
@@ -252,6 +298,8 @@ class CanTransport(Transport):
                 bitrate_switch=seg.is_fd and "data_bitrate" in self._bus_options,
                 is_extended_id=False,
             )
+            with self._echo_lock:  # before the send: its loopback may be read before send returns
+                self._unechoed.append((seg.arbitration_id, seg.data))
             try:
                 bus.send(msg, timeout=self.send_timeout)
             except (can.CanError, OSError) as exc:
