@@ -404,7 +404,7 @@ def test_pacing_holds_a_lockstep_run_to_the_wall_clock(tmp_path):
     assert "pace" in result.summary["tasks"]
     with pytest.raises(ConfigError, match="is for lockstep runs"):
         run(sc, RunOptions(out_root=tmp_path, lockstep=False, pace=2.0))
-    with pytest.raises(ConfigError, match="positive factor"):
+    with pytest.raises(ConfigError, match="a factor of the wall clock of at least 0.001"):
         run(sc, RunOptions(out_root=tmp_path, pace=-1.0))
 
 

@@ -85,6 +85,10 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
         return {}
     if summary is None:
         print("  no summary.json (the run was killed): plots from the telemetry alone")
+    elif (why := _not_a_rate(summary)) is not None:
+        # the one value the plots take from it (hil.plots.run): a string there was a TypeError's traceback
+        print(f"  summary.json damaged ({why}): not shown, and no plots (they read it)")
+        return {}
     elif (where := _not_a_number(summary)) is not None:
         # NaN and Infinity are JSON to Python, and a run writes neither (a figure it has not: null)
         print(f"  summary.json damaged (a value is not what a run writes: {where}): not shown")
@@ -96,6 +100,16 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
             why = f"{type(exc).__name__}: {exc}"
             print(f"  summary.json damaged (a value is not what a run writes: {why}): not shown")
     return plot_run(path, processes=available_cores()) if plots else {}
+
+
+def _not_a_rate(summary: dict) -> str | None:  # type: ignore[type-arg]
+    """What is wrong with the summary's ``max_gimbal_rate_limit`` — the gimbal-rate plot's limit line,
+    read by :func:`hil.plots.run.plot_run` — or None when it is absent, null, or a number (a run writes a
+    number); a NaN or infinity is :func:`_not_a_number`'s to name."""
+    limit = summary.get("max_gimbal_rate_limit")
+    if limit is None or (isinstance(limit, (int, float)) and not isinstance(limit, bool)):
+        return None
+    return f"max_gimbal_rate_limit is {str(limit)[:40]!r}, not a rate"
 
 
 def _not_a_number(doc: object, where: str = "") -> str | None:

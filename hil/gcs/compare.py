@@ -7,7 +7,10 @@ index, name and columns: what the page needs to hold its rows) and ``overlay_row
 link statistics are not sent (the page shows the first run's).
 
 Overlays are read once the first run has described itself, so the page never gets an overlay's rows
-before the run they are drawn over.
+before the run they are drawn over. An overlay's own state — ``following``, ``finished``, ``read``, or
+``error`` with why (a telemetry that is no run's, a directory replaced under the page) — and its damaged
+lines go out in the ``status`` message as ``overlays`` (by run name) whenever one changes: an overlay that
+cannot be drawn, or stopped being followed, is said, never just missing from the plots.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ class CompareSource:
         self.names = [p.name for p in resolved]
         self._described: set[int] = set()
         self._primary_described = False
+        self._overlay_status: dict[str, dict[str, Any]] = {}  # each overlay's newest status, by name
 
     @property
     def primary(self) -> RunDirSource:
@@ -49,8 +53,12 @@ class CompareSource:
             self._primary_described = True
         if not self._primary_described:
             return batch
+        told = False
         for k, source in enumerate(self.sources[1:], start=1):
             part = source.poll()
+            if part.status is not None:
+                self._overlay_status[self.names[k]] = part.status
+                told = True
             if part.info is not None:
                 batch.overlays.append(
                     {
@@ -63,11 +71,20 @@ class CompareSource:
                 self._described.add(k)
             if part.rows:
                 batch.overlay_rows.append((k, part.rows))
+        if told or (batch.status is not None and self._overlay_status):
+            batch.status = {**(batch.status or self.primary.status), "overlays": dict(self._overlay_status)}
         return batch
 
     def counters(self) -> dict[str, Any]:
-        """Each run's rows, events and damaged lines, by name."""
+        """Each run's rows, damaged lines, whether it finished, and its state (with the error, if any), by
+        name."""
         return {
-            name: {"rows": s.rows, "bad_rows": s.bad_rows, "finished": s.finished}
+            name: {
+                "rows": s.rows,
+                "bad_rows": s.bad_rows,
+                "finished": s.finished,
+                "state": s.status.get("state"),
+                "error": s.status.get("error"),
+            }
             for name, s in zip(self.names, self.sources, strict=True)
         }

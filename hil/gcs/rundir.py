@@ -7,14 +7,29 @@ counted — :mod:`hil.runtime.runlog` flushes whole lines). ``summary.json`` app
 when a run ends) means the run is finished: its final link statistics are sent, and the reader stops
 following once it has read the rest. A directory that stops growing without a summary is a killed run
 (or a stalled one): the page shows how long nothing has come.
+
+The files are read by name, so the reader checks each poll that they are still the ones it has read: the
+directory and ``telemetry.csv`` the same (device and inode), and the bytes last read (the unfinished line
+and :data:`SEEN_BYTES` before it) still there — but for the unfinished line itself, which a run's writer
+cuts back when the OS refuses part of a write (:class:`~hil.files.appending.LineAppender`). Otherwise (the
+directory removed or replaced by a new run of the same name, the telemetry truncated or rewritten) the
+run shown is no longer on disk: the reader stops, the
+status saying so (``read``, never ``finished``: another run's summary would say how a run ended that the
+page does not show), rather than draw the new run's rows on the old run's plots. An ``events.jsonl``
+replaced or truncated while the telemetry goes on (rotated) is read again from its start. A line torn
+when the reading stops (a run killed mid-write, then finished or read) is counted as damaged. A path that
+is not a regular file (a FIFO, whose open waits for a writer; a device) is an error, never opened. A
+``scenario.toml`` whose units are not as many as the telemetry's is not this run's: not drawn, the note
+says so.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import stat
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from hil.files.bounded import MAX_LINE_BYTES, LineSplitter, load_json, read_document
 from hil.gcs import info as run_info
@@ -26,32 +41,93 @@ from protocol.errors import HilError, InputFormatError
 logger = logging.getLogger(__name__)
 
 READ_CHUNK = 4 * 1024 * 1024  # bytes read per file per poll (a big file comes in over several polls)
+SEEN_BYTES = 64  # bytes read before the unfinished line, compared on the next read (a file rewritten)
+SEEN_MAX = 64 * 1024  # bytes compared at most (the unfinished line's, then SEEN_BYTES before it)
 
 
 class _Tail:
     """Complete lines appended to one file since the last read (:class:`~hil.files.bounded.LineSplitter`):
     an unfinished line waits for its end, but only up to :data:`~hil.files.bounded.MAX_LINE_BYTES` — a
-    longer one (a file that never breaks its line) is dropped as it arrives, and counted, never held."""
+    longer one (a file that never breaks its line) is dropped as it arrives, and counted, never held.
+
+    :attr:`changed` says why the file at the path is no longer the one read (removed, another file,
+    shorter than what was read, other bytes where the last ones read were — the unfinished line cut back
+    by its writer excepted); nothing more is read from it until :meth:`restart`."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
+        self.restart()
+
+    @property
+    def pending(self) -> bool:
+        """Whether an unfinished line is held (a torn line when no more will come)."""
+        return self._splitter.pending > 0
+
+    def restart(self) -> None:
+        """Read the file at the path from its start, as a new one."""
         self.offset = 0
         self._splitter = LineSplitter()
+        self._identity: tuple[int, int] | None = None  # (device, inode) of the file read
+        self._seen = b""  # the last bytes read: still there on the next read, or the file was rewritten
+        self.changed: str | None = None
 
     def lines(self) -> tuple[list[str], int]:
         """The new complete lines, and how many lines too long to keep ended or began among them."""
+        if self.changed is not None:
+            return [], 0
         try:
-            with open(self.path, "rb") as f:
-                f.seek(self.offset)
-                data = f.read(READ_CHUNK)
+            fd = os.open(self.path, os.O_RDONLY | os.O_NONBLOCK)  # a FIFO's open would wait for a writer
         except FileNotFoundError:
+            if self._identity is not None:
+                self.changed = "removed"
             return [], 0
         except OSError as exc:
             raise InputFormatError(f"cannot read: {exc.strerror}", str(self.path)) from exc
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(fd)
+            if not stat.S_ISREG(st.st_mode):
+                raise InputFormatError("not a regular file: a run writes regular files only", str(self.path))
+            if self._identity is None:
+                self._identity = (st.st_dev, st.st_ino)
+            elif (st.st_dev, st.st_ino) != self._identity:
+                self.changed = "replaced"
+                return [], 0
+            data = self._read(f)
+            if data is None and self._cut_back(f):
+                data = self._read(f)
+        if data is None:
+            self.changed = "truncated" if st.st_size < self.offset else "rewritten"
+            return [], 0
         self.offset += len(data)
         lines = self._splitter.feed(data)
+        window = min(SEEN_BYTES + self._splitter.pending, SEEN_MAX)  # the unfinished line and a bit before
+        self._seen = (self._seen + data)[-window:]
         kept = [line.decode("utf-8", errors="replace") for line in lines if line is not None]
         return kept, len(lines) - len(kept)
+
+    def _read(self, f: BinaryIO) -> bytes | None:
+        """Up to :data:`READ_CHUNK` bytes from the offset, or None when the bytes before it are not the
+        last ones read (the file was truncated or rewritten)."""
+        back = len(self._seen)
+        f.seek(self.offset - back)
+        data = f.read(READ_CHUNK + back)
+        return data[back:] if data[:back] == self._seen else None
+
+    def _cut_back(self, f: BinaryIO) -> bool:
+        """Whether the file differs from what was read only in the unfinished line held: its writer cut
+        its torn last line back to the end of the last whole one — a run's
+        :class:`~hil.files.appending.LineAppender` does when the OS refuses part of a write (a full disk)
+        — and may have written on from there. Then the unfinished line is forgotten and the reading goes
+        on from its start (the offset and the bytes seen moved back to it)."""
+        cut = self._splitter.pending
+        keep = max(len(self._seen) - cut, 0)
+        f.seek(self.offset - cut - keep)
+        if not cut or f.read(keep) != self._seen[:keep]:
+            return False
+        self.offset -= cut
+        self._splitter = LineSplitter()
+        self._seen = self._seen[:keep]
+        return True
 
 
 class RunDirSource:
@@ -65,6 +141,7 @@ class RunDirSource:
         if not (self.run_dir / TELEMETRY).exists() and not (self.run_dir / EVENTS).exists():
             raise InputFormatError(f"not a run directory (no {TELEMETRY} or {EVENTS})", str(self.run_dir))
         self.follow = follow
+        self._identity = _identity(self.run_dir)
         self._telemetry = _Tail(self.run_dir / TELEMETRY)
         self._events = _Tail(self.run_dir / EVENTS)
         self.columns: list[str] | None = None
@@ -79,6 +156,11 @@ class RunDirSource:
         self._state: dict[str, Any] = {"state": "waiting"}
         self._sent_status: dict[str, Any] | None = None
 
+    @property
+    def status(self) -> dict[str, Any]:
+        """The status last sent (``{"state": "waiting"}`` before the first)."""
+        return dict(self._sent_status or self._state)
+
     def _info(self, columns: list[str]) -> dict[str, Any]:
         scenario, note = None, ""
         path = self.run_dir / "scenario.toml"
@@ -89,6 +171,14 @@ class RunDirSource:
                 note = f"scenario.toml unreadable ({exc}): no units or limits drawn"
         else:
             note = "no scenario.toml: no units or limits drawn"
+        logged = run_info.units_from_columns(columns)
+        if scenario is not None and logged and logged != scenario.spacecraft.n_units:
+            # a scenario.toml copied or edited since the run: the telemetry is what the run logged
+            note = (
+                f"scenario.toml has {scenario.spacecraft.n_units} units, the telemetry {logged}: "
+                "not this run's scenario, no units or limits drawn"
+            )
+            scenario = None
         hold = False
         summary = self._summary()
         if summary is not None and summary.get("replay"):
@@ -125,6 +215,9 @@ class RunDirSource:
         finished = (self.run_dir / SUMMARY).exists()  # before reading: what follows is all there is
         lines, too_long = self._telemetry.lines()
         self.bad_rows += too_long
+        gone = self._gone()
+        if gone is not None:  # what was read is no longer there: stop, never mix in another run's rows
+            return self._stop(batch, gone)
         if self.columns is None and (lines or too_long or finished):
             try:
                 self.columns = self._header(lines, too_long)
@@ -144,17 +237,50 @@ class RunDirSource:
             if finished:
                 summary = self._summary() or {}
                 self.finished = self._done = True
+                self._count_torn()
                 link = summary.get("link")
                 if isinstance(link, dict) and link:
                     batch.link.append({"t": self._last_t, **_flatten(link)})
                 self._state = {"state": "finished", "exit": summary.get("exit"), "summary": summary}
             elif not self.follow:
                 self._done = True
+                self._count_torn()
                 self._state = {"state": "read", "exit": None}
         status = {**self._state, "bad_rows": self.bad_rows, "bad_events": self.bad_events}
         if status != self._sent_status:
             batch.status = self._sent_status = status
         return batch
+
+    def _gone(self) -> str | None:
+        """Why the run read so far is no longer on disk (the directory removed or replaced, its telemetry
+        removed, replaced, truncated or rewritten), or None while it is."""
+        if _identity(self.run_dir) != self._identity:
+            return "the run directory was removed or replaced"
+        if self._telemetry.changed is not None:
+            return f"{TELEMETRY} was {self._telemetry.changed}"
+        return None
+
+    def _stop(self, batch: Batch, why: str) -> Batch:
+        """Stop reading (:meth:`_gone` said ``why``): the status says so, the page shows what was read."""
+        logger.warning("%s: %s: stopped following", self.run_dir, why)
+        self._done = True
+        self._state = {
+            "state": "read",
+            "exit": None,
+            "error": f"{why} after {self.rows} rows: the page shows the run as it was read "
+            "(open the directory again for what is there now)",
+        }
+        batch.status = self._sent_status = {
+            **self._state,
+            "bad_rows": self.bad_rows,
+            "bad_events": self.bad_events,
+        }
+        return batch
+
+    def _count_torn(self) -> None:
+        """No more will be read: a line still unfinished (torn by a kill) is a damaged one, counted."""
+        self.bad_rows += self._telemetry.pending
+        self.bad_events += self._events.pending
 
     def _header(self, lines: list[str], too_long: int) -> list[str]:
         """The telemetry's columns from its first line kept (none yet: a run that has written no row): a
@@ -191,6 +317,11 @@ class RunDirSource:
     def _read_events(self, batch: Batch) -> None:
         where = str(self._events.path)
         lines, too_long = self._events.lines()
+        if self._events.changed is not None:  # rotated (the telemetry goes on): the new file from its start
+            self.bad_events += self._events.pending  # the old file's torn last line
+            self._events.restart()
+            more, more_long = self._events.lines()
+            lines, too_long = lines + more, too_long + more_long
         self.bad_events += too_long
         for line in lines:
             try:
@@ -203,6 +334,15 @@ class RunDirSource:
             else:
                 self.bad_events += 1
         self.events += len(batch.events)
+
+
+def _identity(path: Path) -> tuple[int, int] | None:
+    """(device, inode) of ``path``, None when it is not there."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
 
 
 def _size(path: Path) -> int:

@@ -93,6 +93,8 @@ function showStatus() {
   if (s.bad_rows) parts.push(`${s.bad_rows} unreadable rows`);
   if (s.uplink_rejected) parts.push(`${s.uplink_rejected} requests refused`);
   if (s.error) parts.push(`error: ${s.error}`);
+  // runs compared: an overlay that cannot be drawn, or stopped being followed, says why (hil/gcs/compare.py)
+  for (const [name, o] of Object.entries(s.overlays || {})) if (o && o.error) parts.push(`${name}: ${o.error}`);
   $("note").textContent = [state.info && state.info.note, ...parts].filter(Boolean).join(" · ");
 }
 
