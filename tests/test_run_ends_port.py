@@ -16,8 +16,16 @@ from pathlib import Path
 
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from test_run_ends_signals import NAMES, _disarms, _ended, _honest_run_dir, _text, _wait_until
-from test_sigterm import _board_disarmed_by_the_host, _kinds, _run_dir, _spawn, firmware_sim
+from test_run_ends_signals import NAMES, _disarms, _ended, _honest_run_dir
+from test_sigterm import (
+    _board_disarmed_by_the_host,
+    _kinds,
+    _run_dir,
+    _spawn,
+    _text,
+    _wait_until,
+    firmware_sim,
+)
 
 MOMENTS = ("handshake", "phone_wait", "armed", "spin_up", "slew_start")
 

@@ -37,6 +37,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from test_sigterm import _text, _wait_until
 
 from hil.runtime.runlog import read_events, read_telemetry
 from hil.scenario.paths import ROOT
@@ -50,17 +51,6 @@ DRAWN = settings(
     derandomize=True,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
-
-
-def _wait_until(condition: Callable[[], object], timeout: float, what: str, proc=None) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return
-        if proc is not None and proc.poll() is not None:
-            raise AssertionError(f"the process ended (status {proc.returncode}) before {what}")
-        time.sleep(0.02)
-    raise AssertionError(f"not within {timeout} s: {what}")
 
 
 def _spawn(tmp: Path, *args: str, **kw) -> subprocess.Popen:
@@ -79,10 +69,6 @@ def _spawn(tmp: Path, *args: str, **kw) -> subprocess.Popen:
     finally:
         for f in files:
             f.close()
-
-
-def _text(path: Path) -> str:
-    return path.read_text(errors="replace") if path.exists() else ""
 
 
 def _run_dir(tmp: Path) -> Path | None:

@@ -41,7 +41,7 @@ def _wait_until(condition: Callable[[], object], timeout: float, what: str, proc
             return
         if proc is not None and proc.poll() is not None:
             raise AssertionError(f"the process ended (status {proc.returncode}) before {what}")
-        time.sleep(0.05)
+        time.sleep(0.02)
     raise AssertionError(f"not within {timeout} s: {what}")
 
 
@@ -58,7 +58,7 @@ def _spawn(*args: str, log: Path, **kw) -> subprocess.Popen:
 
 
 def _text(path: Path) -> str:
-    return path.read_text() if path.exists() else ""
+    return path.read_text(errors="replace") if path.exists() else ""
 
 
 def _kinds(run_dir: Path) -> list[str]:

@@ -330,6 +330,8 @@ def test_replay_faults_at_drawn_moments(tmp_path, moment):
         assert s["exit"] in exit_line
         if s["exit"] == "completed":
             assert code == 0 and s["replay"]["samples_released"] == s["phone_samples"]
+        elif s["exit"].startswith("incomplete"):  # a restart's warm-up the recording's end cut short
+            assert code == 1 and "before the slew started" in s["exit"], (exit_line, b.done)
         else:
             assert code == 3 and "completed" not in exit_line, (exit_line, b.done)
         started = any(f["kind"] == "link_lost" for f in s["faults"]) or s["board_resets"]

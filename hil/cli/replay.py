@@ -42,7 +42,9 @@ given).
 a log without a magnetometer replays 6-axis: inclination from gravity, heading unobserved (drifts).
 where the log's clock jumps by more than --max-gap seconds the filter restarts (reported).
 with --port: a run directory under --out (default runs/): telemetry.csv, events.jsonl, summary.json,
-plots/ (`hil report` redraws them); --paced, --progress and the estimates CSV do not apply.
+plots/ (`hil report` redraws them); --paced, --progress and the estimates CSV do not apply. The log
+(after --window, or its longest part) must outlast the scenario's warm-up; one that ends before the slew
+started (a pause restarted the warm-up) ends "incomplete"; exit status as hil run's (docs/faults.md).
 """
 
 FORMATS = ("csv", "sensorlogger", "sensorlogger-json", "phyphox", "tyrex", "broad")
@@ -257,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     """``--port``: the log as the phone of a run that drives the board (hil.runtime)."""
-    from hil.cli.run import LiveProgress, draw_plots, exit_status, format_summary
+    from hil.cli.run import LiveProgress, Plotter, report_ended
     from hil.estimation.inertial import field_warnings
     from hil.logs import read_log
     from hil.logs.replay import (
@@ -287,6 +289,13 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
             file=sys.stderr,
         )
         log = log.window(t0, t1)
+    warmup_s = scenario.loop.warmup_s
+    if not log.end - log.start > warmup_s:  # it would end during the warm-up: the controller never holding
+        raise ConfigError(
+            f"the log drives {log.end - log.start:.2f} s, not longer than the scenario's warm-up "
+            f"({warmup_s:g} s): the controller would never hold an attitude (a longer log or --window)",
+            "hil replay --port",
+        )
     options = ReplayOptions(
         out_dir=Path("."),
         estimator=estimator_of(args),
@@ -307,21 +316,22 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     for warning in field_warnings(log, field_model_of(options)):
         print(f"  warning: {warning}", file=sys.stderr)
         setup.append(f"warning: {warning}")
-    result = run_scenario(
-        scenario,
-        RunOptions(
-            port=args.port,
-            lockstep=True if args.lockstep else None,
-            out_root=args.out or Path("runs"),
-            progress=LiveProgress(),
-            label=f"replay-{name}",
-            replay=ReplayInput(log, estimator, site, tuple(setup)),
-        ),
-    )
-    if not args.no_plots:
-        assert result.run_dir is not None  # out_root is given
-        draw_plots(result.run_dir)
-    print(file=sys.stderr)
-    print(format_summary(result.summary))
-    print(f"run directory: {result.run_dir}")
-    return exit_status(result.summary)  # as hil run's (docs/faults.md)
+    plotter = None if args.no_plots else Plotter()  # its imports overlap the run, as hil run's
+    try:
+        result = run_scenario(
+            scenario,
+            RunOptions(
+                port=args.port,
+                lockstep=True if args.lockstep else None,
+                out_root=args.out or Path("runs"),
+                progress=LiveProgress(),
+                label=f"replay-{name}",
+                replay=ReplayInput(log, estimator, site, tuple(setup)),
+                report_late_signal=True,  # a signal as the run wrote its ending: reported, status 1
+            ),
+        )
+    except BaseException:
+        if plotter is not None:
+            plotter.cancel()
+        raise
+    return report_ended(result, plotter, "hil replay")

@@ -238,48 +238,61 @@ def run(args: argparse.Namespace) -> int:
             raise
         say(f"\nhil run: {exc}", sys.stderr)
         return EXIT_ERROR
-    try:
-        if station is not None:  # an interrupt while it stops is one after the run, as below
+    if station is not None:
+        try:
             station.close()
-        return _report(result, plotter, station)
-    except KeyboardInterrupt as exc:  # the run has ended and its summary.json is written
-        from hil.cli._signals import signal_of
+        except KeyboardInterrupt as exc:  # one while it stops is one after the run: as report_ended's
+            return _interrupted_after(result, plotter, "hil run", exc)
+        if station.error is not None:  # the page stopped updating; the run did not
+            say(f"ground station: its pump failed: {station.error!r}", sys.stderr)
+    return report_ended(result, plotter, "hil run")
 
+
+def report_ended(result, plotter: Plotter | None, command: str) -> int:  # type: ignore[no-untyped-def]
+    """An ended run's summary printed and its plots drawn (``hil run``'s and ``hil replay --port``'s);
+    the exit status. A signal that came while the run wrote its ending
+    (:attr:`~hil.runtime.RunResult.late_signal`) stops it here as one that comes now does: the summary
+    said, no plots (``hil report RUN_DIR`` draws them), status 1 — never an escaped 130/143/129 with the
+    completed run's summary unprinted and the plotter left running."""
+    try:
+        late = result.late_signal
         if plotter is not None:
-            plotter.cancel()  # its drawing processes stopped: none left running after hil
-        say(
-            f"\nhil run: interrupted ({signal_of(exc).name}) after the run ended: {_no_plots(result)}",
-            sys.stderr,
-        )
-        return EXIT_INCOMPLETE
-
-
-def _report(result, plotter: Plotter | None, station) -> int:  # type: ignore[no-untyped-def]
-    """The ended run's summary printed and its plots drawn; the exit status. A signal that came while the
-    run wrote its ending (:attr:`~hil.runtime.RunResult.late_signal`) stops it here as one that comes
-    now does: no plots, status 1."""
-    if station is not None and station.error is not None:  # the page stopped updating; the run did not
-        say(f"ground station: its pump failed: {station.error!r}", sys.stderr)
-    late = result.late_signal
-    if plotter is not None:
+            if late is not None:
+                plotter.cancel()
+                plotter = None
+            else:
+                assert result.run_dir is not None
+                plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
+        say("", sys.stderr)
+        say(format_summary(result.summary), sys.stdout)
+        say(f"run directory: {result.run_dir}", sys.stdout)
         if late is not None:
-            plotter.cancel()
-            plotter = None
-        else:
-            assert result.run_dir is not None
-            plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
-    say("", sys.stderr)
-    say(format_summary(result.summary), sys.stdout)
-    say(f"run directory: {result.run_dir}", sys.stdout)
-    if late is not None:
-        say(f"hil run: interrupted ({late}) as the run ended: {_no_plots(result)}", sys.stderr)
-        return EXIT_INCOMPLETE
-    if plotter is not None:
-        error = plotter.wait()
-        if error:
-            say(f"hil run: {error}", sys.stderr)
+            say(f"{command}: interrupted ({late}) as the run ended: {_no_plots(result)}", sys.stderr)
             return EXIT_INCOMPLETE
-    return exit_status(result.summary)
+        if plotter is not None:
+            error = plotter.wait()
+            if error:
+                say(f"{command}: {error}", sys.stderr)
+                return EXIT_INCOMPLETE
+        return exit_status(result.summary)
+    except KeyboardInterrupt as exc:  # the run has ended and its summary.json is written
+        return _interrupted_after(result, plotter, command, exc)
+
+
+def _interrupted_after(  # type: ignore[no-untyped-def]
+    result, plotter: Plotter | None, command: str, exc: BaseException
+) -> int:
+    """An interrupt after the run ended: its plotter's drawing processes stopped (none left running after
+    hil), said, status 1."""
+    from hil.cli._signals import signal_of
+
+    if plotter is not None:
+        plotter.cancel()
+    say(
+        f"\n{command}: interrupted ({signal_of(exc).name}) after the run ended: {_no_plots(result)}",
+        sys.stderr,
+    )
+    return EXIT_INCOMPLETE
 
 
 def _no_plots(result) -> str:  # type: ignore[no-untyped-def]

@@ -543,8 +543,10 @@ def _run_scheduler(built: _Built) -> None:
 def _outcome(host: Host) -> str:
     """The run's exit reason when its loop ended on its own: ``lost: ...`` if an outage of the board (or a
     phone gap) outlasted its bound or was still on at the end; ``disarmed by the operator ...`` if the
-    operator's Disarm suspended the run and no Arm followed; ``completed`` once the run's time after the
-    slew's start (its suspensions not counted) is up; else the time limit."""
+    operator's Disarm suspended the run and no Arm followed; ``incomplete: ...`` if a replay's recording ran
+    out before the slew started (its warm-up never done: a phone gap or a board reset near the log's end
+    restarted it — it once said ``completed``); ``completed`` once the run's time after the slew's start
+    (its suspensions not counted) is up; else the time limit."""
     lost = host.lost or host.journal.open_at_end(host.client.clock.now())
     if lost is not None:
         return f"lost: {lost}"
@@ -559,6 +561,8 @@ def _outcome(host: Host) -> str:
             last = refused[-1]
             said += f" (an Arm at t={last['t']:.3f} s was refused: {last.get('reason', 'refused')})"
         return said
+    if host.finished and host.phases.slew_start is None:  # a recording that ran out during the warm-up
+        return "incomplete: the recording ended before the slew started (the controller never held it)"
     return "completed" if host.finished else "time limit (the slew never started)"
 
 
