@@ -13,22 +13,13 @@ from __future__ import annotations
 
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from test_board_link_beside_echo import hello_reply, telemetry
+from test_board_link_beside_echo import connected, hello_reply, telemetry
 
-from hil.link.board import BoardResetEvent, Phase, Session
+from hil.link.board import BoardResetEvent, Session
 from protocol.frame import Framer
 from protocol.messages import Ack, Arm
 
 PERIOD_S = 0.1  # the board's telemetry period in these tests
-
-
-def connected() -> tuple[Session, Framer]:
-    s = Session()
-    s.link_up(0.0)
-    board = Framer()
-    s.feed(board.encode(hello_reply())[1], 0.01)
-    assert s.phase is Phase.READY
-    return s, board
 
 
 def stream(s: Session, board: Framer, start: float, end: float, uptime_ms: float, rate: float) -> float:

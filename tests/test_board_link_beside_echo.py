@@ -61,6 +61,18 @@ def hello_reply() -> HelloReply:
     )
 
 
+def connected() -> tuple[Session, Framer]:
+    """A session after a handshake with :func:`hello_reply`'s board (its events taken), and the board's
+    framer."""
+    s = Session()
+    s.link_up(0.0)
+    board = Framer()
+    s.feed(board.encode(hello_reply())[1], 0.01)
+    assert s.phase is Phase.READY
+    s.take_events()
+    return s, board
+
+
 def telemetry(time_ms: int, rx_frames: int = 0) -> Telemetry:
     return Telemetry(
         time_ms=time_ms,

@@ -15,7 +15,7 @@ import logging
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_board_link_beside_echo import hello_reply, telemetry
+from test_board_link_beside_echo import connected, hello_reply, telemetry
 
 from hil.link.board import Phase, Session, SilenceEvent
 from hil.link.board.session import DROP_WARN_EVERY_S
@@ -23,16 +23,6 @@ from protocol.frame import Framer
 from protocol.messages import PROTOCOL_VERSION, Ack, Arm, HelloReply, Nack, NackReason
 
 LOGGER = "hil.link.board.session"
-
-
-def connected() -> tuple[Session, Framer]:
-    s = Session()
-    s.link_up(0.0)
-    board = Framer()
-    s.feed(board.encode(hello_reply())[1], 0.01)
-    assert s.phase is Phase.READY
-    s.take_events()
-    return s, board
 
 
 class Recorder(logging.Handler):
