@@ -254,6 +254,7 @@ def report_ended(result, plotter: Plotter | None, command: str) -> int:  # type:
     (:attr:`~hil.runtime.RunResult.late_signal`) stops it here as one that comes now does: the summary
     said, no plots (``hil report RUN_DIR`` draws them), status 1 — never an escaped 130/143/129 with the
     completed run's summary unprinted and the plotter left running."""
+    said = False  # the summary printed: an interrupt before it still has it printed
     try:
         late = result.late_signal
         if plotter is not None:
@@ -264,8 +265,8 @@ def report_ended(result, plotter: Plotter | None, command: str) -> int:  # type:
                 assert result.run_dir is not None
                 plotter.draw(result.run_dir)  # drawn in the other process while the summary prints
         say("", sys.stderr)
-        say(format_summary(result.summary), sys.stdout)
-        say(f"run directory: {result.run_dir}", sys.stdout)
+        _say_summary(result)
+        said = True
         if late is not None:
             say(f"{command}: interrupted ({late}) as the run ended: {_no_plots(result)}", sys.stderr)
             return EXIT_INCOMPLETE
@@ -276,18 +277,25 @@ def report_ended(result, plotter: Plotter | None, command: str) -> int:  # type:
                 return EXIT_INCOMPLETE
         return exit_status(result.summary)
     except KeyboardInterrupt as exc:  # the run has ended and its summary.json is written
-        return _interrupted_after(result, plotter, command, exc)
+        return _interrupted_after(result, plotter, command, exc, said)
+
+
+def _say_summary(result) -> None:  # type: ignore[no-untyped-def]
+    say(format_summary(result.summary), sys.stdout)
+    say(f"run directory: {result.run_dir}", sys.stdout)
 
 
 def _interrupted_after(  # type: ignore[no-untyped-def]
-    result, plotter: Plotter | None, command: str, exc: BaseException
+    result, plotter: Plotter | None, command: str, exc: BaseException, said: bool = False
 ) -> int:
     """An interrupt after the run ended: its plotter's drawing processes stopped (none left running after
-    hil), said, status 1."""
+    hil), the run's summary printed unless it was (``said``), the interrupt said, status 1."""
     from hil.cli._signals import signal_of
 
     if plotter is not None:
         plotter.cancel()
+    if not said:
+        _say_summary(result)
     say(
         f"\n{command}: interrupted ({signal_of(exc).name}) after the run ended: {_no_plots(result)}",
         sys.stderr,
