@@ -40,16 +40,26 @@ while True:
 """
 
 
+def _lines_on_disk(path) -> int:
+    return path.read_bytes().count(b"\n") if path.exists() else 0
+
+
 def test_a_sigkilled_writer_leaves_a_readable_log(tmp_path):
+    """SIGKILL while rows and events are being written: every row that had reached the file is read back,
+    in order, at most one torn line dropped. The kill comes once the writer thread has put row 50 in the
+    file (waited for, not timed: a CI machine running two passes once took longer than a fixed 50 ms)."""
     proc = subprocess.Popen([sys.executable, "-c", WRITER, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    telemetry = tmp_path / "telemetry.csv"
     try:
         assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
-        time.sleep(0.05)
+        deadline = time.monotonic() + 30.0
+        while _lines_on_disk(telemetry) < 52 and time.monotonic() < deadline:  # the header and 51 rows
+            time.sleep(0.005)
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.wait(timeout=10)
     assert proc.returncode == -signal.SIGKILL
-    tel = read_telemetry(tmp_path / "telemetry.csv")
+    tel = read_telemetry(telemetry)
     assert tel.rows >= 51 and tel.dropped_lines <= 1
     n = tel.rows
     assert list(tel["angle_deg"][:n]) == [90.0 - i for i in range(n)]
