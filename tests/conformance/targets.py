@@ -84,6 +84,17 @@ def uptime_origin(resets: Sequence[ResetEvent], t: float) -> float:
     return [r.t for r in resets if r.t <= t][-1]
 
 
+def timeline_through(target: Target, t: float) -> Sequence[PulseFrame]:
+    """The target's pulse frames with every frame begun by target time ``t`` in them. A frame is measured
+    once it has ended, and a real-time target (simavr) may be read between a message the host has just
+    taken and the frame beside it (a CI run read a watchdog reset's timeline before the boot's first
+    frame had ended): the target runs on, host silent, until two frames past ``t``."""
+    end = t + 2.0 / target.spec.frame_rate_hz
+    if target.now() < end:
+        target.idle(end - target.now())
+    return target.timeline()
+
+
 def board_config(spec: TargetSpec) -> Any:
     """The ``firmware_sim.board.config.BoardConfig`` a target runs for ``spec``."""
     from firmware_sim.board.config import BoardConfig

@@ -14,7 +14,7 @@ import math
 import pytest
 
 from conformance.host import connect, heartbeat, retry_if_starved
-from conformance.targets import uptime_origin
+from conformance.targets import timeline_through, uptime_origin
 from firmware_sim.board.timeline import PulseFrame
 from protocol.messages import (
     PROTOCOL_VERSION,
@@ -268,7 +268,7 @@ def test_link_loss_failsafe_within_timeout_plus_one_frame(target, host):
     # at the next frame start (the compare registers are double-buffered: no pulse is cut short or
     # stretched on the way; simavr: 251.4-260.4 ms in 30 runs).
     assert spec.link_timeout_s - ms <= t_failsafe - t_last <= spec.link_timeout_s + frame + ms
-    rotor = [(f.t, f.widths[1]) for f in target.timeline() if f.t >= t_last - 0.1]
+    rotor = [(f.t, f.widths[1]) for f in timeline_through(target, t_failsafe + frame) if f.t >= t_last - 0.1]
     moving = [w for t, w in rotor if t < t_last]
     assert moving and moving[-1] > spec.rotor_safe_us
     t_safe = next(t for t, w in rotor if t >= t_last and w == spec.rotor_safe_us)
@@ -297,7 +297,7 @@ def test_hang_gives_a_watchdog_reset_reported_on_reconnect(target, host):
     # The reset comes mcu_watchdog after the main loop's last check-in, to the millisecond; the main loop
     # stops on the pass after the self-test pin went low (simavr: 500.0-503.0 ms in 30 runs).
     assert spec.mcu_watchdog_s - 0.002 <= reset.t - t_hang <= spec.mcu_watchdog_s + MAIN_LOOP_S
-    frames = target.timeline()
+    frames = timeline_through(target, target.now())
     before = [f for f in frames if f.t <= t_hang][-1]
     # Timers (and the frame interrupt's dither) run on at the last targets: within a 0.5 µs tick of them,
     # once the main loop has stopped. Its last pass may still set new ones (the rotors' widths follow the

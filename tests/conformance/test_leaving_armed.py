@@ -23,7 +23,7 @@ import random
 import pytest
 
 from conformance.host import heartbeat
-from conformance.targets import uptime_origin
+from conformance.targets import timeline_through, uptime_origin
 from conformance.test_conformance import armed_and_streaming, setpoint, silence_after_a_steady_stream
 from protocol.messages import Ack, BoardState, Disarm, Heartbeat, Telemetry
 
@@ -52,7 +52,7 @@ def _check_change(target, host, start: int, new: BoardState, beat: Heartbeat | N
         beat = next(m for m in got if isinstance(m, Heartbeat) and m.state == new)
     origin = uptime_origin(target.resets(), target.now())
     t_change = origin + beat.time_ms / 1000
-    frames = [f for f in target.timeline() if t_change - 0.1 <= f.t]
+    frames = [f for f in timeline_through(target, t_change + MS) if t_change - 0.1 <= f.t]
     assert any(not _rotors_safe(f.widths, safe, tol) for f in frames if f.t < t_change - MS)
     bad = [f for f in frames if f.t >= t_change + MS and not _rotors_safe(f.widths, safe, tol)]
     assert not bad, (
