@@ -158,9 +158,10 @@ class GcsServer:
         """Close the listening sockets and every connection, stop the loop, join its thread."""
         self.hub.close()
         loop = self.loop
-        if loop is None or self.thread is None:
+        if loop is None or self.thread is None:  # never started: its sockets and event loop are all it holds
             for s in self._sockets:
                 s.close()
+            self._asyncio.close()
             return
 
         def shut() -> None:

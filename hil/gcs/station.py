@@ -102,9 +102,14 @@ class GroundStation:
         self._closed = False
         # The first cycle before serving: a run directory's info (its mode, columns, limits) is known by
         # the time the URL is printed, so a client that asks at once gets it (on a busy machine the pump's
-        # first pass came after such a request, which got an empty answer).
-        self._cycle()
-        self.server.start()
+        # first pass came after such a request, which got an empty answer). A first read that fails (a file
+        # that is no run's telemetry) stops the server it bound: its socket is not left to the collector.
+        try:
+            self._cycle()
+            self.server.start()
+        except BaseException:
+            self.server.stop()
+            raise
         self._pump_thread = threading.Thread(target=self._pump, name="gcs-pump", daemon=True)
         self._pump_thread.start()
 
