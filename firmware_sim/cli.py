@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+from hil.cli._parser import ArgumentParser
 from hil.cli.run import seconds
 from hil.scenario.fault_specs import (
     MAX_SAG_OHMS,
@@ -80,7 +81,7 @@ crashed, exited): the board it served is gone (docs/firmware_sim.md, "Lifetimes"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="firmware-sim",
         description="Emulated ADK board (VSCMG actuators) behind a real pseudo-terminal.",
         epilog=EPILOG,

@@ -23,6 +23,7 @@ from types import ModuleType
 
 from protocol.errors import HilError
 
+from ._parser import ArgumentParser
 from ._signals import (
     exit_on_late_signals,
     exit_status,
@@ -57,7 +58,7 @@ class _VersionAction(argparse.Action):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="hil",
         description="Hardware-in-the-loop host for a smartphone-based VSCMG attitude control system.",
         epilog="Run 'hil COMMAND --help' for each command's options and examples.",
