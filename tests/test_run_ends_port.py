@@ -98,3 +98,20 @@ def test_a_signalled_port_run_leaves_the_board_disarmed(tmp_path_factory, first,
             assert len(disarms) == 1, disarms
             if disarms[0][0] == "disarmed":  # not given up by a second interrupt during its wait
                 _board_disarmed_by_the_host(sim)
+
+
+def test_a_completed_port_run_leaves_the_board_disarmed(tmp_path):
+    """A run that ends by itself disarms the board it armed (``disarmed``, reason ``run ended``): let go
+    armed, the board spun its rotors at the last setpoint until its link watchdog tripped, and the next
+    session found it in FAILSAFE, a link-lost fault in its telemetry that no run had suffered."""
+    phone = f"udp://127.0.0.1:{_free_udp_port()}"
+    with firmware_sim(tmp_path, "--world", "cubesat-1u", "--phone", phone) as sim:
+        out = tmp_path / "runs"
+        args = ("hil", "run", "--port", str(sim.link), "--phone", phone, "--duration", "6")
+        hil = _spawn(*args, "--no-plots", "--out", str(out), log=tmp_path / "hil")
+        status = _ended(hil)
+        run_dir = _run_dir(out)
+        assert status == 0 and run_dir is not None, _text(tmp_path / "hil.err")
+        assert _honest_run_dir(run_dir)["exit"] == "completed"
+        assert _disarms(run_dir) == [("disarmed", "run ended")]
+        _board_disarmed_by_the_host(sim)
