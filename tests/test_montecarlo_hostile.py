@@ -29,13 +29,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from montecarlo_support import write_quick_scenario
 
+from hil.cli._signals import interrupts_raise, signal_of
 from hil.montecarlo import Campaign, draw, open_client, parse_dispersions, read_runs, run_campaign
-from hil.montecarlo.campaign import check_address, interrupts_deferred
+from hil.montecarlo.campaign import check_address
 from hil.montecarlo.dispersions import OUTAGE_S
 from hil.montecarlo.fault_plan import MAX_COUNT, MIN_DURATION_S
 from hil.montecarlo.metrics import METRICS, TRACES
 from hil.montecarlo.runner import RunResult
 from hil.montecarlo.store import MANIFEST, RUNS, TRACE_FILE, ResultStore
+from hil.runtime.held_signals import deferred
 from hil.scenario import load_scenario
 from protocol.errors import ConfigError, LinkError
 
@@ -353,16 +355,31 @@ def test_an_interrupt_while_the_cluster_starts_is_handled_once_it_is_up():
     with a traceback, or the start failed with 'Nanny failed to start'): the interrupt is held for the
     block and raised after it — or instead of the block's own error when the block failed."""
     with pytest.raises(KeyboardInterrupt):
-        with interrupts_deferred():
+        with deferred():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)
             reached = True  # the block went on
     assert reached
     with pytest.raises(KeyboardInterrupt):
-        with interrupts_deferred():
+        with deferred():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)
             raise RuntimeError("Nanny failed to start.")
-    with pytest.raises(RuntimeError), interrupts_deferred():  # no interrupt: the block's own error
+    with pytest.raises(RuntimeError), deferred():  # no interrupt: the block's own error
         raise RuntimeError("Nanny failed to start.")
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_every_signal_that_stops_a_command_is_held_while_the_cluster_starts(signum):
+    """Under hil's handlers (``hil.cli._signals``: SIGINT, SIGTERM and SIGHUP all stop a command): a closed
+    terminal's SIGHUP went through the cluster's start (only SIGINT and SIGTERM were held), leaving it half
+    made. Each is held, then raised as the command's interrupt, naming it."""
+    with interrupts_raise():
+        with pytest.raises(KeyboardInterrupt) as info:
+            with deferred():
+                os.kill(os.getpid(), signum)
+                time.sleep(0.05)
+                reached = True
+        assert reached
+        assert signal_of(info.value) == signum

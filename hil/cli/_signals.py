@@ -22,12 +22,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-HANDLED = tuple(
-    s for s in (getattr(signal, name, None) for name in ("SIGINT", "SIGTERM", "SIGHUP")) if s is not None
-)
-"""The signals that end a command the way Ctrl-C does: SIGINT, SIGTERM, and SIGHUP (the terminal or ssh
-session the command was started from closed: its default action ended the process at once — no summary,
-the board left armed until its own watchdog failed it safe)."""
+from hil.runtime.held_signals import STOP_SIGNALS
+
+HANDLED = STOP_SIGNALS
+"""The signals that end a command the way Ctrl-C does (:data:`hil.runtime.held_signals.STOP_SIGNALS`)."""
 
 
 class Interrupted(KeyboardInterrupt):

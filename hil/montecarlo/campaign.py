@@ -41,6 +41,8 @@ from typing import Any
 
 from hil import version
 from hil.cores import available_cores
+from hil.runtime.held_signals import STOP_SIGNALS
+from hil.runtime.held_signals import deferred as deferred_signals
 from hil.runtime.runlog import SUMMARY, write_summary
 from hil.scenario import Scenario
 from protocol.errors import ConfigError, LinkError
@@ -225,7 +227,7 @@ def open_client(
         try:
             yield client
         finally:
-            with interrupts_deferred():  # see below: a second Ctrl-C waits for the close
+            with deferred_signals():  # see below: a second Ctrl-C waits for the close
                 client.close()
         return
     n = workers if workers is not None else available_cores()
@@ -233,7 +235,7 @@ def open_client(
         raise ConfigError(f"must be at least 1, got {n}", "workers")
     stack = ExitStack()
     try:
-        with interrupts_deferred():  # a cluster interrupted half-started left a traceback at exit
+        with deferred_signals():  # a cluster interrupted half-started left a traceback at exit
             cluster = stack.enter_context(
                 LocalCluster(
                     n_workers=n,
@@ -251,7 +253,7 @@ def open_client(
         # Ctrl-C pressed twice: the second came while the first's close was under way (well under a
         # second), threw it away half done, and Dask's exit hook then took 10 s more to close the
         # half-closed cluster after the command had said it was interrupted. Held until it is closed.
-        with interrupts_deferred():
+        with deferred_signals():
             stack.close()
 
 
@@ -302,47 +304,15 @@ def probe_scheduler(scheduler: str, timeout_s: float) -> None:
         ) from exc
 
 
-@contextmanager
-def interrupts_deferred() -> Iterator[None]:
-    """SIGINT and SIGTERM held for the block, then handled as they would have been (the handler that was
-    there is called: ``hil``'s raises its interrupt). A LocalCluster interrupted while it starts is left
-    half-made: Dask's exit hook then failed an assertion closing it, with a traceback. Ignored signals stay
-    ignored; outside the main thread nothing changes (Python allows handlers only there). A block that fails
-    after an interrupt came is reported as the interrupt."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    previous: dict[int, Any] = {}
-    for signum in (signal.SIGINT, signal.SIGTERM):
-        handler = signal.getsignal(signum)
-        if handler is signal.SIG_IGN or handler is None:
-            continue
-        previous[signum] = signal.signal(signum, lambda received, frame: caught.append(received))
-    try:
-        yield
-    except Exception:
-        if not caught:
-            raise
-        # the block failed because of the interrupt (a worker process it reached died starting): the
-        # interrupt is what happened, and is handled as such
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-    if caught:
-        handler = previous[caught[0]]
-        if callable(handler):
-            handler(caught[0], None)
-        else:  # SIG_DFL: what the signal would have done
-            signal.raise_signal(caught[0])
-
-
 def dask_setup(worker: Any) -> None:
-    """A LocalCluster worker process's preload: Ctrl-C in a terminal reaches the whole process group, and
-    each worker printed its KeyboardInterrupt's traceback; the driver alone handles it (it cancels the
-    work and closes the cluster, whose nannies stop the workers)."""
+    """A LocalCluster worker process's preload: Ctrl-C in a terminal, and the terminal's SIGHUP when it
+    closes, reach the whole process group; each worker printed its KeyboardInterrupt's traceback (or died
+    of the hang-up under its work). The driver alone handles them (it cancels the work and closes the
+    cluster, whose nannies stop the workers, by SIGTERM: that one stays the worker's)."""
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        for signum in STOP_SIGNALS:
+            if signum != signal.SIGTERM:
+                signal.signal(signum, signal.SIG_IGN)
 
 
 def chunks(indices: Iterable[int], count: int, batch: int, workers: int) -> Iterator[list[int]]:

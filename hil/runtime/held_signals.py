@@ -1,41 +1,51 @@
-"""Interrupts held back while a run writes its ending.
+"""The signals that stop a ``hil`` command, held back while a block must not be cut short.
 
-hil's command line turns SIGINT, SIGTERM and SIGHUP into an exception raised wherever
-the main thread happens to be (:mod:`hil.cli._signals`). Once a run's loop has ended, that place is its
-clean-up: the link being closed, the summary being gathered, the logs being closed, ``summary.json`` being
-written. A second Ctrl-C there (a user pressing it twice) once threw the clean-up away half done: no
-``summary.json`` at all, or one without its ``exit``.
+hil's command line turns SIGINT, SIGTERM and SIGHUP (:data:`STOP_SIGNALS`) into an exception raised
+wherever the main thread happens to be (:mod:`hil.cli._signals`). Some blocks must not be thrown away half
+done by it, and two ways of holding them are wanted, both here:
 
-:class:`HeldSignals` puts a handler of its own in front of those signals' Python handlers for the whole
-run. Until the run starts ending it hands every signal on to the handler it replaced (so an interrupt
-interrupts the run, and a second one the Disarm wait, as before); once :attr:`HeldSignals.holding` is set —
-a plain attribute store, so no signal can slip in between the run's end and the hold — it notes the first
-signal in :attr:`HeldSignals.received` instead, and the caller decides what it means
-(:func:`hil.runtime.loop.run` reports it in :attr:`~hil.runtime.loop.RunResult.late_signal`). One signal is
-held, not more: one repeated while the ending is written (a disk that stalls it, a user pressing Ctrl-C
-again and again) goes to its handler as before and gives the ending up — the run never becomes one that
-only SIGKILL ends. The handlers it replaced come back when the run is over.
+* **A run's ending** (:class:`HeldSignals`). Once a run's loop has ended, the main thread is in its
+  clean-up: the link being closed, the summary being gathered, the logs being closed, ``summary.json``
+  being written. A second Ctrl-C there (a user pressing it twice) once threw the clean-up away half done:
+  no ``summary.json`` at all, or one without its ``exit``. :class:`HeldSignals` puts a handler of its own
+  in front of those signals' Python handlers for the whole run. Until the run starts ending it hands every
+  signal on to the handler it replaced (so an interrupt interrupts the run, and a second one the Disarm
+  wait, as before); once :attr:`HeldSignals.holding` is set — a plain attribute store, so no signal can
+  slip in between the run's end and the hold — it notes the first signal in :attr:`HeldSignals.received`
+  instead, and the caller decides what it means (:func:`hil.runtime.loop.run` reports it in
+  :attr:`~hil.runtime.loop.RunResult.late_signal`). One signal is held, not more: one repeated while the
+  ending is written (a disk that stalls it, a user pressing Ctrl-C again and again) goes to its handler as
+  before and gives the ending up — the run never becomes one that only SIGKILL ends.
+* **A step that cannot be left half made** (:func:`deferred`): a Dask cluster starting or closing. Every
+  signal is held for the block, then handed to the handler that was there: a LocalCluster interrupted
+  while it started was left half made, and Dask's exit hook failed an assertion closing it, with a
+  traceback; a second Ctrl-C during the close left Dask's exit hook 10 s more of closing after the command
+  had said it was interrupted.
 
-Only the main thread can change handlers (Python runs them there); elsewhere (a Monte Carlo worker's
-thread) nothing is installed and nothing held. A signal with no Python handler (ignored, or the OS's
-default action) is left as it is.
+The handlers replaced come back after the block. Only the main thread can change handlers (Python runs
+them there); elsewhere (a Monte Carlo worker's thread) nothing is installed and nothing held. A signal
+with no Python handler (ignored, or the OS's default action) is left as it is.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from types import FrameType, TracebackType
 from typing import Any
 
-HELD = tuple(
+STOP_SIGNALS = tuple(
     s for s in (getattr(signal, name, None) for name in ("SIGINT", "SIGTERM", "SIGHUP")) if s is not None
 )
+"""The signals that end a command the way Ctrl-C does: SIGINT, SIGTERM, and SIGHUP (the terminal or ssh
+session the command was started from closed: its default action ended the process at once — no summary,
+the board left armed until its own watchdog failed it safe)."""
 
 
 class HeldSignals:
-    """Within ``with``: :data:`HELD` signals that have a Python handler go to it while :attr:`holding` is
+    """Within ``with``: :data:`STOP_SIGNALS` that have a Python handler go to it while :attr:`holding` is
     false; once it is set the first one is noted in :attr:`received` (its name), any after it goes to
     its handler."""
 
@@ -46,7 +56,7 @@ class HeldSignals:
 
     def __enter__(self) -> HeldSignals:
         if threading.current_thread() is threading.main_thread():
-            for signum in HELD:
+            for signum in STOP_SIGNALS:
                 handler = signal.getsignal(signum)
                 if callable(handler):
                     self._previous[signum] = handler
@@ -64,3 +74,36 @@ class HeldSignals:
     ) -> None:
         for signum, handler in list(self._previous.items()):
             signal.signal(signum, handler)  # a signal meanwhile still finds its handler in _previous
+
+
+@contextmanager
+def deferred() -> Iterator[None]:
+    """:data:`STOP_SIGNALS` held for the block, then handled as they would have been: the handler that was
+    there is called with the first (``hil``'s raises its interrupt), or, where that was the OS's default
+    action, the signal is raised again. Ignored signals stay ignored. A block that fails after an interrupt
+    came is reported as the interrupt (a worker process the block reached died starting)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous: dict[int, Any] = {}
+    for signum in STOP_SIGNALS:
+        handler = signal.getsignal(signum)
+        if handler is signal.SIG_IGN or handler is None:
+            continue
+        previous[signum] = signal.signal(signum, lambda received, frame: caught.append(received))
+    try:
+        yield
+    except Exception:
+        if not caught:
+            raise
+        # the block failed because of the interrupt: the interrupt is what happened, handled as such
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if caught:
+        handler = previous[caught[0]]
+        if callable(handler):
+            handler(caught[0], None)
+        else:  # SIG_DFL: what the signal would have done
+            signal.raise_signal(caught[0])
