@@ -30,7 +30,8 @@ READERS: dict[str, ModuleType] = {
 
 def detect_format(path: Path | str) -> str:
     """The format of ``path`` (see :data:`READERS`), or InputFormatError listing what was looked for."""
-    return _format_of(Container(Path(path)))
+    with Container(Path(path)) as container:
+        return _format_of(container)
 
 
 def _format_of(container: Container) -> str:
@@ -40,6 +41,11 @@ def _format_of(container: Container) -> str:
         return name
     inside = logs_inside(container.path)
     hint = ""
+    if any(n.lower().endswith((".json", ".json.gz")) for n in container.names()):
+        hint = (
+            "; a .json is read as Sensor Logger's JSON export: one array of records, "
+            '[{"sensor": "Gyroscope", "time": …, "x": …}, …] (not JSON Lines, nor an object)'
+        )
     if inside:
         more = f" and {len(inside) - 1} more" if len(inside) > 1 else ""
         hint = f"; it holds logs: replay one, e.g. {inside[0]}{more}"
@@ -69,8 +75,9 @@ def logs_inside(folder: Path) -> list[Path]:
         try:
             if input_kind(entry, InputFormatError) == PIPE:
                 continue  # reading one would wait for its writer, and use it up
-            if _recognise(Container(entry)) is not None:
-                found.append(entry)
+            with Container(entry) as container:
+                if _recognise(container) is not None:
+                    found.append(entry)
         except (InputFormatError, OSError):
             continue
     return found
@@ -81,6 +88,6 @@ def read_log(path: Path | str, format: str | None = None) -> SensorLog:
     is unpacked to a temporary file as it is opened (:mod:`hil.logs.archive`), is unpacked once."""
     if format is not None and format not in READERS:
         raise InputFormatError(f"unknown format {format!r} (known: {', '.join(READERS)})", str(path))
-    container = Container(Path(path))
-    name = format or _format_of(container)
-    return READERS[name].read(container)
+    with Container(Path(path)) as container:
+        name = format or _format_of(container)
+        return READERS[name].read(container)

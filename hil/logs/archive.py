@@ -41,7 +41,7 @@ MAX_ARCHIVE_DEPTH = 2
 MAX_TAR_BYTES = 1 << 30
 """The most a tar may hold, decompressed (1 GiB: four of the largest members a log may have)."""
 TAR_SUFFIXES = (".tar", ".tar.gz", ".tgz", ".tar.bz2", ".tbz2", ".tbz", ".tar.xz", ".txz")
-ARCHIVE_SUFFIXES = (".zip", *TAR_SUFFIXES)
+ARCHIVE_SUFFIXES = (".zip", ".zip.gz", *TAR_SUFFIXES)
 _MAGIC = {b"\x1f\x8b": "gzip", b"BZh": "bzip2", b"\xfd7zXZ\x00": "xz"}
 """A compressed tar's first bytes → its compression."""
 _UNREADABLE = (tarfile.TarError, OSError, EOFError, zlib.error, lzma.LZMAError, ValueError)
@@ -135,8 +135,14 @@ def piped_name(pipe: Path, spool: IO[bytes]) -> str:
     return pipe.name + suffix
 
 
+GZIPPED_ZIP = "zip.gz"
+"""The kind of a gzip stream holding a zip (:func:`kind_of`): decompressed to a temporary file, bounded as a
+member is, and read as the zip (:func:`members_of`)."""
+
+
 def kind_of(f: IO[bytes]) -> str | None:
-    """``"zip"``, ``"tar"`` (plain or compressed) or None for the seekable stream ``f`` (left at 0)."""
+    """``"zip"``, ``"tar"`` (plain or compressed), :data:`GZIPPED_ZIP` or None for the seekable stream
+    ``f`` (left at 0)."""
     try:
         f.seek(0)
         head = f.read(8)
@@ -144,6 +150,8 @@ def kind_of(f: IO[bytes]) -> str | None:
         block = _read_at_most(_decompressed(f, head) or f, 512)
         if block[257:262] == b"ustar":  # POSIX and GNU tars, as every tool writes them
             return "tar"  # asked first: a tar whose last file is a zip ends in a zip's end record
+        if head.startswith(b"\x1f\x8b") and block.startswith(b"PK\x03\x04"):
+            return GZIPPED_ZIP  # the app's zip gzipped (``export.zip.gz``: a mail or backup tool's)
         f.seek(0)
         return "zip" if zipfile.is_zipfile(f) else None
     except (*_UNREADABLE, InputFormatError):
@@ -179,6 +187,14 @@ def members_of(
     (their members named under the archive's name without its suffix), and the folders all members share
     left out of their names; and those folders (:func:`shared_folders`). ``keep`` collects what must stay
     open while the members are read."""
+    if kind == GZIPPED_ZIP:
+        size = f.seek(0, io.SEEK_END)
+        f.seek(0)
+        gzipped = Member(where, lambda: gzip.GzipFile(fileobj=f), size, size)  # type: ignore[arg-type, return-value]
+        unpacked = _nested(gzipped, keep)
+        if unpacked is None or unpacked[1] != "zip":
+            raise InputFormatError("a gzip stream holding no readable zip", where)
+        f, kind = unpacked
     found = _zip_members(f, where, keep) if kind == "zip" else _tar_members(f, where, keep)
     out: list[tuple[str, Member]] = []
     for name, member in found:

@@ -2,7 +2,8 @@
 
 - UTF-8, with or without a byte-order mark: the apps' own.
 - UTF-16 (little or big endian) or UTF-32, with a byte-order mark: Excel's "Unicode text" (tab-separated
-  UTF-16 LE), a Windows editor's "Unicode". Transcoded to UTF-8 as the bytes are read
+  UTF-16 LE), a Windows editor's "Unicode"; UTF-16 without one, when its first 8 characters are ASCII
+  (:func:`unmarked_utf16`: a CSV's header is). Transcoded to UTF-8 as the bytes are read
   (:func:`utf8_stream`: a piece at a time, never the file whole); bytes that are not text in the encoding
   the mark names (a lone surrogate, an odd byte at the end) are an
   :class:`~protocol.errors.InputFormatError` naming the file and the line.
@@ -39,7 +40,27 @@ def utf8_stream(raw: io.BufferedReader, where: str) -> IO[bytes]:
         if head.startswith(bom):
             raw.read(len(bom))
             return io.BufferedReader(_Transcoder(raw, codec, where), 1 << 16)
+    unmarked = unmarked_utf16(raw.peek(UNMARKED_PROBE)[:UNMARKED_PROBE])
+    if unmarked is not None:
+        return io.BufferedReader(_Transcoder(raw, unmarked, where), 1 << 16)
     return raw
+
+
+UNMARKED_PROBE = 16
+"""The first bytes :func:`unmarked_utf16` looks at: 8 characters of UTF-16."""
+
+
+def unmarked_utf16(head: bytes) -> str | None:
+    """``"utf-16-le"`` or ``"utf-16-be"`` when ``head``, a file's first bytes, is UTF-16 without a
+    byte-order mark (a tool's "Unicode" saved without one): its first 8 characters printable ASCII, each
+    beside a NUL byte — which no UTF-8 text holds (the readers refuse a NUL as binary data); else None."""
+    if len(head) < UNMARKED_PROBE:
+        return None
+    low, high = head[0::2], head[1::2]
+    for text, zeros, codec in ((low, high, "utf-16-le"), (high, low, "utf-16-be")):
+        if not any(zeros) and all(0x20 <= b < 0x7F or b in b"\t\r\n" for b in text):
+            return codec
+    return None
 
 
 def decode_legacy(data: bytes) -> str:

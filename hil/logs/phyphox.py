@@ -163,7 +163,7 @@ def read(c: Container) -> SensorLog:
     if SensorKind.MAG not in chosen:
         notes.append("no magnetometer file: 6-axis log, heading not observed (gyroscope only, drifting)")
     offsets = _clock_offsets(c, {f.group for f in chosen.values()}, notes)
-    streams = {kind: _stream(c, f, offsets[f.group]) for kind, f in chosen.items()}
+    streams = {kind: _stream(c, f, offsets[f.group], notes) for kind, f in chosen.items()}
     acc_norm = float(np.nanmedian(np.linalg.norm(streams[SensorKind.ACC].xyz, axis=1)))
     if acc_norm < 3.0:
         raise InputFormatError(
@@ -174,11 +174,12 @@ def read(c: Container) -> SensorLog:
     return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
 
 
-def _stream(c: Container, f: _File, offset_s: float) -> SensorStream:
+def _stream(c: Container, f: _File, offset_s: float, notes: list[str]) -> SensorStream:
     kind = f.kind
     assert kind is not None
     use = partial(_sensor_columns, kind=kind)
     table = read_table(c, f.name, f.delimiter, decimal_comma=f.decimal_comma, min_columns=4, use=use)
+    notes.extend(table.layout_notes())
     t_col, t_scale = time_column(table.columns, table.source, table.header_line)
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=(t_col,))
     xyz = np.column_stack([table.column(col) * factor for col, factor in axes])

@@ -29,7 +29,7 @@ import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.rows import BadCell, shown
+from hil.logs.rows import BadCell, number, shown
 from hil.logs.table import Container, Header, read_table, split_header, text_lines
 from protocol.errors import InputFormatError
 
@@ -71,11 +71,11 @@ def read(c: Container) -> SensorLog:
         bad = ~(np.abs(np.linalg.norm(quat, axis=1) - 1.0) < 1e-3)
         if bad.any():
             row = int(np.flatnonzero(data[:, 1] == 3)[np.argmax(bad)])
-            line = _line_of_row(c, name, row)
+            line = _line_of_row(c, name, row, table.repeated_headers)
             raise InputFormatError("truth quaternion is not of unit norm", where, line, "w")
         order = np.argsort(truth_rows[:, 0], kind="stable")
         truth = Truth(truth_rows[order, 0], so3.quat_to_matrix(quat[order]))
-    return SensorLog(streams, where, NAME, truth, ("project CSV v1",))
+    return SensorLog(streams, where, NAME, truth, ("project CSV v1", *table.layout_notes()))
 
 
 def _columns(header: Header) -> tuple[str, ...]:
@@ -95,15 +95,17 @@ def _sensor_code(cell: str) -> float:
 
 def _w(cell: str) -> float:
     """``w``: empty on a sensor row (NaN; a truth row's NaN fails its unit-norm check)."""
-    return float(cell) if cell.strip() else math.nan
+    return number(cell.strip()) if cell.strip() else math.nan
 
 
-def _line_of_row(c: Container, name: str, row: int) -> int:
-    """1-based file line of data row ``row`` (comments, blank lines and the header skipped), streamed."""
+def _line_of_row(c: Container, name: str, row: int, repeated: tuple[int, ...] = ()) -> int:
+    """1-based file line of data row ``row`` (comments, blank lines, the header and the ``repeated`` lines
+    that repeat it skipped), streamed."""
     seen = -2  # the header is the first non-comment line
+    skip = set(repeated)
     for first, lines in text_lines(c, name):
         for i, line in enumerate(lines):
-            if line.strip() and not line.lstrip().startswith("#"):
+            if line.strip() and not line.lstrip().startswith("#") and first + i not in skip:
                 seen += 1
                 if seen == row:
                     return first + i

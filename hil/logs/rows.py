@@ -13,10 +13,14 @@ label, a device name, empty cells, a quoted note with commas in it. Only the col
   over two lines is two rows of too few cells, an error naming the first). Runs of whitespace separate
   the cells of a table without a delimiter, whose cells are never quoted;
 - a line whose first character that is not a space is ``#`` is a comment; a ``#`` inside a row is part
-  of its cell (``run #2``), not the start of a comment.
+  of its cell (``run #2``), not the start of a comment;
+- a row that is the header again (files joined one after another, ``cat a.csv b.csv``) is passed over
+  and its line kept in :attr:`RowParser.repeated_headers`, for the reader to note.
 
 A used cell that is no number is an :class:`InputFormatError` naming the file, line and column, as is one a
-reader's converter refuses (:class:`BadCell` says why). ``nan``/``NaN`` is a number (a NaN sample).
+reader's converter refuses (:class:`BadCell` says why). ``nan``/``NaN`` is a number (a NaN sample); a cell
+of digits that are not ASCII (``١٢``, fullwidth ``１２``) or with an underscore (``1_0``) is not, though
+Python's ``float`` reads it (:func:`number`): NumPy, JSON and spreadsheets do not.
 
 Speed: a chunk goes to ``numpy.loadtxt`` whole. Its rows' cells are counted first (one ``str.count`` a
 line); a line holding a quote is split as CSV and handed on unquoted, its unused cells blanked, so that
@@ -47,6 +51,14 @@ split at runs of whitespace keeps its cell count."""
 
 class BadCell(ValueError):
     """Raised by a reader's converter for a cell it refuses; its message is what the error says."""
+
+
+def number(text: str) -> float:
+    """A cell's text as a number, as NumPy, JSON and a spreadsheet read one: ``ValueError`` for what only
+    Python's ``float`` takes — digits that are not ASCII (``"١٢"``, fullwidth ``"１２"``), ``"1_0"``."""
+    if not text.isascii() or "_" in text:
+        raise ValueError(text)
+    return float(text)
 
 
 def shown(cell: str, keep: int = 40) -> str:
@@ -93,6 +105,10 @@ class RowParser:
     decimal_comma: bool
     converters: Mapping[int, Callable[[str], float]] = field(default_factory=dict)
     exact: tuple[tuple[str, int], ...] = ()
+    header: bool = False
+    repeated_headers: list[int] = field(default_factory=list)
+    """The lines that repeat the header (files joined one after another: ``cat a.csv b.csv``), passed
+    over; ``header`` says whether the table has one to repeat."""
     chunks: list[Array] = field(default_factory=list)
     exact_chunks: dict[str, list[NDArray[np.int64]]] = field(default_factory=dict)
 
@@ -236,6 +252,9 @@ class RowParser:
                 cells = cells_of(line, self.delimiter)
             except csv.Error as exc:
                 raise InputFormatError(f"not a CSV row ({exc})", self.source, line_no) from None
+            if self.header and len(cells) == len(self.columns) and self._is_header(cells):
+                self.repeated_headers.append(line_no)
+                continue
             if len(cells) != len(self.columns):
                 what = f"{len(cells)} values, expected {len(self.columns)}"
                 if self.delimiter is not None and len(self.columns) > 1 and not self.columns[-1]:
@@ -252,15 +271,17 @@ class RowParser:
                 self.exact_chunks.setdefault(name, []).append(np.array(values_of, dtype=np.int64))
         return len(rows)
 
+    def _is_header(self, cells: Sequence[str]) -> bool:
+        """Whether a row's cells are the header's names (stripped and unquoted, as the header's are)."""
+        return all(cell_text(c).strip() == name for c, name in zip(cells, self.columns, strict=True))
+
     def _value(self, text: str, position: int, line_no: int) -> float:
         """A used cell's value; an InputFormatError naming it when it is none."""
         convert = self.converters.get(position)
         try:
             if convert is not None:
                 return float(convert(text))
-            if "_" in text:  # Python's float() takes "1_0"; NumPy, JSON and a spreadsheet do not
-                raise ValueError(text)
-            return float(text.replace(",", ".") if self.decimal_comma else text)
+            return number(text.replace(",", ".") if self.decimal_comma else text)
         except (ValueError, KeyError) as exc:
             if isinstance(exc, BadCell):
                 what = str(exc)

@@ -6,7 +6,10 @@ Current exports have the header ``time,seconds_elapsed,z,y,x`` — note the **z,
 may hold text: :func:`sensor_columns`); a re-save may put units on the clocks too (``time (ns)``,
 ``seconds_elapsed [s]``: :func:`clock_of`). ``time`` is Unix epoch in ns (shared by all sensors), read
 as exact integers and converted to seconds since the first sample of any sensor; without it,
-``seconds_elapsed`` (s since the recording started, also shared). Units (the app's unit reference): m/s²
+``seconds_elapsed`` (s since the recording started, also shared). A re-save's ``time`` in s, ms or µs
+keeps its fraction; one written as an ISO-8601 date is read (:func:`iso_time_ns`); one a spreadsheet
+rounded (``1.67907E+18``) gives way to ``seconds_elapsed`` for every file (:class:`_CoarseTime`); files
+on different clocks are refused (:func:`_same_clock`). Units (the app's unit reference): m/s²
 (g = 9.80665), rad/s, µT; axes are Android's sensor frame (on iOS, with "Standardise Units & Frames" on).
 
 Accelerometers, in order of preference: ``TotalAcceleration.csv`` (specific force *including* gravity);
@@ -24,17 +27,20 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
 from functools import partial
 
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns
+from hil.logs.rows import BadCell, number, shown
 from hil.logs.table import (
     Container,
     Header,
     Table,
+    content_head,
     read_table,
     sniff_dialect,
     split_header,
@@ -88,16 +94,25 @@ def members(c: Container) -> dict[str, str] | None:
     holding them: at the top, or all in one folder below it (an export zipped twice, a folder holding the
     export's zip: ``Rec/Gyroscope.csv``). None when they lie in several folders (recordings side by side:
     each is a log of its own)."""
+    groups = _by_folder(c)  # every folder holding one: a second recording's is never passed over
+    return next(iter(groups.values()), {}) if len(groups) <= 1 else None
+
+
+def _sensor_files(files: Mapping[str, str]) -> bool:
+    return any(name != "Metadata.csv" for name in files)
+
+
+def _by_folder(c: Container) -> dict[str, dict[str, str]]:
+    """Sensor Logger's files in ``c`` by the folder they lie in: folder → (the app's file name → member)."""
     lower = {name.lower(): name for name in _KNOWN}
-    found: dict[str, str] = {}
-    folders: set[str] = set()
+    groups: dict[str, dict[str, str]] = {}
     for member in sorted(c.names()):
         folder, _, base = member.rpartition("/")
         name = lower.get(_plain(base).lower())
-        if name is not None and name not in found:
-            found[name] = member
-            folders.add(folder)
-    return found if len(folders) <= 1 else None
+        if name is not None:
+            groups.setdefault(folder, {}).setdefault(name, member)
+    sensors = {folder: files for folder, files in groups.items() if _sensor_files(files)}
+    return sensors if sensors else groups  # a Metadata.csv in a folder of no sensor file: not a recording
 
 
 def _plain(base: str) -> str:
@@ -110,12 +125,17 @@ def detect(c: Container) -> bool:
     """Whether ``c`` is a Sensor Logger export, told by the header of its first sensor file that has one.
     An empty file (a sensor the app wrote nothing for, a copy cut short) says nothing either way: the
     next one is asked, and :func:`read` names the empty one if it is needed — rather than the export
-    going unrecognised and its other files being offered as logs of their own."""
-    files = members(c) or {}
+    going unrecognised and its other files being offered as logs of their own. Exports side by side (an
+    archive of two recordings) are one too: :func:`read` refuses them, saying so."""
+    return any(_detects(c, files) for files in _by_folder(c).values())
+
+
+def _detects(c: Container, files: Mapping[str, str]) -> bool:
+    """Whether the files of one folder (:func:`_by_folder`) are a Sensor Logger export (:func:`detect`)."""
     for name in (*GYR_FILES, *ACC_FILES, *MAG_FILES):
         if name not in files:
             continue
-        head = [line for line in c.head(files[name], 3) if line.strip()]
+        head = content_head(c, files[name], 3)
         if not head:
             continue
         delimiter = sniff_dialect(head)[0]
@@ -137,21 +157,68 @@ def _starts_at_an_epoch(head: Sequence[str], cells: Sequence[str], delimiter: st
         return False
     column = next(i for i, cell in enumerate(cells) if (clock_of(cell) or ("",))[0] == "time")
     row = split_header(head[1], delimiter)
+    if column < len(row) and _is_iso_time(row[column]):
+        return True
     try:
-        value = abs(int(row[column]))
+        cell = row[column].strip()
+        if not cell.isascii():  # "١٦٧٩…": Python's int() reads it, no CSV reader does
+            return False
+        value = abs(int(cell))
     except (ValueError, IndexError):
         return False
     return any(low <= value < high for low, high, _, _ in EPOCH_UNITS)
+
+
+_ISO = re.compile(
+    r"^\s*(\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}:\d{2})(?:[.,](\d{1,9}))?\s*(Z|[+-]\d{2}(?::?\d{2})?)?\s*$", re.I
+)
+"""An ISO-8601 date and time, as a spreadsheet or a script re-saves an epoch ``time``:
+``2023-03-17T15:50:47.6092966Z`` (``T`` or a space, a fraction of up to 9 digits, ``Z``, an offset or
+none)."""
+
+
+def iso_time_ns(cell: str) -> float:
+    """An ISO-8601 ``time`` cell (:data:`_ISO`) as ns since the epoch (a float: to 256 ns, as the app's
+    ``seconds_elapsed`` is to ~100 ns); one without an offset is read as UTC (all the export's files alike:
+    only differences of time matter). ``nan`` is NaN (a NaN sample); anything else is a :class:`BadCell`."""
+    m = _ISO.match(cell)
+    if m is None:
+        if cell.strip().lower() == "nan":
+            return float("nan")
+        raise BadCell(f"{shown(cell)} is no ISO-8601 time, as the file's first row's is")
+    stamp, fraction, zone = m.groups()
+    zone = (zone or "+00:00").upper().replace("Z", "+00:00")
+    try:
+        when = datetime.fromisoformat(stamp.replace(" ", "T") + zone)
+    except ValueError as exc:
+        raise BadCell(f"{shown(cell)} is no ISO-8601 time ({exc})") from None
+    seconds = int((when - datetime(1970, 1, 1, tzinfo=UTC)).total_seconds())
+    return float(seconds * 1_000_000_000 + int((fraction or "0").ljust(9, "0")))
+
+
+def _is_iso_time(cell: str) -> bool:
+    """Whether a first row's ``time`` cell is an ISO-8601 time rather than a number."""
+    try:
+        number(cell.strip().strip('"'))
+        return False
+    except ValueError:
+        return _ISO.match(cell.strip().strip('"')) is not None
 
 
 def _csv_table(c: Container, member: str, kind: SensorKind) -> Table:
     """One of the export's CSV files as a :class:`Table` of the columns a ``kind`` sensor is read from
     (:func:`sensor_columns`), read in its own dialect (a spreadsheet's re-save may use semicolons and
     decimal commas), its ``time`` column also as exact int64."""
-    head = [line for line in c.head(member, 8) if line.strip()]
+    head = content_head(c, member, 8)
     delimiter, decimal_comma = sniff_dialect(head)
     cells = split_header(head[0], delimiter) if head else []
     time_name = next((cell for cell in cells if (clock_of(cell) or ("",))[0] == "time"), "time")
+    converters = None
+    if len(head) > 1 and time_name in cells:
+        first = split_header(head[1], delimiter)
+        at = cells.index(time_name)
+        if at < len(first) and _is_iso_time(first[at]):
+            converters = {time_name: iso_time_ns}  # a re-save's dates: read as ns since the epoch
     return read_table(
         c,
         member,
@@ -161,6 +228,7 @@ def _csv_table(c: Container, member: str, kind: SensorKind) -> Table:
         min_columns=4,
         use=partial(sensor_columns, kind=kind),
         exact_columns=(time_name,),
+        converters=converters,
     )
 
 
@@ -185,14 +253,53 @@ def sensor_columns(header: Header, kind: SensorKind) -> list[str]:
     return [*clocks.values(), *(col for col, _ in axes)]
 
 
+@dataclass
+class Clocks:
+    """What :func:`assemble` learns of its files' clocks as it reads them: ``bases`` (by file name, the
+    epoch its recording started at: ``time`` less ``seconds_elapsed``, s); ``elapsed_only`` to read every
+    file by ``seconds_elapsed`` (a ``time`` rounded by a spreadsheet: :class:`_CoarseTime`)."""
+
+    bases: dict[str, float] = field(default_factory=dict)
+    elapsed_only: bool = False
+
+
+class _CoarseTime(Exception):
+    """A file's ``time`` rounded to a few significant digits (``1.67907E+18``: a spreadsheet re-saved the
+    export and wrote the number as it showed it) beside a ``seconds_elapsed`` that is not: the export is
+    read again by ``seconds_elapsed``."""
+
+    def __init__(self, source: str, distinct: int, rows: int) -> None:
+        super().__init__(source)
+        self.source, self.distinct, self.rows = source, distinct, rows
+
+
+def _coarse(times: np.ndarray, usable: np.ndarray) -> tuple[int, int] | None:
+    """(distinct times, rows) when fewer than half the usable rows have a time of their own: a ``time``
+    rounded (a sensor's samples are 5-20 ms apart; its clock ticks in ns). None otherwise."""
+    rows = int(np.count_nonzero(usable))
+    if rows < 10:
+        return None
+    distinct = len(np.unique(times[usable]))
+    return (distinct, rows) if distinct < rows // 2 else None
+
+
 def samples(
-    table: Table, name: str, notes: list[str], required: bool = True
+    table: Table,
+    name: str,
+    notes: list[str],
+    required: bool = True,
+    clocks: Clocks | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The times (int64 ns since the epoch, or float s since the start) and readings (N, 3, SI) of
     ``table``, the export's file ``name`` (``Gyroscope.csv``: it says the sensor) however it was stored
     (a CSV file, the records of the JSON export). A row whose ``time`` is no number (NaN, or beyond
     int64) has NaN readings: a NaN sample, dropped and counted by the merge. A table with no rows is an
-    InputFormatError naming it when ``required``."""
+    InputFormatError naming it when ``required``. ``clocks`` collects, by ``name``, its clock's
+    base — ``time`` less ``seconds_elapsed``, the epoch the recording started at (s) — when it has both,
+    and says whether to read ``seconds_elapsed`` only. A ``time`` rounded (:func:`_coarse`) is
+    :class:`_CoarseTime` when the file has a ``seconds_elapsed`` to read instead, else an
+    InputFormatError naming the column."""
+    notes.extend(table.layout_notes())
     table, units = _clock_names_lowered(table)
     if required and not len(table.data):
         raise InputFormatError("no samples (a header only)", table.source)
@@ -200,7 +307,8 @@ def samples(
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=_TIME)
     xyz = np.column_stack([table.column(col) * factor for col, factor in axes])
     times: np.ndarray
-    if "time" in table.exact:
+    elapsed_only = clocks is not None and clocks.elapsed_only and "seconds_elapsed" in table.columns
+    if "time" in table.exact and not elapsed_only:
         exact = table.column("time")
         unusable = ~(np.isfinite(exact) & (np.abs(exact) < 2.0**63))
         if unusable.all() and len(unusable):
@@ -211,7 +319,10 @@ def samples(
                 f"(no number, or beyond int64; the first on data row {int(np.argmax(unusable)) + 1}): NaN "
                 "samples, dropped and counted"
             )
-        times, usable = _epoch_ns(table, ~unusable, notes, units)
+        base: dict[str, float] = {}
+        times, usable = _epoch_ns(table, ~unusable, notes, units, base)
+        if clocks is not None and base:
+            clocks.bases[name] = base[table.source]
         xyz[~usable] = np.nan
     elif "seconds_elapsed" in table.columns:
         times = table.column("seconds_elapsed")
@@ -273,7 +384,11 @@ def _clock_names_lowered(table: Table) -> tuple[Table, _ClockUnits]:
 
 
 def _epoch_ns(
-    table: Table, usable: np.ndarray, notes: list[str], units: _ClockUnits | None = None
+    table: Table,
+    usable: np.ndarray,
+    notes: list[str],
+    units: _ClockUnits | None = None,
+    bases: dict[str, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``time`` column as int64 ns since the epoch, its unit told by its size (:data:`EPOCH_UNITS`:
     the app writes ns; a re-export may write µs or ms) and checked against ``seconds_elapsed``'s steps
@@ -305,6 +420,18 @@ def _epoch_ns(
             table.header_line,
             units.time_cell,
         )
+    coarse = _coarse(table.column("time"), usable)  # floats: "1679068247.609" (s) is no whole second
+    if coarse is not None:
+        elapsed = table.column("seconds_elapsed") if "seconds_elapsed" in table.columns else None
+        if elapsed is not None and _coarse(elapsed, np.isfinite(elapsed)) is None:
+            raise _CoarseTime(table.source, *coarse)
+        raise InputFormatError(
+            f"'time' takes {coarse[0]} values over {coarse[1]} rows: rounded (a spreadsheet's re-save, "
+            "1.67907E+18?), its samples cannot be told apart; export the recording again",
+            table.source,
+            table.header_line,
+            "time",
+        )
     high = min(high, np.iinfo(np.int64).max // ns_per_unit + 1)  # ns that fit int64 (an epoch in s: 2262)
     near = np.abs(times.astype(float) - typical) <= MAX_RECORDING_S * 1e9 / ns_per_unit  # no int64 wrap
     stray = usable & ~((times >= low) & (times < high) & near)
@@ -317,12 +444,18 @@ def _epoch_ns(
         )
         usable = usable & ~stray
     ns = np.where(usable, times, typical) * ns_per_unit
+    floats = table.column("time")
+    fractional = usable & (times.astype(float) != floats)
+    if fractional.any():  # "1679068247.609" (s), "1679068247609.3" (ms): a re-save's, not truncated
+        ns[fractional] = np.round(floats[fractional] * ns_per_unit).astype(np.int64)
     if name != "ns":
         notes.append(f"{table.source}: 'time' in {name} since the epoch (the app writes ns)")
     if "seconds_elapsed" in table.columns:
         rows = np.flatnonzero(usable & np.isfinite(table.column("seconds_elapsed")))
         elapsed = table.column("seconds_elapsed")[rows]
         span_s = float(elapsed[-1] - elapsed[0]) if len(rows) else 0.0
+        if bases is not None and len(rows):
+            bases[table.source] = float(np.median(ns[rows] * 1e-9 - elapsed))
         if abs(span_s) >= 1.0:
             ratio = float(ns[rows[-1]] - ns[rows[0]]) * 1e-9 / span_s
             if not 0.99 < ratio < 1.01:
@@ -378,7 +511,7 @@ def read(c: Container) -> SensorLog:
         folders = sorted({m.rpartition("/")[0] or "." for m in c.names()})
         raise InputFormatError(
             f"Sensor Logger files in several folders ({', '.join(folders[:6])}): recordings side by side; "
-            "replay one folder",
+            "replay one folder (unpack an archive first)",
             str(c.path),
         )
     layout: list[str] = []
@@ -401,9 +534,24 @@ def read(c: Container) -> SensorLog:
 def assemble(export: Export, format_name: str, notes: list[str], layout: Sequence[str] = ()) -> SensorLog:
     """The log of an export: its gyroscope, magnetometer and accelerometer files chosen and read (see
     the module docstring), put on one clock, and noted (``notes`` first, then what was chosen, then
-    ``layout``: how the export was stored)."""
+    ``layout``: how the export was stored). When a file's ``time`` is rounded (a spreadsheet's re-save:
+    :class:`_CoarseTime`), every file is read by ``seconds_elapsed`` instead, noted."""
+    try:
+        return _assemble(export, format_name, list(notes), layout, Clocks())
+    except _CoarseTime as coarse:
+        said = (
+            f"{coarse.source}: 'time' takes {coarse.distinct} values over {coarse.rows} rows (rounded: a "
+            "spreadsheet's re-save?): every file read by seconds_elapsed"
+        )
+        return _assemble(export, format_name, [*notes, said], layout, Clocks(elapsed_only=True))
+
+
+def _assemble(
+    export: Export, format_name: str, notes: list[str], layout: Sequence[str], clocks: Clocks
+) -> SensorLog:
     files = export.files
     parts: dict[SensorKind, tuple[np.ndarray, np.ndarray]] = {}
+    bases = clocks.bases
     gyr = _first(files, GYR_FILES)
     if gyr is None:
         raise InputFormatError("no Gyroscope.csv (nor GyroscopeUncalibrated.csv) in the export", export.path)
@@ -415,7 +563,7 @@ def assemble(export: Export, format_name: str, notes: list[str], layout: Sequenc
             notes.append(f"{name} is empty: 6-axis log, heading not observed")
             mag = None
             continue
-        times, xyz = samples(export.table(name), name, notes, required=kind is SensorKind.GYR)
+        times, xyz = samples(export.table(name), name, notes, kind is SensorKind.GYR, clocks)
         if not len(times):  # a magnetometer file with a header only
             notes.append(f"{name} has no samples: 6-axis log, heading not observed")
             mag = None
@@ -425,7 +573,7 @@ def assemble(export: Export, format_name: str, notes: list[str], layout: Sequenc
             notes.append(f"{name}: no calibrated file in the export, using the uncalibrated one")
     if _first(files, MAG_FILES) is None:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
-    parts[SensorKind.ACC] = _accelerometer(export, notes)
+    parts[SensorKind.ACC] = _accelerometer(export, notes, clocks)
     if "ios" in export.platform():
         notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
     notes.extend(layout)
@@ -434,6 +582,7 @@ def assemble(export: Export, format_name: str, notes: list[str], layout: Sequenc
         raise InputFormatError(
             "some files have a 'time' column and some do not: no common clock", export.path
         )
+    _same_clock(bases, parts, export)
     streams = {}
     if all(epoch.values()):
         t0 = min(int(t.min()) for t, _ in parts.values() if len(t))
@@ -442,19 +591,64 @@ def assemble(export: Export, format_name: str, notes: list[str], layout: Sequenc
         notes.append(f"time: ns since epoch, origin {t0} ns")
     else:
         streams = {kind: SensorStream(kind, t, xyz) for kind, (t, xyz) in parts.items()}
-        notes.append("time: seconds_elapsed (no epoch time column)")
+        why = "the epoch 'time' rounded" if clocks.elapsed_only else "no epoch time column"
+        notes.append(f"time: seconds_elapsed ({why})")
     return SensorLog(streams, export.path, format_name, None, tuple(notes))
 
 
-def _accelerometer(export: Export, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+MAX_CLOCK_DISAGREEMENT_S = 1.0
+"""How far apart two sensor files' clocks may lie (s): their ``time`` less ``seconds_elapsed`` (the epoch
+the recording started at: the same in every file of one recording, to a µs in the app's), or, without
+that, the gap between their spans. Farther, a file is on another clock (another recording's, a boot
+clock, a file shifted by a tool), and reading it beside the others would put its samples beside readings
+taken at another time. The replay's own gap bound (``--max-gap``) is 1 s too."""
+
+
+def _same_clock(
+    bases: Mapping[str, float], parts: Mapping[SensorKind, tuple[np.ndarray, np.ndarray]], export: Export
+) -> None:
+    """An InputFormatError when the export's files are not on one clock (:data:`MAX_CLOCK_DISAGREEMENT_S`):
+    their clock bases differ, or the spans of two of them are that far apart."""
+    if len(bases) > 1:
+        median = float(np.median(list(bases.values())))
+        name, base = max(bases.items(), key=lambda item: abs(item[1] - median))
+        if abs(base - median) > MAX_CLOCK_DISAGREEMENT_S:
+            raise InputFormatError(
+                f"its 'time' less its 'seconds_elapsed' is {base - median:+.6g} s off the other files' "
+                "(the epoch the recording started at): it is on another clock than they are (another "
+                "recording's, or shifted); replay files of one recording",
+                export.files.get(name, name),
+                None,
+                "time",
+            )
+    spans = {}
+    for kind, (t, xyz) in parts.items():
+        kept = t[np.isfinite(t) & np.all(np.isfinite(xyz), axis=1)]  # NaN samples lie nowhere
+        if len(kept):
+            scale = 1e-9 if kept.dtype.kind == "i" else 1.0
+            spans[kind] = (float(kept.min()) * scale, float(kept.max()) * scale)
+    for a, (_, a1) in spans.items():
+        for b, (b0, _) in spans.items():
+            apart = b0 - a1
+            if apart > MAX_CLOCK_DISAGREEMENT_S:
+                raise InputFormatError(
+                    f"the {b.label} samples start {apart:.6g} s after the last {a.label} sample: the files "
+                    "are not on one clock (another recording's, or shifted); replay files of one recording",
+                    export.path,
+                )
+
+
+def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np.ndarray, np.ndarray]:
     files = export.files
     if "TotalAcceleration.csv" in files:
-        times, xyz = samples(export.table("TotalAcceleration.csv"), "TotalAcceleration.csv", notes)
+        times, xyz = samples(
+            export.table("TotalAcceleration.csv"), "TotalAcceleration.csv", notes, True, clocks
+        )
         notes.append("accelerometer: TotalAcceleration.csv (gravity included)")
         return times, xyz
     if "Accelerometer.csv" in files and "Gravity.csv" in files:
-        user_t, user = samples(export.table("Accelerometer.csv"), "Accelerometer.csv", notes)
-        grav_t, g = samples(export.table("Gravity.csv"), "Gravity.csv", notes)
+        user_t, user = samples(export.table("Accelerometer.csv"), "Accelerometer.csv", notes, True, clocks)
+        grav_t, g = samples(export.table("Gravity.csv"), "Gravity.csv", notes, True, clocks)
         known = np.all(np.isfinite(g), axis=1)  # gravity interpolated between its usable rows
         if not known.any():
             raise InputFormatError("no usable samples", files["Gravity.csv"])
@@ -466,7 +660,7 @@ def _accelerometer(export: Export, notes: list[str]) -> tuple[np.ndarray, np.nda
         return user_t, xyz
     if "AccelerometerUncalibrated.csv" in files:
         name = "AccelerometerUncalibrated.csv"
-        times, xyz = samples(export.table(name), name, notes)
+        times, xyz = samples(export.table(name), name, notes, True, clocks)
         norm = float(np.nanmedian(np.linalg.norm(xyz, axis=1))) if len(xyz) else G
         if 0.5 < norm < 2.0:  # iOS's raw accelerometer reads in g
             xyz = xyz * G

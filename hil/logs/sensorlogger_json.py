@@ -23,11 +23,13 @@ from the sensor's first record: its clocks and its x, y, z, found by name as in 
 :mod:`hil.logs.columns`); any other key of any record — unknown, nested, an array, a string, ``null``,
 ``1e308``, an integer of 10 000 digits, present in some records and not in others, given twice — is
 never parsed and never stops the read, as an unused column of the CSV export does not. Keys may come in
-any order. Every record of a sensor must hold the keys read (``seconds_elapsed`` beside ``time`` may be
-left out: a NaN there), each a number or a string holding one; a key read that a record gives twice with
-different values is an error (the first is read when they agree). What a used value then holds is
-judged as the CSV reader judges the same cell: ``"NaN"`` a NaN sample, a ``time`` of 0 or ``1e30`` a
-stray row noted and dropped (:func:`hil.logs.sensorlogger.samples`).
+any order. A clock key the first record lacks that a later record gives is read from that record on, the
+rows before NaN in it (:meth:`_Sensor.add_clock`: never passed over). Every record of a sensor must hold
+the keys read (``seconds_elapsed`` beside ``time`` may be left out: a NaN there), each a number or a
+string holding one; a key read that a record gives twice with different values is an error (the first is
+read when they agree). What a used value then holds is judged as the CSV reader judges the same cell:
+``"NaN"`` a NaN sample, a ``time`` of 0 or ``1e30`` a stray row noted and dropped
+(:func:`hil.logs.sensorlogger.samples`), ``"١٢"`` no number, an ISO-8601 ``time`` read as one.
 
 The file is read as a stream (:meth:`hil.logs.table.Container.chunks`), a record at a time: memory is
 bounded by the samples kept (8 bytes a value), not by the file's size. The file is at most
@@ -52,6 +54,7 @@ import numpy as np
 
 from hil.estimation.sensors import SensorLog
 from hil.files.bounded import MAX_MEMBER_BYTES
+from hil.logs.rows import number as strict_number
 from hil.logs.rows import shown
 from hil.logs.sensorlogger import (
     ACC_FILES,
@@ -61,6 +64,7 @@ from hil.logs.sensorlogger import (
     Export,
     assemble,
     clock_of,
+    iso_time_ns,
     sensor_columns,
 )
 from hil.logs.table import Container, Header, Table
@@ -132,6 +136,30 @@ class _Sensor:
     problem: InputFormatError | None = None
     values: array[float] = field(default_factory=lambda: array("d"))
     times: array[int] = field(default_factory=lambda: array("q"))
+    clocks: dict[str, str] = field(default_factory=dict)
+    """The clocks read (``time``, ``seconds_elapsed``) → the key each is read by."""
+    rows: int = 0
+    other_keys: set[str] = field(default_factory=set)
+    """Keys seen that are no clock (at most :data:`MAX_NAMED` × 16 remembered): not asked again."""
+
+    def add_clock(self, clock: str, key: str) -> None:
+        """Read ``key`` (clock ``clock``) from now on: a clock its first record lacked that a later record
+        gives. The rows before hold NaN in it (a ``time`` of NaN makes them NaN samples, noted, dropped
+        and counted: :func:`hil.logs.sensorlogger.samples`); beside ``time``, ``seconds_elapsed`` may be
+        left out (NaN) from now on, as when the first record gives both."""
+        width = len(self.keys)
+        old = np.frombuffer(self.values, dtype=np.float64).reshape(-1, width) if width else None
+        wider = np.full((self.rows, width + 1), np.nan)
+        if old is not None:
+            wider[:, :width] = old
+        self.values = array("d", wider.tobytes())
+        self.keys = (*self.keys, key)
+        self.clocks[clock] = key
+        if clock == "time":
+            self.time_key = key
+            self.times = array("q", bytes(8 * self.rows))  # 0: the NaN float marks the row unusable
+        if "time" in self.clocks:
+            self.optional = self.clocks.get("seconds_elapsed")
 
 
 def _sensor(name: str, record: dict[str, object], index: int, line: int, where: str) -> _Sensor:
@@ -145,7 +173,23 @@ def _sensor(name: str, record: dict[str, object], index: int, line: int, where: 
         return _Sensor((), line, problem=exc)
     clocks = {clock[0]: key for key in used if (clock := clock_of(key)) is not None}
     optional = clocks.get("seconds_elapsed") if "time" in clocks else None
-    return _Sensor(used, line, clocks.get("time"), optional)
+    return _Sensor(used, line, clocks.get("time"), optional, clocks=clocks)
+
+
+def _new_clocks(sensor: _Sensor, record: dict[str, object]) -> None:
+    """Clock keys of ``record`` its sensor is not read by yet (its first record lacked them): read from
+    this record on (:meth:`_Sensor.add_clock`), never passed over — a ``time`` that appears on the second
+    record is the recording's clock, not a key to ignore."""
+    if len(record) <= len(sensor.keys) + 1 or len(sensor.clocks) == 2:
+        return  # no key beyond "sensor" and the keys read (the app's records): nothing new
+    for key in record:
+        if key == "sensor" or key in sensor.keys or key in sensor.other_keys:
+            continue
+        clock = clock_of(key)
+        if clock is not None and clock[0] not in sensor.clocks:
+            sensor.add_clock(clock[0], key)
+        elif len(sensor.other_keys) < MAX_NAMED * 16:
+            sensor.other_keys.add(key)
 
 
 def read(c: Container) -> SensorLog:
@@ -196,7 +240,9 @@ def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sen
         if found is None:
             found = sensors[name] = _sensor(name, record, index, line, where)
         if found.problem is None:
+            _new_clocks(found, record)
             _append(found, record, index, line, where)
+            found.rows += 1
         pending += 1
         if pending >= COUNT_EVERY:
             c.count_samples(pending, where, line)
@@ -236,20 +282,31 @@ def _append(sensor: _Sensor, record: dict[str, object], index: int, line: int, w
             raise InputFormatError(
                 f"record {index}: a {what} where a number (as a string) is expected", where, line, key
             )
+        number: float | None
         try:
-            if isinstance(value, str) and "_" in value:  # Python's float() takes "1_0"; no CSV reader does
-                raise ValueError(value)
-            number = float(value)
+            # a string as the CSV reader reads its cell: not "1_0" nor "١٢", which Python's float() takes
+            number = strict_number(value.strip()) if isinstance(value, str) else float(value)
         except (ValueError, OverflowError):
+            number = _iso_time(value) if key == sensor.time_key and isinstance(value, str) else None
+        if number is None:
             raise InputFormatError(
                 f"record {index}: {shown(str(value)) + ' is not a number' if value != '' else 'empty value'}",
                 where,
                 line,
                 key,
-            ) from None
+            )
         sensor.values.append(number)
         if key == sensor.time_key:
             sensor.times.append(_exact(value, number))
+
+
+def _iso_time(value: str) -> float | None:
+    """A ``time`` written as an ISO-8601 date (a script's re-save), as ns since the epoch
+    (:func:`hil.logs.sensorlogger.iso_time_ns`, as the CSV reader reads one); None when it is none."""
+    try:
+        return iso_time_ns(value)
+    except ValueError:
+        return None
 
 
 def _exact(value: str | int | float, number: float) -> int:

@@ -60,7 +60,7 @@ from hil.logs.archive import (
     without_suffix,
 )
 from hil.logs.encoding import decode_legacy, decode_text, utf8_stream
-from hil.logs.rows import RowParser, cells_of
+from hil.logs.rows import RowParser, cells_of, is_content
 from protocol.errors import InputFormatError
 
 Array = NDArray[np.float64]
@@ -86,6 +86,19 @@ class Table:
     source: str
     header_line: int = 0
     exact: Mapping[str, NDArray[np.int64]] = field(default_factory=dict)
+    repeated_headers: tuple[int, ...] = ()
+    """The lines that repeat the header, passed over (files joined one after another)."""
+
+    def layout_notes(self) -> list[str]:
+        """What a reader notes of how the table was laid out: the lines that repeated its header."""
+        lines = self.repeated_headers
+        if not lines:
+            return []
+        shown_lines = ", ".join(map(str, lines[:5])) + (", …" if len(lines) > 5 else "")
+        return [
+            f"{self.source}: the header repeated on {len(lines)} line(s) ({shown_lines}): files joined one "
+            "after another, read as one (each line passed over)"
+        ]
 
     def column(self, name: str) -> Array:
         try:
@@ -99,7 +112,9 @@ class Table:
 
 
 class Container:
-    """Files of a log: a directory, an archive (zip or tar, :mod:`hil.logs.archive`), or a single file.
+    """Files of a log: a directory, an archive (zip or tar, :mod:`hil.logs.archive`), or a single file;
+    a context manager, whose :meth:`close` frees the archives and temporary files it holds at once (not
+    when it is garbage-collected).
     ``names()`` lists member file names (paths relative to the container, '/'-separated); ``lines(name)``
     streams one's lines (``.gz`` members decompressed, UTF-16 transcoded: :mod:`hil.logs.encoding`; see
     the module docstring for the bounds), ``head(name)`` gives its first lines, ``where(name)`` says
@@ -114,6 +129,33 @@ class Container:
         self._held: list[object] = []  # open archives and spooled files, kept while the log is read
         self.samples = 0
         self.name = without_suffix(self.path.name)
+        try:
+            self._open_members(kind)
+        except BaseException:
+            self.close()  # what was opened before the error (a spooled tar, an archive inside it)
+            raise
+
+    def close(self) -> None:
+        """Close what the container holds open — the archives, the temporary files an archive inside
+        another and a tar or a pipe were spooled to (deleted as they close) — newest first. Idempotent;
+        its members cannot be read after it."""
+        held, self._held = self._held, []
+        self._members = {}
+        for thing in reversed(held):
+            close = getattr(thing, "close", None)
+            if close is not None:
+                try:
+                    close()
+                except OSError:
+                    pass  # a file that cannot be closed is gone: nothing more to free
+
+    def __enter__(self) -> Container:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _open_members(self, kind: str) -> None:
         if kind == FOLDER:
             for p in sorted(self._files()):
                 rel = p.relative_to(self.path).as_posix()
@@ -291,15 +333,43 @@ def _guarded_iter(batches: Iterator[list[bytes | None]], where: str) -> Iterator
         yield batch
 
 
+def content_head(container: Container, name: str, lines: int = 3) -> list[str]:
+    """The first ``lines`` lines of a member that are neither blank nor comments (``# exported by …`` before
+    a header), read from its first :data:`HEAD_BYTES`: its header and first rows, to tell its format and
+    dialect as :func:`read_table` will read it."""
+    return [line for line in container.head(name, 64) if is_content(line)][:lines]
+
+
+DELIMITERS = (",", ";", "\t")
+"""The separators a CSV may use, in the order a tie between them is decided (:func:`sniff_dialect`): the
+apps' comma first."""
+
+
 def sniff_dialect(head: Sequence[str]) -> tuple[str, bool]:
-    """(delimiter, decimal comma) of a CSV from its first non-blank lines ``head`` (header first): a
-    semicolon or a tab in the header is the separator, else a comma; with a separator other than the
-    comma, a comma in the first data line is a decimal comma (a spreadsheet's export in a European
-    locale, phyphox's "semicolon, decimal comma")."""
-    header = head[0] if head else ""
-    delimiter = ";" if ";" in header else "\t" if "\t" in header else ","
-    first = next((line for line in head[1:] if line.strip()), "")
+    """(delimiter, decimal comma) of a CSV from its first non-blank lines ``head`` (header first; comment
+    lines passed over). The separator is the one of :data:`DELIMITERS` that splits the header — as CSV
+    cells, a quoted name may hold any of them — into the most cells, more than one, and the first data
+    line into as many (a tie: the first of :data:`DELIMITERS`): a header name holding a ``;`` or a tab
+    (``note; free text``, quoted or not) splits the header but not its rows, and never makes a
+    comma-separated file read as one with semicolons. When no separator agrees so (a first row of the
+    wrong width, which the reader then names), the one that splits the header into the most cells; a
+    header of one cell: a comma. With a separator other than the comma, a comma in the first data line is
+    a decimal comma (a spreadsheet's export in a European locale, phyphox's "semicolon, decimal comma")."""
+    lines = [line for line in head if line.strip() and not line.lstrip().startswith("#")]
+    header = lines[0] if lines else ""
+    first = lines[1] if len(lines) > 1 else ""
+    widths = {d: _width(header, d) for d in DELIMITERS}
+    agreeing = [d for d in DELIMITERS if widths[d] > 1 and (not first or _width(first, d) == widths[d])]
+    delimiter = max(agreeing or DELIMITERS, key=lambda d: widths[d])  # a tie: the first of DELIMITERS
     return delimiter, delimiter != "," and "," in first
+
+
+def _width(line: str, delimiter: str) -> int:
+    """How many CSV cells ``line`` splits into at ``delimiter`` (0 when it is no CSV row)."""
+    try:
+        return len(next(csv.reader([line], delimiter=delimiter, skipinitialspace=True), []))
+    except csv.Error:
+        return 0
 
 
 def split_header(line: str, delimiter: str | None) -> list[str]:
@@ -374,6 +444,7 @@ def read_table(
                 )
             head = Header(columns, source, header_line or first_line + found)
             parser = _parser(head, use, named, exact_columns, converters or {}, delimiter, decimal_comma)
+            parser.header = header
             start = found + 1 if header else found
         rows = parser.parse(lines[start:], first_line + start)
         container.count_samples(rows, source, first_line + len(lines) - 1)
@@ -381,7 +452,7 @@ def read_table(
         raise InputFormatError("empty file: no header and no data", source)
     data, exact = parser.arrays()
     used = tuple(parser.columns[p] for p in parser.used)
-    return Table(used, data, source, header_line, exact)
+    return Table(used, data, source, header_line, exact, tuple(parser.repeated_headers))
 
 
 def _parser(
