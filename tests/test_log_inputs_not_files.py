@@ -19,6 +19,7 @@ import subprocess
 import sys
 import tarfile
 import threading
+import time
 import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -67,11 +68,25 @@ def fed_pipe(path: Path, data: bytes, pieces: list[int] | None = None) -> Iterat
     try:
         yield path
     finally:
-        if writer.is_alive():  # the reader never opened it: let the writer's open return
-            with open(path, "rb") as f:
-                f.read()
-        writer.join(WAIT_S)
-        assert not writer.is_alive()
+        _drain_until_done(path, writer)
+
+
+def _drain_until_done(path: Path, writer: threading.Thread) -> None:
+    """Read the FIFO until ``writer`` has ended (its open returns once a reader is there, its writes once
+    they are read). Opened without blocking: a writer that had closed its end but not yet returned when
+    this looked left a blocking open waiting for a writer that would never come (a hang under load)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        end = time.monotonic() + WAIT_S
+        while writer.is_alive() and time.monotonic() < end:
+            try:
+                if not os.read(fd, 1 << 16):
+                    time.sleep(0.005)  # no writer now: it is returning, or not yet at its open
+            except BlockingIOError:
+                time.sleep(0.005)  # a writer, nothing written yet
+    finally:
+        os.close(fd)
+    assert not writer.is_alive()
 
 
 def zipped(folder: Path) -> bytes:
