@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import random
 import signal
 import sys
 from collections.abc import Sequence
@@ -290,8 +292,11 @@ def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     )
 
 
-def make_board(args: argparse.Namespace, clock: object | None = None):  # type: ignore[no-untyped-def]
-    """The board the options describe, faults scheduled (times relative to the clock's start)."""
+def make_board(  # type: ignore[no-untyped-def]
+    args: argparse.Namespace, clock: object | None = None, boot_ids: random.Random | None = None
+):
+    """The board the options describe, faults scheduled (times relative to the clock's start); its boot
+    ids drawn from ``boot_ids`` (default: from ``--seed``, see :class:`~firmware_sim.board.Board`)."""
     from hil.timing.clock import WallClock
 
     from .board import Board
@@ -306,7 +311,7 @@ def make_board(args: argparse.Namespace, clock: object | None = None):  # type: 
                 flag,
             )
     cfg = board_config(args)
-    board = Board(cfg, clock if clock is not None else WallClock())  # type: ignore[arg-type]
+    board = Board(cfg, clock if clock is not None else WallClock(), boot_ids=boot_ids)  # type: ignore[arg-type]
     schedule_faults(board.faults, args, cfg)
     return board
 
@@ -354,8 +359,8 @@ def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ign
 def _board(args: argparse.Namespace) -> Any:
     """The Python board, or with ``--avr`` the firmware stepped under simavr (a FirmwareBoard, with the
     interface the servers and the world call), on the wall clock."""
-    if args.avr is None:
-        return make_board(args)
+    if args.avr is None:  # a board process: boot ids no other process (this one restarted) announces
+        return make_board(args, boot_ids=random.Random(os.urandom(16)))
     from hil.timing.clock import WallClock
 
     from .avr.stepped import firmware_board

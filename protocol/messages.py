@@ -191,6 +191,7 @@ class Message:
 
 
 _IDENTITY_DOC = "AOA accessory identity string"
+_BOOT_ID_DOC = "drawn anew at every boot of the board; 0: the board does not say"
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,7 +211,7 @@ class Hello(Message):
 
 @dataclass(frozen=True, slots=True)
 class HelloReply(Message):
-    """B→H: the board's identity, its protocol version and schema hash, and why it last reset."""
+    """B→H: the board's identity, its protocol version and schema hash, why it last reset and its boot id."""
 
     MSG_ID: ClassVar[int] = 0x02
     protocol_version: int = wire(U8(1, 255), PROTOCOL_VERSION)
@@ -219,6 +220,7 @@ class HelloReply(Message):
     state: BoardState = wire(Enum8(BoardState), BoardState.DISARMED)
     n_units: int = wire(U8(0, MAX_UNITS), 0)
     frame_rate_hz: int = wire(U16(0, 500, "Hz"), 50)
+    boot_id: int = wire(U32(doc=_BOOT_ID_DOC), 0)
     manufacturer: str = wire(Text(24, _IDENTITY_DOC), "")
     model: str = wire(Text(24, _IDENTITY_DOC), "")
     description: str = wire(Text(48, _IDENTITY_DOC), "")
@@ -230,11 +232,13 @@ class HelloReply(Message):
 
 @dataclass(frozen=True, slots=True)
 class Heartbeat(Message):
-    """Both ways. ``state`` is the sender's state: a BoardState value from the board, 0 from the host."""
+    """Both ways. ``state`` is the sender's state: a BoardState value from the board, 0 from the host;
+    ``boot_id`` the board's boot id (as in its HelloReply), 0 from the host."""
 
     MSG_ID: ClassVar[int] = 0x03
     time_ms: int = wire(U32(unit="ms"), 0)
     state: int = wire(U8(), 0)
+    boot_id: int = wire(U32(doc=_BOOT_ID_DOC), 0)
 
 
 @dataclass(frozen=True, slots=True)

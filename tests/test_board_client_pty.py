@@ -185,7 +185,8 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
             connected = [e for e in events if isinstance(e, ConnectedEvent)]
             assert lost and connected and connected[-1].reconnects == 1
             [reset] = [e for e in events if isinstance(e, BoardResetEvent)]
-            assert reset.cause is ResetCause.POWER_ON and "uptime went back" in reset.evidence
+            # the new board's boot id, in its answer to the reconnect's handshake
+            assert reset.cause is ResetCause.POWER_ON and "boot id changed" in reset.evidence, reset
             if rearm:
                 drive(client, None, lambda: any(isinstance(e, CommandEvent) for e in events), 1.0, events)
                 assert [e.ok for e in events if isinstance(e, CommandEvent)] == [True]
@@ -225,10 +226,10 @@ def test_a_board_restarted_long_before_the_host_is_back_is_reported_reset(tmp_pa
             drive(client, None, lambda: any(isinstance(e, BoardResetEvent) for e in events), 2.0, events)
             [reset] = [e for e in events if isinstance(e, BoardResetEvent)]
             assert reset.cause is ResetCause.POWER_ON and reset.during_session, reset
-            # the first sample after the reconnect tells it: a heartbeat's uptime shorter than the old board
-            # had run (its age), or the telemetry's count of frames taken going back
-            evidence = ("count of frames taken went back", "restarted while the link was down")
-            assert any(e in reset.evidence for e in evidence), reset.evidence
+            # the answer to the reconnect's handshake tells it: another boot id (a board that says none is
+            # told by the first sample after: a heartbeat's uptime shorter than the old board had run, its
+            # age, or the telemetry's count of frames taken going back; tests/test_board_link_beside_clocks)
+            assert "boot id changed" in reset.evidence, reset.evidence
             assert client.state is BoardState.DISARMED  # never re-armed silently
             with pytest.raises(BoardReset, match="POWER_ON"):
                 client.send_setpoint(setpoint(300.0, 2))

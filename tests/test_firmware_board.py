@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import random
 import signal
+import struct
 import subprocess
 import sys
 import time
@@ -15,7 +16,7 @@ from dataclasses import replace
 import pytest
 from conformance.host import SerialHost, heartbeat
 
-from firmware_sim.avr import AvrBoard, eeprom
+from firmware_sim.avr import AvrBoard, HarnessOptions, eeprom
 from firmware_sim.board.config import BoardConfig
 from protocol.calibration import EscMotorModel, GimbalServoModel, fragment, model_unit_calibration, reassemble
 from protocol.frame import Frame
@@ -30,6 +31,7 @@ from protocol.messages import (
     ControlMode,
     Disarm,
     GimbalMode,
+    Heartbeat,
     HelloReply,
     Log,
     Nack,
@@ -272,3 +274,39 @@ def test_firmware_sim_avr_refuses_faults_it_cannot_inject(option):
         timeout=30,
     )
     assert result.returncode == 2 and option[0] in result.stderr
+
+
+@pytest.mark.firmware
+def test_the_boot_id_counts_the_boots_in_eeprom_mixed_with_the_serial(tmp_path):
+    """The firmware's boot id (firmware/README.md, "Configuration"): the EEPROM boot counter moved on by one
+    at every boot — a reset button, a watchdog reset, the board's process started again on its EEPROM
+    file — and mixed with the serial: the HelloReply's and every Heartbeat's id, one the host has not
+    heard from that board before. The counter's four slots take turns; a board of another serial and the
+    same count announces another id."""
+    serial = "BENCH-9"
+    cfg = BoardConfig(identity=replace(BoardConfig().identity, serial=serial))
+    options = HarnessOptions(eeprom_file=tmp_path / "eeprom.bin")
+    ids = []
+    for process in range(2):  # the same board (its EEPROM) in two harness processes
+        with AvrBoard(cfg, options) as b:
+            h = SerialHost(b.port)
+            for boot in range(3):
+                if boot:
+                    b.press_reset()
+                reply = h.handshake()
+                count = eeprom.read_boot_count(b.eeprom())
+                assert count == 3 * process + boot + 1, (process, boot)
+                assert reply.boot_id == eeprom.boot_id(count, serial) != 0
+                h.keepalive = heartbeat
+                beat = h.wait_type(Heartbeat, 1.0)
+                assert beat.boot_id == reply.boot_id
+                h.keepalive = None
+                ids.append(reply.boot_id)
+            h.close()
+    assert len(set(ids)) == len(ids) == 6
+    image = (tmp_path / "eeprom.bin").read_bytes()
+    slots = struct.unpack_from(f"<{eeprom.BOOT_COUNT_SLOTS}I", image, eeprom.BOOT_COUNT_BASE)
+    assert sorted(slots) == [3, 4, 5, 6] and all(
+        c % eeprom.BOOT_COUNT_SLOTS == i for i, c in enumerate(slots)
+    )
+    assert eeprom.boot_id(6, "BENCH-8") != eeprom.boot_id(6, serial)

@@ -41,6 +41,7 @@ typedef struct {
     board_config_t cfg;
     uint8_t n_channels;
     uint8_t reset_cause; /* RESET_CAUSE_* */
+    uint32_t boot_id;    /* this boot's id (storage_new_boot_id), in HelloReply and Heartbeat */
     uint8_t state, mode, power_state, gimbal_mode;
     uint8_t session, link_lost, have_rx, shed_latched, clamped, ubec_over, outputs_dirty;
     uint32_t last_rx_ms;

@@ -4,10 +4,12 @@
 #ifndef BOARD_GEN_H
 #define BOARD_GEN_H
 
-/* EEPROM: the configuration block at 0, then one calibration slot per unit. */
+/* EEPROM: the configuration block at 0, the boot counter, then one calibration slot per unit. */
 #define EEPROM_CONFIG_MAGIC 0x4342u
 #define EEPROM_CONFIG_VERSION 3u
 #define EEPROM_CONFIG_SIZE 100u
+#define EEPROM_BOOT_COUNT_BASE 112u
+#define EEPROM_BOOT_COUNT_SLOTS 4u
 #define EEPROM_CAL_BASE 128u
 #define EEPROM_SIZE 4096u
 #define MAX_HW_UNITS 6u

@@ -10,7 +10,7 @@
 #include "wire.h"
 
 #define PROTOCOL_VERSION 1u
-#define SCHEMA_HASH 0x3a8769e9UL /* SHA-256 of the catalogue's schema text */
+#define SCHEMA_HASH 0x566f5d43UL /* SHA-256 of the catalogue's schema text */
 #define FRAME_HEADER_SIZE 4u
 #define FRAME_CRC_SIZE 2u
 #define FRAME_MAX_PAYLOAD 250u
@@ -245,6 +245,8 @@ typedef struct {
 #define HELLO_REPLY_N_UNITS_MAX 8u
 #define HELLO_REPLY_FRAME_RATE_HZ_MIN 0u
 #define HELLO_REPLY_FRAME_RATE_HZ_MAX 500u
+#define HELLO_REPLY_BOOT_ID_MIN 0u
+#define HELLO_REPLY_BOOT_ID_MAX 4294967295UL
 #define HELLO_REPLY_MANUFACTURER_MAX_LEN 24u
 #define HELLO_REPLY_MODEL_MAX_LEN 24u
 #define HELLO_REPLY_DESCRIPTION_MAX_LEN 48u
@@ -252,7 +254,7 @@ typedef struct {
 #define HELLO_REPLY_URI_MAX_LEN 64u
 #define HELLO_REPLY_SERIAL_MAX_LEN 24u
 #define HELLO_REPLY_FIRMWARE_BUILD_MAX_LEN 24u
-/* HelloReply: B→H: the board's identity, its protocol version and schema hash, and why it last reset. */
+/* HelloReply: B→H: the board's identity, its protocol version and schema hash, why it last reset and its boot id. */
 typedef struct {
     uint8_t protocol_version; /* u8 [1, 255] */
     uint32_t schema_hash; /* u32 [0, 4.29497e+09] */
@@ -260,6 +262,7 @@ typedef struct {
     uint8_t state; /* enum8 BoardState */
     uint8_t n_units; /* u8 [0, 8] */
     uint16_t frame_rate_hz; /* u16 [0, 500] Hz */
+    uint32_t boot_id; /* u32 [0, 4.29497e+09] */
     struct {
         uint8_t len;
         char s[24];
@@ -296,10 +299,13 @@ typedef struct {
 #define HEARTBEAT_TIME_MS_MAX 4294967295UL
 #define HEARTBEAT_STATE_MIN 0u
 #define HEARTBEAT_STATE_MAX 255u
-/* Heartbeat: Both ways. ``state`` is the sender's state: a BoardState value from the board, 0 from the host. */
+#define HEARTBEAT_BOOT_ID_MIN 0u
+#define HEARTBEAT_BOOT_ID_MAX 4294967295UL
+/* Heartbeat: Both ways. ``state`` is the sender's state: a BoardState value from the board, 0 from the host; */
 typedef struct {
     uint32_t time_ms; /* u32 [0, 4.29497e+09] ms */
     uint8_t state; /* u8 [0, 255] */
+    uint32_t boot_id; /* u32 [0, 4.29497e+09] */
 } heartbeat_t;
 
 #define MSG_ARM 0x10u

@@ -3,7 +3,8 @@
  *
  * .init3 (before the C runtime clears RAM): read MCUSR for the reset cause, clear it and turn the
  * watchdog off (a watchdog reset leaves it running at its shortest timeout), start the start-up
- * stopwatch. main(): configuration and calibrations from EEPROM, clock, UART, ADC, pulse outputs,
+ * stopwatch. main(): configuration and calibrations from EEPROM, this boot's id (the EEPROM boot
+ * counter moved on), clock, UART, ADC, pulse outputs,
  * watchdog; then the loop: check in with the watchdog, do what is due, sleep until the next interrupt.
  */
 #include <avr/interrupt.h>
@@ -73,6 +74,7 @@ int main(void)
     uint8_t problem;
     config_status_t config = storage_load_config(&board.cfg, &problem);
     storage_load_calibrations(board.cfg.n_units);
+    board.boot_id = storage_new_boot_id(board.cfg.serial); /* before anything is sent */
     clock_init();
     port_init(&board.cfg); /* UART0 and/or the USB host, as configured */
     adc_init(&board.power);

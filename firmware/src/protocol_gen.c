@@ -26,12 +26,13 @@ static const wire_field_t hello_fields[] FLASH = {
 };
 
 static const wire_field_t hello_reply_fields[] FLASH = {
-    {.kind = WIRE_U8, .run_len = 10, .offset = offsetof(hello_reply_t, protocol_version), .range = {.u = {1u, 255u}}},
+    {.kind = WIRE_U8, .run_len = 14, .offset = offsetof(hello_reply_t, protocol_version), .range = {.u = {1u, 255u}}},
     {.kind = WIRE_U32, .run_len = 0, .offset = offsetof(hello_reply_t, schema_hash), .range = {.u = {0u, 4294967295UL}}},
     {.kind = WIRE_ENUM8, .run_len = 0, .offset = offsetof(hello_reply_t, reset_cause), .range = {.mask = 0x1fUL}},
     {.kind = WIRE_ENUM8, .run_len = 0, .offset = offsetof(hello_reply_t, state), .range = {.mask = 0xfUL}},
     {.kind = WIRE_U8, .run_len = 0, .offset = offsetof(hello_reply_t, n_units), .range = {.u = {0u, 8u}}},
     {.kind = WIRE_U16, .run_len = 0, .offset = offsetof(hello_reply_t, frame_rate_hz), .range = {.u = {0u, 500u}}},
+    {.kind = WIRE_U32, .run_len = 0, .offset = offsetof(hello_reply_t, boot_id), .range = {.u = {0u, 4294967295UL}}},
     {.kind = WIRE_TEXT, .offset = offsetof(hello_reply_t, manufacturer.len), .data_offset = offsetof(hello_reply_t, manufacturer.s), .max_count = 24},
     {.kind = WIRE_TEXT, .offset = offsetof(hello_reply_t, model.len), .data_offset = offsetof(hello_reply_t, model.s), .max_count = 24},
     {.kind = WIRE_TEXT, .offset = offsetof(hello_reply_t, description.len), .data_offset = offsetof(hello_reply_t, description.s), .max_count = 48},
@@ -42,8 +43,9 @@ static const wire_field_t hello_reply_fields[] FLASH = {
 };
 
 static const wire_field_t heartbeat_fields[] FLASH = {
-    {.kind = WIRE_U32, .run_len = 5, .offset = offsetof(heartbeat_t, time_ms), .range = {.u = {0u, 4294967295UL}}},
+    {.kind = WIRE_U32, .run_len = 9, .offset = offsetof(heartbeat_t, time_ms), .range = {.u = {0u, 4294967295UL}}},
     {.kind = WIRE_U8, .run_len = 0, .offset = offsetof(heartbeat_t, state), .range = {.u = {0u, 255u}}},
+    {.kind = WIRE_U32, .run_len = 0, .offset = offsetof(heartbeat_t, boot_id), .range = {.u = {0u, 4294967295UL}}},
 };
 
 static const wire_field_t arm_fields[1] FLASH = {{0}};
@@ -141,8 +143,8 @@ const wire_layout_t wire_records[] FLASH = {
 };
 
 const wire_layout_t WIRE_LAYOUT_HELLO FLASH = {hello_fields, 8, sizeof(hello_t)};
-const wire_layout_t WIRE_LAYOUT_HELLO_REPLY FLASH = {hello_reply_fields, 13, sizeof(hello_reply_t)};
-const wire_layout_t WIRE_LAYOUT_HEARTBEAT FLASH = {heartbeat_fields, 2, sizeof(heartbeat_t)};
+const wire_layout_t WIRE_LAYOUT_HELLO_REPLY FLASH = {hello_reply_fields, 14, sizeof(hello_reply_t)};
+const wire_layout_t WIRE_LAYOUT_HEARTBEAT FLASH = {heartbeat_fields, 3, sizeof(heartbeat_t)};
 const wire_layout_t WIRE_LAYOUT_ARM FLASH = {arm_fields, 0, sizeof(arm_t)};
 const wire_layout_t WIRE_LAYOUT_DISARM FLASH = {disarm_fields, 0, sizeof(disarm_t)};
 const wire_layout_t WIRE_LAYOUT_SET_MODE FLASH = {set_mode_fields, 1, sizeof(set_mode_t)};

@@ -83,6 +83,7 @@ void report_heartbeat(uint32_t now)
     heartbeat_t *m = &out.heartbeat;
     m->time_ms = stamp(now);
     m->state = board.state;
+    m->boot_id = board.boot_id;
     report_send(MSG_HEARTBEAT, m, 0, -1);
 }
 
@@ -102,6 +103,7 @@ void report_hello_reply(void)
     m->state = board.state;
     m->n_units = board.cfg.n_units;
     m->frame_rate_hz = (uint16_t)lrintf(board.cfg.frame_rate_hz);
+    m->boot_id = board.boot_id;
     text_flash(&m->manufacturer.len, m->manufacturer.s, PSTR(IDENTITY_MANUFACTURER),
                HELLO_REPLY_MANUFACTURER_MAX_LEN);
     text_flash(&m->model.len, m->model.s, PSTR(IDENTITY_MODEL), HELLO_REPLY_MODEL_MAX_LEN);

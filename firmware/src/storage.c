@@ -5,6 +5,7 @@
 #include <string.h>
 
 #include "calib.h"
+#include "crc16.h"
 #include "flash.h"
 #include "protocol_gen.h"
 
@@ -157,4 +158,43 @@ uint8_t storage_service(void)
         eeprom_update_byte((uint8_t *)(uintptr_t)addr, set[0]);
     write_step = step > n ? 0 : (uint16_t)(write_step + 1u);
     return write_step != 0 || dirty;
+}
+
+/* ------------------------------------------------------------------------------------------ boot counter */
+#define BOOT_COUNT_ERASED 0xFFFFFFFFul
+
+static uint32_t *boot_slot(uint8_t i)
+{
+    return (uint32_t *)(uintptr_t)(EEPROM_BOOT_COUNT_BASE + 4u * i);
+}
+
+/* The counter moved on and written: the largest count in the slots (erased ones hold none) plus one, into
+ * slot count % EEPROM_BOOT_COUNT_SLOTS, so each slot's cells wear at a quarter of the boots' rate. A count
+ * that would read as erased starts the counter again from 0 (after 2^32 boots, or a damaged slot). */
+static uint32_t boot_count_next(void)
+{
+    uint32_t count = 0;
+    for (uint8_t i = 0; i < EEPROM_BOOT_COUNT_SLOTS; i++) {
+        uint32_t c = eeprom_read_dword(boot_slot(i));
+        if (c != BOOT_COUNT_ERASED && c > count)
+            count = c;
+    }
+    count++;
+    if (count == BOOT_COUNT_ERASED) {
+        count = 0;
+        for (uint8_t i = 0; i < EEPROM_BOOT_COUNT_SLOTS; i++)
+            eeprom_update_dword(boot_slot(i), 0);
+    }
+    eeprom_update_dword(boot_slot((uint8_t)(count % EEPROM_BOOT_COUNT_SLOTS)), count);
+    return count;
+}
+
+uint32_t storage_new_boot_id(const char *serial)
+{
+    uint16_t mix = crc16_update(0xFFFFu, (const uint8_t *)serial, (uint16_t)strnlen(serial, SERIAL_LEN));
+    uint32_t id;
+    do
+        id = boot_count_next() ^ ((uint32_t)mix << 16);
+    while (!id); /* 0 says "no boot id": the one count that gives it is skipped */
+    return id;
 }

@@ -79,7 +79,15 @@ DEFAULT_LINK = "uart"
 CONFIG_STRUCT = struct.Struct("<" + "".join(code for _, code, _ in CONFIG_FIELDS) + "H")
 CONFIG_SIZE = CONFIG_STRUCT.size
 CAL_BASE = 128
-assert CONFIG_SIZE <= CAL_BASE
+BOOT_COUNT_BASE = 112
+BOOT_COUNT_SLOTS = 4
+"""The boot counter: ``BOOT_COUNT_SLOTS`` little-endian u32 slots from ``BOOT_COUNT_BASE``, between the
+configuration block and the calibration slots. At every boot the firmware takes the largest count in
+them (an erased slot, 0xFFFFFFFF, holds none; all erased: 0), adds one and writes it into slot
+``count % BOOT_COUNT_SLOTS`` before it sends anything: each slot is written once every four boots (an
+EEPROM cell takes ~100 000 writes: 400 000 boots), and a reset during the write leaves the other slots'
+counts. The boot id the board announces is :func:`boot_id` of that count."""
+assert CONFIG_SIZE <= BOOT_COUNT_BASE and BOOT_COUNT_BASE + 4 * BOOT_COUNT_SLOTS <= CAL_BASE
 
 
 def cal_slot_size(n_units: int) -> int:
@@ -175,6 +183,20 @@ class EepromImage:
             start = CAL_BASE + unit * slot
             image[start : start + len(data)] = data
         return bytes(image)
+
+
+def read_boot_count(image: bytes) -> int:
+    """The boot counter of an EEPROM image: the count of the board's last boot (0: never booted)."""
+    counts = struct.unpack_from(f"<{BOOT_COUNT_SLOTS}I", image, BOOT_COUNT_BASE)
+    return max((c for c in counts if c != 0xFFFFFFFF), default=0)
+
+
+def boot_id(count: int, serial: str) -> int:
+    """The boot id the firmware announces for boot ``count`` (``HelloReply.boot_id``, ``Heartbeat.boot_id``):
+    the count, its upper half XORed with the CRC-16 of the board's serial — two boards with other serials
+    and the same count announce other ids; one board's ids repeat only after 2^32 boots. 0 (no boot id)
+    for the one count that would give it: the firmware then counts on to the next boot."""
+    return (count ^ (crc16_ccitt_false(serial.encode("utf-8")[:SERIAL_LEN]) << 16)) & 0xFFFFFFFF
 
 
 def read_calibration(image: bytes, n_units: int, unit: int) -> bytes | None:

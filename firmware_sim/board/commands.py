@@ -128,6 +128,7 @@ class CommandHandler:
         self.counters = {"setpoints": 0, "bad_setpoints": 0, "ignored_setpoints": 0}
         self.command = Command(config.n_units)
         self.state = BoardState.BOOT
+        self.boot_id = 0  # this boot's id (HelloReply, Heartbeat): the board draws one at every reset
         self.mode = ControlMode.SETPOINT
         self.session = False  # a compatible Hello since reset (telemetry runs)
         self.link_lost = False
@@ -259,7 +260,7 @@ class CommandHandler:
             LogCode.STATE,
             f"state {old.name} -> {new.name}",
         )
-        self._out.send(Heartbeat(time_ms=uptime_ms(t, self.resets[-1]), state=int(new)))
+        self._out.send(Heartbeat(time_ms=uptime_ms(t, self.resets[-1]), state=int(new), boot_id=self.boot_id))
 
     def _hold_gimbals(self, t: int) -> None:
         """Gimbals hold: zero rate in RATE mode, the present angle in ANGLE mode."""
@@ -288,7 +289,7 @@ class CommandHandler:
                 f"incompatible host: protocol {msg.protocol_version} schema {msg.schema_hash:#010x} "
                 f"(board: {PROTOCOL_VERSION}, {SCHEMA_HASH:#010x})",
             )
-        self._out.send(hello_reply(self.config, self.resets[-1].cause, self.state))
+        self._out.send(hello_reply(self.config, self.resets[-1].cause, self.state, self.boot_id))
 
     def _on_arm(self, msg: Arm, t: int) -> NackReason | None:
         if self.state is not BoardState.BOOT and any(c is None for c in self.calibrations):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import random
 from collections.abc import Sequence
 from typing import Any
 
@@ -63,13 +64,20 @@ class Board:
     faults scheduled at ``at=None``; lockstep callers pass a ``LockstepClock`` and advance it.
 
     ``calibrations`` (one ``protocol.calibration.UnitCalibration`` per unit, ``None`` = not calibrated)
-    defaults to ``default_unit_calibration()`` for every unit; it survives resets (EEPROM)."""
+    defaults to ``default_unit_calibration()`` for every unit; it survives resets (EEPROM).
+
+    ``boot_ids`` draws the board's boot id (``HelloReply.boot_id``, ``Heartbeat.boot_id``) anew at every
+    boot: a nonzero u32 that differs from the last boot's. Default: a ``random.Random`` seeded from
+    ``BoardConfig.seed``, so a lockstep run replays byte for byte; a board process serving a port passes
+    one seeded from ``os.urandom`` (``firmware_sim.cli``): a ``firmware-sim`` killed and started again,
+    or another one on a reused pty, must not announce the boot id of the board that was there."""
 
     def __init__(
         self,
         config: BoardConfig | None = None,
         clock: Clock | None = None,
         calibrations: Sequence[Any | None] | None = None,
+        boot_ids: random.Random | None = None,
     ) -> None:
         cfg = config if config is not None else BoardConfig()
         cfg.validate()
@@ -100,6 +108,7 @@ class Board:
         self.power = PowerReading(soc=self.battery.soc)
         self.power.battery_v = self.battery.ocv()
         self.rx_lost_in_reset = 0
+        self._boot_ids = boot_ids if boot_ids is not None else random.Random(f"boot ids {cfg.seed}")
         self._wdt_timeout_us = round(cfg.mcu_watchdog_s * 1e6)
 
         self._tick_us = max(1, round(cfg.tick_s * 1e6))
@@ -431,6 +440,7 @@ class Board:
         self._rx_due_us = _NEVER
         self._clamped = False
         self.commands.reset()
+        self.commands.boot_id = self._next_boot_id(self.commands.boot_id)
         self.dead_esc_detector.reset()
         self.transfers.reset()
         self.esc_calibration.reset()
@@ -441,6 +451,18 @@ class Board:
         self.dither.reset()
         for s in (self._frames, self._telemetry, self._heartbeat, self._ppm):
             s.stop()
+
+    def _next_boot_id(self, last: int) -> int:
+        """The boot id of the boot this reset leads to: nonzero (0 says "no boot id"), never the last's."""
+        while True:
+            boot_id = self._boot_ids.getrandbits(32)
+            if boot_id not in (0, last):
+                return boot_id
+
+    @property
+    def boot_id(self) -> int:
+        """The id of the board's current boot (drawn at its reset; ``HelloReply.boot_id``)."""
+        return self.commands.boot_id
 
     def _boot(self, t: int) -> None:
         self.phase = _RUNNING
@@ -464,7 +486,13 @@ class Board:
             self.esc_calibration.report(t)
         if self._heartbeat.is_due(t):
             self._heartbeat.advance(t)
-            self.outbox.send(Heartbeat(time_ms=uptime_ms(t, self.resets[-1]), state=int(self.state)))
+            self.outbox.send(
+                Heartbeat(
+                    time_ms=uptime_ms(t, self.resets[-1]),
+                    state=int(self.state),
+                    boot_id=self.commands.boot_id,
+                )
+            )
         self.transfers.retry_due(t)
 
     # ================================================================== outputs

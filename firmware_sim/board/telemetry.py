@@ -67,9 +67,11 @@ def uptime_ms(t: int, last_reset: ResetEvent) -> int:
     return ((t - round(last_reset.t * 1_000_000)) // 1000) & 0xFFFFFFFF
 
 
-def hello_reply(config: BoardConfig, reset_cause: ResetCause, state: BoardState) -> HelloReply:
+def hello_reply(
+    config: BoardConfig, reset_cause: ResetCause, state: BoardState, boot_id: int = 0
+) -> HelloReply:
     """The answer to every ``Hello``: protocol version, schema hash, why the MCU last reset, the state
-    after the handshake, and the board's identity (the AOA accessory strings)."""
+    after the handshake, this boot's id, and the board's identity (the AOA accessory strings)."""
     ident = config.identity
     return HelloReply(
         protocol_version=PROTOCOL_VERSION,
@@ -78,6 +80,7 @@ def hello_reply(config: BoardConfig, reset_cause: ResetCause, state: BoardState)
         state=state,
         n_units=config.n_units,
         frame_rate_hz=round(config.frame_rate_hz),
+        boot_id=boot_id,
         manufacturer=ident.manufacturer,
         model=ident.model,
         description=ident.description,

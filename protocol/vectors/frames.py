@@ -132,6 +132,7 @@ def good_cases() -> list[GoodCase]:
                 state=BoardState.DISARMED,
                 n_units=4,
                 frame_rate_hz=50,
+                boot_id=0x5A17C3E9,
                 manufacturer="vscmg-hil",
                 model="ADK-VSCMG",
                 description="ADK board, 4 VSCMG units",
@@ -152,6 +153,7 @@ def good_cases() -> list[GoodCase]:
                 state=BoardState.FAILSAFE,
                 n_units=MAX_UNITS,
                 frame_rate_hz=500,
+                boot_id=0xFFFFFFFF,
                 manufacturer="M" * 24,
                 model="m" * 24,
                 description="d" * 48,
@@ -163,12 +165,14 @@ def good_cases() -> list[GoodCase]:
             seq=200,
             note="the longest frame of the catalogue",
         ),
-        GoodCase("Heartbeat/host", Heartbeat(time_ms=0, state=0), seq=1, note="host heartbeat: state 0"),
+        GoodCase(
+            "Heartbeat/host", Heartbeat(time_ms=0, state=0), seq=1, note="host heartbeat: state 0, boot id 0"
+        ),
         GoodCase(
             "Heartbeat/board",
-            Heartbeat(time_ms=0xDEADBEEF, state=int(BoardState.ARMED)),
+            Heartbeat(time_ms=0xDEADBEEF, state=int(BoardState.ARMED), boot_id=0x5A17C3E9),
             seq=128,
-            note="board heartbeat: uptime in ms, state ARMED",
+            note="board heartbeat: uptime in ms, state ARMED, the boot id of its HelloReply",
         ),
         GoodCase("Arm/typical", Arm(), seq=3, flags=int(Flags.ACK_REQUESTED), note="reliable, empty payload"),
         GoodCase(

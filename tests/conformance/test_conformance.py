@@ -455,3 +455,31 @@ def test_both_ends_count_the_same_link(target, host):
         assert target.stats.host_present and target.stats.reconnects == 1
     finally:
         again.close()
+
+
+def test_the_boot_id_is_drawn_at_every_boot_and_kept_within_one(target, host):
+    """Every board announces a boot id: nonzero, the same in its HelloReply and in every Heartbeat of that
+    boot (a new session is no new boot), another after a reset — a watchdog reset here, the one every
+    target can be made to do — in the BOOT heartbeat and in the answer to the reconnecting host. The host
+    tells a board that restarted from the one it had by this alone (hil/link/board/session.py)."""
+    spec = target.spec
+    reply = host.handshake()
+    assert reply.boot_id != 0
+    host.keepalive = heartbeat
+    host.stream(0.7)  # a few heartbeats (5 Hz) and a second handshake: the same boot
+    assert host.handshake().boot_id == reply.boot_id
+    host.stream(0.5)
+    beats = [m for m in host.received if isinstance(m, Heartbeat)]
+    assert len(beats) >= 4 and {b.boot_id for b in beats} == {reply.boot_id}
+    target.inject_hang()
+    boot = host.wait_type(Heartbeat, spec.mcu_watchdog_s + 2.0, lambda m: m.state == BoardState.BOOT)
+    assert target.resets()[-1].cause == ResetCause.WATCHDOG
+    assert boot.boot_id not in (0, reply.boot_id)
+    host.keepalive = None
+    host.reopen()  # a host reconnecting after losing its board
+    again = host.handshake()
+    assert again.reset_cause == ResetCause.WATCHDOG and again.boot_id == boot.boot_id
+    host.keepalive = heartbeat
+    host.stream(0.5)
+    after = [m for m in host.received if isinstance(m, Heartbeat) and m.state != BoardState.BOOT][-2:]
+    assert after and {b.boot_id for b in after} == {boot.boot_id}

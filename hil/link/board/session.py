@@ -13,15 +13,21 @@ Phases::
       └── link_down() ◄─────┘  └─ HelloReply (incompatible) ──► INCOMPATIBLE (failure = HandshakeError)
           or no HelloReply after every try (failure = LinkTimeout)
 
-**Reset detection.** The board's uptime (``Heartbeat.time_ms``, ``Telemetry.time_ms``) only grows while
+**Reset detection.** The board draws a new boot id at every boot (``HelloReply.boot_id``,
+``Heartbeat.boot_id``; 0 from a board that does not say): the id changing between what the host last heard
+and what it hears now — in any heartbeat, or in the answer to a reconnect's handshake — says the board
+reset, however soon it restarted and however long it then ran. The circumstantial evidence stays for a
+board that sends 0. The board's uptime (``Heartbeat.time_ms``, ``Telemetry.time_ms``) only grows while
 it runs. It going backwards, or the board reporting BOOT in the middle of a session or after a lost link
 came back, means it reset. So does, after a reconnect, a first uptime shorter than the board had certainly
 run by the reconnect's Hello — its uptime when last heard of (its last sample, or 0 at its first answer)
 and the host time since (``AGE_SLACK_S`` and a clock 1 % slow allowed for): a board killed moments after
-the handshake, before any sample, and restarted seconds before the host found it again. (A board that
-restarted while the link was down within ``AGE_SLACK_S`` of when it was last heard of, and has already
-run longer than before, is not caught: nothing it sends tells it from the board that was there.) The
-cause is in the next ``HelloReply``: if one arrived since the last uptime sample (a reconnect handshake),
+the handshake, before any sample, and restarted seconds before the host found it again. (Without a boot
+id, a board that restarted while the link was down within ``AGE_SLACK_S`` of when it was last heard of,
+and has already run longer than before, is not caught: nothing else it sends tells it from the board that
+was there.) A reset the answer to a handshake reveals (its boot id) is reported at once, with that
+answer's cause, before anything else is sent to the new boot. Otherwise the cause is in the next
+``HelloReply``: if one arrived since the last uptime sample (a reconnect handshake),
 it is used; otherwise the session handshakes again (Hello → the board is DISARMED with a new session)
 and reports :class:`BoardResetEvent` with the cause it answers. A reset while the host had the board
 armed also makes :meth:`Session.setpoint` raise :class:`BoardReset` until the caller arms (or disarms)
@@ -208,6 +214,7 @@ class Session:
         self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
         self._armed_at_loss = False  # the host had the board armed when the link was lost
         self._last_uptime: int | None = None
+        self._boot_id: int | None = None  # the board's boot id last heard (nonzero; None: none said yet)
         # (board uptime s, host time s): the board's current boot had run at least that long by then (its
         # first answer: 0 s; then each sample taken). None after a reset seen: the coming answer sets it.
         self._ran: tuple[float, float] | None = None
@@ -361,6 +368,12 @@ class Session:
                 self._on_frame(event, now)
         return self._take()
 
+    @property
+    def boot_id(self) -> int | None:
+        """The board's boot id last heard (``HelloReply``/``Heartbeat.boot_id``); None until a board that
+        says one has been heard."""
+        return self._boot_id
+
     def take_events(self) -> list[Event]:
         events, self._events = self._events, []
         return events
@@ -481,7 +494,7 @@ class Session:
         except ValueError:
             self.counters.unknown_board_states += 1
             state = None
-        self._board_clock(msg.time_ms, state, now)
+        self._board_clock(msg.time_ms, state, now, boot_id=msg.boot_id)
 
     def _on_log(self, frame: Frame, now: float) -> None:
         """Every Log is an event; at most :data:`BOARD_LOGS_PER_S` a second of them are logged, the first
@@ -522,22 +535,32 @@ class Session:
         raise AssertionError(f"a {type(frame.message).__name__} from the host reached its handler")
 
     def _board_clock(
-        self, uptime_ms: int, state: BoardState | None, now: float, rx_frames: int | None = None
+        self,
+        uptime_ms: int,
+        state: BoardState | None,
+        now: float,
+        rx_frames: int | None = None,
+        boot_id: int = 0,
     ) -> bool:
-        """An uptime sample (and state; with telemetry, the count of frames the board took since its boot)
-        from the board: the reset detector. Either count going back says the board restarted; the frame
-        count also when the restarted board then ran longer than the old one had, before the host reached
-        it again (a board killed early in a run and restarted seconds before the host was back: its uptime
-        did not go back, but it has taken only the new handshake's frames). A sample whose counts leapt
-        ahead of what the board could have reached (:mod:`.leaps`) is dropped and counted, and False
-        returned: the frame is not taken."""
+        """An uptime sample (and state; with telemetry, the count of frames the board took since its boot;
+        with a heartbeat, its boot id) from the board: the reset detector. A boot id other than the one
+        last heard says the board restarted, whatever its counts say (they are the new boot's: never
+        judged against the old one's). Either count going back says so too; the frame count also when the
+        restarted board then ran longer than the old one had, before the host reached it again (a board
+        killed early in a run and restarted seconds before the host was back: its uptime did not go back,
+        but it has taken only the new handshake's frames). A sample whose counts leapt ahead of what the
+        board could have reached (:mod:`.leaps`) is dropped and counted, and False returned: the frame is
+        not taken."""
         frames_out = self.counters.frames_out
-        leap = self._leaps.refusal(uptime_ms, rx_frames, frames_out, now)
+        boot_changed = self._boot_changed(boot_id)
+        leap = (
+            None if boot_changed is not None else self._leaps.refusal(uptime_ms, rx_frames, frames_out, now)
+        )
         if leap is not None:
             self.counters.board_leaps += 1
             self._drop(now, f"a sample of the board's counts: {leap}")
             return False
-        if self._leaps.reanchoring:
+        if self._leaps.reanchoring and boot_changed is None:
             self.counters.board_reanchors += 1
             logger.warning(
                 "board counts consistently ahead of the first ones heard (uptime %d ms, %s frames taken): "
@@ -553,6 +576,10 @@ class Session:
         if rx_frames is not None:
             self._last_rx_frames = rx_frames
         reply, self._reply_since_sample = self._reply_since_sample, None
+        if reply is not None and boot_id and reply.boot_id and reply.boot_id != boot_id:
+            reply = None  # the answer of the boot before: the cause of this one's reset is not known yet
+        if boot_id:
+            self._boot_id = boot_id
         age_from, self._age_check_from = self._age_check_from, None
         evidence = None
         if last is not None and _went_back(last, uptime_ms):
@@ -565,6 +592,8 @@ class Session:
             evidence = "it reports BOOT after the link came back (it lost the session)"
         elif age_from is not None:
             evidence = self._younger_than_known(uptime_ms, age_from)
+        if boot_changed is not None:  # the board's own word, and what the counts say besides, if anything
+            evidence = boot_changed if evidence is None else f"{boot_changed}; {evidence}"
         if evidence is None:
             self._leaps.take(uptime_ms, rx_frames, frames_out, now)
             if not self._lost:  # a reconnect's samples before its answer are checked by the first after it
@@ -576,6 +605,19 @@ class Session:
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
         self._ran = (uptime_ms / 1000.0, now) if reply is not None else None  # else: the coming answer's
         self._clock_base = self._ran
+        self._reset_seen(now, evidence)
+        if reply is not None:  # the handshake that just happened already told why
+            self._report_reset(now, reply.reset_cause, evidence)
+            return True
+        self._reset_evidence = evidence
+        if self.phase is Phase.READY:
+            self.phase = Phase.HANDSHAKING
+            self._hello(now)
+        return True
+
+    def _reset_seen(self, now: float, evidence: str) -> None:
+        """What every reset seen does before it is reported: an armed board's reset held for the caller
+        (:class:`PendingReset`), the commands and transfers in flight abandoned."""
         if self.armed and self.state is not BoardState.ARMED:
             self.armed = False
             self.pending_reset = PendingReset(now, evidence)
@@ -585,14 +627,14 @@ class Session:
         why = f"the board reset ({evidence})"
         self.commands.abandon(now, why)
         self._transfers.abandon(why)
-        if reply is not None:  # the handshake that just happened already told why
-            self._report_reset(now, reply.reset_cause, evidence)
-            return True
-        self._reset_evidence = evidence
-        if self.phase is Phase.READY:
-            self.phase = Phase.HANDSHAKING
-            self._hello(now)
-        return True
+
+    def _boot_changed(self, boot_id: int) -> str | None:
+        """The evidence of a reset if ``boot_id`` (0: the board does not say) is not the boot id last
+        heard from the board, else None."""
+        known = self._boot_id
+        if not boot_id or known is None or boot_id == known:
+            return None
+        return f"its boot id changed from {known:#010x} to {boot_id:#010x}"
 
     def _younger_than_known(self, uptime_ms: int, hello_at: float) -> str | None:
         """Why the board that answered a reconnect's handshake (its Hello sent at ``hello_at``) cannot be
@@ -622,6 +664,14 @@ class Session:
             f"its uptime ({uptime_ms} ms) is shorter than the {ran_s + since_s * rate:.3f} s the board had "
             f"run (it was at {ran_s:.3f} s at t={heard_at:.3f} s{slow}): it restarted while the link was down"
         )
+
+    def _forget_boot(self) -> None:
+        """A new boot of the board, seen before any sample of it: the counts heard so far were the old
+        boot's (its next sample anchors them anew)."""
+        self._last_uptime = self._last_rx_frames = None
+        self._leaps = LeapCheck()
+        self._ran = self._clock_base = None
+        self._age_check_from = None
 
     def _board_rate(self) -> float:
         """How fast the board's clock ran against the host's over this boot's samples (board s per host s),
@@ -710,6 +760,11 @@ class Session:
             )
             return
         first = previous is None
+        boot_changed = None if self._reset_evidence is not None else self._boot_changed(reply.boot_id)
+        if reply.boot_id:
+            self._boot_id = reply.boot_id
+        if boot_changed is not None:  # a new boot: nothing heard before it is its word
+            self._forget_boot()
         if self._ran is None:  # the first answer of this boot: it had begun by now
             self._ran = (0.0, now)
         self.info = info
@@ -721,12 +776,16 @@ class Session:
         if self._reset_evidence is not None:
             self._report_reset(now, reply.reset_cause, self._reset_evidence)
             self._reset_evidence = None
+        elif boot_changed is not None:
+            self._reset_seen(now, boot_changed)
+            self._report_reset(now, reply.reset_cause, boot_changed)
         elif first and reply.reset_cause is not ResetCause.POWER_ON:
             self._report_reset(now, reply.reset_cause, "reported at connect (before this session)", False)
-        reconnect, rearm = self._lost, self._armed_at_loss and self.config.rearm_on_reconnect
+        reconnect = self._lost
+        rearm = self._armed_at_loss and self.config.rearm_on_reconnect  # a board that reset too: asked for
         self.counters.reconnects += reconnect
         self._lost = self._armed_at_loss = False
-        if reconnect:  # the board that answered may have restarted while the link was down
+        if reconnect and boot_changed is None:  # the board that answered may have restarted meanwhile
             self._age_check_from = self._link_up_at
         self._emit(ConnectedEvent(now, info, self.counters.reconnects))
         if reconnect and rearm:

@@ -1,0 +1,214 @@
+"""A board that restarted, told by its boot id (``HelloReply.boot_id``, ``Heartbeat.boot_id``).
+
+Before the boot id the host knew a reset only by circumstance: the uptime or the frame count going back,
+BOOT mid-session, an uptime shorter than the board must have run. A board restarted within
+``AGE_SLACK_S`` (0.5 s) of when it was last heard of, that then ran longer than the old one had, passed
+for the board that was there (docs/runtime-link.md); so did another board on a reused port whose counts
+were ahead of the old one's. Both are reset reports now, with the boot id as evidence.
+
+The host's sans-IO session against the emulated board (``firmware_sim.board.Board``) in lockstep, the
+board restarted at drawn moments of a session (before its first sample, mid-stream, armed), each within
+0.5 s of when it was last heard of; then through real ptys, a ``firmware-sim`` killed with SIGKILL and
+its link pointed at another one that ran longer and took more frames than it had.
+"""
+
+from __future__ import annotations
+
+import random
+import signal
+import time
+from pathlib import Path
+
+import pytest
+from test_board_client_pty import drive, firmware_sim
+
+from firmware_sim.board.config import BoardConfig
+from firmware_sim.board.core import Board
+from hil.link.board import BoardClient, BoardResetEvent, ClientConfig, ConnectedEvent
+from hil.link.board.session import AGE_SLACK_S, Phase, Session
+from hil.timing.clock import LockstepClock
+from protocol.errors import BoardReset
+from protocol.messages import ActuatorSetpoint, Arm, BoardState, ResetCause, UnitSetpoint
+from protocol.reliable import CommandState
+
+SEED = 20261205
+STEP_S = 0.002
+UNITS = 2
+
+
+def setpoint(speed: float = 300.0) -> ActuatorSetpoint:
+    return ActuatorSetpoint(units=tuple(UnitSetpoint(0.1, speed) for _ in range(UNITS)))
+
+
+class Bench:
+    """One host session and the board on its link, on one lockstep clock; the board can be replaced."""
+
+    def __init__(self, boot_seed: int) -> None:
+        self.clock = LockstepClock()
+        self.config = BoardConfig(n_units=UNITS, telemetry_rate_hz=50.0)
+        self.board: Board | None = Board(self.config, self.clock, boot_ids=random.Random(boot_seed))
+        self.session = Session()
+        self.events: list[object] = []
+
+    def now(self) -> float:
+        return self.clock.now()
+
+    def to_board(self, data: bytes) -> None:
+        if data and self.board is not None:
+            self.board.feed(data)
+
+    def run(self, seconds: float, sp: ActuatorSetpoint | None = None) -> None:
+        """``seconds`` of lockstep time: the board's bytes to the session, the session's to the board."""
+        end = self.now() + seconds
+        while self.now() < end - 1e-9:
+            self.clock.advance(STEP_S)
+            now = self.now()
+            if self.board is not None:
+                self.board.step()
+                data = self.board.take_output()
+                if data:
+                    self.to_board(self.session.feed(data, now))
+            if sp is not None and self.session.phase is Phase.READY and self.session.pending_reset is None:
+                self.to_board(self.session.setpoint(sp, now))
+            self.to_board(self.session.poll(now))
+            self.events += self.session.take_events()
+
+    def connect(self) -> None:
+        """A handshake, up to its answer (no sample of the board taken after it yet)."""
+        self.to_board(self.session.link_up(self.now()))
+        for _ in range(round(1.0 / STEP_S)):
+            self.run(STEP_S)
+            if self.session.phase is Phase.READY:
+                return
+        raise AssertionError(f"no session: {self.session.phase}, {self.session.failure}")
+
+    def resets(self) -> list[BoardResetEvent]:
+        return [e for e in self.events if isinstance(e, BoardResetEvent)]
+
+
+@pytest.mark.parametrize("moment", ["before the first sample", "mid-stream", "armed"])
+def test_a_board_restarted_within_the_age_slack_is_reported_by_its_boot_id(moment: str):
+    """Killed at a drawn moment, a new board (another process: other boot ids) up within 0.5 s of when
+    the old one was last heard of, and found again by the host once it has run longer than the old one
+    had: reported reset, once, its boot id the evidence, with the cause of its answer; an armed host's
+    setpoints refused until it arms again."""
+    rng = random.Random(f"{SEED} {moment}")
+    for draw in range(3):
+        bench = Bench(boot_seed=rng.randrange(1 << 30))
+        bench.run(0.1)  # the board boots (BOOT heartbeats, nothing taken: no session yet)
+        bench.connect()
+        if moment == "mid-stream":
+            bench.run(rng.uniform(0.05, 2.0))
+        elif moment == "armed":
+            cmd, data = bench.session.command(Arm(), bench.now())
+            bench.to_board(data)
+            bench.run(0.05)
+            assert cmd.state is CommandState.ACKED and bench.session.armed
+            bench.run(rng.uniform(0.05, 2.0), setpoint())
+        old = bench.board
+        assert old is not None and bench.session.boot_id == old.boot_id != 0
+        heard = bench.session.last_heard
+        assert heard is not None
+        uptime_then = old.uptime_ms() / 1000.0
+        # the port vanishes with the board; a new one is up within the age slack of when it was last heard
+        bench.session.link_down(bench.now(), "the port vanished")
+        bench.board = None
+        bench.clock.advance(max(0.0, rng.uniform(0.0, AGE_SLACK_S - 0.06) - (bench.now() - heard)))
+        new = Board(bench.config, bench.clock, boot_ids=random.Random(rng.randrange(1 << 30) + (1 << 31)))
+        bench.board = new
+        bench.run(uptime_then + rng.uniform(0.2, 1.5))  # it has run longer than the old one had
+        assert new.uptime_ms() / 1000.0 > uptime_then
+        bench.connect()
+        bench.run(0.5, setpoint() if moment == "armed" else None)
+        where = f"{moment}, draw {draw}"
+        [reset] = bench.resets()
+        evidence = f"its boot id changed from {old.boot_id:#010x} to {new.boot_id:#010x}"
+        assert reset.evidence.startswith(evidence), (where, reset.evidence)
+        assert reset.cause is ResetCause.POWER_ON and reset.during_session, where
+        assert [e.reconnects for e in bench.events if isinstance(e, ConnectedEvent)] == [0, 1], where
+        assert bench.session.counters.resets == 1 and bench.session.boot_id == new.boot_id, where
+        assert bench.session.state is BoardState.DISARMED, where  # never re-armed on its own
+        if moment == "armed":
+            with pytest.raises(BoardReset, match="POWER_ON"):
+                bench.session.setpoint(setpoint(), bench.now())
+            assert new.state is BoardState.DISARMED  # nothing of the old session reached the new board
+        else:
+            assert bench.session.pending_reset is None, where
+
+
+def test_a_reset_told_by_a_heartbeat_alone_is_reported_once():
+    """A board that reset with the link up (a reset the host saw nothing else of): its next heartbeat's
+    boot id tells it; the session handshakes again for the cause and reports it once."""
+    bench = Bench(boot_seed=3)
+    bench.connect()
+    bench.run(0.5)
+    board = bench.board
+    assert board is not None
+    before = board.boot_id
+    board.reset(ResetCause.EXTERNAL)
+    bench.run(0.5)
+    [reset] = bench.resets()
+    assert reset.cause is ResetCause.EXTERNAL and reset.during_session
+    assert reset.evidence.startswith(f"its boot id changed from {before:#010x} to {board.boot_id:#010x}")
+    assert bench.session.boot_id == board.boot_id and bench.session.phase is Phase.READY
+
+
+class BoardWithoutBootId(Board):
+    """An older board: boot id 0 ("the board does not say") in every HelloReply and Heartbeat."""
+
+    def _next_boot_id(self, last: int) -> int:
+        return 0
+
+
+def test_a_board_that_sends_no_boot_id_is_judged_by_its_counts_as_before():
+    """A reset of a board that sends boot id 0 is still told by its uptime and state."""
+    bench = Bench(boot_seed=4)
+    board = BoardWithoutBootId(bench.config, bench.clock)
+    bench.board = board
+    bench.connect()
+    bench.run(0.5)
+    assert bench.session.boot_id is None
+    board.reset(ResetCause.EXTERNAL)
+    bench.run(0.5)
+    [reset] = bench.resets()
+    assert "boot id" not in reset.evidence
+    assert "uptime went back" in reset.evidence or "BOOT" in reset.evidence, reset.evidence
+
+
+# ====================================================================== real ptys
+def test_another_board_on_the_killed_boards_link_is_reported_by_its_boot_id(tmp_path: Path):
+    """A firmware-sim killed with SIGKILL leaves its link behind; the name can reach another board (a pty
+    number reused, a link repointed) with the same identity, which has run longer and taken more frames
+    than the host's board had, not in BOOT: nothing in its counts or state tells it from the board the
+    host had (before the boot id, it was taken for it). Its boot id does: a reset, reported once; the
+    armed host's setpoints refused until it arms again."""
+    link, other = tmp_path / "board", tmp_path / "board-2"
+    config = ClientConfig(reconnect_first_s=0.02, reconnect_max_s=0.2)
+    with firmware_sim("--units", "2", "--link", str(other)):
+        # the other board runs on, and takes frames: more than the host's board will have
+        with BoardClient(str(other)) as elsewhere:
+            elsewhere.start()
+            busy = lambda: elsewhere.telemetry is not None and elsewhere.telemetry.rx_frames >= 150  # noqa: E731
+            drive(elsewhere, None, busy, 10.0)
+        with firmware_sim("--units", "2", "--link", str(link)) as first:
+            client = BoardClient(str(link), config=config)
+            try:
+                client.connect()
+                client.start()
+                client.arm()
+                taken = lambda: client.telemetry is not None and client.telemetry.rx_frames >= 20  # noqa: E731
+                drive(client, setpoint(), taken, 3.0)
+                first.send_signal(signal.SIGKILL)
+                link.unlink()
+                events = drive(client, None, lambda: not client.connected, 2.0)
+                link.symlink_to(other.readlink())
+                drive(client, None, lambda: client.connected, 5.0, events)
+                time.sleep(0.3)  # its samples come in
+                events += client.service()
+                [reset] = [e for e in events if isinstance(e, BoardResetEvent)]
+                assert "boot id changed" in reset.evidence and reset.during_session, reset
+                assert client.state is BoardState.DISARMED
+                with pytest.raises(BoardReset):
+                    client.send_setpoint(setpoint())
+            finally:
+                client.close()
