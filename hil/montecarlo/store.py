@@ -33,8 +33,9 @@ import os
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Any, BinaryIO, TypeVar
+from typing import IO, Any, BinaryIO, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -159,7 +160,7 @@ class ResultStore:
         self._rows = checked_write(runs, lambda: open(runs, "a", newline=""))
         self._csv = csv.writer(self._rows, lineterminator="\n")
         if new:
-            checked_write(runs, lambda: (self._csv.writerow(self.columns), self._rows.flush()))
+            checked_write(runs, lambda: _write_flushed(self._rows, lambda: self._csv.writerow(self.columns)))
         self._traces = checked_write(traces, lambda: open(traces, "ab"))
 
     def _check_manifest(self, path: Path) -> None:
@@ -208,7 +209,8 @@ class ResultStore:
             rec["index"] = result.index
             rec["trace"] = result.trace
             checked_write(
-                self.dir / TRACE_FILE, lambda: (self._traces.write(rec.tobytes()), self._traces.flush())
+                self.dir / TRACE_FILE,
+                lambda: _write_flushed(self._traces, lambda: self._traces.write(rec.tobytes())),
             )
         row: dict[str, float | int | str] = {
             "index": result.index,
@@ -219,13 +221,13 @@ class ResultStore:
         row.update(result.metrics)
         row.update(result.checks)
         cells = [_cell(row.get(c)) for c in self.columns]
-        checked_write(self.dir / RUNS, lambda: (self._csv.writerow(cells), self._rows.flush()))
+        checked_write(self.dir / RUNS, lambda: _write_flushed(self._rows, lambda: self._csv.writerow(cells)))
         self.finished.add(result.index)
 
     def sync(self) -> None:
         """Push the written rows to the disk (survives a machine crash, not just a process crash)."""
         for f, name in ((self._rows, RUNS), (self._traces, TRACE_FILE)):
-            checked_write(self.dir / name, lambda f=f: (f.flush(), os.fsync(f.fileno())))
+            checked_write(self.dir / name, partial(_synced, f))
 
     def close(self) -> None:
         for f in (self._rows, self._traces):
@@ -289,6 +291,18 @@ def checked_write(path: Path, action: Callable[[], T]) -> T:
         raise
     except OSError as exc:
         raise ConfigError(f"cannot write: {exc.strerror or exc}", str(path)) from exc
+
+
+def _write_flushed(f: IO[Any], write: Callable[[], object]) -> None:
+    """``write()`` into ``f``, then ``f`` flushed: a result reaches the file as it is made."""
+    write()
+    f.flush()
+
+
+def _synced(f: IO[Any]) -> None:
+    """``f`` flushed and fsynced: its rows survive a machine crash, not just a process crash."""
+    f.flush()
+    os.fsync(f.fileno())
 
 
 def _last_line_end(f: BinaryIO, size: int) -> int:

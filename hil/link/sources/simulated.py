@@ -147,7 +147,7 @@ class StreamedWorldPhone(PhoneSource):
         closed: the reverse of the opening."""
         self._closing.close()
 
-    def senders(self) -> SenderStatus:
+    def senders(self) -> SenderStatus | None:
         """Its receiver's: another phone may stream to the loopback port too."""
         return self.receiver.senders()
 

@@ -249,10 +249,10 @@ class PhoneReceiver:
                 self.scheme, previous, heard.silent_s, name,
             )  # fmt: skip
         elif line is not None:
-            more = f" (and {line} more new senders since the last such warning)" if line else ""
+            unlogged = f" (and {line} more new senders since the last such warning)" if line else ""
             logger.warning(
                 "phone %s: another phone streams to this port, %s: its messages are dropped, never merged "
-                "(following %s)%s", self.scheme, name, following, more,
+                "(following %s)%s", self.scheme, name, following, unlogged,
             )  # fmt: skip
         return decision
 
