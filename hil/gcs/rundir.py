@@ -3,7 +3,11 @@ another process — the reader follows it.
 
 Each poll reads what was appended to ``telemetry.csv`` and ``events.jsonl`` since the last one, complete
 lines only (a line still being written, or torn by a kill, waits; a malformed complete line is dropped and
-counted — :mod:`hil.runtime.runlog` flushes whole lines). ``summary.json`` appearing (written atomically
+counted — :mod:`hil.runtime.runlog` flushes whole lines). The telemetry's rows are taken as
+:func:`hil.runtime.runlog.read_telemetry` takes them (:class:`~hil.runtime.runlog.TelemetryRows`: the
+same lines dropped and counted, the same rows out of time order); a row far ahead of the last is held
+with the rows after it until they tell whether it is a stray (:class:`~hil.runtime.runlog.RowOrder`),
+and what is held when the reading stops is judged then. ``summary.json`` appearing (written atomically
 when a run ends) means the run is finished: its final link statistics are sent, and the reader stops
 following once it has read the rest. A directory that stops growing without a summary is a killed run
 (or a stalled one): the page shows how long nothing has come.
@@ -34,7 +38,7 @@ from typing import Any, BinaryIO
 from hil.files.bounded import MAX_LINE_BYTES, LineSplitter, load_json, read_document
 from hil.gcs import info as run_info
 from hil.gcs.wire import Batch
-from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY, RowClock, telemetry_header
+from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY, TelemetryRows, telemetry_header
 from hil.scenario import load_scenario
 from protocol.errors import HilError, InputFormatError
 
@@ -147,8 +151,8 @@ class RunDirSource:
         self.columns: list[str] | None = None
         self.rows = 0
         self.events = 0
-        self.bad_rows = 0  # damaged telemetry lines: too long, wrong cell count, not numbers, out of order
-        self._clock = RowClock()
+        self._too_long = 0  # telemetry lines too long to keep (the others: the reader's, :attr:`bad_rows`)
+        self._reader: TelemetryRows | None = None  # once the header is read
         self.bad_events = 0  # damaged event lines: too long, not a JSON object, nested too deep
         self.finished = False
         self._done = False  # finished and everything read
@@ -214,7 +218,7 @@ class RunDirSource:
             return batch
         finished = (self.run_dir / SUMMARY).exists()  # before reading: what follows is all there is
         lines, too_long = self._telemetry.lines()
-        self.bad_rows += too_long
+        self._too_long += too_long
         gone = self._gone()
         if gone is not None:  # what was read is no longer there: stop, never mix in another run's rows
             return self._stop(batch, gone)
@@ -227,6 +231,7 @@ class RunDirSource:
                 batch.status = self._sent_status = {"state": "error", "error": str(exc)}
                 return batch
             lines = lines[1:]
+            self._reader = TelemetryRows(len(self.columns), empty=None)
             batch.info = self._info(self.columns)
             self._state = {"state": "following" if self.follow else "reading"}
         if self.columns is not None:
@@ -237,14 +242,14 @@ class RunDirSource:
             if finished:
                 summary = self._summary() or {}
                 self.finished = self._done = True
-                self._count_torn()
+                self._count_torn(batch)
                 link = summary.get("link")
                 if isinstance(link, dict) and link:
                     batch.link.append({"t": self._last_t, **_flatten(link)})
                 self._state = {"state": "finished", "exit": summary.get("exit"), "summary": summary}
             elif not self.follow:
                 self._done = True
-                self._count_torn()
+                self._count_torn(batch)
                 self._state = {"state": "read", "exit": None}
         status = {**self._state, "bad_rows": self.bad_rows, "bad_events": self.bad_events}
         if status != self._sent_status:
@@ -264,6 +269,8 @@ class RunDirSource:
         """Stop reading (:meth:`_gone` said ``why``): the status says so, the page shows what was read."""
         logger.warning("%s: %s: stopped following", self.run_dir, why)
         self._done = True
+        if self._reader is not None:  # the rows held were read from the run shown: judged on what came
+            self._add(self._reader.end(torn=False), batch)
         self._state = {
             "state": "read",
             "exit": None,
@@ -277,9 +284,10 @@ class RunDirSource:
         }
         return batch
 
-    def _count_torn(self) -> None:
-        """No more will be read: a line still unfinished (torn by a kill) is a damaged one, counted."""
-        self.bad_rows += self._telemetry.pending
+    def _count_torn(self, batch: Batch) -> None:
+        """No more will be read: the rows held given out, a line still unfinished (torn by a kill) a
+        damaged one, counted."""
+        self._end_rows(batch)
         self.bad_events += self._events.pending
 
     def _header(self, lines: list[str], too_long: int) -> list[str]:
@@ -295,24 +303,29 @@ class RunDirSource:
         return []
 
     def _rows(self, lines: list[str], batch: Batch) -> None:
-        assert self.columns is not None
-        width = len(self.columns)
-        for line in lines:
-            cells = line.split(",")  # the log's writer never quotes: numbers and empty cells
-            if len(cells) != width:
-                self.bad_rows += 1
-                continue
-            try:
-                row = [float(c) if c else None for c in cells]
-            except ValueError:
-                self.bad_rows += 1
-                continue
-            if not self._clock.take(row[0]):  # out of time order: not drawn, counted
-                self.bad_rows += 1
-                continue
-            batch.rows.append(row)
-            self._last_t = row[0]
-        self.rows += len(batch.rows)
+        """The rows taken of ``lines`` (:class:`~hil.runtime.runlog.TelemetryRows`: the policy of
+        :func:`~hil.runtime.runlog.read_telemetry` too) into ``batch``."""
+        assert self._reader is not None
+        self._add(self._reader.lines(lines), batch)
+
+    def _add(self, rows: list[list[Any]], batch: Batch) -> None:
+        if rows:
+            batch.rows.extend(rows)
+            self._last_t = rows[-1][0]
+            self.rows += len(rows)
+
+    @property
+    def bad_rows(self) -> int:
+        """Damaged telemetry lines: too long, wrong cell count, not numbers, torn, out of time order."""
+        return self._too_long + (self._reader.dropped if self._reader is not None else 0)
+
+    def _end_rows(self, batch: Batch) -> None:
+        """No more will be read: the rows held (:class:`~hil.runtime.runlog.RowOrder`) judged on what came
+        after them, and a line still unfinished (torn by a kill) counted as damaged."""
+        if self._reader is not None:
+            self._add(self._reader.end(torn=self._telemetry.pending), batch)
+        else:
+            self._too_long += self._telemetry.pending
 
     def _read_events(self, batch: Batch) -> None:
         where = str(self._events.path)

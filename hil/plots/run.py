@@ -2,13 +2,15 @@
 estimator figures (simulated runs, where the truth is known), pointing and tracking error, gimbal angles and
 rates, rotor speeds, pulse widths, battery voltage and the singularity measure δ — each from
 ``telemetry.csv``, with the operator's commands, the slew and the faults of ``events.jsonl`` marked
-(:mod:`hil.plots.markers`); a column a run lacks is skipped and named in the result's ``skipped`` list."""
+(:mod:`hil.plots.markers`); a column a run lacks is skipped and named in the result's ``skipped`` list.
+The telemetry is read a block at a time, only the columns drawn, each thinned as it comes
+(:class:`hil.plots.streamed.MinMaxStream`): memory holds the figures' points, not the run."""
 
 from __future__ import annotations
 
 import io
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Sequence
 from functools import partial
 from pathlib import Path
 
@@ -18,23 +20,20 @@ from matplotlib.axes import Axes
 from hil.plots.estimator import _figure, _save
 from hil.plots.forked import draw_shared
 from hil.plots.markers import draw_markers, run_markers
-from hil.runtime.runlog import read_events, read_telemetry
+from hil.plots.streamed import MAX_POINTS, MinMaxStream
+from hil.runtime.runlog import TelemetryBlocks, read_events
 from protocol.errors import InputFormatError
 
 
-def _units(columns: dict[str, np.ndarray], prefix: str) -> list[str]:
+def _units(columns: Collection[str], prefix: str) -> list[str]:
     found = [c for c in columns if c.startswith(prefix) and c[len(prefix) :].isdigit()]
     return sorted(found, key=lambda c: int(c[len(prefix) :]))
 
 
-MAX_POINTS = 2000
-"""Points per line at most: a longer series is drawn as the minimum and maximum of each of
-``MAX_POINTS / 2`` equal slices (every spike stays visible; a 10-minute real-time log at 200 Hz draws
-2 000 points, not 120 000)."""
-
-
 def thin(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """``(t, y)`` with at most ``max_points`` points: each slice's minimum and maximum, in time order."""
+    """``(t, y)`` with at most ``max_points`` points: each of ``max_points / 2`` equal slices' minimum and
+    maximum, in time order (series held whole; a run's telemetry is thinned as it is read:
+    :class:`~hil.plots.streamed.MinMaxStream`)."""
     n = len(t)
     if n <= max_points:
         return t, y
@@ -52,10 +51,14 @@ def thin(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np
     return t[idx], y[idx]
 
 
-def _lines(ax: Axes, t: np.ndarray, columns: dict[str, np.ndarray], names: list[str], label: str) -> None:
+Series = Callable[[str], tuple[np.ndarray, np.ndarray]]
+"""A column's points to draw, by its name: (t, y), thinned (:class:`hil.plots.streamed.MinMaxStream`)."""
+
+
+def _lines(ax: Axes, series: Series, names: list[str], label: str) -> None:
     for name in names:
         suffix = name.rsplit("_", 1)[-1]
-        ax.plot(*thin(t, columns[name]), lw=0.8, label=f"{label} {suffix}" if suffix.isdigit() else name)
+        ax.plot(*series(name), lw=0.8, label=f"{label} {suffix}" if suffix.isdigit() else name)
 
 
 _FIGURES: tuple[tuple[str, str, str, str | tuple[str, ...], str, bool], ...] = (
@@ -85,13 +88,13 @@ def warm() -> None:
     t = np.linspace(0.0, 10.0, 200)
     columns = {"x_0": np.sin(t), "x_1": np.cos(t)}
     fig, ax = _figure("Warm-up δ (deg) |Ω − Ω̂|", "angle (rad)")
-    _lines(ax, t, columns, ["x_0", "x_1"], "unit")
+    _lines(ax, lambda name: thin(t, columns[name]), ["x_0", "x_1"], "unit")
     ax.set_yscale("log")
     ax.axhline(0.5, color="r", ls="--", lw=0.8, label="limit")
     _save(fig, ax, io.BytesIO())
 
 
-def _columns(c: dict[str, np.ndarray], spec: str | tuple[str, ...]) -> list[str]:
+def _columns(c: Collection[str], spec: str | tuple[str, ...]) -> list[str]:
     """The columns a figure's ``spec`` names, per-unit prefixes expanded."""
     names = (spec,) if isinstance(spec, str) else spec
     out: list[str] = []
@@ -100,17 +103,32 @@ def _columns(c: dict[str, np.ndarray], spec: str | tuple[str, ...]) -> list[str]
     return out
 
 
+def _drawn(header: Sequence[str]) -> list[str]:
+    """The columns of ``header`` a figure of :func:`plot_run` draws, the time first."""
+    named = set(header)
+    return ["t", *(n for _, _, _, spec, _, _ in _FIGURES for n in _columns(named, spec) if n in named)]
+
+
 def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
     """Draw every figure the run's telemetry allows into ``run_dir/plots``; returns name → path.
     A missing or empty telemetry.csv is an :class:`InputFormatError` naming it. ``processes`` > 1 shares
     the figures among that many processes forked after the data is read (:mod:`hil.plots.forked`; while
     another thread of this process runs, they are all drawn here)."""
     run_dir = Path(run_dir)
-    tel = read_telemetry(run_dir / "telemetry.csv")
-    if tel.rows == 0:
-        raise InputFormatError("no telemetry rows to plot", str(run_dir / "telemetry.csv"))
-    c = tel.columns
-    t = c["t"]
+    path = run_dir / "telemetry.csv"
+    with TelemetryBlocks(path, columns=_drawn) as blocks:  # only what the figures draw, thinned as read
+        drawn = blocks.names[1:]  # the time first
+        stream = MinMaxStream(len(drawn))
+        for block in blocks:
+            stream.add(block[:, 0], block[:, 1:])
+    if blocks.rows == 0:
+        raise InputFormatError("no telemetry rows to plot", str(path))
+    column = {name: j for j, name in enumerate(drawn)}
+
+    def series(name: str) -> tuple[np.ndarray, np.ndarray]:
+        return stream.series(column[name])
+
+    peaks = stream.peak()
     limit = None
     summary_path = run_dir / "summary.json"
     if summary_path.is_file():
@@ -122,11 +140,11 @@ def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
 
     def figure(name: str, title: str, ylabel: str, present: list[str], label: str, log: bool) -> Path:
         fig, ax = _figure(title, ylabel)
-        _lines(ax, t, c, present, label)
+        _lines(ax, series, present, label)
         if log:
             ax.set_yscale("log")
         if name == "gimbal_rates" and limit is not None:
-            peak = max(float(np.nanmax(np.abs(c[n]))) for n in present)
+            peak = max(float(peaks[column[n]]) for n in present)
             if peak >= 0.25 * limit:  # the limit in view when the rates come near it
                 for sign in (1, -1):
                     ax.axhline(sign * limit, color="r", ls="--", lw=0.8, label="limit" if sign > 0 else None)
@@ -138,7 +156,7 @@ def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
     names: list[str] = []
     jobs: list[Callable[[], Path]] = []
     for name, title, ylabel, spec, label, log in _FIGURES:
-        present = [n for n in _columns(c, spec) if n in c and np.any(np.isfinite(c[n]))]
+        present = [n for n in _columns(column, spec) if n in column and stream.finite[column[n]]]
         if present:  # a column the run lacks, or never filled: no figure
             names.append(name)
             jobs.append(partial(figure, name, title, ylabel, present, label, log))

@@ -22,23 +22,32 @@ summary (``telemetry_rows_not_written``) or kept in it (``events_not_written``).
 
 from __future__ import annotations
 
+import bisect
 import collections
 import contextlib
+import itertools
 import json
 import math
 import os
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
 from hil.files.appending import LineAppender
-from hil.files.bounded import MAX_LINE_BYTES, load_json, read_lines, regular_file_if_there
+from hil.files.bounded import (
+    CHUNK_BYTES,
+    MAX_LINE_BYTES,
+    LineSplitter,
+    load_json,
+    read_lines,
+    regular_file_if_there,
+)
 from hil.files.output import OutputError, make_dir, safe_label
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError
@@ -333,7 +342,7 @@ class Telemetry:
 
     columns: dict[str, np.ndarray]
     rows: int
-    dropped_lines: int  # a torn last line (killed run) or malformed lines, counted not fatal
+    dropped_lines: int  # a torn last line (killed run), malformed lines, rows out of time order: counted
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.columns[name]
@@ -347,64 +356,307 @@ MAX_ROW_TIME_S = 1e7
 (:data:`hil.scenario.reader.MAX_DURATION_S`), and waits for its board and phone by bounded timeouts; 1e7 s
 is 115 days."""
 
+LOOKAHEAD_ROWS = 32
+"""The most rows :class:`RowOrder` holds after a row it doubts (0.16 s of a 200 Hz run)."""
+JUMP_STEPS = 8.0
+"""A row more than this many steps (the run's recent step between rows) after the last one taken is
+doubted (:class:`RowOrder`): a late tick is a step or two, a stall longer."""
+START_S = 10.0
+"""Before a run's step is known (its first rows), a row more than this many seconds after the last one taken
+(the first row: at more than this from 0 s, either sign) is doubted: a run's clock starts at 0 s."""
 
-class RowClock:
-    """Which rows of a run's telemetry are in time order: a row is taken while its time ``t`` (s; column 0)
-    is finite, within ±:data:`MAX_ROW_TIME_S` and not before the last row taken. A run writes its rows in
-    the order of its ticks; a file edited, spliced or damaged may not — a row at 1e300 s squashed every
-    figure into its first pixel, rows repeated from earlier drew the run twice over itself. Such rows are
-    not taken (their readers count them as dropped)."""
+R = TypeVar("R")
 
-    def __init__(self) -> None:
-        self.last = -math.inf
 
-    def take(self, t: float | None) -> bool:
-        """Whether the row at ``t`` (None: an empty cell) is taken; a taken row moves the clock on."""
-        if t is None or not (self.last <= t <= MAX_ROW_TIME_S and t >= -MAX_ROW_TIME_S):
-            return False
+class RowOrder(Generic[R]):
+    """Which rows of a run's telemetry are in time order, streamed: each row (its time ``t``, s, column 0,
+    and whatever the reader keeps of it) is offered in file order, and the rows taken come out in order.
+
+    A run writes its rows in the order of its ticks; a file edited, spliced or damaged may not — a row at
+    1e300 s squashed every figure into its first pixel, rows repeated from earlier drew the run twice over
+    itself, and one row at a large but possible time (5e6 s), once taken, put every later row of the run
+    "before" it. The policy:
+
+    - a row whose time is empty, not finite, beyond ±:data:`MAX_ROW_TIME_S` or before the last row taken is
+      dropped;
+    - a row within :data:`JUMP_STEPS` steps of the last one taken (the step: the recent spacing of the rows
+      taken; :data:`START_S` before it is known) is taken at once — the common case, no delay;
+    - a row further ahead is doubted: it is held with the rows after it, up to :data:`LOOKAHEAD_ROWS` of
+      them (or to the end of the file), then judged on them. It is dropped when one of them goes on from
+      the last row taken, within those steps (the earlier sequence goes on: the doubted row is a stray);
+      otherwise it is taken when taking it keeps at least as many of them in order as leaving it out would
+      (the longest run of them in time order, with and without it; a tie goes to the side most of them are
+      on). So a real jump ahead (a run that stalled) followed by rows after it is taken, late; stray rows
+      far ahead are dropped as long as the run's own rows come back within the look-ahead, and the run
+      goes on. The held rows are then offered again, in order.
+
+    Memory holds at most ``lookahead + 1`` rows. What it cannot tell: more than ``lookahead`` stray rows
+    together; a stray row less than :data:`JUMP_STEPS` steps ahead (taken: the few rows it passes are
+    dropped); a stray row at the very start of a file before the run's first row, or at its very end after
+    the last (in order: taken); a real jump followed, within the look-ahead, by a stray row from before it
+    (the rows after the jump held with it are dropped). Rows dropped are counted
+    in :attr:`dropped`; :meth:`end` gives the rows still held when nothing more will come."""
+
+    def __init__(self, lookahead: int = LOOKAHEAD_ROWS, jump: float = JUMP_STEPS) -> None:
+        self.lookahead = lookahead
+        self.jump = jump
+        self.last = -math.inf  # the time of the last row taken
+        self.step: float | None = None  # the recent spacing of the rows taken (s)
+        self.taken = 0
+        self.dropped = 0
+        self._held: list[tuple[float, R]] = []  # the doubted row, then the rows after it
+
+    @property
+    def held(self) -> int:
+        """Rows held (a doubted one and those after it), not yet taken or dropped."""
+        return len(self._held)
+
+    def offer(self, t: float | None, row: R) -> list[R]:
+        """The rows taken now that the row at ``t`` (None: an empty cell) is offered, in order (none, this
+        one, or rows held and this one)."""
+        out: list[R] = []
+        self.offer_into(t, row, out)
+        return out
+
+    def end(self) -> list[R]:
+        """Nothing more will be offered: the rows held are judged on what came after them."""
+        out: list[R] = []
+        while self._held:
+            self._judge(out)
+        return out
+
+    def offer_into(self, t: float | None, row: R, out: list[R]) -> None:
+        """:meth:`offer`, the rows taken appended to ``out`` (a reader's batch: no list per row)."""
+        if t is None or not (self.last <= t <= MAX_ROW_TIME_S and t >= -MAX_ROW_TIME_S):  # NaN: False
+            self.dropped += 1
+        elif self._held:
+            self._held.append((t, row))
+            if len(self._held) > self.lookahead:
+                self._judge(out)
+        elif self._doubted(t):
+            self._held.append((t, row))
+        else:
+            if self.taken and t > self.last:  # the spacing, forgetting a long one slowly (a late tick)
+                self.step = max(t - self.last, 0.5 * (self.step or 0.0))
+            self._take(t, row, out)
+
+    def _doubted(self, t: float) -> bool:
+        """Whether ``t`` (not before the last row taken) is further ahead of it than the run's steps."""
+        if self.taken == 0:
+            return abs(t) > START_S
+        if self.step is None:
+            return t - self.last > START_S
+        return t - self.last > self.jump * self.step
+
+    def _take(self, t: float, row: R, out: list[R]) -> None:
         self.last = t
-        return True
+        self.taken += 1
+        out.append(row)
+
+    def _judge(self, out: list[R]) -> None:
+        """The doubted row taken or dropped on the rows held after it, which are then offered again."""
+        (t, row), rest = self._held[0], self._held[1:]
+        self._held = []
+        after = [u for u, _ in rest]
+        on = [u for u in after if u >= t]
+        with_it, without = 1 + _in_order(on), _in_order(after)
+        goes_on = not all(map(self._doubted, after))  # a row after it within steps of the last taken
+        if not goes_on and (with_it > without or (with_it == without and 2 * len(on) >= len(after))):
+            steps = sorted(b - a for a, b in itertools.pairwise(on) if b > a)
+            if steps:  # the spacing of the rows that go on from it (a run's rate may have changed)
+                self.step = steps[len(steps) // 2]
+            self._take(t, row, out)
+        else:
+            self.dropped += 1
+        for u, r in rest:
+            self.offer_into(u, r, out)
+
+
+def _in_order(times: Sequence[float]) -> int:
+    """The length of the longest subsequence of ``times`` in time order (non-decreasing)."""
+    tails: list[float] = []
+    for u in times:
+        i = bisect.bisect_right(tails, u)
+        if i == len(tails):
+            tails.append(u)
+        else:
+            tails[i] = u
+    return len(tails)
+
+
+class TelemetryRows:
+    """A run's telemetry rows from its lines, sans-IO: the one policy of every reader of a run's telemetry
+    (:func:`read_telemetry`, ``hil gcs``'s :class:`~hil.gcs.rundir.RunDirSource`). :meth:`lines` takes the
+    complete lines that follow the header (bytes or text; None: a line too long to keep) and returns the
+    rows taken, ``width`` numbers each (an empty cell ``empty``); a line with another number of cells, a
+    non-number or bytes that are not UTF-8 is dropped, and so is a row out of time order
+    (:class:`RowOrder`: held rows come out late, by :meth:`end` at the latest). :meth:`end` is told whether
+    the file ended in an unfinished line: a run writes whole lines
+    (:class:`~hil.files.appending.LineAppender`), so that is a line torn by a kill — dropped, whatever it
+    holds (``0.21234`` cut to ``0.2`` still parses). :attr:`dropped` counts every line dropped."""
+
+    def __init__(self, width: int, empty: float | None = math.nan) -> None:
+        self.width = width
+        self.empty = empty
+        self.order: RowOrder[list[Any]] = RowOrder()
+        self.damaged = 0
+
+    @property
+    def dropped(self) -> int:
+        return self.damaged + self.order.dropped
+
+    @property
+    def taken(self) -> int:
+        return self.order.taken
+
+    def lines(self, lines: Iterable[bytes | str | None]) -> list[list[Any]]:
+        out: list[list[Any]] = []
+        offer = self.order.offer_into
+        for line in lines:
+            row = _numbers(line, self.width, self.empty)
+            if row is None:
+                self.damaged += 1
+            else:
+                offer(row[0], row, out)
+        return out
+
+    def end(self, torn: bool) -> list[list[Any]]:
+        """The rows still held; ``torn``: the file ended in an unfinished line (dropped, counted)."""
+        self.damaged += torn
+        return self.order.end()
 
 
 RUN_FILES_ONLY = ": a run directory holds files (a device, a FIFO there is never read: /dev/zero never ends)"
 """Said of a run's telemetry or events that is there and is not a regular file."""
 
 
-def read_telemetry(path: str | os.PathLike[str]) -> Telemetry:
-    """Read a run's telemetry CSV, streamed (:func:`hil.files.bounded.read_lines`: memory holds the
-    numbers, not the text). A line with the wrong number of cells, a non-number, bytes that are not UTF-8
-    or more than :data:`~hil.files.bounded.MAX_LINE_BYTES` is dropped and counted (a run killed mid-write
-    leaves one), and so is a row out of time order (:class:`RowClock`); a missing or header-less file is an
-    InputFormatError."""
-    path = Path(path)
-    regular_file_if_there(path, InputFormatError, "telemetry", RUN_FILES_ONLY)
-    try:
-        f = open(path, "rb")  # noqa: SIM115 — closed below
-    except FileNotFoundError:
-        raise InputFormatError("no such file (telemetry)", str(path)) from None
-    except OSError as exc:
-        raise InputFormatError(f"cannot read telemetry: {exc.strerror}", str(path)) from exc
-    header: list[str] | None = None
-    blocks: list[np.ndarray] = []
-    dropped = 0
-    clock = RowClock()
-    with f:
-        for batch in read_lines(f):
-            if header is None:
-                header = _header(batch.pop(0), path)
-            values = []
-            for line in batch:
-                row = _numbers(line, len(header))
-                if row is None or not clock.take(row[0]):
-                    dropped += 1
-                else:
-                    values.append(row)
-            if values:
-                blocks.append(np.array(values, dtype=float))
-    if header is None:
-        raise InputFormatError("empty file (no header)", str(path), 1)
-    data = np.concatenate(blocks) if blocks else np.zeros((0, len(header)))
-    return Telemetry({name: data[:, i] for i, name in enumerate(header)}, len(data), dropped)
+Columns = Iterable[str] | Callable[[Sequence[str]], Iterable[str]] | None
+"""The columns a reader keeps: their names (names the header lacks are left out), or a function of the
+header's names that says them; None: all."""
+
+
+class TelemetryBlocks:
+    """A run's telemetry CSV read a block of rows at a time, streamed: iterating gives float arrays, one per
+    piece of :data:`~hil.files.bounded.CHUNK_BYTES` read (its rows taken × :attr:`names`, NaN where empty),
+    so memory holds one block, not the file (:func:`read_telemetry` keeps them; a reader that needs less —
+    the plots' envelopes — keeps less). ``columns`` says which are kept (:data:`Columns`); ``()`` keeps none
+    and only counts the rows.
+
+    Every line is read the same whichever columns are kept (:class:`TelemetryRows`): a line with the wrong
+    number of cells, a non-number, bytes that are not UTF-8 or more than
+    :data:`~hil.files.bounded.MAX_LINE_BYTES` is dropped and counted, and so is a last line without its
+    line break (torn by a kill) and a row out of time order (:class:`RowOrder`): :attr:`rows` and
+    :attr:`dropped_lines` once iterated. A missing or header-less file is an InputFormatError, raised when
+    it is opened (the header is read then: :attr:`header`)."""
+
+    def __init__(self, path: str | os.PathLike[str], columns: Columns = None) -> None:
+        self.path = Path(path)
+        regular_file_if_there(self.path, InputFormatError, "telemetry", RUN_FILES_ONLY)
+        try:
+            self._file = open(self.path, "rb")  # noqa: SIM115 — closed by close()
+        except FileNotFoundError:
+            raise InputFormatError("no such file (telemetry)", str(self.path)) from None
+        except OSError as exc:
+            raise InputFormatError(f"cannot read telemetry: {exc.strerror}", str(self.path)) from exc
+        self._splitter = LineSplitter()
+        try:
+            first = self._first_lines()
+            self.header = _header(first.pop(0), self.path)
+        except BaseException:
+            self._file.close()
+            raise
+        self._first: list[bytes | None] = first
+        self._reader = TelemetryRows(len(self.header))
+        kept = _kept(self.header, columns)
+        self.names = [name for name, _ in kept]
+        self._picks = [i for _, i in kept]
+
+    def _first_lines(self) -> list[bytes | None]:
+        """The lines of the first piece(s) read that holds a whole line (the header); a header alone,
+        without its line break, is still the header."""
+        while data := self._file.read(CHUNK_BYTES):
+            lines = self._splitter.feed(data)
+            if lines:
+                return lines
+        last = self._splitter.end()
+        if not last:
+            raise InputFormatError("empty file (no header)", str(self.path), 1)
+        return last
+
+    @property
+    def rows(self) -> int:
+        """Rows taken so far."""
+        return self._reader.taken
+
+    @property
+    def dropped_lines(self) -> int:
+        """Lines dropped so far (damaged, torn, out of time order)."""
+        return self._reader.dropped
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        try:
+            lines, self._first = self._first, []
+            while True:
+                block = self._block(self._reader.lines(lines))
+                if block is not None:
+                    yield block
+                if self._file.closed:
+                    return
+                data = self._file.read(CHUNK_BYTES)
+                if data:
+                    lines = self._splitter.feed(data)
+                    continue
+                torn = bool(self._splitter.end())  # a line without its line break: torn by a kill
+                self._file.close()
+                block = self._block(self._reader.end(torn))
+                if block is not None:
+                    yield block
+                return
+        finally:
+            self._file.close()
+
+    def _block(self, rows: list[list[Any]]) -> np.ndarray | None:
+        if not rows:
+            return None
+        if not self._picks:
+            return np.zeros((len(rows), 0))
+        data = np.array(rows, dtype=float)
+        return data if len(self._picks) == data.shape[1] else data[:, self._picks]
+
+    def close(self) -> None:
+        """Stop reading (idempotent)."""
+        self._file.close()
+
+    def __enter__(self) -> TelemetryBlocks:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def read_telemetry(path: str | os.PathLike[str], columns: Columns = None) -> Telemetry:
+    """Read a run's telemetry CSV (:class:`TelemetryBlocks`: the lines it drops, and why), its columns
+    ``columns`` (:data:`Columns`; default: all) kept whole: memory holds the numbers kept, not the text —
+    each column of a 10-hour run at 200 Hz is 58 MB; ``()`` keeps none, only counts the rows."""
+    with TelemetryBlocks(path, columns) as blocks:
+        parts: list[list[np.ndarray]] = [[] for _ in blocks.names]
+        for block in blocks:
+            for j, part in enumerate(parts):
+                part.append(block[:, j].copy())  # not a view: the block's other columns freed
+    out: dict[str, np.ndarray] = {}
+    for name, part in zip(blocks.names, parts, strict=True):
+        out[name] = np.concatenate(part) if part else np.zeros(0)
+        part.clear()  # one column at a time: never the blocks and all the columns at once
+    return Telemetry(out, blocks.rows, blocks.dropped_lines)
+
+
+def _kept(header: list[str], columns: Columns) -> list[tuple[str, int]]:
+    """(name, index) of the columns a reader keeps (:data:`Columns`)."""
+    index = {name: i for i, name in enumerate(header)}
+    if columns is None:
+        return list(index.items())
+    names = columns(header) if callable(columns) else columns
+    return [(name, index[name]) for name in dict.fromkeys(names) if name in index]
 
 
 def _header(line: bytes | None, path: Path) -> list[str]:
@@ -430,15 +682,16 @@ def telemetry_header(line: str, path: str | os.PathLike[str]) -> list[str]:
     return columns
 
 
-def _numbers(line: bytes | None, width: int) -> list[float] | None:
-    """A telemetry row's ``width`` numbers (an empty cell is NaN), or None for a damaged line."""
+def _numbers(line: bytes | str | None, width: int, empty: float | None = math.nan) -> list[Any] | None:
+    """A telemetry row's ``width`` numbers (an empty cell is ``empty``), or None for a damaged line."""
     if line is None:
         return None
     try:
-        cells = line.decode("utf-8").split(",")
+        text = line if isinstance(line, str) else line.decode("utf-8")
+        cells = text.split(",")  # the log's writer never quotes: numbers and empty cells
         if len(cells) != width:
             return None
-        return [float(c) if c != "" else math.nan for c in cells]
+        return [float(c) if c != "" else empty for c in cells]
     except (UnicodeDecodeError, ValueError):
         return None
 
