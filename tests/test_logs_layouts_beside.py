@@ -142,16 +142,22 @@ def test_a_value_of_digits_that_are_not_ascii_is_not_a_number_in_the_json_export
 
 
 # ------------------------------------------------------------------ 2. a JSON clock key that appears late
-def test_a_json_time_key_first_given_after_a_sensors_first_record_is_read_not_ignored(tmp_path, real_log):
-    """Each sensor's first record lacks ``time`` (it has ``seconds_elapsed``); the others have both. The
-    recording's clock is ``time`` from the record that first gives it: the rows before it are NaN samples,
-    noted — never the whole sensor read on the other clock with ``time`` passed over."""
+def without_key_in_first_records(key: str) -> list[dict[str, object]]:
+    """The real export's JSON records, ``key`` left out of each sensor's first record."""
     records = json_records()
     first: set[object] = set()
     for record in records:
         if record["sensor"] not in first:
             first.add(record["sensor"])
-            del record["time"]
+            del record[key]
+    return records
+
+
+def test_a_json_time_key_first_given_after_a_sensors_first_record_is_read_not_ignored(tmp_path, real_log):
+    """Each sensor's first record lacks ``time`` (it has ``seconds_elapsed``); the others have both. The
+    recording's clock is ``time`` from the record that first gives it: the rows before it are NaN samples,
+    noted — never the whole sensor read on the other clock with ``time`` passed over."""
+    records = without_key_in_first_records("time")
     log = read_log(write_json(tmp_path / "Recording.json", records))
     assert any("time: ns since epoch" in note for note in log.notes)
     assert sum("no time of this recording" in note for note in log.notes) == 3
@@ -167,24 +173,15 @@ def test_a_json_time_key_first_given_after_a_sensors_first_record_is_read_not_ig
 
 
 def test_a_json_seconds_elapsed_key_first_given_later_is_read_beside_time(tmp_path, real_log):
-    records = json_records()
-    first: set[object] = set()
-    for record in records:
-        if record["sensor"] not in first:
-            first.add(record["sensor"])
-            del record["seconds_elapsed"]
+    records = without_key_in_first_records("seconds_elapsed")
     assert_same_samples(read_log(write_json(tmp_path / "Recording.json", records)), real_log)
 
 
 def test_a_json_time_key_given_late_on_another_clock_is_not_passed_over(tmp_path):
     """The late ``time`` is read, so a file whose ``time`` disagrees with its ``seconds_elapsed`` is told."""
-    records = json_records()
-    first: set[object] = set()
+    records = without_key_in_first_records("time")
     for record in records:
-        if record["sensor"] not in first:
-            first.add(record["sensor"])
-            del record["time"]
-        elif record["sensor"] == "Magnetometer":
+        if record["sensor"] == "Magnetometer" and "time" in record:
             record["time"] = str(int(str(record["time"])) - 3_000_000_000_000)
     with pytest.raises(InputFormatError, match="another clock") as err:
         read_log(write_json(tmp_path / "Recording.json", records))
