@@ -2,7 +2,8 @@
 estimator figures (simulated runs, where the truth is known), pointing and tracking error, gimbal angles and
 rates, rotor speeds, pulse widths, battery voltage and the singularity measure δ — each from
 ``telemetry.csv``, with the operator's commands, the slew and the faults of ``events.jsonl`` marked
-(:mod:`hil.plots.markers`); a column a run lacks is skipped and named in the result's ``skipped`` list.
+(:mod:`hil.plots.markers`); a figure whose columns a run lacks is not drawn (:func:`plot_run` returns
+those it drew).
 The telemetry is read a block at a time, only the columns drawn, each thinned as it comes
 (:class:`hil.plots.streamed.MinMaxStream`): memory holds the figures' points, not the run."""
 
