@@ -21,7 +21,7 @@ from matplotlib.axes import Axes
 from hil.plots.estimator import _figure, _save
 from hil.plots.forked import draw_shared
 from hil.plots.markers import draw_markers, run_markers
-from hil.plots.streamed import MAX_POINTS, MinMaxStream
+from hil.plots.streamed import MinMaxStream
 from hil.runtime.runlog import TelemetryBlocks, read_events
 from protocol.errors import InputFormatError
 
@@ -29,27 +29,6 @@ from protocol.errors import InputFormatError
 def _units(columns: Collection[str], prefix: str) -> list[str]:
     found = [c for c in columns if c.startswith(prefix) and c[len(prefix) :].isdigit()]
     return sorted(found, key=lambda c: int(c[len(prefix) :]))
-
-
-def thin(t: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple[np.ndarray, np.ndarray]:
-    """``(t, y)`` with at most ``max_points`` points: each of ``max_points / 2`` equal slices' minimum and
-    maximum, in time order (series held whole; a run's telemetry is thinned as it is read:
-    :class:`~hil.plots.streamed.MinMaxStream`)."""
-    n = len(t)
-    if n <= max_points:
-        return t, y
-    buckets = max_points // 2
-    edges = np.linspace(0, n, buckets + 1).astype(int)
-    keep = []
-    for a, b in zip(edges[:-1], edges[1:], strict=True):
-        part = y[a:b]
-        if not np.any(np.isfinite(part)):
-            keep.append(a)
-            continue
-        lo, hi = a + int(np.nanargmin(part)), a + int(np.nanargmax(part))
-        keep += sorted({lo, hi})
-    idx = np.asarray(keep)
-    return t[idx], y[idx]
 
 
 Series = Callable[[str], tuple[np.ndarray, np.ndarray]]
@@ -89,7 +68,7 @@ def warm() -> None:
     t = np.linspace(0.0, 10.0, 200)
     columns = {"x_0": np.sin(t), "x_1": np.cos(t)}
     fig, ax = _figure("Warm-up δ (deg) |Ω − Ω̂|", "angle (rad)")
-    _lines(ax, lambda name: thin(t, columns[name]), ["x_0", "x_1"], "unit")
+    _lines(ax, lambda name: (t, columns[name]), ["x_0", "x_1"], "unit")
     ax.set_yscale("log")
     ax.axhline(0.5, color="r", ls="--", lw=0.8, label="limit")
     _save(fig, ax, io.BytesIO())

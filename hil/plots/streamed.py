@@ -4,8 +4,8 @@
 keeps, for each column, at most :data:`MAX_POINTS` points: every point while there are no more, then the
 minimum and the maximum of each of between ``MAX_POINTS / 4`` and ``MAX_POINTS / 2`` slices of equal rows
 (a slice is a power of two rows long: when there are too many, neighbours are merged two by two). Every
-spike stays visible, as with :func:`hil.plots.run.thin`, and memory holds the slices, not the run: a
-10-hour run at 200 Hz is 7.2 million rows, ~2 GB as floats.
+spike stays visible, and memory holds the slices, not the run: a 10-hour run at 200 Hz is 7.2 million
+rows, ~2 GB as floats.
 """
 
 from __future__ import annotations
