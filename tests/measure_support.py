@@ -1,9 +1,15 @@
-"""Measuring a command from outside: its exit status, peak resident memory and wall time."""
+"""Measuring a command: from outside (its exit status, peak resident memory and wall time), or in this
+process (the peak of the memory Python traced while it ran)."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
+import tracemalloc
+from collections.abc import Callable
+from typing import TypeVar
+
+T = TypeVar("T")
 
 MB = 1 << 20
 MEASURE = """\
@@ -30,3 +36,13 @@ def run_measured(*argv: str, timeout: float = 300.0) -> tuple[int, int, float, s
     head, _, stderr = out.stdout.partition("\n")
     status, peak, seconds = head.split()
     return int(status), int(peak), float(seconds), stderr
+
+
+def traced_peak(action: Callable[[], T]) -> tuple[T, int]:
+    """``action()``'s result and the peak of the memory Python traced while it ran (bytes)."""
+    tracemalloc.start()
+    try:
+        result = action()
+        return result, tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()

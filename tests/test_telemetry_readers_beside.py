@@ -14,17 +14,15 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-import tracemalloc
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from measure_support import MB, traced_peak
 
 from hil.gcs.rundir import RunDirSource
 from hil.runtime.runlog import read_telemetry
-
-MB = 1 << 20
 
 
 @pytest.fixture(scope="module")
@@ -203,12 +201,9 @@ def test_hil_report_counts_a_long_run_s_rows_without_holding_its_columns(tmp_pat
     assert main(["report", "--no-plots", str(real_run)]) == 0  # the modules it imports: not traced
     peaks = []
     for run in (real_run, d):
-        tracemalloc.start()
-        try:
-            assert main(["report", "--no-plots", str(run)]) == 0
-            peaks.append(tracemalloc.get_traced_memory()[1])
-        finally:
-            tracemalloc.stop()
+        status, peak = traced_peak(lambda run=run: main(["report", "--no-plots", str(run)]))
+        assert status == 0
+        peaks.append(peak)
     more = peaks[1] - peaks[0]  # than for the real run's ~400 rows (its parser, its summary: ~16 MB)
     assert more < 4 * MB, f"{more / MB:.0f} MB more traced for 100 000 rows"
     done = subprocess.run(
@@ -235,12 +230,7 @@ def test_the_plots_read_only_the_columns_they_draw(tmp_path, real_run):
         for k in range(20_000):
             rest = lines[k % len(lines)].split(b",", 1)[1].rstrip(b"\r\n")
             f.write(b"%r,%s%s\r\n" % (0.1 + k * 0.005, rest, ones))
-    tracemalloc.start()
-    try:
-        drawn = plot_run(d)
-        _, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
+    drawn, peak = traced_peak(lambda: plot_run(d))
     assert "gimbal_rates" in drawn and drawn["gimbal_rates"].is_file()
     assert peak < 20 * MB, f"{peak / MB:.0f} MB traced"  # ~8 MB: a block of rows read, and the figures
 
