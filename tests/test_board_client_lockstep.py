@@ -15,6 +15,7 @@ from hil.link.board import (
     BoardResetEvent,
     ClientConfig,
     ConnectedEvent,
+    LinkLostEvent,
     SilenceEvent,
     StateEvent,
     TelemetryEvent,
@@ -144,6 +145,33 @@ def test_a_link_stall_puts_the_board_in_failsafe_and_arm_recovers():
     run(client, clock, 0.5, setpoint(400.0))
     assert client.state is BoardState.ARMED
     assert client.telemetry.pulses_us[ROTOR] > 1400
+
+
+@pytest.mark.parametrize("phase", ["disarmed", "armed", "streaming"])
+@pytest.mark.parametrize("at", [0.0, 0.0037, 0.0101, 0.4999])
+def test_the_port_closed_under_the_client_is_a_link_loss_it_recovers_from(phase: str, at: float):
+    """The port is closed behind the client's back (another part of the host, a test, a hot-unplug that a
+    backend reports by closing) at a drawn moment, not inside a read: the client must not sit with a closed
+    port and a session it believes is up (a write on a closed port is skipped, so nothing else would tell
+    it). One link loss, a reconnect, the same board (no reset), and commands work again."""
+    client, clock = lockstep_client()
+    client.connect()
+    if phase != "disarmed":
+        client.arm()
+    sp = setpoint(300.0) if phase == "streaming" else None
+    run(client, clock, 0.3, sp)
+    clock.advance(at)
+    client.transport.close()
+    events = run(client, clock, 1.0, sp)
+    lost = [e for e in events if isinstance(e, LinkLostEvent)]
+    back = [e for e in events if isinstance(e, ConnectedEvent)]
+    assert len(lost) == 1 and "closed" in lost[0].reason, events[:5]
+    assert len(back) == 1 and back[0].t > lost[0].t and back[0].reconnects == 1
+    assert not [e for e in events if isinstance(e, BoardResetEvent)]
+    assert client.connected and client.transport.is_open
+    client.arm()
+    run(client, clock, 0.3, setpoint(300.0))
+    assert client.state is BoardState.ARMED and client.telemetry_time > clock.now() - 0.1
 
 
 def test_a_long_stall_is_reported_as_silence_and_its_end():

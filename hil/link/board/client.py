@@ -465,6 +465,11 @@ class BoardClient:
 
     def _keep_link(self, now: float) -> None:
         s = self.session
+        if self._connected and self._reconnect_at is None and not self.transport.is_open:
+            # Closed behind the client's back between reads (by another thread or a backend), not by
+            # _lose_link (which schedules the reconnection): a write to a closed port is skipped and
+            # nothing is read, so without this the session would wait on it forever.
+            self._lose_link(now, LinkError(f"{self.transport.url}: the port was closed under the client"))
         if s.phase is Phase.INCOMPATIBLE:
             assert isinstance(s.failure, HandshakeError)
             if not self._connected:
