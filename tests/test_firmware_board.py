@@ -159,6 +159,45 @@ def test_reliable_command_rules_and_an_incompatible_host(board, host):
     assert board.stack_headroom() >= 256  # bytes of RAM the stack never reached
 
 
+STOPWATCH_S = 64e-6  # clock.h: the start-up stopwatch's resolution
+
+
+@pytest.mark.firmware
+def test_the_uptime_counts_from_the_reset_itself(board):
+    """The board's clock (Telemetry and Heartbeat ``time_ms``) counts from the reset, not from when start-up
+    code got round to it: a host, a test or a log lines its uptimes up with what happened on the pins by
+    the reset. Before the start-up stopwatch ran, the stack paint took ~1 ms that no clock counted: every
+    uptime was late by that much (a conformance check of a Disarm's pulse timing saw it on a CI run).
+
+    The clock variable is sampled at every rising pulse edge and after every 1 ms slice, through a power-on
+    and a reset press: it is never ahead of the time since the reset, and lags it by less than a tick plus
+    the stopwatch's resolution at the samples nearest a tick."""
+    board.watch("ms", 4)
+    start = board.now()
+    while board.now() < start + 0.3:
+        time.sleep(0.01)
+    board.press_reset()
+    start = board.now()
+    while board.now() < start + 0.3:
+        time.sleep(0.01)
+    resets = [r.t for r in board.resets()]
+    assert len(resets) == 2
+    lags: list[list[float]] = [[], []]
+    cleared = [False, False]  # the boot's C runtime has zeroed the variable (before: the last boot's value)
+    for t, raw in board.records.watched:
+        boot = sum(r <= t for r in resets) - 1
+        if boot < 0:
+            continue
+        uptime = int.from_bytes(raw, "little") / 1000
+        cleared[boot] = cleared[boot] or uptime == 0
+        if cleared[boot] and uptime > 0:  # the tick is running (from main's clock_init)
+            lags[boot].append(t - resets[boot] - uptime)
+    for boot in lags:
+        assert len(boot) > 200
+        assert min(boot) >= -STOPWATCH_S  # never ahead
+        assert min(boot) < 1e-3 + STOPWATCH_S, f"the uptime lags the reset by {min(boot) * 1e3:.3f} ms"
+
+
 @pytest.mark.firmware
 def test_a_width_changes_at_a_frame_start_never_in_the_middle_of_a_pulse(board, host):
     """A width written while its pulse is high takes effect at the next frame: the ATmega's compare

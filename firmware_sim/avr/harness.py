@@ -379,6 +379,15 @@ class AvrBoard:
             address, length = address + n, length - n
         return bytes(out)
 
+    def watch(self, symbol: str, length: int) -> None:
+        """Record the firmware variable ``symbol`` (``length`` bytes of RAM) from now on: its value at every
+        rising pulse edge and after every 1 ms slice in which it changed (``records.watched``: harness time
+        (s), the bytes)."""
+        symbols = _symbols(self.options.elf)
+        if symbol not in symbols:
+            raise ConfigError(f"no symbol {symbol!r} in {self.options.elf}", "AvrBoard.watch")
+        self.command(f"watch {symbols[symbol] & 0xFFFF} {length}")
+
     def stack_headroom(self) -> int:
         """Bytes of RAM the stack has never reached since reset: the firmware paints the free RAM at
         start-up (main.c) and the paint that is still there is headroom."""
