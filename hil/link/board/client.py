@@ -125,6 +125,7 @@ class BoardClient:
         self._last_error = ""
         self._busy_logged = False  # the current run of "port busy" refusals was logged
         self._write_failure: LinkError | None = None  # a write failed in the caller's thread
+        self._read_end: float | None = None  # when the last read of the transport returned
 
     # ================================================================== session
     def connect(self, timeout: float | None = None) -> BoardInfo:
@@ -307,11 +308,14 @@ class BoardClient:
 
     @property
     def telemetry(self) -> Telemetry | None:
-        """The latest Telemetry (its host receive time: :attr:`telemetry_time`)."""
+        """The latest Telemetry (the host time it was made: :attr:`telemetry_time`)."""
         return self.session.telemetry
 
     @property
     def telemetry_time(self) -> float | None:
+        """The host time the latest Telemetry was made: its receive time while the client reads promptly;
+        read after the client itself fell behind (a paused process or reader, a reopened port), what the
+        board's clock says (:mod:`hil.link.board.made_at`): a backlog is not taken for live."""
         return self.session.telemetry_time
 
     @property
@@ -414,9 +418,11 @@ class BoardClient:
         with self._cond:
             self._check()
         data = b""
+        waiting_since = self._read_end  # what this read returns may have waited since then
         if self.transport.is_open:
             try:
                 data = self.transport.read(read_timeout)
+                self._read_end = self.clock.now()
             except LinkError as exc:
                 with self._cond:
                     self._lose_link(self.clock.now(), exc)
@@ -428,7 +434,7 @@ class BoardClient:
                 if self._write_failure is not None:
                     failure, self._write_failure = self._write_failure, None
                     self._lose_link(now, failure)
-                out = self.session.feed(data, now) if data else b""
+                out = self.session.feed(data, now, waiting_since) if data else b""
                 self._write(out + self.session.poll(now), now)
                 self._keep_link(now)
             except HilError as exc:  # fatal for the session (incompatible board, reconnection given up)

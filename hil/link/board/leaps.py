@@ -89,7 +89,8 @@ class LeapCheck:
     frames: _Count | None = None
     refusing_since: float | None = None  # host time of the first refused sample since one was taken
     reanchoring: bool = False  # the sample refusal() just let through ends a long run of leaps
-    last: tuple[int, float] | None = None  # the last uptime taken (unwrapped) and its host time
+    # the last uptime taken (unwrapped), the host time it was read and the host time it was made
+    last: tuple[int, float, float] | None = None
 
     def refusal(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> str | None:
         """Why this sample leaps ahead of what the board could have reached; None when it could have, or
@@ -106,25 +107,33 @@ class LeapCheck:
             return None
         return why
 
-    def take(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> None:
-        """A sample accepted: the counts move on (the first one of each anchors it)."""
+    def take(
+        self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float, made: float | None = None
+    ) -> None:
+        """A sample accepted, read at ``now`` and made at host time ``made`` (default ``now``; earlier for a
+        backlog, :mod:`.made_at`): the counts move on (the first one of each anchors it). An anchor holds
+        the time the sample was made: one on an old frame read late, at its read, left the board's fresh
+        samples after it seconds "ahead" — refused as leaps after a host paused over 5 s."""
+        made = now if made is None else made
         self.refusing_since = None
         if self.uptime is None:
-            self.uptime = _Count.start(uptime_ms, now)
+            self.uptime = _Count.start(uptime_ms, made)
         else:
             self._slide(now)
             self.uptime.take(uptime_ms)
-        self.last = (self.uptime.value, now)
+        self.last = (self.uptime.value, now, made)
         if rx_frames is not None:
             if self.frames is None:
                 self.frames = _Count.start(rx_frames, frames_out)
             else:
                 self.frames.take(rx_frames)
 
-    def restart(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> None:
+    def restart(
+        self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float, made: float | None = None
+    ) -> None:
         """The board restarted (or the anchor was wrong): this sample anchors its counts."""
         self.uptime = self.frames = self.last = None
-        self.take(uptime_ms, rx_frames, frames_out, now)
+        self.take(uptime_ms, rx_frames, frames_out, now, made)
 
     def _slide(self, now: float) -> None:
         """The uptime's anchor moved on to the last sample taken, if it came in an earlier read (so it was
@@ -132,9 +141,9 @@ class LeapCheck:
         count, last = self.uptime, self.last
         if count is None or last is None:
             return
-        value, taken_at = last
-        if taken_at < now and taken_at - count.anchor_host >= SLIDE_AFTER_S:
-            count.anchor_value, count.anchor_host = value, taken_at
+        value, read_at, made = last
+        if read_at < now and made - count.anchor_host >= SLIDE_AFTER_S:
+            count.anchor_value, count.anchor_host = value, made
 
     def _leap(self, uptime_ms: int, rx_frames: int | None, frames_out: int, now: float) -> str | None:
         count = self.uptime

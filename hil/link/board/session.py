@@ -129,6 +129,7 @@ from .events import (
     TelemetryEvent,
 )
 from .leaps import CLOCK_RATE, LeapCheck
+from .made_at import MadeAt
 from .stats import RttRing, SessionCounters
 from .transfers import CalibrationTransfers, Download
 
@@ -194,6 +195,8 @@ class Session:
         self.info: BoardInfo | None = None
         self.state: BoardState | None = None
         self.telemetry: Telemetry | None = None
+        # host time the held telemetry was made: its receive time, or after the host fell behind on its
+        # reads, the board's clock's word (.made_at)
         self.telemetry_time: float | None = None
         self.failure: HilError | None = None  # why the last handshake failed (HandshakeError, LinkTimeout)
         self.pending_reset: PendingReset | None = None
@@ -228,6 +231,7 @@ class Session:
         self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
         self._transfers = CalibrationTransfers()
         self._leaps = LeapCheck()
+        self._made_at = MadeAt()
         self._telemetry_seq: int | None = None  # the sequence number of the telemetry held
         self._next_drop_warning = -math.inf
         self._drops_unlogged = 0
@@ -359,10 +363,13 @@ class Session:
         return min((d for d in due if d is not None), default=math.inf)
 
     # ================================================================== receiving
-    def feed(self, data: bytes, now: float) -> bytes:
-        """Bytes from the board; returns the answers to write (Acks of calibration fragments, a Hello
-        after a reset)."""
+    def feed(self, data: bytes, now: float, waiting_since: float | None = None) -> bytes:
+        """Bytes from the board, read at ``now``; returns the answers to write (Acks of calibration
+        fragments, a Hello after a reset). ``waiting_since``: when the host's previous read ended (the
+        bytes may have waited since; None: not known): a read long after it dates what it carries by the
+        board's clock (:mod:`.made_at`)."""
         self._now = now
+        self._made_at.read(now, waiting_since)
         for event in self.deframer.feed(data):
             if isinstance(event, Frame):
                 self._on_frame(event, now)
@@ -463,9 +470,10 @@ class Session:
         if misfit is not None:
             self._drop(now, misfit)
             return
-        if not self._board_clock(msg.time_ms, msg.state, now, msg.rx_frames):
+        made = self._board_clock(msg.time_ms, msg.state, now, msg.rx_frames)
+        if made is None:
             return
-        self.telemetry, self.telemetry_time, self._telemetry_seq = msg, now, frame.seq
+        self.telemetry, self.telemetry_time, self._telemetry_seq = msg, made, frame.seq
         self._emit(TelemetryEvent(now, msg))
 
     def _telemetry_misfit(self, frame: Frame) -> str | None:
@@ -541,7 +549,7 @@ class Session:
         now: float,
         rx_frames: int | None = None,
         boot_id: int = 0,
-    ) -> bool:
+    ) -> float | None:
         """An uptime sample (and state; with telemetry, the count of frames the board took since its boot;
         with a heartbeat, its boot id) from the board: the reset detector. A boot id other than the one
         last heard says the board restarted, whatever its counts say (they are the new boot's: never
@@ -550,7 +558,7 @@ class Session:
         killed early in a run and restarted seconds before the host was back: its uptime did not go back,
         but it has taken only the new handshake's frames). A sample whose counts leapt ahead of what the
         board could have reached (:mod:`.leaps`) is dropped and counted, and False returned: the frame is
-        not taken."""
+        not taken. Returns None for such a sample, else the host time it was made (:mod:`.made_at`)."""
         frames_out = self.counters.frames_out
         boot_changed = self._boot_changed(boot_id)
         leap = (
@@ -559,7 +567,7 @@ class Session:
         if leap is not None:
             self.counters.board_leaps += 1
             self._drop(now, f"a sample of the board's counts: {leap}")
-            return False
+            return None
         if self._leaps.reanchoring and boot_changed is None:
             self.counters.board_reanchors += 1
             logger.warning(
@@ -595,25 +603,28 @@ class Session:
         if boot_changed is not None:  # the board's own word, and what the counts say besides, if anything
             evidence = boot_changed if evidence is None else f"{boot_changed}; {evidence}"
         if evidence is None:
-            self._leaps.take(uptime_ms, rx_frames, frames_out, now)
+            made = self._made_at.sample(uptime_ms / 1000.0, now)
+            self._leaps.take(uptime_ms, rx_frames, frames_out, now, made)
             if not self._lost:  # a reconnect's samples before its answer are checked by the first after it
                 self._ran = (uptime_ms / 1000.0, now)
                 if self._clock_base is None:
                     self._clock_base = self._ran
-            return True
-        self._leaps.restart(uptime_ms, rx_frames, frames_out, now)  # the counts of a new boot
+            return made
+        self._made_at.forget_boot()
+        made = self._made_at.sample(uptime_ms / 1000.0, now)
+        self._leaps.restart(uptime_ms, rx_frames, frames_out, now, made)  # the counts of a new boot
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
         self._ran = (uptime_ms / 1000.0, now) if reply is not None else None  # else: the coming answer's
         self._clock_base = self._ran
         self._reset_seen(now, evidence)
         if reply is not None:  # the handshake that just happened already told why
             self._report_reset(now, reply.reset_cause, evidence)
-            return True
+            return made
         self._reset_evidence = evidence
         if self.phase is Phase.READY:
             self.phase = Phase.HANDSHAKING
             self._hello(now)
-        return True
+        return made
 
     def _reset_seen(self, now: float, evidence: str) -> None:
         """What every reset seen does before it is reported: an armed board's reset held for the caller
@@ -672,6 +683,7 @@ class Session:
         self._leaps = LeapCheck()
         self._ran = self._clock_base = None
         self._age_check_from = None
+        self._made_at.forget_boot()
 
     def _board_rate(self) -> float:
         """How fast the board's clock ran against the host's over this boot's samples (board s per host s),

@@ -26,6 +26,10 @@ from .base import Transport
 from .port_holder import find_holder
 
 DEFAULT_BAUDRATE = 115200
+DRAIN_BYTES = 1 << 18
+"""The most one read takes: everything waiting, up to this (a pty holds a few tens of KiB). A read takes
+all that waited, so the next one holds only what came after it (:mod:`hil.link.board.made_at` dates a
+read that came late by the board's clock, and one that came promptly by its receive time)."""
 
 
 class SerialTransport(Transport):
@@ -77,8 +81,13 @@ class SerialTransport(Transport):
             first = port.read(1)
             if not first:
                 return b""
-            waiting = port.in_waiting
-            return first + port.read(waiting) if waiting else first
+            out = bytearray(first)
+            while len(out) < DRAIN_BYTES:  # a pty reports at most 4095 waiting at a time: all of it
+                waiting = port.in_waiting
+                if not waiting:
+                    break
+                out += port.read(min(waiting, DRAIN_BYTES - len(out)))
+            return bytes(out)
         except (serial.SerialException, OSError) as exc:
             raise LinkError(f"{self.url}: read failed (port vanished?): {exc}") from exc
 
