@@ -32,7 +32,7 @@ import re
 import stat
 import tomllib
 from collections.abc import Callable, Iterator
-from typing import IO, Any
+from typing import IO, Any, TypeVar
 
 from protocol.errors import ConfigError, HilError, InputFormatError
 
@@ -183,10 +183,20 @@ class LineSplitter:
             self._partial += data
 
 
+_Line = TypeVar("_Line")
+
+
+class Unterminated(list[_Line]):
+    """The last batch of a stream that ended without a line break: its one line, which may be cut short
+    (a recording stopped in the middle of a write, a copy made while the file grew). A reader that cannot
+    parse it drops it and says so, rather than refusing the whole file for it."""
+
+
 def read_lines(
     stream: IO[bytes], max_line: int = MAX_LINE_BYTES, chunk: int = CHUNK_BYTES
 ) -> Iterator[list[bytes | None]]:
-    """The lines of ``stream`` (see :class:`LineSplitter`), a batch per piece of ``chunk`` bytes read."""
+    """The lines of ``stream`` (see :class:`LineSplitter`), a batch per piece of ``chunk`` bytes read; a
+    last line without a line break comes alone, as an :class:`Unterminated` batch."""
     splitter = LineSplitter(max_line)
     while data := stream.read(chunk):
         lines = splitter.feed(data)
@@ -194,7 +204,7 @@ def read_lines(
             yield lines
     last = splitter.end()
     if last:
-        yield last
+        yield Unterminated(last)
 
 
 FILE, FOLDER, PIPE = "file", "folder", "pipe"

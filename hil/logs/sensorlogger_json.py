@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import codecs
 import json
+import logging
 import math
 import re
 from array import array
@@ -69,6 +70,8 @@ from hil.logs.sensorlogger import (
 )
 from hil.logs.table import Container, Header, Table
 from protocol.errors import InputFormatError
+
+logger = logging.getLogger(__name__)
 
 NAME = "sensorlogger-json"
 MAX_JSON_BYTES = MAX_MEMBER_BYTES
@@ -108,7 +111,7 @@ def _is_export(c: Container, member: str) -> bool:
         return True
     pieces = c.chunks(member, MAX_JSON_BYTES)
     try:
-        _, _, record = next(_records(pieces, c.where(member)))
+        _, _, record = next(_records(_Reader(pieces, c.where(member))))
     except (InputFormatError, StopIteration):
         return False
     finally:
@@ -204,7 +207,7 @@ def read(c: Container) -> SensorLog:
         )
     member = exports[0]
     where = c.where(member)
-    sensors, ignored = _read_records(c, member, where)
+    sensors, ignored, cut_short = _read_records(c, member, where)
     tables = {name: _table(sensor, where) for name, sensor in sensors.items() if sensor.problem is None}
     export = Export(
         str(c.path),
@@ -217,17 +220,23 @@ def read(c: Container) -> SensorLog:
     if ignored:
         more = ", …" if len(ignored) >= MAX_NAMED else ""
         notes.append(f"records of other sensors passed over: {', '.join(sorted(ignored))}{more}")
+    if cut_short is not None:
+        notes.append(cut_short)
     return assemble(export, NAME, notes)
 
 
-def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sensor], set[str]]:
+def _read_records(
+    c: Container, member: str, where: str
+) -> tuple[dict[str, _Sensor], set[str], str | None]:
     """The records of the sensors the log uses (:data:`_SENSOR_FILES`), by the CSV file name they
     belong to; every other record is checked and passed over (the first :data:`MAX_NAMED` of their
-    sensors' names are returned, for the notes)."""
+    sensors' names are returned, for the notes); and what was dropped of a file cut short (None: it was
+    not), logged."""
     sensors: dict[str, _Sensor] = {}
     ignored: set[str] = set()
     pending = 0
-    for line, index, record in _records(c.chunks(member, MAX_JSON_BYTES), where):
+    reader = _Reader(c.chunks(member, MAX_JSON_BYTES), where)
+    for line, index, record in _records(reader):
         sensor = record.get("sensor")
         if not isinstance(sensor, str):
             raise InputFormatError(f"record {index} has no 'sensor' name", where, line, "sensor")
@@ -248,7 +257,9 @@ def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sen
             c.count_samples(pending, where, line)
             pending = 0
     c.count_samples(pending, where, None)
-    return sensors, ignored
+    if reader.cut_short is not None:
+        logger.warning("%s", reader.cut_short)
+    return sensors, ignored, reader.cut_short
 
 
 def _append(sensor: _Sensor, record: dict[str, object], index: int, line: int, where: str) -> None:
@@ -336,12 +347,13 @@ def _table(sensor: _Sensor, where: str) -> Table:
     return Table(sensor.keys, data, where, sensor.first_line, exact)
 
 
-def _records(pieces: Iterator[bytes], where: str) -> Iterator[tuple[int, int, dict[str, object]]]:
-    """(line, index from 1, record) of each element of the document's one top-level array, read from
-    ``pieces`` of its bytes, holding at most a piece and a record at once. Anything but an array of flat
-    objects is an InputFormatError naming ``where`` and the line (what a record's values are is
-    :func:`_append`'s to judge, for the keys it reads)."""
-    reader = _Reader(pieces, where)
+def _records(reader: _Reader) -> Iterator[tuple[int, int, dict[str, object]]]:
+    """(line, index from 1, record) of each element of the document's one top-level array, read by
+    ``reader``, holding at most a piece and a record at once. Anything but an array of flat objects is an
+    InputFormatError naming the file and the line (what a record's values are is :func:`_append`'s to
+    judge, for the keys it reads). A file that ends before the array's closing ``]`` — inside a record,
+    after its ``,`` or after it — was cut short (a copy or download stopped mid-way): the records before
+    the end are given, the one it cut is dropped, and :attr:`_Reader.cut_short` says so."""
     if reader.next_char() != "[":
         raise reader.error("not a Sensor Logger JSON export: it does not start with '['")
     reader.advance()
@@ -352,15 +364,23 @@ def _records(pieces: Iterator[bytes], where: str) -> Iterator[tuple[int, int, di
     index = 0
     while True:
         index += 1
-        if reader.next_char() != "{":
+        start = reader.next_char()
+        if not start:
+            reader.cut(f"ends after record {index - 1} and its ','")
+            return
+        if start != "{":
             raise reader.error(f"record {index} is not an object (the export is an array of records)")
         line = reader.line
         record = reader.decode_object(index)
+        if record is None:
+            reader.cut(f"ends inside record {index} (from line {line}), which is dropped")
+            return
         yield line, index, record
         following = reader.next_char()
         reader.advance()
         if not following:
-            raise reader.error(f"the file ends after record {index} without the array's closing ']'")
+            reader.cut(f"ends after record {index}")
+            return
         if following == "]":
             reader.expect_end()
             return
@@ -381,9 +401,17 @@ class _Reader:
         self.pos = 0
         self.line = 1
         self.ended = False
+        self.cut_short: str | None = None  # the file ended before the array closed: what was dropped
 
     def error(self, what: str) -> InputFormatError:
         return InputFormatError(what, self.where, self.line)
+
+    def cut(self, what: str) -> None:
+        """The file ended before the array's closing ']': ``what`` that means, noted."""
+        self.cut_short = (
+            f"{self.where}:{self.line}: the file cut short (a copy, download or recording stopped "
+            f"mid-write): it {what}, without the array's closing ']'; the records before that read"
+        )
 
     def _more(self) -> bool:
         """Read the next piece onto the buffer (the part taken dropped); False at the end."""
@@ -428,10 +456,11 @@ class _Reader:
         if self.next_char():
             raise self.error("more after the array's closing ']': not one JSON export")
 
-    def decode_object(self, index: int) -> dict[str, object]:
+    def decode_object(self, index: int) -> dict[str, object] | None:
         """The object starting at ``pos``: parsed once the buffer holds all of it (read on while it is
-        cut short, up to :data:`MAX_RECORD_CHARS`). Its values may be anything JSON holds (nested ones
-        too): only the keys a sensor is read by are judged (:func:`_append`)."""
+        cut short, up to :data:`MAX_RECORD_CHARS`); None when the file ends inside it. Its values may be
+        anything JSON holds (nested ones too): only the keys a sensor is read by are judged
+        (:func:`_append`)."""
         while True:
             try:
                 value, end = self._json.raw_decode(self.buffer, self.pos)
@@ -448,7 +477,7 @@ class _Reader:
                         "characters: not the export's records"
                     ) from None
                 if not self._more():
-                    raise self.error(f"record {index} is not JSON ({exc.msg})") from None
+                    return None  # the file ends inside it: cut short
         if end - self.pos > MAX_RECORD_CHARS:
             raise self.error(f"record {index} is longer than {MAX_RECORD_CHARS} characters: not the export's")
         self.line += self.buffer.count("\n", self.pos, end)

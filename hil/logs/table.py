@@ -25,6 +25,7 @@ import codecs
 import csv
 import gzip
 import io
+import logging
 import re
 import zipfile
 import zlib
@@ -45,6 +46,7 @@ from hil.files.bounded import (
     MAX_MEMBERS,
     PIPE,
     LimitedReader,
+    Unterminated,
     input_kind,
     read_lines,
 )
@@ -62,6 +64,8 @@ from hil.logs.archive import (
 from hil.logs.encoding import decode_legacy, decode_text, utf8_stream
 from hil.logs.rows import RowParser, cells_of, is_content
 from protocol.errors import InputFormatError
+
+logger = logging.getLogger(__name__)
 
 Array = NDArray[np.float64]
 HEAD_BYTES = 4096
@@ -88,17 +92,24 @@ class Table:
     exact: Mapping[str, NDArray[np.int64]] = field(default_factory=dict)
     repeated_headers: tuple[int, ...] = ()
     """The lines that repeat the header, passed over (files joined one after another)."""
+    cut_short: InputFormatError | None = None
+    """Why the file's last line, which had no line break, could not be read (dropped): a recording stopped
+    in the middle of a write; None when there was none or it was read."""
 
     def layout_notes(self) -> list[str]:
-        """What a reader notes of how the table was laid out: the lines that repeated its header."""
+        """What a reader notes of how the table was laid out: the lines that repeated its header, a last
+        line cut short."""
+        notes = []
         lines = self.repeated_headers
-        if not lines:
-            return []
-        shown_lines = ", ".join(map(str, lines[:5])) + (", …" if len(lines) > 5 else "")
-        return [
-            f"{self.source}: the header repeated on {len(lines)} line(s) ({shown_lines}): files joined one "
-            "after another, read as one (each line passed over)"
-        ]
+        if lines:
+            shown_lines = ", ".join(map(str, lines[:5])) + (", …" if len(lines) > 5 else "")
+            notes.append(
+                f"{self.source}: the header repeated on {len(lines)} line(s) ({shown_lines}): files joined "
+                "one after another, read as one (each line passed over)"
+            )
+        if self.cut_short is not None:
+            notes.append(cut_short_note(self.cut_short))
+        return notes
 
     def column(self, name: str) -> Array:
         try:
@@ -427,6 +438,7 @@ def read_table(
     source = container.where(name)
     parser: RowParser | None = None
     header_line = 0
+    cut_short = None
     for first_line, lines in text_lines(container, name):
         start = 0
         if parser is None:
@@ -446,13 +458,19 @@ def read_table(
             parser = _parser(head, use, named, exact_columns, converters or {}, delimiter, decimal_comma)
             parser.header = header
             start = found + 1 if header else found
-        rows = parser.parse(lines[start:], first_line + start)
+        try:
+            rows = parser.parse(lines[start:], first_line + start)
+        except InputFormatError as exc:
+            if not isinstance(lines, Unterminated) or start:  # a header alone is no cut-short row
+                raise
+            cut_short, rows = exc, 0
+            logger.warning("%s", cut_short_note(exc))
         container.count_samples(rows, source, first_line + len(lines) - 1)
     if parser is None:
         raise InputFormatError("empty file: no header and no data", source)
     data, exact = parser.arrays()
     used = tuple(parser.columns[p] for p in parser.used)
-    return Table(used, data, source, header_line, exact, tuple(parser.repeated_headers))
+    return Table(used, data, source, header_line, exact, tuple(parser.repeated_headers), cut_short)
 
 
 def _parser(
@@ -488,6 +506,11 @@ def _parser(
     )
 
 
+def cut_short_note(why: InputFormatError) -> str:
+    """What a reader says of a last line dropped because it was cut short (``why`` it could not be read)."""
+    return f"{why}: the last line, without a line break, cut short (a recording stopped mid-write): dropped"
+
+
 def text_lines(container: Container, name: str) -> Iterator[tuple[int, list[str]]]:
     """The member's lines as text, a batch at a time with the 1-based number of its first line (a BOM
     skipped; UTF-16 transcoded, :mod:`hil.logs.encoding`). A file whose first bytes that are not UTF-8
@@ -507,6 +530,10 @@ def text_lines(container: Container, name: str) -> Iterator[tuple[int, list[str]
         if not_utf8 and not content and _first_content(good) is None:
             legacy = True  # its header is not UTF-8: the whole file is in a legacy encoding
             good, problem, _ = _good_prefix(batch, legacy)
+        if isinstance(batch, Unterminated):  # the last line: cut short, maybe inside a character
+            if not_utf8 and problem is not None and batch[0] is not None:
+                good, problem = [batch[0].decode("utf-8", "replace")], None
+            good = Unterminated(good)
         if good:
             content = content or _first_content(good) is not None
             yield line_no, good

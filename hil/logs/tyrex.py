@@ -71,6 +71,7 @@ def read(c: Container) -> SensorLog:
         if "calibrated" not in name and kind is not SensorKind.ACC:
             notes.append(f"{name}: uncalibrated (the OS bias columns are ignored)")
         table = read_table(c, name, None, header=False, min_columns=4, use=_SENSOR_COLUMNS)
+        notes.extend(table.layout_notes())
         streams[kind] = SensorStream(kind, table.data[:, 0], table.data[:, 1:4])
     truth = _truth(c, notes) if c.has("qualisys.mat") else None
     return SensorLog(streams, str(c.path), NAME, truth, tuple(notes))
@@ -81,6 +82,8 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     offset = 0.0
     if c.has("timeAlignment.txt"):
         table = read_table(c, "timeAlignment.txt", None, header=False, use=("col0",))
+        if not len(table.data):
+            raise InputFormatError(f"no clock offset ({table.cut_short})", table.source, None, "col0")
         offset = float(table.data[0, 0])
         if not math.isfinite(offset):
             raise InputFormatError(
