@@ -35,7 +35,9 @@ def test_a_negative_number_with_an_exponent_is_judged_by_its_option(capsys, tmp_
     except SystemExit as exc:  # argparse's own checks (a type) end it so
         status = exc.code
     assert status == 2
-    assert said in capsys.readouterr().err.strip().splitlines()[-1]
+    err = capsys.readouterr().err.strip()
+    assert said in err.splitlines()[-1]
+    assert not err.startswith("scenario")  # the refusal alone, not after the scenario was announced
     assert not (tmp_path / "out").exists()
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
+import os
 import random
 import signal
 import socket
@@ -55,7 +56,8 @@ from hil.link.board.session import AGE_SLACK_S
 from protocol.messages import ActuatorSetpoint, BoardState, ResetCause, UnitSetpoint
 
 ROOT = Path(__file__).resolve().parents[1]
-SEED = 20261205
+SEED = int(os.environ.get("FAULT_SEED", "20261205"))
+"""The campaign's draws (fault moments, lengths): fixed, so a failure replays; ``FAULT_SEED`` draws others."""
 STEP_S = 0.02  # the tests' own loops look this often
 HOST_WALL_S = 60.0  # a hil run process must end within this (bounded wall time, generous on a busy machine)
 LINK_TIMEOUT_S = 0.25  # firmware-sim's default link watchdog

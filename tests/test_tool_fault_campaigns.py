@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import random
 import signal
 import threading
@@ -55,7 +56,8 @@ from protocol.calibration import default_unit_calibration
 from protocol.messages import BoardState, CalibrationData, ControlMode
 
 ROOT = Path(__file__).resolve().parents[1]
-SEED = 20261205
+SEED = int(os.environ.get("FAULT_SEED", "20261205"))
+"""The campaign's draws (fault moments, lengths): fixed, so a failure replays; ``FAULT_SEED`` draws others."""
 LINK_TIMEOUT = "1"  # the boards' link watchdog (s): a loaded CPU may delay a heartbeat by more than 0.25 s
 SIM = ["--units", "2", "--unit-spread", "3", "--esc-supply-switch", "--link-timeout", LINK_TIMEOUT]
 QUICK_ESC = ["--supply-off-ms", "300", "--high-ms", "1500", "--low-ms", "1000"]

@@ -181,7 +181,7 @@ class LiveProgress:
 
 def run(args: argparse.Namespace) -> int:
     """``hil run``: the run, its summary printed, its plots drawn; the exit status (:data:`EPILOG`)."""
-    from hil.runtime import RunOptions
+    from hil.runtime import RunOptions, check_options
     from hil.runtime import run as run_scenario
     from hil.scenario import load_scenario
     from protocol.errors import ConfigError, HilError
@@ -216,6 +216,7 @@ def run(args: argparse.Namespace) -> int:
             rt_priority=args.rt_priority,
             report_late_signal=True,
         )
+        check_options(scenario, opts)  # a refused option is the one line said, not after the scenario's
         say(f"scenario {scenario.name}: {scenario.description}", sys.stderr)
         say(f"estimator {estimator.name}: {estimator.describe()}", sys.stderr)
         if args.port is None:

@@ -2,7 +2,7 @@
 estimator and controller (:mod:`hil.runtime.host`)."""
 
 from hil.runtime.host import Host, TruthSample
-from hil.runtime.loop import ReplayInput, RunOptions, RunResult, run
+from hil.runtime.loop import ReplayInput, RunOptions, RunResult, check_options, run
 from hil.runtime.phases import Phase
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 
@@ -14,6 +14,7 @@ __all__ = [
     "RunResult",
     "RunTrace",
     "TruthSample",
+    "check_options",
     "run",
     "telemetry_columns",
 ]

@@ -200,6 +200,23 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
     cannot be opened, a board that does not answer, no phone stream) are raised after the summary with
     the exit reason is written; a Ctrl-C ends the run early with a complete summary."""
     opts = options or RunOptions()
+    plan = check_options(scenario, opts)
+    if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
+        from hil.runtime.warmup import warm
+
+        compiled_s = warm(scenario)
+        if compiled_s is not None:
+            logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
+    from hil.runtime.warmup import load_kernels
+
+    load_kernels(scenario, world=plan.source == "world")
+    with realtime(opts.rt_priority) as scheduling:  # before any thread of the run starts: they inherit it
+        return _play(scenario, opts, plan, scheduling)
+
+
+def check_options(scenario: Scenario, opts: RunOptions) -> _Plan:
+    """What :func:`run` would refuse in ``opts`` for ``scenario`` (a ConfigError naming the option), before
+    anything is set up or said; the run's plan when nothing is."""
     plan = _plan(opts)
     if opts.pace is not None and not plan.lockstep:
         raise ConfigError(f"is for lockstep runs (a {plan.mode} run keeps the wall clock)", "run --pace")
@@ -224,17 +241,7 @@ def run(scenario: Scenario, options: RunOptions | None = None) -> RunResult:
             )
         loop = scenario.loop
         check_run_length(loop.warmup_s, opts.duration_s, loop.plant_step_s, "run --duration")
-    if plan.source == "world":  # a fresh install compiles the world's and the host's kernels in parallel
-        from hil.runtime.warmup import warm
-
-        compiled_s = warm(scenario)
-        if compiled_s is not None:
-            logger.info("compiled the kernels in %.1f s (once after an install or an edit)", compiled_s)
-    from hil.runtime.warmup import load_kernels
-
-    load_kernels(scenario, world=plan.source == "world")
-    with realtime(opts.rt_priority) as scheduling:  # before any thread of the run starts: they inherit it
-        return _play(scenario, opts, plan, scheduling)
+    return plan
 
 
 def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Scheduling) -> RunResult:
