@@ -202,6 +202,35 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
         client.close()
 
 
+@pytest.mark.parametrize("away_s", [0.9, 1.7])
+def test_a_port_that_comes_back_is_tried_at_once_not_at_the_back_offs_next_step(
+    tmp_path: Path, away_s: float
+):
+    """The default back-off (50 ms doubling to 2 s) tries a lost port at 0.05, 0.15, 0.35, 0.75, 1.55,
+    3.15 s …: a board back ``away_s`` after the loss (just past a step) waited up to 1.5 s more, and a run
+    killed late lost its board for it (a pty campaign with FAULT_SEED=2222: back 0.8 s before the run's
+    end, the run ended before the host tried again). The client watches the port's path while the link
+    is down: there again, it is tried at once."""
+    link = tmp_path / "board"
+    client = BoardClient(str(link), config=ClientConfig())
+    with firmware_sim("--units", "2", "--link", str(link)) as first:
+        client.connect()
+        client.start()
+        first.send_signal(signal.SIGKILL)
+        events = drive(client, None, lambda: not client.connected, 2.0)
+        lost_at = time.monotonic()
+    try:
+        time.sleep(max(away_s - (time.monotonic() - lost_at), 0.0))
+        with firmware_sim("--units", "2", "--link", str(link)):
+            back = time.monotonic()
+            drive(client, None, lambda: client.connected, 5.0, events)
+            took = time.monotonic() - back
+            assert took < 0.6, f"connected {took:.2f} s after the port came back, {away_s} s after the loss"
+            assert any(isinstance(e, BoardResetEvent) for e in events + client.service())
+    finally:
+        client.close()
+
+
 def test_a_board_restarted_long_before_the_host_is_back_is_reported_reset(tmp_path: Path):
     """The soak's find (a CI run under load): a board killed early in its session and restarted, which then
     ran longer than the old one had before the host reached it again, so its uptime did not go back. Its

@@ -151,6 +151,9 @@ def test_a_reset_told_by_a_heartbeat_alone_is_reported_once():
     assert reset.cause is ResetCause.EXTERNAL and reset.during_session
     assert reset.evidence.startswith(f"its boot id changed from {before:#010x} to {board.boot_id:#010x}")
     assert bench.session.boot_id == board.boot_id and bench.session.phase is Phase.READY
+    info = bench.session.info  # the new handshake's answer: the new boot, said where a run records it
+    assert info is not None and info.boot_id == board.boot_id != before
+    assert f"boot {board.boot_id:#010x}" in info.describe()
 
 
 class BoardWithoutBootId(Board):
@@ -168,6 +171,7 @@ def test_a_board_that_sends_no_boot_id_is_judged_by_its_counts_as_before():
     bench.connect()
     bench.run(0.5)
     assert bench.session.boot_id is None
+    assert bench.session.info is not None and "boot" not in bench.session.info.describe()
     board.reset(ResetCause.EXTERNAL)
     bench.run(0.5)
     [reset] = bench.resets()

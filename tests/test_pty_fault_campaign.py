@@ -28,6 +28,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import json
+import math
 import os
 import random
 import signal
@@ -61,6 +62,10 @@ SEED = int(os.environ.get("FAULT_SEED", "20261205"))
 STEP_S = 0.02  # the tests' own loops look this often
 HOST_WALL_S = 60.0  # a hil run process must end within this (bounded wall time, generous on a busy machine)
 LINK_TIMEOUT_S = 0.25  # firmware-sim's default link watchdog
+BACK_IN_HAND_S = 2.0
+"""s before a run's end a restarted board must be back for the run to be expected to complete: the client's
+reconnect back-off (doubling from 50 ms: its next try up to twice the outage later), a new firmware-sim's
+start, the handshake and the re-arm."""
 
 
 # ====================================================================== the board client over the pty
@@ -486,6 +491,7 @@ def test_hil_run_with_its_board_killed_and_restarted_at_drawn_moments(tmp_path: 
         link = tmp_path / "board"
         at = _moment(host, phase, duration, rng)
         boards[-1].kill()
+        returned = math.inf
         if comes_back:
             time.sleep(rng.uniform(AGE_SLACK_S + 0.1 if phase == "handshake" else 0.0, 1.0))
             if same_path:
@@ -494,6 +500,7 @@ def test_hil_run_with_its_board_killed_and_restarted_at_drawn_moments(tmp_path: 
                 moved = link.with_name("board.tmp")
                 moved.symlink_to(start(tmp_path / "other").path)
                 moved.replace(link)
+            returned = host.now()
         rc, out = host.finish()
     events = host.events()
     reached = any(e["kind"] == "connected" and e.get("reconnects") for e in events)
@@ -509,8 +516,13 @@ def test_hil_run_with_its_board_killed_and_restarted_at_drawn_moments(tmp_path: 
     s = check_honest(
         rc, out, host, injected=injected, restarts=restarts, losses=int(in_session), back=comes_back
     )
-    if phase != "last_second":
+    slew = [e["t"] for e in events if e["kind"] == "slew_start"]
+    end = (slew[0] if slew else math.inf) + duration
+    if phase != "last_second" and returned <= end - BACK_IN_HAND_S:
         assert s["exit"] == "completed", s["exit"]
+    # Back later than that (a midrun kill drawn 1.2 s before the end, the board back a second after it), the
+    # host may not have it in hand again at the end — its reconnect's back-off, the new board's start, the
+    # re-arm — and then says "lost", honestly as check_honest checks (FAULT_SEED=1111 drew such a moment).
 
 
 def test_hil_run_with_its_board_stopped_for_drawn_lengths_and_one_never_let_go(tmp_path: Path):

@@ -84,6 +84,67 @@ def test_a_port_closed_by_another_thread_under_a_read_is_a_link_error(pty_pair, 
         t.write(b"x")
 
 
+def _link_to(link, device) -> None:
+    """``link`` made anew to ``device``, as firmware-sim makes its ``--link`` (a new symbolic link)."""
+    tmp = link.with_name(link.name + ".new")
+    tmp.symlink_to(device)
+    tmp.replace(link)
+
+
+def test_a_link_whose_pty_number_another_program_now_has_is_not_our_board_back(tmp_path):
+    """A firmware-sim killed leaves its ``--link`` to a pty that went away; the kernel gives that pty's
+    number to the next program that asks (another board's firmware-sim, a terminal). The link unchanged
+    then leads to that program's pty: the client, watching the path to reconnect, opened it, sent it a
+    Hello (another board: disarmed by it) and held its port — a pty campaign's host refused "port busy,
+    held by" the other test's client. Until the link is made anew (our board started again), the path is
+    not there for the client, and an open is refused saying why."""
+    link = tmp_path / "board"
+    master, slave = os.openpty()
+    device = os.ttyname(slave)
+    os.close(slave)
+    _link_to(link, device)
+    t = create_transport(str(link))
+    t.open()
+    assert t.present() is True
+    os.close(master)  # the board's process dies: its side of the pty closes
+    with pytest.raises(LinkError):
+        for _ in range(5):
+            t.read(0.05)
+    t.close()
+    held = []
+    try:
+        while not os.path.exists(device) and len(held) < 64:  # the number given out again (lowest first)
+            held.append(os.openpty())
+        assert os.path.exists(device), "the pty's number was not given out again"
+        assert t.present() is False
+        with pytest.raises(TransportError, match="whose number another program now has"):
+            t.open()
+        _link_to(link, device)  # our board started again (on the same number, as it may be): its new link
+        assert t.present() is True
+        t.open()
+        t.close()
+    finally:
+        for pair in held:
+            for fd in pair:
+                os.close(fd)
+
+
+def test_a_port_closed_under_a_read_by_our_own_close_is_still_ours_to_open_again(tmp_path, pty_pair):
+    """Our own close under a read (a reconnect's) is no sign that the far side went away: the link is
+    opened again as it is."""
+    master, device = pty_pair
+    link = tmp_path / "board"
+    _link_to(link, device)
+    t = create_transport(str(link))
+    t.open()
+    t.close()
+    assert t.present() is True
+    t.open()
+    os.write(master, b"x")
+    assert t.read(0.5) == b"x"
+    t.close()
+
+
 def test_loop_url_and_unknown_things():
     with open_transport("loop://") as t:
         t.write(b"abc")

@@ -225,9 +225,7 @@ def read(c: Container) -> SensorLog:
     return assemble(export, NAME, notes)
 
 
-def _read_records(
-    c: Container, member: str, where: str
-) -> tuple[dict[str, _Sensor], set[str], str | None]:
+def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sensor], set[str], str | None]:
     """The records of the sensors the log uses (:data:`_SENSOR_FILES`), by the CSV file name they
     belong to; every other record is checked and passed over (the first :data:`MAX_NAMED` of their
     sensors' names are returned, for the notes); and what was dropped of a file cut short (None: it was

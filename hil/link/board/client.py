@@ -126,6 +126,7 @@ class BoardClient:
         self._busy_logged = False  # the current run of "port busy" refusals was logged
         self._write_failure: LinkError | None = None  # a write failed in the caller's thread
         self._read_end: float | None = None  # when the last read of the transport returned
+        self._port_absent = False  # the link is down and the port was seen gone since (Transport.present)
 
     # ================================================================== session
     def connect(self, timeout: float | None = None) -> BoardInfo:
@@ -490,7 +491,11 @@ class BoardClient:
             return
         if s.phase is Phase.DOWN and self.transport.is_open and self._connected:
             self._lose_link(now, s.failure or LinkError("session lost"))  # the board stopped answering
-        if self._reconnect_at is None or now < self._reconnect_at or self.transport.is_open:
+        if self._reconnect_at is None or self.transport.is_open:
+            return
+        if now < self._reconnect_at:
+            self._watch_port(now)
+        if now < self._reconnect_at:
             return
         assert self._lost_at is not None
         give_up = self.config.reconnect_give_up_s
@@ -516,9 +521,20 @@ class BoardClient:
             self._last_error = str(exc)
             self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
             return
-        self._busy_logged = False
+        self._busy_logged = self._port_absent = False
         self._reconnect_at = None
         self._write(s.link_up(now), now)
+
+    def _watch_port(self, now: float) -> None:
+        """While the link is down: a port seen gone that is there again is tried at once (its board
+        restarted, its cable back), not at the back-off's next step — up to ``reconnect_max_s`` later
+        (a board back 0.8 s after a loss waited until 1.55 s)."""
+        present = self.transport.present()
+        if present is False:
+            self._port_absent = True
+        elif present and self._port_absent:
+            self._port_absent = False
+            self._reconnect_at = now
 
     def _dispatch(self) -> None:
         for event in self.session.take_events():

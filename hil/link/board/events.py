@@ -26,6 +26,8 @@ class BoardInfo:
     frame_rate_hz: int
     identity: AccessoryIdentity
     firmware_build: str
+    boot_id: int = 0
+    """The board's boot it answered from (new at every boot; 0: a board that does not say)."""
 
     @classmethod
     def from_reply(cls, reply: HelloReply) -> BoardInfo:
@@ -38,6 +40,7 @@ class BoardInfo:
             frame_rate_hz=reply.frame_rate_hz,
             identity=AccessoryIdentity.from_message(reply),
             firmware_build=reply.firmware_build,
+            boot_id=reply.boot_id,
         )
 
     @property
@@ -47,9 +50,10 @@ class BoardInfo:
 
     def describe(self) -> str:
         ident = self.identity
+        boot = f", boot {self.boot_id:#010x}" if self.boot_id else ""
         return (
             f"{ident.manufacturer} {ident.model} {ident.version} (serial {ident.serial or '-'}, build "
-            f"{self.firmware_build or '-'}): {self.n_units} units, {self.frame_rate_hz} Hz frames"
+            f"{self.firmware_build or '-'}{boot}): {self.n_units} units, {self.frame_rate_hz} Hz frames"
         )
 
 

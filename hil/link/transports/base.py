@@ -33,6 +33,13 @@ class Transport(abc.ABC):
     def is_open(self) -> bool:
         return self._open
 
+    def present(self) -> bool | None:
+        """Whether the port's device is there now, where that is cheap to tell (a device path on disk,
+        looked at without opening it); None where it cannot be told. A client whose link is down tries
+        again at once when an absent port appears (a board restarted, a cable plugged back in), rather
+        than at its back-off's next step."""
+        return None
+
     def open(self) -> Transport:
         if not self._open:
             try:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import errno
 import os
+from dataclasses import dataclass
 
 import serial
 
@@ -42,8 +43,42 @@ class SerialTransport(Transport):
         super().__init__(url)
         self.baudrate = baudrate
         self._port: serial.SerialBase | None = None
+        self._link_at_open: _PtyLink | None = None  # the link to a pty last opened through, as it was
+        self._pty_gone = False  # that pty went away since (its far side closed it, or it was seen gone)
+
+    def present(self) -> bool | None:
+        """A device path (``/dev/ttyACM0``, a firmware-sim ``--link``): whether it leads to a device now (a
+        link left dangling by a killed firmware-sim does not, nor one whose pty's number another program
+        has since been given: :meth:`_reused`); a pyserial URL (``socket://``…): None."""
+        if "://" in self.url:
+            return None
+        if self._reused():
+            return False
+        there = os.path.exists(self.url)
+        if not there and self._link_at_open is not None:
+            self._pty_gone = True
+        return there
+
+    def _reused(self) -> bool:
+        """Whether the path is the link to a pty that went away, unchanged since, and leads to a pty again:
+        that pty's number was given to another program (another board's firmware-sim, a terminal), not
+        our board back — a firmware-sim started again makes its link anew. Opened, the Hello the client
+        then sends would reach that program (another board: disarmed by it) and hold its port."""
+        return (
+            self._pty_gone
+            and self._link_at_open is not None
+            and _pty_link(self.url) == self._link_at_open
+            and os.path.exists(self.url)
+        )
 
     def _open_impl(self) -> None:
+        if self._reused():
+            assert self._link_at_open is not None
+            raise TransportError(
+                f"{self.url}: still the link to {self._link_at_open.target}, the pty of a board that went "
+                "away, whose number another program now has; waiting for the link to be made anew (a "
+                "firmware-sim started again makes it)"
+            )
         port: serial.SerialBase | None = None
         try:
             port = serial.serial_for_url(
@@ -56,6 +91,7 @@ class SerialTransport(Transport):
             )
             port.open()
             self._port = port
+            self._link_at_open, self._pty_gone = _pty_link(self.url), False
         except serial.SerialException as exc:
             if exc.errno == errno.EWOULDBLOCK and port is not None and port.port:
                 raise self._busy(str(port.port)) from exc
@@ -89,6 +125,8 @@ class SerialTransport(Transport):
                 out += port.read(min(waiting, DRAIN_BYTES - len(out)))
             return bytes(out)
         except (serial.SerialException, OSError) as exc:
+            # a pty fails a read once its far side closed (not when our own close came under the read)
+            self._pty_gone = self._open and self._link_at_open is not None
             raise LinkError(f"{self.url}: read failed (port vanished?): {exc}") from exc
 
     def _write(self, data: bytes) -> None:
@@ -99,6 +137,7 @@ class SerialTransport(Transport):
         except serial.SerialTimeoutException as exc:
             raise LinkError(f"{self.url}: write timed out (far side not reading?)") from exc
         except (serial.SerialException, OSError) as exc:
+            self._pty_gone = self._open and self._link_at_open is not None
             raise LinkError(f"{self.url}: write failed (port vanished?): {exc}") from exc
 
     def _close(self) -> None:
@@ -108,3 +147,25 @@ class SerialTransport(Transport):
                 port.close()
             except (serial.SerialException, OSError):
                 pass  # closing a vanished port: nothing left to release
+
+
+@dataclass(frozen=True)
+class _PtyLink:
+    """A symbolic link to a pty (``/dev/pts/N``), as it was: its own inode and change time, its target."""
+
+    inode: int
+    changed_ns: int
+    target: str
+
+
+def _pty_link(path: str) -> _PtyLink | None:
+    """``path`` as a :class:`_PtyLink` if it is a symbolic link to a pty (firmware-sim's ``--link``); None
+    for anything else (a device node, a udev ``/dev/serial/by-id`` link to a tty, no such path)."""
+    try:
+        stat = os.lstat(path)
+        target = os.readlink(path) if os.path.islink(path) else ""
+    except OSError:
+        return None
+    if not target.startswith("/dev/pts/"):
+        return None
+    return _PtyLink(stat.st_ino, stat.st_ctime_ns, target)
