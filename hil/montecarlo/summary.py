@@ -189,7 +189,8 @@ def format_table(summary: dict[str, Any]) -> str:
         lines.append("exits            " + ", ".join(f"{k} {n}" for k, n in summary["exits"].items()))
         total = sum(summary["invariant_violations"].values())
         lines.append(
-            f"invariants       {total} violations in {summary['runs_with_violations']} runs: "
+            f"invariants       {total} violations, in {summary['runs_with_violations']} of "
+            f"{summary['runs']} runs: "
             + ", ".join(f"{k} {n}" for k, n in summary["invariant_violations"].items())
         )
         for index, first in summary["first_violations"].items():
