@@ -494,9 +494,9 @@ class BoardClient:
         if self._reconnect_at is None or self.transport.is_open:
             return
         if now < self._reconnect_at:
-            self._watch_port(now)
-        if now < self._reconnect_at:
-            return
+            self._watch_port(now)  # may bring the next try forward to now
+            if now < self._reconnect_at:
+                return
         assert self._lost_at is not None
         give_up = self.config.reconnect_give_up_s
         if give_up is not None and now - self._lost_at >= give_up:

@@ -557,8 +557,8 @@ class Session:
         restarted board then ran longer than the old one had, before the host reached it again (a board
         killed early in a run and restarted seconds before the host was back: its uptime did not go back,
         but it has taken only the new handshake's frames). A sample whose counts leapt ahead of what the
-        board could have reached (:mod:`.leaps`) is dropped and counted, and False returned: the frame is
-        not taken. Returns None for such a sample, else the host time it was made (:mod:`.made_at`)."""
+        board could have reached (:mod:`.leaps`) is dropped and counted: None is returned, the frame is not
+        taken. Any other sample returns the host time it was made (:mod:`.made_at`)."""
         frames_out = self.counters.frames_out
         boot_changed = self._boot_changed(boot_id)
         leap = (
