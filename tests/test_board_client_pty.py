@@ -202,15 +202,16 @@ def test_a_vanished_port_is_reconnected_and_the_restarted_board_reported(tmp_pat
         client.close()
 
 
-@pytest.mark.parametrize("away_s", [0.9, 1.7])
+@pytest.mark.parametrize("away_s", [1.7, 3.3])
 def test_a_port_that_comes_back_is_tried_at_once_not_at_the_back_offs_next_step(
     tmp_path: Path, away_s: float
 ):
     """The default back-off (50 ms doubling to 2 s) tries a lost port at 0.05, 0.15, 0.35, 0.75, 1.55,
-    3.15 s …: a board back ``away_s`` after the loss (just past a step) waited up to 1.5 s more, and a run
-    killed late lost its board for it (a pty campaign with FAULT_SEED=2222: back 0.8 s before the run's
-    end, the run ended before the host tried again). The client watches the port's path while the link
-    is down: there again, it is tried at once."""
+    3.15, 5.15 s …: a board back ``away_s`` after the loss (just past a step) waited 1.5 or 1.9 s more,
+    and a run killed late lost its board for it (a pty campaign with FAULT_SEED=2222: back 0.8 s before
+    the run's end, the run ended before the host tried again). The client watches the port's path while
+    the link is down: there again, it is opened at once (timed to the open, not to the new board's answer,
+    which a loaded machine may delay), and the session is back."""
     link = tmp_path / "board"
     client = BoardClient(str(link), config=ClientConfig())
     with firmware_sim("--units", "2", "--link", str(link)) as first:
@@ -223,9 +224,10 @@ def test_a_port_that_comes_back_is_tried_at_once_not_at_the_back_offs_next_step(
         time.sleep(max(away_s - (time.monotonic() - lost_at), 0.0))
         with firmware_sim("--units", "2", "--link", str(link)):
             back = time.monotonic()
-            drive(client, None, lambda: client.connected, 5.0, events)
+            drive(client, None, lambda: client.transport.is_open, 5.0, events)
             took = time.monotonic() - back
-            assert took < 0.6, f"connected {took:.2f} s after the port came back, {away_s} s after the loss"
+            assert took < 0.5, f"opened {took:.2f} s after the port came back, {away_s} s after the loss"
+            drive(client, None, lambda: client.connected, 10.0, events)
             assert any(isinstance(e, BoardResetEvent) for e in events + client.service())
     finally:
         client.close()
