@@ -364,7 +364,7 @@ def _records(reader: _Reader) -> Iterator[tuple[int, int, dict[str, object]]]:
         index += 1
         start = reader.next_char()
         if not start:
-            reader.cut(f"ends after record {index - 1} and its ','")
+            reader.cut(f"ends after record {index - 1} and its ','" if index > 1 else "ends after its '['")
             return
         if start != "{":
             raise reader.error(f"record {index} is not an object (the export is an array of records)")
