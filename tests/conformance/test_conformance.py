@@ -62,6 +62,23 @@ def telemetry(host, timeout=1.0, **where):
     return host.wait_type(Telemetry, timeout, lambda m: all(getattr(m, k) == v for k, v in where.items()))
 
 
+def telemetry_made_since(target, host, since: float, timeout: float = 1.0, **where) -> Telemetry:
+    """The first Telemetry (matching ``where``) the board made at or after its time ``since``. One that
+    arrives now may have been made long before: on a loaded machine a real-time target's output waits in
+    its bridge and the pty (a CI run's first ARMED telemetry after a 1 s stream had been made before the
+    stream's first setpoint reached the board: its frames were the hold's)."""
+    origin = uptime_origin(target.resets(), target.now())
+
+    def match(m) -> bool:
+        return (
+            isinstance(m, Telemetry)
+            and origin + m.time_ms / 1000 >= since
+            and all(getattr(m, k) == v for k, v in where.items())
+        )
+
+    return host.wait_for(match, timeout, f"a Telemetry made since {since:.3f} s")
+
+
 def test_handshake(target, host):
     reply = host.handshake()
     spec = target.spec
@@ -114,7 +131,7 @@ def frames_before(target, tel: Telemetry, seconds: float) -> list[PulseFrame]:
     the frames that span holds, less one in eight (a timeline with a hole is a failure, not a shorter
     average)."""
     t_tel = uptime_origin(target.resets(), target.now()) + tel.time_ms / 1000
-    frames = [f for f in target.timeline() if t_tel - seconds <= f.t <= t_tel]
+    frames = [f for f in timeline_through(target, t_tel) if t_tel - seconds <= f.t <= t_tel]
     assert len(frames) >= 0.875 * seconds * target.spec.frame_rate_hz, len(frames)
     return frames
 
@@ -138,7 +155,7 @@ def test_widths_finer_than_a_tick_are_dithered_over_frames(target, host):
     rates = tuple(1e-3 * (i + 1) * (-1) ** i for i in range(spec.n_units))  # 1, -2, 3, -4 ·10⁻³ rad/s
     sp = ActuatorSetpoint(gimbal_mode=GimbalMode.RATE, units=tuple(UnitSetpoint(r, 300.0) for r in rates))
     armed_and_streaming(target, host, sp, seconds=1.0)
-    tel = telemetry(host, state=BoardState.ARMED)
+    tel = telemetry_made_since(target, host, target.now(), state=BoardState.ARMED)
     frames = frames_before(target, tel, 0.4)
     for i, rate in enumerate(rates):
         cal = target.calibration(i)
@@ -178,7 +195,7 @@ def test_the_dither_holds_when_a_new_width_comes_every_frame(target, host):
     assert isinstance(host.request(Arm()), Ack)
     host.keepalive = changing
     host.stream(1.0)
-    tel = telemetry(host, state=BoardState.ARMED)
+    tel = telemetry_made_since(target, host, target.now(), state=BoardState.ARMED)
     frames = frames_before(target, tel, 0.4)
     for i, rate in enumerate(rates):
         cal = target.calibration(i)
