@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from log_support import assert_same_samples
 
 from hil.cli import main
-from hil.logs import archive, detect_format, read_log
+from hil.logs import archive, detect_format, read_log, table
 from hil.logs.table import Container
 from hil.scenario.paths import SHARED_DATA
 from protocol.errors import InputFormatError
@@ -529,6 +529,20 @@ def test_a_time_a_spreadsheet_rounded_is_read_by_seconds_elapsed_and_noted(tmp_p
     for kind, stream in real_log.streams.items():
         np.testing.assert_array_equal(log.streams[kind].xyz, stream.xyz)
         np.testing.assert_allclose(log.streams[kind].t - origin, stream.t, rtol=0, atol=1e-6)
+
+
+def test_an_export_read_again_by_seconds_elapsed_counts_its_rows_once_towards_the_limit(
+    tmp_path, real_log, monkeypatch
+):
+    """The files of an export whose ``time`` is rounded are read twice (by ``time``, then by
+    ``seconds_elapsed``); their rows count once towards the log's limit, so an export under it reads."""
+    rows = 3 * (REAL_LINES - 1)
+    monkeypatch.setattr(table, "MAX_LOG_SAMPLES", rows)
+    log = read_log(real_export(tmp_path / "e", with_time(lambda ns: f"{ns:.5E}")))
+    assert sum(len(s.t) for s in log.streams.values()) == rows
+    monkeypatch.setattr(table, "MAX_LOG_SAMPLES", rows - 1)
+    with pytest.raises(InputFormatError, match="more than"):
+        read_log(real_export(tmp_path / "f", with_time(lambda ns: f"{ns:.5E}")))
 
 
 def test_a_rounded_time_without_seconds_elapsed_is_an_error_naming_the_column(tmp_path):

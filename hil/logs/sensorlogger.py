@@ -496,13 +496,16 @@ class Export:
     files the app names: ``path`` for messages; ``files`` the app's file names present
     (``Gyroscope.csv``, …, of :data:`_KNOWN`) → where each is read from, for messages; ``table(name)``
     reads one; ``empty(name)`` says whether it holds nothing at all (0 bytes: the app wrote nothing for
-    that sensor); ``platform`` the recording's platform as its metadata says (lower case, "" unknown)."""
+    that sensor); ``platform`` the recording's platform as its metadata says (lower case, "" unknown);
+    ``container`` the files' container, whose sample count (:data:`~hil.logs.table.MAX_LOG_SAMPLES`)
+    the tables read add to."""
 
     path: str
     files: Mapping[str, str]
     table: Callable[[str], Table]
     empty: Callable[[str], bool]
     platform: Callable[[], str]
+    container: Container
 
 
 def read(c: Container) -> SensorLog:
@@ -526,6 +529,7 @@ def read(c: Container) -> SensorLog:
         lambda name: _csv_table(c, files[name], FILE_KINDS[name.lower()]),
         lambda name: _holds_nothing(c, files[name]),
         lambda: c.text(files["Metadata.csv"]).lower() if "Metadata.csv" in files else "",
+        c,
     )
     notes = ["Sensor Logger export: columns read by name (files are ordered z, y, x)"]
     return assemble(export, NAME, notes, layout)
@@ -535,10 +539,13 @@ def assemble(export: Export, format_name: str, notes: list[str], layout: Sequenc
     """The log of an export: its gyroscope, magnetometer and accelerometer files chosen and read (see
     the module docstring), put on one clock, and noted (``notes`` first, then what was chosen, then
     ``layout``: how the export was stored). When a file's ``time`` is rounded (a spreadsheet's re-save:
-    :class:`_CoarseTime`), every file is read by ``seconds_elapsed`` instead, noted."""
+    :class:`_CoarseTime`), every file is read by ``seconds_elapsed`` instead, noted; its rows count
+    once towards :data:`~hil.logs.table.MAX_LOG_SAMPLES`, not once per reading."""
+    counted = export.container.samples
     try:
         return _assemble(export, format_name, list(notes), layout, Clocks())
     except _CoarseTime as coarse:
+        export.container.samples = counted  # the files are read again from their first line
         said = (
             f"{coarse.source}: 'time' takes {coarse.distinct} values over {coarse.rows} rows (rounded: a "
             "spreadsheet's re-save?): every file read by seconds_elapsed"

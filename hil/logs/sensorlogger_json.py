@@ -215,6 +215,7 @@ def read(c: Container) -> SensorLog:
         lambda name: _needed(sensors[name], tables.get(name)),
         lambda name: False,  # a sensor without records is not in the file at all
         lambda: "",
+        c,
     )
     notes = [f"Sensor Logger JSON export: {member}, records read by key (x, y, z by name)"]
     if ignored:
