@@ -8,7 +8,6 @@ says in its own words what is unknown or unavailable (its own error type, naming
 from __future__ import annotations
 
 import importlib
-import importlib.metadata
 from typing import Any
 
 
@@ -25,6 +24,8 @@ class Registry:
         if self._discovered:
             return
         self._discovered = True
+        import importlib.metadata  # only here: reading the entry points costs a run that needs none 10+ ms
+
         for entry in importlib.metadata.entry_points(group=self.group):
             self._targets.setdefault(entry.name.lower(), entry.value)
 
@@ -38,7 +39,11 @@ class Registry:
         return sorted(self._targets)
 
     def target(self, name: str) -> str | None:
-        """The ``"module:attribute"`` of ``name``, or None when nobody registered it."""
+        """The ``"module:attribute"`` of ``name``, or None when nobody registered it. A name built in or
+        registered is answered without reading the entry points: they never replace it."""
+        target = self._targets.get(name.lower())
+        if target is not None:
+            return target
         self._discover()
         return self._targets.get(name.lower())
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import functools
 import subprocess
-from importlib import metadata
 from pathlib import Path
 
 DISTRIBUTION = "vscmg-hil"
@@ -19,7 +18,10 @@ ROOT = Path(__file__).resolve().parents[1]
 @functools.cache
 def package_version() -> str:
     """The installed distribution's version (``pyproject.toml``), or ``"unknown"`` when it is not
-    installed (the sources run from a copy)."""
+    installed (the sources run from a copy). ``importlib.metadata`` is imported here, when a run's summary
+    asks, not before a run's first tick (10-30 ms)."""
+    from importlib import metadata
+
     try:
         return metadata.version(DISTRIBUTION)
     except metadata.PackageNotFoundError:

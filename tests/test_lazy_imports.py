@@ -54,9 +54,15 @@ def test_the_run_loop_imports_none_of_the_heavy_libraries_nor_numba():
 
 def test_building_the_command_line_does_not_import_numba():
     """``hil run --help`` (every command's parser) is argparse and the command modules: no scenario
-    package, no numba, no numpy-heavy stack (hil.cli's docstring)."""
+    package, no numba, no numpy-heavy stack (hil.cli's docstring), and no ``importlib.metadata`` (10-30 ms:
+    the version ``hil --version`` and a run's summary show, the registries' entry points, are read when
+    asked for)."""
     loaded = _loaded(_heavy_check("from hil.cli import build_parser; build_parser()"))
     assert loaded == {"heavy": [], "numba": False}
+    assert _loaded(
+        "import json, sys; from hil.cli import build_parser; build_parser(); "
+        "print(json.dumps({'metadata': 'importlib.metadata' in sys.modules}))"
+    ) == {"metadata": False}
 
 
 def test_numbas_blas_probe_does_not_load_scipy_linalg_and_scipy_still_imports():
