@@ -235,6 +235,7 @@ class Host:
             self.phases.restart_warmup(t, why, still=False)
         phone_fresh = self._phone_fresh(t)
         view = watch.view(t)
+        watch.hold_disarmed(t, view)
         watch.rearm_if_needed(t)
         self.in_control = watch.in_control(t, view, phone_fresh)
         lost = self.journal.overdue(t)

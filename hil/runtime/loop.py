@@ -598,12 +598,13 @@ def _disarm_on_the_way_out(client: BoardClient, events: EventLog, held: HeldSign
     never given). A second interrupt while waiting gives up the Disarm, not the run's summary. A run that
     ends on an error of the host's own (its run directory's disk full, a reader thread's failure) with the
     board in hand and ARMED disarms it the same way, the error as the reason (it once left the board
-    spinning until its watchdog tripped); an abort has disarmed it already. A run that ends by itself
-    (completed, or lost and back) with the board in hand and ARMED disarms it too, reason ``run ended``:
-    let go armed, the board spun its rotors at the last setpoint until its link watchdog tripped, and the
-    next session found it in FAILSAFE with a link-lost fault no one had suffered. Never suppresses the
-    exception. After the Disarm (or none) further interrupts are held (``held``): the link is closed and
-    the run's ending written whole."""
+    spinning until its watchdog tripped); an abort has disarmed it already, unless the board still says
+    ARMED (it acknowledged the abort's Disarm and did not carry it out): then it is tried again. A run
+    that ends by itself (completed, or lost and back) with the board in hand and ARMED disarms it too,
+    reason ``run ended``: let go armed, the board spun its rotors at the last setpoint until its link
+    watchdog tripped, and the next session found it in FAILSAFE with a link-lost fault no one had
+    suffered. Never suppresses the exception. After the Disarm (or none) further interrupts are held
+    (``held``): the link is closed and the run's ending written whole."""
 
     def on_exit(exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> bool:
         try:
@@ -620,12 +621,10 @@ def _disarm_on_the_way_out(client: BoardClient, events: EventLog, held: HeldSign
         return False
 
     def _disarm(exc: BaseException | None) -> None:
-        if isinstance(exc, RunAborted):
-            return
         if isinstance(exc, KeyboardInterrupt):
             reason = _interrupted(exc)
         elif client.connected and client.state is BoardState.ARMED:
-            reason = "run ended" if exc is None else f"error: {exc}"
+            reason = "run ended" if exc is None else f"{_ending(exc)}: {exc}"
         else:
             return
         if not client.connected:
@@ -642,6 +641,12 @@ def _disarm_on_the_way_out(client: BoardClient, events: EventLog, held: HeldSign
             events.write(client.clock.now(), "disarmed", reason=reason)
 
     return on_exit
+
+
+def _ending(exc: BaseException) -> str:
+    """How a run that raised ``exc`` ended, as a Disarm on its way out gives the reason: an abort whose
+    board still says ARMED (its Disarm acknowledged, not carried out), or an error of the host's own."""
+    return "aborted" if isinstance(exc, RunAborted) else "error"
 
 
 def _in_process_board(url: str) -> InProcessBoard:

@@ -52,6 +52,11 @@ class View:
     age_s: float | None
 
 
+DISARM_CONFIRM_S = 0.5
+"""How long after the board settled a Disarm (acknowledged it, or it failed) its telemetry may still say
+ARMED: a few telemetry periods for the state to reach the host. Past it, a board the operator holds
+disarmed that says ARMED has not carried the Disarm out."""
+
 BOARD_LOGS_RECORDED_PER_S = 20
 """The board's ``Log`` frames written to ``events.jsonl`` per second of host time (a board logs a few a
 second: its state changes, faults, refused commands); beyond, counted."""
@@ -70,12 +75,16 @@ class BoardWatch:
         self.failsafes = self.resets = self.link_losses = self.reconnects = self.rearms = 0
         self.stale_episodes = 0
         self.unasked_disarms = 0  # ARMED → DISARMED with the host holding it armed (a Disarm retried late)
+        self.unasked_arms = 0  # ARMED with the operator's Disarm settled (:meth:`hold_disarmed`)
+        self.disarms_resent = 0  # the operator's Disarm sent again to a board that says ARMED
         self.board_logs_unrecorded = 0  # board Log frames beyond BOARD_LOGS_RECORDED_PER_S: counted only
         self._log_window = -math.inf  # host time (s) the current second of recorded board logs began
         self._logs_in_window = 0
         self._logs_skipped = 0  # board logs not recorded since the last one that was
         self._reconnects_seen = 0  # the session's reconnect count at the last ConnectedEvent
         self.operator_disarmed = False
+        self._disarm: Command | None = None  # the operator's Disarm, or the host's last repeat of it
+        self._armed_unasked = False  # the board says ARMED though the operator's Disarm was settled
         self._rearm: str | Command | None = None  # "pending" or the Arm in flight
         self._operator_arm: Command | None = None  # the operator's Arm in flight
         self._fresh_after = -math.inf  # telemetry received before this (host s) is from an older session
@@ -206,9 +215,10 @@ class BoardWatch:
 
     def in_control(self, t: float, view: View, phone_fresh: bool) -> bool:
         """Whether the host has the board in hand at ``t`` (telemetry live, the board armed — or disarmed by
-        the operator — no re-arm pending, the phone fresh); ends the open outage when it does."""
+        the operator — no re-arm pending, the phone fresh; a board that says ARMED against the operator's
+        Disarm is not in hand); ends the open outage when it does."""
         tel = view.telemetry
-        if tel is None or self._rearm is not None or not phone_fresh:
+        if tel is None or self._rearm is not None or not phone_fresh or self._armed_unasked:
             return False
         if tel.state is not BoardState.ARMED and not self.operator_disarmed:
             return False
@@ -216,6 +226,40 @@ class BoardWatch:
         if back is not None:
             self.events.write(t, "board_back", since=back.start, outage_s=t - back.start, causes=back.causes)
         return True
+
+    def hold_disarmed(self, t: float, view: View) -> None:
+        """While the operator holds the board disarmed: a board whose live telemetry, made
+        :data:`DISARM_CONFIRM_S` or more after the operator's Disarm was settled, still says ARMED has not
+        carried it out (a board that ignored it, a Disarm lost with no answer, an Arm of an older try that
+        reached it later). Its rotors may be spinning while everything the operator sees says disarmed:
+        an ``armed`` fault (an outage: a board that never obeys is lost within the run's bound), a warning,
+        and the Disarm sent again, as often as it settles with the board still ARMED. The episode ends when
+        the board says it is out of ARMED."""
+        if not self.operator_disarmed:
+            return
+        tel, tel_t = view.telemetry, self.client.telemetry_time
+        if tel is None or tel_t is None:
+            return  # not live: the view's own faults say so
+        if tel.state is not BoardState.ARMED:
+            self._armed_unasked = False
+            return
+        disarm = self._disarm
+        if disarm is not None and not disarm.done:
+            return  # on its way
+        settled = None if disarm is None else disarm.settled_at
+        if settled is not None and tel_t - settled < DISARM_CONFIRM_S:
+            return  # the board may not have said so yet
+        if not self._armed_unasked:
+            self._armed_unasked = True
+            self.unasked_arms += 1
+            logger.warning("board ARMED at t=%.3f s though the operator disarmed it: disarming again", t)
+            self.events.write(t, "unasked_arm", settled=settled)
+            why = "the board says ARMED after the operator's Disarm was settled"
+            self.journal.fault(t, "armed", detail=why)
+        if self.client.connected:
+            self._disarm = self.client.command(Disarm())
+            self.disarms_resent += 1
+            self.events.write(t, "disarm_resent", seq=self._disarm.seq)
 
     # ------------------------------------------------------------------ arming
     @property
@@ -263,13 +307,17 @@ class BoardWatch:
         if self._rearm is not None:
             self.events.write(t, "rearm_cancelled", reason="disarmed by the operator")
             self._rearm = None
-        return self.client.command(Disarm())
+        self._disarm = None  # set once sent: without a session the command raises here
+        self._disarm = self.client.command(Disarm())
+        return self._disarm
 
     def operator_arm(self, t: float) -> Command:
         """The operator's Arm: sent now (should it fail, the host re-arms through the protocol:
         :meth:`rearm_if_needed`); the host re-arms on its own again after later faults."""
         arm = self.client.command(Arm())  # LinkError without a session: then nothing changes here
         self.operator_disarmed = False
+        self._disarm = None
+        self._armed_unasked = False
         self._rearm = None
         self._operator_arm = arm
         return arm
