@@ -116,3 +116,80 @@ def test_a_slow_boards_restart_is_said_with_the_rate_allowed():
     assert s.counters.resets == 1
     (reset,) = [e for e in s.take_events() if isinstance(e, BoardResetEvent)]
     assert "its clock taken to run at 90.0% of the host's" in reset.evidence, reset.evidence
+
+
+# --------------------------------------------------------------------------- the u32 uptime's wrap
+# A board up 49.7 days wraps its u32 uptime (ms). Before the fix the reconnect check and the backlog dating
+# took the raw count: a wrap during an outage was "its uptime (1040 ms) is shorter than the 4294968.316 s the
+# board had run" — a reset, a new handshake, an armed board's setpoints refused — and a host pause a second
+# after a wrap had ~0.5 s of fresh telemetry dated up to 0.8 s old (stale, a fault).
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    rate=st.floats(0.85, 1.0),
+    run_s=st.floats(11.0, 40.0),
+    outage_s=st.floats(0.1, 30.0),
+    wrap_after_s=st.floats(0.0, 80.0),
+)
+@example(rate=1.0, run_s=15.0, outage_s=2.0, wrap_after_s=16.0)  # the wrap inside the outage
+def test_a_board_whose_uptime_wraps_around_an_outage_is_found_again_not_reset(
+    rate, run_s, outage_s, wrap_after_s
+):
+    """The board's uptime wraps ``wrap_after_s`` of host time into the session — before the link is lost
+    after ``run_s``, during the ``outage_s`` outage, or after it is found again: the same board, no reset,
+    every sample after the handshake taken."""
+    s, board = connected()
+    first_ms = 2**32 - wrap_after_s * 1000.0 * rate
+    uptime = stream(s, board, 0.01, run_s, first_ms, rate)
+    s.link_down(run_s, "cable pulled")
+    back = run_s + outage_s
+    s.link_up(back)
+    s.feed(board.encode(hello_reply())[1], back + 0.01)
+    stream(s, board, back + 0.01, back + 1.0, uptime + (outage_s + 0.01) * 1000.0 * rate, rate)
+    assert s.counters.resets == 0 and s.counters.reconnects == 1, [
+        e.evidence for e in s.take_events() if isinstance(e, BoardResetEvent)
+    ]
+
+
+def test_a_board_restarted_across_the_wrap_is_still_a_reset():
+    """A board 2 s from its wrap, restarted during a 2 s outage: its new uptime (1.5 s) is where the old
+    boot's would be past the wrap, but its count of frames taken went back — a reset."""
+    s, board = connected()
+    t, uptime, rx = 0.01, 2**32 - 2_000 - 15_000, 10
+    while t < 15.0:
+        t += PERIOD_S
+        uptime += 100
+        rx += 1
+        s.feed(board.encode(telemetry(uptime % 2**32, rx))[1], t)
+    s.link_down(t, "cable pulled")
+    s.link_up(t + 2.0)
+    s.feed(board.encode(hello_reply())[1], t + 2.01)
+    s.feed(board.encode(telemetry(1_500, 2))[1], t + 2.02)
+    assert s.counters.resets == 1
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(wrap_before_pause_s=st.floats(0.0, 3.0), pause_s=st.floats(0.15, 1.0))
+@example(wrap_before_pause_s=1.0, pause_s=0.3)
+def test_a_host_pause_just_after_the_wrap_dates_the_fresh_telemetry_as_fresh(wrap_before_pause_s, pause_s):
+    """The host's reads (every 20 ms) pause ``pause_s`` a little after the board's uptime wrapped: the
+    backlog is dated by the board's clock, and once the host reads promptly again no telemetry it holds is
+    older than a frame period and a read."""
+    s, board = connected()
+    period = 0.02
+    pause_at = 11.0
+    start_ms = 2**32 - round((pause_at - wrap_before_pause_s) * 1000)
+    t, last_read, made_until = 0.02, 0.01, 0.01
+    ages = []
+    while t < pause_at + pause_s + 1.0:
+        if not pause_at <= t < pause_at + pause_s:
+            data = b""
+            while made_until + period <= t + 1e-9:
+                made_until = round(made_until + period, 6)
+                data += board.encode(telemetry((start_ms + round(made_until * 1000)) % 2**32))[1]
+            s.feed(data, t, waiting_since=last_read)
+            if t >= pause_at + pause_s + 0.1:
+                ages.append(t - s.telemetry_time)
+            last_read = t
+        t = round(t + period, 6)
+    assert s.counters.resets == 0 and s.counters.board_leaps == 0
+    assert max(ages) <= 2 * period + 1e-9, max(ages)

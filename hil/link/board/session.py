@@ -217,6 +217,9 @@ class Session:
         self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
         self._armed_at_loss = False  # the host had the board armed when the link was lost
         self._last_uptime: int | None = None
+        # this boot's uptime (ms) at its last sample taken, unwrapped past the u32 count's wraps (every
+        # ~49.7 days): the clock the reset and latency checks go by (None: no sample of this boot yet)
+        self._uptime_ms: int | None = None
         self._boot_id: int | None = None  # the board's boot id last heard (nonzero; None: none said yet)
         # (board uptime s, host time s): the board's current boot had run at least that long by then (its
         # first answer: 0 s; then each sample taken). None after a reset seen: the coming answer sets it.
@@ -589,6 +592,11 @@ class Session:
         if boot_id:
             self._boot_id = boot_id
         age_from, self._age_check_from = self._age_check_from, None
+        ran_ms = (
+            uptime_ms
+            if last is None or self._uptime_ms is None
+            else self._uptime_ms + (uptime_ms - last) % _U32
+        )
         evidence = None
         if last is not None and _went_back(last, uptime_ms):
             evidence = f"its uptime went back from {last} ms to {uptime_ms} ms"
@@ -599,18 +607,20 @@ class Session:
         elif state is BoardState.BOOT and self._lost:
             evidence = "it reports BOOT after the link came back (it lost the session)"
         elif age_from is not None:
-            evidence = self._younger_than_known(uptime_ms, age_from)
+            evidence = self._younger_than_known(ran_ms, age_from)
         if boot_changed is not None:  # the board's own word, and what the counts say besides, if anything
             evidence = boot_changed if evidence is None else f"{boot_changed}; {evidence}"
         if evidence is None:
-            made = self._made_at.sample(uptime_ms / 1000.0, now)
+            self._uptime_ms = ran_ms
+            made = self._made_at.sample(ran_ms / 1000.0, now)
             self._leaps.take(uptime_ms, rx_frames, frames_out, now, made)
             if not self._lost:  # a reconnect's samples before its answer are checked by the first after it
-                self._ran = (uptime_ms / 1000.0, now)
+                self._ran = (ran_ms / 1000.0, now)
                 if self._clock_base is None:
                     self._clock_base = self._ran
             return made
         self._made_at.forget_boot()
+        self._uptime_ms = uptime_ms  # the new boot's count: it starts from here
         made = self._made_at.sample(uptime_ms / 1000.0, now)
         self._leaps.restart(uptime_ms, rx_frames, frames_out, now, made)  # the counts of a new boot
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
@@ -679,7 +689,7 @@ class Session:
     def _forget_boot(self) -> None:
         """A new boot of the board, seen before any sample of it: the counts heard so far were the old
         boot's (its next sample anchors them anew)."""
-        self._last_uptime = self._last_rx_frames = None
+        self._last_uptime = self._last_rx_frames = self._uptime_ms = None
         self._leaps = LeapCheck()
         self._ran = self._clock_base = None
         self._age_check_from = None
