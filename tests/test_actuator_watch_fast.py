@@ -41,7 +41,7 @@ TICK = st.tuples(
 
 def _pair() -> tuple[ActuatorWatch, ActuatorWatch, Recorder, Recorder]:
     a, b = Recorder(), Recorder()
-    return ActuatorWatch(N, a, a, 50.0), ActuatorWatch(N, b, b, 50.0), a, b  # type: ignore[arg-type]
+    return ActuatorWatch(N, a, a, 50.0, 628.3), ActuatorWatch(N, b, b, 50.0, 628.3), a, b  # type: ignore[arg-type]
 
 
 @settings(max_examples=200, deadline=None)

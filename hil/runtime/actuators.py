@@ -20,6 +20,13 @@ record                            when
                                   mrad/s while the others hold the attitude (a campaign's finding: 4.5
                                   mrad/s for 14 s, the pointing off 0.9°, never reported) is seen
                                   through the rate's telemetry noise
+``rotor_overspeed`` (unit)        the rotor measured faster than :data:`OVERSPEED` × the spacecraft's
+                                  fastest rotor speed, on any live telemetry (commanded or not): no
+                                  setpoint asks for it, so the rotor runs away (an ESC out of its
+                                  mode, a speed map far off) or the board's speed reading is wrong —
+                                  either way the host steers on a speed it should not trust. Before,
+                                  a rotor read at 4× its limit was shown live and steered on, no
+                                  record
 ================================  ==================================================================
 
 Each unit's rotor and gimbal is reported once per run.
@@ -40,6 +47,9 @@ logger = logging.getLogger(__name__)
 
 LAG_S = 1.0
 """s: an actuator off its setpoint this long does not follow it."""
+OVERSPEED = 1.1
+"""A rotor measured faster than this × the spacecraft's fastest rotor speed is ``rotor_overspeed``: the
+setpoints never ask for more than the fastest speed, and a rotor overshoots it by a few percent at most."""
 GIMBAL_MIN_RATE = 0.002
 """rad/s: a gimbal asked less than this on average over :data:`LAG_S` is not asked enough to tell (a
 healthy gimbal's measured rate scatters by ~0.5 mrad/s a frame; averaged over a second, far less)."""
@@ -81,12 +91,16 @@ class RateWindow:
 
 class ActuatorWatch:
     """See the module docstring. ``n`` units; ``max_lead`` (rad/s) the setpoint generator's bound on how
-    far a rotor's speed setpoint may run ahead of its measured speed."""
+    far a rotor's speed setpoint may run ahead of its measured speed; ``max_speed`` (rad/s) the spacecraft's
+    fastest rotor speed."""
 
-    def __init__(self, n: int, journal: FaultJournal, events: EventLog, max_lead: float) -> None:
+    def __init__(
+        self, n: int, journal: FaultJournal, events: EventLog, max_lead: float, max_speed: float
+    ) -> None:
         self.journal = journal
         self.events = events
         self.lead = 0.9 * max_lead
+        self.overspeed = OVERSPEED * max_speed
         self.esc_dead = False  # the board's DEAD_ESC flag as last seen
         self._since: dict[tuple[str, int], float] = {}  # (actuator, unit) → off its setpoint since
         self._noted: set[tuple[str, int]] = set()
@@ -101,6 +115,27 @@ class ActuatorWatch:
             self.events.write(t, "esc_dead")
             logger.warning("the board reports a dead ESC at t=%.3f s (its log names the channel)", t)
         self.esc_dead = dead
+
+    def rotor_speeds(self, t: float, rotor: Sequence[float]) -> None:
+        """The rotor speeds ``rotor`` (n floats, rad/s) of a live telemetry at ``t``: a rotor faster than
+        :attr:`overspeed` either way is reported, once per unit and run."""
+        limit = self.overspeed
+        if max(rotor) <= limit and min(rotor) >= -limit:
+            return  # the usual case: two comparisons a tick
+        for unit, speed in enumerate(rotor):
+            key = ("overspeed", unit)
+            if abs(speed) > limit and key not in self._noted:
+                self._noted.add(key)
+                self.journal.note(t, "rotor_overspeed", unit=unit, measured=speed, limit=limit)
+                self.events.write(t, "rotor_overspeed", unit=unit, measured=speed, limit=limit)
+                logger.warning(
+                    "unit %d's rotor measured at %.1f rad/s at t=%.3f s, beyond %.1f rad/s: it runs away, "
+                    "or the board's reading of it is wrong",
+                    unit,
+                    speed,
+                    t,
+                    limit,
+                )
 
     def following(
         self, t: float, rotor: Sequence[float], units: Sequence[UnitState], command: ActuatorSetpoint

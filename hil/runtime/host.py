@@ -127,7 +127,13 @@ class Host:
         self.in_control = True
         self._hold_sent = False  # the hold setpoint went out since the board was last seen
         self._hold_tick = -1  # the control tick it went out in
-        self.actuators = ActuatorWatch(self.n, self.journal, self.events, self.control.setpoints.max_lead)
+        self.actuators = ActuatorWatch(
+            self.n,
+            self.journal,
+            self.events,
+            self.control.setpoints.max_lead,
+            self.control.setpoints.params.limits.max_rotor_speed,
+        )
         self.trace = RunTrace()
         self.schema = TelemetrySchema(self.n)
         self.columns = list(self.schema.columns)
@@ -259,6 +265,7 @@ class Host:
         units = tel.units
         gimbal = [u.gimbal_angle for u in units]  # floats: the tick computes on floats (rad, rad/s)
         rotor = [u.rotor_speed for u in units]
+        self.actuators.rotor_speeds(t, rotor)
         armed = tel.state is BoardState.ARMED
         command, steered, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
         if armed and not watch.rearm_pending and command is not None:
