@@ -17,7 +17,11 @@ that no input can make a reader hold more than a fixed amount of memory or parse
 - a document read whole (TOML, JSON) is at most :data:`MAX_DOCUMENT_BYTES` (:func:`read_document`) and
   nested at most :data:`MAX_NESTING` deep (:func:`load_json`, :func:`load_toml`): deeper nesting is a
   typed error naming the file and the key, never a ``RecursionError`` in a parser or in the code that walks
-  the result.
+  the result;
+- a number in such a document is one a float holds (:func:`beyond_float`): TOML and JSON read an integer of
+  any size (up to Python's 4300 digits) as an exact ``int``, and the first ``float()`` or ``math.isfinite``
+  of one beyond ±1.8e308 in a reader's checks was an ``OverflowError`` traceback; such an integer (and one
+  too long for Python to read at all) is a typed error naming the file and the key, at the load.
 
 Each limit is an error of the project's one exception tree naming the file (and the line or key), or, for
 the readers that keep going past a damaged line (a run directory's telemetry and events), a counted drop.
@@ -30,6 +34,7 @@ import json
 import os
 import re
 import stat
+import sys
 import tomllib
 from collections.abc import Callable, Iterator
 from typing import IO, Any, TypeVar
@@ -303,34 +308,80 @@ def _nests(value: Any) -> bool:
     return isinstance(value, dict | list)
 
 
+def beyond_float(value: Any) -> tuple[str, int] | None:
+    """The first integer in ``value`` (parsed JSON or TOML: dicts, lists, scalars) that no float holds
+    (beyond ±1.8e308, where ``float()`` raises ``OverflowError``), as its key path (``a.b[0]``, ``""`` at
+    the top level) and its number of digits; None when every number is one a float holds. Walked without
+    recursion. Every reader of a number checks it as a float (``math.isfinite``, a range): an integer
+    beyond any float is refused here, once for every file, not in each reader."""
+    stack: list[tuple[Any, str]] = [(value, "")]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, dict):
+            stack.extend((v, f"{path}.{k}" if path else str(k)) for k, v in reversed(node.items()))
+        elif isinstance(node, list):
+            stack.extend((v, f"{path}[{i}]") for i, v in reversed(list(enumerate(node))))
+        elif isinstance(node, int) and not isinstance(node, bool) and abs(node) > _FLOAT_MAX:
+            try:
+                float(node)
+            except OverflowError:
+                return path, len(str(abs(node)))
+    return None
+
+
+_FLOAT_MAX = int(sys.float_info.max)
+"""The largest integer a float holds exactly; one above it may still round down to it (checked by
+``float()`` itself)."""
+
+
+def _huge(digits: int) -> str:
+    return f"an integer of {digits} digits, beyond the range of any number hil reads (a float's, ±1.8e308)"
+
+
+def _too_long(exc: ValueError) -> str:
+    """Python's refusal of an integer of more than 4300 digits, without its advice to the programmer."""
+    return str(exc).split(";")[0]
+
+
 def load_json(text: str | bytes, where: str, line: int | None = None) -> Any:
-    """JSON from ``text``, nested at most :data:`MAX_NESTING` deep; anything else is one
-    :class:`InputFormatError` naming ``where`` (and ``line``)."""
+    """JSON from ``text``, nested at most :data:`MAX_NESTING` deep, every integer one a float holds
+    (:func:`beyond_float`); anything else is one :class:`InputFormatError` naming ``where`` (and ``line``;
+    the key in the message)."""
     try:
         value = json.loads(text)
     except RecursionError:
         raise InputFormatError(f"JSON nested deeper than {MAX_NESTING} levels", where, line) from None
     except (ValueError, UnicodeDecodeError) as exc:  # JSONDecodeError is a ValueError
-        raise InputFormatError(f"not JSON ({exc})", where, line) from None
+        raise InputFormatError(f"not JSON ({_too_long(exc)})", where, line) from None
     path = too_deep(value)
     if path is not None:
         key = f" at {_short(path)}" if path != "(top level)" else ""
         raise InputFormatError(f"JSON nested deeper than {MAX_NESTING} levels{key}", where, line)
+    huge = beyond_float(value)
+    if huge is not None:
+        key = f" at {_short(huge[0])}" if huge[0] else ""
+        raise InputFormatError(f"{_huge(huge[1])}{key}", where, line)
     return value
 
 
 def load_toml(text: str, where: str, error: ErrorFactory = ConfigError) -> dict[str, Any]:
-    """TOML from ``text``, nested at most :data:`MAX_NESTING` deep; anything else is one ``error`` whose
-    ``where`` is ``"<where>: <key>"`` when a key can be named."""
+    """TOML from ``text``, nested at most :data:`MAX_NESTING` deep, every integer one a float holds
+    (:func:`beyond_float`); anything else is one ``error`` whose ``where`` is ``"<where>: <key>"`` when a
+    key can be named."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise error(f"not valid TOML: {exc}", where) from None
     except RecursionError:
         raise error(f"not valid TOML: nested deeper than {MAX_NESTING} levels", where) from None
+    except ValueError as exc:  # an integer of more than 4300 digits: tomllib lets int()'s refusal through
+        raise error(f"not valid TOML: {_too_long(exc)}", where) from None
     path = too_deep(doc)
     if path is not None:
         raise error(f"nested deeper than {MAX_NESTING} levels", f"{where}: {_short(path)}")
+    huge = beyond_float(doc)
+    if huge is not None:
+        raise error(_huge(huge[1]), f"{where}: {_short(huge[0])}")
     return doc
 
 
@@ -352,6 +403,7 @@ __all__ = [
     "PIPE",
     "LimitedReader",
     "LineSplitter",
+    "beyond_float",
     "input_kind",
     "load_json",
     "load_toml",

@@ -7,8 +7,8 @@ defaults below. Unknown keys are errors (a typo must not silently become a defau
 the file and the dotted key (:class:`ConfigError` ``where="cubesat-1u.toml: manoeuvre.angle_deg"``).
 Every number has documented bounds (:data:`hil.scenario.reader.RANGES`: e.g. ``plant_step_s`` 10 µs..1 ms,
 ``warmup_s`` 0..600 s, sensor rates 1..1000 Hz), and a run is at most a day of simulated time (warm-up and
-duration) and 10⁸ plant steps. The file is at most 16 MiB and nested at most 32 deep
-(:mod:`hil.files.bounded`).
+duration) and 10⁸ plant steps. The file is at most 16 MiB, nested at most 32 deep, and holds no integer
+beyond a float's range (±1.8e308; :mod:`hil.files.bounded`).
 
 ```toml
 [scenario]
