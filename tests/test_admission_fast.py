@@ -48,6 +48,8 @@ class ReferenceGuard(PhoneGuard):
         if last is not None:
             if t == last:
                 return self._drop("duplicate")
+            if t < last:  # added since: the merger's out_of_order, dropped and counted here
+                return self._drop("out_of_order")
             if last < t < last + MIN_INTERVAL_S:
                 return self._drop("burst")
         if newest == -math.inf:  # the stream's first reading anchors its clock, unconfirmed

@@ -127,6 +127,30 @@ class MergeStats:
     def dropped(self) -> int:
         return sum(sum(d.values()) for d in (self.nan, self.duplicate, self.out_of_order))
 
+    def absorb(self, other: MergeStats) -> None:
+        """Add ``other``'s counts to these (a live host starts a new :class:`Merger` whenever the phone's
+        stream is not to be integrated across: the run's counts are the sum over its mergers)."""
+        for name in ("accepted", *_REASONS, "stale_steps"):
+            mine: dict[str, int] = getattr(self, name)
+            for label, n in getattr(other, name).items():
+                mine[label] = mine.get(label, 0) + n
+        self.steps += other.steps
+        self.gaps += other.gaps
+        self.failover_steps += other.failover_steps
+
+    def as_dict(self) -> dict[str, object]:
+        """For ``summary.json``: per sensor what was accepted and what dropped, by reason; the steps, gaps
+        and failover steps, and per sensor the steps on which it was stale."""
+        return {
+            "accepted": dict(self.accepted),
+            "dropped": {reason: dict(getattr(self, reason)) for reason in _REASONS},
+            "dropped_total": self.dropped,
+            "steps": self.steps,
+            "gaps": self.gaps,
+            "failover_steps": self.failover_steps,
+            "stale_steps": dict(self.stale_steps),
+        }
+
     def count_step(self, flags: int) -> None:
         """Count one step with these :class:`StepFlag` bits."""
         self.steps += 1

@@ -66,6 +66,7 @@ from protocol.reliable import Command
 
 if TYPE_CHECKING:
     from hil.estimation.estimator import Estimate
+    from hil.estimation.multirate import MergeStats
 
 logger = logging.getLogger(__name__)
 
@@ -108,13 +109,14 @@ class Host:
     counters: HostCounters = field(default_factory=HostCounters)
 
     def __post_init__(self) -> None:
-        from hil.estimation.multirate import Merger
+        from hil.estimation.multirate import Merger, MergeStats
 
         sc = self.scenario
         self.n = sc.spacecraft.n_units
         self._make_estimator = self.make_estimator or sc.make_estimator
         self.filter: Estimator = self._new_filter()
         self.merger = Merger()
+        self._retired_merges = MergeStats()  # the counts of the mergers a fresh start replaced
         self.estimate: Estimate | None = None
         self.control = ControlStep(sc)
         self.finished = False
@@ -177,6 +179,17 @@ class Host:
         return self.phone.guard
 
     @property
+    def merge_stats(self) -> MergeStats:
+        """The merge's counts over the whole run (every merger's: a fresh start makes a new one) — what
+        the merger dropped after the admission let it through, by sensor and reason, among them."""
+        from hil.estimation.multirate import MergeStats
+
+        total = MergeStats(driver=self.merger.driver, failover_order=self.merger.failover_order)
+        total.absorb(self._retired_merges)
+        total.absorb(self.merger.stats)
+        return total
+
+    @property
     def operator_log(self) -> list[dict[str, Any]]:
         """Each operator command, its last status (the summary's ``operator``)."""
         return self.operator.entries
@@ -213,6 +226,7 @@ class Host:
         held gyro across it would be a guess, and its cost grows with the gap (sub-steps)."""
         from hil.estimation.multirate import Merger
 
+        self._retired_merges.absorb(self.merger.stats)
         self.merger = Merger(self.merger.policy)
         self.filter = self._new_filter()
         self.filter.set_gyro_bias(self.phases.gyro_bias)
@@ -428,6 +442,7 @@ class Host:
             trace=self.trace,
             estimator_rmse=self.rows.estimator_rmse(),
             phone_admission=self.guard.as_dict(),
+            phone_merge=self.merge_stats.as_dict(),
             operator_log=self.operator_log,
             lost=self.lost,
         )

@@ -42,6 +42,7 @@ def run_summary(
     phone_admission: dict[str, Any],
     operator_log: list[dict[str, Any]],
     lost: str | None,
+    phone_merge: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The run's figures: settle time (first time after which the pointing error stays ≤ settle_deg,
     from the slew's start), final and peak pointing error, peak gimbal rate, minimum δ, the
@@ -50,7 +51,8 @@ def run_summary(
     outages they made (:meth:`hil.runtime.faults.FaultJournal.summary`); ``board``: who answered the
     last handshake (its HelloReply: identity, serial, firmware build, units, frame rate); the operator's
     commands and suspensions; ``lost`` why the run lost the board (or the phone), if it did; None where
-    not reached. Taken at the client's clock's now."""
+    not reached; ``phone_admission`` the admission's counts, ``phone_merge`` the merger's (per sensor:
+    accepted, dropped by reason, stale steps). Taken at the client's clock's now."""
     now = client.clock.now()
     since = phases.suspended_since
     gimbal_rate_limit = scenario.spacecraft.limits.max_gimbal_rate
@@ -84,6 +86,9 @@ def run_summary(
         out["slew_s"] = None if phases.slew is None else phases.slew.duration_s
     out["estimator_rmse_deg"] = estimator_rmse
     out["phone_admission"] = phone_admission
+    # what the merger dropped of what the admission accepted (a NaN the admission let through, none
+    # should be): beside the admission's counts, so no reading the host took is lost without a count
+    out["phone_merge"] = phone_merge
     out["requirement"] = requirement(out, now, phases, journal, operator_log, client)
     faults = journal.summary(now)
     out["phone_gap_list"] = faults.pop("phone_gaps")
