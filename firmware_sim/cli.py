@@ -411,6 +411,33 @@ def _usb_line(source: Any) -> str:
     )
 
 
+def _check_phone_sender(url: str) -> None:
+    """Refuse at start a ``--phone`` address the world's phone could never reach (a :class:`ConfigError`
+    naming ``--phone``): port 0 (a listener's "any free port"), and for UDP an IPv6 address or a name without
+    an IPv4 one (its sender's socket is IPv4). Accepted, every datagram or request failed, only counted."""
+    from urllib.parse import urlsplit
+
+    from hil.link.sources.phone_udp import sender_address
+    from hil.link.sources.stream import split_url
+
+    if urlsplit(url).scheme == "udp":
+        sender_address(url, "--phone")
+    else:
+        split_url(url, "http", "http://HOST:PORT/PATH", default_port=80, where="--phone", sending=True)
+
+
+def _close_at_start(server: Any, board: Any) -> None:
+    """What start-up made before an error ended it: the server (its pty, its bus) and a stepped firmware
+    board's harness. Errors closing them are logged: the one that ended start-up is the one to say."""
+    for part in (server, board):
+        if part is None:
+            continue
+        try:
+            part.close()
+        except Exception:  # noqa: BLE001 — the start-up error is what the user must see
+            logging.getLogger(__name__).warning("closing %r after a failed start", part, exc_info=True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -449,6 +476,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     board: Any = None  # None: the harness serves the firmware on its pty itself (.avr.serve)
     world = None
+    server: BoardServer | None = None
+    streamer = None
     try:
         scenario = None
         if args.world is not None:
@@ -463,10 +492,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "firmware-sim --units",
                 )
             args.units = scenario.n_units
-            args.phone = phone_url(args.phone)
+            try:
+                args.phone = phone_url(args.phone)
+            except ConfigError:
+                raise
+            except ValueError as exc:  # urllib's own refusal ("Invalid IPv6 URL": an unbalanced bracket)
+                raise ConfigError(f"{args.phone!r}: not a URL ({exc})", "--phone") from None
+            _check_phone_sender(args.phone)
         elif args.units is None:
             args.units = DEFAULT_UNITS
-        server: BoardServer
         if args.avr is not None and args.world is None and args.can is None:
             from .avr.serve import server_from_args
 
@@ -477,18 +511,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                 server = CanServer(board, args.can)
             else:
                 server = PtyServer(board, link=args.link, hold_slave=not args.no_hold)
+        if world is not None:  # its phone's sender refusing its address is an error here, the server closed
+            from .world import WorldStreamer
+
+            streamer = WorldStreamer(world, server.lock, args.phone).start()
     except HilError as exc:  # a harness refusing its options at start-up says why here too: status 2
+        _close_at_start(server, board if args.avr is not None else None)
         print(f"firmware-sim: error: {exc}", file=sys.stderr)
         return 2
+    assert server is not None  # made above, or the error returned
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         server.stop()
 
-    streamer = None
-    if world is not None:
-        from .world import WorldStreamer
-
-        streamer = WorldStreamer(world, server.lock, args.phone).start()
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     print(server.path, flush=True)
     where = f" (link {args.link})" if args.link else ""

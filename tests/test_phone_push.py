@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.phone_push import PhonePushSender, PhonePushServer, decode_push, encode_push
-from protocol.errors import InputFormatError, LinkError
+from protocol.errors import ConfigError, InputFormatError, LinkError
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
 samples = st.lists(
@@ -142,7 +142,7 @@ def test_a_sender_survives_a_receiver_restart_and_counts_the_failure():
 
 
 def test_bad_urls_and_busy_ports_are_link_errors():
-    with pytest.raises(LinkError, match="http://"):
+    with pytest.raises(ConfigError, match="http://"):  # a bad address is the option's error
         PhonePushSender("udp://127.0.0.1:9")
     with PhonePushServer("http://127.0.0.1:0/") as server:
         port = int(server.url.rsplit(":", 1)[1].rstrip("/"))

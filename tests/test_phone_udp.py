@@ -205,8 +205,8 @@ def test_busy_ports_and_bad_urls_are_clear_errors():
         port = receiver.url.rsplit(":", 1)[1]
         with pytest.raises(LinkError, match=port):
             PhoneUdpReceiver(f"udp://127.0.0.1:{port}")
-    for bad in ("udp://127.0.0.1", "udp://:80", "udp://host:port"):
-        with pytest.raises(LinkError, match="udp://HOST:PORT"):
+    for bad in ("udp://127.0.0.1", "udp://:80", "udp://host:port"):  # a bad address is the option's error
+        with pytest.raises(ConfigError, match="udp://HOST:PORT"):
             PhoneUdpSender(bad)
     with pytest.raises(ConfigError, match="udp://HOST:PORT or http://") as info:
         phone_url("tcp://127.0.0.1:1")

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.senders import Decision
 from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
-from protocol.errors import InputFormatError, LinkError
+from protocol.errors import ConfigError, InputFormatError, LinkError
 
 TYPES: dict[str, SensorKind] = {
     "android.sensor.accelerometer": SensorKind.ACC,
@@ -139,6 +139,28 @@ def encode_datagram(sample: SensorSample) -> bytes:
 def _address(url: str) -> tuple[str, int]:
     host, port, _ = split_url(url, "udp", "udp://HOST:PORT")
     return host, port
+
+
+def sender_address(url: str, where: str = "--phone") -> tuple[str, int]:
+    """The IPv4 address and port a :class:`PhoneUdpSender` sends ``url``'s datagrams to, resolved once; a
+    :class:`ConfigError` naming ``where`` for what no datagram could reach: a malformed URL, port 0 (a
+    listener's "any free port"), an IPv6 address or a name without an IPv4 one (the sender's socket is
+    IPv4: every datagram failed, only counted). Checked when the sender is made, so the option is refused
+    at start."""
+    host, port, _ = split_url(url, "udp", "udp://HOST:PORT", where=where, sending=True)
+    if ":" in host:
+        raise ConfigError(
+            f"{url!r}: {host} is an IPv6 address; the simulated phone streams over IPv4: give an IPv4 "
+            "address (udp://127.0.0.1:PORT for this machine)",
+            where,
+        )
+    try:
+        found = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except (OSError, UnicodeError) as exc:  # socket.gaierror is an OSError; a bad IDNA name a UnicodeError
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise ConfigError(f"{url!r}: no IPv4 address for {host!r} ({why})", where) from None
+    address, found_port = found[0][4][:2]
+    return str(address), int(found_port)
 
 
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
@@ -253,13 +275,15 @@ class PhoneUdpReceiver(PhoneReceiver):
 class PhoneUdpSender:
     """Sends samples to ``udp://HOST:PORT`` as SensaGram does: one datagram each, fire and forget (nobody
     listening is not an error for UDP; a datagram the socket refuses — no route, full buffer — is counted
-    in ``failed``). A phone keeps streaming while the host restarts."""
+    in ``failed``). A phone keeps streaming while the host restarts. An address no datagram could ever
+    reach (port 0, IPv6, a name without an IPv4 address) is a :class:`ConfigError` when the sender is made
+    (:func:`sender_address`)."""
 
     batch_s = 0.0  # every event as it happens
 
     def __init__(self, url: str) -> None:
         self.url = url
-        self._address = _address(url)
+        self._address = sender_address(url)  # a URL no datagram could reach is refused here, not counted
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sent = 0
         self.failed = 0

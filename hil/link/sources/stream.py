@@ -54,7 +54,7 @@ from hil.estimation.sensors import SensorSample
 from hil.link.sources.base import SenderEvent, SenderStatus
 from hil.link.sources.senders import Decision, SenderTable
 from hil.threads import ThreadError
-from protocol.errors import InputFormatError, LinkError
+from protocol.errors import ConfigError, InputFormatError
 
 logger = logging.getLogger(__name__)
 
@@ -91,17 +91,41 @@ def parse_json(data: bytes, source: str) -> object:
         raise InputFormatError(f"not JSON ({type(exc).__name__}: {str(exc)[:120]})", source) from None
 
 
-def split_url(url: str, scheme: str, form: str, default_port: int | None = None) -> tuple[str, int, str]:
-    """``(host, port, path)`` of a phone-stream URL of ``scheme``; anything else is a :class:`LinkError`
-    saying the expected ``form`` (e.g. ``udp://HOST:PORT``)."""
-    parts = urlsplit(url)
+def split_url(
+    url: str,
+    scheme: str,
+    form: str,
+    default_port: int | None = None,
+    where: str = "--phone",
+    sending: bool = False,
+) -> tuple[str, int, str]:
+    """``(host, port, path)`` of a phone-stream URL of ``scheme``; anything else is a :class:`ConfigError`
+    naming ``where`` (the option that gave it) and saying the expected ``form`` (e.g. ``udp://HOST:PORT``).
+    A port that is not a number 0..65535 is refused, naming it (it was replaced by the default port, or
+    taken for a missing one). ``sending``: the URL is where a sender sends, so port 0 — "any free port",
+    which only a listener can pick — is refused too: every datagram or request to it fails."""
+    if any(c.isspace() or not c.isprintable() for c in url):  # urllib drops tabs and line breaks unsaid
+        raise ConfigError(f"{url!r}: a space or control character in a phone stream address ({form})", where)
+    try:
+        parts = urlsplit(url)
+    except ValueError as exc:  # an unbalanced "[" or "]": urllib's "Invalid IPv6 URL"
+        raise ConfigError(
+            f"{url!r}: not a URL ({exc}): a phone stream address must be {form}", where
+        ) from None
     try:
         port = parts.port
-    except ValueError:  # not a number, out of range
-        port = None
+    except ValueError:  # not a number (also "-1", "+5", " 5"), or out of range
+        raw = parts.netloc.rpartition(":")[2]
+        raise ConfigError(f"{url!r}: port {raw!r} is not a port number 0..65535 ({form})", where) from None
     port = default_port if port is None else port
     if parts.scheme != scheme or not parts.hostname or port is None:
-        raise LinkError(f"{url}: a phone stream address must be {form}")
+        raise ConfigError(f"{url!r}: a phone stream address must be {form}", where)
+    if sending and port == 0:
+        raise ConfigError(
+            f"{url!r}: port 0 picks a free port only where hil listens; a phone sends to the port its "
+            f"receiver listens on ({form}, PORT 1..65535)",
+            where,
+        )
     return parts.hostname, port, parts.path or "/"
 
 
@@ -204,6 +228,14 @@ class PhoneReceiver:
             st.overflow += dropped
         if dropped:
             self._warn(f"{dropped} sample(s), oldest first: more than {self._max_queue} held", dropped)
+
+    def count_overflow(self, n: int) -> None:
+        """``n`` samples a consumer took off this receiver to hold, then dropped oldest first beyond
+        ``max_queue`` held (:class:`~.listening.ListeningSource` while the run waits for its phone):
+        counted in ``overflow`` and logged as the receiver's own drops are."""
+        with self._lock:
+            self.stats.overflow += n
+        self._warn(f"{n} sample(s), oldest first: more than {self._max_queue} held", n)
 
     def _attribute(self, sender: Hashable, name: str, usable: int) -> Decision:
         """Whose a readable message is (:mod:`.senders`): ``sender`` as the format identifies it, ``name``
