@@ -57,12 +57,14 @@ def parse_command(body: bytes, command_id: int, remote: str = "") -> OperatorCom
         return OperatorCommand(command_id, name, origin="gcs", remote=remote)
     angles = []
     for key, limit in ANGLE_RANGE.items():
-        value = doc.get(key)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            raise InputFormatError(f"{key} must be a number of degrees, got {value!r}", where)
-        if abs(value) > limit:
-            raise InputFormatError(f"{key} must lie within ±{limit:g}°, got {value}", where)
-        angles.append(float(value))
+        given = doc.get(key)
+        value = _finite_number(given)
+        beyond_float = value is None and isinstance(given, int) and not isinstance(given, bool)
+        if value is None and not beyond_float:
+            raise InputFormatError(f"{key} must be a number of degrees, got {_shown(given)}", where)
+        if value is None or abs(value) > limit:  # an integer past a float's range is past any angle's
+            raise InputFormatError(f"{key} must lie within ±{limit:g}°, got {_shown(given)}", where)
+        angles.append(value)
     return OperatorCommand(command_id, name, (angles[0], angles[1], angles[2]), "gcs", remote)
 
 
@@ -79,11 +81,30 @@ def parse_ack(body: bytes, remote: str = "") -> dict[str, Any]:
     if not isinstance(alarm, str) or not ALARM_KEY.fullmatch(alarm):
         raise InputFormatError(f"alarm must be an alarm's key ([a-z0-9_.:-], 1-64), got {alarm!r}", where)
     raised = doc.get("raised_t")
-    if raised is not None and (
-        isinstance(raised, bool) or not isinstance(raised, int | float) or not math.isfinite(raised)
-    ):
-        raise InputFormatError(f"raised_t must be a number of seconds, got {raised!r}", where)
-    return {"alarm": alarm, "raised_t": None if raised is None else float(raised), "remote": remote}
+    raised_t = None if raised is None else _finite_number(raised)
+    if raised is not None and raised_t is None:
+        raise InputFormatError(f"raised_t must be a number of seconds, got {_shown(raised)}", where)
+    return {"alarm": alarm, "raised_t": raised_t, "remote": remote}
+
+
+def _finite_number(value: Any) -> float | None:
+    """``value`` as a finite float, or None if it is not a JSON number that is one. JSON's integers have no
+    bound (``json.loads`` gives a Python int of up to 4300 digits), and ``math.isfinite`` or ``float`` of
+    one past a float's range raises OverflowError, which would be a 500 rather than the 400 it must be."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:  # an integer beyond ±1.8e308
+        return None
+    return number if math.isfinite(number) else None
+
+
+def _shown(value: Any, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters: the refusal names what came without echoing an integer
+    of 4300 digits into the answer and the run's log."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}… ({len(text)} characters)"
 
 
 def _json_object(body: bytes, where: str, what: str) -> dict[str, Any]:
