@@ -18,15 +18,18 @@ from __future__ import annotations
 
 import hmac
 import ipaddress
+import re
 import secrets
 from dataclasses import dataclass
-from urllib.parse import urlsplit
 
 from protocol.errors import ConfigError
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8470
 LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+# A Host header (RFC 9110 uri-host [":" port], as a browser or a script writes one): a name or IPv4 address,
+# or an IPv6 address in brackets, and an optional port of digits.
+_HOST = re.compile(r"(?:\[(?P<v6>[0-9A-Fa-f:.]+)\]|(?P<name>[A-Za-z0-9._-]+))(?::(?P<port>[0-9]{1,5}))?")
 
 
 def parse_bind(text: str | None) -> tuple[str, int, bool]:
@@ -117,19 +120,30 @@ class Access:
             return True
         if not host_header:
             return False
-        parts = urlsplit(origin)
-        if parts.scheme != "http" or not parts.hostname:
+        scheme, _, o_host = origin.strip().partition("://")
+        if scheme != "http":
             return False
-        o_name, o_port = parts.hostname, parts.port or 80
+        o_name, o_port = _split_host(o_host)  # a browser's Origin is "http://" + the host it reached
         h_name, h_port = _split_host(host_header)
-        return o_name.lower() == h_name.lower() and o_port == (h_port or 80)
+        if not o_name or not h_name:
+            return False
+        return o_name.lower() == h_name.lower() and (o_port or 80) == (h_port or 80)
 
 
 def _split_host(header: str) -> tuple[str, int | None]:
-    """``(name, port)`` of a ``Host`` header (``[::1]:8470``, ``localhost:8470``, ``example.org``)."""
-    parts = urlsplit("//" + header.strip())
-    try:
-        port = parts.port
-    except ValueError:
-        port = -1  # not a number: matches no port
-    return (parts.hostname or ""), port
+    """``(name, port)`` of a ``Host`` header (``[::1]:8470``, ``localhost:8470``, ``example.org``); a
+    malformed one (``[::1``, ``[zz]:1``, ``[::1]]``, a port past 65535) is ``("", -1)``, which matches no
+    name and no port. Parsed by :data:`_HOST`, not ``urlsplit``, which raises ValueError for some malformed
+    headers (a 500 out of the check, where the header is the client's to write and the answer a 403) and
+    takes others (``[::1]]`` as ``::1``)."""
+    m = _HOST.fullmatch(header.strip())
+    if m is None:
+        return "", -1
+    name = m["v6"] if m["v6"] is not None else m["name"]
+    if m["v6"] is not None:
+        try:
+            ipaddress.IPv6Address(name)
+        except ValueError:
+            return "", -1
+    port = None if m["port"] is None else int(m["port"])
+    return (name, port) if port is None or port <= 65535 else ("", -1)

@@ -33,6 +33,7 @@ refused requests are taken by :class:`~hil.gcs.guard.TornadoReports`, a handler'
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
 import logging
 import mimetypes
@@ -276,7 +277,9 @@ class _Base(web.RequestHandler):
         """A handler's exception is reported (``error``), never printed."""
         if isinstance(value, web.HTTPError):
             return
-        self.server.turned_away("error", self.request.remote_ip or "", f"{self.request.path}: {value!r}")
+        self.server.turned_away(
+            "error", self.request.remote_ip or "", _error_detail(value, self.request.path)
+        )
 
     # ------------------------------------------------------------------ the default route
     def get(self, *args: str) -> None:
@@ -349,6 +352,17 @@ class _Base(web.RequestHandler):
         self.finish(body)
 
 
+_NO_SUCH_FILE = (FileNotFoundError, IsADirectoryError, NotADirectoryError)
+_NAME_ERRNOS = (errno.ENAMETOOLONG, errno.ELOOP)  # about the name the client asked for, not our files
+
+
+def _error_detail(exc: BaseException, path: str) -> str:
+    """A report's detail: the error first, then where (the path cut to 120 characters), so the record,
+    itself cut to 300 characters, says which error even when the path is 6 kB."""
+    cut = path if len(path) <= 120 else f"{path[:120]}… ({len(path)} characters)"
+    return f"{type(exc).__name__}: {str(exc)[:120]} at {cut}"
+
+
 class _Page(_Base):
     def get(self, *args: str) -> None:
         self._static("index.html")
@@ -359,8 +373,13 @@ class _Page(_Base):
         resource = self.server.static.joinpath(*name.split("/"))
         try:
             body = resource.read_bytes()
-        except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
-            return self._json(HTTPStatus.NOT_FOUND, {"error": f"no such file: {name}"})
+        except OSError as exc:
+            # Whatever the OS says of a name the client wrote, the answer is that there is no such file —
+            # a name past PATH_MAX (ENAMETOOLONG) as a missing one; an error that is not about the name (the
+            # page's own files unreadable: EACCES, EIO) is also reported, saying which.
+            if not isinstance(exc, _NO_SUCH_FILE) and exc.errno not in _NAME_ERRNOS:
+                self.server.turned_away("error", self.request.remote_ip or "", _error_detail(exc, name))
+            return self._json(HTTPStatus.NOT_FOUND, {"error": f"no such file: {name[:80]}"})
         suffix = "." + name.rsplit(".", 1)[-1] if "." in name else ""
         kind = _TYPES.get(suffix) or mimetypes.guess_type(name)[0] or "application/octet-stream"
         return self._reply(HTTPStatus.OK, body, kind)
