@@ -51,14 +51,19 @@ than the receiver's (``wrong_kind``; a receiver taking both never joins the two 
 error and remote frames (``error_frames``), and ``malformed`` data — under 2 bytes, over the kind's
 limit, a CAN FD length no DLC gives, an index past the last segment, a short middle segment, a first
 segment ending a frame shorter than :data:`MIN_WIRE`. One segment that fails its CRC is ``malformed``
-too (it joins nothing: not a splice).
+too (it joins nothing: not a splice). A python-can message whose fields are not a CAN frame's (an id that
+is no integer, data that is not bytes, a dlc other than the data's length, a flag that is not a bool) is
+``invalid`` (:meth:`CanReassembler.admit`): python-can builds such messages from stray udp_multicast
+datagrams, and a receiver never raises on one.
 """
 
 from __future__ import annotations
 
 import enum
+import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from .errors import ConfigError, ProtocolError
 from .frame import DELIMITER, MAX_ENCODED, MIN_FRAME
@@ -146,7 +151,11 @@ class CanId:
 
     @classmethod
     def parse(cls, arbitration_id: int) -> CanId:
-        """Split an 11-bit id; raises :class:`ProtocolError` for an id outside this scheme."""
+        """Split an 11-bit id; raises :class:`ProtocolError` for an id outside this scheme — also for one
+        that is not an integer at all (python-can builds a ``Message`` with a float id from a stray
+        udp_multicast datagram, and its own check lets 901.5 through)."""
+        if not _is_int(arbitration_id):
+            raise ProtocolError(f"arbitration id {arbitration_id!r} is not an integer")
         if not 0 <= arbitration_id <= 0x7FF or arbitration_id >> 8 > Priority.OTHER:
             raise ProtocolError(f"arbitration id {arbitration_id:#x} is not in the vscmg-hil scheme")
         return cls(
@@ -162,6 +171,44 @@ class CanFrame:
     arbitration_id: int
     data: bytes
     is_fd: bool = False
+
+
+def _is_int(value: object) -> bool:
+    """An integer and not a bool (``True`` is an ``int`` to Python, never an identifier or a length)."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _flag(value: object) -> bool | None:
+    """A python-can flag as a bool, or None when it is none: a stray datagram's ``"yes"``, ``2`` or
+    ``None`` (0 and 1 pass: an interface may hand over a bit as an int)."""
+    if isinstance(value, bool):
+        return value
+    if _is_int(value) and value in (0, 1):
+        return bool(value)
+    return None
+
+
+def _receive_time(value: object) -> float | None:
+    """A message's receive time in seconds, or None when it is not one (unset — python-can's 0.0 —, not
+    a number, not finite, or an integer too large for a float)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not value:
+        return None
+    try:
+        at = float(value)
+    except OverflowError:
+        return None
+    return at if math.isfinite(at) else None
+
+
+class Received(NamedTuple):
+    """The fields of a received CAN data frame, checked (:meth:`CanReassembler.admit`): the arguments of
+    :meth:`CanReassembler.feed`."""
+
+    arbitration_id: int
+    data: bytes
+    is_fd: bool
+    is_extended_id: bool
+    at: float | None
 
 
 def segment_payload(fd: bool) -> int:
@@ -246,6 +293,8 @@ class CanStats:
     ignored: int = 0  # CAN frames outside the scheme, for another node or the other direction
     wrong_kind: int = 0  # CAN FD frames on a classic link, classic frames on an FD link
     error_frames: int = 0  # CAN error frames and remote frames (never a segment; ``feed_message``)
+    invalid: int = 0  # messages whose fields are not a CAN frame's: an id that is no integer or out of CAN's
+    # range, data that is not bytes, a dlc other than the data's length, a flag that is not a bool
 
 
 @dataclass
@@ -326,6 +375,9 @@ class CanReassembler:
 
         ``at``: when it was received (s, any clock; None: unknown), so that a restarted sender's first
         frame is not taken for a repeat of its predecessor's last (:data:`REPEAT_WINDOW_S`)."""
+        if not isinstance(data, (bytes, bytearray)) or _flag(is_fd) is None or _flag(is_extended_id) is None:
+            self.stats.invalid += 1  # bytes(5) would be five zero bytes: never guess at what was meant
+            return b""
         is_fd = bool(is_fd)
         if is_extended_id or not self._accepts(arbitration_id):
             self.stats.ignored += 1
@@ -416,18 +468,42 @@ class CanReassembler:
         return wire
 
     def feed_message(self, message: object) -> bytes:
-        """Convenience for a python-can ``Message`` (duck-typed: no python-can import here). Error frames
-        (whose data is the controller's error report) and remote frames are counted, never segments. Its
-        ``timestamp`` is the receive time (0.0, python-can's "not set", counts as unknown)."""
-        if getattr(message, "is_error_frame", False) or getattr(message, "is_remote_frame", False):
+        """Convenience for a python-can ``Message`` (duck-typed: no python-can import here): :meth:`admit`,
+        then :meth:`feed`."""
+        fields = self.admit(message)
+        return b"" if fields is None else self.feed(*fields)
+
+    def admit(self, message: object) -> Received | None:
+        """The fields of a python-can ``Message`` that can be a data frame, checked; None (counted) when it
+        cannot be one. Error frames (whose data is the controller's error report) and remote frames are
+        ``error_frames``. A message whose fields are not a CAN frame's is ``invalid``: python-can hands
+        over what a stray udp_multicast datagram says once its own check passes (an id of 901.5, a flag
+        of 2), and the virtual interface whatever another thread built — none of it may raise in a
+        receiver. Its ``timestamp`` is the receive time (0.0, python-can's "not set", counts as unknown;
+        so does one that is not a finite number)."""
+        error = _flag(getattr(message, "is_error_frame", False))
+        remote = _flag(getattr(message, "is_remote_frame", False))
+        is_fd = _flag(getattr(message, "is_fd", False))
+        extended = _flag(getattr(message, "is_extended_id", False))
+        if error is None or remote is None or is_fd is None or extended is None:
+            self.stats.invalid += 1
+            return None
+        if error or remote:
             self.stats.error_frames += 1
-            return b""
-        return self.feed(
-            message.arbitration_id,  # type: ignore[attr-defined]
-            message.data,  # type: ignore[attr-defined]
-            bool(getattr(message, "is_fd", False)),
-            bool(getattr(message, "is_extended_id", False)),
-            getattr(message, "timestamp", None) or None,
+            return None
+        arbitration_id = getattr(message, "arbitration_id", None)
+        data = getattr(message, "data", None)
+        dlc = getattr(message, "dlc", None)
+        if (
+            not _is_int(arbitration_id)
+            or not 0 <= arbitration_id < (1 << 29 if extended else 1 << 11)
+            or not isinstance(data, (bytes, bytearray))
+            or not (dlc is None or (_is_int(dlc) and dlc == len(data)))
+        ):
+            self.stats.invalid += 1
+            return None
+        return Received(
+            arbitration_id, bytes(data), is_fd, extended, _receive_time(getattr(message, "timestamp", None))
         )
 
     @property
@@ -484,6 +560,7 @@ __all__ = [
     "MIN_WIRE",
     "PRIORITY",
     "Priority",
+    "Received",
     "REPEAT_WINDOW_S",
     "max_segments",
     "segment_payload",

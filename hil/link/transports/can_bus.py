@@ -57,7 +57,7 @@ from typing import Any
 
 import can
 
-from protocol.can import MAX_WIRE, NODE_MAX, CanId, CanReassembler, CanSegmenter, Direction
+from protocol.can import MAX_WIRE, NODE_MAX, CanId, CanReassembler, CanSegmenter, Direction, Received
 from protocol.errors import LinkError, ProtocolError, TransportError
 
 from .base import Transport, UrlOptions
@@ -101,6 +101,13 @@ def _undecodable(exc: BaseException) -> bool:
     return isinstance(exc, can.CanError) and cause is not None and not isinstance(cause, OSError)
 
 
+def _kinds(msg: object) -> str:
+    """What a message that is not a CAN frame holds, by type only (its repr may itself fail: python-can
+    formats a float id with ``:x``)."""
+    names = ("arbitration_id", "data", "dlc", "is_extended_id", "is_fd", "is_error_frame", "is_remote_frame")
+    return ", ".join(f"{name}: {type(getattr(msg, name, None)).__name__}" for name in names)
+
+
 class CanTransport(Transport):
     """The protocol's byte stream over one python-can bus; see the module docstring.
 
@@ -135,6 +142,7 @@ class CanTransport(Transport):
         self.tx = CanTxStats()
         self.undecodable = 0  # messages the interface received but could not decode
         self.same_node = 0  # CAN frames as this end (its direction, its node id) that it did not send
+        self._invalid_seen = 0  # the reassembler's ``invalid`` count when this end last looked
         self._unechoed: deque[tuple[int, bytes]] = deque(maxlen=_ECHOES)  # sent, loopback not yet heard
         self._echo_lock = threading.Lock()  # the writer appends, the reader takes the loopback off
         self._bus: can.BusABC | None = None
@@ -235,7 +243,16 @@ class CanTransport(Transport):
             raise LinkError(f"{self.url}: receive failed (interface gone?): {exc}") from exc
 
     def _accept(self, msg: can.Message) -> bytes:
-        if self._impersonated(msg):
+        reassembler = self._reassembler
+        fields = reassembler.admit(msg)  # never raises: a message whose fields are not a frame's is counted
+        if fields is None:
+            if reassembler.stats.invalid != self._invalid_seen:
+                self._invalid_seen = reassembler.stats.invalid
+                self._log_drop(
+                    "invalid", f"a received CAN message whose fields are not a CAN frame's ({_kinds(msg)})"
+                )
+            return b""
+        if self._impersonated(fields):
             self.same_node += 1
             peer, twins = ("board", "hosts") if self.sends is Direction.TO_BOARD else ("host", "boards")
             self._log_drop(
@@ -243,24 +260,24 @@ class CanTransport(Transport):
                 f"a CAN frame as this end (node {self.node}, towards the {peer}) that it did not send: "
                 f"another node uses node id {self.node} — two {twins} on one node?",
             )
-        return self._reassembler.feed_message(msg)
+        return reassembler.feed(*fields)
 
-    def _impersonated(self, msg: can.Message) -> bool:
-        """``msg`` is a data frame in this end's own direction and node id but not one it sent (nor the
-        loopback of one: udp_multicast hears its own datagrams). Such a frame is ignored by the
-        reassembler like any other of that direction, but it means a second node on the bus answers to
-        this node id: both boards would take the host's commands, and the host would hear two boards'
-        telemetry interleaved as one board resetting again and again. Counted and logged, so that the
-        status of either node names the cause."""
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+    def _impersonated(self, fields: Received) -> bool:
+        """A data frame (checked: :meth:`CanReassembler.admit`) in this end's own direction and node id but
+        not one it sent (nor the loopback of one: udp_multicast hears its own datagrams). Such a frame is
+        ignored by the reassembler like any other of that direction, but it means a second node on the bus
+        answers to this node id: both boards would take the host's commands, and the host would hear two
+        boards' telemetry interleaved as one board resetting again and again. Counted and logged, so that
+        the status of either node names the cause."""
+        if fields.is_extended_id:
             return False
         try:
-            cid = CanId.parse(msg.arbitration_id)
+            cid = CanId.parse(fields.arbitration_id)
         except ProtocolError:
             return False
         if cid.node != self.node or cid.direction is not self.sends:
             return False
-        key = (msg.arbitration_id, bytes(msg.data))
+        key = (fields.arbitration_id, fields.data)
         with self._echo_lock:
             try:
                 at = self._unechoed.index(key)
