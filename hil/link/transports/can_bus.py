@@ -143,7 +143,8 @@ class CanTransport(Transport):
         self.undecodable = 0  # messages the interface received but could not decode
         self.same_node = 0  # CAN frames as this end (its direction, its node id) that it did not send
         self._invalid_seen = 0  # the reassembler's ``invalid`` count when this end last looked
-        self._unechoed: deque[tuple[int, bytes]] = deque(maxlen=_ECHOES)  # sent, loopback not yet heard
+        self._unechoed: deque[tuple[int, bytes]] = deque()  # sent, loopback not yet heard (<= _ECHOES)
+        self._unechoed_count: dict[tuple[int, bytes], int] = {}  # how many of each the deque holds
         self._echo_lock = threading.Lock()  # the writer appends, the reader takes the loopback off
         self._bus: can.BusABC | None = None
         self._pending: LinkError | None = None  # a receive failure raised by the next read
@@ -209,6 +210,7 @@ class CanTransport(Transport):
         self._out.clear()
         with self._echo_lock:
             self._unechoed.clear()
+            self._unechoed_count.clear()
         self._pending = None  # a reopened bus starts afresh
         self._reassembler.reset()  # partial frames die with the connection (counted as cut)
         if bus is not None:
@@ -279,13 +281,35 @@ class CanTransport(Transport):
             return False
         key = (fields.arbitration_id, fields.data)
         with self._echo_lock:
-            try:
-                at = self._unechoed.index(key)
-            except ValueError:
+            if not self._unechoed_count.get(key):  # a dict look-up, not a scan of up to _ECHOES segments
                 return True
-            for _ in range(at + 1):  # our own, looped back; the ones sent before it will not come back now
-                self._unechoed.popleft()
+            # Our own, looped back: the oldest remembered copy of it. The ones sent before it will not
+            # come back now. Each remembered segment is taken off once, so this is constant per segment.
+            while True:
+                taken = self._forget_oldest_echo()
+                if taken == key:
+                    break
         return False
+
+    def _remember_echo(self, key: tuple[int, bytes]) -> None:
+        """Remember a segment about to be sent until its loopback comes back (the caller holds
+        ``_echo_lock``). The deque keeps their order, the count beside it answers "is this one of ours?"
+        without a scan: every frame in this end's own direction and node id asks, under the lock the writer
+        takes too, and a linear look-up over 4096 segments cost each such frame ~20x any other."""
+        if len(self._unechoed) >= _ECHOES:
+            self._forget_oldest_echo()  # the virtual interface never loops back: the oldest are forgotten
+        self._unechoed.append(key)
+        self._unechoed_count[key] = self._unechoed_count.get(key, 0) + 1
+
+    def _forget_oldest_echo(self) -> tuple[int, bytes]:
+        """Take the oldest remembered segment off the deque and its count (the caller holds the lock)."""
+        key = self._unechoed.popleft()
+        left = self._unechoed_count[key] - 1
+        if left:
+            self._unechoed_count[key] = left
+        else:
+            del self._unechoed_count[key]
+        return key
 
     def _log_drop(self, kind: str, what: str) -> None:
         """Log a counted drop at most once a second per kind, saying how many went unlogged since."""
@@ -316,7 +340,7 @@ class CanTransport(Transport):
                 is_extended_id=False,
             )
             with self._echo_lock:  # before the send: its loopback may be read before send returns
-                self._unechoed.append((seg.arbitration_id, seg.data))
+                self._remember_echo((seg.arbitration_id, seg.data))
             try:
                 bus.send(msg, timeout=self.send_timeout)
             except (can.CanError, OSError) as exc:
