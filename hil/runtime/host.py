@@ -52,7 +52,7 @@ from hil.runtime.control_step import ControlStep, Steered
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
 from hil.runtime.operator import OperatorCommand, OperatorLog
 from hil.runtime.phases import Phase, RunPhases
-from hil.runtime.phone_clock import MAX_GAP_S, Freshness, PhoneClock
+from hil.runtime.phone_clock import MAX_GAP_S, NEEDED, Freshness, PhoneClock
 from hil.runtime.phone_senders import SenderWatch
 from hil.runtime.rows import BoardReading, TickRecorder, TickSnapshot
 from hil.runtime.runlog import CsvLog, EventLog, RowTap
@@ -352,8 +352,12 @@ class Host:
 
     def _phone_fresh(self, t: float) -> bool:
         """Whether the phone's samples are fresh at ``t`` (:meth:`PhoneClock.freshness`); a gap is a
-        fault, and the warm-up (with its still window) follows it."""
-        freshness = self.phone.freshness(t, sum(self.merger.stats.accepted.values()))
+        fault, and the warm-up (with its still window) follows it. Fresh takes the gyroscope's and the
+        accelerometer's samples, each (the run's counts, over every merger: a fresh start makes a new one)."""
+        accepted = self.merger.stats.accepted
+        retired = self._retired_merges.accepted
+        by_kind = {label: accepted[label] + retired[label] for label in NEEDED}
+        freshness = self.phone.freshness(t, sum(accepted.values()), by_kind)
         if freshness is Freshness.GAP_BEGAN:
             self.phases.restart_warmup(t, "phone_gap", still=True)
         return freshness is Freshness.FRESH

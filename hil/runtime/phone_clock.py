@@ -9,6 +9,8 @@ from __future__ import annotations
 import enum
 import logging
 import math
+from collections import Counter
+from collections.abc import Mapping
 
 from hil.estimation.admission import PhoneGuard, Verdict
 from hil.estimation.sensors import MAX_PAUSE_S, SensorSample
@@ -19,11 +21,19 @@ logger = logging.getLogger(__name__)
 
 MAX_GAP_S = MAX_PAUSE_S  # s: a pause in the phone's stamps longer than this restarts the estimator
 DROP_NOTE_S = 0.1  # a reason's dropped readings make at most one journal record per this long (s)
+NEEDED = ("gyr", "acc")
+"""The sensors the host cannot steer without (``SensorKind.label``): the estimator propagates on the
+gyroscope and levels on the accelerometer; the magnetometer may go (heading is then unobserved)."""
+FROZEN_READINGS = 10
+"""A sensor's readings in a row that repeat its last stamp, none of it accepted since: not a phone's
+jitter (one repeat) but a clock that stopped while the phone streams on — recorded and logged as drops."""
+_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
 
 
 class Freshness(enum.Enum):
-    """The phone on one control tick: ``FRESH`` (a sample accepted within ``stale_after_s``, or none has
-    come yet), ``GAP_BEGAN`` (none for longer: a fault, noted this tick), ``STALE`` (the gap goes on)."""
+    """The phone on one control tick: ``FRESH`` (a gyroscope and an accelerometer sample accepted within
+    ``stale_after_s``, or none has come yet), ``GAP_BEGAN`` (not: a fault, noted this tick), ``STALE``
+    (the gap goes on)."""
 
     FRESH = "fresh"
     GAP_BEGAN = "gap_began"
@@ -42,6 +52,10 @@ class PhoneClock:
         self.count = 0  # accepted samples (the merger's count) seen at the last control tick
         self.heard: float | None = None  # host time (s) the count last moved
         self._drops: dict[str, tuple[float, int]] = {}  # reason -> (last noted at, dropped since)
+        self._kind_count: dict[str, int] = {}  # per needed sensor: its accepted count at the last tick
+        self._kind_heard: dict[str, float] = {}  # per needed sensor: host time (s) its count last moved
+        # per sensor: its readings refused since its last accepted one, by reason (why a gap is a gap)
+        self._refused: dict[str, Counter[str]] = {}
 
     def admit(self, sample: SensorSample, now: float | None) -> tuple[Verdict, float]:
         """The guard's verdict on ``sample`` (a dropped one noted: :meth:`_note_drop`), and how far its
@@ -49,8 +63,18 @@ class PhoneClock:
         :data:`MAX_GAP_S` is not integrated across). ``now``: the host's time (s), for the record."""
         newest = self.guard.newest
         verdict = self.guard.admit(sample, now)
+        label = sample.kind.label
         if verdict is Verdict.DROP:
-            self._note_drop(self.guard.last_reason, now)
+            reason = self.guard.last_reason
+            refused = self._refused.get(label)
+            if refused is None:
+                refused = self._refused[label] = Counter()
+            refused[reason or "?"] += 1
+            if reason == "duplicate" and refused["duplicate"] >= FROZEN_READINGS:
+                reason = "clock_stopped"  # not jitter: noted (a duplicate in the counts, as ever)
+            self._note_drop(reason, now)
+        elif label in self._refused:
+            del self._refused[label]
         return verdict, sample.t_s - newest
 
     def reanchored(self, verdict: Verdict, t_s: float, now: float | None) -> tuple[float, str]:
@@ -73,31 +97,93 @@ class PhoneClock:
         self.events.write(t, kind, **detail)
         return t, kind
 
-    def freshness(self, t: float, accepted: int) -> Freshness:
-        """Whether the phone's samples are fresh at ``t`` (s), given the merger's ``accepted`` count: a
-        count that moved is the phone heard (and the end of a gap, if one was open); a gap
-        (no sample for ``stale_after_s``) is a fault, noted when it begins."""
-        if accepted != self.count:
+    def freshness(self, t: float, accepted: int, by_kind: Mapping[str, int] | None = None) -> Freshness:
+        """Whether the phone's samples are fresh at ``t`` (s), given the merger's ``accepted`` count and
+        (``by_kind``) the run's accepted count per sensor: a count that moved is the phone heard (and the
+        end of a gap, if one was open). Fresh takes a gyroscope and an accelerometer sample within
+        ``stale_after_s`` (:data:`NEEDED`: a phone whose gyro readings are all refused is no phone to
+        steer by, though its magnetometer streams); a gap is a fault, noted when it begins, saying why
+        when readings came and were refused (:meth:`_why`)."""
+        moved = accepted != self.count
+        if moved:
             self.count = accepted
             self.heard = t
-            back = self.journal.phone_back(t)
-            if back is not None:
+        heard = self.heard
+        since = heard
+        if by_kind is not None and heard is not None:
+            for label in NEEDED:
+                n = by_kind.get(label, 0)
+                if n != self._kind_count.get(label, 0) or label not in self._kind_heard:
+                    self._kind_count[label] = n
+                    if n or label not in self._kind_heard:  # never heard: from when the phone first was
+                        self._kind_heard[label] = t
+                since = min(since, self._kind_heard[label])
+        out = self.journal.phone_out
+        if since is None or t - since <= self.stale_after_s:
+            if out is not None:
+                back = self.journal.phone_back(t)
+                assert back is not None
                 self.events.write(t, "phone_back", since=back.start, gap_s=t - back.start)
             return Freshness.FRESH
-        heard = self.heard
-        if heard is None or t - heard <= self.stale_after_s:
-            return Freshness.FRESH
-        if self.journal.phone_out is not None:
+        why, causes = self._why(t)
+        if out is not None:
+            for cause in causes:  # what the gap turned out to be, for the run's lost message
+                if cause not in out.causes:
+                    out.causes.append(cause)
             return Freshness.STALE
-        self.journal.fault(t, "phone_gap", since=heard)
-        self.events.write(t, "phone_gap", since=heard)
-        logger.warning("no phone sample for %.2f s at t=%.3f s: holding", t - heard, t)
+        self.journal.fault(t, "phone_gap", since=since, why=why)
+        self.journal.phone_out.causes.extend(causes)  # type: ignore[union-attr]
+        self.events.write(t, "phone_gap", since=since, why=why)
+        logger.warning("no usable phone sample for %.2f s at t=%.3f s: holding (%s)", t - since, t, why)
         return Freshness.GAP_BEGAN
+
+    def _why(self, t: float) -> tuple[str, list[str]]:
+        """Why the phone is not fresh at ``t``, for a user, and the causes to name in the record: for
+        each needed sensor not heard within ``stale_after_s``, nothing came, or what came was refused
+        and for what — a clock that stopped (its stamps repeated: ``phone_clock_stopped``), went back
+        (``phone_clock_back``), or readings refused for other reasons (``phone_readings_refused``)."""
+        heard = self.heard
+        silent: list[str] = []
+        by_cause: dict[str, list[str]] = {}  # cause -> "N gyroscope" parts
+        refused_why: list[str] = []
+        for label in NEEDED:
+            last = self._kind_heard.get(label, heard)
+            if last is not None and t - last <= self.stale_after_s:
+                continue
+            name = _NAMES[label]
+            refused = self._refused.get(label)
+            if not refused:
+                silent.append(name)
+                continue
+            total = sum(refused.values())
+            if refused["duplicate"] == total:
+                cause = "phone_clock_stopped"
+            elif refused["out_of_order"] + refused["past"] >= total / 2:
+                cause = "phone_clock_back"
+            else:
+                cause = "phone_readings_refused"
+                reasons = ", ".join(f"{r} {n}" for r, n in refused.most_common())
+                refused_why.append(f"{total} {name} readings came, every one refused ({reasons})")
+            by_cause.setdefault(cause, []).append(f"{total} {name}")
+        said = [f"no {' and no '.join(silent)} reading came"] if silent else []
+        if "phone_clock_stopped" in by_cause:
+            said.append(
+                f"the phone streams but its clock stopped: {' and '.join(by_cause['phone_clock_stopped'])} "
+                "readings repeated their sensor's last time stamp"
+            )
+        if "phone_clock_back" in by_cause:
+            said.append(
+                f"the phone's clock went back: {' and '.join(by_cause['phone_clock_back'])} readings "
+                "stamped before their sensor's last (dropped: out_of_order, past)"
+            )
+        said += refused_why
+        return ("; ".join(said) or "no reading came"), list(by_cause)
 
     def _note_drop(self, reason: str | None, now: float | None) -> None:
         """A dropped reading into the journal and ``events.jsonl``: the first of each reason, then one
         record per :data:`DROP_NOTE_S` with the count since (a flood makes a few records, not one each).
-        Duplicates are the merger's ordinary business (a phone's jitter), not a fault."""
+        A duplicate is a phone's jitter, not a fault: not noted — unless a sensor's stamps stopped
+        (:data:`FROZEN_READINGS` repeats, none accepted between), noted as ``clock_stopped``."""
         if reason is None or reason == "duplicate":
             return
         t = now if now is not None else (self.heard or 0.0)
@@ -106,8 +192,14 @@ class PhoneClock:
             self._drops[reason] = (first, count + 1)
             return
         self._drops[reason] = (t, 0)
-        total = self.guard.stats.dropped[reason]
+        frozen = reason == "clock_stopped"
+        total = self.guard.stats.dropped["duplicate" if frozen else reason]
         self.journal.note(t, "readings_dropped", reason=reason, since_last=count + 1, total=total)
         self.events.write(t, "readings_dropped", reason=reason, since_last=count + 1, total=total)
-        if count == 0:
+        if frozen and count == 0:
+            logger.warning(
+                "phone readings dropped at t=%.3f s: they repeat their sensor's last time stamp, %d in a "
+                "row: the phone streams but its clock stopped (counted as duplicate)", t, FROZEN_READINGS,
+            )  # fmt: skip
+        elif count == 0:
             logger.warning("phone reading dropped at t=%.3f s: %s (counted)", t, reason)

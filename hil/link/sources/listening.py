@@ -17,17 +17,17 @@ from __future__ import annotations
 
 import importlib
 import time
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import asdict
-from typing import TYPE_CHECKING, Any
+from typing import Any
 from urllib.parse import urlsplit
 
+from hil.estimation.admission import PhoneGuard, Verdict
+from hil.estimation.sensors import SensorSample
 from hil.link.sources.base import GroundTruth, PhoneSource, SenderStatus, SourceContext
-from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
+from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, PhoneSender, StreamStats
 from protocol.errors import ConfigError, LinkTimeout
-
-if TYPE_CHECKING:
-    from hil.estimation.sensors import SensorSample
 
 STREAMS: dict[str, tuple[str, str]] = {
     "udp": ("hil.link.sources.phone_udp:PhoneUdpReceiver", "hil.link.sources.phone_udp:PhoneUdpSender"),
@@ -77,8 +77,14 @@ class ListeningSource(PhoneSource):
     def __init__(self, receiver: PhoneReceiver) -> None:
         self.receiver = receiver
         self.url = receiver.url
+        # what the wait for the first samples took off the receiver to judge them: handed over first, in
+        # batches of MAX_BATCH, as the receiver would have
+        self._waited: deque[SensorSample] = deque()
 
     def drain(self, now: float) -> list[SensorSample]:
+        waited = self._waited
+        if waited:
+            return [waited.popleft() for _ in range(min(len(waited), MAX_BATCH))]
         return self.receiver.drain()
 
     def truth(self, now: float) -> GroundTruth | None:
@@ -88,22 +94,51 @@ class ListeningSource(PhoneSource):
         self.receiver.close()
 
     def wait_ready(self, wait_s: float, keep_alive: Callable[[], None]) -> None:
-        """The gyroscope's and the accelerometer's first samples within ``wait_s`` (wall clock): without
-        either the estimator cannot start. Else a :class:`LinkTimeout` saying what was heard (:func:`heard`)
-        and where to send what is missing."""
+        """The gyroscope's and the accelerometer's first *usable* samples within ``wait_s`` (wall clock):
+        without either the estimator cannot start. What arrives is judged by the host's admission policy
+        (a :class:`~hil.estimation.admission.PhoneGuard` of its own: a reading every one of whose values
+        is 1e160 parses, and is no reading) and kept for the run, which judges it again and counts it.
+        Else a :class:`LinkTimeout` saying what was heard (:func:`heard`: readings that came and were all
+        refused, with the reasons, are said so) and where to send what is missing."""
         receiver = self.receiver
+        guard = PhoneGuard()
+        admitted: Counter[str] = Counter()
+        refused: dict[str, Counter[str]] = {}
         end = time.monotonic() + wait_s
         while time.monotonic() < end:
             receiver.check()
             keep_alive()
-            if all(receiver.stats.per_kind.get(kind) for kind in NEEDED):
+            for _ in range(MAX_QUEUE // MAX_BATCH + 1):  # what came since the last look (bounded)
+                batch = receiver.drain()
+                if not batch:
+                    break
+                for sample in batch:
+                    label = sample.kind.label
+                    if guard.admit(sample) is Verdict.DROP:
+                        refused.setdefault(label, Counter())[guard.last_reason or "?"] += 1
+                    else:
+                        admitted[label] += 1
+                self._keep(batch)
+            if all(admitted[kind] for kind in NEEDED):
                 return
             time.sleep(POLL_S)
+        said = heard(receiver.stats, {k: c for k, c in refused.items() if not admitted[k]})
         raise LinkTimeout(
-            f"no phone stream on {self.url} within {wait_s:.0f} s: {heard(receiver.stats)}; start "
+            f"no phone stream on {self.url} within {wait_s:.0f} s: {said}; start "
             f"`firmware-sim --world SCENARIO --phone {self.url}` (it streams its simulated phone there) or "
             f"point {receiver.app} on a phone at it, its accelerometer and gyroscope on"
         )
+
+    def _keep(self, batch: list[SensorSample]) -> None:
+        """``batch`` held for the run; beyond :data:`MAX_QUEUE` held the oldest dropped and counted in the
+        receiver's ``overflow``, as the receiver itself does (the run wants the present)."""
+        waited = self._waited
+        waited.extend(batch)
+        excess = len(waited) - MAX_QUEUE
+        if excess > 0:
+            for _ in range(excess):
+                waited.popleft()
+            self.receiver.count_overflow(excess)
 
     def senders(self) -> SenderStatus:
         return self.receiver.senders()
@@ -116,11 +151,12 @@ NEEDED = ("gyr", "acc")
 """The sensors a run cannot start without (``StreamStats.per_kind``'s labels)."""
 
 
-def heard(stats: StreamStats) -> str:
+def heard(stats: StreamStats, refused: dict[str, Counter[str]] | None = None) -> str:
     """What a receiver heard, for a user whose phone stream did not start: nothing; or messages with no
     reading the host uses (another sensor: an uncalibrated one, a user acceleration without gravity),
     readings it could not use, requests for another path, other phones' messages dropped; or which of
-    :data:`NEEDED` never came."""
+    :data:`NEEDED` never came; ``refused``: per sensor with no reading admitted, the readings the
+    admission policy refused, by reason (they came, and none was usable)."""
     if not (stats.messages or stats.bad_messages or stats.not_found or stats.other_phone_messages):
         return "nothing was heard"
     said = []
@@ -130,6 +166,10 @@ def heard(stats: StreamStats) -> str:
         missing = [k for k in NEEDED if not stats.per_kind.get(k)]
         if missing:
             said.append(f"no {' and no '.join(_NAMES[k] for k in missing)} among them")
+    for label, reasons in (refused or {}).items():
+        total = sum(reasons.values())
+        why = ", ".join(f"{reason} {n}" for reason, n in reasons.most_common())
+        said.append(f"{total} {_NAMES.get(label, label)} readings arrived but every one was refused ({why})")
     if stats.ignored_entries:
         said.append(
             f"{stats.ignored_entries} readings of sensors the host does not use (it takes the calibrated "
