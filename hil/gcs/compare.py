@@ -33,7 +33,15 @@ class CompareSource:
         paths = [Path(d) for d in run_dirs]
         if len(paths) < 2:
             raise InputFormatError("comparing needs at least two run directories", "hil gcs")
-        resolved = [p.resolve() for p in paths]
+        for p in paths:
+            # Each checked as a replay checks its one directory, before resolve(), which raises
+            # RuntimeError for a symlink loop (Python 3.11), a traceback where the answer is this line.
+            if not p.is_dir():
+                raise InputFormatError("not a directory", str(p))
+        try:
+            resolved = [p.resolve() for p in paths]
+        except (OSError, RuntimeError) as exc:  # a loop or a removal between the check and here
+            raise InputFormatError(f"cannot resolve the path ({exc})", "hil gcs") from None
         if len(set(resolved)) != len(resolved):
             raise InputFormatError("a run directory is given twice", "hil gcs")
         self.sources = [RunDirSource(p, follow=follow) for p in paths]
