@@ -33,6 +33,23 @@ from protocol.errors import ConfigError, HilError, LinkError
 
 DEFAULT_UNITS = 4
 """VSCMG units of a board without ``--units`` or ``--world``."""
+MAX_SEED = 10**18
+"""The largest ``--seed``: the firmware harness's own bound (``firmware/harness/main.c``), so that one seed
+seeds the Python board's fault injector and the firmware's link noise alike."""
+
+
+def seed(text: str) -> int:
+    """``--seed``: an integer 0..:data:`MAX_SEED`. A negative one seeded the Python board as its absolute
+    value (``random.Random(-1)`` is ``Random(1)``: two seeds, one run) and the harness refused it; anything
+    else is argparse's error naming the option (status 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"must be an integer in 0..{MAX_SEED}, got {text[:40]!r}")
+    return value
+
 
 if TYPE_CHECKING:
     from .avr.harness import HarnessDied
@@ -170,7 +187,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--capacity", type=float, default=1000.0, metavar="MAH", help="battery capacity (default 1000)"
     )
     b.add_argument("--soc", type=float, default=1.0, metavar="F", help="initial state of charge 0..1")
-    b.add_argument("--seed", type=int, default=0, help="seed of the fault injector's random numbers")
+    b.add_argument(
+        "--seed",
+        type=seed,
+        default=0,
+        help=f"seed of the fault injector's random numbers (0..{MAX_SEED:.0e})",
+    )
     b.add_argument(
         "--esc-supply-switch",
         action="store_true",

@@ -75,7 +75,12 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     b.add_argument("--out-dir", type=Path, required=True, help="directory for the CSV files")
     b.add_argument("--units", type=int, default=4, help="number of units (4)")
     b.add_argument("--seed", type=int, default=1, help="random seed (1)")
-    b.add_argument("--mirrored", type=int, nargs="*", default=[3], help="units with mirrored gimbals (3)")
+    b.add_argument(
+        "--mirrored",
+        type=int,
+        nargs="*",
+        help="units with mirrored gimbals (default: unit 3, if there is one)",
+    )
     b.set_defaults(func=run_bench)
 
     s = actions.add_parser(
@@ -128,6 +133,7 @@ def run_fit(args: argparse.Namespace) -> int:
         gimbal_rate_knots_per_side=args.gimbal_rate_knots,
         gimbal_angle_knots=args.gimbal_angle_knots,
     )
+    plot_path = _plot_target(args.plot, default_plot_path(args.out, args.unit))  # before anything is written
     datasets = [read_bench_csv(path) for path in args.csv]
     for d in datasets:
         if d.partial is not None and not args.allow_partial:
@@ -184,8 +190,7 @@ def run_fit(args: argparse.Namespace) -> int:
         provenance[d.kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
     name = args.name or (base.name if base is not None and args.base != "default" else f"unit{args.unit}")
     written = save_calibration(existing.with_unit(UnitEntry(args.unit, name, cal, provenance)), args.out)
-    plot_path = args.plot or default_plot_path(args.out, args.unit)
-    plot_fits(fits, plot_path, title=f"{written.name}: unit {args.unit} ({name})")
+    plot_path = plot_fits(fits, plot_path, title=f"{written.name}: unit {args.unit} ({name})")
     for _, fit in fits:
         print(fit.report.summary())
     if kept:
@@ -194,14 +199,65 @@ def run_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plot_target(given: Path | None, default: Path) -> Path:
+    """The file ``hil calibrate fit``'s plot will be saved as — ``--plot`` (``given``) or ``default``,
+    beside the calibration file — checked before the calibration file is written (a plot refused after it
+    left the file changed and said the command failed): a name without a suffix gets ``.png`` (what
+    matplotlib saves it as, and so the path said), any other suffix must be an image format matplotlib
+    writes, a folder is refused, and the folder a given path goes in is made (the default's is the
+    calibration file's, which saving it makes or refuses). Anything else is a :class:`ConfigError`
+    naming ``--plot`` and the path."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from protocol.errors import ConfigError
+
+    path = given if given is not None else default
+    if not path.suffix:
+        path = path.with_name(f"{path.name}.png")
+    where = f"--plot {path}" if given is not None else str(path)
+    formats = FigureCanvasAgg.get_supported_filetypes()
+    if path.suffix[1:].lower() not in formats:
+        raise ConfigError(
+            f"cannot save the plot as {path.suffix!r}, not an image format; give one of "
+            f"{', '.join('.' + f for f in sorted(formats))}",
+            where,
+        )
+    if path.is_dir():
+        raise ConfigError("cannot save the plot: a folder, not an image file", where)
+    if given is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            why = exc.strerror or exc
+            raise ConfigError(f"cannot save the plot: cannot make its folder: {why}", where) from exc
+    return path
+
+
 # --------------------------------------------------------------------------- bench
+MAX_SEED = 2**63 - 1
+"""The largest ``hil calibrate bench --seed`` (``hil montecarlo --seed``'s bound)."""
+DEFAULT_MIRRORED = (3,)
+"""The units ``hil calibrate bench`` mirrors without ``--mirrored`` (those the bench has)."""
+
+
 def run_bench(args: argparse.Namespace) -> int:
     from hil.calibration.generate import generate_bench
     from protocol.errors import ConfigError
 
     if not 1 <= args.units <= 8:
         raise ConfigError(f"{args.units} is outside 1..8", "--units")
-    paths = generate_bench(args.out_dir, args.units, args.seed, tuple(args.mirrored))
+    if not 0 <= args.seed <= MAX_SEED:  # numpy's generators take no negative seed (a ValueError traceback)
+        raise ConfigError(f"must be an integer in 0..{MAX_SEED}, got {args.seed}", "--seed")
+    if args.mirrored is None:
+        mirrored = [unit for unit in DEFAULT_MIRRORED if unit < args.units]
+    else:
+        mirrored = args.mirrored
+    for unit in mirrored:  # a unit the bench does not have was ignored, unsaid
+        if not 0 <= unit < args.units:
+            raise ConfigError(
+                f"unit {unit} is not one of the bench's units 0..{args.units - 1}", "--mirrored"
+            )
+    paths = generate_bench(args.out_dir, args.units, args.seed, tuple(mirrored))
     print(f"wrote {len(paths)} bench CSVs to {args.out_dir} (seed {args.seed})")
     return 0
 
