@@ -136,17 +136,38 @@ def _content_coding(headers: Message, source: str) -> str | None:
     return codings[0]
 
 
+MAX_MEMBERS = 64
+"""gzip members (RFC 1952 §2.2: a gzip body is a series of members) undone in one body; more is a 400. A
+client compresses a body as one member, a few if it streams; 64 bounds the work a body of empty members
+asks for (18 bytes each: 4 MiB would be 230 000 decompressors)."""
+
+
 def _decompressed(body: bytes, coding: str, limit: int, source: str) -> bytes:
     """A gzip or deflate ``body`` undone, at most ``limit`` bytes of it (a small body that unpacks to
-    gigabytes is a 413, not the memory it asks for)."""
-    unpacker = zlib.decompressobj(wbits=_CONTENT_CODINGS[coding])
-    try:
-        data = unpacker.decompress(body, limit + 1)
-    except zlib.error as exc:
-        raise BodyError(400, f"not {coding} data ({exc})", source) from None
-    if len(data) > limit or unpacker.unconsumed_tail:
-        raise BodyError(413, f"a {coding} body that unpacks to more than {limit} bytes", source)
-    return data
+    gigabytes is a 413, not the memory it asks for). Every gzip member is undone (at most
+    :data:`MAX_MEMBERS`), each whole: a stream cut short (its CRC-32 and length trailer missing: zlib
+    checks them only at a member's end) or bytes after the last member that are not one are a 400 — a
+    body is taken whole or not at all (before: a second member was "not JSON", a member cut short or
+    followed by garbage was taken)."""
+    wbits = _CONTENT_CODINGS[coding]
+    out = bytearray()
+    rest = body
+    for _ in range(MAX_MEMBERS):
+        unpacker = zlib.decompressobj(wbits=wbits)
+        try:
+            out += unpacker.decompress(rest, limit + 1 - len(out))  # >= 1: 0 would mean no limit
+        except zlib.error as exc:
+            raise BodyError(400, f"not {coding} data ({exc})", source) from None
+        if len(out) > limit or unpacker.unconsumed_tail:
+            raise BodyError(413, f"a {coding} body that unpacks to more than {limit} bytes", source)
+        if not unpacker.eof:
+            raise BodyError(400, f"a {coding} body cut short (its stream does not end)", source)
+        rest = unpacker.unused_data
+        if not rest:
+            return bytes(out)
+        if coding == "deflate" or not rest.startswith(b"\x1f\x8b"):
+            raise BodyError(400, f"{len(rest)} bytes after the end of the {coding} data", source)
+    raise BodyError(400, f"a gzip body of more than {MAX_MEMBERS} members", source)
 
 
 def content_length(headers: Message, limit: int, source: str = "http") -> int | None:
