@@ -28,11 +28,13 @@ priority class, direction and node; segments of 7 or 63 bytes). :meth:`write` ta
 them at the 0x00 delimiters and sends each complete frame as its segments (a partial frame waits for the
 rest of its bytes); :meth:`read` hands up the wire frames the reassembler completed, so the deframer
 above sees exactly what a serial link would give it. Lost and incomplete frames, duplicates and foreign
-traffic are counted in :meth:`counters`, never delivered; so is, apart (``rx_same_node``, logged), a frame
-in this end's own direction and node id that this end did not send — another node configured with the
-same node id, which the reassembler ignores like the loopback of this end's own frames. A host sends
-towards the board (``Direction.TO_BOARD``) and accepts the board's direction only; the board's side
-(:mod:`firmware_sim.servers.can_server`) is the same class with ``sends=Direction.TO_HOST``.
+traffic are counted in :meth:`counters`, never delivered (lost frames — ``rx_malformed``,
+``rx_incomplete``, ``rx_spliced`` — also logged, each kind at most once a second); so is, apart
+(``rx_same_node``, logged), a frame in this end's own direction and node id that this end did not send —
+another node configured with the same node id, which the reassembler ignores like the loopback of this
+end's own frames. A host sends towards the board (``Direction.TO_BOARD``) and accepts the board's
+direction only; the board's side (:mod:`firmware_sim.servers.can_server`) is the same class with
+``sends=Direction.TO_HOST``.
 
 What the bus itself does wrong is told apart from the bus being gone. Gone — the interface down, the
 bus shut down, any other error of python-can's — is a :class:`LinkError` naming the URL (the board
@@ -143,6 +145,7 @@ class CanTransport(Transport):
         self.undecodable = 0  # messages the interface received but could not decode
         self.same_node = 0  # CAN frames as this end (its direction, its node id) that it did not send
         self._invalid_seen = 0  # the reassembler's ``invalid`` count when this end last looked
+        self._losses_seen = (0, 0, 0)  # its malformed, incomplete and spliced counts when last logged
         self._unechoed: deque[tuple[int, bytes]] = deque()  # sent, loopback not yet heard (<= _ECHOES)
         self._unechoed_count: dict[tuple[int, bytes], int] = {}  # how many of each the deque holds
         self._echo_lock = threading.Lock()  # the writer appends, the reader takes the loopback off
@@ -262,7 +265,38 @@ class CanTransport(Transport):
                 f"a CAN frame as this end (node {self.node}, towards the {peer}) that it did not send: "
                 f"another node uses node id {self.node} — two {twins} on one node?",
             )
-        return reassembler.feed(*fields)
+        stats = reassembler.stats
+        out = reassembler.feed(*fields)
+        if (stats.malformed, stats.incomplete, stats.spliced) != self._losses_seen:
+            self._log_losses()
+        return out
+
+    def _log_losses(self) -> None:
+        """Log the reassembler's lost frames since it was last looked at, each kind at most once a second:
+        segments that cannot be one (``rx_malformed``), partial frames given up (``rx_incomplete``) and
+        frames joined across a transfer-id wrap (``rx_spliced``). Counted only, a bus that loses frames (a
+        second sender on the board's ids, a noisy cable) said nothing in either end's log."""
+        stats = self._reassembler.stats
+        seen = self._losses_seen
+        self._losses_seen = (stats.malformed, stats.incomplete, stats.spliced)
+        for kind, what, before, now in (
+            ("malformed", "CAN frame(s) that cannot be a segment (rx_malformed)", seen[0], stats.malformed),
+            (
+                "incomplete",
+                "partial frame(s) given up: a segment lost or conflicting, or the sender moved on "
+                "(rx_incomplete)",
+                seen[1],
+                stats.incomplete,
+            ),
+            (
+                "spliced",
+                "frame(s) joined from two across a transfer-id wrap, failing the CRC (rx_spliced)",
+                seen[2],
+                stats.spliced,
+            ),
+        ):
+            if now > before:
+                self._log_drop(kind, f"{now - before} {what}", now - before)
 
     def _impersonated(self, fields: Received) -> bool:
         """A data frame (checked: :meth:`CanReassembler.admit`) in this end's own direction and node id but
@@ -311,12 +345,13 @@ class CanTransport(Transport):
             del self._unechoed_count[key]
         return key
 
-    def _log_drop(self, kind: str, what: str) -> None:
-        """Log a counted drop at most once a second per kind, saying how many went unlogged since."""
+    def _log_drop(self, kind: str, what: str, count: int = 1) -> None:
+        """Log a counted drop (``count`` of them) at most once a second per kind, saying how many went
+        unlogged since."""
         now = time.monotonic()
         last = self._logged_at.get(kind)
         if last is not None and now - last < _LOG_EVERY_S:
-            self._unlogged[kind] = self._unlogged.get(kind, 0) + 1
+            self._unlogged[kind] = self._unlogged.get(kind, 0) + count
             return
         self._logged_at[kind] = now
         more = self._unlogged.pop(kind, 0)
