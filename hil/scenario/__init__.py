@@ -54,7 +54,7 @@ warmup_s = 2.0                 # hold still first: the estimator converges, the 
 
 [board]                        # firmware-sim's options, as on its command line
 frame_rate = 50.0
-telemetry_rate = 50.0
+telemetry_rate = 50.0          # ≥ 8 Hz: two frames per 0.25 s, the age the host sees the board stale at
 link_timeout = 0.25
 
 [faults]                       # firmware-sim's fault options, times from the board's start

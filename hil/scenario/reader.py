@@ -92,6 +92,15 @@ agrees (tests/test_scenario_checks.py)."""
 DEFAULT_LINK_TIMEOUT_S = 0.25
 """The board's link watchdog (s) when a scenario's ``[board]`` does not set ``link_timeout``
 (``firmware_sim.board.config.BoardConfig``'s default; tests/test_scenario_checks.py holds them equal)."""
+HOST_STALE_AFTER_S = 0.25
+"""s: the host sees the board's telemetry as stale once it is this old (``hil.runtime.faults.STALE_AFTER_S``,
+below this layer; tests/test_config_beside_telemetry_rate.py holds them equal)."""
+MIN_TELEMETRY_RATE_HZ = 2.0 / HOST_STALE_AFTER_S
+"""The slowest ``[board] telemetry_rate`` a scenario may set: two frames per :data:`HOST_STALE_AFTER_S`, so
+that one frame late or lost still leaves the host a live board. Slower (firmware-sim takes 0.1 Hz), every
+frame is stale before the next comes and the host loses the board it is driving."""
+DEFAULT_TELEMETRY_RATE_HZ = 20.0
+"""The board's telemetry rate when a scenario's ``[board]`` does not set it (firmware-sim's default)."""
 MAX_DURATION_S = 86_400.0
 """The longest run a scenario may ask for, warm-up included (a day of simulated time)."""
 MAX_PLANT_STEPS = 100_000_000
@@ -276,6 +285,14 @@ class _Reader:
                 f"{loop.control_rate_hz:g} Hz sends the board a command every {period:g} s, not within its "
                 f"link timeout of {link_timeout:g} s (board.link_timeout): the board would fail safe between "
                 "commands; raise the rate or the timeout",
+            )
+        telemetry_rate = float(board.get("telemetry_rate", DEFAULT_TELEMETRY_RATE_HZ))
+        if telemetry_rate < MIN_TELEMETRY_RATE_HZ:
+            raise self.error(
+                "board.telemetry_rate",
+                f"{telemetry_rate:g} Hz is a frame every {1.0 / telemetry_rate:g} s, but the host sees the "
+                f"board stale once its telemetry is {HOST_STALE_AFTER_S:g} s old and needs two frames within "
+                f"that to keep it live: at least {MIN_TELEMETRY_RATE_HZ:g} Hz",
             )
         return Scenario(
             name=name,
