@@ -124,9 +124,10 @@ def parse_calibration(text: str, source: str = "<calibration>") -> CalibrationSe
     _keys(doc, {"format", "version", "unit"}, {"format", "version", "unit"}, top)
     if doc["format"] != FORMAT:
         raise CalibrationError(f"{doc['format']!r} is not {FORMAT!r}", f"{top}format")
-    if doc["version"] != VERSION:
+    version = doc["version"]
+    if isinstance(version, bool) or not isinstance(version, int) or version != VERSION:  # true == 1.0 == 1
         raise CalibrationError(
-            f"version {doc['version']!r} is not supported (this reader knows {VERSION})", f"{top}version"
+            f"version {version!r} is not supported (this reader knows the integer {VERSION})", f"{top}version"
         )
     units = doc["unit"]
     if not isinstance(units, list) or not units or not all(isinstance(u, dict) for u in units):
