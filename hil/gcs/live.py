@@ -8,13 +8,17 @@ the phone receiver's counts of other phones) read from the host, which costs a f
 statistics are taken every :data:`LINK_PERIOD_S` of run time. Commands from the page are carried out in
 :meth:`LiveFeed.tick` (:class:`hil.gcs.uplink.Uplink`).
 
-On the pump's side: :meth:`LiveFeed.poll` empties the queue into one :class:`~hil.gcs.wire.Batch`.
+On the pump's side: :meth:`LiveFeed.poll` empties the queue into one :class:`~hil.gcs.wire.Batch`. Each
+``status`` it sends carries the run's progress (``ticks``, ``tick_t``: counted in :meth:`LiveFeed.tick`),
+from which the page judges whether the host is alive — not from the message, which a counter of the
+server's (a refused request) also sends while the run's control thread is hung.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -31,6 +35,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 CAPACITY = 8192  # items (rows, events, link snapshots) between two pump cycles; beyond: dropped, counted
+HEARTBEAT_S = 0.25  # a run that ticks but sends nothing else says so this often (a status with its ticks)
 LINK_PERIOD_S = 0.2  # link statistics every this much run time
 RATE_WINDOW_S = 1.0  # phone sample rates over this window
 
@@ -90,6 +95,10 @@ class LiveFeed:
         self._status: dict[str, Any] = {"state": "waiting"}
         self._status_changed = True
         self._counters: dict[str, int] = {}
+        self._ticks = 0  # control ticks so far, and the run time of the last: the run's own progress
+        self._tick_t: float | None = None
+        self._ticks_sent = 0
+        self._beat_at = -float("inf")  # when (monotonic) a status last told the ticks
         self.started_at: RunStart | None = None
 
     # ------------------------------------------------------------------ the control path
@@ -130,6 +139,8 @@ class LiveFeed:
         host = self._host
         if host is None:
             return
+        self._ticks += 1
+        self._tick_t = t
         if self.uplink is not None:
             self.uplink.service(host, t)
         if t >= self._next_link:
@@ -190,7 +201,16 @@ class LiveFeed:
             "feed_dropped_events": self.stats.dropped_events,
             "uplink_rejected": 0 if self.uplink is None else self.uplink.stats.rejected,
         }
-        if batch.status is not None or counters != self._counters:
+        ticks, now = self._ticks, time.monotonic()
+        quiet = not (batch.rows or batch.events or batch.link)
+        beat = ticks != self._ticks_sent and quiet and now - self._beat_at >= HEARTBEAT_S
+        if batch.status is not None or counters != self._counters or beat:
             self._counters = counters
-            batch.status = {**(batch.status or self._status), **counters}
+            # Every status says how far the run has got (``ticks``, ``tick_t``), and the page counts a
+            # status as the run's progress only if ``ticks`` moved: a status sent because a counter of the
+            # server's changed (a refused request: ``uplink_rejected``) says nothing of the run, whose
+            # control thread may be hung, and must not keep a frozen page "receiving".
+            progress = {"ticks": ticks, "tick_t": self._tick_t}
+            batch.status = {**(batch.status or self._status), **counters, **progress}
+            self._ticks_sent, self._beat_at = ticks, now
         return batch

@@ -12,7 +12,12 @@ import { Alarms, AlarmPanel } from "./alarms.js";
 import { drawHistory, exportHistory } from "./commands.js";
 
 const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
-const FEED_STALE_S = 1.0;  // no message for this long: the live feed is stale
+const FEED_STALE_S = 1.0;  // nothing of the run's progress for this long: the live feed is stale
+// What counts as the run's progress, and so as its host being alive: what the run itself makes — its rows,
+// events and link figures (and its description) — and a status whose state changed or whose `ticks` (the
+// run's control ticks, hil/gcs/live.py) moved. Not any message: a status also goes out when a counter of
+// the server's changes (a refused request), which it does while the run's control thread is hung.
+const PROGRESS = new Set(["info", "rows", "events", "link"]);
 
 const token = new URLSearchParams(location.search).get("token") || "";
 const view = new View3D($("view3d"));
@@ -22,7 +27,7 @@ const alarmPanel = new AlarmPanel(token, () => invalidate());
 
 const state = {
   info: null, store: null, plots: null, alarms: null, overlays: [], status: {}, follow: true, cursor: NaN, playing: false,
-  dirty: false, lastMessage: performance.now(), ended: false, connected: false,
+  dirty: false, lastMessage: performance.now(), lastProgress: performance.now(), ended: false, connected: false,
 };
 const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [] };
 window.gcs = { state, stats };
@@ -35,8 +40,11 @@ function connect() {
   }
   const es = new EventSource(`/api/stream?token=${encodeURIComponent(token)}`);
   const on = (name, fn) => es.addEventListener(name, (m) => {
-    stats.messages += 1; stats.bytes += m.data.length; state.lastMessage = performance.now();
-    fn(JSON.parse(m.data));
+    stats.messages += 1; stats.bytes += m.data.length;
+    const data = JSON.parse(m.data);
+    state.lastMessage = performance.now();
+    if (isProgress(name, data, state.status)) state.lastProgress = state.lastMessage;
+    fn(data);
   });
   es.onopen = () => { state.connected = true; };
   es.onerror = () => { state.connected = false; if (state.ended) es.close(); };
@@ -59,6 +67,15 @@ function connect() {
     showFeed();
   });
   es.addEventListener("bye", () => { state.ended = true; es.close(); showStatus(); showFeed(); });
+}
+
+// Whether a downlink message is the run's own progress (PROGRESS, above); `status` is the one before it.
+function isProgress(name, data, status) {
+  if (PROGRESS.has(name)) return true;
+  if (name !== "status") return false;
+  const changed = data.state !== undefined && data.state !== status.state;
+  const ticked = data.ticks !== undefined && data.ticks !== status.ticks;
+  return changed || ticked;
 }
 
 function buildPlots() {
@@ -157,13 +174,20 @@ document.addEventListener("keydown", (ev) => {
   KEY_ACTIONS[key](ev);
 });
 
+// The feed's state, from the run's progress (isProgress), not from any message: a hung run whose server
+// still answers (statuses counting refused requests) is "stale: host not ticking", its values stale.
 function feedState() {
-  const age = (performance.now() - state.lastMessage) / 1e3;
+  const now = performance.now();
+  const age = (now - state.lastProgress) / 1e3;  // since the run last made progress
+  const heard = (now - state.lastMessage) / 1e3;  // since the server last said anything
   const live = state.info && state.info.mode === "live";
   const following = state.status.state === "following";
   if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return { text: state.status.state === "finished" ? "finished" : "ended", cls: "ended", age: 0 };
-  if ((live || following) && age > FEED_STALE_S) return { text: `stale: nothing for ${age.toFixed(1)} s`, cls: "stale", age };
-  if (!state.connected) return { text: `reconnecting: nothing for ${age.toFixed(1)} s`, cls: "bad", age };
+  if ((live || following) && age > FEED_STALE_S) {
+    const what = heard > FEED_STALE_S ? "nothing" : live ? "host not ticking" : "run not growing";
+    return { text: `stale: ${what} for ${age.toFixed(1)} s`, cls: "stale", age };
+  }
+  if (!state.connected) return { text: `reconnecting: nothing for ${heard.toFixed(1)} s`, cls: "bad", age };
   return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
 }
 
