@@ -176,6 +176,9 @@ def parse_faults(table: Any, where: str, distribution: Any) -> FaultSpec:
                 _check_range(params[key], rng, f"{at}.{key}")
                 if key == "duration_s" and not getattr(params[key], "value", 1.0) > 0:
                     raise ConfigError("must be positive (a fault of no time is none)", f"{at}.{key}")
+                if key == "offset_s" and 0.0 in _fixed_values(params[key]):
+                    why = "a clock jump of 0 s is none: firmware-sim --phone-jump refuses it"
+                    raise ConfigError(f"must be non-zero ({why})", f"{at}.{key}")
         kinds.append(KindSpec(kind, count, per_minute, params))
     order = {k: i for i, k in enumerate(FAULT_KINDS)}
     return FaultSpec(tuple(sorted(kinds, key=lambda s: order[s.kind])))
@@ -190,6 +193,15 @@ def _strings(kind: str, key: str, value: Any, where: str) -> tuple[str, ...]:
     if bad:
         raise ConfigError(f"{bad[0]!r} is not one of {', '.join(allowed)}", where)
     return tuple(values)
+
+
+def _fixed_values(dist: Any) -> list[float]:
+    """The values a distribution gives as they are written: a fixed value, a choice's values, the mean of a
+    normal of sigma 0 (a draw of a continuous one is never exactly one value)."""
+    fixed = getattr(dist, "value", None)
+    if fixed is None and getattr(dist, "sigma", None) == 0.0:  # a normal of no spread: its mean
+        fixed = getattr(dist, "mean", None)
+    return [float(v) for v in ([fixed] if fixed is not None else list(getattr(dist, "values", ()) or ()))]
 
 
 def _check_range(dist: Any, bounds: tuple[float, float], where: str) -> None:
@@ -280,8 +292,8 @@ def _one(ks: KindSpec, t: float, rng: np.random.Generator, scenario: Scenario) -
         if key in params:
             low = MIN_DURATION_S if key == "duration_s" else 0.0
             params[key] = min(max(params[key], low), MAX_DURATION_S if key == "duration_s" else 600.0)
-    if ks.kind == "phone_jump" and params["offset_s"] == 0.0:
-        params["offset_s"] = 1e-3
+    if ks.kind == "phone_jump" and params["offset_s"] == 0.0:  # a continuous draw of exactly 0 (a fixed
+        params["offset_s"] = 1e-3  # 0 or a choice of one is refused as the file is read): the smallest jump
     arm_after = params.pop("arm_after_s", None)
     fault = InjectedFault(ks.kind, t, params)
     if ks.kind == "disarm" and arm_after is not None:

@@ -104,7 +104,7 @@ def parse_jump(spec: str, option: str = "--phone-jump") -> tuple[float, float]:
 
 
 def parse_spoof(spec: str) -> tuple[float, str]:
-    """``AT:KIND`` → (at, kind) (the kind is the world's to check)."""
+    """``AT:KIND`` → (at 0..a day, kind) (the kind is the world's to check)."""
     at, sep, kind = spec.strip().partition(":")
     try:
         t = float(at)
@@ -112,7 +112,7 @@ def parse_spoof(spec: str) -> tuple[float, str]:
         t = math.nan
     if not sep or not math.isfinite(t):
         raise ConfigError(f"{spec!r} is not AT:KIND (e.g. 12.5:huge)", "--phone-spoof")
-    return t, kind
+    return _time(t, "--phone-spoof"), kind  # within a day, as every fault's time (1e300 never fired)
 
 
 def parse_dead_esc(spec: str, option: str = "--dead-esc") -> tuple[int, float | None]:
