@@ -23,6 +23,7 @@ import sys
 import threading
 from pathlib import Path
 
+import pytest
 from gcs_support import wait_for
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -294,3 +295,20 @@ def test_an_events_log_that_becomes_a_fifo_while_followed_is_an_error_not_a_hang
     thread.join(5.0)
     assert not thread.is_alive(), "the poll waits on the FIFO"
     assert "not a regular file" in str(outcome[0])
+
+
+@pytest.mark.parametrize("name", ["summary.json", "scenario.toml"])
+def test_a_fifo_for_the_summary_or_the_scenario_is_not_waited_on(tmp_path, name):
+    """A summary.json or scenario.toml that is a FIFO hung ``hil gcs`` in the pump's first read, before it
+    printed its URL (their reader takes a FIFO: a user's ``<(…)``): a run directory holds files only. The
+    summary stands as unreadable, the scenario as not drawn, each saying why."""
+    d = write_run(tmp_path / "run", 5, marker=1)
+    os.mkfifo(d / name)
+    source = RunDirSource(d)
+    batches: list[Batch] = []
+    thread = threading.Thread(target=lambda: batches.extend(drain(source)), daemon=True)
+    thread.start()
+    thread.join(10.0)
+    assert not thread.is_alive(), f"the poll waits on the FIFO {name}"
+    said = json.dumps([b.info for b in batches if b.info] + [b.status for b in batches if b.status])
+    assert "not a regular file" in said, said

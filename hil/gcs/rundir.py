@@ -35,10 +35,10 @@ import stat
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from hil.files.bounded import MAX_LINE_BYTES, LineSplitter, load_json, read_document
+from hil.files.bounded import MAX_LINE_BYTES, LineSplitter, load_json, read_document, regular_file_if_there
 from hil.gcs import info as run_info
 from hil.gcs.wire import Batch
-from hil.runtime.runlog import EVENTS, SUMMARY, TELEMETRY, TelemetryRows, telemetry_header
+from hil.runtime.runlog import EVENTS, RUN_FILES_ONLY, SUMMARY, TELEMETRY, TelemetryRows, telemetry_header
 from hil.scenario import load_scenario
 from protocol.errors import HilError, InputFormatError
 
@@ -170,6 +170,9 @@ class RunDirSource:
         path = self.run_dir / "scenario.toml"
         if path.exists():
             try:
+                regular_file_if_there(
+                    path, InputFormatError, "scenario", RUN_FILES_ONLY
+                )  # a FIFO's open waits
                 scenario = load_scenario(path)
             except HilError as exc:
                 note = f"scenario.toml unreadable ({exc}): no units or limits drawn"
@@ -206,6 +209,7 @@ class RunDirSource:
         if not path.exists():
             return None
         try:
+            regular_file_if_there(path, InputFormatError, "summary", RUN_FILES_ONLY)  # a FIFO's open waits
             value = load_json(read_document(path, InputFormatError, "summary"), str(path))
         except InputFormatError as exc:  # written atomically: a bad one is a damaged file
             logger.warning("%s", exc)
