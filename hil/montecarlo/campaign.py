@@ -23,7 +23,6 @@ whether Dask retried them) and counted in the report and summary.json. A chunk t
 from __future__ import annotations
 
 import itertools
-import json
 import logging
 import math
 import os
@@ -41,11 +40,12 @@ from typing import Any
 
 from hil import version
 from hil.cores import available_cores
+from hil.files.bounded import load_json, read_document, regular_file_if_there
 from hil.runtime.held_signals import STOP_SIGNALS
 from hil.runtime.held_signals import deferred as deferred_signals
 from hil.runtime.runlog import SUMMARY, write_summary
 from hil.scenario import Scenario
-from protocol.errors import ConfigError, LinkError
+from protocol.errors import ConfigError, InputFormatError, LinkError
 
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
@@ -574,9 +574,19 @@ def summarise_dir(
 
 
 def _previous_workers_lost(path: Path) -> int:
-    """``workers_lost`` of an existing summary.json; 0 if there is none or it does not say."""
+    """``workers_lost`` of an existing summary.json; 0 if there is none, it does not say, or it is damaged
+    (a count that is no non-negative integer, not JSON, larger or nested deeper than any document hil
+    reads). Read through the bounded readers: ``[`` x 200000 was a RecursionError's traceback from
+    ``hil report``. Its kind is checked before it is opened: a FIFO there (whose open waits for a writer)
+    hung ``hil report`` for ever, and is refused as runs.csv's would be (a ConfigError naming it)."""
+    regular_file_if_there(
+        path, ConfigError, hint=" (a directory, a FIFO or a device): hil writes summary.json there; remove it"
+    )
     try:
-        value = json.loads(path.read_text()).get("workers_lost", 0)
-    except (OSError, ValueError, AttributeError):
+        doc = load_json(read_document(path, InputFormatError, SUMMARY), str(path))
+    except InputFormatError as exc:
+        if path.exists():
+            logger.warning("%s: %s; its workers_lost taken as 0", path, exc.detail)
         return 0
-    return value if isinstance(value, int) else 0
+    value = doc.get("workers_lost", 0) if isinstance(doc, dict) else 0
+    return value if isinstance(value, int) and not isinstance(value, bool) and value >= 0 else 0

@@ -104,6 +104,8 @@ def fault_figures(results: Results) -> dict[str, Any]:
         counts = results.values.get(f"inv.{name}", np.zeros(len(results)))
         violations[name] = int(np.nansum(counts))
         broken[name] = [int(i) for i in results.index[np.nan_to_num(counts) > 0][:10]]
+    detection, dropped_detection = _by_kind(_cells(results, "detection.list"))
+    recovery, dropped_recovery = _by_kind(_cells(results, "recovery.list"))
     first = results.text.get("inv.first", np.array([], dtype=str))
     examples = {int(results.index[k]): str(first[k]) for k in range(len(first)) if first[k]}
     return {
@@ -113,19 +115,28 @@ def fault_figures(results: Results) -> dict[str, Any]:
         "runs_with_violations": len(examples),
         "violating_runs": {name: runs for name, runs in broken.items() if runs},
         "first_violations": dict(list(examples.items())[:10]),
-        "detection_s": _by_kind(results.text.get("detection.list")),
-        "recovery_s": _by_kind(results.text.get("recovery.list")),
+        "detection_s": detection,
+        "recovery_s": recovery,
+        "dropped_times": dropped_detection + dropped_recovery,
     }
 
 
-def _by_kind(cells: Any) -> dict[str, dict[str, float | int]]:
-    """``kind:seconds;...`` cells → p50 / p99 / max / n per kind and ``all``."""
+def _by_kind(cells: Any) -> tuple[dict[str, dict[str, float | int]], int]:
+    """``kind:seconds;...`` cells → p50 / p99 / max / n per kind and ``all``, and how many cells were
+    dropped: a cell that is not what a run writes (an item without a kind or a colon, seconds that are not
+    a finite number >= 0 — ``stall:abc``, ``stall:``) is dropped whole and counted, as read_runs drops a
+    row with a metric that is no number; one was a ValueError's traceback from ``hil report``, every
+    figure of the campaign lost with it."""
     values: dict[str, list[float]] = {}
+    dropped = 0
     for cell in [] if cells is None else cells:
-        for item in filter(None, str(cell).split(";")):
-            kind, _, seconds = item.rpartition(":")
-            values.setdefault(kind, []).append(float(seconds))
-            values.setdefault("all", []).append(float(seconds))
+        times = _times(str(cell))
+        if times is None:
+            dropped += 1
+            continue
+        for kind, seconds in times:
+            values.setdefault(kind, []).append(seconds)
+            values.setdefault("all", []).append(seconds)
     out = {}
     for kind, v in sorted(values.items()):
         a = np.asarray(v)
@@ -135,7 +146,32 @@ def _by_kind(cells: Any) -> dict[str, dict[str, float | int]]:
             "max": float(a.max()),
             "n": int(a.size),
         }
-    return out
+    return out, dropped
+
+
+def _cells(results: Results, column: str) -> Any:
+    """A ``kind:seconds;...`` column's cells. One whose every cell reads as a number (``1.5``, or empty)
+    was taken for a numeric column by read_runs: its cells are none of them times (the empty ones are
+    runs without any), and are dropped and counted as such, not passed over unsaid."""
+    if column in results.text:
+        return results.text[column]
+    numbers = results.values.get(column)
+    return None if numbers is None else [repr(float(x)) for x in numbers if not math.isnan(x)]
+
+
+def _times(cell: str) -> list[tuple[str, float]] | None:
+    """The ``(kind, seconds)`` of one ``kind:seconds;...`` cell, or None when any item is not one."""
+    times = []
+    for item in filter(None, cell.split(";")):
+        kind, colon, text = item.rpartition(":")
+        try:
+            seconds = float(text)
+        except ValueError:
+            return None
+        if not colon or not kind or kind == "all" or not math.isfinite(seconds) or seconds < 0:
+            return None
+        times.append((kind, seconds))
+    return times
 
 
 def _rate(passed: int, n: int) -> dict[str, Any]:
@@ -202,6 +238,8 @@ def format_table(summary: dict[str, Any]) -> str:
                     f"{name.split('_')[0]:<17}p50 {every['p50']:.3f} s  p99 {every['p99']:.3f} s  "
                     f"max {every['max']:.3f} s  ({every['n']})"
                 )
+        if summary.get("dropped_times"):
+            lines.append(f"unreadable       {summary['dropped_times']} detection/recovery cells (dropped)")
     if summary["failures"]:
         lines += ["", f"failed runs ({len(summary['failures'])}):"]
         lines += [f"  run {f['index']}: {f['error']}" for f in summary["failures"][:10]]
