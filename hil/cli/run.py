@@ -98,7 +98,6 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     timing.add_argument("--lockstep", action="store_true", help="simulated time (default without --port)")
     p.add_argument(
         "--phone",
-        default="udp://127.0.0.1:8123",
         metavar="URL",
         help="with --port: listen for the phone here (udp://HOST:PORT: SensaGram, the default "
         "udp://127.0.0.1:8123; http://HOST:PORT/: Sensor Logger; docs/formats.md), or another registered "
@@ -107,9 +106,8 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p.add_argument(
         "--phone-wait",
         type=seconds,
-        default=10.0,
         metavar="S",
-        help="with --port: wait S s for the phone's first samples (default %(default)g s)",
+        help="with --port: wait S s for the phone's first samples (default 10 s)",
     )
     p.add_argument(
         "--recover-within",
@@ -197,19 +195,29 @@ def run(args: argparse.Namespace) -> int:
                 '(e.g. "spawn://firmware-sim?board=firmware&world=cubesat-1u")',
                 "--board",
             )
+        for given, option in ((args.phone, "--phone"), (args.phone_wait, "--phone-wait")):
+            if given is not None and args.port is None:  # it was taken for the live phone, then ignored
+                raise ConfigError(
+                    "with --port only: without one the built-in emulator simulates the phone (a live phone "
+                    "beside the built-in emulator: --port emu:// --phone URL)",
+                    option,
+                )
         scenario = scenario.with_changes(estimator=estimator).with_board(args.board)
         lockstep = True if args.lockstep else (False if args.realtime else None)
         lockstep_run = lockstep if lockstep is not None else args.port is None
         pace = (
             args.pace if args.pace is not None else (1.0 if args.gcs is not None and lockstep_run else None)
         )
+        live_phone = {
+            "phone": args.phone,
+            "phone_wait_s": args.phone_wait,
+        }  # RunOptions' defaults if not given
         opts = RunOptions(
+            **{name: value for name, value in live_phone.items() if value is not None},
             port=args.port,
             lockstep=lockstep,
             duration_s=args.duration,
             out_root=args.out,
-            phone=args.phone,
-            phone_wait_s=args.phone_wait,
             progress=LiveProgress(),
             pace=pace or None,
             recover_within_s=args.recover_within,

@@ -82,7 +82,10 @@ def create_source(address: str, context: SourceContext, where: str = "--phone") 
     a factory that cannot be imported, is a :class:`ConfigError` naming ``where`` (and the known schemes);
     a source that cannot open (a busy port) raises its own error."""
     url = source_url(address)
-    scheme = urlsplit(url).scheme.lower()
+    try:
+        scheme = urlsplit(url).scheme.lower()
+    except ValueError as exc:  # urllib's own refusal of the address (an unbalanced '[')
+        raise ConfigError(f"{address!r}: not a URL ({exc})", where) from exc
     target = _REGISTRY.target(scheme)
     if target is None:
         why = f"unknown phone source scheme {scheme!r} (known: {', '.join(schemes())})"
