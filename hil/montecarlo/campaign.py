@@ -371,15 +371,20 @@ def run_campaign(
     (default: a warning on this module's logger). For its duration the client is subscribed to the
     scheduler's ``all`` event topic (where workers' comings and goings are announced; a handler already
     there is replaced) and to :data:`RESULTS_TOPIC`. KeyboardInterrupt cancels the pending work and
-    propagates; every run finished by then is on disk."""
+    propagates; every run finished by then is on disk, and a summary.json an earlier session wrote is
+    summarised again over them, marked interrupted (:func:`_summary_after_interrupt`)."""
     out = Path(out_dir)
     start = time.perf_counter()
     workers = max(1, sum(client.nthreads().values()))
-    with ResultStore(out, campaign.manifest()) as store:
-        skipped = sum(1 for i in store.finished if 0 <= i < campaign.runs)
-        todo = (i for i in range(campaign.runs) if i not in store.finished)
-        driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
-        driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
+    try:
+        with ResultStore(out, campaign.manifest()) as store:
+            skipped = sum(1 for i in store.finished if 0 <= i < campaign.runs)
+            todo = (i for i in range(campaign.runs) if i not in store.finished)
+            driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
+            driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
+    except KeyboardInterrupt:
+        _summary_after_interrupt(out, campaign)
+        raise
     report = CampaignReport(
         out,
         campaign.runs,
@@ -571,6 +576,26 @@ def summarise_dir(
     # traceback after every run had finished: an error naming the file (status 2), the runs on disk
     checked_write(Path(out_dir) / SUMMARY, lambda: write_summary(out_dir, summary))
     return summary
+
+
+def _summary_after_interrupt(out: Path, campaign: Campaign) -> None:
+    """An interrupted session that extended a campaign (``--runs 8`` on one of 4, stopped after its 6th
+    run) left the earlier session's summary.json saying 4 runs, 4 ok, beside a runs.csv of 6 — and nothing
+    on disk said which was current. That summary is written again over the runs on disk, with
+    ``interrupted``: the runs asked for, those on disk, and that the plots are the earlier session's
+    (``hil report DIR`` summarises and draws them anew). A campaign interrupted before any summary was
+    written is left without one, as before."""
+    path = out / SUMMARY
+    if not path.is_file():
+        return
+    summary = summarise_dir(out, campaign.scenario)
+    summary["interrupted"] = {
+        "runs_asked": campaign.runs,
+        "runs_on_disk": summary.get("runs"),
+        "plots": "not drawn for these runs: hil report DIR draws them",
+    }
+    checked_write(path, lambda: write_summary(out, summary))
+    logger.warning("%s: summarised again over the runs on disk, marked interrupted", path)
 
 
 def _previous_workers_lost(path: Path) -> int:
