@@ -63,7 +63,7 @@ import enum
 import math
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, TypeGuard
 
 from .errors import ConfigError, ProtocolError
 from .frame import DELIMITER, MAX_ENCODED, MIN_FRAME
@@ -173,7 +173,7 @@ class CanFrame:
     is_fd: bool = False
 
 
-def _is_int(value: object) -> bool:
+def _is_int(value: object) -> TypeGuard[int]:
     """An integer and not a bool (``True`` is an ``int`` to Python, never an identifier or a length)."""
     return isinstance(value, int) and not isinstance(value, bool)
 

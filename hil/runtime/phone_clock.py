@@ -130,7 +130,7 @@ class PhoneClock:
                     self._kind_count[label] = n
                     if n or label not in self._kind_heard:  # never heard: from when the phone first was
                         self._kind_heard[label] = t
-                since = min(since, self._kind_heard[label])
+                since = min(heard if since is None else since, self._kind_heard[label])
         out = self.journal.phone_out
         if self.batched_s is not None:  # fresh for a moment at each batch, stale between: not fresh
             why = self._batched_why()
