@@ -31,8 +31,13 @@ def _odd_path(tmp_path, kind):
     (tmp_path / "ping").symlink_to("pong")
     (tmp_path / "pong").symlink_to("ping")
     (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
-    return {"self": tmp_path / "self", "pair": tmp_path / "ping", "through": tmp_path / "self" / "inside",
-            "dangling": tmp_path / "dangling"}[kind]  # fmt: skip
+    paths = {
+        "self": tmp_path / "self",
+        "pair": tmp_path / "ping",
+        "through": tmp_path / "self" / "inside",
+        "dangling": tmp_path / "dangling",
+    }
+    return paths[kind]
 
 
 @pytest.mark.parametrize("odd_first", [False, True])
@@ -44,7 +49,9 @@ def test_a_symlink_loop_among_the_runs_compared_is_refused_in_one_line(a_run, tm
         GroundStation.compare(dirs, bind="127.0.0.1:0")
     cli = subprocess.run(
         [sys.executable, "-m", "hil", "gcs", *map(str, dirs), "--gcs", "127.0.0.1:0", "--no-follow"],
-        capture_output=True, text=True, timeout=60,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert cli.returncode == 2, cli.stderr
     assert cli.stderr == f"hil gcs: error: {odd}: not a directory\n"

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from hil.runtime import RunOptions, run
 from hil.runtime.faults import STALE_AFTER_S
-from hil.runtime.phone_clock import BATCHED_GAPS
+from hil.runtime.phone_cadence import BATCHED_GAPS
 from hil.scenario import load_scenario
 
 

@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from hil.estimation.admission import PhoneGuard, Verdict
 from hil.estimation.sensors import MAX_PAUSE_S, SensorSample
 from hil.runtime.faults import FaultJournal
+from hil.runtime.phone_cadence import PhoneCadence
 from hil.runtime.runlog import EventLog
 
 logger = logging.getLogger(__name__)
@@ -28,14 +29,6 @@ FROZEN_READINGS = 10
 """A sensor's readings in a row that repeat its last stamp, none of it accepted since: not a phone's
 jitter (one repeat) but a clock that stopped while the phone streams on — recorded and logged as drops."""
 _NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
-BATCHED_GAPS = 3
-"""Gaps in a row, each longer than ``stale_after_s`` and ended by readings that span it (the phone's
-clock went on: it streamed, and delivered late, in one batch), before the host calls the phone batched
-(an HTTP Push period above the stale bound) rather than pausing."""
-BATCHED_CLEAR_S = 1.0
-"""s: a batched phone is taken for a streaming one again once its readings came at most
-``stale_after_s`` apart for this long (the app's period shortened), not on one short interval (two late
-batches arriving together)."""
 
 
 class Freshness(enum.Enum):
@@ -64,10 +57,7 @@ class PhoneClock:
         self._kind_heard: dict[str, float] = {}  # per needed sensor: host time (s) its count last moved
         # per sensor: its readings refused since its last accepted one, by reason (why a gap is a gap)
         self._refused: dict[str, Counter[str]] = {}
-        self.batched_s: float | None = None  # the phone's batch period (s) while it is batched, else None
-        self._heard_newest = -math.inf  # the guard's newest stamp when the count last moved
-        self._batched_run = 0  # gaps in a row that were batches
-        self._short_since: float | None = None  # host s: since when a batched phone's intervals are short
+        self.cadence = PhoneCadence(journal, events, stale_after_s)  # whether it delivers in late batches
 
     def admit(self, sample: SensorSample, now: float | None) -> tuple[Verdict, float]:
         """The guard's verdict on ``sample`` (a dropped one noted: :meth:`_note_drop`), and how far its
@@ -118,7 +108,7 @@ class PhoneClock:
         when readings came and were refused (:meth:`_why`)."""
         moved = accepted != self.count
         if moved:
-            self._cadence(t)
+            self.cadence.heard(t, self.heard, self.guard.newest)
             self.count = accepted
             self.heard = t
         heard = self.heard
@@ -132,16 +122,12 @@ class PhoneClock:
                         self._kind_heard[label] = t
                 since = min(heard if since is None else since, self._kind_heard[label])
         out = self.journal.phone_out
-        if self.batched_s is not None:  # fresh for a moment at each batch, stale between: not fresh
-            why = self._batched_why()
+        if self.cadence.batched_s is not None:  # fresh for a moment at each batch, stale between: not fresh
             if out is not None:
                 if "phone_batched" not in out.causes:
                     out.causes.append("phone_batched")
                 return Freshness.STALE
-            self.journal.fault(t, "phone_gap", since=since, why=why)
-            self.journal.phone_out.causes.append("phone_batched")  # type: ignore[union-attr]
-            self.events.write(t, "phone_gap", since=since, why=why)
-            return Freshness.GAP_BEGAN
+            return self._gap_began(t, since, self.cadence.why(), ["phone_batched"])
         if since is None or t - since <= self.stale_after_s:
             if out is not None:
                 back = self.journal.phone_back(t)
@@ -154,57 +140,17 @@ class PhoneClock:
                 if cause not in out.causes:
                     out.causes.append(cause)
             return Freshness.STALE
-        self.journal.fault(t, "phone_gap", since=since, why=why)
-        self.journal.phone_out.causes.extend(causes)  # type: ignore[union-attr]
-        self.events.write(t, "phone_gap", since=since, why=why)
         logger.warning("no usable phone sample for %.2f s at t=%.3f s: holding (%s)", t - since, t, why)
+        return self._gap_began(t, since, why, causes)
+
+    def _gap_began(self, t: float, since: float | None, why: str, causes: list[str]) -> Freshness:
+        """A phone gap from ``since`` noticed at ``t``: a fault with ``why`` and its ``causes``."""
+        self.journal.fault(t, "phone_gap", since=since, why=why)
+        out = self.journal.phone_out
+        assert out is not None  # the fault just opened it
+        out.causes.extend(causes)
+        self.events.write(t, "phone_gap", since=since, why=why)
         return Freshness.GAP_BEGAN
-
-    def _cadence(self, t: float) -> None:
-        """The count moved at ``t``: whether the phone delivers its readings in batches spaced more than
-        ``stale_after_s`` (Sensor Logger's HTTP Push period set to 0.5 s). Each such batch ends a gap, and
-        each gap restarted the warm-up: 93 gaps, a warning every 0.5 s, the slew never started. After
-        :data:`BATCHED_GAPS` of them the phone is *batched* (:attr:`batched_s`): said once (a warning,
-        ``phone_batched`` in the events and the journal) with what to set in the app, and one gap is
-        kept open across its batches — the host still never steers on an estimate older than the bound,
-        and a phone that stays batched is lost within ``--recover-within``, saying why."""
-        prev = self.heard
-        newest = self.guard.newest
-        advance = newest - self._heard_newest
-        self._heard_newest = newest
-        if prev is None:
-            return
-        interval = t - prev
-        if interval <= self.stale_after_s:
-            self._batched_run = 0
-            if self.batched_s is not None:
-                self._short_since = prev if self._short_since is None else self._short_since
-                if t - self._short_since >= BATCHED_CLEAR_S:
-                    self.batched_s = self._short_since = None
-                    self.events.write(t, "phone_unbatched", stale_after_s=self.stale_after_s)
-                    logger.info("phone readings come at most %.2f s apart again at t=%.3f s", interval, t)
-            return
-        self._short_since = None
-        if not advance >= 0.5 * interval:  # a pause: the phone's clock did not go on (or moved)
-            self._batched_run = 0
-            return
-        self._batched_run += 1
-        if self.batched_s is not None:
-            self.batched_s = interval
-        elif self._batched_run >= BATCHED_GAPS:
-            self.batched_s = interval
-            detail = {"period_s": round(interval, 3), "stale_after_s": self.stale_after_s}
-            self.journal.note(t, "phone_batched", **detail)
-            self.events.write(t, "phone_batched", **detail)
-            logger.warning("%s", self._batched_why())
-
-    def _batched_why(self) -> str:
-        return (
-            f"the phone delivers its readings in batches every ~{self.batched_s or 0.0:.2f} s, above the "
-            f"{self.stale_after_s:.2f} s the host lets a reading age before it calls the phone stale: it "
-            "cannot steer on them; set the app's batch period shorter (Sensor Logger: Settings > Data "
-            "Streaming > HTTP Push, its batch period at 0.1 s or less)"
-        )
 
     def _why(self, t: float) -> tuple[str, list[str]]:
         """Why the phone is not fresh at ``t``, for a user, and the causes to name in the record: for
@@ -268,7 +214,9 @@ class PhoneClock:
         if frozen and count == 0:
             logger.warning(
                 "phone readings dropped at t=%.3f s: they repeat their sensor's last time stamp, %d in a "
-                "row: the phone streams but its clock stopped (counted as duplicate)", t, FROZEN_READINGS,
-            )  # fmt: skip
+                "row: the phone streams but its clock stopped (counted as duplicate)",
+                t,
+                FROZEN_READINGS,
+            )
         elif count == 0:
             logger.warning("phone reading dropped at t=%.3f s: %s (counted)", t, reason)
