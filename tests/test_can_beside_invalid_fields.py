@@ -72,6 +72,10 @@ def _hostile(draw) -> dict[str, object]:
     fields = dict(_VALID, data=bytearray(_VALID["data"]))
     for name in draw(st.lists(st.sampled_from(sorted(_BAD)), min_size=1, max_size=3, unique=True)):
         fields[name] = draw(_BAD[name])
+    data, dlc = fields["data"], fields["dlc"]
+    length = 0 if data is None else data if isinstance(data, int) else len(data)  # as the bus's copy has it
+    if type(dlc) is int and dlc == length:  # data and dlc both drawn, and they agree: a valid frame's pair
+        fields["dlc"] = length + 1
     return fields
 
 
