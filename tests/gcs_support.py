@@ -44,13 +44,38 @@ def request(
         hdrs["Content-Type"] = "application/json"
     hdrs.update(headers or {})
     conn.request(method, path, body=body, headers=hdrs)
+    try:
+        return answer_of(conn)
+    finally:
+        conn.close()
+
+
+def answer_of(conn: http.client.HTTPConnection) -> tuple[int, Any]:
+    """``(status, decoded JSON or text)`` of the response to the request ``conn`` sent, read whole."""
     answer = conn.getresponse()
     data = answer.read()
-    conn.close()
     try:
         return answer.status, json.loads(data)
     except ValueError:
         return answer.status, data.decode(errors="replace")
+
+
+class UplinkLog:
+    """What :meth:`hil.gcs.uplink.Uplink.service` needs of a host to log what came and what was turned
+    away, kept as records (no board: nothing is carried out)."""
+
+    def __init__(self) -> None:
+        self.records: list[dict[str, Any]] = []
+        self.events = self
+
+    def write(self, t: float, kind: str, **fields: Any) -> None:
+        self.records.append({"kind": kind, **fields})
+
+    def record_command(self, t: float, command: Any, status: str, **fields: Any) -> None:
+        self.records.append({"kind": "command", "id": command.id, "status": status, **fields})
+
+    def retarget(self, t: float, target: Any) -> str:
+        return "no host here to take a target"
 
 
 def command(station: GroundStation, body: dict[str, Any], **kw: Any) -> tuple[int, Any]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from gcs_support import request
+from gcs_support import UplinkLog, request
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
@@ -23,23 +23,6 @@ from hil.gcs.uplink import ANGLE_RANGE, MAX_BODY
 # An integer as JSON writes it: an optional minus, no leading zero, any number of digits.
 json_integers = st.from_regex(r"-?(0|[1-9][0-9]{0,5000})", fullmatch=True)
 SETTINGS = settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-
-
-class _Log:
-    """What :meth:`Uplink.service` needs of a host to log what came (no board: nothing is carried out)."""
-
-    def __init__(self) -> None:
-        self.records: list[dict[str, Any]] = []
-        self.events = self
-
-    def write(self, t: float, kind: str, **fields: Any) -> None:
-        self.records.append({"kind": kind, **fields})
-
-    def record_command(self, t: float, command: Any, status: str, **fields: Any) -> None:
-        self.records.append({"kind": "command", "id": command.id, "status": status, **fields})
-
-    def retarget(self, t: float, target: Any) -> str:
-        return "no host here to take a target"
 
 
 def _a_float(literal: str) -> bool:
@@ -55,7 +38,9 @@ def _post(station: GroundStation, path: str, body: bytes) -> tuple[int, Any]:
     return request(station, "POST", path, body, headers={"Content-Type": "application/json"})
 
 
-def _check(station: GroundStation, log: _Log, path: str, body: bytes, accepted: bool, field: str) -> None:
+def _check(
+    station: GroundStation, log: UplinkLog, path: str, body: bytes, accepted: bool, field: str
+) -> None:
     """``body`` POSTed to ``path``: 413 past the cap, else 202 when ``accepted``, else 400 ``format``
     naming ``field`` and one ``rejected`` record; never a 500."""
     status, answer = _post(station, path, body)
@@ -76,7 +61,7 @@ def _check(station: GroundStation, log: _Log, path: str, body: bytes, accepted: 
 
 def test_a_slew_angle_of_any_json_integer_is_answered_400_past_its_range_never_500():
     with GroundStation.live(bind="127.0.0.1:0") as station:
-        log = _Log()
+        log = UplinkLog()
 
         @SETTINGS
         @given(json_integers, st.sampled_from(sorted(ANGLE_RANGE)))
@@ -95,7 +80,7 @@ def test_a_slew_angle_of_any_json_integer_is_answered_400_past_its_range_never_5
 
 def test_an_alarm_time_of_any_json_integer_is_answered_400_past_a_floats_range_never_500():
     with GroundStation.live(bind="127.0.0.1:0") as station:
-        log = _Log()
+        log = UplinkLog()
 
         @SETTINGS
         @given(json_integers)

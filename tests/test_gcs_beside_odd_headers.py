@@ -12,28 +12,17 @@ that cannot be parsed is not the page's (403 ``origin``), a name too long is a f
 from __future__ import annotations
 
 import http.client
-import json
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import pytest
+from gcs_support import UplinkLog, answer_of
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from hil.gcs import GroundStation
 from hil.gcs.access import Access
-
-
-class _Log:
-    """What :meth:`Uplink.service` needs of a host to log the requests turned away."""
-
-    def __init__(self) -> None:
-        self.records: list[dict[str, Any]] = []
-        self.events = self
-
-    def write(self, t: float, kind: str, **fields: Any) -> None:
-        self.records.append({"kind": kind, **fields})
 
 
 def _get(station: GroundStation, method: str, path: str, headers: dict[str, str]) -> tuple[int, Any]:
@@ -47,19 +36,14 @@ def _get(station: GroundStation, method: str, path: str, headers: dict[str, str]
         if body is not None:
             conn.putheader("Content-Length", str(len(body)))
         conn.endheaders(body)
-        answer = conn.getresponse()
-        data = answer.read()
+        return answer_of(conn)
     finally:
         conn.close()
-    try:
-        return answer.status, json.loads(data)
-    except ValueError:
-        return answer.status, data.decode(errors="replace")
 
 
 def _logged(station: GroundStation) -> list[dict[str, Any]]:
     """The requests turned away since the last call, as the control tick logs them."""
-    log = _Log()
+    log = UplinkLog()
     assert station.uplink is not None
     station.uplink.service(log, time.monotonic())  # type: ignore[arg-type]
     return [r for r in log.records if r.get("status") == "rejected"]

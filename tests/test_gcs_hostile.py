@@ -19,7 +19,7 @@ import time
 from typing import Any
 
 import pytest
-from gcs_support import RunInThread, quick_scenario, request, wait_for
+from gcs_support import RunInThread, answer_of, quick_scenario, request, wait_for
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -52,14 +52,9 @@ def _post(
         if token is not None:
             hdrs["Authorization"] = f"token {station.token if token == 'station' else token}"
         conn.request("POST", "/api/command", body=body, headers=hdrs)
-        answer = conn.getresponse()
-        data = answer.read()
+        return answer_of(conn)
     finally:
         conn.close()
-    try:
-        return answer.status, json.loads(data)
-    except ValueError:
-        return answer.status, data.decode(errors="replace")
 
 
 # ----------------------------------------------------------------------------------------- parsing
