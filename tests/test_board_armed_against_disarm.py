@@ -8,7 +8,7 @@ Disarm; the summary's ``faults`` empty. An abort ended with ``board disarmed, te
 closed the port on the armed board without another Disarm.
 
 Now (:meth:`hil.runtime.watch.BoardWatch.hold_disarmed`): telemetry made
-:data:`~hil.runtime.watch.DISARM_CONFIRM_S` after the Disarm was settled that still says ARMED is an
+:data:`~hil.runtime.watch.STATE_CONFIRM_S` after the Disarm was settled that still says ARMED is an
 ``armed`` fault (an outage, ``unasked_arm`` in ``events.jsonl``, a warning) and the Disarm is sent again
 until the board is out of ARMED; a board that never obeys is lost within the run's bound, and an abort
 says what the telemetry showed and disarms again on its way out.
@@ -28,7 +28,7 @@ from hil.runtime import RunOptions, run
 from hil.runtime.observer import Observers
 from hil.runtime.operator import OperatorCommand, ScheduledOperator
 from hil.runtime.record import RunRecorder
-from hil.runtime.watch import DISARM_CONFIRM_S
+from hil.runtime.watch import STATE_CONFIRM_S
 from protocol.messages import BoardState, Disarm
 from tests.fault_support import faulted_run_settings, short_scenario
 
@@ -88,7 +88,7 @@ def test_a_board_that_never_disarms_is_a_fault_disarmed_again_and_the_run_lost_n
     s = recorder.summary
     assert s["exit"].startswith("lost") and "armed" in s["exit"], s["exit"]
     armed = [f for f in s["faults"] if f["kind"] == "armed"]
-    assert len(armed) == 1 and at + DISARM_CONFIRM_S <= armed[0]["t"] <= at + DISARM_CONFIRM_S + 0.2
+    assert len(armed) == 1 and at + STATE_CONFIRM_S <= armed[0]["t"] <= at + STATE_CONFIRM_S + 0.2
     assert kinds(recorder).count("unasked_arm") == 1
     resent = kinds(recorder).count("disarm_resent")
     assert resent >= 2 and ignored[0] >= resent  # the board got them all, and ignored them

@@ -256,6 +256,7 @@ class Host:
         phone_fresh = self._phone_fresh(t)
         view = watch.view(t)
         watch.hold_disarmed(t, view)
+        watch.hold_armed(t, view)
         watch.rearm_if_needed(t)
         self.in_control = watch.in_control(t, view, phone_fresh)
         lost = self.journal.overdue(t)

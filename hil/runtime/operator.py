@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 from hil import so3
 from hil.runtime.observer import RunAborted
-from hil.runtime.watch import DISARM_CONFIRM_S
+from hil.runtime.watch import STATE_CONFIRM_S
 from protocol.errors import HilError
 from protocol.messages import BoardState
 
@@ -147,7 +147,7 @@ class Operator:
     def _end_abort(self, host: Host, t: float, abort: _Pending) -> None:
         """End the run once the board says it is no longer armed (its telemetry after the Disarm's ack),
         or at once if the Disarm failed (the board's link watchdog then fails it safe when the host lets
-        go); at most :data:`~hil.runtime.watch.DISARM_CONFIRM_S` after the ack."""
+        go); at most :data:`~hil.runtime.watch.STATE_CONFIRM_S` after the ack."""
         n, origin = abort.command.id, sender(abort.command.origin)
         if not abort.handle.ok:
             raise RunAborted(
@@ -158,7 +158,7 @@ class Operator:
         if (
             tel is not None
             and tel.state is BoardState.ARMED
-            and (settled is None or t - settled < DISARM_CONFIRM_S)
+            and (settled is None or t - settled < STATE_CONFIRM_S)
         ):
             return  # acknowledged; wait for the telemetry that shows it
         if tel is None:
@@ -166,7 +166,7 @@ class Operator:
         if tel.state is BoardState.ARMED:  # the run's way out disarms it again (hil.runtime.loop)
             raise RunAborted(
                 f"from {origin} (command {n}: the board acknowledged the Disarm, yet its telemetry still "
-                f"says ARMED {DISARM_CONFIRM_S:g} s later)"
+                f"says ARMED {STATE_CONFIRM_S:g} s later)"
             )
         raise RunAborted(f"from {origin} (command {n}: board disarmed, telemetry says {tel.state.name})")
 

@@ -52,10 +52,11 @@ class View:
     age_s: float | None
 
 
-DISARM_CONFIRM_S = 0.5
-"""How long after the board settled a Disarm (acknowledged it, or it failed) its telemetry may still say
-ARMED: a few telemetry periods for the state to reach the host. Past it, a board the operator holds
-disarmed that says ARMED has not carried the Disarm out."""
+STATE_CONFIRM_S = 0.5
+"""How long after the board settled an Arm or a Disarm (acknowledged it, or the Disarm failed) its telemetry
+may still show the state before: a few telemetry periods for the new state to reach the host. Past it, a
+board the operator holds disarmed that says ARMED has not carried the Disarm out, and a board that
+acknowledged the host's Arm and says DISARMED has not carried the Arm out."""
 
 BOARD_LOGS_RECORDED_PER_S = 20
 """The board's ``Log`` frames written to ``events.jsonl`` per second of host time (a board logs a few a
@@ -77,6 +78,7 @@ class BoardWatch:
         self.unasked_disarms = 0  # ARMED → DISARMED with the host holding it armed (a Disarm retried late)
         self.unasked_arms = 0  # ARMED with the operator's Disarm settled (:meth:`hold_disarmed`)
         self.disarms_resent = 0  # the operator's Disarm sent again to a board that says ARMED
+        self.unheeded_arms = 0  # DISARMED with the host's acknowledged Arm settled (:meth:`hold_armed`)
         self.board_logs_unrecorded = 0  # board Log frames beyond BOARD_LOGS_RECORDED_PER_S: counted only
         self._log_window = -math.inf  # host time (s) the current second of recorded board logs began
         self._logs_in_window = 0
@@ -85,6 +87,7 @@ class BoardWatch:
         self.operator_disarmed = False
         self._disarm: Command | None = None  # the operator's Disarm, or the host's last repeat of it
         self._armed_unasked = False  # the board says ARMED though the operator's Disarm was settled
+        self._arm_unheeded = False  # the board says DISARMED though it acknowledged the host's Arm
         self._rearm: str | Command | None = None  # "pending" or the Arm in flight
         self._operator_arm: Command | None = None  # the operator's Arm in flight
         self._fresh_after = -math.inf  # telemetry received before this (host s) is from an older session
@@ -229,7 +232,7 @@ class BoardWatch:
 
     def hold_disarmed(self, t: float, view: View) -> None:
         """While the operator holds the board disarmed: a board whose live telemetry, made
-        :data:`DISARM_CONFIRM_S` or more after the operator's Disarm was settled, still says ARMED has not
+        :data:`STATE_CONFIRM_S` or more after the operator's Disarm was settled, still says ARMED has not
         carried it out (a board that ignored it, a Disarm lost with no answer, an Arm of an older try that
         reached it later). Its rotors may be spinning while everything the operator sees says disarmed:
         an ``armed`` fault (an outage: a board that never obeys is lost within the run's bound), a warning,
@@ -247,7 +250,7 @@ class BoardWatch:
         if disarm is not None and not disarm.done:
             return  # on its way
         settled = None if disarm is None else disarm.settled_at
-        if settled is not None and tel_t - settled < DISARM_CONFIRM_S:
+        if settled is not None and tel_t - settled < STATE_CONFIRM_S:
             return  # the board may not have said so yet
         if not self._armed_unasked:
             self._armed_unasked = True
@@ -260,6 +263,37 @@ class BoardWatch:
             self._disarm = self.client.command(Disarm())
             self.disarms_resent += 1
             self.events.write(t, "disarm_resent", seq=self._disarm.seq)
+
+    def hold_armed(self, t: float, view: View) -> None:
+        """While the host holds the board armed (the operator has not disarmed it, no re-arm under way): a
+        board whose live telemetry, made :data:`STATE_CONFIRM_S` or more after it acknowledged the Arm,
+        says DISARMED has not carried the Arm out (a firmware that answered and did nothing, an Arm refused
+        in all but its answer). No state change tells it — the host took the acknowledgement for ARMED —
+        so before, the first such Arm was caught (its ARMED → DISARMED looked like an unasked Disarm) and
+        the re-arm after it was not: the run sat blind with no second Arm until it was lost. Now each
+        acknowledged Arm the board did not carry out is a ``disarmed`` fault (once an episode: an outage,
+        ``arm_unheeded`` in ``events.jsonl``, a warning) and the Arm is sent again, as often as it is
+        acknowledged with the board still DISARMED; a board that never obeys is lost within the run's
+        bound. (A board that says FAILSAFE or BOOT is a failsafe's or a reset's, told by its own event.)"""
+        if self.operator_disarmed or self._rearm is not None:
+            return
+        tel, tel_t = view.telemetry, self.client.telemetry_time
+        if tel is None or tel_t is None:
+            return  # not live: the view's own faults say so
+        if tel.state is not BoardState.DISARMED:
+            self._arm_unheeded = False
+            return
+        acked = self.client.arm_acked_at
+        if acked is None or tel_t - acked < STATE_CONFIRM_S:
+            return  # not armed by the host yet, or the board may not have said so yet
+        if not self._arm_unheeded:
+            self._arm_unheeded = True
+            self.unheeded_arms += 1
+            logger.warning("board DISARMED at t=%.3f s though it acknowledged the Arm: arming again", t)
+            self.events.write(t, "arm_unheeded", acked=acked)
+            self.journal.fault(t, "disarmed", detail="the board says DISARMED after it acknowledged the Arm")
+            self._upsets.append("disarmed")
+        self._rearm = "pending"
 
     # ------------------------------------------------------------------ arming
     @property

@@ -320,6 +320,11 @@ class BoardClient:
         return self.session.telemetry_time
 
     @property
+    def arm_acked_at(self) -> float | None:
+        """The host time the board last acknowledged an Arm (None: none yet, or a Disarm sent since)."""
+        return self.session.arm_acked_at
+
+    @property
     def connected(self) -> bool:
         """A session is up right now (not handshaking, not reconnecting)."""
         return self.session.phase is Phase.READY

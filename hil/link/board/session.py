@@ -201,6 +201,8 @@ class Session:
         self.failure: HilError | None = None  # why the last handshake failed (HandshakeError, LinkTimeout)
         self.pending_reset: PendingReset | None = None
         self.armed = False  # the host armed the board (acknowledged) and has not disarmed it since
+        # host time the board last acknowledged an Arm (None: none yet, or a Disarm sent since)
+        self.arm_acked_at: float | None = None
         # host time of the board's last new frame (the host's own come back, and a frame repeated, left out)
         self.last_heard: float | None = None
         self.seq_gaps = 0  # board frames missing by their sequence numbers (the host's echoes left out)
@@ -293,6 +295,7 @@ class Session:
         self._now = now
         if isinstance(message, Disarm):
             self.armed = False  # the caller no longer wants the board armed, whatever the answer
+            self.arm_acked_at = None
             self.pending_reset = None
         cmd, data = self.commands.send(message, now)
         self._put(data, now)
@@ -824,6 +827,7 @@ class Session:
             self._set_state(BoardState.ARMED if isinstance(cmd.message, Arm) else BoardState.DISARMED, now)
         if isinstance(cmd.message, Arm) and cmd.ok:
             self.armed = True
+            self.arm_acked_at = now
             self.pending_reset = None
         why = self._auto.pop(id(cmd), None)
         if why is not None:
