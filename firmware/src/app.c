@@ -103,6 +103,19 @@ static void forget_conversions(uint8_t unit)
     rotor_target[unit].valid = gimbal_target[unit].valid = 0;
 }
 
+/* Rotors stopped (motors off, or a new Arm): no command, and no width cached for an earlier one. Rotor
+ * conversions are not refreshed while the motors are off (armed_converting), so a width cached before a
+ * Disarm would otherwise drive the rotors at the old speed after the next Arm, until the zero command had
+ * been converted (a reviewer saw 2000 us for up to five frames). A rotor width is used only if it was
+ * converted since the last Arm. */
+static void stop_rotors(void)
+{
+    memset(board.rotor_cmd, 0, sizeof board.rotor_cmd);
+    board.have_raw = 0;
+    for (uint8_t u = 0; u < MAX_HW_UNITS; u++)
+        rotor_conv[u].valid = 0;
+}
+
 static uint8_t armed_converting(void)
 {
     return motors_enabled(board.state) && !board.shed_latched && board.power_state < POWER_STATE_SHED &&
@@ -267,8 +280,7 @@ static uint8_t enter_state(uint8_t next)
     board.state = next;
     if (!motors_enabled(next)) {
         hold_gimbals();
-        memset(board.rotor_cmd, 0, sizeof board.rotor_cmd);
-        board.have_raw = 0;
+        stop_rotors();
         apply_outputs();
     }
     board.outputs_dirty = 1;
@@ -378,10 +390,8 @@ static uint8_t on_arm(void)
     uint8_t refused = apply(EVENT_ARM);
     if (!refused) {
         board.shed_latched = 0;
-        if (was != BOARD_STATE_ARMED) {
-            memset(board.rotor_cmd, 0, sizeof board.rotor_cmd);
-            board.have_raw = 0;
-        }
+        if (was != BOARD_STATE_ARMED)
+            stop_rotors(); /* the safe pulse until the zero command is converted: never an old width */
         board.outputs_dirty = 1;
     }
     return refused;
