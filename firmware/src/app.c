@@ -122,46 +122,98 @@ static uint8_t armed_converting(void)
            !(board.mode == CONTROL_MODE_RAW_PULSES && board.have_raw);
 }
 
+/*
+ * The conversions come in slots: 2u a unit's gimbal command, 2u+1 its rotor command (the widths to put
+ * out), and the value of each channel's present width (the estimates' targets). Each has a round-robin
+ * cursor, so a stale slot waits for at most one turn of the others: scanning from unit 0 every pass let a
+ * host streaming fast-changing gimbal commands at 200 Hz starve every later unit's conversions for as
+ * long as the stream lasted (their rotors never followed, the board ARMED and counting the setpoints).
+ * Commands come first, but each turn of the command cursor owes the values one conversion, so under a
+ * stream the board cannot keep up with, the estimates lag but are never abandoned.
+ */
+static uint8_t command_next, value_next, value_owed;
+
+/* Slot `s`'s command conversion, if stale: 1 if one was computed. */
+static uint8_t convert_command(uint8_t s, const uint8_t *cal, uint8_t raw)
+{
+    uint8_t u = (uint8_t)(s >> 1);
+    if (s & 1u) {
+        conv_cache_t *r = &rotor_conv[u];
+        if (!armed_converting() ||
+            (r->valid && r->input == board.rotor_cmd[u] && r->arg == board.conversion_v))
+            return 0;
+        cal_conv_t c = cal_rotor_pulse_us(cal, board.rotor_cmd[u], board.conversion_v);
+        *r = (conv_cache_t){board.rotor_cmd[u], board.conversion_v, to_fine(c.value), c.clamp, 1};
+        return 1;
+    }
+    conv_cache_t *g = &gimbal_conv[u];
+    float mode = (float)board.gimbal_mode;
+    if (raw || (g->valid && g->input == board.gimbal_cmd[u] && g->arg == mode))
+        return 0;
+    cal_conv_t c = cal_gimbal_pulse_us(cal, board.gimbal_cmd[u], board.gimbal_mode);
+    *g = (conv_cache_t){board.gimbal_cmd[u], mode, to_fine(c.value), c.clamp, 1};
+    return 1;
+}
+
+/* Slot `s`'s value conversion (what channel s's present width stands for), if stale: 1 if computed. */
+static uint8_t convert_value(uint8_t s, const uint8_t *cal)
+{
+    uint8_t u = (uint8_t)(s >> 1);
+    uint32_t fine = pulses_get(s);
+    if (!fine)
+        return 0;
+    if (s & 1u) {
+        value_cache_t *r = &rotor_target[u];
+        if (r->valid && r->fine == fine && r->arg == board.conversion_v)
+            return 0;
+        *r = (value_cache_t){fine, board.conversion_v,
+                             cal_rotor_speed(cal, fine_us(fine), board.conversion_v).value, 1};
+        return 1;
+    }
+    value_cache_t *g = &gimbal_target[u];
+    float mode = (float)board.gimbal_mode;
+    if (g->valid && g->fine == fine && g->arg == mode)
+        return 0;
+    *g = (value_cache_t){fine, mode, cal_gimbal_value(cal, fine_us(fine), board.gimbal_mode).value, 1};
+    return 1;
+}
+
+/* The next stale value conversion from the value cursor on: 1 if one was computed. */
+static uint8_t value_step(uint8_t slots)
+{
+    for (uint8_t k = 0; k < slots; k++) {
+        uint8_t s = value_next;
+        value_next = (uint8_t)(s + 1u < slots ? s + 1u : 0u);
+        const uint8_t *cal = storage_cal((uint8_t)(s >> 1), 0);
+        if (cal && convert_value(s, cal))
+            return 1;
+    }
+    return 0;
+}
+
 /* Bring one stale conversion up to date: 1 if one was computed (more may be stale), else 0. */
 static uint8_t convert_step(void)
 {
+    uint8_t slots = board.n_channels;
+    if (command_next >= slots || value_next >= slots)
+        command_next = value_next = 0;
+    if (value_owed) {
+        value_owed = 0;
+        if (value_step(slots))
+            return 1;
+    }
     uint8_t raw = motors_enabled(board.state) && board.mode == CONTROL_MODE_RAW_PULSES && board.have_raw;
-    for (uint8_t u = 0; u < board.cfg.n_units; u++) {
-        const uint8_t *cal = storage_cal(u, 0);
-        if (!cal)
-            continue;
-        conv_cache_t *g = &gimbal_conv[u];
-        float mode = (float)board.gimbal_mode;
-        if (!raw && (!g->valid || g->input != board.gimbal_cmd[u] || g->arg != mode)) {
-            cal_conv_t c = cal_gimbal_pulse_us(cal, board.gimbal_cmd[u], board.gimbal_mode);
-            *g = (conv_cache_t){board.gimbal_cmd[u], mode, to_fine(c.value), c.clamp, 1};
+    for (uint8_t k = 0; k < slots; k++) {
+        uint8_t s = command_next;
+        command_next = (uint8_t)(s + 1u < slots ? s + 1u : 0u);
+        if (!command_next)
+            value_owed = 1; /* a turn of the commands: the values' turn next */
+        const uint8_t *cal = storage_cal((uint8_t)(s >> 1), 0);
+        if (cal && convert_command(s, cal, raw))
             return 1;
-        }
-        conv_cache_t *r = &rotor_conv[u];
-        if (armed_converting() &&
-            (!r->valid || r->input != board.rotor_cmd[u] || r->arg != board.conversion_v)) {
-            cal_conv_t c = cal_rotor_pulse_us(cal, board.rotor_cmd[u], board.conversion_v);
-            *r = (conv_cache_t){board.rotor_cmd[u], board.conversion_v, to_fine(c.value), c.clamp, 1};
-            return 1;
-        }
     }
-    for (uint8_t u = 0; u < board.cfg.n_units; u++) {
-        const uint8_t *cal = storage_cal(u, 0);
-        uint32_t rotor = pulses_get((uint8_t)(2 * u + 1)), gimbal = pulses_get((uint8_t)(2 * u));
-        value_cache_t *r = &rotor_target[u], *g = &gimbal_target[u];
-        if (cal && rotor && (!r->valid || r->fine != rotor || r->arg != board.conversion_v)) {
-            *r = (value_cache_t){rotor, board.conversion_v,
-                                 cal_rotor_speed(cal, fine_us(rotor), board.conversion_v).value, 1};
-            return 1;
-        }
-        float mode = (float)board.gimbal_mode;
-        if (cal && gimbal && (!g->valid || g->fine != gimbal || g->arg != mode)) {
-            *g = (value_cache_t){gimbal, mode, cal_gimbal_value(cal, fine_us(gimbal), board.gimbal_mode).value,
-                                 1};
-            return 1;
-        }
-    }
-    return 0;
+    value_owed = 0;
+    return value_step(slots);
 }
 
 /* The fine pulse widths for the present state, command and power stage (board.py: _compute_outputs),
