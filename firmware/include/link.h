@@ -8,6 +8,7 @@
  *
  * Reassembler (protocol/calibration/transfer.py): collects the CalibrationData fragments of one transfer
  * at a time into a buffer of `max_len` bytes, with the same checks and in the same order as the Python.
+ * Repeats of the transfer just completed are harmless duplicates until reasm_forget.
  */
 #ifndef LINK_H
 #define LINK_H
@@ -63,6 +64,9 @@ typedef struct {
 
 void reasm_init(reassembler_t *r, uint16_t max_len);
 void reasm_reset(reassembler_t *r); /* forget an unfinished transfer */
+/* Forget every transfer, the one just completed too (its repeat is then judged anew): after refusing the
+ * set reasm_feed completed, and at a new session (a restarted host numbers its transfers from 1 again). */
+void reasm_forget(reassembler_t *r);
 reasm_status_t reasm_feed(reassembler_t *r, const calibration_data_t *m);
 
 #endif /* LINK_H */

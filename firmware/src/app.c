@@ -418,6 +418,7 @@ static void on_hello(const hello_t *m, uint32_t now)
         esc_cal_abort(ESC_CAL_ABORT_HELLO, now);
         board.mode = CONTROL_MODE_SETPOINT;
         answers_forget(&board.answers);
+        reasm_forget(&board.reasm); /* a restarted host numbers its transfers from 1 again */
         apply(EVENT_HELLO);
         if (!board.session) {
             board.session = 1;
@@ -540,13 +541,18 @@ static uint8_t on_calibration_data(const calibration_data_t *m)
     uint16_t len = board.reasm.done.total_len;
     uint8_t table, knot;
     cal_status_t cs = cal_validate(board.reasm.buf, len, &table, &knot);
+    /* refused after reassembly: the set is forgotten, so the same set sent again is judged (and refused)
+     * again, not acknowledged as a repeat of a set taken */
     if (cs != CAL_OK) {
+        reasm_forget(&board.reasm);
         char detail[64];
         cal_status_text(cs, detail, sizeof detail);
         return cal_refused(m->unit, PSTR("invalid set: "), detail);
     }
-    if (!storage_store_cal(m->unit, board.reasm.buf, len))
+    if (!storage_store_cal(m->unit, board.reasm.buf, len)) {
+        reasm_forget(&board.reasm);
         return cal_refused(m->unit, PSTR("no room for the set in RAM"), "");
+    }
     forget_conversions(m->unit);
     board.outputs_dirty = 1;
     report_log(SEVERITY_INFO, LOG_CODE_CALIBRATION, PSTR("calibration for unit %u stored (%u bytes)"),

@@ -56,6 +56,12 @@ void reasm_reset(reassembler_t *r)
     r->held = 0;
 }
 
+void reasm_forget(reassembler_t *r)
+{
+    reasm_reset(r);
+    r->have_done = 0;
+}
+
 static reasm_header_t header_of(const calibration_data_t *m)
 {
     reasm_header_t h = {m->unit, m->transfer_id, m->count, m->total_len, m->set_crc};

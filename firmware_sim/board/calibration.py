@@ -61,6 +61,11 @@ class CalibrationTransfers:
         self._reassembler = Reassembler()
         self._pending.clear()
 
+    def new_session(self) -> None:
+        """A compatible Hello: uploads of the earlier session are forgotten, finished ones too (a restarted
+        host numbers its transfers from 1 again: its set must not pass for a repeat of an old one)."""
+        self._reassembler.forget()
+
     # ------------------------------------------------------------------ upload
     def upload(self, msg: CalibrationData, state: BoardState) -> NackReason | None:
         """One upload fragment; returns None (accepted) or the NACK reason."""
@@ -70,21 +75,30 @@ class CalibrationTransfers:
             return NackReason.OUT_OF_RANGE
         try:
             done = self._reassembler.feed(msg)
-            if done is None:
-                return None
-            unit, data = done
-            cal_type = type(calibration_or_default(self.calibrations, unit))
+        except (HilError, ValueError) as exc:
+            return self._refused(msg.unit, exc)
+        if done is None:
+            return None
+        unit, data = done
+        cal_type = type(calibration_or_default(self.calibrations, unit))
+        try:
             cal = cal_type.from_bytes(data, source=f"upload unit {unit}")
         except (HilError, ValueError) as exc:
-            self._out.log(
-                Severity.ERROR, LogCode.CALIBRATION, f"calibration upload for unit {msg.unit} refused: {exc}"
-            )
-            return NackReason.BAD_CALIBRATION
+            # refused after reassembly: forgotten, so the same set sent again is judged (and refused)
+            # again, not acknowledged as a repeat of a set taken
+            self._reassembler.forget()
+            return self._refused(unit, exc)
         self._store(unit, cal)
         self._out.log(
             Severity.INFO, LogCode.CALIBRATION, f"calibration for unit {unit} stored ({len(data)} bytes)"
         )
         return None
+
+    def _refused(self, unit: int, exc: Exception) -> NackReason:
+        self._out.log(
+            Severity.ERROR, LogCode.CALIBRATION, f"calibration upload for unit {unit} refused: {exc}"
+        )
+        return NackReason.BAD_CALIBRATION
 
     # ------------------------------------------------------------------ download
     def download(self, msg: CalibrationRequest, state: BoardState, t: int) -> NackReason | None:

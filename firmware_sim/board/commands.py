@@ -277,6 +277,7 @@ class CommandHandler:
             self.esc_calibration.abort(EscCalAbort.HELLO, t)
             self.mode = ControlMode.SETPOINT
             self.link.forget_answers()
+            self.transfers.new_session()
             self._apply(Event.HELLO, t)
             if not self.session:
                 self.session = True

@@ -71,7 +71,8 @@ class Reassembler:
 
     ``feed`` returns ``(unit, data)`` when a set is complete and its CRC checks, else None. A fragment of
     another ``(unit, transfer_id)`` abandons the unfinished transfer and starts the new one. Repeats of a
-    fragment already held, or of the transfer just completed, are ignored. A malformed fragment, one that
+    fragment already held, or of the transfer just completed, are ignored (until :meth:`forget`: a
+    receiver that refuses the completed set must forget it). A malformed fragment, one that
     contradicts the transfer's header, or a finished set whose length or CRC is wrong raises
     :class:`CalibrationError` and drops the transfer.
     """
@@ -87,6 +88,13 @@ class Reassembler:
         """Forget any unfinished transfer."""
         self._header = None
         self._chunks = {}
+
+    def forget(self) -> None:
+        """Forget every transfer, the one just completed too: its repeat is then a new transfer, judged
+        anew. For a receiver that refused the set :meth:`feed` returned (so a host sending it again is not
+        told it was taken), and at a new session (a restarted host numbers its transfers from 1 again)."""
+        self.reset()
+        self._done = None
 
     @property
     def in_progress(self) -> tuple[int, int] | None:
