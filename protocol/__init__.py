@@ -4,8 +4,6 @@ Both ends of the link (the host in ``hil``, the emulated board in ``firmware_sim
 speak it; ``docs/protocol.md`` is its byte-level specification.
 """
 
-from .aoa import AccessoryIdentity, ControlTransfer, accessory_interfaces, is_accessory_mode, start_sequence
-from .can import CanFrame, CanReassembler, CanSegmenter
 from .errors import CommandFailed, FieldRangeError, FrameError, HilError, ProtocolError
 from .frame import BadFrame, BadFrameReason, Deframer, Frame, Framer, LinkCounters, decode_frame, encode_frame
 from .messages import (
@@ -110,3 +108,28 @@ __all__ = [
     "UnitState",
     "WatchdogState",
 ]
+
+_LAZY = {
+    "AccessoryIdentity": "aoa",
+    "ControlTransfer": "aoa",
+    "accessory_interfaces": "aoa",
+    "is_accessory_mode": "aoa",
+    "start_sequence": "aoa",
+    "CanFrame": "can",
+    "CanReassembler": "can",
+    "CanSegmenter": "can",
+}
+"""Names of the USB (AOA) and CAN transports' framing, imported on first use: a run over a serial link or
+the built-in emulator (most of them) needs neither module, and importing both cost ~10 ms of every
+``hil run``'s start (issue 29: the imports before its first tick)."""
+
+
+def __getattr__(name: str) -> object:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value

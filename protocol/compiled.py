@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import operator
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -433,6 +433,30 @@ def _scalar_ok(src: _Source, scalar: Scalar, x: str) -> str:
 
 
 # =========================================================================== the pair
+class CodecTable(Mapping[int, MessageCodec]):
+    """Message id → the message's generated codec (:func:`compile_message`), each generated on its first
+    look-up: generating and compiling all of the catalogue's took ~8 ms of every process's import of
+    ``protocol`` (issue 29: the imports before a run's first tick), and a run uses half of its messages.
+    Every id of ``classes`` is a key from the start (iteration, ``in`` and ``len`` generate nothing)."""
+
+    def __init__(self, classes: Mapping[int, type], version: int) -> None:
+        self._classes = dict(classes)
+        self._version = version
+        self._made: dict[int, MessageCodec] = {}
+
+    def __getitem__(self, msg_id: int) -> MessageCodec:
+        codec = self._made.get(msg_id)
+        if codec is None:  # two threads may both generate one: the same functions, one of them kept
+            codec = self._made[msg_id] = compile_message(self._classes[msg_id], msg_id, self._version)
+        return codec
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self._classes)
+
+    def __len__(self) -> int:
+        return len(self._classes)
+
+
 def compile_message(cls: type, msg_id: int, version: int) -> MessageCodec:
     """Generate, compile and return the encoder and decoder of message class ``cls``."""
     layout = layout_of(cls)

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from . import cobs
-from .compiled import fast_constructor
+from .compiled import MessageCodec, fast_constructor
 from .crc import crc16_ccitt_false
 from .errors import FieldRangeError, FrameError, ProtocolError
 from .fields import PayloadLengthError
@@ -94,8 +94,31 @@ Event = Frame | BadFrame
 _FLAGS = tuple(Flags(v) for v in range(256))
 """The header's flags byte as Flags, by value (every byte decodes: unknown bits are kept)."""
 _new_frame = fast_constructor(Frame)
-_ENCODERS = {msg_id: codec.encode for msg_id, codec in CODECS.items()}
-_DECODERS = {msg_id: codec.decode for msg_id, codec in CODECS.items()}
+
+
+def _first_use(msg_id: int) -> tuple[Callable[[Any, int, int], bytes | None], Callable[[bytes], Any]]:
+    """The encoder and decoder that stand for message ``msg_id``'s until its first frame: each generates
+    the message's codec (:data:`~protocol.messages.CODECS`), puts it in their place, and calls it."""
+
+    def take() -> MessageCodec:
+        codec = CODECS[msg_id]
+        _ENCODERS[msg_id], _DECODERS[msg_id] = codec.encode, codec.decode
+        return codec
+
+    def encode(message: Any, seq: int, flags: int) -> bytes | None:
+        return take().encode(message, seq, flags)
+
+    def decode(body: bytes) -> Any:
+        return take().decode(body)
+
+    return encode, decode
+
+
+_ENCODERS: dict[int, Callable[[Any, int, int], bytes | None]] = {}
+_DECODERS: dict[int, Callable[[bytes], Any]] = {}
+for _msg_id in CODECS:
+    _ENCODERS[_msg_id], _DECODERS[_msg_id] = _first_use(_msg_id)
+del _msg_id
 _MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
 _SEQ_BYTES = tuple(bytes((seq,)) for seq in range(256))
 """A sequence number as the one byte it is in the header, by value."""

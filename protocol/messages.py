@@ -14,7 +14,7 @@ import struct
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from .compiled import MessageCodec, compile_message
+from .compiled import CodecTable
 from .fields import F32, U8, U16, U32, Array, Blob, Enum8, Layout, Text, layout_of, wire
 
 PROTOCOL_VERSION = 1
@@ -419,11 +419,9 @@ CATALOGUE: tuple[type[Message], ...] = (
 BY_ID: dict[int, type[Message]] = {cls.MSG_ID: cls for cls in CATALOGUE}
 LAYOUTS: dict[int, Layout] = {cls.MSG_ID: layout_of(cls) for cls in CATALOGUE}
 assert len(BY_ID) == len(CATALOGUE), "duplicate message id"
-CODECS: dict[int, MessageCodec] = {
-    cls.MSG_ID: compile_message(cls, cls.MSG_ID, PROTOCOL_VERSION) for cls in CATALOGUE
-}
-"""The generated encoder and decoder of each message (:mod:`protocol.compiled`); ``LAYOUTS`` is their
-reference, and what words every error."""
+CODECS: CodecTable = CodecTable(BY_ID, PROTOCOL_VERSION)
+"""The generated encoder and decoder of each message (:mod:`protocol.compiled`), each generated on first
+use; ``LAYOUTS`` is their reference, and what words every error."""
 
 
 def schema_text() -> str:

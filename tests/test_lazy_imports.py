@@ -52,6 +52,34 @@ def test_the_run_loop_imports_none_of_the_heavy_libraries_nor_numba():
     assert loaded == {"heavy": [], "numba": False}
 
 
+LIGHTER = ("protocol.can", "importlib.resources", "tempfile", "shutil", "subprocess")
+"""Smaller modules the imports before a run's first tick left out (a few ms each, ~12 ms with the codecs
+below: the ≤ 0.3 s of issue 29): CAN's framing (a run over CAN imports it), importlib's resources and the
+temporary files and shutil only the install's builds use, subprocess (a summary's git revision asks)."""
+
+
+def test_the_run_modules_import_no_can_framing_no_tempfile_no_subprocess_and_generate_no_codec():
+    """The modules the runtime bench times (``bench/bench_runtime.py``'s imports before the first tick)
+    load none of :data:`LIGHTER` and generate no message codec; a frame's first encode or decode generates
+    its message's alone, which then encodes and decodes as the reference does."""
+    loaded = _loaded(
+        f"""
+        import json, sys
+        import hil.cli, hil.cli.run, hil.runtime, hil.scenario, firmware_sim.servers.transports
+        import firmware_sim.world
+        from protocol.messages import CODECS
+        lighter = sorted(m for m in {LIGHTER!r} if m in sys.modules)
+        made_at_import = sorted(CODECS._made)
+        from protocol import Arm, decode_frame, encode_frame
+        frame = decode_frame(encode_frame(Arm(), 7)[:-1])
+        print(json.dumps({{"lighter": lighter, "made": made_at_import, "after": sorted(CODECS._made),
+                           "frame": [type(frame.message).__name__, frame.seq], "arm": Arm.MSG_ID}}))
+        """
+    )
+    assert loaded["lighter"] == [] and loaded["made"] == []
+    assert loaded["after"] == [loaded["arm"]] and loaded["frame"] == ["Arm", 7]
+
+
 def test_building_the_command_line_does_not_import_numba():
     """``hil run --help`` (every command's parser) is argparse and the command modules: no scenario
     package, no numba, no numpy-heavy stack (hil.cli's docstring), and no ``importlib.metadata`` (10-30 ms:

@@ -38,14 +38,11 @@ raise ``LinkError`` like any vanished port; reopening the transport starts a new
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import contextlib
 import os
 import select
 import signal
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from typing import IO, TYPE_CHECKING, Any, NoReturn
@@ -57,7 +54,11 @@ from hil.link.transports.serial_port import SerialTransport
 from hil.timing.clock import Clock, LockstepClock, WallClock
 from protocol.errors import TransportError, TransportRefused
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # subprocess, tempfile and concurrent.futures are imported where a spawn uses them:
+    # not by every run of the built-in emulator, which imports this module too (~5 ms of its start)
+    import concurrent.futures
+    import subprocess
+
     from firmware_sim.avr.stepped import FirmwareBoard
     from firmware_sim.board import Board
 
@@ -280,6 +281,9 @@ _spawner_lock = threading.Lock()
 def _spawn(argv: list[str], stderr: IO[bytes]) -> subprocess.Popen[bytes]:
     """Start ``argv`` from one long-lived thread: the parent-death signal fires when the *thread* that
     forked the child exits, so forking from a reader thread that later stops would kill the board."""
+    import concurrent.futures
+    import subprocess
+
     global _spawner
     with _spawner_lock:
         if _spawner is None:
@@ -336,6 +340,8 @@ class SpawnTransport(Transport):
 
     # ------------------------------------------------------------------ backend
     def _open_impl(self) -> None:
+        import tempfile
+
         self._stderr = tempfile.TemporaryFile()
         command = [sys.executable, "-c", _GUARD, str(os.getpid()), *self.argv]
         self.process = _spawn(command, self._stderr)
@@ -411,6 +417,8 @@ class SpawnTransport(Transport):
 
 def _terminate_group(process: subprocess.Popen[Any]) -> None:
     """SIGTERM to the process group (firmware-sim exits cleanly on it), SIGKILL if it lingers."""
+    import subprocess
+
     for sig in (signal.SIGTERM, signal.SIGKILL):
         with contextlib.suppress(ProcessLookupError):
             os.killpg(process.pid, sig)

@@ -14,9 +14,9 @@ another file does (numba issue #1833): a kernel in one module calling one in ano
 callee's old machine code. The cache of every :func:`kernel` is therefore stamped with a hash of all the
 sources of the packages hil's kernels live in (:data:`STAMPED`): editing any of them recompiles them all.
 A kernel that lives outside them (the world's, :mod:`firmware_sim.world.models`, which call hil's but are
-never called by them) is stamped with its own package's sources too. Reading those sources (through
-:mod:`importlib.resources`, once per process and package) is this package's only I/O besides numba's own
-cache files.
+never called by them) is stamped with its own package's sources too. Reading those sources (from the
+packages' folders, once per process and package) is this package's only I/O besides numba's own cache
+files.
 
 numba's CPU target, when it first loads (a kernel's first call in a process), imports
 ``numba.np.arraymath``, which imports ``scipy.linalg`` only to learn whether a BLAS is there (its
@@ -43,9 +43,8 @@ import importlib
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
-from importlib import resources
-from importlib.abc import MetaPathFinder, Traversable
 from importlib.machinery import ModuleSpec
+from pathlib import Path
 from types import ModuleType
 from typing import Any, TypeVar, cast
 
@@ -75,10 +74,12 @@ BLAS_PROBE = ("numba.np.arraymath", "_check_blas")
 """The module and function of numba's import-time BLAS probe (:class:`_BlasProbeDeclined`)."""
 
 
-class _BlasProbeDeclined(MetaPathFinder):
+class _BlasProbeDeclined:
     """Refuses ``import scipy.linalg`` to numba's BLAS probe (:data:`BLAS_PROBE`) alone, once, then takes
     itself off ``sys.meta_path``: every other import of scipy.linalg, before or after, is untouched. A
-    numba whose probe is named otherwise never meets it (and pays the import as before)."""
+    numba whose probe is named otherwise never meets it (and pays the import as before). A meta path
+    finder by its ``find_spec`` alone: :class:`importlib.abc.MetaPathFinder` would import
+    :mod:`importlib.resources` (and tempfile, shutil, random) into every process, ~4 ms of its start."""
 
     MAX_DEPTH = 40
     """Frames searched up from the import for the probe (the import machinery's own are ~10)."""
@@ -295,17 +296,22 @@ def tree_stamp(home: str | None = None) -> str:
     hil, of its package ``home`` (dotted, e.g. ``firmware_sim.world.models``); computed once per process."""
     digest = hashlib.sha256()
     for package in STAMPED:
-        for name, source in _sources(resources.files("hil") / package, f"hil/{package}"):
+        for name, source in _sources(_folder("hil") / package, f"hil/{package}"):
             digest.update(name.encode())
             digest.update(source)
     if home is not None:
-        for name, source in _sources(resources.files(home), home.replace(".", "/")):
+        for name, source in _sources(_folder(home), home.replace(".", "/")):
             digest.update(name.encode())
             digest.update(source)
     return digest.hexdigest()
 
 
-def _sources(folder: Traversable, name: str) -> Iterator[tuple[str, bytes]]:
+def _folder(package: str) -> Path:
+    """The folder of ``package`` (dotted; imported if it is not yet), where its sources are."""
+    return Path(importlib.import_module(package).__path__[0])
+
+
+def _sources(folder: Path, name: str) -> Iterator[tuple[str, bytes]]:
     """``(name, bytes)`` of every ``.py`` file under ``folder``, sorted by name."""
     for entry in sorted(folder.iterdir(), key=lambda e: e.name):
         if entry.is_dir():

@@ -29,10 +29,8 @@ import importlib.util
 import json
 import logging
 import os
-import shutil
 import sys
 import sysconfig
-import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -198,6 +196,8 @@ def build(home: str | None, kernels: Sequence[Kernel]) -> Path | None:
     """Build ``home``'s kernels that were called from Python in this process, for every argument types
     numba compiled them for, as an extension module in :func:`directory` (older builds of the home
     removed); the module's path, or None when no kernel was called. Raises what the compiler raises."""
+    import tempfile  # here, where the install builds: not in every process that loads a build (~2 ms)
+
     entries = _entries(kernels)
     if not entries:
         return None
@@ -275,6 +275,8 @@ def _wrappers_release_the_gil() -> Iterator[None]:
 def can_build() -> bool:
     """Whether this machine can build an extension module: a C compiler on the PATH and the Python headers
     (numba.pycc compiles its helpers with them; Debian's ``gcc`` and ``python3-dev``)."""
+    import shutil  # here, where the install builds: not in every process that loads a build (~2 ms)
+
     compiler = any(shutil.which(cc) for cc in (os.environ.get("CC") or "cc", "gcc", "clang"))
     return compiler and (Path(sysconfig.get_paths()["include"]) / "Python.h").exists()
 
