@@ -22,12 +22,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol.calibration import UnitCalibration
-from protocol.errors import CalibrationError, HilError, LinkError
+from protocol.errors import CalibrationError, ConfigError, HilError, LinkError
 
 from .bench import BenchKind, read_bench_csv
 from .benchlink import BenchLink, GuardTripped
@@ -38,6 +39,7 @@ from .operator import Operator
 from .plot import plot_fits, plot_path
 from .progress import Report, no_report
 from .sweep import SweepPlan, SweepResult, run_sweep
+from .textfiles import check_writable
 from .verify import VerifyPlan, VerifyReport, run_verify
 
 
@@ -81,12 +83,13 @@ def calibrate_units(
 ) -> CycleResult:
     """See the module docstring. ``operator`` is asked for the ESC supply on a board without a supply
     switch (:func:`~hil.calibration.esc.program_esc`); ``report`` gets one line per step, with the time
-    left (the CLI prints them)."""
+    left (the CLI prints them).
+
+    Everything that can be refused without the board is checked before it is driven (:func:`check_cycle`)."""
+    check_cycle(units, options)
     for unit in units:
         link.check_unit(unit)
     kinds = [p.kind for p in options.plans]
-    if len(set(kinds)) != len(kinds):
-        raise CalibrationError(f"one sweep per map, got {[k.value for k in kinds]}", "--maps")
     client = link.client
     previous = {u: client.download_calibration(u) for u in units}
     existing = load_calibration(options.out) if options.out.exists() else CalibrationSet(())
@@ -134,9 +137,10 @@ def calibrate_units(
     calibrations = {u: _assemble(fits[u], existing.unit(u), previous[u]) for u in units}
     uploaded: list[int] = []  # units whose set went out, wholly or in part
     verified = None
-    step = "the upload"
+    order = list(calibrations)
+    step = f"the upload of unit {order[0]}'s set"
     try:
-        for unit, cal in calibrations.items():
+        for i, (unit, cal) in enumerate(calibrations.items()):
             step = f"the upload of unit {unit}'s set"
             uploaded.append(unit)
             client.upload_calibration(unit, cal)
@@ -146,35 +150,69 @@ def calibrate_units(
                     f"unit {unit}: the set read back differs from the one uploaded", "board"
                 )
             link.check_board(step)  # a board that reset after the read-back no longer holds it
+            # this unit's upload is done: what is cut short from here on is the next step
+            step = f"the upload of unit {order[i + 1]}'s set" if i + 1 < len(order) else "verification"
             report(f"unit {unit}: uploaded and read back ({len(cal.to_bytes())} bytes)")
         if options.verify is not None:
-            step = "verification"
             verified = run_verify(link, calibrations, options.verify, tuple(kinds), report=report)
             report(verified.table())
-    except (HilError, KeyboardInterrupt) as exc:
-        # A board lost, reset, stalled or interrupted mid-upload or mid-verification: a new set may sit
-        # on it half sent, or whole but unverified. Never leave that looking done: put the previous sets
+    except BaseException as exc:
+        # A board lost, reset, stalled or interrupted mid-upload or mid-verification — or anything else
+        # that ends the run there (a closed stdout's BrokenPipeError, a bug): a new set may sit on the
+        # board half sent, or whole but unverified. Never leave that looking done: put the previous sets
         # back where the board can still be reached, read them back, and say what it holds.
         held = _put_back(link, {u: previous[u] for u in uploaded})
-        if isinstance(exc, KeyboardInterrupt):
-            report(f"{step} did not finish: {held}")
-            raise
-        raise CalibrationError(
-            f"{step} did not finish ({exc}); {held}; the file was not written", str(options.out)
-        ) from exc
-    if verified is not None:
-        if not verified.ok:
-            for unit, cal in previous.items():
-                client.upload_calibration(unit, cal)
-            bad = [p for p in verified.points if not p.ok]
+        if isinstance(exc, HilError):
             raise CalibrationError(
-                f"{len(bad)} verification point(s) outside tolerance (e.g. {bad[0].line()}); the previous "
-                "sets were put back on the board and the file was not written",
-                str(options.out),
-            )
+                f"{step} did not finish ({exc}); {held}; {_not_written(plots)}", str(options.out)
+            ) from exc
+        with contextlib.suppress(Exception):  # the report itself may be what failed (a closed stdout)
+            report(f"{step} did not finish: {held}; {_not_written(plots)}")
+        raise
+    if verified is not None and not verified.ok:
+        held = _put_back(link, previous)
+        bad = [p for p in verified.points if not p.ok]
+        raise CalibrationError(
+            f"{len(bad)} verification point(s) outside tolerance (e.g. {bad[0].line()}); {held}; "
+            f"{_not_written(plots)}",
+            str(options.out),
+        )
     saved = _save(existing, options.out, calibrations, fits, csvs)
     report(f"saved units {units} in {saved}")
     return CycleResult(calibrations, fits, sweeps, csvs, esc, verified, saved, plots)
+
+
+def check_cycle(units: list[int], options: CycleOptions) -> None:
+    """What :func:`calibrate_units` refuses before the board is driven (a :class:`ConfigError` naming
+    the option): a unit given twice, a map swept twice, ESCs to be taught new endpoints without a rotor
+    sweep (the rotor map kept would be the one of the old endpoints, and never verified), and an output —
+    the calibration file, its fit plots, the bench CSVs — that is not a regular file or whose folder
+    cannot be written (each found after a whole sweep, or a read of a FIFO that waits for ever)."""
+    if not units or len(set(units)) != len(units):
+        raise ConfigError(f"{list(units)}: give each unit once", "--unit")
+    kinds = [p.kind for p in options.plans]
+    if len(set(kinds)) != len(kinds):
+        raise ConfigError(f"one sweep per map, got {[k.value for k in kinds]}", "--maps")
+    if options.esc is not None and BenchKind.ROTOR not in kinds:
+        raise ConfigError(
+            "teaches the ESCs new endpoints, so their rotor maps must be swept and fitted again: add rotor "
+            f"to --maps (given: {','.join(k.value for k in kinds)}); without it the rotor map kept would be "
+            "the one of the old endpoints, unverified",
+            "--program-esc",
+        )
+    check_writable(options.out, f"-o {options.out}")
+    for unit in units:
+        check_writable(plot_path(options.out, unit))
+        for plan in options.plans:
+            check_writable(
+                options.bench_dir / f"unit{unit}_{plan.kind.value}.csv", f"--bench-dir {options.bench_dir}"
+            )
+
+
+def _not_written(plots: dict[int, Path]) -> str:
+    """The end of a failed run's message: no calibration file; the fit plots drawn are kept, said so."""
+    kept = f" (the fit plots drawn are kept: {', '.join(str(p) for p in plots.values())})" if plots else ""
+    return f"the file was not written{kept}"
 
 
 RECONNECT_S = 5.0
@@ -184,34 +222,52 @@ RECONNECT_S = 5.0
 def _put_back(link: BenchLink, previous: dict[int, UnitCalibration]) -> str:
     """Put ``previous`` (unit → set) back on the board, each read back, after a failed upload or
     verification; what the board holds now, in words. The outputs go to rest first (an upload needs the
-    board DISARMED); a board that is lost is waited for :data:`RECONNECT_S`. Best effort: never raises."""
+    board DISARMED); a board that is lost — before or while the sets are put back — is waited for
+    :data:`RECONNECT_S` and the put-back started again, at most :data:`PUT_BACK_TRIES` times. Best effort:
+    never raises (an interrupt meanwhile gives up, said in the words)."""
     if not previous:
         return "nothing was uploaded; the board keeps its sets"
     units = sorted(previous)
-    client = link.client
+    restored: set[int] = set()
     try:
-        if not client.connected:
-            client.wait_for(lambda: client.connected, RECONNECT_S)
-        if not client.connected:
-            raise LinkError(f"not back within {RECONNECT_S:g} s")
-        link.safe()
-        restored = []
-        for unit in units:
-            if client.download_calibration(unit).to_bytes() == previous[unit].to_bytes():
-                continue
-            client.upload_calibration(unit, previous[unit])
-            if client.download_calibration(unit).to_bytes() != previous[unit].to_bytes():
-                raise CalibrationError(
-                    f"unit {unit}: the set read back differs from the previous one", "board"
-                )
-            restored.append(unit)
-    except (HilError, KeyboardInterrupt) as exc:
+        for attempt in range(1, PUT_BACK_TRIES + 1):
+            try:
+                restored |= _put_back_once(link, previous, units)
+                break
+            except HilError as exc:
+                lost = isinstance(exc, LinkError) or not link.client.connected  # a Disarm failed on it, say
+                if not lost or attempt == PUT_BACK_TRIES:
+                    raise
+    except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - said in the words, never raised
         return (
-            f"the previous sets of units {units} could not be put back ({exc}): the board may hold a new "
-            "set, unverified, or part of one"
+            f"the previous sets of units {units} could not be put back ({exc or type(exc).__name__}): the "
+            "board may hold a new set, unverified, or part of one"
         )
-    how = f"put back (units {restored})" if restored else "still there"
+    how = f"put back (units {sorted(restored)})" if restored else "still there"
     return f"the board holds the previous sets of units {units}, read back: {how}"
+
+
+PUT_BACK_TRIES = 3
+"""How many times :func:`_put_back` starts again on a board lost meanwhile (each waiting for it)."""
+
+
+def _put_back_once(link: BenchLink, previous: dict[int, UnitCalibration], units: list[int]) -> set[int]:
+    """One pass of :func:`_put_back`: the units whose set had to be uploaded again."""
+    client = link.client
+    if not client.connected:
+        client.wait_for(lambda: client.connected, RECONNECT_S)
+    if not client.connected:
+        raise LinkError(f"not back within {RECONNECT_S:g} s")
+    link.safe()
+    restored = set()
+    for unit in units:
+        if client.download_calibration(unit).to_bytes() == previous[unit].to_bytes():
+            continue
+        client.upload_calibration(unit, previous[unit])
+        if client.download_calibration(unit).to_bytes() != previous[unit].to_bytes():
+            raise CalibrationError(f"unit {unit}: the set read back differs from the previous one", "board")
+        restored.add(unit)
+    return restored
 
 
 def _assemble(fits: dict[BenchKind, Fit], entry: UnitEntry | None, board: UnitCalibration) -> UnitCalibration:

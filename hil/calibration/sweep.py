@@ -34,6 +34,7 @@ from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry
 from .bench import STATUS_KEY, BenchKind, write_bench_csv
 from .benchlink import TICK_S, BenchLink, Guard, GuardTripped, Settling, check_tolerance, hold
 from .progress import Eta, Report, duration, no_report
+from .textfiles import check_writable
 
 
 @dataclass(frozen=True)
@@ -207,6 +208,9 @@ def run_sweep(
         raise ConfigError(f"{list(units)}: give each unit once", "--unit")
     for unit in units:
         link.check_unit(unit)
+    if paths is not None:  # a CSV that cannot be written is refused before the board is armed
+        for unit in units:
+            check_writable(paths[unit])
     m = plan.measure
     channels = {unit: 2 * unit + m.offset for unit in units}
     pulses = plan.pulses()

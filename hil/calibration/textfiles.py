@@ -3,6 +3,7 @@ writes (a reader never sees half a calibration file)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -28,5 +29,32 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> Path:
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, out)
     except OSError as exc:
+        if tmp.is_file():  # written but not renamed (the target a folder, say): not left behind
+            with contextlib.suppress(OSError):
+                tmp.unlink()
         raise ConfigError(f"cannot write: {exc.strerror or exc}", str(path)) from exc
+    return out
+
+
+def check_writable(path: str | os.PathLike[str], where: str | None = None) -> Path:
+    """Refuse, before any work (a board driven, a sweep run), a file that :func:`write_atomic` could not
+    write or that reading would hang on: ``path`` exists but is not a regular file (a folder, a FIFO — a
+    read of which waits for a writer for ever —, a device), or its folder cannot be made or written (a
+    parent that is a regular file, a read-only folder). :class:`ConfigError` naming ``where`` (default:
+    the path). Nothing is created."""
+    out = Path(path)
+    said = where if where is not None else str(out)
+    if out.exists() or out.is_symlink():
+        if not out.is_file():
+            kind = "a folder" if out.is_dir() else "not a regular file (a FIFO, a device or a socket)"
+            raise ConfigError(f"cannot write {out}: {kind}", said)
+    folder = out.parent
+    while not folder.exists():
+        if folder.is_symlink():  # a dangling link: mkdir would fail
+            raise ConfigError(f"cannot write {out}: {folder} is a broken link", said)
+        folder = folder.parent
+    if not folder.is_dir():
+        raise ConfigError(f"cannot write {out}: {folder} is not a folder", said)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ConfigError(f"cannot write {out}: the folder {folder} is not writable", said)
     return out

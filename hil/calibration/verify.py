@@ -68,8 +68,18 @@ class VerifyPoint:
         settle = "" if self.settled else " (unsettled)"
         return (
             f"unit {self.unit} {self.kind.value:<12} commanded {self.commanded:9.4f} {unit:<5} measured "
-            f"{self.measured:9.4f}  error {self.error:+8.4f} (tolerance {self.tolerance:.4f}) {flag}{settle}"
+            f"{self.measured:9.4f}  error {_small(self.error, '+8.4f')} "
+            f"(tolerance {_small(self.tolerance, '.4f')}) {flag}{settle}"
         )
+
+
+def _small(x: float, spec: str) -> str:
+    """``x`` in ``spec`` (fixed point: the table's columns line up), or to 3 significant digits where that
+    would show a non-zero number as 0 (a tolerance of 1e-05 printed ``0.0000``)."""
+    text = format(x, spec)
+    if x != 0 and float(text) == 0:
+        return format(x, "+.3g" if spec.startswith("+") else ".3g")
+    return text
 
 
 @dataclass(frozen=True)
@@ -122,7 +132,8 @@ def run_verify(
                 worst = max(done, key=lambda p: abs(p.error) - p.tolerance)
                 report(
                     f"verify {eta.text()}: {kind.value} at {f:+.0%}, worst unit {worst.unit} error "
-                    f"{worst.error:+.4f} (tolerance {worst.tolerance:.4f}) {'ok' if worst.ok else 'FAIL'}"
+                    f"{_small(worst.error, '+.4f')} (tolerance {_small(worst.tolerance, '.4f')}) "
+                    f"{'ok' if worst.ok else 'FAIL'}"
                 )
     finally:
         link.safe()

@@ -8,6 +8,7 @@ process, in simulated time unless ``--realtime``). Registered by :mod:`hil.cli.c
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 from collections.abc import Iterator
@@ -306,9 +307,29 @@ def _program(args: argparse.Namespace) -> Any:
     return EscProgram(args.esc_low, args.esc_high, args.supply_off_ms, args.high_ms, args.low_ms)
 
 
-def _print(line: str) -> None:
-    """A progress line, flushed at once (the operator watches it; stdout may be a pipe)."""
-    print(line, flush=True)
+def say(line: str) -> None:
+    """A line on stdout, flushed at once (the operator watches it; stdout may be a pipe). A stdout that
+    refuses it — a pipe whose reader is gone (``hil calibrate unit | sed '/read back/q'``, ``show | head
+    -1``), a terminal that hung up — ends the output, not the command, as ``hil run``'s progress lines do
+    (:func:`hil.cli.run.say`): a BrokenPipeError raised mid-upload left a set on the board unverified and
+    ended in a traceback. stdout then goes to the null device, so the exit's flush of what was left in
+    its buffer fails no more (Python's note on SIGPIPE)."""
+    try:
+        print(line, flush=True)
+    except (OSError, ValueError):
+        _stdout_gone()
+
+
+def _stdout_gone() -> None:
+    import os
+
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
+_print = say
 
 
 # --------------------------------------------------------------------------- esc
@@ -330,7 +351,7 @@ def run_esc(args: argparse.Namespace) -> int:
                 report=_print,
             )
             phases = " -> ".join(p.name for p in outcome.phases)
-            print(f"unit {unit}: ESC taught {outcome.low_us}-{outcome.high_us} us ({phases})")
+            say(f"unit {unit}: ESC taught {outcome.low_us}-{outcome.high_us} us ({phases})")
     return 0
 
 
@@ -364,6 +385,7 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
         guard=_guard(args),
     )
     paths = {unit: args.out_dir / f"unit{unit}_{args.map}.csv" for unit in args.unit}
+    _check_before_connecting(args.unit, paths)
     with _bench(args) as link:
         results = run_sweep(link, args.unit, plan, paths=paths, report=_print)
     status = 0
@@ -371,17 +393,29 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
         path = paths[unit]
         unsettled = sum(not r.settled for r in result.rows)
         note = f", {unsettled} unsettled" if unsettled else ""
-        print(f"unit {unit}: {len(result.rows)} steps{note} -> {path}")
+        say(f"unit {unit}: {len(result.rows)} steps{note} -> {path}")
         if result.stopped:
             print(f"hil calibrate sweep: stopped early: {result.stopped}", file=sys.stderr)
             status = 1
     return status
 
 
+def _check_before_connecting(units: list[int], paths: dict[int, Path]) -> None:
+    """A unit given twice, or a bench CSV that cannot be written (a folder, a FIFO, a folder that is a
+    file): refused before the board is opened (``run_sweep`` checks it too, before arming)."""
+    from hil.calibration.textfiles import check_writable
+    from protocol.errors import ConfigError
+
+    if len(set(units)) != len(units):
+        raise ConfigError(f"{list(units)}: give each unit once", "--unit")
+    for path in paths.values():
+        check_writable(path, f"--out-dir {path.parent}")
+
+
 # --------------------------------------------------------------------------- unit
 def run_unit(args: argparse.Namespace) -> int:
     from hil.calibration.bench import BenchKind
-    from hil.calibration.cycle import CycleOptions, calibrate_units
+    from hil.calibration.cycle import CycleOptions, calibrate_units, check_cycle
     from hil.calibration.fit import FitOptions
     from hil.calibration.sweep import SweepPlan
     from hil.calibration.verify import VerifyPlan
@@ -429,6 +463,7 @@ def run_unit(args: argparse.Namespace) -> int:
         esc=_program(args) if args.program_esc else None,
         verify=verify,
     )
+    check_cycle(args.unit, options)  # before the board is opened (calibrate_units checks it again)
     with _bench(args) as link:
         calibrate_units(
             link,

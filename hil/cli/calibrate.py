@@ -123,8 +123,11 @@ def run_fit(args: argparse.Namespace) -> int:
     from hil.calibration.fit import FitOptions, fit_bench
     from hil.calibration.plot import plot_fits
     from hil.calibration.plot import plot_path as default_plot_path
+    from hil.calibration.textfiles import check_writable
     from protocol.calibration import UnitCalibration, default_unit_calibration
     from protocol.errors import CalibrationError
+
+    from ._calibrate_board import say
 
     options = FitOptions(
         esc_low_us=args.esc_low,
@@ -133,6 +136,7 @@ def run_fit(args: argparse.Namespace) -> int:
         gimbal_rate_knots_per_side=args.gimbal_rate_knots,
         gimbal_angle_knots=args.gimbal_angle_knots,
     )
+    check_writable(args.out, f"-o {args.out}")  # a FIFO read as the file to update waited for ever
     plot_path = _plot_target(args.plot, default_plot_path(args.out, args.unit))  # before anything is written
     datasets = [read_bench_csv(path) for path in args.csv]
     for d in datasets:
@@ -143,7 +147,7 @@ def run_fit(args: argparse.Namespace) -> int:
                 d.path,
             )
         if d.partial is not None:
-            print(f"warning: fitting a partial sweep: {d.partial}", file=sys.stderr)
+            print(f"warning: fitting a partial sweep: {d.partial}", file=sys.stderr, flush=True)
     kinds = [d.kind.value for d in datasets]
     for d in datasets:
         if kinds.count(d.kind.value) > 1:
@@ -192,10 +196,10 @@ def run_fit(args: argparse.Namespace) -> int:
     written = save_calibration(existing.with_unit(UnitEntry(args.unit, name, cal, provenance)), args.out)
     plot_path = plot_fits(fits, plot_path, title=f"{written.name}: unit {args.unit} ({name})")
     for _, fit in fits:
-        print(fit.report.summary())
+        say(fit.report.summary())
     if kept:
-        print(f"kept from {base_label}: {', '.join(kept)}")
-    print(f"wrote {written} (unit {args.unit}, {len(cal.to_bytes())}-byte binary set), plot {plot_path}")
+        say(f"kept from {base_label}: {', '.join(kept)}")
+    say(f"wrote {written} (unit {args.unit}, {len(cal.to_bytes())}-byte binary set), plot {plot_path}")
     return 0
 
 
@@ -204,8 +208,9 @@ def _plot_target(given: Path | None, default: Path) -> Path:
     beside the calibration file — checked before the calibration file is written (a plot refused after it
     left the file changed and said the command failed): a name without a suffix gets ``.png`` (what
     matplotlib saves it as, and so the path said), any other suffix must be an image format matplotlib
-    writes, a folder is refused, and the folder a given path goes in is made (the default's is the
-    calibration file's, which saving it makes or refuses). Anything else is a :class:`ConfigError`
+    writes, a folder or another file that is not a regular one (a FIFO: saving to it failed after the
+    calibration file was written) is refused, and the folder a given path goes in is made (the default's
+    is the calibration file's, which saving it makes or refuses). Anything else is a :class:`ConfigError`
     naming ``--plot`` and the path."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
@@ -224,6 +229,8 @@ def _plot_target(given: Path | None, default: Path) -> Path:
         )
     if path.is_dir():
         raise ConfigError("cannot save the plot: a folder, not an image file", where)
+    if path.exists() and not path.is_file():
+        raise ConfigError("cannot save the plot: not a regular file (a FIFO, a device or a socket)", where)
     if given is not None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -258,7 +265,7 @@ def run_bench(args: argparse.Namespace) -> int:
                 f"unit {unit} is not one of the bench's units 0..{args.units - 1}", "--mirrored"
             )
     paths = generate_bench(args.out_dir, args.units, args.seed, tuple(mirrored))
-    print(f"wrote {len(paths)} bench CSVs to {args.out_dir} (seed {args.seed})")
+    _say(f"wrote {len(paths)} bench CSVs to {args.out_dir} (seed {args.seed})")
     return 0
 
 
@@ -273,25 +280,25 @@ def run_show(args: argparse.Namespace) -> int:
         esc, rate = c.rotor.esc, c.gimbal_rate
         data = c.to_bytes()
         lo, hi = rate.rate_range
-        print(f"unit {u.index} ({u.name}): binary set {len(data)} bytes, CRC {crc16_ccitt_false(data):#06x}")
-        print(
+        _say(f"unit {u.index} ({u.name}): binary set {len(data)} bytes, CRC {crc16_ccitt_false(data):#06x}")
+        _say(
             f"  rotor: ESC {esc.low_us:g}-{esc.high_us:g} µs, deadband {esc.deadband_us:.1f} µs, "
             f"KV {c.rotor.kv_rad_s_per_v:.3f} rad/s/V ({c.rotor.kv_rad_s_per_v * 30 / math.pi:.0f} rpm/V), "
             f"{len(c.rotor.curve.x)} knots"
         )
-        print(
+        _say(
             f"  gimbal rate: {lo:.3f}..{hi:.3f} rad/s, dead zone {rate.dead_zone_us[0]:.1f}-"
             f"{rate.dead_zone_us[1]:.1f} µs, hold {rate.hold_us:.1f} µs"
         )
         a = c.gimbal_angle.curve
-        print(f"  gimbal angle: {min(a.y):.3f}..{max(a.y):.3f} rad over {a.x[0]:g}-{a.x[-1]:g} µs")
+        _say(f"  gimbal angle: {min(a.y):.3f}..{max(a.y):.3f} rad over {a.x[0]:g}-{a.x[-1]:g} µs")
         for name, fit in u.fits.items():
-            print(
+            _say(
                 f"  fit {name}: {fit.source}, {fit.points} points, rms {fit.rms_residual:.4g} "
                 f"{fit.residual_unit}, max {fit.max_residual:.4g}"
             )
         if args.hex:
-            print("  " + data.hex())
+            _say("  " + data.hex())
     return 0
 
 
@@ -304,5 +311,12 @@ def run_vectors(args: argparse.Namespace) -> int:
     out = write_vectors(
         cset, args.out, source=os.path.relpath(args.file.resolve(), args.out.resolve().parent)
     )
-    print(f"wrote {out}")
+    _say(f"wrote {out}")
     return 0
+
+
+def _say(line: str) -> None:
+    """A line on stdout; a closed one ends the output, not the command (``show | head -1``)."""
+    from ._calibrate_board import say
+
+    say(line)
