@@ -265,7 +265,9 @@ def test_the_projects_csv_with_columns_of_any_text_reads_as_without(tmp_path, re
     assert_same_samples(read_log(extra), read_log(plain))
 
     bare = tmp_path / "bare.csv"  # no first line naming the format: the header among others tells it
-    bare.write_text("\n".join(line for line in with_columns(lines, columns) if not line.startswith("#")))
+    bare.write_text(
+        "\n".join(line for line in with_columns(lines, columns) if not line.startswith("#")) + "\n"
+    )
     assert detect_format(bare) == "csv"
     assert_same_samples(read_log(bare), read_log(plain))
 

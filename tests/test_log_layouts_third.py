@@ -204,7 +204,12 @@ def test_any_line_ending_trailing_blanks_encoding_and_quoting_reads_as_the_expor
         return text.encode(encoding)
 
     folder = real_export(tmp_path_factory.mktemp("endings") / "rec", edit, encode, newline, ending)
-    assert_same_samples(read_log(folder), real_log)
+    reference = real_log
+    if not ending and not blanks:  # a last data line without a line break may be cut short: dropped, said
+        reference = read_log(
+            real_export(tmp_path_factory.mktemp("ref") / "rec", lambda name, lines: lines[:-1])
+        )
+    assert_same_samples(read_log(folder), reference)
 
 
 # --------------------------------------------------------------------------- 3. archives

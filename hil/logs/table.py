@@ -416,6 +416,7 @@ def read_table(
     use: Use | Sequence[str] | None = None,
     exact_columns: Sequence[str] = (),
     converters: Mapping[str, Callable[[str], float]] | None = None,
+    recording: bool = True,
 ) -> Table:
     """Stream one member of ``container`` into a :class:`Table` (see the module docstring) of the columns
     ``use`` names — a list of names, or a function of the :class:`Header` that returns them — in that
@@ -434,7 +435,12 @@ def read_table(
     reader names one, so its cells are never parsed. The last one of a header that ends in a delimiter
     (``time,seconds_elapsed,z,y,x,``: a tool that re-saved the file ending every line in a delimiter) is
     that too — its rows end in an empty cell (``…,1.23,``), or hold anything there — and ``use=None``
-    leaves it out; a row without that cell is an error naming its line, as any row too short is."""
+    leaves it out; a row without that cell is an error naming its line, as any row too short is.
+
+    A last data line without a line break is dropped (:attr:`Table.cut_short`, warned): a recording
+    stopped in the middle of a write may have cut it mid-number, and a value cut short ("0.0036" of
+    "0.00366519") still parses, wrong. At most one sample is lost, and said. ``recording=False`` reads such
+    a line (a file of settings written by hand, e.g. one number: no recording that was cut)."""
     source = container.where(name)
     parser: RowParser | None = None
     header_line = 0
@@ -458,10 +464,19 @@ def read_table(
             parser = _parser(head, use, named, exact_columns, converters or {}, delimiter, decimal_comma)
             parser.header = header
             start = found + 1 if header else found
+        last = isinstance(lines, Unterminated) and not start  # a header alone is no cut-short row
+        if last and recording and _first_content(lines) is not None:
+            # a last data line without a line break: the recording stopped mid-write, maybe mid-number
+            # ("…,0.0036651" of "…,0.00366519158706069") — a value that parses is no proof it is whole;
+            # dropped always (at most one sample), as one that does not parse is, and said
+            cut_short, rows = InputFormatError("no line break after it", source, first_line), 0
+            logger.warning("%s", cut_short_note(cut_short))
+            container.count_samples(rows, source, first_line)
+            continue
         try:
             rows = parser.parse(lines[start:], first_line + start)
         except InputFormatError as exc:
-            if not isinstance(lines, Unterminated) or start:  # a header alone is no cut-short row
+            if not last:
                 raise
             cut_short, rows = exc, 0
             logger.warning("%s", cut_short_note(exc))

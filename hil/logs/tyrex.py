@@ -81,7 +81,7 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     where = c.where("qualisys.mat")
     offset = 0.0
     if c.has("timeAlignment.txt"):
-        table = read_table(c, "timeAlignment.txt", None, header=False, use=("col0",))
+        table = read_table(c, "timeAlignment.txt", None, header=False, use=("col0",), recording=False)
         if not len(table.data):
             raise InputFormatError(f"no clock offset ({table.cut_short})", table.source, None, "col0")
         offset = float(table.data[0, 0])
