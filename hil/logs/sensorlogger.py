@@ -87,6 +87,11 @@ MAX_RECORDING_S = 31 * 86400
 """The farthest a row's ``time`` may lie from its file's median (s): a recording of a month. A row
 farther off (one at 1e18 ns, 2001, in a recording of 2023: a corrupt timestamp) would become the clock's
 origin and put every other sample two decades on; it is a NaN sample instead, noted."""
+NO_TIME = np.iinfo(np.int64).min
+"""The int64 ``time`` of a row that has none usable (no number, beyond int64, no time of the recording):
+NaN once on the log's clock. Never the median's or a neighbour's: a time given to a row it does not have
+put its NaN sample in the middle of the recording, and ``hil replay --port`` (which releases a stream at
+the latest time recorded up to each sample) held the samples after it back until then."""
 
 
 def members(c: Container) -> dict[str, str] | None:
@@ -293,12 +298,13 @@ def samples(
     """The times (int64 ns since the epoch, or float s since the start) and readings (N, 3, SI) of
     ``table``, the export's file ``name`` (``Gyroscope.csv``: it says the sensor) however it was stored
     (a CSV file, the records of the JSON export). A row whose ``time`` is no number (NaN, or beyond
-    int64) has NaN readings: a NaN sample, dropped and counted by the merge. A table with no rows is an
-    InputFormatError naming it when ``required``. ``clocks`` collects, by ``name``, its clock's
-    base — ``time`` less ``seconds_elapsed``, the epoch the recording started at (s) — when it has both,
-    and says whether to read ``seconds_elapsed`` only. A ``time`` rounded (:func:`_coarse`) is
-    :class:`_CoarseTime` when the file has a ``seconds_elapsed`` to read instead, else an
-    InputFormatError naming the column."""
+    int64) or no time of the recording has NaN readings and the time :data:`NO_TIME` (NaN on the log's
+    clock): a NaN sample, dropped and counted by the merge (and by the host's admission under --port).
+    A table with no rows is an InputFormatError naming it when ``required``. ``clocks`` collects, by
+    ``name``, its clock's base — ``time`` less ``seconds_elapsed``, the epoch the recording started at
+    (s) — when it has both, and says whether to read ``seconds_elapsed`` only. A ``time`` rounded
+    (:func:`_coarse`) is :class:`_CoarseTime` when the file has a ``seconds_elapsed`` to read instead,
+    else an InputFormatError naming the column."""
     notes.extend(table.layout_notes())
     table, units = _clock_names_lowered(table)
     if required and not len(table.data):
@@ -401,7 +407,7 @@ def _epoch_ns(
     units = units or _ClockUnits()
     times = table.exact["time"]
     if not usable.any():
-        return times, usable
+        return np.full(len(times), NO_TIME, np.int64), usable
     typical = int(np.median(times[usable]))
     unit = next((u for u in EPOCH_UNITS if u[0] <= typical < u[1]), None)
     if unit is None:
@@ -443,7 +449,9 @@ def _epoch_ns(
             "dropped and counted"
         )
         usable = usable & ~stray
-    ns = np.where(usable, times, typical) * ns_per_unit
+    # an unusable row keeps no time it does not have (the median's, once: a row that --port released at
+    # the middle of the recording, holding the stream back); NO_TIME, NaN once on the log's clock
+    ns = np.where(usable, times * ns_per_unit, NO_TIME)
     floats = table.column("time")
     fractional = usable & (times.astype(float) != floats)
     if fractional.any():  # "1679068247.609" (s), "1679068247609.3" (ms): a re-save's, not truncated
@@ -576,6 +584,8 @@ def _assemble(
             mag = None
             continue
         parts[kind] = (times, xyz)
+        if kind is SensorKind.GYR:
+            notes.append(f"gyroscope: {export.files[name]}")  # named where its unit is doubted (deg/s?)
         if "Uncalibrated" in name:
             notes.append(f"{name}: no calibrated file in the export, using the uncalibrated one")
     if _first(files, MAG_FILES) is None:
@@ -592,9 +602,11 @@ def _assemble(
     _same_clock(bases, parts, export)
     streams = {}
     if all(epoch.values()):
-        t0 = min(int(t.min()) for t, _ in parts.values() if len(t))
+        t0 = min((int(t[t != NO_TIME].min()) for t, _ in parts.values() if (t != NO_TIME).any()), default=0)
         for kind, (t, xyz) in parts.items():
-            streams[kind] = SensorStream(kind, (t - t0).astype(float) * 1e-9, xyz)
+            known = t != NO_TIME
+            seconds = np.where(known, np.where(known, t, t0) - t0, 0).astype(float) * 1e-9
+            streams[kind] = SensorStream(kind, np.where(known, seconds, np.nan), xyz)
         notes.append(f"time: ns since epoch, origin {t0} ns")
     else:
         streams = {kind: SensorStream(kind, t, xyz) for kind, (t, xyz) in parts.items()}
@@ -660,8 +672,23 @@ def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np
         if not known.any():
             raise InputFormatError("no usable samples", files["Gravity.csv"])
         grav_t, g = grav_t[known], g[known]
+        # np.interp needs increasing times: a row at or before an earlier one (rows out of order, a clock
+        # that went back) was interpolated as if sorted, silently wrong; only rows later than every one
+        # before them are kept, the others counted and noted
+        later = np.ones(len(grav_t), bool)
+        later[1:] = grav_t[1:] > np.maximum.accumulate(grav_t)[:-1]
+        if not later.all():
+            first = int(np.flatnonzero(known)[np.argmax(~later)]) + 1
+            notes.append(
+                f"{files['Gravity.csv']}: {int((~later).sum())} rows whose time is not after every earlier "
+                f"row's (out of order, or repeated; the first on data row {first}): not interpolated "
+                "between, dropped"
+            )
+            grav_t, g = grav_t[later], g[later]
         base = grav_t[0]
-        tu, tg = (user_t - base).astype(float), (grav_t - base).astype(float)
+        timed = user_t != NO_TIME if user_t.dtype.kind == "i" else np.isfinite(user_t)
+        tu = np.where(timed, np.where(timed, user_t, base) - base, 0).astype(float)
+        tg = (grav_t - base).astype(float)
         xyz = user + np.column_stack([np.interp(tu, tg, g[:, i]) for i in range(3)])
         notes.append("accelerometer: Accelerometer.csv (user acceleration) + Gravity.csv (interpolated)")
         return user_t, xyz

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import so3
+from hil.estimation.admission import JUMP_S
 from hil.estimation.sensors import SensorKind, SensorLog, SensorSample
 from hil.link.sources.base import EventWriter, GroundTruth, PhoneSource, SourceContext
 from protocol.errors import ConfigError
@@ -43,12 +44,25 @@ def play(url: str, context: SourceContext) -> RecordedSource:
 
 def release_times(t: Array) -> Array:
     """When each of one stream's samples is released, on the log's clock: in the stream's recorded order,
-    each at the latest time recorded up to it (a NaN time, whose reading the host drops and counts, at the
-    last finite one; -inf before any: at once). A sample whose time went back (a clock that jumped back,
-    a resumed recording) goes out in its place, after the later ones, as a live phone would send it, for
-    the host's admission to judge — sorted by its own time it was slipped in among them, the recording's
-    two stretches interleaved into one estimate (the replay without ``--port`` drops them, warned)."""
-    release = np.fmax.accumulate(t) if len(t) else t  # fmax: a NaN keeps the running maximum
+    each at the latest time recorded up to it — a sample's time counted no later than the next finite
+    time after it — (a NaN time, whose reading the host drops and counts, at the last finite one; -inf
+    before any: at once). A sample whose time went back (a clock that jumped back, a resumed recording)
+    goes out in its place, after the later ones, as a live phone would send it, for the host's admission
+    to judge — sorted by its own time it was slipped in among them, the recording's two stretches
+    interleaved into one estimate (the replay without ``--port`` drops them, warned). A stamp more than
+    :data:`~hil.estimation.admission.JUMP_S` ahead of the sample after it (a corrupt time: 11 days on, 5 s
+    on) is released with that next sample, as the phone sent it, and the host's admission drops it as a
+    ``future`` stray: counted as the latest time, it held every later sample of its stream back until then
+    (the phone lost). Nearer, it is due at its own time (never released early)."""
+    if not len(t):
+        return t
+    finite = np.flatnonzero(np.isfinite(t))
+    after = np.searchsorted(finite, np.arange(len(t)), side="right")  # the next finite sample's index
+    nxt = np.full(len(t), np.inf)
+    has = after < len(finite)
+    nxt[has] = t[finite[after[has]]]
+    stray = t - nxt > JUMP_S  # ahead of the next sample by more than the host takes as one stream
+    release = np.fmax.accumulate(np.where(stray, nxt, t))  # fmax: a NaN keeps the running maximum
     return np.where(np.isnan(release), -np.inf, release)
 
 
