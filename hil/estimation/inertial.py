@@ -85,8 +85,11 @@ def find_still_window(
 
     Still means: every gyroscope sample below ``max_rate`` rad/s in norm, the accelerometer's norm varying
     by at most ``max_acc_std`` m/s² (standard deviation) around a value within 1 m/s² of 9.81, and at
-    least a few samples of each sensor. Raises InputFormatError (naming the log) if there is none. A 6-axis
-    log's window has no magnetometer mean (``mag`` None).
+    least a few samples of each sensor. Accelerometer and magnetometer readings that are zero or not finite
+    (a sensor not yet started writes 0, 0, 0) are no readings here: skipped, and a window needs a few
+    others — their mean would be no direction (the field's inclination NaN). Raises InputFormatError
+    (naming the log) if there is none, naming the sensor when it has no usable reading in the span
+    searched. A 6-axis log's window has no magnetometer mean (``mag`` None).
     """
     t_start = log.start
     end = t_start + search_s + 1e-6  # no window reaches past this: only the samples before it are searched
@@ -98,20 +101,24 @@ def find_still_window(
     (gyr_t, gyr_xyz), (acc_t, acc_xyz) = head(log.streams[SensorKind.GYR]), head(log.streams[SensorKind.ACC])
     mag_stream = log.streams.get(SensorKind.MAG)
     mag = None if mag_stream is None else head(mag_stream)
+    acc_ok = _directions(acc_xyz)
+    mag_ok = None if mag is None else _directions(mag[1])
+    _require_some(acc_ok, "accelerometer", search_s, log.source)
+    if mag_ok is not None:
+        _require_some(mag_ok, "magnetometer", search_s, log.source)
     acc_norm = np.linalg.norm(acc_xyz, axis=1)
     gyr_norm = np.linalg.norm(gyr_xyz, axis=1)
     for t0 in np.arange(t_start, t_start + search_s - duration_s + 1e-9, duration_s / 4):
         t1 = t0 + duration_s
         g = (gyr_t >= t0) & (gyr_t <= t1)
-        a = (acc_t >= t0) & (acc_t <= t1)
-        m = (mag[0] >= t0) & (mag[0] <= t1) if mag is not None else None
+        a = (acc_t >= t0) & (acc_t <= t1) & acc_ok
+        m = (mag[0] >= t0) & (mag[0] <= t1) & mag_ok if mag is not None and mag_ok is not None else None
         if min(g.sum(), a.sum(), 5 if m is None else m.sum()) < 5:
             continue
         if (
             np.all(gyr_norm[g] < max_rate)
             and np.std(acc_norm[a]) <= max_acc_std
             and abs(np.mean(acc_norm[a]) - 9.81) < 1.0
-            and (mag is None or np.all(np.isfinite(mag[1][m])))
         ):
             mag_mean = None if mag is None else mag[1][m].mean(axis=0)
             return StillWindow(float(t0), float(t1), acc_xyz[a].mean(axis=0), mag_mean)
@@ -120,6 +127,22 @@ def find_still_window(
         f"in the first {search_s:g} s",
         log.source,
     )
+
+
+def _directions(xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which readings (N, 3) give a direction: finite and not zero."""
+    return np.all(np.isfinite(xyz), axis=1) & np.any(xyz != 0.0, axis=1)
+
+
+def _require_some(ok: NDArray[np.bool_], sensor: str, window_s: float, source: str) -> None:
+    """An InputFormatError naming ``sensor`` when none of its readings (``ok``) gives a direction."""
+    if not ok.any():
+        raise InputFormatError(
+            f"no {sensor} reading in the first {window_s:g} s gives a direction (each is zero or not a "
+            f"number: the {sensor} not started, or its file broken): the inertial directions cannot be "
+            "measured; give --inclination or --lat/--lon/--date",
+            source,
+        )
 
 
 def directions_from_still(window: StillWindow, declination_deg: float = 0.0) -> Array:
@@ -134,11 +157,18 @@ def median_inclination_deg(log: SensorLog, window_s: float = 10.0) -> float:
     acc, mag = log.streams[SensorKind.ACC], log.streams.get(SensorKind.MAG)
     if mag is None:
         raise InputFormatError("no magnetometer: the field's inclination is not observed", log.source)
-    sel = (mag.t >= log.start) & (mag.t <= log.start + window_s) & np.all(np.isfinite(mag.xyz), axis=1)
+    early = (mag.t >= log.start) & (mag.t <= log.start + window_s)
+    _require_some(_directions(mag.xyz) & early, "magnetometer", window_s, log.source)
+    _require_some(
+        _directions(acc.xyz) & (acc.t <= log.start + window_s), "accelerometer", window_s, log.source
+    )
+    sel = early & _directions(mag.xyz)
     if sel.sum() < 5 or len(acc) < 2:
         raise InputFormatError(f"too few magnetometer samples in the first {window_s:g} s", log.source)
     idx = np.clip(np.searchsorted(acc.t, mag.t[sel]), 0, len(acc) - 1)
     a, m = acc.xyz[idx], mag.xyz[sel]
+    pair = _directions(a)  # an accelerometer reading of zero beside it: no angle
+    a, m = a[pair], m[pair]
     dots = np.sum(a * m, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(m, axis=1))
     dots = dots[np.isfinite(dots)]
     if dots.size < 5:
