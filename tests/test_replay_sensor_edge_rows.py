@@ -94,8 +94,8 @@ def _zeros(folder, name: str, rows: range, lines: int = LINES):
 @SETTINGS
 @given(
     name=st.sampled_from(["Magnetometer.csv", "TotalAcceleration.csv"]),
-    first=st.integers(0, 40),
-    n=st.integers(1, 80),
+    first=st.integers(0, 5),
+    n=st.integers(60, 150),
 )
 def test_zero_readings_in_the_still_window_are_skipped(tmp_path, capsys, name, first, n):
     out = tmp_path / f"{name}-{first}-{n}"
