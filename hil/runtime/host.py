@@ -257,7 +257,8 @@ class Host:
         view = watch.view(t)
         watch.hold_disarmed(t, view)
         watch.hold_armed(t, view)
-        watch.rearm_if_needed(t)
+        # no re-arm is started on the run's last tick: the board would be left ARMED, commanded by no one
+        watch.rearm_if_needed(t, start=not self.phases.time_is_up(t, self._duration))
         self.in_control = watch.in_control(t, view, phone_fresh)
         lost = self.journal.overdue(t)
         if lost is not None and self.lost is None:

@@ -270,6 +270,7 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
     events = EventLog(None, tap=tap_event)
     built: _Built | None = None
     error: BaseException | None = None
+    final = FinalDisarm()
     with HeldSignals() as held:
         try:
             if opts.out_root is not None:
@@ -281,7 +282,7 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
                     run_dir / "telemetry.csv", telemetry_columns(scenario.n_units), tap=tap_row
                 )
             with contextlib.ExitStack() as stack:
-                built = _build(scenario, opts, plan, telemetry, events, stack, held)
+                built = _build(scenario, opts, plan, telemetry, events, stack, held, final)
                 if observer is not None:
                     observer.started(RunStart(built.host, built.scheduler, run_dir, plan.mode))
                 loop_started = time.monotonic()
@@ -423,6 +424,7 @@ def _build(
     events: EventLog,
     stack: contextlib.ExitStack,
     held: HeldSignals,
+    final: FinalDisarm,
 ) -> _Built:
     """Board client, phone source (:func:`hil.link.sources.create_source` on ``plan.phone``), host and
     scheduler for ``plan``; everything opened is closed by ``stack``."""
@@ -446,7 +448,8 @@ def _build(
         opts.recover_within_s,
         lambda retry: events.write(retry.t, "connect_retry", attempt=retry.attempt, detail=str(retry.error)),
     )
-    stack.push(_disarm_on_the_way_out(client, events, held))  # unwound before the close: the link still up
+    # unwound before the close: the link still up
+    stack.push(_disarm_on_the_way_out(client, events, held, final))
     handshake = client.drain_events()
     write_event = _HeldEvents(events)
     write_event(clock.now(), "connected", board=info.describe(), units=info.n_units)
@@ -481,6 +484,7 @@ def _build(
         recover_within_s=opts.recover_within_s,
     )
     host.watch.on_events(handshake)
+    final.arm_outstanding = lambda: host.watch.arm_outstanding
     write_event.release()
     # before arming: the board's link watchdog is fed while we wait, not by the armed loop
     source.wait_ready(opts.phone_wait_s, lambda: host.watch.on_events(client.service()))
@@ -590,7 +594,20 @@ def _interrupted(exc: BaseException) -> str:
     return f"interrupted ({signal.Signals(getattr(first, 'signum', signal.SIGINT)).name})"
 
 
-def _disarm_on_the_way_out(client: BoardClient, events: EventLog, held: HeldSignals) -> Callable[..., bool]:
+@dataclass
+class FinalDisarm:
+    """The Disarm the run's way out sends (:func:`_disarm_on_the_way_out`) and how it went: ``outcome``
+    (``sent``, ``ok``, ``reason``, the ``error`` of one that failed, the board's ``state`` as last known)
+    once the way out ran. ``arm_outstanding`` says whether an Arm of the host's may still reach the board
+    (the host's watch, once it exists)."""
+
+    arm_outstanding: Callable[[], bool] = lambda: False
+    outcome: dict[str, Any] | None = None
+
+
+def _disarm_on_the_way_out(
+    client: BoardClient, events: EventLog, held: HeldSignals, final: FinalDisarm
+) -> Callable[..., bool]:
     """An exit callback for the run's ExitStack: when the run is interrupted, disarm the board the host
     holds before the link is closed, best effort within :data:`DISARM_WAIT_S`, and say so in events.jsonl
     (``disarmed``, or ``disarm_failed`` with why). Closing the port alone leaves an armed board spinning its
@@ -603,8 +620,13 @@ def _disarm_on_the_way_out(client: BoardClient, events: EventLog, held: HeldSign
     that ends by itself (completed, or lost and back) with the board in hand and ARMED disarms it too,
     reason ``run ended``: let go armed, the board spun its rotors at the last setpoint until its link
     watchdog tripped, and the next session found it in FAILSAFE with a link-lost fault no one had
-    suffered. Never suppresses the exception. After the Disarm (or none) further interrupts are held
-    (``held``): the link is closed and the run's ending written whole."""
+    suffered. Not only an ARMED board: one in FAILSAFE, in a state not known, or with an Arm of the
+    host's still in flight (a re-arm, the operator's Arm) is sent the Disarm too — a host paused across
+    the run's end read FAILSAFE, re-armed, and let go of a board that the Arm then armed, with no one
+    commanding it; a Disarm is safe in every state. Only a board known DISARMED (or still booting) with no
+    Arm outstanding is left as it is. Never suppresses the exception. How it went is ``final.outcome``.
+    After the Disarm (or none) further interrupts are held (``held``): the link is closed and the run's
+    ending written whole."""
 
     def on_exit(exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> bool:
         try:
@@ -621,26 +643,39 @@ def _disarm_on_the_way_out(client: BoardClient, events: EventLog, held: HeldSign
         return False
 
     def _disarm(exc: BaseException | None) -> None:
+        state = client.state
         if isinstance(exc, KeyboardInterrupt):
             reason = _interrupted(exc)
-        elif client.connected and client.state is BoardState.ARMED:
+        elif client.connected and (state not in _LEFT_AS_IT_IS or final.arm_outstanding()):
             reason = "run ended" if exc is None else f"{_ending(exc)}: {exc}"
-        else:
+        else:  # known disarmed (nothing to send), or no session to send it in (a lost link: not known)
+            known = None if state is None else state.name
+            final.outcome = {"sent": False, "ok": True if client.connected else None, "state": known}
             return
         if not client.connected:
-            events.write(
-                client.clock.now(), "disarm_failed", reason=reason, error="no session with the board"
-            )
+            error = "no session with the board"
+            events.write(client.clock.now(), "disarm_failed", reason=reason, error=error)
+            final.outcome = {"sent": False, "ok": False, "reason": reason, "error": error, "state": None}
             return
+        final.outcome = {"sent": True, "ok": None, "reason": reason, "state": None}
         try:
             client.disarm(timeout=DISARM_WAIT_S)
         except (HilError, KeyboardInterrupt) as failure:
             error = str(failure) or f"{type(failure).__name__} while waiting"
             events.write(client.clock.now(), "disarm_failed", reason=reason, error=error)
+            final.outcome.update(ok=False, error=error)
         else:
             events.write(client.clock.now(), "disarmed", reason=reason)
+            final.outcome["ok"] = True
+        state = client.state
+        final.outcome["state"] = None if state is None else state.name
 
     return on_exit
+
+
+_LEFT_AS_IT_IS = (BoardState.DISARMED, BoardState.BOOT)
+"""The board states the run's way out sends no Disarm to, unless an Arm of the host's is in flight: known
+disarmed, or still booting (which refuses a Disarm and drives nothing)."""
 
 
 def _ending(exc: BaseException) -> str:

@@ -300,10 +300,19 @@ class BoardWatch:
     def rearm_pending(self) -> bool:
         return self._rearm is not None
 
-    def rearm_if_needed(self, t: float) -> None:
+    @property
+    def arm_outstanding(self) -> bool:
+        """Whether an Arm of the host's may still reach the board: a re-arm sent and not settled, or the
+        operator's Arm in flight. A board the host lets go of then must be sent a Disarm after it."""
+        rearm, arm = self._rearm, self._operator_arm
+        return (isinstance(rearm, Command) and not rearm.done) or (arm is not None and not arm.done)
+
+    def rearm_if_needed(self, t: float, start: bool = True) -> None:
         """Re-arm without blocking the loop: send Arm once a session is up, look at the answer later. An
         operator's Arm that failed (a stall, a reset while it was in flight) is carried on the same way:
-        the operator asked for an armed board, and a link fault does not take that back."""
+        the operator asked for an armed board, and a link fault does not take that back. ``start`` False
+        (the run's time is up: this tick is its last) sends no new Arm — a re-arm sent as the host lets go
+        of the board left it ARMED with no one commanding it — and only settles one already in flight."""
         arm = self._operator_arm
         if arm is not None and arm.done:
             self._operator_arm = None
@@ -313,6 +322,8 @@ class BoardWatch:
         if self._rearm is None or not self.client.connected:
             return
         if self._rearm == "pending":
+            if not start:
+                return
             self._rearm = self.client.command(Arm())
             self.events.write(t, "rearm_sent", seq=self._rearm.seq)
             return

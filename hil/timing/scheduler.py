@@ -10,7 +10,11 @@ in lockstep the run is therefore deterministic. "The same instant" is the same n
 commensurate periods that meet (5 × 1 ms and 1 × 5 ms) differ in their last bits of floating point, and
 must not run in the order of their rounding errors. A task that is found late by more than its period has
 overrun: the missed activations are *skipped* (counted in ``overruns``), never replayed in a burst, since a
-stale control step is worse than a missed one.
+stale control step is worse than a missed one. Nor does :meth:`Scheduler.run` run an activation it finds
+past its limit by more than the task's period (its process paused across the run's end, seconds late): the
+run's time is up, and a control step then would act on a run that has ended (it once re-armed a board that
+failed safe during the pause, as the host let go of it). An activation that is merely late runs as before,
+and in lockstep (the clock at each deadline) every one due by the limit runs.
 
 Statistics per task: lateness (how long after its deadline a task started, s) in a bounded ring, with
 p50 / p99 / max, and the number of runs and overruns — the jitter figures ``bench/`` reports.
@@ -115,7 +119,8 @@ class Scheduler:
 
     def run(self, until: float | None = None) -> None:
         """Run tasks in deadline order until the next deadline would be after ``until`` (s, clock time;
-        None: until :meth:`stop`)."""
+        None: until :meth:`stop`), or until an activation is found past ``until`` by more than its task's
+        period (the clock stood still for it: a process paused across the limit)."""
         self._stop = False
         clock = self.clock
         tasks = self.tasks
@@ -132,6 +137,8 @@ class Scheduler:
             clock.sleep_until(due)
             task = tasks[index]
             started = clock.now()
+            if started > limit and started - due > task.period_s:
+                return  # found past the limit (a host paused across it): its time is up, nothing more runs
             task.stats.record(started - due if started > due else 0.0)
             task.callback(due)
             self._advance(index, clock.now())
