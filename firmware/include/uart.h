@@ -2,8 +2,10 @@
  * uart.h - UART0 to the host: interrupt-driven receive and transmit rings.
  *
  * The receive interrupt keeps taking bytes while the main loop is busy (or hung): they wait in a ring of
- * UART_RX_SIZE bytes; bytes that find it full are dropped and counted (rx_overflow), as are bytes the
- * hardware flags with a framing error or an overrun. Frames for the host are queued whole or not at
+ * UART_RX_SIZE bytes; bytes that find it full are dropped and counted (rx_overflow), and so are the bytes
+ * after them until a frame delimiter (0x00) arrives with half the ring free again, so that a host writing
+ * faster than the board reads loses whole frames, not a byte here and there of every frame; bytes the hardware flags with a framing
+ * error or an overrun are dropped and counted (line_errors). Frames for the host are queued whole or not at
  * all: uart_send refuses a frame that does not fit the transmit ring (counted by the caller).
  *
  * When the host's protocol runs over USB (port.c), the transmit ring is the USB link's queue instead:

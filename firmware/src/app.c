@@ -365,9 +365,18 @@ static uint8_t apply(uint8_t event)
  * safe within the timeout plus one pulse frame. So the 1 kHz tick interrupt stops them itself, in the
  * tick the link times out: the rotor channels go to the safe pulse and are held there (pulses_hold)
  * until the main loop's next pass has made the change. It stands back while received bytes wait in the
- * UART ring: those are for the main loop to judge first.
+ * UART ring (those are for the main loop to judge first), but only for LINK_GRACE_MS past the timeout:
+ * under a flood bytes always wait, and a flood of frames the board discards is a silent link.
  */
 static volatile uint8_t link_stopped;
+
+/* A main-loop pass reads received bytes for at most RX_BUDGET_MS (process_rx): a host that writes faster
+ * than the board can take (UART0 at 250 kbaud and up, flat out) must not keep the loop from its watchdog
+ * check-in, the link watchdog, the reports and the outputs. What the ring cannot hold meanwhile is lost
+ * and counted (the receive Log). Bytes left waiting when the budget ran out delay the link watchdog's
+ * verdict by at most LINK_GRACE_MS (they may hold a frame received in time), never more. */
+#define RX_BUDGET_MS 2u
+#define LINK_GRACE_MS (2u * RX_BUDGET_MS)
 
 static uint16_t rotor_channels(void)
 {
@@ -381,7 +390,9 @@ void app_tick(uint32_t now_ms)
 {
     if (link_stopped || !board.session || board.link_lost || !board.have_rx || !motors_enabled(board.state))
         return;
-    if (now_ms - board.last_rx_ms < board.cfg.link_timeout_ms || port_rx_pending())
+    uint32_t quiet = now_ms - board.last_rx_ms;
+    if (quiet < board.cfg.link_timeout_ms ||
+        (quiet < (uint32_t)board.cfg.link_timeout_ms + LINK_GRACE_MS && port_rx_pending()))
         return;
     link_stopped = 1;
     pulses_hold(rotor_channels(), board.cfg.rotor_safe_us);
@@ -686,15 +697,28 @@ static void handle_frame(const frame_t *f, uint32_t now)
     }
 }
 
-static void process_rx(uint32_t now)
+/* Reads and handles received bytes for at most RX_BUDGET_MS; returns 1 when it stopped with bytes left. */
+static uint8_t process_rx(uint32_t now)
 {
-    uint8_t b;
+    uint8_t b, more = 0;
+    uint32_t start = clock_ms();
     while (port_read(&b)) {
         if (deframer_feed(&board.deframer, b, &board.frame) == DEFRAME_FRAME) {
             port_frame_valid(); /* "first": this frame's link becomes the link, before any answer */
             handle_frame(&board.frame, now);
         }
+        if (clock_ms() - start >= RX_BUDGET_MS) {
+            more = port_rx_pending();
+            break;
+        }
     }
+    return more;
+}
+
+/* Received bytes lost since the last report, in a Log: at most one a heartbeat period (a flood loses bytes
+ * in every pass, and a Log each pass would crowd the telemetry out of the transmit ring). */
+static void report_rx_lost(void)
+{
     uart_stats_t st;
     uart_stats(&st);
     if (st.rx_overflow != board.rx_lost.rx_overflow || st.line_errors != board.rx_lost.line_errors) {
@@ -792,9 +816,11 @@ void app_boot(uint8_t reset_cause, config_status_t config, uint8_t config_proble
 uint8_t app_poll(uint32_t now)
 {
     port_poll(); /* USB: attach, enumeration, accessory handshake, bulk IN/OUT (bounded) */
-    process_rx(now);
+    uint8_t more = process_rx(now);
+    uint32_t quiet = now - board.last_rx_ms;
     if (board.session && !board.link_lost && board.have_rx &&
-        (link_stopped || now - board.last_rx_ms >= board.cfg.link_timeout_ms))
+        (link_stopped || (quiet >= board.cfg.link_timeout_ms &&
+                          (!more || quiet >= (uint32_t)board.cfg.link_timeout_ms + LINK_GRACE_MS))))
         on_link_lost(now);
     esc_cal_poll(now);
     if ((int32_t)(now - board.next_power_ms) >= 0) {
@@ -812,8 +838,10 @@ uint8_t app_poll(uint32_t now)
         report_telemetry(now);
         esc_cal_report(now);
     }
-    if (periodic_due(&board.heartbeat, now))
+    if (periodic_due(&board.heartbeat, now)) {
         report_heartbeat(now);
+        report_rx_lost();
+    }
     retry_download(now);
     storage_service(); /* one EEPROM byte when the EEPROM is ready (~3.3 ms a byte): no need to spin */
     return busy;

@@ -10,7 +10,9 @@ static volatile uint16_t rx_head, rx_tail; /* head: next write (ISR), tail: next
 static volatile uint8_t tx_buf[UART_TX_SIZE];
 static volatile uint16_t tx_head, tx_tail;
 static volatile uart_stats_t stats;
-static uint8_t handed_over; /* the transmit ring is the USB link's queue (port.c), not UART0's */
+static volatile uint8_t flags;
+#define HANDED_OVER 0x01u /* the transmit ring is the USB link's queue (port.c), not UART0's */
+#define RX_RESYNC 0x02u   /* the receive ring overflowed: drop bytes up to the next frame delimiter */
 
 void uart_init(uint32_t baud)
 {
@@ -33,7 +35,18 @@ ISR(USART0_RX_vect)
     uint16_t next = (uint16_t)((rx_head + 1u) % UART_RX_SIZE);
     if (next == rx_tail) {
         stats.rx_overflow++;
+        flags |= RX_RESYNC;
         return;
+    }
+    if (flags & RX_RESYNC) {
+        /* After an overflow, bytes go in again only from a frame delimiter on, and only once the main loop
+         * has read half the ring: a frame is then taken whole or not at all, where taking a byte each time
+         * one is read would cut every frame of a flood. The delimiter ends the cut frame in the ring. */
+        if (b != 0x00 || (uint16_t)((rx_tail + UART_RX_SIZE - next) % UART_RX_SIZE) < UART_RX_SIZE / 2u) {
+            stats.rx_overflow++;
+            return;
+        }
+        flags &= (uint8_t)~RX_RESYNC;
     }
     rx_buf[rx_head] = b;
     rx_head = next;
@@ -83,7 +96,7 @@ uint8_t uart_send(const uint8_t *data, uint16_t n)
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
         tx_head = head;
-        if (!handed_over)
+        if (!(flags & HANDED_OVER))
             UCSR0B |= _BV(UDRIE0);
     }
     return 1;
@@ -102,7 +115,7 @@ void uart_hand_over(void)
 {
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
     {
-        handed_over = 1;
+        flags = HANDED_OVER;
         UCSR0B = 0;        /* receiver, transmitter and their interrupts off: the pins are plain inputs */
         tx_tail = tx_head; /* half-sent UART frames must not continue on the other link */
         rx_tail = rx_head; /* nor UART bytes reach the deframer */
