@@ -740,7 +740,7 @@ static void power_step(void)
     if (board.power.ubec_mv * 0.001f < board.cfg.brownout_release_v)
         next = POWER_STATE_BROWN_OUT; /* the rail is in the MCU's brown-out zone: reset imminent */
     board.power_state = next;
-    if (next == POWER_STATE_SHED && !board.shed_latched && motors_enabled(board.state))
+    if (next >= POWER_STATE_SHED && !board.shed_latched && motors_enabled(board.state)) /* BROWN_OUT too */
         board.shed_latched = 1;
     if (next >= POWER_STATE_SHED)
         esc_cal_abort(ESC_CAL_ABORT_POWER, clock_ms());

@@ -102,13 +102,13 @@ class PowerSupervisor:
 
     def update(self, reading: PowerReading, dt: float, motors_on: bool) -> None:
         """One sample of the power manager, ``dt`` s after the last (0 at boot); ``motors_on``: ARMED
-        (reaching SHED then latches until the next ``Arm``)."""
+        (reaching SHED, or BROWN_OUT straight from above it, then latches until the next ``Arm``)."""
         old = self.state
         new = self.manager.update(reading.battery_v, dt)
         if reading.ubec_v < self.config.thresholds.brownout_release_v:
             new = PowerState.BROWN_OUT  # the rail is in the MCU's brown-out zone: reset imminent
         self.state = new
-        if new is _SHED and not self.shed_latched and motors_on:
+        if new >= _SHED and not self.shed_latched and motors_on:  # a dip straight to BROWN_OUT latches too
             self.shed_latched = True
         if new is not old:
             sev = (
