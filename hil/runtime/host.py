@@ -246,10 +246,14 @@ class Host:
         self.phases.restart_warmup(t, kind, still=True)
 
     # ------------------------------------------------------------------ control task
-    def tick(self, t: float, events: Sequence[Any]) -> None:
-        """One control period at host time ``t`` (s), after the board client's new ``events``."""
+    def tick(self, t: float, events: Sequence[Any], due: float | None = None) -> None:
+        """One control period at host time ``t`` (s), after the board client's new ``events``; ``due`` its
+        deadline (None: on time), which a tick more than ``stale_after_s`` late journals as the host's own
+        stall (:meth:`BoardWatch.host_stalled`) — first, so the outage starts at the missed deadline."""
         self.counters.control_ticks += 1
         watch = self.watch
+        if due is not None and watch.host_stalled(t, due):
+            self._lose_if_overdue(t)  # before the board is seen back: a stall beyond the bound is a loss
         watch.on_events(events)
         for why in watch.take_upsets():
             self.phases.restart_warmup(t, why, still=False)
@@ -257,15 +261,11 @@ class Host:
         view = watch.view(t)
         watch.hold_disarmed(t, view)
         watch.hold_armed(t, view)
-        # no re-arm is started on the run's last tick: the board would be left ARMED, commanded by no one
-        watch.rearm_if_needed(t, start=not self.phases.time_is_up(t, self._duration))
+        # no re-arm is started on the run's last tick (its time up, or lost: a host stalled beyond the
+        # bound): the board would be left ARMED, commanded by no one
+        watch.rearm_if_needed(t, start=not (self.finished or self.phases.time_is_up(t, self._duration)))
         self.in_control = watch.in_control(t, view, phone_fresh)
-        lost = self.journal.overdue(t)
-        if lost is not None and self.lost is None:
-            self.lost = lost
-            self.finished = True
-            self.events.write(t, "lost", why=lost)
-            logger.error("%s", lost)
+        self._lose_if_overdue(t)
         tel = view.telemetry
         if tel is None or len(tel.units) != self.n:
             self._hold_if_blind()
@@ -292,6 +292,16 @@ class Host:
         self.rows.record(self._snapshot(t, view, ref, board, command, steered))
         if self.phases.time_is_up(t, self._duration):
             self.finished = True
+
+    def _lose_if_overdue(self, t: float) -> None:
+        """The run has lost the board (or the phone) at ``t`` if an outage outlasted its bound: said once,
+        and the run ends after this tick."""
+        lost = self.journal.overdue(t)
+        if lost is not None and self.lost is None:
+            self.lost = lost
+            self.finished = True
+            self.events.write(t, "lost", why=lost)
+            logger.error("%s", lost)
 
     def _snapshot(
         self,

@@ -512,12 +512,13 @@ def _build(
 
     observer = opts.observer
 
-    def control_task(_due: float) -> None:
+    def control_task(due: float) -> None:
         if observer is not None:
             observer.tick(clock.now())  # commands from outside act here, in the control thread
         source.advance(clock.now())  # a simulated world to the present before the board is serviced
         events = client.service()
-        host.tick(clock.now(), events)  # now after the service: the telemetry it took is not from the future
+        # now after the service: the telemetry it took is not from the future; the deadline tells a stall
+        host.tick(clock.now(), events, due)
         if opts.progress is not None:
             opts.progress(host, clock.now() - origin)
         if source.exhausted:

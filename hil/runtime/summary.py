@@ -68,6 +68,7 @@ def run_summary(
         "reconnects": watch.reconnects,
         "rearms": watch.rearms,
         "stale_episodes": watch.stale_episodes,
+        "host_stalls": watch.host_stalls,
         "board_logs_unrecorded": watch.board_logs_unrecorded,
         "phone_gaps": len(journal.phone_gaps),
         "phone_restarts": counters.phone_restarts,

@@ -75,6 +75,7 @@ class BoardWatch:
         self.stale_after_s = stale_after_s
         self.failsafes = self.resets = self.link_losses = self.reconnects = self.rearms = 0
         self.stale_episodes = 0
+        self.host_stalls = 0  # control ticks that ran more than stale_after_s after their deadline
         self.unasked_disarms = 0  # ARMED → DISARMED with the host holding it armed (a Disarm retried late)
         self.unasked_arms = 0  # ARMED with the operator's Disarm settled (:meth:`hold_disarmed`)
         self.disarms_resent = 0  # the operator's Disarm sent again to a board that says ARMED
@@ -215,6 +216,23 @@ class BoardWatch:
                 )
                 self.journal.fault(t, "stale", tel_age_ms=None if age is None else age * 1e3)
         return View(link, tel if link is BoardLink.LIVE else None, age)
+
+    def host_stalled(self, t: float, due: float) -> bool:
+        """Whether the host itself stalled before this control tick: it runs at ``t``, more than
+        ``stale_after_s`` after its deadline ``due`` (its process paused or swapped out, the machine
+        suspended). The host commanded nothing and saw nothing meanwhile — blind longer than the board's
+        own link timeout, which fails it safe — so it is a ``host_stall`` fault from the missed deadline,
+        an outage the run's bound applies to: a host paused longer than ``--recover-within`` is lost. (It
+        was journalled nowhere: the backlog read after the pause hid it, and the run said ``completed``
+        with an outage of 0.03 s.)"""
+        late = t - due
+        if not late > self.stale_after_s:
+            return False
+        self.host_stalls += 1
+        logger.warning("the host stalled: its control tick due at t=%.3f s ran %.2f s late", due, late)
+        self.events.write(due, "host_stall", late_ms=late * 1e3)  # at its start: the records in time order
+        self.journal.fault(due, "host_stall", late_ms=late * 1e3)
+        return True
 
     def in_control(self, t: float, view: View, phone_fresh: bool) -> bool:
         """Whether the host has the board in hand at ``t`` (telemetry live, the board armed — or disarmed by

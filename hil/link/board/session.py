@@ -564,7 +564,10 @@ class Session:
         killed early in a run and restarted seconds before the host was back: its uptime did not go back,
         but it has taken only the new handshake's frames). A sample whose counts leapt ahead of what the
         board could have reached (:mod:`.leaps`) is dropped and counted: None is returned, the frame is not
-        taken. Any other sample returns the host time it was made (:mod:`.made_at`)."""
+        taken. Any other sample returns the host time it was made (:mod:`.made_at`), and a change of the
+        board's state it carries is a :class:`StateEvent` of that time: a FAILSAFE read from a backlog after
+        the host's own pause was stamped with its read, seconds after the board failed safe, and the
+        run's outage then began at the read (a host paused 12 s said it was out for 0.03 s)."""
         frames_out = self.counters.frames_out
         boot_changed = self._boot_changed(boot_id)
         leap = (
@@ -583,8 +586,6 @@ class Session:
                 rx_frames,
             )
             self._leaps.restart(uptime_ms, rx_frames, frames_out, now)
-        if state is not None:
-            self._set_state(state, now)
         last, self._last_uptime = self._last_uptime, uptime_ms
         last_rx = self._last_rx_frames
         if rx_frames is not None:
@@ -616,6 +617,8 @@ class Session:
         if evidence is None:
             self._uptime_ms = ran_ms
             made = self._made_at.sample(ran_ms / 1000.0, now)
+            if state is not None:
+                self._set_state(state, made)
             self._leaps.take(uptime_ms, rx_frames, frames_out, now, made)
             if not self._lost:  # a reconnect's samples before its answer are checked by the first after it
                 self._ran = (ran_ms / 1000.0, now)
@@ -625,6 +628,8 @@ class Session:
         self._made_at.forget_boot()
         self._uptime_ms = uptime_ms  # the new boot's count: it starts from here
         made = self._made_at.sample(uptime_ms / 1000.0, now)
+        if state is not None:  # before the reset is seen: an armed board's reset is held by its state
+            self._set_state(state, made)
         self._leaps.restart(uptime_ms, rx_frames, frames_out, now, made)  # the counts of a new boot
         self._last_rx_frames = rx_frames  # the new boot's count, or none yet: never the old boot's
         self._ran = (uptime_ms / 1000.0, now) if reply is not None else None  # else: the coming answer's
