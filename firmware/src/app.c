@@ -534,6 +534,10 @@ static uint8_t on_calibration_data(const calibration_data_t *m)
         return NACK_REASON_BAD_STATE;
     if (m->unit >= board.cfg.n_units)
         return NACK_REASON_OUT_OF_RANGE;
+    /* A download of this unit's set re-reads it at every retry (no RAM for a copy): it must not change
+     * under it, so its upload waits until the download has ended (docs/protocol.md). */
+    if (board.download.active && board.download.unit == m->unit)
+        return NACK_REASON_BUSY;
     board.reasm.max_len = storage_cal_room(m->unit);
     reasm_status_t st = reasm_feed(&board.reasm, m);
     static const char REASONS[] PROGMEM =

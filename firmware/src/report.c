@@ -138,7 +138,8 @@ void report_cal_fragment(uint8_t index, uint8_t retry)
     uint16_t len;
     const uint8_t *set = storage_cal(d->unit, &len);
     calibration_data_t *m = &out.calibration_data;
-    if (!set)
+    uint16_t start = (uint16_t)index * MAX_CALIBRATION_CHUNK;
+    if (!set || start >= len) /* never outside the set (an upload of its unit is BUSY meanwhile) */
         return;
     m->unit = d->unit;
     m->transfer_id = d->transfer_id;
@@ -146,7 +147,6 @@ void report_cal_fragment(uint8_t index, uint8_t retry)
     m->count = d->count;
     m->total_len = len;
     m->set_crc = crc16_update(CRC16_INIT, set, len);
-    uint16_t start = (uint16_t)index * MAX_CALIBRATION_CHUNK;
     m->chunk.len = (uint8_t)(len - start < MAX_CALIBRATION_CHUNK ? len - start : MAX_CALIBRATION_CHUNK);
     memcpy(m->chunk.b, set + start, m->chunk.len);
     if (!retry)

@@ -3,7 +3,8 @@
 Upload (``CalibrationData`` fragments, DISARMED only): reassembled, parsed and validated as the unit's
 calibration class, then stored (it survives resets). Download (``CalibrationRequest``): the stored set is
 sent as ``CalibrationData`` fragments, each resent every 0.1 s until the host ACKs it and abandoned after
-5 tries; one download at a time.
+5 tries; one download at a time. An upload for the unit being downloaded is NACKed ``BUSY`` until the
+download has ended (the firmware resends a download's fragments from the stored set itself).
 """
 
 from __future__ import annotations
@@ -73,6 +74,8 @@ class CalibrationTransfers:
             return NackReason.BAD_STATE
         if msg.unit >= len(self.calibrations):
             return NackReason.OUT_OF_RANGE
+        if any(entry[0].unit == msg.unit for entry in self._pending.values()):
+            return NackReason.BUSY  # the firmware resends a download from the set itself: it must not change
         try:
             done = self._reassembler.feed(msg)
         except (HilError, ValueError) as exc:
