@@ -433,6 +433,7 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
         f"link              lost {s.get('link_lost', 0)}  reconnects {s.get('reconnects', 0)}  "
         f"stale {s.get('stale_episodes', 0)}  phone gaps {s.get('phone_gaps', 0)}",
     ]
+    lines += final_disarm_lines(s)
     lines += phone_lines(s)
     lines += operator_lines(s)
     lines += fault_lines(s)
@@ -443,6 +444,20 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
             f"p99 {control['lateness_p99_us']:.0f} us  max {control['lateness_max_us']:.0f} us"
         )
     return "\n".join(lines)
+
+
+def final_disarm_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
+    """The run's final Disarm, when it failed: the board is not confirmed disarmed (it may be spinning its
+    rotors until its own link watchdog fails it safe)."""
+    final = s.get("final_disarm")
+    if not isinstance(final, dict) or final.get("ok") is not False:
+        return []
+    state = final.get("state")
+    known = f"; last known {state}" if state else ""
+    return [
+        f"NOT DISARMED      the board is not confirmed disarmed: the final Disarm failed "
+        f"({final.get('error')}){known}"
+    ]
 
 
 def phone_lines(s: dict) -> list[str]:  # type: ignore[type-arg]

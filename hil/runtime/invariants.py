@@ -514,6 +514,9 @@ def _honest(
             report.add("honest_exit", "completed, yet the slew never started")
         if any(o["command"] == "abort" for o in sent):
             report.add("honest_exit", "completed, yet the operator aborted the run")
+        final = summary.get("final_disarm") or {}
+        if final.get("ok") is False:
+            report.add("honest_exit", f"completed, yet the final Disarm failed: {final.get('error')}")
     if summary.get("lost") and not exit_reason.startswith(("lost:", "aborted:", "error:")):
         report.add("honest_exit", f"the board was lost ({summary['lost']}) but the exit says {exit_reason!r}")
     if summary.get("suspended_at_end") is not None and not exit_reason.startswith(
@@ -537,7 +540,11 @@ def _ended_on_time(
     operator's suspensions. (One whose board was out at that moment used to run on to the next tick that
     saw it again, and could then say ``completed``.)"""
     exit_reason = str(summary.get("exit", ""))
-    ran_its_time = exit_reason == "completed" or "not back when the run ended" in exit_reason
+    ran_its_time = (
+        exit_reason == "completed"
+        or exit_reason.startswith("incomplete: the run completed")  # its final Disarm failed
+        or "not back when the run ended" in exit_reason
+    )
     starts = [e["t"] for e in record.events if e["kind"] == "slew_start"]
     if not ran_its_time or not starts or not math.isfinite(bounds.duration_s):
         return

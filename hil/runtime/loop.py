@@ -308,6 +308,7 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
             error = exc
         finally:
             held.holding = True
+            final.said(summary)
             error = _finish(summary, started, built, observer, telemetry, events, run_dir, error)
     if error is not None:
         raise error
@@ -598,12 +599,30 @@ def _interrupted(exc: BaseException) -> str:
 @dataclass
 class FinalDisarm:
     """The Disarm the run's way out sends (:func:`_disarm_on_the_way_out`) and how it went: ``outcome``
-    (``sent``, ``ok``, ``reason``, the ``error`` of one that failed, the board's ``state`` as last known)
-    once the way out ran. ``arm_outstanding`` says whether an Arm of the host's may still reach the board
-    (the host's watch, once it exists)."""
+    (``summary.json``'s ``final_disarm``: ``sent``; ``ok`` — the board confirmed disarmed, True also for a
+    board known DISARMED that needed none, None without a session to ask; ``reason``, the ``error`` of one
+    that failed, the board's ``state`` as last known) once the way out ran. ``arm_outstanding`` says
+    whether an Arm of the host's may still reach the board (the host's watch, once it exists)."""
 
     arm_outstanding: Callable[[], bool] = lambda: False
     outcome: dict[str, Any] | None = None
+
+    def said(self, summary: dict[str, Any]) -> None:
+        """``final_disarm`` into ``summary``. A run that completed but whose board is not confirmed
+        disarmed (the final Disarm failed: a board frozen over the run's end, a link gone) does not say
+        ``completed`` (status 0, only ``events.jsonl`` said ``disarm_failed``): ``incomplete: the run
+        completed, but the board is not confirmed disarmed (…)``, status 1 — the board's state said in the
+        exit, as an abort whose board still says ARMED says it. Any other exit already says the run did
+        not complete; ``final_disarm`` and the printed summary say the Disarm's failure beside it."""
+        outcome = self.outcome
+        if outcome is None:
+            return
+        summary["final_disarm"] = outcome
+        if outcome["ok"] is False and summary.get("exit") == "completed":
+            summary["exit"] = (
+                "incomplete: the run completed, but the board is not confirmed disarmed "
+                f"(the final Disarm failed: {outcome['error']})"
+            )
 
 
 def _disarm_on_the_way_out(
@@ -625,7 +644,9 @@ def _disarm_on_the_way_out(
     host's still in flight (a re-arm, the operator's Arm) is sent the Disarm too — a host paused across
     the run's end read FAILSAFE, re-armed, and let go of a board that the Arm then armed, with no one
     commanding it; a Disarm is safe in every state. Only a board known DISARMED (or still booting) with no
-    Arm outstanding is left as it is. Never suppresses the exception. How it went is ``final.outcome``.
+    Arm outstanding is left as it is. Never suppresses the exception. How it went is ``final.outcome``
+    (``summary.json``'s ``final_disarm``; a run that completed with a board not confirmed disarmed does
+    not say ``completed``: :meth:`FinalDisarm.said`).
     After the Disarm (or none) further interrupts are held (``held``): the link is closed and the run's
     ending written whole."""
 
