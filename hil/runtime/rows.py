@@ -9,6 +9,7 @@ why and since when (``board_link``, ``tel_age_ms``)."""
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass
 from typing import Any
 
@@ -86,7 +87,7 @@ class TickRecorder:
         self.schema = schema
         self.log = log
         self.trace = trace
-        self._errors_sq: list[float] = []
+        self._errors_sq = array("d")  # 8 bytes a tick from the slew's start (a list's float took ~32)
 
     def estimator_rmse(self) -> float | None:
         """The estimator's RMS attitude error (deg) from the slew's start (simulated runs), None without."""

@@ -12,6 +12,7 @@ and writes it off the tick.
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -150,15 +151,19 @@ class RunTrace:
     """One value per control tick from the slew's start: ``t`` (s from the slew's start), the pointing
     error to the target ``point_err_deg``, to the moving reference ``track_err_deg``, the estimator's
     attitude error ``est_err_deg`` (NaN without a truth), the largest |gimbal rate| of any unit
-    ``gimbal_rate`` (rad/s) and the singularity measure ``delta``. Lists of floats while the run grows
-    (a float per tick each: 6 × 8 bytes × 50 Hz, ~2.4 kB per simulated second)."""
+    ``gimbal_rate`` (rad/s) and the singularity measure ``delta``. Each a sequence of floats that grows
+    with the run — an ``array('d')``: 8 bytes a value, 6 × 8 bytes × 50 Hz, ~2.4 kB per simulated second
+    (~8.6 MB an hour). (They were lists of Python floats: ~32 bytes a value with the list's pointer, ~39 MB
+    an hour of a 50 Hz run.) Indexed, measured and iterated as lists were; :meth:`arrays` copies them
+    (a numpy view of one would stop it growing while the view lives). Kept whole: the plots draw the run's
+    every tick."""
 
-    t: list[float] = field(default_factory=list)
-    point_err_deg: list[float] = field(default_factory=list)
-    track_err_deg: list[float] = field(default_factory=list)
-    est_err_deg: list[float] = field(default_factory=list)
-    gimbal_rate: list[float] = field(default_factory=list)
-    delta: list[float] = field(default_factory=list)
+    t: array[float] = field(default_factory=lambda: array("d"))
+    point_err_deg: array[float] = field(default_factory=lambda: array("d"))
+    track_err_deg: array[float] = field(default_factory=lambda: array("d"))
+    est_err_deg: array[float] = field(default_factory=lambda: array("d"))
+    gimbal_rate: array[float] = field(default_factory=lambda: array("d"))
+    delta: array[float] = field(default_factory=lambda: array("d"))
 
     FIELDS = ("t", "point_err_deg", "track_err_deg", "est_err_deg", "gimbal_rate", "delta")
 
@@ -176,8 +181,8 @@ class RunTrace:
         return len(self.t)
 
     def arrays(self) -> dict[str, Array]:
-        """Every field as a float array (K,)."""
-        return {name: np.asarray(getattr(self, name), dtype=float) for name in self.FIELDS}
+        """Every field as a float array (K,): a copy, so the trace may go on growing."""
+        return {name: np.array(getattr(self, name), dtype=float) for name in self.FIELDS}
 
     def figures(self, settle_deg: float, gimbal_rate_limit: float) -> dict[str, Any]:
         """The pointing figures of the run so far ({} before the slew): settle time (s from the slew's
