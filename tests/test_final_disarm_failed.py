@@ -63,6 +63,7 @@ def test_the_reviewer_s_case_fails_its_disarm():
     fault = InjectedFault("stall", run_end() - 0.1, {"duration_s": 3.0})
     _, recorder = run_faults([fault])
     s = recorder.summary
-    assert s["final_disarm"]["ok"] is False
+    assert [e["kind"] for e in recorder.events if e["kind"].startswith("disarm")] == ["disarm_failed"]
     assert s["exit"].startswith("incomplete: the run completed, but the board is not confirmed disarmed")
     assert exit_status(s) == 1
+    assert s["final_disarm"]["ok"] is False
