@@ -66,21 +66,32 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
 def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
     from hil.cli.run import format_summary
     from hil.cores import available_cores
-    from hil.plots.run import plot_run
-    from hil.runtime.runlog import count_events, read_telemetry
+    from hil.plots.run import not_units, plot_run
+    from hil.plots.streamed import Gaps
+    from hil.runtime.runlog import TelemetryBlocks, count_events, read_summary
     from protocol.errors import InputFormatError
+    from protocol.messages import MAX_UNITS
 
-    # its rows counted, none kept (the plots read the columns they draw): its header checked, a run's
-    tel = read_telemetry(path / "telemetry.csv", columns=())
+    # its rows counted and their times looked at, nothing kept (the plots read the columns they draw): its
+    # header checked, a run's; a time gap (a run that stalled) counted, as the figures break their lines
+    gaps = Gaps()
+    with TelemetryBlocks(path / "telemetry.csv", columns=("t",)) as tel:
+        for block in tel:
+            gaps.add(block[:, 0])
     events, bad_events = count_events(path / "events.jsonl")
     print(f"run {path}: {tel.rows} telemetry rows, {events} events")
-    if tel.dropped_lines or bad_events:
+    if tel.dropped_lines or bad_events or gaps.count:
         print(
             f"  unreadable: {tel.dropped_lines} telemetry lines (damaged or out of time order), "
-            f"{bad_events} event lines (dropped)"
+            f"{bad_events} event lines (dropped); {gaps.count} time gaps (no row for more than "
+            f"{gaps.jump:g} steps: drawn as breaks)"
+        )
+    if beyond := not_units(tel.header):
+        print(
+            f"  {beyond} per-unit columns of a unit no board has (a board has at most {MAX_UNITS}): not drawn"
         )
     try:
-        summary = _json(path / "summary.json")
+        summary = read_summary(path)
     except InputFormatError as exc:
         print(f"  summary.json damaged ({exc.detail}): not shown, and no plots (they read it)")
         return {}
@@ -127,7 +138,7 @@ def _not_a_number(doc: object, where: str = "") -> str | None:
 
 
 def _campaign(path: Path, plots: bool) -> dict[str, Path]:
-    from hil.montecarlo.campaign import summarise_dir
+    from hil.montecarlo.campaign import summarise_dir, write_campaign_summary
     from hil.montecarlo.plots import plot_campaign
     from hil.montecarlo.store import MANIFEST, read_manifest
     from hil.montecarlo.summary import format_table
@@ -138,24 +149,21 @@ def _campaign(path: Path, plots: bool) -> dict[str, Path]:
     if not isinstance(info.get("scenario_toml"), str):
         raise InputFormatError("campaign.json holds no scenario", str(path / MANIFEST))
     scenario = parse_scenario(info["scenario_toml"], path / MANIFEST)
-    summary = summarise_dir(path, scenario)
+    # summarised in memory: --no-plots writes nothing (a read-only campaign is reported); drawing, the
+    # summary.json is written again with the figures, its interrupted record carried over
+    summary = summarise_dir(path, scenario, write=False)
     print(f"campaign {path}: scenario {scenario.name}, seed {info.get('seed')}")
     print(format_table(summary))
+    interrupted = summary.get("interrupted")
+    if isinstance(interrupted, dict):
+        print(
+            f"  interrupted: {interrupted.get('runs_on_disk')} runs on disk of "
+            f"{str(interrupted.get('runs_asked'))[:20]} asked"
+        )
     if not plots:
         return {}
-    return plot_campaign(path, scenario.settle_deg, scenario.spacecraft.limits.max_gimbal_rate)
-
-
-def _json(path: Path) -> dict | None:  # type: ignore[type-arg]
-    """A JSON object from ``path``; None if the file is missing; an unreadable one — not JSON, larger than
-    :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES`, nested deeper than :data:`~hil.files.bounded.MAX_NESTING`,
-    not an object — is an InputFormatError naming it."""
-    from hil.files.bounded import load_json, read_document
-    from protocol.errors import InputFormatError
-
-    if not path.is_file():
-        return None
-    doc = load_json(read_document(path, InputFormatError, path.name), str(path))
-    if not isinstance(doc, dict):
-        raise InputFormatError("expected a JSON object", str(path))
-    return doc
+    drawn = plot_campaign(path, scenario.settle_deg, scenario.spacecraft.limits.max_gimbal_rate)
+    if isinstance(interrupted, dict):
+        interrupted["plots"] = "drawn for these runs by hil report"
+    write_campaign_summary(path, summary)
+    return drawn

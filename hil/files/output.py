@@ -4,8 +4,12 @@ under a file, one too long for the file system, a read-only place — never an `
 
 from __future__ import annotations
 
+import contextlib
 import os
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import IO
 
 from protocol.errors import ConfigError, HilError
 
@@ -49,6 +53,17 @@ class OutputError(HilError, OSError):
     def __str__(self) -> str:
         return str(self.strerror)
 
+    def __reduce__(self) -> tuple[object, ...]:
+        # OSError's own pickles (errno, strerror) into __init__(path, error): a figure drawn in a forked
+        # process (hil.plots.forked) sends its refusal back pickled
+        return (_output_error, (str(self.path), self.errno, self.strerror))
+
+
+def _output_error(path: str, errno: int | None, strerror: str | None) -> OutputError:
+    error = OutputError(path, OSError(errno, strerror))
+    error.strerror = strerror  # already "cannot write PATH: why"
+    return error
+
 
 def write_file(path: str | os.PathLike[str], text: str) -> None:
     """``text`` as the whole of ``path``; an :class:`OutputError` naming it when the OS refuses."""
@@ -56,3 +71,42 @@ def write_file(path: str | os.PathLike[str], text: str) -> None:
         Path(path).write_text(text)
     except OSError as exc:
         raise OutputError(path, exc) from exc
+
+
+def replace_file(path: str | os.PathLike[str], write: Callable[[IO[bytes]], object]) -> Path:
+    """``write(f)`` into a new temporary beside ``path`` (same directory, a name of its own), then renamed
+    over ``path``: a reader never sees half a file, and whatever is at ``path`` — a symbolic link planted
+    there (``plots/delta.png -> /tmp/victim``) — is replaced, never followed or written through. A refusal
+    (a directory at ``path``, a read-only directory, a full disk) is an :class:`OutputError` naming
+    ``path``, no temporary left behind."""
+    out = Path(path)
+    tmp: str | None = None
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{out.name[:64]}.", suffix=".tmp", dir=out.parent)
+        with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), 0o666 & ~_umask())  # mkstemp's 0600: readable as any file hil writes
+            write(f)
+        os.replace(tmp, out)
+        tmp = None
+    except OSError as exc:
+        if isinstance(exc, HilError):
+            raise
+        raise OutputError(out, exc) from exc
+    finally:
+        if tmp is not None:  # whatever stopped the write (a drawing's own error too): no temporary left
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    return out
+
+
+def _umask() -> int:
+    """This process's umask, read without changing it (``os.umask`` sets it: a race with other threads);
+    Linux says it in /proc/self/status, elsewhere the usual 022 is assumed."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0o022

@@ -560,22 +560,37 @@ class _Driver:
 
 
 def summarise_dir(
-    out_dir: str | os.PathLike[str], scenario: Scenario, workers_lost: int | None = None
+    out_dir: str | os.PathLike[str], scenario: Scenario, workers_lost: int | None = None, write: bool = True
 ) -> dict[str, Any]:
-    """Summarise every run in ``out_dir`` against ``scenario``'s requirements and write summary.json, with
-    ``workers_lost``: the workers the session that wrote it lost (None, as `hil report` re-summarising a
-    directory says: the number the existing summary.json holds, 0 without one)."""
+    """Summarise every run in ``out_dir`` against ``scenario``'s requirements and (``write``) write
+    summary.json, with ``workers_lost``: the workers the session that wrote it lost. None, as `hil report`
+    re-summarising a directory says, carries over what only a session knows from the existing summary.json:
+    its ``workers_lost`` (0 without one) and its ``interrupted`` record (the runs asked for; its runs on
+    disk counted again) — a report once rewrote the file without it, and the campaign no longer said it
+    was interrupted. ``write=False`` (``hil report --no-plots``) leaves the directory as it is: a read-only
+    campaign is still reported."""
     sc = scenario
     summary = summarise(
         read_runs(out_dir), sc.name, sc.slew.duration_s, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate
     )
+    interrupted = None
     if workers_lost is None:
-        workers_lost = _previous_workers_lost(Path(out_dir) / SUMMARY)
+        previous = _previous_summary(Path(out_dir) / SUMMARY)
+        workers_lost = _workers_lost(previous)
+        interrupted = previous.get("interrupted")
     summary["workers_lost"] = workers_lost
-    # a full disk, or a directory where summary.json (or its temporary) should be, was an OSError's
-    # traceback after every run had finished: an error naming the file (status 2), the runs on disk
-    checked_write(Path(out_dir) / SUMMARY, lambda: write_summary(out_dir, summary))
+    if isinstance(interrupted, dict):
+        summary["interrupted"] = {**interrupted, "runs_on_disk": summary.get("runs")}
+    if write:
+        # a full disk, or a directory where summary.json (or its temporary) should be, was an OSError's
+        # traceback after every run had finished: an error naming the file (status 2), the runs on disk
+        checked_write(Path(out_dir) / SUMMARY, lambda: write_summary(out_dir, summary))
     return summary
+
+
+def write_campaign_summary(out_dir: str | os.PathLike[str], summary: Mapping[str, Any]) -> None:
+    """``summary`` as ``out_dir``'s summary.json (atomically); a refusal a ConfigError naming it."""
+    checked_write(Path(out_dir) / SUMMARY, lambda: write_summary(out_dir, summary))
 
 
 def _summary_after_interrupt(out: Path, campaign: Campaign) -> None:
@@ -598,12 +613,12 @@ def _summary_after_interrupt(out: Path, campaign: Campaign) -> None:
     logger.warning("%s: summarised again over the runs on disk, marked interrupted", path)
 
 
-def _previous_workers_lost(path: Path) -> int:
-    """``workers_lost`` of an existing summary.json; 0 if there is none, it does not say, or it is damaged
-    (a count that is no non-negative integer, not JSON, larger or nested deeper than any document hil
-    reads). Read through the bounded readers: ``[`` x 200000 was a RecursionError's traceback from
-    ``hil report``. Its kind is checked before it is opened: a FIFO there (whose open waits for a writer)
-    hung ``hil report`` for ever, and is refused as runs.csv's would be (a ConfigError naming it)."""
+def _previous_summary(path: Path) -> dict[str, Any]:
+    """An existing summary.json's object; empty if there is none or it is damaged (not JSON, larger than
+    or nested deeper than any document hil reads, not an object: said). Read through the bounded readers:
+    ``[`` x 200000 was a RecursionError's traceback from ``hil report``. Its kind is checked before it is
+    opened: a FIFO there (whose open waits for a writer) hung ``hil report`` for ever, and is refused as
+    runs.csv's would be (a ConfigError naming it)."""
     regular_file_if_there(
         path, ConfigError, hint=" (a directory, a FIFO or a device): hil writes summary.json there; remove it"
     )
@@ -612,6 +627,11 @@ def _previous_workers_lost(path: Path) -> int:
     except InputFormatError as exc:
         if path.exists():
             logger.warning("%s: %s; its workers_lost taken as 0", path, exc.detail)
-        return 0
-    value = doc.get("workers_lost", 0) if isinstance(doc, dict) else 0
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _workers_lost(previous: Mapping[str, Any]) -> int:
+    """``workers_lost`` of an earlier summary; 0 if it does not say, or it is no non-negative integer."""
+    value = previous.get("workers_lost", 0)
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 0 else 0

@@ -19,7 +19,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from hil.files.output import make_dir
+from hil.files.output import make_dir, replace_file
+from hil.plots.streamed import PLOT_LIMIT  # a histogram's title counts the values left out
 
 from .metrics import METRICS, TRACES
 from .store import Results, checked_write, read_manifest, read_runs, read_traces
@@ -27,10 +28,6 @@ from .summary import requirements
 
 WORST_FRACTION = 0.05
 MAX_SCATTER_PANELS = 16
-PLOT_LIMIT = 1e300
-"""Values beyond ± this are left out of the figures (a histogram's title counts them): no metric or
-parameter of a run is that large, but an edited runs.csv may say so, and matplotlib's tick locator loops
-for ever on an axis near the largest float (2**1023), its transforms fail beyond."""
 
 
 def plot_campaign(
@@ -63,11 +60,12 @@ def _grid(count: int, ncols: int, size: tuple[float, float]) -> tuple[Figure, li
 
 
 def _save(fig: Figure, path: Path) -> Path:
-    """Draw ``fig`` into ``path``; a write the OS refuses (a full disk, a directory of that name) is a
-    ConfigError naming the file, as the campaign's other files' are."""
+    """Draw ``fig`` into ``path``, written beside it and renamed over it
+    (:func:`~hil.files.output.replace_file`: a link there is replaced, never written through); a write the
+    OS refuses (a full disk, a directory of that name) names the file."""
     FigureCanvasAgg(fig)
     fig.tight_layout()
-    checked_write(path, lambda: fig.savefig(path, dpi=100))
+    checked_write(path, lambda: replace_file(path, lambda f: fig.savefig(f, dpi=100, format="png")))
     return path
 
 

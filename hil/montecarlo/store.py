@@ -31,7 +31,8 @@ import logging
 import math
 import os
 import re
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from array import array
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -40,7 +41,7 @@ from typing import IO, Any, BinaryIO, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from hil.files.bounded import MAX_DOCUMENT_BYTES, load_json, regular_file_if_there
+from hil.files.bounded import MAX_DOCUMENT_BYTES, input_kind, load_json, read_lines, regular_file_if_there
 from hil.files.output import make_dir
 from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, HilError, InputFormatError
@@ -345,7 +346,7 @@ def _cell(value: Any) -> str:
 class Results:
     """A campaign's runs.csv read back, one entry per run in index order (the last row of an index wins):
     ``index`` (N,), ``ok`` (N,) bool, ``errors`` index → error text of the failed runs, ``values`` column
-    → float array (N,) (NaN where empty: a failed run's metrics), ``text`` column → str array for
+    → float array (N,) (NaN where empty: a failed run's metrics), ``text`` column → array of str for
     columns that are not numbers (e.g. ``link.outage_list``); ``dropped`` malformed lines, and rows of a
     run that has a later row too."""
 
@@ -353,7 +354,7 @@ class Results:
     ok: NDArray[np.bool_]
     errors: dict[int, str]
     values: dict[str, NDArray[np.float64]]
-    text: dict[str, NDArray[np.str_]]
+    text: dict[str, NDArray[np.object_]]
     columns: list[str]
     dropped: int
 
@@ -371,15 +372,81 @@ class Results:
 
 def read_runs(out_dir: str | os.PathLike[str]) -> Results:
     """Read ``OUT/runs.csv``; a malformed line — the wrong number of cells, a run index that is not a
-    plain number 0..:data:`MAX_INDEX`, a metric that is not a number — or a run's row with a later one, is
-    dropped and counted (``dropped``)."""
+    plain number 0..:data:`MAX_INDEX`, a metric that is not a number, a line longer than
+    :data:`~hil.files.bounded.MAX_LINE_BYTES` — or a run's row with a later one, is dropped and counted
+    (``dropped``).
+
+    Streamed, a piece of the file at a time (:func:`~hil.files.bounded.read_lines`): memory holds the
+    numbers of the columns that are numbers (a float per cell), the cells of the columns that are not
+    (their equal cells shared) and the failed runs' errors — never the file's text or its rows' cells
+    (a runs.csv of 196 MB took 2.1 GB). A column is numbers until a cell of it is not one: its cells
+    before are then its text again (an empty cell empty, a number as ``repr`` gives it, a whole one
+    without ``.0``)."""
     path = Path(out_dir) / RUNS
     try:
         _regular_or_absent(path)
     except ConfigError as exc:
         raise InputFormatError(exc.detail, str(path)) from None
-    text = read_text(path, InputFormatError, "results")
-    reader = csv.reader(io.StringIO(text))
+    input_kind(path, InputFormatError, "results")
+    try:
+        f = open(path, "rb")  # noqa: SIM115 — closed below
+    except FileNotFoundError:
+        raise InputFormatError("no such file results", str(path)) from None
+    except OSError as exc:
+        raise InputFormatError(f"cannot read results: {exc.strerror or exc}", str(path)) from exc
+    with f:
+        return _read_runs(csv.reader(_text_lines(f, path)), path)
+
+
+def _text_lines(f: BinaryIO, path: Path) -> Iterator[str]:
+    """The lines of ``f`` as text (a BOM skipped), for :mod:`csv`; a line too long to keep is an empty
+    one (a row of no cells: dropped); one that is not UTF-8 an InputFormatError naming its line."""
+    number = 0
+    for batch in read_lines(f):
+        for line in batch:
+            number += 1
+            if line is None:
+                yield ""
+                continue
+            try:
+                yield line.decode("utf-8-sig" if number == 1 else "utf-8")
+            except UnicodeDecodeError as exc:
+                raise InputFormatError(
+                    f"not a text file (not UTF-8: {exc.reason}, line {number})", str(path), number
+                ) from None
+
+
+class _Column:
+    """One column's cells as they are read: floats while every cell is a number (or empty), then text."""
+
+    __slots__ = ("numbers", "text", "_shared")
+
+    def __init__(self) -> None:
+        self.numbers: array[float] | None = array("d")
+        self.text: list[str] = []
+        self._shared: dict[str, str] = {}
+
+    def add(self, cell: str) -> None:
+        if self.numbers is not None:
+            try:
+                self.numbers.append(float(cell) if cell != "" else math.nan)
+                return
+            except ValueError:
+                self.text = [self._share(_as_text(x)) for x in self.numbers]
+                self.numbers = None
+        self.text.append(self._share(cell))
+
+    def _share(self, cell: str) -> str:
+        return self._shared.setdefault(cell, cell)
+
+
+def _as_text(x: float) -> str:
+    if math.isnan(x):
+        return ""
+    return str(int(x)) if x.is_integer() and abs(x) < 2**53 else repr(x)
+
+
+def _read_runs(reader: Iterator[list[str]], path: Path) -> Results:
     try:
         header = next(reader, None)
     except csv.Error as exc:
@@ -387,7 +454,10 @@ def read_runs(out_dir: str | os.PathLike[str]) -> Results:
     if not header or list(header[:3]) != list(FIXED_COLUMNS):
         raise InputFormatError(f"not a campaign's runs.csv (header {header!r:.200})", str(path), 1)
     numeric = [j for j, name in enumerate(header) if name in METRICS]
-    rows: dict[int, list[str]] = {}
+    indices = array("q")
+    ok = bytearray()
+    errors: dict[int, str] = {}  # position in the file's rows → error text (failed runs)
+    columns = [_Column() for _ in header[3:]]
     dropped = 0
     while True:
         try:
@@ -403,22 +473,46 @@ def read_runs(out_dir: str | os.PathLike[str]) -> Results:
         if not all(_number_or_empty(cells[j]) for j in numeric):
             dropped += 1  # a damaged metric would turn its whole column into text, every figure gone
             continue
-        index = int(cells[0])
-        dropped += index in rows  # a run's row twice (the file was edited): the last kept, the rest counted
-        rows[index] = cells
-    order = sorted(rows)
-    table = [rows[i] for i in order]
+        if cells[1] != "ok":
+            errors[len(indices)] = cells[2]
+        indices.append(int(cells[0]))
+        ok.append(cells[1] == "ok")
+        for column, cell in zip(columns, cells[3:], strict=True):
+            column.add(cell)
+    # a run's row twice (the file was edited): the last kept, the rest counted
+    index = np.frombuffer(indices, dtype=np.int64) if len(indices) else np.zeros(0, dtype=np.int64)
+    by_index = np.lexsort((np.arange(len(index)), index))  # by index, then by position
+    last = np.ones(len(by_index), dtype=bool)
+    last[:-1] = index[by_index[1:]] != index[by_index[:-1]]
+    keep = by_index[last]
+    dropped += len(index) - len(keep)
     values: dict[str, NDArray[np.float64]] = {}
-    text_cols: dict[str, NDArray[np.str_]] = {}
-    for j, name in enumerate(header[3:], start=3):
-        cells = [r[j] for r in table]
-        try:
-            values[name] = np.array([float(c) if c != "" else math.nan for c in cells], dtype=float)
-        except ValueError:
-            text_cols[name] = np.array(cells, dtype=str)
-    ok = np.array([r[1] == "ok" for r in table], dtype=bool)
-    errors = {int(r[0]): r[2] for r in table if r[1] != "ok"}
-    return Results(np.array(order, dtype=np.int64), ok, errors, values, text_cols, list(header), dropped)
+    text_cols: dict[str, NDArray[np.object_]] = {}
+    for j, name in enumerate(header[3:]):
+        column, columns[j] = columns[j], _Column()  # each freed once it is taken
+        if column.numbers is None:
+            cells = [column.text[k] for k in keep.tolist()]
+            numbers = _numbers(cells)  # its text only in rows left out (a run's earlier row): numbers
+            if numbers is None:
+                text_cols[name] = np.array(cells, dtype=object)
+            else:
+                values[name] = numbers
+        elif len(keep):
+            values[name] = np.frombuffer(column.numbers, dtype=float)[keep]  # a copy: fancy indexing
+        else:
+            values[name] = np.zeros(0)
+        del column
+    oks = np.frombuffer(bytes(ok), dtype=np.uint8).astype(bool)[keep] if len(keep) else np.zeros(0, bool)
+    kept_errors = {int(index[k]): errors[k] for k in keep.tolist() if k in errors}
+    return Results(index[keep].copy(), oks, kept_errors, values, text_cols, list(header), dropped)
+
+
+def _numbers(cells: list[str]) -> NDArray[np.float64] | None:
+    """``cells`` as numbers (an empty one NaN), or None if one is not a number."""
+    try:
+        return np.array([float(c) if c != "" else math.nan for c in cells], dtype=float)
+    except ValueError:
+        return None
 
 
 def _number_or_empty(cell: str) -> bool:

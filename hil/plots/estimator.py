@@ -14,6 +14,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from hil.estimation.metrics import AttitudeErrors
+from hil.files.output import replace_file
 from hil.plots.series import break_wraps, envelope, wrap_times
 
 if TYPE_CHECKING:
@@ -62,10 +63,15 @@ def _line(
 
 
 def _save(fig: Figure, ax: Axes, path: Target) -> Target:
-    """The legend right of the axes, then the PNG into ``path`` (a file's path, or a binary stream)."""
+    """The legend right of the axes, then the PNG into ``path`` (a binary stream, or a file's path: written
+    beside it and renamed over it, :func:`~hil.files.output.replace_file` — a link there is replaced, never
+    written through; a refusal an :class:`~hil.files.output.OutputError` naming the file)."""
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize="small")
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=110)
+    if isinstance(path, Path):
+        replace_file(path, lambda f: fig.savefig(f, dpi=110, format="png"))
+    else:
+        fig.savefig(path, dpi=110, format="png")
     return path
 
 

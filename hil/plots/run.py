@@ -10,7 +10,7 @@ The telemetry is read a block at a time, only the columns drawn, each thinned as
 from __future__ import annotations
 
 import io
-import json
+import math
 from collections.abc import Callable, Collection, Sequence
 from functools import partial
 from pathlib import Path
@@ -18,17 +18,42 @@ from pathlib import Path
 import numpy as np
 from matplotlib.axes import Axes
 
+from hil.files.output import make_dir
 from hil.plots.estimator import _figure, _save
 from hil.plots.forked import draw_shared
 from hil.plots.markers import draw_markers, run_markers
-from hil.plots.streamed import MinMaxStream
-from hil.runtime.runlog import TelemetryBlocks, read_events
+from hil.plots.streamed import PLOT_LIMIT, MinMaxStream
+from hil.runtime.runlog import TelemetryBlocks, iter_events, read_summary
 from protocol.errors import InputFormatError
+from protocol.messages import MAX_UNITS
 
 
 def _units(columns: Collection[str], prefix: str) -> list[str]:
-    found = [c for c in columns if c.startswith(prefix) and c[len(prefix) :].isdigit()]
+    """The per-unit columns ``prefix0`` .. of ``columns``, in unit order: a unit a board can have only
+    (below :data:`~protocol.messages.MAX_UNITS`; a header of 20 000 ``gimbal_angle_N`` drew 20 000 lines,
+    174 s and 786 MB) — the rest are not drawn (:func:`not_units` counts them)."""
+    found = [c for c in columns if c.startswith(prefix) and _unit(c[len(prefix) :]) is not None]
     return sorted(found, key=lambda c: int(c[len(prefix) :]))
+
+
+def _unit(suffix: str) -> int | None:
+    """A unit's number from a column's suffix: plain ASCII digits, short, below MAX_UNITS; else None."""
+    if not (suffix.isascii() and suffix.isdigit()) or len(suffix) > 3:
+        return None
+    return int(suffix) if int(suffix) < MAX_UNITS else None
+
+
+def not_units(header: Sequence[str]) -> int:
+    """The columns of ``header`` named as a figure's per-unit column with a unit no board has (a number of
+    ``MAX_UNITS`` or more): not drawn, counted."""
+    prefixes = [p for *_, spec, _, _ in _FIGURES for p in ((spec,) if isinstance(spec, str) else spec)]
+    prefixes = [p for p in prefixes if p.endswith("_")]
+    return sum(
+        1
+        for c in header
+        for p in prefixes
+        if c.startswith(p) and c[len(p) :].isdigit() and _unit(c[len(p) :]) is None
+    )
 
 
 Series = Callable[[str], tuple[np.ndarray, np.ndarray]]
@@ -91,9 +116,16 @@ def _drawn(header: Sequence[str]) -> list[str]:
 
 def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
     """Draw every figure the run's telemetry allows into ``run_dir/plots``; returns name → path.
-    A missing or empty telemetry.csv is an :class:`InputFormatError` naming it. ``processes`` > 1 shares
-    the figures among that many processes forked after the data is read (:mod:`hil.plots.forked`; while
-    another thread of this process runs, they are all drawn here)."""
+    A missing or empty telemetry.csv is an :class:`InputFormatError` naming it, and so is a damaged
+    summary.json (:func:`~hil.runtime.runlog.read_summary`). ``processes`` > 1 shares the figures among
+    that many processes forked after the data is read (:mod:`hil.plots.forked`; while another thread of
+    this process runs, they are all drawn here).
+
+    A time gap between rows (:class:`~hil.plots.streamed.Gaps`) breaks the lines; a value beyond
+    ±:data:`~hil.plots.streamed.PLOT_LIMIT` is left out, counted in its figure's title. Each figure is
+    written beside its file and renamed over it (a link there is replaced, never written through); a
+    ``plots`` that cannot be made is a ConfigError naming it, a figure the OS refuses an
+    :class:`~hil.files.output.OutputError` naming its file."""
     run_dir = Path(run_dir)
     path = run_dir / "telemetry.csv"
     with TelemetryBlocks(path, columns=_drawn) as blocks:  # only what the figures draw, thinned as read
@@ -109,22 +141,21 @@ def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
         return stream.series(column[name])
 
     peaks = stream.peak()
-    limit = None
-    summary_path = run_dir / "summary.json"
-    if summary_path.is_file():
-        limit = json.loads(summary_path.read_text()).get("max_gimbal_rate_limit")
-    events_path = run_dir / "events.jsonl"
-    markers = run_markers(read_events(events_path)[0]) if events_path.is_file() else []
-    out_dir = run_dir / "plots"
-    out_dir.mkdir(exist_ok=True)
+    summary = read_summary(run_dir)
+    limit = _rate_limit(summary.get("max_gimbal_rate_limit") if summary else None)
+    markers = run_markers(iter_events(run_dir / "events.jsonl"))  # streamed: only the markers kept
+    out_dir = make_dir(run_dir / "plots")  # a file of that name: a ConfigError naming it
 
     def figure(name: str, title: str, ylabel: str, present: list[str], label: str, log: bool) -> Path:
+        off = int(sum(int(stream.off_scale[column[n]]) for n in present))
+        if off:
+            title = f"{title} ({off} values beyond ±{PLOT_LIMIT:g} left out)"
         fig, ax = _figure(title, ylabel)
         _lines(ax, series, present, label)
         if log:
             ax.set_yscale("log")
-        if name == "gimbal_rates" and limit is not None:
-            peak = max(float(peaks[column[n]]) for n in present)
+        peak = max((float(peaks[column[n]]) for n in present), default=math.nan)
+        if name == "gimbal_rates" and limit is not None and math.isfinite(peak):
             if peak >= 0.25 * limit:  # the limit in view when the rates come near it
                 for sign in (1, -1):
                     ax.axhline(sign * limit, color="r", ls="--", lw=0.8, label="limit" if sign > 0 else None)
@@ -141,3 +172,12 @@ def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
             names.append(name)
             jobs.append(partial(figure, name, title, ylabel, present, label, log))
     return dict(zip(names, draw_shared(jobs, processes), strict=True))
+
+
+def _rate_limit(value: object) -> float | None:
+    """The summary's ``max_gimbal_rate_limit`` as the gimbal-rate figure's limit line: a finite number in
+    (0, :data:`~hil.plots.streamed.PLOT_LIMIT`], else None (no line: -1e308 made matplotlib's transform
+    singular)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return None
+    return float(value) if math.isfinite(value) and 0 < value <= PLOT_LIMIT else None

@@ -12,6 +12,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from hil.runtime.runlog import JUMP_STEPS
+
+PLOT_LIMIT = 1e300
+"""Values beyond ± this are left out of the figures, as gaps (a figure's title counts them): no value a run
+or a campaign writes is that large, but an edited file may say so, and matplotlib's tick locator loops for
+ever on an axis near the largest float (2**1023), its transforms fail beyond (``LinAlgError: Singular
+matrix`` for a battery at -1.7e308, rates from 1e308 to -1e308)."""
+
+MAX_GAPS = 1000
+"""Time gaps kept to draw at most (the widest ones); every one is counted."""
+
+RECENT_STEPS = 64
+"""Spacings between rows that a block's step is the median of, beside the block's own."""
+MIN_STEPS = 8
+"""Spacings seen at least before a gap is told (a run's first rows: its step is not known yet)."""
+
 MAX_POINTS = 2000
 """Points per line at most: a longer series is drawn as the minimum and maximum of each of its slices
 (every spike stays visible; a 10-minute real-time log at 200 Hz draws at most 2 000 points, not
@@ -21,10 +37,61 @@ MAX_POINTS = 2000
 LO, HI, LO_I, HI_I, LO_T, HI_T = range(6)  # what a slice keeps per column: see MinMaxStream._v
 
 
+class Gaps:
+    """Where a run's rows stop for longer than its step, streamed: :meth:`add` the times of its rows taken
+    (s, in order, a block at a time); a gap is two consecutive rows more than :data:`JUMP_STEPS` steps
+    apart (the step: the median spacing of the block's rows and of the :data:`RECENT_STEPS` before them;
+    until :data:`MIN_STEPS` spacings are seen there is none, and no gap) — a run that stalled, a file
+    spliced. :attr:`count` counts them all; :meth:`spans`
+    gives the widest :data:`MAX_GAPS` of them (start, end), in time order, for a figure to break its lines
+    at (a line drawn across a gap looked like data the run never had)."""
+
+    def __init__(self, jump: float = JUMP_STEPS, keep: int = MAX_GAPS) -> None:
+        self.jump = jump
+        self.keep = keep
+        self.count = 0
+        self.step: float | None = None
+        self._last: float | None = None
+        self._recent = np.zeros(0)  # the last RECENT_STEPS spacings between rows (s)
+        self._spans = np.zeros((0, 2))
+
+    def add(self, t: np.ndarray) -> None:
+        if len(t) == 0:
+            return
+        times = t if self._last is None else np.concatenate([[self._last], t])
+        self._last = float(t[-1])
+        dt = np.diff(times)
+        known = np.concatenate([self._recent, dt[dt > 0]])
+        self._recent = known[-RECENT_STEPS:]
+        if len(known) < MIN_STEPS:  # too few spacings seen to say what the run's step is
+            return
+        self.step = float(np.median(known))
+        at = np.flatnonzero(dt > self.jump * self.step)
+        if not len(at):
+            return
+        self.count += len(at)
+        self._spans = np.concatenate([self._spans, np.column_stack([times[at], times[at + 1]])])
+        if len(self._spans) > 2 * self.keep:
+            self._spans = self._widest()
+
+    def _widest(self) -> np.ndarray:
+        spans = self._spans
+        if len(spans) > self.keep:
+            widest = np.argsort(spans[:, 1] - spans[:, 0], kind="stable")[-self.keep :]
+            spans = spans[np.sort(widest)]
+        return spans
+
+    def spans(self) -> np.ndarray:
+        """The widest :data:`MAX_GAPS` gaps, shape (n, 2): each one's last time before and first after (s)."""
+        return self._widest()
+
+
 class MinMaxStream:
     """The thinned series of ``width`` columns against a time (see the module docstring). :meth:`add` a
     block of rows (``t``: shape (n,), s; ``y``: shape (n, width)), then :meth:`series` gives each column's
-    points. NaN is a gap: a slice with no number keeps its first row (NaN), as a gap to draw."""
+    points. NaN is a gap: a slice with no number keeps its first row (NaN), as a gap to draw. A value
+    beyond ±:data:`PLOT_LIMIT` is one too (counted per column: :attr:`off_scale`), and so is a time gap
+    between rows (:class:`Gaps`, :attr:`gaps`): :meth:`series` breaks the line there."""
 
     def __init__(self, width: int, max_points: int = MAX_POINTS) -> None:
         self.width = width
@@ -37,11 +104,20 @@ class MinMaxStream:
         self._v = np.zeros((6, max_points // 2 + 1, width))
         self._k = 0  # slices
         self._finite = np.zeros(width, dtype=bool)
+        self.off_scale = np.zeros(width, dtype=np.int64)
+        """Per column: the values left out as beyond ±:data:`PLOT_LIMIT`."""
+        self.gaps = Gaps()
 
     def add(self, t: np.ndarray, y: np.ndarray) -> None:
         if len(t) == 0:
             return
         self._finite |= np.isfinite(y).any(axis=0)
+        with np.errstate(invalid="ignore"):
+            off = np.abs(y) > PLOT_LIMIT
+        if off.any():
+            self.off_scale += off.sum(axis=0)
+            y = np.where(off, np.nan, y)
+        self.gaps.add(t)
         if not self.size:
             self._raw_t.append(t)
             self._raw_y.append(y)
@@ -73,7 +149,17 @@ class MinMaxStream:
         return np.where(self._finite, most, np.nan)
 
     def series(self, column: int) -> tuple[np.ndarray, np.ndarray]:
-        """Column ``column``'s points: (t, y), in time order (a slice's lowest and highest, by row)."""
+        """Column ``column``'s points: (t, y), in time order (a slice's lowest and highest, by row), a NaN
+        in the middle of each time gap (:attr:`gaps`: the line broken there)."""
+        t, y = self._points(column)
+        spans = self.gaps.spans()
+        if len(spans) and len(t):
+            middle = spans[:, 0] / 2 + spans[:, 1] / 2
+            at = np.searchsorted(t, middle)
+            t, y = np.insert(t, at, middle), np.insert(y, at, np.nan)
+        return t, y
+
+    def _points(self, column: int) -> tuple[np.ndarray, np.ndarray]:
         if not self.size:
             if not self._raw_t:
                 return np.zeros(0), np.zeros(0)

@@ -45,6 +45,7 @@ from hil.files.bounded import (
     MAX_LINE_BYTES,
     LineSplitter,
     load_json,
+    read_document,
     read_lines,
     regular_file_if_there,
 )
@@ -697,12 +698,16 @@ def _header(line: bytes | None, path: Path) -> list[str]:
 def telemetry_header(line: str, path: str | os.PathLike[str]) -> list[str]:
     """The column names of a telemetry file's first line ``line``: a run's, whose first column is its time
     ``t``; anything else (a file cut at its head, another CSV) an InputFormatError naming line 1 — every
-    reader of a run's rows takes column 0 for the time."""
+    reader of a run's rows takes column 0 for the time. A column named twice is one too (a run names each
+    once; which of them would a reader by name mean?)."""
     columns = line.rstrip("\r").split(",")
     if columns[0] != "t":
         raise InputFormatError(
             f"no 't' column first (found {columns[0][:40]!r}): not a run's telemetry", str(path), 1
         )
+    if len(set(columns)) < len(columns):  # a reader by name took the last of them, silently
+        twice = next(c for c, n in collections.Counter(columns).items() if n > 1)
+        raise InputFormatError(f"column {twice[:40]!r} named twice: not a run's telemetry", str(path), 1)
     return columns
 
 
@@ -718,6 +723,30 @@ def _numbers(line: bytes | str | None, width: int, empty: float | None = math.na
         return [float(c) if c != "" else empty for c in cells]
     except (UnicodeDecodeError, ValueError):
         return None
+
+
+def iter_events(path: str | os.PathLike[str]) -> Iterator[dict[str, Any]]:
+    """The readable events of a run's events log, one at a time (a reader that keeps less than every
+    event — the plots' markers — holds none of the rest); unreadable lines skipped, as :func:`read_events`
+    drops them. Nothing if there is no file."""
+    for event in _events(Path(path)):
+        if event is not None:
+            yield event
+
+
+def read_summary(run_dir: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """A run's ``summary.json`` (a JSON object), read through the bounded readers as every reader of it
+    does (a BOM skipped; at most :data:`~hil.files.bounded.MAX_DOCUMENT_BYTES`, nested at most
+    :data:`~hil.files.bounded.MAX_NESTING` deep); None if there is none; anything else an
+    :class:`InputFormatError` naming it."""
+    path = Path(run_dir) / SUMMARY
+    regular_file_if_there(path, InputFormatError, "summary", RUN_FILES_ONLY)
+    if not path.exists():
+        return None
+    doc = load_json(read_document(path, InputFormatError, SUMMARY), str(path))
+    if not isinstance(doc, dict):
+        raise InputFormatError("expected a JSON object", str(path))
+    return doc
 
 
 def read_events(path: str | os.PathLike[str]) -> tuple[list[dict[str, Any]], int]:
