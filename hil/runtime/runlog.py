@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import bisect
 import collections
-import contextlib
 import itertools
 import json
 import math
@@ -49,7 +48,7 @@ from hil.files.bounded import (
     read_lines,
     regular_file_if_there,
 )
-from hil.files.output import OutputError, make_dir, safe_label
+from hil.files.output import OutputError, make_dir, replace_file, safe_label
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError
 
@@ -315,40 +314,12 @@ def write_summary(run_dir: str | os.PathLike[str], summary: Mapping[str, Any]) -
     """Write ``summary.json`` atomically (a reader never sees half a file); a write the OS refuses (a full
     disk, the directory gone) an :class:`~hil.files.output.OutputError` naming it, no temporary file left.
 
-    Each writer has its own temporary (``mkstemp`` in the same directory, renamed into place): two writers
-    at once — ``hil report DIR`` while the session writing DIR ends, two reports — shared one fixed
+    Each writer has its own temporary (:func:`~hil.files.output.replace_file`: renamed into place): two
+    writers at once — ``hil report DIR`` while the session writing DIR ends, two reports — shared one fixed
     ``summary.json.tmp``, so one renamed the other's half-written file into place (a reader saw invalid
     JSON) and the other's rename failed ("No such file or directory"). Now the last rename wins, whole."""
-    import tempfile  # here, at the run's end: not among the imports before its first tick (~2.5 ms)
-
-    path = Path(run_dir) / SUMMARY
     text = json.dumps(summary, indent=2, default=_json_default, allow_nan=True) + "\n"
-    tmp: str | None = None
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{SUMMARY}.", suffix=".tmp", dir=path.parent)
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            os.fchmod(f.fileno(), 0o666 & ~_umask())  # mkstemp's 0600: readable as any file hil writes
-            f.write(text)
-        os.replace(tmp, path)
-    except OSError as exc:
-        if tmp is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        raise OutputError(path, exc) from exc
-    return path
-
-
-def _umask() -> int:
-    """This process's umask, read without changing it (``os.umask`` sets it: a race with other threads);
-    Linux says it in /proc/self/status, elsewhere the usual 022 is assumed."""
-    try:
-        with open("/proc/self/status", encoding="ascii", errors="replace") as f:
-            for line in f:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0o022
+    return replace_file(Path(run_dir) / SUMMARY, lambda f: f.write(text.encode("utf-8")))
 
 
 def _json_default(value: Any) -> Any:
