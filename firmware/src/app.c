@@ -216,13 +216,13 @@ static uint8_t convert_step(void)
     return value_step(slots);
 }
 
-/* The fine pulse widths for the present state, command and power stage (board.py: _compute_outputs),
- * from the cached conversions. */
-static void compute_outputs(uint32_t *out)
+/* The fine pulse widths for protocol state `state`, the command and the power stage (board.py:
+ * _compute_outputs), from the cached conversions. */
+static void compute_outputs(uint32_t *out, uint8_t state)
 {
     const board_config_t *c = &board.cfg;
     uint8_t clamped = 0;
-    uint8_t armed = motors_enabled(board.state);
+    uint8_t armed = motors_enabled(state);
     uint8_t shed = board.shed_latched || board.power_state >= POWER_STATE_SHED;
     uint8_t raw = armed && board.mode == CONTROL_MODE_RAW_PULSES && board.have_raw;
     for (uint8_t u = 0; u < c->n_units; u++) {
@@ -267,10 +267,10 @@ static void compute_outputs(uint32_t *out)
     board.clamped = clamped;
 }
 
-static void apply_outputs(void)
+static void apply_outputs_for(uint8_t state)
 {
     uint32_t out[MAX_HW_CHANNELS];
-    compute_outputs(out);
+    compute_outputs(out, state);
     for (uint8_t ch = 0; ch < board.n_channels; ch++) {
         /* reported even when the timer already has it: the tick interrupt sets a failsafe's safe widths
          * on the pins before the main loop gets here, and telemetry must say what the pins say */
@@ -280,6 +280,8 @@ static void apply_outputs(void)
     }
     board.outputs_dirty = 0;
 }
+
+static void apply_outputs(void) { apply_outputs_for(board.state); }
 
 static float clampf(float x, float limit) { return x > limit ? limit : (x < -limit ? -limit : x); }
 
@@ -323,18 +325,21 @@ static void hold_gimbals(void)
 
 /* The new state's outputs take effect before anything is reported: formatting a Log and a Heartbeat
  * takes ~1 ms of CPU each, and a stop (FAILSAFE, DISARMED, BOOT) must reach the timers first so that it
- * is in the next pulse frame (the link-loss failsafe: within its timeout plus one frame). */
+ * is in the next pulse frame (the link-loss failsafe: within its timeout plus one frame). A stop's safe
+ * widths are on the timers before the state changes: a pulse frame that started between the two, with
+ * the state changed first, drove a rotor at its old width while the board said DISARMED (the firmware's
+ * fault campaign caught one at a run's final Disarm). */
 static uint8_t enter_state(uint8_t next)
 {
     uint8_t old = board.state;
     if (next == old)
         return old;
-    board.state = next;
     if (!motors_enabled(next)) {
         hold_gimbals();
         stop_rotors();
-        apply_outputs();
+        apply_outputs_for(next);
     }
+    board.state = next;
     board.outputs_dirty = 1;
     return old;
 }
