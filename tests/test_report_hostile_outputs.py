@@ -499,3 +499,18 @@ def test_a_read_only_run_directory_is_an_error_naming_it(real_run):
         assert "Traceback" not in done.stderr and f"{d / 'plots'}" in done.stderr
     finally:
         shutil.rmtree(top)
+
+
+@pytest.mark.parametrize("settled", ['"false"', '"no"', "[]", '{"x": 1}', "1", "0.0"])
+def test_a_settle_verdict_that_is_not_true_or_false_is_damage_never_met(real_run, tmp_path, settled):
+    """``settled`` other than true, false or null (a summary.json hil did not write) is named as damage:
+    the report printed ``(met)`` for any non-empty string, list or object (truthiness)."""
+    run = copy_run(real_run, tmp_path / "run")
+    summary = json.loads((run / "summary.json").read_text())
+    text = json.dumps({**summary, "settle_s": None}).replace('"settled": false', '"settled": true')
+    text = text.replace('"settled": true', f'"settled": {settled}')
+    (run / "summary.json").write_text(text)
+    done = hil("report", str(run), "--no-plots")
+    assert done.returncode == 0, done.stderr
+    assert "(met)" not in done.stdout, done.stdout
+    assert "summary.json damaged" in done.stdout and "settled is" in done.stdout, done.stdout

@@ -416,11 +416,21 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
         v = s.get(key)
         return "-" if v is None else f"{v:{fmt}}{unit}"
 
+    def met(key: str) -> str:
+        """A requirement's verdict: ``true`` met, ``false`` or absent not; anything else (a summary.json
+        hil did not write: the string "false" read as met) a TypeError naming the key."""
+        v = s.get(key)
+        if v is True:
+            return "met"
+        if v is False or v is None:
+            return "NOT met"
+        raise TypeError(f"{key} is {str(v)[:40]!r}, not true or false")
+
     lines = [
         f"exit              {s.get('exit')}  ({s.get('mode')}, {num('sim_s', '.1f', ' s')} simulated in "
         f"{num('wall_s', '.1f', ' s')}, x{num('realtime_factor', '.2f')})",
         f"settle time       {num('settle_s', '.1f', ' s')} to <= {s.get('settle_requirement_deg')} deg "
-        f"({'met' if s.get('settled') else 'NOT met'})",
+        f"({met('settled')})",
         f"final error       {num('final_error_deg', '.3f', ' deg')}",
         f"peak gimbal rate  {num('peak_gimbal_rate', '.3f', ' rad/s')} "
         f"(limit {s.get('max_gimbal_rate_limit')})",
