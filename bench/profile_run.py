@@ -148,7 +148,7 @@ import os, sys
 from hil.cli import main
 from hil.runtime.host import Host
 
-def first_tick(self, t, events):
+def first_tick(self, t, *rest):
     heavy = sorted(m for m in ("matplotlib", "dask", "distributed", "tornado", "selenium", "scipy.linalg")
                    if m in sys.modules)
     print("first tick", len(sys.modules), "modules; heavy:", heavy, flush=True)

@@ -143,11 +143,11 @@ def test_a_default_run_reaches_its_first_tick_without_the_heavy_libraries(tmp_pa
         seen = {{"built": ahead.available(None) and ahead.available("firmware_sim.world.models")}}
         tick = Host.tick
 
-        def first_tick(self, t, events):
+        def first_tick(self, t, *rest):
             if "heavy" not in seen:
                 seen["heavy"] = sorted(m for m in {HEAVY!r} if m in sys.modules)
                 seen["numba"] = sorted(m for m in ("numba", "llvmlite") if m in sys.modules)
-            return tick(self, t, events)
+            return tick(self, t, *rest)
 
         Host.tick = first_tick
         main(["run", "--no-plots", "--duration", "1", "--out", {str(tmp_path)!r}])
