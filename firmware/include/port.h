@@ -32,10 +32,5 @@ uint8_t port_send(const uint8_t *data, uint16_t n);
 void port_frame_valid(void);
 /* LINK_UART or LINK_USB: the link in use now (LINK_FIRST until one delivered a valid frame). */
 uint8_t port_active(void);
-/* 1 (and counted) if a Telemetry or Heartbeat made now is not to be queued: the link is USB and no accessory
- * is open. It would be stale by the time a phone is back, and it would fill the transmit ring that must
- * still hold the Logs made meanwhile (link lost, the state change) for the phone that comes back; the
- * ring is emptied when the accessory goes away, and both counts are said in a Log (usb_link_event). */
-uint8_t port_holds_reports(void);
 
 #endif /* PORT_H */

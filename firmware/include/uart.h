@@ -36,9 +36,6 @@ void uart_stats(uart_stats_t *out);
 /* UART0 stops for good (receiver and transmitter off, both rings emptied): the transmit ring is the
  * USB link's queue from now on. */
 void uart_hand_over(void);
-/* Once handed over: empty the transmit ring (the USB link went down); the count of frames dropped (their
- * delimiters: a frame partly sent counts). */
-uint16_t uart_tx_flush(void);
 /* Bytes queued in the transmit ring. */
 uint16_t uart_tx_pending(void);
 /* Copy up to `max` of the oldest queued bytes to dst, leaving them queued: the count copied. */

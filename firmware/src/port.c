@@ -15,7 +15,6 @@ static struct {
     uint8_t source;   /* with LINK_FIRST: LINK_UART or LINK_USB, the link bytes are read from now */
     uint8_t boundary; /* the last byte read from `source` ended a frame (or none was read) */
     uint16_t last_byte_ms; /* low 16 bits of clock_ms(): only differences under PORT_SWITCH_MS matter */
-    uint16_t held;         /* Telemetry/Heartbeat frames not queued since the accessory went away */
 } port;
 
 void port_init(const board_config_t *cfg)
@@ -74,21 +73,6 @@ uint8_t port_rx_pending(void)
     return uart_rx_pending() || usb_bytes();
 }
 
-static uint8_t accessory_open(void)
-{
-    aoa_state_t s = aoa_state();
-    return s == AOA_RUNNING || s == AOA_CLEAR_HALT;
-}
-
-uint8_t port_holds_reports(void)
-{
-    if (port.active != LINK_USB || accessory_open())
-        return 0;
-    if (port.held != 0xFFFFu)
-        port.held++;
-    return 1;
-}
-
 uint8_t port_send(const uint8_t *data, uint16_t n)
 {
     return uart_send(data, n); /* the ring goes to TXD, or (USB) to the bulk OUT pipe */
@@ -112,20 +96,9 @@ void usb_tx_consume(uint8_t n) { uart_tx_consume(n); }
 
 void usb_link_event(uint8_t ev, uint16_t arg)
 {
-    /* The phone went away: what was queued for it is stale (it would reach the next phone up to the
-     * ring's worth of telemetry late, ahead of the Logs made meanwhile). Emptied, and said below. */
-    uint16_t flushed = ev == AOA_EV_DOWN && port.active == LINK_USB ? uart_tx_flush() : 0;
     char text[72];
     aoa_event_text(ev, arg, text, sizeof text);
     uint8_t refused = ev == AOA_EV_NO_AOA || ev == AOA_EV_FAILED || ev == AOA_EV_NO_PIPES;
     uint8_t severity = refused ? SEVERITY_ERROR : (ev == AOA_EV_DOWN ? SEVERITY_WARNING : SEVERITY_INFO);
     report_log(severity, refused ? LOG_CODE_HANDSHAKE : LOG_CODE_STATE, PSTR("%s"), text);
-    if (flushed)
-        report_log(SEVERITY_WARNING, LOG_CODE_STATE,
-                   PSTR("%u frames queued for the phone dropped: the accessory went away"), flushed);
-    if (ev == AOA_EV_UP && port.held) {
-        report_log(SEVERITY_INFO, LOG_CODE_STATE,
-                   PSTR("%u telemetry and heartbeat frames not sent while no accessory was open"), port.held);
-        port.held = 0;
-    }
 }

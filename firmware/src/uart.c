@@ -122,15 +122,6 @@ void uart_hand_over(void)
     }
 }
 
-uint16_t uart_tx_flush(void)
-{
-    uint16_t frames = 0, head = tx_head; /* handed over: only the main loop moves either end */
-    for (uint16_t at = tx_tail; at != head; at = at + 1u == UART_TX_SIZE ? 0u : at + 1u)
-        frames += tx_buf[at] == 0x00;
-    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { tx_tail = head; }
-    return frames;
-}
-
 uint16_t uart_tx_pending(void)
 {
     uint16_t tail;
