@@ -146,14 +146,19 @@ class BoardClient:
                 self._write(self.session.link_up(now), now)
             if not self._wait_until(lambda: self.session.phase is not Phase.HANDSHAKING, timeout):
                 with self._cond:
-                    instead = self.session.heard_instead()
+                    instead = self.session.heard_instead() + self.transport.heard_instead()
                 raise LinkTimeout(f"{self.transport.url}: no handshake within {timeout} s{instead}")
             with self._cond:
                 self._check()
                 info = self.session.info
                 if self.session.phase is not Phase.READY or info is None:
-                    raise self.session.failure or LinkTimeout(
-                        f"{self.transport.url}: the board did not answer"
+                    failure = self.session.failure
+                    raise (
+                        self._told(failure)
+                        if failure is not None
+                        else LinkTimeout(
+                            f"{self.transport.url}: the board did not answer{self.transport.heard_instead()}"
+                        )
                     )
                 self._connected = True
                 return info
@@ -475,6 +480,16 @@ class BoardClient:
             self._lost_at, self._attempts = now, 0
         self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
 
+    def _told(self, failure: HilError) -> HilError:
+        """A first handshake's ``LinkTimeout`` with what the transport heard instead appended (frames of
+        another kind of CAN frame than this end's: the board has another ``fd`` option)."""
+        heard = self.transport.heard_instead()
+        if isinstance(failure, LinkTimeout) and heard and heard not in str(failure):
+            told = LinkTimeout(f"{failure}{heard}")
+            told.__cause__ = failure
+            return told
+        return failure
+
     def _keep_link(self, now: float) -> None:
         s = self.session
         if self._connected and self._reconnect_at is None and not self.transport.is_open:
@@ -490,7 +505,7 @@ class BoardClient:
             self._lose_link(now, s.failure)
             return
         if s.phase is Phase.DOWN and s.failure is not None and not self._connected:
-            raise s.failure  # the first handshake went unanswered
+            raise self._told(s.failure)  # the first handshake went unanswered
         if s.phase is Phase.READY:
             self._lost_at, self._attempts, self._busy_logged = None, 0, False
             return

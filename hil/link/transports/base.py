@@ -40,6 +40,11 @@ class Transport(abc.ABC):
         than at its back-off's next step."""
         return None
 
+    def heard_instead(self) -> str:
+        """What this transport received that the board's answer never is, said for the operator ("; ..." or
+        empty): a first handshake that timed out appends it to its ``LinkTimeout``."""
+        return ""
+
     def open(self) -> Transport:
         if not self._open:
             try:

@@ -19,6 +19,12 @@ option             meaning
 ``send_timeout``   seconds a send may wait for room in the interface's queue (default 0.1)
 =================  ========================================================================
 
+``fd`` decides what this end sends and which kind it takes; a frame of the other kind is counted
+(``rx_wrong_kind``) and logged naming the option — a peer set up with the other ``fd`` — never taken.
+``udp_multicast`` is opened for both kinds whatever ``fd`` says: opened classic, python-can drops the CAN
+FD frames it receives before this transport sees them, and a peer of the other kind went unheard with
+nothing counted.
+
 Other interface settings (a Vector app name, a Kvaser serial number, ...) come from python-can's own
 configuration file or environment, which ``can.Bus`` reads for the interface named here; an option this
 transport does not know is an error, so a typo never passes silently.
@@ -67,6 +73,11 @@ from .base import Transport, UrlOptions
 logger = logging.getLogger(__name__)
 
 DEFAULT_SEND_TIMEOUT_S = 0.1
+_TAKES_BOTH_KINDS = frozenset({"udp_multicast"})
+"""Interfaces opened with ``fd=True`` whatever the URL's ``fd`` says: opened ``fd=False``, python-can's
+``udp_multicast`` drops every CAN FD frame it receives before anyone sees it, so a peer configured for the
+other kind went unheard with nothing counted. Opened for both, it hands them up and the reassembler judges
+the kind (``rx_wrong_kind``, logged). What this end *sends* still follows ``fd``."""
 _DRAIN = 512  # CAN messages taken per read after the first complete frame (bounded work per call)
 _TX_FULL = frozenset({errno.ENOBUFS, errno.EAGAIN})
 """errno of a send refused for a full transmit queue (socketcan's ENOBUFS): a dropped frame, the bus there."""
@@ -157,10 +168,9 @@ class CanTransport(Transport):
 
     # ------------------------------------------------------------------ backend
     def _open_impl(self) -> None:
+        fd = self.fd or self.interface in _TAKES_BOTH_KINDS
         try:
-            self._bus = can.Bus(
-                interface=self.interface, channel=self.channel, fd=self.fd, **self._bus_options
-            )
+            self._bus = can.Bus(interface=self.interface, channel=self.channel, fd=fd, **self._bus_options)
         except (can.CanError, ImportError, NotImplementedError) as exc:
             raise TransportError(
                 f"{self.url}: cannot open the {self.interface!r} CAN interface: {exc}"
@@ -266,10 +276,27 @@ class CanTransport(Transport):
                 f"another node uses node id {self.node} — two {twins} on one node?",
             )
         stats = reassembler.stats
+        wrong_kind = stats.wrong_kind
         out = reassembler.feed(*fields)
         if (stats.malformed, stats.incomplete, stats.spliced) != self._losses_seen:
             self._log_losses()
+        if stats.wrong_kind != wrong_kind:
+            self._log_drop("wrong_kind", self._wrong_kind_said(stats.wrong_kind - wrong_kind))
         return out
+
+    def _wrong_kind_said(self, n: int) -> str:
+        """``n`` frames of the other kind than this end's, said naming the option that decides it."""
+        theirs, ours = ("CAN FD", "classic") if not self.fd else ("classic CAN", "CAN FD")
+        return (
+            f"{n} {theirs} frame(s) on this {ours} link (fd={int(self.fd)}; rx_wrong_kind): a peer set up "
+            f"with fd={int(not self.fd)}? Both ends need the same fd option"
+        )
+
+    def heard_instead(self) -> str:
+        """Frames of the other kind this transport has heard, said for the operator (empty if none): a host
+        whose board has another ``fd`` option hears only those."""
+        n = self._reassembler.stats.wrong_kind
+        return f"; {self._wrong_kind_said(n)}" if n > 0 else ""
 
     def _log_losses(self) -> None:
         """Log the reassembler's lost frames since it was last looked at, each kind at most once a second:
