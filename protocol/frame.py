@@ -26,7 +26,7 @@ from __future__ import annotations
 import enum
 import re
 import struct
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -219,13 +219,16 @@ class Deframer:
     bytes without a delimiter is discarded as one TOO_LONG bad frame (counted as a resync) and the
     deframer skips to the next delimiter. Empty chunks (consecutive delimiters) are idle fill and ignored.
     Sequence numbers: a jump of k > 1 adds k-1 to ``seq_gaps``; a repeat of the last number (a
-    retransmission) adds to ``duplicates``.
+    retransmission) adds to ``duplicates``. ``renumbered_by``: message ids that begin their sender's
+    numbering afresh, the step to one counted as neither (a board passes ``Hello``'s: a restarted host
+    numbers its frames from 0 again, and the jump from its predecessor's last number loses nothing).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, renumbered_by: Collection[int] = ()) -> None:
         self._buf = bytearray()
         self._skipping = False
         self._last_seq: int | None = None
+        self._renumbered_by = frozenset(renumbered_by)
         self.counters = LinkCounters()
 
     def reset(self) -> None:
@@ -277,7 +280,7 @@ class Deframer:
             seq = frame.seq  # _count_seq and the frame count, inline on the hot path
             last = self._last_seq
             self._last_seq = seq
-            if last is not None and (seq - last) & 0xFF != 1:
+            if last is not None and (seq - last) & 0xFF != 1 and frame.msg_id not in self._renumbered_by:
                 self._count_step((seq - last) & 0xFF)
             counters.frames += 1
             events.append(frame)
@@ -323,7 +326,7 @@ class Deframer:
     def _count_seq(self, frame: Frame) -> None:
         last = self._last_seq
         self._last_seq = frame.seq
-        if last is not None:
+        if last is not None and frame.msg_id not in self._renumbered_by:
             self._count_step((frame.seq - last) & 0xFF)
 
     def _count_step(self, step: int) -> None:

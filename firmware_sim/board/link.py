@@ -4,7 +4,10 @@ transmit buffer, and the duplicate filter for reliable commands.
 The UART interrupt keeps receiving while the main loop is busy (or hung): bytes land in a ring of
 ``rx_capacity`` bytes and the overflow is dropped and counted, as on the MCU. Reliable commands are
 answered once per ``(msg_id, seq)``: a retransmission (RETRANSMIT flag, same id, seq and payload) of a
-command already executed gets the same ACK/NACK again without running the command twice.
+command already executed gets the same ACK/NACK again without running the command twice. A ``Hello``
+forgets those answers (the handshake does it) and begins the host's numbering afresh for the counters: a
+restarted host's frames, numbered from 0 again, are neither answered from its predecessor's cache nor
+counted as lost.
 """
 
 from __future__ import annotations
@@ -14,7 +17,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from protocol.frame import Deframer, Event, Frame, Framer
-from protocol.messages import Flags
+from protocol.messages import Flags, Hello
+
+_RENUMBERED_BY = (Hello.MSG_ID,)
+"""A host's ``Hello`` begins its numbering afresh (a restarted host starts at 0 again): the jump to it is
+no sequence gap in ``Telemetry.seq_gaps`` (docs/protocol.md, "Counters")."""
 
 
 @dataclass
@@ -29,7 +36,7 @@ class BoardLink:
     def __init__(self, rx_capacity: int, tx_capacity: int, dedup_entries: int = 32) -> None:
         self.rx_capacity = rx_capacity
         self.tx_capacity = tx_capacity
-        self.deframer = Deframer()
+        self.deframer = Deframer(_RENUMBERED_BY)
         self.framer = Framer()
         self.stats = LinkStats()
         self._rx = bytearray()
@@ -41,7 +48,7 @@ class BoardLink:
         """MCU reset: the rings are cleared, sequence numbers restart, the duplicate cache is forgotten."""
         self._rx.clear()
         self._tx.clear()
-        self.deframer = Deframer()  # the MCU's counters restart with it
+        self.deframer = Deframer(_RENUMBERED_BY)  # the MCU's counters restart with it
         self.framer = Framer()
         self._answers.clear()
 
