@@ -10,6 +10,19 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from protocol.errors import HilError
+
+
+class PluginError(HilError, RuntimeError):
+    """A user's plugin (an estimator, a transport, a phone source) that raised its own exception or
+    returned what its interface does not allow, mid-run: ``plugin`` names it (``"estimator 'mine'"``),
+    ``detail`` says what it did and when. The run ends on it, as an error, its board disarmed."""
+
+    def __init__(self, plugin: str, detail: str) -> None:
+        super().__init__(f"{plugin}: {detail}")
+        self.plugin = plugin
+        self.detail = detail
+
 
 class Registry:
     """Names → ``"module:attribute"``: ``builtin`` first, then the entry points of ``group`` (read once,

@@ -21,7 +21,13 @@ attribute an :class:`~hil.estimation.interface.EstimatorKind`. In a ``pyproject.
     [project.entry-points."vscmg_hil.estimators"]
     mine = "mypackage.estimator:MY_ESTIMATOR"
 
-:func:`register_estimator` adds one at run time. Pure configuration, no I/O."""
+:func:`register_estimator` adds one at run time.
+
+Every estimator but ``hil``'s variational one is built wrapped in a
+:class:`~hil.estimation.checked.CheckedEstimator`: what a user's estimator returns is checked each step (a
+finite rotation at the step's time; a batch of the steps' length), and what it raises — in ``check``,
+``build``, ``describe`` or mid-run — is a :class:`~hil.plugins.PluginError` (a ConfigError from ``check``)
+naming it, so a run that it failed ends as an error with its board disarmed. Pure configuration, no I/O."""
 
 from __future__ import annotations
 
@@ -30,8 +36,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hil.estimation.interface import Estimator, EstimatorKind, Site
-from hil.plugins import Registry
-from protocol.errors import ConfigError
+from hil.plugins import PluginError, Registry
+from protocol.errors import ConfigError, HilError
 
 ENTRY_POINT_GROUP = "vscmg_hil.estimators"
 DEFAULT_ESTIMATOR = "variational"
@@ -44,6 +50,9 @@ _REGISTRY = Registry(
         "vqf": "hil.estimation.vqf_adapter:VQF_ESTIMATOR",
     },
 )
+# the estimators whose outputs are not checked each step: hil's own variational one (its kernel flags and
+# counts its own failures; it is the host's hot path)
+_UNCHECKED = frozenset({"hil.estimation.variational_kind:VARIATIONAL"})
 
 
 def register_estimator(name: str, target: str) -> None:
@@ -67,6 +76,12 @@ def estimator_kind(name: str, where: str = "estimator") -> EstimatorKind:
         kind: EstimatorKind = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
         raise ConfigError(f"estimator {name!r} ({target}) is not available: {exc}", where) from exc
+    missing = [a for a in ("keys", "check", "build", "describe") if not hasattr(kind, a)]
+    if missing or not isinstance(kind.keys, (set, frozenset)):
+        what = (
+            f"no {', '.join(missing)}" if missing else f"its keys are a {type(kind.keys).__name__}, not a set"
+        )
+        raise ConfigError(f"estimator {name!r} ({target}) is not an EstimatorKind ({what})", where)
     return kind
 
 
@@ -90,7 +105,13 @@ class EstimatorChoice:
             raise ConfigError(
                 f"unknown key for estimator {self.name!r}; known: {known}", f"{self.where}.{key}"
             )
-        checked = kind.check(self.settings, self.where)
+        try:
+            checked = kind.check(self.settings, self.where)
+        except ConfigError:
+            raise
+        except Exception as exc:  # the kind's own exception: still a configuration the run cannot take
+            why = f"estimator {self.name!r}: its check raised {type(exc).__name__}: {exc}"
+            raise ConfigError(why, self.where) from exc
         object.__setattr__(self, "name", self.name.lower())
         object.__setattr__(self, "settings", dict(checked))
 
@@ -99,12 +120,32 @@ class EstimatorChoice:
         return estimator_kind(self.name, f"{self.where}.kind")
 
     def build(self, site: Site) -> Estimator:
-        """A fresh estimator for ``site``."""
-        return self.kind.build(self.settings, site)
+        """A fresh estimator for ``site``: a user's wrapped in a
+        :class:`~hil.estimation.checked.CheckedEstimator` (see the module docstring)."""
+        from hil.estimation.checked import CheckedEstimator
+
+        kind = self.kind
+        if _REGISTRY.target(self.name) in _UNCHECKED:
+            return kind.build(self.settings, site)
+        plugin = f"estimator {self.name!r}"
+        try:
+            built = kind.build(self.settings, site)
+        except HilError:  # the project's own (a ConfigError naming a key): as raised
+            raise
+        except Exception as exc:
+            raise PluginError(plugin, f"build raised {type(exc).__name__}: {exc}") from exc
+        if built is None or not callable(getattr(built, "step", None)):
+            raise PluginError(plugin, f"build returned {type(built).__name__}, not an Estimator")
+        return CheckedEstimator(built, self.name)
 
     def describe(self) -> str:
         """One line: the estimator and its settings."""
-        return self.kind.describe(self.settings)
+        try:
+            return str(self.kind.describe(self.settings))
+        except Exception as exc:
+            raise PluginError(
+                f"estimator {self.name!r}", f"describe raised {type(exc).__name__}: {exc}"
+            ) from exc
 
     @classmethod
     def by_name(cls, name: str, where: str) -> EstimatorChoice:

@@ -1,0 +1,248 @@
+"""A user's estimator, held to its interface: :class:`CheckedEstimator` wraps an estimator that another
+package registered (:mod:`hil.estimation.registry` builds every estimator but ``hil``'s own variational
+one through it), so that whatever it does wrong mid-run ends the run with a
+:class:`~hil.plugins.PluginError` naming it and the step — never a NaN steered on, a traceback from deep in
+the controller, or a replay scored on half its rows.
+
+What is checked, each call (a few µs a step):
+
+=========================  ========================================================================
+call                       checked
+=========================  ========================================================================
+``step(s)``                an :class:`~hil.estimation.estimator.Estimate` (or an object with its six
+                           attributes), at ``s.t``; ``R``, ``omega``, ``omega_err`` finite; ``R`` a
+                           rotation (``|R Rᵀ − I| ≤`` :data:`ORTHONORMAL_TOL` entrywise, det > 0)
+``run(steps)``             an :class:`~hil.estimation.estimator.EstimateBatch` of ``len(steps)`` rows
+                           at ``steps.t``, each row as a step's; ``steps``' arrays are passed read-only
+                           (an estimator that wrote into them changed what the replay then scores)
+``gyro_bias``              a finite 3-vector
+``set_gyro_bias(b)``       given a copy of ``b`` (the host's own is not the estimator's to change)
+=========================  ========================================================================
+
+Any exception the estimator raises (its own, or Python's) becomes a :class:`~hil.plugins.PluginError`
+``from`` it; Ctrl-C (KeyboardInterrupt) passes through. Pure checks, no I/O."""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import fields, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from hil.plugins import PluginError
+
+if TYPE_CHECKING:
+    from hil.estimation.estimator import Estimate, EstimateBatch
+    from hil.estimation.interface import Estimator
+    from hil.estimation.sensors import MergedStep, MergedSteps
+
+Array = NDArray[np.float64]
+
+ORTHONORMAL_TOL = 1e-6
+"""How far from a rotation an estimate's ``R`` may be: each entry of ``R Rᵀ − I`` (a float32 estimator's
+rounding is ~1e-7; a quaternion integrated without renormalising drifts past it within minutes)."""
+
+TIME_TOL_S = 1e-9
+"""How far an estimate's ``t`` may be from its step's (s)."""
+
+_FIFTEEN = struct.Struct("=15d").unpack_from  # an Estimate's kept bytes: R row-major, omega, omega_err
+_FIELDS = ("t", "R", "omega", "omega_err", "flags", "iterations")
+
+
+def _describe(value: Any) -> str:
+    """``value`` in a few words for an error: its type, and its shape or a short repr."""
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape}"
+    text = " ".join(repr(value).split())
+    return f"{type(value).__name__} {text[:60]}{'…' if len(text) > 60 else ''}"
+
+
+def rotation_fault(r: tuple[float, ...]) -> str | None:
+    """Why the row-major 3×3 ``r`` (9 floats) is not a rotation (:data:`ORTHONORMAL_TOL`), or None."""
+    r0, r1, r2, r3, r4, r5, r6, r7, r8 = r
+    worst = max(
+        abs(r0 * r0 + r1 * r1 + r2 * r2 - 1.0),
+        abs(r3 * r3 + r4 * r4 + r5 * r5 - 1.0),
+        abs(r6 * r6 + r7 * r7 + r8 * r8 - 1.0),
+        abs(r0 * r3 + r1 * r4 + r2 * r5),
+        abs(r0 * r6 + r1 * r7 + r2 * r8),
+        abs(r3 * r6 + r4 * r7 + r5 * r8),
+    )
+    if not worst <= ORTHONORMAL_TOL:
+        return f"R is not orthonormal (|R Rᵀ − I| = {worst:.3g} > {ORTHONORMAL_TOL:g})"
+    det = r0 * (r4 * r8 - r5 * r7) - r1 * (r3 * r8 - r5 * r6) + r2 * (r3 * r7 - r4 * r6)
+    if not det > 0:
+        return f"R is a reflection (det R = {det:.6g}), not a rotation"
+    return None
+
+
+class CheckedEstimator:
+    """``inner``, a user's :class:`~hil.estimation.interface.Estimator`, with every call checked (see the
+    module docstring); ``name`` is its registered name, for the errors."""
+
+    __slots__ = ("inner", "name", "plugin")
+
+    def __init__(self, inner: Estimator, name: str) -> None:
+        self.inner = inner
+        self.name = name
+        self.plugin = f"estimator {name!r}"
+
+    def __repr__(self) -> str:
+        return f"CheckedEstimator({self.inner!r}, {self.name!r})"
+
+    def _error(self, detail: str) -> PluginError:
+        return PluginError(self.plugin, detail)
+
+    def _call(self, what: str, call: Callable[[], Any]) -> Any:
+        try:
+            return call()
+        except PluginError:
+            raise
+        except Exception as exc:
+            raise self._error(f"{what} raised {type(exc).__name__}: {exc}") from exc
+
+    # ------------------------------------------------------------------ live
+    def step(self, s: MergedStep) -> Estimate:
+        out = self._call(f"step at t = {s.t!r} s", lambda: self.inner.step(s))
+        return self.checked_estimate(out, s.t)
+
+    def checked_estimate(self, out: Any, t: float) -> Estimate:
+        """``out``, what the estimator's step at ``t`` returned, as an Estimate if it is a valid one."""
+        from hil.estimation.estimator import Estimate
+
+        where = f"step at t = {t!r} s"
+        if type(out) is not Estimate:
+            out = self._as_estimate(out, where)
+        values = _FIFTEEN(out[3])
+        if not all(map(math.isfinite, values)):
+            names = ("R",) * 9 + ("omega",) * 3 + ("omega_err",) * 3
+            bad = sorted({names[i] for i, v in enumerate(values) if not math.isfinite(v)})
+            raise self._error(f"{where} returned a non-finite {' and '.join(bad)}")
+        fault = rotation_fault(values[:9])
+        if fault is not None:
+            raise self._error(f"{where} returned an attitude that is not a rotation: {fault}")
+        est_t = out.t
+        if not (isinstance(est_t, (int, float)) and abs(est_t - t) <= TIME_TOL_S):
+            raise self._error(f"{where} returned an estimate at t = {est_t!r}, not the step's")
+        return out  # type: ignore[no-any-return]
+
+    def _as_estimate(self, out: Any, where: str) -> Estimate:
+        from hil.estimation.estimator import Estimate
+        from hil.estimation.sensors import StepFlag
+
+        missing = [name for name in _FIELDS if not hasattr(out, name)]
+        if missing:
+            raise self._error(f"{where} returned {_describe(out)}, not an Estimate (no {', '.join(missing)})")
+        shapes = {"R": (3, 3), "omega": (3,), "omega_err": (3,)}
+        try:
+            arrays = {k: np.asarray(getattr(out, k), dtype=float) for k in shapes}
+            bad = [f"{k} {a.shape}" for k, a in arrays.items() if a.shape != shapes[k]]
+            if bad:
+                raise self._error(f"{where} returned shapes {', '.join(bad)}; wants R (3, 3), omega (3,)")
+            return Estimate(
+                float(out.t),
+                arrays["R"],
+                arrays["omega"],
+                arrays["omega_err"],
+                StepFlag(int(out.flags)),
+                int(out.iterations),
+            )
+        except PluginError:
+            raise
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise self._error(f"{where} returned an estimate of the wrong types: {exc}") from exc
+
+    # ------------------------------------------------------------------ batch
+    def run(self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None) -> EstimateBatch:
+        given = _read_only(steps)
+        out = self._call(f"run over {len(steps)} steps", lambda: self.inner.run(given, progress))
+        return self.checked_batch(out, steps)
+
+    def checked_batch(self, out: Any, steps: MergedSteps) -> EstimateBatch:
+        """``out``, what the estimator's run over ``steps`` returned, if it is a valid batch for them."""
+        from hil.estimation.estimator import EstimateBatch
+
+        n = len(steps)
+        where = f"run over {n} steps"
+        if not isinstance(out, EstimateBatch):
+            raise self._error(f"{where} returned {_describe(out)}, not an EstimateBatch")
+        shapes = {
+            "t": (n,),
+            "R": (n, 3, 3),
+            "omega": (n, 3),
+            "omega_err": (n, 3),
+            "flags": (n,),
+            "iterations": (n,),
+        }
+        for key, shape in shapes.items():
+            a = getattr(out, key)
+            if not isinstance(a, np.ndarray) or a.shape != shape:
+                got = a.shape if isinstance(a, np.ndarray) else type(a).__name__
+                raise self._error(f"{where} returned {key} of shape {got}; wants {shape}")
+        for key in ("t", "R", "omega", "omega_err"):
+            a = getattr(out, key)
+            if not np.issubdtype(a.dtype, np.floating):
+                raise self._error(f"{where} returned {key} of dtype {a.dtype}; wants floats")
+            finite = np.isfinite(a.reshape(n, -1)).all(axis=1)
+            if not finite.all():
+                i = int(np.flatnonzero(~finite)[0])
+                raise self._error(
+                    f"{where} returned a non-finite {key} at step {i} (t = {float(steps.t[i])!r} s): "
+                    f"{int(n - finite.sum())} of {n} rows"
+                )
+        off = np.abs(out.t - steps.t) > TIME_TOL_S
+        if off.any():
+            i = int(np.flatnonzero(off)[0])
+            raise self._error(
+                f"{where} returned t[{i}] = {float(out.t[i])!r}, not the step's {float(steps.t[i])!r}"
+            )
+        R = out.R
+        gram = np.abs(np.einsum("nij,nkj->nik", R, R) - np.eye(3)).reshape(n, 9).max(axis=1, initial=0.0)
+        bad = ~(gram <= ORTHONORMAL_TOL) | ~(np.linalg.det(R) > 0)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            fault = rotation_fault(tuple(float(v) for v in R[i].reshape(9)))
+            raise self._error(
+                f"{where} returned an attitude that is not a rotation at step {i} "
+                f"(t = {float(steps.t[i])!r} s): {fault}"
+            )
+        if not (
+            np.issubdtype(out.flags.dtype, np.integer) and np.issubdtype(out.iterations.dtype, np.integer)
+        ):
+            raise self._error(f"{where} returned flags or iterations that are not integers")
+        return out
+
+    # ------------------------------------------------------------------ bias and rest
+    @property
+    def gyro_bias(self) -> Array:
+        b = self._call("gyro_bias", lambda: self.inner.gyro_bias)
+        try:
+            a = np.array(b, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise self._error(f"gyro_bias is {_describe(b)}, not a 3-vector") from exc
+        if a.shape != (3,) or not np.isfinite(a).all():
+            raise self._error(f"gyro_bias is {_describe(b)}, not a finite 3-vector (rad/s)")
+        return a
+
+    def set_gyro_bias(self, bias: ArrayLike) -> None:
+        given = np.array(bias, dtype=float)  # a copy: the caller's is not the estimator's to change
+        self._call("set_gyro_bias", lambda: self.inner.set_gyro_bias(given))
+
+    def set_rest_learning(self, enabled: bool) -> None:
+        self._call("set_rest_learning", lambda: self.inner.set_rest_learning(enabled))
+
+
+def _read_only(steps: MergedSteps) -> MergedSteps:
+    """``steps`` with read-only views of its arrays (the caller's stay writable)."""
+    views: dict[str, Any] = {}
+    for f in fields(steps):
+        a = getattr(steps, f.name)
+        if isinstance(a, np.ndarray):
+            a = a.view()
+            a.flags.writeable = False
+        views[f.name] = a
+    return replace(steps, **views)
