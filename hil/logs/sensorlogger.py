@@ -25,6 +25,7 @@ no gravity direction and is refused. Gyroscope and magnetometer: the calibrated 
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -154,10 +155,11 @@ def _detects(c: Container, files: Mapping[str, str]) -> bool:
 
 
 def _starts_at_an_epoch(head: Sequence[str], cells: Sequence[str], delimiter: str) -> bool:
-    """Whether the first row's ``time`` is an integer time since the epoch (:data:`EPOCH_UNITS`): a file
-    ``time,z,y,x`` without ``seconds_elapsed`` (an app version or a re-save that left it out) is Sensor
-    Logger's, whose ``time`` is in ns — never a phyphox buffer's ``time`` in s from 0, which read as
-    seconds would put its samples 50 billion years on."""
+    """Whether the first row's ``time`` is an integer time since the epoch (:data:`EPOCH_UNITS`) or since
+    the phone booted in ns (:data:`BOOT_NS`; 1e9 on, a second of uptime): a file ``time,z,y,x`` without
+    ``seconds_elapsed`` (an app version or a re-save that left it out) is Sensor Logger's, whose ``time``
+    is in ns — never a phyphox buffer's ``time`` in s from 0, which read as seconds would put its samples
+    50 billion years on (an integer of 1e9 s or more is no experiment's time)."""
     if len(head) < 2:
         return False
     column = next(i for i, cell in enumerate(cells) if (clock_of(cell) or ("",))[0] == "time")
@@ -171,7 +173,7 @@ def _starts_at_an_epoch(head: Sequence[str], cells: Sequence[str], delimiter: st
         value = abs(int(cell))
     except (ValueError, IndexError):
         return False
-    return any(low <= value < high for low, high, _, _ in EPOCH_UNITS)
+    return value >= EPOCH_UNITS[-1][0]  # an epoch in s or finer, or ns since boot (1 s on)
 
 
 _ISO = re.compile(
@@ -389,6 +391,100 @@ def _clock_names_lowered(table: Table) -> tuple[Table, _ClockUnits]:
     return replace(table, columns=tuple(columns), data=data, exact=exact), units
 
 
+BOOT_NS: tuple[int, int, int, str] = (10**9, 10**18, 1, "ns since boot")
+"""A ``time`` in ns since the phone booted (Android's sensor clock, ``SensorEvent.timestamp``), as a tool
+or an app version writes it instead of the epoch: from a second of uptime (1e9; no phone boots faster) to
+an epoch in ns (1e18, 2001). Told from an epoch in µs, ms or s of the same size by its sample steps
+(:func:`_time_unit`)."""
+SAMPLE_STEP_S = (1e-3, 1.0)
+"""s: the median step between a file's samples that a phone sensor has (1 kHz down to 1 Hz): which unit
+of ``time`` makes the steps such tells ns since boot from an epoch in a coarser unit of the same size."""
+LONE_STEP_S = (1e-4, 1e3)
+"""s: the median step a ``time`` that can be only ns since boot (by its size, or its header's ``(ns)``)
+must have: wider, there being nothing to tell it from; an epoch in ms under a ``time (ns)`` header (steps
+of 20 ns) is still refused."""
+
+
+def _unit_text(name: str) -> str:
+    return "ns since the phone booted" if name == BOOT_NS[3] else f"{name} since the epoch"
+
+
+def _time_unit(
+    table: Table, times: np.ndarray, usable: np.ndarray, units: _ClockUnits
+) -> tuple[int, int, int, str]:
+    """The unit of the ``time`` column (:data:`EPOCH_UNITS` or :data:`BOOT_NS`): of those its values'
+    size allows (and its header's unit, if it names one), the one whose span agrees with
+    ``seconds_elapsed``'s (when the file has one spanning a second or more), else the one whose median
+    sample step is a phone sensor's (:data:`SAMPLE_STEP_S`). None, or two (a step of 1 ms in ns since
+    boot is 1 s in µs since the epoch), is an InputFormatError naming the column: never a guess."""
+    typical = int(np.median(times[usable]))
+    by_size = next((u for u in EPOCH_UNITS if u[0] <= typical < u[1]), None)
+    boot = BOOT_NS if BOOT_NS[0] <= typical < BOOT_NS[1] else None
+    candidates = [u for u in (by_size, boot) if u is not None]
+    if not candidates:
+        raise InputFormatError(
+            f"{typical} is no time since the epoch in ns, µs, ms or s (2001-2286), nor since the phone "
+            "booted in ns",
+            table.source,
+            table.header_line,
+            "time",
+        )
+    said = units.time.replace("us", "µs").replace("μ", "µ").replace("sec", "s")
+    if said:
+        allowed = [u for u in candidates if u[3].split()[0] == said]
+        if not allowed:
+            raise InputFormatError(
+                f"the header says {units.time!r} but the values are "
+                f"{' or '.join(_unit_text(u[3]) for u in candidates)} (by their size)",
+                table.source,
+                table.header_line,
+                units.time_cell,
+            )
+        candidates = allowed
+    if len(candidates) == 1 and candidates[0] is by_size:
+        return candidates[0]  # an epoch, checked against seconds_elapsed's span by _epoch_ns
+    rows = np.flatnonzero(usable)
+    elapsed = table.column("seconds_elapsed")[rows] if "seconds_elapsed" in table.columns else None
+    if elapsed is not None and np.isfinite(elapsed).sum() >= 2:
+        ok = np.isfinite(elapsed)
+        span_s = float(elapsed[ok][-1] - elapsed[ok][0])
+        if abs(span_s) >= 1.0:
+            span = float(times[rows[ok][-1]] - times[rows[ok][0]])
+            fits = [u for u in candidates if 0.99 < span * u[2] * 1e-9 / span_s < 1.01]
+            if len(fits) == 1:
+                return fits[0]
+            if not fits:
+                raise InputFormatError(
+                    f"no time since the epoch nor since the phone booted: read as "
+                    f"{' or '.join(_unit_text(u[3]) for u in candidates)}, 'time' spans none of what "
+                    "'seconds_elapsed' does (its unit is none of these)",
+                    table.source,
+                    table.header_line,
+                    "time",
+                )
+    steps = np.diff(table.column("time")[rows])  # floats: "1679068247.609" (s) keeps its fraction
+    steps = steps[steps > 0]
+    step = float(np.median(steps)) if len(steps) else math.nan
+    lo, hi = SAMPLE_STEP_S if len(candidates) > 1 else LONE_STEP_S
+    fits = [u for u in candidates if lo <= step * u[2] * 1e-9 <= hi]
+    if len(fits) == 1:
+        return fits[0]
+    if len(candidates) == 1 and not len(steps):
+        return candidates[0]  # one sample: nothing to tell by, and nothing else it could be
+    said_units = " or ".join(
+        f"{_unit_text(u[3])} (a sample every {step * u[2] * 1e-9:.3g} s)" for u in candidates
+    )
+    raise InputFormatError(
+        f"no time since the epoch nor since the phone booted{' told apart' if fits else ''}: 'time' "
+        f"steps by {step:.6g} a sample: read as {said_units}, {'both are' if len(fits) > 1 else 'none is'} "
+        f"a phone sensor's ({lo:g}-{hi:g} s a sample); name its unit in the header ('time (ns)') or "
+        "keep the export's 'seconds_elapsed' beside it",
+        table.source,
+        table.header_line,
+        "time",
+    )
+
+
 def _epoch_ns(
     table: Table,
     usable: np.ndarray,
@@ -409,23 +505,7 @@ def _epoch_ns(
     if not usable.any():
         return np.full(len(times), NO_TIME, np.int64), usable
     typical = int(np.median(times[usable]))
-    unit = next((u for u in EPOCH_UNITS if u[0] <= typical < u[1]), None)
-    if unit is None:
-        raise InputFormatError(
-            f"{typical} is no time since the epoch in ns, µs, ms or s (2001-2286)",
-            table.source,
-            table.header_line,
-            "time",
-        )
-    low, high, ns_per_unit, name = unit
-    said = units.time.replace("us", "µs").replace("μ", "µ").replace("sec", "s")
-    if said and said != name:
-        raise InputFormatError(
-            f"the header says {units.time!r} but the values are an epoch in {name} (by their size)",
-            table.source,
-            table.header_line,
-            units.time_cell,
-        )
+    low, high, ns_per_unit, name = _time_unit(table, times, usable, units)
     coarse = _coarse(table.column("time"), usable)  # floats: "1679068247.609" (s) is no whole second
     if coarse is not None:
         elapsed = table.column("seconds_elapsed") if "seconds_elapsed" in table.columns else None
@@ -456,7 +536,12 @@ def _epoch_ns(
     fractional = usable & (times.astype(float) != floats)
     if fractional.any():  # "1679068247.609" (s), "1679068247609.3" (ms): a re-save's, not truncated
         ns[fractional] = np.round(floats[fractional] * ns_per_unit).astype(np.int64)
-    if name != "ns":
+    if name == BOOT_NS[3]:
+        notes.append(
+            f"{table.source}: 'time' in ns since the phone booted (Android's sensor clock), not since the "
+            "epoch: told by its sample steps"
+        )
+    elif name != "ns":
         notes.append(f"{table.source}: 'time' in {name} since the epoch (the app writes ns)")
     if "seconds_elapsed" in table.columns:
         rows = np.flatnonzero(usable & np.isfinite(table.column("seconds_elapsed")))
@@ -468,7 +553,7 @@ def _epoch_ns(
             ratio = float(ns[rows[-1]] - ns[rows[0]]) * 1e-9 / span_s
             if not 0.99 < ratio < 1.01:
                 raise InputFormatError(
-                    f"read as {name} since the epoch, 'time' spans {ratio:.4g} times what "
+                    f"read as {_unit_text(name)}, 'time' spans {ratio:.4g} times what "
                     f"'seconds_elapsed' does: its unit is not {name}",
                     table.source,
                     table.header_line,
