@@ -60,6 +60,7 @@ from hil.estimation.sensors import (
 )
 from hil.files.output import make_dir
 from hil.logs import read_log
+from hil.logs.acc_units import acc_unit_warning
 from hil.logs.gyro_units import gyro_unit_warning
 from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
@@ -181,10 +182,10 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, 
             setup.append(f"gyro bias estimate starts at {np.round(bias, 5).tolist()} rad/s from the {where}")
         except InputFormatError:
             setup.append("no still window: the gyro bias is estimated online from zero")
-    suspect = gyro_unit_warning(log)  # a deg/s gyroscope with no unit in its header: warned, never refused
-    if suspect is not None:
-        logger.warning("%s", suspect)
-        setup.append(f"warning: {suspect}")
+    for suspect in (gyro_unit_warning(log), acc_unit_warning(log)):  # deg/s, g: warned, never refused
+        if suspect is not None:
+            logger.warning("%s", suspect)
+            setup.append(f"warning: {suspect}")
     declination = options.declination_deg
     model = None
     if options.field_model is not None:
