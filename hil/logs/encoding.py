@@ -2,8 +2,9 @@
 
 - UTF-8, with or without a byte-order mark: the apps' own.
 - UTF-16 (little or big endian) or UTF-32, with a byte-order mark: Excel's "Unicode text" (tab-separated
-  UTF-16 LE), a Windows editor's "Unicode"; UTF-16 without one, when its first 8 characters are ASCII
-  (:func:`unmarked_utf16`: a CSV's header is). Transcoded to UTF-8 as the bytes are read
+  UTF-16 LE), a Windows editor's "Unicode"; UTF-16 without one, told by its NUL bytes
+  (:func:`unmarked_utf16`: a CSV's delimiters and digits are ASCII, whatever script its header is in).
+  Transcoded to UTF-8 as the bytes are read
   (:func:`utf8_stream`: a piece at a time, never the file whole); bytes that are not text in the encoding
   the mark names (a lone surrogate, an odd byte at the end) are an
   :class:`~protocol.errors.InputFormatError` naming the file and the line.
@@ -46,19 +47,33 @@ def utf8_stream(raw: io.BufferedReader, where: str) -> IO[bytes]:
     return raw
 
 
-UNMARKED_PROBE = 16
-"""The first bytes :func:`unmarked_utf16` looks at: 8 characters of UTF-16."""
+UNMARKED_PROBE = 512
+"""The first bytes :func:`unmarked_utf16` looks at: 256 characters of UTF-16 (a header and a row or two)."""
+UNMARKED_ASCII_SHARE = 0.25
+"""The least share of the probed characters that must be ASCII or Latin-1 (a NUL beside each) for text
+without a byte-order mark to be UTF-16: a CSV's delimiters, digits, spaces and line breaks are, whatever
+script its names are in (``Время;Ускорение X`` is 30 %, a data row nearly all)."""
 
 
 def unmarked_utf16(head: bytes) -> str | None:
     """``"utf-16-le"`` or ``"utf-16-be"`` when ``head``, a file's first bytes, is UTF-16 without a
-    byte-order mark (a tool's "Unicode" saved without one): its first 8 characters printable ASCII, each
-    beside a NUL byte — which no UTF-8 text holds (the readers refuse a NUL as binary data); else None."""
-    if len(head) < UNMARKED_PROBE:
+    byte-order mark (a tool's "Unicode" saved without one); else None. It is when it holds a NUL byte —
+    which no UTF-8 text holds (the readers refuse a NUL as binary data) — and in that byte order the bytes
+    are strict UTF-16 (a character cut at the probe's end aside) with no control character but tab, CR
+    and LF, and at least
+    :data:`UNMARKED_ASCII_SHARE` of the characters ASCII or Latin-1 (``µ``, ``°``). Any script may be in
+    its header's names (Cyrillic, CJK, a ``µ`` first): only the NULs say the encoding."""
+    head = head[: len(head) - len(head) % 2]
+    if b"\x00" not in head:
         return None
-    low, high = head[0::2], head[1::2]
-    for text, zeros, codec in ((low, high, "utf-16-le"), (high, low, "utf-16-be")):
-        if not any(zeros) and all(0x20 <= b < 0x7F or b in b"\t\r\n" for b in text):
+    for codec in ("utf-16-le", "utf-16-be"):  # the other order makes ASCII CJK: the share tells them
+        try:
+            text = codecs.getincrementaldecoder(codec)("strict").decode(head, final=False)
+        except UnicodeDecodeError:
+            continue
+        if not text or any((ord(c) < 0x20 and c not in "\t\r\n") or 0x7F <= ord(c) < 0xA0 for c in text):
+            continue
+        if sum(ord(c) < 0x100 for c in text) >= UNMARKED_ASCII_SHARE * len(text):
             return codec
     return None
 
