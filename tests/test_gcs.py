@@ -20,7 +20,7 @@ from gcs_support import RunInThread, command, quick_scenario, request, wait_for
 from hil import so3
 from hil.gcs import GroundStation, LiveFeed, RunDirSource, parse_bind
 from hil.gcs.access import Access
-from hil.gcs.hub import Hub
+from hil.gcs.hub import Hub, caught_up
 from hil.gcs.uplink import INBOX, parse_command
 from hil.gcs.wire import encode_rows, number
 from hil.runtime import RunOptions, run
@@ -83,21 +83,31 @@ def test_numbers_are_json_and_compact():
 
 
 def test_hub_history_late_and_slow_readers():
-    hub = Hub(budget=1000)
+    now = [100.0]
+    hub = Hub(budget=1000, clock=lambda: now[0])
     early = hub.reader()
     assert early.read(0.01) == b""  # nothing before the run is described
     hub.set_info(b"I")
     for k in range(5):
         hub.publish(bytes([65 + k]) * 100)
-    assert early.read(0.01) == b"I" + b"A" * 100 + b"B" * 100 + b"C" * 100 + b"D" * 100 + b"E" * 100
+    now[0] += 2.5
+    history = b"I" + b"A" * 100 + b"B" * 100 + b"C" * 100 + b"D" * 100 + b"E" * 100
+    assert early.read(0.01) == history + caught_up(2.5)  # the history, then how old the progress is
     assert early.read(0.01) == b""  # waited, nothing new
+    hub.publish(b"s" * 10, progress=False)  # a counter of the server's: not the run's progress
+    assert early.read(0.01) == b"s" * 10  # the history was ended once
     late = hub.reader()
-    assert late.read(0.01).startswith(b"IAAA")  # a late joiner gets the whole history held
+    now[0] += 1.0
+    assert late.read(0.01) == history + b"s" * 10 + caught_up(3.5)  # a late joiner gets the whole history
+    hub.publish(b"F" * 100)
+    assert early.read(0.01) == late.read(0.01) == b"F" * 100
+    late = hub.reader()
+    assert late.read(0.01).startswith(b"IAAA")
     for k in range(10):  # past the budget: the oldest go, trimmed to 90 %
-        hub.publish(bytes([70 + k]) * 100)
+        hub.publish(bytes([71 + k]) * 100)
     assert hub.stats.trimmed_chunks >= 6 and hub.stats.skipped_chunks == 0
-    data = early.read(0.01)  # this reader had read up to E; F.. were published, the oldest trimmed
-    assert hub.stats.skipped_chunks > 0 and data.endswith(b"O" * 100) and len(data) <= 1000
+    data = early.read(0.01)  # this reader had read up to F; G.. were published, the oldest trimmed
+    assert hub.stats.skipped_chunks > 0 and data.endswith(b"P" * 100) and len(data) <= 1000
     hub.close()
     assert early.read(0.01) is None and late.read(0.01) is not None and late.read(0.01) is None
 

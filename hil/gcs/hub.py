@@ -6,12 +6,17 @@ through :meth:`Hub.watch`; or a thread blocking in :meth:`Reader.read`) takes th
 and writes them all in one go. Nothing here waits on a browser: a slow one falls
 behind, and if the chunks it has not read yet are trimmed (the budget is full) it skips to the oldest one
 held, the skip counted. A browser that connects late (or reconnects) gets ``info`` and then the whole
-history held, so its plots and timeline start from the beginning of what is held.
+history held, so its plots and timeline start from the beginning of what is held, and then a ``caught_up``
+message (:func:`caught_up`): what came before it is history, resent, not the run's progress now — it says
+how long ago the run last made progress (``progress_age_s``, from what the publisher marked as progress),
+so a page that reconnects to a hung run says it is stale at once rather than "receiving" its history.
 """
 
 from __future__ import annotations
 
+import json
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -22,6 +27,13 @@ history in one read was a copy of up to the budget per browser, and the server's
 until the browser read it: 16 streams that never read held ~2 GiB of a 60 MiB history for
 ``SEND_TIMEOUT_S``. In slices, each written once the one before it has gone, a browser that does not
 read holds one slice."""
+
+
+def caught_up(progress_age_s: float | None) -> bytes:
+    """The message that ends a reader's history: ``{"progress_age_s": s}``, seconds since the run's last
+    progress when the reader got there (null: none yet)."""
+    age = None if progress_age_s is None else round(progress_age_s, 3)
+    return b"event: caught_up\ndata: " + json.dumps({"progress_age_s": age}).encode() + b"\n\n"
 
 
 @dataclass
@@ -38,8 +50,10 @@ class HubStats:
 class Hub:
     """Chunks numbered from 0; ``budget`` bytes of the newest are held."""
 
-    def __init__(self, budget: int = DEFAULT_BUDGET) -> None:
+    def __init__(self, budget: int = DEFAULT_BUDGET, clock: Callable[[], float] = time.monotonic) -> None:
         self.budget = budget
+        self.clock = clock
+        self._progress_at: float | None = None  # when (clock) a chunk marked as progress was published
         self.stats = HubStats()
         self._cond = threading.Condition()
         self._chunks: list[bytes] = []
@@ -66,11 +80,16 @@ class Hub:
         with self._cond:
             self._info = info
             self._info_version += 1
+            self._progress_at = self.clock()
             self._cond.notify_all()
         self._changed()
 
-    def publish(self, chunk: bytes) -> None:
+    def publish(self, chunk: bytes, progress: bool = True) -> None:
+        """``chunk`` after the others; ``progress``: it holds the run's own progress (rows, events, link
+        figures, a status whose state or ticks moved), not only a counter of the server's."""
         with self._cond:
+            if progress:
+                self._progress_at = self.clock()
             self._chunks.append(chunk)
             self._held += len(chunk)
             self.stats.chunks += 1
@@ -111,7 +130,8 @@ class Hub:
     def _read(self, reader: Reader, timeout: float, max_bytes: int | None = None) -> bytes | None:
         """What ``reader`` has not had yet (``info`` first), waiting up to ``timeout`` s for something; b""
         if nothing came, None when the hub is closed and the reader has everything. ``max_bytes``: whole
-        chunks up to about that many (at least one), the rest left for the next read."""
+        chunks up to about that many (at least one), the rest left for the next read. The read that
+        takes the last chunk held when the reader took ``info`` ends with :func:`caught_up`."""
         with self._cond:
             end_wait = self._cond.wait_for(
                 lambda: (
@@ -127,6 +147,8 @@ class Hub:
             if self._info is not None and reader.info_version != self._info_version:
                 reader.info_version = self._info_version
                 reader.cursor = self._first  # a new run description: the whole history again
+                reader.live_from = self._first + len(self._chunks)  # the history: the chunks held now
+                reader.caught_up = False
                 out += self._info
             if not reader.info_version:
                 return None if self.closed else out
@@ -138,6 +160,10 @@ class Hub:
             chunks = self._chunks[start:end]
             reader.cursor += len(chunks)
             out += b"".join(chunks)
+            if not reader.caught_up and reader.cursor >= reader.live_from:
+                reader.caught_up = True
+                at = self._progress_at
+                out += caught_up(None if at is None else max(self.clock() - at, 0.0))
             if not out and self.closed:
                 return None
             return out
@@ -158,6 +184,8 @@ class Reader:
         self.hub = hub
         self.cursor = 0
         self.info_version = 0
+        self.live_from = 0  # the number of the first chunk after the history this reader was given
+        self.caught_up = False  # whether it was told the history has ended (:func:`caught_up`)
 
     def read(self, timeout: float, max_bytes: int | None = None) -> bytes | None:
         """What this reader has not had yet, waiting up to ``timeout`` s (0: not at all) for something;

@@ -93,6 +93,7 @@ class GroundStation:
         self.token = token or new_token()
         self.hub = Hub(budget)
         self.info: dict[str, Any] | None = None
+        self._said: tuple[Any, Any] = (None, None)  # the state and ticks of the last status published
         self._thread_error = ThreadError("the ground station's pump failed")
         self.pump_cycles = 0
         self.server = self._listen(host, port, explicit)
@@ -256,7 +257,19 @@ class GroundStation:
             self.hub.set_info(sse("info", dumps(batch.info)))
         chunk = encode_batch(batch)
         if chunk:
-            self.hub.publish(chunk)
+            self.hub.publish(chunk, progress=self._progress(batch))
+
+    def _progress(self, batch: Batch) -> bool:
+        """Whether ``batch`` holds the run's own progress — what it made (rows, events, link figures, runs
+        compared), or a status whose state or ``ticks`` moved — not only a counter of the server's (a
+        refused request), which moves while a run's control thread hangs: the hub tells a page that
+        (re)connects how old the run's progress is (:func:`hil.gcs.hub.caught_up`)."""
+        made = batch.rows or batch.events or batch.link or batch.overlays or batch.overlay_rows
+        status = batch.status
+        if status is None:
+            return bool(made)
+        said, self._said = self._said, (status.get("state"), status.get("ticks"))
+        return bool(made) or self._said != said
 
     # ------------------------------------------------------------------ closing
     def close(self, linger_s: float = LINGER_S) -> None:

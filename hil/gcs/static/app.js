@@ -16,7 +16,10 @@ const FEED_STALE_S = 1.0;  // nothing of the run's progress for this long: the l
 // What counts as the run's progress, and so as its host being alive: what the run itself makes — its rows,
 // events and link figures (and its description) — and a status whose state changed or whose `ticks` (the
 // run's control ticks, hil/gcs/live.py) moved. Not any message: a status also goes out when a counter of
-// the server's changes (a refused request), which it does while the run's control thread is hung.
+// the server's changes (a refused request), which it does while the run's control thread is hung. And
+// never the history: every (re)connection begins with `info` and the run's history again, which ends with
+// a `caught_up` message saying how long ago the run last made progress (hil/gcs/hub.py); until then
+// nothing counts (a page that reconnected to a hung run was "receiving" its history for 1 s, buttons on).
 const PROGRESS = new Set(["info", "rows", "events", "link"]);
 
 const token = new URLSearchParams(location.search).get("token") || "";
@@ -28,8 +31,9 @@ const alarmPanel = new AlarmPanel(token, () => invalidate());
 const state = {
   info: null, store: null, plots: null, alarms: null, overlays: [], status: {}, follow: true, cursor: NaN, playing: false,
   dirty: false, lastMessage: performance.now(), lastProgress: performance.now(), ended: false, connected: false,
+  history: false,  // between an `info` and its `caught_up`: the history (re)sent, not the run's progress
 };
-const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [] };
+const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [], histories: 0 };
 window.gcs = { state, stats };
 
 // ---------------------------------------------------------------- the downlink
@@ -43,7 +47,7 @@ function connect() {
     stats.messages += 1; stats.bytes += m.data.length;
     const data = JSON.parse(m.data);
     state.lastMessage = performance.now();
-    if (isProgress(name, data, state.status)) state.lastProgress = state.lastMessage;
+    if (!state.history && isProgress(name, data, state.status)) state.lastProgress = state.lastMessage;
     fn(data);
   });
   es.onopen = () => { state.connected = true; };
@@ -60,6 +64,13 @@ function connect() {
   });
   on("overlay_rows", (d) => { const o = state.overlays[d.run]; if (o) { o.store.pushRows(d.rows); invalidate(); } });
   on("link", (list) => { if (state.store) { state.store.pushLink(list); invalidate(); } });
+  // the history has been sent: the run's last progress was progress_age_s ago (null: none yet)
+  on("caught_up", (d) => {
+    state.history = false;
+    stats.histories += 1;
+    if (typeof d.progress_age_s === "number") state.lastProgress = state.lastMessage - 1e3 * d.progress_age_s;
+    invalidate();
+  });
   on("status", (s) => {
     state.status = { ...state.status, ...s };
     invalidate();
@@ -88,12 +99,17 @@ function buildPlots() {
 matchMedia("(prefers-color-scheme: dark)").addEventListener("change", () => { if (state.store) { buildPlots(); invalidate(); } });
 
 function onInfo(info) {
+  // The same run described again: the stream reconnected and its history follows. The operator's cursor
+  // (scrubbed back, playing) is kept; another run starts following its newest row.
+  const same = state.info && state.info.run === info.run && state.info.mode === info.mode
+    && JSON.stringify(state.info.columns) === JSON.stringify(info.columns);
   state.info = info;
+  state.history = true;
   state.store = new Store(info.columns);
   state.alarms = new Alarms(info);
   state.overlays = [];
   buildPlots();
-  state.follow = true;
+  if (!same) { state.follow = true; state.playing = false; }
   $("run-name").textContent = info.compare ? `compared: ${info.compare.join(" · ")} (the timeline is ${info.run}'s)`
     : info.run + (info.scenario ? ` · ${info.scenario}` : "");
   $("note").textContent = info.note || "";
@@ -183,6 +199,10 @@ function feedState() {
   const live = state.info && state.info.mode === "live";
   const following = state.status.state === "following";
   if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return { text: state.status.state === "finished" ? "finished" : "ended", cls: "ended", age: 0 };
+  if ((live || following) && state.history) {
+    // the history (re)sent: whether the run is alive is not known until it has all come
+    return { text: `loading the history: nothing new for ${age.toFixed(1)} s`, cls: "stale", age };
+  }
   if ((live || following) && age > FEED_STALE_S) {
     const what = heard > FEED_STALE_S ? "nothing" : live ? "host not ticking" : "run not growing";
     return { text: `stale: ${what} for ${age.toFixed(1)} s`, cls: "stale", age };
@@ -220,6 +240,7 @@ function modeBadge(feed) {
   if (info.mode !== "live") return { text: info.compare ? `compare: ${info.compare.length} runs` : "replay", cls: "replay" };
   const clock = info.clock || "run";
   if (feed.cls === "ended") return { text: `live run ended (${clock})`, cls: "ended" };
+  if (state.history) return { text: `loading its history (${clock})`, cls: "" };
   if (feed.cls === "stale" || feed.cls === "bad") return { text: `host lost (${clock})`, cls: "bad" };
   return { text: `live (${clock})`, cls: "live" };
 }
