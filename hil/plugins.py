@@ -8,6 +8,7 @@ says in its own words what is unknown or unavailable (its own error type, naming
 from __future__ import annotations
 
 import importlib
+import re
 from typing import Any
 
 from protocol.errors import HilError
@@ -24,9 +25,18 @@ class PluginError(HilError, RuntimeError):
         self.detail = detail
 
 
+AMBIGUOUS = "ambiguous: "
+"""How :meth:`Registry.target` marks a name two installed entry points give different targets."""
+
+# an entry point's value: "module", "module:attr" or "module:attr.sub", with optional extras "[a, b]"
+_TARGET = re.compile(r"^\s*(?P<module>[\w.]+)\s*(?::\s*(?P<attr>[\w.]+)\s*)?(?:\[[^\]]*\]\s*)?$")
+
+
 class Registry:
     """Names → ``"module:attribute"``: ``builtin`` first, then the entry points of ``group`` (read once,
-    on first use; a built-in name or one :meth:`register` set wins), names compared in lower case."""
+    on first use; a built-in name or one :meth:`register` set wins), names compared in lower case. Two
+    entry points that give one name (in any case) different targets make it ambiguous: :meth:`load`
+    refuses it, naming both, rather than picking whichever ``sys.path`` lists first."""
 
     def __init__(self, group: str, builtin: dict[str, str]) -> None:
         self.group = group
@@ -39,8 +49,16 @@ class Registry:
         self._discovered = True
         import importlib.metadata  # only here: reading the entry points costs a run that needs none 10+ ms
 
+        found: dict[str, dict[str, str]] = {}  # name -> target -> the distribution that installed it
         for entry in importlib.metadata.entry_points(group=self.group):
-            self._targets.setdefault(entry.name.lower(), entry.value)
+            target = f"{entry.module}:{entry.attr}" if entry.attr else entry.module
+            dist = getattr(entry.dist, "name", None) or "?"
+            found.setdefault(entry.name.lower(), {}).setdefault(target, f"{entry.name} = {target} ({dist})")
+        for name, targets in found.items():
+            if len(targets) == 1:
+                self._targets.setdefault(name, next(iter(targets)))
+            else:  # two packages (or one name in two cases) disagree: neither is picked behind one's back
+                self._targets.setdefault(name, AMBIGUOUS + " | ".join(sorted(targets.values())))
 
     def register(self, name: str, target: str) -> None:
         """Add (or replace) ``name``; ``target`` is ``"module:attribute"``."""
@@ -62,7 +80,26 @@ class Registry:
 
     @staticmethod
     def load(target: str) -> Any:
-        """The attribute ``target`` names, its module imported; ImportError or AttributeError as raised
-        (the caller words them)."""
-        module_name, _, attr = target.partition(":")
-        return getattr(importlib.import_module(module_name), attr)
+        """The object ``target`` names (``"module:attribute"``, the attribute dotted as an entry point's may
+        be, its extras ``[...]`` ignored), its module imported. ImportError when it cannot be: the module
+        missing, raising anything while it is imported (a SyntaxError, its own exception), or a name
+        that installed packages disagree on; AttributeError for a missing attribute (the caller words
+        them)."""
+        if target.startswith(AMBIGUOUS):
+            raise ImportError(
+                "installed packages disagree on this name (names are compared in lower case): "
+                "uninstall one, or pick one with register()"
+            )
+        match = _TARGET.match(target)
+        if match is None:
+            raise ImportError(f"{target!r} is not 'module:attribute'")
+        module_name, attr = match.group("module"), match.group("attr")
+        try:
+            obj = importlib.import_module(module_name)
+        except ImportError:
+            raise
+        except Exception as exc:  # the plugin's module failed as it ran: not ours to crash on
+            raise ImportError(f"importing {module_name} raised {type(exc).__name__}: {exc}") from exc
+        for part in attr.split(".") if attr else ():
+            obj = getattr(obj, part)
+        return obj
