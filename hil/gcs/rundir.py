@@ -9,8 +9,14 @@ same lines dropped and counted, the same rows out of time order); a row far ahea
 with the rows after it until they tell whether it is a stray (:class:`~hil.runtime.runlog.RowOrder`),
 and what is held when the reading stops is judged then. ``summary.json`` appearing (written atomically
 when a run ends) means the run is finished: its final link statistics are sent, and the reader stops
-following once it has read the rest. A directory that stops growing without a summary is a killed run
-(or a stalled one): the page shows how long nothing has come.
+following once it has read the rest. A directory that stops growing without a summary is a stalled run
+or a killed one, told apart by the run's lock on its directory (:mod:`hil.files.writing`, held by a run
+from its making to its summary): a writer that holds it is stalled (the page shows how long nothing has
+come); once it is free — the lock seen held and let go, or, for a directory whose writer takes none
+(another program, an older run), nothing new for :data:`QUIET_S` — the run has stopped being written:
+the rows held back (:class:`~hil.runtime.runlog.RowOrder`) are judged on what came and given out, a
+line left unfinished is counted as torn, and the status says ``stopped`` with why. Reading goes on: a
+directory that grows again (a writer without a lock, back) is ``following`` again.
 
 The files are read by name, so the reader checks each poll that they are still the ones it has read: the
 directory and ``telemetry.csv`` the same (device and inode), and the bytes last read (the unfinished line
@@ -32,10 +38,13 @@ from __future__ import annotations
 import logging
 import os
 import stat
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, BinaryIO
 
 from hil.files.bounded import MAX_LINE_BYTES, LineSplitter, load_json, read_document, regular_file_if_there
+from hil.files.writing import writer_holds
 from hil.gcs import info as run_info
 from hil.gcs.wire import Batch
 from hil.runtime.runlog import EVENTS, RUN_FILES_ONLY, SUMMARY, TELEMETRY, TelemetryRows, telemetry_header
@@ -47,6 +56,10 @@ logger = logging.getLogger(__name__)
 READ_CHUNK = 4 * 1024 * 1024  # bytes read per file per poll (a big file comes in over several polls)
 SEEN_BYTES = 64  # bytes read before the unfinished line, compared on the next read (a file rewritten)
 SEEN_MAX = 64 * 1024  # bytes compared at most (the unfinished line's, then SEEN_BYTES before it)
+QUIET_S = 5.0
+"""s without growth after which a directory whose writer holds no lock (:mod:`hil.files.writing`) — never
+seen held — has stopped being written. A run flushes its telemetry every 50 ms while it ticks; a run
+that holds its lock is never taken as stopped, however long it is silent."""
 
 
 class _Tail:
@@ -138,8 +151,14 @@ class RunDirSource:
     """The page's source for a run directory (see the module docstring); ``follow=False`` reads what is
     there and stops."""
 
-    def __init__(self, run_dir: str | os.PathLike[str], follow: bool = True) -> None:
+    def __init__(
+        self,
+        run_dir: str | os.PathLike[str],
+        follow: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.run_dir = Path(run_dir)
+        self.clock = clock
         if not self.run_dir.is_dir():
             raise InputFormatError("not a directory", str(self.run_dir))
         if not (self.run_dir / TELEMETRY).exists() and not (self.run_dir / EVENTS).exists():
@@ -159,6 +178,10 @@ class RunDirSource:
         self._last_t: float | None = None
         self._state: dict[str, Any] = {"state": "waiting"}
         self._sent_status: dict[str, Any] | None = None
+        self._lock_seen = False  # the run's writer was seen holding its directory's lock
+        self._grown_at = clock()  # when (clock) the telemetry or the events last grew
+        self._sizes = (-1, -1)
+        self.stopped = False  # the writer is gone: nothing more will be written (while no growth)
 
     @property
     def status(self) -> dict[str, Any]:
@@ -255,10 +278,48 @@ class RunDirSource:
                 self._done = True
                 self._count_torn(batch)
                 self._state = {"state": "read", "exit": None}
-        status = {**self._state, "bad_rows": self.bad_rows, "bad_events": self.bad_events}
+            else:
+                self._writer(batch)
+        bad_rows, bad_events = self.bad_rows, self.bad_events
+        if self.stopped and not self._done:  # lines left unfinished will never be: torn (counted at the end)
+            bad_rows += self._telemetry.pending
+            bad_events += self._events.pending
+        status = {**self._state, "bad_rows": bad_rows, "bad_events": bad_events}
         if status != self._sent_status:
             batch.status = self._sent_status = status
         return batch
+
+    def _writer(self, batch: Batch) -> None:
+        """Everything written has been read and there is no summary: whether the run's writer is still
+        there (see the module docstring). Once it is gone the rows held are given out and the status says
+        ``stopped``; a directory that grows again is ``following`` again."""
+        now = self.clock()
+        sizes = (self._telemetry.offset, self._events.offset)
+        if sizes != self._sizes:
+            self._sizes, self._grown_at = sizes, now
+            if self.stopped:
+                self.stopped = False
+                self._state = {"state": "following"}
+            return
+        if self.stopped:
+            return
+        holds = writer_holds(self.run_dir)
+        if holds:
+            self._lock_seen = True
+            return
+        if not (self._lock_seen and holds is False) and now - self._grown_at < QUIET_S:
+            return
+        if (self.run_dir / SUMMARY).exists():  # written just before the lock was let go: finished next poll
+            return
+        self.stopped = True
+        if self._reader is not None:
+            self._add(self._reader.order.end(), batch)  # judged on what came; the reader goes on after
+        why = (
+            "its writer is gone (the run's lock let go) without a summary: killed or crashed"
+            if self._lock_seen
+            else f"nothing written for {QUIET_S:g} s, no summary, and no writer holds the run's lock"
+        )
+        self._state = {"state": "stopped", "exit": None, "stopped": f"the run stopped being written: {why}"}
 
     def _gone(self) -> str | None:
         """Why the run read so far is no longer on disk (the directory removed or replaced, its telemetry

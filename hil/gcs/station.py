@@ -215,6 +215,7 @@ class GroundStation:
                 "bad_rows": feed.bad_rows,
                 "bad_events": feed.bad_events,
                 "finished": feed.finished,
+                "stopped": feed.stopped,
             }
         if self.uplink is not None:
             out["uplink"] = asdict(self.uplink.stats)

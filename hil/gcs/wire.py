@@ -6,10 +6,13 @@ One *batch* per pump cycle (~30 per second) becomes one chunk of SSE messages:
 ``rows``    ``{"rows": [[v, ...], ...]}`` telemetry rows, values in ``info.columns`` order (null: no value)
 ``events``  ``[{"t": s, "kind": ..., ...}, ...]`` as in ``events.jsonl``
 ``link``    ``[{"t": s, "frames_in": ..., "bad_frames.crc": ..., ...}, ...]`` link statistics snapshots
-``status``  ``{"state": "waiting" | "running" | "ended" | "following" | "finished", ...}`` and counters
+``status``  ``{"state": "waiting" | "running" | "ended" | "following" | "stopped" | "finished" | ...}``
+            and counters
 ``overlay``       ``{"run": k, "name": ..., "columns": [...], "note": ...}`` another run compared with
                   this one (:mod:`hil.gcs.compare`)
 ``overlay_rows``  ``{"run": k, "rows": [[v, ...], ...]}`` that run's telemetry rows, in its columns' order
+``caught_up``     ``{"progress_age_s": s}`` the end of the history a stream is sent when it connects, and how
+                  long ago the run last made progress (the hub's: :func:`hil.gcs.hub.caught_up`)
 
 JSON has no NaN or infinity: they are sent as null. Floats keep 7 significant digits (time 10), enough for
 a display and a third of ``repr``'s bytes.

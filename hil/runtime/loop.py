@@ -59,6 +59,7 @@ from hil.estimation.interface import Site
 from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import SensorLog
 from hil.files.output import write_file
+from hil.files.writing import WriterLock
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, create_source
 from hil.link.sources.recorded import RECORDING_URL
 from hil.link.sources.simulated import SIMULATED_URL
@@ -270,11 +271,13 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
     events = EventLog(None, tap=tap_event)
     built: _Built | None = None
     error: BaseException | None = None
+    writing: WriterLock | None = None  # the run directory's, held until its summary.json is written
     final = FinalDisarm()
     with HeldSignals() as held:
         try:
             if opts.out_root is not None:
                 run_dir = new_run_dir(opts.out_root, opts.label or scenario.name)
+                writing = WriterLock(run_dir)  # a reader (hil gcs) tells a writer killed from one stalled
                 write_file(run_dir / "scenario.toml", scenario.source)
                 write_file(run_dir / CODES_FILE, json.dumps(code_table(), indent=1) + "\n")
                 events = EventLog(run_dir / "events.jsonl", tap=tap_event)
@@ -309,7 +312,11 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
         finally:
             held.holding = True
             final.said(summary)
-            error = _finish(summary, started, built, observer, telemetry, events, run_dir, error)
+            try:
+                error = _finish(summary, started, built, observer, telemetry, events, run_dir, error)
+            finally:
+                if writing is not None:
+                    writing.release()
     if error is not None:
         raise error
     trace = built.host.trace if built is not None else RunTrace()

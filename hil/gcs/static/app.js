@@ -126,8 +126,12 @@ function showStatus() {
   if (s.bad_rows) parts.push(`${s.bad_rows} unreadable rows`);
   if (s.uplink_rejected) parts.push(`${s.uplink_rejected} requests refused`);
   if (s.error) parts.push(`error: ${s.error}`);
+  if (s.state === "stopped" && s.stopped) parts.push(s.stopped);
   // runs compared: an overlay that cannot be drawn, or stopped being followed, says why (hil/gcs/compare.py)
-  for (const [name, o] of Object.entries(s.overlays || {})) if (o && o.error) parts.push(`${name}: ${o.error}`);
+  for (const [name, o] of Object.entries(s.overlays || {})) {
+    if (o && o.error) parts.push(`${name}: ${o.error}`);
+    else if (o && o.state === "stopped" && o.stopped) parts.push(`${name}: ${o.stopped}`);
+  }
   $("note").textContent = [state.info && state.info.note, ...parts].filter(Boolean).join(" · ");
 }
 
@@ -199,6 +203,8 @@ function feedState() {
   const live = state.info && state.info.mode === "live";
   const following = state.status.state === "following";
   if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return { text: state.status.state === "finished" ? "finished" : "ended", cls: "ended", age: 0 };
+  // a followed run directory whose writer is gone without a summary (killed, crashed: hil/gcs/rundir.py)
+  if (state.status.state === "stopped") return { text: "stopped being written", cls: "stale", age };
   if ((live || following) && state.history) {
     // the history (re)sent: whether the run is alive is not known until it has all come
     return { text: `loading the history: nothing new for ${age.toFixed(1)} s`, cls: "stale", age };
