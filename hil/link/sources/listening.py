@@ -174,8 +174,8 @@ def heard(stats: StreamStats, refused: dict[str, Counter[str]] | None = None) ->
         said.append(
             f"{stats.ignored_entries} readings of sensors the host does not use (it takes the calibrated "
             "gyroscope, magnetometer and accelerometer with gravity: Sensor Logger's TotalAcceleration, "
-            "or Accelerometer with Gravity; of SensaGram's uncalibrated types, those whose calibrated "
-            "type is not streamed)"
+            "or Accelerometer with Gravity; of the uncalibrated types, SensaGram's or Sensor Logger's, "
+            "those whose calibrated type is not streamed)"
         )
     if stats.bad_entries:
         said.append(f"{stats.bad_entries} readings without finite values or time")

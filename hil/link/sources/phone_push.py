@@ -13,7 +13,12 @@ mismatch survives the batching). Names used here: ``totalacceleration`` (m/s², 
 the estimator wants; Sensor Logger's ``accelerometer`` is the user acceleration *without* gravity, and is
 used only together with ``gravity`` from the same batch), ``gyroscope`` (rad/s), ``magnetometer`` (µT),
 all in the Android sensor frame (x screen right, y screen up, z out of the screen). Entries of other
-sensors are ignored (counted). Set the app's batch period as short as it allows: the batch period is
+sensors are ignored (counted). The raw types the app pushes when they are enabled
+(``gyroscopeuncalibrated``, ``magnetometeruncalibrated``, ``accelerometeruncalibrated``: :data:`UNCALIBRATED`)
+stand in for a sensor whose calibrated type the stream has not sent — as the CSV export's
+``…Uncalibrated.csv`` files and SensaGram's uncalibrated types do — and are ignored and counted from its
+first calibrated reading on (the app always pushes the calibrated ones beside them; two sensors' readings
+are never interleaved as one). Set the app's batch period as short as it allows: the batch period is
 added to the control loop's sensing latency.
 
 **One phone.** A batch's sender is its app's ``deviceId`` and ``sessionId`` (one recording of one phone;
@@ -62,6 +67,16 @@ NAMES: dict[str, SensorKind] = {
     "magnetometer": SensorKind.MAG,
 }
 _NAME_OF = {kind: name for name, kind in NAMES.items()}
+UNCALIBRATED: dict[str, SensorKind] = {
+    "accelerometeruncalibrated": SensorKind.ACC,
+    "gyroscopeuncalibrated": SensorKind.GYR,
+    "magnetometeruncalibrated": SensorKind.MAG,
+}
+"""Sensor Logger's raw ("Uncalibrated") types, pushed when the user enables them: ``values`` x, y, z the
+raw reading (any bias keys beside them unread, as the CSV export's bias columns are). Used only while the
+stream has not sent that sensor's calibrated type (:func:`decode_push`'s ``calibrated``)."""
+G = 9.80665
+"""m/s² per g: iOS's raw accelerometer reads in g."""
 MAX_BODY = 4 * 1024 * 1024  # bytes: a batch larger than this is refused (413), not buffered
 REQUEST_TIMEOUT_S = 10.0  # s: from waiting for a request to its last byte (an idle keep-alive ends here)
 MAX_CONNECTIONS = 8  # served at once; the app keeps one
@@ -106,6 +121,7 @@ class PushBatch:
     total: bool
     device: str | None = None
     session: str | None = None
+    calibrated: frozenset[SensorKind] = frozenset()  # the sensors whose calibrated type the batch held
 
 
 def app_id(value: object) -> str | None:
@@ -119,7 +135,9 @@ def app_id(value: object) -> str | None:
     return f"{value[: MAX_ID - 20]}…{digest}"
 
 
-def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> PushBatch:
+def decode_push(
+    body: bytes, source: str = "push", *, parts: bool = True, calibrated: Iterable[SensorKind] = ()
+) -> PushBatch:
     """Parse one HTTP Push batch into samples (time-ordered per sensor, seconds since the epoch).
 
     A body that is not a JSON object with a ``payload`` list raises :class:`InputFormatError` naming
@@ -129,7 +147,11 @@ def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> Pus
     acceleration make its accelerometer; a stream that has sent total acceleration keeps it as its one
     accelerometer (:class:`PhonePushServer`: its later batches' parts are ignored, counted), so that two
     sensors' readings are never interleaved as one (a 20 ms batch often holds no reading of a ~50 Hz
-    sensor).
+    sensor). ``calibrated``: the sensors whose calibrated type the stream has sent (the accelerometer's:
+    total acceleration, or the parts); their raw types (:data:`UNCALIBRATED`) are ignored, counted, as are
+    those of a sensor whose calibrated type this batch holds; the others are read as that sensor — a raw
+    accelerometer whose median norm in the batch is 0.5-2 as in g (iOS's), converted to m/s² (as the CSV
+    export's ``AccelerometerUncalibrated.csv`` is).
     """
     doc = parse_json(body, source)
     if not isinstance(doc, dict) or not isinstance(doc.get("payload"), list):
@@ -144,7 +166,7 @@ def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> Pus
             bad += 1
             continue
         name = name.lower()
-        if name not in NAMES and name not in ("accelerometer", "gravity"):
+        if name not in NAMES and name not in UNCALIBRATED and name not in ("accelerometer", "gravity"):
             ignored += 1
             continue
         reading = _reading(entry)
@@ -156,6 +178,7 @@ def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> Pus
     samples: list[SensorSample] = []
     gravity: list[_Timed] = []
     user_acc: list[_Timed] = []
+    raw_readings: dict[SensorKind, list[_Timed]] = {}
     have_total = False
     for name, raw, xyz in readings:
         t = _seconds(raw, ns_per_unit)
@@ -166,6 +189,8 @@ def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> Pus
             user_acc.append((t, xyz))
         elif name == "gravity":
             gravity.append((t, xyz))
+        elif name in UNCALIBRATED:
+            raw_readings.setdefault(UNCALIBRATED[name], []).append((t, xyz))
         else:
             have_total |= NAMES[name] is SensorKind.ACC
             samples.append(SensorSample(t, NAMES[name], xyz))
@@ -176,9 +201,25 @@ def decode_push(body: bytes, source: str = "push", *, parts: bool = True) -> Pus
         samples.extend(finite)
     else:  # the parts are not needed (or one of them is missing): counted, not silently lost
         ignored += len(user_acc) + len(gravity)
+    held = frozenset(s.kind for s in samples)  # the calibrated types (the parts' sum included)
+    heard = held | frozenset(calibrated) | ({SensorKind.ACC} if have_total else set())
+    for kind, timed in raw_readings.items():
+        if kind in heard or (kind is SensorKind.ACC and user_acc and gravity and parts):
+            ignored += len(timed)  # the calibrated type is the stream's: the raw one never beside it
+            continue
+        scale = 1.0
+        if kind is SensorKind.ACC:
+            norm = sorted(math.hypot(*xyz) for _, xyz in timed)[len(timed) // 2]
+            scale = G if 0.5 < norm < 2.0 else 1.0  # iOS's raw accelerometer reads in g
+        for t, (x, y, z) in timed:
+            xyz = (x * scale, y * scale, z * scale)
+            if all(math.isfinite(v) for v in xyz):
+                samples.append(SensorSample(t, kind, xyz))
+            else:
+                bad += 1
     samples.sort(key=lambda s: (s.t_s, int(s.kind)))
     device, session = app_id(doc.get("deviceId")), app_id(doc.get("sessionId"))
-    return PushBatch(samples, bad, ignored, message_id, have_total, device, session)
+    return PushBatch(samples, bad, ignored, message_id, have_total, device, session, held)
 
 
 EPOCH_BANDS = (
@@ -303,6 +344,7 @@ class PhonePushServer(PhoneReceiver):
         host, port, self.path = _address(url)
         self._last_id: int | None = None
         self._total_heard = False  # the stream has sent total acceleration: its accelerometer
+        self._calibrated: set[SensorKind] = set()  # sensors whose calibrated type the stream has sent
         limits = HttpLimits(max_body, timeout_s, max_connections)
         try:
             self._httpd = GuardedHTTPServer((host, port), _handler(self), limits, self._turned_away)
@@ -327,27 +369,32 @@ class PhonePushServer(PhoneReceiver):
         process —: ``(status, text)`` to answer."""
         source = f"push from {peer}"
         with self._lock:
-            parts = not self._total_heard
-        batch, answer = self._decode_push(body, source, parts)
+            parts, calibrated = not self._total_heard, frozenset(self._calibrated)
+        batch, answer = self._decode_push(body, source, parts, calibrated)
         if batch is None:
             return answer
         decision = self._followed(batch.device, batch.session, peer, sum(batch.per_kind.values()))
         if decision is Decision.OTHER:
             return 200, OTHER_PHONE
-        if decision is Decision.SWITCHED and not parts:  # read for the phone followed before: read it anew
-            batch, answer = self._decode_push(body, source, True)
+        if decision is Decision.SWITCHED and (not parts or calibrated):  # read for the phone before: anew
+            batch, answer = self._decode_push(body, source, True, frozenset())
             if batch is None:
                 return answer
         if decision.streams:
             self._heard_total(batch.total)
+            with self._lock:
+                self._calibrated |= batch.calibrated
             self._count_gaps(batch.message_id)
         self._deliver(batch.samples, batch.bad, batch.ignored, batch.per_kind)
         return 200, "ok"
 
-    def _decode_push(self, body: bytes, source: str, parts: bool) -> tuple[Decoded | None, tuple[int, str]]:
+    def _decode_push(
+        self, body: bytes, source: str, parts: bool, calibrated: frozenset[SensorKind]
+    ) -> tuple[Decoded | None, tuple[int, str]]:
         """``(batch, _)``, or ``(None, (status, text))`` to answer a push that could not be read (counted)."""
         if len(body) <= INLINE_MAX:
-            inline, refused = self._decode(partial(decode_push, parts=parts), body, source)
+            decode = partial(decode_push, parts=parts, calibrated=calibrated)
+            inline, refused = self._decode(decode, body, source)
             if inline is None:
                 return None, (400, refused)
             per_kind = dict(Counter(s.kind.label for s in inline.samples))
@@ -360,9 +407,10 @@ class PhonePushServer(PhoneReceiver):
                 inline.total,
                 inline.device,
                 inline.session,
+                inline.calibrated,
             ), (200, "ok")
         try:
-            batch = self._decoder.decode(body, self._max_queue, source, parts)
+            batch = self._decoder.decode(body, self._max_queue, source, parts, calibrated)
         except InputFormatError as exc:
             self._reject(str(exc))
             return None, (400, str(exc))
@@ -390,6 +438,7 @@ class PhonePushServer(PhoneReceiver):
             with self._lock:
                 self._last_id = None
                 self._total_heard = False
+                self._calibrated = set()
         return decision
 
     def _heard_total(self, total: bool) -> None:

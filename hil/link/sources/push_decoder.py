@@ -18,14 +18,16 @@ call — on each body. The pipe protocol, little-endian, one exchange at a time:
 =========  =============================  ===============================================================
 direction  bytes                          what
 =========  =============================  ===============================================================
-request    u32 ``size``, u32 ``keep``     then ``size`` bytes of the push's body
+request    u32 ``size``, u32 ``keep``,    then ``size`` bytes of the push's body (``flags``: bit 0
+           u8 ``flags``                   ``parts``, bit 1 + kind: ``calibrated``, of decode_push)
 reply      u32 ``n``                      then ``n`` bytes: u32 ``h``, ``h`` bytes of a JSON header, and
                                           33-byte records ``<dBddd`` (``t_s``, sensor kind, x, y, z)
 =========  =============================  ===============================================================
 
 The header is ``{"error": detail}`` for a body that is not a push, else ``{"bad", "ignored",
-"message_id", "per_kind", "records", "total", "device", "session"}``: the counts are the whole push's (its
-ids, shortened: :func:`~hil.link.sources.phone_push.app_id`); the records are its newest ``keep`` samples
+"message_id", "per_kind", "records", "total", "device", "session", "calibrated"}``: the counts are
+the whole push's (its ids, shortened: :func:`~hil.link.sources.phone_push.app_id`); the records are its
+newest ``keep`` samples
 in time order (what the host's queue would keep: the older ones would be dropped on
 arrival anyway, and are counted there without being built).
 
@@ -51,14 +53,15 @@ import threading
 from dataclasses import dataclass, field
 from typing import IO, Any
 
-from hil.estimation.sensors import KINDS, SensorSample
+from hil.estimation.sensors import KINDS, SensorKind, SensorSample
 from protocol.errors import InputFormatError, LinkError, LinkTimeout
 
 DECODE_TIMEOUT_S = 5.0
 """s: how long a push may wait for the decoder and then for its answer (a 4 MiB push takes ~0.3 s)."""
 NICE = 10
 """The decoder's niceness above the host's: bulk work, behind the control loop for the CPU."""
-_REQUEST = struct.Struct("<IIB")  # body size, samples to keep, whether the parts may make the accelerometer
+_REQUEST = struct.Struct("<IIB")  # body size, samples to keep, flags: bit 0 the parts may make the
+# accelerometer, bit 1 + kind the stream has sent that sensor's calibrated type (decode_push's calibrated)
 _LENGTH = struct.Struct("<I")
 _RECORD = struct.Struct("<dBddd")
 _MAX_REPLY = 64 * 1024 * 1024  # bytes: a reply claiming more is a broken child, not a push
@@ -76,6 +79,7 @@ class Decoded:
     total: bool = False  # the push held total acceleration (PushBatch.total)
     device: str | None = None  # its deviceId and sessionId (PushBatch.device, .session)
     session: str | None = None
+    calibrated: frozenset[SensorKind] = frozenset()  # PushBatch.calibrated
 
 
 class PushDecoder:
@@ -117,8 +121,16 @@ class PushDecoder:
             self.restarts += 1
         return self._start()
 
-    def decode(self, body: bytes, keep: int, source: str, parts: bool = True) -> Decoded:
-        """``body`` decoded by the child (:func:`~hil.link.sources.phone_push.decode_push` with ``parts``):
+    def decode(
+        self,
+        body: bytes,
+        keep: int,
+        source: str,
+        parts: bool = True,
+        calibrated: frozenset[SensorKind] = frozenset(),
+    ) -> Decoded:
+        """``body`` decoded by the child (:func:`~hil.link.sources.phone_push.decode_push` with ``parts``
+        and ``calibrated``):
         its newest ``keep`` samples and its counts. Raises
         :class:`InputFormatError` (naming ``source``) for a body that is not a push, :class:`LinkTimeout`
         when the decoder is busy or silent for ``timeout_s``, :class:`LinkError` when it died."""
@@ -127,18 +139,19 @@ class PushDecoder:
         try:
             if self._closed:
                 raise LinkError("the push decoder is closed")
-            reply = self._exchange(self._running(), body, max(keep, 1), parts)
+            flags = int(parts) | sum(2 << int(kind) for kind in calibrated)
+            reply = self._exchange(self._running(), body, max(keep, 1), flags)
         finally:
             self._lock.release()
         return _unpack(reply, source)
 
-    def _exchange(self, proc: subprocess.Popen[bytes], body: bytes, keep: int, parts: bool) -> bytes:
+    def _exchange(self, proc: subprocess.Popen[bytes], body: bytes, keep: int, flags: int) -> bytes:
         assert proc.stdin is not None and proc.stdout is not None
         killer = threading.Timer(self.timeout_s, proc.kill)  # a silent child is killed: the pipe then ends
         killer.daemon = True
         killer.start()
         try:
-            proc.stdin.write(_REQUEST.pack(len(body), keep, parts))
+            proc.stdin.write(_REQUEST.pack(len(body), keep, flags))
             proc.stdin.write(body)
             proc.stdin.flush()
             (n,) = _LENGTH.unpack(_exact(proc.stdout, _LENGTH.size))
@@ -212,6 +225,7 @@ def _unpack(reply: bytes, source: str) -> Decoded:
             raise TypeError(f"total is {total!r}")
         if not all(v is None or isinstance(v, str) for v in (device, session)):
             raise TypeError(f"the ids are {device!r}, {session!r}")
+        calibrated = frozenset(KINDS[k] for k in header["calibrated"])
         return Decoded(
             samples,
             header["bad"],
@@ -221,6 +235,7 @@ def _unpack(reply: bytes, source: str) -> Decoded:
             total,
             device,
             session,
+            calibrated,
         )
     except InputFormatError:
         raise
@@ -229,13 +244,15 @@ def _unpack(reply: bytes, source: str) -> Decoded:
 
 
 # ------------------------------------------------------------------------------------------- the child
-def answer(body: bytes, keep: int, parts: bool = True) -> bytes:
+def answer(
+    body: bytes, keep: int, parts: bool = True, calibrated: frozenset[SensorKind] = frozenset()
+) -> bytes:
     """The reply (without its length prefix) to one request: what the child sends for ``body``."""
     from hil.link.sources.phone_push import decode_push
 
     records = b""
     try:
-        batch = decode_push(body, parts=parts)
+        batch = decode_push(body, parts=parts, calibrated=calibrated)
     except InputFormatError as exc:
         header: dict[str, Any] = {"error": exc.detail}
     except Exception as exc:  # whatever hostile input makes a parser raise costs this push only
@@ -256,6 +273,7 @@ def answer(body: bytes, keep: int, parts: bool = True) -> bytes:
             "total": batch.total,
             "device": batch.device,
             "session": batch.session,
+            "calibrated": sorted(int(kind) for kind in batch.calibrated),
         }
     text = json.dumps(header).encode()
     return _LENGTH.pack(len(text)) + text + records
@@ -271,11 +289,12 @@ def main() -> int:
         head = stdin.read(_REQUEST.size)
         if len(head) < _REQUEST.size:
             return 0
-        size, keep, parts = _REQUEST.unpack(head)
+        size, keep, flags = _REQUEST.unpack(head)
         body = stdin.read(size)
         if len(body) < size:
             return 0
-        reply = answer(body, keep, bool(parts))
+        calibrated = frozenset(kind for kind in KINDS if flags & (2 << int(kind)))
+        reply = answer(body, keep, bool(flags & 1), calibrated)
         stdout.write(_LENGTH.pack(len(reply)) + reply)
         stdout.flush()
 
