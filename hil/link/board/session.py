@@ -72,6 +72,7 @@ from __future__ import annotations
 import enum
 import logging
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from types import MethodType
@@ -150,6 +151,9 @@ SLOWEST_RATE = 0.5
 """The slowest a board's clock is taken to run against the host's, however slow its samples make it seem."""
 BOARD_LOGS_PER_S = 20
 """The board's ``Log`` frames logged per second of host time; beyond, counted (``board_logs_unlogged``)."""
+_SEQ_STEPS = 64
+"""The board's last frames whose sequence steps are kept, for a new boot's first step to be taken back: a
+board says its boot id in its first frames (a Heartbeat at boot), well within this."""
 _LOG_LEVELS = {
     Severity.DEBUG: logging.DEBUG,
     Severity.INFO: logging.INFO,
@@ -208,6 +212,7 @@ class Session:
         self.seq_gaps = 0  # board frames missing by their sequence numbers (the host's echoes left out)
         self.duplicates = 0  # board frames repeating the last one's sequence number
         self._board_seq: int | None = None  # the sequence number of the board's last frame on this link
+        self._seq_steps: deque[tuple[int, int]] = deque(maxlen=_SEQ_STEPS)  # (seq, gap counted at it)
         self._written = WrittenFrames()  # what the host wrote lately: its echoes are told by it
         self._echoes_at_link_up = 0  # counters.echoes when the link came up
         self._host_frames_at_link_up = 0  # counters.host_frames when the link came up
@@ -258,6 +263,7 @@ class Session:
         self.failure = None
         self.deframer.reset()
         self._board_seq = None
+        self._seq_steps.clear()
         self._echoes_at_link_up = self.counters.echoes
         self._host_frames_at_link_up = self.counters.host_frames
         self.last_heard = now
@@ -278,6 +284,7 @@ class Session:
         self.counters.link_losses += was_up
         self.deframer.reset()
         self._board_seq = None
+        self._seq_steps.clear()
         self._pending_setpoint = None
         why = f"link lost: {reason}"
         self.hellos.abandon(now, why)
@@ -432,6 +439,22 @@ class Session:
             )
         return True
 
+    def _renumbered(self) -> None:
+        """The frame just heard is of a new boot of the board, whose numbering began at 0 again: the step
+        from the old boot's last frame to the new boot's first heard was no loss, and is taken back. The
+        new boot's frames heard so far are the increasing run of sequence numbers that ends at this one
+        (at most its number + 1 of them); a board reset added up to 255 "lost" frames to ``seq_gaps``."""
+        heard = self._seq_steps
+        if not heard:
+            return
+        k = len(heard) - 1
+        newest = heard[k][0]
+        while k > 0 and len(heard) - k <= newest and heard[k - 1][0] < heard[k][0]:
+            k -= 1
+        seq, gap = heard[k]
+        self.seq_gaps -= gap
+        heard[k] = (seq, 0)
+
     def _count_board_seq(self, frame: Frame) -> bool:
         """The board's sequence numbers, step by step: a jump of k > 1 is k - 1 frames lost, a repeat a
         duplicate. Counted here, not from the deframer's, which numbers every frame read — the host's
@@ -440,14 +463,13 @@ class Session:
         greeting to everything), which is no sign of a live board — it must not keep one looking alive."""
         seq = frame.seq
         last, self._board_seq = self._board_seq, seq
-        if last is None:
-            return False
-        step = (seq - last) & 0xFF
+        step = 1 if last is None else (seq - last) & 0xFF
+        gap = step - 1 if step > 1 else 0
+        self._seq_steps.append((seq, gap))  # a new boot's first step is taken back (_renumbered)
         if step == 0:
             self.duplicates += 1
             return not frame.flags & Flags.RETRANSMIT
-        if step > 1:
-            self.seq_gaps += step - 1
+        self.seq_gaps += gap
         return False
 
     # ------------------------------------------------------------------ RECEIVE's handlers
@@ -570,6 +592,8 @@ class Session:
         run's outage then began at the read (a host paused 12 s said it was out for 0.03 s)."""
         frames_out = self.counters.frames_out
         boot_changed = self._boot_changed(boot_id)
+        if boot_changed is not None:
+            self._renumbered()
         leap = (
             None if boot_changed is not None else self._leaps.refusal(uptime_ms, rx_frames, frames_out, now)
         )
@@ -795,6 +819,7 @@ class Session:
             self._boot_id = reply.boot_id
         if boot_changed is not None:  # a new boot: nothing heard before it is its word
             self._forget_boot()
+            self._renumbered()
         if self._ran is None:  # the first answer of this boot: it had begun by now
             self._ran = (0.0, now)
         self.info = info
