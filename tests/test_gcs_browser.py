@@ -157,9 +157,10 @@ def test_a_wrong_token_and_a_foreign_origin_are_refused(browser, tmp_path):
         assert outcome == ["sent", "blocked"]
         st = station.stats()
         assert st["server"]["rejected"]["origin"] == 2 and st["uplink"]["accepted"] == 0
-        # the stream's and the command's wrong token, the two foreign origins: each logged into the run's
-        # events on its next control tick (a refused stream is an attempt too: issue 26)
-        assert st["uplink"]["rejected"] == 4
+        # the stream's wrong token, the page's one question why (/api/info: not retried), the command's,
+        # the two foreign origins: each logged into the run's events on its next control tick (a refused
+        # stream is an attempt too: issue 26)
+        assert st["uplink"]["rejected"] == 5
 
 
 def test_a_finished_run_directory_replays_and_its_timeline_scrubs(browser, tmp_path):

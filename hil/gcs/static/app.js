@@ -12,6 +12,7 @@ import { Alarms, AlarmPanel } from "./alarms.js";
 import { drawHistory, exportHistory } from "./commands.js";
 
 const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
+const RETRY_MS = [1000, 2000, 4000, 8000, 10000];  // a stream the server refused is opened again after these
 const FEED_STALE_S = 1.0;  // nothing of the run's progress for this long: the live feed is stale
 // What counts as the run's progress, and so as its host being alive: what the run itself makes — its rows,
 // events and link figures (and its description) — and a status whose state changed or whose `ticks` (the
@@ -32,6 +33,7 @@ const state = {
   info: null, store: null, plots: null, alarms: null, overlays: [], status: {}, follow: true, cursor: NaN, playing: false,
   dirty: false, lastMessage: performance.now(), lastProgress: performance.now(), ended: false, connected: false,
   history: false,  // between an `info` and its `caught_up`: the history (re)sent, not the run's progress
+  refused: "",  // why the server refused the stream, while it is refused (refusedStream)
 };
 const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [], histories: 0 };
 window.gcs = { state, stats };
@@ -50,8 +52,12 @@ function connect() {
     if (!state.history && isProgress(name, data, state.status)) state.lastProgress = state.lastMessage;
     fn(data);
   });
-  es.onopen = () => { state.connected = true; };
-  es.onerror = () => { state.connected = false; if (state.ended) es.close(); };
+  es.onopen = () => { state.connected = true; state.refused = ""; refusals = 0; };
+  es.onerror = () => {
+    state.connected = false;
+    if (state.ended) es.close();
+    else if (es.readyState === EventSource.CLOSED) refusedStream();
+  };
   on("info", onInfo);
   on("rows", (d) => { if (state.store) { state.alarms.feed(d.rows); state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
   on("events", (list) => { if (state.store) { state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
@@ -78,6 +84,32 @@ function connect() {
     showFeed();
   });
   es.addEventListener("bye", () => { state.ended = true; es.close(); showStatus(); showFeed(); });
+}
+
+// EventSource reconnects by itself after a network error, but an answer other than 200 fails it for good:
+// the server's 503 when every stream slot is taken (other tabs, a reconnect storm, streams it has not yet
+// seen closed), a 401 / 403 for the token or origin. A page that did not look said "reconnecting" for ever
+// and never came back. Now it asks why (/api/info with the token): a refused token or origin is said and
+// not retried (each attempt is a refusal logged in the run's events); anything else is tried again,
+// RETRY_MS apart, the badge saying so.
+let refusals = 0;
+async function refusedStream() {
+  let status = 0;
+  try {
+    status = (await fetch(`/api/info?token=${encodeURIComponent(token)}`, { cache: "no-store" })).status;
+  } catch (err) {
+    status = 0;  // the host does not answer
+  }
+  if (status === 401 || status === 403) {
+    state.refused = status === 401 ? "refused: wrong or missing token (open the address hil printed)"
+      : "refused: this page's origin or host is not the server's";
+  } else {
+    const wait = RETRY_MS[Math.min(refusals, RETRY_MS.length - 1)];
+    refusals += 1;
+    state.refused = `stream refused by the server (${status || "no answer"}): trying again in ${wait / 1e3} s`;
+    setTimeout(connect, wait);
+  }
+  showFeed();
 }
 
 // Whether a downlink message is the run's own progress (PROGRESS, above); `status` is the one before it.
@@ -211,9 +243,10 @@ function feedState() {
   }
   if ((live || following) && age > FEED_STALE_S) {
     const what = heard > FEED_STALE_S ? "nothing" : live ? "host not ticking" : "run not growing";
-    return { text: `stale: ${what} for ${age.toFixed(1)} s`, cls: "stale", age };
+    const refused = state.refused ? ` (${state.refused})` : "";
+    return { text: `stale: ${what} for ${age.toFixed(1)} s${refused}`, cls: "stale", age };
   }
-  if (!state.connected) return { text: `reconnecting: nothing for ${heard.toFixed(1)} s`, cls: "bad", age };
+  if (!state.connected) return { text: state.refused || `reconnecting: nothing for ${heard.toFixed(1)} s`, cls: "bad", age };
   return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
 }
 
