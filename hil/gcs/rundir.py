@@ -264,7 +264,9 @@ class RunDirSource:
         if self.columns is not None:
             self._rows(lines, batch)
         self._read_events(batch)
-        more = self._telemetry.offset < _size(self._telemetry.path)
+        # what is left to read, of either file: a finished run's events past the first READ_CHUNK were
+        # never read when this looked at the telemetry alone (the reading stopped at its end)
+        more = any(tail.offset < _size(tail.path) for tail in (self._telemetry, self._events))
         if self.columns is not None and not more:
             if finished:
                 summary = self._summary() or {}
