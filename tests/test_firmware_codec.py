@@ -22,6 +22,7 @@ from firmware_sim.avr.hostlib import CDeframer, CFrame, cobs_decode, cobs_encode
 from hil.scenario.paths import FIXTURES
 from protocol import cobs
 from protocol.frame import BadFrameReason, Deframer, Frame, encode_frame
+from protocol.messages import Heartbeat, Hello
 
 pytestmark = pytest.mark.firmware  # the C firmware built by make -C firmware (tests/conftest.py)
 
@@ -127,6 +128,29 @@ def test_random_frames_decode_and_reencode_identically(frame):
     assert event.wire == wire
 
 
+def _board_deframer() -> Deframer:
+    """The Python deframer as a board keeps it: a ``Hello`` begins the host's numbering afresh (the step to
+    it no gap, no duplicate), as the firmware's ``deframer_feed`` does."""
+    return Deframer(renumbered_by=(Hello.MSG_ID,))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.booleans(), st.integers(0, 255)), min_size=1, max_size=40))
+def test_a_hello_at_any_number_is_counted_as_the_boards_python_deframer_counts_it(numbered):
+    """Frames numbered anyhow (a restarted host's Hello at 0, a repeat, a jump), Hellos among them: the C
+    and the Python board's counters agree; a Hello never adds to the gaps or the duplicates."""
+    hello = Hello(schema_hash=1, manufacturer="t", model="m", serial="s")
+    wire = b"".join(encode_frame(hello if is_hello else Heartbeat(), seq) for is_hello, seq in numbered)
+    c, py = CDeframer(), _board_deframer()
+    assert _c_events(c.feed(wire)) == _python_events(py.feed(wire))
+    _compare_counters(c, py)
+    counted = [
+        (numbered[i][1] - numbered[i - 1][1]) & 0xFF for i in range(1, len(numbered)) if not numbered[i][0]
+    ]
+    assert py.counters.seq_gaps == sum(step - 1 for step in counted if step > 1)
+    assert py.counters.duplicates == sum(1 for step in counted if step == 0)
+
+
 def _compare_counters(c: CDeframer, py: Deframer) -> None:
     got, want = c.counters(), py.counters
     assert (
@@ -155,7 +179,7 @@ def test_noisy_streams_in_random_chunks_give_the_same_events_and_counters(stream
         if data:
             data[at % len(data)] ^= mask
     rng = random.Random(seed)
-    c, py = CDeframer(), Deframer()
+    c, py = CDeframer(), _board_deframer()
     got, want = [], []
     i = 0
     while i < len(data):
@@ -170,7 +194,7 @@ def test_noisy_streams_in_random_chunks_give_the_same_events_and_counters(stream
 def test_a_megabyte_without_delimiters_is_one_resync_per_overlong_run_and_the_next_frame_decodes():
     wire = bytes.fromhex(VECTORS["frames"][0]["wire_hex"])
     garbage = random.Random(1).randbytes(1 << 20).replace(b"\x00", b"\x01")
-    c, py = CDeframer(), Deframer()
+    c, py = CDeframer(), _board_deframer()
     got = _c_events(c.feed(garbage + b"\x00" + wire))
     want = _python_events(py.feed(garbage + b"\x00" + wire))
     assert got == want and got[-1] == wire and got.count(BadFrameReason.TOO_LONG) >= 1

@@ -84,7 +84,9 @@ deframe_event_t deframer_feed(deframer_t *d, uint8_t byte, frame_t *out)
     uint8_t reason = frame_decode(d->buf, len, out, &d->last_where);
     if (reason)
         return bad(d, reason);
-    if (d->have_seq) {
+    /* A Hello begins its sender's numbering afresh (a restarted host numbers from 0 again): the step to
+     * it is neither a gap nor a duplicate (protocol/frame.py's Deframer(renumbered_by), docs/protocol.md). */
+    if (d->have_seq && out->msg_id != MSG_HELLO) {
         uint8_t step = (uint8_t)(out->seq - d->last_seq);
         if (step == 0)
             d->counters.duplicates++;
