@@ -14,6 +14,7 @@ export class Store {
     this.keepEvery = 1;  // rows kept: 1 in keepEvery (after decimation)
     this.seen = 0;       // rows received
     this.events = [];
+    this.eventKeys = [];  // each event's place in time (pushEvents)
     this.link = [];
   }
 
@@ -50,12 +51,35 @@ export class Store {
     this.data = this.data.map((old) => { const a = new Float64Array(this.capacity); a.set(old); return a; });
   }
 
+  // Events kept in time order (ties: in the order they came). An event without a finite time goes with
+  // the one that came before it. A batch in order after the last is appended; one that is not (a run
+  // directory's events out of order: damaged, spliced, hostile) is sorted and merged in one pass — each
+  // event walked back to its place and spliced in was O(n) apiece: 100 000 events in reverse order froze
+  // the page for 8 s, 400 000 for minutes.
   pushEvents(events) {
-    for (const e of events) {
-      let i = this.events.length;
-      while (i > 0 && this.events[i - 1].t > e.t) i--;  // nearly always appended at the end
-      this.events.splice(i, 0, e);
+    if (!events.length) return;
+    let prev = this.eventKeys.length ? this.eventKeys[this.eventKeys.length - 1] : -Infinity;
+    const batch = events.map((e, i) => {
+      prev = typeof e.t === "number" && Number.isFinite(e.t) ? e.t : prev;
+      return { e, k: prev, i };
+    });
+    let sorted = true;
+    for (let j = 1; j < batch.length && sorted; j++) sorted = batch[j - 1].k <= batch[j].k;
+    if (!sorted) batch.sort((a, b) => a.k - b.k || a.i - b.i);
+    const last = this.eventKeys.length ? this.eventKeys[this.eventKeys.length - 1] : -Infinity;
+    if (batch[0].k >= last) {
+      for (const b of batch) { this.events.push(b.e); this.eventKeys.push(b.k); }
+      return;
     }
+    const events0 = this.events, keys0 = this.eventKeys, n = events0.length;
+    const outE = new Array(n + batch.length), outK = new Array(n + batch.length);
+    let a = 0, b = 0, o = 0;
+    while (a < n || b < batch.length) {
+      if (b >= batch.length || (a < n && keys0[a] <= batch[b].k)) { outE[o] = events0[a]; outK[o++] = keys0[a++]; }
+      else { outE[o] = batch[b].e; outK[o++] = batch[b++].k; }
+    }
+    this.events = outE;
+    this.eventKeys = outK;
   }
 
   pushLink(snapshots) { for (const s of snapshots) this.link.push(s); }
