@@ -118,14 +118,15 @@ def test_a_source_registered_at_run_time_is_built_through_the_registry():
         assert "constant" in schemes()
         context, _ = _context(LockstepClock())
         with create_source("constant://rig", context) as source:
-            assert isinstance(source, _Constant) and source.url == "constant://rig"
+            # a user's source, held to its interface (hil.link.sources.checked): the wrapper's
+            assert isinstance(source.inner, _Constant) and source.url == "constant://rig"
             assert len(source.drain(0.095)) == 10 and source.drain(0.095) == []
             assert source.truth(1.0).omega[2] == pytest.approx(0.1)
             # what it does not override is a stream's: ready at once, no task, no end, nothing counted
             source.wait_ready(1.0, lambda: None)
             assert source.tasks() == [] and source.start(0.0) is None and not source.exhausted
             assert source.rate_hz is None and source.report() == {}
-        assert source.closed
+        assert source.inner.closed
     finally:
         del sys.modules[module.__name__]
 
@@ -158,7 +159,7 @@ def test_a_third_party_package_registers_a_source_by_entry_point(tmp_path):
         from hil.link.sources import create_source, schemes
         assert "still" in schemes(), schemes()
         source = create_source("still://desk", None)
-        print(type(source).__module__, source.drain(1.5)[0].xyz[2])
+        print(type(source.inner).__module__, source.drain(1.5)[0].xyz[2])
     ''')  # fmt: skip
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr

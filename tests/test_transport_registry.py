@@ -85,7 +85,7 @@ def test_a_third_party_package_registers_a_scheme_by_entry_point(tmp_path):
         assert "loopback" in schemes(), schemes()
         with create_transport("loopback://here").open() as link:
             link.write(b"abc")
-            print(type(link).__module__, link.read(0).decode())
+            print(type(link.inner).__module__, link.read(0).decode())  # held to its interface
     ''')  # fmt: skip
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr

@@ -64,6 +64,7 @@ from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, crea
 from hil.link.sources.recorded import RECORDING_URL
 from hil.link.sources.simulated import SIMULATED_URL
 from hil.link.transports import InProcessBoard, create_transport
+from hil.plugins import PluginError
 from hil.runtime.codes import CODES_FILE, code_table
 from hil.runtime.faults import RECOVER_WITHIN_S
 from hil.runtime.held_signals import HeldSignals
@@ -348,7 +349,14 @@ def _finish(
             ending(built.scheduler.clock.now())
         summary.update(built.host.summary())
         summary["link"] = _link_stats(built.host)
-        for section, fields in built.source.report().items():
+        try:
+            reported = built.source.report()
+        except PluginError as exc:  # a user's source that fails its report: the run's error, if it had none
+            reported = {}
+            if error is None:
+                summary["exit"] = f"error: {exc}"
+                error = exc
+        for section, fields in reported.items():
             summary.setdefault(section, {}).update(fields)
         scheduler = built.scheduler
         summary["tasks"] = scheduler.summary()

@@ -29,10 +29,20 @@ whose name is the scheme, in its ``pyproject.toml``::
     myrig = "mypackage.phone:open_rig"
 
 :func:`register` adds one at run time.
+
+A scheme ``hil`` does not ship is held to the interface (:class:`~.checked.CheckedSource`): what its
+source's ``drain`` hands over must be a list of :class:`~hil.estimation.sensors.SensorSample` of real
+numbers, its ``truth`` None or a finite rotation and rate, and so on for each method; whatever it gets
+wrong, or raises of its own (not the project's :class:`~protocol.errors.HilError`), in its factory or
+mid-run, is a :class:`~hil.plugins.PluginError` naming the scheme, what it did and when, and the run
+ends on it as an error (exit status 2, one line), its board disarmed. Samples of the right types but
+absurd (NaN, out of range, out of order, repeated) are the host's admission policy's to drop and count
+(:mod:`hil.estimation.admission`), as a live phone's are. ``hil``'s own schemes are not wrapped.
 """
 
 from __future__ import annotations
 
+import contextlib
 from urllib.parse import urlsplit
 
 from hil.link.sources.base import (
@@ -45,22 +55,21 @@ from hil.link.sources.base import (
 )
 from hil.link.sources.listening import ListeningSource, open_receiver, open_sender, phone_url
 from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
-from hil.plugins import Registry
-from protocol.errors import ConfigError
+from hil.plugins import PluginError, Registry
+from protocol.errors import ConfigError, HilError
 
 ENTRY_POINT_GROUP = "vscmg_hil.phone_sources"
 DEFAULT_PHONE_URL = "udp://127.0.0.1:8123"
 
 # scheme -> "module:factory": hil's own, then the installed entry points and register().
-_REGISTRY = Registry(
-    ENTRY_POINT_GROUP,
-    {
-        "udp": "hil.link.sources.listening:listen",
-        "http": "hil.link.sources.listening:listen",
-        "recording": "hil.link.sources.recorded:play",
-        "sim": "hil.link.sources.simulated:simulated_phone",
-    },
-)
+_BUILT_IN = {
+    "udp": "hil.link.sources.listening:listen",
+    "http": "hil.link.sources.listening:listen",
+    "recording": "hil.link.sources.recorded:play",
+    "sim": "hil.link.sources.simulated:simulated_phone",
+}
+_REGISTRY = Registry(ENTRY_POINT_GROUP, _BUILT_IN)
+_BUILT_IN_TARGETS = frozenset(_BUILT_IN.values())  # hil's own sources: not wrapped (CheckedSource)
 
 
 def register(scheme: str, target: str) -> None:
@@ -80,7 +89,9 @@ def source_url(address: str) -> str:
 def create_source(address: str, context: SourceContext, where: str = "--phone") -> PhoneSource:
     """The phone source for ``address`` (see the module docstring), open. A scheme nobody registered, or
     a factory that cannot be imported, is a :class:`ConfigError` naming ``where`` (and the known schemes);
-    a source that cannot open (a busy port) raises its own error."""
+    a source that cannot open (a busy port) raises its own error. A scheme ``hil`` does not ship is built
+    wrapped in a :class:`~.checked.CheckedSource`; its factory raising anything but the project's own
+    errors, or returning what is not a :class:`PhoneSource`, is a :class:`~hil.plugins.PluginError`."""
     url = source_url(address)
     try:
         scheme = urlsplit(url).scheme.lower()
@@ -94,7 +105,24 @@ def create_source(address: str, context: SourceContext, where: str = "--phone") 
         factory: SourceFactory = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
         raise ConfigError(f"{address!r}: phone source {target} is not available: {exc}", where) from exc
-    return factory(url, context)
+    if target in _BUILT_IN_TARGETS:
+        return factory(url, context)
+    from hil.link.sources.checked import CheckedSource
+
+    plugin = f"phone source {scheme!r}"
+    try:
+        built = factory(url, context)
+    except HilError:  # the project's own (a ConfigError naming an option, a busy port): as raised
+        raise
+    except Exception as exc:
+        raise PluginError(plugin, f"its factory {target} raised {type(exc).__name__}: {exc}") from exc
+    if not isinstance(built, PhoneSource):
+        close = getattr(built, "close", None)
+        if callable(close):  # what it opened is released, whatever it is
+            with contextlib.suppress(Exception):
+                close()
+        raise PluginError(plugin, f"its factory {target} returned {type(built).__name__}, not a PhoneSource")
+    return CheckedSource(built, scheme)
 
 
 __all__ = [

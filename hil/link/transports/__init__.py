@@ -26,12 +26,20 @@ takes the URL and returns an unopened :class:`Transport`). ``firmware_sim`` regi
     mybus = "mypackage.transport:MyBusTransport"
 
 :func:`register` adds one at run time.
+
+A scheme that neither ``hil`` nor ``firmware_sim`` ships is held to the interface
+(:class:`~.checked.CheckedTransport`): ``read`` must return bytes, and what the transport raises of its
+own (not the project's :class:`~protocol.errors.LinkError`, the interface's word for a port that vanished
+or cannot open, answered by reconnecting), in its factory or mid-run, is a
+:class:`~hil.plugins.PluginError` naming the scheme, the call and when; the run ends on it as an error
+(exit status 2, one line), its board disarmed where the link still allows. An
+:class:`InProcessBoard` (the host's own machinery: its clock, its world) is not wrapped.
 """
 
 from __future__ import annotations
 
-from hil.plugins import Registry
-from protocol.errors import TransportError
+from hil.plugins import PluginError, Registry
+from protocol.errors import HilError, TransportError
 
 from .base import Transport, UrlOptions
 from .in_process import InProcessBoard, SimulatedWorld, WorldStream, WorldTruth
@@ -39,16 +47,23 @@ from .in_process import InProcessBoard, SimulatedWorld, WorldStream, WorldTruth
 ENTRY_POINT_GROUP = "vscmg_hil.transports"
 
 # scheme -> "module:factory"; the factory takes the URL and returns an unopened Transport.
-_REGISTRY = Registry(
-    ENTRY_POINT_GROUP,
+_BUILT_IN = {
+    "socket": "hil.link.transports.serial_port:SerialTransport",
+    "loop": "hil.link.transports.serial_port:SerialTransport",
+    "spy": "hil.link.transports.serial_port:SerialTransport",
+    "rfc2217": "hil.link.transports.serial_port:SerialTransport",
+    "hwgrep": "hil.link.transports.serial_port:SerialTransport",
+    "can": "hil.link.transports.can_bus:CanTransport",
+}
+_REGISTRY = Registry(ENTRY_POINT_GROUP, _BUILT_IN)
+# the transports not wrapped in a CheckedTransport: hil's own, and the emulator's this project registers
+# (firmware_sim's entry points: the default run's hot path)
+_UNCHECKED = frozenset(
     {
-        "socket": "hil.link.transports.serial_port:SerialTransport",
-        "loop": "hil.link.transports.serial_port:SerialTransport",
-        "spy": "hil.link.transports.serial_port:SerialTransport",
-        "rfc2217": "hil.link.transports.serial_port:SerialTransport",
-        "hwgrep": "hil.link.transports.serial_port:SerialTransport",
-        "can": "hil.link.transports.can_bus:CanTransport",
-    },
+        *_BUILT_IN.values(),
+        "firmware_sim.servers.transports:EmulatorTransport",
+        "firmware_sim.servers.transports:SpawnTransport",
+    }
 )
 
 
@@ -68,7 +83,10 @@ def _scheme_of(url: str) -> str:
 
 
 def create_transport(url: str) -> Transport:
-    """The transport for ``url``, not yet opened."""
+    """The transport for ``url``, not yet opened. A scheme neither ``hil`` nor ``firmware_sim`` ships is
+    built wrapped in a :class:`~.checked.CheckedTransport` (unless it is an :class:`InProcessBoard`); its
+    factory raising anything but the project's own errors, or returning what is not a
+    :class:`Transport`, is a :class:`~hil.plugins.PluginError`."""
     scheme = _scheme_of(url)
     if scheme == "serial":
         from .serial_port import SerialTransport
@@ -81,8 +99,23 @@ def create_transport(url: str) -> Transport:
         factory = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
         raise TransportError(f"{url}: transport {target} is not available: {exc}") from exc
-    transport: Transport = factory(url)
-    return transport
+    if target in _UNCHECKED:
+        transport: Transport = factory(url)
+        return transport
+    plugin = f"transport {scheme!r}"
+    try:
+        built = factory(url)
+    except HilError:  # the project's own (a TransportError naming an option): as raised
+        raise
+    except Exception as exc:
+        raise PluginError(plugin, f"its factory {target} raised {type(exc).__name__}: {exc}") from exc
+    if not isinstance(built, Transport):
+        raise PluginError(plugin, f"its factory {target} returned {type(built).__name__}, not a Transport")
+    if isinstance(built, InProcessBoard):  # the host's own machinery (its clock, its world): as it is
+        return built
+    from .checked import CheckedTransport
+
+    return CheckedTransport(built, scheme)
 
 
 def open_transport(url: str) -> Transport:

@@ -1,0 +1,218 @@
+"""A user's phone source, held to its interface: :class:`CheckedSource` wraps a source that another package
+registered (:func:`hil.link.sources.create_source` builds every scheme but ``hil``'s own through it), so
+that whatever it does wrong mid-run ends the run with a :class:`~hil.plugins.PluginError` naming it, what
+it did and when — never a traceback from deep in the host, or a summary that never got written.
+
+What is checked, each call:
+
+=========================  ========================================================================
+call                       checked
+=========================  ========================================================================
+``drain(now)``             a list (or tuple) of :class:`~hil.estimation.sensors.SensorSample`, each
+                           with a time stamp that is a real number, a ``SensorKind``, and three real
+                           numbers; passed on as floats (an ``int`` stamp, a numpy row of ``xyz``)
+``truth(now)``             None or a :class:`~.base.GroundTruth` (or an object with ``R`` and
+                           ``omega``): ``R`` a finite rotation (3, 3), ``omega`` a finite (3,)
+``rate_hz``                None or a positive finite number
+``start(origin)``          None or a finite number
+``tasks()``                a list of :class:`~hil.timing.scheduler.PeriodicTask`, each callback wrapped
+``senders()``              None or a :class:`~.base.SenderStatus`
+``report()``               a dict of sections, each a dict whose keys are strings, JSON-able
+=========================  ========================================================================
+
+A sample that is a ``SensorSample`` of the right types but absurd — a NaN or infinite stamp or value, a
+reading beyond any phone's range, stamped out of order, a duplicate — is passed on: the host's admission
+policy (:mod:`hil.estimation.admission`) drops and counts it, as it does a live phone's.
+
+Any exception the source raises that is not the project's own (a :class:`~protocol.errors.HilError`, such
+as :meth:`~.base.PhoneSource.wait_ready`'s ``LinkTimeout`` or a receiver thread's ``LinkError``, passes as
+it is) becomes a :class:`~hil.plugins.PluginError` ``from`` it; Ctrl-C (KeyboardInterrupt) passes
+through. ``hil``'s own schemes are not wrapped: no cost on their path."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from numbers import Real
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hil.estimation.checked import _describe as describe
+from hil.estimation.checked import rotation_fault
+from hil.estimation.sensors import SensorKind, SensorSample
+from hil.link.sources.base import GroundTruth, PhoneSource, SenderStatus
+from hil.plugins import PluginError
+from protocol.errors import HilError
+
+if TYPE_CHECKING:
+    from hil.timing.scheduler import PeriodicTask
+
+
+def _real(value: Any) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool)
+
+
+class CheckedSource(PhoneSource):
+    """``inner``, a user's :class:`~.base.PhoneSource`, with every call checked (see the module docstring);
+    ``scheme`` is its registered scheme, for the errors."""
+
+    def __init__(self, inner: PhoneSource, scheme: str) -> None:
+        self.inner = inner
+        self.scheme = scheme
+        self.plugin = f"phone source {scheme!r}"
+        self.url = str(getattr(inner, "url", f"{scheme}://"))
+
+    def __repr__(self) -> str:
+        return f"CheckedSource({self.inner!r}, {self.scheme!r})"
+
+    def _error(self, detail: str) -> PluginError:
+        return PluginError(self.plugin, detail)
+
+    def _call(self, what: str, call: Callable[[], Any]) -> Any:
+        try:
+            return call()
+        except HilError:  # the project's own (a LinkTimeout, a PluginError of a wrapped call): as raised
+            raise
+        except Exception as exc:
+            raise self._error(f"{what} raised {type(exc).__name__}: {exc}") from exc
+
+    # ------------------------------------------------------------------ samples and truth
+    def drain(self, now: float) -> list[SensorSample]:
+        where = f"drain at t = {now:.6f} s"
+        out = self._call(where, lambda: self.inner.drain(now))
+        if type(out) is not list:
+            if not isinstance(out, (list, tuple)):
+                raise self._error(f"{where} returned {describe(out)}, not a list of SensorSamples")
+            out = list(out)
+        for i, s in enumerate(out):
+            if not (
+                type(s) is SensorSample
+                and type(s.t_s) is float
+                and type(s.kind) is SensorKind
+                and type(s.xyz) is tuple
+                and len(s.xyz) == 3
+                and type(s.xyz[0]) is float
+                and type(s.xyz[1]) is float
+                and type(s.xyz[2]) is float
+            ):
+                out[i] = self._sample(s, f"{where} returned, at [{i}] of {len(out)},")
+        return out  # type: ignore[no-any-return]
+
+    def _sample(self, s: Any, where: str) -> SensorSample:
+        """``s`` as a SensorSample of floats, if it is one of real numbers."""
+        if not isinstance(s, SensorSample):
+            raise self._error(f"{where} {describe(s)}, not a SensorSample")
+        if not _real(s.t_s):
+            raise self._error(f"{where} a sample stamped {describe(s.t_s)}, not a number of seconds")
+        if not isinstance(s.kind, SensorKind):
+            raise self._error(f"{where} a sample of kind {describe(s.kind)}, not a SensorKind")
+        xyz = s.xyz
+        try:
+            values = tuple(xyz)
+        except TypeError:
+            values = ()
+        if len(values) != 3 or not all(map(_real, values)):
+            raise self._error(f"{where} a {s.kind.label} sample of {describe(xyz)}, not three numbers")
+        try:
+            x, y, z = (float(v) for v in values)
+            return SensorSample(float(s.t_s), s.kind, (x, y, z))
+        except (TypeError, ValueError, OverflowError) as exc:  # a Real that float() refuses
+            raise self._error(f"{where} a sample that is not floats: {exc}") from exc
+
+    def truth(self, now: float) -> GroundTruth | None:
+        where = f"truth at t = {now:.6f} s"
+        found = self._call(where, lambda: self.inner.truth(now))
+        if found is None:
+            return None
+        if not (hasattr(found, "R") and hasattr(found, "omega")):
+            raise self._error(f"{where} returned {describe(found)}, not a GroundTruth or None")
+        try:
+            R = np.array(found.R, dtype=float)
+            omega = np.array(found.omega, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise self._error(f"{where} returned a truth that is not numbers: {exc}") from exc
+        if R.shape != (3, 3) or omega.shape != (3,):
+            raise self._error(f"{where} returned R {R.shape}, omega {omega.shape}; wants (3, 3), (3,)")
+        if not (np.isfinite(R).all() and np.isfinite(omega).all()):
+            raise self._error(f"{where} returned a non-finite {'R' if not np.isfinite(R).all() else 'omega'}")
+        fault = rotation_fault(tuple(float(v) for v in R.reshape(9)))
+        if fault is not None:
+            raise self._error(f"{where} returned an attitude that is not a rotation: {fault}")
+        return GroundTruth(R, omega)
+
+    def close(self) -> None:
+        self._call("close", self.inner.close)
+
+    # ------------------------------------------------------------------ what the runtime asks
+    @property
+    def rate_hz(self) -> float | None:
+        rate = self._call("rate_hz", lambda: self.inner.rate_hz)
+        if rate is None:
+            return None
+        if not (_real(rate) and math.isfinite(rate) and rate > 0):
+            raise self._error(f"rate_hz is {describe(rate)}, not None or a positive number of Hz")
+        return float(rate)
+
+    def wait_ready(self, wait_s: float, keep_alive: Callable[[], None]) -> None:
+        self._call("wait_ready", lambda: self.inner.wait_ready(wait_s, keep_alive))
+
+    def tasks(self) -> list[PeriodicTask]:
+        from dataclasses import replace
+
+        from hil.timing.scheduler import PeriodicTask
+
+        tasks = self._call("tasks", self.inner.tasks)
+        if not isinstance(tasks, (list, tuple)) or not all(isinstance(t, PeriodicTask) for t in tasks):
+            raise self._error(f"tasks returned {describe(tasks)}, not a list of PeriodicTasks")
+        return [replace(task, callback=self._task(task)) for task in tasks]
+
+    def _task(self, task: PeriodicTask) -> Callable[[float], None]:
+        callback, name = task.callback, task.name
+
+        def checked(due: float) -> None:
+            self._call(f"its task {name!r} at t = {due:.6f} s", lambda: callback(due))
+
+        return checked
+
+    def advance(self, now: float) -> None:
+        self._call(f"advance at t = {now:.6f} s", lambda: self.inner.advance(now))
+
+    def start(self, origin: float) -> float | None:
+        where = f"start at t = {origin:.6f} s"
+        end = self._call(where, lambda: self.inner.start(origin))
+        if end is None:
+            return None
+        if not (_real(end) and math.isfinite(end)):
+            raise self._error(f"{where} returned {describe(end)}, not None or an end time (s)")
+        return float(end)
+
+    @property
+    def exhausted(self) -> bool:
+        return bool(self._call("exhausted", lambda: bool(self.inner.exhausted)))
+
+    def senders(self) -> SenderStatus | None:
+        status = self._call("senders", self.inner.senders)
+        if status is not None and not isinstance(status, SenderStatus):
+            raise self._error(f"senders returned {describe(status)}, not a SenderStatus or None")
+        return status  # type: ignore[no-any-return]
+
+    def report(self) -> dict[str, dict[str, Any]]:
+        report = self._call("report", self.inner.report)
+        if not isinstance(report, dict) or not all(
+            isinstance(k, str) and isinstance(v, dict) and all(isinstance(f, str) for f in v)
+            for k, v in report.items()
+        ):
+            raise self._error(f"report returned {describe(report)}, not a dict of sections (dicts)")
+        try:
+            json.dumps(report, default=_json_default, allow_nan=True)
+        except (TypeError, ValueError) as exc:
+            raise self._error(f"report returned what summary.json cannot hold: {exc}") from exc
+        return report
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    raise TypeError(f"{describe(value)} is not JSON")
