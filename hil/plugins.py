@@ -32,6 +32,15 @@ AMBIGUOUS = "ambiguous: "
 _TARGET = re.compile(r"^\s*(?P<module>[\w.]+)\s*(?::\s*(?P<attr>[\w.]+)\s*)?(?:\[[^\]]*\]\s*)?$")
 
 
+def describe_value(value: Any) -> str:
+    """What a plugin returned, in a few words for its :class:`PluginError`: an array's shape, else its type
+    and a short repr."""
+    if type(value).__name__ == "ndarray" and isinstance(getattr(value, "shape", None), tuple):
+        return f"an array of shape {value.shape}"
+    text = " ".join(repr(value).split())
+    return f"{type(value).__name__} {text[:60]}{'…' if len(text) > 60 else ''}"
+
+
 class Registry:
     """Names → ``"module:attribute"``: ``builtin`` first, then the entry points of ``group`` (read once,
     on first use; a built-in name or one :meth:`register` set wins), names compared in lower case. Two

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil.plugins import PluginError
+from hil.plugins import PluginError, describe_value
 
 if TYPE_CHECKING:
     from hil.estimation.estimator import Estimate, EstimateBatch
@@ -51,14 +51,6 @@ TIME_TOL_S = 1e-9
 
 _FIFTEEN = struct.Struct("=15d").unpack_from  # an Estimate's kept bytes: R row-major, omega, omega_err
 _FIELDS = ("t", "R", "omega", "omega_err", "flags", "iterations")
-
-
-def _describe(value: Any) -> str:
-    """``value`` in a few words for an error: its type, and its shape or a short repr."""
-    if isinstance(value, np.ndarray):
-        return f"an array of shape {value.shape}"
-    text = " ".join(repr(value).split())
-    return f"{type(value).__name__} {text[:60]}{'…' if len(text) > 60 else ''}"
 
 
 def rotation_fault(r: tuple[float, ...]) -> str | None:
@@ -136,7 +128,8 @@ class CheckedEstimator:
 
         missing = [name for name in _FIELDS if not hasattr(out, name)]
         if missing:
-            raise self._error(f"{where} returned {_describe(out)}, not an Estimate (no {', '.join(missing)})")
+            got = describe_value(out)
+            raise self._error(f"{where} returned {got}, not an Estimate (no {', '.join(missing)})")
         shapes = {"R": (3, 3), "omega": (3,), "omega_err": (3,)}
         try:
             arrays = {k: np.asarray(getattr(out, k), dtype=float) for k in shapes}
@@ -169,7 +162,7 @@ class CheckedEstimator:
         n = len(steps)
         where = f"run over {n} steps"
         if not isinstance(out, EstimateBatch):
-            raise self._error(f"{where} returned {_describe(out)}, not an EstimateBatch")
+            raise self._error(f"{where} returned {describe_value(out)}, not an EstimateBatch")
         shapes = {
             "t": (n,),
             "R": (n, 3, 3),
@@ -223,9 +216,9 @@ class CheckedEstimator:
         try:
             a = np.array(b, dtype=float)
         except (TypeError, ValueError) as exc:
-            raise self._error(f"gyro_bias is {_describe(b)}, not a 3-vector") from exc
+            raise self._error(f"gyro_bias is {describe_value(b)}, not a 3-vector") from exc
         if a.shape != (3,) or not np.isfinite(a).all():
-            raise self._error(f"gyro_bias is {_describe(b)}, not a finite 3-vector (rad/s)")
+            raise self._error(f"gyro_bias is {describe_value(b)}, not a finite 3-vector (rad/s)")
         return a
 
     def set_gyro_bias(self, bias: ArrayLike) -> None:

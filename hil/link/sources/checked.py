@@ -39,11 +39,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hil.estimation.checked import _describe as describe
 from hil.estimation.checked import rotation_fault
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.base import GroundTruth, PhoneSource, SenderStatus
-from hil.plugins import PluginError
+from hil.plugins import PluginError, describe_value
 from protocol.errors import HilError
 
 if TYPE_CHECKING:
@@ -84,7 +83,7 @@ class CheckedSource(PhoneSource):
         out = self._call(where, lambda: self.inner.drain(now))
         if type(out) is not list:
             if not isinstance(out, (list, tuple)):
-                raise self._error(f"{where} returned {describe(out)}, not a list of SensorSamples")
+                raise self._error(f"{where} returned {describe_value(out)}, not a list of SensorSamples")
             out = list(out)
         for i, s in enumerate(out):
             if not (
@@ -103,18 +102,18 @@ class CheckedSource(PhoneSource):
     def _sample(self, s: Any, where: str) -> SensorSample:
         """``s`` as a SensorSample of floats, if it is one of real numbers."""
         if not isinstance(s, SensorSample):
-            raise self._error(f"{where} {describe(s)}, not a SensorSample")
+            raise self._error(f"{where} {describe_value(s)}, not a SensorSample")
         if not _real(s.t_s):
-            raise self._error(f"{where} a sample stamped {describe(s.t_s)}, not a number of seconds")
+            raise self._error(f"{where} a sample stamped {describe_value(s.t_s)}, not a number of seconds")
         if not isinstance(s.kind, SensorKind):
-            raise self._error(f"{where} a sample of kind {describe(s.kind)}, not a SensorKind")
+            raise self._error(f"{where} a sample of kind {describe_value(s.kind)}, not a SensorKind")
         xyz = s.xyz
         try:
             values = tuple(xyz)
         except TypeError:
             values = ()
         if len(values) != 3 or not all(map(_real, values)):
-            raise self._error(f"{where} a {s.kind.label} sample of {describe(xyz)}, not three numbers")
+            raise self._error(f"{where} a {s.kind.label} sample of {describe_value(xyz)}, not three numbers")
         try:
             x, y, z = (float(v) for v in values)
             return SensorSample(float(s.t_s), s.kind, (x, y, z))
@@ -127,7 +126,7 @@ class CheckedSource(PhoneSource):
         if found is None:
             return None
         if not (hasattr(found, "R") and hasattr(found, "omega")):
-            raise self._error(f"{where} returned {describe(found)}, not a GroundTruth or None")
+            raise self._error(f"{where} returned {describe_value(found)}, not a GroundTruth or None")
         try:
             R = np.array(found.R, dtype=float)
             omega = np.array(found.omega, dtype=float)
@@ -152,7 +151,7 @@ class CheckedSource(PhoneSource):
         if rate is None:
             return None
         if not (_real(rate) and math.isfinite(rate) and rate > 0):
-            raise self._error(f"rate_hz is {describe(rate)}, not None or a positive number of Hz")
+            raise self._error(f"rate_hz is {describe_value(rate)}, not None or a positive number of Hz")
         return float(rate)
 
     def wait_ready(self, wait_s: float, keep_alive: Callable[[], None]) -> None:
@@ -165,7 +164,7 @@ class CheckedSource(PhoneSource):
 
         tasks = self._call("tasks", self.inner.tasks)
         if not isinstance(tasks, (list, tuple)) or not all(isinstance(t, PeriodicTask) for t in tasks):
-            raise self._error(f"tasks returned {describe(tasks)}, not a list of PeriodicTasks")
+            raise self._error(f"tasks returned {describe_value(tasks)}, not a list of PeriodicTasks")
         return [replace(task, callback=self._task(task)) for task in tasks]
 
     def _task(self, task: PeriodicTask) -> Callable[[float], None]:
@@ -185,7 +184,7 @@ class CheckedSource(PhoneSource):
         if end is None:
             return None
         if not (_real(end) and math.isfinite(end)):
-            raise self._error(f"{where} returned {describe(end)}, not None or an end time (s)")
+            raise self._error(f"{where} returned {describe_value(end)}, not None or an end time (s)")
         return float(end)
 
     @property
@@ -195,7 +194,7 @@ class CheckedSource(PhoneSource):
     def senders(self) -> SenderStatus | None:
         status = self._call("senders", self.inner.senders)
         if status is not None and not isinstance(status, SenderStatus):
-            raise self._error(f"senders returned {describe(status)}, not a SenderStatus or None")
+            raise self._error(f"senders returned {describe_value(status)}, not a SenderStatus or None")
         return status  # type: ignore[no-any-return]
 
     def report(self) -> dict[str, dict[str, Any]]:
@@ -204,7 +203,7 @@ class CheckedSource(PhoneSource):
             isinstance(k, str) and isinstance(v, dict) and all(isinstance(f, str) for f in v)
             for k, v in report.items()
         ):
-            raise self._error(f"report returned {describe(report)}, not a dict of sections (dicts)")
+            raise self._error(f"report returned {describe_value(report)}, not a dict of sections (dicts)")
         try:
             json.dumps(report, default=_json_default, allow_nan=True)
         except (TypeError, ValueError) as exc:
@@ -215,4 +214,4 @@ class CheckedSource(PhoneSource):
 def _json_default(value: Any) -> Any:
     if isinstance(value, (np.generic, np.ndarray)):
         return value.tolist()
-    raise TypeError(f"{describe(value)} is not JSON")
+    raise TypeError(f"{describe_value(value)} is not JSON")

@@ -18,8 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from hil.estimation.checked import _describe as describe
-from hil.plugins import PluginError
+from hil.plugins import PluginError, describe_value
 from protocol.errors import HilError
 
 from .base import Transport
@@ -66,7 +65,7 @@ class CheckedTransport(Transport):
         data = self._call(where, lambda: self.inner.read(timeout))
         if type(data) is not bytes:
             if not isinstance(data, (bytes, bytearray, memoryview)):
-                raise PluginError(self.plugin, f"{where} returned {describe(data)}, not bytes")
+                raise PluginError(self.plugin, f"{where} returned {describe_value(data)}, not bytes")
             data = bytes(data)
         self.bytes_in += len(data)
         return data  # type: ignore[no-any-return]
@@ -81,13 +80,13 @@ class CheckedTransport(Transport):
     def present(self) -> bool | None:
         found = self._call("present", self.inner.present)
         if found is not None and not isinstance(found, bool):
-            raise PluginError(self.plugin, f"present returned {describe(found)}, not None or a bool")
+            raise PluginError(self.plugin, f"present returned {describe_value(found)}, not None or a bool")
         return found  # type: ignore[no-any-return]
 
     def heard_instead(self) -> str:
         said = self._call("heard_instead", self.inner.heard_instead)
         if not isinstance(said, str):
-            raise PluginError(self.plugin, f"heard_instead returned {describe(said)}, not a string")
+            raise PluginError(self.plugin, f"heard_instead returned {describe_value(said)}, not a string")
         return said
 
     # the template's backend: unused (the public calls above go to the inner transport's own)
