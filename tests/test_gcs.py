@@ -7,11 +7,13 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -82,34 +84,61 @@ def test_numbers_are_json_and_compact():
     assert rows == {"rows": [[1234.56789, None, 2], [1.5, None, -0.25]]}
 
 
+def _read(reader: Any) -> bytes | None:
+    """A hub reader's next read without its ``id:`` lines (where it is, for a browser to resume from)."""
+    data = reader.read(0.01)
+    return None if data is None else re.sub(rb"id: [^\n]*\n\n", b"", data)
+
+
 def test_hub_history_late_and_slow_readers():
     now = [100.0]
     hub = Hub(budget=1000, clock=lambda: now[0])
     early = hub.reader()
-    assert early.read(0.01) == b""  # nothing before the run is described
+    assert _read(early) == b""  # nothing before the run is described
     hub.set_info(b"I")
     for k in range(5):
         hub.publish(bytes([65 + k]) * 100)
     now[0] += 2.5
     history = b"I" + b"A" * 100 + b"B" * 100 + b"C" * 100 + b"D" * 100 + b"E" * 100
-    assert early.read(0.01) == history + caught_up(2.5)  # the history, then how old the progress is
-    assert early.read(0.01) == b""  # waited, nothing new
+    assert _read(early) == history + caught_up(2.5)  # the history, then how old the progress is
+    assert _read(early) == b""  # waited, nothing new
     hub.publish(b"s" * 10, progress=False)  # a counter of the server's: not the run's progress
-    assert early.read(0.01) == b"s" * 10  # the history was ended once
+    assert _read(early) == b"s" * 10  # the history was ended once
     late = hub.reader()
     now[0] += 1.0
-    assert late.read(0.01) == history + b"s" * 10 + caught_up(3.5)  # a late joiner gets the whole history
+    assert _read(late) == history + b"s" * 10 + caught_up(3.5)  # a late joiner gets the whole history
     hub.publish(b"F" * 100)
-    assert early.read(0.01) == late.read(0.01) == b"F" * 100
+    assert _read(early) == _read(late) == b"F" * 100
     late = hub.reader()
-    assert late.read(0.01).startswith(b"IAAA")
+    assert _read(late).startswith(b"IAAA")
     for k in range(10):  # past the budget: the oldest go, trimmed to 90 %
         hub.publish(bytes([71 + k]) * 100)
     assert hub.stats.trimmed_chunks >= 6 and hub.stats.skipped_chunks == 0
-    data = early.read(0.01)  # this reader had read up to F; G.. were published, the oldest trimmed
+    data = _read(early)  # this reader had read up to F; G.. were published, the oldest trimmed
     assert hub.stats.skipped_chunks > 0 and data.endswith(b"P" * 100) and len(data) <= 1000
     hub.close()
     assert early.read(0.01) is None and late.read(0.01) is not None and late.read(0.01) is None
+
+
+def test_a_reader_resumes_where_its_browser_left_off_without_the_history():
+    now = [0.0]
+    hub = Hub(budget=10_000, clock=lambda: now[0])
+    hub.set_info(b"I")
+    first = hub.reader()
+    hub.publish(b"A" * 100)
+    last_id = re.findall(rb"id: ([^\n]*)\n\n", first.read(0.01))[-1].decode()
+    hub.publish(b"B" * 100)  # while the browser was away
+    hub.publish(b"C" * 100)
+    now[0] = 1.5
+    again = hub.reader()
+    assert hub.resume(again, last_id) and hub.stats.streams_resumed == 1
+    assert _read(again) == b"B" * 100 + b"C" * 100 + caught_up(1.5)  # what it missed, no info, no history
+    stale = last_id.rsplit(".", 1)[0] + ".99"  # a place past the newest chunk
+    other = "f" * 16 + "." + last_id.split(".", 1)[1]  # another hub's (a server started again)
+    for bad in (None, "", "x", stale, other, last_id + "0" * 20, f" {last_id}x"):
+        fresh = hub.reader()
+        assert not hub.resume(fresh, bad)
+        assert _read(fresh).startswith(b"IAAAA")  # afresh: info and the whole history
 
 
 # ----------------------------------------------------------------------------------------- commands

@@ -121,19 +121,19 @@ except ImportError:  # then the browser tests are skipped by their marker
 STALE_CELLS = ("board-mode", "tel-age", "battery", "point-err", "attitude", "u0-rotor", "u0-angle")
 
 # Samples the page every 20 ms into window.samples: the feed badge, the mode badge, whether Hold is
-# disabled, whether the attitude cell is marked stale, and which info the page holds (a reconnection
-# brings a new one).
+# disabled, whether the attitude cell is marked stale, and whether the page has been told the end of a
+# history since (a `caught_up`: the stream reconnected, resumed or sent afresh).
 SAMPLER = """
 window.samples = [];
+window.historiesBefore = window.gcs.stats.histories;
 window.sampler = setInterval(() => {
-  const info = window.gcs.state.info;
   window.samples.push({
     t: performance.now(),
     feed: document.getElementById("feed").textContent,
     mode: document.getElementById("mode").textContent,
     hold_off: document.querySelector("button[data-command=hold]").disabled,
     stale: document.getElementById("attitude").className.includes("stale"),
-    reconnected: Boolean(info) && !info.__before_drop,
+    reconnected: window.gcs.stats.histories > window.historiesBefore,
   });
 }, 20);
 """
@@ -163,14 +163,14 @@ def test_a_reconnected_page_of_a_hung_run_shows_its_history_as_history(browser, 
             hold = browser.find_element(By.CSS_SELECTOR, "button[data-command=hold]")
             assert hold.get_attribute("disabled")
             rows = js(browser, "return window.gcs.state.store.n")
-            js(browser, "window.gcs.state.info.__before_drop = true;" + SAMPLER)
+            js(browser, SAMPLER)
             _drop_connections(station)
             wait_for(
                 lambda: js(browser, "return window.samples.some((s) => s.reconnected)"), 10, "a reconnection"
             )
             time.sleep(2.5)
             samples = js(browser, "clearInterval(window.sampler); return window.samples")
-            assert js(browser, "return window.gcs.state.store.n") == rows  # the history again, whole
+            assert js(browser, "return window.gcs.state.store.n") == rows  # every row, none twice
             browser.save_screenshot(str(tmp_path / "reconnected.png"))
         finally:
             stall.release.set()
@@ -190,30 +190,40 @@ def test_a_reconnected_page_of_a_hung_run_shows_its_history_as_history(browser, 
 
 
 @pytest.mark.browser
-def test_a_reconnected_page_of_a_running_run_is_live_again(browser, tmp_path):
-    """In chromium: the stream of a run that goes on is dropped; once the page has the history again, the
-    run's new rows make it "receiving" with its buttons on, and it holds every row the run wrote."""
+def test_a_reconnected_page_of_a_running_run_takes_up_where_it_left_off(browser, tmp_path):
+    """In chromium: the stream of a run that goes on is dropped (after 6 s of rows); the page's
+    ``EventSource`` reconnects with the last id it had, and the stream takes up there: no ``info`` and no
+    history resent (the page's run description is the one it had; the server sends a fraction of what it
+    had sent), the rows it missed and then the new ones — every row the run wrote, none twice —, the page
+    "receiving" with its buttons on. Before, each reconnection resent the whole history (up to 64 MiB) and
+    the page rebuilt its store from it."""
     with GroundStation.live(bind="127.0.0.1:0") as station:
         browser.get(station.url)
         runner = RunInThread(
             quick_scenario(), RunOptions(out_root=tmp_path, duration_s=30.0, pace=1.0), station
         )
         wait_for(lambda: text(browser, "feed") == "receiving", 30, "the page receiving")
-        time.sleep(1.0)
+        time.sleep(6.0)
         js(browser, "window.gcs.state.info.__before_drop = true;" + SAMPLER)
+        sent = station.hub.stats.bytes_sent
         _drop_connections(station)
         wait_for(
             lambda: js(browser, "return window.samples.some((s) => s.reconnected)"), 10, "a reconnection"
         )
+        resent = station.hub.stats.bytes_sent - sent
         wait_for(lambda: text(browser, "feed") == "receiving", 5, "the page receiving again")
         hold = browser.find_element(By.CSS_SELECTOR, "button[data-command=hold]")
         wait_for(lambda: not hold.get_attribute("disabled"), 5, "the buttons back")
         js(browser, "clearInterval(window.sampler)")
+        assert js(browser, "return window.gcs.state.info.__before_drop") is True  # no info sent again
+        assert station.hub.stats.streams_resumed == 1
+        assert resent < sent / 2, (resent, sent)  # the rows of the ~1 s away; before: all and more
         assert command(station, {"command": "abort"})[0] == 202
         result = runner.join()
         time.sleep(0.5)
         written = sum(1 for _ in open(result.run_dir / "telemetry.csv")) - 1
         assert js(browser, "return window.gcs.state.store.seen") == written
+        assert js(browser, "return window.gcs.state.store.n") == written
     assert not page_errors(browser)
 
 

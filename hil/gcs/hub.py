@@ -10,11 +10,19 @@ history held, so its plots and timeline start from the beginning of what is held
 message (:func:`caught_up`): what came before it is history, resent, not the run's progress now — it says
 how long ago the run last made progress (``progress_age_s``, from what the publisher marked as progress),
 so a page that reconnects to a hung run says it is stale at once rather than "receiving" its history.
+
+Each read ends with an SSE ``id:`` line naming where the reader is (:meth:`Hub.resume`): a browser's
+``EventSource`` sends the last one back when it reconnects (``Last-Event-ID``), and a stream of the same
+hub, whose chunks since are still held, takes up there — the chunks it missed, then ``caught_up`` — with
+no ``info`` and no history resent: before, every reconnection of every page cost the whole history (up
+to the budget, 64 MiB) and the page its store rebuilt, so a flaky link kept a page loading for ever.
 """
 
 from __future__ import annotations
 
 import json
+import re
+import secrets
 import threading
 import time
 from collections.abc import Callable
@@ -27,6 +35,9 @@ history in one read was a copy of up to the budget per browser, and the server's
 until the browser read it: 16 streams that never read held ~2 GiB of a 60 MiB history for
 ``SEND_TIMEOUT_S``. In slices, each written once the one before it has gone, a browser that does not
 read holds one slice."""
+
+
+_EVENT_ID = re.compile(r"([0-9a-f]{16})\.([0-9]{1,12})\.([0-9]{1,15})")
 
 
 def caught_up(progress_age_s: float | None) -> bytes:
@@ -45,6 +56,7 @@ class HubStats:
     bytes_sent: int = 0  # written to browsers' sockets (downlink)
     streams_opened: int = 0
     streams_open: int = 0
+    streams_resumed: int = 0  # taken up where a reconnecting browser left off (no history resent)
 
 
 class Hub:
@@ -53,6 +65,7 @@ class Hub:
     def __init__(self, budget: int = DEFAULT_BUDGET, clock: Callable[[], float] = time.monotonic) -> None:
         self.budget = budget
         self.clock = clock
+        self.ident = secrets.token_hex(8)  # this hub's, in its readers' event ids (another server: another)
         self._progress_at: float | None = None  # when (clock) a chunk marked as progress was published
         self.stats = HubStats()
         self._cond = threading.Condition()
@@ -127,6 +140,25 @@ class Hub:
     def reader(self) -> Reader:
         return Reader(self)
 
+    def resume(self, reader: Reader, last_event_id: str | None) -> bool:
+        """Put a new ``reader`` where a reader of this hub left off: ``last_event_id`` is the last id its
+        browser received (the ``Last-Event-ID`` header of a reconnecting ``EventSource``). Only for this
+        hub, the same ``info``, and a place whose chunks since are still held; otherwise (False) the
+        reader starts afresh, ``info`` and the whole history."""
+        match = _EVENT_ID.fullmatch((last_event_id or "").strip())
+        if match is None or match[1] != self.ident:
+            return False
+        version, cursor = int(match[2]), int(match[3])
+        with self._cond:
+            if self._info is None or version != self._info_version:
+                return False
+            if not self._first <= cursor <= self._first + len(self._chunks):
+                return False
+            reader.info_version, reader.cursor = version, cursor
+            reader.live_from, reader.caught_up = cursor, False  # no history: caught up at once
+            self.stats.streams_resumed += 1
+        return True
+
     def _read(self, reader: Reader, timeout: float, max_bytes: int | None = None) -> bytes | None:
         """What ``reader`` has not had yet (``info`` first), waiting up to ``timeout`` s for something; b""
         if nothing came, None when the hub is closed and the reader has everything. ``max_bytes``: whole
@@ -138,6 +170,7 @@ class Hub:
                     self.closed
                     or (self._info is not None and reader.info_version != self._info_version)
                     or (reader.info_version and reader.cursor < self._first + len(self._chunks))
+                    or (reader.info_version and not reader.caught_up)
                 ),
                 timeout,
             )
@@ -166,6 +199,8 @@ class Hub:
                 out += caught_up(None if at is None else max(self.clock() - at, 0.0))
             if not out and self.closed:
                 return None
+            if out:  # where this reader is, for its browser to resume from (resume)
+                out += f"id: {self.ident}.{reader.info_version}.{reader.cursor}\n\n".encode()
             return out
 
     def _slice_end(self, start: int, room: int) -> int:

@@ -437,6 +437,7 @@ class _Stream(_Base):
             self.set_header("X-Accel-Buffering", "no")
             await self._send(b"retry: 1000\n\n")
             reader = hub.reader()
+            hub.resume(reader, self.request.headers.get("Last-Event-ID"))  # a reconnection: what it missed
             wake = server._wake
             assert wake is not None
             while True:
