@@ -90,10 +90,10 @@ def test_phone_detached_mid_run_fails_safe_and_the_run_goes_on(tmp_path: Path, p
     assert summary["failsafe_events"] >= 1 and summary["rearms"] >= 1 and summary["board_resets"] == 0
     outages = summary["outages"]
     assert outages and all(o["recovered"] for o in outages), outages
-    # The detach's outage: stale then failsafe, as one outage or as two 20 ms apart when the telemetry the
-    # board queued before the detach arrives first after the re-enumeration (docs/firmware_sim.md, "Over
-    # USB"). On a loaded machine short stale outages may come before or after it (a host late by the
-    # 250 ms link timeout, telemetry late by the stale limit): they are recovered, and not the detach's.
+    # The detach's outage: stale then failsafe (two 20 ms apart before the firmware dropped the telemetry it
+    # had queued for the phone that left: docs/firmware_sim.md, "Over USB"). On a loaded machine short
+    # stale outages may come before or after it (a host late by the 250 ms link timeout, telemetry late by
+    # the stale limit): they are recovered, and not the detach's.
     at = next(i for i, o in enumerate(outages) if "failsafe" in o["causes"])
     start, end = at, at + 1
     while start > 0 and outages[start]["start"] - outages[start - 1]["end"] < 0.1:

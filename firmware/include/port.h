@@ -18,6 +18,7 @@
 #include "config.h"
 
 #define PORT_SWITCH_MS 20u
+#define PORT_NOTE_ROOM 160u /* transmit ring room for the Log that says what was not sent (port_poll) */
 
 void port_init(const board_config_t *cfg);
 /* The USB stack's pass (main loop). */
@@ -32,5 +33,12 @@ uint8_t port_send(const uint8_t *data, uint16_t n);
 void port_frame_valid(void);
 /* LINK_UART or LINK_USB: the link in use now (LINK_FIRST until one delivered a valid frame). */
 uint8_t port_active(void);
+/* 1 (and counted) if a Telemetry or Heartbeat made now is not to be queued: the link is USB and no accessory
+ * is open. It would be stale by the time a phone is back (never to be shown as live), and it would fill the
+ * transmit ring that must still hold the Logs made meanwhile (disconnected, link lost, the state change).
+ * Those queued when the phone went away are dropped from the ring (and again at the re-open: usb_link_event),
+ * the other frames kept; once an accessory is open, a Log says how many reports were not sent and how many
+ * frames were lost (no room while away, or cut at the detach). */
+uint8_t port_holds_reports(void);
 
 #endif /* PORT_H */

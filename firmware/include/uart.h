@@ -38,6 +38,15 @@ void uart_stats(uart_stats_t *out);
 void uart_hand_over(void);
 /* Bytes queued in the transmit ring. */
 uint16_t uart_tx_pending(void);
+/* Room left in the transmit ring (bytes a frame may take). */
+uint16_t uart_tx_free(void);
+/* Once handed over (the USB link's queue, moved by the main loop only): drop the queued frames whose message
+ * id is id_a or id_b (the second byte of the COBS-encoded header); the others stay, in their order. The
+ * bytes at the front may be the rest of a frame whose start has already gone (to a phone that has left):
+ * with `cut` NULL they stay; else they are dropped too, *cut is 1, and "01 00" takes their place (room
+ * permitting), so that a receiver holding the frame's start ends it as a bad frame (a lone 00 would complete
+ * a frame that lacked only its delimiter) and takes the next frame whole. The count dropped by id. */
+uint8_t uart_tx_drop_frames(uint8_t id_a, uint8_t id_b, uint8_t *cut);
 /* Copy up to `max` of the oldest queued bytes to dst, leaving them queued: the count copied. */
 uint8_t uart_tx_peek(uint8_t *dst, uint8_t max);
 /* Remove n bytes (at most those queued) from the front of the ring. */

@@ -42,6 +42,8 @@ void report_send(uint8_t msg_id, const void *msg, uint8_t flags, int16_t seq)
         s = (uint8_t)seq;
         flags |= FLAGS_RETRANSMIT;
     }
+    if ((msg_id == MSG_TELEMETRY || msg_id == MSG_HEARTBEAT) && port_holds_reports())
+        return; /* USB and no accessory open: stale on arrival (port.h); its number is a gap the host sees */
     if (msg_is_reliable(msg_id))
         flags |= FLAGS_ACK_REQUESTED;
     uint16_t n = frame_encode(msg_id, s, flags, msg, wire);

@@ -129,6 +129,58 @@ uint16_t uart_tx_pending(void)
     return (uint16_t)((tx_head + UART_TX_SIZE - tail) % UART_TX_SIZE);
 }
 
+uint16_t uart_tx_free(void) { return (uint16_t)(UART_TX_SIZE - 1u - uart_tx_pending()); }
+
+static uint16_t tx_next(uint16_t at) { return at + 1u == UART_TX_SIZE ? 0u : (uint16_t)(at + 1u); }
+
+uint8_t uart_tx_drop_frames(uint8_t id_a, uint8_t id_b, uint8_t *cut)
+{
+    /* Compacted in place towards the tail: the write position never passes the read position. */
+    uint16_t head = tx_head, r = tx_tail, w = tx_tail;
+    /* a frame starts at the tail when the byte before it (sent, or never written: 0) is a delimiter */
+    uint8_t inside = tx_buf[r ? r - 1u : UART_TX_SIZE - 1u] != 0x00;
+    uint8_t dropped = 0, was_cut = 0;
+    while (r != head) {
+        uint8_t drop;
+        if (inside) {
+            inside = 0;
+            drop = was_cut = cut != 0;
+        } else {
+            /* COBS: a first code byte >= 3 is followed by the header's version and message id unchanged */
+            uint16_t at = tx_next(r);
+            drop = tx_buf[r] >= 3u && (tx_buf[tx_next(at)] == id_a || tx_buf[tx_next(at)] == id_b);
+            dropped += drop;
+        }
+        uint8_t b;
+        do {
+            b = tx_buf[r];
+            r = tx_next(r);
+            if (!drop) {
+                tx_buf[w] = b;
+                w = tx_next(w);
+            }
+        } while (b != 0x00 && r != head);
+    }
+    uint16_t tail = tx_tail;
+    if (was_cut) {
+        *cut = 1;
+        if ((uint16_t)((w + UART_TX_SIZE - tail) % UART_TX_SIZE) + 3u < UART_TX_SIZE) {
+            tail = tail >= 2u ? (uint16_t)(tail - 2u) : (uint16_t)(tail + UART_TX_SIZE - 2u);
+            tx_buf[tail] = 0x01;
+            tx_buf[tx_next(tail)] = 0x00;
+            tx_buf[tail ? tail - 1u : UART_TX_SIZE - 1u] = 0x00; /* free space: "01 00" starts a chunk */
+        }
+    } else if (cut) {
+        *cut = 0;
+    }
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE)
+    {
+        tx_head = w;
+        tx_tail = tail;
+    }
+    return dropped;
+}
+
 uint8_t uart_tx_peek(uint8_t *dst, uint8_t max)
 {
     uint16_t n = uart_tx_pending();
