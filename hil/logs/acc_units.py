@@ -12,7 +12,7 @@ the unit), it never refuses a log nor converts it — a unit the header states (
 the reader, as is Sensor Logger's ``AccelerometerUncalibrated.csv`` whose median norm is about 1 (iOS
 writes that file in g).
 
-How :data:`G_NORM_M_S2` was chosen (``tests/test_phone_export_clocks_units.py`` repeats it on every
+How :data:`G_NORM_M_S2` was chosen (``tests/test_replay_acc_units.py`` repeats it on every
 recording): the median norm of every recording in ``../shared/data`` — the 14 tyrex Nexus 5 trials, the
 8 BROAD trials, the Sensor Logger export — lies in 9.62-15.66 m/s² (smallest: tyrex Dist_Texting, 9.62;
 largest: tyrex NoDist_RunningHand, 15.66); the same recordings with their accelerometer written in g lie
@@ -24,11 +24,11 @@ rounded down: sqrt(9.62 x 1.597) = 3.92 -> 3.9 m/s², a factor of 2.47 below eve
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog
+from hil.logs.file_names import sensor_files_where
 
 G_NORM_M_S2 = 3.9
 """m/s²: below this median norm the accelerometer is suspected to read in g (the procedure: module
@@ -54,10 +54,7 @@ def acc_unit_warning(log: SensorLog) -> str | None:
     norm = acc_norm_median(log)
     if not norm < G_NORM_M_S2:
         return None
-    files = sorted(
-        {w for note in log.notes for w in re.findall(r"[^\s:'\"(),]*[Aa]ccel[^\s:'\"(),]*\.\w+", note)}
-    )
-    where = f"{log.source} ({', '.join(files)})" if files else log.source
+    where = sensor_files_where(log, "[Aa]ccel")
     return (
         f"{where}: its accelerometer's median norm is {norm:.3g} m/s^2 (gravity alone is 9.81; the shared "
         f"recordings 9.6-15.7; {G_NORM_M_S2:g} the bound): it seems to read in g, not m/s^2, with no unit "

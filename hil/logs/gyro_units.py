@@ -24,12 +24,12 @@ factor of 2.3 above every real recording and 2.4 below every deg/s one.
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 from numpy.typing import NDArray
 
 from hil.estimation.sensors import SensorKind, SensorLog
+from hil.logs.file_names import sensor_files_where
 
 Array = NDArray[np.float64]
 
@@ -98,10 +98,7 @@ def gyro_unit_warning(log: SensorLog) -> str | None:
     ratio, windows = gyro_turn_ratio(log)
     if not ratio > DEG_S_RATIO:
         return None
-    files = sorted(
-        {w for note in log.notes for w in re.findall(r"[^\s:'\"(),]*[Gg]yro[^\s:'\"(),]*\.\w+", note)}
-    )
-    where = f"{log.source} ({', '.join(files)})" if files else log.source
+    where = sensor_files_where(log, "[Gg]yro")
     return (
         f"{where}: its gyroscope turns {ratio:.3g} times as far as gravity does over {windows} one-second "
         f"windows of motion (a gyroscope in rad/s: 0.3-3.2 over the shared recordings; {DEG_S_RATIO:g} the "
