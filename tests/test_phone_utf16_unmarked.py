@@ -4,40 +4,19 @@ line in Cyrillic, Chinese or with a ``µ`` made the file "binary data". Now its 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from log_support import assert_same_samples
+from log_support import assert_same_samples, needs_real_export, real_export
 
 from hil.logs import detect_format, read_log
-from hil.scenario.paths import SHARED_DATA
 from protocol.errors import InputFormatError
 
-REAL = SHARED_DATA / "sensorlogger-android"
-REAL_FILES = ("Gyroscope.csv", "TotalAcceleration.csv", "Magnetometer.csv")
-REAL_LINES = 400  # per file: the header and ~8 s of the recording
-T0_NS = 1679068247609296600  # about the real export's first 'time' (the recording's start)
 SETTINGS = settings(
     max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 
-pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="the shared Sensor Logger export is not here")
-
-
-def real_lines(name: str, lines: int = REAL_LINES) -> list[str]:
-    with open(REAL / name, encoding="utf-8") as f:
-        return [next(f).rstrip("\n") for _ in range(lines)]
-
-
-def real_export(
-    folder: Path, edit=lambda name, lines: lines, encode=lambda name, text: text.encode()
-) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    for name in REAL_FILES:
-        (folder / name).write_bytes(encode(name, "\n".join(edit(name, real_lines(name))) + "\n"))
-    return folder
+pytestmark = needs_real_export
 
 
 @pytest.fixture(scope="module")

@@ -8,11 +8,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
+from log_support import REAL_SENSORLOGGER, needs_real_export, real_export
 
 from hil.cli import main
 from hil.estimation.sensors import SensorKind, SensorStream
@@ -20,29 +20,11 @@ from hil.logs import read_log
 from hil.logs.acc_units import G_NORM_M_S2, acc_norm_median, acc_unit_warning
 from hil.scenario.paths import SHARED_DATA
 
-REAL = SHARED_DATA / "sensorlogger-android"
-REAL_FILES = ("Gyroscope.csv", "TotalAcceleration.csv", "Magnetometer.csv")
-REAL_LINES = 400  # per file: the header and ~8 s of the recording
-T0_NS = 1679068247609296600  # about the real export's first 'time' (the recording's start)
 SETTINGS = settings(
     max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 
-pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="the shared Sensor Logger export is not here")
-
-
-def real_lines(name: str, lines: int = REAL_LINES) -> list[str]:
-    with open(REAL / name, encoding="utf-8") as f:
-        return [next(f).rstrip("\n") for _ in range(lines)]
-
-
-def real_export(
-    folder: Path, edit=lambda name, lines: lines, encode=lambda name, text: text.encode()
-) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    for name in REAL_FILES:
-        (folder / name).write_bytes(encode(name, "\n".join(edit(name, real_lines(name))) + "\n"))
-    return folder
+pytestmark = needs_real_export
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +34,8 @@ def real_log(tmp_path_factory):
 
 # --------------------------------------------------------------------------- 2. an accelerometer in g
 RECORDINGS = sorted(
-    [*(SHARED_DATA / "tyrex-nexus5").glob("*/"), *(SHARED_DATA / "broad").glob("*.mat"), REAL], key=str
+    [*(SHARED_DATA / "tyrex-nexus5").glob("*/"), *(SHARED_DATA / "broad").glob("*.mat"), REAL_SENSORLOGGER],
+    key=str,
 )
 
 
