@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import io
 import json
+import logging
 import os
 import resource
 import signal
@@ -33,6 +35,7 @@ from montecarlo_support import write_quick_scenario
 
 from hil.cli import main as hil_main
 from hil.montecarlo import Campaign, open_client, parse_dispersions, read_runs, run_campaign
+from hil.montecarlo.campaign import quiet_scheduler_loss
 from hil.montecarlo.metrics import METRICS, TRACES
 from hil.montecarlo.plots import plot_campaign
 from hil.montecarlo.runner import RunResult
@@ -283,6 +286,36 @@ def _worker_with_our_work(client) -> str | None:
         return max(processing, key=lambda w: len(processing[w]))
     holding = [w for w, keys in client.has_what().items() if keys]
     return holding[0] if holding else None
+
+
+@pytest.mark.parametrize("error", [ConnectionResetError("Stream is closed"), ValueError("a real fault")])
+def test_a_workers_lost_scheduler_is_one_line_and_any_other_fault_keeps_its_traceback(error):
+    """The worker preload's filter (``quiet_scheduler_loss``): a heartbeat that finds the scheduler gone
+    (an OSError: the campaign closing, e.g. Ctrl-C twice) is logged as distributed logs it, on one line
+    naming the error, without the traceback CI once caught on the user's terminal after "interrupted";
+    any other exception is logged with its traceback, as before."""
+    worker_log = logging.getLogger("distributed.worker")
+    stream = io.StringIO()
+    handler = logging.StreamHandler(stream)
+    worker_log.addHandler(handler)
+    filters = list(worker_log.filters)
+    try:
+        quiet_scheduler_loss()
+        quiet_scheduler_loss()  # once, however often a worker's preload runs
+        assert len(worker_log.filters) == len(filters) + 1
+        try:
+            raise error
+        except Exception:
+            worker_log.exception("Failed to communicate with scheduler during %s.", "heartbeat")
+    finally:
+        worker_log.removeHandler(handler)
+        worker_log.filters[:] = filters
+    text = stream.getvalue()
+    assert text.startswith("Failed to communicate with scheduler during heartbeat.")
+    if isinstance(error, OSError):
+        assert "Traceback" not in text and "Stream is closed" in text and text.count("\n") == 1, text
+    else:
+        assert "Traceback (most recent call last)" in text and "a real fault" in text, text
 
 
 @settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

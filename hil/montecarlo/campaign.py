@@ -313,6 +313,29 @@ def dask_setup(worker: Any) -> None:
         for signum in STOP_SIGNALS:
             if signum != signal.SIGTERM:
                 signal.signal(signum, signal.SIG_IGN)
+    quiet_scheduler_loss()
+
+
+class _SchedulerLossUntraced(logging.Filter):
+    """A LocalCluster worker's record of the scheduler out of reach (an ``OSError``: its connection closed)
+    without the traceback: the scheduler lives in the driver, so it is gone only when the campaign closes
+    (Ctrl-C twice put a worker's heartbeat traceback on the user's terminal after "interrupted"). The line
+    itself is kept; any other exception keeps its traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and isinstance(record.exc_info[1], OSError):
+            record.msg = f"{record.getMessage()} ({record.exc_info[1]!r})"
+            record.args = None
+            record.exc_info = None
+            record.exc_text = None
+        return True
+
+
+def quiet_scheduler_loss() -> None:
+    """Install :class:`_SchedulerLossUntraced` on the worker's ``distributed.worker`` logger (once)."""
+    worker_log = logging.getLogger("distributed.worker")
+    if not any(isinstance(f, _SchedulerLossUntraced) for f in worker_log.filters):
+        worker_log.addFilter(_SchedulerLossUntraced())
 
 
 def chunks(indices: Iterable[int], count: int, batch: int, workers: int) -> Iterator[list[int]]:
