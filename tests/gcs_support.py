@@ -1,5 +1,5 @@
-"""Shared by the ground-station tests: HTTP requests to a station, a run played in a thread with a station
-watching it, and a quick scenario."""
+"""Shared by the ground-station tests: HTTP requests to a station, its stream read in a thread, a run played
+in a thread with a station watching it, and a quick scenario."""
 
 from __future__ import annotations
 
@@ -126,6 +126,61 @@ class RunInThread:
             raise self.error
         assert self.result is not None
         return self.result
+
+
+class StreamReader:
+    """The station's ``/api/stream`` read in a thread: ``messages``, ``(monotonic time, event, data)`` per
+    message as it arrived; :meth:`close` hangs up."""
+
+    def __init__(self, station: GroundStation, timeout: float = 120.0) -> None:
+        self.messages: list[tuple[float, str, Any]] = []
+        self.conn = http.client.HTTPConnection("127.0.0.1", station.port, timeout=timeout)
+        self.conn.request(
+            "GET", f"/api/stream?token={station.token}", headers={"Host": f"127.0.0.1:{station.port}"}
+        )
+        self.answer = self.conn.getresponse()
+        threading.Thread(target=self._run, daemon=True).start()
+
+    def _run(self) -> None:
+        buf = b""
+        try:
+            while chunk := self.answer.read1(1 << 20):
+                buf += chunk
+                while b"\n\n" in buf:
+                    message, buf = buf.split(b"\n\n", 1)
+                    fields = dict(line.split(b": ", 1) for line in message.split(b"\n") if b": " in line)
+                    if b"event" in fields:
+                        data = json.loads(fields.get(b"data", b"null"))
+                        self.messages.append((time.monotonic(), fields[b"event"].decode(), data))
+        except (OSError, ValueError):
+            return  # hung up (by close, or by the station)
+
+    def events(self) -> list[tuple[str, Any]]:
+        """``(event, data)`` of every message so far."""
+        return [(name, data) for _, name, data in list(self.messages)]
+
+    def between(self, a: float, b: float) -> list[tuple[str, Any]]:
+        """``(event, data)`` of the messages that arrived in [a, b) (monotonic s)."""
+        return [(name, data) for t, name, data in list(self.messages) if a <= t < b]
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+def read_stream(
+    station: GroundStation, timeout: float, until: Callable[[list[tuple[str, Any]]], bool] | None = None
+) -> list[tuple[str, Any]]:
+    """``(event, data)`` of what the station's stream sends in ``timeout`` s, or until ``until(messages)``
+    holds (else a timeout naming the stream's end)."""
+    reader = StreamReader(station, timeout + 5)
+    try:
+        if until is None:
+            time.sleep(timeout)
+        else:
+            wait_for(lambda: until(reader.events()), timeout, "the stream's end")
+        return reader.events()
+    finally:
+        reader.close()
 
 
 def wait_for(predicate: Callable[[], Any], timeout: float, what: str) -> Any:

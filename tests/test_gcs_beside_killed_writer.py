@@ -20,20 +20,17 @@ killed with SIGKILL; ``hil gcs``'s station on its directory, its stream, the pag
 
 from __future__ import annotations
 
-import http.client
-import json
 import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 from browser_support import chromium, js, page_errors, text
-from gcs_support import wait_for
+from gcs_support import StreamReader, wait_for
 
 import hil.gcs.rundir as rundir
 from hil.gcs import GroundStation, RunDirSource
@@ -80,40 +77,15 @@ class _Writer:
         self.proc.wait(10)
 
 
-class _Reader:
-    """The station's ``/api/stream`` read in a thread: ``(event, data)`` per message."""
+def _last_t(reader: StreamReader) -> float:
+    """The time of the last row the stream has sent (s), -1 before any."""
+    rows = (row[0] for name, d in reader.events() if name == "rows" for row in d["rows"])
+    return max(rows, default=-1)
 
-    def __init__(self, station: GroundStation) -> None:
-        self.messages: list[tuple[str, Any]] = []
-        self.conn = http.client.HTTPConnection("127.0.0.1", station.port, timeout=120)
-        self.conn.request(
-            "GET", f"/api/stream?token={station.token}", headers={"Host": f"127.0.0.1:{station.port}"}
-        )
-        self.answer = self.conn.getresponse()
-        threading.Thread(target=self._run, daemon=True).start()
 
-    def _run(self) -> None:
-        buf = b""
-        try:
-            while chunk := self.answer.read1(65536):
-                buf += chunk
-                while b"\n\n" in buf:
-                    message, buf = buf.split(b"\n\n", 1)
-                    fields = dict(line.split(b": ", 1) for line in message.split(b"\n") if b": " in line)
-                    if b"event" in fields:
-                        self.messages.append(
-                            (fields[b"event"].decode(), json.loads(fields.get(b"data", b"null")))
-                        )
-        except (OSError, ValueError):
-            pass
-
-    def last_t(self) -> float:
-        return max(
-            (row[0] for name, d in list(self.messages) if name == "rows" for row in d["rows"]), default=-1
-        )
-
-    def status(self) -> dict[str, Any]:
-        return next((d for name, d in reversed(list(self.messages)) if name == "status"), {})
+def _status(reader: StreamReader) -> dict[str, Any]:
+    """The stream's last status ({} before any)."""
+    return next((d for name, d in reversed(reader.events()) if name == "status"), {})
 
 
 def test_a_killed_writers_held_rows_are_shown_and_the_run_said_stopped(tmp_path, monkeypatch):
@@ -125,15 +97,15 @@ def test_a_killed_writers_held_rows_are_shown_and_the_run_said_stopped(tmp_path,
     writer = _Writer(tmp_path)
     try:
         with GroundStation.replay(writer.run_dir, bind="127.0.0.1:0") as station:
-            reader = _Reader(station)
-            wait_for(lambda: reader.status().get("state") == "following", 10, "the run followed")
+            reader = StreamReader(station)
+            wait_for(lambda: _status(reader).get("state") == "following", 10, "the run followed")
             first, last = writer.stop_and_leave()
             time.sleep(3.0)  # stalled, its lock held: longer than QUIET_S, nothing given out
-            assert reader.last_t() < first and reader.status()["state"] == "following", reader.status()
+            assert _last_t(reader) < first and _status(reader)["state"] == "following", _status(reader)
             writer.kill()
-            wait_for(lambda: reader.status().get("state") == "stopped", 5, "the run said stopped")
-            wait_for(lambda: abs(reader.last_t() - last) < 1e-6, 5, "the held rows")
-            status = reader.status()
+            wait_for(lambda: _status(reader).get("state") == "stopped", 5, "the run said stopped")
+            wait_for(lambda: abs(_last_t(reader) - last) < 1e-6, 5, "the held rows")
+            status = _status(reader)
             assert "writer is gone" in status["stopped"] and status["exit"] is None, status
             assert status["bad_rows"] == 1, status  # the line cut short
             assert station.stats()["run_dir"]["stopped"] is True

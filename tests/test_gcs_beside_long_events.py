@@ -14,15 +14,13 @@ than two reads, ``hil gcs``'s station on it, its ``/api/stream``.
 
 from __future__ import annotations
 
-import http.client
 import json
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-from gcs_support import quick_scenario, wait_for
+from gcs_support import quick_scenario, read_stream
 
 from hil.gcs import GroundStation
 from hil.gcs.rundir import READ_CHUNK
@@ -47,34 +45,6 @@ def long_run(tmp_path_factory) -> tuple[Path, int]:
     return result.run_dir, len(own) + len(extra)
 
 
-def _stream(station: GroundStation, until: Any, timeout: float) -> list[tuple[str, Any]]:
-    """``(event, data)`` of the station's stream until ``until(messages)`` or ``timeout``."""
-    conn = http.client.HTTPConnection("127.0.0.1", station.port, timeout=timeout + 5)
-    conn.request("GET", f"/api/stream?token={station.token}", headers={"Host": f"127.0.0.1:{station.port}"})
-    answer = conn.getresponse()
-    out: list[tuple[str, Any]] = []
-
-    def read() -> None:
-        buf = b""
-        try:
-            while chunk := answer.read1(1 << 20):
-                buf += chunk
-                while b"\n\n" in buf:
-                    message, buf = buf.split(b"\n\n", 1)
-                    fields = dict(line.split(b": ", 1) for line in message.split(b"\n") if b": " in line)
-                    if b"event" in fields:
-                        out.append((fields[b"event"].decode(), json.loads(fields.get(b"data", b"null"))))
-        except (OSError, ValueError):
-            pass
-
-    threading.Thread(target=read, daemon=True).start()
-    try:
-        wait_for(lambda: until(list(out)), timeout, "the stream's end")
-    finally:
-        conn.close()
-    return list(out)
-
-
 @pytest.mark.parametrize("follow", [True, False])
 def test_every_record_of_a_long_events_log_is_sent_before_the_reading_stops(long_run, follow):
     """``hil gcs`` (following, and ``--no-follow``) on the run: the stream carries every record of its
@@ -86,7 +56,7 @@ def test_every_record_of_a_long_events_log_is_sent_before_the_reading_stops(long
         def ended(messages: list[tuple[str, Any]]) -> bool:
             return any(name == "status" and data.get("state") == end for name, data in messages)
 
-        messages = _stream(station, ended, 30)
+        messages = read_stream(station, 30, ended)
         time.sleep(0.2)
         stats = station.stats()["run_dir"]
     sent = [e for name, data in messages if name == "events" for e in data]

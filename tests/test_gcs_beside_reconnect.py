@@ -17,15 +17,13 @@ reconnecting by itself.
 
 from __future__ import annotations
 
-import http.client
-import json
 import threading
 import time
 from typing import Any
 
 import pytest
 from browser_support import chromium, js, page_errors, text
-from gcs_support import RunInThread, command, quick_scenario, wait_for
+from gcs_support import RunInThread, command, quick_scenario, read_stream, wait_for
 
 from hil.gcs import GroundStation
 from hil.runtime import RunOptions
@@ -58,34 +56,6 @@ def _drop_connections(station: GroundStation) -> None:
     server.loop.add_callback(server.guard.close_all)
 
 
-def _stream(station: GroundStation, seconds: float) -> list[tuple[str, Any]]:
-    """``(event, data)`` of what ``/api/stream`` sends in ``seconds`` (read in a thread)."""
-    conn = http.client.HTTPConnection("127.0.0.1", station.port, timeout=seconds + 5)
-    conn.request("GET", f"/api/stream?token={station.token}", headers={"Host": f"127.0.0.1:{station.port}"})
-    answer = conn.getresponse()
-    out: list[tuple[str, Any]] = []
-
-    def read() -> None:
-        buf = b""
-        try:
-            while chunk := answer.read1(65536):
-                buf += chunk
-                while b"\n\n" in buf:
-                    message, buf = buf.split(b"\n\n", 1)
-                    fields = dict(line.split(b": ", 1) for line in message.split(b"\n") if b": " in line)
-                    if b"event" in fields:
-                        out.append((fields[b"event"].decode(), json.loads(fields.get(b"data", b"null"))))
-        except (OSError, ValueError):
-            pass
-
-    reader = threading.Thread(target=read, daemon=True)
-    reader.start()
-    time.sleep(seconds)
-    got = list(out)
-    conn.close()
-    return got
-
-
 def test_a_stream_ends_its_history_with_how_old_the_runs_progress_is(tmp_path):
     """Through the real stream of a hung run: a reader that connects gets ``info``, the history, then one
     ``caught_up`` whose ``progress_age_s`` is the time since the run's last progress (not since the
@@ -98,7 +68,7 @@ def test_a_stream_ends_its_history_with_how_old_the_runs_progress_is(tmp_path):
         try:
             assert stall.started.wait(60), "the run never reached its stall"
             time.sleep(2.0)
-            messages = _stream(station, 1.5)
+            messages = read_stream(station, 1.5)
         finally:
             stall.release.set()
         assert command(station, {"command": "abort"})[0] == 202

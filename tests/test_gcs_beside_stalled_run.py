@@ -16,14 +16,13 @@ everything else — the run, the tornado server, its stream, the page in chromiu
 from __future__ import annotations
 
 import http.client
-import json
 import threading
 import time
 from typing import Any
 
 import pytest
 from browser_support import chromium, js, page_errors, text
-from gcs_support import RunInThread, command, quick_scenario, wait_for
+from gcs_support import RunInThread, StreamReader, command, quick_scenario, wait_for
 
 from hil.gcs import GroundStation
 from hil.runtime import RunOptions
@@ -72,43 +71,13 @@ class _Refused:
         self.thread.join(10)
 
 
-class _Reader:
-    """The station's ``/api/stream`` read in a thread: ``(monotonic time, event, data)`` per message."""
-
-    def __init__(self, station: GroundStation) -> None:
-        self.messages: list[tuple[float, str, Any]] = []
-        self.conn = http.client.HTTPConnection("127.0.0.1", station.port, timeout=60)
-        self.conn.request(
-            "GET", f"/api/stream?token={station.token}", headers={"Host": f"127.0.0.1:{station.port}"}
-        )
-        self.answer = self.conn.getresponse()
-        threading.Thread(target=self._run, daemon=True).start()
-
-    def _run(self) -> None:
-        buf = b""
-        try:
-            while chunk := self.answer.read1(65536):
-                buf += chunk
-                while b"\n\n" in buf:
-                    message, buf = buf.split(b"\n\n", 1)
-                    fields = dict(line.split(b": ", 1) for line in message.split(b"\n") if b": " in line)
-                    if b"event" in fields:
-                        data = json.loads(fields.get(b"data", b"null"))
-                        self.messages.append((time.monotonic(), fields[b"event"].decode(), data))
-        except (OSError, ValueError):
-            pass
-
-    def between(self, a: float, b: float) -> list[tuple[str, Any]]:
-        return [(name, data) for t, name, data in list(self.messages) if a <= t < b]
-
-
 def test_a_hung_runs_stream_claims_no_progress_while_refused_requests_keep_coming(tmp_path):
     """Through the real stream: while the control thread hangs, the only messages are the statuses the
     refused requests cause, each with the same ``ticks`` — the run's last — and no rows, events or link
     figures; once it runs again its ticks move on."""
     with GroundStation.live(bind="127.0.0.1:0") as station:
         stall = _Stall(station)
-        reader = _Reader(station)
+        reader = StreamReader(station, timeout=60)
         runner = RunInThread(
             quick_scenario(), RunOptions(out_root=tmp_path, duration_s=30.0, pace=1.0), station
         )
