@@ -128,6 +128,25 @@ class RunInThread:
         return self.result
 
 
+class ControlStall:
+    """Holds a run's control thread in the station's tick hook from run time ``at_s`` until
+    :attr:`release` is set (as a blocked write would hold it): :attr:`started` once it holds."""
+
+    def __init__(self, station: GroundStation, at_s: float) -> None:
+        self.started = threading.Event()
+        self.release = threading.Event()
+        feed = station.observer
+        real_tick = feed.tick
+
+        def tick(t: float) -> None:
+            if t >= at_s and not self.started.is_set():
+                self.started.set()
+                self.release.wait(60)
+            real_tick(t)
+
+        feed.tick = tick  # type: ignore[method-assign]
+
+
 class StreamReader:
     """The station's ``/api/stream`` read in a thread: ``messages``, ``(monotonic time, event, data)`` per
     message as it arrived; :meth:`close` hangs up."""

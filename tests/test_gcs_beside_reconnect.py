@@ -17,37 +17,17 @@ reconnecting by itself.
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Any
 
 import pytest
 from browser_support import chromium, js, page_errors, text
-from gcs_support import RunInThread, command, quick_scenario, read_stream, wait_for
+from gcs_support import ControlStall, RunInThread, command, quick_scenario, read_stream, wait_for
 
 from hil.gcs import GroundStation
 from hil.runtime import RunOptions
 
 STALL_AT_S = 2.0  # run time at which the control thread hangs
-
-
-class _Stall:
-    """Holds the run's control thread in the station's tick hook from ``STALL_AT_S`` until released (as a
-    blocked write would hold it)."""
-
-    def __init__(self, station: GroundStation) -> None:
-        self.started = threading.Event()
-        self.release = threading.Event()
-        feed = station.observer
-        real_tick = feed.tick
-
-        def tick(t: float) -> None:
-            if t >= STALL_AT_S and not self.started.is_set():
-                self.started.set()
-                self.release.wait(60)
-            real_tick(t)
-
-        feed.tick = tick  # type: ignore[method-assign]
 
 
 def _drop_connections(station: GroundStation) -> None:
@@ -61,7 +41,7 @@ def test_a_stream_ends_its_history_with_how_old_the_runs_progress_is(tmp_path):
     ``caught_up`` whose ``progress_age_s`` is the time since the run's last progress (not since the
     connection); nothing but statuses after it while the run hangs."""
     with GroundStation.live(bind="127.0.0.1:0") as station:
-        stall = _Stall(station)
+        stall = ControlStall(station, STALL_AT_S)
         runner = RunInThread(
             quick_scenario(), RunOptions(out_root=tmp_path, duration_s=30.0, pace=1.0), station
         )
@@ -121,7 +101,7 @@ def test_a_reconnected_page_of_a_hung_run_shows_its_history_as_history(browser, 
     until 2.5 s after the page has the history again, the page never says "receiving" or "live", Hold
     stays off and the attitude stays marked stale. Released, the run's new rows make it "receiving"."""
     with GroundStation.live(bind="127.0.0.1:0") as station:
-        stall = _Stall(station)
+        stall = ControlStall(station, STALL_AT_S)
         browser.get(station.url)
         runner = RunInThread(
             quick_scenario(), RunOptions(out_root=tmp_path, duration_s=30.0, pace=1.0), station

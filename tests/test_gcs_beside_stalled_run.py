@@ -22,30 +22,12 @@ from typing import Any
 
 import pytest
 from browser_support import chromium, js, page_errors, text
-from gcs_support import RunInThread, StreamReader, command, quick_scenario, wait_for
+from gcs_support import ControlStall, RunInThread, StreamReader, command, quick_scenario, wait_for
 
 from hil.gcs import GroundStation
 from hil.runtime import RunOptions
 
 STALL_AT_S = 2.0  # run time at which the control thread hangs
-
-
-class _Stall:
-    """Holds the run's control thread in the station's tick hook from ``STALL_AT_S`` until released."""
-
-    def __init__(self, station: GroundStation) -> None:
-        self.started = threading.Event()
-        self.release = threading.Event()
-        feed = station.observer
-        real_tick = feed.tick
-
-        def tick(t: float) -> None:
-            if t >= STALL_AT_S and not self.started.is_set():
-                self.started.set()
-                self.release.wait(60)
-            real_tick(t)
-
-        feed.tick = tick  # type: ignore[method-assign]
 
 
 class _Refused:
@@ -76,7 +58,7 @@ def test_a_hung_runs_stream_claims_no_progress_while_refused_requests_keep_comin
     refused requests cause, each with the same ``ticks`` — the run's last — and no rows, events or link
     figures; once it runs again its ticks move on."""
     with GroundStation.live(bind="127.0.0.1:0") as station:
-        stall = _Stall(station)
+        stall = ControlStall(station, STALL_AT_S)
         reader = StreamReader(station, timeout=60)
         runner = RunInThread(
             quick_scenario(), RunOptions(out_root=tmp_path, duration_s=30.0, pace=1.0), station
@@ -127,7 +109,7 @@ def test_a_hung_runs_page_says_the_host_is_not_ticking_although_refused_requests
     ticking, the mode badge "host lost", the value cells are marked stale and the command buttons are off;
     when the run goes on, the page says "receiving" again and the buttons come back."""
     with GroundStation.live(bind="127.0.0.1:0") as station:
-        stall = _Stall(station)
+        stall = ControlStall(station, STALL_AT_S)
         browser.get(station.url)
         runner = RunInThread(
             quick_scenario(), RunOptions(out_root=tmp_path, duration_s=30.0, pace=1.0), station
