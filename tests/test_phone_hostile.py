@@ -15,10 +15,13 @@ import http.client
 import os
 import signal
 import socket
+import struct
 import threading
 import time
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.phone_push import INLINE_MAX, PhonePushSender, PhonePushServer, decode_push, encode_push
@@ -367,3 +370,58 @@ def test_a_hostile_batch_is_answered_400_and_the_keep_alive_connection_goes_on()
         assert _status(first) == 400 and b"RecursionError" in first
         assert _status(second) == 200 and server.drain() == [GOOD]
         server.check()
+
+
+def _unread_by_server(conn: socket.socket) -> int | None:
+    """Bytes the server's end of loopback connection ``conn`` holds unread (its receive queue, from
+    ``/proc/net/tcp``), None if it has no such socket. Linux drops what a socket has not read when a
+    reset arrives, so a test cutting a request with a reset must first see the server read it."""
+    client_port = conn.getsockname()[1]
+    server_port = conn.getpeername()[1]
+    with open("/proc/net/tcp") as table:
+        for line in table.readlines()[1:]:
+            fields = line.split()
+            local, remote, queues = fields[1], fields[2], fields[4]
+            if int(local.split(":")[1], 16) == server_port and int(remote.split(":")[1], 16) == client_port:
+                return int(queues.split(":")[1], 16)
+    return None
+
+
+def _reset(conn: socket.socket) -> None:
+    """Close ``conn`` with a reset (SO_LINGER 0), as a killed app or a client with unread input does."""
+    conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    conn.close()
+
+
+@settings(max_examples=25, deadline=None)
+@given(whole=st.integers(0, 3), cut=st.integers(0, 400), pipelined=st.booleans())
+def test_a_reset_between_requests_is_a_peer_leaving_one_inside_a_request_is_counted(whole, cut, pipelined):
+    """CI caught a client that closed with its last answer unread — so the kernel reset the connection —
+    counted as a bad push. A peer resetting its keep-alive connection after ``whole`` complete pushes
+    loses none of them and is no bad message; a reset ``cut`` bytes into the next push (its head or its
+    body, sent alone or behind the last whole push in one write) cuts that push: one bad message."""
+    sender = PhonePushSender("http://127.0.0.1:1/")  # its session and device: _still_serving's phone
+    samples = [SensorSample(1.0 + i, SensorKind.GYR, (0.0, 0.0, i)) for i in range(4)]
+    pushes = [encode_push([sample], i, sender.session, sender.device) for i, sample in enumerate(samples)]
+    requests = [_post_head(f"Content-Length: {len(body)}") + b"\r\n" + body for body in pushes]
+    partial = requests[whole][: min(cut, len(requests[whole]) - 1)]
+    with PhonePushServer("http://127.0.0.1:0/") as server:
+        conn = socket.create_connection(_http_address(server), timeout=5)
+        for request in requests[:whole]:
+            if pipelined and request is requests[whole - 1]:
+                conn.sendall(request + partial)
+            else:
+                conn.sendall(request)
+            answer = b""
+            while b"\r\n\r\n" not in answer or not answer.endswith(b"ok"):
+                answer += conn.recv(4096)
+            assert _status(answer) == 200
+        if partial and not (pipelined and whole):
+            conn.sendall(partial)
+        if partial:
+            assert _wait(lambda: _unread_by_server(conn) == 0)
+        _reset(conn)
+        assert _wait(lambda: server._httpd.active == 0)
+        assert [s.xyz[2] for s in server.drain()] == list(range(whole))
+        assert server.stats.bad_messages == (1 if partial else 0), server.stats.last_error
+        assert _still_serving(server)

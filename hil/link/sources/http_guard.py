@@ -25,7 +25,10 @@ Anything that can reach a server's port can connect. So, whatever a peer sends (
   can destroy the answer (a 413 before the body, a 401) before the peer reads it;
 * nothing is printed: every turned-away request and connection is reported to the server's
   ``on_turned_away(reason, peer, detail)`` (each server counts and logs them its own way), a handler's
-  exception included (``error``), and the server carries on.
+  exception included (``error``), and the server carries on. A peer that resets its connection before
+  a byte of its next request has left, as one that closes it has: a phone whose app was killed, a
+  client that closed with its last answer unread (the kernel then sends a reset). No request is lost,
+  so nothing is reported; a reset in the middle of a request is (``error``).
 
 :func:`read_body` needs only a readable binary file, so it is tested and fuzzed on ``io.BytesIO``.
 """
@@ -390,6 +393,15 @@ class GuardedHandler(BaseHTTPRequestHandler):
         self._answered = False
         self._reader.start()  # the next request, from waiting for it to its last byte: timeout_s
         self.server.mark(self.connection, self._peer, waiting=True)
+        try:
+            self.rfile.peek(1)  # a pipelined request's bytes, if buffered; else waits for the first byte
+        except TimeoutError:
+            self.close_connection = True  # reported by the reader's on_timeout
+            return
+        except ConnectionError:
+            logger.debug("%s reset its connection between requests", self._peer)
+            self.close_connection = True
+            return
         super().handle_one_request()
 
     def parse_request(self) -> bool:
