@@ -181,8 +181,7 @@ def test_a_signal_at_a_drawn_moment_ends_the_run_honestly(tmp_path_factory, firs
     events = [e["kind"] for e in read_events(run_dir / "events.jsonl")[0]]
     if "armed" in events:
         assert len(disarms) == 1 and disarms[0][1] == summary["exit"], disarms
-        if second is None:
-            assert disarms[0][0] == "disarmed", disarms
+        assert disarms[0][0] == "disarmed", disarms  # a second signal is held: the Disarm's wait goes on
 
 
 @pytest.mark.parametrize("gap_s", [0.0005, 0.003])
@@ -206,7 +205,7 @@ def test_a_second_interrupt_at_once_leaves_the_summary_whole(tmp_path, gap_s):
     assert run_dir is not None
     summary = _honest_run_dir(run_dir)
     assert summary["exit"] == "interrupted (SIGINT)"
-    assert [k for k, _ in _disarms(run_dir)] in (["disarmed"], ["disarm_failed"])
+    assert [k for k, _ in _disarms(run_dir)] == ["disarmed"]
     assert "exit              interrupted (SIGINT)" in _text(tmp_path / "hil.out")
 
 

@@ -5,17 +5,21 @@ wherever the main thread happens to be (:mod:`hil.cli._signals`). Some blocks mu
 done by it, and two ways of holding them are wanted, both here:
 
 * **A run's ending** (:class:`HeldSignals`). Once a run's loop has ended, the main thread is in its
-  clean-up: the link being closed, the summary being gathered, the logs being closed, ``summary.json``
-  being written. A second Ctrl-C there (a user pressing it twice) once threw the clean-up away half done:
-  no ``summary.json`` at all, or one without its ``exit``. :class:`HeldSignals` puts a handler of its own
-  in front of those signals' Python handlers for the whole run. Until the run starts ending it hands every
-  signal on to the handler it replaced (so an interrupt interrupts the run, and a second one the Disarm
-  wait, as before); once :attr:`HeldSignals.holding` is set — a plain attribute store, so no signal can
-  slip in between the run's end and the hold — it notes the first signal in :attr:`HeldSignals.received`
-  instead, and the caller decides what it means (:func:`hil.runtime.loop.run` reports it in
-  :attr:`~hil.runtime.loop.RunResult.late_signal`). One signal is held, not more: one repeated while the
-  ending is written (a disk that stalls it, a user pressing Ctrl-C again and again) goes to its handler as
-  before and gives the ending up — the run never becomes one that only SIGKILL ends.
+  clean-up: the board disarmed, the link closed, the summary gathered, the logs closed, ``summary.json``
+  written. A second Ctrl-C there (a user pressing it twice) once threw the clean-up away half done: no
+  ``summary.json`` at all, or one without its ``exit``; and a second signal microseconds after the first
+  (CI's drawn moments found it twice) could land on the entry of the exit callback that disarms the
+  board, or between two of the ExitStack's callbacks: no Disarm sent and none said, with a board armed
+  at the interrupt. :class:`HeldSignals` puts a handler of its own in front of those signals' Python
+  handlers for the whole run. Until the run starts ending it hands a signal on to the handler it
+  replaced (so an interrupt interrupts the run) and, in the same step, sets :attr:`HeldSignals.holding`;
+  the run sets it too when its loop ends on its own (a plain attribute store, so no signal can slip in
+  between the run's end and the hold). While it holds, the next signal is noted in
+  :attr:`HeldSignals.received` instead, and the caller decides what it means (:func:`hil.runtime.loop.run`
+  reports one that came after a run ended on its own in :attr:`~hil.runtime.loop.RunResult.late_signal`;
+  after an interrupt it is the same request again). One signal is held, not more: one more (a disk that
+  stalls the ending, a board whose Disarm is not answered, a user pressing Ctrl-C again and again) goes
+  to its handler as before and gives the ending up — the run never becomes one that only SIGKILL ends.
 * **A step that cannot be left half made** (:func:`deferred`): a Dask cluster starting or closing. Every
   signal is held for the block, then handed to the handler that was there: a LocalCluster interrupted
   while it started was left half made, and Dask's exit hook failed an assertion closing it, with a
@@ -45,9 +49,9 @@ the board left armed until its own watchdog failed it safe)."""
 
 
 class HeldSignals:
-    """Within ``with``: :data:`STOP_SIGNALS` that have a Python handler go to it while :attr:`holding` is
-    false; once it is set the first one is noted in :attr:`received` (its name), any after it goes to
-    its handler."""
+    """Within ``with``: a :data:`STOP_SIGNALS` signal that has a Python handler goes to it while
+    :attr:`holding` is false, and sets it (the run is ending now); once it is set the next one is noted in
+    :attr:`received` (its name), any after that goes to its handler."""
 
     def __init__(self) -> None:
         self.holding = False
@@ -64,7 +68,9 @@ class HeldSignals:
         return self
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
-        if self.holding and not self.received:
+        if not self.holding:
+            self.holding = True  # before the interrupt is raised: the next signal cannot cut its unwinding
+        elif not self.received:
             self.received.append(signal.Signals(signum).name)
             return
         self._previous[signum](signum, frame)  # hil's: raises the interrupt

@@ -647,9 +647,10 @@ def _disarm_on_the_way_out(
     holds before the link is closed, best effort within :data:`DISARM_WAIT_S`, and say so in events.jsonl
     (``disarmed``, or ``disarm_failed`` with why). Closing the port alone leaves an armed board spinning its
     rotors until its own link watchdog fails it safe (FAILSAFE after its timeout, the operator's Disarm
-    never given). A second interrupt while waiting gives up the Disarm, not the run's summary. A run that
-    ends on an error of the host's own (its run directory's disk full, a reader thread's failure) with the
-    board in hand and ARMED disarms it the same way, the error as the reason (it once left the board
+    never given). The signal after the interrupt is held (``held``): the Disarm is made and waited for
+    however soon the user presses again; one more gives the wait up (said), not the run's summary. A run
+    that ends on an error of the host's own (its run directory's disk full, a reader thread's failure)
+    with the board in hand and ARMED disarms it the same way, the error as the reason (it once left the board
     spinning until its watchdog tripped); an abort has disarmed it already, unless the board still says
     ARMED (it acknowledged the abort's Disarm and did not carry it out): then it is tried again. A run
     that ends by itself (completed, or lost and back) with the board in hand and ARMED disarms it too,
@@ -662,19 +663,12 @@ def _disarm_on_the_way_out(
     Arm outstanding is left as it is. Never suppresses the exception. How it went is ``final.outcome``
     (``summary.json``'s ``final_disarm``; a run that completed with a board not confirmed disarmed does
     not say ``completed``: :meth:`FinalDisarm.said`).
-    After the Disarm (or none) further interrupts are held (``held``): the link is closed and the run's
-    ending written whole."""
+    After the Disarm (or none) a signal is held (``held``) however the run ended: the link is closed and
+    the run's ending written whole."""
 
     def on_exit(exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> bool:
         try:
-            try:
-                _disarm(exc)
-            except KeyboardInterrupt:
-                # A second signal microseconds after the first, before the Disarm was under way (one during
-                # its wait is caught there: the Disarm given up, and said): once, in CI, no Disarm was sent
-                # and none was said. It is made again with further signals held.
-                held.holding = True
-                _disarm(exc)
+            _disarm(exc)
         finally:
             held.holding = True
         return False
