@@ -386,7 +386,8 @@ class GuardedHandler(BaseHTTPRequestHandler):
         limits = self.server.limits
         self.rfile.close()  # makefile()'s reader: replaced by one with a deadline per request
         self._reader = DeadlineReader(self.connection, limits.timeout_s, self._timed_out)
-        self.rfile = io.BufferedReader(self._reader)
+        self._buffered = io.BufferedReader(self._reader)
+        self.rfile = self._buffered
         self._peer = str(self.client_address[0])
 
     def handle_one_request(self) -> None:
@@ -394,7 +395,7 @@ class GuardedHandler(BaseHTTPRequestHandler):
         self._reader.start()  # the next request, from waiting for it to its last byte: timeout_s
         self.server.mark(self.connection, self._peer, waiting=True)
         try:
-            self.rfile.peek(1)  # a pipelined request's bytes, if buffered; else waits for the first byte
+            self._buffered.peek(1)  # a pipelined request's bytes, if buffered; else waits for the first byte
         except TimeoutError:
             self.close_connection = True  # reported by the reader's on_timeout
             return
