@@ -8,8 +8,9 @@ held (:mod:`hil.runtime.held_signals`).
 
 Here the moments are not left to the scheduler: the run goes in-process, in lockstep, under hil's own
 signal handlers; the first signal is raised at a drawn simulated time, and the second at a drawn
-function call after it — the first few dozen calls are the unwinding, the ExitStack and the Disarm's
-start, the ones after the Disarm's wait, the link's close and the ending's writing.
+function call after it (tests/signal_support.py) — the first few dozen calls are the unwinding, the
+ExitStack and the Disarm's start, the ones after the Disarm's wait, the link's close and the ending's
+writing.
 """
 
 from __future__ import annotations
@@ -19,13 +20,13 @@ import signal
 import sys
 from collections.abc import Mapping
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import pytest
 from fault_support import faulted_run_settings
 from hypothesis import given
 from hypothesis import strategies as st
+from signal_support import SecondSignal
 
 from hil.cli._signals import interrupts_raise
 from hil.runtime.held_signals import STOP_SIGNALS
@@ -37,18 +38,14 @@ WAY_OUT_CALLS = 14_000  # function calls from the first interrupt to run()'s ret
 FIRST_CALLS = 40  # the first calls after the first interrupt: the unwinding, the ExitStack, the Disarm
 
 
-class SecondSignal:
-    """Raises ``second`` at the ``at_call``-th function call after ``first`` was raised (at simulated time
-    ``first_at``, from the observer's tick), through a trace function installed by the first's handler."""
+class FirstSignal:
+    """The run's observer that raises ``first`` at the run's simulated time ``first_at``, the second
+    signal ``then`` (:class:`SecondSignal`) counting calls from there."""
 
-    def __init__(self, first: int, first_at: float, second: int, at_call: int) -> None:
-        self.first, self.first_at = first, first_at
-        self.second, self.at_call = second, at_call
-        self.calls = 0
-        self.sent_first = False
-        self.sent_second = False
+    def __init__(self, first: int, first_at: float, then: SecondSignal) -> None:
+        self.first, self.first_at, self.then = first, first_at, then
+        self.sent = False
 
-    # ------------------------------------------------------------- the observer
     def started(self, start: Any) -> None:
         pass
 
@@ -62,54 +59,35 @@ class SecondSignal:
         pass
 
     def tick(self, t: float) -> None:
-        if t >= self.first_at and not self.sent_first:
-            self.sent_first = True
-            signal.raise_signal(self.first)
-
-    # ------------------------------------------------------------- the second signal
-    def handler_before(self, handler: Any) -> Any:
-        """hil's handler ``handler`` for the first signal, with the trace started just before it raises."""
-
-        def first_handler(signum: int, frame: FrameType | None) -> None:
-            if signum == self.first and not self.sent_second and sys.gettrace() is None:
-                sys.settrace(self._trace)
-            handler(signum, frame)
-
-        return first_handler
-
-    def _trace(self, frame: FrameType, event: str, arg: object) -> None:
-        if event == "call" and not self.sent_second:
-            self.calls += 1
-            if self.calls >= self.at_call:
-                self.sent_second = True
-                sys.settrace(None)
-                signal.raise_signal(self.second)  # handled at the next instruction that checks: the call's
+        if t >= self.first_at and not self.sent:
+            self.sent = True
+            self.then.raise_first(self.first)
 
 
 def _run_and_check(out: Path, first: int, first_at: float, second: int, at_call: int) -> None:
     """The run with its two signals, and what its run directory must say: interrupted by the first, its
     summary whole, its board — armed at the interrupt — disarmed once and said (``disarmed``, the first's
     reason), ``final_disarm`` confirmed."""
-    signals = SecondSignal(first, first_at, second, at_call)
-    with interrupts_raise():
-        hil_handler = signal.getsignal(first)
-        signal.signal(first, signals.handler_before(hil_handler))
-        try:
-            result = run(load_scenario(), RunOptions(out_root=out, observer=signals, duration_s=4.0))
-        finally:
-            sys.settrace(None)
-    assert signals.sent_first
-    name = signal.Signals(first).name
-    assert result.summary["exit"] == f"interrupted ({name})"
+    second_signal = SecondSignal(second, at_call)
+    first_signal = FirstSignal(first, first_at, second_signal)
+    try:
+        with interrupts_raise():
+            result = run(load_scenario(), RunOptions(out_root=out, observer=first_signal, duration_s=4.0))
+    finally:
+        sys.settrace(None)
+    assert first_signal.sent
+    assert second_signal.sent_second or at_call > FIRST_CALLS
+    exits = {f"interrupted ({name})" for name in second_signal.named(first)}
+    assert result.summary["exit"] in exits
     assert result.run_dir is not None
     summary = json.loads((Path(result.run_dir) / "summary.json").read_text())
-    assert summary["exit"] == f"interrupted ({name})"
+    assert summary["exit"] == result.summary["exit"]
     events, bad = read_events(Path(result.run_dir) / "events.jsonl")
     assert bad == 0
     kinds = [e["kind"] for e in events]
     disarms = [(e["kind"], e["reason"]) for e in events if e["kind"] in ("disarmed", "disarm_failed")]
     if "armed" in kinds:
-        assert disarms == [("disarmed", f"interrupted ({name})")], (at_call, signals.calls, kinds[-6:])
+        assert disarms == [("disarmed", summary["exit"])], (at_call, second_signal.calls, kinds[-6:])
         assert summary["final_disarm"]["ok"] is True, summary["final_disarm"]
     else:
         assert disarms == [], disarms

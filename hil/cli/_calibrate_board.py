@@ -211,26 +211,31 @@ def _bench(args: argparse.Namespace) -> Iterator[Any]:
     first — its outputs to the base pulses, Disarm (which also aborts an ESC being taught, to its minimum
     pulse), SETPOINT mode (``BenchLink.safe``) — and the state it was left in, as its telemetry reports
     it, is printed; a sweep has kept its partial bench CSV, marked so. Best effort: closing the port alone
-    would leave the board to its link watchdog. A second interrupt gives that up. A command that fails
-    after it moved the outputs (a board lost, reset or stalled under it; a refused fit) does the same
-    before its error is printed; a board that cannot be reached is said to be so."""
+    would leave the board to its link watchdog. The signal after the interrupt is held
+    (:class:`~hil.runtime.held_signals.HeldSignals`): a second one microseconds after the first landed on
+    the entry of the rest and skipped it, said as interrupted by the second; one more gives the rest up,
+    said. A command that fails after it moved the outputs (a board lost, reset or stalled under it; a
+    refused fit) does the same before its error is printed; a board that cannot be reached is said to
+    be so."""
     from hil.calibration.benchlink import BenchLink
+    from hil.runtime.held_signals import HeldSignals
     from protocol.errors import HilError
 
     client = _client(args)
     link = BenchLink(client)
-    try:
-        yield link
-    except KeyboardInterrupt:
-        print(f"hil calibrate: {_left_at_rest(link)}", file=sys.stderr, flush=True)
-        raise
-    except HilError:
-        # failed after the outputs were moved (a board lost, reset or stalled; a refused fit): rest, said
-        if link.touched:
+    with HeldSignals():
+        try:
+            yield link
+        except KeyboardInterrupt:
             print(f"hil calibrate: {_left_at_rest(link)}", file=sys.stderr, flush=True)
-        raise
-    finally:
-        client.close()
+            raise
+        except HilError:
+            # failed after the outputs were moved (a board lost, reset or stalled; a refused fit): rest, said
+            if link.touched:
+                print(f"hil calibrate: {_left_at_rest(link)}", file=sys.stderr, flush=True)
+            raise
+        finally:
+            client.close()
 
 
 def _left_at_rest(link: Any) -> str:

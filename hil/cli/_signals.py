@@ -22,7 +22,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from types import FrameType
 
-from hil.runtime.held_signals import STOP_SIGNALS
+from hil.runtime.held_signals import STOP_SIGNALS, first_signal
 
 HANDLED = STOP_SIGNALS
 """The signals that end a command the way Ctrl-C does (:data:`hil.runtime.held_signals.STOP_SIGNALS`)."""
@@ -37,9 +37,9 @@ class Interrupted(KeyboardInterrupt):
 
 
 def signal_of(exc: BaseException) -> signal.Signals:
-    """The signal behind an interrupt: :class:`Interrupted`'s own, else SIGINT (a bare ``KeyboardInterrupt``
-    is Python's default SIGINT handler's)."""
-    return signal.Signals(getattr(exc, "signum", signal.SIGINT))
+    """The signal behind an interrupt: the first one's of ``exc``'s chain (a second signal raised while
+    the first one's exception unwound names the first; :func:`hil.runtime.held_signals.first_signal`)."""
+    return first_signal(exc)
 
 
 def exit_status(exc: BaseException) -> int:

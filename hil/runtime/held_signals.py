@@ -48,6 +48,22 @@ session the command was started from closed: its default action ended the proces
 the board left armed until its own watchdog failed it safe)."""
 
 
+def first_signal(exc: BaseException) -> signal.Signals:
+    """The signal behind the first interrupt in ``exc``'s chain: hil's CLI raises a ``KeyboardInterrupt``
+    carrying ``signum`` (:mod:`hil.cli._signals`); a bare one is Python's own SIGINT handler's. A second
+    signal raised while the first one's exception was unwinding carries the first as its
+    ``__context__``: the command was interrupted by that first one (a run once said
+    ``interrupted (SIGINT)`` for a SIGTERM followed by a Ctrl-C, and ``hil calibrate`` the same)."""
+    first, seen = exc, {id(exc)}
+    context = exc.__context__
+    while context is not None and id(context) not in seen:
+        seen.add(id(context))
+        if isinstance(context, KeyboardInterrupt):
+            first = context
+        context = context.__context__
+    return signal.Signals(getattr(first, "signum", signal.SIGINT))
+
+
 class HeldSignals:
     """Within ``with``: a :data:`STOP_SIGNALS` signal that has a Python handler goes to it while
     :attr:`holding` is false, and sets it (the run is ending now); once it is set the next one is noted in

@@ -67,7 +67,7 @@ from hil.link.transports import InProcessBoard, create_transport
 from hil.plugins import PluginError
 from hil.runtime.codes import CODES_FILE, code_table
 from hil.runtime.faults import RECOVER_WITHIN_S
-from hil.runtime.held_signals import HeldSignals
+from hil.runtime.held_signals import HeldSignals, first_signal
 from hil.runtime.host import Host, TruthSample
 from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, RowTap, new_run_dir, write_summary
@@ -595,20 +595,9 @@ def _outcome(host: Host) -> str:
 
 
 def _interrupted(exc: BaseException) -> str:
-    """The exit reason of an interrupted run, naming the signal that interrupted it first:
-    ``interrupted (SIGTERM)``. hil's CLI raises a ``KeyboardInterrupt`` carrying ``signum`` for SIGINT and
-    SIGTERM alike; a bare one is Python's own SIGINT handler's (a caller of :func:`run` that installed
-    none). A second signal raised while the first one's exception was unwinding (closing the phone source,
-    say) carries the first as its ``__context__``: the run was interrupted by that first one (it once
-    said ``interrupted (SIGINT)`` for a SIGTERM followed by a Ctrl-C)."""
-    first, seen = exc, {id(exc)}
-    context = exc.__context__
-    while context is not None and id(context) not in seen:
-        seen.add(id(context))
-        if isinstance(context, KeyboardInterrupt):
-            first = context
-        context = context.__context__
-    return f"interrupted ({signal.Signals(getattr(first, 'signum', signal.SIGINT)).name})"
+    """The exit reason of an interrupted run, naming the signal that interrupted it first
+    (:func:`~hil.runtime.held_signals.first_signal`): ``interrupted (SIGTERM)``."""
+    return f"interrupted ({first_signal(exc).name})"
 
 
 @dataclass
