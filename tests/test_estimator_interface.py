@@ -128,6 +128,7 @@ def test_hil_run_flies_vqf_in_lockstep(tmp_path, capsys):
     code = main(["run", "--estimator", "vqf", "--duration", "12", "--no-plots", "--out", str(tmp_path)])
     err = capsys.readouterr().err
     assert "estimator vqf: VQF (the vqf package)" in err
+    assert "(its estimator replaced: --estimator vqf)" in err  # the scenario's text names the paper's
     (run_dir,) = tmp_path.iterdir()
     summary = json.loads((run_dir / "summary.json").read_text())
     assert code in (0, 1), summary["exit"]  # completed (1: a requirement not met in 12 s)

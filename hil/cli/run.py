@@ -225,7 +225,8 @@ def run(args: argparse.Namespace) -> int:
             report_late_signal=True,
         )
         check_options(scenario, opts)  # a refused option is the one line said, not after the scenario's
-        say(f"scenario {scenario.name}: {scenario.description}", sys.stderr)
+        replaced = f" (its estimator replaced: --estimator {args.estimator})" if args.estimator else ""
+        say(f"scenario {scenario.name}: {scenario.description}{replaced}", sys.stderr)
         say(f"estimator {estimator.name}: {estimator.describe()}", sys.stderr)
         if args.port is None:
             from hil.runtime import warmup
