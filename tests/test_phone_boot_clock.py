@@ -6,11 +6,13 @@ phyphox seconds, or refused, by the size of its numbers alone. Built from the re
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from log_support import REAL_T0_NS, assert_same_samples, needs_real_export, real_export
 
+from hil.estimation.sensors import SensorKind
 from hil.logs import detect_format, read_log
 from protocol.errors import InputFormatError
 
@@ -83,3 +85,25 @@ def test_a_time_that_is_ns_since_boot_or_us_since_the_epoch_alike_is_refused_nam
         read_log(folder)
     assert err.value.column == "time"
     assert "Gyroscope.csv" in str(err.value)
+
+
+def test_stray_rows_of_a_boot_clock_export_are_noted_on_its_clock_not_an_epoch(tmp_path, real_log):
+    """A row at time 0 or at a negative time in an export on the boot clock is a NaN sample, dropped and
+    counted, as in one on the epoch; its note once said "no epoch in ns since the phone booted"."""
+    on_boot = boot_clock(3_600 * 10**9, True)
+
+    def edit(name: str, lines: list[str]) -> list[str]:
+        out = on_boot(name, lines)
+        if name == "Gyroscope.csv":
+            for row, time in ((5, "0"), (9, "-4000")):
+                cells = out[row].split(",")
+                cells[0] = time
+                out[row] = ",".join(cells)
+        return out
+
+    log = read_log(real_export(tmp_path / "rec", edit))
+    (note,) = [n for n in log.notes if "no time of this recording" in n]
+    assert "Gyroscope.csv: 2 rows" in note and "ns since the phone booted" in note and "epoch" not in note
+    gyr, real_gyr = log.streams[SensorKind.GYR], real_log.streams[SensorKind.GYR]
+    assert np.isnan(gyr.xyz).any(axis=1).sum() - np.isnan(real_gyr.xyz).any(axis=1).sum() == 2
+    assert_same_samples(log, real_log, [SensorKind.ACC, SensorKind.MAG])

@@ -523,9 +523,9 @@ def _epoch_ns(
     stray = usable & ~((times >= low) & (times < high) & near)
     if stray.any():  # 0, a negative time, one in 2001 in a recording of 2023: no sample of it; NaN
         notes.append(
-            f"{table.source}: {int(stray.sum())} rows whose 'time' is no time of this recording (no "
-            f"epoch in {name}, or {MAX_RECORDING_S // 86400} days or more from its median; the first on "
-            f"data row {int(np.argmax(stray)) + 1}: {int(times[np.argmax(stray)])}): NaN samples, "
+            f"{table.source}: {int(stray.sum())} rows whose 'time' is no time of this recording (none "
+            f"in {_unit_text(name)}, or {MAX_RECORDING_S // 86400} days or more from its median; the "
+            f"first on data row {int(np.argmax(stray)) + 1}: {int(times[np.argmax(stray)])}): NaN samples, "
             "dropped and counted"
         )
         usable = usable & ~stray
