@@ -222,6 +222,34 @@ def test_phyphox_linear_acceleration_only_is_refused(tmp_path):
         read_log(folder, format="phyphox")
 
 
+@pytest.mark.parametrize(
+    ("start", "refused"),
+    [
+        (0.0, False),  # the experiment's clock
+        (1.7e9, False),  # a custom experiment counting seconds since the epoch
+        (1.5e10, True),  # ns since the phone booted, 15 s up (a Sensor Logger file, --format phyphox)
+        (9e10, True),  # the same 90 s up: read as seconds, once replayed as samples 3000 years on
+        (1.7e12, True),  # an epoch in ms
+    ],
+)
+def test_phyphox_times_that_are_no_seconds_are_refused_naming_the_column(tmp_path, start, refused):
+    folder = phyphox_export(tmp_path / "p", ",", ".")
+    for f in folder.iterdir():
+        lines = f.read_text().splitlines()
+        rows = [line.split(",") for line in lines[1:]]
+        shifted = [
+            ",".join([repr(start + float(r[0]) * (1e9 if start > 1e10 else 1.0)), *r[1:]]) for r in rows
+        ]
+        f.write_text("\n".join([lines[0], *shifted]) + "\n")
+    if not refused:
+        log = read_log(folder, format="phyphox")
+        np.testing.assert_allclose(log.streams[MAG].t[:2] - log.streams[MAG].t[0], [0.0, 0.01], atol=1e-6)
+        return
+    with pytest.raises(InputFormatError, match="no experiment time") as err:
+        read_log(folder, format="phyphox")
+    assert err.value.column == "Time (s)"
+
+
 # --------------------------------------------------------------------------- tyrex and BROAD (real files)
 def test_tyrex_trial_rates_and_truth_on_the_phone_clock():
     trial = TYREX / "Guillaume_Nexus5_NoDist_Texting"

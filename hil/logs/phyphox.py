@@ -106,10 +106,13 @@ _ANY_SENSOR = tuple(name for names in SENSOR_NAMES.values() for name in names)
 before its sensor is known (it says the sensor); ``Linear Acceleration x`` is a partial name, so that a
 bare ``X (rad/s)`` wins over it."""
 _NOT_A_SENSOR = object()
-MAX_TIME_S = 1e11
+MAX_TIME_S = 1e10
 """The latest a sample's time may typically be (s; the median of a file's): an experiment's clock starts at
-0, a custom experiment may count seconds since the epoch (1.7e9); 1e11 s is 3000 years, and an epoch in
-ms, µs or ns (1.7e12 on) read as seconds is refused rather than replayed as millennia."""
+0, a custom experiment may count seconds since the epoch (1.7e9); 1e10 s is 2286 in seconds since the
+epoch (the end of the epochs :mod:`hil.logs.sensorlogger` takes), and anything beyond it read as seconds
+is refused rather than replayed as centuries: an epoch in ms, µs or ns (1.7e12 on), and ns since the
+phone booted (Android's sensor clock, 1e10 after 10 s of uptime; it was taken as seconds up to 1e11, 100
+s of uptime)."""
 
 
 def _kind(x_col: str, file_name: str, folder: str) -> SensorKind | None | object:
