@@ -87,7 +87,9 @@ class Still(PhoneSource):
         return {"phone": {"rig": object()}} if self.mode == "report" else {}
 
     def close(self) -> None:
-        """Nothing to release: the readings are made up on demand."""
+        """Nothing to release (the readings are made up on demand), unless the URL says ``close=raises``."""
+        if "close=raises" in self.url:
+            raise OSError("the rig's socket would not close")
 
 
 def broken_rig(url, context):
@@ -180,6 +182,28 @@ def test_a_phone_source_that_misbehaves_ends_the_run_in_error_with_the_board_dis
     lines = [line for line in err.splitlines() if "phone source 'still'" in line]
     assert len(lines) == 1 and lines[0].startswith("hil run: phone source 'still': ")
     assert "Traceback" not in err
+
+
+def test_a_close_that_fails_after_the_run_failed_is_said_not_made_the_runs_error(tmp_path, capsys):
+    """The drain's fault ends the run; the close that then fails too is said in events.jsonl, and the exit
+    still names the drain (it named the close, the drain's fault lost)."""
+    code, summary, err = _run(tmp_path, capsys, "emu://", "still://desk?mode=raises&close=raises")
+    assert code == 2 and "Traceback" not in err
+    assert summary["exit"].startswith("error: phone source 'still': drain at t = "), summary["exit"]
+    (run_dir,) = tmp_path.iterdir()
+    events = [json.loads(line) for line in (run_dir / "events.jsonl").read_text().splitlines()]
+    (failed,) = [e for e in events if e["kind"] == "close_failed"]
+    assert failed["what"] == "the phone source" and "would not close" in failed["error"]
+    assert summary["final_disarm"]["state"] == "DISARMED" and summary["final_disarm"]["ok"]
+
+
+def test_a_close_that_fails_after_a_run_that_went_well_is_the_runs_error(tmp_path, capsys):
+    code, summary, err = _run(tmp_path, capsys, "emu://", "still://desk?close=raises", "1")
+    assert code == 2 and "Traceback" not in err
+    assert (
+        summary["exit"]
+        == "error: phone source 'still': close raised OSError: the rig's socket would not close"
+    )
 
 
 def test_a_phone_source_factory_that_raises_is_named(tmp_path, capsys):

@@ -453,7 +453,7 @@ def _build(
     else:
         assert opts.port is not None
         client = BoardClient(opts.port, clock=clock)
-    stack.callback(client.close)
+    stack.push(_closing(client.close, "the board link", events, clock))
     events.write(clock.now(), "connecting", port=opts.port or scenario.emulator_url())
     # the first handshake: a port that vanishes or cannot be opened meanwhile (a board unplugged and
     # plugged back, a firmware-sim restarting or killed before it answered) is tried again for up to the
@@ -482,7 +482,7 @@ def _build(
         scenario, clock, plan.lockstep, client.transport, write_event, None if replay is None else replay.log
     )
     source = create_source(plan.phone, context)
-    stack.callback(source.close)
+    stack.push(_closing(source.close, "the phone source", events, clock))
 
     def truth() -> TruthSample | None:
         found = source.truth(clock.now())
@@ -627,6 +627,28 @@ class FinalDisarm:
                 "incomplete: the run completed, but the board is not confirmed disarmed "
                 f"(the final Disarm failed: {outcome['error']})"
             )
+
+
+def _closing(close: Callable[[], object], what: str, events: EventLog, clock: Clock) -> Callable[..., bool]:
+    """An exit callback for the run's ExitStack that calls ``close``. A close that fails when the run
+    ended well is the run's error; one that fails while the run is ending on an error or an interrupt is
+    said (``close_failed`` in events.jsonl, naming ``what``, and logged) and does not replace it — a
+    user's phone source whose ``close`` raised after its ``drain`` had failed made the run's exit name the
+    close, the drain's fault lost."""
+
+    def on_exit(exc_type: type[BaseException] | None, exc: BaseException | None, tb: object) -> bool:
+        if exc is None:
+            close()
+            return False
+        try:
+            close()
+        except Exception as failure:
+            error = f"{type(failure).__name__}: {failure}"
+            logger.warning("closing %s failed as the run ended on %r: %s", what, exc, error)
+            events.write(clock.now(), "close_failed", what=what, error=error)
+        return False
+
+    return on_exit
 
 
 def _disarm_on_the_way_out(
