@@ -37,6 +37,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from signal_support import SilentObserver
 from test_sigterm import _text, _wait_until
 
 from hil.runtime.runlog import read_events, read_telemetry
@@ -425,25 +426,15 @@ def test_a_disk_that_fills_mid_run_ends_it_with_an_error_not_a_traceback(tmp_pat
         assert [e["reason"] for e in disarmed] == [summary["exit"]]
 
 
-class _SignalsAsItEnds:
+class _SignalsAsItEnds(SilentObserver):
     """A run's observer that signals its own process (``signum``) as the run starts writing its ending
     (``ending``: the summary about to be gathered) — a real signal, in the window that used to lose it."""
 
     def __init__(self, signum: int) -> None:
         self.signum = signum
 
-    def started(self, start) -> None: ...  # type: ignore[no-untyped-def]
-
-    def row(self, row) -> None: ...  # type: ignore[no-untyped-def]
-
-    def event(self, record) -> None: ...  # type: ignore[no-untyped-def]
-
-    def tick(self, t: float) -> None: ...
-
     def ending(self, t: float) -> None:
         os.kill(os.getpid(), self.signum)
-
-    def finished(self, summary) -> None: ...  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.parametrize("report", [True, False], ids=["reported", "raised"])

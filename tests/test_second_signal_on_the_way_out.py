@@ -18,15 +18,13 @@ from __future__ import annotations
 import json
 import signal
 import sys
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import pytest
 from fault_support import faulted_run_settings
 from hypothesis import given
 from hypothesis import strategies as st
-from signal_support import SecondSignal
+from signal_support import SecondSignal, SilentObserver
 
 from hil.cli._signals import interrupts_raise
 from hil.runtime.held_signals import STOP_SIGNALS
@@ -38,25 +36,13 @@ WAY_OUT_CALLS = 14_000  # function calls from the first interrupt to run()'s ret
 FIRST_CALLS = 40  # the first calls after the first interrupt: the unwinding, the ExitStack, the Disarm
 
 
-class FirstSignal:
+class FirstSignal(SilentObserver):
     """The run's observer that raises ``first`` at the run's simulated time ``first_at``, the second
     signal ``then`` (:class:`SecondSignal`) counting calls from there."""
 
     def __init__(self, first: int, first_at: float, then: SecondSignal) -> None:
         self.first, self.first_at, self.then = first, first_at, then
         self.sent = False
-
-    def started(self, start: Any) -> None:
-        pass
-
-    def row(self, row: Mapping[str, Any]) -> None:
-        pass
-
-    def event(self, record: Mapping[str, Any]) -> None:
-        pass
-
-    def finished(self, summary: Mapping[str, Any]) -> None:
-        pass
 
     def tick(self, t: float) -> None:
         if t >= self.first_at and not self.sent:
