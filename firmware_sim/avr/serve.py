@@ -121,18 +121,19 @@ class HarnessServer(BoardServer):
     def look(self) -> None:
         """Read the harness's counters, time and the firmware's state once (see :data:`POLL_S`)."""
         names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped", "lag_resets")
+        now = int(self.process.command("now")[0]) / F_CPU  # before the counters: HostPresence.tick
         counts = dict(
             zip((*names, "frames_in", "frames_out"), map(int, self.process.command("stats")), strict=True)
         )
-        now = int(self.process.command("now")[0]) / F_CPU
         state = bytes.fromhex(self.process.command(f"mem {self._state_at} 1")[0])[0]
         stats = self.stats
         if counts["bytes_in"] > stats.bytes_in:
             self.presence.heard(now)
+        else:
+            self.presence.tick(now)
         stats.bytes_in, stats.bytes_out = counts["bytes_in"], counts["bytes_out"]
         stats.frames_in, stats.frames_out = counts["frames_in"], counts["frames_out"]
         stats.dropped_out = counts["dropped_out"]
-        self.presence.tick(now)
         self._now = now
         with contextlib.suppress(ValueError):  # a byte that is no state: the firmware mid-reset
             self.note_state(now, BoardState(state))

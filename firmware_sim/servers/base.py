@@ -108,7 +108,10 @@ class HostPresence:
             self.stats.reconnects = self._arrivals - 1
 
     def tick(self, now: float) -> None:
-        """The serving loop's pass at board time ``now``: a host silent for ``silence_s`` is gone."""
+        """The link was looked at and found quiet: a host silent for ``silence_s`` by board time ``now``
+        is gone. ``now`` is taken *before* that look, never after it: a process stalled (SIGSTOP, a long
+        pause) between a look and this judgement would otherwise count the stall as silence though the
+        host's bytes waited unread, and report a host gone (then back) that never left."""
         heard = self.last_heard
         if self.stats.host_present and heard is not None and now - heard >= self.silence_s:
             self.left()

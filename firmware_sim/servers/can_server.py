@@ -73,7 +73,6 @@ class CanServer(BoardServer):
             self.board.step(now)
             self.note_state(now, self.board.state)
             out = self.board.take_output()
-            self.presence.tick(now)
         if out:
             self.transport.write(out)
             self.stats.bytes_out += len(out)
@@ -82,7 +81,9 @@ class CanServer(BoardServer):
 
     def take_in(self, timeout: float) -> bytes:
         """Feed the board whatever frames the host completed within ``timeout`` seconds (wall time: the
-        bus's wait); returns them."""
+        bus's wait); returns them. Found none, the host is judged silent as of the look's start
+        (:meth:`.base.HostPresence.tick`)."""
+        looked = self.board.clock.now()
         data = self.transport.read(timeout)
         if data:
             self.stats.bytes_in += len(data)
@@ -94,6 +95,9 @@ class CanServer(BoardServer):
                 self.board.feed(data)
                 self.presence.heard(self.board.now)
                 self.note_state(self.board.now, self.board.state)
+        else:
+            with self.lock:
+                self.presence.tick(looked)
         self.stats.frames_in = self.transport.counters()["rx_frames"]
         self._count_errors()
         return data

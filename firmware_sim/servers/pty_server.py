@@ -106,7 +106,6 @@ class PtyServer(BoardServer):
                 board.step(now)
                 self.note_state(now, board.state)
                 self._queue(board.take_output())
-                self.presence.tick(now)
                 if end is not None and now >= end:
                     return  # the board has run to the end of the duration
                 wait = board.next_deadline() - clock.now()
@@ -117,12 +116,16 @@ class PtyServer(BoardServer):
             if self._host_absent:
                 self._poll_absent_host(master, wait)
                 continue
+            looked = clock.now()  # the host is judged silent as of the look's start (HostPresence.tick)
             try:
                 readable, writable, _ = select.select([master], [master] if self._out else [], [], wait)
             except (OSError, ValueError):
                 return  # closed under us by close()
             if readable:
                 self._read(master)
+            else:
+                with self.lock:
+                    self.presence.tick(looked)
             if writable and self._out:
                 self._write(master)
 
