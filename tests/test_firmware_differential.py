@@ -497,3 +497,30 @@ def test_a_setpoint_past_the_codec_is_a_bad_frame_on_both_and_moves_nothing(valu
             assert set(pair.seen[k].telemetry.pulses_us[1::2]) == {pair.config.rotor_safe_us}, k
     finally:
         pair.close()
+
+
+@pytest.mark.firmware
+def test_uploads_during_a_six_unit_download_leave_both_boards_alike():
+    """What CI drew (seed 87631358515760409256846009740751050585): on six units at 490 Hz, a download,
+    its request repeated (BUSY), a refused upload, an upload with a fragment repeated, the request again,
+    a SetMode and a Hello. The firmware lost two fragments to a full receive ring (its main loop took
+    ~3 bytes/ms against the line's 11.5: tests/test_firmware_rx_keeps_up.py) and answered neither."""
+    good = default_unit_calibration().to_bytes()
+    steep = _mutate_set(good, HEADER.size + 4 * KNOT.size + 8, -4.7e15)  # a knot slope far outside its box
+    unordered = _mutate_set(good, HEADER.size + 8 * KNOT.size, F32_TINY)  # x no longer increasing
+    twice = fragment(5, 44, unordered)
+    twice.insert(2, twice[1])
+    steps = [
+        ("command", (CalibrationRequest(unit=0, transfer_id=255), RELIABLE, None)),
+        ("repeat", None),
+        ("upload", fragment(5, 154, steep)),
+        ("upload", twice),
+        ("repeat", None),
+        ("command", (SetMode(mode=ControlMode.SETPOINT), RELIABLE, None)),
+        ("hello", None),
+    ]
+    pair = Pair(CONFIGS[2])
+    try:
+        play(pair, steps)
+    finally:
+        pair.close()

@@ -33,6 +33,7 @@ typedef struct {
 
 typedef struct {
     uint8_t active, unit, transfer_id, count;
+    uint16_t set_crc; /* the set's CRC, in every fragment: computed once (the set cannot change meanwhile) */
     uint8_t seq[REASM_MAX_FRAGMENTS], tries[REASM_MAX_FRAGMENTS], acked[REASM_MAX_FRAGMENTS];
     uint32_t retry_ms[REASM_MAX_FRAGMENTS];
 } download_t;

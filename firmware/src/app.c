@@ -15,6 +15,7 @@
 
 #include "calib.h"
 #include "clock.h"
+#include "crc16.h"
 #include "esc_cal.h"
 #include "port.h"
 #include "pulses.h"
@@ -587,7 +588,8 @@ static uint8_t on_calibration_request(const calibration_request_t *m, uint32_t n
     if (m->unit >= board.cfg.n_units)
         return NACK_REASON_OUT_OF_RANGE;
     uint16_t len;
-    if (!storage_cal(m->unit, &len))
+    const uint8_t *set = storage_cal(m->unit, &len);
+    if (!set)
         return NACK_REASON_BAD_CALIBRATION;
     if (board.download.active)
         return NACK_REASON_BUSY;
@@ -596,6 +598,7 @@ static uint8_t on_calibration_request(const calibration_request_t *m, uint32_t n
     d->unit = m->unit;
     d->transfer_id = m->transfer_id;
     d->count = (uint8_t)((len + MAX_CALIBRATION_CHUNK - 1u) / MAX_CALIBRATION_CHUNK);
+    d->set_crc = crc16_update(CRC16_INIT, set, len);
     for (uint8_t i = 0; i < d->count; i++) {
         d->tries[i] = 1;
         d->acked[i] = 0;

@@ -13,7 +13,6 @@
 
 #include "app.h"
 #include "clock.h"
-#include "crc16.h"
 #include "flash.h"
 #include "port.h"
 #include "pulses.h"
@@ -148,7 +147,7 @@ void report_cal_fragment(uint8_t index, uint8_t retry)
     m->index = index;
     m->count = d->count;
     m->total_len = len;
-    m->set_crc = crc16_update(CRC16_INIT, set, len);
+    m->set_crc = d->set_crc;
     m->chunk.len = (uint8_t)(len - start < MAX_CALIBRATION_CHUNK ? len - start : MAX_CALIBRATION_CHUNK);
     memcpy(m->chunk.b, set + start, m->chunk.len);
     if (!retry)
