@@ -21,6 +21,7 @@ from firmware_sim.avr import CODEC_CHECK_ELF, AvrBoard, HarnessOptions
 from firmware_sim.avr.hostlib import CDeframer, CFrame, cobs_decode, cobs_encode, crc16
 from hil.scenario.paths import FIXTURES
 from protocol import cobs
+from protocol.crc import crc16_ccitt_false
 from protocol.frame import BadFrameReason, Deframer, Frame, encode_frame
 from protocol.messages import Heartbeat, Hello
 
@@ -106,6 +107,16 @@ def test_cobs_and_crc_vectors_on_the_host_build():
     for v in VECTORS["crc"]:
         assert crc16(bytes.fromhex(v["data_hex"])) == int(v["crc"], 16)
     assert cobs_decode(b"\x05\x01") is None  # a group running past the end
+
+
+@settings(max_examples=500, deadline=None)
+@given(data=st.binary(max_size=600), start=st.integers(0, 0xFFFF), cut=st.integers(0, 600))
+def test_the_firmware_crc_is_the_reference_crc_in_any_pieces(data: bytes, start: int, cut: int):
+    """crc16.c's byte-at-a-time CRC (three shifts of a byte, no table) against protocol.crc's, from any
+    value and fed in two pieces, as the firmware feeds it (a set's CRC over its header and knots)."""
+    whole = crc16(data, start)
+    assert whole == crc16_ccitt_false(data, start)
+    assert crc16(data[cut:], crc16(data[:cut], start)) == whole
 
 
 def _python_events(events) -> list[bytes | BadFrameReason]:

@@ -8,7 +8,8 @@ the main loop took received bytes at ~3 bytes/ms against the line's 11.5, its 38
 overflowed in the second upload, and two fragments went unanswered. The loop's CPU went to the bitwise
 CRC (28 %: the whole set's CRC computed again in every download fragment) and to 16-bit divisions (17 %:
 the ring's index wrap, twice per received byte); a download now computes its set's CRC once
-(firmware/src/app.c, report.c), and the ring wraps by a compare (uart.c).
+(firmware/src/app.c, report.c), the CRC goes a byte at a time (crc16.c), and the ring wraps by a
+compare (uart.c).
 
 Invariants, whatever is drawn: every fragment is answered exactly once (Ack or Nack, by its sequence
 number), the firmware never says it lost received bytes, and its telemetry counts no bad frame.

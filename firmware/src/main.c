@@ -78,9 +78,13 @@ int main(void)
     config_status_t config = storage_load_config(&board.cfg, &problem);
     storage_load_calibrations(board.cfg.n_units);
     board.boot_id = storage_new_boot_id(board.cfg.serial); /* before anything is sent */
+    /* The ADC's start-up conversions (~0.9 ms, busy-waiting) before the tick starts: from clock_init to
+     * sei() a tick is held, and one that fell due twice meanwhile would count once, the uptime a
+     * millisecond behind the reset for good (the window was 1.2 ms). What stays in between is short
+     * (~0.3 ms): the USB host's init needs the clock, and the pulse outputs take Timer5 from it. */
+    adc_init(&board.power);
     clock_init();
     port_init(&board.cfg); /* UART0 and/or the USB host, as configured */
-    adc_init(&board.power);
     pulses_init(board.cfg.frame_rate_hz, (uint8_t)(2u * board.cfg.n_units), board.cfg.ppm);
     sei();
     app_boot(reset_cause(mcusr_at_reset), config, problem);
