@@ -8,6 +8,7 @@ from conformance.host import heartbeat, lockstep
 
 from firmware_sim.board import Board
 from firmware_sim.board.config import BoardConfig
+from firmware_sim.board.link import SAID_ONCE_ROOM, BoardLink
 from hil.timing.clock import LockstepClock
 from protocol.calibration import Reassembler, default_unit_calibration, fragment
 from protocol.frame import encode_frame
@@ -23,6 +24,8 @@ from protocol.messages import (
     Disarm,
     FaultFlag,
     Flags,
+    Heartbeat,
+    Hello,
     HelloReply,
     Log,
     Nack,
@@ -251,3 +254,23 @@ def test_hello_during_a_session_disarms_and_keeps_the_reset_cause():
     reply = host.handshake()
     assert reply.state == BoardState.DISARMED and reply.reset_cause.name == "POWER_ON"
     assert isinstance(reply, HelloReply) and board.state is BoardState.DISARMED
+
+
+@pytest.mark.parametrize("capacity", [512, 1024, 4096])
+def test_what_is_sent_again_leaves_room_in_a_full_transmit_buffer_for_answers(capacity):
+    """The firmware's rule (firmware/src/report.c): telemetry, heartbeats and download fragments stop
+    short of the transmit buffer's last SAID_ONCE_ROOM bytes, so a HelloReply and Acks still fit when
+    nothing drains it."""
+    link = BoardLink(rx_capacity=4096, tx_capacity=capacity)
+    beat = Heartbeat(time_ms=0, state=0)
+    while link.send(beat) is not None:
+        pass
+    assert link.stats.tx_dropped == 1
+    assert (
+        capacity - SAID_ONCE_ROOM - len(encode_frame(beat, 0)) < link.tx_pending <= capacity - SAID_ONCE_ROOM
+    )
+    _, _, host = lockstep(CFG)
+    assert link.send(host.handshake()) is not None  # the emulator's own HelloReply
+    for _ in range(4):
+        assert link.send(Ack(msg_id=Hello.MSG_ID, seq=0)) is not None
+    assert link.stats.tx_dropped == 1

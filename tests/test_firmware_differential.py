@@ -524,3 +524,25 @@ def test_uploads_during_a_six_unit_download_leave_both_boards_alike():
         play(pair, steps)
     finally:
         pair.close()
+
+
+@pytest.mark.firmware
+def test_a_hello_after_a_flood_during_a_six_unit_download_is_answered_by_both():
+    """What a later draw found (seed 44): on six units, a download under way, a flood, then a Hello. The
+    firmware's transmit ring was full of telemetry and download fragments and its HelloReply found no
+    room (dropped, counted), where the emulator's 64 KiB took it; what is sent again anyway now leaves
+    room for answers (tests/test_firmware_answers_kept.py)."""
+    still = ("setpoint", ActuatorSetpoint(gimbal_mode=GimbalMode.RATE, units=(UnitSetpoint(0.0, 0.0),)))
+    steps = [
+        still,
+        ("command", (CalibrationRequest(unit=0, transfer_id=0), RELIABLE, None)),
+        still,
+        ("flood", None),
+        ("hello", None),
+        ("command", (Arm(), RELIABLE, None)),
+    ]
+    pair = Pair(CONFIGS[2])
+    try:
+        play(pair, steps)
+    finally:
+        pair.close()

@@ -4,6 +4,12 @@
  * Outgoing messages are built in one static buffer (they are large: a HelloReply is ~240 bytes, and the
  * stack must stay small) and encoded into another; a frame that finds the transmit ring full is dropped
  * and counted (board.tx_dropped), as firmware_sim's link does.
+ *
+ * What is sent again anyway yields to what is said once: telemetry and heartbeats (the next one is
+ * newer) and download fragments (retried until acknowledged) are not queued into the last
+ * SAID_ONCE_ROOM bytes of the ring, which stay for answers (Ack, Nack, HelloReply) and Logs. Before, six
+ * units' telemetry and a download kept the 1 KiB ring full at 115200 baud, and a Hello found no room
+ * for its reply (tests/test_firmware_differential.py: the emulator's 64 KiB answered it).
  */
 #include <avr/pgmspace.h>
 #include <math.h>
@@ -26,6 +32,13 @@
 static msg_any_t out;
 static uint8_t wire[FRAME_MAX_WIRE];
 
+#define SAID_ONCE_ROOM (FRAME_MAX_WIRE + 64u) /* a HelloReply, or a Log, and a few Acks */
+
+static uint8_t sent_again(uint8_t msg_id)
+{
+    return msg_id == MSG_TELEMETRY || msg_id == MSG_HEARTBEAT || msg_id == MSG_CALIBRATION_DATA;
+}
+
 void report_name(const char *names_flash, uint8_t value, char *dst, unsigned n)
 {
     flash_pick(names_flash, value, dst, n);
@@ -46,7 +59,7 @@ void report_send(uint8_t msg_id, const void *msg, uint8_t flags, int16_t seq)
     if (msg_is_reliable(msg_id))
         flags |= FLAGS_ACK_REQUESTED;
     uint16_t n = frame_encode(msg_id, s, flags, msg, wire);
-    if (!n || !port_send(wire, n))
+    if (!n || (sent_again(msg_id) && uart_tx_free() < n + SAID_ONCE_ROOM) || !port_send(wire, n))
         board.tx_dropped++;
 }
 

@@ -16,12 +16,20 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
-from protocol.frame import Deframer, Event, Frame, Framer
-from protocol.messages import Flags, Hello
+from protocol.frame import MAX_ENCODED, Deframer, Event, Frame, Framer
+from protocol.messages import CalibrationData, Flags, Heartbeat, Hello, Telemetry
 
 _RENUMBERED_BY = (Hello.MSG_ID,)
 """A host's ``Hello`` begins its numbering afresh (a restarted host starts at 0 again): the jump to it is
 no sequence gap in ``Telemetry.seq_gaps`` (docs/protocol.md, "Counters")."""
+
+
+SENT_AGAIN = (Telemetry.MSG_ID, Heartbeat.MSG_ID, CalibrationData.MSG_ID)
+"""What the board sends again anyway (the next telemetry or heartbeat is newer; a download fragment is
+retried until acknowledged): it is not queued into the transmit buffer's last :data:`SAID_ONCE_ROOM`
+bytes, which stay for answers and Logs — the firmware's rule (firmware/src/report.c)."""
+SAID_ONCE_ROOM = MAX_ENCODED + 1 + 64
+"""A HelloReply (the largest frame on the wire) and a few Acks."""
 
 
 @dataclass
@@ -77,7 +85,8 @@ class BoardLink:
     def send(self, message: Any, flags: int = 0, seq: int | None = None) -> int | None:
         """Queue one frame; returns its sequence number, or None if the transmit buffer was full."""
         seq, data = self.framer.encode(message, flags, seq)
-        if len(self._tx) + len(data) > self.tx_capacity:
+        room = self.tx_capacity - (SAID_ONCE_ROOM if message.MSG_ID in SENT_AGAIN else 0)
+        if len(self._tx) + len(data) > room:
             self.stats.tx_dropped += 1
             return None
         self._tx += data
