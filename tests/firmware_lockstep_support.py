@@ -4,12 +4,24 @@ writes frames, runs the board, and keeps what the board answered, the Logs it sa
 
 from __future__ import annotations
 
+import hypothesis.strategies as st
+
 from firmware_sim.board.config import BoardConfig
 from hil.timing.clock import LockstepClock
 from protocol.frame import BadFrame, Deframer, encode_frame
 from protocol.messages import Ack, Flags, Heartbeat, HelloReply, Log, Nack, Telemetry
 
 RELIABLE = int(Flags.ACK_REQUESTED)
+
+loaded_configs = st.builds(
+    BoardConfig,
+    n_units=st.integers(1, 6),
+    frame_rate_hz=st.sampled_from([50.0, 250.0, 490.0]),
+    telemetry_rate_hz=st.sampled_from([20.0, 50.0, 100.0]),
+    rotor_safe_us=st.just(1000),
+)
+"""Boards from light to the heaviest load the tests put on the firmware's main loop and its 115200-baud
+line: up to six units, 490 Hz pulse frames, 100 Hz telemetry."""
 
 
 class Host:

@@ -16,10 +16,9 @@ from __future__ import annotations
 
 import hypothesis.strategies as st
 import pytest
-from firmware_lockstep_support import Host
+from firmware_lockstep_support import Host, loaded_configs
 from hypothesis import HealthCheck, given, settings
 
-from firmware_sim.board.config import BoardConfig
 from protocol.messages import (
     SCHEMA_HASH,
     Arm,
@@ -33,13 +32,6 @@ from protocol.messages import (
 
 HELLO = Hello(schema_hash=SCHEMA_HASH, manufacturer="tx", model="answers", serial="T1")
 
-configs = st.builds(
-    BoardConfig,
-    n_units=st.integers(1, 6),
-    frame_rate_hz=st.sampled_from([50.0, 250.0, 490.0]),
-    telemetry_rate_hz=st.sampled_from([20.0, 50.0, 100.0]),
-    rotor_safe_us=st.just(1000),
-)
 commands = st.sampled_from(
     [SetMode(mode=ControlMode.SETPOINT), Arm(), Disarm(), Heartbeat(time_ms=0, state=0)]
 )
@@ -59,7 +51,7 @@ bursts = st.tuples(
 @settings(
     max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large]
 )
-@given(config=configs, plan=st.lists(bursts, min_size=1, max_size=6))
+@given(config=loaded_configs, plan=st.lists(bursts, min_size=1, max_size=6))
 def test_every_hello_and_reliable_command_is_answered_while_the_ring_is_full(config, plan):
     host = Host(config)
     hellos = 1

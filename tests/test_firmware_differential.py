@@ -396,6 +396,14 @@ CONFIGS = [
 ]
 
 
+STEP_S = 0.103
+"""Board time after each step. Not a multiple of a download's retry period (0.1 s): a command repeated k
+steps after a download began landed on the very instant its last try was abandoned, a tie the two
+boards break on either side of a millisecond tick (the emulator handles a frame when it is fed, the
+firmware a millisecond of line later and on whole-ms timers): one said BUSY, the other began a new
+download. With at most 12 steps no sum of these steps and the waits falls within a millisecond of it."""
+
+
 def play(pair: Pair, steps) -> None:
     last_reliable: bytes | None = None
     pair.run(0.15)
@@ -426,7 +434,7 @@ def play(pair: Pair, steps) -> None:
             pair.send(Heartbeat(time_ms=0, state=0))
         elif kind == "wait":
             pair.run(arg)
-        pair.run(0.1)
+        pair.run(STEP_S)
         pair.compare()
     for _ in range(4):  # settle with the link kept alive: the last state must be compared
         pair.send(Heartbeat(time_ms=0, state=0))

@@ -19,11 +19,10 @@ from __future__ import annotations
 
 import hypothesis.strategies as st
 import pytest
-from firmware_lockstep_support import Host
+from firmware_lockstep_support import Host, loaded_configs
 from hypothesis import HealthCheck, given, settings
 from test_firmware_differential import hostile_sets
 
-from firmware_sim.board.config import BoardConfig
 from protocol.calibration import default_unit_calibration, fragment
 from protocol.messages import SCHEMA_HASH, CalibrationData, CalibrationRequest, Hello
 
@@ -33,13 +32,6 @@ carries a 414-byte set in 36 ms, and the answers queue behind up to 1 KiB of tel
 fragments (89 ms at 115200 baud)."""
 
 
-configs = st.builds(
-    BoardConfig,
-    n_units=st.integers(1, 6),
-    frame_rate_hz=st.sampled_from([50.0, 250.0, 490.0]),
-    telemetry_rate_hz=st.sampled_from([20.0, 50.0, 100.0]),
-    rotor_safe_us=st.just(1000),
-)
 valid_sets = st.just(default_unit_calibration().to_bytes())
 
 
@@ -49,7 +41,7 @@ valid_sets = st.just(default_unit_calibration().to_bytes())
 )
 @given(data=st.data())
 def test_uploads_streamed_during_a_download_are_all_answered_and_no_byte_is_lost(data):
-    config = data.draw(configs, label="config")
+    config = data.draw(loaded_configs, label="config")
     n = config.n_units
     uploads = data.draw(
         st.lists(
