@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from fault_support import short_scenario
+from observer_support import SilentObserver
 
 from hil.runtime import RunOptions, run
 from hil.runtime.observer import Observers, RunStart
@@ -20,7 +21,7 @@ from hil.timing.clock import LockstepClock
 from protocol.messages import BoardState
 
 
-class HostPause:
+class HostPause(SilentObserver):
     """A run observer that stops the host ``pause_s`` at the first control tick at or after ``at_s`` from
     the slew's start (the clock jumps: nothing of the host runs meanwhile, the board does)."""
 
@@ -32,12 +33,6 @@ class HostPause:
     def started(self, start: RunStart) -> None:
         self.start = start
 
-    def row(self, row: Any) -> None:
-        pass
-
-    def event(self, record: Any) -> None:
-        pass
-
     def tick(self, t: float) -> None:
         assert self.start is not None
         slew = self.start.host.phases.slew_start
@@ -46,9 +41,6 @@ class HostPause:
             clock = self.start.scheduler.clock
             assert isinstance(clock, LockstepClock)
             clock.advance(self.pause_s)
-
-    def finished(self, summary: Any) -> None:
-        pass
 
 
 @dataclass

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from observer_support import SilentObserver
 
 from hil.cli.run import EXIT_LOST, exit_status, format_summary
 from hil.link.board import BoardClient
@@ -169,26 +170,17 @@ def test_the_operators_disarm_wins_over_the_hosts_rearm(tmp_path):
     undone by the host's own re-arm. The operator disarms during a link stall (before the host hears of
     the failsafe): the board ends disarmed, and the host never re-arms it."""
 
-    class Operator:
+    class Operator(SilentObserver):
         host = None
         done = False
 
         def started(self, start):
             self.host = start.host
 
-        def row(self, row):
-            """Rows are not what this operator watches."""
-
-        def event(self, record):
-            """Nor events: it acts on the clock alone."""
-
         def tick(self, t):
             if not self.done and t >= 6.1:
                 self.done = True
                 self.host.disarm(t)
-
-        def finished(self, summary):
-            """The test reads the run's summary itself."""
 
     result, tel, events = _run(tmp_path, _quick(stall=["6.0:0.4"]), duration_s=8.0, observer=Operator())
     s = result.summary

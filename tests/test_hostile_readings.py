@@ -17,6 +17,7 @@ import time
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from observer_support import SilentObserver
 
 from hil.estimation.admission import PhoneGuard, Verdict
 from hil.estimation.sensors import SensorKind, SensorSample
@@ -45,7 +46,7 @@ reading = st.tuples(st.sampled_from(TYPES), stamps, st.lists(absurd_numbers, min
 injection = st.tuples(st.floats(0.3, 9.0), st.lists(reading, min_size=1, max_size=12), st.integers(1, 40))
 
 
-class Injector:
+class Injector(SilentObserver):
     """At each injection's moment, sends its datagrams (``repeat`` times: a burst) through a real UDP socket
     to a real receiver, and hands what the receiver decoded to the host, as the estimator task would."""
 
@@ -61,12 +62,6 @@ class Injector:
 
     def started(self, start) -> None:  # type: ignore[no-untyped-def]
         self.host = start.host
-
-    def row(self, row) -> None:  # type: ignore[no-untyped-def]
-        """Not used."""
-
-    def event(self, record) -> None:  # type: ignore[no-untyped-def]
-        """Not used."""
 
     def finished(self, summary) -> None:  # type: ignore[no-untyped-def]
         self._sock.close()

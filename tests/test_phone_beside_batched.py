@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from observer_support import SilentObserver
 
 from hil.runtime import RunOptions, run
 from hil.runtime.faults import STALE_AFTER_S
@@ -21,7 +22,7 @@ from hil.runtime.phone_cadence import BATCHED_GAPS
 from hil.scenario import load_scenario
 
 
-class Batches:
+class Batches(SilentObserver):
     """Holds the world phone's readings and feeds them to the host every ``period`` s (host time)."""
 
     def __init__(self, period: float) -> None:
@@ -44,17 +45,8 @@ class Batches:
 
         host.feed = batched
 
-    def tick(self, t: float) -> None:
-        """Not used."""
-
-    def row(self, row) -> None:  # type: ignore[no-untyped-def]
-        """Not used."""
-
     def event(self, record) -> None:  # type: ignore[no-untyped-def]
         self.events.append(record)
-
-    def finished(self, summary) -> None:  # type: ignore[no-untyped-def]
-        """Not used."""
 
 
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])

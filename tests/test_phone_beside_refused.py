@@ -22,6 +22,7 @@ from collections.abc import Callable
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from observer_support import SilentObserver
 
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.listening import ListeningSource
@@ -77,7 +78,7 @@ def test_a_phone_whose_readings_are_refused_is_not_ready_and_is_told_why(plan):
         assert len(handed) == receiver.stats.samples == 60
 
 
-class Tamper:
+class Tamper(SilentObserver):
     """From ``at`` (s, host time) on, the world phone's readings as ``change`` makes them, on their way
     into the host (the estimator task's ``Host.feed``)."""
 
@@ -97,17 +98,8 @@ class Tamper:
 
         host.feed = tampered
 
-    def tick(self, t: float) -> None:
-        """Not used."""
-
-    def row(self, row) -> None:  # type: ignore[no-untyped-def]
-        """Not used."""
-
     def event(self, record) -> None:  # type: ignore[no-untyped-def]
         self.events.append(record)
-
-    def finished(self, summary) -> None:  # type: ignore[no-untyped-def]
-        """Not used."""
 
 
 def _absurd(kind: SensorKind) -> Callable[[SensorSample, float], SensorSample]:

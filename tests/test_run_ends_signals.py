@@ -37,7 +37,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from signal_support import SilentObserver
+from observer_support import SilentObserver
 from test_sigterm import _text, _wait_until
 
 from hil.runtime.runlog import read_events, read_telemetry

@@ -24,7 +24,8 @@ import pytest
 from fault_support import faulted_run_settings
 from hypothesis import given
 from hypothesis import strategies as st
-from signal_support import SecondSignal, SilentObserver
+from observer_support import SilentObserver
+from signal_support import SecondSignal
 
 from hil.cli._signals import interrupts_raise
 from hil.runtime.held_signals import STOP_SIGNALS
