@@ -134,6 +134,7 @@ DIALECTS = {
 )
 @example(columns=[(0, "accuracy", ["\x1e"])], dialect="comma")  # a break to str.splitlines, not to a row
 @example(columns=[(5, "note", ["\u2028", "\x85", "\x1c"])], dialect="tab")
+@example(columns=[(0, "accuracy", ["HIGH", ""]), (1, "accuracy", ["#"])], dialect="tab")  # "\t#...": a row
 def test_columns_of_any_text_beside_the_used_ones_read_sample_for_sample_as_the_export(
     tmp_path_factory, real_log, columns, dialect
 ):

@@ -35,6 +35,7 @@ import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, time_column
+from hil.logs.rows import is_content
 from hil.logs.sensorlogger import clock_of
 from hil.logs.table import Container, Header, read_table, sniff_dialect, split_header
 from protocol.errors import InputFormatError
@@ -76,9 +77,7 @@ def _csv_members(c: Container) -> list[str]:
 def _classify(c: Container, name: str) -> _File | None:
     """The file's sensor, or None if it is not a phyphox sensor table (see :func:`_kind`)."""
     lines = c.head(name, 8)
-    numbered = [
-        (i, line) for i, line in enumerate(lines, 1) if line.strip() and not line.lstrip().startswith("#")
-    ]
+    numbered = [(i, line) for i, line in enumerate(lines, 1) if is_content(line)]
     head = [line for _, line in numbered[:2]]
     if not head:
         return None

@@ -29,7 +29,7 @@ import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.rows import BadCell, number, shown
+from hil.logs.rows import BadCell, is_content, number, shown
 from hil.logs.table import Container, Header, read_table, split_header, text_lines
 from protocol.errors import InputFormatError
 
@@ -105,7 +105,7 @@ def _line_of_row(c: Container, name: str, row: int, repeated: tuple[int, ...] = 
     skip = set(repeated)
     for first, lines in text_lines(c, name):
         for i, line in enumerate(lines):
-            if line.strip() and not line.lstrip().startswith("#") and first + i not in skip:
+            if is_content(line) and first + i not in skip:
                 seen += 1
                 if seen == row:
                     return first + i

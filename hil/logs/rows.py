@@ -84,9 +84,11 @@ def cell_text(cell: str) -> str:
 
 
 def is_content(line: str) -> bool:
-    """Whether a line is a row: neither blank (spaces only) nor a comment."""
-    stripped = line.lstrip()
-    return bool(stripped) and not stripped.startswith("#")
+    """Whether a line is a row: neither blank (white space only) nor a comment (``#`` after spaces). Only
+    spaces go before a comment's ``#``: a tab is a delimiter, and a tab-separated row whose first cell is
+    empty and whose second begins with ``#`` is a row (it was read as a comment, and half an export's
+    samples went with it)."""
+    return bool(line.strip()) and not line.lstrip(" ").startswith("#")
 
 
 @dataclass

@@ -366,7 +366,7 @@ def sniff_dialect(head: Sequence[str]) -> tuple[str, bool]:
     wrong width, which the reader then names), the one that splits the header into the most cells; a
     header of one cell: a comma. With a separator other than the comma, a comma in the first data line is
     a decimal comma (a spreadsheet's export in a European locale, phyphox's "semicolon, decimal comma")."""
-    lines = [line for line in head if line.strip() and not line.lstrip().startswith("#")]
+    lines = [line for line in head if is_content(line)]
     header = lines[0] if lines else ""
     first = lines[1] if len(lines) > 1 else ""
     widths = {d: _width(header, d) for d in DELIMITERS}
@@ -586,8 +586,7 @@ def _good_prefix(batch: list[bytes | None], legacy: bool = False) -> tuple[list[
 def _first_content(lines: Sequence[str]) -> int | None:
     """The index of the first line that is neither blank nor a comment (None: there is none)."""
     for i, line in enumerate(lines):
-        stripped = line.strip()
-        if stripped and not stripped.startswith("#"):
+        if is_content(line):
             return i
     return None
 
