@@ -24,8 +24,15 @@ import socket
 from collections.abc import Callable
 
 import pytest
+from hypothesis import settings
 
 from firmware_sim.avr.build import install_hint, missing_tools, toolchain_message
+
+# No property test has a deadline: none of them checks its own speed (bench/ measures that), and on a
+# loaded CI machine a first call that compiles a kernel, or a slice the scheduler took away, exceeded
+# Hypothesis's 200 ms default and failed tests whose every assertion held.
+settings.register_profile("vscmg-hil", deadline=None)
+settings.load_profile("vscmg-hil")
 
 # A test run started in the background by a non-interactive shell (`cmd &`, as CI runners and nohup do)
 # inherits SIGINT ignored, and every process it starts would too: the tests that press Ctrl-C on a
