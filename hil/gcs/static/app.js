@@ -360,12 +360,23 @@ function setProp(el, name, value) {
   if (el[name] !== value) el[name] = value;
 }
 
+// A rotation vector (rad) as a target: three finite numbers, else null. A run directory's events.jsonl is
+// read as it is (a hand-edited one, a damaged one): a target_r of two numbers, of strings, or one whose
+// value JSON could not carry (1e400: sent as null, hil/gcs/wire.py) is no target, shown as unknown, never
+// as NaN°; nor is one whose length overflows (two components of 1.7e308: its angle is no number).
+function rotvec(r) {
+  const numbers = Array.isArray(r) && r.length === 3 && r.every((x) => typeof x === "number" && Number.isFinite(x));
+  return numbers && Number.isFinite(Math.hypot(r[0], r[1], r[2])) ? r : null;
+}
+
 function targetAt(tc) {
-  // The target: the scenario's, or the newest one a ground command set ("applied" carries target_r).
-  let r = state.info.target_r;
+  // The target: the scenario's, or the newest one a ground command set ("applied" carries target_r). An
+  // applied command whose target_r is malformed leaves the target unknown from then on: the slew it
+  // commanded went to an attitude the page cannot tell, and the older target would be a wrong one.
+  let r = rotvec(state.info.target_r);
   for (const e of state.store.events) {
     if (e.t > tc) break;
-    if (e.kind === "command" && e.status === "applied" && e.target_r) r = e.target_r;
+    if (e.kind === "command" && e.status === "applied" && "target_r" in e) r = rotvec(e.target_r);
   }
   return r ? rotvecToMatrix(r) : null;
 }
