@@ -6,7 +6,7 @@
 import { Store } from "./store.js";
 import { Plots } from "./plots.js";
 import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
-import { $, fmt, setCell, drawPanels, drawEvents } from "./panels.js";
+import { $, fmt, setCell, drawPanels, drawEvents, threeNumbers } from "./panels.js";
 import { Uplink } from "./uplink.js";
 import { Alarms, AlarmPanel } from "./alarms.js";
 import { drawHistory, exportHistory } from "./commands.js";
@@ -360,13 +360,10 @@ function setProp(el, name, value) {
   if (el[name] !== value) el[name] = value;
 }
 
-// A rotation vector (rad) as a target: three finite numbers, else null. A run directory's events.jsonl is
-// read as it is (a hand-edited one, a damaged one): a target_r of two numbers, of strings, or one whose
-// value JSON could not carry (1e400: sent as null, hil/gcs/wire.py) is no target, shown as unknown, never
-// as NaN°; nor is one whose length overflows (two components of 1.7e308: its angle is no number).
+// A rotation vector (rad) as a target: three finite numbers (threeNumbers: a value JSON could not carry,
+// 1e400, comes as null, hil/gcs/wire.py) whose length is one too (two components of 1.7e308: no angle).
 function rotvec(r) {
-  const numbers = Array.isArray(r) && r.length === 3 && r.every((x) => typeof x === "number" && Number.isFinite(x));
-  return numbers && Number.isFinite(Math.hypot(r[0], r[1], r[2])) ? r : null;
+  return threeNumbers(r) && Number.isFinite(Math.hypot(r[0], r[1], r[2])) ? r : null;
 }
 
 function targetAt(tc) {

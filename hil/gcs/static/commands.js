@@ -3,14 +3,14 @@
 // command with its sender, time, acknowledgement and outcome, and each request the server turned away; and
 // its export as CSV.
 
-import { $, fmt } from "./panels.js";
+import { $, fmt, threeNumbers } from "./panels.js";
 import { downloadCsv, safeName } from "./exports.js";
 
 export const HISTORY_COLUMNS = ["id", "t (s)", "sender", "command", "acknowledgement", "outcome"];
 
 function describe(e) {
-  const euler = e.target_euler_deg;
-  if (e.command === "slew" && Array.isArray(euler)) return `slew to roll ${euler[0]}°, pitch ${euler[1]}°, yaw ${euler[2]}°`;
+  const euler = threeNumbers(e.target_euler_deg);
+  if (e.command === "slew" && euler) return `slew to roll ${euler[0]}°, pitch ${euler[1]}°, yaw ${euler[2]}°`;
   return e.command ?? "—";
 }
 

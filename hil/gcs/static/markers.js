@@ -1,14 +1,16 @@
 // What the plots mark with a vertical line: each operator command once (its first record), the slew's start
 // and end, and the faults the host saw — the rules of hil/plots/markers.py, which marks the saved figures.
 
+import { threeNumbers } from "./panels.js";
+
 export const MARKER_COLORS = { command: "#1f5fbf", manoeuvre: "#6b7480", fault: "#c62828" };
 const FAULT_KINDS = { board_reset: "board reset", link_lost: "link lost", esc_dead: "ESC dead", phone_gap: "phone gap", silence: "board silent", phone_switch: "phone switched" };
 const MANOEUVRE_KINDS = { slew_start: "slew start", slew_end: "slew end" };
 
 function commandLabel(e) {
   let name = String(e.command);
-  const euler = e.target_euler_deg;
-  if (name === "slew" && Array.isArray(euler) && euler.length === 3) name = `slew to ${euler.map((x) => Number(x)).join("/")}°`;
+  const euler = threeNumbers(e.target_euler_deg);
+  if (name === "slew" && euler) name = `slew to ${euler.join("/")}°`;
   const label = `${name} (${e.origin ?? "?"})`;
   return e.status === "refused" ? `${label} refused` : label;
 }

@@ -3,6 +3,13 @@
 
 export const $ = (id) => document.getElementById(id);
 
+// Three finite numbers (a command's target as roll/pitch/yaw or as a rotation vector), else null: an event is
+// shown as events.jsonl has it, hand-edited or damaged ones too, and a malformed target is no target (never
+// "NaN°", "undefined°", or a made-up one). hil/plots/markers.py keeps the same rule for the saved figures.
+export function threeNumbers(v) {
+  return Array.isArray(v) && v.length === 3 && v.every((x) => typeof x === "number" && Number.isFinite(x)) ? v : null;
+}
+
 export function fmt(v, digits = 2, unit = "") {
   return Number.isFinite(v) ? `${v.toFixed(digits)}${unit}` : "—";
 }
