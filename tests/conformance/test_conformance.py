@@ -454,7 +454,11 @@ def test_both_ends_count_the_same_link(target, host):
     else:
         assert stats.frames_in <= host.frames_sent and stats.bytes_in <= host.bytes_sent
     counters = host.deframer.counters
-    assert counters.bad_total == 0 and stats.errors == 0 and stats.dropped_out == 0
+    # one check each, so that a failure says which count moved: the host's damaged frames, the board's
+    # link errors, or the board's output dropped at a full line (which the host would see damaged too)
+    assert counters.bad_total == 0, (counters, stats)
+    assert stats.errors == 0, stats
+    assert stats.dropped_out == 0, stats
     if target.lockstep:
         assert stats.bytes_out == host.bytes_received and stats.frames_out == counters.frames
     else:
