@@ -31,6 +31,16 @@ void clock_init(void)
         phase = (uint16_t)(phase - TICKS_PER_MS);
         now_ms++;
     }
+    /* A write to TCNT0 blocks a compare match on the next timer clock (the datasheet's "Compare Match
+     * Blocking by TCNT0 Write"): a count written equal to OCR0A would miss its match, and the counter
+     * would run on through 255 and round to it again, the tick 1.024 ms late for good. That count's match
+     * is due within 4 us: its millisecond is counted here (its hooks are skipped: interrupts are still
+     * off, and a watchdog check-in, a link check and an ADC round come again a millisecond later), and
+     * the count starts from the 0 the match would have set. */
+    if (phase == TICKS_PER_MS - 1u) {
+        phase = 0;
+        now_ms++;
+    }
     TCNT0 = (uint8_t)phase;
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { ms = now_ms; }
     TIMSK0 = _BV(OCIE0A);
