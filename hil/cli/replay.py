@@ -180,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
     from datetime import date
 
     from hil.estimation.inertial import decimal_year
-    from hil.logs.replay import FieldModel, ReplayOptions, replay
+    from hil.logs.replay import FieldModel, ReplayOptions, replay, seconds
     from hil.plots.estimator import plot_replay
     from hil.timing.clock import WallClock
     from protocol.errors import ConfigError
@@ -226,8 +226,12 @@ def run(args: argparse.Namespace) -> int:
     beyond = sum(result.out_of_range.values())
     if beyond:
         drops += f", beyond the sensor's range {beyond}"
+    skipped = sum(result.skipped_parts.values())
+    if skipped:
+        drops += f", in parts not replayed {skipped}"
     print(
-        f"  merge: driver {driver}, {stats.dropped + beyond} samples dropped ({drops}), {stats.gaps} gaps, "
+        f"  merge: driver {driver}, {stats.dropped + beyond + skipped} samples dropped ({drops}), "
+        f"{stats.gaps} gaps, "
         f"{stats.failover_steps} failover steps"
     )
     rejected = result.mag_rejections
@@ -247,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
     if len(result.segments) > 1:
         for seg in result.segments:
             what = seg.get("skipped", f"{seg.get('steps', 0)} steps")
-            print(f"  part {seg['t0_s']:.3f}-{seg['t1_s']:.3f} s: {what}")
+            print(f"  part {seconds(float(seg['t0_s']))}-{seconds(float(seg['t1_s']))} s: {what}")
     if result.comparison is not None:
         c = result.comparison
         print(f"  vs ground truth: RMSE {c.rmse} over {c.rmse.n} samples")

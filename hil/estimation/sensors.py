@@ -207,12 +207,25 @@ class SensorLog:
 
     @property
     def start(self) -> float:
-        """The time every sensor has spoken by (s): the latest first timestamp."""
-        return max(float(np.nanmin(s.t)) for s in self.streams.values())
+        """The time every sensor has spoken by (s): the latest first finite timestamp. A sensor with no
+        finite timestamp (every one NaN or ±inf: a clock offset that overflowed, say) is an
+        :class:`InputFormatError` naming the log: a log's span is no number then (it crashed the still
+        window's search)."""
+        return max(float(np.min(self._finite_times(k))) for k in self.streams)
 
     @property
     def end(self) -> float:
-        return max(float(np.nanmax(s.t)) for s in self.streams.values())
+        """The last finite timestamp of any sensor (s); an :class:`InputFormatError` as :attr:`start`."""
+        return max(float(np.max(self._finite_times(k))) for k in self.streams)
+
+    def _finite_times(self, kind: SensorKind) -> NDArray[np.float64]:
+        t = self.streams[kind].t
+        finite = t[np.isfinite(t)]
+        if not finite.size:
+            raise InputFormatError(
+                f"no {kind.name} sample has a finite time ({len(t)} samples: NaN or infinite)", self.source
+            )
+        return finite
 
     def window(self, t0: float, t1: float) -> SensorLog:
         """The part of the log between ``t0`` and ``t1`` (s, inclusive), truth included."""

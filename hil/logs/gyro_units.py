@@ -52,6 +52,19 @@ def _cumulative(t: Array, y: Array) -> Array:
     return np.vstack([np.zeros((1, y.shape[1])), np.cumsum(steps, axis=0)])
 
 
+def _window_starts(gt: Array, start: float, end: float) -> Array:
+    """The windows' starts: the points of the half-window grid from ``start`` whose half-window holds a
+    gyroscope sample (times ``gt``, increasing), and whose window ends by ``end``. On a log sampled
+    throughout that is every point of the grid; across a gap in the log, none — so there are never more
+    windows than samples, however far apart a log's times are (one stray row 1e8 s on made the grid 2e8
+    windows: 24 GB; at 1e308, no grid at all)."""
+    half = WINDOW_S / 2
+    with np.errstate(over="ignore", invalid="ignore"):
+        cells = np.unique(np.floor((gt[(gt >= start) & (gt <= end)] - start) / half))
+        t0 = start + cells * half
+    return t0[np.isfinite(t0) & (t0 < end - WINDOW_S)]
+
+
 def gyro_turn_ratio(log: SensorLog) -> tuple[float, int]:
     """(median ratio, windows of motion): the angle the gyroscope integrates over the angle the gravity
     direction turns, over windows of motion (module docstring); (nan, windows) when there are fewer than
@@ -70,8 +83,7 @@ def gyro_turn_ratio(log: SensorLog) -> tuple[float, int]:
         return math.nan, 0
     turned = _cumulative(gt, gw)
     pointed = _cumulative(at, au)
-    start, end = max(gt[0], at[0]), min(gt[-1], at[-1])
-    t0 = np.arange(start, end - WINDOW_S, WINDOW_S / 2)
+    t0 = _window_starts(gt, max(gt[0], at[0]), min(gt[-1], at[-1]))
     if not len(t0):
         return math.nan, 0
     t1 = t0 + WINDOW_S
@@ -82,8 +94,8 @@ def gyro_turn_ratio(log: SensorLog) -> tuple[float, int]:
     gyro_deg = np.degrees(np.linalg.norm(integral(gt, turned, t0, t1), axis=1))
     first = integral(at, pointed, t0, t0 + EDGE_S)
     last = integral(at, pointed, t1 - EDGE_S, t1)
-    cos = np.sum(first * last, axis=1) / (np.linalg.norm(first, axis=1) * np.linalg.norm(last, axis=1))
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # a window with no accelerometer sample: NaN
+        cos = np.sum(first * last, axis=1) / (np.linalg.norm(first, axis=1) * np.linalg.norm(last, axis=1))
         sweep_deg = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
         moving = np.isfinite(sweep_deg) & (sweep_deg >= MIN_SWEEP_DEG) & np.isfinite(gyro_deg)
     n = int(moving.sum())

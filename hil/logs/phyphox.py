@@ -27,6 +27,7 @@ point or decimal comma (told from the first data line). Without a magnetometer f
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from functools import partial
@@ -36,7 +37,7 @@ import numpy as np
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, time_column
 from hil.logs.rows import is_content
-from hil.logs.sensorlogger import clock_of
+from hil.logs.sensorlogger import MAX_RECORDING_S, clock_of
 from hil.logs.table import Container, Header, read_table, sniff_dialect, split_header
 from protocol.errors import InputFormatError
 
@@ -222,6 +223,14 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
             )
         starts[g] = _start_system_time(c, name)
     first = min(starts.values())
+    for g, start in starts.items():  # exports of one recording: started within a recording's length
+        if start - first > MAX_RECORDING_S:
+            raise InputFormatError(
+                f"started {start - first:.6g} s after the first export's start ({first:.6g} s): exports "
+                f"of one recording start within {MAX_RECORDING_S // 86400} days of each other; its "
+                "'system time' is corrupt or it is another recording's",
+                str(c.path / (g + TIME_CSV)),
+            )
     notes.append(
         "exports aligned by meta/time.csv: "
         + ", ".join(f"{g.rstrip('/')} +{s - first:.3f} s" for g, s in sorted(starts.items()))
@@ -247,10 +256,22 @@ def _start_system_time(c: Container, name: str) -> float:
     if not len(starts):
         raise InputFormatError("no START event", table.source, table.header_line)
     row = starts[0]
-    return float(table.column("system time")[row] - table.column("experiment time")[row])
+    system, experiment = float(table.column("system time")[row]), float(table.column("experiment time")[row])
+    start = system - experiment
+    if not (math.isfinite(system) and math.isfinite(experiment) and abs(start) <= MAX_EPOCH_S):
+        raise InputFormatError(
+            f"its START event's system time {system!r} s less its experiment time {experiment!r} s is no "
+            f"time since the epoch (within ±{MAX_EPOCH_S:.0e} s): the exports cannot be aligned by it",
+            table.source,
+        )
+    return start
 
 
 _TIME_COLUMNS = ("event", "experiment time", "system time")
+MAX_EPOCH_S = 1e11
+"""s: the largest |system time| at experiment time 0 taken as a time since the epoch (the year ~5100; a
+phone's is ~1.8e9). Beyond it, or not finite (1e308 less -1e308 overflowed, and every time of that export
+became infinite), the exports' clocks cannot be aligned: an error naming ``meta/time.csv``."""
 
 
 def _start_event(cell: str) -> float:

@@ -30,6 +30,7 @@ import numpy as np
 from hil import so3
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
 from hil.logs.rows import BadCell, is_content, number, shown
+from hil.logs.sensorlogger import SAMPLE_STEP_S
 from hil.logs.table import Container, Header, read_table, split_header, text_lines
 from protocol.errors import InputFormatError
 
@@ -64,6 +65,8 @@ def read(c: Container) -> SensorLog:
         rows = data[data[:, 1] == int(kind)]
         if len(rows) or kind is not SensorKind.MAG:  # no magnetometer rows: a 6-axis log
             streams[kind] = SensorStream(kind, rows[:, 0], rows[:, 2:5])
+    for stream in streams.values():
+        _check_seconds(stream, where)
     truth_rows = data[data[:, 1] == 3]
     truth = None
     if len(truth_rows):
@@ -76,6 +79,27 @@ def read(c: Container) -> SensorLog:
         order = np.argsort(truth_rows[:, 0], kind="stable")
         truth = Truth(truth_rows[order, 0], so3.quat_to_matrix(quat[order]))
     return SensorLog(streams, where, NAME, truth, ("project CSV v1", *table.layout_notes()))
+
+
+def _check_seconds(stream: SensorStream, where: str) -> None:
+    """An :class:`InputFormatError` naming ``t_s`` when a sensor's samples lie a median step apart that no
+    phone sensor's do (more than :data:`~hil.logs.sensorlogger.SAMPLE_STEP_S`'s 1 s): a time in ms or ns
+    written under ``t_s``. Read as seconds, ns since the epoch put each sample 10⁷ s from the next, every
+    one a part of its own, and the replay said only that no part had every sensor speaking."""
+    t = stream.t[np.isfinite(stream.t)]
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    if len(steps) < 2:
+        return
+    step = float(np.median(steps))
+    if step > SAMPLE_STEP_S[1]:
+        raise InputFormatError(
+            f"the {stream.kind.label} rows lie a median {step:.6g} s apart: no phone sensor samples more "
+            f"than {SAMPLE_STEP_S[1]:g} s apart; t_s is in seconds (a time in ms or ns written there?)",
+            where,
+            None,
+            "t_s",
+        )
 
 
 def _columns(header: Header) -> tuple[str, ...]:

@@ -153,6 +153,9 @@ class ReplayResult:
     out_of_range: dict[str, int] = field(default_factory=dict)
     """Readings dropped per sensor (by label) as beyond its range (:func:`drop_out_of_range`): ``log``
     holds the rest."""
+    skipped_parts: dict[str, int] = field(default_factory=dict)
+    """Readings per sensor (by label) in the parts of the log not replayed (``segments``' ``skipped``: a
+    part where a sensor is silent, or too short), each part also a warning."""
 
     @property
     def samples_read(self) -> int:
@@ -223,6 +226,12 @@ def field_model_of(options: ReplayOptions) -> GeomagneticField | None:
     return None if fm is None else igrf14(fm.lat_deg, fm.lon_deg, fm.year, fm.height_km)
 
 
+def seconds(t: float) -> str:
+    """A log time (s) for a message: to the ms, or in 6 significant digits where that would run long (a
+    stray row at 1e308 s printed 300 digits)."""
+    return f"{t:.3f}" if abs(t) < 1e9 else f"{t:.6g}"
+
+
 def split_at_gaps(log: SensorLog, max_gap_s: float) -> list[tuple[float, float]]:
     """``[t0, t1]`` parts of the log between jumps of its clock (every sensor's times together) longer
     than ``max_gap_s``; one part when there is none."""
@@ -254,32 +263,49 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     parts = split_at_gaps(log, options.max_gap_s)
     all_steps, all_estimates, segments = [], [], []
     stats = MergeStats()
+    if len(parts) > 1:  # a part is a span of time: a sample whose time is no number is in none of them
+        for kind, stream in log.streams.items():
+            stats.nan[kind.label] += int(np.count_nonzero(~np.isfinite(stream.t)))
     bias: tuple[float, float, float] | None = None
     total_steps = 0
+    skipped: dict[str, int] = dict.fromkeys((k.label for k in log.kinds), 0)
     for i, (t0, t1) in enumerate(parts):
         segment: dict[str, float | int | str] = {"t0_s": t0, "t1_s": t1}
+        gap = ""
         if i:
             segment["gap_before_s"] = t0 - parts[i - 1][1]
-            warnings.append(
-                f"the log's clock jumps by {t0 - parts[i - 1][1]:.6g} s at {parts[i - 1][1]:.3f} s "
-                f"(> {options.max_gap_s:g} s): the filter restarts there, it does not integrate across"
+            gap = (
+                f"the log's clock jumps by {t0 - parts[i - 1][1]:.6g} s at {seconds(parts[i - 1][1])} s "
+                f"(> {options.max_gap_s:g} s)"
             )
         segments.append(segment)
-        speaking = [bool(((s.t >= t0) & (s.t <= t1)).any()) for s in log.streams.values()]
-        if not all(speaking):
-            segment["skipped"] = "not every sensor speaks in it"
+        in_part = {k.label: int(np.count_nonzero((s.t >= t0) & (s.t <= t1))) for k, s in log.streams.items()}
+        why = None if all(in_part.values()) else "not every sensor speaks in it"
+        if why is None:
+            part = log.window(t0, t1) if len(parts) > 1 else log
+            _check_length(part, total_steps, log.source)
+            steps, seg_stats = merge(part.streams, options.policy)
+            first = _first_complete(steps, log)
+            if first:
+                where = f" of part {i}" if len(parts) > 1 else ""
+                setup.append(f"first {first} steps{where} dropped: not every sensor had spoken yet")
+                steps = steps.rows(first)
+            if len(steps) < MIN_SEGMENT_STEPS:
+                why = f"{len(steps)} steps (fewer than {MIN_SEGMENT_STEPS})"
+        if why is not None:  # its samples counted and said, never lost without a word
+            segment["skipped"] = why
+            for label, n in in_part.items():
+                skipped[label] += n
+            counts = ", ".join(f"{label} {n}" for label, n in in_part.items())
+            span = f"{seconds(t0)}-{seconds(t1)} s"
+            warnings.append(
+                (f"{gap}: " if gap else "")
+                + f"the part {span} is not replayed ({why}): its {sum(in_part.values())} samples are left "
+                f"out ({counts})"
+            )
             continue
-        part = log.window(t0, t1) if len(parts) > 1 else log
-        _check_length(part, total_steps, log.source)
-        steps, seg_stats = merge(part.streams, options.policy)
-        first = _first_complete(steps, log)
-        if first:
-            where = f" of part {i}" if len(parts) > 1 else ""
-            setup.append(f"first {first} steps{where} dropped: not every sensor had spoken yet")
-            steps = steps.rows(first)
-        if len(steps) < MIN_SEGMENT_STEPS:
-            segment["skipped"] = f"{len(steps)} steps (fewer than {MIN_SEGMENT_STEPS})"
-            continue
+        if gap:
+            warnings.append(f"{gap}: the filter restarts there, it does not integrate across")
         segment["steps"] = len(steps)
         total_steps += len(steps)
         _check_length(part, total_steps, log.source, merged=True)
@@ -310,6 +336,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         warnings=warnings,
         gyro_bias=bias,
         out_of_range=beyond,
+        skipped_parts=skipped,
     )
     _score(result)
     make_dir(options.out_dir)
@@ -361,6 +388,14 @@ than this fraction of the steps, is warned about: a few drops are a phone's hicc
 rows are out of order or whose clock is broken, and its estimates rest on the other sensors."""
 
 
+_LOSS_CAUSES = {
+    "nan": "readings or times that are no number (the reader's notes say which rows, and why)",
+    "duplicate": "its clock repeats times",
+    "out_of_order": "its rows are not in time order, or its clock is broken",
+}
+"""What each of the merge's drop reasons says of a log, for :func:`merge_warnings`."""
+
+
 def merge_warnings(stats: MergeStats) -> list[str]:
     """The warnings a replay's merge counters call for (:data:`LOSS_WARNED`), one per sensor and kind."""
     out = []
@@ -370,9 +405,10 @@ def merge_warnings(stats: MergeStats) -> list[str]:
         total = lost + stats.accepted[label]
         if total and lost > LOSS_WARNED * total:
             why = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in counts.items() if n)
+            causes = "; ".join(_LOSS_CAUSES[reason] for reason, n in counts.items() if n)
             out.append(
-                f"{label}: {lost} of its {total} samples dropped ({why}): its rows are not in time order, "
-                "or its clock is broken; the estimates rest on what is left"
+                f"{label}: {lost} of its {total} samples dropped ({why}): {causes}; the estimates rest on "
+                "what is left"
             )
         stale = stats.stale_steps[label]
         if stats.steps and stale > LOSS_WARNED * stats.steps and stats.accepted[label]:
@@ -397,14 +433,8 @@ def _check_length(part: SensorLog, steps: int, source: str, merged: bool = False
 
 
 def _add_stats(total: MergeStats, part: MergeStats) -> None:
-    """Add one part's merge counters to the run's."""
-    for name in ("accepted", "nan", "duplicate", "out_of_order", "stale_steps"):
-        mine, theirs = getattr(total, name), getattr(part, name)
-        for key, value in theirs.items():
-            mine[key] = mine.get(key, 0) + value
-    total.steps += part.steps
-    total.gaps += part.gaps
-    total.failover_steps += part.failover_steps
+    """Add one part's merge counters to the run's (the first part's roles are the run's)."""
+    total.absorb(part)
     if total.driver is None:
         total.driver, total.failover_order = part.driver, part.failover_order
 
@@ -522,6 +552,7 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
             "dropped_duplicate": stats.duplicate,
             "dropped_out_of_order": stats.out_of_order,
             "dropped_out_of_range": result.out_of_range,
+            "dropped_skipped_part": result.skipped_parts,
             "stale_steps": stats.stale_steps,
             "gaps": stats.gaps,
             "failover_steps": stats.failover_steps,

@@ -148,10 +148,31 @@ def _detects(c: Container, files: Mapping[str, str]) -> bool:
         cells = [x.lower() for x in split_header(head[0], delimiter)]
         clocks = dict(clock for clock in map(clock_of, cells) if clock is not None)
         epoch = clocks.get("time") in _EPOCH_LABELS  # phyphox's "Time (s)" is no epoch
+        labelled = any(" x (" in x for x in cells)  # the app's older "GYROSCOPE X (rad/s)"
         return "seconds_elapsed" in clocks or (
-            epoch and (any(" x (" in x for x in cells) or _starts_at_an_epoch(head, cells, delimiter))
+            epoch
+            and (
+                (labelled and not _starts_near_zero(head, cells, delimiter))
+                or _starts_at_an_epoch(head, cells, delimiter)
+            )
         )
     return False
+
+
+def _starts_near_zero(head: Sequence[str], cells: Sequence[str], delimiter: str) -> bool:
+    """Whether the first row's ``time`` is a number below 1e9 in size: an experiment's time from 0, as
+    phyphox's ``"Time (ms)","Gyroscope x (rad/s)"`` (labelled as the app's older exports are, and claimed
+    for them: refused as no epoch), never an epoch in ms or finer."""
+    if len(head) < 2:
+        return False
+    column = next(i for i, cell in enumerate(cells) if (clock_of(cell) or ("",))[0] == "time")
+    row = split_header(head[1], delimiter)
+    try:
+        cell = row[column].strip().strip('"')
+        value = float(cell if delimiter == "," else cell.replace(",", "."))  # a decimal comma
+    except (ValueError, IndexError):
+        return False
+    return math.isfinite(value) and abs(value) < 1e9
 
 
 def _starts_at_an_epoch(head: Sequence[str], cells: Sequence[str], delimiter: str) -> bool:
@@ -742,6 +763,31 @@ def _same_clock(
                 )
 
 
+GRAVITY_GAP_S = 0.25
+"""s: the longest stretch between two ``Gravity.csv`` rows an accelerometer row's gravity is interpolated
+across (or three of the file's median periods, if longer: a gravity sensor read at 5 Hz), and twice the
+farthest before its first row or after its last that it is held. ``np.interp`` holds the end values for
+ever: 0.2 s of gravity was added to 693 s of user acceleration, 5 410 of 34 667 samples more than 10°
+off, with no word."""
+
+
+def _gravity_gap_s(tg: np.ndarray) -> float:
+    """The longest gap (s) between gravity rows at times ``tg`` (s, increasing) interpolated across."""
+    period = float(np.median(np.diff(tg))) if len(tg) > 1 else 0.0
+    return max(GRAVITY_GAP_S, 3.0 * period)
+
+
+def _without_gravity(tu: np.ndarray, tg: np.ndarray) -> np.ndarray:
+    """Which accelerometer times ``tu`` (s) have no gravity to add from rows at ``tg`` (s, increasing):
+    beyond the first or last row by more than half of :func:`_gravity_gap_s`, or between two rows farther
+    apart than it (a row at the very time is gravity)."""
+    gap = _gravity_gap_s(tg)
+    i = np.searchsorted(tg, tu)  # tg[i - 1] < tu <= tg[i]
+    before, after = tg[np.clip(i - 1, 0, len(tg) - 1)], tg[np.clip(i, 0, len(tg) - 1)]
+    inside = (after - before > gap) & (after != tu)
+    return np.where(i == 0, tg[0] - tu > gap / 2, np.where(i == len(tg), tu - tg[-1] > gap / 2, inside))
+
+
 def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np.ndarray, np.ndarray]:
     files = export.files
     if "TotalAcceleration.csv" in files:
@@ -775,6 +821,23 @@ def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np
         tu = np.where(timed, np.where(timed, user_t, base) - base, 0).astype(float)
         tg = (grav_t - base).astype(float)
         xyz = user + np.column_stack([np.interp(tu, tg, g[:, i]) for i in range(3)])
+        scale = 1e-9 if user_t.dtype.kind == "i" else 1.0  # the clock's units: ns since the epoch, or s
+        bare = timed & _without_gravity(tu * scale, tg * scale)
+        if bare.sum() > 0.5 * timed.sum():
+            span_u = float(np.ptp(tu[timed])) * scale if timed.any() else 0.0
+            raise InputFormatError(
+                f"its rows ({float(np.ptp(tg)) * scale:.6g} s from the first to the last) give gravity to "
+                f"only {int(timed.sum() - bare.sum())} of Accelerometer.csv's {int(timed.sum())} timed rows "
+                f"({span_u:.6g} s): the accelerometer's gravity is missing (a cut-short export?)",
+                files["Gravity.csv"],
+            )
+        if bare.any():
+            xyz[bare] = np.nan
+            notes.append(
+                f"{files['Accelerometer.csv']}: {int(bare.sum())} of {len(bare)} rows have no Gravity.csv "
+                f"row near (before its first, after its last, or in a gap of more than "
+                f"{_gravity_gap_s(tg * scale):.3g} s): no gravity to add, NaN samples (dropped and counted)"
+            )
         notes.append("accelerometer: Accelerometer.csv (user acceleration) + Gravity.csv (interpolated)")
         return user_t, xyz
     if "AccelerometerUncalibrated.csv" in files:

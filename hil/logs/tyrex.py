@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.matfile import load_mat, one_rate
+from hil.logs.matfile import load_mat, one_rate, real_array
 from hil.logs.table import Container, read_table
 from protocol.errors import InputFormatError
 
@@ -99,12 +99,12 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     except (IndexError, AttributeError) as exc:
         raise InputFormatError(f"not a QTM export with RigidBodies.Rotations ({exc})", where) from None
     rate = one_rate(frame_rate, "FrameRate", where)
-    try:
-        rot = np.asarray(rotations, dtype=float)
-    except (ValueError, TypeError) as exc:  # text or cells where numbers belong
-        raise InputFormatError(f"holds no real numbers ({exc})", where, None, "Rotations") from None
-    rot = rot.reshape(-1, 9, rot.shape[-1])[0] if rot.ndim == 3 else rot
-    if rot.shape[0] != 9:
+    rot = real_array(rotations, "Rotations", where)
+    if rot.ndim == 1 and rot.size == 9:  # one frame: loaded squeezed, (9, 1) comes as (9,)
+        rot = rot.reshape(9, 1)
+    elif rot.ndim == 3 and rot.shape[1] == 9:  # several rigid bodies (B, 9, N): the first
+        rot = rot[0]
+    if rot.ndim != 2 or rot.shape[0] != 9:
         raise InputFormatError(
             f"RigidBodies.Rotations has shape {rot.shape}, expected (9, N)", where, None, "Rotations"
         )
