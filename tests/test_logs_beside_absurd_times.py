@@ -344,3 +344,14 @@ def test_the_shared_recordings_still_read(tmp_path):
             continue
         log = read_log(path)
         assert math.isfinite(log.start) and math.isfinite(log.end) and log.end > log.start
+
+
+@pytest.mark.parametrize("before", ["# a\n" * 5, "\n" * 3, "# exported by a tool\n\n" * 20, "   \n# x\n" * 7])
+def test_the_project_csv_is_found_past_any_comment_and_blank_lines_before_its_header(tmp_path, before):
+    """The format's own files are told by their header however many comment or blank lines come first (the
+    detector read the first five lines only: a sixth-line header was "not a recognised log")."""
+    own = [line for line in FIXTURE.read_text().splitlines() if not line.startswith("#")]
+    path = tmp_path / "log.csv"
+    path.write_text(before + "\n".join(own) + "\n")
+    log = read_log(path)
+    assert log.format == "csv" and log.n_samples == read_log(FIXTURE).n_samples

@@ -31,7 +31,7 @@ from hil import so3
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
 from hil.logs.rows import BadCell, is_content, number, shown
 from hil.logs.sensorlogger import SAMPLE_STEP_S
-from hil.logs.table import Container, Header, read_table, split_header, text_lines
+from hil.logs.table import Container, Header, content_head, read_table, split_header, text_lines
 from protocol.errors import InputFormatError
 
 NAME = "csv"
@@ -45,8 +45,11 @@ def detect(c: Container) -> bool:
     names = c.names()
     if len(names) != 1 or not names[0].lower().endswith((".csv", ".csv.gz")):  # gzipped: read decompressed
         return False
-    head = c.head(names[0], 5)
-    return bool(head) and (head[0].startswith(MAGIC) or any(_is_header(line) for line in head))
+    head = c.head(names[0], 1)
+    if head and head[0].startswith(MAGIC):
+        return True
+    content = content_head(c, names[0], 1)  # the header, past any comment and blank lines before it
+    return bool(content) and _is_header(content[0])
 
 
 def _is_header(line: str) -> bool:
