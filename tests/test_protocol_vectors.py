@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import copy
 import json
+import os
+from pathlib import Path
 
 import pytest
 
@@ -155,6 +157,40 @@ def test_hil_selftest_fails_on_a_tampered_file(tmp_path, capsys, document):
     path.write_text(json.dumps(doc))
     assert hil_main(["selftest", "--vectors", str(path)]) == 1
     assert f"FAIL {doc['frames'][0]['name']}" in capsys.readouterr().out
+
+
+def _hostile_vectors(tmp_path: Path) -> dict[str, str]:
+    """Paths that are no vectors file: (path, what the error says)."""
+    deep = tmp_path / "deep.json"
+    deep.write_text("[" * 100_000 + "]" * 100_000)
+    huge_int = tmp_path / "bigint.json"
+    huge_int.write_text('{"a": ' + "9" * 5000 + "}")
+    empty = tmp_path / "empty.json"
+    empty.write_text("")
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    return {
+        "/dev/zero": "character device",
+        str(deep): "nested deeper",
+        str(huge_int): "digits",
+        str(empty): "not JSON",
+        str(tmp_path): "Is a directory",
+        str(tmp_path / "nope.json"): "no such file",
+        str(fifo): "",  # hil reads a FIFO as it comes (a shell's <(...)); the library refuses it
+    }
+
+
+def test_hil_selftest_on_a_file_that_is_no_vectors_file_is_one_line_and_status_2(tmp_path, capsys):
+    """``/dev/zero`` grew until the machine's memory ran out, a JSON nested 100 000 deep or an integer of
+    5 000 digits was a traceback, a directory or an empty file "FAIL" with status 1: each is now a typed
+    error naming the file (status 2); the library's check_vectors one failed result, never an exception."""
+    for path, said in _hostile_vectors(tmp_path).items():
+        if said:
+            assert hil_main(["selftest", "--vectors", path]) == 2, path
+            err = capsys.readouterr().err
+            assert path in err and said in err and "Traceback" not in err, err
+        results = check_vectors(path)
+        assert len(results) == 1 and not results[0].ok and "cannot read vectors" in results[0].detail
 
 
 def test_protocol_vectors_write_and_check(tmp_path, capsys):

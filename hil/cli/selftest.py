@@ -22,12 +22,18 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    """The vectors file is read as every document hil reads (:func:`~hil.files.bounded.read_document`:
+    bounded, a device or a FIFO refused, its JSON's nesting and integers bounded): one that cannot be
+    read is an :class:`InputFormatError` naming it (status 2); vectors that fail are status 1."""
+    from hil.files.bounded import load_json, read_document
     from hil.scenario.paths import FIXTURES
+    from protocol.errors import InputFormatError
     from protocol.messages import CATALOGUE, SCHEMA_HASH
-    from protocol.vectors import check_vectors
+    from protocol.vectors import check_document
 
     vectors = args.vectors if args.vectors is not None else FIXTURES / "protocol_vectors.json"
-    results = check_vectors(vectors)
+    document = load_json(read_document(vectors, InputFormatError, "vectors file"), str(vectors))
+    results = check_document(document)
     failed = [r for r in results if not r.ok]
     for r in failed:
         print(f"FAIL {r.name}: {r.detail}")

@@ -4,6 +4,8 @@ bytes exactly; decode the wire bytes -> the fields), plus bad frames, streams, C
 from __future__ import annotations
 
 import json
+import os
+import stat
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +20,9 @@ from .build import FORMAT, FORMAT_VERSION
 from .catalogue import describe_catalogue, flag_names
 from .values import from_json, to_json
 
+MAX_VECTORS_BYTES = 16 << 20
+"""The largest vectors file read (16 MiB; the canonical one is ~55 kB)."""
+
 
 @dataclass(frozen=True, slots=True)
 class VectorResult:
@@ -31,11 +36,19 @@ class VectorResult:
 def check_vectors(path: str | Path) -> list[VectorResult]:
     """Check this codec against the vectors file at ``path`` (the one file read in ``protocol``).
 
-    An unreadable or malformed file is one failed result, not an exception, so ``hil selftest`` can
-    report it."""
+    An unreadable or malformed file is one failed result, not an exception: one that is no regular file
+    (``/dev/zero`` never ends, a FIFO's open waits for a writer), larger than :data:`MAX_VECTORS_BYTES`,
+    or whose JSON nests too deep or holds an integer of thousands of digits too. (``hil selftest`` reads
+    the file as hil reads every document, and calls :func:`check_document`.)"""
     try:
-        document = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise OSError(f"{path}: not a regular file")
+        with open(path, "rb") as f:
+            data = f.read(MAX_VECTORS_BYTES + 1)
+        if len(data) > MAX_VECTORS_BYTES:
+            raise OSError(f"{path}: larger than {MAX_VECTORS_BYTES} bytes")
+        document = json.loads(data.decode("utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # JSONDecodeError: a ValueError
         return [VectorResult(str(path), False, f"cannot read vectors: {exc}")]
     return check_document(document)
 
