@@ -465,6 +465,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.can is not None and (args.link or args.no_hold):
         parser.error("--can serves a CAN bus: it cannot be combined with --link or --no-hold")
+    if args.eeprom is not None and args.avr is None:
+        parser.error("--eeprom is the firmware's EEPROM image: it needs --avr (the emulator keeps none)")
     if args.usb and args.avr is None:
         parser.error(
             "--usb is the firmware's USB link (the phone's accessory app on its pty): it needs --avr"

@@ -406,8 +406,15 @@ class AvrBoard:
 
 
 def _symbols(elf: Path) -> dict[str, int]:
-    """Addresses of the ELF's symbols (avr-nm)."""
-    out = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True, check=True).stdout
+    """Addresses of the ELF's symbols (avr-nm); a :class:`ConfigError` naming ``elf`` when it is none."""
+    try:
+        done = subprocess.run(["avr-nm", str(elf)], capture_output=True, text=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot run avr-nm on it: {exc.strerror or exc}", str(elf)) from exc
+    if done.returncode != 0:
+        said = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else f"status {done.returncode}"
+        raise ConfigError(f"not an AVR firmware's ELF ({said})", str(elf))
+    out = done.stdout
     symbols = {}
     for line in out.splitlines():
         parts = line.split()
@@ -439,7 +446,7 @@ def eeprom_for(options: HarnessOptions, config: BoardConfig) -> Iterator[tuple[P
     temporary file, handed over as ``/dev/fd/N``: it has no name, so nothing is left behind however this
     process or the harness ends, SIGKILL included (a temporary directory outlived a killed firmware-sim)."""
     if options.eeprom_file is not None:
-        if not options.eeprom_file.exists():
+        if _eeprom_file_to_make(options.eeprom_file):
             options.eeprom_file.write_bytes(eeprom.EepromImage(config, link=options.board_link).to_bytes())
         yield options.eeprom_file, ()
         return
@@ -447,6 +454,27 @@ def eeprom_for(options: HarnessOptions, config: BoardConfig) -> Iterator[tuple[P
         image.write(eeprom.EepromImage(config, link=options.board_link).to_bytes())
         image.flush()
         yield Path(f"/dev/fd/{image.fileno()}"), (image.fileno(),)
+
+
+def _eeprom_file_to_make(path: Path) -> bool:
+    """Whether ``--eeprom`` ``path`` is to be made (absent, or empty); a :class:`ConfigError` naming it
+    when it is no EEPROM image: the harness loads its first 4 KiB and saves the image back over it, so any
+    other file given by mistake (a README, a calibration CSV) was cut to 4 KiB and lost, silently; a
+    folder was neither loaded nor saved, and a path in a missing folder was a traceback."""
+    if not path.exists():
+        if not path.parent.is_dir():
+            raise ConfigError(f"its folder {str(path.parent)!r} is not there", f"--eeprom {path}")
+        return True
+    if not path.is_file():
+        raise ConfigError("not a regular file: give an EEPROM image's path", f"--eeprom {path}")
+    size = path.stat().st_size
+    if size not in (0, eeprom.EEPROM_SIZE):
+        raise ConfigError(
+            f"{size} bytes, not an EEPROM image ({eeprom.EEPROM_SIZE} bytes): left as it is (the board "
+            "would overwrite it); give a new file's path, or an image firmware-sim saved",
+            f"--eeprom {path}",
+        )
+    return size == 0
 
 
 def _ending(code: int) -> str:

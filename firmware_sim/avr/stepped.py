@@ -426,7 +426,10 @@ def board_field_address(elf: Any, field: str) -> int:
     the field's offset in ``board_t`` as avr-gcc lays it out with the firmware's own flags)."""
     from .harness import _symbols
 
-    base = _symbols(elf)["board"] & 0xFFFF
+    symbols = _symbols(elf)
+    if "board" not in symbols:
+        raise ConfigError("no 'board' symbol: not the board firmware's ELF", str(elf))
+    base = symbols["board"] & 0xFFFF
     source = (
         '#include <stddef.h>\n#include "app.h"\n'
         f"const unsigned short field_offset = offsetof(board_t, {field});\n"
