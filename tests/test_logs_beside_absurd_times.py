@@ -38,6 +38,7 @@ from hil.estimation.sensors import SensorKind
 from hil.logs import read_log
 from hil.logs.gyro_units import WINDOW_S, _window_starts
 from hil.logs.replay import ReplayOptions, replay
+from hil.logs.sensorlogger import GRAVITY_GAP_S, GRAVITY_HOLD_S
 from hil.scenario.paths import SHARED_DATA
 from protocol.errors import InputFormatError
 
@@ -256,10 +257,11 @@ def test_gravity_cut_short_is_an_error_naming_it(tmp_path):
 
 @needs_real_export
 @pytest.mark.parametrize("gap_rows", [(300, 400), (500, 520), (0, 50), (950, 1000)])
-def test_accelerometer_rows_in_a_gap_of_gravity_are_nan_samples_noted(tmp_path, gap_rows):
-    """Gravity rows missing for a stretch (inside, or at either end): the accelerometer rows there get no
-    gravity made up; they are NaN samples (dropped and counted by the merge), and the reader notes them.
-    The rows elsewhere are as with the whole file."""
+def test_accelerometer_rows_without_gravity_near_are_nan_samples_noted(tmp_path, gap_rows):
+    """Gravity rows missing for a stretch: inside, across more than :data:`GRAVITY_GAP_S` the accelerometer
+    rows get no gravity made up (NaN samples, dropped and counted by the merge, noted by the reader), a
+    shorter one is interpolated across; at either end, rows beyond :data:`GRAVITY_HOLD_S` get none. The
+    rows the gap is not beside are as with the whole file."""
     total = real_lines("TotalAcceleration.csv", 1001)
     a, b = gap_rows
     log = read_log(_user_and_gravity(tmp_path / "gap", total[1 : 1 + a] + total[1 + b :]))
@@ -267,9 +269,14 @@ def test_accelerometer_rows_in_a_gap_of_gravity_are_nan_samples_noted(tmp_path, 
     acc = log.streams[SensorKind.ACC]
     bad = ~np.all(np.isfinite(acc.xyz), axis=1)
     period = float(np.median(np.diff(whole.t)))
-    if (b - a) * period > 0.25:  # a longer gap than interpolation bridges (GRAVITY_GAP_S)
-        assert bad.sum() > 0.5 * (b - a)
-        assert any("no Gravity.csv row near" in n for n in log.notes)
+    if a == 0 or b == len(whole):  # at an end: held GRAVITY_HOLD_S, no farther
+        expected = (b - a) - round(GRAVITY_HOLD_S / period)
+        assert abs(int(bad.sum()) - expected) <= 2, (bad.sum(), expected)
+    elif (b - a + 1) * period > GRAVITY_GAP_S:
+        assert bad.sum() == b - a
+    else:
+        assert not bad.any()
+    assert bad.any() == any("no Gravity.csv row near" in n for n in log.notes)
     outside = np.r_[0 : max(a - 1, 0), min(b + 1, len(whole)) : len(whole)]  # rows the gap is not beside
     np.testing.assert_array_equal(acc.xyz[outside], whole.xyz[outside])
     assert not bad[outside].any()

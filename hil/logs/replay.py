@@ -298,10 +298,11 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
                 skipped[label] += n
             counts = ", ".join(f"{label} {n}" for label, n in in_part.items())
             span = f"{seconds(t0)}-{seconds(t1)} s"
+            n = sum(in_part.values())
+            left_out = f"its {n} samples are left out" if n != 1 else "its 1 sample is left out"
             warnings.append(
                 (f"{gap}: " if gap else "")
-                + f"the part {span} is not replayed ({why}): its {sum(in_part.values())} samples are left "
-                f"out ({counts})"
+                + f"the part {span} is not replayed ({why}): {left_out} ({counts})"
             )
             continue
         if gap:

@@ -763,29 +763,30 @@ def _same_clock(
                 )
 
 
-GRAVITY_GAP_S = 0.25
+GRAVITY_GAP_S = 1.0
 """s: the longest stretch between two ``Gravity.csv`` rows an accelerometer row's gravity is interpolated
-across (or three of the file's median periods, if longer: a gravity sensor read at 5 Hz), and twice the
-farthest before its first row or after its last that it is held. ``np.interp`` holds the end values for
-ever: 0.2 s of gravity was added to 693 s of user acceleration, 5 410 of 34 667 samples more than 10°
-off, with no word."""
+across (or three of the file's median periods, if longer: a gravity sensor read slowly) — the replay's
+own bound for a pause (``--max-gap``'s default). ``np.interp`` held the end values for ever: 0.2 s of
+gravity was added to 693 s of user acceleration, 5 410 of 34 667 samples more than 10° off, with no
+word."""
+GRAVITY_HOLD_S = 0.1
+"""s: the farthest before ``Gravity.csv``'s first row or after its last that its value is held (sensors
+start and stop a few samples apart); beyond, gravity is not known."""
 
 
-def _gravity_gap_s(tg: np.ndarray) -> float:
-    """The longest gap (s) between gravity rows at times ``tg`` (s, increasing) interpolated across."""
+def _without_gravity(tu: np.ndarray, tg: np.ndarray) -> tuple[np.ndarray, float]:
+    """Which accelerometer times ``tu`` (s) have no gravity to add from rows at ``tg`` (s, increasing) —
+    beyond the first or last row by more than :data:`GRAVITY_HOLD_S`, or between two rows farther apart
+    than the gap bridged (a row at the very time is gravity) — and that gap (s, :data:`GRAVITY_GAP_S`)."""
     period = float(np.median(np.diff(tg))) if len(tg) > 1 else 0.0
-    return max(GRAVITY_GAP_S, 3.0 * period)
-
-
-def _without_gravity(tu: np.ndarray, tg: np.ndarray) -> np.ndarray:
-    """Which accelerometer times ``tu`` (s) have no gravity to add from rows at ``tg`` (s, increasing):
-    beyond the first or last row by more than half of :func:`_gravity_gap_s`, or between two rows farther
-    apart than it (a row at the very time is gravity)."""
-    gap = _gravity_gap_s(tg)
+    gap = max(GRAVITY_GAP_S, 3.0 * period)
     i = np.searchsorted(tg, tu)  # tg[i - 1] < tu <= tg[i]
     before, after = tg[np.clip(i - 1, 0, len(tg) - 1)], tg[np.clip(i, 0, len(tg) - 1)]
     inside = (after - before > gap) & (after != tu)
-    return np.where(i == 0, tg[0] - tu > gap / 2, np.where(i == len(tg), tu - tg[-1] > gap / 2, inside))
+    beyond = np.where(
+        i == 0, tg[0] - tu > GRAVITY_HOLD_S, np.where(i == len(tg), tu - tg[-1] > GRAVITY_HOLD_S, inside)
+    )
+    return beyond, gap
 
 
 def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np.ndarray, np.ndarray]:
@@ -822,7 +823,8 @@ def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np
         tg = (grav_t - base).astype(float)
         xyz = user + np.column_stack([np.interp(tu, tg, g[:, i]) for i in range(3)])
         scale = 1e-9 if user_t.dtype.kind == "i" else 1.0  # the clock's units: ns since the epoch, or s
-        bare = timed & _without_gravity(tu * scale, tg * scale)
+        beyond, gap = _without_gravity(tu * scale, tg * scale)
+        bare = timed & beyond
         if bare.sum() > 0.5 * timed.sum():
             span_u = float(np.ptp(tu[timed])) * scale if timed.any() else 0.0
             raise InputFormatError(
@@ -835,8 +837,8 @@ def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np
             xyz[bare] = np.nan
             notes.append(
                 f"{files['Accelerometer.csv']}: {int(bare.sum())} of {len(bare)} rows have no Gravity.csv "
-                f"row near (before its first, after its last, or in a gap of more than "
-                f"{_gravity_gap_s(tg * scale):.3g} s): no gravity to add, NaN samples (dropped and counted)"
+                f"row near (more than {GRAVITY_HOLD_S:g} s before its first or after its last, or in a gap "
+                f"of more than {gap:.3g} s): no gravity to add, NaN samples (dropped and counted)"
             )
         notes.append("accelerometer: Accelerometer.csv (user acceleration) + Gravity.csv (interpolated)")
         return user_t, xyz
