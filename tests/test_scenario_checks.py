@@ -61,6 +61,25 @@ BASE = "[scenario]\nname='x'\n"
         ("[faults]\ndead_esc=['1@-3']\n", "x.toml: faults.dead_esc", "not a time"),
         ("[faults]\ncorrupt=1.5\n", "x.toml: faults.corrupt", "probability"),
         ("[faults]\nfault_direction='up'\n", "x.toml: faults.fault_direction", "rx, tx, both"),
+        # strings and booleans in a list of numbers: numpy read "2e-3" as 0.002 and true as 1.0 (a single
+        # value refused them; a list took them)
+        ("[sensors]\nfield_enu_uT=[true, true, true]\n", "x.toml: sensors.field_enu_uT", "must be numbers"),
+        ("[spacecraft]\nbus_inertia=[1e-3, '2e-3', 2e-3]\n", "x.toml: spacecraft.bus_inertia", "3 diagonal"),
+        ("[manoeuvre]\naxis=['1', '2', '2']\n", "x.toml: manoeuvre.axis", "must be numbers"),
+        (
+            "[array]\ngeometry='custom'\ngimbal_axes=[['0',0,1],[1,0,0],[0,1,0]]\n"
+            "spin_axes=[[1,0,0],[0,1,0],[0,0,1]]\n",
+            "x.toml: array.gimbal_axes",
+            "finite numbers",
+        ),
+        (
+            "[sensors]\nfield_enu_uT=[0.0, 0.0, -40.0]\n",
+            "x.toml: sensors.field_enu_uT",
+            "parallel to gravity",
+        ),
+        ("[faults]\ncorrupt=[0.1, 0.2]\n", "x.toml: faults.corrupt", "one value"),
+        ("[faults]\ndrop=[0.1, 0.2]\n", "x.toml: faults.drop", "one value"),
+        ("[faults]\nfault_direction=['rx', 'tx']\n", "x.toml: faults.fault_direction", "one value"),
         # the host's setpoints feed the board's link watchdog: a control period that is not within the
         # link timeout is a run whose board fails safe between commands (it ran, and was lost, before)
         ("[controller]\ncontrol_rate_hz=4\n", "x.toml: controller.control_rate_hz", "link timeout of 0.25"),

@@ -155,6 +155,10 @@ FAULT_OPTIONS: dict[str, Callable[[str, str], Any]] = {
     "dead_esc": parse_dead_esc,
 }
 """A scenario's ``[faults]`` keys (firmware-sim's options) and the parser each value must pass."""
+ONE_VALUE = frozenset({"corrupt", "drop", "fault_direction"})
+"""The ``[faults]`` keys that take one value: firmware-sim's options that do not repeat (a link's noise
+and its direction are one setting), so a list of them is refused as the file is read — it was refused by
+the board at connection, naming neither file nor key, and a campaign ran every run into it."""
 
 
 def check_fault_options(options: Mapping[str, Any], n_channels: int, where: str) -> None:
@@ -163,6 +167,9 @@ def check_fault_options(options: Mapping[str, Any], n_channels: int, where: str)
     :class:`ConfigError` at ``where.key`` (``where``: the file and the table) for the first that fails."""
     for key, value in options.items():
         parse = FAULT_OPTIONS[key]
+        if key in ONE_VALUE and isinstance(value, list):
+            if len(value) != 1:
+                raise ConfigError(f"takes one value, not a list of {len(value)}", f"{where}.{key}")
         for item in value if isinstance(value, list) else [value]:
             parsed = parse(str(item), f"{where}.{key}")
             if key == "dead_esc" and parsed[0] >= n_channels:

@@ -13,6 +13,7 @@ import numpy as np
 from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
+from hil.estimation.params import directions_matrix
 from hil.estimation.registry import DEFAULT_ESTIMATOR, EstimatorChoice
 from hil.scenario.fault_specs import check_fault_options
 from hil.vscmg import SpacecraftParams
@@ -221,10 +222,9 @@ class _Reader:
             )
 
     def vector(self, tbl: dict[str, Any], table: str, key: str, shape: tuple[int, ...]) -> np.ndarray:
-        try:
-            arr = np.asarray(tbl[key], dtype=float)
-        except (TypeError, ValueError):
-            raise self.error(f"{table}.{key}", f"must be numbers, got {tbl[key]!r}") from None
+        arr = _numbers(tbl[key])
+        if arr is None:
+            raise self.error(f"{table}.{key}", f"must be numbers, got {tbl[key]!r}")
         if arr.shape != shape or not np.all(np.isfinite(arr)):
             raise self.error(f"{table}.{key}", f"must be finite numbers of shape {shape}, got {tbl[key]!r}")
         for element in arr.ravel():
@@ -339,7 +339,7 @@ class _Reader:
         if "nominal_rotor_speed" in sc:
             changes["nominal_rotor_speed"] = self.number(sc, "spacecraft", "nominal_rotor_speed", 0.0)
         if "bus_inertia" in sc:
-            raw = np.asarray(sc["bus_inertia"], dtype=float) if _numeric(sc["bus_inertia"]) else None
+            raw = _numbers(sc["bus_inertia"])
             if raw is None or raw.shape not in ((3,), (3, 3)) or not np.all(np.isfinite(raw)):
                 raise self.error(
                     "spacecraft.bus_inertia", "must be 3 diagonal values or a 3x3 matrix (kg m²)"
@@ -385,8 +385,14 @@ class _Reader:
             for key in ("gimbal_axes", "spin_axes"):
                 if key not in arr:
                     raise self.error(f"array.{key}", "required for a custom geometry")
-            g = np.asarray(arr["gimbal_axes"], dtype=float)
-            if g.ndim != 2 or g.shape[1] != 3 or not 1 <= len(g) <= 8 or not np.all(np.isfinite(g)):
+            g = _numbers(arr["gimbal_axes"])
+            if (
+                g is None
+                or g.ndim != 2
+                or g.shape[1] != 3
+                or not 1 <= len(g) <= 8
+                or not np.all(np.isfinite(g))
+            ):
                 raise self.error("array.gimbal_axes", "must be 1..8 vectors of 3 finite numbers")
             for element in g.ravel():
                 self.in_range("array", "gimbal_axes", float(element))
@@ -425,6 +431,12 @@ class _Reader:
             f = self.vector(sen, "sensors", "field_enu_uT", (3,))
             if np.linalg.norm(f) < 1.0:
                 raise self.error("sensors.field_enu_uT", "a field below 1 µT gives no heading")
+            try:  # the estimator's check, here as the file is read (a run, or every run of a campaign, later)
+                directions_matrix((0.0, 0.0, 1.0), f)
+            except ConfigError:
+                raise self.error(
+                    "sensors.field_enu_uT", "parallel to gravity (a magnetic pole): no heading"
+                ) from None
             changes["field_enu_uT"] = tuple(float(x) for x in f)
         for kind in ("gyr", "acc", "mag"):
             if kind not in sen:
@@ -517,9 +529,20 @@ class _Reader:
         return dict(tbl)
 
 
-def _numeric(value: Any) -> bool:
+def _numbers(value: Any) -> np.ndarray | None:
+    """``value`` (a number, or lists of them nested evenly) as a float array; None when any leaf is not a
+    number — a string or a boolean, which numpy would read as one (``"2e-3"`` → 0.002, ``true`` → 1.0:
+    ``field_enu_uT = [true, true, true]`` was a 1.7 µT field), as :meth:`number` refuses for a single
+    value — or the lists are ragged."""
+
+    def leaves(v: Any) -> bool:
+        if isinstance(v, list):
+            return all(leaves(x) for x in v)
+        return isinstance(v, int | float) and not isinstance(v, bool)
+
+    if not leaves(value):
+        return None
     try:
-        np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return False
-    return True
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError, OverflowError):  # ragged lists; an integer beyond a float
+        return None
