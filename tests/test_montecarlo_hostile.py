@@ -34,7 +34,7 @@ from hil.montecarlo import Campaign, draw, open_client, parse_dispersions, read_
 from hil.montecarlo.campaign import check_address
 from hil.montecarlo.dispersions import OUTAGE_S
 from hil.montecarlo.fault_plan import MAX_COUNT, MIN_DURATION_S
-from hil.montecarlo.metrics import METRICS, TRACES
+from hil.montecarlo.metrics import METRICS, TRACES, trace_length
 from hil.montecarlo.runner import RunResult
 from hil.montecarlo.store import MANIFEST, RUNS, TRACE_FILE, ResultStore
 from hil.runtime.held_signals import deferred
@@ -123,6 +123,22 @@ def _result(index: int, ok: bool = True, samples: int = 5) -> RunResult:
     metrics = {name: float(index) for name in METRICS}
     trace = np.full((len(TRACES), samples), index, dtype=np.float32)
     return RunResult(index, ok, columns, metrics if ok else {}, trace if ok else None, "" if ok else "E: x")
+
+
+@pytest.mark.parametrize("trace_hz", [1e-300, 1e-9, 0.01])
+def test_a_trace_rate_that_samples_no_run_once_is_refused_naming_it(scenario, trace_hz):
+    """A trace rate below one sample in the slew's duration made every run's trace empty, and ``hil report``
+    then took run 0's record (its index alone, 0) for a crash's unwritten tail."""
+    if trace_length(scenario.slew.duration_s, trace_hz) >= 1:  # 0.01 Hz: one sample, at the slew's start
+        Campaign(
+            scenario, parse_dispersions(INERTIA, scenario, "inertia.toml"), runs=1, seed=0, trace_hz=trace_hz
+        )
+        return
+    with pytest.raises(ConfigError, match="samples no run's trace") as err:
+        Campaign(
+            scenario, parse_dispersions(INERTIA, scenario, "inertia.toml"), runs=1, seed=0, trace_hz=trace_hz
+        )
+    assert err.value.where == "campaign.trace_hz"
 
 
 @pytest.fixture

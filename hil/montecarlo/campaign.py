@@ -104,6 +104,11 @@ class Campaign:
         rate = self.scenario.loop.control_rate_hz
         if not (math.isfinite(self.trace_hz) and 0 < self.trace_hz <= rate):
             raise ConfigError(f"must be in (0, {rate:g}] Hz (the control rate)", "campaign.trace_hz")
+        duration = self.scenario.slew.duration_s
+        if trace_length(duration, self.trace_hz) < 1:  # 1e-300 Hz: traces of nothing
+            raise ConfigError(
+                f"{self.trace_hz:g} Hz samples no run's trace once in its {duration:g} s", "campaign.trace_hz"
+            )
         if self.dispersions.scenario is not self.scenario:
             raise ConfigError("the dispersions are bound to another scenario", "campaign.dispersions")
 
