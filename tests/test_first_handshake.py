@@ -14,6 +14,7 @@ board was restarted under its first handshake, where ``hil run`` waits for it wi
 
 from __future__ import annotations
 
+import os
 import random
 import signal
 import time
@@ -241,3 +242,53 @@ def test_an_interrupt_during_the_retries_ends_cleanly(tmp_path, index):
     assert lines[-2] == f"hil calibrate: no session with the board at {link}; nothing was done", err
     assert lines[-1] == f"hil calibrate: interrupted ({signal.Signals(signum).name})", err
     assert time.monotonic() - sent < 15.0
+
+
+def _not_ports(tmp_path: Path) -> list[str]:
+    """Port URLs that are there but are no serial port, or that name no board however long they are
+    tried: a folder, a regular file, a FIFO, a device that is no terminal, a URL's bad option, a python-can
+    interface that does not exist."""
+    (tmp_path / "a-file").write_text("not a port")
+    os.mkfifo(tmp_path / "a-fifo")
+    fifo = str(tmp_path / "a-fifo")
+    return [
+        str(tmp_path),
+        str(tmp_path / "a-file"),
+        fifo,
+        "/dev/null",
+        "loop://?logging=bogus",
+        "can://bogus/x",
+    ]
+
+
+def test_a_port_that_is_no_serial_port_fails_at_once_never_retried(tmp_path):
+    """Each was retried for the whole bound (15 s by default; for ever with ``--recover-within 1e308``):
+    EISDIR and ENOTTY, a URL's bad option and a CAN interface python-can does not have are
+    :class:`TransportRefused` on the first try."""
+    for url in _not_ports(tmp_path):
+        client = BoardClient(url)
+        t0 = time.monotonic()
+        with pytest.raises(TransportRefused) as err:
+            connect_within(client, 600.0)  # a retry would wait: the first back-off is 0.5 s and more
+        assert url in str(err.value) and "tried for" not in str(err.value)
+        assert time.monotonic() - t0 < 5.0  # the first try's; loaded machines included
+        client.close()
+
+
+def test_a_port_that_is_not_there_yet_is_still_waited_for(tmp_path):
+    """The path's other side: a device not there (a board not plugged in yet) is tried again, within the
+    bound, as before."""
+    client = BoardClient(str(tmp_path / "ttyACM9"))
+    with pytest.raises(TransportError) as err:
+        connect_within(client, 2.0)
+    assert not isinstance(err.value, TransportRefused) and "tried for" in str(err.value)
+    client.close()
+
+
+@pytest.mark.parametrize("option", ["--recover-within", "--phone-wait", "--duration"])
+def test_a_wait_longer_than_a_day_is_refused_by_hil_run(option, capsys):
+    from hil.cli import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["run", option, "1e308"])
+    assert exit_.value.code == 2 and option in capsys.readouterr().err

@@ -53,14 +53,22 @@ EXIT_COMPLETED, EXIT_INCOMPLETE, EXIT_ERROR, EXIT_LOST = 0, 1, 2, 3
 MAX_FAULT_LINES = 12  # faults listed in the printed summary; all of them are in summary.json
 
 
+MAX_OPTION_S = 86_400.0
+"""The longest ``--duration``, ``--phone-wait`` or ``--recover-within`` (a day, a scenario's longest
+``duration_s``): ``--recover-within 1e308`` waited for ever on a port that is never there."""
+
+
 def seconds(text: str) -> float:
-    """An argparse type: a finite, positive number of seconds (``nan``, ``inf``, 0 and below refused)."""
+    """An argparse type: a finite, positive number of seconds up to :data:`MAX_OPTION_S` (``nan``,
+    ``inf``, 0 and below, and more refused)."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text!r}")
+    if not (math.isfinite(value) and 0 < value <= MAX_OPTION_S):
+        raise argparse.ArgumentTypeError(
+            f"must be a finite number of seconds in (0, {MAX_OPTION_S:g}], got {text!r}"
+        )
     return value
 
 

@@ -66,7 +66,7 @@ from typing import Any
 import can
 
 from protocol.can import MAX_WIRE, NODE_MAX, CanId, CanReassembler, CanSegmenter, Direction, Received
-from protocol.errors import LinkError, ProtocolError, TransportError
+from protocol.errors import LinkError, ProtocolError, TransportError, TransportRefused
 
 from .base import Transport, UrlOptions
 
@@ -171,7 +171,11 @@ class CanTransport(Transport):
         fd = self.fd or self.interface in _TAKES_BOTH_KINDS
         try:
             self._bus = can.Bus(interface=self.interface, channel=self.channel, fd=fd, **self._bus_options)
-        except (can.CanError, ImportError, NotImplementedError) as exc:
+        except (ImportError, NotImplementedError) as exc:  # no such interface here: trying again cannot help
+            raise TransportRefused(
+                f"{self.url}: python-can has no {self.interface!r} interface here: {exc}"
+            ) from exc
+        except can.CanError as exc:  # an interface down or not plugged in yet: tried again
             raise TransportError(
                 f"{self.url}: cannot open the {self.interface!r} CAN interface: {exc}"
             ) from exc

@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import errno
 import os
+import termios
 from dataclasses import dataclass
 
 import serial
 
-from protocol.errors import LinkError, PortBusy, TransportError
+from protocol.errors import LinkError, PortBusy, TransportError, TransportRefused
 
 from .base import Transport
 from .port_holder import find_holder
@@ -31,6 +32,20 @@ DRAIN_BYTES = 1 << 18
 """The most one read takes: everything waiting, up to this (a pty holds a few tens of KiB). A read takes
 all that waited, so the next one holds only what came after it (:mod:`hil.link.board.made_at` dates a
 read that came late by the board's clock, and one that came promptly by its receive time)."""
+
+
+def _no_serial_port(exc: serial.SerialException) -> bool:
+    """Whether pyserial's refusal says the path is there and is no serial port — a folder (EISDIR), a
+    regular file, a FIFO or a device that is no terminal (ENOTTY: pyserial's termios set-up refused,
+    without an errno of its own, the ``termios.error`` its context) — which trying again for the run's
+    outage bound cannot mend (a port not there yet, or busy for a moment, can be)."""
+    codes = {exc.errno}
+    context = exc.__context__
+    if isinstance(context, termios.error) and context.args:
+        codes.add(context.args[0])
+    if isinstance(context, OSError):
+        codes.add(context.errno)
+    return bool(codes & {errno.EISDIR, errno.ENOTTY})
 
 
 class SerialTransport(Transport):
@@ -95,11 +110,14 @@ class SerialTransport(Transport):
         except serial.SerialException as exc:
             if exc.errno == errno.EWOULDBLOCK and port is not None and port.port:
                 raise self._busy(str(port.port)) from exc
+            if _no_serial_port(exc):
+                raise TransportRefused(f"{self.url}: not a serial port ({exc})") from exc
             raise TransportError(f"{self.url}: {exc}") from exc
         except (ValueError, KeyError) as exc:
             # pyserial's URL handlers raise ValueError for bad options; loop:// raises KeyError
-            # (a format-string bug in its own error message), so both mean "bad URL options".
-            raise TransportError(f"{self.url}: bad URL or options ({exc!r})") from exc
+            # (a format-string bug in its own error message), so both mean "bad URL options": no board,
+            # however long it is tried
+            raise TransportRefused(f"{self.url}: bad URL or options ({exc!r})") from exc
 
     def _busy(self, device: str) -> PortBusy:
         """The refusal of a port another process has locked, naming that process when it can be found."""
