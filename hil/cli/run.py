@@ -54,21 +54,27 @@ MAX_FAULT_LINES = 12  # faults listed in the printed summary; all of them are in
 
 
 MAX_OPTION_S = 86_400.0
-"""The longest ``--duration``, ``--phone-wait`` or ``--recover-within`` (a day, a scenario's longest
-``duration_s``): ``--recover-within 1e308`` waited for ever on a port that is never there."""
+"""The longest ``--duration``, ``--phone-wait`` or ``--recover-within`` of ``hil run`` (a day, a
+scenario's longest ``duration_s``): ``--recover-within 1e308`` waited for ever on a port that is never
+there."""
 
 
 def seconds(text: str) -> float:
-    """An argparse type: a finite, positive number of seconds up to :data:`MAX_OPTION_S` (``nan``,
-    ``inf``, 0 and below, and more refused)."""
+    """An argparse type: a finite, positive number of seconds (``nan``, ``inf``, 0 and below refused)."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
-    if not (math.isfinite(value) and 0 < value <= MAX_OPTION_S):
-        raise argparse.ArgumentTypeError(
-            f"must be a finite number of seconds in (0, {MAX_OPTION_S:g}], got {text!r}"
-        )
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text!r}")
+    return value
+
+
+def run_seconds(text: str) -> float:
+    """:func:`seconds`, at most :data:`MAX_OPTION_S`: a run's bounds and waits."""
+    value = seconds(text)
+    if value > MAX_OPTION_S:
+        raise argparse.ArgumentTypeError(f"must be at most {MAX_OPTION_S:g} s (a day), got {text!r}")
     return value
 
 
@@ -97,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument(
         "--duration",
-        type=seconds,
+        type=run_seconds,
         metavar="S",
         help="run this long after the slew starts (default: the scenario's duration_s)",
     )
@@ -113,13 +119,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument(
         "--phone-wait",
-        type=seconds,
+        type=run_seconds,
         metavar="S",
         help="with --port: wait S s for the phone's first samples (default 10 s)",
     )
     p.add_argument(
         "--recover-within",
-        type=seconds,
+        type=run_seconds,
         default=15.0,
         metavar="S",
         help="a board outage (or phone gap) longer than S s ends the run as lost, exit status 3 "
