@@ -14,6 +14,7 @@ its link pointed at another one that ran longer and took more frames than it had
 
 from __future__ import annotations
 
+import logging
 import random
 import signal
 import time
@@ -24,11 +25,26 @@ from test_board_client_pty import drive, firmware_sim
 
 from firmware_sim.board.config import BoardConfig
 from firmware_sim.board.core import Board
-from hil.link.board import BoardClient, BoardResetEvent, ClientConfig, ConnectedEvent
-from hil.link.board.session import AGE_SLACK_S, Phase, Session
+from hil.link.board import BoardClient, BoardResetEvent, ClientConfig, ConnectedEvent, LogEvent, StateEvent
+from hil.link.board.session import AGE_SLACK_S, DROP_WARN_EVERY_S, Phase, Session
 from hil.timing.clock import LockstepClock
 from protocol.errors import BoardReset
-from protocol.messages import ActuatorSetpoint, Arm, BoardState, ResetCause, UnitSetpoint
+from protocol.frame import Deframer, Frame, encode_frame
+from protocol.messages import (
+    PROTOCOL_VERSION,
+    SCHEMA_HASH,
+    Ack,
+    ActuatorSetpoint,
+    Arm,
+    BoardState,
+    Heartbeat,
+    Hello,
+    HelloReply,
+    Log,
+    ResetCause,
+    Severity,
+    UnitSetpoint,
+)
 from protocol.reliable import CommandState
 
 SEED = 20261205
@@ -216,3 +232,129 @@ def test_another_board_on_the_killed_boards_link_is_reported_by_its_boot_id(tmp_
                     client.send_setpoint(setpoint())
             finally:
                 client.close()
+
+
+@pytest.mark.parametrize("lost_s", [0.0, 0.05, 0.12, 0.3])
+@pytest.mark.parametrize("board_type", [Board, BoardWithoutBootId], ids=["boot-id", "counts"])
+def test_an_armed_board_that_reset_is_one_reset_reported_before_the_state_it_left(lost_s, board_type):
+    """An armed board resets with the link up, its first ``lost_s`` of output lost (its BOOT heartbeats,
+    on a noisy line): the host is told one reset, and told it before any ARMED → DISARMED — which, told
+    first, the run read as a Disarm no command asked for: a second fault for the one reset, and a false
+    one."""
+    bench = Bench(boot_seed=5)
+    bench.board = board_type(bench.config, bench.clock, boot_ids=random.Random(5))
+    bench.connect()
+    cmd, data = bench.session.command(Arm(), bench.now())
+    bench.to_board(data)
+    bench.run(0.2, setpoint())
+    assert cmd.state is CommandState.ACKED and bench.session.state is BoardState.ARMED
+    board = bench.board
+    assert board is not None
+    board.reset(ResetCause.EXTERNAL)
+    end = bench.now() + lost_s
+    while bench.now() < end - 1e-9:  # the board runs, its bytes lost
+        bench.clock.advance(STEP_S)
+        board.step()
+        board.take_output()
+    bench.events.clear()
+    bench.run(0.6)
+    [reset] = bench.resets()
+    disarmed = [
+        i
+        for i, e in enumerate(bench.events)
+        if isinstance(e, StateEvent) and (e.old, e.new) == (BoardState.ARMED, BoardState.DISARMED)
+    ]
+    assert all(bench.events.index(reset) < i for i in disarmed), bench.events[:6]
+
+
+class _Hand:
+    """A board played frame by frame against a host session: its answers built by the protocol's own
+    encoder, to say what no emulated board says (an uptime gone back while it still says ARMED)."""
+
+    def __init__(self) -> None:
+        self.session, self.t, self.seq = Session(), 0.0, 0
+        self.events: list[object] = []
+
+    def to_host(self, message: object, seq: int | None = None) -> list[Frame]:
+        """``message`` to the session; what the session sent back, decoded."""
+        self.t += 0.01
+        if seq is None:
+            self.seq = (self.seq + 1) % 256
+        out = self.session.feed(encode_frame(message, self.seq if seq is None else seq), self.t)
+        out += self.session.poll(self.t)
+        self.events += self.session.take_events()
+        return [f for f in Deframer().feed(out) if isinstance(f, Frame)]
+
+    def reply(self, frames: list[Frame], boot_id: int, state: BoardState) -> list[Frame]:
+        """The HelloReply to the Hello among ``frames``."""
+        [hello] = [f for f in frames if isinstance(f.message, Hello)]
+        reply = HelloReply(
+            protocol_version=PROTOCOL_VERSION, schema_hash=SCHEMA_HASH, reset_cause=ResetCause.EXTERNAL,
+            state=state, n_units=UNITS, frame_rate_hz=50, boot_id=boot_id, manufacturer="m", model="m",
+            description="d", version="1", uri="", serial="S1",
+        )  # fmt: skip
+        return self.to_host(reply, hello.seq)
+
+
+def test_a_reset_found_by_the_uptime_is_told_before_the_disarmed_state_the_handshake_finds():
+    """An armed board's uptime goes back while it still says ARMED; the handshake that asks why finds it
+    DISARMED. The reset is told first: told after the state, a run read ARMED → DISARMED as a Disarm no
+    command asked for (two faults for one reset, one false: a fake board's report)."""
+    hand = _Hand()
+    hand.t = 1.0
+    sent = [f for f in Deframer().feed(hand.session.link_up(hand.t)) if isinstance(f, Frame)]
+    hand.reply(sent, 0x1234, BoardState.DISARMED)
+    cmd, data = hand.session.command(Arm(), hand.t)
+    [arm] = [f for f in Deframer().feed(data) if isinstance(f, Frame)]
+    hand.to_host(Ack(msg_id=Arm.MSG_ID, seq=arm.seq))
+    assert cmd.state is CommandState.ACKED and hand.session.state is BoardState.ARMED
+    for ms in (5000, 5200, 5400):
+        hand.to_host(Heartbeat(time_ms=ms, state=BoardState.ARMED, boot_id=0x1234))
+    hand.events.clear()
+    asked = hand.to_host(Heartbeat(time_ms=10, state=BoardState.ARMED, boot_id=0x1234))  # uptime back
+    hand.reply(asked, 0x1234, BoardState.DISARMED)
+    [reset] = [e for e in hand.events if isinstance(e, BoardResetEvent)]
+    [disarmed] = [e for e in hand.events if isinstance(e, StateEvent) and e.new is BoardState.DISARMED]
+    assert hand.events.index(reset) < hand.events.index(disarmed), hand.events
+
+
+def _handshaken() -> _Hand:
+    hand = _Hand()
+    hand.t = 1.0
+    sent = [f for f in Deframer().feed(hand.session.link_up(hand.t)) if isinstance(f, Frame)]
+    hand.reply(sent, 0x1234, BoardState.DISARMED)
+    return hand
+
+
+def test_a_reset_storm_is_every_reset_counted_and_a_warning_a_second(caplog):
+    """A board whose boot id changes at every heartbeat (2 000 of them, 10 ms apart): every reset is
+    counted and an event, and the log holds a warning a second (it held 2 000, burying the host's own)."""
+    hand = _handshaken()
+    caplog.set_level(logging.WARNING, logger="hil.link.board.session")
+    boot = 0x1234
+    for k in range(2000):
+        boot = boot + 1
+        asked = hand.to_host(Heartbeat(time_ms=100 + k, state=BoardState.DISARMED, boot_id=boot))
+        if any(isinstance(f.message, Hello) for f in asked):
+            hand.reply(asked, boot, BoardState.DISARMED)
+    resets = [e for e in hand.events if isinstance(e, BoardResetEvent)]
+    lines = [r for r in caplog.records if "board reset" in r.getMessage()]
+    assert len(resets) == hand.session.counters.resets >= 1000
+    span_s = hand.t - 1.0
+    assert 1 <= len(lines) <= span_s / DROP_WARN_EVERY_S + 2
+    assert any("more resets since the last warning" in r.getMessage() for r in lines[1:])
+
+
+@pytest.mark.parametrize(
+    "text", ["\x1b[2J\x1b[H\rINFO hil: run completed\x1b[8m", "a\u202eb", "\x07\x00\x7f\x9b[31m", "ok\tline"]
+)
+def test_a_board_log_reaches_the_terminal_with_its_control_characters_escaped(text, caplog):
+    """A board's Log goes to the operator's terminal: its escape sequences cleared the screen and hid the
+    host's lines, a CR wrote over them. They are escaped in the log line; the event keeps the text."""
+    hand = _handshaken()
+    caplog.set_level(logging.INFO, logger="hil.link.board.session")
+    hand.to_host(Log(severity=Severity.ERROR, code=1, text=text))
+    [line] = [r.getMessage() for r in caplog.records if r.getMessage().startswith("board: ")]
+    assert not any(ord(c) < 0x20 and c != "\t" or 0x7F <= ord(c) < 0xA0 or c == "\u202e" for c in line)
+    [event] = [e for e in hand.events if isinstance(e, LogEvent)]
+    assert event.log.text == text

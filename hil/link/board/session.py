@@ -245,6 +245,8 @@ class Session:
         self._telemetry_seq: int | None = None  # the sequence number of the telemetry held
         self._next_drop_warning = -math.inf
         self._drops_unlogged = 0
+        self._next_reset_warning = -math.inf  # a reset storm logs a line a second (every reset counted)
+        self._resets_unlogged = 0
         self._log_window = -math.inf  # host time the current second of logged board logs began
         self._logs_in_window = 0
         self._logs_unlogged = 0  # board logs not logged since the last one that was
@@ -546,7 +548,7 @@ class Session:
         self._logs_in_window += 1
         more, self._logs_unlogged = self._logs_unlogged, 0
         since = f" ({more} board logs not logged before this one)" if more else ""
-        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s%s", msg.text, since)
+        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s%s", _printable(msg.text), since)
 
     def _on_esc_calibration_status(self, frame: Frame, now: float) -> None:
         self._emit(EscCalibrationEvent(now, frame.message))
@@ -738,10 +740,15 @@ class Session:
         return min(max((ran[0] - base[0]) / (ran[1] - base[1]), SLOWEST_RATE), 1.0)
 
     def _set_state(self, state: BoardState, now: float) -> None:
-        old = self.state
-        if state is old:
+        old, self.state = self.state, state
+        self._state_changed(old, now)
+
+    def _state_changed(self, old: BoardState | None, now: float) -> None:
+        """The board's state is :attr:`state` now, ``old`` before: told (a :class:`StateEvent`) if it
+        changed."""
+        state = self.state
+        if state is old or state is None:
             return
-        self.state = state
         self._emit(StateEvent(now, old, state))
         if state is BoardState.FAILSAFE:
             logger.warning("board in FAILSAFE (its link watchdog fired); arm() to recover")
@@ -751,7 +758,13 @@ class Session:
         if self.pending_reset is not None:
             self.pending_reset.cause = cause
         self._emit(BoardResetEvent(now, cause, evidence, in_session))
-        logger.warning("board reset (cause %s): %s", cause.name, evidence)
+        if now < self._next_reset_warning:  # a reset storm: every one counted and an event, a line a second
+            self._resets_unlogged += 1
+            return
+        self._next_reset_warning = now + DROP_WARN_EVERY_S
+        more, self._resets_unlogged = self._resets_unlogged, 0
+        since = f" (and {more} more resets since the last warning)" if more else ""
+        logger.warning("board reset (cause %s): %s%s", cause.name, _printable(evidence), since)
 
     # ------------------------------------------------------------------ handshake
     def _hello(self, now: float) -> None:
@@ -827,7 +840,11 @@ class Session:
         self.counters.handshakes += 1
         self._reply_since_sample = reply
         self._setpoint_slot = -math.inf
-        self._set_state(reply.state, now)
+        # The reset is told before the state it left the board in (and judged by that state: an armed
+        # board's reset is held for the caller): an ARMED board found DISARMED by the handshake after a
+        # reset is that reset's doing, and a run told the change first saw a Disarm no command of the
+        # host's asked for — two faults for one reset, one of them false.
+        old_state, self.state = self.state, reply.state
         if self._reset_evidence is not None:
             self._report_reset(now, reply.reset_cause, self._reset_evidence)
             self._reset_evidence = None
@@ -836,6 +853,7 @@ class Session:
             self._report_reset(now, reply.reset_cause, boot_changed)
         elif first and reply.reset_cause is not ResetCause.POWER_ON:
             self._report_reset(now, reply.reset_cause, "reported at connect (before this session)", False)
+        self._state_changed(old_state, now)
         reconnect = self._lost
         rearm = self._armed_at_loss and self.config.rearm_on_reconnect  # a board that reset too: asked for
         self.counters.reconnects += reconnect
@@ -943,6 +961,21 @@ class Session:
         more, self._drops_unlogged = self._drops_unlogged, 0
         since = f" (and {more} more dropped since the last warning)" if more else ""
         logger.warning("board frame dropped: %s%s", what, since)
+
+
+_UNPRINTABLE = {
+    c: f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}"
+    for c in (*range(0x20), *range(0x7F, 0xA0), 0x061C, *range(0x200E, 0x2010), *range(0x202A, 0x202F))
+    if c not in (0x09,)
+}
+"""Control characters (C0, DEL, C1) and bidirectional marks and overrides, each as its escape: what a
+board says goes to the operator's terminal, where ``ESC [2J`` cleared the screen, a CR over-wrote the
+host's own line and ``ESC [8m`` hid what followed; U+202E turns text round."""
+
+
+def _printable(text: str) -> str:
+    """``text`` with :data:`_UNPRINTABLE` escaped, for a log line (the event keeps the board's text)."""
+    return text.translate(_UNPRINTABLE)
 
 
 Receive = Callable[[Session, Frame, float], None]
