@@ -40,11 +40,13 @@ def _digest(path: Path) -> str:
 
 
 @pytest.mark.parametrize("size", [1, EEPROM_SIZE - 1, EEPROM_SIZE + 1, 13_988, 100_000])
-def test_an_eeprom_file_of_another_size_is_refused_and_left_as_it_was(tmp_path, size):
+@pytest.mark.parametrize("served", [(), ("--world", "cubesat-1u")], ids=["served", "stepped-with-a-world"])
+def test_an_eeprom_file_of_another_size_is_refused_and_left_as_it_was(tmp_path, size, served):
+    """Both ways firmware-sim runs the firmware: served on its pty, and stepped with a world."""
     path = tmp_path / "notes.txt"
     path.write_bytes(os.urandom(size))
     before = _digest(path)
-    done = _firmware_sim("--avr", "--eeprom", str(path))
+    done = _firmware_sim("--avr", *served, "--eeprom", str(path))
     assert done.returncode == 2, done.stderr
     assert (
         str(path) in done.stderr and "not an EEPROM image" in done.stderr and "Traceback" not in done.stderr

@@ -344,6 +344,21 @@ def test_a_project_csv_whose_t_s_is_not_seconds_is_an_error_naming_t_s(tmp_path,
     assert "log.csv" in str(err.value) and "t_s" in str(err.value)
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_a_project_csv_with_a_1_hz_sensor_reads(tmp_path, seed):
+    """The path's other side: a sensor at 1 Hz (the slowest a phone's is), its times jittered by 50 ms, is
+    read (a bound at exactly 1 s refused half of such logs)."""
+    rng = np.random.default_rng(seed)
+    rows = ["t_s,sensor,x,y,z,w"]
+    for i in range(60):
+        rows.append(f"{i + rng.uniform(-0.05, 0.05)!r},mag,1.0,28.0,-37.0,")
+        rows += [f"{i + k / 50!r},{s},0.1,0.2,9.8," for k in range(50) for s in ("gyr", "acc")]
+    path = tmp_path / "log.csv"
+    path.write_text("\n".join(rows) + "\n")
+    log = read_log(path)
+    assert len(log.streams[SensorKind.MAG]) == 60
+
+
 def test_the_shared_recordings_still_read(tmp_path):
     """The rules above leave every real recording as it was read: none refused, none with NaN added."""
     for path in [REAL_SENSORLOGGER, *sorted((SHARED_DATA / "tyrex-nexus5").glob("*/"))[:3]]:
@@ -354,9 +369,10 @@ def test_the_shared_recordings_still_read(tmp_path):
 
 
 @pytest.mark.parametrize("before", ["# a\n" * 5, "\n" * 3, "# exported by a tool\n\n" * 20, "   \n# x\n" * 7])
-def test_the_project_csv_is_found_past_any_comment_and_blank_lines_before_its_header(tmp_path, before):
-    """The format's own files are told by their header however many comment or blank lines come first (the
-    detector read the first five lines only: a sixth-line header was "not a recognised log")."""
+def test_the_project_csv_is_found_past_the_comment_and_blank_lines_before_its_header(tmp_path, before):
+    """The format's own files are told by their header past the comment and blank lines before it (as far
+    as the detectors look: 64 lines, 4 KiB; the detector read the first five lines only: a sixth-line
+    header was "not a recognised log")."""
     own = [line for line in FIXTURE.read_text().splitlines() if not line.startswith("#")]
     path = tmp_path / "log.csv"
     path.write_text(before + "\n".join(own) + "\n")

@@ -261,7 +261,7 @@ class AvrBoard:
                     f"{len(eeprom_image)} bytes, not {eeprom.EEPROM_SIZE}", "AvrBoard.eeprom_image"
                 )
             self._eeprom_path.write_bytes(eeprom_image)
-        elif self.options.eeprom_file is None or not self._eeprom_path.exists():
+        elif self.options.eeprom_file is None or _eeprom_file_to_make(self._eeprom_path):
             sets = tuple(None if c is None else c.to_bytes() for c in calibrations)
             image = eeprom.EepromImage(self.config, sets, link=self.options.board_link)
             self._eeprom_path.write_bytes(image.to_bytes())

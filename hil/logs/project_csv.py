@@ -48,7 +48,7 @@ def detect(c: Container) -> bool:
     head = c.head(names[0], 1)
     if head and head[0].startswith(MAGIC):
         return True
-    content = content_head(c, names[0], 1)  # the header, past any comment and blank lines before it
+    content = content_head(c, names[0], 1)  # the header, past the comment and blank lines before it
     return bool(content) and _is_header(content[0])
 
 
@@ -84,18 +84,27 @@ def read(c: Container) -> SensorLog:
     return SensorLog(streams, where, NAME, truth, ("project CSV v1", *table.layout_notes()))
 
 
+SLOWEST_STEP_S = 1.5 * SAMPLE_STEP_S[1]
+"""s: the median step between a sensor's samples above which ``t_s`` is taken for no seconds: a phone
+sensor samples at 1 Hz or faster (:data:`~hil.logs.sensorlogger.SAMPLE_STEP_S`), and a 1 Hz sensor's
+median step is 1 s give or take its jitter (half of it here); a time in ms is 1 000 times its step in s
+(a 600 Hz sensor's 1.7), in ns 10⁹ times."""
+MIN_STEPS = 10
+"""Steps a sensor needs before its median step is judged (a few rows either side of a gap say little)."""
+
+
 def _check_seconds(stream: SensorStream, where: str) -> None:
     """An :class:`InputFormatError` naming ``t_s`` when a sensor's samples lie a median step apart that no
-    phone sensor's do (more than :data:`~hil.logs.sensorlogger.SAMPLE_STEP_S`'s 1 s): a time in ms or ns
-    written under ``t_s``. Read as seconds, ns since the epoch put each sample 10⁷ s from the next, every
-    one a part of its own, and the replay said only that no part had every sensor speaking."""
+    phone sensor's do (:data:`SLOWEST_STEP_S`): a time in ms or ns written under ``t_s``. Read as seconds,
+    ns since the epoch put each sample 10⁷ s from the next, every one a part of its own, and the replay
+    said only that no part had every sensor speaking."""
     t = stream.t[np.isfinite(stream.t)]
     steps = np.diff(t)
     steps = steps[steps > 0]
-    if len(steps) < 2:
+    if len(steps) < MIN_STEPS:
         return
     step = float(np.median(steps))
-    if step > SAMPLE_STEP_S[1]:
+    if step > SLOWEST_STEP_S:
         raise InputFormatError(
             f"the {stream.kind.label} rows lie a median {step:.6g} s apart: no phone sensor samples more "
             f"than {SAMPLE_STEP_S[1]:g} s apart; t_s is in seconds (a time in ms or ns written there?)",
