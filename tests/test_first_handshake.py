@@ -292,3 +292,10 @@ def test_a_wait_longer_than_a_day_is_refused_by_hil_run(option, capsys):
     with pytest.raises(SystemExit) as exit_:
         main(["run", option, "1e308"])
     assert exit_.value.code == 2 and option in capsys.readouterr().err
+
+
+def test_a_connect_within_longer_than_a_day_is_refused_by_hil_calibrate(tmp_path, capsys):
+    from hil.cli import main
+
+    code = main(["calibrate", "esc", "--port", str(tmp_path / "none"), *ESC, "--connect-within", "1e308"])
+    assert code == 2 and "--connect-within" in capsys.readouterr().err

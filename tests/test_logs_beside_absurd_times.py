@@ -173,7 +173,7 @@ def _phyphox_export(folder: Path, name: str, label: str, unit: str, source: str,
         ("1679068247.6", "1e12", "no time since the epoch"),
         ("1679068247.6", "1779068247.6", "within 31 days"),
     ],
-)
+)  # two exports: the one farther from the median is either; three are below
 def test_phyphox_exports_whose_start_times_cannot_align_them_are_an_error_naming_meta_time(
     tmp_path, acc_start, gyr_start, message
 ):
@@ -182,6 +182,18 @@ def test_phyphox_exports_whose_start_times_cannot_align_them_are_an_error_naming
     with pytest.raises(InputFormatError, match=message) as err:
         read_log(tmp_path)
     assert "time.csv" in str(err.value)
+
+
+@needs_real_export
+def test_of_three_phyphox_exports_the_one_started_far_from_the_others_is_named(tmp_path):
+    """Two exports started 3 s apart and a third whose start is corrupt (5 s: within the epoch bound,
+    decades from the others): the error names the third's ``meta/time.csv``, not the first's."""
+    _phyphox_export(tmp_path, "acc", "Acceleration", "m/s^2", "TotalAcceleration.csv", "1679068247.6")
+    _phyphox_export(tmp_path, "gyr", "Gyroscope", "rad/s", "Gyroscope.csv", "1679068250.6")
+    _phyphox_export(tmp_path, "mag", "Magnetic field", "µT", "Magnetometer.csv", "5.0")
+    with pytest.raises(InputFormatError, match="within 31 days") as err:
+        read_log(tmp_path)
+    assert str(tmp_path / "mag" / "meta" / "time.csv") in str(err.value)
 
 
 @needs_real_export
@@ -378,3 +390,18 @@ def test_the_project_csv_is_found_past_the_comment_and_blank_lines_before_its_he
     path.write_text(before + "\n".join(own) + "\n")
     log = read_log(path)
     assert log.format == "csv" and log.n_samples == read_log(FIXTURE).n_samples
+
+
+def test_a_6_axis_start_from_gravity_passes_over_a_first_time_that_is_no_number():
+    """A 6-axis log's start attitude is its first half second's gravity when it has no still window: a NaN
+    first accelerometer time (a stray row a reader made a NaN sample) selected no reading, and the start
+    was the identity, without a word."""
+    from hil.estimation.inertial import tilt_attitude
+    from hil.estimation.sensors import SensorLog, SensorStream
+
+    t = np.r_[np.nan, np.arange(1, 100) * 0.01]
+    tilt = 0.3
+    acc = SensorStream(SensorKind.ACC, t, np.tile([0.0, 9.81 * np.sin(tilt), 9.81 * np.cos(tilt)], (100, 1)))
+    gyr = SensorStream(SensorKind.GYR, t, np.tile([0.5, 0.0, 0.0], (100, 1)))  # turning: no still window
+    R = tilt_attitude(SensorLog({SensorKind.GYR: gyr, SensorKind.ACC: acc}, "x", "csv"))
+    np.testing.assert_allclose(R @ acc.xyz[1] / 9.81, [0.0, 0.0, 1.0], atol=1e-9)  # gravity to up

@@ -169,13 +169,14 @@ def _sweep_options(p: argparse.ArgumentParser) -> None:
 def _client(args: argparse.Namespace) -> Any:
     """The client of the board at ``args.port``, connected (:func:`hil.link.board.connect_within`): a port
     away at the first handshake is tried again for ``--connect-within`` s, each retry said on stderr."""
+    from hil.cli.run import MAX_OPTION_S
     from hil.link.board import BoardClient, ConnectRetry, connect_within
     from hil.timing.clock import LockstepClock
     from protocol.errors import ConfigError, HandshakeError, LinkError
 
     bound = args.connect_within
-    if not (math.isfinite(bound) and bound >= 0):
-        raise ConfigError(f"{bound!r} must be a number of seconds >= 0", "--connect-within")
+    if not (math.isfinite(bound) and 0 <= bound <= MAX_OPTION_S):  # 1e308: a wait for ever
+        raise ConfigError(f"{bound!r} must be a number of seconds in 0..{MAX_OPTION_S:g}", "--connect-within")
 
     def said(retry: ConnectRetry) -> None:
         print(

@@ -200,7 +200,8 @@ def tilt_attitude(log: SensorLog, window_s: float = 0.5) -> Array:
     try:
         a = find_still_window(log).acc
     except InputFormatError:
-        sel = (acc.t <= acc.t[0] + window_s) & np.all(np.isfinite(acc.xyz), axis=1)
+        start = float(np.min(acc.t[np.isfinite(acc.t)], initial=np.inf))  # a NaN first time is no start
+        sel = (acc.t >= start) & (acc.t <= start + window_s) & np.all(np.isfinite(acc.xyz), axis=1)
         a = np.median(acc.xyz[sel], axis=0) if sel.any() else UP
     n = float(np.linalg.norm(a))
     if not (math.isfinite(n) and n > 0):

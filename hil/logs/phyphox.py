@@ -223,14 +223,16 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
             )
         starts[g] = _start_system_time(c, name)
     first = min(starts.values())
-    for g, start in starts.items():  # exports of one recording: started within a recording's length
-        if start - first > MAX_RECORDING_S:
-            raise InputFormatError(
-                f"started {start - first:.6g} s after the first export's start ({first:.6g} s): exports "
-                f"of one recording start within {MAX_RECORDING_S // 86400} days of each other; its "
-                "'system time' is corrupt or it is another recording's",
-                str(c.path / (g + TIME_CSV)),
-            )
+    if max(starts.values()) - first > MAX_RECORDING_S:  # exports of one recording start within its length
+        median = float(np.median(list(starts.values())))
+        odd = max(sorted(starts), key=lambda g: abs(starts[g] - median))  # the one farthest from the rest
+        raise InputFormatError(
+            f"its start ({starts[odd]:.6g} s) lies {abs(starts[odd] - median):.6g} s from the exports' "
+            f"median start ({median:.6g} s): exports of one recording start within "
+            f"{MAX_RECORDING_S // 86400} days of each other; its 'system time' is corrupt or it is "
+            "another recording's",
+            str(c.path / (odd + TIME_CSV)),
+        )
     notes.append(
         "exports aligned by meta/time.csv: "
         + ", ".join(f"{g.rstrip('/')} +{s - first:.3f} s" for g, s in sorted(starts.items()))

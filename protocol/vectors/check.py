@@ -47,7 +47,7 @@ def check_vectors(path: str | Path) -> list[VectorResult]:
             data = f.read(MAX_VECTORS_BYTES + 1)
         if len(data) > MAX_VECTORS_BYTES:
             raise OSError(f"{path}: larger than {MAX_VECTORS_BYTES} bytes")
-        document = json.loads(data.decode("utf-8"))
+        document = json.loads(data.decode("utf-8-sig"))  # a BOM, as hil reads every document
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # JSONDecodeError: a ValueError
         return [VectorResult(str(path), False, f"cannot read vectors: {exc}")]
     return check_document(document)

@@ -13,6 +13,29 @@ from dataclasses import dataclass
 from protocol.aoa import AccessoryIdentity
 from protocol.messages import BoardState, EscCalibrationStatus, HelloReply, Log, ResetCause, Telemetry
 
+_UNPRINTABLE = {
+    c: f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}"
+    for c in (
+        *range(0x20),
+        *range(0x7F, 0xA0),
+        0x061C,
+        *range(0x200E, 0x2010),
+        *range(0x202A, 0x202F),
+        *range(0x2066, 0x206A),
+    )
+    if c != 0x09
+}
+"""Control characters (C0 but the tab, DEL, C1) and bidirectional marks, embeddings, overrides and
+isolates, each as its escape: what a board says (its Log text, its identity strings) goes to the
+operator's terminal, where ``ESC [2J`` cleared the screen, a CR over-wrote the host's own line and
+``ESC [8m`` hid what followed; U+202E and U+2067 turn text round."""
+
+
+def printable(text: str) -> str:
+    """``text`` a board sent with :data:`_UNPRINTABLE` escaped, for a log line or a message (events keep
+    the board's text as it was)."""
+    return text.translate(_UNPRINTABLE)
+
 
 @dataclass(frozen=True, slots=True)
 class BoardInfo:
@@ -49,9 +72,10 @@ class BoardInfo:
         return 2 * self.n_units
 
     def describe(self) -> str:
+        """The board in one line, for logs and messages: its strings :func:`printable`."""
         ident = self.identity
         boot = f", boot {self.boot_id:#010x}" if self.boot_id else ""
-        return (
+        return printable(
             f"{ident.manufacturer} {ident.model} {ident.version} (serial {ident.serial or '-'}, build "
             f"{self.firmware_build or '-'}{boot}): {self.n_units} units, {self.frame_rate_hz} Hz frames"
         )

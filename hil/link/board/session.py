@@ -128,6 +128,7 @@ from .events import (
     SilenceEvent,
     StateEvent,
     TelemetryEvent,
+    printable,
 )
 from .leaps import CLOCK_RATE, LeapCheck
 from .made_at import MadeAt
@@ -548,7 +549,7 @@ class Session:
         self._logs_in_window += 1
         more, self._logs_unlogged = self._logs_unlogged, 0
         since = f" ({more} board logs not logged before this one)" if more else ""
-        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s%s", _printable(msg.text), since)
+        logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s%s", printable(msg.text), since)
 
     def _on_esc_calibration_status(self, frame: Frame, now: float) -> None:
         self._emit(EscCalibrationEvent(now, frame.message))
@@ -764,7 +765,7 @@ class Session:
         self._next_reset_warning = now + DROP_WARN_EVERY_S
         more, self._resets_unlogged = self._resets_unlogged, 0
         since = f" (and {more} more resets since the last warning)" if more else ""
-        logger.warning("board reset (cause %s): %s%s", cause.name, _printable(evidence), since)
+        logger.warning("board reset (cause %s): %s%s", cause.name, printable(evidence), since)
 
     # ------------------------------------------------------------------ handshake
     def _hello(self, now: float) -> None:
@@ -961,21 +962,6 @@ class Session:
         more, self._drops_unlogged = self._drops_unlogged, 0
         since = f" (and {more} more dropped since the last warning)" if more else ""
         logger.warning("board frame dropped: %s%s", what, since)
-
-
-_UNPRINTABLE = {
-    c: f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}"
-    for c in (*range(0x20), *range(0x7F, 0xA0), 0x061C, *range(0x200E, 0x2010), *range(0x202A, 0x202F))
-    if c not in (0x09,)
-}
-"""Control characters (C0, DEL, C1) and bidirectional marks and overrides, each as its escape: what a
-board says goes to the operator's terminal, where ``ESC [2J`` cleared the screen, a CR over-wrote the
-host's own line and ``ESC [8m`` hid what followed; U+202E turns text round."""
-
-
-def _printable(text: str) -> str:
-    """``text`` with :data:`_UNPRINTABLE` escaped, for a log line (the event keeps the board's text)."""
-    return text.translate(_UNPRINTABLE)
 
 
 Receive = Callable[[Session, Frame, float], None]
