@@ -405,3 +405,29 @@ def test_a_6_axis_start_from_gravity_passes_over_a_first_time_that_is_no_number(
     gyr = SensorStream(SensorKind.GYR, t, np.tile([0.5, 0.0, 0.0], (100, 1)))  # turning: no still window
     R = tilt_attitude(SensorLog({SensorKind.GYR: gyr, SensorKind.ACC: acc}, "x", "csv"))
     np.testing.assert_allclose(R @ acc.xyz[1] / 9.81, [0.0, 0.0, 1.0], atol=1e-9)  # gravity to up
+
+
+def test_the_truth_is_scored_only_where_the_filter_ran_never_across_a_gap(tmp_path):
+    """The 4 s simulated log split by a 30 s gap after 2 s, its truth going on through the gap (turning
+    there): the truth inside the gap is not scored — the estimate there would be two parts' ends joined by
+    interpolation, no estimate the filter made — and the score is the parts' own."""
+    from hil import so3
+    from hil.estimation.sensors import SensorLog, SensorStream, Truth
+    from hil.logs import project_csv
+
+    log = read_log(FIXTURE)
+    assert log.truth is not None
+    shift = lambda t: np.where(t > 2.0, t + 30.0, t)  # noqa: E731
+    streams = {k: SensorStream(k, shift(s.t), s.xyz) for k, s in log.streams.items()}
+    gap_t = np.arange(2.1, 31.9, 0.1)  # the truth turns 180° about z, and back, in the gap
+    gap_r = np.stack([so3.exp(np.array([0.0, 0.0, np.pi * np.sin(np.pi * (t - 2.0) / 30.0)])) for t in gap_t])
+    t_all = np.r_[shift(log.truth.t), gap_t]
+    order = np.argsort(t_all, kind="stable")
+    truth = Truth(t_all[order], np.concatenate([log.truth.R, gap_r])[order])
+    gapped = project_csv.write(SensorLog(streams, "gap", "csv", truth), tmp_path / "gap.csv")
+    result = replay(gapped, ReplayOptions(tmp_path / "o", max_gap_s=10.0))
+    whole = replay(FIXTURE, ReplayOptions(tmp_path / "w"))
+    assert result.comparison is not None and whole.comparison is not None
+    scored = result.comparison.rmse.n
+    assert scored <= whole.comparison.rmse.n  # none of the gap's 298 truth samples
+    assert result.comparison.rmse.total < 3 * whole.comparison.rmse.total + 1.0, result.comparison.rmse

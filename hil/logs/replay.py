@@ -494,7 +494,25 @@ def _score(result: ReplayResult) -> None:
     truth, est = result.log.truth, result.estimates
     if truth is None or len(est) < 2:
         return
-    result.comparison = compare_to_truth(truth.t, truth.R, truth.evaluate, est.t, est.quat, est.omega)
+    evaluate = _replayed(truth.t, est.t, result.segments)
+    if truth.evaluate is not None:
+        evaluate &= np.asarray(truth.evaluate, bool)
+    result.comparison = compare_to_truth(truth.t, truth.R, evaluate, est.t, est.quat, est.omega)
+
+
+def _replayed(truth_t: NDArray[np.float64], est_t: NDArray[np.float64], segments: list) -> NDArray[np.bool_]:
+    """Which truth times (s) lie within a replayed part's estimates (from its first estimate to its last):
+    the truth is scored there only. Across a gap, or over a part not replayed, the estimates are two
+    parts' ends joined by interpolation — no estimate the filter made (a turn during a 70 s gap scored
+    46.7° of RMSE against a log replayed perfectly on both sides)."""
+    inside = np.zeros(len(truth_t), bool)
+    for segment in segments:
+        if "steps" not in segment:
+            continue
+        own = est_t[(est_t >= segment["t0_s"]) & (est_t <= segment["t1_s"])]
+        if len(own):
+            inside |= (truth_t >= own[0]) & (truth_t <= own[-1])
+    return inside
 
 
 def write_estimates(est: EstimateBatch, path: Path) -> Path:

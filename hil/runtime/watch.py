@@ -33,6 +33,7 @@ from hil.link.board.events import (
     SilenceEvent,
     StateEvent,
 )
+from hil.link.throttle import Throttle
 from hil.runtime.faults import BoardLink, FaultJournal
 from hil.runtime.runlog import EventLog
 from protocol.errors import CommandFailed
@@ -81,9 +82,7 @@ class BoardWatch:
         self.disarms_resent = 0  # the operator's Disarm sent again to a board that says ARMED
         self.unheeded_arms = 0  # DISARMED with the host's acknowledged Arm settled (:meth:`hold_armed`)
         self.board_logs_unrecorded = 0  # board Log frames beyond BOARD_LOGS_RECORDED_PER_S: counted only
-        self._log_window = -math.inf  # host time (s) the current second of recorded board logs began
-        self._logs_in_window = 0
-        self._logs_skipped = 0  # board logs not recorded since the last one that was
+        self._log_records = Throttle(1.0, BOARD_LOGS_RECORDED_PER_S)  # board logs recorded a second
         self._reconnects_seen = 0  # the session's reconnect count at the last ConnectedEvent
         self.operator_disarmed = False
         self._disarm: Command | None = None  # the operator's Disarm, or the host's last repeat of it
@@ -150,15 +149,11 @@ class BoardWatch:
         host time: a board flooding its log (20 000 frames in a burst) wrote a flushed line each — the
         run directory grew by megabytes a second, the ground station's feed with it. The rest are counted
         (``board_logs_unrecorded`` in the summary); the next one recorded says how many went before it."""
-        if t - self._log_window >= 1.0:
-            self._log_window, self._logs_in_window = t, 0
-        if self._logs_in_window >= BOARD_LOGS_RECORDED_PER_S:
-            self._logs_skipped += 1
+        before = self._log_records.due(t)
+        if before is None:
             self.board_logs_unrecorded += 1
             return
-        self._logs_in_window += 1
-        skipped = {"not_recorded_before": self._logs_skipped} if self._logs_skipped else {}
-        self._logs_skipped = 0
+        skipped = {"not_recorded_before": before} if before else {}
         self.events.write(t, "board_log", severity=event.log.severity.name, text=event.log.text, **skipped)
 
     def _disarmed_unasked(self, event: StateEvent) -> bool:

@@ -114,6 +114,7 @@ from protocol.messages import (
 )
 from protocol.reliable import Command, CommandState, ReliableSender
 
+from ..throttle import Throttle
 from .config import HOST_IDENTITY, ClientConfig
 from .echoes import WrittenFrames
 from .events import (
@@ -244,13 +245,9 @@ class Session:
         self._leaps = LeapCheck()
         self._made_at = MadeAt()
         self._telemetry_seq: int | None = None  # the sequence number of the telemetry held
-        self._next_drop_warning = -math.inf
-        self._drops_unlogged = 0
-        self._next_reset_warning = -math.inf  # a reset storm logs a line a second (every reset counted)
-        self._resets_unlogged = 0
-        self._log_window = -math.inf  # host time the current second of logged board logs began
-        self._logs_in_window = 0
-        self._logs_unlogged = 0  # board logs not logged since the last one that was
+        self._drop_warnings = Throttle(DROP_WARN_EVERY_S)
+        self._reset_warnings = Throttle(DROP_WARN_EVERY_S)  # a reset storm: a line a second
+        self._log_lines = Throttle(1.0, BOARD_LOGS_PER_S)  # board logs logged a second
         self._auto: dict[int, str] = {}  # id(Command) -> why the session sent it on its own
         self._receive: dict[type[Message], Callable[[Frame, float], None]] = {
             cls: MethodType(receive, self) for cls, receive in RECEIVE.items()
@@ -540,14 +537,10 @@ class Session:
         one logged after a flood saying how many were not."""
         msg: Log = frame.message
         self._emit(LogEvent(now, msg))
-        if now - self._log_window >= 1.0:
-            self._log_window, self._logs_in_window = now, 0
-        if self._logs_in_window >= BOARD_LOGS_PER_S:
-            self._logs_unlogged += 1
+        more = self._log_lines.due(now)
+        if more is None:
             self.counters.board_logs_unlogged += 1
             return
-        self._logs_in_window += 1
-        more, self._logs_unlogged = self._logs_unlogged, 0
         since = f" ({more} board logs not logged before this one)" if more else ""
         logger.log(_LOG_LEVELS.get(msg.severity, logging.INFO), "board: %s%s", printable(msg.text), since)
 
@@ -759,11 +752,9 @@ class Session:
         if self.pending_reset is not None:
             self.pending_reset.cause = cause
         self._emit(BoardResetEvent(now, cause, evidence, in_session))
-        if now < self._next_reset_warning:  # a reset storm: every one counted and an event, a line a second
-            self._resets_unlogged += 1
+        more = self._reset_warnings.due(now)  # a reset storm: every one counted and an event, a line a second
+        if more is None:
             return
-        self._next_reset_warning = now + DROP_WARN_EVERY_S
-        more, self._resets_unlogged = self._resets_unlogged, 0
         since = f" (and {more} more resets since the last warning)" if more else ""
         logger.warning("board reset (cause %s): %s%s", cause.name, printable(evidence), since)
 
@@ -955,11 +946,9 @@ class Session:
     def _drop(self, now: float, what: str) -> None:
         """A well-formed frame not taken (already counted by its kind): logged at most once per
         :data:`DROP_WARN_EVERY_S` of host time, the next warning saying how many more were dropped."""
-        if now < self._next_drop_warning:
-            self._drops_unlogged += 1
+        more = self._drop_warnings.due(now)
+        if more is None:
             return
-        self._next_drop_warning = now + DROP_WARN_EVERY_S
-        more, self._drops_unlogged = self._drops_unlogged, 0
         since = f" (and {more} more dropped since the last warning)" if more else ""
         logger.warning("board frame dropped: %s%s", what, since)
 

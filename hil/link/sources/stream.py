@@ -53,6 +53,7 @@ from urllib.parse import urlsplit
 from hil.estimation.sensors import SensorSample
 from hil.link.sources.base import SenderEvent, SenderStatus
 from hil.link.sources.senders import Decision, SenderTable
+from hil.link.throttle import Throttle
 from hil.threads import ThreadError
 from protocol.errors import ConfigError, InputFormatError
 
@@ -182,12 +183,9 @@ class PhoneReceiver:
         self._lock = threading.Lock()
         self._thread_error = ThreadError(lambda: f"phone receiver on {self.url} failed")
         self._clock = clock  # s, monotonic: paces the drop warnings
-        self._next_log = -float("inf")
-        self._unlogged = 0
+        self._warnings = Throttle(LOG_EVERY_S)  # drop warnings
         self._senders = SenderTable()
-        self._sender_log_window = -float("inf")  # when the current window of new-sender lines began
-        self._sender_logs = 0  # new-sender lines logged in it
-        self._unlogged_senders = 0
+        self._sender_lines = Throttle(LOG_EVERY_S, NEW_SENDER_LOGS)  # new other senders logged
         self._sender_events: deque[SenderEvent] = deque()  # for the runtime (:meth:`senders`)
         self._unrecorded_senders = 0  # new other senders not recorded since the last phone_other
         self._others_streaming = False  # another phone heard within OTHERS_QUIET_S
@@ -292,14 +290,7 @@ class PhoneReceiver:
         """Whether a new other sender is logged — at most :data:`NEW_SENDER_LOGS` lines per
         :data:`LOG_EVERY_S`, the next line saying how many more came meanwhile (a peer spraying source
         ports makes a few lines): None if not, else how many went unlogged before it. Under the lock."""
-        if now >= self._sender_log_window + LOG_EVERY_S:
-            self._sender_log_window, self._sender_logs = now, 0
-        if self._sender_logs >= NEW_SENDER_LOGS:
-            self._unlogged_senders += 1
-            return None
-        self._sender_logs += 1
-        unlogged, self._unlogged_senders = self._unlogged_senders, 0
-        return unlogged
+        return self._sender_lines.due(now)
 
     def _record(self, kind: str, **fields: object) -> None:
         """A moment of the one-phone rule for the run (:meth:`senders`), with the counters as they are
@@ -376,12 +367,9 @@ class PhoneReceiver:
         """Log a drop of ``count`` — at most one warning per :data:`LOG_EVERY_S`, the next one saying how
         many were dropped unlogged since (a flood makes a few log lines, not one per message)."""
         with self._lock:
-            now = self._clock()
-            if now < self._next_log:
-                self._unlogged += count
-                return
-            self._next_log = now + LOG_EVERY_S
-            unlogged, self._unlogged = self._unlogged, 0
+            unlogged = self._warnings.due(self._clock(), count)
+        if unlogged is None:
+            return
         more = f" (and {unlogged} more dropped since the last warning)" if unlogged else ""
         logger.warning("phone %s: dropped %s%s", self.scheme, what, more)
 
