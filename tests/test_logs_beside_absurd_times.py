@@ -107,12 +107,12 @@ def test_a_stray_row_far_off_is_a_part_left_out_counted_and_said(tmp_path, far):
 
 
 def test_a_stray_row_1e8_s_on_replays_in_bounded_memory(tmp_path):
-    """The reproduction itself, through ``hil replay`` in a process allowed 2 GB of address space: it took
+    """The reproduction itself, through ``hil replay`` in a process allowed 4 GB of address space: it took
     24 GB before."""
     path = _with_rows(tmp_path, "1e8,gyr,0.01,0.02,0.03,\n1e8,acc,0.1,0.2,9.8,\n")
 
     def cap() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
+        resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))
 
     done = subprocess.run(
         [sys.executable, "-m", "hil", "replay", str(path), "--no-plots", "--out", str(tmp_path / "out")],
