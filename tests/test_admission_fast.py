@@ -25,7 +25,7 @@ from hil.estimation.sensors import KINDS, SensorSample
 
 class ReferenceGuard(PhoneGuard):
     """:class:`PhoneGuard` with the admit it had before the shortcut (verbatim, with the first reading's
-    unconfirmed anchor since added to both)."""
+    unconfirmed anchor and the check of a clock ahead of the host's since added to both)."""
 
     def admit(self, sample: SensorSample, now: float | None = None) -> Verdict:
         t = sample.t_s
@@ -34,7 +34,7 @@ class ReferenceGuard(PhoneGuard):
             return self._drop(reason)
         newest = self.newest
         ahead = newest + JUMP_S + (0.0 if now is None else max(now - self._newest_at, 0.0))
-        if newest > -math.inf and (t < newest - JUMP_S or t > ahead):
+        if newest > -math.inf and (t < newest - JUMP_S or t > ahead or self._ahead_of_host(t, now)):
             side = -1 if t < newest else 1
             if self._run_side != side or not self._run_last <= t <= self._run_last + JUMP_S:
                 self._run_side, self._run_count, self._run_first = side, 0, t  # (re)start the run

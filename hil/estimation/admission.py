@@ -14,7 +14,11 @@ reason              the reading
                     that parses but no phone can measure
 ``future``          is stamped more than :data:`JUMP_S` after the stream's newest reading plus the host
                     time since it came (a stray, or the first of a clock that jumped forward: see
-                    below; a stream that paused and resumes is not ahead of its clock)
+                    below; a stream that paused and resumes is not ahead of its clock) — or more than
+                    :data:`JUMP_S` ahead of the host's clock, against the reading that came with the
+                    least delay (its reference sliding ahead by at most :data:`CLOCK_RATE_SLACK` of
+                    the host's time: a phone's clock that runs fast, each stamp within a second of the
+                    last but 0.9 s on per 5 ms, is not integrated as if time had passed)
 ``past``            is stamped more than :data:`JUMP_S` before the newest (a stray, or the first of a
                     clock that restarted)
 ``duplicate``       repeats the time stamp of the last reading of its sensor
@@ -59,6 +63,13 @@ REANCHOR_READINGS = 10
 """Readings in a row beyond :data:`JUMP_S`, on one side, before the guard believes the clock moved ..."""
 REANCHOR_SPAN_S = 0.05
 """... spanning this much of their own clock (s)."""
+CLOCK_RATE_SLACK = 0.1
+"""s per s of host time: how fast the reference of the phone's clock against the host's (the least
+host-minus-stamp offset of the readings accepted) may slide ahead on readings that come earlier than it.
+A phone's clock keeps the host's to parts per million and a network only ever delays a reading, so a
+stream that gains on the host's clock by more than this, for :data:`JUMP_S`, runs fast: its readings are
+``future``, and a stream of them re-anchors the clock (``JUMP``) as a jump would. A delay that shrinks
+by more than :data:`JUMP_S` at once (a stream that started behind a backlog) is taken for one jump."""
 MIN_INTERVAL_S = 1e-4
 """s: readings of one sensor closer than this are a flood, not a phone (10 kHz; phones sample ≤ 500 Hz)."""
 
@@ -115,6 +126,10 @@ class PhoneGuard:
         self.last_reason: str | None = None  # why the last dropped reading was dropped
         self.anchored_from = -math.inf  # the newest stamp of the clock the last re-anchoring left
         self._newest_at = -math.inf  # host time (s) the newest reading came
+        # the reference of the stream's clock against the host's: the least host-minus-stamp offset (s)
+        # of the readings accepted (NaN: none with a host time), slid ahead since _offset_at (host s)
+        self._offset = math.nan
+        self._offset_at = 0.0
         self._last: dict[SensorKind, float] = {}
         self._confirmed = True  # a reading of the anchor's clock came after it (none yet: no anchor)
         self._anchor_t = -math.inf  # the anchor's stamp (its own clock, s)
@@ -152,7 +167,7 @@ class PhoneGuard:
                 return self._drop(reason)
         newest = self.newest
         ahead = newest + JUMP_S + (0.0 if now is None else max(now - self._newest_at, 0.0))
-        if newest > -math.inf and (t < newest - JUMP_S or t > ahead):
+        if newest > -math.inf and (t < newest - JUMP_S or t > ahead or self._ahead_of_host(t, now)):
             side = -1 if t < newest else 1
             if self._run_side != side or not self._run_last <= t <= self._run_last + JUMP_S:
                 self._run_side, self._run_count, self._run_first = side, 0, t  # (re)start the run
@@ -174,6 +189,15 @@ class PhoneGuard:
             self._anchor(t)
         self._accept(sample, now)
         return Verdict.ACCEPT
+
+    def _ahead_of_host(self, t: float, now: float | None) -> bool:
+        """Whether a reading stamped ``t`` (the phone's clock, s) that came at ``now`` (host s) is more
+        than :data:`JUMP_S` ahead of the host's clock: its host-minus-stamp offset below the reference's
+        (:data:`CLOCK_RATE_SLACK`). No host time, or no reference yet: not."""
+        if now is None:
+            return False
+        slid = CLOCK_RATE_SLACK * max(now - self._offset_at, 0.0)
+        return now - t < self._offset - slid - JUMP_S  # NaN (no reference): False
 
     def _reason(self, sample: SensorSample) -> str | None:
         """Why the reading cannot be one at all (its own values), or None."""
@@ -201,6 +225,12 @@ class PhoneGuard:
         if sample.t_s > self.newest:
             self.newest = sample.t_s
             self._newest_at = -math.inf if now is None else now
+        if now is not None:
+            offset = now - sample.t_s
+            if not offset >= self._offset:  # earlier than the reference (or none yet): it slides
+                slid = self._offset - CLOCK_RATE_SLACK * max(now - self._offset_at, 0.0)
+                self._offset = offset if not offset < slid else slid  # NaN slid: the offset itself
+                self._offset_at = now
 
     def _reanchor(self, sample: SensorSample, verdict: Verdict, now: float | None) -> Verdict:
         """The stream's clock moved: forget the old one, take this reading as the first of the new. An
@@ -216,6 +246,7 @@ class PhoneGuard:
             self.stats.jumps += 1
         self.anchored_from = self.newest
         self.newest = -math.inf
+        self._offset = math.nan  # the new clock's reference: this reading's
         self._last.clear()
         self._run_side = 0
         self._anchor(sample.t_s)
@@ -247,6 +278,7 @@ def out_of_range(
 
 
 __all__ = [
+    "CLOCK_RATE_SLACK",
     "JUMP_S",
     "KINDS",
     "AdmissionStats",

@@ -50,8 +50,10 @@ class FeedStats:
 
 
 class _Phone:
-    """Each sensor's sample rate over the last second and the age of its newest sample, from the merger's
-    accepted-sample counters (host clock: when the count last moved)."""
+    """Each sensor's sample rate over the last second and the age of its newest sample, from the run's
+    accepted-sample counters (:attr:`hil.runtime.host.Host.accepted_by_sensor`; host clock: when the count
+    last moved). Counts that never go back: a merger's own start from zero when the host starts the
+    estimator afresh, taken for counts, drew rates of −600 Hz and a silent sensor's age as 0 ms."""
 
     def __init__(self) -> None:
         self.labels = run_info.PHONE_LABELS
@@ -172,7 +174,7 @@ class LiveFeed:
             counts: list[int | None] = [None] * len(run_info.SENDER_COLUMNS)
         else:
             counts = [senders.other_phones, senders.other_phone_messages, senders.phone_switches]
-        return [*self._phone.update(t, host.merger.stats.accepted), *counts]
+        return [*self._phone.update(t, host.accepted_by_sensor), *counts]
 
     # ------------------------------------------------------------------ the pump's side
     def poll(self) -> Batch:

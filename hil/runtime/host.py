@@ -189,6 +189,19 @@ class Host:
         total.absorb(self.merger.stats)
         return total
 
+    def ending(self, t: float) -> None:
+        """The run's loop has ended at ``t`` (s): what the record's rate limits held back goes in."""
+        self.phone.note_held_drops(t, final=True)
+
+    @property
+    def accepted_by_sensor(self) -> dict[str, int]:
+        """Each sensor's samples the merge accepted over the whole run (by ``SensorKind.label``): every
+        merger's, so a count that never goes back — a fresh start makes a new merger, whose own counts
+        start at zero."""
+        accepted = self.merger.stats.accepted
+        retired = self._retired_merges.accepted
+        return {label: n + retired.get(label, 0) for label, n in accepted.items()}
+
     @property
     def operator_log(self) -> list[dict[str, Any]]:
         """Each operator command, its last status (the summary's ``operator``)."""
@@ -258,6 +271,7 @@ class Host:
         for why in watch.take_upsets():
             self.phases.restart_warmup(t, why, still=False)
         phone_fresh = self._phone_fresh(t)
+        self.phone.note_held_drops(t)
         view = watch.view(t)
         watch.hold_disarmed(t, view)
         watch.hold_armed(t, view)
@@ -366,10 +380,8 @@ class Host:
         """Whether the phone's samples are fresh at ``t`` (:meth:`PhoneClock.freshness`); a gap is a
         fault, and the warm-up (with its still window) follows it. Fresh takes the gyroscope's and the
         accelerometer's samples, each (the run's counts, over every merger: a fresh start makes a new one)."""
-        accepted = self.merger.stats.accepted
-        retired = self._retired_merges.accepted
-        by_kind = {label: accepted[label] + retired[label] for label in NEEDED}
-        freshness = self.phone.freshness(t, sum(accepted.values()), by_kind)
+        by_kind = self.accepted_by_sensor
+        freshness = self.phone.freshness(t, sum(by_kind.values()), by_kind)
         if freshness is Freshness.GAP_BEGAN:
             self.phases.restart_warmup(t, "phone_gap", still=True)
         return freshness is Freshness.FRESH

@@ -344,9 +344,11 @@ def _finish(
     error the run is to raise: ``error``, or the first refused write of a run that had none."""
     summary["wall_s"] = time.monotonic() - started
     if built is not None:
+        ended_at = built.scheduler.clock.now()
+        built.host.ending(ended_at)
         ending = getattr(observer, "ending", None)  # optional (RunObserver): before the summary
         if ending is not None:
-            ending(built.scheduler.clock.now())
+            ending(ended_at)
         summary.update(built.host.summary())
         summary["link"] = _link_stats(built.host)
         try:

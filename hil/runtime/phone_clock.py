@@ -50,9 +50,10 @@ class PhoneClock:
         self.events = events
         self.stale_after_s = stale_after_s
         self.guard = PhoneGuard()  # the admission policy and the clock guard
-        self.count = 0  # accepted samples (the merger's count) seen at the last control tick
+        self.count = 0  # accepted samples (the run's, over every merger) seen at the last control tick
         self.heard: float | None = None  # host time (s) the count last moved
         self._drops: dict[str, tuple[float, int]] = {}  # reason -> (last noted at, dropped since)
+        self._drops_held = False  # some reason's drops since its last record are not recorded yet
         self._kind_count: dict[str, int] = {}  # per needed sensor: its accepted count at the last tick
         self._kind_heard: dict[str, float] = {}  # per needed sensor: host time (s) its count last moved
         # per sensor: its readings refused since its last accepted one, by reason (why a gap is a gap)
@@ -82,11 +83,10 @@ class PhoneClock:
     def reanchored(self, verdict: Verdict, t_s: float, now: float | None) -> tuple[float, str]:
         """The stream's clock moved — restarted (an app restarted, firmware-sim's world started over) or
         jumped forward — and the guard re-anchored on the reading stamped ``t_s``: a fault in the journal
-        and ``events.jsonl``, the accepted count from zero (the host starts a new merger). Returns when
+        and ``events.jsonl`` (the host starts a new merger). Returns when
         (host s: ``now``, or when the phone was last heard) and which (``phone_restart``, ``phone_jump``;
         ``phone_stray`` when what moved was the stream's first reading, a stray: a dropped reading in the
         record, no clock that moved)."""
-        self.count = 0
         t = now if now is not None else (self.heard or 0.0)
         if verdict is Verdict.STRAY:
             self._note_drop(self.guard.last_reason, now)
@@ -100,8 +100,10 @@ class PhoneClock:
         return t, kind
 
     def freshness(self, t: float, accepted: int, by_kind: Mapping[str, int] | None = None) -> Freshness:
-        """Whether the phone's samples are fresh at ``t`` (s), given the merger's ``accepted`` count and
-        (``by_kind``) the run's accepted count per sensor: a count that moved is the phone heard (and the
+        """Whether the phone's samples are fresh at ``t`` (s), given the run's ``accepted`` count and
+        (``by_kind``) its accepted count per sensor — counts over every merger, which never go back (a
+        fresh merger's own count from zero would be a count that moved with nothing heard): a count that
+        moved is the phone heard (and the
         end of a gap, if one was open). Fresh takes a gyroscope and an accelerometer sample within
         ``stale_after_s`` (:data:`NEEDED`: a phone whose gyro readings are all refused is no phone to
         steer by, though its magnetometer streams); a gap is a fault, noted when it begins, saying why
@@ -196,22 +198,20 @@ class PhoneClock:
 
     def _note_drop(self, reason: str | None, now: float | None) -> None:
         """A dropped reading into the journal and ``events.jsonl``: the first of each reason, then one
-        record per :data:`DROP_NOTE_S` with the count since (a flood makes a few records, not one each).
-        A duplicate is a phone's jitter, not a fault: not noted — unless a sensor's stamps stopped
-        (:data:`FROZEN_READINGS` repeats, none accepted between), noted as ``clock_stopped``."""
+        record per :data:`DROP_NOTE_S` with the count since (a flood makes a few records, not one each;
+        what a window holds back is recorded by :meth:`note_held_drops`). A duplicate is a phone's jitter,
+        not a fault: not noted — unless a sensor's stamps stopped (:data:`FROZEN_READINGS` repeats, none
+        accepted between), noted as ``clock_stopped``."""
         if reason is None or reason == "duplicate":
             return
         t = now if now is not None else (self.heard or 0.0)
         first, count = self._drops.get(reason, (-math.inf, 0))
         if t - first < DROP_NOTE_S:
             self._drops[reason] = (first, count + 1)
+            self._drops_held = True
             return
-        self._drops[reason] = (t, 0)
-        frozen = reason == "clock_stopped"
-        total = self.guard.stats.dropped["duplicate" if frozen else reason]
-        self.journal.note(t, "readings_dropped", reason=reason, since_last=count + 1, total=total)
-        self.events.write(t, "readings_dropped", reason=reason, since_last=count + 1, total=total)
-        if frozen and count == 0:
+        self._record_drops(t, reason, count + 1)
+        if reason == "clock_stopped" and count == 0:
             logger.warning(
                 "phone readings dropped at t=%.3f s: they repeat their sensor's last time stamp, %d in a "
                 "row: the phone streams but its clock stopped (counted as duplicate)",
@@ -220,3 +220,27 @@ class PhoneClock:
             )
         elif count == 0:
             logger.warning("phone reading dropped at t=%.3f s: %s (counted)", t, reason)
+
+    def note_held_drops(self, t: float, final: bool = False) -> None:
+        """Record the drops :meth:`_note_drop`'s rate limit held back, once :data:`DROP_NOTE_S` has passed
+        since their reason's last record (each control tick), or all of them (``final``: the run's end).
+        Without it a burst inside one window — 500 readings beyond the gyro's bound in a row, 21 of a
+        clock that jumped — made one record, of its first reading, and the rest reached only the summary's
+        counts."""
+        if not self._drops_held:
+            return
+        self._drops_held = False
+        for reason, (first, count) in list(self._drops.items()):
+            if not count:
+                continue
+            if final or t - first >= DROP_NOTE_S:
+                self._record_drops(t, reason, count)
+            else:
+                self._drops_held = True
+
+    def _record_drops(self, t: float, reason: str, since_last: int) -> None:
+        """One ``readings_dropped`` record at ``t``: ``since_last`` readings of ``reason`` since its last."""
+        self._drops[reason] = (t, 0)
+        total = self.guard.stats.dropped["duplicate" if reason == "clock_stopped" else reason]
+        self.journal.note(t, "readings_dropped", reason=reason, since_last=since_last, total=total)
+        self.events.write(t, "readings_dropped", reason=reason, since_last=since_last, total=total)

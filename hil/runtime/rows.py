@@ -52,8 +52,7 @@ class TickSnapshot:
     attitude as a row-major 9-tuple (None before the target is known); ``slew_start`` host s (None before
     the first slew); ``reference`` the moving reference the controller tracked (None when it did not
     steer); ``view`` the host's view of the board; ``phone_heard`` the host time (s) the phone's
-    accepted-sample count last moved and ``phone_samples`` that count (0: none since the phone's clock was
-    last re-anchored).
+    accepted-sample count last moved and ``phone_samples`` that count (the run's: 0, none yet).
 
     ``board`` is the live board (None: a blind tick, every board value empty); ``command`` the setpoint
     that went out (a blind tick: the hold setpoint in the tick it went out; None: nothing commanded);

@@ -141,7 +141,7 @@ class StreamStats:
     bad_entries: int = 0  # a reading without finite values or time
     ignored_entries: int = 0  # other sensors (location, light, …)
     overflow: int = 0  # samples dropped, oldest first, beyond max_queue held (a flood, a stalled consumer)
-    held: int = 0  # samples waiting for the next drain (at most max_queue), at the last drain
+    held: int = 0  # samples waiting for the next drain (at most max_queue): received, drained or dropped
     message_gaps: int = 0  # messages lost in transit (where the format numbers them)
     message_restarts: int = 0  # the numbering started again: it went back, or jumped too far to be losses
     kernel_dropped: int = 0  # UDP: datagrams the kernel dropped, its receive buffer full (SO_RXQ_OVFL)
@@ -224,6 +224,7 @@ class PhoneReceiver:
                 self._queue.popleft()
             dropped = received - len(keep) + max(excess, 0)
             st.overflow += dropped
+            st.held = len(self._queue)
         if dropped:
             self._warn(f"{dropped} sample(s), oldest first: more than {self._max_queue} held", dropped)
 
