@@ -141,6 +141,13 @@ __all__ = ["HOST_IDENTITY", "ClientConfig", "Download", "PendingReset", "Phase",
 logger = logging.getLogger(__name__)
 
 _U32 = 1 << 32
+OVERTAKEN_MS = 100
+"""ms: how far a board's sample may be behind the newest sample of another kind and still be a frame that
+was overtaken on the way, not a reset. On CAN frames go by priority: a Heartbeat (LINK) made 3 ms after a
+Telemetry (STATUS, several segments) wins arbitration and comes first, and the Telemetry's uptime is then
+behind the Heartbeat's — taken for a reset, 20 a second, each with a handshake that disarmed the board. A
+kind's own frames come in order (one CAN id each, one serial stream), so its own count going back, or a
+sample further behind, is still a reset."""
 DROP_WARN_EVERY_S = 1.0
 """Host time (s) between two warnings about dropped board frames (the rest are counted, then summed)."""
 AGE_SLACK_S = 0.5
@@ -225,7 +232,9 @@ class Session:
         self._silent = False
         self._lost = False  # the link was lost since the last handshake (the next one is a reconnect)
         self._armed_at_loss = False  # the host had the board armed when the link was lost
-        self._last_uptime: int | None = None
+        self._last_uptime: int | None = None  # the newest uptime (ms) of any kind of sample taken
+        # each kind's (a Telemetry's, a Heartbeat's) last uptime (ms): a kind's frames come in order
+        self._last_uptime_of: dict[type, int] = {}
         # this boot's uptime (ms) at its last sample taken, unwrapped past the u32 count's wraps (every
         # ~49.7 days): the clock the reset and latency checks go by (None: no sample of this boot yet)
         self._uptime_ms: int | None = None
@@ -498,7 +507,7 @@ class Session:
         if misfit is not None:
             self._drop(now, misfit)
             return
-        made = self._board_clock(msg.time_ms, msg.state, now, msg.rx_frames)
+        made = self._board_clock(Telemetry, msg.time_ms, msg.state, now, msg.rx_frames)
         if made is None:
             return
         self.telemetry, self.telemetry_time, self._telemetry_seq = msg, made, frame.seq
@@ -530,7 +539,7 @@ class Session:
         except ValueError:
             self.counters.unknown_board_states += 1
             state = None
-        self._board_clock(msg.time_ms, state, now, boot_id=msg.boot_id)
+        self._board_clock(Heartbeat, msg.time_ms, state, now, boot_id=msg.boot_id)
 
     def _on_log(self, frame: Frame, now: float) -> None:
         """Every Log is an event; at most :data:`BOARD_LOGS_PER_S` a second of them are logged, the first
@@ -568,6 +577,7 @@ class Session:
 
     def _board_clock(
         self,
+        kind: type,
         uptime_ms: int,
         state: BoardState | None,
         now: float,
@@ -585,7 +595,11 @@ class Session:
         taken. Any other sample returns the host time it was made (:mod:`.made_at`), and a change of the
         board's state it carries is a :class:`StateEvent` of that time: a FAILSAFE read from a backlog after
         the host's own pause was stamped with its read, seconds after the board failed safe, and the
-        run's outage then began at the read (a host paused 12 s said it was out for 0.03 s)."""
+        run's outage then began at the read (a host paused 12 s said it was out for 0.03 s).
+
+        ``kind`` is the sample's message class. A sample behind the newest of another kind by at most
+        :data:`OVERTAKEN_MS`, its own kind's count not gone back, was overtaken on the way (:func:`_overtaken`):
+        taken, its state not (it is older than the state held), no reset."""
         frames_out = self.counters.frames_out
         boot_changed = self._boot_changed(boot_id)
         if boot_changed is not None:
@@ -606,7 +620,15 @@ class Session:
                 rx_frames,
             )
             self._leaps.restart(uptime_ms, rx_frames, frames_out, now)
-        last, self._last_uptime = self._last_uptime, uptime_ms
+        last = self._last_uptime
+        overtaken = boot_changed is None and _overtaken(last, self._last_uptime_of.get(kind), uptime_ms)
+        self._last_uptime_of[kind] = uptime_ms
+        if overtaken:
+            assert last is not None and self._uptime_ms is not None
+            self.counters.board_samples_overtaken += 1
+            ran_ms = self._uptime_ms - (last - uptime_ms)  # before the newest: nothing else moves back
+            return self._made_at.sample(ran_ms / 1000.0, now)
+        self._last_uptime = uptime_ms
         last_rx = self._last_rx_frames
         if rx_frames is not None:
             self._last_rx_frames = rx_frames
@@ -646,6 +668,7 @@ class Session:
                     self._clock_base = self._ran
             return made
         self._made_at.forget_boot()
+        self._last_uptime_of = {kind: uptime_ms}  # the new boot's: the old boot's other kind is no guide
         self._uptime_ms = uptime_ms  # the new boot's count: it starts from here
         made = self._made_at.sample(uptime_ms / 1000.0, now)
         if state is not None:  # before the reset is seen: an armed board's reset is held by its state
@@ -718,6 +741,7 @@ class Session:
         """A new boot of the board, seen before any sample of it: the counts heard so far were the old
         boot's (its next sample anchors them anew)."""
         self._last_uptime = self._last_rx_frames = self._uptime_ms = None
+        self._last_uptime_of.clear()
         self._leaps = LeapCheck()
         self._ran = self._clock_base = None
         self._age_check_from = None
@@ -988,6 +1012,15 @@ HOST_WRITES: frozenset[type[Message]] = HOST_ONLY | {Heartbeat, Ack, Nack, Calib
 """The kinds of frame this host writes: the host-to-board ones and those both ends send (its heartbeats,
 its answers to a download's fragments, an upload's fragments). One of them arriving may be the host's own
 come back (:mod:`.echoes`)."""
+
+
+def _overtaken(newest: int | None, own_last: int | None, uptime_ms: int) -> bool:
+    """Whether a sample at ``uptime_ms`` (ms) is behind the ``newest`` of any kind by at most
+    :data:`OVERTAKEN_MS` while its own kind's count (``own_last``) did not go back: a frame another kind
+    overtook on the way (CAN by priority), not a board that reset."""
+    if newest is None or not _went_back(newest, uptime_ms) or newest - uptime_ms > OVERTAKEN_MS:
+        return False
+    return own_last is None or not _went_back(own_last, uptime_ms)
 
 
 def _went_back(last: int, now: int) -> bool:
