@@ -62,6 +62,13 @@ def check_honest_end(faults: list[InjectedFault], sc: Scenario, recorder: RunRec
         assert rows["board_state"][-1] == BoardState.ARMED, (
             f"completed with the board {BoardState(int(rows['board_state'][-1])).name} at the end"
         )
+    end = float(rows["t"][-1])  # the run's last tick: where its loop ended
+    for episode in [*s["outages"], *s["phone_gap_list"]]:  # measured at the run's end, as its exit is
+        if episode["end"] is None:
+            assert abs(episode["duration_s"] - (end - episode["start"])) < 1e-6, (episode, end)
+    final = s.get("final_disarm") or {}
+    if final.get("state") in ("BOOT", "DISARMED"):  # the board's word: it drives nothing
+        assert final["ok"] is not False, final
     journal = s["faults"]
     assert s["board_resets"] == sum(f["kind"] == "reset" for f in journal)
     assert s["board_resets"] == sum(e["kind"] == "board_reset" for e in recorder.events)

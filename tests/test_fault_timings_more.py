@@ -117,6 +117,34 @@ def test_a_board_fault_at_any_moment_ends_the_run_honestly(kind, at, duration_s)
     check_honest_end(faults, sc, recorder)
 
 
+@SETTINGS
+@given(
+    kind=st.sampled_from(["hang", "brownout", "unplug", "stall"]),
+    before_end_s=st.one_of(st.floats(0.0, 0.4), st.sampled_from([0.0, 0.02, 0.25])),
+    duration_s=st.sampled_from([0.3, 1.5]),
+)
+def test_a_board_fault_in_the_runs_last_moments_is_counted_and_said(kind, before_end_s, duration_s):
+    """A board fault in the run's last 0.4 s, which the loop may end before it sees: the way out's Disarm
+    finds the board reset under it. Before, the reset was counted nowhere and the run said "incomplete:
+    the board is not confirmed disarmed" of a board that was booting; and an outage open at the end was
+    measured after the way out's wait (the exit said 0.2 s, the summary 0.7 s). Now the reset is in the
+    record (``after_the_run``), counted, and the run is lost, not completed; every open episode is measured
+    at the run's end (:func:`tests.fault_support.check_honest_end`)."""
+    at = round(PHASE_CHANGES[-1] - before_end_s, 3)
+    params = {"duration_s": duration_s} if kind in ("unplug", "stall") else {}
+    faults = [InjectedFault(kind, at, params)]
+    sc, recorder = run_faults(faults)
+    check_honest_end(faults, sc, recorder)
+    s = recorder.summary
+    if kind in ("hang", "brownout"):  # the board did reset, in the loop or on the way out — or, hung
+        assert s["exit"] != "completed", s["exit"]  # still when the way out gave up, is not confirmed
+        if s["board_resets"] == 0:  # disarmed
+            assert s["exit"].startswith("incomplete: the run completed, but the board is not confirmed")
+            assert s["final_disarm"]["ok"] is False and s["final_disarm"]["state"] == "ARMED"
+        else:
+            assert not s["exit"].startswith("incomplete"), s["exit"]
+
+
 @pytest.mark.parametrize("spacing_s", [1.5, 2.5])
 def test_repeated_unplugs_each_counted_and_recovered(spacing_s):
     """Three restarts of the board in a row, each after the host re-armed it: three resets reported (each

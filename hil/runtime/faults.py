@@ -22,6 +22,7 @@ lost the board (or the phone): :meth:`FaultJournal.overdue` says so, and the run
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -72,6 +73,12 @@ class FaultJournal:
         self.dropped = 0
         self.outages: list[Outage] = []
         self.phone_gaps: list[Outage] = []
+        self.ended_at = math.inf  # host time (s) the run's loop ended: later faults open no outage
+
+    def end(self, t: float) -> None:
+        """The run's loop ended at ``t`` (s): a fault heard later — on the way out, its final Disarm
+        finding the board reset — is in the record (``after_the_run``), and no outage or gap of the run."""
+        self.ended_at = t
 
     # ------------------------------------------------------------------ recording
     def fault(self, t: float, kind: str, **detail: Any) -> None:
@@ -79,6 +86,9 @@ class FaultJournal:
         ``disarmed``, ``phone_gap``) at ``t``: a board fault opens an outage (or joins the open one), a
         phone gap a phone gap. (A phone clock that restarted or jumped is a :meth:`note`: the stream did
         not pause.)"""
+        if t > self.ended_at:
+            self.note(t, kind, after_the_run=True, **detail)
+            return
         if len(self.faults) < MAX_FAULTS:
             self.faults.append({"t": t, "kind": kind, **detail})
         else:
@@ -130,6 +140,19 @@ class FaultJournal:
         for what, episode in (("board", self.board_out), ("phone", self.phone_out)):
             if episode is not None:
                 return self._lost(what, episode, now, "not back when the run ended")
+        return None
+
+    def lost_after_the_run(self) -> str | None:
+        """Why the board was not in hand at the run's end though no outage was open then: the way out
+        heard it had reset (or lost the link) — a board that browned out 0.2 s before the end, its
+        telemetry not yet stale — or None."""
+        for f in self.faults:
+            if f.get("after_the_run") and f["kind"] in ("reset", "link_lost"):
+                said = f"cause {f['cause']}" if f["kind"] == "reset" else str(f.get("reason", ""))
+                return (
+                    f"board {'reset' if f['kind'] == 'reset' else 'link lost'} as the run ended ({said}; "
+                    f"heard on the way out at t={f['t']:.3f} s): not back when the run ended"
+                )
         return None
 
     @staticmethod

@@ -47,6 +47,7 @@ from hil.estimation.admission import PhoneGuard, Verdict
 from hil.estimation.interface import Estimator
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
+from hil.link.board.events import StateEvent
 from hil.runtime.actuators import ActuatorWatch
 from hil.runtime.control_step import ControlStep, Steered
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
@@ -121,6 +122,7 @@ class Host:
         self.control = ControlStep(sc)
         self.finished = False
         self.lost: str | None = None  # why the run lost the board (or the phone), if it did
+        self.ended_at: float | None = None  # host time (s) the run's loop ended (None: not yet)
         self.journal = FaultJournal(self.recover_within_s)
         self.watch = BoardWatch(self.client, self.events, self.journal, self.stale_after_s)
         self.phases = RunPhases(sc, self.events, self.journal, self.hold)
@@ -189,9 +191,22 @@ class Host:
         total.absorb(self.merger.stats)
         return total
 
-    def ending(self, t: float) -> None:
-        """The run's loop has ended at ``t`` (s): what the record's rate limits held back goes in."""
+    def end(self, t: float) -> None:
+        """The run's loop has ended at ``t`` (s): the instant its summary measures open outages, gaps and
+        suspensions at — not when the summary is written, after the way out's Disarm waited for its
+        answer (an exit said "lost … for 0.2 s" beside a summary's 0.7 s)."""
+        self.ended_at = t
+
+    def after_the_loop(self, events: Sequence[Any]) -> None:
+        """What the record still lacks once the loop has ended: the drops the rate limits held back, and
+        the board's ``events`` heard on the way out (its final Disarm: a reset found there was counted
+        nowhere). Their faults are the record's (:meth:`FaultJournal.end`), not outages of the run."""
+        t = self.ended_at if self.ended_at is not None else self.client.clock.now()
         self.phone.note_held_drops(t, final=True)
+        self.journal.end(t)
+        # not the board's changes of state: the way out's own Disarm made them, which the watch, holding
+        # the board armed, would take for a Disarm no one meant
+        self.watch.on_events([e for e in events if not isinstance(e, StateEvent)])
 
     @property
     def accepted_by_sensor(self) -> dict[str, int]:
@@ -461,6 +476,7 @@ class Host:
         """The run's figures, faults, operator commands and requirement verdict
         (:func:`hil.runtime.summary.run_summary`)."""
         return run_summary(
+            now=self.ended_at if self.ended_at is not None else self.client.clock.now(),
             scenario=self.scenario,
             client=self.client,
             watch=self.watch,

@@ -78,6 +78,7 @@ from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.priority import Scheduling, realtime
 from hil.timing.scheduler import PeriodicTask, Scheduler
 from hil.version import describe
+from hil.link.board.session import Phase
 from protocol.errors import CommandFailed, ConfigError, HilError, LinkError
 from protocol.messages import BoardState
 
@@ -295,6 +296,7 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
                 try:
                     _run_scheduler(built)
                 finally:
+                    built.host.end(built.scheduler.clock.now())
                     summary["loop_wall_s"] = time.monotonic() - loop_started
                     if not plan.lockstep:
                         gc.unfreeze()
@@ -314,7 +316,7 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
             held.holding = True
             final.said(summary)
             try:
-                error = _finish(summary, started, built, observer, telemetry, events, run_dir, error)
+                error = _finish(summary, started, built, observer, telemetry, events, run_dir, error, final)
             finally:
                 if writing is not None:
                     writing.release()
@@ -338,18 +340,24 @@ def _finish(
     events: EventLog,
     run_dir: Path | None,
     error: BaseException | None,
+    final: FinalDisarm,
 ) -> BaseException | None:
     """The run's ending, whatever ended it: its figures into ``summary``, its logs closed, ``summary.json``
     written (with what the logs could not write, after a refused write), the observer told. Returns the
     error the run is to raise: ``error``, or the first refused write of a run that had none."""
     summary["wall_s"] = time.monotonic() - started
     if built is not None:
-        ended_at = built.scheduler.clock.now()
-        built.host.ending(ended_at)
+        host = built.host
+        if host.ended_at is None:  # ended before its loop ran (the arming failed): now
+            host.end(built.scheduler.clock.now())
+        assert host.ended_at is not None
+        host.after_the_loop(final.events)
         ending = getattr(observer, "ending", None)  # optional (RunObserver): before the summary
         if ending is not None:
-            ending(ended_at)
+            ending(host.ended_at)
         summary.update(built.host.summary())
+        if summary.get("exit") == "completed" and summary.get("lost"):  # heard only on the way out
+            summary["exit"] = f"lost: {summary['lost']}"
         summary["link"] = _link_stats(built.host)
         try:
             reported = built.source.report()
@@ -577,7 +585,8 @@ def _outcome(host: Host) -> str:
     out before the slew started (its warm-up never done: a phone gap or a board reset near the log's end
     restarted it — it once said ``completed``); ``completed`` once the run's time after the slew's start
     (its suspensions not counted) is up; else the time limit."""
-    lost = host.lost or host.journal.open_at_end(host.client.clock.now())
+    assert host.ended_at is not None
+    lost = host.lost or host.journal.open_at_end(host.ended_at)
     if lost is not None:
         return f"lost: {lost}"
     if host.suspended_since is not None:
@@ -612,7 +621,7 @@ class FinalDisarm:
 
     arm_outstanding: Callable[[], bool] = lambda: False
     outcome: dict[str, Any] | None = None
-
+    events: list[Any] = field(default_factory=list)  # the board client's events on the way out
     def said(self, summary: dict[str, Any]) -> None:
         """``final_disarm`` into ``summary``. A run that completed but whose board is not confirmed
         disarmed (the final Disarm failed: a board frozen over the run's end, a link gone) does not say
@@ -706,11 +715,22 @@ def _disarm_on_the_way_out(
             client.disarm(timeout=DISARM_WAIT_S)
         except (HilError, KeyboardInterrupt) as failure:
             error = str(failure) or f"{type(failure).__name__} while waiting"
-            events.write(client.clock.now(), "disarm_failed", reason=reason, error=error)
-            final.outcome.update(ok=False, error=error)
+            if client.session.phase is Phase.HANDSHAKING and not isinstance(failure, KeyboardInterrupt):
+                # the board reset under the Disarm (the session shakes hands again): the handshake told
+                # why, and the reset is reported — counted, not only said in the Disarm's error
+                client.wait_for(lambda: client.session.phase is not Phase.HANDSHAKING, DISARM_WAIT_S)
+            if client.state in _LEFT_AS_IT_IS and not final.arm_outstanding():
+                # the board's own word since: booting or DISARMED (a board that reset drives nothing;
+                # every command of the old session was abandoned) — not "not confirmed disarmed"
+                events.write(client.clock.now(), "disarmed", reason=reason, detail=error)
+                final.outcome.update(ok=True, detail=error)
+            else:
+                events.write(client.clock.now(), "disarm_failed", reason=reason, error=error)
+                final.outcome.update(ok=False, error=error)
         else:
             events.write(client.clock.now(), "disarmed", reason=reason)
             final.outcome["ok"] = True
+        final.events = client.drain_events()
         state = client.state
         final.outcome["state"] = None if state is None else state.name
 

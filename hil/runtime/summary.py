@@ -31,6 +31,7 @@ class HostCounters:
 
 def run_summary(
     *,
+    now: float,
     scenario: Scenario,
     client: BoardClient,
     watch: BoardWatch,
@@ -52,8 +53,7 @@ def run_summary(
     last handshake (its HelloReply: identity, serial, firmware build, units, frame rate); the operator's
     commands and suspensions; ``lost`` why the run lost the board (or the phone), if it did; None where
     not reached; ``phone_admission`` the admission's counts, ``phone_merge`` the merger's (per sensor:
-    accepted, dropped by reason, stale steps). Taken at the client's clock's now."""
-    now = client.clock.now()
+    accepted, dropped by reason, stale steps). Taken at ``now`` (host s): the run's end."""
     since = phases.suspended_since
     gimbal_rate_limit = scenario.spacecraft.limits.max_gimbal_rate
     info = client.session.info
@@ -72,7 +72,7 @@ def run_summary(
         "board_logs_unrecorded": watch.board_logs_unrecorded,
         "phone_gaps": len(journal.phone_gaps),
         "phone_restarts": counters.phone_restarts,
-        "lost": lost or journal.open_at_end(now),
+        "lost": lost or journal.open_at_end(now) or journal.lost_after_the_run(),
         "estimator_steps": counters.estimator_steps,
         "phone_samples": counters.samples,
         "control_ticks": counters.control_ticks,
