@@ -194,18 +194,17 @@ class Host:
     def end(self, t: float) -> None:
         """The run's loop has ended at ``t`` (s): the instant its summary measures open outages, gaps and
         suspensions at — not when the summary is written, after the way out's Disarm waited for its
-        answer (an exit said "lost … for 0.2 s" beside a summary's 0.7 s)."""
+        answer (an exit said "lost … for 0.2 s" beside a summary's 0.7 s). The drops the record's rate
+        limits held back go in; faults heard from now on are the record's (:meth:`FaultJournal.end`),
+        not outages of the run."""
         self.ended_at = t
-
-    def after_the_loop(self, events: Sequence[Any]) -> None:
-        """What the record still lacks once the loop has ended: the drops the rate limits held back, and
-        the board's ``events`` heard on the way out (its final Disarm: a reset found there was counted
-        nowhere). Their faults are the record's (:meth:`FaultJournal.end`), not outages of the run."""
-        t = self.ended_at if self.ended_at is not None else self.client.clock.now()
         self.phone.note_held_drops(t, final=True)
         self.journal.end(t)
-        # not the board's changes of state: the way out's own Disarm made them, which the watch, holding
-        # the board armed, would take for a Disarm no one meant
+
+    def heard_on_the_way_out(self, events: Sequence[Any]) -> None:
+        """The board's ``events`` heard after the loop (its final Disarm: a reset found there was counted
+        nowhere), into the record — not its changes of state: the way out's own Disarm made them, which
+        the watch, holding the board armed, would take for a Disarm no one meant."""
         self.watch.on_events([e for e in events if not isinstance(e, StateEvent)])
 
     @property

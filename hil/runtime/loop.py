@@ -316,7 +316,7 @@ def _play(scenario: Scenario, opts: RunOptions, plan: _Plan, scheduling: Schedul
             held.holding = True
             final.said(summary)
             try:
-                error = _finish(summary, started, built, observer, telemetry, events, run_dir, error, final)
+                error = _finish(summary, started, built, observer, telemetry, events, run_dir, error)
             finally:
                 if writing is not None:
                     writing.release()
@@ -340,7 +340,6 @@ def _finish(
     events: EventLog,
     run_dir: Path | None,
     error: BaseException | None,
-    final: FinalDisarm,
 ) -> BaseException | None:
     """The run's ending, whatever ended it: its figures into ``summary``, its logs closed, ``summary.json``
     written (with what the logs could not write, after a refused write), the observer told. Returns the
@@ -351,7 +350,6 @@ def _finish(
         if host.ended_at is None:  # ended before its loop ran (the arming failed): now
             host.end(built.scheduler.clock.now())
         assert host.ended_at is not None
-        host.after_the_loop(final.events)
         ending = getattr(observer, "ending", None)  # optional (RunObserver): before the summary
         if ending is not None:
             ending(host.ended_at)
@@ -511,6 +509,7 @@ def _build(
     )
     host.watch.on_events(handshake)
     final.arm_outstanding = lambda: host.watch.arm_outstanding
+    final.heard = host.heard_on_the_way_out
     write_event.release()
     # before arming: the board's link watchdog is fed while we wait, not by the armed loop
     source.wait_ready(opts.phone_wait_s, lambda: host.watch.on_events(client.service()))
@@ -621,7 +620,8 @@ class FinalDisarm:
 
     arm_outstanding: Callable[[], bool] = lambda: False
     outcome: dict[str, Any] | None = None
-    events: list[Any] = field(default_factory=list)  # the board client's events on the way out
+    # what the board client's events on the way out go to (the host's record, once it exists)
+    heard: Callable[[list[Any]], None] = lambda events: None
     def said(self, summary: dict[str, Any]) -> None:
         """``final_disarm`` into ``summary``. A run that completed but whose board is not confirmed
         disarmed (the final Disarm failed: a board frozen over the run's end, a link gone) does not say
@@ -718,7 +718,9 @@ def _disarm_on_the_way_out(
             if client.session.phase is Phase.HANDSHAKING and not isinstance(failure, KeyboardInterrupt):
                 # the board reset under the Disarm (the session shakes hands again): the handshake told
                 # why, and the reset is reported — counted, not only said in the Disarm's error
-                client.wait_for(lambda: client.session.phase is not Phase.HANDSHAKING, DISARM_WAIT_S)
+                with contextlib.suppress(HilError, KeyboardInterrupt):  # given up: said as it stands
+                    client.wait_for(lambda: client.session.phase is not Phase.HANDSHAKING, DISARM_WAIT_S)
+            final.heard(client.drain_events())  # the reset into the record before the Disarm's outcome
             if client.state in _LEFT_AS_IT_IS and not final.arm_outstanding():
                 # the board's own word since: booting or DISARMED (a board that reset drives nothing;
                 # every command of the old session was abandoned) — not "not confirmed disarmed"
@@ -728,9 +730,9 @@ def _disarm_on_the_way_out(
                 events.write(client.clock.now(), "disarm_failed", reason=reason, error=error)
                 final.outcome.update(ok=False, error=error)
         else:
+            final.heard(client.drain_events())
             events.write(client.clock.now(), "disarmed", reason=reason)
             final.outcome["ok"] = True
-        final.events = client.drain_events()
         state = client.state
         final.outcome["state"] = None if state is None else state.name
 
