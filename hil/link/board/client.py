@@ -127,6 +127,7 @@ class BoardClient:
         self._write_failure: LinkError | None = None  # a write failed in the caller's thread
         self._read_end: float | None = None  # when the last read of the transport returned
         self._port_absent = False  # the link is down and the port was seen gone since (Transport.present)
+        self._open_due = False  # a reconnection try is due: the pump opens the port outside the lock
 
     # ================================================================== session
     def connect(self, timeout: float | None = None) -> BoardInfo:
@@ -456,6 +457,51 @@ class BoardClient:
             finally:
                 self._dispatch()
                 self._cond.notify_all()
+        if self._open_due:
+            self._reopen()
+
+    def _reopen(self) -> None:
+        """A reconnection's try (:meth:`_keep_link` found one due), the port opened outside the client's
+        lock: a connect that waits — a TCP board whose accept queue is full, pyserial's ``socket://``
+        waiting up to 5 s, an ``rfc2217://`` negotiation, a slow CAN backend — held every caller's
+        ``send_setpoint`` and the state's reads as long, and the run took its own control tick for the stall
+        (``host_stall``) instead of the link's loss. Only the pump opens, so no other thread reads,
+        writes or opens the transport meanwhile (it is closed: reads and writes skip it)."""
+        self._open_due = False
+        with self._cond:
+            if self._closed:
+                return
+        failure: LinkError | None = None
+        try:
+            self.transport.open()
+        except LinkError as exc:  # PortBusy among them
+            failure = exc
+        with self._cond:
+            now = self.clock.now()
+            s = self.session
+            try:
+                if self._closed:  # closed while it opened: nothing of it kept
+                    if failure is None:
+                        self.transport.close()
+                    return
+                if failure is None:
+                    self._busy_logged = self._port_absent = False
+                    self._reconnect_at = None
+                    self._write(s.link_up(now), now)
+                    return
+                if isinstance(failure, PortBusy):
+                    # Another host holds the port: whatever board is behind it is not ours to command (our
+                    # own board would be held by nobody). Not fatal: the holder may let go, the path may be
+                    # ours again.
+                    s.counters.boards_refused += 1
+                    if not self._busy_logged:
+                        self._busy_logged = True
+                        logger.warning("reconnection refused, not our board: %s; still looking", failure)
+                self._last_error = str(failure)
+                self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
+            finally:
+                self._dispatch()
+                self._cond.notify_all()
 
     def _write(self, data: bytes, now: float) -> None:
         if data and self.transport.is_open and self._write_failure is None:
@@ -525,25 +571,7 @@ class BoardClient:
                 f"{now - self._lost_at:.1f} s (last error: {self._last_error})"
             )
         self._attempts += 1
-        try:
-            self.transport.open()
-        except PortBusy as exc:
-            # Another host holds the port: whatever board is behind it is not ours to command (our own
-            # board would be held by nobody). Not fatal: the holder may let go, the path may be ours again.
-            s.counters.boards_refused += 1
-            if not self._busy_logged:
-                self._busy_logged = True
-                logger.warning("reconnection refused, not our board: %s; still looking", exc)
-            self._last_error = str(exc)
-            self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
-            return
-        except LinkError as exc:
-            self._last_error = str(exc)
-            self._reconnect_at = now + self.config.reconnect_delay(self._attempts)
-            return
-        self._busy_logged = self._port_absent = False
-        self._reconnect_at = None
-        self._write(s.link_up(now), now)
+        self._open_due = True  # opened by the pump once it has let go of the lock (_reopen)
 
     def _watch_port(self, now: float) -> None:
         """While the link is down: a port seen gone that is there again is tried at once (its board

@@ -34,6 +34,14 @@ all that waited, so the next one holds only what came after it (:mod:`hil.link.b
 read that came late by the board's clock, and one that came promptly by its receive time)."""
 
 
+def _waiting_is_a_flag(port: serial.SerialBase) -> bool:
+    """Whether ``port.in_waiting`` says only *whether* bytes wait, not how many: pyserial's ``socket://``
+    answers ``len(select(...)[0])``, 0 or 1, so a drain by it read one byte a call — 1 MiB from a fast
+    far side cost 7 s of CPU in 4 reads, the session fed nothing meanwhile. Such a port is drained by one
+    read of timeout 0 (its socket's ``recv`` of what has come), not by the count."""
+    return type(port).__module__.endswith("protocol_socket")
+
+
 def _no_serial_port(exc: serial.SerialException) -> bool:
     """Whether pyserial's refusal says the path is there and is no serial port — a folder (EISDIR), a
     regular file, a FIFO or a device that is no terminal (ENOTTY: pyserial's termios set-up refused,
@@ -60,6 +68,7 @@ class SerialTransport(Transport):
         self._port: serial.SerialBase | None = None
         self._link_at_open: _PtyLink | None = None  # the link to a pty last opened through, as it was
         self._pty_gone = False  # that pty went away since (its far side closed it, or it was seen gone)
+        self._waiting_is_a_flag = False  # the open port's in_waiting says only whether (_waiting_is_a_flag)
 
     def present(self) -> bool | None:
         """A device path (``/dev/ttyACM0``, a firmware-sim ``--link``): whether it leads to a device now (a
@@ -106,6 +115,7 @@ class SerialTransport(Transport):
             )
             port.open()
             self._port = port
+            self._waiting_is_a_flag = _waiting_is_a_flag(port)
             self._link_at_open, self._pty_gone = _pty_link(self.url), False
         except serial.SerialException as exc:
             if exc.errno == errno.EWOULDBLOCK and port is not None and port.port:
@@ -136,6 +146,13 @@ class SerialTransport(Transport):
             if not first:
                 return b""
             out = bytearray(first)
+            if self._waiting_is_a_flag:  # take what has come at once, up to the bound
+                port.timeout = 0
+                try:
+                    out += port.read(DRAIN_BYTES - 1)
+                finally:
+                    port.timeout = timeout
+                return bytes(out)
             while len(out) < DRAIN_BYTES:  # a pty reports at most 4095 waiting at a time: all of it
                 waiting = port.in_waiting
                 if not waiting:
