@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 ORDER = 15
@@ -16,7 +17,11 @@ examples:
                                                     # scatter of the dispersed parameters, pass rates
 
 A run directory is recognised by telemetry.csv, a campaign by campaign.json. Plots go to DIR/plots/ (the
-files a run or campaign wrote are replaced); a run that was killed is reported up to its last flushed row.
+files a run or campaign wrote are replaced); a run that was killed is reported up to its last flushed row,
+one that ended before its first row (a port that could not be opened) without plots, a figure it never
+measured as "-". Every DIR given is reported: one that cannot be (not a run or a campaign, damaged files,
+plots that cannot be written) is an error on stderr naming it, the next DIR reported all the same, and the
+exit status is then 2 (0 when every DIR was reported).
 """
 
 
@@ -35,11 +40,24 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
+    """Report each directory in turn; 2 if any could not be, else 0. A directory that cannot be reported
+    is said as the command says any error (``hil report: error: ...``, stderr) and the next one is
+    reported: ``hil report runs/*`` once stopped at the first such directory, the rest never reported."""
+    from protocol.errors import HilError
+
+    failed = 0
     for i, path in enumerate(args.dirs):
         if i:
             print()
-        report(path, plots=not args.no_plots)
-    return 0
+        try:
+            report(path, plots=not args.no_plots)
+        except HilError as exc:
+            sys.stdout.flush()  # its lines before the error, in order on a terminal showing both
+            print(f"hil report: error: {exc}", file=sys.stderr)
+            failed += 1
+    if failed and len(args.dirs) > 1:
+        print(f"hil report: {failed} of {len(args.dirs)} directories not reported", file=sys.stderr)
+    return 2 if failed else 0
 
 
 def report(path: Path, plots: bool = True) -> dict[str, Path]:
@@ -111,6 +129,11 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
             # a summary.json hil did not write: its values are not the shapes a run's summary has
             why = f"{type(exc).__name__}: {exc}"
             print(f"  summary.json damaged (a value is not what a run writes: {why}): not shown")
+    if not tel.rows:
+        # a run that ended before its first row (its port could not be opened): nothing to draw, and not
+        # an error of the report's — plot_run's "no telemetry rows to plot" once ended the command here
+        print("  no telemetry rows (the run ended before its first): no plots")
+        return {}
     return plot_run(path, processes=available_cores()) if plots else {}
 
 

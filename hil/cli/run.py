@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import math
 import os
 import signal
@@ -424,39 +425,42 @@ def draw_plots(run_dir: Path) -> None:
     plot_run(run_dir)
 
 
+UNREADABLE = "unreadable"
+"""How the printed summary shows a value of a type no run writes (a summary.json hil did not write)."""
+
+
 def format_summary(s: dict) -> str:  # type: ignore[type-arg]
-    """The figures a user looks at first, one per line."""
-
-    def num(key: str, fmt: str, unit: str = "") -> str:
-        v = s.get(key)
-        return "-" if v is None else f"{v:{fmt}}{unit}"
-
-    def met(key: str) -> str:
-        """A requirement's verdict: ``true`` met, ``false`` or absent not; anything else (a summary.json
-        hil did not write: the string "false" read as met) a TypeError naming the key."""
-        v = s.get(key)
-        if v is True:
-            return "met"
-        if v is False or v is None:
-            return "NOT met"
-        raise TypeError(f"{key} is {str(v)[:40]!r}, not true or false")
-
+    """The figures a user looks at first, one per line. A figure the run never measured — absent or null: a
+    run that failed before its first row (a port that could not be opened) writes none of them — is ``-``
+    or "not reached", never a zero: its counts once read 0 failsafe events, its limits ``None``. A value of
+    a type no run writes (``true`` for a rate, a negative count, a number for ``exit``) is
+    :data:`UNREADABLE`, named on a last line, never printed as a figure (``true`` once read 1.000 rad/s)."""
+    f = _Figures(s)
+    rmse = f.number("estimator_rmse_deg", ".2f", " deg")
+    rmse_note = (
+        "(not measured)"
+        if "estimator_rmse_deg" not in s
+        else "(no ground truth in this run)"  # a run without ground truth writes null
+        if s["estimator_rmse_deg"] is None
+        else ""
+        if rmse == UNREADABLE
+        else "(slew + hold)"
+    )
     lines = [
-        f"exit              {s.get('exit')}  ({s.get('mode')}, {num('sim_s', '.1f', ' s')} simulated in "
-        f"{num('wall_s', '.1f', ' s')}, x{num('realtime_factor', '.2f')})",
-        f"settle time       {num('settle_s', '.1f', ' s')} to <= {s.get('settle_requirement_deg')} deg "
-        f"({met('settled')})",
-        f"final error       {num('final_error_deg', '.3f', ' deg')}",
-        f"peak gimbal rate  {num('peak_gimbal_rate', '.3f', ' rad/s')} "
-        f"(limit {s.get('max_gimbal_rate_limit')})",
-        f"minimum delta     {num('min_delta', '.3f')} (singularity measure det(D1 D1ᵀ)/h̄⁶ of the "
-        "gimbal array: 0 is singular, the paper's δ)",
-        f"estimator RMSE    {num('estimator_rmse_deg', '.2f', ' deg')} "
-        + ("(slew + hold)" if s.get("estimator_rmse_deg") is not None else "(no ground truth in this run)"),
-        f"failsafe events   {s.get('failsafe_events', 0)}  resets {s.get('board_resets', 0)}  "
-        f"re-arms {s.get('rearms', 0)}",
-        f"link              lost {s.get('link_lost', 0)}  reconnects {s.get('reconnects', 0)}  "
-        f"stale {s.get('stale_episodes', 0)}  phone gaps {s.get('phone_gaps', 0)}",
+        f"exit              {f.text('exit')}  ({f.text('mode')}, {f.number('sim_s', '.1f', ' s')} simulated "
+        f"in {f.number('wall_s', '.1f', ' s')}, x{f.number('realtime_factor', '.2f')})",
+        f"settle time       {f.number('settle_s', '.1f', ' s')} to <= "
+        f"{f.number('settle_requirement_deg', 'g', ' deg')} ({f.verdict('settled')})",
+        f"final error       {f.number('final_error_deg', '.3f', ' deg')}",
+        f"peak gimbal rate  {f.number('peak_gimbal_rate', '.3f', ' rad/s')} "
+        f"(limit {f.number('max_gimbal_rate_limit', 'g', ' rad/s')})",
+        f"minimum delta     {f.number('min_delta', '.3f', signed=True)} (singularity measure det(D1 D1ᵀ)/h̄⁶ "
+        "of the gimbal array: 0 is singular, the paper's δ)",
+        f"estimator RMSE    {rmse} {rmse_note}".rstrip(),
+        f"failsafe events   {f.count('failsafe_events')}  resets {f.count('board_resets')}  "
+        f"re-arms {f.count('rearms')}",
+        f"link              lost {f.count('link_lost')}  reconnects {f.count('reconnects')}  "
+        f"stale {f.count('stale_episodes')}  phone gaps {f.count('phone_gaps')}",
     ]
     lines += final_disarm_lines(s)
     lines += phone_lines(s)
@@ -468,7 +472,76 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
             f"control jitter    p50 {control['lateness_p50_us']:.0f} us  "
             f"p99 {control['lateness_p99_us']:.0f} us  max {control['lateness_max_us']:.0f} us"
         )
+    if f.unreadable:
+        lines.append(
+            f"summary.json damaged (values no run writes, shown as {UNREADABLE}): " + "; ".join(f.unreadable)
+        )
     return "\n".join(lines)
+
+
+class _Figures:
+    """A summary's values as :func:`format_summary` prints them: each checked against what a run writes
+    for it, ``-`` where it has none (absent or null: never measured), :data:`UNREADABLE` where it is not
+    such a value, which is named in :attr:`unreadable` (``KEY is VALUE, not ...``)."""
+
+    def __init__(self, s: dict) -> None:  # type: ignore[type-arg]
+        self.s = s
+        self.unreadable: list[str] = []
+
+    def _bad(self, key: str, value: object, want: str) -> str:
+        self.unreadable.append(f"{key} is {json.dumps(value, default=str)[:40]}, not {want}")
+        return UNREADABLE
+
+    def number(self, key: str, fmt: str, unit: str = "", signed: bool = False) -> str:
+        """A figure: a finite number, not a bool (JSON's ``true`` is Python's 1), at least 0 unless
+        ``signed`` (every figure printed is a time, an angle, a rate's magnitude or a ratio of them but
+        δ, a determinant that rounding can take a hair below 0)."""
+        value = self.s.get(key)
+        if value is None:
+            return "-"
+        x = finite_number(value)
+        if x is None or (x < 0 and not signed):
+            return self._bad(key, value, "a number" if signed else "a number >= 0")
+        return f"{x:{fmt}}{unit}"
+
+    def count(self, key: str) -> str:
+        """A count: an integer >= 0 (not a bool, not 2.0: a run writes its counts as integers)."""
+        value = self.s.get(key)
+        if value is None:
+            return "-"
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            return self._bad(key, value, "a count")
+        return str(value)
+
+    def text(self, key: str) -> str:
+        value = self.s.get(key)
+        if value is None:
+            return "-"
+        return value if isinstance(value, str) else self._bad(key, value, "a text")
+
+    def verdict(self, key: str) -> str:
+        """A requirement's verdict: ``true`` met, ``false`` not, absent or null not reached (a run that
+        ended before its slew has no verdict, not a failed one); anything else (the string "false", read as
+        met by its truth once) unreadable."""
+        value = self.s.get(key)
+        if value is None:
+            return "not reached"
+        if isinstance(value, bool):
+            return "met" if value else "NOT met"
+        return self._bad(key, value, "true or false")
+
+
+def finite_number(value: object) -> float | None:
+    """``value`` as a float if it is a finite number as JSON has them — not a bool (``True == 1`` to
+    Python), not NaN or an infinity, not an integer beyond a float's range (``float(10**400)`` raises) —
+    else None."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        x = float(value)
+    except OverflowError:
+        return None
+    return x if math.isfinite(x) else None
 
 
 def final_disarm_lines(s: dict) -> list[str]:  # type: ignore[type-arg]

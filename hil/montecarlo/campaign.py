@@ -50,7 +50,7 @@ from protocol.errors import ConfigError, InputFormatError, LinkError
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
 from .runner import CHECK_COLUMNS, RunResult, describe, run_one
-from .store import ResultStore, checked_write, manifest, read_runs
+from .store import ResultStore, checked_write, manifest, read_manifest, read_runs
 from .summary import summarise
 
 logger = logging.getLogger(__name__)
@@ -596,10 +596,19 @@ def summarise_dir(
     its ``workers_lost`` (0 without one) and its ``interrupted`` record (the runs asked for; its runs on
     disk counted again) — a report once rewrote the file without it, and the campaign no longer said it
     was interrupted. ``write=False`` (``hil report --no-plots``) leaves the directory as it is: a read-only
-    campaign is still reported."""
+    campaign is still reported.
+
+    The runs' duration, which ``settle`` is judged against, is the campaign's own (campaign.json's
+    ``duration_s``, as its plots take it), not ``scenario``'s: the scenario `hil report` rebuilds from the
+    TOML text campaign.json keeps says its file's ``duration_s``, not ``--duration``'s, and a campaign
+    run with ``--duration 30`` on a scenario of 10 s was reported "settle_s <= 10: 0 %" — and its
+    summary.json rewritten so — where `hil montecarlo` had printed 100 %. ``--duration`` is the one
+    campaign option that moves a verdict's limit; ``settle_deg`` and the gimbal-rate limit are in the
+    scenario text campaign.json keeps (``--board`` and ``--seed`` change neither)."""
     sc = scenario
+    duration_s = float(read_manifest(out_dir)["duration_s"])
     summary = summarise(
-        read_runs(out_dir), sc.name, sc.slew.duration_s, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate
+        read_runs(out_dir), sc.name, duration_s, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate
     )
     interrupted = None
     if workers_lost is None:

@@ -10,6 +10,14 @@ Requirements (each a pass/fail per run; a failed run passes none):
 
 Pass rates are over every finished run, failed ones included (as not passing), with a 95 % Wilson score
 interval: with 100 runs an observed 99 % means somewhere between ~94.5 and ~99.8 %.
+
+What a figure could not use is said, never passed over: an ok run whose metric is empty or NaN, or below
+zero where no run can be (:data:`NON_NEGATIVE`: a row hil did not write), is left out of that metric's
+figures and counted (``left_out``; ``n`` the runs in them), and is not judged by a requirement on that
+metric (``not_judged``: counted as not passing; a negative settle time or final error once passed); the
+lines of runs.csv that were dropped (``dropped_lines``: damaged, a bad run index, an earlier row of a run
+written again) and a not-ok run with no error recorded (its status not ``ok``, its error empty) are
+printed by :func:`format_table`.
 """
 
 from __future__ import annotations
@@ -25,6 +33,12 @@ from .metrics import METRICS
 from .store import Results
 
 PERCENTILES = (50, 95, 99)
+NON_NEGATIVE = frozenset(METRICS) - {"min_delta"}
+"""The metrics no run can have below zero (times, error angles, a peak |rate|, a count). ``min_delta``, a
+determinant, can come out a rounding below zero at a singularity: any number of it is read."""
+NO_ERROR = "no error recorded (its status is not ok)"
+"""What the table says of a not-ok run whose row holds no error: a status other than ``ok`` or ``failed``
+(read_runs takes every status but ``ok`` as a failure), or an emptied error cell."""
 
 
 def requirements(
@@ -44,28 +58,30 @@ def summarise(
     """The summary (JSON-ready) of ``results`` (see the module docstring)."""
     n = len(results)
     ok = results.ok
-    metrics: dict[str, dict[str, float | None]] = {}
+    metrics: dict[str, dict[str, float | int | None]] = {}
     for name in METRICS:
-        values = results.values.get(name, np.full(n, math.nan))[ok]
-        values = values[~np.isnan(values)]
+        readable = _readable(results, name)
+        values = results.values.get(name, np.full(n, math.nan))[readable]
+        counts = {"n": len(values), "left_out": int(ok.sum()) - len(values)}
         if len(values) == 0:
-            metrics[name] = dict.fromkeys([*(f"p{p}" for p in PERCENTILES), "max", "mean"])
+            metrics[name] = dict.fromkeys([*(f"p{p}" for p in PERCENTILES), "max", "mean"]) | counts
             continue
         # empirical quantiles (no interpolation: "never settled" runs are inf, and inf - inf is NaN)
-        stats: dict[str, float | None] = {
+        stats: dict[str, float | int | None] = {
             f"p{p}": float(np.percentile(values, p, method="inverted_cdf")) for p in PERCENTILES
         }
         stats["max"] = float(np.max(values))
         finite = values[np.isfinite(values)]
         stats["mean"] = float(np.mean(finite)) if len(finite) else None
-        metrics[name] = stats
+        metrics[name] = stats | counts
     passes: dict[str, dict[str, Any]] = {}
     every = ok.copy()
     for req, (metric, limit) in requirements(duration_s, settle_deg, max_gimbal_rate).items():
-        values = results.values.get(metric, np.full(n, math.nan))
-        passed = ok & (values <= limit)  # NaN (failed run) compares False
+        readable = _readable(results, metric)
+        passed = readable & (results.values.get(metric, np.full(n, math.nan)) <= limit)
         every &= passed
-        passes[req] = _rate(int(passed.sum()), n) | {"metric": metric, "limit": limit}
+        judged = {"metric": metric, "limit": limit, "not_judged": int((ok & ~readable).sum())}
+        passes[req] = _rate(int(passed.sum()), n) | judged
     passes["all"] = _rate(int(every.sum()), n)
     worst = _worst(results)
     return {
@@ -81,6 +97,17 @@ def summarise(
         "dropped_lines": results.dropped,
         **fault_figures(results),
     }
+
+
+def _readable(results: Results, metric: str) -> Any:
+    """(N,) bool: the ok runs whose ``metric`` is a value a run writes — a number, not empty or NaN, and
+    not below zero where no run's can be (:data:`NON_NEGATIVE`). The one rule for both a metric's figures
+    and a requirement's verdict: a figure no run measured is never counted as a pass."""
+    values = results.values.get(metric, np.full(len(results), math.nan))
+    readable = results.ok & ~np.isnan(values)
+    if metric in NON_NEGATIVE:
+        readable &= ~(values < 0)
+    return readable
 
 
 def fault_figures(results: Results) -> dict[str, Any]:
@@ -204,19 +231,34 @@ def format_table(summary: dict[str, Any]) -> str:
     lines = [
         f"{summary['scenario']}: {summary['runs']} runs, {summary['ok']} ok, {summary['failed']} failed "
         f"({summary['duration_s']:g} s each)",
-        "",
-        f"{'metric':<20}" + "".join(f"{h:>12}" for h in ("p50", "p95", "p99", "max")),
     ]
+    if summary["dropped_lines"]:
+        lines.append(
+            f"dropped          {summary['dropped_lines']} line(s) of runs.csv (damaged, a bad run index, "
+            "or a run's earlier row): in no figure below"
+        )
+    lines += ["", f"{'metric':<20}" + "".join(f"{h:>12}" for h in ("p50", "p95", "p99", "max"))]
     for name, stats in summary["metrics"].items():
         cells = "".join(f"{_num(stats[k]):>12}" for k in ("p50", "p95", "p99", "max"))
         lines.append(f"{name:<20}{cells}")
+    left_out = [
+        f"{name} {stats['left_out']}" for name, stats in summary["metrics"].items() if stats["left_out"]
+    ]
+    if left_out:
+        lines.append(
+            "left out         ok runs without a value a run writes (empty, NaN, or below zero), not in "
+            "that metric's figures: " + ", ".join(left_out)
+        )
     lines += ["", f"{'requirement':<14}{'condition':<30}{'pass rate':>10}{'95% interval':>16}"]
     for name, req in summary["requirements"].items():
         condition = f"{req['metric']} <= {_num(req['limit'])}" if "metric" in req else "all of the above"
         rate = "-" if req["rate"] is None else f"{100 * req['rate']:.1f}%"
         lo, hi = req["ci95"]
         ci = "-" if lo is None else f"{100 * lo:.1f}-{100 * hi:.1f}%"
-        lines.append(f"{name:<14}{condition:<30}{rate:>10}{ci:>16}")
+        unjudged = (
+            f"  ({req['not_judged']} ok not judged: no readable value)" if req.get("not_judged") else ""
+        )
+        lines.append(f"{name:<14}{condition:<30}{rate:>10}{ci:>16}{unjudged}")
     if "invariant_violations" in summary:
         lines += [
             "",
@@ -241,8 +283,10 @@ def format_table(summary: dict[str, Any]) -> str:
         if summary.get("dropped_times"):
             lines.append(f"unreadable       {summary['dropped_times']} detection/recovery cells (dropped)")
     if summary["failures"]:
-        lines += ["", f"failed runs ({len(summary['failures'])}):"]
-        lines += [f"  run {f['index']}: {f['error']}" for f in summary["failures"][:10]]
+        silent = sum(not f["error"] for f in summary["failures"])
+        said = f"; {silent} with {NO_ERROR}" if silent else ""
+        lines += ["", f"failed runs ({len(summary['failures'])}{said}):"]
+        lines += [f"  run {f['index']}: {f['error'] or NO_ERROR}" for f in summary["failures"][:10]]
         if len(summary["failures"]) > 10:
             lines.append(f"  ... {len(summary['failures']) - 10} more in summary.json")
     return "\n".join(lines)
