@@ -11,7 +11,7 @@ import struct
 
 import hypothesis.strategies as st
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 
 from firmware_sim.avr import eeprom
 from firmware_sim.avr.hostlib import CAnswerCache, CPowerManager, CReassembler, config_parse, state_transition
@@ -21,7 +21,7 @@ from firmware_sim.board.state import Event, transition
 from protocol.calibration import Reassembler, fragment
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import CalibrationError, ConfigError
-from protocol.messages import BoardState, Flags, NackReason
+from protocol.messages import Arm, BoardState, ControlMode, Disarm, Flags, NackReason, SetMode, encode_payload
 
 # C event codes (state.h) in the order of the enum there
 C_EVENTS = {
@@ -140,6 +140,56 @@ def test_a_retransmitted_command_gets_the_remembered_answer_without_running_agai
     for seq in range(100, 132):  # 32 newer answers push the oldest out
         c.remember(0x11, seq, b"", 0)
     assert c.lookup(arm, 5, int(Flags.RETRANSMIT), payload) is None
+
+
+@pytest.mark.firmware
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(  # three message ids, two contents of one
+                [Arm(), Disarm(), SetMode(mode=ControlMode.SETPOINT), SetMode(mode=ControlMode.RAW_PULSES)]
+            ),
+            st.one_of(st.integers(0, 3), st.none()),  # one of a few sequence numbers, or the next fresh one
+            st.booleans(),  # a retransmission (looked up) or a new command (remembered)
+        ),
+        max_size=200,
+    )
+)
+@example(
+    [(Arm(), 0, False)]
+    + [(Disarm(), None, False)] * 10
+    + [(Arm(), 0, False)]
+    + [(Disarm(), None, False)] * 25
+    + [(Arm(), 0, True)]
+)
+def test_the_answer_cache_keeps_the_last_32_answers_in_the_order_given_as_the_emulator_does(ops):
+    """Any run of commands whose keys come back (the host's sequence numbers wrap), among fresh ones that
+    push old answers out: the C cache answers a retransmission exactly when the emulator's ordered dict
+    does, with the same answer. The C ring once left a key answered again in its old slot — overwritten up
+    to 31 answers early, a late Arm carried out again (the @example;
+    tests/test_firmware_answer_cache_order.py)."""
+    from firmware_sim.board.link import BoardLink
+    from protocol.frame import Frame
+
+    c = CAnswerCache()
+    py = BoardLink(rx_capacity=64, tx_capacity=64)
+    fresh = 4
+    for k, (message, reused, retransmit) in enumerate(ops):
+        if reused is None:
+            seq, fresh = fresh, 4 + (fresh - 3) % 252  # 4..255, then round again
+        else:
+            seq = reused
+        flags = Flags.ACK_REQUESTED | (Flags.RETRANSMIT if retransmit else Flags.NONE)
+        frame = Frame(message=message, seq=seq, flags=flags)
+        msg_id, payload = frame.msg_id, encode_payload(message)
+        want = py.cached_answer(frame)
+        got = c.lookup(msg_id, seq, int(flags), payload)
+        assert got == want, (k, msg_id, seq, payload)
+        if got is None:
+            answer = k % 7  # an Ack (0) or a Nack reason: what was answered
+            py.remember_answer(frame, answer)
+            c.remember(msg_id, seq, payload, answer)
 
 
 # --------------------------------------------------------------------------- EEPROM configuration block

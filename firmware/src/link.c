@@ -28,10 +28,25 @@ uint8_t answers_lookup(const answer_cache_t *c, const frame_t *f, uint8_t *answe
     return 1;
 }
 
+/* The cache is a ring in the order answers were given: `next` is the oldest slot (the next overwritten),
+ * the slot before it the newest. An answer given again to a key already held (the host's sequence numbers
+ * wrapped, the same command id reused) becomes the newest, as the emulator's ordered dict moves it: left
+ * in its old slot it was overwritten up to 31 answers early, and a late retransmission of an Arm the
+ * board had answered since was carried out again (a disarmed board armed). The entries after it move down
+ * one slot, in order. */
 void answers_remember(answer_cache_t *c, const frame_t *f, uint8_t answer)
 {
     answer_t *e = find(c, f);
-    if (!e) {
+    if (e) {
+        uint8_t i = (uint8_t)(e - c->entries);
+        uint8_t newest = (uint8_t)((c->next + LINK_ANSWERS - 1u) % LINK_ANSWERS);
+        while (i != newest) {
+            uint8_t after = (uint8_t)((i + 1u) % LINK_ANSWERS);
+            c->entries[i] = c->entries[after];
+            i = after;
+        }
+        e = &c->entries[newest];
+    } else {
         e = &c->entries[c->next];
         c->next = (uint8_t)((c->next + 1u) % LINK_ANSWERS);
     }
