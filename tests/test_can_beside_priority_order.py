@@ -71,7 +71,9 @@ class _PriorityBoard:
 
     def _send(self, message) -> None:  # type: ignore[no-untyped-def]
         for seg in self.segmenter.segment(self.framer.encode(message)[1]):
-            self.far._bus.send(can.Message(arbitration_id=seg.arbitration_id, data=seg.data, is_extended_id=False))
+            self.far._bus.send(
+                can.Message(arbitration_id=seg.arbitration_id, data=seg.data, is_extended_id=False)
+            )
 
     def _serve(self) -> None:
         deframer = Deframer()
@@ -115,7 +117,9 @@ class _PriorityBoard:
                     beat_segments = self.segmenter.segment(self.framer.encode(beat)[1])
                     assert len(tel_segments) > 3
                     for seg in [*tel_segments[:3], *beat_segments, *tel_segments[3:]]:
-                        msg = can.Message(arbitration_id=seg.arbitration_id, data=seg.data, is_extended_id=False)
+                        msg = can.Message(
+                            arbitration_id=seg.arbitration_id, data=seg.data, is_extended_id=False
+                        )
                         self.far._bus.send(msg)
 
     def close(self) -> None:

@@ -84,7 +84,9 @@ def test_the_pages_phone_rates_and_ages_through_an_estimator_restart():
         rates = [r[col[f"phone_rate_{k}"]] for r in rows if r[col[f"phone_rate_{k}"]] is not None]
         assert rates and min(rates) >= 0.0, (k, min(rates))
         in_gap = [
-            r[col[f"phone_age_ms_{k}"]] for r in rows if GAP_AT_S + 0.3 <= r[col["t"]] <= GAP_AT_S + GAP_S - 0.1
+            r[col[f"phone_age_ms_{k}"]]
+            for r in rows
+            if GAP_AT_S + 0.3 <= r[col["t"]] <= GAP_AT_S + GAP_S - 0.1
         ]
         assert in_gap and min(in_gap) >= 250.0, (k, min(in_gap))  # stale all through the gap, never "live"
 
@@ -126,7 +128,9 @@ def test_every_dropped_reading_of_a_burst_is_in_the_record(plan):
     s = recorder.summary
     counted = s["phone_admission"]["dropped"]["out_of_range"]
     assert counted == burst.sent
-    records = [e for e in recorder.events if e["kind"] == "readings_dropped" and e["reason"] == "out_of_range"]
+    records = [
+        e for e in recorder.events if e["kind"] == "readings_dropped" and e["reason"] == "out_of_range"
+    ]
     assert sum(e["since_last"] for e in records) == counted
     assert records[-1]["total"] == counted
     journal = [f for f in s["faults"] if f["kind"] == "readings_dropped" and f["reason"] == "out_of_range"]

@@ -50,7 +50,11 @@ class _TcpBoard:
                     continue
                 if isinstance(event.message, Hello):
                     reply = HelloReply(
-                        schema_hash=SCHEMA_HASH, state=BoardState.DISARMED, n_units=1, frame_rate_hz=50, model="TCP"
+                        schema_hash=SCHEMA_HASH,
+                        state=BoardState.DISARMED,
+                        n_units=1,
+                        frame_rate_hz=50,
+                        model="TCP",
                     )
                     conn.sendall(framer.encode(reply)[1])
                 elif event.message.RELIABLE:

@@ -53,7 +53,7 @@ from hil.runtime.control_step import ControlStep, Steered
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
 from hil.runtime.operator import OperatorCommand, OperatorLog
 from hil.runtime.phases import Phase, RunPhases
-from hil.runtime.phone_clock import MAX_GAP_S, NEEDED, Freshness, PhoneClock
+from hil.runtime.phone_clock import MAX_GAP_S, Freshness, PhoneClock
 from hil.runtime.phone_senders import SenderWatch
 from hil.runtime.rows import BoardReading, TickRecorder, TickSnapshot
 from hil.runtime.runlog import CsvLog, EventLog, RowTap

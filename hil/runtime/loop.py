@@ -60,6 +60,7 @@ from hil.estimation.registry import EstimatorChoice
 from hil.estimation.sensors import SensorLog
 from hil.files.output import write_file
 from hil.files.writing import WriterLock
+from hil.link.board.session import Phase
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, create_source
 from hil.link.sources.recorded import RECORDING_URL
 from hil.link.sources.simulated import SIMULATED_URL
@@ -78,7 +79,6 @@ from hil.timing.clock import Clock, LockstepClock, WallClock
 from hil.timing.priority import Scheduling, realtime
 from hil.timing.scheduler import PeriodicTask, Scheduler
 from hil.version import describe
-from hil.link.board.session import Phase
 from protocol.errors import CommandFailed, ConfigError, HilError, LinkError
 from protocol.messages import BoardState
 
@@ -622,6 +622,7 @@ class FinalDisarm:
     outcome: dict[str, Any] | None = None
     # what the board client's events on the way out go to (the host's record, once it exists)
     heard: Callable[[list[Any]], None] = lambda events: None
+
     def said(self, summary: dict[str, Any]) -> None:
         """``final_disarm`` into ``summary``. A run that completed but whose board is not confirmed
         disarmed (the final Disarm failed: a board frozen over the run's end, a link gone) does not say

@@ -598,8 +598,8 @@ class Session:
         run's outage then began at the read (a host paused 12 s said it was out for 0.03 s).
 
         ``kind`` is the sample's message class. A sample behind the newest of another kind by at most
-        :data:`OVERTAKEN_MS`, its own kind's count not gone back, was overtaken on the way (:func:`_overtaken`):
-        taken, its state not (it is older than the state held), no reset."""
+        :data:`OVERTAKEN_MS`, its own kind's count not gone back, was overtaken on the way
+        (:func:`_overtaken`): taken, its state not (it is older than the state held), no reset."""
         frames_out = self.counters.frames_out
         boot_changed = self._boot_changed(boot_id)
         if boot_changed is not None:
