@@ -129,12 +129,16 @@ class CalibrationTransfers:
         return min(entry[2] for entry in self._pending.values())
 
     def retry_due(self, t: int) -> None:
-        """Resend every fragment due at ``t`` (µs); give up the download after the last try."""
+        """Resend every fragment due at ``t`` (µs); give up the download after the last try — once: the
+        loop stops there, as the firmware's does (it walked the rest of its copy of the pending fragments
+        after giving up, logging the abandonment once for each)."""
         if not self._pending:  # the usual case, at every main-loop pass
             return
         for seq, entry in list(self._pending.items()):
             if entry[2] <= t:
                 self._retry(seq, entry, t)
+                if not self._pending:  # given up
+                    return
 
     def _retry(self, seq: int, entry: list[Any], t: int) -> None:
         if entry[1] >= _TRIES:
