@@ -234,6 +234,28 @@ def test_a_block_with_a_value_out_of_range_is_refused_and_names_it():
     assert status == 3 and got["n_units"] == BoardConfig().n_units and problem == 2  # "n_units"
 
 
+@pytest.mark.firmware
+@pytest.mark.parametrize("watchdog_s", [0.015, 0.05, 0.099, 0.1, 8.0])
+def test_the_mcu_watchdogs_floor_is_the_same_in_the_firmware_and_the_emulator(watchdog_s):
+    """Below ``MCU_WATCHDOG_MIN_S`` (0.1 s) both refuse it: the firmware's longest main-loop pass must fit
+    (tests/test_firmware_watchdog_floor.py)."""
+    from firmware_sim.board.config import MCU_WATCHDOG_MIN_S
+
+    takes = MCU_WATCHDOG_MIN_S <= watchdog_s <= 8.0
+    if takes:
+        BoardConfig(mcu_watchdog_s=watchdog_s).validate()
+    else:
+        with pytest.raises(ConfigError, match="mcu_watchdog_s"):
+            BoardConfig(mcu_watchdog_s=watchdog_s).validate()
+    body = bytearray(eeprom.config_block(BoardConfig())[:-2])
+    offset = eeprom.field_offsets()["mcu_watchdog_s"]
+    body[offset : offset + 4] = struct.pack("<f", watchdog_s)
+    status, got, _ = config_parse(bytes(body) + struct.pack("<H", crc16_ccitt_false(bytes(body))))
+    assert (status == 0) is takes
+    if takes:
+        assert got["mcu_watchdog_ms"] == round(watchdog_s * 1000)
+
+
 def test_the_image_builder_refuses_what_the_hardware_cannot_do():
     with pytest.raises(ConfigError, match="n_units"):
         eeprom.config_block(BoardConfig(n_units=7))

@@ -139,7 +139,7 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_HEARTBEAT_RATE_HZ;
     else if (!within(link, 0.01f, 60.0f))
         problem = BAD_LINK_TIMEOUT_S;
-    else if (!within(wdt, 0.015f, 8.0f))
+    else if (!within(wdt, 0.1f, 8.0f)) /* MCU_WATCHDOG_MIN_S: the longest main-loop pass fits, 3 times */
         problem = BAD_MCU_WATCHDOG_S;
     else if (c.rotor_safe_us < PULSE_MIN_US || c.rotor_safe_us > PULSE_MAX_US)
         problem = BAD_ROTOR_SAFE_US;

@@ -122,6 +122,14 @@ class PowerConfig:
     update_period_s: float = 0.005  # how often the power manager samples and integrates
 
 
+MCU_WATCHDOG_MIN_S = 0.1
+"""s: the shortest MCU watchdog a board takes (the firmware's ``config.c`` alike). The firmware's longest
+main-loop pass — a calibration set reassembled, validated in float32 and stored, ~33 ms — must fit in it,
+with room: at 15–30 ms three uploads in a row, host input alone, reset the board by its watchdog and left
+a set it had acknowledged damaged in EEPROM (below 32 ms the loop itself restarts the 16 ms hardware
+watchdog)."""
+
+
 @dataclass(frozen=True)
 class BoardConfig:
     """Everything that shapes one emulated board.
@@ -178,7 +186,7 @@ class BoardConfig:
         _num_in(self.telemetry_rate_hz, 0.1, 1000.0, f"{w}.telemetry_rate_hz")
         _num_in(self.heartbeat_rate_hz, 0.1, 1000.0, f"{w}.heartbeat_rate_hz")
         _num_in(self.link_timeout_s, 0.01, 60.0, f"{w}.link_timeout_s")
-        _num_in(self.mcu_watchdog_s, 0.015, 8.0, f"{w}.mcu_watchdog_s")
+        _num_in(self.mcu_watchdog_s, MCU_WATCHDOG_MIN_S, 8.0, f"{w}.mcu_watchdog_s")
         _num_in(self.tick_s, 1e-5, 0.01, f"{w}.tick_s")
         _num_in(self.boot_time_s, 0.0, 10.0, f"{w}.boot_time_s")
         _int_in(self.rotor_safe_us, PULSE_MIN_US, PULSE_MAX_US, f"{w}.rotor_safe_us")

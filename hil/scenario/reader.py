@@ -83,7 +83,7 @@ BOARD_RANGES: dict[str, tuple[float, float, type]] = {
     "telemetry_rate": (0.1, 1000.0, float),
     "heartbeat_rate": (0.1, 1000.0, float),
     "link_timeout": (0.01, 60.0, float),
-    "mcu_watchdog": (0.015, 8.0, float),
+    "mcu_watchdog": (0.1, 8.0, float),  # firmware_sim.board.config.MCU_WATCHDOG_MIN_S
     "cells": (2, 12, int),
     "soc": (0.0, 1.0, float),
 }
