@@ -93,3 +93,29 @@ def test_a_classic_host_of_a_can_fd_board_is_told_why_the_handshake_failed():
         finally:
             client.close()
     assert "CAN FD" in str(caught.value) and "fd=0" in str(caught.value), str(caught.value)
+
+
+@pytest.mark.parametrize(
+    "interface", ["virtual", pytest.param("udp_multicast", marks=pytest.mark.udp_multicast)]
+)
+def test_a_host_on_another_node_id_than_its_board_is_told_why_the_handshake_failed(interface):
+    """The board served as node 3, the host set up for node 0: the first handshake fails — it must — and
+    its ``LinkTimeout`` names the node the board's frames came from and the ``node`` option, where it said
+    only "no handshake" (every frame of the board counted ``rx_ignored``)."""
+    if interface == "virtual":
+        channel, extra = f"node-mismatch-{random.randint(0, 1 << 30)}", ""
+    else:
+        group, port = _group()
+        channel, extra = group, f"port={port}&"
+    board_url = f"can://{interface}/{channel}?{extra}node=3"
+    host_url = f"can://{interface}/{channel}?{extra}node=0"
+    config = ClientConfig(handshake=RetryPolicy(timeout_s=0.1, max_tries=8))
+    with CanServer(Board(BoardConfig(n_units=1), WallClock()), board_url):
+        client = BoardClient(host_url, config=config)
+        try:
+            with pytest.raises(LinkTimeout) as caught:
+                client.connect(timeout=3.0)
+        finally:
+            client.close()
+    said = str(caught.value)
+    assert "node 3" in said and "node 0" in said and "node option" in said, said

@@ -155,6 +155,10 @@ class CanTransport(Transport):
         self.tx = CanTxStats()
         self.undecodable = 0  # messages the interface received but could not decode
         self.same_node = 0  # CAN frames as this end (its direction, its node id) that it did not send
+        self._receives = receives
+        # frames towards this end from other node ids (node id -> count; at most NODE_MAX + 1 keys): a peer
+        # set up with another ``node`` option is heard only so, and told by heard_instead
+        self._other_nodes: dict[int, int] = {}
         self._invalid_seen = 0  # the reassembler's ``invalid`` count when this end last looked
         self._losses_seen = (0, 0, 0)  # its malformed, incomplete and spliced counts when last logged
         self._unechoed: deque[tuple[int, bytes]] = deque()  # sent, loopback not yet heard (<= _ECHOES)
@@ -271,6 +275,7 @@ class CanTransport(Transport):
                     "invalid", f"a received CAN message whose fields are not a CAN frame's ({_kinds(msg)})"
                 )
             return b""
+        self._note_other_node(fields)
         if self._impersonated(fields):
             self.same_node += 1
             peer, twins = ("board", "hosts") if self.sends is Direction.TO_BOARD else ("host", "boards")
@@ -297,10 +302,34 @@ class CanTransport(Transport):
         )
 
     def heard_instead(self) -> str:
-        """Frames of the other kind this transport has heard, said for the operator (empty if none): a host
-        whose board has another ``fd`` option hears only those."""
+        """What this transport heard instead of its peer, said for the operator (empty if nothing): frames
+        of the other kind (a board with another ``fd`` option), and frames towards this end from other
+        node ids (a board with another ``node`` option: the handshake's timeout said only "no handshake",
+        though the board's own frames were on the bus, every one counted ``rx_ignored``)."""
+        said = ""
         n = self._reassembler.stats.wrong_kind
-        return f"; {self._wrong_kind_said(n)}" if n > 0 else ""
+        if n > 0:
+            said += f"; {self._wrong_kind_said(n)}"
+        if self._other_nodes:
+            peer = "board" if self.sends is Direction.TO_BOARD else "host"
+            nodes = sorted(self._other_nodes.items(), key=lambda item: -item[1])[:4]
+            heard = ", ".join(f"node {node} ({count} frames)" for node, count in nodes)
+            said += (
+                f"; heard a {peer} on this bus as {heard}, not node {self.node}: both ends need the same "
+                "node option"
+            )
+        return said
+
+    def _note_other_node(self, fields: Received) -> None:
+        """Count a data frame towards this end (``receives``) from a node id other than this end's."""
+        if fields.is_extended_id:
+            return
+        try:
+            cid = CanId.parse(fields.arbitration_id)
+        except ProtocolError:
+            return
+        if cid.direction is self._receives and cid.node != self.node:
+            self._other_nodes[cid.node] = self._other_nodes.get(cid.node, 0) + 1
 
     def _log_losses(self) -> None:
         """Log the reassembler's lost frames since it was last looked at, each kind at most once a second:
