@@ -11,6 +11,8 @@ import signal
 import sys
 from pathlib import Path
 
+from hil.numbers import finite_number
+
 ORDER = 10
 
 EPILOG = """\
@@ -529,19 +531,6 @@ class _Figures:
         if isinstance(value, bool):
             return "met" if value else "NOT met"
         return self._bad(key, value, "true or false")
-
-
-def finite_number(value: object) -> float | None:
-    """``value`` as a float if it is a finite number as JSON has them — not a bool (``True == 1`` to
-    Python), not NaN or an infinity, not an integer beyond a float's range (``float(10**400)`` raises) —
-    else None."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    try:
-        x = float(value)
-    except OverflowError:
-        return None
-    return x if math.isfinite(x) else None
 
 
 def final_disarm_lines(s: dict) -> list[str]:  # type: ignore[type-arg]

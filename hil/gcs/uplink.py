@@ -15,13 +15,13 @@ server turns away (wrong token, foreign origin) are logged the same way with ``s
 from __future__ import annotations
 
 import json
-import math
 import re
 import threading
 from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from hil.numbers import finite_number
 from hil.runtime.operator import COMMANDS, Operator, OperatorCommand
 from protocol.errors import HilError, InputFormatError
 
@@ -58,7 +58,7 @@ def parse_command(body: bytes, command_id: int, remote: str = "") -> OperatorCom
     angles = []
     for key, limit in ANGLE_RANGE.items():
         given = doc.get(key)
-        value = _finite_number(given)
+        value = finite_number(given)
         beyond_float = value is None and isinstance(given, int) and not isinstance(given, bool)
         if value is None and not beyond_float:
             raise InputFormatError(f"{key} must be a number of degrees, got {_shown(given)}", where)
@@ -81,23 +81,10 @@ def parse_ack(body: bytes, remote: str = "") -> dict[str, Any]:
     if not isinstance(alarm, str) or not ALARM_KEY.fullmatch(alarm):
         raise InputFormatError(f"alarm must be an alarm's key ([a-z0-9_.:-], 1-64), got {alarm!r}", where)
     raised = doc.get("raised_t")
-    raised_t = None if raised is None else _finite_number(raised)
+    raised_t = None if raised is None else finite_number(raised)
     if raised is not None and raised_t is None:
         raise InputFormatError(f"raised_t must be a number of seconds, got {_shown(raised)}", where)
     return {"alarm": alarm, "raised_t": raised_t, "remote": remote}
-
-
-def _finite_number(value: Any) -> float | None:
-    """``value`` as a finite float, or None if it is not a JSON number that is one. JSON's integers have no
-    bound (``json.loads`` gives a Python int of up to 4300 digits), and ``math.isfinite`` or ``float`` of
-    one past a float's range raises OverflowError, which would be a 500 rather than the 400 it must be."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    try:
-        number = float(value)
-    except OverflowError:  # an integer beyond ±1.8e308
-        return None
-    return number if math.isfinite(number) else None
 
 
 def _shown(value: Any, limit: int = 40) -> str:

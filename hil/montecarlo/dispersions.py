@@ -58,6 +58,7 @@ from numpy.typing import NDArray
 
 from hil import so3
 from hil.files.bounded import MAX_DOCUMENT_BYTES, load_toml
+from hil.numbers import is_finite_number
 from hil.runtime.invariants import InjectedFault
 from hil.scenario import Scenario
 from hil.scenario.paths import FIXTURES, read_text
@@ -454,7 +455,7 @@ _TABLES = frozenset(
 
 
 def _distribution(value: Any, where: str) -> Distribution:
-    if _is_number(value):
+    if is_finite_number(value):
         return Fixed(float(value))
     if not isinstance(value, dict):
         raise ConfigError(f"must be a number or a distribution table, got {value!r}", where)
@@ -474,7 +475,7 @@ def _distribution(value: Any, where: str) -> Distribution:
         return _choice(value, where)
     numbers = {}
     for key in set(value) - {"dist"}:
-        if not _is_number(value[key]):
+        if not is_finite_number(value[key]):
             raise ConfigError(f"must be a finite number, got {value[key]!r}", f"{where}.{key}")
         numbers[key] = float(value[key])
     low, high = numbers.get("low"), numbers.get("high")
@@ -492,13 +493,13 @@ def _distribution(value: Any, where: str) -> Distribution:
 
 def _choice(value: dict[str, Any], where: str) -> Choice:
     values = value["values"]
-    if not isinstance(values, list) or not values or not all(_is_number(v) for v in values):
+    if not isinstance(values, list) or not values or not all(is_finite_number(v) for v in values):
         raise ConfigError(f"must be a non-empty list of numbers, got {values!r}", f"{where}.values")
     weights = value.get("weights")
     if weights is not None and (
         not isinstance(weights, list)
         or len(weights) != len(values)
-        or not all(_is_number(w) and w >= 0 for w in weights)
+        or not all(is_finite_number(w) and w >= 0 for w in weights)
         or not 0 < sum(weights) < math.inf
     ):
         raise ConfigError(
@@ -507,7 +508,3 @@ def _choice(value: dict[str, Any], where: str) -> Choice:
     return Choice(
         tuple(float(v) for v in values), None if weights is None else tuple(float(w) for w in weights)
     )
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)

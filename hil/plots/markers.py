@@ -5,12 +5,13 @@ reset) is explained where it happens. The ground station's page marks the same e
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 from matplotlib.axes import Axes
+
+from hil.numbers import is_finite_number
 
 COMMAND, MANOEUVRE, FAULT = "command", "manoeuvre", "fault"
 COLORS = {COMMAND: "#1f5fbf", MANOEUVRE: "#6b7480", FAULT: "#c62828"}
@@ -58,11 +59,6 @@ class Markers(list[Marker]):
         self.malformed = 0
 
 
-def _number(x: object) -> bool:
-    """A finite number as JSON has them (a bool is no number, though Python's ``True == 1``)."""
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
 def _key(x: object) -> bool:
     """An origin or id a run writes: a string or an integer (a list or an object cannot be told apart)."""
     return isinstance(x, (str, int)) and not isinstance(x, bool)
@@ -71,7 +67,7 @@ def _key(x: object) -> bool:
 def _command_label(event: Mapping[str, Any]) -> str:
     name = str(event.get("command"))[:MAX_LABEL]
     euler = event.get("target_euler_deg")
-    if name == "slew" and isinstance(euler, list) and len(euler) == 3 and all(map(_number, euler)):
+    if name == "slew" and isinstance(euler, list) and len(euler) == 3 and all(map(is_finite_number, euler)):
         name = "slew to " + "/".join(f"{float(x):g}" for x in euler) + "°"
     label = f"{name} ({str(event.get('origin', '?'))[:MAX_LABEL]})"
     return f"{label} refused" if event.get("status") == "refused" else label
@@ -102,7 +98,7 @@ def run_markers(events: Iterable[Mapping[str, Any]]) -> Markers:
             origin, ident = e.get("origin"), e.get("id")
             if ident is None:  # a request the server turned away
                 continue
-            if not (_number(t) and _key(ident) and (origin is None or _key(origin))):
+            if not (is_finite_number(t) and _key(ident) and (origin is None or _key(origin))):
                 out.malformed += 1
                 continue
             key = (origin, ident)
@@ -111,7 +107,7 @@ def run_markers(events: Iterable[Mapping[str, Any]]) -> Markers:
             if len(seen) < MAX_SEEN:
                 seen.add(key)
             add(float(t), _command_label(e), COMMAND)  # type: ignore[arg-type]
-        elif not _number(t):
+        elif not is_finite_number(t):
             continue
         elif kind in MANOEUVRE_KINDS:
             add(float(t), MANOEUVRE_KINDS[kind], MANOEUVRE)  # type: ignore[arg-type]

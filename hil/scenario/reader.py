@@ -15,6 +15,7 @@ from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
 from hil.estimation.params import directions_matrix
 from hil.estimation.registry import DEFAULT_ESTIMATOR, EstimatorChoice
+from hil.numbers import is_finite_number
 from hil.scenario.fault_specs import check_fault_options
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
@@ -203,7 +204,7 @@ class _Reader:
         """A number at ``table.key`` (``default`` when absent): finite, positive unless told otherwise, and
         within its :data:`RANGES`."""
         value = tbl.get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        if not is_finite_number(value):
             raise self.error(f"{table}.{key}", f"must be a number, got {value!r}")
         if positive and value <= 0:
             raise self.error(f"{table}.{key}", f"must be positive, got {value!r}")
