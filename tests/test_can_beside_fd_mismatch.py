@@ -84,6 +84,13 @@ def test_a_classic_host_of_a_can_fd_board_is_told_why_the_handshake_failed():
     group, port = _group()
     board_url = f"can://udp_multicast/{group}?port={port}&node={NODE}&fd=1"
     host_url = f"can://udp_multicast/{group}?port={port}&node={NODE}&fd=0"
+    said = _first_handshake_failure(board_url, host_url)
+    assert "CAN FD" in said and "fd=0" in said, said
+
+
+def _first_handshake_failure(board_url: str, host_url: str) -> str:
+    """The ``LinkTimeout`` of a host's first handshake at ``host_url`` with a board served at
+    ``board_url`` (ends set up unlike: it must fail)."""
     config = ClientConfig(handshake=RetryPolicy(timeout_s=0.1, max_tries=8))
     with CanServer(Board(BoardConfig(n_units=1), WallClock()), board_url):
         client = BoardClient(host_url, config=config)
@@ -92,7 +99,7 @@ def test_a_classic_host_of_a_can_fd_board_is_told_why_the_handshake_failed():
                 client.connect(timeout=3.0)
         finally:
             client.close()
-    assert "CAN FD" in str(caught.value) and "fd=0" in str(caught.value), str(caught.value)
+    return str(caught.value)
 
 
 @pytest.mark.parametrize(
@@ -109,13 +116,5 @@ def test_a_host_on_another_node_id_than_its_board_is_told_why_the_handshake_fail
         channel, extra = group, f"port={port}&"
     board_url = f"can://{interface}/{channel}?{extra}node=3"
     host_url = f"can://{interface}/{channel}?{extra}node=0"
-    config = ClientConfig(handshake=RetryPolicy(timeout_s=0.1, max_tries=8))
-    with CanServer(Board(BoardConfig(n_units=1), WallClock()), board_url):
-        client = BoardClient(host_url, config=config)
-        try:
-            with pytest.raises(LinkTimeout) as caught:
-                client.connect(timeout=3.0)
-        finally:
-            client.close()
-    said = str(caught.value)
+    said = _first_handshake_failure(board_url, host_url)
     assert "node 3" in said and "node 0" in said and "node option" in said, said
