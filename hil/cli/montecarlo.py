@@ -223,6 +223,9 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.verbose:  # Dask's scheduler logs every worker's comings and goings at INFO
         logging.getLogger("distributed").setLevel(logging.WARNING)
+        # and its client a traceback for each try to reach a scheduler that is gone: the campaign says so
+        # itself, naming the scheduler and the runs left (hil.montecarlo.campaign)
+        logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
     check_options(args)
     scenario = load_scenario(args.scenario).with_board(args.board)
     if args.duration is not None:

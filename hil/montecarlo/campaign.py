@@ -33,7 +33,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -128,6 +128,7 @@ class Campaign:
             trace_length(sc.slew.duration_s, self.trace_hz),
             self.dispersions.columns(),
             checks,
+            board=str(sc.board_options.get("board", "emulator")),
         )
 
 
@@ -253,6 +254,13 @@ def open_client(
                 )
             )
             client = stack.enter_context(Client(cluster))
+    except BaseException as exc:  # interrupted, or a worker killed as it started ("Nanny failed to start")
+        with deferred_signals():
+            stack.close()
+        if not isinstance(exc, Exception):
+            raise
+        raise LinkError(f"a local Dask cluster of {n} workers could not start: {describe(exc)}") from exc
+    try:
         yield client
     finally:
         # Ctrl-C pressed twice: the second came while the first's close was under way (well under a
@@ -433,6 +441,15 @@ def run_campaign(
     return report
 
 
+def _its_runs_killed_workers(exc: BaseException) -> bool:
+    """Whether a chunk's error is Dask giving up on it after it lost a worker each time it ran it
+    (``KilledWorker``: its runs kill their process) — the runs' own failure — rather than a reason outside
+    them."""
+    from distributed.scheduler import KilledWorker
+
+    return isinstance(exc, KilledWorker)
+
+
 def _now() -> tuple[float, float]:
     """When an event arrived: the wall clock (to print) and ``perf_counter`` (the session's clock)."""
     return time.time(), time.perf_counter()
@@ -470,6 +487,8 @@ class _Driver:
         self.allowed_failures = int(dask.config.get("distributed.scheduler.allowed-failures", 3))
         self.completed = self.failed = self.joined = 0
         self.losses: list[WorkerLoss] = []
+        # the first chunk lost for a reason outside its runs: they and the rest are left to the next session
+        self.outside_error: BaseException | None = None
 
     def run(self, chunk_indices: Iterator[list[int]], workers: int) -> None:
         """Submit chunks, :data:`IN_FLIGHT_PER_WORKER` per worker at a time (another as each finishes),
@@ -498,8 +517,25 @@ class _Driver:
             client.cancel([future for future, _ in self.chunks.values()])
             raise
         finally:
-            client.unsubscribe_topic(RESULTS_TOPIC)
-            client.unsubscribe_topic("all")
+            with suppress(Exception):  # a scheduler gone: nothing to unsubscribe from
+                client.unsubscribe_topic(RESULTS_TOPIC)
+                client.unsubscribe_topic("all")
+        if self.outside_error is not None:
+            self._raise_outside_error()
+
+    def _raise_outside_error(self) -> None:
+        """End the session on a chunk lost for a reason outside its runs: a :class:`ConfigError` it raised
+        (a worker running other code) as it is, anything else — the scheduler's connection lost — a
+        :class:`LinkError` naming the scheduler; each saying how many runs were left for the next session
+        (the same command again runs them)."""
+        exc = self.outside_error
+        assert exc is not None
+        not_run = self.campaign.runs - self.skipped - self.completed
+        left = f"{_count(not_run, 'run')} not run: the same command again runs them"
+        if isinstance(exc, ConfigError):
+            raise ConfigError(f"{exc.detail} ({left})", exc.where) from exc
+        address = getattr(getattr(self.client, "scheduler", None), "address", None) or "the scheduler"
+        raise LinkError(f"{address}: the campaign's work was lost: {describe(exc)} ({left})") from exc
 
     def _handle(self, kind: str, item: Any, chunk_indices: Iterator[list[int]], workers: int) -> None:
         """One event from the queue: a streamed result, a chunk done (and the next submitted), or the
@@ -514,7 +550,10 @@ class _Driver:
 
     def _submit(self, chunk_indices: Iterator[list[int]], workers: int) -> None:
         """Submit chunks until :data:`IN_FLIGHT_PER_WORKER` per worker (those it started with, plus those
-        that joined, less those lost) are in flight, or none is left."""
+        that joined, less those lost) are in flight, or none is left — none after a chunk was lost for a
+        reason outside its runs (:meth:`_chunk_done`)."""
+        if self.outside_error is not None:
+            return
         campaign = self.campaign
         window = IN_FLIGHT_PER_WORKER * max(1, workers + self.joined - len(self.losses))
         while len(self.chunks) < window:
@@ -554,7 +593,17 @@ class _Driver:
         _, runs = self.chunks.pop(future.key)
         try:
             results = future.result()
-        except Exception as exc:  # Dask gave up (KilledWorker) or the task was lost: record, never drop
+        except Exception as exc:
+            if not _its_runs_killed_workers(exc):
+                # Lost for a reason outside its runs — the scheduler gone (the chunk cancelled), a worker
+                # running other code that refused it: its runs are not recorded, so the next session runs
+                # them. (They were recorded failed, "chunk lost", and a resume never ran them again.) No
+                # more chunks go out; the session ends on the first such error (:meth:`run`).
+                if self.outside_error is None:
+                    self.outside_error = exc
+                return
+            # Dask gave up on the chunk: it lost a worker each time it ran it (a run that kills its
+            # process): recorded failed, never dropped
             results = [RunResult.failed(r, f"chunk lost: {describe(exc)}") for r in runs]
         for result in results:
             self._record(result)

@@ -198,7 +198,9 @@ def run_chunk(scenario: Scenario, runs: Sequence[RunParams], trace_hz: float) ->
 
 def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
     """One run: :func:`realise`, then :func:`hil.runtime.run` in lockstep without a run directory (with
-    faults drawn: :func:`run_faulted`)."""
+    faults drawn: :func:`run_faulted`), within its wall-time budget (:func:`wall_budget`, as a faulted
+    run's: a run that hung held its whole campaign for ever, the worker's heartbeats going on from their
+    own thread) — past it the run fails, ``RunHung``."""
     from hil.runtime import RunOptions
     from hil.runtime import run as run_scenario
 
@@ -207,7 +209,9 @@ def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
     start = time.perf_counter()
     try:
         realised = realise(scenario, run)
-        with _quiet(_RUN_LOGGERS):  # a campaign counts failsafes and resets in its metrics
+        budget = WALL_BUDGET_S + WALL_PER_SIM_S * fault_bounds(realised).time_limit_s
+        # a campaign counts failsafes and resets in its metrics
+        with _quiet(_RUN_LOGGERS), wall_budget(budget):
             result = run_scenario(realised, RunOptions(out_root=None))
         if result.summary.get("exit") != "completed":
             raise HilError(f"the run did not complete: {result.summary.get('exit')}")

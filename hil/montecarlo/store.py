@@ -70,7 +70,11 @@ MAX_INDEX = 2**31 - 1
 """The largest run index a row may have (a trace record's index is an int32; a campaign's at most 10^7)."""
 _INDEX = re.compile(r"[0-9]{1,10}")
 T = TypeVar("T")
-_SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_hz", "columns")
+_SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_hz", "columns", "board")
+"""What a re-run into a campaign's directory must match. ``board`` (the built-in emulator's board: the
+Python emulator or the firmware under simavr, ``--board``; not in the scenario's text) was not among them:
+a firmware extension of an emulator campaign pooled both in one summary. A manifest written before it was
+recorded has none, and is taken as it was."""
 
 
 def manifest(
@@ -83,11 +87,13 @@ def manifest(
     samples: int,
     parameter_columns: Sequence[str],
     check_columns: Sequence[str] = (),
+    board: str = "emulator",
 ) -> dict[str, Any]:
     """What identifies a campaign's results (a re-run into the same directory must match, except for the
     number of runs)."""
     return {
         "scenario": scenario_name,
+        "board": board,
         "scenario_sha256": _sha(scenario_text),
         "dispersions_sha256": _sha(dispersions_text),
         "seed": seed,
@@ -173,9 +179,9 @@ class ResultStore:
             kind = type(old).__name__
             raise ConfigError(f"unreadable campaign manifest: not a JSON object ({kind})", str(path))
         for key in _SAME:
-            if old.get(key) == self.manifest[key]:
+            if old.get(key) == self.manifest[key] or (key == "board" and key not in old):
                 continue
-            if key in ("seed", "duration_s", "trace_hz"):
+            if key in ("seed", "duration_s", "trace_hz", "board"):
                 detail = f"{key} {old.get(key)!r}, not {self.manifest[key]!r}"
             else:
                 detail = f"another {key.removesuffix('_sha256')}"

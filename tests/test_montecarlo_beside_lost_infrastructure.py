@@ -1,0 +1,162 @@
+"""Campaigns beside their tested path (a hunt's findings), each through the real command and real Dask:
+
+1. **The scheduler lost mid-campaign.** A chunk cancelled because the scheduler's connection was lost was
+   recorded as failed runs ("chunk lost: FutureCancelledError"), the command closed with "16 runs in 3.7 s"
+   and status 1, and a resume never ran those runs again: an incident outside the runs made them failed
+   for good. Now such runs are not recorded; the command ends on a :class:`LinkError` naming the scheduler
+   and the runs left (status 2), and the same command against a scheduler that is there runs them: the
+   campaign ends identical to one never interrupted.
+2. **``--board`` is part of the campaign.** A firmware extension of an emulator campaign was accepted and
+   pooled both boards' runs in one summary; campaign.json did not say which board ran.
+3. **A plain run's wall-time budget.** Only fault campaigns bounded a run's wall time: a run that hung
+   held its campaign for ever. Every run now fails ``RunHung`` past its budget.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from montecarlo_support import write_quick_scenario
+
+from hil.cli import main as hil_main
+from hil.montecarlo import runner
+from hil.montecarlo.dispersions import draw, load_dispersions
+from hil.montecarlo.store import MANIFEST, RUNS
+from hil.scenario import load_scenario
+
+DASK = str(Path(sys.executable).with_name("dask"))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class _Cluster:
+    """A real ``dask scheduler`` and ``dask worker`` process on the loopback."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.port = _free_port()
+        self.address = f"tcp://127.0.0.1:{self.port}"
+        env = {**os.environ, "PYTHONDONTWRITEBYTECODE": "1"}
+        self.scheduler = subprocess.Popen(
+            [DASK, "scheduler", "--host", "127.0.0.1", "--port", str(self.port), "--dashboard-address", ":0"],
+            stdout=subprocess.DEVNULL,
+            stderr=open(tmp / f"scheduler-{self.port}.log", "w"),  # noqa: SIM115 - closed with the process
+            env=env,
+            start_new_session=True,
+        )
+        self.worker = subprocess.Popen(
+            [DASK, "worker", self.address, "--nthreads", "1", "--nworkers", "1", "--no-dashboard"],
+            stdout=subprocess.DEVNULL,
+            stderr=open(tmp / f"worker-{self.port}.log", "w"),  # noqa: SIM115
+            env=env,
+            start_new_session=True,
+        )
+        self._wait_for_worker()
+
+    def _wait_for_worker(self) -> None:
+        from distributed import Client
+
+        deadline = time.monotonic() + 60.0
+        with Client(self.address, timeout=30) as client:
+            while not client.scheduler_info()["workers"]:
+                assert time.monotonic() < deadline, "no worker joined"
+                time.sleep(0.2)
+
+    def kill_scheduler(self) -> None:
+        os.killpg(self.scheduler.pid, signal.SIGKILL)
+        self.scheduler.wait(10)
+
+    def close(self) -> None:
+        for proc in (self.worker, self.scheduler):
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(10)
+
+
+def _montecarlo(scenario: Path, out: Path, *extra: str) -> subprocess.Popen[str]:
+    cmd = [
+        sys.executable,
+        "-m",
+        "hil",
+        "montecarlo",
+        str(scenario),
+        "--runs",
+        "10",
+        "--seed",
+        "5",
+        "--batch",
+        "1",
+    ]
+    return subprocess.Popen(
+        [*cmd, "--out", str(out), "--no-plots", *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"},
+    )
+
+
+def _rows(out: Path) -> list[str]:
+    path = out / RUNS
+    return path.read_text().splitlines()[1:] if path.exists() else []
+
+
+def test_a_scheduler_lost_mid_campaign_leaves_its_runs_to_the_next_session(tmp_path):
+    scenario = write_quick_scenario(tmp_path)
+    out, reference = tmp_path / "campaign", tmp_path / "reference"
+    cluster = _Cluster(tmp_path)
+    try:
+        proc = _montecarlo(scenario, out, "--scheduler", cluster.address)
+        deadline = time.monotonic() + 120.0
+        while len(_rows(out)) < 2 and proc.poll() is None:  # some runs done, most to come
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        cluster.kill_scheduler()
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        cluster.close()
+    assert proc.returncode == 2, (proc.returncode, stdout, stderr)
+    assert cluster.address in stderr and "not run: the same command again runs them" in stderr, stderr
+    assert "Traceback" not in stderr, stderr
+    rows = _rows(out)
+    assert len(rows) < 10 and not [r for r in rows if "chunk lost" in r], rows
+    # the same command on a cluster that is there (a local one) runs the rest, and only those
+    resumed = _montecarlo(scenario, out, "--workers", "1")
+    stdout, stderr = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, stderr
+    assert f"{len(rows)} runs were already in {out}" in stderr
+    fresh = _montecarlo(scenario, reference, "--workers", "1")
+    assert fresh.communicate(timeout=300) and fresh.returncode == 0
+    assert sorted(_rows(out)) == sorted(_rows(reference))  # every run once, as if never interrupted
+
+
+def test_a_campaign_on_another_board_is_refused_in_its_directory(tmp_path, capsys):
+    scenario = write_quick_scenario(tmp_path)
+    out = tmp_path / "mix"
+    base = ["montecarlo", str(scenario), "--runs", "1", "--seed", "3", "--workers", "1", "--no-plots"]
+    assert hil_main([*base, "--out", str(out)]) == 0
+    assert '"board": "emulator"' in (out / MANIFEST).read_text()
+    capsys.readouterr()
+    assert hil_main([*base[:3], "2", *base[4:], "--board", "firmware", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "board 'emulator', not 'firmware'" in err and str(out / MANIFEST) in err, err
+    assert len(_rows(out)) == 1  # nothing run
+
+
+def test_a_plain_run_past_its_wall_budget_fails_run_hung(tmp_path, monkeypatch):
+    """A run's budget scaled down to nothing: the run fails, ``RunHung`` — a run that hung is bounded."""
+    sc = load_scenario(write_quick_scenario(tmp_path))
+    run = draw(load_dispersions(None, sc), 1, 0)
+    monkeypatch.setattr(runner, "WALL_BUDGET_S", 0.0)
+    monkeypatch.setattr(runner, "WALL_PER_SIM_S", 1e-4)
+    result = runner.run_one(sc, run, trace_hz=10.0)
+    assert not result.ok and "RunHung" in result.error, result.error
