@@ -75,5 +75,6 @@ def test_a_phone_log_drives_firmware_sim_over_a_real_pty_in_real_time(tmp_path):
     ],
 )
 def test_bad_combinations_are_clear_errors(tmp_path, capsys, extra, message):
-    assert main(["replay", str(SENSORLOGGER), "--window", "0", "3", "--out", str(tmp_path), *extra]) == 2
+    # 4 s: longer than the warm-up and the rotors' settling (3 s), which a shorter log is refused for first
+    assert main(["replay", str(SENSORLOGGER), "--window", "0", "4", "--out", str(tmp_path), *extra]) == 2
     assert message in capsys.readouterr().err

@@ -26,8 +26,9 @@ from hypothesis import strategies as st
 
 from hil.cli import main
 from hil.estimation.sensors import KINDS, SensorLog, SensorStream
-from hil.link.sources.recorded import RecordedSource
+from hil.link.sources.recorded import RecordedSource, release_times
 from hil.logs import read_log
+from hil.runtime.phases import ROTOR_SETTLE_S
 
 RATE_HZ = 50.0
 WARMUP_S = 2.0  # cubesat-1u's
@@ -93,7 +94,9 @@ def test_a_recording_that_ends_while_its_warm_up_restarts_is_not_completed(
     never started); the whole log was still played."""
     tmp = tmp_path_factory.mktemp("rewarm")
     resume = pause_at + pause
-    log = write_log(tmp / "rewarm.csv", [(0.0, pause_at), (resume, max(resume + tail, WARMUP_S + 0.3))])
+    # longer than the warm-up and the rotors' settling (shorter logs are refused before the run begins)
+    least = WARMUP_S + ROTOR_SETTLE_S + 0.3
+    log = write_log(tmp / "rewarm.csv", [(0.0, pause_at), (resume, max(resume + tail, least))])
     status, out = _drive(tmp, log)
     (run_dir,) = out.iterdir()
     summary = json.loads((run_dir / "summary.json").read_text())
@@ -133,11 +136,18 @@ def test_a_recording_releases_every_sample_once_in_each_sensors_recorded_order(d
     origin = 10.0
     source.start(origin)
     shift = origin - log.start
+    # when each sample is due, by sensor and value: its time — or, a stray stamped more than JUMP_S ahead
+    # of the next finite sample (NaN times between), that sample's: it goes with it, as the phone sent it
+    due = {
+        (kind, x): r
+        for kind, (t, xyz) in streams.items()
+        for x, r in zip(xyz[:, 0].tolist(), release_times(t).tolist(), strict=True)
+    }
     out, now = [], origin
     for step in steps + [log.end - log.start + 1e-9]:
         now += step
         batch = source.drain(now)
-        assert all(s.t_s <= now + 1e-9 for s in batch if math.isfinite(s.t_s))  # none before it is due
+        assert all(due[(s.kind, s.xyz[0])] + shift <= now + 1e-9 for s in batch)  # none before it is due
         out += batch
     assert source.exhausted and source.released == 3 * n
     for kind, (t, xyz) in streams.items():

@@ -43,8 +43,10 @@ a log without a magnetometer replays 6-axis: inclination from gravity, heading u
 where the log's clock jumps by more than --max-gap seconds the filter restarts (reported).
 with --port: a run directory under --out (default runs/): telemetry.csv, events.jsonl, summary.json,
 plots/ (`hil report` redraws them); --paced, --progress and the estimates CSV do not apply. The log
-(after --window, or its longest part) must outlast the scenario's warm-up; one that ends before the slew
-started (a pause restarted the warm-up) ends "incomplete"; exit status as hil run's (docs/faults.md).
+(after --window, or its longest part; up to where its clock goes back, a restarted recording; up to where
+its gyroscope or accelerometer ends) must outlast the scenario's warm-up and the rotors' settling; one
+that ends before the slew started (a pause restarted the warm-up) ends "incomplete"; exit status as hil
+run's (docs/faults.md).
 """
 
 FORMATS = ("csv", "sensorlogger", "sensorlogger-json", "phyphox", "tyrex", "broad")
@@ -268,13 +270,16 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     from hil.logs import read_log
     from hil.logs.replay import (
         ReplayOptions,
+        before_clock_restart,
         configure,
         drop_out_of_range,
         field_model_of,
         split_at_gaps,
+        steerable_end,
     )
     from hil.runtime import ReplayInput, RunOptions
     from hil.runtime import run as run_scenario
+    from hil.runtime.phases import ROTOR_SETTLE_S
     from hil.scenario import load_scenario
     from protocol.errors import ConfigError
 
@@ -284,6 +289,9 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     log = read_log(args.log, args.format)
     if args.window:
         log = log.window(*args.window)
+    log, restarted = before_clock_restart(log, args.max_gap)
+    if restarted is not None:
+        print(f"warning: {restarted}", file=sys.stderr)
     parts = split_at_gaps(log, args.max_gap)
     if len(parts) > 1:  # a board is driven on the clock: never wait out a gap; drive the longest part
         t0, t1 = max(parts, key=lambda p: p[1] - p[0])
@@ -293,11 +301,18 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
             file=sys.stderr,
         )
         log = log.window(t0, t1)
-    warmup_s = scenario.loop.warmup_s
-    if not log.end - log.start > warmup_s:  # it would end during the warm-up: the controller never holding
+    log, cut_short = steerable_end(log)
+    if cut_short is not None:
+        print(f"note: {cut_short}", file=sys.stderr)
+    # the warm-up, then the rotors' settling before the first slew: the shortest a log can be and still
+    # reach the slew (a 2.5 s log armed and spun the rotors up, then ended "incomplete"; the spin-up's own
+    # time, which depends on the rotors, comes on top)
+    least_s = scenario.loop.warmup_s + ROTOR_SETTLE_S
+    if not log.end - log.start > least_s:
         raise ConfigError(
-            f"the log drives {log.end - log.start:.2f} s, not longer than the scenario's warm-up "
-            f"({warmup_s:g} s): the controller would never hold an attitude (a longer log or --window)",
+            f"the log drives {log.end - log.start:.2f} s, not longer than the scenario's warm-up and the "
+            f"rotors' settling ({least_s:g} s): the controller would never hold an attitude (a longer log "
+            "or --window)",
             "hil replay --port",
         )
     options = ReplayOptions(

@@ -244,6 +244,95 @@ def split_at_gaps(log: SensorLog, max_gap_s: float) -> list[tuple[float, float]]
     return [(float(a), float(b)) for a, b in zip(starts, ends, strict=True)]
 
 
+def before_clock_restart(log: SensorLog, max_gap_s: float) -> tuple[SensorLog, str | None]:
+    """``log`` up to where its clock first goes back by more than ``max_gap_s`` (a recording restarted, its
+    clock from zero again, appended to the first), each sensor's samples before its own first such step;
+    and what was left out, said for the operator (None: the clock never went back so far). A board is
+    driven on the clock: the stretch after the restart, stamped over the first one's times, was released
+    all at once behind it, and the run said ``completed`` driven by the first stretch alone, without a
+    word (:func:`split_at_gaps` sees only jumps forward: it takes the times sorted)."""
+    cut: dict[SensorKind, int] = {}
+    for kind, stream in log.streams.items():
+        t = stream.t
+        finite = np.flatnonzero(np.isfinite(t))
+        if finite.size < 2:
+            continue
+        restart = _clock_restart(t[finite], max_gap_s)
+        if restart is not None:
+            cut[kind] = int(finite[restart])
+    if not cut:
+        return log, None
+    streams = {
+        kind: SensorStream(kind, s.t[: cut[kind]], s.xyz[: cut[kind]]) if kind in cut else s
+        for kind, s in log.streams.items()
+    }
+    left_out = sum(len(s) - len(streams[k]) for k, s in log.streams.items())
+    first = min(cut.items(), key=lambda item: item[1])
+    kind, at = first
+    stream = log.streams[kind]
+    was = float(np.nanmax(stream.t[:at]))
+    said = (
+        f"the log's clock goes back from {was:.3f} s to {float(stream.t[at]):.3f} s ({kind.name}, sample "
+        f"{at}: a recording restarted); driving the board with the stretch before it ({left_out} samples "
+        "after it left out)"
+    )
+    trimmed = SensorLog(streams, log.source, log.format, log.truth, log.notes, log.dropped)
+    return trimmed, said
+
+
+RESTART_RUN = 5
+"""Samples a clock's level is judged over, before a step back and after it (:func:`_clock_restart`)."""
+
+
+def _clock_restart(times: NDArray[np.float64], max_gap_s: float) -> int | None:
+    """The index of the first sample (of one stream's finite ``times``, in recorded order) at which the
+    clock restarted: more than ``max_gap_s`` below the level before it (the median of the
+    :data:`RESTART_RUN` samples before), and the next ones going on from there — nearer to it than to that
+    level. A stray stamped far ahead, and the stream that resumes after it, is no restart; nor is one stray
+    stamped far behind, after which the stream resumes at its level."""
+    for i in np.flatnonzero(times[1:] < times[:-1] - max_gap_s) + 1:
+        level = float(np.median(times[max(0, i - RESTART_RUN) : i]))
+        if times[i] < level - max_gap_s and np.all(times[i : i + RESTART_RUN] < (level + times[i]) / 2):
+            return int(i)
+    return None
+
+
+def steerable_end(log: SensorLog) -> tuple[SensorLog, str | None]:
+    """``log`` up to the last time both the gyroscope and the accelerometer speak (the host steers only with
+    both; the magnetometer may go) when the rest is longer than :data:`TRIM_S`, and what was left out,
+    said for the operator (None: nothing was). A
+    recording whose gyroscope ends 0.8 s before its accelerometer played on to the accelerometer's end,
+    and the run ended "lost: phone lost … no gyroscope reading came", status 3, though the recording had
+    simply ended."""
+    ends = {k: float(np.nanmax(np.where(np.isfinite(s.t), s.t, np.nan))) for k, s in log.streams.items()}
+    needed = min(ends[SensorKind.GYR], ends[SensorKind.ACC])
+    if needed >= log.end:
+        return log, None
+    if log.end - needed <= TRIM_S:  # shorter than a gap: played whole, as ever
+        return log, None
+    trimmed = _up_to(log, needed)
+    longest = max(ends, key=lambda k: ends[k])
+    sensor = "gyroscope" if ends[SensorKind.GYR] == needed else "accelerometer"
+    said = (
+        f"driving the board until {needed:.3f} s, where the log's {sensor} ends ({longest.name} goes on "
+        f"{log.end - needed:.2f} s more: the host steers only with both)"
+    )
+    return trimmed, said
+
+
+TRIM_S = 0.25
+"""s: :func:`steerable_end` cuts a tail only longer than this — the host's own bound for a phone's silence
+(``hil.runtime.faults.STALE_AFTER_S``): a shorter one never made a gap, and is played whole."""
+
+
+def _up_to(log: SensorLog, t1: float) -> SensorLog:
+    """``log``'s samples up to ``t1`` (s) — and those whose time is no number: the host's admission drops
+    and counts them, as ever (a time window would leave them out uncounted)."""
+    streams = {k: SensorStream(k, s.t[~(s.t > t1)], s.xyz[~(s.t > t1)]) for k, s in log.streams.items()}
+    truth = None if log.truth is None else log.truth.window(-math.inf, t1)
+    return SensorLog(streams, log.source, log.format, truth, log.notes, log.dropped)
+
+
 def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     """Read, merge, filter and write one log; see the module docstring."""
     if not (math.isfinite(options.max_gap_s) and options.max_gap_s > 0):
