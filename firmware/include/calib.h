@@ -49,6 +49,7 @@ typedef enum {
     CAL_BAD_CURVE,     /* throttle curve not from (0, 0) to (1, 1) */
     CAL_BAD_DEAD_ZONE, /* rate tables not meeting 0 at the dead zone, or turning opposite ways */
     CAL_BAD_HOLD,      /* hold pulse outside the dead zone */
+    CAL_BAD_PULSE,     /* a gimbal map's pulse (hold, or a rate or angle knot) outside 500..2500 us */
     CAL_ERRORS
 } cal_status_t;
 

@@ -265,14 +265,39 @@ static cal_status_t check_table(const table_t *t, uint8_t *knot)
     return CAL_OK;
 }
 
-/* GimbalRateMap.__post_init__: the lower table ends and the upper starts at rate 0, both turn the same way,
- * and the hold pulse lies in the dead zone between them. */
-static cal_status_t check_rate_map(const uint8_t *set, uint8_t *table)
+static int pulse_in_range(float us) { return (float)PULSE_MIN_US <= us && us <= (float)PULSE_MAX_US; }
+
+/* maps.py check_pulses: every knot's pulse (x) a board can put out. A conversion clamps to the table's
+ * ends, so the widths it commands stay in range; a table beyond it was clamped by to_fine instead (a hold
+ * at 10000 us went out as 2500 us: the gimbal at full rate under a rate-0 command). */
+static cal_status_t check_table_pulses(const table_t *t, uint8_t *knot)
+{
+    for (uint8_t k = 0; k < t->n; k++) {
+        *knot = k;
+        if (!pulse_in_range(kx(t, k)))
+            return CAL_BAD_PULSE;
+    }
+    *knot = 0;
+    return CAL_OK;
+}
+
+/* GimbalRateMap.__post_init__: the hold pulse and both tables' pulses within 500..2500 us, the lower table
+ * ends and the upper starts at rate 0, both turn the same way, and the hold pulse lies in the dead zone
+ * between them. */
+static cal_status_t check_rate_map(const uint8_t *set, uint8_t *table, uint8_t *knot)
 {
     float hold = f32_at(set + OFF_HOLD);
     if (!is_finite32(hold))
         return CAL_NOT_FINITE;
+    if (!pulse_in_range(hold))
+        return CAL_BAD_PULSE;
     table_t lower = table_of(set, CAL_TABLE_RATE_LOWER), upper = table_of(set, CAL_TABLE_RATE_UPPER);
+    *table = CAL_TABLE_RATE_LOWER;
+    if (check_table_pulses(&lower, knot) != CAL_OK)
+        return CAL_BAD_PULSE;
+    *table = CAL_TABLE_RATE_UPPER;
+    if (check_table_pulses(&upper, knot) != CAL_OK)
+        return CAL_BAD_PULSE;
     *table = CAL_TABLE_RATE_LOWER;
     if (ky(&lower, (uint8_t)(lower.n - 1)) != 0.0f)
         return CAL_BAD_DEAD_ZONE;
@@ -348,7 +373,15 @@ cal_status_t cal_validate(const uint8_t *set, uint16_t len, uint8_t *table, uint
     if (kx(&rotor, 0) != 0.0f || kx(&rotor, nr) != 1.0f || ky(&rotor, 0) != 0.0f || ky(&rotor, nr) != 1.0f)
         return CAL_BAD_CURVE;
     *table = 0xFF;
-    return check_rate_map(set, table);
+    cal_status_t st = check_rate_map(set, table, knot);
+    if (st != CAL_OK)
+        return st;
+    table_t angle = table_of(set, CAL_TABLE_ANGLE); /* GimbalAngleMap.__post_init__ */
+    *table = CAL_TABLE_ANGLE;
+    st = check_table_pulses(&angle, knot);
+    if (st == CAL_OK)
+        *table = 0xFF;
+    return st;
 }
 
 void cal_status_text(cal_status_t status, char *out, unsigned n)
@@ -371,6 +404,7 @@ void cal_status_text(cal_status_t status, char *out, unsigned n)
                                      "throttle curve must run from (0,0) to (1,1)\0"
                                      "gimbal rate tables must meet at rate 0, turning the same way\0"
                                      "hold pulse outside the dead zone\0"
+                                     "gimbal pulse outside 500..2500 us\0"
                                      "unknown";
     flash_pick(TEXT, status < CAL_ERRORS ? (unsigned)status : (unsigned)CAL_ERRORS, out, n);
 }

@@ -9,6 +9,10 @@ rounded to 10 mV so conversions can be cached) as **fine widths** (1/512 µs,
 ``rotor_safe_us``; in the LIMIT power stage rotor widths are capped at ``limit_throttle`` of their range.
 A unit without calibration gets no gimbal pulse and a safe rotor. Whole-µs widths (the safe pulse, raw
 pulses, an ESC endpoint) are whole ticks: they go out exactly, undithered.
+
+A map's width is made a fine width by :func:`map_fine_width`, which clamps as the firmware's ``to_fine``
+(``firmware/src/app.c``) does: a board must always output some pulse (``docs/calibration.md`` §1), and
+the emulator used to raise ``FieldRangeError`` there instead, ending ``firmware-sim`` with a traceback.
 """
 
 from __future__ import annotations
@@ -16,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from protocol.pulse_widths import fine_width, reported_us, whole_us
+from protocol.pulse_widths import FINE_MAX, FINE_PER_US, reported_us, whole_us
 
 from .commands import Command
 from .config import BoardConfig
@@ -24,6 +28,15 @@ from .timeline import PpmTrain
 
 _VOLT_QUANTUM = 0.01  # V: pulse conversions are cached per 10 mV of battery voltage
 _CACHE_ENTRIES = 4096
+
+
+def map_fine_width(width_us: float) -> int:
+    """A map's width (µs) as a fine width (1/512 µs, round half to even), clamped to 0..``FINE_MAX``
+    (``PULSE_MAX_US``) exactly as the firmware's ``to_fine``: a board puts out a pulse whatever the width.
+    The maps keep their pulses within 500..2500 µs (``protocol.calibration.maps``), so the clamp bounds
+    only the rounding at a table's end; it is the last guard, not the rule. Maps convert to a finite
+    width (their inputs are checked), so NaN cannot reach it."""
+    return min(max(round(width_us * FINE_PER_US), 0), FINE_MAX)
 
 
 def conversion_voltage(filtered_v_cell: float | None, cells: int, battery_v: float) -> float:
@@ -76,7 +89,7 @@ class PulseShaper:
             else:
                 conv = self._convert(cal, "g", command.gimbal[i], command.gimbal_mode)
                 clamped |= conv.saturated and armed
-                g = fine_width(conv.value)
+                g = map_fine_width(conv.value)
             # rotor channel
             if not armed or shed:
                 r: int | None = safe
@@ -87,7 +100,7 @@ class PulseShaper:
             else:
                 conv = self._convert(cal, "r", command.rotor[i], v)
                 clamped |= conv.saturated
-                r = fine_width(conv.value)
+                r = map_fine_width(conv.value)
             if armed and not shed and limit and cal is not None and r is not None:
                 cap = self._rotor_cap(cal, v)
                 if r > cap:
@@ -101,7 +114,7 @@ class PulseShaper:
         """The LIMIT stage's highest rotor width (fine)."""
         lo = self._convert(cal, "r", 0.0, v).value
         hi = self._convert(cal, "r", 1e9, v).value
-        return fine_width(lo + self.limit_throttle * (hi - lo))
+        return map_fine_width(lo + self.limit_throttle * (hi - lo))
 
     def _convert(self, cal: Any, kind: str, value: float, arg: Any) -> Any:
         key = (id(cal), kind, value, arg)

@@ -11,11 +11,13 @@
    fails validation ends the run before anything is uploaded**; each unit's fits are drawn beside the
    calibration file (``<out stem>-unit<N>.png``, as ``hil calibrate fit`` does);
 5. upload each unit's new set (``CALIBRATION`` transfer), download it again and require the same bytes;
-6. run the verification sweep (:func:`~hil.calibration.verify.run_verify`) through the uploaded maps; if
-   any point misses its tolerance the previous sets are uploaded back and the run fails. An upload or a
-   verification that does not finish (the board lost, reset or stalled; an interrupt) puts the previous
-   sets back too, wherever the board can still be reached, reads them back, and says what the board
-   holds: a set half sent, or whole but unverified, is never left looking done;
+6. run the verification sweep (:func:`~hil.calibration.verify.run_verify`) through the uploaded maps —
+   every map the upload changes: the swept ones, and a map kept from the file that is not the one the
+   board held (:func:`maps_to_verify`; it used to verify the swept maps only, so a file's map was uploaded
+   unchecked); if any point misses its tolerance the previous sets are uploaded back and the run fails.
+   An upload or a verification that does not finish (the board lost, reset or stalled; an interrupt) puts
+   the previous sets back too, wherever the board can still be reached, reads them back, and says what the
+   board holds: a set half sent, or whole but unverified, is never left looking done;
 7. save the units into the array's calibration file (created or updated; other units kept), with each
    fitted map's provenance (CSV, points, residuals).
 """
@@ -86,13 +88,12 @@ def calibrate_units(
     left (the CLI prints them).
 
     Everything that can be refused without the board is checked before it is driven (:func:`check_cycle`)."""
-    check_cycle(units, options)
+    existing = check_cycle(units, options)
     for unit in units:
         link.check_unit(unit)
     kinds = [p.kind for p in options.plans]
     client = link.client
     previous = {u: client.download_calibration(u) for u in units}
-    existing = load_calibration(options.out) if options.out.exists() else CalibrationSet(())
     fit_options = options.fit
     esc: dict[int, EscOutcome] = {}
     if options.esc is not None:
@@ -154,7 +155,10 @@ def calibrate_units(
             step = f"the upload of unit {order[i + 1]}'s set" if i + 1 < len(order) else "verification"
             report(f"unit {unit}: uploaded and read back ({len(cal.to_bytes())} bytes)")
         if options.verify is not None:
-            verified = run_verify(link, calibrations, options.verify, tuple(kinds), report=report)
+            checks = {u: maps_to_verify(kinds, cal, previous[u]) for u, cal in calibrations.items()}
+            for unit in calibrations:
+                report(f"unit {unit}: {_verify_plan_text(kinds, checks[unit], options.out)}")
+            verified = run_verify(link, calibrations, options.verify, checks, report=report)
             report(verified.table())
     except BaseException as exc:
         # A board lost, reset, stalled or interrupted mid-upload or mid-verification — or anything else
@@ -182,12 +186,15 @@ def calibrate_units(
     return CycleResult(calibrations, fits, sweeps, csvs, esc, verified, saved, plots)
 
 
-def check_cycle(units: list[int], options: CycleOptions) -> None:
+def check_cycle(units: list[int], options: CycleOptions) -> CalibrationSet:
     """What :func:`calibrate_units` refuses before the board is driven (a :class:`ConfigError` naming
     the option): a unit given twice, a map swept twice, ESCs to be taught new endpoints without a rotor
     sweep (the rotor map kept would be the one of the old endpoints, and never verified), and an output —
     the calibration file, its fit plots, the bench CSVs — that is not a regular file or whose folder
-    cannot be written (each found after a whole sweep, or a read of a FIFO that waits for ever)."""
+    cannot be written (each found after a whole sweep, or a read of a FIFO that waits for ever). Returns
+    the calibration file's units (none if there is no file yet): a file that does not validate (a
+    :class:`CalibrationError` naming file, unit and key — a map beyond the pulses a board puts out, say)
+    is refused here too, before the board is opened, for its maps would be kept and uploaded."""
     if not units or len(set(units)) != len(units):
         raise ConfigError(f"{list(units)}: give each unit once", "--unit")
     kinds = [p.kind for p in options.plans]
@@ -207,6 +214,7 @@ def check_cycle(units: list[int], options: CycleOptions) -> None:
             check_writable(
                 options.bench_dir / f"unit{unit}_{plan.kind.value}.csv", f"--bench-dir {options.bench_dir}"
             )
+    return load_calibration(options.out) if options.out.exists() else CalibrationSet(())
 
 
 def _not_written(plots: dict[int, Path]) -> str:
@@ -268,6 +276,28 @@ def _put_back_once(link: BenchLink, previous: dict[int, UnitCalibration], units:
             raise CalibrationError(f"unit {unit}: the set read back differs from the previous one", "board")
         restored.add(unit)
     return restored
+
+
+def maps_to_verify(
+    swept: list[BenchKind], uploaded: UnitCalibration, held: UnitCalibration
+) -> tuple[BenchKind, ...]:
+    """The maps of ``uploaded`` a run verifies: every one the upload changes — the swept maps, and each
+    map kept (from the calibration file) that differs from the one the board ``held``. A map the board
+    already held goes back unchanged: the run neither made nor moved it, and checking it against a unit it
+    may not fit (a board's default map on a bench unit, an ESC not yet taught) would fail a run over a map
+    it did not touch. A file's map is new to the board, though, however it was made: it used to be uploaded
+    unverified (a hold pulse of another unit's file drove its gimbal at full rate under a rate-0 command)."""
+    return tuple(k for k in BenchKind if k in swept or getattr(uploaded, k.value) != getattr(held, k.value))
+
+
+def _verify_plan_text(swept: list[BenchKind], checks: tuple[BenchKind, ...], out: Path) -> str:
+    """What a unit's verification covers, and why, in words."""
+    why = [f"{k.value} ({'swept' if k in swept else f'kept from {out}, new to the board'})" for k in checks]
+    skipped = [k.value for k in BenchKind if k not in checks]
+    text = f"verifying {', '.join(why)}"
+    if skipped:
+        text += f"; not verified: {', '.join(skipped)} (what the board held, unchanged)"
+    return text
 
 
 def _assemble(fits: dict[BenchKind, Fit], entry: UnitEntry | None, board: UnitCalibration) -> UnitCalibration:

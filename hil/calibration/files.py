@@ -40,7 +40,8 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -167,11 +168,36 @@ def _unit(doc: dict[str, Any], where: str) -> UnitEntry:
     hold = _num(rate_doc, "hold_us", w)
     lower = _cubic(rate_doc, "lower_pulse_us", "lower_rate_rad_s", w)
     upper = _cubic(rate_doc, "upper_pulse_us", "upper_rate_rad_s", w)
-    with within(w):
+    with within(w), _file_keys(_RATE_KEYS):
         rate = GimbalRateMap(hold, lower, upper)
     angle_doc = _map_table(doc, "gimbal_angle", where, ("pulse_us", "angle_rad"), fits)
-    angle = GimbalAngleMap(_cubic(angle_doc, "pulse_us", "angle_rad", f"{where}.gimbal_angle"))
+    w = f"{where}.gimbal_angle"
+    curve = _cubic(angle_doc, "pulse_us", "angle_rad", w)
+    with within(w), _file_keys(_ANGLE_KEYS):
+        angle = GimbalAngleMap(curve)
     return UnitEntry(index, name, UnitCalibration(rotor, rate, angle), fits)
+
+
+_RATE_KEYS = {
+    "lower.x": "lower_pulse_us",
+    "lower.y": "lower_rate_rad_s",
+    "upper.x": "upper_pulse_us",
+    "upper.y": "upper_rate_rad_s",
+}
+_ANGLE_KEYS = {"curve.x": "pulse_us", "curve.y": "angle_rad"}
+
+
+@contextmanager
+def _file_keys(keys: Mapping[str, str]) -> Iterator[None]:
+    """Re-raise a map's :class:`CalibrationError` with the file's key for its table's column
+    (``lower.x[0]`` → ``lower_pulse_us[0]``), so the message names what to edit."""
+    try:
+        yield
+    except CalibrationError as exc:
+        for old, new in keys.items():
+            if exc.where == old or exc.where.startswith((f"{old}[", f"{old}.")):
+                raise CalibrationError(exc.detail, new + exc.where[len(old) :]) from exc
+        raise
 
 
 def _map_table(

@@ -101,21 +101,25 @@ def run_verify(
     link: BenchLink,
     calibrations: Mapping[int, UnitCalibration],
     plan: VerifyPlan,
-    kinds: tuple[BenchKind, ...] = tuple(BenchKind),
+    kinds: tuple[BenchKind, ...] | Mapping[int, tuple[BenchKind, ...]] = tuple(BenchKind),
     *,
     report: Report = no_report,
 ) -> VerifyReport:
-    """Verify the units of ``calibrations`` (the sets the board holds for them) on the maps ``kinds``.
-    The outputs are put back to rest afterwards (Disarm); a tripped guard raises :class:`GuardTripped`.
-    ``report`` gets one line per point with the time left."""
+    """Verify the units of ``calibrations`` (the sets the board holds for them) on the maps ``kinds``: the
+    same for every unit, or per unit (a unit verifies the maps its run changed; each point holds the
+    units that verify that map, the others at rest). The outputs are put back to rest afterwards
+    (Disarm); a tripped guard raises :class:`GuardTripped`. ``report`` gets one line per point with the
+    time left."""
     for unit in calibrations:
         link.check_unit(unit)
+    per_unit = kinds if isinstance(kinds, Mapping) else dict.fromkeys(calibrations, kinds)
     fractions = {
         BenchKind.ROTOR: plan.rotor_fractions,
         BenchKind.GIMBAL_RATE: (*plan.gimbal_rate_fractions, 0.0),  # 0: the hold pulse must hold
         BenchKind.GIMBAL_ANGLE: plan.gimbal_angle_fractions,
     }
-    order = [k for k in BenchKind if k in kinds]
+    verifying = {k: {u: c for u, c in calibrations.items() if k in per_unit.get(u, ())} for k in BenchKind}
+    order = [k for k in BenchKind if verifying[k]]
     eta = Eta(sum(len(fractions[k]) for k in order))
     points: list[VerifyPoint] = []
     link.check_board("the time before verification")  # a board that reset since holds other sets
@@ -125,7 +129,7 @@ def run_verify(
         link.client.arm()
         for kind in order:
             for f in fractions[kind]:
-                targets, tol = _targets(kind, f, calibrations, plan, volts)
+                targets, tol = _targets(kind, f, verifying[kind], plan, volts)
                 done = _point(link, plan, kind, targets, tol)
                 points += done
                 eta.step()

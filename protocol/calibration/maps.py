@@ -18,6 +18,12 @@ Gimbal (servo or stepper driver on the same channel), one map per ``GimbalMode``
   at its dead-zone end (so the curve may leave the dead zone with a kink, as a servo does);
   ``hold_us`` (inside the dead zone) is the pulse that holds the gimbal still.
 * ``GimbalAngleMap`` (ANGLE): a strictly monotone table pulse µs → angle rad.
+
+Every pulse a map holds — the ESC's endpoints, the gimbal tables' knots, the hold pulse — lies within the
+protocol's ``PULSE_MIN_US..PULSE_MAX_US`` (500..2500 µs). A conversion clamps to its table's ends, so then
+every width a map commands is one a board can put out. A map beyond that range used to be taken (from a
+file, in an upload) and the board clamped its widths instead: a hold pulse at 10000 µs became 2500 µs, the
+gimbal turning at full rate under a rate-0 command.
 """
 
 from __future__ import annotations
@@ -34,6 +40,20 @@ MIN_SUPPLY_V = 1.0
 """Below this battery voltage there is no usable supply: speed 0, and any positive speed command gets the
 minimum-throttle pulse (flagged HIGH: the speed is out of reach)."""
 MAX_KV_RAD_S_PER_V = 1.0e4
+
+
+def check_pulses(pulses: tuple[float, ...], where: str) -> None:
+    """:class:`CalibrationError` at ``where[k]`` for the first pulse (µs) of a map's table outside the
+    protocol's ``PULSE_MIN_US..PULSE_MAX_US``: a board cannot put it out (see the module docstring)."""
+    for k, p in enumerate(pulses):
+        check_pulse(p, f"{where}[{k}]")
+
+
+def check_pulse(pulse_us: float, where: str) -> None:
+    """:class:`CalibrationError` at ``where`` if ``pulse_us`` lies outside ``PULSE_MIN_US..PULSE_MAX_US``."""
+    if not PULSE_MIN_US <= pulse_us <= PULSE_MAX_US:
+        span = f"{PULSE_MIN_US}..{PULSE_MAX_US} µs"
+        raise CalibrationError(f"{pulse_us:g} µs is outside the pulses a board puts out, {span}", where)
 
 
 @dataclass(frozen=True, slots=True)
@@ -156,6 +176,9 @@ class GimbalRateMap:
         hold = finite32(self.hold_us, "hold_us")
         object.__setattr__(self, "hold_us", hold)
         lo, up = self.lower, self.upper
+        check_pulse(hold, "hold_us")
+        check_pulses(lo.x, "lower.x")
+        check_pulses(up.x, "upper.x")
         if lo.y[-1] != 0.0:
             raise CalibrationError(f"the lower table must end at rate 0, not {lo.y[-1]:g}", "lower.y")
         if up.y[0] != 0.0:
@@ -200,6 +223,9 @@ class GimbalAngleMap:
     """Pulse (µs) ↔ gimbal angle (rad) of a positional servo."""
 
     curve: MonotoneCubic  # pulse µs → angle rad
+
+    def __post_init__(self) -> None:
+        check_pulses(self.curve.x, "curve.x")
 
     def angle(self, pulse_us: float) -> Conversion:
         """Gimbal angle (rad) of ``pulse_us``."""
