@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import importlib
 import re
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from protocol.errors import HilError
 
@@ -25,6 +26,82 @@ class PluginError(HilError, RuntimeError):
         self.detail = detail
 
 
+T = TypeVar("T")
+
+PASSES = (KeyboardInterrupt, GeneratorExit)
+"""What a plugin may raise that is never made its error: Ctrl-C (and SIGTERM through ``hil``'s CLI) is the
+user's, a GeneratorExit Python's own. Everything else is caught — a ``SystemExit`` too: a library written
+as a script calls ``sys.exit()`` on a failure of its own, which escaped every ``except Exception`` and ended
+``hil`` with the plugin's status (0 for ``sys.exit()``), no word, the summary "error: " and, when a
+transport's reader thread was the one to exit, the board's final Disarm unconfirmed."""
+
+MAX_DEPTH = 32
+"""How deeply what a plugin hands over for ``summary.json`` or ``events.jsonl`` may nest (dicts, lists): a
+record's sections are a few levels deep; 100 000 levels made the JSON encoder raise RecursionError where
+the run writes its ending, and a cycle never ends."""
+
+
+def raised(exc: BaseException) -> str:
+    """``exc`` in a few words: its type and message (its type alone when it has none, or one that raises)."""
+    try:
+        text = str(exc)
+    except Exception:  # its __str__ is the plugin's too
+        text = ""
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def call_plugin(
+    plugin: str,
+    what: str,
+    call: Callable[[], T],
+    passes: type[BaseException] | tuple[type[BaseException], ...] = PluginError,
+) -> T:
+    """``call()``, a call into ``plugin``: whatever it raises (its own exception, Python's, a SystemExit)
+    becomes a :class:`PluginError` naming ``plugin`` and ``what`` (``"step at t = 3.2 s"``), ``from`` it.
+    ``passes`` (the project's own errors the plugin's interface lets it raise, a PluginError of a nested
+    check) and :data:`PASSES` go through as raised. The one place the wrappers
+    (:mod:`hil.estimation.checked`, :mod:`hil.link.sources.checked`, :mod:`hil.link.transports.checked`)
+    and the registries' factories catch a plugin."""
+    try:
+        return call()
+    except PASSES:
+        raise
+    except passes:
+        raise
+    except BaseException as exc:
+        raise PluginError(plugin, f"{what} raised {raised(exc)}") from exc
+
+
+def json_plain(value: Any, at: str = "", depth: int = 0) -> Any:
+    """``value``, what a plugin handed over for a JSON record, as plain JSON values — a copy the plugin
+    can no longer change (dicts keyed by strings, lists, strings, numbers, bools, None; numpy scalars and
+    arrays as numbers and lists) — or TypeError (not JSON) or ValueError (nested beyond
+    :data:`MAX_DEPTH`, a number JSON cannot write) saying where in it (``at``: its place so far)."""
+    if value is None or type(value) in (str, bool, float):
+        return value
+    if type(value) is int:
+        if value.bit_length() > 256:  # json writes it as text: Python refuses 4300+ digits (ValueError)
+            raise ValueError(f"{at or 'it'} is an integer of {value.bit_length()} bits")
+        return value
+    if depth >= MAX_DEPTH:
+        raise ValueError(f"{at[:60]}… is nested more than {MAX_DEPTH} deep")
+    if isinstance(value, dict):
+        out = {}
+        for key, item in value.items():
+            if type(key) is not str:
+                raise TypeError(f"{at or 'it'} has a key {describe_value(key)}, not a string")
+            out[key] = json_plain(item, f"{at}[{key!r}]", depth + 1)
+        return out
+    if isinstance(value, (list, tuple)):
+        return [json_plain(item, f"{at}[{i}]", depth + 1) for i, item in enumerate(value)]
+    if hasattr(value, "dtype") and hasattr(value, "tolist"):  # a numpy scalar or array
+        return json_plain(value.tolist(), at, depth + 1)
+    for plain in (int, float, str):  # a subclass (an IntEnum, a StrEnum): its plain value
+        if isinstance(value, plain):
+            return json_plain(plain(value), at, depth + 1)
+    raise TypeError(f"{at or 'it'} is {describe_value(value)}, not JSON")
+
+
 AMBIGUOUS = "ambiguous: "
 """How :meth:`Registry.target` marks a name two installed entry points give different targets."""
 
@@ -37,7 +114,10 @@ def describe_value(value: Any) -> str:
     and a short repr."""
     if type(value).__name__ == "ndarray" and isinstance(getattr(value, "shape", None), tuple):
         return f"an array of shape {value.shape}"
-    text = " ".join(repr(value).split())
+    try:
+        text = " ".join(repr(value).split())
+    except Exception:  # its __repr__ is the plugin's too: the error is said without it
+        text = "(whose repr raises)"
     return f"{type(value).__name__} {text[:60]}{'…' if len(text) > 60 else ''}"
 
 
@@ -105,10 +185,10 @@ class Registry:
         module_name, attr = match.group("module"), match.group("attr")
         try:
             obj = importlib.import_module(module_name)
-        except ImportError:
+        except (ImportError, *PASSES):
             raise
-        except Exception as exc:  # the plugin's module failed as it ran: not ours to crash on
-            raise ImportError(f"importing {module_name} raised {type(exc).__name__}: {exc}") from exc
+        except BaseException as exc:  # the plugin's module failed as it ran (a sys.exit() too): not ours
+            raise ImportError(f"importing {module_name} raised {raised(exc)}") from exc
         for part in attr.split(".") if attr else ():
             obj = getattr(obj, part)
         return obj

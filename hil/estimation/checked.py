@@ -11,7 +11,8 @@ call                       checked
 =========================  ========================================================================
 ``step(s)``                an :class:`~hil.estimation.estimator.Estimate` (or an object with its six
                            attributes), at ``s.t``; ``R``, ``omega``, ``omega_err`` finite; ``R`` a
-                           rotation (``|R Rᵀ − I| ≤`` :data:`ORTHONORMAL_TOL` entrywise, det > 0)
+                           rotation (``|R Rᵀ − I| ≤`` :data:`ORTHONORMAL_TOL` entrywise, det > 0);
+                           each axis of ``omega`` and ``omega_err`` within :data:`RATE_LIMIT`
 ``run(steps)``             an :class:`~hil.estimation.estimator.EstimateBatch` of ``len(steps)`` rows
                            at ``steps.t``, each row as a step's; ``steps``' arrays are passed read-only
                            (an estimator that wrote into them changed what the replay then scores)
@@ -19,8 +20,9 @@ call                       checked
 ``set_gyro_bias(b)``       given a copy of ``b`` (the host's own is not the estimator's to change)
 =========================  ========================================================================
 
-Any exception the estimator raises (its own, or Python's) becomes a :class:`~hil.plugins.PluginError`
-``from`` it; Ctrl-C (KeyboardInterrupt) passes through. Pure checks, no I/O."""
+Anything the estimator raises (its own exception, Python's, a ``sys.exit()``), in its calls or as what it
+returned is read (a property, an ``__array__``), becomes a :class:`~hil.plugins.PluginError` ``from`` it
+(:func:`~hil.plugins.call_plugin`); Ctrl-C (KeyboardInterrupt) passes through. Pure checks, no I/O."""
 
 from __future__ import annotations
 
@@ -33,7 +35,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from hil.plugins import PluginError, describe_value
+from hil.estimation.admission import ReadingLimits
+from hil.estimation.sensors import StepFlag
+from hil.plugins import PluginError, call_plugin, describe_value
 
 if TYPE_CHECKING:
     from hil.estimation.estimator import Estimate, EstimateBatch
@@ -46,11 +50,18 @@ ORTHONORMAL_TOL = 1e-6
 """How far from a rotation an estimate's ``R`` may be: each entry of ``R Rᵀ − I`` (a float32 estimator's
 rounding is ~1e-7; a quaternion integrated without renormalising drifts past it within minutes)."""
 
+RATE_LIMIT = ReadingLimits.gyr
+"""The largest ``omega`` or ``omega_err`` on any axis an estimate may give (rad/s): the admission's
+gyroscope bound (a phone's ±2000 °/s with a margin). A finite rate beyond it is no estimate of a
+spacecraft's motion: 1e300 rad/s was steered on into a NaN setpoint naming nobody, 1000 rad/s into a run
+"completed" 114° off its target."""
+
 TIME_TOL_S = 1e-9
 """How far an estimate's ``t`` may be from its step's (s)."""
 
 _FIFTEEN = struct.Struct("=15d").unpack_from  # an Estimate's kept bytes: R row-major, omega, omega_err
 _FIELDS = ("t", "R", "omega", "omega_err", "flags", "iterations")
+_NAMES = ("R",) * 9 + ("omega",) * 3 + ("omega_err",) * 3  # what each of the fifteen is
 
 
 def rotation_fault(r: tuple[float, ...]) -> str | None:
@@ -90,12 +101,7 @@ class CheckedEstimator:
         return PluginError(self.plugin, detail)
 
     def _call(self, what: str, call: Callable[[], Any]) -> Any:
-        try:
-            return call()
-        except PluginError:
-            raise
-        except Exception as exc:
-            raise self._error(f"{what} raised {type(exc).__name__}: {exc}") from exc
+        return call_plugin(self.plugin, what, call)
 
     # ------------------------------------------------------------------ live
     def step(self, s: MergedStep) -> Estimate:
@@ -107,24 +113,39 @@ class CheckedEstimator:
         from hil.estimation.estimator import Estimate
 
         where = f"step at t = {t!r} s"
-        if type(out) is not Estimate:
-            out = self._as_estimate(out, where)
+        if not (
+            type(out) is Estimate
+            and len(out) == 4
+            and type(out[0]) is float
+            and type(out[1]) is StepFlag
+            and type(out[2]) is int
+            and type(out[3]) is bytes
+            and len(out[3]) == 120
+        ):  # anything else, an Estimate tuple built by hand too (struct.error), is read by its attributes
+            out = self._call(f"{where}: reading what it returned", lambda: self._as_estimate(out, where))
         values = _FIFTEEN(out[3])
         if not all(map(math.isfinite, values)):
-            names = ("R",) * 9 + ("omega",) * 3 + ("omega_err",) * 3
-            bad = sorted({names[i] for i, v in enumerate(values) if not math.isfinite(v)})
+            bad = sorted({_NAMES[i] for i, v in enumerate(values) if not math.isfinite(v)})
             raise self._error(f"{where} returned a non-finite {' and '.join(bad)}")
+        fastest = max(map(abs, values[9:]))
+        if not fastest <= RATE_LIMIT:
+            name = _NAMES[9 + list(map(abs, values[9:])).index(fastest)]
+            raise self._error(
+                f"{where} returned {name} of {fastest:.6g} rad/s on an axis, beyond any spacecraft's "
+                f"(the gyroscope's bound, {RATE_LIMIT:g} rad/s)"
+            )
         fault = rotation_fault(values[:9])
         if fault is not None:
             raise self._error(f"{where} returned an attitude that is not a rotation: {fault}")
-        est_t = out.t
+        est_t = out[0]
         if not (isinstance(est_t, (int, float)) and abs(est_t - t) <= TIME_TOL_S):
             raise self._error(f"{where} returned an estimate at t = {est_t!r}, not the step's")
         return out  # type: ignore[no-any-return]
 
     def _as_estimate(self, out: Any, where: str) -> Estimate:
+        """``out`` read through its six attributes as an Estimate (anything its reading raises beyond what
+        is said here is the caller's :func:`~hil.plugins.call_plugin`'s)."""
         from hil.estimation.estimator import Estimate
-        from hil.estimation.sensors import StepFlag
 
         missing = [name for name in _FIELDS if not hasattr(out, name)]
         if missing:
@@ -152,8 +173,9 @@ class CheckedEstimator:
     # ------------------------------------------------------------------ batch
     def run(self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None) -> EstimateBatch:
         given = _read_only(steps)
-        out = self._call(f"run over {len(steps)} steps", lambda: self.inner.run(given, progress))
-        return self.checked_batch(out, steps)
+        where = f"run over {len(steps)} steps"
+        out = self._call(where, lambda: self.inner.run(given, progress))
+        return self._call(f"{where}: reading what it returned", lambda: self.checked_batch(out, steps))  # type: ignore[no-any-return]
 
     def checked_batch(self, out: Any, steps: MergedSteps) -> EstimateBatch:
         """``out``, what the estimator's run over ``steps`` returned, if it is a valid batch for them."""
@@ -187,6 +209,15 @@ class CheckedEstimator:
                     f"{where} returned a non-finite {key} at step {i} (t = {float(steps.t[i])!r} s): "
                     f"{int(n - finite.sum())} of {n} rows"
                 )
+            if key in ("omega", "omega_err"):
+                beyond = ~(np.abs(a).max(axis=1, initial=0.0) <= RATE_LIMIT)
+                if beyond.any():
+                    i = int(np.flatnonzero(beyond)[0])
+                    raise self._error(
+                        f"{where} returned {key} of {float(np.abs(a[i]).max()):.6g} rad/s on an axis at step "
+                        f"{i} (t = {float(steps.t[i])!r} s), beyond any spacecraft's (the gyroscope's "
+                        f"bound, {RATE_LIMIT:g} rad/s)"
+                    )
         off = np.abs(out.t - steps.t) > TIME_TOL_S
         if off.any():
             i = int(np.flatnonzero(off)[0])
@@ -213,6 +244,9 @@ class CheckedEstimator:
     @property
     def gyro_bias(self) -> Array:
         b = self._call("gyro_bias", lambda: self.inner.gyro_bias)
+        return self._call("gyro_bias: reading what it returned", lambda: self._bias(b))  # type: ignore[no-any-return]
+
+    def _bias(self, b: Any) -> Array:
         try:
             a = np.array(b, dtype=float)
         except (TypeError, ValueError) as exc:

@@ -25,9 +25,11 @@ attribute an :class:`~hil.estimation.interface.EstimatorKind`. In a ``pyproject.
 
 Every estimator but ``hil``'s variational one is built wrapped in a
 :class:`~hil.estimation.checked.CheckedEstimator`: what a user's estimator returns is checked each step (a
-finite rotation at the step's time; a batch of the steps' length), and what it raises — in ``check``,
-``build``, ``describe`` or mid-run — is a :class:`~hil.plugins.PluginError` (a ConfigError from ``check``)
-naming it, so a run that it failed ends as an error with its board disarmed. Pure configuration, no I/O."""
+finite rotation at the step's time, its rates within a gyroscope's bound; a batch of the steps' length),
+and what it raises — in ``check``, ``build``, ``describe`` or mid-run, a ``sys.exit()`` too — is a
+:class:`~hil.plugins.PluginError` (a ConfigError from ``check``, as is a check that returns no mapping of
+settings) naming it, so a run that it failed ends as an error with its board disarmed. Pure
+configuration, no I/O."""
 
 from __future__ import annotations
 
@@ -36,7 +38,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hil.estimation.interface import Estimator, EstimatorKind, Site
-from hil.plugins import PluginError, Registry
+from hil.plugins import PluginError, Registry, call_plugin, describe_value
 from protocol.errors import ConfigError, HilError
 
 ENTRY_POINT_GROUP = "vscmg_hil.estimators"
@@ -105,15 +107,18 @@ class EstimatorChoice:
             raise ConfigError(
                 f"unknown key for estimator {self.name!r}; known: {known}", f"{self.where}.{key}"
             )
+        plugin = f"estimator {self.name!r}"
         try:
-            checked = kind.check(self.settings, self.where)
-        except ConfigError:
-            raise
-        except Exception as exc:  # the kind's own exception: still a configuration the run cannot take
-            why = f"estimator {self.name!r}: its check raised {type(exc).__name__}: {exc}"
-            raise ConfigError(why, self.where) from exc
+            checked = call_plugin(
+                plugin, "its check", lambda: kind.check(self.settings, self.where), ConfigError
+            )
+            if not isinstance(checked, Mapping):
+                raise PluginError(plugin, f"its check returned {describe_value(checked)}, not the settings")
+            settings = call_plugin(plugin, "its check's settings, read,", lambda: dict(checked))
+        except PluginError as exc:  # the kind's own fault: still a configuration the run cannot take
+            raise ConfigError(str(exc), self.where) from exc
         object.__setattr__(self, "name", self.name.lower())
-        object.__setattr__(self, "settings", dict(checked))
+        object.__setattr__(self, "settings", settings)
 
     @property
     def kind(self) -> EstimatorKind:
@@ -128,24 +133,16 @@ class EstimatorChoice:
         if _REGISTRY.target(self.name) in _UNCHECKED:
             return kind.build(self.settings, site)
         plugin = f"estimator {self.name!r}"
-        try:
-            built = kind.build(self.settings, site)
-        except HilError:  # the project's own (a ConfigError naming a key): as raised
-            raise
-        except Exception as exc:
-            raise PluginError(plugin, f"build raised {type(exc).__name__}: {exc}") from exc
+        # the project's own (a ConfigError naming a key) passes as raised
+        built = call_plugin(plugin, "build", lambda: kind.build(self.settings, site), HilError)
         if built is None or not callable(getattr(built, "step", None)):
             raise PluginError(plugin, f"build returned {type(built).__name__}, not an Estimator")
         return CheckedEstimator(built, self.name)
 
     def describe(self) -> str:
         """One line: the estimator and its settings."""
-        try:
-            return str(self.kind.describe(self.settings))
-        except Exception as exc:
-            raise PluginError(
-                f"estimator {self.name!r}", f"describe raised {type(exc).__name__}: {exc}"
-            ) from exc
+        kind = self.kind
+        return call_plugin(f"estimator {self.name!r}", "describe", lambda: str(kind.describe(self.settings)))
 
     @classmethod
     def by_name(cls, name: str, where: str) -> EstimatorChoice:

@@ -62,6 +62,7 @@ from hil.files.output import write_file
 from hil.files.writing import WriterLock
 from hil.link.board.session import Phase
 from hil.link.sources import DEFAULT_PHONE_URL, PhoneSource, SourceContext, create_source
+from hil.link.sources.checked import merge_report
 from hil.link.sources.recorded import RECORDING_URL
 from hil.link.sources.simulated import SIMULATED_URL
 from hil.link.transports import InProcessBoard, create_transport
@@ -356,16 +357,7 @@ def _finish(
         summary.update(built.host.summary())
         if summary.get("exit") == "completed" and summary.get("lost"):  # heard only on the way out
             summary["exit"] = f"lost: {summary['lost']}"
-        summary["link"] = _link_stats(built.host)
-        try:
-            reported = built.source.report()
-        except PluginError as exc:  # a user's source that fails its report: the run's error, if it had none
-            reported = {}
-            if error is None:
-                summary["exit"] = f"error: {exc}"
-                error = exc
-        for section, fields in reported.items():
-            summary.setdefault(section, {}).update(fields)
+        summary["link"] = {}  # its place in summary.json: filled last, with the source's report
         scheduler = built.scheduler
         summary["tasks"] = scheduler.summary()
         summary["sim_s"] = scheduler.clock.now() - scheduler.origin
@@ -373,6 +365,19 @@ def _finish(
             summary["realtime_factor"] = summary["sim_s"] / summary["wall_s"]
         if summary.get("loop_wall_s", 0.0) > 0:
             summary["loop_realtime_factor"] = summary["sim_s"] / summary["loop_wall_s"]
+        source = built.source
+        later = ("telemetry_rows_not_written", "events_not_written", "events_not_written_dropped")
+        # last: a user's report may only add sections the run has not written (nor writes after: later)
+        for merge in (
+            lambda: summary.update(link=_link_stats(host)),  # a user's transport's counters() in it
+            lambda: merge_report(summary, source, later),
+        ):
+            try:
+                merge()
+            except HilError as exc:  # a user's plugin that failed them: the run's error, if it had none
+                if error is None:
+                    summary["exit"] = f"error: {exc}"
+                    error = exc
     try:
         if telemetry is not None:
             telemetry.close()
@@ -783,6 +788,8 @@ def _time_limit(scenario: Scenario, opts: RunOptions, origin: float) -> float:
 def _link_stats(host: Host) -> dict[str, Any]:
     try:
         stats = host.client.stats()
+    except PluginError:  # a user's transport's counters(): the run's error (_finish)
+        raise
     except HilError:
         return {}
     return asdict(stats)

@@ -55,7 +55,7 @@ from hil.link.sources.base import (
 )
 from hil.link.sources.listening import ListeningSource, open_receiver, open_sender, phone_url
 from hil.link.sources.stream import PhoneReceiver, PhoneSender, StreamStats
-from hil.plugins import PluginError, Registry
+from hil.plugins import PluginError, Registry, call_plugin
 from protocol.errors import ConfigError, HilError
 
 ENTRY_POINT_GROUP = "vscmg_hil.phone_sources"
@@ -94,9 +94,12 @@ def create_source(address: str, context: SourceContext, where: str = "--phone") 
     errors, or returning what is not a :class:`PhoneSource`, is a :class:`~hil.plugins.PluginError`."""
     url = source_url(address)
     try:
-        scheme = urlsplit(url).scheme.lower()
+        urlsplit(url)
     except ValueError as exc:  # urllib's own refusal of the address (an unbalanced '[')
         raise ConfigError(f"{address!r}: not a URL ({exc})", where) from exc
+    # what comes before "://", as the transports read theirs: urllib's scheme is '' for one with a "_"
+    # (not RFC 3986's), so a plugin registered as "my_rig" was listed as known and never reached
+    scheme = url.split("://", 1)[0].lower()
     target = _REGISTRY.target(scheme)
     if target is None:
         why = f"unknown phone source scheme {scheme!r} (known: {', '.join(schemes())})"
@@ -110,19 +113,19 @@ def create_source(address: str, context: SourceContext, where: str = "--phone") 
     from hil.link.sources.checked import CheckedSource
 
     plugin = f"phone source {scheme!r}"
-    try:
-        built = factory(url, context)
-    except HilError:  # the project's own (a ConfigError naming an option, a busy port): as raised
-        raise
-    except Exception as exc:
-        raise PluginError(plugin, f"its factory {target} raised {type(exc).__name__}: {exc}") from exc
+    # the project's own (a ConfigError naming an option, a busy port) passes as raised
+    built = call_plugin(plugin, f"its factory {target}", lambda: factory(url, context), HilError)
     if not isinstance(built, PhoneSource):
-        close = getattr(built, "close", None)
-        if callable(close):  # what it opened is released, whatever it is
-            with contextlib.suppress(Exception):
-                close()
+        with contextlib.suppress(HilError):  # what it opened is released, whatever it is
+            call_plugin(plugin, "close", lambda: _close_any(built))
         raise PluginError(plugin, f"its factory {target} returned {type(built).__name__}, not a PhoneSource")
     return CheckedSource(built, scheme)
+
+
+def _close_any(built: object) -> None:
+    close = getattr(built, "close", None)
+    if callable(close):
+        close()
 
 
 __all__ = [

@@ -16,24 +16,29 @@ call                       checked
 ``rate_hz``                None or a positive finite number
 ``start(origin)``          None or a finite number
 ``tasks()``                a list of :class:`~hil.timing.scheduler.PeriodicTask`, each callback wrapped
-``senders()``              None or a :class:`~.base.SenderStatus`
-``report()``               a dict of sections, each a dict whose keys are strings, JSON-able
+``senders()``              None or a :class:`~.base.SenderStatus` of a string, counts and a bool,
+                           whose events are :class:`~.base.SenderEvent` s of the one-phone rule's
+                           kinds (:data:`SENDER_KINDS`), their fields JSON keyed by strings other
+                           than ``t`` and ``kind`` (the record's own)
+``report()``               a dict of sections, each a dict whose keys are strings, JSON (at most
+                           :data:`~hil.plugins.MAX_DEPTH` deep); merged by :func:`merge_report`
+                           as sections of its own, never one the run writes
 =========================  ========================================================================
 
 A sample that is a ``SensorSample`` of the right types but absurd — a NaN or infinite stamp or value, a
 reading beyond any phone's range, stamped out of order, a duplicate — is passed on: the host's admission
 policy (:mod:`hil.estimation.admission`) drops and counts it, as it does a live phone's.
 
-Any exception the source raises that is not the project's own (a :class:`~protocol.errors.HilError`, such
+Anything the source raises that is not the project's own (a :class:`~protocol.errors.HilError`, such
 as :meth:`~.base.PhoneSource.wait_ready`'s ``LinkTimeout`` or a receiver thread's ``LinkError``, passes as
-it is) becomes a :class:`~hil.plugins.PluginError` ``from`` it; Ctrl-C (KeyboardInterrupt) passes
-through. ``hil``'s own schemes are not wrapped: no cost on their path."""
+it is) — its own exception, Python's, a ``sys.exit()``, in a call or as what it returned is read —
+becomes a :class:`~hil.plugins.PluginError` ``from`` it (:func:`~hil.plugins.call_plugin`); Ctrl-C
+(KeyboardInterrupt) passes through. ``hil``'s own schemes are not wrapped: no cost on their path."""
 
 from __future__ import annotations
 
-import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Collection, Mapping
 from numbers import Real
 from typing import TYPE_CHECKING, Any
 
@@ -41,12 +46,20 @@ import numpy as np
 
 from hil.estimation.checked import rotation_fault
 from hil.estimation.sensors import SensorKind, SensorSample
-from hil.link.sources.base import GroundTruth, PhoneSource, SenderStatus
-from hil.plugins import PluginError, describe_value
+from hil.link.sources.base import GroundTruth, PhoneSource, SenderEvent, SenderStatus
+from hil.plugins import PluginError, call_plugin, describe_value, json_plain
 from protocol.errors import HilError
 
 if TYPE_CHECKING:
     from hil.timing.scheduler import PeriodicTask
+
+
+SENDER_KINDS = frozenset({"phone_other", "phone_following", "phone_switch"})
+"""The ``events.jsonl`` kinds of the one-phone rule (docs/formats.md, "One phone per receiver"): the only
+ones a source's :meth:`~.base.PhoneSource.senders` may write (a user's "disarmed" is no record of the
+board's)."""
+
+_COUNTS = ("phone_switches", "other_phones", "other_phone_messages", "other_phone_samples")
 
 
 def _real(value: Any) -> bool:
@@ -70,17 +83,16 @@ class CheckedSource(PhoneSource):
         return PluginError(self.plugin, detail)
 
     def _call(self, what: str, call: Callable[[], Any]) -> Any:
-        try:
-            return call()
-        except HilError:  # the project's own (a LinkTimeout, a PluginError of a wrapped call): as raised
-            raise
-        except Exception as exc:
-            raise self._error(f"{what} raised {type(exc).__name__}: {exc}") from exc
+        # the project's own (a LinkTimeout, a PluginError of a wrapped call) pass as raised
+        return call_plugin(self.plugin, what, call, HilError)
 
     # ------------------------------------------------------------------ samples and truth
     def drain(self, now: float) -> list[SensorSample]:
         where = f"drain at t = {now:.6f} s"
         out = self._call(where, lambda: self.inner.drain(now))
+        return self._call(f"{where}: reading what it returned", lambda: self._samples(out, where))  # type: ignore[no-any-return]
+
+    def _samples(self, out: Any, where: str) -> list[SensorSample]:
         if type(out) is not list:
             if not isinstance(out, (list, tuple)):
                 raise self._error(f"{where} returned {describe_value(out)}, not a list of SensorSamples")
@@ -125,6 +137,9 @@ class CheckedSource(PhoneSource):
         found = self._call(where, lambda: self.inner.truth(now))
         if found is None:
             return None
+        return self._call(f"{where}: reading what it returned", lambda: self._truth(found, where))  # type: ignore[no-any-return]
+
+    def _truth(self, found: Any, where: str) -> GroundTruth:
         if not (hasattr(found, "R") and hasattr(found, "omega")):
             raise self._error(f"{where} returned {describe_value(found)}, not a GroundTruth or None")
         try:
@@ -193,25 +208,84 @@ class CheckedSource(PhoneSource):
 
     def senders(self) -> SenderStatus | None:
         status = self._call("senders", self.inner.senders)
-        if status is not None and not isinstance(status, SenderStatus):
+        if status is None:
+            return None
+        return self._call("senders: reading what it returned", lambda: self._senders(status))  # type: ignore[no-any-return]
+
+    def _senders(self, status: Any) -> SenderStatus:
+        """``status`` rebuilt of plain values, if it is a SenderStatus whose events the run can write."""
+        if not isinstance(status, SenderStatus):
             raise self._error(f"senders returned {describe_value(status)}, not a SenderStatus or None")
-        return status  # type: ignore[no-any-return]
+        counts = [getattr(status, name) for name in _COUNTS]
+        if not (
+            isinstance(status.following, str)
+            and all(type(n) is int and n >= 0 for n in counts)
+            and isinstance(status.others_streaming, bool)
+            and isinstance(status.events, (tuple, list))
+        ):
+            raise self._error(f"senders returned {describe_value(status)}, not a string, counts, a bool")
+        events = []
+        for i, event in enumerate(status.events):
+            where = f"senders returned, at events[{i}],"
+            if not isinstance(event, SenderEvent):
+                raise self._error(f"{where} {describe_value(event)}, not a SenderEvent")
+            if event.kind not in SENDER_KINDS:
+                kinds = ", ".join(sorted(SENDER_KINDS))
+                raise self._error(f"{where} an event of kind {describe_value(event.kind)}, not {kinds}")
+            if not isinstance(event.fields, Mapping):
+                raise self._error(f"{where} fields {describe_value(event.fields)}, not a mapping")
+            taken = sorted({"t", "kind"} & set(event.fields))
+            if taken:
+                raise self._error(f"{where} a field {taken[0]!r}: the record's own (its time, its kind)")
+            try:
+                fields = json_plain(dict(event.fields))
+            except (TypeError, ValueError) as exc:
+                raise self._error(f"{where} fields events.jsonl cannot hold: {exc}") from exc
+            events.append(SenderEvent(str(event.kind), fields))
+        return SenderStatus(
+            following=str(status.following),
+            **{name: int(n) for name, n in zip(_COUNTS, counts, strict=True)},
+            others_streaming=bool(status.others_streaming),
+            events=tuple(events),
+        )
 
     def report(self) -> dict[str, dict[str, Any]]:
         report = self._call("report", self.inner.report)
+        return self._call("report: reading what it returned", lambda: self._report(report))  # type: ignore[no-any-return]
+
+    def _report(self, report: Any) -> dict[str, dict[str, Any]]:
+        """``report`` as plain JSON (a copy), if it is a dict of sections summary.json can hold."""
         if not isinstance(report, dict) or not all(
             isinstance(k, str) and isinstance(v, dict) and all(isinstance(f, str) for f in v)
             for k, v in report.items()
         ):
             raise self._error(f"report returned {describe_value(report)}, not a dict of sections (dicts)")
         try:
-            json.dumps(report, default=_json_default, allow_nan=True)
+            plain: dict[str, dict[str, Any]] = json_plain(report)
         except (TypeError, ValueError) as exc:
             raise self._error(f"report returned what summary.json cannot hold: {exc}") from exc
-        return report
+        return plain
 
 
-def _json_default(value: Any) -> Any:
-    if isinstance(value, (np.generic, np.ndarray)):
-        return value.tolist()
-    raise TypeError(f"{describe_value(value)} is not JSON")
+def merge_report(summary: dict[str, Any], source: PhoneSource, later: Collection[str] = ()) -> None:
+    """``source``'s :meth:`~.base.PhoneSource.report` merged into the run's ``summary``: ``hil``'s own
+    sources add fields to their sections (a receiver's ``phone``, a recording's ``samples_released`` in the
+    run's ``replay``); a user's (a :class:`CheckedSource`) only adds sections of its own — a section named
+    as a key the run wrote (in ``summary`` already) or writes after (``later``) is a
+    :class:`~hil.plugins.PluginError`, none of it merged. A plugin's ``final_disarm``, ``link`` or
+    ``phone_admission`` replaced the host's own safety record; a ``source``, ``exit`` or ``mode`` (a string)
+    crashed the run's ending, no summary.json written."""
+    reported = source.report()
+    if not isinstance(source, CheckedSource):
+        for section, fields in reported.items():
+            summary.setdefault(section, {}).update(fields)
+        return
+    taken = sorted(set(reported) & {*summary, *later})
+    if taken:
+        raise PluginError(
+            source.plugin,
+            f"report returned {', '.join(map(repr, taken))}: "
+            f"{'sections' if len(taken) > 1 else 'a section'} the run writes itself (a plugin's report may "
+            "only add sections of its own)",
+        )
+    summary.update(reported)

@@ -38,7 +38,7 @@ or cannot open, answered by reconnecting), in its factory or mid-run, is a
 
 from __future__ import annotations
 
-from hil.plugins import PluginError, Registry
+from hil.plugins import PluginError, Registry, call_plugin
 from protocol.errors import HilError, TransportError
 
 from .base import Transport, UrlOptions
@@ -103,12 +103,8 @@ def create_transport(url: str) -> Transport:
         transport: Transport = factory(url)
         return transport
     plugin = f"transport {scheme!r}"
-    try:
-        built = factory(url)
-    except HilError:  # the project's own (a TransportError naming an option): as raised
-        raise
-    except Exception as exc:
-        raise PluginError(plugin, f"its factory {target} raised {type(exc).__name__}: {exc}") from exc
+    # the project's own (a TransportError naming an option) passes as raised
+    built = call_plugin(plugin, f"its factory {target}", lambda: factory(url), HilError)
     if not isinstance(built, Transport):
         raise PluginError(plugin, f"its factory {target} returned {type(built).__name__}, not a Transport")
     if isinstance(built, InProcessBoard):  # the host's own machinery (its clock, its world): as it is

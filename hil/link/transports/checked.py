@@ -8,17 +8,19 @@ What is checked, each call: ``read`` returns ``bytes`` (a ``bytearray`` or ``mem
 bytes; a ``str``, ``None`` or anything else is refused), ``present`` None or a bool, ``heard_instead`` a
 string. What the transport raises of the project's own (a :class:`~protocol.errors.LinkError` for a port
 that vanished, a ``TransportError`` for one that cannot open: the interface's way of saying so, which the
-board client answers by reconnecting) passes as it is; anything else (its own exception, Python's) becomes
-a :class:`~hil.plugins.PluginError` ``from`` it, naming the call (``read #57``, and the bytes read before
-it). Ctrl-C (KeyboardInterrupt) passes through. Attributes the wrapper does not know (a backend's
-``counters``) are the inner transport's."""
+board client answers by reconnecting) passes as it is; anything else (its own exception, Python's, a
+``sys.exit()`` in the reader thread) becomes a :class:`~hil.plugins.PluginError` ``from`` it
+(:func:`~hil.plugins.call_plugin`), naming the call (``read #57``, and the bytes read before it). Ctrl-C
+(KeyboardInterrupt) passes through. A backend's ``counters()`` (``summary.json``'s ``link.transport``) is
+checked as the rest: a dict keyed by strings, JSON; other attributes the wrapper does not know are the
+inner transport's."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
-from hil.plugins import PluginError, describe_value
+from hil.plugins import PluginError, call_plugin, describe_value, json_plain
 from protocol.errors import HilError
 
 from .base import Transport
@@ -44,12 +46,8 @@ class CheckedTransport(Transport):
         return getattr(self.inner, name)
 
     def _call(self, what: str, call: Callable[[], Any]) -> Any:
-        try:
-            return call()
-        except HilError:  # the project's own (a LinkError: the port vanished): as raised
-            raise
-        except Exception as exc:
-            raise PluginError(self.plugin, f"{what} raised {type(exc).__name__}: {exc}") from exc
+        # the project's own (a LinkError: the port vanished) passes as raised
+        return call_plugin(self.plugin, what, call, HilError)
 
     @property
     def is_open(self) -> bool:
@@ -88,6 +86,25 @@ class CheckedTransport(Transport):
         if not isinstance(said, str):
             raise PluginError(self.plugin, f"heard_instead returned {describe_value(said)}, not a string")
         return said
+
+    def counters(self) -> dict[str, Any]:
+        """The inner transport's own counters (a backend's: ``summary.json``'s ``link.transport``), a plain
+        copy; {} for one that keeps none. Forwarded unchecked, a ``counters()`` that raised or returned no
+        mapping crashed the run's ending, no summary.json written."""
+        counters = self._call("counters", lambda: getattr(self.inner, "counters", None))
+        if counters is None:
+            return {}
+        found = self._call("counters", counters)
+        return self._call("counters: reading what it returned", lambda: self._counters(found))  # type: ignore[no-any-return]
+
+    def _counters(self, found: Any) -> dict[str, Any]:
+        if not isinstance(found, Mapping):
+            raise PluginError(self.plugin, f"counters returned {describe_value(found)}, not a dict")
+        try:
+            plain: dict[str, Any] = json_plain(dict(found))
+        except (TypeError, ValueError) as exc:
+            raise PluginError(self.plugin, f"counters returned what summary.json cannot hold: {exc}") from exc
+        return plain
 
     # the template's backend: unused (the public calls above go to the inner transport's own)
     def _open_impl(self) -> None:
