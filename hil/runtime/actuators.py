@@ -20,6 +20,10 @@ record                            when
                                   mrad/s while the others hold the attitude (a campaign's finding: 4.5
                                   mrad/s for 14 s, the pointing off 0.9°, never reported) is seen
                                   through the rate's telemetry noise
+``power_shed`` (state)            the board's power manager says SHED (it stopped the rotors to save
+                                  the battery) or BROWN_OUT: the array has no rotor authority until it
+                                  says otherwise (said again at each new episode). Before, only the
+                                  rotors' not following was said, never why
 ``rotor_overspeed`` (unit)        the rotor measured faster than :data:`OVERSPEED` × the spacecraft's
                                   fastest rotor speed, on any live telemetry (commanded or not): no
                                   setpoint asks for it, so the rotor runs away (an ESC out of its
@@ -41,7 +45,7 @@ from collections.abc import Sequence
 
 from hil.runtime.faults import FaultJournal
 from hil.runtime.runlog import EventLog
-from protocol.messages import ActuatorSetpoint, FaultFlag, GimbalMode, UnitState
+from protocol.messages import ActuatorSetpoint, FaultFlag, GimbalMode, PowerState, UnitState
 
 logger = logging.getLogger(__name__)
 
@@ -102,13 +106,22 @@ class ActuatorWatch:
         self.lead = 0.9 * max_lead
         self.overspeed = OVERSPEED * max_speed
         self.esc_dead = False  # the board's DEAD_ESC flag as last seen
+        self.shed = False  # the board's power state was SHED or worse, as last seen
         self._since: dict[tuple[str, int], float] = {}  # (actuator, unit) → off its setpoint since
         self._noted: set[tuple[str, int]] = set()
         self._gimbal = [RateWindow(LAG_S) for _ in range(n)]  # each gimbal's, in RATE mode
         self._keys = [(("rotor", i), ("gimbal", i)) for i in range(n)]  # each unit's keys of _since
 
-    def board_flags(self, t: float, faults: int) -> None:
-        """The board's fault flags of a live telemetry at ``t``: its dead-ESC report when it appears."""
+    def board_flags(self, t: float, faults: int, power: int = PowerState.NORMAL) -> None:
+        """The board's fault flags and power state of a live telemetry at ``t``: its dead-ESC report when it
+        appears, and each episode of its power manager shedding the rotors (SHED, BROWN_OUT)."""
+        shed = power >= PowerState.SHED
+        if shed and not self.shed:
+            state = PowerState(power).name
+            self.journal.note(t, "power_shed", state=state)
+            self.events.write(t, "power_shed", state=state)
+            logger.warning("the board's power manager says %s at t=%.3f s: the rotors are stopped", state, t)
+        self.shed = shed
         dead = bool(faults & FaultFlag.DEAD_ESC)
         if dead and not self.esc_dead:
             self.journal.note(t, "esc_dead")

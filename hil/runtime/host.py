@@ -305,7 +305,7 @@ class Host:
                 self.finished = True
             return
         self._hold_sent = False
-        self.actuators.board_flags(t, tel.faults)
+        self.actuators.board_flags(t, tel.faults, tel.power)
         units = tel.units
         gimbal = [u.gimbal_angle for u in units]  # floats: the tick computes on floats (rad, rad/s)
         rotor = [u.rotor_speed for u in units]
