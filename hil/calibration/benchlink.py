@@ -30,6 +30,7 @@ from protocol.messages import (
     EscCalibrationStatus,
     GimbalMode,
     Log,
+    PowerState,
     RawPulses,
     Telemetry,
     UnitSetpoint,
@@ -72,8 +73,12 @@ class Guard:
             raise ConfigError(f"{self.min_battery_v!r} must be a voltage >= 0", "--min-battery")
 
     def check(self, tel: Telemetry) -> str | None:
-        """Why ``tel`` trips the guard, or None."""
+        """Why ``tel`` trips the guard, or None: the pack's current or voltage beyond the limits, or the
+        board's power manager shedding the rotors (SHED, BROWN_OUT) — a sweep then waited out its settling
+        for pulses that never came and ended "no telemetry while holding the command"."""
         amps, volts = tel.battery_ma / 1000.0, tel.battery_mv / 1000.0
+        if tel.power >= PowerState.SHED:
+            return f"the board shed the rotors (power {PowerState(tel.power).name}, battery {volts:.2f} V)"
         if amps > self.max_current_a:
             return f"battery current {amps:.2f} A over the limit {self.max_current_a:g} A"
         if self.min_battery_v is not None and volts < self.min_battery_v:
