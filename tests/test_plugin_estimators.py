@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from plugin_support import Delegating
 
 from hil.cli import main
 from hil.estimation.checked import ORTHONORMAL_TOL, RATE_LIMIT, CheckedEstimator
@@ -31,11 +32,12 @@ MODULE = "misbehaving_estimators_for_test"
 LOG = Path(__file__).resolve().parents[1] / "fixtures" / "logs" / "simulated_testbed_4s.csv"
 
 
-class Faulty:
+class Faulty(Delegating):
     """The variational estimator, until step ``after``: then what ``mode`` says."""
 
     def __init__(self, inner, mode: str, after: int) -> None:
-        self.inner, self.mode, self.after, self.n = inner, mode, after, 0
+        super().__init__(inner)
+        self.mode, self.after, self.n = mode, after, 0
 
     def step(self, s):
         self.n += 1
@@ -65,16 +67,6 @@ class Faulty:
                 b.t[:10], b.R[:10], b.omega[:10], b.omega_err[:10], b.flags[:10], b.iterations[:10]
             )
         return b
-
-    @property
-    def gyro_bias(self):
-        return self.inner.gyro_bias
-
-    def set_gyro_bias(self, b):
-        self.inner.set_gyro_bias(b)
-
-    def set_rest_learning(self, on):
-        self.inner.set_rest_learning(on)
 
 
 class FaultyKind:

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from plugin_support import still_samples
 
 from hil.cli import main
 from hil.estimation.sensors import SensorKind, SensorSample
@@ -52,17 +53,7 @@ class Still(PhoneSource):
 
     def drain(self, now):
         self.n += 1
-        if self.next_t is None:
-            self.next_t = now
-        out = []
-        while self.next_t <= now:
-            t = self.next_t
-            out += [
-                SensorSample(t, SensorKind.GYR, (0.0, 0.0, 0.0)),
-                SensorSample(t, SensorKind.ACC, (0.0, 0.0, 9.81)),
-                SensorSample(t, SensorKind.MAG, (20.0, 0.0, -40.0)),
-            ]
-            self.next_t += 0.005
+        out, self.next_t = still_samples(now if self.next_t is None else self.next_t, now)
         previous, self.previous = self.previous, out
         if self.n < self.after:
             return out

@@ -19,11 +19,11 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 import pytest
+from plugin_support import Delegating, still_samples
 
 from hil.cli import main
 from hil.estimation.estimator import Estimate
 from hil.estimation.registry import register_estimator
-from hil.estimation.sensors import SensorKind, SensorSample
 from hil.estimation.variational_kind import VARIATIONAL
 from hil.link import sources, transports
 from hil.link.sources import PhoneSource, SenderEvent, SenderStatus
@@ -46,17 +46,7 @@ class Rig(PhoneSource):
         self.n += 1
         if self.n >= 50 and self.q.get("drain") == "exit":
             sys.exit()  # a library written as a script: status 0, no message
-        if self.next_t is None:
-            self.next_t = now
-        out = []
-        while self.next_t <= now:
-            t = self.next_t
-            out += [
-                SensorSample(t, SensorKind.GYR, (0.0, 0.0, 0.0)),
-                SensorSample(t, SensorKind.ACC, (0.0, 0.0, 9.81)),
-                SensorSample(t, SensorKind.MAG, (20.0, 0.0, -40.0)),
-            ]
-            self.next_t += 0.005
+        out, self.next_t = still_samples(now if self.next_t is None else self.next_t, now)
         return out
 
     def truth(self, now):
@@ -122,11 +112,12 @@ class Relay(Transport):
         return {"adapter_frames": np.int64(self.n)}
 
 
-class Steps:
+class Steps(Delegating):
     """The variational estimator, until step 300: then what ``mode`` says."""
 
     def __init__(self, inner, mode: str) -> None:
-        self.inner, self.mode, self.n = inner, mode, 0
+        super().__init__(inner)
+        self.mode, self.n = mode, 0
 
     def step(self, s):
         self.n += 1
@@ -143,19 +134,6 @@ class Steps:
         if self.mode == "short_tuple":  # an Estimate tuple built by hand, its bytes cut short
             return tuple.__new__(Estimate, (e.t, e.flags, e.iterations, b"\0" * 8))
         return e
-
-    def run(self, steps, progress=None):
-        return self.inner.run(steps, progress)
-
-    @property
-    def gyro_bias(self):
-        return self.inner.gyro_bias
-
-    def set_gyro_bias(self, b):
-        self.inner.set_gyro_bias(b)
-
-    def set_rest_learning(self, on):
-        self.inner.set_rest_learning(on)
 
 
 def _boom(self):
