@@ -114,8 +114,8 @@ def test_a_scheduler_lost_mid_campaign_leaves_its_runs_to_the_next_session(tmp_p
     scenario = write_quick_scenario(tmp_path)
     out, reference = tmp_path / "campaign", tmp_path / "reference"
     cluster = _Cluster(tmp_path)
+    proc = _montecarlo(scenario, out, "--scheduler", cluster.address)
     try:
-        proc = _montecarlo(scenario, out, "--scheduler", cluster.address)
         deadline = time.monotonic() + 120.0
         while len(_rows(out)) < 2 and proc.poll() is None:  # some runs done, most to come
             assert time.monotonic() < deadline
@@ -123,6 +123,9 @@ def test_a_scheduler_lost_mid_campaign_leaves_its_runs_to_the_next_session(tmp_p
         cluster.kill_scheduler()
         stdout, stderr = proc.communicate(timeout=120)
     finally:
+        if proc.poll() is None:  # it hung on the lost scheduler: never left behind
+            proc.kill()
+            proc.communicate()
         cluster.close()
     assert proc.returncode == 2, (proc.returncode, stdout, stderr)
     assert cluster.address in stderr and "not run: the same command again runs them" in stderr, stderr
