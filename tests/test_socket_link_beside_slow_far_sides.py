@@ -113,18 +113,21 @@ def test_a_fast_far_side_is_drained_in_large_reads():
     listener.bind(("127.0.0.1", 0))
     listener.listen(1)
     port = listener.getsockname()[1]
-    sent = threading.Event()
+    opened = threading.Event()
 
     def far_side() -> None:
         conn, _ = listener.accept()
+        # after the open: pyserial's socket:// open discards what is waiting (reset_input_buffer), and a
+        # loaded machine once let the far side's bytes in before it
+        assert opened.wait(30.0)
         conn.sendall(bytes(range(256)) * (size // 256))
-        sent.set()
         time.sleep(5.0)
         conn.close()
 
     thread = threading.Thread(target=far_side, daemon=True)
     thread.start()
     transport = SerialTransport(f"socket://127.0.0.1:{port}").open()
+    opened.set()
     try:
         got = bytearray()
         reads = 0
