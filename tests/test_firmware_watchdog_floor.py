@@ -25,7 +25,7 @@ from protocol.messages import SCHEMA_HASH, CalibrationData, Hello
 
 
 @pytest.mark.firmware
-@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=6, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(config=loaded_configs, gap_s=st.sampled_from([0.0, 0.01, 0.05]))
 def test_uploads_unit_after_unit_never_trip_the_shortest_watchdog(config, gap_s):
     config = dataclasses.replace(config, mcu_watchdog_s=MCU_WATCHDOG_MIN_S)
@@ -37,9 +37,19 @@ def test_uploads_unit_after_unit_never_trip_the_shortest_watchdog(config, gap_s)
         host.run(0.05)
         sent: list[int] = []
         for unit in range(config.n_units):
+            # a unit's fragments, then its answers waited for, as BoardClient.upload_calibration does: the
+            # next unit's set comes while the sets before it are still being written to EEPROM (what
+            # made the main loop's pass long). (Streamed unit after unit without waiting, a 4-unit board
+            # at 250 Hz overflows its 384-byte receive ring whatever its watchdog: the host retries those.)
+            mine = []
             for part in fragment(unit, 10 + unit, set_bytes):
-                sent += host.send(part)
+                mine += host.send(part)
                 host.run(gap_s + 0.001, heartbeat_s=0.05)
+            for _ in range(50):
+                if all((CalibrationData.MSG_ID, seq) in host.answers for seq in mine):
+                    break
+                host.run(0.01, heartbeat_s=0.05)
+            sent += mine
         host.run(2.0, heartbeat_s=0.05)  # the EEPROM writes finish (3.3 ms a byte)
         resets = [r for r in host.board.resets[1:]]  # the first is the power-on boot
         assert not resets, [(round(r.t, 3), r.cause.name) for r in resets]
