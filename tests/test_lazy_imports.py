@@ -97,6 +97,22 @@ def test_building_the_command_line_does_not_import_numba():
     ) == {"metadata": False}
 
 
+def test_the_command_lines_module_imports_no_numpy_and_no_run_modules():
+    """``import hil.cli`` runs before hil's signal handlers are in place (``hil.cli.entry`` installs them,
+    then builds the parser): a Ctrl-C in it meets Python's own handler (a traceback; a SIGHUP right after
+    it killed the process). It once imported the run loop through ``hil.runtime``'s package file (~0.3 s:
+    numpy, the host, the board client); a run's modules now come in its command, under hil's handlers."""
+    loaded = _loaded(
+        """
+        import json, sys
+        import hil.cli
+        print(json.dumps(sorted(m for m in ("numpy", "hil.runtime.host", "hil.runtime.loop",
+                                            "hil.link.board") if m in sys.modules)))
+        """
+    )
+    assert loaded == []
+
+
 def test_numbas_blas_probe_does_not_load_scipy_linalg_and_scipy_still_imports():
     """numba's target loads numba.np.arraymath on a kernel's first call; its BLAS probe is declined (no
     scipy.linalg), once: an import of scipy.linalg afterwards works, and the guard is gone."""

@@ -79,18 +79,22 @@ def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int
     """Run the command ``argv`` names; its exit status. ``own_process``: this process is the command's
     (:func:`entry`): once it has ended, a signal ends the process at once with the command's status
     (:func:`exit_on_late_signals`); otherwise (a test calling it) the caller's handlers come back."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    level = logging.WARNING - 10 * min(args.verbose, 2)
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    said = "hil"  # the command's name once the command line is read: what its last line starts with
     try:
+        # The handlers first: building the parser imports every command's module (~0.3 s of a run's
+        # start), and a Ctrl-C there met Python's own handler: a traceback, and a SIGHUP right after it
+        # killed the process (status -1).
         with interrupts_raise(restore=not own_process):
+            args = build_parser().parse_args(argv)
+            said = f"hil {args.command}"
+            level = logging.WARNING - 10 * min(args.verbose, 2)
+            logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
             status = int(args.func(args) or 0)
     except HilError as exc:
-        print(f"hil {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{said}: error: {exc}", file=sys.stderr)
         status = 2
     except KeyboardInterrupt as exc:
-        print(f"hil {args.command}: interrupted ({signal_of(exc).name})", file=sys.stderr)
+        print(f"{said}: interrupted ({signal_of(exc).name})", file=sys.stderr)
         status = exit_status(exc)
     if own_process:
         exit_on_late_signals(status)
