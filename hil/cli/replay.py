@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from hil.estimation.registry import EstimatorChoice
+    from hil.runtime.loop import RunResult
 
 ORDER = 30
 MAX_GAP_S = 1.0  # hil.estimation.sensors.MAX_PAUSE_S (not imported here: the CLI loads its modules lazily)
@@ -353,4 +354,27 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         if plotter is not None:
             plotter.cancel()
         raise
+    _merge_warned(result)
     return report_ended(result, plotter, "hil replay")
+
+
+def _merge_warned(result: RunResult) -> None:
+    """The warnings the run's merge counters call for (:func:`hil.logs.replay.merge_warnings`, the batch
+    replay's: a sensor silent or NaN for much of the log, rows out of order), printed and in its
+    ``summary.json`` (``replay.warnings``). A magnetometer that stopped a quarter into the log left heading
+    unobserved for the rest, and the run said "completed" without a word, where the batch replay warned."""
+    from hil.logs.replay import merge_stats_of, merge_warnings
+    from hil.runtime.runlog import write_summary
+
+    counts = result.summary.get("phone_merge")
+    warnings = merge_warnings(merge_stats_of(counts)) if isinstance(counts, dict) else []
+    if not warnings:
+        return
+    for warning in warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    result.summary.setdefault("replay", {})["warnings"] = warnings
+    if result.run_dir is not None:
+        try:
+            write_summary(result.run_dir, result.summary)
+        except OSError as exc:  # the run's summary.json stays as the run wrote it; the warnings are said
+            print(f"hil replay: {exc}", file=sys.stderr)

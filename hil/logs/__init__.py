@@ -38,6 +38,7 @@ def _format_of(container: Container) -> str:
     """The format of the log ``container`` holds, or InputFormatError listing what was looked for."""
     name = _recognise(container)
     if name is not None:
+        _only_one_log(container)
         return name
     inside = logs_inside(container.path)
     hint = ""
@@ -64,23 +65,64 @@ def _recognise(container: Container) -> str | None:
     return next((name for name, reader in READERS.items() if reader.detect(container)), None)
 
 
-def logs_inside(folder: Path) -> list[Path]:
+def logs_inside(folder: Path, depth: int = 1) -> list[Path]:
     """The entries of ``folder`` (the first :data:`MAX_PROBED`, by name) that are logs themselves: a folder
-    of trials given where one trial was meant. Empty when ``folder`` is not a folder; an entry that cannot
-    be read is passed over (the error is the folder's, not its entries')."""
+    of trials given where one trial was meant; with ``depth`` > 1 also those in its sub-folders that are no
+    log, that many levels down. Empty when ``folder`` is not a folder; an entry that cannot be read is
+    passed over (the error is the folder's, not its entries')."""
+    return [path for path, _ in _logs_found(folder, depth, [MAX_PROBED])]
+
+
+def _logs_found(folder: Path, depth: int, budget: list[int]) -> list[tuple[Path, str]]:
+    """(entry, its format) of :func:`logs_inside`; ``budget`` the entries that may still be looked at."""
     if not folder.is_dir():
         return []
-    found = []
-    for entry in sorted(folder.iterdir())[:MAX_PROBED]:
+    found: list[tuple[Path, str]] = []
+    for entry in sorted(folder.iterdir()):
+        if budget[0] <= 0:
+            break
+        budget[0] -= 1
         try:
             if input_kind(entry, InputFormatError) == PIPE:
                 continue  # reading one would wait for its writer, and use it up
             with Container(entry) as container:
-                if _recognise(container) is not None:
-                    found.append(entry)
+                name = _recognise(container)
         except (InputFormatError, OSError):
             continue
+        if name is not None:
+            found.append((entry, name))
+        elif depth > 1 and entry.is_dir():
+            found += _logs_found(entry, depth - 1, budget)
     return found
+
+
+BENEATH = 2
+"""Levels of sub-folders :func:`_only_one_log` looks for logs in (``data/broad/01.mat`` beside
+``data/sensorlogger-android/``)."""
+
+
+def _only_one_log(container: Container) -> None:
+    """An InputFormatError listing them when the folder ``container`` holds logs of more than one format in
+    its sub-folders and archives (a Sensor Logger export beside tyrex trials and a BROAD ``.mat``): a
+    reader finds its own files among the others, and the folder replayed one of its logs, exit 0, the
+    others passed over without a word. Logs of one format are the reader's to read together (phyphox's
+    single-sensor exports) or refuse (Sensor Logger exports side by side). A folder whose files all lie at
+    its top (an export, a trial) is not looked into."""
+    if not container.path.is_dir() or not any("/" in name for name in container.names()):
+        return
+    by_format: dict[str, list[Path]] = {}
+    for path, name in _logs_found(container.path, BENEATH, [MAX_PROBED]):
+        by_format.setdefault(name, []).append(path)
+    if len(by_format) < 2:
+        return
+    listed = "; ".join(
+        f"{name}: {paths[0]}" + (f" and {len(paths) - 1} more" if len(paths) > 1 else "")
+        for name, paths in sorted(by_format.items())
+    )
+    raise InputFormatError(
+        f"logs of different formats in one folder ({listed}): it holds logs: replay one",
+        str(container.path),
+    )
 
 
 def read_log(path: Path | str, format: str | None = None) -> SensorLog:

@@ -46,9 +46,16 @@ DEG_S_RATIO = 7.5
 """Above this median ratio the gyroscope is suspected to read in deg/s (the procedure: module docstring)."""
 
 
+MAX_STEP_S = 1e6
+"""s: the longest step of a clock :func:`_cumulative` integrates over whole. A window (1 s) takes at most a
+second's worth of any step, so a longer step changes no window's figure; capped, a stray row at 1e160 or
+1e308 s makes no overflow (a reading times 1e308 s is infinite)."""
+
+
 def _cumulative(t: Array, y: Array) -> Array:
-    """The running trapezoid integral of ``y`` (N, k) over ``t`` (N,), starting at 0."""
-    steps = 0.5 * (y[1:] + y[:-1]) * np.diff(t)[:, None]
+    """The running trapezoid integral of ``y`` (N, k) over ``t`` (N,, increasing), starting at 0; a step of
+    ``t`` longer than :data:`MAX_STEP_S` counted as that long."""
+    steps = 0.5 * (y[1:] + y[:-1]) * np.minimum(np.diff(t), MAX_STEP_S)[:, None]
     return np.vstack([np.zeros((1, y.shape[1])), np.cumsum(steps, axis=0)])
 
 
@@ -65,6 +72,16 @@ def _window_starts(gt: Array, start: float, end: float) -> Array:
     return t0[np.isfinite(t0) & (t0 < end - WINDOW_S)]
 
 
+def _increasing(t: Array, y: Array) -> tuple[Array, Array]:
+    """``t`` (s) and its readings ``y`` in time order, a repeated time kept once. Dropping each sample not
+    later than the one before it kept a stray far ahead (one row at 1e160 s) among the rest: the integrals
+    were interpolated over a clock that went back, and overflowed."""
+    order = np.argsort(t, kind="stable")
+    t, y = t[order], y[order]
+    keep = np.diff(t, prepend=-np.inf) > 0
+    return t[keep], y[keep]
+
+
 def gyro_turn_ratio(log: SensorLog) -> tuple[float, int]:
     """(median ratio, windows of motion): the angle the gyroscope integrates over the angle the gravity
     direction turns, over windows of motion (module docstring); (nan, windows) when there are fewer than
@@ -77,8 +94,8 @@ def gyro_turn_ratio(log: SensorLog) -> tuple[float, int]:
     at, au = acc.t[a_ok], acc.xyz[a_ok] / a_norm[a_ok, None]
     if len(gt) < 3 or len(at) < 3:
         return math.nan, 0
-    keep_g, keep_a = np.diff(gt, prepend=-np.inf) > 0, np.diff(at, prepend=-np.inf) > 0  # increasing only
-    gt, gw, at, au = gt[keep_g], gw[keep_g], at[keep_a], au[keep_a]
+    gt, gw = _increasing(gt, gw)
+    at, au = _increasing(at, au)
     if len(gt) < 3 or len(at) < 3:
         return math.nan, 0
     turned = _cumulative(gt, gw)

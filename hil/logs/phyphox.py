@@ -8,7 +8,8 @@ Layouts read (docs/formats.md):
   ``Raw Data.csv`` and ``meta/time.csv``. Several of them in one folder (or zips in one folder) are read
   together: each file is on its own clock starting at 0, and its export's ``meta/time.csv`` (``"event",
   "experiment time","system time","system time text"``, rows ``START``/``PAUSE``) gives the system time of
-  its START, which puts every file on one clock;
+  its START, which puts every file on one clock (a START after a PAUSE: the stretch it resumes, placed
+  by its own system time — the experiment time stands still while paused);
 - a custom experiment's buffers, e.g. ``Acceleration.csv`` with ``"time","Acceleration x"`` (no unit:
   SI assumed).
 
@@ -33,6 +34,7 @@ from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
+from numpy.typing import NDArray
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, time_column
@@ -165,8 +167,8 @@ def read(c: Container) -> SensorLog:
         notes.append(f"ignored (gravity removed): {', '.join(linear)}")
     if SensorKind.MAG not in chosen:
         notes.append("no magnetometer file: 6-axis log, heading not observed (gyroscope only, drifting)")
-    offsets = _clock_offsets(c, {f.group for f in chosen.values()}, notes)
-    streams = {kind: _stream(c, f, offsets[f.group], notes) for kind, f in chosen.items()}
+    clocks = _clock_offsets(c, {f.group for f in chosen.values()}, notes)
+    streams = {kind: _stream(c, f, clocks[f.group], notes) for kind, f in chosen.items()}
     acc_norm = float(np.nanmedian(np.linalg.norm(streams[SensorKind.ACC].xyz, axis=1)))
     if acc_norm < 3.0:
         raise InputFormatError(
@@ -177,7 +179,7 @@ def read(c: Container) -> SensorLog:
     return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
 
 
-def _stream(c: Container, f: _File, offset_s: float, notes: list[str]) -> SensorStream:
+def _stream(c: Container, f: _File, clock: _Clock, notes: list[str]) -> SensorStream:
     kind = f.kind
     assert kind is not None
     use = partial(_sensor_columns, kind=kind)
@@ -196,7 +198,7 @@ def _stream(c: Container, f: _File, offset_s: float, notes: list[str]) -> Sensor
             table.header_line,
             t_col,
         )
-    return SensorStream(kind, t + offset_s, xyz)
+    return SensorStream(kind, clock.place(t), xyz)
 
 
 def _sensor_columns(header: Header, kind: SensorKind) -> list[str]:
@@ -207,11 +209,31 @@ def _sensor_columns(header: Header, kind: SensorKind) -> list[str]:
     return [t_col, *(col for col, _ in axes)]
 
 
-def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str, float]:
-    """Seconds to add to each export's times to put them on one clock (0 for a single export)."""
+@dataclass(frozen=True)
+class _Clock:
+    """Where an export's experiment times lie on the exports' one clock: from each START of its
+    ``meta/time.csv`` on (``starts``, experiment time s, increasing), ``shifts`` s added (its system time
+    then, less its experiment time, less the exports' earliest start). phyphox's experiment time stands
+    still while an experiment is paused and goes on from there when it is resumed, while the system time
+    goes on: each stretch between a START and the next has a shift of its own, later by the pause."""
+
+    starts: tuple[float, ...] = (0.0,)
+    shifts: tuple[float, ...] = (0.0,)
+
+    def place(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Experiment times ``t`` (s) on the one clock: each shifted by its stretch's shift (a time before
+        the first START by the first's; NaN stays NaN)."""
+        if len(self.starts) == 1:
+            return t + self.shifts[0]
+        at = np.clip(np.searchsorted(np.asarray(self.starts), t, side="right") - 1, 0, len(self.starts) - 1)
+        return t + np.asarray(self.shifts)[at]
+
+
+def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str, _Clock]:
+    """Each export's :class:`_Clock`, which puts them all on one clock (no shift for a single export)."""
     if len(groups) == 1:
-        return dict.fromkeys(groups, 0.0)
-    starts = {}
+        return dict.fromkeys(groups, _Clock())
+    runs: dict[str, list[tuple[float, float]]] = {}
     for g in sorted(groups):
         name = g + TIME_CSV
         if not c.has(name):
@@ -221,7 +243,8 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
                 "their clocks cannot be aligned (each starts at 0)",
                 str(c.path),
             )
-        starts[g] = _start_system_time(c, name)
+        runs[g] = _start_system_times(c, name)
+    starts = {g: run[0][1] for g, run in runs.items()}
     first = min(starts.values())
     if max(starts.values()) - first > MAX_RECORDING_S:  # exports of one recording start within its length
         median = float(np.median(list(starts.values())))
@@ -237,13 +260,26 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
         "exports aligned by meta/time.csv: "
         + ", ".join(f"{g.rstrip('/')} +{s - first:.3f} s" for g, s in sorted(starts.items()))
     )
-    return {g: s - first for g, s in starts.items()}
+    clocks = {}
+    for g, run in sorted(runs.items()):
+        clocks[g] = _Clock(tuple(e for e, _ in run), tuple(s - first for _, s in run))
+        if len(run) > 1:
+            paused = ", ".join(
+                f"at {e:.3f} s for {s - p:.3f} s" for (e, s), (_, p) in zip(run[1:], run[:-1], strict=True)
+            )
+            notes.append(
+                f"{g + TIME_CSV}: the export was paused and resumed {len(run) - 1} time(s) (its experiment "
+                f"time stood still; resumed {paused}): each stretch placed by its START's system time"
+            )
+    return clocks
 
 
-def _start_system_time(c: Container, name: str) -> float:
-    """System time (s since the epoch) at experiment time 0, from the first START row. The file is in its
-    export's dialect (phyphox writes it with the data's separator and decimal mark); its ``event`` is
-    text, read as 0 for START, and its ``system time text`` is never parsed."""
+def _start_system_times(c: Container, name: str) -> list[tuple[float, float]]:
+    """(experiment time, system time less experiment time) of each START row, s — the system time (s since
+    the epoch) at which each stretch's experiment time would have been 0 — in order: the first is the
+    export's start, each later one a resume after a PAUSE. The file is in its export's dialect (phyphox
+    writes it with the data's separator and decimal mark); its ``event`` is text, read as 0 for START, and
+    its ``system time text`` is never parsed."""
     delimiter, decimal_comma = sniff_dialect([line for line in c.head(name, 8) if line.strip()])
     table = read_table(
         c,
@@ -254,19 +290,28 @@ def _start_system_time(c: Container, name: str) -> float:
         use=_TIME_COLUMNS,
         converters={"event": _start_event},
     )
-    starts = np.flatnonzero(table.column("event") == 0.0)
-    if not len(starts):
+    rows = np.flatnonzero(table.column("event") == 0.0)
+    if not len(rows):
         raise InputFormatError("no START event", table.source, table.header_line)
-    row = starts[0]
-    system, experiment = float(table.column("system time")[row]), float(table.column("experiment time")[row])
-    start = system - experiment
-    if not (math.isfinite(system) and math.isfinite(experiment) and abs(start) <= MAX_EPOCH_S):
-        raise InputFormatError(
-            f"its START event's system time {system!r} s less its experiment time {experiment!r} s is no "
-            f"time since the epoch (within ±{MAX_EPOCH_S:.0e} s): the exports cannot be aligned by it",
-            table.source,
-        )
-    return start
+    run: list[tuple[float, float]] = []
+    for row in rows:
+        system = float(table.column("system time")[row])
+        experiment = float(table.column("experiment time")[row])
+        start = system - experiment
+        if not (math.isfinite(system) and math.isfinite(experiment) and abs(start) <= MAX_EPOCH_S):
+            raise InputFormatError(
+                f"its START event's system time {system!r} s less its experiment time {experiment!r} s is "
+                f"no time since the epoch (within ±{MAX_EPOCH_S:.0e} s): the exports cannot be aligned by it",
+                table.source,
+            )
+        if run and not (experiment >= run[-1][0] and start >= run[-1][1]):
+            raise InputFormatError(
+                f"a START at experiment time {experiment!r} s, system time {system!r} s, before the one "
+                "before it: the experiment time and the system time of a resume go on from the pause",
+                table.source,
+            )
+        run.append((experiment, start))
+    return run
 
 
 _TIME_COLUMNS = ("event", "experiment time", "system time")

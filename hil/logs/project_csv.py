@@ -69,7 +69,7 @@ def read(c: Container) -> SensorLog:
         if len(rows) or kind is not SensorKind.MAG:  # no magnetometer rows: a 6-axis log
             streams[kind] = SensorStream(kind, rows[:, 0], rows[:, 2:5])
     for stream in streams.values():
-        _check_seconds(stream, where)
+        check_seconds(stream, where)
     truth_rows = data[data[:, 1] == 3]
     truth = None
     if len(truth_rows):
@@ -93,11 +93,12 @@ MIN_STEPS = 10
 """Steps a sensor needs before its median step is judged (a few rows either side of a gap say little)."""
 
 
-def _check_seconds(stream: SensorStream, where: str) -> None:
-    """An :class:`InputFormatError` naming ``t_s`` when a sensor's samples lie a median step apart that no
-    phone sensor's do (:data:`SLOWEST_STEP_S`): a time in ms or ns written under ``t_s``. Read as seconds,
-    ns since the epoch put each sample 10⁷ s from the next, every one a part of its own, and the replay
-    said only that no part had every sensor speaking."""
+def check_seconds(stream: SensorStream, where: str, column: str = "t_s") -> None:
+    """An :class:`InputFormatError` naming ``where`` and the time ``column`` when a sensor's samples lie a
+    median step apart that no phone sensor's do (:data:`SLOWEST_STEP_S`): a time in ms or ns written
+    where seconds go (this format's ``t_s``, a tyrex file's first column). Read as seconds, ns since the
+    epoch put each sample 10⁷ s from the next, every one a part of its own, and the replay said only that
+    no part had every sensor speaking (a tyrex gyroscope in ms: that the magnetometer gave no direction)."""
     t = stream.t[np.isfinite(stream.t)]
     steps = np.diff(t)
     steps = steps[steps > 0]
@@ -107,10 +108,10 @@ def _check_seconds(stream: SensorStream, where: str) -> None:
     if step > SLOWEST_STEP_S:
         raise InputFormatError(
             f"the {stream.kind.label} rows lie a median {step:.6g} s apart: no phone sensor samples more "
-            f"than {SAMPLE_STEP_S[1]:g} s apart; t_s is in seconds (a time in ms or ns written there?)",
+            f"than {SAMPLE_STEP_S[1]:g} s apart; {column} is in seconds (a time in ms or ns written there?)",
             where,
             None,
-            "t_s",
+            column,
         )
 
 

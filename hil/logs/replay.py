@@ -28,9 +28,10 @@ from __future__ import annotations
 import json
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +62,7 @@ from hil.estimation.sensors import (
 from hil.files.output import make_dir
 from hil.logs import read_log
 from hil.logs.acc_units import acc_unit_warning
+from hil.logs.file_names import sensor_files_where
 from hil.logs.gyro_units import gyro_unit_warning
 from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
@@ -454,8 +456,8 @@ def drop_out_of_range(log: SensorLog, limits: ReadingLimits) -> tuple[SensorLog,
         if beyond[kind.label] and not len(streams[kind]):
             raise InputFormatError(
                 f"every {kind.name} reading ({beyond[kind.label]}) is beyond the sensor's range "
-                f"(|value| > {limits.limit(kind):g})",
-                log.source,
+                f"(|value| > {limits.limit(kind):g} {kind.unit}){_UNIT_HINTS[kind]}",
+                sensor_files_where(log, _FILE_STEMS[kind]),
             )
     if not any(beyond.values()):
         return log, beyond
@@ -463,6 +465,17 @@ def drop_out_of_range(log: SensorLog, limits: ReadingLimits) -> tuple[SensorLog,
         if n:
             logger.warning("%s: %d %s readings beyond the sensor's range dropped", log.source, n, label)
     return replace(log, streams=streams), beyond
+
+
+_FILE_STEMS = {SensorKind.GYR: "[Gg]yro", SensorKind.ACC: "[Aa]ccel", SensorKind.MAG: "[Mm]agnet"}
+"""Each sensor's files, as :func:`hil.logs.file_names.sensor_files_where` finds them in a log's notes."""
+_UNIT_HINTS = {
+    SensorKind.GYR: ": a gyroscope in mdeg/s or another unit? convert it to rad/s",
+    SensorKind.ACC: ": an accelerometer in mg or cm/s^2? convert it to m/s^2",
+    SensorKind.MAG: ": a magnetometer in nT (the Earth's field is 20-70 uT, 20 000-70 000 nT)? convert it "
+    "to uT (divide by 1000)",
+}
+"""What a sensor none of whose readings is within its range most likely reads in."""
 
 
 def _ranges(limits: ReadingLimits) -> str:
@@ -490,7 +503,9 @@ def merge_warnings(stats: MergeStats) -> list[str]:
     """The warnings a replay's merge counters call for (:data:`LOSS_WARNED`), one per sensor and kind."""
     out = []
     for label in stats.accepted:
-        counts = {reason: getattr(stats, reason)[label] for reason in ("nan", "duplicate", "out_of_order")}
+        counts = {
+            reason: getattr(stats, reason).get(label, 0) for reason in ("nan", "duplicate", "out_of_order")
+        }
         lost = sum(counts.values())
         total = lost + stats.accepted[label]
         if total and lost > LOSS_WARNED * total:
@@ -500,10 +515,27 @@ def merge_warnings(stats: MergeStats) -> list[str]:
                 f"{label}: {lost} of its {total} samples dropped ({why}): {causes}; the estimates rest on "
                 "what is left"
             )
-        stale = stats.stale_steps[label]
+        stale = stats.stale_steps.get(label, 0)
         if stats.steps and stale > LOSS_WARNED * stats.steps and stats.accepted[label]:
             out.append(f"{label}: stale (no fresh sample) on {stale} of {stats.steps} steps")
     return out
+
+
+def merge_stats_of(counts: Mapping[str, Any]) -> MergeStats:
+    """A merge's counters from their ``summary.json`` form (:meth:`MergeStats.as_dict`: a run's
+    ``phone_merge``), for :func:`merge_warnings`: ``hil replay --port`` warns of what its run's merge
+    counted as the batch replay of the same log does."""
+    dropped = counts.get("dropped", {})
+    return MergeStats(
+        accepted=dict(counts.get("accepted", {})),
+        nan=dict(dropped.get("nan", {})),
+        duplicate=dict(dropped.get("duplicate", {})),
+        out_of_order=dict(dropped.get("out_of_order", {})),
+        stale_steps=dict(counts.get("stale_steps", {})),
+        steps=int(counts.get("steps", 0)),
+        gaps=int(counts.get("gaps", 0)),
+        failover_steps=int(counts.get("failover_steps", 0)),
+    )
 
 
 def _check_length(part: SensorLog, steps: int, source: str, merged: bool = False) -> None:
@@ -609,8 +641,9 @@ def write_estimates(est: EstimateBatch, path: Path) -> Path:
 
     Formatted :data:`_WRITE_ROWS` rows at a time (one ``%`` per block: twice as fast as a row at a time),
     each block turned into Python numbers on its own: the whole table as Python objects would cost ~320
-    bytes a step, more than the estimates themselves."""
-    row = ",".join(["%.9g"] * 8) + ",%d,%d\n"
+    bytes a step, more than the estimates themselves. ``t_s`` is written to the µs whatever the clock's
+    origin (:func:`time_digits`); the other columns to 9 significant digits."""
+    row = f"%.{time_digits(est.t)}g," + ",".join(["%.9g"] * 7) + ",%d,%d\n"
     quat = est.quat
     with path.open("w", encoding="utf-8", newline="\n") as f:
         f.write(ESTIMATES_COMMENT + "\n")
@@ -623,6 +656,17 @@ def write_estimates(est: EstimateBatch, path: Path) -> Path:
             block[:, 9] = est.iterations[start:stop]
             f.write((row * len(block)) % tuple(block.ravel().tolist()))
     return path
+
+
+def time_digits(t: Array) -> int:
+    """The significant digits that write every time of ``t`` (s) to the µs: 9 (all a log on a clock from
+    its start needs, up to 1000 s) or more, up to 17 (a double's). A log whose clock is Unix time (1.7e9 s:
+    a re-saved export, the project's CSV with epoch ``t_s``) had its step times rounded to 10 s by 9
+    digits, hundreds of steps sharing one time."""
+    finite = np.abs(t[np.isfinite(t)])
+    largest = float(finite.max()) if finite.size else 0.0
+    whole = math.floor(math.log10(largest)) + 1 if largest >= 1.0 else 0  # digits before the point
+    return max(9, min(17, whole + 6))
 
 
 _WRITE_ROWS = 65536

@@ -42,6 +42,7 @@ from hil.logs.table import (
     Header,
     Table,
     content_head,
+    one_copy,
     read_table,
     sniff_dialect,
     split_header,
@@ -102,6 +103,19 @@ def members(c: Container) -> dict[str, str] | None:
     each is a log of its own)."""
     groups = _by_folder(c)  # every folder holding one: a second recording's is never passed over
     return next(iter(groups.values()), {}) if len(groups) <= 1 else None
+
+
+def _other_copies(c: Container, member: str) -> list[str]:
+    """The members beside ``member``, in its folder, that are the same file of the app's by name
+    (``Gyroscope.csv.gz`` beside ``Gyroscope.csv``, a ``gyroscope.csv`` beside it): :func:`_by_folder`
+    keeps the first of them, and the others were passed over without a word."""
+    folder, _, base = member.rpartition("/")
+    plain = _plain(base).lower()
+    return [
+        m
+        for m in sorted(c.names())
+        if m != member and m.rpartition("/")[0] == folder and _plain(m.rpartition("/")[2]).lower() == plain
+    ]
 
 
 def _sensor_files(files: Mapping[str, str]) -> bool:
@@ -632,6 +646,10 @@ def read(c: Container) -> SensorLog:
             str(c.path),
         )
     layout: list[str] = []
+    for member in files.values():  # a second copy of a file beside it: read once, or refused
+        _, same = one_copy(c, [member, *_other_copies(c, member)])
+        if same is not None:
+            layout.append(same)
     if any(m.rpartition("/")[2] != _plain(m.rpartition("/")[2]) for m in files.values()):
         layout.append("the export's files are gzipped (.csv.gz): read decompressed")
     if any(_plain(m) != name for name, m in files.items()):
@@ -690,8 +708,8 @@ def _assemble(
             mag = None
             continue
         parts[kind] = (times, xyz)
-        if kind is SensorKind.GYR:
-            notes.append(f"gyroscope: {export.files[name]}")  # named where its unit is doubted (deg/s?)
+        # named where its unit is doubted (a gyroscope in deg/s?, a magnetometer in nT?)
+        notes.append(f"{'gyroscope' if kind is SensorKind.GYR else 'magnetometer'}: {export.files[name]}")
         if "Uncalibrated" in name:
             notes.append(f"{name}: no calibrated file in the export, using the uncalibrated one")
     if _first(files, MAG_FILES) is None:

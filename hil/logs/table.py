@@ -307,6 +307,18 @@ class Container:
             data = _guarded(f.read, where)
         return decode_text(data)
 
+    def same_bytes(self, a: str, b: str) -> bool:
+        """Whether members ``a`` and ``b`` hold the same bytes, each decompressed if it is a ``.gz``
+        (compared a piece at a time: neither is held whole)."""
+        with self._open(a) as fa, self._open(b) as fb:
+            while True:
+                x = _guarded(lambda: fa.read(CHUNK_BYTES), self.where(a))
+                y = _guarded(lambda: fb.read(CHUNK_BYTES), self.where(b))
+                if x != y:
+                    return False
+                if not x:
+                    return True
+
     def count_samples(self, rows: int, where: str, line: int | None) -> None:
         """Count ``rows`` more rows read from the log's tables; past :data:`MAX_LOG_SAMPLES` an
         InputFormatError naming the file and the line reached."""
@@ -318,6 +330,27 @@ class Container:
                 where,
                 line,
             )
+
+
+def one_copy(c: Container, copies: Sequence[str]) -> tuple[str, str | None]:
+    """The member to read of ``copies`` — the names one file may have in a log, preferred first (the
+    app's ``Gyroscope.csv`` and a ``Gyroscope.csv.gz`` beside it; a tyrex trial's ``….txt.gz`` and the
+    ``….txt`` gunzipped beside it) — at least one of which is present, and a note when several are. Copies
+    with the same bytes (decompressed: ``gunzip -k``) are read once, noted; different ones are an
+    :class:`InputFormatError` naming both: which one is the recording cannot be told, and reading one
+    passed the other over without a word."""
+    present = [name for name in copies if c.has(name)]
+    first = present[0]
+    for other in present[1:]:
+        if not c.same_bytes(first, other):
+            raise InputFormatError(
+                f"another copy of {c.where(first)} whose bytes differ (decompressed): which of the two is "
+                "the recording cannot be told; remove one",
+                c.where(other),
+            )
+    if len(present) == 1:
+        return first, None
+    return first, f"{', '.join(present[1:])}: the same bytes as {first} (decompressed), read once"
 
 
 _DAMAGED = (OSError, EOFError, zipfile.BadZipFile, gzip.BadGzipFile, zlib.error)

@@ -22,7 +22,8 @@ import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
 from hil.logs.matfile import load_mat, one_rate, real_array
-from hil.logs.table import Container, read_table
+from hil.logs.project_csv import check_seconds
+from hil.logs.table import Container, one_copy, read_table
 from protocol.errors import InputFormatError
 
 NAME = "tyrex"
@@ -33,24 +34,16 @@ EXCLUDED: dict[str, tuple[tuple[float, float], ...]] = {
     "Dist_Swinging": ((59.7, 60.5), (73.1, 73.5)),
     "NoDist_AR": ((64.0, 120.0),),
 }
-"""Motion-capture-time intervals (s) the benchmark's authors exclude, by trial-name suffix."""
+"""Motion-capture-time intervals (s) the benchmark's authors exclude, by trial condition: the name of a trial
+(``Guillaume_Nexus5_Dist_Phoning``) after its person and phone (:func:`excluded`)."""
 _FILES = {
-    SensorKind.ACC: ("accelerometer.txt.gz", "accelerometer.txt"),
-    SensorKind.GYR: (
-        "gyroscope-calibrated.txt.gz",
-        "gyroscope-calibrated.txt",
-        "gyroscope.txt.gz",
-        "gyroscope.txt",
-    ),
-    SensorKind.MAG: (
-        "magnetometer-calibrated.txt.gz",
-        "magnetometer-calibrated.txt",
-        "magnetometer.txt.gz",
-        "magnetometer.txt",
-    ),
+    SensorKind.ACC: ("accelerometer.txt",),
+    SensorKind.GYR: ("gyroscope-calibrated.txt", "gyroscope.txt"),
+    SensorKind.MAG: ("magnetometer-calibrated.txt", "magnetometer.txt"),
 }
-"""Each sensor's files, preferred first: the calibrated ones, gzipped (as published) or not (a trial
-gunzipped), before the raw ones."""
+"""Each sensor's files, preferred first: the calibrated one before the raw one; each gzipped (as published,
+``.txt.gz``) or not (a trial gunzipped): two copies of one file are read once when their bytes are the
+same, refused when they differ (:func:`hil.logs.table.one_copy`)."""
 _SENSOR_COLUMNS = ("col0", "col1", "col2", "col3")
 """The columns of a sensor file that are read, by position (the files have no header): time, x, y, z. The
 raw files' bias columns after them — or any column a tool added there, text or numbers — are never
@@ -64,15 +57,23 @@ def detect(c: Container) -> bool:
 def read(c: Container) -> SensorLog:
     notes = ["tyrex smartphone benchmark trial"]
     streams = {}
-    for kind, names in _FILES.items():
-        name = next((n for n in names if c.has(n)), None)
-        if name is None:
-            raise InputFormatError(f"missing {names[0]}", str(c.path))
+    read: list[str] = []
+    for kind, files in _FILES.items():
+        copies = next(((f + ".gz", f) for f in files if c.has(f + ".gz") or c.has(f)), None)
+        if copies is None:
+            raise InputFormatError(f"missing {files[0]}.gz", str(c.path))
+        name, same = one_copy(c, copies)
+        if same is not None:
+            notes.append(same)
         if "calibrated" not in name and kind is not SensorKind.ACC:
             notes.append(f"{name}: uncalibrated (the OS bias columns are ignored)")
         table = read_table(c, name, None, header=False, min_columns=4, use=_SENSOR_COLUMNS)
         notes.extend(table.layout_notes())
-        streams[kind] = SensorStream(kind, table.data[:, 0], table.data[:, 1:4])
+        stream = SensorStream(kind, table.data[:, 0], table.data[:, 1:4])
+        check_seconds(stream, table.source, _SENSOR_COLUMNS[0])  # a time in ms: an error naming the file
+        streams[kind] = stream
+        read.append(name)
+    notes.append(f"read {', '.join(read)}")  # named where a sensor's unit is doubted
     truth = _truth(c, notes) if c.has("qualisys.mat") else None
     return SensorLog(streams, str(c.path), NAME, truth, tuple(notes))
 
@@ -112,11 +113,21 @@ def _truth(c: Container, notes: list[str]) -> Truth:
     r = np.transpose(rot.T.reshape(n, 3, 3), (0, 2, 1))
     t_mocap = np.arange(n) / rate
     evaluate = (t_mocap >= EVALUATED_S[0]) & (t_mocap <= EVALUATED_S[1]) & np.all(np.isfinite(rot), axis=0)
-    trial = c.name  # the trial's folder, or its archive's name without .zip (not the archive's file name)
-    for suffix, intervals in EXCLUDED.items():
-        if trial.endswith(suffix):
-            for a, b in intervals:
-                evaluate &= ~((t_mocap >= a) & (t_mocap <= b))
-            notes.append(f"truth: excluded motion-capture intervals {intervals} (benchmark authors)")
+    intervals = excluded(c.name)  # the trial's folder, or its archive's name without .zip
+    if intervals:
+        for a, b in intervals:
+            evaluate &= ~((t_mocap >= a) & (t_mocap <= b))
+        notes.append(f"truth: excluded motion-capture intervals {intervals} (benchmark authors)")
     notes.append(f"truth: Qualisys at {rate:g} Hz, phone time = mocap time − ({offset:+g} s)")
     return Truth(t_mocap - offset, r, evaluate)
+
+
+def excluded(trial: str) -> tuple[tuple[float, float], ...]:
+    """The motion-capture intervals (s) the benchmark's authors exclude from the trial named ``trial``
+    (:data:`EXCLUDED`): its condition is the whole name, or the name's end after an underscore —
+    ``Guillaume_Nexus5_NoDist_Phoning`` is ``NoDist_Phoning``, whose intervals the authors give none of;
+    a bare ``endswith`` matched it against ``Dist_Phoning`` and scored it without 40.5–40.8 s."""
+    for condition, intervals in EXCLUDED.items():
+        if trial == condition or trial.endswith("_" + condition):
+            return intervals
+    return ()
