@@ -26,7 +26,7 @@ from test_board_client_pty import drive, firmware_sim
 from firmware_sim.board.config import BoardConfig
 from firmware_sim.board.core import Board
 from hil.link.board import BoardClient, BoardResetEvent, ClientConfig, ConnectedEvent, LogEvent, StateEvent
-from hil.link.board.session import AGE_SLACK_S, DROP_WARN_EVERY_S, Phase, Session
+from hil.link.board.session import AGE_SLACK_S, DROP_WARN_EVERY_S, STALE_REANCHOR, Phase, Session
 from hil.timing.clock import LockstepClock
 from protocol.errors import BoardReset
 from protocol.frame import Deframer, Frame, encode_frame
@@ -43,7 +43,9 @@ from protocol.messages import (
     Log,
     ResetCause,
     Severity,
+    Telemetry,
     UnitSetpoint,
+    UnitState,
 )
 from protocol.reliable import CommandState
 
@@ -296,23 +298,31 @@ class _Hand:
         return self.to_host(reply, hello.seq)
 
 
-def test_a_reset_found_by_the_uptime_is_told_before_the_disarmed_state_the_handshake_finds():
-    """An armed board's uptime goes back while it still says ARMED; the handshake that asks why finds it
-    DISARMED. The reset is told first: told after the state, a run read ARMED → DISARMED as a Disarm no
-    command asked for (two faults for one reset, one false: a fake board's report)."""
+def _armed(boot_id: int) -> _Hand:
+    """A session handshaken with a board of ``boot_id`` (0: one that does not say its boot id), armed,
+    three Heartbeats heard (uptime 5 000, 5 200, 5 400 ms), the events so far cleared."""
     hand = _Hand()
     hand.t = 1.0
     sent = [f for f in Deframer().feed(hand.session.link_up(hand.t)) if isinstance(f, Frame)]
-    hand.reply(sent, 0x1234, BoardState.DISARMED)
+    hand.reply(sent, boot_id, BoardState.DISARMED)
     cmd, data = hand.session.command(Arm(), hand.t)
     [arm] = [f for f in Deframer().feed(data) if isinstance(f, Frame)]
     hand.to_host(Ack(msg_id=Arm.MSG_ID, seq=arm.seq))
     assert cmd.state is CommandState.ACKED and hand.session.state is BoardState.ARMED
     for ms in (5000, 5200, 5400):
-        hand.to_host(Heartbeat(time_ms=ms, state=BoardState.ARMED, boot_id=0x1234))
+        hand.to_host(Heartbeat(time_ms=ms, state=BoardState.ARMED, boot_id=boot_id))
     hand.events.clear()
-    asked = hand.to_host(Heartbeat(time_ms=10, state=BoardState.ARMED, boot_id=0x1234))  # uptime back
-    hand.reply(asked, 0x1234, BoardState.DISARMED)
+    return hand
+
+
+def test_a_reset_found_by_the_uptime_is_told_before_the_disarmed_state_the_handshake_finds():
+    """An armed board's uptime goes back while it still says ARMED; the handshake that asks why finds it
+    DISARMED. The reset is told first: told after the state, a run read ARMED → DISARMED as a Disarm no
+    command asked for (two faults for one reset, one false: a fake board's report). A board that does not
+    say its boot id: one that does is believed over a count gone back (the tests below)."""
+    hand = _armed(0)
+    asked = hand.to_host(Heartbeat(time_ms=10, state=BoardState.ARMED, boot_id=0))  # uptime back
+    hand.reply(asked, 0, BoardState.DISARMED)
     [reset] = [e for e in hand.events if isinstance(e, BoardResetEvent)]
     [disarmed] = [e for e in hand.events if isinstance(e, StateEvent) and e.new is BoardState.DISARMED]
     assert hand.events.index(reset) < hand.events.index(disarmed), hand.events
@@ -358,3 +368,71 @@ def test_a_board_log_reaches_the_terminal_with_its_control_characters_escaped(te
     assert not any(ord(c) < 0x20 and c != "\t" or 0x7F <= ord(c) < 0xA0 or c == "\u202e" for c in line)
     [event] = [e for e in hand.events if isinstance(e, LogEvent)]
     assert event.log.text == text
+
+
+@pytest.mark.parametrize("kind", ["Telemetry", "Heartbeat"])
+@pytest.mark.parametrize("behind_ms", [1, 150, 5000])
+def test_an_old_sample_of_the_same_boot_is_dropped_and_counted_not_a_reset(kind, behind_ms):
+    """A sample behind what the same boot already said — a frame replayed, or held back on the way longer
+    than an overtaking — from a board that says its boot id, not saying BOOT: dropped and counted, the
+    board kept armed, no Hello, the held Telemetry still the newest. It was a reset: a Hello that disarmed
+    the board, a reset counted that never happened and, a Telemetry, one a second old held as the board's
+    word on now."""
+    hand = _armed(0x1234)
+    resets = hand.session.counters.resets  # the one the handshake's answer told of (EXTERNAL)
+    hand.to_host(_telemetry(hand, 5500, BoardState.ARMED))
+
+    def sample(time_ms: int) -> Telemetry | Heartbeat:
+        if kind == "Telemetry":
+            return _telemetry(hand, time_ms, BoardState.ARMED)
+        return Heartbeat(time_ms=time_ms, state=BoardState.ARMED, boot_id=0x1234)
+
+    hand.to_host(sample(5510))  # the newest of its own kind: the old one goes back on it
+    asked = hand.to_host(sample(5510 - behind_ms))
+    s = hand.session
+    assert not any(isinstance(f.message, Hello) for f in asked)
+    assert s.counters.resets == resets and s.counters.board_samples_stale == 1
+    assert s.armed and s.state is BoardState.ARMED
+    assert s.telemetry is not None and s.telemetry.time_ms == (5510 if kind == "Telemetry" else 5500)
+    assert not [e for e in hand.events if isinstance(e, (BoardResetEvent, StateEvent))]
+    hand.to_host(_telemetry(hand, 5520, BoardState.ARMED))  # the board goes on: taken
+    assert s.telemetry.time_ms == 5520 and s.counters.board_samples_stale == 1
+
+
+def test_after_one_sample_ahead_within_the_slack_the_boards_own_are_taken_again():
+    """One Heartbeat 4 s ahead of the board (within the leaps' slack, so taken); the board's honest
+    samples after it are behind it: the first two dropped, the third anchors the counts anew — no reset,
+    the board kept armed, its samples taken from then on."""
+    hand = _armed(0x1234)
+    resets = hand.session.counters.resets
+    hand.to_host(Heartbeat(time_ms=9400, state=BoardState.ARMED, boot_id=0x1234))
+    for k in range(STALE_REANCHOR + 2):
+        hand.to_host(_telemetry(hand, 5420 + 20 * k, BoardState.ARMED))
+    s = hand.session
+    assert s.counters.resets == resets and s.armed
+    assert s.counters.board_samples_stale == STALE_REANCHOR - 1 and s.counters.board_reanchors == 1
+    assert s.telemetry.time_ms == 5420 + 20 * (STALE_REANCHOR + 1)
+
+
+def test_a_board_that_restarts_with_the_same_boot_id_saying_boot_is_still_a_reset():
+    """A simulated board may draw the same boot id at its restart; it says BOOT until a handshake, and
+    that with its uptime gone back is a reset, as before."""
+    hand = _armed(0x1234)
+    resets = hand.session.counters.resets
+    asked = hand.to_host(Heartbeat(time_ms=30, state=BoardState.BOOT, boot_id=0x1234))
+    assert any(isinstance(f.message, Hello) for f in asked)
+    hand.reply(asked, 0x1234, BoardState.DISARMED)
+    assert hand.session.counters.resets == resets + 1 and hand.session.counters.board_samples_stale == 0
+    assert [e for e in hand.events if isinstance(e, BoardResetEvent)]
+
+
+def _telemetry(hand: _Hand, time_ms: int, state: BoardState) -> Telemetry:
+    """A Telemetry of the hand-played board (its units at rest, every channel at 1 500 µs)."""
+    info = hand.session.info
+    assert info is not None
+    return Telemetry(
+        time_ms=time_ms,
+        state=state,
+        units=tuple(UnitState() for _ in range(info.n_units)),
+        pulses_us=(1500,) * info.n_channels,
+    )

@@ -8,6 +8,9 @@ the tested path: a real TCP far side on the loopback and the real client and tra
 2. **A fast far side.** pyserial's ``socket://`` says only *whether* bytes wait (``in_waiting`` 0 or 1),
    and the transport drained by that count: a byte a call, 1 MiB cost 7 s of CPU in 4 reads, the
    session fed nothing meanwhile. Such a port is now drained by one read of what has come.
+3. **A lost link's close.** pyserial's ``socket://`` close sleeps 0.3 s; done under the client's lock, it
+   held the control thread as long (a ``host_stall`` journalled for a TCP board's loss). The lost port is
+   now closed outside the lock, as a reconnect's is opened.
 """
 
 from __future__ import annotations
@@ -104,6 +107,51 @@ def test_a_reconnect_whose_connect_waits_never_holds_the_callers_setpoints():
         # took 5 s a try
         assert worst < 2.0, f"send_setpoint waited {worst:.2f} s while the link reconnected"
     finally:
+        client.close()
+        board.close()
+
+
+class _GatedClose(SerialTransport):
+    """pyserial's ``socket://`` port, its close held until the test lets it go (pyserial's own close sleeps
+    0.3 s, rfc2217's joins its reader for up to 7 s first: a wait the test can see without a stopwatch)."""
+
+    def __init__(self, url: str) -> None:
+        super().__init__(url)
+        self.closing = threading.Event()
+        self.release = threading.Event()
+
+    def _close(self) -> None:
+        self.closing.set()
+        self.release.wait(10.0)
+        super()._close()
+
+
+def test_a_lost_links_close_never_holds_the_callers_setpoints():
+    """3. **A lost link's close.** The reader closed the lost port under the client's lock, so pyserial's
+    ``socket://`` close (a 0.3 s sleep) held the control thread's ``send_setpoint`` as long: the run
+    journalled its own ``host_stall`` for a TCP board's loss. The port is now closed outside the lock."""
+    board = _TcpBoard()
+    transport = _GatedClose(f"socket://127.0.0.1:{board.port}")
+    client = BoardClient(transport)
+    setpoint = ActuatorSetpoint(units=(UnitSetpoint(0.0, 100.0),))
+    try:
+        client.connect(timeout=5.0)
+        client.start()
+        board.cut()
+        assert transport.closing.wait(10.0), "the reader never closed the lost port"
+        returned = threading.Event()
+
+        def send() -> None:
+            client.send_setpoint(setpoint)  # dropped and counted: no session is up
+            returned.set()
+
+        threading.Thread(target=send, daemon=True).start()
+        held = not returned.wait(5.0)
+        transport.release.set()
+        assert not held, "send_setpoint waited for the lost port's close"
+        assert not client.connected
+    finally:
+        transport.release.set()
         client.close()
         board.close()
 

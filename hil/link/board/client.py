@@ -128,6 +128,7 @@ class BoardClient:
         self._read_end: float | None = None  # when the last read of the transport returned
         self._port_absent = False  # the link is down and the port was seen gone since (Transport.present)
         self._open_due = False  # a reconnection try is due: the pump opens the port outside the lock
+        self._close_due = False  # the link was lost: the pump closes the port outside the lock
 
     # ================================================================== session
     def connect(self, timeout: float | None = None) -> BoardInfo:
@@ -421,7 +422,7 @@ class BoardClient:
         wake = self.session.next_deadline()
         if self._reconnect_at is not None:
             wake = min(wake, self._reconnect_at)
-        if isinstance(self.transport, InProcessBoard) and self.transport.is_open:
+        if isinstance(self.transport, InProcessBoard) and self._port_open():
             wake = min(wake, self.transport.next_wake())
         return wake
 
@@ -431,7 +432,7 @@ class BoardClient:
             self._check()
         data = b""
         waiting_since = self._read_end  # what this read returns may have waited since then
-        if self.transport.is_open:
+        if self._port_open():
             try:
                 data = self.transport.read(read_timeout)
                 self._read_end = self.clock.now()
@@ -457,8 +458,25 @@ class BoardClient:
             finally:
                 self._dispatch()
                 self._cond.notify_all()
+        if self._close_due:
+            self._close_lost_port()
         if self._open_due:
             self._reopen()
+
+    def _port_open(self) -> bool:
+        """Whether the transport is open and not lost: a port whose link was lost is closed by the pump,
+        outside the lock (:meth:`_close_lost_port`), and is read and written no more meanwhile."""
+        return self.transport.is_open and not self._close_due
+
+    def _close_lost_port(self) -> None:
+        """The port of a lost link closed outside the client's lock, as :meth:`_reopen` opens it: pyserial's
+        ``socket://`` and ``rfc2217://`` sleep 0.3 s in their close ("give the server some time"; rfc2217
+        joins its reader for up to 7 s first), and under the lock that held every caller's
+        ``send_setpoint`` as long — the run took the loss of a TCP board for its own control tick's stall
+        (``host_stall``). Only the pump closes or opens, so nothing else uses the transport meanwhile."""
+        self.transport.close()
+        with self._cond:
+            self._close_due = False
 
     def _reopen(self) -> None:
         """A reconnection's try (:meth:`_keep_link` found one due), the port opened outside the client's
@@ -504,7 +522,7 @@ class BoardClient:
                 self._cond.notify_all()
 
     def _write(self, data: bytes, now: float) -> None:
-        if data and self.transport.is_open and self._write_failure is None:
+        if data and self._port_open() and self._write_failure is None:
             try:
                 self.transport.write(data)
             except LinkError as exc:
@@ -520,7 +538,7 @@ class BoardClient:
         if not self._connected:
             raise exc
         self._last_error = str(exc)
-        self.transport.close()
+        self._close_due = True  # closed by the pump once it has let go of the lock (_close_lost_port)
         self.session.link_down(now, str(exc))
         if self._lost_at is None:
             self._lost_at, self._attempts = now, 0
@@ -538,7 +556,7 @@ class BoardClient:
 
     def _keep_link(self, now: float) -> None:
         s = self.session
-        if self._connected and self._reconnect_at is None and not self.transport.is_open:
+        if self._connected and self._reconnect_at is None and not self._port_open():
             # Closed behind the client's back between reads (by another thread or a backend), not by
             # _lose_link (which schedules the reconnection): a write to a closed port is skipped and
             # nothing is read, so without this the session would wait on it forever.
@@ -555,9 +573,9 @@ class BoardClient:
         if s.phase is Phase.READY:
             self._lost_at, self._attempts, self._busy_logged = None, 0, False
             return
-        if s.phase is Phase.DOWN and self.transport.is_open and self._connected:
+        if s.phase is Phase.DOWN and self._port_open() and self._connected:
             self._lose_link(now, s.failure or LinkError("session lost"))  # the board stopped answering
-        if self._reconnect_at is None or self.transport.is_open:
+        if self._reconnect_at is None or self._port_open():
             return
         if now < self._reconnect_at:
             self._watch_port(now)  # may bring the next try forward to now

@@ -147,7 +147,10 @@ was overtaken on the way, not a reset. On CAN frames go by priority: a Heartbeat
 Telemetry (STATUS, several segments) wins arbitration and comes first, and the Telemetry's uptime is then
 behind the Heartbeat's — taken for a reset, 20 a second, each with a handshake that disarmed the board. A
 kind's own frames come in order (one CAN id each, one serial stream), so its own count going back, or a
-sample further behind, is still a reset."""
+sample further behind, is still a reset — unless the board says its boot id (:meth:`Session._stale`)."""
+STALE_REANCHOR = 3
+"""Samples of the same boot behind the newest one heard, one after the other, after which the newest was
+the absurd one (a sample ahead within the leaps' slack): the counts are anchored anew on the third."""
 DROP_WARN_EVERY_S = 1.0
 """Host time (s) between two warnings about dropped board frames (the rest are counted, then summed)."""
 AGE_SLACK_S = 0.5
@@ -247,6 +250,7 @@ class Session:
         self._age_check_from: float | None = None  # set by a reconnect: its first sample's age is checked
         self._last_rx_frames: int | None = None  # the board's count of valid frames taken, since its boot
         self._reply_since_sample: HelloReply | None = None
+        self._stale_in_a_row = 0  # samples of the same boot dropped one after the other as old (_stale)
         self._reset_evidence: str | None = None
         self._setpoint_slot = -math.inf
         self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
@@ -620,6 +624,22 @@ class Session:
                 rx_frames,
             )
             self._leaps.restart(uptime_ms, rx_frames, frames_out, now)
+        stale = None if boot_changed is not None else self._stale(kind, uptime_ms, rx_frames, state)
+        if stale is None:
+            self._stale_in_a_row = 0
+        else:
+            self._stale_in_a_row += 1
+            if self._stale_in_a_row < STALE_REANCHOR:
+                self.counters.board_samples_stale += 1
+                self._drop(now, f"a sample older than what the same boot of the board already said: {stale}")
+                return None
+            self.counters.board_reanchors += 1
+            logger.warning(
+                "board samples consistently behind the newest one heard of the same boot (%s): that one was "
+                "the absurd one; taking these from now on",
+                stale,
+            )
+            self._anchor_anew()
         last = self._last_uptime
         overtaken = boot_changed is None and _overtaken(last, self._last_uptime_of.get(kind), uptime_ms)
         self._last_uptime_of[kind] = uptime_ms
@@ -686,6 +706,46 @@ class Session:
             self.phase = Phase.HANDSHAKING
             self._hello(now)
         return made
+
+    def _stale(
+        self, kind: type, uptime_ms: int, rx_frames: int | None, state: BoardState | None
+    ) -> str | None:
+        """Why a sample is an old frame of the boot the session has — replayed, or held back on the way for
+        longer than :data:`OVERTAKEN_MS` — rather than a reset (counts gone back); None if it is not. Only
+        where it can be told: the board says its boot id (a reset changes it: the next Heartbeat tells), the
+        sample does not say BOOT (a restarted board says it until a handshake, whatever its boot id: a
+        simulated one may draw the same again), and the session runs on (no handshake since the last
+        sample, whose answer any restart would have come with). One such frame once disarmed the board,
+        counted a reset that never happened and, a Telemetry, was held as the board's word on now."""
+        if (
+            not self._boot_id
+            or state is BoardState.BOOT
+            or self.phase is not Phase.READY
+            or self._lost
+            or self._reply_since_sample is not None
+            or self._age_check_from is not None
+        ):
+            return None
+        last = self._last_uptime
+        if (
+            last is not None
+            and _went_back(last, uptime_ms)
+            and not _overtaken(last, self._last_uptime_of.get(kind), uptime_ms)
+        ):
+            return f"its uptime {uptime_ms} ms is behind the {last} ms already heard"
+        last_rx = self._last_rx_frames
+        if last_rx is not None and rx_frames is not None and _went_back(last_rx, rx_frames):
+            return f"its count of frames taken ({rx_frames}) is behind the {last_rx} already heard"
+        return None
+
+    def _anchor_anew(self) -> None:
+        """The boot's counts anchored on the next sample taken: the newest ones heard were the absurd ones
+        (one sample ahead of the board within the leaps' slack, and every honest one after it behind)."""
+        self._last_uptime = self._last_rx_frames = self._uptime_ms = None
+        self._last_uptime_of.clear()
+        self._leaps = LeapCheck()
+        self._made_at.forget_boot()
+        self._stale_in_a_row = 0
 
     def _reset_seen(self, now: float, evidence: str) -> None:
         """What every reset seen does before it is reported: an armed board's reset held for the caller

@@ -67,6 +67,8 @@ class SessionCounters:
     board_reanchors: int = 0  # leaps so consistent that the first counts heard were the absurd ones
     # Telemetry/Heartbeat a little behind the newest of the other kind (overtaken on CAN): taken, no reset
     board_samples_overtaken: int = 0
+    # Telemetry/Heartbeat behind what the same boot already said (replayed, held back on the way): dropped
+    board_samples_stale: int = 0
     board_logs_unlogged: int = 0  # board Log frames beyond BOARD_LOGS_PER_S: reported as events, not logged
     echoes: int = 0  # the host's own frames come back (the port echoes what is written): dropped
     host_frames: int = 0  # frames only a host sends that this host did not write (another host): dropped
