@@ -76,6 +76,9 @@ def test_a_client_s_spelling_of_the_type_and_its_timestamp_as_a_string_are_read(
         (b'{"type": "android.sensor.gyroscope", "timestamp": 5, "values": [1, 2]}', "3 numbers"),
         (b'{"type": "android.sensor.gyroscope", "timestamp": 5, "values": [1, "x", 2]}', "numbers"),
         (b'{"type": "android.sensor.gyroscope", "timestamp": 5, "values": [1, NaN, 2]}', "finite"),
+        # digits that are no ASCII digits: str.isdigit() takes them, int() does not (a bare ValueError)
+        (b'{"type": "android.sensor.gyroscope", "timestamp": "\\u00b2", "values": [1, 2, 3]}', "timestamp"),
+        (b'{"type": "android.sensor.gyroscope", "timestamp": "\\u0663", "values": [1, 2, 3]}', "timestamp"),
     ],
 )
 def test_malformed_datagrams_are_input_format_errors_naming_the_source(data, reason):

@@ -26,6 +26,11 @@ reason              the reading
                     newest): a datagram that overtook another, or a clock stepped back a little (NTP)
 ``burst``           comes less than :data:`MIN_INTERVAL_S` after the last reading of its sensor: faster
                     than any phone samples (a flood of plausible readings)
+``slow_clock``      comes from a stream whose clock runs slow against the host's: the least
+                    host-minus-stamp offset of its readings grew by more than :data:`CLOCK_RATE_SLACK`
+                    of the host's time in each of :data:`SLOW_WINDOWS` windows in a row (a phone's
+                    clock at half speed had every reading accepted, the rotation integrated at half
+                    its rate); dropped until a window's least offset stops growing
 ==================  =====================================================================================
 
 **The clock guard.** A stream whose clock really moved — an app restarted (its clock back at zero), a
@@ -70,6 +75,15 @@ A phone's clock keeps the host's to parts per million and a network only ever de
 stream that gains on the host's clock by more than this, for :data:`JUMP_S`, runs fast: its readings are
 ``future``, and a stream of them re-anchors the clock (``JUMP``) as a jump would. A delay that shrinks
 by more than :data:`JUMP_S` at once (a stream that started behind a backlog) is taken for one jump."""
+SLOW_WINDOW_S = 1.0
+"""s of host time: the window over which the least host-minus-stamp offset of a stream's readings is taken
+to judge whether its clock runs slow. The least, not each reading's: a network that stalls and then
+delivers what it held delays the held readings, never the last ones of the burst, so the least offset of a
+window holds still through a stall; only a clock that falls behind moves it window after window."""
+SLOW_WINDOWS = 3
+"""Windows in a row whose least offset grew on the one before by more than :data:`CLOCK_RATE_SLACK` of
+their host time before a stream's clock is taken to run slow (one growth is a clock that paused once, or
+a delay that set in: its offsets then hold, and the stream is taken as it is)."""
 MIN_INTERVAL_S = 1e-4
 """s: readings of one sensor closer than this are a flood, not a phone (10 kHz; phones sample ≤ 500 Hz)."""
 
@@ -96,7 +110,17 @@ class Verdict(enum.Enum):
     STRAY = "stray"  # the reading anchored on was a stray (none of its clock followed): re-anchored here
 
 
-REASONS = ("bad_time", "non_finite", "out_of_range", "future", "past", "duplicate", "out_of_order", "burst")
+REASONS = (
+    "bad_time",
+    "non_finite",
+    "out_of_range",
+    "future",
+    "past",
+    "duplicate",
+    "out_of_order",
+    "burst",
+    "slow_clock",
+)
 """Why a reading is dropped. ``out_of_order`` is the merger's own reason, checked here first: a reading
 the admission let through and the merger then dropped went to no count of ``summary.json``'s
 ``phone_admission`` (issue: a reordered UDP stream lost 1 in 12 readings, "accepted")."""
@@ -138,6 +162,13 @@ class PhoneGuard:
         self._run_count = 0
         self._run_first = self._run_last = 0.0
         self._limits_of: ReadingLimits | None = None  # the limits _bounds was made from
+        # the slow-clock judge (SLOW_WINDOW_S): the window's start (host s), the least offset in it (s), the
+        # previous window's (NaN: none), the growths in a row, and whether the clock is taken to run slow
+        self._window_at = -math.inf
+        self._window_least = math.inf
+        self._last_least = math.nan
+        self._growths = 0
+        self.slow = False
         self._bounds: tuple[float, ...] = ()
 
     def admit(self, sample: SensorSample, now: float | None = None) -> Verdict:
@@ -177,6 +208,14 @@ class PhoneGuard:
                 return self._reanchor(sample, Verdict.RESTART if side < 0 else Verdict.JUMP, now)
             return self._drop("past" if side < 0 else "future")
         self._run_side = 0
+        if now is not None:
+            offset = now - t
+            if offset < self._window_least:
+                self._window_least = offset
+            if now - self._window_at >= SLOW_WINDOW_S:
+                self._judge_rate(now)
+            if self.slow:
+                return self._drop("slow_clock")
         last = self._last.get(sample.kind)
         if last is not None:
             if t == last:
@@ -198,6 +237,23 @@ class PhoneGuard:
             return False
         slid = CLOCK_RATE_SLACK * max(now - self._offset_at, 0.0)
         return now - t < self._offset - slid - JUMP_S  # NaN (no reference): False
+
+    def _judge_rate(self, now: float) -> None:
+        """A window of :data:`SLOW_WINDOW_S` ended at ``now`` (host s): whether its least offset grew on the
+        last window's by more than :data:`CLOCK_RATE_SLACK` of the host time between them — the stream's
+        clock falling behind — and so whether, after :data:`SLOW_WINDOWS` such windows in a row, the clock
+        runs slow (a window that did not grow ends it)."""
+        least = self._window_least
+        if self._window_at > -math.inf and least - self._last_least > CLOCK_RATE_SLACK * (
+            now - self._window_at
+        ):
+            self._growths += 1
+        else:
+            self._growths = 0
+        self.slow = self._growths >= SLOW_WINDOWS or (self.slow and self._growths > 0)
+        self._last_least = least
+        self._window_at = now
+        self._window_least = math.inf
 
     def _reason(self, sample: SensorSample) -> str | None:
         """Why the reading cannot be one at all (its own values), or None."""
@@ -247,6 +303,9 @@ class PhoneGuard:
         self.anchored_from = self.newest
         self.newest = -math.inf
         self._offset = math.nan  # the new clock's reference: this reading's
+        self._window_at, self._window_least, self._last_least = -math.inf, math.inf, math.nan
+        self._growths = 0
+        self.slow = False  # judged anew on the new clock
         self._last.clear()
         self._run_side = 0
         self._anchor(sample.t_s)
@@ -281,6 +340,8 @@ __all__ = [
     "CLOCK_RATE_SLACK",
     "JUMP_S",
     "KINDS",
+    "SLOW_WINDOWS",
+    "SLOW_WINDOW_S",
     "AdmissionStats",
     "PhoneGuard",
     "ReadingLimits",

@@ -158,7 +158,8 @@ class PhoneClock:
         """Why the phone is not fresh at ``t``, for a user, and the causes to name in the record: for
         each needed sensor not heard within ``stale_after_s``, nothing came, or what came was refused
         and for what — a clock that stopped (its stamps repeated: ``phone_clock_stopped``), went back
-        (``phone_clock_back``), or readings refused for other reasons (``phone_readings_refused``)."""
+        (``phone_clock_back``), runs slow (``phone_clock_slow``), or readings refused for other reasons
+        (``phone_readings_refused``)."""
         heard = self.heard
         silent: list[str] = []
         by_cause: dict[str, list[str]] = {}  # cause -> "N gyroscope" parts
@@ -177,6 +178,8 @@ class PhoneClock:
                 cause = "phone_clock_stopped"
             elif refused["out_of_order"] + refused["past"] >= total / 2:
                 cause = "phone_clock_back"
+            elif refused["slow_clock"] >= total / 2:
+                cause = "phone_clock_slow"
             else:
                 cause = "phone_readings_refused"
                 reasons = ", ".join(f"{r} {n}" for r, n in refused.most_common())
@@ -192,6 +195,12 @@ class PhoneClock:
             said.append(
                 f"the phone's clock went back: {' and '.join(by_cause['phone_clock_back'])} readings "
                 "stamped before their sensor's last (dropped: out_of_order, past)"
+            )
+        if "phone_clock_slow" in by_cause:
+            said.append(
+                "the phone's clock runs slow against the host's: "
+                f"{' and '.join(by_cause['phone_clock_slow'])} readings refused (slow_clock): integrated, "
+                "they would turn the attitude at its clock's rate"
             )
         said += refused_why
         return ("; ".join(said) or "no reading came"), list(by_cause)

@@ -270,7 +270,7 @@ def _reading(entry: dict[str, Any]) -> tuple[int | float, tuple[float, float, fl
     if not isinstance(values, dict) or isinstance(t_raw, bool) or not isinstance(t_raw, (int, float, str)):
         return None
     try:
-        whole = isinstance(t_raw, int) or (isinstance(t_raw, str) and t_raw.isdigit())
+        whole = isinstance(t_raw, int) or (isinstance(t_raw, str) and t_raw.isascii() and t_raw.isdigit())
         raw: int | float = int(t_raw) if whole else float(t_raw)
         xyz = (float(values["x"]), float(values["y"]), float(values["z"]))
         seconds = float(raw) * 1e-9  # finite in any unit iff finite in ns

@@ -96,7 +96,7 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
     if kind is None:
         return None
     t_ns, values = doc.get("timestamp"), doc.get("values")
-    if isinstance(t_ns, str) and t_ns.strip().isdigit():  # a client that writes its long as a string
+    if isinstance(t_ns, str) and t_ns.strip().isascii() and t_ns.strip().isdigit():  # its long as a string
         t_ns = int(t_ns)
     if isinstance(t_ns, bool) or not isinstance(t_ns, (int, float)):
         raise InputFormatError(f"{doc['type']}: 'timestamp' must be a number of nanoseconds", source)
