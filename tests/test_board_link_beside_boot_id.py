@@ -301,10 +301,7 @@ class _Hand:
 def _armed(boot_id: int) -> _Hand:
     """A session handshaken with a board of ``boot_id`` (0: one that does not say its boot id), armed,
     three Heartbeats heard (uptime 5 000, 5 200, 5 400 ms), the events so far cleared."""
-    hand = _Hand()
-    hand.t = 1.0
-    sent = [f for f in Deframer().feed(hand.session.link_up(hand.t)) if isinstance(f, Frame)]
-    hand.reply(sent, boot_id, BoardState.DISARMED)
+    hand = _handshaken_to(boot_id)
     cmd, data = hand.session.command(Arm(), hand.t)
     [arm] = [f for f in Deframer().feed(data) if isinstance(f, Frame)]
     hand.to_host(Ack(msg_id=Arm.MSG_ID, seq=arm.seq))
@@ -329,11 +326,7 @@ def test_a_reset_found_by_the_uptime_is_told_before_the_disarmed_state_the_hands
 
 
 def _handshaken() -> _Hand:
-    hand = _Hand()
-    hand.t = 1.0
-    sent = [f for f in Deframer().feed(hand.session.link_up(hand.t)) if isinstance(f, Frame)]
-    hand.reply(sent, 0x1234, BoardState.DISARMED)
-    return hand
+    return _handshaken_to(0x1234)
 
 
 def test_a_reset_storm_is_every_reset_counted_and_a_warning_a_second(caplog):
@@ -436,3 +429,34 @@ def _telemetry(hand: _Hand, time_ms: int, state: BoardState) -> Telemetry:
         units=tuple(UnitState() for _ in range(info.n_units)),
         pulses_us=(1500,) * info.n_channels,
     )
+
+
+@pytest.mark.parametrize("boot_id", [0, 0x1234])
+def test_a_telemetry_overtaken_across_the_uptimes_wrap_is_taken_not_refused_as_a_leap(boot_id):
+    """A board up 49.7 days: a Telemetry made 7 ms before its uptime wraps arrives after a Heartbeat made
+    2 ms after it (CAN by priority). It went back by 7 ms — overtaken, taken — not on by 49 days: it was
+    refused as a leap ("its uptime leapt from 2 ms to 4294967291 ms"), the board's own frame dropped."""
+    hand = _handshaken_to(boot_id)
+    hand.events.clear()
+    wrap = 1 << 32
+    for ms in (wrap - 300, wrap - 200, wrap - 100):
+        hand.to_host(_telemetry(hand, ms, BoardState.DISARMED))
+        hand.to_host(Heartbeat(time_ms=ms + 1, state=BoardState.DISARMED, boot_id=boot_id))
+    asked = hand.to_host(Heartbeat(time_ms=2, state=BoardState.DISARMED, boot_id=boot_id))
+    asked += hand.to_host(_telemetry(hand, wrap - 5, BoardState.DISARMED))
+    s = hand.session
+    assert not any(isinstance(f.message, Hello) for f in asked)
+    assert (s.counters.board_leaps, s.counters.board_samples_overtaken) == (0, 1)
+    assert s.telemetry is not None and s.telemetry.time_ms == wrap - 5
+    hand.to_host(_telemetry(hand, 25, BoardState.DISARMED))  # on past the wrap: taken, no reset
+    assert s.telemetry.time_ms == 25 and s.counters.board_samples_stale == 0
+    assert not [e for e in hand.events if isinstance(e, BoardResetEvent)]
+
+
+def _handshaken_to(boot_id: int) -> _Hand:
+    """A session handshaken with a board of ``boot_id`` (0: one that does not say it)."""
+    hand = _Hand()
+    hand.t = 1.0
+    sent = [f for f in Deframer().feed(hand.session.link_up(hand.t)) if isinstance(f, Frame)]
+    hand.reply(sent, boot_id, BoardState.DISARMED)
+    return hand

@@ -41,27 +41,28 @@ from protocol.messages import (
 
 UNITS = 4
 NODE = 5
+WRAP = 1 << 32  # a board's uptime is a u32 of ms: it wraps after 49.7 days
 
 
 class _PriorityBoard:
     """A board on ``url`` whose every Telemetry (each 50 ms) is overtaken by a Heartbeat made ``lead_ms``
     after it (its segments sent between the Telemetry's); :meth:`restart` gives it a new boot."""
 
-    def __init__(self, url: str, lead_ms: int) -> None:
+    def __init__(self, url: str, lead_ms: int, up_s: float = 5.0) -> None:
         self.far = CanTransport(url, sends=Direction.TO_HOST).open()
         self.segmenter = CanSegmenter(NODE, Direction.TO_HOST, False)
         self.framer = Framer()
         self.lead_ms = lead_ms
         self.state = BoardState.DISARMED
         self.boot_id = 0x1234ABCD
-        self.t0 = time.monotonic() - 5.0  # 5 s up
+        self.t0 = time.monotonic() - up_s  # up_s up
         self.stop = threading.Event()
         self.lock = threading.Lock()
         self.thread = threading.Thread(target=self._serve, daemon=True)
         self.thread.start()
 
     def uptime_ms(self) -> int:
-        return int((time.monotonic() - self.t0) * 1000)
+        return int((time.monotonic() - self.t0) * 1000) % WRAP
 
     def restart(self) -> None:
         with self.lock:
@@ -113,7 +114,9 @@ class _PriorityBoard:
                         rx_frames=10,
                     )
                     tel_segments = self.segmenter.segment(self.framer.encode(tel)[1])
-                    beat = Heartbeat(time_ms=t + self.lead_ms, state=self.state, boot_id=self.boot_id)
+                    beat = Heartbeat(
+                        time_ms=(t + self.lead_ms) % WRAP, state=self.state, boot_id=self.boot_id
+                    )
                     beat_segments = self.segmenter.segment(self.framer.encode(beat)[1])
                     assert len(tel_segments) > 3
                     for seg in [*tel_segments[:3], *beat_segments, *tel_segments[3:]]:
@@ -128,10 +131,15 @@ class _PriorityBoard:
         self.far.close()
 
 
-@pytest.mark.parametrize("lead_ms", [1, 3, OVERTAKEN_MS])
-def test_telemetry_overtaken_by_a_heartbeat_is_no_reset_and_a_real_restart_still_is(lead_ms):
-    url = f"can://virtual/priority-order-{lead_ms}?node={NODE}"
-    board = _PriorityBoard(url, lead_ms)
+@pytest.mark.parametrize(
+    ("lead_ms", "up_s"),
+    [(1, 5.0), (3, 5.0), (OVERTAKEN_MS, 5.0), (3, WRAP / 1000.0 - 0.8)],  # the last: its uptime wraps
+)
+def test_telemetry_overtaken_by_a_heartbeat_is_no_reset_and_a_real_restart_still_is(lead_ms, up_s):
+    """Also across the uptime's wrap (a board up 49.7 days): a Telemetry made just before it, overtaken by a
+    Heartbeat made just after it, went back by a few ms, not on by 49 days — it was refused as a leap."""
+    url = f"can://virtual/priority-order-{lead_ms}-{up_s:.0f}?node={NODE}"
+    board = _PriorityBoard(url, lead_ms, up_s)
     client = BoardClient(url)
     try:
         client.connect(timeout=5.0)
@@ -143,6 +151,7 @@ def test_telemetry_overtaken_by_a_heartbeat_is_no_reset_and_a_real_restart_still
         stats = client.stats()
         assert stats.as_dict()["counters.resets"] == 0 and stats.as_dict()["counters.handshakes"] == 1
         assert stats.as_dict()["counters.board_samples_overtaken"] >= 5  # ~30, fewer on a busy machine
+        assert stats.as_dict()["counters.board_leaps"] == 0
         assert client.state is BoardState.ARMED
         client.send_setpoint(ActuatorSetpoint(units=(UnitSetpoint(0.0, 100.0),) * UNITS))  # still armed
         board.restart()

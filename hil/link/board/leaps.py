@@ -39,6 +39,27 @@ from dataclasses import dataclass
 _U32 = 1 << 32
 _HALF = _U32 // 2
 
+ACROSS_WRAP = 10_000
+"""How far (ms, or frames) a count may go back across its wrap: a Telemetry made just before a board's
+uptime wraps (49.7 days up), overtaken by a Heartbeat made just after it, went back by a few ms — it was
+taken as on by 49 days, and refused as a leap. Further back across the wrap is a leap ahead, as ever (a
+count of 10 followed by 3·10⁹ is no count that went back by 1.3·10⁹)."""
+
+
+def went_back(last: int, now: int) -> bool:
+    """Whether a board's u32 count (its uptime in ms, its frames taken) went back from ``last`` to ``now``
+    rather than on: below it by less than half the count's range, or above it by all but at most
+    :data:`ACROSS_WRAP` (back across the wrap)."""
+    if now < last:
+        return last - now < _HALF
+    return 0 < (last - now) % _U32 <= ACROSS_WRAP
+
+
+def behind(newest: int, now: int) -> int:
+    """How far (the count's units) ``now`` is behind ``newest``, modulo 2³² (see :func:`went_back`)."""
+    return (newest - now) % _U32
+
+
 CLOCK_RATE = 1.01
 """How fast a board's clock may run against the host's: 1 % (ten times a cheap resonator's tolerance)."""
 UPTIME_SLACK_MS = 5_000
@@ -69,7 +90,7 @@ class _Count:
     def ahead(self, raw: int) -> int | None:
         """``raw`` unwrapped against the last value taken, if it moved on (None: it went back — by less
         than half the range, the session's rule — which is the reset detector's business, not a leap)."""
-        if raw < self.raw and self.raw - raw < _HALF:
+        if went_back(self.raw, raw):
             return None
         return self.value + (raw - self.raw) % _U32
 

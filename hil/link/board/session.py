@@ -131,7 +131,7 @@ from .events import (
     TelemetryEvent,
     printable,
 )
-from .leaps import CLOCK_RATE, LeapCheck
+from .leaps import CLOCK_RATE, LeapCheck, behind, went_back
 from .made_at import MadeAt
 from .stats import RttRing, SessionCounters
 from .transfers import CalibrationTransfers, Download
@@ -646,7 +646,7 @@ class Session:
         if overtaken:
             assert last is not None and self._uptime_ms is not None
             self.counters.board_samples_overtaken += 1
-            ran_ms = self._uptime_ms - (last - uptime_ms)  # before the newest: nothing else moves back
+            ran_ms = self._uptime_ms - behind(last, uptime_ms)  # before the newest: nothing else moves back
             return self._made_at.sample(ran_ms / 1000.0, now)
         self._last_uptime = uptime_ms
         last_rx = self._last_rx_frames
@@ -664,9 +664,9 @@ class Session:
             else self._uptime_ms + (uptime_ms - last) % _U32
         )
         evidence = None
-        if last is not None and _went_back(last, uptime_ms):
+        if last is not None and went_back(last, uptime_ms):
             evidence = f"its uptime went back from {last} ms to {uptime_ms} ms"
-        elif last_rx is not None and rx_frames is not None and _went_back(last_rx, rx_frames):
+        elif last_rx is not None and rx_frames is not None and went_back(last_rx, rx_frames):
             evidence = f"its count of frames taken went back from {last_rx} to {rx_frames}"
         elif state is BoardState.BOOT and self.phase is Phase.READY:
             evidence = "it reports BOOT in the middle of a session"
@@ -729,12 +729,12 @@ class Session:
         last = self._last_uptime
         if (
             last is not None
-            and _went_back(last, uptime_ms)
+            and went_back(last, uptime_ms)
             and not _overtaken(last, self._last_uptime_of.get(kind), uptime_ms)
         ):
             return f"its uptime {uptime_ms} ms is behind the {last} ms already heard"
         last_rx = self._last_rx_frames
-        if last_rx is not None and rx_frames is not None and _went_back(last_rx, rx_frames):
+        if last_rx is not None and rx_frames is not None and went_back(last_rx, rx_frames):
             return f"its count of frames taken ({rx_frames}) is behind the {last_rx} already heard"
         return None
 
@@ -1078,12 +1078,6 @@ def _overtaken(newest: int | None, own_last: int | None, uptime_ms: int) -> bool
     """Whether a sample at ``uptime_ms`` (ms) is behind the ``newest`` of any kind by at most
     :data:`OVERTAKEN_MS` while its own kind's count (``own_last``) did not go back: a frame another kind
     overtook on the way (CAN by priority), not a board that reset."""
-    if newest is None or not _went_back(newest, uptime_ms) or newest - uptime_ms > OVERTAKEN_MS:
+    if newest is None or not went_back(newest, uptime_ms) or behind(newest, uptime_ms) > OVERTAKEN_MS:
         return False
-    return own_last is None or not _went_back(own_last, uptime_ms)
-
-
-def _went_back(last: int, now: int) -> bool:
-    """Whether a board's u32 count (its uptime in ms, its frames taken) went back from ``last`` to ``now``
-    rather than on (past its wrap: a count that wraps moves on by less than half its range)."""
-    return now < last and last - now < _U32 // 2
+    return own_last is None or not went_back(own_last, uptime_ms)
