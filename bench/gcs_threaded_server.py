@@ -22,7 +22,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from hil.gcs.access import Access
 from hil.gcs.hub import Hub
-from hil.gcs.uplink import Uplink
+from hil.gcs.uplink import Uplink, UplinkRefused
 from hil.link.sources.http_guard import BodyError, GuardedHandler, GuardedHTTPServer, HttpLimits
 from protocol.errors import InputFormatError
 
@@ -174,6 +174,8 @@ class _Handler(GuardedHandler):
             return self._refuse(HTTPStatus.UNSUPPORTED_MEDIA_TYPE, "format", "send application/json")
         try:
             command = uplink.submit(body, remote)
+        except UplinkRefused as exc:  # no run yet, or the run has ended (as hil.gcs.server answers)
+            return self._json(HTTPStatus.CONFLICT, {"error": str(exc), "reason": exc.reason})
         except InputFormatError as exc:
             return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
         if command is None:  # counted by the uplink (inbox_full), not a rejection: the sender may retry

@@ -333,6 +333,10 @@ def test_commands_are_checked_before_they_are_queued(tmp_path):
     with GroundStation.live(bind="127.0.0.1:0") as station:
         assert command(station, {"command": "disarm"}, token="guess")[0] == 401
         assert command(station, {"command": "disarm"}, headers={"Origin": "http://evil.example"})[0] == 403
+        status, answer = command(station, {"command": "hold"})  # no run yet: nothing would carry it out
+        assert (status, answer["reason"]) == (409, "no_run") and "no run yet" in answer["error"]
+        assert station.uplink is not None and station.uplink.stats.no_run == 1
+        station.uplink.open()  # what the run's start does (LiveFeed.started)
         status, answer = command(station, {"command": "warp"})
         assert status == 400 and "command must be one of" in answer["error"]
         status, _ = request(
@@ -346,8 +350,11 @@ def test_commands_are_checked_before_they_are_queued(tmp_path):
             ids.append(answer["id"])
         assert ids == list(range(1, INBOX + 1))
         assert command(station, {"command": "hold"})[0] == 503  # nobody drains the inbox: refused, not queued
+        # a full inbox still answers a malformed request as such (400, logged), not "busy"
+        status, answer = command(station, {"command": "warp"})
+        assert status == 400 and "command must be one of" in answer["error"]
         st = station.stats()["uplink"]
-        assert st["accepted"] == INBOX and st["inbox_full"] == 1 and st["rejected"] == 4
+        assert st["accepted"] == INBOX and st["inbox_full"] == 1 and st["rejected"] == 5
 
 
 # ----------------------------------------------------------------------------------------- end to end

@@ -10,6 +10,7 @@ from hil.gcs import alarms
 from hil.gcs import info as run_info
 from hil.gcs.uplink import ALARM_KEY, parse_ack
 from hil.runtime import faults as runtime_faults
+from hil.runtime.phases import Phase
 from hil.scenario import load_scenario
 
 
@@ -31,8 +32,11 @@ def test_limits_come_from_the_scenario():
         assert by_key[f"gimbal_rate_{k}:high"]["value"] == lim.max_gimbal_rate
         assert by_key[f"gimbal_rate_{k}:high"]["op"] == "abs_above"
         low = by_key[f"rotor_speed_{k}:low"]
-        assert (low["value"], low["op"], low["from_phase"]) == (lim.min_rotor_speed, "below", 1)
+        assert (low["value"], low["op"]) == (lim.min_rotor_speed, "below")
+        # the slew and the hold only: not the warm-up (spin-up) nor an operator's suspension (rotors stopping)
+        assert low["phases"] == [int(Phase.SLEW), int(Phase.HOLD)]
         assert by_key[f"rotor_speed_{k}:high"]["value"] == lim.max_rotor_speed
+        assert by_key[f"rotor_speed_{k}:high"]["phases"] == sorted(int(p) for p in Phase)
     assert by_key["link_age_ms:high"]["value"] == 1e3 * sc.board_options["link_timeout"]
     assert by_key["tel_age_ms:high"]["value"] == 1e3 * runtime_faults.STALE_AFTER_S
     assert by_key["battery_v:low"]["value"] == 3 * alarms.WARN_V_CELL

@@ -61,6 +61,8 @@ def _check(
 
 def test_a_slew_angle_of_any_json_integer_is_answered_400_past_its_range_never_500():
     with GroundStation.live(bind="127.0.0.1:0") as station:
+        assert station.uplink is not None
+        station.uplink.open()  # what the run's start does (LiveFeed.started): no run, no command taken
         log = UplinkLog()
 
         @SETTINGS
@@ -80,6 +82,8 @@ def test_a_slew_angle_of_any_json_integer_is_answered_400_past_its_range_never_5
 
 def test_an_alarm_time_of_any_json_integer_is_answered_400_past_a_floats_range_never_500():
     with GroundStation.live(bind="127.0.0.1:0") as station:
+        assert station.uplink is not None
+        station.uplink.open()  # what the run's start does (LiveFeed.started): no run, no command taken
         log = UplinkLog()
 
         @SETTINGS

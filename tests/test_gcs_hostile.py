@@ -238,6 +238,7 @@ def test_any_command_body_gets_an_answer_in_bounded_time_and_every_refusal_is_lo
     with GroundStation.live(bind="127.0.0.1:0") as station:
         uplink = station.uplink
         assert uplink is not None
+        uplink.open()  # what the run's start does (LiveFeed.started): before it, every command is a 409
         host = _ModelHost()
         own = f"http://127.0.0.1:{station.port}"
 

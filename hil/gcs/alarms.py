@@ -5,15 +5,19 @@ page draws on its plots.
 Each limit is one channel (a telemetry column) against one threshold::
 
     {"key": "point_err_deg:high", "column": "point_err_deg", "label": "pointing error", "unit": "deg",
-     "op": "above", "value": 0.5, "clear": 0.475, "severity": "warning", "from_phase": 0, "why": "..."}
+     "op": "above", "value": 0.5, "clear": 0.475, "severity": "warning", "phases": [0, 1, 2, 3], "why": "..."}
 
 ``op``: ``above`` (value > threshold), ``below`` (value < threshold), ``abs_above`` (|value| >
 threshold), ``equals`` (a state code), ``event`` (no threshold: raised by the run's ``raise_on`` event,
 cleared by its ``clear_on`` one — the host decides, so a replay shows what the live page showed). An alarm
 is raised on the first row past the threshold and cleared on the first row back past ``clear`` (a
 hysteresis band of :data:`HYSTERESIS` of the threshold, so a value hovering at its limit does not raise
-and clear an alarm per row). ``from_phase``: the limit holds from that run phase on (0 warm-up, 1 slew,
-2 hold): the rotors' minimum speed only once they have been spun up. The page evaluates them on every row
+and clear an alarm per row). ``phases``: the run phases the limit holds in, as an explicit list of
+:class:`hil.runtime.phases.Phase` values (the page checks a row only if its ``phase`` is in the list; a row
+without a phase is checked): the rotors' minimum speed only in the slew and the hold — not in the warm-up,
+which spins them up, nor while the operator's Disarm has the run suspended, its rotors stopping. (It was
+``from_phase``, a lower bound: the phase added after the hold, suspended, fell inside it, and an operator's
+Disarm raised a rotor-speed alarm on every unit.) The page evaluates them on every row
 it receives (``hil/gcs/static/alarms.js``) and sends an acknowledgement as ``POST /api/ack {"alarm": key,
 "raised_t": s}`` (:func:`hil.gcs.uplink.parse_ack`, whose key pattern every key here matches).
 
@@ -30,10 +34,12 @@ repeated here and ``tests/test_gcs_alarms.py`` holds the two equal. A scenario's
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 from hil.link.sources.stream import OTHERS_QUIET_S
 from hil.runtime import faults as runtime_faults
+from hil.runtime.phases import Phase
 from hil.scenario import Scenario
 from hil.scenario.reader import DEFAULT_LINK_TIMEOUT_S
 from protocol.messages import BoardState
@@ -61,10 +67,10 @@ def _limit(
     why: str,
     *,
     suffix: str,
-    from_phase: int = 0,
+    phases: Iterable[Phase] = tuple(Phase),
 ) -> dict[str, Any]:
-    """One limit. ``clear``: where a raised alarm clears (:data:`HYSTERESIS` inside ``value``; a state
-    code clears as soon as the state is another)."""
+    """One limit, held in ``phases`` (every phase unless told). ``clear``: where a raised alarm clears
+    (:data:`HYSTERESIS` inside ``value``; a state code clears as soon as the state is another)."""
     if op == "below":
         clear = value * (1 + HYSTERESIS)
     elif op in ("above", "abs_above"):
@@ -80,7 +86,7 @@ def _limit(
         "value": value,
         "clear": clear,
         "severity": severity,
-        "from_phase": from_phase,
+        "phases": sorted(int(p) for p in phases),
         "why": why,
     }
 
@@ -99,7 +105,7 @@ def event_alarms() -> list[dict[str, Any]]:
             "raise_on": "phone_other",
             "clear_on": "phone_others_quiet",
             "severity": WARNING,
-            "from_phase": 0,
+            "phases": sorted(int(p) for p in Phase),
             "why": (
                 "another phone is streaming to this port: its messages are dropped, never merged (the "
                 f"receiver follows one phone); cleared after {OTHERS_QUIET_S:g} s without one"
@@ -147,9 +153,10 @@ def alarm_limits(scenario: Scenario) -> list[dict[str, Any]]:
                 "below",
                 lim.min_rotor_speed,
                 WARNING,
-                "the rotors' minimum speed (from the slew on: they are spun up in the warm-up)",
+                "the rotors' minimum speed (in the slew and the hold: they are spun up in the warm-up and "
+                "stopped while the operator's Disarm has the run suspended)",
                 suffix="low",
-                from_phase=1,
+                phases=(Phase.SLEW, Phase.HOLD),
             ),
             _limit(
                 f"rotor_speed_{k}",

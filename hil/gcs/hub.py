@@ -160,8 +160,9 @@ class Hub:
         return True
 
     def _read(self, reader: Reader, timeout: float, max_bytes: int | None = None) -> bytes | None:
-        """What ``reader`` has not had yet (``info`` first), waiting up to ``timeout`` s for something; b""
-        if nothing came, None when the hub is closed and the reader has everything. ``max_bytes``: whole
+        """What ``reader`` has not had yet (``info`` first; before any ``info``, the chunks published so
+        far: a live run's statuses), waiting up to ``timeout`` s for something; b"" if nothing came, None
+        when the hub is closed and the reader has everything. ``max_bytes``: whole
         chunks up to about that many (at least one), the rest left for the next read. The read that
         takes the last chunk held when the reader took ``info`` ends with :func:`caught_up`."""
         with self._cond:
@@ -169,7 +170,7 @@ class Hub:
                 lambda: (
                     self.closed
                     or (self._info is not None and reader.info_version != self._info_version)
-                    or (reader.info_version and reader.cursor < self._first + len(self._chunks))
+                    or reader.cursor < self._first + len(self._chunks)
                     or (reader.info_version and not reader.caught_up)
                 ),
                 timeout,
@@ -183,8 +184,10 @@ class Hub:
                 reader.live_from = self._first + len(self._chunks)  # the history: the chunks held now
                 reader.caught_up = False
                 out += self._info
-            if not reader.info_version:
-                return None if self.closed else out
+            # No run described yet (a live station whose run has not started): the chunks all the same —
+            # its statuses, the last one saying a run that failed to start ended and why; before, such a
+            # reader got nothing until an ``info`` that never came, and the page never learnt the run's fate.
+            # Once ``info`` comes the reader has the whole history again, after it.
             if reader.cursor < self._first:
                 self.stats.skipped_chunks += self._first - reader.cursor
                 reader.cursor = self._first
@@ -193,7 +196,7 @@ class Hub:
             chunks = self._chunks[start:end]
             reader.cursor += len(chunks)
             out += b"".join(chunks)
-            if not reader.caught_up and reader.cursor >= reader.live_from:
+            if reader.info_version and not reader.caught_up and reader.cursor >= reader.live_from:
                 reader.caught_up = True
                 at = self._progress_at
                 out += caught_up(None if at is None else max(self.clock() - at, 0.0))

@@ -18,6 +18,7 @@ from hil import so3
 from hil.estimation.sensors import KINDS
 from hil.gcs.alarms import alarm_limits
 from hil.runtime import faults as runtime_faults
+from hil.runtime.phases import Phase
 from hil.scenario import Scenario
 from protocol.messages import BoardState, ControlMode, FaultFlag, PowerState, WatchdogState
 
@@ -45,8 +46,11 @@ telemetry rows already leave out a board it cannot hear (:mod:`hil.runtime.fault
 
 
 def enums() -> dict[str, Any]:
-    """Names of the board's enumerations and fault bits, for the page's labels."""
+    """Names of the run's phases (telemetry's ``phase``: :class:`hil.runtime.phases.Phase`), the board's
+    enumerations and its fault bits, for the page's labels: the page holds none of its own (it once had the
+    phases as a list of three, and showed a suspended run's phase as "—")."""
     return {
+        "phase": {int(p): p.name for p in Phase},
         "board_state": {int(s): s.name for s in BoardState},
         "board_link": {int(s): s.name for s in runtime_faults.BoardLink},
         "power_state": {int(s): s.name for s in PowerState},

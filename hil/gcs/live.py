@@ -122,6 +122,8 @@ class LiveFeed:
             self._info = description
             self._status = {"state": "running", "mode": start.mode}
             self._status_changed = True
+        if self.uplink is not None:
+            self.uplink.open()  # commands from now on: the host that carries them out exists
 
     def row(self, row: Mapping[str, Any]) -> None:
         if len(self._items) >= self.capacity:
@@ -159,6 +161,12 @@ class LiveFeed:
             self.uplink.close(self._host, t)
 
     def finished(self, summary: Mapping[str, Any]) -> None:
+        """The run is over (``summary.json`` written): the status says ``ended`` with its exit and
+        summary — also for a run that failed to start (its board never opened), which has no ``info``:
+        the hub delivers statuses to readers without one (:meth:`hil.gcs.hub.Hub._read`), so the page
+        says the run failed to start and why. The uplink refuses everything from now on."""
+        if self.uplink is not None:
+            self.uplink.seal()
         with self._lock:
             self._status = {"state": "ended", "exit": summary.get("exit"), "summary": dict(summary)}
             self._status_changed = True

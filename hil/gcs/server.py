@@ -16,8 +16,10 @@ Routes (every ``/api/`` route needs the token; :mod:`hil.gcs.access` has the che
 Answers: 403 for a foreign ``Origin`` (checked first; a CORS preflight is always refused) or, on a
 loopback server, a non-loopback ``Host``; 401 without the right token; 400 for a malformed command (saying
 what is wrong); 411/413/501 for a body refused from its headers (no length, over
-:data:`~hil.gcs.uplink.MAX_BODY`, another transfer coding); 409 when there is no uplink (a replay); 503
-when the command inbox or the stream limit is full; 202 with the command's id when it is queued.
+:data:`~hil.gcs.uplink.MAX_BODY`, another transfer coding); 409 when there is no uplink (a replay) or no
+run to carry the command out (``"reason": "no_run"`` before a live run has started, ``"ended"`` after its
+loop ended); 503 when the command inbox or the stream limit is full; 202 with the command's id when it is
+queued.
 
 Limits (:data:`LIMITS`): tornado's own settings where it has them (:func:`hil.gcs.guard.tornado_settings`:
 each phase's timeout, head and body sizes, its read buffer, one request per connection) and
@@ -56,7 +58,7 @@ from tornado.netutil import bind_sockets
 from hil.gcs.access import Access
 from hil.gcs.guard import ConnectionGuard, TornadoReports, tornado_settings
 from hil.gcs.hub import READ_MAX, Hub
-from hil.gcs.uplink import MAX_BODY, Uplink, UplinkClosed
+from hil.gcs.uplink import MAX_BODY, Uplink, UplinkRefused
 from hil.link.sources.http_guard import BACKLOG, BodyError, HttpLimits, content_length
 from protocol.errors import InputFormatError
 
@@ -538,8 +540,8 @@ class _Command(_Base):
             return None
         try:
             command = uplink.submit(body, remote)
-        except UplinkClosed as exc:
-            return self._json(HTTPStatus.CONFLICT, {"error": str(exc), "reason": "ended"})
+        except UplinkRefused as exc:  # no run yet, or the run has ended: not the sender's fault, not logged
+            return self._json(HTTPStatus.CONFLICT, {"error": str(exc), "reason": exc.reason})
         except InputFormatError as exc:
             return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
         if command is None:  # counted by the uplink (inbox_full), not a rejection: the sender may retry
@@ -572,8 +574,8 @@ class _Ack(_Command):
             return None
         try:
             ack = uplink.acknowledge(body, self.request.remote_ip or "")
-        except UplinkClosed as exc:
-            return self._json(HTTPStatus.CONFLICT, {"error": str(exc), "reason": "ended"})
+        except UplinkRefused as exc:  # no run yet, or the run has ended: not the sender's fault, not logged
+            return self._json(HTTPStatus.CONFLICT, {"error": str(exc), "reason": exc.reason})
         except InputFormatError as exc:
             return self._refuse(HTTPStatus.BAD_REQUEST, "format", str(exc))
         if ack is None:

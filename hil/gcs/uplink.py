@@ -7,9 +7,13 @@ campaign's drawn operator commands take).
 
 The server thread only parses and queues (:meth:`Uplink.submit`, bounded: a full inbox answers 503); the
 control thread drains the inbox at the start of each tick (:meth:`Uplink.service`), so a command never
-races the control law. Every step is an ``events.jsonl`` record ``{"kind": "command", "origin": "gcs",
-...}`` (:mod:`hil.runtime.operator`); the page shows them against the id the POST returned. Requests the
-server turns away (wrong token, foreign origin) are logged the same way with ``status: "rejected"``.
+races the control law. Commands are taken only while a run can carry them out: from the run's start
+(:meth:`Uplink.open`, when the run's host exists) to its loop's end (:meth:`Uplink.close`); before and
+after, a request is refused (409, :class:`UplinkRefused`) — never answered 202 for a command that nothing
+will carry out or log (a run that failed to start, its board never opened, lost them all). Every step
+is an ``events.jsonl`` record ``{"kind": "command", "origin": "gcs", ...}`` (:mod:`hil.runtime.operator`);
+the page shows them against the id the POST returned. Requests the server turns away (wrong token,
+foreign origin, a malformed body) are logged the same way with ``status: "rejected"``.
 """
 
 from __future__ import annotations
@@ -148,11 +152,27 @@ class UplinkStats:
     rejected: int = 0  # requests turned away by the server (token, origin, host, format)
     rejected_unlogged: int = 0  # ... beyond REJECTED_LOG between two ticks
     acks: int = 0  # alarm acknowledgements queued
+    no_run: int = 0  # commands and acknowledgements refused because the run had not started (409)
 
 
-class UplinkClosed(HilError):
-    """A command or an acknowledgement that came after the run's last control tick: nothing will carry
-    it out (the server answers 409)."""
+class UplinkRefused(HilError):
+    """A command or an acknowledgement that came when no run can carry it out or log it: the server
+    answers 409 with the error and :attr:`reason`."""
+
+    reason = ""
+
+
+class UplinkNotStarted(UplinkRefused):
+    """Before the run has started (its board and phone still being opened; a run that fails to start
+    never does): nothing would carry it out, nor log it."""
+
+    reason = "no_run"
+
+
+class UplinkClosed(UplinkRefused):
+    """After the run's last control tick: nothing will carry it out."""
+
+    reason = "ended"
 
 
 @dataclass
@@ -167,35 +187,60 @@ class Uplink:
         self._rejected: deque[dict[str, Any]] = deque()
         self._acks: deque[dict[str, Any]] = deque()
         self._next_id = 1
+        self._opened = False
         self._closed = False
         self.operator = Operator()
 
+    # ------------------------------------------------------------------ the run's start
+    def open(self) -> None:
+        """The run has started (its host exists, its first control tick is to come: the run observer's
+        ``started``): commands and acknowledgements are taken from now on, until :meth:`close`."""
+        with self._lock:
+            self._opened = True
+
+    def _refusal(self, what: str) -> UplinkRefused | None:
+        """Why ``what`` cannot be taken now (no run yet, or the run has ended), or None. Under the lock."""
+        if self._closed:
+            return UplinkClosed(f"the run has ended: no {what} is taken any more")
+        if not self._opened:
+            self.stats.no_run += 1
+            return UplinkNotStarted(
+                f"no run yet: the run has not started (its board and phone are being opened), so no {what} "
+                "can be carried out; try again once the page shows the run"
+            )
+        return None
+
     # ------------------------------------------------------------------ server threads
     def submit(self, body: bytes, remote: str = "") -> OperatorCommand | None:
-        """Parse and queue a request; the command, or None when the inbox is full (InputFormatError for a
-        malformed request)."""
+        """Queue a request: the command, or None when :data:`INBOX` commands are already waiting.
+        :class:`UplinkRefused` when no run can take it (before its start, after its end);
+        :class:`InputFormatError` for a malformed request — checked before the inbox, so a malformed
+        request is refused as such (and logged) whatever is waiting."""
         with self._lock:
-            if self._closed:
-                raise UplinkClosed("the run has ended: no command is carried out any more")
+            refusal = self._refusal("command")
+            if refusal is not None:
+                raise refusal
+            command = parse_command(body, self._next_id, remote)
             if len(self._inbox) >= INBOX:
                 self.stats.inbox_full += 1
                 return None
-            command = parse_command(body, self._next_id, remote)
             self._next_id += 1
             self._inbox.append(command)
             self.stats.accepted += 1
             return command
 
     def acknowledge(self, body: bytes, remote: str = "") -> dict[str, Any] | None:
-        """Parse and queue an alarm acknowledgement; None when :data:`INBOX` are already waiting
-        (InputFormatError for a malformed one)."""
+        """Queue an alarm acknowledgement; None when :data:`INBOX` are already waiting.
+        :class:`UplinkRefused` and :class:`InputFormatError` as for :meth:`submit` (parsed before the
+        inbox is looked at)."""
         with self._lock:
-            if self._closed:
-                raise UplinkClosed("the run has ended: no acknowledgement is logged any more")
+            refusal = self._refusal("acknowledgement")
+            if refusal is not None:
+                raise refusal
+            ack = parse_ack(body, remote)
             if len(self._acks) >= INBOX:
                 self.stats.inbox_full += 1
                 return None
-            ack = parse_ack(body, remote)
             self._acks.append(ack)
             self.stats.acks += 1
             return ack
@@ -208,6 +253,13 @@ class Uplink:
                 self.stats.rejected_unlogged += 1
                 return
             self._rejected.append({"reason": reason, "remote": remote, "detail": detail})
+
+    def seal(self) -> None:
+        """The run is over (its summary written, or it failed to start): every request is refused as
+        ended from now on. A run that started was closed already (:meth:`close`); one that never started
+        took nothing (:meth:`open` never came), so nothing is left without a status either way."""
+        with self._lock:
+            self._closed = True
 
     # ------------------------------------------------------------------ the control thread
     def close(self, host: Host, t: float) -> None:

@@ -36,7 +36,10 @@ function worse(limit, a, b) {
 export class Alarms {
   constructor(info) {
     const index = Object.fromEntries(info.columns.map((c, i) => [c, i]));
-    this.limits = (info.alarms || []).filter((l) => l.op !== "event" && l.column in index).map((l) => ({ ...l, i: index[l.column] }));
+    // phases: the run phases (telemetry's phase column, hil/runtime/phases.py) a limit holds in, as a set
+    // (hil/gcs/alarms.py always lists them; a limit without the list would hold in every phase)
+    this.limits = (info.alarms || []).filter((l) => l.op !== "event" && l.column in index)
+      .map((l) => ({ ...l, i: index[l.column], inPhase: Array.isArray(l.phases) ? new Set(l.phases) : null }));
     this.eventLimits = (info.alarms || []).filter((l) => l.op === "event");
     this.phaseIndex = index.phase;
     this.active = new Map();  // key -> the occurrence not yet cleared
@@ -49,11 +52,12 @@ export class Alarms {
   feed(rows) {
     for (const row of rows) {
       const t = row[0];
-      const phase = this.phaseIndex === undefined ? Infinity : row[this.phaseIndex];
+      const phase = this.phaseIndex === undefined ? null : row[this.phaseIndex];
       for (const limit of this.limits) {
         const v = row[limit.i];
         if (v === null || v === undefined || !Number.isFinite(v)) continue;  // no value: no news
-        if (Number.isFinite(phase) && phase < limit.from_phase) continue;
+        // a row in a phase the limit does not hold in (a row without a phase is checked)
+        if (limit.inPhase && Number.isFinite(phase) && !limit.inPhase.has(phase)) continue;
         const open = this.active.get(limit.key);
         if (!open) {
           if (!outside(limit, v)) continue;

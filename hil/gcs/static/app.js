@@ -6,7 +6,7 @@
 import { Store } from "./store.js";
 import { Plots } from "./plots.js";
 import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
-import { $, fmt, setCell, drawPanels, drawEvents, threeNumbers } from "./panels.js";
+import { $, fmt, setCell, drawPanels, drawEvents, threeNumbers, AT_RUN_END } from "./panels.js";
 import { Uplink } from "./uplink.js";
 import { Alarms, AlarmPanel } from "./alarms.js";
 import { drawHistory, exportHistory } from "./commands.js";
@@ -153,7 +153,8 @@ function onInfo(info) {
 function showStatus() {
   const s = state.status;
   const parts = [];
-  if (s.exit) parts.push(`exit: ${s.exit}`);
+  if (runFailedToStart()) parts.push(`the run failed to start: ${s.exit || "no word why"}`);
+  else if (s.exit) parts.push(`exit: ${s.exit}`);
   if (s.feed_dropped_rows) parts.push(`${s.feed_dropped_rows} rows dropped by the feed`);
   if (s.bad_rows) parts.push(`${s.bad_rows} unreadable rows`);
   if (s.uplink_rejected) parts.push(`${s.uplink_rejected} requests refused`);
@@ -232,7 +233,8 @@ function feedState() {
   const now = performance.now();
   const age = (now - state.lastProgress) / 1e3;  // since the run last made progress
   const heard = (now - state.lastMessage) / 1e3;  // since the server last said anything
-  const live = state.info && state.info.mode === "live";
+  if (!state.info) return noRunFeed(heard);
+  const live = state.info.mode === "live";
   const following = state.status.state === "following";
   if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return { text: state.status.state === "finished" ? "finished" : "ended", cls: "ended", age: 0 };
   // a followed run directory whose writer is gone without a summary (killed, crashed: hil/gcs/rundir.py)
@@ -250,6 +252,22 @@ function feedState() {
   return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
 }
 
+// Whether the run ended without ever starting: an `ended` status (or the stream's end) with no `info`
+// before it — a live run whose board or phone could not be opened. The hub sends a page without a run
+// its statuses (hil/gcs/hub.py); before, it sent nothing until an `info` that never came.
+function runFailedToStart() {
+  return !state.info && (state.status.state === "ended" || state.ended);
+}
+
+// The feed before the run's description: a live station waiting for its run to start (its board and phone
+// being opened: nothing is live yet, and it is not "loaded" either — it once said so, in green), or whose
+// run failed to start, or one the page cannot reach.
+function noRunFeed(heard) {
+  if (runFailedToStart()) return { text: "the run failed to start", cls: "bad", age: 0 };
+  if (!state.connected) return { text: state.refused || `connecting: nothing for ${heard.toFixed(1)} s`, cls: "bad", age: 0 };
+  return { text: "waiting for the run", cls: "", age: 0 };
+}
+
 // ---------------------------------------------------------------- drawing
 let lastRows = 0, frameRequested = false;
 
@@ -263,7 +281,10 @@ function invalidate() {
 // fail), and they come back when the host does.
 function uplinkState(feed) {
   const info = state.info;
-  if (!info) return { on: false, why: state.connected ? "Waiting for the run: no commands yet." : "Connecting: no commands yet." };
+  if (!info) {
+    if (runFailedToStart()) return { on: false, why: `The run failed to start${state.status.exit ? ` (${state.status.exit})` : ""}: no commands.` };
+    return { on: false, why: state.connected ? "Waiting for the run: no commands yet." : "Connecting: no commands yet." };
+  }
   if (info.mode !== "live") return { on: false, why: "Replay: no commands." };
   if (!info.uplink) return { on: false, why: "This run takes no commands (started without an uplink)." };
   if (feed.cls === "ended") return { on: false, why: `The run has ended${state.status.exit ? ` (${state.status.exit})` : ""}: no commands.` };
@@ -275,7 +296,7 @@ function uplinkState(feed) {
 // silent or went away, one that ended, or a replay.
 function modeBadge(feed) {
   const info = state.info;
-  if (!info) return { text: state.connected ? "waiting" : "connecting", cls: "" };
+  if (!info) return runFailedToStart() ? { text: "no run", cls: "bad" } : { text: state.connected ? "waiting" : "connecting", cls: "" };
   if (info.mode !== "live") return { text: info.compare ? `compare: ${info.compare.length} runs` : "replay", cls: "replay" };
   const clock = info.clock || "run";
   if (feed.cls === "ended") return { text: `live run ended (${clock})`, cls: "ended" };
@@ -343,7 +364,7 @@ function render(feed) {
   const atEnd = state.follow || !(state.cursor < store.tLast);
   if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap, alarmColumns, ended, atEnd, summary: state.status.summary });
   alarmPanel.draw(state.alarms, alarmAt, uplinkState(feed).on);
-  drawAttitude(i, feedAge, rowGap);
+  drawAttitude(i, feedAge, rowGap, ended && atEnd);
   drawEvents(store, hasRows ? state.cursor : Infinity);
   drawHistory(store.events, hasRows ? state.cursor : Infinity);
   stats.renders += 1;
@@ -378,7 +399,16 @@ function targetAt(tc) {
   return r ? rotvecToMatrix(r) : null;
 }
 
-function drawAttitude(i, feedAge, rowGap) {
+// How old the estimate at row i is: the estimator moves on the phone's samples, so a silent phone leaves
+// it where it was — the newest sample's age as of the row (the live phone_age_ms_* columns, the merger's
+// per sensor) plus the feed's own age. A replay's telemetry has no phone ages: its rows' gaps alone say it.
+function estimateAge(i, feedAge) {
+  const ages = (state.info.phone || []).map((k) => state.store.value(`phone_age_ms_${k}`, i)).filter(Number.isFinite);
+  return ages.length ? Math.min(...ages) / 1e3 + feedAge : 0;
+}
+
+// atRunEnd: the run has ended and the cursor is at its end (the attitude is the last row's, not live).
+function drawAttitude(i, feedAge, rowGap, atRunEnd) {
   const { store, info } = state;
   const truth = ["true_rx", "true_ry", "true_rz"].map((c) => store.value(c, i));
   const est = ["est_rx", "est_ry", "est_rz"].map((c) => store.value(c, i));
@@ -389,18 +419,21 @@ function drawAttitude(i, feedAge, rowGap) {
   const n = info.n_units || 0;
   const gamma = Array.from({ length: n }, (_, k) => store.value(`gimbal_angle_${k}`, i));
   const omega = Array.from({ length: n }, (_, k) => store.value(`rotor_speed_${k}`, i));
-  const age = Math.max(feedAge, rowGap);
-  const stale = age > (info.stale_after_s || 0.25) ? `stale: ${age.toFixed(1)} s old` : "";
+  // the attitude's age: the feed's, the gap before the row, and the estimate's own when it is the source
+  // (a silent phone froze it: the attitude and the pointing error were drawn live, unchanged, for 4 s)
+  const age = Math.max(feedAge, rowGap, r && !useTruth ? estimateAge(i, feedAge) : 0);
+  const stale = age > (info.stale_after_s || 0.25) ? `stale: ${age.toFixed(1)} s old` : atRunEnd ? AT_RUN_END : "";
   view.draw({ R, target, units: info.units || [], gamma, omega, stale,
     nominal: (info.limits || {}).nominal_rotor_speed, maxSpeed: (info.limits || {}).max_rotor_speed });
   const canvas = $("view3d");
   canvas.dataset.attitude = r ? r.map((x) => x.toFixed(5)).join(",") : "";
   canvas.dataset.gimbal = gamma.map((x) => (Number.isFinite(x) ? x.toFixed(4) : "")).join(",");
   const eul = (M) => (M ? eulerZYX(M).map((x) => `${x.toFixed(1)}°`).join(", ") : "—");
-  const staleAge = stale ? age : false;
+  const staleAge = stale === AT_RUN_END ? AT_RUN_END : stale ? age : false;
+  canvas.dataset.stale = stale;
   setCell($("attitude"), eul(R), staleAge);
   setCell($("target"), eul(target));
-  setCell($("attitude-source"), r ? (useTruth ? "truth (simulated); the estimate is in the plots" : "estimate") : "—");
+  setCell($("attitude-source"), r ? (useTruth ? "truth (simulated); the estimate is in the plots" : "estimate") : "—", staleAge);
   setCell($("point-err"), fmt(store.value("point_err_deg", i), 2, "°"), staleAge);
 }
 

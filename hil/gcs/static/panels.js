@@ -49,34 +49,61 @@ function setPill(el, name, staleAge) {
   el.className = `pill ${PILL[name] || ""}${el.classList.contains("stale") ? " stale" : ""}`;
 }
 
-// ctx: {info, store, i (row index), t (cursor time), feedAge (s, live) , rowGap (s before row i)}
+// What a value after the run's end is marked with (the run has ended, the cursor at its end): the last row's,
+// as of the run's end, never live.
+export const AT_RUN_END = "at the run's end";
+
+// The board's state the run's end said, the cursor at the end of a run that has ended: its final Disarm's
+// (summary.json's final_disarm: the board's state as last known once the run's way out ran), else the way
+// out's own record at or after the last row (`disarmed`; `disarm_failed`: the row's state, not confirmed);
+// else the last row's. The last row comes before the way out's Disarm: it said ARMED for a run that then
+// disarmed its board, and the page showed the board ARMED after the run's end.
+function boardStateAtEnd(ctx, rowState) {
+  const fd = (ctx.summary || {}).final_disarm;
+  if (fd && typeof fd.state === "string" && fd.state) return fd.ok === false ? `${fd.state} (final Disarm failed)` : fd.state;
+  const { store, i } = ctx;
+  const tRow = store.value("t", i);
+  for (let k = store.events.length - 1; k >= 0; k--) {
+    const e = store.events[k];
+    if (!(e.t >= tRow)) break;
+    if (e.kind === "disarmed") return "DISARMED";
+    if (e.kind === "disarm_failed") return `${rowState} (final Disarm failed)`;
+  }
+  if (fd && fd.ok === false) return `${rowState} (final Disarm failed)`;
+  return rowState;
+}
+
+// ctx: {info, store, i (row index), t (cursor time), feedAge (s, live) , rowGap (s before row i), ended (the
+// run has ended), atEnd (the cursor at the newest row), summary (the run's, once it has ended)}
 export function drawPanels(ctx) {
   const { info, store, i } = ctx;
   const v = (name) => store.value(name, i);
   const staleAfter = info.stale_after_s || 0.25;
   // Board telemetry is stale when the host's copy is old (live), when rows stopped coming (a gap before
-  // this row, or the feed itself silent).
+  // this row, or the feed itself silent); after the run's end, at its end, it is as of the run's end.
   const telAge = Number.isFinite(v("tel_age_ms")) ? v("tel_age_ms") / 1e3 : 0;
   const boardAge = Math.max(telAge, ctx.rowGap || 0, ctx.feedAge || 0);
-  const boardStale = boardAge > staleAfter ? boardAge : false;
+  const atRunEnd = Boolean(ctx.ended && ctx.atEnd);
+  const boardStale = atRunEnd ? AT_RUN_END : boardAge > staleAfter ? boardAge : false;
 
   setCell($("time"), fmt(ctx.t, 2));
-  setCell($("phase"), ["warm-up", "slew", "hold"][v("phase")] || "—", boardStale);
+  setCell($("phase"), enumName(info, "phase", v("phase")), boardStale);  // names from info (Python's enum)
   // The host's view of the board (telemetry.csv's board_link): a row without a live board has no board
   // value at all; say why rather than show "—".
   const link = v("board_link");
   const blind = Number.isFinite(link) && link !== 0;
   const why = enumName(info, "board_link", link) === "LOST" ? "link lost" : "no telemetry";
-  const state = blind ? `UNKNOWN (${why})` : enumName(info, "board_state", v("board_state"));
+  const rowState = blind ? `UNKNOWN (${why})` : enumName(info, "board_state", v("board_state"));
+  const state = atRunEnd ? boardStateAtEnd(ctx, rowState) : rowState;
   setPill($("board-state"), state, boardStale);
-  if (blind) $("board-state").classList.add("bad");
+  if (blind || state.endsWith("(final Disarm failed)")) $("board-state").classList.add("bad");
   setPill($("watchdog"), enumName(info, "watchdog", v("watchdog")), boardStale);
   setPill($("power-state"), enumName(info, "power_state", v("power_state")), boardStale);
 
   setCell($("board-mode"), `${state} / ${enumName(info, "board_mode", v("board_mode"))}`, boardStale);
   setCell($("faults"), faultNames(info, v("faults")), boardStale);
   const linkAge = v("link_age_ms");
-  setCell($("link-age"), fmt(linkAge, 0, " ms ago"), linkAge > staleAfter * 1e3 ? linkAge / 1e3 : boardStale);
+  setCell($("link-age"), fmt(linkAge, 0, " ms ago"), !atRunEnd && linkAge > staleAfter * 1e3 ? linkAge / 1e3 : boardStale);
   // The host's age of the board's telemetry, as of the row shown; when the feed itself is silent (the host
   // died) the row is that old too, and the cell says so like every other.
   setCell($("tel-age"), store.has("tel_age_ms") ? fmt(v("tel_age_ms"), 0, " ms ago") : "not recorded", boardStale);
@@ -160,7 +187,7 @@ function drawPhone(ctx) {
       continue;
     }
     const age = store.value(`phone_age_ms_${k}`, i) / 1e3 + (ctx.feedAge || 0);
-    const stale = !Number.isFinite(age) ? "no sample yet" : age > staleAfter ? age : false;
+    const stale = !Number.isFinite(age) ? "no sample yet" : ctx.ended && ctx.atEnd ? AT_RUN_END : age > staleAfter ? age : false;
     setCell($(`phone-rate-${k}`), fmt(store.value(`phone_rate_${k}`, i), 1), stale);
     setCell($(`phone-age-${k}`), Number.isFinite(age) ? `${(age * 1e3).toFixed(0)} ms ago` : "none yet", stale);
   }
