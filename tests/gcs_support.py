@@ -7,7 +7,8 @@ import http.client
 import json
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -210,3 +211,18 @@ def wait_for(predicate: Callable[[], Any], timeout: float, what: str) -> Any:
             return value
         time.sleep(0.05)
     raise TimeoutError(f"no {what} within {timeout} s")
+
+
+@contextmanager
+def replay_seen_at(browser: Any, run_dir: Path, rows: int, t: float) -> Iterator[GroundStation]:
+    """The run in ``run_dir`` replayed by a ground station in ``browser`` (selenium), all of its ``rows``
+    loaded and the page's timeline moved to ``t`` (s): what an operator reviewing the run sees there."""
+    from browser_support import js
+
+    with GroundStation.replay(run_dir, bind="127.0.0.1:0") as station:
+        browser.get(station.url)
+        wait_for(lambda: js(browser, "return window.gcs.state.status.state") == "finished", 20, "the replay")
+        wait_for(lambda: js(browser, "return window.gcs.state.store.n") == rows, 10, "every row")
+        js(browser, """const s = document.getElementById('timeline'); s.value = arguments[0];
+                       s.dispatchEvent(new Event('input'));""", t)  # fmt: skip
+        yield station

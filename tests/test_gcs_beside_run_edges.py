@@ -35,7 +35,16 @@ from typing import Any
 import numpy as np
 import pytest
 from browser_support import chromium, js, page_errors, text
-from gcs_support import ControlStall, RunInThread, StreamReader, command, quick_scenario, request, wait_for
+from gcs_support import (
+    ControlStall,
+    RunInThread,
+    StreamReader,
+    command,
+    quick_scenario,
+    replay_seen_at,
+    request,
+    wait_for,
+)
 
 from hil.gcs import GroundStation
 from hil.gcs.info import enums
@@ -268,12 +277,7 @@ def test_a_run_suspended_by_the_operator_shows_its_phase_and_raises_no_rotor_spe
     below = (tel["phase"] == int(Phase.SUSPENDED)) & (tel["rotor_speed_0"] < low)
     inside = float(tel["t"][np.nonzero(below)[0][-1]])
     assert inside > suspended["t"]
-    with GroundStation.replay(result.run_dir, bind="127.0.0.1:0") as replay:
-        browser.get(replay.url)
-        wait_for(lambda: js(browser, "return window.gcs.state.status.state") == "finished", 20, "the replay")
-        wait_for(lambda: js(browser, "return window.gcs.state.store.n") == tel.rows, 10, "every row")
-        js(browser, """const s = document.getElementById('timeline'); s.value = arguments[0];
-                       s.dispatchEvent(new Event('input'));""", inside)  # fmt: skip
+    with replay_seen_at(browser, result.run_dir, tel.rows, inside):
         wait_for(lambda: text(browser, "phase") == "SUSPENDED", 5, "the phase named")
         assert enums()["phase"][int(Phase.SUSPENDED)] == "SUSPENDED"
         keys = js(browser, "return Array.from(document.querySelectorAll('#alarms tr[data-key]'))"

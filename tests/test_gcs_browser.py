@@ -18,7 +18,7 @@ import threading
 import numpy as np
 import pytest
 from browser_support import chromium, js, page_errors, text
-from gcs_support import RunInThread, quick_scenario, wait_for
+from gcs_support import RunInThread, quick_scenario, replay_seen_at, wait_for
 
 from hil.gcs import GroundStation
 from hil.runtime import RunOptions, run
@@ -206,12 +206,7 @@ def test_a_replayed_outage_shows_the_board_unknown_and_its_values_empty(browser,
     blind = np.nonzero((tel["board_link"] == 1) & (tel["t"] > 4.0))[0]
     assert len(blind) > 5
     inside = float(tel["t"][blind[len(blind) // 2]])
-    with GroundStation.replay(result.run_dir, bind="127.0.0.1:0") as station:
-        browser.get(station.url)
-        wait_for(lambda: _js(browser, "return window.gcs.state.status.state") == "finished", 20, "the replay")
-        wait_for(lambda: _js(browser, "return window.gcs.state.store.n") == tel.rows, 10, "every row")
-        _js(browser, """const s = document.getElementById('timeline'); s.value = arguments[0];
-                        s.dispatchEvent(new Event('input'));""", inside)  # fmt: skip
+    with replay_seen_at(browser, result.run_dir, tel.rows, inside):
         wait_for(lambda: _text(browser, "board-state").startswith("UNKNOWN"), 5, "the board state unknown")
         assert _text(browser, "board-state") == "UNKNOWN (no telemetry)"
         assert "bad" in browser.find_element(By.ID, "board-state").get_attribute("class")
