@@ -52,6 +52,8 @@ def seed(text: str) -> int:
 
 
 if TYPE_CHECKING:
+    from hil.scenario.model import Scenario
+
     from .avr.harness import HarnessDied
 
 EPILOG = """\
@@ -406,6 +408,45 @@ def board_and_world(args: argparse.Namespace, scenario: object | None):  # type:
     return board, world
 
 
+def _given(argv: Sequence[str] | None) -> dict[str, Any]:
+    """The options the command line itself gives (``argv``; None: ``sys.argv``), without argparse's
+    defaults: parsed again by firmware-sim's parser with every default suppressed, so that an option left
+    out is told from one given at its default value."""
+    parser = build_parser()
+    for action in parser._actions:
+        action.default = argparse.SUPPRESS
+    return vars(parser.parse_args(argv))
+
+
+def world_options(args: argparse.Namespace, argv: Sequence[str] | None, scenario: Scenario) -> list[str]:
+    """The world's ``[board]`` and ``[faults]`` as this board's options (``args``, parsed from ``argv``),
+    in place: the same scenario that the host runs against this board must set the board it serves (its
+    ``link_timeout`` of 1 s was served as the 0.25 s default, its ``hang_at`` never happened).
+
+    A setting the command line (or a ``spawn://…?world=`` URL) leaves out is the scenario's. One it gives
+    overrides the scenario's single-valued setting (a benchmark's faster ``frame_rate`` for the same
+    world) and is said: the returned lines, one per setting overridden, name both. The repeatable faults
+    add up: the scenario's, then the command line's that the scenario does not already have (a URL that
+    repeats the scenario's own options beside ``world=`` schedules each fault once)."""
+    parser = build_parser()
+    repeatable = {a.dest for a in parser._actions if isinstance(a, argparse._AppendAction)}
+    own = parser.parse_args(scenario.firmware_sim_argv())  # the scenario's values, through the same parser
+    given = _given(argv)
+    where = scenario.path if scenario.path is not None else scenario.name
+    notes: list[str] = []
+    for table, options in (("board", scenario.board_options), ("faults", scenario.fault_options)):
+        for key in options:
+            value = getattr(own, key)
+            if key in repeatable:
+                setattr(args, key, [*value, *(v for v in getattr(args, key) if v not in value)])
+            elif key in given and given[key] != value:
+                option = "--" + key.replace("_", "-")
+                notes.append(f"{option} {given[key]} overrides the world's {table}.{key} = {value} ({where})")
+            else:
+                setattr(args, key, value)
+    return notes
+
+
 def _say_harness_died(died: HarnessDied, where: str) -> None:
     """One line naming the board that went (a ``HarnessDied``), after what the harness itself said when it
     exited by itself with an error (a crashed firmware's message); a killed one said nothing new."""
@@ -516,6 +557,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "firmware-sim --units",
                 )
             args.units = scenario.n_units
+            for note in world_options(args, argv, scenario):
+                print(f"firmware-sim: {note}", file=sys.stderr)
             try:
                 args.phone = phone_url(args.phone)
             except ConfigError:

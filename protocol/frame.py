@@ -34,7 +34,7 @@ from . import cobs
 from .compiled import MessageCodec, fast_constructor
 from .crc import crc16_ccitt_false
 from .errors import FieldRangeError, FrameError, ProtocolError
-from .fields import PayloadLengthError
+from .fields import PayloadLengthError, Scalar
 from .messages import CODECS, LAYOUTS, PROTOCOL_VERSION, Flags, encode_payload
 from .speedups import seal, unseal
 
@@ -120,6 +120,9 @@ for _msg_id in CODECS:
     _ENCODERS[_msg_id], _DECODERS[_msg_id] = _first_use(_msg_id)
 del _msg_id
 _MAX_BODY = HEADER_SIZE + MAX_PAYLOAD
+_HEADER_BYTE = Scalar("B")
+"""The header's ``seq`` and ``flags``: one byte each, held to the rule of every u8 field (an int, not a
+bool, 0..255). A range check alone let 1.5 or 0.0 through to ``struct``, whose error was a traceback."""
 _SEQ_BYTES = tuple(bytes((seq,)) for seq in range(256))
 """A sequence number as the one byte it is in the header, by value."""
 
@@ -132,9 +135,9 @@ def encode_frame(message: Any, seq: int, flags: int = 0) -> bytes:
 def encode_body(message: Any, seq: int, flags: int = 0) -> bytes:
     """One frame before it is sealed: header and payload, no CRC, no COBS (what :func:`encode_frame`
     seals). Raises FieldRangeError for bad fields, ProtocolError for a payload over MAX_PAYLOAD."""
-    if not 0 <= seq <= 0xFF:
+    if not _HEADER_BYTE.check(seq):
         raise FieldRangeError("header", "seq", seq)
-    if not 0 <= flags <= 0xFF:
+    if not _HEADER_BYTE.check(flags):
         raise FieldRangeError("header", "flags", flags)
     body = _ENCODERS[message.MSG_ID](message, seq, flags)
     if body is None:  # not certainly valid: the reference encodes it or raises the exact error

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import os
 import select
 import signal
@@ -63,6 +64,8 @@ if TYPE_CHECKING:  # subprocess, tempfile and concurrent.futures are imported wh
     from firmware_sim.board import Board
 
 DEFAULT_START_TIMEOUT_S = 10.0
+MAX_START_TIMEOUT_S = 3600.0
+"""The longest ``start_timeout`` a ``spawn://`` URL may ask for (s): an hour is far beyond any start-up."""
 _TERMINATE_GRACE_S = 3.0
 EXIT_USAGE = 2
 """firmware-sim's exit status for a usage error: an option or a value it refuses (argparse's)."""
@@ -114,12 +117,36 @@ def firmware_sim_argv(
 
 
 def split_board(url: str, options: list[tuple[str, str]]) -> tuple[str, list[tuple[str, str]]]:
-    """The ``board`` option (the last one; default ``emulator``) and the other options, in order."""
+    """The ``board`` option (default ``emulator``) and the other options, in order. Given twice it is
+    refused, as firmware-sim's own options are (:func:`firmware_sim_argv`): the last one silently won."""
     boards = [v for k, v in options if k == "board"]
-    board = boards[-1] if boards else "emulator"
+    if len(boards) > 1:
+        raise TransportRefused(f"{url}: option 'board' is given {len(boards)} times")
+    board = boards[0] if boards else "emulator"
     if board not in BOARDS:
-        raise TransportError(f"{url}: board={board!r} is not one of {', '.join(BOARDS)}")
+        raise TransportRefused(f"{url}: board={board!r} is not one of {', '.join(BOARDS)}")
     return board, [(k, v) for k, v in options if k != "board"]
+
+
+def start_timeout(url: str, values: list[str]) -> float:
+    """A ``spawn://`` URL's ``start_timeout`` (its ``values``, in order; none: the default): one finite
+    number of seconds in (0, :data:`MAX_START_TIMEOUT_S`], else a :class:`TransportRefused` naming the
+    option. A wait as long as 1e308 s overflowed ``select`` (a traceback), and NaN or a negative one timed
+    out at once, each start failing in turn until the run's outage bound ran out."""
+    if not values:
+        return DEFAULT_START_TIMEOUT_S
+    if len(values) > 1:
+        raise TransportRefused(f"{url}: option 'start_timeout' is given {len(values)} times")
+    try:
+        value = float(values[0])
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0.0 < value <= MAX_START_TIMEOUT_S):
+        raise TransportRefused(
+            f"{url}: option start_timeout={values[0][:40]!r} must be a number of seconds in "
+            f"(0, {MAX_START_TIMEOUT_S:g}]"
+        )
+    return value
 
 
 def _parse(parser: argparse.ArgumentParser, argv: list[str], url: str) -> argparse.Namespace:
@@ -315,11 +342,7 @@ class SpawnTransport(Transport):
         options = [(k, v) for k, v in pairs if k != "start_timeout"] + (
             [("avr", "")] if board == "firmware" else []
         )
-        timeouts = [v for k, v in pairs if k == "start_timeout"]
-        try:
-            self.start_timeout = float(timeouts[-1]) if timeouts else DEFAULT_START_TIMEOUT_S
-        except ValueError:
-            raise TransportError(f"{url}: option start_timeout={timeouts[-1]!r} is not a number") from None
+        self.start_timeout = start_timeout(url, [v for k, v in pairs if k == "start_timeout"])
         self.argv = firmware_sim_argv(url, options)
         self.process: subprocess.Popen[bytes] | None = None
         self.device: str | None = None

@@ -39,7 +39,7 @@ or cannot open, answered by reconnecting), in its factory or mid-run, is a
 from __future__ import annotations
 
 from hil.plugins import PluginError, Registry, call_plugin
-from protocol.errors import HilError, TransportError
+from protocol.errors import HilError, TransportError, TransportRefused
 
 from .base import Transport, UrlOptions
 from .in_process import InProcessBoard, SimulatedWorld, WorldStream, WorldTruth
@@ -86,7 +86,14 @@ def create_transport(url: str) -> Transport:
     """The transport for ``url``, not yet opened. A scheme neither ``hil`` nor ``firmware_sim`` ships is
     built wrapped in a :class:`~.checked.CheckedTransport` (unless it is an :class:`InProcessBoard`); its
     factory raising anything but the project's own errors, or returning what is not a
-    :class:`Transport`, is a :class:`~hil.plugins.PluginError`."""
+    :class:`Transport`, is a :class:`~hil.plugins.PluginError`. An empty (or blank) ``url`` is a
+    :class:`TransportRefused` at once: as a device path it was opened, failed and tried again for the
+    run's outage bound, the error naming an empty port."""
+    if not url.strip():
+        raise TransportRefused(
+            f"{url!r}: an empty port: give a device path (/dev/ttyACM0) or a transport URL "
+            f"({', '.join(s + '://' for s in schemes())})"
+        )
     scheme = _scheme_of(url)
     if scheme == "serial":
         from .serial_port import SerialTransport

@@ -13,11 +13,14 @@ option             meaning
 =================  ========================================================================
 ``node``           the board's node id 0..127 (default 0); host and board use the same one
 ``fd``             1: CAN FD frames (64 data bytes), 0: classic CAN (default)
-``bitrate``        nominal bit rate in bit/s, for hardware interfaces
-``data_bitrate``   CAN FD data-phase bit rate in bit/s
-``port``           UDP port of ``udp_multicast`` (python-can's default otherwise)
-``send_timeout``   seconds a send may wait for room in the interface's queue (default 0.1)
+``bitrate``        nominal bit rate in bit/s (1..20000000), for hardware interfaces
+``data_bitrate``   CAN FD data-phase bit rate in bit/s (1..20000000)
+``port``           UDP port (1..65535) of ``udp_multicast`` (python-can's default otherwise)
+``send_timeout``   seconds a send may wait for room in the interface's queue (0..60, default 0.1)
 =================  ========================================================================
+
+A value outside its range (NaN and the infinities included) is a :class:`TransportRefused` naming the
+option, raised when the URL is read: never retried, never handed to python-can.
 
 ``fd`` decides what this end sends and which kind it takes; a frame of the other kind is counted
 (``rx_wrong_kind``) and logged naming the option — a peer set up with the other ``fd`` — never taken.
@@ -78,6 +81,19 @@ _TAKES_BOTH_KINDS = frozenset({"udp_multicast"})
 ``udp_multicast`` drops every CAN FD frame it receives before anyone sees it, so a peer configured for the
 other kind went unheard with nothing counted. Opened for both, it hands them up and the reassembler judges
 the kind (``rx_wrong_kind``, logged). What this end *sends* still follows ``fd``."""
+MAX_SEND_TIMEOUT_S = 60.0
+"""The longest ``send_timeout`` (s): a send held a minute for room in the queue is a bus that is gone. A
+value python-can cannot hand its socket (``inf``, 1e308) was an OverflowError out of the handshake."""
+MAX_BITRATE = 20_000_000
+"""The highest ``bitrate`` / ``data_bitrate`` (bit/s) a URL may give: above CAN FD's data phase (8-12
+Mbit/s on today's transceivers), far below what an int handed to a driver would wrap."""
+_BUS_OPTION_RANGES: dict[str, tuple[float, float, str]] = {
+    "bitrate": (1, MAX_BITRATE, "bit/s"),
+    "data_bitrate": (1, MAX_BITRATE, "bit/s"),
+    "port": (1, 65535, ""),
+}
+"""The integer options handed to ``can.Bus`` and their ranges: checked here, so the error names the option
+instead of a driver's (or a socket's OverflowError) at open."""
 _DRAIN = 512  # CAN messages taken per read after the first complete frame (bounded work per call)
 _TX_FULL = frozenset({errno.ENOBUFS, errno.EAGAIN})
 """errno of a send refused for a full transmit queue (socketcan's ENOBUFS): a dropped frame, the bus there."""
@@ -97,6 +113,16 @@ class CanTxStats:
     segments_sent: int = 0
     frames_dropped: int = 0
     not_frames: int = 0
+
+
+def _check_option(url: str, key: str, value: float, lo: float, hi: float, unit: str) -> None:
+    """Refuse an option's ``value`` outside ``lo..hi`` (NaN and the infinities included: the bounds are
+    finite) with a :class:`TransportRefused` naming the URL and ``key``: opening again cannot mend it."""
+    if not lo <= value <= hi:
+        shown = repr(value)[:40]
+        raise TransportRefused(
+            f"{url}: option {key}={shown} is outside {lo:.10g}..{hi:.10g}{' ' + unit if unit else ''}"
+        )
 
 
 def _tx_queue_full(exc: BaseException) -> bool:
@@ -136,16 +162,15 @@ class CanTransport(Transport):
         if not self.interface or not self.channel:
             raise TransportError(f"{url}: expected can://<interface>/<channel>, e.g. can://virtual/vscmg")
         self.node = opts.get_int("node", 0)
-        if not 0 <= self.node <= NODE_MAX:
-            raise TransportError(f"{url}: node={self.node} is outside 0..{NODE_MAX}")
+        _check_option(url, "node", self.node, 0, NODE_MAX, "")
         self.fd = opts.get_bool("fd", False)
         self.send_timeout = opts.get_float("send_timeout", DEFAULT_SEND_TIMEOUT_S)
-        if not self.send_timeout >= 0:
-            raise TransportError(f"{url}: send_timeout={self.send_timeout} must be >= 0 s")
+        _check_option(url, "send_timeout", self.send_timeout, 0.0, MAX_SEND_TIMEOUT_S, "s")
         self._bus_options: dict[str, Any] = {}
-        for key in ("bitrate", "data_bitrate", "port"):
+        for key, (lo, hi, unit) in _BUS_OPTION_RANGES.items():
             if opts.get(key) is not None:
                 self._bus_options[key] = opts.get_int(key, 0)
+                _check_option(url, key, self._bus_options[key], lo, hi, unit)
         opts.finish()
         self.sends = Direction(sends)
         receives = Direction.TO_HOST if self.sends is Direction.TO_BOARD else Direction.TO_BOARD
