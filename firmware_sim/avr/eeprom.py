@@ -132,6 +132,18 @@ def check_hardware(cfg: BoardConfig) -> None:
         raise ConfigError("PPM-sum needs Timer5, free only with 4 units or fewer", "BoardConfig.ppm")
     if not cfg.identity.serial.isascii():
         raise ConfigError("the board serial must be ASCII", "BoardConfig.identity.serial")
+    # the firmware's ADC range, where the scenario reader refuses the same (imported here: the scenario
+    # package is ~0.1 s of imports no EEPROM tool needs otherwise)
+    from hil.scenario.reader import CELL_FULL_V, FIRMWARE_BATTERY_FULL_SCALE_V, FIRMWARE_MAX_CELLS
+
+    cells = cfg.power.battery.cells
+    if cells > FIRMWARE_MAX_CELLS:
+        raise ConfigError(
+            f"{cells} cells are {cells * CELL_FULL_V:g} V full, beyond the "
+            f"{FIRMWARE_BATTERY_FULL_SCALE_V:g} V the firmware's ADC reads: "
+            f"at most {FIRMWARE_MAX_CELLS} cells",
+            "BoardConfig.power.battery.cells",
+        )
 
 
 def config_block(cfg: BoardConfig, baud: int = DEFAULT_BAUD, link: str = DEFAULT_LINK) -> bytes:

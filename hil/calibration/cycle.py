@@ -41,7 +41,7 @@ from .operator import Operator
 from .plot import plot_fits, plot_path
 from .progress import Report, no_report
 from .sweep import SweepPlan, SweepResult, run_sweep
-from .textfiles import check_writable
+from .textfiles import check_writable, locked
 from .verify import VerifyPlan, VerifyReport, run_verify
 
 
@@ -315,15 +315,19 @@ def _save(
     fits: dict[int, dict[BenchKind, Fit]],
     csvs: dict[int, dict[BenchKind, Path]],
 ) -> Path:
+    """Save the calibrated units into ``out``, read again under its lock (:func:`locked`): the units
+    another writer saved in it since the run began are kept (the run's units, assembled from ``existing``
+    as it was then, replace theirs). Saving the file as read before the sweeps lost them."""
     out_dir = out.resolve().parent
-    cset = existing
-    for unit, cal in calibrations.items():
-        old = existing.unit(unit)
-        provenance = dict(old.fits) if old is not None else {}
-        for kind, fit in fits[unit].items():
-            r = fit.report
-            source = os.path.relpath(csvs[unit][kind].resolve(), out_dir)
-            provenance[kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
-        name = old.name if old is not None else f"unit{unit}"
-        cset = cset.with_unit(UnitEntry(unit, name, cal, provenance))
-    return save_calibration(cset, out)
+    with locked(out, f"-o {out}"):
+        cset = load_calibration(out) if out.exists() else CalibrationSet(())
+        for unit, cal in calibrations.items():
+            old = existing.unit(unit)
+            provenance = dict(old.fits) if old is not None else {}
+            for kind, fit in fits[unit].items():
+                r = fit.report
+                source = os.path.relpath(csvs[unit][kind].resolve(), out_dir)
+                provenance[kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
+            name = old.name if old is not None else f"unit{unit}"
+            cset = cset.with_unit(UnitEntry(unit, name, cal, provenance))
+        return save_calibration(cset, out)

@@ -1,11 +1,15 @@
-"""Reading and writing the calibration package's text files: typed errors that name the file, and atomic
-writes (a reader never sees half a calibration file)."""
+"""Reading and writing the calibration package's text files: typed errors that name the file, atomic
+writes (a reader never sees half a calibration file) and an exclusive lock for a read-modify-write (two
+writers of one file never lose each other's change)."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import os
-from collections.abc import Callable
+import secrets
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from hil.files.bounded import MAX_DOCUMENT_BYTES, read_document
@@ -21,19 +25,86 @@ def read_text(path: str | os.PathLike[str], error: Callable[[str, str], HilError
 
 def write_atomic(path: str | os.PathLike[str], text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file renamed over it; creates the directory.
-    :class:`ConfigError` naming the file if it cannot be written."""
+    :class:`ConfigError` naming the file if it cannot be written.
+
+    The temporary file's name is unique to this write (``.<name>.<random>.tmp`` in the same folder, so the
+    rename stays atomic): with one fixed ``<name>.tmp`` two writers at once wrote into, renamed and
+    removed each other's temporary file. It is made with ``O_EXCL`` and the process's umask, as the
+    file itself would be."""
     out = Path(path)
-    tmp = out.with_name(out.name + ".tmp")
+    tmp: Path | None = None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp.write_text(text, encoding="utf-8")
+        fd, tmp = _temporary(out)
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
         os.replace(tmp, out)
     except OSError as exc:
-        if tmp.is_file():  # written but not renamed (the target a folder, say): not left behind
+        if tmp is not None and tmp.is_file():  # written but not renamed (the target a folder): not left
             with contextlib.suppress(OSError):
                 tmp.unlink()
         raise ConfigError(f"cannot write: {exc.strerror or exc}", str(path)) from exc
     return out
+
+
+def _temporary(out: Path) -> tuple[int, Path]:
+    """A new file beside ``out`` with a name no other writer has, open for writing: its descriptor and
+    path. :func:`tempfile.mkstemp` would make it mode 0600 whatever the umask (a calibration file that
+    only its writer could read)."""
+    while True:
+        tmp = out.with_name(f".{out.name}.{secrets.token_hex(6)}.tmp")
+        try:
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+        except FileExistsError:  # 48 random bits taken: draw again
+            continue
+
+
+def lock_path(path: str | os.PathLike[str]) -> Path:
+    """The lock file :func:`locked` holds for ``path``: beside it, ``.<name>.lock`` (there only while a
+    writer holds it)."""
+    out = Path(path)
+    return out.with_name(f".{out.name}.lock")
+
+
+@contextlib.contextmanager
+def locked(path: str | os.PathLike[str], where: str | None = None) -> Iterator[Path]:
+    """Hold an exclusive lock on ``path`` (``fcntl.flock`` on :func:`lock_path`) for a read-modify-write:
+    another :func:`locked` of the same file waits until this one ends. Without it two ``hil calibrate
+    fit`` runs into one file each read it, added their unit and wrote it back: the second write lost the
+    first's unit. Makes ``path``'s folder. The lock file is removed on the way out; a waiter that then
+    holds a lock on the removed file sees it is no longer the one at :func:`lock_path` and locks again
+    (so two writers never hold locks on two different files). :class:`ConfigError` naming ``where``
+    (default: the path) when the folder or the lock file cannot be made. Yields ``path``."""
+    out = Path(path)
+    said = where if where is not None else str(out)
+    lock = lock_path(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX)
+                held, now = os.fstat(fd), os.stat(lock)
+            except FileNotFoundError:  # removed by the writer before us while we waited: lock again
+                os.close(fd)
+                continue
+            except BaseException:
+                os.close(fd)
+                raise
+            if (held.st_dev, held.st_ino) == (now.st_dev, now.st_ino):
+                break
+            os.close(fd)  # a new lock file made after ours was removed: lock that one
+    except OSError as exc:
+        why = exc.strerror or exc
+        if exc.errno == errno.ENOLCK:
+            why = "the file system takes no locks"
+        raise ConfigError(f"cannot lock {out} ({lock}): {why}", said) from exc
+    try:
+        yield out
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(lock)  # while still held: a waiter then sees its lock file is gone
+        os.close(fd)
 
 
 def check_writable(path: str | os.PathLike[str], where: str | None = None) -> Path:

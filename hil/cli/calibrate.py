@@ -9,6 +9,12 @@ import math
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from hil.calibration.bench import BenchData
+    from hil.calibration.files import CalibrationSet, UnitEntry
+    from hil.calibration.fit import Fit
 
 ORDER = 40
 
@@ -116,16 +122,13 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 # --------------------------------------------------------------------------- fit
 def run_fit(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from hil.calibration.bench import read_bench_csv
-    from hil.calibration.files import CalibrationSet, FitInfo, UnitEntry, load_calibration, save_calibration
+    from hil.calibration.files import CalibrationSet, load_calibration, save_calibration
     from hil.calibration.fit import FitOptions, fit_bench
     from hil.calibration.plot import plot_fits
     from hil.calibration.plot import plot_path as default_plot_path
-    from hil.calibration.textfiles import check_writable
-    from protocol.calibration import UnitCalibration, default_unit_calibration
-    from protocol.errors import CalibrationError
+    from hil.calibration.textfiles import check_writable, locked
+    from protocol.errors import CalibrationError, ConfigError
 
     from ._calibrate_board import say
 
@@ -154,8 +157,42 @@ def run_fit(args: argparse.Namespace) -> int:
             raise CalibrationError(
                 f"one of {kinds.count(d.kind.value)} {d.kind.value} CSVs; give one per map", d.path
             )
+    fits = [(d, fit_bench(d, options)) for d in datasets]
+    # Load, merge, plot and save under one lock on the file: two fits into one file at once each read it
+    # and wrote it back with their own unit only (one unit lost). The plot is saved before the file: a plot
+    # that cannot be saved ends the command with the file unchanged (it was written, then the command said
+    # only "error: cannot save the plot"), and a plot without its file is only a picture of the fit.
+    with locked(args.out, f"-o {args.out}"):
+        existing = load_calibration(args.out) if args.out.exists() else CalibrationSet(())
+        entry, kept, base_label = _fitted_unit(args, existing, fits)
+        try:
+            plot_path = plot_fits(fits, plot_path, title=f"{args.out.name}: unit {args.unit} ({entry.name})")
+        except ConfigError as exc:
+            raise ConfigError(f"{exc.detail}; {args.out} was not written", exc.where) from exc
+        written = save_calibration(existing.with_unit(entry), args.out)
+    for _, fit in fits:
+        say(fit.report.summary())
+    if kept:
+        say(f"kept from {base_label}: {', '.join(kept)}")
+    size = len(entry.calibration.to_bytes())
+    say(f"wrote {written} (unit {args.unit}, {size}-byte binary set), plot {plot_path}")
+    return 0
+
+
+def _fitted_unit(
+    args: argparse.Namespace, existing: CalibrationSet, fits: list[tuple[BenchData, Fit]]
+) -> tuple[UnitEntry, list[str], str]:
+    """``hil calibrate fit``'s unit: the fitted maps, the others (and their provenance) from the unit
+    already in ``existing`` (the output file, read under its lock) or from ``--base``; with the maps kept
+    and where they came from. :class:`CalibrationError` when maps are missing and there is nowhere to take
+    them from."""
+    from dataclasses import replace
+
+    from hil.calibration.files import FitInfo, UnitEntry, load_calibration
+    from protocol.calibration import UnitCalibration, default_unit_calibration
+    from protocol.errors import CalibrationError
+
     out_dir = args.out.resolve().parent
-    existing = load_calibration(args.out) if args.out.exists() else CalibrationSet(())
     base, base_dir, base_label = existing.unit(args.unit), out_dir, str(args.out)
     if args.base == "default":
         base, base_label = (
@@ -170,7 +207,6 @@ def run_fit(args: argparse.Namespace) -> int:
         )
         if base is None:
             raise CalibrationError(f"has no unit {args.unit}", args.base)
-    fits = [(d, fit_bench(d, options)) for d in datasets]
     maps = {d.kind.value: fit.map for d, fit in fits}
     kept = [k for k in ("rotor", "gimbal_rate", "gimbal_angle") if k not in maps]
     if kept and base is None:
@@ -193,14 +229,7 @@ def run_fit(args: argparse.Namespace) -> int:
         source = os.path.relpath(Path(d.path).resolve(), out_dir)
         provenance[d.kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
     name = args.name or (base.name if base is not None and args.base != "default" else f"unit{args.unit}")
-    written = save_calibration(existing.with_unit(UnitEntry(args.unit, name, cal, provenance)), args.out)
-    plot_path = plot_fits(fits, plot_path, title=f"{written.name}: unit {args.unit} ({name})")
-    for _, fit in fits:
-        say(fit.report.summary())
-    if kept:
-        say(f"kept from {base_label}: {', '.join(kept)}")
-    say(f"wrote {written} (unit {args.unit}, {len(cal.to_bytes())}-byte binary set), plot {plot_path}")
-    return 0
+    return UnitEntry(args.unit, name, cal, provenance), kept, base_label
 
 
 def _plot_target(given: Path | None, default: Path) -> Path:

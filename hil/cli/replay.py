@@ -108,7 +108,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     board.add_argument("--port", metavar="URL", help="drive the board at URL (a hil run transport URL)")
     board.add_argument(
         "--scenario",
-        default="cubesat-1u",
+        default=None,  # None: not given, so refused without --port rather than ignored
         metavar="NAME|FILE",
         help="with --port: the spacecraft, array and controller (default cubesat-1u)",
     )
@@ -201,6 +201,13 @@ def run(args: argparse.Namespace) -> int:
     name = args.log.resolve().name.removesuffix(".zip")
     if args.port is not None:
         return _drive(args, name, field_model)
+    for given, option in ((args.scenario is not None, "--scenario"), (args.lockstep, "--lockstep")):
+        if given:  # taken, then ignored: a scenario file that did not exist replayed, status 0
+            raise ConfigError(
+                "with --port only: without one the log runs through the estimator alone, no board and no "
+                'scenario (a board driven by the log: --port URL, e.g. --port "emu://?units=4")',
+                option,
+            )
     out = args.out or Path("runs") / f"replay-{name}"
     show = args.progress or sys.stderr.isatty()
     options = ReplayOptions(
@@ -281,12 +288,12 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     from hil.runtime import ReplayInput, RunOptions
     from hil.runtime import run as run_scenario
     from hil.runtime.phases import ROTOR_SETTLE_S
-    from hil.scenario import load_scenario
+    from hil.scenario import DEFAULT_SCENARIO, load_scenario
     from protocol.errors import ConfigError
 
     if args.paced:
         raise ConfigError("a board is always driven on the clock: leave out --paced", "hil replay --port")
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(args.scenario if args.scenario is not None else DEFAULT_SCENARIO)
     log = read_log(args.log, args.format)
     if args.window:
         log = log.window(*args.window)

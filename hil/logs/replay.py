@@ -432,11 +432,43 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     )
     _score(result)
     make_dir(options.out_dir)
+    clear_outputs(options.out_dir)
     result.files["estimates"] = write_estimates(estimates, options.out_dir / "estimates.csv")
     if options.plotter is not None:
         result.files.update(options.plotter(result, options.out_dir))
     result.files["summary"] = _write_summary(result, options.out_dir / "summary.json")
     return result
+
+
+REPLAY_OUTPUTS = (
+    "estimates.csv",
+    "summary.json",
+    "attitude.png",
+    "rates.png",
+    "attitude_error.png",
+    "rate_error.png",
+)
+"""Every file a replay writes in its ``out_dir``: its estimates and summary, and the figures
+(``hil.plots.estimator.plot_replay``'s; tests/test_replay_beside_stale_outputs.py holds them equal)."""
+
+
+def clear_outputs(out_dir: Path) -> None:
+    """Remove what an earlier replay left in ``out_dir`` (:data:`REPLAY_OUTPUTS` only, nothing else in
+    the folder) before this one writes its own: a replay without plots, or with a log that has no ground
+    truth, left the earlier replay's figures beside its summary — one folder, two replays. A name that is
+    there but not a file (a folder) is left for the write to refuse; one that cannot be removed is a
+    :class:`ConfigError` naming it."""
+    for name in REPLAY_OUTPUTS:
+        path = out_dir / name
+        if path.is_symlink() or path.is_file():
+            try:
+                path.unlink()
+            except FileNotFoundError:
+                pass
+            except OSError as exc:
+                raise ConfigError(
+                    f"cannot remove an earlier replay's output: {exc.strerror or exc}", str(path)
+                ) from exc
 
 
 def drop_out_of_range(log: SensorLog, limits: ReadingLimits) -> tuple[SensorLog, dict[str, int]]:

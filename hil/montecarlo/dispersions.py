@@ -62,6 +62,7 @@ from hil.numbers import is_finite_number
 from hil.runtime.invariants import InjectedFault
 from hil.scenario import Scenario
 from hil.scenario.paths import FIXTURES, read_text
+from hil.scenario.reader import MIN_NEEDED_SENSOR_RATE_HZ, NEEDED_SENSORS
 from protocol.errors import ConfigError
 
 from .fault_plan import FaultSpec, board_of, check_board, draw_faults, parse_faults
@@ -88,6 +89,7 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "sensors.*.noise": (-1e3, 1e3),
     "sensors.*.bias": (-1e3, 1e3),
     "sensors.*.rate_hz": (-1e3, 1e3),
+    **{f"sensors.{kind}.rate_hz": (MIN_NEEDED_SENSOR_RATE_HZ, 1e3) for kind in NEEDED_SENSORS},
     "sensors.*.jitter_s": (-0.1, 0.1),
     "initial.angle_deg": (-360.0, 360.0),
     "manoeuvre.angle_deg": (-360.0, 360.0),
@@ -99,7 +101,10 @@ bounds (:data:`hil.scenario.reader.RANGES`) have it: a value beyond them (a phon
 a run that cannot end or cannot be simulated. A fixed value, a uniform's ends, a choice's values and a
 normal's mean and clip bounds must lie within them (a :class:`ConfigError` naming the file and key), and
 every draw is clipped into them (a normal's tail). Within them, a value the model refuses (a negative noise)
-is the run's failure, recorded with it, not the file's: the bounds are about size, not sign."""
+is the run's failure, recorded with it, not the file's: the bounds are about size, not sign — but for the
+gyroscope's and accelerometer's rates, which the host cannot steer below
+(:data:`hil.scenario.reader.MIN_NEEDED_SENSOR_RATE_HZ`, as a scenario: every run of a draw below it ended
+"lost: phone"), so a file asking for less is refused and a normal's tail clipped up to it."""
 
 
 # --------------------------------------------------------------------------- distributions
@@ -388,7 +393,9 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
     for key, dist in found.items():
         lo, hi = bounds_of(key)
         _check_support(dist, lo, hi, f"{where}: {key}")
-        _check_spread(dist, _BY_KEY[key].nominal(scenario), hi - lo, f"{where}: {key}")
+        nominal = _BY_KEY[key].nominal(scenario)
+        _check_relative(dist, nominal, f"{where}: {key}")
+        _check_spread(dist, nominal, hi - lo, f"{where}: {key}")
         if key in POSITIVE and isinstance(dist, Fixed) and not dist.value > 0:
             raise ConfigError(f"must be positive, got {dist.value:g}", f"{where}: {key}")
     entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
@@ -396,7 +403,9 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
 
 
 def bounds_of(key: str) -> tuple[float, float]:
-    """A parameter's :data:`BOUNDS` (a sensor's by its field)."""
+    """A parameter's :data:`BOUNDS` (its own, else a sensor's by its field)."""
+    if key in BOUNDS:
+        return BOUNDS[key]
     parts = key.split(".")
     return BOUNDS[f"sensors.*.{parts[2]}" if parts[0] == "sensors" else key]
 
@@ -414,6 +423,24 @@ def _check_support(dist: Distribution, lo: float, hi: float, where: str) -> None
     bad = [v for v in values if v is not None and not lo <= v <= hi]
     if bad:
         raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
+
+
+def _check_relative(dist: Distribution, nominal: Array, where: str) -> None:
+    """Refuse a normal's ``relative_sigma`` about a mean of 0 (the scenario's value, any element of it, or
+    the ``mean`` given): σ = relative_sigma × |mean| is then 0 and every run drew the nominal value, a
+    dispersion asked for and never made (products of inertia, a rotor offset of 0)."""
+    if not isinstance(dist, Normal) or dist.relative_sigma is None:
+        return
+    mean = np.abs(nominal) if dist.mean is None else np.array([abs(dist.mean)])
+    if mean.size and not np.all(mean > 0):
+        said = f"the mean given is {dist.mean:g}" if dist.mean is not None else "the scenario's value is 0"
+        if dist.mean is None and not np.all(mean == 0):
+            said = "an element of the scenario's value is 0"
+        raise ConfigError(
+            f"{said}, so relative_sigma × |mean| is 0 and no run would be dispersed; give sigma (an absolute "
+            "spread) instead",
+            f"{where}.relative_sigma",
+        )
 
 
 def _check_spread(dist: Distribution, nominal: Array, span: float, where: str) -> None:

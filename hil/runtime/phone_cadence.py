@@ -17,9 +17,10 @@ from hil.runtime.runlog import EventLog
 logger = logging.getLogger(__name__)
 
 BATCHED_GAPS = 3
-"""Gaps in a row, each longer than ``stale_after_s`` and ended by readings that span it (the phone's
-clock went on: it streamed, and delivered late, in one batch), before the host calls the phone batched
-(an HTTP Push period above the stale bound) rather than pausing."""
+"""Gaps in a row, each longer than ``stale_after_s``, seen by the host (it looked and found the phone
+stale: a phone gap opened) and ended by readings that span it (the phone's clock went on: it streamed,
+and delivered late, in one batch), before the host calls the phone batched (an HTTP Push period above the
+stale bound) rather than pausing."""
 BATCHED_CLEAR_S = 1.0
 """s: a batched phone is taken for a streaming one again once its readings came at most
 ``stale_after_s`` apart for this long (the app's period shortened), not on one short interval (two late
@@ -40,13 +41,20 @@ class PhoneCadence:
 
     def heard(self, t: float, previous: float | None, newest: float) -> None:
         """The phone's accepted count moved at ``t`` (host s), the last time before at ``previous`` (None:
-        the first), its newest stamp now ``newest`` (phone s)."""
+        the first), its newest stamp now ``newest`` (phone s). Called before the gap this ends is closed:
+        an interval longer than the stale bound is a batch only if the host looked in between and found
+        the phone stale (a phone gap open in the journal) — what a batched phone does to the host; an
+        interval the host did not look into (it looks once a control period) is no batch."""
         advance = newest - self._heard_newest
         self._heard_newest = newest
         if previous is None:
             return
         interval = t - previous
-        if interval <= self.stale_after_s:
+        if interval <= self.stale_after_s or self.journal.phone_out is None:
+            # Readings at most the bound apart, or further apart but with no gap the host saw: it found
+            # the phone fresh each time it looked (a controller slower than 1 / the bound looks once a
+            # period, 0.5 s at 2 Hz, and finds the readings of the whole period each time). Counting those
+            # intervals as batches called a streaming phone batched, and every such run lost it.
             self._batched_run = 0
             if self.batched_s is not None:
                 self._short_since = previous if self._short_since is None else self._short_since

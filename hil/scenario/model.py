@@ -86,7 +86,11 @@ class Scenario:
         board, or ``firmware``, the firmware ELF under simavr); None: as the scenario says."""
         if board is None:
             return self
-        return replace(self, board_options={**self.board_options, "board": board})
+        from hil.scenario.reader import check_firmware_board  # the reader builds this module's Scenario
+
+        chosen = replace(self, board_options={**self.board_options, "board": board})
+        check_firmware_board(chosen)  # a pack the firmware's ADC cannot read: named before anything starts
+        return chosen
 
     def with_changes(self, **changes: Any) -> Scenario:
         """A copy with fields replaced (Monte Carlo dispersions, ``--duration``)."""

@@ -26,6 +26,13 @@ from .phone import PhoneSpec, SensorSpec
 
 _SPACECRAFT_PRESETS = ("cubesat_1u", "air_bearing_testbed")
 _GEOMETRIES = ("pyramid", "tetrahedron", "custom")
+_GEOMETRY_KEYS: dict[str, frozenset[str]] = {
+    "pyramid": frozenset({"geometry", "units", "skew_deg"}),
+    "tetrahedron": frozenset({"geometry"}),  # three units, its own skew
+    "custom": frozenset({"geometry", "gimbal_axes", "spin_axes"}),
+}
+"""The ``[array]`` keys each geometry takes: any other is refused, naming it (a tetrahedron's ``units = 6``
+and a pyramid's ``gimbal_axes`` were dropped unsaid)."""
 _SENSOR_PRESETS = ("nexus5", "ideal")
 
 # Every key each table accepts (anything else is a typo and an error naming it).
@@ -95,8 +102,30 @@ DEFAULT_LINK_TIMEOUT_S = 0.25
 """The board's link watchdog (s) when a scenario's ``[board]`` does not set ``link_timeout``
 (``firmware_sim.board.config.BoardConfig``'s default; tests/test_scenario_checks.py holds them equal)."""
 HOST_STALE_AFTER_S = 0.25
-"""s: the host sees the board's telemetry as stale once it is this old (``hil.runtime.faults.STALE_AFTER_S``,
-below this layer; tests/test_config_beside_telemetry_rate.py holds them equal)."""
+"""s: the host sees the board's telemetry, and the phone's gyroscope and accelerometer, as stale once their
+newest is this old (``hil.runtime.faults.STALE_AFTER_S``, below this layer;
+tests/test_config_beside_telemetry_rate.py holds them equal)."""
+MIN_NEEDED_SENSOR_RATE_HZ = 2.0 / HOST_STALE_AFTER_S
+"""The slowest ``sensors.gyr.rate_hz`` and ``sensors.acc.rate_hz`` a scenario (or a Monte Carlo draw) may
+set: two readings per :data:`HOST_STALE_AFTER_S`, as for the board's telemetry. The host cannot steer
+without both (``hil.runtime.phone_clock.NEEDED``): slower, each interval between readings is a phone gap
+(a gyroscope at 3 Hz: 141 gaps in a 5 s run, which ended "lost: phone"). The magnetometer may be slower:
+without it heading is only unobserved."""
+NEEDED_SENSORS = ("gyr", "acc")
+"""The sensors :data:`MIN_NEEDED_SENSOR_RATE_HZ` bounds."""
+FIRMWARE_BATTERY_FULL_SCALE_V = 2.560 * 8
+"""V: the most battery voltage the board's C firmware can read — its ADC's 2.56 V reference behind the
+battery's 1/8 divider (``firmware/include/board_pins.h``: ``ADC_REF_MV``, ``BATTERY_DIVIDER_NUM``/``_DEN``;
+tests/test_scenario_beside_firmware_cells.py holds them equal). The Python board emulator reads any
+pack."""
+CELL_FULL_V = 4.2
+"""V: a full LiPo cell (firmware-sim's packs: ``firmware_sim.board.config``)."""
+FIRMWARE_MAX_CELLS = int(FIRMWARE_BATTERY_FULL_SCALE_V // CELL_FULL_V)
+"""The most ``[board] cells`` the firmware board takes: a full pack within its ADC's range (4: 16.8 V). Of
+5 or more it read a full 6-cell pack as 20.46 V (the ADC's top), and a 12-cell pack's cells as 1.7 V each:
+the board shed its load at once."""
+DEFAULT_CELLS = 3
+"""The board's cells when a scenario's ``[board]`` does not set them (firmware-sim's ``--cells`` default)."""
 MIN_TELEMETRY_RATE_HZ = 2.0 / HOST_STALE_AFTER_S
 """The slowest ``[board] telemetry_rate`` a scenario may set: two frames per :data:`HOST_STALE_AFTER_S`, so
 that one frame late or lost still leaves the host a live board. Slower (firmware-sim takes 0.1 Hz), every
@@ -169,6 +198,38 @@ def check_run_length(warmup_s: float, duration_s: float, plant_step_s: float, wh
             f"{length:g} s at a plant step of {plant_step_s:g} s is {steps:.3g} plant steps, more than "
             f"{MAX_PLANT_STEPS:.0e}: shorten the run or lengthen controller.plant_step_s",
             where,
+        )
+
+
+def needed_rate_error(kind: str, rate_hz: float) -> str:
+    """Why a gyroscope's or accelerometer's ``rate_hz`` below :data:`MIN_NEEDED_SENSOR_RATE_HZ` is refused
+    (the scenario's and a dispersion file's message)."""
+    name = {"gyr": "gyroscope", "acc": "accelerometer"}[kind]
+    return (
+        f"a {name} at {rate_hz:g} Hz reads every {1.0 / rate_hz:g} s, but the host sees the phone stale once "
+        f"its {name} is {HOST_STALE_AFTER_S:g} s old and needs two readings within that to steer: at least "
+        f"{MIN_NEEDED_SENSOR_RATE_HZ:g} Hz (the magnetometer may be slower)"
+    )
+
+
+def check_firmware_board(scenario: Scenario) -> None:
+    """Refuse ``[board] cells`` the firmware board cannot read when it is the board ``scenario`` runs
+    (``board_options["board"] == "firmware"``, :meth:`~hil.scenario.model.Scenario.with_board`): more
+    than :data:`FIRMWARE_MAX_CELLS`, whose full voltage is beyond its ADC's
+    :data:`FIRMWARE_BATTERY_FULL_SCALE_V`. A :class:`ConfigError` at ``FILE: board.cells`` naming the
+    firmware's limit. The Python board keeps the scenario's range."""
+    board_options = scenario.board_options
+    where = scenario.path.name if scenario.path is not None else "<scenario>"
+    if board_options.get("board") != "firmware":
+        return
+    cells = board_options.get("cells", DEFAULT_CELLS)
+    if cells > FIRMWARE_MAX_CELLS:
+        raise ConfigError(
+            f"{cells} cells are {cells * CELL_FULL_V:g} V full, beyond the {FIRMWARE_BATTERY_FULL_SCALE_V:g} "
+            "V the firmware board's ADC reads (firmware/include/board_pins.h): it would read the pack wrong "
+            f"and shed its load; at most {FIRMWARE_MAX_CELLS} cells with the firmware board (the Python "
+            f"emulator takes {BOARD_RANGES['cells'][0]:g}..{BOARD_RANGES['cells'][1]:g})",
+            f"{where}: board.cells",
         )
 
 
@@ -366,6 +427,14 @@ class _Reader:
         if not arr:
             return None
         kind = self.choice(arr, "array", "geometry", _GEOMETRIES)
+        takes = _GEOMETRY_KEYS[kind]
+        for key in arr:
+            if key not in takes:  # dropped unsaid, it was an array other than the one written
+                raise self.error(
+                    f"array.{key}",
+                    f"not a key of geometry {kind!r}, which takes {', '.join(sorted(takes))}"
+                    + ("" if "geometry" in arr else " (geometry not given: pyramid)"),
+                )
         template = params.units[0]
         try:
             if kind == "pyramid":
@@ -449,6 +518,9 @@ class _Reader:
                 values[key] = self.number(sub, f"sensors.{kind}", key, 0.0, positive=key == "rate_hz")
                 if values[key] < 0:
                     raise self.error(f"sensors.{kind}.{key}", "must not be negative")
+            rate = values.get("rate_hz")
+            if kind in NEEDED_SENSORS and rate is not None and rate < MIN_NEEDED_SENSOR_RATE_HZ:
+                raise self.error(f"sensors.{kind}.rate_hz", needed_rate_error(kind, rate))
             try:
                 changes[kind] = replace(base, **values)
             except ConfigError as exc:
