@@ -21,6 +21,12 @@ Invariants, after every step:
 * no pulse frame on either board outside the range the protocol allows (500..2500 µs) and, whenever the
   board is not ARMED, every rotor channel at the safe pulse: a hostile value never arms or moves a motor;
 * neither board crashes or hangs (the harness answers every step; the Python board raises nothing).
+
+ESC endpoint programming (``EscCalibrate``, START and SUPPLY_APPLIED, good fields and bad) runs among the
+rest: while it runs its channel is exempt from the safe-pulse rule (it drives that rotor while DISARMED
+by design), and telemetry is compared only between the procedure's phase changes (the two boards send
+theirs at different moments, and a phase changes the width without any input) - so both report the same
+state, mode and widths through the procedure, and the safe pulse as soon as it ends or is aborted.
 """
 
 from __future__ import annotations
@@ -42,6 +48,7 @@ from protocol.crc import crc16_ccitt_false
 from protocol.errors import FieldRangeError
 from protocol.frame import BadFrame, Deframer, encode_frame, seal
 from protocol.messages import (
+    ESC_CALIBRATION_CONFIRM,
     SCHEMA_HASH,
     Ack,
     ActuatorSetpoint,
@@ -51,6 +58,8 @@ from protocol.messages import (
     CalibrationRequest,
     ControlMode,
     Disarm,
+    EscCalibrate,
+    EscCalStep,
     Flags,
     GimbalMode,
     Heartbeat,
@@ -66,6 +75,9 @@ from protocol.messages import (
 PULSE_TOL_US = 1
 """Reported widths are whole µs (half up) of a fine width; float32 maps against double ones differ by
 far less than 0.01 µs, which can still move a width lying on a half-µs boundary by one."""
+ESC_PHASE_MARGIN_MS = 6.0
+"""How far apart the two boards' ESC procedure phase changes may lie (ms): the firmware takes a command
+in a few ms of line later (115200 baud) and times the phases in whole ms."""
 SETTLE_MS = 40
 """Telemetry is compared once both boards sent one at least this long after the last input (ms): the
 firmware converts a setpoint over a few main-loop passes, and the two telemetry schedules differ in phase."""
@@ -139,6 +151,9 @@ class Pair:
         self.last_input_ms = 0.0
         self.compared = 0  # telemetry pairs compared
         self.held_at = -1  # the emulator's setpoint count when its gimbals last held an angle
+        self.esc_changes: list[float] = []  # clock ms of the emulator's ESC procedure's phase changes
+        self.esc_driven: dict[int, float] = {}  # channel -> the last clock ms the procedure drove it
+        self._esc_phase = self.py.esc_calibration.phase
 
     def close(self) -> None:
         self.fw.close()
@@ -151,7 +166,19 @@ class Pair:
             for b in self.boards.values():
                 b.step()
             self._check_frames()
+            self._watch_esc()
         self._drain()
+
+    def _watch_esc(self) -> None:
+        """Note the emulator's ESC procedure: when its phase changes, and which channel it drives."""
+        esc = self.py.esc_calibration
+        now_ms = self.clock.now() * 1e3
+        if esc.phase is not self._esc_phase:
+            self._esc_phase = esc.phase
+            self.esc_changes.append(now_ms)
+        taught = esc.rotor_width()
+        if taught is not None:
+            self.esc_driven[taught[0]] = now_ms
 
     def feed(self, data: bytes) -> None:
         self.last_input_ms = self.clock.now() * 1e3
@@ -194,10 +221,11 @@ class Pair:
         frames_ms = 3e3 / self.config.frame_rate_hz + 5.0
         if now_ms - self.last_input_ms < frames_ms or self._near_link_deadline(now_ms - frames_ms, now_ms):
             return
+        taught = {ch for ch, t in self.esc_driven.items() if now_ms - t < frames_ms}
         for k, b in self.boards.items():
             last = b.timeline.last()
             if b.state is not BoardState.ARMED and last is not None:
-                rotors = last.widths[1::2]
+                rotors = [w for ch, w in enumerate(last.widths) if ch % 2 and ch not in taught]
                 safe = self.config.rotor_safe_us
                 assert all(w in (None, safe) for w in rotors), f"{k} {b.state.name}: rotors {rotors}"
 
@@ -222,6 +250,12 @@ class Pair:
             return
         if self._near_link_deadline(min(a.time_ms, b.time_ms), max(a.time_ms, b.time_ms)):
             return  # the two were sent on either side of the link loss
+        t0, t1 = (
+            min(a.time_ms, b.time_ms) - ESC_PHASE_MARGIN_MS,
+            max(a.time_ms, b.time_ms) + ESC_PHASE_MARGIN_MS,
+        )
+        if any(t0 <= t <= t1 for t in self.esc_changes):
+            return  # the two were sent on either side of a phase change of the ESC procedure
         self.compared += 1
         assert (a.state, a.mode, a.watchdog) == (b.state, b.mode, b.watchdog)
         assert a.faults == b.faults, f"faults firmware {a.faults:#x} emulator {b.faults:#x}"
@@ -356,7 +390,26 @@ def ops(n_units: int):
             lambda n: st.lists(raw_widths, min_size=n, max_size=n)
         ),
     )
+    esc_units = st.sampled_from(sorted({0, n_units - 1, n_units, 5}))
+    esc_start = st.builds(
+        EscCalibrate,
+        unit=esc_units,
+        confirm=st.sampled_from([ESC_CALIBRATION_CONFIRM, ESC_CALIBRATION_CONFIRM, 0]),
+        low_us=st.sampled_from([500, 1000, 1100]),
+        high_us=st.sampled_from([1400, 1500, 2000, 2500]),
+        supply_off_ms=st.sampled_from([0, 100, 150]),
+        high_ms=st.sampled_from([100, 150]),
+        low_ms=st.sampled_from([100, 150]),
+    )
+    esc_supply = st.builds(
+        EscCalibrate,
+        unit=esc_units,
+        step=st.just(EscCalStep.SUPPLY_APPLIED),
+        confirm=st.just(ESC_CALIBRATION_CONFIRM),
+    )
     reliable = st.one_of(
+        esc_start,
+        esc_supply,
         st.builds(Arm),
         st.builds(Disarm),
         st.builds(SetMode, mode=st.sampled_from(ControlMode)),
@@ -391,7 +444,9 @@ def ops(n_units: int):
 
 CONFIGS = [
     BoardConfig(),
-    BoardConfig(n_units=1, frame_rate_hz=50.0, rotor_safe_us=1000, link_timeout_s=0.25),
+    BoardConfig(
+        n_units=1, frame_rate_hz=50.0, rotor_safe_us=1000, link_timeout_s=0.25, esc_supply_switch=True
+    ),
     BoardConfig(n_units=6, frame_rate_hz=490.0, rotor_safe_us=1000, telemetry_rate_hz=50.0),
 ]
 

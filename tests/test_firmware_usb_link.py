@@ -25,6 +25,7 @@ from protocol.messages import (
     BoardState,
     GimbalMode,
     Log,
+    Severity,
     Telemetry,
     UnitSetpoint,
 )
@@ -85,6 +86,35 @@ def test_a_phone_without_accessory_mode_is_refused_and_the_log_says_so():
             assert reply.state == BoardState.DISARMED
             # a Log from inside the USB stack is its deepest call: the firmware's stack rule still holds
             assert b.stack_headroom() >= 256
+        finally:
+            host.close()
+
+
+def test_a_phone_that_never_switches_after_start_is_refused_with_an_error_log():
+    """START taken, no accessory ever comes back: AOA_HANDSHAKE_TRIES (3) STARTs, AOA_REENUM_US (3 s)
+    apart, then the refusal as an ERROR Log (code HANDSHAKE), not a START every 3 s for ever."""
+    with board() as b:
+        usb(b, "detach")
+        usb(b, "never_switch", "1")
+        t0 = usb(b, "attach")
+        end = time.monotonic() + 60.0
+        while usb(b, "nak", "0") - t0 < 3 * 3.0 + 1.0:  # three tries of 3 s, and some
+            assert time.monotonic() < end, "the board's clock did not get past the three tries"
+            time.sleep(0.25)
+        assert phone_mode(b) == PHONE_NORMAL  # never switched
+        host = SerialHost(b.port)
+        try:
+            usb(b, "detach")
+            usb(b, "never_switch", "0")
+            usb(b, "attach")
+            wait_mode(b, PHONE_ACCESSORY)  # a new attach tries again: this phone switches
+            refusal = host.wait_type(Log, 3.0, lambda m: m.code == LogCode.HANDSHAKE)
+            assert refusal.severity == Severity.ERROR
+            assert refusal.text == "USB phone refused: no accessory mode after START, AOA protocol 2"
+            logs = [m for m in host.received if isinstance(m, Log)]
+            before = logs[: logs.index(refusal)]
+            assert sum("switching to accessory mode" in m.text for m in before) == 3
+            assert host.handshake().state == BoardState.DISARMED
         finally:
             host.close()
 

@@ -36,7 +36,9 @@ IDLE, HANDSHAKE, WAIT_REENUM, RUNNING, CLEAR_HALT, REFUSED = range(6)
 # usb_host.h's states
 USB_DETACHED, USB_CONFIGURED = 3, 8
 # aoa.h's events
-EV_UP, EV_DOWN, EV_NO_AOA, EV_STARTED, EV_FAILED = 1, 2, 3, 4, 5
+EV_UP, EV_DOWN, EV_NO_AOA, EV_STARTED, EV_FAILED, EV_NO_PIPES, EV_NO_SWITCH = 1, 2, 3, 4, 5, 6, 7
+AOA_HANDSHAKE_TRIES = 3
+AOA_REENUM_US = 3_000_000  # after START, how long the board waits for the phone to come back
 # the phone's modes (harness/max3421e.h)
 PHONE_DETACHED, PHONE_NORMAL, PHONE_ACCESSORY = 0, 1, 2
 # attach debounce 200 ms + bus reset 50 ms + recovery 20 ms + enumeration, twice (normal, accessory)
@@ -232,6 +234,35 @@ def test_a_phone_without_aoa_is_refused_with_a_log(stack):
     assert stack.last_error() == ""
 
 
+def test_a_phone_that_takes_start_but_never_switches_is_refused_after_a_few_tries(stack):
+    """A phone that answers GET_PROTOCOL, takes the strings and START but stays in its normal mode (no
+    accessory app, or AOA barred by policy) gets START a few times, then is refused with an ERROR Log,
+    not retried every 3 s for as long as it stays plugged in."""
+    stack.fault("never_switch", 1)
+    passes = stack.run_until(REFUSED, 2 * AOA_HANDSHAKE_TRIES * AOA_REENUM_US // PASS_US)
+    assert passes > 0, (stack.state, stack.events(), stack.last_error())
+    assert passes * PASS_US >= AOA_HANDSHAKE_TRIES * AOA_REENUM_US
+    assert stack.events() == [(EV_STARTED, 2)] * AOA_HANDSHAKE_TRIES + [(EV_NO_SWITCH, 2)]
+    assert (
+        stack.event_text(EV_NO_SWITCH, 2)
+        == "USB phone refused: no accessory mode after START, AOA protocol 2"
+    )
+    assert stack.lib.usbc_phone_mode() == PHONE_NORMAL
+    # refused for good while it stays plugged in: no more START, no more events
+    assert stack.step(3 * AOA_REENUM_US // PASS_US) == REFUSED
+    assert len(stack.events()) == AOA_HANDSHAKE_TRIES + 1
+    assert stack.last_error() == ""
+    # unplugged and plugged in again, it is a new device that gets its tries again (and switches now)
+    stack.fault("detach")
+    assert stack.run_until(IDLE, 50) > 0
+    stack.fault("never_switch", 0)
+    stack.fault("attach")
+    _accessory(stack)
+    assert stack.events()[-2:] == [(EV_STARTED, 2), (EV_UP, stack.device()["pid"])]
+    assert stack.phone_strings() == [*_firmware_identity(), "LAB-01"]
+    assert stack.last_error() == ""
+
+
 def test_a_nak_storm_is_ridden_out(stack):
     stack.fault("nak", 25)  # every data transaction, control and bulk, is NAKed 25 times first
     _accessory(stack)
@@ -363,6 +394,7 @@ FAULT_ACTIONS = st.one_of(
     st.tuples(st.just("packet"), st.integers(1, 64)),
     st.tuples(st.just("zlp"), st.integers(0, 1)),
     st.tuples(st.just("aoa"), st.integers(0, 2)),
+    st.tuples(st.just("never_switch"), st.integers(0, 1)),
     st.tuples(st.just("passes"), st.integers(1, 400)),
     st.tuples(st.just("phone"), st.integers(1, 300)),
     st.tuples(st.just("board"), st.integers(1, 300)),
@@ -388,7 +420,14 @@ def test_any_sequence_of_faults_leaves_a_stack_that_recovers(actions):
                 if name == "detach":
                     s.pump(5)  # a cable is out for more than a few main-loop passes
             assert s.last_error() == ""
-        for name, value in (("nak", 0), ("packet", 64), ("zlp", 0), ("aoa", 2), ("detach", 0)):
+        for name, value in (
+            ("nak", 0),
+            ("packet", 64),
+            ("zlp", 0),
+            ("aoa", 2),
+            ("never_switch", 0),
+            ("detach", 0),
+        ):
             s.fault(name, value)  # a healthy phone, plugged in afresh
         s.pump(5)
         s.fault("attach")

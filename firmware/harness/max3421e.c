@@ -149,6 +149,7 @@ struct max3421e {
     int stall_ep;
     unsigned packet_size;
     int zlp, zlp_due;
+    int never_switch; /* fault: START is acknowledged, the phone stays in its normal mode */
     char strings[6][STRING_MAX + 1];
     uint64_t detach_at, attach_at;
     ring_t to_board, to_app;     /* app -> bulk IN, bulk OUT -> app */
@@ -388,7 +389,8 @@ static void control_done(max3421e_t *m)
         break;
     }
     case ACT_START:
-        m->detach_at = m->now + START_DETACH_US;
+        if (!m->never_switch) /* a phone without the accessory app, or AOA barred by policy: no switch */
+            m->detach_at = m->now + START_DETACH_US;
         break;
     default:
         break;
@@ -1094,6 +1096,8 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
         m->packet_size = (unsigned)value;
     } else if (!strcmp(name, "zlp") && (value == 0 || value == 1)) {
         m->zlp = (int)value;
+    } else if (!strcmp(name, "never_switch") && (value == 0 || value == 1)) {
+        m->never_switch = (int)value;
     } else {
         return -1;
     }

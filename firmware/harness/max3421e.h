@@ -39,7 +39,9 @@ const char *max3421e_phone_string(const max3421e_t *m, int index); /* identity s
  *   "detach", "attach" (value ignored)
  *   "aoa"    value = AOA protocol version the phone reports: 0, 1, 2
  *   "packet" value = max bytes per bulk IN packet, 1..64 (a frame then straddles packet boundaries)
- *   "zlp"    value 1: end each bulk IN transfer that is a multiple of 64 bytes with a zero-length packet */
+ *   "zlp"    value 1: end each bulk IN transfer that is a multiple of 64 bytes with a zero-length packet
+ *   "never_switch" value 1: AOA START is acknowledged but the phone never re-enumerates as an accessory
+ *            (no accessory app, or AOA barred by policy); 0 (the default): it switches */
 int max3421e_fault(max3421e_t *m, const char *name, double value);
 const char *max3421e_last_error(const max3421e_t *m); /* the last protocol violation the board made ("" if none) */
 

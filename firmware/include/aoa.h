@@ -26,7 +26,8 @@
 #define AOA_REENUM_US 3000000UL /* after START the phone re-enumerates within ~1 s; longer: start over */
 #define AOA_PIPE_ERRORS 8u      /* consecutive bulk errors (not NAKs) before the device is enumerated again */
 #define AOA_OUT_PER_POLL 4u     /* bulk OUT packets per poll */
-#define AOA_HANDSHAKE_TRIES 3u  /* failed handshakes (bus errors, timeouts) before the device is refused */
+#define AOA_HANDSHAKE_TRIES 3u  /* failed handshakes (bus errors, timeouts, START without a switch) before
+                                   the device is refused */
 
 typedef enum {
     AOA_IDLE = 0,    /* no configured device */
@@ -34,7 +35,8 @@ typedef enum {
     AOA_WAIT_REENUM, /* START sent: waiting for the phone to come back as an accessory */
     AOA_RUNNING,     /* accessory mode: bytes flow */
     AOA_CLEAR_HALT,  /* a bulk endpoint STALLed: CLEAR_FEATURE(ENDPOINT_HALT) in progress */
-    AOA_REFUSED,     /* the device has no (usable) accessory mode: nothing until it is unplugged */
+    AOA_REFUSED,     /* the device has no (usable) accessory mode, or never switches to it: nothing until it
+                        is unplugged (a new attach tries again) */
 } aoa_state_t;
 
 /* Events for the link layer's log (usb_link_event). */
@@ -45,6 +47,8 @@ enum {
     AOA_EV_STARTED,   /* START sent (arg: the phone's AOA version) */
     AOA_EV_FAILED,    /* the handshake failed (arg: HRSL code) */
     AOA_EV_NO_PIPES,  /* an accessory-mode device without a bulk pair (audio-only product id) */
+    AOA_EV_NO_SWITCH, /* START taken AOA_HANDSHAKE_TRIES times, the phone never came back as an accessory:
+                         refused (arg: the phone's AOA version) */
 };
 
 /* Provided by the link layer: the bytes waiting to go to the phone. */

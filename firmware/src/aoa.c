@@ -270,8 +270,16 @@ void aoa_poll(uint32_t now_us)
     switch (aoa.state) {
     case AOA_WAIT_REENUM:
         if (aoa.generation == aoa.start_generation) { /* still the phone we sent START to: it drops off soon */
-            if (now_us - aoa.since_us >= AOA_REENUM_US)
-                enter(AOA_IDLE, now_us); /* it never did: start over */
+            if (now_us - aoa.since_us < AOA_REENUM_US)
+                break;
+            /* it never did (no accessory app, or AOA barred by policy): start over, a few times; then
+             * refuse it, as a failed handshake is, until it is unplugged (no endless START loop) */
+            if (++aoa.errors >= AOA_HANDSHAKE_TRIES) {
+                usb_link_event(AOA_EV_NO_SWITCH, aoa.version);
+                enter(AOA_REFUSED, now_us);
+                break;
+            }
+            enter(AOA_IDLE, now_us);
             break;
         }
         device_ready(now_us);
@@ -314,19 +322,21 @@ static const char TEXTS[] FLASH = "\0"
                                   "USB device refused: no Android accessory mode (AOA protocol 0)\0"
                                   "USB phone switching to accessory mode, AOA protocol \0"
                                   "USB accessory handshake failed, HRSL 0x\0"
-                                  "USB accessory without a bulk pair refused, product 0x\0";
+                                  "USB accessory without a bulk pair refused, product 0x\0"
+                                  "USB phone refused: no accessory mode after START, AOA protocol \0";
 
 void aoa_event_text(uint8_t ev, uint16_t arg, char *out, uint8_t n)
 {
     if (!n)
         return;
-    flash_pick(TEXTS, ev <= AOA_EV_NO_PIPES ? ev : 0u, out, n);
-    if (ev != AOA_EV_UP && ev != AOA_EV_STARTED && ev != AOA_EV_FAILED && ev != AOA_EV_NO_PIPES)
+    flash_pick(TEXTS, ev <= AOA_EV_NO_SWITCH ? ev : 0u, out, n);
+    if (ev != AOA_EV_UP && ev != AOA_EV_STARTED && ev != AOA_EV_FAILED && ev != AOA_EV_NO_PIPES &&
+        ev != AOA_EV_NO_SWITCH)
         return;
     uint8_t at = (uint8_t)strlen(out);
     char digits[5];
     uint8_t k = 0;
-    uint8_t hex = ev != AOA_EV_STARTED;
+    uint8_t hex = ev != AOA_EV_STARTED && ev != AOA_EV_NO_SWITCH;
     do {
         uint8_t d = (uint8_t)(hex ? arg % 16u : arg % 10u);
         digits[k++] = (char)(d < 10u ? (unsigned)'0' + d : (unsigned)'a' + d - 10u);

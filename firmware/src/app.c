@@ -754,8 +754,6 @@ static void power_step(void)
     board.power_state = next;
     if (next >= POWER_STATE_SHED && !board.shed_latched && motors_enabled(board.state)) /* BROWN_OUT too */
         board.shed_latched = 1;
-    if (next >= POWER_STATE_SHED)
-        esc_cal_abort(ESC_CAL_ABORT_POWER, clock_ms());
     if (next != old) {
         board.outputs_dirty = 1;
         char a[12], b[12];
@@ -772,6 +770,9 @@ static void power_step(void)
         report_log(SEVERITY_WARNING, LOG_CODE_UBEC_OVERCURRENT, PSTR("UBEC over current: %u mA > %u mA"),
                    board.power.ubec_ma, (uint16_t)lrintf(board.cfg.ubec_current_limit_a * 1000.0f));
     board.ubec_over = over;
+    /* after the power Logs, as the emulator (its PowerSupervisor reports, then the board aborts) */
+    if (next >= POWER_STATE_SHED)
+        esc_cal_abort(ESC_CAL_ABORT_POWER, clock_ms());
 }
 
 /* ------------------------------------------------------------------------------------------ boot, loop */

@@ -162,7 +162,8 @@ void usb_link_event(uint8_t ev, uint16_t arg)
     }
     char text[72];
     aoa_event_text(ev, arg, text, sizeof text);
-    uint8_t refused = ev == AOA_EV_NO_AOA || ev == AOA_EV_FAILED || ev == AOA_EV_NO_PIPES;
+    uint8_t refused =
+        ev == AOA_EV_NO_AOA || ev == AOA_EV_FAILED || ev == AOA_EV_NO_PIPES || ev == AOA_EV_NO_SWITCH;
     uint8_t severity = refused ? SEVERITY_ERROR : (ev == AOA_EV_DOWN ? SEVERITY_WARNING : SEVERITY_INFO);
     report_log(severity, refused ? LOG_CODE_HANDSHAKE : LOG_CODE_STATE, PSTR("%s"), text);
 }

@@ -133,7 +133,7 @@ class Board:
         self.transfers = CalibrationTransfers(
             self.calibrations, self.link, self.outbox, self._store_calibration
         )
-        self.esc_calibration = EscCalibration(cfg, self.outbox, self.units)
+        self.esc_calibration = EscCalibration(cfg, self.outbox, self.units, on_change=self._apply_outputs)
         self.commands = CommandHandler(
             cfg,
             self.link,
@@ -518,7 +518,8 @@ class Board:
     def _apply_outputs(self) -> None:
         """The main loop aims the outputs at once (the firmware's ``apply_outputs``): ``targets`` — what
         telemetry reports and the next frame dithers — follow the present state, command and power stage.
-        Called when the board leaves ARMED; ``outputs`` (the pins) change only at the next frame start."""
+        Called when the board leaves ARMED and at every phase of an ESC calibration (its start, steps, end
+        or abort); ``outputs`` (the pins) change only at the next frame start."""
         self.targets, self._clamped = self._compute_outputs()
 
     def _pulse_frame(self, t: int) -> None:

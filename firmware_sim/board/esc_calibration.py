@@ -23,7 +23,7 @@ disconnected when the procedure asks for it and connected when the host says it 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from protocol.messages import (
     ESC_CALIBRATION_CONFIRM,
@@ -58,10 +58,21 @@ _RUNNING = (EscCalPhase.SUPPLY_OFF, EscCalPhase.WAIT_SUPPLY, EscCalPhase.HIGH, E
 class EscCalibration:
     """The procedure's state (board time in µs). ``supply_cut`` is the board's ESC-supply switch output."""
 
-    def __init__(self, config: BoardConfig, outbox: Outbox, units: Sequence[UnitModel]) -> None:
+    def __init__(
+        self,
+        config: BoardConfig,
+        outbox: Outbox,
+        units: Sequence[UnitModel],
+        on_change: Callable[[], None] | None = None,
+    ) -> None:
         self.config = config
         self.units = units
         self._out = outbox
+        self._on_change = on_change
+        """Called at every phase change, the procedure's width (:meth:`rotor_width`) changed: the board
+        aims its outputs again in this main-loop pass (the firmware's ``enter`` sets ``outputs_dirty``),
+        so telemetry never reports an endpoint width the procedure no longer puts out (after an abort,
+        the high endpoint: full throttle) for up to a pulse frame."""
         self.reset()
 
     def reset(self) -> None:
@@ -193,6 +204,8 @@ class EscCalibration:
         self.active = phase in _RUNNING
         self.phase_start_us = t
         self.deadline_us = deadline
+        if self._on_change is not None:
+            self._on_change()
         if phase in (EscCalPhase.SUPPLY_OFF, EscCalPhase.HIGH, EscCalPhase.LOW):
             self._log(Severity.INFO, f"ESC calibration of unit {self.unit}: {phase.name}")
         self._out.send(self.status(t))
