@@ -122,3 +122,27 @@ def test_every_command_answered_twice_settles_once_and_counts_the_second_quietly
     stats = s.commands.stats
     assert (stats.acked, stats.late_answers, stats.unmatched_answers) == (5, 5, 0)
     assert not drops(caplog, "dropped")
+
+
+@pytest.mark.parametrize("tries", [2, 3])
+def test_a_slow_boards_answers_to_the_earlier_hello_tries_are_late_not_warned(caplog, tries):
+    """A board that answers only after the host has sent its Hello ``tries`` times (a USB accessory that
+    opens after the host's first Hellos) answers every try: the first answer settles the handshake, the
+    others are counted late, quietly — every such run logged a warning for its own handshake. One answer
+    more than the tries is no such answer: said, as before."""
+    s = Session()
+    board = Framer()
+    s.link_up(0.0)
+    t = 0.0
+    while s.hellos.pending[0].tries < tries:
+        t = round(t + 0.01, 6)
+        s.poll(t)
+    with caplog.at_level(logging.WARNING, LOGGER):
+        for k in range(tries):  # one answer per try, the first of them settling the Hello
+            s.feed(board.encode(hello_reply())[1], t + 0.001 * (k + 1))
+        assert s.phase is Phase.READY and s.counters.handshakes == 1
+        assert s.hellos.stats.late_answers == tries - 1
+        assert not drops(caplog, "a HelloReply no Hello was waiting for")
+        s.feed(board.encode(hello_reply())[1], t + 0.1)
+    (said,) = drops(caplog, "a HelloReply no Hello was waiting for")
+    assert "from the session's board" in said

@@ -148,6 +148,8 @@ Telemetry (STATUS, several segments) wins arbitration and comes first, and the T
 behind the Heartbeat's — taken for a reset, 20 a second, each with a handshake that disarmed the board. A
 kind's own frames come in order (one CAN id each, one serial stream), so its own count going back, or a
 sample further behind, is still a reset — unless the board says its boot id (:meth:`Session._stale`)."""
+SESSION_BOARD = "from the session's board"
+"""Whose a HelloReply no Hello waits for is, said, when it is the session's board's own."""
 STALE_REANCHOR = 3
 """Samples of the same boot behind the newest one heard, one after the other, after which the newest was
 the absurd one (a sample ahead within the leaps' slack): the counts are anchored anew on the third."""
@@ -251,6 +253,7 @@ class Session:
         self._last_rx_frames: int | None = None  # the board's count of valid frames taken, since its boot
         self._reply_since_sample: HelloReply | None = None
         self._stale_in_a_row = 0  # samples of the same boot dropped one after the other as old (_stale)
+        self._earlier_tries = 0  # the settled Hello's tries before the answered one, not answered yet
         self._reset_evidence: str | None = None
         self._setpoint_slot = -math.inf
         self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
@@ -488,12 +491,21 @@ class Session:
     # ------------------------------------------------------------------ RECEIVE's handlers
     def _on_hello_reply_frame(self, frame: Frame, now: float) -> None:
         """Settles the handshake's Hello; one no Hello waits for is counted there (late or unmatched) and
-        dropped here, logged saying whose it is."""
-        if self.hellos.on_frame(frame, now) is None:
-            self._drop(now, f"a HelloReply no Hello was waiting for, {self._whose(frame.message)}")
+        dropped here, logged saying whose it is — except the session's board's answers to the earlier
+        tries of the Hello it settled, as many as those tries (:attr:`_earlier_tries`): a board that
+        answered slowly (a USB accessory that opens after the host's first Hellos) answers each try, and
+        every such run logged a warning for its own handshake."""
+        if self.hellos.on_frame(frame, now) is not None:
+            return
+        reply: HelloReply = frame.message
+        whose = self._whose(reply)
+        if whose is None and self._earlier_tries > 0:
+            self._earlier_tries -= 1  # counted late by the sender (an answer to a settled Hello's try)
+            return
+        self._drop(now, f"a HelloReply no Hello was waiting for, {whose or SESSION_BOARD}")
 
-    def _whose(self, reply: HelloReply) -> str:
-        """Whose an unasked-for HelloReply is, against the session's board."""
+    def _whose(self, reply: HelloReply) -> str | None:
+        """Whose an unasked-for HelloReply is, against the session's board: None for the session's own."""
         info = BoardInfo.from_reply(reply)
         if (reply.protocol_version, reply.schema_hash) != (PROTOCOL_VERSION, self.config.schema_hash):
             return (
@@ -503,7 +515,9 @@ class Session:
         held = self.info
         if held is not None and (held.identity, held.n_units) != (info.identity, info.n_units):
             return f"from another board than the session's: {info.describe()}"
-        return "from the session's board"
+        if held is not None and reply.boot_id and self._boot_id and reply.boot_id != self._boot_id:
+            return f"from another boot of the session's board (boot id {reply.boot_id:#010x})"
+        return None
 
     def _on_telemetry(self, frame: Frame, now: float) -> None:
         msg: Telemetry = frame.message
@@ -857,6 +871,7 @@ class Session:
     def _on_hello_settled(self, cmd: Command) -> None:
         now = self._now
         if cmd.state is CommandState.ACKED:
+            self._earlier_tries = cmd.tries - 1  # answers to them may still come (_on_hello_reply_frame)
             self._on_hello_reply(cmd.reply, now)
         elif self.phase is Phase.HANDSHAKING:  # not abandoned by link_down: the board never answered
             self.failure = LinkTimeout(
