@@ -322,6 +322,7 @@ def fault_bounds(scenario: Scenario) -> Bounds:
     from hil.link.board.config import ClientConfig
     from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S
     from hil.runtime.loop import SPINUP_ALLOWANCE_S
+    from hil.scenario.reader import DEFAULT_LINK_TIMEOUT_S
 
     loop = scenario.loop
     phone = scenario.phone
@@ -337,6 +338,8 @@ def fault_bounds(scenario: Scenario) -> Bounds:
         time_limit_s=limit,
         nominal_rotor=scenario.spacecraft.nominal_rotor_speed,
         duration_s=scenario.slew.duration_s,
+        link_timeout_s=float(scenario.board_options.get("link_timeout", DEFAULT_LINK_TIMEOUT_S)),
+        mcu_watchdog_s=float(scenario.board_options.get("mcu_watchdog", Bounds.mcu_watchdog_s)),
     )
 
 

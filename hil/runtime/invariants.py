@@ -6,14 +6,19 @@ not over what the code meant to do): its events, its rows, its summary and the b
 invariant                   holds when
 ==========================  ==========================================================================
 ``no_crash_or_hang``        the run ended by itself (no exception) within its time limit, measured in
-                            simulated time
+                            simulated time; it recorded rows and events (unless its exit says it
+                            ended before it ran: an error, an abort, an interrupt)
 ``faults_detected``         every injected fault the host could see is reported with its cause within
-                            its bound (:data:`EXPECTED`): in the fault journal, the events, the counters
+                            its bound (:func:`_expectations`): in the fault journal, the events, the
+                            counters; each report credited to one fault of its kind at most
 ``no_stale_as_live``        no row shows a board value without a live board, or telemetry older than
                             the stale bound as live; the host does not steer on a phone older than it
+                            (or on none); no row shows the board LIVE while an injected fault kept it
+                            silent, once the host's detection latency has passed
 ``safe_when_not_armed``     no pulse frame the board started drove a rotor above its safe width while
                             the board was not ARMED (the board's own pulse record)
-``honest_exit``             the exit says what happened: ``completed`` only for a run that completed;
+``honest_exit``             the exit says what happened: ``completed`` only for a run that completed
+                            (its last row live and ARMED, nothing open);
                             a lost board, an operator's abort or Disarm said as such; every operator
                             command in the summary; an unmet requirement says why; a run that ran its
                             time (completed, or lost with an outage still on at its end) ends then,
@@ -24,9 +29,11 @@ invariant                   holds when
                             record holds
 ==========================  ==========================================================================
 
-A fault the host *cannot* see is not expected to be reported: one that lands while the link is already
-down (masked by another), one too short to matter (a stall shorter than the stale bound), or one too close
-to the run's end for its bound to pass. Faults that overlap are held to what the host can honestly tell:
+A fault the host *cannot* see is not expected to be reported (it is listed with the unseen): one that
+lands while the link is already down (masked by another), one too short to matter (a stall no longer than
+the board's link timeout; one longer is told by an ARMED board's failsafe if not by a stale view), a dead
+rotor ESC with no stretch of :data:`DEAD_ESC_S` after it of the board live and ARMED, or one too close to
+the run's end for its bound to pass. Faults that overlap are held to what the host can honestly tell:
 
 * a report another fault held back is due that much later: a stall or an unplug blocks the board's
   reports; a phone gap blocks a clock jump's (told only by readings on the new clock);
@@ -114,6 +121,11 @@ class Bounds:
     nominal_rotor: float
     duration_s: float = math.inf
     """The run's time from the slew's start (the scenario's ``slew.duration_s``; inf: not checked)."""
+    link_timeout_s: float = 0.25
+    """The board's link watchdog (the scenario's ``[board] link_timeout``): a stall longer than it fails
+    the board safe (an ARMED board), whatever the host's stale bound."""
+    mcu_watchdog_s: float = 0.5
+    """The board's MCU watchdog (``[board] mcu_watchdog``): a hung board is silent this long at least."""
 
     @property
     def detect_s(self) -> float:
@@ -159,14 +171,18 @@ def check_run(
     report = InvariantReport()
     summary = record.summary
     _crash_or_hang(report, summary, bounds, error)
-    if not summary or not record.events:
+    if not summary:
         return report
     rows = record.rows()
-    end = float(rows["t"][-1]) if len(rows["t"]) else 0.0
+    if not len(rows["t"]) or not record.events:
+        _empty(report, summary, rows, record, error)
+        return report
+    end = float(rows["t"][-1])
     _stale(report, rows, bounds)
+    _silent_as_live(report, faults, record, rows, bounds, end)
     _pulses(report, record)
     _detected(report, faults, record, rows, bounds, end)
-    _honest(report, faults, summary, record, bounds, end)
+    _honest(report, faults, summary, record, rows, bounds, end)
     _back(report, faults, summary, record, rows, bounds, end)
     return report
 
@@ -190,6 +206,30 @@ def _crash_or_hang(
         report.add("no_crash_or_hang", "the run left no summary")
 
 
+ENDED_BEFORE_RUNNING = ("error:", "aborted:", "interrupted")
+"""Exits that may come before the run's first tick: a run that says so may have no rows, no events."""
+
+
+def _empty(
+    report: InvariantReport,
+    summary: Mapping[str, Any],
+    rows: Mapping[str, np.ndarray],
+    record: RunRecorder,
+    error: str | None,
+) -> None:
+    """A summary with no rows or no events: every run that ran a tick writes both (its events from the
+    connection on, a row each tick), so only a run that ended before it ran — an error (judged as such
+    by :func:`_crash_or_hang`), an abort, an interrupt — may leave them empty; any other exit is a run
+    whose record was lost, and nothing it claims can be checked."""
+    exit_reason = str(summary.get("exit", ""))
+    if error is not None or exit_reason.startswith(ENDED_BEFORE_RUNNING):
+        return
+    missing = " and ".join(
+        what for what, n in (("no rows", len(rows["t"])), ("no events", len(record.events))) if not n
+    )
+    report.add("no_crash_or_hang", f"the run recorded {missing}, yet its exit says {exit_reason!r}")
+
+
 # --------------------------------------------------------------------------- stale shown as live
 def _stale(report: InvariantReport, rows: Mapping[str, np.ndarray], bounds: Bounds) -> None:
     link, age, values = rows["board_link"], rows["tel_age_ms"], rows["board_values"]
@@ -207,12 +247,52 @@ def _stale(report: InvariantReport, rows: Mapping[str, np.ndarray], bounds: Boun
         report.add("no_stale_as_live", f"row at t={t[k]:.3f} s: live with telemetry {age[k]:.0f} ms old")
     phone_age, phase = rows["phone_age_ms"], rows["phase"]
     steering = (phase == 1) | (phase == 2)  # slew or hold: the host commands the board
-    stale_phone = steering & (phone_age > (bounds.stale_after_s + bounds.tick_s) * 1e3 + 1e-6)
+    stale_phone = steering & ~(phone_age <= (bounds.stale_after_s + bounds.tick_s) * 1e3 + 1e-6)
     if stale_phone.any():
         k = int(np.argmax(stale_phone))
         report.add(
             "no_stale_as_live", f"row at t={t[k]:.3f} s: steering on a phone {phone_age[k]:.0f} ms old"
         )
+
+
+BROWNOUT_S = 0.3
+"""A brown-out's silence at the least: the pack collapses this long (``--brownout-at``), in reset."""
+
+
+def _silence_s(fault: InjectedFault, b: Bounds) -> float:
+    """How long ``fault`` keeps the board silent at the least (s): a stall's or an unplug's duration, a
+    hang until the MCU's watchdog resets it, a brown-out while the pack is down."""
+    if fault.kind in ("stall", "unplug"):
+        return float(fault.params.get("duration_s", 0.0))
+    return b.mcu_watchdog_s if fault.kind == "hang" else BROWNOUT_S
+
+
+def _silent_as_live(
+    report: InvariantReport,
+    faults: Sequence[InjectedFault],
+    record: RunRecorder,
+    rows: Mapping[str, np.ndarray],
+    b: Bounds,
+    end: float,
+) -> None:
+    """No row shows the board LIVE while the board was silent (the faults, not the host's own flags):
+    from a stall, unplug, hang or brown-out the host could see (the board live when it came), once its
+    stale bound has passed from the last telemetry and a tick more, to the end of the board's silence."""
+    t, link = rows["t"], rows["board_link"]
+    episodes = _reset_episodes(faults, record.summary.get("faults", []), b)
+    merged = [f for ep in episodes for f in ep.merged]
+    for f in faults:
+        if f.kind not in LINK_BLOCKING or f.t > end or any(f is m for m in merged) or _masked(f, rows, b):
+            continue  # a merged hang waited for a boot: no silence of its own
+        lo = f.t + b.stale_after_s + b.telemetry_s + b.tick_s
+        live = (t > lo + 1e-9) & (t < f.t + _silence_s(f, b) - 1e-9) & (link == BoardLink.LIVE)
+        if live.any():
+            k = int(np.argmax(live))
+            report.add(
+                "no_stale_as_live",
+                f"row at t={t[k]:.3f} s shows the board LIVE {t[k] - f.t:.3f} s into {f.describe()}'s "
+                "silence",
+            )
 
 
 # --------------------------------------------------------------------------- safe pulses
@@ -247,9 +327,12 @@ def _expectations(fault: InjectedFault, b: Bounds) -> list[_Expect]:
     p = fault.params
     kind = fault.kind
     if kind == "stall":
-        if p["duration_s"] < b.stale_after_s + b.telemetry_s + 2 * b.tick_s:
-            return []  # shorter than the stale bound: the link carries again before anything is due
-        return [_Expect(("stale", "failsafe", "link_lost"), b.detect_s)]
+        if p["duration_s"] <= b.link_timeout_s:
+            return []  # shorter than the board's link watchdog: the link carries again before anything is due
+        # an ARMED board fails safe once its link timeout passes (told when the link carries again), and
+        # the host's stale bound may pass first
+        due = max(b.detect_s, p["duration_s"] + b.telemetry_s + 2 * b.tick_s + 1e-6)
+        return [_Expect(("stale", "failsafe", "link_lost"), due)]
     if kind == "hang":
         return [_Expect(("stale",), b.detect_s), _Expect(("reset",), RESET_S, cause="WATCHDOG")]
     if kind == "brownout":
@@ -292,13 +375,32 @@ def _detected(
 ) -> None:
     journal = record.summary.get("faults", [])
     episodes = _reset_episodes(faults, journal, bounds)
+    credited: dict[tuple[str, int], list[InjectedFault]] = {}  # (kind, journal index) → faults credited
     for fault in faults:
         if fault.kind in OPERATOR_KINDS:
             continue
         expected = _expectations(fault, bounds)
         if not expected:
+            if fault.kind in ("stall", "phone_gap") and fault.t <= end:
+                report.unseen.append(f"{fault.describe()} (too short: nothing is due before it ends)")
             continue
-        if _masked(fault, rows, bounds):
+        if fault.kind == "stall" and fault.params["duration_s"] < _stale_stall_s(bounds):
+            # longer than the board's link timeout, shorter than the host's stale bound: only an ARMED
+            # board's failsafe tells it
+            k = int(np.searchsorted(rows["t"], fault.t)) - 1
+            if k < 0 or rows["board_state"][k] != 2:
+                report.unseen.append(f"{fault.describe()} (too short for a stale view, the board not ARMED)")
+                continue
+        dead_due = _dead_esc_due(fault, rows, end) if fault.kind == "dead_esc" else None
+        if dead_due is not None:
+            if math.isinf(dead_due):
+                report.unseen.append(
+                    f"{fault.describe()} (masked: the board was not live and ARMED for "
+                    f"{DEAD_ESC_S:.0f} s on end after it before the run's end)"
+                )
+                continue
+            expected = [_Expect(e.kinds, dead_due - fault.t, e.cause, e.reason) for e in expected]
+        elif _masked(fault, rows, bounds):
             report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
             continue
         episode = next((ep for ep in episodes if any(fault is f for f in (ep.leader, *ep.merged))), None)
@@ -311,14 +413,15 @@ def _detected(
             # its reset is the episode's (the leader's, to its due); a hang that waited for the main loop
             # has no silence of its own to be stale
             expected = [] if fault.kind == "hang" else [e for e in expected if "reset" not in e.kinds]
-        resets = _other_resets(fault, faults, bounds)
+        # the board tells only its last reset's cause: one reset for several unchecks it, none else
+        resets = episode is not None and bool(episode.merged)
         for e in expected:
             members: tuple[InjectedFault, ...] = ()
             if episode is not None and episode.merged and "reset" in e.kinds:
                 e = _Expect(e.kinds, max(e.bound, episode.due - fault.t), e.cause, e.reason)
                 members = episode.merged  # already in the episode's due: not a blocked link besides
             others = [f for f in faults if not any(f is m for m in members)]
-            blocked = _blocked_s(fault, others, bounds, e.bound)
+            blocked = 0.0 if fault.kind == "dead_esc" else _blocked_s(fault, others, bounds, e.bound)
             if fault.kind == "phone_jump":
                 blocked += _phone_silent_s(fault, faults, e.bound)
             kinds = e.kinds
@@ -328,18 +431,24 @@ def _detected(
             if fault.t + e.bound > end:
                 report.unseen.append(f"{fault.describe()} (too close to the end for its {e.bound:.2f} s)")
                 continue
-            lo = fault.t - (DROP_NOTE_S if e.reason else 1e-9)
-            found = next(
+            lo = fault.t - 1e-9
+            unit = fault.params["channel"] // 2 if fault.kind == "dead_esc" else None
+            index = next(
                 (
-                    f
-                    for f in journal
+                    k
+                    for k, f in enumerate(journal)
                     if f["kind"] in e.kinds
                     and lo <= f["t"] <= fault.t + e.bound
                     and (e.cause is None or f.get("cause") == e.cause)
                     and (e.reason is None or f.get("reason") == e.reason)
+                    and (f["kind"] != "rotor_not_following" or f.get("unit") == unit)
+                    and _may_credit(f, fault, credited.get((fault.kind, k), []), bounds)
                 ),
                 None,
             )
+            found = None if index is None else journal[index]
+            if index is not None:
+                credited.setdefault((fault.kind, index), []).append(fault)
             if found is None:
                 what = (
                     "/".join(e.kinds)
@@ -358,6 +467,62 @@ def _detected(
 
 
 LINK_BLOCKING = ("stall", "unplug", "hang", "brownout")
+
+
+def _stale_stall_s(b: Bounds) -> float:
+    """The shortest stall the host's stale bound surely sees (s): the stale bound from the last
+    telemetry, then a tick, and one more."""
+    return b.stale_after_s + b.telemetry_s + 2 * b.tick_s
+
+
+def _may_credit(
+    entry: Mapping[str, Any], fault: InjectedFault, credited: Sequence[InjectedFault], b: Bounds
+) -> bool:
+    """Whether a journal entry already credited to ``credited`` (faults of ``fault``'s kind) may report
+    ``fault`` too: one fault each, or as many as a drop note counts readings (``since_last``: each of them
+    one spoof's at most) — but faults of one kind whose effects overlap (two stalls at once, a second
+    unplug while the cable is out) are one to the host, and share its one report."""
+    if entry.get("kind") == "readings_dropped":
+        if len(credited) < max(int(entry.get("since_last") or entry.get("count") or 1), 1):
+            return True
+    elif not credited:
+        return True
+    return any(_overlap(fault, other, b) for other in credited)
+
+
+def _overlap(f: InjectedFault, g: InjectedFault, b: Bounds) -> bool:
+    """Whether two faults' effects overlap in time (one without a duration: at its moment)."""
+
+    def span(x: InjectedFault) -> float:
+        if x.kind in ("hang", "brownout"):
+            return _silence_s(x, b)
+        return float(x.params.get("duration_s", 0.0))
+
+    return max(f.t, g.t) <= min(f.t + span(f), g.t + span(g)) + 1e-9
+
+
+def _dead_esc_due(fault: InjectedFault, rows: Mapping[str, np.ndarray], end: float) -> float | None:
+    """When a dead ESC's report is due (s, the run's clock): :data:`DEAD_ESC_S` after the start of the
+    first stretch of at least :data:`DEAD_ESC_S` from ``fault.t`` on in which the board was live and ARMED
+    all along (only a board commanding the rotor tells it: a stall, a reset, a Disarm hold it back, never
+    for good); inf when no such stretch came before the run's end; None for a gimbal servo's (no rotor
+    to tell it by)."""
+    if fault.params["channel"] % 2 == 0:
+        return None
+    t = rows["t"]
+    after = t >= fault.t
+    ts = t[after]
+    ok = (rows["board_link"][after] == BoardLink.LIVE) & (rows["board_state"][after] == 2)
+    start: float | None = None
+    for k in range(len(ts)):
+        if ok[k]:
+            if start is None:
+                start = float(ts[k]) if k else fault.t
+            if ts[k] - start >= DEAD_ESC_S - 1e-9:
+                return start + DEAD_ESC_S
+        else:
+            start = None
+    return math.inf
 
 
 def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds, due_s: float) -> float:
@@ -457,14 +622,6 @@ def _reset_episodes(
     return episodes
 
 
-def _other_resets(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> bool:
-    """Whether another reset (a hang, a brown-out, an unplug) came before ``fault``'s reset could be
-    reported: the board then tells only its last reset's cause."""
-    return any(
-        other is not fault and other.kind in RESETTING and abs(other.t - fault.t) < 10.0 for other in faults
-    )
-
-
 def _live_s(fault: InjectedFault, rows: Mapping[str, np.ndarray]) -> float:
     """How long the host had a live board during ``fault``'s window (s)."""
     t = rows["t"]
@@ -485,11 +642,6 @@ def _masked(fault: InjectedFault, rows: Mapping[str, np.ndarray], bounds: Bounds
     if fault.kind.startswith("phone"):
         age = rows["phone_age_ms"][k]
         return bool(np.isnan(age) or age > bounds.stale_after_s * 1e3)
-    if fault.kind == "dead_esc":  # told only by a board commanding it: armed and live all the while
-        window = (t >= fault.t) & (t <= fault.t + DEAD_ESC_S)
-        return not bool(
-            np.all((rows["board_link"][window] == BoardLink.LIVE) & (rows["board_state"][window] == 2))
-        )
     return bool(rows["board_link"][k] != BoardLink.LIVE)
 
 
@@ -499,6 +651,7 @@ def _honest(
     faults: Sequence[InjectedFault],
     summary: Mapping[str, Any],
     record: RunRecorder,
+    rows: Mapping[str, np.ndarray],
     bounds: Bounds,
     end: float,
 ) -> None:
@@ -517,6 +670,7 @@ def _honest(
         final = summary.get("final_disarm") or {}
         if final.get("ok") is False:
             report.add("honest_exit", f"completed, yet the final Disarm failed: {final.get('error')}")
+        _completed_in_hand(report, summary, rows)
     if summary.get("lost") and not exit_reason.startswith(("lost:", "aborted:", "error:")):
         report.add("honest_exit", f"the board was lost ({summary['lost']}) but the exit says {exit_reason!r}")
     if summary.get("suspended_at_end") is not None and not exit_reason.startswith(
@@ -533,12 +687,32 @@ def _honest(
     _ended_on_time(report, summary, record, bounds, end)
 
 
+def _completed_in_hand(
+    report: InvariantReport, summary: Mapping[str, Any], rows: Mapping[str, np.ndarray]
+) -> None:
+    """``completed`` only with the board in hand at the end: its last row live and ARMED, no outage and no
+    phone gap still open (an open one at the end makes the run lost: :meth:`FaultJournal.open_at_end`)."""
+    link, state = rows["board_link"][-1], rows["board_state"][-1]
+    if link != BoardLink.LIVE or state != 2:
+        view = BoardLink(int(link)).name if link in iter(BoardLink) else str(link)
+        report.add(
+            "honest_exit",
+            f"completed, yet its last row (t={rows['t'][-1]:.3f} s) shows the board {view} "
+            f"in state {state} (ARMED is 2)",
+        )
+    for what, episodes in (("outage", "outages"), ("phone gap", "phone_gap_list")):
+        for o in summary.get(episodes) or []:
+            if o.get("end") is None or o.get("recovered") is False:
+                report.add("honest_exit", f"completed, yet its {what} at t={o['start']:.3f} s never ended")
+
+
 def _ended_on_time(
     report: InvariantReport, summary: Mapping[str, Any], record: RunRecorder, bounds: Bounds, end: float
 ) -> None:
     """A run that ran its time ends within a tick of it: its slew's start, plus its duration, plus the
-    operator's suspensions. (One whose board was out at that moment used to run on to the next tick that
-    saw it again, and could then say ``completed``.)"""
+    operator's suspensions after that start (``suspended_after_slew_s``: those before it do not move the
+    end, :meth:`hil.runtime.phases.RunPhases.time_is_up`). (One whose board was out at that moment used
+    to run on to the next tick that saw it again, and could then say ``completed``.)"""
     exit_reason = str(summary.get("exit", ""))
     ran_its_time = (
         exit_reason == "completed"
@@ -548,7 +722,8 @@ def _ended_on_time(
     starts = [e["t"] for e in record.events if e["kind"] == "slew_start"]
     if not ran_its_time or not starts or not math.isfinite(bounds.duration_s):
         return
-    due = starts[0] + bounds.duration_s + float(summary.get("suspended_s") or 0.0)
+    # the operator's suspensions after the slew's start move its end (those before do not: phases.py)
+    due = starts[0] + bounds.duration_s + float(summary.get("suspended_after_slew_s") or 0.0)
     if end > due + bounds.tick_s + 1e-6:
         report.add("honest_exit", f"the run was due to end at t={due:.3f} s and ran to {end:.3f} s")
 
@@ -572,10 +747,10 @@ def _back(
             )
     lost = summary.get("lost")
     open_at_end = lost is not None and "not back when the run ended" in lost
-    if lost and not open_at_end and not _unrecoverable(faults, bounds):
+    if lost and not open_at_end and not _unrecoverable(faults, bounds, end):
         report.add("back_in_control", f"lost: {lost}")
     _rearmed_through_handshake(report, record, rows)
-    _spun_up_to_steer(report, record, rows, bounds, faults)
+    _spun_up_to_steer(report, record, rows, bounds, faults, end)
     requirement = summary.get("requirement") or {}
     if summary.get("slew_started") and not requirement.get("met") and not requirement.get("explained"):
         report.add(
@@ -584,11 +759,13 @@ def _back(
         )
 
 
-def _unrecoverable(faults: Sequence[InjectedFault], bounds: Bounds) -> bool:
-    """Whether a fault was drawn that no host could recover from within the outage bound."""
+def _unrecoverable(faults: Sequence[InjectedFault], bounds: Bounds, end: float) -> bool:
+    """Whether a fault came (by the run's ``end``) that no host could recover from within the outage
+    bound."""
     for f in faults:
         if (
-            f.kind in ("stall", "unplug", "phone_gap")
+            f.t <= end
+            and f.kind in ("stall", "unplug", "phone_gap")
             and f.params.get("duration_s", 0.0) >= bounds.recover_within_s - 2.0
         ):
             return True
@@ -625,18 +802,22 @@ def _spun_up_to_steer(
     rows: Mapping[str, np.ndarray],
     bounds: Bounds,
     faults: Sequence[InjectedFault],
+    end: float,
 ) -> None:
-    """When the host steers again after a recovery (``resume``) every rotor is at nominal speed (unless
-    an ESC was made to die)."""
-    if any(f.kind == "dead_esc" for f in faults):
-        return
+    """When the host steers again after a recovery (``resume``) every rotor is at nominal speed (but a
+    rotor whose ESC was made to die by then: the rotor of a dead odd channel, ``channel // 2``)."""
     t, rotors = rows["t"], rows["rotor_speed"]
     nominal = bounds.nominal_rotor
     for e in record.events:
         if e["kind"] != "resume":
             continue
+        dead = {
+            int(f.params["channel"]) // 2
+            for f in faults
+            if f.kind == "dead_esc" and f.params["channel"] % 2 == 1 and f.t <= min(e["t"], end)
+        }
         k = min(int(np.searchsorted(t, e["t"] - 1e-9)), len(t) - 1)
-        speeds = rotors[k]
+        speeds = np.delete(rotors[k], sorted(u for u in dead if u < rotors.shape[1]))
         if np.all(np.isnan(speeds)):
             continue
         if np.any(~(np.abs(speeds - nominal) <= 1.5 * SPUN_UP * nominal)):

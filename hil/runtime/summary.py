@@ -80,6 +80,9 @@ def run_summary(
         "operator": [dict(entry) for entry in operator_log],
         "operator_commands": len(operator_log),
         "suspended_s": phases.suspended_s + (0.0 if since is None else now - since),
+        # ... of it after the slew's start: what moves the run's end (RunPhases.time_is_up)
+        "suspended_after_slew_s": phases.suspended_after_slew_s
+        + (0.0 if since is None or phases.slew_start is None else now - max(since, phases.slew_start)),
         "suspended_at_end": since,
     }
     out.update(trace.figures(scenario.settle_deg, gimbal_rate_limit))
