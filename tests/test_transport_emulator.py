@@ -174,7 +174,8 @@ def test_a_board_that_fails_to_start_is_an_error_quoting_its_message():
         create_transport("spawn://other-program")
     with pytest.raises(TransportError, match="unrecognized arguments"):
         create_transport("spawn://firmware-sim?frame_rat=400")
-    with pytest.raises(TransportError, match="start_timeout='soon' is not a number"):
+    refused = r"start_timeout='soon' must be a number of seconds in \(0, 3600\]"
+    with pytest.raises(TransportError, match=refused):
         create_transport("spawn://firmware-sim?start_timeout=soon")
 
 
