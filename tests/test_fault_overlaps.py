@@ -20,7 +20,7 @@ What was wrong (the checker each time; the runtime's reports were honest):
 from __future__ import annotations
 
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from hil.runtime.invariants import InjectedFault
@@ -128,6 +128,7 @@ def _board_chain(start: float, chain: list[tuple[str, float, float]]) -> list[In
         st.tuples(st.sampled_from(RESETTING), SPACING, st.sampled_from(DURATIONS)), min_size=2, max_size=4
     ),
 )
+@example(start=1.1156123903498558, chain=[("hang", 0.4387204586519563, 0.3), ("brownout", 0.0021, 0.3)])
 def test_board_faults_on_top_of_each_other_end_honestly(start, chain):
     """Two to four hangs, unplugs, brown-outs and stalls, each at a drawn moment soon after the last (the
     first of them anywhere in the run): every invariant holds, and the counts agree with the record."""
