@@ -35,7 +35,7 @@ from montecarlo_support import write_quick_scenario
 
 from hil.cli import main as hil_main
 from hil.montecarlo import Campaign, open_client, parse_dispersions, read_runs, run_campaign
-from hil.montecarlo.campaign import quiet_scheduler_loss
+from hil.montecarlo.dask_logs import quiet_interrupted_sync, quiet_scheduler_loss
 from hil.montecarlo.metrics import METRICS, TRACES
 from hil.montecarlo.plots import plot_campaign
 from hil.montecarlo.runner import RunResult
@@ -316,6 +316,78 @@ def test_a_workers_lost_scheduler_is_one_line_and_any_other_fault_keeps_its_trac
         assert "Traceback" not in text and "Stream is closed" in text and text.count("\n") == 1, text
     else:
         assert "Traceback (most recent call last)" in text and "a real fault" in text, text
+
+
+def _interrupt_a_call_not_yet_begun() -> list[logging.LogRecord]:
+    """distributed's blocking ``sync`` interrupted (a KeyboardInterrupt raised in the main thread, as hil's
+    SIGINT handler raises it) while its event loop is busy, so before the call has begun; returns what
+    tornado's ``tornado.application`` logger let through meanwhile (every level)."""
+    from distributed.utils import LoopRunner, sync
+
+    log = logging.getLogger("tornado.application")
+    records: list[logging.LogRecord] = []
+    handler = logging.Handler()
+    handler.emit = records.append  # type: ignore[method-assign]
+    handler.filter = lambda record: all(f.filter(record) for f in log.filters)  # type: ignore[method-assign]
+    log.addHandler(handler)
+    runner = LoopRunner(asynchronous=False)
+    runner.start()
+    busy, ran = threading.Event(), threading.Event()
+
+    async def the_call() -> None:
+        ran.set()
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGUSR1, interrupt)
+    try:
+        runner.loop.add_callback(busy.wait, 10.0)  # the loop held: the call cannot begin
+        threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGUSR1)).start()
+        with pytest.raises(KeyboardInterrupt):
+            sync(runner.loop, the_call)
+        busy.set()
+        assert ran.wait(10.0)  # the loop went on to the call, and to distributed's cancel of it, before it
+        done = threading.Event()
+        runner.loop.add_callback(done.set)
+        assert done.wait(10.0)
+    finally:
+        busy.set()
+        signal.signal(signal.SIGUSR1, previous)
+        runner.stop()
+        log.removeHandler(handler)
+    return [r for r in records if r.levelno >= logging.ERROR]
+
+
+def test_a_call_interrupted_before_it_began_leaves_no_traceback_and_other_callback_faults_keep_theirs():
+    """The driver's filter (``quiet_interrupted_sync``). Ctrl-C landing in one of the client's blocking
+    calls before Dask's event loop had begun it made distributed's own cancel of it fail (a NameError on
+    its unbound ``future``), and tornado logged that with its traceback: CI caught it on the user's
+    terminal beside "interrupted" for Ctrl-C pressed twice. Reproduced here on distributed's own ``sync``
+    and loop: without the filter the record is there (the fault the filter is for), with it none is; a
+    callback failing otherwise, a NameError too, keeps its record and traceback."""
+    log = logging.getLogger("tornado.application")
+    filters = list(log.filters)
+    try:
+        log.filters[:] = [f for f in filters if type(f).__name__ != "_InterruptedSyncUntraced"]
+        unfiltered = _interrupt_a_call_not_yet_begun()
+        assert [type(r.exc_info[1]).__name__ for r in unfiltered if r.exc_info] == ["NameError"], unfiltered
+        quiet_interrupted_sync()
+        quiet_interrupted_sync()  # once
+        assert (
+            len(log.filters)
+            == len([f for f in filters if type(f).__name__ != "_InterruptedSyncUntraced"]) + 1
+        )
+        assert _interrupt_a_call_not_yet_begun() == []
+        try:
+            undefined_name  # noqa: B018, F821 — a NameError of another callback
+        except NameError:
+            record = log.makeRecord(
+                log.name, logging.ERROR, __file__, 0, "Exception in callback", (), sys.exc_info()
+            )
+        assert all(f.filter(record) for f in log.filters) and record.exc_info is not None
+    finally:
+        log.filters[:] = filters
 
 
 @settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -47,6 +47,7 @@ from hil.runtime.runlog import SUMMARY, write_summary
 from hil.scenario import Scenario
 from protocol.errors import ConfigError, InputFormatError, LinkError
 
+from .dask_logs import quiet_interrupted_sync, quiet_scheduler_loss
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
 from .runner import CHECK_COLUMNS, RunResult, describe, run_one
@@ -213,6 +214,7 @@ def open_client(
     worker silent for ``worker_ttl_s`` (:data:`WORKER_TTL_S`). Closed on exit."""
     from distributed import Client, LocalCluster
 
+    quiet_interrupted_sync()
     if scheduler is not None:
         if workers is not None:
             raise ConfigError("--workers is for a local cluster; a scheduler has its own workers", "workers")
@@ -327,28 +329,6 @@ def dask_setup(worker: Any) -> None:
             if signum != signal.SIGTERM:
                 signal.signal(signum, signal.SIG_IGN)
     quiet_scheduler_loss()
-
-
-class _SchedulerLossUntraced(logging.Filter):
-    """A LocalCluster worker's record of the scheduler out of reach (an ``OSError``: its connection closed)
-    without the traceback: the scheduler lives in the driver, so it is gone only when the campaign closes
-    (Ctrl-C twice put a worker's heartbeat traceback on the user's terminal after "interrupted"). The line
-    itself is kept; any other exception keeps its traceback."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        if record.exc_info and isinstance(record.exc_info[1], OSError):
-            record.msg = f"{record.getMessage()} ({record.exc_info[1]!r})"
-            record.args = None
-            record.exc_info = None
-            record.exc_text = None
-        return True
-
-
-def quiet_scheduler_loss() -> None:
-    """Install :class:`_SchedulerLossUntraced` on the worker's ``distributed.worker`` logger (once)."""
-    worker_log = logging.getLogger("distributed.worker")
-    if not any(isinstance(f, _SchedulerLossUntraced) for f in worker_log.filters):
-        worker_log.addFilter(_SchedulerLossUntraced())
 
 
 def chunks(indices: Iterable[int], count: int, batch: int, workers: int) -> Iterator[list[int]]:
