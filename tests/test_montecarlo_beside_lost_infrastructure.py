@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -28,6 +29,7 @@ from hil.cli import main as hil_main
 from hil.montecarlo import runner
 from hil.montecarlo.dispersions import draw, load_dispersions
 from hil.montecarlo.store import MANIFEST, RUNS
+from hil.runtime.runlog import SUMMARY
 from hil.scenario import load_scenario
 
 DASK = str(Path(sys.executable).with_name("dask"))
@@ -140,6 +142,32 @@ def test_a_scheduler_lost_mid_campaign_leaves_its_runs_to_the_next_session(tmp_p
     fresh = _montecarlo(scenario, reference, "--workers", "1")
     assert fresh.communicate(timeout=300) and fresh.returncode == 0
     assert sorted(_rows(out)) == sorted(_rows(reference))  # every run once, as if never interrupted
+
+
+def test_a_finished_campaign_run_again_is_summarised_without_a_cluster(tmp_path):
+    """The same command again on a campaign whose runs are all on disk has nothing to run. Before: it
+    started a LocalCluster (seconds of worker processes) for nothing, and against a scheduler since gone it
+    failed (status 2, "cannot reach the Dask scheduler") instead of summarising what it holds. Now no
+    cluster is started or reached: the runs are summarised again, summary.json rewritten, status 0; a
+    directory with a run left still needs its cluster (the LinkError as before)."""
+    scenario = write_quick_scenario(tmp_path)
+    out = tmp_path / "campaign"
+    first = _montecarlo(scenario, out, "--workers", "1")
+    assert first.communicate(timeout=300) and first.returncode == 0
+    rows = _rows(out)
+    (out / SUMMARY).unlink()
+    gone = f"tcp://127.0.0.1:{_free_port()}"  # nothing listens there
+    again = _montecarlo(scenario, out, "--scheduler", gone)
+    stdout, stderr = again.communicate(timeout=120)
+    assert again.returncode == 0, stderr
+    assert "summarised again, no cluster" in stderr and f"{len(rows)} runs were already in {out}" in stderr
+    assert "Traceback" not in stderr, stderr
+    assert _rows(out) == rows and json.loads((out / SUMMARY).read_text())["runs"] == len(rows)
+    lines = (out / RUNS).read_text().splitlines()
+    (out / RUNS).write_text("\n".join(lines[:-1]) + "\n")  # one run left to do
+    left = _montecarlo(scenario, out, "--scheduler", gone)
+    _, stderr = left.communicate(timeout=120)
+    assert left.returncode == 2 and gone in stderr and "Traceback" not in stderr, stderr
 
 
 def test_a_campaign_on_another_board_is_refused_in_its_directory(tmp_path, capsys):

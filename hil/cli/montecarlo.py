@@ -214,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
 
     import distributed  # noqa: F401 — configures its loggers on import; quieten them after
 
-    from hil.montecarlo import Campaign, load_dispersions, open_client, run_campaign
+    from hil.montecarlo import Campaign, load_dispersions, open_client, run_campaign, runs_left
     from hil.montecarlo.summary import format_table
     from hil.runtime.runlog import new_run_dir
     from hil.scenario import load_scenario
@@ -250,25 +250,29 @@ def run(args: argparse.Namespace) -> int:
             raise
         raise ConfigError(exc.detail, option) from None
     bar = ProgressBar()
-    with open_client(args.scheduler, local_workers(args)) as client:
-        out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
-        where = f"scheduler {args.scheduler}" if args.scheduler else "a local cluster"
-        print(
-            f"hil montecarlo: {campaign.runs} runs of {scenario.name} ({scenario.slew.duration_s:g} s each, "
-            f"dispersions {dispersions.where}, seed {campaign.seed}) on {where} -> {out}",
-            file=sys.stderr,
-        )
-        try:
-            report = run_campaign(
-                campaign,
-                out,
-                client,
-                on_result=bar,
-                plots=not args.no_plots,
-                on_worker_lost=lambda loss: bar.note(f"hil montecarlo: {loss.describe()}"),
-            )
-        finally:
-            bar.close()
+    out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
+    what = (
+        f"{campaign.runs} runs of {scenario.name} ({scenario.slew.duration_s:g} s each, "
+        f"dispersions {dispersions.where}, seed {campaign.seed})"
+    )
+    if runs_left(campaign, out) == 0:  # a finished campaign again: its summary, no cluster to start or reach
+        print(f"hil montecarlo: {what}: all in {out} already; summarised again, no cluster", file=sys.stderr)
+        report = run_campaign(campaign, out, None, plots=not args.no_plots)
+    else:
+        with open_client(args.scheduler, local_workers(args)) as client:
+            where = f"scheduler {args.scheduler}" if args.scheduler else "a local cluster"
+            print(f"hil montecarlo: {what} on {where} -> {out}", file=sys.stderr)
+            try:
+                report = run_campaign(
+                    campaign,
+                    out,
+                    client,
+                    on_result=bar,
+                    plots=not args.no_plots,
+                    on_worker_lost=lambda loss: bar.note(f"hil montecarlo: {loss.describe()}"),
+                )
+            finally:
+                bar.close()
     if report.skipped:
         print(
             f"{report.skipped} runs were already in {out}; ran the other {report.completed}", file=sys.stderr

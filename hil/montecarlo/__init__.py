@@ -4,7 +4,7 @@ dispersion files, per-run draws), ``runner`` (a run's scenario from its draws; a
 ``metrics``, ``store`` (the output directory, written run by
 run), ``campaign`` (the Dask driver), ``summary`` and ``plots``."""
 
-from .campaign import Campaign, CampaignReport, open_client, run_campaign, summarise_dir
+from .campaign import Campaign, CampaignReport, open_client, run_campaign, runs_left, summarise_dir
 from .dispersions import Dispersions, RunParams, draw, load_dispersions, parse_dispersions
 from .metrics import METRICS, TRACES
 from .runner import RunResult, run_chunk
@@ -27,5 +27,6 @@ __all__ = [
     "read_traces",
     "run_campaign",
     "run_chunk",
+    "runs_left",
     "summarise_dir",
 ]

@@ -388,16 +388,26 @@ def run_campaign(
     scheduler's ``all`` event topic (where workers' comings and goings are announced; a handler already
     there is replaced) and to :data:`RESULTS_TOPIC`. KeyboardInterrupt cancels the pending work and
     propagates; every run finished by then is on disk, and a summary.json an earlier session wrote is
-    summarised again over them, marked interrupted (:func:`_summary_after_interrupt`)."""
+    summarised again over them, marked interrupted (:func:`_summary_after_interrupt`).
+
+    ``client`` None: no cluster, for a directory that holds every run already (:func:`runs_left` is 0):
+    the runs are summarised again, on 0 workers; a run left to do is then a :class:`ConfigError`."""
     out = Path(out_dir)
     start = time.perf_counter()
-    workers = max(1, sum(client.nthreads().values()))
+    workers = 0 if client is None else max(1, sum(client.nthreads().values()))
     try:
         with ResultStore(out, campaign.manifest()) as store:
             skipped = sum(1 for i in store.finished if 0 <= i < campaign.runs)
+            if client is None and skipped < campaign.runs:
+                raise ConfigError(
+                    f"{campaign.runs - skipped} of the campaign's {campaign.runs} runs are not in the "
+                    "directory yet: they need a cluster",
+                    str(out),
+                )
             todo = (i for i in range(campaign.runs) if i not in store.finished)
             driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
-            driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
+            if client is not None:
+                driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
     except KeyboardInterrupt:
         _summary_after_interrupt(out, campaign)
         raise
@@ -419,6 +429,15 @@ def run_campaign(
         sc = campaign.scenario
         report.plots = plot_campaign(out, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate)
     return report
+
+
+def runs_left(campaign: Campaign, out_dir: str | os.PathLike[str]) -> int:
+    """How many of ``campaign``'s runs ``out_dir`` does not hold yet, read as :func:`run_campaign` reads
+    it (the directory made, or checked against the campaign and its torn tail repaired): 0 says a session
+    has nothing to run, so no cluster need be started or reached (re-running a finished campaign for its
+    summary once started a LocalCluster, or failed on a scheduler since gone)."""
+    with ResultStore(out_dir, campaign.manifest()) as store:
+        return campaign.runs - sum(1 for i in store.finished if 0 <= i < campaign.runs)
 
 
 def _its_runs_killed_workers(exc: BaseException) -> bool:
