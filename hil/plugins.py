@@ -12,7 +12,7 @@ import re
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from protocol.errors import HilError
+from protocol.errors import HilError, RunHung
 
 
 class PluginError(HilError, RuntimeError):
@@ -28,9 +28,11 @@ class PluginError(HilError, RuntimeError):
 
 T = TypeVar("T")
 
-PASSES = (KeyboardInterrupt, GeneratorExit)
+PASSES = (KeyboardInterrupt, GeneratorExit, RunHung)
 """What a plugin may raise that is never made its error: Ctrl-C (and SIGTERM through ``hil``'s CLI) is the
-user's, a GeneratorExit Python's own. Everything else is caught — a ``SystemExit`` too: a library written
+user's, a GeneratorExit Python's own, a :class:`~protocol.errors.RunHung` the campaign's (its run's wall
+budget, raised wherever the run's thread is: a plugin's import it landed in was reported as the plugin's
+failure). Everything else is caught — a ``SystemExit`` too: a library written
 as a script calls ``sys.exit()`` on a failure of its own, which escaped every ``except Exception`` and ended
 ``hil`` with the plugin's status (0 for ``sys.exit()``), no word, the summary "error: " and, when a
 transport's reader thread was the one to exit, the board's final Disarm unconfirmed."""
@@ -133,9 +135,11 @@ class Registry:
         self._discovered = False
 
     def _discover(self) -> None:
+        """Read the entry points, once: marked read only once they are, so that a reading cut short (a
+        run's wall budget, Ctrl-C) is read again next time — it was marked first, and every later run of
+        that campaign worker found no emulator: "unknown transport scheme 'emu'"."""
         if self._discovered:
             return
-        self._discovered = True
         import importlib.metadata  # only here: reading the entry points costs a run that needs none 10+ ms
 
         found: dict[str, dict[str, str]] = {}  # name -> target -> the distribution that installed it
@@ -148,6 +152,7 @@ class Registry:
                 self._targets.setdefault(name, next(iter(targets)))
             else:  # two packages (or one name in two cases) disagree: neither is picked behind one's back
                 self._targets.setdefault(name, AMBIGUOUS + " | ".join(sorted(targets.values())))
+        self._discovered = True
 
     def register(self, name: str, target: str) -> None:
         """Add (or replace) ``name``; ``target`` is ``"module:attribute"``."""

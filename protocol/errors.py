@@ -129,6 +129,8 @@ class PortBusy(TransportRefused):
         self.holder_cmdline = holder_cmdline
 
 
-class RunHung(HilError, TimeoutError):
+class RunHung(HilError):
     """A run that did not end within its wall-clock budget (a campaign's guard against a loop that stops
-    advancing simulated time): the campaign records it as a hang and goes on."""
+    advancing simulated time): the campaign records it as a hang and goes on. Raised into the run's thread
+    wherever it is, so deliberately no ``OSError`` (it was a ``TimeoutError``): an ``except OSError`` on
+    the way — importlib's own, a file or socket read's — took it for an I/O error and went on."""

@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hil.plugins import Registry
+from protocol.errors import RunHung
 
 REPO = Path(__file__).resolve().parents[1]
 LOG = REPO / "fixtures" / "logs" / "simulated_testbed_4s.csv"
@@ -127,3 +128,37 @@ def test_loading_any_target_is_an_import_or_attribute_error(text):
         Registry.load("zz_no_such_plugin" + text)
     with pytest.raises((ImportError, AttributeError)):
         Registry.load("good_plug_absent_" + text.replace(":", "") + ":" + text)
+
+
+@pytest.mark.parametrize("interrupt", [KeyboardInterrupt, RunHung])
+def test_an_interrupted_reading_of_the_entry_points_is_read_again_and_an_interrupt_is_never_the_plugins(
+    installed, monkeypatch, interrupt
+):
+    """An interrupt (Ctrl-C, a campaign run's wall budget, raised wherever the run's thread is) that lands
+    while the entry points are read: it passes, and the next use reads them again. Before: the registry
+    was marked read first, and every later run of that campaign worker found no installed name ("unknown
+    transport scheme 'emu'"). An interrupt landing in a plugin module's import passes as itself too, never
+    made the plugin's ImportError."""
+    import importlib.metadata
+
+    monkeypatch.syspath_prepend(str(installed))
+    real = importlib.metadata.entry_points
+    calls = 0
+
+    def interrupted(**kwargs):
+        nonlocal calls
+        calls += 1
+        if calls == 1:
+            raise interrupt
+        return real(**kwargs)
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", interrupted)
+    registry = Registry("vscmg_hil.estimators", {})
+    with pytest.raises(interrupt):
+        registry.names()
+    assert "dotted" in registry.names() and calls == 2
+    module = f"interrupted_by_{interrupt.__name__.lower()}"
+    source = f"from protocol.errors import RunHung\nraise {interrupt.__name__}\n"
+    (installed / f"{module}.py").write_text(source)
+    with pytest.raises(interrupt):
+        Registry.load(f"{module}:KIND")

@@ -250,16 +250,17 @@ def run(args: argparse.Namespace) -> int:
             raise
         raise ConfigError(exc.detail, option) from None
     bar = ProgressBar()
-    out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
     what = (
         f"{campaign.runs} runs of {scenario.name} ({scenario.slew.duration_s:g} s each, "
         f"dispersions {dispersions.where}, seed {campaign.seed})"
     )
-    if runs_left(campaign, out) == 0:  # a finished campaign again: its summary, no cluster to start or reach
+    if args.out is not None and runs_left(campaign, args.out) == 0:  # a finished campaign again: no cluster
+        out = args.out
         print(f"hil montecarlo: {what}: all in {out} already; summarised again, no cluster", file=sys.stderr)
         report = run_campaign(campaign, out, None, plots=not args.no_plots)
     else:
         with open_client(args.scheduler, local_workers(args)) as client:
+            out = args.out if args.out is not None else new_run_dir("runs", f"mc-{scenario.name}")
             where = f"scheduler {args.scheduler}" if args.scheduler else "a local cluster"
             print(f"hil montecarlo: {what} on {where} -> {out}", file=sys.stderr)
             try:

@@ -51,7 +51,7 @@ from .dask_logs import quiet_interrupted_sync, quiet_scheduler_loss
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
 from .runner import CHECK_COLUMNS, RunResult, describe, run_one
-from .store import ResultStore, checked_write, manifest, read_manifest, read_runs
+from .store import MANIFEST, ResultStore, checked_write, manifest, read_manifest, read_runs
 from .summary import summarise
 
 logger = logging.getLogger(__name__)
@@ -435,7 +435,11 @@ def runs_left(campaign: Campaign, out_dir: str | os.PathLike[str]) -> int:
     """How many of ``campaign``'s runs ``out_dir`` does not hold yet, read as :func:`run_campaign` reads
     it (the directory made, or checked against the campaign and its torn tail repaired): 0 says a session
     has nothing to run, so no cluster need be started or reached (re-running a finished campaign for its
-    summary once started a LocalCluster, or failed on a scheduler since gone)."""
+    summary once started a LocalCluster, or failed on a scheduler since gone). A directory without a
+    campaign's manifest (none yet) has every run left, and is neither made nor touched here: a campaign
+    that never starts (its scheduler out of reach) creates nothing."""
+    if not os.path.lexists(Path(out_dir) / MANIFEST):
+        return campaign.runs
     with ResultStore(out_dir, campaign.manifest()) as store:
         return campaign.runs - sum(1 for i in store.finished if 0 <= i < campaign.runs)
 

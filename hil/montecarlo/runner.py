@@ -293,28 +293,56 @@ advancing simulated time)."""
 
 
 @contextlib.contextmanager
-def wall_budget(seconds: float) -> Iterator[None]:
+def wall_budget(seconds: float, again_s: float = 1.0) -> Iterator[None]:
     """Raise :class:`~protocol.errors.RunHung` in this thread if the block is still running after
     ``seconds`` of wall time (at its next Python bytecode: a compiled kernel that never returns is not
-    caught)."""
-    thread = threading.get_ident()
+    caught), and again every ``again_s`` while it still runs. A block that went past its budget fails
+    ``RunHung`` however it ends: the exception, raised wherever the thread is, can be caught on the way
+    (an ``except Exception`` that logs and goes on, importlib's ``except OSError`` when it was an OSError)
+    — such a run once finished "ok" past a budget of 6 ms. One still pending as the block ends is
+    withdrawn, never raised after it."""
+    thread = ctypes.c_ulong(threading.get_ident())
     lock = threading.Lock()
-    state = {"done": False}
+    state = {"done": False, "fired": False}
+    ended = threading.Event()
 
-    def fire() -> None:
-        with lock:
-            if not state["done"]:
-                ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(thread), ctypes.py_object(RunHung))
+    def watch() -> None:
+        wait = seconds
+        while not ended.wait(wait):
+            with lock:
+                if state["done"]:
+                    return
+                state["fired"] = True
+                ctypes.pythonapi.PyThreadState_SetAsyncExc(thread, ctypes.py_object(RunHung))
+            wait = again_s
 
-    timer = threading.Timer(seconds, fire)
-    timer.daemon = True
-    timer.start()
+    watcher = threading.Thread(target=watch, name="wall-budget", daemon=True)
+    watcher.start()
     try:
         yield
-    finally:
-        with lock:
-            state["done"] = True
-        timer.cancel()
+    except BaseException as exc:
+        if not _end_watch(lock, state, ended, thread):
+            raise
+        if isinstance(exc, RunHung):  # the interrupt itself, raised as a bare class: said with its budget
+            raise RunHung(f"past its wall budget of {seconds:g} s") from None
+        raise RunHung(f"past its wall budget of {seconds:g} s, then {describe(exc)}") from exc
+    if _end_watch(lock, state, ended, thread):
+        raise RunHung(f"past its wall budget of {seconds:g} s (its interrupt was caught on the way)")
+
+
+def _end_watch(lock: threading.Lock, state: dict[str, bool], ended: threading.Event, thread: Any) -> bool:
+    """End :func:`wall_budget`'s watch; whether it fired. An interrupt it left pending is withdrawn, and
+    one that lands here before the watch is ended is taken as the firing it is."""
+    while True:
+        try:
+            with lock:
+                state["done"] = True
+                if state["fired"]:
+                    ctypes.pythonapi.PyThreadState_SetAsyncExc(thread, None)  # NULL: clear a pending one
+            ended.set()
+            return state["fired"]
+        except RunHung:
+            continue
 
 
 def fault_bounds(scenario: Scenario) -> Bounds:
