@@ -4,7 +4,8 @@ A bench CSV is UTF-8 text; lines starting with ``#`` are comments, blank lines a
 other line is the header. Columns (any order; extra columns are ignored):
 
 * ``pulse_us`` — the commanded pulse width (µs, 500–2500), required;
-* ``battery_v`` — battery voltage during the sample (V, 0–60), required for rotor data;
+* ``battery_v`` — battery voltage during the sample (V, 0–60), required for rotor data (at least
+  ``MIN_SUPPLY_V``, 1 V, there: the rotor fit divides the speed by it);
 * exactly one measurement: ``rpm`` or ``rotor_speed_rad_s`` (rotor no-load speed, 0–100 000 rpm),
   ``gimbal_rate_rad_s`` or ``gimbal_rate_deg_s`` (±100 rad/s), ``gimbal_angle_rad`` or ``gimbal_angle_deg``
   (two turns either way) (:data:`MEASURED_RANGE`).
@@ -30,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from protocol.calibration import MIN_SUPPLY_V
 from protocol.errors import InputFormatError
 from protocol.messages import PULSE_MAX_US, PULSE_MIN_US
 
@@ -154,6 +156,15 @@ def parse_bench_csv(text: str, path: str = "<bench csv>") -> BenchData:
             battery[r] = _number(
                 cells[i_battery], path, lineno, "battery_v", 0.0, MAX_BATTERY_V, open_low=True
             )
+            if kind is BenchKind.ROTOR and battery[r] < MIN_SUPPLY_V:
+                # the rotor fit divides speed by it: a 1e-300 V glitch made a KV of 5e302 (overflow
+                # warnings, then a float32 error) and one low row a misleading "starts at 1780 µs"
+                raise InputFormatError(
+                    f"{cells[i_battery]} V is no supply (a rotor map reads below {MIN_SUPPLY_V:g} V as none)",
+                    path,
+                    lineno,
+                    "battery_v",
+                )
         low, high = MEASURED_RANGE[kind]
         value[r] = factor * _number(cells[i_value], path, lineno, column, low / factor, high / factor)
     partial = None if status is None or not status[1] else f"{path}:{status[0]}: {status[1]}"

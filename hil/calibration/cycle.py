@@ -41,7 +41,7 @@ from .operator import Operator
 from .plot import plot_fits, plot_path
 from .progress import Report, no_report
 from .sweep import SweepPlan, SweepResult, run_sweep
-from .textfiles import check_writable, locked
+from .textfiles import check_distinct, check_writable, locked
 from .verify import VerifyPlan, VerifyReport, run_verify
 
 
@@ -208,12 +208,15 @@ def check_cycle(units: list[int], options: CycleOptions) -> CalibrationSet:
             "--program-esc",
         )
     check_writable(options.out, f"-o {options.out}")
+    outputs: dict[str, Path] = {f"-o {options.out}": options.out}
     for unit in units:
         check_writable(plot_path(options.out, unit))
+        outputs[f"the plot {plot_path(options.out, unit)}"] = plot_path(options.out, unit)
         for plan in options.plans:
-            check_writable(
-                options.bench_dir / f"unit{unit}_{plan.kind.value}.csv", f"--bench-dir {options.bench_dir}"
-            )
+            csv = options.bench_dir / f"unit{unit}_{plan.kind.value}.csv"
+            check_writable(csv, f"--bench-dir {options.bench_dir}")
+            outputs[f"--bench-dir {options.bench_dir} ({csv.name})"] = csv
+    check_distinct(outputs)  # -o bench/unit0_rotor.csv: the sweep's data, then the file, in one file
     return load_calibration(options.out) if options.out.exists() else CalibrationSet(())
 
 

@@ -9,7 +9,7 @@ import errno
 import fcntl
 import os
 import secrets
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from hil.files.bounded import MAX_DOCUMENT_BYTES, read_document
@@ -129,3 +129,31 @@ def check_writable(path: str | os.PathLike[str], where: str | None = None) -> Pa
     if not os.access(folder, os.W_OK | os.X_OK):
         raise ConfigError(f"cannot write {out}: the folder {folder} is not writable", said)
     return out
+
+
+def check_distinct(
+    outputs: Mapping[str, str | os.PathLike[str]], inputs: Mapping[str, str | os.PathLike[str]] | None = None
+) -> None:
+    """Refuse, before any work, an output of a command (option → path) that is the file of another of its
+    outputs or of one of the ``inputs`` it reads: ``hil calibrate fit -o cal.png --plot cal.png`` saved the
+    plot, wrote the calibration file over it and said it wrote both; a ``--plot`` naming a bench CSV wrote
+    the picture over the data it came from. One file is the same path after links are followed, or the
+    same inode (a hard link). :class:`ConfigError` naming the output and the other option."""
+    seen: dict[tuple[int, int] | Path, str] = {
+        _identity(Path(p)): option for option, p in (inputs or {}).items()
+    }
+    for option, path in outputs.items():
+        key = _identity(Path(path))
+        if key in seen:
+            raise ConfigError(f"{path} is the file of {seen[key]} too: give each its own file", option)
+        seen[key] = option
+
+
+def _identity(path: Path) -> tuple[int, int] | Path:
+    """What makes two paths one file: its device and inode if it exists, else its absolute path with the
+    links of its existing part followed."""
+    try:
+        st = path.stat()
+    except OSError:
+        return path.resolve()
+    return (st.st_dev, st.st_ino)

@@ -127,7 +127,7 @@ def run_fit(args: argparse.Namespace) -> int:
     from hil.calibration.fit import FitOptions, fit_bench
     from hil.calibration.plot import plot_fits
     from hil.calibration.plot import plot_path as default_plot_path
-    from hil.calibration.textfiles import check_writable, locked
+    from hil.calibration.textfiles import check_distinct, check_writable, locked
     from protocol.errors import CalibrationError, ConfigError
 
     from ._calibrate_board import say
@@ -141,6 +141,10 @@ def run_fit(args: argparse.Namespace) -> int:
     )
     check_writable(args.out, f"-o {args.out}")  # a FIFO read as the file to update waited for ever
     plot_path = _plot_target(args.plot, default_plot_path(args.out, args.unit))  # before anything is written
+    plot_option = f"--plot {plot_path}" if args.plot is not None else f"the plot {plot_path}"
+    check_distinct(
+        {f"-o {args.out}": args.out, plot_option: plot_path}, {f"the CSV {p}": p for p in args.csv}
+    )
     datasets = [read_bench_csv(path) for path in args.csv]
     for d in datasets:
         if d.partial is not None and not args.allow_partial:
