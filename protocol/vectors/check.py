@@ -58,21 +58,46 @@ def check_document(document: Any) -> list[VectorResult]:
     if not isinstance(document, Mapping) or document.get("format") != FORMAT:
         return [VectorResult("format", False, f"not a {FORMAT!r} document")]
     results = [_check_header(document)]
-    frames = document.get("frames", [])
+    sections: dict[str, list[Any]] = {}
+    for key in SECTIONS:
+        sections[key], problem = _section(document, key)
+        if problem is not None:
+            results.append(problem)
+    frames = sections["frames"]
     for i, vector in enumerate(frames):
         results.append(_guarded(f"frames[{i}]", vector, _check_frame))
-    for i, vector in enumerate(document.get("bad_frames", [])):
+    for i, vector in enumerate(sections["bad_frames"]):
         results.append(_guarded(f"bad_frames[{i}]", vector, _check_bad))
-    named = {v.get("name"): v for v in frames if isinstance(v, Mapping)}
-    for i, vector in enumerate(document.get("streams", [])):
+    named = {_text(v, "name"): v for v in frames if _text(v, "name") is not None}
+    for i, vector in enumerate(sections["streams"]):
         results.append(_guarded(f"streams[{i}]", vector, lambda v: _check_stream(v, named)))
-    for i, vector in enumerate(document.get("cobs", [])):
+    for i, vector in enumerate(sections["cobs"]):
         results.append(_guarded(f"cobs[{i}]", vector, _check_cobs))
-    for i, vector in enumerate(document.get("crc", [])):
+    for i, vector in enumerate(sections["crc"]):
         results.append(_guarded(f"crc[{i}]", vector, _check_crc))
     results.append(_check_messages(document.get("messages", [])))
-    results.extend(_check_coverage(document))
+    results.extend(_check_coverage(sections))
     return results
+
+
+SECTIONS = ("frames", "bad_frames", "streams", "cobs", "crc")
+"""The document's arrays of vectors, each checked vector by vector."""
+
+
+def _section(document: Mapping[str, Any], key: str) -> tuple[list[Any], VectorResult | None]:
+    """The array ``key`` of ``document`` (absent: none), or none and a failed result naming it: a section
+    that is a number or null (a hand's edit) ended the selftest in a TypeError traceback."""
+    section = document.get(key, [])
+    if isinstance(section, list):
+        return section, None
+    return [], VectorResult(key, False, f"expected an array of vectors, got {type(section).__name__}")
+
+
+def _text(vector: Any, key: str) -> str | None:
+    """A vector's ``key`` when it is a string (a name, a message, a reason), else None: a list there
+    (unhashable) ended the selftest in a TypeError traceback."""
+    value = vector.get(key) if isinstance(vector, Mapping) else None
+    return value if isinstance(value, str) else None
 
 
 def _guarded(where: str, vector: Any, check: Callable[[Mapping[str, Any]], list[str]]) -> VectorResult:
@@ -83,10 +108,12 @@ def _guarded(where: str, vector: Any, check: Callable[[Mapping[str, Any]], list[
     try:
         if not isinstance(vector, Mapping):
             raise ProtocolError("expected an object")
+        if not isinstance(name, str):  # a list there passed, its stream vectors unable to name it
+            raise ProtocolError(f"name: expected a string, got {type(name).__name__}")
         problems = check(vector)
     except Exception as exc:  # noqa: BLE001 — any failure on a malformed vector is that vector's report
         problems = [f"malformed vector: {type(exc).__name__}: {str(exc)[:200]}"]
-    return VectorResult(str(name)[:200], not problems, "; ".join(problems))
+    return VectorResult((name if isinstance(name, str) else where)[:200], not problems, "; ".join(problems))
 
 
 def _check_header(document: Mapping[str, Any]) -> VectorResult:
@@ -199,11 +226,11 @@ def _check_messages(rows: Any) -> VectorResult:
     return VectorResult("messages", True)
 
 
-def _check_coverage(document: Mapping[str, Any]) -> list[VectorResult]:
+def _check_coverage(sections: Mapping[str, list[Any]]) -> list[VectorResult]:
     """Every message has a canonical frame and every bad-frame reason a broken one."""
-    covered = {v.get("message") for v in document.get("frames", []) if isinstance(v, Mapping)}
+    covered = {_text(v, "message") for v in sections["frames"]}
     missing = sorted(cls.__name__ for cls in CATALOGUE if cls.__name__ not in covered)
-    reasons = {v.get("reason") for v in document.get("bad_frames", []) if isinstance(v, Mapping)}
+    reasons = {_text(v, "reason") for v in sections["bad_frames"]}
     unseen = sorted(r.value for r in BadFrameReason if r.value not in reasons)
     return [
         VectorResult("coverage/messages", not missing, f"no vector for {missing}" if missing else ""),
