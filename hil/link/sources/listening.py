@@ -27,6 +27,7 @@ from hil.estimation.admission import PhoneGuard, Verdict
 from hil.estimation.sensors import SensorSample
 from hil.link.sources.base import GroundTruth, PhoneSource, SenderStatus, SourceContext
 from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, PhoneSender, StreamStats
+from hil.scenario.reader import HOST_STALE_AFTER_S
 from protocol.errors import ConfigError, LinkTimeout
 
 STREAMS: dict[str, tuple[str, str]] = {
@@ -80,6 +81,7 @@ class ListeningSource(PhoneSource):
         # what the wait for the first samples took off the receiver to judge them: handed over first, in
         # batches of MAX_BATCH, as the receiver would have
         self._waited: deque[SensorSample] = deque()
+        self._guard = PhoneGuard()  # the admission policy over what was held before the run (its newest)
 
     def drain(self, now: float) -> list[SensorSample]:
         waited = self._waited
@@ -101,7 +103,7 @@ class ListeningSource(PhoneSource):
         Else a :class:`LinkTimeout` saying what was heard (:func:`heard`: readings that came and were all
         refused, with the reasons, are said so) and where to send what is missing."""
         receiver = self.receiver
-        guard = PhoneGuard()
+        guard = self._guard
         admitted: Counter[str] = Counter()
         refused: dict[str, Counter[str]] = {}
         end = time.monotonic() + wait_s
@@ -129,6 +131,31 @@ class ListeningSource(PhoneSource):
             f"point {receiver.app} on a phone at it, its accelerometer and gyroscope on"
         )
 
+    def start(self, origin: float) -> float | None:
+        """The run starts, its board armed: of what was held since the wait for the phone began (the wait
+        itself, then the arming), the readings stamped more than :data:`HELD_KEEP_S` before the newest
+        one the admission policy took are dropped, counted (``held_stale``) and logged. They were handed to
+        the run as it started, as if live: a phone whose accelerometer came 3 s after its gyroscope had
+        3 s of gyroscope readings taken as the present, their delay shrinking faster than any clock runs
+        — two ``phone_jump`` faults of a clock that never jumped, honest readings dropped as ``future``,
+        the warm-up restarted. A stray stamped past the newest is kept: the run's own guard judges it."""
+        receiver = self.receiver
+        for _ in range(MAX_QUEUE // MAX_BATCH + 1):  # what came while the board was armed (bounded)
+            batch = receiver.drain()
+            if not batch:
+                break
+            for sample in batch:
+                self._guard.admit(sample)
+            self._keep(batch)
+        newest = self._guard.newest
+        waited = self._waited
+        fresh = deque(s for s in waited if not s.t_s < newest - HELD_KEEP_S)
+        if len(fresh) < len(waited):
+            oldest = min(s.t_s for s in waited)
+            receiver.count_held_stale(len(waited) - len(fresh), newest - oldest)
+            self._waited = fresh
+        return None
+
     def _keep(self, batch: list[SensorSample]) -> None:
         """``batch`` held for the run; beyond :data:`MAX_QUEUE` held the oldest dropped and counted in the
         receiver's ``overflow``, as the receiver itself does (the run wants the present)."""
@@ -149,6 +176,10 @@ class ListeningSource(PhoneSource):
 
 NEEDED = ("gyr", "acc")
 """The sensors a run cannot start without (``StreamStats.per_kind``'s labels)."""
+HELD_KEEP_S = HOST_STALE_AFTER_S
+"""s of the phone's clock: what was held before the run started is kept only this far back from its
+newest reading — the age at which the host calls the phone stale: anything older is no present to start
+the estimate from."""
 
 
 def heard(stats: StreamStats, refused: dict[str, Counter[str]] | None = None) -> str:

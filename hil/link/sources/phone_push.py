@@ -18,7 +18,10 @@ sensors are ignored (counted). The raw types the app pushes when they are enable
 stand in for a sensor whose calibrated type the stream has not sent — as the CSV export's
 ``…Uncalibrated.csv`` files and SensaGram's uncalibrated types do — and are ignored and counted from its
 first calibrated reading on (the app always pushes the calibrated ones beside them; two sensors' readings
-are never interleaved as one). Set the app's batch period as short as it allows: the batch period is
+are never interleaved as one), until that calibrated type has been silent for
+:data:`~.stream.CALIBRATED_QUIET_S` (turned off in the app mid-run: counted, ``calibrated_lapses``, and
+logged; the raw type is read again). Total acceleration holds the accelerometer over the user acceleration
+and gravity the same way. Set the app's batch period as short as it allows: the batch period is
 added to the control loop's sensing latency.
 
 **One phone.** A batch's sender is its app's ``deviceId`` and ``sessionId`` (one recording of one phone;
@@ -343,8 +346,6 @@ class PhonePushServer(PhoneReceiver):
         super().__init__(max_queue, clock, max_batch)
         host, port, self.path = _address(url)
         self._last_id: int | None = None
-        self._total_heard = False  # the stream has sent total acceleration: its accelerometer
-        self._calibrated: set[SensorKind] = set()  # sensors whose calibrated type the stream has sent
         limits = HttpLimits(max_body, timeout_s, max_connections)
         try:
             self._httpd = GuardedHTTPServer((host, port), _handler(self), limits, self._turned_away)
@@ -368,8 +369,10 @@ class PhonePushServer(PhoneReceiver):
         """One push's body into the queue — decoded here if small (:data:`INLINE_MAX`), else by the decoder
         process —: ``(status, text)`` to answer."""
         source = f"push from {peer}"
-        with self._lock:
-            parts, calibrated = not self._total_heard, frozenset(self._calibrated)
+        # the calibrated types streaming (total acceleration: "total"), whose raw types are not read
+        streaming = self._calibrated_streaming()
+        parts = "total" not in streaming
+        calibrated = frozenset(kind for kind in SensorKind if kind.label in streaming)
         batch, answer = self._decode_push(body, source, parts, calibrated)
         if batch is None:
             return answer
@@ -381,9 +384,8 @@ class PhonePushServer(PhoneReceiver):
             if batch is None:
                 return answer
         if decision.streams:
-            self._heard_total(batch.total)
-            with self._lock:
-                self._calibrated |= batch.calibrated
+            heard = [kind.label for kind in batch.calibrated]
+            self._calibrated_heard([*heard, "total"] if batch.total else heard)
             self._count_gaps(batch.message_id)
         self._deliver(batch.samples, batch.bad, batch.ignored, batch.per_kind)
         return 200, "ok"
@@ -425,8 +427,8 @@ class PhonePushServer(PhoneReceiver):
 
     def _followed(self, device: str | None, session: str | None, peer: str, usable: int) -> Decision:
         """Whose a batch is (:mod:`.senders`); another phone's is counted there, never delivered. A new
-        phone followed starts the stream's state afresh: its ``messageId`` numbering, and whether it
-        sends total acceleration."""
+        phone followed starts the stream's state afresh: its ``messageId`` numbering, and which calibrated
+        types it sends (total acceleration among them)."""
         if device is None and session is None:
             sender: tuple[str | None, ...] = ("peer", peer)
             name = f"{peer} (no deviceId or sessionId)"
@@ -437,16 +439,8 @@ class PhonePushServer(PhoneReceiver):
         if decision is Decision.SWITCHED:
             with self._lock:
                 self._last_id = None
-                self._total_heard = False
-                self._calibrated = set()
+            self._calibrated_forget()
         return decision
-
-    def _heard_total(self, total: bool) -> None:
-        """A batch held total acceleration: it is the stream's accelerometer from now on, its later
-        batches' user acceleration and gravity ignored (:func:`decode_push`'s ``parts``)."""
-        if total:
-            with self._lock:
-                self._total_heard = True
 
     def _count_gaps(self, message_id: int | None) -> None:
         """Batches lost in transit: a jump in the app's ``messageId`` of at most :data:`MAX_MESSAGE_GAP`; a

@@ -13,10 +13,11 @@ frame (x screen right, y screen up, z out of the screen) — exactly what the es
 that carries a sensor's uncalibrated type instead (``android.sensor.gyroscope_uncalibrated``,
 ``…magnetic_field_uncalibrated``, ``…accelerometer_uncalibrated``: six values, the raw reading then the OS's
 estimate of its bias, or of the hard-iron field) is read as the raw reading less that estimate — what the
-calibrated sensor reports — for as long as the calibrated type of that sensor has not been heard: from its
-first event on, the stream's uncalibrated events of it are ignored and counted, so that two sensors'
-readings are never interleaved as one. Other types (``android.gps``, light, rotation vector, …) are
-ignored and counted. There is no batching, so the
+calibrated sensor reports — while the calibrated type of that sensor is not streaming: from its first
+event on, the stream's uncalibrated events of it are ignored and counted, so that two sensors' readings are
+never interleaved as one, until it has been silent for :data:`~.stream.CALIBRATED_QUIET_S` (turned off in
+the app mid-run: counted, ``calibrated_lapses``, and logged; the uncalibrated type is read again). Other
+types (``android.gps``, light, rotation vector, …) are ignored and counted. There is no batching, so the
 sensing latency is the network's; there is no sequence number, so a lost datagram is not noticed (the
 merger's gap and stale flags are what shows it).
 
@@ -66,7 +67,7 @@ UNCALIBRATED: dict[str, SensorKind] = {
 @dataclass(frozen=True, slots=True)
 class UncalibratedSample(SensorSample):
     """A reading of a sensor's uncalibrated type, its bias estimate removed: used by the receiver only
-    while the calibrated type of its sensor has not been heard (the module docstring)."""
+    while the calibrated type of its sensor is not streaming (the module docstring)."""
 
 
 MAX_DATAGRAM = 65_507  # bytes: the largest UDP payload over IPv4
@@ -215,7 +216,6 @@ class PhoneUdpReceiver(PhoneReceiver):
         bound_host, bound_port = self._sock.getsockname()[:2]
         self._url = f"udp://{bound_host}:{bound_port}"  # kept: still answers after close()
         self._stop = threading.Event()
-        self._calibrated: set[SensorKind] = set()  # sensors whose calibrated type the stream has sent
         self._thread = threading.Thread(target=self._serve, name="phone-udp", daemon=True)
         self._thread.start()
 
@@ -252,16 +252,17 @@ class PhoneUdpReceiver(PhoneReceiver):
             self._deliver((), ignored=1)
             return
         if decision is Decision.SWITCHED:  # another app's stream: which sensors it calibrates is its own
-            self._calibrated.clear()
+            self._calibrated_forget()
+        streaming = self._calibrated_streaming()  # a calibrated type silent too long lapses here
         if sample is None:
             self._deliver((), ignored=1)
-        elif type(sample) is UncalibratedSample:  # only while its sensor's calibrated type is not heard
-            if sample.kind in self._calibrated:
+        elif type(sample) is UncalibratedSample:  # only while its sensor's calibrated type is not streaming
+            if sample.kind.label in streaming:
                 self._deliver((), ignored=1)
             else:
                 self._deliver((SensorSample(sample.t_s, sample.kind, sample.xyz),))
         else:
-            self._calibrated.add(sample.kind)  # the receiving thread's own: no lock
+            self._calibrated_heard((sample.kind.label,))
             self._deliver((sample,))
 
     def close(self) -> None:

@@ -45,14 +45,14 @@ import logging
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Hashable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, TypeVar
 from urllib.parse import urlsplit
 
 from hil.estimation.sensors import SensorSample
 from hil.link.sources.base import SenderEvent, SenderStatus
-from hil.link.sources.senders import Decision, SenderTable
+from hil.link.sources.senders import SWITCH_AFTER_S, Decision, SenderTable
 from hil.link.throttle import Throttle
 from hil.threads import ThreadError
 from protocol.errors import ConfigError, InputFormatError
@@ -75,9 +75,24 @@ ground station clears its "another phone" caution). 2.5 x :data:`~.senders.SWITC
 streams every 2-20 ms, a Sensor Logger batch every 20-200 ms, so a phone still streaming is never this
 silent but for a Wi-Fi stall; an app stopped is told within 5 s. (A phone pushing less often than this
 makes a ``phone_other`` and a ``phone_others_quiet`` per push: two records per 5 s at most.)"""
+_TYPE_NAMES = {
+    "gyr": "calibrated gyroscope",
+    "acc": "calibrated accelerometer",
+    "mag": "calibrated magnetometer",
+    "total": "total acceleration",
+}
 MAX_SENDER_EVENTS = 64
 """Moments of the one-phone rule held for the runtime (which takes them 200 times a second: a few at most
 are waiting); beyond, the oldest are dropped and counted (``unrecorded_sender_events``)."""
+
+CALIBRATED_QUIET_S = SWITCH_AFTER_S
+"""s: a sensor's calibrated type (or Sensor Logger's total acceleration) not heard for this long no longer
+holds its sensor: its raw type (uncalibrated; the user acceleration and gravity) is read for it again, and
+the change is counted (``calibrated_lapses``) and logged. A phone streaming a type is never this silent
+but for a Wi-Fi stall (:data:`~.senders.SWITCH_AFTER_S`'s reasoning), and the host has restarted its
+estimate after such a pause anyway, so the two types are never interleaved as one sensor. Without it a user
+who turned the calibrated gyroscope off mid-run, keeping the uncalibrated one, had every later gyroscope
+reading ignored, counted only among other sensors', and the run lost to "no gyroscope reading came"."""
 
 T = TypeVar("T")
 
@@ -156,6 +171,8 @@ class StreamStats:
     other_phone_messages: int = 0  # readable messages of other senders, dropped
     other_phone_samples: int = 0  # the readings the host uses in them, dropped
     unrecorded_sender_events: int = 0  # the rule's moments dropped, MAX_SENDER_EVENTS waiting already
+    calibrated_lapses: int = 0  # a calibrated type silent CALIBRATED_QUIET_S: its raw type read again
+    held_stale: int = 0  # held before the run started, older than the stale bound at its start: dropped
     last_error: str = ""
     per_kind: dict[str, int] = field(default_factory=dict)
 
@@ -190,6 +207,8 @@ class PhoneReceiver:
         self._unrecorded_senders = 0  # new other senders not recorded since the last phone_other
         self._others_streaming = False  # another phone heard within OTHERS_QUIET_S
         self._other_last = 0.0  # when another phone's message was last heard
+        # per calibrated type ("gyr", "acc", "mag"; "total": total acceleration): when it was last heard
+        self._calibrated_at: dict[str, float] = {}
 
     @property
     def url(self) -> str:
@@ -235,6 +254,17 @@ class PhoneReceiver:
         with self._lock:
             self.stats.overflow += n
         self._warn(f"{n} sample(s), oldest first: more than {self._max_queue} held", n)
+
+    def count_held_stale(self, n: int, span_s: float) -> None:
+        """``n`` samples a consumer took off this receiver to hold before its run started, dropped there
+        as too old to start from (:meth:`~.listening.ListeningSource.start`; ``span_s``: how far the held
+        readings reached back, s): counted in ``held_stale`` and logged."""
+        with self._lock:
+            self.stats.held_stale += n
+        logger.warning(
+            "phone %s: dropped %d reading(s) held while the run waited for its phone and armed the board: "
+            "stamped up to %.2f s before the newest, too old to start from", self.scheme, n, span_s,
+        )  # fmt: skip
 
     def _attribute(self, sender: Hashable, name: str, usable: int) -> Decision:
         """Whose a readable message is (:mod:`.senders`): ``sender`` as the format identifies it, ``name``
@@ -286,6 +316,39 @@ class PhoneReceiver:
                 "(following %s)%s", self.scheme, name, following, unlogged,
             )  # fmt: skip
         return decision
+
+    def _calibrated_streaming(self) -> frozenset[str]:
+        """The calibrated types (``SensorKind.label``s, ``"total"`` for total acceleration) the followed
+        stream has sent within :data:`CALIBRATED_QUIET_S`: their sensors' raw types are ignored. One silent
+        longer is forgotten — counted (``calibrated_lapses``) and logged: its raw type is read again."""
+        lapsed: list[tuple[str, float]] = []
+        with self._lock:
+            now = self._clock()
+            for label, at in list(self._calibrated_at.items()):
+                if now - at > CALIBRATED_QUIET_S:
+                    del self._calibrated_at[label]
+                    self.stats.calibrated_lapses += 1
+                    lapsed.append((label, now - at))
+            streaming = frozenset(self._calibrated_at)
+        for label, silent in lapsed:
+            raw = "its user acceleration and gravity are" if label == "total" else "its uncalibrated type is"
+            logger.warning(
+                "phone %s: no %s reading for %.1f s: %s read for it from now on, if the stream sends them",
+                self.scheme, _TYPE_NAMES.get(label, label), silent, raw,
+            )  # fmt: skip
+        return streaming
+
+    def _calibrated_heard(self, labels: Iterable[str]) -> None:
+        """The followed stream sent these calibrated types (:meth:`_calibrated_streaming`) just now."""
+        with self._lock:
+            now = self._clock()
+            for label in labels:
+                self._calibrated_at[label] = now
+
+    def _calibrated_forget(self) -> None:
+        """A new phone is followed: which calibrated types it sends is its own."""
+        with self._lock:
+            self._calibrated_at.clear()
 
     def _new_sender_line(self, now: float) -> int | None:
         """Whether a new other sender is logged — at most :data:`NEW_SENDER_LOGS` lines per
