@@ -101,8 +101,8 @@ def find_still_window(
     (gyr_t, gyr_xyz), (acc_t, acc_xyz) = head(log.streams[SensorKind.GYR]), head(log.streams[SensorKind.ACC])
     mag_stream = log.streams.get(SensorKind.MAG)
     mag = None if mag_stream is None else head(mag_stream)
-    acc_ok = _directions(acc_xyz)
-    mag_ok = None if mag is None else _directions(mag[1])
+    acc_ok = gives_direction(acc_xyz)
+    mag_ok = None if mag is None else gives_direction(mag[1])
     _require_some(acc_ok, "accelerometer", search_s, log.source)
     if mag_ok is not None:
         _require_some(mag_ok, "magnetometer", search_s, log.source)
@@ -129,7 +129,7 @@ def find_still_window(
     )
 
 
-def _directions(xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
+def gives_direction(xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Which readings (N, 3) give a direction: finite and not zero."""
     return np.all(np.isfinite(xyz), axis=1) & np.any(xyz != 0.0, axis=1)
 
@@ -158,16 +158,16 @@ def median_inclination_deg(log: SensorLog, window_s: float = 10.0) -> float:
     if mag is None:
         raise InputFormatError("no magnetometer: the field's inclination is not observed", log.source)
     early = (mag.t >= log.start) & (mag.t <= log.start + window_s)
-    _require_some(_directions(mag.xyz) & early, "magnetometer", window_s, log.source)
+    _require_some(gives_direction(mag.xyz) & early, "magnetometer", window_s, log.source)
     _require_some(
-        _directions(acc.xyz) & (acc.t <= log.start + window_s), "accelerometer", window_s, log.source
+        gives_direction(acc.xyz) & (acc.t <= log.start + window_s), "accelerometer", window_s, log.source
     )
-    sel = early & _directions(mag.xyz)
+    sel = early & gives_direction(mag.xyz)
     if sel.sum() < 5 or len(acc) < 2:
         raise InputFormatError(f"too few magnetometer samples in the first {window_s:g} s", log.source)
     idx = np.clip(np.searchsorted(acc.t, mag.t[sel]), 0, len(acc) - 1)
     a, m = acc.xyz[idx], mag.xyz[sel]
-    pair = _directions(a)  # an accelerometer reading of zero beside it: no angle
+    pair = gives_direction(a)  # an accelerometer reading of zero beside it: no angle
     a, m = a[pair], m[pair]
     dots = np.sum(a * m, axis=1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(m, axis=1))
     dots = dots[np.isfinite(dots)]

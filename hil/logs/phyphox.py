@@ -39,8 +39,8 @@ from numpy.typing import NDArray
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, time_column
 from hil.logs.rows import is_content
-from hil.logs.sensorlogger import MAX_RECORDING_S, clock_of
-from hil.logs.table import Container, Header, read_table, sniff_dialect, split_header
+from hil.logs.sensorlogger import MAX_RECORDING_S, clock_of, plain_name
+from hil.logs.table import Container, Header, one_copy, read_table, sniff_dialect, split_header
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
@@ -74,7 +74,12 @@ class _File:
 
 
 def _csv_members(c: Container) -> list[str]:
-    return [n for n in c.names() if n.lower().endswith(".csv") and "meta/" not in f"/{n}".lower()]
+    """The export's sensor tables: every ``.csv`` member but its ``meta/`` files, gzipped ones too (a folder
+    gzipped file by file, ``gzip -r``: the container reads a ``.gz`` decompressed, as in every format; they
+    were passed over, and the export was "not a recognised log")."""
+    return [
+        n for n in c.names() if n.lower().endswith((".csv", ".csv.gz")) and "meta/" not in f"/{n}".lower()
+    ]
 
 
 def _classify(c: Container, name: str) -> _File | None:
@@ -150,6 +155,10 @@ def read(c: Container) -> SensorLog:
     for f in files:
         if f.kind is not None and f.kind not in chosen:
             chosen[f.kind] = f
+        elif f.kind is not None and plain_name(f.name) == plain_name(chosen[f.kind].name):
+            _, same = one_copy(c, [chosen[f.kind].name, f.name])  # differing bytes: an error naming both
+            if same is not None:
+                notes.append(same)
         elif f.kind is not None:
             notes.append(f"{f.name}: a second {f.kind.label} file, ignored (using {chosen[f.kind].name})")
     linear = [f.name for f in files if f.kind is None]
@@ -235,7 +244,7 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
         return dict.fromkeys(groups, _Clock())
     runs: dict[str, list[tuple[float, float]]] = {}
     for g in sorted(groups):
-        name = g + TIME_CSV
+        name = next((n for n in (g + TIME_CSV, g + TIME_CSV + ".gz") if c.has(n)), g + TIME_CSV)
         if not c.has(name):
             where = g or "the top folder"
             raise InputFormatError(

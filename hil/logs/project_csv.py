@@ -12,12 +12,13 @@ in their own rows, so mismatched rates need no resampling; optional ground-truth
     0.000000,truth,0.0,0.0,0.0,1.0
 
 The six columns are found by name, in any order; a column a tool added beside them is never parsed
-(:mod:`hil.logs.rows`). ``sensor`` is ``gyr``, ``acc``, ``mag`` or ``truth``. Sensor rows leave ``w``
-empty; truth rows hold a unit quaternion with vector part ``x, y, z`` and scalar part ``w``. Axes are
-the body frame (x screen right, y screen up, z out of the screen); truth is body → ENU. Rows need not be
-sorted across sensors; each sensor's own rows keep their order (the merge drops and counts any that go
-backwards). ``nan`` values are allowed (NaN samples, counted and dropped by the merge); other
-unparseable cells are errors with file, line and column.
+(:mod:`hil.logs.rows`). A spreadsheet's re-save — semicolons or tabs, decimal commas, quoted cells — is read
+in its own dialect (:func:`~hil.logs.table.sniff_dialect`, as every CSV reader). ``sensor`` is ``gyr``,
+``acc``, ``mag`` or ``truth``. Sensor rows leave ``w`` empty; truth rows hold a unit quaternion with vector
+part ``x, y, z`` and scalar part ``w``. Axes are the body frame (x screen right, y screen up, z out of the
+screen); truth is body → ENU. Rows need not be sorted across sensors; each sensor's own rows keep their order
+(the merge drops and counts any that go backwards). ``nan`` values are allowed (NaN samples, counted and
+dropped by the merge); other unparseable cells are errors with file, line and column.
 """
 
 from __future__ import annotations
@@ -31,7 +32,15 @@ from hil import so3
 from hil.estimation.sensors import KINDS, SensorKind, SensorLog, SensorStream, Truth
 from hil.logs.rows import BadCell, is_content, number, shown
 from hil.logs.sensorlogger import SAMPLE_STEP_S
-from hil.logs.table import Container, Header, content_head, read_table, split_header, text_lines
+from hil.logs.table import (
+    Container,
+    Header,
+    content_head,
+    read_table,
+    sniff_dialect,
+    split_header,
+    text_lines,
+)
 from protocol.errors import InputFormatError
 
 NAME = "csv"
@@ -48,20 +57,23 @@ def detect(c: Container) -> bool:
     head = c.head(names[0], 1)
     if head and head[0].startswith(MAGIC):
         return True
-    content = content_head(c, names[0], 1)  # the header, past the comment and blank lines before it
-    return bool(content) and _is_header(content[0])
+    content = content_head(c, names[0], 2)  # the header, past the comment and blank lines before it
+    return bool(content) and _is_header(content[0], sniff_dialect(content)[0])
 
 
-def _is_header(line: str) -> bool:
+def _is_header(line: str, delimiter: str) -> bool:
     """Whether a line is this format's header: its six names, among others a tool may have added."""
-    return set(_COLUMNS) <= set(split_header(line, ","))
+    return set(_COLUMNS) <= set(split_header(line, delimiter))
 
 
 def read(c: Container) -> SensorLog:
     name = c.names()[0]
     where = c.where(name)
     converters = {"sensor": _sensor_code, "w": _w}
-    table = read_table(c, name, ",", use=_columns, converters=converters)
+    # the file's own dialect (hil.logs.table.sniff_dialect, as every CSV reader): a spreadsheet's re-save
+    # with semicolons (or tabs) and decimal commas was refused, "expected header 't_s,sensor,…'"
+    delimiter, decimal_comma = sniff_dialect(content_head(c, name, 2))
+    table = read_table(c, name, delimiter, decimal_comma=decimal_comma, use=_columns, converters=converters)
     data = table.data  # the columns in the header's order, whatever the file's
     streams = {}
     for kind in KINDS:

@@ -43,6 +43,7 @@ from hil.estimation.inertial import (
     directions_from_log,
     field_warnings,
     find_still_window,
+    gives_direction,
     tilt_attitude,
 )
 from hil.estimation.interface import Estimator, Site
@@ -82,6 +83,9 @@ MAX_GAP_S = MAX_PAUSE_S
 live host's does after a pause of its phone (:data:`hil.estimation.sensors.MAX_PAUSE_S`, one rule)."""
 MIN_SEGMENT_STEPS = 10
 """A part of a split log shorter than this many merged steps is not run (reported)."""
+SAID_PARTS = 3
+"""The parts whose reasons the error for a log with no part replayed lists (a ``--max-gap`` below the
+sampling step makes a part of every sample)."""
 MAX_REPLAY_STEPS = 400_000
 """The most merged steps one replay runs (33 minutes at 200 Hz): a replay holds every step, its estimate
 and the figures' data at about 1 kB a step, and this keeps ``hil replay``'s peak memory under 512 MB. A
@@ -169,6 +173,33 @@ class ReplayResult:
         """Every interval (s, log time) in which the magnetometer was left out as disturbed."""
         return flagged_intervals(self.estimates.t, self.estimates.flags, StepFlag.MAG_DISTURBED)
 
+    @property
+    def replayed_spans(self) -> list[tuple[float, float]]:
+        """(first, last) estimate time (s, log time) of each part replayed, in order: the estimates are the
+        filter's within them only. Between two (a gap, a part not replayed) there is none — a line drawn
+        or an estimate interpolated across is two parts' ends joined (:meth:`replayed`)."""
+        spans: list[tuple[float, float]] = []
+        est_t = self.estimates.t
+        for segment in self.segments:
+            if "steps" not in segment:
+                continue
+            t0, t1 = float(segment["t0_s"]), float(segment["t1_s"])
+            own = est_t[(est_t >= t0) & (est_t <= t1)]
+            if len(own):
+                spans.append((float(own[0]), float(own[-1])))
+        return spans
+
+    def replayed(self, times: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Which ``times`` (s, log time) lie within a replayed part's estimates (:attr:`replayed_spans`):
+        the truth is scored there only, and the figures draw errors there only (:mod:`hil.plots.estimator`).
+        Across a gap, or over a part not replayed, the estimates are two parts' ends joined by interpolation
+        — no estimate the filter made (a turn during a 70 s gap scored 46.7° of RMSE against a log replayed
+        perfectly on both sides; the error figure drew that turn as the filter's error)."""
+        inside = np.zeros(len(times), bool)
+        for first, last in self.replayed_spans:
+            inside |= (times >= first) & (times <= last)
+        return inside
+
 
 def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, Site, list[str]]:
     """The estimator and the site it runs at for this log — inertial directions, gyro bias, the merged
@@ -210,6 +241,7 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, 
         e, how = directions_from_log(log)
         dip = math.degrees(math.asin(float(np.clip(-e[2, 1], -1.0, 1.0))))
         setup.append(f"inertial directions from the log: {how}")
+    refuse_no_direction(log)  # after the directions measured from the log, which name the first 10 s
     if options.field_model is None and not log.six_axis:
         setup.append(f"declination {declination:g} deg" + (" (magnetic north)" if declination == 0 else ""))
     known: dict[str, object] = {"gyro_bias": bias}
@@ -352,6 +384,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
             f"a phone measures at most {_ranges(options.limits)}"
         )
     parts = split_at_gaps(log, options.max_gap_s)
+    parts_said = len(warnings)  # the warnings from here on are the parts'
     all_steps, all_estimates, segments = [], [], []
     stats = MergeStats()
     if len(parts) > 1:  # a part is a span of time: a sample whose time is no number is in none of them
@@ -383,6 +416,9 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
                 steps = steps.rows(first)
             if len(steps) < MIN_SEGMENT_STEPS:
                 why = f"{len(steps)} steps (fewer than {MIN_SEGMENT_STEPS})"
+                lost = merge_warnings(replace(seg_stats, stale_steps={}))  # what the merge dropped, and why
+                if lost:  # rows in reverse time order: all but one dropped, and said so
+                    why += ": " + "; ".join(lost)
         if why is not None:  # its samples counted and said, never lost without a word
             segment["skipped"] = why
             for label, n in in_part.items():
@@ -411,8 +447,14 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
             bias = (float(b[0]), float(b[1]), float(b[2]))
         all_steps.append(steps)
         all_estimates.append(estimates)
-    if not all_estimates:
-        raise InputFormatError("no part of the log has every sensor speaking for long enough", log.source)
+    if not all_estimates:  # each part's reason said: a file in reverse time order is no silent sensor
+        raise InputFormatError(
+            "no part of the log has every sensor speaking for long enough ("
+            + "; ".join(warnings[parts_said:][:SAID_PARTS])
+            + (f"; and {len(parts) - SAID_PARTS} more parts" if len(parts) > SAID_PARTS else "")
+            + ")",
+            log.source,
+        )
     warnings += merge_warnings(stats)
     steps = all_steps[0] if len(all_steps) == 1 else _concat_steps(all_steps)
     estimates = all_estimates[0] if len(all_estimates) == 1 else _concat(all_estimates)
@@ -508,6 +550,32 @@ _UNIT_HINTS = {
     "to uT (divide by 1000)",
 }
 """What a sensor none of whose readings is within its range most likely reads in."""
+
+
+_DIRECTION_SENSORS = (SensorKind.ACC, SensorKind.MAG)
+"""The sensors whose readings are directions (gravity, the field): :func:`refuse_no_direction`."""
+_NO_DIRECTION_HINTS = {
+    SensorKind.ACC: ": gravity's direction cannot be told, and the attitude with it",
+    SensorKind.MAG: ": heading cannot be observed; remove its file to replay 6-axis (heading unobserved)",
+}
+
+
+def refuse_no_direction(log: SensorLog) -> None:
+    """An :class:`InputFormatError` naming its file when the accelerometer or the magnetometer has no
+    reading that gives a direction — every one 0, 0, 0 or no number: the phone has no such sensor, or it
+    never started. Measured from the log, the inertial directions refuse such a sensor already (naming
+    its first 10 s); given (``--inclination``, the hint of that error, or ``--lat/--lon/--date``), an
+    all-zero magnetometer replayed every step with it left out as disturbed, ``summary.json`` saying the
+    heading "observed (magnetometer)", and an all-zero accelerometer replayed with no gravity, warned of
+    only as a unit in g."""
+    for kind in _DIRECTION_SENSORS:
+        stream = log.streams.get(kind)
+        if stream is not None and len(stream) and not gives_direction(stream.xyz).any():
+            raise InputFormatError(
+                f"every {kind.name} reading ({len(stream)}) is zero or no number: it gives no direction "
+                f"(the phone has no such sensor, or it never started){_NO_DIRECTION_HINTS[kind]}",
+                sensor_files_where(log, _FILE_STEMS[kind]),
+            )
 
 
 def _ranges(limits: ReadingLimits) -> str:
@@ -647,25 +715,10 @@ def _score(result: ReplayResult) -> None:
     truth, est = result.log.truth, result.estimates
     if truth is None or len(est) < 2:
         return
-    evaluate = _replayed(truth.t, est.t, result.segments)
+    evaluate = result.replayed(truth.t)
     if truth.evaluate is not None:
         evaluate &= np.asarray(truth.evaluate, bool)
     result.comparison = compare_to_truth(truth.t, truth.R, evaluate, est.t, est.quat, est.omega)
-
-
-def _replayed(truth_t: NDArray[np.float64], est_t: NDArray[np.float64], segments: list) -> NDArray[np.bool_]:
-    """Which truth times (s) lie within a replayed part's estimates (from its first estimate to its last):
-    the truth is scored there only. Across a gap, or over a part not replayed, the estimates are two
-    parts' ends joined by interpolation — no estimate the filter made (a turn during a 70 s gap scored
-    46.7° of RMSE against a log replayed perfectly on both sides)."""
-    inside = np.zeros(len(truth_t), bool)
-    for segment in segments:
-        if "steps" not in segment:
-            continue
-        own = est_t[(est_t >= segment["t0_s"]) & (est_t <= segment["t1_s"])]
-        if len(own):
-            inside |= (truth_t >= own[0]) & (truth_t <= own[-1])
-    return inside
 
 
 def write_estimates(est: EstimateBatch, path: Path) -> Path:

@@ -110,11 +110,13 @@ def _other_copies(c: Container, member: str) -> list[str]:
     (``Gyroscope.csv.gz`` beside ``Gyroscope.csv``, a ``gyroscope.csv`` beside it): :func:`_by_folder`
     keeps the first of them, and the others were passed over without a word."""
     folder, _, base = member.rpartition("/")
-    plain = _plain(base).lower()
+    plain = plain_name(base).lower()
     return [
         m
         for m in sorted(c.names())
-        if m != member and m.rpartition("/")[0] == folder and _plain(m.rpartition("/")[2]).lower() == plain
+        if m != member
+        and m.rpartition("/")[0] == folder
+        and plain_name(m.rpartition("/")[2]).lower() == plain
     ]
 
 
@@ -128,14 +130,14 @@ def _by_folder(c: Container) -> dict[str, dict[str, str]]:
     groups: dict[str, dict[str, str]] = {}
     for member in sorted(c.names()):
         folder, _, base = member.rpartition("/")
-        name = lower.get(_plain(base).lower())
+        name = lower.get(plain_name(base).lower())
         if name is not None:
             groups.setdefault(folder, {}).setdefault(name, member)
     sensors = {folder: files for folder, files in groups.items() if _sensor_files(files)}
     return sensors if sensors else groups  # a Metadata.csv in a folder of no sensor file: not a recording
 
 
-def _plain(base: str) -> str:
+def plain_name(base: str) -> str:
     """A member's file name without a ``.gz`` (a file gzipped by hand or by a backup tool:
     :class:`~hil.logs.table.Container` decompresses it as it reads)."""
     return base[:-3] if base.lower().endswith(".gz") else base
@@ -650,9 +652,9 @@ def read(c: Container) -> SensorLog:
         _, same = one_copy(c, [member, *_other_copies(c, member)])
         if same is not None:
             layout.append(same)
-    if any(m.rpartition("/")[2] != _plain(m.rpartition("/")[2]) for m in files.values()):
+    if any(m.rpartition("/")[2] != plain_name(m.rpartition("/")[2]) for m in files.values()):
         layout.append("the export's files are gzipped (.csv.gz): read decompressed")
-    if any(_plain(m) != name for name, m in files.items()):
+    if any(plain_name(m) != name for name, m in files.items()):
         folder = next(iter(files.values())).rpartition("/")[0]
         layout.append(f"the export's files read from {folder or 'the top'} (names matched ignoring case)")
     export = Export(

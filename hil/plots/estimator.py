@@ -138,25 +138,50 @@ def plot_rates(t: np.ndarray, omega: np.ndarray, path: Path, title: str = "") ->
     return _save(fig, ax, path)
 
 
+def _apart(
+    t: np.ndarray, values: np.ndarray, spans: list[tuple[float, float]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """``t`` (N,) and ``values`` (N, …) with a NaN row put before the first estimate of each replayed part
+    (``spans``, :attr:`~hil.logs.replay.ReplayResult.replayed_spans`) after the first: the lines are cut
+    between parts. Drawn joined, a gap in the log (or a part not replayed) showed as a straight line of
+    estimates the filter never made."""
+    at = np.searchsorted(t, [first for first, _ in spans[1:]])
+    return np.insert(t, at, t[at]), np.insert(values, at, np.nan, axis=0)
+
+
+def _only_replayed(values: np.ndarray, inside: np.ndarray) -> np.ndarray:
+    """``values`` (N, …) with NaN where ``inside`` (N,) is False (a time no replayed part covers)."""
+    return np.where(inside.reshape(-1, *([1] * (values.ndim - 1))), values, np.nan)
+
+
 def plot_replay(result: ReplayResult, out_dir: Path) -> dict[str, Path]:
-    """The figures for one replay; returns ``{name: path}``."""
+    """The figures for one replay; returns ``{name: path}``. Lines are drawn within the parts of the log
+    replayed only (a log split at its gaps: docs/formats.md, "Gaps"), never across from one to the next."""
     est = result.estimates
+    spans = result.replayed_spans
     name = Path(result.log.source).name
     rejected = result.mag_rejections
     six = result.log.six_axis  # no magnetometer: the yaw is the gyroscope's integral, drifting
     title = f"Attitude estimate — {name}" + (" (6-axis: heading unobserved)" if six else "")
     yaw = "yaw (unobserved: gyroscope only, drifts)" if six else "yaw"
+    t_r, r = _apart(est.t, est.R, spans)
+    t_w, omega = _apart(est.t, est.omega, spans)
     files = {
-        "attitude": plot_attitude(est.t, est.R, out_dir / "attitude.png", title, rejected, yaw_label=yaw),
-        "rates": plot_rates(est.t, est.omega, out_dir / "rates.png", f"Angular velocity estimate — {name}"),
+        "attitude": plot_attitude(t_r, r, out_dir / "attitude.png", title, rejected, yaw_label=yaw),
+        "rates": plot_rates(t_w, omega, out_dir / "rates.png", f"Angular velocity estimate — {name}"),
     }
     c = result.comparison
     if c is None:
         return files
-    files["attitude_error"] = plot_attitude_error(
-        c.t, c.errors, out_dir / "attitude_error.png", f"Attitude estimation error — {name}", rejected
+    inside = result.replayed(c.t)
+    errors = AttitudeErrors(
+        *(_only_replayed(e, inside) for e in (c.errors.total, c.errors.heading, c.errors.inclination))
     )
+    files["attitude_error"] = plot_attitude_error(
+        c.t, errors, out_dir / "attitude_error.png", f"Attitude estimation error — {name}", rejected
+    )
+    rate_error = _only_replayed(c.rate_error, result.replayed(c.rate_t))
     files["rate_error"] = plot_rate_error(
-        c.rate_t, c.rate_error, out_dir / "rate_error.png", f"Angular velocity estimation error — {name}"
+        c.rate_t, rate_error, out_dir / "rate_error.png", f"Angular velocity estimation error — {name}"
     )
     return files
