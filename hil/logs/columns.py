@@ -144,11 +144,22 @@ def unit_factor(kind: SensorKind, column: str, where: str, line: int = 1) -> flo
     return factor
 
 
+TIME_WORDS = ("t", "time", "zeit", "temps", "tiempo", "tempo", "tijd", "czas")
+"""A time column's label, in English and in the languages a phone app writes its export's labels in
+(phyphox's "Zeit (s)", "Temps (s)": a German phone's export was "no time column")."""
+
+
+def is_time_label(column: str) -> bool:
+    """Whether ``column`` names time (:data:`TIME_WORDS`, or begins with "time": ``timestamp``), its unit
+    aside."""
+    label = _UNIT.sub("", column).strip().lower()
+    return label in TIME_WORDS or label.startswith("time")
+
+
 def time_column(columns: Sequence[str], where: str, line: int = 1) -> tuple[str, float]:
     """The time column and its factor to seconds."""
     for col in columns:
-        label = _UNIT.sub("", col).strip().lower()
-        if label in ("t", "time") or label.startswith("time"):
+        if is_time_label(col):
             unit = unit_of(col)
             if unit not in TIME_UNITS:
                 raise InputFormatError(f"unknown time unit {unit!r}", where, line, col)

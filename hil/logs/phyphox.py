@@ -37,7 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
-from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, time_column
+from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, is_time_label, time_column
 from hil.logs.rows import is_content
 from hil.logs.sensorlogger import MAX_RECORDING_S, clock_of, plain_name
 from hil.logs.table import Container, Header, one_copy, read_table, sniff_dialect, split_header
@@ -46,11 +46,17 @@ from protocol.errors import InputFormatError
 NAME = "phyphox"
 TIME_CSV = "meta/time.csv"
 EXCEL = (".xls", ".xlsx")
-_LINEAR = re.compile(r"linear|without\s*g\b", re.IGNORECASE)
+# phyphox writes its labels in the phone's language ("Beschleunigung x (m/s^2)", "Accélération x",
+# "Giroscopio x"): each pattern takes English and the languages' words phyphox translates them to
+# (German, French, Spanish, Italian, Portuguese, Dutch, Polish), lower case, accents either way
+_LINEAR = re.compile(
+    r"linea[rl]|lin[ée]aire|liniow|without\s*g\b|ohne\s*g\b|sans\s*g\b|sin\s*g\b|senza\s*g\b|sem\s*g\b",
+    re.IGNORECASE,
+)
 _KINDS = (
-    (re.compile(r"acceler", re.IGNORECASE), SensorKind.ACC),
-    (re.compile(r"gyro", re.IGNORECASE), SensorKind.GYR),
-    (re.compile(r"magnet", re.IGNORECASE), SensorKind.MAG),
+    (re.compile(r"acc[eé]l[eé]r|acelera|beschleunig|versnell|przyspiesz", re.IGNORECASE), SensorKind.ACC),
+    (re.compile(r"gyro|giro|[zż]yro", re.IGNORECASE), SensorKind.GYR),
+    (re.compile(r"magn[eé]t", re.IGNORECASE), SensorKind.MAG),
 )
 
 
@@ -91,7 +97,7 @@ def _classify(c: Container, name: str) -> _File | None:
         return None
     delimiter, decimal_comma = sniff_dialect(head)
     cells = split_header(head[0], delimiter)
-    time_at = next((i for i, cell in enumerate(cells) if cell.lower().startswith("time")), None)
+    time_at = next((i for i, cell in enumerate(cells) if is_time_label(cell)), None)
     if time_at is None:  # first as phyphox writes it; after a column a tool added, too
         return None
     if any((clock_of(cell) or ("",))[0] == "seconds_elapsed" for cell in cells):
