@@ -25,7 +25,7 @@
  * USB (--usb, usb.c):
  *   usb <fault> <value>       -> ok <cycles>          a fault of the phone or its cable (max3421e.h): nak N,
  *                                                     stall EP, detach, attach, aoa 0|1|2, packet 1..64,
- *                                                     zlp 0|1, never_switch 0|1
+ *                                                     zlp 0|1, never_switch 0|1|2, osc 0|1
  *   usbstate                  -> ok <mode> <s0>..<s5> <error> <to_board> <from_board> <dropped> <spi_bytes>
  *                                                     mode 0 detached, 1 normal, 2 accessory; the six strings
  *                                                     the board sent (SEND_STRING) and the model's last

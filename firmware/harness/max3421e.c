@@ -149,7 +149,9 @@ struct max3421e {
     int stall_ep;
     unsigned packet_size;
     int zlp, zlp_due;
-    int never_switch; /* fault: START is acknowledged, the phone stays in its normal mode */
+    int dead_osc;     /* fault: the crystal does not start: OSCOKIRQ never rises */
+    int never_switch; /* fault: START is acknowledged, the phone stays in its normal mode (1), or drops off
+                         and comes back in its normal mode, a new device each time (2) */
     char strings[6][STRING_MAX + 1];
     uint64_t detach_at, attach_at;
     ring_t to_board, to_app;     /* app -> bulk IN, bulk OUT -> app */
@@ -389,7 +391,7 @@ static void control_done(max3421e_t *m)
         break;
     }
     case ACT_START:
-        if (!m->never_switch) /* a phone without the accessory app, or AOA barred by policy: no switch */
+        if (m->never_switch != 1) /* a phone without the accessory app, or AOA barred by policy: no switch */
             m->detach_at = m->now + START_DETACH_US;
         break;
     default:
@@ -1012,7 +1014,7 @@ void max3421e_advance(max3421e_t *m, uint64_t now_us)
         m->now = t;
         if (t == m->osc_ok_at) {
             m->osc_ok_at = NONE_US;
-            if (!m->res_low)
+            if (!m->res_low && !m->dead_osc)
                 m->reg[R_USBIRQ] |= USBIRQ_OSCOK;
         } else if (t == m->busrst_end_at) {
             m->busrst_end_at = NONE_US;
@@ -1036,7 +1038,7 @@ void max3421e_advance(max3421e_t *m, uint64_t now_us)
             update_frames(m);
         } else if (t == m->attach_at) {
             m->attach_at = NONE_US;
-            phone_attach(m, 1);
+            phone_attach(m, m->never_switch != 2); /* never_switch 2: back in its normal mode */
             update_frames(m);
         }
     }
@@ -1096,7 +1098,9 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
         m->packet_size = (unsigned)value;
     } else if (!strcmp(name, "zlp") && (value == 0 || value == 1)) {
         m->zlp = (int)value;
-    } else if (!strcmp(name, "never_switch") && (value == 0 || value == 1)) {
+    } else if (!strcmp(name, "osc") && (value == 0 || value == 1)) {
+        m->dead_osc = value == 0;
+    } else if (!strcmp(name, "never_switch") && (value == 0 || value == 1 || value == 2)) {
         m->never_switch = (int)value;
     } else {
         return -1;

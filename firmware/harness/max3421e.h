@@ -41,7 +41,10 @@ const char *max3421e_phone_string(const max3421e_t *m, int index); /* identity s
  *   "packet" value = max bytes per bulk IN packet, 1..64 (a frame then straddles packet boundaries)
  *   "zlp"    value 1: end each bulk IN transfer that is a multiple of 64 bytes with a zero-length packet
  *   "never_switch" value 1: AOA START is acknowledged but the phone never re-enumerates as an accessory
- *            (no accessory app, or AOA barred by policy); 0 (the default): it switches */
+ *            (no accessory app, or AOA barred by policy); 2: it drops off the bus as for a switch but comes
+ *            back in its normal mode (a new device to the host, every time); 0 (the default): it switches
+ *   "osc"    value 0: the chip's crystal does not start (OSCOKIRQ never rises, whatever resets it); 1 (the
+ *            default): it starts OSC_START_US after each reset */
 int max3421e_fault(max3421e_t *m, const char *name, double value);
 const char *max3421e_last_error(const max3421e_t *m); /* the last protocol violation the board made ("" if none) */
 

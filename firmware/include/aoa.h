@@ -24,13 +24,15 @@
 #define AOA_REQ_START 53u
 #define AOA_STRINGS 6u
 #define AOA_REENUM_US 3000000UL /* after START the phone re-enumerates within ~1 s; longer: start over */
-#define AOA_PIPE_ERRORS 8u      /* consecutive bulk errors (not NAKs) before the device is enumerated again */
+#define AOA_PIPE_ERRORS 8u      /* consecutive bulk errors (not NAKs) before the device is enumerated again,
+                                   or refused if the last was a STALL (AOA_EV_STALLED) */
 #define AOA_OUT_PER_POLL 4u     /* bulk OUT packets per poll */
 #define AOA_HANDSHAKE_TRIES 3u  /* failed handshakes (bus errors, timeouts, START without a switch) before
                                    the device is refused */
 
 typedef enum {
-    AOA_IDLE = 0,    /* no configured device */
+    AOA_IDLE = 0,    /* no configured device (one failing enumeration, or a dead chip, is said once:
+                        AOA_EV_NO_ENUM, AOA_EV_NO_CHIP; the host stack keeps retrying) */
     AOA_HANDSHAKE,   /* GET_PROTOCOL, SEND_STRING x6, START in progress */
     AOA_WAIT_REENUM, /* START sent: waiting for the phone to come back as an accessory */
     AOA_RUNNING,     /* accessory mode: bytes flow */
@@ -47,8 +49,13 @@ enum {
     AOA_EV_STARTED,   /* START sent (arg: the phone's AOA version) */
     AOA_EV_FAILED,    /* the handshake failed (arg: HRSL code) */
     AOA_EV_NO_PIPES,  /* an accessory-mode device without a bulk pair (audio-only product id) */
-    AOA_EV_NO_SWITCH, /* START taken AOA_HANDSHAKE_TRIES times, the phone never came back as an accessory:
-                         refused (arg: the phone's AOA version) */
+    AOA_EV_NO_SWITCH, /* START taken AOA_HANDSHAKE_TRIES times, the phone never came back as an accessory
+                         (stayed, or came back in its normal mode): refused (arg: the phone's AOA version) */
+    AOA_EV_NO_ENUM,   /* the device attached fails enumeration USB_ENUM_TRIES times (arg: the HRSL of the last
+                         control transaction) */
+    AOA_EV_NO_CHIP,   /* the MAX3421E's oscillator never came up (arg: 0) */
+    AOA_EV_STALLED,   /* a bulk endpoint STALLed AOA_PIPE_ERRORS times in a row, cleared each time, nothing
+                         moving between: refused until unplugged (arg: the endpoint address), after a DOWN */
 };
 
 /* Provided by the link layer: the bytes waiting to go to the phone. */

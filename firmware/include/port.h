@@ -16,9 +16,12 @@
 #include <stdint.h>
 
 #include "config.h"
+#include "frame.h"
 
 #define PORT_SWITCH_MS 20u
-#define PORT_NOTE_ROOM 160u /* transmit ring room for the Log that says what was not sent (port_poll) */
+/* Transmit ring room for the Log that says what was not sent (port_poll): any frame's, so the note, whose
+ * counts are cleared once it is queued, always fits (160 was one byte short of its longest form). */
+#define PORT_NOTE_ROOM FRAME_MAX_WIRE
 
 void port_init(const board_config_t *cfg);
 /* The USB stack's pass (main loop). */

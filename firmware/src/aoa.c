@@ -35,7 +35,8 @@ static struct {
     uint8_t state, step; /* step: 0 GET_PROTOCOL, 1..6 SEND_STRING index step-1, 7 START */
     uint8_t in_toggle, out_toggle, zlp_due;
     uint8_t errors;    /* RUNNING: consecutive bulk errors; before: failed handshakes with this device */
-    uint8_t halted_ep; /* CLEAR_HALT: the endpoint; HANDSHAKE: STALLs of GET_PROTOCOL */
+    uint8_t halted_ep; /* CLEAR_HALT: the endpoint; HANDSHAKE: STALLs of GET_PROTOCOL; IDLE: the host
+                          stack's failure (no enumeration, no chip) has been said */
     uint8_t rx_left; /* bytes of the last bulk IN packet still in the chip's RCVFIFO (the receive buffer) */
     uint16_t version;
     uint8_t generation, start_generation; /* usb_host_generation(); the one START was sent in */
@@ -124,12 +125,32 @@ static void enter(uint8_t state, uint32_t now_us)
 {
     aoa.state = state;
     aoa.since_us = now_us;
+    if (state == AOA_IDLE)
+        aoa.halted_ep = 0; /* its IDLE meaning from here: nothing said yet (CLEAR_HALT left its endpoint) */
+}
+
+static uint8_t is_accessory(void)
+{
+    return usb_dev.vid == AOA_GOOGLE_VID && usb_dev.pid >= AOA_PID_FIRST && usb_dev.pid <= AOA_PID_LAST;
+}
+
+/* START was taken and no accessory came of it: start over, a few times; then refuse the phone, as a
+ * failed handshake is, until it is unplugged (no endless START loop). */
+static void no_switch(uint32_t now_us)
+{
+    if (++aoa.errors >= AOA_HANDSHAKE_TRIES) {
+        usb_link_event(AOA_EV_NO_SWITCH, aoa.version);
+        enter(AOA_REFUSED, now_us);
+        return;
+    }
+    enter(AOA_IDLE, now_us);
 }
 
 /* A configured device: an accessory already, or a phone to switch. */
 static void device_ready(uint32_t now_us)
 {
-    if (usb_dev.vid == AOA_GOOGLE_VID && usb_dev.pid >= AOA_PID_FIRST && usb_dev.pid <= AOA_PID_LAST) {
+    aoa.halted_ep = 0; /* a device configured: a later failure of the host stack is news again */
+    if (is_accessory()) {
         if (!usb_dev.bulk_in || !usb_dev.bulk_out || !usb_dev.in_packet || !usb_dev.out_packet) {
             usb_link_event(AOA_EV_NO_PIPES, usb_dev.pid);
             enter(AOA_REFUSED, now_us);
@@ -192,6 +213,21 @@ static void handshake(uint32_t now_us)
 
 static void pipe_error(uint8_t hr, uint8_t ep_addr, uint32_t now_us)
 {
+    /* STALLs count too (a success resets the count): an endpoint that STALLs again after every
+     * CLEAR_FEATURE, nothing moving between, was cleared for ever, without a word, the link dead */
+    if (++aoa.errors >= AOA_PIPE_ERRORS) {
+        aoa.errors = 0;
+        rx_drop();
+        if (hr == MAX_HR_STALL) {
+            /* a halt the phone sets again at once: no enumeration mends it; refused until unplugged */
+            usb_link_event(AOA_EV_DOWN, 0);
+            usb_link_event(AOA_EV_STALLED, ep_addr);
+            enter(AOA_REFUSED, now_us);
+            return;
+        }
+        usb_host_reenumerate();
+        return;
+    }
     if (hr == MAX_HR_STALL) {
         /* CLEAR_FEATURE(ENDPOINT_HALT): the endpoint and its toggle start over at DATA0 */
         usb_setup_t s;
@@ -203,12 +239,6 @@ static void pipe_error(uint8_t hr, uint8_t ep_addr, uint32_t now_us)
         aoa.halted_ep = ep_addr;
         usb_ctl_start(&s, 0, 0, 0);
         enter(AOA_CLEAR_HALT, now_us);
-        return;
-    }
-    if (++aoa.errors >= AOA_PIPE_ERRORS) {
-        aoa.errors = 0;
-        rx_drop();
-        usb_host_reenumerate();
     }
 }
 
@@ -253,17 +283,32 @@ void aoa_poll(uint32_t now_us)
         if (aoa.state == AOA_RUNNING || aoa.state == AOA_CLEAR_HALT)
             usb_link_event(AOA_EV_DOWN, 0);
         rx_drop(); /* a detach or a new device: free the chip's receive buffer for the next enumeration */
-        aoa.errors = aoa.halted_ep = 0; /* a new device starts with a clean slate */
-        if (aoa.state != AOA_WAIT_REENUM)
+        aoa.halted_ep = 0;
+        /* A new device starts with a clean slate - except the phone START was sent to, dropping off and
+         * coming back (within AOA_REENUM_US): its failed switches go on counting, or a phone that comes
+         * back in its normal mode every time would get START for ever. */
+        if (aoa.state != AOA_WAIT_REENUM) {
+            aoa.errors = 0;
             enter(AOA_IDLE, now_us);
+        }
     }
-    if (usb_host_state() != USB_CONFIGURED) {
+    usb_state_t host_state = usb_host_state();
+    if (host_state != USB_CONFIGURED) {
         rx_drop();
         if (aoa.state == AOA_RUNNING || aoa.state == AOA_CLEAR_HALT || aoa.state == AOA_HANDSHAKE) {
             usb_link_event(aoa.state == AOA_HANDSHAKE ? AOA_EV_FAILED : AOA_EV_DOWN, usb_stats.last_hr);
             enter(AOA_IDLE, now_us);
         } else if (aoa.state == AOA_WAIT_REENUM && now_us - aoa.since_us >= AOA_REENUM_US) {
             enter(AOA_IDLE, now_us);
+        } else if (aoa.state == AOA_IDLE && !aoa.halted_ep &&
+                   (host_state == USB_ERROR || host_state == USB_CHIP_DEAD)) {
+            /* the host stack retries (every USB_RETRY_US) without end; said once, until a device is
+             * configured or another one is plugged in */
+            if (host_state == USB_ERROR)
+                usb_link_event(AOA_EV_NO_ENUM, usb_ctl_result_hr()); /* NAK (0x4): timed out on NAKs */
+            else
+                usb_link_event(AOA_EV_NO_CHIP, 0);
+            aoa.halted_ep = 1;
         }
         return;
     }
@@ -272,15 +317,14 @@ void aoa_poll(uint32_t now_us)
         if (aoa.generation == aoa.start_generation) { /* still the phone we sent START to: it drops off soon */
             if (now_us - aoa.since_us < AOA_REENUM_US)
                 break;
-            /* it never did (no accessory app, or AOA barred by policy): start over, a few times; then
-             * refuse it, as a failed handshake is, until it is unplugged (no endless START loop) */
-            if (++aoa.errors >= AOA_HANDSHAKE_TRIES) {
-                usb_link_event(AOA_EV_NO_SWITCH, aoa.version);
-                enter(AOA_REFUSED, now_us);
-                break;
-            }
-            enter(AOA_IDLE, now_us);
+            /* it never did (no accessory app, or AOA barred by policy) */
+            no_switch(now_us);
             break;
+        }
+        if (!is_accessory()) { /* it dropped off and came back, not as an accessory: START failed again */
+            no_switch(now_us);
+            if (aoa.state == AOA_REFUSED)
+                break;
         }
         device_ready(now_us);
         break;
@@ -323,15 +367,18 @@ static const char TEXTS[] FLASH = "\0"
                                   "USB phone switching to accessory mode, AOA protocol \0"
                                   "USB accessory handshake failed, HRSL 0x\0"
                                   "USB accessory without a bulk pair refused, product 0x\0"
-                                  "USB phone refused: no accessory mode after START, AOA protocol \0";
+                                  "USB phone refused: no accessory mode after START, AOA protocol \0"
+                                  "USB device not enumerated, retrying every second; last HRSL 0x\0"
+                                  "USB host chip (MAX3421E) not responding, retrying every second\0"
+                                  "USB accessory refused: its bulk endpoint keeps stalling, 0x\0";
 
 void aoa_event_text(uint8_t ev, uint16_t arg, char *out, uint8_t n)
 {
     if (!n)
         return;
-    flash_pick(TEXTS, ev <= AOA_EV_NO_SWITCH ? ev : 0u, out, n);
+    flash_pick(TEXTS, ev <= AOA_EV_STALLED ? ev : 0u, out, n);
     if (ev != AOA_EV_UP && ev != AOA_EV_STARTED && ev != AOA_EV_FAILED && ev != AOA_EV_NO_PIPES &&
-        ev != AOA_EV_NO_SWITCH)
+        ev != AOA_EV_NO_SWITCH && ev != AOA_EV_NO_ENUM && ev != AOA_EV_STALLED)
         return;
     uint8_t at = (uint8_t)strlen(out);
     char digits[5];

@@ -19,8 +19,9 @@ static struct {
             uint16_t last_byte_ms; /* low 16 bits of clock_ms(): only differences < PORT_SWITCH_MS count */
         } first;
         struct {            /* active == LINK_USB: since the last note (port_poll), no accessory being open */
-            uint8_t lost;   /* frames that found the ring full, or cut at a detach (saturating) */
-            uint16_t stale; /* Telemetry/Heartbeat not queued (port_holds_reports) or dropped from the ring */
+            uint8_t lost;   /* frames that found the ring full, or cut at a detach (saturating: LOST_MAX) */
+            uint16_t stale; /* Telemetry/Heartbeat not queued (port_holds_reports) or dropped from the ring
+                               (saturating: STALE_MAX) */
         } usb;
     } u;
 } port;
@@ -36,6 +37,11 @@ void port_init(const board_config_t *cfg)
         uart_hand_over(); /* UART0 stays off; its transmit ring is the USB link's queue */
     if (cfg->link != LINK_UART)
         aoa_init(cfg->serial);
+    /* A reset (button, watchdog, brown-out) while a frame was going out left the host holding its start:
+     * a lone delimiter first ends it as one bad frame (docs/protocol.md: idle fill), where the boot Log
+     * with the reset cause was joined to it and lost. */
+    const uint8_t delimiter = 0x00;
+    uart_send(&delimiter, 1);
 }
 
 uint8_t port_active(void) { return port.active; }
@@ -47,6 +53,14 @@ static uint8_t accessory_open(void)
     aoa_state_t s = aoa_state();
     return s == AOA_RUNNING || s == AOA_CLEAR_HALT;
 }
+
+#define LOST_MAX 0xFFu     /* port.u.usb.lost's ceiling */
+#define STALE_MAX 0xFFFFu  /* port.u.usb.stale's ceiling */
+
+static const char AT_LEAST[] PROGMEM = "at least ";
+
+/* The prefix of a count in a Log (a flash string, for %S): "at least " once it has reached its ceiling. */
+static PGM_P bound(uint8_t saturated) { return saturated ? AT_LEAST : AT_LEAST + sizeof AT_LEAST - 1u; }
 
 /* The link is USB and no accessory is open: what is queued waits for a phone that may come back. */
 static uint8_t away(void) { return port.active == LINK_USB && !accessory_open(); }
@@ -60,10 +74,12 @@ void port_poll(void)
      * Logs made meanwhile; with room for the Log (else a later pass: the ring drains to the phone). */
     if (port.active == LINK_USB && (port.u.usb.stale || port.u.usb.lost) && accessory_open() &&
         uart_tx_free() >= PORT_NOTE_ROOM) {
+        /* a count that reached its ceiling stopped counting: said as a bound, never as the number */
         report_log(port.u.usb.lost ? SEVERITY_WARNING : SEVERITY_INFO, LOG_CODE_STATE,
-                   PSTR("while no USB accessory was open: %u telemetry/heartbeat frames not sent (stale), %u "
-                        "other frames lost (transmit queue full, or cut at the detach)"),
-                   port.u.usb.stale, port.u.usb.lost);
+                   PSTR("while no USB accessory was open: %S%u telemetry/heartbeat frames not sent (stale), "
+                        "%S%u other frames lost (transmit queue full, or cut at the detach)"),
+                   bound(port.u.usb.stale == STALE_MAX), port.u.usb.stale, bound(port.u.usb.lost == LOST_MAX),
+                   port.u.usb.lost);
         port.u.usb.stale = port.u.usb.lost = 0;
     }
 }
@@ -104,14 +120,14 @@ uint8_t port_rx_pending(void)
 
 static void count_lost(void)
 {
-    if (port.u.usb.lost != 0xFFu)
+    if (port.u.usb.lost != LOST_MAX)
         port.u.usb.lost++;
 }
 
 static void count_stale(uint8_t n)
 {
     uint16_t sum = (uint16_t)(port.u.usb.stale + n);
-    port.u.usb.stale = sum < port.u.usb.stale ? 0xFFFFu : sum;
+    port.u.usb.stale = sum < port.u.usb.stale ? STALE_MAX : sum;
 }
 
 uint8_t port_holds_reports(void)
@@ -162,8 +178,9 @@ void usb_link_event(uint8_t ev, uint16_t arg)
     }
     char text[72];
     aoa_event_text(ev, arg, text, sizeof text);
-    uint8_t refused =
-        ev == AOA_EV_NO_AOA || ev == AOA_EV_FAILED || ev == AOA_EV_NO_PIPES || ev == AOA_EV_NO_SWITCH;
+    uint8_t refused = ev == AOA_EV_NO_AOA || ev == AOA_EV_FAILED || ev == AOA_EV_NO_PIPES ||
+                      ev == AOA_EV_NO_SWITCH || ev == AOA_EV_NO_ENUM || ev == AOA_EV_NO_CHIP ||
+                      ev == AOA_EV_STALLED;
     uint8_t severity = refused ? SEVERITY_ERROR : (ev == AOA_EV_DOWN ? SEVERITY_WARNING : SEVERITY_INFO);
     report_log(severity, refused ? LOG_CODE_HANDSHAKE : LOG_CODE_STATE, PSTR("%s"), text);
 }
