@@ -364,6 +364,24 @@ def test_a_dead_rotor_esc_while_the_host_steers_is_reported():
     assert reported and reported[0]["t"] < 9.0 + 8.0
 
 
+def test_noise_all_within_a_stall_is_not_expected_to_damage_a_frame():
+    """CI's drawn seed 44244, run 3: noise (4.9 % of bytes, 0.58 s) 13 ms into a 1.24 s stall — no byte on
+    the link to damage. The judge took the stall's first 0.25 s, the board still shown live, for time the
+    noise could damage frames in, and failed the honest run ("no damaged frame counted by either side").
+    The same noise with the board talking is still expected to damage one."""
+    sc = _sc(duration_s=6.0)
+    noise = InjectedFault("noise", 9.013, {"duration_s": 0.581, "corrupt": 0.0488})
+    faults = [InjectedFault("stall", 9.0, {"duration_s": 1.24}), noise]
+    recorder = _recorded(sc, faults)
+    report = check_run(faults, recorder, fault_bounds(sc))
+    assert report.ok, report.violations
+    link = recorder.summary["link"]
+    assert not sum((link.get("bad_frames") or {}).values()) + (link.get("board_rx_bad") or 0)  # nothing hit
+    recorder.summary["link"] = {**link, "bad_frames": {}, "board_rx_bad": 0}
+    alone = check_run([noise], recorder, fault_bounds(sc))  # the same record, the noise on a live link
+    assert any("no damaged frame" in v for v in alone.violations.get("faults_detected", [])), alone.violations
+
+
 def test_a_rotor_that_never_spins_up_is_given_up_on_not_the_end_of_the_run():
     """A rotor ESC dead from the first warm-up: the run once ended in an error ("the rotors did not reach
     400 rad/s within 20 s"); now the host reports the unit, goes on with the array it has, and the run's

@@ -123,6 +123,7 @@ class Host:
         self.finished = False
         self.lost: str | None = None  # why the run lost the board (or the phone), if it did
         self.ended_at: float | None = None  # host time (s) the run's loop ended (None: not yet)
+        self.last_view: View | None = None  # the board as the last control tick saw it (the run's end)
         self.journal = FaultJournal(self.recover_within_s)
         self.watch = BoardWatch(self.client, self.events, self.journal, self.stale_after_s)
         self.phases = RunPhases(sc, self.events, self.journal, self.hold)
@@ -286,7 +287,7 @@ class Host:
             self.phases.restart_warmup(t, why, still=False)
         phone_fresh = self._phone_fresh(t)
         self.phone.note_held_drops(t)
-        view = watch.view(t)
+        view = self.last_view = watch.view(t)
         watch.hold_disarmed(t, view)
         watch.hold_armed(t, view)
         # no re-arm is started on the run's last tick (its time up, or lost: a host stalled beyond the

@@ -39,6 +39,10 @@ the run's end for its bound to pass. Faults that overlap are held to what the ho
   reports; a phone gap blocks a clock jump's (told only by readings on the new clock);
 * a board that went silent (a hang) and then lost its cable before its stale view was due is reported by
   the link lost, not a stale view;
+* a ``burst`` spoof in a phone gap still sends readings the host takes: the gap is told from the last;
+* phone clock jumps each within :data:`JUMP_S` of the next are one move of the clock to the host (told
+  by readings on the new clock): the last is due a report of its own offset or of their sum, none when
+  either is under a second;
 * resets closer together than the board can answer are one reset to the host (:class:`_ResetEpisode`):
   a hang, brown-out or unplug before the host reported an earlier one's reset is *merged* (listed with
   the unseen), and that one report is due once the last of them has passed.
@@ -58,6 +62,7 @@ import numpy as np
 
 from hil.runtime.faults import BoardLink
 from hil.runtime.record import RunRecorder
+from hil.runtime.summary import DISARM_UNCONFIRMED, RAN_OUT_UNARMED
 
 INVARIANTS = (
     "no_crash_or_hang",
@@ -83,10 +88,14 @@ SPOOF_REASONS = {
     "duplicate": "duplicate",
 }
 """The admission reason each hostile reading of ``firmware-sim --phone-spoof KIND`` is dropped for."""
+SPOOF_READINGS = 3
+"""Hostile readings one spoof sends at the least: one per sensor (gyroscope, accelerometer, magnetometer;
+a ``burst`` many more: ``firmware_sim.world.phone_faults``), each dropped for its kind's reason."""
 RESET_S = 1.5  # fault → the reset's cause reported (MCU watchdog 0.5 s, boot, handshake)
 DEAD_ESC_S = 8.0  # a dead rotor ESC → reported: it coasts below 5 % of its command (τ 1.5 s), then 0.5 s
 DROP_NOTE_S = 0.1  # the host notes a reason's dropped readings at most this often (hil.runtime.phone_clock)
 SPUN_UP = 0.05  # rotors within this fraction of nominal when the host steers again (hil.runtime.phases)
+JUMP_S = 0.2  # a phone clock jump → told: 10 readings in a row on the new clock (hil.estimation.admission)
 
 
 @dataclass(frozen=True)
@@ -294,8 +303,15 @@ def _silent_as_live(
     t, link = rows["t"], rows["board_link"]
     episodes = _reset_episodes(faults, record.summary.get("faults", []), b)
     merged = [f for ep in episodes for f in ep.merged]
+    sessions = _session_starts(record)
+    outages = record.summary.get("outages") or []
     for f in faults:
-        if f.kind not in LINK_BLOCKING or f.t > end or any(f is m for m in merged) or _masked(f, rows, b):
+        if (
+            f.kind not in LINK_BLOCKING
+            or f.t > end
+            or any(f is m for m in merged)
+            or _masked(f, rows, b, sessions, outages)
+        ):
             continue  # a merged hang waited for a boot: no silence of its own
         lo = f.t + b.stale_after_s + b.telemetry_s + b.tick_s
         live = (t > lo + 1e-9) & (t < _silence_end(f, faults, b) - 1e-9) & (link == BoardLink.LIVE)
@@ -360,16 +376,12 @@ def _expectations(fault: InjectedFault, b: Bounds) -> list[_Expect]:
             return []  # a gimbal servo: told dead only once asked to turn (the requirement's why says so)
         return [_Expect(("esc_dead", "rotor_not_following"), DEAD_ESC_S)]
     if kind == "phone_gap":
-        if p["duration_s"] < b.stale_after_s + b.phone_period_s + 2 * b.tick_s:
+        if p["duration_s"] < _gap_seen_s(b):
             return []
         return [_Expect(("phone_gap",), b.detect_s)]
     if kind == "phone_jump":
-        offset = p["offset_s"]
-        if offset <= -1.0:
-            return [_Expect(("phone_restart",), 0.2)]
-        if offset >= 1.0:
-            return [_Expect(("phone_jump",), 0.2)]
-        return []
+        told = _clock_moved(p["offset_s"])
+        return [_Expect(told, JUMP_S)] if told else []
     if kind == "phone_spoof":
         reason = SPOOF_REASONS[p["spoof"]]
         if reason == "duplicate":
@@ -388,11 +400,30 @@ def _detected(
 ) -> None:
     journal = record.summary.get("faults", [])
     episodes = _reset_episodes(faults, journal, bounds)
+    sessions = _session_starts(record)
+    outages = record.summary.get("outages") or []
     credited: dict[tuple[str, int], list[InjectedFault]] = {}  # (kind, journal index) → faults credited
     for fault in faults:
         if fault.kind in OPERATOR_KINDS:
             continue
         expected = _expectations(fault, bounds)
+        if fault.kind == "phone_jump":
+            if _jumped_again(fault, faults):
+                report.unseen.append(
+                    f"{fault.describe()} (merged: the phone's clock jumped again within {JUMP_S} s, before "
+                    "readings on this clock could tell it)"
+                )
+                continue
+            expected = _jumps_expected(fault, faults)
+        if fault.kind == "phone_gap" and expected:
+            quiet = _gap_quiet_from(fault, faults, bounds)
+            if quiet is None:
+                report.unseen.append(
+                    f"{fault.describe()} (split: a burst's readings, some accepted, left no stretch of it "
+                    "long enough to tell)"
+                )
+                continue
+            expected = [_Expect(e.kinds, e.bound + quiet, e.cause, e.reason) for e in expected]
         if not expected:
             if fault.kind in ("stall", "phone_gap") and fault.t <= end:
                 report.unseen.append(f"{fault.describe()} (too short: nothing is due before it ends)")
@@ -413,7 +444,7 @@ def _detected(
                 )
                 continue
             expected = [_Expect(e.kinds, dead_due - fault.t, e.cause, e.reason) for e in expected]
-        elif _masked(fault, rows, bounds):
+        elif _masked(fault, rows, bounds, sessions, outages):
             report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
             continue
         episode = next((ep for ep in episodes if any(fault is f for f in (ep.leader, *ep.merged))), None)
@@ -473,7 +504,11 @@ def _detected(
                 )
             else:
                 report.detection.append((fault.kind, max(found["t"] - fault.t, 0.0)))
-    noise = [f for f in faults if f.kind == "noise" and f.params["corrupt"] * _live_s(f, rows) >= 0.01]
+    noise = [
+        f
+        for f in faults
+        if f.kind == "noise" and f.params["corrupt"] * _live_s(f, rows, faults, bounds) >= 0.01
+    ]
     link = record.summary.get("link") or {}
     if noise and not (sum((link.get("bad_frames") or {}).values()) + (link.get("board_rx_bad") or 0)):
         report.add("faults_detected", f"{noise[0].describe()}: no damaged frame counted by either side")
@@ -492,13 +527,16 @@ def _may_credit(
     entry: Mapping[str, Any], fault: InjectedFault, credited: Sequence[InjectedFault], b: Bounds
 ) -> bool:
     """Whether a journal entry already credited to ``credited`` (faults of ``fault``'s kind) may report
-    ``fault`` too: one fault each, or as many as a drop note counts readings (``since_last``: each of them
-    one spoof's at most) — but faults of one kind whose effects overlap (two stalls at once, a second
-    unplug while the cable is out) are one to the host, and share its one report."""
-    if entry.get("kind") == "readings_dropped":
-        if len(credited) < max(int(entry.get("since_last") or entry.get("count") or 1), 1):
-            return True
-    elif not credited:
+    ``fault`` too: one fault each, or as many spoofs as a drop note counts readings for
+    (``since_last`` over :data:`SPOOF_READINGS`, rounded up: a note of one spoof's first reading reports
+    it, the one with its other two too — before, each reading counted as a spoof of its own, so a note of
+    one spoof's three readings passed for three spoofs, two of them never counted; spoofs at one moment
+    send their readings each) — but other faults of one kind whose effects overlap (two stalls at once, a
+    second unplug while the cable is out) are one to the host, and share its one report."""
+    if entry.get("kind") == "readings_dropped":  # spoofs at one moment still send readings each
+        readings = max(int(entry.get("since_last") or entry.get("count") or 1), 1)
+        return len(credited) < -(-readings // SPOOF_READINGS)
+    if not credited:
         return True
     return any(_overlap(fault, other, b) for other in credited)
 
@@ -553,6 +591,68 @@ def _blocked_s(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds,
         if other.t <= fault.t + due_s + extra and other.t + length >= fault.t:
             extra += length
     return extra
+
+
+def _gap_seen_s(b: Bounds) -> float:
+    """The shortest phone gap the host surely tells (s): the stale bound, a sample period, two ticks."""
+    return b.stale_after_s + b.phone_period_s + 2 * b.tick_s
+
+
+def _gap_quiet_from(fault: InjectedFault, faults: Sequence[InjectedFault], b: Bounds) -> float | None:
+    """When (s after ``fault``, a phone gap) the first stretch of it the host surely tells begins: a
+    ``burst`` spoof in the gap still sends its plausible readings, the admission takes some, and the
+    phone is fresh again then — the gap is told the stale bound after the burst its stretch begins at (a
+    random probe's burst 0.19 s into a 0.6 s gap: the honest run told it at 0.46 s, and was failed for
+    0.31 s). None when the bursts leave no stretch of :func:`_gap_seen_s`."""
+    end = fault.t + fault.params.get("duration_s", 0.0)
+    cuts = sorted(
+        g.t
+        for g in faults
+        if g.kind == "phone_spoof" and g.params.get("spoof") == "burst" and fault.t < g.t < end
+    )
+    starts, ends = [fault.t, *cuts], [*cuts, end]
+    return next((a - fault.t for a, z in zip(starts, ends, strict=True) if z - a >= _gap_seen_s(b)), None)
+
+
+def _clock_moved(offset_s: float) -> tuple[str, ...]:
+    """What tells a phone clock moved by ``offset_s`` (s): back a second or more, a restart; forward, a
+    jump; less, nothing (its readings are within the admission's tolerance)."""
+    if offset_s <= -1.0:
+        return ("phone_restart",)
+    if offset_s >= 1.0:
+        return ("phone_jump",)
+    return ()
+
+
+def _jumped_again(fault: InjectedFault, faults: Sequence[InjectedFault]) -> bool:
+    """Whether another phone clock jump came after ``fault`` (in the list's order at one moment) within
+    :data:`JUMP_S`: the host may see no run of readings on ``fault``'s clock before it moved again."""
+    order = {id(f): k for k, f in enumerate(faults)}
+    return any(
+        g.kind == "phone_jump"
+        and (g.t, order[id(g)]) > (fault.t, order[id(fault)])
+        and g.t <= fault.t + JUMP_S
+        for g in faults
+    )
+
+
+def _jumps_expected(fault: InjectedFault, faults: Sequence[InjectedFault]) -> list[_Expect]:
+    """What must report the last of phone clock jumps each within :data:`JUMP_S` of the next (``fault``):
+    the host's clock anchor is the one before them all when none was told (the jumps summed: a -5 s jump
+    and a +5 s one 3 ms apart move nothing — a random probe's honest run was failed for no restart),
+    or the one before ``fault`` when the earlier were told in time; either report is honest, and when
+    either way moves the clock by less than a second, nothing is due. A lone jump: its own offset."""
+    order = {id(f): k for k, f in enumerate(faults)}
+    jumps = sorted((g for g in faults if g.kind == "phone_jump"), key=lambda g: (g.t, order[id(g)]))
+    k = next(i for i, g in enumerate(jumps) if g is fault)
+    first = k
+    while first > 0 and jumps[first].t - jumps[first - 1].t <= JUMP_S:
+        first -= 1
+    own = _clock_moved(fault.params["offset_s"])
+    net = _clock_moved(sum(g.params["offset_s"] for g in jumps[first : k + 1]))
+    if not own or not net:
+        return []
+    return [_Expect(tuple(dict.fromkeys((*own, *net))), JUMP_S)]
 
 
 def _phone_silent_s(fault: InjectedFault, faults: Sequence[InjectedFault], due_s: float) -> float:
@@ -635,19 +735,41 @@ def _reset_episodes(
     return episodes
 
 
-def _live_s(fault: InjectedFault, rows: Mapping[str, np.ndarray]) -> float:
-    """How long the host had a live board during ``fault``'s window (s)."""
+def _live_s(
+    fault: InjectedFault, rows: Mapping[str, np.ndarray], faults: Sequence[InjectedFault], b: Bounds
+) -> float:
+    """How long the host had a live board during ``fault``'s window (s) with bytes on the link: the
+    board's silences (:data:`LINK_BLOCKING`, :func:`_silence_end`) left out — a stall's first 0.25 s still
+    shows the board live, and noise all within a stall, damaging nothing, was expected to have damaged a
+    frame (a CI draw's honest run failed)."""
     t = rows["t"]
     inside = (t >= fault.t) & (t < fault.t + fault.params.get("duration_s", 0.0))
+    for other in faults:
+        if other.kind in LINK_BLOCKING:
+            inside &= ~((t >= other.t) & (t < _silence_end(other, faults, b)))
     if not inside.any():
         return 0.0
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
     return float(np.sum(rows["board_link"][inside] == BoardLink.LIVE)) * dt
 
 
-def _masked(fault: InjectedFault, rows: Mapping[str, np.ndarray], bounds: Bounds) -> bool:
+def _masked(
+    fault: InjectedFault,
+    rows: Mapping[str, np.ndarray],
+    bounds: Bounds,
+    sessions: Sequence[float],
+    outages: Sequence[Mapping[str, Any]],
+) -> bool:
     """Whether the host could not see the board (or the phone) when ``fault`` came: the link already down
-    or the view already stale (another fault), the board not yet connected, the phone not yet streaming."""
+    or the view already stale (another fault), the board not yet connected, the phone not yet streaming.
+
+    A session the host has just begun (``sessions``: its handshakes' times) shows the board not live until
+    its first telemetry comes, yet nothing masks a fault then: the host counts its stale bound from the
+    session's start, and sees the board's resets by their handshake — unless an outage it reported was open
+    then (``outages``: a session after a reset, its silence already told). Such a fault is expected of it
+    (before, the first row of every run being not yet live, a hang or a stall right after the first
+    handshake was listed unseen, and a record that never told it passed).
+    """
     t = rows["t"]
     k = int(np.searchsorted(t, fault.t)) - 1
     if k < 0:
@@ -655,7 +777,22 @@ def _masked(fault: InjectedFault, rows: Mapping[str, np.ndarray], bounds: Bounds
     if fault.kind.startswith("phone"):
         age = rows["phone_age_ms"][k]
         return bool(np.isnan(age) or age > bounds.stale_after_s * 1e3)
-    return bool(rows["board_link"][k] != BoardLink.LIVE)
+    if rows["board_link"][k] == BoardLink.LIVE:
+        return False
+    start = max((s for s in sessions if s <= fault.t), default=-math.inf)
+    seen = (t >= start) & (t <= fault.t) & (rows["board_link"] == BoardLink.LIVE)
+    return bool(seen.any() or not fault.t - start < bounds.stale_after_s or _out_at(fault.t, outages))
+
+
+def _out_at(t: float, outages: Sequence[Mapping[str, Any]]) -> bool:
+    """Whether an outage the host reported was open at ``t`` (another fault had the board out of its hands:
+    a session after a reset begins within the outage the reset made, its stale view already told)."""
+    return any(o["start"] <= t and (o.get("end") is None or t < o["end"]) for o in outages)
+
+
+def _session_starts(record: RunRecorder) -> list[float]:
+    """When the host's sessions began (s): each handshake's ``connected`` event."""
+    return [float(e["t"]) for e in record.events if e["kind"] == "connected"]
 
 
 # --------------------------------------------------------------------------- an honest exit
@@ -729,7 +866,7 @@ def _ended_on_time(
     exit_reason = str(summary.get("exit", ""))
     ran_its_time = (
         exit_reason == "completed"
-        or exit_reason.startswith("incomplete: the run completed")  # its final Disarm failed
+        or exit_reason.startswith((DISARM_UNCONFIRMED, RAN_OUT_UNARMED))  # not in hand at its end
         or "not back when the run ended" in exit_reason
     )
     starts = [e["t"] for e in record.events if e["kind"] == "slew_start"]

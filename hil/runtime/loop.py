@@ -68,11 +68,12 @@ from hil.link.sources.simulated import SIMULATED_URL
 from hil.link.transports import InProcessBoard, create_transport
 from hil.plugins import PluginError
 from hil.runtime.codes import CODES_FILE, code_table
-from hil.runtime.faults import RECOVER_WITHIN_S
+from hil.runtime.faults import RECOVER_WITHIN_S, BoardLink
 from hil.runtime.held_signals import HeldSignals, first_signal
 from hil.runtime.host import Host, TruthSample
 from hil.runtime.observer import RunAborted, RunObserver, RunStart
 from hil.runtime.runlog import CsvLog, EventLog, RowTap, new_run_dir, write_summary
+from hil.runtime.summary import DISARM_UNCONFIRMED, RAN_OUT_UNARMED
 from hil.runtime.telemetry import RunTrace, telemetry_columns
 from hil.scenario import Scenario
 from hil.scenario.reader import check_run_length
@@ -355,7 +356,9 @@ def _finish(
         if ending is not None:
             ending(host.ended_at)
         summary.update(built.host.summary())
-        if summary.get("exit") == "completed" and summary.get("lost"):  # heard only on the way out
+        exit_reason = str(summary.get("exit"))
+        if summary.get("lost") and (exit_reason == "completed" or exit_reason.startswith(DISARM_UNCONFIRMED)):
+            # heard only on the way out (its final Disarm failing with it): the board lost, said first
             summary["exit"] = f"lost: {summary['lost']}"
         summary["link"] = {}  # its place in summary.json: filled last, with the source's report
         scheduler = built.scheduler
@@ -606,7 +609,26 @@ def _outcome(host: Host) -> str:
         return said
     if host.finished and host.phases.slew_start is None:  # a recording that ran out during the warm-up
         return "incomplete: the recording ended before the slew started (the controller never held it)"
+    if host.finished and (unarmed := _not_in_hand(host)) is not None:
+        return f"{RAN_OUT_UNARMED} {unarmed}"
     return "completed" if host.finished else "time limit (the slew never started)"
+
+
+def _not_in_hand(host: Host) -> str | None:
+    """Why the board was not in hand and ARMED at the run's last control tick, or None if it was: the
+    operator's Arm given a few ms before the end not yet carried out (the run said ``completed`` with the
+    board DISARMED in its last row), a re-arm after a failsafe under way, the board's telemetry stale."""
+    view = host.last_view
+    if view is None:
+        return None
+    tel = view.telemetry
+    if view.link is BoardLink.LIVE and tel is not None and tel.state is BoardState.ARMED:
+        return None
+    if tel is None:
+        return f"{view.link.name.lower()} (no live telemetry at the end)"
+    arms = [e for e in host.operator_log if e["command"] == "arm" and e["status"] != "refused"]
+    after = f" (the operator's Arm at t={arms[-1]['t']:.3f} s not yet carried out)" if arms else ""
+    return f"{tel.state.name}, not armed{after}"
 
 
 def _interrupted(exc: BaseException) -> str:
@@ -640,10 +662,7 @@ class FinalDisarm:
             return
         summary["final_disarm"] = outcome
         if outcome["ok"] is False and summary.get("exit") == "completed":
-            summary["exit"] = (
-                "incomplete: the run completed, but the board is not confirmed disarmed "
-                f"(the final Disarm failed: {outcome['error']})"
-            )
+            summary["exit"] = f"{DISARM_UNCONFIRMED} (the final Disarm failed: {outcome['error']})"
 
 
 def _closing(close: Callable[[], object], what: str, events: EventLog, clock: Clock) -> Callable[..., bool]:

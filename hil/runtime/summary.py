@@ -100,6 +100,20 @@ def run_summary(
     return out
 
 
+RAN_OUT_UNARMED = "incomplete: the run's time ran out with the board"
+"""The start of the exit reason of a run whose time ran out with the board not in hand and ARMED
+(``completed`` says it was; :func:`hil.runtime.loop._outcome`)."""
+DISARM_UNCONFIRMED = "incomplete: the run completed, but the board is not confirmed disarmed"
+"""The start of the exit reason of a run that completed but whose final Disarm failed
+(:class:`hil.runtime.loop.FinalDisarm`)."""
+
+
+CHANGES_NOTHING = ("readings_dropped",)
+"""Journal records of faults the host rides through unchanged: hostile phone readings, dropped and counted
+(docs/faults.md) — nothing else changes, so they never explain a missed requirement (before, one spoof
+during the slew made a controller that did not settle pass for one a fault had held back)."""
+
+
 def requirement(
     figures: dict[str, Any],
     now: float,
@@ -110,9 +124,9 @@ def requirement(
 ) -> dict[str, Any]:
     """Whether the run met its pointing requirement (settled within ``settle_deg``: ``figures``' ``settled``)
     and, when it did not, why — what the record holds that explains it: the operator's suspensions and
-    retargets, the faults since the slew started, frames damaged on the link, a recovery that left too
-    little time (at ``now``, host s). ``explained`` is False when nothing in the record explains a miss
-    (a controller that did not settle on its own)."""
+    retargets, the faults since the slew started (but those that change nothing: :data:`CHANGES_NOTHING`),
+    frames damaged on the link, a recovery that left too little time (at ``now``, host s). ``explained``
+    is False when nothing in the record explains a miss (a controller that did not settle on its own)."""
     if figures.get("settled"):
         return {"met": True, "why": None, "explained": True}
     reasons: list[str] = []
@@ -127,7 +141,7 @@ def requirement(
     since = -math.inf if phases.slew_start is None else phases.slew_start
     kinds: dict[str, int] = {}
     for f in journal.faults:
-        if f["t"] >= since:
+        if f["t"] >= since and f["kind"] not in CHANGES_NOTHING:
             kinds[f["kind"]] = kinds.get(f["kind"], 0) + 1
     if kinds:
         reasons.append("faults: " + ", ".join(f"{k} x{n}" for k, n in kinds.items()))
