@@ -357,7 +357,10 @@ def _finish(
             ending(host.ended_at)
         summary.update(built.host.summary())
         exit_reason = str(summary.get("exit"))
-        if summary.get("lost") and (exit_reason == "completed" or exit_reason.startswith(DISARM_UNCONFIRMED)):
+        ran_its_time = exit_reason == "completed" or exit_reason.startswith(
+            (DISARM_UNCONFIRMED, RAN_OUT_UNARMED)
+        )
+        if summary.get("lost") and ran_its_time:
             # heard only on the way out (its final Disarm failing with it): the board lost, said first
             summary["exit"] = f"lost: {summary['lost']}"
         summary["link"] = {}  # its place in summary.json: filled last, with the source's report
