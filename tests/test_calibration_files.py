@@ -81,13 +81,15 @@ def test_unreadable_bench_files_are_named(tmp_path):
 # ------------------------------------------------------------------------- calibration files
 names = st.text(st.characters(blacklist_categories=("Cs",)), max_size=20)
 fits = st.builds(
-    FitInfo,
+    lambda source, points, largest, share, unit, battery: FitInfo(
+        source, points, largest * share, largest, unit, battery
+    ),
     st.text(max_size=30),
     st.integers(0, 10_000),
     st.floats(0, 1e3),
-    st.floats(0, 1e3),
+    st.floats(0, 1),  # a fit's rms residual is at most its largest
     st.sampled_from(["rad/s", "rad"]),
-    st.none() | st.tuples(st.floats(0, 60), st.floats(0, 60)),
+    st.none() | st.tuples(st.floats(1e-3, 60), st.floats(1e-3, 60)).map(lambda v: (min(v), max(v))),
 )
 
 
@@ -179,6 +181,23 @@ def _sub(old: str, new: str):
         ),
         (_sub("points = 204", "points = -1"), "unit[0].rotor.fit.points", "not a count"),
         (_sub("battery_v = [", "battery_v = [1.0, "), "unit[0].rotor.fit.battery_v", "array of 2 numbers"),
+        # provenance that parses but no fit measured, once shown as measured (`hil calibrate show`, status 0)
+        (_sub("rms_residual = 1.5", "rms_residual = -1.0"), "unit[0].rotor.fit.rms_residual", "no negative"),
+        (
+            _sub("max_residual = 6.0", "max_residual = 1.0"),
+            "unit[0].rotor.fit.rms_residual",
+            "above max_residual",
+        ),
+        (
+            _sub("battery_v = [10.4, 12.6]", "battery_v = [12.6, 10.4]"),
+            "unit[0].rotor.fit.battery_v",
+            "no range",
+        ),
+        (
+            _sub("battery_v = [10.4, 12.6]", "battery_v = [1e-300, 2500.0]"),
+            "unit[0].rotor.fit.battery_v",
+            "60 V",
+        ),
         (_sub("[unit.gimbal_angle]", "[unit.gimbal_angles]"), "unit[0].gimbal_angles", "unknown key"),
     ],
 )

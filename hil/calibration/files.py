@@ -61,6 +61,7 @@ from protocol.calibration.checks import within
 from protocol.errors import CalibrationError
 from protocol.messages import MAX_UNITS
 
+from .bench import MAX_BATTERY_V
 from .textfiles import read_text, write_atomic
 
 FORMAT = "vscmg-hil calibration"
@@ -223,15 +224,23 @@ def _fit_info(doc: dict[str, Any], where: str) -> FitInfo:
     battery = None
     if "battery_v" in doc:
         lo, hi = _numbers(doc, "battery_v", where, length=2)
+        if not 0.0 < lo <= hi <= MAX_BATTERY_V:
+            raise CalibrationError(
+                f"[{lo!r}, {hi!r}] is no range of a bench's battery (0 < low <= high <= {MAX_BATTERY_V:g} V)",
+                f"{where}.battery_v",
+            )
         battery = (lo, hi)
-    return FitInfo(
-        doc["source"],
-        points,
-        _num(doc, "rms_residual", where),
-        _num(doc, "max_residual", where),
-        doc["residual_unit"],
-        battery,
-    )
+    rms, largest = _num(doc, "rms_residual", where), _num(doc, "max_residual", where)
+    # what a fit measured, shown as such by `hil calibrate show`: a hand's -1 or a max below the rms was
+    if rms < 0.0 or largest < 0.0:
+        raise CalibrationError(
+            "a residual is no negative number", f"{where}.{'rms' if rms < 0 else 'max'}_residual"
+        )
+    if rms > largest * (1.0 + 1e-9):
+        raise CalibrationError(
+            f"{rms!r} is above max_residual {largest!r}: no fit's residuals", f"{where}.rms_residual"
+        )
+    return FitInfo(doc["source"], points, rms, largest, doc["residual_unit"], battery)
 
 
 def _cubic(doc: dict[str, Any], x_key: str, y_key: str, where: str) -> MonotoneCubic:
