@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 import hil.plots.estimator as figures
 from hil import so3
-from hil.estimation.sensors import SensorLog, SensorStream, Truth
+from hil.estimation.sensors import SensorLog, SensorStream, StepFlag, Truth
 from hil.logs import project_csv, read_log
 from hil.logs.replay import ReplayOptions, replay
 
@@ -94,3 +94,15 @@ def test_no_figure_draws_a_line_across_a_gap_the_filter_did_not_run_over(
             assert np.isfinite(y[x <= end]).any() and np.isfinite(y[x >= start]).any(), (
                 name
             )  # both parts drawn
+
+
+def test_the_magnetometers_left_out_intervals_end_at_a_gap(tmp_path):
+    """The intervals in which the magnetometer was left out (shaded in the figures, listed in
+    ``summary.json``) are each within a part replayed: a part that ended with it left out and the next that
+    began so made one interval across the gap, shaded over time no filter ran. Here every step of both parts
+    is marked left out: one interval a part, each ending at its part's end."""
+    result = replay(gapped_log(tmp_path, 2.0, 10.0), ReplayOptions(tmp_path / "o", max_gap_s=1.0))
+    result.estimates.flags[:] |= int(StepFlag.MAG_DISTURBED)
+    spans = result.replayed_spans
+    assert len(spans) == 2
+    assert result.mag_rejections == spans  # not one interval from the first part's start to the last's end

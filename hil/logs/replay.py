@@ -170,8 +170,15 @@ class ReplayResult:
 
     @property
     def mag_rejections(self) -> list[tuple[float, float]]:
-        """Every interval (s, log time) in which the magnetometer was left out as disturbed."""
-        return flagged_intervals(self.estimates.t, self.estimates.flags, StepFlag.MAG_DISTURBED)
+        """Every interval (s, log time) in which the magnetometer was left out as disturbed, within the
+        parts replayed (:attr:`replayed_spans`): a part that ended with it left out and the next that began
+        so were one interval across the gap between them, shaded over the gap in the figures."""
+        t, flags = self.estimates.t, self.estimates.flags
+        intervals: list[tuple[float, float]] = []
+        for first, last in self.replayed_spans or [(-np.inf, np.inf)]:
+            inside = (t >= first) & (t <= last)
+            intervals += flagged_intervals(t[inside], flags[inside], StepFlag.MAG_DISTURBED)
+        return intervals
 
     @property
     def replayed_spans(self) -> list[tuple[float, float]]:
