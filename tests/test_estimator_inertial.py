@@ -102,3 +102,26 @@ def test_a_log_without_rest_falls_back_to_the_attitude_free_median_dip():
     assert median_inclination_deg(log) == pytest.approx(60.0, abs=1.0)
     e, how = directions_from_log(log)
     assert "median" in how and e[2, 1] == pytest.approx(-np.sin(np.radians(60.0)), abs=0.02)
+
+
+@pytest.mark.parametrize("mag_t", [[-1.0], [-2.0, -1.5, -0.5]])
+def test_a_magnetometer_with_no_reading_in_the_window_is_said_so_not_zero(mag_t):
+    """A magnetometer whose readings all lie outside the first 10 s the dip is measured over (one stamped
+    before the other sensors started): the error said "each is zero or not a number"
+    of readings that were neither. It says the window holds none; a window of zero readings still says
+    zero."""
+    from hil.estimation.inertial import median_inclination_deg
+    from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
+
+    t = np.arange(0.0, 30.0, 0.01)
+    acc = SensorStream(SensorKind.ACC, t, np.tile([0.0, 0.0, 9.81], (len(t), 1)))
+    gyr = SensorStream(SensorKind.GYR, t, np.zeros((len(t), 3)))
+    mag_times = np.asarray(mag_t)
+    mag = SensorStream(SensorKind.MAG, mag_times, np.tile([0.0, 20.0, -40.0], (len(mag_times), 1)))
+    log = SensorLog({SensorKind.ACC: acc, SensorKind.GYR: gyr, SensorKind.MAG: mag}, "log.csv", "csv")
+    with pytest.raises(InputFormatError, match="it has none there") as caught:
+        median_inclination_deg(log)
+    assert "each is zero" not in str(caught.value)
+    zeros = SensorStream(SensorKind.MAG, t, np.zeros((len(t), 3)))
+    with pytest.raises(InputFormatError, match="each is zero or not a number"):
+        median_inclination_deg(SensorLog({**log.streams, SensorKind.MAG: zeros}, "log.csv", "csv"))

@@ -134,15 +134,30 @@ def gives_direction(xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
     return np.all(np.isfinite(xyz), axis=1) & np.any(xyz != 0.0, axis=1)
 
 
-def _require_some(ok: NDArray[np.bool_], sensor: str, window_s: float, source: str) -> None:
-    """An InputFormatError naming ``sensor`` when none of its readings (``ok``) gives a direction."""
-    if not ok.any():
-        raise InputFormatError(
-            f"no {sensor} reading in the first {window_s:g} s gives a direction (each is zero or not a "
-            f"number: the {sensor} not started, or its file broken): the inertial directions cannot be "
-            "measured; give --inclination or --lat/--lon/--date",
-            source,
-        )
+def _require_some(
+    ok: NDArray[np.bool_],
+    sensor: str,
+    window_s: float,
+    source: str,
+    early: NDArray[np.bool_] | None = None,
+) -> None:
+    """An InputFormatError naming ``sensor`` when none of its readings in the window (``early``; None: all
+    of them) gives a direction (``ok``): said as none there at all when the window holds none (a
+    magnetometer's one reading, stamped before the other sensors started, was said "each is zero or not a
+    number")."""
+    inside = np.ones(len(ok), bool) if early is None else early
+    if ok[inside].any():
+        return
+    why = (
+        f"each is zero or not a number: the {sensor} not started, or its file broken"
+        if inside.any()
+        else "it has none there: its readings are all outside it"
+    )
+    raise InputFormatError(
+        f"no {sensor} reading in the first {window_s:g} s gives a direction ({why}): the inertial directions "
+        "cannot be measured; give --inclination or --lat/--lon/--date",
+        source,
+    )
 
 
 def directions_from_still(window: StillWindow, declination_deg: float = 0.0) -> Array:
@@ -158,10 +173,9 @@ def median_inclination_deg(log: SensorLog, window_s: float = 10.0) -> float:
     if mag is None:
         raise InputFormatError("no magnetometer: the field's inclination is not observed", log.source)
     early = (mag.t >= log.start) & (mag.t <= log.start + window_s)
-    _require_some(gives_direction(mag.xyz) & early, "magnetometer", window_s, log.source)
-    _require_some(
-        gives_direction(acc.xyz) & (acc.t <= log.start + window_s), "accelerometer", window_s, log.source
-    )
+    _require_some(gives_direction(mag.xyz), "magnetometer", window_s, log.source, early)
+    acc_early = acc.t <= log.start + window_s
+    _require_some(gives_direction(acc.xyz), "accelerometer", window_s, log.source, acc_early)
     sel = early & gives_direction(mag.xyz)
     if sel.sum() < 5 or len(acc) < 2:
         raise InputFormatError(f"too few magnetometer samples in the first {window_s:g} s", log.source)
