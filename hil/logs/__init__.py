@@ -50,6 +50,13 @@ def _format_of(container: Container) -> str:
     if inside:
         more = f" and {len(inside) - 1} more" if len(inside) > 1 else ""
         hint = f"; it holds logs: replay one, e.g. {inside[0]}{more}"
+    packed = next(
+        ((n, ext) for n in container.names()[:20] if (ext := container.packed_as(n)) is not None), None
+    )
+    if packed is not None:  # a gzip file named .csv was only "not a recognised log"
+        name, ext = packed
+        readable = "the reader opens it so named" if ext in (".gz", ".zip") else "decompress it first"
+        hint += f"; {name} is {ext} data under a name that does not say so: name it {name}{ext} ({readable})"
     raise InputFormatError(
         f"not a recognised log (tried {', '.join(READERS)}; files: {', '.join(container.names()[:8])}){hint}",
         str(container.path),

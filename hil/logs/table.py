@@ -122,6 +122,10 @@ class Table:
             ) from None
 
 
+_PACKED_MAGIC = ((b"\x1f\x8b", ".gz"), (b"PK\x03\x04", ".zip"), (b"BZh", ".bz2"), (b"\xfd7zXZ\x00", ".xz"))
+"""The first bytes of compressed or archive data, and the suffix saying so (:meth:`Container.packed_as`)."""
+
+
 class Container:
     """Files of a log: a directory, an archive (zip or tar, :mod:`hil.logs.archive`), or a single file;
     a context manager, whose :meth:`close` frees the archives and temporary files it holds at once (not
@@ -284,6 +288,19 @@ class Container:
         with self._open_text(name, limit) as f:
             while piece := _guarded(lambda: f.read(CHUNK_BYTES), where):
                 yield piece
+
+    def packed_as(self, name: str) -> str | None:
+        """What compressed or archive data a member is under a name that does not say so (a gzip file
+        named ``Gyroscope.csv``), by its first bytes: ``".gz"``, ``".zip"``, ``".bz2"``, ``".xz"``; None
+        for any other (or one named for what it is, or unreadable)."""
+        if name.lower().endswith((".gz", ".zip")):
+            return None
+        try:
+            with self._open(name) as f:
+                first = _guarded(lambda: f.read(6), self.where(name))
+        except InputFormatError:
+            return None
+        return next((ext for magic, ext in _PACKED_MAGIC if first.startswith(magic)), None)
 
     def head(self, name: str, lines: int = 3) -> list[str]:
         """The first ``lines`` lines (of at most :data:`HEAD_BYTES` bytes), decoded leniently (UTF-8, UTF-16
