@@ -61,6 +61,19 @@ def test_a_cut_real_broad_trial_reads_as_it_is(tmp_path, broad_trial):
     )
 
 
+@pytest.mark.parametrize("name", ["TRIAL.MAT", "Trial.Mat", "trial.mat.gz", "TRIAL.MAT.GZ"])
+def test_a_broad_trial_named_in_capitals_or_gzipped_reads_as_the_trial(tmp_path, broad_trial, name):
+    """A trial renamed in capitals (a FAT card, a Windows copy) or gzipped by hand: its suffix was read as
+    ``.mat`` only, lower case and plain, so it was "not a recognised log"; every format reads a ``.gz``."""
+    data = broad_variant(tmp_path, broad_trial).read_bytes()
+    path = tmp_path / "renamed" / name
+    path.parent.mkdir()
+    path.write_bytes(gzip.compress(data) if name.lower().endswith(".gz") else data)
+    log = read_log(path)
+    assert log.format == "broad"
+    np.testing.assert_array_equal(log.streams[MAG].xyz, broad_trial["imu_mag"])
+
+
 BROAD_VARIANTS = {
     # a movement mask cut short: numpy's broadcasting error from ``movement & finite``
     "movement of another length": ({"movement": np.ones((10, 1), np.uint8)}, "movement", "one per sample"),

@@ -18,6 +18,7 @@ import numpy as np
 from hil import so3
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
 from hil.logs.matfile import load_mat, mat_variables, one_rate, real_array
+from hil.logs.sensorlogger import plain_name
 from hil.logs.table import Container
 from protocol.errors import InputFormatError
 
@@ -30,7 +31,7 @@ other non-rotation) is an error naming it, not a rotation made up by normalising
 
 def detect(c: Container) -> bool:
     names = c.names()
-    if len(names) != 1 or not names[0].endswith(".mat"):
+    if len(names) != 1 or not plain_name(names[0]).lower().endswith(".mat"):  # TRIAL.MAT, trial.mat.gz too
         return False
     return any(v[0] == "imu_gyr" for v in mat_variables(c, names[0]))
 
