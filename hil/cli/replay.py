@@ -90,7 +90,11 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--inclination", type=float, metavar="DEG", help="field inclination (default: measured)"
     )
     p.add_argument(
-        "--declination", type=float, default=0.0, metavar="DEG", help="east of true north (default 0)"
+        "--declination",
+        type=float,
+        default=None,  # None: not given (0, magnetic north), so refused beside --lat/--lon/--date
+        metavar="DEG",
+        help="east of true north (default 0; not with --lat/--lon/--date, whose field model gives it)",
     )
     field.add_argument("--lat", type=float, help="latitude (deg) for IGRF-14 (with --lon and --date)")
     p.add_argument("--lon", type=float, help="longitude (deg) for IGRF-14")
@@ -162,6 +166,11 @@ def check_numbers(args: argparse.Namespace) -> None:
             raise ConfigError(f"must be within ±{most:g} deg, got {value!r}", f"hil replay --{name}")
 
 
+def declination_of(args: argparse.Namespace) -> float:
+    """``--declination`` (degrees east of true north), 0 (magnetic north) when not given."""
+    return 0.0 if args.declination is None else float(args.declination)
+
+
 def estimator_of(args: argparse.Namespace) -> EstimatorChoice:
     """``--estimator`` and ``--preset`` as an estimator choice: the variational estimator's tuned preset
     unless told; ``--preset`` only with the variational estimator (ConfigError naming the option)."""
@@ -198,6 +207,11 @@ def run(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"not a YYYY-MM-DD date: {args.date!r}", "hil replay --date") from None
         field_model = FieldModel(args.lat, args.lon, decimal_year(when))
+        if args.declination is not None:  # taken, then ignored: the model's declination turned the estimates
+            raise ConfigError(
+                "the field model of --lat/--lon/--date gives the declination: leave out one or the other",
+                "hil replay --declination",
+            )
     name = args.log.resolve().name.removesuffix(".zip")
     if args.port is not None:
         return _drive(args, name, field_model)
@@ -215,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
         format=args.format,
         estimator=estimator_of(args),
         inclination_deg=args.inclination,
-        declination_deg=args.declination,
+        declination_deg=declination_of(args),
         field_model=field_model,
         gyro_bias=args.gyro_bias,
         window_s=tuple(args.window) if args.window else None,
@@ -327,7 +341,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         out_dir=Path("."),
         estimator=estimator_of(args),
         inclination_deg=args.inclination,
-        declination_deg=args.declination,
+        declination_deg=declination_of(args),
         field_model=field_model,  # type: ignore[arg-type]
         gyro_bias=args.gyro_bias,
     )

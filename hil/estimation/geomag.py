@@ -183,8 +183,9 @@ def _synthesis(g: Array, h: Array, lat_deg: float, lon_deg: float, height_km: fl
     zp = (rc * (1.0 - e2) + height_km) * math.sin(lat)
     r = math.hypot(xp, zp)
     lat_c = math.asin(zp / r)
-    p, dp = _schmidt_legendre(math.sin(lat_c), math.cos(lat_c), degree)
-    cos_c = max(math.cos(lat_c), 1e-12)  # the east component's 1/cos is finite at the pole limit
+    sin_c, cos_c = math.sin(lat_c), math.cos(lat_c)
+    p, dp = _schmidt_legendre(sin_c, cos_c, degree)
+    p_over_cos = _legendre_over_cos(p, dp, sin_c, cos_c)
     bx = by = bz = 0.0  # geocentric north, east, down
     for n in range(1, degree + 1):
         scale = (_RE_KM / r) ** (n + 2)
@@ -192,12 +193,32 @@ def _synthesis(g: Array, h: Array, lat_deg: float, lon_deg: float, height_km: fl
             cm, sm = math.cos(m * lon), math.sin(m * lon)
             along = g[n, m] * cm + h[n, m] * sm
             bx -= scale * along * dp[n, m]
-            by += scale * m * (g[n, m] * sm - h[n, m] * cm) * p[n, m] / cos_c
+            by += scale * m * (g[n, m] * sm - h[n, m] * cm) * p_over_cos[n, m]
             bz -= scale * (n + 1) * along * p[n, m]
     tilt = lat_c - lat  # geocentric → geodetic (ellipsoidal) frame
     north = bx * math.cos(tilt) - bz * math.sin(tilt)
     down = bx * math.sin(tilt) + bz * math.cos(tilt)
     return GeomagneticField(north, by, down)
+
+
+POLE_COS = 1e-8
+"""Below this cosine of the geocentric latitude (within ~6 cm of a geographic pole) the east component's
+``P_n^m / cos φ`` is taken as its limit at the pole, ``−(dP_n^m/dφ) / sin φ`` (every ``P_n^m`` with m ≥ 1
+has a factor ``cos^m φ``; the limit's relative error there is ~cos² φ, 1e-16). Dividing by the cosine
+itself, clamped, lost the east component at ``--lat 90``: the field at the pole came out up to 30° of
+declination and 2.4° of inclination from the field a step away."""
+
+
+def _legendre_over_cos(p: Array, dp: Array, sin_c: float, cos_c: float) -> Array:
+    """``P_n^m(sin φ) / cos φ`` for the east component (m ≥ 1; the m = 0 column, which that component
+    multiplies by m = 0, is left 0): divided where the cosine is not tiny, its limit at a pole (see
+    :data:`POLE_COS`)."""
+    out = np.zeros_like(p)
+    if cos_c >= POLE_COS:
+        out[:, 1:] = p[:, 1:] / cos_c
+    else:
+        out[:, 1:] = -dp[:, 1:] / sin_c
+    return out
 
 
 def _schmidt_legendre(x: float, c: float, degree: int) -> tuple[Array, Array]:

@@ -27,7 +27,7 @@ from hil import so3
 from hil.estimation.geomag import GeomagneticField, decimal_year, igrf14, wmm2025
 from hil.estimation.params import directions_matrix
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
-from protocol.errors import InputFormatError
+from protocol.errors import ConfigError, InputFormatError
 
 Array = NDArray[np.float64]
 UP = np.array([0.0, 0.0, 1.0])
@@ -194,15 +194,35 @@ def median_inclination_deg(log: SensorLog, window_s: float = 10.0) -> float:
 
 def directions_from_log(log: SensorLog, window_s: float = 10.0) -> tuple[Array, str]:
     """E in magnetic-north ENU measured from the log itself: from its initial still window if it has one,
-    else from the median inclination over its first ``window_s``. Returns ``(E, how)``."""
+    else from the median inclination over its first ``window_s``. Returns ``(E, how)``; a field measured
+    vertical (parallel to gravity) is an InputFormatError naming the log (:func:`_measured_directions`)."""
     try:
         still = find_still_window(log, search_s=window_s)
     except InputFormatError:
         dip = median_inclination_deg(log, window_s)
-        return directions_from_dip(dip), f"inclination {dip:.1f} deg (median over the first {window_s:g} s)"
-    return directions_from_still(still), (
-        f"inclination {still.inclination_deg:.1f} deg (still window {still.t0:.2f}-{still.t1:.2f} s)"
-    )
+        how = f"inclination {dip:.1f} deg (median over the first {window_s:g} s)"
+    else:
+        dip = still.inclination_deg
+        how = f"inclination {dip:.1f} deg (still window {still.t0:.2f}-{still.t1:.2f} s)"
+    return _measured_directions(dip, how, log.source), how
+
+
+def _measured_directions(dip_deg: float, how: str, source: str) -> Array:
+    """E for the inclination ``dip_deg`` measured from the log ``source`` (``how``: where from). A field
+    within ~0.06° of vertical is parallel to gravity (:func:`~hil.estimation.params.directions_matrix`
+    refuses it): the magnetometer then gives no heading — a magnet or steel under the phone, not the
+    Earth's field, whose dip is below 89.94° everywhere farther than ~15 km from a dip pole. Refused as the
+    log's fault, naming it and what to give instead (it was a ConfigError naming ``E``, an internal
+    matrix, with the default preset too, which uses the field's horizontal part only)."""
+    try:
+        return directions_from_dip(dip_deg)
+    except ConfigError as exc:
+        raise InputFormatError(
+            f"its magnetometer measures a vertical field ({how}), parallel to gravity: it gives no heading "
+            "(a magnet or steel near the phone?); give the site's field instead (--lat/--lon/--date, or "
+            "--inclination)",
+            source,
+        ) from exc
 
 
 # --------------------------------------------------------------------------- 6-axis start, field checks

@@ -50,7 +50,17 @@ class VariationalKind:
             overrides["magnetometer"] = "none"
         if settings["preset"] == "tuned":
             return FilterConfig.tuned(declination_deg=site.declination_deg, **overrides)
-        return FilterConfig.paper(E=directions_from_field(site.field_enu), **overrides)
+        try:
+            directions = directions_from_field(site.field_enu)
+        except ConfigError as exc:  # it named "E", a matrix the user never gave
+            raise ConfigError(
+                f"the site's field {tuple(round(x, 6) for x in site.field_enu)} (ENU) is vertical, parallel "
+                "to gravity: the paper's estimator needs two directions that are not (a field of "
+                "inclination within ~0.06° of ±90° gives no heading; preset tuned uses the field's "
+                "horizontal part only)",
+                "estimator variational (preset paper)",
+            ) from exc
+        return FilterConfig.paper(E=directions, **overrides)
 
     def describe(self, settings: Mapping[str, Any]) -> str:
         """The preset in one line (``hil replay``'s setup has always said it so)."""
