@@ -17,11 +17,12 @@ examples:
                                                     # scatter of the dispersed parameters, pass rates
 
 A run directory is recognised by telemetry.csv, a campaign by campaign.json. Plots go to DIR/plots/ (the
-files a run or campaign wrote are replaced); a run that was killed is reported up to its last flushed row,
-one that ended before its first row (a port that could not be opened) without plots, a figure it never
-measured as "-". Every DIR given is reported: one that cannot be (not a run or a campaign, damaged files,
-plots that cannot be written) is an error on stderr naming it, the next DIR reported all the same, and the
-exit status is then 2 (0 when every DIR was reported).
+files a run or campaign wrote are replaced); a run that was killed, or is still running (which of the
+two is said), is reported up to its last flushed row, one that ended before its first row (a port that
+could not be opened) without plots, a figure it never measured as "-". Every DIR given is reported: one
+that cannot be (not a run or a campaign, damaged files, plots that cannot be written) is an error on
+stderr naming it, the next DIR reported all the same, and the exit status is then 2 (0 when every DIR was
+reported).
 """
 
 
@@ -45,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     reported: ``hil report runs/*`` once stopped at the first such directory, the rest never reported."""
     from protocol.errors import HilError
 
+    _escape_what_stdout_cannot_show()
     failed = 0
     for i, path in enumerate(args.dirs):
         if i:
@@ -58,6 +60,19 @@ def run(args: argparse.Namespace) -> int:
     if failed and len(args.dirs) > 1:
         print(f"hil report: {failed} of {len(args.dirs)} directories not reported", file=sys.stderr)
     return 2 if failed else 0
+
+
+def _escape_what_stdout_cannot_show() -> None:
+    """Characters stdout's encoding cannot show (a summary's ``δ`` and ``ᵀ``, a directory's name, on a
+    terminal or pipe in a C or Latin-1 locale) written as escapes (``\\u03b4``), as Python writes them to
+    stderr: a ``UnicodeEncodeError`` from ``print`` was taken for a damaged summary.json ("not shown"), or
+    was a traceback in the middle of a report."""
+    import codecs
+
+    encoding = getattr(sys.stdout, "encoding", None) or "ascii"
+    reconfigure = getattr(sys.stdout, "reconfigure", None)  # a TextIOWrapper's; a replaced stdout may lack it
+    if callable(reconfigure) and not codecs.lookup(encoding).name.startswith("utf"):
+        reconfigure(errors="backslashreplace")  # UTF-8 shows every character: left as it is
 
 
 def report(path: Path, plots: bool = True) -> dict[str, Path]:
@@ -114,7 +129,7 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
         print(f"  summary.json damaged ({exc.detail}): not shown, and no plots (they read it)")
         return {}
     if summary is None:
-        print("  no summary.json (the run was killed): plots from the telemetry alone")
+        print(f"  no summary.json ({_no_summary_why(path)}): plots from the telemetry alone")
     elif (why := _not_a_rate(summary)) is not None:
         # the one value the plots take from it (hil.plots.run): a string there was a TypeError's traceback
         print(f"  summary.json damaged ({why}): not shown, and no plots (they read it)")
@@ -124,17 +139,34 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
         print(f"  summary.json damaged (a value is not what a run writes: {where}): not shown")
     else:
         try:
-            print(format_summary(summary))
+            text = format_summary(summary)
         except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
             # a summary.json hil did not write: its values are not the shapes a run's summary has
             why = f"{type(exc).__name__}: {exc}"
             print(f"  summary.json damaged (a value is not what a run writes: {why}): not shown")
+        else:  # printed outside: a terminal that cannot show a character is no damage of the file's
+            print(text)
     if not tel.rows:
         # a run that ended before its first row (its port could not be opened): nothing to draw, and not
         # an error of the report's — plot_run's "no telemetry rows to plot" once ended the command here
         print("  no telemetry rows (the run ended before its first): no plots")
         return {}
     return plot_run(path, processes=available_cores()) if plots else {}
+
+
+def _no_summary_why(path: Path) -> str:
+    """Why the run directory ``path`` has no summary.json, told by its writer's lock
+    (:mod:`hil.files.writing`: a run holds it from its directory's making to its summary.json, the OS lets
+    go of it when the process ends however it ends). A run still running was said "killed": a report of a
+    live run's rows so far, its last ones minutes old, read as the whole of a run that had died."""
+    from hil.files.writing import writer_holds
+
+    holds = writer_holds(path)
+    if holds:
+        return "the run is still being written: its rows so far"
+    if holds is None:  # a file system without locks
+        return "the run was killed, or it is still being written: this file system cannot tell"
+    return "the run was killed"
 
 
 def _not_a_rate(summary: dict) -> str | None:  # type: ignore[type-arg]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO
@@ -29,14 +30,31 @@ def make_dir(path: str | os.PathLike[str], exist_ok: bool = True) -> Path:
         raise ConfigError("cannot make a directory here: a file of that name exists", str(out)) from None
     except OSError as exc:
         raise ConfigError(f"cannot make this directory: {exc.strerror or exc}", str(out)) from exc
+    except UnicodeEncodeError:  # a ValueError: a traceback, for a name the user can fix
+        raise ConfigError(
+            f"cannot make this directory: its name has characters this system's file names cannot hold "
+            f"({sys.getfilesystemencoding()}: set a UTF-8 locale, or choose another name)",
+            str(out),
+        ) from None
     return out
 
 
 def safe_label(label: str) -> str:
-    """``label`` as a part of a directory's name: characters other than letters, digits and ``-_.``
-    replaced, at most :data:`MAX_LABEL` of them."""
-    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in label)[:MAX_LABEL]
-    return safe or "run"
+    """``label`` as a part of a directory's name: characters other than letters, digits and ``-_.`` — and
+    letters the file system's encoding cannot hold (a scenario named ``cubesat-ü`` under a C locale: a
+    ``UnicodeEncodeError``'s traceback before the run) — replaced, at most :data:`MAX_LABEL` of them."""
+    encoding = sys.getfilesystemencoding()
+    safe = "".join(c if (c.isalnum() and _nameable(c, encoding)) or c in "-_." else "_" for c in label)
+    return safe[:MAX_LABEL] or "run"
+
+
+def _nameable(char: str, encoding: str) -> bool:
+    """Whether ``char`` can be part of a file name in the file system's ``encoding``."""
+    try:
+        char.encode(encoding)
+    except UnicodeEncodeError:
+        return False
+    return True
 
 
 class OutputError(HilError, OSError):
@@ -65,9 +83,12 @@ def _output_error(path: str, errno: int | None, strerror: str | None) -> OutputE
 
 
 def write_file(path: str | os.PathLike[str], text: str) -> None:
-    """``text`` as the whole of ``path``; an :class:`OutputError` naming it when the OS refuses."""
+    """``text`` as the whole of ``path``, in UTF-8 (what every reader of the project's files reads, and TOML
+    and JSON are: written in the locale's encoding, a run's copy of its scenario under a C or Latin-1
+    locale was a ``UnicodeEncodeError``'s traceback for the ``°`` of a shipped scenario, or a file its
+    readers refused); an :class:`OutputError` naming it when the OS refuses."""
     try:
-        Path(path).write_text(text)
+        Path(path).write_text(text, encoding="utf-8")
     except OSError as exc:
         raise OutputError(path, exc) from exc
 

@@ -317,9 +317,28 @@ def write_summary(run_dir: str | os.PathLike[str], summary: Mapping[str, Any]) -
     Each writer has its own temporary (:func:`~hil.files.output.replace_file`: renamed into place): two
     writers at once — ``hil report DIR`` while the session writing DIR ends, two reports — shared one fixed
     ``summary.json.tmp``, so one renamed the other's half-written file into place (a reader saw invalid
-    JSON) and the other's rename failed ("No such file or directory"). Now the last rename wins, whole."""
-    text = json.dumps(summary, indent=2, default=_json_default, allow_nan=True) + "\n"
+    JSON) and the other's rename failed ("No such file or directory"). Now the last rename wins, whole.
+
+    JSON has no NaN or infinity: a figure that is not a finite number is written as null, as a figure never
+    measured is (:func:`finite_or_null`). Written as Python's ``NaN``, it made the file one that strict JSON
+    readers (a browser's, jq) refuse, and ``hil report`` said the run's own summary was damaged and hid it."""
+    text = json.dumps(finite_or_null(summary), indent=2, default=_json_default, allow_nan=False) + "\n"
     return replace_file(Path(run_dir) / SUMMARY, lambda f: f.write(text.encode("utf-8")))
+
+
+def finite_or_null(value: Any) -> Any:
+    """``value`` (a JSON document to write: mappings, lists and tuples of plain values) with every float that
+    is not finite (NaN, ±infinity; numpy's too) as None, numpy scalars and arrays as Python values; the rest
+    as it is."""
+    if isinstance(value, Mapping):
+        return {key: finite_or_null(v) for key, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_null(v) for v in value]
+    if isinstance(value, (np.generic, np.ndarray)):
+        return finite_or_null(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 def _json_default(value: Any) -> Any:

@@ -188,7 +188,10 @@ class RunTrace:
         """The pointing figures of the run so far ({} before the slew): settle time (s from the slew's
         start after which the pointing error stays ≤ ``settle_deg``; None if it never did), final and
         peak pointing error (deg), peak gimbal rate (rad/s) and whether it kept within the limit, minimum
-        δ — the last three over the ticks with a live board (None without any)."""
+        δ — the last three over the ticks with a live board (None without any). A figure never measured is
+        None, never NaN: the final error of a run whose last tick had no estimate (the phone's stream
+        restarted, the estimator afresh: no pointing error on hardware, where the estimate is all there is)
+        was NaN, written into summary.json as ``NaN`` — not JSON, and read by ``hil report`` as damage."""
         tr = self.arrays()
         if not len(tr["t"]):
             return {}
@@ -199,8 +202,8 @@ class RunTrace:
         peak = _nan_or(np.nanmax, tr["gimbal_rate"])
         return {
             "settle_s": settle_s,
-            "final_error_deg": float(err[-1]),
-            "peak_error_deg": float(np.nanmax(err)),
+            "final_error_deg": float(err[-1]) if math.isfinite(err[-1]) else None,
+            "peak_error_deg": _nan_or(np.max, err),
             "peak_gimbal_rate": peak,
             "min_delta": _nan_or(np.nanmin, tr["delta"]),
             "settled": settle_s is not None,
