@@ -54,6 +54,8 @@ def test_a_run_and_its_report_in_a_locale_that_is_not_utf8(tmp_path, name):
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert "Traceback" not in done.stderr, done.stderr[-2000:]
+    # the run's own summary printed (its print's UnicodeEncodeError, a ValueError, was passed over whole)
+    assert "final error" in done.stdout and "exit" in done.stdout, done.stdout[-2000:]
     (run_dir,) = out.iterdir()
     assert (run_dir / "scenario.toml").read_text(encoding="utf-8") == source
     assert (run_dir / "summary.json").is_file() and (run_dir / "telemetry.csv").is_file()

@@ -7,14 +7,24 @@ run that completed — and a path the user could name was never one the plotter 
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
 import pytest
 
+NOT_UTF8 = {**os.environ, "LC_ALL": "C", "PYTHONUTF8": "0", "PYTHONIOENCODING": ""}
+NAMES = [
+    (" leading space", None),
+    ("two\nlines", None),
+    ("ünïcödé runs ✓", None),
+    (os.fsdecode(b"not utf-8 \xff\xfe"), None),  # a name of bytes no encoding decodes (it was a traceback)
+    ("ünïcödé runs ✓", NOT_UTF8),  # a C locale's file names: the run's name handed over as its bytes
+]
 
-@pytest.mark.parametrize("name", [" leading space", "two\nlines", "ünïcödé runs ✓"])
-def test_a_run_under_any_directory_name_gets_its_plots(tmp_path, name):
+
+@pytest.mark.parametrize(("name", "env"), NAMES)
+def test_a_run_under_any_directory_name_gets_its_plots(tmp_path, name, env):
     """``--out`` relative, as a user types it: the run directory's path then begins with the name."""
     out = tmp_path / name
     done = subprocess.run(
@@ -22,8 +32,12 @@ def test_a_run_under_any_directory_name_gets_its_plots(tmp_path, name):
         cwd=tmp_path,
         capture_output=True,
         text=True,
+        encoding="utf-8",
+        errors="backslashreplace",
+        env=env,
         timeout=300,
     )
+    assert "Traceback" not in done.stderr, done.stderr[-2000:]
     assert done.returncode == 0, done.stderr[-2000:]
     assert "no such file" not in done.stderr
     (run_dir,) = out.iterdir()

@@ -80,6 +80,7 @@ def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int
     (:func:`entry`): once it has ended, a signal ends the process at once with the command's status
     (:func:`exit_on_late_signals`); otherwise (a test calling it) the caller's handlers come back."""
     said = "hil"  # the command's name once the command line is read: what its last line starts with
+    escape_what_stdout_cannot_show()
     try:
         # The handlers first: building the parser imports every command's module (~0.3 s of a run's
         # start), and a Ctrl-C there met Python's own handler: a traceback, and a SIGHUP right after it
@@ -99,6 +100,21 @@ def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int
     if own_process:
         exit_on_late_signals(status)
     return status
+
+
+def escape_what_stdout_cannot_show() -> None:
+    """Characters stdout's encoding cannot show (a summary's ``δ`` and ``ᵀ``, a ``°``, a directory's name,
+    on a terminal or pipe in a C or Latin-1 locale) written as escapes (``\\u03b4``), as Python writes
+    them to stderr, for every command: ``hil run``'s summary went unprinted (its lines' ``print`` raised a
+    ``UnicodeEncodeError``, a ``ValueError`` its guard against a hung-up terminal passed over), and
+    ``hil report`` took the error for a damaged summary.json. UTF-8, which shows every character, is
+    left as it is, as is a stdout without ``reconfigure`` (replaced by a caller)."""
+    import codecs
+
+    encoding = getattr(sys.stdout, "encoding", None) or "ascii"
+    reconfigure = getattr(sys.stdout, "reconfigure", None)
+    if callable(reconfigure) and not codecs.lookup(encoding).name.startswith("utf"):
+        reconfigure(errors="backslashreplace")
 
 
 def entry() -> int:

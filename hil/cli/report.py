@@ -46,7 +46,6 @@ def run(args: argparse.Namespace) -> int:
     reported: ``hil report runs/*`` once stopped at the first such directory, the rest never reported."""
     from protocol.errors import HilError
 
-    _escape_what_stdout_cannot_show()
     failed = 0
     for i, path in enumerate(args.dirs):
         if i:
@@ -60,19 +59,6 @@ def run(args: argparse.Namespace) -> int:
     if failed and len(args.dirs) > 1:
         print(f"hil report: {failed} of {len(args.dirs)} directories not reported", file=sys.stderr)
     return 2 if failed else 0
-
-
-def _escape_what_stdout_cannot_show() -> None:
-    """Characters stdout's encoding cannot show (a summary's ``δ`` and ``ᵀ``, a directory's name, on a
-    terminal or pipe in a C or Latin-1 locale) written as escapes (``\\u03b4``), as Python writes them to
-    stderr: a ``UnicodeEncodeError`` from ``print`` was taken for a damaged summary.json ("not shown"), or
-    was a traceback in the middle of a report."""
-    import codecs
-
-    encoding = getattr(sys.stdout, "encoding", None) or "ascii"
-    reconfigure = getattr(sys.stdout, "reconfigure", None)  # a TextIOWrapper's; a replaced stdout may lack it
-    if callable(reconfigure) and not codecs.lookup(encoding).name.startswith("utf"):
-        reconfigure(errors="backslashreplace")  # UTF-8 shows every character: left as it is
 
 
 def report(path: Path, plots: bool = True) -> dict[str, Path]:

@@ -375,8 +375,12 @@ class Plotter:
         )  # its own session: a Ctrl-C ends the run (whose plots are still drawn), not it
 
     def draw(self, run_dir: Path) -> None:
+        """Hand the process ``run_dir`` as the file system names it (:func:`os.fsencode`, read back by
+        :func:`hil.cli._plotter.read_run_dir`): written as text in the locale's encoding, a name that is not
+        UTF-8 (``--out $'\\xff'``), or any letter beyond ASCII under a C locale, was a
+        ``UnicodeEncodeError``'s traceback after a run that had completed."""
         assert self.process.stdin is not None
-        self.process.stdin.write(f"{run_dir}\n")
+        self.process.stdin.buffer.write(os.fsencode(run_dir) + b"\n")
         self.process.stdin.close()
 
     def wait(self) -> str:
