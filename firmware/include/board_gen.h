@@ -21,6 +21,10 @@
 #define LINK_FIRST 2u
 #define LINK_COUNT 3u
 
+/* UART0's clock, and how far from the rate asked for the rate it makes may lie (eeprom.py) */
+#define UART_CLOCK_HZ 16000000UL
+#define UART_MAX_BAUD_ERROR_PERMILLE 25UL
+
 #define CFG_OFF_MAGIC 0u
 #define CFG_OFF_VERSION 2u
 #define CFG_OFF_N_UNITS 3u

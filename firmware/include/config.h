@@ -36,5 +36,7 @@ void config_defaults(board_config_t *cfg);
  * *problem names what was wrong (config_problem_text). */
 config_status_t config_parse(const uint8_t *block, board_config_t *cfg, uint8_t *problem);
 void config_problem_text(uint8_t problem, char *out, unsigned n);
+/* UART0's divisor (UBRR + 1, double speed) for `baud`: the whole one nearest to the rate. */
+uint16_t config_uart_divisor(uint32_t baud);
 
 #endif /* CONFIG_H */

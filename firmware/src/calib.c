@@ -55,12 +55,30 @@ static cal_conv_t conv(float value, uint8_t clamp)
 
 static int rising(const table_t *t) { return ky(t, (uint8_t)(t->n - 1)) > ky(t, 0); }
 
-/* (a1, a2, a3) of y = y0 + t*(a1 + t*(a2 + t*a3)) on interval k of width h. */
-static void coefficients(const table_t *t, uint8_t k, float h, float *a1, float *a2, float *a3)
+/*
+ * The factor interval k's values (y, slopes) are taken at: 1, or a power of two that brings an interval
+ * whose values lie beyond 2^64 (or all below 2^-64) into the middle of float32's range. The reference works
+ * in double; float32 overflowed on a table that is valid but spans most of its range (y from -3e38 to 3e38:
+ * y1 - y0 and 3 * d infinite, the cubic NaN: a gimbal commanded to angle 0 went to 2000 us), and lost the
+ * bits of one whose values are subnormal (a table of +-1e-43 rad: widths 4.5 us off). A power of two
+ * scales exactly, so a table of everyday magnitudes computes bit for bit as before.
+ */
+#define CAL_BIG_VALUE 1.8446744e19f   /* 2^64 */
+#define CAL_SMALL_VALUE 5.4210109e-20f /* 2^-64 */
+
+static float interval_scale(const table_t *t, uint8_t k)
 {
-    float d = ky(t, (uint8_t)(k + 1)) - ky(t, k);
-    float hm0 = h * km(t, k);
-    float hm1 = h * km(t, (uint8_t)(k + 1));
+    float a = fabsf(ky(t, k)), b = fabsf(ky(t, (uint8_t)(k + 1)));
+    float top = a > b ? a : b;
+    return top >= CAL_BIG_VALUE ? CAL_SMALL_VALUE : (top < CAL_SMALL_VALUE ? CAL_BIG_VALUE : 1.0f);
+}
+
+/* (a1, a2, a3) of y = y0 + t*(a1 + t*(a2 + t*a3)) on interval k of width h, all times `scale`. */
+static void coefficients(const table_t *t, uint8_t k, float h, float scale, float *a1, float *a2, float *a3)
+{
+    float d = ky(t, (uint8_t)(k + 1)) * scale - ky(t, k) * scale;
+    float hm0 = h * (km(t, k) * scale);
+    float hm1 = h * (km(t, (uint8_t)(k + 1)) * scale);
     *a1 = hm0;
     *a2 = 3.0f * d - 2.0f * hm0 - hm1;
     *a3 = hm0 + hm1 - 2.0f * d;
@@ -78,9 +96,15 @@ static cal_conv_t table_evaluate(const table_t *t, float x)
         k++;
     float h = kx(t, (uint8_t)(k + 1)) - kx(t, k);
     float u = (x - kx(t, k)) / h;
-    float a1, a2, a3;
-    coefficients(t, k, h, &a1, &a2, &a3);
-    return conv(ky(t, k) + u * (a1 + u * (a2 + u * a3)), CAL_CLAMP_NONE);
+    float a1, a2, a3, scale = interval_scale(t, k);
+    coefficients(t, k, h, scale, &a1, &a2, &a3);
+    float y = (ky(t, k) * scale + u * (a1 + u * (a2 + u * a3))) / scale;
+    if (scale != 1.0f) { /* the cubic lies between its ends: rounding must not carry it past F32_MAX */
+        float y0 = ky(t, k), y1 = ky(t, (uint8_t)(k + 1));
+        float lo = y0 < y1 ? y0 : y1, hi = y0 < y1 ? y1 : y0;
+        y = y < lo ? lo : (y > hi ? hi : y);
+    }
+    return conv(y, CAL_CLAMP_NONE);
 }
 
 /* Safeguarded Newton on one monotone interval (cubic.py: _solve_interval). The direction s = +-1 is
@@ -131,10 +155,11 @@ static cal_conv_t table_solve(const table_t *t, float y)
         k++;
     float x0 = kx(t, k);
     float h = kx(t, (uint8_t)(k + 1)) - x0;
-    float y0 = ky(t, k);
+    float scale = interval_scale(t, k);
+    float y0 = ky(t, k) * scale, target = y * scale - y0;
     float a1, a2, a3;
-    coefficients(t, k, h, &a1, &a2, &a3);
-    float u = solve_interval(y - y0, s, a1, a2, a3, (y - y0) / (ky(t, (uint8_t)(k + 1)) - y0));
+    coefficients(t, k, h, scale, &a1, &a2, &a3);
+    float u = solve_interval(target, s, a1, a2, a3, target / (ky(t, (uint8_t)(k + 1)) * scale - y0));
     return conv(x0 + u * h, CAL_CLAMP_NONE);
 }
 
@@ -250,7 +275,9 @@ static cal_status_t check_table(const table_t *t, uint8_t *knot)
         return CAL_FLAT;
     int up = rising(t);
     for (uint8_t k = 0; k + 1 < t->n; k++) {
-        float d = ky(t, (uint8_t)(k + 1)) - ky(t, k);
+        /* in the interval's scale (interval_scale): an infinite secant would let any slope through */
+        float scale = interval_scale(t, k);
+        float d = ky(t, (uint8_t)(k + 1)) * scale - ky(t, k) * scale;
         *knot = (uint8_t)(k + 1);
         if (up ? d <= 0.0f : d >= 0.0f)
             return CAL_NOT_MONOTONE;
@@ -258,7 +285,9 @@ static cal_status_t check_table(const table_t *t, uint8_t *knot)
         for (uint8_t j = k; j <= k + 1; j++) {
             float m = km(t, j);
             *knot = j;
-            if (m * secant < 0.0f || fabsf(m) > 3.0f * fabsf(secant) * (1.0f + SLOPE_TOLERANCE))
+            /* the signs compared, not their product: that underflows to 0 where the reference's does not */
+            if ((m < 0.0f && secant > 0.0f) || (m > 0.0f && secant < 0.0f) ||
+                fabsf(m) * scale > 3.0f * fabsf(secant) * (1.0f + SLOPE_TOLERANCE))
                 return CAL_BAD_SLOPE;
         }
     }

@@ -71,6 +71,20 @@ static int within(float v, float lo, float hi) { return v >= lo && v <= hi; }
 
 static const uint8_t DEFAULTS[EEPROM_CONFIG_SIZE] FLASH = DEFAULT_CONFIG_BLOCK;
 
+uint16_t config_uart_divisor(uint32_t baud)
+{
+    return (uint16_t)((UART_CLOCK_HZ + 4UL * baud) / (8UL * baud)); /* double speed, to the nearest */
+}
+
+/* Whether UART0 makes `baud` (9600..1000000) within UART_MAX_BAUD_ERROR_PERMILLE: a whole divisor puts
+ * 921600 at 1 Mbaud (+8.5 %), a link the host reads only garbage from (eeprom.py, MAX_BAUD_ERROR_PERMILLE). */
+static int baud_made(uint32_t baud)
+{
+    uint32_t made = UART_CLOCK_HZ / (8UL * config_uart_divisor(baud));
+    uint32_t off = made > baud ? made - baud : baud - made;
+    return off * 1000UL <= baud * UART_MAX_BAUD_ERROR_PERMILLE;
+}
+
 /* Read and check a block: CONFIG_OK_FIELD and *cfg filled, or the problem (a BAD_* value). */
 static uint8_t parse(const uint8_t *b, board_config_t *cfg);
 
@@ -165,7 +179,7 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_UBEC_CURRENT_LIMIT_A;
     else if (c.esc_supply_switch > 1)
         problem = BAD_ESC_SUPPLY_SWITCH;
-    else if (c.baud < 9600 || c.baud > 1000000)
+    else if (c.baud < 9600 || c.baud > 1000000 || !baud_made(c.baud))
         problem = BAD_BAUD;
     else if (c.link >= LINK_COUNT)
         problem = BAD_LINK;

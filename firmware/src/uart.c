@@ -5,6 +5,8 @@
 #include <avr/io.h>
 #include <util/atomic.h>
 
+#include "config.h"
+
 static volatile uint8_t rx_buf[UART_RX_SIZE];
 static volatile uint16_t rx_head, rx_tail; /* head: next write (ISR), tail: next read (main loop) */
 static volatile uint8_t tx_buf[UART_TX_SIZE];
@@ -20,8 +22,9 @@ static inline uint16_t rx_next(uint16_t at) { return at + 1u == UART_RX_SIZE ? 0
 
 void uart_init(uint32_t baud)
 {
-    /* Double speed: UBRR = F_CPU / (8 baud) - 1, rounded (115200 -> 16, -2.1 %; 250000/500000/1M exact). */
-    uint16_t ubrr = (uint16_t)((F_CPU + 4UL * baud) / (8UL * baud) - 1UL);
+    /* Double speed: UBRR = F_CPU / (8 baud) - 1, rounded (115200 -> 16, +2.1 %; 250000/500000/1M exact);
+     * config.c refuses a rate this makes too far off. */
+    uint16_t ubrr = (uint16_t)(config_uart_divisor(baud) - 1u);
     UCSR0A = _BV(U2X0);
     UBRR0 = ubrr;
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00); /* 8N1 */

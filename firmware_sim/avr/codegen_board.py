@@ -43,6 +43,10 @@ def generate_board() -> str:
         *(f"#define LINK_{name.upper()} {i}u" for i, name in enumerate(eeprom.LINKS)),
         f"#define LINK_COUNT {len(eeprom.LINKS)}u",
         "",
+        "/* UART0's clock, and how far from the rate asked for the rate it makes may lie (eeprom.py) */",
+        f"#define UART_CLOCK_HZ {eeprom.UART_CLOCK_HZ}UL",
+        f"#define UART_MAX_BAUD_ERROR_PERMILLE {eeprom.MAX_BAUD_ERROR_PERMILLE}UL",
+        "",
     ]
     h += [f"#define CFG_OFF_{name.upper()} {off}u" for name, off in eeprom.field_offsets().items()]
     defaults = {

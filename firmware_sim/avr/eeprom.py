@@ -69,6 +69,14 @@ CONFIG_FIELDS: tuple[tuple[str, str, str], ...] = (
 )
 DEFAULT_BAUD = 115200
 """UART0 speed; 16 MHz with double speed also gives 250000, 500000 and 1000000 baud exactly."""
+UART_CLOCK_HZ = 16_000_000
+"""The clock UART0 divides down to its baud rate (the ATmega2560's F_CPU)."""
+MAX_BAUD_ERROR_PERMILLE = 25
+"""How far (‰) the rate UART0 can make may lie from the rate asked for. The divisor is whole, so most
+rates come out off: 115200 (the default) at +2.1 %, which a USB-serial bridge takes; 230400 at -3.5 %,
+921600 at +8.5 % (it runs at 1 Mbaud), where the host reads garbage and the board, which cannot say so
+on that line, looks dead. A block asking for such a rate is refused, by the image builder and by the
+firmware (firmware/src/config.c: defaults, and a Log on a link that works)."""
 LINKS = ("uart", "usb", "first")
 """Which link the host's protocol runs on (the ``link`` byte is the index): ``uart`` = UART0 (the default,
 the Mega ADK's USB-serial port), ``usb`` = the phone over the Mega ADK's USB host port (Android Open
@@ -146,12 +154,27 @@ def check_hardware(cfg: BoardConfig) -> None:
         )
 
 
+def uart_baud(baud: int) -> int:
+    """The rate (baud, whole) UART0 runs at when asked for ``baud``: double speed, the divisor rounded to
+    the nearest whole one — in the firmware's integers (firmware/src/config.c: ``baud_made``), so the two
+    draw the line at the same rates."""
+    return UART_CLOCK_HZ // (8 * ((UART_CLOCK_HZ + 4 * baud) // (8 * baud)))
+
+
 def config_block(cfg: BoardConfig, baud: int = DEFAULT_BAUD, link: str = DEFAULT_LINK) -> bytes:
     """The EEPROM bytes of ``cfg`` (validated for this hardware) with the UART at ``baud`` and the host's
     protocol on ``link`` (one of :data:`LINKS`)."""
     check_hardware(cfg)
     if not 9600 <= baud <= 1_000_000:
         raise ConfigError(f"{baud} baud is outside 9600..1000000", "baud")
+    made = uart_baud(baud)
+    if abs(made - baud) * 1000 > baud * MAX_BAUD_ERROR_PERMILLE:
+        raise ConfigError(
+            f"{baud} baud: UART0 ({UART_CLOCK_HZ / 1e6:g} MHz) makes {made} baud, "
+            f"{(made / baud - 1) * 100:+.1f} %, beyond the ±{MAX_BAUD_ERROR_PERMILLE / 10:g} % a serial "
+            f"link bears (exact: 250000, 500000, 1000000)",
+            "baud",
+        )
     if link not in LINKS:
         raise ConfigError(f"link {link!r} is not one of {', '.join(LINKS)}", "link")
     values = []
