@@ -138,23 +138,34 @@ def test_hang_resets_after_the_mcu_watchdog_and_reports_it():
     host.poll(0.05)
     assert board.phase is McuPhase.HUNG
     frozen = board.targets  # the main loop's last fine widths
+    t_last = board.last_rx  # the last frame the main loop handled
     before = len(host.received)
     host.poll(t_hang + CFG.mcu_watchdog_s - 0.005 - clock.now())
     # Hung: the main loop says nothing (no telemetry, no ACK, no heartbeat) while the host keeps sending
-    # and the pulse timers keep their widths: the frame interrupt dithers the last targets on.
+    # and the pulse timers keep their widths: the frame interrupt dithers the last targets on — but the
+    # tick interrupt puts the rotors at the safe pulse once the link has been silent for its timeout
+    # (the host's frames lie unread: firmware/src/app.c, app_tick), long before the MCU watchdog's reset.
     assert board.phase is McuPhase.HUNG and host.received[before:] == []
-    assert board.targets == frozen
+    gimbals, rotors = range(0, len(frozen), 2), range(1, len(frozen), 2)
+    assert [board.targets[ch] for ch in gimbals] == [frozen[ch] for ch in gimbals]
+    assert [board.targets[ch] for ch in rotors] == [int(CFG.rotor_safe_us * FINE_PER_US)] * len(rotors)
     host.poll(0.1)
     assert board.resets[-1].cause is ResetCause.WATCHDOG
     t_reset = board.resets[-1].t
     assert t_reset == pytest.approx(t_hang + CFG.mcu_watchdog_s, abs=1e-6)
     during = [f for f in board.timeline.frames if t_hang < f.t < t_reset]
-    assert during and all(
-        w in ((q >> 8) / 2, (q >> 8) / 2 + 0.5) for f in during for w, q in zip(f.widths, frozen, strict=True)
-    )
-    for ch, q in enumerate(frozen):  # their mean is the fine width, to the dither's one tick over the run
-        mean = sum(f.widths[ch] for f in during) / len(during)
-        assert mean == pytest.approx(q / FINE_PER_US, abs=0.5 / len(during))
+    # the rotors' stop: the link's timeout after the last frame the main loop handled, plus the 4 ms the
+    # tick interrupt stands back while received bytes wait, plus at most one frame
+    t_stop = t_last + CFG.link_timeout_s + 0.004
+    held = [f for f in during if f.t >= t_stop + 1.0 / CFG.frame_rate_hz]
+    assert held and all(f.widths[ch] == CFG.rotor_safe_us for f in held for ch in rotors)
+    running = [f for f in during if f.t < t_stop]
+    for ch in [*gimbals, *(rotors if running else ())]:  # dithered on, as the main loop left them
+        kept = during if ch in gimbals else running
+        q = frozen[ch]
+        assert all(f.widths[ch] in ((q >> 8) / 2, (q >> 8) / 2 + 0.5) for f in kept)
+        mean = sum(f.widths[ch] for f in kept) / len(kept)  # the fine width, to the dither's one tick
+        assert mean == pytest.approx(q / FINE_PER_US, abs=0.5 / len(kept))
     after = [f for f in board.timeline.frames if f.t >= t_reset]
     # outputs off during the boot, then safe outputs in BOOT
     assert after[0].t == pytest.approx(t_reset + CFG.boot_time_s, abs=1e-6)

@@ -57,6 +57,10 @@ _NEVER = math.inf
 # The phases as plain names: an enum member's lookup (``McuPhase.RUNNING``) costs about 60 ns, and the
 # phase is asked several times at every board event.
 _RESET, _RUNNING, _HUNG = McuPhase.RESET, McuPhase.RUNNING, McuPhase.HUNG
+LINK_GRACE_US = 4_000
+"""How long past the link timeout the firmware's 1 kHz tick interrupt stands back while received bytes
+wait for the main loop to judge them (firmware/src/app.c: ``LINK_GRACE_MS``). A hung main loop judges
+none: the host's frames pile up unread, and the link is as silent as if none came."""
 
 
 class Board:
@@ -165,6 +169,7 @@ class Board:
         self._release_us = t0
         self._wdt_us = _NEVER
         self._rx_due_us: float = _NEVER
+        self._rotors_held = False  # the tick interrupt put the rotors at the safe pulse (a HUNG main loop)
         self._reset(ResetCause.POWER_ON, t0)
 
     # ================================================================== public API
@@ -238,8 +243,14 @@ class Board:
             if self.faults.unplugs:
                 due = min(due, self._next_unplug_us())
             return due
-        if phase is _HUNG:  # the timers (pulse frames, PPM train) keep running: hardware
-            due = min(self._power_period.next_us, self._frames.next_us, self._wdt_us, self._ppm.next_us)
+        if phase is _HUNG:  # the timers (pulse frames, PPM train) and the tick interrupt keep running
+            due = min(
+                self._power_period.next_us,
+                self._frames.next_us,
+                self._wdt_us,
+                self._ppm.next_us,
+                self._tick_stop_us(),
+            )
             if self.faults.unplugs:
                 due = min(due, self._next_unplug_us())
             return due
@@ -406,6 +417,8 @@ class Board:
         elif self.phase is _HUNG:
             if t >= self._wdt_us:
                 self._reset(ResetCause.WATCHDOG, t)
+            elif t >= self._tick_stop_us():
+                self._hold_rotors(t)
         if self.phase is _RUNNING:
             self._main_loop(t)
         if self._frames.is_due(t):
@@ -438,6 +451,7 @@ class Board:
         self._release_us = t + self._us(self.config.boot_time_s)
         self._wdt_us = _NEVER
         self._rx_due_us = _NEVER
+        self._rotors_held = False
         self._clamped = False
         self.commands.reset()
         self.commands.boot_id = self._next_boot_id(self.commands.boot_id)
@@ -451,6 +465,26 @@ class Board:
         self.dither.reset()
         for s in (self._frames, self._telemetry, self._heartbeat, self._ppm):
             s.stop()
+
+    def _tick_stop_us(self) -> float:
+        """When the tick interrupt stops the rotors of a HUNG main loop (µs; inf: it will not): at the link
+        timeout, plus :data:`LINK_GRACE_US` while received bytes wait, if ARMED in a session whose link
+        is not lost yet (firmware/src/app.c: ``app_tick``). The main loop that would have judged the link
+        lost and gone to FAILSAFE is stuck; without this the rotors ran on at their last width until the
+        MCU watchdog's reset (up to 8 s), where docs/protocol.md puts them at the safe pulse within the
+        link timeout plus one frame."""
+        commands = self.commands
+        if self._rotors_held or not motors_enabled(commands.state):
+            return _NEVER
+        return commands.link_deadline_us + (LINK_GRACE_US if self.link.rx_pending else 0)
+
+    def _hold_rotors(self, t: int) -> None:
+        """The tick interrupt's stop (``pulses_hold``): every rotor channel to the safe pulse from the next
+        frame on, the gimbals left as they are, until the watchdog's reset."""
+        safe = whole_us(self.config.rotor_safe_us)
+        self.targets = tuple(safe if ch % 2 else w for ch, w in enumerate(self.targets))
+        self._rotors_held = True
+        logger.info("link lost at %.6f s in a hung main loop: rotors held at the safe pulse", t / 1e6)
 
     def _next_boot_id(self, last: int) -> int:
         """The boot id of the boot this reset leads to: nonzero (0 says "no boot id"), never the last's."""
@@ -524,7 +558,8 @@ class Board:
 
     def _pulse_frame(self, t: int) -> None:
         """A frame starts: the main loop's targets (RUNNING), dithered into this frame's widths by the
-        frame-start interrupt — which runs on in a HUNG main loop, so the last targets go on."""
+        frame-start interrupt — which runs on in a HUNG main loop, so the last targets go on (but
+        for the rotors the tick interrupt stops at the link timeout: :meth:`_hold_rotors`)."""
         if self.phase is _RUNNING:
             self._apply_outputs()
         self.outputs = self.dither.frame(self.targets)
