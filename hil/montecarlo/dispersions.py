@@ -61,7 +61,7 @@ from hil.files.bounded import MAX_DOCUMENT_BYTES, load_toml
 from hil.numbers import is_finite_number
 from hil.runtime.invariants import InjectedFault
 from hil.scenario import Scenario
-from hil.scenario.paths import FIXTURES, read_text
+from hil.scenario.paths import FIXTURES, read_text, resolve_named_file
 from hil.scenario.reader import MIN_NEEDED_SENSOR_RATE_HZ, NEEDED_SENSORS
 from protocol.errors import ConfigError
 
@@ -352,19 +352,11 @@ def _outages(
 
 # --------------------------------------------------------------------------- reading files
 def resolve_dispersions_path(name_or_path: str | Path | None) -> Path:
-    """A path as given, ``default`` (or None) for the shipped default, or a shipped file by name."""
+    """A path as given (a file, or a pipe: ``--dispersions <(…)``), ``default`` (or None) for the shipped
+    default, or a shipped file by name; as a scenario's (:func:`~hil.scenario.paths.resolve_named_file`)."""
     if name_or_path is None:
         return DEFAULT_DISPERSIONS
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise ConfigError("no such dispersion file", str(p))
-        return p
-    shipped = DISPERSION_DIR / f"{name_or_path}.toml"
-    if not shipped.is_file():
-        names = ", ".join(sorted(q.stem for q in DISPERSION_DIR.glob("*.toml")))
-        raise ConfigError(f"no dispersion file {str(name_or_path)!r}; shipped: {names}", "dispersions")
-    return shipped
+    return resolve_named_file(name_or_path, DISPERSION_DIR, "dispersion", "dispersions")
 
 
 def load_dispersions(name_or_path: str | Path | None, scenario: Scenario) -> Dispersions:

@@ -45,7 +45,9 @@ shipped campaign without it.
 A run's faults are a pure function of the campaign seed, the run index and the kind (their own random
 stream, ``[seed, index, crc32("faults." + kind)]``): adding a kind leaves the others' draws unchanged.
 Counts are bounded (:data:`MAX_COUNT` per kind and run, a rate's Poisson draw included) and durations too
-(:data:`MIN_DURATION_S`..:data:`MAX_DURATION_S`; a fixed duration of 0 is refused).
+(:data:`MIN_DURATION_S`..:data:`MAX_DURATION_S`; a fixed duration of 0 is refused). A normal's spread must be
+some and within its range: ``relative_sigma`` needs a non-zero ``mean`` (a count and a parameter have no
+nominal value of their own), and a spread wider than the whole range is refused.
 """
 
 from __future__ import annotations
@@ -205,17 +207,35 @@ def _fixed_values(dist: Any) -> list[float]:
 
 
 def _check_range(dist: Any, bounds: tuple[float, float], where: str) -> None:
-    """Refuse a distribution that can draw outside ``bounds`` (its fixed value, limits, clip bounds)."""
+    """Refuse a distribution that can draw outside ``bounds`` (its fixed value, limits, clip bounds), and a
+    normal whose spread is wider than the whole range or is none at all.
+
+    A normal's spread is its ``sigma``, or ``relative_sigma`` × |mean|. A count's or a parameter's nominal
+    value is 0 (what :func:`draw_faults` hands the distribution), so ``relative_sigma`` without a non-zero
+    ``mean`` is a spread of 0: every run drew 0 faults of a kind the file asks for (a fault campaign
+    injecting nothing) or the shortest duration (1 ms stalls); one wide enough (``mean = 3,
+    relative_sigma = 1e300``) had every run's draw on the range's ends (100 hangs, or none)."""
     lo, hi = bounds
     values = [getattr(dist, name, None) for name in ("value", "low", "high", "mean")]
     values += list(getattr(dist, "values", ()) or ())
     bad = [v for v in values if v is not None and not lo <= v <= hi]
     if bad:
         raise ConfigError(f"{bad[0]:g} is outside {lo:g}..{hi:g}", where)
-    sigma = getattr(dist, "sigma", None)
+    sigma, name = getattr(dist, "sigma", None), "sigma"
+    relative = getattr(dist, "relative_sigma", None)
+    if sigma is None and relative is not None:
+        mean = abs(getattr(dist, "mean", None) or 0.0)
+        if not mean > 0:
+            raise ConfigError(
+                "relative_sigma × |mean| is 0 here (the mean is 0, or not given: a fault's count and "
+                "parameters have no nominal value to be relative to), so no run would be dispersed; give "
+                "sigma (an absolute spread), or a non-zero mean",
+                f"{where}.relative_sigma",
+            )
+        sigma, name = relative * mean, "relative_sigma"
     if sigma is not None and not sigma <= hi - lo:  # every draw clipped to the range's ends
         why = f"a sigma of {sigma:g} is wider than the whole range {lo:g}..{hi:g}"
-        raise ConfigError(why, f"{where}.sigma")
+        raise ConfigError(why, f"{where}.{name}")
 
 
 def check_board(kinds: Iterable[str], board: str, where: str) -> None:

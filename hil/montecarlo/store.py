@@ -4,7 +4,8 @@ re-run with the same directory carries on where it stopped.
 Layout of ``OUT``::
 
     campaign.json   what the campaign is (scenario and dispersion texts, seed, duration, trace rate,
-                    columns): written first; a re-run must match it (more runs may be asked for)
+                    columns, the code that runs it): written first; a re-run must match it (more runs
+                    may be asked for)
     runs.csv        one row per finished run, ok or failed, flushed as it finishes: index, status, error,
                     the drawn parameters, the metrics. A row is the run's commit record.
     traces.bin      each ok run's decimated traces (:data:`~.metrics.TRACES`), fixed-size little-endian
@@ -41,6 +42,7 @@ from typing import IO, Any, BinaryIO, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from hil import version
 from hil.files.bounded import MAX_DOCUMENT_BYTES, input_kind, load_json, read_lines, regular_file_if_there
 from hil.files.output import make_dir
 from hil.scenario.paths import read_text
@@ -74,7 +76,11 @@ _SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_h
 """What a re-run into a campaign's directory must match. ``board`` (the built-in emulator's board: the
 Python emulator or the firmware under simavr, ``--board``; not in the scenario's text) was not among them:
 a firmware extension of an emulator campaign pooled both in one summary. A manifest written before it was
-recorded has none, and is taken as it was."""
+recorded has none, and is taken as it was. So is the ``code`` that ran the campaign
+(:func:`hil.version.describe`), compared as a campaign's workers are with its driver
+(:func:`hil.version.mismatch`, :func:`_check_code`)."""
+CODE = "code"
+"""campaign.json's record of the code that ran the campaign: ``{"version": ..., "revision": ...}``."""
 
 
 def manifest(
@@ -88,12 +94,15 @@ def manifest(
     parameter_columns: Sequence[str],
     check_columns: Sequence[str] = (),
     board: str = "emulator",
+    code: Mapping[str, str | None] | None = None,
 ) -> dict[str, Any]:
     """What identifies a campaign's results (a re-run into the same directory must match, except for the
-    number of runs)."""
+    number of runs); ``code`` the code that runs it (default: this process's,
+    :func:`hil.version.describe`)."""
     return {
         "scenario": scenario_name,
         "board": board,
+        CODE: dict(version.describe() if code is None else code),
         "scenario_sha256": _sha(scenario_text),
         "dispersions_sha256": _sha(dispersions_text),
         "seed": seed,
@@ -187,6 +196,36 @@ class ResultStore:
                 detail = f"another {key.removesuffix('_sha256')}"
             raise ConfigError(
                 f"this directory holds another campaign ({detail}); give another --out or the same options",
+                str(path),
+            )
+        self._check_code(old, path)
+
+    def _check_code(self, old: Mapping[str, Any], path: Path) -> None:
+        """The code that wrote the campaign's runs must be this session's (:func:`hil.version.mismatch`:
+        the versions, and the revisions when both are known). A campaign's workers were held to its
+        driver's code, but a resume was not: an extension after an upgrade (``pip install -U``, a new
+        commit) pooled the runs of two versions in one summary, unsaid. A manifest written before the code
+        was recorded has none, and is taken as it was; a record that is not one is unreadable."""
+        now = self.manifest.get(CODE)
+        if CODE not in old or now is None:
+            return
+        then = old[CODE]
+        if not (
+            isinstance(then, dict)
+            and set(then) == {"version", "revision"}
+            and isinstance(then["version"], str)
+            and (then["revision"] is None or isinstance(then["revision"], str))
+        ):
+            raise ConfigError(
+                f"unreadable campaign manifest: {CODE} is not a version and a revision ({then!r:.200})",
+                str(path),
+            )
+        why = version.mismatch(now, then)
+        if why is not None:
+            raise ConfigError(
+                f"this directory holds a campaign run by other code ({why}: this session's against the "
+                "directory's): its runs and this session's would be pooled in one summary; give another "
+                "--out, or run it with the code that made it (hil report DIR summarises it as it is)",
                 str(path),
             )
 

@@ -77,11 +77,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hil.files.bounded import FOLDER, MAX_DOCUMENT_BYTES, input_kind, load_toml
+from hil.files.bounded import MAX_DOCUMENT_BYTES, load_toml
 from protocol.errors import ConfigError, HilError
 
 from .model import Scenario
-from .paths import FIXTURES, read_text
+from .paths import FIXTURES, read_text, resolve_named_file
 from .reader import _Reader
 
 SCENARIO_DIR = FIXTURES / "scenarios"
@@ -94,20 +94,9 @@ def scenario_names() -> list[str]:
 
 
 def resolve_scenario_path(name_or_path: str | Path) -> Path:
-    """A path as given, or the shipped scenario of that name; :class:`ConfigError` listing the names."""
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.exists():
-            raise ConfigError("no such scenario file", str(p))
-        if input_kind(p, ConfigError, "scenario") == FOLDER:  # a device or a socket raises there
-            raise ConfigError("a folder, not a scenario file", str(p))
-        return p  # a file, or a pipe (``--scenario <(…)``: read once, as load_scenario does)
-    shipped = SCENARIO_DIR / f"{name_or_path}.toml"
-    if not shipped.is_file():
-        raise ConfigError(
-            f"no scenario {str(name_or_path)!r}; shipped: {', '.join(scenario_names())}", "scenario"
-        )
-    return shipped
+    """A path as given, or the shipped scenario of that name; :class:`ConfigError` listing the names
+    (:func:`~hil.scenario.paths.resolve_named_file`)."""
+    return resolve_named_file(name_or_path, SCENARIO_DIR, "scenario", "scenario")
 
 
 def load_scenario(name_or_path: str | Path = DEFAULT_SCENARIO) -> Scenario:
