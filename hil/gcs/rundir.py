@@ -56,6 +56,9 @@ logger = logging.getLogger(__name__)
 READ_CHUNK = 4 * 1024 * 1024  # bytes read per file per poll (a big file comes in over several polls)
 SEEN_BYTES = 64  # bytes read before the unfinished line, compared on the next read (a file rewritten)
 SEEN_MAX = 64 * 1024  # bytes compared at most (the unfinished line's, then SEEN_BYTES before it)
+STOPPED = "stopped"
+"""The state once the directory's writer is gone without a summary: the reader's verdict that nothing more
+comes, no progress of the run (:meth:`hil.gcs.station.GroundStation._progress`)."""
 QUIET_S = 5.0
 """s without growth after which a directory whose writer holds no lock (:mod:`hil.files.writing`) — never
 seen held — has stopped being written. A run flushes its telemetry every 50 ms while it ticks; a run
@@ -321,7 +324,7 @@ class RunDirSource:
             if self._lock_seen
             else f"nothing written for {QUIET_S:g} s, no summary, and no writer holds the run's lock"
         )
-        self._state = {"state": "stopped", "exit": None, "stopped": f"the run stopped being written: {why}"}
+        self._state = {"state": STOPPED, "exit": None, "stopped": f"the run stopped being written: {why}"}
 
     def _gone(self) -> str | None:
         """Why the run read so far is no longer on disk (the directory removed or replaced, its telemetry

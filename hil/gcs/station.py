@@ -32,7 +32,7 @@ from hil.gcs.access import is_loopback, new_token, parse_bind, url_host
 from hil.gcs.compare import CompareSource
 from hil.gcs.hub import DEFAULT_BUDGET, Hub
 from hil.gcs.live import LiveFeed
-from hil.gcs.rundir import RunDirSource
+from hil.gcs.rundir import STOPPED, RunDirSource
 from hil.gcs.server import LIMITS, GcsServer
 from hil.gcs.uplink import Uplink
 from hil.gcs.wire import Batch, dumps, encode_batch, sse
@@ -270,7 +270,9 @@ class GroundStation:
         if status is None:
             return bool(made)
         said, self._said = self._said, (status.get("state"), status.get("ticks"))
-        return bool(made) or self._said != said
+        # a followed run directory said ``stopped`` (its writer gone): the reader's verdict that nothing
+        # more comes, not the run's progress — the newest row is as old as it was (the page: isProgress)
+        return bool(made) or (self._said != said and self._said[0] != STOPPED)
 
     # ------------------------------------------------------------------ closing
     def close(self, linger_s: float = LINGER_S) -> None:

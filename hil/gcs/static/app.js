@@ -22,6 +22,21 @@ const FEED_STALE_S = 1.0;  // nothing of the run's progress for this long: the l
 // a `caught_up` message saying how long ago the run last made progress (hil/gcs/hub.py); until then
 // nothing counts (a page that reconnected to a hung run was "receiving" its history for 1 s, buttons on).
 const PROGRESS = new Set(["info", "rows", "events", "link"]);
+const NOT_PROGRESS = "stopped";  // a status state that is no progress when it comes (isProgress)
+
+// A downlink message is data, never behaviour. A run directory's events.jsonl and summary.json may hold any
+// JSON, and an object whose own "toString" or "valueOf" is a value ({"command": {"toString": 1}}) cannot be
+// made text or a number: String(), a template, a comparison (`e.t > t`), a dataset assignment throw a
+// TypeError — one such record in a replay threw on every redraw, the stats and everything after it never
+// drawn again. Such keys are kept under another name (the events table still shows them); the rows
+// (NUMBERS_ONLY: numbers and nulls, hil/gcs/wire.py's encode_rows) are parsed without the reviver's cost.
+const SHADOWING_KEYS = new Set(["toString", "valueOf"]);
+const NUMBERS_ONLY = new Set(["rows", "overlay_rows"]);
+function asData(key, value) {
+  if (value === null || typeof value !== "object" || Array.isArray(value)) return value;
+  if (!Object.keys(value).some((k) => SHADOWING_KEYS.has(k))) return value;
+  return Object.fromEntries(Object.entries(value).map(([k, v]) => [SHADOWING_KEYS.has(k) ? `${k} (as sent)` : k, v]));
+}
 
 const token = new URLSearchParams(location.search).get("token") || "";
 const view = new View3D($("view3d"));
@@ -47,7 +62,7 @@ function connect() {
   const es = new EventSource(`/api/stream?token=${encodeURIComponent(token)}`);
   const on = (name, fn) => es.addEventListener(name, (m) => {
     stats.messages += 1; stats.bytes += m.data.length;
-    const data = JSON.parse(m.data);
+    const data = NUMBERS_ONLY.has(name) ? JSON.parse(m.data) : JSON.parse(m.data, asData);
     state.lastMessage = performance.now();
     if (!state.history && isProgress(name, data, state.status)) state.lastProgress = state.lastMessage;
     fn(data);
@@ -116,7 +131,9 @@ async function refusedStream() {
 function isProgress(name, data, status) {
   if (PROGRESS.has(name)) return true;
   if (name !== "status") return false;
-  const changed = data.state !== undefined && data.state !== status.state;
+  // "stopped" (a followed run directory's writer gone) is the reader's verdict that nothing more comes, not
+  // the run's progress: counted as progress, it made the newest row's age start again from 0 at the verdict
+  const changed = data.state !== undefined && data.state !== status.state && data.state !== NOT_PROGRESS;
   const ticked = data.ticks !== undefined && data.ticks !== status.ticks;
   return changed || ticked;
 }
@@ -252,6 +269,14 @@ function feedState() {
   return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
 }
 
+// Whether the newest row is what the run made last, so the feed's age is its age too: a live run's, and a run
+// directory followed while another process writes it ("following", or "stopped being written": its writer
+// gone). Before, only a live run's: a followed run whose writer hung or was killed showed its last row's
+// board, power and attitude live, unmarked, the header alone saying "stale: run not growing".
+function rowsComeAsMade() {
+  return state.info.mode === "live" || ["following", "stopped"].includes(state.status.state);
+}
+
 // Whether the run ended without ever starting: an `ended` status (or the stream's end) with no `info`
 // before it — a live run whose board or phone could not be opened. The hub sends a page without a run
 // its statuses (hil/gcs/hub.py); before, it sent nothing until an `info` that never came.
@@ -357,7 +382,7 @@ function render(feed) {
   const t = store.col("t");
   const period = info.control_rate_hz ? 1 / info.control_rate_hz : 0.02;
   const rowGap = i > 0 && t[i] - t[i - 1] > 3 * period ? t[i] - t[i - 1] : 0;
-  const feedAge = state.follow && state.info.mode === "live" ? feed.age : 0;
+  const feedAge = state.follow && rowsComeAsMade() ? feed.age : 0;
   const alarmAt = hasRows ? state.cursor : Infinity;
   const alarmColumns = state.alarms.activeColumns(alarmAt);
   const ended = feed.cls === "ended";

@@ -15,7 +15,9 @@ function commandLabel(e) {
   return e.status === "refused" ? `${label} refused` : label;
 }
 
-// The markers of events (in time order, as the store holds them): [{t, label, kind}].
+// The markers of events (in time order, as the store holds them): [{t, label, kind}]. A kind is looked up
+// among the tables' own names only: `in` also found the prototype's, and a record of kind "constructor"
+// (a run directory's events are any JSON) was marked on every plot as "function Object() { [native code] }".
 export function runMarkers(events) {
   const out = [], seen = new Set();
   for (const e of events) {
@@ -26,8 +28,8 @@ export function runMarkers(events) {
       if (seen.has(key)) continue;
       seen.add(key);
       out.push({ t: e.t, label: commandLabel(e), kind: "command" });
-    } else if (e.kind in MANOEUVRE_KINDS) out.push({ t: e.t, label: MANOEUVRE_KINDS[e.kind], kind: "manoeuvre" });
-    else if (e.kind in FAULT_KINDS) out.push({ t: e.t, label: FAULT_KINDS[e.kind], kind: "fault" });
+    } else if (Object.hasOwn(MANOEUVRE_KINDS, e.kind)) out.push({ t: e.t, label: MANOEUVRE_KINDS[e.kind], kind: "manoeuvre" });
+    else if (Object.hasOwn(FAULT_KINDS, e.kind)) out.push({ t: e.t, label: FAULT_KINDS[e.kind], kind: "fault" });
     else if (e.kind === "board_state" && e.new === "FAILSAFE") out.push({ t: e.t, label: "FAILSAFE", kind: "fault" });
   }
   return out;

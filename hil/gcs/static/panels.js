@@ -46,7 +46,7 @@ const PILL = { ARMED: "ok", DISARMED: "", BOOT: "warn", FAILSAFE: "bad", OK: "ok
 
 function setPill(el, name, staleAge) {
   setCell(el, name, staleAge);
-  el.className = `pill ${PILL[name] || ""}${el.classList.contains("stale") ? " stale" : ""}`;
+  el.className = `pill ${(Object.hasOwn(PILL, name) && PILL[name]) || ""}${el.classList.contains("stale") ? " stale" : ""}`;
 }
 
 // What a value after the run's end is marked with (the run has ended, the cursor at its end): the last row's,
@@ -73,8 +73,9 @@ function boardStateAtEnd(ctx, rowState) {
   return rowState;
 }
 
-// ctx: {info, store, i (row index), t (cursor time), feedAge (s, live) , rowGap (s before row i), ended (the
-// run has ended), atEnd (the cursor at the newest row), summary (the run's, once it has ended)}
+// ctx: {info, store, i (row index), t (cursor time), feedAge (s: the feed's age, at a live or followed run's
+// newest row), rowGap (s before row i), ended (the run has ended), atEnd (the cursor at the newest row),
+// summary (the run's, once it has ended)}
 export function drawPanels(ctx) {
   const { info, store, i } = ctx;
   const v = (name) => store.value(name, i);

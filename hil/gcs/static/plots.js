@@ -30,9 +30,9 @@ export function limitLines(info, columns) {
   return [...lines.values()];
 }
 
-// Each plot: id, title, series [{col, label, stroke, dash}]; its limit lines come from limitLines.
-export function plotSpecs(info) {
-  const n = info.n_units || 0;
+// Each plot: id, title, series [{col, label, stroke, dash}]; its limit lines come from limitLines. n: the
+// units the per-unit plots have series for (the run's; of runs compared, the most any of them has).
+export function plotSpecs(info, n = info.n_units || 0) {
   const specs = [
     { id: "pointing", title: "Pointing error (deg)", series: [
       { col: "point_err_deg", label: "pointing", stroke: "#e6194b" },
@@ -62,6 +62,11 @@ export function plotSpecs(info) {
 
 const RUN_COLORS = ["#e6194b", "#4363d8", "#3cb44b", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#9a6324"];
 const RUN_DASHES = [undefined, [6, 3], [2, 2], [9, 3, 2, 3], [1, 3], [12, 4]];
+
+// How many units a run's telemetry has: its gimbal_angle_<i> columns (hil/gcs/info.py, units_from_columns).
+function unitsOf(columns) {
+  return columns.filter((c) => /^gimbal_angle_\d+$/.test(c)).length;
+}
 
 // Runs compared (overlays: [{name, store}]): every series of a plot once per run, coloured by run (the
 // series within a run told apart by their dash), labelled "series · run" — the legend by run name.
@@ -112,7 +117,10 @@ export class Plots {
     const style = getComputedStyle(document.body);
     const ink = style.getPropertyValue("--ink").trim() || "#1d232b";
     const grid = style.getPropertyValue("--grid").trim() || "rgba(0,0,0,0.07)";
-    for (const spec of plotSpecs(info)) {
+    // runs compared may have more units than this one (the testbed's 3 and the CubeSat's 4): each one drawn,
+    // not only this run's count of them, which left the 4th unit of a CubeSat compared out without a word
+    const units = Math.max(info.n_units || 0, ...overlays.map((o) => unitsOf(o.store.columns)));
+    for (const spec of plotSpecs(info, units)) {
       const series = runs ? seriesPerRun(spec.series, runs) : spec.series.filter((s) => store.has(s.col));
       if (!series.length) continue;
       const box = document.createElement("div");

@@ -5,6 +5,17 @@
 import { $ } from "./panels.js";
 
 const CONFIRM_MS = 4000;
+const SLEW_AXES = ["roll", "pitch", "yaw"];
+
+// The number typed in a number field, or null when there is none: an empty field, or text the browser
+// cannot read as a number ("1e", "-", "1e400": its value is then ""), is no angle. Number("") is 0: such a
+// field once sent a slew to 0° that the operator never typed. The range is the server's to check
+// (hil/gcs/uplink.py, ANGLE_RANGE), whose refusal the log shows.
+function typedNumber(input) {
+  if (input.validity.badInput || input.value.trim() === "") return null;
+  const value = Number(input.value);
+  return Number.isFinite(value) ? value : null;
+}
 
 export class Uplink {
   constructor(token) {
@@ -43,11 +54,26 @@ export class Uplink {
     this.reset(button);
     const body = { command: button.dataset.command };
     if (body.command === "slew") {
-      body.roll_deg = Number($("slew-roll").value);
-      body.pitch_deg = Number($("slew-pitch").value);
-      body.yaw_deg = Number($("slew-yaw").value);
+      const unread = [];
+      for (const axis of SLEW_AXES) {
+        const angle = typedNumber($(`slew-${axis}`));
+        if (angle === null) unread.push(axis);
+        body[`${axis}_deg`] = angle;
+      }
+      if (unread.length) {
+        this.log("error", `${describe(body)}: not sent, ${unread.join(", ")} not a number of degrees`);
+        return;
+      }
     }
     this.send(body);
+  }
+
+  // A line in the command log, newest first.
+  log(status, text) {
+    const li = document.createElement("li");
+    this.setStatus(li, status, text);
+    $("cmd-log").prepend(li);
+    return li;
   }
 
   reset(button) {
@@ -59,10 +85,8 @@ export class Uplink {
   }
 
   async send(body) {
-    const li = document.createElement("li");
+    const li = this.log("sending", describe(body));
     li.dataset.command = body.command;
-    this.setStatus(li, "sending", describe(body));
-    $("cmd-log").prepend(li);
     try {
       const answer = await fetch("/api/command", {
         method: "POST",
@@ -99,5 +123,6 @@ export class Uplink {
 
 function describe(body) {
   if (body.command !== "slew") return body.command;
-  return `slew to roll ${body.roll_deg}°, pitch ${body.pitch_deg}°, yaw ${body.yaw_deg}°`;
+  const deg = (x) => (x === null ? "?" : `${x}°`);
+  return `slew to roll ${deg(body.roll_deg)}, pitch ${deg(body.pitch_deg)}, yaw ${deg(body.yaw_deg)}`;
 }
