@@ -278,8 +278,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"  part {seconds(float(seg['t0_s']))}-{seconds(float(seg['t1_s']))} s: {what}")
     if result.comparison is not None:
         c = result.comparison
-        print(f"  vs ground truth: RMSE {c.rmse} over {c.rmse.n} samples")
-        print(f"  rate error RMS {c.rate_rmse:.4f} rad/s (truth rate differentiated from its attitude)")
+        if c.rmse.n == 0:
+            print("  vs ground truth: nothing scored (no estimate where the truth is evaluated: see above)")
+        else:
+            print(f"  vs ground truth: RMSE {c.rmse} over {c.rmse.n} samples")
+            print(f"  rate error RMS {c.rate_rmse:.4f} rad/s (truth rate differentiated from its attitude)")
     for name, path in result.files.items():
         print(f"  {name}: {path}")
     return 0

@@ -25,7 +25,6 @@ measured field is checked against the field model, and for steadiness
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from collections.abc import Callable, Mapping
@@ -60,6 +59,7 @@ from hil.estimation.sensors import (
     StepFlag,
     flagged_intervals,
 )
+from hil.files.json_text import strict_json
 from hil.files.output import make_dir
 from hil.logs import read_log
 from hil.logs.acc_units import acc_unit_warning
@@ -726,6 +726,12 @@ def _score(result: ReplayResult) -> None:
     if truth.evaluate is not None:
         evaluate &= np.asarray(truth.evaluate, bool)
     result.comparison = compare_to_truth(truth.t, truth.R, evaluate, est.t, est.quat, est.omega)
+    if result.comparison.rmse.n == 0:  # said, not an RMSE of NaN "over 0 samples" left to be puzzled over
+        result.warnings.append(
+            f"the ground truth ({truth.t[0]:.3f}-{truth.t[-1]:.3f} s) overlaps none of the estimates "
+            f"({est.t[0]:.3f}-{est.t[-1]:.3f} s) where it is evaluated: nothing scored (its clock another "
+            "than the log's, or its time alignment off?)"
+        )
 
 
 def write_estimates(est: EstimateBatch, path: Path) -> Path:
@@ -814,5 +820,5 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
         "rate_rmse_rad_s": None if result.comparison is None else result.comparison.rate_rmse,
         "files": {k: str(v) for k, v in result.files.items()},
     }
-    path.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    path.write_text(strict_json(summary, indent=2) + "\n", encoding="utf-8")  # a figure not scored: null
     return path

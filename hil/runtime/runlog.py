@@ -25,7 +25,6 @@ from __future__ import annotations
 import bisect
 import collections
 import itertools
-import json
 import math
 import os
 import queue
@@ -48,6 +47,7 @@ from hil.files.bounded import (
     read_lines,
     regular_file_if_there,
 )
+from hil.files.json_text import strict_json
 from hil.files.output import OutputError, make_dir, replace_file, safe_label
 from hil.threads import ThreadError
 from protocol.errors import InputFormatError
@@ -288,7 +288,7 @@ class EventLog:
         refused: OutputError | None = None
         if self._file is not None and self.failed is None:
             try:
-                self._file.write((json.dumps(event, default=str) + "\n").encode())
+                self._file.write((strict_json(event) + "\n").encode())
             except OutputError as exc:
                 refused = self.failed = exc
         if self._file is None:
@@ -320,35 +320,9 @@ def write_summary(run_dir: str | os.PathLike[str], summary: Mapping[str, Any]) -
     JSON) and the other's rename failed ("No such file or directory"). Now the last rename wins, whole.
 
     JSON has no NaN or infinity: a figure that is not a finite number is written as null, as a figure never
-    measured is (:func:`finite_or_null`). Written as Python's ``NaN``, it made the file one that strict JSON
-    readers (a browser's, jq) refuse, and ``hil report`` said the run's own summary was damaged and hid it."""
-    text = json.dumps(finite_or_null(summary), indent=2, default=_json_default, allow_nan=False) + "\n"
+    measured is (:func:`hil.files.json_text.strict_json`; the events too)."""
+    text = strict_json(summary, indent=2) + "\n"
     return replace_file(Path(run_dir) / SUMMARY, lambda f: f.write(text.encode("utf-8")))
-
-
-def finite_or_null(value: Any) -> Any:
-    """``value`` (a JSON document to write: mappings, lists and tuples of plain values) with every float that
-    is not finite (NaN, ±infinity; numpy's too) as None, numpy scalars and arrays as Python values; the rest
-    as it is."""
-    if isinstance(value, Mapping):
-        return {key: finite_or_null(v) for key, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite_or_null(v) for v in value]
-    if isinstance(value, (np.generic, np.ndarray)):
-        return finite_or_null(value.tolist())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    return str(value)
 
 
 @dataclass
