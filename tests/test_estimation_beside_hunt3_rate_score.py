@@ -21,33 +21,13 @@ from pathlib import Path
 import numpy as np
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
+from test_replay_beside_gap_figures import gapped_log
 
 from hil import so3
 from hil.estimation.metrics import truth_rates
-from hil.estimation.sensors import MAX_PAUSE_S, SensorLog, SensorStream, Truth
-from hil.logs import project_csv, read_log
+from hil.estimation.sensors import MAX_PAUSE_S
 
-FIXTURE = Path(__file__).resolve().parents[1] / "fixtures" / "logs" / "simulated_testbed_4s.csv"
 UNGAPPED_RATE_RMS = 0.0074  # rad/s: the fixture replayed whole (measured)
-
-
-def _gapped(path: Path, at_s: float, gap_s: float) -> Path:
-    """The fixture with its sensors' clock jumping by ``gap_s`` after ``at_s`` and its truth going on through
-    the gap, turning about the vertical (as tests/test_replay_beside_gap_figures.py builds it)."""
-    log = read_log(FIXTURE)
-    assert log.truth is not None
-
-    def shift(t: np.ndarray) -> np.ndarray:
-        return np.where(t > at_s, t + gap_s, t)
-
-    streams = {k: SensorStream(k, shift(s.t), s.xyz) for k, s in log.streams.items()}
-    gap_t = np.arange(at_s + 0.1, at_s + gap_s - 0.05, 0.1)
-    turn = np.pi * np.sin(np.pi * (gap_t - at_s) / gap_s)  # rad about the vertical
-    gap_r = np.stack([so3.exp(np.array([0.0, 0.0, a])) for a in turn])
-    t_all = np.r_[shift(log.truth.t), gap_t]
-    order = np.argsort(t_all, kind="stable")
-    truth = Truth(t_all[order], np.concatenate([log.truth.R, gap_r])[order])
-    return project_csv.write(SensorLog(streams, "gap", "csv", truth), path)
 
 
 def _replay_rate_rms(log: Path, out: Path) -> float:
@@ -70,7 +50,7 @@ def _replay_rate_rms(log: Path, out: Path) -> float:
 @given(at_s=st.floats(1.2, 2.8), gap_s=st.floats(3.0, 40.0))
 def test_hil_replay_s_rate_error_leaves_out_a_gap_the_filter_did_not_run_over(tmp_path_factory, at_s, gap_s):
     folder = tmp_path_factory.mktemp("gap")
-    rms = _replay_rate_rms(_gapped(folder / "gap.csv", at_s, gap_s), folder / "out")
+    rms = _replay_rate_rms(gapped_log(folder, at_s, gap_s), folder / "out")
     assert rms < 3 * UNGAPPED_RATE_RMS, rms  # 0.57 rad/s when scored across the gap
 
 
