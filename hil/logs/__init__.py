@@ -55,8 +55,13 @@ def _format_of(container: Container) -> str:
     )
     if packed is not None:  # a gzip file named .csv was only "not a recognised log"
         name, ext = packed
-        readable = "the reader opens it so named" if ext in (".gz", ".zip") else "decompress it first"
-        hint += f"; {name} is {ext} data under a name that does not say so: name it {name}{ext} ({readable})"
+        if name.lower().endswith(ext):  # Gyroscope.csv.xz was told to be named Gyroscope.csv.xz.xz
+            hint += f"; {name} is {ext} data, which is not read compressed: decompress it first (a .gz is)"
+        else:
+            readable = "the reader opens it so named" if ext in (".gz", ".zip") else "decompress it first"
+            hint += (
+                f"; {name} is {ext} data under a name that does not say so: name it {name}{ext} ({readable})"
+            )
     raise InputFormatError(
         f"not a recognised log (tried {', '.join(READERS)}; files: {', '.join(container.names()[:8])}){hint}",
         str(container.path),

@@ -237,12 +237,22 @@ def _zip_members(f: IO[bytes], where: str, keep: list[object]) -> list[tuple[str
     keep.append(archive)
     out = []
     for info in archive.infolist():
-        if info.is_dir() or os_litter(info.filename):
-            continue
+        name = zip_member_name(info.filename)
+        if name.endswith("/") or os_litter(name):
+            continue  # folders (``Recording\\`` too), OS litter
         packed = info.compress_size if info.compress_type != zipfile.ZIP_STORED else None
         opener = _zip_opener(archive, info)
-        out.append((info.filename, Member(f"{where}:{info.filename}", opener, packed, info.compress_size)))
+        out.append((name, Member(f"{where}:{info.filename}", opener, packed, info.compress_size)))
     return out
+
+
+def zip_member_name(filename: str) -> str:
+    """A zip entry's path with '/' between its folders, as the zip format requires: Windows tools that
+    break the rule (.NET Framework 4.5's ``ZipFile.CreateFromDirectory``, PowerShell 5's
+    ``Compress-Archive``) write ``Recording\\Gyroscope.csv``, which ``unzip`` and 7-Zip read as a folder
+    and its file, and which Python keeps as one name with a backslash in it — an export zipped a folder
+    deep that way was "not a recognised log". No phone's file name holds a backslash."""
+    return filename.replace("\\", "/")
 
 
 def _zip_opener(archive: zipfile.ZipFile, info: zipfile.ZipInfo) -> Callable[[], IO[bytes]]:

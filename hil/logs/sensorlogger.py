@@ -10,7 +10,8 @@ as exact integers and converted to seconds since the first sample of any sensor;
 keeps its fraction; one written as an ISO-8601 date is read (:func:`iso_time_ns`); one a spreadsheet
 rounded (``1.67907E+18``) gives way to ``seconds_elapsed`` for every file (:class:`_CoarseTime`); files
 on different clocks are refused (:func:`_same_clock`). Units (the app's unit reference): m/s²
-(g = 9.80665), rad/s, µT; axes are Android's sensor frame (on iOS, with "Standardise Units & Frames" on).
+(g = 9.80665), rad/s, µT; axes are Android's sensor frame (on iOS, with "Standardise Units & Frames" on;
+with it off, as ``Metadata.csv`` says, the acceleration's axes are negated to Android's: :func:`_assemble`).
 
 Accelerometers, in order of preference: ``TotalAcceleration.csv`` (specific force *including* gravity);
 ``Accelerometer.csv`` (the *user* acceleration, gravity removed) plus ``Gravity.csv`` (their sum, gravity
@@ -25,6 +26,7 @@ no gravity direction and is refused. Gyroscope and magnetometer: the calibrated 
 
 from __future__ import annotations
 
+import csv
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -36,7 +38,7 @@ import numpy as np
 
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import axis_columns
-from hil.logs.rows import BadCell, number, shown
+from hil.logs.rows import BadCell, is_content, number, shown
 from hil.logs.table import (
     Container,
     Header,
@@ -616,6 +618,28 @@ def _holds_nothing(c: Container, member: str) -> bool:
     return True
 
 
+SETTING_OFF = frozenset({"false", "0", "no", "off"})
+"""How ``Metadata.csv`` may write a setting that is off (the app writes ``false``; a spreadsheet ``FALSE``,
+``0``)."""
+
+
+def recording_settings(metadata: str) -> dict[str, str]:
+    """``Metadata.csv``'s record as {column: value}, both stripped and in lower case (``platform`` →
+    ``ios``, ``standardisation`` → ``false``; the app writes one header and one row), read in its own
+    dialect (a spreadsheet's re-save with semicolons) as every CSV of the export is. {} when it holds no
+    header and row. ``standardisation`` is there from app version 1.29 on (the "Standardise Units &
+    Frames" setting, off by default); the platform decides nothing else."""
+    lines = [line for line in metadata.splitlines() if is_content(line)]
+    if len(lines) < 2:
+        return {}
+    delimiter, _ = sniff_dialect(lines[:2])
+    names = [name.lower() for name in split_header(lines[0], delimiter)]
+    values = next(csv.reader([lines[1]], delimiter=delimiter, skipinitialspace=True), [])
+    return {
+        name: value.strip().strip('"').strip().lower() for name, value in zip(names, values, strict=False)
+    }
+
+
 def _first(files: Mapping[str, str], names: tuple[str, ...]) -> str | None:
     return next((n for n in names if n in files), None)
 
@@ -626,7 +650,8 @@ class Export:
     files the app names: ``path`` for messages; ``files`` the app's file names present
     (``Gyroscope.csv``, …, of :data:`_KNOWN`) → where each is read from, for messages; ``table(name)``
     reads one; ``empty(name)`` says whether it holds nothing at all (0 bytes: the app wrote nothing for
-    that sensor); ``platform`` the recording's platform as its metadata says (lower case, "" unknown);
+    that sensor); ``metadata`` the text of its ``Metadata.csv`` ("" when there is none: read by
+    :func:`recording_settings`);
     ``container`` the files' container, whose sample count (:data:`~hil.logs.table.MAX_LOG_SAMPLES`)
     the tables read add to."""
 
@@ -634,7 +659,7 @@ class Export:
     files: Mapping[str, str]
     table: Callable[[str], Table]
     empty: Callable[[str], bool]
-    platform: Callable[[], str]
+    metadata: Callable[[], str]
     container: Container
 
 
@@ -662,7 +687,7 @@ def read(c: Container) -> SensorLog:
         {name: c.where(member) for name, member in files.items()},
         lambda name: _csv_table(c, files[name], FILE_KINDS[name.lower()]),
         lambda name: _holds_nothing(c, files[name]),
-        lambda: c.text(files["Metadata.csv"]).lower() if "Metadata.csv" in files else "",
+        lambda: c.text(files["Metadata.csv"]) if "Metadata.csv" in files else "",
         c,
     )
     notes = ["Sensor Logger export: columns read by name (files are ordered z, y, x)"]
@@ -717,8 +742,21 @@ def _assemble(
     if _first(files, MAG_FILES) is None:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
     parts[SensorKind.ACC] = _accelerometer(export, notes, clocks)
-    if "ios" in export.platform():
-        notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
+    settings = recording_settings(export.metadata())
+    if settings.get("platform", "").startswith("ios"):
+        if settings.get("standardisation") in SETTING_OFF:
+            # the app's default: iOS's acceleration and gravity point the other way on every axis (flat,
+            # screen up, gravity reads -z where Android's specific force reads +z); read as they are, the
+            # estimator took the phone to be upside down, with only a note saying the setting was assumed on
+            times, xyz = parts[SensorKind.ACC]
+            parts[SensorKind.ACC] = (times, -xyz)
+            notes.append(
+                f"iOS export with 'Standardise Units & Frames' off ({export.files['Metadata.csv']}: "
+                f"standardisation {settings['standardisation']}): the accelerometer's axes negated to "
+                "Android's (gyroscope and magnetometer share Android's axes)"
+            )
+        else:
+            notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
     notes.extend(layout)
     epoch = {k: t.dtype.kind == "i" for k, (t, _) in parts.items()}
     if len(set(epoch.values())) > 1:

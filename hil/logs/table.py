@@ -290,9 +290,10 @@ class Container:
                 yield piece
 
     def packed_as(self, name: str) -> str | None:
-        """What compressed or archive data a member is under a name that does not say so (a gzip file
-        named ``Gyroscope.csv``), by its first bytes: ``".gz"``, ``".zip"``, ``".bz2"``, ``".xz"``; None
-        for any other (or one named for what it is, or unreadable)."""
+        """What compressed or archive data a member is that the readers do not open as it is named, by its
+        first bytes: ``".gz"``, ``".zip"``, ``".bz2"``, ``".xz"`` — under a name that does not say so (a
+        gzip file named ``Gyroscope.csv``), or a ``.bz2``/``.xz`` under its own name (only a ``.gz`` is read
+        decompressed); None for any other (a ``.gz`` or ``.zip`` so named, or unreadable)."""
         if name.lower().endswith((".gz", ".zip")):
             return None
         try:
@@ -629,8 +630,23 @@ def _good_prefix(batch: list[bytes | None], legacy: bool = False) -> tuple[list[
     except UnicodeDecodeError as exc:
         end = blob.count(b"\n", 0, exc.start)
         text = b"\n".join(batch[:end]).decode("utf-8")  # type: ignore[arg-type]
-        return (text.split("\n") if end else []), f"not UTF-8 text ({exc.reason})", True
-    return (text.split("\n") if end else []), problem, False
+        return (_lines_of(text) if end else []), f"not UTF-8 text ({exc.reason})", True
+    return (_lines_of(text) if end else []), problem, False
+
+
+BYTE_ORDER_MARK = "\ufeff"
+"""U+FEFF as text. A file's first is skipped as it is read (:func:`text_lines`); one that starts a later
+line is the mark of a file joined after the first (``cat a.csv b.csv`` of two exports saved with one, in
+UTF-8 or UTF-16): its repeated header was "'\\ufefftime' is not a number", its first row (a file without
+a header) a bad cell. It is never part of a cell."""
+
+
+def _lines_of(text: str) -> list[str]:
+    """A decoded batch's lines, each without a byte-order mark at its start (:data:`BYTE_ORDER_MARK`)."""
+    lines = text.split("\n")
+    if BYTE_ORDER_MARK in text:
+        return [line.removeprefix(BYTE_ORDER_MARK) for line in lines]
+    return lines
 
 
 def _first_content(lines: Sequence[str]) -> int | None:
