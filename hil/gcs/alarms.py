@@ -68,13 +68,19 @@ def _limit(
     *,
     suffix: str,
     phases: Iterable[Phase] = tuple(Phase),
+    scale: float | None = None,
 ) -> dict[str, Any]:
-    """One limit, held in ``phases`` (every phase unless told). ``clear``: where a raised alarm clears
-    (:data:`HYSTERESIS` inside ``value``; a state code clears as soon as the state is another)."""
+    """One limit, held in ``phases`` (every phase unless told). ``clear``: where a raised alarm clears —
+    :data:`HYSTERESIS` of ``|value|`` back inside the limit (a state code clears as soon as the state is
+    another). ``scale`` (the channel's units): the band's measure for a threshold that may be zero (a
+    scenario's ``min_rotor_speed = 0``), whose own fraction is no band: ``value * (1 ± HYSTERESIS)`` cleared
+    an alarm at its threshold (it chattered, raised and cleared row after row), and for a negative
+    threshold put the band on the wrong side, outside the limit."""
+    band = HYSTERESIS * (abs(value) or abs(scale or 0.0))
     if op == "below":
-        clear = value * (1 + HYSTERESIS)
+        clear = value + band
     elif op in ("above", "abs_above"):
-        clear = value * (1 - HYSTERESIS)
+        clear = value - band
     else:
         clear = value
     return {
@@ -157,6 +163,7 @@ def alarm_limits(scenario: Scenario) -> list[dict[str, Any]]:
                 "stopped while the operator's Disarm has the run suspended)",
                 suffix="low",
                 phases=(Phase.SLEW, Phase.HOLD),
+                scale=lim.max_rotor_speed,  # a minimum of 0 (allowed): the band a fraction of the range
             ),
             _limit(
                 f"rotor_speed_{k}",

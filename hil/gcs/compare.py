@@ -10,7 +10,9 @@ Overlays are read once the first run has described itself, so the page never get
 before the run they are drawn over. An overlay's own state — ``following``, ``finished``, ``read``, or
 ``error`` with why (a telemetry that is no run's, a directory replaced under the page) — and its damaged
 lines go out in the ``status`` message as ``overlays`` (by run name) whenever one changes: an overlay that
-cannot be drawn, or stopped being followed, is said, never just missing from the plots.
+cannot be drawn, or stopped being followed, is said, never just missing from the plots. An overlay whose
+read is refused (one of its files made a FIFO, or unreadable) is that overlay's ``error``
+(:meth:`~hil.gcs.rundir.RunDirSource.fail`): it stopped the station's pump, the first run's page with it.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from typing import Any
 
 from hil.gcs.rundir import RunDirSource
 from hil.gcs.wire import Batch
-from protocol.errors import InputFormatError
+from protocol.errors import HilError, InputFormatError
 
 
 class CompareSource:
@@ -63,7 +65,10 @@ class CompareSource:
             return batch
         told = False
         for k, source in enumerate(self.sources[1:], start=1):
-            part = source.poll()
+            try:
+                part = source.poll()
+            except HilError as exc:  # this run alone: marked in error, the first run and the others go on
+                part = source.fail(exc)
             if part.status is not None:
                 self._overlay_status[self.names[k]] = part.status
                 told = True

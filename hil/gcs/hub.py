@@ -5,11 +5,12 @@ The pump thread publishes one chunk per cycle; each stream (a coroutine on the s
 through :meth:`Hub.watch`; or a thread blocking in :meth:`Reader.read`) takes the chunks after its cursor
 and writes them all in one go. Nothing here waits on a browser: a slow one falls
 behind, and if the chunks it has not read yet are trimmed (the budget is full) it skips to the oldest one
-held, the skip counted. A browser that connects late (or reconnects) gets ``info`` and then the whole
-history held, so its plots and timeline start from the beginning of what is held, and then a ``caught_up``
-message (:func:`caught_up`): what came before it is history, resent, not the run's progress now — it says
-how long ago the run last made progress (``progress_age_s``, from what the publisher marked as progress),
-so a page that reconnects to a hung run says it is stale at once rather than "receiving" its history.
+held, the skip counted and the reader told where (:func:`skipped`). A browser that connects late (or
+reconnects) gets ``info`` and then the whole history held, so its plots and timeline start from the
+beginning of what is held, and then a ``caught_up`` message (:func:`caught_up`): what came before it is
+history, resent, not the run's progress now — it says how long ago the run last made progress
+(``progress_age_s``, from what the publisher marked as progress), so a page that reconnects to a hung run
+says it is stale at once rather than "receiving" its history.
 
 Each read ends with an SSE ``id:`` line naming where the reader is (:meth:`Hub.resume`): a browser's
 ``EventSource`` sends the last one back when it reconnects (``Last-Event-ID``), and a stream of the same
@@ -45,6 +46,14 @@ def caught_up(progress_age_s: float | None) -> bytes:
     progress when the reader got there (null: none yet)."""
     age = None if progress_age_s is None else round(progress_age_s, 3)
     return b"event: caught_up\ndata: " + json.dumps({"progress_age_s": age}).encode() + b"\n\n"
+
+
+def skipped(chunks: int) -> bytes:
+    """The message a slow reader gets where the chunks it had not read were trimmed before it read them:
+    ``{"chunks": n}``, how many it will never get (their rows, events and statuses). Before, the skip was
+    counted in ``/api/stats`` only and the page drew on across the hole as if nothing was missing; now it
+    says, and where (the page has the rows on either side of it)."""
+    return b"event: skipped\ndata: " + json.dumps({"chunks": chunks}).encode() + b"\n\n"
 
 
 @dataclass
@@ -190,6 +199,7 @@ class Hub:
             # Once ``info`` comes the reader has the whole history again, after it.
             if reader.cursor < self._first:
                 self.stats.skipped_chunks += self._first - reader.cursor
+                out += skipped(self._first - reader.cursor)  # the reader is told, before what follows
                 reader.cursor = self._first
             start = reader.cursor - self._first
             end = len(self._chunks) if max_bytes is None else self._slice_end(start, max_bytes - len(out))

@@ -354,6 +354,24 @@ class RunDirSource:
         }
         return batch
 
+    def fail(self, exc: HilError) -> Batch:
+        """Stop reading after a read refused with ``exc`` (a file of the run that became a FIFO, or
+        unreadable): the rows held are given out (read from the run shown) and the status says ``error``
+        with why. For a source that is not the page's only one (an overlay of :mod:`hil.gcs.compare`),
+        whose error must not stop the station's pump; the page's own run raises it to the pump instead."""
+        logger.warning("%s: %s: stopped reading", self.run_dir, exc)
+        batch = Batch()
+        self._done = True
+        if self._reader is not None:
+            self._add(self._reader.end(torn=False), batch)
+        self._state = {"state": "error", "exit": None, "error": str(exc)}
+        batch.status = self._sent_status = {
+            **self._state,
+            "bad_rows": self.bad_rows,
+            "bad_events": self.bad_events,
+        }
+        return batch
+
     def _count_torn(self, batch: Batch) -> None:
         """No more will be read: the rows held given out, a line still unfinished (torn by a kill) a
         damaged one, counted."""

@@ -13,6 +13,8 @@ One *batch* per pump cycle (~30 per second) becomes one chunk of SSE messages:
 ``overlay_rows``  ``{"run": k, "rows": [[v, ...], ...]}`` that run's telemetry rows, in its columns' order
 ``caught_up``     ``{"progress_age_s": s}`` the end of the history a stream is sent when it connects, and how
                   long ago the run last made progress (the hub's: :func:`hil.gcs.hub.caught_up`)
+``skipped``       ``{"chunks": n}`` this stream fell behind and n chunks were trimmed before it read them:
+                  what they held is missing between the rows before and after it (:func:`hil.gcs.hub.skipped`)
 
 JSON has no NaN or infinity: they are sent as null. Floats keep 7 significant digits (time 10), enough for
 a display and a third of ``repr``'s bytes.

@@ -5,7 +5,7 @@
 // replay shows who acknowledged what, and when). An alarm of op "event" has no threshold: the run's
 // raise_on event raises it and its clear_on event clears it (another phone on the phone's port).
 
-import { $, fmt } from "./panels.js";
+import { $, fmt, shortText } from "./panels.js";
 
 const SEVERITY_RANK = { critical: 2, warning: 1 };
 const MATCH_T = 1e-6;  // s: an acknowledgement's raised_t names the occurrence raised at that time
@@ -205,7 +205,7 @@ export class AlarmPanel {
       const id = `${o.key}@${o.raised_t}`;
       if (acked) {
         ackCell.textContent = `✓ ${fmt(o.ack.t, 1)} s`;
-        ackCell.title = `acknowledged at ${o.ack.t} s by ${o.ack.remote || o.ack.origin}`;
+        ackCell.title = `acknowledged at ${shortText(o.ack.t)} s by ${shortText(o.ack.remote || o.ack.origin)}`;
       } else if (this.errors.has(id)) {
         ackCell.textContent = this.errors.get(id);
       } else if (canAck) {

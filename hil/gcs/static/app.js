@@ -6,7 +6,7 @@
 import { Store } from "./store.js";
 import { Plots } from "./plots.js";
 import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
-import { $, fmt, setCell, drawPanels, drawEvents, threeNumbers, AT_RUN_END } from "./panels.js";
+import { $, fmt, setCell, drawPanels, drawEvents, shortText, threeNumbers, AT_RUN_END } from "./panels.js";
 import { Uplink } from "./uplink.js";
 import { Alarms, AlarmPanel } from "./alarms.js";
 import { drawHistory, exportHistory } from "./commands.js";
@@ -49,6 +49,7 @@ const state = {
   dirty: false, lastMessage: performance.now(), lastProgress: performance.now(), ended: false, connected: false,
   history: false,  // between an `info` and its `caught_up`: the history (re)sent, not the run's progress
   refused: "",  // why the server refused the stream, while it is refused (refusedStream)
+  skips: [],  // where this page fell behind and the server trimmed what it had not read: [{chunks, after, until}]
 };
 const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [], histories: 0 };
 window.gcs = { state, stats };
@@ -74,7 +75,20 @@ function connect() {
     else if (es.readyState === EventSource.CLOSED) refusedStream();
   };
   on("info", onInfo);
-  on("rows", (d) => { if (state.store) { state.alarms.feed(d.rows); state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate(); } });
+  on("rows", (d) => {
+    if (!state.store) return;
+    const skip = state.skips[state.skips.length - 1];
+    if (skip && skip.until === null && d.rows.length) { skip.until = d.rows[0][0]; showStatus(); }
+    state.alarms.feed(d.rows); state.store.pushRows(d.rows); stats.rows += d.rows.length; invalidate();
+  });
+  // This page fell behind and the server trimmed chunks it had not read (hil/gcs/hub.py, skipped): their rows
+  // are missing between the last row held and the next one to come, said in the note rather than drawn across.
+  on("skipped", (d) => {
+    const store = state.store;
+    const after = store && store.n ? store.data[0][store.n - 1] : null;
+    state.skips.push({ chunks: d.chunks, after, until: null });
+    showStatus();
+  });
   on("events", (list) => { if (state.store) { state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
   // runs compared (hil/gcs/compare.py): another run's description, then its rows
   on("overlay", (o) => {
@@ -157,6 +171,7 @@ function onInfo(info) {
   state.store = new Store(info.columns);
   state.alarms = new Alarms(info);
   state.overlays = [];
+  state.skips = [];  // a new store, the history again from the start: the holes of the old one are gone
   buildPlots();
   if (!same) { state.follow = true; state.playing = false; }
   $("run-name").textContent = info.compare ? `compared: ${info.compare.join(" · ")} (the timeline is ${info.run}'s)`
@@ -170,12 +185,13 @@ function onInfo(info) {
 function showStatus() {
   const s = state.status;
   const parts = [];
-  if (runFailedToStart()) parts.push(`the run failed to start: ${s.exit || "no word why"}`);
-  else if (s.exit) parts.push(`exit: ${s.exit}`);
+  if (runFailedToStart()) parts.push(`the run failed to start: ${s.exit ? shortText(s.exit) : "no word why"}`);
+  else if (s.exit) parts.push(`exit: ${shortText(s.exit)}`);  // a summary's: any JSON
   if (s.feed_dropped_rows) parts.push(`${s.feed_dropped_rows} rows dropped by the feed`);
   if (s.bad_rows) parts.push(`${s.bad_rows} unreadable rows`);
   if (s.uplink_rejected) parts.push(`${s.uplink_rejected} requests refused`);
   if (s.error) parts.push(`error: ${s.error}`);
+  if (state.skips.length) parts.push(skipsText(state.skips));
   if (s.state === "stopped" && s.stopped) parts.push(s.stopped);
   // runs compared: an overlay that cannot be drawn, or stopped being followed, says why (hil/gcs/compare.py)
   for (const [name, o] of Object.entries(s.overlays || {})) {
@@ -183,6 +199,14 @@ function showStatus() {
     else if (o && o.state === "stopped" && o.stopped) parts.push(`${name}: ${o.stopped}`);
   }
   $("note").textContent = [state.info && state.info.note, ...parts].filter(Boolean).join(" · ");
+}
+
+// What the note says of the chunks this page never got (state.skips): how many, and where their rows are missing.
+function skipsText(skips) {
+  const at = (t) => (typeof t === "number" ? `${t.toFixed(2)} s` : "?");
+  const chunks = skips.reduce((n, k) => n + k.chunks, 0);
+  const where = skips.map((k) => `t ${at(k.after)} – ${k.until === null ? "…" : at(k.until)}`).join(", ");
+  return `fell behind: ${chunks} downlink chunks skipped, rows missing at ${where}`;
 }
 
 // ---------------------------------------------------------------- the timeline
@@ -307,12 +331,12 @@ function invalidate() {
 function uplinkState(feed) {
   const info = state.info;
   if (!info) {
-    if (runFailedToStart()) return { on: false, why: `The run failed to start${state.status.exit ? ` (${state.status.exit})` : ""}: no commands.` };
+    if (runFailedToStart()) return { on: false, why: `The run failed to start${state.status.exit ? ` (${shortText(state.status.exit)})` : ""}: no commands.` };
     return { on: false, why: state.connected ? "Waiting for the run: no commands yet." : "Connecting: no commands yet." };
   }
   if (info.mode !== "live") return { on: false, why: "Replay: no commands." };
   if (!info.uplink) return { on: false, why: "This run takes no commands (started without an uplink)." };
-  if (feed.cls === "ended") return { on: false, why: `The run has ended${state.status.exit ? ` (${state.status.exit})` : ""}: no commands.` };
+  if (feed.cls === "ended") return { on: false, why: `The run has ended${state.status.exit ? ` (${shortText(state.status.exit)})` : ""}: no commands.` };
   if (feed.cls === "stale" || feed.cls === "bad") return { on: false, why: `No word from the host (${feed.text}): commands are off until it answers.` };
   return { on: true, why: "" };
 }

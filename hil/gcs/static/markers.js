@@ -1,17 +1,17 @@
 // What the plots mark with a vertical line: each operator command once (its first record), the slew's start
 // and end, and the faults the host saw — the rules of hil/plots/markers.py, which marks the saved figures.
 
-import { threeNumbers } from "./panels.js";
+import { shortText, threeNumbers } from "./panels.js";
 
 export const MARKER_COLORS = { command: "#1f5fbf", manoeuvre: "#6b7480", fault: "#c62828" };
 const FAULT_KINDS = { board_reset: "board reset", link_lost: "link lost", esc_dead: "ESC dead", phone_gap: "phone gap", silence: "board silent", phone_switch: "phone switched" };
 const MANOEUVRE_KINDS = { slew_start: "slew start", slew_end: "slew end" };
 
 function commandLabel(e) {
-  let name = String(e.command);
+  let name = shortText(e.command);
   const euler = threeNumbers(e.target_euler_deg);
   if (name === "slew" && euler) name = `slew to ${euler.join("/")}°`;
-  const label = `${name} (${e.origin ?? "?"})`;
+  const label = `${name} (${shortText(e.origin ?? "?")})`;
   return e.status === "refused" ? `${label} refused` : label;
 }
 
@@ -24,7 +24,7 @@ export function runMarkers(events) {
     if (!Number.isFinite(e.t)) continue;
     if (e.kind === "command") {
       if (e.id === null || e.id === undefined) continue;
-      const key = `${e.origin}/${e.id}`;
+      const key = JSON.stringify([e.origin, e.id]);  // objects too, each its own (a template made all "[object Object]")
       if (seen.has(key)) continue;
       seen.add(key);
       out.push({ t: e.t, label: commandLabel(e), kind: "command" });

@@ -290,11 +290,13 @@ const EVENT_CLASS = (e) => {
   return "";
 };
 
-// Numbers to 4 significant digits (an event's rotation vectors and times are for reading, not for copying).
-function short(x) {
+// A record's field as text: numbers to 4 significant digits (an event's rotation vectors and times are for
+// reading, not for copying), lists and objects by their content — String() of an object, from a run
+// directory's events (any JSON), was "[object Object]" in the markers, the command history and the uplink log.
+export function shortText(x) {
   if (typeof x === "number") return Number.isInteger(x) ? String(x) : String(Number(x.toPrecision(4)));
-  if (Array.isArray(x)) return `[${x.map(short).join(", ")}]`;
-  if (x !== null && typeof x === "object") return Object.entries(x).map(([k, v]) => `${k} ${short(v)}`).join(", ");
+  if (Array.isArray(x)) return `[${x.map(shortText).join(", ")}]`;
+  if (x !== null && typeof x === "object") return Object.entries(x).map(([k, v]) => `${k} ${shortText(v)}`).join(", ");
   return String(x);
 }
 
@@ -302,7 +304,7 @@ function short(x) {
 // scrolls sideways).
 function details(e) {
   return Object.entries(e).filter(([k, x]) => k !== "t" && k !== "kind" && x !== null && x !== "")
-    .map(([k, x]) => `${k.replace(/_/g, " ")}: ${short(x)}`).join(" · ");
+    .map(([k, x]) => `${k.replace(/_/g, " ")}: ${shortText(x)}`).join(" · ");
 }
 
 // The newest events at or before the cursor, as a table (redrawn only when they change).

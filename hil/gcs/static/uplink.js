@@ -2,7 +2,7 @@
 // JSON POST with the token, and its line in the command log follows what the run says about it (its
 // "command" events: sent -> acked / nacked / failed, or applied / refused).
 
-import { $ } from "./panels.js";
+import { $, shortText } from "./panels.js";
 
 const CONFIRM_MS = 4000;
 const SLEW_AXES = ["roll", "pitch", "yaw"];
@@ -116,8 +116,8 @@ export class Uplink {
     this.latest.set(e.id, e);
     const li = this.items.get(e.id);
     if (!li) return;
-    const detail = e.reason ? ` (${e.reason})` : e.after_ms !== undefined ? ` after ${Number(e.after_ms).toFixed(0)} ms` : "";
-    this.setStatus(li, e.status, `#${e.id} ${e.command}${detail}`);
+    const detail = e.reason ? ` (${shortText(e.reason)})` : e.after_ms !== undefined ? ` after ${Number(e.after_ms).toFixed(0)} ms` : "";
+    this.setStatus(li, e.status, `#${e.id} ${shortText(e.command)}${detail}`);
   }
 }
 
