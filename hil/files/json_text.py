@@ -14,25 +14,31 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
 
 def finite_or_null(value: Any) -> Any:
-    """``value`` (a JSON document to write: mappings, lists and tuples of plain values) with every float that
-    is not finite (NaN, ±infinity; numpy's too) as None, numpy scalars and arrays as Python values; the rest
-    as it is."""
+    """``value`` (a JSON document to write) in JSON's own types: every number that is not finite (NaN,
+    ±infinity; numpy's too) as None, numpy scalars and arrays as Python values, tuples as lists, mapping keys
+    as strings; anything else JSON has no type for as its number if it is one, else its ``str`` (a path)."""
     if isinstance(value, Mapping):
-        return {key: finite_or_null(v) for key, v in value.items()}
+        return {str(k): finite_or_null(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [finite_or_null(v) for v in value]
-    if isinstance(value, (np.generic, np.ndarray)):
-        return finite_or_null(value.tolist())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
+    if value is None or isinstance(value, (bool, str, int)):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    tolist = getattr(value, "tolist", None)  # numpy's scalars and arrays
+    if callable(tolist):
+        return finite_or_null(tolist())
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return number if math.isfinite(number) else None
 
 
-def strict_json(value: Any, indent: int | None = None) -> str:
-    """``value`` as strict JSON text (:func:`finite_or_null`; anything else JSON has no type for, a path
-    say, as its ``str``); one line unless ``indent``."""
-    return json.dumps(finite_or_null(value), indent=indent, default=str, allow_nan=False)
+def strict_json(value: Any, indent: int | None = None, compact: bool = False) -> str:
+    """``value`` as strict JSON text (:func:`finite_or_null`); one line unless ``indent``, without spaces
+    after separators when ``compact`` (the ground station's messages)."""
+    separators = (",", ":") if compact else None
+    return json.dumps(finite_or_null(value), indent=indent, separators=separators, allow_nan=False)

@@ -22,11 +22,12 @@ a display and a third of ``repr``'s bytes.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+from hil.files.json_text import strict_json
 
 Row = Sequence[Any]
 
@@ -88,29 +89,9 @@ def encode_rows(rows: Sequence[Row], run: int | None = None) -> str:
     return head + '"rows":[' + ",".join(parts) + "]}"
 
 
-def clean(value: Any) -> Any:
-    """``value`` made JSON-safe: non-finite floats → None, numpy scalars and arrays → Python, tuples → lists,
-    anything else unknown → its ``str``."""
-    if isinstance(value, Mapping):
-        return {str(k): clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [clean(v) for v in value]
-    if value is None or isinstance(value, (bool, str, int)):
-        return value
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    tolist = getattr(value, "tolist", None)
-    if callable(tolist):
-        return clean(tolist())
-    try:
-        f = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    return f if math.isfinite(f) else None
-
-
 def dumps(value: Any) -> str:
-    return json.dumps(clean(value), separators=(",", ":"), allow_nan=False)
+    """``value`` as one compact line of strict JSON (:func:`hil.files.json_text.strict_json`)."""
+    return strict_json(value, compact=True)
 
 
 def sse(event: str, data: str) -> bytes:
