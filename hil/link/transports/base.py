@@ -27,6 +27,7 @@ class Transport(abc.ABC):
         self.bytes_out = 0
         self._open = False
         self._lock = threading.Lock()
+        self._failure_after_data: LinkError | None = None  # raised by the next read (_hand_up_then_fail)
 
     # ------------------------------------------------------------------ public
     @property
@@ -64,6 +65,9 @@ class Transport(abc.ABC):
         Raises LinkError if the port vanished (far side closed, device unplugged)."""
         if not self._open:
             raise LinkError(f"{self.url}: read on a closed transport")
+        failure, self._failure_after_data = self._failure_after_data, None
+        if failure is not None:
+            raise failure
         try:
             data = self._read(timeout)
         except LinkError:
@@ -96,7 +100,18 @@ class Transport(abc.ABC):
         vanished port is. While the transport is open, an unexpected error is raised as it is."""
         return LinkError(f"{self.url}: the transport was closed during a {what} ({exc!r})")
 
+    def _hand_up_then_fail(self, data: bytes | bytearray, failure: LinkError) -> bytes:
+        """For a backend's ``_read`` whose port failed after it took ``data`` in that same read: the bytes
+        are handed up now and ``failure`` is raised by the next read (at once, when nothing was taken). A
+        far side's last bytes come just before its end — a board's last frame before it reset, its final
+        0x00 alone in a socket's last segment — and raised at once, they were lost with the read."""
+        if not data:
+            raise failure
+        self._failure_after_data = failure
+        return bytes(data)
+
     def close(self) -> None:
+        self._failure_after_data = None  # a reopened port starts afresh
         if self._open:
             self._open = False
             self._close()

@@ -190,7 +190,6 @@ class CanTransport(Transport):
         self._unechoed_count: dict[tuple[int, bytes], int] = {}  # how many of each the deque holds
         self._echo_lock = threading.Lock()  # the writer appends, the reader takes the loopback off
         self._bus: can.BusABC | None = None
-        self._pending: LinkError | None = None  # a receive failure raised by the next read
         self._skipped = False  # the last _recv returned None for an undecodable message, not a timeout
         self._logged_at: dict[str, float] = {}  # when each kind of counted drop was last logged
         self._unlogged: dict[str, int] = {}
@@ -210,9 +209,6 @@ class CanTransport(Transport):
             ) from exc
 
     def _read(self, timeout: float | None) -> bytes:
-        if self._pending is not None:
-            exc, self._pending = self._pending, None
-            raise exc
         deadline = None if timeout is None else time.monotonic() + timeout
         out = bytearray()
         taken = 0
@@ -233,10 +229,8 @@ class CanTransport(Transport):
                     out += self._accept(msg)
                 elif not self._skipped:
                     break
-        except LinkError as exc:
-            if not out:
-                raise
-            self._pending = exc  # the frames completed before the failure are handed up first
+        except LinkError as exc:  # the frames completed before the failure are handed up first
+            return self._hand_up_then_fail(out, exc)
         return bytes(out)
 
     def _write(self, data: bytes) -> None:
@@ -257,7 +251,6 @@ class CanTransport(Transport):
         with self._echo_lock:
             self._unechoed.clear()
             self._unechoed_count.clear()
-        self._pending = None  # a reopened bus starts afresh
         self._reassembler.reset()  # partial frames die with the connection (counted as cut)
         if bus is not None:
             try:

@@ -19,6 +19,7 @@ import errno
 import os
 import termios
 from dataclasses import dataclass
+from typing import Any
 
 import serial
 
@@ -42,6 +43,48 @@ def _waiting_is_a_flag(port: serial.SerialBase) -> bool:
     return type(port).__module__.endswith("protocol_socket")
 
 
+def _is_spy(port: serial.SerialBase) -> bool:
+    """Whether ``port`` is pyserial's ``spy://`` wrapper. Its handler opens the dump's ``file=`` anew (mode
+    ``"w"``: emptied) each time such a port is made, so one made for each connection emptied the dump of
+    every earlier one at the link's first reconnect — the traffic up to the loss, which is what a spy is
+    for. The transport makes it once and opens it again on each reconnect, the dump going on."""
+    return type(port).__module__.endswith("protocol_spy")
+
+
+class _BinaryLayer:
+    """A text stream's binary layer (its ``buffer``; the bytes as Latin-1 characters for a stream that has
+    none), taking bytes and the ``str`` escapes of ``color`` alike: what pyserial's spy ``raw`` formatter
+    writes."""
+
+    def __init__(self, text: Any) -> None:
+        self.text = text
+
+    def write(self, data: bytes | str) -> None:
+        raw = data.encode() if isinstance(data, str) else bytes(data)
+        buffer = getattr(self.text, "buffer", None)
+        if buffer is None:
+            self.text.write(raw.decode("latin-1"))
+            return
+        self.text.flush()  # what the text layer holds goes first
+        buffer.write(raw)
+
+    def flush(self) -> None:
+        self.text.flush()
+        buffer = getattr(self.text, "buffer", None)
+        if buffer is not None:
+            buffer.flush()
+
+
+def _spy_takes_bytes(port: serial.SerialBase) -> None:
+    """Let a spy's ``raw`` formatter write what it sees. pyserial's ``FormatRaw`` writes the port's bytes
+    into its output, which the handler opens as text (``file=``, or ``sys.stderr``): the first write of a
+    ``spy://PORT?raw`` was a ``TypeError`` out of ``write()``, ``hil run`` ending on a traceback. It is
+    given the output's binary layer instead (:class:`_BinaryLayer`); the hexdump writes text, as it is."""
+    formatter: Any = getattr(port, "formatter", None)
+    if type(formatter).__name__ == "FormatRaw" and not isinstance(formatter.output, _BinaryLayer):
+        formatter.output = _BinaryLayer(formatter.output)
+
+
 def _no_serial_port(exc: serial.SerialException) -> bool:
     """Whether pyserial's refusal says the path is there and is no serial port — a folder (EISDIR), a
     regular file, a FIFO or a device that is no terminal (ENOTTY: pyserial's termios set-up refused,
@@ -54,6 +97,32 @@ def _no_serial_port(exc: serial.SerialException) -> bool:
     if isinstance(context, OSError):
         codes.add(context.errno)
     return bool(codes & {errno.EISDIR, errno.ENOTTY})
+
+
+def _url_fault(exc: BaseException) -> str | None:
+    """What a pyserial URL handler found wrong with the URL itself, said plainly; None when ``exc`` is no
+    such refusal (a connection refused, a name not resolved, a device not there yet: tried again).
+
+    The handlers parse the URL inside ``open()`` and wrap what they raise: ``socket://`` raises a
+    ``ValueError`` (a port out of 0..65535 or not a number, an unknown option, a malformed IPv6 host), then
+    formats its message with a stray ``{...}``, so a ``KeyError('debug|info|warning|error')`` raised over it
+    is what its ``SerialException`` quotes; an unknown ``logging`` level is a bare ``KeyError``. The
+    deepest ``ValueError`` or ``KeyError`` in the chain (never an ``OSError``: a socket's errors are
+    network faults) is the cause; seen only as a ``SerialException``, a ``socket://localhost:99999`` was
+    tried again for the run's whole outage bound (15 s), the error quoting ``'debug|info|warning|error'``."""
+    found: BaseException | None = None
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        seen.add(id(link))
+        if isinstance(link, (ValueError, KeyError)) and not isinstance(link, OSError):
+            found = link
+        link = link.__cause__ or link.__context__
+    if found is None:
+        return None
+    if isinstance(found, KeyError):
+        return f"no such value {found.args[0]!r}" if found.args else "a value it does not know"
+    return str(found) or type(found).__name__
 
 
 class SerialTransport(Transport):
@@ -69,6 +138,8 @@ class SerialTransport(Transport):
         self._link_at_open: _PtyLink | None = None  # the link to a pty last opened through, as it was
         self._pty_gone = False  # that pty went away since (its far side closed it, or it was seen gone)
         self._waiting_is_a_flag = False  # the open port's in_waiting says only whether (_waiting_is_a_flag)
+        # a spy:// port, made once and opened again on each reconnect (_is_spy: its dump goes on)
+        self._spy: serial.SerialBase | None = None
 
     def present(self) -> bool | None:
         """A device path (``/dev/ttyACM0``, a firmware-sim ``--link``): whether it leads to a device now (a
@@ -103,16 +174,20 @@ class SerialTransport(Transport):
                 "away, whose number another program now has; waiting for the link to be made anew (a "
                 "firmware-sim started again makes it)"
             )
-        port: serial.SerialBase | None = None
+        port: serial.SerialBase | None = self._spy
         try:
-            port = serial.serial_for_url(
-                self.url,
-                baudrate=self.baudrate,
-                timeout=0.05,
-                write_timeout=2.0,
-                exclusive=True,
-                do_not_open=True,  # so a refused lock still tells which device it was (port.port)
-            )
+            if port is None:
+                port = serial.serial_for_url(
+                    self.url,
+                    baudrate=self.baudrate,
+                    timeout=0.05,
+                    write_timeout=2.0,
+                    exclusive=True,
+                    do_not_open=True,  # so a refused lock still tells which device it was (port.port)
+                )
+                if _is_spy(port):
+                    _spy_takes_bytes(port)
+                    self._spy = port
             port.open()
             self._port = port
             self._waiting_is_a_flag = _waiting_is_a_flag(port)
@@ -122,12 +197,15 @@ class SerialTransport(Transport):
                 raise self._busy(str(port.port)) from exc
             if _no_serial_port(exc):
                 raise TransportRefused(f"{self.url}: not a serial port ({exc})") from exc
+            bad_url = _url_fault(exc)
+            if bad_url is not None:  # a URL handler's refusal of the URL, wrapped by its open()
+                raise TransportRefused(f"{self.url}: bad URL or options: {bad_url}") from exc
             raise TransportError(f"{self.url}: {exc}") from exc
         except (ValueError, KeyError) as exc:
             # pyserial's URL handlers raise ValueError for bad options; loop:// raises KeyError
             # (a format-string bug in its own error message), so both mean "bad URL options": no board,
             # however long it is tried
-            raise TransportRefused(f"{self.url}: bad URL or options ({exc!r})") from exc
+            raise TransportRefused(f"{self.url}: bad URL or options: {_url_fault(exc) or repr(exc)}") from exc
 
     def _busy(self, device: str) -> PortBusy:
         """The refusal of a port another process has locked, naming that process when it can be found."""
@@ -139,13 +217,13 @@ class SerialTransport(Transport):
     def _read(self, timeout: float | None) -> bytes:
         port = self._port
         assert port is not None
+        out = bytearray()
         try:
             if port.timeout != timeout:
                 port.timeout = timeout
-            first = port.read(1)
-            if not first:
+            out += port.read(1)
+            if not out:
                 return b""
-            out = bytearray(first)
             if self._waiting_is_a_flag:  # take what has come at once, up to the bound
                 port.timeout = 0
                 try:
@@ -162,7 +240,9 @@ class SerialTransport(Transport):
         except (serial.SerialException, OSError) as exc:
             # a pty fails a read once its far side closed (not when our own close came under the read)
             self._pty_gone = self._open and self._link_at_open is not None
-            raise LinkError(f"{self.url}: read failed (port vanished?): {exc}") from exc
+            failure = LinkError(f"{self.url}: read failed (port vanished?): {exc}")
+            failure.__cause__ = exc
+            return self._hand_up_then_fail(out, failure)  # what came before the end is the far side's last
 
     def _write(self, data: bytes) -> None:
         port = self._port
