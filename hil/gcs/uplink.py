@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from hil.numbers import finite_number
-from hil.runtime.operator import COMMANDS, Operator, OperatorCommand
+from hil.runtime.operator import COMMANDS, TARGET_RANGE_DEG, Operator, OperatorCommand
 from protocol.errors import HilError, InputFormatError
 
 if TYPE_CHECKING:
@@ -35,7 +35,7 @@ if TYPE_CHECKING:
 MAX_BODY = 4096  # bytes of a command request
 INBOX = 16  # commands waiting for the next control tick; more answer 503
 REJECTED_LOG = 64  # turned-away requests waiting to be logged; more are counted only
-ANGLE_RANGE = {"roll_deg": 180.0, "pitch_deg": 90.0, "yaw_deg": 180.0}
+ANGLE_RANGE = dict(zip(("roll_deg", "pitch_deg", "yaw_deg"), TARGET_RANGE_DEG, strict=True))  # the run's
 MAX_DEPTH = 8  # JSON nesting: a command is one flat object; deeper is refused before the parser sees it
 ALARM_KEY = re.compile(r"[a-z0-9_.:-]{1,64}")  # an alarm's key, as the page names it (static/alarms.js)
 _STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')

@@ -28,6 +28,7 @@ status, so a run's record says what an operator did to it and when.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -43,6 +44,10 @@ if TYPE_CHECKING:
     from protocol.reliable import Command as BoardCommand
 
 COMMANDS = ("arm", "disarm", "abort", "hold", "slew")
+TARGET_RANGE_DEG = (180.0, 90.0, 180.0)
+"""How far (degrees, either way) a ``slew``'s roll, pitch and yaw may go: every attitude once
+(:func:`hil.so3.euler_zyx`). The ground station's parser holds a request to them
+(:data:`hil.gcs.uplink.ANGLE_RANGE`), a fault campaign draws within them."""
 ORIGINS = {"gcs": "the ground station", "campaign": "the fault campaign"}
 """Who sends commands, as an exit reason names them (another origin is named as it is)."""
 
@@ -50,6 +55,26 @@ ORIGINS = {"gcs": "the ground station", "campaign": "the fault campaign"}
 def sender(origin: str) -> str:
     """``origin`` as the exit reason names it ("the ground station")."""
     return ORIGINS.get(origin, origin)
+
+
+def unfit(command: OperatorCommand) -> str | None:
+    """Why ``command`` cannot be carried out as given, or None: a name not among :data:`COMMANDS`, a
+    ``slew`` without three finite angles within :data:`TARGET_RANGE_DEG` (degrees). Every sender's command
+    passes here — not only the ground station's, whose parser refuses such a request: a campaign's or a
+    script's slew to NaN° went on to the controller, and its NaN setpoint ended the run with ``error:
+    ActuatorSetpoint.units[0].gimbal = nan is out of range``; one without a target or of an unknown name
+    with a bare AssertionError."""
+    if command.name not in COMMANDS:
+        return f"not a command (one of {', '.join(COMMANDS)}): {command.name!r}"
+    if command.name != "slew":
+        return None
+    target = command.target
+    if target is None or len(target) != 3:
+        return f"a slew needs its target (roll, pitch, yaw) in degrees, got {target!r}"
+    for axis, angle, limit in zip(("roll", "pitch", "yaw"), target, TARGET_RANGE_DEG, strict=True):
+        if not (isinstance(angle, (int, float)) and math.isfinite(angle) and abs(angle) <= limit):
+            return f"slew {axis} must be a number of degrees within ±{limit:g}°, got {angle!r}"
+    return None
 
 
 @dataclass(frozen=True)
@@ -89,6 +114,10 @@ class Operator:
         on a later tick. Raises :class:`RunAborted` when an abort cannot reach the board."""
         if self._abort is not None:
             self._log(host, t, command, "refused", reason="the run is being aborted")
+            return
+        why = unfit(command)
+        if why is not None:
+            self._log(host, t, command, "refused", reason=why)
             return
         name = command.name
         if name in ("arm", "disarm", "abort"):
@@ -147,28 +176,35 @@ class Operator:
     def _end_abort(self, host: Host, t: float, abort: _Pending) -> None:
         """End the run once the board says it is no longer armed (its telemetry after the Disarm's ack),
         or at once if the Disarm failed (the board's link watchdog then fails it safe when the host lets
-        go); at most :data:`~hil.runtime.watch.STATE_CONFIRM_S` after the ack."""
+        go); at most :data:`~hil.runtime.watch.STATE_CONFIRM_S` after the ack. Only telemetry received
+        since the ack, and live (younger than the host's ``stale_after_s``), is the board's word on the
+        Disarm: a link that went silent just after the ack left the telemetry from before it, ARMED, and
+        the exit said the board "still says ARMED 0.5 s later" — a board that had obeyed, said to disobey
+        on a value half a second old."""
         n, origin = abort.command.id, sender(abort.command.origin)
         if not abort.handle.ok:
             raise RunAborted(
                 f"from {origin} (command {n}: the Disarm failed; the board's link watchdog fails it safe)"
             )
-        tel = host.client.telemetry
+        client = host.client
+        tel, tel_t = client.telemetry, client.telemetry_time
         settled = abort.handle.settled_at
-        if (
-            tel is not None
-            and tel.state is BoardState.ARMED
-            and (settled is None or t - settled < STATE_CONFIRM_S)
-        ):
+        heard = tel is not None and tel_t is not None and settled is not None and tel_t >= settled
+        if heard and tel is not None and tel.state is not BoardState.ARMED:
+            raise RunAborted(f"from {origin} (command {n}: board disarmed, telemetry says {tel.state.name})")
+        if settled is not None and t - settled < STATE_CONFIRM_S:
             return  # acknowledged; wait for the telemetry that shows it
-        if tel is None:
+        if tel is None or tel_t is None:
             raise RunAborted(f"from {origin} (command {n}: board disarmed, no telemetry to show it)")
-        if tel.state is BoardState.ARMED:  # the run's way out disarms it again (hil.runtime.loop)
+        if heard and t - tel_t <= host.stale_after_s:  # live, since the ack: the run's way out disarms again
             raise RunAborted(
                 f"from {origin} (command {n}: the board acknowledged the Disarm, yet its telemetry still "
                 f"says ARMED {STATE_CONFIRM_S:g} s later)"
             )
-        raise RunAborted(f"from {origin} (command {n}: board disarmed, telemetry says {tel.state.name})")
+        raise RunAborted(
+            f"from {origin} (command {n}: the board acknowledged the Disarm, no live telemetry since to show "
+            f"it: the last is {(t - tel_t) * 1e3:.0f} ms old)"
+        )
 
     def _settle(self, host: Host, t: float, p: _Pending) -> None:
         """The board's answer, as the protocol settled it: acked, nacked (with its reason) or failed."""

@@ -90,6 +90,8 @@ class BoardWatch:
         self._arm_unheeded = False  # the board says DISARMED though it acknowledged the host's Arm
         self._rearm: str | Command | None = None  # "pending" or the Arm in flight
         self._operator_arm: Command | None = None  # the operator's Arm in flight
+        self._disarm_unseen = False  # the operator's Disarm is out; the board not yet seen out of ARMED
+        self._overtaken_by: Command | None = None  # the operator's Arm sent before that Disarm was seen
         self._fresh_after = -math.inf  # telemetry received before this (host s) is from an older session
         self._link = BoardLink.STALE  # nothing seen yet
         self._stale_noted = False  # the stale episode going on is in the journal
@@ -107,6 +109,8 @@ class BoardWatch:
         if isinstance(event, StateEvent):
             old = None if event.old is None else event.old.name
             self.events.write(t, "board_state", old=old, new=event.new.name)
+            if event.new is not BoardState.ARMED:
+                self._disarm_unseen = False
             if event.new is BoardState.FAILSAFE:
                 self.failsafes += 1
                 logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): re-arming", t)
@@ -166,7 +170,22 @@ class BoardWatch:
         FAILSAFE → DISARMED follows a failsafe already being recovered from.)"""
         if event.new is not BoardState.DISARMED or event.old is not BoardState.ARMED:
             return False
+        if self._operators_own_disarm(event.t):
+            return False
         return not self.operator_disarmed and self._rearm is None and not self._upsets
+
+    def _operators_own_disarm(self, t: float) -> bool:
+        """Whether a board DISARMED at ``t`` (s) is the operator's own Disarm carried out, the Arm the
+        operator sent after it (before the board was seen disarmed: both in one control tick, a ground
+        station's two clicks) not yet settled :data:`STATE_CONFIRM_S` before: the board carries them out in
+        the order sent, so its ARMED → DISARMED → ARMED is what the operator asked for. Taken for an
+        unasked Disarm, it was a ``disarmed`` fault, a recovery, and on the run's last tick an exit ``lost …
+        for 0.0 s`` (status 3). Once only: a later Disarm no one sent is one. (A board that then stays
+        DISARMED has not carried the Arm out: :meth:`hold_armed` says so.)"""
+        arm, self._overtaken_by = self._overtaken_by, None
+        if arm is None:
+            return False
+        return arm.settled_at is None or t - arm.settled_at < STATE_CONFIRM_S
 
     def _upset(self, why: str) -> None:
         self._upsets.append(why)
@@ -367,6 +386,8 @@ class BoardWatch:
             self._rearm = None
         self._disarm = None  # set once sent: without a session the command raises here
         self._disarm = self.client.command(Disarm())
+        self._disarm_unseen = True
+        self._overtaken_by = None
         return self._disarm
 
     def operator_arm(self, t: float) -> Command:
@@ -378,4 +399,7 @@ class BoardWatch:
         self._armed_unasked = False
         self._rearm = None
         self._operator_arm = arm
+        # the operator's Disarm not yet seen carried out: the board's DISARMED to come is that Disarm's
+        self._overtaken_by = arm if self._disarm_unseen else None
+        self._disarm_unseen = False
         return arm
