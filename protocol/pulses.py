@@ -266,18 +266,26 @@ class PpmCounters:
     edges: int = 0
     frames: int = 0
     dropped: dict[str, int] = field(default_factory=dict)  # reason → count
+    reanchored: int = 0  # times the edge held was found the absurd one and the stream taken up anew
 
 
 class PpmDecoder:
     """Stream decoder: feed rising-edge times (µs, any origin, increasing); get :class:`PpmFrame` and
     :class:`BadPpm` events. Like a flight controller's PPM input it waits for a sync gap, collects channel
     intervals until the next sync, and drops the frame on a glitch, an out-of-range interval or a wrong
-    channel count, then resynchronises at the next sync. Memory is bounded (one frame)."""
+    channel count, then resynchronises at the next sync. Memory is bounded (one frame).
+
+    An edge that does not come after the one held is dropped and the held one kept (a timestamp from the
+    past). Two in a row, in order between themselves, say the held one was the absurd one — a glitch far
+    in the future (1e160 µs), or a first edge that was NaN or inf: kept, it put every later edge "before"
+    it and the decoder dropped the whole stream from there on. The stream is then taken up anew at the
+    second (``counters.reanchored``) and decodes again from the next sync."""
 
     def __init__(self, params: PpmParams = DEFAULT_PPM) -> None:
         self.params = params
         self.counters = PpmCounters()
         self._last: float | None = None
+        self._behind: float | None = None  # the edge just dropped for not coming after ``_last``
         self._synced = False
         self._start = 0.0
         self._channels: list[int] = []
@@ -295,8 +303,13 @@ class PpmDecoder:
             return
         dt = t - last
         kind = classify_interval(dt, self.params)
+        behind, self._behind = self._behind, None
         if kind is PpmInterval.ORDER:
-            self._last = last  # keep the good edge; drop this one
+            if behind is not None and t > behind:  # the held edge is ahead of two in order: it was absurd
+                self.counters.reanchored += 1
+                self._synced, self._channels = False, []
+                return  # ``t`` is the edge held: the stream goes on from it, decoding from the next sync
+            self._last, self._behind = last, t  # keep the edge held; drop this one
             self._drop(events, t, kind, f"edge at {t!r} µs does not come after {last!r} µs")
         elif kind is PpmInterval.SYNC:
             if self._synced and self._channels:

@@ -81,8 +81,17 @@ class RetryPolicy:
             raise ConfigError(f"{self.max_tries!r} must be an integer >= 1", "RetryPolicy.max_tries")
 
     def timeout(self, tries: int) -> float:
-        """Seconds to wait for an answer after the ``tries``-th send."""
-        return min(self.timeout_s * self.backoff ** (tries - 1), self.max_timeout_s)
+        """Seconds to wait for an answer after the ``tries``-th send.
+
+        A power past the float range is ``max_timeout_s`` (the backoff is at least 1: it only grows): a
+        float power raises ``OverflowError`` there rather than giving inf — a backoff of 1e160 at the third
+        try, a backoff of 2 at the 1025th — and the retry loop died with a traceback instead of retrying
+        or failing the command."""
+        try:
+            grown = self.backoff ** (tries - 1)
+        except OverflowError:
+            return self.max_timeout_s
+        return min(self.timeout_s * grown, self.max_timeout_s)
 
 
 @dataclass(eq=False)

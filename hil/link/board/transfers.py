@@ -7,7 +7,7 @@ and answers, this keeps the transfers' state.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from protocol.calibration import Reassembler, UnitCalibration, fragment
 from protocol.errors import CalibrationError, HilError, LinkError, ProtocolError
@@ -19,13 +19,20 @@ from protocol.reliable import AnswerCache, Command, answer_for
 @dataclass(eq=False)
 class Download:
     """A calibration download in progress (``Session.start_download``); ``done`` once it completed or
-    failed, then :meth:`result` gives the unit's calibration or raises why not."""
+    failed, then :meth:`result` gives the unit's calibration or raises why not.
+
+    Each download reassembles its own fragments (``reassembler``): one shared by the session's downloads
+    held the last set it completed, and a later download that drew the same unit and transfer id (transfer
+    ids wrap after 256 transfers, uploads included) of the same set took every fragment for a repeat of
+    that one, acknowledged it and never completed; a download started while another ran wiped the other's
+    fragments, already acknowledged and never sent again."""
 
     unit: int
     transfer_id: int
     request: Command
     data: bytes | None = None
     error: HilError | None = None
+    reassembler: Reassembler = field(default_factory=Reassembler, repr=False)
 
     @property
     def done(self) -> bool:
@@ -41,12 +48,11 @@ class Download:
 
 class CalibrationTransfers:
     """The transfers of one session: the next transfer id, the downloads waiting for fragments (by unit
-    and transfer id), their reassembly, and the answers already given (a retransmitted fragment is
-    answered again, not fed twice)."""
+    and transfer id), each reassembling its own, and the answers already given (a retransmitted fragment
+    is answered again, not fed twice)."""
 
     def __init__(self) -> None:
         self._answers = AnswerCache()
-        self._reassembler = Reassembler()
         self._downloads: dict[tuple[int, int], Download] = {}
         self._transfer_id = 0
 
@@ -61,8 +67,12 @@ class CalibrationTransfers:
     def track(self, unit: int, transfer_id: int, request: Command) -> Download:
         """A download just requested (``request`` is its CalibrationRequest): wait for its fragments."""
         download = Download(unit, transfer_id, request)
+        stale = self._downloads.get((unit, transfer_id))
+        if stale is not None and not stale.done:  # 256 transfers ago, never finished: its fragments are gone
+            stale.error = LinkError(
+                f"calibration download of unit {unit}: transfer id {transfer_id} reused by a newer download"
+            )
         self._downloads[(unit, transfer_id)] = download
-        self._reassembler.reset()
         return download
 
     def abandon(self, why: str) -> None:
@@ -71,13 +81,16 @@ class CalibrationTransfers:
             if not download.done:
                 download.error = LinkError(f"calibration download of unit {download.unit}: {why}")
         self._downloads.clear()
-        self._reassembler.reset()
 
     def request_failed(self, cmd: Command) -> None:
         """A CalibrationRequest was refused or never answered: its download fails with the reason."""
         message: CalibrationRequest = cmd.message
-        download = self._downloads.pop((message.unit, message.transfer_id), None)
-        if download is not None and not download.done:
+        key = (message.unit, message.transfer_id)
+        download = self._downloads.get(key)
+        if download is None or download.request is not cmd:
+            return  # its download was already replaced by a newer one of the same transfer id
+        del self._downloads[key]
+        if not download.done:
             try:
                 cmd.result()
             except HilError as exc:
@@ -94,7 +107,7 @@ class CalibrationTransfers:
                 refused = NackReason.BAD_STATE  # nothing asked for this transfer
             else:
                 try:
-                    done = self._reassembler.feed(msg)
+                    done = download.reassembler.feed(msg)
                 except CalibrationError as exc:
                     download.error = exc
                     refused = NackReason.BAD_CALIBRATION
