@@ -25,7 +25,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,7 +34,14 @@ from protocol.errors import CalibrationError, ConfigError, HilError, LinkError
 from .bench import BenchKind, read_bench_csv
 from .benchlink import BenchLink, GuardTripped
 from .esc import EscOutcome, EscProgram, program_esc
-from .files import CalibrationSet, FitInfo, UnitEntry, load_calibration, save_calibration
+from .files import (
+    CalibrationSet,
+    FitInfo,
+    UnitEntry,
+    load_calibration,
+    relative_source,
+    save_calibration,
+)
 from .fit import Fit, FitOptions, fit_bench
 from .operator import Operator
 from .plot import plot_fits, plot_path
@@ -215,6 +221,7 @@ def check_cycle(units: list[int], options: CycleOptions) -> CalibrationSet:
         for plan in options.plans:
             csv = options.bench_dir / f"unit{unit}_{plan.kind.value}.csv"
             check_writable(csv, f"--bench-dir {options.bench_dir}")
+            relative_source(csv, options.out, f"--bench-dir {options.bench_dir}")  # stored by _save
             outputs[f"--bench-dir {options.bench_dir} ({csv.name})"] = csv
     check_distinct(outputs)  # -o bench/unit0_rotor.csv: the sweep's data, then the file, in one file
     return load_calibration(options.out) if options.out.exists() else CalibrationSet(())
@@ -321,7 +328,6 @@ def _save(
     """Save the calibrated units into ``out``, read again under its lock (:func:`locked`): the units
     another writer saved in it since the run began are kept (the run's units, assembled from ``existing``
     as it was then, replace theirs). Saving the file as read before the sweeps lost them."""
-    out_dir = out.resolve().parent
     with locked(out, f"-o {out}"):
         cset = load_calibration(out) if out.exists() else CalibrationSet(())
         for unit, cal in calibrations.items():
@@ -329,7 +335,7 @@ def _save(
             provenance = dict(old.fits) if old is not None else {}
             for kind, fit in fits[unit].items():
                 r = fit.report
-                source = os.path.relpath(csvs[unit][kind].resolve(), out_dir)
+                source = relative_source(csvs[unit][kind], out, f"--bench-dir ({csvs[unit][kind]})")
                 provenance[kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
             name = old.name if old is not None else f"unit{unit}"
             cset = cset.with_unit(UnitEntry(unit, name, cal, provenance))

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
-from protocol.errors import CommandFailed, ConfigError, HilError, LinkTimeout, ProtocolError
+from protocol.errors import CommandFailed, ConfigError, FieldRangeError, HilError, LinkTimeout, ProtocolError
 from protocol.messages import (
     ESC_CALIBRATION_CONFIRM,
     ESC_SUPPLY_WAIT_MS,
@@ -23,6 +24,7 @@ from protocol.messages import (
     EscCalibrationStatus,
     EscCalPhase,
     EscCalStep,
+    encode_payload,
 )
 
 from .benchlink import BenchLink
@@ -55,6 +57,26 @@ class EscProgram:
     supply_off_ms: int = 1500
     high_ms: int = 3000
     low_ms: int = 2000
+
+    OPTIONS: ClassVar[dict[str, str]] = {
+        "low_us": "--esc-low",
+        "high_us": "--esc-high",
+        "supply_off_ms": "--supply-off-ms",
+        "high_ms": "--high-ms",
+        "low_ms": "--low-ms",
+    }
+    """The ``hil calibrate esc``/``unit`` option that sets each field."""
+
+    def __post_init__(self) -> None:
+        """Refuse a field its ``EscCalibrate`` cannot carry (a ``--high-ms -1``, a ``--supply-off-ms`` of
+        hours), as a :class:`ConfigError` naming its option, before a board is opened: it was found when
+        the command was encoded, with the board connected and put to rest, and named the wire's field
+        (``EscCalibrate.high_ms``), not the option. The ranges are the message's own (its codec checks)."""
+        try:
+            encode_payload(self.message(0))
+        except FieldRangeError as exc:
+            option = self.OPTIONS.get(exc.field, exc.field)
+            raise ConfigError(f"{exc.value!r} is outside what the board takes ({exc})", option) from None
 
     def message(self, unit: int, step: EscCalStep = EscCalStep.START) -> EscCalibrate:
         return EscCalibrate(

@@ -62,7 +62,7 @@ from protocol.errors import CalibrationError
 from protocol.messages import MAX_UNITS
 
 from .bench import MAX_BATTERY_V
-from .textfiles import read_text, write_atomic
+from .textfiles import check_text, read_text, write_atomic
 
 FORMAT = "vscmg-hil calibration"
 VERSION = 1
@@ -80,6 +80,19 @@ class FitInfo:
     residual_unit: str
     battery_v: tuple[float, float] | None = None
 
+    def __post_init__(self) -> None:
+        check_text(self.source, "fit source", CalibrationError)  # a file's text: see relative_source
+        check_text(self.residual_unit, "fit residual_unit", CalibrationError)
+
+
+def relative_source(path: str | os.PathLike[str], out: str | os.PathLike[str], where: str) -> str:
+    """A fit's ``source``: ``path`` (a bench CSV) relative to the folder of ``out`` (its calibration file),
+    as :class:`FitInfo` stores it. :class:`CalibrationError` naming ``where`` if that is no text a file can
+    hold (a folder or a CSV whose name has a byte that is not UTF-8): asked before any work, so a run
+    is refused before its sweeps, not after its upload (:func:`~.textfiles.check_text`)."""
+    source = os.path.relpath(Path(path).resolve(), Path(out).resolve().parent)
+    return check_text(source, where, CalibrationError)
+
 
 @dataclass(frozen=True)
 class UnitEntry:
@@ -93,6 +106,7 @@ class UnitEntry:
     def __post_init__(self) -> None:
         if isinstance(self.index, bool) or not isinstance(self.index, int) or not 0 <= self.index < MAX_UNITS:
             raise CalibrationError(f"{self.index!r} is not a unit number 0..{MAX_UNITS - 1}", "unit index")
+        check_text(self.name, "unit name", CalibrationError)
 
 
 @dataclass(frozen=True)

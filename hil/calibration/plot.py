@@ -19,6 +19,7 @@ from protocol.errors import ConfigError
 
 from .bench import BenchData
 from .fit import Fit
+from .textfiles import shown
 
 
 def plot_path(out: str | os.PathLike[str], unit: int) -> Path:
@@ -57,7 +58,7 @@ def plot_fits(fits: Sequence[tuple[BenchData, Fit]], path: str | os.PathLike[str
                 top.plot(grid, [m.angle(p).value for p in grid], color="tab:red", lw=1.2, label="fit")
                 top.set_ylabel(f"gimbal angle ({r.unit})")
         top.set_title(
-            f"{data.kind.value}: {Path(data.path).name}\nrms {r.rms:.3g} {r.unit}, max {r.max_abs:.3g}"
+            f"{data.kind.value}: {shown(Path(data.path).name)}\nrms {r.rms:.3g} {r.unit}, max {r.max_abs:.3g}"
         )
         top.legend(fontsize="small")
         top.grid(alpha=0.3)
@@ -67,7 +68,7 @@ def plot_fits(fits: Sequence[tuple[BenchData, Fit]], path: str | os.PathLike[str
         bottom.set_ylabel(f"residual ({r.unit})")
         bottom.grid(alpha=0.3)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(shown(title))
     out = Path(path)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

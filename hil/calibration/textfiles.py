@@ -23,6 +23,28 @@ def read_text(path: str | os.PathLike[str], error: Callable[[str, str], HilError
     return read_document(path, error, limit=MAX_DOCUMENT_BYTES)
 
 
+def shown(text: str) -> str:
+    """``text`` as it can be shown anywhere (a plot's title, a message): a byte a file name or an argument
+    held that is not UTF-8 (a surrogate escape, ``\\udcff``) is written as its escape. matplotlib's text
+    layout refused such a string with a ``TypeError`` (a traceback after the fit)."""
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def check_text(text: str, where: str, error: Callable[[str, str], HilError]) -> str:
+    """``text``, if a UTF-8 file can hold it; else ``error(detail, where)``. A name given on the command
+    line or a path with a byte that is not UTF-8 (``--name $'\\xff'``, a bench CSV named so) reaches Python
+    as a surrogate escape, which no calibration file can store: its write raised a ``UnicodeEncodeError``
+    (a traceback, and a temporary file left) — after a board was calibrated, in ``hil calibrate unit``."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise error(
+            f"'{shown(text)}' is not UTF-8 text (character {exc.start}): a calibration file cannot hold it",
+            where,
+        ) from None
+    return text
+
+
 def write_atomic(path: str | os.PathLike[str], text: str) -> Path:
     """Write ``text`` to ``path`` through a temporary file renamed over it; creates the directory.
     :class:`ConfigError` naming the file if it cannot be written.
@@ -33,11 +55,15 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> Path:
     file itself would be."""
     out = Path(path)
     tmp: Path | None = None
+    try:  # encoded before the temporary file is made: a text no UTF-8 file holds leaves none behind
+        data = text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise ConfigError(f"cannot write: character {exc.start} is not UTF-8 text", str(path)) from None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = _temporary(out)
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
         os.replace(tmp, out)
     except OSError as exc:
         if tmp is not None and tmp.is_file():  # written but not renamed (the target a folder): not left

@@ -123,11 +123,17 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 # --------------------------------------------------------------------------- fit
 def run_fit(args: argparse.Namespace) -> int:
     from hil.calibration.bench import read_bench_csv
-    from hil.calibration.files import CalibrationSet, load_calibration, save_calibration
+    from hil.calibration.files import CalibrationSet, load_calibration, relative_source, save_calibration
     from hil.calibration.fit import FitOptions, fit_bench
     from hil.calibration.plot import plot_fits
     from hil.calibration.plot import plot_path as default_plot_path
-    from hil.calibration.textfiles import check_distinct, check_writable, locked
+    from hil.calibration.textfiles import (
+        check_distinct,
+        check_text,
+        check_writable,
+        locked,
+        shown,
+    )
     from protocol.errors import CalibrationError, ConfigError
 
     from ._calibrate_board import say
@@ -145,6 +151,10 @@ def run_fit(args: argparse.Namespace) -> int:
     check_distinct(
         {f"-o {args.out}": args.out, plot_option: plot_path}, {f"the CSV {p}": p for p in args.csv}
     )
+    if args.name is not None:  # the file stores them: refused before the fits, not by the file's write
+        check_text(args.name, "--name", ConfigError)
+    for path in args.csv:
+        relative_source(path, args.out, f"the CSV {shown(str(path))}")
     datasets = [read_bench_csv(path) for path in args.csv]
     for d in datasets:
         if d.partial is not None and not args.allow_partial:
@@ -192,7 +202,7 @@ def _fitted_unit(
     them from."""
     from dataclasses import replace
 
-    from hil.calibration.files import FitInfo, UnitEntry, load_calibration
+    from hil.calibration.files import FitInfo, UnitEntry, load_calibration, relative_source
     from protocol.calibration import UnitCalibration, default_unit_calibration
     from protocol.errors import CalibrationError
 
@@ -230,7 +240,7 @@ def _fitted_unit(
             provenance[k] = replace(info, source=os.path.relpath(base_dir / info.source, out_dir))
     for d, fit in fits:
         r = fit.report
-        source = os.path.relpath(Path(d.path).resolve(), out_dir)
+        source = relative_source(d.path, args.out, f"the CSV {d.path}")
         provenance[d.kind.value] = FitInfo(source, r.points, r.rms, r.max_abs, r.unit, r.battery_v)
     name = args.name or (base.name if base is not None and args.base != "default" else f"unit{args.unit}")
     return UnitEntry(args.unit, name, cal, provenance), kept, base_label
