@@ -64,3 +64,24 @@ def test_a_run_and_its_report_in_a_locale_that_is_not_utf8(tmp_path, name):
     assert report.returncode == 0, report.stderr[-2000:]
     assert "damaged" not in report.stdout, report.stdout
     assert "minimum delta" in report.stdout and "exit              completed" in report.stdout, report.stdout
+
+
+def test_a_run_under_a_name_not_utf8_says_its_directory_on_a_strict_utf8_stdout(tmp_path):
+    """``PYTHONIOENCODING=utf-8`` (strict errors, as a service or a CI runner sets it): the run directory's
+    name holds a byte no encoding decodes, kept as a lone surrogate that no encoding writes; its
+    ``print`` raised, the guard against a hung-up terminal passed it over, and the summary's last line —
+    where the run is — went unprinted. Now it is written as an escape."""
+    name = os.fsdecode(b"runs \xff")
+    env = {**os.environ, "PYTHONIOENCODING": "utf-8"}
+    done = subprocess.run(
+        [sys.executable, "-m", "hil", "run", "--duration", "1", "--no-plots", "--out", name],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        encoding="utf-8",
+        errors="backslashreplace",
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "run directory: runs \\udcff/" in done.stdout, done.stdout[-2000:]

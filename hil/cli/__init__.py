@@ -103,18 +103,22 @@ def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int
 
 
 def escape_what_stdout_cannot_show() -> None:
-    """Characters stdout's encoding cannot show (a summary's ``δ`` and ``ᵀ``, a ``°``, a directory's name,
-    on a terminal or pipe in a C or Latin-1 locale) written as escapes (``\\u03b4``), as Python writes
-    them to stderr, for every command: ``hil run``'s summary went unprinted (its lines' ``print`` raised a
-    ``UnicodeEncodeError``, a ``ValueError`` its guard against a hung-up terminal passed over), and
-    ``hil report`` took the error for a damaged summary.json. UTF-8, which shows every character, is
-    left as it is, as is a stdout without ``reconfigure`` (replaced by a caller)."""
+    """Characters stdout's encoding cannot show written as escapes (``\\u03b4``, ``\\udcff``), as Python
+    writes them to stderr, for every command: a summary's ``δ`` and ``ᵀ`` or a ``°`` on a terminal or pipe
+    in a C or Latin-1 locale, and in any locale, UTF-8's too, a path whose name is not UTF-8 (its bytes
+    kept as lone surrogates, which no encoding takes). ``hil run``'s summary went unprinted (its lines'
+    ``print`` raised a ``UnicodeEncodeError``, a ``ValueError`` its guard against a hung-up terminal passed
+    over), ``hil calibrate`` went silent from such a path on, and ``hil report`` took the error for a
+    damaged summary.json. UTF-8 with a lenient handler (``surrogateescape``: such a name's own bytes
+    written back) shows everything already; a stdout without ``reconfigure`` (replaced by a caller) is left
+    as it is."""
     import codecs
 
-    encoding = getattr(sys.stdout, "encoding", None) or "ascii"
     reconfigure = getattr(sys.stdout, "reconfigure", None)
-    if callable(reconfigure) and not codecs.lookup(encoding).name.startswith("utf"):
-        reconfigure(errors="backslashreplace")
+    encoding = codecs.lookup(getattr(sys.stdout, "encoding", None) or "ascii").name
+    if not callable(reconfigure) or (encoding == "utf-8" and getattr(sys.stdout, "errors", None) != "strict"):
+        return
+    reconfigure(errors="backslashreplace")
 
 
 def entry() -> int:
