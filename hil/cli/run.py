@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import io
 import json
 import math
 import os
@@ -379,9 +380,10 @@ class Plotter:
         :func:`hil.cli._plotter.read_run_dir`): written as text in the locale's encoding, a name that is not
         UTF-8 (``--out $'\\xff'``), or any letter beyond ASCII under a C locale, was a
         ``UnicodeEncodeError``'s traceback after a run that had completed."""
-        assert self.process.stdin is not None
-        self.process.stdin.buffer.write(os.fsencode(run_dir) + b"\n")
-        self.process.stdin.close()
+        stdin = self.process.stdin
+        assert isinstance(stdin, io.TextIOWrapper)  # text=True: its binary layer takes the name's bytes
+        stdin.buffer.write(os.fsencode(run_dir) + b"\n")
+        stdin.close()
 
     def wait(self) -> str:
         assert self.process.stderr is not None
