@@ -25,11 +25,11 @@ ROOT = Path(__file__).resolve().parents[1]
 NOT_UTF8 = {**os.environ, "LC_ALL": "C", "PYTHONUTF8": "0", "PYTHONIOENCODING": ""}
 
 
-def _hil(*argv: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+def _hil(*argv: str, cwd: Path, env: dict[str, str] = NOT_UTF8) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
         [sys.executable, "-m", "hil", *argv],
         cwd=cwd,
-        env=NOT_UTF8,
+        env=env,
         capture_output=True,
         text=True,
         encoding="utf-8",
@@ -73,15 +73,6 @@ def test_a_run_under_a_name_not_utf8_says_its_directory_on_a_strict_utf8_stdout(
     where the run is — went unprinted. Now it is written as an escape."""
     name = os.fsdecode(b"runs \xff")
     env = {**os.environ, "PYTHONIOENCODING": "utf-8"}
-    done = subprocess.run(
-        [sys.executable, "-m", "hil", "run", "--duration", "1", "--no-plots", "--out", name],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        encoding="utf-8",
-        errors="backslashreplace",
-        timeout=300,
-    )
+    done = _hil("run", "--duration", "1", "--no-plots", "--out", name, cwd=tmp_path, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "run directory: runs \\udcff/" in done.stdout, done.stdout[-2000:]
