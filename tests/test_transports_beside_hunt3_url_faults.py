@@ -8,6 +8,8 @@ run --port socket://localhost:99999`` tried again for its whole outage bound (15
 
 from __future__ import annotations
 
+import os
+import pty
 import socket
 import subprocess
 import sys
@@ -77,3 +79,26 @@ def test_hil_run_on_a_socket_url_with_a_bad_port_ends_at_once_with_one_line(tmp_
     assert "tried for" not in done.stderr and "socket://localhost:99999" in done.stderr
     assert "range" in done.stderr
     assert took < 12.0  # the outage bound alone was 15 s
+
+
+def test_a_path_that_can_never_name_a_port_is_refused_at_once(tmp_path):
+    """A name longer than the system takes (ENAMETOOLONG) or a loop of symbolic links (ELOOP) was tried
+    again for the run's whole outage bound, like a port not there yet."""
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    for url in (str(loop), "/dev/" + "a" * 5000):
+        said = str(_refusal(url))
+        assert "not a serial port" in said
+
+
+def test_a_spy_whose_file_cannot_be_made_is_refused_at_once_naming_it(tmp_path):
+    """``spy://PORT?file=`` in a folder that is not there: pyserial's spy opens the file as the URL is read,
+    and its FileNotFoundError was taken for a port not there yet and tried again for 15 s."""
+    controller, device = pty.openpty()
+    try:
+        missing = tmp_path / "not-there" / "spy.txt"
+        said = str(_refusal(f"spy://{os.ttyname(device)}?file={missing}"))
+        assert "bad URL or options" in said and "No such file" in said
+    finally:
+        os.close(controller)
+        os.close(device)

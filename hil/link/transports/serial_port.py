@@ -88,15 +88,16 @@ def _spy_takes_bytes(port: serial.SerialBase) -> None:
 def _no_serial_port(exc: serial.SerialException) -> bool:
     """Whether pyserial's refusal says the path is there and is no serial port — a folder (EISDIR), a
     regular file, a FIFO or a device that is no terminal (ENOTTY: pyserial's termios set-up refused,
-    without an errno of its own, the ``termios.error`` its context) — which trying again for the run's
-    outage bound cannot mend (a port not there yet, or busy for a moment, can be)."""
+    without an errno of its own, the ``termios.error`` its context) — or can never name one: a name longer
+    than the system takes (ENAMETOOLONG), a loop of symbolic links (ELOOP). Trying again for the run's
+    outage bound cannot mend those (a port not there yet, or busy for a moment, can be)."""
     codes = {exc.errno}
     context = exc.__context__
     if isinstance(context, termios.error) and context.args:
         codes.add(context.args[0])
     if isinstance(context, OSError):
         codes.add(context.errno)
-    return bool(codes & {errno.EISDIR, errno.ENOTTY})
+    return bool(codes & {errno.EISDIR, errno.ENOTTY, errno.ENAMETOOLONG, errno.ELOOP})
 
 
 def _url_fault(exc: BaseException) -> str | None:
@@ -177,14 +178,7 @@ class SerialTransport(Transport):
         port: serial.SerialBase | None = self._spy
         try:
             if port is None:
-                port = serial.serial_for_url(
-                    self.url,
-                    baudrate=self.baudrate,
-                    timeout=0.05,
-                    write_timeout=2.0,
-                    exclusive=True,
-                    do_not_open=True,  # so a refused lock still tells which device it was (port.port)
-                )
+                port = self._made_port()
                 if _is_spy(port):
                     _spy_takes_bytes(port)
                     self._spy = port
@@ -206,6 +200,25 @@ class SerialTransport(Transport):
             # (a format-string bug in its own error message), so both mean "bad URL options": no board,
             # however long it is tried
             raise TransportRefused(f"{self.url}: bad URL or options: {_url_fault(exc) or repr(exc)}") from exc
+
+    def _made_port(self) -> serial.SerialBase:
+        """The URL's port object, not opened yet (so a refused lock still tells which device it was,
+        ``port.port``). Nothing of the device is touched here, so an ``OSError`` of its own is what a URL
+        handler opened for itself — a ``spy://`` URL's ``file=`` in a folder that is not there, or not
+        writable — which no retry mends: it was tried again for the run's whole outage bound (15 s)."""
+        try:
+            return serial.serial_for_url(
+                self.url,
+                baudrate=self.baudrate,
+                timeout=0.05,
+                write_timeout=2.0,
+                exclusive=True,
+                do_not_open=True,
+            )
+        except OSError as exc:
+            if isinstance(exc, serial.SerialException):
+                raise
+            raise TransportRefused(f"{self.url}: bad URL or options: {exc}") from exc
 
     def _busy(self, device: str) -> PortBusy:
         """The refusal of a port another process has locked, naming that process when it can be found."""
