@@ -269,6 +269,16 @@ class PpmCounters:
     reanchored: int = 0  # times the edge held was found the absurd one and the stream taken up anew
 
 
+def _edge_us(t: float) -> float:
+    """An edge's time as a float. A capture counter's integer beyond a float's range (10**400) is an edge
+    at ±inf — absurdly far, which the decoder takes up as any absurd edge — not an ``OverflowError`` out of
+    :meth:`PpmDecoder.feed`."""
+    try:
+        return float(t)
+    except OverflowError:
+        return math.inf if t > 0 else -math.inf
+
+
 class PpmDecoder:
     """Stream decoder: feed rising-edge times (µs, any origin, increasing); get :class:`PpmFrame` and
     :class:`BadPpm` events. Like a flight controller's PPM input it waits for a sync gap, collects channel
@@ -293,7 +303,7 @@ class PpmDecoder:
     def feed(self, edges_us: Iterable[float]) -> list[PpmFrame | BadPpm]:
         events: list[PpmFrame | BadPpm] = []
         for t in edges_us:
-            self._edge(float(t), events)
+            self._edge(_edge_us(t), events)
         return events
 
     def _edge(self, t: float, events: list[PpmFrame | BadPpm]) -> None:

@@ -48,3 +48,22 @@ def test_one_absurd_edge_costs_a_few_frames_not_the_stream(
     for k in range(glitch_frame + 2, len(frames) - 1):
         assert decoded.get(k) == tuple(frames[k]), (k, sorted(decoded), decoder.counters)
     assert decoder.counters.frames == len(decoded)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    frames=st.lists(st.lists(st.integers(900, 2100), min_size=4, max_size=8), min_size=6, max_size=10),
+    at=st.integers(0, 10),  # within the first three frames: the second after it on decodes
+    sign=st.sampled_from([1, -1]),
+)
+def test_an_integer_edge_beyond_a_floats_range_is_an_absurd_edge_not_an_overflow(
+    frames: list[list[int]], at: int, sign: int
+) -> None:
+    """A capture counter's integer of 10**400 µs was an ``OverflowError`` out of ``feed``."""
+    edges: list[float] = list(stream(frames))
+    edges.insert(min(at, len(edges)), sign * 10**400)
+    decoder = PpmDecoder()
+    events = decoder.feed(edges)
+    decoded = {round(e.t_us / FRAME_US): e.channels for e in events if isinstance(e, PpmFrame)}
+    assert decoded.get(len(frames) - 2) == tuple(frames[-2])
+    assert decoder.counters.edges == len(edges)
