@@ -64,6 +64,8 @@ def write_atomic(path: str | os.PathLike[str], text: str) -> Path:
         fd, tmp = _temporary(out)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+            f.flush()
+            os.fsync(f.fileno())  # the data on the disk before the name points at it (a power cut between)
         os.replace(tmp, out)
     except OSError as exc:
         if tmp is not None and tmp.is_file():  # written but not renamed (the target a folder): not left

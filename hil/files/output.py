@@ -108,6 +108,8 @@ def replace_file(path: str | os.PathLike[str], write: Callable[[IO[bytes]], obje
         with os.fdopen(fd, "wb") as f:
             os.fchmod(f.fileno(), 0o666 & ~_umask())  # mkstemp's 0600: readable as any file hil writes
             write(f)
+            f.flush()
+            os.fsync(f.fileno())  # the data on the disk before the name points at it (a power cut between)
         os.replace(tmp, out)
         tmp = None
     except OSError as exc:
