@@ -27,6 +27,9 @@ void power_reset(power_manager_t *pm);
 /* One update with a new battery reading (volts); returns the stage. The first update after a reset
  * takes the reading as it is. */
 uint8_t power_update(power_manager_t *pm, const power_params_t *p, float battery_v);
+/* Volts of a full LiPo cell at rest: the top of the open-circuit curve (BoardConfig's ocv_curve). The
+ * configuration refuses a warn threshold whose clearing level (warn + hysteresis) reaches it. */
+float power_full_cell_v(void);
 /* State of charge 0..1 of a LiPo cell at rest at `v_cell` volts (the open-circuit curve, interpolated). */
 float power_soc(float v_cell);
 

@@ -6,6 +6,7 @@
 
 #include "crc16.h"
 #include "flash.h"
+#include "power.h"
 #include "protocol_gen.h"
 #include "wire.h"
 
@@ -167,6 +168,10 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_WARN_V_CELL;
     else if (!within(c.hysteresis_v_cell, 0.0f, 1.0f))
         problem = BAD_HYSTERESIS_V_CELL;
+    /* a stage is left hysteresis above its level: at or above a full cell one entered never clears, and
+     * thresholds above it shed a full pack's load from power-on (BoardConfig.validate alike) */
+    else if (!(c.warn_v_cell + c.hysteresis_v_cell < power_full_cell_v()))
+        problem = BAD_WARN_V_CELL;
     else if (!within(c.limit_throttle, 0.0f, 1.0f))
         problem = BAD_LIMIT_THROTTLE;
     else if (!within(c.brownout_release_v, 0.0f, 24.0f))

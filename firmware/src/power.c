@@ -39,6 +39,14 @@ uint8_t power_update(power_manager_t *pm, const power_params_t *p, float battery
     return pm->stage;
 }
 
+float power_full_cell_v(void)
+{
+    static const float VOLTS[LIPO_OCV_POINTS] FLASH = LIPO_OCV_V;
+    float full;
+    flash_read(&full, &VOLTS[LIPO_OCV_POINTS - 1], sizeof full);
+    return full;
+}
+
 float power_soc(float v_cell)
 {
     static const float SOC[LIPO_OCV_POINTS] FLASH = LIPO_OCV_SOC;

@@ -218,6 +218,9 @@ class BoardConfig:
         _num_in(u.electronics_current_a, 0.0, 10.0, f"{w}.power.ubec.electronics_current_a")
         t = self.power.thresholds
         where = f"{w}.power.thresholds"
+        full_cell_v = curve[-1][1]
+        for name in ("warn_v_cell", "limit_v_cell", "shed_v_cell"):
+            _num_in(getattr(t, name), 0.0, full_cell_v, f"{where}.{name}")
         if not (t.warn_v_cell > t.limit_v_cell > t.shed_v_cell > 0):
             raise ConfigError(
                 f"need warn_v_cell > limit_v_cell > shed_v_cell > 0 (got {t.warn_v_cell}, {t.limit_v_cell}, "
@@ -225,12 +228,30 @@ class BoardConfig:
                 where,
             )
         _num_in(t.hysteresis_v_cell, 0.0, 1.0, f"{where}.hysteresis_v_cell")
+        # A stage is left only hysteresis above its level: at or above a full cell (the OCV curve's top)
+        # one entered never clears, and thresholds above it shed the load of a full pack from power-on.
+        if not t.warn_v_cell + t.hysteresis_v_cell < full_cell_v:
+            raise ConfigError(
+                f"warn_v_cell + hysteresis_v_cell = {t.warn_v_cell + t.hysteresis_v_cell:g} V must lie below "
+                f"a full cell ({full_cell_v:g} V): the stage would never clear",
+                f"{where}.warn_v_cell",
+            )
         _num_in(t.limit_throttle, 0.0, 1.0, f"{where}.limit_throttle")
         if not (0 < t.brownout_v <= t.brownout_release_v < u.set_voltage_v + 1e-9):
             raise ConfigError(
                 f"need 0 < brownout_v <= brownout_release_v <= ubec set voltage (got {t.brownout_v}, "
                 f"{t.brownout_release_v}, {u.set_voltage_v})",
                 where,
+            )
+        # The rail is at most the pack less the UBEC's dropout (the set voltage is held above): a release
+        # level at or above what a full pack puts on it holds the MCU in reset for good (a handshake
+        # timeout, not an error).
+        full_pack_rail_v = b.cells * full_cell_v - u.dropout_v
+        if not t.brownout_release_v < full_pack_rail_v:
+            raise ConfigError(
+                f"{t.brownout_release_v:g} V is not below the {full_pack_rail_v:g} V a full {b.cells}-cell pack "
+                f"puts on the UBEC rail (less its {u.dropout_v:g} V dropout): the MCU would never leave reset",
+                f"{where}.brownout_release_v",
             )
         _num_in(t.filter_time_constant_s, 0.0, 10.0, f"{where}.filter_time_constant_s")
         _num_in(self.power.update_period_s, 1e-4, 0.1, f"{w}.power.update_period_s")
