@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from hil import so3
+from hil.control.steering import TORQUE_SCALED_ABOVE
 from hil.so3.floats import Mat9, Vec3, apply_f, exp_f, mat9, matmul_f, vec3
 from protocol.errors import ConfigError
 
@@ -80,9 +81,12 @@ class ControllerGains:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"must be positive, got {v!r}", f"ControllerGains.{name}")
-        if self.integral_time_s is not None and not self.integral_time_s > 0:
-            raise ConfigError("must be positive or None", "ControllerGains.integral_time_s")
-        if len(self.weights) != 3 or not all(w > 0 for w in self.weights):
+        t_i = self.integral_time_s
+        if t_i is not None and not (math.isfinite(t_i) and t_i > 0):  # no integral term is None, not inf
+            raise ConfigError(
+                f"must be positive and finite, or None, got {t_i!r}", "ControllerGains.integral_time_s"
+            )
+        if len(self.weights) != 3 or not all(math.isfinite(w) and w > 0 for w in self.weights):
             raise ConfigError(
                 f"must be three positive weights, got {self.weights!r}", "ControllerGains.weights"
             )
@@ -115,6 +119,7 @@ class AttitudeController:
         wn, zeta = self.gains.natural_frequency, self.gains.damping
         self.K_R = wn * wn * J
         self.K_Omega = 2.0 * zeta * wn * J
+        _check_gain_matrices(self.K_R, self.K_Omega, self.gains)
         self.K = np.diag(self.gains.weights)
         self.integral = np.zeros(3)
         # the same matrices as 9-tuples, for update()'s float math
@@ -176,7 +181,10 @@ class AttitudeController:
             lim, t_i = self.gains.integral_limit, self.gains.integral_time_s
             ix, iy, iz = self.integral.tolist()
             i3 = (_clip(ix + dt * e_R[0], lim), _clip(iy + dt * e_R[1], lim), _clip(iz + dt * e_R[2], lim))
-            self.integral = np.array(i3)
+            if all(map(math.isfinite, i3)):  # a NaN estimate's tick once kept ∫e_R NaN for good
+                self.integral = np.array(i3)
+            else:  # this tick's torque is not finite anyway (steering gives no command); the next ones are
+                i3 = (ix, iy, iz)
             ki = apply_f(self._K_R, i3)
             fb = (fb[0] - ki[0] / t_i, fb[1] - ki[1] / t_i, fb[2] - ki[2] / t_i)
         ax, ay, az = apply_f(m, omega_dot_d)
@@ -188,6 +196,37 @@ class AttitudeController:
         gx, gy, gz = _cross(w, (jx + hx, jy + hy, jz + hz))  # Ω × (J Ω + h)
         torque = (fb[0] + gx, fb[1] + gy, fb[2] + gz)
         return torque, fb, e_R, e_w, m
+
+
+def _check_gain_matrices(K_R: Array, K_Omega: Array, gains: ControllerGains) -> None:
+    """Refuse gains that are each valid but whose matrices at this inertia are not usable (a
+    :class:`ConfigError` naming the gains): the torques they ask at a unit error — ``K_R`` times the
+    largest weight (N m at an attitude error of ~1 rad), ``K_Ω`` (N m at 1 rad/s), the integral term's
+    ``K_R · integral_limit / integral_time_s`` (N m) — at most steering's
+    :data:`~hil.control.steering.TORQUE_SCALED_ABOVE`, beyond which steering treats every torque alike, and
+    ``K_R``, ``K_Ω`` positive definite. Without this ω_n² J overflowed to inf (ω_n = 1e160: every torque
+    NaN, inf · 0 at zero error), a huge weight times a huge K_R did so at a small error, and ω_n² J
+    underflowed to 0 (ω_n = 1e-170: no attitude feedback at all): the control step steered with NaN, or
+    nothing, for a controller."""
+    k_r = float(np.max(np.abs(K_R)))  # Python floats: an overflow is inf, without numpy's warning
+    asked = {
+        "K_R (ω_n² J) times the largest weight": k_r * max(gains.weights),
+        "K_Ω (2 ζ ω_n J)": float(np.max(np.abs(K_Omega))),
+    }
+    if gains.integral_time_s is not None:
+        asked["K_R ∫e_R / T_i at the integral's limit"] = k_r * gains.integral_limit / gains.integral_time_s
+    for what, torque in asked.items():
+        if not torque <= TORQUE_SCALED_ABOVE:  # NaN and inf included
+            raise ConfigError(
+                f"{what} asks {torque:.3g} N m at a unit error, more than {TORQUE_SCALED_ABOVE:.0e}: "
+                f"{gains!r}",
+                "AttitudeController.gains",
+            )
+    for what, K in (("K_R = ω_n² J", K_R), ("K_Ω = 2 ζ ω_n J", K_Omega)):
+        if not np.linalg.eigvalsh(0.5 * (K + K.T))[0] > 0:
+            raise ConfigError(
+                f"{what} is not positive definite at this inertia: {gains!r}", "AttitudeController.gains"
+            )
 
 
 def _transpose_matmul(p: Mat9, q: Mat9) -> Mat9:

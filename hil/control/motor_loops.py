@@ -59,6 +59,8 @@ class SetpointGenerator:
             raise ConfigError(
                 f"must be positive, got {control_rate_hz!r}", "SetpointGenerator.control_rate_hz"
             )
+        if not (math.isfinite(frame_rate_hz) and frame_rate_hz > 0):  # NaN once passed the check below
+            raise ConfigError(f"must be positive, got {frame_rate_hz!r}", "SetpointGenerator.frame_rate_hz")
         if control_rate_hz > frame_rate_hz * (1 + 1e-9):
             raise ConfigError(
                 f"{control_rate_hz} Hz is faster than the pulse frame rate {frame_rate_hz} Hz",

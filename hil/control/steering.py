@@ -51,6 +51,14 @@ continuous in the state, nil wherever the array has authority about every axis (
 singularity the wheels carry the missing axis, so ``σ`` stays of order ``W_s0 h̄²``), and bounds the
 command in a direction without authority, where it delivers no torque instead of dividing by zero
 (:attr:`Saturation.DAMPED`). No state of the array makes :meth:`VscmgSteering.solve` raise.
+
+**Inputs with no finite command.** A torque above :data:`TORQUE_SCALED_ABOVE` (N m) is solved scaled
+down to it, its direction kept: the limit scaling would cut its command to the same size, and the solve's
+products would overflow from ~1e300 N m on (a command of NaN, flagged as nothing). A torque, gimbal angle
+or rotor speed that is NaN or infinite, or a rotor speed so large that ``D₁ D₁ᵀ`` overflows (~1e150 rad/s),
+has no finite command: the array is given none — gimbals still, rotor accelerations 0, scale 0 — flagged
+:attr:`Saturation.NOT_FINITE` alone, instead of NaN commands flagged as nothing (which the wire refuses,
+ending a run with ``ActuatorSetpoint.units[0].gimbal = nan is out of range``).
 """
 
 from __future__ import annotations
@@ -79,6 +87,7 @@ class Saturation(enum.IntFlag):
     ROTOR_ACCEL = 2  # scaled down to the rotor-acceleration limit
     ROTOR_SPEED = 4  # a rotor at a speed limit was taken out of wheel mode
     DAMPED = 8  # no authority about some axis: damped least squares (the module docstring)
+    NOT_FINITE = 16  # no finite command for these inputs: none given (the module docstring)
 
 
 @dataclass(frozen=True)
@@ -317,6 +326,11 @@ K_DAMPING = 12  # damping h̄²: λ² where the smallest eigenvalue is 0
 K_SIZE = 13
 """The kernels' parameter array (float64); the geometry array is (n, 7): ``s0`` (3), ``t0`` (3), I_Ws."""
 
+TORQUE_SCALED_ABOVE = 1e100
+"""N m: a larger required torque is solved scaled down to this size, its direction kept (the module
+docstring); far above anything an array delivers, far below where the solve's products overflow."""
+
+_NOT_FINITE = int(Saturation.NOT_FINITE)
 _ROTOR_SPEED = int(Saturation.ROTOR_SPEED)
 _GIMBAL_RATE = int(Saturation.GIMBAL_RATE)
 _ROTOR_ACCEL = int(Saturation.ROTOR_ACCEL)
@@ -527,6 +541,20 @@ def _weighted(q, wt, rhs, out, m, lam, kp):  # type: ignore[no-untyped-def]
 
 
 @kernel
+def _torque_rhs(torque, rhs):  # type: ignore[no-untyped-def]
+    """``rhs = −torque`` (3,), scaled down to :data:`TORQUE_SCALED_ABOVE` where it is larger (the module
+    docstring); an infinite component makes the whole right-hand side NaN (∞ · 0), as a NaN one does."""
+    big = max(abs(torque[0]), abs(torque[1]), abs(torque[2]))
+    if big > TORQUE_SCALED_ABOVE:
+        k = TORQUE_SCALED_ABOVE / big
+        for r in range(3):
+            rhs[r] = -torque[r] * k
+    else:
+        for r in range(3):
+            rhs[r] = -torque[r]
+
+
+@kernel
 def solve_rows(
     kp, geom, torque, gam, w, dt, gimbal_rate, rotor_accel, delivered, delta, wheel_weight, scale, sat
 ):  # type: ignore[no-untyped-def]
@@ -548,8 +576,7 @@ def solve_rows(
         for i in range(n):
             wt[i] = ws
             wt[n + i] = kp[K_GIMBAL]
-        for r in range(3):
-            rhs[r] = -torque[b, r]
+        _torque_rhs(torque[b], rhs)
         damped = _weighted(q, wt, rhs, eta, m, lam, kp)
         flags = 0
         out_any = False  # rotors about to leave their speed range lose wheel mode (one re-solve)
@@ -559,8 +586,7 @@ def solve_rows(
                 wt[i] = 0.0
                 out_any = True
         if out_any:
-            for r in range(3):
-                rhs[r] = -torque[b, r]
+            _torque_rhs(torque[b], rhs)
             damped = _weighted(q, wt, rhs, eta, m, lam, kp)
             flags |= _ROTOR_SPEED
         if damped > 0.0:  # the solve that stands (the re-solve if there was one) was damped
@@ -581,23 +607,31 @@ def solve_rows(
             for c in range(2 * n):
                 eta[c] += kp[K_NULL] * (d[c] - extra[c])
         g_max = a_max = 0.0  # one scale factor for every limit
+        finite = True
         for i in range(n):
             a_max = max(a_max, abs(eta[i]))
             g_max = max(g_max, abs(eta[n + i]))
+            finite = finite and math.isfinite(eta[i]) and math.isfinite(eta[n + i])
         g_ratio, a_ratio = g_max / kp[K_MAX_GIMBAL_RATE], a_max / kp[K_MAX_ROTOR_ACCEL]
         k = 1.0 / max(1.0, max(g_ratio, a_ratio))
         if g_ratio > 1.0:
             flags |= _GIMBAL_RATE
         if a_ratio > 1.0:
             flags |= _ROTOR_ACCEL
+        if not finite:  # no finite command for these inputs: none (the module docstring)
+            k = 0.0
+            flags = _NOT_FINITE
+            for c in range(2 * n):
+                eta[c] = 0.0
         for i in range(n):
             rotor_accel[b, i] = eta[i] * k
             gimbal_rate[b, i] = eta[n + i] * k
             wheel_weight[b, i] = wt[i]
         for r in range(3):
             acc = 0.0
-            for c in range(2 * n):
-                acc += q[r, c] * (eta[c] * k)
+            if finite:  # else no command, no torque (Q itself may be NaN: 0 · NaN)
+                for c in range(2 * n):
+                    acc += q[r, c] * (eta[c] * k)
             delivered[b, r] = -acc
         scale[b] = k
         sat[b] = flags

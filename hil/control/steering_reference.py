@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from hil.control.steering import Array, Saturation, SteeringOutput, VscmgSteering
+from hil.control.steering import TORQUE_SCALED_ABOVE, Array, Saturation, SteeringOutput, VscmgSteering
 
 
 def delta_gradient(steer: VscmgSteering, gimbal_angle: ArrayLike, rotor_speed: ArrayLike) -> Array:
@@ -25,8 +25,19 @@ def delta_gradient(steer: VscmgSteering, gimbal_angle: ArrayLike, rotor_speed: A
 def solve(
     steer: VscmgSteering, torque: ArrayLike, gimbal_angle: ArrayLike, rotor_speed: ArrayLike, dt: float
 ) -> SteeringOutput:
-    """:meth:`VscmgSteering.solve` on numpy arrays (B rows at once)."""
+    """:meth:`VscmgSteering.solve` on numpy arrays (B rows at once). Inputs with no finite command get
+    none, flagged NOT_FINITE (the kernel's module docstring): numpy's warnings on their NaN are silenced."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        return _solve(steer, torque, gimbal_angle, rotor_speed, dt)
+
+
+def _solve(
+    steer: VscmgSteering, torque: ArrayLike, gimbal_angle: ArrayLike, rotor_speed: ArrayLike, dt: float
+) -> SteeringOutput:
+    """:func:`solve` within its ``np.errstate``."""
     L = np.atleast_2d(np.asarray(torque, dtype=float))
+    big = np.max(np.abs(L), axis=1, keepdims=True)  # a larger torque is solved scaled to the threshold
+    L = np.where(big > TORQUE_SCALED_ABOVE, L * (TORQUE_SCALED_ABOVE / np.where(big > 0, big, 1.0)), L)
     gam = np.atleast_2d(np.asarray(gimbal_angle, dtype=float))
     w = np.atleast_2d(np.asarray(rotor_speed, dtype=float))
     lim, p = steer.params.limits, steer.p
@@ -64,8 +75,11 @@ def solve(
     scale = 1.0 / np.maximum(1.0, np.maximum(g_ratio, a_ratio))
     sat |= np.where(g_ratio > 1.0, int(Saturation.GIMBAL_RATE), 0)
     sat |= np.where(a_ratio > 1.0, int(Saturation.ROTOR_ACCEL), 0)
-    eta *= scale[:, None]
-    delivered = -np.einsum("bij,bj->bi", Q, eta)
+    finite = np.all(np.isfinite(eta), axis=1)  # else no finite command: none
+    scale = np.where(finite, scale, 0.0)
+    sat = np.where(finite, sat, int(Saturation.NOT_FINITE))
+    eta = np.where(finite[:, None], eta * scale[:, None], 0.0)
+    delivered = np.where(finite[:, None], -np.einsum("bij,bj->bi", Q, eta), 0.0)
     return SteeringOutput(eta[:, n:], eta[:, :n], delivered, delta, ws, scale, sat)
 
 
@@ -75,11 +89,14 @@ def _weighted(steer: VscmgSteering, Q: Array, ws: Array, rhs: Array) -> tuple[Ar
     W = np.concatenate([ws, np.full_like(ws, steer.p.gimbal_weight)], axis=1)
     QW = Q * W[:, None, :]
     M = QW @ np.swapaxes(Q, -1, -2)
+    finite = np.all(np.isfinite(M), axis=(1, 2))  # NaN in: NaN out (the eigensolver would raise)
+    M = np.where(finite[:, None, None], M, np.eye(3))
     sigma = np.linalg.eigvalsh(M)[:, 0]
     h2 = steer.h_bar**2
     eps = steer.p.singular_eps * h2
     damp = np.where(sigma < eps, steer.p.damping * h2 * (1.0 - np.maximum(sigma, 0.0) / eps) ** 2, 0.0)
     lam = np.linalg.solve(M + damp[:, None, None] * np.eye(3), rhs[..., None])
+    lam[~finite] = np.nan
     return (np.swapaxes(QW, -1, -2) @ lam)[..., 0], damp
 
 
