@@ -8,9 +8,12 @@ errors do not accumulate.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Protocol
+
+from protocol.errors import ConfigError
 
 
 class Clock(Protocol):
@@ -33,6 +36,7 @@ class WallClock:
         return time.monotonic() - self._t0
 
     def sleep_until(self, deadline: float) -> None:
+        _check_finite(deadline, "WallClock.sleep_until")
         while True:
             remaining = deadline - self.now()
             if remaining <= 0.0:
@@ -45,6 +49,7 @@ class LockstepClock:
     driver) — a lockstep loop owns the clock and advances it itself. Thread-safe reads."""
 
     def __init__(self, start: float = 0.0) -> None:
+        _check_finite(start, "LockstepClock")
         self._t = float(start)
         self._lock = threading.Lock()
 
@@ -53,20 +58,32 @@ class LockstepClock:
 
     def advance(self, dt: float) -> float:
         """Move time forward by ``dt`` ≥ 0 seconds; returns the new time."""
+        _check_finite(dt, "LockstepClock.advance")
         if dt < 0:
-            raise ValueError(f"cannot move a clock backwards (dt={dt})")
+            raise ConfigError(f"cannot move a clock backwards (dt={dt})", "LockstepClock.advance")
         with self._lock:
             self._t += dt
             return self._t
 
     def set(self, t: float) -> None:
         """Jump to ``t`` (not earlier than now)."""
+        _check_finite(t, "LockstepClock.set")
         with self._lock:
             if t < self._t:
-                raise ValueError(f"cannot move a clock backwards ({t} < {self._t})")
+                raise ConfigError(f"cannot move a clock backwards ({t} < {self._t})", "LockstepClock.set")
             self._t = float(t)
 
     def sleep_until(self, deadline: float) -> None:
+        _check_finite(deadline, "LockstepClock.sleep_until")
         with self._lock:
             if deadline > self._t:
                 self._t = float(deadline)
+
+
+def _check_finite(seconds: float, where: str) -> None:
+    """Refuse a time that is not a finite number of seconds, naming ``where`` it came. A lockstep clock
+    told NaN once kept it for ever (every comparison with it false: a run went on with every time stamp
+    NaN), told ``inf`` (a wait with nothing to wake it) jumped past every deadline; the wall clock raised
+    Python's own ``OverflowError`` / ``ValueError`` from ``time.sleep``."""
+    if not math.isfinite(seconds):
+        raise ConfigError(f"a time must be a finite number of seconds, not {seconds!r}", where)

@@ -413,6 +413,8 @@ class BoardClient:
                 return False
             wake = min(end, self._next_wake(now))
             if self.lockstep:
+                if wake == math.inf:  # nothing due ever, no bound: in lockstep nothing else moves time
+                    return False
                 clock.sleep_until(max(wake, now + _MIN_STEP_S))
             else:
                 read_wait = max(min(wake, now + self.config.max_block_s) - now, 0.0)
