@@ -64,8 +64,8 @@ def pyramid(
 ) -> tuple[UnitParams, ...]:
     """n units on the faces of a pyramid with skew angle ``beta`` (rad), pivots on a circle of ``radius_m``
     at height ``height_m`` (see the module docstring for the axes)."""
-    if n < 3:
-        raise ConfigError(f"a pyramid needs at least 3 units, got {n}", "pyramid.n")
+    if not isinstance(n, int | np.integer) or isinstance(n, bool) or n < 3:
+        raise ConfigError(f"a pyramid needs a whole number of units, at least 3, got {n!r}", "pyramid.n")
     if not 0.0 <= beta <= math.pi / 2:
         raise ConfigError(f"must lie in [0, 90] degrees, got {math.degrees(beta):.3g}", "pyramid.beta")
     theta = 2.0 * math.pi * np.arange(n) / n

@@ -19,6 +19,7 @@ body (``Σ I_k ω_k``); :func:`velocities` inverts them through the mass matrix 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -70,16 +71,62 @@ class ArrayModel:
         iw = np.array(
             [inertia_tensor(u.rotor_inertia, f"units[{i}].rotor_inertia") for i, u in enumerate(units)]
         )
-        masses, positions = params.point_masses()
-        rho = positions - params.center_of_mass_m
-        parallel = np.einsum(
-            "k,kij->ij",
-            masses,
-            np.einsum("ki,ki->k", rho, rho)[:, None, None] * np.eye(3) - rho[:, :, None] * rho[:, None, :],
-        )
-        j0 = inertia_tensor(params.bus_inertia, "bus_inertia") + parallel
-        axisym = all(u.axisymmetric_rotor for u in units)
-        return cls(params, g, s0, np.cross(g, s0), ig, iw, j0, axisym, ig + iw, _block_inverse(ig + iw, iw))
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # refused below, in words
+            masses, positions = params.point_masses()
+            rho = positions - params.center_of_mass_m
+            parallel = np.einsum(
+                "k,kij->ij",
+                masses,
+                np.einsum("ki,ki->k", rho, rho)[:, None, None] * np.eye(3)
+                - rho[:, :, None] * rho[:, None, :],
+            )
+            j0 = inertia_tensor(params.bus_inertia, "bus_inertia") + parallel
+            axisym = all(u.axisymmetric_rotor for u in units)
+            dinv = _block_inverse(ig + iw, iw)
+            model = cls(params, g, s0, np.cross(g, s0), ig, iw, j0, axisym, ig + iw, dinv)
+            model._check_computable(masses, positions)
+        return model
+
+    def _check_computable(self, masses: Array, positions: Array) -> None:
+        """Refuse parameters that are each finite and physical but whose model overflows or underflows
+        in float64 (ConfigError naming the field), before any state is built: a rotor of 1e160 kg m²
+        overflowed its gimbal/rotor block's determinant, D⁻¹ became 0 and the numpy plant stepped a
+        400 rad/s rotor to 0 rad/s without a word; a pivot 1e200 m out gave a NaN inertia and NaN states;
+        a bus of 1e110 kg m² overflowed the 3×3 determinant the compiled plant solves by, which refused
+        what the numpy plant stepped. ``masses`` (k,) kg and ``positions`` (k, 3) m are
+        :meth:`SpacecraftParams.point_masses`."""
+        second_moments = masses * np.einsum("ki,ki->k", positions, positions)  # kg m², about the reference
+        bodies = ["bus_mass_kg, bus_com_m"] + [
+            f"units[{i}].{part}_mass_kg, position_m, {part}_offset_m"
+            for i in range(self.n)
+            for part in ("gimbal", "rotor")
+        ]
+        for body, moment in zip(bodies, second_moments, strict=True):
+            if not np.isfinite(moment):
+                raise ConfigError(
+                    f"its mass at its position overflows the inertia (m |r|² = {moment} kg m²)",
+                    f"SpacecraftParams.{body}",
+                )
+        if not np.all(np.isfinite(self.J0)):
+            raise ConfigError("the masses at their positions overflow the inertia", "SpacecraftParams")
+        d11, d12, d22 = self.K[:, 2, 2], self.IW[:, 2, 0], self.IW[:, 0, 0]  # one run's: (n,) each
+        det = d11 * d22 - d12 * d12
+        for i in range(self.n):
+            if not (math.isfinite(det[i]) and det[i] > 0.0 and np.all(np.isfinite(self.dinv[i]))):
+                raise ConfigError(
+                    f"its gimbal/rotor block (moments {d11[i]:.3g} and {d22[i]:.3g} kg m²) has no usable "
+                    "float64 inverse: inertias too large or too small to compute with",
+                    f"SpacecraftParams.units[{i}].rotor_inertia, gimbal_inertia",
+                )
+        zeros = np.zeros((1, self.n))
+        for part, inertia in (("bus_inertia", self.J0), ("units", configuration(self, zeros, zeros).J[0])):
+            volume = _determinant(inertia)
+            if not (math.isfinite(volume) and volume > 0.0):
+                raise ConfigError(
+                    f"the locked inertia's principal moments ({np.diag(inertia)} kg m² on its diagonal) "
+                    "overflow their product, the determinant the plant solves for its rates",
+                    f"SpacecraftParams.{part}",
+                )
 
     @classmethod
     def build_batch(cls, runs: Sequence[SpacecraftParams]) -> ArrayModel:
@@ -141,6 +188,14 @@ def configuration(m: ArrayModel, gamma: Array, phi: Array) -> Configuration:
     bg = (C @ K[..., :, 2:3])[..., 0]
     bp = (C @ IWG[..., :, 0:1])[..., 0]
     return Configuration(C, IWG, J, bg, bp, dinv)
+
+
+def _determinant(inertia: Array) -> float:
+    """The product of the principal moments of a symmetric (3, 3) ``inertia`` (kg³ m⁶); inf when it
+    overflows or the matrix is not finite."""
+    if not np.all(np.isfinite(inertia)):
+        return math.inf
+    return float(np.prod(np.linalg.eigvalsh(inertia)))
 
 
 def _block_inverse(K: Array, IWG: Array) -> Array:

@@ -36,7 +36,7 @@ def inertia_tensor(value: ArrayLike, where: str) -> Array:
 
     Checks: finite, symmetric (to 1e-12 relative), positive definite and physically realisable (the
     principal moments satisfy the triangle inequality ``I₁ + I₂ ≥ I₃``)."""
-    a = np.asarray(value, dtype=float)
+    a = _floats(value, where)
     if a.shape == (3,):
         a = np.diag(a)
     if a.shape != (3, 3) or not np.all(np.isfinite(a)):
@@ -54,7 +54,7 @@ def inertia_tensor(value: ArrayLike, where: str) -> Array:
 
 def unit_vector(value: ArrayLike, where: str) -> Array:
     """A finite 3-vector of unit length (to 1e-6); raises ConfigError otherwise."""
-    v = np.asarray(value, dtype=float)
+    v = _floats(value, where)
     if v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ConfigError(f"must be a finite 3-vector, got {value!r}", where)
     n = float(np.linalg.norm(v))
@@ -63,8 +63,26 @@ def unit_vector(value: ArrayLike, where: str) -> Array:
     return v / n
 
 
+def _floats(value: ArrayLike, where: str) -> Array:
+    """``value`` as a float64 array; ConfigError naming ``where`` for what is not numbers (a string, None,
+    ragged lists), where numpy's own ValueError or TypeError named no field."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"must be numbers, got {value!r}", where) from e
+
+
+def _number(value: float, where: str) -> float:
+    """``value`` as one finite float; ConfigError naming ``where`` otherwise."""
+    x = _floats(value, where)
+    if x.shape != () or not math.isfinite(float(x)):
+        raise ConfigError(f"must be a finite number, got {value!r}", where)
+    return float(x)
+
+
 def _positive(value: float, where: str, allow_zero: bool = False) -> float:
-    x = float(value)
+    a = _floats(value, where)
+    x = float(a) if a.shape == () else math.nan  # several numbers where one is due: refused below
     if not math.isfinite(x) or x < 0.0 or (x == 0.0 and not allow_zero):
         raise ConfigError(
             f"must be {'non-negative' if allow_zero else 'positive'} and finite, got {value!r}", where
@@ -100,7 +118,7 @@ class UnitParams:
             raise ConfigError(
                 f"must be perpendicular to the gimbal axis (g·s = {g @ s:.3g})", "UnitParams.spin_axis"
             )
-        p = np.asarray(self.position_m, dtype=float)
+        p = _floats(self.position_m, "UnitParams.position_m")
         if p.shape != (3,) or not np.all(np.isfinite(p)):
             raise ConfigError(f"must be a finite 3-vector, got {self.position_m!r}", "UnitParams.position_m")
         inertia_tensor(self.gimbal_inertia, "UnitParams.gimbal_inertia")
@@ -108,8 +126,7 @@ class UnitParams:
         _positive(self.gimbal_mass_kg, "UnitParams.gimbal_mass_kg", allow_zero=True)
         _positive(self.rotor_mass_kg, "UnitParams.rotor_mass_kg", allow_zero=True)
         for name in ("gimbal_offset_m", "rotor_offset_m"):
-            if not math.isfinite(getattr(self, name)):
-                raise ConfigError("must be finite", f"UnitParams.{name}")
+            _number(getattr(self, name), f"UnitParams.{name}")
 
     @property
     def rotor_spin_inertia(self) -> float:
@@ -187,7 +204,7 @@ class SpacecraftParams:
                 "SpacecraftParams.bus_inertia",
             )
         _positive(self.bus_mass_kg, "SpacecraftParams.bus_mass_kg")
-        c = np.asarray(self.bus_com_m, dtype=float)
+        c = _floats(self.bus_com_m, "SpacecraftParams.bus_com_m")
         if c.shape != (3,) or not np.all(np.isfinite(c)):
             raise ConfigError(
                 f"must be a finite 3-vector, got {self.bus_com_m!r}", "SpacecraftParams.bus_com_m"
@@ -199,8 +216,12 @@ class SpacecraftParams:
                 raise ConfigError(
                     f"must be UnitParams, got {type(u).__name__}", f"SpacecraftParams.units[{i}]"
                 )
+        if not isinstance(self.limits, ActuatorLimits):
+            raise ConfigError(
+                f"must be ActuatorLimits, got {type(self.limits).__name__}", "SpacecraftParams.limits"
+            )
         lo, hi = self.limits.min_rotor_speed, self.limits.max_rotor_speed
-        if not lo <= self.nominal_rotor_speed <= hi:
+        if not lo <= _number(self.nominal_rotor_speed, "SpacecraftParams.nominal_rotor_speed") <= hi:
             raise ConfigError(
                 f"must lie within the rotor speed limits [{lo}, {hi}] rad/s",
                 "SpacecraftParams.nominal_rotor_speed",

@@ -28,7 +28,7 @@ from protocol.errors import ConfigError, NumericalError
 
 from . import kernels as k
 from .drives import Drive
-from .plant import Plant, PlantState, Torques
+from .plant import Plant, PlantState, Torques, check_time_reached
 
 Array = NDArray[np.float64]
 
@@ -172,6 +172,7 @@ class CompiledPlant:
             raise ConfigError(f"must be a positive step, got {dt!r}", "CompiledPlant.step.dt")
         if state.shape != (self.size,) or state.dtype != np.float64:
             raise ConfigError(f"needs a float64 state of {self.size}, got {state.shape}", "CompiledPlant")
+        check_time_reached(float(state[0]), dt, steps, "CompiledPlant.advance")
         d = self.drive(torques)
         if path is None:
             path = _NO_PATH

@@ -35,6 +35,11 @@ OK, BAD_TORQUE, SINGULAR, DIVERGED = 0, 1, 2, 3
 M_HEADER = 20  # model: n, axisymmetric, gravity, mean motion, 3n², r̂₀, n̂×r̂₀, J₀
 M_UNIT = 30  # per unit: s₀, t₀, g, Ī_G, Ī_W, D⁻¹
 PATH_WIDTH = 13
+MAX_TIME_S = 2.0**33
+"""The farthest time (s, either side of zero) the world's plant and phone take (~272 years): beyond it
+float64 spaces times more than 1 µs apart (the protocol's timestamp unit), so a step or a sample period is
+no longer what it says. At 1e16 s adding a phone's sample period left its next sample time unchanged and
+sampling never ended; at 1e17 s a plant step of 1 ms left its clock where it was."""
 _GEO = 21  # per unit geometry: s(γ) (3), t(γ) (3), Ī_W^G (9), b_γ (3), b_φ (3)... D⁻¹ kept apart
 _TWO_PI = 2.0 * math.pi
 
@@ -381,6 +386,9 @@ def advance(
             xn[i] = x0[i] + h6 * (f1[i] + 2.0 * f2[i] + 2.0 * f3[i] + f4[i])
             if not math.isfinite(xn[i]):
                 finite = False
+        for i in range(9):  # a step far too long leaves π and the angles finite but the attitude NaN
+            if not math.isfinite(Rn[i]):
+                finite = False
         if not finite:
             return _fail(DIVERGED, work, t0 + h, tq, 0), k
         for i in range(n):
@@ -391,6 +399,9 @@ def advance(
             H[i] = Rn[i] * xn[0] + Rn[3 + i] * xn[1] + Rn[6 + i] * xn[2]
         if not _velocities(n, geo, dinv, J, H, xn, vs):
             return _fail(SINGULAR, work, t0 + h, tq, 0), k
+        for i in range(nv):  # the velocities read from it too (the reference's check, in the same order)
+            if not math.isfinite(vs[i]):
+                return _fail(DIVERGED, work, t0 + h, tq, 0), k
         state[0] = t0 + h
         for i in range(9):
             state[1 + i] = Rn[i]

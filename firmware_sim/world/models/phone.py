@@ -24,7 +24,7 @@ from hil.scenario.phone import PhoneSpec
 from hil.so3.floats import log_f  # the one float log(R)
 from protocol.errors import ConfigError
 
-from .kernels import exp9  # the plant's exp(φ^×): one kernel for both
+from .kernels import MAX_TIME_S, exp9  # the plant's exp(φ^×): one kernel for both
 
 Array = NDArray[np.float64]
 
@@ -126,6 +126,7 @@ class BodyPhone:
     same numbers), so either may follow the other."""
 
     def __init__(self, spec: PhoneSpec | None = None, seed: int = 0, t0: float = 0.0) -> None:
+        _check_time(t0, "BodyPhone.t0")
         self.spec = spec if spec is not None else PhoneSpec.nexus5()
         self.rng = np.random.default_rng(seed)
         self.kinds = KINDS
@@ -168,6 +169,8 @@ class BodyPhone:
     ) -> list[SensorSample]:
         """The samples every sensor takes in (t0, t1], sorted by timestamp, from the true attitudes
         ``R0``, ``R1`` (3, 3) body → ENU and body rates ``omega0``, ``omega1`` (3,) rad/s at t0 and t1."""
+        _check_time(t0, "BodyPhone.sample.t0")
+        _check_time(t1, "BodyPhone.sample.t1")
         out: list[SensorSample] = []
         span = t1 - t0
         turn = so3.log(R0.T @ R1) if span > 0 else np.zeros(3)
@@ -219,6 +222,8 @@ class BodyPhone:
         if path.shape[0] < 2:
             return [], _NONE
         times = path[:, 0]
+        _check_time(float(times[0]), "BodyPhone.sample_path (its first time)")
+        _check_time(float(times[-1]), "BodyPhone.sample_path (its last time)")
         if not (times[1:] >= times[:-1]).all():  # the method: np.all's wrapper was 2 % of a world
             raise ConfigError("a path whose times run backwards", "BodyPhone.sample_path")
         end = float(path[-1, 0])
@@ -247,6 +252,15 @@ class BodyPhone:
         kinds = self.kinds
         samples = [SensorSample(t, kinds[int(k)], (x, y, z)) for _, t, k, x, y, z in rows.tolist()]
         return samples, rows[:, 0].astype(np.int64)
+
+
+def _check_time(t: float, where: str) -> None:
+    """Refuse a time (s) that is not finite or lies beyond :data:`.kernels.MAX_TIME_S`, where a sample
+    period no longer moves a float64 time (ConfigError naming ``where``)."""
+    if not abs(t) <= MAX_TIME_S:
+        raise ConfigError(
+            f"must be a finite time within ±{MAX_TIME_S:.6g} s (float64 keeps 1 µs there), got {t!r}", where
+        )
 
 
 _BLOCK = 4096

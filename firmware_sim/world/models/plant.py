@@ -35,6 +35,8 @@ from hil.vscmg import PlantModel, PlantState, SpacecraftParams
 from hil.vscmg import model as mdl
 from protocol.errors import ConfigError, NumericalError
 
+from .kernels import MAX_TIME_S
+
 Array = NDArray[np.float64]
 
 TorqueLaw = Callable[[float, Array, Array, Array, Array, Array], tuple[Array, Array]]
@@ -116,6 +118,7 @@ class Plant(PlantModel):
         stops being finite (a diverging run) or the inputs are not finite."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ConfigError(f"must be a positive step, got {dt!r}", "Plant.step.dt")
+        check_time_reached(s.t, dt, 1, "Plant.step")
         if self.model.batch not in (None, s.batch):
             raise ConfigError(
                 f"the plant has parameters for {self.model.batch} runs, not {s.batch}", "Plant.step"
@@ -137,12 +140,12 @@ class Plant(PlantModel):
         d4 = _dexpinv(th4, w4)
         R = _reorthonormalize(R0 @ _exp(h / 6.0 * (w1 + 2.0 * d2 + 2.0 * d3 + d4)))
         x = x0 + h / 6.0 * (f1 + 2.0 * f2 + 2.0 * f3 + f4)
-        if not np.all(np.isfinite(x)):
-            raise NumericalError(f"the plant state diverged at t = {t0 + h:.6g} s (step {h:g} s too long?)")
+        _check_diverged(t0 + h, h, x, R)
         pi, ga, ra = x[:, :3], x[:, 3 : 3 + n], np.mod(x[:, 3 + n : 3 + 2 * n], 2.0 * np.pi)
         pg, pp = x[:, 3 + 2 * n : 3 + 3 * n], x[:, 3 + 3 * n :]
         cfg = mdl.configuration(self.model, ga, ra)
         omega, gr, wr = mdl.velocities(self.model, cfg, np.einsum("bji,bj->bi", R, pi), pg, pp)
+        _check_diverged(t0 + h, h, omega, gr, wr)
         return PlantState(t0 + h, R, pi, ga, ra, pg, pp, omega, gr, wr)
 
     def run(
@@ -190,6 +193,26 @@ class Plant(PlantModel):
         else:
             dpi = np.zeros_like(pi)
         return omega, np.concatenate([dpi, gr, wr, fg, fp], axis=1)
+
+
+def check_time_reached(t: float, dt: float, steps: int, where: str) -> None:
+    """Refuse ``steps`` steps of ``dt`` s from time ``t`` (s) that would leave ±:data:`.kernels.MAX_TIME_S`
+    (or start from a time that is not finite): there a step's length is lost to float64 rounding, up to
+    the whole step (ConfigError naming ``where``)."""
+    end = t + dt * steps
+    if not (abs(t) <= MAX_TIME_S and abs(end) <= MAX_TIME_S):
+        raise ConfigError(
+            f"steps from t = {t!r} s to {end!r} s, beyond ±{MAX_TIME_S:.6g} s where float64 keeps 1 µs",
+            f"{where}.t",
+        )
+
+
+def _check_diverged(t: float, h: float, *arrays: Array) -> None:
+    """Raise NumericalError unless every array of the new state is finite. The attitude and the velocities
+    are checked as well as the integrated momenta and angles: a step far too long (1e6 s) left the momenta
+    finite but the attitude, and so every velocity read from it, NaN, and returned that state as good."""
+    if not all(np.all(np.isfinite(a)) for a in arrays):
+        raise NumericalError(f"the plant state diverged at t = {t:.6g} s (step {h:g} s too long?)")
 
 
 def _cross(a: Array, b: Array) -> Array:
