@@ -55,11 +55,11 @@ def test_hil_report_says_a_nested_summary_is_damaged_and_goes_on(tmp_path):
     nested = json.dumps({"exit": "completed", "faults": json.loads("[" * 40 + "]" * 40)})
     d = run_dir(tmp_path / "run", summary=nested)
     done = hil("report", str(d))
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 2 and "damaged" in done.stderr, done.stderr
     assert "summary.json damaged (JSON nested deeper than 32 levels at faults" in done.stdout
     deeper = run_dir(tmp_path / "deeper", summary='{"exit": ' + NESTED + "}")
     done = hil("report", str(deeper), "--no-plots")
-    assert done.returncode == 0 and "summary.json damaged (JSON nested deeper" in done.stdout, done.stderr
+    assert done.returncode == 2 and "summary.json damaged (JSON nested deeper" in done.stdout, done.stderr
 
 
 def test_hil_report_says_a_summary_of_the_wrong_shapes_is_damaged(tmp_path):
@@ -67,7 +67,7 @@ def test_hil_report_says_a_summary_of_the_wrong_shapes_is_damaged(tmp_path):
     shapes = {**SUMMARY, "faults": [{"kind": "stall"}], "tasks": ["control"]}
     d = run_dir(tmp_path / "run", summary=json.dumps(shapes))
     done = hil("report", str(d), "--no-plots")
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 2 and "damaged" in done.stderr, done.stderr
     assert "summary.json damaged (a value is not what a run writes: KeyError: 't')" in done.stdout
 
 
@@ -82,7 +82,7 @@ def test_hil_report_says_a_summary_with_a_non_number_is_damaged(tmp_path, key, v
     text = json.dumps({**SUMMARY, key: None}).replace(f'"{key}": null', f'"{key}": {value}')
     d = run_dir(tmp_path / "run", summary=text)
     done = hil("report", str(d), "--no-plots")
-    assert done.returncode == 0, done.stderr
+    assert done.returncode == 2 and "damaged" in done.stderr, done.stderr
     assert f"summary.json damaged (a value is not what a run writes: {said}): not shown" in done.stdout
     assert "settle time" not in done.stdout
 

@@ -135,9 +135,14 @@ def run_fit(args: argparse.Namespace) -> int:
         shown,
     )
     from protocol.errors import CalibrationError, ConfigError
+    from protocol.messages import MAX_UNITS
 
     from ._calibrate_board import say
 
+    # refused before anything is read or fitted, naming the option: the file's own check (a unit entry's,
+    # whose words these are) came only after every fit was done
+    if not 0 <= args.unit < MAX_UNITS:
+        raise ConfigError(f"unit index: {args.unit} is not a unit number 0..{MAX_UNITS - 1}", "--unit")
     options = FitOptions(
         esc_low_us=args.esc_low,
         esc_high_us=args.esc_high,
@@ -155,6 +160,11 @@ def run_fit(args: argparse.Namespace) -> int:
         check_text(args.name, "--name", ConfigError)
     for path in args.csv:
         relative_source(path, args.out, f"the CSV {shown(str(path))}")
+    # --base FILE read before the fits too: one without the unit (or not a calibration file) was refused
+    # only after every CSV was fitted
+    base_set = load_calibration(args.base) if args.base and args.base != "default" else None
+    if base_set is not None and base_set.unit(args.unit) is None:
+        raise CalibrationError(f"has no unit {args.unit}", args.base)
     datasets = [read_bench_csv(path) for path in args.csv]
     for d in datasets:
         if d.partial is not None and not args.allow_partial:
@@ -178,7 +188,7 @@ def run_fit(args: argparse.Namespace) -> int:
     # only "error: cannot save the plot"), and a plot without its file is only a picture of the fit.
     with locked(args.out, f"-o {args.out}"):
         existing = load_calibration(args.out) if args.out.exists() else CalibrationSet(())
-        entry, kept, base_label = _fitted_unit(args, existing, fits)
+        entry, kept, base_label = _fitted_unit(args, existing, base_set, fits)
         try:
             plot_path = plot_fits(fits, plot_path, title=f"{args.out.name}: unit {args.unit} ({entry.name})")
         except ConfigError as exc:
@@ -194,15 +204,19 @@ def run_fit(args: argparse.Namespace) -> int:
 
 
 def _fitted_unit(
-    args: argparse.Namespace, existing: CalibrationSet, fits: list[tuple[BenchData, Fit]]
+    args: argparse.Namespace,
+    existing: CalibrationSet,
+    base_set: CalibrationSet | None,
+    fits: list[tuple[BenchData, Fit]],
 ) -> tuple[UnitEntry, list[str], str]:
     """``hil calibrate fit``'s unit: the fitted maps, the others (and their provenance) from the unit
-    already in ``existing`` (the output file, read under its lock) or from ``--base``; with the maps kept
+    already in ``existing`` (the output file, read under its lock) or from ``--base`` (``base_set``, the
+    file it names, read before the fits; None for none or 'default'); with the maps kept
     and where they came from. :class:`CalibrationError` when maps are missing and there is nowhere to take
     them from."""
     from dataclasses import replace
 
-    from hil.calibration.files import FitInfo, UnitEntry, load_calibration, relative_source
+    from hil.calibration.files import FitInfo, UnitEntry, relative_source
     from protocol.calibration import UnitCalibration, default_unit_calibration
     from protocol.errors import CalibrationError
 
@@ -213,14 +227,12 @@ def _fitted_unit(
             UnitEntry(args.unit, f"unit{args.unit}", default_unit_calibration()),
             "the default unit",
         )
-    elif args.base:
+    elif base_set is not None:
         base, base_dir, base_label = (
-            load_calibration(args.base).unit(args.unit),
+            base_set.unit(args.unit),
             Path(args.base).resolve().parent,
             args.base,
         )
-        if base is None:
-            raise CalibrationError(f"has no unit {args.unit}", args.base)
     maps = {d.kind.value: fit.map for d, fit in fits}
     kept = [k for k in ("rotor", "gimbal_rate", "gimbal_angle") if k not in maps]
     if kept and base is None:

@@ -20,9 +20,9 @@ A run directory is recognised by telemetry.csv, a campaign by campaign.json. Plo
 files a run or campaign wrote are replaced); a run that was killed, or is still running (which of the
 two is said), is reported up to its last flushed row, one that ended before its first row (a port that
 could not be opened) without plots, a figure it never measured as "-". Every DIR given is reported: one
-that cannot be (not a run or a campaign, damaged files, plots that cannot be written) is an error on
-stderr naming it, the next DIR reported all the same, and the exit status is then 2 (0 when every DIR was
-reported).
+that cannot be (not a run or a campaign, damaged files — a run's summary.json too, its rows and plots
+reported all the same —, plots that cannot be written) is an error on stderr naming it, the next DIR
+reported all the same, and the exit status is then 2 (0 when every DIR was reported).
 """
 
 
@@ -63,12 +63,15 @@ def run(args: argparse.Namespace) -> int:
 
 def report(path: Path, plots: bool = True) -> dict[str, Path]:
     """Print ``path``'s summary and redraw its plots; returns name → plot path. A directory that is neither
-    a run nor a campaign is an :class:`~protocol.errors.InputFormatError` naming it."""
+    a run nor a campaign is an :class:`~protocol.errors.InputFormatError` naming it; so is a run whose
+    summary.json is damaged (not JSON, truncated, values no run writes), raised after its rows are counted
+    and whatever plots it allows are drawn."""
     from hil.montecarlo.store import MANIFEST
     from protocol.errors import InputFormatError
 
+    damage = None
     if (path / "telemetry.csv").is_file():
-        drawn = _run_dir(path, plots)
+        drawn, damage = _run_dir(path, plots)
     elif (path / MANIFEST).is_file():
         drawn = _campaign(path, plots)
     elif path.is_dir():
@@ -79,11 +82,17 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
         raise InputFormatError("no such directory", str(path))
     for name, file in drawn.items():
         print(f"  {name}: {file}")
+    if damage is not None:
+        # after what could be reported: a damaged summary.json is a run not wholly reported, as any damaged
+        # file is (exit status 2) — it once exited 0, and ``hil report runs/* && …`` took it for whole
+        raise InputFormatError(f"damaged ({damage})", str(path / "summary.json"))
     return drawn
 
 
-def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
-    from hil.cli.run import format_summary
+def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], str | None]:
+    """Print the run directory ``path``'s counts and summary and draw its plots: name → plot path, and
+    what is wrong with its summary.json when it is damaged (said here on stdout too), else None."""
+    from hil.cli.run import UNREADABLE, checked_summary
     from hil.cores import available_cores
     from hil.plots.run import not_units, plot_run
     from hil.plots.streamed import Gaps
@@ -113,31 +122,35 @@ def _run_dir(path: Path, plots: bool) -> dict[str, Path]:
         summary = read_summary(path)
     except InputFormatError as exc:
         print(f"  summary.json damaged ({exc.detail}): not shown, and no plots (they read it)")
-        return {}
+        return {}, exc.detail
+    damage = None
     if summary is None:
         print(f"  no summary.json ({_no_summary_why(path)}): plots from the telemetry alone")
     elif (why := _not_a_rate(summary)) is not None:
         # the one value the plots take from it (hil.plots.run): a string there was a TypeError's traceback
         print(f"  summary.json damaged ({why}): not shown, and no plots (they read it)")
-        return {}
+        return {}, why
     elif (where := _not_a_number(summary)) is not None:
         # NaN and Infinity are JSON to Python, and a run writes neither (a figure it has not: null)
-        print(f"  summary.json damaged (a value is not what a run writes: {where}): not shown")
+        damage = f"a value is not what a run writes: {where}"
+        print(f"  summary.json damaged ({damage}): not shown")
     else:
         try:
-            text = format_summary(summary)
+            text, unreadable = checked_summary(summary)
         except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
             # a summary.json hil did not write: its values are not the shapes a run's summary has
-            why = f"{type(exc).__name__}: {exc}"
-            print(f"  summary.json damaged (a value is not what a run writes: {why}): not shown")
+            damage = f"a value is not what a run writes: {type(exc).__name__}: {exc}"
+            print(f"  summary.json damaged ({damage}): not shown")
         else:  # printed outside: a terminal that cannot show a character is no damage of the file's
             print(text)
+            if unreadable:  # its last line names them; the other figures are shown
+                damage = f"values no run writes, shown as {UNREADABLE}: {'; '.join(unreadable)}"
     if not tel.rows:
         # a run that ended before its first row (its port could not be opened): nothing to draw, and not
         # an error of the report's — plot_run's "no telemetry rows to plot" once ended the command here
         print("  no telemetry rows (the run ended before its first): no plots")
-        return {}
-    return plot_run(path, processes=available_cores()) if plots else {}
+        return {}, damage
+    return (plot_run(path, processes=available_cores()) if plots else {}), damage
 
 
 def _no_summary_why(path: Path) -> str:

@@ -443,6 +443,12 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
     or "not reached", never a zero: its counts once read 0 failsafe events, its limits ``None``. A value of
     a type no run writes (``true`` for a rate, a negative count, a number for ``exit``) is
     :data:`UNREADABLE`, named on a last line, never printed as a figure (``true`` once read 1.000 rad/s)."""
+    return checked_summary(s)[0]
+
+
+def checked_summary(s: dict) -> tuple[str, list[str]]:  # type: ignore[type-arg]
+    """:func:`format_summary`'s text, and each value in it shown as :data:`UNREADABLE` (``KEY is VALUE,
+    not ...``; empty for a summary a run wrote): ``hil report`` says a summary with any damaged."""
     f = _Figures(s)
     rmse = f.number("estimator_rmse_deg", ".2f", " deg")
     rmse_note = (
@@ -484,7 +490,7 @@ def format_summary(s: dict) -> str:  # type: ignore[type-arg]
         lines.append(
             f"summary.json damaged (values no run writes, shown as {UNREADABLE}): " + "; ".join(f.unreadable)
         )
-    return "\n".join(lines)
+    return "\n".join(lines), f.unreadable
 
 
 class _Figures:
