@@ -246,6 +246,9 @@ def test_a_complete_bench_csv_is_not_partial(bench, tmp_path):
         ("sweep", "--tolerance", "-1", "--tolerance: -1.0 must be a finite number > 0"),
         ("sweep", "--tolerance", "nan", "--tolerance: nan must be a finite number > 0"),
         ("unit", "--rotor-tolerance", "nan", "--rotor-tolerance: nan must be a finite number > 0"),
+        # a rotor that never turns would pass every point (1) or the lowest (0.2)
+        ("unit", "--rotor-tolerance", "1", "--rotor-tolerance: 1.0 of full speed is not below the smallest"),
+        ("unit", "--rotor-tolerance", "0.2", "a unit that never moves would pass that point"),
         ("unit", "--rate-tolerance", "0", "--rate-tolerance: 0.0 must be a finite number > 0"),
         ("unit", "--angle-tolerance", "-0.03", "--angle-tolerance: -0.03 must be a finite number > 0"),
     ],

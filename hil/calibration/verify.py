@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from protocol.calibration import UnitCalibration
-from protocol.errors import ProtocolError
+from protocol.errors import ConfigError, ProtocolError
 from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry, UnitSetpoint
 
 from .bench import BenchKind
@@ -41,6 +41,56 @@ class VerifyPlan:
         check_tolerance(self.rotor_tolerance, "--rotor-tolerance")
         check_tolerance(self.gimbal_rate_tolerance_rad_s, "--rate-tolerance")
         check_tolerance(self.gimbal_angle_tolerance_rad, "--angle-tolerance")
+        moving = [abs(f) for f in self.rotor_fractions if f != 0.0]
+        if moving and not self.rotor_tolerance < min(moving):  # known before any board: refused at once
+            raise ConfigError(
+                f"{self.rotor_tolerance!r} of full speed is not below the smallest verification point, "
+                f"{min(moving):g}: {_STILL_PASSES}",
+                TOLERANCE_OPTIONS[BenchKind.ROTOR],
+            )
+
+
+TOLERANCE_OPTIONS = {
+    BenchKind.ROTOR: "--rotor-tolerance",
+    BenchKind.GIMBAL_RATE: "--rate-tolerance",
+    BenchKind.GIMBAL_ANGLE: "--angle-tolerance",
+}
+"""The option that sets each map's verification tolerance."""
+
+_STILL_PASSES = "a unit that never moves would pass that point"
+"""Why a tolerance as large as a point's motion is refused."""
+
+
+def check_tolerances_tell_motion(
+    kinds: tuple[BenchKind, ...], calibrations: Mapping[int, UnitCalibration], plan: VerifyPlan
+) -> None:
+    """Refuse (:class:`ConfigError` naming the option) a tolerance that passes a unit that does not follow
+    its commands: a gimbal rate tolerance at least a point's rate (a still gimbal is within it there), an
+    angle tolerance at least half the gap between two points' angles (a gimbal stuck at one is within it at
+    the next). ``--rotor-tolerance 1`` passed every rotor point of a stopped rotor, ``--rate-tolerance
+    1e160`` every gimbal point. The gimbal maps' targets come from the units' calibrations (the rotor's are
+    fractions of full speed: checked by the plan itself)."""
+    if BenchKind.GIMBAL_RATE in kinds:
+        for f in plan.gimbal_rate_fractions:
+            targets, tolerances = _targets(BenchKind.GIMBAL_RATE, f, calibrations, plan, volts=1.0)
+            for unit, target in targets.items():
+                if target != 0.0 and not tolerances[unit] < abs(target):
+                    raise ConfigError(
+                        f"{tolerances[unit]!r} rad/s is not below unit {unit}'s gimbal rate at {f:+.0%} of "
+                        f"its range, {abs(target):.4g} rad/s: {_STILL_PASSES}",
+                        TOLERANCE_OPTIONS[BenchKind.GIMBAL_RATE],
+                    )
+    if BenchKind.GIMBAL_ANGLE in kinds:
+        for unit, cal in calibrations.items():
+            angles = sorted({_angle_target(cal, f) for f in plan.gimbal_angle_fractions})
+            gaps = [b - a for a, b in zip(angles, angles[1:], strict=False)]
+            if gaps and not plan.gimbal_angle_tolerance_rad < min(gaps) / 2:
+                raise ConfigError(
+                    f"{plan.gimbal_angle_tolerance_rad!r} rad is not below half unit {unit}'s smallest gap "
+                    f"between verification angles, {min(gaps) / 2:.4g} rad: a gimbal stuck at one would "
+                    "pass the next",
+                    TOLERANCE_OPTIONS[BenchKind.GIMBAL_ANGLE],
+                )
 
 
 @dataclass(frozen=True)
@@ -120,6 +170,8 @@ def run_verify(
     }
     verifying = {k: {u: c for u, c in calibrations.items() if k in per_unit.get(u, ())} for k in BenchKind}
     order = [k for k in BenchKind if verifying[k]]
+    for kind in order:
+        check_tolerances_tell_motion((kind,), verifying[kind], plan)
     eta = Eta(sum(len(fractions[k]) for k in order))
     points: list[VerifyPoint] = []
     link.check_board("the time before verification")  # a board that reset since holds other sets
