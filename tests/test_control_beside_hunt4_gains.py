@@ -15,10 +15,12 @@ from hypothesis import strategies as st
 
 from hil.control.attitude import AttitudeController, ControllerGains, Reference
 from hil.control.motor_loops import SetpointGenerator
+from hil.control.steering import VscmgSteering
 from hil.runtime.control_step import ControlStep
 from hil.scenario import load_scenario
 from hil.so3 import exp
 from hil.so3.floats import mat9
+from hil.vscmg import cubesat_1u
 from protocol.errors import ConfigError
 
 SCENARIO = load_scenario("cubesat-1u")
@@ -113,3 +115,14 @@ def test_one_non_finite_tick_does_not_poison_the_integral_term():
         b = unseen.update(R, [0.01, 0.0, 0.0], reference, 0.02)
         np.testing.assert_array_equal(a.torque, b.torque)
     assert np.all(np.isfinite(seen.integral))
+
+
+@pytest.mark.parametrize("speed", [0.0, 1e-60])
+def test_a_vehicle_whose_rotors_do_not_spin_is_refused_by_steering_naming_the_speed(speed):
+    """h̄ = 0 (a nominal rotor speed of 0, which the limits allowed) was a ZeroDivisionError in the run's
+    warm-up; a tiny one underflowed h̄⁶ to the same."""
+    base = cubesat_1u()
+    params = replace(base, limits=replace(base.limits, min_rotor_speed=0.0), nominal_rotor_speed=speed)
+    with pytest.raises(ConfigError) as caught:
+        VscmgSteering(params)
+    assert caught.value.where == "SpacecraftParams.nominal_rotor_speed"

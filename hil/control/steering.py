@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import enum
 import math
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -179,6 +180,12 @@ class VscmgSteering:
         self.t0 = np.cross(self.g, self.s0)
         self.I_ws = np.array([u.rotor_spin_inertia for u in params.units])
         self.h_bar = params.nominal_wheel_momentum
+        if not self.h_bar**6 >= sys.float_info.min:  # the kernels scale by h̄⁶: 0 was a ZeroDivisionError
+            raise ConfigError(
+                f"a nominal wheel momentum of {self.h_bar!r} N m s is too small to steer by (its sixth "
+                "power underflows): VSCMG steering needs spinning rotors",
+                "SpacecraftParams.nominal_rotor_speed",
+            )
         self._kp, self._geom = pack(self)
         self._one: _OneRow | None = None  # the control tick's scratch and kernels (:meth:`_row`)
 
