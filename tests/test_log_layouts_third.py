@@ -165,7 +165,7 @@ def test_a_byte_that_is_not_utf8_in_a_data_row_of_a_utf8_file_stays_an_error_nam
     "metadata",
     [
         "version,device name,platform\n3,Téléphone,android\n".encode("latin-1"),
-        "version,device name,platform\n3,phone,ios\n".encode("utf-16"),
+        "version,device name,platform,standardisation\n3,phone,ios,true\n".encode("utf-16"),
     ],
     ids=["latin-1", "utf-16"],
 )

@@ -44,6 +44,13 @@ from hil.logs.table import Container, Header, one_copy, read_table, sniff_dialec
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
+_HOLDS = {
+    SensorKind.ACC: "accelerometer",
+    SensorKind.GYR: "gyroscope",
+    SensorKind.MAG: "magnetometer",
+    None: "linear acceleration",
+}
+"""What a file of each kind holds, for messages (None: gravity removed, :data:`_LINEAR`)."""
 TIME_CSV = "meta/time.csv"
 EXCEL = (".xls", ".xlsx")
 # phyphox writes its labels in the phone's language ("Beschleunigung x (m/s^2)", "Accélération x",
@@ -175,9 +182,13 @@ def read(c: Container) -> SensorLog:
             c.where(linear[0]),
         )
     for kind in (SensorKind.ACC, SensorKind.GYR):
-        if kind not in chosen:
-            found = ", ".join(f.name for f in files) or "no sensor tables"
-            raise InputFormatError(f"no {kind.name.lower()} file (found: {found})", str(c.path))
+        if kind not in chosen:  # one sensor's export alone (phyphox exports one table per experiment)
+            found = ", ".join(f"{f.name}: {_HOLDS[f.kind]}" for f in files) or "no sensor tables"
+            raise InputFormatError(
+                f"no {_HOLDS[kind]} file (found {found}): the estimator needs the gyroscope and the "
+                "accelerometer (with g); put each sensor's export in one folder and replay the folder",
+                str(c.path),
+            )
     if linear:
         notes.append(f"ignored (gravity removed): {', '.join(linear)}")
     if SensorKind.MAG not in chosen:

@@ -211,6 +211,7 @@ class ReplayResult:
 def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, Site, list[str]]:
     """The estimator and the site it runs at for this log — inertial directions, gyro bias, the merged
     steps' period, 6-axis or not —, and what was done to find them."""
+    refuse_lone_readings(log)  # before the directions measured from the log, which name another sensor
     setup: list[str] = []
     if options.gyro_bias not in ("still", "none"):
         raise ConfigError(f"must be 'still' or 'none', got {options.gyro_bias!r}", "replay gyro bias")
@@ -285,13 +286,16 @@ def split_at_gaps(log: SensorLog, max_gap_s: float) -> list[tuple[float, float]]
     return [(float(a), float(b)) for a, b in zip(starts, ends, strict=True)]
 
 
-def before_clock_restart(log: SensorLog, max_gap_s: float) -> tuple[SensorLog, str | None]:
+def before_clock_restart(
+    log: SensorLog, max_gap_s: float, kept: str = "driving the board with the stretch before it"
+) -> tuple[SensorLog, str | None]:
     """``log`` up to where its clock first goes back by more than ``max_gap_s`` (a recording restarted, its
     clock from zero again, appended to the first), each sensor's samples before its own first such step;
     and what was left out, said for the operator (None: the clock never went back so far). A board is
     driven on the clock: the stretch after the restart, stamped over the first one's times, was released
     all at once behind it, and the run said ``completed`` driven by the first stretch alone, without a
-    word (:func:`split_at_gaps` sees only jumps forward: it takes the times sorted)."""
+    word (:func:`split_at_gaps` sees only jumps forward: it takes the times sorted). ``kept``: what is
+    done with the stretch before, for the message (a batch replay replays it)."""
     cut: dict[SensorKind, int] = {}
     for kind, stream in log.streams.items():
         t = stream.t
@@ -314,8 +318,7 @@ def before_clock_restart(log: SensorLog, max_gap_s: float) -> tuple[SensorLog, s
     was = float(np.nanmax(stream.t[:at]))
     said = (
         f"the log's clock goes back from {was:.3f} s to {float(stream.t[at]):.3f} s ({kind.name}, sample "
-        f"{at}: a recording restarted); driving the board with the stretch before it ({left_out} samples "
-        "after it left out)"
+        f"{at}: a recording restarted); {kept} ({left_out} samples after it left out)"
     )
     trimmed = SensorLog(streams, log.source, log.format, log.truth, log.notes, log.dropped)
     return trimmed, said
@@ -330,8 +333,12 @@ def _clock_restart(times: NDArray[np.float64], max_gap_s: float) -> int | None:
     clock restarted: more than ``max_gap_s`` below the level before it (the median of the
     :data:`RESTART_RUN` samples before), and the next ones going on from there — nearer to it than to that
     level. A stray stamped far ahead, and the stream that resumes after it, is no restart; nor is one stray
-    stamped far behind, after which the stream resumes at its level."""
+    stamped far behind, after which the stream resumes at its level; nor a step back with fewer than
+    :data:`RESTART_RUN` samples from it on (a stray last row: a batch replay leaves it out as a part of
+    its own, counted)."""
     for i in np.flatnonzero(times[1:] < times[:-1] - max_gap_s) + 1:
+        if i + RESTART_RUN > len(times):  # too few after it to tell a restart from a stray: no restart
+            break
         level = float(np.median(times[max(0, i - RESTART_RUN) : i]))
         if times[i] < level - max_gap_s and np.all(times[i : i + RESTART_RUN] < (level + times[i]) / 2):
             return int(i)
@@ -345,20 +352,29 @@ def steerable_end(log: SensorLog) -> tuple[SensorLog, str | None]:
     recording whose gyroscope ends 0.8 s before its accelerometer played on to the accelerometer's end,
     and the run ended "lost: phone lost … no gyroscope reading came", status 3, though the recording had
     simply ended."""
-    ends = {k: float(np.nanmax(np.where(np.isfinite(s.t), s.t, np.nan))) for k, s in log.streams.items()}
-    needed = min(ends[SensorKind.GYR], ends[SensorKind.ACC])
-    if needed >= log.end:
+    ended = needed_end(log)
+    if ended is None:
         return log, None
-    if log.end - needed <= TRIM_S:  # shorter than a gap: played whole, as ever
-        return log, None
-    trimmed = _up_to(log, needed)
-    longest = max(ends, key=lambda k: ends[k])
-    sensor = "gyroscope" if ends[SensorKind.GYR] == needed else "accelerometer"
+    needed, sensor, longest = ended
     said = (
         f"driving the board until {needed:.3f} s, where the log's {sensor} ends ({longest.name} goes on "
         f"{log.end - needed:.2f} s more: the host steers only with both)"
     )
-    return trimmed, said
+    return _up_to(log, needed), said
+
+
+def needed_end(log: SensorLog) -> tuple[float, str, SensorKind] | None:
+    """Where (s) the log's gyroscope or accelerometer — the two an estimate needs; the magnetometer may go —
+    ends, which of them ("gyroscope", "accelerometer") and the sensor that goes on longest, when the log
+    goes on more than :data:`TRIM_S` after it; None when it does not. Beyond that end every step would
+    be the other sensors' alone, the missing one held stale: a gyroscope of one row beside 8 s of the
+    others replayed ~400 steps, one of them with a gyroscope reading."""
+    ends = {k: float(np.nanmax(np.where(np.isfinite(s.t), s.t, np.nan))) for k, s in log.streams.items()}
+    needed = min(ends[SensorKind.GYR], ends[SensorKind.ACC])
+    if not log.end - needed > TRIM_S:  # shorter than a gap: played whole, as ever
+        return None
+    sensor = "gyroscope" if ends[SensorKind.GYR] == needed else "accelerometer"
+    return needed, sensor, max(ends, key=lambda k: ends[k])
 
 
 TRIM_S = 0.25
@@ -381,6 +397,12 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     log = read_log(path, options.format)
     if options.window_s is not None:
         log = log.window(*options.window_s)
+    # a clock that goes back (a recording restarted, or one file's clock): the samples after it, stamped
+    # over earlier times, were merged where they fell — dropped as out of order up to the first stretch's
+    # end, and beyond it taken as readings of those times
+    whole = log
+    log, restarted = before_clock_restart(log, options.max_gap_s, "replaying the stretch before it")
+    after_restart = {k.label: len(whole.streams[k]) - len(s) for k, s in log.streams.items()}
     log, beyond = drop_out_of_range(log, options.limits)
     estimator, site, setup = configure(log, options)
     warnings = field_warnings(log, field_model_of(options))
@@ -390,6 +412,8 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
             f"{sum(beyond.values())} readings beyond their sensor's range dropped ({counts}): "
             f"a phone measures at most {_ranges(options.limits)}"
         )
+    if restarted is not None:
+        warnings.append(restarted)
     parts = split_at_gaps(log, options.max_gap_s)
     parts_said = len(warnings)  # the warnings from here on are the parts'
     all_steps, all_estimates, segments = [], [], []
@@ -399,7 +423,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
             stats.nan[kind.label] += int(np.count_nonzero(~np.isfinite(stream.t)))
     bias: tuple[float, float, float] | None = None
     total_steps = 0
-    skipped: dict[str, int] = dict.fromkeys((k.label for k in log.kinds), 0)
+    skipped: dict[str, int] = {k.label: after_restart.get(k.label, 0) for k in log.kinds}
     for i, (t0, t1) in enumerate(parts):
         segment: dict[str, float | int | str] = {"t0_s": t0, "t1_s": t1}
         gap = ""
@@ -414,6 +438,20 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         why = None if all(in_part.values()) else "not every sensor speaks in it"
         if why is None:
             part = log.window(t0, t1) if len(parts) > 1 else log
+            ended = needed_end(part)
+            if ended is not None:  # its tail beyond: the other sensors' alone, left out and counted
+                end, sensor, longest = ended
+                tail = {k.label: int(np.count_nonzero(s.t > end)) for k, s in part.streams.items()}
+                part = _up_to(part, end)
+                for label, n in tail.items():
+                    skipped[label] += n
+                ends = f"the log's {sensor} ends at {seconds(end)} s ({longest.name} on to {seconds(t1)} s)"
+                warnings.append(
+                    f"{ends}: {t1 - end:.3g} s not replayed, an estimate needs both the gyroscope and the "
+                    f"accelerometer: its {sum(tail.values())} samples are left out "
+                    f"({', '.join(f'{label} {n}' for label, n in tail.items())})"
+                )
+                in_part = {label: n - tail[label] for label, n in in_part.items()}
             _check_length(part, total_steps, log.source)
             steps, seg_stats = merge(part.streams, options.policy)
             first = _first_complete(steps, log)
@@ -423,6 +461,8 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
                 steps = steps.rows(first)
             if len(steps) < MIN_SEGMENT_STEPS:
                 why = f"{len(steps)} steps (fewer than {MIN_SEGMENT_STEPS})"
+                if ended is not None:
+                    why += f": {ends}"
                 lost = merge_warnings(replace(seg_stats, stale_steps={}))  # what the merge dropped, and why
                 if lost:  # rows in reverse time order: all but one dropped, and said so
                     why += ": " + "; ".join(lost)
@@ -583,6 +623,34 @@ def refuse_no_direction(log: SensorLog) -> None:
                 f"(the phone has no such sensor, or it never started){_NO_DIRECTION_HINTS[kind]}",
                 sensor_files_where(log, _FILE_STEMS[kind]),
             )
+
+
+MIN_TIMED_READINGS = 2
+"""The fewest readings with a time a sensor's stream holds: one reading spans no time (a gyroscope's
+gives no motion to integrate, an accelerometer's or magnetometer's one direction at one instant)."""
+_SENSOR_NAMES = {SensorKind.GYR: "gyroscope", SensorKind.ACC: "accelerometer", SensorKind.MAG: "magnetometer"}
+_LONE_HINTS = {
+    SensorKind.GYR: ": the estimator has no rates to integrate (the export cut short?)",
+    SensorKind.ACC: ": gravity's direction is not followed (the export cut short?)",
+    SensorKind.MAG: ": heading cannot be observed; remove its file to replay 6-axis (heading unobserved)",
+}
+
+
+def refuse_lone_readings(log: SensorLog) -> None:
+    """An :class:`InputFormatError` naming its file when a sensor holds fewer than
+    :data:`MIN_TIMED_READINGS` readings with a finite time. A gyroscope file of one row beside normal
+    ones replayed every step on the others' samples, its one reading held stale, and said "completed"; an
+    accelerometer of one row was refused as "too few magnetometer samples"."""
+    for kind, stream in log.streams.items():
+        timed = np.flatnonzero(np.isfinite(stream.t))
+        if not 0 < timed.size < MIN_TIMED_READINGS:  # none: the log's span refuses it (SensorLog.start)
+            continue
+        at = ", ".join(f"{seconds(float(t))} s" for t in stream.t[timed])
+        raise InputFormatError(
+            f"the {_SENSOR_NAMES[kind]} has {timed.size} reading(s) with a time (at {at}): fewer than "
+            f"{MIN_TIMED_READINGS} span no time{_LONE_HINTS[kind]}",
+            sensor_files_where(log, _FILE_STEMS[kind]),
+        )
 
 
 def _ranges(limits: ReadingLimits) -> str:

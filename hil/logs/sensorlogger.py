@@ -11,7 +11,8 @@ keeps its fraction; one written as an ISO-8601 date is read (:func:`iso_time_ns`
 rounded (``1.67907E+18``) gives way to ``seconds_elapsed`` for every file (:class:`_CoarseTime`); files
 on different clocks are refused (:func:`_same_clock`). Units (the app's unit reference): m/s²
 (g = 9.80665), rad/s, µT; axes are Android's sensor frame (on iOS, with "Standardise Units & Frames" on;
-with it off, as ``Metadata.csv`` says, the acceleration's axes are negated to Android's: :func:`_assemble`).
+with it off, as ``Metadata.csv`` says, or before the app had it, the acceleration's axes are negated to
+Android's: :func:`_ios_standardised`).
 
 Accelerometers, in order of preference: ``TotalAcceleration.csv`` (specific force *including* gravity);
 ``Accelerometer.csv`` (the *user* acceleration, gravity removed) plus ``Gravity.csv`` (their sum, gravity
@@ -623,6 +624,49 @@ SETTING_OFF = frozenset({"false", "0", "no", "off"})
 ``0``)."""
 
 
+SETTING_ON = frozenset({"true", "1", "yes", "on"})
+"""How ``Metadata.csv`` may write a setting that is on (the app writes ``true``)."""
+STANDARDISATION_SINCE = "1.29"
+"""The app version that added "Standardise Units & Frames" and ``Metadata.csv``'s ``standardisation``
+(awesome-sensor-logger, CROSSPLATFORM.md: off by default "to maintain backwards compatibility")."""
+
+
+def _ios_standardised(settings: Mapping[str, str], export: Export, notes: list[str]) -> bool:
+    """Whether an iOS export's axes are Android's (the app's "Standardise Units & Frames" on), said in
+    ``notes``. ``standardisation`` ``true`` or ``false`` (:data:`SETTING_ON`, :data:`SETTING_OFF`)
+    decides; without the column the app predates the setting (:data:`STANDARDISATION_SINCE`) and wrote
+    iOS's own frames, as the setting's default (off) still does — it was read as on, the accelerometer
+    upside down. Any other value is an :class:`InputFormatError` naming ``Metadata.csv``: the frames
+    cannot be told, and a guess flips the attitude."""
+    where = export.files["Metadata.csv"]
+    negated = (
+        "the accelerometer's axes negated to Android's (gyroscope and magnetometer share Android's axes)"
+    )
+    if "standardisation" not in settings:
+        version = settings.get("appversion", "")
+        notes.append(
+            f"iOS export from before app version {STANDARDISATION_SINCE} ({where} has no standardisation"
+            + (f"; appVersion {version}" if version else "")
+            + f"): iOS's own frames, as with 'Standardise Units & Frames' off: {negated}"
+        )
+        return False
+    value = settings["standardisation"]
+    if value in SETTING_OFF:
+        notes.append(
+            f"iOS export with 'Standardise Units & Frames' off ({where}: standardisation {value}): {negated}"
+        )
+        return False
+    if value in SETTING_ON:
+        notes.append(f"iOS export with 'Standardise Units & Frames' on ({where}: standardisation {value})")
+        return True
+    raise InputFormatError(
+        f"standardisation {value!r} is neither on ({', '.join(sorted(SETTING_ON))}) nor off "
+        f"({', '.join(sorted(SETTING_OFF))}): whether iOS's accelerometer axes are Android's or the other "
+        "way round cannot be told",
+        where,
+    )
+
+
 def recording_settings(metadata: str) -> dict[str, str]:
     """``Metadata.csv``'s record as {column: value}, both stripped and in lower case (``platform`` →
     ``ios``, ``standardisation`` → ``false``; the app writes one header and one row), read in its own
@@ -743,20 +787,12 @@ def _assemble(
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
     parts[SensorKind.ACC] = _accelerometer(export, notes, clocks)
     settings = recording_settings(export.metadata())
-    if settings.get("platform", "").startswith("ios"):
-        if settings.get("standardisation") in SETTING_OFF:
-            # the app's default: iOS's acceleration and gravity point the other way on every axis (flat,
-            # screen up, gravity reads -z where Android's specific force reads +z); read as they are, the
-            # estimator took the phone to be upside down, with only a note saying the setting was assumed on
-            times, xyz = parts[SensorKind.ACC]
-            parts[SensorKind.ACC] = (times, -xyz)
-            notes.append(
-                f"iOS export with 'Standardise Units & Frames' off ({export.files['Metadata.csv']}: "
-                f"standardisation {settings['standardisation']}): the accelerometer's axes negated to "
-                "Android's (gyroscope and magnetometer share Android's axes)"
-            )
-        else:
-            notes.append("iOS export: axes and units assume 'Standardise Units & Frames' was on")
+    if settings.get("platform", "").startswith("ios") and not _ios_standardised(settings, export, notes):
+        # iOS's own frames: its acceleration and gravity point the other way on every axis (flat, screen
+        # up, gravity reads -z where Android's specific force reads +z); read as they are, the estimator
+        # took the phone to be upside down
+        times, xyz = parts[SensorKind.ACC]
+        parts[SensorKind.ACC] = (times, -xyz)
     notes.extend(layout)
     epoch = {k: t.dtype.kind == "i" for k, (t, _) in parts.items()}
     if len(set(epoch.values())) > 1:
