@@ -249,6 +249,16 @@ def run(args: argparse.Namespace) -> int:
         if option is None:
             raise
         raise ConfigError(exc.detail, option) from None
+    # said once every option is taken, before the runs start: not found in their verdicts afterwards
+    needed = scenario.time_to_judge()
+    shortfall = needed.shortfall(scenario.slew.duration_s)
+    if shortfall is not None:
+        print(
+            f"hil montecarlo: warning: {shortfall}: the settle and final_error verdicts will be the "
+            "duration's, and a fault campaign does not count such a miss against back_in_control "
+            f"(--duration {math.ceil(needed.total_s)} or more judges them)",
+            file=sys.stderr,
+        )
     bar = ProgressBar()
     what = (
         f"{campaign.runs} runs of {scenario.name} ({scenario.slew.duration_s:g} s each, "

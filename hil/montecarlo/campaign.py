@@ -662,6 +662,11 @@ def summarise_dir(
     summary = summarise(
         read_runs(out_dir), sc.name, duration_s, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate
     )
+    # a duration too short for the slew to settle: its settle and final_error verdicts are the duration's
+    # (a fault campaign's runs do not count such a miss against back_in_control: runner.run_faulted)
+    shortfall = sc.time_to_judge().shortfall(duration_s)
+    if shortfall is not None:
+        summary["too_short_to_judge"] = shortfall
     interrupted = None
     if workers_lost is None:
         previous = _previous_summary(Path(out_dir) / SUMMARY)

@@ -269,6 +269,7 @@ def run_faulted(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResul
         error = describe(exc)
         summary = recorder.summary
         result = None
+    _explain_a_run_too_short(recorder, realised)
     report = check_run(run.faults, recorder, bounds, error)
     checks = _checks(summary, report)
     wall = time.perf_counter() - start
@@ -283,6 +284,22 @@ def run_faulted(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResul
     if len(trace["t"]):
         decimated = decimated_trace(trace, trace_hz, samples)
     return RunResult(run.index, True, run.columns, metrics, decimated, wall_s=wall, checks=checks)
+
+
+def _explain_a_run_too_short(recorder: RunRecorder, scenario: Scenario) -> None:
+    """A requirement missed with nothing in the record to explain it is ``back_in_control``'s violation
+    — unless the run was too short for its slew to settle (:meth:`Scenario.time_to_judge`: a campaign
+    run with ``--duration 20`` on a slew that needs 28.5 s): then the miss is the duration's, not the
+    system's, and the recorded requirement says so (``explained``, with the reason in ``why``) rather than
+    every run of the campaign reporting a violation. A run long enough is judged as before."""
+    requirement = recorder.summary.get("requirement")
+    if not isinstance(requirement, Mapping) or requirement.get("met") or requirement.get("explained"):
+        return
+    shortfall = scenario.time_to_judge().shortfall(scenario.slew.duration_s)
+    if shortfall is None:
+        return
+    # its why was "nothing in the record explains it": the record's length does
+    recorder.summary["requirement"] = {**requirement, "why": f"not judged: {shortfall}", "explained": True}
 
 
 WALL_BUDGET_S = 120.0

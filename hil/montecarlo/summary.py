@@ -9,7 +9,9 @@ Requirements (each a pass/fail per run; a failed run passes none):
 - ``all``: all three.
 
 Pass rates are over every finished run, failed ones included (as not passing), with a 95 % Wilson score
-interval: with 100 runs an observed 99 % means somewhere between ~94.5 and ~99.8 %.
+interval: with 100 runs an observed 99 % means somewhere between ~94.5 and ~99.8 %. A campaign whose
+duration is shorter than its slew needs to settle (:meth:`hil.scenario.Scenario.time_to_judge`) says so
+(``too_short_to_judge``, printed under the requirements): its misses are the duration's.
 
 What a figure could not use is said, never passed over: an ok run whose metric is empty or NaN, or below
 zero where no run can be (:data:`NON_NEGATIVE`: a row hil did not write), is left out of that metric's
@@ -259,6 +261,8 @@ def format_table(summary: dict[str, Any]) -> str:
             f"  ({req['not_judged']} ok not judged: no readable value)" if req.get("not_judged") else ""
         )
         lines.append(f"{name:<14}{condition:<30}{rate:>10}{ci:>16}{unjudged}")
+    if summary.get("too_short_to_judge"):
+        lines.append(f"too short        {summary['too_short_to_judge']}: these verdicts are the duration's")
     if "invariant_violations" in summary:
         lines += [
             "",

@@ -16,6 +16,29 @@ from .phone import PhoneSpec
 
 
 @dataclass(frozen=True)
+class SlewTime:
+    """The time a slew needs to be judged (s, from its start): ``trajectory_s`` to turn, then
+    ``settle_s`` for the controller to settle (:meth:`Scenario.time_to_judge`)."""
+
+    trajectory_s: float
+    settle_s: float
+
+    @property
+    def total_s(self) -> float:
+        return self.trajectory_s + self.settle_s
+
+    def shortfall(self, duration_s: float) -> str | None:
+        """Why a run of ``duration_s`` (s from the slew's start) is too short to judge its requirement,
+        or None when it is long enough."""
+        if duration_s >= self.total_s:
+            return None
+        return (
+            f"the run's {duration_s:g} s is shorter than its slew needs to settle, {self.total_s:.1f} s "
+            f"({self.trajectory_s:.1f} s to turn, then ~{self.settle_s:.1f} s to settle, 4/(ζ ω_n))"
+        )
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A loaded scenario. ``board_options`` and ``fault_options`` are firmware-sim's command-line options
     (name without dashes → value; a list for a repeatable option), so the same scenario drives the
@@ -91,6 +114,20 @@ class Scenario:
         chosen = replace(self, board_options={**self.board_options, "board": board})
         check_firmware_board(chosen)  # a pack the firmware's ADC cannot read: named before anything starts
         return chosen
+
+    def time_to_judge(self) -> SlewTime:
+        """How long after its start this scenario's slew needs before its pointing requirement can be
+        judged (:class:`SlewTime`): its rest-to-rest trajectory within ``max_rate`` and ``max_accel``
+        (:meth:`hil.control.attitude.EigenaxisSlew.within_limits`, from the nominal start attitude; the host
+        plans from its estimate, a rounding away), then the controller's settling, 4 / (ζ ω_n), the 2 %
+        settling time of its second-order error dynamics. A run shorter than that ends before the slew
+        could settle: its miss is the duration's, not the system's."""
+        from hil.control.attitude import EigenaxisSlew  # the controller's module; imported when asked
+
+        slew = self.slew
+        trajectory = EigenaxisSlew.within_limits(slew.R0, slew.R_target, slew.max_rate, slew.max_accel)
+        gains = self.loop.gains
+        return SlewTime(trajectory.duration_s, 4.0 / (gains.damping * gains.natural_frequency))
 
     def with_changes(self, **changes: Any) -> Scenario:
         """A copy with fields replaced (Monte Carlo dispersions, ``--duration``)."""

@@ -562,10 +562,12 @@ class _Reader:
             if abs(degrees) > MAX_ANGLE_DEG:
                 what = f"must be within ±{MAX_ANGLE_DEG:g} deg, got {degrees!r}"
                 raise self.error(f"manoeuvre.{angle_key}", what)
+            # an axis given is checked whether or not its angle turns about it: `initial_axis = "north"` (or
+            # [nan, 0, 1]) without an initial_angle_deg was read as nothing and passed without a word
+            axis = self.vector(m, "manoeuvre", axis_key, (3,)) if axis_key in m else np.array([0.0, 0.0, 1.0])
             angle = math.radians(degrees)
             if angle == 0.0:
                 return np.eye(3)
-            axis = self.vector(m, "manoeuvre", axis_key, (3,)) if axis_key in m else np.array([0.0, 0.0, 1.0])
             norm = float(np.linalg.norm(axis))
             if norm < 1e-9:
                 raise self.error(f"manoeuvre.{axis_key}", "must not be the zero vector")
