@@ -130,6 +130,7 @@ class Host:
         self.phone = PhoneClock(self.journal, self.events, self.stale_after_s)
         self.senders = SenderWatch(self.events)
         self.in_control = True
+        self._unsteered_since: float | None = None  # host s the current run of no-command ticks began
         self._hold_sent = False  # the hold setpoint went out since the board was last seen
         self._hold_tick = -1  # the control tick it went out in
         self.actuators = ActuatorWatch(
@@ -313,6 +314,8 @@ class Host:
         self.actuators.rotor_speeds(t, rotor)
         armed = tel.state is BoardState.ARMED
         command, steered, ref = self._control(t, gimbal, rotor, armed, phone_fresh)
+        if steered is not None:
+            self._note_unsteered(t, steered)
         if armed and not watch.rearm_pending and command is not None:
             self._send(command)
             if steered is not None:  # the steering's: what the actuators should follow
@@ -321,6 +324,40 @@ class Host:
         self.rows.record(self._snapshot(t, view, ref, board, command, steered))
         if self.phases.time_is_up(t, self._duration):
             self.finished = True
+
+    def _estimated_attitude(self) -> Array | None:
+        """The attitude estimated now (3, 3), body → inertial, to plan a slew from; None while there is
+        no estimate or it is not finite (an estimator that lost itself for a moment, say). A slew planned
+        from a NaN attitude is NaN at every reference point: the run steered with nothing to its end,
+        though the estimate came back a tick later (a warm-up that ended then began the scenario's slew
+        from it). None makes the warm-up wait, and a retarget refused, until an estimate is usable."""
+        est = self.estimate
+        if est is None:
+            return None
+        R = est.R
+        return R if bool(np.isfinite(R).all()) else None
+
+    def _note_unsteered(self, t: float, steered: Steered) -> None:
+        """Count a control tick at ``t`` (s) on which steering had no finite command to give
+        (:attr:`hil.control.steering.Saturation.NOT_FINITE`: the array was given none — gimbals still,
+        rotor accelerations 0 — so the run steered with nothing, which its rows alone did not say), and
+        log each episode of them once: an ``unsteered`` event (and a warning) at its first tick, a
+        ``steered_again`` event with its length (s) at the first tick steering gives a command again.
+
+        The torque the controller asked for is the input tested: the gimbal angles and rotor speeds come
+        from the board's telemetry, bounded by the wire (:mod:`protocol.messages`), so a demand that is
+        not a number (a NaN or infinite estimate, say) is how a tick has no finite command here."""
+        if all(map(math.isfinite, steered.torque)):
+            if self._unsteered_since is not None:
+                self.events.write(t, "steered_again", after_s=t - self._unsteered_since)
+                self._unsteered_since = None
+            return
+        self.counters.unsteered_ticks += 1
+        if self._unsteered_since is None:
+            self._unsteered_since = t
+            self.counters.unsteered_episodes += 1
+            self.events.write(t, "unsteered", why="the controller's torque demand is not a number")
+            logger.warning("t=%.3f s: steering has no finite command (the torque demand is not a number)", t)
 
     def _lose_if_overdue(self, t: float) -> None:
         """The run has lost the board (or the phone) at ``t`` if an outage outlasted its bound: said once,
@@ -417,7 +454,6 @@ class Host:
         if phases.phase is Phase.SUSPENDED:
             return None, None, None  # the operator disarmed the board: nothing to command
         if phases.phase is Phase.WARMUP:
-            est = self.estimate
             rotors = np.array(rotor)
             began = phases.warm_up(
                 t,
@@ -426,7 +462,7 @@ class Host:
                 # a phone that has not streamed yet is not late (no gap), but no still window starts on
                 # it: the window would end with a fraction of its samples (a phone that started late)
                 phone_fresh=phone_fresh and self.phone.heard is not None,
-                attitude=None if est is None else est.R,
+                attitude=self._estimated_attitude(),
                 estimator=self.filter,
                 esc_dead=self.actuators.esc_dead,
             )
@@ -447,8 +483,7 @@ class Host:
         the attitude estimated now to ``R_target`` (3, 3), body → inertial (None: hold the attitude
         estimated now), from ``t`` (s); why it was refused, or None
         (:meth:`hil.runtime.phases.RunPhases.retarget`)."""
-        est = self.estimate
-        return self.phases.retarget(t, None if est is None else est.R, R_target)
+        return self.phases.retarget(t, self._estimated_attitude(), R_target)
 
     def arm(self, t: float, origin: str = "gcs") -> Command:
         """The operator's Arm (sent now): the host re-arms on its own again after later faults. After the

@@ -89,7 +89,8 @@ class TickRecorder:
         self._errors_sq = array("d")  # 8 bytes a tick from the slew's start (a list's float took ~32)
 
     def estimator_rmse(self) -> float | None:
-        """The estimator's RMS attitude error (deg) from the slew's start (simulated runs), None without."""
+        """The estimator's RMS attitude error (deg) from the slew's start over the ticks with a finite
+        estimate (simulated runs), None without any."""
         return float(np.sqrt(np.mean(self._errors_sq))) if self._errors_sq else None
 
     def record(self, snap: TickSnapshot) -> None:
@@ -159,7 +160,10 @@ class TickRecorder:
             assert w_true is not None and w_hat is not None
             est_err = math.degrees(angle_between9(R_true, R_hat))
             rate_err = math.dist(w_hat, w_true)
-            if snap.slew_start is not None:  # from the slew's start, as the trace
+            # from the slew's start, as the trace; a tick whose estimate is not a number counts as one
+            # without an estimate (skipped): one NaN made the whole run's RMSE NaN, written as null — the
+            # figure of every other tick lost (those ticks are the summary's ``unsteered_ticks``)
+            if snap.slew_start is not None and math.isfinite(est_err):
                 self._errors_sq.append(est_err * est_err)
         R_att = R_true if R_true is not None else R_hat
         point = track = None

@@ -20,13 +20,18 @@ from protocol.errors import HilError
 @dataclass
 class HostCounters:
     """What the host has done so far: estimator steps, phone samples fed (accepted or not), control
-    ticks, setpoints the board reset under, phone clock re-anchorings."""
+    ticks, setpoints the board reset under, phone clock re-anchorings; the control ticks on which steering
+    had no finite command to give (``unsteered_ticks``: :attr:`hil.control.steering.Saturation.NOT_FINITE`,
+    a NaN estimate, say — the array was given none) and the episodes of them (``unsteered_episodes``: runs
+    of such ticks, each logged once as an ``unsteered`` event)."""
 
     estimator_steps: int = 0
     samples: int = 0
     control_ticks: int = 0
     setpoint_errors: int = 0
     phone_restarts: int = 0
+    unsteered_ticks: int = 0
+    unsteered_episodes: int = 0
 
 
 def run_summary(
@@ -72,6 +77,9 @@ def run_summary(
         "board_logs_unrecorded": watch.board_logs_unrecorded,
         "phone_gaps": len(journal.phone_gaps),
         "phone_restarts": counters.phone_restarts,
+        "unsteered_ticks": counters.unsteered_ticks,
+        "unsteered_episodes": counters.unsteered_episodes,
+        "unsteered_s": counters.unsteered_ticks / scenario.loop.control_rate_hz,
         "lost": lost or journal.open_at_end(now) or journal.lost_after_the_run(),
         "estimator_steps": counters.estimator_steps,
         "phone_samples": counters.samples,
@@ -85,7 +93,10 @@ def run_summary(
         + (0.0 if since is None or phases.slew_start is None else now - max(since, phases.slew_start)),
         "suspended_at_end": since,
     }
-    out.update(trace.figures(scenario.settle_deg, gimbal_rate_limit))
+    slew, slew_start = phases.slew, phases.slew_start
+    # the trace's time runs from the first slew's start; a retarget's or a recovery's slew starts later
+    slew_end_s = None if slew is None or slew_start is None else slew.start_s + slew.duration_s - slew_start
+    out.update(trace.figures(scenario.settle_deg, gimbal_rate_limit, slew_end_s))
     if len(trace):
         out["slew_s"] = None if phases.slew is None else phases.slew.duration_s
     out["estimator_rmse_deg"] = estimator_rmse
@@ -124,7 +135,8 @@ def requirement(
 ) -> dict[str, Any]:
     """Whether the run met its pointing requirement (settled within ``settle_deg``: ``figures``' ``settled``)
     and, when it did not, why — what the record holds that explains it: the operator's suspensions and
-    retargets, the faults since the slew started (but those that change nothing: :data:`CHANGES_NOTHING`),
+    retargets, the control ticks steering had no finite command for, the faults since the slew started (but
+    those that change nothing: :data:`CHANGES_NOTHING`),
     frames damaged on the link, a recovery that left too little time (at ``now``, host s). ``explained``
     is False when nothing in the record explains a miss (a controller that did not settle on its own)."""
     if figures.get("settled"):
@@ -135,6 +147,12 @@ def requirement(
     suspended = figures.get("suspended_s") or 0.0
     if suspended > 0 or phases.suspended_since is not None:
         reasons.append(f"disarmed by the operator for {suspended:.1f} s")
+    unsteered = figures.get("unsteered_ticks") or 0
+    if unsteered:
+        reasons.append(
+            f"steering had no finite command for {unsteered} control ticks "
+            f"({figures.get('unsteered_s', 0.0):.1f} s, {figures.get('unsteered_episodes', 0)} episodes)"
+        )
     retargets = [o for o in operator_log if o["command"] in ("slew", "hold") and o["status"] == "applied"]
     if retargets:
         reasons.append(f"retargeted by the operator at t={retargets[-1]['t']:.1f} s")

@@ -184,9 +184,15 @@ class RunTrace:
         """Every field as a float array (K,): a copy, so the trace may go on growing."""
         return {name: np.array(getattr(self, name), dtype=float) for name in self.FIELDS}
 
-    def figures(self, settle_deg: float, gimbal_rate_limit: float) -> dict[str, Any]:
+    def figures(
+        self, settle_deg: float, gimbal_rate_limit: float, slew_end_s: float | None = None
+    ) -> dict[str, Any]:
         """The pointing figures of the run so far ({} before the slew): settle time (s from the slew's
-        start after which the pointing error stays ≤ ``settle_deg``; None if it never did), final and
+        start after which the pointing error stays ≤ ``settle_deg``; None if it never did, or if the trace
+        ends before ``slew_end_s`` — s from the slew's start at which the last slew's reference comes to
+        rest on its target, None: not known — : an error that entered the band while the reference still
+        moved has not settled, it is passing through, and a run cut there claimed a settle at 16.5 s that
+        the whole run left again at 18.7 s; that run's requirement then said met), final and
         peak pointing error (deg), peak gimbal rate (rad/s) and whether it kept within the limit, minimum
         δ — the last three over the ticks with a live board (None without any). A figure never measured is
         None, never NaN: the final error of a run whose last tick had no estimate (the phone's stream
@@ -198,6 +204,8 @@ class RunTrace:
         err = tr["point_err_deg"]
         above = np.nonzero(~(err <= settle_deg))[0]
         settled = len(above) == 0 or above[-1] + 1 < len(err)
+        if slew_end_s is not None and tr["t"][-1] < slew_end_s:
+            settled = False  # the run ended before its slew did: nothing has settled yet
         settle_s = (float(tr["t"][above[-1] + 1]) if len(above) else 0.0) if settled else None
         peak = _nan_or(np.nanmax, tr["gimbal_rate"])
         return {
