@@ -25,6 +25,9 @@ Rules (docs/protocol.md, "Reliable commands"):
 * ``Hello`` is not acknowledged but answered by ``HelloReply`` (which carries no sequence number): the
   first ``HelloReply`` settles the oldest pending ``Hello``.
 * An answer for a command already settled (a late answer to an earlier try) is counted, not an error.
+  One for a command a newer one superseded (it failed, not knowing whether the board carried it out) is
+  also kept on that command (``Command.late_reply``): it says whether the board did, and
+  ``on_late_answer`` is told.
 
 Receiver side (:class:`AnswerCache`, :func:`answer_for`): answer each ``(msg_id, seq)`` once and repeat
 that answer to retransmissions.
@@ -111,6 +114,17 @@ class Command:
     reason: NackReason | None = None  # for NACKED
     failure: str = ""  # for FAILED
     settled_at: float | None = None
+    superseded_by: Command | None = None  # the newer command that superseded it (then FAILED, not retried)
+    late_reply: Any = None  # a superseded command's Ack or Nack, come after it was superseded
+
+    @property
+    def carried_out(self) -> bool | None:
+        """Whether the board carried the command out: True once Acked (or a superseded one's late Ack),
+        False once Nacked (or a superseded one's late Nack), None while not known (pending, no answer)."""
+        reply = self.reply if self.state is not CommandState.FAILED else self.late_reply
+        if isinstance(reply, Nack):
+            return False
+        return True if reply is not None else None
 
     @property
     def msg_id(self) -> int:
@@ -187,11 +201,15 @@ class ReliableSender:
         framer: Framer | None = None,
         policy: RetryPolicy | None = None,
         on_settled: Callable[[Command], None] | None = None,
+        on_late_answer: Callable[[Command], None] | None = None,
     ) -> None:
         self.framer = framer if framer is not None else Framer()
         self.policy = policy if policy is not None else RetryPolicy()
         self.on_settled = on_settled
+        self.on_late_answer = on_late_answer
         self.stats = SenderStats()
+        # commands superseded lately, by key: their late answers say whether the board carried them out
+        self._superseded: OrderedDict[tuple[int, int], Command] = OrderedDict()
         self._pending: OrderedDict[tuple[int, int], Command] = OrderedDict()
         self._recent: deque[tuple[int, int]] = deque(maxlen=_RECENT)
 
@@ -207,6 +225,7 @@ class ReliableSender:
             )
         seq, data = self.framer.encode(message)
         cmd = Command(message, seq, sent_at=now, deadline=now + self.policy.timeout(1), last_sent_at=now)
+        self._superseded.pop(cmd.key, None)  # a late answer with this key is the new command's now
         stale = self._pending.pop(cmd.key, None)
         if stale is not None:  # 256 frames went out while it waited: its answers are now ambiguous
             self._settle(stale, CommandState.FAILED, now, failure="sequence number reused by a newer command")
@@ -246,6 +265,7 @@ class ReliableSender:
             cmd = self._pending.pop(key, None)
             if cmd is None:
                 self._count_stray(key)
+                self._superseded_answer(key, msg)
                 return None
             if isinstance(msg, Ack):
                 return self._settle(cmd, CommandState.ACKED, now, reply=msg)
@@ -284,7 +304,12 @@ class ReliableSender:
         """Stop retrying the pending commands that set what ``cmd`` sets (the message's ``SETS``): they
         fail, superseded. A Disarm sent into a stalled link, then an Arm: retried after the Arm was carried
         out, the Disarm left the board disarmed though the host's last word was Arm. (One already on its
-        way is the receiver's to order; one not yet carried out is not sent again.)"""
+        way is the receiver's to order; one not yet carried out is not sent again.)
+
+        Whether the board carried a superseded one out is not known when it is superseded — a try may be
+        on its way, or carried out with its answer still coming: its failure says so, never that it was
+        not carried out, and its answer, if one comes, is kept on it (:meth:`_superseded_answer`). A
+        Disarm the board did carry out was said to have failed, its Ack only counted as a late answer."""
         sets = getattr(cmd.message, "SETS", None)
         if sets is None:
             return
@@ -292,8 +317,34 @@ class ReliableSender:
         for old in older:
             del self._pending[old.key]
             self.stats.superseded += 1
-            what = f"superseded by a newer {type(cmd.message).__name__} (seq {cmd.seq})"
+            old.superseded_by = cmd
+            tries = f"{old.tries} {'try' if old.tries == 1 else 'tries'}"
+            what = (
+                f"superseded by a newer {type(cmd.message).__name__} (seq {cmd.seq}) and not sent again; "
+                f"no answer yet to its {tries}: whether the board carried it out is not known"
+            )
+            self._superseded[old.key] = old
+            while len(self._superseded) > _RECENT:
+                self._superseded.popitem(last=False)
             self._settle(old, CommandState.FAILED, now, failure=what)
+
+    def _superseded_answer(self, key: tuple[int, int], answer: Ack | Nack) -> None:
+        """A superseded command's answer, come late: kept on it (``late_reply``, ``carried_out``), its
+        failure saying what the board did, and ``on_late_answer`` told."""
+        cmd = self._superseded.pop(key, None)
+        if cmd is None:
+            return
+        cmd.late_reply = answer
+        newer = cmd.superseded_by
+        by = "" if newer is None else f" by a newer {type(newer.message).__name__} (seq {newer.seq})"
+        did = (
+            "the board carried it out (its Ack came late)"
+            if isinstance(answer, Ack)
+            else f"the board refused it (its Nack came late: {getattr(answer.reason, 'name', answer.reason)})"
+        )
+        cmd.failure = f"superseded{by} and not sent again; {did}"
+        if self.on_late_answer is not None:
+            self.on_late_answer(cmd)
 
     def _settle(
         self,

@@ -207,7 +207,9 @@ class Operator:
         )
 
     def _settle(self, host: Host, t: float, p: _Pending) -> None:
-        """The board's answer, as the protocol settled it: acked, nacked (with its reason) or failed."""
+        """The board's answer, as the protocol settled it: acked, nacked (with its reason), superseded (a
+        newer command set the same thing before an answer came: whether the board carried this one out is
+        not known, its reason says so — "failed" read as "no answer from the board") or failed."""
         from protocol.reliable import CommandState
 
         handle = p.handle
@@ -218,7 +220,8 @@ class Operator:
             reason = None if handle.reason is None else handle.reason.name
             self._log(host, t, p.command, "nacked", reason=reason, after_ms=after_ms, seq=handle.seq)
         else:
-            self._log(host, t, p.command, "failed", reason=handle.failure, after_ms=after_ms, seq=handle.seq)
+            status = "failed" if handle.superseded_by is None else "superseded"
+            self._log(host, t, p.command, status, reason=handle.failure, after_ms=after_ms, seq=handle.seq)
 
     @staticmethod
     def _log(host: Host, t: float, command: OperatorCommand, status: str, **fields: Any) -> None:

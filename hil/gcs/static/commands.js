@@ -19,6 +19,7 @@ function acknowledgement(c) {
   if (last.status === "acked") return `acked by the board${Number.isFinite(last.after_ms) ? ` after ${last.after_ms.toFixed(0)} ms` : ""}`;
   if (last.status === "nacked") return `nacked by the board${last.reason ? `: ${shortText(last.reason)}` : ""}`;
   if (last.status === "failed") return "no answer from the board";
+  if (last.status === "superseded") return "superseded by a newer command before the board answered";
   if (last.status === "applied") return "applied by the host";
   if (last.status === "refused") return "refused by the host";
   if (last.status === "sent") return "waiting for the board";

@@ -292,7 +292,8 @@ class BoardClient:
     def download_calibration(self, unit: int, timeout: float | None = None) -> UnitCalibration:
         """The calibration the board holds for ``unit``. Raises :class:`CommandFailed` (refused: no
         calibration, busy), :class:`CalibrationError` (a set that does not reassemble or parse),
-        :class:`LinkTimeout` (incomplete after ``timeout`` s)."""
+        :class:`LinkTimeout` (incomplete after ``timeout`` s, or no fragment from the board for
+        ``config.download_idle_s``: it gave the transfer up — even without a ``timeout``)."""
         with self._cond:
             self._check()
             now = self.clock.now()
@@ -300,7 +301,11 @@ class BoardClient:
             self._write(data, now)
             self._dispatch()
         if not self._wait_until(lambda: download.done, timeout):
-            raise LinkTimeout(f"calibration download of unit {unit} incomplete after {timeout} s")
+            with self._cond:
+                if not download.done:  # else it completed just now: its result is the caller's
+                    # no longer tracked: its late fragments are refused, not taken into a download
+                    # nobody reads (and held for the rest of the session)
+                    self.session.cancel_download(download, f"incomplete after {timeout} s")
         return download.result()
 
     # ================================================================== state

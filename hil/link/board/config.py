@@ -31,6 +31,9 @@ class ClientConfig:
     raises :class:`LinkError`. ``rearm_on_reconnect``: after a reconnect, arm again if the host had armed
     the board (off by default — the host never re-arms unless asked). ``event_queue``: events held for
     :meth:`BoardClient.drain_events` (older ones are dropped and counted when nobody drains them).
+    ``download_idle_s``: a calibration download no fragment has come for in this long fails
+    (:class:`LinkTimeout`) — the board resends an unacknowledged fragment 5 times 0.1 s apart, then gives
+    the transfer up, and a caller without a timeout waited for ever.
     """
 
     identity: AccessoryIdentity = HOST_IDENTITY
@@ -47,6 +50,7 @@ class ClientConfig:
     rearm_on_reconnect: bool = False
     event_queue: int = 10_000
     max_block_s: float = 0.05
+    download_idle_s: float = 2.0
 
     def __post_init__(self) -> None:
         for name in _POSITIVE + _POSITIVE_OR_NONE:
@@ -67,7 +71,14 @@ class ClientConfig:
         return min(self.reconnect_first_s * 2.0 ** min(attempt, 60), self.reconnect_max_s)
 
 
-_POSITIVE = ("heartbeat_period_s", "silence_after_s", "reconnect_first_s", "reconnect_max_s", "max_block_s")
+_POSITIVE = (
+    "heartbeat_period_s",
+    "silence_after_s",
+    "reconnect_first_s",
+    "reconnect_max_s",
+    "max_block_s",
+    "download_idle_s",
+)
 _POSITIVE_OR_NONE = ("max_setpoint_rate_hz", "reconnect_give_up_s")
 
 

@@ -158,7 +158,9 @@ class SilenceEvent:
 
 @dataclass(frozen=True, slots=True)
 class CommandEvent:
-    """A command the client sent on its own (a re-arm the caller asked for on reconnect) settled."""
+    """A command the client sent on its own (a re-arm the caller asked for on reconnect) settled; or a
+    command a newer one superseded was answered late (``ok``: the board carried it out; ``detail`` says
+    what it did): superseded, it had failed saying that was not known."""
 
     t: float
     command: str

@@ -205,7 +205,12 @@ class Session:
         self.config = config if config is not None else ClientConfig()
         self.framer = Framer()
         self.deframer = Deframer()
-        self.commands = ReliableSender(self.framer, self.config.commands, on_settled=self._on_settled)
+        self.commands = ReliableSender(
+            self.framer,
+            self.config.commands,
+            on_settled=self._on_settled,
+            on_late_answer=self._on_late_answer,
+        )
         self.hellos = ReliableSender(self.framer, self.config.handshake, on_settled=self._on_hello_settled)
         self.counters = SessionCounters()
         self.rtt = RttRing(self.config.rtt_samples)
@@ -360,11 +365,23 @@ class Session:
         cmd, data = self.command(CalibrationRequest(unit=unit, transfer_id=tid), now)
         return self._transfers.track(unit, tid, cmd), data
 
+    def cancel_download(self, download: Download, why: str) -> None:
+        """Stop waiting for ``download`` (its caller gave up: ``why``): it fails with :class:`LinkTimeout`
+        and its late fragments are refused, not acknowledged (:meth:`CalibrationTransfers.cancel`)."""
+        error = LinkTimeout(f"calibration download of unit {download.unit}: {why}")
+        self._transfers.cancel(download, error)
+
+    @property
+    def downloads_running(self) -> int:
+        """How many calibration downloads wait for fragments."""
+        return self._transfers.running
+
     def poll(self, now: float) -> bytes:
         """Whatever is due at ``now``: retries, a held setpoint, a heartbeat; silence detection."""
         self._now = now
         self._put(self.hellos.poll(now), now)
         self._put(self.commands.poll(now), now)
+        self._transfers.expire(now, self.config.download_idle_s)
         if self.phase is Phase.READY:
             if self._pending_setpoint is not None and now >= self._setpoint_slot:
                 body, self._pending_setpoint = self._pending_setpoint, None
@@ -382,7 +399,12 @@ class Session:
 
     def next_deadline(self) -> float:
         """The earliest host time at which :meth:`poll` has work (inf: none)."""
-        due = [self.hellos.next_deadline(), self.commands.next_deadline()]
+        idle_since = self._transfers.idle_since()
+        due = [
+            self.hellos.next_deadline(),
+            self.commands.next_deadline(),
+            None if idle_since is None else idle_since + self.config.download_idle_s,
+        ]
         if self.phase is Phase.READY:
             due.append(self._last_tx + self.config.heartbeat_period_s)
             if self._pending_setpoint is not None:
@@ -975,9 +997,21 @@ class Session:
         if isinstance(cmd.message, CalibrationRequest) and not cmd.ok:
             self._transfers.request_failed(cmd)
 
+    def _on_late_answer(self, cmd: Command) -> None:
+        """A superseded command's answer came late: it says whether the board carried it out (told as a
+        :class:`CommandEvent`; it said before it was not known). The board's state is left to the newer
+        command and the telemetry: this answer is older than both."""
+        now = self._now
+        name = type(cmd.message).__name__
+        newer = cmd.superseded_by
+        by = "" if newer is None else f" by {type(newer.message).__name__} (seq {newer.seq})"
+        what = f"{name} (seq {cmd.seq}), superseded{by}"
+        self._emit(CommandEvent(now, what, bool(cmd.carried_out), cmd.failure))
+        logger.info("%s: %s", what, cmd.failure)
+
     def _on_calibration_data(self, frame: Frame, now: float) -> None:
         """A fragment of a download (B→H, reliable): acknowledge it, once, and reassemble."""
-        answer = self._transfers.answer(frame)
+        answer = self._transfers.answer(frame, now)
         self.counters.calibration_answers += 1
         self._send(answer, now)
 

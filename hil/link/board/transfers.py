@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from protocol.calibration import Reassembler, UnitCalibration, fragment
-from protocol.errors import CalibrationError, HilError, LinkError, ProtocolError
+from protocol.errors import CalibrationError, HilError, LinkError, LinkTimeout, ProtocolError
 from protocol.frame import Frame
 from protocol.messages import Ack, CalibrationData, CalibrationRequest, Nack, NackReason
 from protocol.reliable import AnswerCache, Command, answer_for
@@ -33,6 +33,7 @@ class Download:
     data: bytes | None = None
     error: HilError | None = None
     reassembler: Reassembler = field(default_factory=Reassembler, repr=False)
+    heard_at: float = 0.0  # host time (s) of its request, then of its last fragment heard
 
     @property
     def done(self) -> bool:
@@ -66,7 +67,7 @@ class CalibrationTransfers:
 
     def track(self, unit: int, transfer_id: int, request: Command) -> Download:
         """A download just requested (``request`` is its CalibrationRequest): wait for its fragments."""
-        download = Download(unit, transfer_id, request)
+        download = Download(unit, transfer_id, request, heard_at=request.sent_at)
         stale = self._downloads.get((unit, transfer_id))
         if stale is not None and not stale.done:  # 256 transfers ago, never finished: its fragments are gone
             stale.error = LinkError(
@@ -82,6 +83,46 @@ class CalibrationTransfers:
                 download.error = LinkError(f"calibration download of unit {download.unit}: {why}")
         self._downloads.clear()
 
+    def cancel(self, download: Download, error: HilError) -> None:
+        """The caller stopped waiting for ``download`` (its timeout): it fails with ``error`` and is no
+        longer tracked, so its late fragments are refused (``BAD_STATE``: the board learns nobody takes
+        them) instead of acknowledged into a download nobody reads — the board then took the transfer
+        for delivered while the caller was told it timed out, and each such download stayed held."""
+        key = (download.unit, download.transfer_id)
+        if self._downloads.get(key) is download:
+            del self._downloads[key]
+        if not download.done:
+            download.error = error
+
+    def idle_since(self) -> float | None:
+        """The host time (s) the longest-silent running download last heard of its board (None: none
+        whose request the board has answered: until then the request's retries keep time)."""
+        return min(
+            (since for d in self._downloads.values() if (since := _heard(d)) is not None), default=None
+        )
+
+    def expire(self, now: float, idle_s: float) -> None:
+        """Fail the downloads no fragment has come for in ``idle_s`` s since their request was answered
+        or their last fragment (:class:`LinkTimeout`): the board gave up on them (it abandons a fragment
+        the host's answers never reach after a few tries) or never began, and a caller without a timeout
+        of its own — the calibration cycle — waited for ever on a link that was otherwise up."""
+        for download in list(self._downloads.values()):
+            since = _heard(download)
+            if since is None or now - since < idle_s:
+                continue
+            self.cancel(
+                download,
+                LinkTimeout(
+                    f"calibration download of unit {download.unit}: no fragment from the board for "
+                    f"{now - since:.2f} s (it gave the transfer up)"
+                ),
+            )
+
+    @property
+    def running(self) -> int:
+        """How many downloads wait for fragments."""
+        return len(self._downloads)
+
     def request_failed(self, cmd: Command) -> None:
         """A CalibrationRequest was refused or never answered: its download fails with the reason."""
         message: CalibrationRequest = cmd.message
@@ -96,12 +137,15 @@ class CalibrationTransfers:
             except HilError as exc:
                 download.error = exc
 
-    def answer(self, frame: Frame) -> Ack | Nack:
-        """The answer to a fragment of a download (B→H, reliable), feeding it to the reassembler once."""
+    def answer(self, frame: Frame, now: float) -> Ack | Nack:
+        """The answer to a fragment of a download (B→H, reliable) heard at ``now`` (s), feeding it to the
+        reassembler once."""
+        msg: CalibrationData = frame.message
+        download = self._downloads.get((msg.unit, msg.transfer_id))
+        if download is not None:
+            download.heard_at = now  # a retry of a fragment too: the board is still sending
         answer = self._answers.lookup(frame)
         if answer is None:
-            msg: CalibrationData = frame.message
-            download = self._downloads.get((msg.unit, msg.transfer_id))
             refused: NackReason | None = None
             if download is None or download.done:
                 refused = NackReason.BAD_STATE  # nothing asked for this transfer
@@ -118,3 +162,12 @@ class CalibrationTransfers:
             answer = answer_for(frame, refused)
             self._answers.remember(frame, answer)
         return answer
+
+
+def _heard(download: Download) -> float | None:
+    """When ``download`` last heard of its board (s, host time): its request's answer or its last fragment,
+    whichever is later; None while its request is unanswered."""
+    settled = download.request.settled_at
+    if not download.request.done or settled is None:
+        return None
+    return max(download.heard_at, settled)
