@@ -37,8 +37,9 @@ FULL_CELL_V = LIPO_OCV_CURVE[-1][1]
 )
 @example(cells=2, set_voltage_v=12.0, dropout_v=0.5, release_v=9.0)
 @example(cells=2, set_voltage_v=8.0, dropout_v=0.5, release_v=7.95)
-def test_a_board_either_boots_from_a_full_pack_or_its_config_is_refused(cells, set_voltage_v, dropout_v,
-                                                                       release_v):
+def test_a_board_either_boots_from_a_full_pack_or_its_config_is_refused(
+    cells, set_voltage_v, dropout_v, release_v
+):
     cfg = BoardConfig(
         n_units=2,
         power=PowerConfig(

@@ -111,8 +111,9 @@ def test_the_firmware_takes_the_thresholds_the_emulator_takes_and_no_other(warn,
     as_f32 = [float32(v) for v in (warn, limit, shed, hysteresis)]
     assume(not math.isfinite(as_f32[0] + as_f32[3]) or abs(as_f32[0] + as_f32[3] - FULL_CELL_V) > 1e-4)
     status, got, problem = config_parse(
-        block_with(warn_v_cell=as_f32[0], limit_v_cell=as_f32[1], shed_v_cell=as_f32[2],
-                   hysteresis_v_cell=as_f32[3])
+        block_with(
+            warn_v_cell=as_f32[0], limit_v_cell=as_f32[1], shed_v_cell=as_f32[2], hysteresis_v_cell=as_f32[3]
+        )
     )
     if workable(*as_f32):
         assert (status, problem) == (0, 0)

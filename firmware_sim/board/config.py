@@ -249,8 +249,9 @@ class BoardConfig:
         full_pack_rail_v = b.cells * full_cell_v - u.dropout_v
         if not t.brownout_release_v < full_pack_rail_v:
             raise ConfigError(
-                f"{t.brownout_release_v:g} V is not below the {full_pack_rail_v:g} V a full {b.cells}-cell pack "
-                f"puts on the UBEC rail (less its {u.dropout_v:g} V dropout): the MCU would never leave reset",
+                f"{t.brownout_release_v:g} V is not below the {full_pack_rail_v:g} V a full {b.cells}-cell "
+                f"pack puts on the UBEC rail (less its {u.dropout_v:g} V dropout): the MCU would never leave "
+                "reset",
                 f"{where}.brownout_release_v",
             )
         _num_in(t.filter_time_constant_s, 0.0, 10.0, f"{where}.filter_time_constant_s")
