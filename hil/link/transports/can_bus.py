@@ -20,7 +20,9 @@ option             meaning
 =================  ========================================================================
 
 A value outside its range (NaN and the infinities included) is a :class:`TransportRefused` naming the
-option, raised when the URL is read: never retried, never handed to python-can.
+option, raised when the URL is read: never retried, never handed to python-can. So is a ``udp_multicast``
+channel that is no IP multicast group address (a unicast address, a host name, ``239.74.163.2:43113``):
+it names the channel.
 
 ``fd`` decides what this end sends and which kind it takes; a frame of the other kind is counted
 (``rx_wrong_kind``) and logged naming the option — a peer set up with the other ``fd`` — never taken.
@@ -50,7 +52,8 @@ bus shut down, any other error of python-can's — is a :class:`LinkError` namin
 client then closes and reopens the bus); frames already completed in that read are handed up first and
 the error raised by the next read. Not gone, counted and logged (at most once a second): a message the
 interface received but could not decode (``rx_undecodable``: udp_multicast's datagram from another
-program on the group), and a send refused because the interface's transmit queue is full
+program on the group, or one whose ``data`` python-can would take as a size:
+:class:`_ScreenedUdpMulticastBus`), and a send refused because the interface's transmit queue is full
 (``tx_frames_dropped``: the send timed out, or ENOBUFS/EAGAIN — socketcan's "No buffer space
 available"); reopening the bus would not help, and the rest of that frame is not sent (the receiver
 counts the partial frame).
@@ -59,6 +62,7 @@ counts the partial frame).
 from __future__ import annotations
 
 import errno
+import ipaddress
 import logging
 import threading
 import time
@@ -67,6 +71,13 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import can
+from can.interfaces.udp_multicast import UdpMulticastBus
+from can.interfaces.udp_multicast.utils import unpack_message
+
+try:
+    import msgpack
+except ImportError:  # python-can installs it beside itself but on Windows; udp_multicast then refuses to open
+    msgpack = None
 
 from protocol.can import MAX_WIRE, NODE_MAX, CanId, CanReassembler, CanSegmenter, Direction, Received
 from protocol.errors import LinkError, ProtocolError, TransportError, TransportRefused
@@ -94,9 +105,19 @@ _BUS_OPTION_RANGES: dict[str, tuple[float, float, str]] = {
 }
 """The integer options handed to ``can.Bus`` and their ranges: checked here, so the error names the option
 instead of a driver's (or a socket's OverflowError) at open."""
+_GROUP_INTERFACES = frozenset({"udp_multicast"})
+"""Interfaces whose channel is an IP multicast group (IPv4 224.0.0.0/4 or IPv6 ff00::/8), checked when the
+URL is read: python-can's ``udp_multicast`` given anything else (a unicast address, a host name, the group
+with ``:port`` appended) failed at open with "could not create or configure socket" or a name-service
+error, and the host tried again for the whole outage bound before saying so."""
 _DRAIN = 512  # CAN messages taken per read after the first complete frame (bounded work per call)
 _TX_FULL = frozenset({errno.ENOBUFS, errno.EAGAIN})
 """errno of a send refused for a full transmit queue (socketcan's ENOBUFS): a dropped frame, the bus there."""
+_NO_SUCH_FAMILY = frozenset({errno.EAFNOSUPPORT, errno.EPROTONOSUPPORT})
+"""errno of an open refused because this system's kernel has no such socket family or protocol (SocketCAN's
+``AF_CAN``/``CAN_RAW`` in a container, WSL or a kernel built without them; IPv6 for an IPv6 group). The
+kernel loads a protocol's module itself when a socket asks for it, so no second try will find one: the
+host tried again for its whole outage bound and then said only "Address family not supported"."""
 _LOG_EVERY_S = 1.0  # a counted drop is logged at most this often (the log line says how many since)
 _ECHOES = 4096
 """This end's sent segments remembered until their loopback comes back (udp_multicast hears its own
@@ -125,6 +146,35 @@ def _check_option(url: str, key: str, value: float, lo: float, hi: float, unit: 
         )
 
 
+def _check_group(url: str, channel: str) -> None:
+    """Refuse a ``udp_multicast`` ``channel`` that is no IP multicast group address with a
+    :class:`TransportRefused` naming the URL and the channel: no second try will open it."""
+    try:
+        group = ipaddress.ip_address(channel)
+    except ValueError:
+        group = None
+    if group is None or not group.is_multicast:
+        host, colon, port = channel.rpartition(":")
+        hint = f" (the port goes in ?port={port})" if colon and port.isdigit() and "." in host else ""
+        raise TransportRefused(
+            f"{url}: channel {channel[:60]!r} is not an IP multicast group address (IPv4 224.0.0.0/4 or "
+            f"IPv6 ff00::/8, e.g. can://udp_multicast/239.74.163.2?port=43113){hint}"
+        )
+
+
+def _no_such_family(exc: BaseException) -> bool:
+    """An open error (python-can's, or the socket's own OSError) that says the kernel has no such socket
+    family or protocol: permanent on this system, unlike an interface that is down or not plugged in."""
+    cause = exc.__cause__ if not isinstance(exc, OSError) else exc
+    return isinstance(cause, OSError) and cause.errno in _NO_SUCH_FAMILY
+
+
+def _errno_said(exc: BaseException) -> str:
+    """The OSError behind ``exc`` as its message says it (``[Errno 97] Address family not ...``)."""
+    cause = exc if isinstance(exc, OSError) else exc.__cause__
+    return str(cause if cause is not None else exc)
+
+
 def _tx_queue_full(exc: BaseException) -> bool:
     """A python-can send error that says the transmit queue is full (the bus is there)."""
     cause = exc.__cause__
@@ -147,6 +197,42 @@ def _kinds(msg: object) -> str:
     return ", ".join(f"{name}: {type(getattr(msg, name, None)).__name__}" for name in names)
 
 
+class _ScreenedUdpMulticastBus(UdpMulticastBus):
+    """python-can's ``udp_multicast`` bus with each datagram screened before python-can builds its Message.
+
+    python-can hands a datagram's ``data`` to ``bytearray()`` before its own check refuses the message: an
+    integer there is taken as a size, so one 157-byte datagram saying ``data=500000000`` from any program
+    on the group made the host allocate 500 MB of zeros and spend 1.6 s on it (a larger number: all its
+    memory). A datagram whose ``data`` is an integer is refused here as python-can refuses one it cannot
+    unpack — a ``CanOperationError`` from the reason, counted ``rx_undecodable`` (:func:`_undecodable`).
+    Opened through :func:`_open_bus` only, always for both kinds (``_TAKES_BOTH_KINDS``), so python-can's
+    dropping of CAN FD frames on a classic bus is not needed here."""
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        received = self._multicast.recv(timeout)
+        if not received:
+            return None, False
+        datagram, _, timestamp = received
+        try:
+            fields = msgpack.unpackb(datagram, raw=False)  # at most a datagram's size: nothing allocated
+            data = fields.get("data") if isinstance(fields, dict) else None
+            if isinstance(data, int):
+                raise ValueError(f"its data is the integer {str(data)[:20]}, not bytes")
+            return unpack_message(datagram, replace={"timestamp": timestamp}, check=True), False
+        except Exception as exc:  # python-can's own wording and cause, so it is counted the same way
+            raise can.CanOperationError("could not unpack received message") from exc
+
+
+def _open_bus(interface: str, channel: str, **options: Any) -> can.BusABC:
+    """``can.Bus(interface=interface, channel=channel, **options)``; ``udp_multicast`` as
+    :class:`_ScreenedUdpMulticastBus`, with the same configuration ``can.Bus`` would read for it."""
+    if interface != "udp_multicast":
+        return can.Bus(interface=interface, channel=channel, **options)
+    config = can.util.load_config(config={"interface": interface, "channel": channel, **options})
+    del config["interface"]
+    return _ScreenedUdpMulticastBus(config.pop("channel"), **config)
+
+
 class CanTransport(Transport):
     """The protocol's byte stream over one python-can bus; see the module docstring.
 
@@ -161,6 +247,8 @@ class CanTransport(Transport):
         self.channel = opts.path[1:]  # the one "/" after the interface separates it from the channel
         if not self.interface or not self.channel:
             raise TransportError(f"{url}: expected can://<interface>/<channel>, e.g. can://virtual/vscmg")
+        if self.interface in _GROUP_INTERFACES:
+            _check_group(url, self.channel)
         self.node = opts.get_int("node", 0)
         _check_option(url, "node", self.node, 0, NODE_MAX, "")
         self.fd = opts.get_bool("fd", False)
@@ -198,12 +286,22 @@ class CanTransport(Transport):
     def _open_impl(self) -> None:
         fd = self.fd or self.interface in _TAKES_BOTH_KINDS
         try:
-            self._bus = can.Bus(interface=self.interface, channel=self.channel, fd=fd, **self._bus_options)
+            self._bus = _open_bus(self.interface, self.channel, fd=fd, **self._bus_options)
         except (ImportError, NotImplementedError) as exc:  # no such interface here: trying again cannot help
             raise TransportRefused(
                 f"{self.url}: python-can has no {self.interface!r} interface here: {exc}"
             ) from exc
-        except can.CanError as exc:  # an interface down or not plugged in yet: tried again
+        except (can.CanError, OSError) as exc:
+            if _no_such_family(exc):  # no kernel support: trying again cannot help
+                socketcan = self.interface == "socketcan"
+                hint = "; SocketCAN needs Linux's can and can_raw modules" if socketcan else ""
+                raise TransportRefused(
+                    f"{self.url}: this system cannot open a {self.interface!r} CAN bus: its kernel has no "
+                    f"such socket family ({_errno_said(exc)}{hint})"
+                ) from exc
+            if not isinstance(exc, can.CanError):
+                raise  # Transport.open's: a device not there (yet), tried again
+            # an interface down or not plugged in yet: tried again
             raise TransportError(
                 f"{self.url}: cannot open the {self.interface!r} CAN interface: {exc}"
             ) from exc
