@@ -22,9 +22,10 @@ from __future__ import annotations
 import argparse
 import struct
 import sys
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, replace
 
+from hil.files.output import OutputError, replace_file
 from protocol.calibration import MAX_SIZE as CAL_MAX_SIZE
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import ConfigError
@@ -192,6 +193,62 @@ def config_block(cfg: BoardConfig, baud: int = DEFAULT_BAUD, link: str = DEFAULT
     return body + struct.pack("<H", crc16_ccitt_false(body))
 
 
+_NOT_COMPARED = frozenset({"magic", "version", "baud", "serial"})
+"""Block fields :func:`config_mismatch` passes over: the block's own framing, and the lab's wiring and
+identity (a board keeps its serial and its UART speed whatever it is asked to drive)."""
+
+
+def stored_config(image: bytes) -> dict[str, object] | None:
+    """The fields of ``image``'s configuration block by name (:data:`CONFIG_FIELDS`), or None when the
+    firmware would not take the block (erased, damaged, another version) and runs on its defaults."""
+    if len(image) < CONFIG_SIZE:
+        return None
+    names = [name for name, _, _ in CONFIG_FIELDS]
+    fields = dict(zip([*names, "crc"], CONFIG_STRUCT.unpack_from(image), strict=True))
+    if (
+        fields["magic"] != CONFIG_MAGIC
+        or fields["version"] != CONFIG_VERSION
+        or fields["crc"] != crc16_ccitt_false(image[: CONFIG_SIZE - 2])
+    ):
+        return None
+    return fields
+
+
+def config_mismatch(
+    image: bytes, cfg: BoardConfig, link: str, only: Collection[str] | None = None
+) -> str | None:
+    """What the firmware booted on ``image`` runs with that differs from ``cfg`` with the host's protocol
+    on ``link`` (None: nothing that matters), among the block fields ``only`` (None: all but
+    :data:`_NOT_COMPARED`). Why: an existing EEPROM file keeps its own configuration, while a driver that
+    steps the firmware (a world, the pulse record) reads its channels, frames and battery from ``cfg``; a
+    file of another board (two units under a world of four) drove the world's units from the wrong
+    channels, silently, and a file whose firmware listens on the phone's USB link, served on UART0, was a
+    board that never answered. A block the firmware would not take is compared as the defaults it runs
+    on instead; a stored link ``first`` listens on both, so it matches either."""
+    stored = stored_config(image)
+    source = "its configuration block"
+    if stored is None:
+        stored = stored_config(config_block(BoardConfig()))
+        source = "no valid configuration block: the firmware's defaults"
+    wanted = stored_config(config_block(cfg, link=link))
+    assert stored is not None and wanted is not None  # blocks config_block made are valid
+    for name, _, _ in CONFIG_FIELDS:
+        if name in _NOT_COMPARED or (only is not None and name not in only) or stored[name] == wanted[name]:
+            continue
+        if name == "link" and stored[name] == LINKS.index("first"):
+            continue
+        have, want = _shown(name, stored[name]), _shown(name, wanted[name])
+        return f"{name} = {have} ({source}), {want} here"
+    return None
+
+
+def _shown(name: str, value: object) -> str:
+    """A block field's value as a person reads it: floats short, the link by its name."""
+    if name == "link" and isinstance(value, int) and value < len(LINKS):
+        return LINKS[value]
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 @dataclass(frozen=True)
 class EepromImage:
     """A whole EEPROM: the configuration block and, per unit, a calibration set or None (erased slot)."""
@@ -289,11 +346,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             power=replace(base.power, battery=replace(base.power.battery, cells=args.cells)),
         )
         data = EepromImage(cfg, link=args.link).to_bytes()
+        # whole or not at all, and a refusal (a missing folder, a folder there, a full disk) said as one
+        # line naming --out: an open() here was an OSError's traceback, status 1
+        replace_file(args.out, lambda f: f.write(data))
     except ConfigError as exc:
         sys.stderr.write(f"error: {exc}\n")
         return 2
-    with open(args.out, "wb") as f:
-        f.write(data)
+    except OutputError as exc:
+        sys.stderr.write(f"error: --out: {exc}\n")
+        return 2
     return 0
 
 

@@ -18,7 +18,7 @@ import signal
 import subprocess
 import tempfile
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -126,6 +126,9 @@ class HarnessProcess:
         """How it ended (``Popen.returncode``) once it has; None while it runs."""
         self._stderr: list[str] = []
         self._lines: queue.Queue[str] = queue.Queue()
+        self._owed = 0
+        """Answers still to come to commands that timed out (the harness stopped, or not run for a while):
+        read and dropped before the next command's, so an answer is never taken for a later command's."""
         self._threads = [
             threading.Thread(target=self._drain_stderr, daemon=True),
             threading.Thread(target=self._read_stdout, daemon=True),
@@ -184,17 +187,26 @@ class HarnessProcess:
         raise LinkTimeout(f"avr-harness: {why} (still running){': ' + tail if tail else ''}")
 
     def command(self, line: str) -> list[str]:
-        """Send one control command; its answer's words after "ok" (LinkError on "error ..." or death)."""
+        """Send one control command; its answer's words after "ok" (LinkError on "error ..." or death;
+        :class:`LinkTimeout` when a harness still running has not answered within ``_ANSWER_TIMEOUT_S``:
+        its late answer is dropped when it comes, before the next command's is read)."""
         with self._lock:
             proc = self._proc
             if proc is None or proc.stdin is None:
                 raise LinkError("avr-harness is closed")
+            while self._owed:  # late answers first: the harness answers its commands in order
+                self._read_line(_ANSWER_TIMEOUT_S, f"an earlier command's late answer, before {line!r}")
+                self._owed -= 1
             try:
                 proc.stdin.write(line + "\n")
                 proc.stdin.flush()
             except (BrokenPipeError, OSError):
                 self._died(f"control pipe broken on {line!r}", ended=True)
-            answer = self._read_line(_ANSWER_TIMEOUT_S, line)
+            try:
+                answer = self._read_line(_ANSWER_TIMEOUT_S, line)
+            except LinkTimeout:
+                self._owed += 1
+                raise
         words = answer.split()
         if not words or words[0] != "ok":
             raise LinkError(f"avr-harness refused {line!r}: {answer}")
@@ -265,6 +277,8 @@ class AvrBoard:
             sets = tuple(None if c is None else c.to_bytes() for c in calibrations)
             image = eeprom.EepromImage(self.config, sets, link=self.options.board_link)
             self._eeprom_path.write_bytes(image.to_bytes())
+        else:
+            _check_kept_eeprom(self._eeprom_path, self.config, self.options.board_link)
         self._record_path = work / "record.txt"
         self._record_path.touch()
         self.process = HarnessProcess(
@@ -448,6 +462,8 @@ def eeprom_for(options: HarnessOptions, config: BoardConfig) -> Iterator[tuple[P
     if options.eeprom_file is not None:
         if _eeprom_file_to_make(options.eeprom_file):
             options.eeprom_file.write_bytes(eeprom.EepromImage(config, link=options.board_link).to_bytes())
+        else:  # the kept board's configuration wins, but not a link this harness does not serve
+            _check_kept_eeprom(options.eeprom_file, config, options.board_link, only=("link",))
         yield options.eeprom_file, ()
         return
     with tempfile.TemporaryFile() as image:
@@ -475,6 +491,23 @@ def _eeprom_file_to_make(path: Path) -> bool:
             f"--eeprom {path}",
         )
     return size == 0
+
+
+def _check_kept_eeprom(
+    path: Path, config: BoardConfig, link: str, only: Collection[str] | None = None
+) -> None:
+    """A :class:`ConfigError` naming ``--eeprom`` ``path`` when the board kept in it is configured otherwise
+    than ``config`` on ``link`` (in the block fields ``only``; None: all that matter): the firmware boots
+    on the file's block, while an :class:`AvrBoard` reads its pulse channels, frames and battery from
+    ``config``, and the harness serves the host on ``link`` (:func:`.eeprom.config_mismatch`). Refused
+    before the harness starts, the file left as it is."""
+    differs = eeprom.config_mismatch(path.read_bytes(), config, link, only)
+    if differs is not None:
+        raise ConfigError(
+            f"the board kept in it is configured otherwise: {differs}; give a new file's path, or the "
+            "options it was made with",
+            f"--eeprom {path}",
+        )
 
 
 def _ending(code: int) -> str:

@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, LinkTimeout
 from protocol.messages import BoardState
 
 from ..board.config import BoardConfig
@@ -35,6 +37,8 @@ from .paths import FIRMWARE_ELF
 
 if TYPE_CHECKING:
     from .stepped import UsbState
+
+logger = logging.getLogger(__name__)
 
 POLL_S = 0.05
 """How often the server reads the harness's counters, time and state (s): the host's presence and the
@@ -113,19 +117,46 @@ class HarnessServer(BoardServer):
         super().__init__(f"firmware on simavr at {self.path}")
         self.presence = HostPresence(self.stats)
         self._now = 0.0
+        self._unanswered_since: float | None = None
+        """When (``time.monotonic``, s) the harness last began not answering a look; None: it answers."""
 
     # ------------------------------------------------------------------ BoardServer
     def board_time(self) -> float:
         return self._now
 
     def look(self) -> None:
-        """Read the harness's counters, time and the firmware's state once (see :data:`POLL_S`)."""
+        """Read the harness's counters, time and the firmware's state once (see :data:`POLL_S`). A harness
+        that runs but does not answer (stopped by SIGSTOP or a debugger, or not run by a machine that is
+        too busy) is a board that does not run for that while, not a dead one: said once, watched on,
+        and said again when it answers (before, the first unanswered look ended firmware-sim with a
+        ``LinkTimeout`` traceback, status 1, and took the board down with it)."""
         names = ("bytes_in", "bytes_out", "dropped_out", "corrupted", "dropped", "lag_resets")
-        now = int(self.process.command("now")[0]) / F_CPU  # before the counters: HostPresence.tick
-        counts = dict(
-            zip((*names, "frames_in", "frames_out"), map(int, self.process.command("stats")), strict=True)
-        )
-        state = bytes.fromhex(self.process.command(f"mem {self._state_at} 1")[0])[0]
+        asked = time.monotonic()  # the pause is timed from the first look that went unanswered
+        try:
+            now = int(self.process.command("now")[0]) / F_CPU  # before the counters: HostPresence.tick
+            counts = dict(
+                zip((*names, "frames_in", "frames_out"), map(int, self.process.command("stats")), strict=True)
+            )
+            state = bytes.fromhex(self.process.command(f"mem {self._state_at} 1")[0])[0]
+        except LinkTimeout as exc:  # HarnessDied (it ended) is a LinkError, not a timeout: it goes on up
+            if self._unanswered_since is None:
+                self._unanswered_since = asked
+                logger.warning(
+                    "avr-harness (pid %d) runs but does not answer (stopped, or not given the CPU): the "
+                    "board on %s is not running; still watching (%s)",
+                    self.process.pid,
+                    self.path,
+                    exc,
+                )
+            return
+        if self._unanswered_since is not None:
+            logger.warning(
+                "avr-harness (pid %d) answers again after %.1f s: the board on %s runs on",
+                self.process.pid,
+                time.monotonic() - self._unanswered_since,
+                self.path,
+            )
+            self._unanswered_since = None
         stats = self.stats
         if counts["bytes_in"] > stats.bytes_in:
             self.presence.heard(now)
