@@ -46,7 +46,10 @@ class CompareSource:
             raise InputFormatError(f"cannot resolve the path ({exc})", "hil gcs") from None
         if len(set(resolved)) != len(resolved):
             raise InputFormatError("a run directory is given twice", "hil gcs")
-        self.sources = [RunDirSource(p, follow=follow) for p in paths]
+        self.sources = [
+            RunDirSource(p, follow=follow, events_refused_stops=k > 0)  # an overlay's events are not shown
+            for k, p in enumerate(paths)
+        ]
         self.names = [p.name for p in resolved]
         self._described: set[int] = set()
         self._primary_described = False

@@ -28,7 +28,10 @@ status saying so (``read``, never ``finished``: another run's summary would say 
 page does not show), rather than draw the new run's rows on the old run's plots. An ``events.jsonl``
 replaced or truncated while the telemetry goes on (rotated) is read again from its start. A line torn
 when the reading stops (a run killed mid-write, then finished or read) is counted as damaged. A path that
-is not a regular file (a FIFO, whose open waits for a writer; a device) is an error, never opened. A
+is not a regular file (a FIFO, whose open waits for a writer; a device) is an error, never opened: on the
+first read the directory is refused (``hil gcs`` exits naming the file); later it never ends the station —
+an ``events.jsonl`` refused is said in the status's ``error`` while the telemetry is followed on, a
+``telemetry.csv`` refused stops the reading with what was read still served. A
 ``scenario.toml`` whose units are not as many as the telemetry's is not this run's: not drawn, the note
 says so.
 """
@@ -152,15 +155,21 @@ class _Tail:
 
 class RunDirSource:
     """The page's source for a run directory (see the module docstring); ``follow=False`` reads what is
-    there and stops."""
+    there and stops. A file refused after the first poll (made a FIFO, unreadable) never ends the station:
+    a refused ``events.jsonl`` is said in the status's ``error`` while the telemetry is followed on (unless
+    ``events_refused_stops``), a refused ``telemetry.csv`` stops the reading (:meth:`fail`)."""
 
     def __init__(
         self,
         run_dir: str | os.PathLike[str],
         follow: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        events_refused_stops: bool = False,
     ) -> None:
         self.run_dir = Path(run_dir)
+        # A refused events.jsonl stops the reading as a refused telemetry does: for an overlay of
+        # hil.gcs.compare, whose events are not shown (its contract: any file refused, the overlay in error).
+        self.events_refused_stops = events_refused_stops
         self.clock = clock
         if not self.run_dir.is_dir():
             raise InputFormatError("not a directory", str(self.run_dir))
@@ -185,6 +194,8 @@ class RunDirSource:
         self._grown_at = clock()  # when (clock) the telemetry or the events last grew
         self._sizes = (-1, -1)
         self.stopped = False  # the writer is gone: nothing more will be written (while no growth)
+        self._polls = 0  # polls made: a refused read on the first one refuses the directory (hil gcs: exit 2)
+        self.events_refused: str | None = None  # why events.jsonl cannot be read now (a FIFO, unreadable)
 
     @property
     def status(self) -> dict[str, Any]:
@@ -243,6 +254,20 @@ class RunDirSource:
         return value if isinstance(value, dict) else {"exit": "unreadable summary: not a JSON object"}
 
     def poll(self) -> Batch:
+        """What the run directory has that was not given out yet. A read refused on the first poll (the
+        telemetry a FIFO or unreadable) raises :class:`~protocol.errors.HilError` naming the file: ``hil
+        gcs`` refuses the directory before it serves. Refused later (a file replaced under the page), the
+        reading stops as :meth:`fail` says — what was read stays served, the status says why — rather
+        than end the station (its pump raised it, and ``hil gcs`` exited with a traceback)."""
+        self._polls += 1
+        try:
+            return self._poll()
+        except HilError as exc:
+            if self._polls == 1:
+                raise
+            return self.fail(exc)
+
+    def _poll(self) -> Batch:
         batch = Batch()
         if self._done:
             return batch
@@ -290,6 +315,8 @@ class RunDirSource:
             bad_rows += self._telemetry.pending
             bad_events += self._events.pending
         status = {**self._state, "bad_rows": bad_rows, "bad_events": bad_events}
+        if self.events_refused is not None and "error" not in status:
+            status["error"] = self.events_refused  # shown on the page; the telemetry is still read
         if status != self._sent_status:
             batch.status = self._sent_status = status
         return batch
@@ -417,12 +444,16 @@ class RunDirSource:
 
     def _read_events(self, batch: Batch) -> None:
         where = str(self._events.path)
-        lines, too_long = self._events.lines()
-        if self._events.changed is not None:  # rotated (the telemetry goes on): the new file from its start
-            self.bad_events += self._events.pending  # the old file's torn last line
-            self._events.restart()
-            more, more_long = self._events.lines()
-            lines, too_long = lines + more, too_long + more_long
+        try:
+            lines, too_long = self._events_lines()
+        except HilError as exc:
+            if self.events_refused_stops:
+                raise
+            self._refuse_events(exc)
+            return
+        if self.events_refused is not None:
+            logger.warning("%s: readable again: read from its start", where)
+            self.events_refused = None
         self.bad_events += too_long
         for line in lines:
             try:
@@ -435,6 +466,29 @@ class RunDirSource:
             else:
                 self.bad_events += 1
         self.events += len(batch.events)
+
+    def _events_lines(self) -> tuple[list[str], int]:
+        """The events' new complete lines, and how many too long to keep; a log rotated (replaced or
+        truncated while the telemetry goes on) is read again from its start."""
+        lines, too_long = self._events.lines()
+        if self._events.changed is not None:  # rotated (the telemetry goes on): the new file from its start
+            self.bad_events += self._events.pending  # the old file's torn last line
+            self._events.restart()
+            more, more_long = self._events.lines()
+            lines, too_long = lines + more, too_long + more_long
+        return lines, too_long
+
+    def _refuse_events(self, exc: HilError) -> None:
+        """events.jsonl cannot be read (made a FIFO, a device, unreadable): the events file alone is in
+        error — the status says so (``error``, on the page), logged once — and the telemetry goes on being
+        served. It is tried again each poll from its start, as a rotated log: a regular file back at the
+        path is read whole, the error cleared."""
+        why = f"{exc}: its events are not read (the telemetry still is)"
+        if why != self.events_refused:
+            logger.warning("%s", why)
+        self.events_refused = why
+        self.bad_events += self._events.pending  # a line left unfinished in the file that was there
+        self._events.restart()
 
 
 def _identity(path: Path) -> tuple[int, int] | None:

@@ -196,9 +196,9 @@ class GcsServer:
 
     def turned_away(self, reason: str, remote: str, detail: str = "") -> None:
         """A request or connection turned away — by a handler (``host``, ``origin``, ``token``, ``format``,
-        ``size``, ``path``, ``streams``, ``method``) or the guard (``timeout``, ``evicted``,
-        ``connections``, ``request``, ``error``): counted, and logged in the run's events when there is a
-        run (docs/gcs.md: an attempt leaves a trace)."""
+        ``size``, ``path``, ``streams``, ``method``; a stream cut off unread: ``stalled``) or the guard
+        (``timeout``, ``evicted``, ``connections``, ``request``, ``error``): counted, and logged in the
+        run's events when there is a run (docs/gcs.md: an attempt leaves a trace)."""
         with self.lock:
             self.rejected[reason] += 1
         if self.uplink is not None:
@@ -269,11 +269,21 @@ class _Base(web.RequestHandler):
             guard.answered(self._stream())
 
     def write_error(self, status_code: int, **kwargs: Any) -> None:
-        """An answer tornado makes itself (a method this route does not take: 405) or after a handler's
-        exception (500), as JSON like every other; each reported."""
+        """An answer tornado makes itself (a method this route does not take: 405; a path whose
+        %-escapes are not UTF-8: 400) or after a handler's exception (500), as JSON like every other; each
+        reported (a 400 was answered ``"reason": "error"`` and neither counted nor logged)."""
+        remote = self.request.remote_ip or ""
         if status_code == HTTPStatus.METHOD_NOT_ALLOWED:
-            self.server.turned_away("method", self.request.remote_ip or "", f"{self.request.method}")
-        self.finish({"error": self._reason, "reason": "method" if status_code == 405 else "error"})
+            reason = "method"
+            self.server.turned_away(reason, remote, f"{self.request.method}")
+        elif status_code == HTTPStatus.BAD_REQUEST:
+            reason = "path"
+            exc = kwargs.get("exc_info", (None, None))[1]
+            said = getattr(exc, "log_message", None) or self._reason
+            self.server.turned_away(reason, remote, f"{said} ({self.request.path[:120]})")
+        else:
+            reason = "error"  # reported by log_exception
+        self.finish({"error": self._reason, "reason": reason})
 
     def log_exception(self, typ: Any, value: Any, tb: Any) -> None:
         """A handler's exception is reported (``error``), never printed."""
@@ -454,8 +464,16 @@ class _Stream(_Base):
                 loop = IOLoop.current()
                 if not await wake.wait(timeout=loop.time() + KEEPALIVE_S):
                     await self._send(b": keep-alive\n\n")
-        except (StreamClosedError, gen.TimeoutError, TimeoutError):
-            pass  # the browser went away or stopped reading for SEND_TIMEOUT_S
+        except StreamClosedError:
+            pass  # the browser went away
+        except (gen.TimeoutError, TimeoutError):
+            # it stopped reading: cut off (its slot and the slice it held freed), and said — a stream the
+            # server drops is counted and logged as every other connection it turns away
+            server.turned_away(
+                "stalled",
+                self.request.remote_ip or "",
+                f"its stream was not read for {SEND_TIMEOUT_S:g} s: cut off",
+            )
         finally:
             hub.count_stream(-1)
             with server.lock:

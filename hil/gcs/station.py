@@ -216,6 +216,8 @@ class GroundStation:
                 "bad_events": feed.bad_events,
                 "finished": feed.finished,
                 "stopped": feed.stopped,
+                "state": feed.status.get("state"),
+                "error": feed.status.get("error"),  # a file refused (a FIFO, unreadable): which, and why
             }
         if self.uplink is not None:
             out["uplink"] = asdict(self.uplink.stats)
