@@ -1,8 +1,9 @@
 """``firmware-sim``: the emulated ADK board on a real pseudo-terminal, in real time, until interrupted.
 
 The first line on stdout is the pty's path and nothing else (scripts read it); everything else goes to
-stderr. SIGINT and SIGTERM end it cleanly (the symlink is removed, exit status 0); a bad option is exit
-status 2; with ``--avr``, a harness that dies under it is one error line and exit status 3.
+stderr. SIGINT, SIGTERM and SIGHUP (its terminal closed) end it cleanly at any moment, start-up included
+(the symlink is removed, exit status 0; :class:`StopOnSignals`); a bad option is exit status 2; with
+``--avr``, a harness that dies under it is one error line and exit status 3.
 """
 
 from __future__ import annotations
@@ -13,7 +14,9 @@ import os
 import random
 import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
@@ -290,8 +293,52 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+OPTION_OF_SETTING: dict[str, str] = {
+    "BoardConfig.n_units": "--units",
+    "BoardConfig.frame_rate_hz": "--frame-rate",
+    "BoardConfig.telemetry_rate_hz": "--telemetry-rate",
+    "BoardConfig.heartbeat_rate_hz": "--heartbeat-rate",
+    "BoardConfig.link_timeout_s": "--link-timeout",
+    "BoardConfig.mcu_watchdog_s": "--mcu-watchdog",
+    "BoardConfig.rotor_safe_us": "--rotor-safe-us",
+    "BoardConfig.seed": "--seed",
+    "BoardConfig.unit_spread_seed": "--unit-spread",
+    "BoardConfig.power.battery.cells": "--cells",
+    "BoardConfig.power.battery.capacity_mah": "--capacity",
+    "BoardConfig.power.battery.initial_soc": "--soc",
+    "faults.link.corrupt": "--corrupt",
+    "faults.link.drop": "--drop",
+    "faults.link.direction": "--fault-direction",
+}
+"""The board's and its fault injector's settings (a :class:`ConfigError`'s ``where``) that an option sets,
+and that option: a refused value is told by the option the user typed (``--corrupt: 1.5 is not a
+probability``), not by a field of the code (``faults.link.corrupt``) the user never saw."""
+
+
+@contextmanager
+def _named_by_option() -> Iterator[None]:
+    """Re-raise a :class:`ConfigError` about a setting an option sets (:data:`OPTION_OF_SETTING`) as one
+    naming that option; any other passes unchanged."""
+    try:
+        yield
+    except ConfigError as exc:
+        option = OPTION_OF_SETTING.get(exc.where)
+        if option is None:
+            raise
+        raise ConfigError(exc.detail, option) from exc
+
+
 def board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
-    """The board configuration the options describe."""
+    """The board configuration the options describe, checked here — before the board, its firmware's
+    EEPROM or a world is made of it — so that a value it refuses is an error naming the option
+    (:data:`OPTION_OF_SETTING`)."""
+    with _named_by_option():
+        cfg = _board_config(args)
+        cfg.validate()
+    return cfg
+
+
+def _board_config(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     from dataclasses import replace
 
     from .board.config import BatteryParams, BoardConfig, PowerConfig
@@ -343,7 +390,8 @@ def make_board(  # type: ignore[no-untyped-def]
 def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ignore[no-untyped-def]
     """The fault options into ``faults`` (a board's ``FaultInjector``; times relative to its clock's
     start): the Python board's, or the firmware board's in a world (:mod:`.avr.stepped`)."""
-    faults.link(corrupt=args.corrupt, drop=args.drop, direction=args.fault_direction)
+    with _named_by_option():
+        faults.link(corrupt=args.corrupt, drop=args.drop, direction=args.fault_direction)
     for spec in args.stall:
         at, duration = parse_stall(spec)
         faults.stall(duration, at=at)
@@ -501,7 +549,64 @@ def _close_at_start(server: Any, board: Any) -> None:
             logging.getLogger(__name__).warning("closing %r after a failed start", part, exc_info=True)
 
 
+class StopOnSignals:
+    """``firmware-sim``'s handler of :data:`~hil.runtime.held_signals.STOP_SIGNALS` (SIGINT, SIGTERM, and
+    SIGHUP: the terminal it was started from closed), installed for the whole of :func:`main`.
+
+    A signal is noted and, once there is a server, stops it: the serving loop returns, the pty is closed,
+    the symlink removed and the summary said, status 0. Installed before anything is made, because every
+    moment of a start-up (its imports, a world's kernels loading, the pty and its symlink made) is one a
+    signal may land on: SIGINT there met Python's handler (a ``KeyboardInterrupt`` traceback), SIGTERM and
+    SIGHUP the OS's default (the process gone, its ``--link`` symlink left pointing at nothing), and
+    SIGHUP at any moment did the same, serving or not. A signal during start-up lets the start-up finish
+    (nothing is left half made) and then serves nothing."""
+
+    def __init__(self) -> None:
+        self.received: list[signal.Signals] = []
+        self._server: Any = None
+        self._previous: dict[int, Any] = {}
+
+    def install(self) -> StopOnSignals:
+        """Put this handler in place of the stop signals' current ones. Only the main thread can (Python
+        runs handlers there); :func:`main` called from another thread installs nothing."""
+        from hil.runtime.held_signals import STOP_SIGNALS
+
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        for signum in STOP_SIGNALS:
+            self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def restore(self) -> None:
+        """The handlers that were there before :meth:`install`."""
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+    def serving(self, server: Any) -> None:
+        """From now on a signal stops ``server`` (a ``BoardServer``); one received already stops it now."""
+        self._server = server
+        if self.received:
+            server.stop()
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self.received.append(signal.Signals(signum))
+        server = self._server
+        if server is not None:
+            server.stop()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """``firmware-sim argv``; its exit status. SIGINT, SIGTERM and SIGHUP end it cleanly from the first
+    line on (:class:`StopOnSignals`); the handlers that were there come back when it returns."""
+    stop = StopOnSignals().install()
+    try:
+        return _main(argv, stop)
+    finally:
+        stop.restore()
+
+
+def _main(argv: Sequence[str] | None, stop: StopOnSignals) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.can is not None and (args.link or args.no_hold):
@@ -587,11 +692,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"firmware-sim: error: {exc}", file=sys.stderr)
         return 2
     assert server is not None  # made above, or the error returned
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        server.stop()
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    stop.serving(server)
     print(server.path, flush=True)
     where = f" (link {args.link})" if args.link else ""
     print(
@@ -609,24 +710,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         if harness_died:
             _say_harness_died(exc, server.path)
     finally:
-        status.stop()
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        if args.usb and not harness_died:  # the harness's phone, before the harness stops
-            usb_line = _usb_line(board if board is not None else server)
-        server.close()
-        if streamer is not None:
-            try:
-                streamer.close()
-            except LinkError as exc:  # the world thread met the harness's death first: the same end
-                died = exc.__cause__
-                if not isinstance(died, HarnessDied):
-                    raise
-                if not harness_died:
-                    _say_harness_died(died, server.path)
-                harness_died = True
-        if args.avr is not None and board is not None:
-            board.close()  # the stepped firmware's harness: stopped, its EEPROM saved back
+        try:
+            status.stop()
+        finally:  # whatever the status thread met, the pty is closed and the symlink removed
+            if args.usb and not harness_died:  # the harness's phone, before the harness stops
+                usb_line = _usb_line(board if board is not None else server)
+            server.close()
+            if streamer is not None:
+                try:
+                    streamer.close()
+                except LinkError as exc:  # the world thread met the harness's death first: the same end
+                    died = exc.__cause__
+                    if not isinstance(died, HarnessDied):
+                        raise
+                    if not harness_died:
+                        _say_harness_died(died, server.path)
+                    harness_died = True
+            if args.avr is not None and board is not None:
+                board.close()  # the stepped firmware's harness: stopped, its EEPROM saved back
     stats = server.stats
     link_line = (
         f"{stats.frames_in} frames in, {stats.frames_out} out; host left {stats.host_gone} time(s), "
@@ -643,19 +744,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     resets = ""
     if board is not None:  # the first is the power-on (a firmware board that never ran: none at all)
         resets = f"; {max(len(board.resets) - 1, 0)} reset(s)"
-    print(
+    _tell(
         f"firmware-sim: stopped; {stats.bytes_in} bytes in, {stats.bytes_out} out, {link_line}"
-        f"{resets}{world_line}{usb_line}",
-        file=sys.stderr,
+        f"{resets}{world_line}{usb_line}"
     )
     if stats.dropped_out:
-        print(
+        _tell(
             f"firmware-sim: {stats.dropped_out} bytes of the board's output were dropped: written while no "
             "host had the port open (before it connected, after it left) or faster than it read (the "
-            "board keeps at most 4 KiB, like a UART buffer)",
-            file=sys.stderr,
+            "board keeps at most 4 KiB, like a UART buffer)"
         )
     return EXIT_HARNESS_DIED if harness_died else 0
+
+
+def _tell(line: str) -> None:
+    """``line`` on stderr, unless stderr is gone — the terminal closed under the command (EIO; it is
+    then ending on that terminal's SIGHUP) or a pipe nobody reads: the summary is said where it can be,
+    and its failing to be said is no error of the board's (it once ended a clean stop in a traceback,
+    exit status 1)."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):  # ValueError: the stream itself closed
+        pass
 
 
 if __name__ == "__main__":

@@ -48,13 +48,13 @@ def test_help_teaches_by_example(capsys):
 @pytest.mark.parametrize(
     ("argv", "where"),
     [
-        (["--units", "9"], "BoardConfig.n_units"),
-        (["--frame-rate", "1000"], "BoardConfig.frame_rate_hz"),
+        (["--units", "9"], "--units: 9 is outside 1..8"),
+        (["--frame-rate", "1000"], "--frame-rate: 1000.0 is outside"),
         (["--sag", "3x"], "--sag"),
         (["--stall", "5"], "--stall"),
         (["--dead-esc", "99"], "--dead-esc"),
-        (["--corrupt", "1.5"], "faults.link.corrupt"),
-        (["--soc", "2"], "initial_soc"),
+        (["--corrupt", "1.5"], "--corrupt: 1.5 is not a probability"),
+        (["--soc", "2"], "--soc: 2.0 is outside 0..1"),
         (
             ["--avr", "--world", "cubesat-1u", "--unplug", "3:1"],
             "unplug: not available with the firmware board",

@@ -39,6 +39,10 @@ logger = logging.getLogger(__name__)
 _MAX_WAIT_S = 0.05  # the loop looks at its stop flag at least this often
 _ABSENT_POLL_S = 0.02  # with the host gone (EIO), look for its return this often
 _OUT_LIMIT = 4096  # bytes held back while the pty is full, like a UART ring (older ones are dropped)
+LINK_CHECK_S = 0.5
+"""How often (wall seconds) the serving loop looks that its ``link`` is still there, and makes it again if
+it went (removed by hand, by a cleaner of /tmp, by another server's exit): a host that reconnects through
+the link finds the board within this, not never."""
 
 
 class PtyServer(BoardServer):
@@ -66,6 +70,9 @@ class PtyServer(BoardServer):
         self._out = bytearray()
         self._host_absent = False  # the master reads EIO: nobody holds the slave (only without hold_slave)
         self.link: Path | None = None
+        self.link_remade = 0  # times the link was found gone while serving and made again
+        self._link_taken_said = False  # the link was found pointing elsewhere, and that was logged
+        self._next_link_check = time.monotonic() + LINK_CHECK_S
         if link is not None:
             try:
                 _replace_symlink(Path(link), self.path)
@@ -113,6 +120,8 @@ class PtyServer(BoardServer):
             if end is not None:
                 wait = min(wait, max(end - clock.now(), 0.0))
             self.stats.loops += 1
+            if self.link is not None and time.monotonic() >= self._next_link_check:
+                self._keep_link(self.link)
             if self._host_absent:
                 self._poll_absent_host(master, wait)
                 continue
@@ -128,6 +137,37 @@ class PtyServer(BoardServer):
                     self.presence.tick(looked)
             if writable and self._out:
                 self._write(master)
+
+    def _keep_link(self, link: Path) -> None:
+        """The symlink is what hosts open (``hil run --port LINK``): one that went while the board serves
+        is made again (logged, counted in :attr:`link_remade`) — the board was left serving behind a path
+        that no longer existed, and a host reconnecting through it never found it. A link that another
+        server has since pointed at its own pty is that server's now, left alone (said once); a real file
+        put there is never replaced (:func:`_replace_symlink`)."""
+        self._next_link_check = time.monotonic() + LINK_CHECK_S
+        try:
+            target = os.readlink(link)
+        except FileNotFoundError:
+            target = None
+        except OSError:  # a file or folder, not a link: someone else's, never replaced
+            target = "a file that is not a symlink"
+        if target == self.path:
+            return
+        if target is not None:
+            if not self._link_taken_said:
+                self._link_taken_said = True
+                logger.warning("%s no longer points at %s (now: %s); left as it is", link, self.path, target)
+            return
+        try:
+            _replace_symlink(link, self.path)
+        except LinkError as exc:
+            if not self._link_taken_said:
+                self._link_taken_said = True
+                logger.warning("%s was removed and cannot be made again: %s", link, exc)
+            return
+        self.link_remade += 1
+        self._link_taken_said = False
+        logger.warning("%s was removed while serving; it points at %s again", link, self.path)
 
     def _read(self, master: int) -> None:
         try:

@@ -30,6 +30,7 @@ class StatusLines:
         self.period_s = period_s
         self.out = out if out is not None else sys.stderr
         self.lines: list[str] = []  # everything said, for tests and the final summary
+        self.out_gone = False  # ``out`` could not be written (a hung-up terminal): the lines are only kept
         self._present = False
         self._gone = 0
         self._state: BoardState | None = None
@@ -67,9 +68,18 @@ class StatusLines:
             self._state = state
 
     def _say(self, now: float, what: str) -> None:
+        """Keep the line and write it to :attr:`out`, unless that stream is gone: a terminal closed under
+        the command (its writes fail with EIO) or a pipe nobody reads any more. The lines are what the
+        command says, not what it does: writing them once failed the thread, whose error then stopped the
+        command's clean-up before the pty was closed and the ``--link`` symlink removed (exit status 1)."""
         line = f"firmware-sim: {now:8.2f} s  {what}"
         self.lines.append(line)
-        print(line, file=self.out, flush=True)
+        if self.out_gone:
+            return
+        try:
+            print(line, file=self.out, flush=True)
+        except (OSError, ValueError):  # EIO / EPIPE, or a stream closed: said nowhere from now on
+            self.out_gone = True
 
     def _run(self) -> None:
         with self._thread_error.caught(logger, "status thread failed"):
