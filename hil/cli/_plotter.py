@@ -3,7 +3,9 @@ starts it before the run, so matplotlib is imported, and a first figure drawn an
 (:func:`hil.plots.run.warm`), on another core while the run runs; it then reads the
 run directory's path from stdin (:func:`read_run_dir`; nothing: nothing to draw), draws ``plots/`` (shared
 among forked processes, one per core: :mod:`hil.plots.forked`) and prints ``name: path`` per figure. A
-drawing error is printed to stderr with exit status 2."""
+drawing error is printed to stderr with exit status 2 — also one in importing matplotlib or drawing the
+first figure, said only once the run directory is read: a plotter that died at its imports left ``hil
+run`` a closed pipe to write to (a BrokenPipeError's traceback after a run that had completed)."""
 
 from __future__ import annotations
 
@@ -12,12 +14,18 @@ import sys
 from typing import BinaryIO
 
 from hil.cores import available_cores
-from hil.plots.run import plot_run, warm
 from protocol.errors import HilError
 
 
 def main() -> int:
-    warm()  # while the run runs: its figures then draw on warm caches
+    try:
+        from hil.plots.run import plot_run, warm
+
+        warm()  # while the run runs: its figures then draw on warm caches
+    except Exception as exc:  # no figures can be drawn here: said after the run, not a dead pipe during it
+        read_run_dir(sys.stdin.buffer)
+        print(f"plots: cannot draw figures: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 2
     run_dir = read_run_dir(sys.stdin.buffer)
     if not run_dir:
         return 0

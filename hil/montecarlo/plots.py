@@ -14,13 +14,15 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from hil.plots.streamed import PLOT_LIMIT  # first: hil.plots imports matplotlib whatever MPLBACKEND says
+
+# isort: split
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from hil.files.output import make_dir, replace_file
-from hil.plots.streamed import PLOT_LIMIT  # a histogram's title counts the values left out
 
 from .metrics import METRICS, TRACES
 from .store import Results, checked_write, read_manifest, read_runs, read_traces

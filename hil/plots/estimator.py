@@ -12,10 +12,11 @@ from matplotlib import rc_context
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 from hil.estimation.metrics import AttitudeErrors
 from hil.files.output import replace_file
-from hil.plots.series import break_wraps, envelope, wrap_times
+from hil.plots.series import break_wraps, envelope, lone_points, wrap_times
 
 if TYPE_CHECKING:
     from hil.logs.replay import ReplayResult
@@ -56,10 +57,23 @@ def _line(
     if env is None:
         if period is not None:
             t, y = wrap_times(t, y, period), break_wraps(y, period)
-        ax.plot(t, y, label=label, **style)  # type: ignore[arg-type]
+        (line,) = ax.plot(t, y, label=label, **style)  # type: ignore[arg-type]
+        _dots(ax, t, y, line)
         return
     (line,) = ax.plot(env.t, env.mean, label=label, **style)  # type: ignore[arg-type]
     ax.fill_between(env.t, env.low, env.high, color=line.get_color(), alpha=0.25, lw=0)
+    _dots(ax, env.t, env.mean, line)
+
+
+def _dots(ax: Axes, t: np.ndarray, y: np.ndarray, line: Line2D) -> None:
+    """The points of ``y`` (N,) against ``t`` (N,) s that ``line`` cannot show
+    (:func:`~hil.plots.series.lone_points`: a reading alone between gaps, a stretch narrower than a pixel)
+    as dots of its colour, unlabelled: a line joins two points, so one alone was measured but not seen."""
+    lone = lone_points(t, y)
+    if lone.any():
+        ax.plot(
+            t[lone], y[lone], ls="none", marker="o", ms=2.5, color=line.get_color(), alpha=line.get_alpha()
+        )
 
 
 def _save(fig: Figure, ax: Axes, path: Target) -> Target:

@@ -17,9 +17,10 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.lines import Line2D
 
 from hil.files.output import make_dir
-from hil.plots.estimator import _figure, _save
+from hil.plots.estimator import _dots, _figure, _save
 from hil.plots.forked import draw_shared
 from hil.plots.markers import draw_markers, run_markers
 from hil.plots.streamed import PLOT_LIMIT, MinMaxStream
@@ -60,10 +61,28 @@ Series = Callable[[str], tuple[np.ndarray, np.ndarray]]
 """A column's points to draw, by its name: (t, y), thinned (:class:`hil.plots.streamed.MinMaxStream`)."""
 
 
-def _lines(ax: Axes, series: Series, names: list[str], label: str) -> None:
+def _lines(ax: Axes, series: Series, names: list[str], label: str, log: bool = False) -> None:
+    """A line per column; on a ``log`` scale, its values ≤ 0 marked at the axes' foot (:func:`_at_foot`)."""
     for name in names:
         suffix = name.rsplit("_", 1)[-1]
-        ax.plot(*series(name), lw=0.8, label=f"{label} {suffix}" if suffix.isdigit() else name)
+        t, y = series(name)
+        (line,) = ax.plot(t, y, lw=0.8, label=f"{label} {suffix}" if suffix.isdigit() else name)
+        _dots(ax, t, y, line)  # a reading alone between gaps: a dot, not nothing
+        if log:
+            _at_foot(ax, t, y, line)
+
+
+def _at_foot(ax: Axes, t: np.ndarray, y: np.ndarray, line: Line2D) -> None:
+    """The times at which ``y`` (N,) is ≤ 0 as triangles of ``line``'s colour on the foot of a log-scaled
+    axes: a log scale has no place for them, and matplotlib leaves them out — a pointing error of exactly
+    0 (a target the spacecraft already held) was drawn as no data."""
+    with np.errstate(invalid="ignore"):
+        low = y <= 0
+    if low.any():
+        ax.plot(
+            t[low], np.zeros(int(low.sum())), ls="none", marker="v", ms=4, color=line.get_color(),
+            transform=ax.get_xaxis_transform(), clip_on=False,
+        )  # fmt: skip
 
 
 _FIGURES: tuple[tuple[str, str, str, str | tuple[str, ...], str, bool], ...] = (
@@ -122,7 +141,9 @@ def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
     this process runs, they are all drawn here).
 
     A time gap between rows (:class:`~hil.plots.streamed.Gaps`) breaks the lines; a value beyond
-    ±:data:`~hil.plots.streamed.PLOT_LIMIT` is left out, counted in its figure's title. Each figure is
+    ±:data:`~hil.plots.streamed.PLOT_LIMIT` is left out, counted in its figure's title; a reading its line
+    cannot show (alone between gaps: :func:`~hil.plots.series.lone_points`) is a dot, and a value ≤ 0 on a
+    log scale a triangle at the axes' foot, counted in the title. Each figure is
     written beside its file and renamed over it (a link there is replaced, never written through); a
     ``plots`` that cannot be made is a ConfigError naming it, a figure the OS refuses an
     :class:`~hil.files.output.OutputError` naming its file."""
@@ -150,8 +171,11 @@ def plot_run(run_dir: str | Path, processes: int = 1) -> dict[str, Path]:
         off = int(sum(int(stream.off_scale[column[n]]) for n in present))
         if off:
             title = f"{title} ({off} values beyond ±{PLOT_LIMIT:g} left out)"
+        below = int(sum(int(stream.not_positive[column[n]]) for n in present)) if log else 0
+        if below:
+            title = f"{title} ({below} values ≤ 0: ▼)"
         fig, ax = _figure(title, ylabel)
-        _lines(ax, series, present, label)
+        _lines(ax, series, present, label, log)
         if log:
             ax.set_yscale("log")
         peak = max((float(peaks[column[n]]) for n in present), default=math.nan)

@@ -17,6 +17,9 @@ from numpy.typing import NDArray
 
 MAX_BINS = 1_500
 """Bins across the time axis (about two per pixel column of an 8 in figure at 110 dpi)."""
+PIXEL_COLUMNS = 700
+"""Pixel columns across a figure's time axis, about (the axes of a 10 in figure at 110 dpi, less the
+margins and the legend): a stretch of a line narrower than one of them is drawn as nothing visible."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,28 @@ def envelope(
             centres = np.insert(centres, cuts, centres[cuts])
             mean, low, high = (np.insert(a, cuts, np.nan) for a in (mean, low, high))
     return Envelope(centres, mean, low, high)
+
+
+def lone_points(
+    t: NDArray[np.float64], y: NDArray[np.float64], columns: int = PIXEL_COLUMNS
+) -> NDArray[np.bool_]:
+    """Where ``y`` (N,) against ``t`` (N,) s, in time order, has a number its line cannot show: each
+    stretch of consecutive numbers (between NaN gaps, or the ends) that spans less time than one of
+    ``columns`` pixel columns of the time axis (the series' first to last finite time). A line is drawn
+    between two points only, so a reading alone between gaps (the one row a board sent between silences,
+    a run of one row) drew nothing, and a burst of rows after a long gap (a file spliced 10⁶ s later) a
+    line shorter than a pixel: measured values shown as no data. These points are to be drawn as dots."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    finite = np.isfinite(y) & np.isfinite(t)
+    if not finite.any():
+        return finite
+    pixel = (t[finite].max() - t[finite].min()) / columns  # s; 0 when every number is at one time
+    begins = finite & ~np.concatenate([[False], finite[:-1]])
+    ends = finite & ~np.concatenate([finite[1:], [False]])
+    narrow = t[ends] - t[begins] <= pixel  # per stretch
+    stretch = np.maximum(np.cumsum(begins) - 1, 0)  # each point's stretch (before the first: none, masked)
+    return finite & narrow[stretch]
 
 
 def break_wraps(y: NDArray[np.float64], period: float = 360.0) -> NDArray[np.float64]:

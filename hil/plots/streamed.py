@@ -106,6 +106,8 @@ class MinMaxStream:
         self._finite = np.zeros(width, dtype=bool)
         self.off_scale = np.zeros(width, dtype=np.int64)
         """Per column: the values left out as beyond ±:data:`PLOT_LIMIT`."""
+        self.not_positive = np.zeros(width, dtype=np.int64)
+        """Per column: the values ≤ 0 (a log scale has no place for them: its figure says how many)."""
         self.gaps = Gaps()
 
     def add(self, t: np.ndarray, y: np.ndarray) -> None:
@@ -117,6 +119,8 @@ class MinMaxStream:
         if off.any():
             self.off_scale += off.sum(axis=0)
             y = np.where(off, np.nan, y)
+        with np.errstate(invalid="ignore"):
+            self.not_positive += (y <= 0).sum(axis=0)
         self.gaps.add(t)
         if not self.size:
             self._raw_t.append(t)
