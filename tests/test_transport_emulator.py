@@ -93,7 +93,7 @@ def test_emu_options_are_firmware_sims():
         create_transport("emu://?units=four")
     with pytest.raises(TransportError, match="only options"):
         create_transport("emu://board/x")
-    with pytest.raises(TransportError, match="n_units: 99 is outside 1..8"):
+    with pytest.raises(TransportError, match="--units: 99 is outside 1..8"):
         open_transport("emu://?units=99")
 
 
@@ -167,7 +167,7 @@ def test_a_spawned_board_dies_with_its_host_even_after_sigkill():
 
 def test_a_board_that_fails_to_start_is_an_error_quoting_its_message():
     start = time.monotonic()
-    with pytest.raises(TransportError, match=r"exited with status 2.*n_units: 99 is outside 1..8"):
+    with pytest.raises(TransportError, match=r"exited with status 2.*--units: 99 is outside 1..8"):
         open_transport("spawn://firmware-sim?units=99")
     assert time.monotonic() - start < 5.0
     with pytest.raises(TransportError, match="only spawn://firmware-sim"):
