@@ -606,6 +606,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         stop.restore()
 
 
+def _can_interface(url: str) -> str:
+    """The python-can interface ``--can``'s value names (``virtual`` of ``virtual/x?node=1`` or of
+    ``can://virtual/x``), lower-cased."""
+    rest = url.split("://", 1)[1] if "://" in url else url
+    return rest.split("/", 1)[0].split("?", 1)[0].strip().lower()
+
+
 def _main(argv: Sequence[str] | None, stop: StopOnSignals) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -621,6 +628,12 @@ def _main(argv: Sequence[str] | None, stop: StopOnSignals) -> int:
         parser.error(
             "--usb puts the host on the phone's accessory link, --can on a CAN bus bridged to UART0: "
             "the firmware listens to one link, choose one"
+        )
+    if args.can is not None and _can_interface(args.can) == "virtual":
+        parser.error(
+            f"--can {args.can}: python-can's virtual bus lives inside one process, and no host in another "
+            "process can reach it (firmware-sim would wait for one forever): serve on a bus processes share, "
+            "e.g. --can udp_multicast/239.74.163.2?port=43113 or --can socketcan/vcan0"
         )
     phone_faults = {
         "--phone-jump": args.phone_jump,

@@ -124,3 +124,19 @@ def test_firmware_sim_refuses_can_with_pty_options():
         timeout=10,
     )
     assert done.returncode == 2 and "--can serves a CAN bus" in done.stderr
+
+
+@pytest.mark.parametrize("url", ["virtual/x", "can://Virtual/vscmg?node=3", "VIRTUAL/0"])
+def test_firmware_sim_refuses_a_virtual_bus_no_other_process_can_reach(url):
+    """python-can's virtual bus is one process's: ``firmware-sim --can virtual/x`` said it was waiting for
+    a host and waited forever, since no ``hil run`` in another process could ever reach it."""
+    done = subprocess.run(
+        [sys.executable, "-m", "firmware_sim", "--can", url],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=False,
+    )
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "virtual bus lives inside one process" in done.stderr and "udp_multicast" in done.stderr
+    assert "waiting for a host" not in done.stderr

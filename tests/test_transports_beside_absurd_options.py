@@ -100,7 +100,15 @@ def test_hil_run_ends_at_once_with_one_line_naming_the_option(port, said, tmp_pa
 
 def test_firmware_sim_on_a_bus_refuses_the_same_option(tmp_path):
     done = subprocess.run(
-        [sys.executable, "-m", "firmware_sim", "--can", "virtual/x?send_timeout=1e308", "--duration", "1"],
+        [
+            sys.executable,
+            "-m",
+            "firmware_sim",
+            "--can",
+            "udp_multicast/239.74.163.2?port=43113&send_timeout=1e308",  # a virtual bus is refused first
+            "--duration",
+            "1",
+        ],
         capture_output=True,
         text=True,
         timeout=120,
