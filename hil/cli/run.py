@@ -11,15 +11,19 @@ import os
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hil.numbers import finite_number
+
+if TYPE_CHECKING:
+    from hil.scenario import Scenario
 
 ORDER = 10
 
 EPILOG = """\
 examples:
   hil run                                          # built-in emulator, default scenario, lockstep
-  hil run --scenario paper-testbed --duration 20   # the paper's air-bearing testbed, 20 s after the slew
+  hil run --scenario paper-testbed --duration 30   # the paper's air-bearing testbed, 30 s after the slew
   hil run --realtime                               # built-in emulator on the wall clock, phone over UDP
   hil run --board firmware                         # the firmware ELF under simavr drives the world, lockstep
   hil run --scenario my.toml --out runs/             # your own scenario file (see fixtures/scenarios/)
@@ -246,6 +250,9 @@ def run(args: argparse.Namespace) -> int:
         replaced = f" (its estimator replaced: --estimator {args.estimator})" if args.estimator else ""
         say(f"scenario {scenario.name}: {scenario.description}{replaced}", sys.stderr)
         say(f"estimator {estimator.name}: {estimator.describe()}", sys.stderr)
+        too_short = too_short_to_judge(scenario, args.duration)
+        if too_short is not None:
+            say(f"note: {too_short}", sys.stderr)
         if args.port is None:
             from hil.runtime import warmup
 
@@ -274,6 +281,19 @@ def run(args: argparse.Namespace) -> int:
         if station.error is not None:  # the page stopped updating; the run did not
             say(f"ground station: its pump failed: {station.error!r}", sys.stderr)
     return report_ended(result, plotter, "hil run")
+
+
+def too_short_to_judge(scenario: Scenario, duration_s: float | None) -> str | None:
+    """What a run of ``duration_s`` (s after the slew starts; None: the scenario's own) cannot judge, said
+    before it runs: a run shorter than its slew needs to settle (:meth:`Scenario.time_to_judge`) ends with
+    its settle time "NOT met" whatever the system does (a campaign says so in its summary; ``hil run
+    --duration 10`` said nothing of it), and the ``--duration`` that would judge it; None when long enough."""
+    duration = scenario.slew.duration_s if duration_s is None else duration_s
+    shortfall = scenario.time_to_judge().shortfall(duration)
+    if shortfall is None:
+        return None
+    needed = math.ceil(scenario.time_to_judge().total_s)
+    return f"{shortfall}: its settle time cannot be met in it (--duration {needed} or more judges it)"
 
 
 def report_ended(result, plotter: Plotter | None, command: str) -> int:  # type: ignore[no-untyped-def]
@@ -379,11 +399,17 @@ class Plotter:
         """Hand the process ``run_dir`` as the file system names it (:func:`os.fsencode`, read back by
         :func:`hil.cli._plotter.read_run_dir`): written as text in the locale's encoding, a name that is not
         UTF-8 (``--out $'\\xff'``), or any letter beyond ASCII under a C locale, was a
-        ``UnicodeEncodeError``'s traceback after a run that had completed."""
+        ``UnicodeEncodeError``'s traceback after a run that had completed. A process that has already
+        ended (killed, out of memory) leaves a closed pipe: that is said by :meth:`wait` (its exit status),
+        not a BrokenPipeError's traceback here."""
         stdin = self.process.stdin
         assert isinstance(stdin, io.TextIOWrapper)  # text=True: its binary layer takes the name's bytes
-        stdin.buffer.write(os.fsencode(run_dir) + b"\n")
-        stdin.close()
+        try:
+            stdin.buffer.write(os.fsencode(run_dir) + b"\n")
+            stdin.close()
+        except BrokenPipeError:
+            with contextlib.suppress(BrokenPipeError):
+                stdin.close()  # what is left in its buffer goes nowhere: the process is gone
 
     def wait(self) -> str:
         assert self.process.stderr is not None
@@ -392,9 +418,16 @@ class Plotter:
         self.process.wait()
         if self.process.returncode == 0:
             return ""
-        return (
-            err.strip().splitlines()[-1] if err.strip() else f"plots: exit status {self.process.returncode}"
-        )
+        if err.strip():
+            return err.strip().splitlines()[-1]
+        status = self.process.returncode
+        if status < 0:  # a signal ended it (killed, out of memory): named, not a negative "exit status"
+            try:
+                name = signal.Signals(-status).name
+            except ValueError:  # a real-time signal has no name of its own
+                name = f"signal {-status}"
+            return f"plots: the drawing process was ended by {name}"
+        return f"plots: exit status {status}"
 
     def cancel(self) -> None:
         """Nothing to draw (the run failed, or an interrupt came after it): the process ends, with the
