@@ -125,3 +125,28 @@ def test_a_magnetometer_with_no_reading_in_the_window_is_said_so_not_zero(mag_t)
     zeros = SensorStream(SensorKind.MAG, t, np.zeros((len(t), 3)))
     with pytest.raises(InputFormatError, match="each is zero or not a number"):
         median_inclination_deg(SensorLog({**log.streams, SensorKind.MAG: zeros}, "log.csv", "csv"))
+
+
+@pytest.mark.parametrize(("n_acc", "n_mag", "names"), [(1, 50, "accelerometer"), (50, 3, "magnetometer")])
+def test_too_few_samples_for_the_median_dip_names_the_sensor_short_of_them(n_acc, n_mag, names):
+    """One accelerometer reading beside plenty of magnetometer ones was said "too few magnetometer
+    samples": the error names the sensor that is short, and how many it has."""
+    from hil.estimation.inertial import median_inclination_deg
+    from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
+
+    def stream(kind, n, xyz):
+        t = np.arange(n) * 0.05
+        return SensorStream(kind, t, np.tile(xyz, (n, 1)))
+
+    log = SensorLog(
+        {
+            SensorKind.ACC: stream(SensorKind.ACC, n_acc, [0.0, 0.0, 9.81]),
+            SensorKind.GYR: stream(SensorKind.GYR, 50, [0.0, 0.0, 0.0]),
+            SensorKind.MAG: stream(SensorKind.MAG, n_mag, [0.0, 20.0, -40.0]),
+        },
+        "log.csv",
+        "csv",
+    )
+    with pytest.raises(InputFormatError, match=f"too few {names} samples") as caught:
+        median_inclination_deg(log)
+    assert f"({min(n_acc, n_mag)}, at least" in str(caught.value)

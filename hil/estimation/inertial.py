@@ -177,8 +177,16 @@ def median_inclination_deg(log: SensorLog, window_s: float = 10.0) -> float:
     acc_early = acc.t <= log.start + window_s
     _require_some(gives_direction(acc.xyz), "accelerometer", window_s, log.source, acc_early)
     sel = early & gives_direction(mag.xyz)
-    if sel.sum() < 5 or len(acc) < 2:
-        raise InputFormatError(f"too few magnetometer samples in the first {window_s:g} s", log.source)
+    if sel.sum() < 5:
+        raise InputFormatError(
+            f"too few magnetometer samples in the first {window_s:g} s ({int(sel.sum())}, at least 5 needed)",
+            log.source,
+        )
+    if len(acc) < 2:  # it was said of the magnetometer, whose samples were plenty
+        raise InputFormatError(
+            f"too few accelerometer samples ({len(acc)}, at least 2 needed) to pair with the magnetometer's",
+            log.source,
+        )
     idx = np.clip(np.searchsorted(acc.t, mag.t[sel]), 0, len(acc) - 1)
     a, m = acc.xyz[idx], mag.xyz[sel]
     pair = gives_direction(a)  # an accelerometer reading of zero beside it: no angle
