@@ -134,3 +134,29 @@ def test_no_tick_commands_the_rotors_before_the_first_still_window_at_rest_has_e
     for unit in range(sc.n_units):
         assert np.all(np.nan_to_num(tel[f"cmd_rotor_speed_{unit}"][before]) == 0.0)
         assert np.all(np.nan_to_num(tel[f"rotor_speed_{unit}"][before]) == 0.0)
+
+
+@pytest.mark.parametrize(
+    ("target", "said"),
+    [
+        (np.full((3, 3), np.nan), "not finite"),
+        (np.diag([1.0, 1.0, np.inf]), "not finite"),
+        (np.diag([1.0, 1.0, -1.0]), "not orthonormal"),  # a reflection
+        (2.0 * np.eye(3), "not orthonormal"),
+        (np.eye(2), "shape (2, 2)"),
+        ([["a"] * 3] * 3, "not numbers"),
+    ],
+)
+def test_a_retarget_to_what_is_not_a_rotation_is_refused_and_the_slew_kept(target, said):
+    """A script's (or a plugin operator's) ``Host.retarget`` to a NaN matrix was taken: the slew planned to
+    it gave NaN setpoints, and the run ended later on ``ActuatorSetpoint … = nan is out of range``, far
+    from the cause. It is refused, saying why, and the slew under way is kept."""
+    scenario = load_scenario()
+    phases = RunPhases(scenario, EventLog(None), FaultJournal(), hold=False)
+    start = _through_first_warmup(phases, _Estimator())
+    slew, target_before = phases.slew, phases.target.copy()
+    reason = phases.retarget(start + 1.0, np.eye(3), target)
+    assert reason is not None and reason.startswith("the target is not a rotation") and said in reason
+    assert phases.slew is slew and np.array_equal(phases.target, target_before)
+    rounded = np.round(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]) @ np.eye(3), 7)
+    assert phases.retarget(start + 2.0, np.eye(3), rounded) is None  # a rotation within 1e-6 is taken

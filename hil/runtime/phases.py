@@ -69,6 +69,27 @@ MAX_SPINUP_S = 20.0  # rotors that never get there are given up on (a fault in t
 DEAD_SPINUP_S = 3.0  # ... this soon once the board reports a dead ESC
 
 
+ROTATION_TOL = 1e-6
+"""How far from orthonormal (‖RᵀR − I‖_F, and |det R − 1|) a retarget's matrix may be: a user's script's
+rotation built from rounded or single-precision numbers is taken; a NaN, a reflection or a scaled matrix
+is not."""
+
+
+def _not_a_rotation(R: object) -> str | None:
+    """Why ``R`` is not a rotation matrix (3, 3) within :data:`ROTATION_TOL`, or None."""
+    try:
+        m = np.asarray(R, dtype=float)
+    except (TypeError, ValueError) as exc:
+        return f"not numbers ({exc})"
+    if m.shape != (3, 3):
+        return f"shape {m.shape}, not (3, 3)"
+    if not np.isfinite(m).all():
+        return "it holds a value that is not finite"
+    if not so3.is_rotation(m, ROTATION_TOL):
+        return f"not orthonormal with determinant +1 within {ROTATION_TOL:g}"
+    return None
+
+
 class Phase(enum.IntEnum):
     """The run's phase, as ``telemetry.csv``'s ``phase`` column holds it (see the module docstring)."""
 
@@ -293,6 +314,10 @@ class RunPhases:
         then)."""
         if self.slew_start is None or attitude is None:
             return "the warm-up is not over (the scenario's slew has not started)"
+        if R_target is not None:
+            not_rotation = _not_a_rotation(R_target)
+            if not_rotation is not None:  # a NaN target was taken, and its NaN setpoints ended the run later
+                return f"the target is not a rotation: {not_rotation}"
         R_hat = np.asarray(attitude)
         self.target = R_hat.copy() if R_target is None else np.asarray(R_target, dtype=float)
         self.target9 = so3.mat9(self.target)
