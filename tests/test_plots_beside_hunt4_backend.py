@@ -93,3 +93,19 @@ def test_a_plotter_that_cannot_import_matplotlib_says_so_after_the_run(tmp_path,
     assert done.returncode == 1, done.stderr[-3000:]
     assert "run directory:" in done.stdout + done.stderr  # the summary was printed
     assert "plots: cannot draw figures: ImportError: matplotlib: a broken install" in done.stderr
+
+
+@pytest.mark.parametrize("plot", [None, "fit.svg"])
+def test_a_calibration_fit_plots_under_a_backend_matplotlib_does_not_know(tmp_path, plot):
+    """``hil calibrate fit`` imported matplotlib itself, for the plot's format check and the plot: under
+    MPLBACKEND=no-such-backend it ended in matplotlib's ValueError traceback. It fits, writes and plots."""
+    from hil.calibration.generate import generate_bench
+
+    generate_bench(tmp_path, 2, 3, (1,))
+    csvs = [str(tmp_path / f"unit1_{kind}.csv") for kind in ("rotor", "gimbal_rate", "gimbal_angle")]
+    more = ["--plot", str(tmp_path / plot)] if plot else []
+    out = tmp_path / "cal.toml"
+    done = hil("calibrate", "fit", *csvs, "-o", str(out), "--unit", "1", *more, MPLBACKEND="no-such-backend")
+    assert "Traceback" not in done.stderr, done.stderr[-3000:]
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert out.is_file() and (tmp_path / (plot or "cal-unit1.png")).stat().st_size > 1000

@@ -31,6 +31,9 @@ def plot_path(out: str | os.PathLike[str], unit: int) -> Path:
 def plot_fits(fits: Sequence[tuple[BenchData, Fit]], path: str | os.PathLike[str], title: str = "") -> Path:
     """Save one column per fit (data and fitted curve; residuals) as an image at ``path`` (PNG, SVG, PDF
     by suffix). Returns the path."""
+    import hil.plots  # noqa: F401  (first: it imports matplotlib whatever MPLBACKEND says)
+
+    # isort: split
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(5.0 * len(fits), 6.5), layout="constrained")

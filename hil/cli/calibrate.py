@@ -267,6 +267,9 @@ def _plot_target(given: Path | None, default: Path) -> Path:
     calibration file was written) is refused, and the folder a given path goes in is made (the default's
     is the calibration file's, which saving it makes or refuses). Anything else is a :class:`ConfigError`
     naming ``--plot`` and the path."""
+    import hil.plots  # noqa: F401  (first: it imports matplotlib whatever MPLBACKEND says)
+
+    # isort: split
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     from protocol.errors import ConfigError
