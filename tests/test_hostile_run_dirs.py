@@ -121,6 +121,34 @@ def test_hil_gcs_of_a_telemetry_that_is_no_run_s_says_so_and_draws_nothing(tmp_p
     assert not source.poll().rows
 
 
+@pytest.mark.parametrize("rows", [["x,y,z"] * 30, ["nan,1,2", "inf,1,2"], ["1e400,1,2"], ["1,2"]])
+@pytest.mark.parametrize("summary", [None, "{"])
+def test_hil_report_of_a_telemetry_whose_every_row_is_unreadable_says_the_file_is_damaged(
+    tmp_path, rows, summary
+):
+    """A telemetry.csv with rows, none of them readable: it was said "no telemetry rows (the run ended
+    before its first)", exit 0, as a run that never ran. The file is named damaged, exit 2 — with the
+    summary's damage too when both are."""
+    d = run_dir(tmp_path / "run", rows=0, summary=summary)
+    (d / "telemetry.csv").write_text("t,phase,point_err_deg\n" + "\n".join(rows) + "\n")
+    done = hil("report", str(d))
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert "the run ended before its first" not in done.stdout
+    assert f"none of its {len(rows)} lines after the header is a readable row" in done.stdout
+    said = done.stderr.strip().splitlines()[-1]
+    if summary is None:
+        assert f"{d / 'telemetry.csv'}: damaged (none of its {len(rows)} lines" in said, said
+    else:
+        assert f"{d / 'summary.json'}: damaged (" in said and "telemetry.csv damaged too (none of" in said
+
+
+def test_hil_report_of_a_telemetry_of_no_rows_is_a_run_that_ended_before_its_first(tmp_path):
+    d = run_dir(tmp_path / "run", rows=0)
+    done = hil("report", str(d))
+    assert done.returncode == 0, done.stderr
+    assert "no telemetry rows (the run ended before its first): no plots" in done.stdout
+
+
 # --------------------------------------------------------------------------- hil gcs RUN_DIR
 def _stream_until_finished(station: GroundStation) -> list[dict]:
     """Every message of the station's event stream until the run directory is read to its end."""

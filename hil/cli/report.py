@@ -69,9 +69,9 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
     from hil.montecarlo.store import MANIFEST
     from protocol.errors import InputFormatError
 
-    damage = None
+    damaged: dict[str, str] = {}
     if (path / "telemetry.csv").is_file():
-        drawn, damage = _run_dir(path, plots)
+        drawn, damaged = _run_dir(path, plots)
     elif (path / MANIFEST).is_file():
         drawn = _campaign(path, plots)
     elif path.is_dir():
@@ -82,16 +82,19 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
         raise InputFormatError("no such directory", str(path))
     for name, file in drawn.items():
         print(f"  {name}: {file}")
-    if damage is not None:
+    if damaged:
         # after what could be reported: a damaged summary.json is a run not wholly reported, as any damaged
         # file is (exit status 2) — it once exited 0, and ``hil report runs/* && …`` took it for whole
-        raise InputFormatError(f"damaged ({damage})", str(path / "summary.json"))
+        (name, why), *more = damaged.items()
+        also = "".join(f"; {other} damaged too ({reason})" for other, reason in more)
+        raise InputFormatError(f"damaged ({why}){also}", str(path / name))
     return drawn
 
 
-def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], str | None]:
+def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], dict[str, str]]:
     """Print the run directory ``path``'s counts and summary and draw its plots: name → plot path, and
-    what is wrong with its summary.json when it is damaged (said here on stdout too), else None."""
+    its damaged files (said here on stdout too): file name → what is wrong with it (summary.json's
+    values; a telemetry.csv of no readable row)."""
     from hil.cli.run import UNREADABLE, checked_summary
     from hil.cores import available_cores
     from hil.plots.run import not_units, plot_run
@@ -118,18 +121,24 @@ def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], str | None]:
         print(
             f"  {beyond} per-unit columns of a unit no board has (a board has at most {MAX_UNITS}): not drawn"
         )
+    damaged: dict[str, str] = {}
+    if not tel.rows and tel.dropped_lines:
+        # every line there is unreadable: a damaged file, not a run that ended early (it was said "the run
+        # ended before its first", exit 0, of a telemetry.csv whose every row was damaged)
+        damaged["telemetry.csv"] = f"none of its {tel.dropped_lines} lines after the header is a readable row"
+        print(f"  no readable telemetry rows ({damaged['telemetry.csv']}): no plots")
     try:
         summary = read_summary(path)
     except InputFormatError as exc:
         print(f"  summary.json damaged ({exc.detail}): not shown, and no plots (they read it)")
-        return {}, exc.detail
+        return {}, {"summary.json": exc.detail, **damaged}
     damage = None
     if summary is None:
         print(f"  no summary.json ({_no_summary_why(path)}): plots from the telemetry alone")
     elif (why := _not_a_rate(summary)) is not None:
         # the one value the plots take from it (hil.plots.run): a string there was a TypeError's traceback
         print(f"  summary.json damaged ({why}): not shown, and no plots (they read it)")
-        return {}, why
+        return {}, {"summary.json": why, **damaged}
     elif (where := _not_a_number(summary)) is not None:
         # NaN and Infinity are JSON to Python, and a run writes neither (a figure it has not: null)
         damage = f"a value is not what a run writes: {where}"
@@ -145,12 +154,15 @@ def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], str | None]:
             print(text)
             if unreadable:  # its last line names them; the other figures are shown
                 damage = f"values no run writes, shown as {UNREADABLE}: {'; '.join(unreadable)}"
+    if damage is not None:
+        damaged = {"summary.json": damage, **damaged}
     if not tel.rows:
         # a run that ended before its first row (its port could not be opened): nothing to draw, and not
         # an error of the report's — plot_run's "no telemetry rows to plot" once ended the command here
-        print("  no telemetry rows (the run ended before its first): no plots")
-        return {}, damage
-    return (plot_run(path, processes=available_cores()) if plots else {}), damage
+        if "telemetry.csv" not in damaged:
+            print("  no telemetry rows (the run ended before its first): no plots")
+        return {}, damaged
+    return (plot_run(path, processes=available_cores()) if plots else {}), damaged
 
 
 def _no_summary_why(path: Path) -> str:
