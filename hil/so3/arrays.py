@@ -41,9 +41,18 @@ def vee(m: ArrayLike) -> Array:
 
 
 def exp(phi: ArrayLike) -> Array:
-    """Rodrigues' formula ``exp(phi^×)``, exact to rounding at small angles; (..., 3) → (..., 3, 3)."""
+    """Rodrigues' formula ``exp(phi^×)``, exact to rounding at small angles; (..., 3) → (..., 3, 3). A
+    rotation for every finite ``phi`` (rad): one whose ``|phi|²`` overflows float64 (> 1.3e154 rad, a NaN
+    matrix before) is turned by :func:`hil.so3.floats.exp_f`, the one code for such vectors."""
     phi = np.asarray(phi, dtype=float)
     theta2 = np.einsum("...i,...i->...", phi, phi)
+    too_long = np.isposinf(theta2) & np.all(np.isfinite(phi), axis=-1)
+    if np.any(too_long):
+        from .floats import exp_f  # floats imports this module
+
+        out = exp(np.where(too_long[..., None], 0.0, phi))
+        out[too_long] = [np.reshape(exp_f(*p), (3, 3)) for p in phi[too_long].tolist()]
+        return out
     theta = np.sqrt(theta2)
     small = theta < _SMALL
     safe = np.where(small, 1.0, theta)
@@ -109,6 +118,8 @@ def project(m: ArrayLike) -> Array:
     Used to re-orthonormalise integrated attitudes; raises NumericalError for a degenerate ``m``.
     """
     m = np.asarray(m, dtype=float)
+    if not np.all(np.isfinite(m)):  # numpy's SVD raised a bare LinAlgError ("did not converge")
+        raise NumericalError(f"cannot project a non-finite matrix onto SO(3): {m.tolist()}")
     u, s, vt = np.linalg.svd(m)
     if s[-1] <= 1e-12 * max(s[0], 1e-300):
         raise NumericalError(f"cannot project a rank-deficient matrix onto SO(3) (singular values {s})")
@@ -124,12 +135,26 @@ def angle_between(a: ArrayLike, b: ArrayLike) -> float:
 # --------------------------------------------------------------------------- quaternions
 def quat_to_matrix(q: ArrayLike) -> Array:
     """Rotation matrix of the unit quaternion ``q = [w, x, y, z]`` (scalar first, Hamilton convention, as in
-    VQF, BROAD and imufusion); shape (..., 4) → (..., 3, 3). ``q`` is normalised first; ``q`` and ``-q``
-    give the same matrix. A zero or non-finite quaternion raises NumericalError."""
+    VQF, BROAD and imufusion); shape (..., 4) → (..., 3, 3). ``q`` is normalised first, at any scale;
+    ``q`` and ``-q`` give the same matrix. A zero or non-finite quaternion raises NumericalError naming it.
+
+    One whose largest component lies outside [1e-100, 1e100] is first divided by that component: its
+    squares underflowed or overflowed the norm, so a quaternion of norm 1e-300 or 1e300 was refused as
+    "zero or non-finite", and one of 1e-160 was normalised by a norm of denormals, 1e-4 off, into a
+    matrix that was no rotation."""
     q = np.asarray(q, dtype=float)
+    largest = np.max(np.abs(q), axis=-1, keepdims=True)
+    bad = ~np.isfinite(largest[..., 0]) | (largest[..., 0] == 0.0)
+    if np.any(bad):
+        first = tuple(int(i) for i in np.argwhere(bad)[0]) if bad.ndim else ()
+        raise NumericalError(
+            f"quaternion {f'at index {list(first)} ' if first else ''}{q[first].tolist()} is zero or not "
+            "finite: it has no rotation"
+        )
+    far_scale = (largest < 1e-100) | (largest > 1e100)
+    if np.any(far_scale):
+        q = np.where(far_scale, q / largest, q)
     norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    if not np.all(np.isfinite(norm)) or np.any(norm == 0.0):
-        raise NumericalError("quaternion with zero or non-finite norm has no rotation")
     w, x, y, z = np.moveaxis(q / norm, -1, 0)
     out = np.empty(q.shape[:-1] + (3, 3))
     out[..., 0, 0] = 1 - 2 * (y * y + z * z)

@@ -47,6 +47,8 @@ def rodrigues_coefficients(theta2: float) -> tuple[float, float, float]:
     series below 1e-4 rad; ``b`` by the half-angle form ``2 sin²(θ/2)/θ²`` and ``c`` by its series below
     1 rad (their closed forms lose up to half the digits to cancellation at small θ).
     """
+    if theta2 == math.inf:  # θ² overflowed: each coefficient's limit (each is below 2/θ < 1.5e-154 there);
+        return 0.0, 0.0, 0.0  # math.sin(inf) raised a bare ValueError here, and gave NaN when compiled
     if theta2 < _SMALL * _SMALL:
         return (
             1.0 - theta2 / 6.0 + theta2 * theta2 / 120.0,
@@ -66,9 +68,32 @@ def rodrigues_coefficients(theta2: float) -> tuple[float, float, float]:
 
 
 @jitable
+def _turn_of_long_vector(px: float, py: float, pz: float) -> tuple[float, float, float, float, float]:
+    """``(sin θ, 1 − cos θ, n)`` for a finite rotation vector ``φ = θ n`` (rad) whose ``|φ|²`` overflows
+    float64 (``|φ|`` > 1.3e154 rad), so that Rodrigues' ``I + a φ^× + b (φ^×)²`` becomes
+    ``I + sin θ n^× + (1 − cos θ) (n^×)²`` with the unit axis ``n``.
+
+    θ/2 is taken from ``φ`` scaled by its largest component, and θ's sine and versine by the double-angle
+    forms: θ itself overflows for ``|φ|`` beyond 1.8e308 rad, θ/2 never does. Before, ``θ² = inf`` made
+    :func:`exp_f` and :func:`rotate_f` raise a bare ValueError (math.sin(inf)) from Python, return NaN from
+    the compiled kernels and :func:`hil.so3.exp` a NaN matrix."""
+    largest = max(abs(px), abs(py), abs(pz))
+    ux, uy, uz = px / largest, py / largest, pz / largest
+    length = math.sqrt(ux * ux + uy * uy + uz * uz)  # in [1, √3]
+    half = (0.5 * largest) * length  # θ/2, finite for every finite φ
+    s, c = math.sin(half), math.cos(half)
+    return 2.0 * s * c, 2.0 * s * s, ux / length, uy / length, uz / length
+
+
+@jitable
 def rotate_f(px: float, py: float, pz: float, vx: float, vy: float, vz: float) -> Vec3:
     """``exp(φ^×) v`` for ``φ = (px, py, pz)`` without forming the matrix (Rodrigues on the vector)."""
-    a, b, _ = rodrigues_coefficients(px * px + py * py + pz * pz)
+    theta2 = px * px + py * py + pz * pz
+    if theta2 == math.inf:  # a finite φ too long to square: the same turn about its unit axis
+        sin_theta, versine, px, py, pz = _turn_of_long_vector(px, py, pz)
+        a, b = sin_theta, versine
+    else:
+        a, b, _ = rodrigues_coefficients(theta2)
     cx = py * vz - pz * vy
     cy = pz * vx - px * vz
     cz = px * vy - py * vx
@@ -81,8 +106,13 @@ def rotate_f(px: float, py: float, pz: float, vx: float, vy: float, vz: float) -
 
 @jitable
 def exp_f(px: float, py: float, pz: float) -> Mat9:
-    """``exp(φ^×)`` as a row-major 9-tuple (Rodrigues)."""
-    a, b, _ = rodrigues_coefficients(px * px + py * py + pz * pz)
+    """``exp(φ^×)`` as a row-major 9-tuple (Rodrigues); a rotation for every finite ``φ`` (rad)."""
+    theta2 = px * px + py * py + pz * pz
+    if theta2 == math.inf:  # a finite φ too long to square: the same turn about its unit axis
+        sin_theta, versine, px, py, pz = _turn_of_long_vector(px, py, pz)
+        a, b = sin_theta, versine
+    else:
+        a, b, _ = rodrigues_coefficients(theta2)
     xx, yy, zz, xy, xz, yz = px * px, py * py, pz * pz, px * py, px * pz, py * pz
     return (
         1.0 - b * (yy + zz), b * xy - a * pz, b * xz + a * py,

@@ -110,11 +110,17 @@ class PlantModel:
         wr = _finite(np.broadcast_to(np.asarray(rr, float), (b, n)), "rotor_rate")
         R = np.stack([so3.project(r) for r in R])
         cfg = mdl.configuration(self.model, ga, ra)
-        H, pg, pp = mdl.momenta(self.model, cfg, omega_, mdl.body_rates(self.model, cfg, omega_, gr, wr))
+        with np.errstate(over="ignore", invalid="ignore"):  # refused below, naming the velocity
+            rates = mdl.body_rates(self.model, cfg, omega_, gr, wr)
+            H, pg, pp = mdl.momenta(self.model, cfg, omega_, rates)
+            momentum = np.einsum("bij,bj->bi", R, H)
+            energy = mdl.kinetic_energy(self.model, omega_, rates)
+        if not all(np.all(np.isfinite(a)) for a in (momentum, pg, pp, energy)):
+            self._refuse_overflowing_velocities(cfg, omega_, gr, wr)
         return PlantState(
             float(t),
             R,
-            np.einsum("bij,bj->bi", R, H),
+            momentum,
             ga.copy(),
             np.mod(ra, 2 * np.pi),
             pg,
@@ -122,6 +128,34 @@ class PlantModel:
             omega_.copy(),
             gr.copy(),
             wr.copy(),
+        )
+
+    def _refuse_overflowing_velocities(
+        self, cfg: mdl.Configuration, omega: Array, gimbal_rate: Array, rotor_rate: Array
+    ) -> None:
+        """Raise ConfigError naming the velocity (rad/s) whose momenta or kinetic energy overflow float64.
+
+        Each was checked finite alone, but a body rate or rotor speed of 1e160 rad/s gave a state of
+        infinite energy (and 1e300, infinite momenta), returned as a good one for the plant to step."""
+        zeros_b3, zeros_bn = np.zeros_like(omega), np.zeros_like(gimbal_rate)
+        alone = {
+            "omega": (omega, zeros_bn, zeros_bn),
+            "gimbal_rate": (zeros_b3, gimbal_rate, zeros_bn),
+            "rotor_rate": (zeros_b3, zeros_bn, rotor_rate),
+        }
+        named = []
+        with np.errstate(over="ignore", invalid="ignore"):
+            for name, (w, gr, wr) in alone.items():
+                rates = mdl.body_rates(self.model, cfg, w, gr, wr)
+                energy = mdl.kinetic_energy(self.model, w, rates)
+                if not all(np.all(np.isfinite(a)) for a in (*mdl.momenta(self.model, cfg, w, rates), energy)):
+                    named.append(name)
+        fields = ", ".join(f"PlantState.{name}" for name in named or alone)
+        raise ConfigError(
+            "too fast to compute with: the momenta or kinetic energy of this state overflow float64 "
+            f"(largest |rate| {max(float(np.max(np.abs(a))) for a in (omega, gimbal_rate, rotor_rate)):.3g} "
+            "rad/s)",
+            fields,
         )
 
     def select(self, state: PlantState, index: int | slice) -> PlantState:
