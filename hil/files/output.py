@@ -5,7 +5,9 @@ under a file, one too long for the file system, a read-only place — never an `
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import stat
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -16,20 +18,28 @@ from protocol.errors import ConfigError, HilError
 MAX_LABEL = 64
 """Characters of a name-derived label kept in a directory's name (a scenario's name may be long; a file
 system's name is at most 255 bytes)."""
+MAX_LABEL_BYTES = 200
+"""Bytes (in the file system's encoding) of such a label: with a run directory's 16-byte stamp before it and
+a ``-n`` after, the name stays within the 255 bytes of a file system's name — 64 letters of four bytes each
+(``𠀀``, a CJK letter; ``𝐀``) are 256 bytes, and a run under a scenario named so was refused ("File name too
+long") before it started."""
 
 
 def make_dir(path: str | os.PathLike[str], exist_ok: bool = True) -> Path:
-    """``path`` as a directory, with its parents; ``FileExistsError`` when it exists and not
-    ``exist_ok`` (the caller picks another name); any other failure a ConfigError naming it."""
+    """``path`` as a directory, with its parents; ``FileExistsError`` when something of that name exists
+    (a directory, a file, a link to nothing) and not ``exist_ok`` (the caller picks another name); any
+    other failure a ConfigError naming it — and, when a part of the path is in the way, that part and
+    what it is (``--out`` through a link to nothing said "a file of that name exists" of a run directory
+    that was no file, and a file or a FIFO on the way "Not a directory", naming neither)."""
     out = Path(path)
     try:
         out.mkdir(parents=True, exist_ok=exist_ok)
-    except FileExistsError:
-        if out.is_dir():  # not exist_ok: the caller picks another name
-            raise
-        raise ConfigError("cannot make a directory here: a file of that name exists", str(out)) from None
+    except FileExistsError as exc:
+        if not exist_ok and (out.is_dir() or os.path.lexists(out) and out.parent.is_dir()):
+            raise  # the name itself is taken: the caller picks another
+        raise _in_the_way(out, exc) from None
     except OSError as exc:
-        raise ConfigError(f"cannot make this directory: {exc.strerror or exc}", str(out)) from exc
+        raise _in_the_way(out, exc) from exc
     except UnicodeEncodeError:  # a ValueError: a traceback, for a name the user can fix
         raise ConfigError(
             f"cannot make this directory: its name has characters this system's file names cannot hold "
@@ -39,13 +49,50 @@ def make_dir(path: str | os.PathLike[str], exist_ok: bool = True) -> Path:
     return out
 
 
+def _in_the_way(out: Path, refused: OSError) -> ConfigError:
+    """The ConfigError of a directory ``out`` whose making the OS ``refused``: its reason (a read-only
+    place, a name too long), and the first part of the path that is there but no directory (a file, a
+    FIFO, a link to nothing, a loop of links), if one is, with what it is."""
+    why = f"cannot make this directory: {refused.strerror or refused}"
+    for part in (*reversed(out.parents), out):
+        if not os.path.lexists(part):
+            break  # made by mkdir, or refused for another reason (why)
+        if not part.is_dir():
+            return ConfigError(f"{why} ({part} is {_what_is(part)}, not a directory)", str(out))
+    return ConfigError(why, str(out))
+
+
+def _what_is(path: Path) -> str:
+    """What ``path`` (there, no directory) is, in a few words."""
+    try:
+        if path.is_symlink():
+            target = os.readlink(path)
+            try:
+                path.stat()
+            except OSError as exc:
+                if exc.errno == errno.ELOOP:
+                    return "a loop of symbolic links"
+                return f"a symbolic link to nothing, {target}"
+        kind = path.stat().st_mode
+    except OSError:  # gone or changed since: said as the OS would
+        return "not a directory"
+    for test, name in ((stat.S_ISREG, "a file"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket")):
+        if test(kind):
+            return name
+    return "a device" if stat.S_ISCHR(kind) or stat.S_ISBLK(kind) else "not a directory"
+
+
 def safe_label(label: str) -> str:
     """``label`` as a part of a directory's name: characters other than letters, digits and ``-_.`` — and
     letters the file system's encoding cannot hold (a scenario named ``cubesat-ü`` under a C locale: a
-    ``UnicodeEncodeError``'s traceback before the run) — replaced, at most :data:`MAX_LABEL` of them."""
+    ``UnicodeEncodeError``'s traceback before the run) — replaced, at most :data:`MAX_LABEL` of them and
+    :data:`MAX_LABEL_BYTES` of their bytes (whole letters)."""
     encoding = sys.getfilesystemencoding()
     safe = "".join(c if (c.isalnum() and _nameable(c, encoding)) or c in "-_." else "_" for c in label)
-    return safe[:MAX_LABEL] or "run"
+    safe = safe[:MAX_LABEL]
+    while len(safe.encode(encoding)) > MAX_LABEL_BYTES:
+        safe = safe[:-1]
+    return safe or "run"
 
 
 def _nameable(char: str, encoding: str) -> bool:

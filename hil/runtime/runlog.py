@@ -58,8 +58,10 @@ SUMMARY = "summary.json"
 
 
 def new_run_dir(root: str | os.PathLike[str], label: str) -> Path:
-    """A fresh directory ``root/YYYYmmdd-HHMMSS-label[-n]`` (never an existing one; ``label`` made safe
-    and cut, :func:`hil.files.output.safe_label`); a ConfigError naming it when it cannot be made."""
+    """A fresh directory ``root/YYYYmmdd-HHMMSS-label[-n]`` (never an existing one: a name taken by
+    anything — a directory, a file, a link to nothing — moves on to the next ``n``; ``label`` made safe
+    and cut to fit a file name, :func:`hil.files.output.safe_label`); a ConfigError naming it, or the part
+    of ``root`` in its way, when it cannot be made."""
     stamp = time.strftime("%Y%m%d-%H%M%S")
     base = Path(root) / f"{stamp}-{safe_label(label)}"
     path, n = base, 1
