@@ -16,6 +16,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from hil.cli._parser import given_path
+
 _MAPS = ("rotor", "gimbal_rate", "gimbal_angle")
 CONNECT_WITHIN_S = 5.0
 """How long the first handshake is tried again while the port is away (s): a board plugged back, a
@@ -100,8 +102,8 @@ def register_actions(actions: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _board_options(u)
-    u.add_argument("-o", "--out", type=Path, required=True, help="the array's calibration file (TOML)")
-    u.add_argument("--bench-dir", type=Path, required=True, help="where the sweeps' bench CSVs go")
+    u.add_argument("-o", "--out", type=given_path, required=True, help="the array's calibration file (TOML)")
+    u.add_argument("--bench-dir", type=given_path, required=True, help="where the sweeps' bench CSVs go")
     u.add_argument("--maps", default=",".join(_MAPS), help="maps to calibrate, comma-separated (all three)")
     u.add_argument("--program-esc", action="store_true", help="teach the ESCs their endpoints first")
     _esc_options(u)

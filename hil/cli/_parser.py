@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import re
+from pathlib import Path
 
 NEGATIVE_NUMBER = re.compile(r"^-(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)$", re.IGNORECASE)
 """What argparse takes for a negative number (a value), not an option: whatever ``float`` reads after a
@@ -25,3 +26,14 @@ class ArgumentParser(argparse.ArgumentParser):
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
         self._negative_number_matcher = NEGATIVE_NUMBER
+
+
+def given_path(text: str) -> Path:
+    """An output path typed on the command line: any but the empty one. ``Path("")`` is ``.``: ``--out ""``
+    (a shell variable left unset, ``--out "$OUT"``) wrote a replay's or a campaign's files into the
+    current directory — removing a replay's earlier outputs there first — instead of being refused."""
+    if not text:  # a name of spaces is a name (``--out " "`` makes that folder)
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is an empty path (an unset shell variable?): give a folder or file name"
+        )
+    return Path(text)

@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from hil.cli._parser import given_path
+
 if TYPE_CHECKING:
     from hil.calibration.bench import BenchData
     from hil.calibration.files import CalibrationSet, UnitEntry
@@ -52,7 +54,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     f.add_argument("csv", nargs="+", type=Path, help="bench CSV files (at most one per map)")
-    f.add_argument("-o", "--out", type=Path, required=True, help="calibration file to write or update (TOML)")
+    f.add_argument(
+        "-o", "--out", type=given_path, required=True, help="calibration file to write or update (TOML)"
+    )
     f.add_argument("--unit", type=int, default=0, help="unit index in the file, 0..7 (default 0)")
     f.add_argument("--name", help="unit label (default: kept, or unitN)")
     f.add_argument("--base", help="where maps without a CSV come from: a calibration file, or 'default'")
@@ -112,7 +116,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     v.add_argument("file", type=Path, help="calibration file whose units to include")
-    v.add_argument("-o", "--out", type=Path, required=True, help="JSON file to write")
+    v.add_argument("-o", "--out", type=given_path, required=True, help="JSON file to write")
     v.set_defaults(func=run_vectors)
 
     from ._calibrate_board import register_actions

@@ -8,8 +8,9 @@ import logging
 import math
 import sys
 import time
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
+
+from hil.cli._parser import given_path
 
 if TYPE_CHECKING:
     from hil.montecarlo import CampaignReport
@@ -82,7 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "--batch", type=int, default=4, metavar="B", help="runs per Dask task, one after another (4)"
     )
     p.add_argument(
-        "--out", type=Path, metavar="DIR", help="output directory (default: runs/<stamp>-mc-<name>)"
+        "--out", type=given_path, metavar="DIR", help="output directory (default: runs/<stamp>-mc-<name>)"
     )
     p.add_argument(
         "--board",

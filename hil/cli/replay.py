@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from hil.cli._parser import given_path
+
 if TYPE_CHECKING:
     from hil.estimation.registry import EstimatorChoice
     from hil.runtime.loop import RunResult
@@ -66,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     )
     p.add_argument("log", type=Path, help="log file or folder (see formats below)")
     p.add_argument("--format", choices=FORMATS, help="skip detection")
-    p.add_argument("--out", type=Path, help="output folder (default: runs/replay-<log name>)")
+    p.add_argument("--out", type=given_path, help="output folder (default: runs/replay-<log name>)")
     p.add_argument(
         "--estimator",
         metavar="NAME",

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from hil.cli._parser import given_path
 from hil.numbers import finite_number
 
 if TYPE_CHECKING:
@@ -139,7 +140,9 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         help="a board outage (or phone gap) longer than S s ends the run as lost, exit status 3 "
         "(default %(default)g s)",
     )
-    p.add_argument("--out", type=Path, default=Path("runs"), help="where run directories go (default runs/)")
+    p.add_argument(
+        "--out", type=given_path, default=Path("runs"), help="where run directories go (default runs/)"
+    )
     p.add_argument("--no-plots", action="store_true", help="skip the plots (hil report draws them later)")
     p.add_argument(
         "--gcs",

@@ -82,6 +82,30 @@ def _what_is(path: Path) -> str:
     return "a device" if stat.S_ISCHR(kind) or stat.S_ISBLK(kind) else "not a directory"
 
 
+OUTPUTS_OF: dict[str, str] = {
+    "telemetry.csv": "a run's directory (hil run)",
+    "events.jsonl": "a run's directory (hil run)",
+    "estimates.csv": "a replay's folder (hil replay)",
+    "campaign.json": "a Monte Carlo campaign's directory (hil montecarlo)",
+}
+"""A file name that says which command's outputs a folder holds: its own (the one every such folder has)."""
+
+
+def refuse_others_outputs(out_dir: Path, own: str, writing: str) -> None:
+    """A ConfigError naming ``out_dir`` when it holds another command's outputs (:data:`OUTPUTS_OF`, any
+    but ``own``, the file this command's folders are known by) — ``writing`` says what was to go there.
+    ``hil replay --out`` or ``hil montecarlo --out`` given a run's directory replaced its summary.json with
+    their own, beside its telemetry and events, exit 0: the run's record was lost, and ``hil report``
+    showed that run with every figure "-"."""
+    for name, whose in OUTPUTS_OF.items():
+        if name != own and os.path.lexists(out_dir / name):
+            raise ConfigError(
+                f"{whose} is here ({name}): {writing} would replace its summary.json beside it; give "
+                "another --out",
+                str(out_dir),
+            )
+
+
 def safe_label(label: str) -> str:
     """``label`` as a part of a directory's name: characters other than letters, digits and ``-_.`` — and
     letters the file system's encoding cannot hold (a scenario named ``cubesat-ü`` under a C locale: a

@@ -60,7 +60,7 @@ from hil.estimation.sensors import (
     flagged_intervals,
 )
 from hil.files.json_text import strict_json
-from hil.files.output import make_dir
+from hil.files.output import make_dir, refuse_others_outputs
 from hil.logs import read_log
 from hil.logs.acc_units import acc_unit_warning
 from hil.logs.file_names import sensor_files_where
@@ -394,6 +394,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
     """Read, merge, filter and write one log; see the module docstring."""
     if not (math.isfinite(options.max_gap_s) and options.max_gap_s > 0):
         raise ConfigError(f"must be a positive number of seconds, got {options.max_gap_s!r}", "max_gap_s")
+    refuse_others_outputs(options.out_dir, "estimates.csv", "a replay's outputs")  # before the work
     log = read_log(path, options.format)
     if options.window_s is not None:
         log = log.window(*options.window_s)

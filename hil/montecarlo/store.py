@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from hil import version
 from hil.files.bounded import MAX_DOCUMENT_BYTES, input_kind, load_json, read_lines, regular_file_if_there
-from hil.files.output import make_dir
+from hil.files.output import make_dir, refuse_others_outputs
 from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, HilError, InputFormatError
 
@@ -148,6 +148,7 @@ class ResultStore:
         runs.csv and traces.bin for appending."""
         path = self.dir / MANIFEST
         runs, traces = self.dir / RUNS, self.dir / TRACE_FILE
+        refuse_others_outputs(self.dir, MANIFEST, "a campaign's outputs")
         for file in (path, runs, traces):
             _regular_or_absent(file)
         if path.exists():
