@@ -72,6 +72,16 @@ class AccessoryPid(enum.IntEnum):
     ACCESSORY_AUDIO_ADB = 0x2D05  # AOA 2.0
 
 
+_FIELD_TOPS = (
+    ("bmRequestType", 0xFF),
+    ("bRequest", 0xFF),
+    ("wValue", 0xFFFF),
+    ("wIndex", 0xFFFF),
+    ("wLength", 0xFFFF),
+)
+"""A control transfer's setup fields and the largest value each holds (u8 or u16, USB 2.0 §9.3)."""
+
+
 @dataclass(frozen=True, slots=True)
 class ControlTransfer:
     """One USB control transfer on endpoint 0 (field names as in the USB specification).
@@ -85,6 +95,20 @@ class ControlTransfer:
     wIndex: int
     data: bytes = b""
     wLength: int = 0
+
+    def __post_init__(self) -> None:
+        """Refuse a transfer USB cannot carry, naming the field: pyusb (or the kernel) raised its own error
+        for it at the moment of the transfer, or sent the fields cut to their width."""
+        for name, top in _FIELD_TOPS:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= top:
+                raise FieldRangeError("ControlTransfer", name, value)
+        if not isinstance(self.data, (bytes, bytearray)) or (self.is_in and self.data):
+            raise FieldRangeError("ControlTransfer", "data (IN transfers carry none)", self.data)
+        if not self.is_in and self.wLength != len(self.data):
+            raise FieldRangeError(
+                "ControlTransfer", f"wLength (OUT: len(data) = {len(self.data)})", self.wLength
+            )
 
     @property
     def is_in(self) -> bool:
@@ -109,15 +133,7 @@ class AccessoryIdentity:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = getattr(self, f.name)
-            if not isinstance(value, str) or "\x00" in value:
-                raise FieldRangeError("AccessoryIdentity", f.name, value)
-            try:
-                size = len(value.encode("utf-8")) + 1
-            except UnicodeEncodeError:
-                raise FieldRangeError("AccessoryIdentity", f.name, value) from None
-            if size > ACC_STRING_SIZE:
-                raise FieldRangeError("AccessoryIdentity", f"{f.name} ({size} bytes with terminator)", value)
+            _identity_string_bytes("AccessoryIdentity", f.name, getattr(self, f.name))
 
     @classmethod
     def from_message(cls, message: Any) -> AccessoryIdentity:
@@ -128,15 +144,39 @@ class AccessoryIdentity:
         return [(StringIndex(i), getattr(self, f.name)) for i, f in enumerate(fields(self))]
 
 
+def _identity_string_bytes(owner: str, name: str, value: object) -> bytes:
+    """``value`` as ``SEND_STRING`` carries it — UTF-8 and its terminator — or :class:`FieldRangeError`
+    naming ``owner.name``: not a string, a NUL inside (the phone keeps only what comes before it), text
+    UTF-8 cannot encode (a lone surrogate), or more than :data:`ACC_STRING_SIZE` bytes with the terminator
+    (the phone's gadget driver refuses the request)."""
+    if not isinstance(value, str) or "\x00" in value:
+        raise FieldRangeError(owner, name, value)
+    try:
+        data = value.encode("utf-8") + b"\x00"
+    except UnicodeEncodeError:
+        raise FieldRangeError(owner, name, value) from None
+    if len(data) > ACC_STRING_SIZE:
+        raise FieldRangeError(owner, f"{name} ({len(data)} bytes with terminator)", value)
+    return data
+
+
 def get_protocol() -> ControlTransfer:
     """``GET_PROTOCOL``: read the phone's AOA version (2 bytes)."""
     return ControlTransfer(REQUEST_TYPE_VENDOR_IN, int(Request.GET_PROTOCOL), 0, 0, wLength=2)
 
 
 def send_string(index: StringIndex, text: str) -> ControlTransfer:
-    """``SEND_STRING`` of one identity string (zero-terminated UTF-8)."""
-    data = text.encode("utf-8") + b"\x00"
-    return ControlTransfer(REQUEST_TYPE_VENDOR_OUT, int(Request.SEND_STRING), 0, int(index), data, len(data))
+    """``SEND_STRING`` of one identity string (zero-terminated UTF-8).
+
+    Checked as :class:`AccessoryIdentity` checks its strings (:class:`FieldRangeError` naming the string),
+    and ``index`` must be one of the six: a lone surrogate raised ``UnicodeEncodeError``; a NUL inside, a
+    string of 64 KiB (a ``wLength`` past u16) or an index of 6 made a transfer the phone cuts or refuses."""
+    try:
+        which = StringIndex(index)
+    except ValueError:
+        raise FieldRangeError("SEND_STRING", "wIndex", index) from None
+    data = _identity_string_bytes("SEND_STRING", which.name.lower(), text)
+    return ControlTransfer(REQUEST_TYPE_VENDOR_OUT, int(Request.SEND_STRING), 0, int(which), data, len(data))
 
 
 def start() -> ControlTransfer:

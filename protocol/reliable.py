@@ -11,8 +11,9 @@ Sender side (:class:`ReliableSender`)::
     cmd.state                                       # PENDING → ACKED | NACKED (cmd.reason) | FAILED
 
 No clock inside: every call takes ``now`` (seconds on any monotonic time base the caller uses — wall
-or lockstep), and :meth:`ReliableSender.next_deadline` says when :meth:`~ReliableSender.poll` next has
-work, so an event loop can sleep exactly that long.
+or lockstep; one that is not finite, or too far out for a timeout to be added to it, is refused with
+:class:`ConfigError`), and :meth:`ReliableSender.next_deadline` says when :meth:`~ReliableSender.poll`
+next has work, so an event loop can sleep exactly that long.
 
 Rules (docs/protocol.md, "Reliable commands"):
 
@@ -219,6 +220,7 @@ class ReliableSender:
 
         Raises :class:`ProtocolError` for a message that is never answered (send those with
         ``framer.encode``) and :class:`FieldRangeError` for an out-of-range field."""
+        self._check_now(now, "ReliableSender.send")
         if not expects_answer(message):
             raise ProtocolError(
                 f"{type(message).__name__} is not acknowledged; send it with Framer.encode (no retries)"
@@ -227,18 +229,29 @@ class ReliableSender:
         cmd = Command(message, seq, sent_at=now, deadline=now + self.policy.timeout(1), last_sent_at=now)
         self._superseded.pop(cmd.key, None)  # a late answer with this key is the new command's now
         stale = self._pending.pop(cmd.key, None)
+        # Pending before any older one is settled: a command ``on_settled`` sends meanwhile is the newer one
+        # and supersedes this one, rather than both being retried side by side.
+        self._pending[cmd.key] = cmd
+        self.stats.sent += 1
         if stale is not None:  # 256 frames went out while it waited: its answers are now ambiguous
             self._settle(stale, CommandState.FAILED, now, failure="sequence number reused by a newer command")
         self._supersede(cmd, now)
-        self._pending[cmd.key] = cmd
-        self.stats.sent += 1
         return cmd, data
 
     def poll(self, now: float) -> bytes:
         """Retransmissions due at ``now`` (concatenated wire bytes, possibly empty); commands whose last
-        try has timed out become FAILED."""
+        try has timed out become FAILED.
+
+        The commands due are taken at the call, but one may leave PENDING before its turn: ``on_settled``,
+        told of an earlier one failing, may send a command that supersedes it or abandon them all (the
+        session's handshake failure takes the link down). Such a one is not sent again — a superseded
+        Disarm was retried after the Arm that superseded it — nor settled twice (which raised
+        ``KeyError``)."""
+        self._check_now(now, "ReliableSender.poll")
         out = bytearray()
         for cmd in [c for c in self._pending.values() if c.deadline <= now]:
+            if self._pending.get(cmd.key) is not cmd:
+                continue  # settled meanwhile, from a callback of one polled before it
             if cmd.tries >= self.policy.max_tries:
                 del self._pending[cmd.key]
                 self._settle(cmd, CommandState.FAILED, now, failure=f"no answer after {cmd.tries} tries")
@@ -258,11 +271,18 @@ class ReliableSender:
     # ------------------------------------------------------------------ receiving
     def on_frame(self, frame: Frame, now: float) -> Command | None:
         """Offer a received frame; returns the command it settled, if any. Frames that are not answers
-        are ignored (returns None), so every received frame may be passed here."""
+        are ignored (returns None), so every received frame may be passed here.
+
+        An Ack or Nack naming a pending ``Hello`` answers nothing: a Hello is answered by ``HelloReply``
+        alone (it requests no Ack). It settled the handshake ACKED with an Ack for its reply — no board
+        identity, state or schema hash in it, ``result()`` not the ``HelloReply`` it promises — or NACKED,
+        and the Hello was never retried; it is counted as unmatched and the Hello waits on."""
+        self._check_now(now, "ReliableSender.on_frame")
         msg = frame.message
         if isinstance(msg, (Ack, Nack)):
             key = (msg.msg_id, msg.seq)
-            cmd = self._pending.pop(key, None)
+            answered = self._pending.get(key)
+            cmd = None if answered is None or isinstance(answered.message, Hello) else self._pending.pop(key)
             if cmd is None:
                 self._count_stray(key)
                 self._superseded_answer(key, msg)
@@ -281,6 +301,7 @@ class ReliableSender:
 
     def abandon(self, now: float, why: str = "abandoned") -> list[Command]:
         """Fail every pending command (e.g. the link was lost or the board reset); returns them."""
+        self._check_now(now, "ReliableSender.abandon")
         cmds = list(self._pending.values())
         self._pending.clear()
         for cmd in cmds:
@@ -300,6 +321,30 @@ class ReliableSender:
         return len(self._pending)
 
     # ------------------------------------------------------------------ internals
+    def _check_now(self, now: float, where: str) -> None:
+        """Refuse a time (s) a try's deadline cannot be set from, naming ``where`` it was given.
+
+        Not a finite number: a command sent at NaN had a NaN deadline — no later time is past it — so it
+        was never retried and never failed (pending for ever, ``next_deadline`` NaN); a poll at NaN did
+        nothing, silently; one at ``inf`` put every deadline at inf, the same hang one poll later. So far
+        from zero that the policy's shortest timeout is lost in the rounding of ``now + timeout`` (beyond
+        ~1e15 s for 0.1 s; a time in ns taken for s): every try timed out the moment it was sent, and a
+        command failed after all its tries at one instant, never waiting for an answer. (The longer
+        timeouts of later tries, ``timeout_s`` or more, are then never lost either.)"""
+        try:
+            finite = math.isfinite(now)  # any real number: a float, an int, numpy's scalars
+        except TypeError:
+            finite = False
+        if not finite:
+            raise ConfigError(f"a time must be a finite number of seconds, not {now!r}", where)
+        policy = self.policy
+        if not now + policy.timeout_s > now:
+            raise ConfigError(
+                f"a time of {now!r} s leaves no room for a {policy.timeout_s} s timeout (floats "
+                f"{math.ulp(now)} s apart there): not a time on a clock of seconds",
+                where,
+            )
+
     def _supersede(self, cmd: Command, now: float) -> None:
         """Stop retrying the pending commands that set what ``cmd`` sets (the message's ``SETS``): they
         fail, superseded. A Disarm sent into a stalled link, then an Arm: retried after the Arm was carried
@@ -313,8 +358,12 @@ class ReliableSender:
         sets = getattr(cmd.message, "SETS", None)
         if sets is None:
             return
-        older = [c for c in self._pending.values() if getattr(c.message, "SETS", None) == sets]
+        older = [
+            c for c in self._pending.values() if getattr(c.message, "SETS", None) == sets and c is not cmd
+        ]
         for old in older:
+            if self._pending.get(old.key) is not old:
+                continue  # settled meanwhile, from the callback of one superseded before it
             del self._pending[old.key]
             self.stats.superseded += 1
             old.superseded_by = cmd
