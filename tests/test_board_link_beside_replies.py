@@ -146,3 +146,38 @@ def test_a_slow_boards_answers_to_the_earlier_hello_tries_are_late_not_warned(ca
         s.feed(board.encode(hello_reply())[1], t + 0.1)
     (said,) = drops(caplog, "a HelloReply no Hello was waiting for")
     assert "from the session's board" in said
+
+
+IDENTITY = ("manufacturer", "model", "description", "version", "uri", "serial")
+ASCII = st.characters(min_codepoint=1, max_codepoint=126)  # within every identity field's bytes on the wire
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(field=st.sampled_from(IDENTITY), before=st.text(ASCII, max_size=6), after=st.text(ASCII, max_size=6))
+def test_a_hello_reply_whose_identity_holds_a_nul_is_a_handshake_error_or_a_drop(field, before, after):
+    """An identity string with a NUL inside decodes (the frame's text field takes it) but is no
+    accessory's: it raised FieldRangeError out of ``Session.feed`` — at the handshake with the Hello
+    settled and the session half made, mid-session with the frames after it in that read unread. Now the
+    handshake fails as incompatible, naming the HelloReply's field, and an unasked-for one is dropped with
+    the session and its telemetry going on."""
+    import dataclasses
+
+    bad = dataclasses.replace(hello_reply(), **{field: f"{before}\x00{after}"})
+    s = Session()
+    s.link_up(0.0)
+    s.poll(0.0)
+    s.feed(Framer().encode(bad)[1], 0.01)
+    assert s.phase is Phase.INCOMPATIBLE and s.info is None
+    assert f"AccessoryIdentity.{field} = " in str(s.failure) and "HelloReply" in str(s.failure)
+
+    s, board = connected()
+    handler = Recorder()
+    logger = logging.getLogger(LOGGER)
+    logger.addHandler(handler)
+    try:
+        s.feed(board.encode(bad)[1] + board.encode(telemetry(1_000))[1], 0.1)  # one read: both frames
+    finally:
+        logger.removeHandler(handler)
+    assert s.phase is Phase.READY and s.info is not None and s.info.identity.model == "SCRIPTED"
+    assert s.telemetry is not None and s.telemetry.time_ms == 1_000
+    assert any("whose identity no accessory has" in m for m in handler.messages)

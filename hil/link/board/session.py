@@ -81,6 +81,7 @@ from typing import Any
 from protocol.calibration import UnitCalibration
 from protocol.errors import (
     BoardReset,
+    FieldRangeError,
     HandshakeError,
     HilError,
     LinkError,
@@ -528,7 +529,10 @@ class Session:
 
     def _whose(self, reply: HelloReply) -> str | None:
         """Whose an unasked-for HelloReply is, against the session's board: None for the session's own."""
-        info = BoardInfo.from_reply(reply)
+        try:
+            info = BoardInfo.from_reply(reply)
+        except FieldRangeError as exc:  # it raised out of feed(), the session's frames after it unread
+            return f"from a board whose identity no accessory has ({exc})"
         if (reply.protocol_version, reply.schema_hash) != (PROTOCOL_VERSION, self.config.schema_hash):
             return (
                 f"from a board of protocol {reply.protocol_version}, schema hash {reply.schema_hash:#010x} "
@@ -921,7 +925,17 @@ class Session:
         return said
 
     def _on_hello_reply(self, reply: HelloReply, now: float) -> None:
-        info = BoardInfo.from_reply(reply)
+        try:
+            info = BoardInfo.from_reply(reply)
+        except FieldRangeError as exc:
+            # an identity string the frame's decoder takes but no accessory has (a NUL inside): it raised
+            # out of feed(), the Hello settled and the handshake half applied, naming no HelloReply
+            self.phase = Phase.INCOMPATIBLE
+            self.failure = HandshakeError(
+                f"the board's HelloReply carries an identity no accessory has ({exc}): not a board this "
+                "host can name or command"
+            )
+            return
         ours = (PROTOCOL_VERSION, self.config.schema_hash)
         if (reply.protocol_version, reply.schema_hash) != ours:
             self.phase = Phase.INCOMPATIBLE
