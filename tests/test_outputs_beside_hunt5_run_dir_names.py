@@ -131,3 +131,33 @@ def test_a_run_directory_name_taken_by_a_link_to_nothing_moves_on_to_the_next(tm
     assert run_dir.name.endswith("-cubesat-1u-2")
     assert json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))["exit"] == "completed"
     assert all(link.is_symlink() and not link.exists() for link in links)
+
+
+@pytest.mark.parametrize("letter", ["a", "é", "𝐀"])
+def test_a_replay_of_a_log_with_a_name_near_the_limit_writes_its_default_folder(tmp_path, letter):
+    """``hil replay LOG`` writes to ``runs/replay-<log name>``: a log named with 249 or more bytes (a
+    name the file system holds) made a folder name past 255 bytes, "File name too long". The name is cut,
+    in whole letters, to fit."""
+    log = (
+        Path(__file__).resolve().parents[2]
+        / "shared"
+        / "data"
+        / "broad"
+        / "01_undisturbed_slow_rotation_A.mat"
+    )
+    if not log.is_file():
+        pytest.skip(f"the shared data is not beside the project: {log}")
+    stem = letter * ((255 - len(".mat")) // len(letter.encode()))
+    named = tmp_path / f"{stem}.mat"
+    named.write_bytes(log.read_bytes())  # a copy: a link's name is resolved to its target's
+    done = subprocess.run(
+        [sys.executable, "-m", "hil", "replay", named.name, "--no-plots", "--window", "0", "20"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
+    assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr[-2000:]
+    (folder,) = (tmp_path / "runs").iterdir()
+    assert folder.name.startswith(f"replay-{letter}") and len(os.fsencode(folder.name)) <= 255
+    assert (folder / "summary.json").is_file() and (folder / "estimates.csv").is_file()

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hil.cli._parser import given_path
+from hil.files.output import fit_name
 
 if TYPE_CHECKING:
     from hil.estimation.registry import EstimatorChoice
@@ -224,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
                 'scenario (a board driven by the log: --port URL, e.g. --port "emu://?units=4")',
                 option,
             )
-    out = args.out or Path("runs") / f"replay-{name}"
+    out = args.out or Path("runs") / fit_name(f"replay-{name}")  # a log's name of 249+ bytes: too long
     show = args.progress or sys.stderr.isatty()
     options = ReplayOptions(
         out_dir=out,

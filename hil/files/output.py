@@ -113,10 +113,20 @@ def safe_label(label: str) -> str:
     :data:`MAX_LABEL_BYTES` of their bytes (whole letters)."""
     encoding = sys.getfilesystemencoding()
     safe = "".join(c if (c.isalnum() and _nameable(c, encoding)) or c in "-_." else "_" for c in label)
-    safe = safe[:MAX_LABEL]
-    while len(safe.encode(encoding)) > MAX_LABEL_BYTES:
-        safe = safe[:-1]
-    return safe or "run"
+    return fit_name(safe[:MAX_LABEL], MAX_LABEL_BYTES) or "run"
+
+
+NAME_MAX_BYTES = 255
+"""The longest name of one file or folder, in bytes (Linux's ``NAME_MAX``; most file systems')."""
+
+
+def fit_name(name: str, limit: int = NAME_MAX_BYTES) -> str:
+    """``name`` cut at its end, in whole letters, to ``limit`` bytes as the file system names files
+    (:func:`os.fsencode`): a name made of a user's (a log's, a scenario's) with a prefix or suffix added
+    can pass the file system's limit, and the command then failed on "File name too long"."""
+    while len(os.fsencode(name)) > limit:
+        name = name[:-1]
+    return name
 
 
 def _nameable(char: str, encoding: str) -> bool:
