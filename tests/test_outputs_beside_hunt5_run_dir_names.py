@@ -161,3 +161,18 @@ def test_a_replay_of_a_log_with_a_name_near_the_limit_writes_its_default_folder(
     (folder,) = (tmp_path / "runs").iterdir()
     assert folder.name.startswith(f"replay-{letter}") and len(os.fsencode(folder.name)) <= 255
     assert (folder / "summary.json").is_file() and (folder / "estimates.csv").is_file()
+
+
+@pytest.mark.parametrize("letter", ["a", "é", "𝐀"])
+def test_a_file_named_near_the_limit_is_replaced_whole(tmp_path, letter):
+    """Every output is written beside its file and renamed over it: the temporary name took 64 letters
+    of the file's name, and 64 four-byte letters with mkstemp's additions passed 255 bytes — a file the
+    file system holds could not be written ("File name too long")."""
+    from hil.files.output import replace_file
+
+    name = letter * ((255 - len(".png")) // len(letter.encode())) + ".png"
+    target = tmp_path / name
+    for content in (b"first", b"second"):
+        replace_file(target, lambda f, content=content: f.write(content))
+        assert target.read_bytes() == content
+    assert [p.name for p in tmp_path.iterdir()] == [name]  # no temporary file left

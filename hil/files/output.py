@@ -185,7 +185,8 @@ def replace_file(path: str | os.PathLike[str], write: Callable[[IO[bytes]], obje
     out = Path(path)
     tmp: str | None = None
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{out.name[:64]}.", suffix=".tmp", dir=out.parent)
+        # the name cut in bytes: 64 letters of four bytes and mkstemp's additions passed 255 bytes
+        fd, tmp = tempfile.mkstemp(prefix=f".{fit_name(out.name, 200)}.", suffix=".tmp", dir=out.parent)
         with os.fdopen(fd, "wb") as f:
             os.fchmod(f.fileno(), 0o666 & ~_umask())  # mkstemp's 0600: readable as any file hil writes
             write(f)
