@@ -136,11 +136,28 @@ def _envelopes(traces: NDArray[np.float32], trace_hz: float, settle_deg: float, 
                 ax.axhline(settle_deg, color="r", ls="--", lw=0.8, label="settle requirement")
             ax.set_yscale("log")
             ax.set_ylabel("deg")
-            ax.set_title(f"{titles.get(name, name)} across {len(runs)} runs", fontsize=10)
+            ax.set_title(f"{titles.get(name, name)} across {_runs_traced(runs)}", fontsize=10)
             ax.grid(alpha=0.3, which="both")
             ax.legend(fontsize=7, loc="upper right")
     axes[-1].set_xlabel("time from the slew's start (s)")
     return _save(fig, path)
+
+
+def _runs_traced(runs: NDArray[np.float64]) -> str:
+    """How many runs (rows of ``runs``, (runs, samples), NaN past a run's end) an envelope is drawn
+    across, said honestly: "across 24 runs" was said of an envelope whose later part only some of them
+    reach (a run that failed or was cut short ends its trace there), or none (a run that failed before
+    its slew); how many reach the end, and how many have no trace at all, are said beside."""
+    finite = np.isfinite(runs)
+    traced = int(np.count_nonzero(finite.any(axis=1)))
+    at_end = int(np.count_nonzero(finite[:, -1])) if runs.shape[1] else 0
+    said = f"{len(runs)} runs"
+    notes = []
+    if at_end < traced:
+        notes.append(f"{traced - at_end} ended early: {at_end} at the end")
+    if traced < len(runs):
+        notes.append(f"{len(runs) - traced} with no trace")
+    return f"{said} ({'; '.join(notes)})" if notes else said
 
 
 def _scatter(results: Results, metric: str, path: Path) -> Path:
