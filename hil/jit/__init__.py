@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib
+import logging
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -49,6 +50,8 @@ from types import ModuleType
 from typing import Any, TypeVar, cast
 
 from . import ahead
+
+logger = logging.getLogger(__name__)
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -340,7 +343,77 @@ def _cache_class(home: str | None) -> type | None:
 
     locators = [stamped(user_dir), stamped(in_tree), *impl._locator_classes]
     stamped_impl = type("StampedCacheImpl", (impl,), {"_locator_classes": locators})
-    return type("StampedFunctionCache", (function_cache,), {"_impl_class": stamped_impl})
+    return type(
+        "StampedFunctionCache", (_CheckedFunctionCache, function_cache), {"_impl_class": stamped_impl}
+    )
+
+
+class _CheckedFunctionCache:
+    """numba's function cache (the class after it in a subclass's bases) made to survive its own files.
+
+    numba unpickles its index (``.nbi``) and data (``.nbc``) files unchecked and writes them unguarded: a
+    file cut short (a disk that filled, a power cut after numba's rename and before the data reached the
+    disk, an interrupted copy of the cache), emptied, replaced by a directory or by anything else raised
+    ``UnpicklingError``/``EOFError``/``IsADirectoryError`` out of a kernel's first call, in every run
+    until the file was deleted by hand; a cache that cannot be written (a full disk) raised after the
+    compile. Here an unreadable index counts as an empty one and an unreadable entry as a missing one
+    (both logged with their folder): the kernel is compiled again, and saving it rewrites the files. A
+    save that fails is logged and the compiled kernel runs: the next process compiles it again."""
+
+    _impl: Any
+    _py_func: Callable[..., Any]
+    _cache_path: str
+    _cache_file: Any
+
+    def __init__(self, py_func: Callable[..., Any]) -> None:
+        super().__init__(py_func)  # type: ignore[call-arg]
+        unchecked: Any = type(self._cache_file)
+        self._cache_file = _checked_cache_file(unchecked)(
+            cache_path=self._cache_path,
+            filename_base=self._impl.filename_base,
+            source_stamp=self._impl.locator.get_source_stamp(),
+        )
+
+    @property
+    def _kernel_name(self) -> str:
+        return f"{self._py_func.__module__}.{self._py_func.__qualname__}"
+
+    def load_overload(self, sig: Any, target_context: Any) -> Any:
+        try:
+            return super().load_overload(sig, target_context)  # type: ignore[misc]
+        except Exception as exc:  # an entry that unpickles to what numba cannot rebuild: anything
+            logger.warning(
+                "numba's cache of %s in %s is not usable (compiled again): %s: %s",
+                self._kernel_name, self._cache_path, type(exc).__name__, exc,
+            )  # fmt: skip
+            return None
+
+    def save_overload(self, sig: Any, data: Any) -> None:
+        try:
+            super().save_overload(sig, data)  # type: ignore[misc]
+        except OSError as exc:  # a full disk, a read-only or vanished folder, a directory in a file's place
+            logger.warning(
+                "cannot save %s in numba's cache %s (each process compiles it again): %s",
+                self._kernel_name, self._cache_path, exc,
+            )  # fmt: skip
+
+
+@functools.cache
+def _checked_cache_file(unchecked: Any) -> type:
+    """numba's index-and-data cache file ``unchecked`` whose index, when it cannot be read or unpickled,
+    counts as empty (as numba counts one of another numba version), logged with its path."""
+
+    def _load_index(self: Any) -> dict[Any, Any]:
+        try:
+            return cast(dict[Any, Any], unchecked._load_index(self))
+        except Exception as exc:  # unpickling a truncated or foreign file raises anything
+            logger.warning(
+                "numba's cache index %s is not usable (compiled again, the index rewritten): %s: %s",
+                self._index_path, type(exc).__name__, exc,
+            )  # fmt: skip
+            return {}
+
+    return type(f"Checked{unchecked.__name__}", (unchecked,), {"_load_index": _load_index})
 
 
 __all__ = ["COMPILED", "STAMPED", "Kernel", "direct", "home", "jitable", "kernel", "kernels", "tree_stamp"]

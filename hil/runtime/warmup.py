@@ -64,8 +64,10 @@ def warm(
     what is missing itself. ``transports`` (scheme → ``"module:factory"``) are registered in the world's
     child first: for a tree not installed yet, whose entry points do not resolve (the install's build).
     With ``ahead_of_time`` (the install's), each side then also builds the kernels it called into an
-    extension module where there is no build of the present sources yet (:func:`build_ahead`)."""
-    if not needed() and not ahead_of_time:
+    extension module where there is no build of the present sources yet (:func:`build_ahead`). Nothing
+    when compiling is switched off (``NUMBA_DISABLE_JIT=1``): there is nothing to compile or build, and
+    stepping the world and the filter as plain Python would only take time."""
+    if not jit.COMPILED or (not needed() and not ahead_of_time):
         return None
     start = time.monotonic()
     was_needed = needed()
@@ -238,6 +240,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
         from hil.scenario import load_scenario
 
         took = warm(load_scenario(), transports, ahead_of_time=True)
+        if not jit.COMPILED:  # not "in the cache already": nothing is compiled, nor needs to be
+            sys.stdout.write("kernels: not compiled (compiling is switched off: NUMBA_DISABLE_JIT=1)\n")
+            return 0
         said = "in the cache already" if took is None else f"compiled in {took:.1f} s"
         sys.stdout.write(f"kernels: {said}\n")
         return 0 if not needed() else 1
