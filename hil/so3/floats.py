@@ -86,14 +86,21 @@ def _turn_of_long_vector(px: float, py: float, pz: float) -> tuple[float, float,
 
 
 @jitable
+def _rodrigues_turn(px: float, py: float, pz: float) -> tuple[float, float, float, float, float]:
+    """``(a, b, x, y, z)`` with ``exp(φ^×) = I + a v^× + b (v^×)²`` for ``v = (x, y, z)``: ``φ`` itself and
+    :func:`rodrigues_coefficients`, or, for a finite ``φ`` too long to square, the same turn about its
+    unit axis (:func:`_turn_of_long_vector`). :func:`exp_f` and :func:`rotate_f` both start here."""
+    theta2 = px * px + py * py + pz * pz
+    if theta2 == math.inf:
+        return _turn_of_long_vector(px, py, pz)
+    a, b, _ = rodrigues_coefficients(theta2)
+    return a, b, px, py, pz
+
+
+@jitable
 def rotate_f(px: float, py: float, pz: float, vx: float, vy: float, vz: float) -> Vec3:
     """``exp(φ^×) v`` for ``φ = (px, py, pz)`` without forming the matrix (Rodrigues on the vector)."""
-    theta2 = px * px + py * py + pz * pz
-    if theta2 == math.inf:  # a finite φ too long to square: the same turn about its unit axis
-        sin_theta, versine, px, py, pz = _turn_of_long_vector(px, py, pz)
-        a, b = sin_theta, versine
-    else:
-        a, b, _ = rodrigues_coefficients(theta2)
+    a, b, px, py, pz = _rodrigues_turn(px, py, pz)
     cx = py * vz - pz * vy
     cy = pz * vx - px * vz
     cz = px * vy - py * vx
@@ -107,12 +114,7 @@ def rotate_f(px: float, py: float, pz: float, vx: float, vy: float, vz: float) -
 @jitable
 def exp_f(px: float, py: float, pz: float) -> Mat9:
     """``exp(φ^×)`` as a row-major 9-tuple (Rodrigues); a rotation for every finite ``φ`` (rad)."""
-    theta2 = px * px + py * py + pz * pz
-    if theta2 == math.inf:  # a finite φ too long to square: the same turn about its unit axis
-        sin_theta, versine, px, py, pz = _turn_of_long_vector(px, py, pz)
-        a, b = sin_theta, versine
-    else:
-        a, b, _ = rodrigues_coefficients(theta2)
+    a, b, px, py, pz = _rodrigues_turn(px, py, pz)
     xx, yy, zz, xy, xz, yz = px * px, py * py, pz * pz, px * py, px * pz, py * pz
     return (
         1.0 - b * (yy + zz), b * xy - a * pz, b * xz + a * py,
