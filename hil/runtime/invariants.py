@@ -30,10 +30,11 @@ invariant                   holds when
 ==========================  ==========================================================================
 
 A fault the host *cannot* see is not expected to be reported (it is listed with the unseen): one that
-lands while the link is already down (masked by another), one too short to matter (a stall no longer than
-the board's link timeout; one longer is told by an ARMED board's failsafe if not by a stale view), a dead
-rotor ESC with no stretch of :data:`DEAD_ESC_S` after it of the board live and ARMED, or one too close to
-the run's end for its bound to pass. Faults that overlap are held to what the host can honestly tell:
+lands while the link is already down (masked by another — but for its reset, which the board tells once
+it is heard again), one too short to matter (a stall no longer than the board's link timeout; one longer
+is told by an ARMED board's failsafe if not by a stale view), a dead rotor ESC with no stretch of
+:data:`DEAD_ESC_S` after it of the board live and ARMED, or one too close to the run's end for its bound
+to pass. Faults that overlap are held to what the host can honestly tell:
 
 * a report another fault held back is due that much later: a stall or an unplug blocks the board's
   reports; a phone gap blocks a clock jump's (told only by readings on the new clock);
@@ -445,8 +446,11 @@ def _detected(
                 continue
             expected = [_Expect(e.kinds, dead_due - fault.t, e.cause, e.reason) for e in expected]
         elif _masked(fault, rows, bounds, sessions, outages):
-            report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
-            continue
+            told = _told_though_masked(fault, expected, sessions)
+            if not told:
+                report.unseen.append(f"{fault.describe()} (masked: the host could not see the board then)")
+                continue
+            expected = told  # its silence hidden by the one already on; its reset told all the same
         episode = next((ep for ep in episodes if any(fault is f for f in (ep.leader, *ep.merged))), None)
         if episode is not None and fault is not episode.leader:
             report.unseen.append(
@@ -782,6 +786,21 @@ def _masked(
     start = max((s for s in sessions if s <= fault.t), default=-math.inf)
     seen = (t >= start) & (t <= fault.t) & (rows["board_link"] == BoardLink.LIVE)
     return bool(seen.any() or not fault.t - start < bounds.stale_after_s or _out_at(fault.t, outages))
+
+
+def _told_though_masked(
+    fault: InjectedFault, expected: Sequence[_Expect], sessions: Sequence[float]
+) -> list[_Expect]:
+    """What still reports a board fault that came while the host could not see the board (:func:`_masked`):
+    a reset (a hang's, a brown-out's, an unplug's), whose cause the board tells by itself in its first
+    frames once the host hears it again — its silence is hidden by the silence already on, its reset is
+    not. (Before, nothing was expected of a hang or a brown-out in a stall or in heavy byte damage, or of
+    one after the first handshake while the run's first Arm went unanswered, before its first row; a
+    host that never told the reset passed.) Nothing before the first handshake (``sessions``: their
+    times, s): the host may never have heard the board before it reset."""
+    if fault.kind not in RESETTING or not any(s <= fault.t for s in sessions):
+        return []
+    return [e for e in expected if "reset" in e.kinds]
 
 
 def _out_at(t: float, outages: Sequence[Mapping[str, Any]]) -> bool:
