@@ -14,8 +14,13 @@ F32_MAX = 3.4028234663852886e38
 
 
 def f32(x: float) -> float:
-    """``x`` rounded to the nearest IEEE-754 binary32 (what the binary format stores)."""
-    value: float = _F32.unpack(_F32.pack(x))[0]
+    """``x`` rounded to the nearest IEEE-754 binary32 (what the binary format stores, and what a float32
+    operation of float32 operands yields when ``x`` is the exact or double result): beyond float32's range,
+    ±inf, as in C (``struct`` raises ``OverflowError`` there instead)."""
+    try:
+        value: float = _F32.unpack(_F32.pack(x))[0]
+    except OverflowError:
+        return math.copysign(math.inf, x)
     return value
 
 
@@ -28,14 +33,21 @@ def finite32(value: object, where: str) -> float:
         x = float(value)  # type: ignore[arg-type]
     except (TypeError, ValueError) as exc:
         raise CalibrationError(f"{value!r} is not a number", where) from exc
+    except OverflowError as exc:  # an integer beyond any float (10**400): repr refuses 4300+ digits
+        raise CalibrationError("an integer beyond a float's range is not a finite float32", where) from exc
     if not math.isfinite(x) or abs(x) > F32_MAX:
         raise CalibrationError(f"{value!r} is not a finite float32", where)
     return f32(x)
 
 
 def require_finite(value: float, what: str, name: str) -> float:
-    """``value`` as a float, or :class:`FieldRangeError` naming ``what.name`` if it is NaN or infinite."""
-    x = float(value)
+    """``value`` as a float, or :class:`FieldRangeError` naming ``what.name`` if it is NaN, infinite, or an
+    integer beyond a float's range (which ``float()`` refuses with a bare ``OverflowError``; the error then
+    carries it as ±inf, as far as a float goes, since ``repr`` of an integer past 4300 digits raises)."""
+    try:
+        x = float(value)
+    except OverflowError as exc:
+        raise FieldRangeError(what, name, math.inf if value > 0 else -math.inf) from exc
     if not math.isfinite(x):
         raise FieldRangeError(what, name, value)
     return x

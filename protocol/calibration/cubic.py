@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ..errors import CalibrationError
-from .checks import f32, finite32
+from .checks import F32_MAX, f32, finite32
 from .conversion import Clamp, Conversion
 
 MAX_KNOTS = 16
@@ -33,6 +33,9 @@ SLOPE_TOLERANCE = 1e-5
 """Relative slack on the ``|m| ≤ 3|δ|`` check when *validating* stored slopes (float32 rounding)."""
 
 _U32 = struct.Struct("<I")
+_SLOPE_SLACK = f32(1.0 + f32(SLOPE_TOLERANCE))  # the firmware's ``1.0f + SLOPE_TOLERANCE``
+_BIG_VALUE = 2.0**64
+_SMALL_VALUE = 2.0**-64
 
 
 @dataclass(frozen=True, slots=True)
@@ -212,7 +215,13 @@ def _sign(v: float) -> int:
 def _check_interval(
     k: int, x: tuple[float, ...], y: tuple[float, ...], m: tuple[float, ...], rising: bool
 ) -> None:
-    """Strictly monotone in the table's direction, and slopes inside the box that keeps the cubic monotone."""
+    """Strictly monotone in the table's direction, and slopes inside the box that keeps the cubic monotone.
+
+    The box is checked in float32, operation by operation, in the interval's scale (:func:`_interval_scale`),
+    exactly as the firmware's ``check_table`` (``firmware/src/calib.c``) checks it: a yes/no has no
+    tolerance, and in double the two readers split on slopes within a rounding of the box's edge (the
+    emulator took a set the firmware refused with ``CAL_BAD_SLOPE``, and refused sets the firmware took,
+    so a board's set could not be read back)."""
     d = y[k + 1] - y[k]
     if (d <= 0.0) if rising else (d >= 0.0):
         raise CalibrationError(
@@ -220,23 +229,52 @@ def _check_interval(
             f" {'rising' if rising else 'falling'} table: not strictly monotone",
             f"y[{k + 1}]",
         )
-    secant = d / (x[k + 1] - x[k])
+    scale, secant, limit = _slope_box(k, x, y)
     for j in (k, k + 1):
-        if m[j] * secant < 0.0 or abs(m[j]) > 3.0 * abs(secant) * (1.0 + SLOPE_TOLERANCE):
+        if (m[j] < 0.0 < secant) or (m[j] > 0.0 > secant) or f32(abs(m[j]) * scale) > limit:
             raise CalibrationError(
-                f"slope {m[j]!r} is outside 0..3x the secant {secant!r} of interval {k}: the cubic would not"
-                " be monotone",
+                f"slope {m[j]!r} is outside 0..3x the secant {d / (x[k + 1] - x[k])!r} of interval {k}: the"
+                " cubic would not be monotone",
                 f"slope[{j}]",
             )
 
 
+def _slope_box(k: int, x: tuple[float, ...], y: tuple[float, ...]) -> tuple[float, float, float]:
+    """(scale, secant, limit) of interval ``k`` as the firmware computes them, in float32: a knot slope
+    ``m`` fits the interval's box when it has the secant's sign (any, if the secant underflowed to 0) and
+    ``f32(|m|·scale) <= limit``. ``secant`` and ``limit`` are in the interval's scale; ``limit`` is 3× the
+    secant with the readers' rounding slack."""
+    scale = _interval_scale(y[k], y[k + 1])
+    scaled = f32(f32(y[k + 1] * scale) - f32(y[k] * scale))
+    secant = f32(scaled / f32(x[k + 1] - x[k]))
+    return scale, secant, f32(f32(3.0 * abs(secant)) * _SLOPE_SLACK)
+
+
+def _interval_scale(y0: float, y1: float) -> float:
+    """The power of two the firmware takes an interval's values at (``calib.c``: ``interval_scale``):
+    2^-64 when one lies beyond 2^64, 2^64 when both lie below 2^-64, else 1. Exact, so float32 arithmetic
+    on the scaled values neither overflows nor loses a subnormal's bits."""
+    top = max(abs(y0), abs(y1))
+    return _SMALL_VALUE if top >= _BIG_VALUE else (_BIG_VALUE if top < _SMALL_VALUE else 1.0)
+
+
 def _limit_slope(k: int, x: tuple[float, ...], y: tuple[float, ...], slope: float) -> float:
-    """``slope`` rounded to float32 and, if rounding pushed it past 3× a neighbouring secant, stepped back."""
-    limit = math.inf
+    """``slope`` rounded to float32 and, if rounding pushed it past 3× a neighbouring secant, stepped back.
+
+    A slope beyond float32's range is taken at ±``F32_MAX``: knots close in x with values far apart (a
+    secant of 1e39 rad/µs, a table spanning ±3e38) make PCHIP slopes no float32 holds, and rounding one
+    raised a bare ``OverflowError`` (``hil calibrate show`` of such a file ended in a traceback). Any slope
+    of the secants' sign up to 3× the smaller secant keeps the cubic monotone, so ``F32_MAX`` — below
+    3× a secant that large — is as valid a knot slope as PCHIP's, and it is one the binary set stores.
+    The slope is also kept inside the box as the readers check it in float32 (:func:`_slope_box`), which
+    is tighter than 3× the secant only where that secant is a float32 subnormal.
+    """
+    limit = F32_MAX
     for j in (k - 1, k):
         if 0 <= j < len(x) - 1:
-            limit = min(limit, 3.0 * abs((y[j + 1] - y[j]) / (x[j + 1] - x[j])))
-    m = f32(slope)
+            scale, _, box = _slope_box(j, x, y)
+            limit = min(limit, 3.0 * abs((y[j + 1] - y[j]) / (x[j + 1] - x[j])), box / scale)
+    m = f32(math.copysign(min(abs(slope), limit), slope))
     while abs(m) > limit:
         m = _f32_toward_zero(m)
     return m

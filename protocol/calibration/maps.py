@@ -28,11 +28,12 @@ gimbal turning at full rate under a rate-0 command.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from ..errors import CalibrationError
 from ..messages import PULSE_MAX_US, PULSE_MIN_US
-from .checks import finite32, require_finite
+from .checks import f32, finite32, require_finite
 from .conversion import Clamp, Conversion
 from .cubic import MonotoneCubic
 
@@ -73,9 +74,13 @@ class EscThrottleMap:
                 f"need {PULSE_MIN_US} <= low_us < high_us <= {PULSE_MAX_US} µs (got {low:g}, {high:g})",
                 "low_us",
             )
-        if not 0.0 <= dead < 0.5 * (high - low):
+        # Half the span as the firmware's cal_validate computes it, in float32 (``high - low`` rounded):
+        # in double a deadband within a rounding of half the span passed here and was refused by the board
+        # (NACK BAD_CALIBRATION for a set ``hil calibrate show`` called valid).
+        half_span = 0.5 * f32(high - low)
+        if not 0.0 <= dead < half_span:
             raise CalibrationError(
-                f"{dead:g} µs; need 0 <= deadband_us < half the endpoint span ({0.5 * (high - low):g} µs)",
+                f"{dead:.9g} µs; need 0 <= deadband_us < half the endpoint span ({half_span:.9g} µs)",
                 "deadband_us",
             )
         object.__setattr__(self, "low_us", low)
@@ -148,7 +153,13 @@ class RotorSpeedMap:
     def pulse(self, speed_rad_s: float, battery_v: float) -> Conversion:
         """The pulse (µs) whose steady no-load speed at ``battery_v`` is ``speed_rad_s``. Speed 0 is the
         minimum-throttle pulse; a negative speed (the ESC cannot reverse) or one above full speed is
-        clamped and flagged."""
+        clamped and flagged.
+
+        Any positive speed gets a throttle above 0, at least the deadband's end (``esc.start_us``), never
+        the arming pulse ``low_us`` that stops the motor (the firmware's ``cal_rotor_pulse_us`` does the
+        same). A fraction ``speed / (KV·V)`` that underflows to 0 (a speed of 1e-320 rad/s), and a
+        full-throttle speed ``KV·V`` that overflows to inf (a battery reading of 1e308 V, which made the
+        fraction 0), both gave ``low_us``, unflagged, for a rotor asked to turn."""
         w = require_finite(speed_rad_s, "RotorSpeedMap.pulse", "speed_rad_s")
         v = require_finite(battery_v, "RotorSpeedMap.pulse", "battery_v")
         esc = self.esc
@@ -156,11 +167,12 @@ class RotorSpeedMap:
             return Conversion(esc.low_us, Clamp.LOW if w < 0.0 else Clamp.NONE)
         if v < MIN_SUPPLY_V:
             return Conversion(esc.low_us, Clamp.HIGH)
-        phi = w / (self.kv_rad_s_per_v * v)
+        full = self.kv_rad_s_per_v * v  # rad/s at full throttle
+        phi = w / full if full < math.inf else w / self.kv_rad_s_per_v / v
         if phi >= 1.0:
             return Conversion(esc.high_us, Clamp.HIGH if phi > 1.0 else Clamp.NONE)
-        tau = self.curve.solve(phi).value
-        return Conversion(esc.pulse(tau).value)
+        tau = self.curve.solve(phi).value if phi > 0.0 else 0.0
+        return Conversion(esc.pulse(tau).value if tau > 0.0 else esc.start_us)
 
 
 @dataclass(frozen=True, slots=True)
