@@ -63,7 +63,7 @@ corrupt = 0.001
 
 [manoeuvre]                    # a rest-to-rest eigenaxis slew
 axis = [1.0, 2.0, 2.0]
-angle_deg = 90.0
+angle_deg = 90.0                # deg, within ±180 (flown the short way)
 max_rate = 0.15                # rad/s
 max_accel = 0.025              # rad/s²
 initial_axis = [0, 0, 1]       # the start attitude (default: identity)

@@ -4,6 +4,7 @@ every key and value, and builds the parts; every error names ``file: table.key``
 from __future__ import annotations
 
 import math
+import unicodedata
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -137,8 +138,22 @@ MAX_DURATION_S = 86_400.0
 MAX_PLANT_STEPS = 100_000_000
 """The most plant steps a run may take (its warm-up and duration over ``plant_step_s``): a day at 1 ms is
 86.4 million. A lockstep run takes a few hours for that many; more is a run that never ends."""
+MAX_NAME_CHARS = 200
+"""The longest ``[scenario] name`` (characters): one line on a terminal, a run directory's label (cut
+further there, :func:`hil.files.output.safe_label`)."""
 MIN_SKEW_DEG = 5.0
+MIN_CUSTOM_UNITS = 3
+"""The fewest units of a custom array, as of a pyramid (:func:`hil.vscmg.geometry.pyramid`): the CMG
+Jacobian D1 is 3 × n, so with two units its rank is at most 2 and the singularity measure δ is 0 at every
+gimbal angle. A custom array of two (on axes x and y) was taken: its run steered on the rotors' torque alone
+and "completed" 20 deg off, δ 0 throughout."""
 MAX_ANGLE_DEG = 360.0
+"""deg: the most an attitude (``manoeuvre.initial_angle_deg``) or a gimbal angle may be turned, either way."""
+MAX_SLEW_DEG = 180.0
+"""deg: the most ``manoeuvre.angle_deg`` may turn, either way. The slew is rest-to-rest between two
+attitudes and the host flies it the short way (:class:`hil.control.attitude.EigenaxisSlew` plans from the
+rotation between them): a turn of 270 deg about an axis was flown, unsaid, as 90 deg about the opposite
+one (its ``slew_start`` event said 91 deg), and 360 deg as no turn at all."""
 
 RANGES: dict[str, tuple[float, float, str]] = {
     "spacecraft.rotor_offset_m": (-0.1, 0.1, "m"),
@@ -161,7 +176,7 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "controller.wheel_weight": (0.0, 1e6, ""),
     "controller.mu": (0.0, 1e6, ""),
     "controller.warmup_s": (0.0, 600.0, "s"),
-    "manoeuvre.angle_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
+    "manoeuvre.angle_deg": (-MAX_SLEW_DEG, MAX_SLEW_DEG, "deg"),
     "manoeuvre.initial_angle_deg": (-MAX_ANGLE_DEG, MAX_ANGLE_DEG, "deg"),
     "manoeuvre.axis": (-1e6, 1e6, ""),
     "manoeuvre.initial_axis": (-1e6, 1e6, ""),
@@ -179,6 +194,15 @@ project models (a 1U CubeSat to an air-bearing table; phone sensors to 1 kHz), n
 makes a run that cannot end or cannot be simulated (a plant step of 1e-12 s, a warm-up of 1e9 s). Checked
 as the file is read: an error names the file and the key. The board's options have their own,
 :data:`BOARD_RANGES`."""
+
+RANGE_REASONS: dict[str, str] = {
+    "manoeuvre.angle_deg": (
+        "the slew is flown the short way to its target attitude, so 270 deg about an axis would be 90 deg "
+        "about the opposite one and 360 deg no turn at all; write the turn to fly (e.g. -90)"
+    ),
+}
+"""Why a bound of :data:`RANGES` is where it is, said with the error where the number alone would not tell
+what the file meant against what a run would do."""
 
 
 def check_run_length(warmup_s: float, duration_s: float, plant_step_s: float, where: str) -> None:
@@ -279,8 +303,11 @@ class _Reader:
         bounds = RANGES.get(f"{pattern}.{key}")
         if bounds is not None and not bounds[0] <= value <= bounds[1]:
             lo, hi, unit = bounds
+            why = RANGE_REASONS.get(f"{pattern}.{key}")
             raise self.error(
-                f"{table}.{key}", f"must be within {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {value!r}"
+                f"{table}.{key}",
+                f"must be within {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {value!r}"
+                + (f": {why}" if why else ""),
             )
 
     def vector(self, tbl: dict[str, Any], table: str, key: str, shape: tuple[int, ...]) -> np.ndarray:
@@ -299,19 +326,38 @@ class _Reader:
             raise self.error(f"{table}.{key}", f"must be one of {', '.join(options)}; got {value!r}")
         return str(value)
 
-    def text(self, tbl: dict[str, Any], table: str, key: str, limit: int = 2000) -> str:
-        """A string at ``table.key`` ("" when absent), at most ``limit`` characters."""
+    def text(
+        self, tbl: dict[str, Any], table: str, key: str, limit: int = 2000, one_line: bool = False
+    ) -> str:
+        """A string at ``table.key`` ("" when absent), at most ``limit`` characters, of printable
+        characters and spaces only (line breaks and tabs too unless ``one_line``); no control or format
+        character (an escape, a bidirectional override, a line separator). The scenario's name and
+        description are printed to the terminal as a run starts (``hil run``, ``hil report``) and written
+        into every run's summary and every campaign's manifest: a TOML escape such as
+        ``"\\u001b]0;…\\u0007"`` was the terminal's command, a name of 15 million characters went whole
+        into each of them."""
         value = tbl.get(key, "")
         if not isinstance(value, str) or len(value) > limit:
             raise self.error(f"{table}.{key}", f"must be a string of at most {limit} characters")
+        allowed = "" if one_line else "\n\t"
+        unprintable = sorted(
+            {c for c in value if not (c.isprintable() or c in allowed or unicodedata.category(c) == "Zs")}
+        )
+        if unprintable:
+            codes = ", ".join(f"U+{ord(c):04X}" for c in unprintable[:5])
+            lines = "" if one_line else " (a line break or tab aside)"
+            raise self.error(
+                f"{table}.{key}",
+                f"must be printable text{lines}; has the control or format character(s) {codes}",
+            )
         return value
 
     # ------------------------------------------------------------------ the tables
     def scenario(self, text: str, path: Path | None) -> Scenario:
         head = self.table("scenario")
-        name = head.get("name")
-        if not isinstance(name, str) or not name:
+        if not isinstance(head.get("name"), str) or not head["name"].strip():
             raise self.error("scenario.name", "required: a non-empty string")
+        name = self.text(head, "scenario", "name", limit=MAX_NAME_CHARS, one_line=True)
         seed = head.get("seed", 0)
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
             raise self.error("scenario.seed", f"must be a non-negative integer, got {seed!r}")
@@ -478,8 +524,15 @@ class _Reader:
         """A closed-loop run steers about three axes: a unit's torque (its gimbal's and its rotor's) lies in
         the plane across its gimbal axis, so the array has three-axis authority only if two of its gimbal
         axes are :data:`MIN_SKEW_DEG` or more apart (one unit, or units on parallel axes, turn the
-        spacecraft about two axes at most: such a run "completed" 60-88 deg off)."""
-        g = gimbal_axes / np.linalg.norm(gimbal_axes, axis=1, keepdims=True)
+        spacecraft about two axes at most: such a run "completed" 60-88 deg off), and as CMGs only with
+        :data:`MIN_CUSTOM_UNITS` or more units."""
+        lengths = np.linalg.norm(gimbal_axes, axis=1, keepdims=True)
+        zero = np.flatnonzero(lengths.ravel() == 0.0)
+        if zero.size:
+            # divided by, it printed numpy's divide warnings, with this module's source lines, on the
+            # user's terminal ahead of the error (the length of [1e-300, 0, 0] underflows to 0 too)
+            raise self.error("array.gimbal_axes", f"unit {zero[0]}: a zero vector (axes are unit vectors)")
+        g = gimbal_axes / lengths
         apart = max(
             (float(np.linalg.norm(np.cross(a, b))) for i, a in enumerate(g) for b in g[i + 1 :]), default=0.0
         )
@@ -488,6 +541,13 @@ class _Reader:
                 "array.gimbal_axes",
                 f"the gimbal axes are all parallel (within {MIN_SKEW_DEG:g} deg): the array's torque lies in "
                 "one plane, no three-axis control; give units on at least two axes apart",
+            )
+        if len(g) < MIN_CUSTOM_UNITS:
+            raise self.error(
+                "array.gimbal_axes",
+                f"{len(g)} units: their gimbal torques span at most a plane at any gimbal angle, so the "
+                "array is singular throughout (δ = det(D1 D1ᵀ) = 0, as for a pyramid of 2, refused); "
+                f"give at least {MIN_CUSTOM_UNITS} units",
             )
 
     def sensors(self) -> PhoneSpec:
