@@ -36,5 +36,11 @@ uint16_t pulses_reported_us(uint32_t width_fine);
 uint8_t pulses_frame_started(void);
 /* The frame period actually generated (us), from the timer's TOP. */
 float pulses_period_s(void);
+/* Low time (0.5 us ticks) every frame keeps after its pulse: a width that reaches the frame's end (a
+ * 2500 us pulse in a 490 Hz frame of 2041 us) leaves OCRnx at or past TOP, and fast-PWM mode 14 then
+ * never clears the pin: a constant high, no pulse at all to a servo or ESC. */
+#define PULSE_GAP_TICKS 40u /* 20 us; firmware_sim/board/config.py PULSE_GAP_US */
+/* The longest fine width the frame holds: its period less PULSE_GAP_TICKS, whatever the dither carries. */
+uint32_t pulses_longest_fine(void);
 
 #endif /* PULSES_H */

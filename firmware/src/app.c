@@ -262,6 +262,14 @@ static void compute_outputs(uint32_t *out, uint8_t state)
                 clamped = 1;
             }
         }
+        /* no width past the frame's end: at 490 Hz a 2500 us raw pulse or map width held the pin high for
+         * good (firmware_sim/board/config.py: longest_pulse_fine) */
+        uint32_t longest = pulses_longest_fine();
+        if (g > longest || r > longest) {
+            g = g > longest ? longest : g;
+            r = r > longest ? longest : r;
+            clamped = 1;
+        }
         out[2 * u] = g;
         out[2 * u + 1] = r;
     }

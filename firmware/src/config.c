@@ -8,6 +8,7 @@
 #include "flash.h"
 #include "power.h"
 #include "protocol_gen.h"
+#include "pulses.h"
 #include "wire.h"
 
 enum {
@@ -157,6 +158,10 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
     else if (!within(wdt, 0.1f, 8.0f)) /* MCU_WATCHDOG_MIN_S: the longest main-loop pass fits, 3 times */
         problem = BAD_MCU_WATCHDOG_S;
     else if (c.rotor_safe_us < PULSE_MIN_US || c.rotor_safe_us > PULSE_MAX_US)
+        problem = BAD_ROTOR_SAFE_US;
+    /* the safe pulse goes out unclamped (pulses_hold): one past the frame's end is no pulse at all, a
+     * constant high (pulses.h, PULSE_GAP_TICKS; pulses_init's period) */
+    else if ((long)c.rotor_safe_us * 2L + (long)PULSE_GAP_TICKS > lrintf(2e6f / c.frame_rate_hz))
         problem = BAD_ROTOR_SAFE_US;
     else if (c.ppm > 1 || (c.ppm && c.n_units > 4))
         problem = BAD_PPM;

@@ -6,6 +6,7 @@
 
 #include "app.h"
 #include "board_pins.h"
+#include "pulses.h"
 
 #define E (board.esc)
 
@@ -70,7 +71,10 @@ static uint8_t start(const esc_calibrate_t *m, uint32_t now)
     if (esc_cal_active())
         return NACK_REASON_BUSY;
     uint8_t switched = board.cfg.esc_supply_switch;
+    /* an endpoint past the frame's longest pulse would go out cut short (app.c, compute_outputs): the ESC
+     * taught another endpoint than the one the host asked for and the board reported */
     if (m->unit >= board.cfg.n_units || m->high_us < m->low_us + ESC_MIN_SPAN_US ||
+        (uint32_t)m->high_us * PULSE_FINE_PER_US > pulses_longest_fine() ||
         (switched && m->supply_off_ms < ESC_MIN_SUPPLY_OFF_MS))
         return NACK_REASON_OUT_OF_RANGE;
     if (board.power_state >= POWER_STATE_SHED)

@@ -127,6 +127,8 @@ uint16_t pulses_reported_us(uint32_t width_fine) { return (uint16_t)((width_fine
 
 float pulses_period_s(void) { return (float)(top + 1u) / (TICKS_PER_US * 1e6f); }
 
+uint32_t pulses_longest_fine(void) { return (uint32_t)(top + 1u - PULSE_GAP_TICKS) << PULSE_FRACTION_BITS; }
+
 uint8_t pulses_frame_started(void)
 {
     uint8_t f;

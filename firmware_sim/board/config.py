@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 from protocol.errors import ConfigError
 from protocol.messages import MAX_UNITS, PULSE_MAX_US, PULSE_MIN_US
+from protocol.pulse_widths import FINE_PER_US, FRACTION_BITS, TICK_US
 
 from .esc import EscParams
 
@@ -122,6 +123,20 @@ class PowerConfig:
     update_period_s: float = 0.005  # how often the power manager samples and integrates
 
 
+PULSE_GAP_US = 20
+"""Low time (µs) every frame keeps after its pulse (``firmware/include/pulses.h``, ``PULSE_GAP_TICKS``): a
+width that reaches the frame's end (2500 µs in a 490 Hz frame of 2041 µs) leaves the timer's compare value
+at or past its TOP, and fast-PWM mode 14 then never clears the pin: a constant high, no pulse at all."""
+
+
+def longest_pulse_fine(frame_rate_hz: float) -> int:
+    """The longest fine width (1/512 µs) a frame at ``frame_rate_hz`` holds: the firmware's period in whole
+    0.5 µs ticks (its timer's TOP + 1, ``pulses_init``) less :data:`PULSE_GAP_US`, so that even a frame the
+    dither lengthens by a tick ends low. Above ~392 Hz it is shorter than ``PULSE_MAX_US``."""
+    period_ticks = round(1e6 / TICK_US / frame_rate_hz)
+    return (period_ticks - round(PULSE_GAP_US / TICK_US)) << FRACTION_BITS
+
+
 MCU_WATCHDOG_MIN_S = 0.1
 """s: the shortest MCU watchdog a board takes (the firmware's ``config.c`` alike). The firmware's longest
 main-loop pass — a calibration set reassembled, validated in float32 and stored, ~33 ms — must fit in it,
@@ -190,6 +205,15 @@ class BoardConfig:
         _num_in(self.tick_s, 1e-5, 0.01, f"{w}.tick_s")
         _num_in(self.boot_time_s, 0.0, 10.0, f"{w}.boot_time_s")
         _int_in(self.rotor_safe_us, PULSE_MIN_US, PULSE_MAX_US, f"{w}.rotor_safe_us")
+        # The safe pulse goes out unclamped (the link watchdog's stop, from the firmware's tick interrupt):
+        # one past the frame's end is a constant high on the pin, no pulse, an ESC left to its own failsafe.
+        longest_us = longest_pulse_fine(self.frame_rate_hz) / FINE_PER_US
+        if self.rotor_safe_us > longest_us:
+            raise ConfigError(
+                f"{self.rotor_safe_us} µs does not fit a {self.frame_rate_hz:g} Hz frame "
+                f"(at most {longest_us:g} µs)",
+                f"{w}.rotor_safe_us",
+            )
         _int_in(self.timeline_frames, 1, 10_000_000, f"{w}.timeline_frames")
         _int_in(self.rx_buffer_bytes, 64, 1 << 24, f"{w}.rx_buffer_bytes")
         _int_in(self.tx_buffer_bytes, 512, 1 << 26, f"{w}.tx_buffer_bytes")

@@ -37,7 +37,7 @@ from .actuators import UnitModel, bench_truths, follow_all
 from .calibration import CalibrationTransfers, calibration_or_default
 from .codes import LogCode, McuPhase
 from .commands import CommandHandler
-from .config import BoardConfig
+from .config import BoardConfig, longest_pulse_fine
 from .dead_esc import DeadEscDetector
 from .esc_calibration import EscCalibration
 from .faults import FaultInjector
@@ -132,6 +132,7 @@ class Board:
         self.power_supervisor = PowerSupervisor(cfg.power, self.outbox)
         self.power_manager = self.power_supervisor.manager
         self.pulses = PulseShaper(cfg)
+        self._longest_pulse_fine = longest_pulse_fine(cfg.frame_rate_hz)
         self.dither = SigmaDelta(cfg.n_channels)
         self.dead_esc_detector = DeadEscDetector(cfg, self.outbox)
         self.transfers = CalibrationTransfers(
@@ -547,6 +548,12 @@ class Board:
         if esc is not None:
             channel, width = esc
             widths = widths[:channel] + (whole_us(width),) + widths[channel + 1 :]
+        # no width past the frame's end (the firmware's compute_outputs): at 490 Hz a 2500 µs pulse held
+        # the pin high for good, while this board reported 2500 µs pulses
+        longest = self._longest_pulse_fine
+        if any(w is not None and w > longest for w in widths):
+            widths = tuple(None if w is None else min(w, longest) for w in widths)
+            clamped = True
         return widths, clamped
 
     def _apply_outputs(self) -> None:

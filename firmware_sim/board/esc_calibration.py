@@ -37,10 +37,11 @@ from protocol.messages import (
     NackReason,
     Severity,
 )
+from protocol.pulse_widths import whole_us
 
 from .actuators import UnitModel
 from .codes import LogCode
-from .config import BoardConfig
+from .config import BoardConfig, longest_pulse_fine
 from .telemetry import Outbox
 
 ESC_MIN_SPAN_US = 400
@@ -116,6 +117,8 @@ class EscCalibration:
         if (
             msg.unit >= self.config.n_units
             or msg.high_us - msg.low_us < ESC_MIN_SPAN_US
+            # an endpoint the frame cannot carry would be taught cut short (config.longest_pulse_fine)
+            or whole_us(msg.high_us) > longest_pulse_fine(self.config.frame_rate_hz)
             or (switched and msg.supply_off_ms < ESC_MIN_SUPPLY_OFF_MS)
         ):
             return NackReason.OUT_OF_RANGE
