@@ -36,7 +36,8 @@ unchanged (common random numbers between campaign variants).
 
 Every parameter has bounds on its size (:data:`BOUNDS`: a sensor rate at most 1 kHz, an angle at most a
 turn, ...): a file that asks for more is refused naming the file and key, and draws are clipped into them;
-so is a normal whose σ is wider than the whole range (every draw would land on its ends). Each drawn link
+so is a normal whose σ is wider than the whole range (every draw would land on its ends), or whose own
+``low``/``high`` would take most draws (a mean outside them, a σ wider than them). Each drawn link
 outage lasts :data:`OUTAGE_S` (1 ms..60 s), the board's refusal of a stall of no time never a run's fate.
 Within them, values are not checked at draw time: a drawn value the model refuses (a negative noise, an
 inertia that is not positive definite) makes that run fail with an error naming the parameter, recorded
@@ -62,10 +63,10 @@ from hil.numbers import is_finite_number
 from hil.runtime.invariants import InjectedFault
 from hil.scenario import Scenario
 from hil.scenario.paths import FIXTURES, read_text, resolve_named_file
-from hil.scenario.reader import MIN_NEEDED_SENSOR_RATE_HZ, NEEDED_SENSORS
+from hil.scenario.reader import MAX_SLEW_DEG, MIN_NEEDED_SENSOR_RATE_HZ, NEEDED_SENSORS
 from protocol.errors import ConfigError
 
-from .fault_plan import FaultSpec, board_of, check_board, draw_faults, parse_faults
+from .fault_plan import FaultSpec, board_of, check_board, draw_faults, fixed_values, parse_faults
 from .fault_plan import describe as describe_faults
 
 Array = NDArray[np.float64]
@@ -78,9 +79,16 @@ clipped into it, so a run's outage list stays bounded: at most ~10 per second of
 OUTAGE_S = (1e-3, LINK_RANGES["link.outage_duration_s"][1])
 """What one drawn outage may last (s): a normal's tail is clipped into it (an outage of 1e160 s, or of a
 negative time, is no stall the board can be given: every such run failed with its option refused)."""
+MAX_OUTAGES = 1000
+"""Link outages in one run, at most: each is a ``--stall`` of the board and a cell of ``runs.csv``. A rate
+whose Poisson count over the run could pass it is refused as the file is read (:func:`_check_outage_count`:
+600 a minute over a day-long run drew 860 000 outages a run, a 14 MB ``link.outage_list`` cell and as many
+board options); a draw past it all the same (a normal rate's far tail) is clipped to it."""
 POSITIVE = frozenset({"link.outage_duration_s"})
-"""Parameters a fixed value must make positive (an outage of no time is none: a file asking for it is
-refused, not every run failing)."""
+"""Parameters whose values as written (a fixed value, a choice's values: :func:`~.fault_plan.fixed_values`)
+must be positive: an outage of no time is none, so a file asking for it is refused — not every run
+failing, nor a 1 ms outage flown in its place. A normal's draws, its mean among them, are clipped into
+:data:`OUTAGE_S` as its tail is."""
 BOUNDS: dict[str, tuple[float, float]] = {
     "spacecraft.inertia_scale": (-100.0, 100.0),
     "spacecraft.inertia_offdiag": (-1.0, 1.0),
@@ -92,7 +100,7 @@ BOUNDS: dict[str, tuple[float, float]] = {
     **{f"sensors.{kind}.rate_hz": (MIN_NEEDED_SENSOR_RATE_HZ, 1e3) for kind in NEEDED_SENSORS},
     "sensors.*.jitter_s": (-0.1, 0.1),
     "initial.angle_deg": (-360.0, 360.0),
-    "manoeuvre.angle_deg": (-360.0, 360.0),
+    "manoeuvre.angle_deg": (-MAX_SLEW_DEG, MAX_SLEW_DEG),  # flown the short way: 270 would be 90 back
     "manoeuvre.axis_tilt_deg": (-180.0, 180.0),
     **LINK_RANGES,
 }
@@ -133,9 +141,43 @@ class Normal:
         mean = nominal if self.mean is None else np.full(nominal.shape, self.mean)
         sigma = self.sigma if self.sigma is not None else float(self.relative_sigma or 0.0) * np.abs(mean)
         x = mean + sigma * rng.standard_normal(nominal.shape)
-        lo = -np.inf if self.low is None else self.low
-        hi = np.inf if self.high is None else self.high
-        return np.clip(x, lo, hi)
+        return np.clip(x, *self.clip_bounds)
+
+    @property
+    def clip_bounds(self) -> tuple[float, float]:
+        """``[low, high]`` with a bound not given as ∓inf (the parameter's unit)."""
+        return (-math.inf if self.low is None else self.low, math.inf if self.high is None else self.high)
+
+    def check_clip(self, nominal: Array, where: str, nominal_is: str = "the scenario's value") -> None:
+        """Refuse clip bounds that would take most of the draws: a ``ConfigError`` at ``where.low`` /
+        ``where.high`` / ``where.sigma``. A mean (``mean``, else every element of ``nominal``, described as
+        ``nominal_is``) outside ``[low, high]`` has more than half its draws clipped onto the bound, and
+        all of them when it lies many σ out (``sigma = 0.01, low = 2`` about an inertia scale of 1 flew
+        every run at exactly 2: a dispersion asked for and a fixed value flown); a σ wider than
+        ``high - low`` puts most draws on the two ends (as :func:`_check_spread` for a whole range)."""
+        if self.low is None and self.high is None:
+            return
+        lo, hi = self.clip_bounds
+        means = np.ravel(nominal) if self.mean is None else np.array([self.mean])
+        outside = [float(m) for m in means if not lo <= m <= hi]
+        if outside:
+            said = f"the mean {outside[0]:g}" if self.mean is not None else f"{nominal_is} ({outside[0]:g})"
+            bound, name = (lo, "low") if outside[0] < lo else (hi, "high")
+            raise ConfigError(
+                f"{said} lies outside the clip bounds {lo:g}..{hi:g}: most draws (far out, every one) would "
+                f"be clipped to {bound:g}, a fixed value and no dispersion; give a mean within them",
+                f"{where}.{name}",
+            )
+        if self.sigma is not None:
+            sigma, name = self.sigma, "sigma"
+        else:
+            sigma, name = float(self.relative_sigma or 0.0) * float(np.max(np.abs(means))), "relative_sigma"
+        if not sigma <= hi - lo:
+            raise ConfigError(
+                f"a spread of {sigma:g} is wider than the clip bounds {lo:g}..{hi:g}: most draws would be "
+                "clipped to their ends",
+                f"{where}.{name}",
+            )
 
 
 @dataclass(frozen=True)
@@ -342,9 +384,10 @@ def _outages(
     rng: np.random.Generator, per_minute: float, duration: Distribution, run_s: float
 ) -> tuple[tuple[float, float], ...]:
     """A Poisson process of ``per_minute`` outages over ``run_s`` seconds, each lasting a draw of
-    ``duration``; the rate is clipped into :data:`LINK_RANGES` (a normal's tail), so the count is bounded."""
+    ``duration``; the rate is clipped into :data:`LINK_RANGES` (a normal's tail) and the count to
+    :data:`MAX_OUTAGES`, so a run's outages stay bounded whatever its length."""
     lo, hi = LINK_RANGES["link.outages_per_minute"]
-    count = int(rng.poisson(min(max(per_minute, lo), hi) * run_s / 60.0))
+    count = min(int(rng.poisson(min(max(per_minute, lo), hi) * run_s / 60.0)), MAX_OUTAGES)
     starts = np.sort(rng.uniform(0.0, run_s, count))
     lengths = np.clip(duration.sample(rng, np.zeros(count)), *OUTAGE_S)
     return tuple((float(a), float(d)) for a, d in zip(starts, lengths, strict=True))
@@ -388,8 +431,13 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
         nominal = _BY_KEY[key].nominal(scenario)
         _check_relative(dist, nominal, f"{where}: {key}")
         _check_spread(dist, nominal, hi - lo, f"{where}: {key}")
-        if key in POSITIVE and isinstance(dist, Fixed) and not dist.value > 0:
-            raise ConfigError(f"must be positive, got {dist.value:g}", f"{where}: {key}")
+        if isinstance(dist, Normal):
+            dist.check_clip(nominal, f"{where}: {key}")
+        not_positive = [v for v in fixed_values(dist, normal=False) if not v > 0] if key in POSITIVE else []
+        if not_positive:
+            raise ConfigError(f"must be positive, got {not_positive[0]:g}", f"{where}: {key}")
+    if rate is not None:
+        _check_outage_count(rate, outage_window_s(scenario), f"{where}: link.outages_per_minute")
     entries = tuple((p, found[p.key]) for p in PARAMETERS if p.key in found)
     return Dispersions(scenario, entries, text, where, faults)
 
@@ -451,6 +499,33 @@ def _check_spread(dist: Distribution, nominal: Array, span: float, where: str) -
             f"a spread of {sigma:g} is wider than the parameter's whole range ({span:g}): "
             "every draw would be clipped to its ends",
             f"{where}.{name}",
+        )
+
+
+def _check_outage_count(rate: Distribution, window_s: float, where: str) -> None:
+    """Refuse a link outage rate (outages a minute) that could draw more than :data:`MAX_OUTAGES` outages
+    over ``window_s`` seconds: the rate's largest draw (a fixed value, a uniform's ``high``, a choice's
+    largest value, a normal's mean + 5 σ, as clipped into :data:`LINK_RANGES`) gives a Poisson mean ``m``,
+    and ``m + 5 √m`` must fit — so an accepted file is never a clipped count, but a run's length (a day) can
+    make a rate fine for a minute-long run too many outages to give the board."""
+    if isinstance(rate, Fixed):
+        largest = rate.value
+    elif isinstance(rate, Uniform):
+        largest = rate.high
+    elif isinstance(rate, Choice):
+        largest = max(rate.values)
+    else:
+        mean = rate.mean if rate.mean is not None else 0.0  # the nominal rate: no outages
+        sigma = rate.sigma if rate.sigma is not None else float(rate.relative_sigma or 0.0) * abs(mean)
+        largest = min(mean + 5.0 * sigma, rate.clip_bounds[1])
+    largest = min(largest, LINK_RANGES["link.outages_per_minute"][1])
+    expected = max(largest, 0.0) * window_s / 60.0
+    if expected + 5.0 * math.sqrt(expected) > MAX_OUTAGES:
+        raise ConfigError(
+            f"up to {largest:g} outages a minute over the {window_s:g} s a run's outages are drawn over (its "
+            f"warm-up and duration) is ~{expected:.0f} outages a run; a run takes at most {MAX_OUTAGES} "
+            f"(about {MAX_OUTAGES * 60.0 / window_s * 0.8:.3g} a minute here): lower the rate",
+            where,
         )
 
 

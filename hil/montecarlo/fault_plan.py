@@ -4,7 +4,7 @@ never at fixed moments — and how a run's drawn faults reach it: the board's an
 injection (``emu://`` options, firmware-sim's ``--stall``, ``--unplug``, ...) and the operator's commands
 (:class:`hil.runtime.operator.ScheduledOperator`, the path the ground station's take).
 
-Each kind is a table: ``count`` (a number, or a distribution rounded to a whole count) or ``per_minute``
+Each kind is a table: ``count`` (a whole number, or a distribution rounded to one) or ``per_minute``
 (a Poisson rate over the run), and the kind's parameters (a number or a distribution, as for dispersions;
 ``spoof`` and ``channels`` take strings)::
 
@@ -45,9 +45,11 @@ shipped campaign without it.
 A run's faults are a pure function of the campaign seed, the run index and the kind (their own random
 stream, ``[seed, index, crc32("faults." + kind)]``): adding a kind leaves the others' draws unchanged.
 Counts are bounded (:data:`MAX_COUNT` per kind and run, a rate's Poisson draw included) and durations too
-(:data:`MIN_DURATION_S`..:data:`MAX_DURATION_S`; a fixed duration of 0 is refused). A normal's spread must be
-some and within its range: ``relative_sigma`` needs a non-zero ``mean`` (a count and a parameter have no
-nominal value of their own), and a spread wider than the whole range is refused.
+(:data:`MIN_DURATION_S`..:data:`MAX_DURATION_S`; a duration of 0 as written — fixed, a choice's value, a
+normal of no spread — is refused, not flown as 1 ms). A normal's spread must be some and within its range:
+``relative_sigma`` needs a non-zero ``mean`` (a count and a parameter have no nominal value of their own),
+a spread wider than the whole range is refused, and so are ``low``/``high`` clip bounds that would take
+most of the draws (a mean outside them, or a spread wider than them: ``Normal.check_clip``).
 """
 
 from __future__ import annotations
@@ -157,6 +159,13 @@ def parse_faults(table: Any, where: str, distribution: Any) -> FaultSpec:
         if "count" in spec:
             count = distribution(spec["count"], f"{at}.count")
             _check_range(count, (0.0, float(MAX_COUNT)), f"{at}.count")
+            fractional = [v for v in fixed_values(count) if v != round(v)]
+            if fractional:  # rounded half to even, 0.5 was no fault in any run, 2.5 two and 3.5 four
+                raise ConfigError(
+                    f"must be a whole number of faults, got {fractional[0]:g} (a draw of a distribution is "
+                    "rounded to one; a number as written is not)",
+                    f"{at}.count",
+                )
         else:
             value = spec["per_minute"]
             if not (isinstance(value, int | float) and not isinstance(value, bool) and 0 <= value <= 600):
@@ -176,9 +185,9 @@ def parse_faults(table: Any, where: str, distribution: Any) -> FaultSpec:
             else:
                 params[key] = distribution(spec[key], f"{at}.{key}")
                 _check_range(params[key], rng, f"{at}.{key}")
-                if key == "duration_s" and not getattr(params[key], "value", 1.0) > 0:
+                if key == "duration_s" and not all(v > 0 for v in fixed_values(params[key])):
                     raise ConfigError("must be positive (a fault of no time is none)", f"{at}.{key}")
-                if key == "offset_s" and 0.0 in _fixed_values(params[key]):
+                if key == "offset_s" and 0.0 in fixed_values(params[key]):
                     why = "a clock jump of 0 s is none: firmware-sim --phone-jump refuses it"
                     raise ConfigError(f"must be non-zero ({why})", f"{at}.{key}")
         kinds.append(KindSpec(kind, count, per_minute, params))
@@ -197,11 +206,13 @@ def _strings(kind: str, key: str, value: Any, where: str) -> tuple[str, ...]:
     return tuple(values)
 
 
-def _fixed_values(dist: Any) -> list[float]:
-    """The values a distribution gives as they are written: a fixed value, a choice's values, the mean of a
-    normal of sigma 0 (a draw of a continuous one is never exactly one value)."""
+def fixed_values(dist: Any, normal: bool = True) -> list[float]:
+    """The values a distribution gives as they are written: a fixed value, a choice's values (any of
+    which every so many runs draw: what a check of "never 0" must look at, not the fixed value alone), and
+    with ``normal`` the mean of a normal of sigma 0 (a draw of a continuous one is never exactly one
+    value)."""
     fixed = getattr(dist, "value", None)
-    if fixed is None and getattr(dist, "sigma", None) == 0.0:  # a normal of no spread: its mean
+    if fixed is None and normal and getattr(dist, "sigma", None) == 0.0:  # a normal of no spread: its mean
         fixed = getattr(dist, "mean", None)
     return [float(v) for v in ([fixed] if fixed is not None else list(getattr(dist, "values", ()) or ()))]
 
@@ -236,6 +247,9 @@ def _check_range(dist: Any, bounds: tuple[float, float], where: str) -> None:
     if sigma is not None and not sigma <= hi - lo:  # every draw clipped to the range's ends
         why = f"a sigma of {sigma:g} is wider than the whole range {lo:g}..{hi:g}"
         raise ConfigError(why, f"{where}.{name}")
+    check_clip = getattr(dist, "check_clip", None)  # a normal's own low/high, about the 0 it is handed
+    if check_clip is not None:
+        check_clip(np.zeros(1), where, "the mean left out, 0 (a fault's count or parameter has no nominal)")
 
 
 def check_board(kinds: Iterable[str], board: str, where: str) -> None:
