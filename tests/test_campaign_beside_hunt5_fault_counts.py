@@ -8,6 +8,7 @@ a distribution's draws are still rounded to a whole count, as the docs say.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -68,3 +69,28 @@ def test_hil_montecarlo_refuses_half_a_hang_before_any_run(tmp_path):
     assert "half.toml: faults.hang.count" in done.stderr, done.stderr[-1500:]
     assert "Traceback" not in done.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("duration_s", [35.0, 600.0, 86_000.0])
+def test_a_fault_rate_is_what_runs_get_or_refused_naming_the_key(duration_s):
+    """``stall = { per_minute = 600 }`` gave exactly MAX_COUNT (100) stalls in every default run: ~154 a
+    minute, no Poisson spread, unsaid. A rate whose count could pass the bound is refused with the rate that
+    fits; the largest rate that fits is taken, and its runs' counts spread about its mean."""
+    from hil.montecarlo import draw, parse_dispersions
+    from hil.montecarlo.fault_plan import MAX_COUNT, _largest_rate, run_window_s
+    from hil.scenario import load_scenario
+    from protocol.errors import ConfigError
+
+    base = load_scenario()
+    scenario = base.with_changes(slew=dataclasses.replace(base.slew, duration_s=duration_s))
+    fits = _largest_rate(run_window_s(scenario))
+    with pytest.raises(ConfigError, match=r"faults\.stall\.per_minute") as refused:
+        parse_dispersions(
+            f"[faults]\nstall = {{ per_minute = {fits * 1.01!r}, duration_s = 0.1 }}\n", scenario, "f.toml"
+        )
+    assert f"at most {fits:.3g} a minute here" in str(refused.value)
+    dispersions = parse_dispersions(
+        f"[faults]\nstall = {{ per_minute = {fits * 0.99!r}, duration_s = 0.1 }}\n", scenario, "f.toml"
+    )
+    counts = [len(draw(dispersions, 0, index).faults or ()) for index in range(20)]
+    assert max(counts) < MAX_COUNT and len(set(counts)) > 1

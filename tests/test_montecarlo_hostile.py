@@ -33,7 +33,7 @@ from hil.cli._signals import interrupts_raise, signal_of
 from hil.montecarlo import Campaign, draw, open_client, parse_dispersions, read_runs, run_campaign
 from hil.montecarlo.campaign import check_address
 from hil.montecarlo.dispersions import OUTAGE_S
-from hil.montecarlo.fault_plan import MAX_COUNT, MIN_DURATION_S
+from hil.montecarlo.fault_plan import MAX_COUNT, MIN_DURATION_S, run_window_s
 from hil.montecarlo.metrics import METRICS, TRACES, trace_length
 from hil.montecarlo.runner import RunResult
 from hil.montecarlo.store import MANIFEST, RUNS, TRACE_FILE, ResultStore
@@ -106,12 +106,19 @@ def test_every_drawn_outage_is_one_the_board_takes(scenario, mean, sigma, seed, 
 def test_drawn_faults_stay_within_what_the_board_and_world_take(scenario, low, seed, per_minute):
     """A fault's drawn duration clipped to 0 (``--stall T:0.0`` refused, the run counted as crashed) is at
     least 1 ms; a rate's Poisson count is at most MAX_COUNT like a count's (600 a minute over a 10-minute
-    run drew ~6 000 stalls a run)."""
+    run drew ~6 000 stalls a run) — and a rate whose count could pass it is refused as the file is read,
+    naming the key (it was clipped silently: 600 a minute gave exactly 100 faults in every run)."""
     long = scenario.with_changes(slew=replace(scenario.slew, duration_s=600.0))
     text = (
         f'[faults]\nstall = {{ per_minute = {per_minute!r}, duration_s = {{ dist = "normal", mean = {low!r}, '
         "sigma = 1.0 } }\n"
     )
+    expected = per_minute * run_window_s(long) / 60.0
+    if expected + 5.0 * math.sqrt(expected) > MAX_COUNT:
+        with pytest.raises(ConfigError, match="faults.stall.per_minute") as refused:
+            parse_dispersions(text, long)
+        assert f"a run takes at most {MAX_COUNT}" in str(refused.value)
+        return
     faults = draw(parse_dispersions(text, long), seed, 0).faults
     assert faults is not None and len(faults) <= MAX_COUNT
     assert all(MIN_DURATION_S <= f.params["duration_s"] <= 60.0 for f in faults)

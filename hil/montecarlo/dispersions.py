@@ -66,7 +66,15 @@ from hil.scenario.paths import FIXTURES, read_text, resolve_named_file
 from hil.scenario.reader import MAX_SLEW_DEG, MIN_NEEDED_SENSOR_RATE_HZ, NEEDED_SENSORS
 from protocol.errors import ConfigError
 
-from .fault_plan import FaultSpec, board_of, check_board, draw_faults, fixed_values, parse_faults
+from .fault_plan import (
+    FaultSpec,
+    board_of,
+    check_board,
+    check_rates,
+    draw_faults,
+    fixed_values,
+    parse_faults,
+)
 from .fault_plan import describe as describe_faults
 
 Array = NDArray[np.float64]
@@ -415,6 +423,7 @@ def parse_dispersions(text: str, scenario: Scenario, where: str = "<dispersions>
     faults = parse_faults(doc.pop("faults"), where, _distribution) if "faults" in doc else None
     if faults is not None:
         check_board((k.kind for k in faults.kinds), board_of(scenario), where)
+        check_rates(faults, scenario, where)
     found: dict[str, Distribution] = {}
     for key, value in _leaves(doc, where):
         if key not in _BY_KEY:

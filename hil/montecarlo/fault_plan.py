@@ -54,6 +54,7 @@ most of the draws (a mean outside them, or a spread wider than them: ``Normal.ch
 
 from __future__ import annotations
 
+import math
 import zlib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
@@ -275,6 +276,33 @@ def run_window_s(scenario: Scenario) -> float:
     """The span a run's faults are drawn over (s of the run's clock from its start): the warm-up, the
     spin-up and the run's duration — the whole run, from the handshake to the end of the hold."""
     return scenario.loop.warmup_s + SPINUP_S + scenario.slew.duration_s
+
+
+def check_rates(spec: FaultSpec, scenario: Scenario, where: str) -> None:
+    """Refuse a kind's ``per_minute`` whose Poisson count over a run (:func:`run_window_s`) could pass
+    :data:`MAX_COUNT` (its mean ``m`` with ``m + 5 √m`` above it): a draw is clipped there, so the rate
+    the file asks for is not what runs get — 600 stalls a minute over the default run gave exactly 100 in
+    every run, ~154 a minute and no Poisson spread, unsaid. The message gives the rate that fits."""
+    window = run_window_s(scenario)
+    for ks in spec.kinds:
+        if ks.per_minute is None:
+            continue
+        expected = ks.per_minute * window / 60.0
+        if expected + 5.0 * math.sqrt(expected) > MAX_COUNT:
+            fits = _largest_rate(window)
+            raise ConfigError(
+                f"{ks.per_minute:g} a minute over a run's {window:g} s (warm-up, spin-up and duration) is "
+                f"~{expected:.0f} {ks.kind} faults a run; a run takes at most {MAX_COUNT} of a kind (at most "
+                f"{fits:.3g} a minute here)",
+                f"{where}: faults.{ks.kind}.per_minute",
+            )
+
+
+def _largest_rate(window_s: float) -> float:
+    """The largest rate (a minute) whose Poisson count over ``window_s`` stays within :data:`MAX_COUNT`
+    with five standard deviations to spare: ``m + 5 √m = MAX_COUNT`` solved for ``m``."""
+    root = (-5.0 + math.sqrt(25.0 + 4.0 * MAX_COUNT)) / 2.0
+    return root * root * 60.0 / window_s
 
 
 def draw_faults(spec: FaultSpec, scenario: Scenario, seed: int, index: int) -> tuple[InjectedFault, ...]:
