@@ -256,6 +256,8 @@ def run(args: argparse.Namespace) -> int:
         too_short = too_short_to_judge(scenario, args.duration)
         if too_short is not None:
             say(f"note: {too_short}", sys.stderr)
+        for late in faults_after_the_run(scenario, args.duration):
+            say(f"note: {late}", sys.stderr)
         if args.port is None:
             from hil.runtime import warmup
 
@@ -297,6 +299,26 @@ def too_short_to_judge(scenario: Scenario, duration_s: float | None) -> str | No
         return None
     needed = math.ceil(scenario.time_to_judge().total_s)
     return f"{shortfall}: its settle time cannot be met in it (--duration {needed} or more judges it)"
+
+
+def faults_after_the_run(scenario: Scenario, duration_s: float | None) -> list[str]:
+    """The scenario's ``[faults]`` that come after the run's planned end (:meth:`Scenario.planned_length_s`
+    with ``duration_s``, else the scenario's), each said: a fault the board is given for board time 80 000 s
+    in a run of 44 s never happened, and the run said nothing of it (a fault campaign would call it
+    unseen)."""
+    from dataclasses import replace
+
+    from hil.scenario.fault_specs import fault_times
+
+    if duration_s is not None:
+        scenario = scenario.with_changes(slew=replace(scenario.slew, duration_s=duration_s))
+    end = scenario.planned_length_s()
+    return [
+        f"[faults] {what} comes at {at:g} s, after the run's planned end (~{end:.0f} s: its warm-up, spin-up "
+        "and duration): it happens only if the run is that much longer"
+        for what, at in fault_times(scenario.fault_options)
+        if at > end
+    ]
 
 
 def report_ended(result, plotter: Plotter | None, command: str) -> int:  # type: ignore[no-untyped-def]

@@ -76,8 +76,6 @@ MIN_DURATION_S = 1e-3
 T:0``), so a draw clipped to 0 made its run crash, counted as the run's own violation."""
 MAX_JUMP_S = 86_400.0
 """The largest phone clock jump (s, either way): what the world's ``--phone-jump`` takes."""
-SPINUP_S = 2.0
-"""The run's spin-up and rotor settling, added to its warm-up and duration for the drawing window (s)."""
 CHANNEL_SETS = ("rotors", "gimbals", "any")
 
 _PARAMS: dict[str, dict[str, tuple[float, float] | None]] = {
@@ -275,7 +273,7 @@ def board_of(scenario: Scenario) -> str:
 def run_window_s(scenario: Scenario) -> float:
     """The span a run's faults are drawn over (s of the run's clock from its start): the warm-up, the
     spin-up and the run's duration — the whole run, from the handshake to the end of the hold."""
-    return scenario.loop.warmup_s + SPINUP_S + scenario.slew.duration_s
+    return scenario.planned_length_s()
 
 
 def check_rates(spec: FaultSpec, scenario: Scenario, where: str) -> None:

@@ -161,6 +161,30 @@ and its direction are one setting), so a list of them is refused as the file is 
 the board at connection, naming neither file nor key, and a campaign ran every run into it."""
 
 
+TIMED: dict[str, Callable[[Any], float]] = {
+    "stall": lambda parsed: parsed[0],
+    "hang_at": lambda parsed: parsed,
+    "sag": lambda parsed: parsed[1] or 0.0,
+    "sag_ohms": lambda parsed: parsed[1] or 0.0,
+    "brownout_at": lambda parsed: parsed,
+    "dead_esc": lambda parsed: parsed[1] or 0.0,
+}
+"""The ``[faults]`` keys that happen at a time, and that time (board s) from the key's parsed value (an
+``AT`` left out: at once)."""
+
+
+def fault_times(options: Mapping[str, Any]) -> list[tuple[str, float]]:
+    """Each timed fault of a (checked) ``[faults]`` table: ``key = value`` as written, and when it comes
+    (board s from its start)."""
+    times = []
+    for key, value in options.items():
+        if key not in TIMED:
+            continue
+        for item in value if isinstance(value, list) else [value]:
+            times.append((f"{key} = {item!r}", TIMED[key](FAULT_OPTIONS[key](str(item), key))))
+    return times
+
+
 def check_fault_options(options: Mapping[str, Any], n_channels: int, where: str) -> None:
     """A scenario's ``[faults]`` table (values: a number or a string, or a list of them) through the
     parsers of :data:`FAULT_OPTIONS`, a dead ESC's channel one of the board's ``n_channels``: a

@@ -14,6 +14,10 @@ from hil.vscmg import SpacecraftParams
 from .config import LoopConfig, SlewScenario
 from .phone import PhoneSpec
 
+SPINUP_S = 2.0
+"""s: what a run's rotors take to spin up and settle before the slew, on top of its warm-up (a planned
+figure: :meth:`Scenario.planned_length_s`)."""
+
 
 @dataclass(frozen=True)
 class SlewTime:
@@ -128,6 +132,12 @@ class Scenario:
         trajectory = EigenaxisSlew.within_limits(slew.R0, slew.R_target, slew.max_rate, slew.max_accel)
         gains = self.loop.gains
         return SlewTime(trajectory.duration_s, 4.0 / (gains.damping * gains.natural_frequency))
+
+    def planned_length_s(self) -> float:
+        """The run's length as planned (s of its clock from its start): the warm-up (``loop.warmup_s``),
+        the rotors' spin-up and settling (:data:`SPINUP_S`) and the duration after the slew starts. A
+        fault during the warm-up, or a slow spin-up, makes a run longer; none makes it shorter."""
+        return self.loop.warmup_s + SPINUP_S + self.slew.duration_s
 
     def with_changes(self, **changes: Any) -> Scenario:
         """A copy with fields replaced (Monte Carlo dispersions, ``--duration``)."""
