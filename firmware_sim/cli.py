@@ -309,6 +309,7 @@ OPTION_OF_SETTING: dict[str, str] = {
     "faults.link.corrupt": "--corrupt",
     "faults.link.drop": "--drop",
     "faults.link.direction": "--fault-direction",
+    "faults.phone_spoof": "--phone-spoof",
 }
 """The board's and its fault injector's settings (a :class:`ConfigError`'s ``where``) that an option sets,
 and that option: a refused value is told by the option the user typed (``--corrupt: 1.5 is not a
@@ -420,7 +421,8 @@ def schedule_faults(faults, args: argparse.Namespace, cfg) -> None:  # type: ign
         faults.phone_jump(offset, at=at)
     for spec in args.phone_spoof:
         at, kind = parse_spoof(spec)
-        faults.phone_spoof(kind, at=at)
+        with _named_by_option():  # the kind is the world's to check: said by the option typed
+            faults.phone_spoof(kind, at=at)
     for spec in args.dead_esc:
         ch, esc_at = parse_dead_esc(spec)
         if ch >= cfg.n_channels:  # the API checks too; here the error names the option

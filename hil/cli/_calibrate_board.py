@@ -82,7 +82,7 @@ def register_actions(actions: Any) -> None:
     )
     _board_options(s)
     s.add_argument("--map", choices=_MAPS, default="rotor", help="which channel and response (rotor)")
-    s.add_argument("--out-dir", type=Path, required=True, help="directory for the bench CSV")
+    s.add_argument("--out-dir", type=given_path, required=True, help="directory for the bench CSV")
     s.add_argument("--range", default="1000:2000", metavar="LOW:HIGH", help="pulse range, us (1000:2000)")
     s.add_argument("--step", type=int, metavar="US", help="step, us (rotor 40, gimbal rate 20, angle 25)")
     s.add_argument("--tolerance", type=float, help="settled when the response varies less (rad/s or rad)")

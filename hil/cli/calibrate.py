@@ -82,7 +82,7 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
         "  hil calibrate bench --out-dir /tmp/bench --units 3 --seed 7 --mirrored 0 2",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    b.add_argument("--out-dir", type=Path, required=True, help="directory for the CSV files")
+    b.add_argument("--out-dir", type=given_path, required=True, help="directory for the CSV files")
     b.add_argument("--units", type=int, default=4, help="number of units (4)")
     b.add_argument("--seed", type=int, default=1, help="random seed (1)")
     b.add_argument(
