@@ -83,7 +83,7 @@ def test_an_estimator_plugin_that_cannot_load_is_one_line_naming_it(installed, n
     assert out.returncode == 2, out.stderr
     assert "Traceback" not in out.stderr
     assert said in out.stderr
-    assert out.stderr.startswith("hil replay: error: hil replay --estimator: ")
+    assert out.stderr.startswith("hil replay: error: --estimator: ")
     if name == "mine":  # both packages' targets named, whichever sys.path lists first
         assert "Mine = good_plug:Holder.KIND (plug_a)" in out.stderr
         assert "mine = raises_plug:OTHER (plug_b)" in out.stderr

@@ -157,16 +157,16 @@ def check_numbers(args: argparse.Namespace) -> None:
         t0, t1 = args.window
         if not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1):
             raise ConfigError(
-                f"must be two finite times T0 < T1 (s), got {t0!r} {t1!r}", "hil replay --window"
+                f"must be two finite times T0 < T1 (s), got {t0!r} {t1!r}", "--window"
             )
     if not (math.isfinite(args.max_gap) and args.max_gap > 0):
         raise ConfigError(
-            f"must be a finite number of seconds > 0, got {args.max_gap!r}", "hil replay --max-gap"
+            f"must be a finite number of seconds > 0, got {args.max_gap!r}", "--max-gap"
         )
     for name, most in ANGLE_BOUNDS.items():
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and abs(value) <= most):
-            raise ConfigError(f"must be within ±{most:g} deg, got {value!r}", f"hil replay --{name}")
+            raise ConfigError(f"must be within ±{most:g} deg, got {value!r}", f"--{name}")
 
 
 def declination_of(args: argparse.Namespace) -> float:
@@ -184,11 +184,11 @@ def estimator_of(args: argparse.Namespace) -> EstimatorChoice:
     name = (args.estimator or DEFAULT_ESTIMATOR).lower()
     if name != "variational":
         if args.preset is not None:
-            raise ConfigError(f"is the variational estimator's, not {name!r}'s", "hil replay --preset")
-        return EstimatorChoice.by_name(name, "hil replay --estimator")
+            raise ConfigError(f"is the variational estimator's, not {name!r}'s", "--preset")
+        return EstimatorChoice.by_name(name, "--estimator")
     if args.preset is None:
         return REPLAY_ESTIMATOR
-    return EstimatorChoice(name, {"preset": args.preset}, "hil replay --preset")
+    return EstimatorChoice(name, {"preset": args.preset}, "--preset")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -208,12 +208,12 @@ def run(args: argparse.Namespace) -> int:
         try:
             when = date.fromisoformat(args.date)
         except ValueError:
-            raise ConfigError(f"not a YYYY-MM-DD date: {args.date!r}", "hil replay --date") from None
+            raise ConfigError(f"not a YYYY-MM-DD date: {args.date!r}", "--date") from None
         field_model = FieldModel(args.lat, args.lon, decimal_year(when))
         if args.declination is not None:  # taken, then ignored: the model's declination turned the estimates
             raise ConfigError(
                 "the field model of --lat/--lon/--date gives the declination: leave out one or the other",
-                "hil replay --declination",
+                "--declination",
             )
     name = args.log.resolve().name.removesuffix(".zip")
     if args.port is not None:
@@ -312,7 +312,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     from protocol.errors import ConfigError
 
     if args.paced:
-        raise ConfigError("a board is always driven on the clock: leave out --paced", "hil replay --port")
+        raise ConfigError("a board is always driven on the clock: leave out --paced", "--port")
     scenario = load_scenario(args.scenario if args.scenario is not None else DEFAULT_SCENARIO)
     log = read_log(args.log, args.format)
     if args.window:
@@ -341,7 +341,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
             f"the log drives {log.end - log.start:.2f} s, not longer than the scenario's warm-up and the "
             f"rotors' settling ({least_s:g} s): the controller would never hold an attitude (a longer log "
             "or --window)",
-            "hil replay --port",
+            "--port",
         )
     options = ReplayOptions(
         out_dir=Path("."),
