@@ -47,9 +47,11 @@ exit status:
   0  completed: the run's time after the slew's start is up, the board and the phone in hand at the end
   1  ended early or incomplete: interrupted by SIGINT (Ctrl-C), SIGTERM (timeout, systemd, a CI cancel) or
      SIGHUP (its terminal or ssh session closed) — the board disarmed, summary.json saying
-     "interrupted (SIGTERM)" —, aborted from the ground station, the time limit reached before the slew
-     started, the plots failed, or an interrupt after the run ended (while its summary printed or its plots
-     were drawn: the plots are stopped, summary.json says how the run itself ended)
+     "interrupted (SIGTERM)" —, aborted from the ground station, left disarmed by the operator at the end,
+     the final Disarm not confirmed, the time limit reached before the slew started, the run's time up with
+     the board not in hand and armed, the plots failed, or an interrupt after the run ended (while its
+     summary printed or its plots were drawn: the plots are stopped, summary.json says how the run itself
+     ended)
   2  an error: bad options or scenario, a port that cannot be opened, a board that never answered or is
      incompatible, no phone stream, a reader thread's failure, a run directory the disk refused mid-run
      (full: the board is disarmed, summary.json says which file)

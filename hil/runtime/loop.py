@@ -788,7 +788,8 @@ def _in_process_board(url: str) -> InProcessBoard:
 
 def _pacer(pace: float, origin: float) -> PeriodicTask:
     """A lockstep task that waits, every :data:`PACE_PERIOD_S` of simulated time, until the wall clock has
-    caught up with ``pace`` × the simulated time since ``origin`` (a run slower than that is not held)."""
+    caught up with the simulated time since ``origin`` divided by ``pace`` (``pace`` times faster than the
+    wall clock; a run slower than that is not held)."""
     wall_origin: list[float] = []
 
     def pace_task(due: float) -> None:
