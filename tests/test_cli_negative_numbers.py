@@ -25,7 +25,10 @@ LOG = FIXTURES / "logs" / "simulated_testbed_4s.csv"
         (["run", "--pace", "-1e-3"], "run --pace: must be a factor of the wall clock of at least 0.001"),
         (["run", "--pace", "-inf"], "run --pace: must be a factor of the wall clock of at least 0.001"),
         (["replay", str(LOG), "--max-gap", "-1E3"], "hil replay: error: --max-gap: must be a finite number"),
-        (["replay", str(LOG), "--window", "5", "-1e300"], "hil replay: error: --window: must be two finite times"),
+        (
+            ["replay", str(LOG), "--window", "5", "-1e300"],
+            "hil replay: error: --window: must be two finite times",
+        ),
         (["montecarlo", "cubesat-1u", "--runs", "-2e1"], "argument --runs: invalid int value: '-2e1'"),
     ],
 )

@@ -41,7 +41,9 @@ def test_a_declination_beside_a_place_and_date_is_refused_not_ignored(tmp_path_f
     given_ = [*PLACE, "--declination", repr(declination), *board]
     run = _replay("--out", str(folder / "out"), *given_, cwd=folder)
     assert run.returncode == 2, run.stdout + run.stderr
-    assert "hil replay: error: --declination: " in run.stderr and "--lat/--lon/--date" in run.stderr, run.stderr
+    assert "hil replay: error: --declination: " in run.stderr and "--lat/--lon/--date" in run.stderr, (
+        run.stderr
+    )
     assert "Traceback" not in run.stderr
     assert not (folder / "out").exists()  # nothing ran, nothing written
 

@@ -156,13 +156,9 @@ def check_numbers(args: argparse.Namespace) -> None:
     if args.window is not None:
         t0, t1 = args.window
         if not (math.isfinite(t0) and math.isfinite(t1) and t0 < t1):
-            raise ConfigError(
-                f"must be two finite times T0 < T1 (s), got {t0!r} {t1!r}", "--window"
-            )
+            raise ConfigError(f"must be two finite times T0 < T1 (s), got {t0!r} {t1!r}", "--window")
     if not (math.isfinite(args.max_gap) and args.max_gap > 0):
-        raise ConfigError(
-            f"must be a finite number of seconds > 0, got {args.max_gap!r}", "--max-gap"
-        )
+        raise ConfigError(f"must be a finite number of seconds > 0, got {args.max_gap!r}", "--max-gap")
     for name, most in ANGLE_BOUNDS.items():
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and abs(value) <= most):
