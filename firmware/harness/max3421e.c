@@ -146,6 +146,9 @@ struct max3421e {
     unsigned ctl_len, ctl_pos;
     int in_toggle[16], out_toggle[16];
     unsigned nak_count, nak_left;
+    unsigned lost_acks; /* fault: the handshakes of this many more bulk OUT packets the phone takes are lost */
+    uint8_t last_out[MAXPKT]; /* the last bulk OUT packet the phone took: a repeat must be this packet */
+    unsigned last_out_len;
     int stall_ep;
     unsigned packet_size;
     int zlp, zlp_due;
@@ -153,6 +156,9 @@ struct max3421e {
     int never_switch; /* fault: START is acknowledged, the phone stays in its normal mode (1), or drops off
                          and comes back in its normal mode, a new device each time (2) */
     char strings[6][STRING_MAX + 1];
+    /* The configuration descriptors this phone gives, its own copies: the "config_value" fault edits their
+     * bConfigurationValue (byte 5), a value 0 making the one configuration impossible to select. */
+    uint8_t cfg_normal[62], cfg_accessory[55];
     uint64_t detach_at, attach_at;
     ring_t to_board, to_app;     /* app -> bulk IN, bulk OUT -> app */
     uint64_t written, served;    /* bytes ever accepted for bulk IN / served on it */
@@ -196,6 +202,9 @@ static const uint8_t CFG_ACCESSORY[55] = {
     7, 5, 0x83, 2, MAXPKT, 0, 0,
     7, 5, 0x03, 2, MAXPKT, 0, 0,
 };
+_Static_assert(sizeof CFG_NORMAL == sizeof ((max3421e_t *)0)->cfg_normal &&
+                   sizeof CFG_ACCESSORY == sizeof ((max3421e_t *)0)->cfg_accessory,
+               "the phone's own copies of its configuration descriptors");
 #define EP_ACC_IN 1
 #define EP_ACC_OUT 2
 static const char *const STRINGS[] = {NULL, "samsung", "SAMSUNG_Android", "R58M12ABCDE", "MTP", "ADB Interface"};
@@ -228,6 +237,7 @@ static void phone_reset_pipes(max3421e_t *m)
     m->ctl = CTL_IDLE;
     m->action = ACT_NONE;
     m->zlp_due = 0;
+    m->last_out_len = MAXPKT + 1; /* no packet taken since: nothing is a repeat */
 }
 
 static void flush_to_board(max3421e_t *m)
@@ -282,6 +292,12 @@ static unsigned string_descriptor(uint8_t *out, const char *s)
     return n;
 }
 
+/* The bConfigurationValue of the configuration this phone gives in its present mode. */
+static unsigned configuration_value(const max3421e_t *m)
+{
+    return (m->accessory ? m->cfg_accessory : m->cfg_normal)[5];
+}
+
 /* A SETUP arrived (always accepted: a device cannot NAK a SETUP). Decides the data stage or a STALL. */
 static void control_setup(max3421e_t *m)
 {
@@ -302,8 +318,8 @@ static void control_setup(max3421e_t *m)
             src = m->accessory ? DEV_ACCESSORY : DEV_NORMAL;
             n = 18;
         } else if (dtype == 2 && didx == 0) {
-            src = m->accessory ? CFG_ACCESSORY : CFG_NORMAL;
-            n = m->accessory ? sizeof CFG_ACCESSORY : sizeof CFG_NORMAL;
+            src = m->accessory ? m->cfg_accessory : m->cfg_normal;
+            n = m->accessory ? sizeof m->cfg_accessory : sizeof m->cfg_normal;
         } else if (dtype == 3 && didx == 0) {
             static const uint8_t LANG[4] = {4, 3, 0x09, 0x04};
             src = LANG;
@@ -322,7 +338,8 @@ static void control_setup(max3421e_t *m)
     } else if (type == 0x00 && req == 5 && length == 0 && value <= 127) { /* SET_ADDRESS */
         m->new_address = (uint8_t)value;
         m->action = ACT_ADDRESS;
-    } else if (type == 0x00 && req == 9 && length == 0 && value <= 1 && m->state >= DEV_ADDRESS) {
+    } else if (type == 0x00 && req == 9 && length == 0 && (value == 0 || value == configuration_value(m)) &&
+               m->state >= DEV_ADDRESS) { /* 0: back to the address state (USB 2.0 9.4.7) */
         m->new_address = (uint8_t)value; /* SET_CONFIGURATION: the value rides in new_address */
         m->action = ACT_CONFIG;
     } else if (type == 0x01 && req == 11 && length == 0 && value == 0 && index <= 1 && m->config) {
@@ -330,10 +347,12 @@ static void control_setup(max3421e_t *m)
     } else if (type == 0x02 && req == 1 && length == 0 && value == 0 && m->config) {
         /* CLEAR_FEATURE(ENDPOINT_HALT): the endpoint's toggle restarts at DATA0 */
         unsigned ep = index & 0x0F;
-        if (index & 0x80)
+        if (index & 0x80) {
             m->in_toggle[ep] = 0;
-        else
+        } else {
             m->out_toggle[ep] = 0;
+            m->last_out_len = MAXPKT + 1;
+        }
     } else if (type == 0xC0 && req == 51) { /* AOA GET_PROTOCOL */
         m->ctl_buf[0] = (uint8_t)m->aoa_version;
         m->ctl_buf[1] = 0;
@@ -544,11 +563,21 @@ static answer_t bulk_out(max3421e_t *m, const uint8_t *p, unsigned n, int pid)
     } else if (nak_fault(m) || APP_BUF - m->to_app.len < n) {
         a.result = HR_NAK; /* the app has not read: no room, the phone NAKs (USB flow control, nothing lost) */
     } else if (pid != m->out_toggle[EP_ACC_OUT]) {
-        error(m, "bulk OUT on endpoint %d with DATA%d, the device expected DATA%d (discarded as a repeat)",
-              EP_ACC_OUT, pid, m->out_toggle[EP_ACC_OUT]);
+        /* A repeat to the device: acknowledged and discarded, as USB says. Right after a lost handshake it is
+         * the host sending the very packet again; anything else is bytes the app never gets. */
+        if (n != m->last_out_len || memcmp(p, m->last_out, n))
+            error(m, "bulk OUT on endpoint %d with DATA%d, the device expected DATA%d (discarded as a repeat: "
+                     "%u bytes lost, not the %u-byte packet it took last)",
+                  EP_ACC_OUT, pid, m->out_toggle[EP_ACC_OUT], n, m->last_out_len);
     } else {
         ring_put(&m->to_app, p, n);
         m->out_toggle[EP_ACC_OUT] ^= 1;
+        memcpy(m->last_out, p, n);
+        m->last_out_len = n;
+        if (m->lost_acks) { /* taken, but its ACK never reaches the chip: no handshake, a bus timeout */
+            m->lost_acks--;
+            a.result = HR_TIMEOUT;
+        }
     }
     return a;
 }
@@ -600,7 +629,7 @@ static int addressed(max3421e_t *m, unsigned ep, int in)
         error(m, "endpoint %u addressed before SET_CONFIGURATION", ep);
         return 0;
     }
-    const uint8_t *cfg = m->accessory ? CFG_ACCESSORY : CFG_NORMAL;
+    const uint8_t *cfg = m->accessory ? m->cfg_accessory : m->cfg_normal;
     unsigned total = cfg[2];
     for (unsigned k = 0; k < total; k += cfg[k])
         if (cfg[k + 1] == 5 && (cfg[k + 2] & 0x0F) == ep && ((cfg[k + 2] & 0x80) != 0) == in)
@@ -931,6 +960,8 @@ max3421e_t *max3421e_new(void)
     m->stall_ep = -1;
     m->packet_size = MAXPKT;
     m->detach_at = m->attach_at = NONE_US;
+    memcpy(m->cfg_normal, CFG_NORMAL, sizeof CFG_NORMAL);
+    memcpy(m->cfg_accessory, CFG_ACCESSORY, sizeof CFG_ACCESSORY);
     chip_reset(m, 0);
     phone_attach(m, 0);
     return m;
@@ -1087,6 +1118,9 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
         m->stall_ep = (int)value;
     } else if (!strcmp(name, "detach")) {
         phone_detach(m);
+        /* the cable out: nor does a phone between its own detach and re-attach of an accessory switch
+         * come back (phone_detach returns early for a phone already detached, its attach still due) */
+        m->detach_at = m->attach_at = NONE_US;
         update_frames(m);
     } else if (!strcmp(name, "attach")) {
         m->detach_at = m->attach_at = NONE_US;
@@ -1102,6 +1136,10 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
         m->dead_osc = value == 0;
     } else if (!strcmp(name, "never_switch") && (value == 0 || value == 1 || value == 2)) {
         m->never_switch = (int)value;
+    } else if (!strcmp(name, "lost_ack") && value >= 0 && value <= 1e6 && value == (int)value) {
+        m->lost_acks = (unsigned)value;
+    } else if (!strcmp(name, "config_value") && value >= 0 && value <= 255 && value == (int)value) {
+        m->cfg_normal[5] = m->cfg_accessory[5] = (uint8_t)value;
     } else {
         return -1;
     }

@@ -44,7 +44,14 @@ const char *max3421e_phone_string(const max3421e_t *m, int index); /* identity s
  *            (no accessory app, or AOA barred by policy); 2: it drops off the bus as for a switch but comes
  *            back in its normal mode (a new device to the host, every time); 0 (the default): it switches
  *   "osc"    value 0: the chip's crystal does not start (OSCOKIRQ never rises, whatever resets it); 1 (the
- *            default): it starts OSC_START_US after each reset */
+ *            default): it starts OSC_START_US after each reset
+ *   "lost_ack" value N: the next N bulk OUT packets the accessory takes lose their ACK on the way back: the
+ *            phone has the bytes (its toggle moved on), the chip reports hrTIMEOUT. A host must send that
+ *            very packet again (the phone discards it as a repeat); a different one is bytes lost, reported
+ *            in last_error
+ *   "config_value" value 0..255: the bConfigurationValue of the phone's configuration (both modes; 1 by
+ *            default); SET_CONFIGURATION takes that value or 0 (0: back to the address state, endpoints
+ *            other than 0 unanswered). A value of 0 is absurd: a configuration no host can select */
 int max3421e_fault(max3421e_t *m, const char *name, double value);
 const char *max3421e_last_error(const max3421e_t *m); /* the last protocol violation the board made ("" if none) */
 

@@ -9,7 +9,9 @@
  * link's transmit queue (usb_tx_* below, provided by the link layer) in packets of the endpoint's size;
  * the board's writes are a byte stream, not transfers: when a packet is full and the queue is then
  * empty, a zero-length packet ends the transfer so the phone's read() returns (Android's accessory
- * driver completes a read on a short packet or a full buffer).
+ * driver completes a read on a short packet or a full buffer). A packet that got no handshake (a bus
+ * error: the phone may hold it, its ACK lost) goes again exactly as it was, never grown by bytes queued
+ * since: the phone discards a repeat whole, and what was added to it would be lost.
  */
 #ifndef AOA_H
 #define AOA_H

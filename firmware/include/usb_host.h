@@ -1,7 +1,7 @@
 /*
  * usb_host.h - a one-device USB host on the MAX3421E: attach detection, debounce, bus reset and speed,
- * enumeration (device descriptor 8 then 18 bytes, SET_ADDRESS, configuration descriptor, SET_CONFIGURATION),
- * detach; plus the non-blocking control-transfer engine and single bulk transactions the accessory layer
+ * enumeration (device descriptor 8 then 18 bytes, SET_ADDRESS, configuration descriptor, SET_CONFIGURATION;
+ * a configuration descriptor shorter than 9 bytes or of bConfigurationValue 0 fails it), detach; plus the non-blocking control-transfer engine and single bulk transactions the accessory layer
  * (aoa.c) uses.
  *
  * Everything is a state machine advanced by usb_host_poll() from the main loop: one call does a bounded

@@ -38,15 +38,21 @@ static struct {
     uint8_t halted_ep; /* CLEAR_HALT: the endpoint; HANDSHAKE: STALLs of GET_PROTOCOL; IDLE: the host
                           stack's failure (no enumeration, no chip) has been said */
     uint8_t rx_left; /* bytes of the last bulk IN packet still in the chip's RCVFIFO (the receive buffer) */
+    uint8_t out_resend; /* bytes of a bulk OUT packet that got no handshake (a bus error: the phone may have
+                           taken it, its ACK lost), to go again exactly; OUT_RESEND_NONE: none */
     uint16_t version;
     uint8_t generation, start_generation; /* usb_host_generation(); the one START was sent in */
     uint32_t since_us;
     const char *serial;
 } aoa;
 
+/* aoa.out_resend with no packet waiting to be sent again (a real one is at most 64 bytes). */
+#define OUT_RESEND_NONE 0xFFu
+
 void aoa_init(const char *serial)
 {
     memset(&aoa, 0, sizeof aoa);
+    aoa.out_resend = OUT_RESEND_NONE;
     aoa.serial = serial;
     usb_host_init();
     aoa.generation = usb_host_generation();
@@ -159,6 +165,7 @@ static void device_ready(uint32_t now_us)
         aoa.in_toggle = aoa.out_toggle = 0; /* SET_CONFIGURATION resets every data toggle */
         aoa.zlp_due = aoa.errors = 0;
         aoa.rx_left = 0;
+        aoa.out_resend = OUT_RESEND_NONE;
         enter(AOA_RUNNING, now_us);
         usb_link_event(AOA_EV_UP, usb_dev.pid);
         return;
@@ -258,16 +265,26 @@ static void run_pipes(uint32_t now_us)
     for (uint8_t k = 0; k < AOA_OUT_PER_POLL; k++) {
         uint8_t buf[64];
         uint8_t n = 0;
-        if (usb_tx_pending())
+        if (aoa.out_resend != OUT_RESEND_NONE) {
+            /* the very packet that got no handshake, not one grown by bytes queued since: if the phone took
+             * it, it sees the same toggle again and discards the packet as a repeat - with it any new bytes */
+            n = aoa.out_resend ? usb_tx_peek(buf, aoa.out_resend) : 0;
+        } else if (usb_tx_pending()) {
             n = usb_tx_peek(buf, usb_dev.out_packet);
-        else if (!aoa.zlp_due)
-            return;
-        uint8_t hr = usb_bulk_out(usb_dev.bulk_out, &aoa.out_toggle, buf, n);
-        if (hr != MAX_HR_SUCCESS) {
-            if (hr != MAX_HR_NAK) /* NAK: the phone's buffer is full; the bytes stay queued */
-                pipe_error(hr, usb_dev.bulk_out, now_us);
+        } else if (!aoa.zlp_due) {
             return;
         }
+        uint8_t hr = usb_bulk_out(usb_dev.bulk_out, &aoa.out_toggle, buf, n);
+        if (hr != MAX_HR_SUCCESS) {
+            if (hr == MAX_HR_NAK)
+                return; /* the phone's buffer is full: the bytes (or the packet to resend) stay as they are */
+            /* a STALLed packet was not taken, and the clear restarts the pipe at DATA0; after a bus error the
+             * phone may hold it */
+            aoa.out_resend = hr == MAX_HR_STALL ? OUT_RESEND_NONE : n;
+            pipe_error(hr, usb_dev.bulk_out, now_us);
+            return;
+        }
+        aoa.out_resend = OUT_RESEND_NONE;
         aoa.errors = 0;
         usb_tx_consume(n);
         aoa.zlp_due = n == usb_dev.out_packet && !usb_tx_pending();

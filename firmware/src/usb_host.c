@@ -322,6 +322,11 @@ static void start_step(uint8_t step, uint32_t now_us)
         s.wLength = 18;
         break;
     case STEP_CONF9:
+        /* what this read finds, or nothing: never the last device's length and value, which a descriptor
+         * that does not complete in its 9 bytes (a bLength past them, another type) would leave standing */
+        parse.total = 0;
+        usb_dev.config_value = 0;
+        /* fall through */
     case STEP_CONF:
         s.wValue = (uint16_t)(DESC_CONFIGURATION << 8);
         s.wLength = step == STEP_CONF9 ? 9u : (parse.total > CONFIG_MAX_LEN ? CONFIG_MAX_LEN : parse.total);
@@ -373,8 +378,11 @@ static void enumerate(uint32_t now_us)
         enum_failed(now_us);
         return;
     }
-    if (host.step == STEP_CONF9 && parse.total < 9u) {
-        enum_failed(now_us); /* no usable configuration descriptor */
+    if (host.step == STEP_CONF9 && (parse.total < 9u || !usb_dev.config_value)) {
+        /* no usable configuration descriptor: too short, or a bConfigurationValue of 0, which
+         * SET_CONFIGURATION takes as "unconfigure" - the device would stay in its address state, its bulk
+         * endpoints unanswered, and be taken for configured: up and down again every few passes */
+        enum_failed(now_us);
         return;
     }
     if (host.step == STEP_SET_CONFIG) {

@@ -129,7 +129,9 @@ class FirmwareBoard:
         self._watched: bytes | None = None
         self._sent_power = ""
         self._out = bytearray()
-        self._usb_events: list[tuple[int, str]] = []  # (µs of board time, "detach" | "attach"), in order
+        # (µs of board time, +1 a detach window opens | -1 one closes), in order, openings first at a tie
+        self._usb_events: list[tuple[int, int]] = []
+        self._usb_windows_open = 0  # the phone is off the port while any detach window is open
         self.steps = 0  # harness step commands
         solve_supply(self.power, self.battery, cfg.power.ubec, self.units, self.faults, self.now)
         self._send_power()
@@ -175,7 +177,7 @@ class FirmwareBoard:
                 self.faults.pop_hang()
                 self.harness.inject_hang()
             while self._usb_events and self._usb_events[0][0] <= self._t_us:
-                self.harness.command(f"usb {self._usb_events.pop(0)[1]}")
+                self._usb_window_edge(self._usb_events.pop(0)[1])
 
     def feed(self, data: bytes) -> None:
         """Bytes from the host arriving now (the board first catches up to now), through the link's
@@ -265,7 +267,12 @@ class FirmwareBoard:
         """Pull the phone off the board's USB host port at ``at`` (s of board time; None: now) and plug it
         back ``duration`` s later, in its normal mode (the firmware enumerates it and switches it into
         accessory mode again). Meanwhile the host's writes are lost (the app's write fails) and the board
-        hears nothing: its link watchdog fails it safe. Requires ``usb``."""
+        hears nothing: its link watchdog fails it safe. Requires ``usb``.
+
+        Windows that overlap or touch are one outage, their union: the phone stays off until the last one
+        ends (before, the end of a window inside another plugged it back early). A window lasts at least
+        1 µs, the board's time step: a shorter one rounded to 0 µs and, its attach sorted before its
+        detach, left the phone off the port for good."""
         if not self.usb:
             raise ConfigError("needs the phone's USB link (usb)", "FirmwareBoard.detach_phone")
         if not (math.isfinite(duration) and duration > 0):
@@ -273,9 +280,18 @@ class FirmwareBoard:
         start = round((self.clock.now() if at is None else at) * 1e6)
         if start < self._t_us:
             raise ConfigError(f"{start / 1e6:g} s is in the board's past", "FirmwareBoard.detach_phone")
-        end = start + round(duration * 1e6)
-        self._usb_events += [(start, "detach"), (end, "attach")]
-        self._usb_events.sort()
+        end = start + max(1, round(duration * 1e6))
+        self._usb_events += [(start, +1), (end, -1)]
+        self._usb_events.sort(key=lambda event: (event[0], -event[1]))  # a window opening first at a tie
+
+    def _usb_window_edge(self, change: int) -> None:
+        """A detach window opens (``change`` +1) or closes (-1): the phone leaves the port as the first
+        open window begins and comes back as the last one ends."""
+        self._usb_windows_open += change
+        if change > 0 and self._usb_windows_open == 1:
+            self.harness.command("usb detach")
+        elif change < 0 and self._usb_windows_open == 0:
+            self.harness.command("usb attach")
 
     def usb_state(self) -> UsbState:
         """The phone as the harness sees it now (``usbstate``). Requires ``usb``."""
