@@ -133,20 +133,39 @@ class Registry:
         self.group = group
         self._targets = {name.lower(): target for name, target in builtin.items()}
         self._discovered = False
+        self.unreadable: list[str] = []
+        """The installed distributions whose entry points could not be read (``"name (why)"``), passed
+        over by :meth:`_discover` and said by :meth:`known`."""
 
     def _discover(self) -> None:
         """Read the entry points, once: marked read only once they are, so that a reading cut short (a
         run's wall budget, Ctrl-C) is read again next time — it was marked first, and every later run of
-        that campaign worker found no emulator: "unknown transport scheme 'emu'"."""
+        that campaign worker found no emulator: "unknown transport scheme 'emu'".
+
+        An installed distribution whose entry points cannot be read (a line of its ``entry_points.txt``
+        without ``=``, in any group) is passed over and listed in :attr:`unreadable`: it ended every
+        ``hil run`` — the default one too, whose emulator is an entry point — in a raw TypeError. An entry
+        point whose value is no ``module:attribute`` is kept as written, for :meth:`load` to refuse when it
+        is chosen (it was an AttributeError from ``importlib.metadata`` for every name of the group)."""
         if self._discovered:
             return
         import importlib.metadata  # only here: reading the entry points costs a run that needs none 10+ ms
 
+        try:
+            entries = [
+                (e.name, e.value, str(getattr(e.dist, "name", None) or "?"))
+                for e in importlib.metadata.entry_points(group=self.group)
+            ]
+            unreadable: list[str] = []
+        except PASSES:
+            raise
+        except Exception:  # one distribution's metadata is broken: each read on its own, it passed over
+            entries, unreadable = _entries_by_distribution(self.group)
         found: dict[str, dict[str, str]] = {}  # name -> target -> the distribution that installed it
-        for entry in importlib.metadata.entry_points(group=self.group):
-            target = f"{entry.module}:{entry.attr}" if entry.attr else entry.module
-            dist = getattr(entry.dist, "name", None) or "?"
-            found.setdefault(entry.name.lower(), {}).setdefault(target, f"{entry.name} = {target} ({dist})")
+        for name, value, dist_name in entries:
+            target = _normal_target(value)
+            found.setdefault(name.lower(), {}).setdefault(target, f"{name} = {target} ({dist_name})")
+        self.unreadable = unreadable
         for name, targets in found.items():
             if len(targets) == 1:
                 self._targets.setdefault(name, next(iter(targets)))
@@ -162,6 +181,15 @@ class Registry:
         """Every name, built in, installed or registered, sorted."""
         self._discover()
         return sorted(self._targets)
+
+    def known(self) -> str:
+        """Every name (:meth:`names`) as a list in words for an error about an unknown one, and the
+        installed distributions whose entry points could not be read (:attr:`unreadable`): the name asked
+        for may be one of theirs."""
+        names = ", ".join(self.names())
+        if not self.unreadable:
+            return names
+        return f"{names}; entry points not read from: {', '.join(self.unreadable)}"
 
     def target(self, name: str) -> str | None:
         """The ``"module:attribute"`` of ``name``, or None when nobody registered it. A name built in or
@@ -195,5 +223,46 @@ class Registry:
         except BaseException as exc:  # the plugin's module failed as it ran (a sys.exit() too): not ours
             raise ImportError(f"importing {module_name} raised {raised(exc)}") from exc
         for part in attr.split(".") if attr else ():
-            obj = getattr(obj, part)
+            try:
+                obj = getattr(obj, part)
+            except (AttributeError, *PASSES):
+                raise
+            except BaseException as exc:  # a module's __getattr__ (a lazy loader), a property: the plugin's
+                raise ImportError(f"reading {module_name}:{attr} raised {raised(exc)}") from exc
         return obj
+
+
+def _entries_by_distribution(group: str) -> tuple[list[tuple[str, str, str]], list[str]]:
+    """The entry points of ``group`` (name, value, distribution), read one installed distribution at a
+    time, the first on ``sys.path`` of each name as :func:`importlib.metadata.entry_points` takes it; and
+    the distributions passed over because their metadata cannot be read (``"name (why)"``)."""
+    import importlib.metadata
+
+    entries: list[tuple[str, str, str]] = []
+    unreadable: list[str] = []
+    seen: set[str] = set()
+    for dist in importlib.metadata.distributions():
+        dist_name = "?"
+        try:
+            dist_name = str(dist.metadata["Name"] or "?")
+            key = re.sub(r"[-_.]+", "-", dist_name).lower()
+            if key in seen and dist_name != "?":
+                continue
+            seen.add(key)
+            entries += [(e.name, e.value, dist_name) for e in dist.entry_points if e.group == group]
+        except PASSES:
+            raise
+        except Exception as exc:  # its metadata's own fault: not every other package's
+            unreadable.append(f"{dist_name} ({raised(exc)})")
+    return entries, unreadable
+
+
+def _normal_target(value: str) -> str:
+    """An entry point's ``value`` as :data:`_TARGET` reads it, ``"module:attr"`` (spaces and extras
+    dropped, as compared with a registry's own targets); as written when it is none, for
+    :meth:`Registry.load` to refuse."""
+    match = _TARGET.match(value)
+    if match is None:
+        return value.strip()
+    module, attr = match.group("module"), match.group("attr")
+    return f"{module}:{attr}" if attr else module

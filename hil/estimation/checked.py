@@ -12,7 +12,9 @@ call                       checked
 ``step(s)``                an :class:`~hil.estimation.estimator.Estimate` (or an object with its six
                            attributes), at ``s.t``; ``R``, ``omega``, ``omega_err`` finite; ``R`` a
                            rotation (``|R Rᵀ − I| ≤`` :data:`ORTHONORMAL_TOL` entrywise, det > 0);
-                           each axis of ``omega`` and ``omega_err`` within :data:`RATE_LIMIT`
+                           each axis of ``omega`` and ``omega_err`` within :data:`RATE_LIMIT`;
+                           ``flags`` of :class:`~hil.estimation.sensors.StepFlag`'s bits only,
+                           ``iterations`` a count from 0 to :data:`MAX_ITERATIONS`
 ``run(steps)``             an :class:`~hil.estimation.estimator.EstimateBatch` of ``len(steps)`` rows
                            at ``steps.t``, each row as a step's; ``steps``' arrays are passed read-only
                            (an estimator that wrote into them changed what the replay then scores)
@@ -59,6 +61,15 @@ spacecraft's motion: 1e300 rad/s was steered on into a NaN setpoint naming nobod
 TIME_TOL_S = 1e-9
 """How far an estimate's ``t`` may be from its step's (s)."""
 
+MAX_ITERATIONS = 2**31 - 1
+"""The most ``iterations`` one step may say it took (a count, ≥ 0): the replay keeps them, and the flags,
+as int64 arrays; 2**70 passed the check and ended ``hil replay`` with a raw OverflowError after the whole
+log was estimated (the paper's estimator takes at most ``newton_max_iter``, 10 by default)."""
+
+KNOWN_FLAGS = sum(map(int, StepFlag))
+"""Every :class:`~hil.estimation.sensors.StepFlag` bit: the only ones an estimate may set (a bit beyond
+them is no condition the run can count; bit 70 ended ``hil replay`` with a raw OverflowError)."""
+
 _FIFTEEN = struct.Struct("=15d").unpack_from  # an Estimate's kept bytes: R row-major, omega, omega_err
 _FIELDS = ("t", "R", "omega", "omega_err", "flags", "iterations")
 _NAMES = ("R",) * 9 + ("omega",) * 3 + ("omega_err",) * 3  # what each of the fifteen is
@@ -80,6 +91,17 @@ def rotation_fault(r: tuple[float, ...]) -> str | None:
     det = r0 * (r4 * r8 - r5 * r7) - r1 * (r3 * r8 - r5 * r6) + r2 * (r3 * r7 - r4 * r6)
     if not det > 0:
         return f"R is a reflection (det R = {det:.6g}), not a rotation"
+    return None
+
+
+def counts_fault(flags: int, iterations: int) -> str | None:
+    """Why an estimate's ``flags`` and ``iterations`` (ints) are not a step's, or None: flags of bits no
+    :class:`~hil.estimation.sensors.StepFlag` has (:data:`KNOWN_FLAGS`), or a count of iterations below
+    0 or beyond :data:`MAX_ITERATIONS`."""
+    if not 0 <= flags <= KNOWN_FLAGS or flags & ~KNOWN_FLAGS:
+        return f"flags {int(flags):#x}, bits no StepFlag has (known: {KNOWN_FLAGS:#x})"
+    if not 0 <= iterations <= MAX_ITERATIONS:
+        return f"iterations {int(iterations)}, not a count from 0 to {MAX_ITERATIONS}"
     return None
 
 
@@ -140,6 +162,9 @@ class CheckedEstimator:
         est_t = out[0]
         if not (isinstance(est_t, (int, float)) and abs(est_t - t) <= TIME_TOL_S):
             raise self._error(f"{where} returned an estimate at t = {est_t!r}, not the step's")
+        fault = counts_fault(out[1], out[2])
+        if fault is not None:
+            raise self._error(f"{where} returned {fault}")
         return out  # type: ignore[no-any-return]
 
     def _as_estimate(self, out: Any, where: str) -> Estimate:
@@ -157,13 +182,12 @@ class CheckedEstimator:
             bad = [f"{k} {a.shape}" for k, a in arrays.items() if a.shape != shapes[k]]
             if bad:
                 raise self._error(f"{where} returned shapes {', '.join(bad)}; wants R (3, 3), omega (3,)")
+            flags, iterations = int(out.flags), int(out.iterations)
+            fault = counts_fault(flags, iterations)  # before StepFlag(): it reads -1 as every bit set
+            if fault is not None:
+                raise self._error(f"{where} returned {fault}")
             return Estimate(
-                float(out.t),
-                arrays["R"],
-                arrays["omega"],
-                arrays["omega_err"],
-                StepFlag(int(out.flags)),
-                int(out.iterations),
+                float(out.t), arrays["R"], arrays["omega"], arrays["omega_err"], StepFlag(flags), iterations
             )
         except PluginError:
             raise
@@ -238,6 +262,14 @@ class CheckedEstimator:
             np.issubdtype(out.flags.dtype, np.integer) and np.issubdtype(out.iterations.dtype, np.integer)
         ):
             raise self._error(f"{where} returned flags or iterations that are not integers")
+        # ranges first (a uint64 dtype takes no negative mask), then the bits of the flags within range
+        off = ~((out.flags >= 0) & (out.flags <= KNOWN_FLAGS))
+        off |= (np.where(off, 0, out.flags).astype(np.int64) & ~KNOWN_FLAGS) != 0
+        off |= ~((out.iterations >= 0) & (out.iterations <= MAX_ITERATIONS))
+        if off.any():
+            i = int(np.flatnonzero(off)[0])
+            fault = counts_fault(int(out.flags[i]), int(out.iterations[i]))
+            raise self._error(f"{where} returned at step {i} (t = {float(steps.t[i])!r} s) {fault}")
         return out
 
     # ------------------------------------------------------------------ bias and rest

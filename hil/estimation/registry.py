@@ -73,18 +73,28 @@ def estimator_kind(name: str, where: str = "estimator") -> EstimatorKind:
     module cannot be imported."""
     target = _REGISTRY.target(name)
     if target is None:
-        raise ConfigError(f"unknown estimator {name!r} (known: {', '.join(estimator_names())})", where)
+        raise ConfigError(f"unknown estimator {name!r} (known: {_REGISTRY.known()})", where)
     try:
         kind: EstimatorKind = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
         raise ConfigError(f"estimator {name!r} ({target}) is not available: {exc}", where) from exc
-    missing = [a for a in ("keys", "check", "build", "describe") if not hasattr(kind, a)]
-    if missing or not isinstance(kind.keys, (set, frozenset)):
-        what = (
-            f"no {', '.join(missing)}" if missing else f"its keys are a {type(kind.keys).__name__}, not a set"
-        )
+    try:  # its attributes are the plugin's: a property that raises is its fault, said as a ConfigError
+        what = call_plugin(f"estimator {name!r}", "reading its kind", lambda: _not_a_kind(kind))
+    except PluginError as exc:
+        raise ConfigError(f"estimator {name!r} ({target}) is not available: {exc.detail}", where) from exc
+    if what is not None:
         raise ConfigError(f"estimator {name!r} ({target}) is not an EstimatorKind ({what})", where)
     return kind
+
+
+def _not_a_kind(kind: Any) -> str | None:
+    """Why ``kind`` is not an :class:`~hil.estimation.interface.EstimatorKind` in a few words, or None."""
+    missing = [a for a in ("keys", "check", "build", "describe") if not hasattr(kind, a)]
+    if missing:
+        return f"no {', '.join(missing)}"
+    if not isinstance(kind.keys, (set, frozenset)):
+        return f"its keys are a {type(kind.keys).__name__}, not a set"
+    return None
 
 
 @dataclass(frozen=True)

@@ -102,7 +102,7 @@ def create_source(address: str, context: SourceContext, where: str = "--phone") 
     scheme = url.split("://", 1)[0].lower()
     target = _REGISTRY.target(scheme)
     if target is None:
-        why = f"unknown phone source scheme {scheme!r} (known: {', '.join(schemes())})"
+        why = f"unknown phone source scheme {scheme!r} (known: {_REGISTRY.known()})"
         raise ConfigError(f"{address!r}: {why}", where)
     try:
         factory: SourceFactory = _REGISTRY.load(target)

@@ -12,9 +12,11 @@ call                       checked
                            with a time stamp that is a real number, a ``SensorKind``, and three real
                            numbers; passed on as floats (an ``int`` stamp, a numpy row of ``xyz``)
 ``truth(now)``             None or a :class:`~.base.GroundTruth` (or an object with ``R`` and
-                           ``omega``): ``R`` a finite rotation (3, 3), ``omega`` a finite (3,)
-``rate_hz``                None or a positive finite number
-``start(origin)``          None or a finite number
+                           ``omega``): ``R`` a finite rotation (3, 3), ``omega`` a finite (3,) within
+                           the estimates' bound (:data:`~hil.estimation.checked.RATE_LIMIT`)
+``rate_hz``                None or a rate the estimator task can run at: :data:`MIN_RATE_HZ` to
+                           :data:`MAX_RATE_HZ`, as a scenario's phone
+``start(origin)``          None or a finite end time not before ``origin``
 ``tasks()``                a list of :class:`~hil.timing.scheduler.PeriodicTask`, each callback wrapped
 ``senders()``              None or a :class:`~.base.SenderStatus` of a string, counts and a bool,
                            whose events are :class:`~.base.SenderEvent` s of the one-phone rule's
@@ -37,17 +39,18 @@ becomes a :class:`~hil.plugins.PluginError` ``from`` it (:func:`~hil.plugins.cal
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Collection, Mapping
 from numbers import Real
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hil.estimation.checked import rotation_fault
+from hil.estimation.checked import RATE_LIMIT, rotation_fault
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.base import GroundTruth, PhoneSource, SenderEvent, SenderStatus
+from hil.numbers import finite_number
 from hil.plugins import PluginError, call_plugin, describe_value, json_plain
+from hil.scenario.reader import MIN_NEEDED_SENSOR_RATE_HZ, RANGES
 from protocol.errors import HilError
 
 if TYPE_CHECKING:
@@ -59,11 +62,32 @@ SENDER_KINDS = frozenset({"phone_other", "phone_following", "phone_switch"})
 ones a source's :meth:`~.base.PhoneSource.senders` may write (a user's "disarmed" is no record of the
 board's)."""
 
+MIN_RATE_HZ = MIN_NEEDED_SENSOR_RATE_HZ
+"""The slowest ``rate_hz`` a source may give (Hz): the estimator task drains it at that rate, and slower
+than two drains within the host's staleness bound every interval between drains is a phone gap — a source
+that said 0.01 Hz was drained every 100 s and the run ended "lost: phone" 15 s in, naming no plugin."""
+
+MAX_RATE_HZ = RANGES["sensors.*.rate_hz"][1]
+"""The fastest ``rate_hz`` a source may give (Hz): a scenario's fastest phone sensor. 1e300 Hz ended the run
+on the scheduler's "task 'estimator': period must be at least 1 ns", naming no plugin; 1e6 Hz drained it a
+million times a simulated second."""
+
 _COUNTS = ("phone_switches", "other_phones", "other_phone_messages", "other_phone_samples")
 
 
 def _real(value: Any) -> bool:
     return isinstance(value, Real) and not isinstance(value, bool)
+
+
+def _finite(value: Any) -> float | None:
+    """``value`` as a float if it is a finite real number (a numpy scalar too), else None: not a bool, and
+    not an int past a float's range (``float`` of one raises OverflowError)."""
+    if not _real(value):
+        return None
+    try:
+        return finite_number(float(value))
+    except OverflowError:
+        return None
 
 
 class CheckedSource(PhoneSource):
@@ -145,12 +169,18 @@ class CheckedSource(PhoneSource):
         try:
             R = np.array(found.R, dtype=float)
             omega = np.array(found.omega, dtype=float)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:  # an int past a float's range too
             raise self._error(f"{where} returned a truth that is not numbers: {exc}") from exc
         if R.shape != (3, 3) or omega.shape != (3,):
             raise self._error(f"{where} returned R {R.shape}, omega {omega.shape}; wants (3, 3), (3,)")
         if not (np.isfinite(R).all() and np.isfinite(omega).all()):
             raise self._error(f"{where} returned a non-finite {'R' if not np.isfinite(R).all() else 'omega'}")
+        fastest = float(np.abs(omega).max())
+        if not fastest <= RATE_LIMIT:  # the run's true rate, beside the estimates held to the same bound
+            raise self._error(
+                f"{where} returned omega of {fastest:.6g} rad/s on an axis, beyond any spacecraft's (the "
+                f"gyroscope's bound, {RATE_LIMIT:g} rad/s)"
+            )
         fault = rotation_fault(tuple(float(v) for v in R.reshape(9)))
         if fault is not None:
             raise self._error(f"{where} returned an attitude that is not a rotation: {fault}")
@@ -165,9 +195,17 @@ class CheckedSource(PhoneSource):
         rate = self._call("rate_hz", lambda: self.inner.rate_hz)
         if rate is None:
             return None
-        if not (_real(rate) and math.isfinite(rate) and rate > 0):
-            raise self._error(f"rate_hz is {describe_value(rate)}, not None or a positive number of Hz")
-        return float(rate)
+        return self._call("rate_hz: reading what it returned", lambda: self._rate(rate))  # type: ignore[no-any-return]
+
+    def _rate(self, rate: Any) -> float:
+        """``rate``, what ``rate_hz`` gave, as Hz if the estimator task can drain the source at it."""
+        hz = _finite(rate)
+        if hz is None or not MIN_RATE_HZ <= hz <= MAX_RATE_HZ:
+            raise self._error(
+                f"rate_hz is {describe_value(rate)}, not None or a rate the estimator task can drain it at "
+                f"({MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz)"
+            )
+        return hz
 
     def wait_ready(self, wait_s: float, keep_alive: Callable[[], None]) -> None:
         self._call("wait_ready", lambda: self.inner.wait_ready(wait_s, keep_alive))
@@ -198,9 +236,16 @@ class CheckedSource(PhoneSource):
         end = self._call(where, lambda: self.inner.start(origin))
         if end is None:
             return None
-        if not (_real(end) and math.isfinite(end)):
+        return self._call(f"{where}: reading what it returned", lambda: self._end(end, origin, where))  # type: ignore[no-any-return]
+
+    def _end(self, end: Any, origin: float, where: str) -> float:
+        """``end``, what ``start(origin)`` returned, as a run time (s) if it is one not before ``origin``."""
+        t = _finite(end)
+        if t is None:
             raise self._error(f"{where} returned {describe_value(end)}, not None or an end time (s)")
-        return float(end)
+        if not t >= origin:  # the run ended as it began, "time limit (the slew never started)"
+            raise self._error(f"{where} returned an end time {t!r} s, before the run's start")
+        return t
 
     @property
     def exhausted(self) -> bool:

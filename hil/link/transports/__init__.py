@@ -101,7 +101,7 @@ def create_transport(url: str) -> Transport:
         return SerialTransport(url)
     target = _REGISTRY.target(scheme)
     if target is None:
-        raise TransportError(f"{url}: unknown transport scheme {scheme!r} (known: {', '.join(schemes())})")
+        raise TransportError(f"{url}: unknown transport scheme {scheme!r} (known: {_REGISTRY.known()})")
     try:
         factory = _REGISTRY.load(target)
     except (ImportError, AttributeError) as exc:
