@@ -8,14 +8,16 @@ import argparse
 import math
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from hil.cli._parser import given_path
 from hil.files.output import fit_name
 
 if TYPE_CHECKING:
     from hil.estimation.registry import EstimatorChoice
+    from hil.estimation.sensors import SensorLog
     from hil.runtime.loop import RunResult
 
 ORDER = 30
@@ -339,6 +341,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
             "or --window)",
             "--port",
         )
+    check_steerable_rate(log)
     options = ReplayOptions(
         out_dir=Path("."),
         estimator=estimator_of(args),
@@ -381,9 +384,75 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     return report_ended(result, plotter, "hil replay")
 
 
+def check_steerable_rate(log: SensorLog) -> None:
+    """Refuse (ConfigError) a log whose gyroscope or accelerometer — the two the host steers with — samples
+    more than the host's stale bound (:data:`hil.runtime.faults.STALE_AFTER_S`, 0.25 s) apart at its
+    median: every interval between two of its samples is then a phone gap, the host never steers, and the
+    run ends "phone lost". A 2 Hz log armed the board, spun its rotors up and ended status 3 "lost: phone
+    lost … (phone_gap, phone_batched)" — for a recording, not a phone, that was never fast enough."""
+    from hil.estimation.sensors import SensorKind
+    from hil.runtime.faults import STALE_AFTER_S
+    from protocol.errors import ConfigError
+
+    for kind, name in ((SensorKind.GYR, "gyroscope"), (SensorKind.ACC, "accelerometer")):
+        period_s = log.streams[kind].median_period()
+        if period_s > STALE_AFTER_S:
+            raise ConfigError(
+                f"the log's {name} samples every {period_s:.3g} s (median), further apart than the "
+                f"{STALE_AFTER_S:g} s after which the host takes the phone for stale: it would never steer "
+                "on it (a log at 4 Hz or faster; `hil replay LOG` without --port runs the estimator over it)",
+                "--port",
+            )
+
+
+def admission_warnings(summary: Mapping[str, Any]) -> list[str]:
+    """What the host's admission dropped of a recording played to a board (``summary.json``'s
+    ``phone_admission``, against ``replay.samples_released``), when more than
+    :data:`hil.logs.replay.LOSS_WARNED` of it, as one warning naming the reasons. The host drops a
+    recording's repeated, out-of-order, out-of-range or stray samples before its merge sees them, so
+    :func:`hil.logs.replay.merge_warnings` counts none of them: a log whose every row was written three
+    times (two thirds of it dropped) said "completed" without a word, where the batch replay warned."""
+    from hil.logs.replay import LOSS_WARNED
+
+    admission = summary.get("phone_admission")
+    replay = summary.get("replay")
+    if not (isinstance(admission, dict) and isinstance(replay, dict)):
+        return []
+    dropped = admission.get("dropped")
+    released = replay.get("samples_released")
+    if not (isinstance(dropped, dict) and isinstance(released, int) and released > 0):
+        return []
+    counts = {reason: n for reason, n in dropped.items() if isinstance(n, int) and n > 0}
+    lost = sum(counts.values())
+    if not lost > LOSS_WARNED * released:
+        return []
+    why = ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in counts.items())
+    causes = "; ".join(ADMISSION_CAUSES.get(reason, reason) for reason in counts)
+    return [
+        f"the host dropped {lost} of the recording's {released} samples ({why}): {causes}; the board was "
+        "steered on what is left"
+    ]
+
+
+ADMISSION_CAUSES = {
+    "bad_time": "times that are no number",
+    "non_finite": "readings that are no number",
+    "out_of_range": "readings beyond a phone sensor's range",
+    "future": "times far ahead of the samples after them",
+    "past": "times far behind the samples before them",
+    "duplicate": "a sensor's clock repeats times (or they are beyond what a float64 second resolves)",
+    "out_of_order": "a sensor's rows are not in time order, or its clock is broken",
+    "burst": "a sensor's samples closer than 0.1 ms, faster than any phone",
+    "slow_clock": "a clock that runs slow against the run's",
+}
+"""What each of the admission's drop reasons (:data:`hil.estimation.admission.REASONS`) says of a log, for
+:func:`admission_warnings`."""
+
+
 def _merge_warned(result: RunResult) -> None:
     """The warnings the run's merge counters call for (:func:`hil.logs.replay.merge_warnings`, the batch
-    replay's: a sensor silent or NaN for much of the log, rows out of order), printed and in its
+    replay's: a sensor silent or NaN for much of the log, rows out of order) and its admission's
+    (:func:`admission_warnings`: the samples the host dropped before its merge), printed and in its
     ``summary.json`` (``replay.warnings``). A magnetometer that stopped a quarter into the log left heading
     unobserved for the rest, and the run said "completed" without a word, where the batch replay warned."""
     from hil.logs.replay import merge_stats_of, merge_warnings
@@ -391,6 +460,7 @@ def _merge_warned(result: RunResult) -> None:
 
     counts = result.summary.get("phone_merge")
     warnings = merge_warnings(merge_stats_of(counts)) if isinstance(counts, dict) else []
+    warnings += admission_warnings(result.summary)
     if not warnings:
         return
     for warning in warnings:

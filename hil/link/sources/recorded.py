@@ -31,7 +31,8 @@ Array = NDArray[np.float64]
 RECORDING_URL = "recording://"
 """The URL of the recording a run plays (``hil replay``)."""
 END_TICKS = 2
-"""The run ends this many control ticks after the recording's last sample: the tick after it is due."""
+"""The run ends this many control ticks after the estimator task has drained the recording's last sample
+(:meth:`RecordedSource.start`): the tick after it sees the recording exhausted."""
 
 
 def play(url: str, context: SourceContext) -> RecordedSource:
@@ -69,8 +70,8 @@ def release_times(t: Array) -> Array:
 class RecordedSource(PhoneSource):
     """``log``'s samples, every sensor's in one release order (:func:`release_times`), on the run's clock
     from its origin (s; the log's first sample is due then). Nothing is due before :meth:`start` sets the
-    origin; the run ends ``stop_after_s`` (s) after the last sample (``replay_start`` in ``events.jsonl``
-    says when)."""
+    origin; the run ends one estimator period and ``stop_after_s`` (s) after the last sample
+    (``replay_start`` in ``events.jsonl`` says when)."""
 
     def __init__(self, log: SensorLog, url: str, stop_after_s: float, write_event: EventWriter) -> None:
         self.log = log
@@ -105,9 +106,16 @@ class RecordedSource(PhoneSource):
         self._shift = origin - self.log.start
 
     def start(self, origin: float) -> float:
-        """Play the log from run time ``origin`` (s); returns the run time at which the run ends."""
+        """Play the log from run time ``origin`` (s); returns the run time at which the run ends: one
+        estimator period (:attr:`rate_hz`'s: the estimator task drains the last sample at most that long
+        after it is due) and ``stop_after_s`` after the last sample. Without the estimator's period a log
+        slower than the control ticks' ``stop_after_s`` (a 20 Hz log, 0.05 s, against two 50 Hz ticks,
+        0.04 s) could reach the run's end before its last sample was drained: the run, slewed and held,
+        ended "time limit (the slew never started)", status 1, its recording never exhausted."""
         self._play_from(origin)
-        until = self.end + self._stop_after_s
+        rate_hz = self.rate_hz
+        drained_within_s = 1.0 / rate_hz if rate_hz > 0 else 0.0  # 0 Hz: the scenario's rate (no period)
+        until = self.end + drained_within_s + self._stop_after_s
         self._write_event(origin, "replay_start", log=self.log.source, until=until)
         return until
 
