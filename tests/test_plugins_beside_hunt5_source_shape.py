@@ -162,3 +162,18 @@ def test_a_truth_is_passed_on_only_at_a_rate_a_spacecraft_can_turn(w):
         assert omega is None or abs(omega) > RATE_LIMIT, w
     else:
         assert abs(w) <= RATE_LIMIT and got is not None and got.omega[2] == float(w)
+
+
+def test_a_source_that_ends_after_the_slew_started_says_so(tmp_path, capsys):
+    """A source whose end comes after the slew started and before the run's time after it is up: the run
+    ends on its time limit, and says the slew had started (it said "the slew never started" of a run
+    that had slewed)."""
+    phone = "shaped://desk?rate=200&end=7&truth_w=0.01"
+    args = ["run", "--port", "emu://", "--phone", phone, "--duration", "30", "--no-plots"]
+    code = main([*args, "--out", str(tmp_path)])
+    capsys.readouterr()
+    (run_dir,) = tmp_path.iterdir()
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["slew_started"], summary
+    assert code == 1 and summary["exit"].startswith("time limit (the slew started at t="), summary["exit"]
+    assert "the run's time after it not reached" in summary["exit"]

@@ -614,7 +614,14 @@ def _outcome(host: Host) -> str:
         return "incomplete: the recording ended before the slew started (the controller never held it)"
     if host.finished and (unarmed := _not_in_hand(host)) is not None:
         return f"{RAN_OUT_UNARMED} {unarmed}"
-    return "completed" if host.finished else "time limit (the slew never started)"
+    if host.finished:
+        return "completed"
+    slew_start = host.phases.slew_start
+    if slew_start is None:
+        return "time limit (the slew never started)"
+    # it was said "(the slew never started)" of a run that had slewed and held (a recording's end, a
+    # source's end time, before the run's time after its slew was up)
+    return f"time limit (the slew started at t={slew_start:.3f} s; the run's time after it not reached)"
 
 
 def _not_in_hand(host: Host) -> str | None:
