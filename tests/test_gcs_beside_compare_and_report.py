@@ -68,7 +68,10 @@ def test_an_overlay_replaced_under_the_page_stops_and_says_so(tmp_path_factory, 
     batches = [source.poll() for _ in range(3)]
     assert not [r for batch in batches for _, rows in batch.overlay_rows for r in rows]
     said = overlay_states(batches)["b"]
-    assert said["state"] == "read" and said["exit"] is None and "telemetry.csv was" in said["error"]
+    assert said["state"] == "read" and said["exit"] is None
+    # the directory made anew may take its old inode number back, or not: what the station sees replaced
+    # first — the directory or its telemetry.csv — is the file system's to decide; either is said
+    assert "telemetry.csv was" in said["error"] or "run directory was removed or replaced" in said["error"]
     assert not source.sources[1].finished
 
 
