@@ -4,8 +4,12 @@ a test says otherwise."""
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from typing import Any
 
+from hil.estimation.registry import register_estimator
 from hil.estimation.sensors import SensorKind, SensorSample
 
 STILL_PERIOD_S = 0.005
@@ -47,3 +51,18 @@ class Delegating:
 
     def set_rest_learning(self, on: bool) -> None:
         self.inner.set_rest_learning(on)
+
+
+@contextmanager
+def estimators_in_a_module(module: str, kinds: Mapping[str, tuple[str, Any]]) -> Iterator[None]:
+    """Estimator kinds registered by name as ``module:ATTRIBUTE`` of a module made for the test and put in
+    ``sys.modules`` while it runs: ``kinds`` maps each registered name to (attribute, kind)."""
+    made = type(sys)(module)
+    for name, (attribute, kind) in kinds.items():
+        setattr(made, attribute, kind)
+        register_estimator(name, f"{module}:{attribute}")
+    sys.modules[module] = made
+    try:
+        yield
+    finally:
+        del sys.modules[module]

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from plugin_support import Delegating
+from plugin_support import Delegating, estimators_in_a_module
 
 from hil.cli import main
 from hil.estimation.checked import ORTHONORMAL_TOL, RATE_LIMIT, CheckedEstimator
@@ -90,15 +90,10 @@ MODES = ("nan", "scaled", "raises", "none", "nan_rows", "short", "writes")
 
 @pytest.fixture(autouse=True)
 def _registered() -> Iterator[None]:
-    module = type(sys)(MODULE)
-    for mode in MODES:
-        setattr(module, mode.upper(), FaultyKind(mode))
-        register_estimator(f"faulty-{mode}", f"{MODULE}:{mode.upper()}")
-    sys.modules[MODULE] = module
-    try:
+    with estimators_in_a_module(
+        MODULE, {f"faulty-{mode}": (mode.upper(), FaultyKind(mode)) for mode in MODES}
+    ):
         yield
-    finally:
-        del sys.modules[MODULE]
 
 
 @pytest.mark.parametrize(

@@ -8,7 +8,6 @@ a flag of -1 read through an estimate's attributes became every StepFlag bit at 
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,12 +15,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from plugin_support import Delegating
+from plugin_support import Delegating, estimators_in_a_module
 
 from hil.cli import main
 from hil.estimation.checked import KNOWN_FLAGS, MAX_ITERATIONS, CheckedEstimator
 from hil.estimation.estimator import Estimate, EstimateBatch
-from hil.estimation.registry import register_estimator
 from hil.estimation.sensors import MergedStep, MergedSteps, StepFlag
 from hil.estimation.variational_kind import VARIATIONAL
 from hil.plugins import PluginError
@@ -76,15 +74,8 @@ MODES = ("iterations_past_int64", "negative_iterations", "flag_bit_70", "read_fl
 
 @pytest.fixture(autouse=True)
 def _registered() -> Iterator[None]:
-    module = type(sys)(MODULE)
-    for mode in MODES:
-        setattr(module, mode.upper(), Kind(mode))
-        register_estimator(f"counts-{mode}", f"{MODULE}:{mode.upper()}")
-    sys.modules[MODULE] = module
-    try:
+    with estimators_in_a_module(MODULE, {f"counts-{mode}": (mode.upper(), Kind(mode)) for mode in MODES}):
         yield
-    finally:
-        del sys.modules[MODULE]
 
 
 @pytest.mark.parametrize(
