@@ -8,6 +8,13 @@ cluster, ``hil gcs`` stops serving. So SIGTERM is turned into that same exceptio
 of its own: :func:`interrupts_raise` installs one handler for both signals, which raises
 :class:`Interrupted` — a ``KeyboardInterrupt`` that knows its signal, so what ends the command can say
 which (``interrupted (SIGTERM)``) while every ``except KeyboardInterrupt`` on the way keeps working.
+
+An exception raised where Python cannot propagate it — in a ctypes callback (numba's LLVM object cache
+calls one for every function it compiles), a ``__del__``, a weakref callback — is printed as "Exception
+ignored" and dropped. A signal whose handler ran there was lost: a Ctrl-C during the first run's kernel
+compile printed a traceback, and the run went on and said it completed. :func:`interrupts_raise` therefore
+also hooks :data:`sys.unraisablehook`: an interrupt dropped that way is sent again to the process, so its
+handler runs at the next point where an exception can propagate.
 """
 
 from __future__ import annotations
@@ -18,7 +25,7 @@ import os
 import signal
 import sys
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
 
@@ -58,7 +65,26 @@ def _raise_interrupted(signum: int, frame: FrameType | None) -> None:
             with contextlib.suppress(Exception):  # a closed or broken stream: nothing more to say there
                 stream.flush()
         os._exit(_ended[0])
+    if _in_unraisable_hook:  # raised here, it would be dropped as the hook's own: sent again later instead
+        _send_again_later(signum)
+        return
     raise Interrupted(signum)
+
+
+_in_unraisable_hook = False
+"""Whether the main thread is in :func:`_redeliver_dropped_interrupts`'s hook (a plain global: storing it
+runs no Python call, so no signal handler can run between the store and the hook's return)."""
+
+REDELIVERY_DELAY_S = 0.002
+"""How long after an interrupt was dropped its signal is sent again (s): long enough for the callback
+that dropped it to return, as a rule; a signal that comes back inside one is dropped and sent again."""
+
+
+def _send_again_later(signum: int) -> None:
+    """Send ``signum`` to this process from a thread of its own, :data:`REDELIVERY_DELAY_S` from now."""
+    timer = threading.Timer(REDELIVERY_DELAY_S, os.kill, args=(os.getpid(), signum))
+    timer.daemon = True
+    timer.start()
 
 
 @contextmanager
@@ -78,11 +104,47 @@ def interrupts_raise(restore: bool = True) -> Iterator[None]:
         if signal.getsignal(signum) is signal.SIG_IGN:
             continue
         previous[signum] = signal.signal(signum, _raise_interrupted)
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _redeliver_dropped_interrupts(previous_hook)
     try:
         yield
     finally:
         for signum, handler in previous.items() if restore else ():
             signal.signal(signum, signal.SIG_DFL if handler is None else handler)  # None: set outside Python
+        if restore:
+            sys.unraisablehook = previous_hook
+
+
+def _redeliver_dropped_interrupts(
+    previous: Callable[[sys.UnraisableHookArgs], object],
+) -> Callable[[sys.UnraisableHookArgs], None]:
+    """An unraisable-exception hook that has a dropped interrupt's signal sent to this process again, and
+    hands every other unraisable exception to ``previous`` (Python's default prints it).
+
+    The signal is sent from a thread of its own, a moment after the hook has returned: sent from the hook
+    itself (``signal.raise_signal``, ``os.kill``), Python runs its handler at once, inside the hook, whose
+    exception is dropped in turn (and so is one whose handler runs while the hook still runs: the handler
+    sends it again later, :func:`_raise_interrupted`). Sent later, the handler runs where the main thread
+    is then; should that be another such callback, the interrupt is dropped there and sent again, until
+    it lands where it propagates. A process that can start no thread (its interpreter shutting down) has
+    its interrupt printed, as before."""
+
+    def hook(unraisable: sys.UnraisableHookArgs) -> None:
+        global _in_unraisable_hook
+        exc = unraisable.exc_value
+        if isinstance(exc, KeyboardInterrupt) and threading.current_thread() is threading.main_thread():
+            _in_unraisable_hook = True
+            try:
+                _send_again_later(getattr(exc, "signum", signal.SIGINT))
+            except RuntimeError:  # no new thread at interpreter shutdown
+                _in_unraisable_hook = False
+                previous(unraisable)
+                return
+            _in_unraisable_hook = False
+            return
+        previous(unraisable)
+
+    return hook
 
 
 def exit_on_late_signals(status: int) -> None:
