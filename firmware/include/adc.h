@@ -10,6 +10,20 @@
 
 #include <stdint.h>
 
+#include "board_pins.h"
+
+/* The highest UBEC rail voltage the ADC can report (mV): the top count (1023 of 1024) through the rail's
+ * divider, truncated as adc.c's scale() does (6392 mV). A level above it is never measured: the brown-out
+ * release is bounded by it (config.c), or the board would stay in BROWN_OUT for good. */
+#define ADC_UBEC_MAX_MV \
+    ((uint32_t)(ADC_FULL_SCALE - 1u) * ADC_REF_MV / ADC_FULL_SCALE * UBEC_DIVIDER_NUM / UBEC_DIVIDER_DEN)
+
+/* The highest battery voltage the ADC can report (mV), the same way through the pack's divider (20 456 mV):
+ * a pack full above it reads as less than it holds, its cells' stage wrong from power-on (config.c bounds
+ * the cells by it, as firmware_sim/avr/eeprom.py's check_hardware does). */
+#define ADC_BATTERY_MAX_MV \
+    ((uint32_t)(ADC_FULL_SCALE - 1u) * ADC_REF_MV / ADC_FULL_SCALE * BATTERY_DIVIDER_NUM / BATTERY_DIVIDER_DEN)
+
 typedef struct {
     uint16_t battery_mv; /* pack voltage */
     uint16_t battery_ma; /* pack current */

@@ -4,6 +4,7 @@
 #include <math.h>
 #include <string.h>
 
+#include "adc.h"
 #include "crc16.h"
 #include "flash.h"
 #include "power.h"
@@ -165,7 +166,9 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_ROTOR_SAFE_US;
     else if (c.ppm > 1 || (c.ppm && c.n_units > 4))
         problem = BAD_PPM;
-    else if (c.cells < 1 || c.cells > 12)
+    /* One cell (4.2 V full) cannot hold the rail up (BoardConfig); a pack full above the battery ADC's top
+     * reading (5 cells or more) reads low, its stage wrong from power-on (eeprom.py's check_hardware). */
+    else if (c.cells < 2 || (float)c.cells * power_full_cell_v() > (float)ADC_BATTERY_MAX_MV * 0.001f)
         problem = BAD_CELLS;
     else if (!within(c.battery_resistance_ohm, 0.0f, 10.0f))
         problem = BAD_BATTERY_RESISTANCE_OHM;
@@ -179,7 +182,11 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_WARN_V_CELL;
     else if (!within(c.limit_throttle, 0.0f, 1.0f))
         problem = BAD_LIMIT_THROTTLE;
-    else if (!within(c.brownout_release_v, 0.0f, 24.0f))
+    /* BROWN_OUT is left when the measured rail reaches the release level (app.c's power_step): one the
+     * rail's ADC cannot report, or at or above a full pack (the rail is the pack less the UBEC's dropout),
+     * held the board in BROWN_OUT for good, every Arm NACKed POWER (BoardConfig.validate refuses these). */
+    else if (!(c.brownout_release_v > 0.0f && (float)ADC_UBEC_MAX_MV * 0.001f >= c.brownout_release_v &&
+               c.brownout_release_v < (float)c.cells * power_full_cell_v()))
         problem = BAD_BROWNOUT_RELEASE_V;
     else if (!within(c.filter_time_constant_s, 0.0f, 10.0f))
         problem = BAD_FILTER_TIME_CONSTANT_S;

@@ -129,6 +129,13 @@ def _value(cfg: BoardConfig, source: str, baud: int, link: str) -> object:
     return value
 
 
+FIRMWARE_RAIL_TOP_READING_V = (1023 * 2560 // 1024 * 5 // 2) / 1000
+"""V: the highest UBEC rail voltage the firmware's ADC reports (6.392 V): the top count of its 2.56 V
+reference behind the rail's 2/5 divider, in adc.c's integers (``firmware/include/adc.h``:
+``ADC_UBEC_MAX_MV``). The board leaves brown-out only once the rail it reads reaches the release level:
+the firmware refuses a block whose release is above this (config.c), as :func:`check_hardware` does."""
+
+
 def check_hardware(cfg: BoardConfig) -> None:
     """Raise :class:`ConfigError` for what the BoardConfig allows but the ADK firmware cannot do."""
     cfg.validate()
@@ -145,6 +152,13 @@ def check_hardware(cfg: BoardConfig) -> None:
     # package is ~0.1 s of imports no EEPROM tool needs otherwise)
     from hil.scenario.reader import CELL_FULL_V, FIRMWARE_BATTERY_FULL_SCALE_V, FIRMWARE_MAX_CELLS
 
+    release_v = cfg.power.thresholds.brownout_release_v
+    if not release_v <= FIRMWARE_RAIL_TOP_READING_V:
+        raise ConfigError(
+            f"a brown-out release of {release_v:g} V is above the {FIRMWARE_RAIL_TOP_READING_V:g} V the "
+            "firmware's ADC reads on the UBEC rail: the board would never leave brown-out",
+            "BoardConfig.power.thresholds.brownout_release_v",
+        )
     cells = cfg.power.battery.cells
     if cells > FIRMWARE_MAX_CELLS:
         raise ConfigError(
