@@ -100,7 +100,8 @@ def test_ctrl_c_while_the_first_run_compiles_ends_it_interrupted(tmp_path: Path,
     interrupted and exits 130, never completed."""
     delay = random.Random(draw).uniform(0.2, 3.0)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    command = [sys.executable, "-m", "hil", "run", "--no-plots", "--duration", "5", "--out", str(tmp_path / "runs")]
+    out = str(tmp_path / "runs")
+    command = [sys.executable, "-m", "hil", "run", "--no-plots", "--duration", "5", "--out", out]
     with subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as run:
         assert run.stderr is not None
         for line in run.stderr:
