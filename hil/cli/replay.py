@@ -294,12 +294,14 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     from hil.cli.run import LiveProgress, Plotter, report_ended
     from hil.estimation.inertial import field_warnings
     from hil.logs import read_log
+    from hil.logs.rates import rate_drops
     from hil.logs.replay import (
         ReplayOptions,
         before_clock_restart,
         configure,
         drop_out_of_range,
         field_model_of,
+        rate_drop_warning,
         split_at_gaps,
         steerable_end,
     )
@@ -359,7 +361,8 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     )
     for line in setup:
         print(f"  {line}", file=sys.stderr)
-    for warning in field_warnings(log, field_model_of(options)):
+    slowed = [rate_drop_warning(drop) for drop in rate_drops(log, args.max_gap)]
+    for warning in [*field_warnings(log, field_model_of(options)), *slowed]:
         print(f"  warning: {warning}", file=sys.stderr)
         setup.append(f"warning: {warning}")
     plotter = None if args.no_plots else Plotter()  # its imports overlap the run, as hil run's

@@ -65,6 +65,7 @@ from hil.logs import read_log
 from hil.logs.acc_units import acc_unit_warning
 from hil.logs.file_names import sensor_files_where
 from hil.logs.gyro_units import gyro_unit_warning
+from hil.logs.rates import RATE_DROP_FACTOR, RateDrop, rate_drops
 from hil.timing.clock import Clock
 from protocol.errors import ConfigError, InputFormatError
 
@@ -162,6 +163,9 @@ class ReplayResult:
     skipped_parts: dict[str, int] = field(default_factory=dict)
     """Readings per sensor (by label) in the parts of the log not replayed (``segments``' ``skipped``: a
     part where a sensor is silent, or too short), each part also a warning."""
+    rate_drops: list[RateDrop] = field(default_factory=list)
+    """The sensors whose rate dropped part-way through the log (:func:`hil.logs.rates.rate_drops`), each
+    also a warning: counted in ``summary.json`` (``rate_drops``)."""
 
     @property
     def samples_read(self) -> int:
@@ -272,6 +276,19 @@ def seconds(t: float) -> str:
     """A log time (s) for a message: to the ms, or in 6 significant digits where that would run long (a
     stray row at 1e308 s printed 300 digits)."""
     return f"{t:.3f}" if abs(t) < 1e9 else f"{t:.6g}"
+
+
+def rate_drop_warning(drop: RateDrop) -> str:
+    """What a replay says of one sensor whose rate dropped part-way (:class:`hil.logs.rates.RateDrop`):
+    where, for how long, how slow — the estimates there rest on fewer samples, and a fixed-period
+    estimator takes each of its steps as one of the median's."""
+    return (
+        f"{drop.kind.label}: its rate drops part-way through the log: {drop.steps} steps over "
+        f"{drop.seconds:.3g} s, from {seconds(drop.first_s)} s on, come more than {RATE_DROP_FACTOR:g} "
+        f"times slower than its own {drop.rate_hz:.3g} Hz (as slow as {drop.slowest_hz:.3g} Hz): the "
+        "estimates there rest on fewer samples than the rest, and an estimator with a fixed sample period "
+        "(vqf) takes each of those steps as one at its nominal rate"
+    )
 
 
 def split_at_gaps(log: SensorLog, max_gap_s: float) -> list[tuple[float, float]]:
@@ -415,6 +432,8 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         )
     if restarted is not None:
         warnings.append(restarted)
+    slowed = rate_drops(log, options.max_gap_s)
+    warnings += [rate_drop_warning(drop) for drop in slowed]
     parts = split_at_gaps(log, options.max_gap_s)
     parts_said = len(warnings)  # the warnings from here on are the parts'
     all_steps, all_estimates, segments = [], [], []
@@ -519,6 +538,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         gyro_bias=bias,
         out_of_range=beyond,
         skipped_parts=skipped,
+        rate_drops=slowed,
     )
     _score(result)
     make_dir(options.out_dir)
@@ -883,6 +903,7 @@ def _write_summary(result: ReplayResult, path: Path) -> Path:
             "intervals_s": [[round(a, 4), round(b, 4)] for a, b in result.mag_rejections],
             "total_s": round(_flagged_time(result.estimates, StepFlag.MAG_DISTURBED), 4),
         },
+        "rate_drops": {drop.kind.label: drop.as_dict() for drop in result.rate_drops},
         "rest_s": round(_flagged_time(result.estimates, StepFlag.REST), 4),
         "gyro_bias_final_rad_s": None if result.gyro_bias is None else list(result.gyro_bias),
         "rmse_deg": None if result.comparison is None else asdict(result.comparison.rmse),
