@@ -30,11 +30,24 @@ from hil.estimation.sensors import SensorKind
 from protocol.errors import InputFormatError
 
 UNITS: dict[SensorKind, dict[str, float]] = {
-    SensorKind.ACC: {"": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "m/s2": 1.0, "m s^-2": 1.0, "g": 9.80665},
-    SensorKind.GYR: {"": 1.0, "rad/s": 1.0, "°/s": math.pi / 180, "deg/s": math.pi / 180},
-    SensorKind.MAG: {"": 1.0, "µt": 1.0, "μt": 1.0, "ut": 1.0, "mt": 1000.0, "nt": 1e-3},
+    SensorKind.ACC: {
+        **{"": 1.0, "m/s^2": 1.0, "m/s²": 1.0, "m/s2": 1.0, "m s^-2": 1.0},
+        **{"g": 9.80665, "mg": 9.80665e-3},
+    },
+    SensorKind.GYR: {
+        **{"": 1.0, "rad/s": 1.0, "mrad/s": 1e-3},
+        **{"°/s": math.pi / 180, "deg/s": math.pi / 180, "dps": math.pi / 180},
+    },
+    SensorKind.MAG: {
+        **{"": 1.0, "µt": 1.0, "μt": 1.0, "ut": 1.0, "mt": 1000.0, "nt": 1e-3},
+        **{"g": 100.0, "gauss": 100.0, "mg": 0.1},
+    },
 }
-"""Per sensor: unit (lower case) → factor to m/s², rad/s or µT."""
+"""Per sensor: unit (lower case) → factor to m/s², rad/s or µT. Besides SI, the units other apps and IMU
+tools write: g and milli-g (mg) for acceleration; deg/s (``dps``) and mrad/s for rates; gauss (G, 100 µT)
+and milligauss (mG, 0.1 µT) for the field — each sensor's table its own, so ``g`` is 9.81 m/s² on an
+accelerometer and 100 µT on a magnetometer (a header of G was refused, "unknown unit", though it says
+exactly what its numbers are)."""
 TIME_UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 
 _AXIS = re.compile(r"(?<![A-Za-z])([xyz])(?![A-Za-z])", re.IGNORECASE)
