@@ -586,11 +586,16 @@ def _epoch_ns(
     if "seconds_elapsed" in table.columns:
         rows = np.flatnonzero(usable & np.isfinite(table.column("seconds_elapsed")))
         elapsed = table.column("seconds_elapsed")[rows]
-        span_s = float(elapsed[-1] - elapsed[0]) if len(rows) else 0.0
         if bases is not None and len(rows):
             bases[table.source] = float(np.median(ns[rows] * 1e-9 - elapsed))
-        if abs(span_s) >= 1.0:
-            ratio = float(ns[rows[-1]] - ns[rows[0]]) * 1e-9 / span_s
+        # the unit told over the steps on which seconds_elapsed goes on (s): end to end, a recording
+        # appended to another (seconds_elapsed from 0 again, 'time' on from the pause) was refused as
+        # "its unit is not ns", its 'time' right throughout
+        steps_s = np.diff(elapsed)
+        on = steps_s > 0
+        span_s = float(steps_s[on].sum())
+        if span_s >= 1.0:
+            ratio = float(np.diff(ns[rows])[on].sum()) * 1e-9 / span_s
             if not 0.99 < ratio < 1.01:
                 raise InputFormatError(
                     f"read as {_unit_text(name)}, 'time' spans {ratio:.4g} times what "
