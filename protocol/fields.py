@@ -22,6 +22,7 @@ from collections.abc import Sequence, Sized
 from typing import Any
 
 from .errors import FieldRangeError, ProtocolError
+from .numbers import real_number
 
 _INT_BOUNDS = {
     "B": (0, 0xFF),
@@ -59,9 +60,11 @@ class Scalar:
     def check(self, value: Any) -> bool:
         """True if ``value`` may be sent in this field."""
         if self.fmt == "f":
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                return False
-            return math.isfinite(value) and self.lo <= value <= self.hi
+            if isinstance(value, float):
+                return math.isfinite(value) and self.lo <= value <= self.hi
+            # an int (not a bool) as the float it is: 10**400 was an OverflowError out of math.isfinite
+            number = real_number(value) if isinstance(value, int) else None
+            return number is not None and math.isfinite(number) and self.lo <= number <= self.hi
         return isinstance(value, int) and not isinstance(value, bool) and self.lo <= value <= self.hi
 
     def from_wire(self, value: Any) -> Any:

@@ -19,10 +19,12 @@ mean width, not one frame's). 0 is "no pulse".
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 
-from .errors import FieldRangeError
-from .messages import PULSE_MAX_US
+from .errors import ConfigError, FieldRangeError
+from .messages import MAX_CHANNELS, PULSE_MAX_US
+from .numbers import real_number
 
 TICK_US = 0.5
 """One timer tick (µs): 16 MHz / prescaler 8."""
@@ -36,20 +38,34 @@ _FRACTION = (1 << FRACTION_BITS) - 1
 
 def fine_width(width_us: float) -> int:
     """``width_us`` (a calibration map's float µs) as a fine width, 1/512 µs, rounded half to even;
-    :class:`FieldRangeError` if it is not finite or outside 0..PULSE_MAX_US."""
-    if not (math.isfinite(width_us) and 0.0 <= width_us <= PULSE_MAX_US):
+    :class:`FieldRangeError` if it is no number (a bool: ``True`` was a 1 µs pulse), not finite (10**400
+    was an ``OverflowError``) or outside 0..PULSE_MAX_US."""
+    width = real_number(width_us)
+    if width is None or not (math.isfinite(width) and 0.0 <= width <= PULSE_MAX_US):
         raise FieldRangeError("fine_width", "width_us", width_us)
-    return round(width_us * FINE_PER_US)
+    return round(width * FINE_PER_US)
 
 
 def whole_us(width_us: int) -> int:
-    """A whole-µs width (the safe pulse, raw pulses, an ESC endpoint) as a fine width: exact ticks."""
-    return width_us * FINE_PER_US
+    """A whole-µs width (the safe pulse, raw pulses, an ESC endpoint) as a fine width: exact ticks.
+    :class:`FieldRangeError` unless it is an integer (not a bool) in 0..PULSE_MAX_US: 1.5 made a float
+    "fine width" that the dither then refused with a raw ``TypeError``, -5 a negative width."""
+    if not _is_integer_in(width_us, PULSE_MAX_US):
+        raise FieldRangeError("whole_us", "width_us", width_us)
+    return int(width_us) * FINE_PER_US
 
 
 def reported_us(fine: int) -> int:
-    """The whole µs a fine width is reported as (half up): ``(fine + 256) >> 9``."""
-    return (fine + FINE_PER_US // 2) // FINE_PER_US
+    """The whole µs a fine width is reported as (half up): ``(fine + 256) >> 9``. :class:`FieldRangeError`
+    unless ``fine`` is a fine width (an integer in 0..FINE_MAX): -1 was reported as 0 µs, no pulse."""
+    if not _is_integer_in(fine, FINE_MAX):
+        raise FieldRangeError("reported_us", "fine", fine)
+    return (int(fine) + FINE_PER_US // 2) // FINE_PER_US
+
+
+def _is_integer_in(value: object, top: int) -> bool:
+    """Whether ``value`` is an integer (numpy's too, not a bool) in ``0..top``."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and 0 <= int(value) <= top
 
 
 class SigmaDelta:
@@ -59,13 +75,30 @@ class SigmaDelta:
     reset (the remainders start at 0)."""
 
     def __init__(self, channels: int) -> None:
-        self.residue = [0] * channels
+        if (
+            isinstance(channels, bool)
+            or not isinstance(channels, numbers.Integral)
+            or not 1 <= channels <= MAX_CHANNELS
+        ):
+            raise ConfigError(f"{channels!r} must be an integer in 1..{MAX_CHANNELS}", "SigmaDelta.channels")
+        self.residue: list[int] = [0] * int(channels)
 
     def reset(self) -> None:
         self.residue = [0] * len(self.residue)
 
     def frame(self, fine: Sequence[int | None]) -> tuple[float | None, ...]:
-        """One frame's widths (µs, multiples of :data:`TICK_US`; None: no pulse) for the fine widths."""
+        """One frame's widths (µs, multiples of :data:`TICK_US`; None: no pulse) for the fine widths, one
+        per channel (fewer: the rest carry no pulse). :class:`FieldRangeError` naming the channel for a
+        width that is not a fine width (an integer in 0..FINE_MAX, not a bool) or for more widths than
+        channels — before any remainder moves, so a refused frame leaves the dither as it was. (More
+        widths were an ``IndexError``, a float one a ``TypeError``, a negative one a negative width.)"""
+        if len(fine) > len(self.residue):
+            raise FieldRangeError(
+                "SigmaDelta.frame", "fine", f"{len(fine)} widths for {len(self.residue)} channels"
+            )
+        for ch, q in enumerate(fine):
+            if q is not None and not _is_integer_in(q, FINE_MAX):
+                raise FieldRangeError("SigmaDelta.frame", f"fine[{ch}]", q)
         out: list[float | None] = []
         residue = self.residue
         for ch, q in enumerate(fine):

@@ -22,11 +22,13 @@ from __future__ import annotations
 
 import enum
 import math
+import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 from .errors import ConfigError, FieldRangeError, ProtocolError
 from .messages import PULSE_MAX_US, PULSE_MIN_US
+from .numbers import real_number
 
 SERVO_MIN_RATE_HZ = 50.0
 SERVO_MAX_RATE_HZ = 490.0
@@ -53,7 +55,8 @@ class ServoParams:
         if not self.min_us < self.max_us:
             raise ConfigError(f"min_us {self.min_us} must be below max_us {self.max_us}", f"{w}.min_us")
         r = self.frame_rate_hz
-        if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r):
+        rate = real_number(r)
+        if rate is None or not math.isfinite(rate):
             raise ConfigError(f"{r!r} is not a finite number", f"{w}.frame_rate_hz")
         if not SERVO_MIN_RATE_HZ <= r <= SERVO_MAX_RATE_HZ:
             raise ConfigError(
@@ -72,17 +75,23 @@ class ServoParams:
         return math.floor(1e6 / self.frame_rate_hz)
 
     def frame_start_us(self, k: int) -> int:
-        """Start of frame ``k`` (µs from frame 0): ``floor(k · 10⁶ / rate)``."""
+        """Start of frame ``k`` (µs from frame 0): ``floor(k · 10⁶ / rate)``. :class:`FieldRangeError`
+        for a ``k`` that is not a frame number (an integer, not a bool, ≥ 0) or whose start is past a
+        float's range (it was an ``OverflowError``, and NaN a ``ValueError``)."""
+        frame = real_number(k) if isinstance(k, numbers.Integral) else None
+        if frame is None or not 0 <= frame * 1e6 < math.inf:
+            raise FieldRangeError("ServoParams.frame_start_us", "k", k)
         return math.floor(k * 1e6 / self.frame_rate_hz)
 
     def check(self, widths_us: Sequence[float], what: str = "servo") -> tuple[int, ...]:
-        """``widths_us`` rounded to whole µs; :class:`FieldRangeError` naming the channel if one is outside
-        ``min_us..max_us`` or not finite."""
+        """``widths_us`` rounded to whole µs; :class:`FieldRangeError` naming the channel if one is not a
+        finite number (a bool, a string, 10**400) or is outside ``min_us..max_us``."""
         out = []
         for ch, w in enumerate(widths_us):
-            if not (math.isfinite(w) and self.min_us <= round(w) <= self.max_us):
+            width = real_number(w)
+            if width is None or not (math.isfinite(width) and self.min_us <= round(width) <= self.max_us):
                 raise FieldRangeError(what, f"channel[{ch}]", w)
-            out.append(round(w))
+            out.append(round(width))
         return tuple(out)
 
     def frame(self, k: int, widths_us: Sequence[float]) -> tuple[ServoPulse, ...]:
@@ -118,9 +127,15 @@ def measure_servo(
     """Read one channel's captured ``(rise_us, fall_us)`` pulses (e.g. a logic analyser on a real board)
     back into widths. Raises :class:`ProtocolError` naming the pulse if a width is outside the limits by
     more than ``tolerance_us`` or a rising edge comes less than a frame period (minus the tolerance)
-    after the previous one."""
+    after the previous one, or if it is not a ``(rise_us, fall_us)`` pair of finite numbers; and
+    :class:`FieldRangeError` for a ``tolerance_us`` that is not a finite number ≥ 0 (a NaN tolerance
+    refused every pulse, saying the pulse was at fault)."""
+    tolerance = real_number(tolerance_us)
+    if tolerance is None or not (math.isfinite(tolerance) and tolerance >= 0.0):
+        raise FieldRangeError("measure_servo", "tolerance_us", tolerance_us)
     if len(pulses) < 2:
         raise ProtocolError(f"servo capture: {len(pulses)} pulses; need at least 2 to measure a frame rate")
+    pulses = [_captured_pulse(i, pulse) for i, pulse in enumerate(pulses)]
     widths = []
     period = 1e6 / params.frame_rate_hz
     for i, (rise, fall) in enumerate(pulses):
@@ -138,6 +153,21 @@ def measure_servo(
         widths.append(min(max(round(w), params.min_us), params.max_us))
     span = pulses[-1][0] - pulses[0][0]
     return ServoCapture(tuple(widths), (len(pulses) - 1) * 1e6 / span)
+
+
+def _captured_pulse(i: int, pulse: object) -> tuple[float, float]:
+    """Captured pulse ``i`` as ``(rise_us, fall_us)`` floats; :class:`ProtocolError` naming it if it is not
+    a pair of finite numbers (a short tuple was a raw ``ValueError``, a string a ``TypeError``, an edge
+    at 10**400 µs read exactly where every other time is a float)."""
+    try:
+        rise, fall = (real_number(t) for t in pulse)  # type: ignore[attr-defined]
+    except (TypeError, ValueError):
+        rise = fall = None
+    if rise is None or fall is None or not (math.isfinite(rise) and math.isfinite(fall)):
+        raise ProtocolError(
+            f"servo capture: pulse {i} is {pulse!r}, not a (rise_us, fall_us) pair of finite µs"
+        )
+    return rise, fall
 
 
 # =========================================================================== PPM-sum
@@ -158,7 +188,8 @@ class PpmParams:
         w = "PpmParams"
         for name in ("frame_us", "separator_us", "min_sync_us", "channel_min_us", "channel_max_us"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+            number = real_number(v)
+            if number is None or not (math.isfinite(number) and number > 0):
                 raise ConfigError(f"{v!r} is not a positive number", f"{w}.{name}")
         if not self.separator_us < self.channel_min_us < self.channel_max_us < self.min_sync_us:
             raise ConfigError(
@@ -187,15 +218,23 @@ def encode_ppm(widths_us: Sequence[float], params: PpmParams = DEFAULT_PPM) -> t
         raise FieldRangeError("PPM", "channels", n)
     edges = [0.0]
     for ch, w in enumerate(widths_us):
-        if not (math.isfinite(w) and params.channel_min_us <= w <= params.channel_max_us):
+        width = real_number(w)
+        if width is None or not (
+            math.isfinite(width) and params.channel_min_us <= width <= params.channel_max_us
+        ):
             raise FieldRangeError("PPM", f"channel[{ch}]", w)
-        edges.append(edges[-1] + float(w))
+        edges.append(edges[-1] + width)
     return tuple(edges)
 
 
 def clamp_ppm_width(width_us: float, params: PpmParams = DEFAULT_PPM) -> float:
-    """``width_us`` limited to the PPM channel range (what a PPM output stage does to its inputs)."""
-    return min(max(width_us, params.channel_min_us), params.channel_max_us)
+    """``width_us`` limited to the PPM channel range (what a PPM output stage does to its inputs): ±inf
+    and widths past a float's range go to the ends. :class:`FieldRangeError` for one that is no width —
+    NaN (it came out as NaN, as if clamped), a bool (``True`` came out as 700 µs), a string."""
+    width = real_number(width_us)
+    if width is None or math.isnan(width):
+        raise FieldRangeError("clamp_ppm_width", "width_us", width_us)
+    return min(max(width, params.channel_min_us), params.channel_max_us)
 
 
 class PpmInterval(enum.Enum):
@@ -209,6 +248,15 @@ class PpmInterval(enum.Enum):
 
 
 def classify_interval(dt_us: float, params: PpmParams = DEFAULT_PPM) -> PpmInterval:
+    """What ``dt_us`` (µs between two rising edges) is; :class:`FieldRangeError` if it is no number."""
+    dt = real_number(dt_us)
+    if dt is None:
+        raise FieldRangeError("classify_interval", "dt_us", dt_us)
+    return _classify(dt, params)
+
+
+def _classify(dt_us: float, params: PpmParams) -> PpmInterval:
+    """:func:`classify_interval` of a float."""
     if not (math.isfinite(dt_us) and dt_us > 0.0):
         return PpmInterval.ORDER
     if dt_us < params.channel_min_us:
@@ -231,10 +279,15 @@ def decode_ppm(edges_us: Sequence[float], params: PpmParams = DEFAULT_PPM) -> tu
             f"PPM frame: {len(edges_us)} edges = {n} channels;"
             f" need {params.min_channels}..{params.max_channels}"
         )
+    edges = [real_number(t) for t in edges_us]
+    for i, t in enumerate(edges):
+        if t is None:
+            raise ProtocolError(f"PPM frame: edge {i} is {edges_us[i]!r}, not a time in µs")
     widths = []
     for i in range(n):
-        a, b = edges_us[i], edges_us[i + 1]
-        kind = classify_interval(b - a, params)
+        a, b = edges[i], edges[i + 1]
+        assert a is not None and b is not None
+        kind = _classify(b - a, params)
         if kind is not PpmInterval.CHANNEL:
             raise ProtocolError(
                 f"PPM frame: channel {i} (edges {a:.1f} -> {b:.1f} µs) is {b - a:.1f} µs, not a channel"
@@ -269,16 +322,6 @@ class PpmCounters:
     reanchored: int = 0  # times the edge held was found the absurd one and the stream taken up anew
 
 
-def _edge_us(t: float) -> float:
-    """An edge's time as a float. A capture counter's integer beyond a float's range (10**400) is an edge
-    at ±inf — absurdly far, which the decoder takes up as any absurd edge — not an ``OverflowError`` out of
-    :meth:`PpmDecoder.feed`."""
-    try:
-        return float(t)
-    except OverflowError:
-        return math.inf if t > 0 else -math.inf
-
-
 class PpmDecoder:
     """Stream decoder: feed rising-edge times (µs, any origin, increasing); get :class:`PpmFrame` and
     :class:`BadPpm` events. Like a flight controller's PPM input it waits for a sync gap, collects channel
@@ -301,9 +344,19 @@ class PpmDecoder:
         self._channels: list[int] = []
 
     def feed(self, edges_us: Iterable[float]) -> list[PpmFrame | BadPpm]:
+        """Events for ``edges_us``. A capture counter's integer beyond a float's range (10**400) is an edge
+        at ±inf — absurdly far, which the decoder takes up as any absurd edge. One that is no number (a
+        string, None, a bool) is counted and drops the frame it fell in (``not_a_time``), the edge held
+        kept: it was a raw ``TypeError`` out of here, and ``"1500"`` was read as a time."""
         events: list[PpmFrame | BadPpm] = []
         for t in edges_us:
-            self._edge(_edge_us(t), events)
+            edge = real_number(t)
+            if edge is None:
+                self.counters.edges += 1
+                held = math.nan if self._last is None else self._last
+                self._drop(events, held, "not_a_time", f"edge {t!r} is not a time in µs")
+                continue
+            self._edge(edge, events)
         return events
 
     def _edge(self, t: float, events: list[PpmFrame | BadPpm]) -> None:
@@ -312,7 +365,7 @@ class PpmDecoder:
         if last is None:
             return
         dt = t - last
-        kind = classify_interval(dt, self.params)
+        kind = _classify(dt, self.params)
         behind, self._behind = self._behind, None
         if kind is PpmInterval.ORDER:
             if behind is not None and t > behind:  # the held edge is ahead of two in order: it was absurd
