@@ -12,8 +12,11 @@ Sender side (:class:`ReliableSender`)::
 
 No clock inside: every call takes ``now`` (seconds on any monotonic time base the caller uses — wall
 or lockstep; one that is not finite, or too far out for a timeout to be added to it, is refused with
-:class:`ConfigError`), and :meth:`ReliableSender.next_deadline` says when :meth:`~ReliableSender.poll`
-next has work, so an event loop can sleep exactly that long.
+:class:`ConfigError`; one earlier than the latest given by more than the shortest timeout — a clock
+stepped back — moves every pending try's times back with it, each keeping the wait it had left:
+``SenderStats.clock_steps_back``; a smaller step back, two readings given out of order, changes
+nothing), and :meth:`ReliableSender.next_deadline` says when :meth:`~ReliableSender.poll` next has work,
+so an event loop can sleep exactly that long.
 
 Rules (docs/protocol.md, "Reliable commands"):
 
@@ -46,6 +49,7 @@ from typing import Any
 from .errors import CommandFailed, ConfigError, ProtocolError
 from .frame import Frame, Framer
 from .messages import Ack, Flags, Hello, HelloReply, Nack, NackReason
+from .numbers import real_number
 
 
 class CommandState(enum.Enum):
@@ -74,8 +78,10 @@ class RetryPolicy:
     def __post_init__(self) -> None:
         for name in ("timeout_s", "backoff", "max_timeout_s"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            number = real_number(value)  # 10**400 was an OverflowError out of ``math.isfinite``
+            if number is None or not math.isfinite(number):
                 raise ConfigError(f"{value!r} is not a finite number", f"RetryPolicy.{name}")
+            object.__setattr__(self, name, number)  # numpy's scalars and 0-d arrays: the float they hold
         if self.timeout_s <= 0 or self.max_timeout_s < self.timeout_s:
             got = f"got {self.timeout_s}, {self.max_timeout_s}"
             raise ConfigError(f"need 0 < timeout_s <= max_timeout_s ({got})", "RetryPolicy")
@@ -184,9 +190,14 @@ class SenderStats:
     late_answers: int = 0  # answers for commands already settled (e.g. the answer to an earlier try)
     unmatched_answers: int = 0  # answers naming no command this sender knows
     superseded: int = 0  # pending commands failed by a newer one setting the same thing (not retried)
+    clock_steps_back: int = 0  # calls whose ``now`` was a timeout or more before the latest (times moved)
 
 
 _RECENT = 256  # settled commands remembered to tell a late answer from an unmatched one
+_SEND_ROOM = 4.0
+"""Float steps a command's shortest timeout spans at least when it is sent: its retries' times may cross
+into the next binade (steps twice as long) and still leave its timeouts room (unless the command's whole
+life, ``max_tries · max_timeout_s``, is as long as the time itself: ~10¹³ s for a 0.1 s timeout)."""
 
 
 class ReliableSender:
@@ -194,7 +205,10 @@ class ReliableSender:
 
     ``framer`` numbers frames; share it with everything else this end sends (setpoints, heartbeats) so
     the receiver sees one sequence. ``on_settled`` (optional) is called once per command when it
-    leaves PENDING, from inside :meth:`on_frame`, :meth:`poll` or :meth:`abandon`.
+    leaves PENDING, from inside :meth:`on_frame`, :meth:`poll` or :meth:`abandon`. An exception it
+    raises comes out of that call, the sender's own state kept whole: :meth:`poll` takes back the
+    retransmissions it had not returned (still due, the next poll sends them), and :meth:`abandon`
+    settles and tells every command before raising the first error.
     """
 
     def __init__(
@@ -213,6 +227,7 @@ class ReliableSender:
         self._superseded: OrderedDict[tuple[int, int], Command] = OrderedDict()
         self._pending: OrderedDict[tuple[int, int], Command] = OrderedDict()
         self._recent: deque[tuple[int, int]] = deque(maxlen=_RECENT)
+        self._clock: float | None = None  # the latest ``now`` given (s)
 
     # ------------------------------------------------------------------ sending
     def send(self, message: Any, now: float) -> tuple[Command, bytes]:
@@ -220,7 +235,7 @@ class ReliableSender:
 
         Raises :class:`ProtocolError` for a message that is never answered (send those with
         ``framer.encode``) and :class:`FieldRangeError` for an out-of-range field."""
-        self._check_now(now, "ReliableSender.send")
+        self._check_now(now, "ReliableSender.send", room=_SEND_ROOM)
         if not expects_answer(message):
             raise ProtocolError(
                 f"{type(message).__name__} is not acknowledged; send it with Framer.encode (no retries)"
@@ -233,9 +248,15 @@ class ReliableSender:
         # and supersedes this one, rather than both being retried side by side.
         self._pending[cmd.key] = cmd
         self.stats.sent += 1
-        if stale is not None:  # 256 frames went out while it waited: its answers are now ambiguous
-            self._settle(stale, CommandState.FAILED, now, failure="sequence number reused by a newer command")
-        self._supersede(cmd, now)
+        try:
+            if stale is not None:  # 256 frames went out while it waited: its answers are now ambiguous
+                self._settle(
+                    stale, CommandState.FAILED, now, failure="sequence number reused by a newer command"
+                )
+            self._supersede(cmd, now)
+        except BaseException as exc:
+            self._withdraw(cmd, now, exc)
+            raise
         return cmd, data
 
     def poll(self, now: float) -> bytes:
@@ -249,20 +270,46 @@ class ReliableSender:
         ``KeyError``)."""
         self._check_now(now, "ReliableSender.poll")
         out = bytearray()
-        for cmd in [c for c in self._pending.values() if c.deadline <= now]:
-            if self._pending.get(cmd.key) is not cmd:
-                continue  # settled meanwhile, from a callback of one polled before it
-            if cmd.tries >= self.policy.max_tries:
-                del self._pending[cmd.key]
-                self._settle(cmd, CommandState.FAILED, now, failure=f"no answer after {cmd.tries} tries")
-                continue
-            _, data = self.framer.encode(cmd.message, seq=cmd.seq)
-            cmd.tries += 1
-            cmd.last_sent_at = now
-            cmd.deadline = now + self.policy.timeout(cmd.tries)
-            self.stats.retransmits += 1
-            out += data
+        # retransmitted here: (command, its deadline and last send before)
+        sent: list[tuple[Command, float, float]] = []
+        try:
+            for cmd in [c for c in self._pending.values() if c.deadline <= now]:
+                if self._pending.get(cmd.key) is not cmd:
+                    continue  # settled meanwhile, from a callback of one polled before it
+                if cmd.tries >= self.policy.max_tries:
+                    del self._pending[cmd.key]
+                    self._settle(cmd, CommandState.FAILED, now, failure=f"no answer after {cmd.tries} tries")
+                    continue
+                _, data = self.framer.encode(cmd.message, seq=cmd.seq)
+                sent.append((cmd, cmd.deadline, cmd.last_sent_at))
+                cmd.tries += 1
+                cmd.last_sent_at = now
+                cmd.deadline = now + self.policy.timeout(cmd.tries)
+                self.stats.retransmits += 1
+                out += data
+        except BaseException:
+            # ``on_settled`` raised: the bytes gathered are never returned, so those tries were not sent.
+            # Counted as sent, each waited a whole timeout before its next try, and the last try of a
+            # command failed it after one try fewer than its policy's, unseen by the board.
+            for cmd, deadline, last_sent_at in sent:
+                cmd.tries -= 1
+                cmd.deadline, cmd.last_sent_at = deadline, last_sent_at
+                self.stats.retransmits -= 1
+            raise
         return bytes(out)
+
+    def _withdraw(self, cmd: Command, now: float, exc: BaseException) -> None:
+        """Take back ``cmd``, whose :meth:`send` raises ``exc`` (``on_settled``, told of an older command
+        it settled, raised): the caller never gets its handle nor its bytes, so it must not go out later.
+        Left pending, it went out as a retransmission a timeout later — a Disarm the caller was told had
+        not been sent, carried out, and its tries counting one the board never saw. It fails untold (its
+        sequence number stays used: the receiver sees a gap, as for a lost frame)."""
+        if self._pending.get(cmd.key) is not cmd:
+            return  # settled meanwhile: a command the callback sent superseded it
+        del self._pending[cmd.key]
+        self.stats.sent -= 1
+        cmd.state, cmd.settled_at = CommandState.FAILED, now
+        cmd.failure = f"never sent: on_settled raised {type(exc).__name__} while it was being sent"
 
     def next_deadline(self) -> float | None:
         """The earliest time :meth:`poll` has work (None when nothing is pending)."""
@@ -304,8 +351,14 @@ class ReliableSender:
         self._check_now(now, "ReliableSender.abandon")
         cmds = list(self._pending.values())
         self._pending.clear()
-        for cmd in cmds:
-            self._settle(cmd, CommandState.FAILED, now, failure=why)
+        first_error: BaseException | None = None
+        for cmd in cmds:  # every one settled and told, whatever a callback raises: none left PENDING untold
+            try:
+                self._settle(cmd, CommandState.FAILED, now, failure=why)
+            except Exception as exc:  # ``on_settled``'s: raised once all are settled
+                first_error = exc if first_error is None else first_error
+        if first_error is not None:
+            raise first_error
         return cmds
 
     # ------------------------------------------------------------------ inspection
@@ -321,7 +374,7 @@ class ReliableSender:
         return len(self._pending)
 
     # ------------------------------------------------------------------ internals
-    def _check_now(self, now: float, where: str) -> None:
+    def _check_now(self, now: float, where: str, room: float = 1.0) -> None:
         """Refuse a time (s) a try's deadline cannot be set from, naming ``where`` it was given.
 
         Not a finite number: a command sent at NaN had a NaN deadline — no later time is past it — so it
@@ -330,20 +383,50 @@ class ReliableSender:
         from zero that the policy's shortest timeout is lost in the rounding of ``now + timeout`` (beyond
         ~1e15 s for 0.1 s; a time in ns taken for s): every try timed out the moment it was sent, and a
         command failed after all its tries at one instant, never waiting for an answer. (The longer
-        timeouts of later tries, ``timeout_s`` or more, are then never lost either.)"""
-        try:
-            finite = math.isfinite(now)  # any real number: a float, an int, numpy's scalars
-        except TypeError:
-            finite = False
-        if not finite:
+        timeouts of later tries, ``timeout_s`` or more, are then never lost either.)
+
+        ``room``: what the shortest timeout is divided by and must still move ``now`` by. :meth:`send`
+        asks for :data:`_SEND_ROOM`, the other calls for one: a command's retries move the clock on, and
+        accepted with one step to spare, a command sent just below 2**53 s had its own next deadline
+        refused by :meth:`poll` (the steps double there). A bool or an integer past a float's range (an
+        ``OverflowError``) is no time either."""
+        seconds = real_number(now)  # any real number: a float, an int, numpy's scalars
+        if seconds is None or not math.isfinite(seconds):
             raise ConfigError(f"a time must be a finite number of seconds, not {now!r}", where)
+        now = seconds
         policy = self.policy
-        if not now + policy.timeout_s > now:
+        if not now + policy.timeout_s / room > now:
             raise ConfigError(
                 f"a time of {now!r} s leaves no room for a {policy.timeout_s} s timeout (floats "
-                f"{math.ulp(now)} s apart there): not a time on a clock of seconds",
+                f"{math.ulp(now)} s apart there; {room:g} of them needed): not a time on a clock of seconds",
                 where,
             )
+        self._follow_clock(now)
+
+    def _follow_clock(self, now: float) -> None:
+        """Take ``now`` (s) as the latest time. One earlier than the latest given by more than the policy's
+        shortest timeout — a clock stepped back — moves every pending command's times (first and last
+        send, deadline) back by the step, so each try keeps the wait it had left. Kept where they were, a
+        clock stepped back by a minute left every command waiting a minute past its timeout — nothing
+        retried, nothing failed, the caller's ``next_deadline`` far ahead — and a try sent meanwhile (a new
+        command) timed out after the older ones that should have come first. A step back within the
+        shortest timeout is two callers' readings of one clock taken in one order and given in the other
+        (a reader thread's and the caller's loop's): it costs a try at most that much more wait, and is
+        left alone (the latest time kept), or such jitter, each step moving every deadline back, would
+        pull the tries ever earlier."""
+        latest = self._clock
+        if latest is None or now >= latest:
+            self._clock = now
+            return
+        if latest - now <= self.policy.timeout_s:
+            return
+        self._clock = now
+        step = now - latest
+        self.stats.clock_steps_back += 1
+        for cmd in self._pending.values():
+            cmd.sent_at += step
+            cmd.last_sent_at += step
+            cmd.deadline += step
 
     def _supersede(self, cmd: Command, now: float) -> None:
         """Stop retrying the pending commands that set what ``cmd`` sets (the message's ``SETS``): they
