@@ -63,6 +63,11 @@ class Outage:
         }
 
 
+_LOST_AFTER_THE_RUN = {"reset": "reset", "link_lost": "link lost", "failsafe": "failed safe"}
+"""The faults heard on the way out that say the board was out of the host's hand at the run's end (by
+fault kind: how the exit says it)."""
+
+
 class FaultJournal:
     """The run's faults, board outages and phone gaps; see the module docstring. All times on the host's
     clock (s). Plain lists, appended to on the control tick: a few attribute writes per fault."""
@@ -144,13 +149,18 @@ class FaultJournal:
 
     def lost_after_the_run(self) -> str | None:
         """Why the board was not in hand at the run's end though no outage was open then: the way out
-        heard it had reset (or lost the link) — a board that browned out 0.2 s before the end, its
-        telemetry not yet stale — or None."""
+        heard it had reset, lost the link or failed safe — a board that browned out 0.2 s before the end,
+        its telemetry not yet stale; a link stalled over the end, the board's watchdog firing after the
+        last tick (nothing of the host's had reached it since before the end) — or None."""
         for f in self.faults:
-            if f.get("after_the_run") and f["kind"] in ("reset", "link_lost"):
-                said = f"cause {f['cause']}" if f["kind"] == "reset" else str(f.get("reason", ""))
+            if f.get("after_the_run") and f["kind"] in _LOST_AFTER_THE_RUN:
+                what, said = _LOST_AFTER_THE_RUN[f["kind"]], str(f.get("reason", ""))
+                if f["kind"] == "reset":
+                    said = f"cause {f['cause']}"
+                elif f["kind"] == "failsafe":
+                    said = "its link watchdog"
                 return (
-                    f"board {'reset' if f['kind'] == 'reset' else 'link lost'} as the run ended ({said}; "
+                    f"board {what} as the run ended ({said}; "
                     f"heard on the way out at t={f['t']:.3f} s): not back when the run ended"
                 )
         return None

@@ -205,9 +205,15 @@ class Host:
 
     def heard_on_the_way_out(self, events: Sequence[Any]) -> None:
         """The board's ``events`` heard after the loop (its final Disarm: a reset found there was counted
-        nowhere), into the record — not its changes of state: the way out's own Disarm made them, which
-        the watch, holding the board armed, would take for a Disarm no one meant."""
-        self.watch.on_events([e for e in events if not isinstance(e, StateEvent)])
+        nowhere), into the record — not its changes of state, but for a FAILSAFE: the way out's own
+        Disarm made the others, which the watch, holding the board armed, would take for a Disarm no one
+        meant. A FAILSAFE is the board's own (its link watchdog: nothing of the host's reached it for its
+        link timeout, since before the loop ended); dropped with the rest, a board that failed safe just
+        after the last tick left no failsafe in events.jsonl or the summary, and the run said
+        ``completed`` (:meth:`FaultJournal.lost_after_the_run` now names it)."""
+        self.watch.on_events(
+            [e for e in events if not isinstance(e, StateEvent) or e.new is BoardState.FAILSAFE]
+        )
 
     @property
     def accepted_by_sensor(self) -> dict[str, int]:

@@ -113,7 +113,9 @@ class BoardWatch:
                 self._disarm_unseen = False
             if event.new is BoardState.FAILSAFE:
                 self.failsafes += 1
-                logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): re-arming", t)
+                after = t > self.journal.ended_at  # heard on the way out: no re-arm follows
+                then = "as the run ended" if after else "re-arming"
+                logger.warning("board in FAILSAFE at t=%.3f s (link watchdog): %s", t, then)
                 self.journal.fault(t, "failsafe")
                 self._upset("failsafe")
             elif self._disarmed_unasked(event):
