@@ -91,6 +91,8 @@ def main(argv: Sequence[str] | None = None, *, own_process: bool = False) -> int
             level = logging.WARNING - 10 * min(args.verbose, 2)
             logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
             status = int(args.func(args) or 0)
+            if own_process:  # at once, in the handlers' block: a signal from here on ends with status
+                exit_on_late_signals(status)
     except HilError as exc:
         print(f"{said}: error: {exc}", file=sys.stderr)
         status = 2
@@ -126,7 +128,8 @@ def entry() -> int:
     ignore_signals_at_last_exit_hook()
     try:
         return main(own_process=True)
-    except KeyboardInterrupt as exc:  # one that came as main ended, past its handling: the command ended
+    except KeyboardInterrupt as exc:  # one that came as main ended, past its handling: said, as any other
+        print(f"hil: interrupted ({signal_of(exc).name})", file=sys.stderr)  # (a non-zero status, silent)
         return exit_status(exc)
 
 
