@@ -66,13 +66,48 @@ def exp(phi: ArrayLike) -> Array:
     return eye + a[..., None, None] * k + b[..., None, None] * k2
 
 
+_ROTATION_TOL = 1e-6
+"""The orthonormality error ``‖rᵀ r − I‖_F`` up to which :func:`log` takes a matrix for a rotation: rounding
+of long products of rotations stays orders below it (the estimator and the plant re-orthonormalise), a
+matrix built wrong (orthonormal to 1e-3, a reflection, zeros) lies far above it."""
+
+
+def _require_rotation(r: Array, where: str) -> None:
+    """NumericalError naming ``where`` unless ``r`` is a finite (3, 3) rotation to :data:`_ROTATION_TOL`.
+
+    :func:`log` of what is no rotation answered a number without a word: the zero matrix a turn of π about
+    x, a reflection ``-I`` NaN, a matrix orthonormal to 1e-3 a vector off by as much, a (4, 4) matrix
+    zeros; there is no rotation vector of any of them. (A few µs: the simulated phone takes a log per
+    batch of the world's steps.)"""
+    if r.shape != (3, 3):
+        raise NumericalError(f"{where}: need a (3, 3) rotation matrix, got shape {r.shape}")
+    if not np.isfinite(r).all():
+        raise NumericalError(f"{where}: not a rotation: non-finite entries {r.tolist()}")
+    error = float(np.linalg.norm(r.T @ r - _EYE3))
+    if not error <= _ROTATION_TOL:
+        raise NumericalError(
+            f"{where}: not a rotation: orthonormality error ‖rᵀr − I‖ = {error:.3g} (tolerance "
+            f"{_ROTATION_TOL:g}) of {r.tolist()}"
+        )
+    (a, b, c), (d, e, f), (g, h, i) = r.tolist()
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)  # ±1 to the tolerance
+    if det <= 0.0:
+        raise NumericalError(f"{where}: not a rotation: determinant {det:.6g} (a reflection) of {r.tolist()}")
+
+
+_EYE3 = np.eye(3)
+
+
 def log(r: ArrayLike) -> Array:
     """Rotation vector ``phi`` with ``exp(phi) == r`` and ``|phi| <= pi``; stable near 0 and near pi.
 
     Near pi the axis is taken from the symmetric part ``(R + Rᵀ)/2 = I + (1 - cos θ) n nᵀ`` (its largest
-    diagonal entry's column), with the sign fixed by the skew part. Input shape (3, 3).
+    diagonal entry's column), with the sign fixed by the skew part. Input shape (3, 3), a rotation to
+    :data:`_ROTATION_TOL`; anything else (non-finite, not orthonormal, a reflection, another shape) raises
+    NumericalError naming it.
     """
     r = np.asarray(r, dtype=float)
+    _require_rotation(r, "so3.log")
     cos_theta = float(np.clip((np.trace(r) - 1.0) * 0.5, -1.0, 1.0))
     w = vee(r)  # = sin(theta) * n
     sin_theta = float(np.linalg.norm(w))
@@ -195,8 +230,12 @@ def matrix_to_quat(r: ArrayLike) -> Array:
 
 def euler_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> Array:
     """R = Rz(yaw) Ry(pitch) Rx(roll) (3, 3), body → inertial (the aerospace yaw-pitch-roll sequence), from
-    angles in degrees."""
-    r, p, y = (math.radians(a) for a in (roll_deg, pitch_deg, yaw_deg))
+    angles in degrees. An angle that is no finite number raises NumericalError naming it: inf raised a bare
+    ValueError ("math domain error"), a string a bare TypeError, and NaN gave a matrix of NaN."""
+    r, p, y = (
+        math.radians(_finite_angle(a, f"so3.euler_zyx.{name}"))
+        for a, name in ((roll_deg, "roll_deg"), (pitch_deg, "pitch_deg"), (yaw_deg, "yaw_deg"))
+    )
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
     return np.array(
         [
@@ -205,3 +244,16 @@ def euler_zyx(roll_deg: float, pitch_deg: float, yaw_deg: float) -> Array:
             [-sp, cp * sr, cp * cr],
         ]
     )
+
+
+def _finite_angle(value: object, where: str) -> float:
+    """``value`` as a finite float (an angle); NumericalError naming ``where`` for anything else."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise NumericalError(f"{where} = {value!r} is not a number")
+    try:
+        angle = float(value)
+    except OverflowError:  # an int beyond float's range (10**400)
+        angle = math.inf
+    if not math.isfinite(angle):
+        raise NumericalError(f"{where} = {angle!r} is not a finite angle")
+    return angle

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike
 
 from protocol.errors import ConfigError
 
-from .params import RPM, ActuatorLimits, SpacecraftParams, UnitParams
+from .params import RPM, ActuatorLimits, SpacecraftParams, UnitParams, _floats, _number
 
 PYRAMID_BETA = math.acos(1.0 / math.sqrt(3.0))
 """54.74°: the skew angle that makes the 4-unit pyramid's momentum envelope nearly spherical."""
@@ -63,9 +63,12 @@ def pyramid(
     template: UnitParams | None = None,
 ) -> tuple[UnitParams, ...]:
     """n units on the faces of a pyramid with skew angle ``beta`` (rad), pivots on a circle of ``radius_m``
-    at height ``height_m`` (see the module docstring for the axes)."""
+    at height ``height_m`` (see the module docstring for the axes). Each argument that is no finite number
+    raises ConfigError naming it (``beta="x"`` raised a bare TypeError, ``radius_m="x"`` numpy's)."""
     if not isinstance(n, int | np.integer) or isinstance(n, bool) or n < 3:
         raise ConfigError(f"a pyramid needs a whole number of units, at least 3, got {n!r}", "pyramid.n")
+    beta = _number(beta, "pyramid.beta")
+    radius_m, height_m = _number(radius_m, "pyramid.radius_m"), _number(height_m, "pyramid.height_m")
     if not 0.0 <= beta <= math.pi / 2:
         raise ConfigError(f"must lie in [0, 90] degrees, got {math.degrees(beta):.3g}", "pyramid.beta")
     theta = 2.0 * math.pi * np.arange(n) / n
@@ -141,8 +144,21 @@ def air_bearing_testbed(rotor_offset_m: float = 2.0e-3) -> SpacecraftParams:
 
 
 def spin_axes_at(units: Sequence[UnitParams], gimbal_angles: ArrayLike) -> np.ndarray:
-    """Spin axes (n, 3), body frame, of ``units`` at ``gimbal_angles`` (n,) rad."""
-    gam = np.asarray(gimbal_angles, dtype=float)
+    """Spin axes (n, 3), body frame, of ``units`` at ``gimbal_angles`` (n,) rad. Angles that are not n
+    finite numbers raise ConfigError naming the first bad unit: NaN or inf gave axes of NaN, a wrong count
+    numpy's bare broadcast error."""
+    gam = _floats(gimbal_angles, "spin_axes_at.gimbal_angles")
+    if gam.shape != (len(units),):
+        raise ConfigError(
+            f"need one angle for each of the {len(units)} units, got shape {gam.shape}",
+            "spin_axes_at.gimbal_angles",
+        )
+    bad = np.flatnonzero(~np.isfinite(gam))
+    if bad.size:
+        i = int(bad[0])
+        raise ConfigError(
+            f"must be a finite angle (rad), got {float(gam[i])!r}", f"spin_axes_at.gimbal_angles[{i}]"
+        )
     g = np.array([u.gimbal_axis for u in units])
     s0 = np.array([u.spin_axis for u in units])
     t0 = np.cross(g, s0)
