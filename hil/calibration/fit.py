@@ -67,14 +67,17 @@ class FitOptions:
     gimbal_angle_knots: int = 9
 
     def __post_init__(self) -> None:
-        if not 3 <= self.rotor_knots <= 16:
-            raise CalibrationError(f"{self.rotor_knots}; need 3..16", "FitOptions.rotor_knots")
-        if not 3 <= self.gimbal_rate_knots_per_side <= 8:
-            raise CalibrationError(
-                f"{self.gimbal_rate_knots_per_side}; need 3..8", "FitOptions.gimbal_rate_knots_per_side"
-            )
-        if not 3 <= self.gimbal_angle_knots <= 16:
-            raise CalibrationError(f"{self.gimbal_angle_knots}; need 3..16", "FitOptions.gimbal_angle_knots")
+        # whole numbers only: 3.5 knots passed here and the fit failed later with numpy's bare TypeError,
+        # "x" or None failed here with Python's
+        for name, most in (
+            ("rotor_knots", 16),
+            ("gimbal_rate_knots_per_side", 8),
+            ("gimbal_angle_knots", 16),
+        ):
+            knots = getattr(self, name)
+            if isinstance(knots, bool) or not isinstance(knots, int | np.integer) or not 3 <= knots <= most:
+                raise CalibrationError(f"{knots!r}; need a whole number 3..{most}", f"FitOptions.{name}")
+            object.__setattr__(self, name, int(knots))
         with within("FitOptions"):
             EscThrottleMap(self.esc_low_us, self.esc_high_us, 0.0)
 

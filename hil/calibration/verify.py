@@ -38,6 +38,9 @@ class VerifyPlan:
     guard: Guard = field(default_factory=Guard)
 
     def __post_init__(self) -> None:
+        _check_fractions(self.rotor_fractions, 0.0, "VerifyPlan.rotor_fractions")
+        _check_fractions(self.gimbal_rate_fractions, -1.0, "VerifyPlan.gimbal_rate_fractions")
+        _check_fractions(self.gimbal_angle_fractions, -1.0, "VerifyPlan.gimbal_angle_fractions")
         check_tolerance(self.rotor_tolerance, "--rotor-tolerance")
         check_tolerance(self.gimbal_rate_tolerance_rad_s, "--rate-tolerance")
         check_tolerance(self.gimbal_angle_tolerance_rad, "--angle-tolerance")
@@ -48,6 +51,19 @@ class VerifyPlan:
                 f"{min(moving):g}: {_STILL_PASSES}",
                 TOLERANCE_OPTIONS[BenchKind.ROTOR],
             )
+
+
+def _check_fractions(fractions: tuple[float, ...], lowest: float, where: str) -> None:
+    """Refuse (:class:`ConfigError` naming the point) verification points that are not numbers in
+    [``lowest``, 1]: the fraction of a map's range a point commands. Refused with the plan, before any
+    board is armed: NaN reached the armed board as a NaN setpoint after the points before it had run, and a
+    point past the map's range (a rotor at 3× full speed, a gimbal at twice its top rate or beyond its
+    angle span) was clamped by the map, so a unit that tracked every command it could take FAILed it."""
+    if not isinstance(fractions, tuple | list) or not fractions:
+        raise ConfigError(f"{fractions!r} must be one or more fractions of the map's range", where)
+    for i, f in enumerate(fractions):
+        if isinstance(f, bool) or not isinstance(f, int | float) or not lowest <= f <= 1.0:
+            raise ConfigError(f"{f!r} is no fraction of the map's range in [{lowest:g}, 1]", f"{where}[{i}]")
 
 
 TOLERANCE_OPTIONS = {
