@@ -250,7 +250,11 @@ def build(home: str | None, kernels: Sequence[Kernel]) -> Path | None:
         compiler.export(export, signature)(kernel.py_func)
         table.setdefault(f"{kernel.__module__}:{kernel.__qualname__}", []).append((export, keys))
     library.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=library.parent) as scratch, _wrappers_release_the_gil():
+    _remove_abandoned_scratch(library.parent)
+    with (
+        tempfile.TemporaryDirectory(dir=library.parent, prefix=SCRATCH_PREFIX) as scratch,
+        _wrappers_release_the_gil(),
+    ):
         compiler.output_dir = scratch
         compiler.compile()
         staged_library = Path(scratch) / library.name
@@ -279,6 +283,26 @@ def _entries(kernels: Sequence[Kernel]) -> list[tuple[Kernel, Any, list[str]]]:
             signature = dispatcher.overloads[args].signature
             entries.append((kernel, signature.return_type(*args), [str(k) for k in keys]))
     return entries
+
+
+SCRATCH_PREFIX = "hil-build-"
+"""The name a build's scratch directory (beside the builds) starts with."""
+ABANDONED_AFTER_S = 3600.0
+"""A scratch directory untouched this long (s) is a build's that was killed (SIGKILL, a power cut: its
+clean-up never ran), not one under way (a build takes a minute at most): the next build removes it."""
+
+
+def _remove_abandoned_scratch(builds: Path) -> None:
+    """Remove the scratch directories in ``builds`` that builds killed part-way left (each a compiler's
+    object files and a half-made module, ~1 MB): an install interrupted again and again filled the cache
+    with them."""
+    import shutil
+    import time
+
+    for path in builds.glob(f"{SCRATCH_PREFIX}*"):
+        with contextlib.suppress(OSError):
+            if path.is_dir() and time.time() - path.stat().st_mtime > ABANDONED_AFTER_S:
+                shutil.rmtree(path)
 
 
 def _remove_stale(name: str) -> None:
