@@ -49,10 +49,11 @@ def test_opening_socketcan_is_refused_at_once_only_where_the_kernel_has_none(que
 
 def test_hil_run_without_socketcan_ends_at_once_saying_why(tmp_path):
     port = "can://socketcan/can0" if not HAS_SOCKETCAN else f"can://socketcan/{_ABSENT}"
+    bound = "6" if HAS_SOCKETCAN else "60"  # waited out with a device that may yet come; never without
     start = time.monotonic()
     done = subprocess.run(
         [sys.executable, "-m", "hil", "run", "--port", port, "--duration", "1", "--no-plots",
-         "--recover-within", "6", "--out", str(tmp_path)],
+         "--recover-within", bound, "--out", str(tmp_path)],
         capture_output=True,
         text=True,
         timeout=120,
@@ -65,4 +66,5 @@ def test_hil_run_without_socketcan_ends_at_once_saying_why(tmp_path):
         assert "tried for" in done.stderr  # the device may yet come: the outage bound is waited out
     else:
         assert "its kernel has no such socket family" in done.stderr and "tried for" not in done.stderr
-        assert took < 5.0  # at once, not after the 6 s bound (a busy CPU: a process start is ~1-2 s)
+        # at once, not after the 60 s bound (a process start is ~1-2 s, several on a busy 2-core CI machine)
+        assert took < 30.0
