@@ -72,6 +72,15 @@ static float f32(const uint8_t *p)
 /* lo <= v <= hi, false for NaN. */
 static int within(float v, float lo, float hi) { return v >= lo && v <= hi; }
 
+/* Whether `s` seconds is a whole number of milliseconds (to 1 us): the power manager runs on the
+ * millisecond clock (app.c's next_power_ms) while its filter gain is worked out from `s` itself, so 1.5 ms
+ * ran every 2 ms with the gain of 1.5 (eeprom.py's _check_power_period refuses the same). */
+static int whole_ms(float s)
+{
+    float ms = s * 1000.0f;
+    return fabsf(ms - (float)lrintf(ms)) <= 1e-3f; /* within() has put it in 1..100 ms first */
+}
+
 static const uint8_t DEFAULTS[EEPROM_CONFIG_SIZE] FLASH = DEFAULT_CONFIG_BLOCK;
 
 uint16_t config_uart_divisor(uint32_t baud)
@@ -190,7 +199,7 @@ static uint8_t parse(const uint8_t *b, board_config_t *cfg)
         problem = BAD_BROWNOUT_RELEASE_V;
     else if (!within(c.filter_time_constant_s, 0.0f, 10.0f))
         problem = BAD_FILTER_TIME_CONSTANT_S;
-    else if (!within(c.power_update_period_s, 0.001f, 0.1f))
+    else if (!within(c.power_update_period_s, 0.001f, 0.1f) || !whole_ms(c.power_update_period_s))
         problem = BAD_POWER_UPDATE_PERIOD_S;
     else if (!within(c.ubec_current_limit_a, 0.01f, 100.0f))
         problem = BAD_UBEC_CURRENT_LIMIT_A;

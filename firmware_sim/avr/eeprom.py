@@ -27,10 +27,11 @@ from dataclasses import dataclass, replace
 
 from hil.files.output import OutputError, replace_file
 from protocol.calibration import MAX_SIZE as CAL_MAX_SIZE
+from protocol.calibration.checks import f32
 from protocol.crc import crc16_ccitt_false
 from protocol.errors import ConfigError
 
-from ..board.config import BoardConfig
+from ..board.config import LIPO_OCV_CURVE, BoardConfig
 
 EEPROM_SIZE = 4096
 CONFIG_MAGIC = 0x4342
@@ -139,6 +140,14 @@ the firmware refuses a block whose release is above this (config.c), as :func:`c
 def check_hardware(cfg: BoardConfig) -> None:
     """Raise :class:`ConfigError` for what the BoardConfig allows but the ADK firmware cannot do."""
     cfg.validate()
+    _check_power_period(cfg.power.update_period_s)
+    if tuple(tuple(point) for point in cfg.power.battery.ocv_curve) != LIPO_OCV_CURVE:
+        raise ConfigError(
+            "the firmware's discharge curve is compiled in (LIPO_OCV_CURVE, board_gen.h) and the block has "
+            "no room for another: it would judge this pack's charge and stages by that curve",
+            "BoardConfig.power.battery.ocv_curve",
+        )
+    _check_as_float32(cfg)
     if cfg.n_units > MAX_HW_UNITS:
         raise ConfigError(
             f"{cfg.n_units} units; the ADK has {2 * MAX_HW_UNITS} hardware pulse channels",
@@ -148,6 +157,12 @@ def check_hardware(cfg: BoardConfig) -> None:
         raise ConfigError("PPM-sum needs Timer5, free only with 4 units or fewer", "BoardConfig.ppm")
     if not cfg.identity.serial.isascii():
         raise ConfigError("the board serial must be ASCII", "BoardConfig.identity.serial")
+    if "\0" in cfg.identity.serial:
+        # the firmware reads the serial up to its first NUL (config.c): "LAB", NUL, "07" went out as "LAB"
+        raise ConfigError(
+            "the board serial must hold no NUL: the firmware reads it up to the first one",
+            "BoardConfig.identity.serial",
+        )
     # the firmware's ADC range, where the scenario reader refuses the same (imported here: the scenario
     # package is ~0.1 s of imports no EEPROM tool needs otherwise)
     from hil.scenario.reader import CELL_FULL_V, FIRMWARE_BATTERY_FULL_SCALE_V, FIRMWARE_MAX_CELLS
@@ -166,6 +181,53 @@ def check_hardware(cfg: BoardConfig) -> None:
             f"{FIRMWARE_BATTERY_FULL_SCALE_V:g} V the firmware's ADC reads: "
             f"at most {FIRMWARE_MAX_CELLS} cells",
             "BoardConfig.power.battery.cells",
+        )
+
+
+def _check_power_period(period_s: float) -> None:
+    """The firmware takes a power period of whole milliseconds only (config.c's ``whole_ms``): its power
+    manager runs on its millisecond clock (app.c's ``next_power_ms``). The emulator's 0.1 ms floor was a
+    block the firmware refused, and 1.5 ms one it ran every 2 ms while its battery filter's gain assumed
+    1.5 ms. Checked on the float32 the block holds, in the firmware's arithmetic (a float32 times 1000 is
+    exact in double, and f32() rounds it once)."""
+    ms = f32(f32(period_s) * 1000.0)
+    if ms < 1.0 or abs(ms - round(ms)) > f32(1e-3):
+        raise ConfigError(
+            f"{period_s:g} s is not a whole number of milliseconds, 1 at least: the firmware runs its power "
+            "manager on its millisecond clock",
+            "BoardConfig.power.update_period_s",
+        )
+
+
+def _check_as_float32(cfg: BoardConfig) -> None:
+    """The firmware checks the block's float32 values in float32 arithmetic (config.c's ``parse``); a rule
+    ``BoardConfig.validate`` passes in double can fail there, and the firmware then runs on its defaults.
+    Single bounds cannot flip (rounding keeps order), but strict ones and sums can: a threshold under
+    float32's smallest (1e-300 V) is stored as 0, two thresholds 1e-12 V apart are stored equal, a warn
+    level plus hysteresis a hair under a full cell rounds onto it."""
+    t = cfg.power.thresholds
+    where = "BoardConfig.power.thresholds"
+    warn, limit, shed = f32(t.warn_v_cell), f32(t.limit_v_cell), f32(t.shed_v_cell)
+    if not warn > limit > shed > 0.0:
+        raise ConfigError(
+            f"stored as float32 they are {warn!r}, {limit!r}, {shed!r} V: the firmware needs "
+            "warn_v_cell > limit_v_cell > shed_v_cell > 0 in the values it reads",
+            where,
+        )
+    full_cell_v = f32(LIPO_OCV_CURVE[-1][1])
+    # the float32 sum: both operands are float32 and within 2^29 of each other's scale, so their double sum
+    # is exact (or, for a negligible hysteresis, rounds to warn alike) and f32() rounds it once, as the FPU
+    cleared_v = f32(warn + f32(t.hysteresis_v_cell))
+    if not cleared_v < full_cell_v:
+        raise ConfigError(
+            f"warn_v_cell + hysteresis_v_cell is {cleared_v!r} V in the firmware's float32, not below its "
+            f"full cell ({full_cell_v!r} V): the stage would never clear",
+            f"{where}.warn_v_cell",
+        )
+    if not f32(t.brownout_release_v) > 0.0:
+        raise ConfigError(
+            f"{t.brownout_release_v!r} V is stored as float32 0: the board would never enter brown-out",
+            f"{where}.brownout_release_v",
         )
 
 
