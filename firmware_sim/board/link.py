@@ -2,12 +2,13 @@
 transmit buffer, and the duplicate filter for reliable commands.
 
 The UART interrupt keeps receiving while the main loop is busy (or hung): bytes land in a ring of
-``rx_capacity`` bytes and the overflow is dropped and counted, as on the MCU. Reliable commands are
-answered once per ``(msg_id, seq)``: a retransmission (RETRANSMIT flag, same id, seq and payload) of a
-command already executed gets the same ACK/NACK again without running the command twice. A ``Hello``
-forgets those answers (the handshake does it) and begins the host's numbering afresh for the counters: a
-restarted host's frames, numbered from 0 again, are neither answered from its predecessor's cache nor
-counted as lost.
+``rx_capacity`` bytes and the overflow is dropped and counted, as on the MCU, which then takes bytes again
+only from a frame delimiter on, once half the ring is free (see :meth:`BoardLink.receive`). Reliable
+commands are answered once per ``(msg_id, seq)``: a retransmission (RETRANSMIT flag, same id, seq and
+payload) of a command already executed gets the same ACK/NACK again without running the command twice. A
+``Hello`` forgets those answers (the handshake does it) and begins the host's numbering afresh for the
+counters: a restarted host's frames, numbered from 0 again, are neither answered from its predecessor's
+cache nor counted as lost.
 """
 
 from __future__ import annotations
@@ -48,6 +49,10 @@ class BoardLink:
         self.framer = Framer()
         self.stats = LinkStats()
         self._rx = bytearray()
+        self._resyncing = False  # the ring overflowed: bytes are dropped up to the next frame delimiter
+        # bytes free in the ring at which a delimiter is taken again: half the firmware's ring of
+        # UART_RX_SIZE slots, which hold UART_RX_SIZE - 1 bytes (uart.c)
+        self._resync_free = (rx_capacity + 1) // 2
         self._tx = bytearray()
         self._answers: OrderedDict[tuple[int, int], tuple[Any, Any]] = OrderedDict()
         self._dedup_entries = dedup_entries
@@ -55,6 +60,7 @@ class BoardLink:
     def reset(self) -> None:
         """MCU reset: the rings are cleared, sequence numbers restart, the duplicate cache is forgotten."""
         self._rx.clear()
+        self._resyncing = False
         self._tx.clear()
         self.deframer = Deframer(_RENUMBERED_BY)  # the MCU's counters restart with it
         self.framer = Framer()
@@ -62,11 +68,27 @@ class BoardLink:
 
     # ------------------------------------------------------------------ receive
     def receive(self, data: bytes) -> None:
-        """Bytes from the wire into the UART ring (the ISR's job)."""
-        room = self.rx_capacity - len(self._rx)
-        if len(data) > room:
-            self.stats.rx_overflow += len(data) - max(room, 0)
-            data = data[: max(room, 0)]
+        """Bytes from the wire into the UART ring (the ISR's job, firmware/src/uart.c's rule).
+
+        Bytes that find the ring full are dropped and counted (``rx_overflow``); after that, bytes go in
+        again only from a frame delimiter on, and only once the main loop has freed half the ring, and the
+        ones passed over are counted too. The delimiter ends the cut frame in the ring (one bad frame) and
+        the next frame is taken whole or not at all. Taking bytes again as soon as there was room joined
+        the cut frame's head to the tail of a later frame: of two identical frames (a retransmission, a
+        repeated heartbeat) cut at the same place, a valid frame the host never sent whole."""
+        free = self.rx_capacity - len(self._rx)  # constant until the delimiter: nothing goes in before it
+        if self._resyncing:
+            delimiter = data.find(0) if free >= self._resync_free else -1
+            if delimiter < 0:
+                self.stats.rx_overflow += len(data)
+                return
+            self.stats.rx_overflow += delimiter
+            data = data[delimiter:]
+            self._resyncing = False
+        if len(data) > free:
+            self.stats.rx_overflow += len(data) - free
+            data = data[:free]
+            self._resyncing = True
         self._rx += data
 
     @property
