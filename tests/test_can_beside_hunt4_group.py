@@ -59,7 +59,7 @@ def test_hil_run_ends_at_once_naming_the_channel(channel, tmp_path):
     start = time.monotonic()
     done = subprocess.run(
         [sys.executable, "-m", "hil", "run", "--port", f"can://udp_multicast/{channel}", "--duration", "1",
-         "--no-plots", "--out", str(tmp_path)],
+         "--no-plots", "--recover-within", "60", "--out", str(tmp_path)],
         capture_output=True,
         text=True,
         timeout=120,
@@ -68,7 +68,8 @@ def test_hil_run_ends_at_once_naming_the_channel(channel, tmp_path):
     took = time.monotonic() - start
     assert done.returncode == 2, done.stderr[-2000:]
     assert "Traceback" not in done.stderr and f"channel '{channel}'" in done.stderr
-    assert took < 10.0  # not tried again for the 15 s outage bound (a busy CPU: a process start is ~1-2 s)
+    # not tried again for the 60 s outage bound (a process start is ~1-2 s, several on a busy 2-core machine)
+    assert took < 30.0
 
 
 def test_firmware_sim_on_such_a_group_refuses_naming_the_channel():
