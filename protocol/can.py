@@ -65,7 +65,7 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import NamedTuple, TypeGuard
 
-from .errors import ConfigError, ProtocolError
+from .errors import ConfigError, ProtocolError, value_repr
 from .frame import DELIMITER, MAX_ENCODED, MIN_FRAME
 from .messages import (
     Ack,
@@ -155,7 +155,7 @@ class CanId:
         that is not an integer at all (python-can builds a ``Message`` with a float id from a stray
         udp_multicast datagram, and its own check lets 901.5 through)."""
         if not _is_int(arbitration_id):
-            raise ProtocolError(f"arbitration id {arbitration_id!r} is not an integer")
+            raise ProtocolError(f"arbitration id {value_repr(arbitration_id)} is not an integer")
         if not 0 <= arbitration_id <= 0x7FF or arbitration_id >> 8 > Priority.OTHER:
             raise ProtocolError(f"arbitration id {arbitration_id:#x} is not in the vscmg-hil scheme")
         return cls(
@@ -228,10 +228,10 @@ def _fd_length(n: int) -> int:
 
 def _check_config(node: int, window: int | None = None, max_streams: int | None = None) -> None:
     if isinstance(node, bool) or not isinstance(node, int) or not 0 <= node <= NODE_MAX:
-        raise ConfigError(f"{node!r} is outside 0..{NODE_MAX}", "CAN node id")
+        raise ConfigError(f"{value_repr(node)} is outside 0..{NODE_MAX}", "CAN node id")
     for name, value in (("window", window), ("max_streams", max_streams)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise ConfigError(f"{value!r} must be an integer >= 1", f"CanReassembler.{name}")
+            raise ConfigError(f"{value_repr(value)} must be an integer >= 1", f"CanReassembler.{name}")
 
 
 # =========================================================================== sending

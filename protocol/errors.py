@@ -8,6 +8,44 @@ working.  Errors say *where*: a field of a frame, a key of a config file, a file
 
 from __future__ import annotations
 
+import math
+import reprlib
+
+_MAX_REPR = 80
+"""Characters of a caller's value an error message shows at most."""
+
+
+class _BoundedRepr(reprlib.Repr):
+    """``reprlib``'s length limits, and an integer too long to spell shown by its size: ``repr`` of an int
+    past 4300 digits raises ``ValueError`` (CPython's guard against quadratic conversion), and reprlib
+    calls it before it shortens anything."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.maxstring = self.maxother = _MAX_REPR
+
+    def repr_int(self, x: int, level: int) -> str:
+        bits = abs(x).bit_length()
+        if bits <= 128:  # up to 39 digits: spelled out
+            return repr(x)
+        digits = int(bits * math.log10(2)) + 1  # exact or one too many: the size is what matters
+        return f"<a{' negative' if x < 0 else 'n'} integer of ~{digits} digits>"
+
+
+_BOUNDED_REPR = _BoundedRepr()
+
+
+def value_repr(value: object) -> str:
+    """``repr(value)`` for an error message, at most ~80 characters whatever the caller passed: a 10**5000
+    in a field made building the error raise Python's own ``ValueError`` ("Exceeds the limit (4300 digits)
+    for integer string conversion") in place of the typed error, and a megabyte string made a megabyte
+    message. The one way to show a caller's value in an error this project raises."""
+    text = _BOUNDED_REPR.repr(value)
+    if len(text) > _MAX_REPR:  # a container of long items: reprlib bounds each item and their count only
+        half = (_MAX_REPR - 3) // 2
+        text = f"{text[:half]}...{text[-half:]}"
+    return text
+
 
 class HilError(Exception):
     """Root of every error this project raises on purpose."""
@@ -22,7 +60,7 @@ class FieldRangeError(ProtocolError):
     """A message field outside its documented range (raised on encode)."""
 
     def __init__(self, message: str, field: str, value: object) -> None:
-        super().__init__(f"{message}.{field} = {value!r} is out of range")
+        super().__init__(f"{message}.{field} = {value_repr(value)} is out of range")
         self.message_name = message
         self.field = field
         self.value = value

@@ -22,7 +22,7 @@ import math
 import numbers
 from collections.abc import Sequence
 
-from .errors import ConfigError, FieldRangeError
+from .errors import ConfigError, FieldRangeError, value_repr
 from .messages import MAX_CHANNELS, PULSE_MAX_US
 from .numbers import real_number
 
@@ -80,7 +80,9 @@ class SigmaDelta:
             or not isinstance(channels, numbers.Integral)
             or not 1 <= channels <= MAX_CHANNELS
         ):
-            raise ConfigError(f"{channels!r} must be an integer in 1..{MAX_CHANNELS}", "SigmaDelta.channels")
+            raise ConfigError(
+                f"{value_repr(channels)} must be an integer in 1..{MAX_CHANNELS}", "SigmaDelta.channels"
+            )
         self.residue: list[int] = [0] * int(channels)
 
     def reset(self) -> None:

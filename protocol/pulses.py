@@ -26,7 +26,7 @@ import numbers
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
-from .errors import ConfigError, FieldRangeError, ProtocolError
+from .errors import ConfigError, FieldRangeError, ProtocolError, value_repr
 from .messages import PULSE_MAX_US, PULSE_MIN_US
 from .numbers import real_number
 
@@ -50,14 +50,14 @@ class ServoParams:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or not PULSE_MIN_US <= v <= PULSE_MAX_US:
                 raise ConfigError(
-                    f"{v!r} is not an integer in {PULSE_MIN_US}..{PULSE_MAX_US} µs", f"{w}.{name}"
+                    f"{value_repr(v)} is not an integer in {PULSE_MIN_US}..{PULSE_MAX_US} µs", f"{w}.{name}"
                 )
         if not self.min_us < self.max_us:
             raise ConfigError(f"min_us {self.min_us} must be below max_us {self.max_us}", f"{w}.min_us")
         r = self.frame_rate_hz
         rate = real_number(r)
         if rate is None or not math.isfinite(rate):
-            raise ConfigError(f"{r!r} is not a finite number", f"{w}.frame_rate_hz")
+            raise ConfigError(f"{value_repr(r)} is not a finite number", f"{w}.frame_rate_hz")
         if not SERVO_MIN_RATE_HZ <= r <= SERVO_MAX_RATE_HZ:
             raise ConfigError(
                 f"{r:g} Hz is outside {SERVO_MIN_RATE_HZ:g}..{SERVO_MAX_RATE_HZ:g} Hz", f"{w}.frame_rate_hz"
@@ -165,7 +165,7 @@ def _captured_pulse(i: int, pulse: object) -> tuple[float, float]:
         rise = fall = None
     if rise is None or fall is None or not (math.isfinite(rise) and math.isfinite(fall)):
         raise ProtocolError(
-            f"servo capture: pulse {i} is {pulse!r}, not a (rise_us, fall_us) pair of finite µs"
+            f"servo capture: pulse {i} is {value_repr(pulse)}, not a (rise_us, fall_us) pair of finite µs"
         )
     return rise, fall
 
@@ -190,7 +190,7 @@ class PpmParams:
             v = getattr(self, name)
             number = real_number(v)
             if number is None or not (math.isfinite(number) and number > 0):
-                raise ConfigError(f"{v!r} is not a positive number", f"{w}.{name}")
+                raise ConfigError(f"{value_repr(v)} is not a positive number", f"{w}.{name}")
         if not self.separator_us < self.channel_min_us < self.channel_max_us < self.min_sync_us:
             raise ConfigError(
                 "need separator_us < channel_min_us < channel_max_us < min_sync_us", f"{w}.channel_min_us"
@@ -282,7 +282,7 @@ def decode_ppm(edges_us: Sequence[float], params: PpmParams = DEFAULT_PPM) -> tu
     edges = [real_number(t) for t in edges_us]
     for i, t in enumerate(edges):
         if t is None:
-            raise ProtocolError(f"PPM frame: edge {i} is {edges_us[i]!r}, not a time in µs")
+            raise ProtocolError(f"PPM frame: edge {i} is {value_repr(edges_us[i])}, not a time in µs")
     widths = []
     for i in range(n):
         a, b = edges[i], edges[i + 1]
@@ -354,7 +354,7 @@ class PpmDecoder:
             if edge is None:
                 self.counters.edges += 1
                 held = math.nan if self._last is None else self._last
-                self._drop(events, held, "not_a_time", f"edge {t!r} is not a time in µs")
+                self._drop(events, held, "not_a_time", f"edge {value_repr(t)} is not a time in µs")
                 continue
             self._edge(edge, events)
         return events
@@ -373,7 +373,9 @@ class PpmDecoder:
                 self._synced, self._channels = False, []
                 return  # ``t`` is the edge held: the stream goes on from it, decoding from the next sync
             self._last, self._behind = last, t  # keep the edge held; drop this one
-            self._drop(events, t, kind, f"edge at {t!r} µs does not come after {last!r} µs")
+            self._drop(
+                events, t, kind, f"edge at {value_repr(t)} µs does not come after {value_repr(last)} µs"
+            )
         elif kind is PpmInterval.SYNC:
             if self._synced and self._channels:
                 self._end_frame(events, t)

@@ -46,7 +46,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from .errors import CommandFailed, ConfigError, ProtocolError
+from .errors import CommandFailed, ConfigError, ProtocolError, value_repr
 from .frame import Frame, Framer
 from .messages import Ack, Flags, Hello, HelloReply, Nack, NackReason
 from .numbers import real_number
@@ -80,15 +80,17 @@ class RetryPolicy:
             value = getattr(self, name)
             number = real_number(value)  # 10**400 was an OverflowError out of ``math.isfinite``
             if number is None or not math.isfinite(number):
-                raise ConfigError(f"{value!r} is not a finite number", f"RetryPolicy.{name}")
+                raise ConfigError(f"{value_repr(value)} is not a finite number", f"RetryPolicy.{name}")
             object.__setattr__(self, name, number)  # numpy's scalars and 0-d arrays: the float they hold
         if self.timeout_s <= 0 or self.max_timeout_s < self.timeout_s:
             got = f"got {self.timeout_s}, {self.max_timeout_s}"
             raise ConfigError(f"need 0 < timeout_s <= max_timeout_s ({got})", "RetryPolicy")
         if self.backoff < 1.0:
-            raise ConfigError(f"{self.backoff!r} must be >= 1", "RetryPolicy.backoff")
+            raise ConfigError(f"{value_repr(self.backoff)} must be >= 1", "RetryPolicy.backoff")
         if isinstance(self.max_tries, bool) or not isinstance(self.max_tries, int) or self.max_tries < 1:
-            raise ConfigError(f"{self.max_tries!r} must be an integer >= 1", "RetryPolicy.max_tries")
+            raise ConfigError(
+                f"{value_repr(self.max_tries)} must be an integer >= 1", "RetryPolicy.max_tries"
+            )
 
     def timeout(self, tries: int) -> float:
         """Seconds to wait for an answer after the ``tries``-th send.
@@ -392,12 +394,12 @@ class ReliableSender:
         ``OverflowError``) is no time either."""
         seconds = real_number(now)  # any real number: a float, an int, numpy's scalars
         if seconds is None or not math.isfinite(seconds):
-            raise ConfigError(f"a time must be a finite number of seconds, not {now!r}", where)
+            raise ConfigError(f"a time must be a finite number of seconds, not {value_repr(now)}", where)
         now = seconds
         policy = self.policy
         if not now + policy.timeout_s / room > now:
             raise ConfigError(
-                f"a time of {now!r} s leaves no room for a {policy.timeout_s} s timeout (floats "
+                f"a time of {value_repr(now)} s leaves no room for a {policy.timeout_s} s timeout (floats "
                 f"{math.ulp(now)} s apart there; {room:g} of them needed): not a time on a clock of seconds",
                 where,
             )
@@ -532,7 +534,7 @@ class AnswerCache:
 
     def __post_init__(self) -> None:
         if isinstance(self.entries, bool) or not isinstance(self.entries, int) or self.entries < 1:
-            raise ConfigError(f"{self.entries!r} must be an integer >= 1", "AnswerCache.entries")
+            raise ConfigError(f"{value_repr(self.entries)} must be an integer >= 1", "AnswerCache.entries")
 
     def lookup(self, frame: Frame) -> Ack | Nack | None:
         """The answer already given to this retransmitted command, or None: execute it."""

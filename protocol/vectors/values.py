@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from ..errors import ProtocolError
+from ..errors import ProtocolError, value_repr
 from ..fields import Array, Blob, Enum8, Scalar, Text, layout_of
 
 
@@ -54,35 +54,37 @@ def from_json(cls: type, values: Mapping[str, Any], where: str = "") -> Any:
 def _value_from_json(codec: Any, value: Any, where: str) -> Any:
     if isinstance(codec, Enum8):
         if not isinstance(value, Mapping) or set(value) != {"name", "value"}:
-            raise ProtocolError(f"{where}: expected {{'name', 'value'}}, got {value!r}")
+            raise ProtocolError(f"{where}: expected {{'name', 'value'}}, got {value_repr(value)}")
         try:
             member = codec.enum_cls[value["name"]]
         except KeyError:
-            raise ProtocolError(f"{where}: {value['name']!r} is not a {codec.enum_cls.__name__}") from None
+            raise ProtocolError(
+                f"{where}: {value_repr(value['name'])} is not a {codec.enum_cls.__name__}"
+            ) from None
         if int(member) != value["value"]:
-            raise ProtocolError(f"{where}: {member.name} is {int(member)}, not {value['value']!r}")
+            raise ProtocolError(f"{where}: {member.name} is {int(member)}, not {value_repr(value['value'])}")
         return member
     if isinstance(codec, Blob):
         if not isinstance(value, str):
-            raise ProtocolError(f"{where}: expected a hex string, got {value!r}")
+            raise ProtocolError(f"{where}: expected a hex string, got {value_repr(value)}")
         try:
             return bytes.fromhex(value)
         except ValueError:
-            raise ProtocolError(f"{where}: {value!r} is not hex") from None
+            raise ProtocolError(f"{where}: {value_repr(value)} is not hex") from None
     if isinstance(codec, Text):
         if not isinstance(value, str):
-            raise ProtocolError(f"{where}: expected a string, got {value!r}")
+            raise ProtocolError(f"{where}: expected a string, got {value_repr(value)}")
         return value
     if isinstance(codec, Array):
         if not isinstance(value, list):
-            raise ProtocolError(f"{where}: expected a list, got {value!r}")
+            raise ProtocolError(f"{where}: expected a list, got {value_repr(value)}")
         if isinstance(codec.item, Scalar):
             return tuple(_value_from_json(codec.item, v, f"{where}[{i}]") for i, v in enumerate(value))
         return tuple(from_json(codec.item, v, f"{where}[{i}]") for i, v in enumerate(value))
     if codec.fmt == "f":
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ProtocolError(f"{where}: expected a number, got {value!r}")
+            raise ProtocolError(f"{where}: expected a number, got {value_repr(value)}")
         return float(value)
     if isinstance(value, bool) or not isinstance(value, int):
-        raise ProtocolError(f"{where}: expected an integer, got {value!r}")
+        raise ProtocolError(f"{where}: expected an integer, got {value_repr(value)}")
     return value
