@@ -62,8 +62,11 @@ class Scalar:
         if self.fmt == "f":
             if isinstance(value, float):
                 return math.isfinite(value) and self.lo <= value <= self.hi
-            # an int (not a bool) as the float it is: 10**400 was an OverflowError out of math.isfinite
-            number = real_number(value) if isinstance(value, int) else None
+            # any real number as the float it is (an int, numpy's float32, a 0-d array: what
+            # :func:`real_number` takes; not a bool or a string): 10**400 was an OverflowError out of
+            # math.isfinite, and numpy's float32 1.0, what a float32 controller computes, was refused as
+            # "out of range"
+            number = real_number(value)
             return number is not None and math.isfinite(number) and self.lo <= number <= self.hi
         return isinstance(value, int) and not isinstance(value, bool) and self.lo <= value <= self.hi
 

@@ -7,7 +7,8 @@ import struct
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from ..errors import CalibrationError, FieldRangeError
+from ..errors import CalibrationError, FieldRangeError, value_repr
+from ..numbers import real_number
 
 _F32 = struct.Struct("<f")
 F32_MAX = 3.4028234663852886e38
@@ -26,29 +27,24 @@ def f32(x: float) -> float:
 
 def finite32(value: object, where: str) -> float:
     """``value`` as a float32-exact float, or :class:`CalibrationError` at ``where`` if it is not a
-    finite number representable as float32."""
-    if isinstance(value, bool):
-        raise CalibrationError(f"{value!r} is not a number", where)
-    try:
-        x = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError) as exc:
-        raise CalibrationError(f"{value!r} is not a number", where) from exc
-    except OverflowError as exc:  # an integer beyond any float (10**400): repr refuses 4300+ digits
-        raise CalibrationError("an integer beyond a float's range is not a finite float32", where) from exc
+    finite real number (:func:`~protocol.numbers.real_number`: no bool, no string) representable as
+    float32. A string such as ``"1000"`` was taken as a number by ``float()``."""
+    x = real_number(value)
+    if x is None:
+        raise CalibrationError(f"{value_repr(value)} is not a number", where)
     if not math.isfinite(x) or abs(x) > F32_MAX:
-        raise CalibrationError(f"{value!r} is not a finite float32", where)
+        raise CalibrationError(f"{value_repr(value)} is not a finite float32", where)
     return f32(x)
 
 
-def require_finite(value: float, what: str, name: str) -> float:
-    """``value`` as a float, or :class:`FieldRangeError` naming ``what.name`` if it is NaN, infinite, or an
-    integer beyond a float's range (which ``float()`` refuses with a bare ``OverflowError``; the error then
-    carries it as ±inf, as far as a float goes, since ``repr`` of an integer past 4300 digits raises)."""
-    try:
-        x = float(value)
-    except OverflowError as exc:
-        raise FieldRangeError(what, name, math.inf if value > 0 else -math.inf) from exc
-    if not math.isfinite(x):
+def require_finite(value: object, what: str, name: str) -> float:
+    """``value`` as a float, or :class:`FieldRangeError` naming ``what.name`` if it is not a finite real
+    number (:func:`~protocol.numbers.real_number`, the protocol's one test of what a number is): NaN,
+    ±inf, an integer beyond a float's range (10**400), a bool, a string, None. ``float()`` took
+    ``"1500"`` as a 1500 µs pulse, ``True`` as a 1 rad/s gimbal rate and ``b"1"`` as 1, and raised a bare
+    ``TypeError`` for None."""
+    x = real_number(value)
+    if x is None or not math.isfinite(x):
         raise FieldRangeError(what, name, value)
     return x
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..errors import CalibrationError
+from ..errors import CalibrationError, FieldRangeError
 from ..messages import PULSE_MAX_US, PULSE_MIN_US
 from .checks import f32, finite32, require_finite
 from .conversion import Clamp, Conversion
@@ -138,17 +138,35 @@ class RotorSpeedMap:
             )
 
     def full_speed(self, battery_v: float) -> float:
-        """No-load speed at full throttle (rad/s) at ``battery_v``."""
-        return self.kv_rad_s_per_v * battery_v if battery_v >= MIN_SUPPLY_V else 0.0
+        """No-load speed at full throttle (rad/s) at ``battery_v`` (V): 0 below :data:`MIN_SUPPLY_V`.
+        :class:`~protocol.errors.FieldRangeError` for a ``battery_v`` that is no finite number (NaN read as
+        no supply, 0 rad/s) or at which ``KV·V`` is beyond a float (see :meth:`_full_speed_at`)."""
+        v = require_finite(battery_v, "RotorSpeedMap.full_speed", "battery_v")
+        return self._full_speed_at(v, "RotorSpeedMap.full_speed") if v >= MIN_SUPPLY_V else 0.0
 
     def speed(self, pulse_us: float, battery_v: float) -> Conversion:
-        """Steady no-load speed (rad/s) of ``pulse_us`` at ``battery_v``."""
+        """Steady no-load speed (rad/s) of ``pulse_us`` at ``battery_v`` (V); below :data:`MIN_SUPPLY_V`
+        0, flagged LOW. :class:`~protocol.errors.FieldRangeError` for a voltage at which the full-throttle
+        speed ``KV·V`` is beyond a float (see :meth:`_full_speed_at`)."""
         v = require_finite(battery_v, "RotorSpeedMap.speed", "battery_v")
         tau = self.esc.throttle(pulse_us)
         if v < MIN_SUPPLY_V:
             return Conversion(0.0, Clamp.LOW)
+        full = self._full_speed_at(v, "RotorSpeedMap.speed")
         frac = self.curve.evaluate(tau.value).value
-        return Conversion(self.kv_rad_s_per_v * v * frac, tau.clamp)
+        return Conversion(full * frac, tau.clamp)
+
+    def _full_speed_at(self, battery_v: float, what: str) -> float:
+        """``KV·V`` (rad/s) at a finite ``battery_v`` of at least :data:`MIN_SUPPLY_V`, or
+        :class:`~protocol.errors.FieldRangeError` naming ``what.battery_v`` where that product is beyond a
+        float (V above ~1.8e308 / KV, 1.8e304 V at the largest KV): no speed can be said there. The
+        product overflowed to inf, and ``speed`` gave inf, unflagged, at any throttle above 0 and NaN at
+        throttle 0 (inf · 0), where a rotor that is off turns at 0 rad/s at every voltage. (:meth:`pulse`
+        answers at any finite voltage: its answer is a pulse within the ESC's endpoints.)"""
+        full = self.kv_rad_s_per_v * battery_v
+        if full == math.inf:
+            raise FieldRangeError(what, "battery_v", battery_v)
+        return full
 
     def pulse(self, speed_rad_s: float, battery_v: float) -> Conversion:
         """The pulse (µs) whose steady no-load speed at ``battery_v`` is ``speed_rad_s``. Speed 0 is the
