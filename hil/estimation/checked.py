@@ -10,21 +10,31 @@ What is checked, each call (a few µs a step):
 call                       checked
 =========================  ========================================================================
 ``step(s)``                an :class:`~hil.estimation.estimator.Estimate` (or an object with its six
-                           attributes), at ``s.t``; ``R``, ``omega``, ``omega_err`` finite; ``R`` a
-                           rotation (``|R Rᵀ − I| ≤`` :data:`ORTHONORMAL_TOL` entrywise, det > 0);
+                           attributes: ``t`` a real number, ``flags`` and ``iterations`` integers, the
+                           arrays of integers or floats), at ``s.t``; ``R``, ``omega``, ``omega_err``
+                           finite; ``R`` a rotation (``|R Rᵀ − I| ≤`` :data:`ORTHONORMAL_TOL`
+                           entrywise, det > 0);
                            each axis of ``omega`` and ``omega_err`` within :data:`RATE_LIMIT`;
                            ``flags`` of :class:`~hil.estimation.sensors.StepFlag`'s bits only,
                            ``iterations`` a count from 0 to :data:`MAX_ITERATIONS`
 ``run(steps)``             an :class:`~hil.estimation.estimator.EstimateBatch` of ``len(steps)`` rows
                            at ``steps.t``, each row as a step's; ``steps``' arrays are passed read-only
                            (an estimator that wrote into them changed what the replay then scores)
-``gyro_bias``              a finite 3-vector
+``gyro_bias``              a finite 3-vector of integers or floats, each axis within :data:`RATE_LIMIT`
 ``set_gyro_bias(b)``       given a copy of ``b`` (the host's own is not the estimator's to change)
 =========================  ========================================================================
 
 Anything the estimator raises (its own exception, Python's, a ``sys.exit()``), in its calls or as what it
 returned is read (a property, an ``__array__``), becomes a :class:`~hil.plugins.PluginError` ``from`` it
-(:func:`~hil.plugins.call_plugin`); Ctrl-C (KeyboardInterrupt) passes through. Pure checks, no I/O."""
+(:func:`~hil.plugins.call_plugin`); Ctrl-C (KeyboardInterrupt) passes through.
+
+Its live calls (``step``, ``gyro_bias``, ``set_gyro_bias``, ``set_rest_learning``: the host's, mid-run) run
+on a thread of the estimator's own and are waited for a bounded wall time
+(:class:`~hil.plugins.PluginWorker`), :func:`step_bound_s`: :data:`STEP_WAIT_PERIODS` of the site's sample
+period, never less than :data:`STEP_WAIT_FLOOR_S` (:data:`FIRST_CALL_WAIT_S` for its first step); one that
+does not return is a :class:`~hil.plugins.PluginTimeout` naming the call and the step's time. Wall time in
+lockstep too: the simulated clock stands still while the host waits, so only the wall clock can tell a
+step that never returns. ``run`` (a replay's batch) is called directly. No I/O."""
 
 from __future__ import annotations
 
@@ -32,6 +42,7 @@ import math
 import struct
 from collections.abc import Callable
 from dataclasses import fields, replace
+from numbers import Integral, Real
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -39,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil.estimation.admission import ReadingLimits
 from hil.estimation.sensors import StepFlag
-from hil.plugins import PluginError, call_plugin, describe_value
+from hil.plugins import PluginError, PluginWorker, call_plugin, describe_value
 
 if TYPE_CHECKING:
     from hil.estimation.estimator import Estimate, EstimateBatch
@@ -69,6 +80,35 @@ log was estimated (the paper's estimator takes at most ``newton_max_iter``, 10 b
 KNOWN_FLAGS = sum(map(int, StepFlag))
 """Every :class:`~hil.estimation.sensors.StepFlag` bit: the only ones an estimate may set (a bit beyond
 them is no condition the run can count; bit 70 ended ``hil replay`` with a raw OverflowError)."""
+
+STEP_WAIT_FLOOR_S = 30.0
+"""s of wall time: the least a user's estimator's live call is waited for before it is taken to have hung.
+Far above any honest step: a Python step takes ~10-100 µs, a GC pause or a loaded machine's scheduling a
+few ms to 100 ms; a few seconds is a machine swapping. The run cannot go on without the estimate either way,
+so the bound only has to tell "never" from "late" (and the board's own link watchdog fails it safe within
+its timeout meanwhile, in real time)."""
+
+STEP_WAIT_PERIODS = 1000
+"""How many of the site's sample periods a live call is waited for, where that is longer than
+:data:`STEP_WAIT_FLOOR_S` (a slow log's steps: 1 Hz is 1000 s)."""
+
+FIRST_CALL_WAIT_S = 300.0
+"""s of wall time: the bound of an estimator's first step, which may compile its kernels (numba JIT:
+tens of seconds on a loaded machine, as ``hil``'s own kernels take after an install)."""
+
+
+def step_bound_s(period_s: float | None) -> float:
+    """The wall time (s) a live call of an estimator stepping every ``period_s`` (s; None or not a positive
+    finite number: unknown) is waited for: :data:`STEP_WAIT_PERIODS` periods, at least
+    :data:`STEP_WAIT_FLOOR_S`."""
+    if period_s is None or not (math.isfinite(period_s) and period_s > 0):
+        return STEP_WAIT_FLOOR_S
+    return max(STEP_WAIT_FLOOR_S, STEP_WAIT_PERIODS * period_s)
+
+
+_REAL_KINDS = "iuf"
+"""The numpy dtype kinds an estimate's arrays may have: integers and floats (not booleans, complex numbers,
+text or objects)."""
 
 _FIFTEEN = struct.Struct("=15d").unpack_from  # an Estimate's kept bytes: R row-major, omega, omega_err
 _FIELDS = ("t", "R", "omega", "omega_err", "flags", "iterations")
@@ -107,14 +147,18 @@ def counts_fault(flags: int, iterations: int) -> str | None:
 
 class CheckedEstimator:
     """``inner``, a user's :class:`~hil.estimation.interface.Estimator`, with every call checked (see the
-    module docstring); ``name`` is its registered name, for the errors."""
+    module docstring); ``name`` is its registered name, for the errors; ``period_s`` its site's sample
+    period (s), for the bound of its live calls (:func:`step_bound_s`)."""
 
-    __slots__ = ("inner", "name", "plugin")
+    __slots__ = ("inner", "name", "plugin", "bound_s", "worker", "_stepped")
 
-    def __init__(self, inner: Estimator, name: str) -> None:
+    def __init__(self, inner: Estimator, name: str, period_s: float | None = None) -> None:
         self.inner = inner
         self.name = name
         self.plugin = f"estimator {name!r}"
+        self.bound_s = step_bound_s(period_s)
+        self.worker = PluginWorker(self.plugin)
+        self._stepped = False
 
     def __repr__(self) -> str:
         return f"CheckedEstimator({self.inner!r}, {self.name!r})"
@@ -125,9 +169,17 @@ class CheckedEstimator:
     def _call(self, what: str, call: Callable[[], Any]) -> Any:
         return call_plugin(self.plugin, what, call)
 
+    def _live(self, what: str, call: Callable[[], Any], bound_s: float | None = None) -> Any:
+        """``call()``, one of the host's mid-run calls, on the estimator's worker thread, waited for
+        ``bound_s`` (s; default :attr:`bound_s`)."""
+        bound = self.bound_s if bound_s is None else bound_s
+        return call_plugin(self.plugin, what, lambda: self.worker.call(what, call, bound))
+
     # ------------------------------------------------------------------ live
     def step(self, s: MergedStep) -> Estimate:
-        out = self._call(f"step at t = {s.t!r} s", lambda: self.inner.step(s))
+        bound = self.bound_s if self._stepped else max(self.bound_s, FIRST_CALL_WAIT_S)
+        self._stepped = True
+        out = self._live(f"step at t = {s.t!r} s", lambda: self.inner.step(s), bound)
         return self.checked_estimate(out, s.t)
 
     def checked_estimate(self, out: Any, t: float) -> Estimate:
@@ -178,16 +230,26 @@ class CheckedEstimator:
             raise self._error(f"{where} returned {got}, not an Estimate (no {', '.join(missing)})")
         shapes = {"R": (3, 3), "omega": (3,), "omega_err": (3,)}
         try:
-            arrays = {k: np.asarray(getattr(out, k), dtype=float) for k in shapes}
+            given = {k: np.asarray(getattr(out, k)) for k in shapes}
+            kinds = [f"{k} of dtype {a.dtype}" for k, a in given.items() if a.dtype.kind not in _REAL_KINDS]
+            if kinds:  # float() of them dropped a complex part, read text and booleans as numbers
+                raise self._error(f"{where} returned {', '.join(kinds)}; wants real numbers")
+            arrays = {k: a.astype(float) for k, a in given.items()}
             bad = [f"{k} {a.shape}" for k, a in arrays.items() if a.shape != shapes[k]]
             if bad:
                 raise self._error(f"{where} returned shapes {', '.join(bad)}; wants R (3, 3), omega (3,)")
-            flags, iterations = int(out.flags), int(out.iterations)
+            t, flags, iterations = out.t, out.flags, out.iterations
+            if isinstance(t, bool) or not isinstance(t, Real):
+                raise self._error(f"{where} returned t {describe_value(t)}, not a number of seconds")
+            for key, value in (("flags", flags), ("iterations", iterations)):
+                if isinstance(value, bool) or not isinstance(value, Integral):  # int() truncated 1.5 to a bit
+                    raise self._error(f"{where} returned {key} {describe_value(value)}, not an integer")
+            flags, iterations = int(flags), int(iterations)
             fault = counts_fault(flags, iterations)  # before StepFlag(): it reads -1 as every bit set
             if fault is not None:
                 raise self._error(f"{where} returned {fault}")
             return Estimate(
-                float(out.t), arrays["R"], arrays["omega"], arrays["omega_err"], StepFlag(flags), iterations
+                float(t), arrays["R"], arrays["omega"], arrays["omega_err"], StepFlag(flags), iterations
             )
         except PluginError:
             raise
@@ -275,24 +337,31 @@ class CheckedEstimator:
     # ------------------------------------------------------------------ bias and rest
     @property
     def gyro_bias(self) -> Array:
-        b = self._call("gyro_bias", lambda: self.inner.gyro_bias)
+        b = self._live("gyro_bias", lambda: self.inner.gyro_bias)
         return self._call("gyro_bias: reading what it returned", lambda: self._bias(b))  # type: ignore[no-any-return]
 
     def _bias(self, b: Any) -> Array:
         try:
-            a = np.array(b, dtype=float)
+            given = np.asarray(b)
         except (TypeError, ValueError) as exc:
             raise self._error(f"gyro_bias is {describe_value(b)}, not a 3-vector") from exc
+        if given.dtype.kind not in _REAL_KINDS:  # a float() of it dropped a complex part, read "0.1" as 0.1
+            raise self._error(f"gyro_bias is {describe_value(b)} of dtype {given.dtype}; wants real numbers")
+        a = given.astype(float)  # a copy: the estimator's own is not the host's to keep
         if a.shape != (3,) or not np.isfinite(a).all():
             raise self._error(f"gyro_bias is {describe_value(b)}, not a finite 3-vector (rad/s)")
+        if not np.abs(a).max() <= RATE_LIMIT:  # written to events.jsonl as what the estimator found
+            raise self._error(
+                f"gyro_bias is {describe_value(b)}, beyond any gyroscope's bound ({RATE_LIMIT:g} rad/s)"
+            )
         return a
 
     def set_gyro_bias(self, bias: ArrayLike) -> None:
         given = np.array(bias, dtype=float)  # a copy: the caller's is not the estimator's to change
-        self._call("set_gyro_bias", lambda: self.inner.set_gyro_bias(given))
+        self._live("set_gyro_bias", lambda: self.inner.set_gyro_bias(given))
 
     def set_rest_learning(self, enabled: bool) -> None:
-        self._call("set_rest_learning", lambda: self.inner.set_rest_learning(enabled))
+        self._live("set_rest_learning", lambda: self.inner.set_rest_learning(enabled))
 
 
 def _read_only(steps: MergedSteps) -> MergedSteps:

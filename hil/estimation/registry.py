@@ -147,7 +147,7 @@ class EstimatorChoice:
         built = call_plugin(plugin, "build", lambda: kind.build(self.settings, site), HilError)
         if built is None or not callable(getattr(built, "step", None)):
             raise PluginError(plugin, f"build returned {type(built).__name__}, not an Estimator")
-        return CheckedEstimator(built, self.name)
+        return CheckedEstimator(built, self.name, site.sample_period_s)
 
     def describe(self) -> str:
         """One line: the estimator and its settings."""
