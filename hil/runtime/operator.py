@@ -187,7 +187,7 @@ class Operator:
                 f"from {origin} (command {n}: the Disarm failed; the board's link watchdog fails it safe)"
             )
         client = host.client
-        tel, tel_t = client.telemetry, client.telemetry_time
+        tel, tel_t = client.latest_telemetry()  # one pair: a reader thread may take a frame between two reads
         settled = abort.handle.settled_at
         heard = tel is not None and tel_t is not None and settled is not None and tel_t >= settled
         if heard and tel is not None and tel.state is not BoardState.ARMED:

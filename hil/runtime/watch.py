@@ -46,11 +46,13 @@ logger = logging.getLogger(__name__)
 @dataclass(frozen=True, slots=True)
 class View:
     """The host's view of the board at one tick: ``link``; ``telemetry`` (None unless live); ``age_s`` of
-    the latest telemetry received (None: none yet)."""
+    the latest telemetry received (None: none yet); ``made_s``, the host time (s) ``telemetry`` was made
+    (None unless live) — the one pair, never the client's newer time beside an older message."""
 
     link: BoardLink
     telemetry: Telemetry | None
     age_s: float | None
+    made_s: float | None = None
 
 
 STATE_CONFIRM_S = 0.5
@@ -96,6 +98,7 @@ class BoardWatch:
         self._link = BoardLink.STALE  # nothing seen yet
         self._stale_noted = False  # the stale episode going on is in the journal
         self._started: float | None = None  # the first tick
+        self._session_start: float | None = None  # host s: the latest handshake's answer, the board's word
         self._upsets: list[str] = []
 
     # ------------------------------------------------------------------ events
@@ -138,6 +141,7 @@ class BoardWatch:
             self.journal.fault(t, "link_lost", reason=event.reason)
             self._upset("link_lost")
         elif isinstance(event, ConnectedEvent):
+            self._session_start = t
             self.events.write(t, "connected", reconnects=event.reconnects)
             if event.reconnects > self._reconnects_seen:  # the session's count: a handshake after a reset
                 self._reconnects_seen = event.reconnects  # on a session that reconnected once is not one
@@ -204,10 +208,16 @@ class BoardWatch:
         """The board as the host may use it at ``t``. Telemetry is live while younger than
         ``stale_after_s`` and received after the latest link loss, reconnect or reset. A change of view is
         an ``events.jsonl`` record; going without live telemetry for ``stale_after_s`` (counted from the
-        last live telemetry, the first tick, or the session's start, whichever is latest) is a ``stale``
-        fault — the short wait for the first telemetry of a new session is not."""
+        board's last word: its last live telemetry, or the session's handshake, whichever is latest) is a
+        ``stale`` fault — the short wait for the first telemetry of a new session is not.
+
+        The fault (and the outage it opens) is dated when that bound passed, not at the tick that saw it:
+        the host may have been looking elsewhere then. A board that hung between its handshake and the
+        run's first Arm was counted from the first control tick, after the Arm's 0.5 s wait — its outage
+        began 0.5 s late (0.86 s, not 0.35 s) and a board never back was declared lost 0.5 s late, its
+        outage said 0.5 s shorter than the board's silence."""
         client = self.client
-        tel, tel_t = client.telemetry, client.telemetry_time
+        tel, tel_t = client.latest_telemetry()
         age = None if tel_t is None else t - tel_t
         if self._started is None:
             self._started = t
@@ -222,7 +232,7 @@ class BoardWatch:
         if link is BoardLink.LIVE:
             self._stale_noted = False
         elif link is BoardLink.STALE and not self._stale_noted:
-            since = max(self._started, self._fresh_after, -math.inf if tel_t is None else tel_t)
+            since = self._last_word(tel_t)
             if t - since > self.stale_after_s:
                 self._stale_noted = True
                 self.stale_episodes += 1
@@ -230,8 +240,27 @@ class BoardWatch:
                 logger.warning(
                     "no board telemetry for %.2f s at t=%.3f s (the last: %s)", t - since, t, heard
                 )
-                self.journal.fault(t, "stale", tel_age_ms=None if age is None else age * 1e3)
-        return View(link, tel if link is BoardLink.LIVE else None, age)
+                stale_at = max(since + self.stale_after_s, self._closed_outage_end())
+                self.journal.fault(
+                    stale_at, "stale", tel_age_ms=None if tel_t is None else (stale_at - tel_t) * 1e3
+                )
+        if link is not BoardLink.LIVE:
+            return View(link, None, age)
+        return View(link, tel, age, tel_t)
+
+    def _last_word(self, tel_t: float | None) -> float:
+        """The host time (s) the board's silence is counted from: its last telemetry of this session, or
+        the session's handshake (the board's answer to it) when none came since; the run's first tick only
+        for a watch that never saw the session start."""
+        assert self._started is not None
+        session = self._started if self._session_start is None else self._session_start
+        return max(session, self._fresh_after, -math.inf if tel_t is None else tel_t)
+
+    def _closed_outage_end(self) -> float:
+        """When the last outage the host recovered from ended (s; -inf: none): a new one starts no
+        earlier."""
+        last = self.journal.outages[-1] if self.journal.outages else None
+        return -math.inf if last is None or last.end is None else last.end
 
     def host_stalled(self, t: float, due: float) -> bool:
         """Whether the host itself stalled before this control tick: it runs at ``t``, more than
@@ -274,7 +303,7 @@ class BoardWatch:
         the board says it is out of ARMED."""
         if not self.operator_disarmed:
             return
-        tel, tel_t = view.telemetry, self.client.telemetry_time
+        tel, tel_t = view.telemetry, view.made_s
         if tel is None or tel_t is None:
             return  # not live: the view's own faults say so
         if tel.state is not BoardState.ARMED:
@@ -311,7 +340,7 @@ class BoardWatch:
         bound. (A board that says FAILSAFE or BOOT is a failsafe's or a reset's, told by its own event.)"""
         if self.operator_disarmed or self._rearm is not None:
             return
-        tel, tel_t = view.telemetry, self.client.telemetry_time
+        tel, tel_t = view.telemetry, view.made_s
         if tel is None or tel_t is None:
             return  # not live: the view's own faults say so
         if tel.state is not BoardState.DISARMED:

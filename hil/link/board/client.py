@@ -331,6 +331,15 @@ class BoardClient:
         board's clock says (:mod:`hil.link.board.made_at`): a backlog is not taken for live."""
         return self.session.telemetry_time
 
+    def latest_telemetry(self) -> tuple[Telemetry | None, float | None]:
+        """The latest Telemetry and the host time it was made (:attr:`telemetry_time`), as one pair read
+        under the client's lock. Why: with the reader thread running, the two properties read one after
+        the other could straddle a frame — the older message with the newer frame's time (about one read
+        in 10 000 at 500 Hz; after a stall, the message from before it, ARMED with its rotors at speed,
+        paired with the first new frame's time and shown live while that frame said FAILSAFE)."""
+        with self._cond:
+            return self.session.telemetry, self.session.telemetry_time
+
     @property
     def arm_acked_at(self) -> float | None:
         """The host time the board last acknowledged an Arm (None: none yet, or a Disarm sent since)."""
