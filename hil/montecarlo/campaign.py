@@ -658,10 +658,12 @@ def summarise_dir(
     campaign option that moves a verdict's limit; ``settle_deg`` and the gimbal-rate limit are in the
     scenario text campaign.json keeps (``--board`` and ``--seed`` change neither)."""
     sc = scenario
-    duration_s = float(read_manifest(out_dir)["duration_s"])
-    summary = summarise(
-        read_runs(out_dir), sc.name, duration_s, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate
-    )
+    info = read_manifest(out_dir)
+    duration_s = float(info["duration_s"])
+    # runs.csv's header held to campaign.json's columns: one edited by hand is an error naming it, never a
+    # metric silently missing from every figure (or a KeyError's traceback where the plots read it)
+    results = read_runs(out_dir, columns=info["columns"])
+    summary = summarise(results, sc.name, duration_s, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate)
     # a duration too short for the slew to settle: its settle and final_error verdicts are the duration's
     # (a fault campaign's runs do not count such a miss against back_in_control: runner.run_faulted)
     shortfall = sc.time_to_judge().shortfall(duration_s)

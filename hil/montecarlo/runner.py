@@ -225,9 +225,11 @@ def run_one(scenario: Scenario, run: RunParams, trace_hz: float) -> RunResult:
     return RunResult(run.index, True, run.columns, metrics, decimated, wall_s=time.perf_counter() - start)
 
 
+VIOLATION_COLUMNS: tuple[str, ...] = tuple(f"inv.{name}" for name in INVARIANTS)
+"""A fault campaign's run's violations of each invariant: a count (a whole number >= 0) each."""
 CHECK_COLUMNS: tuple[str, ...] = (
     "exit",
-    *(f"inv.{name}" for name in INVARIANTS),
+    *VIOLATION_COLUMNS,
     "inv.first",
     "detection.list",
     "recovery.list",

@@ -49,7 +49,7 @@ from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, HilError, InputFormatError
 
 from .metrics import METRICS, TRACES, trace_length
-from .runner import CHECK_COLUMNS, RunResult
+from .runner import CHECK_COLUMNS, VIOLATION_COLUMNS, RunResult
 
 MANIFEST = "campaign.json"
 MAX_DURATION_S = 86_400.0
@@ -70,6 +70,15 @@ MAX_HEADER_BYTES = 1 << 20
 """The most of runs.csv's first line read to compare it with the manifest's columns."""
 MAX_INDEX = 2**31 - 1
 """The largest run index a row may have (a trace record's index is an int32; a campaign's at most 10^7)."""
+MAX_MESSAGE_CHARS = 2000
+"""The most characters of a run's message cells (:data:`MESSAGE_COLUMNS`) written to runs.csv; the rest
+is said cut. An error's message is whatever the code that raised it said (a user's estimator quoting an
+array, a file): one of 2 MB made its row longer than runs.csv's longest readable line
+(:data:`~hil.files.bounded.MAX_LINE_BYTES`), so the row was dropped as damaged when read back — the failed
+run missing from the summary, the campaign exiting 0 as if every run was ok, and the run run again by
+every later session."""
+MESSAGE_COLUMNS = ("error", "inv.first")
+"""The cells of free text (a run's error; a fault campaign's first violation, which may quote it)."""
 _INDEX = re.compile(r"[0-9]{1,10}")
 T = TypeVar("T")
 _SAME = ("scenario_sha256", "dispersions_sha256", "seed", "duration_s", "trace_hz", "columns", "board")
@@ -174,7 +183,11 @@ class ResultStore:
         # an empty runs.csv (a session stopped before its header reached the disk) is a new one
         new = not runs.exists() or runs.stat().st_size == 0
         self.finished: set[int] = set() if new else set(read_runs(self.dir).index.tolist())
-        self._rows = checked_write(runs, lambda: open(runs, "a", newline=""))
+        # UTF-8 as read_runs reads it, whatever the locale; a character UTF-8 cannot hold (a lone surrogate:
+        # an undecodable file name in an error) escaped, not a UnicodeEncodeError ending the session
+        self._rows = checked_write(
+            runs, lambda: open(runs, "a", newline="", encoding="utf-8", errors="backslashreplace")
+        )
         self._csv = csv.writer(self._rows, lineterminator="\n")
         if new:
             checked_write(runs, lambda: _write_flushed(self._rows, lambda: self._csv.writerow(self.columns)))
@@ -241,8 +254,7 @@ class ResultStore:
             header = []
         if header != self.columns:
             raise ConfigError(
-                f"its header is not this campaign's columns ({len(header)} columns, "
-                f"expected {len(self.columns)}: {_first_difference(header, self.columns)}); "
+                f"its header is not this campaign's columns ({_header_difference(header, self.columns)}); "
                 "give another --out",
                 str(runs),
             )
@@ -268,6 +280,7 @@ class ResultStore:
         row.update(result.metrics)
         row.update(result.checks)
         cells = [_cell(row.get(c)) for c in self.columns]
+        cells = [_message(v) if c in MESSAGE_COLUMNS else v for c, v in zip(self.columns, cells, strict=True)]
         checked_write(self.dir / RUNS, lambda: _write_flushed(self._rows, lambda: self._csv.writerow(cells)))
         self.finished.add(result.index)
 
@@ -379,12 +392,25 @@ def _cut_torn_tail(path: Path, keep: Callable[[BinaryIO, int], int]) -> None:
     checked_write(path, cut)
 
 
+_LINE_BREAK_OR_NUL = re.compile(r"\r\n|[\r\n\x00]")
+
+
 def _cell(value: Any) -> str:
+    """One cell of runs.csv. A text cell is one line with no NUL: read back, csv refuses a NUL and a
+    carriage return (an error quoting a device's ``\\r\\n``), and the row was dropped as damaged — a failed
+    run missing from the summary; each is written visibly instead (a line break as `` | ``)."""
     if value is None:
         return ""
     if isinstance(value, float | np.floating):
         return "" if math.isnan(value) else repr(float(value))
-    return str(value).replace("\n", " | ")
+    return _LINE_BREAK_OR_NUL.sub(lambda m: "\\x00" if m.group() == "\x00" else " | ", str(value))
+
+
+def _message(text: str) -> str:
+    """A message cell bounded to :data:`MAX_MESSAGE_CHARS`, what is cut said (with how much)."""
+    if len(text) <= MAX_MESSAGE_CHARS:
+        return text
+    return f"{text[:MAX_MESSAGE_CHARS]} … [{len(text) - MAX_MESSAGE_CHARS} more characters not kept]"
 
 
 # --------------------------------------------------------------------------- reading results back
@@ -416,9 +442,16 @@ class Results:
         ]
 
 
-def read_runs(out_dir: str | os.PathLike[str]) -> Results:
-    """Read ``OUT/runs.csv``; a malformed line — the wrong number of cells, a run index that is not a
-    plain number 0..:data:`MAX_INDEX`, a metric that is not a number, a line longer than
+def read_runs(out_dir: str | os.PathLike[str], columns: Sequence[str] | None = None) -> Results:
+    """Read ``OUT/runs.csv``; with ``columns`` (campaign.json's, :func:`read_manifest`) its header must
+    begin with them, in order, and name no column twice, else an :class:`InputFormatError` naming line 1
+    and the first difference — a header edited by
+    hand (a metric renamed, a column named twice) left that metric out of every figure, its runs said
+    "not judged: no readable value", and drawing was a KeyError's traceback.
+
+    A malformed line — the wrong number of cells, a run index that is not a plain number
+    0..:data:`MAX_INDEX`, a metric that is not a number, an invariant's violations
+    (:data:`~.runner.VIOLATION_COLUMNS`) that are not such a count, a line longer than
     :data:`~hil.files.bounded.MAX_LINE_BYTES` — or a run's row with a later one, is dropped and counted
     (``dropped``).
 
@@ -441,7 +474,7 @@ def read_runs(out_dir: str | os.PathLike[str]) -> Results:
     except OSError as exc:
         raise InputFormatError(f"cannot read results: {exc.strerror or exc}", str(path)) from exc
     with f:
-        return _read_runs(csv.reader(_text_lines(f, path)), path)
+        return _read_runs(csv.reader(_text_lines(f, path)), path, columns)
 
 
 def _text_lines(f: BinaryIO, path: Path) -> Iterator[str]:
@@ -492,14 +525,22 @@ def _as_text(x: float) -> str:
     return str(int(x)) if x.is_integer() and abs(x) < 2**53 else repr(x)
 
 
-def _read_runs(reader: Iterator[list[str]], path: Path) -> Results:
+def _read_runs(reader: Iterator[list[str]], path: Path, expected: Sequence[str] | None) -> Results:
     try:
         header = next(reader, None)
     except csv.Error as exc:
         raise InputFormatError(f"not a campaign's runs.csv ({exc})", str(path), 1) from None
     if not header or list(header[:3]) != list(FIXED_COLUMNS):
         raise InputFormatError(f"not a campaign's runs.csv (header {header!r:.200})", str(path), 1)
+    twice = _named_twice(header)
+    if expected is not None and (header[: len(expected)] != list(expected) or twice is not None):
+        # columns after the campaign's (added by hand, by another tool) are read as they are
+        why = f"{twice[:60]!r} named twice" if twice is not None else _header_difference(header, expected)
+        raise InputFormatError(
+            f"its header is not the campaign's columns in {MANIFEST} ({why})", str(path), 1
+        )
     numeric = [j for j, name in enumerate(header) if name in METRICS]
+    counts = [j for j, name in enumerate(header) if name in VIOLATION_COLUMNS]
     indices = array("q")
     ok = bytearray()
     errors: dict[int, str] = {}  # position in the file's rows → error text (failed runs)
@@ -518,6 +559,12 @@ def _read_runs(reader: Iterator[list[str]], path: Path) -> Results:
             continue
         if not all(_number_or_empty(cells[j]) for j in numeric):
             dropped += 1  # a damaged metric would turn its whole column into text, every figure gone
+            continue
+        if not all(_count_or_empty(cells[j]) for j in counts):
+            # an invariant's violations that are no count: ``inf`` was an OverflowError's traceback from
+            # the summary, ``-3`` subtracted from the others' violations, and ``nan`` or text (which turned
+            # the whole column to text) hid every run's violations — a broken campaign summarised as clean
+            dropped += 1
             continue
         if cells[1] != "ok":
             errors[len(indices)] = cells[2]
@@ -561,6 +608,12 @@ def _numbers(cells: list[str]) -> NDArray[np.float64] | None:
         return None
 
 
+def _count_or_empty(cell: str) -> bool:
+    """Whether ``cell`` is a count as a run writes one (a plain whole number 0..:data:`MAX_INDEX`), or
+    empty (a run that failed before its checks)."""
+    return cell == "" or (_INDEX.fullmatch(cell) is not None and int(cell) <= MAX_INDEX)
+
+
 def _number_or_empty(cell: str) -> bool:
     if cell == "":
         return True
@@ -569,6 +622,22 @@ def _number_or_empty(cell: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def _named_twice(header: Sequence[str]) -> str | None:
+    """The first column name ``header`` holds twice (the later column's cells would be read as the
+    earlier's), or None."""
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            return name
+        seen.add(name)
+    return None
+
+
+def _header_difference(header: Sequence[str], columns: Sequence[str]) -> str:
+    """How runs.csv's ``header`` is not the campaign's ``columns``, for a message."""
+    return f"{len(header)} columns, expected {len(columns)}: {_first_difference(header, columns)}"
 
 
 def _first_difference(header: Sequence[str], columns: Sequence[str]) -> str:
@@ -582,9 +651,10 @@ def _first_difference(header: Sequence[str], columns: Sequence[str]) -> str:
 def read_manifest(out_dir: str | os.PathLike[str]) -> dict[str, Any]:
     """``OUT/campaign.json``, the figures a reader of the directory relies on checked: a JSON object
     (bounded, :func:`~hil.files.bounded.load_json`) whose ``duration_s`` (0..a day) and ``trace_hz``
-    (0..the highest control rate) give its ``trace_samples``. Anything else an :class:`InputFormatError`
-    naming the file and the key (a manifest edited by hand had ``trace_samples: -5`` end in numpy's
-    ValueError)."""
+    (0..the highest control rate) give its ``trace_samples``, and whose ``columns`` (runs.csv's header:
+    :func:`read_runs` holds the file to them) are names, the fixed ones first, every metric among them,
+    none twice. Anything else an :class:`InputFormatError` naming the file and the key (a manifest edited
+    by hand had ``trace_samples: -5`` end in numpy's ValueError)."""
     path = Path(out_dir) / MANIFEST
     info = load_json(read_text(path, InputFormatError, limit=MAX_DOCUMENT_BYTES), str(path))
     if not isinstance(info, dict):
@@ -595,6 +665,21 @@ def read_manifest(out_dir: str | os.PathLike[str]) -> dict[str, Any]:
             raise InputFormatError(
                 f"must be a number in ({lo:g}, {hi:g}], got {value!r}", str(path), None, key
             )
+    columns = info.get("columns")
+    if not (
+        isinstance(columns, list)
+        and all(isinstance(c, str) for c in columns)
+        and columns[: len(FIXED_COLUMNS)] == list(FIXED_COLUMNS)
+        and set(METRICS) <= set(columns)
+        and len(set(columns)) == len(columns)
+    ):
+        raise InputFormatError(
+            f"must be the results' column names, {', '.join(FIXED_COLUMNS)} first, each metric among them "
+            f"and no name twice; got {columns!r:.200}",
+            str(path),
+            None,
+            "columns",
+        )
     samples = info.get("trace_samples")
     expected = trace_length(info["duration_s"], info["trace_hz"])
     if samples != expected or isinstance(samples, bool):
