@@ -35,7 +35,14 @@ Anything the source raises that is not the project's own (a :class:`~protocol.er
 as :meth:`~.base.PhoneSource.wait_ready`'s ``LinkTimeout`` or a receiver thread's ``LinkError``, passes as
 it is) — its own exception, Python's, a ``sys.exit()``, in a call or as what it returned is read —
 becomes a :class:`~hil.plugins.PluginError` ``from`` it (:func:`~hil.plugins.call_plugin`); Ctrl-C
-(KeyboardInterrupt) passes through. ``hil``'s own schemes are not wrapped: no cost on their path."""
+(KeyboardInterrupt) passes through. ``hil``'s own schemes are not wrapped: no cost on their path.
+
+Its mid-run calls (``drain``, ``truth``, ``advance``, its tasks' callbacks, ``senders``, ``exhausted``) run
+on a thread of the source's own and are waited for :data:`LIVE_CALL_WAIT_S` of wall time
+(:class:`~hil.plugins.PluginWorker`): one that never returns (a socket read with no timeout, a lock) is a
+:class:`~hil.plugins.PluginTimeout` naming the call and its time — it hung ``hil run`` until it was killed,
+as an estimator's step did. ``wait_ready`` has its own bound (the run's phone wait) and is called directly,
+as are the set-up's and the ending's calls."""
 
 from __future__ import annotations
 
@@ -45,11 +52,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hil.estimation.checked import RATE_LIMIT, rotation_fault
+from hil.estimation.checked import RATE_LIMIT, STEP_WAIT_FLOOR_S, rotation_fault
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.base import GroundTruth, PhoneSource, SenderEvent, SenderStatus
 from hil.numbers import finite_number
-from hil.plugins import PluginError, call_plugin, describe_value, json_plain
+from hil.plugins import PluginError, PluginWorker, call_plugin, describe_value, json_plain
 from hil.scenario.reader import MIN_NEEDED_SENSOR_RATE_HZ, RANGES
 from protocol.errors import HilError
 
@@ -61,6 +68,10 @@ SENDER_KINDS = frozenset({"phone_other", "phone_following", "phone_switch"})
 """The ``events.jsonl`` kinds of the one-phone rule (docs/formats.md, "One phone per receiver"): the only
 ones a source's :meth:`~.base.PhoneSource.senders` may write (a user's "disarmed" is no record of the
 board's)."""
+
+LIVE_CALL_WAIT_S = STEP_WAIT_FLOOR_S
+"""s of wall time a source's mid-run call is waited for (an estimator's floor: a drain is a few ms, one
+that takes half a minute is stuck, not slow)."""
 
 MIN_RATE_HZ = MIN_NEEDED_SENSOR_RATE_HZ
 """The slowest ``rate_hz`` a source may give (Hz): the estimator task drains it at that rate, and slower
@@ -99,6 +110,7 @@ class CheckedSource(PhoneSource):
         self.scheme = scheme
         self.plugin = f"phone source {scheme!r}"
         self.url = str(getattr(inner, "url", f"{scheme}://"))
+        self.worker = PluginWorker(self.plugin)
 
     def __repr__(self) -> str:
         return f"CheckedSource({self.inner!r}, {self.scheme!r})"
@@ -110,10 +122,15 @@ class CheckedSource(PhoneSource):
         # the project's own (a LinkTimeout, a PluginError of a wrapped call) pass as raised
         return call_plugin(self.plugin, what, call, HilError)
 
+    def _live(self, what: str, call: Callable[[], Any]) -> Any:
+        """``call()``, one of the run's mid-run calls, on the source's worker thread, waited for
+        :data:`LIVE_CALL_WAIT_S`."""
+        return self._call(what, lambda: self.worker.call(what, call, LIVE_CALL_WAIT_S))
+
     # ------------------------------------------------------------------ samples and truth
     def drain(self, now: float) -> list[SensorSample]:
         where = f"drain at t = {now:.6f} s"
-        out = self._call(where, lambda: self.inner.drain(now))
+        out = self._live(where, lambda: self.inner.drain(now))
         return self._call(f"{where}: reading what it returned", lambda: self._samples(out, where))  # type: ignore[no-any-return]
 
     def _samples(self, out: Any, where: str) -> list[SensorSample]:
@@ -158,7 +175,7 @@ class CheckedSource(PhoneSource):
 
     def truth(self, now: float) -> GroundTruth | None:
         where = f"truth at t = {now:.6f} s"
-        found = self._call(where, lambda: self.inner.truth(now))
+        found = self._live(where, lambda: self.inner.truth(now))
         if found is None:
             return None
         return self._call(f"{where}: reading what it returned", lambda: self._truth(found, where))  # type: ignore[no-any-return]
@@ -224,12 +241,12 @@ class CheckedSource(PhoneSource):
         callback, name = task.callback, task.name
 
         def checked(due: float) -> None:
-            self._call(f"its task {name!r} at t = {due:.6f} s", lambda: callback(due))
+            self._live(f"its task {name!r} at t = {due:.6f} s", lambda: callback(due))
 
         return checked
 
     def advance(self, now: float) -> None:
-        self._call(f"advance at t = {now:.6f} s", lambda: self.inner.advance(now))
+        self._live(f"advance at t = {now:.6f} s", lambda: self.inner.advance(now))
 
     def start(self, origin: float) -> float | None:
         where = f"start at t = {origin:.6f} s"
@@ -249,10 +266,10 @@ class CheckedSource(PhoneSource):
 
     @property
     def exhausted(self) -> bool:
-        return bool(self._call("exhausted", lambda: bool(self.inner.exhausted)))
+        return bool(self._live("exhausted", lambda: bool(self.inner.exhausted)))
 
     def senders(self) -> SenderStatus | None:
-        status = self._call("senders", self.inner.senders)
+        status = self._live("senders", self.inner.senders)
         if status is None:
             return None
         return self._call("senders: reading what it returned", lambda: self._senders(status))  # type: ignore[no-any-return]
