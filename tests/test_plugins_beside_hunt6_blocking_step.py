@@ -21,7 +21,8 @@ from pathlib import Path
 import pytest
 
 from hil.estimation.checked import FIRST_CALL_WAIT_S, STEP_WAIT_FLOOR_S, STEP_WAIT_PERIODS, step_bound_s
-from hil.plugins import PluginTimeout, PluginWorker
+from hil.plugin_worker import PluginWorker
+from hil.plugins import PluginTimeout
 
 REPO = Path(__file__).resolve().parents[1]
 PLUGIN = "blocking_hunt6_plug"

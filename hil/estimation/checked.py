@@ -28,13 +28,14 @@ Anything the estimator raises (its own exception, Python's, a ``sys.exit()``), i
 returned is read (a property, an ``__array__``), becomes a :class:`~hil.plugins.PluginError` ``from`` it
 (:func:`~hil.plugins.call_plugin`); Ctrl-C (KeyboardInterrupt) passes through.
 
-Its live calls (``step``, ``gyro_bias``, ``set_gyro_bias``, ``set_rest_learning``: the host's, mid-run) run
-on a thread of the estimator's own and are waited for a bounded wall time
-(:class:`~hil.plugins.PluginWorker`), :func:`step_bound_s`: :data:`STEP_WAIT_PERIODS` of the site's sample
-period, never less than :data:`STEP_WAIT_FLOOR_S` (:data:`FIRST_CALL_WAIT_S` for its first step); one that
-does not return is a :class:`~hil.plugins.PluginTimeout` naming the call and the step's time. Wall time in
-lockstep too: the simulated clock stands still while the host waits, so only the wall clock can tell a
-step that never returns. ``run`` (a replay's batch) is called directly. No I/O."""
+Its live calls (``step``, ``gyro_bias``, ``set_gyro_bias``, ``set_rest_learning``: the host's, mid-run) run,
+in a run, on a thread of the estimator's own and are waited for a bounded wall time
+(:class:`~hil.plugin_worker.PluginWorker`, installed by the run: :meth:`CheckedEstimator.run_calls_with`),
+:func:`step_bound_s`: :data:`STEP_WAIT_PERIODS` of the site's sample period, never less than
+:data:`STEP_WAIT_FLOOR_S` (:data:`FIRST_CALL_WAIT_S` for its first step); one that does not return is a
+:class:`~hil.plugins.PluginTimeout` naming the call and the step's time. Wall time in lockstep too: the
+simulated clock stands still while the host waits, so only the wall clock can tell a step that never returns.
+``run`` (a replay's batch) is called directly. No I/O."""
 
 from __future__ import annotations
 
@@ -50,7 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from hil.estimation.admission import ReadingLimits
 from hil.estimation.sensors import StepFlag
-from hil.plugins import PluginError, PluginWorker, call_plugin, describe_value
+from hil.plugins import PluginError, call_plugin, describe_value
 
 if TYPE_CHECKING:
     from hil.estimation.estimator import Estimate, EstimateBatch
@@ -145,19 +146,29 @@ def counts_fault(flags: int, iterations: int) -> str | None:
     return None
 
 
+BoundedCalls = Callable[[str, Callable[[], Any], float], Any]
+"""How a :class:`CheckedEstimator` makes a live call: ``calls(what, call, bound_s)`` returns ``call()``'s
+result, or raises (:class:`~hil.plugins.PluginTimeout` once ``bound_s`` of wall time has passed)."""
+
+
+def _called_directly(what: str, call: Callable[[], Any], bound_s: float) -> Any:
+    """A live call made in the caller's thread, unbounded: the default, where no run installed a worker."""
+    return call()
+
+
 class CheckedEstimator:
     """``inner``, a user's :class:`~hil.estimation.interface.Estimator`, with every call checked (see the
     module docstring); ``name`` is its registered name, for the errors; ``period_s`` its site's sample
     period (s), for the bound of its live calls (:func:`step_bound_s`)."""
 
-    __slots__ = ("inner", "name", "plugin", "bound_s", "worker", "_stepped")
+    __slots__ = ("inner", "name", "plugin", "bound_s", "_calls", "_stepped")
 
     def __init__(self, inner: Estimator, name: str, period_s: float | None = None) -> None:
         self.inner = inner
         self.name = name
         self.plugin = f"estimator {name!r}"
         self.bound_s = step_bound_s(period_s)
-        self.worker = PluginWorker(self.plugin)
+        self._calls: BoundedCalls = _called_directly
         self._stepped = False
 
     def __repr__(self) -> str:
@@ -169,11 +180,17 @@ class CheckedEstimator:
     def _call(self, what: str, call: Callable[[], Any]) -> Any:
         return call_plugin(self.plugin, what, call)
 
+    def run_calls_with(self, calls: BoundedCalls) -> None:
+        """Make the host's mid-run calls through ``calls`` (``calls(what, call, bound_s)``: the run's
+        :meth:`hil.plugin_worker.PluginWorker.call`, a thread waited for ``bound_s``); by default they are
+        made directly (this package starts no thread)."""
+        self._calls = calls
+
     def _live(self, what: str, call: Callable[[], Any], bound_s: float | None = None) -> Any:
-        """``call()``, one of the host's mid-run calls, on the estimator's worker thread, waited for
-        ``bound_s`` (s; default :attr:`bound_s`)."""
+        """``call()``, one of the host's mid-run calls, through :meth:`run_calls_with`'s ``calls``, waited
+        for ``bound_s`` (s; default :attr:`bound_s`)."""
         bound = self.bound_s if bound_s is None else bound_s
-        return call_plugin(self.plugin, what, lambda: self.worker.call(what, call, bound))
+        return call_plugin(self.plugin, what, lambda: self._calls(what, call, bound))
 
     # ------------------------------------------------------------------ live
     def step(self, s: MergedStep) -> Estimate:

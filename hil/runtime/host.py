@@ -44,10 +44,12 @@ from numpy.typing import NDArray
 
 from hil.control.attitude import EigenaxisSlew, Reference
 from hil.estimation.admission import PhoneGuard, Verdict
+from hil.estimation.checked import CheckedEstimator
 from hil.estimation.interface import Estimator
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
 from hil.link.board.events import StateEvent
+from hil.plugin_worker import PluginWorker
 from hil.runtime.actuators import ActuatorWatch
 from hil.runtime.control_step import ControlStep, Steered
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
@@ -80,6 +82,15 @@ def _time_order(sample: SensorSample) -> tuple[bool, float]:
     """Sort key: by time stamp, the stamps that are not numbers last (the guard drops them)."""
     t = sample.t_s
     return (True, 0.0) if not math.isfinite(t) else (False, t)
+
+
+def with_bounded_calls(estimator: Estimator) -> Estimator:
+    """``estimator``, a user's (:class:`~hil.estimation.checked.CheckedEstimator`) made to run its live
+    calls on a thread of its own, each waited for its bound (:class:`~hil.plugin_worker.PluginWorker`): a
+    step that never returned hung the run until it was killed. hil's own estimator is called directly."""
+    if isinstance(estimator, CheckedEstimator):
+        estimator.run_calls_with(PluginWorker(estimator.plugin).call)
+    return estimator
 
 
 @dataclass(frozen=True)
@@ -149,8 +160,8 @@ class Host:
     def _new_filter(self) -> Estimator:
         """A fresh estimator, the scenario's choice (or the caller's ``make_estimator``): the one place the
         host makes one (at the start, and afresh whenever the phone's stream is not to be integrated
-        across)."""
-        return self._make_estimator()
+        across). A user's is held to a bounded wait on its live calls (:func:`with_bounded_calls`)."""
+        return with_bounded_calls(self._make_estimator())
 
     # ------------------------------------------------------------------ what the run's users read
     @property

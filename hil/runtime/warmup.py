@@ -150,8 +150,9 @@ def warm_host(scenario: Scenario) -> None:
     from hil.control.steering import VscmgSteering
     from hil.estimation.multirate import Merger
     from hil.estimation.sensors import SensorKind, SensorSample
+    from hil.runtime.host import with_bounded_calls
 
-    estimator = scenario.make_estimator()
+    estimator = with_bounded_calls(scenario.make_estimator())  # a user's first step may block, as in a run
     merger = Merger()
     field = np.asarray(scenario.phone.field_enu_uT, dtype=float)
     readings: dict[SensorKind, tuple[float, float, float]] = {

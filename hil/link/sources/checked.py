@@ -37,12 +37,12 @@ it is) — its own exception, Python's, a ``sys.exit()``, in a call or as what i
 becomes a :class:`~hil.plugins.PluginError` ``from`` it (:func:`~hil.plugins.call_plugin`); Ctrl-C
 (KeyboardInterrupt) passes through. ``hil``'s own schemes are not wrapped: no cost on their path.
 
-Its mid-run calls (``drain``, ``truth``, ``advance``, its tasks' callbacks, ``senders``, ``exhausted``) run
-on a thread of the source's own and are waited for :data:`LIVE_CALL_WAIT_S` of wall time
-(:class:`~hil.plugins.PluginWorker`): one that never returns (a socket read with no timeout, a lock) is a
-:class:`~hil.plugins.PluginTimeout` naming the call and its time — it hung ``hil run`` until it was killed,
-as an estimator's step did. ``wait_ready`` has its own bound (the run's phone wait) and is called directly,
-as are the set-up's and the ending's calls."""
+Its mid-run calls (``drain``, ``truth``, ``advance``, its tasks' callbacks, ``senders``, ``exhausted``) run on
+a thread of the source's own and are waited for :data:`LIVE_CALL_WAIT_S` of wall time
+(:class:`~hil.plugin_worker.PluginWorker`): one that never returns (a socket read with no timeout, a lock) is
+a :class:`~hil.plugins.PluginTimeout` naming the call and its time — it hung ``hil run`` until it was killed,
+as an estimator's step did. ``wait_ready`` has its own bound (the run's phone wait) and is called directly, as
+are the set-up's and the ending's calls."""
 
 from __future__ import annotations
 
@@ -56,7 +56,8 @@ from hil.estimation.checked import RATE_LIMIT, STEP_WAIT_FLOOR_S, rotation_fault
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.base import GroundTruth, PhoneSource, SenderEvent, SenderStatus
 from hil.numbers import finite_number
-from hil.plugins import PluginError, PluginWorker, call_plugin, describe_value, json_plain
+from hil.plugin_worker import PluginWorker
+from hil.plugins import PluginError, call_plugin, describe_value, json_plain
 from hil.scenario.reader import MIN_NEEDED_SENSOR_RATE_HZ, RANGES
 from protocol.errors import HilError
 
