@@ -17,7 +17,7 @@ import numpy as np
 
 from hil import so3
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream, Truth
-from hil.logs.matfile import load_mat, mat_variables, one_rate, real_array
+from hil.logs.matfile import is_v73, load_mat, mat_variables, one_rate, real_array
 from hil.logs.sensorlogger import plain_name
 from hil.logs.table import Container
 from protocol.errors import InputFormatError
@@ -33,6 +33,8 @@ def detect(c: Container) -> bool:
     names = c.names()
     if len(names) != 1 or not plain_name(names[0]).lower().endswith(".mat"):  # TRIAL.MAT, trial.mat.gz too
         return False
+    if is_v73(c.raw(names[0])):  # its variables cannot be listed: claimed, so :func:`read` says why not
+        return True
     return any(v[0] == "imu_gyr" for v in mat_variables(c, names[0]))
 
 
@@ -53,6 +55,16 @@ def read(c: Container) -> SensorLog:
     if movement.shape != (n,):
         raise InputFormatError(
             f"{movement.size} values, expected one per sample ({n})", where, None, "movement"
+        )
+    flags = np.isin(movement, (0.0, 1.0))
+    if not flags.all():  # NaN != 0: a mask of NaN was "evaluate everything", silently
+        row = int(np.argmin(flags))
+        raise InputFormatError(
+            f"sample {row}: {float(movement[row])!r} is no flag, expected 0 or 1 "
+            f"({int((~flags).sum())} such)",
+            where,
+            None,
+            "movement",
         )
     c.count_samples(3 * n, where, None)
     t = np.arange(n) / rate
@@ -75,5 +87,12 @@ def read(c: Container) -> SensorLog:
         )
     r = np.full((n, 3, 3), np.nan)
     r[finite] = so3.quat_to_matrix(quat[finite])
-    truth = Truth(t, r, (movement != 0) & finite)
-    return SensorLog(streams, where, NAME, truth, (f"BROAD trial at {rate:g} Hz; evaluated on 'movement'",))
+    evaluate = (movement == 1.0) & finite
+    truth = Truth(t, r, evaluate)
+    notes = [f"BROAD trial at {rate:g} Hz; evaluated on 'movement'"]
+    if not evaluate.any():  # said here: the score's "nothing scored" alone blamed the clocks
+        notes.append(
+            f"truth: 'movement' marks {int(movement.sum())} sample(s), {int(finite.sum())} of {n} finite "
+            "opt_quat rows: none is both, nothing will be scored"
+        )
+    return SensorLog(streams, where, NAME, truth, tuple(notes))

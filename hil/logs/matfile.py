@@ -35,7 +35,7 @@ _MI_COMPRESSED = 15
 def check_expansion(data: bytes, where: str) -> None:
     """Raise :class:`InputFormatError` naming ``where`` if the level-5 MAT file ``data`` inflates to more
     than :data:`MAX_MAT_EXPANDED` bytes (see the module docstring). Files of other levels (v4: nothing
-    compressed; v7.3: HDF5, which SciPy refuses) are left to SciPy."""
+    compressed; v7.3: HDF5, which :func:`load_mat` refuses by name) are left to SciPy."""
     if len(data) < _HEADER_BYTES or data[126:128] not in (b"IM", b"MI"):
         return
     order = "<" if data[126:128] == b"IM" else ">"
@@ -78,11 +78,31 @@ def _inflated_size(packed: bytes, room: int, where: str) -> int:
     return total
 
 
+_V73_VERSION = (b"\x00\x02", b"\x02\x00")
+"""The header's version field (bytes 124-126, little- or big-endian 0x0200) of a MATLAB v7.3 file."""
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def is_v73(data: bytes) -> bool:
+    """Whether ``data`` is a MATLAB v7.3 file: HDF5 behind a 512-byte MAT header (``save -v7.3``, the only
+    format MATLAB writes for variables over 2 GB, and the default of some installations)."""
+    if len(data) >= _HEADER_BYTES and data[124:126] in _V73_VERSION and data[126:128] in (b"IM", b"MI"):
+        return True
+    return data[512:520] == _HDF5_SIGNATURE or data[:8] == _HDF5_SIGNATURE
+
+
 def load_mat(c: Container, name: str, **options: Any) -> dict[str, Any]:
     """``scipy.io.loadmat`` of a member, once :func:`check_expansion` has passed; any failure of SciPy's
-    parser (whose errors on hostile bytes are of many types) is an :class:`InputFormatError` naming it."""
+    parser (whose errors on hostile bytes are of many types) is an :class:`InputFormatError` naming it.
+    A v7.3 (HDF5) file is refused by name, with what to do: SciPy reads levels 4 and 5 only."""
     where = c.where(name)
     data = c.raw(name)
+    if is_v73(data):
+        raise InputFormatError(
+            "a MATLAB v7.3 (HDF5) file, which is not read: save it again as v7 (MATLAB's "
+            "save(..., '-v7')) or with scipy.io.savemat",
+            where,
+        )
     check_expansion(data, where)
     try:
         return scipy.io.loadmat(io.BytesIO(data), **options)  # type: ignore[no-any-return]
