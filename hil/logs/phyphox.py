@@ -194,7 +194,18 @@ def read(c: Container) -> SensorLog:
     if SensorKind.MAG not in chosen:
         notes.append("no magnetometer file: 6-axis log, heading not observed (gyroscope only, drifting)")
     clocks = _clock_offsets(c, {f.group for f in chosen.values()}, notes)
-    streams = {kind: _stream(c, f, clocks[f.group], notes) for kind, f in chosen.items()}
+    streams = {}
+    for kind, f in chosen.items():
+        stream = _stream(c, f, clocks[f.group], notes)
+        if not len(stream.t):  # a header only: the phone lacks the sensor, or it never started
+            if kind is not SensorKind.MAG:  # it was "log has no GYR samples", naming the folder
+                raise InputFormatError(
+                    f"no samples (a header only): no {_HOLDS[kind]} readings", c.where(f.name)
+                )
+            # as Sensor Logger's header-only Magnetometer.csv is; it was refused, "an empty MAG stream"
+            notes.append(f"{f.name} has no samples (a header only): 6-axis log, heading not observed")
+            continue
+        streams[kind] = stream
     acc_norm = float(np.nanmedian(np.linalg.norm(streams[SensorKind.ACC].xyz, axis=1)))
     if acc_norm < 3.0:
         raise InputFormatError(
@@ -256,20 +267,31 @@ class _Clock:
 
 
 def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str, _Clock]:
-    """Each export's :class:`_Clock`, which puts them all on one clock (no shift for a single export)."""
-    if len(groups) == 1:
-        return dict.fromkeys(groups, _Clock())
+    """Each export's :class:`_Clock`, which puts them all on one clock. A single export needs no
+    ``meta/time.csv`` (its files share its experiment time); when it has one, its pauses are placed as
+    several exports' are: its experiment time stood still while paused, so without them a recording
+    paused for minutes read as one unbroken stretch, the motion before and after the pause joined with
+    no gap and no word. A single export's ``meta/time.csv`` that cannot be read (another app version's
+    layout) is noted and its tables read on their own clock, as before it was read at all."""
     runs: dict[str, list[tuple[float, float]]] = {}
     for g in sorted(groups):
         name = next((n for n in (g + TIME_CSV, g + TIME_CSV + ".gz") if c.has(n)), g + TIME_CSV)
-        if not c.has(name):
+        if c.has(name) and len(groups) == 1:
+            try:
+                runs[g] = _start_system_times(c, name)
+            except InputFormatError as unreadable:  # its tables share one clock: read them, say so
+                notes.append(f"{unreadable}: not used; a pause of the recording, if any, is not placed")
+        elif c.has(name):
+            runs[g] = _start_system_times(c, name)
+        elif len(groups) > 1:
             where = g or "the top folder"
             raise InputFormatError(
                 f"several exports ({', '.join(sorted(groups))}) and no {TIME_CSV} in {where}: "
                 "their clocks cannot be aligned (each starts at 0)",
                 str(c.path),
             )
-        runs[g] = _start_system_times(c, name)
+    if not runs:  # a single export without meta/time.csv: its own clock
+        return dict.fromkeys(groups, _Clock())
     starts = {g: run[0][1] for g, run in runs.items()}
     first = min(starts.values())
     if max(starts.values()) - first > MAX_RECORDING_S:  # exports of one recording start within its length
@@ -282,10 +304,11 @@ def _clock_offsets(c: Container, groups: set[str], notes: list[str]) -> dict[str
             "another recording's",
             str(c.path / (odd + TIME_CSV)),
         )
-    notes.append(
-        "exports aligned by meta/time.csv: "
-        + ", ".join(f"{g.rstrip('/')} +{s - first:.3f} s" for g, s in sorted(starts.items()))
-    )
+    if len(groups) > 1:
+        notes.append(
+            "exports aligned by meta/time.csv: "
+            + ", ".join(f"{g.rstrip('/')} +{s - first:.3f} s" for g, s in sorted(starts.items()))
+        )
     clocks = {}
     for g, run in sorted(runs.items()):
         clocks[g] = _Clock(tuple(e for e, _ in run), tuple(s - first for _, s in run))

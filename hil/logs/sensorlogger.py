@@ -693,6 +693,33 @@ def _first(files: Mapping[str, str], names: tuple[str, ...]) -> str | None:
     return next((n for n in names if n in files), None)
 
 
+def _first_with_samples(
+    export: Export, names: Sequence[str], notes: list[str], clocks: Clocks, required: bool = False
+) -> tuple[str, np.ndarray, np.ndarray] | None:
+    """The first of ``names`` (one sensor's files, in order of preference) in the export that holds a
+    sample, with its times and readings (:func:`samples`); None when none does. A file that is empty
+    (0 bytes) or a header only — the app's file for a sensor the phone lacks or never started — is
+    passed over, noted: the next file of that sensor is read (a header-only ``Magnetometer.csv`` beside
+    a ``MagnetometerUncalibrated.csv`` of 35 000 readings once made the log 6-axis, and a header-only
+    ``Gyroscope.csv`` or ``TotalAcceleration.csv`` refused an export whose other file held the sensor).
+    ``required`` (a sensor the estimator cannot do without): when none holds a sample, the first present
+    is an InputFormatError naming it and what it is (an empty file, a header only), as :func:`samples`
+    says it."""
+    present = [name for name in names if name in export.files]
+    for name in present:
+        if export.empty(name):
+            notes.append(f"{name} is empty: passed over")
+            continue
+        times, xyz = samples(export.table(name), name, notes, False, clocks)
+        if not len(times):
+            notes.append(f"{name} has no samples (a header only): passed over")
+            continue
+        return name, times, xyz
+    if required and present:
+        samples(export.table(present[0]), present[0], [], True, clocks)  # raises: it holds no sample
+    return None
+
+
 @dataclass(frozen=True)
 class Export:
     """A Sensor Logger recording however it was exported (the CSV files, the JSON file), as the sensor
@@ -767,28 +794,21 @@ def _assemble(
     files = export.files
     parts: dict[SensorKind, tuple[np.ndarray, np.ndarray]] = {}
     bases = clocks.bases
-    gyr = _first(files, GYR_FILES)
-    if gyr is None:
+    if _first(files, GYR_FILES) is None:
         raise InputFormatError("no Gyroscope.csv (nor GyroscopeUncalibrated.csv) in the export", export.path)
-    mag = _first(files, MAG_FILES)
-    for kind, name in ((SensorKind.GYR, gyr), (SensorKind.MAG, mag)):
-        if name is None:
+    for kind, names in ((SensorKind.GYR, GYR_FILES), (SensorKind.MAG, MAG_FILES)):
+        found = _first_with_samples(export, names, notes, clocks, required=kind is SensorKind.GYR)
+        if found is None:  # a magnetometer file empty or a header only (noted): 6-axis, below
             continue
-        if kind is SensorKind.MAG and export.empty(name):  # as a header only, below
-            notes.append(f"{name} is empty: 6-axis log, heading not observed")
-            mag = None
-            continue
-        times, xyz = samples(export.table(name), name, notes, kind is SensorKind.GYR, clocks)
-        if not len(times):  # a magnetometer file with a header only
-            notes.append(f"{name} has no samples: 6-axis log, heading not observed")
-            mag = None
-            continue
+        name, times, xyz = found
         parts[kind] = (times, xyz)
         # named where its unit is doubted (a gyroscope in deg/s?, a magnetometer in nT?)
         notes.append(f"{'gyroscope' if kind is SensorKind.GYR else 'magnetometer'}: {export.files[name]}")
         if "Uncalibrated" in name:
-            notes.append(f"{name}: no calibrated file in the export, using the uncalibrated one")
-    if _first(files, MAG_FILES) is None:
+            notes.append(f"{name}: no calibrated file with samples in the export, using the uncalibrated one")
+    if SensorKind.MAG not in parts and _first(files, MAG_FILES) is not None:
+        notes.append("no magnetometer samples: 6-axis log, heading not observed (gyroscope only, drifting)")
+    elif SensorKind.MAG not in parts:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
     parts[SensorKind.ACC] = _accelerometer(export, notes, clocks)
     settings = recording_settings(export.metadata())
@@ -889,16 +909,21 @@ def _without_gravity(tu: np.ndarray, tg: np.ndarray) -> tuple[np.ndarray, float]
 
 
 def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np.ndarray, np.ndarray]:
+    """The accelerometer's times and readings (specific force, gravity included, m/s^2) from the first of
+    the export's accelerometer files, in order of preference (the module's docstring), that hold
+    samples: a file empty or a header only is passed over, noted (:func:`_first_with_samples`)."""
     files = export.files
-    if "TotalAcceleration.csv" in files:
-        times, xyz = samples(
-            export.table("TotalAcceleration.csv"), "TotalAcceleration.csv", notes, True, clocks
-        )
+    total = _first_with_samples(export, ("TotalAcceleration.csv",), notes, clocks)
+    if total is not None:
         notes.append("accelerometer: TotalAcceleration.csv (gravity included)")
-        return times, xyz
-    if "Accelerometer.csv" in files and "Gravity.csv" in files:
-        user_t, user = samples(export.table("Accelerometer.csv"), "Accelerometer.csv", notes, True, clocks)
-        grav_t, g = samples(export.table("Gravity.csv"), "Gravity.csv", notes, True, clocks)
+        return total[1], total[2]
+    user_read = _first_with_samples(export, ("Accelerometer.csv",), notes, clocks)
+    grav_read = (
+        _first_with_samples(export, ("Gravity.csv",), notes, clocks) if user_read is not None else None
+    )
+    if user_read is not None and grav_read is not None:
+        _, user_t, user = user_read
+        _, grav_t, g = grav_read
         known = np.all(np.isfinite(g), axis=1)  # gravity interpolated between its usable rows
         if not known.any():
             raise InputFormatError("no usable samples", files["Gravity.csv"])
@@ -941,21 +966,24 @@ def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np
             )
         notes.append("accelerometer: Accelerometer.csv (user acceleration) + Gravity.csv (interpolated)")
         return user_t, xyz
-    if "AccelerometerUncalibrated.csv" in files:
-        name = "AccelerometerUncalibrated.csv"
-        times, xyz = samples(export.table(name), name, notes, True, clocks)
+    uncalibrated = _first_with_samples(export, ("AccelerometerUncalibrated.csv",), notes, clocks)
+    if uncalibrated is not None:
+        name, times, xyz = uncalibrated
         norm = float(np.nanmedian(np.linalg.norm(xyz, axis=1))) if len(xyz) else G
         if 0.5 < norm < 2.0:  # iOS's raw accelerometer reads in g
             xyz = xyz * G
             notes.append("AccelerometerUncalibrated.csv reads in g (median norm ~1): converted to m/s^2")
         notes.append("accelerometer: AccelerometerUncalibrated.csv (raw, gravity included)")
         return times, xyz
-    if "Accelerometer.csv" in files:
+    if user_read is not None:
         raise InputFormatError(
             "only Accelerometer.csv (user acceleration, gravity removed) in the export: the estimator needs "
             "the gravity direction; export TotalAcceleration (or Gravity) as well",
             files["Accelerometer.csv"],
         )
+    present = _first(files, ACC_FILES)
+    if present is not None:  # every accelerometer file empty or a header only (noted): the first's error
+        _first_with_samples(export, (present,), [], clocks, required=True)
     raise InputFormatError(
         "no accelerometer file (TotalAcceleration.csv, Accelerometer.csv + Gravity.csv, or "
         "AccelerometerUncalibrated.csv)",
