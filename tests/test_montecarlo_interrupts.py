@@ -259,7 +259,9 @@ def test_ctrl_c_twice_ends_the_command_at_once_with_its_runs_on_disk(
             proc.wait()
     assert proc.returncode in (130, -signal.SIGINT), err
     assert "hil montecarlo: interrupted (SIGINT)" in err and "Traceback" not in err
-    assert took < 7.0, f"the command took {took:.1f} s to end after Ctrl-C"
+    # The fault sat 10 s in Dask's exit hook after its close (its fixed timeout): anything from 10 s on.
+    # Fixed, it ends in ~1 s, ~2.6 s on a loaded 2-core machine; 9.5 s keeps both apart there.
+    assert took < 9.5, f"the command took {took:.1f} s to end after Ctrl-C"
     assert not _left_in_session(proc.pid)
     rows = _row_indices(out)
     assert len(rows) >= after_rows and len(set(rows)) == len(rows) and read_runs(out).dropped == 0
