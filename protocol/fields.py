@@ -22,7 +22,7 @@ from collections.abc import Sequence, Sized
 from typing import Any
 
 from .errors import FieldRangeError, ProtocolError
-from .numbers import real_number
+from .numbers import real_number, whole_number
 
 _INT_BOUNDS = {
     "B": (0, 0xFF),
@@ -68,7 +68,8 @@ class Scalar:
             # "out of range"
             number = real_number(value)
             return number is not None and math.isfinite(number) and self.lo <= number <= self.hi
-        return isinstance(value, int) and not isinstance(value, bool) and self.lo <= value <= self.hi
+        whole = whole_number(value)  # numpy's integers too: struct packs them by ``__index__``
+        return whole is not None and self.lo <= whole <= self.hi
 
     def from_wire(self, value: Any) -> Any:
         return value
@@ -120,7 +121,7 @@ class Enum8(Scalar):
         self._values = frozenset(values)
 
     def check(self, value: Any) -> bool:
-        return isinstance(value, int) and not isinstance(value, bool) and int(value) in self._values
+        return whole_number(value) in self._values
 
     def from_wire(self, value: Any) -> Any:
         return self.enum_cls(value)

@@ -23,3 +23,16 @@ def real_number(value: object) -> float | None:
         return float(value)
     except OverflowError:  # only an integer is past a float's range
         return math.inf if value > 0 else -math.inf  # type: ignore[operator]  # a Real compares with 0
+
+
+def whole_number(value: object) -> int | None:
+    """``value`` as an int if it is an integer — a Python int, numpy's integer scalars or a 0-d integer
+    array — else None: a bool (a flag, not a count), a float (even 3.0: a whole-number field takes no
+    float's rounding), a string, None. The one test of "is this an integer" for a message's integer and
+    enum fields and the pulse modules' integer widths: numpy's ``uint16(3)``, what an array-built
+    controller hands over, was refused as "out of range"."""
+    if getattr(value, "shape", None) == () and hasattr(value, "item"):
+        value = value.item()  # a 0-d array: the integer (or bool, or float) it holds
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):  # numpy's bool is no Integral
+        return None
+    return int(value)

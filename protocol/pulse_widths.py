@@ -19,12 +19,11 @@ mean width, not one frame's). 0 is "no pulse".
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 
 from .errors import ConfigError, FieldRangeError, value_repr
 from .messages import MAX_CHANNELS, PULSE_MAX_US
-from .numbers import real_number
+from .numbers import real_number, whole_number
 
 TICK_US = 0.5
 """One timer tick (µs): 16 MHz / prescaler 8."""
@@ -65,7 +64,8 @@ def reported_us(fine: int) -> int:
 
 def _is_integer_in(value: object, top: int) -> bool:
     """Whether ``value`` is an integer (numpy's too, not a bool) in ``0..top``."""
-    return isinstance(value, numbers.Integral) and not isinstance(value, bool) and 0 <= int(value) <= top
+    whole = whole_number(value)
+    return whole is not None and 0 <= whole <= top
 
 
 class SigmaDelta:
@@ -75,15 +75,12 @@ class SigmaDelta:
     reset (the remainders start at 0)."""
 
     def __init__(self, channels: int) -> None:
-        if (
-            isinstance(channels, bool)
-            or not isinstance(channels, numbers.Integral)
-            or not 1 <= channels <= MAX_CHANNELS
-        ):
+        count = whole_number(channels)
+        if count is None or not 1 <= count <= MAX_CHANNELS:
             raise ConfigError(
                 f"{value_repr(channels)} must be an integer in 1..{MAX_CHANNELS}", "SigmaDelta.channels"
             )
-        self.residue: list[int] = [0] * int(channels)
+        self.residue: list[int] = [0] * count
 
     def reset(self) -> None:
         self.residue = [0] * len(self.residue)
@@ -107,6 +104,7 @@ class SigmaDelta:
             if not q:
                 out.append(None)
                 continue
+            q = int(q)  # numpy's integer as the int it is: the remainders stay Python ints
             s = residue[ch] + (q & _FRACTION)
             residue[ch] = s & _FRACTION
             out.append(((q >> FRACTION_BITS) + (s >> FRACTION_BITS)) * TICK_US)

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 from .errors import ConfigError, FieldRangeError, ProtocolError, value_repr
 from .messages import PULSE_MAX_US, PULSE_MIN_US
-from .numbers import real_number
+from .numbers import real_number, whole_number
 
 SERVO_MIN_RATE_HZ = 50.0
 SERVO_MAX_RATE_HZ = 490.0
@@ -48,10 +48,12 @@ class ServoParams:
         w = "ServoParams"
         for name in ("min_us", "max_us"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or not PULSE_MIN_US <= v <= PULSE_MAX_US:
+            whole = whole_number(v)
+            if whole is None or not PULSE_MIN_US <= whole <= PULSE_MAX_US:
                 raise ConfigError(
                     f"{value_repr(v)} is not an integer in {PULSE_MIN_US}..{PULSE_MAX_US} µs", f"{w}.{name}"
                 )
+            object.__setattr__(self, name, whole)  # numpy's integer as the int it is
         if not self.min_us < self.max_us:
             raise ConfigError(f"min_us {self.min_us} must be below max_us {self.max_us}", f"{w}.min_us")
         r = self.frame_rate_hz
