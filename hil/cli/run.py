@@ -40,8 +40,9 @@ examples:
   hil run --port /dev/ttyACM0 --phone udp://0.0.0.0:8123         # a real board; SensaGram streams here
   hil run --port /dev/ttyACM0 --phone http://0.0.0.0:8123/       # ... or Sensor Logger's HTTP Push
 
-writes RUN_DIR/telemetry.csv (one row per control tick), events.jsonl, summary.json, scenario.toml and
-plots/; `hil report RUN_DIR` redraws the plots. Scenarios shipped: see fixtures/scenarios/.
+writes RUN_DIR/telemetry.csv (one row per control tick), telemetry_codes.json (what its coded columns'
+numbers mean), events.jsonl, summary.json, scenario.toml and plots/; `hil report RUN_DIR` redraws the
+plots. Scenarios shipped: see fixtures/scenarios/.
 
 exit status:
   0  completed: the run's time after the slew's start is up, the board and the phone in hand at the end
