@@ -121,6 +121,8 @@ class Enum8(Scalar):
         self._values = frozenset(values)
 
     def check(self, value: Any) -> bool:
+        if type(value) is int or isinstance(value, self.enum_cls):  # the hot path: every decoded enum
+            return value in self._values
         return whole_number(value) in self._values
 
     def from_wire(self, value: Any) -> Any:
