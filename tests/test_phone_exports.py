@@ -100,7 +100,7 @@ def test_older_sensor_logger_headers_are_read_by_axis_letter_and_unit(tmp_path):
 
 def test_an_export_with_only_the_uncalibrated_files_is_read_and_noted(tmp_path):
     _, gyr, acc, mag = motion()
-    files = {"GyroscopeUncalibrated": gyr, "AccelerometerUncalibrated": acc / 9.80665,  # iOS: in g
+    files = {"GyroscopeUncalibrated": gyr, "AccelerometerUncalibrated": -acc / 9.80665,  # iOS: g, own axes
              "MagnetometerUncalibrated": mag}  # fmt: skip
     log = read_log(sensor_logger(tmp_path / "raw", files))
     np.testing.assert_allclose(log.streams[ACC].xyz[0], acc[0], atol=1e-5)

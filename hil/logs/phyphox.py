@@ -20,7 +20,8 @@ current phyphox writes an experiment's files), from the file's name (``Accelerom
 Data.csv``). Linear (gravity-free) acceleration — ``Linear Accelerometer.csv`` (current phyphox), ``Linear
 Acceleration.csv`` (older), a ``Linear Acceleration x`` column, an "Acceleration (without g)" export —
 cannot give the gravity direction: it is ignored beside an accelerometer with g, refused alone. Units in
-parentheses convert to SI (:mod:`hil.logs.columns`); only the time and x, y, z columns are parsed (any
+parentheses convert to SI (:mod:`hil.logs.columns`), as do those of a row of units under the header
+(:func:`~hil.logs.table.units_under`); only the time and x, y, z columns are parsed (any
 other may hold text). Dialects: comma, tab or semicolon separated, decimal
 point or decimal comma (told from the first data line). Without a magnetometer file the log is 6-axis
 (heading unobserved). An Excel (``.xls``) export is refused with a message to export CSV.
@@ -40,7 +41,15 @@ from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, is_time_label, time_column
 from hil.logs.rows import is_content
 from hil.logs.sensorlogger import MAX_RECORDING_S, clock_of, plain_name
-from hil.logs.table import Container, Header, one_copy, read_table, sniff_dialect, split_header
+from hil.logs.table import (
+    Container,
+    Header,
+    content_head,
+    one_copy,
+    read_table,
+    sniff_dialect,
+    split_header,
+)
 from protocol.errors import InputFormatError
 
 NAME = "phyphox"
@@ -99,7 +108,7 @@ def _classify(c: Container, name: str) -> _File | None:
     """The file's sensor, or None if it is not a phyphox sensor table (see :func:`_kind`)."""
     lines = c.head(name, 8)
     numbered = [(i, line) for i, line in enumerate(lines, 1) if is_content(line)]
-    head = [line for _, line in numbered[:2]]
+    head = content_head(c, name, 2, units_row=True)  # a row of units under the header: in its names
     if not head:
         return None
     delimiter, decimal_comma = sniff_dialect(head)
@@ -220,7 +229,9 @@ def _stream(c: Container, f: _File, clock: _Clock, notes: list[str]) -> SensorSt
     kind = f.kind
     assert kind is not None
     use = partial(_sensor_columns, kind=kind)
-    table = read_table(c, f.name, f.delimiter, decimal_comma=f.decimal_comma, min_columns=4, use=use)
+    table = read_table(
+        c, f.name, f.delimiter, decimal_comma=f.decimal_comma, min_columns=4, use=use, units_row=True
+    )
     notes.extend(table.layout_notes())
     t_col, t_scale = time_column(table.columns, table.source, table.header_line)
     axes = axis_columns(table.columns, kind, table.source, table.header_line, skip=(t_col,))

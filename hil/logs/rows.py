@@ -111,6 +111,10 @@ class RowParser:
     repeated_headers: list[int] = field(default_factory=list)
     """The lines that repeat the header (files joined one after another: ``cat a.csv b.csv``), passed
     over; ``header`` says whether the table has one to repeat."""
+    header_as_written: tuple[tuple[str, ...], ...] = ()
+    """The header's lines as written, when its names are not (a row of units under it folded into them,
+    :func:`hil.logs.table.units_under`): the header line's cells and the units row's, each passed over
+    as a repeated header when a file joined after the first repeats it."""
     chunks: list[Array] = field(default_factory=list)
     exact_chunks: dict[str, list[NDArray[np.int64]]] = field(default_factory=dict)
 
@@ -275,7 +279,8 @@ class RowParser:
 
     def _is_header(self, cells: Sequence[str]) -> bool:
         """Whether a row's cells are the header's names (stripped and unquoted, as the header's are)."""
-        return all(cell_text(c).strip() == name for c, name in zip(cells, self.columns, strict=True))
+        texts = tuple(cell_text(c).strip() for c in cells)
+        return texts == tuple(self.columns) or texts in self.header_as_written
 
     def _value(self, text: str, position: int, line_no: int) -> float:
         """A used cell's value; an InputFormatError naming it when it is none."""

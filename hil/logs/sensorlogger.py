@@ -4,7 +4,8 @@ Current exports have the header ``time,seconds_elapsed,z,y,x`` — note the **z,
 (late 2022) name their axes like ``GYROSCOPE X (rad/s)``. Columns are found by name
 (:mod:`hil.logs.columns`), never by position, and only the clocks and axes are parsed (any other column
 may hold text: :func:`sensor_columns`); a re-save may put units on the clocks too (``time (ns)``,
-``seconds_elapsed [s]``: :func:`clock_of`). ``time`` is Unix epoch in ns (shared by all sensors), read
+``seconds_elapsed [s]``: :func:`clock_of`), or in a row of units under the header
+(:func:`~hil.logs.table.units_under`). ``time`` is Unix epoch in ns (shared by all sensors), read
 as exact integers and converted to seconds since the first sample of any sensor; without it,
 ``seconds_elapsed`` (s since the recording started, also shared). A re-save's ``time`` in s, ms or µs
 keeps its fraction; one written as an ISO-8601 date is read (:func:`iso_time_ns`); one a spreadsheet
@@ -12,7 +13,8 @@ rounded (``1.67907E+18``) gives way to ``seconds_elapsed`` for every file (:clas
 on different clocks are refused (:func:`_same_clock`). Units (the app's unit reference): m/s²
 (g = 9.80665), rad/s, µT; axes are Android's sensor frame (on iOS, with "Standardise Units & Frames" on;
 with it off, as ``Metadata.csv`` says, or before the app had it, the acceleration's axes are negated to
-Android's: :func:`_ios_standardised`).
+Android's: :func:`_ios_standardised`; so are those of an ``AccelerometerUncalibrated.csv`` in g, which only
+iOS writes, where no ``Metadata.csv`` states the platform: :func:`_uncalibrated_in_g`).
 
 Accelerometers, in order of preference: ``TotalAcceleration.csv`` (specific force *including* gravity);
 ``Accelerometer.csv`` (the *user* acceleration, gravity removed) plus ``Gravity.csv`` (their sum, gravity
@@ -160,7 +162,7 @@ def _detects(c: Container, files: Mapping[str, str]) -> bool:
     for name in (*GYR_FILES, *ACC_FILES, *MAG_FILES):
         if name not in files:
             continue
-        head = content_head(c, files[name], 3)
+        head = content_head(c, files[name], 3, units_row=True)
         if not head:
             continue
         delimiter = sniff_dialect(head)[0]
@@ -207,13 +209,15 @@ def _starts_at_an_epoch(head: Sequence[str], cells: Sequence[str], delimiter: st
     if column < len(row) and _is_iso_time(row[column]):
         return True
     try:
-        cell = row[column].strip()
+        cell = row[column].strip().strip('"')
         if not cell.isascii():  # "١٦٧٩…": Python's int() reads it, no CSV reader does
             return False
-        value = abs(int(cell))
+        value = abs(float(number(cell if delimiter == "," else cell.replace(",", "."))))
     except (ValueError, IndexError):
         return False
-    return value >= EPOCH_UNITS[-1][0]  # an epoch in s or finer, or ns since boot (1 s on)
+    # an epoch in s or finer, or ns since boot (1 s on); a fraction too: a re-save's "1679068247.609" (s),
+    # which was read as phyphox's time in s, the samples printed at 1.68e9 s
+    return math.isfinite(value) and value >= EPOCH_UNITS[-1][0]
 
 
 _ISO = re.compile(
@@ -256,7 +260,7 @@ def _csv_table(c: Container, member: str, kind: SensorKind) -> Table:
     """One of the export's CSV files as a :class:`Table` of the columns a ``kind`` sensor is read from
     (:func:`sensor_columns`), read in its own dialect (a spreadsheet's re-save may use semicolons and
     decimal commas), its ``time`` column also as exact int64."""
-    head = content_head(c, member, 8)
+    head = content_head(c, member, 8, units_row=True)
     delimiter, decimal_comma = sniff_dialect(head)
     cells = split_header(head[0], delimiter) if head else []
     time_name = next((cell for cell in cells if (clock_of(cell) or ("",))[0] == "time"), "time")
@@ -276,6 +280,7 @@ def _csv_table(c: Container, member: str, kind: SensorKind) -> Table:
         use=partial(sensor_columns, kind=kind),
         exact_columns=(time_name,),
         converters=converters,
+        units_row=True,
     )
 
 
@@ -810,8 +815,8 @@ def _assemble(
         notes.append("no magnetometer samples: 6-axis log, heading not observed (gyroscope only, drifting)")
     elif SensorKind.MAG not in parts:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
-    parts[SensorKind.ACC] = _accelerometer(export, notes, clocks)
     settings = recording_settings(export.metadata())
+    parts[SensorKind.ACC] = _accelerometer(export, notes, clocks, settings.get("platform", ""))
     if settings.get("platform", "").startswith("ios") and not _ios_standardised(settings, export, notes):
         # iOS's own frames: its acceleration and gravity point the other way on every axis (flat, screen
         # up, gravity reads -z where Android's specific force reads +z); read as they are, the estimator
@@ -838,6 +843,27 @@ def _assemble(
         why = "the epoch 'time' rounded" if clocks.elapsed_only else "no epoch time column"
         notes.append(f"time: seconds_elapsed ({why})")
     return SensorLog(streams, export.path, format_name, None, tuple(notes))
+
+
+def _uncalibrated_in_g(xyz: np.ndarray, where: str, platform: str, notes: list[str]) -> np.ndarray:
+    """``AccelerometerUncalibrated.csv``'s readings in m/s^2: converted from g when its median norm says
+    it reads in g (about 1, where gravity alone is 9.81 m/s^2). Only iOS writes that file in g (Android's
+    is in m/s^2; with "Standardise Units & Frames" on, iOS's is too), and in iOS's own frames: the
+    acceleration the other way round on every axis (flat, screen up, it reads -1 g on z). So where
+    ``Metadata.csv`` states no platform (no such file, or no ``platform`` column), a file in g is iOS's
+    and is negated to Android's axes here, noted; the phone lying screen up was replayed as screen down.
+    Where it does state one, :func:`_assemble` negates by its settings (:func:`_ios_standardised`)."""
+    norm = float(np.nanmedian(np.linalg.norm(xyz, axis=1))) if len(xyz) else G
+    if not 0.5 < norm < 2.0:
+        return xyz
+    notes.append("AccelerometerUncalibrated.csv reads in g (median norm ~1): converted to m/s^2")
+    if platform:
+        return xyz * G
+    notes.append(
+        f"{where}: in g, which only iOS writes, and no platform stated (no Metadata.csv, or no 'platform' "
+        "in it): iOS's own frames, its axes negated to Android's"
+    )
+    return xyz * -G
 
 
 MAX_CLOCK_DISAGREEMENT_S = 1.0
@@ -908,10 +934,15 @@ def _without_gravity(tu: np.ndarray, tg: np.ndarray) -> tuple[np.ndarray, float]
     return beyond, gap
 
 
-def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np.ndarray, np.ndarray]:
+def _accelerometer(
+    export: Export, notes: list[str], clocks: Clocks, platform: str = ""
+) -> tuple[np.ndarray, np.ndarray]:
     """The accelerometer's times and readings (specific force, gravity included, m/s^2) from the first of
     the export's accelerometer files, in order of preference (the module's docstring), that hold
-    samples: a file empty or a header only is passed over, noted (:func:`_first_with_samples`)."""
+    samples: a file empty or a header only is passed over, noted (:func:`_first_with_samples`).
+    ``platform`` is ``Metadata.csv``'s (lower case; "" when no file or column states it): where it is
+    unstated, an ``AccelerometerUncalibrated.csv`` in g is told to be iOS's by its unit
+    (:func:`_uncalibrated_in_g`)."""
     files = export.files
     total = _first_with_samples(export, ("TotalAcceleration.csv",), notes, clocks)
     if total is not None:
@@ -969,12 +1000,8 @@ def _accelerometer(export: Export, notes: list[str], clocks: Clocks) -> tuple[np
     uncalibrated = _first_with_samples(export, ("AccelerometerUncalibrated.csv",), notes, clocks)
     if uncalibrated is not None:
         name, times, xyz = uncalibrated
-        norm = float(np.nanmedian(np.linalg.norm(xyz, axis=1))) if len(xyz) else G
-        if 0.5 < norm < 2.0:  # iOS's raw accelerometer reads in g
-            xyz = xyz * G
-            notes.append("AccelerometerUncalibrated.csv reads in g (median norm ~1): converted to m/s^2")
         notes.append("accelerometer: AccelerometerUncalibrated.csv (raw, gravity included)")
-        return times, xyz
+        return times, _uncalibrated_in_g(xyz, files[name], platform, notes)
     if user_read is not None:
         raise InputFormatError(
             "only Accelerometer.csv (user acceleration, gravity removed) in the export: the estimator needs "

@@ -62,7 +62,7 @@ from hil.logs.archive import (
     without_suffix,
 )
 from hil.logs.encoding import decode_legacy, decode_text, utf8_stream
-from hil.logs.rows import RowParser, cells_of, is_content
+from hil.logs.rows import RowParser, cell_text, cells_of, is_content
 from protocol.errors import InputFormatError
 
 logger = logging.getLogger(__name__)
@@ -95,6 +95,9 @@ class Table:
     cut_short: InputFormatError | None = None
     """Why the file's last line, which had no line break, could not be read (dropped): a recording stopped
     in the middle of a write; None when there was none or it was read."""
+    units_line: int = 0
+    """The line of a row of units under the header (``ns,s,rad/s,rad/s,rad/s``: :func:`units_under`), read
+    as the header's units; 0 when there was none."""
 
     def layout_notes(self) -> list[str]:
         """What a reader notes of how the table was laid out: the lines that repeated its header, a last
@@ -109,6 +112,11 @@ class Table:
             )
         if self.cut_short is not None:
             notes.append(cut_short_note(self.cut_short))
+        if self.units_line:
+            notes.append(
+                f"{self.source}: line {self.units_line} under the header holds the columns' units: read as "
+                f"the header's ({', '.join(c for c in self.columns if _HAS_UNIT.search(c))})"
+            )
         return notes
 
     def column(self, name: str) -> Array:
@@ -395,11 +403,61 @@ def _guarded_iter(batches: Iterator[list[bytes | None]], where: str) -> Iterator
         yield batch
 
 
-def content_head(container: Container, name: str, lines: int = 3) -> list[str]:
+def content_head(container: Container, name: str, lines: int = 3, units_row: bool = False) -> list[str]:
     """The first ``lines`` lines of a member that are neither blank nor comments (``# exported by …`` before
     a header), read from its first :data:`HEAD_BYTES`: its header and first rows, to tell its format and
-    dialect as :func:`read_table` will read it."""
-    return [line for line in container.head(name, 64) if is_content(line)][:lines]
+    dialect as :func:`read_table` will read it. ``units_row`` as :func:`read_table`'s: a row of units under
+    the header (:func:`units_under`) is folded into the header line (``z`` over ``rad/s``: ``z (rad/s)``),
+    so that the first line after it is the first row, as the reader will read them."""
+    content = [line for line in container.head(name, 64) if is_content(line)]
+    if units_row and len(content) > 1:
+        delimiter = sniff_dialect(content[:2])[0]
+        folded = _units_of_line(split_header(content[0], delimiter), content[1], delimiter)
+        if folded is not None:
+            out = io.StringIO()
+            csv.writer(out, delimiter=delimiter, lineterminator="").writerow(folded)
+            content = [out.getvalue(), *content[2:]]
+    return content[:lines]
+
+
+def _units_of_line(header: Sequence[str], line: str, delimiter: str) -> list[str] | None:
+    """:func:`units_under` of a line as text (None when it is no CSV row: the reader names it)."""
+    try:
+        return units_under(header, cells_of(line, delimiter))
+    except csv.Error:
+        return None
+
+
+_UNIT_CELL = re.compile(r"^[(\[]?\s*([^\d\s.+\-(\[)\]][^()\[\]]{0,15}?)\s*[)\]]?$")
+"""A cell of a row of units: a unit (``ns``, ``rad/s``, ``m/s^2``, ``µT``, ``°/s``), bare or in
+parentheses or brackets, of at most 16 characters, starting with no digit, sign or point."""
+_HAS_UNIT = re.compile(r"[(\[][^()\[\]]*[)\]]\s*$")
+"""A header name that already ends in a unit in parentheses or brackets (``Time (s)``)."""
+
+
+def units_under(header: Sequence[str], cells: Sequence[str]) -> list[str] | None:
+    """The header's names with their units, when the row ``cells`` right under it is a row of units (a
+    tool's or a spreadsheet's re-save: ``time,seconds_elapsed,z,y,x`` over ``ns,s,rad/s,rad/s,rad/s``);
+    None when it is a row like any other. A row of units has the header's width, is not the header again,
+    holds no number, and holds a unit (:data:`_UNIT_CELL`) in at least half its cells and nothing else in
+    the others. Each name is given its unit as the readers read one (``z (rad/s)``: converted to SI by
+    :mod:`hil.logs.columns`; ``time (ns)``); a name that already ends in a unit keeps its own. Such a row
+    was read as the first row: "'ns' is not a number", the export refused."""
+    texts = [c.strip().strip('"').strip() for c in cells]
+    if len(texts) != len(header) or len(header) < 2 or texts == list(header):
+        return None
+    given = [t for t in texts if t]
+    if len(given) < max(1, len(header) // 2):
+        return None
+    for text in given:
+        if _UNIT_CELL.match(text) is None or text.lower() in ("nan", "inf", "infinity", "null", "none"):
+            return None
+        if not any(ch.isalpha() or ch in "°%" for ch in text):
+            return None
+    return [
+        name if not unit or _HAS_UNIT.search(name) else f"{name} ({unit.strip('()[] ')})"
+        for name, unit in zip(header, texts, strict=True)
+    ]
 
 
 DELIMITERS = (",", ";", "\t")
@@ -468,6 +526,7 @@ def read_table(
     exact_columns: Sequence[str] = (),
     converters: Mapping[str, Callable[[str], float]] | None = None,
     recording: bool = True,
+    units_row: bool = False,
 ) -> Table:
     """Stream one member of ``container`` into a :class:`Table` (see the module docstring) of the columns
     ``use`` names — a list of names, or a function of the :class:`Header` that returns them — in that
@@ -491,10 +550,14 @@ def read_table(
     A last data line without a line break is dropped (:attr:`Table.cut_short`, warned): a recording
     stopped in the middle of a write may have cut it mid-number, and a value cut short ("0.0036" of
     "0.00366519") still parses, wrong. At most one sample is lost, and said. ``recording=False`` reads such
-    a line (a file of settings written by hand, e.g. one number: no recording that was cut)."""
+    a line (a file of settings written by hand, e.g. one number: no recording that was cut).
+
+    ``units_row``: a row of units right under the header (:func:`units_under`: a tool's re-save) gives
+    the header's names their units (``z (rad/s)``), and is no row (:attr:`Table.units_line`, noted)."""
     source = container.where(name)
     parser: RowParser | None = None
     header_line = 0
+    units_line = 0
     cut_short = None
     for first_line, lines in text_lines(container, name):
         start = 0
@@ -503,6 +566,14 @@ def read_table(
             if found is None:
                 continue
             columns, header_line = _columns(lines[found], first_line + found, header, delimiter)
+            # a row of units under the header (units_row): its units in the header's names, no row
+            under = _first_content(lines[found + 1 :]) if units_row and header and delimiter else None
+            units = lines[found + 1 + under] if under is not None else ""
+            folded = _units_of_line(columns, units, delimiter) if under is not None and delimiter else None
+            written: tuple[tuple[str, ...], ...] = ()
+            if folded is not None and delimiter is not None:
+                written = (columns, tuple(cell_text(c).strip() for c in cells_of(units, delimiter)))
+                columns, units_line = tuple(folded), first_line + found + 1 + (under or 0)
             trailing = header and delimiter is not None and len(columns) > 1 and columns[-1] == ""
             named = len(columns) - trailing  # ``a,b,c,``: a re-save that ends every line in a delimiter
             if named < min_columns:
@@ -514,7 +585,10 @@ def read_table(
             head = Header(columns, source, header_line or first_line + found)
             parser = _parser(head, use, named, exact_columns, converters or {}, delimiter, decimal_comma)
             parser.header = header
+            parser.header_as_written = written
             start = found + 1 if header else found
+            if units_line:
+                start = units_line - first_line + 1
         last = isinstance(lines, Unterminated) and not start  # a header alone is no cut-short row
         if last and recording and _first_content(lines) is not None:
             # a last data line without a line break: the recording stopped mid-write, maybe mid-number
@@ -536,7 +610,9 @@ def read_table(
         raise InputFormatError("empty file: no header and no data", source)
     data, exact = parser.arrays()
     used = tuple(parser.columns[p] for p in parser.used)
-    return Table(used, data, source, header_line, exact, tuple(parser.repeated_headers), cut_short)
+    return Table(
+        used, data, source, header_line, exact, tuple(parser.repeated_headers), cut_short, units_line
+    )
 
 
 def _parser(
