@@ -35,7 +35,8 @@ in a run, on a thread of the estimator's own and are waited for a bounded wall t
 :data:`STEP_WAIT_FLOOR_S` (:data:`FIRST_CALL_WAIT_S` for its first step); one that does not return is a
 :class:`~hil.plugins.PluginTimeout` naming the call and the step's time. Wall time in lockstep too: the
 simulated clock stands still while the host waits, so only the wall clock can tell a step that never returns.
-``run`` (a replay's batch) is called directly. No I/O."""
+``run`` (a replay's batch) goes through the same calls, waited for :func:`run_bound_s` of its number of
+steps: a batch that never returned hung ``hil replay`` until it was killed. No I/O."""
 
 from __future__ import annotations
 
@@ -105,6 +106,18 @@ def step_bound_s(period_s: float | None) -> float:
     if period_s is None or not (math.isfinite(period_s) and period_s > 0):
         return STEP_WAIT_FLOOR_S
     return max(STEP_WAIT_FLOOR_S, STEP_WAIT_PERIODS * period_s)
+
+
+RUN_WAIT_PER_STEP_S = 0.01
+"""s of wall time per step a batch ``run`` is waited for, on top of :data:`FIRST_CALL_WAIT_S` (its kernels
+may compile first): a hundred times a slow Python step (~100 µs), so a machine swapping is waited for and a
+run that never returns is told apart — 400 000 steps (:data:`hil.logs.replay.MAX_REPLAY_STEPS`) ~70 min."""
+
+
+def run_bound_s(n_steps: int) -> float:
+    """The wall time (s) a batch ``run`` over ``n_steps`` steps is waited for: :data:`FIRST_CALL_WAIT_S`
+    and :data:`RUN_WAIT_PER_STEP_S` a step."""
+    return FIRST_CALL_WAIT_S + RUN_WAIT_PER_STEP_S * max(int(n_steps), 0)
 
 
 _REAL_KINDS = "iuf"
@@ -277,7 +290,7 @@ class CheckedEstimator:
     def run(self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None) -> EstimateBatch:
         given = _read_only(steps)
         where = f"run over {len(steps)} steps"
-        out = self._call(where, lambda: self.inner.run(given, progress))
+        out = self._live(where, lambda: self.inner.run(given, progress), run_bound_s(len(steps)))
         return self._call(f"{where}: reading what it returned", lambda: self.checked_batch(out, steps))  # type: ignore[no-any-return]
 
     def checked_batch(self, out: Any, steps: MergedSteps) -> EstimateBatch:

@@ -7,8 +7,15 @@ filter needs, and flies and replays through ``hil run --estimator vqf`` and ``hi
 What the adapter does, and only that:
 
 - VQF's gains are set for a fixed sample period: the site's ``sample_period_s`` (the merged steps' nominal
-  period, the fastest sensor's). A merged step's own ``h`` (phone jitter) is not passed on: VQF has no
-  per-step time.
+  period, the fastest sensor's), and it has no per-step time. A merged step's own ``h`` is integrated as
+  the whole number of nominal periods nearest to it (:func:`gyro_updates`): a step within half a period of
+  the nominal one (phone jitter) is one update, as VQF is meant to be fed; a longer one — a gap shorter than
+  a replay's ``max_gap_s``, a gyroscope whose rate dropped part-way — is sub-stepped as the variational
+  estimator's is (:mod:`hil.estimation.reference`): that many updates, the gyroscope interpolated from the
+  step before's reading to this one's, the step flagged ``SUBSTEPPED``. Before, each such step turned the
+  attitude through one period (a 0.8 s gap at 200 Hz integrated as 5 ms), silently. A step of more than
+  :data:`~hil.estimation.slots.MAX_SUBSTEPS` periods is refused (ValueError naming it), as the variational
+  estimator's is.
 - A sensor that is not usable in a step (None live, a stale flag in batch) is not fed: a stale gyroscope
   leaves the orientation where it was, a stale accelerometer or magnetometer leaves out its correction.
   A site without a magnetometer (6-axis) never feeds it, and takes VQF's 6D quaternion (heading where
@@ -37,7 +44,15 @@ from hil import so3
 from hil.estimation.estimator import Estimate, EstimateBatch, flag
 from hil.estimation.interface import Site
 from hil.estimation.sensors import MergedStep, MergedSteps, as_vec3
-from hil.estimation.slots import ACC_STALE, GYR_STALE, MAG_DISTURBED, MAG_STALE, REST
+from hil.estimation.slots import (
+    ACC_STALE,
+    GYR_STALE,
+    MAG_DISTURBED,
+    MAG_STALE,
+    MAX_SUBSTEPS,
+    REST,
+    SUBSTEPPED,
+)
 from protocol.errors import ConfigError
 
 Array = NDArray[np.float64]
@@ -61,6 +76,23 @@ _VQF_NAMES = {
 }
 _MAX_TAU_S = 1000.0
 _ZERO3 = np.zeros(3)
+
+
+def gyro_updates(h_s: float | None, period_s: float) -> int:
+    """How many of VQF's fixed-period gyroscope updates a step of ``h_s`` (s; None: the first step, no time
+    before it) stands for: the whole number of ``period_s`` nearest to it, at least 1 — the attitude turned
+    through the step's real time to within half a period, as an on-time step's is. ValueError beyond
+    :data:`~hil.estimation.slots.MAX_SUBSTEPS` (no gap a phone's stream has: a far timestamp)."""
+    if h_s is None:
+        return 1
+    periods = h_s / period_s
+    if not periods <= MAX_SUBSTEPS:
+        raise ValueError(
+            f"vqf: a step of {h_s!r} s spans more than {MAX_SUBSTEPS} of its {period_s:.6g} s periods: a "
+            "recording paused or a far timestamp, not sampling (split the log at the gap: hil replay "
+            "--max-gap)"
+        )
+    return max(1, round(periods))
 
 
 def _vqf_class() -> Any:
@@ -117,6 +149,7 @@ class VqfEstimator:
             raise ConfigError(f"needs a positive sample period, got {period!r} s", "estimator vqf")
         params = {_VQF_NAMES[key]: value for key, value in settings.items()}
         self._vqf = vqf_class(period, **params)
+        self._period_s = period
         self._magnetometer = site.magnetometer
         # body → ENU (true north) = Rz(−declination) · body → VQF's frame (y toward magnetic north)
         self._to_enu = (
@@ -124,6 +157,7 @@ class VqfEstimator:
         )
         self._vqf.setBiasEstimate(np.asarray(site.gyro_bias, dtype=float), -1.0)
         self._t: float | None = None
+        self._last_gyr: Array | None = None  # the reading the last step fed (None: stale, or none yet)
 
     @property
     def gyro_bias(self) -> Array:
@@ -144,8 +178,8 @@ class VqfEstimator:
 
     def step(self, s: MergedStep) -> Estimate:
         """One merged step (live path)."""
-        self._advance(s.t)
-        return self._update(s.t, s.gyr, s.acc, s.mag, int(s.flags))
+        updates = gyro_updates(self._advance(s.t), self._period_s)
+        return self._update(s.t, updates, s.gyr, s.acc, s.mag, int(s.flags))
 
     def run(self, steps: MergedSteps, progress: Callable[[int, int], None] | None = None) -> EstimateBatch:
         """Every merged step (batch path): the same per-step code as :meth:`step`, a sensor flagged stale
@@ -155,8 +189,8 @@ class VqfEstimator:
         if n and not np.all(np.diff(t) > 0):
             i = int(np.flatnonzero(~(np.diff(t) > 0))[0])
             raise ValueError(f"vqf run: step times must increase strictly (step {i + 1}: {t[i + 1]!r})")
-        if n:
-            self._advance(float(t[0]))
+        h = np.diff(t, prepend=t[:1])  # s: each step's own length, from the one before
+        first_h = self._advance(float(t[0])) if n else None
         out = EstimateBatch(
             t.copy(),
             np.empty((n, 3, 3)),
@@ -171,7 +205,8 @@ class VqfEstimator:
             gyr = None if bits & GYR_STALE else steps.gyr[i]
             acc = None if bits & ACC_STALE else steps.acc[i]
             mag = None if bits & MAG_STALE else steps.mag[i]
-            est = self._update(float(t[i]), gyr, acc, mag, bits)
+            updates = gyro_updates(float(h[i]) if i else first_h, self._period_s)
+            est = self._update(float(t[i]), updates, gyr, acc, mag, bits)
             out.R[i], out.omega[i], out.flags[i] = est.R, est.omega, int(est.flags)
             if progress is not None and (i + 1) % 10_000 == 0:
                 progress(i + 1, n)
@@ -180,20 +215,36 @@ class VqfEstimator:
             progress(n, n)
         return out
 
-    def _advance(self, t: float) -> None:
-        """The step's time must come after the last one (ValueError), as for every estimator."""
-        if self._t is not None and not t > self._t:
-            raise ValueError(f"vqf step at t = {t!r} s is not after the last one, {self._t!r} s")
+    def _advance(self, t: float) -> float | None:
+        """The step's length (s) since the last one (None for the first); its time must come after the
+        last one (ValueError), as for every estimator."""
+        last = self._t
+        if last is not None and not t > last:
+            raise ValueError(f"vqf step at t = {t!r} s is not after the last one, {last!r} s")
         self._t = t
+        return None if last is None else t - last
 
     def _update(
-        self, t: float, gyr: ArrayLike | None, acc: ArrayLike | None, mag: ArrayLike | None, bits: int
+        self,
+        t: float,
+        updates: int,
+        gyr: ArrayLike | None,
+        acc: ArrayLike | None,
+        mag: ArrayLike | None,
+        bits: int,
     ) -> Estimate:
-        """Feed VQF the usable readings of one step and read its estimate back."""
+        """Feed VQF the usable readings of one step — the gyroscope's ``updates`` times
+        (:func:`gyro_updates`: the step's length in nominal periods) — and read its estimate back."""
         vqf = self._vqf
         g = None if gyr is None else np.ascontiguousarray(gyr, dtype=float)
         if g is not None:
+            start = g if self._last_gyr is None else self._last_gyr
+            for j in range(1, updates):  # a long step's sub-steps: the rate interpolated towards this one's
+                vqf.updateGyr(np.ascontiguousarray(start + j / updates * (g - start)))
             vqf.updateGyr(g)
+            if updates > 1:
+                bits |= SUBSTEPPED
+        self._last_gyr = g
         if acc is not None:
             vqf.updateAcc(np.ascontiguousarray(acc, dtype=float))
         if mag is not None and self._magnetometer:

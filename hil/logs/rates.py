@@ -6,8 +6,8 @@ goes on writing rows at a fraction of its rate: 100 Hz for half the log, 5 Hz af
 log's rate took the median step over the whole log, which the fast half sets, and the slow half passed
 unnoticed: its steps are shorter than a gap (``max_gap_s``: no split), the estimator's nominal period
 (:class:`hil.estimation.interface.Site`'s ``sample_period_s``, the fastest sensor's median step) stayed
-the fast one's — an estimator with a fixed period (VQF) integrates each 0.2 s step as 0.01 s — and the
-replay said nothing.
+the fast one's — an estimator with a fixed period (VQF) integrated each 0.2 s step as 0.01 s (it now
+sub-steps them: :mod:`hil.estimation.vqf_adapter`) — and the replay said nothing.
 
 :func:`rate_drops` judges each sensor's rate locally: the mean step over :data:`RATE_RUN` consecutive
 steps (one late or missing sample moves it little; a sustained drop moves it all) against the sensor's

@@ -280,15 +280,64 @@ def seconds(t: float) -> str:
 
 def rate_drop_warning(drop: RateDrop) -> str:
     """What a replay says of one sensor whose rate dropped part-way (:class:`hil.logs.rates.RateDrop`):
-    where, for how long, how slow — the estimates there rest on fewer samples, and a fixed-period
-    estimator takes each of its steps as one of the median's."""
+    where, for how long, how slow — the estimates there rest on fewer samples (each estimator integrates
+    the slow steps through their real length, :mod:`hil.estimation.vqf_adapter`'s too)."""
     return (
         f"{drop.kind.label}: its rate drops part-way through the log: {drop.steps} steps over "
         f"{drop.seconds:.3g} s, from {seconds(drop.first_s)} s on, come more than {RATE_DROP_FACTOR:g} "
         f"times slower than its own {drop.rate_hz:.3g} Hz (as slow as {drop.slowest_hz:.3g} Hz): the "
-        "estimates there rest on fewer samples than the rest, and an estimator with a fixed sample period "
-        "(vqf) takes each of those steps as one at its nominal rate"
+        "estimates there rest on fewer samples than the rest (each of those steps integrated through its "
+        "real length, the gyroscope interpolated across it)"
     )
+
+
+PINNED_RUN = 10
+"""Consecutive samples of one axis at exactly the same large reading (:data:`PINNED_FLOOR`) that are a
+sensor clipped at its range, not motion: a real rate or acceleration that large moves by its noise, and by
+its own change, from one sample to the next."""
+PINNED_FLOOR = {SensorKind.GYR: 4.0, SensorKind.ACC: 19.0}
+"""The smallest reading (rad/s, m/s²) a pinned run counts from: just under the smallest range a phone's
+gyroscope (±250 °/s, 4.36 rad/s) and accelerometer (±2 g, 19.6 m/s²) clip at; a still phone's quantised
+zero or gravity repeats exactly, far below."""
+
+
+_PINNED_MEANS = {
+    SensorKind.GYR: ", the phone turning faster than it measures: the estimates integrate the clipped rate, "
+    "not the turn",
+    SensorKind.ACC: " (a shock, running): gravity's direction taken from those samples is off",
+}
+
+
+def pinned_warnings(log: SensorLog) -> list[str]:
+    """One warning per gyroscope or accelerometer whose readings sit pinned at one large value on an axis
+    for :data:`PINNED_RUN` samples or more (:data:`PINNED_FLOOR`): clipped at its range — a spin faster than
+    the gyroscope measures, a shock beyond the accelerometer's. The estimator integrates the clipped value
+    as if it were the motion (a gyroscope pinned at 8.73 rad/s for 2 s turned the estimate through 17.5 rad
+    of the phone's true, unknown turn), and the replay said nothing. Said, with where and for how long."""
+    out = []
+    for kind, floor in PINNED_FLOOR.items():
+        stream = log.streams.get(kind)
+        if stream is None or len(stream) < PINNED_RUN:
+            continue
+        xyz = stream.xyz
+        same = (xyz[1:] == xyz[:-1]) & (np.abs(xyz[1:]) >= floor)  # (n-1, 3): equal to the one before
+        pinned = np.zeros(len(stream), bool)
+        largest = 0.0  # the largest pinned value (its magnitude), for the message
+        for axis in range(3):
+            edges = np.diff(np.concatenate([[0], same[:, axis].astype(np.int8), [0]]))
+            for start, stop in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True):
+                if stop - start + 1 >= PINNED_RUN:  # samples start..stop (``same[i]``: sample i + 1)
+                    pinned[start : stop + 1] = True
+                    largest = max(largest, abs(float(xyz[start, axis])))
+        if not pinned.any():
+            continue
+        times = stream.t[pinned]
+        out.append(
+            f"{kind.label}: {int(pinned.sum())} samples pinned at one value, up to {largest:.6g} {kind.unit} "
+            f"({seconds(float(np.nanmin(times)))}-{seconds(float(np.nanmax(times)))} s): the sensor clipped "
+            f"at its range{_PINNED_MEANS[kind]}"
+        )
+    return out
 
 
 def split_at_gaps(log: SensorLog, max_gap_s: float) -> list[tuple[float, float]]:
@@ -434,6 +483,7 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         warnings.append(restarted)
     slowed = rate_drops(log, options.max_gap_s)
     warnings += [rate_drop_warning(drop) for drop in slowed]
+    warnings += pinned_warnings(log)
     parts = split_at_gaps(log, options.max_gap_s)
     parts_said = len(warnings)  # the warnings from here on are the parts'
     all_steps, all_estimates, segments = [], [], []
@@ -505,10 +555,10 @@ def replay(path: Path | str, options: ReplayOptions) -> ReplayResult:
         total_steps += len(steps)
         _check_length(part, total_steps, log.source, merged=True)
         _add_stats(stats, seg_stats)
+        chain = _bounded(estimator.build(site))
         if options.paced or options.on_step is not None:
-            estimates = _run_live(part, steps, seg_stats, estimator.build(site), options)
+            estimates = _run_live(part, steps, seg_stats, chain, options)
         else:
-            chain = estimator.build(site)
             estimates = chain.run(steps, options.progress)
             b = chain.gyro_bias  # the last part's estimate at its end
             bias = (float(b[0]), float(b[1]), float(b[2]))
@@ -755,6 +805,16 @@ def _add_stats(total: MergeStats, part: MergeStats) -> None:
     total.absorb(part)
     if total.driver is None:
         total.driver, total.failover_order = part.driver, part.failover_order
+
+
+def _bounded(chain: Estimator) -> Estimator:
+    """``chain`` with a user's estimator's calls — its batch ``run`` too — on a thread of its own, each
+    waited for its bound (:func:`hil.bounded_estimator.with_bounded_calls`, as a run's are): a plugin whose
+    ``run`` never returned hung ``hil replay`` until it was killed; now it is a
+    :class:`~hil.plugins.PluginTimeout` naming the call. ``hil``'s own estimator is called directly."""
+    from hil.bounded_estimator import with_bounded_calls  # threads: imported only when replaying
+
+    return with_bounded_calls(chain)
 
 
 def _concat_steps(parts: list[MergedSteps]) -> MergedSteps:

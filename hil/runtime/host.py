@@ -42,14 +42,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from hil.bounded_estimator import with_bounded_calls
 from hil.control.attitude import EigenaxisSlew, Reference
 from hil.estimation.admission import PhoneGuard, Verdict
-from hil.estimation.checked import CheckedEstimator
 from hil.estimation.interface import Estimator
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.board import BoardClient
 from hil.link.board.events import StateEvent
-from hil.plugin_worker import PluginWorker
 from hil.runtime.actuators import ActuatorWatch
 from hil.runtime.control_step import ControlStep, Steered
 from hil.runtime.faults import RECOVER_WITHIN_S, STALE_AFTER_S, FaultJournal
@@ -82,15 +81,6 @@ def _time_order(sample: SensorSample) -> tuple[bool, float]:
     """Sort key: by time stamp, the stamps that are not numbers last (the guard drops them)."""
     t = sample.t_s
     return (True, 0.0) if not math.isfinite(t) else (False, t)
-
-
-def with_bounded_calls(estimator: Estimator) -> Estimator:
-    """``estimator``, a user's (:class:`~hil.estimation.checked.CheckedEstimator`) made to run its live
-    calls on a thread of its own, each waited for its bound (:class:`~hil.plugin_worker.PluginWorker`): a
-    step that never returned hung the run until it was killed. hil's own estimator is called directly."""
-    if isinstance(estimator, CheckedEstimator):
-        estimator.run_calls_with(PluginWorker(estimator.plugin).call)
-    return estimator
 
 
 @dataclass(frozen=True)

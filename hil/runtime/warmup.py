@@ -147,10 +147,10 @@ def _default_source() -> str:
 def warm_host(scenario: Scenario) -> None:
     """Step the scenario's attitude filter (through the multi-rate merger, as the host does) and its steering
     law once each, with samples and states of the run's types."""
+    from hil.bounded_estimator import with_bounded_calls
     from hil.control.steering import VscmgSteering
     from hil.estimation.multirate import Merger
     from hil.estimation.sensors import SensorKind, SensorSample
-    from hil.runtime.host import with_bounded_calls
 
     estimator = with_bounded_calls(scenario.make_estimator())  # a user's first step may block, as in a run
     merger = Merger()
