@@ -31,6 +31,8 @@ def whole_number(value: object) -> int | None:
     float's rounding), a string, None. The one test of "is this an integer" for a message's integer and
     enum fields and the pulse modules' integer widths: numpy's ``uint16(3)``, what an array-built
     controller hands over, was refused as "out of range"."""
+    if type(value) is int:  # the hot path: every pulse width of the board's outputs, every int field
+        return value
     if getattr(value, "shape", None) == () and hasattr(value, "item"):
         value = value.item()  # a 0-d array: the integer (or bool, or float) it holds
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):  # numpy's bool is no Integral
