@@ -219,13 +219,8 @@ def _campaign(path: Path, plots: bool) -> dict[str, Path]:
     # summary.json is written again with the figures, its interrupted record carried over
     summary = summarise_dir(path, scenario, write=False)
     print(f"campaign {path}: scenario {scenario.name}, seed {info.get('seed')}")
-    print(format_table(summary))
+    print(format_table(summary))  # a partial campaign said there (PARTIAL: N of the M runs asked)
     interrupted = summary.get("interrupted")
-    if isinstance(interrupted, dict):
-        print(
-            f"  interrupted: {interrupted.get('runs_on_disk')} runs on disk of "
-            f"{str(interrupted.get('runs_asked'))[:20]} asked"
-        )
     if not plots:
         return {}
     drawn = plot_campaign(path, scenario.settle_deg, scenario.spacecraft.limits.max_gimbal_rate)

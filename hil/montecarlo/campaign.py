@@ -41,26 +41,31 @@ from typing import Any
 from hil import version
 from hil.cores import available_cores
 from hil.files.bounded import load_json, read_document, regular_file_if_there
-from hil.runtime.held_signals import STOP_SIGNALS
+from hil.runtime.held_signals import STOP_SIGNALS, first_signal
 from hil.runtime.held_signals import deferred as deferred_signals
 from hil.runtime.runlog import SUMMARY, write_summary
 from hil.scenario import Scenario
-from protocol.errors import ConfigError, InputFormatError, LinkError
+from protocol.errors import ConfigError, HilError, InputFormatError, LinkError
 
 from .dask_logs import quiet_interrupted_sync, quiet_scheduler_loss
 from .dispersions import Dispersions, RunParams, draw
 from .metrics import trace_length
 from .runner import CHECK_COLUMNS, RunResult, describe, run_one
-from .store import MANIFEST, ResultStore, checked_write, manifest, read_manifest, read_runs
+from .store import (
+    MANIFEST,
+    MAX_RUNS,
+    ResultStore,
+    checked_write,
+    manifest,
+    read_manifest,
+    read_runs,
+    read_session,
+)
 from .summary import summarise
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_BATCH = 4  # runs per Dask task: spreads Dask's per-task cost, keeps the workers balanced
-MAX_RUNS = 10_000_000
-"""The most runs a campaign may ask for (10⁷: a year of a thousand cores at the shipped scenarios' pace).
-Nothing is allocated per run before the runs start — indices and chunks are made as they are submitted —
-so the bound is about what a campaign directory and its summary can hold, not the driver's memory."""
 MAX_BATCH = 10_000
 """The most runs one Dask task may run one after another."""
 IN_FLIGHT_PER_WORKER = 4
@@ -395,6 +400,7 @@ def run_campaign(
     out = Path(out_dir)
     start = time.perf_counter()
     workers = 0 if client is None else max(1, sum(client.nthreads().values()))
+    started = False  # the session's runs begun: an end before they are all done is said on disk
     try:
         with ResultStore(out, campaign.manifest()) as store:
             skipped = sum(1 for i in store.finished if 0 <= i < campaign.runs)
@@ -406,10 +412,24 @@ def run_campaign(
                 )
             todo = (i for i in range(campaign.runs) if i not in store.finished)
             driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
-            if client is not None:
-                driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
+            store.record_session(campaign.runs, "running")
+            started = True
+            try:
+                if client is not None:
+                    driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
+            except BaseException as exc:
+                _record_session_end(store, campaign.runs, exc)
+                raise
+            _record_session_end(store, campaign.runs, None)
     except KeyboardInterrupt:
         _summary_after_interrupt(out, campaign)
+        raise
+    except HilError as exc:
+        if started:  # the scheduler lost, a worker running other code, a full disk: the summary said so
+            try:
+                _summary_after_interrupt(out, campaign)
+            except HilError as err:  # what ended the session is what is raised
+                logger.warning("%s: not summarised again after %s: %s", out, describe(exc), err)
         raise
     report = CampaignReport(
         out,
@@ -429,6 +449,25 @@ def run_campaign(
         sc = campaign.scenario
         report.plots = plot_campaign(out, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate)
     return report
+
+
+def _record_session_end(store: ResultStore, runs_asked: int, exc: BaseException | None) -> None:
+    """Record in campaign.json how the session ended: ``finished`` (``exc`` None: every run it asked for
+    is on disk), ``interrupted`` by the signal (Ctrl-C, SIGTERM), or ``stopped`` by the error ``exc``.
+    Held from a second signal while it is written. A write the disk refuses is logged, not raised: what
+    ended the session is what is raised, and a finished session's summary.json is written (or refused,
+    naming it) all the same; the record still says ``running`` (read back: ``killed``)."""
+    if exc is None:
+        state, detail = "finished", {}
+    elif isinstance(exc, KeyboardInterrupt):
+        state, detail = "interrupted", {"signal": first_signal(exc).name}
+    else:
+        state, detail = "stopped", {"error": describe(exc)}
+    try:
+        with deferred_signals():
+            store.record_session(runs_asked, state, **detail)
+    except HilError as err:
+        logger.warning("%s: the session's end not recorded: %s", store.dir / MANIFEST, err)
 
 
 def runs_left(campaign: Campaign, out_dir: str | os.PathLike[str]) -> int:
@@ -675,6 +714,21 @@ def summarise_dir(
         workers_lost = _workers_lost(previous)
         interrupted = previous.get("interrupted")
     summary["workers_lost"] = workers_lost
+    session = read_session(out_dir, info)
+    summary["runs_asked"], summary["ended"] = session.runs_asked, session.ended
+    if session.runs_asked is not None:
+        # whole when every run asked for (indices 0..N-1) is on disk and readable, however its session
+        # ended after (``ended`` says it); the rows of an earlier, larger ask are in the figures too
+        asked_on_disk = int((results.index < session.runs_asked).sum())
+        if asked_on_disk < session.runs_asked:
+            interrupted = {
+                **(interrupted if isinstance(interrupted, dict) else {}),
+                "runs_asked": session.runs_asked,
+                "runs_asked_on_disk": asked_on_disk,
+                "ended": session.ended,
+            }
+        else:
+            interrupted = None  # an earlier session's record; this one finished every run
     if isinstance(interrupted, dict):
         summary["interrupted"] = {**interrupted, "runs_on_disk": summary.get("runs")}
     if write:
@@ -693,14 +747,17 @@ def _summary_after_interrupt(out: Path, campaign: Campaign) -> None:
     """An interrupted session that extended a campaign (``--runs 8`` on one of 4, stopped after its 6th
     run) left the earlier session's summary.json saying 4 runs, 4 ok, beside a runs.csv of 6 — and nothing
     on disk said which was current. That summary is written again over the runs on disk, with
-    ``interrupted``: the runs asked for, those on disk, and that the plots are the earlier session's
-    (``hil report DIR`` summarises and draws them anew). A campaign interrupted before any summary was
-    written is left without one, as before."""
+    ``interrupted``: the runs asked for, those on disk, how the session ended (campaign.json's session
+    record: ``interrupted (SIGINT)``, ``stopped: ...`` — a session stopped by an error, its scheduler
+    lost, is no less partial) and that the plots are the earlier session's (``hil report DIR``
+    summarises and draws them anew). A campaign stopped before any summary was written is left without
+    one, as before: its campaign.json says it (:data:`~.store.SESSION`)."""
     path = out / SUMMARY
     if not path.is_file():
         return
     summary = summarise_dir(out, campaign.scenario)
     summary["interrupted"] = {
+        **summary.get("interrupted", {}),
         "runs_asked": campaign.runs,
         "runs_on_disk": summary.get("runs"),
         "plots": "not drawn for these runs: hil report DIR draws them",

@@ -5,7 +5,8 @@ Layout of ``OUT``::
 
     campaign.json   what the campaign is (scenario and dispersion texts, seed, duration, trace rate,
                     columns, the code that runs it): written first; a re-run must match it (more runs
-                    may be asked for)
+                    may be asked for). Its ``session`` (:data:`SESSION`) says what the last session asked
+                    and how it ended, rewritten as it starts and as it ends
     runs.csv        one row per finished run, ok or failed, flushed as it finishes: index, status, error,
                     the drawn parameters, the metrics. A row is the run's commit record.
     traces.bin      each ok run's decimated traces (:data:`~.metrics.TRACES`), fixed-size little-endian
@@ -43,11 +44,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from hil import version
-from hil.files.bounded import MAX_DOCUMENT_BYTES, input_kind, load_json, read_lines, regular_file_if_there
+from hil.files.bounded import (
+    MAX_DOCUMENT_BYTES,
+    Unterminated,
+    input_kind,
+    load_json,
+    read_lines,
+    regular_file_if_there,
+)
 from hil.files.output import make_dir, refuse_others_outputs
 from hil.scenario.paths import read_text
 from protocol.errors import ConfigError, HilError, InputFormatError
 
+from .dispersions import FAULT_COLUMNS, LINK_COLUMNS
 from .metrics import METRICS, TRACES, trace_length
 from .runner import CHECK_COLUMNS, VIOLATION_COLUMNS, RunResult
 
@@ -77,6 +86,14 @@ array, a file): one of 2 MB made its row longer than runs.csv's longest readable
 (:data:`~hil.files.bounded.MAX_LINE_BYTES`), so the row was dropped as damaged when read back — the failed
 run missing from the summary, the campaign exiting 0 as if every run was ok, and the run run again by
 every later session."""
+TEXT_COLUMNS = frozenset(
+    {*FAULT_COLUMNS, *LINK_COLUMNS, *CHECK_COLUMNS}
+    - {"faults.n", "link.outages", "link.outage_s"}
+    - set(VIOLATION_COLUMNS)
+)
+"""The columns a run writes as text (an exit reason, a message, ``kind@time;...`` lists): read as text
+whatever their cells (:func:`read_runs`). An ``exit`` column edited to numbers (``0``/``1``, by a script) was
+taken for numbers, and the summary, which reads these columns' text, counted no run's exit at all."""
 MESSAGE_COLUMNS = ("error", "inv.first")
 """The cells of free text (a run's error; a fault campaign's first violation, which may quote it)."""
 _INDEX = re.compile(r"[0-9]{1,10}")
@@ -90,6 +107,20 @@ recorded has none, and is taken as it was. So is the ``code`` that ran the campa
 (:func:`hil.version.mismatch`, :func:`_check_code`)."""
 CODE = "code"
 """campaign.json's record of the code that ran the campaign: ``{"version": ..., "revision": ...}``."""
+SESSION = "session"
+"""campaign.json's record of its last session: ``{"runs_asked": N, "state": ...}``, ``state`` one of
+:data:`SESSION_STATES` (``interrupted`` with the ``signal``'s name, ``stopped`` with the ``error`` that
+ended it). Written ``running`` as a session starts and rewritten as it ends; one that still says
+``running`` with no session holding the directory's lock was killed (SIGKILL, a machine's crash). Without
+it a campaign interrupted before its first summary.json — the runs.csv of 27 runs of 30 — was reported by
+``hil report`` as a whole campaign of 27, exit 0: nothing on disk said how many runs were asked. A
+campaign.json written before it was recorded has none: the runs asked are unknown, and said so."""
+SESSION_STATES = ("running", "finished", "interrupted", "stopped")
+MAX_RUNS = 10_000_000
+"""The most runs a campaign may ask for (10⁷: a year of a thousand cores at the shipped scenarios' pace),
+and so the most a session's record may say were asked. Nothing is allocated per run before the runs start
+— indices and chunks are made as they are submitted — so the bound is about what a campaign directory and
+its summary can hold, not the driver's memory."""
 
 
 def manifest(
@@ -160,8 +191,9 @@ class ResultStore:
         refuse_others_outputs(self.dir, MANIFEST, "a campaign's outputs")
         for file in (path, runs, traces):
             _regular_or_absent(file)
+        self._on_disk: dict[str, Any] = self.manifest
         if path.exists():
-            self._check_manifest(path)
+            self._on_disk = self._check_manifest(path)
         else:
             for orphan in (runs, traces):
                 if orphan.exists() and orphan.stat().st_size:
@@ -193,7 +225,22 @@ class ResultStore:
             checked_write(runs, lambda: _write_flushed(self._rows, lambda: self._csv.writerow(self.columns)))
         self._traces = checked_write(traces, lambda: open(traces, "ab"))
 
-    def _check_manifest(self, path: Path) -> None:
+    def record_session(self, runs_asked: int, state: str, **detail: str) -> None:
+        """Rewrite campaign.json's :data:`SESSION` record (atomically, the rest of the file as it is):
+        the runs this session asks for, and its ``state`` (:data:`SESSION_STATES`) with ``detail`` (the
+        ``signal`` that interrupted it, the ``error`` that stopped it)."""
+        if state not in SESSION_STATES:
+            raise ValueError(f"not a session state: {state!r}")
+        record: dict[str, Any] = {"runs_asked": runs_asked, "state": state, **detail}
+        self._on_disk = {**self._on_disk, SESSION: record}
+        path = self.dir / MANIFEST
+        tmp = path.with_suffix(".json.tmp")
+        text = json.dumps(self._on_disk, indent=2) + "\n"
+        checked_write(tmp, lambda: tmp.write_text(text))
+        checked_write(path, lambda: os.replace(tmp, path))
+
+    def _check_manifest(self, path: Path) -> dict[str, Any]:
+        """The campaign.json on disk, checked against this session's manifest (a ConfigError naming it)."""
         try:  # bounded: a manifest nested 100 000 deep or of 1 GB is refused, not a RecursionError
             old = load_json(read_text(path, limit=MAX_DOCUMENT_BYTES), str(path))
         except InputFormatError as exc:
@@ -213,6 +260,7 @@ class ResultStore:
                 str(path),
             )
         self._check_code(old, path)
+        return old
 
     def _check_code(self, old: Mapping[str, Any], path: Path) -> None:
         """The code that wrote the campaign's runs must be this session's (:func:`hil.version.mismatch`:
@@ -452,15 +500,16 @@ def read_runs(out_dir: str | os.PathLike[str], columns: Sequence[str] | None = N
     A malformed line — the wrong number of cells, a run index that is not a plain number
     0..:data:`MAX_INDEX`, a metric that is not a number, an invariant's violations
     (:data:`~.runner.VIOLATION_COLUMNS`) that are not such a count, a line longer than
-    :data:`~hil.files.bounded.MAX_LINE_BYTES` — or a run's row with a later one, is dropped and counted
-    (``dropped``).
+    :data:`~hil.files.bounded.MAX_LINE_BYTES`, a last row without its line break (torn: :func:`_text_lines`)
+    — or a run's row with a later one, is dropped and counted (``dropped``).
 
     Streamed, a piece of the file at a time (:func:`~hil.files.bounded.read_lines`): memory holds the
     numbers of the columns that are numbers (a float per cell), the cells of the columns that are not
     (their equal cells shared) and the failed runs' errors — never the file's text or its rows' cells
     (a runs.csv of 196 MB took 2.1 GB). A column is numbers until a cell of it is not one: its cells
     before are then its text again (an empty cell empty, a number as ``repr`` gives it, a whole one
-    without ``.0``)."""
+    without ``.0``). A column a run writes as text (:data:`TEXT_COLUMNS`) is text, its cells as written,
+    whatever they hold."""
     path = Path(out_dir) / RUNS
     try:
         _regular_or_absent(path)
@@ -479,12 +528,18 @@ def read_runs(out_dir: str | os.PathLike[str], columns: Sequence[str] | None = N
 
 def _text_lines(f: BinaryIO, path: Path) -> Iterator[str]:
     """The lines of ``f`` as text (a BOM skipped), for :mod:`csv`; a line too long to keep is an empty
-    one (a row of no cells: dropped); one that is not UTF-8 an InputFormatError naming its line."""
+    one (a row of no cells: dropped); one that is not UTF-8 an InputFormatError naming its line.
+
+    A last row without its line break is an empty one too: a row is a run's commit record once its line
+    break is written (:class:`ResultStore` cuts such a line off and runs that run again). Read, a row torn
+    inside its last cell — a campaign killed mid-write, a live one read between a row's pieces — gave that
+    cell's first digits (``12.0`` read ``1``) as the run's value, said nowhere."""
     number = 0
     for batch in read_lines(f):
+        torn = isinstance(batch, Unterminated)
         for line in batch:
             number += 1
-            if line is None:
+            if line is None or (torn and number > 1):
                 yield ""
                 continue
             try:
@@ -500,8 +555,9 @@ class _Column:
 
     __slots__ = ("numbers", "text", "_shared")
 
-    def __init__(self) -> None:
-        self.numbers: array[float] | None = array("d")
+    def __init__(self, text: bool = False) -> None:
+        """``text``: a column of :data:`TEXT_COLUMNS`, text from its first cell."""
+        self.numbers: array[float] | None = None if text else array("d")
         self.text: list[str] = []
         self._shared: dict[str, str] = {}
 
@@ -544,7 +600,7 @@ def _read_runs(reader: Iterator[list[str]], path: Path, expected: Sequence[str] 
     indices = array("q")
     ok = bytearray()
     errors: dict[int, str] = {}  # position in the file's rows → error text (failed runs)
-    columns = [_Column() for _ in header[3:]]
+    columns = [_Column(text=name in TEXT_COLUMNS) for name in header[3:]]
     dropped = 0
     while True:
         try:
@@ -585,7 +641,8 @@ def _read_runs(reader: Iterator[list[str]], path: Path, expected: Sequence[str] 
         column, columns[j] = columns[j], _Column()  # each freed once it is taken
         if column.numbers is None:
             cells = [column.text[k] for k in keep.tolist()]
-            numbers = _numbers(cells)  # its text only in rows left out (a run's earlier row): numbers
+            # its text only in rows left out (a run's earlier row): numbers, unless a run writes it as text
+            numbers = None if name in TEXT_COLUMNS else _numbers(cells)
             if numbers is None:
                 text_cols[name] = np.array(cells, dtype=object)
             else:
@@ -687,6 +744,58 @@ def read_manifest(out_dir: str | os.PathLike[str]) -> dict[str, Any]:
             f"must be {expected} (duration_s × trace_hz), got {samples!r}", str(path), None, "trace_samples"
         )
     return info
+
+
+@dataclass(frozen=True)
+class SessionRecord:
+    """campaign.json's :data:`SESSION` record as read back: ``runs_asked`` (None: a campaign.json written
+    before it was recorded) and ``ended``, how the last session ended in words — ``finished``,
+    ``interrupted (SIGINT)``, ``stopped: <error>``, ``killed`` (it says ``running`` and no session holds
+    the directory), ``still running`` (one does), or None when unknown."""
+
+    runs_asked: int | None
+    ended: str | None
+
+
+def read_session(out_dir: str | os.PathLike[str], info: Mapping[str, Any]) -> SessionRecord:
+    """The :data:`SESSION` record of ``info`` (``out_dir``'s campaign.json, :func:`read_manifest`). One
+    that is not what a session writes (edited by hand: not an object, runs asked that are not a whole
+    number 1..:data:`MAX_RUNS`, a state not in :data:`SESSION_STATES`) is an
+    :class:`InputFormatError` naming the file and the key; one that is absent is unknown, not an error."""
+    path = Path(out_dir) / MANIFEST
+    if SESSION not in info:
+        return SessionRecord(None, None)
+    record = info[SESSION]
+    if not isinstance(record, dict):
+        raise InputFormatError(f"must be an object, got {record!r:.80}", str(path), None, SESSION)
+    asked = record.get("runs_asked")
+    if not (isinstance(asked, int) and not isinstance(asked, bool) and 1 <= asked <= MAX_RUNS):
+        raise InputFormatError(
+            f"must be a whole number in 1..{MAX_RUNS}, got {asked!r:.80}",
+            str(path),
+            None,
+            f"{SESSION}.runs_asked",
+        )
+    state = record.get("state")
+    if state not in SESSION_STATES:
+        raise InputFormatError(
+            f"must be one of {', '.join(SESSION_STATES)}, got {state!r:.80}",
+            str(path),
+            None,
+            f"{SESSION}.state",
+        )
+    if state == "running":
+        from hil.files.writing import writer_holds  # the same lock as _lock_dir's: flock on the directory
+
+        holds = writer_holds(out_dir)
+        ended = "still running" if holds else "killed" if holds is False else "killed, or still running"
+    elif state == "interrupted":
+        ended = f"interrupted ({str(record.get('signal', 'a signal'))[:20]})"
+    elif state == "stopped":
+        ended = f"stopped: {str(record.get('error', 'an error'))[:MAX_MESSAGE_CHARS]}"
+    else:
+        ended = "finished"
+    return SessionRecord(asked, ended)
 
 
 def read_traces(

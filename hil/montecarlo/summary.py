@@ -179,13 +179,9 @@ def _by_kind(cells: Any) -> tuple[dict[str, dict[str, float | int]], int]:
 
 
 def _cells(results: Results, column: str) -> Any:
-    """A ``kind:seconds;...`` column's cells. One whose every cell reads as a number (``1.5``, or empty)
-    was taken for a numeric column by read_runs: its cells are none of them times (the empty ones are
-    runs without any), and are dropped and counted as such, not passed over unsaid."""
-    if column in results.text:
-        return results.text[column]
-    numbers = results.values.get(column)
-    return None if numbers is None else [repr(float(x)) for x in numbers if not math.isnan(x)]
+    """A ``kind:seconds;...`` column's cells, as written (read_runs reads it as text whatever its cells,
+    :data:`~.store.TEXT_COLUMNS`: one that is a number, ``1.5``, is no time and is dropped and counted)."""
+    return results.text.get(column)
 
 
 def _times(cell: str) -> list[tuple[str, float]] | None:
@@ -234,6 +230,7 @@ def format_table(summary: dict[str, Any]) -> str:
         f"{summary['scenario']}: {summary['runs']} runs, {summary['ok']} ok, {summary['failed']} failed "
         f"({summary['duration_s']:g} s each)",
     ]
+    lines += _completeness(summary)
     if summary["dropped_lines"]:
         lines.append(
             f"dropped          {summary['dropped_lines']} line(s) of runs.csv (damaged, a bad run index, "
@@ -294,6 +291,28 @@ def format_table(summary: dict[str, Any]) -> str:
         if len(summary["failures"]) > 10:
             lines.append(f"  ... {len(summary['failures']) - 10} more in summary.json")
     return "\n".join(lines)
+
+
+def _completeness(summary: dict[str, Any]) -> list[str]:
+    """The lines that say a campaign is not whole: partial (fewer of the runs asked on disk than were
+    asked, or its last session did not finish: ``interrupted``), or its runs asked unknown (a campaign.json
+    written before they were recorded: ``runs_asked`` None). None for a whole campaign, or a summary made
+    without its directory (:func:`summarise` alone says neither)."""
+    partial = summary.get("interrupted")
+    if isinstance(partial, dict):
+        asked = partial.get("runs_asked")
+        on_disk = partial.get("runs_asked_on_disk", partial.get("runs_on_disk"))
+        ended = f" (its last session: {str(partial['ended'])[:200]})" if partial.get("ended") else ""
+        return [
+            f"PARTIAL          interrupted: {on_disk} runs on disk of {str(asked)[:20]} asked{ended}: not a "
+            "whole campaign's figures; the same command runs the rest"
+        ]
+    if "runs_asked" in summary and summary["runs_asked"] is None:
+        return [
+            "runs asked       unknown (campaign.json written before hil recorded them): whether the "
+            "campaign is whole cannot be told"
+        ]
+    return []
 
 
 def _num(x: float | None) -> str:
