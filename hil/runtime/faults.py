@@ -86,11 +86,13 @@ class FaultJournal:
         self.ended_at = t
 
     # ------------------------------------------------------------------ recording
-    def fault(self, t: float, kind: str, **detail: Any) -> None:
+    def fault(self, t: float, kind: str, *, outage_from: float | None = None, **detail: Any) -> None:
         """A fault of ``kind`` (``stale``, ``link_lost``, ``failsafe``, ``reset``, ``reconnect``,
         ``disarmed``, ``phone_gap``) at ``t``: a board fault opens an outage (or joins the open one), a
         phone gap a phone gap. (A phone clock that restarted or jumped is a :meth:`note`: the stream did
-        not pause.)"""
+        not pause.) ``outage_from`` (s, at most ``t``): the outage it opens began then, the host having had
+        no board since (a board that restarted before it answered the first handshake: told at its answer,
+        silent from the start)."""
         if t > self.ended_at:
             self.note(t, kind, after_the_run=True, **detail)
             return
@@ -101,7 +103,9 @@ class FaultJournal:
         gaps = kind == "phone_gap"
         episodes = self.phone_gaps if gaps else self.outages
         if not episodes or episodes[-1].end is not None:
-            episodes.append(Outage(t))
+            start = t if outage_from is None else min(t, outage_from)
+            last_end = episodes[-1].end if episodes else None
+            episodes.append(Outage(start if last_end is None else max(start, last_end)))  # none overlap
         causes = episodes[-1].causes
         if kind not in causes:
             causes.append(kind)

@@ -98,6 +98,8 @@ class BoardWatch:
         self._link = BoardLink.STALE  # nothing seen yet
         self._stale_noted = False  # the stale episode going on is in the journal
         self._started: float | None = None  # the first tick
+        # the latest telemetry and its made time as the last view took them (None: none yet)
+        self._viewed: tuple[Telemetry | None, float | None] = (None, None)
         self._session_start: float | None = None  # host s: the latest handshake's answer, the board's word
         self._upsets: list[str] = []
 
@@ -131,8 +133,11 @@ class BoardWatch:
         elif isinstance(event, BoardResetEvent):
             self.resets += 1
             self._fresh_after = t
-            self.events.write(t, "board_reset", cause=event.cause.name, evidence=event.evidence)
-            self.journal.fault(t, "reset", cause=event.cause.name, evidence=event.evidence)
+            # one that restarted before its first answer: no board in hand from the host's first try on
+            since = event.no_board_since
+            first = {} if since is None else {"no_board_since": since}
+            self.events.write(t, "board_reset", cause=event.cause.name, evidence=event.evidence, **first)
+            self.journal.fault(t, "reset", outage_from=since, cause=event.cause.name, evidence=event.evidence)
             self._upset("reset")
         elif isinstance(event, LinkLostEvent):
             self.link_losses += 1
@@ -206,7 +211,9 @@ class BoardWatch:
     # ------------------------------------------------------------------ the view
     def view(self, t: float) -> View:
         """The board as the host may use it at ``t``. Telemetry is live while younger than
-        ``stale_after_s`` and received after the latest link loss, reconnect or reset. A change of view is
+        ``stale_after_s`` and received after the latest link loss, reconnect or reset; one the reader thread
+        took after ``t`` (real time) is not seen yet — the one viewed before it is, with its own time (an age
+        is never below 0, and never paired with another message's time). A change of view is
         an ``events.jsonl`` record; going without live telemetry for ``stale_after_s`` (counted from the
         board's last word: its last live telemetry, or the session's handshake, whichever is latest) is a
         ``stale`` fault — the short wait for the first telemetry of a new session is not.
@@ -218,6 +225,10 @@ class BoardWatch:
         outage said 0.5 s shorter than the board's silence."""
         client = self.client
         tel, tel_t = client.latest_telemetry()
+        if tel_t is not None and tel_t > t:  # the reader thread took it after this tick took its time (real
+            tel, tel_t = self._viewed  # time): its age was below 0; the one viewed last is the newest by t
+        else:
+            self._viewed = (tel, tel_t)
         age = None if tel_t is None else t - tel_t
         if self._started is None:
             self._started = t

@@ -119,12 +119,15 @@ class StateEvent:
 class BoardResetEvent:
     """The board reset: ``cause`` from its HelloReply, ``evidence`` how the host noticed (its uptime went
     backwards, it reported BOOT mid-session, or — ``during_session`` False — it reported a non-power-on
-    reset cause when the host first connected)."""
+    reset cause when the host first connected, or restarted before it answered the first handshake).
+    ``no_board_since``: for a restart seen before the first session, the host time (s) of the host's first
+    try to reach the board — the host has had no board in hand since then, not only since this event."""
 
     t: float
     cause: ResetCause
     evidence: str
     during_session: bool = True
+    no_board_since: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

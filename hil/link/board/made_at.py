@@ -16,7 +16,9 @@ followed), never later than its receive time and never earlier than the read bef
 read does not always take the whole backlog (a pty hands it over 4 KiB at a time), so the session stays
 behind until the read after one in which a sample so dated came within :data:`PROMPT_READ_S` of its
 receive time, or until its reads have been prompt for :data:`CATCH_UP_S` (a board whose clock drifted
-over the pause). While the host reads
+over the pause). A boot that began while the host was behind (a board that reset during its pause) has
+no offset yet: its samples in that read are dated by the earliest they can have been made — the last read
+before the pause plus their uptime — and from the next read on as a first boot's. While the host reads
 promptly, a sample is dated by its receive time, as before: a board whose clock falls behind the host's
 for a while (an emulator under load catching up its pacing) never has fresh frames taken for old.
 """
@@ -47,10 +49,12 @@ class MadeAt:
         self._behind_since: float | None = None  # the end of the last read before the host fell behind
         self._prompt_since: float | None = None  # behind, but reading promptly since then
         self._caught_up = False  # behind, and a sample of this read came within PROMPT_READ_S of its read
+        self._new_boot = False  # a boot seen to begin after the host's first (its window still empty)
 
     def forget_boot(self) -> None:
         """A new boot: its clock starts again, the offsets with it."""
         self._window.clear()
+        self._new_boot = True
 
     def read(self, now: float, waiting_since: float | None) -> None:
         """Bytes read at ``now``; the host's previous read ended at ``waiting_since`` (None: not known, or
@@ -72,13 +76,24 @@ class MadeAt:
         """The host time a sample of the board's clock (``uptime_s``, read at ``now``) was made."""
         window = self._window
         behind = self._behind_since
-        if behind is None or not window:  # not behind, or the boot's first sample: no clock to go by
+        if behind is not None and not window and self._new_boot:
+            # A new boot read late (the board reset while the host was not reading): its clock has no
+            # offset on the host's yet. It began after the host's last prompt read, so its sample was made
+            # no earlier than that plus its uptime: dated so, never as read — its backlog, seconds old,
+            # was shown live, and so dated it ended the session's being behind for the rest of the read.
+            # For this read only: from the next one on its samples are dated as a first boot's (by their
+            # receive time, anchoring its offset) — a bound that may lie seconds early must not keep a
+            # restarted board's fresh telemetry stale for good.
+            self._caught_up = True
+            return min(now, behind + uptime_s)
+        if behind is None or not window:  # not behind, or the first boot's first sample: no clock to go by
             self._behind_since = self._prompt_since = None
             self._caught_up = False
             offset = now - uptime_s
             while window and window[-1][1] >= offset:
                 window.pop()
             window.append((now, offset))
+            self._new_boot = False
             while len(window) > 1 and window[0][0] < now - WINDOW_S:
                 window.popleft()
             return now

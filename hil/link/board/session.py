@@ -255,6 +255,8 @@ class Session:
         self._ran: tuple[float, float] | None = None
         self._clock_base: tuple[float, float] | None = None  # (uptime s, host s): this boot's first sample
         self._link_up_at = 0.0  # host time of the last link_up() (a reconnect's Hello went out after it)
+        # host time of the first link_up() before any board answered: the host has had no board since
+        self._reaching_since: float | None = None
         self._age_check_from: float | None = None  # set by a reconnect: its first sample's age is checked
         self._last_rx_frames: int | None = None  # the board's count of valid frames taken, since its boot
         self._reply_since_sample: HelloReply | None = None
@@ -281,6 +283,8 @@ class Session:
         """The transport is (re)opened: start a handshake."""
         self._now = now
         self._link_up_at = now
+        if self.info is None and self._reaching_since is None:
+            self._reaching_since = now
         self.phase = Phase.HANDSHAKING
         self.failure = None
         self.deframer.reset()
@@ -871,11 +875,18 @@ class Session:
         if state is BoardState.FAILSAFE:
             logger.warning("board in FAILSAFE (its link watchdog fired); arm() to recover")
 
-    def _report_reset(self, now: float, cause: ResetCause, evidence: str, in_session: bool = True) -> None:
+    def _report_reset(
+        self,
+        now: float,
+        cause: ResetCause,
+        evidence: str,
+        in_session: bool = True,
+        no_board_since: float | None = None,
+    ) -> None:
         self.counters.resets += 1
         if self.pending_reset is not None:
             self.pending_reset.cause = cause
-        self._emit(BoardResetEvent(now, cause, evidence, in_session))
+        self._emit(BoardResetEvent(now, cause, evidence, in_session, no_board_since))
         more = self._reset_warnings.due(now)  # a reset storm: every one counted and an event, a line a second
         if more is None:
             return
@@ -972,14 +983,21 @@ class Session:
         # reset is that reset's doing, and a run told the change first saw a Disarm no command of the
         # host's asked for — two faults for one reset, one of them false.
         old_state, self.state = self.state, reply.state
+        # A restart seen before (or told by) the first answer — a board that hung or browned out at its boot,
+        # a heartbeat of the boot before: the host never had the board — it had none from its first try
+        # on, not an outage of 0.02 s from this answer (one such board was silent 0.55 s before it).
+        no_board_since = self._reaching_since if first else None
         if self._reset_evidence is not None:
-            self._report_reset(now, reply.reset_cause, self._reset_evidence)
+            evidence = _before_first_session(self._reset_evidence, no_board_since)
+            self._report_reset(now, reply.reset_cause, evidence, not first, no_board_since)
             self._reset_evidence = None
         elif boot_changed is not None:
             self._reset_seen(now, boot_changed)
-            self._report_reset(now, reply.reset_cause, boot_changed)
+            evidence = _before_first_session(boot_changed, no_board_since)
+            self._report_reset(now, reply.reset_cause, evidence, not first, no_board_since)
         elif first and reply.reset_cause is not ResetCause.POWER_ON:
-            self._report_reset(now, reply.reset_cause, "reported at connect (before this session)", False)
+            evidence = _before_first_session("reported at connect (before this session)", no_board_since)
+            self._report_reset(now, reply.reset_cause, evidence, False, no_board_since)
         self._state_changed(old_state, now)
         reconnect = self._lost
         rearm = self._armed_at_loss and self.config.rearm_on_reconnect  # a board that reset too: asked for
@@ -1144,3 +1162,14 @@ def _overtaken(newest: int | None, own_last: int | None, uptime_ms: int) -> bool
     if newest is None or not went_back(newest, uptime_ms) or behind(newest, uptime_ms) > OVERTAKEN_MS:
         return False
     return own_last is None or not went_back(own_last, uptime_ms)
+
+
+def _before_first_session(evidence: str, no_board_since: float | None) -> str:
+    """``evidence`` of a reset, said of one seen before the first session when ``no_board_since`` (host
+    s: the host's first try to reach the board) is given."""
+    if no_board_since is None:
+        return evidence
+    return (
+        f"{evidence}: it restarted before it answered the host's first handshake (no board in hand since "
+        f"t={no_board_since:.3f} s)"
+    )
