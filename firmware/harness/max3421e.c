@@ -159,6 +159,13 @@ struct max3421e {
     /* The configuration descriptors this phone gives, its own copies: the "config_value" fault edits their
      * bConfigurationValue (byte 5), a value 0 making the one configuration impossible to select. */
     uint8_t cfg_normal[62], cfg_accessory[55];
+    /* Its device descriptors, its own copies: the "ep0_packet" fault edits their bMaxPacketSize0 (byte 7),
+     * which is also the size of the data packets it sends on endpoint 0 (clamped to the FIFO's 64). */
+    uint8_t dev_normal[18], dev_accessory[18];
+    /* fault: a chip that raises CONDETIRQ this long after each bus reset ends (0: never, the default); and
+     * when the next such event is due */
+    unsigned condet_after_reset_us;
+    uint64_t condet_at;
     uint64_t detach_at, attach_at;
     ring_t to_board, to_app;     /* app -> bulk IN, bulk OUT -> app */
     uint64_t written, served;    /* bytes ever accepted for bulk IN / served on it */
@@ -315,7 +322,7 @@ static void control_setup(max3421e_t *m)
     if (type == 0x80 && req == 6) { /* GET_DESCRIPTOR */
         unsigned dtype = value >> 8, didx = value & 0xFF;
         if (dtype == 1) {
-            src = m->accessory ? DEV_ACCESSORY : DEV_NORMAL;
+            src = m->accessory ? m->dev_accessory : m->dev_normal;
             n = 18;
         } else if (dtype == 2 && didx == 0) {
             src = m->accessory ? m->cfg_accessory : m->cfg_normal;
@@ -454,8 +461,10 @@ static answer_t ep0_in(max3421e_t *m, int handshake)
             a.result = HR_NAK;
             return a;
         }
-        unsigned n = m->ctl_len - m->ctl_pos;
-        a.len = n > MAXPKT ? MAXPKT : n; /* 0 once all is sent: a ZLP ends a transfer of whole packets */
+        unsigned n = m->ctl_len - m->ctl_pos, mps = (m->accessory ? m->dev_accessory : m->dev_normal)[7];
+        if (mps < 1 || mps > MAXPKT)
+            mps = MAXPKT; /* a size no full-speed FIFO holds: what the wire can carry */
+        a.len = n > mps ? mps : n; /* 0 once all is sent: a ZLP ends a transfer of whole packets */
         memcpy(a.data, m->ctl_buf + m->ctl_pos, a.len);
         a.pid = m->ctl_toggle;
     } else if (m->ctl == CTL_STATUS_IN || (m->ctl == CTL_DATA_OUT && m->ctl_pos == m->ctl_len)) {
@@ -813,7 +822,7 @@ static void chip_reset(max3421e_t *m, int keep_spi)
     m->rcv_ptr = 0;
     m->rcvtog = m->sndtog = 0;
     m->bus = 0;
-    m->busrst_end_at = m->xfer_done_at = m->next_frame_at = NONE_US;
+    m->busrst_end_at = m->xfer_done_at = m->next_frame_at = m->condet_at = NONE_US;
     m->in_data = 0;
     m->osc_ok_at = m->now + OSC_START_US;
     /* Without the chip's SOFs the phone suspends; it needs a bus reset before it answers again. */
@@ -962,6 +971,8 @@ max3421e_t *max3421e_new(void)
     m->detach_at = m->attach_at = NONE_US;
     memcpy(m->cfg_normal, CFG_NORMAL, sizeof CFG_NORMAL);
     memcpy(m->cfg_accessory, CFG_ACCESSORY, sizeof CFG_ACCESSORY);
+    memcpy(m->dev_normal, DEV_NORMAL, sizeof DEV_NORMAL);
+    memcpy(m->dev_accessory, DEV_ACCESSORY, sizeof DEV_ACCESSORY);
     chip_reset(m, 0);
     phone_attach(m, 0);
     return m;
@@ -1028,7 +1039,8 @@ void max3421e_reset_pin(max3421e_t *m, int low)
 static uint64_t earliest(const max3421e_t *m)
 {
     uint64_t t = m->osc_ok_at;
-    const uint64_t c[] = {m->busrst_end_at, m->xfer_done_at, m->next_frame_at, m->detach_at, m->attach_at};
+    const uint64_t c[] = {m->busrst_end_at, m->xfer_done_at, m->next_frame_at, m->detach_at, m->attach_at,
+                          m->condet_at};
     for (unsigned k = 0; k < sizeof c / sizeof *c; k++)
         if (c[k] < t)
             t = c[k];
@@ -1051,6 +1063,8 @@ void max3421e_advance(max3421e_t *m, uint64_t now_us)
             m->busrst_end_at = NONE_US;
             m->reg[R_HCTL] &= (uint8_t)~HCTL_BUSRST;
             m->reg[R_HIRQ] |= HIRQ_BUSEVENT;
+            if (m->condet_after_reset_us && host_mode(m))
+                m->condet_at = t + m->condet_after_reset_us;
             if (m->state != DEV_DETACHED) {
                 m->state = DEV_DEFAULT;
                 m->address = 0;
@@ -1067,6 +1081,9 @@ void max3421e_advance(max3421e_t *m, uint64_t now_us)
             phone_detach(m);
             m->attach_at = t + START_ATTACH_US;
             update_frames(m);
+        } else if (t == m->condet_at) {
+            m->condet_at = NONE_US;
+            m->reg[R_HIRQ] |= HIRQ_CONDET;
         } else if (t == m->attach_at) {
             m->attach_at = NONE_US;
             phone_attach(m, m->never_switch != 2); /* never_switch 2: back in its normal mode */
@@ -1140,6 +1157,10 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
         m->lost_acks = (unsigned)value;
     } else if (!strcmp(name, "config_value") && value >= 0 && value <= 255 && value == (int)value) {
         m->cfg_normal[5] = m->cfg_accessory[5] = (uint8_t)value;
+    } else if (!strcmp(name, "ep0_packet") && value >= 0 && value <= 255 && value == (int)value) {
+        m->dev_normal[7] = m->dev_accessory[7] = (uint8_t)value;
+    } else if (!strcmp(name, "condet_after_reset") && value >= 0 && value <= 100000 && value == (int)value) {
+        m->condet_after_reset_us = (unsigned)value;
     } else {
         return -1;
     }

@@ -51,7 +51,13 @@ const char *max3421e_phone_string(const max3421e_t *m, int index); /* identity s
  *            in last_error
  *   "config_value" value 0..255: the bConfigurationValue of the phone's configuration (both modes; 1 by
  *            default); SET_CONFIGURATION takes that value or 0 (0: back to the address state, endpoints
- *            other than 0 unanswered). A value of 0 is absurd: a configuration no host can select */
+ *            other than 0 unanswered). A value of 0 is absurd: a configuration no host can select
+ *   "ep0_packet" value 0..255: the bMaxPacketSize0 of the phone's device descriptor (both modes; 64 by
+ *            default), also the size of its endpoint-0 data packets (clamped to 1..64). Full speed allows
+ *            only 8, 16, 32 and 64: any other value is a descriptor a host must refuse
+ *   "condet_after_reset" value N (us, 0..100000; 0 = off, the default): the chip raises CONDETIRQ N us after
+ *            each bus reset ends, the phone still there (a chip whose reset's own end is seen late as a
+ *            connect event): a driver must not take it for a replug at every reset (a reset loop) */
 int max3421e_fault(max3421e_t *m, const char *name, double value);
 const char *max3421e_last_error(const max3421e_t *m); /* the last protocol violation the board made ("" if none) */
 

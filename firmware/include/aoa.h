@@ -58,6 +58,9 @@ enum {
     AOA_EV_NO_CHIP,   /* the MAX3421E's oscillator never came up (arg: 0) */
     AOA_EV_STALLED,   /* a bulk endpoint STALLed AOA_PIPE_ERRORS times in a row, cleared each time, nothing
                          moving between: refused until unplugged (arg: the endpoint address), after a DOWN */
+    AOA_EV_BAD_DEVICE, /* the host stack refused the device for its device descriptor (USB_REFUSED: short, or
+                          a bMaxPacketSize0 other than 8/16/32/64), until unplugged (arg: bMaxPacketSize0;
+                          0 also when the answer ended before it) */
 };
 
 /* Provided by the link layer: the bytes waiting to go to the phone. */

@@ -318,11 +318,13 @@ void aoa_poll(uint32_t now_us)
         } else if (aoa.state == AOA_WAIT_REENUM && now_us - aoa.since_us >= AOA_REENUM_US) {
             enter(AOA_IDLE, now_us);
         } else if (aoa.state == AOA_IDLE && !aoa.halted_ep &&
-                   (host_state == USB_ERROR || host_state == USB_CHIP_DEAD)) {
-            /* the host stack retries (every USB_RETRY_US) without end; said once, until a device is
-             * configured or another one is plugged in */
+                   (host_state == USB_ERROR || host_state == USB_CHIP_DEAD || host_state == USB_REFUSED)) {
+            /* the host stack retries (every USB_RETRY_US) without end, or has refused the device until it is
+             * unplugged; said once, until a device is configured or another one is plugged in */
             if (host_state == USB_ERROR)
                 usb_link_event(AOA_EV_NO_ENUM, usb_ctl_result_hr()); /* NAK (0x4): timed out on NAKs */
+            else if (host_state == USB_REFUSED)
+                usb_link_event(AOA_EV_BAD_DEVICE, usb_dev.max_packet0);
             else
                 usb_link_event(AOA_EV_NO_CHIP, 0);
             aoa.halted_ep = 1;
@@ -387,15 +389,16 @@ static const char TEXTS[] FLASH = "\0"
                                   "USB phone refused: no accessory mode after START, AOA protocol \0"
                                   "USB device not enumerated, retrying every second; last HRSL 0x\0"
                                   "USB host chip (MAX3421E) not responding, retrying every second\0"
-                                  "USB accessory refused: its bulk endpoint keeps stalling, 0x\0";
+                                  "USB accessory refused: its bulk endpoint keeps stalling, 0x\0"
+                                  "USB device refused: bad device descriptor, bMaxPacketSize0 0x\0";
 
 void aoa_event_text(uint8_t ev, uint16_t arg, char *out, uint8_t n)
 {
     if (!n)
         return;
-    flash_pick(TEXTS, ev <= AOA_EV_STALLED ? ev : 0u, out, n);
+    flash_pick(TEXTS, ev <= AOA_EV_BAD_DEVICE ? ev : 0u, out, n);
     if (ev != AOA_EV_UP && ev != AOA_EV_STARTED && ev != AOA_EV_FAILED && ev != AOA_EV_NO_PIPES &&
-        ev != AOA_EV_NO_SWITCH && ev != AOA_EV_NO_ENUM && ev != AOA_EV_STALLED)
+        ev != AOA_EV_NO_SWITCH && ev != AOA_EV_NO_ENUM && ev != AOA_EV_STALLED && ev != AOA_EV_BAD_DEVICE)
         return;
     uint8_t at = (uint8_t)strlen(out);
     char digits[5];

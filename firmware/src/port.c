@@ -180,7 +180,7 @@ void usb_link_event(uint8_t ev, uint16_t arg)
     aoa_event_text(ev, arg, text, sizeof text);
     uint8_t refused = ev == AOA_EV_NO_AOA || ev == AOA_EV_FAILED || ev == AOA_EV_NO_PIPES ||
                       ev == AOA_EV_NO_SWITCH || ev == AOA_EV_NO_ENUM || ev == AOA_EV_NO_CHIP ||
-                      ev == AOA_EV_STALLED;
+                      ev == AOA_EV_STALLED || ev == AOA_EV_BAD_DEVICE;
     uint8_t severity = refused ? SEVERITY_ERROR : (ev == AOA_EV_DOWN ? SEVERITY_WARNING : SEVERITY_INFO);
     report_log(severity, refused ? LOG_CODE_HANDSHAKE : LOG_CODE_STATE, PSTR("%s"), text);
 }

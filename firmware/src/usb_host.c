@@ -23,6 +23,8 @@ usb_stats_t usb_stats;
 static struct {
     uint8_t state, step, tries, address;
     uint8_t generation; /* wraps: only compared for a change */
+    uint8_t recovery_replug; /* an attach event in a reset recovery was taken for a replug, since the last
+                                detach seen as such or configured device (bus_event) */
     uint32_t since_us; /* when the present state (or enumeration step) began */
 } host;
 
@@ -234,7 +236,7 @@ static void device_sink(const uint8_t *d, uint8_t n)
     for (uint8_t i = 0; i < n; i++, parse.offset++) {
         uint16_t at = parse.offset;
         if (at == 7)
-            usb_dev.max_packet0 = d[i] >= 8u && d[i] <= 64u ? d[i] : 8u;
+            usb_dev.max_packet0 = d[i]; /* as said: device_descriptor_ok() judges it once the read is done */
         else if (at == 8)
             usb_dev.vid = d[i];
         else if (at == 9)
@@ -281,6 +283,17 @@ static void config_sink(const uint8_t *d, uint8_t n)
         }
         parse.pos = 0;
     }
+}
+
+/* The device descriptor read (`asked` bytes of it) is one a host may go on with: all of it came (a device
+ * descriptor is 18 bytes; a shorter answer leaves the VID/PID or the packet size unsaid), and
+ * bMaxPacketSize0 is one full speed allows (USB 2.0 9.6.1: 8, 16, 32 or 64). Any other size would split
+ * every control transfer at a boundary the device does not use - its short-packet ends misread, its OUT
+ * data cut wrong - so the device is refused rather than guessed at. */
+static uint8_t device_descriptor_ok(uint16_t asked)
+{
+    uint8_t mps = usb_dev.max_packet0;
+    return parse.offset >= asked && (mps == 8u || mps == 16u || mps == 32u || mps == 64u);
 }
 
 /* The enumeration, one control transfer per step. */
@@ -378,6 +391,15 @@ static void enumerate(uint32_t now_us)
         enum_failed(now_us);
         return;
     }
+    if ((host.step == STEP_DEV8 || host.step == STEP_DEV18) &&
+        !device_descriptor_ok(host.step == STEP_DEV8 ? 8u : 18u)) {
+        /* no retry: the same device answers the same descriptor; counted, said by the accessory layer */
+        if (parse.offset < 8u)
+            usb_dev.max_packet0 = 0; /* the answer ended before the device said it */
+        usb_stats.refused++;
+        enter(USB_REFUSED, now_us);
+        return;
+    }
     if (host.step == STEP_CONF9 && (parse.total < 9u || !usb_dev.config_value)) {
         /* no usable configuration descriptor: too short, or a bConfigurationValue of 0, which
          * SET_CONFIGURATION takes as "unconfigure" - the device would stay in its address state, its bulk
@@ -387,6 +409,7 @@ static void enumerate(uint32_t now_us)
     }
     if (host.step == STEP_SET_CONFIG) {
         host.tries = 0;
+        host.recovery_replug = 0;
         enter(USB_CONFIGURED, now_us);
         return;
     }
@@ -430,19 +453,28 @@ static void detached(uint32_t now_us)
 /* A connect/disconnect event (CONDETIRQ, seen on INT): the bus's J/K now says attached or not. */
 static void bus_event(uint32_t now_us)
 {
-    max_write(MAX_HIRQ, MAX_CONDETIRQ);
     if (host.state == USB_RESETTING)
-        return; /* the reset itself drives SE0: the bus is judged when the reset ends */
+        return; /* the reset itself drives SE0: the event is left pending and judged when the reset ends */
+    max_write(MAX_HIRQ, MAX_CONDETIRQ);
     max_bus_t bus = max_sample_bus();
     if (bus == MAX_BUS_SE0 || bus == MAX_BUS_SE1) {
+        host.recovery_replug = 0;
         if (host.state != USB_DETACHED)
             detached(now_us);
         return;
     }
     /* Attached now, yet the port saw a change: unplugged and plugged back between two looks, so what is
-     * there is a new device in its default state. Not right after a reset (the recovery interval), where
-     * an event can only be the reset's own end. */
-    if (host.state != USB_DETACHED && host.state != USB_RESET_RECOVERY)
+     * there is a new device, powered but never reset: it answers nothing until a bus reset. In the reset
+     * recovery too - the events of the reset itself (its SE0, its end) were cleared as it ended - or
+     * the enumeration would go on at a device that is not listening (timeouts, then a retry ~0.5 s on).
+     * Once per attach there: a chip raising CONDETIRQ a little after its reset ends (after the driver's
+     * clear) would otherwise be taken for a replug at every reset, debounced and reset again for ever. */
+    if (host.state == USB_RESET_RECOVERY) {
+        if (host.recovery_replug)
+            return; /* taken for the reset's own end */
+        host.recovery_replug = 1;
+    }
+    if (host.state != USB_DETACHED)
         detached(now_us);
     if (host.state == USB_DETACHED || host.state == USB_ERROR) {
         usb_stats.attaches++;
@@ -488,6 +520,9 @@ void usb_host_poll(uint32_t now_us)
         break;
     case USB_RESETTING:
         if (max_bus_reset_done()) {
+            /* what the port did during the reset (the chip's own SE0 and its end among it) is what the bus
+             * shows now; an event from here on is a real attach or detach */
+            max_write(MAX_HIRQ, MAX_CONDETIRQ);
             max_bus_t bus = max_sample_bus();
             if (bus == MAX_BUS_SE0 || bus == MAX_BUS_SE1) {
                 detached(now_us); /* unplugged during the reset */
