@@ -82,6 +82,11 @@ class ListeningSource(PhoneSource):
         # batches of MAX_BATCH, as the receiver would have
         self._waited: deque[SensorSample] = deque()
         self._guard = PhoneGuard()  # the admission policy over what was held before the run (its newest)
+        # readings ever held (those dropped beyond MAX_QUEUE included), and of them: how many up to the
+        # last one the guard accepted, and how many up to the last one of a clock the stream left
+        self._held_total = 0
+        self._accepted_through = 0
+        self._left_clock_through = 0
 
     def drain(self, now: float) -> list[SensorSample]:
         waited = self._waited
@@ -103,7 +108,6 @@ class ListeningSource(PhoneSource):
         Else a :class:`LinkTimeout` saying what was heard (:func:`heard`: readings that came and were all
         refused, with the reasons, are said so) and where to send what is missing."""
         receiver = self.receiver
-        guard = self._guard
         admitted: Counter[str] = Counter()
         refused: dict[str, Counter[str]] = {}
         end = time.monotonic() + wait_s
@@ -114,13 +118,12 @@ class ListeningSource(PhoneSource):
                 batch = receiver.drain()
                 if not batch:
                     break
-                for sample in batch:
+                for sample, refusal in zip(batch, self._hold(batch), strict=True):
                     label = sample.kind.label
-                    if guard.admit(sample) is Verdict.DROP:
-                        refused.setdefault(label, Counter())[guard.last_reason or "?"] += 1
+                    if refusal is not None:
+                        refused.setdefault(label, Counter())[refusal] += 1
                     else:
                         admitted[label] += 1
-                self._keep(batch)
             if all(admitted[kind] for kind in NEEDED):
                 return
             time.sleep(POLL_S)
@@ -138,29 +141,67 @@ class ListeningSource(PhoneSource):
         the run as it started, as if live: a phone whose accelerometer came 3 s after its gyroscope had
         3 s of gyroscope readings taken as the present, their delay shrinking faster than any clock runs
         — two ``phone_jump`` faults of a clock that never jumped, honest readings dropped as ``future``,
-        the warm-up restarted. A stray stamped past the newest is kept: the run's own guard judges it."""
+        the warm-up restarted. So are the readings of a clock the stream left while they were held (the
+        policy re-anchored on a later one: :meth:`_hold`), whatever their stamps: an app restarted during
+        the wait had its old clock's readings — stamped *after* the new clock's, so never "old" — handed to
+        the run first, as the present, then a ``phone_restart`` and honest readings dropped as ``past``;
+        a stray the wait anchored on, 1000 s ahead, reached the estimator as its first reading. A stray
+        stamped past the newest that no clock followed is kept: the run's own guard judges it."""
         receiver = self.receiver
         for _ in range(MAX_QUEUE // MAX_BATCH + 1):  # what came while the board was armed (bounded)
             batch = receiver.drain()
             if not batch:
                 break
-            for sample in batch:
-                self._guard.admit(sample)
-            self._keep(batch)
-        newest = self._guard.newest
+            self._hold(batch)
         waited = self._waited
+        # of a clock the stream left: those held up to its last reading, less those dropped beyond MAX_QUEUE
+        left = max(self._left_clock_through - (self._held_total - len(waited)), 0)
+        if left:
+            stamps = [waited.popleft().t_s for _ in range(left)]
+            receiver.count_held_stale(
+                left,
+                f"of a clock the phone left while they were held (its app restarted, its clock stepped, "
+                f"or a stray taken for it), stamped {min(stamps):.6g} to {max(stamps):.6g} s; its "
+                f"clock is at {self._guard.newest:.6g} s now",
+            )
+        newest = self._guard.newest
         fresh = deque(s for s in waited if not s.t_s < newest - HELD_KEEP_S)
         if len(fresh) < len(waited):
             oldest = min(s.t_s for s in waited)
-            receiver.count_held_stale(len(waited) - len(fresh), newest - oldest)
+            receiver.count_held_stale(
+                len(waited) - len(fresh),
+                f"stamped up to {newest - oldest:.2f} s before the newest, too old to start from",
+            )
             self._waited = fresh
         return None
+
+    def _hold(self, batch: list[SensorSample]) -> list[str | None]:
+        """``batch`` judged by the admission policy of what is held before the run (per reading, in
+        order: why it was refused, or None if admitted) and held for the run (:meth:`_keep`). A
+        re-anchoring verdict (``RESTART``, ``JUMP``, ``STRAY``: the stream's clock moved, or its anchor
+        was a stray) marks every reading held up to the last one the policy accepted before it as of a
+        clock the stream left (dropped at :meth:`start`); the readings after that one, the run that
+        moved the clock among them, are of the new clock."""
+        guard = self._guard
+        refusals: list[str | None] = []
+        for i, sample in enumerate(batch, start=self._held_total + 1):
+            verdict = guard.admit(sample)
+            if verdict is Verdict.DROP:
+                refusals.append(guard.last_reason or "?")
+                continue
+            if verdict is not Verdict.ACCEPT:
+                self._left_clock_through = self._accepted_through
+            self._accepted_through = i
+            refusals.append(None)
+        self._keep(batch)
+        return refusals
 
     def _keep(self, batch: list[SensorSample]) -> None:
         """``batch`` held for the run; beyond :data:`MAX_QUEUE` held the oldest dropped and counted in the
         receiver's ``overflow``, as the receiver itself does (the run wants the present)."""
         waited = self._waited
         waited.extend(batch)
+        self._held_total += len(batch)
         excess = len(waited) - MAX_QUEUE
         if excess > 0:
             for _ in range(excess):

@@ -59,7 +59,7 @@ from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.http_guard import BodyError, GuardedHandler, GuardedHTTPServer, HttpLimits
 from hil.link.sources.push_decoder import DECODE_TIMEOUT_S, Decoded, PushDecoder
 from hil.link.sources.senders import Decision
-from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
+from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, reading_number, split_url
 from protocol.errors import InputFormatError, LinkError
 
 logger = logging.getLogger(__name__)
@@ -275,13 +275,13 @@ def _reading(entry: dict[str, Any]) -> tuple[int | float, tuple[float, float, fl
     try:
         whole = isinstance(t_raw, int) or (isinstance(t_raw, str) and t_raw.isascii() and t_raw.isdigit())
         raw: int | float = int(t_raw) if whole else float(t_raw)
-        xyz = (float(values["x"]), float(values["y"]), float(values["z"]))
         seconds = float(raw) * 1e-9  # finite in any unit iff finite in ns
-    except (KeyError, TypeError, ValueError, OverflowError):  # OverflowError: a 400-digit integer
+    except (TypeError, ValueError, OverflowError):  # OverflowError: a 400-digit integer
         return None
-    if not all(math.isfinite(v) for v in (seconds, *xyz)) or abs(raw) > 1e300:
+    x, y, z = (reading_number(values.get(axis)) for axis in "xyz")  # a bool is none (never true as 1.0)
+    if x is None or y is None or z is None or not math.isfinite(seconds) or abs(raw) > 1e300:
         return None
-    return raw, xyz
+    return raw, (x, y, z)
 
 
 def _total_from_parts(user: list[_Timed], gravity: list[_Timed]) -> list[SensorSample]:

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.senders import Decision
-from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, split_url
+from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, reading_number, split_url
 from protocol.errors import ConfigError, InputFormatError, LinkError
 
 TYPES: dict[str, SensorKind] = {
@@ -81,8 +81,9 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
     raw reading when the event has no finite estimate).
 
     A datagram that is not a JSON object with a string ``type``, or one of our sensors without an integer
-    or numeric ``timestamp`` and three finite ``values``, raises :class:`InputFormatError` naming ``source``
-    — whatever the bytes, nothing else is raised.
+    or numeric ``timestamp`` and three finite numbers in ``values`` (a bool is none:
+    :func:`~.stream.reading_number`), raises :class:`InputFormatError` naming ``source`` — whatever the
+    bytes, nothing else is raised.
     """
     if len(data) > MAX_MESSAGE:
         raise InputFormatError(f"a datagram of {len(data)} bytes is larger than {MAX_MESSAGE}", source)
@@ -103,12 +104,15 @@ def decode_datagram(data: bytes, source: str = "udp") -> SensorSample | None:
         raise InputFormatError(f"{doc['type']}: 'timestamp' must be a number of nanoseconds", source)
     if not isinstance(values, list) or len(values) < 3:
         raise InputFormatError(f"{doc['type']}: 'values' must be a list of 3 numbers", source)
+    x, y, z = (reading_number(v) for v in values[:3])
+    if x is None or y is None or z is None:  # a bool, a list, a NaN: no reading (never true as 1.0)
+        raise InputFormatError(f"{doc['type']}: 'values' must be finite numbers", source)
+    xyz = (x, y, z)
     try:
-        xyz = (float(values[0]), float(values[1]), float(values[2]))
         t = t_ns / 1_000_000_000  # int / int: correctly rounded, so t_s survives a round trip through ns
-    except (TypeError, ValueError, OverflowError):
+    except OverflowError:
         raise InputFormatError(f"{doc['type']}: time and 'values' must be finite numbers", source) from None
-    if not all(math.isfinite(v) for v in (t, *xyz)):
+    if not math.isfinite(t):
         raise InputFormatError(f"{doc['type']}: time and values must be finite", source)
     if not raw:
         return SensorSample(t, kind, xyz)
@@ -124,11 +128,8 @@ def _bias(values: list[object]) -> tuple[float, float, float] | None:
     """An uncalibrated event's bias estimate (``values[3:6]``), or None when it has none that is finite."""
     if len(values) < 6:
         return None
-    try:
-        bias = (float(values[3]), float(values[4]), float(values[5]))  # type: ignore[arg-type]
-    except (TypeError, ValueError, OverflowError):
-        return None
-    return bias if all(math.isfinite(b) for b in bias) else None
+    bx, by, bz = (reading_number(v) for v in values[3:6])
+    return None if bx is None or by is None or bz is None else (bx, by, bz)
 
 
 def encode_datagram(sample: SensorSample) -> bytes:

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from collections import Counter, deque
@@ -54,6 +55,7 @@ from hil.estimation.sensors import SensorSample
 from hil.link.sources.base import SenderEvent, SenderStatus
 from hil.link.sources.senders import SWITCH_AFTER_S, Decision, SenderTable
 from hil.link.throttle import Throttle
+from hil.numbers import finite_number
 from hil.threads import ThreadError
 from protocol.errors import ConfigError, InputFormatError
 
@@ -105,6 +107,20 @@ def parse_json(data: bytes, source: str) -> object:
         return json.loads(data)
     except (ValueError, RecursionError) as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
         raise InputFormatError(f"not JSON ({type(exc).__name__}: {str(exc)[:120]})", source) from None
+
+
+def reading_number(value: object) -> float | None:
+    """One value of a reading as a phone app writes it, as a float: a finite JSON number (the project's one
+    rule, :func:`hil.numbers.finite_number`: never a bool) or a string of one (Sensor Logger writes its
+    exports' numbers as strings); None for anything else. A ``true`` among a datagram's ``values`` or as a
+    push's ``x`` was read as 1.0 — a gyroscope turning at 1 rad/s, used as live."""
+    if isinstance(value, str):
+        try:
+            number = float(value)
+        except ValueError:
+            return None
+        return number if math.isfinite(number) else None
+    return finite_number(value)
 
 
 def split_url(
@@ -172,7 +188,7 @@ class StreamStats:
     other_phone_samples: int = 0  # the readings the host uses in them, dropped
     unrecorded_sender_events: int = 0  # the rule's moments dropped, MAX_SENDER_EVENTS waiting already
     calibrated_lapses: int = 0  # a calibrated type silent CALIBRATED_QUIET_S: its raw type read again
-    held_stale: int = 0  # held before the run started, older than the stale bound at its start: dropped
+    held_stale: int = 0  # held before the run started, dropped: older than the stale bound, or a left clock's
     last_error: str = ""
     per_kind: dict[str, int] = field(default_factory=dict)
 
@@ -255,15 +271,15 @@ class PhoneReceiver:
             self.stats.overflow += n
         self._warn(f"{n} sample(s), oldest first: more than {self._max_queue} held", n)
 
-    def count_held_stale(self, n: int, span_s: float) -> None:
+    def count_held_stale(self, n: int, why: str) -> None:
         """``n`` samples a consumer took off this receiver to hold before its run started, dropped there
-        as too old to start from (:meth:`~.listening.ListeningSource.start`; ``span_s``: how far the held
-        readings reached back, s): counted in ``held_stale`` and logged."""
+        as no present to start from (:meth:`~.listening.ListeningSource.start`; ``why``: what made them
+        so, for the log): counted in ``held_stale`` and logged."""
         with self._lock:
             self.stats.held_stale += n
         logger.warning(
-            "phone %s: dropped %d reading(s) held while the run waited for its phone and armed the board: "
-            "stamped up to %.2f s before the newest, too old to start from", self.scheme, n, span_s,
+            "phone %s: dropped %d reading(s) held while the run waited for its phone and armed the board: %s",
+            self.scheme, n, why,
         )  # fmt: skip
 
     def _attribute(self, sender: Hashable, name: str, usable: int) -> Decision:
