@@ -14,8 +14,9 @@ A bus has no connection to lose: a host is there while its frames arrive, gone a
 link-layer ``errors`` being the transport's reassembly and send failures (:meth:`CanServer.counters` has
 them one by one; other nodes' traffic — ``rx_ignored``, ``rx_wrong_kind``, ``rx_undecodable``,
 ``rx_invalid`` (a message python-can decoded whose fields are not a frame's: a float id from a stray
-datagram), and ``rx_same_node``: a second board at this node id, logged by the transport — is not the
-link's error, and none of it stops the loop: only a bus that fails does, as a ``LinkError``).
+datagram), ``rx_same_node``: a second board at this node id, logged by the transport, and
+``rx_other_sender``: a second host at it, its frames dropped — is not the link's error, and none of it
+stops the loop: only a bus that fails does, as a ``LinkError``).
 
 Thread safety: :meth:`serve` runs in the calling thread, :meth:`start` in a daemon thread; other threads
 touch the board only inside ``with server.lock:``. An error in the serving thread is stored, logged and

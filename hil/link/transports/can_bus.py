@@ -43,7 +43,11 @@ traffic are counted in :meth:`counters`, never delivered (lost frames — ``rx_m
 ``rx_incomplete``, ``rx_spliced`` — also logged, each kind at most once a second); so is, apart
 (``rx_same_node``, logged), a frame in this end's own direction and node id that this end did not send —
 another node configured with the same node id, which the reassembler ignores like the loopback of this
-end's own frames. A host sends towards the board (``Direction.TO_BOARD``) and accepts the board's
+end's own frames. Where the interface says which socket sent a frame (``udp_multicast``: each node
+sends from one of its own), a frame in the peer's direction and node id from a second sender — two boards
+at one node id, seen from the host — is counted (``rx_other_sender``), logged and dropped: this end follows
+the first sender it hears, and the next once that one has been silent for :data:`PEER_HANDOVER_S` (a
+restarted board). A host sends towards the board (``Direction.TO_BOARD``) and accepts the board's
 direction only; the board's side (:mod:`firmware_sim.servers.can_server`) is the same class with
 ``sends=Direction.TO_HOST``.
 
@@ -64,6 +68,8 @@ from __future__ import annotations
 import errno
 import ipaddress
 import logging
+import socket
+import struct
 import threading
 import time
 from collections import deque
@@ -72,7 +78,7 @@ from typing import Any
 
 import can
 from can.interfaces.udp_multicast import UdpMulticastBus
-from can.interfaces.udp_multicast.utils import unpack_message
+from can.interfaces.udp_multicast.utils import pack_message, unpack_message
 
 try:
     import msgpack
@@ -119,6 +125,14 @@ _NO_SUCH_FAMILY = frozenset({errno.EAFNOSUPPORT, errno.EPROTONOSUPPORT})
 kernel loads a protocol's module itself when a socket asks for it, so no second try will find one: the
 host tried again for its whole outage bound and then said only "Address family not supported"."""
 _LOG_EVERY_S = 1.0  # a counted drop is logged at most this often (the log line says how many since)
+PEER_HANDOVER_S = 0.5
+"""Silence (s) after which the sender this end follows in its peer's direction and node id is succeeded by
+the next one heard, where the interface names each frame's sender (``udp_multicast``: each node sends from a
+socket of its own, :class:`_ScreenedUdpMulticastBus`). A board says something far more often (telemetry at
+20 Hz, heartbeats at 5 Hz by default), so a second board at its node id is never followed while it talks; a
+restarted board (a new process, on a new socket) takes longer than this to start, and is followed at its
+first frame. (A board set to say less than twice a second lets a twin in at each of its pauses: counted and
+logged each time the two change places.)"""
 _ECHOES = 4096
 """This end's sent segments remembered until their loopback comes back (udp_multicast hears its own
 datagrams, in the order sent; the virtual interface does not, and the oldest are then forgotten): a frame
@@ -208,11 +222,56 @@ class _ScreenedUdpMulticastBus(UdpMulticastBus):
     Opened through :func:`_open_bus` only, always for both kinds (``_TAKES_BOTH_KINDS``), so python-can's
     dropping of CAN FD frames on a classic bus is not needed here."""
 
+    sender: object = None
+    """The address the message :meth:`recv` returned last was sent from: which node sent it, which CAN
+    itself never says (:meth:`CanTransport._from_other_sender`). None: none yet, or a node of python-can's
+    own ``udp_multicast`` bus (a tool, a test's noisy node), which all send from the group's port and so
+    name no one node."""
+
+    def __init__(self, channel: str, **options: Any) -> None:
+        super().__init__(channel, **options)
+        # python-can sends from the socket it receives on, bound to the group's port: every node on a
+        # machine then sends from one address, and a second board at this node id could not be told from
+        # this one. A socket of its own per node, on an ephemeral port, gives each sender an address.
+        multicast = self._multicast
+        v4 = multicast.ip_version == 4
+        self._tx = socket.socket(socket.AF_INET if v4 else socket.AF_INET6, socket.SOCK_DGRAM)
+        try:
+            level, option = (
+                (socket.IPPROTO_IP, socket.IP_MULTICAST_TTL)
+                if v4
+                else (socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS)
+            )
+            self._tx.setsockopt(level, option, struct.pack("@I", multicast.hop_limit))
+        except OSError as exc:
+            self._tx.close()
+            super().shutdown()
+            raise can.CanInitializationError("could not create or configure socket") from exc
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """python-can's ``send`` (its errors: ``CanTimeoutError``, ``CanOperationError`` from the OSError),
+        from this node's own socket."""
+        data = pack_message(msg)
+        self._tx.settimeout(timeout)
+        try:
+            if self._tx.sendto(data, self._multicast._send_destination) < len(data):
+                raise TimeoutError()
+        except TimeoutError:
+            raise can.CanTimeoutError() from None
+        except OSError as exc:
+            raise can.CanOperationError("failed to send via socket") from exc
+
+    def shutdown(self) -> None:
+        self._tx.close()
+        super().shutdown()
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         received = self._multicast.recv(timeout)
         if not received:
             return None, False
-        datagram, _, timestamp = received
+        datagram, sender, timestamp = received
+        # python-can's own bus sends from the group's port: such a sender may be any of its nodes there
+        self.sender = None if sender[1] == self._multicast.port else sender
         try:
             fields = msgpack.unpackb(datagram, raw=False)  # at most a datagram's size: nothing allocated
             data = fields.get("data") if isinstance(fields, dict) else None
@@ -272,6 +331,10 @@ class CanTransport(Transport):
         # frames towards this end from other node ids (node id -> count; at most NODE_MAX + 1 keys): a peer
         # set up with another ``node`` option is heard only so, and told by heard_instead
         self._other_nodes: dict[int, int] = {}
+        self.other_sender = 0  # frames in the peer's direction and node id from a second sender (dropped)
+        self._source: object = None  # the sender of the message _recv returned last (None: not said)
+        self._peer: object = None  # the sender followed in the peer's direction and node id
+        self._peer_heard_at = 0.0  # when it was last heard (s, the frames' receive clock)
         self._invalid_seen = 0  # the reassembler's ``invalid`` count when this end last looked
         self._losses_seen = (0, 0, 0)  # its malformed, incomplete and spliced counts when last logged
         self._unechoed: deque[tuple[int, bytes]] = deque()  # sent, loopback not yet heard (<= _ECHOES)
@@ -350,6 +413,7 @@ class CanTransport(Transport):
             self._unechoed.clear()
             self._unechoed_count.clear()
         self._reassembler.reset()  # partial frames die with the connection (counted as cut)
+        self._peer = self._source = None  # a reopened bus follows whichever peer it hears first
         if bus is not None:
             try:
                 bus.shutdown()
@@ -361,7 +425,13 @@ class CanTransport(Transport):
         """Reassembly (``rx_*``) and transmit (``tx_*``) counters, for link statistics."""
         rx = {f"rx_{k}": v for k, v in asdict(self._reassembler.stats).items()}
         tx = {f"tx_{k}": v for k, v in asdict(self.tx).items()}
-        return {**rx, "rx_undecodable": self.undecodable, "rx_same_node": self.same_node, **tx}
+        return {
+            **rx,
+            "rx_undecodable": self.undecodable,
+            "rx_same_node": self.same_node,
+            "rx_other_sender": self.other_sender,
+            **tx,
+        }
 
     # ------------------------------------------------------------------ internals
     def _recv(self, timeout: float | None) -> can.Message | None:
@@ -372,7 +442,9 @@ class CanTransport(Transport):
             raise LinkError(f"{self.url}: the CAN bus was closed during a read")
         self._skipped = False
         try:
-            return bus.recv(timeout)
+            msg = bus.recv(timeout)
+            self._source = getattr(bus, "sender", None)
+            return msg
         except (can.CanError, OSError) as exc:
             if _undecodable(exc):
                 self.undecodable += 1
@@ -400,6 +472,8 @@ class CanTransport(Transport):
                 f"a CAN frame as this end (node {self.node}, towards the {peer}) that it did not send: "
                 f"another node uses node id {self.node} — two {twins} on one node?",
             )
+        if self._from_other_sender(fields):
+            return b""
         stats = reassembler.stats
         wrong_kind = stats.wrong_kind
         out = reassembler.feed(*fields)
@@ -499,6 +573,53 @@ class CanTransport(Transport):
                 taken = self._forget_oldest_echo()
                 if taken == key:
                     break
+        return False
+
+    def _from_other_sender(self, fields: Received) -> bool:
+        """A data frame in the peer's direction and node id from another sender than the one this end
+        follows: counted (``rx_other_sender``), logged and dropped. CAN names no sender, so two boards (or
+        two hosts) configured with one node id send the same arbitration ids, and their frames, taken
+        alike, reached the session as one board's: its telemetry interleaved with the twin's, boot ids
+        flipping back and forth as hundreds of "resets" and re-arms, and nothing named the cause. Where the
+        interface says who sent each frame (``udp_multicast``) this end follows the first sender it hears —
+        never merging another's frames — and the next one once that sender has been silent for
+        :data:`PEER_HANDOVER_S` (a restarted board). Elsewhere (``_source`` None) all are taken: the twin
+        then shows as resets, and the twin itself logs ``rx_same_node``."""
+        source = self._source
+        if source is None or fields.is_extended_id:
+            return False
+        try:
+            cid = CanId.parse(fields.arbitration_id)
+        except ProtocolError:
+            return False
+        if cid.node != self.node or cid.direction is not self._receives:
+            return False
+        at = fields.at if fields.at is not None else time.time()  # udp_multicast's receive time, wall clock
+        silence = at - self._peer_heard_at
+        if source == self._peer:
+            self._peer_heard_at = max(at, self._peer_heard_at)
+            return False
+        other = self._peer is not None
+        # abs: a wall clock stepped back must not keep a silent sender followed until it catches up
+        if other and abs(silence) <= PEER_HANDOVER_S:
+            self.other_sender += 1
+            peer = "board" if self.sends is Direction.TO_BOARD else "host"
+            self._log_drop(
+                "other_sender",
+                f"a CAN frame from a second {peer} at node {self.node} ({source}; following {self._peer}): "
+                f"two {peer}s configured with node id {self.node}? Its frames are never merged "
+                "(rx_other_sender)",
+            )
+            return True
+        if other:
+            logger.info(
+                "%s: following a new sender at node %d (%s), the last one silent for %.1f s",
+                self.url,
+                self.node,
+                source,
+                silence,
+            )
+        self._peer, self._peer_heard_at = source, at
         return False
 
     def _remember_echo(self, key: tuple[int, bytes]) -> None:
