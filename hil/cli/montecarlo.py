@@ -39,7 +39,9 @@ each run finishes), traces.bin (decimated error traces), campaign.json, summary.
 Dispersion files: fixtures/dispersions/ (default.toml documents the format).
 
 A Dask worker lost mid-campaign (its process died) is reported on stderr as it happens; Dask reruns its
-chunks elsewhere, and the closing line counts the lost workers.
+chunks elsewhere, and the closing line counts the lost workers. A cluster left with no worker for 60 s
+(all killed, or each unable to load the campaign's task: a Python without vscmg-hil) ends the command,
+status 2, the runs done kept (Dask's distributed.scheduler.no-workers-timeout sets the wait).
 
 exit status:
   0    every run in OUT finished ok (and, with [faults], kept every invariant)

@@ -80,6 +80,15 @@ worker process stopped (SIGSTOP, a debugger, a frozen container) held its chunks
 Dask's default of 5 minutes plus up to 5 more (the scheduler looks once per TTL); now 15 to 30 s. Dask
 never waits less than 10 heartbeats (5 s). A scheduler of your own keeps its own setting
 (``distributed.scheduler.worker-ttl``)."""
+NO_WORKERS_S = 60.0
+"""How long a session waits, in seconds, while the cluster has no worker at all and chunks are left, before
+it ends on a :class:`LinkError` naming the scheduler (its runs left to the next session). A scheduler of
+your own whose workers all died (SIGKILL, their machine gone), or whose workers cannot load the campaign's
+task (an environment without vscmg-hil: the worker's stream breaks on the task's unpickling and the worker
+closes), held the command for ever, the progress bar standing still. Time enough for a nanny's restart
+(a second or two) or a worker started by hand. Dask's own setting for it, in this process's
+configuration, is taken instead when it is set: ``distributed.scheduler.no-workers-timeout``
+(``DASK_DISTRIBUTED__SCHEDULER__NO_WORKERS_TIMEOUT=5m``)."""
 RESULTS_TOPIC = "hil-montecarlo-results"
 """The scheduler event topic the workers send each finished run on. One topic for every campaign (a
 session's events carry its token): the scheduler keeps the last ``distributed.admin.low-level-log-length``
@@ -300,10 +309,14 @@ def check_address(scheduler: str) -> None:
 
 
 def probe_scheduler(scheduler: str, timeout_s: float) -> None:
-    """Connect to ``scheduler`` and complete Dask's handshake within ``timeout_s``, then hang up. Dask's
-    own ``Client(address, timeout=...)`` bounds the connection but not the handshake's answer: a port that
-    accepts and never speaks (a proxy, a firewall, any other server that waits for its client) held the
-    command for ever. A silent peer is a :class:`LinkError` naming the address."""
+    """Connect to ``scheduler`` within ``timeout_s`` and have Dask's handshake answered within ``timeout_s``
+    more, then hang up. Dask's own ``Client(address, timeout=...)`` bounds the connection but not the
+    handshake's answer: a port that accepts and never speaks (a proxy, a firewall, any other server that
+    waits for its client) held the command for ever. A silent peer is a :class:`LinkError` naming the
+    address. The two bounds are one after the other, not one for both: Dask's connect retries a refused
+    port until ``timeout_s`` (its OSError: "cannot reach", from :func:`open_client`), and a bound of
+    ``timeout_s`` on the whole raced it — a closed port (a scheduler not started yet, or gone) was said,
+    one time in four, to have "accepted the connection and said nothing"."""
     import asyncio
 
     from distributed.comm import connect
@@ -312,7 +325,7 @@ def probe_scheduler(scheduler: str, timeout_s: float) -> None:
     args = Security().get_connection_args("client")
 
     async def handshake() -> None:
-        comm = await asyncio.wait_for(connect(scheduler, timeout=timeout_s, **args), timeout_s)
+        comm = await asyncio.wait_for(connect(scheduler, timeout=timeout_s, **args), 2 * timeout_s)
         await comm.close()
 
     try:
@@ -492,6 +505,26 @@ def _its_runs_killed_workers(exc: BaseException) -> bool:
     return isinstance(exc, KilledWorker)
 
 
+def _no_workers_s() -> float:
+    """:data:`NO_WORKERS_S`, or Dask's ``distributed.scheduler.no-workers-timeout`` where this process's
+    configuration sets it (a duration: ``"90s"``, ``"5 minutes"``, seconds as a number); one that is not a
+    positive duration is a :class:`ConfigError` naming the setting."""
+    import dask
+    from dask.utils import parse_timedelta
+
+    key = "distributed.scheduler.no-workers-timeout"
+    value = dask.config.get(key, None)
+    if value is None:
+        return NO_WORKERS_S
+    try:
+        seconds = float(parse_timedelta(value, default="seconds"))
+    except (ValueError, TypeError, KeyError) as exc:
+        raise ConfigError(f"not a duration like 60s: {value!r} ({exc})", key) from None
+    if not (math.isfinite(seconds) and seconds > 0):
+        raise ConfigError(f"must be a positive duration, got {value!r}", key)
+    return seconds
+
+
 def _now() -> tuple[float, float]:
     """When an event arrived: the wall clock (to print) and ``perf_counter`` (the session's clock)."""
     return time.time(), time.perf_counter()
@@ -527,6 +560,12 @@ class _Driver:
         self.chunks: dict[Any, tuple[Any, list[RunParams]]] = {}
         self.lost_by: dict[Any, int] = {}  # future key -> workers it was on when they were lost
         self.allowed_failures = int(dask.config.get("distributed.scheduler.allowed-failures", 3))
+        self.no_workers_s = _no_workers_s()
+        # the cluster's workers by address, from the scheduler's news (a set: an announcement heard twice,
+        # or a worker both listed and announced as it joined, is one worker), and since when (perf_counter)
+        # it has had none, while it has none
+        self.workers_here: set[str] = set()
+        self.no_workers_since: float | None = None
         self.completed = self.failed = self.joined = 0
         self.losses: list[WorkerLoss] = []
         # the first chunk lost for a reason outside its runs: they and the rest are left to the next session
@@ -539,8 +578,10 @@ class _Driver:
         client.subscribe_topic(RESULTS_TOPIC, lambda event: self.events.put(("result", event[1])))
         client.subscribe_topic("all", lambda event: self.events.put(("cluster", (_now(), event[1]))))
         try:
+            self._workers_now(set(client.nthreads()))  # after subscribing: none joins unheard
             self._submit(chunk_indices, workers)
             while self.chunks:
+                self._check_workers()
                 try:
                     kind, item = self.events.get(timeout=self._WAIT_S)
                 except queue.Empty:
@@ -655,8 +696,37 @@ class _Driver:
         action = message.get("action")
         if action == "add-worker":
             self.joined += 1
-        elif action == "remove-worker" and not message.get("expected", False):
-            self._lost(str(message.get("worker")), at, message)
+            self._workers_now(self.workers_here | {str(message.get("worker"))})
+        elif action == "remove-worker":
+            self._workers_now(self.workers_here - {str(message.get("worker"))})
+            if not message.get("expected", False):
+                self._lost(str(message.get("worker")), at, message)
+
+    def _workers_now(self, workers: set[str]) -> None:
+        """The cluster's workers are now ``workers``: the clock of a cluster without any starts as the
+        last leaves (or at once, for a scheduler that has none), and stops as one joins."""
+        self.workers_here = workers
+        if workers:
+            self.no_workers_since = None
+        elif self.no_workers_since is None:
+            self.no_workers_since = time.perf_counter()
+
+    def _check_workers(self) -> None:
+        """End the session on a cluster that has had no worker for :data:`NO_WORKERS_S` while chunks are
+        left: a :class:`LinkError` naming the scheduler, the workers lost and the runs left (not recorded:
+        the same command again runs them). The chunks still out are cancelled by :meth:`run`."""
+        since = self.no_workers_since
+        if since is None or time.perf_counter() - since < self.no_workers_s:
+            return
+        address = getattr(getattr(self.client, "scheduler", None), "address", None) or "the scheduler"
+        not_run = self.campaign.runs - self.skipped - self.completed
+        lost = f" (the last left {since - self.start:.1f} s in; {_count(len(self.losses), 'worker')} lost)"
+        raise LinkError(
+            f"{address}: no worker for {self.no_workers_s:g} s{lost if self.losses else ''}, nothing runs "
+            "the campaign. A worker that cannot load its task (an environment without vscmg-hil, or "
+            "another Python) leaves at once: its log says why. "
+            f"{_count(not_run, 'run')} not run: the same command again runs them"
+        )
 
     def _lost(self, worker: str, at: tuple[float, float], message: Mapping[str, Any]) -> None:
         held = set(message.get("processing-tasks", ())) | set(message.get("lost-computed-tasks", ()))
