@@ -166,6 +166,14 @@ SLOWEST_RATE = 0.5
 """The slowest a board's clock is taken to run against the host's, however slow its samples make it seem."""
 BOARD_LOGS_PER_S = 20
 """The board's ``Log`` frames logged per second of host time; beyond, counted (``board_logs_unlogged``)."""
+TWIN_RETURNS = 6
+"""Boot ids already replaced heard again, within :data:`TWIN_WINDOW_S`, that say two boards answer as one
+(:meth:`Session._twin_check`): twins interleave theirs many times a second; one board's never come back,
+and an emulator restarted with its seed draws its earlier ids again only once per restart (seconds)."""
+TWIN_WINDOW_S = 2.0
+"""Host s within which :data:`TWIN_RETURNS` returns of replaced boot ids are two boards answering as one."""
+TWIN_MEMORY = 8
+"""The boot ids replaced that are remembered for :meth:`Session._twin_check` (the latest)."""
 _SEQ_STEPS = 64
 """The board's last frames whose sequence steps are kept, for a new boot's first step to be taken back: a
 board says its boot id in its first frames (a Heartbeat at boot), well within this."""
@@ -250,6 +258,9 @@ class Session:
         # ~49.7 days): the clock the reset and latency checks go by (None: no sample of this boot yet)
         self._uptime_ms: int | None = None
         self._boot_id: int | None = None  # the board's boot id last heard (nonzero; None: none said yet)
+        self._replaced_boots: deque[int] = deque(maxlen=TWIN_MEMORY)  # boot ids heard, then replaced
+        self._boot_returns: deque[float] = deque(maxlen=TWIN_RETURNS)  # host s: a replaced one came back
+        self.twins_said = False  # two boards answering as one were said (:meth:`_twin_check`)
         # (board uptime s, host time s): the board's current boot had run at least that long by then (its
         # first answer: 0 s; then each sample taken). None after a reset seen: the coming answer sets it.
         self._ran: tuple[float, float] | None = None
@@ -806,11 +817,35 @@ class Session:
 
     def _boot_changed(self, boot_id: int) -> str | None:
         """The evidence of a reset if ``boot_id`` (0: the board does not say) is not the boot id last
-        heard from the board, else None."""
+        heard from the board, else None. Raises :class:`LinkError` when boot ids replaced come back again and
+        again (:func:`_twin_check`): two boards answer as one."""
         known = self._boot_id
         if not boot_id or known is None or boot_id == known:
             return None
+        self._twin_check(known, boot_id)
         return f"its boot id changed from {known:#010x} to {boot_id:#010x}"
+
+    def _twin_check(self, known: int, boot_id: int) -> None:
+        """The boot id ``known`` gives way to ``boot_id``: a :class:`LinkError` when ``boot_id`` is one
+        already replaced, for the :data:`TWIN_RETURNS` th time within :data:`TWIN_WINDOW_S`. A board draws
+        its boot id anew at each boot (the firmware from its count of boots in EEPROM), so one board's ids
+        never come back — two boards on one port or node id (a second board on a CAN bus configured with
+        this one's node id) interleave theirs: each change was taken for a reset, hundreds of them, the
+        board re-armed each time (both boards commanded), until the run ended "lost" with nothing naming
+        the cause. A few returns are allowed (an emulator restarted with its seed draws its ids again)."""
+        now = self._now
+        if boot_id in self._replaced_boots:
+            returns = self._boot_returns
+            returns.append(now)
+            if len(returns) == returns.maxlen and now - returns[0] <= TWIN_WINDOW_S and not self.twins_said:
+                self.twins_said = True  # once: the way out's Disarm (to both) may still be answered
+                raise LinkError(
+                    f"two boards answer as one: boot ids {known:#010x} and {boot_id:#010x} come and go "
+                    f"{len(returns)} times within {now - returns[0]:.2f} s (two boards on one port, or on "
+                    "one CAN bus with one node id?)"
+                )
+        if known not in self._replaced_boots:
+            self._replaced_boots.append(known)
 
     def _younger_than_known(self, uptime_ms: int, hello_at: float) -> str | None:
         """Why the board that answered a reconnect's handshake (its Hello sent at ``hello_at``) cannot be
