@@ -173,7 +173,8 @@ class WorkerLoss:
             return f"{head}, running none of this campaign's chunks"
         line = f"{head} with {_count(self.tasks, 'chunk')} ({_count(self.runs, 'run')}) of this campaign"
         if self.retried:
-            line += f"; Dask reruns {_count(self.retried, 'chunk')} on another worker"
+            # on a worker it has, or the next that joins (none for NO_WORKERS_S: the session ends)
+            line += f"; Dask reruns {_count(self.retried, 'chunk')} on a worker of the cluster"
         if self.given_up:
             line += (
                 f"; Dask gave up on {_count(self.given_up, 'chunk')} (KilledWorker: lost too many workers), "
