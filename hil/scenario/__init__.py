@@ -7,7 +7,9 @@ defaults below. Unknown keys are errors (a typo must not silently become a defau
 the file and the dotted key (:class:`ConfigError` ``where="cubesat-1u.toml: manoeuvre.angle_deg"``).
 Every number has documented bounds (:data:`hil.scenario.reader.RANGES`: e.g. ``plant_step_s`` 10 µs..1 ms,
 ``warmup_s`` 0..600 s, sensor rates 1..1000 Hz), and a run is at most a day of simulated time (warm-up and
-duration) and 10⁸ plant steps. The file is at most 16 MiB, nested at most 32 deep, and holds no integer
+duration) and 10⁸ plant steps. The phone must read within what the host admits of a phone's sensors (its
+field, gravity, and 5 σ of each sensor's bias and noise: :data:`hil.scenario.reader.READING_SIGMAS`).
+The file is at most 16 MiB, nested at most 32 deep, and holds no integer
 beyond a float's range (±1.8e308; :mod:`hil.files.bounded`).
 
 ```toml

@@ -14,8 +14,10 @@ import numpy as np
 from hil import so3
 from hil.control.attitude import ControllerGains
 from hil.control.steering import SteeringParams
+from hil.estimation.admission import ReadingLimits
 from hil.estimation.params import directions_matrix
 from hil.estimation.registry import DEFAULT_ESTIMATOR, EstimatorChoice
+from hil.estimation.sensors import SensorKind
 from hil.numbers import is_finite_number
 from hil.scenario.fault_specs import check_fault_options
 from hil.vscmg import SpacecraftParams
@@ -34,7 +36,12 @@ _GEOMETRY_KEYS: dict[str, frozenset[str]] = {
 }
 """The ``[array]`` keys each geometry takes: any other is refused, naming it (a tetrahedron's ``units = 6``
 and a pyramid's ``gimbal_axes`` were dropped unsaid)."""
+_CUSTOM_AXIS_KEYS = {"UnitParams.gimbal_axis": "array.gimbal_axes", "UnitParams.spin_axis": "array.spin_axes"}
+"""The ``[array]`` key a custom array's unit check names (:func:`hil.vscmg.geometry.custom_array`: ``unit 2:
+UnitParams.gimbal_axis``): the error was ``array.custom: unit 2: UnitParams.gimbal_axis: must have unit
+length``, a key no file has; now ``array.gimbal_axes: unit 2: must have unit length``."""
 _SENSOR_PRESETS = ("nexus5", "ideal")
+_SENSOR_NAMES = {SensorKind.GYR: "gyroscope", SensorKind.ACC: "accelerometer", SensorKind.MAG: "magnetometer"}
 
 # Every key each table accepts (anything else is a typo and an error naming it).
 _KEYS: dict[str, frozenset[str]] = {
@@ -155,6 +162,17 @@ attitudes and the host flies it the short way (:class:`hil.control.attitude.Eige
 rotation between them): a turn of 270 deg about an axis was flown, unsaid, as 90 deg about the opposite
 one (its ``slew_start`` event said 91 deg), and 360 deg as no turn at all."""
 
+READING_SIGMAS = 5.0
+"""How many standard deviations of a sensor's spread (its bias, drawn once per axis, and its noise, per
+sample: ``hypot(bias, noise)``) a scenario's phone must read within the range the host admits
+(:class:`hil.estimation.admission.ReadingLimits`, a phone's: gyroscope 40 rad/s, accelerometer ~16 g,
+magnetometer 5 mT), on top of what it reads at rest (nothing, gravity, the field's magnitude):
+:func:`phone_out_of_range`. At 5 σ an axis strays out about once in 1.7 million readings. Beyond
+that the host drops the readings as ``out_of_range``: a field of 10 mT (``field_enu_uT``'s bounds take
+±1e4 µT an axis) had all 1 600 magnetometer readings of a run refused, the estimator steered without
+heading and the run "completed"; a gyroscope bias of 50 rad/s had every gyroscope reading refused and the
+run ended lost, a phone gap of 15 s — in a campaign, every run."""
+
 RANGES: dict[str, tuple[float, float, str]] = {
     "spacecraft.rotor_offset_m": (-0.1, 0.1, "m"),
     "spacecraft.nominal_rotor_speed": (1.0, 2_000.0, "rad/s"),
@@ -255,6 +273,41 @@ def check_firmware_board(scenario: Scenario) -> None:
             f"emulator takes {BOARD_RANGES['cells'][0]:g}..{BOARD_RANGES['cells'][1]:g})",
             f"{where}: board.cells",
         )
+
+
+def phone_out_of_range(phone: PhoneSpec) -> tuple[str, str] | None:
+    """Where a phone reads beyond what the host admits (:data:`READING_SIGMAS`), or None: at rest, each
+    sensor's axis reads its true value (gyroscope 0 rad/s; accelerometer up to ``gravity`` m/s²,
+    magnetometer up to the field's magnitude µT, on whichever axis the attitude turns them to) plus its
+    bias and noise. The key under ``sensors`` that puts it out — ``field_enu_uT`` (or ``gravity``) when
+    the true value alone does, else ``<kind>.noise`` or ``<kind>.bias``, the larger — and why. One check for
+    a scenario's file and whatever else builds a phone from one (a Monte Carlo draw)."""
+    limits = ReadingLimits()
+    at_rest = {
+        SensorKind.GYR: (0.0, ""),
+        SensorKind.ACC: (phone.gravity, "gravity"),
+        SensorKind.MAG: (float(np.linalg.norm(phone.field_enu_uT)), "field_enu_uT"),
+    }
+    for kind, (true_value, true_key) in at_rest.items():
+        spec = phone.spec(kind)
+        limit = limits.limit(kind)
+        reach = true_value + READING_SIGMAS * math.hypot(spec.bias, spec.noise)
+        if reach <= limit:
+            continue
+        unit, name = kind.unit, _SENSOR_NAMES[kind]
+        if true_value > limit:
+            key, reads = true_key, f"{true_value:g} {unit} at rest"
+        else:
+            key = f"{kind.label}.{'noise' if spec.noise >= spec.bias else 'bias'}"
+            reads = (
+                f"{true_value:g} {unit} at rest and {READING_SIGMAS:g} σ of its bias {spec.bias:g} and noise "
+                f"{spec.noise:g} {unit}, {reach:g} {unit}"
+            )
+        return key, (
+            f"the {name} would read {reads}, beyond the {limit:g} {unit} a phone's {name} measures "
+            "(hil.estimation.admission.ReadingLimits): the host would drop its readings as out of range"
+        )
+    return None
 
 
 class _Reader:
@@ -514,7 +567,13 @@ class _Reader:
                 self.in_range("array", "gimbal_axes", float(element))
             s = self.vector(arr, "array", "spin_axes", g.shape)
             self._three_axis(g)
-            return geometry.custom_array(g, s, template=template)
+            try:
+                return geometry.custom_array(g, s, template=template)
+            except ConfigError as exc:
+                raise self.error(
+                    _CUSTOM_AXIS_KEYS.get(exc.where.rpartition(": ")[2], "array.custom"),
+                    f"{exc.where.partition(': ')[0]}: {exc.detail}",
+                ) from None
         except (ConfigError, ValueError) as exc:
             if isinstance(exc, ConfigError) and exc.where.startswith(self.where):
                 raise
@@ -585,7 +644,22 @@ class _Reader:
                 changes[kind] = replace(base, **values)
             except ConfigError as exc:
                 raise self.error(f"sensors.{kind}", exc.detail) from None
-        return replace(phone, **changes) if changes else phone
+        phone = replace(phone, **changes) if changes else phone
+        self.check_reading_range(phone, sen)
+        return phone
+
+    def check_reading_range(self, phone: PhoneSpec, sen: dict[str, Any]) -> None:
+        """:func:`phone_out_of_range` as the file is read: the error names the field (or gravity) when it
+        alone puts the phone out of range, else the sensor's larger figure of ``noise`` and ``bias`` when
+        the file wrote it (the sensor's table when the preset's figure is the larger)."""
+        found = phone_out_of_range(phone)
+        if found is None:
+            return
+        key, detail = found
+        kind, _, figure = key.partition(".")
+        if figure and not (isinstance(sen.get(kind), dict) and figure in sen[kind]):
+            key = kind
+        raise self.error(f"sensors.{key}", detail)
 
     def controller(self) -> LoopConfig:
         c = self.table("controller")
