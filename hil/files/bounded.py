@@ -33,6 +33,7 @@ import io
 import json
 import os
 import re
+import select
 import stat
 import sys
 import tomllib
@@ -244,6 +245,45 @@ def input_kind(path: str | os.PathLike[str], error: ErrorFactory = ConfigError, 
     raise error(f"{kind}, not a file{name}: give the path of a file", str(path))
 
 
+PIPE_WRITER_WAIT_S = 60.0
+"""s: how long an input that is a pipe is waited on for its first bytes (or its writer's end) before it is
+refused (:func:`open_input`): a named pipe no program writes to held the command in ``open()`` for ever."""
+
+
+def open_input(
+    path: str | os.PathLike[str],
+    error: ErrorFactory = ConfigError,
+    what: str = "",
+    writer_wait_s: float = PIPE_WRITER_WAIT_S,
+) -> IO[bytes]:
+    """``path`` opened for reading in binary. A pipe (a named FIFO, a shell's ``<(…)``, ``/dev/stdin`` fed
+    by one) is opened without waiting for its writer, then waited on for at most ``writer_wait_s`` for its
+    first bytes or its writer's end: one that no program writes to is one ``error`` naming it (``open()``
+    of a FIFO without a writer waited for ever: ``hil run --scenario fifo`` hung until killed). Whatever it
+    is, an OSError is one ``error`` naming it too."""
+    name = f" ({what})" if what else ""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError as exc:
+        raise error(f"no such file{name}", str(path)) from exc
+    except OSError as exc:
+        raise error(f"cannot read{name}: {exc.strerror or exc}", str(path)) from exc
+    try:
+        if stat.S_ISFIFO(os.fstat(fd).st_mode):
+            waiting = select.poll()
+            waiting.register(fd, select.POLLIN)
+            if not waiting.poll(max(0.0, writer_wait_s) * 1000.0):
+                raise error(
+                    f"a pipe no program writes to{name} (waited {writer_wait_s:g} s for its first bytes)",
+                    str(path),
+                )
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def regular_file_if_there(
     path: str | os.PathLike[str], error: ErrorFactory = ConfigError, what: str = "", hint: str = ""
 ) -> None:
@@ -269,10 +309,8 @@ def read_document(
     name = f" {what}" if what else ""
     input_kind(path, error, what)  # a device refused before it is opened: a terminal's read blocks
     try:
-        with open(path, "rb") as f:
+        with open_input(path, error, what) as f:
             data = f.read() if limit is None else f.read(limit + 1)
-    except FileNotFoundError as exc:
-        raise error(f"no such file{name}", str(path)) from exc
     except OSError as exc:
         raise error(f"cannot read{name}: {exc.strerror or exc}", str(path)) from exc
     if limit is not None and len(data) > limit:

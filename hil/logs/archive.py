@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from hil.files.bounded import CHUNK_BYTES, MAX_MEMBER_BYTES, MAX_MEMBERS, LimitedReader
+from hil.files.bounded import CHUNK_BYTES, MAX_MEMBER_BYTES, MAX_MEMBERS, LimitedReader, open_input
 from protocol.errors import InputFormatError
 
 MAX_ARCHIVE_DEPTH = 2
@@ -103,10 +103,7 @@ def spooled_pipe(path: Path, keep: list[object]) -> tuple[IO[bytes], Member]:
     where = str(path)
     spool = tempfile.TemporaryFile()  # noqa: SIM115 — kept open (``keep``) while the log is read
     keep.append(spool)
-    try:
-        source = open(path, "rb")  # noqa: SIM115 — closed with the reader below
-    except OSError as exc:
-        raise InputFormatError(f"cannot read ({exc.strerror or exc})", where) from None
+    source = open_input(path, InputFormatError)  # closed with the reader below; a pipe no one writes refused
     with io.BufferedReader(LimitedReader(source, where, MAX_MEMBER_BYTES)) as f:
         try:
             while piece := f.read(CHUNK_BYTES):
