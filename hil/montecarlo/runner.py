@@ -39,6 +39,7 @@ from hil.runtime.record import RunRecorder
 from hil.scenario import Scenario
 from hil.scenario.config import SlewScenario
 from hil.scenario.phone import PhoneSpec
+from hil.scenario.reader import phone_out_of_range
 from hil.vscmg import SpacecraftParams
 from hil.vscmg.params import inertia_tensor
 from protocol.errors import ConfigError, HilError, RunHung
@@ -157,7 +158,11 @@ def _phone(phone: PhoneSpec, v: Mapping[str, np.ndarray]) -> PhoneSpec:
         fields = {k[len(prefix) :]: float(x[0]) for k, x in v.items() if k.startswith(prefix)}
         if fields:
             changes[kind] = replace(getattr(phone, kind), **fields)
-    return replace(phone, **changes) if changes else phone
+    drawn = replace(phone, **changes) if changes else phone
+    beyond = phone_out_of_range(drawn)  # the scenario file's own check, on the drawn phone
+    if beyond is not None:  # the host would drop its readings: the run is an error saying so, not "lost"
+        raise ConfigError(beyond[1], f"sensors.{beyond[0]}")
+    return drawn
 
 
 def _slew(slew: SlewScenario, run: RunParams) -> SlewScenario:
