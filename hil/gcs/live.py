@@ -208,7 +208,8 @@ class LiveFeed:
                 batch.link.append({"t": t, **stats.as_dict()})
         counters = {
             "feed_dropped_rows": self.stats.dropped_rows,
-            "feed_dropped_events": self.stats.dropped_events,
+            "feed_dropped_events": self.stats.dropped_events,  # the page says each kind it did not get
+            "feed_dropped_link": self.stats.dropped_link,
             "uplink_rejected": 0 if self.uplink is None else self.uplink.stats.rejected,
         }
         ticks, now = self._ticks, time.monotonic()

@@ -153,6 +153,7 @@ class UplinkStats:
     rejected_unlogged: int = 0  # ... beyond REJECTED_LOG between two ticks
     acks: int = 0  # alarm acknowledgements queued
     no_run: int = 0  # commands and acknowledgements refused because the run had not started (409)
+    ended: int = 0  # ... because the run's loop had ended (409): no events.jsonl left to log them in
 
 
 class UplinkRefused(HilError):
@@ -201,6 +202,7 @@ class Uplink:
     def _refusal(self, what: str) -> UplinkRefused | None:
         """Why ``what`` cannot be taken now (no run yet, or the run has ended), or None. Under the lock."""
         if self._closed:
+            self.stats.ended += 1  # counted: the run's events are closed, nothing can log it
             return UplinkClosed(f"the run has ended: no {what} is taken any more")
         if not self._opened:
             self.stats.no_run += 1

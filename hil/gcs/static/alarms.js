@@ -166,16 +166,20 @@ export class AlarmPanel {
     this.canAck = false;
   }
 
-  draw(alarms, t, canAck) {
+  // staleAge (s): how old the newest row is when the feed is stale (the host silent or hung, a followed run
+  // not growing), else 0 — the badge then says the alarm state is as of that row, never green: before, a
+  // hung host's page said "alarms: none active" in green beside its "stale" feed badge.
+  draw(alarms, t, canAck, staleAge = 0) {
     const rows = alarms ? alarms.at(t) : [];
     const key = `${alarms ? alarms.version : -1}/${rows.map((r) => `${r.active ? 1 : 0}${r.acked ? 1 : 0}`).join("")}/${canAck}/${this.sending.size}/${this.errors.size}`;
     const activeCount = rows.filter((r) => r.active).length;
     const unacked = rows.filter((r) => !r.acked).length;
     const worst = rows.filter((r) => r.active).reduce((w, r) => (SEVERITY_RANK[r.o.limit.severity] > SEVERITY_RANK[w] ? r.o.limit.severity : w), "");
     const badge = $("alarm-badge");
-    const text = activeCount ? `${activeCount} active` : rows.length ? "none active" : "none";
+    const stale = staleAge > 0;
+    const text = `${activeCount ? `${activeCount} active` : rows.length ? "none active" : "none"}${stale ? `, as of ${staleAge.toFixed(1)} s ago` : ""}`;
     if (badge.textContent !== `alarms: ${text}`) badge.textContent = `alarms: ${text}`;
-    badge.className = `badge ${worst === "critical" ? "bad" : worst === "warning" ? "stale" : "live"}`;
+    badge.className = `badge ${worst === "critical" ? "bad" : worst === "warning" ? "stale" : stale ? "" : "live"}`;
     $("alarm-count").textContent = `(${activeCount} active, ${unacked} not acknowledged)`;
     if (key === this.key) return;
     this.key = key;

@@ -187,7 +187,12 @@ function showStatus() {
   const parts = [];
   if (runFailedToStart()) parts.push(`the run failed to start: ${s.exit ? shortText(s.exit) : "no word why"}`);
   else if (s.exit) parts.push(`exit: ${shortText(s.exit)}`);  // a summary's: any JSON
+  // what the live feed dropped (the pump starved: hil/gcs/live.py), each kind said — a dropped event (a
+  // failsafe, a command's status, the record that clears an alarm) is missing from the events, the command
+  // history and the alarms; before, only dropped rows were said, and dropped events were not told at all
   if (s.feed_dropped_rows) parts.push(`${s.feed_dropped_rows} rows dropped by the feed`);
+  if (s.feed_dropped_events) parts.push(`${s.feed_dropped_events} events dropped by the feed (missing here, kept in events.jsonl)`);
+  if (s.feed_dropped_link) parts.push(`${s.feed_dropped_link} link figures dropped by the feed`);
   if (s.bad_rows) parts.push(`${s.bad_rows} unreadable rows`);
   if (s.uplink_rejected) parts.push(`${s.uplink_rejected} requests refused`);
   if (s.error) parts.push(`error: ${s.error}`);
@@ -277,7 +282,7 @@ function feedState() {
   if (!state.info) return noRunFeed(heard);
   const live = state.info.mode === "live";
   const following = state.status.state === "following";
-  if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return { text: state.status.state === "finished" ? "finished" : "ended", cls: "ended", age: 0 };
+  if (state.ended || ["ended", "finished", "read"].includes(state.status.state)) return endedFeed();
   // a followed run directory whose writer is gone without a summary (killed, crashed: hil/gcs/rundir.py)
   if (state.status.state === "stopped") return { text: "stopped being written", cls: "stale", age };
   if ((live || following) && state.history) {
@@ -291,6 +296,26 @@ function feedState() {
   }
   if (!state.connected) return { text: state.refused || `reconnecting: nothing for ${heard.toFixed(1)} s`, cls: "bad", age };
   return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
+}
+
+// The feed of a run that has ended (a live run's end, a replay's summary, a directory read once): "ended" or
+// "finished", and — when the summary says the run did not complete (lost, aborted, interrupted, disarmed by
+// the operator, an error, incomplete) — how, in red ("failed": the badge's bad colour). Before, every ending
+// said "ended"/"finished" in the same grey as a run that completed, only the note saying "exit: lost: …".
+function endedFeed() {
+  const text = state.status.state === "finished" ? "finished" : "ended";
+  const exit = state.status.exit;
+  if (exit === undefined || exit === null || exit === "completed") return { text, cls: "ended", age: 0 };
+  return { text: `${text}: ${runOutcome(exit)}`, cls: "ended", failed: true, age: 0 };
+}
+
+// A summary's exit that is not "completed", as its outcome: the reason's head before its detail ("lost",
+// "aborted", "interrupted", "error", "incomplete"; "disarmed by the operator at t=… s" without its time),
+// cut short; any other JSON as its content (shortText).
+function runOutcome(exit) {
+  if (typeof exit !== "string") return shortText(exit).slice(0, 60);
+  const head = exit.startsWith("disarmed by the operator") ? "disarmed by the operator" : exit.split(":")[0];
+  return head.trim().slice(0, 60) || "not completed";
 }
 
 // Whether the newest row is what the run made last, so the feed's age is its age too: a live run's, and a run
@@ -358,7 +383,8 @@ function showFeed() {
   const feed = feedState();
   const feedEl = $("feed");
   if (feedEl.textContent !== feed.text) feedEl.textContent = feed.text;  // unchanged: no relayout
-  if (feedEl.className !== `badge ${feed.cls}`) feedEl.className = `badge ${feed.cls}`;
+  const feedClass = `badge ${feed.cls}${feed.failed ? " bad" : ""}`;  // a run that ended without completing
+  if (feedEl.className !== feedClass) feedEl.className = feedClass;
   document.body.classList.toggle("feed-stale", feed.cls === "stale" || (feed.cls === "bad" && Boolean(state.info)));
   const mode = modeBadge(feed);
   setProp($("mode"), "textContent", mode.text);
@@ -412,7 +438,8 @@ function render(feed) {
   const ended = feed.cls === "ended";
   const atEnd = state.follow || !(state.cursor < store.tLast);
   if (hasRows) drawPanels({ info, store, i, t: state.cursor, feedAge, rowGap, alarmColumns, ended, atEnd, summary: state.status.summary });
-  alarmPanel.draw(state.alarms, alarmAt, uplinkState(feed).on);
+  const alarmsAge = state.follow && (feed.cls === "stale" || feed.cls === "bad") ? feedAge : 0;  // as of the newest row
+  alarmPanel.draw(state.alarms, alarmAt, uplinkState(feed).on, alarmsAge);
   drawAttitude(i, feedAge, rowGap, ended && atEnd);
   drawEvents(store, hasRows ? state.cursor : Infinity);
   drawHistory(store.events, hasRows ? state.cursor : Infinity);

@@ -6,6 +6,7 @@ import { $, shortText } from "./panels.js";
 
 const CONFIRM_MS = 4000;
 const SLEW_AXES = ["roll", "pitch", "yaw"];
+const GCS_ORIGIN = "gcs";  // the origin of the server's command records (hil/gcs/uplink.py, parse_command)
 
 // The number typed in a number field, or null when there is none: an empty field, or text the browser
 // cannot read as a number ("1e", "-", "1e400": its value is then ""), is no angle. Number("") is 0: such a
@@ -110,9 +111,11 @@ export class Uplink {
     li.textContent = `${text} — ${status}`;
   }
 
-  // A "command" event of the run: update that command's line.
+  // A "command" event of the run: update that command's line. Only the ground station's own records
+  // (origin "gcs", whose ids its server gave): every sender numbers its commands from 1, and a fault
+  // campaign's or a script's command 1 once took over the line of this page's command 1, its status too.
   onEvent(e) {
-    if (e.kind !== "command" || e.id === null || e.id === undefined) return;
+    if (e.kind !== "command" || e.origin !== GCS_ORIGIN || e.id === null || e.id === undefined) return;
     this.latest.set(e.id, e);
     const li = this.items.get(e.id);
     if (!li) return;
