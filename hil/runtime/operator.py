@@ -19,6 +19,22 @@ command     what the run does
             the scenario's rate and acceleration limits
 ==========  ==========================================================================================
 
+A ``hold`` or ``slew`` takes effect only while the host steers the board (the slew or the hold phase,
+the board in hand). While the operator has the run suspended (Disarm) or a recovery's warm-up is on, the
+target is taken but its slew starts only when the warm-up ends: the command is ``deferred`` (with why),
+then ``applied`` when its slew starts (``slew_start_s``), or ``superseded`` when a newer target replaced it
+first; a run that ends before leaves it ``deferred``. Before, it was ``applied`` at once, its ``slew_s`` a
+plan that never ran, while the host sent no setpoints. In the slew or the hold phase with the board not in
+hand (no live telemetry, a re-arm pending, the board not armed, the phone not fresh) it is ``refused``:
+the reference would move on with no setpoint going out.
+
+Once an ``abort``'s Disarm is out, every command after it is refused, whichever sender's
+(:attr:`OperatorLog.aborting`: the ground station and a script or a campaign operate one run at once).
+
+A command whose ``id`` its origin already used in this run is ``refused`` (its record's ``id`` null,
+``duplicate_id`` the id): the operator log keys its steps by origin and id, and a script's second command
+1 overwrote the first one's entry — a Disarm shown ``applied``, the slew never in the summary.
+
 Every step is an ``events.jsonl`` record ``{"kind": "command", "origin": ..., "id": n, "command": ...,
 "status": ...}``: ``sent`` (to the board) then ``acked`` / ``nacked`` / ``failed`` (the board protocol's
 answer), or ``applied`` / ``refused`` (host-side), each with details; and each command is in the run's
@@ -28,17 +44,20 @@ status, so a run's record says what an operator did to it and when.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from hil import so3
+from hil.numbers import finite_number
 from hil.runtime.observer import RunAborted
+from hil.runtime.phases import Phase
 from hil.runtime.watch import STATE_CONFIRM_S
 from protocol.errors import HilError
 from protocol.messages import BoardState
 
 if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
     from hil.runtime.host import Host
     from hil.runtime.runlog import EventLog
     from protocol.reliable import Command as BoardCommand
@@ -72,7 +91,8 @@ def unfit(command: OperatorCommand) -> str | None:
     if target is None or len(target) != 3:
         return f"a slew needs its target (roll, pitch, yaw) in degrees, got {target!r}"
     for axis, angle, limit in zip(("roll", "pitch", "yaw"), target, TARGET_RANGE_DEG, strict=True):
-        if not (isinstance(angle, (int, float)) and math.isfinite(angle) and abs(angle) <= limit):
+        number = finite_number(angle)  # never a bool (True was a 1° slew), nor an int past a float's range
+        if number is None or abs(number) > limit:
             return f"slew {axis} must be a number of degrees within ±{limit:g}°, got {angle!r}"
     return None
 
@@ -97,12 +117,31 @@ class _Pending:
     sent_t: float
 
 
+@dataclass
+class _Deferred:
+    """A hold or slew taken while the host does not steer: its target (the host's target array, taken as
+    it was set: another target replaces the object) waits for the warm-up's end."""
+
+    command: OperatorCommand
+    target: NDArray[Any]
+    t: float  # taken at (host s)
+
+
+STEERING = (Phase.SLEW, Phase.HOLD)
+"""The phases in which the host steers the board on its reference: a new target takes effect at once."""
+NOT_IN_HAND = (
+    "the host does not have the board in hand (no live telemetry, a re-arm pending, the board not armed "
+    "or the phone not fresh): a new target would move the reference on with no setpoint going out"
+)
+
+
 class Operator:
     """Carries out :class:`OperatorCommand` s on the control thread (see the module docstring). Not
     thread-safe: call it from the run's control tick only."""
 
     def __init__(self) -> None:
         self._pending: list[_Pending] = []
+        self._deferred: list[_Deferred] = []
         self._abort: _Pending | None = None
 
     @property
@@ -111,9 +150,15 @@ class Operator:
 
     def apply(self, host: Host, t: float, command: OperatorCommand) -> None:
         """Carry out ``command`` at ``t`` (s); its answer, for board commands, is settled by :meth:`service`
-        on a later tick. Raises :class:`RunAborted` when an abort cannot reach the board."""
-        if self._abort is not None:
-            self._log(host, t, command, "refused", reason="the run is being aborted")
+        on a later tick. Raises :class:`RunAborted` when an abort cannot reach the board. A command id its
+        origin already used in the run is refused (:meth:`OperatorLog.refuse_duplicate`)."""
+        if host.operator.used(command):
+            host.operator.refuse_duplicate(t, command)
+            return
+        aborting = host.operator.aborting
+        if aborting is not None:
+            reason = f"the run is being aborted (command {aborting.id} from {sender(aborting.origin)})"
+            self._log(host, t, command, "refused", reason=reason)
             return
         why = unfit(command)
         if why is not None:
@@ -138,9 +183,20 @@ class Operator:
             self._log(host, t, command, "sent", message="Arm" if name == "arm" else "Disarm")
             if name == "abort":
                 self._abort = pending
+                host.operator.aborting = command
             self._pending.append(pending)
             return
-        if name == "hold":
+        self._retarget(host, t, command)
+
+    def _retarget(self, host: Host, t: float, command: OperatorCommand) -> None:
+        """A ``hold`` or ``slew`` at ``t`` (s): applied at once while the host steers the board, deferred
+        to the warm-up's end while the run is suspended or recovering, refused when it cannot take effect
+        (see the module docstring)."""
+        self._settle_deferred(host, t)  # a slew that started since the last tick is applied, not superseded
+        if host.phase in STEERING and not host.in_control:
+            self._log(host, t, command, "refused", reason=NOT_IN_HAND)
+            return
+        if command.name == "hold":
             reason = host.retarget(t, None)
         else:
             assert command.target is not None
@@ -148,6 +204,22 @@ class Operator:
         if reason is not None:
             self._log(host, t, command, "refused", reason=reason)
             return
+        assert host.target is not None
+        if host.phase in STEERING:
+            self._applied(host, t, command)
+            return
+        why = (
+            "the run is suspended by the operator's Disarm: the slew to this target starts after the "
+            "operator's Arm and the warm-up"
+            if host.phase is Phase.SUSPENDED
+            else "a recovery's warm-up is on (the host is not steering): the slew to this target starts "
+            "when it ends"
+        )
+        self._log(host, t, command, "deferred", reason=why, target_euler_deg=command.target)
+        self._deferred.append(_Deferred(command, host.target, t))
+
+    def _applied(self, host: Host, t: float, command: OperatorCommand, **fields: Any) -> None:
+        """``command``'s target is what the host steers to from now on: its record with the slew planned."""
         assert host.slew is not None and host.target is not None
         self._log(
             host,
@@ -157,11 +229,35 @@ class Operator:
             target_r=so3.log(host.target).tolist(),
             slew_s=host.slew.duration_s,
             target_euler_deg=command.target,
+            **fields,
         )
+
+    def _settle_deferred(self, host: Host, t: float) -> None:
+        """Each deferred command at ``t`` (s): ``superseded`` once another target (from any sender)
+        replaced its own, ``applied`` once the host steers to it again (its slew planned at the warm-up's
+        end, ``slew_start_s``)."""
+        still = []
+        for d in self._deferred:
+            if host.target is not d.target:
+                self._log(
+                    host,
+                    t,
+                    d.command,
+                    "superseded",
+                    reason="a newer target replaced it before its slew started",
+                )
+            elif host.phase in STEERING:
+                assert host.slew is not None
+                self._applied(host, t, d.command, slew_start_s=host.slew.start_s, deferred_s=t - d.t)
+            else:
+                still.append(d)
+        self._deferred = still
 
     def service(self, host: Host, t: float) -> None:
         """Settle the commands the board has answered; raises :class:`RunAborted` once an abort's Disarm is
-        answered (or cannot be sent) and the board is seen disarmed."""
+        answered (or cannot be sent) and the board is seen disarmed. Deferred holds and slews are applied
+        once their slew starts (or superseded)."""
+        self._settle_deferred(host, t)
         still = []
         for p in self._pending:
             if p.handle.done:
@@ -236,6 +332,11 @@ class OperatorLog:
     def __init__(self, events: EventLog) -> None:
         self.events = events
         self.entries: list[dict[str, Any]] = []
+        self.aborting: OperatorCommand | None = None
+        """The abort whose Disarm is out, from whichever :class:`Operator` (the run's, shared by all of
+        them): every command after it is refused. Each operator once knew its own abort only: a script's
+        Arm in the same tick as a campaign's abort went out, superseded the abort's Disarm and re-armed the
+        board, and the run's exit said "the Disarm failed; the board's link watchdog fails it safe"."""
 
     def record(self, t: float, command: OperatorCommand, status: str, **fields: Any) -> None:
         """``command``'s step at ``t`` (s): ``status`` (``sent``, ``acked``, ``refused``, ...) and its
@@ -250,12 +351,12 @@ class OperatorLog:
             remote=command.remote,
             **fields,
         )
-        for entry in reversed(self.entries):
-            if entry["id"] == command.id and entry["origin"] == command.origin:
-                entry.update(status=status, status_t=t)
-                if "reason" in fields:
-                    entry["reason"] = fields["reason"]
-                return
+        entry = self._entry(command)
+        if entry is not None:
+            entry.update(status=status, status_t=t)
+            if "reason" in fields:
+                entry["reason"] = fields["reason"]
+            return
         entry = {
             "t": t,
             "id": command.id,
@@ -268,6 +369,50 @@ class OperatorLog:
             entry["target_euler_deg"] = list(command.target)
         if "reason" in fields:
             entry["reason"] = fields["reason"]
+        self.entries.append(entry)
+
+    def _entry(self, command: OperatorCommand) -> dict[str, Any] | None:
+        """The entry of ``command``'s origin and id (a refused duplicate's own entry is never it)."""
+        for entry in reversed(self.entries):
+            if entry["id"] == command.id and entry["origin"] == command.origin and not entry.get("duplicate"):
+                return entry
+        return None
+
+    def used(self, command: OperatorCommand) -> bool:
+        """Whether ``command``'s origin already sent a command of its id in this run."""
+        return self._entry(command) is not None
+
+    def refuse_duplicate(self, t: float, command: OperatorCommand) -> None:
+        """``command`` reuses an id its origin already used: refused at ``t`` (s), in a record and an entry
+        of its own — its ``events.jsonl`` record's ``id`` null (a ground station's page keys a command's
+        steps by origin and id: it would have shown the first command refused), ``duplicate_id`` the id;
+        its entry marked ``duplicate`` — so that the first command's steps and entry stay its own."""
+        first = self._entry(command)
+        assert first is not None
+        reason = f"duplicate id: {command.origin!r} already sent command {command.id} ({first['command']!r})"
+        self.events.write(
+            t,
+            "command",
+            origin=command.origin,
+            id=None,
+            duplicate_id=command.id,
+            command=command.name,
+            status="refused",
+            remote=command.remote,
+            reason=reason,
+        )
+        entry = {
+            "t": t,
+            "id": command.id,
+            "origin": command.origin,
+            "command": command.name,
+            "status": "refused",
+            "status_t": t,
+            "reason": reason,
+            "duplicate": True,
+        }
+        if command.target is not None:
+            entry["target_euler_deg"] = list(command.target)
         self.entries.append(entry)
 
 

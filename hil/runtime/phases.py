@@ -311,7 +311,7 @@ class RunPhases:
         during the first warm-up there is no estimate to start from and the scenario's own slew is still
         to come. During a recovery's warm-up (or while the operator has the run suspended) the target is
         taken and the slew to it starts when the recovery ends (planned anew from the attitude estimated
-        then)."""
+        then: the operator's record says ``deferred`` until then, :mod:`hil.runtime.operator`)."""
         if self.slew_start is None or attitude is None:
             return "the warm-up is not over (the scenario's slew has not started)"
         if R_target is not None:
