@@ -22,6 +22,8 @@ whether Dask retried them) and counted in the report and summary.json. A chunk t
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import itertools
 import logging
 import math
@@ -89,6 +91,23 @@ closes), held the command for ever, the progress bar standing still. Time enough
 (a second or two) or a worker started by hand. Dask's own setting for it, in this process's
 configuration, is taken instead when it is set: ``distributed.scheduler.no-workers-timeout``
 (``DASK_DISTRIBUTED__SCHEDULER__NO_WORKERS_TIMEOUT=5m``)."""
+SCHEDULER_SILENCE_KEY = "distributed.comm.timeouts.connect"
+"""Dask's setting (default 30 s) for how long a scheduler may leave the driver without an answer before
+the session ends on a :class:`LinkError` naming it ("not answering for N s"). A scheduler that stops
+answering without closing its connection — its process stopped (SIGSTOP), its machine frozen, a network
+that drops every packet — held the campaign for ever: Dask's client waits on an open connection without a
+bound, and the progress bar stood still. Long beside a busy scheduler's pause (a garbage collection of a
+few seconds), which ends nothing. ``DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=10s`` sets it."""
+PROBE_EVERY_S = 5.0
+"""How often, in seconds, the driver asks the scheduler who it is (a small request answered at once by any
+scheduler that runs), to learn it has gone silent: at most half :data:`SCHEDULER_SILENCE_KEY`'s time."""
+CLOSE_S = 5.0
+"""How long, in seconds, closing the client of a scheduler of your own is waited for. A healthy close takes
+well under a second; a silent scheduler's waits while what the client still has to send fills the
+connection (29 s measured, a task's 50 MB argument unsent), and Dask's own bound, twice the connection
+timeout, ended in its TimeoutError's traceback in place of the error that ended the session. After this
+the client is abandoned: its event loop's thread is a daemon; the scheduler sees the connection close as
+the process ends."""
 RESULTS_TOPIC = "hil-montecarlo-results"
 """The scheduler event topic the workers send each finished run on. One topic for every campaign (a
 session's events carry its token): the scheduler keeps the last ``distributed.admin.low-level-log-length``
@@ -251,7 +270,7 @@ def open_client(
             yield client
         finally:
             with deferred_signals():  # see below: a second Ctrl-C waits for the close
-                client.close()
+                _close_bounded(client, scheduler)
         return
     n = workers if workers is not None else available_cores()
     if n < 1:
@@ -285,6 +304,16 @@ def open_client(
         # half-closed cluster after the command had said it was interrupted. Held until it is closed.
         with deferred_signals():
             stack.close()
+
+
+def _close_bounded(client: Any, scheduler: str) -> None:
+    """Close ``client`` within :data:`CLOSE_S`; a close that does not end by then (the scheduler silent:
+    stopped, frozen, cut off) is logged and the client abandoned, so that what ended the session — the
+    scheduler's silence said by :class:`_Driver` — is what the user is told, and when it happens."""
+    try:
+        client.close(timeout=CLOSE_S)
+    except (TimeoutError, OSError) as exc:
+        logger.warning("%s: the client's close not answered within %g s, left (%s)", scheduler, CLOSE_S, exc)
 
 
 def check_address(scheduler: str) -> None:
@@ -413,7 +442,7 @@ def run_campaign(
     the runs are summarised again, on 0 workers; a run left to do is then a :class:`ConfigError`."""
     out = Path(out_dir)
     start = time.perf_counter()
-    workers = 0 if client is None else max(1, sum(client.nthreads().values()))
+    workers = 0 if client is None else max(1, sum(_cluster_threads(client).values()))
     started = False  # the session's runs begun: an end before they are all done is said on disk
     try:
         with ResultStore(out, campaign.manifest()) as store:
@@ -510,13 +539,26 @@ def _no_workers_s() -> float:
     """:data:`NO_WORKERS_S`, or Dask's ``distributed.scheduler.no-workers-timeout`` where this process's
     configuration sets it (a duration: ``"90s"``, ``"5 minutes"``, seconds as a number); one that is not a
     positive duration is a :class:`ConfigError` naming the setting."""
+    return _dask_seconds("distributed.scheduler.no-workers-timeout", NO_WORKERS_S)
+
+
+def _scheduler_silence_s() -> float:
+    """How long a silent scheduler is waited for, in seconds: Dask's :data:`SCHEDULER_SILENCE_KEY` (30 s
+    unless this process's configuration says otherwise); a ConfigError naming it if it is no positive
+    duration."""
+    return _dask_seconds(SCHEDULER_SILENCE_KEY, 30.0)
+
+
+def _dask_seconds(key: str, default: float) -> float:
+    """The duration Dask's configuration sets at ``key`` in seconds (``"90s"``, ``"5 minutes"``, seconds
+    as a number), ``default`` where it sets none; one that is not a positive duration is a
+    :class:`ConfigError` naming ``key``."""
     import dask
     from dask.utils import parse_timedelta
 
-    key = "distributed.scheduler.no-workers-timeout"
     value = dask.config.get(key, None)
     if value is None:
-        return NO_WORKERS_S
+        return default
     try:
         seconds = float(parse_timedelta(value, default="seconds"))
     except (ValueError, TypeError, KeyError) as exc:
@@ -524,6 +566,30 @@ def _no_workers_s() -> float:
     if not (math.isfinite(seconds) and seconds > 0):
         raise ConfigError(f"must be a positive duration, got {value!r}", key)
     return seconds
+
+
+def _scheduler_address(client: Any) -> str:
+    """The address of ``client``'s scheduler, for the errors that name it."""
+    return getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler"
+
+
+def _not_answering(client: Any, silence_s: float) -> str:
+    """What an error says of a scheduler that has not answered ``client`` for ``silence_s``."""
+    return (
+        f"{_scheduler_address(client)}: not answering for {silence_s:g} s: the scheduler process stopped, "
+        f"its machine frozen or the network between cut ({SCHEDULER_SILENCE_KEY} sets the wait)"
+    )
+
+
+def _cluster_threads(client: Any) -> dict[str, int]:
+    """The cluster's worker threads by worker address, asked of the scheduler within
+    :data:`SCHEDULER_SILENCE_KEY`'s time: the question has no bound of its own, and a scheduler stopped
+    as the session began held it for ever. A silent one is a :class:`LinkError` naming it."""
+    silence_s = _scheduler_silence_s()
+    try:
+        return dict(client.nthreads(callback_timeout=silence_s))
+    except TimeoutError as exc:
+        raise LinkError(f"{_not_answering(client, silence_s)}; no run started") from exc
 
 
 def _now() -> tuple[float, float]:
@@ -571,6 +637,13 @@ class _Driver:
         self.losses: list[WorkerLoss] = []
         # the first chunk lost for a reason outside its runs: they and the rest are left to the next session
         self.outside_error: BaseException | None = None
+        # the scheduler's silence (:meth:`_check_scheduler`): the question out to it, when (perf_counter) the
+        # oldest question it has not answered was asked (None: it answered the last), when to ask next
+        self.silence_s = _scheduler_silence_s()
+        self.probe_every_s = min(PROBE_EVERY_S, self.silence_s / 2)
+        self.probe: concurrent.futures.Future[Any] | None = None
+        self.unanswered_since: float | None = None
+        self.next_probe_at = time.perf_counter()
 
     def run(self, chunk_indices: Iterator[list[int]], workers: int) -> None:
         """Submit chunks, :data:`IN_FLIGHT_PER_WORKER` per worker at a time (another as each finishes),
@@ -579,10 +652,11 @@ class _Driver:
         client.subscribe_topic(RESULTS_TOPIC, lambda event: self.events.put(("result", event[1])))
         client.subscribe_topic("all", lambda event: self.events.put(("cluster", (_now(), event[1]))))
         try:
-            self._workers_now(set(client.nthreads()))  # after subscribing: none joins unheard
+            self._workers_now(set(_cluster_threads(client)))  # after subscribing: none joins unheard
             self._submit(chunk_indices, workers)
             while self.chunks:
                 self._check_workers()
+                self._check_scheduler()
                 try:
                     kind, item = self.events.get(timeout=self._WAIT_S)
                 except queue.Empty:
@@ -601,6 +675,8 @@ class _Driver:
             client.cancel([future for future, _ in self.chunks.values()])
             raise
         finally:
+            if self.probe is not None:  # a question a silent scheduler never answers: not left waiting
+                self.probe.cancel()
             with suppress(Exception):  # a scheduler gone: nothing to unsubscribe from
                 client.unsubscribe_topic(RESULTS_TOPIC)
                 client.unsubscribe_topic("all")
@@ -614,12 +690,44 @@ class _Driver:
         (the same command again runs them)."""
         exc = self.outside_error
         assert exc is not None
-        not_run = self.campaign.runs - self.skipped - self.completed
-        left = f"{_count(not_run, 'run')} not run: the same command again runs them"
+        left = self._not_run()
         if isinstance(exc, ConfigError):
             raise ConfigError(f"{exc.detail} ({left})", exc.where) from exc
-        address = getattr(getattr(self.client, "scheduler", None), "address", None) or "the scheduler"
+        address = _scheduler_address(self.client)
         raise LinkError(f"{address}: the campaign's work was lost: {describe(exc)} ({left})") from exc
+
+    def _not_run(self) -> str:
+        """What the errors that end a session say of the runs left to the next one."""
+        not_run = self.campaign.runs - self.skipped - self.completed
+        return f"{_count(not_run, 'run')} not run: the same command again runs them"
+
+    def _check_scheduler(self) -> None:
+        """Ask the scheduler who it is every :attr:`probe_every_s`, without waiting for the answer here
+        (the question is one coroutine on the client's event loop), and end the session when a question
+        has gone unanswered for :data:`SCHEDULER_SILENCE_KEY`'s time: a :class:`LinkError` naming the
+        scheduler and the runs left (not recorded: the same command again runs them). Nothing else the
+        driver waits on is bounded — its chunks' completions and results come when the scheduler says so —
+        and a scheduler stopped without closing its connection (SIGSTOP, a frozen VM) held the campaign
+        for ever. A question that fails (the connection refused while the client reconnects) is asked
+        again, its clock running on; an answer, however late, stops it: a busy scheduler ends nothing."""
+        now = time.perf_counter()
+        probe = self.probe
+        if probe is not None and probe.done():
+            self.probe = None
+            if not probe.cancelled() and probe.exception() is None:
+                self.unanswered_since = None
+        if self.unanswered_since is not None and now - self.unanswered_since >= self.silence_s:
+            raise self._silent()
+        if self.probe is None and now >= self.next_probe_at:
+            scheduler = self.client.scheduler
+            self.probe = asyncio.run_coroutine_threadsafe(scheduler.identity(), self.client.loop.asyncio_loop)
+            self.next_probe_at = now + self.probe_every_s
+            if self.unanswered_since is None:
+                self.unanswered_since = now
+
+    def _silent(self) -> LinkError:
+        """The error that ends a session whose scheduler has not answered for :attr:`silence_s`."""
+        return LinkError(f"{_not_answering(self.client, self.silence_s)}. {self._not_run()}")
 
     def _handle(self, kind: str, item: Any, chunk_indices: Iterator[list[int]], workers: int) -> None:
         """One event from the queue: a streamed result, a chunk done (and the next submitted), or the
@@ -676,7 +784,11 @@ class _Driver:
             return
         _, runs = self.chunks.pop(future.key)
         try:
-            results = future.result()
+            # its results come through the scheduler: one gone silent since it said the chunk was done
+            # held this read for ever (a task's own TimeoutError is no concern: stream_chunk raises none)
+            results = future.result(timeout=self.silence_s)
+        except TimeoutError as exc:
+            raise self._silent() from exc
         except Exception as exc:
             if not _its_runs_killed_workers(exc):
                 # Lost for a reason outside its runs — the scheduler gone (the chunk cancelled), a worker
@@ -719,14 +831,12 @@ class _Driver:
         since = self.no_workers_since
         if since is None or time.perf_counter() - since < self.no_workers_s:
             return
-        address = getattr(getattr(self.client, "scheduler", None), "address", None) or "the scheduler"
-        not_run = self.campaign.runs - self.skipped - self.completed
+        address = _scheduler_address(self.client)
         lost = f" (the last left {since - self.start:.1f} s in; {_count(len(self.losses), 'worker')} lost)"
         raise LinkError(
             f"{address}: no worker for {self.no_workers_s:g} s{lost if self.losses else ''}, nothing runs "
             "the campaign. A worker that cannot load its task (an environment without vscmg-hil, or "
-            "another Python) leaves at once: its log says why. "
-            f"{_count(not_run, 'run')} not run: the same command again runs them"
+            f"another Python) leaves at once: its log says why. {self._not_run()}"
         )
 
     def _lost(self, worker: str, at: tuple[float, float], message: Mapping[str, Any]) -> None:
