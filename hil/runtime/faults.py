@@ -10,9 +10,11 @@ handshakes again). A telemetry row that is not live carries no board value at al
 repeated as fresh — and says how old the last telemetry is (``tel_age_ms``) and why (``board_link``).
 
 **Outages.** An outage starts with the first sign that the host no longer commands the board (its
-telemetry goes stale, the link is lost, the board fails safe or resets) and ends when the host is back in
-control: telemetry live, the board armed again through the protocol (a new handshake first, after a loss
-or a reset), the phone fresh. A phone gap (no sample for ``stale_after_s``) is recorded the same way.
+telemetry goes stale, the link is lost, the board fails safe or resets) and ends when the host has the
+board in hand again: telemetry live, the board armed again through the protocol (a new handshake first,
+after a loss or a reset) — whatever the phone. A phone gap (no sample for ``stale_after_s``) is recorded
+the same way, as an episode of its own with its own times: the board's outage does not wait for the
+phone's return (a board back at 1.988 s was said back at 2.948 s, the phone's gap counted as the board's).
 Every fault goes into :attr:`FaultJournal.faults` (bounded: beyond :data:`MAX_FAULTS` records they are
 counted, not kept) with its time and cause; an outage or phone gap longer than ``bound_s`` means the run
 lost the board (or the phone): :meth:`FaultJournal.overdue` says so, and the run ends with a non-zero exit

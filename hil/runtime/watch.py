@@ -291,18 +291,21 @@ class BoardWatch:
         return True
 
     def in_control(self, t: float, view: View, phone_fresh: bool) -> bool:
-        """Whether the host has the board in hand at ``t`` (telemetry live, the board armed — or disarmed by
-        the operator — no re-arm pending, the phone fresh; a board that says ARMED against the operator's
-        Disarm is not in hand); ends the open outage when it does."""
+        """Whether the host is in control at ``t``: the board in hand (telemetry live, the board armed — or
+        disarmed by the operator — no re-arm pending; a board that says ARMED against the operator's Disarm
+        is not in hand) and the phone fresh. The board's open outage ends when the board is in hand,
+        whatever the phone: a phone gap is an episode of its own (:meth:`FaultJournal.phone_back` ends
+        it). It waited for the phone too, and a board live and armed again at 1.988 s was said "back at
+        2.948 s" — the phone's gap counted as the board's, in its outage's end and duration."""
         tel = view.telemetry
-        if tel is None or self._rearm is not None or not phone_fresh or self._armed_unasked:
+        if tel is None or self._rearm is not None or self._armed_unasked:
             return False
         if tel.state is not BoardState.ARMED and not self.operator_disarmed:
             return False
         back = self.journal.board_back(t)
         if back is not None:
             self.events.write(t, "board_back", since=back.start, outage_s=t - back.start, causes=back.causes)
-        return True
+        return phone_fresh
 
     def hold_disarmed(self, t: float, view: View) -> None:
         """While the operator holds the board disarmed: a board whose live telemetry, made
