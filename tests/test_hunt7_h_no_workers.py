@@ -155,8 +155,8 @@ def test_every_worker_killed_at_a_drawn_moment_ends_the_campaign_naming_the_sche
             assert time.monotonic() < deadline
             time.sleep(0.02)
         time.sleep(then_s)
-        if proc.poll() is not None:
-            pytest.skip("the campaign ended before its worker was killed")
+        # at most 3 of the 6 runs on disk and 0.4 s: the rest, a second or more each, are still to run
+        assert proc.poll() is None, "the campaign ended before its worker was killed"
         cluster.kill_worker()
         stdout, stderr = _finish(proc, 90.0)
     finally:
