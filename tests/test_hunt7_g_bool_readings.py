@@ -15,10 +15,11 @@ import json
 import socket
 import time
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hil.link.sources.phone_push import PhonePushServer
+from hil.link.sources.phone_push import PhonePushServer, decode_push
 from hil.link.sources.phone_udp import PhoneUdpReceiver
 
 EPOCH_NS = 1_698_501_144_401_773_000
@@ -101,3 +102,17 @@ def test_a_push_entry_with_a_value_that_is_no_number_is_a_bad_entry_never_read(o
         assert server.stats.bad_entries == 1, server.stats
         samples = server.drain()
         assert len(samples) == 2 and all(s.xyz == (0.5, -0.25, 0.125) for s in samples)
+
+
+@pytest.mark.parametrize("name", ["gyroscope", " Gyroscope", "GYROSCOPE\t", "\ngyroscope "])
+def test_a_push_sensor_name_padded_or_capitalised_is_read_as_the_udp_decoder_reads_a_type(name):
+    """``" gyroscope"`` was counted an ignored sensor, where the UDP decoder strips a type's spaces."""
+    body = json.dumps(
+        {
+            "messageId": 1,
+            "payload": [{"name": name, "time": 2_000_000_000, "values": {"x": 0.1, "y": 0.2, "z": 0.3}}],
+        }
+    ).encode()
+    out = decode_push(body)
+    assert (out.ignored, out.bad) == (0, 0)
+    assert [s.xyz for s in out.samples] == [(0.1, 0.2, 0.3)]

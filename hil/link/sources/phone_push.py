@@ -168,7 +168,7 @@ def decode_push(
         if not isinstance(name, str):
             bad += 1
             continue
-        name = name.lower()
+        name = name.strip().lower()  # as the UDP decoder reads a type: a client may pad or capitalise it
         if name not in NAMES and name not in UNCALIBRATED and name not in ("accelerometer", "gravity"):
             ignored += 1
             continue
