@@ -65,9 +65,18 @@ class UplinkLog:
     """What :meth:`hil.gcs.uplink.Uplink.service` needs of a host to log what came and what was turned
     away, kept as records (no board: nothing is carried out)."""
 
+    phase = None  # no run's phase: a hold or slew is not steered at once
+    in_control = False
+    target = None
+    aborting = None  # the run's operator log's: no abort under way
+
     def __init__(self) -> None:
         self.records: list[dict[str, Any]] = []
         self.events = self
+        self.operator = self  # the run's operator log (its ids and abort), kept here as the records
+
+    def used(self, command: Any) -> bool:
+        return False
 
     def write(self, t: float, kind: str, **fields: Any) -> None:
         self.records.append({"kind": kind, **fields})

@@ -63,8 +63,8 @@ typedef struct {
 
 typedef struct {
     uint16_t attaches, detaches, enum_failures, stalls, naks_ridden, xfer_errors;
-    uint16_t refused; /* devices left unconfigured for their device descriptor (USB_REFUSED) */
     uint8_t last_hr; /* the last failed transaction's HRSL code (MAX_HR_*) */
+    uint8_t refused; /* devices left unconfigured for their device descriptor (USB_REFUSED; held at 255) */
 } usb_stats_t;
 
 extern usb_device_t usb_dev;

@@ -21,10 +21,12 @@ usb_stats_t usb_stats;
 #define CONFIG_MAX_LEN 512u /* the bulk pair is in the first interface: no need to read further */
 
 static struct {
-    uint8_t state, step, tries, address;
+    uint8_t state, step, address;
+    uint8_t tries : 7;
+    uint8_t recovery_replug : 1; /* an attach event in a reset recovery was taken for a replug, since the
+                                    last detach seen as such or configured device (bus_event); a bit of
+                                    tries' byte: RAM leaves the stack its 1 KB */
     uint8_t generation; /* wraps: only compared for a change */
-    uint8_t recovery_replug; /* an attach event in a reset recovery was taken for a replug, since the last
-                                detach seen as such or configured device (bus_event) */
     uint32_t since_us; /* when the present state (or enumeration step) began */
 } host;
 
@@ -396,7 +398,8 @@ static void enumerate(uint32_t now_us)
         /* no retry: the same device answers the same descriptor; counted, said by the accessory layer */
         if (parse.offset < 8u)
             usb_dev.max_packet0 = 0; /* the answer ended before the device said it */
-        usb_stats.refused++;
+        if (usb_stats.refused < 0xFFu)
+            usb_stats.refused++;
         enter(USB_REFUSED, now_us);
         return;
     }
