@@ -12,13 +12,13 @@ from __future__ import annotations
 import os
 import random
 import signal
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from dask_support import dask_env, free_port
 from montecarlo_support import write_quick_scenario
 
 from hil.montecarlo.store import RUNS, read_runs
@@ -29,17 +29,6 @@ RUNS_ASKED = 6
 NO_WORKERS = "3s"  # the driver's wait for a worker; the scheduler's own setting is left at Dask's (none)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _env(**extra: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
-    return {**env, "PYTHONDONTWRITEBYTECODE": "1", **extra}
-
-
 class _Cluster:
     """A real ``dask scheduler`` on the loopback and one ``dask worker`` (with its nanny) started in
     ``worker_env`` (None: no worker); every process in a session of its own, killed as a group."""
@@ -47,13 +36,13 @@ class _Cluster:
     worker: subprocess.Popen[bytes] | None
 
     def __init__(self, tmp: Path, worker_env: dict[str, str] | None) -> None:
-        port = _free_port()
+        port = free_port()
         self.address = f"tcp://127.0.0.1:{port}"
         self.scheduler = subprocess.Popen(
             [DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0"],
             stdout=subprocess.DEVNULL,
             stderr=open(tmp / f"scheduler-{port}.log", "w"),  # noqa: SIM115 - closed with the process
-            env=_env(),
+            env=dask_env(),
             start_new_session=True,
         )
         self.worker = (
@@ -93,7 +82,7 @@ class _Cluster:
 def _montecarlo(scenario: Path, out: Path, *extra: str) -> subprocess.Popen[str]:
     cmd = [sys.executable, "-m", "hil", "montecarlo", str(scenario), "--runs", str(RUNS_ASKED), "--seed", "3",
            "--batch", "1", "--duration", "2", "--out", str(out), "--no-plots", *extra]  # fmt: skip
-    env = _env(DASK_DISTRIBUTED__SCHEDULER__NO_WORKERS_TIMEOUT=NO_WORKERS)
+    env = dask_env(DASK_DISTRIBUTED__SCHEDULER__NO_WORKERS_TIMEOUT=NO_WORKERS)
     return subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
@@ -147,7 +136,7 @@ def test_every_worker_killed_at_a_drawn_moment_ends_the_campaign_naming_the_sche
     after_rows, then_s = rng.randint(0, 3), rng.uniform(0.0, 0.4)  # the moment: rows on disk, then a delay
     scenario = write_quick_scenario(tmp_path)
     out = tmp_path / "mc"
-    cluster = _Cluster(tmp_path, _env())
+    cluster = _Cluster(tmp_path, dask_env())
     proc = _montecarlo(scenario, out, "--scheduler", cluster.address)
     try:
         deadline = time.monotonic() + 120.0
@@ -176,7 +165,7 @@ def test_a_worker_whose_python_lacks_hil_is_an_error_not_a_hang(tmp_path):
     (shadow / "__init__.py").write_text('raise ModuleNotFoundError("No module named \'hil\'", name="hil")\n')
     scenario = write_quick_scenario(tmp_path)
     out = tmp_path / "mc"
-    cluster = _Cluster(tmp_path, _env(PYTHONPATH=str(shadow.parent)))
+    cluster = _Cluster(tmp_path, dask_env(PYTHONPATH=str(shadow.parent)))
     proc = _montecarlo(scenario, out, "--scheduler", cluster.address)
     try:
         stdout, stderr = _finish(proc, 90.0)

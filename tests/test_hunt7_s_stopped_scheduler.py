@@ -14,13 +14,13 @@ import json
 import os
 import random
 import signal
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from dask_support import dask_env, free_port
 from montecarlo_support import write_quick_scenario
 
 from hil.montecarlo.store import RUNS, read_runs
@@ -31,37 +31,26 @@ SILENT_S = 5  # the driver's Dask connect timeout: how long a silent scheduler i
 BOUND_S = 60.0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _env(**extra: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
-    return {**env, "PYTHONDONTWRITEBYTECODE": "1", **extra}
-
-
 class _Cluster:
     """A real ``dask scheduler`` on the loopback and one ``dask worker`` (with its nanny), each in a
     session of its own, killed as a group (continued first: a stopped process group dies of SIGKILL all
     the same, but its children must not be left stopped)."""
 
     def __init__(self, tmp: Path) -> None:
-        port = _free_port()
+        port = free_port()
         self.address = f"tcp://127.0.0.1:{port}"
         self.scheduler = subprocess.Popen(
             [DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--dashboard-address", ":0"],
             stdout=subprocess.DEVNULL,
             stderr=open(tmp / f"scheduler-{port}.log", "w"),  # noqa: SIM115 - closed with the process
-            env=_env(),
+            env=dask_env(),
             start_new_session=True,
         )
         self.worker = subprocess.Popen(
             [DASK, "worker", self.address, "--nthreads", "1", "--no-dashboard"],
             stdout=subprocess.DEVNULL,
             stderr=open(tmp / f"worker-{port}.log", "w"),  # noqa: SIM115
-            env=_env(),
+            env=dask_env(),
             start_new_session=True,
         )
         self._wait_for_worker()
@@ -94,7 +83,7 @@ def _montecarlo(scenario: Path, out: Path, runs: int, address: str) -> subproces
     cmd = [sys.executable, "-m", "hil", "montecarlo", str(scenario), "--runs", str(runs), "--seed", "3",
            "--batch", "1", "--duration", "2", "--out", str(out), "--no-plots",
            "--scheduler", address]  # fmt: skip
-    env = _env(DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=f"{SILENT_S}s")
+    env = dask_env(DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT=f"{SILENT_S}s")
     return subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
 
 
