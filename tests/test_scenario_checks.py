@@ -136,10 +136,13 @@ def test_the_scenario_board_ranges_are_the_boards_own(key):
             return False
         return True
 
-    from hil.scenario.reader import MIN_TELEMETRY_RATE_HZ
+    from hil.scenario.reader import MIN_RUN_SOC, MIN_TELEMETRY_RATE_HZ
 
     for value in (lo, hi, kind(lo - step), kind(hi + step)):
         if key == "telemetry_rate" and value < MIN_TELEMETRY_RATE_HZ:  # the host's stale bound: stricter
+            assert not scenario_takes(value), value
+            continue
+        if key == "soc" and value < MIN_RUN_SOC:  # a pack too flat to fly a run: stricter
             assert not scenario_takes(value), value
             continue
         assert scenario_takes(value) == board_takes(value), value

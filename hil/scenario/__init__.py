@@ -17,7 +17,7 @@ beyond a float's range (±1.8e308; :mod:`hil.files.bounded`).
 name = "cubesat-1u"            # required
 description = "..."
 duration_s = 40.0              # from the start of the slew (warm-up comes first)
-seed = 1                       # sensor noise and biases
+seed = 1                       # sensor noise and biases (0..2⁶³−1)
 
 [spacecraft]
 preset = "cubesat_1u"          # or "air_bearing_testbed"
@@ -70,7 +70,8 @@ max_rate = 0.15                # rad/s
 max_accel = 0.025              # rad/s²
 initial_axis = [0, 0, 1]       # the start attitude (default: identity)
 initial_angle_deg = 0.0
-gimbal_angles_deg = [0, 0, 0, 0]
+gimbal_angles_deg = [0, 0, 0, 0]   # where the rotors spin up (default: zeros, or where a custom array's
+                               # momenta cancel); refused if the spin-up turns the bus faster than max_rate
 settle_deg = 0.5               # the requirement the summary checks
 ```
 """

@@ -132,6 +132,14 @@ FIRMWARE_MAX_CELLS = int(FIRMWARE_BATTERY_FULL_SCALE_V // CELL_FULL_V)
 """The most ``[board] cells`` the firmware board takes: a full pack within its ADC's range (4: 16.8 V). Of
 5 or more it read a full 6-cell pack as 20.46 V (the ADC's top), and a 12-cell pack's cells as 1.7 V each:
 the board shed its load at once."""
+MIN_RUN_SOC = 0.07
+"""The least ``[board] soc`` (state of charge, 0..1) a run may start at: the pack's open-circuit cell voltage
+there (3.54 V on firmware-sim's LiPo curve, ``firmware_sim.board.config.LIPO_OCV_CURVE``) is above the
+board's WARN stage (``PowerThresholds.warn_v_cell``, 3.50 V; tests/test_hunt8_b_flat_pack.py holds them
+so). Below it the board starts the run warning of a flat pack and, under the spin-up's load, limits the
+rotors and sheds them: ``soc = 0`` shed at 0.16 s and the run ended "the slew never started", exit 1;
+``soc = 0.05`` shed its rotors 54 s in. The board itself takes 0..1 (:data:`BOARD_RANGES`): a bench may
+start one flat, a run cannot."""
 DEFAULT_CELLS = 3
 """The board's cells when a scenario's ``[board]`` does not set them (firmware-sim's ``--cells`` default)."""
 MIN_TELEMETRY_RATE_HZ = 2.0 / HOST_STALE_AFTER_S
@@ -145,6 +153,10 @@ MAX_DURATION_S = 86_400.0
 MAX_PLANT_STEPS = 100_000_000
 """The most plant steps a run may take (its warm-up and duration over ``plant_step_s``): a day at 1 ms is
 86.4 million. A lockstep run takes a few hours for that many; more is a run that never ends."""
+MAX_SEED = 2**63 - 1
+"""The largest ``[scenario] seed``: ``hil montecarlo --seed``'s bound (``hil.cli.montecarlo.MAX_SEED``), with
+its wording, since a campaign takes the scenario's seed when ``--seed`` is not given. Unbounded, a file
+took ``seed = 18446744073709551616`` that the command line refuses."""
 MAX_NAME_CHARS = 200
 """The longest ``[scenario] name`` (characters): one line on a terminal, a run directory's label (cut
 further there, :func:`hil.files.output.safe_label`)."""
@@ -310,6 +322,71 @@ def phone_out_of_range(phone: PhoneSpec) -> tuple[str, str] | None:
     return None
 
 
+def spin_up_rate(spacecraft: SpacecraftParams, gimbal_angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The array's momentum (3,) N m s, body frame, with every rotor at the nominal speed and the gimbals
+    still at ``gimbal_angles`` (n,) rad, and the body rate (3,) rad/s it gives a spacecraft that was at
+    rest with its rotors stopped: the system's momentum stays zero through the spin-up, so the bus takes
+    the opposite, ``ω = −J⁻¹ h`` (``J`` the locked inertia about the centre of mass)."""
+    from hil.vscmg.plant_model import PlantModel
+
+    plant = PlantModel(spacecraft)
+    state = plant.state(gimbal_angle=gimbal_angles)
+    momentum = plant.array_momentum(state)[0]
+    return momentum, -np.linalg.solve(plant.locked_inertia(state)[0], momentum)
+
+
+ZERO_MOMENTUM_TOLERANCE = 1e-9
+"""The net rotor momentum, as a fraction of the array's total (n h̄), below which the rotors' momenta
+cancel (rounding; a pyramid's at zero gimbal angles is ~1e-16)."""
+
+
+def _rotor_momenta(spacecraft: SpacecraftParams) -> np.ndarray:
+    """Each rotor's spin momentum at the nominal speed (n,) N m s."""
+    return np.array([u.rotor_spin_inertia for u in spacecraft.units]) * spacecraft.nominal_rotor_speed
+
+
+def spin_up_momentum_cancels(spacecraft: SpacecraftParams, gimbal_angles: np.ndarray) -> bool:
+    """Whether the rotors' spin momenta at the nominal speed cancel (within
+    :data:`ZERO_MOMENTUM_TOLERANCE`) at ``gimbal_angles`` (n,) rad."""
+    from hil.vscmg.geometry import spin_axes_at
+
+    h = _rotor_momenta(spacecraft)
+    net = h @ spin_axes_at(spacecraft.units, gimbal_angles)
+    return bool(np.linalg.norm(net) <= ZERO_MOMENTUM_TOLERANCE * h.sum())
+
+
+ZERO_MOMENTUM_STARTS = 64
+"""How many starts :func:`zero_momentum_gimbal_angles` tries (zero, then drawn angles, the same on every
+machine): from zero alone Gauss-Newton stalls where the net momentum's gradient vanishes (two units on one
+gimbal axis, another across it, cancel at ±60 deg but not on the way from zero)."""
+
+
+def zero_momentum_gimbal_angles(spacecraft: SpacecraftParams, iterations: int = 60) -> np.ndarray | None:
+    """Gimbal angles (n,) rad, each in (−π, π], at which the rotors' spin momenta at the nominal speed
+    cancel (within :data:`ZERO_MOMENTUM_TOLERANCE`), or None when none of :data:`ZERO_MOMENTUM_STARTS`
+    Gauss-Newton searches (steps of least norm) finds any. Of those found, the nearest zero (three units
+    on x, y and z, spinning along y, z and x at zero, cancel at −45 deg each)."""
+    units = spacecraft.units
+    h = _rotor_momenta(spacecraft)
+    g = np.array([u.gimbal_axis for u in units], dtype=float)
+    s0 = np.array([u.spin_axis for u in units], dtype=float)
+    t0 = np.cross(g, s0)
+    starts = np.random.default_rng(0).uniform(-np.pi, np.pi, (ZERO_MOMENTUM_STARTS, len(units)))
+    starts[0] = 0.0
+    found: list[np.ndarray] = []
+    for gamma in starts:
+        for _ in range(iterations):
+            net = h @ (np.cos(gamma)[:, None] * s0 + np.sin(gamma)[:, None] * t0)
+            if np.linalg.norm(net) <= ZERO_MOMENTUM_TOLERANCE * h.sum():
+                found.append(np.angle(np.exp(1j * gamma)))  # wrapped into (−π, π]
+                break
+            across = (np.cos(gamma)[:, None] * t0 - np.sin(gamma)[:, None] * s0) * h[:, None]  # ∂net/∂γᵢ
+            gamma = gamma - np.linalg.lstsq(across.T, net, rcond=None)[0]
+        if found and not found[-1].any():
+            break  # zero itself: none nearer
+    return min(found, key=lambda angles: float(np.linalg.norm(angles))) if found else None
+
+
 class _Reader:
     """Walks the TOML document table by table; every error names ``file: table.key``."""
 
@@ -412,8 +489,8 @@ class _Reader:
             raise self.error("scenario.name", "required: a non-empty string")
         name = self.text(head, "scenario", "name", limit=MAX_NAME_CHARS, one_line=True)
         seed = head.get("seed", 0)
-        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-            raise self.error("scenario.seed", f"must be a non-negative integer, got {seed!r}")
+        if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
+            raise self.error("scenario.seed", f"must be an integer in 0..{MAX_SEED}, got {seed!r}")
         spacecraft = self.spacecraft()
         loop = self.controller()
         duration = self.number(head, "scenario", "duration_s", 40.0)
@@ -430,6 +507,15 @@ class _Reader:
             if not ok or not (math.isfinite(value) and lo <= value <= hi):
                 what = "an integer" if kind is int else "a number"
                 raise self.error(f"board.{key}", f"must be {what} in {lo:g}..{hi:g}, got {value!r}")
+        soc = board.get("soc")
+        if soc is not None and soc < MIN_RUN_SOC:
+            raise self.error(
+                "board.soc",
+                f"a pack at {soc:g} of its charge is below {MIN_RUN_SOC:g}, where its open-circuit voltage "
+                "falls below the board's warning stage: the board would limit and then shed the rotors under "
+                "the spin-up's load (power SHED), and the run could not fly its slew; "
+                f"at least {MIN_RUN_SOC:g}",
+            )
         faults = self.options("faults")
         check_fault_options(faults, 2 * spacecraft.n_units, f"{self.where}: faults")
         frame_rate = float(board.get("frame_rate", 50.0))  # firmware-sim's default
@@ -709,20 +795,57 @@ class _Reader:
 
         R0 = rotation("initial_axis", "initial_angle_deg", 0.0)
         R_turn = rotation("axis", "angle_deg", 90.0)
-        n = spacecraft.n_units
-        gimbals = np.zeros(n)
-        if "gimbal_angles_deg" in m:
-            gimbals = np.radians(self.vector(m, "manoeuvre", "gimbal_angles_deg", (n,)))
+        max_rate = self.number(m, "manoeuvre", "max_rate", 0.15)
         slew = SlewScenario(
             name="slew",
             R0=R0,
             R_target=R0 @ R_turn,  # the axis is in the body frame at the start
             duration_s=duration_s,
-            max_rate=self.number(m, "manoeuvre", "max_rate", 0.15),
+            max_rate=max_rate,
             max_accel=self.number(m, "manoeuvre", "max_accel", 0.025),
-            gimbal_angle0=gimbals,
+            gimbal_angle0=self.start_gimbal_angles(m, spacecraft, max_rate),
         )
         return slew, self.number(m, "manoeuvre", "settle_deg", 0.5)
+
+    def start_gimbal_angles(
+        self, m: dict[str, Any], spacecraft: SpacecraftParams, max_rate: float
+    ) -> np.ndarray:
+        """The gimbal angles (n,) rad the rotors spin up at: ``manoeuvre.gimbal_angles_deg``, else zeros
+        where the rotors' momenta cancel there (a pyramid's, a tetrahedron's), else the zero-momentum
+        angles nearest zero (:func:`zero_momentum_gimbal_angles`). The rotors spin up with the gimbals
+        still, so the momentum they then carry goes into the bus (:func:`spin_up_rate`): angles at which
+        it turns the spacecraft faster than the slew's own ``max_rate`` are refused, naming the key (a
+        pyramid at 90 deg x 4 rolled at 5.6 rad/s, a custom x/y/z array at ~3 rad/s, and the runs
+        "completed" 64-153 deg off); an array whose momenta cancel at no angle, naming
+        ``array.spin_axes``."""
+        n = spacecraft.n_units
+        if "gimbal_angles_deg" in m:
+            gimbals = np.radians(self.vector(m, "manoeuvre", "gimbal_angles_deg", (n,)))
+            key = "manoeuvre.gimbal_angles_deg"
+        else:
+            gimbals = np.zeros(n)
+            if not spin_up_momentum_cancels(spacecraft, gimbals):
+                found = zero_momentum_gimbal_angles(spacecraft)
+                gimbals = np.zeros(n) if found is None else found
+            key = "array.spin_axes"
+        momentum, rate = spin_up_rate(spacecraft, gimbals)
+        speed = float(np.linalg.norm(rate))
+        if speed > max_rate:
+            degrees = ", ".join(f"{math.degrees(g):.4g}" for g in gimbals)
+            advice = (
+                "give gimbal angles at which the rotors' momenta cancel"
+                if key.startswith("manoeuvre")
+                else "no gimbal angles were found at which their momenta cancel: give spin axes that can, or "
+                "manoeuvre.gimbal_angles_deg"
+            )
+            raise self.error(
+                key,
+                f"the rotors spin up at gimbal angles [{degrees}] deg with the gimbals still, carrying a net "
+                f"momentum of {float(np.linalg.norm(momentum)):.3g} N m s, which turns the spacecraft at "
+                f"{speed:.3g} rad/s, beyond the slew's max_rate {max_rate:g} rad/s before it starts "
+                f"(the slew is rest-to-rest); {advice}",
+            )
+        return gimbals
 
     def options(self, name: str) -> dict[str, Any]:
         """A table of firmware-sim options: numbers, strings or lists of them."""
