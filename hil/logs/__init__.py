@@ -39,6 +39,7 @@ def _format_of(container: Container) -> str:
     name = _recognise(container)
     if name is not None:
         _only_one_log(container)
+        _no_json_export_beside(container, name)
         return name
     inside = logs_inside(container.path)
     hint = ""
@@ -135,6 +136,28 @@ def _only_one_log(container: Container) -> None:
         f"logs of different formats in one folder ({listed}): it holds logs: replay one",
         str(container.path),
     )
+
+
+def _no_json_export_beside(container: Container, name: str) -> None:
+    """An InputFormatError when a Sensor Logger JSON export lies beside a log of another format in
+    ``container`` (a recording's CSV files, a phyphox export, and a ``.json`` export in one folder or
+    zip): two logs side by side, as two recordings of one format are (replay one). The JSON export is
+    read by no other reader and reads no other's files, so whichever :data:`READERS` told first was read
+    and the other passed over without a word — another recording's, as like as not. ``--format``
+    chooses one and skips this."""
+    json_name = sensorlogger_json.NAME
+    if name == json_name:
+        others = [n for n, reader in READERS.items() if n != json_name and reader.detect(container)]
+        other = others[0] if others else None
+    else:
+        other = name if sensorlogger_json.detect(container) else None
+    if other is not None:
+        beside = ", ".join(sensorlogger_json.exports(container)[:4])
+        raise InputFormatError(
+            f"a Sensor Logger JSON export ({beside}) beside a {other} log: two logs side by side; replay "
+            f"one (the JSON file itself, or choose with --format {other} or --format {json_name})",
+            str(container.path),
+        )
 
 
 def read_log(path: Path | str, format: str | None = None) -> SensorLog:

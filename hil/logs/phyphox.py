@@ -181,6 +181,8 @@ def read(c: Container) -> SensorLog:
             _, same = one_copy(c, [chosen[f.kind].name, f.name])  # differing bytes: an error naming both
             if same is not None:
                 notes.append(same)
+        elif f.kind is not None and f.group != chosen[f.kind].group:
+            raise _side_by_side(c, f.kind, chosen[f.kind], f)
         elif f.kind is not None:
             notes.append(f"{f.name}: a second {f.kind.label} file, ignored (using {chosen[f.kind].name})")
     linear = [f.name for f in files if f.kind is None]
@@ -223,6 +225,21 @@ def read(c: Container) -> SensorLog:
             c.where(chosen[SensorKind.ACC].name),
         )
     return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
+
+
+def _side_by_side(c: Container, kind: SensorKind, first: _File, second: _File) -> InputFormatError:
+    """Two exports (folders) each holding a ``kind`` file: two experiments, recordings side by side, as
+    Sensor Logger's folders side by side are (:func:`hil.logs.sensorlogger.read`) — refused naming the
+    archive and both, never one read and the other passed over. The first export's accelerometer and
+    gyroscope were read and the second's noted as ignored — or, the second export holding the only
+    magnetometer, its readings joined to the first recording's motion. Single-sensor exports side by
+    side (each a sensor the others lack) are one recording's, joined by their ``meta/time.csv``."""
+    exports = ", ".join(f"{f.group.rstrip('/') or 'the top'} ({f.name})" for f in (first, second))
+    return InputFormatError(
+        f"phyphox exports side by side that each hold a {_HOLDS[kind]} file: {exports}: two experiments' "
+        "recordings; replay one export (unpack an archive first)",
+        str(c.path),
+    )
 
 
 def _stream(c: Container, f: _File, clock: _Clock, notes: list[str]) -> SensorStream:

@@ -32,7 +32,7 @@ from __future__ import annotations
 import csv
 import math
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from functools import partial
@@ -687,11 +687,20 @@ def recording_settings(metadata: str) -> dict[str, str]:
     if len(lines) < 2:
         return {}
     delimiter, _ = sniff_dialect(lines[:2])
-    names = [name.lower() for name in split_header(lines[0], delimiter)]
+    names = split_header(lines[0], delimiter)
     values = next(csv.reader([lines[1]], delimiter=delimiter, skipinitialspace=True), [])
-    return {
-        name: value.strip().strip('"').strip().lower() for name, value in zip(names, values, strict=False)
-    }
+    return settings_of(zip(names, values, strict=False))
+
+
+def settings_of(pairs: Iterable[tuple[str, str]]) -> dict[str, str]:
+    """The recording's settings as {name: value}, both stripped of blanks and quotes and in lower case,
+    the first of a name given twice kept: one rule for ``Metadata.csv``'s header and row
+    (:func:`recording_settings`) and the JSON export's ``Metadata`` record
+    (:mod:`hil.logs.sensorlogger_json`), so that both exports of one recording say the same."""
+    settings: dict[str, str] = {}
+    for name, value in pairs:
+        settings.setdefault(name.strip().lower(), value.strip().strip('"').strip().lower())
+    return settings
 
 
 def _first(files: Mapping[str, str], names: tuple[str, ...]) -> str | None:
@@ -731,8 +740,9 @@ class Export:
     files the app names: ``path`` for messages; ``files`` the app's file names present
     (``Gyroscope.csv``, …, of :data:`_KNOWN`) → where each is read from, for messages; ``table(name)``
     reads one; ``empty(name)`` says whether it holds nothing at all (0 bytes: the app wrote nothing for
-    that sensor); ``metadata`` the text of its ``Metadata.csv`` ("" when there is none: read by
-    :func:`recording_settings`);
+    that sensor); ``settings`` the recording's settings its metadata states (:func:`settings_of`: the
+    CSV export's ``Metadata.csv``, the JSON export's ``Metadata`` record; {} when there is none), with
+    ``files["Metadata.csv"]`` where they were read from;
     ``container`` the files' container, whose sample count (:data:`~hil.logs.table.MAX_LOG_SAMPLES`)
     the tables read add to."""
 
@@ -740,7 +750,7 @@ class Export:
     files: Mapping[str, str]
     table: Callable[[str], Table]
     empty: Callable[[str], bool]
-    metadata: Callable[[], str]
+    settings: Callable[[], Mapping[str, str]]
     container: Container
 
 
@@ -768,7 +778,7 @@ def read(c: Container) -> SensorLog:
         {name: c.where(member) for name, member in files.items()},
         lambda name: _csv_table(c, files[name], FILE_KINDS[name.lower()]),
         lambda name: _holds_nothing(c, files[name]),
-        lambda: c.text(files["Metadata.csv"]) if "Metadata.csv" in files else "",
+        lambda: recording_settings(c.text(files["Metadata.csv"])) if "Metadata.csv" in files else {},
         c,
     )
     notes = ["Sensor Logger export: columns read by name (files are ordered z, y, x)"]
@@ -815,7 +825,7 @@ def _assemble(
         notes.append("no magnetometer samples: 6-axis log, heading not observed (gyroscope only, drifting)")
     elif SensorKind.MAG not in parts:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
-    settings = recording_settings(export.metadata())
+    settings = export.settings()
     parts[SensorKind.ACC] = _accelerometer(export, notes, clocks, settings.get("platform", ""))
     if settings.get("platform", "").startswith("ios") and not _ios_standardised(settings, export, notes):
         # iOS's own frames: its acceleration and gravity point the other way on every axis (flat, screen

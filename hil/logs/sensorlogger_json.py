@@ -16,7 +16,10 @@ columns (``time`` Unix epoch in ns, ``seconds_elapsed``, ``z``, ``y``, ``x``). A
 into the table its CSV file would be and read as the CSV export is (:func:`hil.logs.sensorlogger.assemble`:
 the same files chosen, units, clock), so the JSON and the CSV export of one recording give the same
 samples. Numbers written as JSON numbers rather than strings (a file re-saved by a script) are read as
-well. Records of the other sensors (location, battery, …) are passed over.
+well. The ``Metadata`` record (``{"sensor": "Metadata", "platform": "ios", "standardisation": "false",
+"appVersion": …}``) is read as the CSV export's ``Metadata.csv`` is (:func:`_settings`): an iOS
+recording's frames are told by it alike. Records of the other sensors (location, battery, …) are passed
+over.
 
 Only the keys the CSV reader would parse are read (:func:`hil.logs.sensorlogger.sensor_columns`, told
 from the sensor's first record: its clocks and its x, y, z, found by name as in a CSV header,
@@ -67,6 +70,7 @@ from hil.logs.sensorlogger import (
     clock_of,
     iso_time_ns,
     sensor_columns,
+    settings_of,
 )
 from hil.logs.table import Container, Header, Table
 from protocol.errors import InputFormatError
@@ -103,7 +107,8 @@ def _json_members(c: Container) -> list[str]:
 def _is_export(c: Container, member: str) -> bool:
     """Whether the member is the export: an array whose first record has a ``sensor`` and a clock key
     (told from its first bytes; when they do not hold both keys — a first record with a long key the
-    reader never uses before its clock — from its first record, read as :func:`read` reads it)."""
+    reader never uses before its clock, a ``Metadata`` record of many lines first — from its first
+    record that is no ``Metadata`` record, read as :func:`read` reads it)."""
     head = " ".join(c.head(member, 40)).lstrip()
     if not head.startswith("["):
         return False
@@ -111,7 +116,10 @@ def _is_export(c: Container, member: str) -> bool:
         return True
     pieces = c.chunks(member, MAX_JSON_BYTES)
     try:
-        _, _, record = next(_records(_Reader(pieces, c.where(member))))
+        records = _records(_Reader(pieces, c.where(member)))
+        record = next(records)[2]
+        if _is_metadata(record):
+            record = next(records)[2]  # the app writes one: the record after it is a sensor's
     except (InputFormatError, StopIteration):
         return False
     finally:
@@ -119,8 +127,20 @@ def _is_export(c: Container, member: str) -> bool:
     return "sensor" in record and any(clock_of(key) is not None for key in record)
 
 
+def _is_metadata(record: dict[str, object]) -> bool:
+    """Whether ``record`` is the export's ``Metadata`` record (its ``sensor`` matched as a sensor's is:
+    ignoring letter case, spaces and underscores)."""
+    sensor = record.get("sensor")
+    return isinstance(sensor, str) and re.sub(r"[^a-z0-9]", "", sensor.lower()) == "metadata"
+
+
 def detect(c: Container) -> bool:
     return any(_is_export(c, n) for n in _json_members(c)[:20])
+
+
+def exports(c: Container) -> list[str]:
+    """The members of ``c`` that are Sensor Logger JSON exports (:func:`_is_export`)."""
+    return [n for n in _json_members(c) if _is_export(c, n)]
 
 
 @dataclass
@@ -196,25 +216,30 @@ def _new_clocks(sensor: _Sensor, record: dict[str, object]) -> None:
 
 
 def read(c: Container) -> SensorLog:
-    exports = [n for n in _json_members(c) if _is_export(c, n)]
-    if not exports:
+    found = exports(c)
+    if not found:
         raise InputFormatError("no Sensor Logger JSON export (an array of records) here", str(c.path))
-    if len(exports) > 1:
+    if len(found) > 1:
         raise InputFormatError(
-            f"{len(exports)} Sensor Logger JSON exports ({', '.join(exports[:4])}): recordings side by "
+            f"{len(found)} Sensor Logger JSON exports ({', '.join(found[:4])}): recordings side by "
             "side; replay one",
             str(c.path),
         )
-    member = exports[0]
+    member = found[0]
     where = c.where(member)
-    sensors, ignored, cut_short = _read_records(c, member, where)
+    sensors, ignored, cut_short, metadata = _read_records(c, member, where)
     tables = {name: _table(sensor, where) for name, sensor in sensors.items() if sensor.problem is None}
+    files = {name: f"{where} (sensor {name.removesuffix('.csv')})" for name in sensors}
+    settings: dict[str, str] = {}
+    if metadata is not None:
+        files["Metadata.csv"] = f"{where}:{metadata.line} (record {metadata.index}, sensor Metadata)"
+        settings = _settings(metadata, where)
     export = Export(
         str(c.path),
-        {name: f"{where} (sensor {name.removesuffix('.csv')})" for name in sensors},
+        files,
         lambda name: _needed(sensors[name], tables.get(name)),
         lambda name: False,  # a sensor without records is not in the file at all
-        lambda: "",
+        lambda: settings,
         c,
     )
     notes = [f"Sensor Logger JSON export: {member}, records read by key (x, y, z by name)"]
@@ -226,19 +251,76 @@ def read(c: Container) -> SensorLog:
     return assemble(export, NAME, notes)
 
 
-def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sensor], set[str], str | None]:
+@dataclass(frozen=True)
+class _Metadata:
+    """The export's ``Metadata`` record (the CSV export's ``Metadata.csv``: ``platform``,
+    ``standardisation``, ``appVersion``, …), where it was read."""
+
+    record: dict[str, object]
+    line: int
+    index: int
+
+
+_SETTINGS_READ = ("platform", "standardisation", "appversion")
+"""The metadata keys the reader decides by (lower case): the platform and its frames
+(:func:`hil.logs.sensorlogger.assemble`)."""
+
+
+def _settings(metadata: _Metadata, where: str) -> dict[str, str]:
+    """The ``Metadata`` record's settings as the CSV export's ``Metadata.csv`` gives them
+    (:func:`hil.logs.sensorlogger.settings_of`): each value a string, a number or a boolean (``true``:
+    a script's re-save) as its text, a ``null`` empty. A nested value in a key decided by
+    (:data:`_SETTINGS_READ`) is an InputFormatError naming the record and the key; in any other it is
+    never read."""
+    pairs = []
+    for key, value in metadata.record.items():
+        if value is None:
+            value = ""
+        if isinstance(value, bool):
+            value = str(value).lower()
+        if not isinstance(value, str | int | float):
+            if key.strip().lower() in _SETTINGS_READ:
+                raise InputFormatError(
+                    f"record {metadata.index} (Metadata): a {type(value).__name__} where the setting's "
+                    "text is expected",
+                    where,
+                    metadata.line,
+                    key,
+                )
+            continue
+        pairs.append((key, str(value)))
+    return settings_of(pairs)
+
+
+def _read_records(
+    c: Container, member: str, where: str
+) -> tuple[dict[str, _Sensor], set[str], str | None, _Metadata | None]:
     """The records of the sensors the log uses (:data:`_SENSOR_FILES`), by the CSV file name they
     belong to; every other record is checked and passed over (the first :data:`MAX_NAMED` of their
-    sensors' names are returned, for the notes); and what was dropped of a file cut short (None: it was
-    not), logged."""
+    sensors' names are returned, for the notes); what was dropped of a file cut short (None: it was
+    not), logged; and the ``Metadata`` record (None: there is none). A second ``Metadata`` record that
+    says otherwise than the first is an InputFormatError naming both: which platform and frames the
+    recording has cannot be told (read as the first, an iOS recording's axes could come out negated)."""
     sensors: dict[str, _Sensor] = {}
     ignored: set[str] = set()
+    metadata: _Metadata | None = None
     pending = 0
     reader = _Reader(c.chunks(member, MAX_JSON_BYTES), where)
     for line, index, record in _records(reader):
         sensor = record.get("sensor")
         if not isinstance(sensor, str):
             raise InputFormatError(f"record {index} has no 'sensor' name", where, line, "sensor")
+        if _is_metadata(record):
+            if metadata is None:
+                metadata = _Metadata(record, line, index)
+            elif dict(metadata.record) != dict(record):
+                raise InputFormatError(
+                    f"record {index} is a second Metadata record, unlike record {metadata.index} (line "
+                    f"{metadata.line}): the recording's platform and frames cannot be told",
+                    where,
+                    line,
+                )
+            continue
         name = _SENSOR_FILES.get(re.sub(r"[^a-z0-9]", "", sensor.lower()))
         if name is None:
             if len(ignored) < MAX_NAMED:
@@ -258,7 +340,7 @@ def _read_records(c: Container, member: str, where: str) -> tuple[dict[str, _Sen
     c.count_samples(pending, where, None)
     if reader.cut_short is not None:
         logger.warning("%s", reader.cut_short)
-    return sensors, ignored, reader.cut_short
+    return sensors, ignored, reader.cut_short, metadata
 
 
 def _append(sensor: _Sensor, record: dict[str, object], index: int, line: int, where: str) -> None:
