@@ -8,9 +8,10 @@ What is checked, each call:
 =========================  ========================================================================
 call                       checked
 =========================  ========================================================================
-``drain(now)``             a list (or tuple) of :class:`~hil.estimation.sensors.SensorSample`, each
-                           with a time stamp that is a real number, a ``SensorKind``, and three real
-                           numbers; passed on as floats (an ``int`` stamp, a numpy row of ``xyz``)
+``drain(now)``             a list (or tuple) of at most :data:`MAX_DRAIN`
+                           :class:`~hil.estimation.sensors.SensorSample`, each with a time stamp that
+                           is a real number, a ``SensorKind``, and three real numbers; passed on as
+                           floats (an ``int`` stamp, a numpy row of ``xyz``)
 ``truth(now)``             None or a :class:`~.base.GroundTruth` (or an object with ``R`` and
                            ``omega``): ``R`` a finite rotation (3, 3), ``omega`` a finite (3,) within
                            the estimates' bound (:data:`~hil.estimation.checked.RATE_LIMIT`)
@@ -55,6 +56,7 @@ import numpy as np
 from hil.estimation.checked import RATE_LIMIT, STEP_WAIT_FLOOR_S, rotation_fault
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.base import GroundTruth, PhoneSource, SenderEvent, SenderStatus
+from hil.link.sources.stream import MAX_QUEUE
 from hil.numbers import finite_number
 from hil.plugin_worker import PluginWorker
 from hil.plugins import PluginError, call_plugin, describe_value, json_plain
@@ -83,6 +85,13 @@ MAX_RATE_HZ = RANGES["sensors.*.rate_hz"][1]
 """The fastest ``rate_hz`` a source may give (Hz): a scenario's fastest phone sensor. 1e300 Hz ended the run
 on the scheduler's "task 'estimator': period must be at least 1 ns", naming no plugin; 1e6 Hz drained it a
 million times a simulated second."""
+
+MAX_DRAIN = 16 * MAX_QUEUE
+"""Samples one ``drain`` may hand over (65 536: 20 s of three sensors at 1 kHz, sixteen times what a live
+receiver holds at most, :data:`~.stream.MAX_QUEUE`): a source holds the rest of a burst for the next call
+(:meth:`~.base.PhoneSource.drain`'s bounded batch). A drain of millions was checked sample by sample,
+copied, sorted and fed on the control thread — memory and a stalled control loop without bound, one
+drain after another; now it is the source's :class:`~hil.plugins.PluginError`, read by its length alone."""
 
 _COUNTS = ("phone_switches", "other_phones", "other_phone_messages", "other_phone_samples")
 
@@ -138,7 +147,13 @@ class CheckedSource(PhoneSource):
         if type(out) is not list:
             if not isinstance(out, (list, tuple)):
                 raise self._error(f"{where} returned {describe_value(out)}, not a list of SensorSamples")
-            out = list(out)
+            if len(out) <= MAX_DRAIN:  # a longer one is refused below, never copied
+                out = list(out)
+        if len(out) > MAX_DRAIN:
+            raise self._error(
+                f"{where} returned {len(out)} samples, more than {MAX_DRAIN} in one call: a source hands "
+                "over a bounded batch and holds the rest of a burst for the next drain"
+            )
         for i, s in enumerate(out):
             if not (
                 type(s) is SensorSample

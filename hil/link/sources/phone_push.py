@@ -48,7 +48,7 @@ import logging
 import math
 import threading
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -58,7 +58,7 @@ from urllib.parse import urlsplit
 from hil.estimation.sensors import SensorKind, SensorSample
 from hil.link.sources.http_guard import BodyError, GuardedHandler, GuardedHTTPServer, HttpLimits
 from hil.link.sources.push_decoder import DECODE_TIMEOUT_S, Decoded, PushDecoder
-from hil.link.sources.senders import Decision
+from hil.link.sources.senders import MAX_SENDERS, Decision
 from hil.link.sources.stream import MAX_BATCH, MAX_QUEUE, PhoneReceiver, parse_json, reading_number, split_url
 from protocol.errors import InputFormatError, LinkError
 
@@ -93,6 +93,15 @@ at the app's 20 ms period, over half an hour of them). A farther jump is not los
 another's — a client's own ids, a hostile ``10**4000`` — and starts the count again
 (``message_restarts``), as a jump back does: counted as lost, one id of ``10**4299`` made ``message_gaps`` an
 integer of 4300 digits, and two such made ``summary.json`` unwritable (past Python's digit limit)."""
+LATE_WINDOW = 256
+"""batches: how far behind the newest ``messageId`` a batch may arrive and still be told apart as late (an
+HTTP retry, a batch overtaken on a second connection: counted lost when the numbering jumped past it, and
+uncounted when it comes) or as a retry of one received, rather than as the numbering started again (5 s of
+the app's 20 ms batches; :class:`MessageNumbering`)."""
+MAX_NUMBERINGS = 8
+"""``messageId`` numberings remembered per peer address for the batches that carry no ``deviceId`` or
+``sessionId`` (:class:`PeerNumberings`): two or three clients behind one address, with room to spare; the
+least recently heard forgotten first."""
 MAX_ID = 64
 """characters of a ``deviceId`` or ``sessionId`` kept as they are (the app's are UUIDs, 36); a longer one is
 kept as its start and a digest of the whole, so that what a sender is called stays small, and two long ids
@@ -104,6 +113,96 @@ _Timed = tuple[float, tuple[float, float, float]]
 
 OTHER_PHONE = "not used: this receiver follows another phone"
 """The answer (200) to a batch of another phone than the one followed: dropped, counted."""
+
+
+class MessageNumbering:
+    """One stream's ``messageId`` numbering, for counting the batches lost in transit: a jump forward of at
+    most :data:`MAX_MESSAGE_GAP` counts the ids between as lost (``gaps``); one of them arriving late (within
+    :data:`LATE_WINDOW` of the newest: an HTTP retry) is uncounted, an id received already is a retry; any
+    other id back, or a farther jump, is the numbering started again (``restarts``). Without the window a
+    batch overtaken by the next (ids 1, 2, 4, 3, 5) counted two lost and a restart, none lost.
+
+    Memory is bounded: the ids counted lost are remembered only within :data:`LATE_WINDOW` of the newest."""
+
+    def __init__(self) -> None:
+        self.newest: int | None = None
+        self._start = 0  # the first id of this numbering: below it is no retry of ours
+        self._missing: dict[int, None] = {}  # ids counted lost within LATE_WINDOW, ascending
+
+    def hear(self, message_id: int) -> tuple[int, int]:
+        """One batch's id: ``(lost, restarts)``, the change it makes to the stream's counts (``lost`` is
+        negative for a batch that was counted lost and came late)."""
+        newest = self.newest
+        if newest is None:
+            self._restart(message_id)
+            return 0, 0
+        jump = message_id - newest - 1
+        if 0 <= jump <= MAX_MESSAGE_GAP:
+            self.newest = message_id
+            for lost in range(max(newest + 1, message_id - LATE_WINDOW), message_id):
+                self._missing[lost] = None
+            floor = message_id - LATE_WINDOW
+            while self._missing and next(iter(self._missing)) < floor:  # ascending: the oldest first
+                del self._missing[next(iter(self._missing))]
+            return jump, 0
+        if max(self._start, newest - LATE_WINDOW) <= message_id <= newest:
+            if message_id in self._missing:  # counted lost, and here it is
+                del self._missing[message_id]
+                return -1, 0
+            return 0, 0  # received already: a retry, its samples the admission's duplicates
+        self._restart(message_id)
+        return 0, 1
+
+    def _restart(self, message_id: int) -> None:
+        self.newest = self._start = message_id
+        self._missing.clear()
+
+    def continues(self, message_id: int) -> int | None:
+        """How far ``message_id`` is from this numbering's newest if it is near enough to be of it (late or
+        ahead by at most :data:`LATE_WINDOW`: a client silent for longer is heard anew anyway), else None."""
+        if self.newest is None or not -LATE_WINDOW <= message_id - self.newest <= LATE_WINDOW + 1:
+            return None
+        return abs(message_id - self.newest)
+
+
+class PeerNumberings:
+    """Which client behind one address a batch without ``deviceId`` and ``sessionId`` is, by its
+    ``messageId``: each client numbers its own batches, so two behind one address (two phones on one NAT'd
+    Wi-Fi, two scripts on one laptop) are two numberings — a batch is the numbering it continues
+    (:meth:`MessageNumbering.continues`, the nearest), or starts one. Keyed by them, the two are two
+    senders (:mod:`.senders`: the second dropped, counted, never merged); merged, their readings were
+    interleaved into one stream. A client that restarts its numbering, or jumps it by more than
+    :data:`LATE_WINDOW` (5 s of 20 ms batches lost: silent past the one-phone rule's bound), is a new
+    sender too, followed once the old numbering is silent (:data:`~.senders.SWITCH_AFTER_S`), as an app's
+    new ``sessionId`` is. Two clients whose numberings are within :data:`LATE_WINDOW` of each other (started
+    within ~5 s of each other) cannot be told apart by it: they are merged, as before.
+
+    Memory is bounded: :data:`MAX_NUMBERINGS` per address, and :data:`~.senders.MAX_SENDERS` addresses,
+    the least recently heard forgotten first. Not thread-safe: the server calls it under its lock."""
+
+    def __init__(self) -> None:
+        self._peers: OrderedDict[str, OrderedDict[int, MessageNumbering]] = OrderedDict()
+        self._next = 0  # numberings are numbered in the order heard (names for the log)
+
+    def which(self, peer: str, message_id: int) -> int:
+        """The number of the numbering of ``peer`` that ``message_id`` continues (started if none)."""
+        numberings = self._peers.setdefault(peer, OrderedDict())
+        self._peers.move_to_end(peer)
+        while len(self._peers) > MAX_SENDERS:
+            self._peers.popitem(last=False)
+        near = [(d, n) for n, known in numberings.items() if (d := known.continues(message_id)) is not None]
+        if near:
+            number = min(near)[1]
+        else:
+            number, self._next = self._next, self._next + 1
+            numberings[number] = MessageNumbering()
+            while len(numberings) > MAX_NUMBERINGS:
+                numberings.popitem(last=False)
+        numberings.move_to_end(number)
+        numbering = numberings[number]
+        if numbering.newest is None or message_id > numbering.newest:
+            numbering.newest = message_id  # only its place is followed here: the stream counts its gaps
+        return number
 
 
 def _address(url: str) -> tuple[str, int, str]:
@@ -345,7 +444,8 @@ class PhonePushServer(PhoneReceiver):
     ) -> None:
         super().__init__(max_queue, clock, max_batch)
         host, port, self.path = _address(url)
-        self._last_id: int | None = None
+        self._numbering = MessageNumbering()  # the followed stream's messageIds: its batches lost
+        self._peer_numberings = PeerNumberings()  # who a batch without ids is, behind its address
         limits = HttpLimits(max_body, timeout_s, max_connections)
         try:
             self._httpd = GuardedHTTPServer((host, port), _handler(self), limits, self._turned_away)
@@ -376,7 +476,8 @@ class PhonePushServer(PhoneReceiver):
         batch, answer = self._decode_push(body, source, parts, calibrated)
         if batch is None:
             return answer
-        decision = self._followed(batch.device, batch.session, peer, sum(batch.per_kind.values()))
+        usable = sum(batch.per_kind.values())
+        decision = self._followed(batch.device, batch.session, batch.message_id, peer, usable)
         if decision is Decision.OTHER:
             return 200, OTHER_PHONE
         if decision is Decision.SWITCHED and (not parts or calibrated):  # read for the phone before: anew
@@ -425,40 +526,43 @@ class PhonePushServer(PhoneReceiver):
             self.stats.decoder_restarts = self._decoder.restarts
         return batch, (200, "ok")
 
-    def _followed(self, device: str | None, session: str | None, peer: str, usable: int) -> Decision:
-        """Whose a batch is (:mod:`.senders`); another phone's is counted there, never delivered. A new
-        phone followed starts the stream's state afresh: its ``messageId`` numbering, and which calibrated
-        types it sends (total acceleration among them)."""
-        if device is None and session is None:
-            sender: tuple[str | None, ...] = ("peer", peer)
-            name = f"{peer} (no deviceId or sessionId)"
+    def _followed(
+        self, device: str | None, session: str | None, message_id: int | None, peer: str, usable: int
+    ) -> Decision:
+        """Whose a batch is (:mod:`.senders`); another phone's is counted there, never delivered. A batch
+        without ids is its peer's address and the ``messageId`` numbering it continues
+        (:class:`PeerNumberings`: two clients behind one address stay two). A new phone followed starts
+        the stream's state afresh: its ``messageId`` numbering, and which calibrated types it sends (total
+        acceleration among them)."""
+        if device is None and session is None and message_id is None:
+            sender: tuple[str | int | None, ...] = ("peer", peer)
+            name = f"{peer} (no deviceId, sessionId or messageId)"
+        elif device is None and session is None:
+            with self._lock:
+                number = self._peer_numberings.which(peer, message_id)  # type: ignore[arg-type]
+            sender = ("peer", peer, number)
+            name = f"{peer} (no deviceId or sessionId; messageId numbering #{number})"
         else:
             sender = ("app", device, session)
             name = f"deviceId {device!r} sessionId {session!r} from {peer}"
         decision = self._attribute(sender, name, usable)
         if decision is Decision.SWITCHED:
             with self._lock:
-                self._last_id = None
+                self._numbering = MessageNumbering()
             self._calibrated_forget()
         return decision
 
     def _count_gaps(self, message_id: int | None) -> None:
-        """Batches lost in transit: a jump in the app's ``messageId`` of at most :data:`MAX_MESSAGE_GAP`; a
-        jump back or farther is a numbering started again (``message_restarts``), never a count of
-        losses no phone could have sent."""
+        """Batches lost in transit, by the followed stream's ``messageId`` (:class:`MessageNumbering`): a
+        late one uncounted again, a retry nothing, a jump back or too far a numbering started again
+        (``message_restarts``; counted, not logged: an app restarts), never a count of losses no phone
+        could have sent."""
         if message_id is None:
             return
         with self._lock:
-            last, self._last_id = self._last_id, message_id
-            if last is None or message_id == last + 1:
-                return
-            jump = message_id - last - 1
-            if 0 < jump <= MAX_MESSAGE_GAP:
-                self.stats.message_gaps += jump
-                return
-            if jump == -1:  # the same batch again (a retry): its samples are the admission's duplicates
-                return
-            self.stats.message_restarts += 1  # nothing dropped: counted, not logged (an app restarts)
+            lost, restarts = self._numbering.hear(message_id)
+            self.stats.message_gaps += lost
+            self.stats.message_restarts += restarts
 
     def _turned_away(self, reason: str, peer: str, detail: str) -> None:
         """What the HTTP guard (and the handler) turned away: counted by kind; requests also logged."""
