@@ -111,3 +111,22 @@ def test_firmware_sim_avr_without_the_toolchain_is_one_line(monkeypatch, capsys)
 def test_the_readme_test_command_is_the_one_ci_runs():
     assert "python -m pytest" in (ROOT / "README.md").read_text()
     assert Path(ROOT / ".ci" / "run").read_text().count(".venv/bin/python -m pytest") == 1
+
+
+def test_ci_runs_every_test_once_with_what_it_needs():
+    """CI's two passes split the command: the fresh-machine pass runs it whole with the tools hidden (the
+    tests that need them skip there), the pass beside it exactly the tests of the markers whose tools
+    ``.ci/without-avr-toolchain`` hides, with them and ``VSCMG_HIL_REQUIRE_ALL=1``. A marker left out of
+    ``TOOL_MARKERS`` would have its tests skipped in the one pass and never run in the other; one added for
+    a tool the fresh pass keeps (``udp_multicast``) would run them twice for nothing."""
+    from conftest import NEEDS
+
+    run = (ROOT / ".ci" / "run").read_text()
+    found = re.search(r'^TOOL_MARKERS="([^"]*)"$', run, re.MULTILINE)
+    assert found is not None, "TOOL_MARKERS is not set in .ci/run"
+    markers = set(found.group(1).split(" or "))
+    assert markers == {"firmware", "browser"} and markers <= set(NEEDS)
+    assert 'VSCMG_HIL_REQUIRE_ALL=1 .venv/bin/python -m pytest -q -m "$TOOL_MARKERS"' in run
+    fresh = (ROOT / ".ci" / "fresh-machine").read_text()
+    assert "-m pytest -q \"$@\"" in fresh, "the fresh-machine pass runs the whole command"
+    assert ".ci/fresh-machine >" in run and 'wait "$fresh_pid"' in run
