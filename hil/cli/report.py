@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 
 ORDER = 15
@@ -22,8 +23,27 @@ two is said), is reported up to its last flushed row, one that ended before its 
 could not be opened) without plots, a figure it never measured as "-". Every DIR given is reported: one
 that cannot be (not a run or a campaign, damaged files — a run's summary.json too, its rows and plots
 reported all the same —, plots that cannot be written) is an error on stderr naming it, the next DIR
-reported all the same, and the exit status is then 2 (0 when every DIR was reported).
+reported all the same, and the exit status is then 2.
+
+exit status:
+  0    every DIR reported, and every campaign among them whole (each of the runs its last session asked
+       for on disk; one whose runs asked are unknown, from before hil recorded them, cannot be told)
+  2    a DIR could not be reported (above)
+  3    every DIR reported, but a campaign among them is not whole: PARTIAL (interrupted, stopped, killed,
+       or still running: fewer of its runs asked on disk than were asked). A script or CI job that gates
+       on `hil report` is told its figures are not the campaign's; the same `hil montecarlo` command
+       runs the rest
+
+A campaign a session is writing is reported from its runs so far; its summary.json and plots are left to
+that session (written only under the directory's lock, as the session writes them).
 """
+
+EXIT_OK = 0
+EXIT_NOT_REPORTED = 2
+EXIT_PARTIAL = 3
+"""Every directory reported, a campaign among them partial: its printed figures are not the campaign's.
+Status 0 it was, and ``hil report mc/c1 && publish`` published the figures of 3 runs of 40 as the
+campaign's (the table said PARTIAL; the status said whole)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -41,28 +61,45 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 
 def run(args: argparse.Namespace) -> int:
-    """Report each directory in turn; 2 if any could not be, else 0. A directory that cannot be reported
-    is said as the command says any error (``hil report: error: ...``, stderr) and the next one is
-    reported: ``hil report runs/*`` once stopped at the first such directory, the rest never reported."""
+    """Report each directory in turn: :data:`EXIT_NOT_REPORTED` if any could not be, else
+    :data:`EXIT_PARTIAL` if a campaign among them is not whole, else :data:`EXIT_OK`. A directory that
+    cannot be reported is said as the command says any error (``hil report: error: ...``, stderr) and the
+    next one is reported: ``hil report runs/*`` once stopped at the first such directory, the rest never
+    reported. A partial campaign is said on stderr too, with the status."""
     from protocol.errors import HilError
 
-    failed = 0
+    failed = partial = 0
     for i, path in enumerate(args.dirs):
         if i:
             print()
         try:
-            report(path, plots=not args.no_plots)
+            drawn = report(path, plots=not args.no_plots)
         except HilError as exc:
             sys.stdout.flush()  # its lines before the error, in order on a terminal showing both
             print(f"hil report: error: {exc}", file=sys.stderr)
             failed += 1
+            continue
+        if drawn.partial is not None:
+            sys.stdout.flush()
+            print(f"hil report: {path}: not a whole campaign: {drawn.partial}", file=sys.stderr)
+            partial += 1
     if failed and len(args.dirs) > 1:
         print(f"hil report: {failed} of {len(args.dirs)} directories not reported", file=sys.stderr)
-    return 2 if failed else 0
+    if failed:
+        return EXIT_NOT_REPORTED
+    return EXIT_PARTIAL if partial else EXIT_OK
 
 
-def report(path: Path, plots: bool = True) -> dict[str, Path]:
-    """Print ``path``'s summary and redraw its plots; returns name → plot path. A directory that is neither
+class Reported(dict[str, Path]):
+    """What :func:`report` drew (plot name → path), and ``partial``: why the directory reported is not a
+    whole campaign (runs on disk of those asked, how its last session ended), or None."""
+
+    partial: str | None = None
+
+
+def report(path: Path, plots: bool = True) -> Reported:
+    """Print ``path``'s summary and redraw its plots; returns name → plot path, and whether a campaign is
+    partial (:class:`Reported`). A directory that is neither
     a run nor a campaign is an :class:`~protocol.errors.InputFormatError` naming it; so is a run whose
     summary.json is damaged (not JSON, truncated, values no run writes), raised after its rows are counted
     and whatever plots it allows are drawn."""
@@ -70,8 +107,10 @@ def report(path: Path, plots: bool = True) -> dict[str, Path]:
     from protocol.errors import InputFormatError
 
     damaged: dict[str, str] = {}
+    drawn = Reported()
     if (path / "telemetry.csv").is_file():
-        drawn, damaged = _run_dir(path, plots)
+        plotted, damaged = _run_dir(path, plots)
+        drawn.update(plotted)
     elif (path / MANIFEST).is_file():
         drawn = _campaign(path, plots)
     elif path.is_dir():
@@ -203,10 +242,15 @@ def _not_a_number(doc: object, where: str = "") -> str | None:
     return None
 
 
-def _campaign(path: Path, plots: bool) -> dict[str, Path]:
+def _campaign(path: Path, plots: bool) -> Reported:
+    """Print the campaign ``path``'s summary and, with ``plots``, draw its plots and write its summary.json
+    again — under the directory's lock (:func:`~hil.montecarlo.store.holding_dir`), from the runs on disk
+    then. Written without it, a summary of the runs so far beside a session still appending could be the
+    one left standing, describing fewer runs than runs.csv holds; a session holding the directory keeps
+    its files, said."""
     from hil.montecarlo.campaign import summarise_dir, write_campaign_summary
     from hil.montecarlo.plots import plot_campaign
-    from hil.montecarlo.store import MANIFEST, read_manifest
+    from hil.montecarlo.store import MANIFEST, holding_dir, read_manifest
     from hil.montecarlo.summary import format_table
     from hil.scenario import parse_scenario
     from protocol.errors import InputFormatError
@@ -215,16 +259,34 @@ def _campaign(path: Path, plots: bool) -> dict[str, Path]:
     if not isinstance(info.get("scenario_toml"), str):
         raise InputFormatError("campaign.json holds no scenario", str(path / MANIFEST))
     scenario = parse_scenario(info["scenario_toml"], path / MANIFEST)
-    # summarised in memory: --no-plots writes nothing (a read-only campaign is reported); drawing, the
-    # summary.json is written again with the figures, its interrupted record carried over
-    summary = summarise_dir(path, scenario, write=False)
-    print(f"campaign {path}: scenario {scenario.name}, seed {info.get('seed')}")
-    print(format_table(summary))  # a partial campaign said there (PARTIAL: N of the M runs asked)
-    interrupted = summary.get("interrupted")
-    if not plots:
-        return {}
-    drawn = plot_campaign(path, scenario.settle_deg, scenario.spacecraft.limits.max_gimbal_rate)
-    if isinstance(interrupted, dict):
-        interrupted["plots"] = "drawn for these runs by hil report"
-    write_campaign_summary(path, summary)
+    drawn = Reported()
+    with ExitStack() as held:
+        # None: the directory's lock not taken (--no-plots; or a session's, which writes its own files)
+        locked = held.enter_context(holding_dir(path)) if plots else None
+        # summarised in memory: --no-plots writes nothing (a read-only campaign is reported); drawing, the
+        # summary.json is written again with the figures, its interrupted record carried over
+        summary = summarise_dir(path, scenario, write=False, locked_here=bool(locked))
+        print(f"campaign {path}: scenario {scenario.name}, seed {info.get('seed')}")
+        print(format_table(summary))  # a partial campaign said there (PARTIAL: N of the M runs asked)
+        drawn.partial = _not_whole(summary)
+        if locked is None:
+            if plots:
+                print("  a session is writing this campaign: its runs so far; summary.json, plots left to it")
+            return drawn
+        drawn.update(plot_campaign(path, scenario.settle_deg, scenario.spacecraft.limits.max_gimbal_rate))
+        interrupted = summary.get("interrupted")
+        if isinstance(interrupted, dict):
+            interrupted["plots"] = "drawn for these runs by hil report"
+        write_campaign_summary(path, summary)
     return drawn
+
+
+def _not_whole(summary: dict) -> str | None:  # type: ignore[type-arg]
+    """Why a campaign's summary is not a whole campaign's (its ``interrupted`` record: fewer of the runs
+    asked on disk than were asked), or None."""
+    partial = summary.get("interrupted")
+    if not isinstance(partial, dict):
+        return None
+    on_disk = partial.get("runs_asked_on_disk", partial.get("runs_on_disk"))
+    ended = f", its last session {str(partial['ended'])[:200]}" if partial.get("ended") else ""
+    return f"{on_disk} runs on disk of {partial.get('runs_asked')} asked{ended} (exit status {EXIT_PARTIAL})"

@@ -57,11 +57,13 @@ from .store import (
     MANIFEST,
     MAX_RUNS,
     ResultStore,
+    SessionRecord,
     checked_write,
     manifest,
     read_manifest,
     read_runs,
     read_session,
+    session_ended,
 )
 from .summary import summarise
 
@@ -443,63 +445,69 @@ def run_campaign(
     out = Path(out_dir)
     start = time.perf_counter()
     workers = 0 if client is None else max(1, sum(_cluster_threads(client).values()))
-    started = False  # the session's runs begun: an end before they are all done is said on disk
-    try:
-        with ResultStore(out, campaign.manifest()) as store:
-            skipped = sum(1 for i in store.finished if 0 <= i < campaign.runs)
-            if client is None and skipped < campaign.runs:
-                raise ConfigError(
-                    f"{campaign.runs - skipped} of the campaign's {campaign.runs} runs are not in the "
-                    "directory yet: they need a cluster",
-                    str(out),
-                )
-            todo = (i for i in range(campaign.runs) if i not in store.finished)
-            driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
-            store.record_session(campaign.runs, "running")
-            started = True
+    # Everything the session writes is written under the directory's lock, its summary and plots too: they
+    # were written after it was let go, and a second session that took the directory meanwhile appended
+    # runs that summary never counted (and, killed, left it standing beside a longer runs.csv)
+    with ResultStore(out, campaign.manifest()) as store:
+        skipped = sum(1 for i in store.finished if 0 <= i < campaign.runs)
+        if client is None and skipped < campaign.runs:
+            raise ConfigError(
+                f"{campaign.runs - skipped} of the campaign's {campaign.runs} runs are not in the "
+                "directory yet: they need a cluster",
+                str(out),
+            )
+        todo = (i for i in range(campaign.runs) if i not in store.finished)
+        driver = _Driver(campaign, store, client, start, skipped, on_result, on_worker_lost)
+        store.record_session(campaign.runs, "running")
+        try:
+            if client is not None:
+                driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
+        except KeyboardInterrupt as exc:
+            _summary_after_interrupt(out, campaign, _record_session_end(store, campaign.runs, exc))
+            raise
+        except HilError as exc:
+            # the scheduler lost, a worker running other code, a full disk: the summary said so
+            ended = _record_session_end(store, campaign.runs, exc)
             try:
-                if client is not None:
-                    driver.run(chunks(todo, campaign.runs - skipped, campaign.batch, workers), workers)
-            except BaseException as exc:
-                _record_session_end(store, campaign.runs, exc)
-                raise
-            _record_session_end(store, campaign.runs, None)
-    except KeyboardInterrupt:
-        _summary_after_interrupt(out, campaign)
-        raise
-    except HilError as exc:
-        if started:  # the scheduler lost, a worker running other code, a full disk: the summary said so
-            try:
-                _summary_after_interrupt(out, campaign)
+                _summary_after_interrupt(out, campaign, ended)
             except HilError as err:  # what ended the session is what is raised
                 logger.warning("%s: not summarised again after %s: %s", out, describe(exc), err)
-        raise
-    report = CampaignReport(
-        out,
-        campaign.runs,
-        skipped,
-        driver.completed,
-        driver.failed,
-        time.perf_counter() - start,
-        workers,
-        driver.losses,
-        driver.joined,
-    )
-    report.summary = summarise_dir(out, campaign.scenario, workers_lost=report.workers_lost)
-    if plots:
-        from .plots import plot_campaign
+            raise
+        except BaseException as exc:
+            _record_session_end(store, campaign.runs, exc)
+            raise
+        ended = _record_session_end(store, campaign.runs, None)
+        report = CampaignReport(
+            out,
+            campaign.runs,
+            skipped,
+            driver.completed,
+            driver.failed,
+            time.perf_counter() - start,
+            workers,
+            driver.losses,
+            driver.joined,
+        )
+        report.summary = summarise_dir(
+            out, campaign.scenario, workers_lost=report.workers_lost, locked_here=True, ended=ended
+        )
+        if plots:
+            from .plots import plot_campaign
 
-        sc = campaign.scenario
-        report.plots = plot_campaign(out, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate)
+            sc = campaign.scenario
+            report.plots = plot_campaign(out, sc.settle_deg, sc.spacecraft.limits.max_gimbal_rate)
     return report
 
 
-def _record_session_end(store: ResultStore, runs_asked: int, exc: BaseException | None) -> None:
+def _record_session_end(store: ResultStore, runs_asked: int, exc: BaseException | None) -> str:
     """Record in campaign.json how the session ended: ``finished`` (``exc`` None: every run it asked for
     is on disk), ``interrupted`` by the signal (Ctrl-C, SIGTERM), or ``stopped`` by the error ``exc``.
     Held from a second signal while it is written. A write the disk refuses is logged, not raised: what
     ended the session is what is raised, and a finished session's summary.json is written (or refused,
-    naming it) all the same; the record still says ``running`` (read back: ``killed``)."""
+    naming it) all the same; the record still says ``running`` (read back: ``killed``). Returns how the
+    session ended in :func:`~.store.session_ended`'s words: what its own summary says, whether or not the
+    disk took the record (read from a record the disk refused, a finished session's summary said
+    ``killed``)."""
     if exc is None:
         state, detail = "finished", {}
     elif isinstance(exc, KeyboardInterrupt):
@@ -511,6 +519,7 @@ def _record_session_end(store: ResultStore, runs_asked: int, exc: BaseException 
             store.record_session(runs_asked, state, **detail)
     except HilError as err:
         logger.warning("%s: the session's end not recorded: %s", store.dir / MANIFEST, err)
+    return session_ended(state, detail)
 
 
 def runs_left(campaign: Campaign, out_dir: str | os.PathLike[str]) -> int:
@@ -860,7 +869,12 @@ class _Driver:
 
 
 def summarise_dir(
-    out_dir: str | os.PathLike[str], scenario: Scenario, workers_lost: int | None = None, write: bool = True
+    out_dir: str | os.PathLike[str],
+    scenario: Scenario,
+    workers_lost: int | None = None,
+    write: bool = True,
+    locked_here: bool = False,
+    ended: str | None = None,
 ) -> dict[str, Any]:
     """Summarise every run in ``out_dir`` against ``scenario``'s requirements and (``write``) write
     summary.json, with ``workers_lost``: the workers the session that wrote it lost. None, as `hil report`
@@ -876,7 +890,11 @@ def summarise_dir(
     run with ``--duration 30`` on a scenario of 10 s was reported "settle_s <= 10: 0 %" — and its
     summary.json rewritten so — where `hil montecarlo` had printed 100 %. ``--duration`` is the one
     campaign option that moves a verdict's limit; ``settle_deg`` and the gimbal-rate limit are in the
-    scenario text campaign.json keeps (``--board`` and ``--seed`` change neither)."""
+    scenario text campaign.json keeps (``--board`` and ``--seed`` change neither).
+
+    ``locked_here``: this process holds the directory's lock (the session itself, or ``hil report``
+    through :func:`~.store.holding_dir`): its session record read so (:func:`~.store.read_session`).
+    ``ended``: the session's own word for how it ended, over campaign.json's record of it."""
     sc = scenario
     info = read_manifest(out_dir)
     duration_s = float(info["duration_s"])
@@ -890,12 +908,19 @@ def summarise_dir(
     if shortfall is not None:
         summary["too_short_to_judge"] = shortfall
     interrupted = None
+    previous: dict[str, Any] = {}
     if workers_lost is None:
         previous = _previous_summary(Path(out_dir) / SUMMARY)
         workers_lost = _workers_lost(previous)
         interrupted = previous.get("interrupted")
     summary["workers_lost"] = workers_lost
-    session = read_session(out_dir, info)
+    session = read_session(out_dir, info, locked_here)
+    if ended is not None:
+        session = SessionRecord(session.runs_asked, ended)
+    elif session.ended == "killed" and _finished_over(previous, session, summary):
+        # its end record refused by the disk (campaign.json still says running), its summary.json not:
+        # written under the lock, as the session's last act, over these very runs — the session finished
+        session = SessionRecord(session.runs_asked, "finished")
     summary["runs_asked"], summary["ended"] = session.runs_asked, session.ended
     if session.runs_asked is not None:
         # whole when every run asked for (indices 0..N-1) is on disk and readable, however its session
@@ -919,12 +944,24 @@ def summarise_dir(
     return summary
 
 
+def _finished_over(previous: Mapping[str, Any], session: SessionRecord, summary: Mapping[str, Any]) -> bool:
+    """Whether the summary.json ``previous`` is a finished session's over the runs ``summary`` counts now,
+    that session asking ``session``'s runs: the word of a session whose campaign.json record the disk
+    refused (a session writes its summary.json under the directory's lock, before it lets go)."""
+    return (
+        previous.get("ended") == "finished"
+        and previous.get("runs_asked") == session.runs_asked
+        and previous.get("runs") == summary.get("runs")
+        and previous.get("ok") == summary.get("ok")
+    )
+
+
 def write_campaign_summary(out_dir: str | os.PathLike[str], summary: Mapping[str, Any]) -> None:
     """``summary`` as ``out_dir``'s summary.json (atomically); a refusal a ConfigError naming it."""
     checked_write(Path(out_dir) / SUMMARY, lambda: write_summary(out_dir, summary))
 
 
-def _summary_after_interrupt(out: Path, campaign: Campaign) -> None:
+def _summary_after_interrupt(out: Path, campaign: Campaign, ended: str) -> None:
     """An interrupted session that extended a campaign (``--runs 8`` on one of 4, stopped after its 6th
     run) left the earlier session's summary.json saying 4 runs, 4 ok, beside a runs.csv of 6 — and nothing
     on disk said which was current. That summary is written again over the runs on disk, with
@@ -932,11 +969,12 @@ def _summary_after_interrupt(out: Path, campaign: Campaign) -> None:
     record: ``interrupted (SIGINT)``, ``stopped: ...`` — a session stopped by an error, its scheduler
     lost, is no less partial) and that the plots are the earlier session's (``hil report DIR``
     summarises and draws them anew). A campaign stopped before any summary was written is left without
-    one, as before: its campaign.json says it (:data:`~.store.SESSION`)."""
+    one, as before: its campaign.json says it (:data:`~.store.SESSION`). Called under the directory's
+    lock, by the session that ``ended`` so."""
     path = out / SUMMARY
     if not path.is_file():
         return
-    summary = summarise_dir(out, campaign.scenario)
+    summary = summarise_dir(out, campaign.scenario, locked_here=True, ended=ended)
     summary["interrupted"] = {
         **summary.get("interrupted", {}),
         "runs_asked": campaign.runs,

@@ -33,8 +33,10 @@ import logging
 import math
 import os
 import re
+import time
 from array import array
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -368,19 +370,51 @@ def _lock_dir(path: Path) -> int | None:
         fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     except OSError as exc:
         raise ConfigError(f"cannot open: {exc.strerror or exc}", str(path)) from exc
+    from hil.files.writing import TRIES, TRY_PAUSE_S
+
+    for _ in range(TRIES):
+        # a reader's question (:func:`hil.files.writing.writer_holds`: ``hil report``, ``hil gcs``) holds a
+        # shared lock for microseconds: taken at the moment a session started, the session was refused,
+        # "another session is writing", with none writing. Asked again, as WriterLock does
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            time.sleep(TRY_PAUSE_S)
+            continue
+        except OSError:
+            os.close(fd)
+            return None
+        return fd
+    os.close(fd)
+    raise ConfigError(
+        "another session is writing this campaign directory (hil montecarlo in another terminal?): "
+        "let it finish, or give another --out",
+        str(path),
+    )
+
+
+@contextmanager
+def holding_dir(path: str | os.PathLike[str]) -> Iterator[bool | None]:
+    """The campaign directory ``path``'s lock held (:func:`_lock_dir`) for what is written beside a
+    session's files: ``hil report`` rewriting summary.json and the plots from the runs on disk. Yields True
+    while it is held, False on a file system without locks, None when a session holds it (nothing is
+    to be written then: a summary written beside a session still appending described fewer runs than
+    runs.csv came to hold, and could be the one left standing). A directory that cannot be opened is a
+    :class:`ConfigError` naming it."""
+    from hil.files.writing import writer_holds
+
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        os.close(fd)
-        raise ConfigError(
-            "another session is writing this campaign directory (hil montecarlo in another terminal?): "
-            "let it finish, or give another --out",
-            str(path),
-        ) from None
-    except OSError:
-        os.close(fd)
-        return None
-    return fd
+        fd = _lock_dir(Path(path))
+    except ConfigError:
+        if writer_holds(path):  # not a directory that cannot be opened: a session's
+            yield None
+            return
+        raise
+    try:
+        yield fd is not None
+    finally:
+        if fd is not None:
+            os.close(fd)
 
 
 def _regular_or_absent(path: Path) -> None:
@@ -757,11 +791,15 @@ class SessionRecord:
     ended: str | None
 
 
-def read_session(out_dir: str | os.PathLike[str], info: Mapping[str, Any]) -> SessionRecord:
+def read_session(
+    out_dir: str | os.PathLike[str], info: Mapping[str, Any], locked_here: bool = False
+) -> SessionRecord:
     """The :data:`SESSION` record of ``info`` (``out_dir``'s campaign.json, :func:`read_manifest`). One
     that is not what a session writes (edited by hand: not an object, runs asked that are not a whole
     number 1..:data:`MAX_RUNS`, a state not in :data:`SESSION_STATES`) is an
-    :class:`InputFormatError` naming the file and the key; one that is absent is unknown, not an error."""
+    :class:`InputFormatError` naming the file and the key; one that is absent is unknown, not an error.
+    ``locked_here``: this process holds the directory's lock (:func:`holding_dir`), so a record that says
+    ``running`` is no live session's — asked of the lock, it was this process's own hold, "still running"."""
     path = Path(out_dir) / MANIFEST
     if SESSION not in info:
         return SessionRecord(None, None)
@@ -787,15 +825,22 @@ def read_session(out_dir: str | os.PathLike[str], info: Mapping[str, Any]) -> Se
     if state == "running":
         from hil.files.writing import writer_holds  # the same lock as _lock_dir's: flock on the directory
 
-        holds = writer_holds(out_dir)
+        holds = False if locked_here else writer_holds(out_dir)
         ended = "still running" if holds else "killed" if holds is False else "killed, or still running"
-    elif state == "interrupted":
-        ended = f"interrupted ({str(record.get('signal', 'a signal'))[:20]})"
-    elif state == "stopped":
-        ended = f"stopped: {str(record.get('error', 'an error'))[:MAX_MESSAGE_CHARS]}"
     else:
-        ended = "finished"
+        ended = session_ended(state, record)
     return SessionRecord(asked, ended)
+
+
+def session_ended(state: str, detail: Mapping[str, Any]) -> str:
+    """How a session that recorded ``state`` (not ``running``) with ``detail`` (its ``signal``, its
+    ``error``) ended, in the words :class:`SessionRecord` says it: one wording for the record read back and
+    for the session that ends (whose record the disk may refuse)."""
+    if state == "interrupted":
+        return f"interrupted ({str(detail.get('signal', 'a signal'))[:20]})"
+    if state == "stopped":
+        return f"stopped: {str(detail.get('error', 'an error'))[:MAX_MESSAGE_CHARS]}"
+    return "finished"
 
 
 def read_traces(
