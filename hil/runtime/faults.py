@@ -94,7 +94,8 @@ class FaultJournal:
         phone gap a phone gap. (A phone clock that restarted or jumped is a :meth:`note`: the stream did
         not pause.) ``outage_from`` (s, at most ``t``): the outage it opens began then, the host having had
         no board since (a board that restarted before it answered the first handshake: told at its answer,
-        silent from the start)."""
+        silent from the start; a reset found in a session without a stale fault first: since its new boot
+        began, by its uptime — not from its detection)."""
         if t > self.ended_at:
             self.note(t, kind, after_the_run=True, **detail)
             return

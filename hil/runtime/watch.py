@@ -133,7 +133,8 @@ class BoardWatch:
         elif isinstance(event, BoardResetEvent):
             self.resets += 1
             self._fresh_after = t
-            # one that restarted before its first answer: no board in hand from the host's first try on
+            # no board in hand since then: the host's first try (one that restarted before its first
+            # answer), or the new boot's start by its uptime (a reset found without a stale fault first)
             since = event.no_board_since
             first = {} if since is None else {"no_board_since": since}
             self.events.write(t, "board_reset", cause=event.cause.name, evidence=event.evidence, **first)

@@ -125,7 +125,7 @@ class BoardClient:
         self._last_error = ""
         self._busy_logged = False  # the current run of "port busy" refusals was logged
         self._write_failure: LinkError | None = None  # a write failed in the caller's thread
-        self._read_end: float | None = None  # when the last read of the transport returned
+        self._read_end: float | None = None  # when the last read of the transport returned (or it opened)
         self._port_absent = False  # the link is down and the port was seen gone since (Transport.present)
         self._open_due = False  # a reconnection try is due: the pump opens the port outside the lock
         self._close_due = False  # the link was lost: the pump closes the port outside the lock
@@ -145,6 +145,7 @@ class BoardClient:
                 if not self.transport.is_open:
                     self.transport.open()
                 now = self.clock.now()
+                self._read_end = now  # a port opened anew holds nothing older than this (as in _reopen)
                 self._write(self.session.link_up(now), now)
             if not self._wait_until(lambda: self.session.phase is not Phase.HANDSHAKING, timeout):
                 with self._cond:
@@ -521,6 +522,10 @@ class BoardClient:
                 if failure is None:
                     self._busy_logged = self._port_absent = False
                     self._reconnect_at = None
+                    # What the new connection's first read returns waited since its opening, not since the
+                    # last read before the loss: taken for a late read, the restarted board's first samples
+                    # were dated by the board's clock from that read — seconds before it even restarted.
+                    self._read_end = now
                     self._write(s.link_up(now), now)
                     return
                 if isinstance(failure, PortBusy):

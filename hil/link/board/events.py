@@ -120,8 +120,10 @@ class BoardResetEvent:
     """The board reset: ``cause`` from its HelloReply, ``evidence`` how the host noticed (its uptime went
     backwards, it reported BOOT mid-session, or — ``during_session`` False — it reported a non-power-on
     reset cause when the host first connected, or restarted before it answered the first handshake).
-    ``no_board_since``: for a restart seen before the first session, the host time (s) of the host's first
-    try to reach the board — the host has had no board in hand since then, not only since this event."""
+    ``no_board_since``: the host time (s) since which the host has had no board in hand, not only since this
+    event: for a restart seen before the first session, the host's first try to reach the board; for one in
+    a session, the new boot's start by its uptime (no earlier than the old boot was last heard, nor than the
+    connection opened); None when not known."""
 
     t: float
     cause: ResetCause

@@ -17,10 +17,18 @@ read does not always take the whole backlog (a pty hands it over 4 KiB at a time
 behind until the read after one in which a sample so dated came within :data:`PROMPT_READ_S` of its
 receive time, or until its reads have been prompt for :data:`CATCH_UP_S` (a board whose clock drifted
 over the pause). A boot that began while the host was behind (a board that reset during its pause) has
-no offset yet: its samples in that read are dated by the earliest they can have been made — the last read
-before the pause plus their uptime — and from the next read on as a first boot's. While the host reads
-promptly, a sample is dated by its receive time, as before: a board whose clock falls behind the host's
-for a while (an emulator under load catching up its pacing) never has fresh frames taken for old.
+no offset yet: its samples are dated by the earliest they can have been made — the last read before the
+pause plus their uptime — by the same rules for as long as the session stays behind (every chunk of its
+backlog, not only the first: the second 4 KiB of a restarted board's backlog was dated as read, seconds
+old and shown live), and once caught up as a first boot's (by their receive time, anchoring its offset).
+While the host reads promptly, a sample is dated by its receive time, as before: a board whose clock falls
+behind the host's for a while (an emulator under load catching up its pacing) never has fresh frames
+taken for old.
+
+A link that comes back (:meth:`MadeAt.link_up`) is no late read: a port opened anew holds nothing older
+than its opening (the client dates the new connection's first read from it), and a pause before the loss
+says nothing of the new connection's frames — a restarted board's first samples after a reconnect were
+dated by the read before the loss, seconds before the board was even started again.
 """
 
 from __future__ import annotations
@@ -56,6 +64,13 @@ class MadeAt:
         self._window.clear()
         self._new_boot = True
 
+    def link_up(self) -> None:
+        """The link is (re)opened: whatever the host was behind on came over the connection before it
+        (the new one's reads are dated from its opening); the offsets stay (the board may be the same
+        boot: the session tells a new one by :meth:`forget_boot`)."""
+        self._behind_since = self._prompt_since = None
+        self._caught_up = False
+
     def read(self, now: float, waiting_since: float | None) -> None:
         """Bytes read at ``now``; the host's previous read ended at ``waiting_since`` (None: not known, or
         the first read)."""
@@ -76,17 +91,8 @@ class MadeAt:
         """The host time a sample of the board's clock (``uptime_s``, read at ``now``) was made."""
         window = self._window
         behind = self._behind_since
-        if behind is not None and not window and self._new_boot:
-            # A new boot read late (the board reset while the host was not reading): its clock has no
-            # offset on the host's yet. It began after the host's last prompt read, so its sample was made
-            # no earlier than that plus its uptime: dated so, never as read — its backlog, seconds old,
-            # was shown live, and so dated it ended the session's being behind for the rest of the read.
-            # For this read only: from the next one on its samples are dated as a first boot's (by their
-            # receive time, anchoring its offset) — a bound that may lie seconds early must not keep a
-            # restarted board's fresh telemetry stale for good.
-            self._caught_up = True
-            return min(now, behind + uptime_s)
-        if behind is None or not window:  # not behind, or the first boot's first sample: no clock to go by
+        if behind is None or not (window or self._new_boot):
+            # not behind, or the first boot's first sample: dated by its receive time, anchoring the offset
             self._behind_since = self._prompt_since = None
             self._caught_up = False
             offset = now - uptime_s
@@ -97,6 +103,13 @@ class MadeAt:
             while len(window) > 1 and window[0][0] < now - WINDOW_S:
                 window.popleft()
             return now
-        made = min(now, max(behind, uptime_s + window[0][1]))
+        # Behind: dated by the board's clock. A new boot read late (the board reset while the host was not
+        # reading) has no offset on the host's yet: it began after the host's last prompt read, so its
+        # sample was made no earlier than that plus its uptime — the earliest it can have been made, never
+        # as read (its backlog, seconds old, was shown live). Caught up as any other: a sample so dated
+        # within PROMPT_READ_S of its read, or CATCH_UP_S of prompt reads (a bound seconds early must not
+        # keep a restarted board's fresh telemetry stale for good); then dated as a first boot's.
+        offset = window[0][1] if window else behind
+        made = min(now, max(behind, uptime_s + offset))
         self._caught_up = self._caught_up or made >= now - PROMPT_READ_S
         return made

@@ -274,6 +274,7 @@ class Session:
         self._stale_in_a_row = 0  # samples of the same boot dropped one after the other as old (_stale)
         self._earlier_tries = 0  # the settled Hello's tries before the answered one, not answered yet
         self._reset_evidence: str | None = None
+        self._boot_began: float | None = None  # host s: the reset held in _reset_evidence's new boot began
         self._setpoint_slot = -math.inf
         self._pending_setpoint: bytes | None = None  # one waiting for its slot, encoded (Framer.prepare)
         self._transfers = CalibrationTransfers()
@@ -299,6 +300,7 @@ class Session:
         self.phase = Phase.HANDSHAKING
         self.failure = None
         self.deframer.reset()
+        self._made_at.link_up()  # a pause before the loss is no lateness of the new connection's reads
         self._board_seq = None
         self._seq_steps.clear()
         self._echoes_at_link_up = self.counters.echoes
@@ -746,6 +748,10 @@ class Session:
         self._last_uptime_of = {kind: uptime_ms}  # the new boot's: the old boot's other kind is no guide
         self._uptime_ms = uptime_ms  # the new boot's count: it starts from here
         made = self._made_at.sample(uptime_ms / 1000.0, now)
+        # no board in hand since the new boot began (its uptime says), not only since this sample; no
+        # earlier than the old boot was last heard, nor than this connection opened
+        heard = -math.inf if self._ran is None else self._ran[1]
+        self._boot_began = max(made - uptime_ms / 1000.0, heard, self._link_up_at)
         if state is not None:  # before the reset is seen: an armed board's reset is held by its state
             self._set_state(state, made)
         self._leaps.restart(uptime_ms, rx_frames, frames_out, now, made)  # the counts of a new boot
@@ -754,7 +760,7 @@ class Session:
         self._clock_base = self._ran
         self._reset_seen(now, evidence)
         if reply is not None:  # the handshake that just happened already told why
-            self._report_reset(now, reply.reset_cause, evidence)
+            self._report_reset(now, reply.reset_cause, evidence, no_board_since=self._boot_began)
             return made
         self._reset_evidence = evidence
         if self.phase is Phase.READY:
@@ -1024,7 +1030,8 @@ class Session:
         no_board_since = self._reaching_since if first else None
         if self._reset_evidence is not None:
             evidence = _before_first_session(self._reset_evidence, no_board_since)
-            self._report_reset(now, reply.reset_cause, evidence, not first, no_board_since)
+            began = no_board_since if first else self._boot_began
+            self._report_reset(now, reply.reset_cause, evidence, not first, began)
             self._reset_evidence = None
         elif boot_changed is not None:
             self._reset_seen(now, boot_changed)
