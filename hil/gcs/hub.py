@@ -41,11 +41,18 @@ read holds one slice."""
 _EVENT_ID = re.compile(r"([0-9a-f]{16})\.([0-9]{1,12})\.([0-9]{1,15})")
 
 
-def caught_up(progress_age_s: float | None) -> bytes:
+def caught_up(progress_age_s: float | None, host_time: float | None = None) -> bytes:
     """The message that ends a reader's history: ``{"progress_age_s": s}``, seconds since the run's last
-    progress when the reader got there (null: none yet)."""
-    age = None if progress_age_s is None else round(progress_age_s, 3)
-    return b"event: caught_up\ndata: " + json.dumps({"progress_age_s": age}).encode() + b"\n\n"
+    progress when the reader got there (null: none yet); with ``host_time`` (the host's monotonic clock, s,
+    as the stream writes it) too: the page sets its clock against the host's with it, so the ``host_time``
+    of each live ``status`` (:meth:`hil.gcs.live.LiveFeed.poll`) tells it how late the feed comes, whatever
+    the two clocks' offset (a browser on another machine, through a tunnel)."""
+    said: dict[str, float | None] = {
+        "progress_age_s": None if progress_age_s is None else round(progress_age_s, 3)
+    }
+    if host_time is not None:
+        said["host_time"] = round(host_time, 3)
+    return b"event: caught_up\ndata: " + json.dumps(said).encode() + b"\n\n"
 
 
 def skipped(chunks: int) -> bytes:
@@ -71,9 +78,15 @@ class HubStats:
 class Hub:
     """Chunks numbered from 0; ``budget`` bytes of the newest are held."""
 
-    def __init__(self, budget: int = DEFAULT_BUDGET, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, budget: int = DEFAULT_BUDGET, clock: Callable[[], float] = time.monotonic,
+        host_clock: Callable[[], float] | None = None,
+    ) -> None:  # fmt: skip
+        """``clock``: for the progress's age (s); ``host_clock``: the clock (s) that each :func:`caught_up`
+        carries, the one a live feed's statuses carry as ``host_time`` (None: none, no lag told)."""
         self.budget = budget
         self.clock = clock
+        self.host_clock = host_clock
         self.ident = secrets.token_hex(8)  # this hub's, in its readers' event ids (another server: another)
         self._progress_at: float | None = None  # when (clock) a chunk marked as progress was published
         self.stats = HubStats()
@@ -209,7 +222,8 @@ class Hub:
             if reader.info_version and not reader.caught_up and reader.cursor >= reader.live_from:
                 reader.caught_up = True
                 at = self._progress_at
-                out += caught_up(None if at is None else max(self.clock() - at, 0.0))
+                host_time = None if self.host_clock is None else self.host_clock()
+                out += caught_up(None if at is None else max(self.clock() - at, 0.0), host_time)
             if not out and self.closed:
                 return None
             if out:  # where this reader is, for its browser to resume from (resume)

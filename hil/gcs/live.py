@@ -35,7 +35,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 CAPACITY = 8192  # items (rows, events, link snapshots) between two pump cycles; beyond: dropped, counted
-HEARTBEAT_S = 0.25  # a run that ticks but sends nothing else says so this often (a status with its ticks)
+HEARTBEAT_S = 0.25  # a run that ticks says so this often (a status with its ticks and the host's clock)
 LINK_PERIOD_S = 0.2  # link statistics every this much run time
 RATE_WINDOW_S = 1.0  # phone sample rates over this window
 
@@ -213,15 +213,20 @@ class LiveFeed:
             "uplink_rejected": 0 if self.uplink is None else self.uplink.stats.rejected,
         }
         ticks, now = self._ticks, time.monotonic()
-        quiet = not (batch.rows or batch.events or batch.link)
-        beat = ticks != self._ticks_sent and quiet and now - self._beat_at >= HEARTBEAT_S
+        # A ticking run's status goes out every HEARTBEAT_S even while rows flow: its ``host_time`` is how
+        # the page tells a feed that comes late (every message, seconds after the host made it: a starved
+        # pump, a browser that reads behind) from a live one. Before, a status went out with rows only when
+        # a counter changed, and carried no clock: such a page said "receiving" of data seconds old.
+        beat = ticks != self._ticks_sent and now - self._beat_at >= HEARTBEAT_S
         if batch.status is not None or counters != self._counters or beat:
             self._counters = counters
             # Every status says how far the run has got (``ticks``, ``tick_t``), and the page counts a
             # status as the run's progress only if ``ticks`` moved: a status sent because a counter of the
             # server's changed (a refused request: ``uplink_rejected``) says nothing of the run, whose
             # control thread may be hung, and must not keep a frozen page "receiving".
-            progress = {"ticks": ticks, "tick_t": self._tick_t}
+            # ``host_time``: the host's monotonic clock (s) at this poll, which the page sets its own clock
+            # against with each stream's ``caught_up`` (:func:`hil.gcs.hub.caught_up`): the feed's lag
+            progress = {"ticks": ticks, "tick_t": self._tick_t, "host_time": round(now, 3)}
             batch.status = {**(batch.status or self._status), **counters, **progress}
             self._ticks_sent, self._beat_at = ticks, now
         return batch

@@ -91,7 +91,7 @@ class GroundStation:
         self.source = source
         self.uplink = uplink
         self.token = token or new_token()
-        self.hub = Hub(budget)
+        self.hub = Hub(budget, host_clock=time.monotonic)  # the clock of a live feed's ``host_time``
         self.info: dict[str, Any] | None = None
         self._said: tuple[Any, Any] = (None, None)  # the state and ticks of the last status published
         self._thread_error = ThreadError("the ground station's pump failed")

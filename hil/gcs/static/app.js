@@ -50,6 +50,11 @@ const state = {
   history: false,  // between an `info` and its `caught_up`: the history (re)sent, not the run's progress
   refused: "",  // why the server refused the stream, while it is refused (refusedStream)
   skips: [],  // where this page fell behind and the server trimmed what it had not read: [{chunks, after, until}]
+  // The feed's lag (hostLag): this page's clock (performance.now, s) less the host's monotonic clock, set by
+  // each `caught_up` (written as the stream sends it) and tightened by any status that comes sooner (an
+  // offset seen is never below the true one: a message is never early), and the host's clock at the newest
+  // live status (hil/gcs/live.py, poll); null: unknown. Monotonic both: a wall clock's step is no lag.
+  hostOffset: null, hostTime: null,
 };
 const stats = { messages: 0, rows: 0, bytes: 0, renders: 0, dataRenders: 0, updateHz: 0, renderTimes: [], histories: 0 };
 window.gcs = { state, stats };
@@ -104,9 +109,15 @@ function connect() {
     state.history = false;
     stats.histories += 1;
     if (typeof d.progress_age_s === "number") state.lastProgress = state.lastMessage - 1e3 * d.progress_age_s;
+    if (typeof d.host_time === "number") state.hostOffset = performance.now() / 1e3 - d.host_time;
     invalidate();
   });
   on("status", (s) => {
+    if (typeof s.host_time === "number") {
+      state.hostTime = s.host_time;
+      const offset = performance.now() / 1e3 - s.host_time;
+      if (!state.history && state.hostOffset !== null && offset < state.hostOffset) state.hostOffset = offset;
+    }
     state.status = { ...state.status, ...s };
     invalidate();
     showStatus();
@@ -172,6 +183,7 @@ function onInfo(info) {
   state.alarms = new Alarms(info);
   state.overlays = [];
   state.skips = [];  // a new store, the history again from the start: the holes of the old one are gone
+  state.hostTime = null;  // a new run (a host restarted): the old run's clock says nothing of this one's feed
   buildPlots();
   if (!same) { state.follow = true; state.playing = false; }
   $("run-name").textContent = info.compare ? `compared: ${info.compare.join(" · ")} (the timeline is ${info.run}'s)`
@@ -294,8 +306,22 @@ function feedState() {
     const refused = state.refused ? ` (${state.refused})` : "";
     return { text: `stale: ${what} for ${age.toFixed(1)} s${refused}`, cls: "stale", age };
   }
+  // Every message comes, but late (a starved pump, a page that reads behind): the run's progress arrives
+  // steadily, so only the host's clock tells it — its values are as old as the lag, and said so.
+  const lag = live ? hostLag() : null;
+  if (lag !== null && lag > FEED_STALE_S) {
+    return { text: `stale: lagging ${lag.toFixed(1)} s behind the host`, cls: "stale", age: Math.max(age, lag) };
+  }
   if (!state.connected) return { text: state.refused || `reconnecting: nothing for ${heard.toFixed(1)} s`, cls: "bad", age };
   return { text: live ? "receiving" : following ? "following" : "loaded", cls: "live", age: 0 };
+}
+
+// How far (s) the feed lags behind the host: the host's clock now, as this page reckons it from the
+// offset its stream's `caught_up` set, less the host's clock at the newest status received; null when not
+// known (a replay, a followed directory, a live run's history still loading, an older server).
+function hostLag() {
+  if (state.hostOffset === null || state.hostTime === null || state.history) return null;
+  return Math.max(performance.now() / 1e3 - state.hostOffset - state.hostTime, 0);
 }
 
 // The feed of a run that has ended (a live run's end, a replay's summary, a directory read once): "ended" or
