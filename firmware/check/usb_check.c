@@ -22,6 +22,7 @@ int usbc_open(const char *serial);
 void usbc_close(void);
 uint64_t usbc_now(void);
 int usbc_step(uint32_t pass_us);
+void usbc_advance(uint32_t us);
 long usbc_run_until(int aoa_state, uint32_t pass_us, uint32_t max_passes);
 int usbc_host_state(void);
 int usbc_version(void);
@@ -144,6 +145,14 @@ int usbc_step(uint32_t pass_us)
     if (took > max_pass)
         max_pass = took;
     return aoa_state();
+}
+
+/* Simulated time moves `us` with no pass of the stack: the chip and the phone go on (a reset ends, a
+ * transfer completes) while the board is busy elsewhere, between two looks at the chip. */
+void usbc_advance(uint32_t us)
+{
+    now_us += us;
+    max3421e_advance(chip, now_us);
 }
 
 /* Passes until the accessory layer is in `aoa_state` (the count), or -1 after max_passes. */

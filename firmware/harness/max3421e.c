@@ -12,7 +12,8 @@
  *    and raises BUSEVENTIRQ; CONDETIRQ on attach and detach (host mode); with MODE.SOFKAENAB and a device
  *    attached, a SOF every 1 ms raises FRAMEIRQ.
  *  - Transfers: HXFR launches one transaction; it completes after its wire time (XFER_US plus the payload
- *    at 12 Mb/s) with HRSL's result code and HXFRDNIRQ. SETUP sends SUDFIFO's 8 bytes as DATA0; IN loads
+ *    at 12 Mb/s) with HRSL's result code and HXFRDNIRQ. SETUP sends SUDFIFO's 8 bytes as DATA0 (from its start,
+ *    where the CPU's next write starts too: a retry may rewrite them or not); IN loads
  *    one of RCVFIFO's two buffers (RCVBC, RCVDAVIRQ; writing RCVDAVIRQ frees the buffer and shows the next);
  *    OUT sends SNDFIFO's SNDBC bytes; HS-IN and HS-OUT are the control status stages (zero-length DATA1).
  *    RCVTOG/SNDTOG are set by HCTL's strobes, flip on each acknowledged data packet and read back in HRSL.
@@ -150,6 +151,7 @@ struct max3421e {
     uint8_t last_out[MAXPKT]; /* the last bulk OUT packet the phone took: a repeat must be this packet */
     unsigned last_out_len;
     int stall_ep;
+    int clear_halt_nak; /* fault: the status stage of every CLEAR_FEATURE(ENDPOINT_HALT) is NAKed, for ever */
     unsigned packet_size;
     int zlp, zlp_due;
     int dead_osc;     /* fault: the crystal does not start: OSCOKIRQ never rises */
@@ -467,6 +469,8 @@ static answer_t ep0_in(max3421e_t *m, int handshake)
         a.len = n > mps ? mps : n; /* 0 once all is sent: a ZLP ends a transfer of whole packets */
         memcpy(a.data, m->ctl_buf + m->ctl_pos, a.len);
         a.pid = m->ctl_toggle;
+    } else if (m->ctl == CTL_STATUS_IN && m->clear_halt_nak && m->setup[0] == 0x02 && m->setup[1] == 1) {
+        a.result = HR_NAK; /* a phone that never finishes clearing its endpoint's halt */
     } else if (m->ctl == CTL_STATUS_IN || (m->ctl == CTL_DATA_OUT && m->ctl_pos == m->ctl_len)) {
         a.pid = 1;
         a.status = 1;
@@ -742,7 +746,6 @@ static void complete_transfer(max3421e_t *m)
             return;
         }
         memcpy(m->setup, m->sud, 8);
-        m->sud_ptr = 0;
         control_setup(m);
         set_result(m, HR_SUCCESS);
         break;
@@ -781,6 +784,12 @@ static void launch(max3421e_t *m, uint8_t token)
     if (tok == TOK_SETUP) {
         if (m->sud_ptr != 8 && m->sud_ptr != 0)
             error(m, "SETUP with %u bytes written to SUDFIFO", m->sud_ptr);
+        /* Every SETUP sends SUDFIFO's 8 bytes from its start, and the CPU's next write starts there too,
+         * whatever became of this one: a driver may launch the SETUP again as it is (USB Host Shield 2.0
+         * retries HXFR alone) or write the 8 bytes again first (Linux's max3421-hcd does, at every
+         * retransmission); both work on the chip. The pointer restarted only at a SETUP the phone took, so
+         * a rewrite after one that timed out (the phone unplugged, or not yet reset) was "past 8 bytes". */
+        m->sud_ptr = 0;
         bytes = 8;
     } else if (tok == TOK_OUT) {
         if (!m->snd_loaded)
@@ -1159,6 +1168,8 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
         m->cfg_normal[5] = m->cfg_accessory[5] = (uint8_t)value;
     } else if (!strcmp(name, "ep0_packet") && value >= 0 && value <= 255 && value == (int)value) {
         m->dev_normal[7] = m->dev_accessory[7] = (uint8_t)value;
+    } else if (!strcmp(name, "clear_halt_nak") && (value == 0 || value == 1)) {
+        m->clear_halt_nak = (int)value;
     } else if (!strcmp(name, "condet_after_reset") && value >= 0 && value <= 100000 && value == (int)value) {
         m->condet_after_reset_us = (unsigned)value;
     } else {

@@ -57,7 +57,9 @@ const char *max3421e_phone_string(const max3421e_t *m, int index); /* identity s
  *            only 8, 16, 32 and 64: any other value is a descriptor a host must refuse
  *   "condet_after_reset" value N (us, 0..100000; 0 = off, the default): the chip raises CONDETIRQ N us after
  *            each bus reset ends, the phone still there (a chip whose reset's own end is seen late as a
- *            connect event): a driver must not take it for a replug at every reset (a reset loop) */
+ *            connect event): a driver must not take it for a replug at every reset (a reset loop)
+ *   "clear_halt_nak" value 1: the phone NAKs the status stage of every CLEAR_FEATURE(ENDPOINT_HALT) for ever
+ *            (0, the default: it takes them); with "stall" re-armed, an endpoint no clear ever mends */
 int max3421e_fault(max3421e_t *m, const char *name, double value);
 const char *max3421e_last_error(const max3421e_t *m); /* the last protocol violation the board made ("" if none) */
 

@@ -216,7 +216,7 @@ void usb_command(harness_t *h, int argc, char **argv, FILE *out)
         if ((argc == 3 && *end) || max3421e_fault(h->max, argv[1], value) < 0) {
             fprintf(out, "error usb: unknown fault or value: %s %s (nak N, stall EP, detach, attach, aoa 0|1|2, "
                          "packet 1..64, zlp 0|1, never_switch 0|1|2, osc 0|1, config_value 0..255, lost_ack N, "
-                         "ep0_packet 0..255, condet_after_reset US)\n",
+                         "ep0_packet 0..255, condet_after_reset US, clear_halt_nak 0|1)\n",
                     argv[1], argc == 3 ? argv[2] : "");
         } else {
             drive_int(h, 0);

@@ -28,6 +28,10 @@
 #define AOA_REENUM_US 3000000UL /* after START the phone re-enumerates within ~1 s; longer: start over */
 #define AOA_PIPE_ERRORS 8u      /* consecutive bulk errors (not NAKs) before the device is enumerated again,
                                    or refused if the last was a STALL (AOA_EV_STALLED) */
+#define AOA_CLEAR_TRIES 3u      /* CLEAR_FEATURE(ENDPOINT_HALT)s failed (NAKed to the control transfer's
+                                   deadline, STALLed) since the device was plugged in, each followed by a
+                                   re-enumeration, before it is refused (AOA_EV_STALLED); at most 3 (a 2-bit
+                                   count) */
 #define AOA_OUT_PER_POLL 4u     /* bulk OUT packets per poll */
 #define AOA_HANDSHAKE_TRIES 3u  /* failed handshakes (bus errors, timeouts, START without a switch) before
                                    the device is refused */
@@ -57,7 +61,8 @@ enum {
                          control transaction) */
     AOA_EV_NO_CHIP,   /* the MAX3421E's oscillator never came up (arg: 0) */
     AOA_EV_STALLED,   /* a bulk endpoint STALLed AOA_PIPE_ERRORS times in a row, cleared each time, nothing
-                         moving between: refused until unplugged (arg: the endpoint address), after a DOWN */
+                         moving between, or its CLEAR_FEATURE failed AOA_CLEAR_TRIES times (a re-enumeration
+                         after each): refused until unplugged (arg: the endpoint address), after a DOWN */
     AOA_EV_BAD_DEVICE, /* the host stack refused the device for its device descriptor (USB_REFUSED: short, or
                           a bMaxPacketSize0 other than 8/16/32/64), until unplugged (arg: bMaxPacketSize0;
                           0 also when the answer ended before it) */

@@ -34,7 +34,9 @@ static const char *identity_string(uint8_t index)
 static struct {
     uint8_t state, step; /* step: 0 GET_PROTOCOL, 1..6 SEND_STRING index step-1, 7 START */
     uint8_t in_toggle, out_toggle, zlp_due;
-    uint8_t errors;    /* RUNNING: consecutive bulk errors; before: failed handshakes with this device */
+    uint8_t errors : 4; /* RUNNING: consecutive bulk errors; before: failed handshakes with this device */
+    uint8_t clear_fails : 2; /* CLEAR_FEATUREs (ENDPOINT_HALT) that failed since this device was plugged in:
+                                re-enumerations do not reset it (a bit-field: RAM leaves the stack its 1 KB) */
     uint8_t halted_ep; /* CLEAR_HALT: the endpoint; HANDSHAKE: STALLs of GET_PROTOCOL; IDLE: the host
                           stack's failure (no enumeration, no chip) has been said */
     uint8_t rx_left; /* bytes of the last bulk IN packet still in the chip's RCVFIFO (the receive buffer) */
@@ -45,6 +47,9 @@ static struct {
     uint32_t since_us;
     const char *serial;
 } aoa;
+
+_Static_assert(AOA_PIPE_ERRORS < 16u && AOA_HANDSHAKE_TRIES < 16u && AOA_CLEAR_TRIES < 4u,
+               "aoa.errors and aoa.clear_fails are bit-fields of 4 and 2 bits");
 
 /* aoa.out_resend with no packet waiting to be sent again (a real one is at most 64 bytes). */
 #define OUT_RESEND_NONE 0xFFu
@@ -308,6 +313,7 @@ void aoa_poll(uint32_t now_us)
             aoa.errors = 0;
             enter(AOA_IDLE, now_us);
         }
+        aoa.clear_fails = 0; /* another device, or none: its halts are its own */
     }
     usb_state_t host_state = usb_host_state();
     if (host_state != USB_CONFIGURED) {
@@ -362,9 +368,19 @@ void aoa_poll(uint32_t now_us)
             break;
         if (r == USB_CTL_FAILED) {
             rx_drop();
+            /* The clear NAKed to its deadline (or failed): a re-enumeration resets the endpoint, but a phone
+             * that halts it again and never takes the clear was re-enumerated for ever, ~0.6 s a round, the
+             * link dead and nothing said; after AOA_CLEAR_TRIES of them it is refused until unplugged. */
+            if (++aoa.clear_fails >= AOA_CLEAR_TRIES) {
+                usb_link_event(AOA_EV_DOWN, 0);
+                usb_link_event(AOA_EV_STALLED, aoa.halted_ep);
+                enter(AOA_REFUSED, now_us);
+                break;
+            }
             usb_host_reenumerate();
             break;
         }
+        aoa.clear_fails = 0; /* the halt cleared as USB says: the next one starts a new count */
         if (aoa.halted_ep & 0x80u)
             aoa.in_toggle = 0;
         else

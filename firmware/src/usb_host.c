@@ -523,8 +523,13 @@ void usb_host_poll(uint32_t now_us)
         break;
     case USB_RESETTING:
         if (max_bus_reset_done()) {
-            /* what the port did during the reset (the chip's own SE0 and its end among it) is what the bus
-             * shows now; an event from here on is a real attach or detach */
+            /* A connect event latched now came during the reset or in the moments since it ended, before
+             * this look (the main loop busy elsewhere): a phone plugged back there was never reset (or not
+             * for long enough) and answers nothing until it is - taken for the reset's own, it was
+             * enumerated blind to the control transfer's deadline, then retried. It is judged as one in the
+             * reset recovery is: a replug, once per attach (a chip that raises the event for its own reset
+             * costs one more debounce and reset, not a loop). */
+            uint8_t event = max_read(MAX_HIRQ) & MAX_CONDETIRQ;
             max_write(MAX_HIRQ, MAX_CONDETIRQ);
             max_bus_t bus = max_sample_bus();
             if (bus == MAX_BUS_SE0 || bus == MAX_BUS_SE1) {
@@ -533,6 +538,8 @@ void usb_host_poll(uint32_t now_us)
             }
             max_set_speed(usb_dev.low_speed ? MAX_BUS_LOW : MAX_BUS_FULL);
             enter(USB_RESET_RECOVERY, now_us);
+            if (event)
+                bus_event(now_us);
         } else if (in_state >= USB_RESET_MAX_US) {
             enum_failed(now_us);
         }
