@@ -55,12 +55,19 @@ def caught_up(progress_age_s: float | None, host_time: float | None = None) -> b
     return b"event: caught_up\ndata: " + json.dumps(said).encode() + b"\n\n"
 
 
-def skipped(chunks: int) -> bytes:
+def skipped(chunks: int, history: bool = False) -> bytes:
     """The message a slow reader gets where the chunks it had not read were trimmed before it read them:
     ``{"chunks": n}``, how many it will never get (their rows, events and statuses). Before, the skip was
     counted in ``/api/stats`` only and the page drew on across the hole as if nothing was missing; now it
-    says, and where (the page has the rows on either side of it)."""
-    return b"event: skipped\ndata: " + json.dumps({"chunks": chunks}).encode() + b"\n\n"
+    says, and where (the page has the rows on either side of it). ``history``: the run's own first chunks,
+    trimmed before this reader was given the history (``{"chunks": n, "history": true}``, right after
+    ``info``): a page that connected late to a long run (past the budget: ~20 min of a live run's rows)
+    drew it from the middle as if that were its start, its first events, commands and alarms missing
+    unsaid."""
+    said: dict[str, int | bool] = {"chunks": chunks}
+    if history:
+        said["history"] = True
+    return b"event: skipped\ndata: " + json.dumps(said).encode() + b"\n\n"
 
 
 @dataclass
@@ -96,6 +103,7 @@ class Hub:
         self._held = 0  # bytes held
         self._info: bytes | None = None
         self._info_version = 0
+        self._info_from = 0  # number of the first chunk published after the current info (the run's own)
         self.closed = False
         self._watchers: list[Callable[[], None]] = []
 
@@ -115,6 +123,7 @@ class Hub:
         with self._cond:
             self._info = info
             self._info_version += 1
+            self._info_from = self._first + len(self._chunks)
             self._progress_at = self.clock()
             self._cond.notify_all()
         self._changed()
@@ -206,6 +215,8 @@ class Hub:
                 reader.live_from = self._first + len(self._chunks)  # the history: the chunks held now
                 reader.caught_up = False
                 out += self._info
+                if self._first > self._info_from:  # the run's first chunks are gone: the reader is told
+                    out += skipped(self._first - self._info_from, history=True)
             # No run described yet (a live station whose run has not started): the chunks all the same —
             # its statuses, the last one saying a run that failed to start ended and why; before, such a
             # reader got nothing until an ``info`` that never came, and the page never learnt the run's fate.

@@ -164,6 +164,7 @@ export class AlarmPanel {
     this.sending = new Set();  // "key@raised_t" POSTed, waiting for the run's alarm_ack event
     this.errors = new Map();
     this.canAck = false;
+    this.drawn = null;  // the Alarms the table shows (a new one for each run)
   }
 
   // staleAge (s): how old the newest row is when the feed is stale (the host silent or hung, a followed run
@@ -181,8 +182,11 @@ export class AlarmPanel {
     if (badge.textContent !== `alarms: ${text}`) badge.textContent = `alarms: ${text}`;
     badge.className = `badge ${worst === "critical" ? "bad" : worst === "warning" ? "stale" : stale ? "" : "live"}`;
     $("alarm-count").textContent = `(${activeCount} active, ${unacked} not acknowledged)`;
-    if (key === this.key) return;
+    // the same key of another run's alarms (a new run on the page: its own list, its version from 0 again)
+    // is another table: the old run's rows were kept
+    if (key === this.key && alarms === this.drawn) return;
     this.key = key;
+    this.drawn = alarms;
     this.canAck = canAck;
     const body = document.querySelector("#alarms tbody");
     body.innerHTML = "";

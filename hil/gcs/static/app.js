@@ -9,7 +9,7 @@ import { View3D, rotvecToMatrix, eulerZYX } from "./view3d.js";
 import { $, fmt, setCell, drawPanels, drawEvents, shortText, threeNumbers, AT_RUN_END } from "./panels.js";
 import { Uplink } from "./uplink.js";
 import { Alarms, AlarmPanel } from "./alarms.js";
-import { drawHistory, exportHistory } from "./commands.js";
+import { drawHistory, exportHistory, commandEvents } from "./commands.js";
 
 const CLOCK_MS = 250;       // the feed's age is checked this often (a silent feed turns stale)
 const RETRY_MS = [1000, 2000, 4000, 8000, 10000];  // a stream the server refused is opened again after these
@@ -88,10 +88,11 @@ function connect() {
   });
   // This page fell behind and the server trimmed chunks it had not read (hil/gcs/hub.py, skipped): their rows
   // are missing between the last row held and the next one to come, said in the note rather than drawn across.
+  // `history`: the run's first chunks, trimmed before this page connected — its start is missing.
   on("skipped", (d) => {
     const store = state.store;
     const after = store && store.n ? store.data[0][store.n - 1] : null;
-    state.skips.push({ chunks: d.chunks, after, until: null });
+    state.skips.push({ chunks: d.chunks, after, until: null, history: d.history === true });
     showStatus();
   });
   on("events", (list) => { if (state.store) { state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
@@ -185,7 +186,17 @@ function onInfo(info) {
   state.skips = [];  // a new store, the history again from the start: the holes of the old one are gone
   state.hostTime = null;  // a new run (a host restarted): the old run's clock says nothing of this one's feed
   buildPlots();
-  if (!same) { state.follow = true; state.playing = false; }
+  // Another run (a station at the same address and token after the old one died without a `bye`, a live
+  // station's next run): nothing of the old run's is this one's. Each status is merged into the one before
+  // (a status says only what changed), so the old run's `exit` and `summary` stayed — the new run, still
+  // being written, read "lost" and showed the old board's state at its end — and the uplink's lines of the
+  // old run's commands took the new run's command of the same id. The same run described again (a
+  // reconnection) keeps its status: its history may no longer hold the status that said its state.
+  if (!same) {
+    state.follow = true; state.playing = false;
+    state.status = {};
+    uplink.newRun();
+  }
   $("run-name").textContent = info.compare ? `compared: ${info.compare.join(" · ")} (the timeline is ${info.run}'s)`
     : info.run + (info.scenario ? ` · ${info.scenario}` : "");
   $("note").textContent = info.note || "";
@@ -218,12 +229,25 @@ function showStatus() {
   $("note").textContent = [state.info && state.info.note, ...parts].filter(Boolean).join(" · ");
 }
 
-// What the note says of the chunks this page never got (state.skips): how many, and where their rows are missing.
+// What the note says of the chunks this page never got (state.skips): how many, and where their rows are
+// missing — the run's start (the server's history no longer held it when this page connected), and where
+// this page fell behind.
 function skipsText(skips) {
   const at = (t) => (typeof t === "number" ? `${t.toFixed(2)} s` : "?");
-  const chunks = skips.reduce((n, k) => n + k.chunks, 0);
-  const where = skips.map((k) => `t ${at(k.after)} – ${k.until === null ? "…" : at(k.until)}`).join(", ");
-  return `fell behind: ${chunks} downlink chunks skipped, rows missing at ${where}`;
+  const parts = [];
+  const start = skips.filter((k) => k.history);
+  const behind = skips.filter((k) => !k.history);
+  if (start.length) {
+    const chunks = start.reduce((n, k) => n + k.chunks, 0);
+    const until = start[start.length - 1].until;
+    parts.push(`the run's start is missing: ${chunks} downlink chunks were gone from the server's history when this page connected (rows before t ${until === null ? "…" : at(until)})`);
+  }
+  if (behind.length) {
+    const chunks = behind.reduce((n, k) => n + k.chunks, 0);
+    const where = behind.map((k) => `t ${at(k.after)} – ${k.until === null ? "…" : at(k.until)}`).join(", ");
+    parts.push(`fell behind: ${chunks} downlink chunks skipped, rows missing at ${where}`);
+  }
+  return parts.join(" · ");
 }
 
 // ---------------------------------------------------------------- the timeline
@@ -492,11 +516,12 @@ function rotvec(r) {
 function targetAt(tc) {
   // The target: the scenario's, or the newest one a ground command set ("applied" carries target_r). An
   // applied command whose target_r is malformed leaves the target unknown from then on: the slew it
-  // commanded went to an attitude the page cannot tell, and the older target would be a wrong one.
+  // commanded went to an attitude the page cannot tell, and the older target would be a wrong one. Only the
+  // command events are walked (commandEvents: each event scanned once), not every event of the run.
   let r = rotvec(state.info.target_r);
-  for (const e of state.store.events) {
+  for (const e of commandEvents(state.store.events)) {
     if (e.t > tc) break;
-    if (e.kind === "command" && e.status === "applied" && "target_r" in e) r = rotvec(e.target_r);
+    if (e.status === "applied" && "target_r" in e) r = rotvec(e.target_r);
   }
   return r ? rotvecToMatrix(r) : null;
 }

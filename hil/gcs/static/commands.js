@@ -46,8 +46,9 @@ function outcome(c) {
 // The command events of a store's events, scanned once each: the store appends events that come in time
 // order to the same array and merges a batch out of order into a new one (store.js, pushEvents), so only a
 // new array (or a shorter one) is scanned afresh. Before, every redraw walked all of the run's events.
+// app.js's targetAt reads the ground commands' targets through it too (it walked every event each frame).
 const scanned = { events: null, n: 0, commands: [] };
-function commandEvents(events) {
+export function commandEvents(events) {
   if (scanned.events !== events || events.length < scanned.n) Object.assign(scanned, { events, n: 0, commands: [] });
   for (let i = scanned.n; i < events.length; i++) if (events[i].kind === "command") scanned.commands.push(events[i]);
   scanned.n = events.length;

@@ -307,14 +307,18 @@ function details(e) {
     .map(([k, x]) => `${k.replace(/_/g, " ")}: ${shortText(x)}`).join(" · ");
 }
 
-// The newest events at or before the cursor, as a table (redrawn only when they change).
+// The newest events at or before the cursor, as a table (redrawn only when they change: other events — a
+// new store's, another run's — or another count of them). Keyed by the counts alone, a new run on the page
+// (hil/gcs/static/app.js, onInfo) with as many events as the old one kept showing the old run's.
+let eventsDrawn = null;  // the events array the table shows (the store's: a new one for each run)
 export function drawEvents(store, t, limit = 200) {
   const body = document.querySelector("#events tbody");
   let end = store.events.length;
   while (end > 0 && store.events[end - 1].t > t) end--;
   const key = `${end}/${store.events.length}`;
-  if (body.dataset.key === key) return;
+  if (body.dataset.key === key && eventsDrawn === store.events) return;
   body.dataset.key = key;
+  eventsDrawn = store.events;
   const shown = store.events.slice(Math.max(0, end - limit), end).reverse();
   body.innerHTML = "";
   for (const e of shown) {

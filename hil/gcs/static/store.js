@@ -1,8 +1,12 @@
 // The page's copy of the run: telemetry as columns of Float64Array (NaN = no value), events and link
 // snapshots in time order. Bounded: past MAX_ROWS rows every other row is dropped (the resolution halves,
-// the whole run stays), and from then on only every 2nd (4th, ...) row is kept.
+// the whole run stays), and from then on only every 2nd (4th, ...) row is kept; the link snapshots alike past
+// MAX_LINK, the newest always kept (the panel shows it while following).
 
 export const MAX_ROWS = 250000;
+// A live run sends a link snapshot every 0.2 s of run time (hil/gcs/live.py, LINK_PERIOD_S), each an object
+// of some thirty figures: kept whole, a page left open on a day's run held 430 000 of them (hundreds of MB).
+export const MAX_LINK = 20000;
 
 export class Store {
   constructor(columns) {
@@ -16,6 +20,9 @@ export class Store {
     this.events = [];
     this.eventKeys = [];  // each event's place in time (pushEvents)
     this.link = [];
+    this.linkEvery = 1;   // link snapshots kept: 1 in linkEvery, and the newest (pushLink)
+    this.linkSeen = 0;    // link snapshots received
+    this.linkNewest = false;  // whether the last one held is the newest only, not one of the 1 in linkEvery
   }
 
   has(name) { return name in this.index; }
@@ -82,7 +89,20 @@ export class Store {
     this.eventKeys = outK;
   }
 
-  pushLink(snapshots) { for (const s of snapshots) this.link.push(s); }
+  // Link snapshots in time order, bounded as the rows are (MAX_LINK): past it every other one is dropped and
+  // from then on 1 in 2 (4, ...) kept — and the newest one always, replaced by the next.
+  pushLink(snapshots) {
+    for (const s of snapshots) {
+      this.linkSeen += 1;
+      if (this.linkNewest) this.link.pop();
+      this.link.push(s);
+      this.linkNewest = (this.linkSeen - 1) % this.linkEvery !== 0;
+      if (!this.linkNewest && this.link.length > MAX_LINK) {  // the one pushed is the (MAX_LINK)th kept: even
+        this.link = this.link.filter((_, i) => i % 2 === 0);
+        this.linkEvery *= 2;
+      }
+    }
+  }
 
   get tFirst() { return this.n ? this.data[0][0] : NaN; }
   get tLast() { return this.n ? this.data[0][this.n - 1] : NaN; }

@@ -7,6 +7,12 @@ import { $, shortText } from "./panels.js";
 const CONFIRM_MS = 4000;
 const SLEW_AXES = ["roll", "pitch", "yaw"];
 const GCS_ORIGIN = "gcs";  // the origin of the server's command records (hil/gcs/uplink.py, parse_command)
+// The command log keeps this page's newest LOG_MAX lines (the command history below has every command of
+// the run); before, each click added a line for good: a page left open on a long run grew without bound.
+export const LOG_MAX = 100;
+// The newest "command" events kept for commands whose POST has not been answered yet (any sender's of
+// origin "gcs": another page's too), at most this many, the oldest forgotten first.
+const LATEST_MAX = 1000;
 
 // The number typed in a number field, or null when there is none: an empty field, or text the browser
 // cannot read as a number ("1e", "-", "1e400": its value is then ""), is no angle. Number("") is 0: such a
@@ -69,12 +75,27 @@ export class Uplink {
     this.send(body);
   }
 
-  // A line in the command log, newest first.
+  // A line in the command log, newest first; past LOG_MAX lines the oldest goes, and with it its command's
+  // place in `items` (its later statuses have no line to update).
   log(status, text) {
     const li = document.createElement("li");
     this.setStatus(li, status, text);
-    $("cmd-log").prepend(li);
+    const list = $("cmd-log");
+    list.prepend(li);
+    while (list.children.length > LOG_MAX) {
+      const oldest = list.lastElementChild;
+      for (const [id, line] of this.items) if (line === oldest) this.items.delete(id);
+      oldest.remove();
+    }
     return li;
+  }
+
+  // Another run on this page: the old run's lines and what was known of its commands go — the new run
+  // numbers its commands from 1 again, and its command 3's statuses once updated the old run's line #3.
+  newRun() {
+    this.items.clear();
+    this.latest.clear();
+    $("cmd-log").replaceChildren();
   }
 
   reset(button) {
@@ -97,6 +118,7 @@ export class Uplink {
       const reply = await answer.json();
       if (!answer.ok) { this.setStatus(li, "error", `${describe(body)}: ${reply.error || answer.status}`); return; }
       li.dataset.id = String(reply.id);
+      if (!li.isConnected) return;  // its line went (LOG_MAX, another run) while the POST was answered
       this.items.set(reply.id, li);
       this.setStatus(li, "queued", `#${reply.id} ${describe(body)}`);
       const known = this.latest.get(reply.id);
@@ -116,7 +138,9 @@ export class Uplink {
   // campaign's or a script's command 1 once took over the line of this page's command 1, its status too.
   onEvent(e) {
     if (e.kind !== "command" || e.origin !== GCS_ORIGIN || e.id === null || e.id === undefined) return;
+    this.latest.delete(e.id);  // set again: the newest last (the oldest are forgotten first)
     this.latest.set(e.id, e);
+    if (this.latest.size > LATEST_MAX) this.latest.delete(this.latest.keys().next().value);
     const li = this.items.get(e.id);
     if (!li) return;
     const detail = e.reason ? ` (${shortText(e.reason)})` : e.after_ms !== undefined ? ` after ${Number(e.after_ms).toFixed(0)} ms` : "";
