@@ -303,6 +303,7 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
         field_model_of,
         pinned_warnings,
         rate_drop_warning,
+        silence_warnings,
         split_at_gaps,
         steerable_end,
     )
@@ -363,7 +364,8 @@ def _drive(args: argparse.Namespace, name: str, field_model: object) -> int:
     for line in setup:
         print(f"  {line}", file=sys.stderr)
     slowed = [rate_drop_warning(drop) for drop in rate_drops(log, args.max_gap)]
-    for warning in [*field_warnings(log, field_model_of(options)), *slowed, *pinned_warnings(log)]:
+    said = [*field_warnings(log, field_model_of(options)), *slowed, *pinned_warnings(log)]
+    for warning in [*said, *silence_warnings(log, options.policy.stale_after_s)]:
         print(f"  warning: {warning}", file=sys.stderr)
         setup.append(f"warning: {warning}")
     plotter = None if args.no_plots else Plotter()  # its imports overlap the run, as hil run's
