@@ -29,10 +29,10 @@ exit status:
   0    every DIR reported, and every campaign among them whole (each of the runs its last session asked
        for on disk; one whose runs asked are unknown, from before hil recorded them, cannot be told)
   2    a DIR could not be reported (above)
-  3    every DIR reported, but a campaign among them is not whole: PARTIAL (interrupted, stopped, killed,
-       or still running: fewer of its runs asked on disk than were asked). A script or CI job that gates
-       on `hil report` is told its figures are not the campaign's; the same `hil montecarlo` command
-       runs the rest
+  3    every DIR reported, but one among them is not whole: a campaign PARTIAL (interrupted, stopped,
+       killed, or still running: fewer of its runs asked on disk than were asked; the same `hil montecarlo`
+       command runs the rest), or a run without its summary.json (killed, or still running: its rows so
+       far). A script or CI job that gates on `hil report` is told its figures are not the whole's
 
 A campaign a session is writing is reported from its runs so far; its summary.json and plots are left to
 that session (written only under the directory's lock, as the session writes them).
@@ -41,9 +41,10 @@ that session (written only under the directory's lock, as the session writes the
 EXIT_OK = 0
 EXIT_NOT_REPORTED = 2
 EXIT_PARTIAL = 3
-"""Every directory reported, a campaign among them partial: its printed figures are not the campaign's.
-Status 0 it was, and ``hil report mc/c1 && publish`` published the figures of 3 runs of 40 as the
-campaign's (the table said PARTIAL; the status said whole)."""
+"""Every directory reported, one among them not whole — a campaign partial, a run without its summary
+(killed, or still running) —: its printed figures are not the whole's. Status 0 it was, and ``hil report
+mc/c1 && publish`` published the figures of 3 runs of 40 as the campaign's (the table said PARTIAL; the
+status said whole); a run killed 10 s into its 40 s was reported "0" as a finished one."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -62,10 +63,10 @@ def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
 
 def run(args: argparse.Namespace) -> int:
     """Report each directory in turn: :data:`EXIT_NOT_REPORTED` if any could not be, else
-    :data:`EXIT_PARTIAL` if a campaign among them is not whole, else :data:`EXIT_OK`. A directory that
-    cannot be reported is said as the command says any error (``hil report: error: ...``, stderr) and the
-    next one is reported: ``hil report runs/*`` once stopped at the first such directory, the rest never
-    reported. A partial campaign is said on stderr too, with the status."""
+    :data:`EXIT_PARTIAL` if one among them is not whole (a campaign, a run), else :data:`EXIT_OK`. A
+    directory that cannot be reported is said as the command says any error (``hil report: error: ...``,
+    stderr) and the next one is reported: ``hil report runs/*`` once stopped at the first such directory,
+    the rest never reported. One not whole is said on stderr too, with the status."""
     from protocol.errors import HilError
 
     failed = partial = 0
@@ -81,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         if drawn.partial is not None:
             sys.stdout.flush()
-            print(f"hil report: {path}: not a whole campaign: {drawn.partial}", file=sys.stderr)
+            print(f"hil report: {path}: {drawn.partial}", file=sys.stderr)
             partial += 1
     if failed and len(args.dirs) > 1:
         print(f"hil report: {failed} of {len(args.dirs)} directories not reported", file=sys.stderr)
@@ -91,8 +92,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 class Reported(dict[str, Path]):
-    """What :func:`report` drew (plot name → path), and ``partial``: why the directory reported is not a
-    whole campaign (runs on disk of those asked, how its last session ended), or None."""
+    """What :func:`report` drew (plot name → path), and ``partial``: why the directory reported is not
+    whole — a campaign (runs on disk of those asked, how its last session ended), a run (no summary.json:
+    killed, or still running) —, or None."""
 
     partial: str | None = None
 
@@ -109,7 +111,7 @@ def report(path: Path, plots: bool = True) -> Reported:
     damaged: dict[str, str] = {}
     drawn = Reported()
     if (path / "telemetry.csv").is_file():
-        plotted, damaged = _run_dir(path, plots)
+        plotted, damaged, drawn.partial = _run_dir(path, plots)
         drawn.update(plotted)
     elif (path / MANIFEST).is_file():
         drawn = _campaign(path, plots)
@@ -130,10 +132,11 @@ def report(path: Path, plots: bool = True) -> Reported:
     return drawn
 
 
-def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], dict[str, str]]:
-    """Print the run directory ``path``'s counts and summary and draw its plots: name → plot path, and
-    its damaged files (said here on stdout too): file name → what is wrong with it (summary.json's
-    values; a telemetry.csv of no readable row)."""
+def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], dict[str, str], str | None]:
+    """Print the run directory ``path``'s counts and summary and draw its plots: name → plot path, its
+    damaged files (said here on stdout too): file name → what is wrong with it (summary.json's values; a
+    telemetry.csv of no readable row), and why the run is not whole (no summary.json: killed, or still
+    running), or None."""
     from hil.cli.run import UNREADABLE, checked_summary
     from hil.cores import available_cores
     from hil.plots.run import not_units, plot_run
@@ -170,14 +173,15 @@ def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], dict[str, str]]:
         summary = read_summary(path)
     except InputFormatError as exc:
         print(f"  summary.json damaged ({exc.detail}): not shown, and no plots (they read it)")
-        return {}, {"summary.json": exc.detail, **damaged}
-    damage = None
+        return {}, {"summary.json": exc.detail, **damaged}, None
+    damage = partial = None
     if summary is None:
+        partial = f"not a whole run: no summary.json ({_no_summary_why(path)}; exit status {EXIT_PARTIAL})"
         print(f"  no summary.json ({_no_summary_why(path)}): plots from the telemetry alone")
     elif (why := _not_a_rate(summary)) is not None:
         # the one value the plots take from it (hil.plots.run): a string there was a TypeError's traceback
         print(f"  summary.json damaged ({why}): not shown, and no plots (they read it)")
-        return {}, {"summary.json": why, **damaged}
+        return {}, {"summary.json": why, **damaged}, None
     elif (where := _not_a_number(summary)) is not None:
         # NaN and Infinity are JSON to Python, and a run writes neither (a figure it has not: null)
         damage = f"a value is not what a run writes: {where}"
@@ -200,8 +204,8 @@ def _run_dir(path: Path, plots: bool) -> tuple[dict[str, Path], dict[str, str]]:
         # an error of the report's — plot_run's "no telemetry rows to plot" once ended the command here
         if "telemetry.csv" not in damaged:
             print("  no telemetry rows (the run ended before its first): no plots")
-        return {}, damaged
-    return (plot_run(path, processes=available_cores()) if plots else {}), damaged
+        return {}, damaged, partial
+    return (plot_run(path, processes=available_cores()) if plots else {}), damaged, partial
 
 
 def _no_summary_why(path: Path) -> str:
@@ -289,4 +293,7 @@ def _not_whole(summary: dict) -> str | None:  # type: ignore[type-arg]
         return None
     on_disk = partial.get("runs_asked_on_disk", partial.get("runs_on_disk"))
     ended = f", its last session {str(partial['ended'])[:200]}" if partial.get("ended") else ""
-    return f"{on_disk} runs on disk of {partial.get('runs_asked')} asked{ended} (exit status {EXIT_PARTIAL})"
+    return (
+        f"not a whole campaign: {on_disk} runs on disk of {partial.get('runs_asked')} asked{ended} "
+        f"(exit status {EXIT_PARTIAL})"
+    )
