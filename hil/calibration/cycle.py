@@ -19,7 +19,9 @@
    the previous sets back too, wherever the board can still be reached, reads them back, and says what the
    board holds: a set half sent, or whole but unverified, is never left looking done;
 7. save the units into the array's calibration file (created or updated; other units kept), with each
-   fitted map's provenance (CSV, points, residuals).
+   fitted map's provenance (CSV, points, residuals). The save is guarded as the upload is: a run that
+   ends before the file holds the new sets (interrupted, the file unwritable or hand-edited meanwhile)
+   puts the previous sets back, so the board never keeps a set no file records.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import contextlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hil.runtime.held_signals import deferred
 from protocol.calibration import UnitCalibration
 from protocol.errors import CalibrationError, ConfigError, HilError, LinkError
 
@@ -46,7 +49,7 @@ from .fit import Fit, FitOptions, fit_bench
 from .operator import Operator
 from .plot import plot_fits, plot_path
 from .progress import Report, no_report
-from .sweep import SweepPlan, SweepResult, run_sweep
+from .sweep import SweepPlan, SweepResult, not_written, run_sweep
 from .textfiles import check_distinct, check_writable, locked
 from .verify import VerifyPlan, VerifyReport, run_verify
 
@@ -128,7 +131,10 @@ def calibrate_units(
         results = run_sweep(link, units, plan, paths=paths, report=report)
         for unit, result in results.items():
             sweeps[unit][plan.kind], csvs[unit][plan.kind] = result, paths[unit]
-            report(f"unit {unit}: {plan.kind.value} sweep, {len(result.rows)} steps -> {paths[unit]}")
+            if result.rows:
+                report(f"unit {unit}: {plan.kind.value} sweep, {len(result.rows)} steps -> {paths[unit]}")
+            else:  # stopped before its first step (its guard): the file there is left as it was
+                report(f"unit {unit}: {plan.kind.value} sweep, no step measured: {not_written(paths[unit])}")
         stopped = next((r.stopped for r in results.values() if r.stopped), None)
         if stopped:
             raise GuardTripped(f"the {plan.kind.value} sweep stopped early ({stopped}); nothing was uploaded")
@@ -144,6 +150,7 @@ def calibrate_units(
     calibrations = {u: _assemble(fits[u], existing.unit(u), previous[u]) for u in units}
     uploaded: list[int] = []  # units whose set went out, wholly or in part
     verified = None
+    saved: Path | None = None
     order = list(calibrations)
     step = f"the upload of unit {order[0]}'s set"
     try:
@@ -166,11 +173,25 @@ def calibrate_units(
                 report(f"unit {unit}: {_verify_plan_text(kinds, checks[unit], options.out)}")
             verified = run_verify(link, calibrations, options.verify, checks, report=report)
             report(verified.table())
+        if verified is None or verified.ok:
+            # The save is part of the run the put-back guards: a run that ends before the file holds the
+            # new sets (interrupted after its verification, the file unwritable, or hand-edited meanwhile
+            # so that its re-read fails) left them on the board, recorded nowhere, and said only
+            # "interrupted" or the file's error. Signals are held over the save itself (deferred): it is
+            # either not begun (put back) or whole, and `saved` then says the board and the file agree.
+            step = f"the save of {options.out}"
+            with deferred():
+                saved = _save(existing, options.out, calibrations, fits, csvs)
     except BaseException as exc:
-        # A board lost, reset, stalled or interrupted mid-upload or mid-verification — or anything else
-        # that ends the run there (a closed stdout's BrokenPipeError, a bug): a new set may sit on the
-        # board half sent, or whole but unverified. Never leave that looking done: put the previous sets
-        # back where the board can still be reached, read them back, and say what it holds.
+        if saved is not None:  # an interrupt held over the save, raised after it: board and file agree
+            with contextlib.suppress(Exception):
+                report(f"saved units {units} in {saved} (the board holds them, verified); then interrupted")
+            raise
+        # A board lost, reset, stalled or interrupted mid-upload, mid-verification or before its save — or
+        # anything else that ends the run there (a closed stdout's BrokenPipeError, a file that cannot be
+        # written, a bug): a new set may sit on the board half sent, whole but unverified, or verified but
+        # in no file. Never leave that looking done: put the previous sets back where the board can still
+        # be reached, read them back, and say what it holds.
         held = _put_back(link, {u: previous[u] for u in uploaded})
         if isinstance(exc, HilError):
             raise CalibrationError(
@@ -187,7 +208,7 @@ def calibrate_units(
             f"{_not_written(plots)}",
             str(options.out),
         )
-    saved = _save(existing, options.out, calibrations, fits, csvs)
+    assert saved is not None  # verified, or not asked to be: saved in the try above
     report(f"saved units {units} in {saved}")
     return CycleResult(calibrations, fits, sweeps, csvs, esc, verified, saved, plots)
 

@@ -54,6 +54,16 @@ sweep's own top, so without it a sweep of a servo that never moved (rates of 1e-
 STOPPED_FRACTION = 0.03  # a rotor below 3 % of its top speed (or gimbal below 3 % of its top rate) is still
 TOP_FRACTION = 0.03  # the top rows of a rotor sweep: the last 3 % of the endpoint span ...
 TOP_RISE = 0.01  # ... must be at least 1 % of full speed faster than the rows 6-12 % below the top
+END_FRACTION = 0.1
+"""The rows of a gimbal-angle sweep within this fraction of its pulse span of either end ..."""
+END_SLOPE = 0.4
+"""... must still turn the angle at least this fraction of the sweep's mean slope (span of the angle over
+span of the pulses), fitted by a line through them: a servo driven against its stop, or an angle sensor
+that saturates, reads a flat end, which the fit took as a table rising by its minimum increments there
+(``MIN_INCREMENT``), so a command near that angle put the servo anywhere on the plateau — against its stop.
+Chosen by a stated procedure: the smallest value over every angle sweep the repository has (the committed
+fixtures, ``hil calibrate bench`` for seeds 0..39, 4 units each, the emulator's sweeps of dispersed units)
+is 1.00 (346 ends), so the bound leaves 2.5x of margin; a flat end reads 0."""
 
 
 @dataclass(frozen=True)
@@ -329,7 +339,34 @@ def fit_gimbal_angle(data: BenchData, opts: FitOptions) -> Fit:
     with within(data.path):
         angle = GimbalAngleMap(MonotoneCubic.pchip(xs.tolist(), (s * ys).tolist()))
     fitted = np.array([angle.angle(pi).value for pi in p])
-    return Fit(angle, _report(data, fitted, "rad", a_span, n))
+    report = _report(data, fitted, "rad", a_span, n)  # outliers, data on no monotone curve: said first
+    _require_moving_ends(data, p, a, a_span)
+    return Fit(angle, report)
+
+
+def _require_moving_ends(data: BenchData, p: np.ndarray, a: np.ndarray, a_span: float) -> None:
+    """The angle (``a``, rad, rising in pulse) must still change at both ends of the sweep
+    (:data:`END_FRACTION`, :data:`END_SLOPE`): a flat end is a servo at its stop or a saturated sensor,
+    never a map (the rotor's flat top is refused so too: :func:`_require_rising_top`)."""
+    p_min, p_max = float(p.min()), float(p.max())
+    reach = p_max - p_min
+    mean_slope = a_span / reach  # rad/µs
+    window = END_FRACTION * reach
+    for name, rows in (("low", p <= p_min + window), ("high", p >= p_max - window)):
+        if np.unique(p[rows]).size < 3:  # too few pulses there to tell a slope from noise
+            continue
+        slope = float(np.polyfit(p[rows], a[rows], 1)[0])
+        if slope < END_SLOPE * mean_slope:
+            end = p_min if name == "low" else p_max
+            how = "turns back" if slope < 0 else "stops changing"
+            share = 100 * slope / mean_slope
+            raise CalibrationError(
+                f"the angle {how} at the {name} end of the sweep ({data.rows(np.nonzero(rows)[0])}:"
+                f" {slope:.3g} rad/µs over the {window:g} µs up to {end:g} µs, {share:.2g} % of the"
+                f" sweep's mean {mean_slope:.3g} rad/µs): the servo reached a stop, or the angle sensor"
+                " saturates; sweep within the servo's travel (hil calibrate sweep --range)",
+                data.path,
+            )
 
 
 # =========================================================================== shared steps

@@ -31,7 +31,7 @@ from pathlib import Path
 from protocol.errors import ConfigError, HilError, ProtocolError
 from protocol.messages import BoardState, ControlMode, GimbalMode, Telemetry
 
-from .bench import STATUS_KEY, BenchKind, write_bench_csv
+from .bench import STATUS_KEY, BenchKind, read_bench_csv, write_bench_csv
 from .benchlink import TICK_S, BenchLink, Guard, GuardTripped, Settling, check_tolerance, hold
 from .progress import Eta, Report, duration, no_report
 from .textfiles import check_writable
@@ -215,6 +215,14 @@ def run_sweep(
     channels = {unit: 2 * unit + m.offset for unit in units}
     pulses = plan.pulses()
     started = datetime.now(UTC).isoformat(timespec="seconds")
+    if paths is not None:  # a sweep starts over: what it will replace is said before it does
+        for unit in units:
+            there = on_disk(paths[unit])
+            if there is not None:
+                report(
+                    f"unit {unit}: {paths[unit]} holds {there}: this sweep starts over (it does not resume) "
+                    "and replaces it from its first measured step"
+                )
     link.check_board(f"the time before the {plan.kind.value} sweep")  # a board that reset since: say so
     first = link.prepare(ControlMode.RAW_PULSES, m.gimbal_mode)
     assert link.base_widths is not None
@@ -230,8 +238,8 @@ def run_sweep(
 
     def keep(stopped: str | None, last: Telemetry | None, partial: bool) -> dict[int, SweepResult]:
         out = results(stopped, last)
-        for unit, result in out.items():
-            if paths is not None:
+        if paths is not None and rows[units[0]]:  # the units' steps are measured together
+            for unit, result in out.items():
                 result.write_csv(paths[unit], partial=partial)
         return out
 
@@ -258,6 +266,9 @@ def run_sweep(
             kept = keep(why, None, partial=True)
             if paths is not None:
                 for unit, result in kept.items():
+                    if not result.rows:
+                        report(f"unit {unit}: no step measured: {not_written(paths[unit])}")
+                        continue
                     report(
                         f"unit {unit}: partial bench CSV kept, {len(result.rows)} of {len(pulses)} steps, "
                         f"marked '# status: partial' -> {paths[unit]}"
@@ -265,6 +276,27 @@ def run_sweep(
         raise
     link.safe()
     return keep(stopped, link.latest(), partial=stopped is not None)
+
+
+def on_disk(path: str | os.PathLike[str]) -> str | None:
+    """What the bench CSV at ``path`` holds, in words (None: no file there), for a sweep about to replace
+    it: a complete sweep, a partial one and why, or a file that is no bench CSV."""
+    if not os.path.lexists(path):
+        return None
+    try:
+        data = read_bench_csv(path)
+    except HilError as exc:
+        return f"a file that is no bench CSV ({exc})"
+    if data.partial is not None:
+        return f"a partial sweep of {len(data)} rows ({data.partial.split(': ', 1)[-1]})"
+    return f"a complete sweep of {len(data)} rows"
+
+
+def not_written(path: str | os.PathLike[str]) -> str:
+    """A sweep that measured no step writes no bench CSV: the words for what is left at ``path``. A
+    header-only partial file replaced a whole earlier sweep there (which no fit can read)."""
+    there = on_disk(path)
+    return f"no bench CSV written; {path} is left as it was ({there})" if there else "no bench CSV written"
 
 
 def _step_line(plan: SweepPlan, rows: Mapping[int, list[SweepRow]], eta: Eta) -> str:

@@ -378,7 +378,7 @@ def _range(text: str) -> tuple[int, int]:
 
 def run_sweep_cmd(args: argparse.Namespace) -> int:
     from hil.calibration.bench import BenchKind
-    from hil.calibration.sweep import SweepPlan, run_sweep
+    from hil.calibration.sweep import SweepPlan, not_written, run_sweep
 
     low, high = _range(args.range)
     plan = SweepPlan(
@@ -401,7 +401,10 @@ def run_sweep_cmd(args: argparse.Namespace) -> int:
         path = paths[unit]
         unsettled = sum(not r.settled for r in result.rows)
         note = f", {unsettled} unsettled" if unsettled else ""
-        say(f"unit {unit}: {len(result.rows)} steps{note} -> {path}")
+        if result.rows:
+            say(f"unit {unit}: {len(result.rows)} steps{note} -> {path}")
+        else:  # stopped before its first step: an earlier sweep's CSV there is kept, not emptied
+            say(f"unit {unit}: no step measured: {not_written(path)}")
         if result.stopped:
             print(f"hil calibrate sweep: stopped early: {result.stopped}", file=sys.stderr)
             status = 1
