@@ -40,7 +40,7 @@ from numpy.typing import NDArray
 from hil.estimation.sensors import SensorKind, SensorLog, SensorStream
 from hil.logs.columns import SENSOR_NAMES, axis_column, axis_columns, is_time_label, time_column
 from hil.logs.rows import is_content
-from hil.logs.sensorlogger import MAX_RECORDING_S, clock_of, plain_name
+from hil.logs.sensorlogger import MAX_RECORDING_S, clock_of, holds_nothing, plain_name
 from hil.logs.table import (
     Container,
     Header,
@@ -185,6 +185,7 @@ def read(c: Container) -> SensorLog:
             raise _side_by_side(c, f.kind, chosen[f.kind], f)
         elif f.kind is not None:
             notes.append(f"{f.name}: a second {f.kind.label} file, ignored (using {chosen[f.kind].name})")
+    empty = _empty_files(c, chosen)
     linear = [f.name for f in files if f.kind is None]
     if SensorKind.ACC not in chosen and linear:
         raise InputFormatError(
@@ -193,6 +194,11 @@ def read(c: Container) -> SensorLog:
             c.where(linear[0]),
         )
     for kind in (SensorKind.ACC, SensorKind.GYR):
+        if kind not in chosen and kind in empty:  # the file is there, holding nothing: named, as such
+            raise InputFormatError(
+                f"{empty[kind].rsplit('/', 1)[-1]} is empty (0 bytes): no {_HOLDS[kind]} readings",
+                c.where(empty[kind]),
+            )
         if kind not in chosen:  # one sensor's export alone (phyphox exports one table per experiment)
             found = ", ".join(f"{f.name}: {_HOLDS[f.kind]}" for f in files) or "no sensor tables"
             raise InputFormatError(
@@ -202,7 +208,12 @@ def read(c: Container) -> SensorLog:
             )
     if linear:
         notes.append(f"ignored (gravity removed): {', '.join(linear)}")
-    if SensorKind.MAG not in chosen:
+    if SensorKind.MAG not in chosen and SensorKind.MAG in empty:
+        notes.append(
+            f"{empty[SensorKind.MAG]} is empty (0 bytes): 6-axis log, heading not observed (gyroscope only, "
+            "drifting)"
+        )
+    elif SensorKind.MAG not in chosen:
         notes.append("no magnetometer file: 6-axis log, heading not observed (gyroscope only, drifting)")
     clocks = _clock_offsets(c, {f.group for f in chosen.values()}, notes)
     streams = {}
@@ -225,6 +236,27 @@ def read(c: Container) -> SensorLog:
             c.where(chosen[SensorKind.ACC].name),
         )
     return SensorLog(streams, str(c.path), NAME, None, tuple(notes))
+
+
+def _empty_files(c: Container, chosen: dict[SensorKind, _File]) -> dict[SensorKind, str]:
+    """The sensor files of the export that hold nothing but blank lines (0 bytes: phyphox, a copy or a
+    sync cut short wrote nothing), by the sensor their name (or their export folder's) says, for the
+    sensors no file with a header holds: :func:`_classify` has no header to read them by, and a 0-byte
+    ``Gyroscope.csv`` was refused as "no gyroscope file" and a 0-byte ``Magnetometer.csv`` noted as "no
+    magnetometer file", the file that is there never named. Sensor Logger's reader says "X.csv is
+    empty" (:func:`hil.logs.sensorlogger.holds_nothing`); one wording."""
+    empty: dict[SensorKind, str] = {}
+    for name in _csv_members(c):
+        folder, _, base = name.rpartition("/")
+        kind = _kind("", base, folder.rsplit("/", 1)[-1])
+        if (
+            isinstance(kind, SensorKind)
+            and kind not in chosen
+            and kind not in empty
+            and holds_nothing(c, name)
+        ):
+            empty[kind] = name
+    return empty
 
 
 def _side_by_side(c: Container, kind: SensorKind, first: _File, second: _File) -> InputFormatError:

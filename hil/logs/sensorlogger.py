@@ -130,7 +130,11 @@ def _sensor_files(files: Mapping[str, str]) -> bool:
 
 
 def _by_folder(c: Container) -> dict[str, dict[str, str]]:
-    """Sensor Logger's files in ``c`` by the folder they lie in: folder → (the app's file name → member)."""
+    """Sensor Logger's files in ``c`` by the folder they lie in: folder → (the app's file name → member).
+    A ``Metadata.csv`` in a folder of no sensor file above a folder of them (``Metadata.csv`` at the top
+    beside ``Rec/Gyroscope.csv``: moved, or zipped beside the folder) is that recording's, when the
+    recording has none of its own: it was dropped without a word, and an iOS recording replayed in
+    Android's frames, upside down (:func:`read` notes where it was read from, and any left unread)."""
     lower = {name.lower(): name for name in _KNOWN}
     groups: dict[str, dict[str, str]] = {}
     for member in sorted(c.names()):
@@ -139,7 +143,13 @@ def _by_folder(c: Container) -> dict[str, dict[str, str]]:
         if name is not None:
             groups.setdefault(folder, {}).setdefault(name, member)
     sensors = {folder: files for folder, files in groups.items() if _sensor_files(files)}
-    return sensors if sensors else groups  # a Metadata.csv in a folder of no sensor file: not a recording
+    if not sensors:
+        return groups  # a Metadata.csv in a folder of no sensor file: not a recording
+    for folder, files in sensors.items():  # the metadata of a recording whose files lie a folder down
+        above = [f for f in groups if f not in sensors and (not f or folder.startswith(f + "/"))]
+        if "Metadata.csv" not in files and above:
+            files["Metadata.csv"] = groups[max(above, key=len)]["Metadata.csv"]  # the nearest
+    return sensors
 
 
 def plain_name(base: str) -> str:
@@ -620,7 +630,7 @@ FILE_KINDS: dict[str, SensorKind] = {
 """The export's sensor files (lower case) → the sensor each holds (Gravity.csv: an accelerometer's)."""
 
 
-def _holds_nothing(c: Container, member: str) -> bool:
+def holds_nothing(c: Container, member: str) -> bool:
     """Whether the member has no line but blank ones (0 bytes: the app wrote nothing for that sensor).
     Streamed, and stopped at the first line with content."""
     for _, lines in text_lines(c, member):
@@ -675,6 +685,41 @@ def _ios_standardised(settings: Mapping[str, str], export: Export, notes: list[s
         "way round cannot be told",
         where,
     )
+
+
+_PLATFORM = re.compile(
+    r"^(ios|ipados|iphone\s*os|android)(?:[\s_/-]*(?:v(?:ersion)?\s*)?\d+(?:\.\d+)*)?(?:\s*\(.*\))?$"
+)
+"""A ``platform`` the recording's metadata may state (lower case): the app writes ``ios`` or ``android``;
+a tool or an app version may add a version (``android 14``, ``ios_17.2``, ``iOS 17 (21C62)``) or name
+iPadOS or iPhone OS, all iOS's frames."""
+
+
+def platform_of(settings: Mapping[str, str], where: str, notes: list[str]) -> str:
+    """The recording's platform from its metadata's ``platform`` (:func:`settings_of`: lower case):
+    ``"ios"`` or ``"android"`` (:data:`_PLATFORM`; a version or another spelling noted), ``""`` when it
+    states none (no metadata, no ``platform``, or an empty one, noted: then an
+    ``AccelerometerUncalibrated.csv`` in g is told iOS's by its unit, :func:`_uncalibrated_in_g`). Any
+    other value (``windows``, ``linux``) is an InputFormatError naming ``where``: it decides whether the
+    accelerometer's axes are negated, and every platform but one starting ``ios`` was read as Android's
+    without a word (an ``iPadOS`` recording upside down)."""
+    value = settings.get("platform")
+    if value is None:
+        return ""
+    if not value:
+        notes.append(f"{where}: 'platform' is empty: no platform stated")
+        return ""
+    m = _PLATFORM.match(value)
+    if m is None:
+        raise InputFormatError(
+            f"platform {value!r} is neither iOS nor Android (Sensor Logger writes 'ios' or 'android'): "
+            "whether the accelerometer's axes are Android's or iOS's own (negated) cannot be told",
+            where,
+        )
+    family = "android" if m.group(1) == "android" else "ios"
+    if value != family:
+        notes.append(f"{where}: platform {value!r} read as {family}")
+    return family
 
 
 def recording_settings(metadata: str) -> dict[str, str]:
@@ -770,14 +815,28 @@ def read(c: Container) -> SensorLog:
             layout.append(same)
     if any(m.rpartition("/")[2] != plain_name(m.rpartition("/")[2]) for m in files.values()):
         layout.append("the export's files are gzipped (.csv.gz): read decompressed")
+    sensor_folder = next(m for name, m in files.items() if name != "Metadata.csv").rpartition("/")[0]
+    if "Metadata.csv" in files and files["Metadata.csv"].rpartition("/")[0] != sensor_folder:
+        layout.append(
+            f"{c.where(files['Metadata.csv'])}: the recording's metadata, read from above its sensor files "
+            f"(in {sensor_folder})"
+        )
+    read_from = files["Metadata.csv"].rpartition("/")[0] if "Metadata.csv" in files else None
+    unread = [
+        m
+        for m in sorted(c.names())
+        if plain_name(m.rpartition("/")[2]).lower() == "metadata.csv" and m.rpartition("/")[0] != read_from
+    ]
+    if unread:  # not beside the sensor files nor above them: no recording's that is read
+        layout.append(f"not read (no metadata of this recording's folder): {', '.join(map(c.where, unread))}")
     if any(plain_name(m) != name for name, m in files.items()):
-        folder = next(iter(files.values())).rpartition("/")[0]
+        folder = sensor_folder
         layout.append(f"the export's files read from {folder or 'the top'} (names matched ignoring case)")
     export = Export(
         str(c.path),
         {name: c.where(member) for name, member in files.items()},
         lambda name: _csv_table(c, files[name], FILE_KINDS[name.lower()]),
-        lambda name: _holds_nothing(c, files[name]),
+        lambda name: holds_nothing(c, files[name]),
         lambda: recording_settings(c.text(files["Metadata.csv"])) if "Metadata.csv" in files else {},
         c,
     )
@@ -826,8 +885,9 @@ def _assemble(
     elif SensorKind.MAG not in parts:
         notes.append("no Magnetometer.csv: 6-axis log, heading not observed (gyroscope only, drifting)")
     settings = export.settings()
-    parts[SensorKind.ACC] = _accelerometer(export, notes, clocks, settings.get("platform", ""))
-    if settings.get("platform", "").startswith("ios") and not _ios_standardised(settings, export, notes):
+    platform = platform_of(settings, export.files.get("Metadata.csv", export.path), notes)
+    parts[SensorKind.ACC] = _accelerometer(export, notes, clocks, platform)
+    if platform == "ios" and not _ios_standardised(settings, export, notes):
         # iOS's own frames: its acceleration and gravity point the other way on every axis (flat, screen
         # up, gravity reads -z where Android's specific force reads +z); read as they are, the estimator
         # took the phone to be upside down
