@@ -128,5 +128,5 @@ def test_ci_runs_every_test_once_with_what_it_needs():
     assert markers == {"firmware", "browser"} and markers <= set(NEEDS)
     assert 'VSCMG_HIL_REQUIRE_ALL=1 .venv/bin/python -m pytest -q -m "$TOOL_MARKERS"' in run
     fresh = (ROOT / ".ci" / "fresh-machine").read_text()
-    assert "-m pytest -q \"$@\"" in fresh, "the fresh-machine pass runs the whole command"
+    assert '-m pytest -q "$@"' in fresh, "the fresh-machine pass runs the whole command"
     assert ".ci/fresh-machine >" in run and 'wait "$fresh_pid"' in run

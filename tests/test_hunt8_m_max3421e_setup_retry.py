@@ -16,9 +16,9 @@ import pytest
 from hypothesis import given, settings
 from max3421e_support import (
     HCTL,
+    HIRQ,
     HRSL,
     HXFR,
-    HIRQ,
     HXFRDNIRQ,
     RCVBC,
     RCVDAVIRQ,
