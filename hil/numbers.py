@@ -5,6 +5,12 @@ from __future__ import annotations
 
 import math
 
+MAX_SEED = 2**63 - 1
+"""The largest seed any command or file takes (``hil montecarlo --seed``, ``hil calibrate bench --seed``,
+a scenario's ``[scenario] seed``), each refused beyond it in one wording, ``must be an integer in
+0..MAX_SEED``: one bound, kept in one place (a scenario file once took ``seed = 18446744073709551616``,
+which the command line refused)."""
+
 
 def finite_number(value: object) -> float | None:
     """``value`` as a float if it is a finite number as JSON and TOML have them, else None. Not a bool

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.cli.montecarlo import MAX_SEED as CLI_MAX_SEED
+from hil.cli.montecarlo import MAX_SEED as CLI_MAX_SEED  # the one bound, imported there
 from hil.scenario import parse_scenario
 from hil.scenario.reader import MAX_SEED
 from protocol.errors import ConfigError

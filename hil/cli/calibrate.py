@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hil.cli._parser import given_path
+from hil.numbers import MAX_SEED
 
 if TYPE_CHECKING:
     from hil.calibration.bench import BenchData
@@ -303,8 +304,6 @@ def _plot_target(given: Path | None, default: Path) -> Path:
 
 
 # --------------------------------------------------------------------------- bench
-MAX_SEED = 2**63 - 1
-"""The largest ``hil calibrate bench --seed`` (``hil montecarlo --seed``'s bound)."""
 DEFAULT_MIRRORED = (3,)
 """The units ``hil calibrate bench`` mirrors without ``--mirrored`` (those the bench has)."""
 

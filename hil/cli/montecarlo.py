@@ -11,6 +11,7 @@ import time
 from typing import TYPE_CHECKING, Any, TextIO
 
 from hil.cli._parser import given_path
+from hil.numbers import MAX_SEED
 
 if TYPE_CHECKING:
     from hil.montecarlo import CampaignReport
@@ -171,7 +172,6 @@ WORKERS_PER_CORE = 4
 run is CPU-bound, so workers beyond the cores only share them, while each holds its own interpreter and
 kernels (~150 MB) and takes its turn to start — 1 000 asked of a 2-core machine took minutes only to
 start, and could exhaust its memory. A Dask scheduler (``--scheduler``) spreads a campaign further."""
-MAX_SEED = 2**63 - 1
 
 
 def check_options(args: argparse.Namespace) -> None:

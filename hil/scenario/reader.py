@@ -18,7 +18,7 @@ from hil.estimation.admission import ReadingLimits
 from hil.estimation.params import directions_matrix
 from hil.estimation.registry import DEFAULT_ESTIMATOR, EstimatorChoice
 from hil.estimation.sensors import SensorKind
-from hil.numbers import is_finite_number
+from hil.numbers import MAX_SEED, is_finite_number
 from hil.scenario.fault_specs import check_fault_options
 from hil.vscmg import SpacecraftParams
 from protocol.errors import ConfigError
@@ -153,10 +153,6 @@ MAX_DURATION_S = 86_400.0
 MAX_PLANT_STEPS = 100_000_000
 """The most plant steps a run may take (its warm-up and duration over ``plant_step_s``): a day at 1 ms is
 86.4 million. A lockstep run takes a few hours for that many; more is a run that never ends."""
-MAX_SEED = 2**63 - 1
-"""The largest ``[scenario] seed``: ``hil montecarlo --seed``'s bound (``hil.cli.montecarlo.MAX_SEED``), with
-its wording, since a campaign takes the scenario's seed when ``--seed`` is not given. Unbounded, a file
-took ``seed = 18446744073709551616`` that the command line refuses."""
 MAX_NAME_CHARS = 200
 """The longest ``[scenario] name`` (characters): one line on a terminal, a run directory's label (cut
 further there, :func:`hil.files.output.safe_label`)."""
