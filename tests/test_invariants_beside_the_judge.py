@@ -62,8 +62,9 @@ def silent(r: dict[str, np.ndarray], t0: float, t1: float, link: BoardLink = Boa
     r["board_link"][w], r["board_values"][w], r["tel_age_ms"][w] = float(link), False, 300.0
 
 
-def judge(injected=(), r=None, events=None, **summary: Any) -> InvariantReport:
-    """check_run on ``injected`` faults and a healthy record but ``r`` (rows), ``events`` and ``summary``."""
+def judge(injected=(), r=None, events=None, bounds: Bounds = B, **summary: Any) -> InvariantReport:
+    """check_run on ``injected`` faults and a healthy record but ``r`` (rows), ``events`` and ``summary``,
+    to ``bounds``."""
     s: dict[str, Any] = {
         "exit": "completed",
         "sim_s": 44.0,
@@ -79,7 +80,7 @@ def judge(injected=(), r=None, events=None, **summary: Any) -> InvariantReport:
     }
     s.update(summary)
     ev = [{"t": 0.0, "kind": "armed"}, {"t": SLEW_AT, "kind": "slew_start"}] if events is None else events
-    return check_run(list(injected), Record(rows() if r is None else r, ev, s), B)  # type: ignore[arg-type]
+    return check_run(list(injected), Record(rows() if r is None else r, ev, s), bounds)  # type: ignore[arg-type]
 
 
 def test_steering_on_no_phone_sample_at_all_is_stale_as_live():
@@ -206,3 +207,32 @@ def test_a_row_live_while_the_board_was_silent_is_stale_as_live(fault, journal, 
     r = rows()
     silent(r, *silence)
     assert judge([fault], r, faults=journal).ok
+
+
+def test_a_dead_rotor_esc_on_a_board_that_senses_no_rotor_is_unseen_not_a_missed_detection():
+    """The C firmware's board has no sensors on the units (its rotor speeds are estimates from its own
+    outputs): a dead rotor ESC there can be told by nothing, and a seeded campaign through it (seed 778,
+    run 6) flagged the run's silence about it a ``faults_detected`` violation. Unseen there, said why;
+    on a board that senses its rotors the same silence stays a violation; a dead gimbal servo is judged
+    as before on either."""
+    import dataclasses
+
+    blind = dataclasses.replace(B, rotors_sensed=False)
+    for channel in (1, 3, 5, 7):
+        dead = [InjectedFault("dead_esc", 10.0, {"channel": channel})]
+        assert judge(dead).violations["faults_detected"]
+        report = judge(dead, bounds=blind)
+        assert report.ok, report.violations
+        assert any("does not sense its rotors" in u for u in report.unseen), report.unseen
+    gimbal = [InjectedFault("dead_esc", 10.0, {"channel": 4})]
+    assert judge(gimbal).ok and judge(gimbal, bounds=blind).ok
+
+
+def test_only_the_firmware_board_is_said_to_sense_no_rotor():
+    from hil.montecarlo.runner import fault_bounds
+    from hil.scenario import load_scenario
+
+    scenario = load_scenario("cubesat-1u")
+    assert fault_bounds(scenario).rotors_sensed
+    assert fault_bounds(scenario.with_board("emulator")).rotors_sensed
+    assert not fault_bounds(scenario.with_board("firmware")).rotors_sensed

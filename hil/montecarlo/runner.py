@@ -392,6 +392,7 @@ def fault_bounds(scenario: Scenario) -> Bounds:
         duration_s=scenario.slew.duration_s,
         link_timeout_s=float(scenario.board_options.get("link_timeout", DEFAULT_LINK_TIMEOUT_S)),
         mcu_watchdog_s=float(scenario.board_options.get("mcu_watchdog", Bounds.mcu_watchdog_s)),
+        rotors_sensed=board_of(scenario) != "firmware",
     )
 
 

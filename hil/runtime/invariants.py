@@ -136,6 +136,13 @@ class Bounds:
     the board safe (an ARMED board), whatever the host's stale bound."""
     mcu_watchdog_s: float = 0.5
     """The board's MCU watchdog (``[board] mcu_watchdog``): a hung board is silent this long at least."""
+    rotors_sensed: bool = True
+    """Whether the board measures its rotors' response, so that a dead rotor ESC can be told at all:
+    firmware-sim's emulated board does (its dead-ESC detector, and telemetry from the units' states); the
+    project's C firmware (``--board firmware``) cannot — the ADK board has no sensors on the units, its
+    telemetry's rotor speeds are estimates from its own outputs (firmware/src/app.c) — so there a dead rotor
+    ESC is unseen, said so, not a detection missed: a campaign once flagged it as a ``faults_detected``
+    violation no host could have avoided."""
 
     @property
     def detect_s(self) -> float:
@@ -437,6 +444,12 @@ def _detected(
                 report.unseen.append(f"{fault.describe()} (too short for a stale view, the board not ARMED)")
                 continue
         dead_due = _dead_esc_due(fault, rows, end) if fault.kind == "dead_esc" else None
+        if dead_due is not None and not bounds.rotors_sensed:
+            report.unseen.append(
+                f"{fault.describe()} (the board does not sense its rotors: its telemetry's speeds are "
+                "estimates from its outputs, and no dead ESC can be told by it)"
+            )
+            continue
         if dead_due is not None:
             if math.isinf(dead_due):
                 report.unseen.append(
