@@ -15,9 +15,10 @@ import socket
 import time
 from pathlib import Path
 
+import pytest
 from gcs_support import request, wait_for
 
-from hil.gcs import GroundStation, RunDirSource
+from hil.gcs import GroundStation, RunDirSource, server
 
 COLUMNS = ["t"] + [f"x{k}" for k in range(30)]
 
@@ -28,7 +29,22 @@ def rows_text(start: int, n: int) -> str:
     )
 
 
-def test_a_reader_whose_unread_chunks_were_trimmed_is_told_where(tmp_path: Path) -> None:
+def received(conn: socket.socket, n: int) -> bytes:
+    """What the stream sends next; a stream the server ended before the test had what it waits for fails
+    the test (recv's b"" would otherwise be read for ever)."""
+    data = conn.recv(n)
+    assert data, "the station ended the stream before the newest row"
+    return data
+
+
+def test_a_reader_whose_unread_chunks_were_trimmed_is_told_where(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The socket stalls while the station reads megabytes of rows: on a busy machine that can take longer
+    # than the server lets a stream go unread (SEND_TIMEOUT_S, then it is cut off, as it should be: that
+    # is test_gcs_beside_hunt4_stalled_stream's). Here the reader must outlive its stall to see what follows
+    # the hole.
+    monkeypatch.setattr(server, "SEND_TIMEOUT_S", 600.0)
     d = tmp_path / "run"
     d.mkdir()
     (d / "telemetry.csv").write_text(",".join(COLUMNS) + "\n" + rows_text(0, 50))
@@ -41,7 +57,7 @@ def test_a_reader_whose_unread_chunks_were_trimmed_is_told_where(tmp_path: Path)
         conn.sendall(f"GET /api/stream?token={station.token} HTTP/1.1\r\nHost: {host}\r\n\r\n".encode())
         got = b""
         while b"caught_up" not in got:  # the history, then this socket stops reading
-            got += conn.recv(65536)
+            got += received(conn, 65536)
         n = 50
         with open(d / "telemetry.csv", "a") as f:
 
@@ -61,7 +77,7 @@ def test_a_reader_whose_unread_chunks_were_trimmed_is_told_where(tmp_path: Path)
         last = f"[{(n - 1) / 50:.10g},".encode()
         conn.settimeout(20)
         while last not in got:  # reading again: the rest of the stream, up to the newest row
-            got += conn.recv(1 << 20)
+            got += received(conn, 1 << 20)
         conn.close()
     text = got.decode(errors="replace")
     said = [json.loads(m) for m in re.findall(r"event: skipped\ndata: (.*)\n", text)]
