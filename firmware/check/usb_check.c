@@ -41,6 +41,7 @@ void usbc_stats(uint16_t *out);
 void usbc_device(uint16_t *out);
 uint32_t usbc_max_pass_us(void);
 uint16_t usbc_refused(void);
+int usbc_descriptor(int mode, int type, const uint8_t *bytes, size_t len);
 
 static max3421e_t *chip;
 static uint64_t now_us;
@@ -236,3 +237,10 @@ uint32_t usbc_max_pass_us(void) { return max_pass; }
 
 /* usb_stats.refused: kept out of usbc_stats, whose seven values the tests' buffers are sized for */
 uint16_t usbc_refused(void) { return usb_stats.refused; }
+
+/* The phone's descriptor of `type` (1 device, 2 configuration) in `mode` (1 normal, 2 accessory) replaced
+ * by `len` bytes, malformed ones included (max3421e_descriptor): 0, or -1 if the model refuses it. */
+int usbc_descriptor(int mode, int type, const uint8_t *bytes, size_t len)
+{
+    return max3421e_descriptor(chip, mode, type, bytes, len);
+}

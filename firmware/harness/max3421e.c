@@ -89,6 +89,7 @@ enum { HR_SUCCESS = 0, HR_BUSY = 1, HR_BADREQ = 2, HR_NAK = 4, HR_STALL = 5, HR_
 #define APP_BUF 4096u         /* each app-side pipe buffer (bytes) */
 #define MAX_TRANSFERS 64u     /* app writes whose ends are remembered (for short packets and ZLPs) */
 #define STRING_MAX 256u
+#define CFG_MAX 1024u        /* the longest configuration descriptor a test may give the phone (past the host's 512) */
 #define NONE_US UINT64_MAX
 
 /* Token bits of HXFR: HS(7) ISO(6) OUTNIN(5) SETUP(4) EP(3:0). */
@@ -143,7 +144,7 @@ struct max3421e {
     int config;
     int ctl, action, ctl_toggle;
     uint8_t setup[8];
-    uint8_t ctl_buf[STRING_MAX + 4];
+    uint8_t ctl_buf[CFG_MAX > STRING_MAX + 4 ? CFG_MAX : STRING_MAX + 4];
     unsigned ctl_len, ctl_pos;
     int in_toggle[16], out_toggle[16];
     unsigned nak_count, nak_left;
@@ -158,12 +159,17 @@ struct max3421e {
     int never_switch; /* fault: START is acknowledged, the phone stays in its normal mode (1), or drops off
                          and comes back in its normal mode, a new device each time (2) */
     char strings[6][STRING_MAX + 1];
-    /* The configuration descriptors this phone gives, its own copies: the "config_value" fault edits their
-     * bConfigurationValue (byte 5), a value 0 making the one configuration impossible to select. */
-    uint8_t cfg_normal[62], cfg_accessory[55];
-    /* Its device descriptors, its own copies: the "ep0_packet" fault edits their bMaxPacketSize0 (byte 7),
-     * which is also the size of the data packets it sends on endpoint 0 (clamped to the FIFO's 64). */
-    uint8_t dev_normal[18], dev_accessory[18];
+    /* The configuration descriptors this phone gives, its own copies, and their lengths (the bytes its
+     * GET_DESCRIPTOR answers, whatever wTotalLength says): the "config_value" fault edits their
+     * bConfigurationValue (byte 5), a value 0 making the one configuration impossible to select;
+     * max3421e_descriptor() replaces them whole. */
+    uint8_t cfg_normal[CFG_MAX], cfg_accessory[CFG_MAX];
+    unsigned cfg_normal_len, cfg_accessory_len;
+    /* Its device descriptors, its own copies, and their lengths: the "ep0_packet" fault edits their
+     * bMaxPacketSize0 (byte 7), which is also the size of the data packets it sends on endpoint 0 (clamped
+     * to the FIFO's 64); max3421e_descriptor() replaces them whole. */
+    uint8_t dev_normal[MAXPKT], dev_accessory[MAXPKT];
+    unsigned dev_normal_len, dev_accessory_len;
     /* fault: a chip that raises CONDETIRQ this long after each bus reset ends (0: never, the default); and
      * when the next such event is due */
     unsigned condet_after_reset_us;
@@ -211,8 +217,7 @@ static const uint8_t CFG_ACCESSORY[55] = {
     7, 5, 0x83, 2, MAXPKT, 0, 0,
     7, 5, 0x03, 2, MAXPKT, 0, 0,
 };
-_Static_assert(sizeof CFG_NORMAL == sizeof ((max3421e_t *)0)->cfg_normal &&
-                   sizeof CFG_ACCESSORY == sizeof ((max3421e_t *)0)->cfg_accessory,
+_Static_assert(sizeof CFG_NORMAL <= CFG_MAX && sizeof CFG_ACCESSORY <= CFG_MAX,
                "the phone's own copies of its configuration descriptors");
 #define EP_ACC_IN 1
 #define EP_ACC_OUT 2
@@ -325,10 +330,10 @@ static void control_setup(max3421e_t *m)
         unsigned dtype = value >> 8, didx = value & 0xFF;
         if (dtype == 1) {
             src = m->accessory ? m->dev_accessory : m->dev_normal;
-            n = 18;
+            n = m->accessory ? m->dev_accessory_len : m->dev_normal_len;
         } else if (dtype == 2 && didx == 0) {
             src = m->accessory ? m->cfg_accessory : m->cfg_normal;
-            n = m->accessory ? sizeof m->cfg_accessory : sizeof m->cfg_normal;
+            n = m->accessory ? m->cfg_accessory_len : m->cfg_normal_len;
         } else if (dtype == 3 && didx == 0) {
             static const uint8_t LANG[4] = {4, 3, 0x09, 0x04};
             src = LANG;
@@ -643,10 +648,17 @@ static int addressed(max3421e_t *m, unsigned ep, int in)
         return 0;
     }
     const uint8_t *cfg = m->accessory ? m->cfg_accessory : m->cfg_normal;
-    unsigned total = cfg[2];
-    for (unsigned k = 0; k < total; k += cfg[k])
-        if (cfg[k + 1] == 5 && (cfg[k + 2] & 0x0F) == ep && ((cfg[k + 2] & 0x80) != 0) == in)
+    unsigned len = m->accessory ? m->cfg_accessory_len : m->cfg_normal_len;
+    /* the endpoints its descriptor says, as far as it parses (a test may give it a malformed one), of the
+     * interfaces' alternate settings 0 only: the phone takes SET_INTERFACE to no other, so no other's
+     * endpoints are ever active (USB 2.0 9.6.5) */
+    unsigned alternate = 0;
+    for (unsigned k = 0; k + 3 < len && cfg[k] >= 2; k += cfg[k]) {
+        if (cfg[k + 1] == 4)
+            alternate = cfg[k + 3];
+        else if (cfg[k + 1] == 5 && !alternate && (cfg[k + 2] & 0x0F) == ep && ((cfg[k + 2] & 0x80) != 0) == in)
             return 1;
+    }
     error(m, "no %s endpoint %u in this configuration", in ? "IN" : "OUT", ep);
     return 0;
 }
@@ -978,10 +990,10 @@ max3421e_t *max3421e_new(void)
     m->stall_ep = -1;
     m->packet_size = MAXPKT;
     m->detach_at = m->attach_at = NONE_US;
-    memcpy(m->cfg_normal, CFG_NORMAL, sizeof CFG_NORMAL);
-    memcpy(m->cfg_accessory, CFG_ACCESSORY, sizeof CFG_ACCESSORY);
-    memcpy(m->dev_normal, DEV_NORMAL, sizeof DEV_NORMAL);
-    memcpy(m->dev_accessory, DEV_ACCESSORY, sizeof DEV_ACCESSORY);
+    max3421e_descriptor(m, 1, 1, DEV_NORMAL, sizeof DEV_NORMAL);
+    max3421e_descriptor(m, 2, 1, DEV_ACCESSORY, sizeof DEV_ACCESSORY);
+    max3421e_descriptor(m, 1, 2, CFG_NORMAL, sizeof CFG_NORMAL);
+    max3421e_descriptor(m, 2, 2, CFG_ACCESSORY, sizeof CFG_ACCESSORY);
     chip_reset(m, 0);
     phone_attach(m, 0);
     return m;
@@ -1165,7 +1177,7 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
     } else if (!strcmp(name, "lost_ack") && value >= 0 && value <= 1e6 && value == (int)value) {
         m->lost_acks = (unsigned)value;
     } else if (!strcmp(name, "config_value") && value >= 0 && value <= 255 && value == (int)value) {
-        m->cfg_normal[5] = m->cfg_accessory[5] = (uint8_t)value;
+        m->cfg_normal[5] = m->cfg_accessory[5] = (uint8_t)value; /* byte 5 of the buffer: CFG_MAX long */
     } else if (!strcmp(name, "ep0_packet") && value >= 0 && value <= 255 && value == (int)value) {
         m->dev_normal[7] = m->dev_accessory[7] = (uint8_t)value;
     } else if (!strcmp(name, "clear_halt_nak") && (value == 0 || value == 1)) {
@@ -1175,6 +1187,23 @@ int max3421e_fault(max3421e_t *m, const char *name, double value)
     } else {
         return -1;
     }
+    return 0;
+}
+
+int max3421e_descriptor(max3421e_t *m, int mode, int type, const uint8_t *bytes, size_t len)
+{
+    if ((mode != 1 && mode != 2) || (type != 1 && type != 2) || (len && !bytes))
+        return -1;
+    uint8_t *dst = type == 1 ? (mode == 1 ? m->dev_normal : m->dev_accessory)
+                             : (mode == 1 ? m->cfg_normal : m->cfg_accessory);
+    unsigned *dst_len = type == 1 ? (mode == 1 ? &m->dev_normal_len : &m->dev_accessory_len)
+                                  : (mode == 1 ? &m->cfg_normal_len : &m->cfg_accessory_len);
+    size_t cap = type == 1 ? MAXPKT : CFG_MAX;
+    if (len > cap)
+        return -1;
+    memset(dst, 0, cap); /* bytes past len: never served, and byte 7 (bMaxPacketSize0) 0 if unsaid */
+    memcpy(dst, bytes, len);
+    *dst_len = (unsigned)len;
     return 0;
 }
 

@@ -61,6 +61,12 @@ const char *max3421e_phone_string(const max3421e_t *m, int index); /* identity s
  *   "clear_halt_nak" value 1: the phone NAKs the status stage of every CLEAR_FEATURE(ENDPOINT_HALT) for ever
  *            (0, the default: it takes them); with "stall" re-armed, an endpoint no clear ever mends */
 int max3421e_fault(max3421e_t *m, const char *name, double value);
+/* Replace the phone's descriptor of `type` (1 device, 2 configuration) in `mode` (1 normal, 2 accessory, as
+ * max3421e_phone_mode says) with `len` bytes, served as they are - a malformed one too - to GET_DESCRIPTOR
+ * (at most the wLength asked): a device descriptor up to 64 bytes, a configuration up to 1024. The phone's
+ * endpoints are those the accessory configuration's descriptors say, as far as they parse. 0 ok, -1 an
+ * unknown mode/type or too long. */
+int max3421e_descriptor(max3421e_t *m, int mode, int type, const uint8_t *bytes, size_t len);
 const char *max3421e_last_error(const max3421e_t *m); /* the last protocol violation the board made ("" if none) */
 
 #endif /* MAX3421E_MODEL_H */

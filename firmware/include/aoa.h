@@ -63,9 +63,10 @@ enum {
     AOA_EV_STALLED,   /* a bulk endpoint STALLed AOA_PIPE_ERRORS times in a row, cleared each time, nothing
                          moving between, or its CLEAR_FEATURE failed AOA_CLEAR_TRIES times (a re-enumeration
                          after each): refused until unplugged (arg: the endpoint address), after a DOWN */
-    AOA_EV_BAD_DEVICE, /* the host stack refused the device for its device descriptor (USB_REFUSED: short, or
-                          a bMaxPacketSize0 other than 8/16/32/64), until unplugged (arg: bMaxPacketSize0;
-                          0 also when the answer ended before it) */
+    AOA_EV_BAD_DEVICE, /* the host stack refused the device for its device descriptor (USB_REFUSED: short, not
+                          a device descriptor, or a bMaxPacketSize0 other than 8/16/32/64), until unplugged
+                          (arg: bMaxPacketSize0; 0 also when the answer ended before it or was no device
+                          descriptor: bLength not 18, bDescriptorType not 1) */
 };
 
 /* Provided by the link layer: the bytes waiting to go to the phone. */

@@ -1,8 +1,11 @@
 /*
  * usb_host.h - a one-device USB host on the MAX3421E: attach detection, debounce, bus reset and speed,
  * enumeration (device descriptor 8 then 18 bytes, SET_ADDRESS, configuration descriptor, SET_CONFIGURATION;
- * a configuration descriptor shorter than 9 bytes or of bConfigurationValue 0 fails it; a device descriptor
- * that comes back short or with a bMaxPacketSize0 other than 8/16/32/64 is refused: USB_REFUSED), detach; plus the non-blocking control-transfer engine and single bulk transactions the accessory layer
+ * a configuration descriptor shorter than 9 bytes, of bConfigurationValue 0, holding a descriptor shorter
+ * than its type's standard size (configuration/interface 9, endpoint 7, any other 2) or cut by its
+ * wTotalLength fails it; a device descriptor that comes back short, is not one (bLength other than 18,
+ * bDescriptorType other than 1) or says a bMaxPacketSize0 other than 8/16/32/64 is refused: USB_REFUSED),
+ * detach; plus the non-blocking control-transfer engine and single bulk transactions the accessory layer
  * (aoa.c) uses.
  *
  * Everything is a state machine advanced by usb_host_poll() from the main loop: one call does a bounded
@@ -26,8 +29,9 @@ typedef enum {
     USB_ENUMERATING,  /* control transfers of the enumeration (usb_host.c's steps) */
     USB_CONFIGURED,   /* configured: the accessory layer owns it */
     USB_ERROR,        /* enumeration failed USB_ENUM_TRIES times: waits for a detach or USB_RETRY_US */
-    USB_REFUSED,      /* a device descriptor no host may take (short, or a bMaxPacketSize0 full speed does
-                         not allow): left unconfigured, no retry, until it is unplugged */
+    USB_REFUSED,      /* a device descriptor no host may take (short, not a device descriptor, or a
+                         bMaxPacketSize0 full speed does not allow): left unconfigured, no retry, until it is
+                         unplugged */
 } usb_state_t;
 
 #define USB_DEBOUNCE_US 200000UL     /* attach debounce (USB 2.0 9.1.2 asks for >= 100 ms) */
@@ -54,9 +58,10 @@ typedef enum { USB_CTL_BUSY = 0, USB_CTL_DONE, USB_CTL_FAILED } usb_ctl_result_t
 typedef struct {
     uint16_t vid, pid;
     uint8_t max_packet0; /* bMaxPacketSize0 as the device said it (8 until it has; checked after the read;
-                            USB_REFUSED: 0 if the descriptor ended before it) */
+                            USB_REFUSED: 0 if the descriptor ended before it or was no device descriptor) */
     uint8_t config_value;
-    uint8_t bulk_in, bulk_out;   /* endpoint numbers of interface 0's bulk pair (0: none found) */
+    uint8_t bulk_in, bulk_out;   /* endpoint numbers of interface 0's bulk pair in its default (alternate 0)
+                                    setting, the one configured (0: none found) */
     uint8_t in_packet, out_packet; /* their wMaxPacketSize (<= 64 at full speed) */
     uint8_t low_speed;
 } usb_device_t;

@@ -225,19 +225,32 @@ uint8_t usb_bulk_out(uint8_t ep, uint8_t *toggle, const uint8_t *src, uint8_t n)
 }
 
 /* ------------------------------------------------------------------------------- enumeration */
+/* The enumeration, one control transfer per step. */
+enum { STEP_DEV8, STEP_SET_ADDRESS, STEP_ADDRESS_WAIT, STEP_DEV18, STEP_CONF9, STEP_CONF, STEP_SET_CONFIG, STEP_END };
+
 /* The configuration descriptor arrives in packets: a small streaming parser keeps the bytes it needs
- * (configuration value, interface number, the first interface's bulk endpoints) instead of a buffer. */
+ * (configuration value, interface number, the bulk endpoints of interface 0's default setting) instead of
+ * a buffer.
+ * The device descriptor's reads use it too: its bLength and bDescriptorType land in len and type. */
 static struct {
     uint16_t offset, total; /* bytes seen; wTotalLength */
-    uint8_t pos, len, type, iface;
+    uint8_t pos, len, type, iface; /* pos: the byte of the present descriptor next (PARSE_MALFORMED: stopped) */
     uint8_t field[4]; /* the descriptor's bytes 2..5 */
 } parse;
+
+/* parse.pos once a descriptor was found malformed: nothing after it is read (a descriptor's pos is at most
+ * 254 between bytes, since bLength <= 255). A byte rather than a flag: the board's RAM is full. */
+#define PARSE_MALFORMED 0xFFu
 
 static void device_sink(const uint8_t *d, uint8_t n)
 {
     for (uint8_t i = 0; i < n; i++, parse.offset++) {
         uint16_t at = parse.offset;
-        if (at == 7)
+        if (at == 0)
+            parse.len = d[i]; /* bLength and bDescriptorType: device_descriptor_ok() judges them */
+        else if (at == 1)
+            parse.type = d[i];
+        else if (at == 7)
             usb_dev.max_packet0 = d[i]; /* as said: device_descriptor_ok() judges it once the read is done */
         else if (at == 8)
             usb_dev.vid = d[i];
@@ -250,56 +263,96 @@ static void device_sink(const uint8_t *d, uint8_t n)
     }
 }
 
+/* The standard size of a descriptor of `type` (USB 2.0 9.6.3, 9.6.5, 9.6.6), bytes: one shorter ends
+ * before its fields do, and what they would be read from is the descriptor before it. Types the parser
+ * does not read (class-specific, interface association, ...) need only their own two header bytes. */
+static uint8_t standard_length(uint8_t type)
+{
+    if (type == DESC_CONFIGURATION || type == DESC_INTERFACE)
+        return 9u;
+    return type == DESC_ENDPOINT ? 7u : 2u;
+}
+
+/* The standard fields of the present descriptor (its bytes 2..5 in parse.field) are all in: take them. */
+static void descriptor_fields_in(void)
+{
+    if (parse.type == DESC_CONFIGURATION) {
+        if (parse.offset != 8u)
+            return; /* one further in the answer is not this configuration's: skipped (USB 2.0 9.4.3) */
+        parse.total = (uint16_t)(parse.field[0] | parse.field[1] << 8);
+        usb_dev.config_value = parse.field[3];
+    } else if (parse.type == DESC_INTERFACE) {
+        /* an alternate setting other than 0 (bAlternateSetting, byte 3) is not the one SET_CONFIGURATION
+         * selects, and the host asks for no other: its endpoints are not active, not the bulk pair's */
+        parse.iface = parse.field[1] ? 0xFFu : parse.field[0];
+    } else if (parse.type == DESC_ENDPOINT && parse.iface == 0 && (parse.field[1] & 3u) == 2u) {
+        uint8_t ep = parse.field[0] & 0x0Fu;
+        uint8_t mps = parse.field[3] ? 64u : (parse.field[2] > 64u ? 64u : parse.field[2]);
+        if ((parse.field[0] & 0x80u) && !usb_dev.bulk_in) {
+            usb_dev.bulk_in = ep;
+            usb_dev.in_packet = mps;
+        } else if (!(parse.field[0] & 0x80u) && !usb_dev.bulk_out) {
+            usb_dev.bulk_out = ep;
+            usb_dev.out_packet = mps;
+        }
+    }
+}
+
+/* A descriptor is judged as soon as its header is in: a bLength below its type's standard size (0 and 1
+ * included) marks the answer malformed and the rest unread - its fields would be the last descriptor's
+ * bytes, and the bytes after it no descriptor boundary anyone said. Its fields are taken once its standard
+ * part is in (a longer bLength, as USB allows, skips the rest); the caller refuses a malformed answer and
+ * one that ends inside a descriptor (enumerate()). */
 static void config_sink(const uint8_t *d, uint8_t n)
 {
-    for (uint8_t i = 0; i < n; i++, parse.offset++) {
-        if (parse.pos == 0) {
+    for (uint8_t i = 0; i < n && parse.pos != PARSE_MALFORMED; i++, parse.offset++) {
+        uint8_t at = parse.pos++;
+        if (at == 0) {
             parse.len = d[i];
-            if (parse.len < 2u) { /* a malformed descriptor: stop parsing, keep what was found */
-                parse.offset = CONFIG_MAX_LEN;
+            continue; /* its size is judged with its type, the next byte */
+        }
+        if (at == 1) {
+            parse.type = d[i];
+            if (parse.len < standard_length(parse.type)) {
+                parse.pos = PARSE_MALFORMED;
                 return;
             }
-        } else if (parse.pos == 1) {
-            parse.type = d[i];
-        } else if (parse.pos < 6u) {
-            parse.field[parse.pos - 2u] = d[i];
+        } else if (at < 6u) {
+            parse.field[at - 2u] = d[i];
         }
-        if (++parse.pos < parse.len)
-            continue;
-        /* a descriptor is complete */
-        if (parse.type == DESC_CONFIGURATION) {
-            parse.total = (uint16_t)(parse.field[0] | parse.field[1] << 8);
-            usb_dev.config_value = parse.field[3];
-        } else if (parse.type == DESC_INTERFACE) {
-            parse.iface = parse.field[0];
-        } else if (parse.type == DESC_ENDPOINT && parse.iface == 0 && (parse.field[1] & 3u) == 2u) {
-            uint8_t ep = parse.field[0] & 0x0Fu;
-            uint8_t mps = parse.field[3] ? 64u : (parse.field[2] > 64u ? 64u : parse.field[2]);
-            if ((parse.field[0] & 0x80u) && !usb_dev.bulk_in) {
-                usb_dev.bulk_in = ep;
-                usb_dev.in_packet = mps;
-            } else if (!(parse.field[0] & 0x80u) && !usb_dev.bulk_out) {
-                usb_dev.bulk_out = ep;
-                usb_dev.out_packet = mps;
-            }
-        }
-        parse.pos = 0;
+        if (parse.pos == standard_length(parse.type))
+            descriptor_fields_in();
+        if (parse.pos == parse.len)
+            parse.pos = 0; /* complete: the next byte starts the next descriptor */
     }
 }
 
 /* The device descriptor read (`asked` bytes of it) is one a host may go on with: all of it came (a device
- * descriptor is 18 bytes; a shorter answer leaves the VID/PID or the packet size unsaid), and
+ * descriptor is 18 bytes; a shorter answer leaves the VID/PID or the packet size unsaid), it says it is a
+ * device descriptor (bLength 18, bDescriptorType 1: anything else is not one, whatever its byte 7), and
  * bMaxPacketSize0 is one full speed allows (USB 2.0 9.6.1: 8, 16, 32 or 64). Any other size would split
  * every control transfer at a boundary the device does not use - its short-packet ends misread, its OUT
  * data cut wrong - so the device is refused rather than guessed at. */
 static uint8_t device_descriptor_ok(uint16_t asked)
 {
     uint8_t mps = usb_dev.max_packet0;
-    return parse.offset >= asked && (mps == 8u || mps == 16u || mps == 32u || mps == 64u);
+    return parse.offset >= asked && parse.len == 18u && parse.type == DESC_DEVICE &&
+           (mps == 8u || mps == 16u || mps == 32u || mps == 64u);
 }
 
-/* The enumeration, one control transfer per step. */
-enum { STEP_DEV8, STEP_SET_ADDRESS, STEP_ADDRESS_WAIT, STEP_DEV18, STEP_CONF9, STEP_CONF, STEP_SET_CONFIG, STEP_END };
+/* The configuration descriptor's answer to the step just done is one to configure by: at least the
+ * configuration descriptor itself came, saying wTotalLength >= 9 and a bConfigurationValue other than 0
+ * (SET_CONFIGURATION takes 0 as "unconfigure": the device would stay in its address state, its bulk
+ * endpoints unanswered, and be taken for configured); no descriptor in it is shorter than its standard
+ * size; and the full read ends on a descriptor's end - unless the end is the host's own CONFIG_MAX_LEN (a
+ * wTotalLength past it is read that far). An answer shorter than wTotalLength that ends on one is taken, as
+ * other hosts do: what came is whole. */
+static uint8_t config_descriptor_ok(uint8_t step)
+{
+    if (parse.pos == PARSE_MALFORMED || parse.offset < 9u || parse.total < 9u || !usb_dev.config_value)
+        return 0;
+    return step == STEP_CONF9 || !parse.pos || parse.total > CONFIG_MAX_LEN;
+}
 
 static void enter(uint8_t state, uint32_t now_us)
 {
@@ -396,17 +449,17 @@ static void enumerate(uint32_t now_us)
     if ((host.step == STEP_DEV8 || host.step == STEP_DEV18) &&
         !device_descriptor_ok(host.step == STEP_DEV8 ? 8u : 18u)) {
         /* no retry: the same device answers the same descriptor; counted, said by the accessory layer */
-        if (parse.offset < 8u)
-            usb_dev.max_packet0 = 0; /* the answer ended before the device said it */
+        if (parse.offset < 8u || parse.len != 18u || parse.type != DESC_DEVICE)
+            usb_dev.max_packet0 = 0; /* the answer ended before it, or is no device descriptor to say it */
         if (usb_stats.refused < 0xFFu)
             usb_stats.refused++;
         enter(USB_REFUSED, now_us);
         return;
     }
-    if (host.step == STEP_CONF9 && (parse.total < 9u || !usb_dev.config_value)) {
-        /* no usable configuration descriptor: too short, or a bConfigurationValue of 0, which
-         * SET_CONFIGURATION takes as "unconfigure" - the device would stay in its address state, its bulk
-         * endpoints unanswered, and be taken for configured: up and down again every few passes */
+    if ((host.step == STEP_CONF9 || host.step == STEP_CONF) && !config_descriptor_ok(host.step)) {
+        /* no usable configuration descriptor (config_descriptor_ok): never configured by stale or unsaid
+         * fields, nor with a bConfigurationValue that leaves it unconfigured - up and down again every few
+         * passes; a counted failure, retried and said once (AOA_EV_NO_ENUM) as any failed enumeration */
         enum_failed(now_us);
         return;
     }
