@@ -220,9 +220,10 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, 
     if options.gyro_bias not in ("still", "none"):
         raise ConfigError(f"must be 'still' or 'none', got {options.gyro_bias!r}", "replay gyro bias")
     bias = (0.0, 0.0, 0.0)
+    measured = measured_from(log, options.max_gap_s)
     if options.gyro_bias == "still":
         try:
-            still = find_still_window(log)
+            still = find_still_window(measured)
             gyr = log.streams[SensorKind.GYR]
             sel = (gyr.t >= still.t0) & (gyr.t <= still.t1)
             bias = tuple(float(x) for x in gyr.xyz[sel].mean(axis=0))  # type: ignore[assignment]
@@ -250,7 +251,7 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, 
         setup.append("no magnetometer (6-axis): inclination from gravity; heading NOT observed, it is the")
         setup.append("  gyroscope's integral from an arbitrary start (yaw 0) and drifts with its bias")
     else:
-        e, how = directions_from_log(log)
+        e, how = directions_from_log(measured)
         dip = math.degrees(math.asin(float(np.clip(-e[2, 1], -1.0, 1.0))))
         setup.append(f"inertial directions from the log: {how}")
     refuse_no_direction(log)  # after the directions measured from the log, which name the first 10 s
@@ -258,12 +259,32 @@ def configure(log: SensorLog, options: ReplayOptions) -> tuple[EstimatorChoice, 
         setup.append(f"declination {declination:g} deg" + (" (magnetic north)" if declination == 0 else ""))
     known: dict[str, object] = {"gyro_bias": bias}
     if log.six_axis:  # 6-axis, started from gravity alone (heading 0)
-        known["init"] = tilt_attitude(log)
+        known["init"] = tilt_attitude(measured)
         known["magnetometer"] = False
     period = min(stream.median_period() for stream in log.streams.values())
     site = Site.of_dip(dip, declination, period, **known)
     setup.append(options.estimator.describe())
     return options.estimator, site, setup
+
+
+def measured_from(log: SensorLog, max_gap_s: float) -> SensorLog:
+    """``log`` from the first of its parts (:func:`split_at_gaps`) in which every sensor has
+    :data:`MIN_SEGMENT_STEPS` samples or more: what the still window, the inertial directions and the
+    starting tilt are measured from, at the log's start (:attr:`SensorLog.start`, its first seconds). A
+    stray row stamped far before the recording (-1e5 s, -1e160 s: a part of its own, never replayed) was
+    taken for its start, and the replay refused as "too few magnetometer samples in the first 10 s (1, at
+    least 5 needed)". ``log`` itself when that part is its first (the samples whose time is no number are
+    kept either way, as :func:`_up_to` keeps them)."""
+    for i, (t0, t1) in enumerate(split_at_gaps(log, max_gap_s)):
+        counts = [np.count_nonzero((s.t >= t0) & (s.t <= t1)) for s in log.streams.values()]
+        if min(counts) < MIN_SEGMENT_STEPS:
+            continue
+        if i == 0:
+            return log
+        kept = {k: ~(s.t < t0) for k, s in log.streams.items()}
+        streams = {k: SensorStream(k, s.t[kept[k]], s.xyz[kept[k]]) for k, s in log.streams.items()}
+        return SensorLog(streams, log.source, log.format, None, log.notes, log.dropped)
+    return log
 
 
 def field_model_of(options: ReplayOptions) -> GeomagneticField | None:
@@ -350,6 +371,13 @@ SAID_SILENCES = 5
 """The silences of one sensor a warning names one by one (their number and total length: all of them)."""
 
 
+EDGE_STAGGER_S = MAX_PAUSE_S
+"""s: how much later than the others a sensor may start, or how much earlier stop, before it is said as a
+silence (:func:`silence_warnings`): a phone's sensors start and stop a fraction of a second apart (the
+shipped Sensor Logger export's: 0.23 s), which is no silence to warn of; longer than a pause of the whole
+log (:data:`MAX_GAP_S`), it is."""
+
+
 def silence_warnings(log: SensorLog, stale_after_s: float) -> list[str]:
     """One warning per sensor that falls silent for longer than ``stale_after_s`` (s: the merge's
     :attr:`~hil.estimation.multirate.MergePolicy.stale_after_s`, beyond which its held sample is not used)
@@ -357,35 +385,73 @@ def silence_warnings(log: SensorLog, stale_after_s: float) -> list[str]:
     sensor's times together), so the filter is not restarted: it runs on through the silence on the other
     sensors. The merge's stale count was the only trace, and it is warned about only beyond
     :data:`LOSS_WARNED` of the steps: a gyroscope silent for 5 s of a 200 s BROAD trial (2.4 % of its
-    steps) left the estimates 89° off in motion with not a word. Said, with where and for how long."""
+    steps) left the estimates 89° off in motion with not a word. Said, with where and for how long.
+
+    A sensor that starts later than the others, or stops earlier, by more than :data:`EDGE_STAGGER_S`
+    while they sample is said too, in a warning of its own (:func:`_edge_silences`): a magnetometer that
+    stopped 20 s before the end left the heading on the gyroscope alone, and one that started 20 s after
+    the others left those 20 s unreplayed, with not a word in the warnings."""
     out: list[str] = []
     finite = {kind: np.unique(s.t[np.isfinite(s.t)]) for kind, s in log.streams.items()}
     if len(finite) < 2:  # no other sensor to go on
         return out
     for kind in sorted(finite):
         t = finite[kind]
-        if t.size < 2:
+        if t.size < 1:
             continue
         others = np.concatenate([times for other, times in finite.items() if other != kind])
         others.sort()
-        silent = []
-        for i in np.flatnonzero(np.diff(t) > stale_after_s):
-            a, b = float(t[i]), float(t[i + 1])
-            # how long the others go on sampling in it: a pause of the whole log (its sensors' last
-            # samples staggered by a few ms) is no one sensor's silence, and is said as a gap if longer
-            inside = others[np.searchsorted(others, a, "right") : np.searchsorted(others, b, "left")]
-            steps = np.diff(np.concatenate([[a], inside, [b]]))
-            if float(steps[steps <= stale_after_s].sum()) > stale_after_s:
-                silent.append((a, b))
-        if not silent:
-            continue
-        spans = ", ".join(f"{seconds(a)}-{seconds(b)} s" for a, b in silent[:SAID_SILENCES])
-        more = f" and {len(silent) - SAID_SILENCES} more" if len(silent) > SAID_SILENCES else ""
-        total = sum(b - a for a, b in silent)
-        out.append(
-            f"{kind.label}: silent for {total:.3g} s in {len(silent)} stretch(es) longer than "
-            f"{stale_after_s:g} s ({spans}{more}) while the other sensors go on: {_SILENT_MEANS[kind]}"
-        )
+        silent = [
+            (float(t[i]), float(t[i + 1]))
+            for i in np.flatnonzero(np.diff(t) > stale_after_s)
+            if _others_sample(others, float(t[i]), float(t[i + 1]), stale_after_s) > stale_after_s
+        ]
+        if silent:
+            spans = ", ".join(f"{seconds(a)}-{seconds(b)} s" for a, b in silent[:SAID_SILENCES])
+            more = f" and {len(silent) - SAID_SILENCES} more" if len(silent) > SAID_SILENCES else ""
+            total = sum(b - a for a, b in silent)
+            out.append(
+                f"{kind.label}: silent for {total:.3g} s in {len(silent)} stretch(es) longer than "
+                f"{stale_after_s:g} s ({spans}{more}) while the other sensors go on: {_SILENT_MEANS[kind]}"
+            )
+        out += _edge_silences(kind, t, others, stale_after_s)
+    return out
+
+
+def _others_sample(others: NDArray[np.float64], a: float, b: float, stale_after_s: float) -> float:
+    """How long (s) the other sensors go on sampling over ``(a, b)`` (s): the steps between their samples
+    there (and ``a``, ``b``) no longer than ``stale_after_s``, summed. A pause of the whole log (its
+    sensors' last samples staggered by a few ms) is no one sensor's silence, and is said as a gap if
+    longer."""
+    inside = others[np.searchsorted(others, a, "right") : np.searchsorted(others, b, "left")]
+    steps = np.diff(np.concatenate([[a], inside, [b]]))
+    return float(steps[steps <= stale_after_s].sum())
+
+
+def _edge_silences(
+    kind: SensorKind, t: NDArray[np.float64], others: NDArray[np.float64], stale_after_s: float
+) -> list[str]:
+    """The warnings for a sensor (its finite times ``t``, s, sorted) that starts after the other sensors
+    (their times ``others``) or stops before them by more than :data:`EDGE_STAGGER_S`, while they sample
+    (:func:`_others_sample`). A gyroscope's or accelerometer's early end is not said here: the replay cuts
+    the log there and says so (:func:`needed_end`, :func:`steerable_end`)."""
+    out: list[str] = []
+    first, last = float(t[0]), float(t[-1])
+    if others.size and first - float(others[0]) > EDGE_STAGGER_S:
+        a = float(others[0])
+        if _others_sample(others, a, first, stale_after_s) > EDGE_STAGGER_S:
+            out.append(
+                f"{kind.label}: silent for its first {first - a:.3g} s ({seconds(a)}-{seconds(first)} s): it "
+                f"starts after the other sensors, which sample from {seconds(a)} s: nothing before "
+                f"{seconds(first)} s is replayed (an estimate starts once every sensor has spoken)"
+            )
+    if kind is SensorKind.MAG and others.size and float(others[-1]) - last > EDGE_STAGGER_S:
+        b = float(others[-1])
+        if _others_sample(others, last, b, stale_after_s) > EDGE_STAGGER_S:
+            out.append(
+                f"{kind.label}: silent for its last {b - last:.3g} s ({seconds(last)}-{seconds(b)} s): it "
+                f"stops before the other sensors, which sample until {seconds(b)} s: {_SILENT_MEANS[kind]}"
+            )
     return out
 
 
@@ -450,8 +516,12 @@ def _clock_restart(times: NDArray[np.float64], max_gap_s: float) -> int | None:
     level. A stray stamped far ahead, and the stream that resumes after it, is no restart; nor is one stray
     stamped far behind, after which the stream resumes at its level; nor a step back with fewer than
     :data:`RESTART_RUN` samples from it on (a stray last row: a batch replay leaves it out as a part of
-    its own, counted)."""
+    its own, counted), or before it (a stray first row, at 1e160 s: the level of that one row was taken
+    for a first stretch, the whole recording after it for a restart, and the replay refused as "the
+    accelerometer has 1 reading(s) with a time (at 1e+160 s)")."""
     for i in np.flatnonzero(times[1:] < times[:-1] - max_gap_s) + 1:
+        if i < RESTART_RUN:  # too few before it to tell a first stretch from strays ahead: no restart
+            continue
         if i + RESTART_RUN > len(times):  # too few after it to tell a restart from a stray: no restart
             break
         level = float(np.median(times[max(0, i - RESTART_RUN) : i]))

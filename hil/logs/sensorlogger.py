@@ -20,7 +20,8 @@ Accelerometers, in order of preference: ``TotalAcceleration.csv`` (specific forc
 ``Accelerometer.csv`` (the *user* acceleration, gravity removed) plus ``Gravity.csv`` (their sum, gravity
 interpolated to the accelerometer's times); ``AccelerometerUncalibrated.csv`` (the raw accelerometer,
 gravity included; in g rather than m/s² when its median norm says so). ``Accelerometer.csv`` alone gives
-no gravity direction and is refused. Gyroscope and magnetometer: the calibrated files, else the
+no gravity direction and is refused; so is ``Gravity.csv`` alone, named (:data:`GRAVITY_ALONE`: the phone's
+filtered estimate, no measurement). Gyroscope and magnetometer: the calibrated files, else the
 ``…Uncalibrated.csv`` ones (noted). Without a magnetometer file the log is 6-axis (heading unobserved).
 
 :func:`assemble` does the choosing and the clock for any :class:`Export`, so the app's JSON export
@@ -500,12 +501,11 @@ def _time_unit(
         return candidates[0]  # an epoch, checked against seconds_elapsed's span by _epoch_ns
     rows = np.flatnonzero(usable)
     elapsed = table.column("seconds_elapsed")[rows] if "seconds_elapsed" in table.columns else None
-    if elapsed is not None and np.isfinite(elapsed).sum() >= 2:
+    if elapsed is not None:
         ok = np.isfinite(elapsed)
-        span_s = float(elapsed[ok][-1] - elapsed[ok][0])
-        if abs(span_s) >= 1.0:
-            span = float(times[rows[ok][-1]] - times[rows[ok][0]])
-            fits = [u for u in candidates if 0.99 < span * u[2] * 1e-9 / span_s < 1.01]
+        ratios = _spans_per_elapsed(times[rows[ok]], elapsed[ok])
+        if ratios is not None:
+            fits = [u for u in candidates if _agrees(ratios, u[2])]
             if len(fits) == 1:
                 return fits[0]
             if not fits:
@@ -603,23 +603,41 @@ def _epoch_ns(
         elapsed = table.column("seconds_elapsed")[rows]
         if bases is not None and len(rows):
             bases[table.source] = float(np.median(ns[rows] * 1e-9 - elapsed))
-        # the unit told over the steps on which seconds_elapsed goes on (s): end to end, a recording
-        # appended to another (seconds_elapsed from 0 again, 'time' on from the pause) was refused as
-        # "its unit is not ns", its 'time' right throughout
-        steps_s = np.diff(elapsed)
-        on = steps_s > 0
-        span_s = float(steps_s[on].sum())
-        if span_s >= 1.0:
-            ratio = float(np.diff(ns[rows])[on].sum()) * 1e-9 / span_s
-            if not 0.99 < ratio < 1.01:
-                raise InputFormatError(
-                    f"read as {_unit_text(name)}, 'time' spans {ratio:.4g} times what "
-                    f"'seconds_elapsed' does: its unit is not {name}",
-                    table.source,
-                    table.header_line,
-                    "time",
-                )
+        ratios = _spans_per_elapsed(ns[rows], elapsed)
+        if ratios is not None and not _agrees(ratios, 1):
+            raise InputFormatError(
+                f"read as {_unit_text(name)}, 'time' spans {ratios[1]:.4g} times what "
+                f"'seconds_elapsed' does: its unit is not {name}",
+                table.source,
+                table.header_line,
+                "time",
+            )
     return ns, usable
+
+
+def _spans_per_elapsed(t_ns: np.ndarray, elapsed_s: np.ndarray) -> tuple[float, float] | None:
+    """How many times what ``seconds_elapsed`` spans a file's ``time`` spans (``t_ns``, its values read as
+    ns; ``elapsed_s`` the same rows', s), over the steps on which ``seconds_elapsed`` goes on
+    (a recording appended to another, ``seconds_elapsed`` from 0 again and ``time`` on from the pause,
+    was refused as "its unit is not ns", its ``time`` right throughout): end to end, which a
+    ``seconds_elapsed`` rounded by a re-save leaves right, and the median of the steps', which one stray
+    row leaves right (a single ``seconds_elapsed`` of 1e160, or a day on, made the end-to-end span
+    1e160 s and refused a file whose every ``time`` was right: that column is the clock, and
+    ``seconds_elapsed`` only checks its unit). None when those steps span less than a second: too little
+    to tell a unit by."""
+    steps_s = np.diff(elapsed_s)
+    on = steps_s > 0
+    span_s = float(steps_s[on].sum())
+    if not span_s >= 1.0 or not on.any():
+        return None
+    steps_t = np.diff(t_ns.astype(float))[on] * 1e-9  # floats: an int64 step between strays wraps
+    return float(steps_t.sum()) / span_s, float(np.median(steps_t / steps_s[on]))
+
+
+def _agrees(ratios: tuple[float, float], ns_per_unit: float) -> bool:
+    """Whether ``time`` read in a unit of ``ns_per_unit`` ns spans what ``seconds_elapsed`` does, to 1 %,
+    end to end or step by step (:func:`_spans_per_elapsed`'s ``ratios``, of ``time`` read as ns)."""
+    return any(0.99 < ratio * ns_per_unit < 1.01 for ratio in ratios)
 
 
 FILE_KINDS: dict[str, SensorKind] = {
@@ -1004,6 +1022,17 @@ def _without_gravity(tu: np.ndarray, tg: np.ndarray) -> tuple[np.ndarray, float]
     return beyond, gap
 
 
+GRAVITY_ALONE = (
+    "Gravity.csv is the only accelerometer file in the export, and it cannot stand in for one: it is the "
+    "phone's own gravity estimate, low-pass filtered and fused with its gyroscope (it holds still through "
+    "motion the accelerometer measures), not a measurement; missing: TotalAcceleration.csv (or "
+    "Accelerometer.csv beside this Gravity.csv, or AccelerometerUncalibrated.csv) — export the recording "
+    "with TotalAcceleration (or Accelerometer) on"
+)
+"""The error for an export whose only accelerometer file is ``Gravity.csv``: it was refused as "no
+accelerometer file", which said neither that a Gravity.csv had been found nor why it is not read."""
+
+
 def _accelerometer(
     export: Export, notes: list[str], clocks: Clocks, platform: str = ""
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -1081,6 +1110,8 @@ def _accelerometer(
     present = _first(files, ACC_FILES)
     if present is not None:  # every accelerometer file empty or a header only (noted): the first's error
         _first_with_samples(export, (present,), [], clocks, required=True)
+    if "Gravity.csv" in files:
+        raise InputFormatError(GRAVITY_ALONE, files["Gravity.csv"])
     raise InputFormatError(
         "no accelerometer file (TotalAcceleration.csv, Accelerometer.csv + Gravity.csv, or "
         "AccelerometerUncalibrated.csv)",
