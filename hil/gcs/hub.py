@@ -104,6 +104,7 @@ class Hub:
         self._info: bytes | None = None
         self._info_version = 0
         self._info_from = 0  # number of the first chunk published after the current info (the run's own)
+        self._run_from = 0  # number of the first chunk of the current run (new_run): where a reader starts
         self.closed = False
         self._watchers: list[Callable[[], None]] = []
 
@@ -125,6 +126,22 @@ class Hub:
             self._info_version += 1
             self._info_from = self._first + len(self._chunks)
             self._progress_at = self.clock()
+            self._cond.notify_all()
+        self._changed()
+
+    def new_run(self) -> None:
+        """Another run follows (a live station kept open for the host's next run): the chunks held are the
+        last run's, dropped (not counted as trimmed: nobody is told they are missing) with its ``info``, so
+        a reader that (re)connects gets this run's history alone once its ``info`` comes — before, the new
+        ``info`` came with the whole history again, the last run's rows drawn as the new run's. A reader
+        still reading the last run's chunks is told it skipped them (:func:`skipped`)."""
+        with self._cond:
+            self._first += len(self._chunks)
+            self._chunks.clear()
+            self._held = 0
+            self._info = None
+            self._info_from = self._run_from = self._first
+            self._progress_at = None
             self._cond.notify_all()
         self._changed()
 
@@ -255,7 +272,7 @@ class Reader:
 
     def __init__(self, hub: Hub) -> None:
         self.hub = hub
-        self.cursor = 0
+        self.cursor = hub._run_from  # the current run's first chunk: the chunks before it are another run's
         self.info_version = 0
         self.live_from = 0  # the number of the first chunk after the history this reader was given
         self.caught_up = False  # whether it was told the history has ended (:func:`caught_up`)

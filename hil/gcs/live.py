@@ -8,6 +8,13 @@ the phone receiver's counts of other phones) read from the host, which costs a f
 statistics are taken every :data:`LINK_PERIOD_S` of run time. Commands from the page are carried out in
 :meth:`LiveFeed.tick` (:class:`hil.gcs.uplink.Uplink`).
 
+A station may be kept open while the host plays one run after another (the same :attr:`GroundStation.observer
+<hil.gcs.station.GroundStation.observer>` in each ``RunOptions``): the first thing the next run tells the
+feed (an event of its set-up, or :meth:`LiveFeed.started`) begins it afresh — its own description, status,
+tick count, phone rates and drop counters — behind a marker in the queue, so that what the last run left
+unpolled goes out first, as that run's. Before, the second run's ``info`` was never sent (the page kept the
+first run's description over the second run's rows) and its commands were refused as "the run has ended".
+
 On the pump's side: :meth:`LiveFeed.poll` empties the queue into one :class:`~hil.gcs.wire.Batch`. Each
 ``status`` it sends carries the run's progress (``ticks``, ``tick_t``: counted in :meth:`LiveFeed.tick`),
 from which the page judges whether the host is alive — not from the message, which a counter of the
@@ -96,6 +103,11 @@ class LiveFeed:
         self._info_sent = False
         self._status: dict[str, Any] = {"state": "waiting"}
         self._status_changed = True
+        self._run_over = False  # finished() came: whatever the observer is told next is another run's
+        self._runs_queued = 0  # markers of another run's start in the queue, not yet polled (under the lock)
+        self._new_run = False  # the pump's: the next batch is another run's (Batch.new_run)
+        self._said: dict[str, Any] = {"state": "waiting"}  # the pump's: the status last sent
+        self._columns: list[str] | None = None  # the running host's telemetry columns (rows are queued raw)
         self._counters: dict[str, int] = {}
         self._ticks = 0  # control ticks so far, and the run time of the last: the run's own progress
         self._tick_t: float | None = None
@@ -104,7 +116,33 @@ class LiveFeed:
         self.started_at: RunStart | None = None
 
     # ------------------------------------------------------------------ the control path
+    def _next_run(self) -> None:
+        """Another run on this feed, after one that finished (control thread): its own description,
+        status and counts from now on; a marker in the queue (never dropped) tells :meth:`poll` where the
+        last run's items end, so none of them goes out as this run's."""
+        with self._lock:
+            # what the last run said and the pump has not taken yet (its ``ended`` status) goes out with
+            # its items, before the marker
+            unsent = (
+                None if self._info_sent else self._info,
+                dict(self._status) if self._status_changed else None,
+            )
+            self._run_over = False
+            self._host = None
+            self._columns = None
+            self._info, self._info_sent = None, False
+            self._status, self._status_changed = {"state": "waiting"}, True
+            self.started_at = None
+            self._runs_queued += 1
+        self.stats = FeedStats()
+        self._phone = _Phone()
+        self._next_link = -float("inf")
+        self._ticks, self._tick_t = 0, None
+        self._items.append(("run", unsent))
+
     def started(self, start: RunStart) -> None:
+        if self._run_over:
+            self._next_run()
         host = start.host
         columns = list(host.columns) + list(run_info.LIVE_COLUMNS)
         description = run_info.info(
@@ -118,6 +156,7 @@ class LiveFeed:
         description["clock"] = start.mode
         with self._lock:
             self._host = host
+            self._columns = list(host.columns)
             self.started_at = start
             self._info = description
             self._status = {"state": "running", "mode": start.mode}
@@ -126,13 +165,17 @@ class LiveFeed:
             self.uplink.open()  # commands from now on: the host that carries them out exists
 
     def row(self, row: Mapping[str, Any]) -> None:
+        if self._run_over:
+            self._next_run()
         if len(self._items) >= self.capacity:
             self.stats.dropped_rows += 1
             return
         self.stats.rows += 1
-        self._items.append(("row", (row, self._extras(row))))
+        self._items.append(("row", (row, self._extras(row), self._columns)))
 
     def event(self, record: Mapping[str, Any]) -> None:
+        if self._run_over:  # the next run's first word (its set-up's events come before started())
+            self._next_run()
         if len(self._items) >= self.capacity:
             self.stats.dropped_events += 1
             return
@@ -170,6 +213,7 @@ class LiveFeed:
         with self._lock:
             self._status = {"state": "ended", "exit": summary.get("exit"), "summary": dict(summary)}
             self._status_changed = True
+            self._run_over = True
 
     def _extras(self, row: Mapping[str, Any]) -> list[Any]:
         """The :data:`~hil.gcs.info.LIVE_COLUMNS` values now (None where not known)."""
@@ -186,26 +230,38 @@ class LiveFeed:
 
     # ------------------------------------------------------------------ the pump's side
     def poll(self) -> Batch:
-        """Everything queued since the last poll."""
-        batch = Batch()
+        """Everything queued since the last poll — up to the start of another run (:meth:`_next_run`): the
+        last run's items and its unsent status in this batch, the next run's from the next one on
+        (:attr:`Batch.new_run <hil.gcs.wire.Batch.new_run>`)."""
+        batch = Batch(new_run=self._new_run)
+        self._new_run = False
         with self._lock:
-            if self._info is not None and not self._info_sent:
+            current = self._runs_queued == 0  # no other run's start queued: the description is this run's
+            if current and self._info is not None and not self._info_sent:
                 batch.info, self._info_sent = self._info, True
-            if self._status_changed:
+            if current and self._status_changed:
                 batch.status, self._status_changed = dict(self._status), False
         items = self._items
         for _ in range(len(items)):
             kind, payload = items.popleft()
             if kind == "row":
-                row, extras = payload
-                host = self._host
-                columns = host.columns if host is not None else list(row)
-                batch.rows.append([row.get(c) for c in columns] + extras)
+                row, extras, columns = payload
+                batch.rows.append([row.get(c) for c in (columns or list(row))] + extras)
             elif kind == "event":
                 batch.events.append(payload)
-            else:
+            elif kind == "link":
                 t, stats = payload
                 batch.link.append({"t": t, **stats.as_dict()})
+            else:  # "run": what came before was the last run's; the next batch is the next run's
+                info, status = payload
+                batch.info = batch.info or info
+                batch.status = status or batch.status
+                with self._lock:
+                    self._runs_queued -= 1
+                self._new_run = True
+                break
+        if batch.status is not None:
+            self._said = batch.status
         counters = {
             "feed_dropped_rows": self.stats.dropped_rows,
             "feed_dropped_events": self.stats.dropped_events,  # the page says each kind it did not get
@@ -227,6 +283,6 @@ class LiveFeed:
             # ``host_time``: the host's monotonic clock (s) at this poll, which the page sets its own clock
             # against with each stream's ``caught_up`` (:func:`hil.gcs.hub.caught_up`): the feed's lag
             progress = {"ticks": ticks, "tick_t": self._tick_t, "host_time": round(now, 3)}
-            batch.status = {**(batch.status or self._status), **counters, **progress}
+            batch.status = {**(batch.status or self._said), **counters, **progress}
             self._ticks_sent, self._beat_at = ticks, now
         return batch

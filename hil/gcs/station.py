@@ -255,6 +255,10 @@ class GroundStation:
     def _cycle(self) -> None:
         batch = self.source.poll()
         self.pump_cycles += 1
+        if batch.new_run:  # the host's next run on a live station: the last run's history is not its
+            self.info = None
+            self._said = (None, None)
+            self.hub.new_run()
         if batch.info is not None:
             self.info = batch.info
             self.hub.set_info(sse("info", dumps(batch.info)))

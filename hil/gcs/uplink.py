@@ -195,8 +195,14 @@ class Uplink:
     # ------------------------------------------------------------------ the run's start
     def open(self) -> None:
         """The run has started (its host exists, its first control tick is to come: the run observer's
-        ``started``): commands and acknowledgements are taken from now on, until :meth:`close`."""
+        ``started``): commands and acknowledgements are taken from now on, until :meth:`close`. Another run
+        after one that ended (a station kept open for the host's next run) opens it again, with an operator
+        of its own (the last run's commands are settled with its board); before, the first run's end
+        refused the next run's every command as "the run has ended". Command ids go on counting."""
         with self._lock:
+            if self._closed:
+                self._closed = False
+                self.operator = Operator()
             self._opened = True
 
     def _refusal(self, what: str) -> UplinkRefused | None:

@@ -43,10 +43,14 @@ class Batch:
     status: dict[str, Any] | None = None
     overlays: list[dict[str, Any]] = field(default_factory=list)  # runs compared: their descriptions
     overlay_rows: list[tuple[int, list[Row]]] = field(default_factory=list)  # (run index, its rows)
+    new_run: bool = False
+    """What this batch holds is another run's than what came before (a live station kept open for the
+    host's next run): the history held is the last run's, not to be resent with this one's ``info``."""
 
     def __bool__(self) -> bool:
         return bool(
-            self.info
+            self.new_run
+            or self.info
             or self.rows
             or self.events
             or self.link

@@ -95,7 +95,12 @@ function connect() {
     state.skips.push({ chunks: d.chunks, after, until: null, history: d.history === true });
     showStatus();
   });
-  on("events", (list) => { if (state.store) { state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate(); } });
+  on("events", (list) => {
+    if (!state.store) return;
+    const dropped = state.store.eventsDropped;
+    state.store.pushEvents(list); state.alarms.onEvents(list); list.forEach((e) => uplink.onEvent(e)); invalidate();
+    if (state.store.eventsDropped !== dropped) showStatus();  // the note says where the events now start
+  });
   // runs compared (hil/gcs/compare.py): another run's description, then its rows
   on("overlay", (o) => {
     if (!state.store) return;
@@ -220,6 +225,12 @@ function showStatus() {
   if (s.uplink_rejected) parts.push(`${s.uplink_rejected} requests refused`);
   if (s.error) parts.push(`error: ${s.error}`);
   if (state.skips.length) parts.push(skipsText(state.skips));
+  // the oldest events dropped by this page past its bound (store.js MAX_EVENTS): said, never silent
+  const store = state.store;
+  if (store && store.eventsDropped) {
+    const from = Number.isFinite(store.eventsFrom) ? ` before t ${store.eventsFrom.toFixed(2)} s` : "";
+    parts.push(`${store.eventsDropped} older events dropped by this page${from} (events, command history and markers start there; all in events.jsonl)`);
+  }
   if (s.state === "stopped" && s.stopped) parts.push(s.stopped);
   // runs compared: an overlay that cannot be drawn, or stopped being followed, says why (hil/gcs/compare.py)
   for (const [name, o] of Object.entries(s.overlays || {})) {
@@ -518,7 +529,7 @@ function targetAt(tc) {
   // applied command whose target_r is malformed leaves the target unknown from then on: the slew it
   // commanded went to an attitude the page cannot tell, and the older target would be a wrong one. Only the
   // command events are walked (commandEvents: each event scanned once), not every event of the run.
-  let r = rotvec(state.info.target_r);
+  let r = rotvec(state.store.droppedTarget === undefined ? state.info.target_r : state.store.droppedTarget);
   for (const e of commandEvents(state.store.events)) {
     if (e.t > tc) break;
     if (e.status === "applied" && "target_r" in e) r = rotvec(e.target_r);

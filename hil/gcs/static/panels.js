@@ -333,5 +333,6 @@ export function drawEvents(store, t, limit = 200) {
     }
     body.appendChild(tr);
   }
-  $("event-count").textContent = `(${end} of ${store.events.length})`;
+  const dropped = store.eventsDropped ? `; ${store.eventsDropped} older dropped by this page` : "";
+  $("event-count").textContent = `(${end} of ${store.events.length}${dropped})`;
 }

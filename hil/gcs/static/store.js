@@ -7,6 +7,22 @@ export const MAX_ROWS = 250000;
 // A live run sends a link snapshot every 0.2 s of run time (hil/gcs/live.py, LINK_PERIOD_S), each an object
 // of some thirty figures: kept whole, a page left open on a day's run held 430 000 of them (hundreds of MB).
 export const MAX_LINK = 20000;
+// Events kept: a run that floods them (a phone on the port logged per message, a script's refused requests,
+// a hostile events.jsonl of millions of lines) grew the page's memory without bound. Past MAX_EVENTS the
+// oldest are dropped, down to 3/4 of it at a time (each drop a copy, so rarely), counted and said on the page
+// (eventsDropped, eventsFrom); the target an applied slew among them set is kept (droppedTarget).
+export const MAX_EVENTS = 200000;
+
+// An event whose `t` is no finite number (missing, null, "1e9", [1e9]: a run directory's events are any JSON),
+// as the store holds it: at the time it is placed at (the event before it; -Infinity before any), its own
+// `t` kept as "t (as sent)" (the events table shows it). Kept as it came, the page's walks over the events —
+// `if (e.t > t) break` — stopped at it wherever JavaScript's comparison made "1e9" or [1e9] later than the
+// cursor: one such record hid every later command from the command history and the target.
+function placedAt(e, t) {
+  const out = { ...e, t };
+  if (Object.hasOwn(e, "t")) out["t (as sent)"] = e.t;
+  return out;
+}
 
 export class Store {
   constructor(columns) {
@@ -19,6 +35,9 @@ export class Store {
     this.seen = 0;       // rows received
     this.events = [];
     this.eventKeys = [];  // each event's place in time (pushEvents)
+    this.eventsDropped = 0;  // the oldest events dropped past MAX_EVENTS (boundEvents)
+    this.eventsFrom = -Infinity;  // the time of the oldest event kept once some were dropped
+    this.droppedTarget = undefined;  // target_r of the newest applied command dropped (undefined: none)
     this.link = [];
     this.linkEvery = 1;   // link snapshots kept: 1 in linkEvery, and the newest (pushLink)
     this.linkSeen = 0;    // link snapshots received
@@ -67,8 +86,9 @@ export class Store {
     if (!events.length) return;
     let prev = this.eventKeys.length ? this.eventKeys[this.eventKeys.length - 1] : -Infinity;
     const batch = events.map((e, i) => {
-      prev = typeof e.t === "number" && Number.isFinite(e.t) ? e.t : prev;
-      return { e, k: prev, i };
+      const timed = typeof e.t === "number" && Number.isFinite(e.t);
+      prev = timed ? e.t : prev;
+      return { e: timed ? e : placedAt(e, prev), k: prev, i };
     });
     let sorted = true;
     for (let j = 1; j < batch.length && sorted; j++) sorted = batch[j - 1].k <= batch[j].k;
@@ -76,6 +96,7 @@ export class Store {
     const last = this.eventKeys.length ? this.eventKeys[this.eventKeys.length - 1] : -Infinity;
     if (batch[0].k >= last) {
       for (const b of batch) { this.events.push(b.e); this.eventKeys.push(b.k); }
+      this.boundEvents();
       return;
     }
     const events0 = this.events, keys0 = this.eventKeys, n = events0.length;
@@ -87,6 +108,25 @@ export class Store {
     }
     this.events = outE;
     this.eventKeys = outK;
+    this.boundEvents();
+  }
+
+  // Past MAX_EVENTS, the oldest events go (down to 3/4 of it): counted, their last time kept for the page to
+  // say where its events start, and the target the newest applied command among them set (app.js targetAt
+  // starts from it: else a dropped slew's target would read as the scenario's). A new array, so the command
+  // scan (commands.js commandEvents) starts afresh.
+  boundEvents() {
+    const n = this.events.length;
+    if (n <= MAX_EVENTS) return;
+    const drop = n - Math.floor(MAX_EVENTS * 3 / 4);
+    for (let i = 0; i < drop; i++) {
+      const e = this.events[i];
+      if (e.kind === "command" && e.status === "applied" && "target_r" in e) this.droppedTarget = e.target_r;
+    }
+    this.events = this.events.slice(drop);
+    this.eventKeys = this.eventKeys.slice(drop);
+    this.eventsDropped += drop;
+    this.eventsFrom = this.eventKeys[0];
   }
 
   // Link snapshots in time order, bounded as the rows are (MAX_LINK): past it every other one is dropped and
