@@ -275,7 +275,7 @@ def _campaign(path: Path, plots: bool) -> Reported:
         drawn.partial = _not_whole(summary)
         if locked is None:
             if plots:
-                print("  a session is writing this campaign: its runs so far; summary.json, plots left to it")
+                print(f"  {_held_by(path)}")
             return drawn
         drawn.update(plot_campaign(path, scenario.settle_deg, scenario.spacecraft.limits.max_gimbal_rate))
         interrupted = summary.get("interrupted")
@@ -283,6 +283,26 @@ def _campaign(path: Path, plots: bool) -> Reported:
             interrupted["plots"] = "drawn for these runs by hil report"
         write_campaign_summary(path, summary)
     return drawn
+
+
+def _held_by(path: Path) -> str:
+    """Why the campaign ``path``'s summary.json and plots are not drawn here: who holds its lock
+    (:func:`~hil.montecarlo.store.lock_holder`). Said "a session is writing this campaign" whoever held it,
+    a second ``hil report`` drawing it told of a session that was not there."""
+    from hil.montecarlo.store import lock_holder
+
+    holder = lock_holder(path)
+    if holder is None:
+        return (
+            "another process holds this campaign (a session writing it, or hil report drawing it: it did "
+            "not say which): summary.json, plots left to it"
+        )
+    if holder.is_session:
+        return (
+            f"a session is writing this campaign ({holder.by}, pid {holder.pid}): its runs so far; "
+            "summary.json, plots left to it"
+        )
+    return f"{holder.doing()}: summary.json, plots left to it"
 
 
 def _not_whole(summary: dict) -> str | None:  # type: ignore[type-arg]

@@ -518,7 +518,15 @@ def _record_session_end(store: ResultStore, runs_asked: int, exc: BaseException 
         with deferred_signals():
             store.record_session(runs_asked, state, **detail)
     except HilError as err:
-        logger.warning("%s: the session's end not recorded: %s", store.dir / MANIFEST, err)
+        # said with what it leaves: a record of ``running`` that no session holds, which every reader of
+        # the directory (``hil report``) takes for a session killed, unless this session's summary.json
+        # (written next) says it finished over the same runs
+        logger.warning(
+            "%s: the session's end not recorded: %s (it still says running: read back without this "
+            "session's summary.json, the session is said killed)",
+            store.dir / MANIFEST,
+            err,
+        )
     return session_ended(state, detail)
 
 

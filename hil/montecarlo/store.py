@@ -33,10 +33,11 @@ import logging
 import math
 import os
 import re
+import stat
 import time
 from array import array
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -178,7 +179,7 @@ class ResultStore:
         self.columns: list[str] = list(manifest["columns"])
         self.dtype = trace_dtype(int(manifest["trace_samples"]))
         make_dir(self.dir)
-        self._lock: int | None = _lock_dir(self.dir)
+        self._lock: int | None = _lock_dir(self.dir, SESSION_HOLDER)
         try:
             self._open()
         except BaseException:
@@ -350,7 +351,7 @@ class ResultStore:
 
     def _unlock(self) -> None:
         if self._lock is not None:
-            os.close(self._lock)  # releases the directory's lock
+            _let_go(self.dir, self._lock)
             self._lock = None
 
     def __enter__(self) -> ResultStore:
@@ -360,12 +361,107 @@ class ResultStore:
         self.close()
 
 
-def _lock_dir(path: Path) -> int | None:
-    """An exclusive lock on the campaign directory for the session (``flock`` on the directory itself: no
-    file of its own, and the OS lets go of it when the process ends, however it ends). Two sessions of
+HOLDER = ".holder.json"
+"""The record, in the campaign directory, of who holds its lock (:func:`_lock_dir`): ``{"by": ..., "pid":
+N}``, written as the lock is taken and removed before it is let go. The lock is ``flock`` on the directory,
+which says that someone holds it, not who: a ``hil montecarlo`` started while ``hil report`` drew the
+campaign (seconds) was refused "another session is writing", with no session writing, and a second report
+said "a session is writing this campaign" (and a campaign killed long before, "still running"). Advisory:
+one left by a holder killed is stale, told by its process being gone (:func:`lock_holder`)."""
+MAX_HOLDER_BYTES = 4096
+"""The most of :data:`HOLDER` read (it is a line of JSON; anything longer is no holder's record)."""
+SESSION_HOLDER = "hil montecarlo"
+""":data:`HOLDER`'s ``by`` for a session writing the campaign's runs."""
+REPORT_HOLDER = "hil report"
+""":data:`HOLDER`'s ``by`` for ``hil report`` drawing the campaign's summary.json and plots."""
+
+
+@dataclass(frozen=True)
+class Holder:
+    """Who holds a campaign directory's lock, as :data:`HOLDER` records it: ``by`` (:data:`SESSION_HOLDER`,
+    :data:`REPORT_HOLDER`) and its process id."""
+
+    by: str
+    pid: int
+
+    @property
+    def is_session(self) -> bool:
+        return self.by == SESSION_HOLDER
+
+    def doing(self) -> str:
+        """What the holder is doing, in words (``hil report (pid 4242) is drawing it``)."""
+        if self.is_session:
+            return f"a session ({self.by}, pid {self.pid}) is writing it"
+        return f"{self.by} (pid {self.pid}) is drawing its summary.json and plots (it lets go when drawn)"
+
+
+def lock_holder(path: str | os.PathLike[str]) -> Holder | None:
+    """Who holds the campaign directory ``path``'s lock as its :data:`HOLDER` says, or None when it does
+    not say: no record, not one a holder writes, or its process gone (a stale record of a holder killed).
+    Asked only when the lock is held (:func:`~hil.files.writing.writer_holds`); never raises, never waits
+    (a FIFO put there is not opened for reading)."""
+    try:
+        fd = os.open(Path(path) / HOLDER, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        data = os.read(fd, MAX_HOLDER_BYTES + 1)
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    try:
+        record = json.loads(data.decode("utf-8")) if len(data) <= MAX_HOLDER_BYTES else None
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        return None
+    if not isinstance(record, dict):
+        return None
+    by, pid = record.get("by"), record.get("pid")
+    if by not in (SESSION_HOLDER, REPORT_HOLDER) or not (
+        isinstance(pid, int) and not isinstance(pid, bool) and 0 < pid < 2**31
+    ):
+        return None
+    try:
+        os.kill(pid, 0)  # no signal sent: whether the process is there
+    except ProcessLookupError:
+        return None
+    except OSError:
+        pass  # there, another user's
+    return Holder(by, pid)
+
+
+def _record_holder(path: Path, by: str) -> None:
+    """Write :data:`HOLDER` for this process, holding ``path``'s lock as ``by``: atomically (a reader never
+    sees half a record), best effort — a directory that takes no file (read-only, a full disk) is held all
+    the same, its holder then unsaid."""
+    tmp = path / f"{HOLDER}.{os.getpid()}.tmp"
+    try:
+        tmp.write_text(json.dumps({"by": by, "pid": os.getpid()}) + "\n", encoding="utf-8")
+        os.replace(tmp, path / HOLDER)
+    except OSError as exc:
+        logger.debug("%s: its holder not recorded: %s", path, exc.strerror or exc)
+        with suppress(OSError):
+            tmp.unlink()
+
+
+def _let_go(path: Path, fd: int) -> None:
+    """Let go of the lock ``fd`` on ``path`` (:func:`_lock_dir`): its :data:`HOLDER` record removed first,
+    while it is still this process's."""
+    with suppress(OSError):
+        (path / HOLDER).unlink()
+    os.close(fd)  # closing the descriptor releases the directory's lock
+
+
+def _lock_dir(path: Path, by: str) -> int | None:
+    """An exclusive lock on the campaign directory for ``by`` (:data:`SESSION_HOLDER`: a session;
+    :data:`REPORT_HOLDER`: ``hil report`` drawing it) — ``flock`` on the directory itself, let go by the OS
+    when the process ends, however it ends — and who holds it recorded (:data:`HOLDER`). Two sessions of
     one campaign in one directory (the command started again in another terminal) each ran the runs the
     directory lacked when it started, the same runs twice, and each said it had run them; the second is
-    a ConfigError naming the directory. A file system without locks (some network ones) goes without."""
+    a ConfigError naming the directory and who holds it. A file system without locks (some network ones)
+    goes without."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     except OSError as exc:
@@ -384,29 +480,36 @@ def _lock_dir(path: Path) -> int | None:
         except OSError:
             os.close(fd)
             return None
+        _record_holder(path, by)
         return fd
     os.close(fd)
-    raise ConfigError(
-        "another session is writing this campaign directory (hil montecarlo in another terminal?): "
-        "let it finish, or give another --out",
-        str(path),
-    )
+    holder = lock_holder(path)
+    if holder is None:
+        said = (
+            "another process holds this campaign directory (a hil montecarlo session writing it, or hil "
+            "report drawing it: it did not say which)"
+        )
+    elif holder.is_session:
+        said = f"another session is writing this campaign directory ({holder.by}, pid {holder.pid})"
+    else:
+        said = f"this campaign directory is held: {holder.doing()}"
+    raise ConfigError(f"{said}: let it finish, or give another --out", str(path))
 
 
 @contextmanager
 def holding_dir(path: str | os.PathLike[str]) -> Iterator[bool | None]:
-    """The campaign directory ``path``'s lock held (:func:`_lock_dir`) for what is written beside a
-    session's files: ``hil report`` rewriting summary.json and the plots from the runs on disk. Yields True
-    while it is held, False on a file system without locks, None when a session holds it (nothing is
-    to be written then: a summary written beside a session still appending described fewer runs than
-    runs.csv came to hold, and could be the one left standing). A directory that cannot be opened is a
-    :class:`ConfigError` naming it."""
+    """The campaign directory ``path``'s lock held (:func:`_lock_dir`, by :data:`REPORT_HOLDER`) for what is
+    written beside a session's files: ``hil report`` rewriting summary.json and the plots from the runs on
+    disk. Yields True while it is held, False on a file system without locks, None when another holds it
+    (nothing is to be written then: a summary written beside a session still appending described fewer
+    runs than runs.csv came to hold, and could be the one left standing; :func:`lock_holder` says who).
+    A directory that cannot be opened is a :class:`ConfigError` naming it."""
     from hil.files.writing import writer_holds
 
     try:
-        fd = _lock_dir(Path(path))
+        fd = _lock_dir(Path(path), REPORT_HOLDER)
     except ConfigError:
-        if writer_holds(path):  # not a directory that cannot be opened: a session's
+        if writer_holds(path):  # not a directory that cannot be opened: held by another
             yield None
             return
         raise
@@ -414,7 +517,7 @@ def holding_dir(path: str | os.PathLike[str]) -> Iterator[bool | None]:
         yield fd is not None
     finally:
         if fd is not None:
-            os.close(fd)
+            _let_go(Path(path), fd)
 
 
 def _regular_or_absent(path: Path) -> None:
@@ -826,6 +929,8 @@ def read_session(
         from hil.files.writing import writer_holds  # the same lock as _lock_dir's: flock on the directory
 
         holds = False if locked_here else writer_holds(out_dir)
+        if holds and (holder := lock_holder(out_dir)) is not None and not holder.is_session:
+            holds = False  # held by hil report drawing it: no session runs beside it (the lock is one)
         ended = "still running" if holds else "killed" if holds is False else "killed, or still running"
     else:
         ended = session_ended(state, record)
