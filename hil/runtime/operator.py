@@ -28,6 +28,12 @@ plan that never ran, while the host sent no setpoints. In the slew or the hold p
 hand (no live telemetry, a re-arm pending, the board not armed, the phone not fresh) it is ``refused``:
 the reference would move on with no setpoint going out.
 
+An ``applied`` hold or slew whose board is not heard again (no telemetry made after the command) before the
+host stops steering — a stall or a reset that began just before it, found only at the stale bound — never
+reached the board: it is ``deferred`` then, with why, and ``applied`` again when its re-planned slew starts
+at the recovery's end (``slew_start_s``). Before, its record said ``applied`` with a slew that never ran;
+the re-plan was only in ``events.jsonl``'s ``resume``.
+
 Once an ``abort``'s Disarm is out, every command after it is refused, whichever sender's
 (:attr:`OperatorLog.aborting`: the ground station and a script or a campaign operate one run at once).
 
@@ -118,6 +124,16 @@ class _Pending:
 
 
 @dataclass
+class _Unheard:
+    """A hold or slew applied while the host steers, its board not heard since (no telemetry made after
+    ``t``): whether its slew reached the board is not known yet."""
+
+    command: OperatorCommand
+    target: NDArray[Any]
+    t: float  # applied at (host s)
+
+
+@dataclass
 class _Deferred:
     """A hold or slew taken while the host does not steer: its target (the host's target array, taken as
     it was set: another target replaces the object) waits for the warm-up's end."""
@@ -142,6 +158,7 @@ class Operator:
     def __init__(self) -> None:
         self._pending: list[_Pending] = []
         self._deferred: list[_Deferred] = []
+        self._unheard: list[_Unheard] = []
         self._abort: _Pending | None = None
 
     @property
@@ -207,6 +224,7 @@ class Operator:
         assert host.target is not None
         if host.phase in STEERING:
             self._applied(host, t, command)
+            self._unheard.append(_Unheard(command, host.target, t))
             return
         why = (
             "the run is suspended by the operator's Disarm: the slew to this target starts after the "
@@ -253,10 +271,44 @@ class Operator:
                 still.append(d)
         self._deferred = still
 
+    def _settle_unheard(self, host: Host, t: float) -> None:
+        """Each applied command at ``t`` (s) whose board was not heard since: kept ``applied`` once
+        telemetry made after it comes while the host still has the board in hand (the board lived on under
+        its setpoints), or once a newer target replaced it; ``deferred`` once the host stops steering first
+        (a stall or reset that began before the command, found since): its slew never ran, the recovery
+        re-plans it (:meth:`_settle_deferred` then records it ``applied`` with its ``slew_start_s``). The
+        board's first telemetry after a stall comes in the tick that ends the steering (it says FAILSAFE):
+        telemetry counts only while the host steers with the board in hand."""
+        if not self._unheard:
+            return
+        _, tel_t = host.client.latest_telemetry()
+        steering = host.phase in STEERING
+        heard = steering and host.in_control and tel_t is not None
+        still = []
+        for u in self._unheard:
+            if (heard and tel_t is not None and tel_t > u.t) or host.target is not u.target:
+                continue
+            if steering:
+                still.append(u)
+                continue
+            self._log(
+                host,
+                t,
+                u.command,
+                "deferred",
+                reason="the board was not heard steering after the command (a stall or a reset that began "
+                "before it, found since): its slew never ran; the slew to this target starts when the "
+                "recovery's warm-up ends",
+                target_euler_deg=u.command.target,
+            )
+            self._deferred.append(_Deferred(u.command, u.target, u.t))
+        self._unheard = still
+
     def service(self, host: Host, t: float) -> None:
         """Settle the commands the board has answered; raises :class:`RunAborted` once an abort's Disarm is
         answered (or cannot be sent) and the board is seen disarmed. Deferred holds and slews are applied
         once their slew starts (or superseded)."""
+        self._settle_unheard(host, t)
         self._settle_deferred(host, t)
         still = []
         for p in self._pending:

@@ -146,8 +146,13 @@ class PhoneClock:
         return self._gap_began(t, since, why, causes)
 
     def _gap_began(self, t: float, since: float | None, why: str, causes: list[str]) -> Freshness:
-        """A phone gap from ``since`` noticed at ``t``: a fault with ``why`` and its ``causes``."""
-        self.journal.fault(t, "phone_gap", since=since, why=why)
+        """A phone gap from ``since`` noticed at ``t``: a fault with ``why`` and its ``causes``. The gap
+        opens when the phone stopped being fresh — ``stale_after_s`` after ``since``, its needed samples'
+        last — as a board's stale outage does (:meth:`hil.runtime.watch.BoardWatch.view`), not at the tick
+        that noticed it: a late tick (a host stall, a slow tick) put the gap's start, and the phone's lost
+        bound counted from it, as late as the tick, its ``gap_s`` that much short."""
+        opened = None if since is None else since + self.stale_after_s
+        self.journal.fault(t, "phone_gap", outage_from=opened, since=since, why=why)
         out = self.journal.phone_out
         assert out is not None  # the fault just opened it
         out.causes.extend(causes)

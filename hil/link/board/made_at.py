@@ -16,7 +16,8 @@ followed), never later than its receive time and never earlier than the read bef
 read does not always take the whole backlog (a pty hands it over 4 KiB at a time), so the session stays
 behind until the read after one in which a sample so dated came within :data:`PROMPT_READ_S` of its
 receive time, or until its reads have been prompt for :data:`CATCH_UP_S` (a board whose clock drifted
-over the pause). A boot that began while the host was behind (a board that reset during its pause) has
+over the pause), or until the samples come as fast as the board makes them (:data:`STEADY_S`). A boot
+that began while the host was behind (a board that reset during its pause) has
 no offset yet: its samples are dated by the earliest they can have been made — the last read before the
 pause plus their uptime — by the same rules for as long as the session stays behind (every chunk of its
 backlog, not only the first: the second 4 KiB of a restarted board's backlog was dated as read, seconds
@@ -48,6 +49,22 @@ CATCH_UP_S = 0.5
 read in milliseconds; a clock that drifted over a long pause must not keep fresh frames dated old)."""
 
 
+STEADY_S = 0.03
+"""s: behind, the least ``receive time - uptime`` among the samples read since (the latest a sample can
+have been made sets an upper bound on the board's offset) that no later read lowered by more than
+:data:`STEADY_TOLERANCE_S` for this long, the sample read now as fresh: the samples come as fast as the
+board makes them — the backlog is read (a chunk of it holds more of the board's time than passed on the
+host's between reads, and lowers the least by that). Why: a board that restarted while the host was
+paused has no offset yet; its samples are dated by the earliest they can have been made (the host's last
+read before the pause plus their uptime), and its fresh telemetry, made milliseconds before it was read,
+was dated as old as the time between the host's pause and the board's restart — shown stale for
+:data:`CATCH_UP_S` after the host was back."""
+
+STEADY_TOLERANCE_S = 0.01
+"""s: how far the least ``receive time - uptime`` may still go down and be steady: the link's latency
+jitter, and a board clock running fast against the host's (10 % of :data:`STEADY_S`)."""
+
+
 class MadeAt:
     """See the module docstring."""
 
@@ -58,11 +75,14 @@ class MadeAt:
         self._prompt_since: float | None = None  # behind, but reading promptly since then
         self._caught_up = False  # behind, and a sample of this read came within PROMPT_READ_S of its read
         self._new_boot = False  # a boot seen to begin after the host's first (its window still empty)
+        # behind: (host time it was set, the least receive time - uptime of the samples read since)
+        self._least: tuple[float, float] | None = None
 
     def forget_boot(self) -> None:
         """A new boot: its clock starts again, the offsets with it."""
         self._window.clear()
         self._new_boot = True
+        self._least = None  # the old boot's samples are of another clock
 
     def link_up(self) -> None:
         """The link is (re)opened: whatever the host was behind on came over the connection before it
@@ -70,6 +90,7 @@ class MadeAt:
         boot: the session tells a new one by :meth:`forget_boot`)."""
         self._behind_since = self._prompt_since = None
         self._caught_up = False
+        self._least = None
 
     def read(self, now: float, waiting_since: float | None) -> None:
         """Bytes read at ``now``; the host's previous read ended at ``waiting_since`` (None: not known, or
@@ -77,15 +98,18 @@ class MadeAt:
         if self._caught_up:  # from this read on (the rest of the last one was dated by the clock too)
             self._behind_since = self._prompt_since = None
             self._caught_up = False
+            self._least = None
         if waiting_since is not None and now - waiting_since > PROMPT_READ_S:
             if self._behind_since is None:
                 self._behind_since = waiting_since
             self._prompt_since = None
+            self._least = None  # late again: what was read before the pause says nothing of what waits now
         elif self._behind_since is not None:
             if self._prompt_since is None:
                 self._prompt_since = now
             elif now - self._prompt_since >= CATCH_UP_S:
                 self._behind_since = self._prompt_since = None
+                self._least = None
 
     def sample(self, uptime_s: float, now: float) -> float:
         """The host time a sample of the board's clock (``uptime_s``, read at ``now``) was made."""
@@ -95,6 +119,7 @@ class MadeAt:
             # not behind, or the first boot's first sample: dated by its receive time, anchoring the offset
             self._behind_since = self._prompt_since = None
             self._caught_up = False
+            self._least = None
             offset = now - uptime_s
             while window and window[-1][1] >= offset:
                 window.pop()
@@ -111,5 +136,19 @@ class MadeAt:
         # keep a restarted board's fresh telemetry stale for good); then dated as a first boot's.
         offset = window[0][1] if window else behind
         made = min(now, max(behind, uptime_s + offset))
-        self._caught_up = self._caught_up or made >= now - PROMPT_READ_S
+        self._caught_up = self._caught_up or made >= now - PROMPT_READ_S or self._steady(uptime_s, now)
         return made
+
+    def _steady(self, uptime_s: float, now: float) -> bool:
+        """Whether, behind, the samples now come as fast as the board makes them (:data:`STEADY_S`): the
+        least ``now - uptime_s`` read since falling behind has held for that long."""
+        latest = now - uptime_s  # the board's offset is at most this: the sample was made by its read
+        least = self._least
+        if least is None or latest < least[1] - STEADY_TOLERANCE_S:
+            self._least = (now, latest)  # fresher than any before: what came before was a backlog
+            return False
+        if latest < least[1]:
+            self._least = (least[0], latest)
+        # and this sample as fresh as the freshest: a host reading slower than the board writes (a chunk
+        # of its backlog holding less of the board's time than passed between reads) falls further behind
+        return latest <= least[1] + STEADY_TOLERANCE_S and now - least[0] >= STEADY_S
