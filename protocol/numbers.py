@@ -15,6 +15,8 @@ def real_number(value: object) -> float | None:
     modules, the reliable layer's times and policy, a message's float fields): a width, a time or a rate
     that is not one got a raw ``TypeError``/``OverflowError`` out of them, or was taken as a number
     (``True`` as 1 µs, the string ``"1500"`` as an edge time)."""
+    if type(value) is float:  # the hot path: the board's every rate, width and threshold (a subclass: below)
+        return value
     if getattr(value, "shape", None) == () and hasattr(value, "item"):
         value = value.item()  # a 0-d array: the number (or bool) it holds
     if isinstance(value, bool) or not isinstance(value, numbers.Real):  # numpy's bool is no Real
