@@ -207,18 +207,21 @@ def test_per_sample_update_equals_the_batch_bit_for_bit():
     np.testing.assert_array_equal([e.iterations for e in live], batch.iterations)
 
 
-RECORDED = [
-    SHARED_DATA / "tyrex-nexus5" / "Guillaume_Nexus5_Dist_Phoning",
-    SHARED_DATA / "broad" / "24_disturbed_tapping_A.mat",
+RECORDED = [  # a recording, and where in its length the 60 s taken start
+    (SHARED_DATA / "tyrex-nexus5" / "Guillaume_Nexus5_Dist_Phoning", 0.0),
+    (SHARED_DATA / "broad" / "24_disturbed_tapping_A.mat", 0.0),
+    (SHARED_DATA / "broad" / "15_undisturbed_fast_translation_A.mat", 0.55),  # mid-motion: the settling
 ]
 
 
-@pytest.fixture(scope="module", params=RECORDED, ids=lambda p: p.name)
+@pytest.fixture(scope="module", params=RECORDED, ids=lambda p: f"{p[0].name}@{p[1]}")
 def recorded(request):
-    log = read_log(request.param)
-    log = log.window(log.start, log.start + 60.0)
+    path, start = request.param
+    log = read_log(path)
+    t0 = log.start + start * (log.end - log.start)
+    log = log.window(t0, t0 + 60.0)
     steps, _ = merge(log.streams, MergePolicy(driver=SensorKind.GYR))
-    return request.param.name, steps.rows(first_full_step(steps))
+    return path.name, steps.rows(first_full_step(steps))
 
 
 CHAIN_CONFIGS = {

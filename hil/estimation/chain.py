@@ -49,7 +49,7 @@ from hil.estimation.slots import (
     pack,
 )
 from hil.jit import kernel
-from hil.so3.floats import apply_f, exp_f
+from hil.so3.floats import apply_f, apply_transpose_f, exp_f
 
 Array = NDArray[np.float64]
 
@@ -60,7 +60,8 @@ CP_SIGNAL = 5  # the pre-filter's parameters (pf.SP_SIZE)
 CP_GATE_PARAMS = CP_SIGNAL + pf.SP_SIZE  # the magnetic handling's parameters (mg.GP_SIZE)
 CP_MOTION_ON = CP_GATE_PARAMS + mg.GP_SIZE  # 1: rest detection and accelerometer trust
 CP_MOTION = CP_MOTION_ON + 1  # their parameters (mo.MP_SIZE)
-CP_SIZE = CP_MOTION + mo.MP_SIZE
+CP_SETTLE = CP_MOTION + mo.MP_SIZE  # s: after the measured restart, restart again at every measurement
+CP_SIZE = CP_SETTLE + 1
 
 MAG_FULL = 0  # the field direction as measured
 MAG_HORIZONTAL = 1  # its part perpendicular to the measured gravity (heading only)
@@ -73,7 +74,10 @@ CS_IO = 5  # this step's gyr, acc, mag (9)
 CS_SIGNAL = CS_IO + 9  # the pre-filter's state (pf.SS_SIZE)
 CS_GATE = CS_SIGNAL + pf.SS_SIZE  # the magnetic handling's state (mg.GS_SIZE)
 CS_MOTION = CS_GATE + mg.GS_SIZE  # rest detection's and accelerometer trust's state (mo.MS_SIZE)
-CS_SIZE = CS_MOTION + mo.MS_SIZE
+CS_SETTLE_END = CS_MOTION + mo.MS_SIZE  # s: the time the settling after a measured restart ends
+CS_SETTLE_ACC = CS_SETTLE_END + 1  # Σ R_g a over the settling so far (3), the pre-filter's strapdown frame
+CS_SETTLE_MAG = CS_SETTLE_ACC + 3  # Σ R_g m (3): the field as the magnetic handling passed it
+CS_SIZE = CS_SETTLE_MAG + 3
 
 AWAIT_NONE = 0.0  # the initial attitude is given, or measured already
 AWAIT_BOTH = 1.0  # restart from Wahba's solution at the first step with both directions usable
@@ -88,15 +92,17 @@ def pack_params(
     mag_mode: int,
     omega_err0: tuple[float, float, float],
     motion: Array | None = None,
+    settle_s: float = 0.0,
 ) -> Array:
     """The chain parameters ``cp``: pre-filter parameters ``signal`` (``pf.pack_signal_params``), magnetic
     handling's (``mg.pack_mag_params``; None: every field sample used), the magnetometer's use
     (``MAG_*``), ω0 (rad/s), rest detection's and accelerometer trust's (``mo.pack_motion_params``; None:
-    neither)."""
+    neither), the settling after a measured restart (s; 0: none)."""
     slots: dict[int, float | ArrayLike] = {
         CP_MAG_MODE: mag_mode,
         CP_OMEGA0: omega_err0,
         CP_SIGNAL: signal,
+        CP_SETTLE: settle_s,
     }
     if gate is not None:
         slots[CP_GATE] = 1.0
@@ -115,6 +121,7 @@ def new_state(bias: ArrayLike, awaiting: bool) -> Array:
     cs[CS_AWAITING] = AWAIT_BOTH if awaiting else AWAIT_NONE
     cs[CS_SIGNAL : CS_SIGNAL + pf.SS_SIZE] = pf.new_signal_state()
     cs[CS_MOTION : CS_MOTION + mo.MS_SIZE] = mo.new_motion_state()
+    cs[CS_SETTLE_END] = -math.inf  # no measured restart yet: not settling
     return cs
 
 
@@ -217,6 +224,52 @@ def restart(cp, cs, es, r):  # type: ignore[no-untyped-def]
 
 
 @kernel
+def settle_sum(cs, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+    """Add the accelerometer ``a`` and the field ``m`` (each left out unless finite), in the pre-filter's
+    strapdown frame R_g, to the settling's sums."""
+    ss = cs[CS_SIGNAL : CS_SIGNAL + pf.SS_SIZE]
+    rg = (ss[0], ss[1], ss[2], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8])
+    if math.isfinite(ax + ay + az):
+        sx, sy, sz = apply_f(rg, (ax, ay, az))
+        cs[CS_SETTLE_ACC] += sx
+        cs[CS_SETTLE_ACC + 1] += sy
+        cs[CS_SETTLE_ACC + 2] += sz
+    if math.isfinite(mx + my + mz):
+        sx, sy, sz = apply_f(rg, (mx, my, mz))
+        cs[CS_SETTLE_MAG] += sx
+        cs[CS_SETTLE_MAG + 1] += sy
+        cs[CS_SETTLE_MAG + 2] += sz
+
+
+@kernel
+def settle(cp, cs, ep, es, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
+    """One step of the settling after the measured restart: the step's accelerometer ``a`` (as read) and
+    field ``m`` (as the magnetic handling passed it) added to the sums (:func:`settle_sum`), and the
+    estimator restarted from Wahba's solution for their means, rotated back to the body.
+
+    Why: the measured restart takes one step's readings, and a recording that starts mid-motion can
+    have its accelerometer tens of degrees off gravity there (and the field's horizontal part, taken
+    against that wrong vertical, half a turn off): the estimator, a smoothing filter, then climbs out of
+    the far start in tens of seconds. Averaged in the strapdown frame, the phone's turning is taken out
+    and what is left of the motion is the velocity change over the settling divided by its length; every
+    reading counts alike, so a magnetic disturbance at one moment weighs by how long it lasts."""
+    settle_sum(cs, ax, ay, az, mx, my, mz)
+    ss = cs[CS_SIGNAL : CS_SIGNAL + pf.SS_SIZE]
+    rg = (ss[0], ss[1], ss[2], ss[3], ss[4], ss[5], ss[6], ss[7], ss[8])
+    sa = (cs[CS_SETTLE_ACC], cs[CS_SETTLE_ACC + 1], cs[CS_SETTLE_ACC + 2])
+    sm = (cs[CS_SETTLE_MAG], cs[CS_SETTLE_MAG + 1], cs[CS_SETTLE_MAG + 2])
+    bax, bay, baz = apply_transpose_f(rg, sa)
+    bmx, bmy, bmz = apply_transpose_f(rg, sm)
+    if cp[CP_MAG_MODE] == MAG_HORIZONTAL:  # the field's part perpendicular to the averaged vertical
+        na2 = bax * bax + bay * bay + baz * baz
+        if 0.0 < na2 < math.inf:
+            k = (bmx * bax + bmy * bay + bmz * baz) / na2
+            bmx, bmy, bmz = bmx - k * bax, bmy - k * bay, bmz - k * baz
+    if both_usable(ep, bax, bay, baz, bmx, bmy, bmz):
+        restart(cp, cs, es, wahba(ep, bax, bay, baz, bmx, bmy, bmz))
+
+
+@kernel
 def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ignore[no-untyped-def]
     """One merged step at time ``t`` (s), ``h`` s after the previous one (ignored on the first): raw
     gyr (rad/s), acc (m/s²), mag (NaN: not usable). Returns the estimator step's flags, with
@@ -257,6 +310,7 @@ def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ign
             for i in range(3):
                 b = es[v.S_BIAS + i] + k * (ms[mo.MS_GYR_LP + i] - es[v.S_BIAS + i])
                 es[v.S_BIAS + i] = min(lim, max(-lim, b))
+    rax, ray, raz = ax, ay, az  # the accelerometer as read (the settling averages it itself)
     ax, ay, az, mx, my, mz = io[3], io[4], io[5], io[6], io[7], io[8]
     # the vertical in the body frame: the estimate's (R̂ᵀ e1) once it runs from a measured or given
     # attitude, else the (pre-filtered) accelerometer's
@@ -280,14 +334,22 @@ def step(cp, cs, ep, es, t, h, gx, gy, gz, ax, ay, az, mx, my, mz):  # type: ign
         if weight == 0.0:
             mx = my = mz = math.nan
     es[v.S_MAG_WEIGHT] = weight
+    gmx, gmy, gmz = mx, my, mz  # the field as the magnetic handling passed it (NaN: left out)
     if mode == MAG_HORIZONTAL:  # the field's part perpendicular to the vertical: heading only
         k = mx * ux + my * uy + mz * uz
         mx, my, mz = mx - k * ux, my - k * uy, mz - k * uz
     awaiting = cs[CS_AWAITING]
-    if awaiting != AWAIT_NONE:
+    if awaiting == AWAIT_NONE and t < cs[CS_SETTLE_END]:
+        settle(cp, cs, ep, es, rax, ray, raz, gmx, gmy, gmz)
+    elif awaiting != AWAIT_NONE:
         if both_usable(ep, ax, ay, az, mx, my, mz):
             cs[CS_AWAITING] = AWAIT_NONE  # restart the estimator from the measured attitude
             restart(cp, cs, es, wahba(ep, ax, ay, az, mx, my, mz))
+            cs[CS_SETTLE_END] = t + cp[CP_SETTLE]
+            for i in range(6):
+                cs[CS_SETTLE_ACC + i] = 0.0
+            if cp[CP_SETTLE] > 0.0:
+                settle_sum(cs, rax, ray, raz, gmx, gmy, gmz)
         elif awaiting == AWAIT_BOTH and 0.0 < ax * ax + ay * ay + az * az < math.inf:
             # a reading whose norm overflows (finite parts, ~1e155 m/s² and up) is no direction here, as
             # everywhere in the chain: tilt would divide by zero

@@ -56,7 +56,10 @@ class FilterConfig:
     body → inertial matrix; ``omega_err0`` (3,) rad/s the initial ω.
     ``mag_gate``: magnetic disturbance handling (:mod:`hil.estimation.magnetic`), or None (every field
     sample used). ``motion``: rest detection and accelerometer trust (:mod:`hil.estimation.motion`), or
-    None (neither).
+    None (neither). ``settle_s``: with a measured initial attitude, for this long after it (s) the
+    estimator restarts from Wahba's solution at every step where both directions are usable, while the
+    pre-filter averages out the first readings (a recording that starts mid-motion: see
+    docs/estimator.md, "Starting mid-motion"); 0: it runs from the first measurement on its own.
     """
 
     params: EstimatorParams = field(default_factory=EstimatorParams)
@@ -68,6 +71,7 @@ class FilterConfig:
     omega_err0: tuple[float, float, float] = (0.0, 0.0, 0.0)
     mag_gate: MagneticSettings | None = None
     motion: MotionSettings | None = None
+    settle_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.magnetometer not in _MAG_MODES:
@@ -83,6 +87,12 @@ class FilterConfig:
             raise ConfigError(f"must be a finite 3-vector, got {self.gyro_bias!r}", "FilterConfig.gyro_bias")
         if isinstance(self.init, str) and self.init not in ("measured", "identity"):
             raise ConfigError(f"must be 'measured', 'identity' or a 3x3 matrix, got {self.init!r}", "init")
+        settle = self.settle_s
+        if isinstance(settle, bool) or not (isinstance(settle, (int, float)) and 0.0 <= settle < math.inf):
+            raise ConfigError(
+                f"must be a finite number of seconds, 0 or more, got {self.settle_s!r}",
+                "FilterConfig.settle_s",
+            )
 
     @classmethod
     def paper(cls, E: ArrayLike | None = None, **overrides: object) -> FilterConfig:
@@ -115,6 +125,7 @@ class FilterConfig:
             "magnetometer": "horizontal",
             "mag_gate": TUNED["mag_gate"],
             "motion": TUNED["motion"],
+            "settle_s": TUNED["settle_s"],
         }
         return cls(**{**base, **overrides})  # type: ignore[arg-type]
 
@@ -131,6 +142,7 @@ TUNED: dict = {
     "gyro_delay_s": 0.005,
     "mag_gate": MagneticSettings(norm_tol=0.3, dip_tol_deg=15.0, late_weight=0.5, boost=6.0),
     "motion": MotionSettings(acc_scale=2.0, calm=1.0, dynamic=1.0, rest_gain=0.5),
+    "settle_s": 8.0,
 }
 """Tuned settings: chosen by leave-one-trial-out over every shared trial (``python -m bench.bench_estimator
 --tune``); see docs/estimator.md, "The tuned preset"."""
@@ -156,7 +168,7 @@ class AttitudeFilter:
         gate = None if cfg.mag_gate is None else pack_mag_params(cfg.mag_gate)
         motion = None if cfg.motion is None else pack_motion_params(cfg.motion)
         mode = _MAG_MODES[cfg.magnetometer]
-        self._cp = chain.pack_params(signal, gate, mode, cfg.omega_err0, motion)
+        self._cp = chain.pack_params(signal, gate, mode, cfg.omega_err0, motion, float(cfg.settle_s))
         self._cs = chain.new_state(cfg.gyro_bias, isinstance(init, str) and init == "measured")
         self._raise = cfg.params.on_newton_failure == "raise"
         self._head = self.estimator.head

@@ -175,7 +175,9 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
     from a fresh start, one step at a time: the gyro less b̂, the pre-filter (strapdown frame, the
     accelerometer's cut-off scaled by its trust), rest and the bias at rest, the vertical (the estimate's,
     or the accelerometer's before a measured attitude), the magnetic handling's weight, the field's
-    horizontal part, the measured restart (Wahba's, or gravity's alone without a field), the estimator.
+    horizontal part, the measured restart (Wahba's, or gravity's alone without a field; after Wahba's,
+    for ``settle_s`` again at every step, from the readings' means in the strapdown frame), the
+    estimator.
     Flags include the merger's, MAG_DISTURBED and REST."""
     p = config.params
     gyr_in, acc_in, mag_in = (np.where(steps.valid(k)[:, None], steps.value(k), np.nan) for k in KINDS)
@@ -190,6 +192,8 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
     r0 = np.eye(3) if isinstance(config.init, str) else np.asarray(config.init, dtype=float)
     est = Estimator(p, r0, np.array(config.omega_err0, dtype=float), np.array(config.gyro_bias, dtype=float))
     awaiting = "both" if measured else "none"
+    settle_end = -math.inf  # settling after the measured restart until then (s)
+    sums = (np.zeros(3), np.zeros(3))  # Σ R_g a, Σ R_g m over the settling
     rg, g_prev = np.eye(3), np.zeros(3)
     n = len(steps)
     out = RunResult.empty(n)
@@ -235,12 +239,25 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
                 flags |= MAG_DISTURBED
             if weight == 0.0:
                 mag = _NAN3.copy()
+        gated = mag.copy()  # the field as the magnetic handling passed it
         if config.magnetometer == "horizontal":
             mag = mag - float(mag @ up) * up
-        if awaiting != "none":
+        if awaiting == "none" and steps.t[i] < settle_end:  # settling: from the means since the restart
+            sums = _settle_sum(sums, rg, acc_in[i], gated)
+            a_mean, m_mean = rg.T @ sums[0], rg.T @ sums[1]
+            if config.magnetometer == "horizontal" and 0.0 < float(a_mean @ a_mean) < math.inf:
+                m_mean = m_mean - float(m_mean @ a_mean) / float(a_mean @ a_mean) * a_mean
+            if measurement(p, a_mean, m_mean).used.all():
+                est = _restart(est, wahba(p, a_mean, m_mean), config)
+                weight = trust = 1.0
+        elif awaiting != "none":
             restarted = True
             if measurement(p, acc, mag).used.all():
                 awaiting = "none"
+                settle_end = float(steps.t[i]) + config.settle_s
+                sums = (np.zeros(3), np.zeros(3))
+                if config.settle_s > 0.0:
+                    sums = _settle_sum(sums, rg, acc_in[i], gated)
                 est = _restart(est, wahba(p, acc, mag), config)
             elif awaiting == "both" and unit_acc is not None:
                 awaiting = "none" if config.magnetometer == "none" else "field"
@@ -253,6 +270,17 @@ def filter_run(config: FilterConfig, steps: MergedSteps) -> RunResult:
         out.record(i, est, int(steps.flags[i]) | flags | est_flags, iters)
     out.counters = est.counters
     return out
+
+
+def _settle_sum(sums: tuple[Array, Array], rg: Array, acc: Array, mag: Array) -> tuple[Array, Array]:
+    """The settling's sums with ``acc`` and ``mag`` (each left out unless finite) added in the strapdown
+    frame ``rg``."""
+    sa, sm = sums
+    if np.all(np.isfinite(acc)):
+        sa = sa + rg @ acc
+    if np.all(np.isfinite(mag)):
+        sm = sm + rg @ mag
+    return sa, sm
 
 
 def _restart(est: Estimator, r: Array, config: FilterConfig) -> Estimator:
