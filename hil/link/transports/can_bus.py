@@ -40,16 +40,20 @@ them at the 0x00 delimiters and sends each complete frame as its segments (a par
 rest of its bytes); :meth:`read` hands up the wire frames the reassembler completed, so the deframer
 above sees exactly what a serial link would give it. Lost and incomplete frames, duplicates and foreign
 traffic are counted in :meth:`counters`, never delivered (lost frames — ``rx_malformed``,
-``rx_incomplete``, ``rx_spliced`` — also logged, each kind at most once a second); so is, apart
-(``rx_same_node``, logged), a frame in this end's own direction and node id that this end did not send —
-another node configured with the same node id, which the reassembler ignores like the loopback of this
-end's own frames. Where the interface says which socket sent a frame (``udp_multicast``: each node
+``rx_incomplete``, ``rx_spliced`` — also logged, each kind at most once a second, what a burst left
+unlogged said by the next read once its second has passed; error and remote frames, ``rx_error_frames``,
+logged too, an error frame naming its SocketCAN classes, and told a timed-out handshake by
+:meth:`CanTransport.heard_instead`: a bus reporting errors, the board unplugged or at another bit rate); so
+is, apart (``rx_same_node``, logged), a frame in this end's own direction and node id that this end did
+not send — another node configured with the same node id, which the reassembler ignores like the loopback
+of this end's own frames. Where the interface says which socket sent a frame (``udp_multicast``: each node
 sends from one of its own), a frame in the peer's direction and node id from a second sender — two boards
 at one node id, seen from the host — is counted (``rx_other_sender``), logged and dropped: this end follows
 the first sender it hears, and the next once that one has been silent for :data:`PEER_HANDOVER_S` (a
-restarted board). A host sends towards the board (``Direction.TO_BOARD``) and accepts the board's
-direction only; the board's side (:mod:`firmware_sim.servers.can_server`) is the same class with
-``sends=Direction.TO_HOST``.
+restarted board). A transport closed and opened again (the board client's reconnection) sends from the
+port it sent from before, where that is still free, so its peer follows it at once. A host sends towards
+the board (``Direction.TO_BOARD``) and accepts the board's direction only; the board's side
+(:mod:`firmware_sim.servers.can_server`) is the same class with ``sends=Direction.TO_HOST``.
 
 What the bus itself does wrong is told apart from the bus being gone. Gone — the interface down, the
 bus shut down, any other error of python-can's — is a :class:`LinkError` naming the URL (the board
@@ -133,6 +137,25 @@ socket of its own, :class:`_ScreenedUdpMulticastBus`). A board says something fa
 restarted board (a new process, on a new socket) takes longer than this to start, and is followed at its
 first frame. (A board set to say less than twice a second lets a twin in at each of its pauses: counted and
 logged each time the two change places.)"""
+_ERROR_CLASSES = (
+    (0x001, "transmit timeout"),
+    (0x002, "arbitration lost"),
+    (0x004, "controller problem"),
+    (0x008, "protocol violation"),
+    (0x010, "transceiver problem"),
+    (0x020, "no acknowledgement"),
+    (0x040, "bus off"),
+    (0x080, "bus error"),
+    (0x100, "controller restarted"),
+)
+"""SocketCAN's error classes (``linux/can/error.h``: the bits of an error frame's id) by name. An error
+frame is the controller saying the bus is in trouble — a frame nobody acknowledged (the board unplugged or
+off, the only node on the bus), nodes at different bit rates, a missing terminator — and a bus in such
+trouble carries none of the peer's frames: said by name, the operator's "no handshake" has its cause."""
+_ERROR_HINT = (
+    "the bus reports trouble: no other node acknowledging (the peer unplugged or off), nodes at different "
+    "bitrates, or a missing terminator?"
+)
 _ECHOES = 4096
 """This end's sent segments remembered until their loopback comes back (udp_multicast hears its own
 datagrams, in the order sent; the virtual interface does not, and the oldest are then forgotten): a frame
@@ -204,6 +227,23 @@ def _undecodable(exc: BaseException) -> bool:
     return isinstance(exc, can.CanError) and cause is not None and not isinstance(cause, OSError)
 
 
+def _error_classes(msg: object) -> list[str]:
+    """The SocketCAN error classes an error frame's id names (:data:`_ERROR_CLASSES`); ``["unspecified"]``
+    when it names none (an interface that reports errors without a class: its id 0, or not an integer)."""
+    bits = getattr(msg, "arbitration_id", 0)
+    if not isinstance(bits, int) or isinstance(bits, bool):
+        bits = 0
+    return [name for bit, name in _ERROR_CLASSES if bits & bit] or ["unspecified"]
+
+
+def _id_said(msg: object) -> str:
+    """A message's arbitration id for a log line: hexadecimal when it is an integer, else its type."""
+    value = getattr(msg, "arbitration_id", None)
+    if isinstance(value, int) and not isinstance(value, bool):
+        return f"{value:#x}"
+    return type(value).__name__
+
+
 def _kinds(msg: object) -> str:
     """What a message that is not a CAN frame holds, by type only (its repr may itself fail: python-can
     formats a float id with ``:x``)."""
@@ -228,7 +268,10 @@ class _ScreenedUdpMulticastBus(UdpMulticastBus):
     own ``udp_multicast`` bus (a tool, a test's noisy node), which all send from the group's port and so
     name no one node."""
 
-    def __init__(self, channel: str, **options: Any) -> None:
+    sender_port: int = 0
+    """The port this node sends from (:meth:`_bind_sender`)."""
+
+    def __init__(self, channel: str, sender_port: int = 0, **options: Any) -> None:
         super().__init__(channel, **options)
         # python-can sends from the socket it receives on, bound to the group's port: every node on a
         # machine then sends from one address, and a second board at this node id could not be told from
@@ -243,10 +286,26 @@ class _ScreenedUdpMulticastBus(UdpMulticastBus):
                 else (socket.IPPROTO_IPV6, socket.IPV6_MULTICAST_HOPS)
             )
             self._tx.setsockopt(level, option, struct.pack("@I", multicast.hop_limit))
+            self.sender_port = self._bind_sender(v4, sender_port)
         except OSError as exc:
             self._tx.close()
             super().shutdown()
             raise can.CanInitializationError("could not create or configure socket") from exc
+
+    def _bind_sender(self, v4: bool, port: int) -> int:
+        """Bind the sending socket to ``port`` (0: an ephemeral one) and return the port it got. The port a
+        closed bus of the same transport sent from, where it is still free: the same end, reopened (the
+        board client's reconnection), is then the same sender to its peer — on a new port, the peer took it
+        for a second node at its node id and dropped its frames for :data:`PEER_HANDOVER_S`, logging "two
+        hosts configured with node id N?". Taken meanwhile by another socket, an ephemeral port."""
+        anywhere = "0.0.0.0" if v4 else "::"
+        try:
+            self._tx.bind((anywhere, port))
+        except OSError:
+            if not port:
+                raise
+            self._tx.bind((anywhere, 0))
+        return int(self._tx.getsockname()[1])
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         """python-can's ``send`` (its errors: ``CanTimeoutError``, ``CanOperationError`` from the OSError),
@@ -282,14 +341,15 @@ class _ScreenedUdpMulticastBus(UdpMulticastBus):
             raise can.CanOperationError("could not unpack received message") from exc
 
 
-def _open_bus(interface: str, channel: str, **options: Any) -> can.BusABC:
+def _open_bus(interface: str, channel: str, sender_port: int = 0, **options: Any) -> can.BusABC:
     """``can.Bus(interface=interface, channel=channel, **options)``; ``udp_multicast`` as
-    :class:`_ScreenedUdpMulticastBus`, with the same configuration ``can.Bus`` would read for it."""
+    :class:`_ScreenedUdpMulticastBus` sending from ``sender_port`` where it is free (0: any), with the same
+    configuration ``can.Bus`` would read for it."""
     if interface != "udp_multicast":
         return can.Bus(interface=interface, channel=channel, **options)
     config = can.util.load_config(config={"interface": interface, "channel": channel, **options})
     del config["interface"]
-    return _ScreenedUdpMulticastBus(config.pop("channel"), **config)
+    return _ScreenedUdpMulticastBus(config.pop("channel"), sender_port=sender_port, **config)
 
 
 class CanTransport(Transport):
@@ -336,20 +396,30 @@ class CanTransport(Transport):
         self._peer: object = None  # the sender followed in the peer's direction and node id
         self._peer_heard_at = 0.0  # when it was last heard (s, the frames' receive clock)
         self._invalid_seen = 0  # the reassembler's ``invalid`` count when this end last looked
+        self._error_frames_seen = 0  # the reassembler's ``error_frames`` count when this end last looked
+        # error frames by class and remote frames ("remote") heard: at most len(_ERROR_CLASSES) + 2 keys
+        self._bus_trouble: dict[str, int] = {}
         self._losses_seen = (0, 0, 0)  # its malformed, incomplete and spliced counts when last logged
         self._unechoed: deque[tuple[int, bytes]] = deque()  # sent, loopback not yet heard (<= _ECHOES)
         self._unechoed_count: dict[tuple[int, bytes], int] = {}  # how many of each the deque holds
         self._echo_lock = threading.Lock()  # the writer appends, the reader takes the loopback off
         self._bus: can.BusABC | None = None
+        # the port this end sends from where the interface names senders (udp_multicast; 0: none yet), kept
+        # for the next open so that a reopened end is the same sender to its peer (_bind_sender)
+        self._sender_port = 0
         self._skipped = False  # the last _recv returned None for an undecodable message, not a timeout
         self._logged_at: dict[str, float] = {}  # when each kind of counted drop was last logged
-        self._unlogged: dict[str, int] = {}
+        self._unlogged: dict[str, int] = {}  # drops of each kind counted since its last line, not yet said
+        self._unlogged_said: dict[str, str] = {}  # the latest of them, as _log_drop would have said it
 
     # ------------------------------------------------------------------ backend
     def _open_impl(self) -> None:
         fd = self.fd or self.interface in _TAKES_BOTH_KINDS
         try:
-            self._bus = _open_bus(self.interface, self.channel, fd=fd, **self._bus_options)
+            self._bus = _open_bus(
+                self.interface, self.channel, fd=fd, sender_port=self._sender_port, **self._bus_options
+            )
+            self._sender_port = getattr(self._bus, "sender_port", 0)
         except (ImportError, NotImplementedError) as exc:  # no such interface here: trying again cannot help
             raise TransportRefused(
                 f"{self.url}: python-can has no {self.interface!r} interface here: {exc}"
@@ -392,6 +462,8 @@ class CanTransport(Transport):
                     break
         except LinkError as exc:  # the frames completed before the failure are handed up first
             return self._hand_up_then_fail(out, exc)
+        finally:  # after this read's own drops: one of a kind held back says the count in its own line
+            self._log_unlogged()
         return bytes(out)
 
     def _write(self, data: bytes) -> None:
@@ -462,6 +534,9 @@ class CanTransport(Transport):
                 self._log_drop(
                     "invalid", f"a received CAN message whose fields are not a CAN frame's ({_kinds(msg)})"
                 )
+            if reassembler.stats.error_frames != self._error_frames_seen:
+                self._error_frames_seen = reassembler.stats.error_frames
+                self._note_bus_trouble(msg)
             return b""
         self._note_other_node(fields)
         if self._impersonated(fields):
@@ -495,8 +570,10 @@ class CanTransport(Transport):
         """What this transport heard instead of its peer, said for the operator (empty if nothing): frames
         of the other kind (a board with another ``fd`` option), and frames towards this end from other
         node ids (a board with another ``node`` option: the handshake's timeout said only "no handshake",
-        though the board's own frames were on the bus, every one counted ``rx_ignored``)."""
-        said = ""
+        though the board's own frames were on the bus, every one counted ``rx_ignored``), and the error
+        frames (by class) and remote frames the bus carried instead (a board unplugged, a bit-rate
+        mismatch: the bus reports errors, and no frame of the board's arrives)."""
+        said = self._bus_trouble_said()
         n = self._reassembler.stats.wrong_kind
         if n > 0:
             said += f"; {self._wrong_kind_said(n)}"
@@ -508,6 +585,40 @@ class CanTransport(Transport):
                 f"; heard a {peer} on this bus as {heard}, not node {self.node}: both ends need the same "
                 "node option"
             )
+        return said
+
+    def _note_bus_trouble(self, msg: object) -> None:
+        """An error frame or a remote frame (counted ``rx_error_frames`` by the reassembler): tallied by
+        kind for :meth:`heard_instead` and logged (at most once a second per kind). Counted only, a bus
+        reporting nothing but errors — the board unplugged, a bit-rate mismatch — left both ends' logs
+        silent and the handshake's timeout saying only "no handshake"."""
+        if getattr(msg, "is_error_frame", False):
+            classes = _error_classes(msg)
+            for name in classes:
+                self._bus_trouble[name] = self._bus_trouble.get(name, 0) + 1
+            self._log_drop(
+                "error_frame", f"a CAN error frame ({', '.join(classes)}): {_ERROR_HINT} (rx_error_frames)"
+            )
+        else:
+            self._bus_trouble["remote"] = self._bus_trouble.get("remote", 0) + 1
+            self._log_drop(
+                "remote_frame",
+                f"a CAN remote frame (RTR, id {_id_said(msg)}), which this protocol never sends: a node of "
+                "another protocol on this bus? (rx_error_frames)",
+            )
+
+    def _bus_trouble_said(self) -> str:
+        """The error and remote frames heard, by kind, most first ("" if none)."""
+        if not self._bus_trouble:
+            return ""
+        remote = self._bus_trouble.get("remote", 0)
+        errors = sorted(((n, k) for k, n in self._bus_trouble.items() if k != "remote"), reverse=True)
+        said = ""
+        if errors:
+            kinds = ", ".join(f"{name} x{n}" for n, name in errors)
+            said += f"; the bus reported CAN error frames ({kinds}): {_ERROR_HINT}"
+        if remote:
+            said += f"; heard {remote} CAN remote frame(s), which this protocol never sends"
         return said
 
     def _note_other_node(self, fields: Received) -> None:
@@ -649,10 +760,30 @@ class CanTransport(Transport):
         last = self._logged_at.get(kind)
         if last is not None and now - last < _LOG_EVERY_S:
             self._unlogged[kind] = self._unlogged.get(kind, 0) + count
+            self._unlogged_said[kind] = what
             return
         self._logged_at[kind] = now
         more = self._unlogged.pop(kind, 0)
+        self._unlogged_said.pop(kind, None)
         logger.warning("%s: %s; dropped%s", self.url, what, f" ({more} more since)" if more else "")
+
+    def _log_unlogged(self) -> None:
+        """Log the drops held back by :meth:`_log_drop`'s once-a-second rate once their kind's second has
+        passed (each read looks, as it ends). Said only with the next drop of the same kind, a burst — 10 000
+        malformed frames in half a second, then quiet — left one line saying "1 ... dropped" and the rest
+        in the counters alone: the log told of one lost frame."""
+        if not self._unlogged:
+            return
+        now = time.monotonic()
+        for kind in list(self._unlogged):
+            if now - self._logged_at.get(kind, now) < _LOG_EVERY_S:
+                continue
+            more = self._unlogged.pop(kind)
+            what = self._unlogged_said.pop(kind, kind)
+            self._logged_at[kind] = now
+            logger.warning(
+                "%s: %d more dropped since the last such line, the latest: %s", self.url, more, what
+            )
 
     def _send_frame(self, wire: bytes) -> None:
         bus = self._bus
