@@ -116,6 +116,7 @@ class FilterConfig:
             bias_max=TUNED["bias_max"],
             bias_vertical=TUNED["bias_vertical"],
             gyro_delay_s=TUNED["gyro_delay_s"],
+            max_step_s=TUNED["max_step_s"],
         )
         cut = {SensorKind.ACC: TUNED["acc_cutoff"], SensorKind.MAG: TUNED["mag_cutoff"], SensorKind.GYR: None}
         base = {
@@ -143,6 +144,7 @@ TUNED: dict = {
     "mag_gate": MagneticSettings(norm_tol=0.3, dip_tol_deg=15.0, late_weight=0.5, boost=6.0),
     "motion": MotionSettings(acc_scale=2.0, calm=1.0, dynamic=1.0, rest_gain=0.5),
     "settle_s": 8.0,
+    "max_step_s": 0.006,
 }
 """Tuned settings: chosen by leave-one-trial-out over every shared trial (``python -m bench.bench_estimator
 --tune``); see docs/estimator.md, "The tuned preset"."""
