@@ -21,7 +21,7 @@ wrapped, rows of one pulse in conflict — it is as large as the data, and the f
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -65,6 +65,14 @@ Chosen by a stated procedure: the smallest value over every angle sweep the repo
 fixtures, ``hil calibrate bench`` for seeds 0..39, 4 units each, the emulator's sweeps of dispersed units)
 is 1.00 (346 ends), so the bound leaves 2.5x of margin; a flat end reads 0."""
 
+RATE_END_SLOPE = 0.2
+"""A gimbal-rate sweep's end saturates where the rows within :data:`END_FRACTION` of its side's pulse span
+(from the sweep's middle) grow the rate less than this fraction of the side's mean slope (its top rate over
+that span), fitted by a line. Lower than :data:`END_SLOPE`: the mean counts the dead zone, and a rate is
+noisier than an angle. Chosen by a stated procedure: the smallest value over every rate sweep the
+repository has (the committed fixtures, ``hil calibrate bench`` for seeds 0..39, 4 units each; 328 ends)
+is 0.48, so the bound leaves 2.4x of margin; a saturated end reads 0."""
+
 
 @dataclass(frozen=True)
 class FitOptions:
@@ -104,6 +112,8 @@ class FitReport:
     knots: int
     battery_v: tuple[float, float] | None = None
     notes: tuple[str, ...] = field(default=())
+    """What the fit did beyond fitting every row (a gimbal rate's saturated ends left out), said by
+    :meth:`summary`."""
 
     @property
     def points(self) -> int:
@@ -123,10 +133,11 @@ class FitReport:
 
     def summary(self) -> str:
         v = f", battery {self.battery_v[0]:.2f}-{self.battery_v[1]:.2f} V" if self.battery_v else ""
+        said = "".join(f"\n  note: {note}" for note in self.notes)  # rows the fit left out, and why
         return (
             f"{self.kind.value:<12} {self.points:4d} points, {self.knots:2d} knots: residual rms"
             f" {self.rms:.4g} {self.unit}, max {self.max_abs:.4g} {self.unit} (line {self.worst_line}){v}"
-        )
+        ) + said
 
 
 @dataclass(frozen=True)
@@ -239,19 +250,28 @@ def _require_rising_top(
 
 # =========================================================================== gimbal rate
 def fit_gimbal_rate(data: BenchData, opts: FitOptions) -> Fit:
-    """Dead zone edges and the rate table each side of it from (pulse, rate) samples."""
-    p = data.pulse_us
+    """Dead zone edges and the rate table each side of it from (pulse, rate) samples.
+
+    A continuous servo's rate saturates by design: where its rate stops growing at an end of the sweep
+    (:func:`_saturated_rows`) those rows are kept out of the fit and said in the report's notes, and the
+    table ends where the rate reached its top (a pulse past it is clamped there). Fitted as if the rate grew,
+    the table rose by its minimum increments over the plateau, so a rate near the top was commanded
+    anywhere on it. The report's residuals are over every row, the saturated ones against that clamp."""
     n = opts.gimbal_rate_knots_per_side
     _require_points(data, max(MIN_POINTS, 4 * n))
-    p_min, p_max = float(p.min()), float(p.max())
-    reach = p_max - p_min
-    if reach < 200.0:
-        raise CalibrationError(f"pulses only span {reach:g} µs; sweep the servo's whole range", data.path)
-    s = _direction(p, data.value)
-    r = s * data.value  # rising in pulse
-    r_top = float(np.abs(r).max())
+    p_all = data.pulse_us
+    reach_all = float(p_all.max() - p_all.min())
+    if reach_all < 200.0:
+        raise CalibrationError(f"pulses only span {reach_all:g} µs; sweep the servo's whole range", data.path)
+    s = _direction(p_all, data.value)
+    r_all = s * data.value  # rising in pulse
+    r_top = float(np.abs(r_all).max())
     if r_top < MIN_MOTION:
         raise CalibrationError(f"the gimbal never turned (its fastest: {r_top:.3g} rad/s)", data.path)
+    kept, notes = _saturated_rows(data, p_all, r_all, r_top, s)
+    p, r = p_all[kept], r_all[kept]
+    p_min, p_max = float(p.min()), float(p.max())
+    reach = p_max - p_min
     moving = np.abs(r) > STOPPED_FRACTION * r_top
     neg, pos = moving & (r < 0), moving & (r > 0)
     if neg.sum() < 3 or pos.sum() < 3:
@@ -269,9 +289,10 @@ def fit_gimbal_rate(data: BenchData, opts: FitOptions) -> Fit:
         e_hi0 = 0.5 * (float(still_band.max()) + first_pos)
     else:
         e_lo0 = e_hi0 = 0.5 * (last_neg + first_pos)
-    margin = 0.05 * reach
-    lo_bounds = (p_min + margin, p_min + 0.6 * reach)
-    w_bounds = (0.5, 0.3 * reach)
+    # the dead zone lies near the middle of the whole sweep, not of the part fitted (a saturated end left
+    # out moves that part's middle: bounds from it excluded the dead zone, and the fit failed)
+    lo_bounds = (p_min + 0.05 * reach, float(p_all.min()) + 0.6 * reach_all)
+    w_bounds = (0.5, 0.3 * reach_all)
     e_lo0 = float(np.clip(e_lo0, *lo_bounds))
     width0 = float(np.clip(e_hi0 - e_lo0, w_bounds[0] * 1.01, w_bounds[1] * 0.99))
     eps = MIN_INCREMENT * r_top
@@ -306,8 +327,61 @@ def fit_gimbal_rate(data: BenchData, opts: FitOptions) -> Fit:
             MonotoneCubic.pchip(lx.tolist(), (s * ly).tolist()),
             MonotoneCubic.pchip(ux.tolist(), (s * uy).tolist()),
         )
-    fitted = np.array([rate.rate(pi).value for pi in p])
-    return Fit(rate, _report(data, fitted, "rad/s", r_top, 2 * n))
+    fitted = np.array([rate.rate(pi).value for pi in p_all])
+    return Fit(rate, replace(_report(data, fitted, "rad/s", r_top, 2 * n), notes=notes))
+
+
+def _saturated_rows(
+    data: BenchData, p: np.ndarray, r: np.ndarray, r_top: float, s: float
+) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The rows of a gimbal-rate sweep to fit (a mask) and a note for each end left out.
+
+    ``r`` (rad/s) is the rate made rising in pulse (``s`` the sign that made it so). An end whose rate
+    stops growing — a line through the rows within :data:`END_FRACTION` of that side's pulse span from the
+    sweep's middle (at least its last three pulses) grows less than :data:`RATE_END_SLOPE` of the side's
+    mean slope, as :func:`_require_moving_ends` tests an angle — is left out from the first pulse whose rate,
+    and every one's beyond it, is within the plateau's noise (3 σ, at least 0.5 % of the top rate) of the
+    plateau's level. That pulse itself is kept: the table then ends where the rate reached its top."""
+    kept = np.ones(len(p), dtype=bool)
+    notes: list[str] = []
+    middle = 0.5 * (float(p.min()) + float(p.max()))
+    for name, side in (("low", p < middle), ("high", p > middle)):
+        sign = -1.0 if name == "low" else 1.0  # the rate grows away from the middle: -r below it, r above
+        if side.sum() < 3:
+            continue
+        end = float(p[side].min()) if name == "low" else float(p[side].max())
+        outward = sign * (p[side] - middle)  # µs from the middle, towards the end
+        grown = sign * r[side]  # rad/s, growing towards the end
+        reach = float(outward.max())  # µs from the middle to the end
+        steps = np.unique(outward)
+        if steps.size < 3 or float(grown.max()) <= 0.0:  # no slope to tell; never turned so: refused later
+            continue
+        # the last END_FRACTION of the side, or its last three pulses if wider (a coarse sweep: fewer
+        # pulses there could not tell a slope from noise, and a saturated end was fitted as if it grew)
+        window = outward >= min(reach - END_FRACTION * reach, float(steps[-3]))
+        mean_slope = float(grown.max()) / reach  # rad/s per µs, from the middle (rate ~0) out
+        if float(np.polyfit(outward[window], grown[window], 1)[0]) >= RATE_END_SLOPE * mean_slope:
+            continue
+        plateau = grown[window]
+        level = float(np.median(plateau))
+        noise = 1.4826 * float(np.median(np.abs(plateau - level)))
+        floor = level - max(3.0 * noise, 0.005 * r_top)
+        below = outward[grown < floor]  # rows short of the plateau: the fit keeps up to the first past them
+        reached = outward[(grown >= floor) & (outward > (float(below.max()) if below.size else -np.inf))]
+        if not reached.size:  # the last row is short of the plateau's level: no plateau to leave out
+            continue
+        start = float(reached.min())
+        left_out = np.nonzero(side)[0][outward > start]
+        if not left_out.size:
+            continue
+        kept[left_out] = False
+        start_us = middle + sign * start
+        notes.append(
+            f"the rate stops growing at {start_us:g} µs ({sign * s * level:.4g} rad/s): the servo"
+            f" saturates at the {name} end; {left_out.size} rows ({data.rows(left_out)},"
+            f" to {end:g} µs) left out of the fit, the map ends at {start_us:g} µs"
+        )
+    return kept, tuple(notes)
 
 
 # =========================================================================== gimbal angle

@@ -10,6 +10,17 @@ import { $, fmt, shortText } from "./panels.js";
 const SEVERITY_RANK = { critical: 2, warning: 1 };
 const MATCH_T = 1e-6;  // s: an acknowledgement's raised_t names the occurrence raised at that time
 const SHOWN = 100;     // occurrences listed at most (the newest)
+// alarm_ack events kept waiting for their occurrence at most (an acknowledgement can come before the row
+// that raises it): past it the oldest waiting go, counted (acksDropped) and said beside the alarm count.
+// Unbounded, a flood of acknowledgements naming no alarm (a hostile or corrupt events.jsonl, a client
+// POSTing in a loop) grew the page's memory, and every batch of events matched all of them again.
+export const MAX_WAITING_ACKS = 1000;
+// occurrences kept at most: past it the oldest cleared ones go (down to 3/4 of it at a time, each drop a
+// copy, so rarely; an active one is never dropped), counted (occurrencesDropped, occurrencesFrom: the time
+// the oldest kept was raised) and said beside the alarm count. Unbounded, a long run's flapping alarm or
+// an events.jsonl flooded with raise/clear pairs (phone_other, phone_others_quiet) grew the page's memory
+// by every occurrence, and every acknowledgement was matched against all of them.
+export const MAX_OCCURRENCES = 20000;
 
 function outside(limit, v) {
   if (limit.op === "above") return v > limit.value;
@@ -44,7 +55,10 @@ export class Alarms {
     this.phaseIndex = index.phase;
     this.active = new Map();  // key -> the occurrence not yet cleared
     this.list = [];           // every occurrence, in the order raised
-    this.acks = [];           // alarm_ack events not yet matched to an occurrence
+    this.acks = [];           // alarm_ack events not yet matched to an occurrence (MAX_WAITING_ACKS at most)
+    this.acksDropped = 0;     // alarm_ack events that matched no occurrence, dropped past MAX_WAITING_ACKS
+    this.occurrencesDropped = 0;      // the oldest cleared occurrences dropped past MAX_OCCURRENCES
+    this.occurrencesFrom = -Infinity;  // when the oldest occurrence kept was raised, once some were dropped
     this.version = 0;         // bumped on every change (the panel redraws only then)
   }
 
@@ -64,6 +78,7 @@ export class Alarms {
           const occurrence = { key: limit.key, limit, raised_t: t, cleared_t: null, peak: v, ack: null };
           this.active.set(limit.key, occurrence);
           this.list.push(occurrence);
+          this.boundList();
           this.matchAcks();
           this.version += 1;
         } else {
@@ -89,6 +104,7 @@ export class Alarms {
           const occurrence = { key: limit.key, limit, raised_t: e.t, cleared_t: null, peak: count, ack: null };
           this.active.set(limit.key, occurrence);
           this.list.push(occurrence);
+          this.boundList();
           any = true;
           this.version += 1;
         } else if (e.kind === limit.clear_on && open) {
@@ -101,12 +117,29 @@ export class Alarms {
     if (any) this.matchAcks();
   }
 
+  // Past MAX_OCCURRENCES, the oldest cleared occurrences go (down to 3/4 of it), counted.
+  boundList() {
+    if (this.list.length <= MAX_OCCURRENCES) return;
+    let drop = this.list.length - Math.floor(MAX_OCCURRENCES * 3 / 4);
+    const kept = [];
+    for (const o of this.list) {
+      if (drop > 0 && o.cleared_t !== null) { drop -= 1; this.occurrencesDropped += 1; } else kept.push(o);
+    }
+    this.list = kept;
+    this.occurrencesFrom = kept.length ? kept[0].raised_t : Infinity;
+    this.version += 1;
+  }
+
   matchAcks() {
     const left = [];
     for (const e of this.acks) {
       const o = this.list.find((x) => x.key === e.alarm && Math.abs(x.raised_t - e.raised_t) < MATCH_T);
       if (o) { if (!o.ack) { o.ack = e; this.version += 1; } } else left.push(e);
     }
+    // the oldest waiting go first: an acknowledgement follows the row that raised its alarm, so the newest
+    // are the ones an occurrence still to come (its row not yet received) may claim
+    const over = left.length - MAX_WAITING_ACKS;
+    if (over > 0) { left.splice(0, over); this.acksDropped += over; this.version += 1; }
     this.acks = left;
   }
 
@@ -181,7 +214,9 @@ export class AlarmPanel {
     const text = `${activeCount ? `${activeCount} active` : rows.length ? "none active" : "none"}${stale ? `, as of ${staleAge.toFixed(1)} s ago` : ""}`;
     if (badge.textContent !== `alarms: ${text}`) badge.textContent = `alarms: ${text}`;
     badge.className = `badge ${worst === "critical" ? "bad" : worst === "warning" ? "stale" : stale ? "" : "live"}`;
-    $("alarm-count").textContent = `(${activeCount} active, ${unacked} not acknowledged)`;
+    const occurrences = alarms && alarms.occurrencesDropped ? `; ${alarms.occurrencesDropped} older cleared alarms dropped by this page (before t ${fmt(alarms.occurrencesFrom, 2)} s)` : "";
+    const dropped = `${occurrences}${alarms && alarms.acksDropped ? `; ${alarms.acksDropped} acknowledgements naming no alarm dropped by this page` : ""}`;
+    $("alarm-count").textContent = `(${activeCount} active, ${unacked} not acknowledged${dropped})`;
     // the same key of another run's alarms (a new run on the page: its own list, its version from 0 again)
     // is another table: the old run's rows were kept
     if (key === this.key && alarms === this.drawn) return;
