@@ -197,8 +197,18 @@ class PhoneGuard:
             if reason is not None:
                 return self._drop(reason)
         newest = self.newest
-        ahead = newest + JUMP_S + (0.0 if now is None else max(now - self._newest_at, 0.0))
-        if newest > -math.inf and (t < newest - JUMP_S or t > ahead or self._ahead_of_host(t, now)):
+        if now is None:
+            ahead = newest + JUMP_S + 0.0
+            early = False
+        else:
+            # Per reading (issue 29): _ahead_of_host's test spelt out here, not called, and max(d, 0.0) as
+            # `0.0 if d < 0.0 else d` (no builtin call; the same for NaN and -0.0: d unless 0.0 > d).
+            # Evaluated whether or not the test above needs it: it has no side effects.
+            since = now - self._newest_at
+            ahead = newest + JUMP_S + (0.0 if since < 0.0 else since)
+            held = now - self._offset_at
+            early = now - t < self._offset - CLOCK_RATE_SLACK * (0.0 if held < 0.0 else held) - JUMP_S
+        if newest > -math.inf and (t < newest - JUMP_S or t > ahead or early):
             side = -1 if t < newest else 1
             if self._run_side != side or not self._run_last <= t <= self._run_last + JUMP_S:
                 self._run_side, self._run_count, self._run_first = side, 0, t  # (re)start the run
@@ -232,7 +242,9 @@ class PhoneGuard:
     def _ahead_of_host(self, t: float, now: float | None) -> bool:
         """Whether a reading stamped ``t`` (the phone's clock, s) that came at ``now`` (host s) is more
         than :data:`JUMP_S` ahead of the host's clock: its host-minus-stamp offset below the reference's
-        (:data:`CLOCK_RATE_SLACK`). No host time, or no reference yet: not."""
+        (:data:`CLOCK_RATE_SLACK`). No host time, or no reference yet: not. :meth:`admit` spells this test
+        out in line (a call per reading, issue 29); this is its reference, which
+        ``tests/test_hunt9_k_admission_inline.py`` holds it to."""
         if now is None:
             return False
         slid = CLOCK_RATE_SLACK * max(now - self._offset_at, 0.0)

@@ -18,8 +18,9 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from ..compiled import fast_constructor
 from ..errors import CalibrationError
 from .checks import F32_MAX, f32, finite32
 from .conversion import Clamp, Conversion
@@ -36,6 +37,37 @@ _U32 = struct.Struct("<I")
 _SLOPE_SLACK = f32(1.0 + f32(SLOPE_TOLERANCE))  # the firmware's ``1.0f + SLOPE_TOLERANCE``
 _BIG_VALUE = 2.0**64
 _SMALL_VALUE = 2.0**-64
+_conversion = fast_constructor(Conversion)
+"""``Conversion(value, clamp)`` by setting its slots, not through the frozen dataclass's ``__init__``
+(``object.__setattr__`` per field): one per conversion, ~7 000 gimbal pulses a default run."""
+_NONE = Clamp.NONE
+
+_Interval = tuple[float, float, float, float, float, float, float]
+"""One interval's constants: (x0, h, y0, y1 - y0, a1, a2, a3), each computed as the reference's
+:meth:`MonotoneCubic.evaluate_reference` / :meth:`MonotoneCubic.solve_reference` compute it per call."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Plan:
+    """What a table's conversions compute from the table alone, computed once
+    (:meth:`MonotoneCubic._plan_of`): a table is immutable, so these are the bits the reference recomputes
+    at every call. ``first``, ``last``: x's ends; ``s`` (±1.0: rising or falling), ``lo``/``hi`` (the
+    value range); the clamped answers as
+    :class:`Conversion` objects (immutable: one each, shared); per interval its constants
+    (:data:`_Interval`), and y at the interval's right knot for the inverse's search."""
+
+    first: float
+    last: float
+    s: float
+    lo: float
+    hi: float
+    below_x: Conversion  # evaluate: x < x[0]
+    above_x: Conversion  # evaluate: x > x[-1]
+    below_y: Conversion  # solve: y < lo
+    above_y: Conversion  # solve: y > hi
+    intervals: tuple[_Interval, ...]
+    right_x: tuple[float, ...]  # x[k + 1] of interval k
+    right_y: tuple[float, ...]  # y[k + 1] of interval k
 
 
 @dataclass(frozen=True, slots=True)
@@ -50,6 +82,8 @@ class MonotoneCubic:
     x: tuple[float, ...]
     y: tuple[float, ...]
     slopes: tuple[float, ...]
+    _plan: _Plan | None = field(default=None, init=False, repr=False, compare=False, hash=False)
+    """The table's per-interval constants for :meth:`evaluate` and :meth:`solve` (built with the table)."""
 
     def __post_init__(self) -> None:
         x = tuple(finite32(v, f"x[{k}]") for k, v in enumerate(self.x))
@@ -73,6 +107,33 @@ class MonotoneCubic:
         object.__setattr__(self, "x", x)
         object.__setattr__(self, "y", y)
         object.__setattr__(self, "slopes", m)
+        object.__setattr__(self, "_plan", self._plan_of())
+
+    def _plan_of(self) -> _Plan:
+        """The table's :class:`_Plan`: each number by the very operations the reference performs per call
+        (``x[k + 1] - x[k]``, :meth:`_coefficients`), so a conversion through it gives the same bits."""
+        xs, ys = self.x, self.y
+        intervals = []
+        for k in range(len(xs) - 1):
+            h = xs[k + 1] - xs[k]
+            y0, a1, a2, a3 = self._coefficients(k, h)
+            intervals.append((xs[k], h, y0, ys[k + 1] - y0, a1, a2, a3))
+        rising = self.rising
+        lo, hi = self.y_range
+        return _Plan(
+            first=xs[0],
+            last=xs[-1],
+            s=1.0 if rising else -1.0,
+            lo=lo,
+            hi=hi,
+            below_x=Conversion(ys[0], Clamp.LOW),
+            above_x=Conversion(ys[-1], Clamp.HIGH),
+            below_y=Conversion(xs[0] if rising else xs[-1], Clamp.LOW),
+            above_y=Conversion(xs[-1] if rising else xs[0], Clamp.HIGH),
+            intervals=tuple(intervals),
+            right_x=xs[1:],
+            right_y=ys[1:],
+        )
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -106,7 +167,50 @@ class MonotoneCubic:
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, x: float) -> Conversion:
-        """y(x); ``x`` outside ``[x[0], x[-1]]`` is clamped to the nearest end and flagged."""
+        """y(x); ``x`` outside ``[x[0], x[-1]]`` is clamped to the nearest end and flagged.
+
+        :meth:`evaluate_reference`'s operations on the table's precomputed constants (:class:`_Plan`):
+        the same bits for every input, NaN included (``tests/test_hunt9_k_calibration_plan.py``)."""
+        plan = self._plan
+        assert plan is not None  # set by __post_init__
+        if x < plan.first:
+            return plan.below_x
+        if x > plan.last:
+            return plan.above_x
+        k = 0
+        last = len(plan.intervals) - 1
+        right = plan.right_x
+        while k < last and x >= right[k]:
+            k += 1
+        x0, h, y0, _, a1, a2, a3 = plan.intervals[k]
+        t = (x - x0) / h
+        return _conversion(y0 + t * (a1 + t * (a2 + t * a3)), _NONE)
+
+    def solve(self, y: float) -> Conversion:
+        """The x with y(x) = ``y`` (the inverse). ``y`` outside the table's value range is clamped to the
+        end of ``x`` holding the nearest value and flagged LOW/HIGH by ``y``'s side.
+
+        :meth:`solve_reference`'s operations on the table's precomputed constants (:class:`_Plan`): the
+        same bits for every input, NaN included (``tests/test_hunt9_k_calibration_plan.py``)."""
+        plan = self._plan
+        assert plan is not None  # set by __post_init__
+        if y < plan.lo:
+            return plan.below_y
+        if y > plan.hi:
+            return plan.above_y
+        s = plan.s
+        k = 0
+        last = len(plan.intervals) - 1
+        right = plan.right_y
+        while k < last and s * (y - right[k]) > 0.0:
+            k += 1
+        x0, h, y0, d, a1, a2, a3 = plan.intervals[k]
+        t = _solve_interval(y - y0, s, a1, a2, a3, (y - y0) / d)
+        return _conversion(x0 + t * h, _NONE)
+
+    def evaluate_reference(self, x: float) -> Conversion:
+        """The reference of :meth:`evaluate` (``docs/calibration.md`` §2, what a C port follows), kept as
+        its tests' oracle: y(x); ``x`` outside ``[x[0], x[-1]]`` is clamped to the nearest end and flagged."""
         xs = self.x
         if x < xs[0]:
             return Conversion(self.y[0], Clamp.LOW)
@@ -121,9 +225,10 @@ class MonotoneCubic:
         y0, a1, a2, a3 = self._coefficients(k, h)
         return Conversion(y0 + t * (a1 + t * (a2 + t * a3)))
 
-    def solve(self, y: float) -> Conversion:
-        """The x with y(x) = ``y`` (the inverse). ``y`` outside the table's value range is clamped to the
-        end of ``x`` holding the nearest value and flagged LOW/HIGH by ``y``'s side."""
+    def solve_reference(self, y: float) -> Conversion:
+        """The reference of :meth:`solve` (``docs/calibration.md`` §2, what a C port follows), kept as its
+        tests' oracle: the x with y(x) = ``y`` (the inverse). ``y`` outside the table's value range is
+        clamped to the end of ``x`` holding the nearest value and flagged LOW/HIGH by ``y``'s side."""
         ys = self.y
         lo, hi = self.y_range
         if y < lo:
