@@ -23,7 +23,9 @@ seed = 1                       # sensor noise and biases (0..2⁶³−1)
 preset = "cubesat_1u"          # or "air_bearing_testbed"
 rotor_offset_m = 0.5e-3        # σ, every unit
 nominal_rotor_speed = 400.0    # rad/s
-bus_inertia = [2e-3, 2.1e-3, 2.2e-3]   # kg m², diagonal or 3x3 (replaces the preset's)
+bus_inertia = [2e-3, 2.1e-3, 2.2e-3]   # kg m², diagonal or 3x3 (replaces the preset's); refused when
+                               # too small for the rotors' momentum: the bus would carry the gimbals away
+                               # from their servos (reader.GIMBAL_COUPLING_MARGIN; the error says the least)
 
 [array]                        # replaces the preset's geometry (its unit template is kept)
 geometry = "pyramid"           # "pyramid" | "tetrahedron" | "custom"

@@ -15,7 +15,7 @@ import re
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, value_repr
 
 MAX_DURATION_S = 86_400.0
 """The longest time a fault option may name (a day: the longest run a scenario may ask for)."""
@@ -30,14 +30,16 @@ _AT = rf"(?:@(?P<at>{_NUMBER}))?"
 
 def _time(value: float, option: str, what: str = "time") -> float:
     if not (math.isfinite(value) and 0.0 <= value <= MAX_DURATION_S):
-        raise ConfigError(f"{value!r} is not a {what} of 0..{MAX_DURATION_S:g} s", option)
+        raise ConfigError(f"{value_repr(value)} is not a {what} of 0..{MAX_DURATION_S:g} s", option)
     return value
 
 
 def _duration(value: float, option: str, positive: bool) -> float:
     if not (math.isfinite(value) and (value > 0.0 if positive else value >= 0.0) and value <= MAX_DURATION_S):
         bound = "> 0" if positive else ">= 0"
-        raise ConfigError(f"{value!r} is not a duration {bound} and at most {MAX_DURATION_S:g} s", option)
+        raise ConfigError(
+            f"{value_repr(value)} is not a duration {bound} and at most {MAX_DURATION_S:g} s", option
+        )
     return value
 
 
@@ -45,7 +47,7 @@ def _float(text: str, spec: str, option: str) -> float:
     try:
         return float(text)
     except ValueError:
-        raise ConfigError(f"{spec!r}: not a number", option) from None
+        raise ConfigError(f"{value_repr(spec)}: not a number", option) from None
 
 
 def parse_sag(
@@ -54,10 +56,10 @@ def parse_sag(
     """``AMOUNT[@AT[/RAMP]]`` → (amount ``0..limit``, at or None: now, ramp seconds)."""
     m = re.fullmatch(rf"(?P<v>{_NUMBER})(?:@(?P<at>{_NUMBER})(?:/(?P<ramp>{_NUMBER}))?)?", spec.strip())
     if not m:
-        raise ConfigError(f"{spec!r} is not AMOUNT[@AT[/RAMP]] (e.g. 6@10/5)", option)
+        raise ConfigError(f"{value_repr(spec)} is not AMOUNT[@AT[/RAMP]] (e.g. 6@10/5)", option)
     amount = _float(m["v"], spec, option)
     if not (math.isfinite(amount) and 0.0 <= amount <= limit):
-        raise ConfigError(f"{spec!r}: the amount must be 0..{limit:g}", option)
+        raise ConfigError(f"{value_repr(spec)}: the amount must be 0..{limit:g}", option)
     at = None if m["at"] is None else _time(_float(m["at"], spec, option), option)
     ramp = 0.0 if m["ramp"] is None else _duration(_float(m["ramp"], spec, option), option, positive=False)
     return amount, at, ramp
@@ -67,7 +69,7 @@ def parse_stall(spec: str, option: str = "--stall") -> tuple[float, float]:
     """``AT:DURATION`` → (at, duration > 0) seconds (a stall, a phone gap, an unplug, a USB detach)."""
     m = re.fullmatch(rf"(?P<at>{_NUMBER}):(?P<d>{_NUMBER})", spec.strip())
     if not m:
-        raise ConfigError(f"{spec!r} is not AT:DURATION (e.g. 5:2)", option)
+        raise ConfigError(f"{value_repr(spec)} is not AT:DURATION (e.g. 5:2)", option)
     at = _time(_float(m["at"], spec, option), option)
     return at, _duration(_float(m["d"], spec, option), option, positive=True)
 
@@ -78,9 +80,11 @@ def parse_numbers(spec: str, count: int, option: str, example: str) -> tuple[flo
     try:
         values = tuple(float(p) for p in parts)
     except ValueError:
-        raise ConfigError(f"{spec!r}: not numbers (e.g. {example})", option) from None
+        raise ConfigError(f"{value_repr(spec)}: not numbers (e.g. {example})", option) from None
     if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise ConfigError(f"{spec!r} is not {count} finite numbers separated by ':' (e.g. {example})", option)
+        raise ConfigError(
+            f"{value_repr(spec)} is not {count} finite numbers separated by ':' (e.g. {example})", option
+        )
     return values
 
 
@@ -90,7 +94,7 @@ def parse_noise(spec: str, option: str = "--noise") -> tuple[float, float, float
     _time(at, option)
     _duration(duration, option, positive=True)
     if not 0.0 <= p <= 1.0:
-        raise ConfigError(f"{spec!r}: {p!r} is not a probability 0..1", option)
+        raise ConfigError(f"{value_repr(spec)}: {value_repr(p)} is not a probability 0..1", option)
     return at, duration, p
 
 
@@ -99,7 +103,9 @@ def parse_jump(spec: str, option: str = "--phone-jump") -> tuple[float, float]:
     at, offset = parse_numbers(spec, 2, option, "12:-100")
     _time(at, option)
     if offset == 0.0 or abs(offset) > MAX_DURATION_S:
-        raise ConfigError(f"{spec!r}: the offset must be non-zero and within ±{MAX_DURATION_S:g} s", option)
+        raise ConfigError(
+            f"{value_repr(spec)}: the offset must be non-zero and within ±{MAX_DURATION_S:g} s", option
+        )
     return at, offset
 
 
@@ -111,7 +117,7 @@ def parse_spoof(spec: str) -> tuple[float, str]:
     except ValueError:
         t = math.nan
     if not sep or not math.isfinite(t):
-        raise ConfigError(f"{spec!r} is not AT:KIND (e.g. 12.5:huge)", "--phone-spoof")
+        raise ConfigError(f"{value_repr(spec)} is not AT:KIND (e.g. 12.5:huge)", "--phone-spoof")
     return _time(t, "--phone-spoof"), kind  # within a day, as every fault's time (1e300 never fired)
 
 
@@ -119,7 +125,7 @@ def parse_dead_esc(spec: str, option: str = "--dead-esc") -> tuple[int, float | 
     """``CHANNEL[@AT]`` → (channel, at or None: now); the channel's range is the board's to check."""
     m = re.fullmatch(r"(?P<ch>[0-9]+)" + _AT, spec.strip())
     if not m:
-        raise ConfigError(f"{spec!r} is not CHANNEL[@AT] (e.g. 1@3)", option)
+        raise ConfigError(f"{value_repr(spec)} is not CHANNEL[@AT] (e.g. 1@3)", option)
     at = None if m["at"] is None else _time(_float(m["at"], spec, option), option)
     return int(m["ch"]), at
 
@@ -128,7 +134,7 @@ def parse_probability(value: str, option: str) -> float:
     """A per-byte probability, ``0..1``."""
     p = _float(value, value, option)
     if not (math.isfinite(p) and 0.0 <= p <= 1.0):
-        raise ConfigError(f"{value!r} is not a probability 0..1", option)
+        raise ConfigError(f"{value_repr(value)} is not a probability 0..1", option)
     return p
 
 
@@ -139,7 +145,7 @@ def parse_time(value: str, option: str) -> float:
 
 def parse_direction(value: str, option: str) -> str:
     if value not in DIRECTIONS:
-        raise ConfigError(f"{value!r} is not one of {', '.join(DIRECTIONS)}", option)
+        raise ConfigError(f"{value_repr(value)} is not one of {', '.join(DIRECTIONS)}", option)
     return value
 
 
@@ -181,7 +187,7 @@ def fault_times(options: Mapping[str, Any]) -> list[tuple[str, float]]:
         if key not in TIMED:
             continue
         for item in value if isinstance(value, list) else [value]:
-            times.append((f"{key} = {item!r}", TIMED[key](FAULT_OPTIONS[key](str(item), key))))
+            times.append((f"{key} = {value_repr(item)}", TIMED[key](FAULT_OPTIONS[key](str(item), key))))
     return times
 
 

@@ -21,7 +21,7 @@ from hil.estimation.sensors import SensorKind
 from hil.numbers import MAX_SEED, is_finite_number
 from hil.scenario.fault_specs import check_fault_options
 from hil.vscmg import SpacecraftParams
-from protocol.errors import ConfigError
+from protocol.errors import ConfigError, value_repr
 
 from .config import LoopConfig, SlewScenario
 from .model import Scenario
@@ -383,6 +383,70 @@ def zero_momentum_gimbal_angles(spacecraft: SpacecraftParams, iterations: int = 
     return min(found, key=lambda angles: float(np.linalg.norm(angles))) if found else None
 
 
+GIMBAL_COUPLING_MARGIN = 2.0 / 3.0
+"""The most the gimbal-bus coupling λ (:func:`gimbal_bus_coupling`, 1/s) may be of the gimbal servo's rate
+1/τ_g: λ τ_g ≤ 2/3. Each gimbal's rate servo (``hil.control.motor_loops.ServoParams``, the world's drive law
+``u = I_g (γ̇_sp − γ̇)/τ_g`` with the gyroscopic load rejected) turns its gimbal against the bus, and the bus
+turns back under it: a gimbal rate γ̇ⱼ moves the array's momentum by h̄ tⱼ γ̇ⱼ, the bus takes the opposite,
+``ω̇ = −h̄ J⁻¹ T γ̇``, and each gimbal, whose conjugate momentum is ``I_g (γ̇ᵢ + gᵢ·ω)``, is carried along by
+``gᵢ·ω̇``. Linearised, ``γ̈ = −γ̇/τ_g + h̄ Gᵀ J⁻¹ T γ̇``: the gimbals' mode along the coupling's largest
+eigenvalue λ decays at ``1/τ_g − λ`` — unstable beyond λ τ_g = 1, and at λ τ_g = 2/3 already three times as
+slow as the servo alone (its time constant τ_g/(1 − λ τ_g)), too slow for the host's steering, which
+expects the gimbals to follow within τ_g. Measured on the 1U CubeSat (``hil run``, 90 deg slew): λ τ_g of
+0.18 (the shipped 2e-3 kg m²), 0.56 and 0.62 settled in 22 s; 0.74 only at the run's end; 0.75 ended 10 deg
+off; 0.83-0.93 (a bus of 3e-4 kg m²: h̄/J 13 rad/s) tumbled, the gimbals racing away from their commanded
+rates, and "completed" 179 deg off."""
+
+
+def gimbal_bus_coupling(spacecraft: SpacecraftParams, gimbal_angles: np.ndarray) -> float:
+    """λ (1/s): the largest real part of the eigenvalues of ``h̄ Gᵀ J⁻¹ T`` at ``gimbal_angles`` (n,) rad —
+    ``G`` the gimbal axes (n, 3), ``T`` the transverse axes ``gᵢ × sᵢ`` (n, 3), ``J`` the locked inertia about
+    the centre of mass (kg m²), h̄ the nominal wheel momentum (N m s): how fast a gimbal's motion, through
+    the bus it turns, drives the gimbals' own rates (:data:`GIMBAL_COUPLING_MARGIN`). It grows as h̄/J: a
+    small bus, fast rotors."""
+    from hil.vscmg.plant_model import PlantModel
+
+    plant = PlantModel(spacecraft)
+    inertia = plant.locked_inertia(plant.state(gimbal_angle=gimbal_angles))[0]
+    return _coupling(spacecraft, gimbal_angles, inertia)
+
+
+def _coupling(spacecraft: SpacecraftParams, gimbal_angles: np.ndarray, inertia: np.ndarray) -> float:
+    """:func:`gimbal_bus_coupling` at a given locked inertia (3, 3) kg m²."""
+    from hil.vscmg.geometry import spin_axes_at
+
+    gimbal_axes = np.array([u.gimbal_axis for u in spacecraft.units], dtype=float)
+    transverse = np.cross(gimbal_axes, spin_axes_at(spacecraft.units, gimbal_angles))
+    coupling = spacecraft.nominal_wheel_momentum * gimbal_axes @ np.linalg.solve(inertia, transverse.T)
+    return float(np.max(np.linalg.eigvals(coupling).real))
+
+
+def least_bus_scale(spacecraft: SpacecraftParams, gimbal_angles: np.ndarray, gimbal_tau_s: float) -> float:
+    """The factor the bus inertia must be scaled by (> 1) for the coupling to meet
+    :data:`GIMBAL_COUPLING_MARGIN` with a gimbal servo of time constant ``gimbal_tau_s`` (s), the units'
+    own inertia kept: bisected on the scale (λ falls as the bus grows); 1.0 when it already does."""
+    from hil.vscmg.params import inertia_tensor
+    from hil.vscmg.plant_model import PlantModel
+
+    plant = PlantModel(spacecraft)
+    locked = plant.locked_inertia(plant.state(gimbal_angle=gimbal_angles))[0]
+    bus = inertia_tensor(spacecraft.bus_inertia, "bus_inertia")
+    limit = GIMBAL_COUPLING_MARGIN / gimbal_tau_s
+
+    def fits(scale: float) -> bool:
+        return _coupling(spacecraft, gimbal_angles, locked + (scale - 1.0) * bus) <= limit
+
+    if fits(1.0):
+        return 1.0
+    low, high = 1.0, 2.0
+    while not fits(high):  # λ falls as 1/scale once the bus dominates: a few doublings
+        low, high = high, high * 2.0
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        low, high = (low, middle) if fits(middle) else (middle, high)
+    return high
+
+
 class _Reader:
     """Walks the TOML document table by table; every error names ``file: table.key``."""
 
@@ -391,7 +455,10 @@ class _Reader:
         self.where = where
         unknown = set(doc) - {k for k in _KEYS if "." not in k}
         if unknown:
-            raise ConfigError(f"unknown table(s) {sorted(unknown)}; known: {sorted(_KEYS)}", where)
+            shown = value_repr(sorted(unknown))
+            raise ConfigError(
+                f"unknown table(s) {shown}; known: {sorted(k for k in _KEYS if '.' not in k)}", where
+            )
 
     def table(self, name: str, keys: str | None = None) -> dict[str, Any]:
         parts = name.split(".")
@@ -403,7 +470,9 @@ class _Reader:
         allowed = _KEYS[keys or name]
         for key in node:
             if key not in allowed:
-                raise self.error(f"{name}.{key}", f"unknown key; known: {', '.join(sorted(allowed))}")
+                raise self.error(
+                    f"{name}.{_key_shown(key)}", f"unknown key; known: {', '.join(sorted(allowed))}"
+                )
         return node
 
     def error(self, key: str, detail: str) -> ConfigError:
@@ -416,9 +485,9 @@ class _Reader:
         within its :data:`RANGES`."""
         value = tbl.get(key, default)
         if not is_finite_number(value):
-            raise self.error(f"{table}.{key}", f"must be a number, got {value!r}")
+            raise self.error(f"{table}.{key}", f"must be a number, got {value_repr(value)}")
         if positive and value <= 0:
-            raise self.error(f"{table}.{key}", f"must be positive, got {value!r}")
+            raise self.error(f"{table}.{key}", f"must be positive, got {value_repr(value)}")
         self.in_range(table, key, value)
         return float(value)
 
@@ -432,16 +501,18 @@ class _Reader:
             why = RANGE_REASONS.get(f"{pattern}.{key}")
             raise self.error(
                 f"{table}.{key}",
-                f"must be within {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {value!r}"
+                f"must be within {lo:g}..{hi:g}{' ' + unit if unit else ''}, got {value_repr(value)}"
                 + (f": {why}" if why else ""),
             )
 
     def vector(self, tbl: dict[str, Any], table: str, key: str, shape: tuple[int, ...]) -> np.ndarray:
         arr = _numbers(tbl[key])
         if arr is None:
-            raise self.error(f"{table}.{key}", f"must be numbers, got {tbl[key]!r}")
+            raise self.error(f"{table}.{key}", f"must be numbers, got {value_repr(tbl[key])}")
         if arr.shape != shape or not np.all(np.isfinite(arr)):
-            raise self.error(f"{table}.{key}", f"must be finite numbers of shape {shape}, got {tbl[key]!r}")
+            raise self.error(
+                f"{table}.{key}", f"must be finite numbers of shape {shape}, got {value_repr(tbl[key])}"
+            )
         for element in arr.ravel():
             self.in_range(table, key, float(element))
         return arr
@@ -449,7 +520,9 @@ class _Reader:
     def choice(self, tbl: dict[str, Any], table: str, key: str, options: tuple[str, ...]) -> str:
         value = tbl.get(key, options[0])
         if value not in options:
-            raise self.error(f"{table}.{key}", f"must be one of {', '.join(options)}; got {value!r}")
+            raise self.error(
+                f"{table}.{key}", f"must be one of {', '.join(options)}; got {value_repr(value)}"
+            )
         return str(value)
 
     def text(
@@ -486,14 +559,17 @@ class _Reader:
         name = self.text(head, "scenario", "name", limit=MAX_NAME_CHARS, one_line=True)
         seed = head.get("seed", 0)
         if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
-            raise self.error("scenario.seed", f"must be an integer in 0..{MAX_SEED}, got {seed!r}")
+            raise self.error("scenario.seed", f"must be an integer in 0..{MAX_SEED}, got {_seed_shown(seed)}")
         spacecraft = self.spacecraft()
         loop = self.controller()
         duration = self.number(head, "scenario", "duration_s", 40.0)
         if duration > MAX_DURATION_S:
-            raise self.error("scenario.duration_s", f"must be at most {MAX_DURATION_S:g} s, got {duration!r}")
+            raise self.error(
+                "scenario.duration_s", f"must be at most {MAX_DURATION_S:g} s, got {value_repr(duration)}"
+            )
         check_run_length(loop.warmup_s, duration, loop.plant_step_s, f"{self.where}: scenario.duration_s")
         slew, settle = self.manoeuvre(spacecraft, duration)
+        self.check_gimbal_coupling(spacecraft, slew, loop)
         board = self.options("board")
         for key, value in board.items():
             lo, hi, kind = BOARD_RANGES[key]
@@ -502,7 +578,7 @@ class _Reader:
             )
             if not ok or not (math.isfinite(value) and lo <= value <= hi):
                 what = "an integer" if kind is int else "a number"
-                raise self.error(f"board.{key}", f"must be {what} in {lo:g}..{hi:g}, got {value!r}")
+                raise self.error(f"board.{key}", f"must be {what} in {lo:g}..{hi:g}, got {value_repr(value)}")
         soc = board.get("soc")
         if soc is not None and soc < MIN_RUN_SOC:
             raise self.error(
@@ -553,6 +629,36 @@ class _Reader:
             path=path,
         )
 
+    def check_gimbal_coupling(
+        self, spacecraft: SpacecraftParams, slew: SlewScenario, loop: LoopConfig
+    ) -> None:
+        """Refuse a spacecraft whose gimbals the bus would carry away from their servos
+        (:data:`GIMBAL_COUPLING_MARGIN`): a bus too small for its rotors' momentum. The error names
+        ``spacecraft.bus_inertia`` (else ``nominal_rotor_speed``, else the array, whichever the file set)
+        and the least bus inertia that would do at this momentum."""
+        from hil.vscmg.params import inertia_tensor
+
+        gimbals = np.asarray(slew.gimbal_angle0, dtype=float) * np.ones(spacecraft.n_units)
+        tau = loop.servo.gimbal_time_constant_s
+        coupling = gimbal_bus_coupling(spacecraft, gimbals)
+        if coupling * tau <= GIMBAL_COUPLING_MARGIN:
+            return
+        sc = self.doc.get("spacecraft", {})
+        key = next((f"spacecraft.{k}" for k in ("bus_inertia", "nominal_rotor_speed") if k in sc), "array")
+        scale = least_bus_scale(spacecraft, gimbals, tau)
+        least = scale * np.diag(inertia_tensor(spacecraft.bus_inertia, "bus_inertia"))
+        diagonal = ", ".join(f"{_round_up(m):g}" for m in least)
+        raise self.error(
+            key,
+            f"the bus is too small for its rotors' momentum: a gimbal's motion turns the bus, which carries "
+            f"the gimbals with it at λ = {coupling:.3g} 1/s (h̄ = {spacecraft.nominal_wheel_momentum:.3g} "
+            f"N m s over the locked inertia), against their servos' 1/τ_g = {1.0 / tau:g} 1/s: λ τ_g = "
+            f"{coupling * tau:.2f}, beyond {GIMBAL_COUPLING_MARGIN:.2f} the gimbals no longer follow their "
+            "commands (unstable beyond 1) and the run tumbles; give a bus inertia at least "
+            f"{_round_up(scale):g} times this one (a diagonal of [{diagonal}] kg m²), or slower rotors "
+            "(spacecraft.nominal_rotor_speed)",
+        )
+
     def estimator(self) -> EstimatorChoice:
         """``[estimator]``: ``kind`` (default ``variational``) and that kind's own settings, which the kind
         checks (:class:`~hil.estimation.registry.EstimatorChoice`): an unknown key, a bad value or a
@@ -561,8 +667,11 @@ class _Reader:
         if not isinstance(tbl, dict):
             raise self.error("estimator", "must be a table")
         kind = tbl.get("kind", DEFAULT_ESTIMATOR)
-        if not isinstance(kind, str):
-            raise self.error("estimator.kind", f"must be an estimator's name, got {kind!r}")
+        if not isinstance(kind, str) or len(kind) > MAX_NAME_CHARS:
+            raise self.error("estimator.kind", f"must be an estimator's name, got {value_repr(kind)}")
+        for key in tbl:  # the kind checks its own keys, and says an unknown one whole
+            if len(key) > MAX_NAME_CHARS:
+                raise self.error(f"estimator.{_key_shown(key)}", "unknown key (longer than any name)")
         settings = {key: value for key, value in tbl.items() if key != "kind"}
         return EstimatorChoice(kind, settings, f"{self.where}: estimator")
 
@@ -612,8 +721,8 @@ class _Reader:
         for key in arr:
             if key not in takes:  # dropped unsaid, it was an array other than the one written
                 raise self.error(
-                    f"array.{key}",
-                    f"not a key of geometry {kind!r}, which takes {', '.join(sorted(takes))}"
+                    f"array.{_key_shown(key)}",
+                    f"not a key of geometry {value_repr(kind)}, which takes {', '.join(sorted(takes))}"
                     + ("" if "geometry" in arr else " (geometry not given: pyramid)"),
                 )
         template = params.units[0]
@@ -621,13 +730,14 @@ class _Reader:
             if kind == "pyramid":
                 n = arr.get("units", 4)
                 if not isinstance(n, int) or isinstance(n, bool) or not 2 <= n <= 8:
-                    raise self.error("array.units", f"must be an integer 2..8, got {n!r}")
+                    raise self.error("array.units", f"must be an integer 2..8, got {value_repr(n)}")
                 skew_deg = self.number(arr, "array", "skew_deg", math.degrees(geometry.PYRAMID_BETA))
                 if not MIN_SKEW_DEG <= skew_deg <= 90.0 - MIN_SKEW_DEG:
                     raise self.error(
                         "array.skew_deg",
-                        f"must be within {MIN_SKEW_DEG:g}..{90 - MIN_SKEW_DEG:g} deg, got {skew_deg!r}: the "
-                        "pyramid degenerates towards 0 deg (gimbal axes parallel) and 90 deg (coplanar)",
+                        f"must be within {MIN_SKEW_DEG:g}..{90 - MIN_SKEW_DEG:g} deg, got "
+                        f"{value_repr(skew_deg)}: the pyramid degenerates towards 0 deg (gimbal axes "
+                        "parallel) and 90 deg (coplanar)",
                     )
                 skew = math.radians(skew_deg)
                 return geometry.pyramid(n, skew, radius_m=0.025, height_m=-0.02, template=template)
@@ -776,7 +886,7 @@ class _Reader:
         def rotation(axis_key: str, angle_key: str, default_angle: float) -> np.ndarray:
             degrees = self.number(m, "manoeuvre", angle_key, default_angle, positive=False)
             if abs(degrees) > MAX_ANGLE_DEG:
-                what = f"must be within ±{MAX_ANGLE_DEG:g} deg, got {degrees!r}"
+                what = f"must be within ±{MAX_ANGLE_DEG:g} deg, got {value_repr(degrees)}"
                 raise self.error(f"manoeuvre.{angle_key}", what)
             # an axis given is checked whether or not its angle turns about it: `initial_axis = "north"` (or
             # [nan, 0, 1]) without an initial_angle_deg was read as nothing and passed without a word
@@ -852,9 +962,29 @@ class _Reader:
                 isinstance(v, int | float | str) and not isinstance(v, bool) for v in values
             ):
                 raise self.error(
-                    f"{name}.{key}", f"must be a number, a string or a list of them; got {value!r}"
+                    f"{name}.{key}", f"must be a number, a string or a list of them; got {value_repr(value)}"
                 )
         return dict(tbl)
+
+
+def _key_shown(key: str) -> str:
+    """A TOML key as an error's ``where`` names it: whole up to :data:`MAX_NAME_CHARS` characters, else
+    through :func:`~protocol.errors.value_repr` (a key of megabytes made a message of megabytes)."""
+    return key if len(key) <= MAX_NAME_CHARS else value_repr(key)
+
+
+def _seed_shown(seed: object) -> str:
+    """A refused ``scenario.seed`` as the error says it: an integer spelled out whole, as the command
+    line's ``--seed`` says it (the TOML loader holds integers within a float's range: at most 309 digits),
+    anything else through :func:`~protocol.errors.value_repr`."""
+    return str(seed) if isinstance(seed, int) and not isinstance(seed, bool) else value_repr(seed)
+
+
+def _round_up(value: float, digits: int = 3) -> float:
+    """``value`` (> 0) rounded up to ``digits`` significant figures: a least value said that rounding down
+    would put back under its bound."""
+    scale = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
+    return math.ceil(value / scale * (1.0 - 1e-12)) * scale
 
 
 def _numbers(value: Any) -> np.ndarray | None:
