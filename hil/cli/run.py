@@ -537,6 +537,7 @@ def checked_summary(s: dict) -> tuple[str, list[str]]:  # type: ignore[type-arg]
         f"link              lost {f.count('link_lost')}  reconnects {f.count('reconnects')}  "
         f"stale {f.count('stale_episodes')}  phone gaps {f.count('phone_gaps')}",
     ]
+    lines += requirement_lines(s)
     lines += final_disarm_lines(s)
     lines += phone_lines(s)
     lines += operator_lines(s)
@@ -604,6 +605,24 @@ class _Figures:
         if isinstance(value, bool):
             return "met" if value else "NOT met"
         return self._bad(key, value, "true or false")
+
+
+REQUIREMENT_SHOWN = 400
+"""Characters of a missed requirement's reasons the summary shows (summary.json holds them whole)."""
+
+
+def requirement_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
+    """Why the run missed its pointing requirement, when it did (``requirement.why``: the operator, the
+    faults, the link, a recovery too late — or nothing in the record: the controller did not settle). The
+    settle line says "NOT met"; before, what explains it was in summary.json alone, and a run that ended
+    far off its target printed ``exit completed`` and no word of why."""
+    req = s.get("requirement")
+    if not isinstance(req, dict) or req.get("met") is not False or not isinstance(req.get("why"), str):
+        return []
+    why = req["why"]
+    if len(why) > REQUIREMENT_SHOWN:
+        why = why[:REQUIREMENT_SHOWN] + "… (summary.json holds the rest)"
+    return [f"requirement       NOT met: {why}"]
 
 
 def final_disarm_lines(s: dict) -> list[str]:  # type: ignore[type-arg]
