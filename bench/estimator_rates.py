@@ -18,8 +18,9 @@ import sys
 
 import numpy as np
 
-from bench.bench_estimator import Trial, _trial_of, load_trials, score, vqf_quats
-from hil.estimation.filter import AttitudeFilter, FilterConfig
+from bench.bench_estimator import Trial, _trial_of, load_trials
+from bench.estimator_choice import choose
+from hil.estimation.filter import FilterConfig
 from hil.estimation.sensors import SensorLog, SensorStream
 
 RATES_HZ = (None, 100.0, 50.0, 25.0)
@@ -57,27 +58,7 @@ def table(candidates: tuple[float, ...]) -> str:
         for t in load_trials(cropped=False)
         for r in RATES_HZ
     ]
-    groups = np.array([g for _, g in runs])
-    names = list(dict.fromkeys(groups))
-    vqf = np.array([score(t, vqf_quats(t)).total for t, _ in runs])
-    lines = ["max_step_s | " + " | ".join(names) + " | J", "---|" + "---|" * len(names) + "---"]
-    lines.append("VQF | " + " | ".join(f"{np.mean(vqf[groups == g]):.2f}" for g in names) + " | ")
-    best: tuple[float, float] | None = None
-    for s in candidates:
-        cfg = config(s)
-        ours = np.array([score(t, AttitudeFilter(cfg).run(t.steps).quat).total for t, _ in runs])
-        ratios = [np.mean(ours[groups == g]) / np.mean(vqf[groups == g]) for g in names]
-        j = float(max(ratios))
-        cells = [f"{np.mean(ours[groups == g]):.2f} ({r:.3f}x)" for g, r in zip(names, ratios, strict=True)]
-        lines.append(f"{s:g} | " + " | ".join(cells) + f" | {j:.4f}")
-        if s >= 1.0 / USUAL_RATE_HZ and (best is None or j < best[1] - 1e-12):
-            best = (s, j)
-    assert best is not None
-    lines.append(
-        f"\nleast J splitting no step at {USUAL_RATE_HZ:g} Hz: max_step_s = {best[0]:g} s (J {best[1]:.4f}); "
-        f"{len(runs)} cases"
-    )
-    return "\n".join(lines)
+    return choose("max_step_s", runs, candidates, config, lambda s: s >= 1.0 / USUAL_RATE_HZ)
 
 
 def main(argv: list[str] | None = None) -> int:

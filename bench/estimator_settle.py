@@ -13,10 +13,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
-from bench.bench_estimator import Trial, _trial_of, load_trials, score, vqf_quats
-from hil.estimation.filter import AttitudeFilter, FilterConfig
+from bench.bench_estimator import Trial, _trial_of, load_trials
+from bench.estimator_choice import choose
+from hil.estimation.filter import FilterConfig
 
 CUTS = (0.15, 0.30, 0.45, 0.60, 0.75)
 """Where each trial is cut to start, as fractions of its length."""
@@ -43,35 +42,7 @@ def cases() -> list[tuple[Trial, str]]:
 
 def table(settles: tuple[float, ...]) -> str:
     """One row per candidate: each group's mean total RMSE (degrees), its ratio to VQF's, and J."""
-    runs = cases()
-    groups = np.array([g for _, g in runs])
-    vqf = np.array([score(t, vqf_quats(t)).total for t, _ in runs])
-    names = sorted(set(groups))
-    lines = ["settle_s | " + " | ".join(names) + " | J", "---|" + "---|" * len(names) + "---"]
-    lines.append("VQF | " + " | ".join(f"{np.nanmean(vqf[groups == g]):.2f}" for g in names) + " | ")
-    best: tuple[float, float] | None = None
-    for s in settles:
-        ours = np.array(
-            [
-                score(t, AttitudeFilter(FilterConfig.tuned(settle_s=s)).run(t.steps).quat).total
-                for t, _ in runs
-            ]
-        )
-        both = np.isfinite(ours) & np.isfinite(vqf)  # a cut with no evaluated sample left is no case
-        ratios = [np.mean(ours[both & (groups == g)]) / np.mean(vqf[both & (groups == g)]) for g in names]
-        j = float(max(ratios))
-        cells = [
-            f"{np.mean(ours[both & (groups == g)]):.2f} ({r:.3f}x)"
-            for g, r in zip(names, ratios, strict=True)
-        ]
-        lines.append(f"{s:g} | " + " | ".join(cells) + f" | {j:.4f}")
-        if best is None or j < best[1]:
-            best = (s, j)
-    assert best is not None
-    lines.append(
-        f"\nleast J: settle_s = {best[0]:g} s (J {best[1]:.4f}); {int(np.sum(np.isfinite(vqf)))} cases"
-    )
-    return "\n".join(lines)
+    return choose("settle_s", cases(), settles, lambda s: FilterConfig.tuned(settle_s=s))
 
 
 def main(argv: list[str] | None = None) -> int:
