@@ -13,7 +13,7 @@ import time
 
 import hypothesis.strategies as st
 import pytest
-from can_support import multicast_url
+from can_support import multicast_url, read_until
 from hypothesis import HealthCheck, given, settings
 
 from firmware_sim.board import Board
@@ -27,15 +27,6 @@ from protocol.messages import Arm, Heartbeat, Hello
 
 NODE = 3
 pytestmark = pytest.mark.udp_multicast
-
-
-def _read_frames(end: CanTransport, n: int, tries: int = 40) -> bytes:
-    got = b""
-    for _ in range(tries):
-        got += end.read(0.02)
-        if got.count(0) >= n:
-            break
-    return got
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -53,7 +44,7 @@ def test_a_reopened_end_is_followed_at_once_never_taken_for_a_second_node(before
             sent = [framer.encode(Heartbeat())[1] for _ in range(before)]
             for wire in sent:
                 host.write(wire)
-            assert _read_frames(board, before) == b"".join(sent)
+            assert read_until(board, before, tries=40) == b"".join(sent)
             for gap in gaps_s:  # the client's reconnection, at drawn moments
                 host.close()
                 time.sleep(gap)
@@ -61,7 +52,7 @@ def test_a_reopened_end_is_followed_at_once_never_taken_for_a_second_node(before
                 sent = [framer.encode(Hello() if k == 0 else Arm())[1] for k in range(after)]
                 for wire in sent:
                     host.write(wire)
-                assert _read_frames(board, after) == b"".join(sent)  # every one, at once
+                assert read_until(board, after, tries=40) == b"".join(sent)  # every one, at once
             assert board.counters()["rx_other_sender"] == 0
         said = " ".join(r.getMessage() for r in caplog.records)
         assert "second host" not in said, said
@@ -73,14 +64,14 @@ def test_a_second_host_is_still_told_apart_from_a_reopened_one():
     framer = Framer()
     with CanTransport(url, sends=Direction.TO_HOST) as board, CanTransport(url) as host:
         host.write(framer.encode(Hello())[1])
-        assert _read_frames(board, 1)
+        assert read_until(board, 1, tries=40)
         host.close()
         host.open()
         with CanTransport(url) as twin:
             twin.write(framer.encode(Hello())[1])
             beat = framer.encode(Heartbeat())[1]
             host.write(beat)
-            got = _read_frames(board, 1)
+            got = read_until(board, 1, tries=40)
         assert got == beat and board.counters()["rx_other_sender"] >= 1  # each of the twin's segments
 
 
@@ -110,7 +101,7 @@ def test_the_board_s_can_server_takes_a_reopened_host_s_hello_at_once():
     board = Board(BoardConfig(n_units=1, telemetry_rate_hz=20.0), WallClock())
     with CanServer(board, url) as server, CanTransport(url) as host:
         host.write(framer.encode(Hello())[1])
-        assert _read_frames(host, 1)
+        assert read_until(host, 1, tries=40)
         host.close()
         host.open()
         host.write(framer.encode(Hello())[1])
